@@ -1,0 +1,86 @@
+"""Small shared pieces: the dtype rule, cell sizes, progress, results."""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .codes import NODATA
+
+
+class Cancelled(Exception):
+    """Raised by a progress callback (or the core) to stop a run early."""
+
+
+@dataclass
+class FilterResult:
+    """What a filter returns.
+
+    Attributes
+    ----------
+    mask : ndarray of uint8
+        0 ground, 1 object, 2 low outlier, 255 nodata.
+    extras : dict of str -> ndarray
+        Per-cell side products, same rows/cols as ``mask`` (2-D, or 3-D with bands
+        first), e.g. ``"step"`` (uint8) or ``"curvature"`` (float32, 2 bands).
+    info : dict
+        Parameters actually used and statistics, for the log.
+    surface : ndarray of float32 or None
+        The method's own reference surface, when it has one (e.g. the opened surface).
+    """
+    mask: np.ndarray
+    extras: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    surface: np.ndarray = None
+
+
+def as_surface(z, name="z"):
+    """Return ``z`` as a 2-D float32 array (NaN = nodata), copying only when needed.
+
+    Raises ValueError for non-2-D, empty, or all-nodata input.
+    """
+    z = np.asarray(z)
+    if z.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D array (one band); got {z.ndim} dimensions. "
+                         "Pass a single band of the DSM.")
+    if z.size == 0:
+        raise ValueError(f"{name} is empty (shape {z.shape}); pass a raster with cells.")
+    if not np.issubdtype(z.dtype, np.number):
+        raise ValueError(f"{name} must be numeric; got dtype {z.dtype}.")
+    z = z.astype(np.float32, copy=False)
+    if not np.isfinite(z).any():
+        raise ValueError(f"{name} has no valid cell (all nodata/NaN); pass a raster with data.")
+    return z
+
+
+def as_cell_size(cell_size):
+    """Return ``(dx, dy)`` in metres as floats; a scalar means square cells."""
+    c = np.atleast_1d(np.asarray(cell_size, dtype=float)).ravel()
+    if c.size == 1:
+        c = np.array([c[0], c[0]])
+    if c.size != 2 or not np.all(np.isfinite(c)) or np.any(c <= 0):
+        raise ValueError(f"cell_size must be one or two positive numbers in metres; got {cell_size!r}.")
+    return float(c[0]), float(c[1])
+
+
+def nodata_mask(z):
+    """Boolean mask of nodata cells (NaN or inf)."""
+    return ~np.isfinite(z)
+
+
+def finish_mask(mask, z):
+    """Return ``mask`` as uint8 with 255 where ``z`` is nodata."""
+    mask = np.asarray(mask, dtype=np.uint8)
+    mask[~np.isfinite(z)] = NODATA
+    return mask
+
+
+def report(progress, fraction):
+    """Call ``progress(fraction)`` if a callback was given (it may raise Cancelled)."""
+    if progress is not None:
+        progress(min(max(float(fraction), 0.0), 1.0))
+
+
+def sub_progress(progress, start, stop):
+    """A callback mapping [0, 1] onto [start, stop] of ``progress`` (None stays None)."""
+    if progress is None:
+        return None
+    return lambda f: progress(start + (stop - start) * min(max(f, 0.0), 1.0))
