@@ -10,6 +10,38 @@ from typing import Callable
 
 
 @dataclass(frozen=True)
+class Param:
+    """One user parameter of a method (the plugin builds its dialog from these).
+
+    Attributes
+    ----------
+    name : str
+        The keyword of the core function, units in the name (``slope_threshold_deg``).
+        The Processing parameter is ``name.upper()``.
+    kind : str
+        ``"float"``, ``"int"``, ``"bool"`` or ``"enum"``.
+    default : object
+        Default value; ``None`` means "derived from the data" (by ``Method.resolve``).
+    help : str
+        One or two sentences with the unit and where the default comes from.
+    minimum, maximum : float, optional
+        Bounds for numbers.
+    options : tuple of str
+        Allowed values of an enum (the value passed to the core is the string).
+    advanced : bool
+        Shown under "Advanced parameters" in the dialog.
+    """
+    name: str
+    kind: str
+    default: object = None
+    help: str = ""
+    minimum: float = None
+    maximum: float = None
+    options: tuple = ()
+    advanced: bool = False
+
+
+@dataclass(frozen=True)
 class Method:
     """A filter method.
 
@@ -30,12 +62,21 @@ class Method:
     extras : dict
         Per-cell side products the method returns in ``FilterResult.extras``:
         ``{name: (numpy dtype, bands, nodata)}``.
+    params : tuple of Param
+        The user parameters, in dialog order.
+    title : str
+        Display name ("Slope-profile filter (Luong Chinh Ke 2002)").
+    description : str
+        Help text: what the method does, how the defaults are derived, the paper cited.
     """
     name: str
     run: Callable
     resolve: Callable
     halo: Callable
     extras: dict = field(default_factory=dict)
+    params: tuple = ()
+    title: str = ""
+    description: str = ""
 
 
 # Modules that define METHOD, in the order the plugin lists them.
