@@ -1,0 +1,671 @@
+"""Local-trend filter by Gaussian curvature (Luong Chinh Ke 2002, section 2.2).
+
+Luong Chinh Ke (2002) fits local trends of the surface to groups of neighbouring points
+along profiles in X (Y constant) and in Y (X constant), at least five points per group,
+by least squares, and gives each point the Gaussian curvature of the fitted surface
+
+    K = (r t - s^2) / h^4,      h^2 = 1 + p^2 + q^2                      (eqs. 9-16)
+
+with p = dz/dX, q = dz/dY the first and r = d2z/dX2, s = d2z/dXdY, t = d2z/dY2 the
+second derivatives. A point with ``|K| >= K_g`` lies on a break of the surface: at the foot
+or the top of an object.
+
+Two local surfaces are offered:
+
+``"quadratic"`` (default)
+    z = a + b x + c y + d x^2 + e x y + f y^2 fitted by least squares to the
+    ``window x window`` cells around every cell (Evans-Young / Zevenbergen-Thorne style):
+    p = b, q = c, r = 2 d, s = e, t = 2 f. On a regular grid the normal equations
+    separate, so every coefficient is a separable correlation kernel and the whole raster
+    is done with eight 1-D correlations (no loop per cell). Besides K it gives the mean
+    curvature H, whose sign separates convex from concave where K alone cannot.
+``"bilinear"``
+    The paper's surface z = a0 + a1 X + a2 Y + a3 X Y (eq. 12), fitted to the window of
+    ``window`` neighbouring X profiles (fitted to the points of a single profile it is
+    degenerate: with Y constant, a2 and a3 cannot be separated). Its second derivatives
+    are r = t = 0, s = a3, so K = -a3^2 / h^4 is never positive: it finds twisted
+    breaks (corners) but cannot tell convex from concave, and misses straight edges.
+
+Turning breaks into objects follows the paper's profile reasoning: along every X and
+every Y profile, the run of unmarked points between a break going up and the break
+coming down belongs to an object when it stands above the ground beyond both breaks
+(by at least the minimum object height, across a rise steeper than a wall slope). Regions
+enclosed by marked breaks whose cells are mostly such runs become whole objects. A final
+pass compares every cell with a ground surface interpolated under the objects and
+breaks, so that breaks of the terrain itself (dams, embankments, terrace edges) that
+stand on the interpolated ground go back to ground, and the feet and tops of objects go to
+the side they belong to. Concave breaks well below that surface are low blunders (code 2).
+
+Reference
+---------
+Luong Chinh Ke (2002). Filtering of DSM for generating DTM (local trend and Gaussian
+curvature, section 2.2). The curvature formulas are those of differential geometry of a
+graph surface (e.g. Zevenbergen & Thorne 1987; Evans 1980).
+"""
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND, LOW, OBJECT
+from .common import (FilterResult, as_cell_size, as_surface, finish_mask, report,
+                     sub_progress)
+from .methods import Method, Param
+
+MODELS = ("quadratic", "bilinear")
+
+#: Break threshold in robust standard deviations of the profile curvature (K_g default).
+_K_SIGMAS = 3.0
+#: Smallest height deviation (m) across a half window that counts as a break on
+#: noise-free data (floor of the derived K_g).
+_MIN_BREAK_M = 0.05
+#: Largest sample (cells) used to derive defaults on big rasters.
+_SAMPLE_CELLS = 4_000_000
+
+
+# --------------------------------------------------------------------------- curvature
+def _check_window(window):
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)):
+        if isinstance(window, float) and float(window).is_integer():
+            window = int(window)
+        else:
+            raise ValueError(f"window_cells must be an odd integer >= 3 (cells per profile "
+                             f"group; the paper uses at least 5); got {window!r}.")
+    window = int(window)
+    if window < 3 or window % 2 == 0:
+        raise ValueError(f"window_cells must be an odd integer >= 3 (cells per profile "
+                         f"group; the paper uses at least 5); got {window}. Use e.g. 5 or 7.")
+    return window
+
+
+def _check_model(model):
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}; got {model!r}. Use 'quadratic' "
+                         "(default) or 'bilinear' (the paper's eq. 12).")
+    return model
+
+
+def _fill_nodata_nearest(z):
+    """Copy of ``z`` with NaN cells replaced by their nearest valid value (or ``z``)."""
+    bad = ~np.isfinite(z)
+    if not bad.any():
+        return z
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return z[tuple(idx)]
+
+
+def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
+    """Least-squares local surface derivatives p, q, r, s, t for every cell.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (NaN = nodata; nodata cells are bridged by their nearest value for the
+        fit and get NaN derivatives).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    window : int
+        Odd window edge in cells: the number of points per profile group (the paper asks
+        for at least five).
+    model : {"quadratic", "bilinear"}
+        ``"quadratic"``: z = a + b x + c y + d x^2 + e xy + f y^2 (p=b, q=c, r=2d, s=e,
+        t=2f). ``"bilinear"``: Luong Chinh Ke (2002) eq. 12, z = a0 + a1 X + a2 Y + a3 XY
+        (p=a1, q=a2, s=a3, r=t=0).
+
+    Returns
+    -------
+    p, q, r, s, t : ndarray of float32
+        Derivatives at the window centre; x runs along columns, y along rows (down the
+        array), in metres.
+
+    Notes
+    -----
+    With centred coordinates u, v = -m..m (cells) over a full window, the columns 1, u,
+    v, uv, u^2 - c, v^2 - c (c = mean u^2) of the design matrix are mutually orthogonal,
+    so each least-squares coefficient is one separable kernel:
+    b = sum(u z) / (w A dx), d = sum((u^2 - c) z) / (w B dx^2), e = sum(uv z) / (A^2 dx dy),
+    with A = sum u^2, B = sum (u^2 - c)^2. The raster's edge is extended by odd
+    reflection (planes stay planes), so edges do not create false breaks.
+    """
+    window = _check_window(window)
+    model = _check_model(model)
+    dx, dy = as_cell_size(cell_size)
+    z = as_surface(z)
+    bad = ~np.isfinite(z)
+    zf = _fill_nodata_nearest(z)
+    m = window // 2
+    if min(z.shape) < 2:
+        zp = np.pad(zf, m, mode="edge")
+    else:
+        # odd reflection needs m < size; repeat for tiny arrays
+        zp = zf
+        left = m
+        while left > 0:
+            k = min(left, min(zp.shape) - 1)
+            zp = np.pad(zp, k, mode="reflect", reflect_type="odd")
+            left -= k
+    zp = zp.astype(np.float32, copy=False)
+    u = np.arange(-m, m + 1, dtype=np.float64)
+    c = np.mean(u * u)
+    A = np.sum(u * u)
+    B = np.sum((u * u - c) ** 2)
+    w = float(window)
+    k0 = np.ones(window)
+    k1 = u
+    k2 = u * u - c
+    crop = (slice(m, m + z.shape[0]), slice(m, m + z.shape[1]))
+
+    def corr(a, k, axis):
+        return ndimage.correlate1d(a, k, axis=axis, mode="nearest")
+
+    # profiles in X (along rows, axis 1) first, then across them in Y (axis 0)
+    x0 = corr(zp, k0, 1)
+    x1 = corr(zp, k1, 1)
+    p = corr(x1, k0, 0)[crop] * np.float32(1.0 / (w * A * dx))
+    q = corr(x0, k1, 0)[crop] * np.float32(1.0 / (w * A * dy))
+    s = corr(x1, k1, 0)[crop] * np.float32(1.0 / (A * A * dx * dy))
+    if model == "quadratic":
+        x2 = corr(zp, k2, 1)
+        r = corr(x2, k0, 0)[crop] * np.float32(2.0 / (w * B * dx * dx))
+        t = corr(x0, k2, 0)[crop] * np.float32(2.0 / (w * B * dy * dy))
+    else:
+        r = np.zeros(z.shape, np.float32)
+        t = np.zeros(z.shape, np.float32)
+    out = []
+    for a in (p, q, r, s, t):
+        a = np.ascontiguousarray(a, dtype=np.float32)
+        if bad.any():
+            a[bad] = np.nan
+        out.append(a)
+    return tuple(out)
+
+
+def curvatures_from_derivatives(p, q, r, s, t):
+    """Gaussian curvature K, mean curvature H and profile curvatures from derivatives.
+
+    Returns
+    -------
+    K : ndarray
+        ``(r t - s^2) / h^4`` with ``h^2 = 1 + p^2 + q^2`` (Luong Chinh Ke 2002, eqs.
+        9-16), in 1/m^2. K > 0: elliptic point (dome or bowl), K < 0: saddle.
+    H : ndarray
+        ``-((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)`` in 1/m, signed so that
+        H > 0 is convex (dome, top of a wall) and H < 0 concave (pit, foot of a wall).
+    kx, ky : ndarray
+        Curvatures of the X and Y profiles, ``-r / (1 + p^2)^1.5`` and
+        ``-t / (1 + q^2)^1.5`` in 1/m (same sign rule as H).
+    """
+    h2 = 1.0 + p * p + q * q
+    K = (r * t - s * s) / (h2 * h2)
+    H = -((1.0 + q * q) * r - 2.0 * p * q * s + (1.0 + p * p) * t) / (2.0 * h2 * np.sqrt(h2))
+    kx = -r / (1.0 + p * p) ** 1.5
+    ky = -t / (1.0 + q * q) ** 1.5
+    return (K.astype(np.float32, copy=False), H.astype(np.float32, copy=False),
+            kx.astype(np.float32, copy=False), ky.astype(np.float32, copy=False))
+
+
+def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
+    """Gaussian and mean curvature of a local least-squares surface at every cell.
+
+    Luong Chinh Ke (2002), section 2.2: the local trend of the surface around each point
+    is fitted by least squares to at least five neighbouring points per profile, and the
+    point's Gaussian curvature is K = (r t - s^2) / h^4, h^2 = 1 + p^2 + q^2 (eqs. 9-16).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface in metres (NaN = nodata).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    window : int
+        Odd window edge in cells (points per profile group), >= 3; default 5.
+    model : {"quadratic", "bilinear"}
+        Local surface: ``"quadratic"`` (default) or the paper's bilinear eq. 12, for which
+        r = t = 0 and K = -a3^2 / h^4 <= 0 (see :func:`local_derivatives`).
+
+    Returns
+    -------
+    K, H, p, q, r, s, t : ndarray of float32
+        Gaussian curvature (1/m^2), mean curvature (1/m, > 0 convex), and the derivatives
+        (x along columns, y down the rows). NaN at nodata cells.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> y, x = np.mgrid[0:9, 0:9].astype(float)
+    >>> K, H, *_ = compute_curvature(2 + 0.1 * x - 0.3 * y, 1.0)
+    >>> float(abs(K).max()) < 1e-6 and float(abs(H).max()) < 1e-6
+    True
+    """
+    p, q, r, s, t = local_derivatives(z, cell_size, window=window, model=model)
+    K, H, _, _ = curvatures_from_derivatives(p, q, r, s, t)
+    return K, H, p, q, r, s, t
+
+
+# --------------------------------------------------------------------------- profiles
+def _profile_objects(z, marked, valid, cell, *, max_cells, reach, h_min, tan_wall):
+    """Runs of unmarked cells along rows that stand above the ground on both sides.
+
+    A run (segment) between two marked breaks is an object when it is at most
+    ``max_cells`` long, both its neighbours are valid cells, its lowest cell is at least
+    ``h_min`` above the lowest cell within ``reach`` cells beyond each end (the foot of the
+    break), and the steepest step within that reach is steeper than ``tan_wall``.
+    Runs touching the array's edge are not judged (one side unknown).
+    """
+    rows, cols = z.shape
+    un = valid & ~marked
+    if cols < 3 or not un.any():
+        return np.zeros(z.shape, bool)
+    prev = np.zeros_like(un)
+    prev[:, 1:] = un[:, :-1]
+    nxt = np.zeros_like(un)
+    nxt[:, :-1] = un[:, 1:]
+    starts = np.flatnonzero(un & ~prev)
+    ends = np.flatnonzero(un & ~nxt)
+    cs = starts % cols
+    ce = ends % cols
+    ok = (cs > 0) & (ce < cols - 1) & (ce - cs + 1 <= max_cells)
+    starts, ends, cs, ce = starts[ok], ends[ok], cs[ok], ce[ok]
+    if starts.size == 0:
+        return np.zeros(z.shape, bool)
+    vflat = valid.ravel()
+    ok = vflat[starts - 1] & vflat[ends + 1]
+    starts, ends = starts[ok], ends[ok]
+    if starts.size == 0:
+        return np.zeros(z.shape, bool)
+    zinf = np.where(valid, z, np.inf).astype(np.float32)
+    zflat = np.append(zinf.ravel(), np.float32(np.inf))
+    idx = np.empty(2 * starts.size, np.int64)
+    idx[0::2] = starts
+    idx[1::2] = ends + 1
+    seg_min = np.minimum.reduceat(zflat, idx)[0::2]
+    # foot heights beyond each end: min over [s - R, s - 1] and [e + 1, e + R]
+    size = 2 * reach + 1
+    tmin = ndimage.minimum_filter1d(zinf, size, axis=1, mode="nearest", origin=reach).ravel()
+    lmin = ndimage.minimum_filter1d(zinf, size, axis=1, mode="nearest", origin=-reach).ravel()
+    foot_l = tmin[starts - 1]
+    foot_r = lmin[ends + 1]
+    # steepest step within the same reach (the wall)
+    g = np.zeros(z.shape, np.float32)
+    zd = np.where(valid, z, np.nan)
+    d = np.abs(np.diff(zd, axis=1)) / np.float32(cell)
+    g[:, :-1] = np.nan_to_num(d, nan=0.0)
+    tg = ndimage.maximum_filter1d(g, size, axis=1, mode="nearest", origin=reach).ravel()
+    lg = ndimage.maximum_filter1d(g, size, axis=1, mode="nearest", origin=-reach).ravel()
+    steep_l = tg[starts - 1]
+    steep_r = lg[ends]
+    is_obj = ((seg_min - foot_l >= h_min) & (seg_min - foot_r >= h_min)
+              & (steep_l >= tan_wall) & (steep_r >= tan_wall))
+    starts, ends = starts[is_obj], ends[is_obj]
+    run = np.zeros(z.size + 1, np.int8)
+    run[starts] = 1          # segments are disjoint and separated by marked cells,
+    run[ends + 1] -= 1       # so these indices never collide
+    return (np.cumsum(run[:-1], dtype=np.int8) > 0).reshape(z.shape)
+
+
+def _enclosed_regions(flag, free, max_cells):
+    """Regions of ``free`` cells (4-connected) mostly made of ``flag`` cells.
+
+    A region is kept when at least half its cells are flagged, it does not touch the
+    array's edge and its bounding box is at most ``max_cells`` on each side, so the
+    decision never depends on cells farther than ``max_cells`` (block-safe).
+    """
+    lab, n = ndimage.label(free)
+    if n == 0:
+        return np.zeros(flag.shape, bool)
+    lf = lab.ravel()
+    tot = np.bincount(lf, minlength=n + 1)
+    hit = np.bincount(lf, weights=flag.ravel().astype(np.float32), minlength=n + 1)
+    cand = (hit >= 0.5 * np.maximum(tot, 1))
+    cand[0] = False
+    edge = np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])
+    cand[edge] = False
+    if not cand[1:].any():
+        return np.zeros(flag.shape, bool)
+    ids = np.flatnonzero(cand)
+    sl = ndimage.find_objects(lab)
+    ext = np.array([max(sl[i - 1][0].stop - sl[i - 1][0].start,
+                        sl[i - 1][1].stop - sl[i - 1][1].start) for i in ids])
+    cand[ids[ext > max_cells]] = False
+    return cand[lab]
+
+
+def _fill_surface(z, holes):
+    """Surface through the cells not in ``holes``, interpolated smoothly over them.
+
+    Uses the shared gap filler :func:`fill.fill_gaps` (harmonic interpolation) when it is
+    installed, else :func:`_push_pull_fill`.
+    """
+    try:
+        from .fill import fill_gaps
+    except ImportError:  # pragma: no cover - the shared filler is part of the package
+        return _push_pull_fill(z, holes)
+    return np.asarray(fill_gaps(z, fill=holes), dtype=np.float32)
+
+
+def _push_pull_fill(z, holes):
+    """Pyramid (push-pull) interpolation of ``z`` over ``holes`` and NaN cells.
+
+    Push: 2 x 2 means of the known cells, level by level, until every cell is known.
+    Pull: each level's unknown cells take the bilinear upsampling of the coarser level.
+    """
+    known = np.isfinite(z) & ~holes
+    val = np.where(known, z, 0).astype(np.float64)
+    wgt = known.astype(np.float64)
+    levels = []
+    while True:
+        levels.append((val, wgt))
+        if (wgt > 0).all() or min(val.shape) <= 1:
+            break
+        r, c = val.shape
+        pr, pc = r % 2, c % 2
+        v = np.pad(val * wgt, ((0, pr), (0, pc)))
+        w = np.pad(wgt, ((0, pr), (0, pc)))
+        v = v.reshape(v.shape[0] // 2, 2, v.shape[1] // 2, 2).sum(axis=(1, 3))
+        w = w.reshape(w.shape[0] // 2, 2, w.shape[1] // 2, 2).sum(axis=(1, 3))
+        val = np.divide(v, w, out=np.zeros_like(v), where=w > 0)
+        wgt = np.minimum(w, 1.0)
+    filled = levels[-1][0]
+    for val, wgt in reversed(levels[:-1]):
+        up = ndimage.zoom(filled, (val.shape[0] / filled.shape[0], val.shape[1] / filled.shape[1]),
+                          order=1, mode="nearest", grid_mode=True)
+        filled = np.where(wgt > 0, val, up)
+    out = np.where(known, z, filled).astype(np.float32)
+    return out
+
+
+def _noise_sigma(z):
+    """Robust noise of the surface (m): MAD of second differences along X and Y / sqrt(6)."""
+    d = np.concatenate([(z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]).ravel(),
+                        (z[:-2] - 2 * z[1:-1] + z[2:]).ravel()])
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6.0))
+
+
+def _sample(z):
+    """Central window of at most ``_SAMPLE_CELLS`` cells (defaults on big rasters)."""
+    side = int(np.sqrt(_SAMPLE_CELLS))
+    r, c = z.shape
+    h, w = min(r, side), min(c, side)
+    r0, c0 = (r - h) // 2, (c - w) // 2
+    return z[r0:r0 + h, c0:c0 + w]
+
+
+# --------------------------------------------------------------------------- filter
+def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadratic",
+                     min_object_height_m=1.0, wall_slope_deg=45.0, max_object_size_m=100.0,
+                     tolerance_m=0.3, progress=None):
+    """Separate objects from the ground by the Gaussian curvature of local trends.
+
+    Luong Chinh Ke (2002), section 2.2: a local surface fitted by least squares around
+    every point gives its Gaussian curvature K = (r t - s^2) / h^4 (eqs. 9-16); a point
+    with |K| >= K_g is a break at the foot or the top of an object. Breaks are then
+    turned into whole objects along the X and Y profiles (see the module docstring).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM in metres, NaN = nodata. Not modified.
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    k_g_per_m2 : float
+        Curvature threshold K_g in 1/m^2. A cell is a break when ``|K| >= K_g`` or, with
+        the quadratic model, when the curvature kappa of its X or Y profile has
+        ``kappa^2 >= K_g`` (the Gaussian curvature the point would have if it curved as
+        much across the profile: a straight roof edge has K = 0 but a large profile
+        curvature).
+    window_cells : int
+        Odd number of points per profile group (window edge), >= 3; the paper asks for at
+        least 5.
+    model : {"quadratic", "bilinear"}
+        Local trend surface. ``"bilinear"`` is the paper's eq. 12 (K <= 0 always,
+        r = t = 0: only twisted breaks such as corners are seen).
+    min_object_height_m : float
+        An unmarked run between breaks is an object when it stands at least this high
+        above the ground beyond the breaks on both sides; also the depth of a concave
+        break below the ground surface that makes it a low blunder (class 2).
+    wall_slope_deg : float
+        The rise from the ground beyond a break to the run must contain a step steeper
+        than this (object walls are steep; dams, embankments and terrace edges are not).
+    max_object_size_m : float
+        Longest object (runs and enclosed regions larger than this are ground); also
+        bounds the method's reach (halo).
+    tolerance_m : float
+        Final pass: a cell more than this above the ground surface interpolated under the
+        objects and breaks is an object; within it, ground.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`~.common.Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low blunder, 255 nodata), ``extras["curvature"]``
+        (float32, bands K in 1/m^2 and H in 1/m, H > 0 convex), ``surface`` (the ground
+        surface of the final pass), and ``info`` with K_g and the shares of valid cells
+        marked by X profiles, by Y profiles and by |K| alone.
+
+    References
+    ----------
+    Luong Chinh Ke (2002). Filtering of DSM, section 2.2 (local trend, Gaussian curvature).
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    window_cells = _check_window(window_cells)
+    model = _check_model(model)
+    k_g = _positive("k_g_per_m2", k_g_per_m2, "a curvature threshold K_g in 1/m^2, e.g. "
+                    "leave it empty to derive it from the data")
+    h_min = _positive("min_object_height_m", min_object_height_m, "e.g. 1.0")
+    tol = _positive("tolerance_m", tolerance_m, "e.g. 0.3")
+    max_size = _positive("max_object_size_m", max_object_size_m, "e.g. 100")
+    if not (0.0 < float(wall_slope_deg) < 90.0):
+        raise ValueError(f"wall_slope_deg must be between 0 and 90 degrees; got {wall_slope_deg}. "
+                         "Use e.g. 45.")
+    tan_wall = float(np.tan(np.radians(float(wall_slope_deg))))
+    valid = np.isfinite(z)
+    report(progress, 0.0)
+
+    # 1. local trends and curvature (eqs. 9-16)
+    p, q, r, s, t = local_derivatives(z, (dx, dy), window=window_cells, model=model)
+    K, H, kx, ky = curvatures_from_derivatives(p, q, r, s, t)
+    del p, q, r, s, t
+    report(progress, 0.25)
+
+    # 2. breaks: |K| >= K_g, and profile curvature kappa^2 >= K_g along X and Y
+    kappa_g = np.float32(np.sqrt(k_g))
+    mark_k = valid & (np.abs(K) >= np.float32(k_g))
+    mark_x = valid & (np.abs(kx) >= kappa_g)
+    mark_y = valid & (np.abs(ky) >= kappa_g)
+    marked = mark_k | mark_x | mark_y
+    del kx, ky
+    n_valid = max(int(valid.sum()), 1)
+    report(progress, 0.35)
+
+    # 3. runs between breaks standing above the ground on both sides, along X and Y
+    m = window_cells // 2
+    reach = 2 * m + 1
+    obj_x = _profile_objects(z, marked, valid, dx, max_cells=int(max_size / dx), reach=reach,
+                             h_min=h_min, tan_wall=tan_wall)
+    report(progress, 0.45)
+    obj_y = _profile_objects(np.ascontiguousarray(z.T), np.ascontiguousarray(marked.T),
+                             np.ascontiguousarray(valid.T), dy, max_cells=int(max_size / dy),
+                             reach=reach, h_min=h_min, tan_wall=tan_wall).T
+    report(progress, 0.55)
+
+    # 4. regions enclosed by breaks and mostly such runs -> whole objects
+    free = valid & ~marked
+    region = _enclosed_regions(obj_x | obj_y, free, int(max(max_size / dx, max_size / dy)))
+    objects = region | obj_x | obj_y
+    report(progress, 0.65)
+
+    # 5. final pass against the ground interpolated under objects and breaks (twice:
+    #    the second surface also rests on the breaks found to be ground)
+    mask = np.zeros(z.shape, np.uint8)
+    surface = None
+    holes = ~valid | marked | objects
+    concave = marked & (H < 0)
+    for it in range(2):
+        if not (valid & ~holes).any():
+            mask[objects] = OBJECT
+            break
+        surface = _fill_surface(z, holes)
+        d = z - surface
+        mask = np.where(d > tol, OBJECT, GROUND).astype(np.uint8)
+        mask[concave & (d < -h_min)] = LOW
+        mask[objects & (d > 0)] = OBJECT
+        holes = ~valid | (mask != GROUND)
+        report(progress, 0.8 + 0.1 * it)
+    mask = finish_mask(mask, z)
+
+    curv = np.stack([K, H]).astype(np.float32, copy=False)
+    info = {"k_g_per_m2": float(k_g), "window_cells": window_cells, "model": model,
+            "min_object_height_m": h_min, "wall_slope_deg": float(wall_slope_deg),
+            "max_object_size_m": max_size, "tolerance_m": tol,
+            "share_marked_x": float(mark_x.sum()) / n_valid,
+            "share_marked_y": float(mark_y.sum()) / n_valid,
+            "share_marked_k": float(mark_k.sum()) / n_valid,
+            "share_marked": float(marked.sum()) / n_valid,
+            "share_objects_x": float((obj_x & valid).sum()) / n_valid,
+            "share_objects_y": float((obj_y & valid).sum()) / n_valid}
+    report(progress, 1.0)
+    return FilterResult(mask=mask, extras={"curvature": curv}, info=info, surface=surface)
+
+
+def _positive(name, value, hint):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive number; got {value!r}: {hint}.") from None
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a positive number; got {value!r}: {hint}.")
+    return v
+
+
+def derive_k_g(z, cell_size, *, window=5, model="quadratic"):
+    """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
+
+    The profile curvatures kappa of the X and Y profiles (quadratic model) or the twist s
+    (bilinear model) of all valid cells are pooled; their robust spread
+    ``sigma = 1.4826 MAD`` is dominated by the smooth terrain and the noise, breaks being
+    the tails. ``K_g = (3 sigma)^2``, the Gaussian curvature of a point curved by three
+    sigmas in both directions, floored at the curvature of a 5 cm deviation over half a
+    window so that noise-free data do not mark every gentle bend.
+    """
+    dx, dy = as_cell_size(cell_size)
+    zs = _sample(as_surface(z))
+    p, q, r, s, t = local_derivatives(zs, (dx, dy), window=window, model=model)
+    if model == "quadratic":
+        _, _, kx, ky = curvatures_from_derivatives(p, q, r, s, t)
+        v = np.concatenate([kx.ravel(), ky.ravel()])
+    else:
+        v = (s / (1.0 + p * p + q * q)).ravel()
+    v = v[np.isfinite(v)]
+    sigma = float(1.4826 * np.median(np.abs(v - np.median(v)))) if v.size else 0.0
+    half = (window // 2) * max(dx, dy)
+    floor = 2.0 * _MIN_BREAK_M / (half * half)
+    kappa = max(_K_SIGMAS * sigma, floor)
+    return kappa * kappa
+
+
+def resolve_curvature_params(z, cell_size, *, k_g_per_m2=None, window_cells=5,
+                             model="quadratic", min_object_height_m=1.0, wall_slope_deg=45.0,
+                             max_object_size_m=100.0, tolerance_m=None):
+    """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
+
+    ``k_g_per_m2``: :func:`derive_k_g` (3 robust sigmas of the data's profile curvature,
+    squared). ``tolerance_m``: three times the robust noise of the DSM (second
+    differences), kept within [0.15, 1.0] m.
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    window_cells = _check_window(window_cells)
+    model = _check_model(model)
+    if k_g_per_m2 is None:
+        k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
+    if tolerance_m is None:
+        tolerance_m = float(np.clip(3.0 * _noise_sigma(_sample(z)), 0.15, 1.0))
+    return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
+            "min_object_height_m": float(min_object_height_m),
+            "wall_slope_deg": float(wall_slope_deg),
+            "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m)}
+
+
+def curvature_halo(params, cell_size):
+    """Reach of the filter in cells: the window, the foot search beyond a break, and
+    twice the largest object (runs, enclosed regions and the ground surface under them)."""
+    dx, dy = as_cell_size(cell_size)
+    w = _check_window(params.get("window_cells", 5))
+    size = float(params.get("max_object_size_m", 100.0))
+    return int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
+
+
+def _run(z, cell_size, progress=None, **params):
+    return filter_curvature(z, cell_size, progress=progress, **params)
+
+
+METHOD = Method(
+    name="curvature",
+    run=_run,
+    resolve=resolve_curvature_params,
+    halo=curvature_halo,
+    extras={"curvature": (np.float32, 2, float("nan"))},
+    params=(
+        Param("k_g_per_m2", "float", None,
+              "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
+              "point with |K| >= K_g (or a profile curvature kappa with kappa^2 >= K_g) is a "
+              "break. Empty: (3 robust sigmas of the data's profile curvature)^2; see the "
+              "CURVATURE output to choose it.", minimum=0.0, maximum=1e6),
+        Param("window_cells", "int", 5,
+              "Points per profile group (odd window edge, cells) of the local least-squares "
+              "trend; the paper asks for at least 5.", minimum=3, maximum=51),
+        Param("model", "enum", "quadratic",
+              "Local trend surface: 'quadratic' (z = a + bx + cy + dx^2 + exy + fy^2, gives K "
+              "and the mean curvature H) or 'bilinear', the paper's eq. 12 (r = t = 0, so "
+              "K <= 0 and straight edges are not seen).", options=MODELS, advanced=True),
+        Param("min_object_height_m", "float", 1.0,
+              "Metres an object must stand above the ground beyond the breaks on both sides "
+              "of a profile; also the depth of a low blunder (class 2).",
+              minimum=0.05, maximum=100.0),
+        Param("wall_slope_deg", "float", 45.0,
+              "Degrees: the rise across a break must contain a step steeper than this to be "
+              "an object's wall (dams, embankments and terrace edges are gentler and stay "
+              "ground).", minimum=1.0, maximum=89.0, advanced=True),
+        Param("max_object_size_m", "float", 100.0,
+              "Metres: largest object; larger enclosed regions are ground. Also the method's "
+              "reach for block processing.", minimum=1.0, maximum=2000.0),
+        Param("tolerance_m", "float", None,
+              "Metres above the ground surface interpolated under objects and breaks that a "
+              "cell may stand and still be ground (final pass). Empty: 3 x the DSM's robust "
+              "noise, within [0.15, 1] m.", minimum=0.01, maximum=10.0, advanced=True),
+    ),
+    title="Curvature filter (Luong Chinh Ke 2002)",
+    description=(
+        "<p>Local-trend filter by Gaussian curvature (Luong Chinh Ke 2002, section 2.2). A "
+        "local surface is fitted by least squares to the <i>window</i> x <i>window</i> "
+        "points around every cell (at least five points per X and Y profile) and gives "
+        "the Gaussian curvature K = (r t - s<sup>2</sup>) / h<sup>4</sup>, "
+        "h<sup>2</sup> = 1 + p<sup>2</sup> + q<sup>2</sup> (eqs. 9-16), and the mean "
+        "curvature H (H &gt; 0 convex, H &lt; 0 concave). Cells with |K| &ge; K<sub>g</sub> "
+        "or a profile curvature &kappa; with &kappa;<sup>2</sup> &ge; K<sub>g</sub> are "
+        "breaks at the feet and tops of objects.</p>"
+        "<p>Along each X and Y profile, the points between a break going up and the break "
+        "coming down form an object when they stand above the ground beyond both breaks "
+        "by the minimum object height, across a wall steeper than the wall slope; regions "
+        "enclosed by breaks and made mostly of such points become whole objects. A final "
+        "pass compares every cell with the ground interpolated under objects and breaks: "
+        "breaks of the terrain itself (dams, embankments) go back to ground, concave "
+        "breaks deeper than the minimum object height are low blunders (class 2).</p>"
+        "<p><b>The paper's bilinear surface</b> z = a0 + a1 X + a2 Y + a3 XY (eq. 12) is "
+        "available as the <i>bilinear</i> model. It has a limit: fitted to the points of "
+        "one profile it is degenerate (with Y constant, a2 and a3 cannot be separated), so "
+        "it is fitted here to the window of neighbouring profiles; and its second "
+        "derivatives are r = t = 0, so r t - s<sup>2</sup> = -a3<sup>2</sup> is never "
+        "positive: it cannot tell convex from concave and sees only twisted breaks "
+        "(corners), not straight edges. The default quadratic surface has none of these "
+        "limits.</p>"
+        "<p>Defaults: K<sub>g</sub> = (3 robust standard deviations of the data's profile "
+        "curvature)<sup>2</sup>; tolerance = 3 x the DSM's robust noise. The CURVATURE "
+        "output (band 1 K in 1/m<sup>2</sup>, band 2 H in 1/m) shows what the filter saw; "
+        "the log gives K<sub>g</sub> and the share of cells marked by X and by Y "
+        "profiles.</p>"
+        "<p>Reference: Luong Chinh Ke (2002), filtering of DSM, section 2.2.</p>"),
+)
