@@ -156,6 +156,8 @@ def read_points(path, crs=None):
 
 
 _SEPARATORS = bytes.maketrans(b"\t,;\r\n\v\f", b"       ")
+_NUMBER_BYTES = np.zeros(256, dtype=bool)
+_NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE ", dtype=np.uint8)] = True
 _CLASS_NAMES = ("class", "classification", "label", "cls", "c")
 
 
@@ -235,8 +237,16 @@ def _read_text(path):
         warnings.simplefilter("ignore")
         values = np.fromstring(flat[body_start:], dtype=np.float64, sep=" ")
     ntok = int(tok.size) - tok_skip
-    if values.size != ntok:
-        ln = _first_bad_line(data, nl, filled)
+    # numpy stops quietly at the first unparsable value and may split "1.5.3" in two:
+    # a count mismatch, letters other than an exponent (checked line by line, e.g. nan),
+    # or a bad last line (where stopping early leaves the count right) are errors.
+    suspect = np.zeros(0, dtype=np.int64)
+    odd = np.flatnonzero(~_NUMBER_BYTES[arr[body_start:]])
+    if odd.size:
+        suspect = np.unique(np.searchsorted(nl, odd + body_start))
+    suspect = np.append(suspect, filled[-1])
+    if values.size != ntok or _first_bad_line(data, nl, suspect) is not None:
+        ln = _first_bad_line(data, nl, filled if values.size != ntok else suspect)
         where = (f"line {ln + 1} is not numbers: {_line(data, nl, ln)!r}" if ln is not None
                  else "some value is not a plain number")
         raise ValueError(f"{path}: {where}. Every line after an optional header must be "
@@ -273,12 +283,18 @@ def _line(data, nl, ln):
 
 
 def _first_bad_line(data, nl, filled):
-    """Error path only: the 0-based number of the first line that is not all numbers."""
+    """The 0-based number of the first of ``filled`` lines that is not all numbers.
+
+    A Python loop over lines: called on the error path, or on the few lines holding
+    letters (``nan``, ``inf``) and the last line.
+    """
     for ln in filled:
         for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").split():
             try:
                 float(t)
             except ValueError:
+                return int(ln)
+            if "_" in t:   # float() takes "1_000", numpy does not
                 return int(ln)
     # float() accepted everything (e.g. "1.5.3" splits into two numbers for numpy)
     for ln in filled:

@@ -1,0 +1,362 @@
+"""Tests of core/points.py: reading, rasterizing, sampling, classifying, writing points."""
+import sys
+
+import numpy as np
+import pytest
+
+from bare_earth.core import points as P
+from bare_earth.core.points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
+                                    read_points, sample_bilinear, write_points)
+
+DTYPES = [np.float32, np.float64, np.int16]
+
+
+# --------------------------------------------------------------------------- text reading
+def _write(tmp_path, text, name="pts.txt"):
+    p = tmp_path / name
+    p.write_bytes(text.encode("utf-8"))
+    return p
+
+
+@pytest.mark.parametrize("text", [
+    "1\t2\t3\t0\n4\t5\t6\t1\n",
+    "1,2,3,0\n4,5,6,1\n",
+    "x y z class\n1 2 3 0\n\n   \n4   5 6 1",          # header, blank lines, no final newline
+    "X, Y, Z, Classification\r\n1, 2, 3, 0\r\n4, 5, 6, 1\r\n",
+    "\ufeffx\ty\tz\tc\n1\t2\t3\t0\n4\t5\t6\t1\n",        # byte-order mark
+])
+def test_read_text_variants(tmp_path, text):
+    c = read_points(_write(tmp_path, text))
+    assert c.source_format == "text"
+    np.testing.assert_array_equal(c.x, [1, 4])
+    np.testing.assert_array_equal(c.y, [2, 5])
+    np.testing.assert_array_equal(c.z, [3, 6])
+    np.testing.assert_array_equal(c.classification, [0, 1])
+    assert c.x.dtype == np.float64 and c.crs is None and c.units_to_metre == 1.0
+    np.testing.assert_array_equal(c.ground_truth(), [True, False])
+
+
+def test_read_text_xyz_only_and_header_column_order(tmp_path):
+    c = read_points(_write(tmp_path, "10.5 20.25 -3e2\n11 21 7\n"))
+    assert c.classification is None and len(c) == 2
+    np.testing.assert_array_equal(c.z, [-300.0, 7.0])
+    c = read_points(_write(tmp_path, "intensity,z,classification,y,x\n9,3,2,2,1\n", "b.csv"))
+    assert (c.x[0], c.y[0], c.z[0], c.classification[0]) == (1, 2, 3, 2)
+
+
+@pytest.mark.parametrize("text, line", [
+    ("x y z\n1 2 3\n\n4 5 abc\n7 8 9\n", 4),
+    ("1 2 3\n4 5 6\n7,8,9x\n", 3),
+    ("1 2 3\n4 5 6.1.2\n", 2),
+    ("1 2 3 0\n4 5 6\n", 2),          # wrong column count
+    ("1 2 3 0\n4 5 6 0.5\n", 2),      # class not a whole number
+    ("1 2 3\nnan 5 6\n", 2),          # non-finite x
+])
+def test_read_text_bad_line_number(tmp_path, text, line):
+    with pytest.raises(ValueError, match=rf"line {line}\b"):
+        read_points(_write(tmp_path, text))
+
+
+def test_read_text_empty_and_missing(tmp_path):
+    with pytest.raises(ValueError, match="empty"):
+        read_points(_write(tmp_path, "\n  \n"))
+    with pytest.raises(ValueError, match="no points"):
+        read_points(_write(tmp_path, "x y z\n"))
+    with pytest.raises(ValueError, match="does not exist"):
+        read_points(tmp_path / "nope.txt")
+    with pytest.raises(ValueError, match="expected 3"):
+        read_points(_write(tmp_path, "1 2 3 4 5\n"))
+
+
+def test_read_text_crs_argument_and_prj(tmp_path):
+    p = _write(tmp_path, "1 2 3\n")
+    c = read_points(p, crs="EPSG:2263")            # NY Long Island, US feet
+    assert "2263" in c.crs and c.units_to_metre == pytest.approx(0.3048006096)
+    (tmp_path / "pts.prj").write_text(read_points(p, crs="EPSG:25832").crs)
+    c = read_points(p)
+    assert "25832" in c.crs and c.units_to_metre == 1.0
+    with pytest.raises(ValueError, match="CRS"):
+        read_points(p, crs="not a crs at all")
+
+
+# --------------------------------------------------------------------------- rasterize
+XS = np.array([0.2, 0.7, 1.5, 0.5])
+YS = np.array([0.3, 0.9, 0.5, 1.5])
+ZS = np.array([5.0, 3.0, 7.0, 2.0])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("reducer, expected", [
+    ("min", [[2, np.nan], [3, 7]]),
+    ("max", [[2, np.nan], [5, 7]]),
+    ("mean", [[2, np.nan], [4, 7]]),
+])
+def test_rasterize_exact(dtype, reducer, expected):
+    info = {}
+    grid, gt = rasterize_points(XS, YS, ZS.astype(dtype), 1.0, reducer=reducer,
+                                fill_empty=None, info=info)
+    assert grid.dtype == np.float32
+    np.testing.assert_array_equal(grid, np.array(expected, dtype=np.float32))
+    assert gt == (0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
+    assert info["n_empty"] == 1 and info["shape"] == (2, 2) and info["n_points"] == 4
+
+
+def test_rasterize_fill_nearest_and_edges():
+    grid, gt = rasterize_points([0.5, 3.5], [0.5, 0.5], [1.0, 4.0], 1.0)
+    np.testing.assert_array_equal(grid, [[1, 1, 4, 4]])
+    assert gt == (0.0, 1.0, 0.0, 1.0, 0.0, -1.0)
+    # a point on the east/south edge of the bounding box goes into the last cell
+    grid, gt = rasterize_points([10.0, 12.0], [20.0, 22.0], [1.0, 2.0], 1.0, fill_empty=None)
+    assert grid.shape == (2, 2) and gt[0] == 10.0 and gt[3] == 22.0
+    assert grid[0, 1] == 2.0 and grid[1, 0] == 1.0
+
+
+def test_rasterize_rectangular_cells_extent_and_origin_snap():
+    grid, gt = rasterize_points([1.3, 4.9], [7.1, 2.2], [1, 2], (2.0, 0.5), fill_empty=None)
+    assert gt == (0.0, 2.0, 0.0, 7.5, 0.0, -0.5)   # floor(1.3/2)*2, ceil(7.1/0.5)*0.5
+    assert grid.shape == (11, 3)
+    assert grid[0, 0] == 1 and grid[10, 2] == 2 and np.isnan(grid).sum() == 31
+    # explicit extent: used exactly, points outside dropped
+    grid, gt = rasterize_points([0.5, 1.5, 5.0], [0.5, 0.5, 0.5], [1, 2, 3], 1.0,
+                                extent=(0, 0, 2, 1), fill_empty=None)
+    assert gt == (0.0, 1.0, 0.0, 1.0, 0.0, -1.0)
+    np.testing.assert_array_equal(grid, [[1, 2]])
+    with pytest.raises(ValueError, match="inside the extent"):
+        rasterize_points([5.0], [5.0], [1.0], 1.0, extent=(0, 0, 2, 1))
+
+
+def test_rasterize_default_cell_size():
+    g = np.arange(10) + 0.5
+    x, y = np.meshgrid(g, g)
+    info = {}
+    grid, gt = rasterize_points(x.ravel(), y.ravel(), np.ones(100), info=info)
+    assert gt[1] == 1.0 and gt[5] == -1.0 and info["cell_size"] == (1.0, 1.0)
+    # 0.17 points per m2 (ISPRS rural) -> sqrt(1 / 0.17) = 2.4 -> 2.5 m
+    rng = np.random.default_rng(1)
+    n = 1700
+    _, gt = rasterize_points(rng.uniform(0, 100, n), rng.uniform(0, 100, n), np.zeros(n))
+    assert gt[1] == 2.5
+    assert [nice_cell_size(v) for v in (2.43, 1.1, 0.7, 0.34, 6.5, 7.2, 40)] == [2.5, 1, 0.5, 0.25, 5, 10, 50]
+
+
+def test_rasterize_bad_input():
+    with pytest.raises(ValueError, match="reducer"):
+        rasterize_points(XS, YS, ZS, 1.0, reducer="median")
+    with pytest.raises(ValueError, match="same length"):
+        rasterize_points(XS, YS, ZS[:2], 1.0)
+    with pytest.raises(ValueError, match="no point"):
+        rasterize_points([np.nan], [1.0], [1.0], 1.0)
+    with pytest.raises(ValueError, match="cell_size"):
+        rasterize_points(XS, YS, ZS, -1.0)
+
+
+def test_rasterize_matches_loop_on_random_points():
+    rng = np.random.default_rng(3)
+    x, y, z = rng.uniform(0, 20, 2000), rng.uniform(0, 10, 2000), rng.normal(size=2000)
+    lo, gt = rasterize_points(x, y, z, 2.0, fill_empty=None)
+    hi, _ = rasterize_points(x, y, z, 2.0, reducer="max", fill_empty=None)
+    col = np.floor((x - gt[0]) / 2).astype(int)
+    row = np.floor((gt[3] - y) / 2).astype(int)
+    for r, c in [(0, 0), (2, 5), (4, 9)]:
+        sel = (row == r) & (col == c)
+        assert lo[r, c] == np.float32(z[sel].min()) and hi[r, c] == np.float32(z[sel].max())
+
+
+# --------------------------------------------------------------------------- sampling
+GT = (100.0, 2.0, 0.0, 50.0, 0.0, -2.0)
+
+
+def _plane_grid(rows=6, cols=8):
+    cx = GT[0] + (np.arange(cols) + 0.5) * GT[1]
+    cy = GT[3] + (np.arange(rows) + 0.5) * GT[5]
+    X, Y = np.meshgrid(cx, cy)
+    return 2.0 * X + 3.0 * Y + 1.0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_bilinear_exact_on_plane(dtype):
+    grid = _plane_grid().astype(dtype)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(101.0, 115.0, 50)   # between the outer cell centres
+    y = rng.uniform(39.0, 49.0, 50)
+    v = sample_bilinear(grid, GT, x, y)
+    tol = 1e-9 if dtype == np.float64 else 1e-3
+    np.testing.assert_allclose(v, 2 * x + 3 * y + 1, rtol=0, atol=tol * 500)
+    # at a cell centre: the cell value
+    assert sample_bilinear(grid, GT, 101.0, 49.0) == pytest.approx(float(grid[0, 0]))
+
+
+def test_bilinear_outside_and_nan():
+    grid = _plane_grid()
+    out = sample_bilinear(grid, GT, [99.9, 116.1, 105.0, 100.5, 116.0], [45, 45, 50.1, 49.5, 38.0])
+    assert np.isnan(out[:3]).all()
+    # inside, within half a cell of the edge: the edge values (clamped)
+    assert out[3] == pytest.approx(grid[0, 0]) and out[4] == pytest.approx(grid[-1, -1])
+    grid[2, 3] = np.nan
+    centre_x, centre_y = GT[0] + 3.5 * 2, GT[3] - 2.5 * 2     # centre of the NaN cell
+    assert np.isnan(sample_bilinear(grid, GT, centre_x + 0.5, centre_y))
+    # the centre of the next cell does not need the NaN cell
+    assert np.isfinite(sample_bilinear(grid, GT, centre_x + 2.0, centre_y))
+    with pytest.raises(ValueError, match="rotated"):
+        sample_bilinear(grid, (0, 1, 0.1, 0, 0, -1), [0], [0])
+
+
+# --------------------------------------------------------------------------- classify
+def test_classify_with_slope_term():
+    gt = (0.0, 1.0, 0.0, 10.0, 0.0, -1.0)
+    cx = np.arange(10) + 0.5
+    dtm = np.tile(0.5 * cx, (10, 1)).astype(np.float32)     # slope 0.5 rise/run
+    x = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 50.0])
+    y = np.full(6, 5.0)
+    ground = 2.5
+    z = ground + np.array([0.0, 1.0, 1.2, -1.0, -1.2, 0.0])
+    # tolerance 0.5 + 1.25 * 0.5 = 1.125
+    cls = classify_points(x, y, z, dtm, gt)
+    np.testing.assert_array_equal(cls, [0, 0, 1, 0, 2, 255])
+    assert cls.dtype == np.uint8
+    cls = classify_points(x, y, z, dtm, gt, slope_factor=0.0)
+    np.testing.assert_array_equal(cls, [0, 1, 1, 2, 2, 255])
+    dtm[5, 5] = np.nan
+    assert classify_points(x[:1], y[:1], z[:1], dtm, gt)[0] == 255
+
+
+def test_classify_most_points_outside():
+    dtm = np.zeros((10, 10), np.float32)
+    gt = (0.0, 1.0, 0.0, 10.0, 0.0, -1.0)
+    with pytest.raises(ValueError, match=r"outside the DTM.*x 5\.000\.\.1001\.000.*"
+                                         r"DTM spans x 0\.000\.\.10\.000"):
+        classify_points([1000, 1001, 5], [5, 5, 5], [0, 0, 0], dtm, gt)
+    with pytest.raises(ValueError, match="threshold_m"):
+        classify_points([5], [5], [0], dtm, gt, threshold_m=-1)
+
+
+def test_classify_fast_enough_vectorised():
+    # 200 000 points through rasterize + classify: a per-point loop would take seconds
+    import time
+    rng = np.random.default_rng(0)
+    n = 200_000
+    x, y = rng.uniform(0, 400, n), rng.uniform(0, 500, n)
+    z = 0.01 * x + rng.normal(0, 0.1, n)
+    t = time.perf_counter()
+    dtm, gt = rasterize_points(x, y, z)
+    cls = classify_points(x, y, z, dtm, gt)
+    assert time.perf_counter() - t < 2.0
+    assert (cls == 0).mean() > 0.9
+
+
+# --------------------------------------------------------------------------- writing
+def test_text_round_trip(tmp_path):
+    src = _write(tmp_path, "x,y,z,class\n1.25,2.5,3.125,1\n4,5,6,0\n", "in.csv")
+    c = read_points(src)
+    out = tmp_path / "out.csv"
+    write_points(out, c, np.array([0, 2], np.uint8))
+    assert out.read_text().splitlines() == ["x,y,z,class", "1.250,2.500,3.125,0",
+                                            "4.000,5.000,6.000,2"]
+    back = read_points(out)
+    np.testing.assert_array_equal(back.classification, [0, 2])
+    with pytest.raises(ValueError, match="one class per point"):
+        write_points(out, c, [0])
+
+
+def _make_las(path, n=500, point_format=3, crs_wkt=None):
+    laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=point_format, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([500000.0, 5400000.0, 0.0])
+    if crs_wkt:
+        header.vlrs.append(laspy.vlrs.known.WktCoordinateSystemVlr(crs_wkt))
+    las = laspy.LasData(header)
+    rng = np.random.default_rng(5)
+    las.x = 500000 + rng.uniform(0, 50, n)
+    las.y = 5400000 + rng.uniform(0, 50, n)
+    las.z = 100 + rng.uniform(0, 1, n)
+    las.intensity = rng.integers(0, 65535, n).astype(np.uint16)
+    las.gps_time = rng.uniform(0, 1e5, n)
+    las.return_number = np.ones(n, np.uint8)
+    las.number_of_returns = np.ones(n, np.uint8)
+    las.point_source_id = np.full(n, 7, np.uint16)
+    las.classification = np.full(n, 5, np.uint8)
+    las.red = rng.integers(0, 65535, n).astype(np.uint16)
+    las.write(str(path))
+    return laspy.read(str(path))
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_las_round_trip_keeps_attributes(tmp_path, ext):
+    laspy = pytest.importorskip("laspy")
+    if ext == ".laz":
+        pytest.importorskip("lazrs")
+    from osgeo import osr
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(32632)
+    src = tmp_path / f"in{ext}"
+    orig = _make_las(src, crs_wkt=srs.ExportToWkt())
+    c = read_points(src)
+    assert c.source_format == "las" and len(c) == 500
+    assert "UTM zone 32N" in c.crs and c.units_to_metre == 1.0
+    np.testing.assert_allclose(c.x, np.asarray(orig.x))
+    np.testing.assert_array_equal(c.classification, 5)
+    classes = np.zeros(500, np.uint8)
+    classes[:100], classes[100:150], classes[150:160] = 1, 2, 255
+    out = tmp_path / f"out{ext}"
+    write_points(out, c, classes)
+    back = laspy.read(str(out))
+    np.testing.assert_array_equal(np.asarray(back.classification)[:100], 1)
+    np.testing.assert_array_equal(np.asarray(back.classification)[100:150], 7)
+    np.testing.assert_array_equal(np.asarray(back.classification)[150:160], 5)   # kept
+    np.testing.assert_array_equal(np.asarray(back.classification)[160:], 2)
+    for dim in ("X", "Y", "Z", "intensity", "gps_time", "point_source_id", "red",
+                "return_number", "number_of_returns"):
+        np.testing.assert_array_equal(np.asarray(back[dim]), np.asarray(orig[dim]), err_msg=dim)
+    assert back.header.point_format.id == 3
+    assert "UTM zone 32N" in read_points(out).crs
+    # the input cloud was not modified
+    np.testing.assert_array_equal(np.asarray(c.attrs.classification), 5)
+
+
+def test_text_cloud_written_as_las(tmp_path):
+    laspy = pytest.importorskip("laspy")
+    c = read_points(_write(tmp_path, "1.5 2.25 3.125 0\n4 5 6 1\n"), crs="EPSG:25832")
+    write_points(tmp_path / "o.las", c, [0, 1])
+    back = read_points(tmp_path / "o.las")
+    np.testing.assert_allclose(back.x, [1.5, 4]) and np.testing.assert_allclose(back.z, [3.125, 6])
+    np.testing.assert_array_equal(back.classification, [2, 1])
+    assert "25832" in back.crs
+    assert laspy.read(str(tmp_path / "o.las")).header.point_format.id == 6
+
+
+def test_laspy_missing_message(tmp_path, monkeypatch):
+    p = tmp_path / "a.las"
+    p.write_bytes(b"LASF" + b"\0" * 300)
+    monkeypatch.setitem(sys.modules, "laspy", None)
+    with pytest.raises(ImportError, match="pip install laspy lazrs"):
+        read_points(p)
+    with pytest.raises(ImportError, match="pip install laspy lazrs"):
+        write_points(tmp_path / "b.las", PointCloud(np.zeros(1), np.zeros(1), np.zeros(1)), [0])
+
+
+# --------------------------------------------------------------------------- real data
+def test_real_isprs_sample(shared_data):
+    path = shared_data / "isprs" / "samp11.txt"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    c = read_points(path)
+    assert len(c) == 38010
+    np.testing.assert_array_equal(np.bincount(c.classification), [21786, 16224])
+    assert c.ground_truth().sum() == 21786
+    assert 512000 < c.x.min() < c.x.max() < 513000 and 5403000 < c.y.min()
+    grid, gt = rasterize_points(c.x, c.y, c.z, 1.0)
+    cls = classify_points(c.x, c.y, c.z, grid, gt)
+    assert (cls != 255).all()
+
+
+def test_real_las_feet_units(shared_data):
+    pytest.importorskip("laspy")
+    path = shared_data / "lidar" / "mvk-thin.las"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    c = read_points(path)
+    # the file's EPSG code (26995) is in metres but its unit keys say US survey feet
+    assert c.units_to_metre == pytest.approx(1200 / 3937)
+    assert c.z_units_to_metre == pytest.approx(1200 / 3937)
+    assert len(c) == 6280 and "Mississippi" in c.crs
