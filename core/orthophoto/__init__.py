@@ -1,0 +1,10 @@
+"""Orthophoto refinement of a DEM (Luong Chinh Ke 2002, section 2.3; Norvelle 1995).
+
+camera        interior/exterior orientation, omega-phi-kappa, Brown distortion, readers
+orthorectify  orthophotos of frame images on a DEM grid
+match         normalised cross-correlation along a direction (+ LSM, left-right check)
+"""
+from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_interior_yaml,
+                     read_opensfm_reconstruction, read_opk_csv, rotation_to_opk)
+from .match import match_along, match_rectified, ncc_volume
+from .orthorectify import grid_xy, orthorectify, visibility

@@ -1,0 +1,358 @@
+"""Area-based matching: normalised cross-correlation along one direction, vectorised.
+
+Luong Chinh Ke (2002, section 2.3) and Norvelle (1995) measure the residual parallax
+between two orthophotos by area correlation: for every cell, the window of orthophoto A is
+compared with windows of orthophoto B displaced along the base direction, and the
+displacement with the highest normalised cross-correlation (NCC) is the parallax. Here:
+
+* NCC for all cells at once, one integer shift at a time, from box filters (window sums of
+  ``a, b, a^2, b^2, ab``), NaN cells excluded from the sums;
+* optional *shiftable windows* (the best NCC over the windows containing the cell), which
+  keeps object edges sharp;
+* a left-right consistency check from the same NCC volume (the best shift seen from A and
+  the best shift seen from B must agree), a correlation threshold, and rejection of peaks
+  at the end of the search range;
+* sub-pixel refinement by a parabola through the NCC peak, and for orthophotos optionally
+  by least-squares matching (a windowed Gauss-Newton solve of the shift with a radiometric
+  offset, symmetric in A and B).
+
+:func:`match_rectified` is the classic 1-D disparity of a rectified stereo pair (a test of
+the matcher on its own); :func:`match_along` matches two orthophotos along any direction.
+"""
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["ncc_volume", "match_rectified", "match_along", "MatchResult"]
+
+_BAD = -2.0   # NCC value of "no correlation computed" (below any true NCC)
+
+
+class MatchResult(dict):
+    """Result of :func:`match_along` / :func:`match_rectified` (a dict with attribute access).
+
+    Keys: ``disparity`` (float32, NaN where rejected), ``corr`` (float32 peak NCC, NaN where
+    not computed), ``valid`` (bool), ``info`` (dict of counts and parameters).
+    """
+    __getattr__ = dict.__getitem__
+
+
+def _shift_cols(arr, s, fill):
+    """``out[:, j] = arr[:, j + s]`` (``fill`` outside)."""
+    out = np.full_like(arr, fill)
+    n = arr.shape[1]
+    if s >= 0:
+        if s < n:
+            out[:, :n - s] = arr[:, s:]
+    else:
+        if -s < n:
+            out[:, -s:] = arr[:, :n + s]
+    return out
+
+
+def _check_pair(a, b):
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    if a.ndim != 2 or b.ndim != 2:
+        raise ValueError(f"images must be 2-D single bands; got shapes {a.shape} and {b.shape}. "
+                         "Pass one band (or the mean of the bands).")
+    if a.shape != b.shape:
+        raise ValueError(f"images must be on the same grid; got shapes {a.shape} and {b.shape}. "
+                         "Resample both orthophotos to the DEM grid.")
+    return a, b
+
+
+def _check_window(window):
+    window = int(window)
+    if window < 3 or window % 2 == 0:
+        raise ValueError(f"window must be an odd number of cells >= 3; got {window}.")
+    return window
+
+
+def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6):
+    """NCC of the window of ``a`` at column ``j`` with the window of ``b`` at ``j + s``.
+
+    Parameters
+    ----------
+    a, b : ndarray (rows, cols) float
+        Images on the same grid; NaN = invalid.
+    shifts : sequence of int
+        Column shifts ``s``.
+    window : int
+        Odd window size in cells.
+    shiftable : int
+        If > 1, replace each NCC by the maximum over the ``shiftable`` x ``shiftable``
+        neighbourhood (shiftable windows: the best window that contains the cell).
+    min_fill : float
+        Minimum share of valid cell pairs in a window.
+
+    Returns
+    -------
+    ndarray of float32, (len(shifts), rows, cols)
+        NCC in [-1, 1]; ``-2`` where it could not be computed (too few valid cells, no texture).
+    """
+    a, b = _check_pair(a, b)
+    window = _check_window(window)
+    va = np.isfinite(a)
+    vb = np.isfinite(b)
+    a0 = np.where(va, a, 0).astype(np.float32)
+    b0 = np.where(vb, b, 0).astype(np.float32)
+    # a texture floor: windows with less variance than this are "flat" (no match)
+    gv = float(np.var(a0[va])) if va.any() else 0.0
+    var_floor = max(gv * 1e-4, 1e-12)
+    box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
+    vol = np.empty((len(shifts),) + a.shape, np.float32)
+    for k, s in enumerate(shifts):
+        bs = _shift_cols(b0, int(s), 0.0)
+        w = (va & _shift_cols(vb, int(s), False)).astype(np.float32)
+        n = box(w)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.maximum(n, 1e-6)
+            aw = a0 * w
+            bw = bs * w
+            ma = box(aw) * inv
+            mb = box(bw) * inv
+            vara = box(aw * a0) * inv - ma * ma
+            varb = box(bw * bs) * inv - mb * mb
+            cov = box(aw * bs) * inv - ma * mb
+            ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
+        ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
+        vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        if shiftable and shiftable > 1:
+            vol[k] = np.where(ok, ndimage.maximum_filter(vol[k], int(shiftable), mode="nearest"), _BAD)
+    return vol
+
+
+def _parabola(vol, k, rows, cols):
+    """Sub-pixel offset of the NCC peak at index ``k`` by a parabola through k-1, k, k+1."""
+    K = vol.shape[0]
+    km = np.clip(k - 1, 0, K - 1)
+    kp = np.clip(k + 1, 0, K - 1)
+    c0 = vol[k, rows, cols]
+    cm = vol[km, rows, cols]
+    cp = vol[kp, rows, cols]
+    den = cm - 2 * c0 + cp
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where((den < 0) & (cm > _BAD) & (cp > _BAD), 0.5 * (cm - cp) / den, 0.0)
+    return np.clip(off, -0.5, 0.5)
+
+
+def _argmax_vol(vol):
+    k = np.argmax(vol, axis=0)
+    rows, cols = np.indices(k.shape)
+    return k, vol[k, rows, cols], rows, cols
+
+
+def _anchored_b(vol, shifts):
+    """Volume re-anchored on ``b``: ``W[s, y] = V[s, y - s]``."""
+    return np.stack([_shift_cols(vol[k], -int(s), _BAD) for k, s in enumerate(shifts)])
+
+
+def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_corr=0.3,
+                    lr_tolerance=1.0, min_fill=0.6):
+    """Disparity of a rectified stereo pair by NCC, left-right check and parabola sub-pixel.
+
+    The convention of Middlebury: a left pixel at column ``x`` is at ``x - d`` in the right
+    image. This is the matcher of the orthophoto refinement (Luong Chinh Ke 2002, section
+    2.3; Norvelle 1995) on its own, for tests against ground truth.
+
+    Parameters
+    ----------
+    left, right : ndarray (rows, cols)
+        Rectified images (NaN = invalid).
+    d_min, d_max : int
+        Disparity search range in pixels, inclusive.
+    window : int
+        Odd NCC window size.
+    shiftable : int
+        Shiftable-window neighbourhood (0 or 1: off).
+    min_corr : float
+        Correlation threshold: lower peaks are rejected.
+    lr_tolerance : float
+        Largest disagreement (pixels) between the left- and right-anchored disparities.
+
+    Returns
+    -------
+    MatchResult
+        ``disparity`` (float32, NaN where rejected), ``corr``, ``valid``, ``info``.
+    """
+    left, right = _check_pair(left, right)
+    d_min, d_max = int(d_min), int(d_max)
+    if d_max < d_min:
+        raise ValueError(f"d_max ({d_max}) must be >= d_min ({d_min}).")
+    shifts = np.arange(-d_max, -d_min + 1)            # b column = j + s = j - d
+    vol = ncc_volume(left, right, shifts, window, shiftable=shiftable, min_fill=min_fill)
+    k, c, rr, cc = _argmax_vol(vol)
+    s = shifts[k] + _parabola(vol, k, rr, cc)
+    # right-anchored winner: for right column y the left column is y - s
+    kb = np.argmax(_anchored_b(vol, shifts), axis=0)
+    sb = shifts[kb].astype(np.float32)
+    target = np.clip(np.rint(cc + shifts[k]), 0, left.shape[1] - 1).astype(int)
+    lr_ok = np.abs(sb[rr, target] - shifts[k]) <= lr_tolerance
+    valid = (c > _BAD) & (c >= min_corr) & lr_ok
+    disp = np.where(valid, -s, np.nan).astype(np.float32)
+    corr = np.where(c > _BAD, c, np.nan).astype(np.float32)
+    return MatchResult(disparity=disp, corr=corr, valid=valid,
+                       info=dict(window=window, shiftable=shiftable, min_corr=min_corr,
+                                 lr_tolerance=lr_tolerance, d_min=d_min, d_max=d_max,
+                                 matched_share=float(valid.mean())))
+
+
+def _lsm_refine(a, b, s, valid, window, iterations):
+    """Least-squares refinement of a symmetric shift ``s`` (a at j - s/2, b at j + s/2).
+
+    Gauss-Newton on ``sum_w (b(j + s/2) - a(j - s/2) - offset)^2`` for every cell at once
+    (window sums by box filters); the radiometric offset is eliminated by centring in the
+    window.
+    """
+    rows, cols = a.shape
+    rr, cc = np.indices(a.shape, dtype=np.float32)
+    va, vb = np.isfinite(a), np.isfinite(b)
+    a0 = np.where(va, a, 0).astype(np.float32)
+    b0 = np.where(vb, b, 0).astype(np.float32)
+    ga = np.gradient(a0, axis=1).astype(np.float32)
+    gb = np.gradient(b0, axis=1).astype(np.float32)
+    box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
+    s = np.where(valid, s, 0).astype(np.float32)
+    vaf, vbf = va.astype(np.float32), vb.astype(np.float32)
+    for _ in range(iterations):
+        ca, cb = cc - s / 2, cc + s / 2
+        A = ndimage.map_coordinates(a0, [rr, ca], order=1, mode="nearest")
+        B = ndimage.map_coordinates(b0, [rr, cb], order=1, mode="nearest")
+        GA = ndimage.map_coordinates(ga, [rr, ca], order=1, mode="nearest")
+        GB = ndimage.map_coordinates(gb, [rr, cb], order=1, mode="nearest")
+        w = ((ndimage.map_coordinates(vaf, [rr, ca], order=1, mode="constant") > 0.999)
+             & (ndimage.map_coordinates(vbf, [rr, cb], order=1, mode="constant") > 0.999)
+             ).astype(np.float32)
+        r = (B - A) * w
+        g = 0.5 * (GA + GB) * w
+        n = np.maximum(box(w), 1e-6)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            num = box(r * g) - box(r) * box(g) / n
+            den = box(g * g) - box(g) ** 2 / n
+            ds = np.where(den > 1e-12, -num / den, 0.0)
+        s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
+    return s
+
+
+def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
+                          lsm_iterations, min_fill):
+    """Symmetric matching along rows: disparity ``s`` at cell j means a(j - s/2) ~ b(j + s/2)."""
+    shifts = np.arange(-max_shift, max_shift + 1)
+    vol = ncc_volume(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill)
+    rows, cols = a.shape
+    rr, cc = np.indices(a.shape)
+    ka = np.argmax(vol, axis=0)                                   # a-anchored winner
+    kb = np.argmax(_anchored_b(vol, shifts), axis=0)              # b-anchored winner
+    # symmetric anchor: S[s, m] = V[s, m - floor(s/2)]
+    sym = np.stack([_shift_cols(vol[k], -int(np.floor(s / 2)), _BAD) for k, s in enumerate(shifts)])
+    k = np.argmax(sym, axis=0)
+    c = sym[k, rr, cc]
+    si = shifts[k]
+    s = si + _parabola(sym, k, rr, cc)
+    del sym
+    ja = np.clip(cc - np.floor(si / 2).astype(int), 0, cols - 1)
+    jb = np.clip(cc + np.ceil(si / 2).astype(int), 0, cols - 1)
+    lr_ok = ((np.abs(shifts[ka[rr, ja]] - si) <= lr_tolerance)
+             & (np.abs(shifts[kb[rr, jb]] - si) <= lr_tolerance))
+    inner = (k > 0) & (k < len(shifts) - 1)
+    valid = (c > _BAD) & (c >= min_corr) & lr_ok & inner
+    if lsm_iterations and valid.any():
+        s_lsm = _lsm_refine(a, b, s, valid, window, lsm_iterations)
+        # keep the least-squares result where it stays near the correlation peak
+        good = np.abs(s_lsm - s) <= 1.0
+        s = np.where(good, s_lsm, s)
+    corr = np.where(c > _BAD, c, np.nan).astype(np.float32)
+    return np.where(valid, s, np.nan).astype(np.float32), corr, valid
+
+
+def _rotation_grid(shape, u):
+    """Sampling grid of a frame whose rows run along ``u = (du_col, du_row)`` (unit)."""
+    rows, cols = shape
+    half = 0.5 * np.hypot(rows, cols)
+    n = int(np.ceil(2 * half)) + 3
+    o_c, o_r = (cols - 1) / 2.0, (rows - 1) / 2.0
+    q = np.arange(n) - (n - 1) / 2.0                               # along u (new columns)
+    p = np.arange(n) - (n - 1) / 2.0                               # along normal (new rows)
+    nv = (-u[1], u[0])
+    C = o_c + q[None, :] * u[0] + p[:, None] * nv[0]
+    R = o_r + q[None, :] * u[1] + p[:, None] * nv[1]
+    return C, R, (o_c, o_r, n, nv)
+
+
+def match_along(a, b, direction, max_shift, *, window=7, shiftable=5, min_corr=0.5,
+                lr_tolerance=1.0, lsm_iterations=3, min_fill=0.6):
+    """Parallax of orthophoto ``b`` against ``a`` along ``direction`` by NCC (and LSM).
+
+    The matching of two orthophotos along the base in Luong Chinh Ke (2002, section 2.3)
+    and Norvelle (1995): for every cell, the window of A and the window of B are slid in
+    opposite directions along ``direction``; the shift with the highest NCC, refined to
+    sub-pixel by a parabola and least-squares matching, is the parallax. Symmetric: the
+    result at cell ``m`` means ``a(m - d u / 2)`` matches ``b(m + d u / 2)``.
+
+    Parameters
+    ----------
+    a, b : ndarray (rows, cols)
+        Orthophotos on the same grid (NaN = not seen).
+    direction : (float, float)
+        ``(d_col, d_row)`` of the base direction in grid cells (normalised here). Axis
+        directions are matched exactly, others on a rotated resampling of both images.
+    max_shift : int
+        Search range ``[-max_shift, max_shift]`` in cells along ``direction``.
+    window : int
+        Odd NCC window size in cells.
+    shiftable : int
+        Shiftable-window neighbourhood (0: off).
+    min_corr : float
+        Correlation threshold.
+    lr_tolerance : float
+        Left-right consistency tolerance in cells.
+    lsm_iterations : int
+        Least-squares sub-pixel iterations (0: parabola only).
+
+    Returns
+    -------
+    MatchResult
+        ``disparity`` in cells along ``direction`` (``b`` displaced by ``d * u`` from
+        ``a``), ``corr``, ``valid``, ``info``.
+    """
+    a, b = _check_pair(a, b)
+    window = _check_window(window)
+    u = np.asarray(direction, dtype=float).reshape(2)
+    nrm = float(np.hypot(*u))
+    if not np.isfinite(nrm) or nrm == 0:
+        raise ValueError(f"direction must be a non-zero vector (d_col, d_row); got {direction!r}. "
+                         "Camera centres at the same place (base B = 0) give no parallax.")
+    u = u / nrm
+    max_shift = int(max_shift)
+    if max_shift < 1:
+        raise ValueError(f"max_shift must be >= 1 cell; got {max_shift}.")
+    args = (max_shift, window, shiftable, min_corr, lr_tolerance, lsm_iterations, min_fill)
+    axis = None
+    for key, vec in (("+c", (1, 0)), ("-c", (-1, 0)), ("+r", (0, 1)), ("-r", (0, -1))):
+        if np.allclose(u, vec, atol=1e-9):
+            axis = key
+    if axis is not None:
+        fwd = {"+c": lambda x: x, "-c": lambda x: x[:, ::-1],
+               "+r": lambda x: x.T, "-r": lambda x: x[::-1, :].T}[axis]
+        inv = {"+c": lambda x: x, "-c": lambda x: x[:, ::-1],
+               "+r": lambda x: x.T, "-r": lambda x: x.T[::-1, :]}[axis]
+        d, c, v = _match_symmetric_rows(np.ascontiguousarray(fwd(a)), np.ascontiguousarray(fwd(b)), *args)
+        d, c, v = inv(d), inv(c), inv(v)
+    else:
+        C, R, (o_c, o_r, n, nv) = _rotation_grid(a.shape, u)
+        ra = ndimage.map_coordinates(a, [R, C], order=1, mode="constant", cval=np.nan)
+        rb = ndimage.map_coordinates(b, [R, C], order=1, mode="constant", cval=np.nan)
+        d_r, c_r, v_r = _match_symmetric_rows(ra, rb, *args)
+        rr, cc = np.indices(a.shape, dtype=float)
+        q = (cc - o_c) * u[0] + (rr - o_r) * u[1] + (n - 1) / 2.0
+        p = (cc - o_c) * nv[0] + (rr - o_r) * nv[1] + (n - 1) / 2.0
+        d = ndimage.map_coordinates(d_r, [p, q], order=0, mode="constant", cval=np.nan)
+        c = ndimage.map_coordinates(c_r, [p, q], order=0, mode="constant", cval=np.nan)
+        v = np.isfinite(d)
+    v = v & np.isfinite(a) & np.isfinite(b)
+    d = np.where(v, d, np.nan).astype(np.float32)
+    return MatchResult(disparity=d, corr=np.asarray(c, np.float32), valid=v,
+                       info=dict(window=window, shiftable=shiftable, min_corr=min_corr,
+                                 lr_tolerance=lr_tolerance, max_shift=max_shift,
+                                 lsm_iterations=lsm_iterations, direction=tuple(u.tolist()),
+                                 matched_share=float(v.sum() / max(1, (np.isfinite(a) & np.isfinite(b)).sum()))))

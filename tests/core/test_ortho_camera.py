@@ -1,0 +1,138 @@
+"""Camera model: omega-phi-kappa convention, collinearity, Brown distortion, readers."""
+import math
+
+import numpy as np
+import pytest
+
+from bare_earth.core.orthophoto.camera import (Camera, Interior, cameras_from_opk, opk_to_rotation,
+                                               read_interior_yaml, read_opensfm_reconstruction,
+                                               read_opk_csv, rotation_to_opk)
+from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify
+
+
+def test_opk_convention_elementary_rotations():
+    # R = Rx(omega) Ry(phi) Rz(kappa), camera -> world
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    np.testing.assert_allclose(opk_to_rotation(30, 0, 0), [[1, 0, 0], [0, c, -s], [0, s, c]], atol=1e-15)
+    np.testing.assert_allclose(opk_to_rotation(0, 30, 0), [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-15)
+    np.testing.assert_allclose(opk_to_rotation(0, 0, 30), [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-15)
+    R = opk_to_rotation(10, -20, 130)
+    np.testing.assert_allclose(R, opk_to_rotation(10, 0, 0) @ opk_to_rotation(0, -20, 0)
+                               @ opk_to_rotation(0, 0, 130), atol=1e-15)
+    np.testing.assert_allclose(rotation_to_opk(R), (10, -20, 130), atol=1e-10)
+
+
+def test_opk_rejects_bad_angles():
+    with pytest.raises(ValueError, match="finite"):
+        opk_to_rotation(float("nan"), 0, 0)
+
+
+def _vertical(kappa=0.0, f=1000.0, w=400, h=300):
+    io = Interior(w, h, f, f, (w - 1) / 2, (h - 1) / 2)
+    return Camera.vertical(io, 500.0, 1000.0, 1200.0, kappa_deg=kappa)
+
+
+def test_vertical_camera_projects_as_collinearity_predicts():
+    cam = _vertical()
+    # nadir point -> principal point; a point 40 m east and 20 m north at 200 m height:
+    # x = f * dX / (Zc - Z) = 1000 * 40 / 1000, image rows go south
+    col, row = cam.project(np.array([500.0, 540.0]), np.array([1000.0, 1020.0]), np.array([0.0, 200.0]))
+    np.testing.assert_allclose(col, [199.5, 199.5 + 40.0], atol=1e-9)
+    np.testing.assert_allclose(row, [149.5, 149.5 - 20.0], atol=1e-9)
+    # kappa = 180: image top to the south, so east goes left and north goes down
+    col, row = _vertical(180).project(540.0, 1020.0, 200.0)
+    np.testing.assert_allclose([col, row], [199.5 - 40.0, 149.5 + 20.0], atol=1e-9)
+
+
+def test_tilted_camera_round_trip_and_behind():
+    io = Interior.from_params((640, 480), 0.8, None, 0.01, -0.02, -0.2, 0.08, -0.01, 1e-3, -5e-4)
+    cam = Camera.from_opk(io, 10.0, 20.0, 150.0, 25.0, -15.0, 60.0)
+    rng = np.random.default_rng(0)
+    col = rng.uniform(0, 639, 200)
+    row = rng.uniform(0, 479, 200)
+    Z = rng.uniform(-10, 40, 200)
+    X, Y, Z2 = cam.pixel_to_world(col, row, Z)
+    np.testing.assert_allclose(Z2, Z, atol=1e-9)
+    c2, r2 = cam.project(X, Y, Z)
+    np.testing.assert_allclose(c2, col, atol=1e-6)
+    np.testing.assert_allclose(r2, row, atol=1e-6)
+    # a point above the camera's back is behind it: NaN
+    c3, _ = _vertical().project(500.0, 1000.0, 2000.0)
+    assert np.isnan(c3)
+
+
+def test_brown_inverse_is_exact():
+    io = Interior.from_params((1368, 912), 0.666, None, 0, 0, -0.264, 0.1019, -0.0258, 7.3e-4, 2.6e-4)
+    x, y = np.meshgrid(np.linspace(-0.7, 0.7, 15), np.linspace(-0.45, 0.45, 11))
+    xd, yd = io.distort(x, y)
+    assert np.abs(xd - x).max() > 0.05          # the distortion is not negligible
+    xu, yu = io.undistort(xd, yd)
+    np.testing.assert_allclose(xu, x, atol=1e-10)
+    np.testing.assert_allclose(yu, y, atol=1e-10)
+
+
+def test_interior_from_sensor_size():
+    io = Interior.from_params((640, 1152), 120.0, (92.16, 165.888))
+    assert io.fx == pytest.approx(120 / 0.144) and io.fy == pytest.approx(120 / 0.144)
+    assert (io.c0, io.r0) == (319.5, 575.5)
+    with pytest.raises(ValueError, match="focal"):
+        Interior(10, 10, -1.0, 1.0, 4.5, 4.5)
+
+
+def test_orthophoto_lines_up_with_dem():
+    """A ground point shows in the orthophoto cell where the collinearity equations put it."""
+    io = Interior(201, 201, 400.0, 400.0, 100.0, 100.0)
+    cam = Camera.from_opk(io, 50.0, 50.0, 300.0, 3.0, -4.0, 20.0)
+    rows, cols = np.indices((io.height, io.width))
+    image = (np.sin(rows * 0.37) + np.cos(cols * 0.23) + 0.01 * rows * cols).astype(np.float32)
+    transform = (0.0, 1.0, 0.0, 100.0, 0.0, -1.0)
+    X, Y = grid_xy((100, 100), transform)
+    dem = (20 + 0.1 * X + 0.05 * Y + 3 * np.sin(X / 10)) * np.ones((100, 1))
+    ortho, seen = orthorectify(image, cam, dem, transform)
+    assert seen.mean() > 0.5
+    i, j = 37, 61
+    col, row = cam.project(X[0, j], Y[i, 0], dem[i, j])
+    # bilinear interpolation of the image at the predicted pixel
+    c0, r0 = int(np.floor(col)), int(np.floor(row))
+    fc, fr = col - c0, row - r0
+    expect = ((1 - fr) * ((1 - fc) * image[r0, c0] + fc * image[r0, c0 + 1])
+              + fr * ((1 - fc) * image[r0 + 1, c0] + fc * image[r0 + 1, c0 + 1]))
+    assert ortho[i, j] == pytest.approx(expect, abs=1e-4)
+    with pytest.raises(ValueError, match="interior orientation"):
+        orthorectify(image[:, :-1], cam, dem, transform)
+
+
+def test_read_opk_csv_errors(tmp_path):
+    p = tmp_path / "ext.csv"
+    p.write_text("filename,x,y,z,omega,phi,kappa\na.tif,1,2,3,0.5,-0.2,90\nb,1,2,3,0,0,10\n")
+    ext = read_opk_csv(p)
+    assert set(ext) == {"a", "b"} and ext["a"]["kappa"] == 90
+    io = Interior(10, 10, 10.0, 10.0, 4.5, 4.5)
+    with pytest.raises(ValueError, match="no exterior orientation for image"):
+        cameras_from_opk(ext, io, ["a", "c"])
+    p.write_text("filename,x,y,z,omega,phi,kappa\na,1,2,3,0.5,abc,90\n")
+    with pytest.raises(ValueError, match="not a number"):
+        read_opk_csv(p)
+    p.write_text("filename,x,y,z,omega,phi,kappa\na,1,2,3,0.5,700,90\n")
+    with pytest.raises(ValueError, match="degrees"):
+        read_opk_csv(p)
+    p.write_text("filename,x,y,z,omega,phi\na,1,2,3,0.5,7\n")
+    with pytest.raises(ValueError, match="kappa"):
+        read_opk_csv(p)
+
+
+def test_orthority_files(shared_data):
+    d = shared_data / "stereo" / "orthority"
+    ios = read_interior_yaml(d / "io" / "ngi_int_param.yaml")
+    io = ios["Integraph DMC"]
+    assert (io.width, io.height) == (640, 1152) and io.fx == pytest.approx(833.333, rel=1e-5)
+    cams = cameras_from_opk(read_opk_csv(d / "io" / "ngi_xyz_opk.csv"), ios)
+    assert len(cams) == 4
+    # the OPK angles orthority wrote for the drone frames equal those of OpenSfM's poses:
+    # this pins the convention R = Rx(omega) Ry(phi) Rz(kappa), camera x right, y up, z back.
+    _, sfm, ref = read_opensfm_reconstruction(d / "odm" / "opensfm" / "reconstruction.json")
+    ext = read_opk_csv(d / "io" / "odm_xyz_opk.csv")
+    for name, cam in sfm.items():
+        np.testing.assert_allclose(cam.opk_deg, [ext[name][k] for k in ("omega", "phi", "kappa")],
+                                   atol=2e-3)
+    assert ref["latitude"] == pytest.approx(24.68, abs=0.01)

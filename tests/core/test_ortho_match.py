@@ -1,0 +1,99 @@
+"""NCC matcher: exact integer and sub-pixel shifts, directions, left-right check, errors."""
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from bare_earth.core.orthophoto.match import match_along, match_rectified, ncc_volume
+
+
+def _texture(shape, seed=0, sigma=1.2):
+    rng = np.random.default_rng(seed)
+    t = ndimage.gaussian_filter(rng.normal(size=shape), sigma)
+    return (t / t.std()).astype(np.float64)
+
+
+def _shifted(t, shift_cols, shift_rows=0.0):
+    """t sampled at (r - shift_rows, c - shift_cols): features move by +shift."""
+    rr, cc = np.indices(t.shape, dtype=float)
+    return ndimage.map_coordinates(t, [rr - shift_rows, cc - shift_cols], order=3, mode="reflect")
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_ncc_volume_peak_is_one_at_the_true_shift(dtype):
+    t = _texture((40, 60))
+    a = (t * 100).astype(dtype)
+    b = np.roll(a, 3, axis=1)                        # b[:, j + 3] = a[:, j]
+    vol = ncc_volume(a, b, [1, 2, 3, 4], 7)
+    inner = vol[:, 5:-5, 8:-8]
+    assert np.all(np.argmax(inner, axis=0) == 2)
+    np.testing.assert_allclose(inner[2], 1.0, atol=1e-4)
+
+
+@pytest.mark.parametrize("shift", [2.3, -1.6, 0.45])
+def test_match_along_subpixel_exact(shift):
+    t = _texture((80, 120), seed=1, sigma=1.5)
+    b = _shifted(t, shift)
+    r = match_along(t, b, (1, 0), 5, window=9, shiftable=0, min_corr=0.5)
+    core = r.disparity[15:-15, 15:-15]
+    assert np.isfinite(core).mean() > 0.95
+    assert np.nanmedian(np.abs(core - shift)) < 0.03
+    # parabola only is coarser but still sub-pixel
+    r0 = match_along(t, b, (1, 0), 5, window=9, shiftable=0, lsm_iterations=0)
+    assert np.nanmedian(np.abs(r0.disparity[15:-15, 15:-15] - shift)) < 0.2
+
+
+@pytest.mark.parametrize("direction", [(0, 1), (0, -1), (-1, 0), (0.8, 0.6)])
+def test_match_along_any_direction(direction):
+    t = _texture((90, 90), seed=2, sigma=1.5)
+    u = np.asarray(direction) / np.hypot(*direction)
+    d = 1.7
+    b = _shifted(t, d * u[0], d * u[1])
+    r = match_along(t, b, direction, 4, window=9, shiftable=0)
+    core = r.disparity[20:-20, 20:-20]
+    assert np.isfinite(core).mean() > 0.9
+    assert abs(np.nanmedian(core) - d) < 0.1
+
+
+def test_left_right_check_rejects_occluded_and_flat():
+    t = _texture((60, 100), seed=3)
+    b = np.roll(t, 4, axis=1)
+    b[:, 40:50] = _texture((60, 10), seed=9)          # content only in b: no true match
+    a = t.copy()
+    a[:, 70:90] = 1.0                                 # flat: NCC undefined
+    r = match_along(a, b, (1, 0), 6, window=7, shiftable=0)
+    assert np.isnan(r.disparity[10:-10, 75:85]).all()
+    ok = r.disparity[10:-10, 10:30]
+    assert np.nanmedian(np.abs(ok - 4)) < 0.05 and np.isfinite(ok).mean() > 0.9
+
+
+def test_match_rectified_middlebury_convention():
+    t = _texture((50, 120), seed=4)
+    right = t
+    left = np.roll(t, 7, axis=1)                      # x_right = x_left - 7
+    r = match_rectified(left, right, 0, 12, window=7, shiftable=0)
+    assert np.nanmedian(r.disparity[5:-5, 20:-5]) == pytest.approx(7, abs=0.05)
+
+
+def test_bad_inputs():
+    t = _texture((30, 30))
+    with pytest.raises(ValueError, match="same grid"):
+        match_along(t, t[:, :-1], (1, 0), 3)
+    with pytest.raises(ValueError, match="B = 0"):
+        match_along(t, t, (0, 0), 3)
+    with pytest.raises(ValueError, match="odd"):
+        match_along(t, t, (1, 0), 3, window=6)
+    with pytest.raises(ValueError, match="d_max"):
+        match_rectified(t, t, 5, 2)
+
+
+def test_middlebury_cones(shared_data):
+    from osgeo import gdal
+    d = shared_data / "stereo" / "middlebury_cones"
+    left = gdal.Open(str(d / "Cones_LEFT.tif")).ReadAsArray().astype(np.float32)
+    right = gdal.Open(str(d / "Cones_RIGHT.tif")).ReadAsArray().astype(np.float32)
+    gt = gdal.Open(str(d / "Cones_LEFT_GT.tif")).ReadAsArray()
+    nocc = gdal.Open(str(d / "Occlusion_LEFT.png")).ReadAsArray() > 0
+    r = match_rectified(left, right, 0, 60, window=7, shiftable=5)
+    m = (gt > 0) & nocc
+    share = float((np.abs(r.disparity - gt) <= 1)[m].mean())   # unmatched count as wrong
+    assert share >= 0.75
