@@ -1,0 +1,606 @@
+"""Morphological filter: grey opening plus a two-sided height test (issue 7).
+
+Two forms share one module:
+
+**Single window (the 1996 production form).** The lowest surface, with pits narrower
+than three cells first closed, is grey-opened (erosion then dilation, Haralick et al.
+1987) with one square structuring element a little larger than the largest object to
+remove. The opened surface ``O`` is the terrain. A cell more than ``dh`` above ``O`` is an
+object (class 1: buildings, trees); a cell more than ``dh`` below it is a blunder (class 2:
+image-matching errors); the rest is the topographic surface. ``dh`` comes from prior
+knowledge of the object heights and of the data's accuracy (the production system used
+5 ft); here it is derived from the data's noise when not given.
+
+**Progressive (Zhang et al. 2003; Pingel et al. 2013, SMRF).** A single large opening cuts
+hill tops and ridges by up to ``slope x window radius``, so on sloped terrain the single
+form removes ground. The progressive form opens the surface with windows growing from one
+cell to the largest object; at step ``k`` (window radius ``r_k``, metres) a cell whose
+opened height drops by more than ``t_k = s r_k`` from the previous step is flagged as an
+object (SMRF's elevation threshold, ``s`` the terrain slope). The threshold grows with the
+window and the slope, so terrain survives while objects, which drop by their full height
+once the window outgrows them, are flagged. Then, as in SMRF, a provisional surface
+``ZIpro`` is built from the unflagged cells (flagged ones take the last opened surface,
+which is the ground reconstructed under them) and every cell is classified against it:
+ground when ``|z - ZIpro| <= dh + e_s * slope(ZIpro)`` (SMRF's ``e_t``, ``e_s``), object
+above, low outlier below. Low outliers are found first by SMRF's pre-step: the same
+progressive filter on the inverted surface with a 1 m window and a slope of 500 %.
+
+Windows grow geometrically (``window_growth``, default 2: radii 1, 2, 4, 8, ... cells, the
+exponential windows of Zhang et al. 2003); ``window_growth=1`` gives SMRF's one-cell steps.
+Incremental terrain cuts between two radii never exceed ``s r_k``, so the SMRF threshold
+stays valid for larger steps. Square windows make every erosion and dilation two
+``scipy.ndimage`` 1-D running min/max passes whose cost does not depend on the window, so a
+40 m window costs what a 3 m one does.
+
+Nodata (NaN) is ignored by the min/max filters (the windows are restricted to valid
+cells), so no gap filling is needed; the reach of the filter is bounded by the largest
+window, and :func:`morphological_halo` covers it.
+
+References
+----------
+Haralick, R. M., Sternberg, S. R., Zhuang, X. (1987). Image analysis using mathematical
+morphology. IEEE PAMI 9(4), 532-550.
+Zhang, K., Chen, S.-C., Whitman, D., Shyu, M.-L., Yan, J., Zhang, C. (2003). A progressive
+morphological filter for removing nonground measurements from airborne LIDAR data. IEEE
+TGRS 41(4), 872-882.
+Pingel, T. J., Clarke, K. C., McBride, W. A. (2013). An improved simple morphological filter
+for the terrain classification of airborne LIDAR data. ISPRS J. Photogramm. Remote Sens.
+77, 21-30.
+"""
+import math
+import warnings
+
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND, LOW, OBJECT
+from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
+from .methods import Method, Param
+
+MODES = ("auto", "progressive", "single")
+#: SMRF's low-outlier pre-step: slope 500 % over windows up to 1 m (Pingel et al. 2013).
+LOW_OUTLIER_SLOPE = 5.0
+LOW_OUTLIER_WINDOW_M = 1.0
+#: Bounds of the derived parameters.
+_MIN_DH, _MAX_DH = 0.3, 5.0
+_MIN_SLOPE, _MAX_SLOPE = 0.05, 1.5
+_MIN_OBJECT_M, _MAX_OBJECT_M = 10.0, 80.0
+#: Largest object looked for when deriving max_object_size_m, metres.
+_OBJECT_SEARCH_M = 100.0
+#: Minimum height of an object when deriving its size, metres.
+_OBJECT_HEIGHT_M = 2.0
+#: Parameters are derived on a grid of at most this many cells (block minima).
+_RESOLVE_CELLS = 1_000_000
+
+
+# --------------------------------------------------------------------------- helpers
+def _half_widths(size_m, cell):
+    """Half-widths ``(ry, rx)`` in cells of a square window of side ``size_m`` metres.
+
+    The window is ``2 r + 1`` cells wide; ``r`` is at least 1.
+    """
+    dx, dy = cell
+    rx = max(1, int(math.floor((size_m / dx - 1.0) / 2.0 + 0.5)))
+    ry = max(1, int(math.floor((size_m / dy - 1.0) / 2.0 + 0.5)))
+    return ry, rx
+
+
+def _radii_up_to(r_max, cell, growth):
+    """Half-widths ``(ry, rx, radius_m)`` growing by ``growth`` from 1 to ``r_max`` cells
+    along the finer axis; the other axis follows in metres."""
+    dx, dy = cell
+    fine = min(dx, dy)
+    seq, r = [], 1
+    while r < r_max:
+        seq.append(r)
+        r = max(r + 1, int(math.ceil(r * growth - 1e-9)))
+    seq.append(max(1, r_max))
+    out = []
+    for r in seq:
+        rad_m = r * fine
+        rx = max(1, int(math.floor(rad_m / dx + 0.5)))
+        ry = max(1, int(math.floor(rad_m / dy + 0.5)))
+        if out and (ry, rx) == out[-1][:2]:
+            continue
+        out.append((ry, rx, rad_m))
+    return out
+
+
+def window_radii(max_object_size_m, cell_size, growth=2.0):
+    """Window half-widths of the progressive filter, from one cell to the largest object.
+
+    Parameters
+    ----------
+    max_object_size_m : float
+        Side of the largest window, metres (objects narrower than this are removed).
+    cell_size : float or (dx, dy)
+        Metres.
+    growth : float
+        Ratio between consecutive radii (>= 1). 1 gives SMRF's steps of one cell
+        (Pingel et al. 2013); 2 the exponential windows of Zhang et al. (2003).
+
+    Returns
+    -------
+    list of (ry, rx, radius_m)
+        Half-widths in cells along rows and columns and the radius in metres along the
+        finer axis (the ``r c`` of SMRF's threshold ``s r c``), increasing.
+
+    Examples
+    --------
+    >>> [r[1] for r in window_radii(41.0, 1.0)]
+    [1, 2, 4, 8, 16, 20]
+    """
+    cell = as_cell_size(cell_size)
+    if not (np.isfinite(growth) and growth >= 1.0):
+        raise ValueError(f"window_growth must be >= 1 (1: one-cell steps as in SMRF, 2: doubling "
+                         f"windows as in Zhang et al. 2003); got {growth!r}.")
+    ry_max, rx_max = _half_widths(max_object_size_m, cell)
+    r_max = rx_max if cell[0] <= cell[1] else ry_max
+    return _radii_up_to(r_max, cell, growth)
+
+
+def _low_radii(cell, growth):
+    """SMRF's low-outlier windows: radii up to ``ceil(1 m / cell)`` cells."""
+    r_max = max(1, int(math.ceil(LOW_OUTLIER_WINDOW_M / min(cell) - 1e-9)))
+    return _radii_up_to(r_max, cell, growth)
+
+
+def _erode(a, ry, rx):
+    """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata."""
+    if ry <= 0 and rx <= 0:
+        return a
+    return ndimage.minimum_filter(a, size=(2 * ry + 1, 2 * rx + 1), mode="nearest")
+
+
+def _dilate(e, ry, rx, has_nodata):
+    """Grey dilation (running maximum) of an eroded surface ``e`` (+inf = no valid cell).
+
+    Returns the dilated surface with NaN where no valid cell is within reach.
+    """
+    if has_nodata:
+        e = np.where(np.isposinf(e), np.float32(-np.inf), e)
+    d = ndimage.maximum_filter(e, size=(2 * ry + 1, 2 * rx + 1), mode="nearest")
+    if has_nodata:
+        d[np.isneginf(d)] = np.nan
+    return d
+
+
+def _as_inf(z, sign=1.0):
+    """``sign * z`` as float32 with nodata set to +inf (ignored by the erosion)."""
+    a = z if sign > 0 else -z
+    a = np.array(a, dtype=np.float32, copy=True)
+    bad = ~np.isfinite(z)
+    has_nodata = bool(bad.any())
+    if has_nodata:
+        a[bad] = np.inf
+    return a, has_nodata
+
+
+def open_surface(z, cell_size, size_m, *, close_pits=False):
+    """Grey opening of a surface with a square window of side ``size_m`` metres.
+
+    The opening (erosion then dilation with the same flat square, Haralick et al. 1987)
+    removes every bump the window does not fit into (objects narrower than ``size_m``)
+    and keeps terrain, planes and ramps included, wherever the window fits under it.
+    Nodata (NaN) cells are ignored by both passes.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (NaN = nodata); not modified.
+    cell_size : float or (dx, dy)
+        Metres.
+    size_m : float
+        Side of the square structuring element, metres (``2 r + 1`` cells, ``r >= 1``).
+    close_pits : bool
+        First close the surface with a 3 x 3 window, which fills pits one or two cells
+        wide (blunders) so that they do not spread into the opening.
+
+    Returns
+    -------
+    ndarray of float32
+        The opened surface (<= the closed surface), NaN where ``z`` is nodata.
+    """
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    if not (np.isfinite(size_m) and size_m > 0):
+        raise ValueError(f"size_m must be a positive window size in metres; got {size_m!r}.")
+    ry, rx = _half_widths(size_m, cell)
+    base = _close3(z) if close_pits else z
+    a, has_nodata = _as_inf(base)
+    out = _dilate(_erode(a, ry, rx), ry, rx, has_nodata)
+    out[~np.isfinite(z)] = np.nan
+    return out
+
+
+def _close3(z):
+    """3 x 3 grey closing (dilation then erosion), nodata ignored; NaN stays NaN."""
+    neg, has_nodata = _as_inf(z, -1.0)          # -z, nodata +inf: erosion of -z = -dilation of z
+    closed = -_dilate(_erode(neg, 1, 1), 1, 1, has_nodata)   # -(opening of -z) = closing of z
+    closed[~np.isfinite(z)] = np.nan
+    return closed
+
+
+def _progressive(a, radii, slope, has_nodata, progress=None):
+    """SMRF's progressive opening of ``a`` (+inf = nodata).
+
+    Returns the boolean flags (a cell whose opened height dropped by more than
+    ``slope * radius_m`` at some step) and the last opened surface.
+    """
+    flags = np.zeros(a.shape, bool)
+    prev = a
+    eroded = a
+    pry = prx = 0
+    n = len(radii)
+    for k, (ry, rx, rad_m) in enumerate(radii):
+        # Square windows compose: eroding the previous erosion by the increment gives the
+        # erosion by the full window (cheaper than starting from the surface).
+        eroded = _erode(eroded, ry - pry, rx - prx)
+        opened = _dilate(eroded, ry, rx, has_nodata)
+        with np.errstate(invalid="ignore"):
+            diff = prev - opened
+            flags |= diff > np.float32(slope * rad_m)      # SMRF: t_k = s * r_k * c
+        prev = opened
+        pry, prx = ry, rx
+        report(progress, (k + 1) / n)
+    return flags, prev
+
+
+def _surface_slope(s, cell):
+    """Slope (rise/run) of a surface by central differences; NaN -> 0."""
+    dx, dy = cell
+    if min(s.shape) < 2:
+        return np.zeros(s.shape, np.float32)
+    gy, gx = np.gradient(s, dy, dx)
+    g = np.hypot(gx, gy)
+    g[~np.isfinite(g)] = 0.0
+    return g.astype(np.float32, copy=False)
+
+
+def _check(name, value, lo, hi, fix):
+    if value is None or not np.isfinite(value) or not (lo <= value <= hi):
+        raise ValueError(f"{name} must be a number in [{lo}, {hi}]; got {value!r}. {fix}")
+    return float(value)
+
+
+# --------------------------------------------------------------------------- the filter
+def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, dh_m=None,
+                         slope=None, slope_scale_m=1.25, window_growth=2.0,
+                         low_outlier_slope=LOW_OUTLIER_SLOPE, progress=None):
+    """Classify a DSM into ground, objects and low outliers by grey opening.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        The lowest surface (DSM), NaN = nodata; not modified.
+    cell_size : float or (dx, dy)
+        Metres.
+    mode : {"auto", "progressive", "single"}
+        ``"single"``: one opening with a window of ``max_object_size_m`` and the two-sided
+        test with ``dh_m`` (the 1996 form). ``"progressive"``: SMRF / Zhang et al. (2003)
+        growing windows with a slope-dependent threshold, then SMRF's final test against
+        the provisional surface. ``"auto"``: progressive unless the terrain is flat at the
+        scale of the window (``slope * max_object_size_m / 2 <= dh_m``: a single opening
+        then cuts no ground by more than ``dh``).
+    max_object_size_m : float, optional
+        Largest object to remove, metres (side of the largest window). Default: derived
+        from the data (:func:`resolve_morphological_params`).
+    dh_m : float, optional
+        Height threshold of the two-sided test, metres (SMRF's ``e_t``). Default: derived
+        from the data's noise.
+    slope : float, optional
+        Terrain slope ``s`` (rise/run) of the progressive threshold ``t_k = s r_k``.
+        Default: a robust high percentile of the slope of a coarse minimum surface.
+    slope_scale_m : float
+        SMRF's ``e_s``: metres of extra tolerance per unit of slope of the provisional
+        surface in the final test of the progressive form (1.25 in SMRF).
+    window_growth : float
+        Ratio between consecutive window radii of the progressive form (1: SMRF's
+        one-cell steps; 2: Zhang's doubling windows, the default, 3-5x faster).
+    low_outlier_slope : float
+        Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window); 5 = 500 %.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`~bare_earth.core.common.Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low outlier, 255 nodata), ``surface`` (the
+        opened surface of the single form or SMRF's provisional surface of the
+        progressive form, float32) and ``info`` (mode and why, dh, slope, window sizes,
+        class counts).
+
+    Raises
+    ------
+    ValueError
+        For an unknown mode or a parameter out of range (the message says which).
+    """
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    if any(v is None for v in (max_object_size_m, dh_m, slope)) or mode == "auto":
+        p = resolve_morphological_params(z, cell, mode=mode, max_object_size_m=max_object_size_m,
+                                         dh_m=dh_m, slope=slope, slope_scale_m=slope_scale_m,
+                                         window_growth=window_growth,
+                                         low_outlier_slope=low_outlier_slope)
+    else:
+        p = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
+                 slope_scale_m=slope_scale_m, window_growth=window_growth,
+                 low_outlier_slope=low_outlier_slope)
+    mode = p["mode"]
+    if mode not in ("progressive", "single"):
+        raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
+    size_m = _check("max_object_size_m", p["max_object_size_m"], 2 * min(cell), 1e5,
+                    "Give the side of the largest object to remove in metres (at least two cells).")
+    dh = _check("dh_m", p["dh_m"], 0.0, 1e4, "Give the height threshold in metres (e.g. 0.5).")
+    s = _check("slope", p["slope"], 0.0, 100.0, "Give the terrain slope as rise/run (0.15 = 15 %).")
+    es = _check("slope_scale_m", p["slope_scale_m"], 0.0, 100.0, "SMRF uses 1.25.")
+    growth = _check("window_growth", p["window_growth"], 1.0, 10.0,
+                    "Use 1 (SMRF's one-cell steps) to 2 (doubling windows).")
+    low_s = _check("low_outlier_slope", p["low_outlier_slope"], 0.0, 1e3, "SMRF uses 5 (500 %).")
+    valid = np.isfinite(z)
+    info = {"mode": mode, "mode_reason": p.get("mode_reason", "mode given by the user"),
+            "dh_m": dh, "slope": s, "max_object_size_m": size_m}
+
+    if mode == "single":
+        ry, rx = _half_widths(size_m, cell)
+        report(progress, 0.05)
+        base = _close3(z)                      # pits 1-2 cells wide must not spread
+        report(progress, 0.3)
+        a, has_nodata = _as_inf(base)
+        opened = _dilate(_erode(a, ry, rx), ry, rx, has_nodata)
+        report(progress, 0.9)
+        with np.errstate(invalid="ignore"):
+            d = z - opened
+            mask = np.where(d > dh, OBJECT, np.where(d < -dh, LOW, GROUND)).astype(np.uint8)
+        surface = opened
+        info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3)]
+        info["window_cells"] = [(2 * ry + 1, 2 * rx + 1)]
+    else:
+        # 1. SMRF low-outlier pre-step: the progressive filter on -z, 1 m window, slope 5.
+        neg, has_nodata = _as_inf(z, -1.0)
+        low, neg_open = _progressive(neg, _low_radii(cell, growth), low_s, has_nodata,
+                                     sub_progress(progress, 0.0, 0.1))
+        low &= valid
+        clean = np.where(low, -neg_open, z).astype(np.float32)   # pits replaced by the closing
+        del neg, neg_open
+        # 2. Progressive opening of the cleaned surface (Zhang 2003; SMRF).
+        radii = window_radii(size_m, cell, growth)
+        a, _ = _as_inf(clean)
+        obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85))
+        del a
+        obj &= valid
+        # 3. Provisional surface ZIpro: unflagged cells keep their height, flagged ones
+        #    take the last opening (the ground reconstructed under them).
+        zpro = np.where(obj | ~valid, opened, clean).astype(np.float32)
+        report(progress, 0.9)
+        # 4. SMRF's final test: ground when |z - ZIpro| <= e_t + e_s * slope(ZIpro).
+        thr = _surface_slope(zpro, cell)
+        thr *= np.float32(es)
+        thr += np.float32(dh)
+        with np.errstate(invalid="ignore"):
+            d = z - zpro
+            mask = np.where(d > thr, OBJECT, np.where((d < -thr) | low, LOW, GROUND)).astype(np.uint8)
+        zpro[~valid] = np.nan
+        surface = zpro
+        info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii]
+        info["window_cells"] = [(2 * ry + 1, 2 * rx + 1) for ry, rx, _ in radii]
+        info["thresholds_m"] = [round(s * r, 4) for _, _, r in radii]
+        info["slope_scale_m"] = es
+        info["window_growth"] = growth
+        info["low_outlier_cells_prestep"] = int(low.sum())
+        info["flagged_by_opening_percent"] = 100.0 * float(obj.sum()) / max(1, int(valid.sum()))
+    mask = finish_mask(mask, z)
+    nval = max(1, int(valid.sum()))
+    info["object_percent"] = 100.0 * float((mask == OBJECT).sum()) / nval
+    info["low_percent"] = 100.0 * float((mask == LOW).sum()) / nval
+    for k in ("noise_m", "terrain_slope_p90"):
+        if k in p:
+            info[k] = p[k]
+    report(progress, 1.0)
+    return FilterResult(mask=mask, info=info, surface=surface)
+
+
+# --------------------------------------------------------------------------- defaults
+def _block_min(z, k):
+    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN)."""
+    if k <= 1:
+        return z
+    rows, cols = z.shape
+    R, C = -(-rows // k), -(-cols // k)
+    pad = np.full((R * k, C * k), np.inf, np.float32)
+    pad[:rows, :cols] = np.where(np.isfinite(z), z, np.inf)
+    out = pad.reshape(R, k, C, k).min(axis=(1, 3))
+    out[np.isinf(out)] = np.nan
+    return out
+
+
+def estimate_noise(z):
+    """Robust noise of a surface, metres: scaled MAD of the residual from the 4-neighbour mean.
+
+    The residual ``z - mean(4 neighbours)`` of white noise of standard deviation ``sigma``
+    has standard deviation ``sigma sqrt(1 + 1/4)``; edges and roofs are a minority the
+    median ignores. Returns 0 for a noise-free surface.
+    """
+    z = as_surface(z)
+    if min(z.shape) < 3:
+        return 0.0
+    c = z[1:-1, 1:-1]
+    nb = (z[:-2, 1:-1] + z[2:, 1:-1] + z[1:-1, :-2] + z[1:-1, 2:]) * np.float32(0.25)
+    r = (c - nb)[np.isfinite(c) & np.isfinite(nb)]
+    if r.size == 0:
+        return 0.0
+    if r.size > 2_000_000:
+        r = r[:: r.size // 1_000_000]
+    mad = float(np.median(np.abs(r - np.median(r))))
+    return 1.4826 * mad / math.sqrt(1.25)
+
+
+def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
+    """Robust terrain slope (rise/run): a high percentile of a coarse minimum surface's slope.
+
+    The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
+    block vanish from it) and the slope of that coarse surface is taken by central
+    differences; the ``percentile`` of it is returned.
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    k = max(1, int(round(scale_m / max(dx, dy))))
+    m = _block_min(z, k)
+    if min(m.shape) < 3:
+        return float("nan")
+    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
+    g = np.hypot(gx, gy)
+    g = g[np.isfinite(g)]
+    return float(np.percentile(g, percentile)) if g.size else float("nan")
+
+
+def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
+    """Side of the largest object, metres, found by the progressive filter itself.
+
+    The progressive filter with windows up to ``search_m`` flags the cells standing more
+    than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; the width of each
+    object is twice the largest distance from its inside to its outline (the largest
+    square window it holds). The object size is the width below which 98 % of the object
+    area lies, plus two cells, or NaN when there are no objects.
+    """
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    res = filter_morphological(z, cell, mode="progressive", max_object_size_m=search_m,
+                               dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope)
+    obj = res.mask == OBJECT
+    if not obj.any():
+        return float("nan")
+    lab, n = ndimage.label(obj)
+    dist = ndimage.distance_transform_edt(obj, sampling=(cell[1], cell[0]))
+    width = 2.0 * ndimage.maximum(dist, lab, index=np.arange(1, n + 1))
+    area = ndimage.sum_labels(obj, lab, index=np.arange(1, n + 1))
+    order = np.argsort(width)
+    cum = np.cumsum(area[order]) / area.sum()
+    w = float(width[order][np.searchsorted(cum, 0.98)])
+    return w + 2.0 * max(cell)
+
+
+def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m=None, dh_m=None,
+                                 slope=None, slope_scale_m=1.25, window_growth=2.0,
+                                 low_outlier_slope=LOW_OUTLIER_SLOPE, **_ignored):
+    """Complete the parameters of :func:`filter_morphological` from the data.
+
+    * ``dh_m``: ``max(0.3 m, 4 sigma)``, ``sigma`` the robust noise of the DSM
+      (:func:`estimate_noise`), at most 5 m.
+    * ``slope``: the 90th percentile of the slope of the 20 m block-minimum surface
+      (:func:`estimate_terrain_slope`), bounded to 0.05-1.5.
+    * ``max_object_size_m``: the width of the largest objects the progressive filter
+      finds with windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
+      (40 m when there are no objects).
+    * ``mode``: ``"auto"`` becomes ``"progressive"`` when ``slope * max_object_size_m / 2 >
+      dh_m`` (a single opening would cut the terrain by more than ``dh``), else ``"single"``;
+      ``mode_reason`` says why.
+
+    Large rasters are reduced to block minima of at most a million cells first.
+    """
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
+    k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
+    zs = _block_min(z, k)
+    cs = (cell[0] * k, cell[1] * k)
+    out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
+               slope_scale_m=slope_scale_m, window_growth=window_growth,
+               low_outlier_slope=low_outlier_slope)
+    r0, c0 = max(0, z.shape[0] // 2 - 500), max(0, z.shape[1] // 2 - 500)
+    noise = estimate_noise(z[r0:r0 + 1000, c0:c0 + 1000])      # full resolution, central window
+    out["noise_m"] = noise
+    if dh_m is None:
+        out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, 4.0 * noise)))
+    p90 = estimate_terrain_slope(zs, cs)
+    out["terrain_slope_p90"] = p90
+    if slope is None:
+        s = p90 if np.isfinite(p90) else 0.15
+        out["slope"] = float(min(_MAX_SLOPE, max(_MIN_SLOPE, s)))
+    if max_object_size_m is None:
+        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"])
+        out["max_object_size_m"] = float(40.0 if not np.isfinite(w)
+                                         else min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
+    if mode == "auto":
+        cut = out["slope"] * out["max_object_size_m"] / 2.0
+        if cut > out["dh_m"]:
+            out["mode"] = "progressive"
+            out["mode_reason"] = (f"terrain not flat: a single {out['max_object_size_m']:.1f} m opening "
+                                  f"would cut slopes of {out['slope']:.3f} by up to {cut:.2f} m > dh "
+                                  f"{out['dh_m']:.2f} m, so the progressive filter (SMRF) is used")
+        else:
+            out["mode"] = "single"
+            out["mode_reason"] = (f"terrain flat: a single {out['max_object_size_m']:.1f} m opening cuts "
+                                  f"slopes of {out['slope']:.3f} by at most {cut:.2f} m <= dh "
+                                  f"{out['dh_m']:.2f} m, so the single-window 1996 form is used")
+    else:
+        out["mode_reason"] = f"mode {mode!r} given by the user"
+    return out
+
+
+def morphological_halo(params, cell_size):
+    """Reach of the filter in cells: two largest half-windows (erosion then dilation),
+    the 3 x 3 closing or low-outlier step, and the slope's central difference."""
+    cell = as_cell_size(cell_size)
+    size = params.get("max_object_size_m") or _MAX_OBJECT_M
+    ry, rx = _half_widths(size, cell)
+    low = _low_radii(cell, 1.0)[-1]
+    return int(2 * max(ry, rx) + 2 * max(low[0], low[1]) + 2)
+
+
+def _run(z, cell_size, progress=None, **params):
+    return filter_morphological(z, cell_size, progress=progress, **params)
+
+
+METHOD = Method(
+    name="morphological",
+    run=_run,
+    resolve=resolve_morphological_params,
+    halo=morphological_halo,
+    params=(
+        Param("mode", "enum", "auto",
+              "auto: progressive windows where the terrain is not flat (slope x half the largest window "
+              "> dh), else one window; progressive: growing windows with a slope-dependent threshold "
+              "(Zhang et al. 2003, SMRF); single: one opening and the two-sided dh test (1996 form).",
+              options=MODES),
+        Param("max_object_size_m", "float", None,
+              "Largest object to remove, metres (side of the largest window). Empty: the width of the "
+              "largest objects found by the progressive filter with windows up to 100 m, 10-80 m.",
+              minimum=0.1, maximum=10000.0),
+        Param("dh_m", "float", None,
+              "Height threshold dh, metres: cells more than dh above the opened / provisional surface are "
+              "objects, more than dh below are low outliers. Empty: 4 x the robust noise of the DSM, "
+              "0.3-5 m.", minimum=0.0, maximum=1000.0),
+        Param("slope", "float", None,
+              "Terrain slope s (rise/run) of the progressive threshold s x window radius. Empty: the 90th "
+              "percentile of the slope of the 20 m block-minimum surface, 0.05-1.5.",
+              minimum=0.0, maximum=100.0, advanced=True),
+        Param("slope_scale_m", "float", 1.25,
+              "Extra tolerance of the final test per unit of slope of the provisional surface, metres "
+              "(SMRF's e_s). Progressive form only.", minimum=0.0, maximum=100.0, advanced=True),
+        Param("window_growth", "float", 2.0,
+              "Ratio between consecutive window radii of the progressive form: 1 = one-cell steps "
+              "(SMRF), 2 = doubling windows (Zhang et al. 2003, faster).",
+              minimum=1.0, maximum=10.0, advanced=True),
+        Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
+              "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
+              "this x its radius is a low outlier. 5 = 500 % (SMRF).",
+              minimum=0.0, maximum=1000.0, advanced=True),
+    ),
+    title="Morphological filter (opening; progressive SMRF / Zhang 2003)",
+    description=(
+        "<p>Grey opening of the lowest surface. <b>single</b>: one square window a little larger than "
+        "the largest object; cells more than dh above the opened surface are objects (class 1), more "
+        "than dh below are blunders (class 2), as in the 1996 image-matching production system. "
+        "<b>progressive</b>: windows growing from one cell to the largest object, a cell is flagged "
+        "when its opened height drops by more than slope x window radius (Zhang et al. 2003; Pingel et "
+        "al. 2013, SMRF); the flagged cells take the last opened surface, and every cell is classified "
+        "against that provisional surface with dh + 1.25 x its slope. Low outliers are found first by "
+        "SMRF's inverted-surface pre-step. <b>auto</b> (default) uses the progressive form unless the "
+        "terrain is flat at the scale of the window; the log says which and why.</p>"
+        "<p>Defaults from the data: dh from the DSM's robust noise, the slope from a coarse minimum "
+        "surface, the largest object from the objects the progressive filter finds.</p>"
+        "<p>Zhang K. et al. (2003) IEEE TGRS 41(4):872-882. Pingel T.J., Clarke K.C., McBride W.A. (2013) "
+        "ISPRS J. Photogramm. Remote Sens. 77:21-30.</p>"),
+)
