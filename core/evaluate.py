@@ -1,0 +1,366 @@
+"""Accuracy of a filter: Type I / II / total error, Cohen's kappa, DTM errors, reports.
+
+The measures are those of the ISPRS filter test, Sithole & Vosselman (2004), "Experimental
+comparison of filter algorithms for bare-Earth extraction from airborne laser scanning
+point clouds", ISPRS J. Photogramm. Remote Sens. 59(1-2):85-101. With the cross matrix
+
+============  ==================  ==================
+reference     filtered: ground    filtered: object
+============  ==================  ==================
+ground        a                   b   (Type I)
+object        c   (Type II)       d
+============  ==================  ==================
+
+Type I = b / (a + b), Type II = c / (c + d), total = (b + c) / n, all in percent, and
+Cohen's kappa (percent) = (p_o - p_e) / (1 - p_e), with p_o = (a + d) / n and
+p_e = ((a + b)(a + c) + (c + d)(b + d)) / n^2.
+
+Reports: :func:`write_report` writes the figures as JSON and as one self-contained HTML
+file (a table and, optionally, a map of the Type I / Type II errors embedded as a base64
+PNG made with GDAL's PNG driver; no matplotlib).
+"""
+import base64
+import datetime
+import html
+import json
+import math
+import os
+import uuid
+
+import numpy as np
+
+from .codes import GROUND, NODATA
+
+__all__ = ["confusion", "compare_masks", "compare_dtm", "error_map_from_masks",
+           "write_report", "ERROR_CORRECT", "ERROR_TYPE1", "ERROR_TYPE2", "ERROR_INVALID",
+           "ERROR_LEGEND"]
+
+ERROR_CORRECT = 0   #: classified as the reference says
+ERROR_TYPE1 = 1     #: ground rejected (classified as object)
+ERROR_TYPE2 = 2     #: object accepted as ground
+ERROR_INVALID = 255  #: not evaluated (nodata in the result or the reference)
+
+#: ``{code: (label, (r, g, b))}``: the fixed colours of an error map.
+ERROR_LEGEND = {
+    ERROR_CORRECT: ("correct", (222, 222, 222)),
+    ERROR_TYPE1: ("Type I: ground rejected", (230, 50, 40)),
+    ERROR_TYPE2: ("Type II: object accepted as ground", (30, 100, 230)),
+    ERROR_INVALID: ("not evaluated", (255, 255, 255)),
+}
+
+
+def _pct(num, den):
+    return float(100.0 * num / den) if den else float("nan")
+
+
+def confusion(pred_ground, true_ground, valid=None):
+    """Cross matrix and error rates of a ground / object classification.
+
+    Parameters
+    ----------
+    pred_ground : array_like of bool
+        True where the filter says ground (cells or points).
+    true_ground : array_like of bool
+        True where the reference says ground; same shape.
+    valid : array_like of bool, optional
+        Only these elements are counted (e.g. not nodata).
+
+    Returns
+    -------
+    dict
+        ``a`` ground->ground, ``b`` ground->object (Type I), ``c`` object->ground
+        (Type II), ``d`` object->object, ``n``, ``n_ground``, ``n_object`` (ints);
+        ``type1``, ``type2``, ``total``, ``kappa`` in percent (floats, NaN when undefined,
+        e.g. Type II without any object).
+    """
+    p = np.asarray(pred_ground)
+    t = np.asarray(true_ground)
+    if p.shape != t.shape:
+        raise ValueError(f"prediction and reference differ in shape: {p.shape} vs {t.shape}; "
+                         "compare arrays of the same cells/points.")
+    p = p.astype(bool, copy=False)
+    t = t.astype(bool, copy=False)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.shape != p.shape:
+            raise ValueError(f"valid mask shape {v.shape} differs from the data's {p.shape}.")
+        p, t = p[v], t[v]
+    a = int(np.count_nonzero(p & t))
+    b = int(np.count_nonzero(~p & t))
+    c = int(np.count_nonzero(p & ~t))
+    d = int(p.size - a - b - c)
+    n = a + b + c + d
+    if n:
+        po = (a + d) / n
+        pe = ((a + b) * (a + c) + (c + d) * (b + d)) / (n * n)
+        kappa = 100.0 * (po - pe) / (1.0 - pe) if pe < 1.0 else float("nan")
+    else:
+        kappa = float("nan")
+    return {"a": a, "b": b, "c": c, "d": d, "n": n, "n_ground": a + b, "n_object": c + d,
+            "type1": _pct(b, a + b), "type2": _pct(c, c + d), "total": _pct(b + c, n),
+            "kappa": float(kappa)}
+
+
+def _masks(mask, truth_mask):
+    m = np.asarray(mask)
+    t = np.asarray(truth_mask)
+    if m.shape != t.shape:
+        raise ValueError(f"mask {m.shape} and reference mask {t.shape} differ in shape; "
+                         "resample them to the same grid first.")
+    return m, t
+
+
+def compare_masks(mask, truth_mask, valid=None):
+    """:func:`confusion` of two masks with the codes 0 ground, 1/2 object, 255 ignored.
+
+    Cells that are 255 (nodata) in either mask, or False in ``valid``, are not counted.
+    """
+    m, t = _masks(mask, truth_mask)
+    ok = (m != NODATA) & (t != NODATA)
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool)
+    return confusion(m == GROUND, t == GROUND, valid=ok)
+
+
+def error_map_from_masks(mask, truth):
+    """Per-cell error codes of a mask against a reference mask.
+
+    Returns
+    -------
+    codes : ndarray of uint8
+        0 correct, 1 Type I (reference ground, mask object), 2 Type II (reference object,
+        mask ground), 255 not evaluated (255 in either mask).
+    legend : dict
+        :data:`ERROR_LEGEND`, ``{code: (label, (r, g, b))}``.
+    """
+    m, t = _masks(mask, truth)
+    pg, tg = m == GROUND, t == GROUND
+    codes = np.full(m.shape, ERROR_CORRECT, dtype=np.uint8)
+    codes[tg & ~pg] = ERROR_TYPE1
+    codes[~tg & pg] = ERROR_TYPE2
+    codes[(m == NODATA) | (t == NODATA)] = ERROR_INVALID
+    return codes, dict(ERROR_LEGEND)
+
+
+def _stats(diff):
+    n = int(diff.size)
+    if n == 0:
+        nan = float("nan")
+        return {"rmse": nan, "mean": nan, "max_abs": nan, "n": 0}
+    return {"rmse": float(np.sqrt(np.mean(diff * diff))), "mean": float(np.mean(diff)),
+            "max_abs": float(np.max(np.abs(diff))), "n": n}
+
+
+def compare_dtm(dtm, reference, ground=None):
+    """Height errors of a DTM against a reference DTM (``dtm - reference``).
+
+    Parameters
+    ----------
+    dtm, reference : array_like, 2-D
+        Same shape; NaN = nodata (those cells are skipped).
+    ground : array_like, optional
+        Where to compute the ground-only figures: a bool array (True = ground), or a mask
+        with the codes of :mod:`codes` (ground = 0), e.g. the reference mask.
+
+    Returns
+    -------
+    dict
+        ``rmse``, ``mean`` (bias), ``max_abs``, ``n`` over every cell valid in both;
+        with ``ground``: also ``ground_rmse``, ``ground_mean``, ``ground_max_abs``,
+        ``ground_n``.
+    """
+    a = np.asarray(dtm, dtype=np.float64)
+    r = np.asarray(reference, dtype=np.float64)
+    if a.shape != r.shape:
+        raise ValueError(f"DTM {a.shape} and reference {r.shape} differ in shape; "
+                         "resample them to the same grid first.")
+    diff = a - r
+    ok = np.isfinite(diff)
+    out = _stats(diff[ok])
+    if ground is not None:
+        g = np.asarray(ground)
+        if g.shape != a.shape:
+            raise ValueError(f"ground {g.shape} differs in shape from the DTM {a.shape}.")
+        g = g if g.dtype == bool else (g == GROUND)
+        out.update({f"ground_{k}": v for k, v in _stats(diff[ok & g]).items()})
+    return out
+
+
+# --------------------------------------------------------------------------- reports
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    return obj
+
+
+def _png_base64(rgb):
+    """Encode an (rows, cols, 3) uint8 array as PNG (GDAL MEM -> PNG driver), base64."""
+    from osgeo import gdal
+    rows, cols, _ = rgb.shape
+    mem = gdal.GetDriverByName("MEM").Create("", cols, rows, 3, gdal.GDT_Byte)
+    for i in range(3):
+        mem.GetRasterBand(i + 1).WriteArray(np.ascontiguousarray(rgb[:, :, i]))
+    name = f"/vsimem/bare_earth_report_{uuid.uuid4().hex}.png"
+    png = gdal.GetDriverByName("PNG").CreateCopy(name, mem)
+    if png is None:
+        raise RuntimeError(f"GDAL could not write the PNG map: {gdal.GetLastErrorMsg()}")
+    png = None
+    mem = None
+    try:
+        f = gdal.VSIFOpenL(name, "rb")
+        gdal.VSIFSeekL(f, 0, 2)
+        size = gdal.VSIFTellL(f)
+        gdal.VSIFSeekL(f, 0, 0)
+        data = gdal.VSIFReadL(1, size, f)
+        gdal.VSIFCloseL(f)
+    finally:
+        gdal.Unlink(name)
+    return base64.b64encode(bytes(data)).decode("ascii")
+
+
+_PRIORITY = np.zeros(256, dtype=np.uint8)   # which code wins when cells are merged
+_PRIORITY[[ERROR_INVALID, ERROR_CORRECT, ERROR_TYPE1, ERROR_TYPE2]] = [0, 1, 2, 3]
+_FROM_PRIORITY = np.array([ERROR_INVALID, ERROR_CORRECT, ERROR_TYPE1, ERROR_TYPE2], np.uint8)
+
+
+def _shrink(codes, max_side):
+    """Block-reduce an error map so its longest side is <= max_side; errors win."""
+    f = int(math.ceil(max(codes.shape) / max_side))
+    if f <= 1:
+        return codes
+    r, c = codes.shape
+    pr = _PRIORITY[codes]
+    pad = np.zeros((-(-r // f) * f, -(-c // f) * f), dtype=np.uint8)
+    pad[:r, :c] = pr
+    blocks = pad.reshape(pad.shape[0] // f, f, pad.shape[1] // f, f).max(axis=(1, 3))
+    return _FROM_PRIORITY[blocks]
+
+
+def _error_map_rgb(codes, legend):
+    lut = np.zeros((256, 3), dtype=np.uint8)
+    lut[:] = (0, 0, 0)
+    for code, (_, colour) in legend.items():
+        lut[code] = colour
+    return lut[np.asarray(codes, dtype=np.uint8)]
+
+
+def _fmt(v):
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    if isinstance(v, (int, np.integer)):
+        return f"{int(v):,}"
+    if isinstance(v, (float, np.floating)):
+        return "&ndash;" if not math.isfinite(float(v)) else f"{float(v):.2f}"
+    return html.escape(str(v))
+
+
+def _table(results):
+    """HTML table: dict of dicts -> one row per key; flat dict -> measure / value rows."""
+    rows = {k: v for k, v in results.items() if isinstance(v, dict)}
+    scalars = {k: v for k, v in results.items() if not isinstance(v, (dict, list, tuple))}
+    parts = []
+    if rows:
+        cols = []
+        for v in rows.values():
+            for k, x in v.items():
+                if k not in cols and not isinstance(x, (dict, list, tuple, np.ndarray)):
+                    cols.append(k)
+        parts.append("<table>\n<tr><th></th>" + "".join(f"<th>{html.escape(str(c))}</th>"
+                                                         for c in cols) + "</tr>")
+        for name, v in rows.items():
+            parts.append(f"<tr><th>{html.escape(str(name))}</th>" +
+                         "".join(f"<td>{_fmt(v[c]) if c in v else ''}</td>" for c in cols)
+                         + "</tr>")
+        parts.append("</table>")
+    if scalars:
+        parts.append("<table>\n<tr><th>measure</th><th>value</th></tr>")
+        for k, v in scalars.items():
+            parts.append(f"<tr><th>{html.escape(str(k))}</th><td>{_fmt(v)}</td></tr>")
+        parts.append("</table>")
+    return "\n".join(parts)
+
+
+_CSS = ("body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse;"
+        "margin:1em 0}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}"
+        "th{background:#f0f0f0}img{image-rendering:pixelated;border:1px solid #888;"
+        "max-width:100%}.sw{display:inline-block;width:1em;height:1em;border:1px solid #888;"
+        "vertical-align:middle;margin-right:.4em}")
+
+
+def write_report(results, json_path=None, html_path=None, error_map=None, geotransform=None,
+                 title="Bare Earth accuracy report", legend=None, max_map_side=2000):
+    """Write accuracy figures as JSON and/or a self-contained HTML page.
+
+    Parameters
+    ----------
+    results : dict
+        Figures: a flat dict (e.g. from :func:`confusion`) or a dict of dicts (one row per
+        sample / method). NaN becomes ``null`` in JSON.
+    json_path, html_path : str, optional
+        Files to write (either or both).
+    error_map : ndarray of uint8, optional
+        Error codes (:func:`error_map_from_masks`) shown as a map in the HTML, embedded as
+        a base64 PNG (maps larger than ``max_map_side`` are block-reduced, errors win).
+    geotransform : sequence of 6 floats, optional
+        Of ``error_map``; its origin and cell size are printed under the map.
+    title : str
+    legend : dict, optional
+        ``{code: (label, (r, g, b))}``; default :data:`ERROR_LEGEND`.
+
+    Returns
+    -------
+    dict
+        ``{"json": path or None, "html": path or None}``.
+    """
+    if json_path is None and html_path is None:
+        raise ValueError("write_report needs json_path and/or html_path; give a file to write.")
+    if not isinstance(results, dict):
+        raise ValueError(f"results must be a dict of figures; got {type(results).__name__}.")
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    if json_path is not None:
+        with open(json_path, "w", encoding="utf-8") as fh:
+            json.dump({"title": title, "created": stamp, "results": _jsonable(results)}, fh,
+                      indent=2, allow_nan=False)
+    if html_path is not None:
+        legend = dict(ERROR_LEGEND if legend is None else legend)
+        body = [f"<h1>{html.escape(title)}</h1>", f"<p>Created {stamp}. Measures as in "
+                "Sithole &amp; Vosselman (2004): Type I = ground rejected / all ground, "
+                "Type II = objects accepted as ground / all objects, total = misclassified / "
+                "all, Cohen's kappa; all in percent.</p>", _table(results)]
+        if error_map is not None:
+            codes = np.asarray(error_map)
+            if codes.ndim != 2 or codes.size == 0:
+                raise ValueError(f"error_map must be a non-empty 2-D array; got {codes.shape}.")
+            small = _shrink(codes.astype(np.uint8), int(max_map_side))
+            b64 = _png_base64(_error_map_rgb(small, legend))
+            counts = {c: int(np.count_nonzero(codes == c)) for c in legend}
+            body.append("<h2>Error map</h2>")
+            body.append(f'<img alt="error map" src="data:image/png;base64,{b64}">')
+            items = "".join(
+                f'<li><span class="sw" style="background:rgb{tuple(col)}"></span>'
+                f"{html.escape(label)}: {counts[c]:,} cells</li>" for c, (label, col) in legend.items())
+            body.append(f"<ul>{items}</ul>")
+            if geotransform is not None:
+                gt = [float(v) for v in geotransform]
+                body.append(f"<p>{codes.shape[0]} rows x {codes.shape[1]} columns, origin "
+                            f"({gt[0]:.3f}, {gt[3]:.3f}), cell {gt[1]:g} x {abs(gt[5]):g}"
+                            + (f"; shown reduced {small.shape[0]} x {small.shape[1]}"
+                               if small.shape != codes.shape else "") + ".</p>")
+        page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
+                f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n<body>\n"
+                + "\n".join(body) + "\n</body></html>\n")
+        with open(html_path, "w", encoding="utf-8") as fh:
+            fh.write(page)
+    return {"json": None if json_path is None else os.fspath(json_path),
+            "html": None if html_path is None else os.fspath(html_path)}

@@ -1,0 +1,200 @@
+"""Tests of core/evaluate.py (figures, reports) and the ISPRS benchmark harness."""
+import base64
+import importlib.util
+import json
+import re
+import uuid
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bare_earth.core.evaluate import (ERROR_LEGEND, compare_dtm, compare_masks, confusion,
+                                      error_map_from_masks, write_report)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _table(a, b, c, d):
+    """Prediction / truth arrays realising the cross matrix a, b, c, d."""
+    truth = np.array([True] * (a + b) + [False] * (c + d))
+    pred = np.array([True] * a + [False] * b + [True] * c + [False] * d)
+    return pred, truth
+
+
+def test_confusion_hand_computed():
+    # a=3 b=1 c=2 d=4, n=10: Type I 1/4, Type II 2/6, total 3/10,
+    # p_o = 0.7, p_e = (4*5 + 6*5)/100 = 0.5, kappa = 0.2/0.5 = 40 %
+    pred, truth = _table(3, 1, 2, 4)
+    r = confusion(pred, truth)
+    assert (r["a"], r["b"], r["c"], r["d"], r["n"]) == (3, 1, 2, 4, 10)
+    assert r["n_ground"] == 4 and r["n_object"] == 6
+    assert r["type1"] == pytest.approx(25.0)
+    assert r["type2"] == pytest.approx(100 / 3)
+    assert r["total"] == pytest.approx(30.0)
+    assert r["kappa"] == pytest.approx(40.0)
+    json.dumps(r)   # plain Python numbers
+
+
+def test_confusion_2d_valid_and_edge_cases():
+    pred, truth = _table(3, 1, 2, 4)
+    valid = np.ones(10, bool)
+    valid[[0, 9]] = False                 # drop one a and one d
+    r = confusion(pred.reshape(2, 5), truth.reshape(2, 5), valid=valid.reshape(2, 5))
+    assert (r["a"], r["b"], r["c"], r["d"]) == (2, 1, 2, 3)
+    # perfect classification: kappa 100; all ground: Type II undefined
+    r = confusion(truth, truth)
+    assert r["kappa"] == pytest.approx(100.0) and r["total"] == 0.0
+    r = confusion(np.ones(4, bool), np.ones(4, bool))
+    assert np.isnan(r["type2"]) and r["type1"] == 0.0
+    # everything predicted ground: kappa 0
+    r = confusion(np.ones(10, bool), truth)
+    assert r["kappa"] == pytest.approx(0.0) and r["type2"] == 100.0
+    with pytest.raises(ValueError, match="shape"):
+        confusion(pred, truth[:5])
+
+
+def test_compare_masks_codes_and_nodata():
+    mask = np.array([[0, 0, 1, 2], [0, 255, 1, 0]], np.uint8)
+    truth = np.array([[0, 1, 1, 1], [255, 0, 0, 0]], np.uint8)
+    r = compare_masks(mask, truth)
+    # valid: (0,0) g->g a, (0,1) truth obj pred g c, (0,2) d, (0,3) pred low=obj d,
+    # (1,2) truth g pred obj b, (1,3) a
+    assert (r["a"], r["b"], r["c"], r["d"], r["n"]) == (2, 1, 1, 2, 6)
+    codes, legend = error_map_from_masks(mask, truth)
+    np.testing.assert_array_equal(codes, [[0, 2, 0, 0], [255, 255, 1, 0]])
+    assert codes.dtype == np.uint8 and legend == ERROR_LEGEND
+    assert set(legend) == {0, 1, 2, 255}
+    with pytest.raises(ValueError, match="shape"):
+        compare_masks(mask, truth[:1])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_compare_dtm(dtype):
+    ref = np.zeros((2, 3), dtype)
+    dtm = np.array([[1, -1, 2], [0, 3, 0]], dtype)
+    r = compare_dtm(dtm, ref)
+    assert r["n"] == 6 and r["mean"] == pytest.approx(5 / 6)
+    assert r["rmse"] == pytest.approx(np.sqrt(15 / 6)) and r["max_abs"] == 3
+    ground = np.array([[True, True, False], [True, False, False]])
+    r = compare_dtm(dtm, ref, ground=ground)
+    assert r["ground_n"] == 3 and r["ground_mean"] == 0 and r["ground_max_abs"] == 1
+    assert r["ground_rmse"] == pytest.approx(np.sqrt(2 / 3))
+    # a mask with codes: ground = 0
+    r2 = compare_dtm(dtm, ref, ground=np.where(ground, 0, 1).astype(np.uint8))
+    assert r2["ground_n"] == 3
+    if np.issubdtype(dtype, np.floating):
+        dtm = dtm.copy()
+        dtm[1, 1] = np.nan
+        r = compare_dtm(dtm, ref)
+        assert r["n"] == 5 and r["max_abs"] == 2
+
+
+def _png_from_html(text):
+    m = re.search(r'<img[^>]*src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
+    assert m, "no embedded PNG"
+    return base64.b64decode(m.group(1))
+
+
+def _read_png(data):
+    from osgeo import gdal
+    name = f"/vsimem/test_{uuid.uuid4().hex}.png"
+    gdal.FileFromMemBuffer(name, data)
+    try:
+        ds = gdal.Open(name)
+        arr = np.stack([ds.GetRasterBand(i + 1).ReadAsArray() for i in range(ds.RasterCount)])
+        ds = None
+    finally:
+        gdal.Unlink(name)
+    return arr
+
+
+def test_write_report_json_and_html(tmp_path):
+    mask = np.array([[0, 0, 1], [1, 0, 255]], np.uint8)
+    truth = np.array([[0, 1, 0], [1, 0, 0]], np.uint8)
+    res = compare_masks(mask, truth)
+    codes, _ = error_map_from_masks(mask, truth)
+    results = {"samp11": res, "samp21": dict(res, kappa=float("nan"))}
+    out = write_report(results, json_path=tmp_path / "r.json", html_path=tmp_path / "r.html",
+                       error_map=codes, geotransform=(10, 1, 0, 20, 0, -1), title="My test")
+    assert Path(out["html"]).is_file()
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["title"] == "My test" and data["results"]["samp11"]["b"] == 1
+    assert data["results"]["samp21"]["kappa"] is None     # NaN -> null
+    text = (tmp_path / "r.html").read_text()
+    assert "<table>" in text and "<th>samp11</th>" in text and "<th>kappa</th>" in text
+    assert "<title>My test</title>" in text and "origin (10.000, 20.000)" in text
+    png = _png_from_html(text)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    rgb = _read_png(png)
+    assert rgb.shape == (3, 2, 3)
+    for (r, c), code in np.ndenumerate(codes):
+        assert tuple(rgb[:, r, c]) == ERROR_LEGEND[code][1]
+
+
+def test_write_report_flat_and_large_map(tmp_path):
+    codes = np.zeros((4100, 10), np.uint8)
+    codes[2001, 3] = 2                                     # one Type II cell survives
+    write_report(confusion(*_table(3, 1, 2, 4)), html_path=tmp_path / "f.html", error_map=codes)
+    text = (tmp_path / "f.html").read_text()
+    assert "<th>type1</th><td>25.00</td>" in text
+    rgb = _read_png(_png_from_html(text))
+    assert max(rgb.shape[1:]) <= 2000
+    assert (rgb.transpose(1, 2, 0) == ERROR_LEGEND[2][1]).all(axis=2).sum() == 1
+    with pytest.raises(ValueError, match="json_path"):
+        write_report({})
+
+
+# --------------------------------------------------------------------------- benchmark harness
+def _load_harness():
+    spec = importlib.util.spec_from_file_location("isprs_bench", ROOT / "benchmarks" / "isprs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _synthetic_sample(path, seed):
+    """A plane of ground points with a 'building' block of object points (ISPRS format)."""
+    rng = np.random.default_rng(seed)
+    n = 3000
+    x, y = rng.uniform(0, 60, n), rng.uniform(0, 40, n)
+    z = 100 + 0.05 * x
+    obj = (x > 20) & (x < 35) & (y > 10) & (y < 25)
+    z = z + np.where(obj, 8.0, 0.0)
+    with open(path, "w") as fh:
+        for row in zip(x, y, z, obj.astype(int)):
+            fh.write("%.2f\t%.2f\t%.2f\t%d\n" % row)
+    return obj
+
+
+def test_harness_with_inline_methods(tmp_path):
+    bench = _load_harness()
+    for i in (1, 2):
+        _synthetic_sample(tmp_path / f"samp{i}1.txt", i)
+    samples = bench.load_samples(tmp_path)
+    assert list(samples) == ["samp11", "samp21"]
+
+    def everything_ground(z, cell_size):
+        return SimpleNamespace(mask=np.zeros(z.shape, np.uint8), dtm=z, info={})
+
+    def oracle(z, cell_size):                      # knows the flat terrain under the block
+        rows, cols = z.shape
+        dtm = z.copy()
+        high = z > np.nanmin(z) + 5
+        from scipy import ndimage
+        dtm[high] = np.nan
+        idx = ndimage.distance_transform_edt(np.isnan(dtm), return_distances=False,
+                                             return_indices=True)
+        return SimpleNamespace(mask=high.astype(np.uint8), dtm=dtm[tuple(idx)], info={})
+
+    base = bench.evaluate_method(everything_ground, samples)
+    for name, r in base["samples"].items():
+        assert r["type1"] == 0.0 and r["type2"] == 100.0 and r["kappa"] == pytest.approx(0.0)
+    good = bench.evaluate_method(oracle, samples)
+    assert good["mean"]["total"] < 2.0 and good["mean"]["kappa"] > 95.0
+    assert set(good["samples"]) == {"samp11", "samp21"}
+    assert good["mean"]["type1"] == pytest.approx(
+        np.mean([r["type1"] for r in good["samples"].values()]))
+    table = bench.format_table({"oracle": good}, bench.baseline(samples))
+    assert "samp11" in table and "mean" in table and "oracle" in table and "all ground" in table
