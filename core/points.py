@@ -17,6 +17,7 @@ point clouds, the filters work on rasters. This module
 Everything is vectorised (numpy/scipy); GDAL's ``osr`` is used only to read the CRS of a
 LAS file or a ``crs`` argument.
 """
+import copy
 import os
 import warnings
 from dataclasses import dataclass
@@ -748,7 +749,8 @@ def _write_las(path, cloud, classes):
     laspy = _import_laspy()
     if cloud.source_format == "las" and cloud.attrs is not None:
         src = cloud.attrs
-        out = laspy.LasData(header=src.header, points=src.points.copy())
+        # a copy of the header: writing updates counts and bounds in place
+        out = laspy.LasData(header=copy.deepcopy(src.header), points=src.points.copy())
         out.classification = _asprs_codes(classes, np.asarray(src.classification))
     else:
         header = laspy.LasHeader(point_format=6, version="1.4")
