@@ -1,0 +1,1286 @@
+"""RASCOR: sequential DSM filtering with automatically determined parameters (Jacobsen 2004).
+
+Jacobsen's program RASCOR filters a raster DSM by a *sequence* of tests, each catching
+what the others miss, its parameters derived from an analysis of the DSM itself:
+
+1. **Terrain characterisation** (:func:`characterise_terrain`): the area is classed as
+   homogeneous or not and as *flat*, *rolling* (undulated) or *mountainous* from the
+   slopes of a lower envelope of the DSM; the class chooses the models and defaults below.
+2. **Height distribution** (:func:`remove_height_outliers`): in flat areas only, heights
+   far outside the distribution of heights are removed (the paper: in rolling or
+   mountainous terrain the height distribution says nothing, the step is skipped).
+3. **Height differences of neighbouring points** (:func:`remove_neighbour_differences`):
+   the upper point of a pair is removed when the difference exceeds a tolerance made of
+   the random error of the DSM and the local slope.
+4. **Sudden change of level** (:func:`remove_level_changes`): along X and Y profiles a
+   jump up to a higher level, a corresponding jump down later and no vegetation beside
+   marks a building; the points between are removed.
+5. **Moving local profiles** (:func:`remove_profile_outliers`), first short then long,
+   the lengths chosen by analysing a sequence of lengths: each height is checked against
+   the profile's mean (flat), linear regression (rolling) or polynomial (mountainous),
+   with data snooping on the actual, uneven positions of the points left. In X and Y.
+6. **Moving surfaces** (:func:`remove_surface_outliers`): horizontal plane, inclined
+   plane or 2nd-order polynomial, the window size chosen by checking a sequence of sizes.
+7. **Local prediction** (:func:`remove_prediction_outliers`, optional): least-squares
+   prediction of each height from its neighbourhood (Gaussian-weighted moving plane).
+
+Points *below* a reference surface get a weight factor (``low_weight``) instead of being
+removed: their tolerance is ``1/sqrt(low_weight)`` times wider and they pull the fits
+less, so ditches and cuts stay in the DTM, while the deep low blunders of image matching
+are still removed (mask class 2). A second iteration of steps 3, 5, 6, 7 is optional; the
+paper warns that it removes small vegetation but may generalise the terrain.
+
+Break lines and special areas (boolean rasters ``breaklines`` and ``special_areas``,
+rasterised by the plugin layer and passed by the pipeline as keyword arrays, not Params):
+no comparison crosses a break line (neighbour pairs, profile steps and windows are
+restricted to the connected region of non-break cells the tested cell lies in; break-line
+cells are compared only with each other along the line), so a dam or an embankment keeps
+its shoulders; inside special areas only the local filters run (steps 3 and 7), e.g. for
+cars and bushes on a dam's slope.
+
+Notes on the vectorised implementation
+--------------------------------------
+* Moving fits are computed for every cell at once from windowed moment sums (box filters
+  or small centred correlations), *leave-one-out*: the tested point is not in its own fit,
+  and the prediction variance factor ``h = (N^-1)_00`` of the fit on the points actually
+  present is used in the test ``v / (s sqrt(1/p + h)) > k`` (Baarda's data snooping with
+  ``p`` the point's weight). Missing neighbours widen ``h``: uneven spacing is handled.
+* Snooping removes all points over the critical value at once, then refits
+  (``snooping_iterations`` times) instead of one point per adjustment.
+
+References
+----------
+Jacobsen, K. (2004). DEM generation by SPOT HRS. / Jacobsen, K. (2004). Analysis of
+digital elevation models based on space information. Program RASCOR (Institute of
+Photogrammetry and GeoInformation, Leibniz University Hannover): sequential filtering of
+DSMs by height distribution, neighbour differences, sudden level changes, moving
+profiles, moving surfaces and local prediction; break lines and special areas; the
+highway (dam) example, 21.6 % removed without vs 10.4 % with break lines.
+"""
+import warnings
+from math import comb
+
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND, LOW, NODATA, OBJECT
+from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from .methods import Method, Param
+
+#: Step numbers and names (the values of the ``step`` extra).
+STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
+              3: "neighbour height differences", 4: "sudden change of level",
+              5: "moving local profiles", 6: "moving surfaces", 7: "local prediction"}
+#: Terrain classes and the degree of the profile / surface model each selects.
+TERRAIN_CLASSES = ("flat", "rolling", "mountainous")
+_DEGREE = {"flat": 0, "rolling": 1, "mountainous": 2}
+#: Median slope (rise/run) of the lower envelope separating the classes.
+_FLAT_MAX_SLOPE, _ROLLING_MAX_SLOPE = 0.05, 0.20
+#: Sequences analysed for the profile lengths and the surface sizes (metres).
+PROFILE_LENGTHS_M = (5.0, 9.0, 15.0, 25.0, 41.0, 65.0)
+SURFACE_SIZES_M = (9.0, 15.0, 25.0, 41.0, 65.0)
+#: A length is accepted while its residual scale stays below this factor of the shortest's.
+_SCALE_GROWTH = 2.0
+#: Floor of the estimated random error (m): rasterised laser/matching DSMs are never exact.
+_SIGMA_FLOOR = 0.10
+
+_STEP_SWITCHES = ("step1_characterise", "step2_height_distribution",
+                  "step3_neighbour_differences", "step4_level_change", "step5_profiles",
+                  "step6_surfaces", "step7_prediction")
+
+
+# --------------------------------------------------------------------------- helpers
+def _odd(n, minimum=3):
+    n = max(int(round(n)), minimum)
+    return n if n % 2 else n + 1
+
+
+def _as_bool_raster(a, shape, name):
+    if a is None:
+        return None
+    a = np.asarray(a)
+    if a.shape != shape:
+        raise ValueError(f"{name} has shape {a.shape} but the DSM has shape {shape}; rasterise "
+                         f"{name} on the DSM's grid (one cell per DSM cell).")
+    a = a.astype(bool) if a.dtype != bool else a
+    return a if a.any() else None
+
+
+def break_regions(breaklines):
+    """Label the regions no comparison may leave.
+
+    Non-break cells are labelled by 4-connected components (a diagonal step between two
+    break cells does not leak); break-line cells by 8-connected components of their own,
+    so a cell on a line is compared only with cells on the same line.
+
+    Parameters
+    ----------
+    breaklines : ndarray of bool
+        Cells crossed by a break line.
+
+    Returns
+    -------
+    labels : ndarray of int32
+        Region id per cell, 1..n.
+    n : int
+        Number of regions.
+    """
+    bl = np.asarray(breaklines, dtype=bool)
+    lab, n1 = ndimage.label(~bl)
+    lab2, n2 = ndimage.label(bl, structure=np.ones((3, 3), bool))
+    lab = lab.astype(np.int32)
+    lab[bl] = lab2[bl] + n1
+    return lab, n1 + n2
+
+
+def _region_slices(labels):
+    """``[(region id, slice)]`` of every region (bounding boxes)."""
+    if labels is None:
+        return None
+    return [(i + 1, s) for i, s in enumerate(ndimage.find_objects(labels)) if s is not None]
+
+
+def _per_region(func, labels, arrays, n_out):
+    """Apply ``func(*sub_arrays, inside)`` per region, assemble its ``n_out`` outputs.
+
+    Without labels ``func`` runs once on the whole arrays (``inside`` = None). Cells
+    outside the region have zero weight in every window (the callers zero them), so the
+    region's bounding box is all a window can see.
+    """
+    if labels is None:
+        return func(*arrays, None)
+    shape = arrays[0].shape
+    outs = [np.full(shape, np.nan) for _ in range(n_out)]
+    for rid, sl in _region_slices(labels):
+        inside = labels[sl] == rid
+        if inside.sum() < 3:
+            continue
+        res = func(*[a[sl] for a in arrays], inside)
+        for o, r in zip(outs, res):
+            o[sl][inside] = r[inside]
+    return tuple(outs)
+
+
+def _box(v, size, axis):
+    """Sum of ``v`` over a centred window of ``size`` (odd) cells along ``axis``; 0 outside."""
+    return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0) * size
+
+
+def _power_sums(v, size, powers, axis):
+    """``{p: sum_{k=-h..h} v[c+k] k**p}`` along ``axis`` for every centre ``c``.
+
+    Small windows use exact centred correlations; long ones box sums of ``v x**j`` on
+    centred absolute positions ``x`` combined binomially (float64), O(1) per cell.
+    """
+    h = size // 2
+    out = {}
+    powers = sorted(set(powers))
+    if size <= 15 or powers == [0]:
+        k = np.arange(-h, h + 1, dtype=np.float64)
+        for p in powers:
+            out[p] = _box(v, size, axis) if p == 0 else ndimage.correlate1d(
+                v, k ** p, axis=axis, mode="constant", cval=0.0)
+        return out
+    n = v.shape[axis]
+    shp = [1] * v.ndim
+    shp[axis] = n
+    x = (np.arange(n, dtype=np.float64) - n // 2).reshape(shp)
+    raw = [_box(v * x ** j if j else v, size, axis) for j in range(max(powers) + 1)]
+    for p in powers:
+        s = raw[p].copy()
+        for j in range(p):
+            s += comb(p, j) * (-x) ** (p - j) * raw[j]
+        out[p] = s
+    return out
+
+
+def _solve3_first(a, r):
+    """First unknown and ``(N^-1)_00`` of symmetric 3x3 systems given element-wise."""
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a
+    c00 = a11 * a22 - a12 * a12
+    c01 = a12 * a02 - a01 * a22
+    c02 = a01 * a12 - a11 * a02
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    num = r[0] * c00 + r[1] * c01 + r[2] * c02
+    ok = det > 1e-9 * np.abs(a00 * a11 * a22)
+    with np.errstate(all="ignore"):
+        return np.where(ok, num / det, np.nan), np.where(ok, c00 / det, np.nan)
+
+
+def _solve_first_general(M, Z, n_unknowns, chunk=1 << 18):
+    """First unknown and ``(N^-1)_00`` of stacked symmetric systems (``M``: (u, u) list)."""
+    shape = M[0][0].shape
+    beta = np.full(shape, np.nan)
+    hh = np.full(shape, np.nan)
+    ok = np.isfinite(M[0][0]) & (M[0][0] >= n_unknowns + 1)
+    idx = np.flatnonzero(ok)
+    for s in range(0, idx.size, chunk):
+        ii = idx[s:s + chunk]
+        N = np.empty((ii.size, n_unknowns, n_unknowns))
+        for i in range(n_unknowns):
+            for j in range(n_unknowns):
+                N[:, i, j] = M[i][j].ravel()[ii]
+        rhs = np.zeros((ii.size, n_unknowns, 2))
+        for i in range(n_unknowns):
+            rhs[:, i, 0] = Z[i].ravel()[ii]
+        rhs[:, 0, 1] = 1.0
+        scale = np.sqrt(np.abs(np.einsum("nii->ni", N))) + 1e-12
+        Ns = N / scale[:, :, None] / scale[:, None, :]
+        cond_ok = np.linalg.cond(Ns) < 1e9
+        good = np.flatnonzero(cond_ok)
+        if good.size:
+            sol = np.linalg.solve(Ns[good], rhs[good] / scale[good][:, :, None])
+            sol = sol / scale[good][:, :, None]
+            beta.ravel()[ii[good]] = sol[:, 0, 0]
+            hh.ravel()[ii[good]] = sol[:, 0, 1]
+    return beta, hh
+
+
+def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
+    """Weighted polynomial fit in a moving window, evaluated at the window's centre.
+
+    Parameters
+    ----------
+    z, w : ndarray (float64)
+        Heights (any value where ``w == 0``) and weights (0 = not in the fits).
+    sizes : (int, int) or int
+        Window in cells: an int for a 1-D profile along axis 1, ``(rows, cols)`` for 2-D.
+    degree : int
+        0 mean / horizontal plane, 1 linear / inclined plane, 2 polynomial.
+    leave_one_out : bool
+        Exclude the centre point from its own fit (prediction residuals).
+    kernels : (ndarray, ndarray), optional
+        Separable window weights (rows, cols) instead of a box (Gaussian for step 7).
+
+    Returns
+    -------
+    zhat, h : ndarray
+        Fitted height at the centre and the variance factor ``(N^-1)_00``; NaN where the
+        window holds too few points for the model (a lower degree is used first).
+    """
+    z = np.where(w > 0, z, 0.0)
+    wz = w * z
+    two_d = not np.isscalar(sizes)
+
+    def sums(v, px, py=None):
+        if kernels is not None:
+            ky, kx = kernels
+            hx, hy = len(kx) // 2, len(ky) // 2
+            out = {}
+            for p in set(px):
+                t = ndimage.correlate1d(v, kx * np.arange(-hx, hx + 1.0) ** p, axis=1,
+                                        mode="constant", cval=0.0)
+                for q in set(py):
+                    out[p, q] = ndimage.correlate1d(t, ky * np.arange(-hy, hy + 1.0) ** q,
+                                                    axis=0, mode="constant", cval=0.0)
+            return out
+        if not two_d:
+            return _power_sums(v, sizes, px, 1)
+        sy, sx = sizes
+        tx = _power_sums(v, sx, px, 1)
+        out = {}
+        for p in set(px):
+            ty = _power_sums(tx[p], sy, py, 0)
+            for q in set(py):
+                out[p, q] = ty[q]
+        return out
+
+    if not two_d:
+        m = sums(w, range(2 * degree + 1))
+        zz = sums(wz, range(degree + 1))
+        if leave_one_out:
+            m[0] = m[0] - w
+            zz[0] = zz[0] - wz
+        with np.errstate(all="ignore"):
+            zhat = zz[0] / m[0]
+            hh = 1.0 / m[0]
+            enough = m[0] >= 1.0
+            if degree >= 1:
+                det = m[0] * m[2] - m[1] ** 2
+                ok = (det > 1e-9 * m[0] * m[2]) & (m[0] >= 2.0)
+                zhat = np.where(ok, (zz[0] * m[2] - zz[1] * m[1]) / det, zhat)
+                hh = np.where(ok, m[2] / det, hh)
+            if degree >= 2:
+                b, hq = _solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]), (m[2], m[3], m[4])),
+                                      (zz[0], zz[1], zz[2]))
+                ok = np.isfinite(b) & (m[0] >= 4.0)
+                zhat = np.where(ok, b, zhat)
+                hh = np.where(ok, hq, hh)
+        zhat = np.where(enough, zhat, np.nan)
+        return zhat, hh
+
+    # 2-D: monomials x^a y^b with a + b <= degree
+    mons = [(a, b) for d in range(degree + 1) for a in range(d, -1, -1) for b in (d - a,)]
+    px = range(2 * degree + 1)
+    m = sums(w, px, px)
+    zz = sums(wz, range(degree + 1), range(degree + 1))
+    if leave_one_out:
+        m[0, 0] = m[0, 0] - w
+        zz[0, 0] = zz[0, 0] - wz
+    with np.errstate(all="ignore"):
+        zhat = zz[0, 0] / m[0, 0]
+        hh = 1.0 / m[0, 0]
+        enough = m[0, 0] >= 1.0
+        if degree >= 1:
+            M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(3)]
+                 for i in range(3)]
+            b, hq = _solve3_first(M, [zz[mons[i]] for i in range(3)])
+            ok = np.isfinite(b) & (m[0, 0] >= 3.0)
+            zhat = np.where(ok, b, zhat)
+            hh = np.where(ok, hq, hh)
+        if degree >= 2:
+            M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(6)]
+                 for i in range(6)]
+            b, hq = _solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
+            ok = np.isfinite(b) & (m[0, 0] >= 7.0)
+            zhat = np.where(ok, b, zhat)
+            hh = np.where(ok, hq, hh)
+    zhat = np.where(enough, zhat, np.nan)
+    return zhat, hh
+
+
+def _snoop(z, zhat, hh, test, s, k, low_weight):
+    """Data snooping of prediction residuals ``v = z - zhat``.
+
+    ``v / (s sqrt(1/p + h)) > k`` flags an object (p = 1), ``< -k`` a low blunder with
+    the weight factor ``p = low_weight`` of points below the reference.
+    """
+    with np.errstate(invalid="ignore"):
+        v = z - zhat
+        ok = test & np.isfinite(v) & np.isfinite(hh)
+        hh = np.where(ok, np.maximum(hh, 0.0), 0.0)
+        hi = ok & (v > k * s * np.sqrt(1.0 + hh))
+        lo = ok & (v < -k * s * np.sqrt(1.0 / low_weight + hh))
+    return hi, lo, np.where(ok, v, np.nan)
+
+
+# ------------------------------------------------------------------- step 1
+def _tile_low(z, n):
+    """Low envelope on non-overlapping ``n x n`` tiles: the 5th percentile of each tile."""
+    rows, cols = z.shape
+    R, C = -(-rows // n), -(-cols // n)
+    pad = np.full((R * n, C * n), np.inf, np.float32)
+    pad[:rows, :cols] = np.where(np.isfinite(z), z, np.inf)
+    t = pad.reshape(R, n, C, n).transpose(0, 2, 1, 3).reshape(R, C, n * n)
+    cnt = np.isfinite(t).sum(axis=2)
+    kth = np.maximum((0.05 * cnt).astype(int), 0)
+    t.sort(axis=2)
+    low = np.take_along_axis(t, kth[:, :, None], axis=2)[:, :, 0]
+    low[cnt < max(3, n * n // 10)] = np.nan
+    return low
+
+
+def estimate_sigma(z):
+    """Random error of the DSM (m) from the 4-neighbour Laplacian residual.
+
+    ``r = z - mean(4 neighbours)`` has standard deviation ``sigma sqrt(1.25)`` on smooth
+    ground; the median absolute ``r`` (robust to objects and edges) gives ``sigma``,
+    floored at 0.1 m.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    if z.shape[0] < 3 or z.shape[1] < 3:
+        return _SIGMA_FLOOR
+    c = z[1:-1, 1:-1]
+    r = c - 0.25 * (z[:-2, 1:-1] + z[2:, 1:-1] + z[1:-1, :-2] + z[1:-1, 2:])
+    r = r[np.isfinite(r)]
+    if r.size < 10:
+        return _SIGMA_FLOOR
+    return float(max(_SIGMA_FLOOR, 1.4826 * np.median(np.abs(r)) / np.sqrt(1.25)))
+
+
+def characterise_terrain(z, cell_size, tile_m=25.0):
+    """Step 1: class the area as flat / rolling / mountainous and (in)homogeneous.
+
+    The DSM is reduced to a lower envelope (5th percentile of ``tile_m`` tiles: objects
+    smaller than a tile vanish) and the slopes (rise/run) between neighbouring tiles are
+    analysed (Jacobsen 2004: the terrain type selects the filter models and defaults).
+
+    Parameters
+    ----------
+    z : array_like
+        DSM, NaN = nodata.
+    cell_size : float or (float, float)
+        Cell size (dx, dy) in metres.
+    tile_m : float
+        Tile edge of the envelope, metres.
+
+    Returns
+    -------
+    dict
+        ``terrain_class`` ("flat" median slope < 5 %, "rolling" < 20 %, else
+        "mountainous"), ``homogeneous`` (at least 75 % of the tiles have that class),
+        ``class_shares`` (share of tiles per class), ``slope_median``, ``slope_p90``
+        (rise/run), ``relief_m`` (2-98 % range of the envelope), ``sigma_m`` (random error,
+        :func:`estimate_sigma`), ``tile_m``.
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    if tile_m <= 0:
+        raise ValueError(f"tile_m must be positive (metres); got {tile_m}.")
+    n = max(3, int(round(tile_m / max(dx, dy))))
+    n = min(n, max(3, min(z.shape) // 3))
+    low = _tile_low(z, n).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        gy = np.full(low.shape, np.nan)
+        gx = np.full(low.shape, np.nan)
+        if low.shape[1] > 1:
+            d = np.abs(np.diff(low, axis=1)) / (n * dx)
+            gx = np.fmax(np.pad(d, ((0, 0), (0, 1)), constant_values=np.nan),
+                         np.pad(d, ((0, 0), (1, 0)), constant_values=np.nan))
+        if low.shape[0] > 1:
+            d = np.abs(np.diff(low, axis=0)) / (n * dy)
+            gy = np.fmax(np.pad(d, ((0, 1), (0, 0)), constant_values=np.nan),
+                         np.pad(d, ((1, 0), (0, 0)), constant_values=np.nan))
+        slope = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
+        slope[~(np.isfinite(gx) | np.isfinite(gy))] = np.nan
+    s = slope[np.isfinite(slope)]
+    if s.size == 0:
+        s = np.zeros(1)
+    med = float(np.median(s))
+    cls = "flat" if med < _FLAT_MAX_SLOPE else "rolling" if med < _ROLLING_MAX_SLOPE else "mountainous"
+    tiles = np.where(s < _FLAT_MAX_SLOPE, 0, np.where(s < _ROLLING_MAX_SLOPE, 1, 2))
+    shares = {c: float(np.mean(tiles == i)) for i, c in enumerate(TERRAIN_CLASSES)}
+    lv = low[np.isfinite(low)]
+    relief = float(np.percentile(lv, 98) - np.percentile(lv, 2)) if lv.size else 0.0
+    # sigma on a central crop of at most 1024 x 1024 cells
+    r0 = max(0, z.shape[0] // 2 - 512)
+    c0 = max(0, z.shape[1] // 2 - 512)
+    sigma = estimate_sigma(z[r0:r0 + 1024, c0:c0 + 1024])
+    return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= 0.75),
+            "class_shares": shares, "slope_median": med,
+            "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,
+            "sigma_m": sigma, "tile_m": n * max(dx, dy)}
+
+
+# ------------------------------------------------------------------- step 2
+def remove_height_outliers(z, keep, height_min_m, height_max_m):
+    """Step 2: remove heights far outside the distribution of heights (flat areas only).
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM.
+    keep : ndarray of bool
+        Cells still in the data (tested and used).
+    height_min_m, height_max_m : float
+        Limits; :func:`resolve_rascor_params` sets them to Tukey's far fences
+        ``Q1 - 3 IQR`` and ``Q3 + 3 IQR`` of the heights, never inside the range of the
+        terrain's lower envelope.
+
+    Returns
+    -------
+    high, low : ndarray of bool
+        Cells above ``height_max_m`` (objects, high blunders) / below ``height_min_m``
+        (low blunders).
+    """
+    with np.errstate(invalid="ignore"):
+        return keep & (z > height_max_m), keep & (z < height_min_m)
+
+
+# ------------------------------------------------------------------- step 3
+_DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
+
+
+def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.1, labels=None):
+    """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
+
+    For each of the 8 directions ``e``, with ``u`` the tested cell, ``l = u + e`` its lower
+    neighbour and ``b = u + 2e`` the next one, ``u`` is removed when
+
+    ``z_u - z_l > k sigma sqrt(2) + max(0, z_l - z_b)``  (the local slope beyond the pair)
+
+    unless the terrain above ``u`` rises at least as steeply (``z_{u-e} - z_u >= z_u - z_l
+    - tol``: a straight or concave slope, e.g. the toe of an embankment). A point lower
+    than all its neighbours by more than the tolerance widened by the weight factor
+    (``tol / sqrt(low_weight)``) is a low blunder (class 2) and takes no part in the pairs,
+    so it does not take its neighbours with it. Pairs never cross a region boundary
+    (break line).
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM.
+    keep : ndarray of bool
+        Cells still in the data.
+    sigma_m : float
+        Random error of the DSM, metres.
+    k : float
+        Critical value of the tolerance.
+    low_weight : float
+        Weight factor of low points (0 < p <= 1).
+    labels : ndarray of int, optional
+        Break-line regions (:func:`break_regions`).
+
+    Returns
+    -------
+    high, low : ndarray of bool
+    """
+    tol = k * sigma_m * np.sqrt(2.0)
+    tol_low = tol / np.sqrt(low_weight)
+    rows, cols = z.shape
+    P = 2
+    zp = np.full((rows + 2 * P, cols + 2 * P), np.nan)
+    zp[P:-P, P:-P] = np.where(keep, z, np.nan)
+    lp = None
+    if labels is not None:
+        lp = np.full(zp.shape, -1, np.int64)
+        lp[P:-P, P:-P] = labels
+
+    def sh(a, dr, dc):
+        return a[P + dr:P + dr + rows, P + dc:P + dc + cols]
+
+    def nb(dr, dc, a=None):
+        a = zp if a is None else a
+        v = sh(a, dr, dc)
+        if lp is not None:
+            v = np.where(sh(lp, dr, dc) == labels, v, np.nan)
+        return v
+
+    zc = sh(zp, 0, 0)
+    # low blunders: below every valid neighbour by more than tol_low
+    with np.errstate(invalid="ignore"):
+        n_valid = np.zeros(z.shape, np.int16)
+        n_above = np.zeros(z.shape, np.int16)
+        for dr, dc in _DIRS8:
+            v = nb(dr, dc)
+            fin = np.isfinite(v)
+            n_valid += fin
+            n_above += fin & (v - zc > tol_low)
+        low = keep & (n_valid >= 3) & (n_above == n_valid)
+        zq = zp.copy()
+        zq[P:-P, P:-P][low] = np.nan
+        zc = sh(zq, 0, 0)
+        high = np.zeros(z.shape, bool)
+        for dr, dc in _DIRS8:
+            zl = nb(dr, dc, zq)
+            dz = zc - zl
+            zb = nb(2 * dr, 2 * dc, zq)
+            if lp is not None:  # the far cell must lie in the region too (checked above)
+                zb = np.where(sh(lp, dr, dc) == labels, zb, np.nan)
+            beyond = np.nan_to_num(zl - zb, nan=0.0)
+            up = nb(-dr, -dc, zq) - zc
+            steep_above = np.isfinite(up) & (up >= dz - tol)
+            high |= (dz > tol + np.maximum(beyond, 0.0)) & ~steep_above
+    return high & keep & ~low, low
+
+
+# ------------------------------------------------------------------- step 4
+def _prev_next(valid):
+    """Index of the previous / next valid cell along axis 1 (-1 / n where none)."""
+    rows, n = valid.shape
+    idx = np.arange(n, dtype=np.int32)
+    last = np.maximum.accumulate(np.where(valid, idx, -1), axis=1)
+    prev = np.empty_like(last)
+    prev[:, 0] = -1
+    prev[:, 1:] = last[:, :-1]
+    first = np.minimum.accumulate(np.where(valid, idx, n)[:, ::-1], axis=1)[:, ::-1]
+    nxt = np.empty_like(first)
+    nxt[:, -1] = n
+    nxt[:, :-1] = first[:, 1:]
+    return prev, nxt
+
+
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
+    """Cells between a jump up and a later jump down along the rows (axis 1)."""
+    rows, n = z.shape
+    idx = np.arange(n, dtype=np.int32)[None, :]
+    prev, nxt = _prev_next(keep)
+
+    def g(a, i):
+        return np.take_along_axis(a, np.clip(i, 0, n - 1), axis=1)
+
+    zk = np.where(keep, z, np.nan)
+    same_prev = (prev >= 0) & keep
+    if labels is not None:
+        same_prev &= g(labels, prev) == labels
+    p = prev
+    pp = g(prev, np.maximum(p, 0))
+    ppp = g(prev, np.maximum(pp, 0))
+    zp, zpp, zppp = g(zk, p), g(zk, pp), g(zk, ppp)
+    ok_pp = same_prev & (pp >= 0)
+    ok_ppp = ok_pp & (ppp >= 0)
+    if labels is not None:
+        lab_p = g(labels, p)
+        ok_pp &= g(labels, pp) == lab_p
+        ok_ppp &= g(labels, ppp) == lab_p
+    with np.errstate(invalid="ignore"):
+        # jump up at a: from p (ground) to a; slope allowance = rise before p
+        rise_before = np.where(ok_pp, np.maximum(zp - zpp, 0.0), 0.0)
+        smooth_before = np.where(ok_ppp, np.abs(zp - 2 * zpp + zppp) <= veg_tol, ok_pp)
+        up = same_prev & (zk - zp - rise_before > jump) & smooth_before
+        # jump down at b: from q = prev(b) (high) to b (ground); allowance = fall after b
+        nx = nxt
+        nn = g(nxt, np.minimum(nx, n - 1))
+        ok_n = (nx < n) & keep
+        ok_nn = ok_n & (nn < n)
+        if labels is not None:
+            ok_n &= g(labels, nx) == labels
+            ok_nn &= g(labels, nn) == labels
+        zn, znn = g(zk, nx), g(zk, nn)
+        fall_after = np.where(ok_n, np.maximum(zk - zn, 0.0), 0.0)
+        smooth_after = np.where(ok_nn, np.abs(zk - 2 * zn + znn) <= veg_tol, ok_n)
+        down = same_prev & (zp - zk - fall_after > jump) & smooth_after
+    seg_start = keep & ~same_prev
+    # left: last up at or before c must be after the last down / segment start
+    A = np.maximum.accumulate(np.where(up, idx, -1), axis=1)
+    R = np.maximum.accumulate(np.where(down | seg_start & ~up, idx, -1), axis=1)
+    # right: first down after c must come before the next up / segment start
+    big = n + 1
+    B = np.minimum.accumulate(np.where(down, idx, big)[:, ::-1], axis=1)[:, ::-1]
+    B = np.concatenate([B[:, 1:], np.full((rows, 1), big, B.dtype)], axis=1)
+    U = np.minimum.accumulate(np.where(up | seg_start, idx, big)[:, ::-1], axis=1)[:, ::-1]
+    U = np.concatenate([U[:, 1:], np.full((rows, 1), big, U.dtype)], axis=1)
+    cand = keep & (A >= 0) & (A > R) & (B < n) & (B <= U) & ((B - A) <= lmax)
+    pa = g(prev, np.maximum(A, 0))
+    z0, z1 = g(zk, pa), g(zk, np.minimum(B, n - 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (idx - pa) / np.maximum(B - pa, 1)
+        ground = z0 + (z1 - z0) * t
+        raised = cand & (zk - ground > 0.5 * jump)
+    return raised
+
+
+def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m, k=3.0,
+                         labels=None, passes=2):
+    """Step 4: sudden change of level along X and Y profiles (buildings).
+
+    Along each profile (consecutive remaining points, never across a break line) a *jump
+    up* is a rise of more than ``jump_m`` beyond the slope of the terrain before it, a
+    *jump down* a fall of more than ``jump_m`` beyond the slope after it. The points from
+    a jump up to the next jump down are removed when the two are at most
+    ``max_building_m`` apart, no other jump lies between, the points lie at least
+    ``jump_m / 2`` above the line joining the ground points outside the jumps, and there is
+    no vegetation beside the jumps (the ground points outside are smooth: second
+    difference below ``2 k sigma``). X and Y profiles are combined by union; ``passes``
+    repetitions peel nested levels (roof superstructures).
+
+    Returns
+    -------
+    high : ndarray of bool
+    """
+    dx, dy = as_cell_size(cell_size)
+    veg_tol = 2.0 * k * sigma_m
+    cur = keep.copy()
+    high = np.zeros(z.shape, bool)
+    zt = np.ascontiguousarray(z.T)
+    lt = None if labels is None else np.ascontiguousarray(labels.T)
+    for _ in range(passes):
+        rx = _raised_rows(z, cur, labels, jump_m, int(max_building_m / dx), veg_tol)
+        ry = _raised_rows(zt, np.ascontiguousarray(cur.T), lt, jump_m,
+                          int(max_building_m / dy), veg_tol).T
+        new = (rx | ry) & cur
+        if not new.any():
+            break
+        high |= new
+        cur &= ~new
+    return high
+
+
+# ------------------------------------------------------------------- step 5
+def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
+    """One fit + snooping along the rows (axis 1)."""
+    w = np.where(keep, np.where(below, low_weight, 1.0), 0.0)
+
+    def fit(zz, ww, inside):
+        if inside is not None:
+            ww = np.where(inside, ww, 0.0)
+        return _fit_at_centre(zz, ww, size, degree)
+
+    zhat, hh = _per_region(fit, labels, (z, w), 2)
+    return _snoop(z, zhat, hh, test, s, k, low_weight)
+
+
+def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
+                            k=3.0, low_weight=0.1, iterations=2, test=None, labels=None):
+    """Step 5: moving local profiles in X and Y, short then long, with data snooping.
+
+    For each length of ``lengths_m`` and each direction, every height is compared with the
+    leave-one-out fit of the profile through the remaining points in its window: the mean
+    (flat), a linear regression (rolling) or a 2nd-order polynomial (mountainous terrain).
+    The test is Baarda's data snooping ``v / (scale sqrt(1/p + h)) > k`` with the actual
+    positions of the remaining points (``h`` grows where earlier steps left gaps); points
+    below the fit get the weight factor ``p = low_weight`` in the next fit and are removed
+    (class 2) only beyond ``-k``. ``iterations`` fits per length and direction.
+
+    Parameters
+    ----------
+    lengths_m : sequence of float
+        Profile lengths in metres, applied in order (short first).
+    terrain_class : {"flat", "rolling", "mountainous"}
+    scale_m : float
+        Standard deviation of a height about the profile model (random error + model
+        error), from the analysis of the sequence of lengths.
+    test : ndarray of bool, optional
+        Cells that may be removed (default ``keep``); others only support the fits.
+
+    Returns
+    -------
+    high, low : ndarray of bool
+    """
+    dx, dy = as_cell_size(cell_size)
+    degree = _DEGREE[terrain_class]
+    test = keep if test is None else test & keep
+    cur = keep.copy()
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    z64 = z.astype(np.float64)
+    views = [(z64, None, labels, dx, lambda a: a, lambda a: a),
+             (np.ascontiguousarray(z64.T), None, None if labels is None else
+              np.ascontiguousarray(labels.T), dy, lambda a: np.ascontiguousarray(a.T),
+              lambda a: a.T)]
+    for L in lengths_m:
+        for zz, _, lab, step, fwd, back in views:
+            size = _odd(L / step, 3)
+            below = np.zeros(zz.shape, bool)
+            c, t = fwd(cur), fwd(test & cur)
+            for _ in range(iterations):
+                hi, lo, v = _profile_pass(zz, c, t, below, size, degree, scale_m, k,
+                                          low_weight, lab)
+                below = np.nan_to_num(v, nan=0.0) < 0
+                c &= ~(hi | lo)
+                t &= ~(hi | lo)
+                hb, lb = back(hi), back(lo)
+                high |= hb
+                low |= lb
+            cur &= ~(high | low)
+    return high, low
+
+
+# ------------------------------------------------------------------- step 6
+def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=3.0,
+                            low_weight=0.1, iterations=2, test=None, labels=None):
+    """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
+
+    Every height is compared with the leave-one-out weighted least-squares surface of its
+    ``size_m`` x ``size_m`` window (horizontal plane in flat, inclined plane in rolling,
+    2nd-order polynomial in mountainous terrain), with the same data snooping and weight
+    factor as :func:`remove_profile_outliers`. Windows never reach across a break line.
+
+    Returns
+    -------
+    high, low : ndarray of bool
+    """
+    dx, dy = as_cell_size(cell_size)
+    degree = _DEGREE[terrain_class]
+    sizes = (_odd(size_m / dy, 3), _odd(size_m / dx, 3))
+    test = keep if test is None else test & keep
+    cur = keep.copy()
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    below = np.zeros(z.shape, bool)
+    z64 = z.astype(np.float64)
+    for _ in range(iterations):
+        w = np.where(cur, np.where(below, low_weight, 1.0), 0.0)
+
+        def fit(zz, ww, inside):
+            if inside is not None:
+                ww = np.where(inside, ww, 0.0)
+            return _fit_at_centre(zz, ww, sizes, degree)
+
+        zhat, hh = _per_region(fit, labels, (z64, w), 2)
+        hi, lo, v = _snoop(z64, zhat, hh, test & cur, scale_m, k, low_weight)
+        below = np.nan_to_num(v, nan=0.0) < 0
+        high |= hi
+        low |= lo
+        cur &= ~(hi | lo)
+    return high, low
+
+
+# ------------------------------------------------------------------- step 7
+def _gauss(radius_cells):
+    r = max(1, int(np.ceil(radius_cells)))
+    x = np.arange(-r, r + 1.0)
+    return np.exp(-0.5 * (x / max(radius_cells / 2.0, 0.5)) ** 2)
+
+
+def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=3.0,
+                               low_weight=0.1, test=None, labels=None):
+    """Step 7: final local prediction (least-squares interpolation from the neighbourhood).
+
+    Each height is predicted from the remaining points within ``radius_m`` by a weighted
+    least-squares inclined plane with Gaussian (covariance-like) weights, itself excluded,
+    and tested as in :func:`remove_profile_outliers`.
+
+    Returns
+    -------
+    high, low : ndarray of bool
+    """
+    dx, dy = as_cell_size(cell_size)
+    kernels = (_gauss(radius_m / dy), _gauss(radius_m / dx))
+    test = keep if test is None else test & keep
+    w = keep.astype(np.float64)
+    z64 = z.astype(np.float64)
+
+    def fit(zz, ww, inside):
+        if inside is not None:
+            ww = np.where(inside, ww, 0.0)
+        return _fit_at_centre(zz, ww, (len(kernels[0]), len(kernels[1])), 1, kernels=kernels)
+
+    zhat, hh = _per_region(fit, labels, (z64, w), 2)
+    hi, lo, _ = _snoop(z64, zhat, hh, test, scale_m, k, low_weight)
+    return hi, lo
+
+
+# ----------------------------------------------------------- the whole sequence
+def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
+                  step1_characterise=True, step2_height_distribution=True,
+                  step3_neighbour_differences=True, step4_level_change=True,
+                  step5_profiles=True, step6_surfaces=True, step7_prediction=False,
+                  second_iteration=False, height_min_m=None, height_max_m=None,
+                  neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
+                  short_profile_m=9.0, long_profile_m=25.0, profile_sigma_m=None,
+                  surface_size_m=25.0, surface_sigma_m=None, prediction_radius_m=3.0,
+                  prediction_sigma_m=None, snooping_k=3.0, snooping_iterations=2,
+                  low_weight=0.1, steps=None, breaklines=None, special_areas=None,
+                  progress=None):
+    """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
+
+    Runs the enabled steps in order on the points the previous ones left (see the module
+    docstring); each step is switchable (``stepN_...`` or ``steps``) and reported.
+
+    Parameters
+    ----------
+    z : array_like
+        DSM (2-D, NaN = nodata); not modified.
+    cell_size : float or (float, float)
+        (dx, dy) in metres.
+    terrain_class : {"flat", "rolling", "mountainous"}
+        Terrain type (step 1, :func:`characterise_terrain`, done by
+        :func:`resolve_rascor_params` on the whole raster so that blocks agree).
+    sigma_m : float
+        Random error of the DSM, metres.
+    step1_characterise ... step7_prediction : bool
+        Switch each step (step 1 only decides the class, in ``resolve``).
+    second_iteration : bool
+        Repeat steps 3, 5, 6 (7) once more on the points left.
+    height_min_m, height_max_m : float or None
+        Step 2 limits (None: step 2 does nothing).
+    neighbour_k : float
+        Critical value of step 3.
+    jump_m, max_building_m : float
+        Step 4: minimum level change and maximum building length, metres.
+    short_profile_m, long_profile_m : float
+        Step 5 profile lengths, metres.
+    profile_sigma_m, surface_sigma_m, prediction_sigma_m : float or None
+        Standard deviation of a height about the model of steps 5, 6, 7 (None: sigma_m).
+    surface_size_m : float
+        Step 6 window edge, metres.
+    prediction_radius_m : float
+        Step 7 neighbourhood radius, metres.
+    snooping_k : float
+        Critical value of the data snooping of steps 5-7.
+    snooping_iterations : int
+        Fits per length / direction (step 5) and per surface (step 6).
+    low_weight : float
+        Weight factor of points below the reference (0 < p <= 1).
+    steps : iterable of int, optional
+        If given, overrides the switches: the step numbers (1-7) to run.
+    breaklines : array_like of bool, optional
+        Cells crossed by a break line (rasterised by the plugin; not a Param).
+    special_areas : array_like of bool, optional
+        Cells where only the local filters (steps 3 and 7) run (not a Param).
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low blunder, 255 nodata), ``extras["step"]``
+        (uint8: 0 kept, k removed by step k, 255 nodata) and ``info`` with
+        ``removed_share_by_step`` (share of valid cells removed by each step).
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    if terrain_class not in TERRAIN_CLASSES:
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES}; got {terrain_class!r}. "
+                         "Leave it empty in resolve_rascor_params to derive it (step 1).")
+    for name, val in (("sigma_m", sigma_m), ("jump_m", jump_m), ("max_building_m", max_building_m),
+                      ("short_profile_m", short_profile_m), ("long_profile_m", long_profile_m),
+                      ("surface_size_m", surface_size_m), ("prediction_radius_m", prediction_radius_m),
+                      ("snooping_k", snooping_k), ("neighbour_k", neighbour_k)):
+        if val is None or not np.isfinite(val) or val <= 0:
+            raise ValueError(f"{name} must be a positive number; got {val!r}. Pass a value or "
+                             "call resolve_rascor_params to derive it from the DSM.")
+    if not 0 < low_weight <= 1:
+        raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
+                         "factor of points below the reference (0.1: tolerance x 3.2).")
+    if int(snooping_iterations) < 1:
+        raise ValueError(f"snooping_iterations must be >= 1; got {snooping_iterations}.")
+    if steps is not None:
+        steps = {int(s) for s in steps}
+        bad = steps - set(STEP_NAMES)
+        if bad:
+            raise ValueError(f"steps {sorted(bad)} do not exist; RASCOR steps are 1-7 "
+                             f"({STEP_NAMES}).")
+        on = {i + 1: (i + 1) in steps for i in range(7)}
+    else:
+        on = dict(zip(range(1, 8), (step1_characterise, step2_height_distribution,
+                                    step3_neighbour_differences, step4_level_change,
+                                    step5_profiles, step6_surfaces, step7_prediction)))
+    bl = _as_bool_raster(breaklines, z.shape, "breaklines")
+    sp = _as_bool_raster(special_areas, z.shape, "special_areas")
+    labels = None
+    n_regions = 1
+    if bl is not None:
+        labels, n_regions = break_regions(bl)
+    s5 = max(sigma_m, profile_sigma_m or sigma_m)
+    s6 = max(sigma_m, surface_sigma_m or sigma_m)
+    s7 = max(sigma_m, prediction_sigma_m or sigma_m)
+    lengths = [short_profile_m] if long_profile_m <= short_profile_m else [short_profile_m,
+                                                                          long_profile_m]
+
+    valid = np.isfinite(z)
+    keep = valid.copy()
+    global_ok = valid if sp is None else valid & ~sp
+    mask = np.zeros(z.shape, np.uint8)
+    step = np.zeros(z.shape, np.uint8)
+    removed = {}
+
+    def record(k, hi, lo):
+        new_hi = hi & keep
+        new_lo = lo & keep & ~new_hi
+        mask[new_hi] = OBJECT
+        mask[new_lo] = LOW
+        step[new_hi | new_lo] = k
+        keep[new_hi | new_lo] = False
+        removed[k] = removed.get(k, 0) + int(new_hi.sum() + new_lo.sum())
+
+    kw = dict(k=snooping_k, low_weight=low_weight, labels=labels)
+    n_iter = 2 if second_iteration else 1
+    work = [k for k in (2, 3, 4, 5, 6, 7) if on[k] or (k == 7 and sp is not None)]
+    total = max(1, len(work) + (n_iter - 1) * len([k for k in work if k in (3, 5, 6, 7)]))
+    done = 0
+
+    def tick():
+        nonlocal done
+        done += 1
+        report(progress, done / total)
+
+    report(progress, 0.0)
+    skipped = []
+    for it in range(n_iter):
+        if it == 0 and 2 in work:
+            if terrain_class == "flat" and height_min_m is not None and height_max_m is not None:
+                hi, lo = remove_height_outliers(z, keep & global_ok, height_min_m, height_max_m)
+                record(2, hi, lo)
+            else:
+                skipped.append("2: height distribution skipped (terrain is "
+                               f"{terrain_class}, the step applies to flat areas only)")
+            tick()
+        if 3 in work:
+            hi, lo = remove_neighbour_differences(z, keep, sigma_m=sigma_m, k=neighbour_k,
+                                                  low_weight=low_weight, labels=labels)
+            record(3, hi, lo)
+            tick()
+        if it == 0 and 4 in work:
+            hi = remove_level_changes(z, (dx, dy), keep, jump_m=jump_m,
+                                      max_building_m=max_building_m, sigma_m=sigma_m,
+                                      k=neighbour_k, labels=labels)
+            record(4, hi & global_ok, np.zeros_like(hi))
+            tick()
+        if 5 in work:
+            hi, lo = remove_profile_outliers(z, (dx, dy), keep, lengths_m=lengths,
+                                             terrain_class=terrain_class, scale_m=s5,
+                                             iterations=int(snooping_iterations),
+                                             test=global_ok, **kw)
+            record(5, hi, lo)
+            tick()
+        if 6 in work:
+            hi, lo = remove_surface_outliers(z, (dx, dy), keep, size_m=surface_size_m,
+                                             terrain_class=terrain_class, scale_m=s6,
+                                             iterations=int(snooping_iterations),
+                                             test=global_ok, **kw)
+            record(6, hi, lo)
+            tick()
+        if 7 in work:
+            test = valid if on[7] else sp
+            hi, lo = remove_prediction_outliers(z, (dx, dy), keep, radius_m=prediction_radius_m,
+                                                scale_m=s7, test=test, **kw)
+            record(7, hi, lo)
+            tick()
+    n_valid = max(1, int(valid.sum()))
+    mask[~valid] = NODATA
+    step[~valid] = 255
+    shares = {f"{k} {STEP_NAMES[k]}": removed.get(k, 0) / n_valid for k in range(2, 8)}
+    info = {"terrain_class": terrain_class, "sigma_m": sigma_m,
+            "steps_on": [k for k in range(1, 8) if on[k]],
+            "removed_share_by_step": shares,
+            "removed_share": float(sum(removed.values()) / n_valid),
+            "low_share": float(np.mean(mask[valid] == LOW)),
+            "breakline_regions": n_regions if bl is not None else 0,
+            "special_area_share": float(sp[valid].mean()) if sp is not None else 0.0,
+            "second_iteration": bool(second_iteration), "notes": skipped}
+    report(progress, 1.0)
+    return FilterResult(mask=mask, extras={"step": step}, info=info)
+
+
+# ----------------------------------------------------------------- parameters
+DEFAULTS = dict(terrain_class=None, sigma_m=None, step1_characterise=True,
+                step2_height_distribution=True, step3_neighbour_differences=True,
+                step4_level_change=True, step5_profiles=True, step6_surfaces=True,
+                step7_prediction=False, second_iteration=False, height_min_m=None,
+                height_max_m=None, neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
+                short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
+                surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
+                prediction_sigma_m=None, snooping_k=3.0, snooping_iterations=2,
+                low_weight=0.1)
+
+
+def _analysis_crops(z, edge=384):
+    """The analysis sample: the whole surface when small, else 4 crops at the quadrants."""
+    rows, cols = z.shape
+    if rows * cols <= (2 * edge) ** 2:
+        return [z]
+    out = []
+    for fr in (0.25, 0.75):
+        for fc in (0.25, 0.75):
+            r0 = int(max(0, min(rows - edge, fr * rows - edge / 2)))
+            c0 = int(max(0, min(cols - edge, fc * cols - edge / 2)))
+            out.append(z[r0:r0 + edge, c0:c0 + edge])
+    return out
+
+
+def _robust_scale(v):
+    v = v[np.isfinite(v)]
+    if v.size < 20:
+        return np.nan
+    return float(1.4826 * np.median(np.abs(v - np.median(v))))
+
+
+def _choose(seq, scales, sigma):
+    """Largest member of ``seq`` whose scale stays within ``_SCALE_GROWTH`` x the first's."""
+    ref = max(sigma, scales[0]) if np.isfinite(scales[0]) else sigma
+    best = 0
+    for i, s in enumerate(scales):
+        if np.isfinite(s) and s <= _SCALE_GROWTH * ref:
+            best = i
+    return best, ref
+
+
+def resolve_rascor_params(z, cell_size, **params):
+    """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
+
+    ``None`` values are derived: the terrain class and the random error by step 1
+    (:func:`characterise_terrain`); step 2's limits from the height distribution (flat
+    terrain only: Tukey's far fences, never inside the lower envelope's range); the profile
+    lengths by analysing the sequence :data:`PROFILE_LENGTHS_M`: on a sample cleaned by
+    steps 3 and 4, the robust scale of the leave-one-out profile residuals is computed per
+    length; the long profile is the longest whose scale stays within twice the shortest's,
+    the short one the longest of the sequence at most half of it; the surface size likewise
+    from :data:`SURFACE_SIZES_M`; the scales found are the ``*_sigma_m`` of the tests.
+
+    Returns
+    -------
+    dict
+        Every parameter of :func:`filter_rascor` except the rasters and ``progress``.
+    """
+    unknown = sorted(set(params) - set(DEFAULTS))
+    if unknown:
+        raise ValueError(f"unknown RASCOR parameter(s) {unknown}; known: {sorted(DEFAULTS)}.")
+    p = dict(DEFAULTS)
+    p.update({k: v for k, v in params.items() if v is not None or DEFAULTS[k] is None})
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    cs = max(dx, dy)
+    tc = p["terrain_class"]
+    if tc is not None and tc not in TERRAIN_CLASSES:
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or empty (derived); "
+                         f"got {tc!r}.")
+    ch = characterise_terrain(z, (dx, dy))
+    if tc is None:
+        tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
+    p["terrain_class"] = tc
+    if p["sigma_m"] is None:
+        p["sigma_m"] = round(ch["sigma_m"], 3)
+    sigma = float(p["sigma_m"])
+    if tc == "flat" and (p["height_min_m"] is None or p["height_max_m"] is None):
+        v = z[np.isfinite(z)]
+        if v.size > 2_000_000:
+            v = v[:: v.size // 1_000_000]
+        q1, q3 = np.percentile(v, [25, 75])
+        iqr = max(q3 - q1, 10 * sigma)
+        low_env = _tile_low(z, max(3, int(round(ch["tile_m"] / cs))))
+        lv = low_env[np.isfinite(low_env)]
+        gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
+        if p["height_min_m"] is None:
+            p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - 5 * iqr)), 2)
+        if p["height_max_m"] is None:
+            p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + 3 * iqr)), 2)
+    if p["prediction_radius_m"] is None:
+        p["prediction_radius_m"] = round(3.0 * cs, 3)
+    need = any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m",
+                                      "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
+    if need:
+        deg = _DEGREE[tc]
+        prof_v = {L: [] for L in PROFILE_LENGTHS_M}
+        surf_v = {S: [] for S in SURFACE_SIZES_M}
+        pred_v = []
+        for crop in _analysis_crops(z):
+            keep = np.isfinite(crop)
+            if keep.sum() < 100:
+                continue
+            hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
+                                                  low_weight=p["low_weight"])
+            keep &= ~(hi | lo)
+            keep &= ~remove_level_changes(crop, (dx, dy), keep, jump_m=p["jump_m"],
+                                          max_building_m=p["max_building_m"], sigma_m=sigma)
+            c64 = crop.astype(np.float64)
+            w = keep.astype(np.float64)
+            for L in PROFILE_LENGTHS_M:
+                zh, _ = _fit_at_centre(c64, w, _odd(L / dx), deg)
+                prof_v[L].append((c64 - zh)[keep])
+            for S in SURFACE_SIZES_M:
+                if p["surface_size_m"] is not None and p["surface_sigma_m"] is not None:
+                    break
+                zh, _ = _fit_at_centre(c64, w, (_odd(S / dy), _odd(S / dx)), min(deg, 1))
+                surf_v[S].append((c64 - zh)[keep])
+            g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
+            zh, _ = _fit_at_centre(c64, w, (len(g[0]), len(g[1])), 1, kernels=g)
+            pred_v.append((c64 - zh)[keep])
+        cat = lambda lst: np.concatenate(lst) if lst else np.zeros(0)
+        ps = [_robust_scale(cat(prof_v[L])) for L in PROFILE_LENGTHS_M]
+        i_long, _ = _choose(PROFILE_LENGTHS_M, ps, sigma)
+        i_long = max(i_long, 1)
+        long_m = PROFILE_LENGTHS_M[i_long]
+        i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
+        if p["long_profile_m"] is None:
+            p["long_profile_m"] = round(long_m * cs / cs, 3)
+        if p["short_profile_m"] is None:
+            p["short_profile_m"] = PROFILE_LENGTHS_M[i_short]
+        if p["profile_sigma_m"] is None:
+            s = ps[i_long] if np.isfinite(ps[i_long]) else sigma
+            p["profile_sigma_m"] = round(float(max(sigma, s)), 3)
+        ss = [_robust_scale(cat(surf_v[S])) for S in SURFACE_SIZES_M]
+        i_s, _ = _choose(SURFACE_SIZES_M, ss, sigma)
+        if p["surface_size_m"] is None:
+            p["surface_size_m"] = SURFACE_SIZES_M[i_s]
+        if p["surface_sigma_m"] is None:
+            s = ss[i_s] if np.isfinite(ss[i_s]) else sigma
+            p["surface_sigma_m"] = round(float(max(sigma, s)), 3)
+        if p["prediction_sigma_m"] is None:
+            s = _robust_scale(cat(pred_v))
+            p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+    return p
+
+
+def rascor_halo(params, cell_size):
+    """Reach of the whole sequence in cells (the sum of the enabled steps' reaches).
+
+    Steps are chained, so a cell's fate depends on what earlier steps did within their
+    reach around every cell of the later windows: the reaches add up (x 2 with the second
+    iteration).
+    """
+    dx, dy = as_cell_size(cell_size)
+    cs = min(dx, dy)
+    p = dict(DEFAULTS)
+    p.update({k: v for k, v in params.items() if v is not None})
+
+    def cells(m):
+        return int(np.ceil((m or 0) / cs))
+
+    iters = int(p.get("snooping_iterations") or 2)
+    r3 = 3 if p["step3_neighbour_differences"] else 0
+    r4 = 2 * (cells(p["max_building_m"]) + 4) if p["step4_level_change"] else 0
+    r5 = iters * sum(cells(L) // 2 + 1 for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
+                                                p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
+        if p["step5_profiles"] else 0
+    r6 = iters * (cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1) \
+        if p["step6_surfaces"] else 0
+    r7 = cells(p["prediction_radius_m"] or 3 * cs) + 1
+    once = r3 + r5 + r6 + r7
+    return int(r4 + once * (2 if p["second_iteration"] else 1))
+
+
+def _run(z, cell_size, progress=None, breaklines=None, special_areas=None, **params):
+    return filter_rascor(z, cell_size, breaklines=breaklines, special_areas=special_areas,
+                         progress=progress, **params)
+
+
+METHOD = Method(
+    name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo,
+    extras={"step": (np.uint8, 1, 255)},
+    params=(
+        Param("terrain_class", "enum", None, "Terrain type choosing the models (mean / "
+              "linear / polynomial) and defaults; empty: classed from the DSM (step 1).",
+              options=TERRAIN_CLASSES),
+        Param("sigma_m", "float", None, "Random error of the DSM in metres; empty: "
+              "estimated from the Laplacian residuals (at least 0.1 m).", minimum=0.001,
+              maximum=100.0),
+        Param("step1_characterise", "bool", True, "Step 1: class the terrain from the DSM "
+              "(off: 'rolling' unless a terrain class is given)."),
+        Param("step2_height_distribution", "bool", True, "Step 2: remove heights far "
+              "outside the height distribution (flat terrain only; skipped otherwise)."),
+        Param("step3_neighbour_differences", "bool", True, "Step 3: remove the upper point "
+              "of neighbouring pairs differing beyond sigma and the local slope."),
+        Param("step4_level_change", "bool", True, "Step 4: remove raised levels between a "
+              "jump up and a jump down along X / Y profiles (buildings)."),
+        Param("step5_profiles", "bool", True, "Step 5: moving local profiles in X and Y, "
+              "short then long, with data snooping."),
+        Param("step6_surfaces", "bool", True, "Step 6: moving surfaces (horizontal, "
+              "inclined plane or polynomial by terrain class)."),
+        Param("step7_prediction", "bool", False, "Step 7: final local least-squares "
+              "prediction (optional; always on inside special areas)."),
+        Param("second_iteration", "bool", False, "Repeat steps 3, 5, 6, 7 once. Warning "
+              "(Jacobsen): removes small vegetation but may generalise the terrain."),
+        Param("height_min_m", "float", None, "Step 2 lower height limit in metres; empty: "
+              "far fence of the height distribution (flat terrain).", advanced=True),
+        Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
+              "far fence of the height distribution (flat terrain).", advanced=True),
+        Param("neighbour_k", "float", 3.0, "Step 3 critical value: tolerance = k sigma "
+              "sqrt(2) + local slope.", minimum=0.5, maximum=20.0, advanced=True),
+        Param("jump_m", "float", 2.0, "Step 4 minimum sudden change of level in metres.",
+              minimum=0.1, maximum=100.0, advanced=True),
+        Param("max_building_m", "float", 120.0, "Step 4 longest raised level removed "
+              "(metres); also sets the block halo.", minimum=1.0, maximum=2000.0,
+              advanced=True),
+        Param("short_profile_m", "float", None, "Step 5 short profile length in metres; "
+              "empty: chosen by analysing a sequence of lengths.", minimum=0.1,
+              maximum=10000.0, advanced=True),
+        Param("long_profile_m", "float", None, "Step 5 long profile length in metres; "
+              "empty: the longest of the sequence whose residual scale stays within twice "
+              "the shortest's.", minimum=0.1, maximum=10000.0, advanced=True),
+        Param("profile_sigma_m", "float", None, "Step 5 standard deviation of a height "
+              "about the profile model (m); empty: from the length analysis.", minimum=0.001,
+              maximum=100.0, advanced=True),
+        Param("surface_size_m", "float", None, "Step 6 moving-surface window edge in "
+              "metres; empty: chosen by checking a sequence of sizes.", minimum=0.1,
+              maximum=10000.0, advanced=True),
+        Param("surface_sigma_m", "float", None, "Step 6 standard deviation about the "
+              "surface (m); empty: from the size analysis.", minimum=0.001, maximum=100.0,
+              advanced=True),
+        Param("prediction_radius_m", "float", None, "Step 7 neighbourhood radius in "
+              "metres; empty: 3 cells.", minimum=0.01, maximum=1000.0, advanced=True),
+        Param("prediction_sigma_m", "float", None, "Step 7 standard deviation of the "
+              "prediction (m); empty: from the prediction residuals.", minimum=0.001,
+              maximum=100.0, advanced=True),
+        Param("snooping_k", "float", 3.0, "Critical value of the data snooping in steps "
+              "5-7 (standardised residual).", minimum=0.5, maximum=20.0, advanced=True),
+        Param("snooping_iterations", "int", 2, "Fits per profile length / direction and "
+              "per surface (outliers removed between fits).", minimum=1, maximum=10,
+              advanced=True),
+        Param("low_weight", "float", 0.1, "Weight factor of points below the reference: "
+              "their tolerance is 1/sqrt(weight) wider, so ditches stay while deep low "
+              "blunders go (class 2).", minimum=0.001, maximum=1.0, advanced=True),
+    ),
+    title="RASCOR sequential filter (Jacobsen 2004)",
+    description=(
+        "<p>Filters a raster DSM by a sequence of tests, each catching what the others "
+        "miss, with parameters determined from an analysis of the DSM (Jacobsen 2004, "
+        "program RASCOR): 1 terrain characterisation (flat / rolling / mountainous, "
+        "homogeneity), 2 height distribution (flat terrain only), 3 height differences of "
+        "neighbours (tolerance from the random error and the local slope), 4 sudden change "
+        "of level along X and Y profiles (buildings), 5 moving local profiles short then "
+        "long (mean, linear regression or polynomial, with data snooping), 6 moving "
+        "surfaces (horizontal, inclined plane or polynomial), 7 optional local prediction. "
+        "Points below the reference get a weight factor instead of removal, so ditches and "
+        "cuts stay while deep low blunders are removed (class 2).</p>"
+        "<p><b>Second iteration</b>: removes small vegetation but may generalise the "
+        "terrain (the paper's warning).</p>"
+        "<p><b>Break lines</b> (optional line layer, rasterised to the cells it crosses): "
+        "no comparison crosses a break line, so dams, embankments and cuts keep their "
+        "shoulders. <b>Special areas</b> (optional polygons): inside them only the local "
+        "filters (steps 3 and 7) run, e.g. for cars and bushes on a dam's slope. The core "
+        "receives both as boolean rasters <code>breaklines</code> and "
+        "<code>special_areas</code> (keyword arrays, not parameters).</p>"
+        "<p>Output extra <i>step</i>: which step removed each cell (0 kept).</p>"),
+)
