@@ -1,0 +1,191 @@
+"""Tests of core.fill.fill_gaps: harmonic gap filling."""
+import numpy as np
+import pytest
+
+from bare_earth.core.common import Cancelled
+from bare_earth.core.fill import fill_gaps
+
+DTYPES = [np.float32, np.float64, np.int16]
+
+
+def _plane(shape, a=0.3, b=-0.2, c=100.0):
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    return c + a * xx + b * yy
+
+
+def _with_nan(z, dtype):
+    """Cast ``z`` to ``dtype``; for int16 nodata is expressed through ``fill``."""
+    return np.asarray(z).astype(dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(64, 80), (257, 301)])
+def test_hole_in_plane_is_the_plane(dtype, shape):
+    truth = _plane(shape)
+    z = truth.astype(dtype)
+    h, w = shape
+    z[h // 4:h // 4 + h // 3, w // 5:w // 5 + w // 2] = np.nan
+    z[h // 2 + 10:h // 2 + 14, 3:9] = np.nan
+    out = fill_gaps(z)
+    assert out.dtype == np.float32 and out.shape == z.shape
+    assert np.abs(out - truth).max() < 1e-3
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_ramp_with_fill_mask(dtype):
+    # A linear ramp (integers, so int16 is exact); the holes are given through `fill`.
+    shape = (150, 170)
+    truth = _plane(shape, a=2.0, b=1.0, c=10.0)
+    z = truth.astype(dtype)
+    fill = np.zeros(shape, bool)
+    fill[30:110, 40:90] = True
+    fill[120:135, 100:160] = True
+    z_before = z.copy()
+    out = fill_gaps(z, fill)
+    np.testing.assert_array_equal(z, z_before)  # input not modified
+    assert np.abs(out - truth)[fill].max() < 1e-3
+    # known cells unchanged, exactly
+    np.testing.assert_array_equal(out[~fill], z[~fill].astype(np.float32))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_known_cells_exact_and_input_untouched(dtype):
+    rng = np.random.default_rng(3)
+    z = (rng.normal(0, 5, (90, 110)) + 1234.567).astype(dtype)
+    z[rng.random(z.shape) < 0.3] = np.nan
+    z_before = z.copy()
+    out = fill_gaps(z)
+    np.testing.assert_array_equal(z, z_before)
+    known = np.isfinite(z)
+    np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
+    assert np.isfinite(out).all()
+    # a membrane never leaves the range of its data (maximum principle)
+    assert out.min() >= np.nanmin(z).astype(np.float32) - 1e-3
+    assert out.max() <= np.nanmax(z).astype(np.float32) + 1e-3
+
+
+def test_nodata_outside_fill_stays_nan_and_is_no_source():
+    truth = _plane((100, 120))
+    z = truth.astype(np.float32)
+    nodata = np.zeros(z.shape, bool)
+    nodata[:, :10] = True            # nodata border strip
+    nodata[60:80, 60:80] = True      # nodata blob
+    z[nodata] = np.nan
+    fill = np.zeros(z.shape, bool)
+    fill[20:50, 30:70] = True        # removed object: heights are garbage
+    fill[45:65, 50:70] = True        # touches the nodata blob
+    z[fill & ~nodata] = 9999.0       # must not leak into the result
+    fill[62:66, 62:66] = True        # nodata cells inside `fill` are filled
+    out = fill_gaps(z, fill)
+    assert np.isnan(out[nodata & ~fill]).all()
+    assert np.isfinite(out[fill]).all()
+    assert np.isfinite(out[~nodata]).all()
+    assert out[fill].max() < truth.max() + 1.0  # the 9999 values were not used
+    # the hole is surrounded by plane data on all sides but the nodata blob
+    assert np.abs(out - truth)[20:40, 30:60].max() < 0.5
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_edge_holes_and_unknown_regions_get_finite_values(dtype):
+    truth = _plane((80, 90))
+    z = truth.astype(dtype)
+    z[:25, :30] = np.nan       # corner
+    z[:, 85:] = np.nan         # whole right strip
+    z[70:, :] = np.nan         # whole bottom strip
+    out = fill_gaps(z)
+    assert np.isfinite(out).all()
+    # zero-flux edge: the fill stays within the data range
+    assert np.nanmin(z) - 1e-3 <= out.min() and out.max() <= np.nanmax(z) + 1e-3
+
+
+def test_single_known_cell_fills_everything_with_its_value():
+    z = np.full((300, 200), np.nan, np.float32)
+    z[123, 45] = 7.5
+    out = fill_gaps(z)
+    np.testing.assert_allclose(out, 7.5, atol=1e-4)
+
+
+def test_no_steps_at_hole_edges():
+    # Curved terrain: differences across hole edges bounded by the surface gradient.
+    yy, xx = np.mgrid[0:200, 0:240].astype(np.float64)
+    truth = 50 + 8 * np.sin(xx / 25) + 5 * np.cos(yy / 19) + 0.002 * (xx - 120) ** 2
+    z = truth.astype(np.float32)
+    hole = np.zeros(z.shape, bool)
+    hole[40:120, 50:150] = True
+    hole[150:190, 20:60] = True
+    hole[10:14, 200:230] = True
+    z[hole] = np.nan
+    out = fill_gaps(z)
+    gmax = max(np.abs(np.diff(truth, axis=0)).max(), np.abs(np.diff(truth, axis=1)).max())
+    for axis in (0, 1):
+        d = np.abs(np.diff(out, axis=axis))
+        a = np.take(hole, np.arange(hole.shape[axis] - 1), axis=axis)
+        b = np.take(hole, np.arange(1, hole.shape[axis]), axis=axis)
+        across = a != b                                  # one filled, one known cell
+        assert d[across].max() <= 1.5 * gmax
+        inside = a & b
+        assert d[inside].max() <= 1.5 * gmax
+
+
+def test_matches_exact_harmonic_solution_closely():
+    # Large single hole: compare with a direct sparse solve of the Laplace equation.
+    from scipy.sparse import diags, identity, kron
+    from scipy.sparse.linalg import spsolve
+    n = 70
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
+    truth = np.sin(xx / 9.0) * 6 + np.cos(yy / 7.0) * 4 + 0.05 * xx * yy / n
+    hole = np.zeros((n, n), bool)
+    hole[10:60, 15:55] = True
+    z = truth.copy()
+    z[hole] = np.nan
+    # exact: interior Dirichlet problem on the hole (all of its neighbours are known)
+    hh, hw = 50, 40
+    t = lambda m: diags([-1, 2, -1], [-1, 0, 1], shape=(m, m))
+    a = (kron(identity(hh), t(hw)) + kron(t(hh), identity(hw))).tocsc()
+    rhs = np.zeros((hh, hw))
+    rhs[0, :] += truth[9, 15:55]
+    rhs[-1, :] += truth[60, 15:55]
+    rhs[:, 0] += truth[10:60, 14]
+    rhs[:, -1] += truth[10:60, 55]
+    exact = spsolve(a, rhs.ravel()).reshape(hh, hw)
+    out = fill_gaps(z)
+    err = np.abs(out[10:60, 15:55] - exact)
+    assert err.max() < 0.05 * np.ptp(exact)
+
+
+def test_progress_called_per_level_and_cancel():
+    z = _plane((300, 300)).astype(np.float32)
+    z[100:200, 100:200] = np.nan
+    calls = []
+    fill_gaps(z, progress=calls.append)
+    assert len(calls) >= 3 and calls[-1] == pytest.approx(1.0)
+    assert all(b >= a for a, b in zip(calls, calls[1:]))
+
+    def cancel(f):
+        raise Cancelled()
+    with pytest.raises(Cancelled):
+        fill_gaps(z, progress=cancel)
+
+
+def test_nothing_to_fill_returns_copy():
+    z = _plane((20, 30)).astype(np.float64)
+    out = fill_gaps(z)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, z.astype(np.float32))
+    z[3, 4] = np.nan
+    out = fill_gaps(z, np.zeros(z.shape, bool))
+    assert np.isnan(out[3, 4]) and np.isfinite(np.delete(out.ravel(), 3 * 30 + 4)).all()
+
+
+def test_errors():
+    with pytest.raises(ValueError, match="no known cell"):
+        fill_gaps(np.full((10, 10), np.nan))
+    z = np.ones((10, 10), np.float32)
+    with pytest.raises(ValueError, match="no known cell"):
+        fill_gaps(z, np.ones((10, 10), bool))
+    with pytest.raises(ValueError, match="shape"):
+        fill_gaps(z, np.ones((5, 10), bool))
+    with pytest.raises(ValueError, match="2-D"):
+        fill_gaps(np.ones(10))
+    with pytest.raises(ValueError, match="empty"):
+        fill_gaps(np.ones((0, 3)))
