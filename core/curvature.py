@@ -57,6 +57,9 @@ _K_SIGMAS = 3.0
 #: Smallest height deviation (m) across a half window that counts as a break on
 #: noise-free data (floor of the derived K_g).
 _MIN_BREAK_M = 0.05
+#: Tile edge (cells) and quantile of the tile spreads used for the smooth-part noise.
+_TILE = 16
+_SMOOTH_QUANTILE = 0.25
 #: Largest sample (cells) used to derive defaults on big rasters.
 _SAMPLE_CELLS = 4_000_000
 
@@ -179,7 +182,7 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
 
 
 def curvatures_from_derivatives(p, q, r, s, t):
-    """Gaussian curvature K, mean curvature H and profile curvatures from derivatives.
+    """Gaussian curvature K and mean curvature H from the local derivatives.
 
     Returns
     -------
@@ -189,17 +192,11 @@ def curvatures_from_derivatives(p, q, r, s, t):
     H : ndarray
         ``-((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)`` in 1/m, signed so that
         H > 0 is convex (dome, top of a wall) and H < 0 concave (pit, foot of a wall).
-    kx, ky : ndarray
-        Curvatures of the X and Y profiles, ``-r / (1 + p^2)^1.5`` and
-        ``-t / (1 + q^2)^1.5`` in 1/m (same sign rule as H).
     """
     h2 = 1.0 + p * p + q * q
     K = (r * t - s * s) / (h2 * h2)
     H = -((1.0 + q * q) * r - 2.0 * p * q * s + (1.0 + p * p) * t) / (2.0 * h2 * np.sqrt(h2))
-    kx = -r / (1.0 + p * p) ** 1.5
-    ky = -t / (1.0 + q * q) ** 1.5
-    return (K.astype(np.float32, copy=False), H.astype(np.float32, copy=False),
-            kx.astype(np.float32, copy=False), ky.astype(np.float32, copy=False))
+    return K.astype(np.float32, copy=False), H.astype(np.float32, copy=False)
 
 
 def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
@@ -236,69 +233,88 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
     True
     """
     p, q, r, s, t = local_derivatives(z, cell_size, window=window, model=model)
-    K, H, _, _ = curvatures_from_derivatives(p, q, r, s, t)
+    K, H = curvatures_from_derivatives(p, q, r, s, t)
     return K, H, p, q, r, s, t
 
 
 # --------------------------------------------------------------------------- profiles
-def _profile_objects(z, marked, valid, cell, *, max_cells, reach, h_min, tan_wall):
-    """Runs of unmarked cells along rows that stand above the ground on both sides.
+def _walls(Z, V, cell, *, reach, h_min, tan_wall):
+    """Where a profile (axis 0) rises as a wall from its lowest point of the last ``reach``.
 
-    A run (segment) between two marked breaks is an object when it is at most
-    ``max_cells`` long, both its neighbours are valid cells, its lowest cell is at least
-    ``h_min`` above the lowest cell within ``reach`` cells beyond each end (the foot of the
-    break), and the steepest step within that reach is steeper than ``tan_wall``.
-    Runs touching the array's edge are not judged (one side unknown).
+    For every position j: ``foot`` = the lowest valid height among the ``reach``
+    positions before j, at distance k* (the nearest one if tied). j is at the top of a
+    wall when ``z_j - foot >= h_min`` and ``(z_j - foot) / (k* cell) >= tan(wall slope)``.
+    Measuring from the lowest point rather than from the previous cell keeps gentle
+    slopes rasterised in steps (sparse points, nearest-neighbour gaps) from looking like
+    walls, and still finds walls smoothed over a few cells. A loop over ``reach``
+    shifts, each vectorised over the whole array.
     """
-    rows, cols = z.shape
-    un = valid & ~marked
-    if cols < 3 or not un.any():
-        return np.zeros(z.shape, bool)
-    prev = np.zeros_like(un)
-    prev[:, 1:] = un[:, :-1]
-    nxt = np.zeros_like(un)
-    nxt[:, :-1] = un[:, 1:]
-    starts = np.flatnonzero(un & ~prev)
-    ends = np.flatnonzero(un & ~nxt)
-    cs = starts % cols
-    ce = ends % cols
-    ok = (cs > 0) & (ce < cols - 1) & (ce - cs + 1 <= max_cells)
-    starts, ends, cs, ce = starts[ok], ends[ok], cs[ok], ce[ok]
-    if starts.size == 0:
-        return np.zeros(z.shape, bool)
-    vflat = valid.ravel()
-    ok = vflat[starts - 1] & vflat[ends + 1]
-    starts, ends = starts[ok], ends[ok]
-    if starts.size == 0:
-        return np.zeros(z.shape, bool)
-    zinf = np.where(valid, z, np.inf).astype(np.float32)
-    zflat = np.append(zinf.ravel(), np.float32(np.inf))
-    idx = np.empty(2 * starts.size, np.int64)
-    idx[0::2] = starts
-    idx[1::2] = ends + 1
-    seg_min = np.minimum.reduceat(zflat, idx)[0::2]
-    # foot heights beyond each end: min over [s - R, s - 1] and [e + 1, e + R]
-    size = 2 * reach + 1
-    tmin = ndimage.minimum_filter1d(zinf, size, axis=1, mode="nearest", origin=reach).ravel()
-    lmin = ndimage.minimum_filter1d(zinf, size, axis=1, mode="nearest", origin=-reach).ravel()
-    foot_l = tmin[starts - 1]
-    foot_r = lmin[ends + 1]
-    # steepest step within the same reach (the wall)
-    g = np.zeros(z.shape, np.float32)
-    zd = np.where(valid, z, np.nan)
-    d = np.abs(np.diff(zd, axis=1)) / np.float32(cell)
-    g[:, :-1] = np.nan_to_num(d, nan=0.0)
-    tg = ndimage.maximum_filter1d(g, size, axis=1, mode="nearest", origin=reach).ravel()
-    lg = ndimage.maximum_filter1d(g, size, axis=1, mode="nearest", origin=-reach).ravel()
-    steep_l = tg[starts - 1]
-    steep_r = lg[ends]
-    is_obj = ((seg_min - foot_l >= h_min) & (seg_min - foot_r >= h_min)
-              & (steep_l >= tan_wall) & (steep_r >= tan_wall))
-    starts, ends = starts[is_obj], ends[is_obj]
-    run = np.zeros(z.size + 1, np.int8)
-    run[starts] = 1          # segments are disjoint and separated by marked cells,
-    run[ends + 1] -= 1       # so these indices never collide
-    return (np.cumsum(run[:-1], dtype=np.int8) > 0).reshape(z.shape)
+    n = Z.shape[0]
+    Zi = np.where(V, Z, np.float32(np.inf))
+    foot = np.full(Z.shape, np.inf, np.float32)
+    kstar = np.zeros(Z.shape, np.float32)
+    for k in range(1, min(reach, n - 1) + 1):
+        prev = Zi[:-k]
+        cur = foot[k:]
+        better = prev < cur
+        np.copyto(cur, prev, where=better)
+        np.copyto(kstar[k:], np.float32(k), where=better)
+    rise = np.where(V, Z, -np.inf) - foot
+    wall = (rise >= np.float32(h_min)) & (rise >= np.float32(tan_wall * cell) * kstar)
+    return wall, foot
+
+
+def _scan(Z, V, B, W, F, *, tol, max_cells):
+    """One directed scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
+
+    The paper's reading of a profile: the points between a break going up and the
+    matching break coming down belong to an object. State per profile: ``g`` the height
+    of the ground before the object (its foot), ``d`` the cells since the last ground.
+
+    * ground -> object at a marked cell (a break, ``B``) at the top of a wall (``W``,
+      see :func:`_walls`); the foot ``g`` is the wall's foot ``F``.
+    * object -> ground when the profile comes back down to the foot's height (within
+      ``tol``), or after ``max_cells`` (too long for an object: the terrain rose). On a
+      slope the scan going uphill overshoots, but the scan coming down finds the
+      building's uphill wall; :func:`_axis_objects` keeps only what both agree on.
+    """
+    n, m = Z.shape
+    out = np.zeros((n, m), bool)
+    g = np.where(V[0], Z[0], np.float32(np.nan)).astype(np.float32)
+    d = np.zeros(m, np.float32)
+    obj = np.zeros(m, bool)
+    rise = np.empty(m, np.float32)
+    tol = np.float32(tol)
+    for j in range(1, n):
+        zj, vj = Z[j], V[j]
+        d += 1
+        np.subtract(zj, g, out=rise)
+        start = ~obj & B[j] & W[j]
+        end = obj & ((rise <= tol) | (d > max_cells))
+        obj = (obj | start) & ~end
+        np.copyto(g, F[j], where=start)
+        newg = vj & ~obj
+        np.copyto(g, zj, where=newg)
+        d[newg | start] = 0
+        out[j] = obj & vj
+    return out
+
+
+def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_cells):
+    """Object cells of the profiles along axis 0: both scan directions must agree.
+
+    A step up of the terrain (terrace edge) is an object to the scan climbing it, but the
+    scan coming down the other way meets no break going up: only objects, which have a
+    break going up from both sides, are kept.
+    """
+    Z = np.where(valid, z, np.float32(np.nan))
+    out = None
+    for sl in (slice(None), slice(None, None, -1)):
+        Zs, Vs, Bs = Z[sl], valid[sl], marked[sl]
+        W, F = _walls(Zs, Vs, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
+        o = _scan(Zs, Vs, Bs, W, F, tol=tol, max_cells=max_cells)[sl]
+        out = o if out is None else out & o
+    return out
 
 
 def _enclosed_regions(flag, free, max_cells):
@@ -380,6 +396,24 @@ def _noise_sigma(z):
     if d.size == 0:
         return 0.0
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6.0))
+
+
+def _smooth_spread(v, tile=_TILE):
+    """Robust spread (1.4826 MAD) of ``v`` (bands x rows x cols) on its smooth parts.
+
+    The spread is taken per ``tile x tile`` tile and the ``_SMOOTH_QUANTILE`` quantile of
+    the tiles is returned: the noise of the smooth ground and roofs, not inflated by
+    vegetation or by the objects' edges, which may cover most of an urban scene.
+    """
+    b, r, c = v.shape
+    tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
+    nr, nc = r // tr, c // tc
+    t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
+    t = t.reshape(nr * nc, -1).astype(np.float64)
+    med = np.nanmedian(t, axis=1, keepdims=True)
+    mad = 1.4826 * np.nanmedian(np.abs(t - med), axis=1)
+    mad = mad[np.isfinite(mad)]
+    return float(np.quantile(mad, _SMOOTH_QUANTILE)) if mad.size else 0.0
 
 
 def _sample(z):
@@ -466,29 +500,32 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
 
     # 1. local trends and curvature (eqs. 9-16)
     p, q, r, s, t = local_derivatives(z, (dx, dy), window=window_cells, model=model)
-    K, H, kx, ky = curvatures_from_derivatives(p, q, r, s, t)
-    del p, q, r, s, t
+    K, H = curvatures_from_derivatives(p, q, r, s, t)
+    del p, q, s
     report(progress, 0.25)
 
-    # 2. breaks: |K| >= K_g, and profile curvature kappa^2 >= K_g along X and Y
+    # 2. breaks: |K| >= K_g (the paper), and the bending of the X and Y profile trends,
+    #    |r| or |t| >= kappa_g = sqrt(K_g): a straight roof edge has K = 0 (one principal
+    #    curvature is zero) and a tall wall has a tiny K (h^4 is large), but its profile
+    #    across the edge bends strongly.
     kappa_g = np.float32(np.sqrt(k_g))
     mark_k = valid & (np.abs(K) >= np.float32(k_g))
-    mark_x = valid & (np.abs(kx) >= kappa_g)
-    mark_y = valid & (np.abs(ky) >= kappa_g)
+    mark_x = valid & (np.abs(r) >= kappa_g)
+    mark_y = valid & (np.abs(t) >= kappa_g)
     marked = mark_k | mark_x | mark_y
-    del kx, ky
+    del r, t
     n_valid = max(int(valid.sum()), 1)
     report(progress, 0.35)
 
-    # 3. runs between breaks standing above the ground on both sides, along X and Y
+    # 3. along X and Y profiles: from a break going up to the break coming down
     m = window_cells // 2
-    reach = 2 * m + 1
-    obj_x = _profile_objects(z, marked, valid, dx, max_cells=int(max_size / dx), reach=reach,
-                             h_min=h_min, tan_wall=tan_wall)
+    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window_cells + 1)
+    zt = np.ascontiguousarray(z.T)
+    obj_x = _axis_objects(zt, np.ascontiguousarray(marked.T), np.ascontiguousarray(valid.T), dx,
+                          max_cells=int(max_size / dx), **kw).T
     report(progress, 0.45)
-    obj_y = _profile_objects(np.ascontiguousarray(z.T), np.ascontiguousarray(marked.T),
-                             np.ascontiguousarray(valid.T), dy, max_cells=int(max_size / dy),
-                             reach=reach, h_min=h_min, tan_wall=tan_wall).T
+    del zt
+    obj_y = _axis_objects(z, marked, valid, dy, max_cells=int(max_size / dy), **kw)
     report(progress, 0.55)
 
     # 4. regions enclosed by breaks and mostly such runs -> whole objects
@@ -509,7 +546,12 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             break
         surface = _fill_surface(z, holes)
         d = z - surface
-        mask = np.where(d > tol, OBJECT, GROUND).astype(np.uint8)
+        # the tolerance grows with the slope of the surface: one cell of horizontal
+        # uncertainty on a slope is a height difference of tan(slope) * cell
+        gy, gx = np.gradient(surface, dy, dx)
+        allow = np.float32(tol) + np.hypot(gx, gy) * np.float32(max(dx, dy))
+        del gx, gy
+        mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
         mask[concave & (d < -h_min)] = LOW
         mask[objects & (d > 0)] = OBJECT
         holes = ~valid | (mask != GROUND)
@@ -554,12 +596,12 @@ def derive_k_g(z, cell_size, *, window=5, model="quadratic"):
     zs = _sample(as_surface(z))
     p, q, r, s, t = local_derivatives(zs, (dx, dy), window=window, model=model)
     if model == "quadratic":
-        _, _, kx, ky = curvatures_from_derivatives(p, q, r, s, t)
-        v = np.concatenate([kx.ravel(), ky.ravel()])
+        v = np.concatenate([r.ravel(), t.ravel()])
     else:
         v = (s / (1.0 + p * p + q * q)).ravel()
-    v = v[np.isfinite(v)]
-    sigma = float(1.4826 * np.median(np.abs(v - np.median(v)))) if v.size else 0.0
+    v = v.astype(np.float32)
+    sigma = _smooth_spread(v.reshape((-1,) + zs.shape) if model == "quadratic" else
+                           v.reshape((1,) + zs.shape))
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
