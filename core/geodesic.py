@@ -1,0 +1,676 @@
+"""Gradual geodesic dilation with scan labelling (``bareearth:geodesic``, 2018).
+
+The paper (in Persian; only its abstract is available to us) separates ground from
+non-ground in a DSM with three steps after a noise-removal preprocessing, and was
+evaluated on the ISPRS filter test (reported: Type I 4.61 %, Type II 6.97 %, total
+3.17 % on five test areas). The details below are our design, documented here and in the
+algorithm's help.
+
+1. **Preprocessing** (step code :data:`STEP_OUTLIER`). A cell cluster narrower than
+   ``outlier_width_m`` that lies more than ``outlier_threshold_m`` below the grey closing
+   (a pit) is a *low outlier* (mask class 2: image-matching blunders, laser multipath);
+   one that stands more than ``outlier_threshold_m`` above the grey opening is a *high
+   outlier* (mask class 1: birds, clouds, blunders). Clusters larger than
+   :data:`OUTLIER_MAX_CELLS` cells are left to the later steps (ditches and walls are
+   long, blunders are not). Outliers are replaced by the closing/opening value.
+2. **Gradual geodesic dilation** (step codes 1..K). For structuring-element sizes
+   ``s_k = min_window_m * 2**k`` (k = 0 .. K-1, the last one ``max_object_size_m``):
+
+   * the marker ``f_k`` is the grey opening of the surface ``z`` by a flat square of
+     side ``s_k`` (it lies under ``z`` and has lost every object narrower than ``s_k``);
+   * ``R_k`` is the morphological reconstruction by dilation of ``f_k`` under ``z``
+     (:func:`reconstruct_by_dilation`, geodesic reach limited to ``s_k`` cells): it
+     grows the marker back wherever the terrain itself connects to it, so terrain edges
+     and ridges that the opening cut are restored, while objects, which the terrain
+     cannot reach from below, stay cut;
+   * the residual ``d_k = z - R_k`` (what the reconstruction cannot reach) is split into
+     8-connected regions where ``d_k > dh0`` (``height_threshold_m``). The *height
+     heterogeneity* of each region decides: a region is an object when its highest
+     residual exceeds ``dh_k = dh0 + tan(terrain_slope) * s_k / 2`` (a terrain bump of
+     half-width ``s_k/2`` can rise that much) **and** its rim is abrupt: the mean
+     residual over the region's border cells is at least ``edge_ratio`` times its
+     highest residual. A building (or tree) jumps at its border; a hill of the same
+     footprint with gentle sides rises from zero at its border and is kept. A region
+     whose bounding box exceeds ``2 * max_object_size_m`` is never an object.
+
+   The regions found at every step are removed together (the union); the step code is
+   the first (smallest) step that removed the cell, so small objects carry small codes
+   and large buildings large ones. Each step works on the preprocessed surface, so the
+   steps are independent and the reach of the method is that of its largest step.
+3. **Scan labelling** (step code :data:`STEP_SCAN`), :func:`scan_label`. Along every row
+   and every column of the cleaned surface (removed cells replaced by ``R_k``), the
+   height difference between neighbouring cells is labelled a *rise* when it exceeds the
+   terrain's own rise over one cell by more than ``dh0`` (``dz > dh0 + tan(slope) *
+   cell``), a *fall* symmetrically. A run of cells that opens with a rise, closes with a
+   fall, is shorter than ``max_object_size_m`` and stands more than ``dh0`` above the
+   straight line joining the cells before the rise and after the fall is non-ground.
+   Two passes catch stepped roofs. This removes what the dilation left (objects on
+   steep slopes, thin walls, leftovers of merged regions).
+4. Gap filling into the DTM is done by the pipeline (``fill.fill_gaps``).
+
+Speed: openings are separable running min/max filters (O(n) per row whatever the size);
+the reconstruction is iterated 3x3 geodesic dilation that runs on the bounding box of the
+cells that changed and switches to a vectorised frontier (only the neighbours of cells
+that changed) once few cells change, so it stops early where nothing moves.
+"""
+import time
+
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND, LOW, NODATA, OBJECT
+from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
+from .methods import Method, Param
+
+#: ``extras["step"]`` code of a cell removed by scan labelling.
+STEP_SCAN = 250
+#: ``extras["step"]`` code of a preprocessing outlier (high: mask 1, low: mask 2).
+STEP_OUTLIER = 251
+#: ``extras["step"]`` code of nodata cells.
+STEP_NODATA = 255
+#: Largest cluster (cells) the preprocessing treats as an isolated outlier.
+OUTLIER_MAX_CELLS = 16
+
+_DEFAULTS = dict(min_window_m=2.0, max_object_size_m=64.0, height_threshold_m=None,
+                 terrain_slope_deg=None, edge_ratio=0.45, outlier_threshold_m=None,
+                 outlier_width_m=2.0, scan_labelling=True)
+
+
+# --------------------------------------------------------------------------- morphology
+def _max3(a, connectivity):
+    """3x3 (8-connected) or cross (4-connected) maximum of a padded array's interior."""
+    c = a[1:-1, 1:-1]
+    if connectivity == 8:
+        r = np.maximum(np.maximum(a[:, :-2], a[:, 1:-1]), a[:, 2:])
+        return np.maximum(np.maximum(r[:-2], r[1:-1]), r[2:])
+    out = np.maximum(c, a[:-2, 1:-1])
+    np.maximum(out, a[2:, 1:-1], out=out)
+    np.maximum(out, a[1:-1, :-2], out=out)
+    np.maximum(out, a[1:-1, 2:], out=out)
+    return out
+
+
+def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
+    """Morphological reconstruction by dilation of ``marker`` under ``mask``.
+
+    ``R = sup_n delta^(n)(marker)`` where ``delta(f) = min(dilate_3x3(f), mask)`` is the
+    elementary geodesic dilation (Vincent 1993). The iteration runs on the bounding box
+    of the cells that changed, and on the 8 (4) neighbours of the changed cells only once
+    they are few (a vectorised frontier), so it stops early where nothing changes.
+
+    Parameters
+    ----------
+    marker, mask : array_like, 2-D, same shape
+        Marker and mask surfaces (any numeric dtype). ``marker`` is clipped to ``mask``
+        first. NaN in ``mask`` is nodata: it blocks propagation and stays NaN. NaN in
+        ``marker`` seeds nothing.
+    connectivity : {8, 4}
+        Neighbourhood of the elementary dilation.
+    max_iter : int, optional
+        Stop after this many elementary geodesic dilations (the geodesic reach in
+        cells); ``None`` runs to stability (the true reconstruction).
+
+    Returns
+    -------
+    ndarray
+        The reconstruction, float (float32 for float32/int16/uint8 inputs).
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, arrays are not 2-D, bad connectivity or max_iter.
+    """
+    marker = np.asarray(marker)
+    mask = np.asarray(mask)
+    if marker.ndim != 2 or mask.shape != marker.shape:
+        raise ValueError(f"marker and mask must be 2-D arrays of the same shape; got "
+                         f"{marker.shape} and {mask.shape}. Pass two bands of one grid.")
+    if connectivity not in (4, 8):
+        raise ValueError(f"connectivity must be 4 or 8; got {connectivity!r}.")
+    if max_iter is not None and (int(max_iter) != max_iter or max_iter < 0):
+        raise ValueError(f"max_iter must be a non-negative integer or None; got {max_iter!r}.")
+    dtype = np.result_type(marker.dtype, mask.dtype, np.float32)
+    if not np.issubdtype(dtype, np.floating):
+        dtype = np.float64
+    H, W = mask.shape
+    W2 = W + 2
+    P = np.full((H + 2, W2), -np.inf, dtype)
+    P[1:-1, 1:-1] = mask
+    nodata = np.isnan(P)
+    P[nodata] = -np.inf
+    R = np.full((H + 2, W2), -np.inf, dtype)
+    m = marker.astype(dtype, copy=True)
+    m[np.isnan(m)] = -np.inf
+    np.minimum(m, P[1:-1, 1:-1], out=R[1:-1, 1:-1])
+    Rf, Pf = R.ravel(), P.ravel()
+    if connectivity == 8:
+        offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.intp)
+    else:
+        offs = np.array([-W2, -1, 1, W2], np.intp)
+    box = (1, H, 1, W)          # inclusive interior bounds (padded coordinates)
+    frontier = None
+    it = 0
+    while max_iter is None or it < max_iter:
+        it += 1
+        if frontier is None:                      # dense pass on the bounding box
+            r0, r1, c0, c1 = box
+            sub = R[r0 - 1:r1 + 2, c0 - 1:c1 + 2]
+            new = np.minimum(_max3(sub, connectivity), P[r0:r1 + 1, c0:c1 + 1])
+            old = R[r0:r1 + 1, c0:c1 + 1]
+            ch = new > old
+            idx = np.flatnonzero(ch)
+            if idx.size == 0:
+                break
+            old[ch] = new[ch]
+            rr, cc = np.divmod(idx, c1 - c0 + 1)
+            rr += r0
+            cc += c0
+            if idx.size * 16 < (r1 - r0 + 1) * (c1 - c0 + 1):
+                frontier = rr * W2 + cc
+            else:
+                box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
+                       max(cc.min() - 1, 1), min(cc.max() + 1, W))
+        else:                                     # sparse pass on the frontier
+            cand = np.unique((frontier[:, None] + offs).ravel())
+            cand = cand[Rf[cand] < Pf[cand]]
+            if cand.size == 0:
+                break
+            nb = Rf[cand[:, None] + offs].max(axis=1)
+            new = np.minimum(nb, Pf[cand])
+            ch = new > Rf[cand]
+            frontier = cand[ch]
+            if frontier.size == 0:
+                break
+            Rf[frontier] = new[ch]
+            if frontier.size * 16 > H * W:
+                rr, cc = np.divmod(frontier, W2)
+                box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
+                       max(cc.min() - 1, 1), min(cc.max() + 1, W))
+                frontier = None
+    out = R[1:-1, 1:-1]
+    out[nodata[1:-1, 1:-1]] = np.nan
+    return out
+
+
+def _opening(z, valid, size):
+    """Grey opening by a flat rectangle ``size`` (rows, cols); nodata ignored.
+
+    Returns ``-inf`` where the whole window is nodata.
+    """
+    e = ndimage.minimum_filter(np.where(valid, z, np.inf), size=size, mode="nearest")
+    e[np.isposinf(e)] = -np.inf
+    return ndimage.maximum_filter(e, size=size, mode="nearest")
+
+
+def _closing(z, valid, size):
+    """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored."""
+    d = ndimage.maximum_filter(np.where(valid, z, -np.inf), size=size, mode="nearest")
+    d[np.isneginf(d)] = np.inf
+    return ndimage.minimum_filter(d, size=size, mode="nearest")
+
+
+def _window(size_m, dx, dy):
+    """Odd window (rows, cols) of about ``size_m`` metres, at least 3 x 3."""
+    return (2 * max(1, int(round(size_m / (2 * dy)))) + 1,
+            2 * max(1, int(round(size_m / (2 * dx)))) + 1)
+
+
+_S8 = np.ones((3, 3), bool)
+
+
+def _component_stats(lab, n, sel, values, rim, flag):
+    """Per-label max of ``values``, fraction of ``rim`` cells where ``flag``, bbox extents.
+
+    Returns arrays indexed by label (0 unused).
+    """
+    idx = np.flatnonzero(sel)
+    lab_c = lab.ravel()[idx]
+    v = values.ravel()[idx]
+    order = np.argsort(lab_c, kind="stable")
+    ls = lab_c[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(ls)) + 1]
+    present = ls[starts]
+    W = lab.shape[1]
+    rows, cols = np.divmod(idx[order], W)
+    vmax = np.full(n + 1, -np.inf)
+    vmax[present] = np.maximum.reduceat(v[order], starts)
+    ext_r = np.zeros(n + 1, np.int64)
+    ext_c = np.zeros(n + 1, np.int64)
+    ext_r[present] = np.maximum.reduceat(rows, starts) - np.minimum.reduceat(rows, starts) + 1
+    # columns are not sorted within a label: min/max of columns via reduceat too
+    ext_c[present] = np.maximum.reduceat(cols, starts) - np.minimum.reduceat(cols, starts) + 1
+    r = rim.ravel()[idx].astype(np.float64)
+    rim_n = np.bincount(lab_c, weights=r, minlength=n + 1)
+    rim_s = np.bincount(lab_c, weights=r * flag.ravel()[idx], minlength=n + 1)
+    rim_mean = np.divide(rim_s, rim_n, out=np.zeros(n + 1), where=rim_n > 0)
+    return vmax, rim_mean, ext_r, ext_c
+
+
+# -------------------------------------------------------------------------- scan labels
+def _scan_rows(a, t_jump, height_m, max_cells):
+    """Scan labelling along axis 1 of ``a`` (see :func:`scan_label`)."""
+    H, W = a.shape
+    out = np.zeros((H, W), bool)
+    if W < 3:
+        return out
+    dz = np.diff(a, axis=1)                       # edge j: between cells j and j+1
+    rise = dz > t_jump
+    fall = dz < -t_jump
+    brk = np.isnan(dz)
+    event = rise | fall | brk
+    j = np.arange(W - 1)
+    # last event edge strictly left of cell i (edge index <= i-1); -1 if none
+    left = np.maximum.accumulate(np.where(event, j, -1), axis=1)
+    left = np.concatenate([np.full((H, 1), -1), left], axis=1)          # cell i -> edge
+    # first event edge at or right of cell i (edge index >= i); W-1 if none
+    right = np.minimum.accumulate(np.where(event, j, W - 1)[:, ::-1], axis=1)[:, ::-1]
+    right = np.concatenate([right, np.full((H, 1), W - 1)], axis=1)
+    ok = (left >= 0) & (right <= W - 2)
+    rows = np.arange(H)[:, None]
+    lc = np.clip(left, 0, W - 2)
+    rc = np.clip(right, 0, W - 2)
+    ok &= rise[rows, lc] & fall[rows, rc]
+    ok &= (right - left) <= max_cells
+    base_l = a[rows, lc]                          # cell before the rise
+    base_r = a[rows, np.clip(right + 1, 0, W - 1)]  # cell after the fall
+    i = np.arange(W)[None, :]
+    t = (i - left) / np.maximum(right + 1 - left, 1)
+    base = base_l + (base_r - base_l) * t
+    with np.errstate(invalid="ignore"):
+        ok &= (a - base) > height_m
+    return ok
+
+
+def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
+               passes=2):
+    """Scan labelling: non-ground runs along rows and columns.
+
+    Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
+    *rise* when ``z[i+1] - z[i] > jump_m + tan(terrain_slope) * cell`` (the slope
+    differential: steeper than the terrain may be by more than ``jump_m`` over one
+    cell), a *fall* when ``z[i+1] - z[i] < -(...)``. A run of cells that opens with a
+    rise, closes with the next event being a fall, spans at most ``max_length_m`` and
+    stands more than ``height_m`` above the straight line from the cell before the rise to
+    the cell after the fall is labelled non-ground. Rows and columns are combined with OR.
+    ``passes`` > 1 repeats the labelling on the surface with the labelled cells lowered
+    to their base line, so stepped roofs (a rise, a rise, a fall, a fall) are peeled
+    level by level. NaN cells break runs.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (NaN = nodata).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    jump_m : float
+        Excess height step over one cell, beyond the terrain slope, that makes a rise/fall.
+    height_m : float
+        Minimal height of a labelled cell above the run's base line.
+    max_length_m : float
+        Longest labelled run (the largest object).
+    terrain_slope_deg : float
+        Steepest terrain slope (degrees); its rise over one cell is tolerated.
+    passes : int
+        Number of labelling passes (>= 1).
+
+    Returns
+    -------
+    ndarray of bool
+        True where a cell is labelled non-ground.
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    if jump_m < 0 or height_m < 0 or max_length_m <= 0:
+        raise ValueError(f"scan_label needs jump_m >= 0, height_m >= 0, max_length_m > 0; "
+                         f"got {jump_m}, {height_m}, {max_length_m}.")
+    if not 0 <= terrain_slope_deg < 90:
+        raise ValueError(f"terrain_slope_deg must be in [0, 90); got {terrain_slope_deg}.")
+    if int(passes) < 1:
+        raise ValueError(f"passes must be at least 1; got {passes}.")
+    s = np.tan(np.radians(terrain_slope_deg))
+    a = z.astype(np.float64)
+    labelled = np.zeros(z.shape, bool)
+    for _ in range(int(passes)):
+        lr = _scan_rows(a, jump_m + s * dx, height_m, max(2, int(max_length_m / dx)))
+        lc = _scan_rows(a.T, jump_m + s * dy, height_m, max(2, int(max_length_m / dy))).T
+        new = (lr | lc) & ~labelled
+        if not new.any():
+            break
+        labelled |= new
+        # lower the labelled cells to the surrounding level for the next pass
+        low = ndimage.minimum_filter(np.where(np.isnan(a), np.inf, a), size=3, mode="nearest")
+        a = np.where(new, np.minimum(a, low), a)
+    return labelled
+
+
+# ------------------------------------------------------------------------------ filter
+def _noise_sigma(z, valid):
+    """Robust noise of the surface: MAD of second differences along rows and columns."""
+    st = max(1, int(np.sqrt(z.size / 1e6)))
+    zs = z[::st, ::st]
+    d = np.concatenate([(zs[:, 2:] - 2 * zs[:, 1:-1] + zs[:, :-2]).ravel(),
+                        (zs[2:] - 2 * zs[1:-1] + zs[:-2]).ravel()])
+    d = d[np.isfinite(d)]
+    if d.size < 10:
+        return 0.1
+    # 25th percentile of |d| (0.3186 sigma_d for a normal law): edges and objects, which
+    # fill the upper tail, barely move it
+    return float(np.percentile(np.abs(d - np.median(d)), 25) / 0.3186 / np.sqrt(6.0))
+
+
+def _terrain_slope_deg(z, valid, dx, dy, max_size_m):
+    """Robust steep-terrain slope: 90th percentile slope of the largest-window opening,
+    computed on a grid coarsened to about 4 m (or the cell) so objects are gone."""
+    f = max(1, int(round(4.0 / max(dx, dy))))
+    H, W = z.shape
+    Hc, Wc = H // f, W // f
+    if Hc < 3 or Wc < 3:
+        f, Hc, Wc = 1, H, W
+    zc = np.where(valid, z, np.inf)[:Hc * f, :Wc * f].reshape(Hc, f, Wc, f).min(axis=(1, 3))
+    vc = np.isfinite(zc)
+    if vc.sum() < 9:
+        return 30.0
+    size = _window(max_size_m, dx * f, dy * f)
+    o = _opening(zc, vc, size)
+    o = np.where(vc & np.isfinite(o), o, np.nan)
+    gy, gx = np.gradient(o, dy * f, dx * f)
+    s = np.hypot(gx, gy)
+    s = s[np.isfinite(s)]
+    if s.size == 0:
+        return 30.0
+    return float(np.clip(np.degrees(np.arctan(np.percentile(s, 90))), 10.0, 60.0))
+
+
+def resolve_geodesic_params(z, cell_size, **params):
+    """Complete the parameters of :func:`filter_geodesic`, deriving ``None`` from the data.
+
+    * ``height_threshold_m`` (dh0): ``max(0.5, 4 sigma)`` with ``sigma`` the robust noise
+      (MAD of second differences / sqrt(6)).
+    * ``outlier_threshold_m``: ``max(2.0, 4 dh0)``.
+    * ``terrain_slope_deg``: 90th percentile slope of the surface opened by the largest
+      window on a ~4 m grid (objects gone), clipped to [10, 60] degrees.
+
+    Raises
+    ------
+    ValueError
+        Unknown parameter names or values out of range.
+    """
+    unknown = set(params) - set(_DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown geodesic parameter(s) {sorted(unknown)}; "
+                         f"valid names: {sorted(_DEFAULTS)}.")
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    p = dict(_DEFAULTS)
+    p.update({k: v for k, v in params.items() if v is not None})
+    _check(p)
+    valid = np.isfinite(z)
+    if p["height_threshold_m"] is None:
+        p["height_threshold_m"] = round(max(0.5, 4 * _noise_sigma(z, valid)), 3)
+    if p["outlier_threshold_m"] is None:
+        p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
+    if p["terrain_slope_deg"] is None:
+        p["terrain_slope_deg"] = round(_terrain_slope_deg(z, valid, dx, dy,
+                                                          p["max_object_size_m"]), 2)
+    _check(p)
+    return p
+
+
+def _check(p):
+    def bad(name, cond, what):
+        v = p.get(name)
+        if v is not None and not cond(v):
+            raise ValueError(f"{name} must be {what}; got {v!r}. Fix the parameter or leave "
+                             "it empty for the default.")
+    bad("min_window_m", lambda v: v > 0, "> 0 metres")
+    bad("max_object_size_m", lambda v: v > 0, "> 0 metres")
+    bad("height_threshold_m", lambda v: v > 0, "> 0 metres")
+    bad("terrain_slope_deg", lambda v: 0 <= v < 90, "in [0, 90) degrees")
+    bad("edge_ratio", lambda v: 0 <= v <= 1, "in [0, 1]")
+    bad("outlier_threshold_m", lambda v: v > 0, "> 0 metres")
+    bad("outlier_width_m", lambda v: v > 0, "> 0 metres")
+    if p["max_object_size_m"] < p["min_window_m"]:
+        raise ValueError(f"max_object_size_m ({p['max_object_size_m']}) is smaller than "
+                         f"min_window_m ({p['min_window_m']}); raise the first or lower "
+                         "the second.")
+
+
+def _steps(min_window_m, max_object_size_m):
+    """Structuring-element sizes in metres: doubling from min to max (last = max)."""
+    sizes = []
+    s = float(min_window_m)
+    while s < max_object_size_m * 0.999:
+        sizes.append(s)
+        s *= 2.0
+    sizes.append(float(max_object_size_m))
+    if len(sizes) > 250:
+        raise ValueError("too many dilation steps; raise min_window_m or lower "
+                         "max_object_size_m.")
+    return sizes
+
+
+def geodesic_halo(params, cell_size):
+    """Reach of :func:`filter_geodesic` in cells.
+
+    The largest step reads ``z`` within its opening (2 half-windows), its geodesic
+    reconstruction (one window) and its region extent limit (2 max sizes); scan
+    labelling adds a run length; the preprocessing a few cells.
+    """
+    dx, dy = as_cell_size(cell_size)
+    c = min(dx, dy)
+    size = float(params.get("max_object_size_m", _DEFAULTS["max_object_size_m"]))
+    width = float(params.get("outlier_width_m", _DEFAULTS["outlier_width_m"]))
+    reach = (2 * size + 2 * size + size + 2 * width) / c + OUTLIER_MAX_CELLS + 8
+    return int(np.ceil(reach))
+
+
+def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
+                    height_threshold_m=0.5, terrain_slope_deg=30.0, edge_ratio=0.45,
+                    outlier_threshold_m=2.0, outlier_width_m=2.0, scan_labelling=True,
+                    progress=None):
+    """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
+
+    See the module docstring for the method. Parameters are complete values (use
+    :func:`resolve_geodesic_params` to derive defaults from the data).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata (not modified).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    min_window_m : float
+        Side of the first (smallest) structuring element, metres.
+    max_object_size_m : float
+        Side of the last structuring element: the largest object removed, metres.
+    height_threshold_m : float
+        dh0: minimal height of an object above the reconstructed terrain, metres.
+    terrain_slope_deg : float
+        Steepest terrain slope (degrees): a terrain bump of half-width ``s/2`` may rise
+        ``tan(slope) * s/2`` above the reconstruction; scan labelling tolerates it too.
+    edge_ratio : float
+        Height heterogeneity threshold in [0, 1]: a region is an object when its mean
+        residual along its border is at least this fraction of its highest residual.
+    outlier_threshold_m : float
+        Preprocessing: depth (height) below the closing (above the opening) of a low
+        (high) outlier, metres.
+    outlier_width_m : float
+        Preprocessing: width of the closing/opening window, metres.
+    scan_labelling : bool
+        Run scan labelling after the dilation steps.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`~bare_earth.core.common.Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low outlier, 255 nodata); ``extras["step"]``
+        (uint8: 0 kept, k = removed at dilation step k, :data:`STEP_SCAN`,
+        :data:`STEP_OUTLIER`, 255 nodata); ``surface`` the cleaned surface (removed cells
+        lowered to the reconstruction); ``info`` parameters, step sizes and counts.
+    """
+    t0 = time.perf_counter()
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    p = dict(min_window_m=min_window_m, max_object_size_m=max_object_size_m,
+             height_threshold_m=height_threshold_m, terrain_slope_deg=terrain_slope_deg,
+             edge_ratio=edge_ratio, outlier_threshold_m=outlier_threshold_m,
+             outlier_width_m=outlier_width_m, scan_labelling=bool(scan_labelling))
+    for k, v in p.items():
+        if v is None:
+            raise ValueError(f"{k} is None: filter_geodesic needs complete parameters; "
+                             "call resolve_geodesic_params first (or use the pipeline).")
+    _check(p)
+    valid = np.isfinite(z)
+    dh0 = float(height_threshold_m)
+    tan_s = float(np.tan(np.radians(terrain_slope_deg)))
+    step = np.zeros(z.shape, np.uint8)
+    mask = np.zeros(z.shape, np.uint8)
+    report(progress, 0.0)
+
+    # 1. preprocessing: isolated low and high outliers
+    win = _window(outlier_width_m, dx, dy)
+    w = z.copy()
+    clo = _closing(z, valid, win)
+    ope = _opening(z, valid, win)
+    with np.errstate(invalid="ignore"):
+        low_c = valid & (clo - z > outlier_threshold_m)
+        high_c = valid & (z - ope > outlier_threshold_m)
+    n_low = n_high = 0
+    for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
+        if not cand.any():
+            continue
+        lab, n = ndimage.label(cand, _S8)
+        size = np.bincount(lab.ravel(), minlength=n + 1)
+        small = size <= OUTLIER_MAX_CELLS
+        small[0] = False
+        sel = small[lab]
+        mask[sel] = code
+        step[sel] = STEP_OUTLIER
+        w[sel] = repl[sel]
+        if code == LOW:
+            n_low = int(sel.sum())
+        else:
+            n_high = int(sel.sum())
+    report(progress, 0.05)
+
+    # 2. gradual geodesic dilation
+    sizes = _steps(min_window_m, max_object_size_m)
+    wmask = np.where(valid, w, np.nan)
+    cleaned = w.copy()
+    removed = np.zeros(z.shape, bool)
+    ext_limit = 2.0 * max_object_size_m
+    counts = []
+    edge_dh = 2.0 * dh0 + tan_s * np.hypot(dx, dy)
+    for k, s in enumerate(sizes, start=1):
+        size = _window(s, dx, dy)
+        marker = _opening(w, valid, size)
+        R = reconstruct_by_dilation(marker, wmask, max_iter=max(size))
+        with np.errstate(invalid="ignore"):
+            d = w - R
+            cand = valid & (d > dh0)
+        obj = np.zeros(z.shape, bool)
+        if cand.any():
+            lab, n = ndimage.label(cand, _S8)
+            rim = cand & ~ndimage.binary_erosion(cand, _S8, border_value=0)
+            # a rim cell is abrupt when its residual exceeds what a terrain slope can
+            # rise over one (diagonal) cell past the dh0 contour, plus dh0
+            abrupt = d >= edge_dh
+            dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, d, rim, abrupt)
+            dh_k = dh0 + tan_s * s / 2.0
+            keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
+                    & (ext_r * dy <= ext_limit) & (ext_c * dx <= ext_limit))
+            keep[0] = False
+            obj = keep[lab]
+        new = obj & ~removed
+        step[new & (step == 0)] = k
+        removed |= obj
+        cleaned = np.where(obj, np.minimum(cleaned, R), cleaned)
+        counts.append(int(new.sum()))
+        report(progress, 0.05 + 0.8 * k / len(sizes))
+
+    # 3. scan labelling on the cleaned surface
+    n_scan = 0
+    if scan_labelling:
+        lab_s = scan_label(np.where(valid, cleaned, np.nan), (dx, dy), jump_m=dh0,
+                           height_m=dh0, max_length_m=max_object_size_m,
+                           terrain_slope_deg=terrain_slope_deg)
+        new = lab_s & ~removed & (step == 0)
+        step[new] = STEP_SCAN
+        removed |= lab_s
+        n_scan = int(new.sum())
+    report(progress, 0.95)
+
+    mask[removed & (mask != LOW)] = OBJECT
+    mask = finish_mask(mask, z)
+    step[~valid] = STEP_NODATA
+    cleaned[~valid] = np.nan
+    info = dict(p, method="geodesic", step_sizes_m=sizes, removed_per_step=counts,
+                removed_scan=n_scan, low_outliers=n_low, high_outliers=n_high,
+                object_fraction=float((mask == OBJECT).sum() / max(valid.sum(), 1)),
+                seconds=round(time.perf_counter() - t0, 3))
+    report(progress, 1.0)
+    return FilterResult(mask=mask, extras={"step": step}, info=info,
+                        surface=cleaned.astype(np.float32))
+
+
+def _run(z, cell_size, progress=None, **params):
+    return filter_geodesic(z, cell_size, progress=progress, **params)
+
+
+METHOD = Method(
+    name="geodesic",
+    run=_run,
+    resolve=resolve_geodesic_params,
+    halo=geodesic_halo,
+    extras={"step": (np.uint8, 1, STEP_NODATA)},
+    params=(
+        Param("min_window_m", "float", 2.0, "Side of the first structuring element in "
+              "metres; the following steps double it up to the maximum object size.",
+              minimum=0.1, maximum=1000.0),
+        Param("max_object_size_m", "float", 64.0, "Largest object to remove (side of the "
+              "last structuring element) in metres: the widest building.",
+              minimum=0.5, maximum=5000.0),
+        Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
+              "reconstructed terrain in metres; empty: max(0.5, 4 x robust noise of the DSM).",
+              minimum=0.01, maximum=100.0),
+        Param("terrain_slope_deg", "float", None, "Steepest terrain slope in degrees, "
+              "tolerated by the height test and by scan labelling; empty: 90th percentile "
+              "slope of the heavily opened DSM, clipped to 10-60 degrees.",
+              minimum=0.0, maximum=89.0, advanced=True),
+        Param("edge_ratio", "float", 0.45, "Height heterogeneity threshold (0-1): a "
+              "region the reconstruction cannot reach is an object when the mean residual "
+              "on its border is at least this fraction of its highest residual (walls jump, "
+              "hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
+        Param("outlier_threshold_m", "float", None, "Preprocessing: a small cluster this "
+              "far below the closing (above the opening) is a low (high) outlier, metres; "
+              "empty: max(2, 4 x dh0).", minimum=0.01, maximum=1000.0, advanced=True),
+        Param("outlier_width_m", "float", 2.0, "Preprocessing: window of the closing and "
+              "opening that find isolated outliers, metres.", minimum=0.1, maximum=100.0,
+              advanced=True),
+        Param("scan_labelling", "bool", True, "Run scan labelling along rows and columns "
+              "after the dilation steps (removes what the dilation left).", advanced=True),
+    ),
+    title="Gradual geodesic dilation with scan labelling (2018)",
+    description=(
+        "<p>Separates ground from objects in a DSM in four stages. <b>Preprocessing</b> "
+        "finds isolated outliers: small clusters far below the grey closing (low outliers, "
+        "mask class 2: matching blunders, multipath) or far above the grey opening (high "
+        "outliers). <b>Gradual geodesic dilation</b>: for structuring elements doubling "
+        "from the first window to the maximum object size, the opening of the DSM is "
+        "reconstructed by geodesic dilation under the DSM; the residual (what the "
+        "reconstruction cannot reach) is split into regions, and a region is removed when "
+        "it is higher than dh0 plus the rise the terrain slope allows over half the window, "
+        "and its border is abrupt (its mean border residual is at least the edge ratio "
+        "times its highest residual). Small objects go at the small steps, large "
+        "buildings at the large ones; terrain edges are restored by the reconstruction "
+        "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
+        "columns removes runs that open with a rise, close with a fall and stand above "
+        "their neighbours. The DTM is the DSM with the removed cells filled by "
+        "interpolation.</p><p>Defaults: dh0 = max(0.5 m, 4 x robust DSM noise); terrain "
+        "slope = 90th percentile slope of the heavily opened DSM. Output STEP: 0 kept, "
+        "k removed at dilation step k, 250 scan labelling, 251 preprocessing outlier.</p>"
+        "<p>After: gradual geodesic dilation and scan labelling for DSM filtering "
+        "(2018, in Persian; evaluated on the ISPRS filter test: Type I 4.61 %, Type II "
+        "6.97 %, total 3.17 %).</p>"),
+)
