@@ -18,7 +18,9 @@ Everything is vectorised (numpy/scipy); GDAL's ``osr`` is used only to read the 
 LAS file or a ``crs`` argument.
 """
 import copy
+import io
 import os
+import re
 import warnings
 from dataclasses import dataclass
 
@@ -156,10 +158,12 @@ def read_points(path, crs=None):
     return cloud
 
 
-_SEPARATORS = bytes.maketrans(b"\t,;\r\n\v\f", b"       ")
+_SEPARATORS = bytes.maketrans(b"\t,;\r\v\f", b"      ")   # newlines stay
 _NUMBER_BYTES = np.zeros(256, dtype=bool)
-_NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE ", dtype=np.uint8)] = True
+_NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE \n", dtype=np.uint8)] = True
 _CLASS_NAMES = ("class", "classification", "label", "cls", "c")
+# numpy >= 1.23 has a C loadtxt that validates while it parses (faster than fromstring)
+_FAST_LOADTXT = tuple(int(v) for v in np.__version__.split(".")[:2]) >= (1, 23)
 
 
 def _is_number(tok):
@@ -171,7 +175,12 @@ def _is_number(tok):
 
 
 def _read_text(path):
-    """Read ``x y z [class]`` text quickly: one C-level parse of the whole file."""
+    """Read ``x y z [class]`` text quickly: one C-level parse of the whole file.
+
+    numpy >= 1.23: ``np.loadtxt`` (C parser) on the text with every separator made a
+    space; when it fails (or with older numpy), :func:`_parse_careful` parses with
+    ``np.fromstring`` and finds the line at fault.
+    """
     with open(path, "rb") as fh:
         data = fh.read()
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
@@ -179,47 +188,36 @@ def _read_text(path):
     if not data.strip():
         raise ValueError(f"point file {path!r} is empty; it needs one point per line "
                          "(x y z or x y z class).")
-    raw = np.frombuffer(data, dtype=np.uint8)
-    nl = np.flatnonzero(raw == 10)                       # line ends
     flat = data.translate(_SEPARATORS)                   # every separator -> space
-    arr = np.frombuffer(flat, dtype=np.uint8)
-    sep = arr == 32
-    start = ~sep
-    start[1:] &= sep[:-1]
-    tok = np.flatnonzero(start)                          # first byte of every token
-    tok_line = np.searchsorted(nl, tok)                  # 0-based line of every token
-    nlines = int(nl.size + (0 if data.endswith(b"\n") else 1))
-    per_line = np.bincount(tok_line, minlength=nlines)
-    filled = np.flatnonzero(per_line)                    # non-blank lines
 
     # Header: the first non-blank line, when it is not all numbers.
-    first = int(filled[0])
-    a = int(nl[first - 1]) + 1 if first > 0 else 0
-    b = int(nl[first]) if first < nl.size else len(data)
+    m = re.search(rb"[^ \n]", flat)
+    a = flat.rfind(b"\n", 0, m.start()) + 1
+    b = flat.find(b"\n", m.start())
+    b = len(flat) if b < 0 else b
     first_tokens = flat[a:b].split()
-    header, names = None, None
+    header, names, body_start = None, None, 0
     if not all(_is_number(t) for t in first_tokens):
         header = data[a:b].decode("utf-8", errors="replace").strip()
         names = [t.decode("utf-8", errors="replace").strip().strip('"\'').lower()
                  for t in first_tokens]
-        filled = filled[1:]
         body_start = b
-        tok_skip = int(per_line[first])
-    else:
-        body_start = 0
-        tok_skip = 0
-    if filled.size == 0:
+    body = flat[body_start:]
+    if not body.strip():
         raise ValueError(f"point file {path!r} has a header line but no points.")
 
-    counts = per_line[filled]
-    ncols = int(counts[0])
-    bad = np.flatnonzero(counts != ncols)
-    if bad.size:
-        ln = int(filled[bad[0]])
-        raise ValueError(
-            f"{path}: line {ln + 1} has {int(counts[bad[0]])} values but line "
-            f"{int(filled[0]) + 1} has {ncols}; every line must have the same columns "
-            f"(x y z or x y z class): {_line(data, nl, ln)!r}")
+    table = None
+    if _FAST_LOADTXT:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                table = np.loadtxt(io.BytesIO(body), dtype=np.float64, comments=None,
+                                   ndmin=2, encoding=None)
+        except ValueError:
+            table = None
+    if table is None:
+        table = _parse_careful(path, data, flat, body_start)
+    ncols = table.shape[1]
     if names is not None and len(names) != ncols:
         raise ValueError(f"{path}: the header line names {len(names)} columns but the points "
                          f"have {ncols}; fix the header or remove it.")
@@ -234,10 +232,71 @@ def _read_text(path):
                              "(x y z class), or a header line naming the x, y, z columns.")
         cols, cls_col = [0, 1, 2], (3 if ncols == 4 else None)
 
+    x = np.ascontiguousarray(table[:, cols[0]])
+    y = np.ascontiguousarray(table[:, cols[1]])
+    z = np.ascontiguousarray(table[:, cols[2]])
+    bad = ~(np.isfinite(x) & np.isfinite(y))
+    if bad.any():
+        ln, text = _row_line(data, body_start, int(np.flatnonzero(bad)[0]))
+        raise ValueError(f"{path}: line {ln} has a non-finite x or y: {text!r}; remove it.")
+    classification = None
+    if cls_col is not None:
+        c = table[:, cls_col]
+        nonint = np.flatnonzero(~np.isfinite(c) | (c != np.round(c)))
+        if nonint.size:
+            ln, text = _row_line(data, body_start, int(nonint[0]))
+            raise ValueError(f"{path}: line {ln}: the class column must hold whole "
+                             f"numbers; got {c[nonint[0]]!r} in {text!r}.")
+        classification = c.astype(np.int32)
+    head = data[body_start:body_start + 4096]
+    delim = "\t" if b"\t" in head else ("," if b"," in head else " ")
+    return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
+                      units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
+                      source_format="text")
+
+
+def _row_line(data, body_start, row):
+    """Error path: (1-based line number, text) of data row ``row`` (blank lines skipped)."""
+    offset = data.count(b"\n", 0, body_start)
+    k = -1
+    for i, line in enumerate(data[body_start:].split(b"\n")):
+        if line.strip():
+            k += 1
+            if k == row:
+                return offset + i + 1, line.decode("utf-8", errors="replace").strip()[:120]
+    return offset + 1, ""
+
+
+def _parse_careful(path, data, flat, body_start):
+    """Parse with ``np.fromstring`` and raise a ValueError naming the line at fault."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    nl = np.flatnonzero(raw == 10)                       # line ends
+    arr = np.frombuffer(flat, dtype=np.uint8)
+    sep = (arr == 32) | (arr == 10)
+    start = ~sep
+    start[1:] &= sep[:-1]
+    start[:body_start] = False                           # the header's tokens
+    tok = np.flatnonzero(start)                          # first byte of every token
+    # tokens per line: tokens before each line end (one binary search per line)
+    before = np.concatenate(([0], np.searchsorted(tok, nl), [tok.size]))
+    if data.endswith(b"\n"):
+        before = before[:-1]
+    per_line = np.diff(before)
+    filled = np.flatnonzero(per_line)                    # non-blank lines of the body
+
+    counts = per_line[filled]
+    ncols = int(counts[0])
+    bad = np.flatnonzero(counts != ncols)
+    if bad.size:
+        ln = int(filled[bad[0]])
+        raise ValueError(
+            f"{path}: line {ln + 1} has {int(counts[bad[0]])} values but line "
+            f"{int(filled[0]) + 1} has {ncols}; every line must have the same columns "
+            f"(x y z or x y z class): {_line(data, nl, ln)!r}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         values = np.fromstring(flat[body_start:], dtype=np.float64, sep=" ")
-    ntok = int(tok.size) - tok_skip
+    ntok = int(tok.size)
     # numpy stops quietly at the first unparsable value and may split "1.5.3" in two:
     # a count mismatch, letters other than an exponent (checked line by line, e.g. nan),
     # or a bad last line (where stopping early leaves the count right) are errors.
@@ -252,29 +311,7 @@ def _read_text(path):
                  else "some value is not a plain number")
         raise ValueError(f"{path}: {where}. Every line after an optional header must be "
                          "x y z [class] numbers separated by spaces, tabs or commas.")
-    table = values.reshape(-1, ncols)
-    x = np.ascontiguousarray(table[:, cols[0]])
-    y = np.ascontiguousarray(table[:, cols[1]])
-    z = np.ascontiguousarray(table[:, cols[2]])
-    bad = ~(np.isfinite(x) & np.isfinite(y))
-    if bad.any():
-        ln = int(filled[np.flatnonzero(bad)[0]])
-        raise ValueError(f"{path}: line {ln + 1} has a non-finite x or y: "
-                         f"{_line(data, nl, ln)!r}; remove it.")
-    classification = None
-    if cls_col is not None:
-        c = table[:, cls_col]
-        nonint = np.flatnonzero(~np.isfinite(c) | (c != np.round(c)))
-        if nonint.size:
-            ln = int(filled[nonint[0]])
-            raise ValueError(f"{path}: line {ln + 1}: the class column must hold whole "
-                             f"numbers; got {c[nonint[0]]!r} in {_line(data, nl, ln)!r}.")
-        classification = c.astype(np.int32)
-    delim = "\t" if b"\t" in data[body_start:body_start + 4096] else (
-        "," if b"," in data[body_start:body_start + 4096] else " ")
-    return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
-                      units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
-                      source_format="text")
+    return values.reshape(-1, ncols)
 
 
 def _line(data, nl, ln):

@@ -11,6 +11,16 @@ from bare_earth.core.points import (PointCloud, classify_points, nice_cell_size,
 DTYPES = [np.float32, np.float64, np.int16]
 
 
+@pytest.fixture(params=["loadtxt", "fromstring"])
+def parser(request, monkeypatch):
+    """Run a text test through both parsers (numpy >= 1.23 C loadtxt, and the fallback)."""
+    if request.param == "fromstring":
+        monkeypatch.setattr(P, "_FAST_LOADTXT", False)
+    elif not P._FAST_LOADTXT:
+        pytest.skip("numpy < 1.23 has no C loadtxt")
+    return request.param
+
+
 # --------------------------------------------------------------------------- text reading
 def _write(tmp_path, text, name="pts.txt"):
     p = tmp_path / name
@@ -25,7 +35,7 @@ def _write(tmp_path, text, name="pts.txt"):
     "X, Y, Z, Classification\r\n1, 2, 3, 0\r\n4, 5, 6, 1\r\n",
     "\ufeffx\ty\tz\tc\n1\t2\t3\t0\n4\t5\t6\t1\n",        # byte-order mark
 ])
-def test_read_text_variants(tmp_path, text):
+def test_read_text_variants(tmp_path, text, parser):
     c = read_points(_write(tmp_path, text))
     assert c.source_format == "text"
     np.testing.assert_array_equal(c.x, [1, 4])
@@ -36,7 +46,7 @@ def test_read_text_variants(tmp_path, text):
     np.testing.assert_array_equal(c.ground_truth(), [True, False])
 
 
-def test_read_text_xyz_only_and_header_column_order(tmp_path):
+def test_read_text_xyz_only_and_header_column_order(tmp_path, parser):
     c = read_points(_write(tmp_path, "10.5 20.25 -3e2\n11 21 7\n"))
     assert c.classification is None and len(c) == 2
     np.testing.assert_array_equal(c.z, [-300.0, 7.0])
@@ -51,13 +61,16 @@ def test_read_text_xyz_only_and_header_column_order(tmp_path):
     ("1 2 3 0\n4 5 6\n", 2),          # wrong column count
     ("1 2 3 0\n4 5 6 0.5\n", 2),      # class not a whole number
     ("1 2 3\nnan 5 6\n", 2),          # non-finite x
+    ("1 2 3\n4 5 6\n7 8 9-", 3),       # bad last value, no final newline
+    ("1 2 3\n\n4 5 1_0\n", 3),
+    ("1 2 3\n#4 5 6\n", 2),
 ])
-def test_read_text_bad_line_number(tmp_path, text, line):
+def test_read_text_bad_line_number(tmp_path, text, line, parser):
     with pytest.raises(ValueError, match=rf"line {line}\b"):
         read_points(_write(tmp_path, text))
 
 
-def test_read_text_empty_and_missing(tmp_path):
+def test_read_text_empty_and_missing(tmp_path, parser):
     with pytest.raises(ValueError, match="empty"):
         read_points(_write(tmp_path, "\n  \n"))
     with pytest.raises(ValueError, match="no points"):
