@@ -185,13 +185,13 @@ def _read_text(path):
         data = fh.read()
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
         data = b"   " + data[3:]
-    if not data.strip():
+    flat = data.translate(_SEPARATORS)                   # every separator -> space
+    m = re.search(rb"[^ \n]", flat)
+    if m is None:
         raise ValueError(f"point file {path!r} is empty; it needs one point per line "
                          "(x y z or x y z class).")
-    flat = data.translate(_SEPARATORS)                   # every separator -> space
 
     # Header: the first non-blank line, when it is not all numbers.
-    m = re.search(rb"[^ \n]", flat)
     a = flat.rfind(b"\n", 0, m.start()) + 1
     b = flat.find(b"\n", m.start())
     b = len(flat) if b < 0 else b

@@ -73,6 +73,8 @@ def test_read_text_bad_line_number(tmp_path, text, line, parser):
 def test_read_text_empty_and_missing(tmp_path, parser):
     with pytest.raises(ValueError, match="empty"):
         read_points(_write(tmp_path, "\n  \n"))
+    with pytest.raises(ValueError, match="empty"):
+        read_points(_write(tmp_path, ",,\t;\r\n"))
     with pytest.raises(ValueError, match="no points"):
         read_points(_write(tmp_path, "x y z\n"))
     with pytest.raises(ValueError, match="does not exist"):
