@@ -32,6 +32,7 @@ import numpy as np
 from .codes import GROUND, NODATA
 
 __all__ = ["confusion", "compare_masks", "compare_dtm", "error_map_from_masks",
+           "error_map_from_points",
            "write_report", "ERROR_CORRECT", "ERROR_TYPE1", "ERROR_TYPE2", "ERROR_INVALID",
            "ERROR_LEGEND"]
 
@@ -140,6 +141,61 @@ def error_map_from_masks(mask, truth):
     codes[~tg & pg] = ERROR_TYPE2
     codes[(m == NODATA) | (t == NODATA)] = ERROR_INVALID
     return codes, dict(ERROR_LEGEND)
+
+
+def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, valid=None):
+    """Grid the errors of a point classification: per cell the worst error of its points.
+
+    Parameters
+    ----------
+    pred_ground, true_ground : array_like of bool
+        Per point: the filter's and the reference's "is ground".
+    x, y : array_like
+        Point coordinates.
+    geotransform : sequence of 6 floats
+        Of the grid to fill (north-up).
+    shape : (rows, cols)
+        Of the grid.
+    valid : array_like of bool, optional
+        Points to use.
+
+    Returns
+    -------
+    codes : ndarray of uint8
+        2 (Type II) if any point of the cell is a Type II error, else 1 (Type I) if any is
+        a Type I error, else 0 (correct); 255 for cells without a point.
+    legend : dict
+        :data:`ERROR_LEGEND`.
+    """
+    from .points import rasterize_points
+    p = np.asarray(pred_ground, dtype=bool).ravel()
+    t = np.asarray(true_ground, dtype=bool).ravel()
+    x = np.asarray(x, dtype=np.float64).ravel()
+    y = np.asarray(y, dtype=np.float64).ravel()
+    if not (p.size == t.size == x.size == y.size):
+        raise ValueError(f"pred_ground, true_ground, x and y differ in length: "
+                         f"{p.size}, {t.size}, {x.size}, {y.size}; give one value per point.")
+    code = np.where(t & ~p, ERROR_TYPE1, np.where(~t & p, ERROR_TYPE2, ERROR_CORRECT))
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool).ravel()
+        x, y, code = x[v], y[v], code[v]
+    rows, cols = (int(v) for v in shape)
+    gt = [float(v) for v in geotransform]
+    dx, dy = gt[1], abs(gt[5])
+    out = np.full((rows, cols), ERROR_INVALID, dtype=np.uint8)
+    if code.size == 0:
+        return out, dict(ERROR_LEGEND)
+    extent = (gt[0], gt[3] - rows * dy, gt[0] + cols * dx, gt[3])
+    inside = (x >= extent[0]) & (x <= extent[2]) & (y >= extent[1]) & (y <= extent[3])
+    if not inside.any():
+        return out, dict(ERROR_LEGEND)
+    # codes 0 < 1 < 2 are also the priority (Type II wins): the highest code per cell
+    grid, _ = rasterize_points(x[inside], y[inside], code[inside], (dx, dy), reducer="max",
+                               extent=extent, fill_empty=None)
+    r, c = min(rows, grid.shape[0]), min(cols, grid.shape[1])
+    g = grid[:r, :c]
+    out[:r, :c] = np.where(np.isnan(g), ERROR_INVALID, np.nan_to_num(g)).astype(np.uint8)
+    return out, dict(ERROR_LEGEND)
 
 
 def _stats(diff):
@@ -298,6 +354,34 @@ _CSS = ("body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse
         "vertical-align:middle;margin-right:.4em}")
 
 
+def _map_html(codes, geotransform, legend, caption, max_side):
+    """One error map as HTML: caption, embedded PNG, legend with counts, grid size."""
+    codes = np.asarray(codes)
+    if codes.ndim != 2 or codes.size == 0:
+        raise ValueError(f"error map {caption!r} must be a non-empty 2-D array; "
+                         f"got shape {codes.shape}.")
+    codes = codes.astype(np.uint8, copy=False)
+    small = _shrink(codes, max_side)
+    b64 = _png_base64(_error_map_rgb(small, legend))
+    zoom = max(1, 300 // max(small.shape))          # tiny maps shown at >= 300 px
+    counts = {c: int(np.count_nonzero(codes == c)) for c in legend}
+    out = [f"<h3>{html.escape(str(caption))}</h3>"] if caption else []
+    out.append(f'<img alt="error map {html.escape(str(caption))}" width="{small.shape[1] * zoom}" '
+               f'src="data:image/png;base64,{b64}">')
+    items = "".join(f'<li><span class="sw" style="background:rgb{tuple(col)}"></span>'
+                    f"{html.escape(label)}: {counts[c]:,} cells</li>"
+                    for c, (label, col) in legend.items())
+    out.append(f"<ul>{items}</ul>")
+    size = f"<p>{codes.shape[0]} rows x {codes.shape[1]} columns"
+    if geotransform is not None:
+        gt = [float(v) for v in geotransform]
+        size += f", origin ({gt[0]:.3f}, {gt[3]:.3f}), cell {gt[1]:g} x {abs(gt[5]):g}"
+    if small.shape != codes.shape:
+        size += f"; shown reduced to {small.shape[0]} x {small.shape[1]}"
+    out.append(size + ".</p>")
+    return "\n".join(out)
+
+
 def write_report(results, json_path=None, html_path=None, error_map=None, geotransform=None,
                  title="Bare Earth accuracy report", legend=None, max_map_side=2000):
     """Write accuracy figures as JSON and/or a self-contained HTML page.
@@ -309,11 +393,13 @@ def write_report(results, json_path=None, html_path=None, error_map=None, geotra
         sample / method). NaN becomes ``null`` in JSON.
     json_path, html_path : str, optional
         Files to write (either or both).
-    error_map : ndarray of uint8, optional
+    error_map : ndarray of uint8, or dict of str -> ndarray, optional
         Error codes (:func:`error_map_from_masks`) shown as a map in the HTML, embedded as
         a base64 PNG (maps larger than ``max_map_side`` are block-reduced, errors win).
-    geotransform : sequence of 6 floats, optional
-        Of ``error_map``; its origin and cell size are printed under the map.
+        A dict gives several maps, each under its key as caption.
+    geotransform : sequence of 6 floats, or dict of str -> sequence, optional
+        Of ``error_map`` (a dict: one per map); origin and cell size are printed under
+        the map.
     title : str
     legend : dict, optional
         ``{code: (label, (r, g, b))}``; default :data:`ERROR_LEGEND`.
@@ -339,24 +425,13 @@ def write_report(results, json_path=None, html_path=None, error_map=None, geotra
                 "Type II = objects accepted as ground / all objects, total = misclassified / "
                 "all, Cohen's kappa; all in percent.</p>", _table(results)]
         if error_map is not None:
-            codes = np.asarray(error_map)
-            if codes.ndim != 2 or codes.size == 0:
-                raise ValueError(f"error_map must be a non-empty 2-D array; got {codes.shape}.")
-            small = _shrink(codes.astype(np.uint8), int(max_map_side))
-            b64 = _png_base64(_error_map_rgb(small, legend))
-            counts = {c: int(np.count_nonzero(codes == c)) for c in legend}
-            body.append("<h2>Error map</h2>")
-            body.append(f'<img alt="error map" src="data:image/png;base64,{b64}">')
-            items = "".join(
-                f'<li><span class="sw" style="background:rgb{tuple(col)}"></span>'
-                f"{html.escape(label)}: {counts[c]:,} cells</li>" for c, (label, col) in legend.items())
-            body.append(f"<ul>{items}</ul>")
-            if geotransform is not None:
-                gt = [float(v) for v in geotransform]
-                body.append(f"<p>{codes.shape[0]} rows x {codes.shape[1]} columns, origin "
-                            f"({gt[0]:.3f}, {gt[3]:.3f}), cell {gt[1]:g} x {abs(gt[5]):g}"
-                            + (f"; shown reduced {small.shape[0]} x {small.shape[1]}"
-                               if small.shape != codes.shape else "") + ".</p>")
+            maps = error_map if isinstance(error_map, dict) else {"": error_map}
+            gts = geotransform if isinstance(geotransform, dict) else \
+                {k: geotransform for k in maps}
+            body.append("<h2>Error map" + ("s" if len(maps) > 1 else "") + "</h2>")
+            for caption, codes in maps.items():
+                body.append(_map_html(codes, gts.get(caption), legend, caption,
+                                      int(max_map_side)))
         page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
                 f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n<body>\n"
                 + "\n".join(body) + "\n</body></html>\n")

@@ -198,3 +198,22 @@ def test_harness_with_inline_methods(tmp_path):
         np.mean([r["type1"] for r in good["samples"].values()]))
     table = bench.format_table({"oracle": good}, bench.baseline(samples))
     assert "samp11" in table and "mean" in table and "oracle" in table and "all ground" in table
+
+
+def test_error_map_from_points_and_several_maps(tmp_path):
+    from bare_earth.core.evaluate import error_map_from_points
+    gt = (0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
+    x = np.array([0.2, 0.8, 1.5, 0.5, 0.6])
+    y = np.array([1.5, 1.5, 1.5, 0.5, 0.4])
+    pred = np.array([True, True, False, True, True])
+    truth = np.array([True, False, True, True, True])
+    codes, legend = error_map_from_points(pred, truth, x, y, gt, (2, 3))
+    # cell (0,0): correct + Type II -> 2; (0,1): Type I; (1,0): correct; rest: no point
+    np.testing.assert_array_equal(codes, [[2, 1, 255], [0, 255, 255]])
+    codes_v, _ = error_map_from_points(pred, truth, x, y, gt, (2, 3), valid=x > 0.5)
+    assert codes_v[0, 0] == 2 and codes_v[1, 0] == 0
+    write_report({"s": {"total": 1.0}}, html_path=tmp_path / "m.html",
+                 error_map={"samp A": codes, "samp B": codes_v}, geotransform={"samp A": gt})
+    text = (tmp_path / "m.html").read_text()
+    assert text.count('src="data:image/png;base64,') == 2
+    assert "<h3>samp A</h3>" in text and "<h3>samp B</h3>" in text and "Error maps" in text
