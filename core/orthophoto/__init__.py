@@ -3,8 +3,13 @@
 camera        interior/exterior orientation, omega-phi-kappa, Brown distortion, readers
 orthorectify  orthophotos of frame images on a DEM grid
 match         normalised cross-correlation along a direction (+ LSM, left-right check)
+refine        parallax -> height (eq. 18 and general geometry), orthoparallax, orthorefine
+render        synthetic textured scenes and frames with known truth
 """
 from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_interior_yaml,
                      read_opensfm_reconstruction, read_opk_csv, rotation_to_opk)
-from .match import match_along, match_rectified, ncc_volume
+from .match import MatchResult, match_along, match_rectified, ncc_volume
 from .orthorectify import grid_xy, orthorectify, visibility
+from .refine import (ParallaxResult, RefineResult, fill_holes, orthoparallax, orthorefine,
+                     overlapping_pairs, parallax_to_dh, parallax_to_dh_vertical, view_vectors)
+from .render import OrthoScene, make_ortho_scene, render_frame, render_frames, vertical_cameras
