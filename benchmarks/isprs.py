@@ -62,7 +62,7 @@ _bootstrap()
 
 import numpy as np  # noqa: E402
 
-from bare_earth.core.evaluate import confusion  # noqa: E402
+from bare_earth.core.evaluate import confusion, error_map_from_points  # noqa: E402
 from bare_earth.core.points import classify_points, rasterize_points, read_points  # noqa: E402
 
 
@@ -145,7 +145,7 @@ def _figures(conf):
     return {k: conf[k] for k in keep}
 
 
-def evaluate_method(name, samples, params=None):
+def evaluate_method(name, samples, params=None, maps=None):
     """Run one filter on every sample by the benchmark protocol.
 
     Parameters
@@ -158,6 +158,10 @@ def evaluate_method(name, samples, params=None):
         The ISPRS samples (:func:`load_samples`).
     params : dict, optional
         Method parameters (default: the method's defaults, ``{}``).
+    maps : dict, optional
+        When given, filled with ``{sample: (error codes, geotransform)}``: per 1 m cell the
+        worst point error, cells without a point from the nearest one
+        (:func:`bare_earth.core.evaluate.error_map_from_points`).
 
     Returns
     -------
@@ -180,7 +184,11 @@ def evaluate_method(name, samples, params=None):
                              f"{z.shape} raster on {sname}.")
         cls = classify_points(cloud.x, cloud.y, cloud.z, dtm, gt,
                               threshold_m=THRESHOLD_M, slope_factor=SLOPE_FACTOR)
-        r = _figures(confusion(cls == 0, cloud.classification == 0))
+        truth = cloud.classification == 0
+        r = _figures(confusion(cls == 0, truth))
+        if maps is not None:
+            maps[sname] = (error_map_from_points(cls == 0, truth, cloud.x, cloud.y, gt,
+                                                 z.shape, fill_empty="nearest")[0], gt)
         r["seconds"] = round(time.perf_counter() - t0, 3)
         r["info"] = _scalars(getattr(res, "info", None))
         per[sname] = r
@@ -280,10 +288,10 @@ def main(argv=None):
         from bare_earth.core.methods import available_methods
         names = list(available_methods())
     base = baseline(samples)
-    results, failed = {}, {}
+    results, failed, maps = {}, {}, {}
     for name in names:
         try:
-            results[name] = evaluate_method(name, samples)
+            results[name] = evaluate_method(name, samples, maps=maps.setdefault(name, {}))
         except Exception as exc:  # one broken method must not hide the others' figures
             failed[name] = f"{type(exc).__name__}: {exc}"
             print(f"method {name}: FAILED ({failed[name]})", file=sys.stderr)
@@ -304,8 +312,10 @@ def main(argv=None):
         for label, r in list(results.items()) + [("all ground", base)]:
             for s, f in list(r["samples"].items()) + [("mean", r["mean"])]:
                 rows[f"{label} / {s}"] = {k: v for k, v in f.items() if k != "info"}
-        write_report(rows, html_path=args.report, title="ISPRS filter test (Sithole & "
-                     "Vosselman 2004 protocol)")
+        emaps = {f"{m} / {s}": codes for m in results for s, (codes, _) in maps[m].items()}
+        gts = {f"{m} / {s}": gt for m in results for s, (_, gt) in maps[m].items()}
+        write_report(rows, html_path=args.report, error_map=emaps or None, geotransform=gts,
+                     title="ISPRS filter test (Sithole & Vosselman 2004 protocol)")
         print(f"report: {args.report}")
     return 1 if failed and not results else 0
 

@@ -143,7 +143,8 @@ def error_map_from_masks(mask, truth):
     return codes, dict(ERROR_LEGEND)
 
 
-def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, valid=None):
+def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, valid=None,
+                          fill_empty=None):
     """Grid the errors of a point classification: per cell the worst error of its points.
 
     Parameters
@@ -158,12 +159,15 @@ def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, v
         Of the grid.
     valid : array_like of bool, optional
         Points to use.
+    fill_empty : {None, "nearest"}
+        Cells without a point: 255 (None), or the code of the nearest cell with a point
+        (``"nearest"``; a readable map of sparse points, e.g. scan-line gaps).
 
     Returns
     -------
     codes : ndarray of uint8
         2 (Type II) if any point of the cell is a Type II error, else 1 (Type I) if any is
-        a Type I error, else 0 (correct); 255 for cells without a point.
+        a Type I error, else 0 (correct); 255 for cells without a point (unless filled).
     legend : dict
         :data:`ERROR_LEGEND`.
     """
@@ -191,7 +195,7 @@ def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, v
         return out, dict(ERROR_LEGEND)
     # codes 0 < 1 < 2 are also the priority (Type II wins): the highest code per cell
     grid, _ = rasterize_points(x[inside], y[inside], code[inside], (dx, dy), reducer="max",
-                               extent=extent, fill_empty=None)
+                               extent=extent, fill_empty=fill_empty)
     r, c = min(rows, grid.shape[0]), min(cols, grid.shape[1])
     g = grid[:r, :c]
     out[:r, :c] = np.where(np.isnan(g), ERROR_INVALID, np.nan_to_num(g)).astype(np.uint8)

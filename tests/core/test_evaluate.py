@@ -212,6 +212,9 @@ def test_error_map_from_points_and_several_maps(tmp_path):
     np.testing.assert_array_equal(codes, [[2, 1, 255], [0, 255, 255]])
     codes_v, _ = error_map_from_points(pred, truth, x, y, gt, (2, 3), valid=x > 0.5)
     assert codes_v[0, 0] == 2 and codes_v[1, 0] == 0
+    filled, _ = error_map_from_points(pred, truth, x, y, gt, (2, 3), fill_empty="nearest")
+    assert filled[0, 2] == 1 and filled[1, 2] == 1 and (filled != 255).all()
+    assert (filled[0, 0], filled[0, 1], filled[1, 0]) == (2, 1, 0)
     write_report({"s": {"total": 1.0}}, html_path=tmp_path / "m.html",
                  error_map={"samp A": codes, "samp B": codes_v}, geotransform={"samp A": gt})
     text = (tmp_path / "m.html").read_text()
