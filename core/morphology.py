@@ -387,6 +387,7 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         with np.errstate(invalid="ignore"):
             d = z - opened
             mask = np.where(d > dh, OBJECT, np.where(d < -dh, LOW, GROUND)).astype(np.uint8)
+        opened[~valid] = np.nan
         surface = opened
         info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3)]
         info["window_cells"] = [(2 * ry + 1, 2 * rx + 1)]
