@@ -246,12 +246,29 @@ def git_commit():
         return None
 
 
+def uncommitted_files():
+    """Files under core/ and benchmarks/ that differ from the commit (None outside git).
+
+    Recorded with the figures: a commit alone does not say what ran when the working
+    tree had changes.
+    """
+    try:
+        out = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--",
+                              "core", "benchmarks/isprs.py"], capture_output=True, text=True,
+                             timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if out.returncode != 0:
+        return None
+    return sorted(line[3:].strip() for line in out.stdout.splitlines() if line.strip())
+
+
 def append_jsonl(result, path=RESULTS, data_dir=None):
     """Append one JSON line for one method's run to ``path`` (created when missing)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "commit": git_commit(), "protocol": {"cell_size": CELL_SIZE, "reducer": "min",
+              "commit": git_commit(), "uncommitted": uncommitted_files(), "protocol": {"cell_size": CELL_SIZE, "reducer": "min",
                                                    "threshold_m": THRESHOLD_M,
                                                    "slope_factor": SLOPE_FACTOR},
               "data": None if data_dir is None else str(data_dir)}

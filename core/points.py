@@ -691,7 +691,8 @@ def classify_points(x, y, z, dtm, geotransform, *, threshold_m=0.5, slope_factor
     geotransform : sequence of 6 floats
         GDAL geotransform of ``dtm``.
     threshold_m : float
-        Elevation tolerance on flat ground (DTM z units, normally metres).
+        Elevation tolerance on flat ground, in the z units of the points and DTM (metres
+        normally; for a cloud in feet pass ``0.5 / cloud.z_units_to_metre``).
     slope_factor : float
         Extra tolerance per unit of slope (z units; 1.25 -> 1.25 m more on a 45 deg slope).
 
@@ -755,7 +756,8 @@ def write_points(path, cloud, classes, decimals=None):
         2 ground, 1 unclassified (object), 7 low noise; points of class 255 (outside the
         DTM) keep their input class. A text input gets a new LAS 1.4 file (point format 6,
         0.001 scale, the CRS as WKT). Any other extension: text ``x y z class`` with the
-        input's delimiter and header (our codes 0/1/2/255 in the class column).
+        input's delimiter, and a header line ``x y z class`` when the input had one (our
+        codes 0/1/2/255 in the class column).
     cloud : PointCloud
     classes : array_like of int
         One class per point (:func:`classify_points`).

@@ -220,3 +220,22 @@ def test_error_map_from_points_and_several_maps(tmp_path):
     text = (tmp_path / "m.html").read_text()
     assert text.count('src="data:image/png;base64,') == 2
     assert "<h3>samp A</h3>" in text and "<h3>samp B</h3>" in text and "Error maps" in text
+
+
+def test_harness_log_line(tmp_path):
+    bench = _load_harness()
+    _synthetic_sample(tmp_path / "samp11.txt", 1)
+    res = bench.evaluate_method(
+        lambda z, cs: SimpleNamespace(mask=np.zeros(z.shape, np.uint8), dtm=z,
+                                      info={"window_m": 3.0, "arr": np.zeros(3)}),
+        tmp_path)
+    assert res["samples"]["samp11"]["info"] == {"window_m": 3.0}
+    log = tmp_path / "log" / "isprs.jsonl"
+    bench.append_jsonl(res, log, data_dir=tmp_path)
+    bench.append_jsonl(res, log, data_dir=tmp_path)
+    lines = [json.loads(x) for x in log.read_text().splitlines()]
+    assert len(lines) == 2
+    rec = lines[0]
+    assert {"date", "commit", "method", "samples", "mean", "protocol"} <= set(rec)
+    assert rec["protocol"]["cell_size"] == 1.0 and rec["samples"]["samp11"]["n"] == 3000
+    assert bench.main(["--data", str(tmp_path / "absent")]) == 0
