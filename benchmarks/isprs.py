@@ -268,9 +268,9 @@ def append_jsonl(result, path=RESULTS, data_dir=None):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "commit": git_commit(), "uncommitted": uncommitted_files(), "protocol": {"cell_size": CELL_SIZE, "reducer": "min",
-                                                   "threshold_m": THRESHOLD_M,
-                                                   "slope_factor": SLOPE_FACTOR},
+              "commit": git_commit(), "uncommitted": uncommitted_files(),
+              "protocol": {"cell_size": CELL_SIZE, "reducer": "min",
+                           "threshold_m": THRESHOLD_M, "slope_factor": SLOPE_FACTOR},
               "data": None if data_dir is None else str(data_dir)}
     record.update(result)
     with open(path, "a", encoding="utf-8") as fh:

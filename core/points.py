@@ -21,6 +21,7 @@ import copy
 import io
 import os
 import re
+import struct
 import warnings
 from dataclasses import dataclass
 
@@ -355,9 +356,13 @@ def _read_las(path):
     try:
         las = laspy.read(path)
     except laspy.errors.LaspyException as exc:
-        if "lazrs" in str(exc).lower() or "backend" in str(exc).lower() or path.lower().endswith(".laz"):
+        msg = str(exc).lower()
+        if "lazrs" in msg or "laszip" in msg or "backend" in msg:
             raise ImportError(f"cannot decompress {path!r} ({exc}). {LAS_INSTALL_HINT}") from exc
         raise ValueError(f"{path!r} is not a readable LAS/LAZ file: {exc}") from exc
+    except (ValueError, OSError, EOFError, struct.error) as exc:   # truncated / corrupt
+        raise ValueError(f"{path!r} is not a readable LAS/LAZ file (truncated or corrupt: "
+                         f"{exc}); check the file.") from exc
     if las.header.point_count == 0 or len(las.points) == 0:
         raise ValueError(f"LAS file {path!r} has no points; pass a file with points.")
     wkt, h_units, v_units = _las_crs(las.header)

@@ -151,7 +151,8 @@ def test_rasterize_default_cell_size():
     n = 1700
     _, gt = rasterize_points(rng.uniform(0, 100, n), rng.uniform(0, 100, n), np.zeros(n))
     assert gt[1] == 2.5
-    assert [nice_cell_size(v) for v in (2.43, 1.1, 0.7, 0.34, 6.5, 7.2, 40)] == [2.5, 1, 0.5, 0.25, 5, 10, 50]
+    sizes = (2.43, 1.1, 0.7, 0.34, 6.5, 7.2, 40)
+    assert [nice_cell_size(v) for v in sizes] == [2.5, 1, 0.5, 0.25, 5, 10, 50]
 
 
 def test_rasterize_bad_input():
@@ -338,6 +339,14 @@ def test_text_cloud_written_as_las(tmp_path):
     np.testing.assert_array_equal(back.classification, [2, 1])
     assert "25832" in back.crs
     assert laspy.read(str(tmp_path / "o.las")).header.point_format.id == 6
+
+
+def test_corrupt_las(tmp_path):
+    pytest.importorskip("laspy")
+    for name, data in (("a.las", b"LASF" + b"\0" * 300), ("b.laz", b"hello")):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ValueError, match="not a readable LAS/LAZ file"):
+            read_points(tmp_path / name)
 
 
 def test_laspy_missing_message(tmp_path, monkeypatch):
