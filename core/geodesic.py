@@ -68,6 +68,9 @@ STEP_SCAN = 250
 STEP_OUTLIER = 251
 #: ``extras["step"]`` code of nodata cells.
 STEP_NODATA = 255
+#: A residual region wider or taller than this many ``max_object_size_m`` is never an
+#: object (large raised terrain); it also bounds the method's reach (see the halo).
+EXTENT_FACTOR = 2.0
 #: Largest cluster (cells) the preprocessing treats as an isolated outlier.
 OUTLIER_MAX_CELLS = 16
 
@@ -282,7 +285,7 @@ def _scan_rows(a, t_jump, height_m, max_cells):
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
-               passes=2):
+               passes=2, reference=None):
     """Scan labelling: non-ground runs along rows and columns.
 
     Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
@@ -312,6 +315,10 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
         Steepest terrain slope (degrees); its rise over one cell is tolerated.
     passes : int
         Number of labelling passes (>= 1).
+    reference : array_like, optional
+        A terrain approximation (the filter passes its lowest geodesic reconstruction):
+        a labelled cell must also stand more than ``height_m`` above it, so terrain
+        ridges, which the reconstruction follows, are never labelled.
 
     Returns
     -------
@@ -330,10 +337,18 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     s = np.tan(np.radians(terrain_slope_deg))
     a = z.astype(np.float64)
     labelled = np.zeros(z.shape, bool)
+    allowed = np.ones(z.shape, bool)
+    if reference is not None:
+        reference = np.asarray(reference, dtype=np.float64)
+        if reference.shape != z.shape:
+            raise ValueError(f"reference must have the shape of z {z.shape}; got "
+                             f"{reference.shape}. Pass a surface of the same grid.")
+        with np.errstate(invalid="ignore"):
+            allowed = (a - reference) > height_m
     for _ in range(int(passes)):
         lr = _scan_rows(a, jump_m + s * dx, height_m, max(2, int(max_length_m / dx)))
         lc = _scan_rows(a.T, jump_m + s * dy, height_m, max(2, int(max_length_m / dy))).T
-        new = (lr | lc) & ~labelled
+        new = (lr | lc) & ~labelled & allowed
         if not new.any():
             break
         labelled |= new
@@ -452,15 +467,17 @@ def _steps(min_window_m, max_object_size_m):
 def geodesic_halo(params, cell_size):
     """Reach of :func:`filter_geodesic` in cells.
 
-    The largest step reads ``z`` within its opening (2 half-windows), its geodesic
-    reconstruction (one window) and its region extent limit (2 max sizes); scan
-    labelling adds a run length; the preprocessing a few cells.
+    A cell's residual at the largest step (side ``S = max_object_size_m``) reads ``z``
+    within its opening (two half-windows: ``S``) and its geodesic reconstruction (reach
+    ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
+    within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to ``S``
+    (``2 S``); the preprocessing two outlier windows and a cluster.
     """
     dx, dy = as_cell_size(cell_size)
     c = min(dx, dy)
     size = float(params.get("max_object_size_m", _DEFAULTS["max_object_size_m"]))
     width = float(params.get("outlier_width_m", _DEFAULTS["outlier_width_m"]))
-    reach = (2 * size + 2 * size + size + 2 * width) / c + OUTLIER_MAX_CELLS + 8
+    reach = ((4 + EXTENT_FACTOR) * size + 2 * width) / c + OUTLIER_MAX_CELLS + 8
     return int(np.ceil(reach))
 
 
@@ -489,8 +506,9 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
         Steepest terrain slope (degrees): a terrain bump of half-width ``s/2`` may rise
         ``tan(slope) * s/2`` above the reconstruction; scan labelling tolerates it too.
     edge_ratio : float
-        Height heterogeneity threshold in [0, 1]: a region is an object when its mean
-        residual along its border is at least this fraction of its highest residual.
+        Height heterogeneity threshold in [0, 1]: a region is an object when at least
+        this fraction of its border cells are abrupt (residual at least
+        ``2 dh0 + tan(slope) * cell diagonal``).
     outlier_threshold_m : float
         Preprocessing: depth (height) below the closing (above the opening) of a low
         (high) outlier, metres.
@@ -559,7 +577,7 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     wmask = np.where(valid, w, np.nan)
     cleaned = w.copy()
     removed = np.zeros(z.shape, bool)
-    ext_limit = 2.0 * max_object_size_m
+    ext_limit = EXTENT_FACTOR * max_object_size_m
     counts = []
     edge_dh = 2.0 * dh0 + tan_s * np.hypot(dx, dy)
     for k, s in enumerate(sizes, start=1):
@@ -639,9 +657,9 @@ METHOD = Method(
               "slope of the heavily opened DSM, clipped to 10-60 degrees.",
               minimum=0.0, maximum=89.0, advanced=True),
         Param("edge_ratio", "float", 0.45, "Height heterogeneity threshold (0-1): a "
-              "region the reconstruction cannot reach is an object when the mean residual "
-              "on its border is at least this fraction of its highest residual (walls jump, "
-              "hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
+              "region the reconstruction cannot reach is an object when at least this "
+              "fraction of its border cells jump more than 2 dh0 plus the terrain's rise "
+              "over one cell (walls jump, hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
         Param("outlier_threshold_m", "float", None, "Preprocessing: a small cluster this "
               "far below the closing (above the opening) is a low (high) outlier, metres; "
               "empty: max(2, 4 x dh0).", minimum=0.01, maximum=1000.0, advanced=True),
@@ -661,8 +679,8 @@ METHOD = Method(
         "reconstructed by geodesic dilation under the DSM; the residual (what the "
         "reconstruction cannot reach) is split into regions, and a region is removed when "
         "it is higher than dh0 plus the rise the terrain slope allows over half the window, "
-        "and its border is abrupt (its mean border residual is at least the edge ratio "
-        "times its highest residual). Small objects go at the small steps, large "
+        "and its border is abrupt (at least the edge ratio of its border cells jump more "
+        "than 2 dh0 plus the terrain's rise over one cell). Small objects go at the small steps, large "
         "buildings at the large ones; terrain edges are restored by the reconstruction "
         "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
         "columns removes runs that open with a rise, close with a fall and stand above "
