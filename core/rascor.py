@@ -374,8 +374,9 @@ def estimate_sigma(z):
     """Random error of the DSM (m) from the 4-neighbour Laplacian residual.
 
     ``r = z - mean(4 neighbours)`` has standard deviation ``sigma sqrt(1.25)`` on smooth
-    ground; the median absolute ``r`` (robust to objects and edges) gives ``sigma``,
-    floored at 0.1 m.
+    ground; the lower quartile of ``|r|`` (0.3186 standard deviations for normal errors,
+    robust to objects, edges and vegetation even when they cover half the area) gives
+    ``sigma``, floored at 0.1 m.
     """
     z = np.asarray(z, dtype=np.float64)
     if z.shape[0] < 3 or z.shape[1] < 3:
@@ -385,7 +386,7 @@ def estimate_sigma(z):
     r = r[np.isfinite(r)]
     if r.size < 10:
         return _SIGMA_FLOOR
-    return float(max(_SIGMA_FLOOR, 1.4826 * np.median(np.abs(r)) / np.sqrt(1.25)))
+    return float(max(_SIGMA_FLOOR, np.percentile(np.abs(r), 25) / 0.3186 / np.sqrt(1.25)))
 
 
 def characterise_terrain(z, cell_size, tile_m=25.0):
@@ -830,7 +831,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
                   neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
                   short_profile_m=9.0, long_profile_m=25.0, profile_sigma_m=None,
                   surface_size_m=25.0, surface_sigma_m=None, prediction_radius_m=3.0,
-                  prediction_sigma_m=None, snooping_k=3.0, snooping_iterations=2,
+                  prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
                   low_weight=0.1, steps=None, breaklines=None, special_areas=None,
                   progress=None):
     """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
@@ -1022,7 +1023,7 @@ DEFAULTS = dict(terrain_class=None, sigma_m=None, step1_characterise=True,
                 height_max_m=None, neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
-                prediction_sigma_m=None, snooping_k=3.0, snooping_iterations=2,
+                prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
                 low_weight=0.1)
 
 
@@ -1041,20 +1042,26 @@ def _analysis_crops(z, edge=384):
 
 
 def _robust_scale(v):
+    """``(MAD scale, 90th percentile of |v|)`` of residuals (NaN when too few)."""
     v = v[np.isfinite(v)]
     if v.size < 20:
-        return np.nan
-    return float(1.4826 * np.median(np.abs(v - np.median(v))))
+        return np.nan, np.nan
+    return (float(1.4826 * np.median(np.abs(v - np.median(v)))),
+            float(np.percentile(np.abs(v), 90)))
 
 
-def _choose(seq, scales, sigma):
-    """Largest member of ``seq`` whose scale stays within ``_SCALE_GROWTH`` x the first's."""
-    ref = max(sigma, scales[0]) if np.isfinite(scales[0]) else sigma
+def _choose(spreads, sigma):
+    """Index of the longest length whose residual spread stays within ``_SCALE_GROWTH`` x
+    the shortest's (the spread grows with the length once the model no longer follows the
+    terrain, or objects larger than the length remain)."""
+    ref = max(sigma, spreads[0]) if np.isfinite(spreads[0]) else sigma
     best = 0
-    for i, s in enumerate(scales):
+    for i, s in enumerate(spreads):
         if np.isfinite(s) and s <= _SCALE_GROWTH * ref:
             best = i
-    return best, ref
+        else:
+            break
+    return best
 
 
 def resolve_rascor_params(z, cell_size, **params):
@@ -1139,26 +1146,25 @@ def resolve_rascor_params(z, cell_size, **params):
             pred_v.append((c64 - zh)[keep])
         cat = lambda lst: np.concatenate(lst) if lst else np.zeros(0)
         ps = [_robust_scale(cat(prof_v[L])) for L in PROFILE_LENGTHS_M]
-        i_long, _ = _choose(PROFILE_LENGTHS_M, ps, sigma)
-        i_long = max(i_long, 1)
+        i_long = max(_choose([b for _, b in ps], sigma), 1)
         long_m = PROFILE_LENGTHS_M[i_long]
         i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
         if p["long_profile_m"] is None:
-            p["long_profile_m"] = round(long_m * cs / cs, 3)
+            p["long_profile_m"] = long_m
         if p["short_profile_m"] is None:
             p["short_profile_m"] = PROFILE_LENGTHS_M[i_short]
         if p["profile_sigma_m"] is None:
-            s = ps[i_long] if np.isfinite(ps[i_long]) else sigma
-            p["profile_sigma_m"] = round(float(max(sigma, s)), 3)
+            s = ps[i_long][0]
+            p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         ss = [_robust_scale(cat(surf_v[S])) for S in SURFACE_SIZES_M]
-        i_s, _ = _choose(SURFACE_SIZES_M, ss, sigma)
+        i_s = _choose([b for _, b in ss], sigma)
         if p["surface_size_m"] is None:
             p["surface_size_m"] = SURFACE_SIZES_M[i_s]
         if p["surface_sigma_m"] is None:
-            s = ss[i_s] if np.isfinite(ss[i_s]) else sigma
-            p["surface_sigma_m"] = round(float(max(sigma, s)), 3)
+            s = ss[i_s][0]
+            p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["prediction_sigma_m"] is None:
-            s = _robust_scale(cat(pred_v))
+            s = _robust_scale(cat(pred_v))[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
     return p
 
@@ -1253,7 +1259,7 @@ METHOD = Method(
         Param("prediction_sigma_m", "float", None, "Step 7 standard deviation of the "
               "prediction (m); empty: from the prediction residuals.", minimum=0.001,
               maximum=100.0, advanced=True),
-        Param("snooping_k", "float", 3.0, "Critical value of the data snooping in steps "
+        Param("snooping_k", "float", 4.0, "Critical value of the data snooping in steps "
               "5-7 (standardised residual).", minimum=0.5, maximum=20.0, advanced=True),
         Param("snooping_iterations", "int", 2, "Fits per profile length / direction and "
               "per surface (outliers removed between fits).", minimum=1, maximum=10,
