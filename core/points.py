@@ -648,27 +648,36 @@ def sample_bilinear(grid, geotransform, x, y):
     y = np.asarray(y, dtype=np.float64)
     shape = np.broadcast(x, y).shape
     x, y = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
-    nrows, ncols = grid.shape
+    return _bilinear_many([grid], gt, x, y)[0].reshape(shape)
+
+
+def _bilinear_many(grids, gt, x, y):
+    """Bilinear samples of several grids of one shape at 1-D points (weights computed once)."""
+    nrows, ncols = grids[0].shape
     u = (x - gt[0]) / gt[1]          # column coordinate, 0 at the west edge
     v = (y - gt[3]) / gt[5]          # row coordinate, 0 at the north edge
     inside = (u >= 0) & (u <= ncols) & (v >= 0) & (v <= nrows)
     fc = np.clip(np.where(inside, u, 0.0) - 0.5, 0.0, ncols - 1.0)
     fr = np.clip(np.where(inside, v, 0.0) - 0.5, 0.0, nrows - 1.0)
-    c0 = np.minimum(np.floor(fc).astype(np.int64), max(ncols - 2, 0))
-    r0 = np.minimum(np.floor(fr).astype(np.int64), max(nrows - 2, 0))
-    c1 = np.minimum(c0 + 1, ncols - 1)
-    r1 = np.minimum(r0 + 1, nrows - 1)
+    c0 = np.minimum(fc.astype(np.int64), max(ncols - 2, 0))     # fc >= 0: trunc = floor
+    r0 = np.minimum(fr.astype(np.int64), max(nrows - 2, 0))
     tc = fc - c0
     tr = fr - r0
-    g = grid.astype(np.float64, copy=False)
-    out = np.zeros(x.size)
-    for rr, cc, w in ((r0, c0, (1 - tr) * (1 - tc)), (r0, c1, (1 - tr) * tc),
-                      (r1, c0, tr * (1 - tc)), (r1, c1, tr * tc)):
-        val = g[rr, cc]
-        # a cell with zero weight is not needed: its NaN must not spread
-        out += np.where(w > 0, w * val, 0.0)
-    out[~inside] = np.nan
-    return out.reshape(shape)
+    dc = (c0 + 1 < ncols).astype(np.int64)                      # 0 on a one-column grid
+    dr = (r0 + 1 < nrows).astype(np.int64) * ncols
+    i00 = r0 * ncols + c0
+    corners = ((i00, (1 - tr) * (1 - tc)), (i00 + dc, (1 - tr) * tc),
+               (i00 + dr, tr * (1 - tc)), (i00 + dr + dc, tr * tc))
+    outs = []
+    for grid in grids:
+        flat = np.asarray(grid).ravel()
+        out = np.zeros(x.size)
+        for idx, w in corners:
+            # a cell with zero weight is not needed: its NaN must not spread
+            out += np.where(w > 0, w * flat[idx], 0.0)
+        out[~inside] = np.nan
+        outs.append(out)
+    return outs
 
 
 def _slope(dtm, gt):
@@ -736,8 +745,7 @@ def classify_points(x, y, z, dtm, geotransform, *, threshold_m=0.5, slope_factor
             f"x {np.nanmin(x):.3f}..{np.nanmax(x):.3f}, y {np.nanmin(y):.3f}..{np.nanmax(y):.3f}; "
             f"the DTM spans x {gx0:.3f}..{gx1:.3f}, y {gy0:.3f}..{gy1:.3f}. Use a DTM of the "
             "same area, in the same CRS and units as the points.")
-    ground = sample_bilinear(dtm, gt, x, y)
-    slope = sample_bilinear(_slope(dtm, gt), gt, x, y)
+    ground, slope = _bilinear_many([dtm, _slope(dtm, gt)], gt, x, y)
     slope = np.where(np.isfinite(slope), slope, 0.0)   # at a DTM hole's edge: flat
     tol = threshold_m + slope_factor * slope
     dz = z - ground

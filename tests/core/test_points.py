@@ -384,3 +384,15 @@ def test_real_las_feet_units(shared_data):
     assert c.units_to_metre == pytest.approx(1200 / 3937)
     assert c.z_units_to_metre == pytest.approx(1200 / 3937)
     assert len(c) == 6280 and "Mississippi" in c.crs
+
+
+def test_bilinear_one_row_and_one_column_grids():
+    gt = (0.0, 1.0, 0.0, 1.0, 0.0, -1.0)
+    row = np.array([[0.0, 10.0, 20.0]])
+    np.testing.assert_allclose(sample_bilinear(row, gt, [0.5, 1.0, 2.9], [0.5, 0.1, 0.9]),
+                               [0.0, 5.0, 20.0])
+    col = row.T
+    gt_col = (0.0, 1.0, 0.0, 3.0, 0.0, -1.0)
+    np.testing.assert_allclose(sample_bilinear(col, gt_col, [0.5, 0.2, 0.9], [2.5, 2.0, 0.1]),
+                               [0.0, 5.0, 20.0])
+    assert sample_bilinear([[7.0]], gt, 0.3, 0.8) == 7.0
