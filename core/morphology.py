@@ -149,52 +149,83 @@ def _low_radii(cell, growth):
     return _radii_up_to(r_max, cell, growth)
 
 
-def _running(a, r, axis, op):
+class _Work:
+    """Reusable float32 scratch buffers for :func:`_running` (no page faults per pass):
+    two for the doubling, one for the first pass of a 2-D filter."""
+
+    def __init__(self):
+        self._bufs = [np.empty(0, np.float32) for _ in range(3)]
+
+    def get(self, i, shape):
+        size = int(np.prod(shape))
+        if self._bufs[i].size < size:
+            self._bufs[i] = np.empty(size, np.float32)
+        return self._bufs[i][:size].reshape(shape)
+
+
+def _running(a, r, axis, op, work=None, out=None):
     """``op`` (np.minimum / np.maximum) over the window ``[i - r, i + r]`` along ``axis``.
 
     Windows are clipped at the array's edge (the same as replicating the edge values).
     Van Herk-style doubling: ``M_2k[i] = op(M_k[i], M_k[i + k])`` covers ``2k`` cells, and a
-    window of ``w = 2r + 1`` cells is ``op(M_k[i], M_k[i + w - k])`` with ``k`` the largest
-    power of two <= ``w``: ``log2(w) + 1`` vectorised passes on contiguous slices, exact
-    for any data (min and max are idempotent, so the two halves may overlap).
+    window of ``w = 2r + 1`` cells is ``op(M_k[i - r], M_k[i + r + 1 - k])`` with ``k`` the
+    largest power of two <= ``w``: ``log2(w) + 1`` vectorised passes on contiguous slices,
+    exact for any data (min and max are idempotent, so the two halves may overlap). The
+    ``r`` cells at each end take a running accumulation of the clipped window.
     """
     if r <= 0:
         return a
     w = 2 * r + 1
     n = a.shape[axis]
 
-    def sl(s):
+    def sl(start, stop):
+        s = slice(start, stop)
         return (s, slice(None)) if axis == 0 else (slice(None), s)
 
-    shape = list(a.shape)
-    shape[axis] = n + 2 * r
-    m = np.empty(shape, a.dtype)
-    m[sl(slice(r, r + n))] = a
-    m[sl(slice(0, r))] = a[sl(slice(0, 1))]
-    m[sl(slice(r + n, None))] = a[sl(slice(n - 1, n))]
-    k = 1
-    while 2 * k <= w:
-        length = m.shape[axis]
-        m = op(m[sl(slice(0, length - k))], m[sl(slice(k, length))])
-        k *= 2
-    if k == w:
-        return np.ascontiguousarray(m[sl(slice(0, n))])
-    return op(m[sl(slice(0, n))], m[sl(slice(w - k, w - k + n))])
+    if n < 2 * r + 2:                          # window as long as the array: pad (small case)
+        shape = list(a.shape)
+        shape[axis] = n + 2 * r
+        m = np.empty(shape, a.dtype)
+        m[sl(r, r + n)] = a
+        m[sl(0, r)] = a[sl(0, 1)]
+        m[sl(r + n, None)] = a[sl(n - 1, n)]
+        k = 1
+        while 2 * k <= w:
+            length = m.shape[axis]
+            m = op(m[sl(0, length - k)], m[sl(k, length)])
+            k *= 2
+        return np.ascontiguousarray(op(m[sl(0, n)], m[sl(w - k, w - k + n)]))
+    work = work or _Work()
+    if out is None:
+        out = np.empty(a.shape, a.dtype)
+    src, k, length, i = a, 1, n, 0
+    while 2 * k <= w:                          # src[j] = op over a[j .. j + 2k - 1]
+        dst = work.get(i % 2, a.shape)[sl(0, length - k)]
+        op(src[sl(0, length - k)], src[sl(k, length)], out=dst)
+        src, length, k, i = dst, length - k, 2 * k, i + 1
+    op(src[sl(0, n - 2 * r)], src[sl(w - k, w - k + n - 2 * r)], out=out[sl(r, n - r)])
+    head = op.accumulate(a[sl(0, 2 * r)], axis=axis)            # window [0, j + r]
+    out[sl(0, r)] = head[sl(r, 2 * r)]
+    tail = np.flip(op.accumulate(np.flip(a[sl(n - 2 * r, n)], axis=axis), axis=axis), axis=axis)
+    out[sl(n - r, n)] = tail[sl(0, r)]                        # window [j - r, n - 1]
+    return out
 
 
-def _erode(a, ry, rx):
+def _erode(a, ry, rx, work=None):
     """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata."""
-    return _running(_running(a, ry, 0, np.minimum), rx, 1, np.minimum)
+    tmp = work.get(2, a.shape) if work is not None and rx > 0 and ry > 0 else None
+    return _running(_running(a, ry, 0, np.minimum, work, tmp), rx, 1, np.minimum, work)
 
 
-def _dilate(e, ry, rx, has_nodata):
+def _dilate(e, ry, rx, has_nodata, work=None):
     """Grey dilation (running maximum) of an eroded surface ``e`` (+inf = no valid cell).
 
     Returns the dilated surface with NaN where no valid cell is within reach.
     """
     if has_nodata:
         e = np.where(np.isposinf(e), np.float32(-np.inf), e)
-    d = _running(_running(e, ry, 0, np.maximum), rx, 1, np.maximum)
+    tmp = work.get(2, e.shape) if work is not None and rx > 0 and ry > 0 else None
+    d = _running(_running(e, ry, 0, np.maximum, work, tmp), rx, 1, np.maximum, work)
     if has_nodata:
         d[np.isneginf(d)] = np.nan
     return d
@@ -248,21 +279,24 @@ def open_surface(z, cell_size, size_m, *, close_pits=False):
     return out
 
 
-def _close3(z):
+def _close3(z, work=None):
     """3 x 3 grey closing (dilation then erosion), nodata ignored; NaN stays NaN."""
     neg, has_nodata = _as_inf(z, -1.0)          # -z, nodata +inf: erosion of -z = -dilation of z
-    closed = -_dilate(_erode(neg, 1, 1), 1, 1, has_nodata)   # -(opening of -z) = closing of z
+    closed = _dilate(_erode(neg, 1, 1, work), 1, 1, has_nodata, work)
+    np.negative(closed, out=closed)             # -(opening of -z) = closing of z
     closed[~np.isfinite(z)] = np.nan
     return closed
 
 
-def _progressive(a, radii, slope, has_nodata, progress=None):
+def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
     """SMRF's progressive opening of ``a`` (+inf = nodata).
 
     Returns the boolean flags (a cell whose opened height dropped by more than
     ``slope * radius_m`` at some step) and the last opened surface.
     """
     flags = np.zeros(a.shape, bool)
+    diff = np.empty(a.shape, np.float32)
+    above = np.empty(a.shape, bool)
     prev = a
     eroded = a
     pry = prx = 0
@@ -270,11 +304,12 @@ def _progressive(a, radii, slope, has_nodata, progress=None):
     for k, (ry, rx, rad_m) in enumerate(radii):
         # Square windows compose: eroding the previous erosion by the increment gives the
         # erosion by the full window (cheaper than starting from the surface).
-        eroded = _erode(eroded, ry - pry, rx - prx)
-        opened = _dilate(eroded, ry, rx, has_nodata)
+        eroded = _erode(eroded, ry - pry, rx - prx, work)
+        opened = _dilate(eroded, ry, rx, has_nodata, work)
         with np.errstate(invalid="ignore"):
-            diff = prev - opened
-            flags |= diff > np.float32(slope * rad_m)      # SMRF: t_k = s * r_k * c
+            np.subtract(prev, opened, out=diff)
+            np.greater(diff, np.float32(slope * rad_m), out=above)   # SMRF: t_k = s * r_k * c
+            flags |= above
         prev = opened
         pry, prx = ry, rx
         report(progress, (k + 1) / n)
@@ -373,16 +408,17 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
                     "Use 1 (SMRF's one-cell steps) to 2 (doubling windows).")
     low_s = _check("low_outlier_slope", p["low_outlier_slope"], 0.0, 1e3, "SMRF uses 5 (500 %).")
     valid = np.isfinite(z)
+    work = _Work()
     info = {"mode": mode, "mode_reason": p.get("mode_reason", "mode given by the user"),
             "dh_m": dh, "slope": s, "max_object_size_m": size_m}
 
     if mode == "single":
         ry, rx = _half_widths(size_m, cell)
         report(progress, 0.05)
-        base = _close3(z)                      # pits 1-2 cells wide must not spread
+        base = _close3(z, work)                # pits 1-2 cells wide must not spread
         report(progress, 0.3)
         a, has_nodata = _as_inf(base)
-        opened = _dilate(_erode(a, ry, rx), ry, rx, has_nodata)
+        opened = _dilate(_erode(a, ry, rx, work), ry, rx, has_nodata, work)
         report(progress, 0.9)
         with np.errstate(invalid="ignore"):
             d = z - opened
@@ -395,14 +431,14 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         # 1. SMRF low-outlier pre-step: the progressive filter on -z, 1 m window, slope 5.
         neg, has_nodata = _as_inf(z, -1.0)
         low, neg_open = _progressive(neg, _low_radii(cell, growth), low_s, has_nodata,
-                                     sub_progress(progress, 0.0, 0.1))
+                                     sub_progress(progress, 0.0, 0.1), work)
         low &= valid
         clean = np.where(low, -neg_open, z).astype(np.float32)   # pits replaced by the closing
         del neg, neg_open
         # 2. Progressive opening of the cleaned surface (Zhang 2003; SMRF).
         radii = window_radii(size_m, cell, growth)
         a, _ = _as_inf(clean)
-        obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85))
+        obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85), work)
         del a
         obj &= valid
         # 3. Provisional surface ZIpro: unflagged cells keep their height, flagged ones
