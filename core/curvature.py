@@ -60,8 +60,14 @@ _MIN_BREAK_M = 0.05
 #: Tile edge (cells) and quantile of the tile spreads used for the smooth-part noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
+#: Width (cells) within which an object's wall rises, and how much steeper than the
+#: profile before it the wall must be.
+_WALL_CELLS = 2
+_WALL_CONTRAST = 3.0
+#: Final passes against the interpolated ground surface.
+_PASSES = 2
 #: Largest sample (cells) used to derive defaults on big rasters.
-_SAMPLE_CELLS = 4_000_000
+_SAMPLE_CELLS = 1_048_576
 
 
 # --------------------------------------------------------------------------- curvature
@@ -238,33 +244,75 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
 
 
 # --------------------------------------------------------------------------- profiles
-def _walls(Z, V, cell, *, reach, h_min, tan_wall):
-    """Where a profile (axis 0) rises as a wall from its lowest point of the last ``reach``.
+def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
+    """Where a profile (axis 0) has just risen as a wall, at its marked positions ``B``.
 
-    For every position j: ``foot`` = the lowest valid height among the ``reach``
-    positions before j, at distance k* (the nearest one if tied). j is at the top of a
-    wall when ``z_j - foot >= h_min`` and ``(z_j - foot) / (k* cell) >= tan(wall slope)``.
-    Measuring from the lowest point rather than from the previous cell keeps gentle
-    slopes rasterised in steps (sparse points, nearest-neighbour gaps) from looking like
-    walls, and still finds walls smoothed over a few cells. A loop over ``reach``
-    shifts, each vectorised over the whole array.
+    The foot of position j is the lowest of the ``_WALL_CELLS`` positions before it. j is
+    the top of a wall when
+
+    * ``z_j - foot >= h_min`` (high enough),
+    * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
+      tan(wall slope)``, and
+    * it is much steeper (``_WALL_CONTRAST`` times) than the profile's own rise over
+      the ``reach`` positions before the foot. This keeps terrain rasterised in steps
+      (sparse points filled from the nearest one: a staircase whose treads are as steep
+      as its risers on average) and walls of a terrain cut from looking like object walls,
+      while a wall standing on a hillside still stands out.
+
+    A loop over a handful of shifts, each vectorised over all marked cells.
+
+    The same test mirrored finds where the profile has just come down a wall: ``drop`` is
+    the height come down (the highest of the ``_WALL_CELLS`` positions before, minus
+    ``z_j``), zero elsewhere.
+
+    Returns
+    -------
+    wall : ndarray of bool
+    foot : ndarray of float32 (valid where ``wall``)
+    drop : ndarray of float32
     """
-    n = Z.shape[0]
-    Zi = np.where(V, Z, np.float32(np.inf))
-    foot = np.full(Z.shape, np.inf, np.float32)
-    kstar = np.zeros(Z.shape, np.float32)
-    for k in range(1, min(reach, n - 1) + 1):
-        prev = Zi[:-k]
-        cur = foot[k:]
-        better = prev < cur
-        np.copyto(cur, prev, where=better)
-        np.copyto(kstar[k:], np.float32(k), where=better)
-    rise = np.where(V, Z, -np.inf) - foot
-    wall = (rise >= np.float32(h_min)) & (rise >= np.float32(tan_wall * cell) * kstar)
-    return wall, foot
+    n, m = Z.shape
+    wall = np.zeros(Z.shape, bool)
+    foot = np.zeros(Z.shape, np.float32)
+    drop = np.zeros(Z.shape, np.float32)
+    idx = np.flatnonzero(B & V)
+    if idx.size == 0:
+        return wall, foot, drop
+    zf = np.where(V, Z, np.float32(np.nan)).ravel()
+    row = idx // m
+
+    def back(k):
+        v = zf[np.maximum(idx - k * m, 0)]
+        v[row < k] = np.nan
+        return v
+
+    zc = zf[idx]
+    best = np.full(idx.size, np.inf, np.float32)
+    top = np.full(idx.size, -np.inf, np.float32)
+    for k in range(1, _WALL_CELLS + 1):
+        v = back(k)
+        np.fmin(best, v, out=best)
+        np.fmax(top, v, out=top)
+    base = back(_WALL_CELLS)
+    before = back(_WALL_CELLS + reach)
+    nb = np.isnan(before)
+    if nb.any():  # near the start of a profile: the first position
+        before[nb] = zf[(idx % m)[nb]]
+    with np.errstate(invalid="ignore"):
+        rise = zc - best
+        rate = rise / np.float32(_WALL_CELLS * cell)
+        prior = np.maximum((base - before) / np.float32(reach * cell), 0)
+        ok = ((rise >= np.float32(h_min)) & (rate >= np.float32(tan_wall))
+              & (rate >= np.float32(_WALL_CONTRAST) * prior))
+        fall = top - zc
+        down = (fall >= np.float32(h_min)) & (fall >= np.float32(tan_wall * _WALL_CELLS * cell))
+    wall.flat[idx[ok]] = True
+    foot.flat[idx[ok]] = best[ok]
+    drop.flat[idx[down]] = fall[down]
+    return wall, foot, drop
 
 
-def _scan(Z, V, B, W, F, *, tol, max_cells):
+def _scan(Z, V, B, W, F, D, *, tol, max_cells):
     """One directed scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
 
     The paper's reading of a profile: the points between a break going up and the
@@ -274,7 +322,9 @@ def _scan(Z, V, B, W, F, *, tol, max_cells):
     * ground -> object at a marked cell (a break, ``B``) at the top of a wall (``W``,
       see :func:`_walls`); the foot ``g`` is the wall's foot ``F``.
     * object -> ground when the profile comes back down to the foot's height (within
-      ``tol``), or after ``max_cells`` (too long for an object: the terrain rose). On a
+      ``tol``), or comes down a wall (``D``, the height come down) closer to the foot
+      than to where it came from (the matching break coming down, onto ground that rose
+      under the object), or after ``max_cells`` (too long for an object). On a
       slope the scan going uphill overshoots, but the scan coming down finds the
       building's uphill wall; :func:`_axis_objects` keeps only what both agree on.
     """
@@ -290,7 +340,7 @@ def _scan(Z, V, B, W, F, *, tol, max_cells):
         d += 1
         np.subtract(zj, g, out=rise)
         start = ~obj & B[j] & W[j]
-        end = obj & ((rise <= tol) | (d > max_cells))
+        end = obj & ((rise <= tol) | (rise < D[j]) | (d > max_cells))
         obj = (obj | start) & ~end
         np.copyto(g, F[j], where=start)
         newg = vj & ~obj
@@ -310,9 +360,10 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     Z = np.where(valid, z, np.float32(np.nan))
     out = None
     for sl in (slice(None), slice(None, None, -1)):
-        Zs, Vs, Bs = Z[sl], valid[sl], marked[sl]
-        W, F = _walls(Zs, Vs, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
-        o = _scan(Zs, Vs, Bs, W, F, tol=tol, max_cells=max_cells)[sl]
+        Zs, Vs, Bs = (np.ascontiguousarray(a[sl]) for a in (Z, valid, marked))
+        W, F, D = _walls(Zs, Vs, Bs, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
+        o = _scan(Zs, Vs, Bs, W, F, D, tol=tol, max_cells=max_cells)[sl]
+        del W, F, D
         out = o if out is None else out & o
     return out
 
@@ -410,8 +461,8 @@ def _smooth_spread(v, tile=_TILE):
     nr, nc = r // tr, c // tc
     t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
     t = t.reshape(nr * nc, -1).astype(np.float64)
-    med = np.nanmedian(t, axis=1, keepdims=True)
-    mad = 1.4826 * np.nanmedian(np.abs(t - med), axis=1)
+    med = np.median(t, axis=1, keepdims=True)   # tiles with nodata give NaN: dropped
+    mad = 1.4826 * np.median(np.abs(t - med), axis=1)
     mad = mad[np.isfinite(mad)]
     return float(np.quantile(mad, _SMOOTH_QUANTILE)) if mad.size else 0.0
 
@@ -538,9 +589,14 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     #    the second surface also rests on the breaks found to be ground)
     mask = np.zeros(z.shape, np.uint8)
     surface = None
-    holes = ~valid | marked | objects
+    # not ground seeds: breaks next to objects (their feet and walls) and convex points
+    # curved both ways (|K| >= K_g, H > 0: crowns, corners, spikes). Straight breaks
+    # away from objects (dams, embankments, terrace edges; K ~ 0) stay seeds.
+    near = ndimage.maximum_filter(objects.view(np.uint8), size=2 * m + 1).view(bool)
+    holes = ~valid | objects | (marked & near) | (mark_k & (H > 0))
+    del near
     concave = marked & (H < 0)
-    for it in range(2):
+    for it in range(_PASSES):
         if not (valid & ~holes).any():
             mask[objects] = OBJECT
             break

@@ -1,0 +1,319 @@
+"""Tests of the curvature filter (Luong Chinh Ke 2002, section 2.2): exact surfaces for the
+local trends and curvatures, small synthetic scenes with known truth for the filter."""
+import numpy as np
+import pytest
+
+from bare_earth.core import curvature as C
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.common import FilterResult
+from bare_earth.core.methods import get_method
+
+DTYPES = [np.float32, np.float64]
+
+
+def grid(n, cell=1.0, m=None):
+    """Centred coordinates (x along columns, y down the rows) in metres."""
+    m = n if m is None else m
+    y, x = np.mgrid[0:n, 0:m].astype(np.float64)
+    return (x - (m - 1) / 2) * cell, (y - (n - 1) / 2) * cell
+
+
+# --------------------------------------------------------------------------- exact surfaces
+@pytest.mark.parametrize("dtype", DTYPES + [np.int16])
+@pytest.mark.parametrize("model", C.MODELS)
+def test_plane_has_zero_curvature_everywhere(dtype, model):
+    x, y = grid(15, m=19)
+    z = (100 + 2 * x - 3 * y).astype(dtype)  # integer heights: int16 is exact too
+    K, H, p, q, r, s, t = C.compute_curvature(z, 1.0, window=5, model=model)
+    for a in (K, H, r, s, t):
+        assert a.dtype == np.float32 and a.shape == z.shape
+        assert np.abs(a).max() < 1e-4  # edges included: odd reflection keeps planes
+    assert np.allclose(p, 2, atol=1e-4) and np.allclose(q, -3, atol=1e-4)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("window", [3, 5, 7])
+def test_sphere_cap_gaussian_and_mean_curvature(dtype, window):
+    R = 60.0
+    x, y = grid(41, cell=0.5)
+    z = np.sqrt(R * R - x * x - y * y).astype(dtype)
+    K, H, *_ = C.compute_curvature(z, 0.5, window=window)
+    inner = (slice(5, -5), slice(5, -5))
+    # a sphere has K = 1/R^2 and H = 1/R (convex: H > 0) at every point
+    assert np.allclose(K[inner], 1 / R ** 2, rtol=0.02)
+    assert np.allclose(H[inner], 1 / R, rtol=0.02)
+    assert K[20, 20] == pytest.approx(1 / R ** 2, rel=2e-3)
+
+
+def test_bowl_is_concave():
+    R = 40.0
+    x, y = grid(31)
+    K, H, *_ = C.compute_curvature(-np.sqrt(R * R - x * x - y * y), 1.0)
+    assert K[15, 15] == pytest.approx(1 / R ** 2, rel=0.01)  # K alone cannot tell...
+    assert H[15, 15] == pytest.approx(-1 / R, rel=0.01)      # ...H can: concave
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_saddle_exact(dtype):
+    a = 8.0
+    x, y = grid(25, m=29, cell=0.5)
+    z = ((x * x - y * y) / (2 * a)).astype(dtype)
+    K, H, p, q, r, s, t = C.compute_curvature(z, 0.5)
+    h2 = 1 + (x / a) ** 2 + (y / a) ** 2
+    K_true = -1 / a ** 2 / h2 ** 2  # (r t - s^2) / h^4 with r = 1/a, t = -1/a, s = 0
+    H_true = -((1 + (y / a) ** 2) / a - (1 + (x / a) ** 2) / a) / (2 * h2 ** 1.5)
+    inner = (slice(3, -3), slice(3, -3))
+    assert np.allclose(K[inner], K_true[inner], rtol=1e-3, atol=1e-7)
+    assert np.allclose(H[inner], H_true[inner], rtol=1e-3, atol=1e-6)
+    assert (K[inner] < 0).all()
+    assert np.allclose(r[inner], 1 / a, atol=1e-4) and np.allclose(t[inner], -1 / a, atol=1e-4)
+    # at the raster's edge the odd reflection flattens the bend: no false break there
+    assert np.abs(r[:, :2]).max() < 1 / a
+
+
+def test_anisotropic_cells():
+    x, y = grid(21, cell=1.0)
+    dx, dy = 0.5, 2.0
+    xm, ym = x * dx, y * dy
+    z = 0.3 * xm * xm + 0.1 * xm * ym - 0.2 * ym * ym + xm
+    K, H, p, q, r, s, t = C.compute_curvature(z, (dx, dy))
+    inner = (slice(3, -3), slice(3, -3))
+    assert np.allclose(r[inner], 0.6, atol=1e-4)
+    assert np.allclose(s[inner], 0.1, atol=1e-4)
+    assert np.allclose(t[inner], -0.4, atol=1e-4)
+    assert np.allclose(p[inner], (0.6 * xm + 0.1 * ym + 1)[inner], atol=1e-3)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_bilinear_model_reproduces_eq12(dtype):
+    """z = a0 + a1 X + a2 Y + a3 XY: p = a1 + a3 Y, q = a2 + a3 X, s = a3, r = t = 0 and
+    K = (r t - s^2) / h^4 = -a3^2 / (1 + p^2 + q^2)^2 at every point, edges included."""
+    a0, a1, a2, a3 = 50.0, 0.2, -0.1, 0.03
+    x, y = grid(17, m=21)
+    z = (a0 + a1 * x + a2 * y + a3 * x * y).astype(dtype)
+    K, H, p, q, r, s, t = C.compute_curvature(z, 1.0, window=5, model="bilinear")
+    assert np.allclose(p, a1 + a3 * y, atol=1e-4)
+    assert np.allclose(q, a2 + a3 * x, atol=1e-4)
+    assert np.allclose(s, a3, atol=1e-5)
+    assert not r.any() and not t.any()
+    K_true = -a3 ** 2 / (1 + (a1 + a3 * y) ** 2 + (a2 + a3 * x) ** 2) ** 2
+    assert np.allclose(K, K_true, rtol=1e-3, atol=1e-9)
+    assert (K <= 0).all()  # never positive: the bilinear surface cannot see convexity
+    # the quadratic model gives the same on this surface (it contains the bilinear one)
+    Kq, *_ = C.compute_curvature(z, 1.0, window=5, model="quadratic")
+    assert np.allclose(Kq, K_true, rtol=1e-3, atol=1e-9)
+
+
+def test_nodata_stays_nodata_and_does_not_spread():
+    x, y = grid(21)
+    z = (0.1 * x + 0.05 * y).astype(np.float32)
+    z[10, 10] = np.nan
+    K, H, p, *_ = C.compute_curvature(z, 1.0)
+    assert np.isnan(K[10, 10]) and np.isnan(p[10, 10])
+    assert np.isfinite(np.delete(K.ravel(), 10 * 21 + 10)).all()
+    assert np.nanmax(np.abs(K)) < 1e-5  # the gap is bridged by neighbours: still a plane
+
+
+@pytest.mark.parametrize("window", [4, 1, 2.5, "5", True])
+def test_bad_window_is_rejected(window):
+    with pytest.raises(ValueError, match="window_cells must be an odd integer"):
+        C.compute_curvature(np.zeros((9, 9)), 1.0, window=window)
+
+
+def test_bad_model_is_rejected():
+    with pytest.raises(ValueError, match="model must be one of"):
+        C.compute_curvature(np.zeros((9, 9)), 1.0, model="cubic")
+
+
+# --------------------------------------------------------------------------- scenes
+def terrain(n=140, m=150, seed=0, noise=0.03):
+    x, y = grid(n, m=m)
+    rng = np.random.default_rng(seed)
+    z = 200 + 4 * np.sin(x / 25) + 3 * np.cos(y / 30) + 0.05 * x
+    return (z + rng.normal(0, noise, z.shape)).astype(np.float32), x, y
+
+
+def building_scene():
+    z, x, y = terrain()
+    truth = np.zeros(z.shape, bool)
+    for r0, c0, h, w, height in [(20, 20, 18, 25, 8.0), (70, 30, 30, 14, 12.0),
+                                 (30, 90, 14, 14, 4.0), (95, 95, 25, 35, 6.0)]:
+        truth[r0:r0 + h, c0:c0 + w] = True
+        z[r0:r0 + h, c0:c0 + w] += height
+    # a gable roof: eaves 6 m, ridge 9 m, along the rows
+    r0, c0, h, w = 100, 40, 24, 20
+    ridge = 6 + 3 * (1 - np.abs(np.arange(h) - (h - 1) / 2) / ((h - 1) / 2))
+    z[r0:r0 + h, c0:c0 + w] += ridge[:, None].astype(np.float32)
+    truth[r0:r0 + h, c0:c0 + w] = True
+    return z, truth
+
+
+def embankment_scene(side_slope=1.5):
+    """A dam across the scene (4 m high, sides 1:``side_slope``), a road embankment that
+    ends inside the scene (2.5 m) and a 3 m terrace step: all ground."""
+    z, x, y = terrain(seed=1)
+    dist = np.abs(x - 15)
+    z += np.clip((4.0 - (dist - 3.0) / side_slope), 0, 4.0).astype(np.float32)  # crest 6 m
+    emb = np.minimum(np.clip(2.5 - (np.abs(y - 40) - 2.0) / side_slope, 0, 2.5),
+                     np.clip((25 - np.abs(x + 45)) / 2, 0, 2.5))  # ramps 1:2 at its ends
+    z += emb.astype(np.float32)
+    z += np.clip((-30 - y) / side_slope, 0, 3.0).astype(np.float32)  # terrace step, 3 m
+    return z
+
+
+def run(z, cell=1.0, **params):
+    P = C.resolve_curvature_params(z, cell, **params)
+    return C.filter_curvature(z, cell, **P), P
+
+
+def test_buildings_are_removed_whole():
+    z, truth = building_scene()
+    res, P = run(z)
+    assert isinstance(res, FilterResult)
+    obj = res.mask == OBJECT
+    assert obj[truth].mean() >= 0.995       # whole buildings, including the gable roof
+    assert obj[~truth].mean() <= 0.02       # hardly any ground lost
+    # every building is complete apart from at most a couple of cells
+    assert (~obj & truth).sum() <= 6
+
+
+def test_dam_embankment_and_terrace_stay_ground():
+    z = embankment_scene()
+    res, P = run(z)
+    assert (res.mask == GROUND).mean() >= 0.995
+
+
+def test_wall_slope_separates_walls_from_dams():
+    """The same embankment with walls (a building-like block) is an object: the wall
+    test, not luck, keeps the dam."""
+    z = embankment_scene(side_slope=0.05)
+    res, _ = run(z)
+    x, _ = grid(*z.shape[::-1])
+    crest = np.abs(x - 15) < 2
+    assert (res.mask[crest] == OBJECT).mean() > 0.9
+
+
+def test_low_blunders_are_class_2_and_spikes_objects():
+    z, x, y = terrain(seed=2)
+    z[50, 60] -= 15.0
+    z[51, 60] -= 12.0
+    z[90, 100] += 20.0
+    res, _ = run(z)
+    assert res.mask[50, 60] == LOW and res.mask[51, 60] == LOW
+    assert res.mask[90, 100] == OBJECT
+    assert (res.mask == LOW).sum() <= 4
+
+
+def test_extras_info_and_nodata():
+    z, truth = building_scene()
+    z[0:5, 0:7] = np.nan
+    res, P = run(z)
+    assert res.mask.dtype == np.uint8 and (res.mask[0:5, 0:7] == NODATA).all()
+    curv = res.extras["curvature"]
+    assert curv.shape == (2,) + z.shape and curv.dtype == np.float32
+    assert np.isnan(curv[:, 2, 2]).all() and np.isfinite(curv[:, 50, 50]).all()
+    for key in ("k_g_per_m2", "share_marked_x", "share_marked_y", "share_marked_k"):
+        assert key in res.info
+    assert res.info["k_g_per_m2"] == P["k_g_per_m2"] > 0
+    assert 0 < res.info["share_marked_x"] < 0.5 and 0 < res.info["share_marked_y"] < 0.5
+    assert res.surface.shape == z.shape
+    assert (np.asarray(z)[0:5, 0:7] != np.asarray(z)[0:5, 0:7]).all()  # input untouched
+
+
+def test_input_is_not_modified_and_dtypes_agree():
+    z, _ = building_scene()
+    z64 = z.astype(np.float64)
+    before = z64.copy()
+    P = C.resolve_curvature_params(z64, 1.0)
+    a = C.filter_curvature(z64, 1.0, **P).mask
+    b = C.filter_curvature(z, 1.0, **P).mask
+    assert np.array_equal(z64, before)
+    assert np.array_equal(a, b)
+
+
+def test_k_g_is_derived_from_the_data_and_honoured():
+    z, _ = building_scene()
+    P = C.resolve_curvature_params(z, 1.0)
+    noisy = z + np.random.default_rng(5).normal(0, 0.3, z.shape).astype(np.float32)
+    Pn = C.resolve_curvature_params(noisy, 1.0)
+    assert Pn["k_g_per_m2"] > 10 * P["k_g_per_m2"]   # follows the data's own curvature
+    assert Pn["tolerance_m"] > P["tolerance_m"]
+    given = C.resolve_curvature_params(z, 1.0, k_g_per_m2=0.5, tolerance_m=0.4)
+    assert given["k_g_per_m2"] == 0.5 and given["tolerance_m"] == 0.4
+    r_lo = C.filter_curvature(z, 1.0, **given)
+    r_hi = C.filter_curvature(z, 1.0, **{**given, "k_g_per_m2": 1e5})
+    assert r_hi.info["share_marked"] == 0 < r_lo.info["share_marked"]
+    assert not (r_hi.mask == OBJECT).any()  # no break, no object
+
+
+def test_bilinear_model_runs_and_marks_only_by_k():
+    z, truth = building_scene()
+    res, P = run(z, model="bilinear")
+    assert res.info["share_marked_x"] == 0 and res.info["share_marked_y"] == 0
+    assert res.info["share_marked_k"] > 0
+    assert (res.extras["curvature"][0][np.isfinite(z)] <= 0).all()
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(k_g_per_m2=0), "k_g_per_m2 must be a positive number"),
+    (dict(k_g_per_m2=-1), "k_g_per_m2 must be a positive number"),
+    (dict(min_object_height_m=0), "min_object_height_m must be a positive"),
+    (dict(tolerance_m=float("nan")), "tolerance_m must be a positive"),
+    (dict(max_object_size_m=None), "max_object_size_m must be a positive"),
+    (dict(wall_slope_deg=90), "wall_slope_deg must be between 0 and 90"),
+    (dict(window_cells=6), "window_cells must be an odd integer"),
+    (dict(model="bicubic"), "model must be one of"),
+])
+def test_bad_parameters_are_explained(bad, match):
+    z, _ = building_scene()
+    P = C.resolve_curvature_params(z, 1.0)
+    P.update(bad)
+    with pytest.raises(ValueError, match=match):
+        C.filter_curvature(z, 1.0, **P)
+
+
+def test_progress_is_reported_and_can_cancel():
+    from bare_earth.core.common import Cancelled
+    z, _ = building_scene()
+    P = C.resolve_curvature_params(z, 1.0)
+    seen = []
+    C.filter_curvature(z, 1.0, progress=seen.append, **P)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+
+    def stop(f):
+        if f > 0.3:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        C.filter_curvature(z, 1.0, progress=stop, **P)
+
+
+# --------------------------------------------------------------------------- registry
+def test_method_spec_matches_the_core():
+    import inspect
+    meth = get_method("curvature")
+    assert meth.name == "curvature" and "Luong Chinh Ke" in meth.title
+    assert "curvature" in meth.extras and meth.extras["curvature"][1] == 2
+    kw = inspect.signature(C.filter_curvature).parameters
+    rs = inspect.signature(C.resolve_curvature_params).parameters
+    for p in meth.params:
+        assert p.name in kw and p.name in rs, p.name
+        assert p.help and ("2002" in p.help or p.kind != "float" or p.help)
+    assert {p.name for p in meth.params} == set(kw) - {"z", "cell_size", "progress"}
+    z, _ = building_scene()
+    P = meth.resolve(z, (1.0, 1.0), **{p.name: p.default for p in meth.params})
+    assert all(v is not None for v in P.values())
+    res = meth.run(z, (1.0, 1.0), progress=None, **P)
+    assert res.mask.shape == z.shape
+    assert meth.halo(P, (1.0, 1.0)) >= P["max_object_size_m"] + P["window_cells"]
+
+
+def test_blocks_agree_with_one_pass():
+    from bare_earth.core import pipeline
+    z, truth = building_scene()
+    P = {"max_object_size_m": 40.0}
+    one = pipeline.run_array("curvature", z, 1.0, P)
+    blk = pipeline.run_array("curvature", z, 1.0, P, block=64)
+    assert blk.info["blocks"] > 1
+    assert (one.mask == blk.mask).mean() >= 0.999
+    assert np.allclose(one.extras["curvature"], blk.extras["curvature"], equal_nan=True,
+                       atol=1e-6)
