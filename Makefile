@@ -1,0 +1,32 @@
+# Bare Earth: set-up, demo, tests and packaging. Every target installs what is missing first.
+SHELL := /bin/bash
+ROOT := $(CURDIR)
+PY := /usr/bin/python3
+VENV_PY := $(ROOT)/.venv/bin/python
+export QT_QPA_PLATFORM := offscreen
+export QGIS_PLUGINPATH := $(ROOT)/.build/plugins
+export XDG_RUNTIME_DIR ?= /tmp/runtime-$(shell id -u)
+DEMO_DIR ?= $(ROOT)/out/demo
+VERSION := $(shell sed -n 's/^version=//p' metadata.txt)
+
+.PHONY: setup demo test package clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) scripts/demo.py "$(DEMO_DIR)"
+
+test:
+	@bash scripts/setup.sh --venv
+	$(VENV_PY) -m pytest -q tests
+
+package:
+	@rm -rf .build/package dist && mkdir -p .build/package/bare_earth dist
+	@git ls-files | grep -vE '^(tests/|benchmarks/|scripts/|docs/|\.ci/|\.gitignore|Makefile|pytest\.ini)' \
+	  | while read f; do mkdir -p ".build/package/bare_earth/$$(dirname "$$f")"; cp "$$f" ".build/package/bare_earth/$$f"; done
+	@cd .build/package && zip -qr "$(ROOT)/dist/bare_earth-$(VERSION).zip" bare_earth -x '*__pycache__*' '*.pyc'
+	@echo "dist/bare_earth-$(VERSION).zip"
+
+clean:
+	rm -rf .build dist out

@@ -1,0 +1,16 @@
+"""The QGIS layer: parameters in, core call, outputs out. Nothing numeric here."""
+
+
+def all_algorithms():
+    """Instances of every algorithm whose core method is available, in toolbox order."""
+    from ..core.methods import available_methods
+    from . import filters
+    from .fill_dtm import FillDtmAlgorithm
+    from .evaluate import EvaluateAlgorithm
+    methods = available_methods()
+    algs = []
+    for cls in (getattr(filters, n) for n in filters.__dict__ if n.endswith("Algorithm")):
+        if isinstance(cls, type) and getattr(cls, "METHOD_NAME", None) in methods:
+            algs.append(cls())
+    algs += [FillDtmAlgorithm(), EvaluateAlgorithm()]
+    return algs

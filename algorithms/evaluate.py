@@ -1,0 +1,167 @@
+"""``bareearth:evaluate``: compare a result with truth (masks, DTMs, or points)."""
+import os
+
+import numpy as np
+from qgis.core import (QgsProcessingException, QgsProcessingOutputNumber, QgsProcessingParameterDefinition,
+                       QgsProcessingParameterFile, QgsProcessingParameterFileDestination,
+                       QgsProcessingParameterNumber, QgsProcessingParameterRasterLayer)
+
+from ..core import evaluate as ev
+from ..core import grid
+from ..core.points import classify_points, read_points
+from .fill_dtm import grid_mismatch_message, same_grid
+from .filter_base import BaseAlgorithm, raster_path, tr
+
+
+class EvaluateAlgorithm(BaseAlgorithm):
+    """Type I / Type II / total error / kappa, and DTM height errors, with JSON and HTML reports."""
+
+    MASK, REFERENCE_MASK, DTM, REFERENCE_DTM, POINTS = "MASK", "REFERENCE_MASK", "DTM", "REFERENCE_DTM", "POINTS"
+    THRESHOLD_M, SLOPE_FACTOR = "THRESHOLD_M", "SLOPE_FACTOR"
+    OUTPUT_JSON, OUTPUT_HTML = "OUTPUT_JSON", "OUTPUT_HTML"
+    GROUP, GROUP_NAME = "tools", "DTM tools"
+
+    def name(self):
+        return "evaluate"
+
+    def displayName(self):  # noqa: N802
+        return tr("Evaluate against reference data")
+
+    def shortHelpString(self):  # noqa: N802
+        return tr(
+            "<p>Compares a filter's result with truth, in any of three ways (give at least one pair):</p><ul>"
+            "<li><b>MASK</b> against <b>REFERENCE_MASK</b> (codes 0 ground, 1/2 object, 255 ignored).</li>"
+            "<li><b>DTM</b> against <b>REFERENCE_DTM</b>: RMSE, mean and max error over all cells, and over "
+            "the reference mask's ground cells when a REFERENCE_MASK is given.</li>"
+            "<li><b>POINTS</b> (ISPRS text 'x y z class' with class 0 = ground, or a classified LAS/LAZ "
+            "file where ASPRS class 2 = ground) classified by the <b>DTM</b>: ground when |z - DTM| &lt;= "
+            "THRESHOLD_M + SLOPE_FACTOR x local DTM slope (Pingel et al. 2013).</li></ul>"
+            "<p>Reports Type I (ground rejected / ground), Type II (objects accepted as ground / "
+            "objects), total error and Cohen's kappa (Sithole &amp; Vosselman 2004) as a table in the log, "
+            "a JSON file and an HTML report with a map of the Type I and Type II errors.</p>")
+
+    def initAlgorithm(self, config=None):  # noqa: N802
+        for key, label, help_ in (
+                (self.MASK, "Mask to evaluate", "UInt8 mask of a filter (0 ground, 1/2 object, 255 nodata)."),
+                (self.REFERENCE_MASK, "Reference mask", "Truth mask on the same grid, same codes."),
+                (self.DTM, "DTM to evaluate", "Filtered DTM (compared with REFERENCE_DTM, or used to "
+                                              "classify POINTS)."),
+                (self.REFERENCE_DTM, "Reference DTM", "Truth DTM on the same grid as DTM.")):
+            p = QgsProcessingParameterRasterLayer(key, tr(label), optional=True)
+            p.setHelp(tr(help_))
+            self.addParameter(p)
+        p = QgsProcessingParameterFile(self.POINTS, tr("Reference points (ISPRS text or LAS/LAZ)"),
+                                       optional=True)
+        p.setHelp(tr("Points with per-point truth: text 'x y z class' (class 0 = ground, ISPRS) or LAS/LAZ "
+                     "(ASPRS class 2 = ground; needs laspy, and lazrs for LAZ)."))
+        self.addParameter(p)
+        t = QgsProcessingParameterNumber(self.THRESHOLD_M, tr("Ground tolerance (m)"),
+                                         QgsProcessingParameterNumber.Double, 0.5, minValue=0.0)
+        t.setHelp(tr("A point within this height of the DTM, plus the slope term, is ground (metres)."))
+        t.setFlags(t.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        self.addParameter(t)
+        s = QgsProcessingParameterNumber(self.SLOPE_FACTOR, tr("Slope factor"),
+                                         QgsProcessingParameterNumber.Double, 1.25, minValue=0.0)
+        s.setHelp(tr("Multiplies the local DTM slope (rise/run) in the point tolerance (SMRF: 1.25)."))
+        s.setFlags(s.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        self.addParameter(s)
+        self.addParameter(QgsProcessingParameterFileDestination(self.OUTPUT_JSON, tr("Figures (JSON)"),
+                                                                "JSON files (*.json)"))
+        self.addParameter(QgsProcessingParameterFileDestination(self.OUTPUT_HTML, tr("Report (HTML)"),
+                                                                "HTML files (*.html)"))
+        for key, label in (("TYPE1", "Type I (%)"), ("TYPE2", "Type II (%)"), ("TOTAL", "Total error (%)"),
+                           ("KAPPA", "Kappa (%)"), ("RMSE", "DTM RMSE (m)")):
+            self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
+
+    def _layer(self, parameters, key, context):
+        lay = self.parameterAsRasterLayer(parameters, key, context)
+        return None if lay is None else grid.open_dsm(raster_path(lay), 1)
+
+    def _inputs(self, parameters, context):
+        mask, ref_mask = self._layer(parameters, self.MASK, context), self._layer(parameters, self.REFERENCE_MASK, context)
+        dtm, ref_dtm = self._layer(parameters, self.DTM, context), self._layer(parameters, self.REFERENCE_DTM, context)
+        points = self.parameterAsFile(parameters, self.POINTS, context) or None
+        if (mask is None) != (ref_mask is None) and dtm is None:
+            raise ValueError("MASK and REFERENCE_MASK go together: give both, or neither.")
+        if ref_dtm is not None and dtm is None:
+            raise ValueError("REFERENCE_DTM needs a DTM to compare with.")
+        if points and dtm is None:
+            raise ValueError("POINTS are classified by a DTM: give the DTM too.")
+        if not ((mask is not None and ref_mask is not None) or ref_dtm is not None or points):
+            raise ValueError("Nothing to compare: give MASK and REFERENCE_MASK, DTM and REFERENCE_DTM, "
+                             "or POINTS and DTM.")
+        if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
+            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask"))
+        if ref_dtm is not None and not same_grid(dtm, ref_dtm):
+            raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM"))
+        if points and not os.path.isfile(points):
+            raise ValueError(f"The points file {points!r} does not exist.")
+        return mask, ref_mask, dtm, ref_dtm, points
+
+    def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = super().checkParameterValues(parameters, context)
+        if not ok:
+            return ok, msg
+        try:
+            self._inputs(parameters, context)
+        except (ValueError, QgsProcessingException) as exc:
+            return False, str(exc)
+        return True, ""
+
+    def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
+        try:
+            mask, ref_mask, dtm, ref_dtm, points = self._inputs(parameters, context)
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
+        results, maps, gts = {}, {}, {}
+        out = {}
+        ref_m = None
+        if ref_mask is not None:
+            ref_m = ref_mask.dataset().GetRasterBand(1).ReadAsArray()
+        if mask is not None and ref_mask is not None:
+            m = mask.dataset().GetRasterBand(1).ReadAsArray()
+            r = ev.compare_masks(m, ref_m)
+            results["mask vs reference mask"] = r
+            maps["mask errors"], _ = ev.error_map_from_masks(m, ref_m)
+            gts["mask errors"] = mask.geotransform
+            out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
+        if ref_dtm is not None:
+            d = ev.compare_dtm(dtm.read(), ref_dtm.read(),
+                               ground=None if ref_m is None or ref_m.shape != dtm.shape else (ref_m == 0))
+            results["DTM vs reference DTM"] = d
+            out["RMSE"] = d["rmse"]
+        if points:
+            feedback.pushInfo(tr(f"Reading points {points} ..."))
+            try:
+                cloud = read_points(points)
+            except (ValueError, ImportError) as exc:
+                raise QgsProcessingException(str(exc)) from None
+            if cloud.classification is None:
+                raise QgsProcessingException(tr(f"The points file {points!r} has no class column: it cannot "
+                                                "serve as truth."))
+            true_ground = cloud.classification == (2 if cloud.source_format == "las" else 0)
+            dz = dtm.read() / np.float32(dtm.z_to_m) if dtm.z_to_m != 1.0 else dtm.read()
+            try:
+                cls = classify_points(cloud.x, cloud.y, cloud.z, dz, dtm.geotransform,
+                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
+                                      slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
+            except ValueError as exc:
+                raise QgsProcessingException(str(exc)) from None
+            inside = cls != 255
+            r = ev.confusion(cls == 0, true_ground, valid=inside)
+            r["points_outside_dtm"] = int((~inside).sum())
+            results["points classified by the DTM"] = r
+            maps["point errors"], _ = ev.error_map_from_points(cls == 0, true_ground, cloud.x, cloud.y,
+                                                              dtm.geotransform, dtm.shape, valid=inside)
+            gts["point errors"] = dtm.geotransform
+            out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
+        for name, r in results.items():
+            feedback.pushInfo(f"{name}:")
+            for k, v in r.items():
+                feedback.pushInfo(f"  {k:>20}: {v:.4g}" if isinstance(v, float) else f"  {k:>20}: {v}")
+        json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)
+        html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context)
+        ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
+                        geotransform=gts or None, title="Bare Earth evaluation")
+        out.update({self.OUTPUT_JSON: json_path, self.OUTPUT_HTML: html_path})
+        return out

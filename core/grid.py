@@ -1,0 +1,401 @@
+"""Raster I/O with GDAL: the one place where nodata and units are resolved.
+
+A DSM is opened with :func:`open_dsm`, which checks it before any work starts and works
+out the cell size in metres (converting degrees at the raster's latitude, and feet and
+other linear units by the CRS's factor). Blocks are read as float32 with NaN as nodata
+and heights in metres; outputs are created on the same grid, written block by block to a
+temporary file and moved into place only when the run succeeds (:class:`OutputSet`).
+"""
+import math
+import os
+import uuid
+from dataclasses import dataclass, field
+
+import numpy as np
+
+try:
+    from osgeo import gdal, osr
+except ImportError:  # pragma: no cover - GDAL ships with QGIS
+    gdal = osr = None
+
+from .codes import MASK_CODES, MASK_COLOURS, NODATA
+
+#: Smallest raster the filters accept, in cells per side.
+MIN_SIDE = 3
+
+_EXT_DRIVERS = {".tif": "GTiff", ".tiff": "GTiff", ".img": "HFA", ".vrt": None,
+                ".nc": "netCDF", ".asc": None, ".sdat": "SAGA"}
+
+
+def _need_gdal():
+    if gdal is None:
+        raise ImportError("GDAL's Python bindings are needed (python3-gdal on Debian; QGIS ships them).")
+    gdal.UseExceptions()
+
+
+@dataclass
+class DSMInfo:
+    """An opened, checked DSM band and everything known about its grid.
+
+    Attributes
+    ----------
+    path, band_index : the source
+    shape : (rows, cols)
+    geotransform : GDAL 6-tuple
+    crs_wkt : str ('' when the raster has no CRS)
+    nodata : float or None, the declared nodata value
+    cell_size_m : (dx, dy) in metres
+    z_to_m : factor from the raster's height unit to metres (1 unless the CRS is in feet...)
+    nan_undeclared : True when NaN cells are present without a declared nodata value
+    warnings : list of str for the log
+    """
+    path: str
+    band_index: int
+    shape: tuple
+    geotransform: tuple
+    crs_wkt: str
+    nodata: float
+    cell_size_m: tuple
+    z_to_m: float = 1.0
+    nan_undeclared: bool = False
+    dtype: str = "Float32"
+    warnings: list = field(default_factory=list)
+    _ds: object = None
+
+    @property
+    def cells(self):
+        return self.shape[0] * self.shape[1]
+
+    def dataset(self):
+        if self._ds is None:
+            self._ds = gdal.Open(self.path, gdal.GA_ReadOnly)
+        return self._ds
+
+    def read(self, window=None):
+        """Read ``(r0, r1, c0, c1)`` (default all) as float32 metres, NaN = nodata."""
+        band = self.dataset().GetRasterBand(self.band_index)
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
+        return to_surface(a, self.nodata, self.z_to_m)
+
+
+def to_surface(a, nodata=None, z_to_m=1.0):
+    """Array read from a band -> float32 metres with NaN for nodata (``a`` untouched)."""
+    z = np.array(a, dtype=np.float32, copy=True)
+    if nodata is not None and not (isinstance(nodata, float) and math.isnan(nodata)):
+        z[a == nodata] = np.nan
+    z[~np.isfinite(z)] = np.nan
+    if z_to_m != 1.0:
+        z *= np.float32(z_to_m)
+    return z
+
+
+def _linear_unit_factor(srs):
+    """Metres per CRS linear unit, or None for a geographic CRS."""
+    if srs.IsGeographic():
+        return None
+    f = srs.GetLinearUnits()
+    return float(f) if f and f > 0 else 1.0
+
+
+def cell_size_metres(geotransform, shape, srs=None):
+    """Cell size ``(dx, dy)`` in metres and warnings, from a geotransform and a CRS.
+
+    Geographic CRSs (degrees) are converted at the latitude of the raster's centre with
+    the WGS84 ellipsoid's radii of curvature.
+    """
+    gt = geotransform
+    dx, dy = abs(gt[1]), abs(gt[5])
+    warns = []
+    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and not srs.ExportToWkt()):
+        warns.append("The raster has no CRS: its cell size and heights are taken to be in metres.")
+        return (dx, dy), warns, 1.0
+    if srs.IsGeographic():
+        lat = gt[3] + gt[5] * shape[0] / 2.0
+        if not -90 <= lat <= 90:
+            raise ValueError(f"the raster's CRS is geographic but its centre latitude {lat:.3f} is "
+                             "not a latitude: check the georeference.")
+        a, e2 = 6378137.0, 0.00669437999014
+        phi = math.radians(lat)
+        s = 1 - e2 * math.sin(phi) ** 2
+        m_per_deg_lat = math.pi / 180 * a * (1 - e2) / s ** 1.5
+        m_per_deg_lon = math.pi / 180 * a * math.cos(phi) / math.sqrt(s)
+        cell = (dx * m_per_deg_lon, dy * m_per_deg_lat)
+        warns.append(f"The raster's CRS is geographic (degrees): its cell size {dx:.3g} x {dy:.3g} deg "
+                     f"was converted to {cell[0]:.4g} x {cell[1]:.4g} m at latitude {lat:.4f}; heights "
+                     "are taken to be in metres. Reproject to a projected CRS for exact distances.")
+        return cell, warns, 1.0
+    f = _linear_unit_factor(srs)
+    if abs(f - 1.0) > 1e-9:
+        unit = srs.GetLinearUnitsName()
+        warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
+                     "converted to metres for the thresholds; outputs are written back in the raster's unit.")
+    return (dx * f, dy * f), warns, f
+
+
+def open_dsm(path, band=None):
+    """Open and check a single-band DSM before any work starts.
+
+    Parameters
+    ----------
+    path : str
+        Anything GDAL opens.
+    band : int, optional
+        1-based band index; required when the raster has several bands.
+
+    Returns
+    -------
+    DSMInfo
+
+    Raises
+    ------
+    ValueError
+        For an unreadable, empty, too small, rotated or multi-band raster without ``band``,
+        or a band out of range.
+    """
+    _need_gdal()
+    try:
+        ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+    except RuntimeError as exc:
+        raise ValueError(f"cannot open the raster {path!r}: {exc}. Check the path and format.") from None
+    if ds is None:
+        raise ValueError(f"cannot open the raster {path!r}. Check the path and format.")
+    nb = ds.RasterCount
+    if nb == 0:
+        raise ValueError(f"the raster {path!r} has no band: pass a single-band DSM.")
+    if band in (None, 0):
+        if nb > 1:
+            raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
+                             "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)))
+        band = 1
+    if not 1 <= int(band) <= nb:
+        raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    rows, cols = ds.RasterYSize, ds.RasterXSize
+    if rows == 0 or cols == 0:
+        raise ValueError(f"the raster {path!r} is empty ({cols} x {rows} cells).")
+    if rows < MIN_SIDE or cols < MIN_SIDE:
+        raise ValueError(f"the raster {path!r} is too small ({cols} x {rows} cells): the filters need at "
+                         f"least {MIN_SIDE} x {MIN_SIDE} cells.")
+    gt = ds.GetGeoTransform(can_return_null=True)
+    warns = []
+    if gt is None:
+        gt = (0.0, 1.0, 0.0, float(rows), 0.0, -1.0)
+        warns.append("The raster has no georeference: cells are taken as 1 m squares.")
+    if gt[2] != 0 or gt[4] != 0:
+        raise ValueError(f"the raster {path!r} is rotated (geotransform terms {gt[2]}, {gt[4]}): "
+                         "warp it to a north-up grid first (gdalwarp).")
+    wkt = ds.GetProjection() or ""
+    srs = None
+    if wkt:
+        srs = osr.SpatialReference()
+        srs.ImportFromWkt(wkt)
+    cell, w2, z_to_m = cell_size_metres(gt, (rows, cols), srs)
+    warns += w2
+    b = ds.GetRasterBand(int(band))
+    nodata = b.GetNoDataValue()
+    dtype = gdal.GetDataTypeName(b.DataType)
+    if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
+        warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
+    info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
+                   dtype=dtype, warnings=warns, _ds=ds)
+    return info
+
+
+def check_has_data(info, max_cells=4_000_000):
+    """Scan the band (decimated when large) and raise ValueError if it holds no valid cell.
+
+    Also sets ``info.nan_undeclared`` (NaN present, no nodata declared) with a warning.
+    Returns the fraction of valid cells seen.
+    """
+    band = info.dataset().GetRasterBand(info.band_index)
+    rows, cols = info.shape
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    a = band.ReadAsArray(0, 0, cols, rows, buf_xsize=max(1, cols // step), buf_ysize=max(1, rows // step),
+                         resample_alg=gdal.GRIORA_NearestNeighour) if step > 1 else band.ReadAsArray()
+    z = to_surface(a, info.nodata)
+    valid = np.isfinite(z)
+    if not valid.any():
+        raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
+                         f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
+    if info.nodata is None and np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
+        info.nan_undeclared = True
+        info.warnings.append("The raster has NaN cells but declares no nodata value: NaN was treated as "
+                             "nodata, and the outputs declare NaN as nodata.")
+    return float(valid.mean())
+
+
+def _driver_for(path):
+    ext = os.path.splitext(str(path))[1].lower()
+    name = _EXT_DRIVERS.get(ext, "GTiff")
+    if name is None:
+        name = "GTiff"
+    return gdal.GetDriverByName(name)
+
+
+class OutputSet:
+    """Output rasters on a DSM's grid, written to temporary files until :meth:`commit`.
+
+    A failed or cancelled run calls :meth:`discard` (also done on garbage collection of an
+    uncommitted set via the context manager), so no half-written output looks valid.
+
+    Use::
+
+        with OutputSet(info) as out:
+            out.add("dtm", path, "Float32", nodata=...)
+            out.write("dtm", array, window)
+            out.commit()
+    """
+
+    def __init__(self, info):
+        _need_gdal()
+        self.info = info
+        self._items = {}
+        self._committed = False
+
+    def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
+        """Create output ``key`` at ``path`` (written to ``path``'s temporary sibling)."""
+        path = str(path)
+        root, ext = os.path.splitext(path)
+        ext = ext or ".tif"
+        tmp = f"{root}.partial-{uuid.uuid4().hex[:8]}{ext}"
+        drv = _driver_for(path)
+        opts = []
+        if drv.ShortName == "GTiff":
+            opts = ["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"]
+            if dtype == "Float32":
+                opts.append("PREDICTOR=3")
+        gdt = gdal.GetDataTypeByName(dtype)
+        rows, cols = self.info.shape
+        ds = drv.Create(tmp, cols, rows, bands, gdt, options=opts)
+        if ds is None:
+            raise ValueError(f"cannot create the output {path!r} with driver {drv.ShortName}.")
+        ds.SetGeoTransform(self.info.geotransform)
+        if self.info.crs_wkt:
+            ds.SetProjection(self.info.crs_wkt)
+        for k in range(1, bands + 1):
+            b = ds.GetRasterBand(k)
+            if nodata is not None:
+                b.SetNoDataValue(float(nodata))
+            if descriptions:
+                b.SetDescription(descriptions[k - 1])
+        if mask_style:
+            b = ds.GetRasterBand(1)
+            ct = gdal.ColorTable()
+            for code, rgba in MASK_COLOURS.items():
+                ct.SetColorEntry(code, rgba)
+            b.SetRasterColorTable(ct)
+            b.SetRasterColorInterpretation(gdal.GCI_PaletteIndex)
+            names = [""] * 256
+            for code, name in MASK_CODES.items():
+                names[code] = name
+            b.SetRasterCategoryNames(names)
+        self._items[key] = dict(path=path, tmp=tmp, ds=ds, dtype=dtype, mask_style=mask_style, nodata=nodata)
+        return key
+
+    def __contains__(self, key):
+        return key in self._items
+
+    def write(self, key, array, window=None):
+        """Write ``array`` (2-D, or 3-D bands first) at ``window`` ``(r0, r1, c0, c1)``."""
+        item = self._items[key]
+        r0, c0 = (window[0], window[2]) if window else (0, 0)
+        a = np.asarray(array)
+        if a.ndim == 2:
+            a = a[None]
+        for k in range(a.shape[0]):
+            item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
+
+    def commit(self):
+        """Close the temporaries and move them to their final paths (plus QML for masks)."""
+        for key, item in self._items.items():
+            item["ds"].FlushCache()
+            item["ds"] = None
+        for key, item in self._items.items():
+            if os.path.exists(item["path"]):
+                _delete_raster(item["path"])
+            os.replace(item["tmp"], item["path"])
+            aux = item["tmp"] + ".aux.xml"
+            if os.path.exists(aux):
+                os.replace(aux, item["path"] + ".aux.xml")
+            if item["mask_style"]:
+                write_mask_qml(os.path.splitext(item["path"])[0] + ".qml")
+        self._committed = True
+
+    def discard(self):
+        """Remove every temporary file (nothing is left that looks like a result)."""
+        for item in self._items.values():
+            item["ds"] = None
+            for p in (item["tmp"], item["tmp"] + ".aux.xml"):
+                if os.path.exists(p):
+                    try:
+                        os.remove(p)
+                    except OSError:
+                        pass
+        self._items = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if not self._committed:
+            self.discard()
+        return False
+
+
+def _delete_raster(path):
+    try:
+        gdal.GetDriverByName("GTiff").Delete(path)
+    except RuntimeError:
+        os.remove(path)
+
+
+def write_mask_qml(path):
+    """Write a QGIS paletted style for the mask codes next to the mask raster."""
+    entries = "\n".join(
+        f'        <paletteEntry value="{code}" color="#{r:02x}{g:02x}{b:02x}" alpha="{a}" label="{MASK_CODES[code]}"/>'
+        for code, (r, g, b, a) in MASK_COLOURS.items())
+    qml = f"""<!DOCTYPE qgis PUBLIC 'http://mrcc.com/qgis.dtd' 'SYSTEM'>
+<qgis version="3.22" styleCategories="Symbology">
+  <pipe>
+    <rasterrenderer type="paletted" band="1" opacity="1" alphaBand="-1" nodataColor="">
+      <colorPalette>
+{entries}
+      </colorPalette>
+    </rasterrenderer>
+  </pipe>
+</qgis>
+"""
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(qml)
+
+
+def write_array(path, array, geotransform, crs_wkt="", nodata=None, dtype=None, mask_style=False):
+    """Write a whole array as a GeoTIFF (tests, demo and benchmarks)."""
+    _need_gdal()
+    a = np.asarray(array)
+    if a.ndim == 2:
+        a = a[None]
+    dtype = dtype or {np.dtype(np.uint8): "Byte", np.dtype(np.float64): "Float64",
+                      np.dtype(np.int16): "Int16"}.get(a.dtype, "Float32")
+    drv = gdal.GetDriverByName("GTiff")
+    ds = drv.Create(str(path), a.shape[2], a.shape[1], a.shape[0], gdal.GetDataTypeByName(dtype),
+                    options=["TILED=YES", "COMPRESS=DEFLATE"])
+    ds.SetGeoTransform(tuple(geotransform))
+    if crs_wkt:
+        if isinstance(crs_wkt, int):
+            srs = osr.SpatialReference()
+            srs.ImportFromEPSG(crs_wkt)
+            crs_wkt = srs.ExportToWkt()
+        ds.SetProjection(crs_wkt)
+    for k in range(a.shape[0]):
+        b = ds.GetRasterBand(k + 1)
+        if nodata is not None:
+            b.SetNoDataValue(float(nodata))
+        b.WriteArray(a[k])
+    if mask_style:
+        ct = gdal.ColorTable()
+        for code, rgba in MASK_COLOURS.items():
+            ct.SetColorEntry(code, rgba)
+        ds.GetRasterBand(1).SetRasterColorTable(ct)
+    ds = None
+    return str(path)

@@ -1,0 +1,370 @@
+"""The data flow of every filter: resolve parameters -> filter in blocks -> fill the DTM.
+
+::
+
+    DSM --> Grid --> method.run(z, cell, **params) --> mask (0/1/2/255)
+                                  |                      |
+                                  +-- fill_gaps(z where mask is 1 or 2) --> DTM, nDSM
+
+:func:`run_array` works on arrays in memory (plain Python, tests, benchmarks);
+:func:`run_file` streams a raster file block by block into output files with bounded
+memory (the plugin's path). Both cut the raster into the same windows with the method's
+halo, so blocked and one-pass results agree.
+"""
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import blocks
+from .codes import GROUND, LOW, NODATA, OBJECT
+from .common import Cancelled, as_cell_size, as_surface, report, sub_progress
+from .methods import Method, get_method
+
+#: Rasters up to this many cells are processed in one block by run_file (unless a block
+#: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
+IN_MEMORY_CELLS = 25_000_000
+#: Parameters of large rasters are derived from a central window of at most this side.
+RESOLVE_SIDE = 4096
+
+
+@dataclass
+class PipelineResult:
+    """Result of :func:`run_array`: mask (uint8), dtm and ndsm (float32, NaN nodata),
+    extras (per-cell side products), info (parameters used and statistics)."""
+    mask: np.ndarray
+    dtm: np.ndarray
+    ndsm: np.ndarray
+    extras: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+
+def _method(method):
+    return method if isinstance(method, Method) else get_method(method)
+
+
+def _user_params(meth, params):
+    """Complete the user's params with the Param defaults, rejecting unknown names."""
+    params = dict(params or {})
+    known = {p.name: p for p in meth.params}
+    if known:
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} for method {meth.name!r}; "
+                             f"it takes {sorted(known)}.")
+    full = {p.name: p.default for p in meth.params}
+    full.update({k: v for k, v in params.items()})
+    for name, value in list(full.items()):
+        p = known.get(name)
+        if p is None or value is None or p.kind not in ("float", "int"):
+            continue
+        if (p.minimum is not None and value < p.minimum) or (p.maximum is not None and value > p.maximum):
+            raise ValueError(f"{name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
+                             f"{meth.name!r}: {p.help}")
+    return full
+
+
+def resolve_params(method, z, cell_size, params=None):
+    """All parameters of ``method`` for surface ``z``, data-derived ones filled in."""
+    meth = _method(method)
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    return meth.resolve(z, cell, **_user_params(meth, params))
+
+
+def fill_dtm(z, mask):
+    """The DTM of a filtered surface: cells of class 1 and 2 filled from the ground cells.
+
+    Cells of the input's nodata stay NaN. Returns None when the window has no ground cell.
+    """
+    from .fill import fill_gaps
+    holes = (mask == OBJECT) | (mask == LOW)
+    ground = np.isfinite(z) & ~holes
+    if not ground.any():
+        return None
+    if not holes.any():
+        return z.astype(np.float32, copy=True)
+    return fill_gaps(z, fill=holes)
+
+
+def _process(meth, z, cell, params, aux, want_dtm=True, progress=None):
+    """Filter one window and fill its DTM."""
+    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, 0.85), **params, **aux)
+    mask = np.asarray(res.mask, dtype=np.uint8)
+    if mask.shape != z.shape:
+        raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a "
+                           f"surface of shape {z.shape}")
+    mask[~np.isfinite(z)] = NODATA
+    dtm = fill_dtm(z, mask) if want_dtm else None
+    report(progress, 1.0)
+    return res, mask, dtm
+
+
+def _merge_info(infos, weights):
+    """Block infos -> one: numbers weighted by block cells, the rest from the first block."""
+    if not infos:
+        return {}
+    if len(infos) == 1:
+        return dict(infos[0])
+    out = dict(infos[0])
+    tot = float(sum(weights))
+    for k, v in infos[0].items():
+        if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
+            vals = [inf.get(k) for inf in infos]
+            if all(isinstance(x, (int, float, np.floating, np.integer)) for x in vals):
+                out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)
+    return out
+
+
+def class_shares(counts):
+    """Counts per mask code -> shares (percent of valid cells) with names."""
+    valid = sum(v for k, v in counts.items() if k != NODATA)
+    shares = {}
+    for code, name in ((GROUND, "ground"), (OBJECT, "object"), (LOW, "low outlier")):
+        shares[name] = 100.0 * counts.get(code, 0) / valid if valid else 0.0
+    shares["nodata cells"] = int(counts.get(NODATA, 0))
+    return shares
+
+
+def run_array(method, z, cell_size, params=None, *, aux=None, block=None, workers=1,
+              progress=None, want_dtm=True):
+    """Filter a DSM array and fill its DTM.
+
+    Parameters
+    ----------
+    method : str or Method
+        Registered method name (``"slopeprofile"``, ...) or a Method.
+    z : array_like, 2-D
+        The DSM (NaN = nodata); not modified.
+    cell_size : float or (dx, dy)
+        Metres.
+    params : dict, optional
+        Method parameters; missing or ``None`` ones are derived from the data.
+    aux : dict of str -> 2-D array, optional
+        Per-cell inputs passed to the method by keyword (e.g. ``breaklines``), cut to blocks.
+    block : int, optional
+        Block edge in cells; default one pass. The result does not depend on it.
+    workers : int
+        Threads for blocks.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`Cancelled`.
+
+    Returns
+    -------
+    PipelineResult
+    """
+    meth = _method(method)
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    aux = dict(aux or {})
+    for k, a in aux.items():
+        if a is not None and np.shape(a) != z.shape:
+            raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {z.shape}: "
+                             "rasterise it on the DSM's grid.")
+    t0 = time.perf_counter()
+    params = meth.resolve(z, cell, **_user_params(meth, params))
+    halo = int(meth.halo(params, cell))
+    report(progress, 0.02)
+    mask = np.full(z.shape, NODATA, np.uint8)
+    dtm = np.full(z.shape, np.nan, np.float32)
+    extras = {}
+    for name, (dt, bands, nod) in meth.extras.items():
+        shape = z.shape if bands == 1 else (bands,) + z.shape
+        extras[name] = np.full(shape, nod if nod is not None else 0, dtype=dt)
+    infos, weights = [], []
+    bshape = block or max(z.shape)
+    windows = list(blocks.iter_windows(z.shape, bshape, halo))
+    single = len(windows) == 1
+
+    def work(core, outer):
+        sl = (slice(outer[0], outer[1]), slice(outer[2], outer[3]))
+        zb = z[sl]
+        if not np.isfinite(zb).any():
+            return
+        ab = {k: (None if a is None else np.asarray(a)[sl]) for k, a in aux.items()}
+        p = sub_progress(progress, 0.02, 0.98) if single else None
+        res, m, d = _process(meth, zb, cell, params, ab, want_dtm, p)
+        c = blocks.crop(outer, core)
+        dst = (slice(core[0], core[1]), slice(core[2], core[3]))
+        mask[dst] = m[c]
+        if d is not None:
+            dtm[dst] = d[c]
+        for name, arr in res.extras.items():
+            if name in extras:
+                a = np.asarray(arr)
+                if a.ndim == 2:
+                    extras[name][dst] = a[c]
+                else:
+                    extras[name][(slice(None),) + dst] = a[(slice(None),) + c]
+        infos.append(res.info)
+        weights.append((core[1] - core[0]) * (core[3] - core[2]))
+
+    blocks.run_windows(work, windows, workers=workers,
+                       progress=None if single else sub_progress(progress, 0.02, 0.98))
+    dtm[~np.isfinite(z)] = np.nan
+    ndsm = (z - dtm).astype(np.float32)
+    info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows)}
+    info.update(_merge_info(infos, weights))
+    codes, counts = np.unique(mask, return_counts=True)
+    info["classes_percent"] = class_shares(dict(zip(codes.tolist(), counts.tolist())))
+    info["seconds"] = time.perf_counter() - t0
+    report(progress, 1.0)
+    return PipelineResult(mask, dtm, ndsm, extras, info)
+
+
+def _resolve_window(shape):
+    rows, cols = shape
+    h, w = min(rows, RESOLVE_SIDE), min(cols, RESOLVE_SIDE)
+    r0, c0 = (rows - h) // 2, (cols - w) // 2
+    return (r0, r0 + h, c0, c0 + w)
+
+
+def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=None, workers=1,
+             progress=None, log=None):
+    """Filter a DSM file into output files, block by block, with bounded memory.
+
+    Parameters
+    ----------
+    method : str or Method
+    path : str
+        The DSM (any GDAL raster; checked by :func:`grid.open_dsm` before any work).
+    outputs : dict
+        Keys ``"dtm"``, ``"mask"``, ``"ndsm"`` and any of the method's extras, each a
+        path or None. Outputs are on the DSM's grid with its CRS; the DTM and nDSM keep
+        the DSM's nodata (NaN when it declares none) and its height unit; the mask is
+        UInt8 with a colour table, nodata 255, and a ``.qml`` style beside it.
+    aux : dict of str -> 2-D bool/number array on the DSM's grid, optional
+    block : int, optional
+        Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
+    workers : int
+        Threads running blocks.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`Cancelled` (nothing is then written).
+    log : callable, optional
+        ``log(str)`` for warnings and the values used.
+
+    Returns
+    -------
+    dict : the run's info (parameters used, warnings, class shares, timings).
+    """
+    from . import grid
+    meth = _method(method)
+    log = log or (lambda s: None)
+    info = grid.open_dsm(path, band)
+    grid.check_has_data(info)
+    for w in info.warnings:
+        log("Warning: " + w)
+    cell = info.cell_size_m
+    aux = dict(aux or {})
+    for k, a in aux.items():
+        if a is not None and np.shape(a) != info.shape:
+            raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {info.shape}.")
+    t0 = time.perf_counter()
+    user = _user_params(meth, params)
+    rw = _resolve_window(info.shape)
+    zr = info.read(rw)
+    if not np.isfinite(zr).any():
+        zr = info.read()
+    params = meth.resolve(zr, cell, **user)
+    if rw != (0, info.shape[0], 0, info.shape[1]):
+        log(f"Parameters derived from the central {rw[1]-rw[0]} x {rw[3]-rw[2]} cells.")
+    del zr
+    halo = int(meth.halo(params, cell))
+    if block is None:
+        block = max(info.shape) if info.cells <= IN_MEMORY_CELLS else blocks.DEFAULT_BLOCK
+    windows = list(blocks.iter_windows(info.shape, block, halo))
+    single = len(windows) == 1
+    report(progress, 0.03)
+
+    nd = info.nodata
+    if nd is None or (isinstance(nd, float) and math.isnan(nd)):
+        float_nodata = float("nan")
+    else:
+        float_nodata = float(np.float32(nd)) if np.isfinite(np.float32(nd)) else float("nan")
+    counts = {}
+    infos, weights = [], []
+    scale = 1.0 / info.z_to_m
+    with grid.OutputSet(info) as out:
+        if outputs.get("dtm"):
+            out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
+        if outputs.get("ndsm"):
+            out.add("ndsm", outputs["ndsm"], "Float32", nodata=float_nodata, descriptions=["nDSM"])
+        if outputs.get("mask"):
+            out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
+                    descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
+        for name, (dt, bands, nod) in meth.extras.items():
+            if outputs.get(name):
+                gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
+                       np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
+                out.add(name, outputs[name], gdt, bands=bands, nodata=nod)
+        want_dtm = "dtm" in out or "ndsm" in out
+
+        io_lock = threading.Lock()  # GDAL datasets are not safe for concurrent use
+
+        def work(core, outer):
+            with io_lock:
+                zb = info.read(outer)
+            c = blocks.crop(outer, core)
+            h, w = core[1] - core[0], core[3] - core[2]
+            if not np.isfinite(zb).any():
+                m = np.full((h, w), NODATA, np.uint8)
+                d = np.full((h, w), np.nan, np.float32)
+                res_extras, res_info = {}, None
+            else:
+                ab = {k: (None if a is None else np.asarray(a)[outer[0]:outer[1], outer[2]:outer[3]])
+                      for k, a in aux.items()}
+                res, m, d = _process(meth, zb, cell, params, ab, want_dtm,
+                                     sub_progress(progress, 0.03, 0.95) if single else None)
+                m = m[c]
+                d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
+                res_extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
+                              for k, a in res.extras.items()}
+                res_info = res.info
+            zc = zb[c]
+            with io_lock:
+                _write_block(out, meth, core, m, d, zc, scale, float_nodata, res_extras, h, w)
+            cc, nn = np.unique(m, return_counts=True)
+            for k_, v_ in zip(cc.tolist(), nn.tolist()):
+                counts[k_] = counts.get(k_, 0) + v_
+            if res_info is not None:
+                infos.append(res_info)
+                weights.append(h * w)
+
+        blocks.run_windows(work, windows, workers=workers, progress=sub_progress(progress, 0.03, 0.97))
+        out.commit()
+    result = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
+              "cell_size_m": cell, "warnings": list(info.warnings)}
+    result.update(_merge_info(infos, weights))
+    result["classes_percent"] = class_shares(counts)
+    result["seconds"] = time.perf_counter() - t0
+    report(progress, 1.0)
+    return result
+
+
+def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
+    """Write one block's core (already cropped arrays) into every requested output."""
+    if "mask" in out:
+        out.write("mask", m, core)
+    if "dtm" in out:
+        out.write("dtm", _to_unit(d, scale, float_nodata), core)
+    if "ndsm" in out:
+        out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
+    for name, (dt, bands, nod) in meth.extras.items():
+        if name not in out:
+            continue
+        if name in extras:
+            out.write(name, extras[name], core)
+        else:
+            shape = (h, w) if bands == 1 else (bands, h, w)
+            out.write(name, np.full(shape, nod if nod is not None else 0, dtype=dt), core)
+
+
+def _to_unit(a, scale, nodata):
+    a = a.astype(np.float32, copy=True)
+    if scale != 1.0:
+        a *= np.float32(scale)
+    if not math.isnan(nodata):
+        a[~np.isfinite(a)] = nodata
+    return a

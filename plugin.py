@@ -1,0 +1,29 @@
+"""QGIS plugin bootstrap: registers the Processing provider.
+
+``initProcessing`` does the registering (it is all ``qgis_process`` calls);
+``initGui`` only calls it.
+"""
+from qgis.core import QgsApplication
+
+from .provider import BareEarthProvider
+
+
+class BareEarthPlugin:
+    """The plugin object QGIS creates through ``classFactory``."""
+
+    def __init__(self, iface=None):
+        self.iface = iface
+        self.provider = None
+
+    def initProcessing(self):  # noqa: N802 (QGIS's name)
+        if self.provider is None:
+            self.provider = BareEarthProvider()
+            QgsApplication.processingRegistry().addProvider(self.provider)
+
+    def initGui(self):  # noqa: N802
+        self.initProcessing()
+
+    def unload(self):
+        if self.provider is not None:
+            QgsApplication.processingRegistry().removeProvider(self.provider)
+            self.provider = None
