@@ -92,13 +92,13 @@ def _check_model(model):
     return model
 
 
-def _fill_nodata_nearest(z):
-    """Copy of ``z`` with NaN cells replaced by their nearest valid value (or ``z``)."""
+def _bridge_nodata(z):
+    """``z`` with NaN cells bridged by the harmonic surface of the shared gap filler
+    (planes stay planes, so gaps make no false breaks); ``z`` itself when complete."""
     bad = ~np.isfinite(z)
     if not bad.any():
         return z
-    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
-    return z[tuple(idx)]
+    return _fill_surface(z, bad)
 
 
 def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
@@ -107,7 +107,7 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
     Parameters
     ----------
     z : array_like, 2-D
-        Surface (NaN = nodata; nodata cells are bridged by their nearest value for the
+        Surface (NaN = nodata; nodata cells are bridged by a harmonic surface for the
         fit and get NaN derivatives).
     cell_size : float or (float, float)
         ``(dx, dy)`` in metres.
@@ -139,7 +139,7 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
     dx, dy = as_cell_size(cell_size)
     z = as_surface(z)
     bad = ~np.isfinite(z)
-    zf = _fill_nodata_nearest(z)
+    zf = _bridge_nodata(z)
     m = window // 2
     if min(z.shape) < 2:
         zp = np.pad(zf, m, mode="edge")
@@ -589,11 +589,12 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     #    the second surface also rests on the breaks found to be ground)
     mask = np.zeros(z.shape, np.uint8)
     surface = None
-    # not ground seeds: breaks next to objects (their feet and walls) and convex points
-    # curved both ways (|K| >= K_g, H > 0: crowns, corners, spikes). Straight breaks
-    # away from objects (dams, embankments, terrace edges; K ~ 0) stay seeds.
+    # not ground seeds: breaks next to objects (their feet and walls) and the points the
+    # paper's test marks, |K| >= K_g: curved both ways (crowns, corners, spikes, pits).
+    # Straight breaks away from objects (dams, embankments, terrace edges: K ~ 0 because
+    # one principal curvature is zero) stay seeds.
     near = ndimage.maximum_filter(objects.view(np.uint8), size=2 * m + 1).view(bool)
-    holes = ~valid | objects | (marked & near) | (mark_k & (H > 0))
+    holes = ~valid | objects | (marked & near) | mark_k
     del near
     concave = marked & (H < 0)
     for it in range(_PASSES):

@@ -188,7 +188,7 @@ def test_wall_slope_separates_walls_from_dams():
     test, not luck, keeps the dam."""
     z = embankment_scene(side_slope=0.05)
     res, _ = run(z)
-    x, _ = grid(*z.shape[::-1])
+    x, _ = grid(z.shape[0], m=z.shape[1])
     crest = np.abs(x - 15) < 2
     assert (res.mask[crest] == OBJECT).mean() > 0.9
 
