@@ -71,6 +71,8 @@ _SLOPE_SCALE_M = 40.0
 _MIN_OBJECT_M, _MAX_OBJECT_M = 10.0, 80.0
 #: Largest object looked for when deriving max_object_size_m, metres.
 _OBJECT_SEARCH_M = 100.0
+#: Safety factor on the width of the largest objects (roof shapes, sloped ground).
+_OBJECT_MARGIN = 1.25
 #: Minimum height of an object when deriving its size, metres.
 _OBJECT_HEIGHT_M = 2.0
 #: Parameters are derived on a grid of at most this many cells (block minima).
@@ -441,9 +443,10 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85), work)
         del a
         obj &= valid
-        # 3. Provisional surface ZIpro: unflagged cells keep their height, flagged ones
-        #    take the last opening (the ground reconstructed under them).
-        zpro = np.where(obj | ~valid, opened, clean).astype(np.float32)
+        # 3. Provisional surface ZIpro: unflagged cells keep their height; object and
+        #    low-outlier cells, which SMRF leaves out and interpolates, take the last
+        #    opening (the ground reconstructed under them, bounded reach).
+        zpro = np.where(obj | low | ~valid, opened, clean).astype(np.float32)
         report(progress, 0.9)
         # 4. SMRF's final test: ground when |z - ZIpro| <= e_t + e_s * slope(ZIpro).
         thr = _surface_slope(zpro, cell)
@@ -451,7 +454,9 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         thr += np.float32(dh)
         with np.errstate(invalid="ignore"):
             d = z - zpro
-            mask = np.where(d > thr, OBJECT, np.where((d < -thr) | low, LOW, GROUND)).astype(np.uint8)
+            # a pit of the pre-step is a low outlier only when it lies below the ground
+            # reconstructed around it (a gap between tree crowns does not)
+            mask = np.where(d > thr, OBJECT, np.where(d < -thr, LOW, GROUND)).astype(np.uint8)
         zpro[~valid] = np.nan
         surface = zpro
         info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii]
@@ -532,7 +537,8 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
     than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; the width of each
     object is twice the largest distance from its inside to its outline (the largest
     square window it holds). The object size is the width below which 98 % of the object
-    area lies, plus two cells, or NaN when there are no objects.
+    area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
+    footprint's inscribed square) plus two cells, or NaN when there are no objects.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -548,7 +554,7 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
     order = np.argsort(width)
     cum = np.cumsum(area[order]) / area.sum()
     w = float(width[order][np.searchsorted(cum, 0.98)])
-    return w + 2.0 * max(cell)
+    return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 
 def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m=None, dh_m=None,
