@@ -151,37 +151,66 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
             k = min(left, min(zp.shape) - 1)
             zp = np.pad(zp, k, mode="reflect", reflect_type="odd")
             left -= k
-    zp = zp.astype(np.float32, copy=False)
+    zp = zp.astype(np.float32)  # a copy: shifted to a reference height in place
+    ref = np.float32(np.median(zf[np.isfinite(zf)][:: max(1, zf.size // 4096)]))
+    zp -= ref  # float32 sums of relief, not of absolute heights (precision)
     u = np.arange(-m, m + 1, dtype=np.float64)
-    c = np.mean(u * u)
-    A = np.sum(u * u)
-    B = np.sum((u * u - c) ** 2)
+    c = float(np.mean(u * u))
+    A = float(np.sum(u * u))
+    B = float(np.sum((u * u - c) ** 2))
     w = float(window)
-    k0 = np.ones(window)
-    k1 = u
-    k2 = u * u - c
-    crop = (slice(m, m + z.shape[0]), slice(m, m + z.shape[1]))
+    rows, cols = z.shape
 
-    def corr(a, k, axis):
-        return ndimage.correlate1d(a, k, axis=axis, mode="nearest")
+    # the three separable kernels (box 1, slope u, bend u^2 - c), as sums of shifted
+    # slices of the padded array: symmetric pairs z[+k] +- z[-k] are formed once
+    def kernels(a, axis, n, which):
+        def tap(k):  # the slice of a at offset k (0 .. 2m) along axis
+            return a[:, k:k + n] if axis == 1 else a[k:k + n]
+        res = {}
+        centre = tap(m)
+        sums = [tap(m + k) + tap(m - k) for k in range(1, m + 1)] if ("box" in which or "bend" in which) else []
+        if "box" in which:
+            o = centre.copy()
+            for sk in sums:
+                o += sk
+            res["box"] = o
+        if "slope" in which:
+            o = tap(m + 1) - tap(m - 1)
+            for k in range(2, m + 1):
+                o += np.float32(k) * (tap(m + k) - tap(m - k))
+            res["slope"] = o
+        if "bend" in which:
+            o = centre * np.float32(-c)
+            for k, sk in enumerate(sums, start=1):
+                o += np.float32(k * k - c) * sk
+            res["bend"] = o
+        return res
 
     # profiles in X (along rows, axis 1) first, then across them in Y (axis 0)
-    x0 = corr(zp, k0, 1)
-    x1 = corr(zp, k1, 1)
-    p = corr(x1, k0, 0)[crop] * np.float32(1.0 / (w * A * dx))
-    q = corr(x0, k1, 0)[crop] * np.float32(1.0 / (w * A * dy))
-    s = corr(x1, k1, 0)[crop] * np.float32(1.0 / (A * A * dx * dy))
-    if model == "quadratic":
-        x2 = corr(zp, k2, 1)
-        r = corr(x2, k0, 0)[crop] * np.float32(2.0 / (w * B * dx * dx))
-        t = corr(x0, k2, 0)[crop] * np.float32(2.0 / (w * B * dy * dy))
+    quad = model == "quadratic"
+    xk = kernels(zp, 1, cols, ("box", "slope", "bend") if quad else ("box", "slope"))
+    del zp
+    y0 = kernels(xk.pop("box"), 0, rows, ("slope", "bend") if quad else ("slope",))
+    y1 = kernels(xk.pop("slope"), 0, rows, ("box", "slope"))
+    p = y1["box"]
+    p *= np.float32(1.0 / (w * A * dx))
+    q = y0["slope"]
+    q *= np.float32(1.0 / (w * A * dy))
+    s = y1["slope"]
+    s *= np.float32(1.0 / (A * A * dx * dy))
+    if quad:
+        r = kernels(xk.pop("bend"), 0, rows, ("box",))["box"]
+        r *= np.float32(2.0 / (w * B * dx * dx))
+        t = y0["bend"]
+        t *= np.float32(2.0 / (w * B * dy * dy))
     else:
         r = np.zeros(z.shape, np.float32)
         t = np.zeros(z.shape, np.float32)
     out = []
+    anybad = bad.any()
     for a in (p, q, r, s, t):
         a = np.ascontiguousarray(a, dtype=np.float32)
-        if bad.any():
+        if anybad:
             a[bad] = np.nan
         out.append(a)
     return tuple(out)
