@@ -22,8 +22,16 @@ once the window outgrows them, are flagged. Then, as in SMRF, a provisional surf
 ``ZIpro`` is built from the unflagged cells (flagged ones take the last opened surface,
 which is the ground reconstructed under them) and every cell is classified against it:
 ground when ``|z - ZIpro| <= dh + e_s * slope(ZIpro)`` (SMRF's ``e_t``, ``e_s``), object
-above, low outlier below. Low outliers are found first by SMRF's pre-step: the same
-progressive filter on the inverted surface with a 1 m window and a slope of 500 %.
+above, low outlier below. Candidate low outliers are found first by SMRF's pre-step (the
+same progressive filter on the inverted surface, 1 m window, slope 500 %); they are
+replaced by the closed surface for the opening and, like SMRF's flagged cells, left out
+of ``ZIpro``, so the final test makes a pit class 2 only when it lies below the ground
+reconstructed around it (a gap between tree crowns stays ground).
+
+The provisional surface differs from SMRF's in one respect: SMRF inpaints the flagged
+cells from the unflagged ones, whose reach is unbounded; here they take the last opened
+surface, which reconstructs planes and ramps under objects exactly and keeps the
+filter's reach bounded (blocks of a large raster give the one-pass result).
 
 Windows grow geometrically (``window_growth``, default 2: radii 1, 2, 4, 8, ... cells, the
 exponential windows of Zhang et al. 2003); ``window_growth=1`` gives SMRF's one-cell steps.
@@ -48,7 +56,6 @@ for the terrain classification of airborne LIDAR data. ISPRS J. Photogramm. Remo
 77, 21-30.
 """
 import math
-import warnings
 
 import numpy as np
 from scipy import ndimage
@@ -351,9 +358,11 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         ``"single"``: one opening with a window of ``max_object_size_m`` and the two-sided
         test with ``dh_m`` (the 1996 form). ``"progressive"``: SMRF / Zhang et al. (2003)
         growing windows with a slope-dependent threshold, then SMRF's final test against
-        the provisional surface. ``"auto"``: progressive unless the terrain is flat at the
-        scale of the window (``slope * max_object_size_m / 2 <= dh_m``: a single opening
-        then cuts no ground by more than ``dh``).
+        the provisional surface. ``"auto"``: resolved by
+        :func:`resolve_morphological_params`: progressive unless the terrain is flat at the
+        scale of the window (``s90 * max_object_size_m / 2 <= dh_m``, ``s90`` the
+        90th-percentile terrain slope: a single opening then cuts no ground by more than
+        ``dh``).
     max_object_size_m : float, optional
         Largest object to remove, metres (side of the largest window). Default: derived
         from the data (:func:`resolve_morphological_params`).
@@ -361,8 +370,9 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         Height threshold of the two-sided test, metres (SMRF's ``e_t``). Default: derived
         from the data's noise.
     slope : float, optional
-        Terrain slope ``s`` (rise/run) of the progressive threshold ``t_k = s r_k``.
-        Default: a robust high percentile of the slope of a coarse minimum surface.
+        Terrain slope ``s`` (rise/run) of the progressive threshold ``t_k = s r_k``; terrain
+        steeper than ``s`` over more than the window (narrow embankments, ridges) is cut.
+        Default: the median slope of a coarse minimum surface, at least 0.3.
     slope_scale_m : float
         SMRF's ``e_s``: metres of extra tolerance per unit of slope of the provisional
         surface in the final test of the progressive form (1.25 in SMRF).
@@ -608,14 +618,16 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
         cut = s_t * out["max_object_size_m"] / 2.0
         if cut > out["dh_m"]:
             out["mode"] = "progressive"
-            out["mode_reason"] = (f"terrain not flat: a single {out['max_object_size_m']:.1f} m opening "
-                                  f"would cut the terrain's 90th-percentile slope {s_t:.3f} by up to {cut:.2f} m > dh "
-                                  f"{out['dh_m']:.2f} m, so the progressive filter (SMRF) is used")
+            out["mode_reason"] = (f"terrain not flat: a single {out['max_object_size_m']:.1f} m "
+                                  f"opening would cut the terrain's 90th-percentile slope {s_t:.3f} "
+                                  f"by up to {cut:.2f} m > dh {out['dh_m']:.2f} m, so the progressive "
+                                  "filter (SMRF) is used")
         else:
             out["mode"] = "single"
-            out["mode_reason"] = (f"terrain flat: a single {out['max_object_size_m']:.1f} m opening cuts "
-                                  f"the terrain's 90th-percentile slope {s_t:.3f} by at most {cut:.2f} m <= dh "
-                                  f"{out['dh_m']:.2f} m, so the single-window 1996 form is used")
+            out["mode_reason"] = (f"terrain flat: a single {out['max_object_size_m']:.1f} m opening "
+                                  f"cuts the terrain's 90th-percentile slope {s_t:.3f} by at most "
+                                  f"{cut:.2f} m <= dh {out['dh_m']:.2f} m, so the single-window 1996 "
+                                  "form is used")
     else:
         out["mode_reason"] = f"mode {mode!r} given by the user"
     return out

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from bare_earth.core import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core import LOW, NODATA, OBJECT
 from bare_earth.core import morphology as M
 from bare_earth.core.methods import get_method
 from bare_earth.core.pipeline import run_array
@@ -233,3 +233,19 @@ def test_registered_method_runs_through_the_pipeline():
     np.testing.assert_array_equal(res.mask, truth)
     assert res.info["mode"] in ("single", "progressive") and res.info["mode_reason"]
     np.testing.assert_allclose(res.dtm, 10.0, atol=1e-4)
+
+
+# --------------------------------------------------------------------------- synthetic truth
+@pytest.mark.parametrize("kind, max_total", [("city", 2.0), ("forest", 3.0), ("rolling", 0.5)])
+def test_defaults_on_synthetic_scenes(kind, max_total):
+    synthetic = pytest.importorskip("bare_earth.core.synthetic")
+    sc = synthetic.make_scene(kind, (160, 160), 1.0, seed=2)
+    res = run_array("morphological", sc.dsm, 1.0)
+    valid = sc.mask != NODATA
+    truth_ground = sc.mask[valid] == 0
+    pred_ground = res.mask[valid] == 0
+    total = 100.0 * np.mean(truth_ground != pred_ground)
+    assert total < max_total, (kind, total, res.info["params"])
+    assert res.info["mode"] == "progressive"
+    # the filled DTM follows the true terrain
+    assert np.nanmedian(np.abs(res.dtm - sc.dtm)[valid]) < 0.1
