@@ -273,7 +273,7 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
 
 
 # --------------------------------------------------------------------------- profiles
-def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
+def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
     """Where a profile (axis 0) has just risen as a wall, at its marked positions ``B``.
 
     The foot of position j is the lowest of the ``_WALL_CELLS`` positions before it. j is
@@ -310,9 +310,11 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
     zf = np.where(V, Z, np.float32(np.nan)).ravel()
     row = idx // m
 
-    def back(k):
-        v = zf[np.maximum(idx - k * m, 0)]
-        v[row < k] = np.nan
+    def back(k):  # heights k positions before, in the scan's direction ``step``
+        src = row - step * k
+        out = (src < 0) | (src >= n)
+        v = zf[np.clip(src, 0, n - 1) * m + idx % m]
+        v[out] = np.nan
         return v
 
     zc = zf[idx]
@@ -325,8 +327,9 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
     base = back(_WALL_CELLS)
     before = back(_WALL_CELLS + reach)
     nb = np.isnan(before)
-    if nb.any():  # near the start of a profile: the first position
-        before[nb] = zf[(idx % m)[nb]]
+    if nb.any():  # near the start of a profile: its first position
+        first = 0 if step == 1 else n - 1
+        before[nb] = zf[first * m + (idx % m)[nb]]
     with np.errstate(invalid="ignore"):
         rise = zc - best
         rate = rise / np.float32(_WALL_CELLS * cell)
@@ -341,7 +344,7 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
     return wall, foot, drop
 
 
-def _scan(Z, V, B, W, F, D, *, tol, max_cells):
+def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
     """One directed scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
 
     The paper's reading of a profile: the points between a break going up and the
@@ -359,12 +362,13 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells):
     """
     n, m = Z.shape
     out = np.zeros((n, m), bool)
-    g = np.where(V[0], Z[0], np.float32(np.nan)).astype(np.float32)
+    j0 = 0 if step == 1 else n - 1
+    g = np.where(V[j0], Z[j0], np.float32(np.nan)).astype(np.float32)
     d = np.zeros(m, np.float32)
     obj = np.zeros(m, bool)
     rise = np.empty(m, np.float32)
     tol = np.float32(tol)
-    for j in range(1, n):
+    for j in (range(1, n) if step == 1 else range(n - 2, -1, -1)):
         zj, vj = Z[j], V[j]
         d += 1
         np.subtract(zj, g, out=rise)
@@ -388,12 +392,12 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     """
     Z = np.where(valid, z, np.float32(np.nan))
     out = None
-    for sl in (slice(None), slice(None, None, -1)):
-        Zs, Vs, Bs = (np.ascontiguousarray(a[sl]) for a in (Z, valid, marked))
-        W, F, D = _walls(Zs, Vs, Bs, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
-        o = _scan(Zs, Vs, Bs, W, F, D, tol=tol, max_cells=max_cells)[sl]
+    for step in (1, -1):
+        W, F, D = _walls(Z, valid, marked, cell, reach=reach, h_min=h_min, tan_wall=tan_wall,
+                         step=step)
+        o = _scan(Z, valid, marked, W, F, D, tol=tol, max_cells=max_cells, step=step)
         del W, F, D
-        out = o if out is None else out & o
+        out = o if out is None else np.logical_and(out, o, out=out)
     return out
 
 
