@@ -46,8 +46,12 @@ _TOP_CELLS = 4096
 _SWEEPS_FINEST = 4
 _SWEEPS_MAX = 64
 _SWEEPS_GROWTH = 2
+_SWEEPS_COARSE1 = 8
 #: Over-relaxation factor on the coarser levels (1 = plain Gauss-Seidel on the finest).
 _OMEGA_COARSE = 1.8
+#: Level-0 relaxation band: coarse cells within this many coarse cells of known data
+#: (fine cells within 7-9 cells of a known cell).
+_BAND_COARSE = 4
 
 
 def fill_gaps(z, fill=None, *, progress=None):
@@ -125,8 +129,11 @@ def fill_gaps(z, fill=None, *, progress=None):
 
     # Work relative to a reference height: keeps float32 sums precise for large heights.
     sample = zf[::16, ::16][known[::16, ::16]]
-    z0 = float(np.median(sample)) if sample.size else float(zf[known][0])
-    val0 = zf - np.float32(z0)
+    z0 = np.float32(np.median(sample) if sample.size else zf[known][0])
+    h, w = zf.shape
+    work = np.zeros((h + 2, w + 2), dtype=np.float32)  # level 0, with a padding ring
+    val0 = work[1:-1, 1:-1]
+    np.subtract(zf, z0, out=val0)
     val0[~known] = 0.0
     keep_nan = bool((~finite & ~fill).any())  # nodata cells outside `fill`
 
@@ -141,22 +148,52 @@ def fill_gaps(z, fill=None, *, progress=None):
     done = 1
     report(progress, done / n_levels)
 
-    # 3. Finer levels: bilinear prolongation + red-black Gauss-Seidel on the unknown cells.
+    # 3. Finer levels: bilinear prolongation + red-black relaxation on the unknown cells.
     for lev in range(n_levels - 2, -1, -1):
         kn, val = levels[lev]
-        sweeps = min(_SWEEPS_FINEST * _SWEEPS_GROWTH ** lev, _SWEEPS_MAX)
-        # Level 0: nodata outside `fill` keeps its prolongated values (not relaxed).
-        relax = fill if (lev == 0 and keep_nan) else None
-        u = _relax_level(kn, val, u, sweeps, relax, 1.0 if lev == 0 else _OMEGA_COARSE)
+        sweeps = _SWEEPS_FINEST if lev == 0 else min(_SWEEPS_COARSE1 * _SWEEPS_GROWTH ** (lev - 1), _SWEEPS_MAX)
+        if lev == 0:
+            # Level 0 smooths the prolongation error, which lives next to the known
+            # cells: relax only the cells of `fill` within a few cells of a known cell;
+            # the others (and nodata outside `fill`) keep their prolongated values.
+            u = _relax_level(kn, val, u, sweeps, fill if keep_nan else None, 1.0,
+                             work=work, near=_near_known(known, _BAND_COARSE))
+        else:
+            u = _relax_level(kn, val, u, sweeps, None, _OMEGA_COARSE)
         done += 1
         report(progress, done / n_levels)
 
-    out = u
-    out += np.float32(z0)
-    out[known] = zf[known]  # exact (no round trip through z0)
+    # Known cells keep their exact input values; the others get z0 + solution.
+    u += z0
+    np.copyto(zf, u, where=~known)
     if keep_nan:
-        out[~finite & ~fill] = np.nan
-    return out
+        zf[~finite & ~fill] = np.nan
+    return zf
+
+
+def _near_known(known, reach):
+    """Coarse (2 x 2) cells within ``reach`` coarse cells of a cell with a known child.
+
+    A fine cell whose coarse cell is in the result is at most ``2 * reach + 1`` fine
+    cells (chessboard) from a known cell, and every fine cell within ``2 * reach - 1``
+    of a known cell is in it.
+    """
+    h, w = known.shape
+    if h % 2 or w % 2:
+        known = np.pad(known, ((0, h % 2), (0, w % 2)))
+    near = known[0::2, 0::2] | known[0::2, 1::2]
+    near |= known[1::2, 0::2]
+    near |= known[1::2, 1::2]
+    for axis in (0, 1):  # separable dilation by `reach`
+        src = near.copy()
+        n = near.shape[axis]
+        for k in range(1, min(reach, n - 1) + 1):
+            a = [slice(None)] * 2
+            b = [slice(None)] * 2
+            a[axis], b[axis] = slice(k, None), slice(None, n - k)
+            near[tuple(a)] |= src[tuple(b)]
+            near[tuple(b)] |= src[tuple(a)]
+    return near
 
 
 def _restrict(known, val):
@@ -279,21 +316,20 @@ def _pad_linear(c):
     return p
 
 
-def _prolong(coarse, r, c):
+def _prolong(cp, r, c):
     """Bilinear interpolation of the coarser level at fine cells ``(r, c)``.
 
-    Fine cell ``r`` lies at coarse coordinate ``r / 2 - 0.25`` (cell centres), so its
-    upper coarse neighbour (in the padded array) is ``(r + 1) // 2`` with weight 0.25 for
-    even ``r`` and 0.75 for odd ``r``.
+    ``cp`` is the coarser solution padded by :func:`_pad_linear`. Fine cell ``r`` lies at
+    coarse coordinate ``r / 2 - 0.25`` (cell centres), so its upper coarse neighbour (in
+    the padded array) is ``(r + 1) // 2`` with weight 0.25 for even ``r`` and 0.75 for
+    odd ``r``.
     """
-    cp = _pad_linear(coarse)
     wp = cp.shape[1]
     flat = cp.ravel()
-    i0 = (r + 1) >> 1
-    j0 = (c + 1) >> 1
-    fy = np.where(r & 1, np.float32(0.25), np.float32(0.75))  # weight of the lower row
-    fx = np.where(c & 1, np.float32(0.25), np.float32(0.75))  # weight of the right column
-    base = i0 * wp + j0
+    fy = _LOWER_WEIGHT.take(r & 1)                 # weight of the lower row
+    fx = _LOWER_WEIGHT.take(c & 1)                 # weight of the right column
+    base = ((r + 1) >> 1) * wp
+    base += (c + 1) >> 1
     top = flat.take(base)
     top += fx * (flat.take(base + 1) - top)
     base += wp
@@ -303,70 +339,98 @@ def _prolong(coarse, r, c):
     return top
 
 
-def _relax_level(known, val, coarse, sweeps, relax=None, omega=1.0):
+_LOWER_WEIGHT = np.array([0.75, 0.25], dtype=np.float32)
+#: Unknown cells handled per chunk while setting a level up (bounds the temporaries).
+_CHUNK = 1 << 19
+
+
+def _relax_level(known, val, coarse, sweeps, relax=None, omega=1.0, work=None, near=None):
     """Initialise the unknown cells of a level from ``coarse`` and relax them.
 
     Parameters
     ----------
     known, val : ndarray
-        Known cells of this level and their values.
+        Known cells of this level and their values (0 elsewhere).
     coarse : ndarray of float32
         Solution of the next coarser level.
     sweeps : int
-        Red-black Gauss-Seidel sweeps.
+        Red-black sweeps.
     relax : ndarray of bool, optional
-        Cells to relax (default: every unknown cell). Unknown cells outside ``relax`` keep
-        the prolongated coarse values and act as Dirichlet data.
+        Cells that may be relaxed (default: every unknown cell). Unknown cells outside
+        ``relax`` keep the prolongated coarse values and act as Dirichlet data.
     omega : float
         Over-relaxation factor (1: Gauss-Seidel).
+    work : ndarray of float32, optional
+        ``(rows + 2, cols + 2)`` working array whose core already holds ``val`` and whose
+        ring is 0 (saves a copy); allocated when None.
+    near : ndarray of bool, optional
+        Coarse mask from :func:`_near_known`: relax only cells whose coarse cell is in it.
 
     Returns
     -------
     ndarray of float32
-        The level's solution (a view into a padded working array).
+        The level's solution (a view into the padded working array).
     """
     h, w = known.shape
     wp = w + 2
-    u = np.zeros((h + 2, w + 2), dtype=np.float32)
-    core = u[1:-1, 1:-1]
-    core[...] = val
-    idx = np.flatnonzero(~known)
-    r, c = np.divmod(idx, w)
-    del idx
-    pidx = r * wp + c + (wp + 1)           # flat index in the padded array
-    uf = u.ravel()
-    uf[pidx] = _prolong(coarse, r, c)
-    if relax is not None:
-        sel = relax[r, c]
-        r, c, pidx = r[sel], c[sel], pidx[sel]
-        del sel
-    if pidx.size == 0 or sweeps <= 0:
-        return core
-    # Neumann edges: the padding ring stays 0, so divide by the number of in-raster
-    # neighbours instead of 4.
-    unknown_edge = bool((~known[0]).any() or (~known[-1]).any()
-                        or (~known[:, 0]).any() or (~known[:, -1]).any())
-    colour = ((r + c) & 1).astype(bool)
-    del c
-    groups = []
-    for col in (False, True):
-        sel = colour == col
-        idx = pidx[sel]
+    if work is None:
+        work = np.zeros((h + 2, w + 2), dtype=np.float32)
+        work[1:-1, 1:-1] = val
+    uf = work.ravel()
+    cp = _pad_linear(coarse)
+    # Set up in blocks of rows (bounded temporaries): prolongate every unknown cell, and
+    # collect the flat (padded) indices of the cells to relax, split into the two colours
+    # of the red-black ordering and into interior / raster-edge cells. Cells of one colour
+    # never touch each other, so the groups of a colour may be updated one after another.
+    rows_per_block = max(1, _CHUNK // max(w, 1))
+    parts = {key: [] for key in ((0, False), (1, False), (0, True), (1, True))}
+    for b0 in range(0, h, rows_per_block):
+        b1 = min(h, b0 + rows_per_block)
+        idx = np.flatnonzero(~known[b0:b1])
         if idx.size == 0:
             continue
+        r, c = np.divmod(idx, w)
+        del idx
+        r += b0
+        pidx = r * wp
+        pidx += c + (wp + 1)               # flat index in the padded array
+        uf[pidx] = _prolong(cp, r, c)
+        if sweeps <= 0:
+            continue
+        if relax is not None or near is not None:
+            sel = np.ones(r.shape, bool) if relax is None else relax[r, c]
+            if near is not None:
+                sel &= near[r >> 1, c >> 1]
+            r, c, pidx = r[sel], c[sel], pidx[sel]
+        edge = (r == 0) | (r == h - 1) | (c == 0) | (c == w - 1)
+        colour = ((r + c) & 1).astype(bool)
+        for col in (0, 1):
+            for is_edge in (False, True):
+                keep = (colour == bool(col)) & (edge == is_edge)
+                if keep.any():
+                    parts[(col, is_edge)].append(pidx[keep])
+    core = work[1:-1, 1:-1]
+    groups = []
+    for (col, is_edge), chunks in parts.items():
+        if not chunks:
+            continue
+        idx = np.concatenate(chunks)
+        parts[(col, is_edge)] = None
         inv = np.float32(0.25)
-        if unknown_edge:
+        if is_edge:  # Neumann edges: the padding ring stays 0, divide by the neighbours
             rr, cc = np.divmod(idx, wp)
-            cnt = (4 - (rr == 1).astype(np.int8) - (rr == h) - (cc == 1) - (cc == w))
+            cnt = 4 - (rr == 1).astype(np.int8) - (rr == h) - (cc == 1) - (cc == w)
             inv = (1.0 / np.maximum(cnt, 1)).astype(np.float32)
-        groups.append((idx, inv))
-    del r, colour, pidx
-    nmax = max(g[0].size for g in groups)
+        groups.append((col, idx, inv))
+    if not groups:
+        return core
+    groups.sort(key=lambda g: g[0])  # all of colour 0, then all of colour 1
+    nmax = max(g[1].size for g in groups)
     nb = np.empty(nmax, dtype=np.intp)
     s_buf = np.empty(nmax, dtype=np.float32)
     t_buf = np.empty(nmax, dtype=np.float32)
     for _ in range(sweeps):
-        for idx, inv in groups:
+        for _col, idx, inv in groups:
             m = idx.size
             nbm, s, t = nb[:m], s_buf[:m], t_buf[:m]
             np.subtract(idx, 1, out=nbm)
