@@ -74,13 +74,28 @@ STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
 #: Terrain classes and the degree of the profile / surface model each selects.
 TERRAIN_CLASSES = ("flat", "rolling", "mountainous")
 _DEGREE = {"flat": 0, "rolling": 1, "mountainous": 2}
+
+
+def model_degree(terrain_class, homogeneous=True):
+    """Degree of the profile / surface model: 0 mean or horizontal plane (flat), 1 linear
+    regression or inclined plane (rolling), 2 polynomial (mountainous). A flat area that
+    is not homogeneous (embankments, cuts, terraces) gets the linear model: a mean is
+    biased wherever a window sees a slope from one side only."""
+    if terrain_class not in _DEGREE:
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES}; got {terrain_class!r}.")
+    d = _DEGREE[terrain_class]
+    return d if homogeneous else max(d, 1)
 #: Median slope (rise/run) of the lower envelope separating the classes.
 _FLAT_MAX_SLOPE, _ROLLING_MAX_SLOPE = 0.05, 0.20
+#: Homogeneous: at least this share of the fine tiles has the area's class.
+_HOMOGENEOUS_SHARE = 0.9
 #: Sequences analysed for the profile lengths and the surface sizes (metres).
 PROFILE_LENGTHS_M = (5.0, 9.0, 15.0, 25.0, 41.0, 65.0)
 SURFACE_SIZES_M = (9.0, 15.0, 25.0, 41.0, 65.0)
 #: A length is accepted while its residual scale stays below this factor of the shortest's.
 _SCALE_GROWTH = 2.0
+#: Step 2: the limits lie at least this far (m) outside the terrain's lower envelope.
+_FAR_M = 20.0
 #: Floor of the estimated random error (m): rasterised laser/matching DSMs are never exact.
 _SIGMA_FLOOR = 0.10
 
@@ -212,7 +227,7 @@ def _solve_first_general(M, Z, n_unknowns, chunk=1 << 18):
     shape = M[0][0].shape
     beta = np.full(shape, np.nan)
     hh = np.full(shape, np.nan)
-    ok = np.isfinite(M[0][0]) & (M[0][0] >= n_unknowns + 1)
+    ok = np.isfinite(M[0][0]) & (M[0][0] > 0)
     idx = np.flatnonzero(ok)
     for s in range(0, idx.size, chunk):
         ii = idx[s:s + chunk]
@@ -256,7 +271,8 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
     -------
     zhat, h : ndarray
         Fitted height at the centre and the variance factor ``(N^-1)_00``; NaN where the
-        window holds too few points for the model (a lower degree is used first).
+        window's points do not determine the model (no test there: a lower-degree model
+        would be biased on a slope).
     """
     z = np.where(w > 0, z, 0.0)
     wz = w * z
@@ -292,22 +308,18 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
             m[0] = m[0] - w
             zz[0] = zz[0] - wz
         with np.errstate(all="ignore"):
-            zhat = zz[0] / m[0]
-            hh = 1.0 / m[0]
-            enough = m[0] >= 1.0
-            if degree >= 1:
+            if degree == 0:
+                ok = m[0] > 1e-9
+                zhat, hh = zz[0] / m[0], 1.0 / m[0]
+            elif degree == 1:
                 det = m[0] * m[2] - m[1] ** 2
-                ok = (det > 1e-9 * m[0] * m[2]) & (m[0] >= 2.0)
-                zhat = np.where(ok, (zz[0] * m[2] - zz[1] * m[1]) / det, zhat)
-                hh = np.where(ok, m[2] / det, hh)
-            if degree >= 2:
-                b, hq = _solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]), (m[2], m[3], m[4])),
-                                      (zz[0], zz[1], zz[2]))
-                ok = np.isfinite(b) & (m[0] >= 4.0)
-                zhat = np.where(ok, b, zhat)
-                hh = np.where(ok, hq, hh)
-        zhat = np.where(enough, zhat, np.nan)
-        return zhat, hh
+                ok = det > 1e-9 * m[0] * m[2]
+                zhat, hh = (zz[0] * m[2] - zz[1] * m[1]) / det, m[2] / det
+            else:
+                zhat, hh = _solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]),
+                                          (m[2], m[3], m[4])), (zz[0], zz[1], zz[2]))
+                ok = np.isfinite(zhat)
+        return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
 
     # 2-D: monomials x^a y^b with a + b <= degree
     mons = [(a, b) for d in range(degree + 1) for a in range(d, -1, -1) for b in (d - a,)]
@@ -317,26 +329,17 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
     if leave_one_out:
         m[0, 0] = m[0, 0] - w
         zz[0, 0] = zz[0, 0] - wz
+    nu = len(mons)
+    M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(nu)]
+         for i in range(nu)]
     with np.errstate(all="ignore"):
-        zhat = zz[0, 0] / m[0, 0]
-        hh = 1.0 / m[0, 0]
-        enough = m[0, 0] >= 1.0
-        if degree >= 1:
-            M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(3)]
-                 for i in range(3)]
-            b, hq = _solve3_first(M, [zz[mons[i]] for i in range(3)])
-            ok = np.isfinite(b) & (m[0, 0] >= 3.0)
-            zhat = np.where(ok, b, zhat)
-            hh = np.where(ok, hq, hh)
-        if degree >= 2:
-            M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(6)]
-                 for i in range(6)]
-            b, hq = _solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
-            ok = np.isfinite(b) & (m[0, 0] >= 7.0)
-            zhat = np.where(ok, b, zhat)
-            hh = np.where(ok, hq, hh)
-    zhat = np.where(enough, zhat, np.nan)
-    return zhat, hh
+        if degree == 0:
+            ok = m[0, 0] > 1e-9
+            zhat, hh = zz[0, 0] / m[0, 0], 1.0 / m[0, 0]
+            return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
+        if degree == 1:
+            return _solve3_first(M, [zz[mons[i]] for i in range(3)])
+        return _solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
 
 
 def _snoop(z, zhat, hh, test, s, k, low_weight):
@@ -389,6 +392,25 @@ def estimate_sigma(z):
     return float(max(_SIGMA_FLOOR, np.percentile(np.abs(r), 25) / 0.3186 / np.sqrt(1.25)))
 
 
+def _tile_slopes(low, sx, sy):
+    """Slopes (rise/run) of a tile envelope: per tile the steepest step to a neighbour in
+    x and in y, combined; finite values only."""
+    with np.errstate(invalid="ignore"):
+        gx = np.full(low.shape, np.nan)
+        gy = np.full(low.shape, np.nan)
+        if low.shape[1] > 1:
+            d = np.abs(np.diff(low, axis=1)) / sx
+            gx = np.fmax(np.pad(d, ((0, 0), (0, 1)), constant_values=np.nan),
+                         np.pad(d, ((0, 0), (1, 0)), constant_values=np.nan))
+        if low.shape[0] > 1:
+            d = np.abs(np.diff(low, axis=0)) / sy
+            gy = np.fmax(np.pad(d, ((0, 1), (0, 0)), constant_values=np.nan),
+                         np.pad(d, ((1, 0), (0, 0)), constant_values=np.nan))
+        slope = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
+    slope[~(np.isfinite(gx) | np.isfinite(gy))] = np.nan
+    return slope[np.isfinite(slope)]
+
+
 def characterise_terrain(z, cell_size, tile_m=25.0):
     """Step 1: class the area as flat / rolling / mountainous and (in)homogeneous.
 
@@ -421,33 +443,24 @@ def characterise_terrain(z, cell_size, tile_m=25.0):
     n = max(3, int(round(tile_m / max(dx, dy))))
     n = min(n, max(3, min(z.shape) // 3))
     low = _tile_low(z, n).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        gy = np.full(low.shape, np.nan)
-        gx = np.full(low.shape, np.nan)
-        if low.shape[1] > 1:
-            d = np.abs(np.diff(low, axis=1)) / (n * dx)
-            gx = np.fmax(np.pad(d, ((0, 0), (0, 1)), constant_values=np.nan),
-                         np.pad(d, ((0, 0), (1, 0)), constant_values=np.nan))
-        if low.shape[0] > 1:
-            d = np.abs(np.diff(low, axis=0)) / (n * dy)
-            gy = np.fmax(np.pad(d, ((0, 1), (0, 0)), constant_values=np.nan),
-                         np.pad(d, ((1, 0), (0, 0)), constant_values=np.nan))
-        slope = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
-        slope[~(np.isfinite(gx) | np.isfinite(gy))] = np.nan
-    s = slope[np.isfinite(slope)]
-    if s.size == 0:
-        s = np.zeros(1)
-    med = float(np.median(s))
+    s = _tile_slopes(low, n * dx, n * dy)
+    med = float(np.median(s)) if s.size else 0.0
     cls = "flat" if med < _FLAT_MAX_SLOPE else "rolling" if med < _ROLLING_MAX_SLOPE else "mountainous"
-    tiles = np.where(s < _FLAT_MAX_SLOPE, 0, np.where(s < _ROLLING_MAX_SLOPE, 1, 2))
+    # homogeneity on tiles 2.5 x finer: embankments, cuts and terraces show up there
+    nf = max(3, n * 2 // 5)
+    sf = _tile_slopes(_tile_low(z, nf).astype(np.float64), nf * dx, nf * dy)
+    sf = sf if sf.size else np.zeros(1)
+    tiles = np.where(sf < _FLAT_MAX_SLOPE, 0, np.where(sf < _ROLLING_MAX_SLOPE, 1, 2))
     shares = {c: float(np.mean(tiles == i)) for i, c in enumerate(TERRAIN_CLASSES)}
+    if not s.size:
+        s = np.zeros(1)
     lv = low[np.isfinite(low)]
     relief = float(np.percentile(lv, 98) - np.percentile(lv, 2)) if lv.size else 0.0
     # sigma on a central crop of at most 1024 x 1024 cells
     r0 = max(0, z.shape[0] // 2 - 512)
     c0 = max(0, z.shape[1] // 2 - 512)
     sigma = estimate_sigma(z[r0:r0 + 1024, c0:c0 + 1024])
-    return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= 0.75),
+    return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= _HOMOGENEOUS_SHARE),
             "class_shares": shares, "slope_median": med,
             "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,
             "sigma_m": sigma, "tile_m": n * max(dx, dy)}
@@ -465,8 +478,8 @@ def remove_height_outliers(z, keep, height_min_m, height_max_m):
         Cells still in the data (tested and used).
     height_min_m, height_max_m : float
         Limits; :func:`resolve_rascor_params` sets them to Tukey's far fences
-        ``Q1 - 3 IQR`` and ``Q3 + 3 IQR`` of the heights, never inside the range of the
-        terrain's lower envelope.
+        ``Q1 - 3 IQR`` and ``Q3 + 3 IQR`` of the heights, and at least 20 m outside the
+        range of the terrain's lower envelope (gross errors, not embankments).
 
     Returns
     -------
@@ -692,7 +705,8 @@ def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
 
 
 def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
-                            k=3.0, low_weight=0.1, iterations=2, test=None, labels=None):
+                            k=4.0, low_weight=0.1, iterations=2, test=None, labels=None,
+                            homogeneous=True):
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
     For each length of ``lengths_m`` and each direction, every height is compared with the
@@ -708,6 +722,8 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
     lengths_m : sequence of float
         Profile lengths in metres, applied in order (short first).
     terrain_class : {"flat", "rolling", "mountainous"}
+    homogeneous : bool
+        False upgrades the flat model to linear (:func:`model_degree`).
     scale_m : float
         Standard deviation of a height about the profile model (random error + model
         error), from the analysis of the sequence of lengths.
@@ -719,7 +735,7 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
     high, low : ndarray of bool
     """
     dx, dy = as_cell_size(cell_size)
-    degree = _DEGREE[terrain_class]
+    degree = model_degree(terrain_class, homogeneous)
     test = keep if test is None else test & keep
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
@@ -748,21 +764,23 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
 
 
 # ------------------------------------------------------------------- step 6
-def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=3.0,
-                            low_weight=0.1, iterations=2, test=None, labels=None):
+def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=4.0,
+                            low_weight=0.1, iterations=2, test=None, labels=None,
+                            homogeneous=True):
     """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
 
     Every height is compared with the leave-one-out weighted least-squares surface of its
     ``size_m`` x ``size_m`` window (horizontal plane in flat, inclined plane in rolling,
     2nd-order polynomial in mountainous terrain), with the same data snooping and weight
     factor as :func:`remove_profile_outliers`. Windows never reach across a break line.
+    A flat but inhomogeneous area gets the inclined plane (:func:`model_degree`).
 
     Returns
     -------
     high, low : ndarray of bool
     """
     dx, dy = as_cell_size(cell_size)
-    degree = _DEGREE[terrain_class]
+    degree = model_degree(terrain_class, homogeneous)
     sizes = (_odd(size_m / dy, 3), _odd(size_m / dx, 3))
     test = keep if test is None else test & keep
     cur = keep.copy()
@@ -794,7 +812,7 @@ def _gauss(radius_cells):
     return np.exp(-0.5 * (x / max(radius_cells / 2.0, 0.5)) ** 2)
 
 
-def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=3.0,
+def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=4.0,
                                low_weight=0.1, test=None, labels=None):
     """Step 7: final local prediction (least-squares interpolation from the neighbourhood).
 
@@ -823,7 +841,7 @@ def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=3.0,
 
 
 # ----------------------------------------------------------- the whole sequence
-def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
+def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, sigma_m=0.15,
                   step1_characterise=True, step2_height_distribution=True,
                   step3_neighbour_differences=True, step4_level_change=True,
                   step5_profiles=True, step6_surfaces=True, step7_prediction=False,
@@ -848,6 +866,9 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
     terrain_class : {"flat", "rolling", "mountainous"}
         Terrain type (step 1, :func:`characterise_terrain`, done by
         :func:`resolve_rascor_params` on the whole raster so that blocks agree).
+    homogeneous : bool
+        Whether the area is homogeneous (step 1); a flat, inhomogeneous area gets the
+        linear / inclined-plane models (:func:`model_degree`).
     sigma_m : float
         Random error of the DSM, metres.
     step1_characterise ... step7_prediction : bool
@@ -947,6 +968,8 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
         removed[k] = removed.get(k, 0) + int(new_hi.sum() + new_lo.sum())
 
     kw = dict(k=snooping_k, low_weight=low_weight, labels=labels)
+    mkw = dict(terrain_class=terrain_class, homogeneous=bool(homogeneous),
+               iterations=int(snooping_iterations), test=global_ok)
     n_iter = 2 if second_iteration else 1
     work = [k for k in (2, 3, 4, 5, 6, 7) if on[k] or (k == 7 and sp is not None)]
     total = max(1, len(work) + (n_iter - 1) * len([k for k in work if k in (3, 5, 6, 7)]))
@@ -981,16 +1004,12 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
             tick()
         if 5 in work:
             hi, lo = remove_profile_outliers(z, (dx, dy), keep, lengths_m=lengths,
-                                             terrain_class=terrain_class, scale_m=s5,
-                                             iterations=int(snooping_iterations),
-                                             test=global_ok, **kw)
+                                             scale_m=s5, **mkw, **kw)
             record(5, hi, lo)
             tick()
         if 6 in work:
             hi, lo = remove_surface_outliers(z, (dx, dy), keep, size_m=surface_size_m,
-                                             terrain_class=terrain_class, scale_m=s6,
-                                             iterations=int(snooping_iterations),
-                                             test=global_ok, **kw)
+                                             scale_m=s6, **mkw, **kw)
             record(6, hi, lo)
             tick()
         if 7 in work:
@@ -1003,7 +1022,10 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
     mask[~valid] = NODATA
     step[~valid] = 255
     shares = {f"{k} {STEP_NAMES[k]}": removed.get(k, 0) / n_valid for k in range(2, 8)}
-    info = {"terrain_class": terrain_class, "sigma_m": sigma_m,
+    info = {"terrain_class": terrain_class, "homogeneous": bool(homogeneous),
+            "model": ("mean / horizontal plane", "linear regression / inclined plane",
+                      "polynomial")[model_degree(terrain_class, homogeneous)],
+            "sigma_m": sigma_m,
             "steps_on": [k for k in range(1, 8) if on[k]],
             "removed_share_by_step": shares,
             "removed_share": float(sum(removed.values()) / n_valid),
@@ -1016,7 +1038,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", sigma_m=0.15,
 
 
 # ----------------------------------------------------------------- parameters
-DEFAULTS = dict(terrain_class=None, sigma_m=None, step1_characterise=True,
+DEFAULTS = dict(terrain_class=None, homogeneous=None, sigma_m=None, step1_characterise=True,
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, height_min_m=None,
@@ -1097,6 +1119,8 @@ def resolve_rascor_params(z, cell_size, **params):
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
+    if p["homogeneous"] is None:
+        p["homogeneous"] = bool(ch["homogeneous"]) if p["step1_characterise"] else True
     if p["sigma_m"] is None:
         p["sigma_m"] = round(ch["sigma_m"], 3)
     sigma = float(p["sigma_m"])
@@ -1109,16 +1133,18 @@ def resolve_rascor_params(z, cell_size, **params):
         low_env = _tile_low(z, max(3, int(round(ch["tile_m"] / cs))))
         lv = low_env[np.isfinite(low_env)]
         gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
+        # far outside: beyond Tukey's far fences and at least _FAR_M beyond the terrain's
+        # lower envelope (a dam or an embankment in a flat area is not far outside)
         if p["height_min_m"] is None:
-            p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - 5 * iqr)), 2)
+            p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2)
         if p["height_max_m"] is None:
-            p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + 3 * iqr)), 2)
+            p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m",
                                       "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
     if need:
-        deg = _DEGREE[tc]
+        deg = model_degree(tc, p["homogeneous"])
         prof_v = {L: [] for L in PROFILE_LENGTHS_M}
         surf_v = {S: [] for S in SURFACE_SIZES_M}
         pred_v = []
@@ -1209,6 +1235,9 @@ METHOD = Method(
         Param("terrain_class", "enum", None, "Terrain type choosing the models (mean / "
               "linear / polynomial) and defaults; empty: classed from the DSM (step 1).",
               options=TERRAIN_CLASSES),
+        Param("homogeneous", "bool", None, "Whether the area is homogeneous; empty: from "
+              "step 1 (90 % of 10 m tiles in the area's class). A flat, inhomogeneous area "
+              "(embankments, cuts) gets the linear models instead of the mean."),
         Param("sigma_m", "float", None, "Random error of the DSM in metres; empty: "
               "estimated from the Laplacian residuals (at least 0.1 m).", minimum=0.001,
               maximum=100.0),
