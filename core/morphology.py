@@ -76,6 +76,8 @@ _DH_NOISE = 3.0
 #: Block size of the coarse minimum surface the terrain slope is measured on, metres.
 _SLOPE_SCALE_M = 40.0
 _MIN_OBJECT_M, _MAX_OBJECT_M = 10.0, 80.0
+#: Largest object when the data shows none, metres.
+_DEFAULT_OBJECT_M = 40.0
 #: Largest object looked for when deriving max_object_size_m, metres.
 _OBJECT_SEARCH_M = 100.0
 #: Safety factor on the width of the largest objects (roof shapes, sloped ground).
@@ -604,15 +606,35 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
     out["noise_m"] = noise
     if dh_m is None:
         out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, _DH_NOISE * noise)))
+        out["dh_source"] = (f"derived: {_DH_NOISE:g} x the DSM's noise {noise:.3f} m, bounded to "
+                            f"{_MIN_DH:g}-{_MAX_DH:g} m")
+    else:
+        out["dh_source"] = "given"
     s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0)
     s90 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 90.0)
     out["terrain_slope_p50"], out["terrain_slope_p90"] = s50, s90
     if slope is None:
         out["slope"] = float(min(_MAX_SLOPE, max(_MIN_SLOPE, s50 if np.isfinite(s50) else 0.0)))
+        if np.isfinite(s50):
+            out["slope_source"] = (f"derived: median slope {s50:.3f} of the {_SLOPE_SCALE_M:g} m "
+                                   f"block-minimum surface, bounded to {_MIN_SLOPE:g}-{_MAX_SLOPE:g}")
+        else:
+            out["slope_source"] = (f"raster under 3 x 3 blocks of {_SLOPE_SCALE_M:g} m: slope not "
+                                   f"measurable, {_MIN_SLOPE:g} used")
+    else:
+        out["slope_source"] = "given"
     if max_object_size_m is None:
         w = estimate_object_size(zs, cs, out["slope"], out["dh_m"])
-        out["max_object_size_m"] = float(40.0 if not np.isfinite(w)
-                                         else min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
+        if np.isfinite(w):
+            out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
+            out["max_object_size_source"] = (
+                f"derived: widest objects found {w:.1f} m (1.25 x the 98 % area width + 2 cells), "
+                f"bounded to {_MIN_OBJECT_M:g}-{_MAX_OBJECT_M:g} m")
+        else:
+            out["max_object_size_m"] = _DEFAULT_OBJECT_M
+            out["max_object_size_source"] = f"no object found: default {_DEFAULT_OBJECT_M:g} m"
+    else:
+        out["max_object_size_source"] = "given"
     if mode == "auto":
         s_t = s90 if np.isfinite(s90) else out["slope"]
         cut = s_t * out["max_object_size_m"] / 2.0
@@ -644,7 +666,8 @@ def morphological_halo(params, cell_size):
 
 
 #: Keys of the resolved parameters that are statistics for the log, not arguments.
-_DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90")
+_DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", "dh_source",
+            "slope_source", "max_object_size_source")
 
 
 def _run(z, cell_size, progress=None, **params):
