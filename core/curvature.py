@@ -216,8 +216,10 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
     return tuple(out)
 
 
-def curvatures_from_derivatives(p, q, r, s, t):
+def curvatures_from_derivatives(p, q, r, s, t, out=None):
     """Gaussian curvature K and mean curvature H from the local derivatives.
+
+    ``out``, optional: a float32 array of shape ``(2,) + p.shape`` receiving K and H.
 
     Returns
     -------
@@ -228,10 +230,35 @@ def curvatures_from_derivatives(p, q, r, s, t):
         ``-((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)`` in 1/m, signed so that
         H > 0 is convex (dome, top of a wall) and H < 0 concave (pit, foot of a wall).
     """
-    h2 = 1.0 + p * p + q * q
-    K = (r * t - s * s) / (h2 * h2)
-    H = -((1.0 + q * q) * r - 2.0 * p * q * s + (1.0 + p * p) * t) / (2.0 * h2 * np.sqrt(h2))
-    return K.astype(np.float32, copy=False), H.astype(np.float32, copy=False)
+    p, q, r, s, t = (np.asarray(a, dtype=np.float32) for a in (p, q, r, s, t))
+    if out is None:
+        out = np.empty((2,) + p.shape, np.float32)
+    K, H = out[0], out[1]
+    pp = p * p
+    qq = q * q
+    h2 = pp + qq
+    h2 += 1
+    # K = (r t - s^2) / h^4
+    np.multiply(r, t, out=K)
+    tmp = s * s
+    K -= tmp
+    K /= h2
+    K /= h2
+    # H = -((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)
+    qq += 1
+    np.multiply(qq, r, out=H)
+    pp += 1
+    pp *= t
+    H += pp
+    np.multiply(p, q, out=tmp)
+    tmp *= s
+    tmp *= 2
+    H -= tmp
+    np.sqrt(h2, out=tmp)
+    tmp *= h2
+    tmp *= -2
+    H /= tmp
+    return K, H
 
 
 def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
@@ -411,9 +438,8 @@ def _enclosed_regions(flag, free, max_cells):
     lab, n = ndimage.label(free)
     if n == 0:
         return np.zeros(flag.shape, bool)
-    lf = lab.ravel()
-    tot = np.bincount(lf, minlength=n + 1)
-    hit = np.bincount(lf, weights=flag.ravel().astype(np.float32), minlength=n + 1)
+    tot = np.bincount(lab.ravel(), minlength=n + 1)
+    hit = np.bincount(lab[flag], minlength=n + 1)
     cand = (hit >= 0.5 * np.maximum(tot, 1))
     cand[0] = False
     edge = np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])
@@ -584,7 +610,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
 
     # 1. local trends and curvature (eqs. 9-16)
     p, q, r, s, t = local_derivatives(z, (dx, dy), window=window_cells, model=model)
-    K, H = curvatures_from_derivatives(p, q, r, s, t)
+    curv = np.empty((2,) + z.shape, np.float32)
+    K, H = curvatures_from_derivatives(p, q, r, s, t, out=curv)
     del p, q, s
     report(progress, 0.25)
 
@@ -638,9 +665,9 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         d = z - surface
         # the tolerance grows with the slope of the surface: one cell of horizontal
         # uncertainty on a slope is a height difference of tan(slope) * cell
-        gy, gx = np.gradient(surface, dy, dx)
-        allow = np.float32(tol) + np.hypot(gx, gy) * np.float32(max(dx, dy))
-        del gx, gy
+        allow = _slope(surface, dx, dy)
+        allow *= np.float32(max(dx, dy))
+        allow += np.float32(tol)
         mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
         mask[concave & (d < -h_min)] = LOW
         mask[objects & (d > 0)] = OBJECT
@@ -648,7 +675,6 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         report(progress, 0.8 + 0.1 * it)
     mask = finish_mask(mask, z)
 
-    curv = np.stack([K, H]).astype(np.float32, copy=False)
     info = {"k_g_per_m2": float(k_g), "window_cells": window_cells, "model": model,
             "min_object_height_m": h_min, "wall_slope_deg": float(wall_slope_deg),
             "max_object_size_m": max_size, "tolerance_m": tol,
@@ -660,6 +686,30 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             "share_objects_y": float((obj_y & valid).sum()) / n_valid}
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": curv}, info=info, surface=surface)
+
+
+def _slope(a, dx, dy):
+    """tan(slope) of a complete surface by central differences (one-sided at the edges)."""
+    gx = np.empty(a.shape, np.float32)
+    gy = np.empty(a.shape, np.float32)
+    if a.shape[1] > 1:
+        np.subtract(a[:, 2:], a[:, :-2], out=gx[:, 1:-1])
+        gx[:, 1:-1] *= np.float32(0.5 / dx)
+        gx[:, 0] = (a[:, 1] - a[:, 0]) / dx
+        gx[:, -1] = (a[:, -1] - a[:, -2]) / dx
+    else:
+        gx[:] = 0
+    if a.shape[0] > 1:
+        np.subtract(a[2:], a[:-2], out=gy[1:-1])
+        gy[1:-1] *= np.float32(0.5 / dy)
+        gy[0] = (a[1] - a[0]) / dy
+        gy[-1] = (a[-1] - a[-2]) / dy
+    else:
+        gy[:] = 0
+    gx *= gx
+    gy *= gy
+    gx += gy
+    return np.sqrt(gx, out=gx)
 
 
 def _positive(name, value, hint):
