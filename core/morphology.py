@@ -242,11 +242,18 @@ def _dilate(e, ry, rx, has_nodata, work=None):
     return d
 
 
-def _as_inf(z, sign=1.0):
-    """``sign * z`` as float32 with nodata set to +inf (ignored by the erosion)."""
-    a = z if sign > 0 else -z
-    a = np.array(a, dtype=np.float32, copy=True)
-    bad = ~np.isfinite(z)
+def _as_inf(z, sign=1.0, bad=None, copy=True):
+    """``sign * z`` as float32 with nodata set to +inf (ignored by the erosion).
+
+    ``bad`` (nodata cells) is computed when not given; ``copy=False`` lets a positive
+    ``sign`` work in place on an array the caller owns.
+    """
+    if sign > 0:
+        a = np.array(z, dtype=np.float32, copy=copy)
+    else:
+        a = np.negative(z, dtype=np.float32)
+    if bad is None:
+        bad = ~np.isfinite(z)
     has_nodata = bool(bad.any())
     if has_nodata:
         a[bad] = np.inf
@@ -443,32 +450,43 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         info["window_cells"] = [(2 * ry + 1, 2 * rx + 1)]
     else:
         # 1. SMRF low-outlier pre-step: the progressive filter on -z, 1 m window, slope 5.
-        neg, has_nodata = _as_inf(z, -1.0)
+        nodata = ~valid
+        neg, has_nodata = _as_inf(z, -1.0, nodata)
         low, neg_open = _progressive(neg, _low_radii(cell, growth), low_s, has_nodata,
                                      sub_progress(progress, 0.0, 0.1), work)
+        del neg
         low &= valid
-        clean = np.where(low, -neg_open, z).astype(np.float32)   # pits replaced by the closing
-        del neg, neg_open
+        clean = z.copy()
+        clean[low] = -neg_open[low]             # pits replaced by the closing
+        del neg_open
         # 2. Progressive opening of the cleaned surface (Zhang 2003; SMRF).
         radii = window_radii(size_m, cell, growth)
-        a, _ = _as_inf(clean)
+        a, _ = _as_inf(clean, 1.0, nodata)
         obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85), work)
         del a
         obj &= valid
         # 3. Provisional surface ZIpro: unflagged cells keep their height; object and
         #    low-outlier cells, which SMRF leaves out and interpolates, take the last
         #    opening (the ground reconstructed under them, bounded reach).
-        zpro = np.where(obj | low | ~valid, opened, clean).astype(np.float32)
+        out_cells = obj | low
+        out_cells |= nodata
+        zpro = clean
+        np.copyto(zpro, opened, where=out_cells)
+        del out_cells
         report(progress, 0.9)
         # 4. SMRF's final test: ground when |z - ZIpro| <= e_t + e_s * slope(ZIpro).
         thr = _surface_slope(zpro, cell)
         thr *= np.float32(es)
         thr += np.float32(dh)
         with np.errstate(invalid="ignore"):
-            d = z - zpro
+            d = np.subtract(z, zpro)
             # a pit of the pre-step is a low outlier only when it lies below the ground
             # reconstructed around it (a gap between tree crowns does not)
-            mask = np.where(d > thr, OBJECT, np.where(d < -thr, LOW, GROUND)).astype(np.uint8)
+            mask = np.zeros(z.shape, np.uint8)
+            mask[d > thr] = OBJECT
+            np.negative(thr, out=thr)
+            mask[d < thr] = LOW
+        del d, thr
         zpro[~valid] = np.nan
         surface = zpro
         info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii]
