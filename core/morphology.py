@@ -35,8 +35,10 @@ filter's reach bounded (blocks of a large raster give the one-pass result).
 
 Windows grow geometrically (``window_growth``, default 2: radii 1, 2, 4, 8, ... cells, the
 exponential windows of Zhang et al. 2003); ``window_growth=1`` gives SMRF's one-cell steps.
-Incremental terrain cuts between two radii never exceed ``s r_k``, so the SMRF threshold
-stays valid for larger steps. Square windows are separable: every erosion and dilation is two
+An opening with half-width ``r`` cuts terrain of slope ``s`` by at most ``s r`` along the
+rows and columns (``sqrt(2) s r`` on slopes facing a diagonal of the square window, where
+SMRF's disk would give ``s r``), and the cut between two radii is below the cut at the
+larger one, so the SMRF threshold stays valid for steps larger than one cell. Square windows are separable: every erosion and dilation is two
 1-D running min/max passes, each ``log2(window) + 1`` vectorised numpy passes (van Herk /
 Gil-Werman style doubling), so a 41-cell window costs about twice a 3-cell one.
 
