@@ -20,8 +20,10 @@ Bornemann & Deuflhard 1996):
    diagonal mid-points. The mid-point of a diagonal is the coarse cell centre, so the
    restriction is exact for planes and the coarse problem is a consistent discretisation
    of the fine one (a plain mean of the known children would be biased towards their
-   centroid and tilt the membrane). Only when that rule leaves a level with no known cell
-   (very sparse data) does the level fall back to the mean of the known children.
+   centroid and tilt the membrane). Along straight hole edges a side of two known
+   children is extrapolated linearly (also exact for planes). Isolated data (no exactly
+   known coarse cell around) fall back to the mean of the known children, so that
+   sparse points still reach the coarse levels.
 2. **Coarsest level** (at most 4096 cells): direct sparse solve of the Laplace system.
 3. **Each finer level:** cells that are not known start from the bilinear interpolation
    (linear extrapolation at the raster edge) of the coarser solution, then red-black
@@ -199,6 +201,16 @@ def _near_known(known, reach):
 def _restrict(known, val):
     """One pyramid level up: plane-exact 2 x 2 restriction of the known cells.
 
+    A coarse cell is known when
+
+    1. one of the diagonals of its 2 x 2 children is known: the mean of the diagonal
+       mid-points (exact for planes); else
+    2. two children along one side and the two fine cells beyond that side are known:
+       linear extrapolation to the centre (exact for planes; straight hole edges); else
+    3. it has a known child but no coarse cell of its 3 x 3 neighbourhood is known by
+       rules 1-2 (sparse data, isolated points): the mean of its known children, biased
+       by at most half a coarse cell but keeping the information on the coarse levels.
+
     Returns ``(known, value)`` of the coarse level, ``value`` 0 where not known.
     """
     h, w = known.shape
@@ -207,57 +219,68 @@ def _restrict(known, val):
         val = np.pad(val, ((0, h % 2), (0, w % 2)))
     ka, kb, kc, kd = known[0::2, 0::2], known[0::2, 1::2], known[1::2, 0::2], known[1::2, 1::2]
     va, vb, vc, vd = val[0::2, 0::2], val[0::2, 1::2], val[1::2, 0::2], val[1::2, 1::2]
-    # Diagonals a-d and b-c; their mid-points are the coarse cell centre.
+    # 1. Diagonals a-d and b-c; their mid-points are the coarse cell centre.
     d1 = ka & kd
     d2 = kb & kc
     ck = d1 | d2
-    if ck.any():
-        s = va + vd
-        s *= d1
-        t = vb + vc
-        t *= d2
-        s += t
-        n = d1.astype(np.float32)
-        n += d2
-        n *= 2.0
-        n[~ck] = 1.0
-        s /= n
-        # Cells with known children but no known diagonal (e.g. along a straight hole
-        # edge): linear extrapolation across a known side of two children from the two
-        # cells beyond it, also exact for planes. Vectorised over these few cells only.
-        part = ~ck & (ka | kb | kc | kd)
-        i, j = np.nonzero(part)
-        if i.size:
-            h2, w2 = ck.shape
-            acc = np.zeros(i.size, dtype=np.float32)
-            cnt = np.zeros(i.size, dtype=np.float32)
-            # (inner children, outer children, neighbour offset): outer children are
-            # the neighbour coarse cell's children adjacent to the inner ones.
-            sides = (((ka, va), (kc, vc), (kb, vb), (kd, vd), 0, -1),   # left
-                     ((kb, vb), (kd, vd), (ka, va), (kc, vc), 0, 1),    # right
-                     ((ka, va), (kb, vb), (kc, vc), (kd, vd), -1, 0),   # top
-                     ((kc, vc), (kd, vd), (ka, va), (kb, vb), 1, 0))    # bottom
-            for (k1, v1), (k2, v2), (k3, v3), (k4, v4), di, dj in sides:
-                ii = i + di
-                jj = j + dj
-                ok = (ii >= 0) & (ii < h2) & (jj >= 0) & (jj < w2)
-                np.clip(ii, 0, h2 - 1, out=ii)
-                np.clip(jj, 0, w2 - 1, out=jj)
-                ok &= k1[i, j] & k2[i, j] & k3[ii, jj] & k4[ii, jj]
-                est = 0.75 * (v1[i, j] + v2[i, j]) - 0.25 * (v3[ii, jj] + v4[ii, jj])
-                acc += np.where(ok, est, np.float32(0.0))
-                cnt += ok
-            ok = cnt > 0
-            s[i[ok], j[ok]] = acc[ok] / cnt[ok]
-            ck[i[ok], j[ok]] = True
+    s = va + vd
+    s *= d1
+    t = vb + vc
+    t *= d2
+    s += t
+    del t
+    s *= _DIAG_WEIGHT.take(d1.view(np.uint8) + 2 * d2.view(np.uint8))
+    # Cells with known children but no known diagonal (e.g. along a straight hole edge,
+    # or isolated points); vectorised over these few cells only.
+    part = ka | kb
+    part |= kc
+    part |= kd
+    part &= ~ck
+    i, j = np.nonzero(part)
+    del part
+    if i.size == 0:
         return ck, s
-    # Very sparse data: no complete diagonal anywhere; mean of the known children.
-    n = ka.astype(np.float32) + kb + kc + kd
-    s = va + vb + vc + vd
-    ck = n > 0
-    n[~ck] = 1.0
-    s /= n
+    h2, w2 = ck.shape
+    # 2. Linear extrapolation across a known side of two children from the two cells
+    # beyond it: (inner children, outer children = the neighbour's adjacent children).
+    acc = np.zeros(i.size, dtype=np.float32)
+    cnt = np.zeros(i.size, dtype=np.float32)
+    sides = (((ka, va), (kc, vc), (kb, vb), (kd, vd), 0, -1),   # left
+             ((kb, vb), (kd, vd), (ka, va), (kc, vc), 0, 1),    # right
+             ((ka, va), (kb, vb), (kc, vc), (kd, vd), -1, 0),   # top
+             ((kc, vc), (kd, vd), (ka, va), (kb, vb), 1, 0))    # bottom
+    for (k1, v1), (k2, v2), (k3, v3), (k4, v4), di, dj in sides:
+        ii = i + di
+        jj = j + dj
+        ok = (ii >= 0) & (ii < h2) & (jj >= 0) & (jj < w2)
+        np.clip(ii, 0, h2 - 1, out=ii)
+        np.clip(jj, 0, w2 - 1, out=jj)
+        ok &= k1[i, j] & k2[i, j] & k3[ii, jj] & k4[ii, jj]
+        est = 0.75 * (v1[i, j] + v2[i, j]) - 0.25 * (v3[ii, jj] + v4[ii, jj])
+        acc += np.where(ok, est, np.float32(0.0))
+        cnt += ok
+    ok = cnt > 0
+    rest = ~ok
+    # 3. Isolated partial cells: no exactly known coarse cell around them.
+    ir, jr = i[rest], j[rest]
+    lonely = np.ones(ir.size, bool)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            ii = np.clip(ir + di, 0, h2 - 1)
+            jj = np.clip(jr + dj, 0, w2 - 1)
+            lonely &= ~ck[ii, jj]
+    s[i[ok], j[ok]] = acc[ok] / cnt[ok]
+    ck[i[ok], j[ok]] = True
+    ir, jr = ir[lonely], jr[lonely]
+    if ir.size:
+        n = (ka[ir, jr].astype(np.float32) + kb[ir, jr] + kc[ir, jr] + kd[ir, jr])
+        s[ir, jr] = (va[ir, jr] + vb[ir, jr] + vc[ir, jr] + vd[ir, jr]) / n
+        ck[ir, jr] = True
     return ck, s
+
+
+#: 1 / (number of known diagonals * 2), indexed by d1 + 2 * d2 (0 where none).
+_DIAG_WEIGHT = np.array([0.0, 0.5, 0.5, 0.25], dtype=np.float32)
 
 
 def _solve_direct(known, val):
