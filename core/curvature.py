@@ -331,10 +331,10 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
     wall = np.zeros(Z.shape, bool)
     foot = np.zeros(Z.shape, np.float32)
     drop = np.zeros(Z.shape, np.float32)
-    idx = np.flatnonzero(B & V)
+    idx = np.flatnonzero(B if V is None else B & V)
     if idx.size == 0:
         return wall, foot, drop
-    zf = np.where(V, Z, np.float32(np.nan)).ravel()
+    zf = (Z if V is None else np.where(V, Z, np.float32(np.nan))).ravel()
     row = idx // m
 
     def back(k):  # heights k positions before, in the scan's direction ``step``
@@ -390,23 +390,40 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
     n, m = Z.shape
     out = np.zeros((n, m), bool)
     j0 = 0 if step == 1 else n - 1
-    g = np.where(V[j0], Z[j0], np.float32(np.nan)).astype(np.float32)
-    d = np.zeros(m, np.float32)
+    g = (Z[j0] if V is None else np.where(V[j0], Z[j0], np.float32(np.nan))).astype(np.float32)
+    jg = np.full(m, j0, np.int32)          # position of the last ground cell (or foot)
     obj = np.zeros(m, bool)
     rise = np.empty(m, np.float32)
-    tol = np.float32(tol)
+    end = np.empty(m, bool)
+    far = np.empty(m, bool)
+    start = np.empty(m, bool)
+    newg = np.empty(m, bool)
+    # object -> ground when rise <= max(tol, height come down a wall here)
+    E = np.maximum(D, np.float32(tol))
     for j in (range(1, n) if step == 1 else range(n - 2, -1, -1)):
-        zj, vj = Z[j], V[j]
-        d += 1
+        zj = Z[j]
         np.subtract(zj, g, out=rise)
-        start = ~obj & B[j] & W[j]
-        end = obj & ((rise <= tol) | (rise < D[j]) | (d > max_cells))
-        obj = (obj | start) & ~end
+        np.less_equal(rise, E[j], out=end)
+        if step == 1:
+            np.less(jg, j - max_cells, out=far)
+        else:
+            np.greater(jg, j + max_cells, out=far)
+        end |= far
+        end &= obj
+        np.logical_not(obj, out=start)
+        start &= W[j]                          # W is only set at marked cells (breaks)
+        obj ^= end
+        obj |= start
         np.copyto(g, F[j], where=start)
-        newg = vj & ~obj
+        np.logical_not(obj, out=newg)
+        if V is not None:
+            newg &= V[j]
         np.copyto(g, zj, where=newg)
-        d[newg | start] = 0
-        out[j] = obj & vj
+        newg |= start
+        np.copyto(jg, j, where=newg)
+        out[j] = obj
+    if V is not None:
+        out &= V
     return out
 
 
@@ -417,7 +434,7 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     scan coming down the other way meets no break going up: only objects, which have a
     break going up from both sides, are kept.
     """
-    Z = np.where(valid, z, np.float32(np.nan))
+    Z = z if valid is None else np.where(valid, z, np.float32(np.nan))
     out = None
     for step in (1, -1):
         W, F, D = _walls(Z, valid, marked, cell, reach=reach, h_min=h_min, tan_wall=tan_wall,
@@ -620,27 +637,29 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     #    curvature is zero) and a tall wall has a tiny K (h^4 is large), but its profile
     #    across the edge bends strongly.
     kappa_g = np.float32(np.sqrt(k_g))
-    mark_k = valid & (np.abs(K) >= np.float32(k_g))
-    mark_x = valid & (np.abs(r) >= kappa_g)
-    mark_y = valid & (np.abs(t) >= kappa_g)
+    mark_k = np.abs(K) >= np.float32(k_g)      # NaN (nodata) compares False
+    mark_x = np.abs(r) >= kappa_g
+    mark_y = np.abs(t) >= kappa_g
     marked = mark_k | mark_x | mark_y
     del r, t
+    all_valid = bool(valid.all())
     n_valid = max(int(valid.sum()), 1)
     report(progress, 0.35)
 
     # 3. along X and Y profiles: from a break going up to the break coming down
     m = window_cells // 2
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window_cells + 1)
-    zt = np.ascontiguousarray(z.T)
-    obj_x = _axis_objects(zt, np.ascontiguousarray(marked.T), np.ascontiguousarray(valid.T), dx,
+    vt = None if all_valid else np.ascontiguousarray(valid.T)
+    obj_x = _axis_objects(np.ascontiguousarray(z.T), np.ascontiguousarray(marked.T), vt, dx,
                           max_cells=int(max_size / dx), **kw).T
     report(progress, 0.45)
-    del zt
-    obj_y = _axis_objects(z, marked, valid, dy, max_cells=int(max_size / dy), **kw)
+    del vt
+    obj_y = _axis_objects(z, marked, None if all_valid else valid, dy,
+                          max_cells=int(max_size / dy), **kw)
     report(progress, 0.55)
 
     # 4. regions enclosed by breaks and mostly such runs -> whole objects
-    free = valid & ~marked
+    free = ~marked if all_valid else valid & ~marked
     region = _enclosed_regions(obj_x | obj_y, free, int(max(max_size / dx, max_size / dy)))
     objects = region | obj_x | obj_y
     report(progress, 0.65)
@@ -682,8 +701,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             "share_marked_y": float(mark_y.sum()) / n_valid,
             "share_marked_k": float(mark_k.sum()) / n_valid,
             "share_marked": float(marked.sum()) / n_valid,
-            "share_objects_x": float((obj_x & valid).sum()) / n_valid,
-            "share_objects_y": float((obj_y & valid).sum()) / n_valid}
+            "share_objects_x": float(obj_x.sum()) / n_valid,
+            "share_objects_y": float(obj_y.sum()) / n_valid}
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": curv}, info=info, surface=surface)
 
