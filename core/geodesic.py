@@ -152,6 +152,7 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
         offs = np.array([-W2, -1, 1, W2], np.intp)
     box = (1, H, 1, W)          # inclusive interior bounds (padded coordinates)
     frontier = None
+    stamp = None
     it = 0
     while max_iter is None or it < max_iter:
         it += 1
@@ -168,13 +169,18 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
             rr, cc = np.divmod(idx, c1 - c0 + 1)
             rr += r0
             cc += c0
-            if idx.size * 16 < (r1 - r0 + 1) * (c1 - c0 + 1):
+            if idx.size * 64 < (r1 - r0 + 1) * (c1 - c0 + 1):
                 frontier = rr * W2 + cc
             else:
                 box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
                        max(cc.min() - 1, 1), min(cc.max() + 1, W))
         else:                                     # sparse pass on the frontier
-            cand = np.unique((frontier[:, None] + offs).ravel())
+            nb = (frontier[:, None] + offs).ravel()
+            if stamp is None:
+                stamp = np.empty(Rf.size, np.int64 if Rf.size >= 2**31 else np.int32)
+            seq = np.arange(nb.size, dtype=stamp.dtype)
+            stamp[nb] = seq                       # dedupe without sorting: one writer
+            cand = nb[stamp[nb] == seq]           # per cell survives
             cand = cand[Rf[cand] < Pf[cand]]
             if cand.size == 0:
                 break
@@ -185,7 +191,7 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
             if frontier.size == 0:
                 break
             Rf[frontier] = new[ch]
-            if frontier.size * 16 > H * W:
+            if frontier.size * 32 > H * W:
                 rr, cc = np.divmod(frontier, W2)
                 box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
                        max(cc.min() - 1, 1), min(cc.max() + 1, W))
@@ -220,6 +226,58 @@ def _window(size_m, dx, dy):
 
 _S8 = np.ones((3, 3), bool)
 
+#: Steps whose window exceeds this many cells run on a coarser grid (factor a power of 2)
+#: so that the coarse window stays about this wide.
+COARSE_WINDOW = 8
+#: Scan labelling passes run by the filter.
+SCAN_PASSES = 2
+
+
+def _coarse_factor(size):
+    """Power-of-2 coarsening factor for a window of ``size`` (rows, cols) cells."""
+    f = 1
+    while max(size) / (2 * f) > COARSE_WINDOW:
+        f *= 2
+    return f
+
+
+def _block_reduce(a, f, func, fill):
+    """``func`` (np.min / np.max) over ``f`` x ``f`` blocks, edges padded with ``fill``."""
+    H, W = a.shape
+    Hc, Wc = -(-H // f), -(-W // f)
+    if Hc * f != H or Wc * f != W:
+        p = np.full((Hc * f, Wc * f), fill, a.dtype)
+        p[:H, :W] = a
+        a = p
+    return func(a.reshape(Hc, f, Wc, f), axis=(1, 3))
+
+
+def _step_reconstruction(w, valid, wmask, s, dx, dy):
+    """Reconstruction ``R_k`` of step ``s`` metres (see the module docstring).
+
+    Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
+    (``f`` a power of 2): the marker is the opening of the block minima, the mask the
+    block maxima, and the coarse reconstruction, expanded back and clipped to ``z``, is
+    ``R_k`` (on terrain the block maxima are reached, so ``R_k = z`` there; under an
+    object only the surrounding terrain level arrives). Coarse grids are aligned on the
+    array origin, so blocks must start on multiples of ``f`` (the halo is a multiple of
+    the largest ``f``).
+    """
+    size = _window(s, dx, dy)
+    f = _coarse_factor(size)
+    if f == 1:
+        marker = _opening(w, valid, size)
+        return reconstruct_by_dilation(marker, wmask, max_iter=max(size))
+    H, W = w.shape
+    zmin = _block_reduce(np.where(valid, w, np.inf), f, np.min, np.inf)
+    zmax = _block_reduce(np.where(valid, w, -np.inf), f, np.max, -np.inf)
+    vc = np.isfinite(zmin)
+    size_c = _window(s, dx * f, dy * f)
+    marker = _opening(zmin, vc, size_c)
+    Rc = reconstruct_by_dilation(marker, np.where(vc, zmax, np.nan), max_iter=max(size_c))
+    R = np.repeat(np.repeat(Rc, f, axis=0), f, axis=1)[:H, :W]
+    return np.fmin(R, wmask)
+
 
 def _component_stats(lab, n, sel, values, rim, flag):
     """Per-label max of ``values``, fraction of ``rim`` cells where ``flag``, bbox extents.
@@ -250,38 +308,53 @@ def _component_stats(lab, n, sel, values, rim, flag):
 
 
 # -------------------------------------------------------------------------- scan labels
-def _scan_rows(a, t_jump, height_m, max_cells):
-    """Scan labelling along axis 1 of ``a`` (see :func:`scan_label`)."""
+_RISE, _FALL, _BREAK = 1, 2, 3
+
+
+def _scan_axis(a, axis, t_jump, height_m, max_cells):
+    """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
+
+    Every edge between neighbours gets a key ``4 * position + type`` (type 0 none,
+    rise, fall, break); a running maximum of the keys gives, for each cell, the last
+    event on its left and a reversed running minimum the first event on its right, with
+    their types, in two vectorised passes over all profiles at once.
+    """
+    if axis == 0:
+        return _scan_axis(a.T, 1, t_jump, height_m, max_cells).T
     H, W = a.shape
     out = np.zeros((H, W), bool)
     if W < 3:
         return out
-    dz = np.diff(a, axis=1)                       # edge j: between cells j and j+1
-    rise = dz > t_jump
-    fall = dz < -t_jump
-    brk = np.isnan(dz)
-    event = rise | fall | brk
-    j = np.arange(W - 1)
-    # last event edge strictly left of cell i (edge index <= i-1); -1 if none
-    left = np.maximum.accumulate(np.where(event, j, -1), axis=1)
-    left = np.concatenate([np.full((H, 1), -1), left], axis=1)          # cell i -> edge
-    # first event edge at or right of cell i (edge index >= i); W-1 if none
-    right = np.minimum.accumulate(np.where(event, j, W - 1)[:, ::-1], axis=1)[:, ::-1]
-    right = np.concatenate([right, np.full((H, 1), W - 1)], axis=1)
-    ok = (left >= 0) & (right <= W - 2)
-    rows = np.arange(H)[:, None]
-    lc = np.clip(left, 0, W - 2)
-    rc = np.clip(right, 0, W - 2)
-    ok &= rise[rows, lc] & fall[rows, rc]
-    ok &= (right - left) <= max_cells
-    base_l = a[rows, lc]                          # cell before the rise
-    base_r = a[rows, np.clip(right + 1, 0, W - 1)]  # cell after the fall
-    i = np.arange(W)[None, :]
-    t = (i - left) / np.maximum(right + 1 - left, 1)
-    base = base_l + (base_r - base_l) * t
+    dz = a[:, 1:] - a[:, :-1]                     # edge j: between cells j and j+1
+    typ = np.zeros(dz.shape, np.int32)
     with np.errstate(invalid="ignore"):
-        ok &= (a - base) > height_m
-    return ok
+        typ[dz > t_jump] = _RISE
+        typ[dz < -t_jump] = _FALL
+    typ[np.isnan(dz)] = _BREAK
+    j4 = 4 * np.arange(W - 1, dtype=np.int32)
+    key = np.where(typ > 0, j4 + typ, np.int32(-4))
+    # last event strictly left of cell i is the running max of keys of edges <= i-1
+    left = np.empty((H, W), np.int32)
+    left[:, 0] = -4
+    np.maximum.accumulate(key, axis=1, out=left[:, 1:])
+    big = np.int32(4 * W)
+    key = np.where(typ > 0, j4 + typ, big)
+    right = np.empty((H, W), np.int32)
+    right[:, -1] = big
+    right[:, :-1] = np.minimum.accumulate(key[:, ::-1], axis=1)[:, ::-1]
+    ok = ((left & 3) == _RISE) & ((right & 3) == _FALL) & (right >= 0)
+    ok &= ((right >> 2) - (left >> 2)) <= max_cells
+    r, i = np.nonzero(ok)
+    if r.size == 0:
+        return out
+    jl = left[r, i] >> 2                          # edge of the rise: cells jl | jl+1
+    jr = right[r, i] >> 2                         # edge of the fall: cells jr | jr+1
+    base_l = a[r, jl]
+    base_r = a[r, jr + 1]
+    t = (i - jl) / (jr + 1 - jl)
+    base = base_l + (base_r - base_l) * t
+    out[r, i] = (a[r, i] - base) > height_m
+    return out
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
@@ -346,8 +419,8 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
         with np.errstate(invalid="ignore"):
             allowed = (a - reference) > height_m
     for _ in range(int(passes)):
-        lr = _scan_rows(a, jump_m + s * dx, height_m, max(2, int(max_length_m / dx)))
-        lc = _scan_rows(a.T, jump_m + s * dy, height_m, max(2, int(max_length_m / dy))).T
+        lr = _scan_axis(a, 1, jump_m + s * dx, height_m, max(2, int(max_length_m / dx)))
+        lc = _scan_axis(a, 0, jump_m + s * dy, height_m, max(2, int(max_length_m / dy)))
         new = (lr | lc) & ~labelled & allowed
         if not new.any():
             break
@@ -471,14 +544,20 @@ def geodesic_halo(params, cell_size):
     within its opening (two half-windows: ``S``) and its geodesic reconstruction (reach
     ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
     within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to ``S``
-    (``2 S``); the preprocessing two outlier windows and a cluster.
+    (``2 S``); the preprocessing two outlier windows and a cluster. The halo is rounded
+    up to a multiple of the largest coarsening factor, so that blocks whose edge is a
+    multiple of it (the default 2048 is) see the same coarse grids as one pass.
     """
     dx, dy = as_cell_size(cell_size)
     c = min(dx, dy)
     size = float(params.get("max_object_size_m", _DEFAULTS["max_object_size_m"]))
     width = float(params.get("outlier_width_m", _DEFAULTS["outlier_width_m"]))
-    reach = ((4 + EXTENT_FACTOR) * size + 2 * width) / c + OUTLIER_MAX_CELLS + 8
-    return int(np.ceil(reach))
+    reach = int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width) / c)) + OUTLIER_MAX_CELLS + 8
+    # coarse steps use grids aligned on the block origin: keep blocks aligned on them
+    params = dict(_DEFAULTS, **{k: v for k, v in params.items() if v is not None})
+    f = max(_coarse_factor(_window(s, dx, dy))
+            for s in _steps(params["min_window_m"], params["max_object_size_m"]))
+    return int(-(-reach // f) * f)
 
 
 def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
@@ -581,9 +660,7 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     counts = []
     edge_dh = 2.0 * dh0 + tan_s * np.hypot(dx, dy)
     for k, s in enumerate(sizes, start=1):
-        size = _window(s, dx, dy)
-        marker = _opening(w, valid, size)
-        R = reconstruct_by_dilation(marker, wmask, max_iter=max(size))
+        R = _step_reconstruction(w, valid, wmask, s, dx, dy)
         with np.errstate(invalid="ignore"):
             d = w - R
             cand = valid & (d > dh0)
@@ -612,7 +689,7 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     if scan_labelling:
         lab_s = scan_label(np.where(valid, cleaned, np.nan), (dx, dy), jump_m=dh0,
                            height_m=dh0, max_length_m=max_object_size_m,
-                           terrain_slope_deg=terrain_slope_deg)
+                           terrain_slope_deg=terrain_slope_deg, passes=SCAN_PASSES)
         new = lab_s & ~removed & (step == 0)
         step[new] = STEP_SCAN
         removed |= lab_s

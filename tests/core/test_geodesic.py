@@ -1,0 +1,315 @@
+"""Tests of the gradual geodesic dilation filter with scan labelling (core/geodesic.py)."""
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from bare_earth.core import geodesic as G
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.methods import get_method
+
+
+# ----------------------------------------------------------------------- helpers
+def brute_reconstruction(marker, mask, connectivity=8, max_iter=None):
+    """Textbook reconstruction: iterate min(dilate_3x3(R), mask) until stable."""
+    fp = np.ones((3, 3), bool) if connectivity == 8 else ndimage.generate_binary_structure(2, 1)
+    m = np.where(np.isnan(mask), -np.inf, mask).astype(float)
+    r = np.minimum(np.where(np.isnan(marker), -np.inf, marker).astype(float), m)
+    it = 0
+    while max_iter is None or it < max_iter:
+        it += 1
+        n = np.minimum(ndimage.maximum_filter(r, footprint=fp, mode="constant", cval=-np.inf), m)
+        if np.array_equal(n, r):
+            break
+        r = n
+    r[np.isnan(mask)] = np.nan
+    return r
+
+
+def same(a, b):
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    return (np.array_equal(np.isnan(a), np.isnan(b))
+            and np.allclose(np.nan_to_num(a, nan=0.0, neginf=-1e30),
+                            np.nan_to_num(b, nan=0.0, neginf=-1e30), atol=1e-5))
+
+
+def flat_scene(n=160, cell=1.0):
+    """Flat terrain with 5 cm deterministic noise."""
+    rng = np.random.default_rng(3)
+    return (100.0 + 0.05 * rng.standard_normal((n, n))).astype(np.float32)
+
+
+def add_box(z, r0, c0, size, height):
+    z = z.copy()
+    z[r0:r0 + size, c0:c0 + size] += height
+    return z
+
+
+def cos_hill(n, rc, cc, radius, height):
+    yy, xx = np.mgrid[0:n, 0:n]
+    r = np.hypot(yy - rc, xx - cc)
+    return np.where(r < radius, 0.5 * height * (1 + np.cos(np.pi * r / radius)), 0.0)
+
+
+PARAMS = dict(min_window_m=2.0, max_object_size_m=64.0, height_threshold_m=0.5,
+              terrain_slope_deg=5.0, edge_ratio=0.45, outlier_threshold_m=2.0,
+              outlier_width_m=2.0, scan_labelling=True)
+
+
+# ------------------------------------------------------------ reconstruction
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_reconstruction_matches_brute_force(dtype, connectivity):
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        h, w = rng.integers(1, 25, 2)
+        mask = (rng.normal(size=(h, w)).cumsum(0) * 5).astype(dtype)
+        marker = (mask - rng.integers(0, 6, (h, w))).astype(dtype)
+        max_iter = None if trial % 2 else int(rng.integers(0, 6))
+        got = G.reconstruct_by_dilation(marker, mask, connectivity=connectivity,
+                                        max_iter=max_iter)
+        ref = brute_reconstruction(marker, mask, connectivity, max_iter)
+        assert same(got, ref), (trial, h, w, max_iter)
+
+
+def test_reconstruction_long_path_uses_frontier_and_matches():
+    # a serpentine corridor: the marker's value must travel along ~900 cells, one cell
+    # per iteration, which drives the iteration into its sparse frontier mode
+    n = 61
+    mask = np.full((n, n), -5.0)
+    mask[1:-1:2, 1:-1] = 10.0                     # corridors on odd rows
+    for k, r in enumerate(range(1, n - 3, 2)):    # joined alternately right and left
+        mask[r + 1, n - 2 if k % 2 == 0 else 1] = 10.0
+    marker = np.full_like(mask, -5.0)
+    marker[1, 1] = 7.0
+    for conn in (4, 8):
+        got = G.reconstruct_by_dilation(marker, mask, connectivity=conn)
+        assert same(got, brute_reconstruction(marker, mask, conn))
+        assert (got[mask == 10.0] == 7.0).all() and (got[mask < 0] == -5.0).all()
+
+
+def test_reconstruction_nan_blocks_and_stays_nan():
+    mask = np.full((5, 7), 10.0)
+    mask[:, 3] = np.nan                       # a nodata wall
+    marker = np.zeros_like(mask)
+    marker[2, 0] = 9.0
+    got = G.reconstruct_by_dilation(marker, mask)
+    assert np.isnan(got[:, 3]).all()
+    assert (got[:, :3] == 9.0).all() and (got[:, 4:] == 0.0).all()
+    assert same(got, brute_reconstruction(marker, mask))
+
+
+def test_reconstruction_max_iter_is_geodesic_reach():
+    mask = np.full((1, 10), 5.0)
+    marker = np.zeros((1, 10))
+    marker[0, 0] = 4.0
+    got = G.reconstruct_by_dilation(marker, mask, max_iter=3)
+    assert got[0].tolist() == [4, 4, 4, 4, 0, 0, 0, 0, 0, 0]
+
+
+def test_reconstruction_bad_input():
+    with pytest.raises(ValueError, match="same shape"):
+        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="connectivity"):
+        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), connectivity=6)
+    with pytest.raises(ValueError, match="max_iter"):
+        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), max_iter=-1)
+
+
+# ------------------------------------------------------------ gradual dilation
+def test_large_building_removed_by_a_later_step():
+    z = add_box(flat_scene(), 60, 60, 24, 10.0)
+    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    sizes = res.info["step_sizes_m"]
+    step = res.extras["step"]
+    bld = np.zeros(z.shape, bool)
+    bld[60:84, 60:84] = True
+    assert (res.mask[bld] == OBJECT).all()
+    # the first steps' elements (2, 4, 8, 16 m) fit inside the 24 m roof: a later step
+    codes = np.unique(step[bld])
+    assert codes.min() >= 2 and all(sizes[c - 1] > 24 for c in codes if c < 250), codes
+    assert codes.max() < G.STEP_SCAN
+    assert (res.mask[~ndimage.binary_dilation(bld, iterations=2)] == GROUND).mean() > 0.995
+
+
+def test_hill_with_gentle_sides_kept_building_of_same_size_removed():
+    n = 160
+    base = flat_scene(n)
+    hill = (base + cos_hill(n, 80, 80, 14, 4.0)).astype(np.float32)
+    res = G.filter_geodesic(hill, 1.0, **PARAMS)
+    assert (res.mask == OBJECT).mean() < 0.002
+    # the same footprint with walls is removed
+    bld = add_box(base, 66, 66, 28, 4.0)
+    res_b = G.filter_geodesic(bld, 1.0, **PARAMS)
+    assert (res_b.mask[66:94, 66:94] == OBJECT).mean() > 0.99
+    # the height heterogeneity test is what keeps the hill: without it the hill goes
+    res_0 = G.filter_geodesic(hill, 1.0, **dict(PARAMS, edge_ratio=0.0,
+                                                scan_labelling=False))
+    assert (res_0.mask == OBJECT).sum() > 100
+
+
+def test_terrain_step_edge_kept():
+    # a 6 m terrace: the opening cuts nothing of a straight step edge, and the
+    # reconstruction restores what it would; no object along the edge
+    z = flat_scene(120)
+    z[:, 60:] += 6.0
+    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    assert (res.mask == OBJECT).mean() < 0.002
+
+
+def test_small_objects_removed_at_small_steps():
+    z = flat_scene(100)
+    z = add_box(z, 20, 20, 2, 1.5)          # a 2 m "car"
+    z = add_box(z, 50, 50, 6, 3.0)          # a 6 m shed
+    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    step = res.extras["step"]
+    sizes = res.info["step_sizes_m"]
+    assert (res.mask[20:22, 20:22] == OBJECT).all()
+    assert (res.mask[50:56, 50:56] == OBJECT).all()
+    assert sizes[step[20:22, 20:22].max() - 1] <= 4.0
+    assert sizes[step[50:56, 50:56].max() - 1] <= 8.0
+
+
+# ------------------------------------------------------------ scan labelling
+def test_scan_label_profile_with_roof():
+    x = np.arange(80, dtype=float)
+    prof = 50.0 + 0.1 * x                         # a 10 % slope
+    prof[30:42] += 6.0                            # a 12 m roof
+    prof[35:37] += 1.0                            # a chimney on it (stepped roof)
+    z = np.tile(prof, (3, 1))
+    lab = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
+    assert lab[:, 30:42].all()
+    assert not lab[:, :30].any() and not lab[:, 42:].any()
+    # with one pass only the inner (chimney) run is bounded by a rise and a fall next
+    one = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0, passes=1)
+    assert one[:, 35:37].all() and not one[:, 30:35].any()
+
+
+def test_scan_label_columns_and_limits():
+    prof = np.zeros(60)
+    prof[20:30] = 5.0
+    z = np.tile(prof, (4, 1)).T                   # the roof along the columns
+    lab = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
+    assert lab[20:30].all() and not lab[:20].any() and not lab[30:].any()
+    # longer than max_length_m: kept
+    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=8.0).any()
+    # gentle ridge (no rise beyond the terrain slope): kept
+    ridge = np.tile(30 - np.abs(np.arange(60) - 30) * 0.3, (3, 1))
+    assert not G.scan_label(ridge, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    # a ditch (fall then rise) is not a roof
+    assert not G.scan_label(-z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    # a steep slope within terrain_slope_deg is no rise
+    steep = np.tile(np.arange(40) * 0.4, (2, 1))
+    steep[:, 10:14] += 1.5
+    assert G.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    assert not G.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
+                            terrain_slope_deg=60.0).any()
+
+
+def test_scan_label_nodata_breaks_runs_and_reference():
+    prof = np.zeros(40)
+    prof[10:20] = 5.0
+    z = np.tile(prof, (2, 1))
+    z[:, 15] = np.nan
+    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    z = np.tile(prof, (2, 1))
+    ref = z.copy()                                # a reference on the roof: not above it
+    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
+                            reference=ref).any()
+    with pytest.raises(ValueError, match="max_length_m"):
+        G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=0)
+    with pytest.raises(ValueError, match="reference"):
+        G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=9, reference=ref[:1])
+
+
+# ------------------------------------------------------------ contract
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_outliers_nodata_codes_and_dtypes(dtype):
+    z = np.full((60, 60), 100.0)
+    z += (np.indices(z.shape).sum(0) % 3) * 0.1
+    z[10, 10] = 80.0                              # low outlier
+    z[40:42, 40:42] = 85.0                        # a 2 x 2 low cluster
+    z[30, 15] = 130.0                             # high spike
+    z[50:, 50:] = np.nan if dtype != np.int16 else 100.0
+    zin = z.astype(dtype)
+    keep = zin.copy()
+    res = G.filter_geodesic(zin, 1.0, **PARAMS)
+    assert np.array_equal(zin, keep, equal_nan=True)
+    assert res.mask.dtype == np.uint8 and res.extras["step"].dtype == np.uint8
+    assert res.mask[10, 10] == LOW and res.extras["step"][10, 10] == G.STEP_OUTLIER
+    assert (res.mask[40:42, 40:42] == LOW).all()
+    assert res.mask[30, 15] == OBJECT and res.extras["step"][30, 15] == G.STEP_OUTLIER
+    if dtype != np.int16:
+        assert (res.mask[50:, 50:] == NODATA).all()
+        assert (res.extras["step"][50:, 50:] == G.STEP_NODATA).all()
+    other = np.ones(z.shape, bool)
+    other[[10, 30], [10, 15]] = False
+    other[40:42, 40:42] = False
+    other[50:, 50:] = False
+    assert (res.mask[other] == GROUND).all()
+
+
+def test_resolve_and_errors():
+    z = add_box(flat_scene(100), 30, 30, 10, 8.0)
+    p = G.resolve_geodesic_params(z, 1.0)
+    assert all(v is not None for v in p.values())
+    assert 0.5 <= p["height_threshold_m"] < 1.0
+    assert 10.0 <= p["terrain_slope_deg"] <= 60.0
+    assert G.resolve_geodesic_params(z, 1.0, height_threshold_m=0.8)["height_threshold_m"] == 0.8
+    with pytest.raises(ValueError, match="unknown geodesic parameter"):
+        G.resolve_geodesic_params(z, 1.0, window=3)
+    with pytest.raises(ValueError, match="edge_ratio"):
+        G.resolve_geodesic_params(z, 1.0, edge_ratio=2.0)
+    with pytest.raises(ValueError, match="max_object_size_m"):
+        G.resolve_geodesic_params(z, 1.0, min_window_m=10.0, max_object_size_m=5.0)
+    with pytest.raises(ValueError, match="resolve_geodesic_params"):
+        G.filter_geodesic(z, 1.0, **dict(PARAMS, height_threshold_m=None))
+
+
+def test_method_registered_and_params_match_signature():
+    import inspect
+    m = get_method("geodesic")
+    sig = inspect.signature(G.filter_geodesic).parameters
+    assert {p.name for p in m.params} <= set(sig)
+    assert m.extras["step"][2] == 255
+    res = m.run(flat_scene(40), (1.0, 1.0), **m.resolve(flat_scene(40), 1.0))
+    assert res.mask.shape == (40, 40)
+    assert m.halo(m.resolve(flat_scene(40), 1.0), 1.0) >= 6 * 64
+
+
+def test_blocks_agree_with_one_pass():
+    from bare_earth.core.pipeline import run_array
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", (320, 320), seed=4)
+    params = dict(max_object_size_m=20.0)
+    halo = G.geodesic_halo(G.resolve_geodesic_params(sc.dsm, 1.0, **params), 1.0)
+    assert halo % 2 == 0                          # aligned on the coarse grids
+    one = run_array("geodesic", sc.dsm, 1.0, params=params)
+    blk = run_array("geodesic", sc.dsm, 1.0, params=params, block=160)
+    assert blk.info.get("blocks", 4) > 1
+    assert np.array_equal(one.mask, blk.mask)
+
+
+def test_city_scene_accuracy():
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", (256, 256), seed=1)
+    p = G.resolve_geodesic_params(sc.dsm, sc.cell_size)
+    res = G.filter_geodesic(sc.dsm, sc.cell_size, **p)
+    truth_obj = sc.mask == OBJECT
+    pred_obj = res.mask != GROUND
+    valid = sc.mask != NODATA
+    err = (truth_obj != pred_obj)[valid].mean()
+    assert err < 0.08, err
+
+
+def test_progress_and_cancel():
+    from bare_earth.core.common import Cancelled
+    seen = []
+    G.filter_geodesic(flat_scene(50), 1.0, progress=seen.append, **PARAMS)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+
+    def stop(f):
+        if f > 0.3:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        G.filter_geodesic(flat_scene(50), 1.0, progress=stop, **PARAMS)
