@@ -111,19 +111,21 @@ def fill_gaps(z, fill=None, *, progress=None):
         raise ValueError(f"z must be numeric; got dtype {z.dtype}.")
     zf = np.array(z, dtype=np.float32)  # always a copy: z is never modified
     finite = np.isfinite(zf)
-    if fill is None:
-        fill = ~finite
-    else:
+    fill_given = fill is not None
+    if fill_given:
         fill = np.asarray(fill)
         if fill.shape != zf.shape:
             raise ValueError(f"fill must have the shape of z {zf.shape}; got {fill.shape}. "
                              "Pass a boolean mask of the cells to fill, one per cell of z.")
         fill = fill.astype(bool, copy=False)
-    known = finite & ~fill
+    unknown = ~finite if fill is None else fill | ~finite
+    known = ~unknown
     if not known.any():
         raise ValueError("fill_gaps: no known cell to interpolate from (every cell is "
                          "nodata or to be filled); pass a surface with at least one finite "
                          "cell outside `fill`.")
+    if fill is None:
+        fill = unknown  # every non-finite cell
     if not fill.any():
         zf[~finite] = np.nan
         report(progress, 1.0)
@@ -135,9 +137,9 @@ def fill_gaps(z, fill=None, *, progress=None):
     h, w = zf.shape
     work = np.zeros((h + 2, w + 2), dtype=np.float32)  # level 0, with a padding ring
     val0 = work[1:-1, 1:-1]
-    np.subtract(zf, z0, out=val0)
-    val0[~known] = 0.0
-    keep_nan = bool((~finite & ~fill).any())  # nodata cells outside `fill`
+    np.subtract(zf, z0, out=val0, where=known)       # 0 at the unknown cells
+    nodata_kept = (unknown & ~fill) if fill_given else None  # nodata outside `fill`
+    keep_nan = nodata_kept is not None and bool(nodata_kept.any())
 
     # 1. Pyramid of (known, value) pairs, exact for planes.
     levels = [(known, val0)]
@@ -167,9 +169,9 @@ def fill_gaps(z, fill=None, *, progress=None):
 
     # Known cells keep their exact input values; the others get z0 + solution.
     u += z0
-    np.copyto(zf, u, where=~known)
+    np.copyto(zf, u, where=unknown)
     if keep_nan:
-        zf[~finite & ~fill] = np.nan
+        zf[nodata_kept] = np.nan
     return zf
 
 
