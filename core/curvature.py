@@ -455,20 +455,42 @@ def _enclosed_regions(flag, free, max_cells):
     lab, n = ndimage.label(free)
     if n == 0:
         return np.zeros(flag.shape, bool)
+    hit = np.bincount(lab[flag & free], minlength=n + 1)
     tot = np.bincount(lab.ravel(), minlength=n + 1)
-    hit = np.bincount(lab[flag], minlength=n + 1)
-    cand = (hit >= 0.5 * np.maximum(tot, 1))
+    cand = (hit > 0) & (2 * hit >= tot)
     cand[0] = False
-    edge = np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])
-    cand[edge] = False
-    if not cand[1:].any():
+    cand[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
+    if not cand.any():
         return np.zeros(flag.shape, bool)
-    ids = np.flatnonzero(cand)
-    sl = ndimage.find_objects(lab)
-    ext = np.array([max(sl[i - 1][0].stop - sl[i - 1][0].start,
-                        sl[i - 1][1].stop - sl[i - 1][1].start) for i in ids])
-    cand[ids[ext > max_cells]] = False
-    return cand[lab]
+    cells = cand[lab]
+    rr, cc = np.nonzero(cells)
+    ll = lab[rr, cc]
+    big = np.iinfo(np.int64).max
+    lo_r = np.full(n + 1, big)
+    lo_c = np.full(n + 1, big)
+    hi_r = np.full(n + 1, -1)
+    hi_c = np.full(n + 1, -1)
+    np.minimum.at(lo_r, ll, rr)
+    np.minimum.at(lo_c, ll, cc)
+    np.maximum.at(hi_r, ll, rr)
+    np.maximum.at(hi_c, ll, cc)
+    large = np.maximum(hi_r - lo_r, hi_c - lo_c) + 1 > max_cells
+    drop = large[ll]
+    cells[rr[drop], cc[drop]] = False
+    return cells
+
+
+def _dilate(mask, m):
+    """``mask`` grown by ``m`` cells (square neighbourhood), by shifted ORs."""
+    out = mask.copy()
+    for k in range(1, m + 1):
+        out[:, k:] |= mask[:, :-k]
+        out[:, :-k] |= mask[:, k:]
+    tmp = out.copy()
+    for k in range(1, m + 1):
+        out[k:] |= tmp[:-k]
+        out[:-k] |= tmp[k:]
+    return out
 
 
 def _fill_surface(z, holes):
@@ -672,7 +694,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # paper's test marks, |K| >= K_g: curved both ways (crowns, corners, spikes, pits).
     # Straight breaks away from objects (dams, embankments, terrace edges: K ~ 0 because
     # one principal curvature is zero) stay seeds.
-    near = ndimage.maximum_filter(objects.view(np.uint8), size=2 * m + 1).view(bool)
+    near = _dilate(objects, m)
     holes = ~valid | objects | (marked & near) | mark_k
     del near
     concave = marked & (H < 0)
