@@ -25,11 +25,16 @@ class FilterResult:
         Parameters actually used and statistics, for the log.
     surface : ndarray of float32 or None
         The method's own reference surface, when it has one (e.g. the opened surface).
+    dtm : ndarray of float32 or None
+        A filled DTM when the method computed one anyway: equal to ``z`` at every ground
+        cell (mask 0), interpolated at cells 1 and 2. The pipeline then uses it instead of
+        filling again.
     """
     mask: np.ndarray
     extras: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     surface: np.ndarray = None
+    dtm: np.ndarray = None
 
 
 def as_surface(z, name="z"):

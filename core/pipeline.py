@@ -96,8 +96,18 @@ def _process(meth, z, cell, params, aux, want_dtm=True, progress=None):
     if mask.shape != z.shape:
         raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a "
                            f"surface of shape {z.shape}")
-    mask[~np.isfinite(z)] = NODATA
-    dtm = fill_dtm(z, mask) if want_dtm else None
+    valid = np.isfinite(z)
+    mask[~valid] = NODATA
+    dtm = None
+    if want_dtm and res.dtm is not None:
+        dtm = np.asarray(res.dtm, dtype=np.float32)
+        if dtm.shape != z.shape or not np.isfinite(dtm[valid]).all():
+            dtm = None  # not usable: fill below
+        else:
+            dtm = dtm.copy() if dtm is res.dtm else dtm
+            dtm[~valid] = np.nan
+    if want_dtm and dtm is None:
+        dtm = fill_dtm(z, mask)
     report(progress, 1.0)
     return res, mask, dtm
 

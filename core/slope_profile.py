@@ -89,12 +89,12 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     k = int(max(2, round(scale_m / min(dx, dy))))
     k = min(k, max(2, min(z.shape) // 3))
     m = _block_min(z, k)
-    s = []
-    if m.shape[1] > 1:
-        s.append(np.abs(np.diff(m, axis=1)).ravel() / (k * dx))
-    if m.shape[0] > 1:
-        s.append(np.abs(np.diff(m, axis=0)).ravel() / (k * dy))
-    s = np.concatenate(s) if s else np.array([])
+    if min(m.shape) < 2:
+        return {"median": 0.0, "p90": 0.0, "block_cells": k}
+    # gradient magnitude (rise/run) of the block-minimum surface: the steepest slope of
+    # the ground, whatever its direction
+    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
+    s = np.hypot(gx, gy).ravel()
     s = s[np.isfinite(s)]
     if s.size == 0:
         return {"median": 0.0, "p90": 0.0, "block_cells": k}
@@ -109,16 +109,35 @@ def estimate_noise(z):
     absolute value, so edges and objects do not inflate it.
     """
     z = as_surface(z)
+    # every k-th row (and column) keeps the median cheap on large rasters; differences
+    # stay at full resolution along them
+    k = max(1, int(z.size // 2_000_000))
     d = []
     if z.shape[1] > 2:
-        d.append((z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]).ravel())
+        r = z[::k]
+        d.append((r[:, :-2] - 2 * r[:, 1:-1] + r[:, 2:]).ravel())
     if z.shape[0] > 2:
-        d.append((z[:-2] - 2 * z[1:-1] + z[2:]).ravel())
+        c = z[:, ::k]
+        d.append((c[:-2] - 2 * c[1:-1] + c[2:]).ravel())
     d = np.concatenate(d) if d else np.array([0.0])
     d = d[np.isfinite(d)]
     if d.size == 0:
         return 0.0
     return float(1.4826 * np.median(np.abs(d)) / np.sqrt(6.0))
+
+
+def _extreme3(a, op):
+    """3 x 3 running max or min (``op`` = np.maximum / np.minimum), edges replicated.
+
+    Separable, by slicing: four passes of one ufunc over the array, no copy per cell.
+    """
+    t = a.copy()
+    op(t[:, 1:], a[:, :-1], out=t[:, 1:])
+    op(t[:, :-1], a[:, 1:], out=t[:, :-1])
+    out = t.copy()
+    op(out[1:], t[:-1], out=out[1:])
+    op(out[:-1], t[1:], out=out[:-1])
+    return out
 
 
 def find_low_blunders(z, tolerance_m):
@@ -130,10 +149,10 @@ def find_low_blunders(z, tolerance_m):
     z = as_surface(z)
     valid = np.isfinite(z)
     hi = np.nanmax(z) if valid.any() else 0.0
-    zz = np.where(valid, z, hi)  # nodata must not look like a pit's rim... nor its bottom
-    closed = ndimage.grey_closing(zz, size=(3, 3), mode="nearest")
-    low = (closed - zz > tolerance_m) & valid
-    return low
+    zz = np.where(valid, z, np.float32(hi))  # nodata must not look like a pit's rim... nor its bottom
+    closed = _extreme3(_extreme3(zz, np.maximum), np.minimum)
+    closed -= zz
+    return (closed > tolerance_m) & valid
 
 
 def _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, reverse, edge_cells=1):
@@ -166,19 +185,54 @@ def _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, reverse, edge_cells=1):
         np.greater(dz, table[d], out=up)     # NaN compares False
         rejected[i] = up
         np.isfinite(v, out=ok)
-        ok &= ~up                             # accepted: the new reference (a drop resets it)
-        d += 1
+        d += ok                               # distance counts valid cells only: a nodata gap
+        ok &= ~up                             # does not let the reference drift up a roof
         np.minimum(d, cap, out=d)
         d[ok] = 1
         np.copyto(g, v, where=ok)
     return rejected
 
 
-def _axis_objects(zp, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
-    """Objects along one axis: rejected by both the forward and the backward scan."""
-    f = _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, False, edge_cells)
-    b = _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, True, edge_cells)
-    return f & b
+def _stack_profiles(seqs):
+    """Stack profile sets (each ``(npos_k, nprof_k)``) side by side, NaN-padded at the end."""
+    npos = max(q.shape[0] for q in seqs)
+    out = np.full((npos, sum(q.shape[1] for q in seqs)), np.nan, np.float32)
+    c = 0
+    for q in seqs:
+        out[: q.shape[0], c: c + q.shape[1]] = q
+        c += q.shape[1]
+    return out
+
+
+def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
+    """Forward and backward scans of the X and Y profiles, combined per axis by AND.
+
+    The four scans run as one vectorised pass: the profiles, reversed ones included, are
+    stacked side by side so each step along the profiles is one numpy operation over all of
+    them. Profiles of the two axes share a pass when their spacing is the same.
+    Returns ``(objects_x, objects_y)`` on the grid of ``zs``.
+    """
+    rows, cols = zs.shape
+    zx = np.ascontiguousarray(zs.T)          # X profiles: positions = columns
+    groups = [[("x", zx, dx, init[0], edge[0])], [("y", zs, dy, init[1], edge[1])]]
+    if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
+        groups = [groups[0] + groups[1]]
+    res = {}
+    for grp in groups:
+        seqs = []
+        for _, q, *_ in grp:
+            seqs += [q, q[::-1]]
+        stacked = _stack_profiles(seqs)
+        _, _, step, ic, ec = grp[0]
+        rej = _scan(stacked, step, tan_g, tan_t, dh0, ic, False, ec)
+        c = 0
+        for name, q, *_ in grp:
+            n, w = q.shape
+            fwd = rej[:n, c: c + w]
+            bwd = rej[:n, c + w: c + 2 * w][::-1]
+            res[name] = fwd & bwd
+            c += 2 * w
+    return res["x"].T, res["y"]
 
 
 def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
@@ -234,21 +288,22 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
     init_y = max(1, int(round(max_object_size_m / dy)))
     ex = max(1, int(round(edge_length_m / dx)))
     ey = max(1, int(round(edge_length_m / dy)))
-    obj_x = _axis_objects(np.ascontiguousarray(zs.T), dx, tan_g, tan_t, tolerance_m, init_x, ex).T
-    report(progress, 0.35)
-    obj_y = _axis_objects(zs, dy, tan_g, tan_t, tolerance_m, init_y, ey)
+    obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, tolerance_m, (init_x, init_y), (ex, ey))
     report(progress, 0.65)
     obj = (obj_x | obj_y) & valid & ~low
 
     refined = 0
+    dtm = None
     if refine and obj.any() and (valid & ~obj & ~low).any():
         from .fill import fill_gaps
         surf = fill_gaps(z, fill=obj | low)
         gy, gx = np.gradient(surf, dy, dx)
         slope = np.hypot(gx, gy)
-        back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * slope * 1.0)
+        back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * slope)
         refined = int(back.sum())
         obj &= ~back
+        if not refined:
+            dtm = surf  # nothing given back: this is the DTM, exact at every ground cell
     report(progress, 0.95)
 
     mask = np.zeros(z.shape, np.uint8)
@@ -263,7 +318,7 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
             "refined_back_percent": 100.0 * refined / n,
             "low_blunders_percent": 100.0 * float(low.sum()) / n}
     report(progress, 1.0)
-    return FilterResult(mask=mask, info=info)
+    return FilterResult(mask=mask, info=info, dtm=dtm)
 
 
 def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terrain_slope_deg=None,

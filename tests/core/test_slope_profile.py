@@ -1,0 +1,127 @@
+"""Slope-profile filter (Ke 2002, sec. 2.1): tiny exact profiles, synthetic scenes, blocks."""
+import numpy as np
+import pytest
+
+from bare_earth.core import slope_profile as sp
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.pipeline import run_array
+
+PARAMS = dict(slope_threshold_deg=30.0, terrain_slope_deg=8.0, tolerance_m=0.2, max_object_size_m=20.0,
+              refine=False)
+
+
+def profile(values, rows=3):
+    """A raster whose every row is the same profile (so X and Y agree on ground)."""
+    return np.tile(np.asarray(values, dtype=np.float32), (rows, 1))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_profile_slopes_exact(dtype):
+    z = np.array([[0, 1, 1], [0, 0, 2]], dtype=dtype)
+    ax, ay = sp.profile_slopes(z, (1.0, 2.0))
+    np.testing.assert_allclose(ax, [[45.0, 0.0], [0.0, np.degrees(np.arctan(2.0))]])
+    np.testing.assert_allclose(ay, [[0.0, np.degrees(np.arctan(-0.5)), np.degrees(np.arctan(0.5))]])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_whole_roof_removed_not_only_edges(dtype):
+    prof = [0] * 8 + [6] * 10 + [0] * 8        # a 10-cell flat roof 6 m high
+    r = sp.filter_slope_profile(profile(prof, 5).astype(dtype), 1.0, **PARAMS)
+    expect = np.array([GROUND] * 8 + [OBJECT] * 10 + [GROUND] * 8, np.uint8)
+    np.testing.assert_array_equal(r.mask[2], expect)
+
+
+def test_object_at_profile_start_removed():
+    prof = [5] * 6 + [0] * 20                  # the raster's edge cuts a roof
+    r = sp.filter_slope_profile(profile(prof), 1.0, **PARAMS)
+    np.testing.assert_array_equal(r.mask[1, :6], OBJECT)
+    np.testing.assert_array_equal(r.mask[1, 6:], GROUND)
+
+
+def test_ramp_and_terrace_kept():
+    ramp = np.arange(30, dtype=np.float32) * 0.3            # 16.7 deg, below alpha_g
+    r = sp.filter_slope_profile(profile(ramp), 1.0, **PARAMS)
+    assert (r.mask == GROUND).all()
+    terrace = [0.0] * 15 + [3.0] * 40                        # a terrain step longer than objects
+    r = sp.filter_slope_profile(profile(terrace, 5), 1.0, **PARAMS)
+    assert (r.mask[:, 15:] == GROUND).mean() > 0.9           # the scan coming down accepts it
+
+
+def test_low_blunder_is_class_2_and_neighbours_ground():
+    z = np.zeros((9, 9), np.float32)
+    z[4, 4] = -5.0                                           # a drop then a rise
+    r = sp.filter_slope_profile(z, 1.0, **PARAMS)
+    assert r.mask[4, 4] == LOW
+    assert (np.delete(r.mask.ravel(), 40) == GROUND).all()
+
+
+def test_nodata_kept_and_gap_beside_building():
+    z = np.zeros((20, 40), np.float32)
+    z[:, 10:14] = np.nan                                     # a nodata gap...
+    z[5:15, 14:24] = 8.0                                     # ...right before a building
+    r = sp.filter_slope_profile(z, 1.0, **PARAMS)
+    assert (r.mask[:, 10:14] == NODATA).all()
+    assert (r.mask[5:15, 14:24] == OBJECT).all()
+    assert (np.delete(r.mask[:5], np.s_[10:14], axis=1) == GROUND).all()
+
+
+def test_bad_parameters_raise_clear_errors():
+    z = np.zeros((5, 5), np.float32)
+    with pytest.raises(ValueError, match="slope_threshold_deg"):
+        sp.filter_slope_profile(z, 1.0, **dict(PARAMS, slope_threshold_deg=95))
+    with pytest.raises(ValueError, match="tolerance_m"):
+        sp.filter_slope_profile(z, 1.0, **dict(PARAMS, tolerance_m=-1))
+    with pytest.raises(ValueError, match="cell_size"):
+        sp.filter_slope_profile(z, 0.0, **PARAMS)
+    with pytest.raises(ValueError, match="no valid cell"):
+        sp.filter_slope_profile(np.full((5, 5), np.nan), 1.0, **PARAMS)
+
+
+def test_resolve_derives_from_data():
+    flat = np.random.default_rng(0).normal(0, 0.05, (200, 200)).astype(np.float32)
+    p = sp.resolve_slope_profile_params(flat, 1.0)
+    assert p["terrain_slope_deg"] == pytest.approx(8.0)      # the floor on flat ground
+    assert p["slope_threshold_deg"] == pytest.approx(16.0)
+    assert 0.15 <= p["tolerance_m"] <= 0.5
+    assert sp.estimate_noise(flat) == pytest.approx(0.05, rel=0.15)
+    yy, xx = np.mgrid[0:200, 0:200]
+    steep = (0.5 * xx).astype(np.float32)                    # 26.6 deg slope
+    p = sp.resolve_slope_profile_params(steep, 1.0)
+    assert p["terrain_slope_deg"] == pytest.approx(26.57, abs=0.5)
+    assert p["slope_threshold_deg"] == pytest.approx(53.1, abs=1.0)
+    p = sp.resolve_slope_profile_params(steep, 1.0, slope_threshold_deg=40.0)
+    assert p["slope_threshold_deg"] == 40.0                  # a user value wins
+
+
+def test_city_scene_whole_roofs_removed_and_type2_low():
+    from bare_earth.core.synthetic import make_scene
+    from bare_earth.core.evaluate import compare_masks
+    sc = make_scene("city", shape=(300, 300), seed=3)
+    res = run_array("slopeprofile", sc.dsm, sc.cell_size)
+    r = compare_masks(res.mask, sc.mask)
+    assert r["type2"] < 10.0, r
+    assert r["type1"] < 5.0, r
+    buildings = [o for o in sc.objects if o["kind"] == "building"]
+    assert buildings
+    for o in buildings:
+        r0, c0, r1, c1 = o["bbox"]
+        inside = sc.mask[r0:r1, c0:c1] == OBJECT
+        removed = res.mask[r0:r1, c0:c1][inside] != GROUND
+        assert removed.mean() > 0.95, o                     # whole roofs, not edges
+
+
+def test_blocked_equals_one_pass():
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(260, 300), seed=5)
+    params = dict(max_object_size_m=40.0)
+    one = run_array("slopeprofile", sc.dsm, 1.0, params=params)
+    blocked = run_array("slopeprofile", sc.dsm, 1.0, params=params, block=64, workers=2)
+    assert blocked.info["blocks"] > 1
+    np.testing.assert_array_equal(one.mask, blocked.mask)
+
+
+def test_tiny_raster():
+    z = np.array([[0, 0, 0], [0, 9, 0], [0, 0, 0]], np.float32)
+    res = run_array("slopeprofile", z, 1.0)
+    assert res.mask.shape == (3, 3)
+    assert np.isfinite(res.dtm).all()
