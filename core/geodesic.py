@@ -201,21 +201,61 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
     return out
 
 
+def _axis_slice(a, axis, start, stop):
+    return a[start:stop] if axis == 0 else a[:, start:stop]
+
+
+def _running(a, size, axis, op, pad):
+    """Running ``op`` (np.minimum / np.maximum) over a centred window of odd ``size``
+    along ``axis``; cells outside the array count as ``pad``.
+
+    Windows of 2, 4, 8 ... cells by doubling, then two overlapping power-of-2 windows
+    cover the odd window: ``log2(size) + 1`` vectorised passes of contiguous slices.
+    """
+    r = size // 2
+    if r == 0:
+        return a.copy()
+    n = a.shape[axis]
+    shape = list(a.shape)
+    shape[axis] += 2 * r
+    m = np.full(shape, pad, a.dtype)
+    if axis == 0:
+        m[r:r + n] = a
+    else:
+        m[:, r:r + n] = a
+    length = 1
+    while 2 * length <= size:
+        cur = m.shape[axis]
+        m = op(_axis_slice(m, axis, 0, cur - length), _axis_slice(m, axis, length, cur))
+        length *= 2
+    return op(_axis_slice(m, axis, 0, n), _axis_slice(m, axis, size - length, size - length + n))
+
+
+def _filter2d(a, size, op, pad):
+    """Separable running ``op`` over a ``size = (rows, cols)`` rectangle."""
+    return _running(_running(a, size[1], 1, op, pad), size[0], 0, op, pad)
+
+
 def _opening(z, valid, size):
     """Grey opening by a flat rectangle ``size`` (rows, cols); nodata ignored.
 
     Returns ``-inf`` where the whole window is nodata.
     """
-    e = ndimage.minimum_filter(np.where(valid, z, np.inf), size=size, mode="nearest")
+    e = _filter2d(np.where(valid, z, np.inf), size, np.minimum, np.inf)
     e[np.isposinf(e)] = -np.inf
-    return ndimage.maximum_filter(e, size=size, mode="nearest")
+    return _filter2d(e, size, np.maximum, -np.inf)
 
 
 def _closing(z, valid, size):
     """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored."""
-    d = ndimage.maximum_filter(np.where(valid, z, -np.inf), size=size, mode="nearest")
+    d = _filter2d(np.where(valid, z, -np.inf), size, np.maximum, -np.inf)
     d[np.isneginf(d)] = np.inf
-    return ndimage.minimum_filter(d, size=size, mode="nearest")
+    return _filter2d(d, size, np.minimum, np.inf)
+
+
+def _inner(cand):
+    """Cells of ``cand`` whose 8 neighbours are all in ``cand`` (outside = not)."""
+    return _filter2d(cand, (3, 3), np.minimum, False)
 
 
 def _window(size_m, dx, dy):
@@ -241,42 +281,87 @@ def _coarse_factor(size):
     return f
 
 
-def _block_reduce(a, f, func, fill):
-    """``func`` (np.min / np.max) over ``f`` x ``f`` blocks, edges padded with ``fill``."""
+def _block_reduce(a, f, op, fill):
+    """``op`` (np.minimum / np.maximum) over ``f`` x ``f`` blocks (``f`` a power of 2),
+    edges padded with ``fill``; pairwise halving of strided slices."""
     H, W = a.shape
     Hc, Wc = -(-H // f), -(-W // f)
     if Hc * f != H or Wc * f != W:
         p = np.full((Hc * f, Wc * f), fill, a.dtype)
         p[:H, :W] = a
         a = p
-    return func(a.reshape(Hc, f, Wc, f), axis=(1, 3))
+    while a.shape[0] > Hc:
+        a = op(a[0::2], a[1::2])
+    while a.shape[1] > Wc:
+        a = op(a[:, 0::2], a[:, 1::2])
+    return a
 
 
-def _step_reconstruction(w, valid, wmask, s, dx, dy):
-    """Reconstruction ``R_k`` of step ``s`` metres (see the module docstring).
+def _expand(c, f, shape):
+    """Nearest expansion of a coarse grid by ``f``, cropped to ``shape``."""
+    if f == 1:
+        return c
+    Hc, Wc = c.shape
+    out = np.empty((Hc, f, Wc, f), c.dtype)
+    out[...] = c[:, None, :, None]
+    return out.reshape(Hc * f, Wc * f)[:shape[0], :shape[1]]
+
+
+def _step(w, valid, wmask, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
+    """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
     (``f`` a power of 2): the marker is the opening of the block minima, the mask the
-    block maxima, and the coarse reconstruction, expanded back and clipped to ``z``, is
-    ``R_k`` (on terrain the block maxima are reached, so ``R_k = z`` there; under an
-    object only the surrounding terrain level arrives). Coarse grids are aligned on the
-    array origin, so blocks must start on multiples of ``f`` (the halo is a multiple of
-    the largest ``f``).
+    block maxima; the reconstruction ``Rc`` reaches the block maxima on terrain (so
+    ``R_k = min(z, Rc) = z`` there) and only the surrounding terrain level under an
+    object. The residual regions are analysed on that grid (residual of a block: its
+    maximum minus ``Rc``; the abrupt-rim height grows by the terrain's rise over one
+    coarse cell); a fine cell is an object when its block's region is one and its own
+    residual exceeds ``dh0``. Coarse grids are aligned on the array origin, so blocks
+    must start on multiples of ``f`` (the halo is a multiple of the largest ``f``).
+
+    Returns
+    -------
+    R : ndarray
+        ``R_k`` at full resolution (NaN at nodata).
+    obj : ndarray of bool
+        Cells removed by this step.
     """
     size = _window(s, dx, dy)
     f = _coarse_factor(size)
     if f == 1:
-        marker = _opening(w, valid, size)
-        return reconstruct_by_dilation(marker, wmask, max_iter=max(size))
-    H, W = w.shape
-    zmin = _block_reduce(np.where(valid, w, np.inf), f, np.min, np.inf)
-    zmax = _block_reduce(np.where(valid, w, -np.inf), f, np.max, -np.inf)
-    vc = np.isfinite(zmin)
-    size_c = _window(s, dx * f, dy * f)
+        zmin = zmax = w
+        vc = valid
+        size_c = size
+    else:
+        zmin = _block_reduce(np.where(valid, w, np.inf), f, np.minimum, np.inf)
+        zmax = _block_reduce(np.where(valid, w, -np.inf), f, np.maximum, -np.inf)
+        vc = np.isfinite(zmin)
+        size_c = _window(s, dx * f, dy * f)
     marker = _opening(zmin, vc, size_c)
     Rc = reconstruct_by_dilation(marker, np.where(vc, zmax, np.nan), max_iter=max(size_c))
-    R = np.repeat(np.repeat(Rc, f, axis=0), f, axis=1)[:H, :W]
-    return np.fmin(R, wmask)
+    with np.errstate(invalid="ignore"):
+        dc = zmax - Rc
+        cand = vc & (dc > dh0)
+    obj_c = np.zeros(cand.shape, bool)
+    if cand.any():
+        lab, n = ndimage.label(cand, _S8)
+        rim = cand & ~_inner(cand)
+        # a rim cell is abrupt when its residual exceeds dh0 plus what the terrain can
+        # rise over one (diagonal, coarse) cell past the dh0 contour
+        abrupt = dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy)
+        dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, dc, rim, abrupt)
+        dh_k = dh0 + tan_s * s / 2.0
+        keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
+                & (ext_r * f * dy <= ext_limit) & (ext_c * f * dx <= ext_limit))
+        keep[0] = False
+        obj_c = keep[lab]
+    if f == 1:
+        return Rc, obj_c
+    R = np.fmin(_expand(Rc, f, w.shape), wmask)
+    with np.errstate(invalid="ignore"):
+        obj = _expand(obj_c, f, w.shape) & (w - R > dh0)
+    return R, obj
 
 
 def _component_stats(lab, n, sel, values, rim, flag):
@@ -426,7 +511,7 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
             break
         labelled |= new
         # lower the labelled cells to the surrounding level for the next pass
-        low = ndimage.minimum_filter(np.where(np.isnan(a), np.inf, a), size=3, mode="nearest")
+        low = _filter2d(np.where(np.isnan(a), np.inf, a), (3, 3), np.minimum, np.inf)
         a = np.where(new, np.minimum(a, low), a)
     return labelled
 
@@ -659,25 +744,8 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     removed = np.zeros(z.shape, bool)
     ext_limit = EXTENT_FACTOR * max_object_size_m
     counts = []
-    edge_dh = 2.0 * dh0 + tan_s * np.hypot(dx, dy)
     for k, s in enumerate(sizes, start=1):
-        R = _step_reconstruction(w, valid, wmask, s, dx, dy)
-        with np.errstate(invalid="ignore"):
-            d = w - R
-            cand = valid & (d > dh0)
-        obj = np.zeros(z.shape, bool)
-        if cand.any():
-            lab, n = ndimage.label(cand, _S8)
-            rim = cand & ~ndimage.binary_erosion(cand, _S8, border_value=0)
-            # a rim cell is abrupt when its residual exceeds what a terrain slope can
-            # rise over one (diagonal) cell past the dh0 contour, plus dh0
-            abrupt = d >= edge_dh
-            dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, d, rim, abrupt)
-            dh_k = dh0 + tan_s * s / 2.0
-            keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
-                    & (ext_r * dy <= ext_limit) & (ext_c * dx <= ext_limit))
-            keep[0] = False
-            obj = keep[lab]
+        R, obj = _step(w, valid, wmask, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit)
         new = obj & ~removed
         step[new & (step == 0)] = k
         removed |= obj
