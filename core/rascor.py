@@ -495,19 +495,21 @@ def remove_height_outliers(z, keep, height_min_m, height_max_m):
 _DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 
 
-def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.1, labels=None):
+def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, labels=None):
     """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
 
     For each of the 8 directions ``e``, with ``u`` the tested cell, ``l = u + e`` its lower
     neighbour and ``b = u + 2e`` the next one, ``u`` is removed when
 
-    ``z_u - z_l > k sigma sqrt(2) + max(0, z_l - z_b)``  (the local slope beyond the pair)
+    ``z_u - z_l > k sigma sqrt(2) + max(0, z_l - z_b)``  (the local slope beyond the pair;
+    where ``b`` is missing, the slope above ``u``; with neither, the pair is not tested)
 
     unless the terrain above ``u`` rises at least as steeply (``z_{u-e} - z_u >= z_u - z_l
-    - tol``: a straight or concave slope, e.g. the toe of an embankment). A point lower
-    than all its neighbours by more than the tolerance widened by the weight factor
-    (``tol / sqrt(low_weight)``) is a low blunder (class 2) and takes no part in the pairs,
-    so it does not take its neighbours with it. Pairs never cross a region boundary
+    - tol``: a straight or concave slope, e.g. the toe of an embankment). A point that is
+    a pit along all four axes (on both sides, within 2 cells, a point higher by more than
+    the tolerance widened by the weight factor, ``tol / sqrt(low_weight)``) is a low
+    blunder (class 2, up to 3 cells wide) and takes no part in the pairs, so it does not
+    take its neighbours with it; a ditch is no pit along its own axis and stays. Pairs never cross a region boundary
     (break line).
 
     Parameters
@@ -551,16 +553,22 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.1, lab
         return v
 
     zc = sh(zp, 0, 0)
-    # low blunders: below every valid neighbour by more than tol_low
+    # low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
+    # when, on both sides within 2 cells, a point lies higher by more than tol_low (fills
+    # blunders up to 3 cells wide); a ditch or a cut continues along its own axis, so it is
+    # no pit there and stays.
     with np.errstate(invalid="ignore"):
-        n_valid = np.zeros(z.shape, np.int16)
-        n_above = np.zeros(z.shape, np.int16)
-        for dr, dc in _DIRS8:
-            v = nb(dr, dc)
-            fin = np.isfinite(v)
-            n_valid += fin
-            n_above += fin & (v - zc > tol_low)
-        low = keep & (n_valid >= 3) & (n_above == n_valid)
+        n_axes = np.zeros(z.shape, np.int16)
+        n_pits = np.zeros(z.shape, np.int16)
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            sides = []
+            for sgn in (1, -1):
+                a = np.fmax(nb(sgn * dr, sgn * dc), nb(2 * sgn * dr, 2 * sgn * dc)) - zc
+                sides.append(a)
+            has = np.isfinite(sides[0]) & np.isfinite(sides[1])
+            n_axes += has
+            n_pits += has & (sides[0] > tol_low) & (sides[1] > tol_low)
+        low = keep & (n_axes >= 2) & (n_pits == n_axes)
         zq = zp.copy()
         zq[P:-P, P:-P][low] = np.nan
         zc = sh(zq, 0, 0)
@@ -571,10 +579,15 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.1, lab
             zb = nb(2 * dr, 2 * dc, zq)
             if lp is not None:  # the far cell must lie in the region too (checked above)
                 zb = np.where(sh(lp, dr, dc) == labels, zb, np.nan)
-            beyond = np.nan_to_num(zl - zb, nan=0.0)
+            beyond = zl - zb
             up = nb(-dr, -dc, zq) - zc
             steep_above = np.isfinite(up) & (up >= dz - tol)
-            high |= (dz > tol + np.maximum(beyond, 0.0)) & ~steep_above
+            # no context on either side (edge, gap, break line): the local slope is
+            # unknown, the pair is not tested
+            known = np.isfinite(beyond) | np.isfinite(up)
+            slope = np.where(np.isfinite(beyond), beyond, up)
+            high |= known & (dz > tol + np.maximum(np.nan_to_num(slope, nan=0.0), 0.0)) \
+                & ~steep_above
     return high & keep & ~low, low
 
 
@@ -621,7 +634,7 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
         # jump up at a: from p (ground) to a; slope allowance = rise before p
         rise_before = np.where(ok_pp, np.maximum(zp - zpp, 0.0), 0.0)
         smooth_before = np.where(ok_ppp, np.abs(zp - 2 * zpp + zppp) <= veg_tol, ok_pp)
-        up = same_prev & (zk - zp - rise_before > jump) & smooth_before
+        up = same_prev & (zk - zp - rise_before > jump)
         # jump down at b: from q = prev(b) (high) to b (ground); allowance = fall after b
         nx = nxt
         nn = g(nxt, np.minimum(nx, n - 1))
@@ -633,7 +646,12 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
         zn, znn = g(zk, nx), g(zk, nn)
         fall_after = np.where(ok_n, np.maximum(zk - zn, 0.0), 0.0)
         smooth_after = np.where(ok_nn, np.abs(zk - 2 * zn + znn) <= veg_tol, ok_n)
-        down = same_prev & (zp - zk - fall_after > jump) & smooth_after
+        down = same_prev & (zp - zk - fall_after > jump)
+        # no vegetation beside the jump: the 3 ground points outside it lie on a smooth
+        # line; crowns and bushes are rough
+        # (the roof side is not tested: mixed wall / roof cells make it rough)
+        up &= smooth_before
+        down &= smooth_after
     seg_start = keep & ~same_prev
     # left: last up at or before c must be after the last down / segment start
     A = np.maximum.accumulate(np.where(up, idx, -1), axis=1)
@@ -664,8 +682,9 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
     a jump up to the next jump down are removed when the two are at most
     ``max_building_m`` apart, no other jump lies between, the points lie at least
     ``jump_m / 2`` above the line joining the ground points outside the jumps, and there is
-    no vegetation beside the jumps (the ground points outside are smooth: second
-    difference below ``2 k sigma``). X and Y profiles are combined by union; ``passes``
+    no vegetation beside the jumps (the three points outside each jump lie on a smooth
+    line: second difference below ``2 k sigma``; ground is smooth, crowns and bushes are
+    not). X and Y profiles are combined by union; ``passes``
     repetitions peel nested levels (roof superstructures).
 
     Returns
@@ -705,7 +724,7 @@ def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
 
 
 def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
-                            k=4.0, low_weight=0.1, iterations=2, test=None, labels=None,
+                            k=4.0, low_weight=0.02, iterations=2, test=None, labels=None,
                             homogeneous=True):
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
@@ -765,7 +784,7 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
 
 # ------------------------------------------------------------------- step 6
 def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=4.0,
-                            low_weight=0.1, iterations=2, test=None, labels=None,
+                            low_weight=0.02, iterations=2, test=None, labels=None,
                             homogeneous=True):
     """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
 
@@ -813,7 +832,7 @@ def _gauss(radius_cells):
 
 
 def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=4.0,
-                               low_weight=0.1, test=None, labels=None):
+                               low_weight=0.02, test=None, labels=None):
     """Step 7: final local prediction (least-squares interpolation from the neighbourhood).
 
     Each height is predicted from the remaining points within ``radius_m`` by a weighted
@@ -850,7 +869,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
                   short_profile_m=9.0, long_profile_m=25.0, profile_sigma_m=None,
                   surface_size_m=25.0, surface_sigma_m=None, prediction_radius_m=3.0,
                   prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
-                  low_weight=0.1, steps=None, breaklines=None, special_areas=None,
+                  low_weight=0.02, steps=None, breaklines=None, special_areas=None,
                   progress=None):
     """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
 
@@ -925,7 +944,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
                              "call resolve_rascor_params to derive it from the DSM.")
     if not 0 < low_weight <= 1:
         raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
-                         "factor of points below the reference (0.1: tolerance x 3.2).")
+                         "factor of points below the reference (0.02: tolerance x 7).")
     if int(snooping_iterations) < 1:
         raise ValueError(f"snooping_iterations must be >= 1; got {snooping_iterations}.")
     if steps is not None:
@@ -1046,7 +1065,7 @@ DEFAULTS = dict(terrain_class=None, homogeneous=None, sigma_m=None, step1_charac
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
                 prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
-                low_weight=0.1)
+                low_weight=0.02)
 
 
 def _analysis_crops(z, edge=384):
@@ -1293,7 +1312,7 @@ METHOD = Method(
         Param("snooping_iterations", "int", 2, "Fits per profile length / direction and "
               "per surface (outliers removed between fits).", minimum=1, maximum=10,
               advanced=True),
-        Param("low_weight", "float", 0.1, "Weight factor of points below the reference: "
+        Param("low_weight", "float", 0.02, "Weight factor of points below the reference: "
               "their tolerance is 1/sqrt(weight) wider, so ditches stay while deep low "
               "blunders go (class 2).", minimum=0.001, maximum=1.0, advanced=True),
     ),

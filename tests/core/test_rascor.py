@@ -1,0 +1,405 @@
+"""Tests of the RASCOR sequential filter (Jacobsen 2004): core/rascor.py."""
+import importlib.util
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+
+from bare_earth.core import rascor as R
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+
+N = 64
+
+
+def plane(n=N, sx=0.02, sy=0.01, base=100.0):
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    return base + sx * x + sy * y
+
+
+#: Explicit parameters for the per-step surfaces (what resolve would give on clean data).
+BASE = dict(terrain_class="rolling", homogeneous=True, sigma_m=0.1, short_profile_m=9.0,
+            long_profile_m=15.0, profile_sigma_m=0.1, surface_size_m=41.0, surface_sigma_m=0.1,
+            prediction_radius_m=3.0, prediction_sigma_m=0.1, max_building_m=60.0, jump_m=2.0)
+
+
+def run(z, **kw):
+    p = dict(BASE)
+    p.update(kw)
+    return R.filter_rascor(z, 1.0, **p)
+
+
+def only_step(res, feature, k):
+    """The cells removed are exactly ``feature`` (or within it) and all by step ``k``."""
+    st = res.extras["step"]
+    removed = (st > 0) & (st != 255)
+    assert not (removed & ~feature).any(), f"cells outside the feature removed by steps " \
+        f"{np.unique(st[removed & ~feature])}"
+    return st
+
+
+# ------------------------------------------------------------------ step 1
+def test_characterise_classes_and_sigma():
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:200, 0:200].astype(np.float64)
+    flat = 50 + 0.01 * x + rng.normal(0, 0.3, x.shape)
+    rolling = 50 + 0.10 * x + rng.normal(0, 0.05, x.shape)
+    mountain = 50 + 0.45 * x + 0.2 * y
+    c = R.characterise_terrain(flat, 1.0)
+    assert c["terrain_class"] == "flat" and c["homogeneous"]
+    assert 0.2 < c["sigma_m"] < 0.4          # estimated random error ~ 0.3 m
+    assert R.characterise_terrain(rolling, 1.0)["terrain_class"] == "rolling"
+    assert R.characterise_terrain(mountain, 1.0)["terrain_class"] == "mountainous"
+    # a flat area with an embankment is flat but not homogeneous
+    emb = 50 + 0.01 * x + np.clip(6 - (np.abs(x - 100) - 6) / 1.5, 0, 6)
+    c = R.characterise_terrain(emb, 1.0)
+    assert c["terrain_class"] == "flat" and not c["homogeneous"]
+    assert R.model_degree("flat", True) == 0 and R.model_degree("flat", False) == 1
+    assert R.model_degree("mountainous", False) == 2
+
+
+def test_class_chooses_defaults_and_is_reported():
+    z = plane(80, 0.45, 0.1)
+    p = R.resolve_rascor_params(z, 1.0)
+    assert p["terrain_class"] == "mountainous" and p["height_min_m"] is None
+    res = R.filter_rascor(z, 1.0, **p)
+    assert res.info["terrain_class"] == "mountainous"
+    assert res.info["model"] == "polynomial"
+    assert any("skipped" in n for n in res.info["notes"])   # step 2 not in mountains
+    pf = R.resolve_rascor_params(plane(80, 0.01, 0.0), 1.0)
+    assert pf["terrain_class"] == "flat" and pf["height_max_m"] is not None
+
+
+# ------------------------------------------------------------------ step 2
+def test_step2_height_distribution_flat_only():
+    z = plane(sx=0.01, sy=0.0)
+    z[10, 10] = 400.0     # bird / cloud
+    z[30, 30] = -300.0    # deep blunder
+    feature = np.zeros(z.shape, bool)
+    feature[10, 10] = feature[30, 30] = True
+    res = run(z, terrain_class="flat", height_min_m=50.0, height_max_m=150.0)
+    st = only_step(res, feature, 2)
+    assert st[10, 10] == 2 and st[30, 30] == 2
+    assert res.mask[10, 10] == OBJECT and res.mask[30, 30] == LOW
+    # rolling terrain: the step is skipped (the paper), others catch the spike
+    res = run(z, terrain_class="rolling", height_min_m=50.0, height_max_m=150.0)
+    assert res.extras["step"][10, 10] not in (0, 2)
+    assert res.info["removed_share_by_step"]["2 height distribution"] == 0.0
+
+
+# ------------------------------------------------------------------ step 3
+def test_step3_neighbour_differences_small_object():
+    z = plane()
+    feature = np.zeros(z.shape, bool)
+    feature[20:22, 30:32] = True      # a car, 1.5 m
+    z[feature] += 1.5
+    st = only_step(run(z), feature, 3)
+    assert (st[feature] == 3).all()
+
+
+def test_step3_tolerance_follows_local_slope():
+    # a steep but straight slope (60 %) is not an object: nothing removed
+    z = plane(sx=0.6, sy=0.0)
+    hi, lo = R.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
+    assert not hi.any() and not lo.any()
+    # the same step up on flat ground is removed (upper point only)
+    z = plane(sx=0.0, sy=0.0)
+    z[:, 32:] += 0.6
+    hi, _ = R.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
+    assert hi[:, 32].all() and not hi[:, 31].any() and not hi[:, 34:].any()
+
+
+def test_step3_low_blunder_class2_keeps_neighbours():
+    z = plane()
+    z[40, 40] -= 12.0
+    res = run(z)
+    assert res.mask[40, 40] == LOW and res.extras["step"][40, 40] == 3
+    assert (res.mask != 0).sum() == 1       # its neighbours (upper points) are kept
+
+
+# ------------------------------------------------------------------ step 4
+def test_step4_level_change_building():
+    z = plane()
+    feature = np.zeros(z.shape, bool)
+    feature[15:45, 12:40] = True      # 30 x 28 m building, 7 m, flat roof
+    z[feature] += 7.0
+    st = only_step(run(z), feature, 4)
+    inner = np.zeros_like(feature)
+    inner[16:44, 13:39] = True
+    assert (st[inner] == 4).all()      # the roof: the level between the jumps
+    assert (st[feature & ~inner] == 3).all()   # its edges go in step 3
+    # no jump down (a terrace edge): nothing is a building
+    z = plane()
+    z[:, 32:] += 5.0
+    hi = R.remove_level_changes(z, 1.0, np.ones(z.shape, bool), jump_m=2.0,
+                                max_building_m=60.0, sigma_m=0.1)
+    assert not hi.any()
+
+
+def test_step4_vegetation_beside_is_not_a_building():
+    # a long raised level across the whole area (no jumps along Y)
+    z = plane(sy=0.0)
+    z[:, 20:40] += 7.0
+    keep = np.ones(z.shape, bool)
+    kw = dict(jump_m=2.0, max_building_m=60.0, sigma_m=0.1)
+    hi = R.remove_level_changes(z, 1.0, keep, **kw)
+    assert hi[:, 20:40].all() and not hi[:, :20].any() and not hi[:, 40:].any()
+    # the same with rough vegetation beside the jump up: not a building
+    veg = z.copy()
+    veg[:, 10:20] += np.tile([1.0, 3.5, 0.5, 3.0, 1.5], 2)
+    hi = R.remove_level_changes(veg, 1.0, keep, **kw)
+    assert not hi.any()
+
+
+# ------------------------------------------------------------------ step 5
+def _bump(z, r0, c0, h, s):
+    y, x = np.mgrid[0:z.shape[0], 0:z.shape[1]]
+    b = h * np.exp(-0.5 * ((y - r0) ** 2 + (x - c0) ** 2) / s ** 2)
+    return z + b, b
+
+
+def test_step5_profiles_gentle_mound():
+    # a gentle mound (1.2 m, sigma 1.6 m): no pair step beyond the tolerance (step 3), no
+    # level change (step 4); its top is out of the profiles. The surface of step 6 is wide
+    # here (41 m, curved terrain would make its scale wider: 0.3 m).
+    z, b = _bump(plane(), 30, 30, 1.2, 1.6)
+    feature = b > 0.05
+    res = run(z, surface_sigma_m=0.3)
+    st = only_step(res, feature, 5)
+    assert (st[b > 0.6] == 5).all()
+    off = run(z, surface_sigma_m=0.3, step5_profiles=False)
+    assert (off.extras["step"][b > 0.6] == 0).any()      # nothing else catches all of it
+
+
+def test_step5_uneven_spacing_and_models():
+    # profiles through gaps: residuals of a straight slope stay 0 with gaps (linear model)
+    z = plane(sx=0.3, sy=0.0)
+    keep = np.ones(z.shape, bool)
+    keep[:, ::3] = False
+    hi, lo = R.remove_profile_outliers(z, 1.0, keep, lengths_m=[9.0], terrain_class="rolling",
+                                       scale_m=0.05)
+    assert not hi.any() and not lo.any()
+    # parabolic valley: the polynomial follows it, the mean does not
+    y, x = np.mgrid[0:N, 0:N].astype(float)
+    zc = 0.02 * (x - 32) ** 2
+    full = np.ones(zc.shape, bool)
+    hi2, lo2 = R.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
+                                         terrain_class="mountainous", scale_m=0.05)
+    assert not (hi2 | lo2)[:, 8:-8].any()
+    hi0, lo0 = R.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
+                                         terrain_class="flat", scale_m=0.05)
+    assert (hi0 | lo0).any()
+
+
+# ------------------------------------------------------------------ step 6
+def test_step6_surfaces_wide_platform():
+    # a 17 x 17 m platform top, 1 m high, 4 m ramps (0.25 m per m): wider than the long
+    # profile (9 m), so the profiles see its top as terrain; the 41 m surface does not.
+    y, x = np.mgrid[0:N, 0:N].astype(float)
+    d = np.maximum(np.abs(y - 32), np.abs(x - 32))
+    h = np.clip((12 - d) / 4.0, 0, 1)
+    z = plane() + h
+    feature = h > 0
+    res = run(z, short_profile_m=5.0, long_profile_m=9.0)
+    st = only_step(res, feature, 6)
+    core = d <= 4
+    assert (st[core] == 6).all()
+    off = run(z, short_profile_m=5.0, long_profile_m=9.0, step6_surfaces=False)
+    assert (off.extras["step"][core] == 0).all()
+
+
+# ------------------------------------------------------------------ step 7
+def test_step7_local_prediction_small_residual():
+    # a 0.6 m single-cell residual: within step 3 (k = 5) and the profile / surface
+    # tolerances (their scale is wider: 0.3 m), outside the local prediction's
+    z = plane()
+    z[25, 25] += 0.6
+    feature = np.zeros(z.shape, bool)
+    feature[25, 25] = True
+    kw = dict(neighbour_k=5.0, profile_sigma_m=0.3, surface_sigma_m=0.3)
+    st = only_step(run(z, step7_prediction=True, **kw), feature, 7)
+    assert st[25, 25] == 7
+    assert run(z, step7_prediction=False, **kw).extras["step"][25, 25] == 0   # optional
+
+
+# --------------------------------------------------- weights, ditches, iteration
+def test_low_points_weighted_ditch_stays_blunder_goes():
+    z = plane()
+    z[:, 30:33] -= 1.5           # a ditch 3 m wide, 1.5 m deep
+    z[50, 10] -= 8.0             # a low blunder of image matching
+    z[50:52, 50:52] -= 6.0       # a 2 x 2 low blunder
+    res = run(z)
+    assert (res.mask[:, 30:33] == GROUND).mean() > 0.95
+    assert res.mask[50, 10] == LOW
+    assert (res.mask[50:52, 50:52] == LOW).all()
+
+
+def test_second_iteration_removes_more_and_is_reported():
+    rng = np.random.default_rng(2)
+    z = plane() + rng.normal(0, 0.1, (N, N))
+    for r, c in rng.integers(5, N - 5, (15, 2)):
+        z[r - 1:r + 2, c - 1:c + 2] += rng.uniform(0.3, 0.8)   # small vegetation
+    one = run(z, sigma_m=0.1)
+    two = run(z, sigma_m=0.1, second_iteration=True)
+    assert ((two.mask != 0) >= (one.mask != 0)).all()
+    assert (two.mask != 0).sum() > (one.mask != 0).sum()
+    assert two.info["second_iteration"]
+
+
+# ----------------------------------------------------- break lines, special areas
+def test_break_line_keeps_shoulder():
+    # a terrace: 0.5 m per m slope ending at a flat top; the profiles cut the convex
+    # shoulder unless a break line runs along it
+    y, x = np.mgrid[0:N, 0:N].astype(float)
+    z = 100 + np.minimum(0.5 * x, 16.0)                  # shoulder at x = 32
+    bl = np.zeros(z.shape, bool)
+    bl[:, 32] = True
+    kw = dict(short_profile_m=9.0, long_profile_m=15.0, profile_sigma_m=0.05,
+              surface_sigma_m=0.05)
+    without = run(z, **kw)
+    with_bl = run(z, breaklines=bl, **kw)
+    assert (without.mask[:, 31:34] != 0).mean() > 0.9
+    assert (with_bl.mask != 0).sum() == 0
+    assert with_bl.info["breakline_regions"] == 3
+
+
+def test_break_regions_do_not_leak_diagonally():
+    bl = np.eye(8, dtype=bool)
+    lab, n = R.break_regions(bl)
+    assert n == 3 and lab[0, 5] != lab[5, 0]
+    assert len(set(lab[bl].tolist())) == 1
+
+
+def test_special_area_only_local_filters():
+    z = plane()
+    car = np.zeros(z.shape, bool)
+    car[10:12, 10:12] = True
+    z[car] += 1.5
+    bldg = np.zeros(z.shape, bool)
+    bldg[30:50, 30:50] = True
+    z[bldg] += 7.0
+    sp = np.zeros(z.shape, bool)
+    sp[5:55, 5:55] = True
+    res = run(z, special_areas=sp)
+    st = res.extras["step"]
+    assert (st[car] == 3).all()                       # the car goes (local filter)
+    assert set(np.unique(st[sp])) <= {0, 3, 7}        # only local steps inside
+    assert (st[bldg] == 0).any()                      # the roof is not taken by 4/5/6
+    assert res.info["special_area_share"] > 0
+
+
+# -------------------------------------------------------------- the highway case
+def _highway():
+    spec = importlib.util.spec_from_file_location("rascor_highway",
+                                                  ROOT / "benchmarks" / "rascor_highway.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_highway_case_break_lines_keep_dam():
+    f = _highway().highway_figures()
+    wo, w = f["without"], f["with"]
+    assert w["dam_kept"] >= 0.95                      # the issue's bar
+    assert w["vegetation_removed"] >= 0.95 and wo["vegetation_removed"] >= 0.95
+    assert wo["shoulder_kept"] < w["shoulder_kept"] - 0.4   # shoulders lost without
+    assert wo["removed"] > 1.5 * w["removed"]         # cf. 21.6 % vs 10.4 %
+    assert w["type2"] < 0.05
+
+
+# ----------------------------------------------------- contract, dtypes, errors
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_dtypes_and_outputs(dtype):
+    z = np.round(plane(40, 0.0, 0.0, base=100.0))
+    z[10:14, 10:14] += 9                       # a building
+    z[30, 30] = -50                            # a low blunder
+    z = z.astype(dtype)
+    zin = z.copy()
+    res = run(z, terrain_class="flat", max_building_m=20.0)
+    assert np.array_equal(z, zin)              # input untouched
+    assert res.mask.dtype == np.uint8 and res.extras["step"].dtype == np.uint8
+    assert (res.mask[11:13, 11:13] == OBJECT).all() and res.mask[30, 30] == LOW
+    assert (res.mask == 0).sum() == 40 * 40 - 16 - 1
+    shares = res.info["removed_share_by_step"]
+    assert set(shares) == {f"{k} {R.STEP_NAMES[k]}" for k in range(2, 8)}
+    assert abs(sum(shares.values()) - 17 / 1600) < 1e-9
+
+
+def test_nodata_and_step_codes():
+    z = plane().astype(np.float32)
+    z[:5, :5] = np.nan
+    z[20, 20] += 3
+    res = run(z)
+    assert (res.mask[:5, :5] == NODATA).all() and (res.extras["step"][:5, :5] == 255).all()
+    assert res.extras["step"][20, 20] == 3
+
+
+def test_steps_switchable_and_progress():
+    z, _ = _bump(plane(), 30, 30, 1.2, 1.6)
+    calls = []
+    res = run(z, steps=(3, 4), progress=calls.append)
+    assert res.info["steps_on"] == [3, 4] and (res.mask == 0).all()
+    assert calls[0] == 0.0 and calls[-1] == 1.0 and calls == sorted(calls)
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(terrain_class="hilly"), "terrain_class"),
+    (dict(short_profile_m=-1.0), "short_profile_m"),
+    (dict(low_weight=0.0), "low_weight"),
+    (dict(steps=(9,)), "steps"),
+    (dict(breaklines=np.ones((3, 3), bool)), "breaklines"),
+])
+def test_errors_name_the_problem(kw, word):
+    with pytest.raises(ValueError, match=word):
+        run(plane(), **kw)
+
+
+def test_resolve_rejects_unknown_and_derives_everything():
+    with pytest.raises(ValueError, match="unknown"):
+        R.resolve_rascor_params(plane(), 1.0, bogus=1)
+    rng = np.random.default_rng(5)
+    z = plane(96) + rng.normal(0, 0.1, (96, 96))
+    p = R.resolve_rascor_params(z, 1.0)
+    assert all(p[k] is not None for k in ("terrain_class", "homogeneous", "sigma_m",
+                                          "short_profile_m", "long_profile_m",
+                                          "surface_size_m", "profile_sigma_m"))
+    assert p["short_profile_m"] < p["long_profile_m"]
+    assert p["short_profile_m"] in R.PROFILE_LENGTHS_M
+    assert p["surface_size_m"] in R.SURFACE_SIZES_M
+
+
+def test_registry_params_match_core():
+    import inspect
+    from bare_earth.core.methods import get_method
+    m = get_method("rascor")
+    names = [p.name for p in m.params]
+    sig = inspect.signature(R.filter_rascor).parameters
+    assert all(n in sig for n in names)
+    assert "breaklines" not in names and "special_areas" not in names
+    assert set(names) == set(R.DEFAULTS)
+    assert m.extras["step"][0] is np.uint8
+
+
+def test_halo_covers_reach():
+    p = R.resolve_rascor_params(plane(), 1.0)
+    h1 = R.rascor_halo(p, 1.0)
+    assert h1 >= 2 * p["max_building_m"]
+    assert R.rascor_halo(dict(p, second_iteration=True), 1.0) > h1
+    assert R.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
+
+
+def test_blocks_match_one_pass():
+    pipeline = pytest.importorskip("bare_earth.core.pipeline")
+    rng = np.random.default_rng(7)
+    z = plane(96) + rng.normal(0, 0.05, (96, 96))
+    z[20:30, 20:34] += 6
+    z[60:63, 70:73] += 1.0
+    bl = np.zeros(z.shape, bool)
+    bl[:, 50] = True
+    params = dict(max_building_m=15.0, short_profile_m=5.0, long_profile_m=9.0,
+                  surface_size_m=9.0)
+    one = pipeline.run_array("rascor", z, 1.0, params=params, aux={"breaklines": bl})
+    blk = pipeline.run_array("rascor", z, 1.0, params=params, aux={"breaklines": bl}, block=32)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.mask, blk.mask)
+    assert np.array_equal(one.extras["step"], blk.extras["step"])
