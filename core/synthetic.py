@@ -209,6 +209,11 @@ def make_dsm(n_cells, seed=0, cell_size=1.0):
     -------
     Scene
         A ``"city"`` scene with noise and low blunders, no nodata.
+
+    Raises
+    ------
+    ValueError
+        If ``n_cells`` is below 256 (a 16 x 16 scene).
     """
     if not np.isfinite(n_cells) or n_cells < 256:
         raise ValueError(f"n_cells must be at least 256; got {n_cells!r}.")
@@ -455,7 +460,7 @@ class _Builder:
             zr = zc = None
         placed, tries = 0, 0
         lo, hi = size_range
-        while placed < n_target and tries < 6 * n_target + 20:
+        while placed < n_target and tries < 6 * n_target + 200:
             tries += 1
             # footprint: log-uniform length, width 0.4-1 of it
             length = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
@@ -616,12 +621,10 @@ class _Builder:
                     idx = rr * w + cc
                     tf = self.top.ravel()
                     tf[idx] = np.maximum(tf[idx], zc)
-            ny_, nx_ = (ny, nx)
-            rs, cs = r[sel], c[sel]
+            rs, cs = r[sel] - ny // 2, c[sel] - nx // 2       # upper-left cell
             self.objects.extend(
-                dict(kind="car", height=hh, bbox=(max(a - ny_ // 2, 0), max(b - nx_ // 2, 0),
-                                                  min(a - ny_ // 2 + ny_, h),
-                                                  min(b - nx_ // 2 + nx_, w)))
+                dict(kind="car", height=hh, bbox=(max(a, 0), max(b, 0),
+                                                  min(a + ny, h), min(b + nx, w)))
                 for hh, a, b in zip(hgt[sel].tolist(), rs.tolist(), cs.tolist()))
 
     # -- final assembly ------------------------------------------------------------------
@@ -630,7 +633,7 @@ class _Builder:
         dtm = self.ground().astype(np.float32, copy=False)
         obj = self.top > dtm
         dsm = np.where(obj, self.top, dtm)
-        mask = obj.astype(np.uint8)  # GROUND 0 / OBJECT 1
+        mask = np.where(obj, np.uint8(OBJECT), np.uint8(GROUND))
         if noise_m > 0:
             e = r_noise.standard_normal((h, w), dtype=np.float32)
             np.clip(e, -4.5, 4.5, out=e)
@@ -650,7 +653,6 @@ class _Builder:
             nod = self._nodata(r_nodata)
             dsm[nod] = np.nan
             mask[nod] = NODATA
-        assert GROUND == 0 and OBJECT == 1
         gt = (_ORIGIN[0], self.dx, 0.0, _ORIGIN[1], 0.0, -self.dy)
         return Scene(dsm=dsm.astype(np.float32, copy=False), dtm=dtm, mask=mask,
                      cell_size=(self.dx, self.dy), kind=kind, geotransform=gt, epsg=_EPSG,
