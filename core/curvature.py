@@ -682,8 +682,11 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
 
     # 4. regions enclosed by breaks and mostly such runs -> whole objects
     free = ~marked if all_valid else valid & ~marked
-    region = _enclosed_regions(obj_x | obj_y, free, int(max(max_size / dx, max_size / dy)))
-    objects = region | obj_x | obj_y
+    objects = obj_x | obj_y
+    n_obj_x, n_obj_y = int(obj_x.sum()), int(obj_y.sum())
+    del obj_x, obj_y
+    objects |= _enclosed_regions(objects, free, int(max(max_size / dx, max_size / dy)))
+    del free
     report(progress, 0.65)
 
     # 5. final pass against the ground interpolated under objects and breaks (twice:
@@ -723,8 +726,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             "share_marked_y": float(mark_y.sum()) / n_valid,
             "share_marked_k": float(mark_k.sum()) / n_valid,
             "share_marked": float(marked.sum()) / n_valid,
-            "share_objects_x": float(obj_x.sum()) / n_valid,
-            "share_objects_y": float(obj_y.sum()) / n_valid}
+            "share_objects_x": n_obj_x / n_valid,
+            "share_objects_y": n_obj_y / n_valid}
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": curv}, info=info, surface=surface)
 
