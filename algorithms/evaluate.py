@@ -10,7 +10,7 @@ from ..core import evaluate as ev
 from ..core import grid
 from ..core.points import classify_points, read_points
 from .fill_dtm import grid_mismatch_message, same_grid
-from .filter_base import BaseAlgorithm, raster_path, tr
+from .filter_base import BaseAlgorithm, raster_path, tr, with_help
 
 
 class EvaluateAlgorithm(BaseAlgorithm):
@@ -65,10 +65,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
         s.setHelp(tr("Multiplies the local DTM slope (rise/run) in the point tolerance (SMRF: 1.25)."))
         s.setFlags(s.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         self.addParameter(s)
-        self.addParameter(QgsProcessingParameterFileDestination(self.OUTPUT_JSON, tr("Figures (JSON)"),
-                                                                "JSON files (*.json)"))
-        self.addParameter(QgsProcessingParameterFileDestination(self.OUTPUT_HTML, tr("Report (HTML)"),
-                                                                "HTML files (*.html)"))
+        self.addParameter(with_help(QgsProcessingParameterFileDestination(
+            self.OUTPUT_JSON, tr("Figures (JSON)"), "JSON files (*.json)"),
+            "All figures as JSON (Type I/II, total, kappa in percent; DTM errors in metres)."))
+        self.addParameter(with_help(QgsProcessingParameterFileDestination(
+            self.OUTPUT_HTML, tr("Report (HTML)"), "HTML files (*.html)"),
+            "Self-contained HTML report: the table and a map of the Type I and Type II errors."))
         for key, label in (("TYPE1", "Type I (%)"), ("TYPE2", "Type II (%)"), ("TOTAL", "Total error (%)"),
                            ("KAPPA", "Kappa (%)"), ("RMSE", "DTM RMSE (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))

@@ -6,7 +6,7 @@ from qgis.core import (QgsProcessingException, QgsProcessingParameterBand, QgsPr
 
 from ..core import Cancelled, grid
 from ..core.fill import fill_gaps
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr
+from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr, with_help
 
 
 def same_grid(a, b):
@@ -58,7 +58,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
                   "surface on the input's grid, with its nodata.</li></ul>")
 
     def initAlgorithm(self, config=None):  # noqa: N802
-        self.addParameter(QgsProcessingParameterRasterLayer(self.INPUT, tr("Surface to fill")))
+        self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.INPUT, tr("Surface to fill")),
+                                    "Single-band surface (DSM or DTM) whose nodata or masked cells are filled."))
         b = QgsProcessingParameterBand(self.BAND, tr("Height band"), None, self.INPUT, optional=True)
         b.setHelp(tr("Band holding the heights; needed only when the raster has several bands."))
         self.addParameter(b)
@@ -71,7 +72,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
         f = QgsProcessingParameterBoolean(self.FILL_NODATA, tr("Also fill nodata cells"), True)
         f.setHelp(tr("Fill the input's nodata cells too; otherwise they stay nodata."))
         self.addParameter(f)
-        self.addParameter(QgsProcessingParameterRasterDestination(self.OUTPUT, tr("Filled surface")))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT, tr("Filled surface")),
+                                    "Float32 surface on the input's grid with the filled cells."))
 
     def _inputs(self, parameters, context):
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)

@@ -31,6 +31,14 @@ def tr(text):
     return QCoreApplication.translate("BareEarth", text)
 
 
+def with_help(param, text, advanced=False):
+    """Set a parameter's help (and the advanced flag); returns the parameter."""
+    param.setHelp(tr(text))
+    if advanced:
+        param.setFlags(param.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+    return param
+
+
 def progress_callback(feedback):
     """The core's plain progress callback for a QGIS feedback (raises Cancelled)."""
     def progress(fraction):
@@ -138,7 +146,10 @@ class FilterAlgorithm(BaseAlgorithm):
         return []
 
     def initAlgorithm(self, config=None):  # noqa: N802
-        self.addParameter(QgsProcessingParameterRasterLayer(self.INPUT, tr("Input DSM")))
+        self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.INPUT, tr("Input DSM")),
+                                    "Single-band DSM raster (GDAL). Heights in metres, or in the linear unit "
+                                    "of a projected CRS in feet; a geographic CRS has its cell size converted "
+                                    "to metres at its latitude."))
         b = QgsProcessingParameterBand(self.BAND, tr("Height band"), None, self.INPUT, optional=True)
         b.setHelp(tr("Band holding the heights; needed only when the raster has several bands."))
         self.addParameter(b)
@@ -159,14 +170,18 @@ class FilterAlgorithm(BaseAlgorithm):
         th.setHelp(tr("Blocks processed at once (threads). More threads use more memory."))
         th.setFlags(th.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         self.addParameter(th)
-        self.addParameter(QgsProcessingParameterRasterDestination(self.OUTPUT_DTM, tr("DTM")))
-        self.addParameter(QgsProcessingParameterRasterDestination(self.OUTPUT_MASK, tr("Object mask")))
-        self.addParameter(QgsProcessingParameterRasterDestination(
-            self.OUTPUT_NDSM, tr("nDSM (DSM minus DTM)"), optional=True, createByDefault=False))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_DTM, tr("DTM")),
+                                    "Float32 bare-earth DTM on the input's grid: removed cells filled by "
+                                    "interpolation from the ground around them, the input's nodata kept."))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_MASK, tr("Object mask")),
+                                    MASK_HELP))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(
+            self.OUTPUT_NDSM, tr("nDSM (DSM minus DTM)"), optional=True, createByDefault=False),
+            "Float32 normalised DSM: height above the DTM (metres, or the input's height unit)."))
         for key in self.method.extras:
-            self.addParameter(QgsProcessingParameterRasterDestination(
+            self.addParameter(with_help(QgsProcessingParameterRasterDestination(
                 f"OUTPUT_{key.upper()}", tr(self.EXTRA_HELP.get(key, key)), optional=True,
-                createByDefault=False))
+                createByDefault=False), self.EXTRA_HELP.get(key, key)))
 
     @staticmethod
     def _qgs_param(p):
@@ -234,9 +249,11 @@ class FilterAlgorithm(BaseAlgorithm):
             return False, msg
         user = self._user_params(parameters, context)
         extent_m = max(info.shape[0] * info.cell_size_m[1], info.shape[1] * info.cell_size_m[0])
+        defaults = {p.name: p.default for p in self.method.params}
         for name, v in user.items():
-            if v is not None and ("window" in name or "size_m" in name) and name.endswith("_m") \
-                    and isinstance(v, (int, float)) and v > extent_m:
+            # a default larger than a small raster is clamped by the core; a chosen one is refused
+            if v is not None and v != defaults.get(name) and ("window" in name or "size_m" in name) \
+                    and name.endswith("_m") and isinstance(v, (int, float)) and v > extent_m:
                 return False, tr(f"{name.upper()} = {v} m is larger than the raster itself "
                                  f"({extent_m:.1f} m across): choose a smaller window or a larger raster.")
         return self.checkExtraInputs(parameters, context, info)
