@@ -191,6 +191,15 @@ class Interior:
         yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
         return xd, yd
 
+    def ideal_extent(self):
+        """Largest ``|x|``, ``|y|`` of ideal (undistorted) coordinates on the image border."""
+        w, h = self.width, self.height
+        t = np.linspace(0, 1, 65)
+        cols = np.concatenate([t * (w - 1), t * (w - 1), np.zeros(65), np.full(65, w - 1.0)])
+        rows = np.concatenate([np.zeros(65), np.full(65, h - 1.0), t * (h - 1), t * (h - 1)])
+        x, y = self.undistort((cols - self.c0) / self.fx, (rows - self.r0) / self.fy)
+        return float(np.nanmax(np.abs(x))), float(np.nanmax(np.abs(y)))
+
     def undistort(self, xd, yd, iterations=30):
         """Inverse of :meth:`distort` by Newton iterations (vectorised, 2-D Jacobian)."""
         xd = np.asarray(xd, dtype=float)
@@ -288,6 +297,14 @@ class Camera:
             x = np.where(front, xc / np.where(front, zc, 1.0), np.nan)
             y = np.where(front, yc / np.where(front, zc, 1.0), np.nan)
         io = self.interior
+        if io.has_distortion:
+            # the Brown polynomial folds back far outside the frame: keep rays within the
+            # field of view (ideal coordinates of the image border, plus a margin)
+            xmax, ymax = io.ideal_extent()
+            with np.errstate(invalid="ignore"):
+                out = (np.abs(x) > 1.1 * xmax) | (np.abs(y) > 1.1 * ymax)
+            x = np.where(out, np.nan, x)
+            y = np.where(out, np.nan, y)
         xd, yd = io.distort(x, y)
         return io.c0 + io.fx * xd, io.r0 + io.fy * yd
 

@@ -40,7 +40,7 @@ def grid_xy(shape, transform):
 def visibility(camera, dem, transform, col=None, row=None, tolerance_m=None):
     """Cells of ``dem`` seen by ``camera`` (not hidden by a nearer part of the surface).
 
-    A vectorised z-buffer: every cell is projected into the image; image pixels are binned at
+    A vectorised z-buffer: every cell in the image is projected; image pixels are binned at
     about the projected cell size and a cell is visible when its distance to the camera is
     within ``tolerance_m`` of the nearest cell falling in the same bin.
 
@@ -53,6 +53,9 @@ def visibility(camera, dem, transform, col=None, row=None, tolerance_m=None):
     if col is None:
         col, row = camera.project(X, Y, dem)
     ok = np.isfinite(col) & np.isfinite(row) & np.isfinite(dem)
+    if camera is not None:
+        w, h = camera.interior.width, camera.interior.height
+        ok &= (col >= -1) & (col <= w) & (row >= -1) & (row <= h)
     vis = np.zeros(dem.shape, bool)
     if not ok.any():
         return vis

@@ -286,7 +286,9 @@ def _match_pair(a, b, dem, transform, geom, *, window, shiftable, min_corr, max_
         z, corr = _relocate((dem + dh).astype(np.float32), corr, dh * mid[0], dh * mid[1], transform)
         dh = (z - dem).astype(np.float32)
     prec = float(np.nanmedian(step_m / np.abs(along0)))   # metres of dh per cell of parallax
+    pv = p[np.isfinite(p)]
     return dh, corr, dict(max_shift=max_shift, dh_per_cell_m=prec, direction_xy=(ux, uy),
+                          rms_parallax_m=float(np.sqrt(np.mean(pv ** 2))) if pv.size else float("nan"),
                           b_over_h=float(np.nanmedian(np.abs(along0))),
                           matched=int(np.isfinite(dh).sum()))
 
@@ -443,8 +445,11 @@ class RefineResult:
     mask : ndarray uint8
         1 object where ``dh`` exceeds the threshold, 2 low, 0 ground, 255 not seen by two frames.
     table : list of dict
-        Per iteration: ``iteration``, ``rms_correction_m``, ``matched_share``, ``pairs``,
-        ``mean_corr``.
+        Per iteration: ``iteration``, ``rms_correction_m`` (RMS of the merged correction
+        over matched cells), ``matched_share`` (matched / cells seen by two frames),
+        ``pairs``, ``rms_parallax_m`` (RMS residual parallax of the pairs, ground units,
+        measured on that iteration's DEM), ``mean_corr`` and, with ``reference``,
+        ``rmse_reference_m``.
     info : dict
     """
     dem: np.ndarray
@@ -470,8 +475,9 @@ def overlapping_pairs(seen, min_overlap=0.05, min_cells=100):
 
 def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_m=None,
                 window=7, shiftable=5, min_corr=0.6, max_dh_m=None, pairs=None,
-                min_overlap=0.05, smooth_cells=3, height_threshold_m=None,
-                precision_cells=0.2, antialias=True, object_size_m=40.0, progress=None):
+                min_overlap=0.05, smooth_cells=5, height_threshold_m=None,
+                precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
+                relaxation=0.7, outlier_m=None, reference=None, progress=None):
     """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
 
     Each iteration orthorectifies every frame onto the current DEM (collinearity equations,
@@ -510,6 +516,17 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     object_size_m : float
         Largest object width: the object mask compares ``dh`` with its ground trend (a grey
         opening of this width), so smooth DEM errors are not objects; 0 compares with 0.
+    fill_sigma_cells : float
+        Reach (Gaussian sigma, cells) of the interpolation of each iteration's correction
+        into unmatched cells; farther cells keep their height.
+    relaxation : float
+        Share of each iteration's correction applied (1: all); below 1 damps the matching
+        noise that the iterations would otherwise accumulate on real images.
+    outlier_m : float, optional
+        Pair corrections farther than this from the per-cell median of the pairs are
+        dropped before the correlation-weighted mean; default 3 x the expected precision.
+    reference : ndarray, optional
+        A reference surface for evaluation only: adds ``rmse_reference_m`` to the table.
     progress : callable, optional
         ``progress(fraction)``; may raise Cancelled.
 
@@ -563,10 +580,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                  f"{min_overlap:.0%} of its cells); check the orientations, the CRS "
                                  "and that the DEM covers the images.")
         report(prog, 0.2)
-        num = np.zeros(cur.shape, np.float64)
-        den = np.zeros(cur.shape, np.float64)
-        qsum = np.zeros(cur.shape, np.float64)
-        pinfo = []
+        dhs, cors, pinfo = [], [], []
         for k, (i, j) in enumerate(pair_list):
             both = seen[i] & seen[j]
             if both.sum() < window * window * 4:
@@ -577,33 +591,35 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                        window=window, shiftable=shiftable, min_corr=min_corr,
                                        max_dh_m=float(max_dh_m), lsm_iterations=3, relocate=True)
             ok = np.isfinite(dh) & both & np.isfinite(corr)
-            w = np.where(ok, np.clip(corr, 1e-3, 1), 0.0)
-            num += np.where(ok, dh, 0) * w
-            den += w
-            qsum += np.where(np.isfinite(corr) & both, corr, 0) * w
+            dhs.append(np.where(ok, dh, np.nan).astype(np.float32))
+            cors.append(np.where(ok, corr, np.nan).astype(np.float32))
             pi.update(pair=(i, j), matched_share=float(ok.sum() / both.sum()))
             pinfo.append(pi)
             report(prog, 0.2 + 0.7 * (k + 1) / len(pair_list))
-        multi = (seen_count >= 2) & valid_dem
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dh_it = np.where(den > 0, num / den, np.nan).astype(np.float32)
-            quality = np.where(den > 0, qsum / den, np.nan).astype(np.float32)
-        matched = np.isfinite(dh_it) & multi
-        if smooth_cells and smooth_cells > 1:
-            dh_it = _median_nan(dh_it, int(smooth_cells))
-        corr_full = fill_holes(dh_it, matched)
-        corr_full = np.where(multi & np.isfinite(corr_full), corr_full, 0.0)
-        cur = np.where(valid_dem, cur + corr_full, np.nan).astype(np.float32)
-        rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
-        row = dict(iteration=it + 1, rms_correction_m=rms,
-                   matched_share=float(matched.sum() / max(1, multi.sum())),
-                   pairs=len(pinfo), mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
-        table.append(row)
         if it == 0:
             prec = float(np.median([p["dh_per_cell_m"] for p in pinfo])) if pinfo else 1.0
             info["sigma_expected_m"] = precision_cells * prec
             if tolerance_m is None:
                 tolerance_m = 0.5 * info["sigma_expected_m"]
+        multi = (seen_count >= 2) & valid_dem
+        dh_it, quality = _merge_pairs(dhs, cors, outlier_m if outlier_m is not None
+                                      else 3.0 * max(info["sigma_expected_m"], 0.1))
+        matched = np.isfinite(dh_it) & multi
+        if smooth_cells and smooth_cells > 1:
+            dh_it = _median_nan(dh_it, int(smooth_cells))
+        corr_full = fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
+        corr_full = np.where(multi & np.isfinite(corr_full), corr_full, 0.0)
+        cur = np.where(valid_dem, cur + relaxation * corr_full, np.nan).astype(np.float32)
+        rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
+        row = dict(iteration=it + 1, rms_correction_m=rms,
+                   matched_share=float(matched.sum() / max(1, multi.sum())),
+                   pairs=len(pinfo),
+                   rms_parallax_m=float(np.sqrt(np.nanmean([pi["rms_parallax_m"] ** 2 for pi in pinfo]))),
+                   mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
+        if reference is not None:
+            ev = multi & np.isfinite(reference)
+            row["rmse_reference_m"] = float(np.sqrt(np.mean((cur - reference)[ev] ** 2))) if ev.any() else float("nan")
+        table.append(row)
         report(prog, 1.0)
         if not np.isfinite(rms) or rms < tolerance_m:
             break
@@ -617,6 +633,39 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 min_corr=min_corr, cells_seen_by_two=int(multi.sum()))
     return RefineResult(cur, orthos, dh_total, np.where(multi, quality, np.nan).astype(np.float32),
                         mask, table, info)
+
+
+def _merge_pairs(dhs, cors, outlier_m):
+    """Correlation-weighted mean of the pairs' corrections after dropping per-cell outliers.
+
+    Returns ``(dh, quality)``: the merged correction (NaN where no pair matched) and the
+    correlation-weighted mean peak NCC.
+    """
+    if not dhs:
+        raise ValueError("no pair of orthophotos could be matched; check that the images overlap.")
+    D = np.stack(dhs)
+    C = np.stack(cors)
+    if len(dhs) > 1:
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(D, axis=0)
+            n = np.sum(np.isfinite(D), axis=0)
+            # with three or more values the median is robust: drop the far ones
+            with np.errstate(invalid="ignore"):
+                far = (np.abs(D - med) > outlier_m) & (n >= 3)
+            D = np.where(far, np.nan, D)
+            # two values that disagree: neither is trusted
+            spread = np.nanmax(D, axis=0) - np.nanmin(D, axis=0)
+            with np.errstate(invalid="ignore"):
+                two_bad = (n == 2) & (spread > 2 * outlier_m)
+            D = np.where(two_bad, np.nan, D)
+    W = np.where(np.isfinite(D), np.clip(np.nan_to_num(C, nan=0.0), 1e-3, 1), 0.0)
+    den = W.sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dh = np.where(den > 0, np.nansum(np.where(W > 0, D, 0) * W, axis=0) / den, np.nan)
+        q = np.where(den > 0, np.nansum(np.nan_to_num(C) * W, axis=0) / den, np.nan)
+    return dh.astype(np.float32), q.astype(np.float32)
 
 
 def _object_cells(object_size_m, transform):
