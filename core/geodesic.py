@@ -161,19 +161,19 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
             sub = R[r0 - 1:r1 + 2, c0 - 1:c1 + 2]
             new = np.minimum(_max3(sub, connectivity), P[r0:r1 + 1, c0:c1 + 1])
             old = R[r0:r1 + 1, c0:c1 + 1]
-            ch = new > old
-            idx = np.flatnonzero(ch)
-            if idx.size == 0:
+            ch = new > old                        # new >= old everywhere
+            n_ch = np.count_nonzero(ch)
+            if n_ch == 0:
                 break
-            old[ch] = new[ch]
-            rr, cc = np.divmod(idx, c1 - c0 + 1)
-            rr += r0
-            cc += c0
-            if idx.size * 64 < (r1 - r0 + 1) * (c1 - c0 + 1):
-                frontier = rr * W2 + cc
+            old[...] = new
+            if n_ch * 64 < (r1 - r0 + 1) * (c1 - c0 + 1):
+                rr, cc = np.nonzero(ch)
+                frontier = (rr + r0) * W2 + (cc + c0)
             else:
-                box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
-                       max(cc.min() - 1, 1), min(cc.max() + 1, W))
+                rows = np.flatnonzero(ch.any(axis=1))
+                cols = np.flatnonzero(ch.any(axis=0))
+                box = (max(rows[0] + r0 - 1, 1), min(rows[-1] + r0 + 1, H),
+                       max(cols[0] + c0 - 1, 1), min(cols[-1] + c0 + 1, W))
         else:                                     # sparse pass on the frontier
             nb = (frontier[:, None] + offs).ravel()
             if stamp is None:
@@ -216,6 +216,17 @@ def _running(a, size, axis, op, pad):
     if r == 0:
         return a.copy()
     n = a.shape[axis]
+    if r == 1 and n >= 2:                         # 3 cells: two shifted passes
+        out = a.copy()
+        lo, hi = _axis_slice(out, axis, 0, n - 1), _axis_slice(out, axis, 1, n)
+        op(lo, _axis_slice(a, axis, 1, n), out=lo)
+        op(hi, _axis_slice(a, axis, 0, n - 1), out=hi)
+        if not ((op is np.minimum and pad == np.inf) or (op is np.maximum and pad == -np.inf)
+                or (a.dtype == bool and pad == (op is np.minimum))):
+            first, last = _axis_slice(out, axis, 0, 1), _axis_slice(out, axis, n - 1, n)
+            op(first, pad, out=first)
+            op(last, pad, out=last)
+        return out
     shape = list(a.shape)
     shape[axis] += 2 * r
     m = np.full(shape, pad, a.dtype)
@@ -401,44 +412,51 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells):
 
     Every edge between neighbours gets a key ``4 * position + type`` (type 0 none,
     rise, fall, break); a running maximum of the keys gives, for each cell, the last
-    event on its left and a reversed running minimum the first event on its right, with
-    their types, in two vectorised passes over all profiles at once.
+    event before it and a reversed running minimum the first event after it, with their
+    types, in two vectorised passes over all profiles at once (along the array's own
+    memory order for both axes).
     """
-    if axis == 0:
-        return _scan_axis(a.T, 1, t_jump, height_m, max_cells).T
-    H, W = a.shape
-    out = np.zeros((H, W), bool)
-    if W < 3:
+    n = a.shape[axis]
+    out = np.zeros(a.shape, bool)
+    if n < 3:
         return out
-    dz = a[:, 1:] - a[:, :-1]                     # edge j: between cells j and j+1
-    typ = np.zeros(dz.shape, np.int32)
+    dz = np.diff(a, axis=axis)                    # edge j: between cells j and j+1
+    shape = (n - 1, 1) if axis == 0 else (n - 1,)
+    j4 = (4 * np.arange(n - 1, dtype=np.int32)).reshape(shape)
     with np.errstate(invalid="ignore"):
-        typ[dz > t_jump] = _RISE
-        typ[dz < -t_jump] = _FALL
+        typ = (dz > t_jump).astype(np.int32)
+        typ += 2 * (dz < -t_jump)
     typ[np.isnan(dz)] = _BREAK
-    j4 = 4 * np.arange(W - 1, dtype=np.int32)
-    key = np.where(typ > 0, j4 + typ, np.int32(-4))
-    # last event strictly left of cell i is the running max of keys of edges <= i-1
-    left = np.empty((H, W), np.int32)
-    left[:, 0] = -4
-    np.maximum.accumulate(key, axis=1, out=left[:, 1:])
-    big = np.int32(4 * W)
-    key = np.where(typ > 0, j4 + typ, big)
-    right = np.empty((H, W), np.int32)
-    right[:, -1] = big
-    right[:, :-1] = np.minimum.accumulate(key[:, ::-1], axis=1)[:, ::-1]
-    ok = ((left & 3) == _RISE) & ((right & 3) == _FALL) & (right >= 0)
+    ev = typ > 0
+    key = np.where(ev, j4 + typ, np.int32(-4))
+    # last event strictly before cell i: running max of the keys of edges <= i-1
+    left = np.empty(a.shape, np.int32)
+    _axis_slice(left, axis, 0, 1)[...] = -4
+    np.maximum.accumulate(key, axis=axis, out=_axis_slice(left, axis, 1, n))
+    # first event at or after cell i: reversed running min of the keys of edges >= i
+    big = np.int32(4 * n)
+    np.copyto(key, big, where=~ev)
+    flip = (slice(None, None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, None, -1))
+    right = np.empty(a.shape, np.int32)
+    _axis_slice(right, axis, n - 1, n)[...] = big
+    np.minimum.accumulate(key[flip], axis=axis, out=_axis_slice(right, axis, 0, n - 1)[flip])
+    ok = (left & 3) == _RISE
+    ok &= (right & 3) == _FALL
     ok &= ((right >> 2) - (left >> 2)) <= max_cells
-    r, i = np.nonzero(ok)
+    r, c = np.nonzero(ok)
     if r.size == 0:
         return out
-    jl = left[r, i] >> 2                          # edge of the rise: cells jl | jl+1
-    jr = right[r, i] >> 2                         # edge of the fall: cells jr | jr+1
-    base_l = a[r, jl]
-    base_r = a[r, jr + 1]
-    t = (i - jl) / (jr + 1 - jl)
+    if axis == 1:
+        i = c
+        jl, jr = left[r, c] >> 2, right[r, c] >> 2
+        base_l, base_r = a[r, jl], a[r, jr + 1]
+    else:
+        i = r
+        jl, jr = left[r, c] >> 2, right[r, c] >> 2
+        base_l, base_r = a[jl, c], a[jr + 1, c]
+    t = (i - jl) / (jr + 1 - jl)                  # cells before the rise / after the fall
     base = base_l + (base_r - base_l) * t
-    out[r, i] = (a[r, i] - base) > height_m
+    out[r, c] = (a[r, c] - base) > height_m
     return out
 
 
