@@ -232,51 +232,78 @@ def _restrict(known, val):
     del t
     s *= _DIAG_WEIGHT.take(d1.view(np.uint8) + 2 * d2.view(np.uint8))
     # Cells with known children but no known diagonal (e.g. along a straight hole edge,
-    # or isolated points); vectorised over these few cells only.
-    part = ka | kb
-    part |= kc
-    part |= kd
+    # or isolated points); vectorised over these few cells only. `code` holds the four
+    # children as bits: a = 1, b = 2, c = 4, d = 8.
+    code = ka.astype(np.uint8)
+    code |= kb.view(np.uint8) << 1
+    code |= kc.view(np.uint8) << 2
+    code |= kd.view(np.uint8) << 3
+    part = code != 0
     part &= ~ck
-    i, j = np.nonzero(part)
+    p = np.flatnonzero(part)
     del part
-    if i.size == 0:
+    if p.size == 0:
         return ck, s
     h2, w2 = ck.shape
-    # 2. Linear extrapolation across a known side of two children from the two cells
-    # beyond it: (inner children, outer children = the neighbour's adjacent children).
-    acc = np.zeros(i.size, dtype=np.float32)
-    cnt = np.zeros(i.size, dtype=np.float32)
-    sides = (((ka, va), (kc, vc), (kb, vb), (kd, vd), 0, -1),   # left
-             ((kb, vb), (kd, vd), (ka, va), (kc, vc), 0, 1),    # right
-             ((ka, va), (kb, vb), (kc, vc), (kd, vd), -1, 0),   # top
-             ((kc, vc), (kd, vd), (ka, va), (kb, vb), 1, 0))    # bottom
-    for (k1, v1), (k2, v2), (k3, v3), (k4, v4), di, dj in sides:
-        ii = i + di
-        jj = j + dj
-        ok = (ii >= 0) & (ii < h2) & (jj >= 0) & (jj < w2)
-        np.clip(ii, 0, h2 - 1, out=ii)
-        np.clip(jj, 0, w2 - 1, out=jj)
-        ok &= k1[i, j] & k2[i, j] & k3[ii, jj] & k4[ii, jj]
-        est = 0.75 * (v1[i, j] + v2[i, j]) - 0.25 * (v3[ii, jj] + v4[ii, jj])
-        acc += np.where(ok, est, np.float32(0.0))
-        cnt += ok
+    i, j = np.divmod(p, w2)
+    cflat = code.ravel()
+    # 2. Linear extrapolation across a known side of two children from the two fine cells
+    # beyond it (the neighbour's adjacent children): exact for planes.
+    acc = np.zeros(p.size, dtype=np.float32)
+    cnt = np.zeros(p.size, dtype=np.float32)
+    own = cflat.take(p)
+    r0, c0 = 2 * i, 2 * j                      # fine row / column of child a
+    # (inner bits, outer bits of the neighbour, neighbour offset (di, dj), inner cells as
+    # fine offsets from child a, outer cells as fine offsets from child a)
+    sides = ((5, 10, 0, -1, ((0, 0), (1, 0)), ((0, -1), (1, -1))),     # left
+             (10, 5, 0, 1, ((0, 1), (1, 1)), ((0, 2), (1, 2))),        # right
+             (3, 12, -1, 0, ((0, 0), (0, 1)), ((-1, 0), (-1, 1))),     # top
+             (12, 3, 1, 0, ((1, 0), (1, 1)), ((2, 0), (2, 1))))        # bottom
+    for inner, outer, di, dj, ins, outs in sides:
+        ok = (own & inner) == inner
+        if di:
+            ok &= (i > 0) if di < 0 else (i < h2 - 1)
+        else:
+            ok &= (j > 0) if dj < 0 else (j < w2 - 1)
+        q = np.flatnonzero(ok)
+        if q.size == 0:
+            continue
+        nb = cflat.take(np.clip(p[q] + (di * w2 + dj), 0, cflat.size - 1))
+        q = q[(nb & outer) == outer]
+        if q.size == 0:
+            continue
+        rq, cq = r0[q], c0[q]
+        est = val[rq + ins[0][0], cq + ins[0][1]] + val[rq + ins[1][0], cq + ins[1][1]]
+        est *= np.float32(0.75)
+        est -= np.float32(0.25) * (val[rq + outs[0][0], cq + outs[0][1]]
+                                   + val[rq + outs[1][0], cq + outs[1][1]])
+        acc[q] += est
+        cnt[q] += 1.0
     ok = cnt > 0
-    rest = ~ok
-    # 3. Isolated partial cells: no exactly known coarse cell around them.
+    s.ravel()[p[ok]] = acc[ok] / cnt[ok]
+    # 3. Isolated partial cells: no coarse cell of the 3 x 3 neighbourhood is known by
+    # rules 1-2 (checked before adding rule 2's cells).
+    rest = np.flatnonzero(~ok)
+    lonely = np.ones(rest.size, bool)
+    ckf = ck.ravel()
     ir, jr = i[rest], j[rest]
-    lonely = np.ones(ir.size, bool)
     for di in (-1, 0, 1):
         for dj in (-1, 0, 1):
             ii = np.clip(ir + di, 0, h2 - 1)
             jj = np.clip(jr + dj, 0, w2 - 1)
-            lonely &= ~ck[ii, jj]
-    s[i[ok], j[ok]] = acc[ok] / cnt[ok]
-    ck[i[ok], j[ok]] = True
-    ir, jr = ir[lonely], jr[lonely]
-    if ir.size:
-        n = (ka[ir, jr].astype(np.float32) + kb[ir, jr] + kc[ir, jr] + kd[ir, jr])
-        s[ir, jr] = (va[ir, jr] + vb[ir, jr] + vc[ir, jr] + vd[ir, jr]) / n
-        ck[ir, jr] = True
+            lonely &= ~ckf.take(ii * w2 + jj)
+    ckf[p[ok]] = True
+    rest = rest[lonely]
+    if rest.size:
+        rq, cq = r0[rest], c0[rest]
+        n = np.zeros(rest.size, np.float32)
+        tot = np.zeros(rest.size, np.float32)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                n += known[rq + dr, cq + dc]
+                tot += val[rq + dr, cq + dc]
+        s.ravel()[p[rest]] = tot / n
+        ckf[p[rest]] = True
     return ck, s
 
 
@@ -408,37 +435,48 @@ def _relax_level(known, val, coarse, sweeps, relax=None, omega=1.0, work=None, n
     # never touch each other, so the groups of a colour may be updated one after another.
     rows_per_block = max(1, _CHUNK // max(w, 1))
     parts = {key: [] for key in ((0, False), (1, False), (0, True), (1, True))}
+    relax_flat = None if relax is None else np.ascontiguousarray(relax).ravel()
+    near_flat, w2 = (None, 0) if near is None else (near.ravel(), near.shape[1])
     for b0 in range(0, h, rows_per_block):
         b1 = min(h, b0 + rows_per_block)
         idx = np.flatnonzero(~known[b0:b1])
         if idx.size == 0:
             continue
+        idx += b0 * w                       # flat index in the level
         r, c = np.divmod(idx, w)
-        del idx
-        r += b0
         pidx = r * wp
         pidx += c + (wp + 1)               # flat index in the padded array
         uf[pidx] = _prolong(cp, r, c)
         if sweeps <= 0:
             continue
-        if relax is not None or near is not None:
-            sel = np.ones(r.shape, bool) if relax is None else relax[r, c]
-            if near is not None:
-                sel &= near[r >> 1, c >> 1]
+        sel = None
+        if relax_flat is not None:
+            sel = relax_flat.take(idx)
+        if near_flat is not None:
+            nsel = near_flat.take((r >> 1) * w2 + (c >> 1))
+            sel = nsel if sel is None else sel & nsel
+        if sel is not None:
             r, c, pidx = r[sel], c[sel], pidx[sel]
-        edge = (r == 0) | (r == h - 1) | (c == 0) | (c == w - 1)
+        del idx, sel
+        # raster-edge cells (few) get their own groups; 1 <= c <= w - 2 in one compare
+        edge = (c - 1).astype(np.uint64, copy=False) >= np.uint64(max(w - 2, 0))
+        if b0 == 0 or b1 == h:
+            edge |= (r == 0) | (r == h - 1)
         colour = ((r + c) & 1).astype(bool)
+        any_edge = bool(edge.any())
         for col in (0, 1):
-            for is_edge in (False, True):
-                keep = (colour == bool(col)) & (edge == is_edge)
-                if keep.any():
-                    parts[(col, is_edge)].append(pidx[keep])
+            is_col = colour if col else ~colour
+            if any_edge:
+                parts[(col, False)].append(pidx[is_col & ~edge])
+                parts[(col, True)].append(pidx[is_col & edge])
+            else:
+                parts[(col, False)].append(pidx[is_col])
     core = work[1:-1, 1:-1]
     groups = []
     for (col, is_edge), chunks in parts.items():
-        if not chunks:
+        idx = np.concatenate(chunks) if chunks else np.empty(0, np.intp)
+        if idx.size == 0:
             continue
-        idx = np.concatenate(chunks)
         parts[(col, is_edge)] = None
         inv = np.float32(0.25)
         if is_edge:  # Neumann edges: the padding ring stays 0, divide by the neighbours
