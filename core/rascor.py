@@ -283,10 +283,11 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
             ky, kx = kernels
             hx, hy = len(kx) // 2, len(ky) // 2
             out = {}
+            top = max(max(px), max(py))
             for p in set(px):
                 t = ndimage.correlate1d(v, kx * np.arange(-hx, hx + 1.0) ** p, axis=1,
                                         mode="constant", cval=0.0)
-                for q in set(py):
+                for q in (q for q in set(py) if p + q <= top):
                     out[p, q] = ndimage.correlate1d(t, ky * np.arange(-hy, hy + 1.0) ** q,
                                                     axis=0, mode="constant", cval=0.0)
             return out
@@ -295,9 +296,11 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
         sy, sx = sizes
         tx = _power_sums(v, sx, px, 1)
         out = {}
+        top = max(px) if max(px) >= max(py) else max(py)
         for p in set(px):
-            ty = _power_sums(tx[p], sy, py, 0)
-            for q in set(py):
+            qs = [q for q in set(py) if p + q <= top]   # only the moments the model needs
+            ty = _power_sums(tx[p], sy, qs, 0)
+            for q in qs:
                 out[p, q] = ty[q]
         return out
 
@@ -697,15 +700,27 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
     high = np.zeros(z.shape, bool)
     zt = np.ascontiguousarray(z.T)
     lt = None if labels is None else np.ascontiguousarray(labels.T)
+    rows = np.arange(z.shape[0])
+    cols = np.arange(z.shape[1])
     for _ in range(passes):
-        rx = _raised_rows(z, cur, labels, jump_m, int(max_building_m / dx), veg_tol)
-        ry = _raised_rows(zt, np.ascontiguousarray(cur.T), lt, jump_m,
-                          int(max_building_m / dy), veg_tol).T
+        # a profile's result depends on that profile alone: later passes redo only the
+        # rows / columns where something was removed
+        rx = np.zeros(z.shape, bool)
+        ry = np.zeros(z.shape, bool)
+        if rows.size:
+            rx[rows] = _raised_rows(z[rows], cur[rows], None if labels is None else labels[rows],
+                                    jump_m, int(max_building_m / dx), veg_tol)
+        if cols.size:
+            ry[:, cols] = _raised_rows(zt[cols], np.ascontiguousarray(cur.T[cols]),
+                                       None if lt is None else lt[cols], jump_m,
+                                       int(max_building_m / dy), veg_tol).T
         new = (rx | ry) & cur
         if not new.any():
             break
         high |= new
         cur &= ~new
+        rows = np.flatnonzero(new.any(axis=1))
+        cols = np.flatnonzero(new.any(axis=0))
     return high
 
 
@@ -724,7 +739,7 @@ def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
 
 
 def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
-                            k=4.0, low_weight=0.02, iterations=2, test=None, labels=None,
+                            k=4.0, low_weight=0.02, iterations=1, test=None, labels=None,
                             homogeneous=True):
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
@@ -784,7 +799,7 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
 
 # ------------------------------------------------------------------- step 6
 def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=4.0,
-                            low_weight=0.02, iterations=2, test=None, labels=None,
+                            low_weight=0.02, iterations=1, test=None, labels=None,
                             homogeneous=True):
     """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
 
@@ -868,7 +883,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
                   neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
                   short_profile_m=9.0, long_profile_m=25.0, profile_sigma_m=None,
                   surface_size_m=25.0, surface_sigma_m=None, prediction_radius_m=3.0,
-                  prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
+                  prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
                   low_weight=0.02, steps=None, breaklines=None, special_areas=None,
                   progress=None):
     """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
@@ -1064,7 +1079,7 @@ DEFAULTS = dict(terrain_class=None, homogeneous=None, sigma_m=None, step1_charac
                 height_max_m=None, neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
-                prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=2,
+                prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
                 low_weight=0.02)
 
 
@@ -1229,7 +1244,7 @@ def rascor_halo(params, cell_size):
     def cells(m):
         return int(np.ceil((m or 0) / cs))
 
-    iters = int(p.get("snooping_iterations") or 2)
+    iters = int(p.get("snooping_iterations") or 1)
     r3 = 3 if p["step3_neighbour_differences"] else 0
     r4 = 2 * (cells(p["max_building_m"]) + 4) if p["step4_level_change"] else 0
     r5 = iters * sum(cells(L) // 2 + 1 for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
@@ -1309,7 +1324,7 @@ METHOD = Method(
               maximum=100.0, advanced=True),
         Param("snooping_k", "float", 4.0, "Critical value of the data snooping in steps "
               "5-7 (standardised residual).", minimum=0.5, maximum=20.0, advanced=True),
-        Param("snooping_iterations", "int", 2, "Fits per profile length / direction and "
+        Param("snooping_iterations", "int", 1, "Fits per profile length / direction and "
               "per surface (outliers removed between fits).", minimum=1, maximum=10,
               advanced=True),
         Param("low_weight", "float", 0.02, "Weight factor of points below the reference: "
