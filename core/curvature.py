@@ -53,7 +53,7 @@ from .methods import Method, Param
 MODELS = ("quadratic", "bilinear")
 
 #: Break threshold in robust standard deviations of the profile curvature (K_g default).
-_K_SIGMAS = 3.0
+_K_SIGMAS = 1.5
 #: Smallest height deviation (m) across a half window that counts as a break on
 #: noise-free data (floor of the derived K_g).
 _MIN_BREAK_M = 0.05
@@ -326,14 +326,18 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
     wall : ndarray of bool
     foot : ndarray of float32 (valid where ``wall``)
     drop : ndarray of float32
+    slope : ndarray of float32
+        Where ``wall``: the profile's rise per position before the foot (>= 0), so that
+        the scan can follow the ground under the object.
     """
     n, m = Z.shape
     wall = np.zeros(Z.shape, bool)
     foot = np.zeros(Z.shape, np.float32)
     drop = np.zeros(Z.shape, np.float32)
+    slope = np.zeros(Z.shape, np.float32)
     idx = np.flatnonzero(B if V is None else B & V)
     if idx.size == 0:
-        return wall, foot, drop
+        return wall, foot, drop, slope
     zf = (Z if V is None else np.where(V, Z, np.float32(np.nan))).ravel()
     row = idx // m
 
@@ -368,10 +372,11 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
     wall.flat[idx[ok]] = True
     foot.flat[idx[ok]] = best[ok]
     drop.flat[idx[down]] = fall[down]
-    return wall, foot, drop
+    slope.flat[idx[ok]] = prior[ok] * np.float32(cell)
+    return wall, foot, drop, slope
 
 
-def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
+def _scan(Z, V, B, W, F, D, S, *, tol, max_cells, step=1):
     """One directed scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
 
     The paper's reading of a profile: the points between a break going up and the
@@ -380,7 +385,8 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
 
     * ground -> object at a marked cell (a break, ``B``) at the top of a wall (``W``,
       see :func:`_walls`); the foot ``g`` is the wall's foot ``F``.
-    * object -> ground when the profile comes back down to the foot's height (within
+    * object -> ground when the profile comes back down to the ground extended from the
+      foot at the slope the profile had before the wall (``S``, rising only; within
       ``tol``), or comes down a wall (``D``, the height come down) closer to the foot
       than to where it came from (the matching break coming down, onto ground that rose
       under the object), or after ``max_cells`` (too long for an object). On a
@@ -391,7 +397,10 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
     out = np.zeros((n, m), bool)
     j0 = 0 if step == 1 else n - 1
     g = (Z[j0] if V is None else np.where(V[j0], Z[j0], np.float32(np.nan))).astype(np.float32)
-    jg = np.full(m, j0, np.int32)          # position of the last ground cell (or foot)
+    jg = np.full(m, j0, np.float32)        # position of the last ground cell (or foot)
+    gs = np.zeros(m, np.float32)           # slope of the ground under an object
+    dist = np.empty(m, np.float32)
+    lim = np.empty(m, np.float32)
     obj = np.zeros(m, bool)
     rise = np.empty(m, np.float32)
     end = np.empty(m, bool)
@@ -403,11 +412,13 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
     for j in (range(1, n) if step == 1 else range(n - 2, -1, -1)):
         zj = Z[j]
         np.subtract(zj, g, out=rise)
-        np.less_equal(rise, E[j], out=end)
-        if step == 1:
-            np.less(jg, j - max_cells, out=far)
-        else:
-            np.greater(jg, j + max_cells, out=far)
+        np.subtract(j, jg, out=dist)
+        if step != 1:
+            np.negative(dist, out=dist)
+        np.multiply(gs, dist, out=lim)
+        lim += E[j]
+        np.less_equal(rise, lim, out=end)
+        np.greater(dist, max_cells, out=far)
         end |= far
         end &= obj
         np.logical_not(obj, out=start)
@@ -415,6 +426,7 @@ def _scan(Z, V, B, W, F, D, *, tol, max_cells, step=1):
         obj ^= end
         obj |= start
         np.copyto(g, F[j], where=start)
+        np.copyto(gs, S[j], where=start)
         np.logical_not(obj, out=newg)
         if V is not None:
             newg &= V[j]
@@ -437,10 +449,10 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     Z = z if valid is None else np.where(valid, z, np.float32(np.nan))
     out = None
     for step in (1, -1):
-        W, F, D = _walls(Z, valid, marked, cell, reach=reach, h_min=h_min, tan_wall=tan_wall,
-                         step=step)
-        o = _scan(Z, valid, marked, W, F, D, tol=tol, max_cells=max_cells, step=step)
-        del W, F, D
+        W, F, D, S = _walls(Z, valid, marked, cell, reach=reach, h_min=h_min,
+                            tan_wall=tan_wall, step=step)
+        o = _scan(Z, valid, marked, W, F, D, S, tol=tol, max_cells=max_cells, step=step)
+        del W, F, D, S
         out = o if out is None else np.logical_and(out, o, out=out)
     return out
 
@@ -715,7 +727,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
         mask[concave & (d < -h_min)] = LOW
         mask[objects & (d > 0)] = OBJECT
-        holes = ~valid | (mask != GROUND)
+        holes = ~valid | (mask != GROUND) | mark_k
         report(progress, 0.8 + 0.1 * it)
     mask = finish_mask(mask, z)
 
