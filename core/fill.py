@@ -27,13 +27,19 @@ Bornemann & Deuflhard 1996):
 2. **Coarsest level** (at most 4096 cells): direct sparse solve of the Laplace system.
 3. **Each finer level:** cells that are not known start from the bilinear interpolation
    (linear extrapolation at the raster edge) of the coarser solution, then red-black
-   sweeps of the Laplace equation relax them: 4 Gauss-Seidel sweeps on the finest level
-   (smoothing), and on coarser levels successive over-relaxation (omega = 1.8) with the
-   number of sweeps doubling per level (at most 64), which is cheap there.
+   sweeps of the Laplace equation relax them. Coarser levels converge their holes with
+   successive over-relaxation (omega = 1.8; 8 sweeps on level 1, doubling per level, at
+   most 64), which is cheap there. The finest level only smooths the prolongation error,
+   which lives next to the known cells: 4 Gauss-Seidel sweeps on the cells within 7-9
+   cells of a known cell (deeper cells keep the interpolated coarse solution).
 
 The cascade is not iterated to convergence: against an exact sparse solve of the same
-Laplace system the filled heights typically differ by about 0.5-1 % (rms) and 1.5-2.5 % (max) of
-the height range across the hole, and planes are reproduced exactly (to float32 rounding).
+Laplace system the filled heights typically differ by about 0.5-1 % (rms) and 1.5-2.5 %
+(max) of the height range across the hole, and planes are reproduced exactly (to float32
+rounding).
+
+Reference: F. A. Bornemann and P. Deuflhard (1996), The cascadic multigrid method for
+elliptic problems, Numerische Mathematik 75(2):135-152.
 
 All work on a level is vectorised over the unknown cells of that level (gathers of the four
 neighbours of flat indices), so the cost is O(number of cells) with a small constant.
@@ -44,12 +50,13 @@ from .common import report
 
 #: Largest number of cells of the coarsest level (solved directly).
 _TOP_CELLS = 4096
-#: Red-black Gauss-Seidel sweeps on the finest level; doubled per coarser level, capped.
+#: Red-black Gauss-Seidel sweeps on the finest level.
 _SWEEPS_FINEST = 4
-_SWEEPS_MAX = 64
-_SWEEPS_GROWTH = 2
+#: Over-relaxation sweeps on level 1, growth factor per coarser level, cap.
 _SWEEPS_COARSE1 = 8
-#: Over-relaxation factor on the coarser levels (1 = plain Gauss-Seidel on the finest).
+_SWEEPS_GROWTH = 2
+_SWEEPS_MAX = 64
+#: Over-relaxation factor on the coarser levels (the finest uses plain Gauss-Seidel).
 _OMEGA_COARSE = 1.8
 #: Level-0 relaxation band: coarse cells within this many coarse cells of known data
 #: (fine cells within 7-9 cells of a known cell).
@@ -91,8 +98,10 @@ def fill_gaps(z, fill=None, *, progress=None):
     The result approximates the solution of the discrete Laplace equation with the known
     cells as Dirichlet data and zero-flux raster edges; it is exact for planes (a hole in
     a plane or a linear ramp is filled by that plane). Holes touching the raster edge are
-    continued with zero normal slope at the edge. Cost is O(N): about five full-array
-    passes plus a few sweeps over the unknown cells.
+    continued with zero normal slope at the edge. Cost is O(N): a few full-array passes
+    plus a few sweeps over the unknown cells; memory about 4 times a float32 copy of
+    ``z`` (result included). A 4000 x 4000 raster with 20 % of its cells in holes of
+    5-100 cells takes about 0.8-1 s of CPU (``python -m bare_earth.core.fill``).
 
     Examples
     --------
