@@ -124,7 +124,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     f = highway_figures(highway_scene(rows=a.rows, seed=a.seed))
     p = f["params"]
-    print(f"terrain class {p['terrain_class']}, sigma {p['sigma_m']} m, profiles "
+    print(f"terrain class {p['terrain_class']} ({'' if p['homogeneous'] else 'not '}homogeneous), "
+          f"sigma {p['sigma_m']} m, profiles "
           f"{p['short_profile_m']}/{p['long_profile_m']} m, surface {p['surface_size_m']} m")
     print(f"{'':22s}{'without':>10s}{'with':>10s}   break lines (paper: 21.6 % vs 10.4 % removed)")
     for key, label in (("removed", "share removed"), ("dam_kept", "dam ground kept"),
