@@ -199,7 +199,8 @@ def make_dsm(n_cells, seed=0, cell_size=1.0):
     Parameters
     ----------
     n_cells : int
-        Approximate number of cells (the side is ``round(sqrt(n_cells))``, at least 16).
+        Approximate number of cells (the side is ``round(sqrt(n_cells))``, at least 16,
+        so any ``n_cells >= 1`` is accepted).
     seed : int
         Random seed.
     cell_size : float
@@ -213,10 +214,10 @@ def make_dsm(n_cells, seed=0, cell_size=1.0):
     Raises
     ------
     ValueError
-        If ``n_cells`` is below 256 (a 16 x 16 scene).
+        If ``n_cells`` is not a positive number.
     """
-    if not np.isfinite(n_cells) or n_cells < 256:
-        raise ValueError(f"n_cells must be at least 256; got {n_cells!r}.")
+    if not np.isfinite(n_cells) or n_cells < 1:
+        raise ValueError(f"n_cells must be a positive number of cells; got {n_cells!r}.")
     side = max(16, int(round(float(n_cells) ** 0.5)))
     return make_scene("city", (side, side), cell_size=cell_size, seed=seed)
 
@@ -450,7 +451,10 @@ class _Builder:
         g = self.ground()
         area = h * w * dx * dy
         mean_fp = 950.0  # mean footprint of the size distribution, m2
-        n_target = int(coverage * area / mean_fp) if n_max is None else int(n_max)
+        if n_max is not None:
+            n_target = int(n_max)
+        else:  # at least one building in a small scene
+            n_target = max(1, int(round(coverage * area / mean_fp))) if coverage > 0 else 0
         if zone is not None and zone.any():
             zr, zc = np.nonzero(zone[::4, ::4])
             zr, zc = zr * 4, zc * 4

@@ -191,6 +191,12 @@ def test_make_dsm():
     s = make_dsm(40_000, seed=3)
     assert s.dsm.shape == (200, 200) and s.kind == "city"
     assert (s.mask == OBJECT).any()
+    assert make_dsm(1).dsm.shape == (16, 16)  # tiny requests still give a scene
+
+
+def test_small_city_still_has_a_building():
+    s = make_scene("city", (40, 40), seed=3, low_blunders=False)
+    assert any(o["kind"] == "building" for o in s.objects)
 
 
 def test_errors():
@@ -203,4 +209,4 @@ def test_errors():
     with pytest.raises(ValueError, match="noise_m"):
         make_scene("flat", (32, 32), noise_m=-0.1)
     with pytest.raises(ValueError, match="n_cells"):
-        make_dsm(10)
+        make_dsm(0)
