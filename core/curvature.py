@@ -492,6 +492,29 @@ def _enclosed_regions(flag, free, max_cells):
     return cells
 
 
+def _pits(z, cand, ring, depth):
+    """Candidates lower by ``depth`` than every valid cell on the square ring at distance
+    ``ring`` around them: spikes down (low blunders), not valleys, ditches or cuts,
+    whose bottom continues through the ring."""
+    rr, cc = np.nonzero(cand)
+    out = np.zeros(z.shape, bool)
+    if rr.size == 0:
+        return out
+    k = np.arange(-ring, ring + 1)
+    dr = np.concatenate([np.full(k.size, -ring), np.full(k.size, ring), k[1:-1], k[1:-1]])
+    dc = np.concatenate([k, k, np.full(k.size - 2, -ring), np.full(k.size - 2, ring)])
+    R = rr[:, None] + dr[None, :]
+    Cc = cc[:, None] + dc[None, :]
+    inside = (R >= 0) & (R < z.shape[0]) & (Cc >= 0) & (Cc < z.shape[1])
+    vals = np.where(inside, z[np.clip(R, 0, z.shape[0] - 1), np.clip(Cc, 0, z.shape[1] - 1)],
+                    np.nan)
+    with np.errstate(invalid="ignore"):
+        low = np.nanmin(np.where(np.isfinite(vals), vals, np.inf), axis=1)
+        ok = z[rr, cc] < low - np.float32(depth)
+    out[rr[ok], cc[ok]] = True
+    return out
+
+
 def _dilate(mask, m):
     """``mask`` grown by ``m`` cells (square neighbourhood), by shifted ORs."""
     out = mask.copy()
@@ -725,7 +748,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         allow *= np.float32(max(dx, dy))
         allow += np.float32(tol)
         mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
-        mask[concave & (d < -h_min)] = LOW
+        mask[_pits(z, concave & (d < -h_min), m + 2, h_min)] = LOW
         mask[objects & (d > 0)] = OBJECT
         holes = ~valid | (mask != GROUND) | mark_k
         report(progress, 0.8 + 0.1 * it)
