@@ -211,9 +211,15 @@ def check_has_data(info, max_cells=4_000_000):
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
     a = band.ReadAsArray(0, 0, cols, rows, buf_xsize=max(1, cols // step), buf_ysize=max(1, rows // step),
-                         resample_alg=gdal.GRIORA_NearestNeighour) if step > 1 else band.ReadAsArray()
+                         resample_alg=gdal.GRIORA_NearestNeighbour) if step > 1 else band.ReadAsArray()
     z = to_surface(a, info.nodata)
     valid = np.isfinite(z)
+    if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
+        strip = max(1, max_cells // cols)
+        for r in range(0, rows, strip):
+            valid = np.isfinite(to_surface(band.ReadAsArray(0, r, cols, min(strip, rows - r)), info.nodata))
+            if valid.any():
+                break
     if not valid.any():
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")

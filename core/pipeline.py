@@ -60,7 +60,8 @@ def _user_params(meth, params):
         p = known.get(name)
         if p is None or value is None or p.kind not in ("float", "int"):
             continue
-        if (p.minimum is not None and value < p.minimum) or (p.maximum is not None and value > p.maximum):
+        if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
+                or (p.maximum is not None and not value <= p.maximum)):
             raise ValueError(f"{name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
                              f"{meth.name!r}: {p.help}")
     return full
@@ -358,7 +359,12 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
     if "mask" in out:
         out.write("mask", m, core)
     if "dtm" in out:
-        out.write("dtm", _to_unit(d, scale, float_nodata), core)
+        dtm = _to_unit(d, scale, float_nodata)
+        if scale != 1.0:  # ground cells get the input's own values, not a float32 round trip via metres
+            raw = out.info.dataset().GetRasterBand(out.info.band_index).ReadAsArray(core[2], core[0], w, h)
+            g = m == GROUND
+            dtm[g] = raw[g]
+        out.write("dtm", dtm, core)
     if "ndsm" in out:
         out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
     for name, (dt, bands, nod) in meth.extras.items():

@@ -1,0 +1,94 @@
+"""Block engine: windows cover the raster once, halos are clipped, run_windows runs each once."""
+import threading
+
+import numpy as np
+import pytest
+
+from bare_earth.core import blocks
+from bare_earth.core.common import Cancelled
+
+
+@pytest.mark.parametrize("shape,block,halo", [
+    ((3, 5), 4, 1), ((10, 10), 3, 2), ((7, 13), (2, 5), 3), ((1, 1), 4, 2), ((9, 4), 9, 0),
+    ((6, 6), 1, 1), ((5, 8), 100, 4)])
+def test_windows_cover_every_cell_once_and_halo_clipped(shape, block, halo):
+    rows, cols = shape
+    seen = np.zeros(shape, int)
+    wins = list(blocks.iter_windows(shape, block, halo))
+    br, bc = (block, block) if isinstance(block, int) else block
+    for core, outer in wins:
+        r0, r1, c0, c1 = core
+        assert 0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols
+        assert r1 - r0 <= br and c1 - c0 <= bc
+        seen[r0:r1, c0:c1] += 1
+        assert outer == (max(0, r0 - halo), min(rows, r1 + halo), max(0, c0 - halo), min(cols, c1 + halo))
+        # crop cuts the core back out of an array read over the outer window
+        grid = np.arange(rows * cols).reshape(shape)
+        read = grid[outer[0]:outer[1], outer[2]:outer[3]]
+        np.testing.assert_array_equal(read[blocks.crop(outer, core)], grid[r0:r1, c0:c1])
+    np.testing.assert_array_equal(seen, 1)
+    assert len(wins) == blocks.block_count(shape, block)
+
+
+def test_iter_windows_exact_small_case():
+    assert list(blocks.iter_windows((3, 5), block=4, halo=1)) == [
+        ((0, 3, 0, 4), (0, 3, 0, 5)), ((0, 3, 4, 5), (0, 3, 3, 5))]
+    assert list(blocks.iter_windows((4, 4), block=2, halo=1)) == [
+        ((0, 2, 0, 2), (0, 3, 0, 3)), ((0, 2, 2, 4), (0, 3, 1, 4)),
+        ((2, 4, 0, 2), (1, 4, 0, 3)), ((2, 4, 2, 4), (1, 4, 1, 4))]
+    assert blocks.crop((1, 4, 1, 4), (2, 4, 2, 4)) == (slice(1, 3), slice(1, 3))
+
+
+@pytest.mark.parametrize("shape,block,n", [((3, 5), 4, 2), ((10, 10), 3, 16), ((7, 13), (2, 5), 12),
+                                           ((8, 8), 8, 1), ((8, 8), np.int64(4), 4)])
+def test_block_count(shape, block, n):
+    assert blocks.block_count(shape, block) == n
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_run_windows_calls_each_window_once_and_reaches_one(workers):
+    wins = list(blocks.iter_windows((10, 11), 3, 1))
+    calls, fractions = [], []
+    lock = threading.Lock()
+
+    def func(core, outer):
+        with lock:
+            calls.append((core, outer))
+
+    blocks.run_windows(func, iter(wins), workers=workers, progress=fractions.append)
+    assert sorted(calls) == sorted(wins) and len(calls) == len(wins)
+    assert len(fractions) == len(wins)
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    assert all(0.0 < f <= 1.0 for f in fractions)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_run_windows_error_in_func_propagates(workers):
+    wins = list(blocks.iter_windows((6, 6), 2, 0))
+
+    def func(core, outer):
+        if core == wins[3][0]:
+            raise ZeroDivisionError("boom")
+
+    with pytest.raises(ZeroDivisionError):
+        blocks.run_windows(func, wins, workers=workers)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_progress_raising_cancelled_stops(workers):
+    wins = list(blocks.iter_windows((20, 20), 2, 1))       # 100 windows
+    calls = []
+    lock = threading.Lock()
+
+    def func(core, outer):
+        with lock:
+            calls.append(core)
+
+    def progress(f):
+        if f > 0:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        blocks.run_windows(func, wins, workers=workers, progress=progress)
+    # stopped after the first report: at most the blocks already in flight ran
+    assert 1 <= len(calls) <= 2 * workers + 1 < len(wins)

@@ -1,0 +1,294 @@
+"""Raster I/O: open_dsm's checks and messages, units, nodata, and all-or-nothing outputs."""
+import os
+
+import numpy as np
+import pytest
+
+gdal = pytest.importorskip("osgeo.gdal")
+from osgeo import osr  # noqa: E402
+
+from bare_earth.core import grid  # noqa: E402
+from bare_earth.core.codes import MASK_COLOURS, NODATA  # noqa: E402
+
+GT = (500000.0, 2.0, 0.0, 4500000.0, 0.0, -2.0)
+FT_US = 1200.0 / 3937.0          # metres per US survey foot
+
+
+def wkt(epsg):
+    s = osr.SpatialReference()
+    s.ImportFromEPSG(epsg)
+    return s.ExportToWkt()
+
+
+def tif(tmp_path, a, name="dsm.tif", gt=GT, crs=32633, nodata=None, dtype=None):
+    return grid.write_array(tmp_path / name, a, gt, crs, nodata=nodata, dtype=dtype)
+
+
+def leftovers(folder):
+    return [p for p in os.listdir(folder) if ".partial-" in p]
+
+
+# ---- open_dsm: errors -----------------------------------------------------------------
+
+def test_nonexistent_path(tmp_path):
+    with pytest.raises(ValueError, match="cannot open"):
+        grid.open_dsm(tmp_path / "nope.tif")
+
+
+def test_multiband_needs_band(tmp_path):
+    p = tif(tmp_path, np.zeros((2, 5, 5), np.float32))
+    with pytest.raises(ValueError, match=r"2 bands.*BAND parameter \(1\.\.2\)"):
+        grid.open_dsm(p)
+    info = grid.open_dsm(p, band=2)
+    assert info.band_index == 2
+
+
+@pytest.mark.parametrize("band", [3, -1])
+def test_band_out_of_range(tmp_path, band):
+    p = tif(tmp_path, np.zeros((2, 5, 5), np.float32))
+    with pytest.raises(ValueError, match=f"band {band} does not exist.*2 band"):
+        grid.open_dsm(p, band=band)
+
+
+@pytest.mark.parametrize("shape", [(2, 5), (5, 2), (1, 1)])
+def test_too_small(tmp_path, shape):
+    p = tif(tmp_path, np.zeros(shape, np.float32))
+    with pytest.raises(ValueError, match="too small.*3 x 3"):
+        grid.open_dsm(p)
+
+
+def test_three_by_three_accepted(tmp_path):
+    assert grid.open_dsm(tif(tmp_path, np.zeros((3, 3), np.float32))).shape == (3, 3)
+
+
+def test_rotated(tmp_path):
+    p = tif(tmp_path, np.zeros((5, 5), np.float32), gt=(0.0, 1.0, 0.2, 10.0, 0.1, -1.0))
+    with pytest.raises(ValueError, match="rotated.*gdalwarp"):
+        grid.open_dsm(p)
+
+
+@pytest.mark.parametrize("dtype,nodata", [(np.float32, -9999.0), (np.int16, -9999), (np.float32, None)])
+def test_all_nodata(tmp_path, dtype, nodata):
+    a = np.full((4, 4), -9999 if nodata is not None else np.nan, dtype)
+    info = grid.open_dsm(tif(tmp_path, a, nodata=nodata))
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(info)
+
+
+@pytest.mark.parametrize("max_cells", [4, 9, 30])
+def test_check_has_data_decimated(tmp_path, max_cells):
+    # large rasters are sampled (max_cells small makes a 10 x 10 raster 'large')
+    a = np.full((10, 10), -9999, np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, nodata=-9999))
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(info, max_cells=max_cells)
+    a[:] = 1.0
+    info = grid.open_dsm(tif(tmp_path, a, name="full.tif", nodata=-9999))
+    assert grid.check_has_data(info, max_cells=max_cells) == 1.0
+
+
+@pytest.mark.parametrize("rc", [(1, 1), (0, 9), (9, 0), (8, 3)])
+def test_check_has_data_sparse_cell_not_missed_by_sampling(tmp_path, rc):
+    a = np.full((10, 10), -9999, np.float32)
+    a[rc] = 5.0                                  # one valid cell, between the samples
+    info = grid.open_dsm(tif(tmp_path, a, nodata=-9999))
+    assert 0 < grid.check_has_data(info, max_cells=4) <= 1
+
+
+def test_check_has_data_decimated_nan_undeclared(tmp_path):
+    a = np.zeros((10, 10), np.float32)
+    a[:, :5] = np.nan
+    info = grid.open_dsm(tif(tmp_path, a))
+    assert grid.check_has_data(info, max_cells=4) == pytest.approx(0.5, abs=0.25)
+    assert info.nan_undeclared
+
+
+# ---- open_dsm: nodata and units -----------------------------------------------------------
+
+def test_nan_without_declared_nodata(tmp_path):
+    a = np.arange(16, dtype=np.float32).reshape(4, 4)
+    a[1, 2] = np.nan
+    info = grid.open_dsm(tif(tmp_path, a))
+    assert info.nodata is None and not info.nan_undeclared
+    share = grid.check_has_data(info)
+    assert share == pytest.approx(15 / 16)
+    assert info.nan_undeclared
+    assert any("NaN" in w and "no nodata" in w for w in info.warnings)
+
+
+def test_declared_nodata_no_nan_warning(tmp_path):
+    a = np.arange(16, dtype=np.float32).reshape(4, 4)
+    a[0, 0] = -9999
+    info = grid.open_dsm(tif(tmp_path, a, nodata=-9999))
+    assert grid.check_has_data(info) == pytest.approx(15 / 16)
+    assert not info.nan_undeclared and info.warnings == []
+    assert info.cell_size_m == (2.0, 2.0) and info.z_to_m == 1.0
+
+
+def test_geographic_cell_size_at_centre_latitude(tmp_path):
+    # 10 x 10 cells of 0.1 deg centred on latitude 45 (the top edge, 45.5, would be 0.9 % off)
+    gt = (10.0, 0.1, 0.0, 45.5, 0.0, -0.1)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((10, 10), np.float32), gt=gt, crs=4326))
+    dx, dy = info.cell_size_m
+    assert dx == pytest.approx(7884.7, rel=1e-3)      # 1 deg lon at 45 deg ~ 78.85 km
+    assert dy == pytest.approx(11113.2, rel=1e-3)     # 1 deg lat at 45 deg ~ 111.13 km
+    assert info.z_to_m == 1.0
+    assert any("geographic" in w and "45.0000" in w for w in info.warnings)
+
+
+def test_geographic_cell_size_at_equator(tmp_path):
+    gt = (0.0, 0.001, 0.0, 0.005, 0.0, -0.001)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((10, 10), np.float32), gt=gt, crs=4326))
+    assert info.cell_size_m[0] == pytest.approx(111.319, rel=1e-3)
+    assert info.cell_size_m[1] == pytest.approx(110.574, rel=1e-3)
+
+
+def test_us_survey_feet(tmp_path):
+    gt = (300000.0, 3.0, 0.0, 60000.0, 0.0, -3.0)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt, crs=2263))
+    assert info.z_to_m == pytest.approx(0.3048006, rel=1e-6)
+    assert info.cell_size_m == pytest.approx((3 * FT_US, 3 * FT_US), rel=1e-9)
+    assert any("linear unit" in w for w in info.warnings)
+
+
+def test_no_crs_warns(tmp_path):
+    info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), crs=""))
+    assert info.crs_wkt == ""
+    assert info.cell_size_m == (2.0, 2.0) and info.z_to_m == 1.0
+    assert any("no CRS" in w for w in info.warnings)
+
+
+def test_non_square_cells_warn(tmp_path):
+    gt = (0.0, 1.0, 0.0, 10.0, 0.0, -2.0)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt))
+    assert info.cell_size_m == (1.0, 2.0)
+    assert any("not square" in w for w in info.warnings)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), name="sq.tif"))
+    assert not any("not square" in w for w in info.warnings)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_read_converts_nodata_to_nan(tmp_path, dtype):
+    a = np.array([[1, 2, 3, 4], [5, -9999, 7, 8], [9, 10, 11, 12]], dtype)
+    info = grid.open_dsm(tif(tmp_path, a, nodata=-9999))
+    z = info.read()
+    assert z.dtype == np.float32
+    expect = a.astype(np.float32)
+    expect[1, 1] = np.nan
+    np.testing.assert_array_equal(z, expect)
+    np.testing.assert_array_equal(info.read((1, 3, 1, 3)), expect[1:3, 1:3])
+
+
+def test_read_converts_feet_to_metres(tmp_path):
+    a = np.array([[10, 20, 30], [40, -9999, 60], [70, 80, 90]], np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, crs=2263, nodata=-9999))
+    z = info.read()
+    expect = a * np.float32(FT_US)
+    expect[1, 1] = np.nan
+    np.testing.assert_allclose(z, expect, rtol=1e-6)
+    assert np.isnan(z[1, 1])
+
+
+# ---- OutputSet ----------------------------------------------------------------------------
+
+def _info(tmp_path, nodata=-9999.0):
+    a = np.arange(20, dtype=np.float32).reshape(4, 5)
+    return grid.open_dsm(tif(tmp_path, a, nodata=nodata))
+
+
+def test_outputset_commit_keeps_georeference(tmp_path):
+    info = _info(tmp_path)
+    out_dtm, out_mask = tmp_path / "dtm.tif", tmp_path / "mask.tif"
+    d = np.arange(20, dtype=np.float32).reshape(4, 5) / 2
+    m = np.array([[0, 1, 2, 255, 0]] * 4, np.uint8)
+    with grid.OutputSet(info) as out:
+        out.add("dtm", out_dtm, "Float32", nodata=-9999.0)
+        out.add("mask", out_mask, "Byte", nodata=NODATA, mask_style=True)
+        out.write("dtm", d[:2], (0, 2, 0, 5))
+        out.write("dtm", d[2:], (2, 4, 0, 5))
+        out.write("mask", m)
+        assert not out_dtm.exists() and len(leftovers(tmp_path)) == 2
+        out.commit()
+    assert leftovers(tmp_path) == []
+    ds = gdal.Open(str(out_dtm))
+    assert ds.GetGeoTransform() == pytest.approx(GT)
+    srs = osr.SpatialReference(wkt=ds.GetProjection())
+    assert srs.IsSame(osr.SpatialReference(wkt=info.crs_wkt))
+    assert ds.GetRasterBand(1).GetNoDataValue() == -9999.0
+    np.testing.assert_array_equal(ds.GetRasterBand(1).ReadAsArray(), d)
+    ds = gdal.Open(str(out_mask))
+    b = ds.GetRasterBand(1)
+    assert b.DataType == gdal.GDT_Byte and b.GetNoDataValue() == 255
+    np.testing.assert_array_equal(b.ReadAsArray(), m)
+    ct = b.GetRasterColorTable()
+    assert ct is not None
+    for code, rgba in MASK_COLOURS.items():
+        assert ct.GetColorEntry(code) == rgba
+    qml = tmp_path / "mask.qml"
+    assert qml.exists() and "paletteEntry" in qml.read_text()
+    assert not (tmp_path / "dtm.qml").exists()
+
+
+def test_outputset_exception_leaves_nothing(tmp_path):
+    info = _info(tmp_path)
+    before = set(os.listdir(tmp_path))
+    with pytest.raises(RuntimeError, match="stop"):
+        with grid.OutputSet(info) as out:
+            out.add("dtm", tmp_path / "dtm.tif", "Float32", nodata=-9999.0)
+            out.add("mask", tmp_path / "mask.tif", "Byte", nodata=NODATA, mask_style=True)
+            out.write("dtm", np.zeros((4, 5), np.float32))
+            out.write("mask", np.zeros((4, 5), np.uint8))
+            raise RuntimeError("stop")
+    assert set(os.listdir(tmp_path)) == before
+
+
+def test_outputset_discard_leaves_nothing(tmp_path):
+    info = _info(tmp_path)
+    before = set(os.listdir(tmp_path))
+    out = grid.OutputSet(info)
+    out.add("mask", tmp_path / "mask.tif", "Byte", nodata=NODATA, mask_style=True)
+    out.write("mask", np.ones((4, 5), np.uint8))
+    out.discard()
+    assert set(os.listdir(tmp_path)) == before
+
+
+def test_outputset_replaces_existing(tmp_path):
+    info = _info(tmp_path)
+    path = tmp_path / "dtm.tif"
+    for value in (1.0, 2.0):
+        with grid.OutputSet(info) as out:
+            out.add("dtm", path, "Float32", nodata=-9999.0)
+            out.write("dtm", np.full((4, 5), value, np.float32))
+            out.commit()
+        np.testing.assert_array_equal(gdal.Open(str(path)).ReadAsArray(), value)
+    assert leftovers(tmp_path) == []
+
+
+def test_outputset_failed_rerun_keeps_previous_output(tmp_path):
+    info = _info(tmp_path)
+    path = tmp_path / "dtm.tif"
+    with grid.OutputSet(info) as out:
+        out.add("dtm", path, "Float32")
+        out.write("dtm", np.full((4, 5), 1.0, np.float32))
+        out.commit()
+    with pytest.raises(KeyError):
+        with grid.OutputSet(info) as out:
+            out.add("dtm", path, "Float32")
+            out.write("dtm", np.full((4, 5), 2.0, np.float32))
+            raise KeyError("x")
+    np.testing.assert_array_equal(gdal.Open(str(path)).ReadAsArray(), 1.0)
+    assert leftovers(tmp_path) == []
+
+
+def test_outputset_multiband_and_nan_nodata(tmp_path):
+    info = _info(tmp_path, nodata=None)
+    path = tmp_path / "curv.tif"
+    a = np.stack([np.zeros((4, 5)), np.ones((4, 5))]).astype(np.float32)
+    with grid.OutputSet(info) as out:
+        out.add("curv", path, "Float32", bands=2, nodata=float("nan"), descriptions=["a", "b"])
+        out.write("curv", a)
+        out.commit()
+    ds = gdal.Open(str(path))
+    assert ds.RasterCount == 2 and np.isnan(ds.GetRasterBand(1).GetNoDataValue())
+    assert ds.GetRasterBand(2).GetDescription() == "b"
+    np.testing.assert_array_equal(ds.ReadAsArray(), a)

@@ -1,0 +1,407 @@
+"""Pipeline: params checked, DTM = z on the ground and filled elsewhere, blocks, files, cancel."""
+import math
+import os
+
+import numpy as np
+import pytest
+
+from bare_earth.core import pipeline
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.common import Cancelled, FilterResult, finish_mask, report
+from bare_earth.core.methods import Method, Param
+
+gdal = pytest.importorskip("osgeo.gdal")
+from osgeo import osr  # noqa: E402
+
+from bare_earth.core import grid  # noqa: E402
+
+GT = (1000.0, 1.0, 0.0, 2000.0, 0.0, -1.0)
+
+
+# ---- a tiny local method: object where z > threshold, low where z < low ---------------------
+
+def _run(z, cell_size, progress=None, threshold_m=5.0, low_m=-5.0, marks=None):
+    mask = np.zeros(z.shape, np.uint8)
+    mask[z > threshold_m] = OBJECT
+    mask[z < low_m] = LOW
+    if marks is not None:                       # an aux input: forced objects
+        mask[np.asarray(marks, bool)] = OBJECT
+    report(progress, 0.5)
+    flag = np.where(mask == OBJECT, 7, 0).astype(np.uint8)
+    flag[~np.isfinite(z)] = 255
+    two = np.stack([np.nan_to_num(z, nan=-1.0), np.full(z.shape, 3.0)]).astype(np.float32)
+    return FilterResult(finish_mask(mask, z), extras={"flag": flag, "two": two},
+                        info={"threshold_m": threshold_m, "object_cells": int((mask == OBJECT).sum())})
+
+
+def _resolve(z, cell_size, threshold_m=None, low_m=-5.0):
+    if threshold_m is None:
+        threshold_m = 5.0
+    return {"threshold_m": float(threshold_m), "low_m": float(low_m)}
+
+
+ABOVE = Method(name="above", run=_run, resolve=_resolve, halo=lambda p, c: 1,
+               extras={"flag": (np.uint8, 1, 255), "two": (np.float32, 2, -1.0)},
+               params=(Param("threshold_m", "float", None, "object threshold", minimum=0.0, maximum=100.0),
+                       Param("low_m", "float", -5.0, "low threshold", minimum=-100.0, maximum=0.0)))
+
+
+def scene(dtype=np.float32, nodata=True):
+    """12 x 11 tilted plane (0-2.1 m; int: 0-4 m terraces) with single-cell objects and a low cell."""
+    r, c = np.mgrid[0:12, 0:11]
+    z = (0.1 * r + 0.1 * c).astype(np.float64)
+    if np.dtype(dtype).kind == "i":
+        z = (r + c) // 5                         # integral terraces 0-4 m, all below 5 m
+    objs = [(2, 3), (5, 7), (6, 6), (9, 2)]      # (5,7) and (6,6) touch diagonally
+    for rc in objs:
+        z[rc] = 60.0
+    z[8, 8] = -40.0
+    if nodata and np.dtype(dtype).kind == "f":
+        z[0, 10] = np.nan
+        z[11, 0] = np.nan
+    return z.astype(dtype), objs
+
+
+def neighbours(z, r, c):
+    w = z[max(0, r - 1):r + 2, max(0, c - 1):c + 2].astype(np.float64)
+    return w[np.isfinite(w) & (np.abs(w) < 30)]
+
+
+# ---- run_array ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_run_array_dtm_mask_ndsm(dtype):
+    z, objs = scene(dtype)
+    z0 = z.copy()
+    res = pipeline.run_array(ABOVE, z, 1.0)
+    np.testing.assert_array_equal(z, z0)                        # input untouched
+    zf = z.astype(np.float32)
+    nod = ~np.isfinite(zf)
+    expect = np.zeros(z.shape, np.uint8)
+    for rc in objs:
+        expect[rc] = OBJECT
+    expect[8, 8] = LOW
+    expect[nod] = NODATA
+    np.testing.assert_array_equal(res.mask, expect)
+    assert res.mask.dtype == np.uint8 and res.dtm.dtype == np.float32 and res.ndsm.dtype == np.float32
+    ground = expect == GROUND
+    np.testing.assert_array_equal(res.dtm[ground], zf[ground])  # exact on the ground
+    assert np.isnan(res.dtm[nod]).all() and np.isnan(res.ndsm[nod]).all()
+    for r, c in objs + [(8, 8)]:
+        nb = neighbours(zf, r, c)
+        assert np.isfinite(res.dtm[r, c])
+        assert nb.min() - 1e-4 <= res.dtm[r, c] <= nb.max() + 1e-4
+    np.testing.assert_array_equal(res.ndsm[~nod], (zf - res.dtm)[~nod])
+    assert (res.ndsm[ground] == 0).all()
+    assert res.ndsm[2, 3] > 50 and res.ndsm[8, 8] < -30
+    valid = (~nod).sum()
+    cp = res.info["classes_percent"]
+    assert cp["ground"] == pytest.approx(100.0 * ground.sum() / valid)
+    assert cp["object"] == pytest.approx(100.0 * 4 / valid)
+    assert cp["low outlier"] == pytest.approx(100.0 / valid)
+    assert cp["nodata cells"] == nod.sum()
+    assert res.info["params"] == {"threshold_m": 5.0, "low_m": -5.0}
+    assert res.info["halo_cells"] == 1 and res.info["object_cells"] == 4
+    np.testing.assert_array_equal(res.extras["flag"], np.where(expect == OBJECT, 7, np.where(nod, 255, 0)))
+    assert res.extras["two"].shape == (2,) + z.shape
+
+
+def test_run_array_user_param_used():
+    z, _ = scene()
+    res = pipeline.run_array(ABOVE, z, (1.0, 2.0), {"threshold_m": 1.5})
+    assert res.info["params"]["threshold_m"] == 1.5
+    zf = z.astype(np.float32)
+    np.testing.assert_array_equal(res.mask == OBJECT, np.isfinite(zf) & (zf > 1.5))
+
+
+def test_unknown_parameter_named():
+    z, _ = scene()
+    with pytest.raises(ValueError, match="thresold_m"):
+        pipeline.run_array(ABOVE, z, 1.0, {"thresold_m": 3.0})
+    with pytest.raises(ValueError, match="bogus"):
+        pipeline.run_array("slopeprofile", z, 1.0, {"bogus": 1})
+
+
+@pytest.mark.parametrize("params", [{"slope_threshold_deg": 95.0}, {"slope_threshold_deg": 0.1},
+                                    {"max_object_size_m": 0.5}, {"tolerance_m": -1.0},
+                                    {"slope_threshold_deg": float("nan")}])
+def test_out_of_range_parameter(params):
+    z, _ = scene()
+    name = next(iter(params))
+    with pytest.raises(ValueError, match=name if math.isnan(params[name]) else f"{name}.*out of range"):
+        pipeline.run_array("slopeprofile", z, 1.0, params)
+
+
+@pytest.mark.parametrize("value", [101.0, -0.5, float("nan")])
+def test_out_of_range_custom_method(value):
+    z, _ = scene()
+    with pytest.raises(ValueError, match="threshold_m.*out of range"):
+        pipeline.run_array(ABOVE, z, 1.0, {"threshold_m": value})
+
+
+def test_aux_wrong_shape():
+    z, _ = scene()
+    with pytest.raises(ValueError, match="marks.*shape"):
+        pipeline.run_array(ABOVE, z, 1.0, aux={"marks": np.zeros((3, 3), bool)})
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_blocked_equals_one_pass(workers):
+    z, _ = scene()
+    marks = np.zeros(z.shape, bool)
+    marks[3, 9] = marks[10, 5] = True            # aux cut into blocks with the surface
+    one = pipeline.run_array(ABOVE, z, 1.0, aux={"marks": marks})
+    assert one.mask[3, 9] == OBJECT and one.mask[10, 5] == OBJECT
+    fr = []
+    blk = pipeline.run_array(ABOVE, z, 1.0, aux={"marks": marks}, block=7, workers=workers,
+                             progress=fr.append)
+    assert blk.info["blocks"] == 4 and one.info["blocks"] == 1
+    np.testing.assert_array_equal(blk.mask, one.mask)
+    np.testing.assert_allclose(blk.dtm, one.dtm, rtol=0, atol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(blk.ndsm, one.ndsm, rtol=0, atol=1e-5, equal_nan=True)
+    for k in one.extras:
+        np.testing.assert_array_equal(blk.extras[k], one.extras[k])
+    assert blk.info["classes_percent"] == one.info["classes_percent"]
+    assert blk.info["object_cells"] == pytest.approx(one.info["object_cells"] / 4, abs=4)
+    assert fr[-1] == 1.0 and fr == sorted(fr)
+
+
+@pytest.mark.parametrize("block,workers", [(None, 1), (5, 1), (5, 2)])
+def test_cancel_propagates(block, workers):
+    z, _ = scene()
+    seen = []
+
+    def progress(f):
+        seen.append(f)
+        if f > 0.3:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        pipeline.run_array(ABOVE, z, 1.0, block=block, workers=workers, progress=progress)
+    assert max(seen) < 1.0
+
+
+# ---- run_file ------------------------------------------------------------------------------
+
+def write(tmp_path, z, name="dsm.tif", crs=32633, nodata=None, gt=GT, dtype=None):
+    return grid.write_array(tmp_path / name, z, gt, crs, nodata=nodata, dtype=dtype)
+
+
+def outputs(folder, *keys, prefix=""):
+    return {k: str(folder / f"{prefix}{k}.tif") for k in keys}
+
+
+def read(path):
+    ds = gdal.Open(str(path))
+    b = ds.GetRasterBand(1)
+    return ds.ReadAsArray(), b.GetNoDataValue(), ds.GetGeoTransform(), ds.GetProjection()
+
+
+def partials(folder):
+    return [p for p in os.listdir(folder) if ".partial-" in p]
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int16])
+def test_run_file_declared_nodata_kept(tmp_path, dtype):
+    z, objs = scene(dtype, nodata=False)
+    z[0, 10] = z[11, 0] = -9999
+    src = write(tmp_path, z, nodata=-9999)
+    outs = outputs(tmp_path, "dtm", "ndsm", "mask")
+    info = pipeline.run_file(ABOVE, src, outs)
+    _, _, gt0, prj0 = read(src)
+    nod = z == -9999
+    zf = z.astype(np.float32)
+    dtm, nd, gt, prj = read(outs["dtm"])
+    assert nd == -9999 and gt == pytest.approx(GT) and prj == prj0 and prj
+    assert (dtm[nod] == -9999).all()
+    mask, mnd, mgt, mprj = read(outs["mask"])
+    assert mnd == 255 and mgt == pytest.approx(GT) and mprj == prj0
+    assert set(np.unique(mask).tolist()) <= {0, 1, 2, 255}
+    np.testing.assert_array_equal(mask == NODATA, nod)
+    ground = mask == GROUND
+    np.testing.assert_array_equal(dtm[ground], zf[ground])
+    ndsm, nnd, _, _ = read(outs["ndsm"])
+    assert nnd == -9999 and (ndsm[nod] == -9999).all()
+    np.testing.assert_allclose(ndsm[~nod], zf[~nod] - dtm[~nod], atol=1e-5)
+    for rc in objs:
+        assert mask[rc] == OBJECT and 0 <= dtm[rc] <= 30
+    assert (tmp_path / "mask.qml").exists() and partials(tmp_path) == []
+    ref = pipeline.run_array(ABOVE, np.where(nod, np.nan, zf), 1.0)
+    np.testing.assert_array_equal(mask, ref.mask)
+    assert info["classes_percent"] == pytest.approx(ref.info["classes_percent"])
+    assert info["cell_size_m"] == (1.0, 1.0)
+
+
+def test_run_file_nan_undeclared_outputs_declare_nan(tmp_path):
+    z, _ = scene()
+    src = write(tmp_path, z)
+    outs = outputs(tmp_path, "dtm", "ndsm", "mask")
+    logs = []
+    info = pipeline.run_file(ABOVE, src, outs, log=logs.append)
+    for k in ("dtm", "ndsm"):
+        a, nd, _, _ = read(outs[k])
+        assert nd is not None and math.isnan(nd)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(z))
+    assert any("NaN" in s and s.startswith("Warning:") for s in logs)
+    assert any("NaN" in w for w in info["warnings"])
+
+
+def test_run_file_feet_dtm_back_in_feet(tmp_path):
+    z, objs = scene()                            # heights and cells in US survey feet
+    src = write(tmp_path, z, crs=2263, gt=(300000.0, 3.0, 0.0, 60000.0, 0.0, -3.0))
+    outs = outputs(tmp_path, "dtm", "ndsm", "mask")
+    logs = []
+    info = pipeline.run_file(ABOVE, src, outs, log=logs.append)
+    assert info["cell_size_m"] == pytest.approx((0.9144018, 0.9144018))
+    assert any("linear unit" in s for s in logs)
+    dtm, _, _, prj = read(outs["dtm"])
+    mask = read(outs["mask"])[0]
+    ground = mask == GROUND
+    np.testing.assert_array_equal(dtm[ground], z[ground])      # feet, not metres, bit for bit
+    # the threshold (5 m = 16.4 ft) is applied in metres: 60 ft objects found, 2.2 ft ground kept
+    for rc in objs:
+        assert mask[rc] == OBJECT
+    ndsm = read(outs["ndsm"])[0]
+    assert ndsm[2, 3] == pytest.approx(60.0 - dtm[2, 3], rel=1e-5)
+    assert osr.SpatialReference(wkt=prj).GetLinearUnits() == pytest.approx(0.3048006096)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int16])
+def test_run_file_feet_ground_exact_many_values(tmp_path, dtype):
+    rng = np.random.default_rng(0)
+    z = (rng.random((20, 20)) * 15 + 0.5).astype(np.float32)   # all below 16.4 ft = 5 m
+    if dtype == np.int16:
+        z = np.round(z).astype(np.int16)
+    src = write(tmp_path, z, crs=2263, nodata=-9999)
+    outs = outputs(tmp_path, "dtm", "ndsm", "mask")
+    pipeline.run_file(ABOVE, src, outs)
+    assert (read(outs["mask"])[0] == GROUND).all()
+    np.testing.assert_array_equal(read(outs["dtm"])[0], z.astype(np.float32))
+    np.testing.assert_array_equal(read(outs["ndsm"])[0], 0.0)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_run_file_blocked_equals_one_pass(tmp_path, workers):
+    rng = np.random.default_rng(1)
+    r, c = np.mgrid[0:40, 0:37]
+    z = (0.05 * r + 0.03 * c + rng.normal(0, 0.05, r.shape)).astype(np.float32)
+    z[rng.random(z.shape) < 0.04] = 20.0         # scattered single-cell objects (halo 1 enough)
+    z[:3, :5] = -9999                            # a corner of nodata
+    z[17:19, 17:19] = -9999                      # nodata at a block corner
+    src = write(tmp_path, z, nodata=-9999)
+    keys = ("dtm", "ndsm", "mask", "flag", "two")
+    one = outputs(tmp_path, *keys, prefix="one_")
+    blk = outputs(tmp_path, *keys, prefix="blk_")
+    pipeline.run_file(ABOVE, src, one)
+    info = pipeline.run_file(ABOVE, src, blk, block=16, workers=workers)
+    assert info["blocks"] == 9
+    for k in keys:
+        a, b = gdal.Open(one[k]).ReadAsArray(), gdal.Open(blk[k]).ReadAsArray()
+        if k in ("mask", "flag"):
+            np.testing.assert_array_equal(a, b)
+        else:
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
+
+
+def test_run_file_block_all_nodata(tmp_path):
+    z = np.full((20, 20), -9999, np.float32)
+    z[:8, :8] = 1.0
+    z[2, 2] = 30.0
+    src = write(tmp_path, z, nodata=-9999)
+    outs = outputs(tmp_path, "dtm", "mask", "flag", "two")
+    pipeline.run_file(ABOVE, src, outs, block=8)
+    mask = read(outs["mask"])[0]
+    assert mask[2, 2] == OBJECT and (mask[8:, :] == NODATA).all() and (mask[:, 8:] == NODATA).all()
+    dtm = read(outs["dtm"])[0]
+    assert (dtm[8:, :] == -9999).all() and dtm[2, 2] == pytest.approx(1.0)
+    assert (read(outs["flag"])[0][8:, :] == 255).all()
+    two = gdal.Open(outs["two"]).ReadAsArray()
+    assert (two[:, 16:, :] == -1.0).all() and (two[:, :, 16:] == -1.0).all()   # blocks never run
+    assert (two[1, :8, :8] == 3.0).all()
+
+
+@pytest.mark.parametrize("block,workers", [(None, 1), (8, 1), (8, 2)])
+def test_run_file_cancel_leaves_nothing(tmp_path, block, workers):
+    z, _ = scene()
+    src = write(tmp_path, z)
+    before = set(os.listdir(tmp_path))
+    outs = outputs(tmp_path, "dtm", "ndsm", "mask", "flag")
+
+    def progress(f):
+        if f > 0.5:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        pipeline.run_file(ABOVE, src, outs, block=block, workers=workers, progress=progress)
+    assert set(os.listdir(tmp_path)) == before
+
+
+def test_run_file_cancel_keeps_previous_outputs(tmp_path):
+    z, _ = scene()
+    src = write(tmp_path, z)
+    outs = outputs(tmp_path, "dtm", "mask")
+    pipeline.run_file(ABOVE, src, outs)
+    first = {k: gdal.Open(p).ReadAsArray() for k, p in outs.items()}
+
+    def progress(f):
+        if f > 0.5:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        pipeline.run_file(ABOVE, src, outs, params={"threshold_m": 1.0}, progress=progress)
+    for k, p in outs.items():
+        np.testing.assert_array_equal(gdal.Open(p).ReadAsArray(), first[k])
+    assert partials(tmp_path) == []
+
+
+def test_run_file_progress_reaches_one(tmp_path):
+    z, _ = scene()
+    src = write(tmp_path, z)
+    fr = []
+    pipeline.run_file(ABOVE, src, outputs(tmp_path, "mask"), block=5, progress=fr.append)
+    assert fr[-1] == 1.0 and fr == sorted(fr)
+
+
+def test_run_file_logs_grid_warnings(tmp_path):
+    z, _ = scene()
+    src = write(tmp_path, z, crs="", gt=(0.0, 1.0, 0.0, 12.0, 0.0, -2.0))
+    logs = []
+    info = pipeline.run_file(ABOVE, src, outputs(tmp_path, "mask"), log=logs.append)
+    assert any("no CRS" in s for s in logs)
+    assert any("not square" in s for s in logs)
+    assert any("NaN" in s for s in logs)
+    assert len(logs) >= len(info["warnings"]) == 3
+    assert read(tmp_path / "mask.tif")[3] == ""
+
+
+def test_run_file_extras_written(tmp_path):
+    z, objs = scene()
+    src = write(tmp_path, z)
+    outs = outputs(tmp_path, "flag", "two")
+    pipeline.run_file(ABOVE, src, outs)
+    assert not (tmp_path / "dtm.tif").exists() and not (tmp_path / "mask.tif").exists()
+    flag, fnd, fgt, _ = read(outs["flag"])
+    assert fnd == 255 and fgt == pytest.approx(GT)
+    assert gdal.Open(outs["flag"]).GetRasterBand(1).DataType == gdal.GDT_Byte
+    expect = np.zeros(z.shape, np.uint8)
+    for rc in objs:
+        expect[rc] = 7
+    expect[np.isnan(z)] = 255
+    np.testing.assert_array_equal(flag, expect)
+    ds = gdal.Open(outs["two"])
+    assert ds.RasterCount == 2 and ds.GetRasterBand(2).GetNoDataValue() == -1.0
+    two = ds.ReadAsArray()
+    np.testing.assert_array_equal(two[1], 3.0)
+    np.testing.assert_array_equal(two[0], np.nan_to_num(z, nan=-1.0))
+
+
+def test_run_file_registered_method(tmp_path):
+    from bare_earth.core.synthetic import make_scene
+    s = make_scene("city", shape=(40, 40), seed=3, low_blunders=False)
+    src = write(tmp_path, s.dsm.astype(np.float32), nodata=-9999)
+    outs = outputs(tmp_path, "dtm", "mask")
+    info = pipeline.run_file("slopeprofile", src, outs, params={"max_object_size_m": 20.0})
+    mask = read(outs["mask"])[0]
+    assert set(np.unique(mask).tolist()) <= {0, 1, 2, 255}
+    assert info["method"] == "slopeprofile" and info["params"]["max_object_size_m"] == 20.0
+    assert np.isfinite(read(outs["dtm"])[0]).all()
