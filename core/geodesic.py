@@ -279,7 +279,7 @@ _S8 = np.ones((3, 3), bool)
 
 #: Steps whose window exceeds this many cells run on a coarser grid (factor a power of 2)
 #: so that the coarse window stays about this wide.
-COARSE_WINDOW = 8
+COARSE_WINDOW = 4
 #: Scan labelling passes run by the filter.
 SCAN_PASSES = 2
 
@@ -407,6 +407,29 @@ def _component_stats(lab, n, sel, values, rim, flag):
 _RISE, _FALL, _BREAK = 1, 2, 3
 
 
+def _accumulate(op, key, axis, out, reverse):
+    """Running ``op`` of ``key`` along ``axis`` into ``out`` (reversed: from the end).
+
+    Along rows numpy's accumulate is fast; down columns it is not, so there the loop runs
+    over the rows, each step vectorised across all columns.
+    """
+    if axis == 1:
+        if reverse:
+            op.accumulate(key[:, ::-1], axis=1, out=out[:, ::-1])
+        else:
+            op.accumulate(key, axis=1, out=out)
+        return
+    n = key.shape[0]
+    order = range(n - 1, -1, -1) if reverse else range(n)
+    prev = None
+    for i in order:
+        if prev is None:
+            out[i] = key[i]
+        else:
+            op(out[prev], key[i], out=out[i])
+        prev = i
+
+
 def _scan_axis(a, axis, t_jump, height_m, max_cells):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
 
@@ -432,14 +455,13 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells):
     # last event strictly before cell i: running max of the keys of edges <= i-1
     left = np.empty(a.shape, np.int32)
     _axis_slice(left, axis, 0, 1)[...] = -4
-    np.maximum.accumulate(key, axis=axis, out=_axis_slice(left, axis, 1, n))
+    _accumulate(np.maximum, key, axis, _axis_slice(left, axis, 1, n), reverse=False)
     # first event at or after cell i: reversed running min of the keys of edges >= i
     big = np.int32(4 * n)
     np.copyto(key, big, where=~ev)
-    flip = (slice(None, None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, None, -1))
     right = np.empty(a.shape, np.int32)
     _axis_slice(right, axis, n - 1, n)[...] = big
-    np.minimum.accumulate(key[flip], axis=axis, out=_axis_slice(right, axis, 0, n - 1)[flip])
+    _accumulate(np.minimum, key, axis, _axis_slice(right, axis, 0, n - 1), reverse=True)
     ok = (left & 3) == _RISE
     ok &= (right & 3) == _FALL
     ok &= ((right >> 2) - (left >> 2)) <= max_cells
@@ -455,7 +477,7 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells):
         jl, jr = left[r, c] >> 2, right[r, c] >> 2
         base_l, base_r = a[jl, c], a[jr + 1, c]
     t = (i - jl) / (jr + 1 - jl)                  # cells before the rise / after the fall
-    base = base_l + (base_r - base_l) * t
+    base = base_l + (base_r - base_l).astype(np.float64) * t
     out[r, c] = (a[r, c] - base) > height_m
     return out
 
@@ -511,7 +533,7 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     if int(passes) < 1:
         raise ValueError(f"passes must be at least 1; got {passes}.")
     s = np.tan(np.radians(terrain_slope_deg))
-    a = z.astype(np.float64)
+    a = z.copy()
     labelled = np.zeros(z.shape, bool)
     allowed = np.ones(z.shape, bool)
     if reference is not None:
