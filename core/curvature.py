@@ -749,7 +749,10 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         allow += np.float32(tol)
         mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
         mask[_pits(z, concave & (d < -h_min), m + 2, h_min)] = LOW
-        mask[objects & (d > 0)] = OBJECT
+        # cells the profiles found between a break up and a break down stay objects when
+        # they stand clearly (half the minimum object height) above the ground surface;
+        # a profile that overshot along a rising terrain (a dam behind a bush) does not
+        mask[objects & (d > np.float32(0.5 * h_min))] = OBJECT
         holes = ~valid | (mask != GROUND) | mark_k
         report(progress, 0.8 + 0.1 * it)
     mask = finish_mask(mask, z)
