@@ -611,6 +611,8 @@ class _Builder:
         along_x = rng.random(r.size) < 0.5
         hgt = rng.uniform(1.4, 1.7, r.size).astype(np.float32)
         base = self.ground()[r, c]
+        gflat = self.ground().ravel()
+        tf = self.top.ravel()
         for ax in (True, False):
             sel = along_x == ax
             lx, ly = (4.5, 1.8) if ax else (1.8, 4.5)
@@ -623,7 +625,8 @@ class _Builder:
                     rr, cc = rr[inb], cc[inb]
                     zc = base[sel][inb] + hgt[sel][inb]
                     idx = rr * w + cc
-                    tf = self.top.ravel()
+                    up = zc >= gflat[idx] + np.float32(1.0)  # >= 1 m above local ground
+                    idx, zc = idx[up], zc[up]
                     tf[idx] = np.maximum(tf[idx], zc)
             rs, cs = r[sel] - ny // 2, c[sel] - nx // 2       # upper-left cell
             self.objects.extend(

@@ -210,3 +210,18 @@ def test_errors():
         make_scene("flat", (32, 32), noise_m=-0.1)
     with pytest.raises(ValueError, match="n_cells"):
         make_dsm(0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 5])
+def test_truth_over_seeds_shapes_and_cell_sizes(seed):
+    shape, cell = [((100, 300), 1.0), ((120, 90), 0.5), ((80, 96), (2.0, 1.5))][seed % 3]
+    noise = 0.1
+    for kind in KINDS:
+        s = make_scene(kind, shape, cell_size=cell, seed=seed, noise_m=noise,
+                       nodata_holes=bool(seed % 2))
+        m = s.mask
+        assert np.array_equal(np.isnan(s.dsm), m == NODATA), kind
+        g, o, low = m == GROUND, m == OBJECT, m == LOW
+        assert np.abs(s.dsm[g] - s.dtm[g]).max() <= 5 * noise, kind
+        assert (s.dsm[o] > s.dtm[o] + 1.0 - 5 * noise).all(), kind
+        assert (s.dsm[low] < s.dtm[low]).all(), kind
