@@ -292,3 +292,19 @@ def test_outputset_multiband_and_nan_nodata(tmp_path):
     assert ds.RasterCount == 2 and np.isnan(ds.GetRasterBand(1).GetNoDataValue())
     assert ds.GetRasterBand(2).GetDescription() == "b"
     np.testing.assert_array_equal(ds.ReadAsArray(), a)
+
+
+def test_no_georeference_warns(tmp_path):
+    p = str(tmp_path / "raw.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(p, 4, 5, 1, gdal.GDT_Float32)
+    ds.GetRasterBand(1).WriteArray(np.ones((5, 4), np.float32))
+    ds = None
+    info = grid.open_dsm(p)
+    assert info.cell_size_m == (1.0, 1.0) and info.shape == (5, 4)
+    assert any("no georeference" in w for w in info.warnings)
+
+
+def test_geographic_bad_latitude(tmp_path):
+    gt = (10.0, 0.1, 0.0, 250.0, 0.0, -0.1)
+    with pytest.raises(ValueError, match="not a latitude"):
+        grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt, crs=4326))

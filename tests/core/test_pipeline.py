@@ -162,7 +162,6 @@ def test_blocked_equals_one_pass(workers):
     for k in one.extras:
         np.testing.assert_array_equal(blk.extras[k], one.extras[k])
     assert blk.info["classes_percent"] == one.info["classes_percent"]
-    assert blk.info["object_cells"] == pytest.approx(one.info["object_cells"] / 4, abs=4)
     assert fr[-1] == 1.0 and fr == sorted(fr)
 
 
@@ -405,3 +404,60 @@ def test_run_file_registered_method(tmp_path):
     assert set(np.unique(mask).tolist()) <= {0, 1, 2, 255}
     assert info["method"] == "slopeprofile" and info["params"]["max_object_size_m"] == 20.0
     assert np.isfinite(read(outs["dtm"])[0]).all()
+
+
+def _own_dtm_method(dtm_value):
+    def run(z, cell_size, progress=None, threshold_m=5.0):
+        mask = np.where(z > threshold_m, OBJECT, GROUND).astype(np.uint8)
+        dtm = np.where(mask == OBJECT, dtm_value, z).astype(np.float32)
+        return FilterResult(finish_mask(mask, z), dtm=dtm)
+    return Method(name="owndtm", run=run, resolve=lambda z, c, **p: {"threshold_m": 5.0},
+                  halo=lambda p, c: 1)
+
+
+def test_method_dtm_used_instead_of_filling():
+    z, objs = scene()
+    res = pipeline.run_array(_own_dtm_method(1.25), z, 1.0)
+    for rc in objs:
+        assert res.dtm[rc] == np.float32(1.25)
+    assert np.isnan(res.dtm[0, 10]) and np.isnan(res.ndsm[0, 10])   # nodata stays NaN
+    ground = res.mask == GROUND
+    np.testing.assert_array_equal(res.dtm[ground], z[ground])
+
+
+def test_unusable_method_dtm_is_filled():
+    z, objs = scene()
+    res = pipeline.run_array(_own_dtm_method(np.nan), z, 1.0)    # NaN at valid cells: refill
+    fill = pipeline.run_array(ABOVE, z, 1.0, {"low_m": -100.0})
+    for rc in objs:
+        assert np.isfinite(res.dtm[rc]) and res.dtm[rc] == fill.dtm[rc]
+
+
+def test_run_file_aux_blocked(tmp_path):
+    z, _ = scene(nodata=False)
+    marks = np.zeros(z.shape, bool)
+    marks[3, 9] = marks[7, 7] = True
+    src = write(tmp_path, z)
+    with pytest.raises(ValueError, match="marks.*shape"):
+        pipeline.run_file(ABOVE, src, outputs(tmp_path, "mask"), aux={"marks": marks[:-1]})
+    assert partials(tmp_path) == [] and not (tmp_path / "mask.tif").exists()
+    for b in (None, 4):
+        out = outputs(tmp_path, "mask", prefix=f"b{b}_")
+        pipeline.run_file(ABOVE, src, out, aux={"marks": marks}, block=b)
+        mask = read(out["mask"])[0]
+        assert mask[3, 9] == OBJECT and mask[7, 7] == OBJECT and mask[3, 8] == GROUND
+
+
+def test_run_file_resolves_on_central_window(tmp_path, monkeypatch):
+    seen = []
+
+    def resolve(z, cell_size, **p):
+        seen.append(z.shape)
+        return _resolve(z, cell_size, **p)
+
+    meth = Method(name="above2", run=_run, resolve=resolve, halo=lambda p, c: 1, params=ABOVE.params)
+    monkeypatch.setattr(pipeline, "RESOLVE_SIDE", 6)
+    z, _ = scene()
+    logs = []
+    pipeline.run_file(meth, write(tmp_path, z), outputs(tmp_path, "mask"), log=logs.append)
+    assert seen == [(6, 6)] and any("central 6 x 6" in s for s in logs)
