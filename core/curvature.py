@@ -736,6 +736,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     holes = ~valid | objects | (marked & near) | mark_k
     del near
     concave = marked & (H < 0)
+    edge = marked & ~objects
     for it in range(_PASSES):
         if not (valid & ~holes).any():
             mask[objects] = OBJECT
@@ -747,6 +748,10 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         allow = _slope(surface, dx, dy)
         allow *= np.float32(max(dx, dy))
         allow += np.float32(tol)
+        # a break that no profile found inside an object must stand half the minimum
+        # object height more above the surface: interpolated across a band of breaks,
+        # the surface sags below convex terrain edges (crest of a dam) by some decimetres
+        np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
         mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
         mask[_pits(z, concave & (d < -h_min), m + 2, h_min)] = LOW
         # cells the profiles found between a break up and a break down stay objects when
