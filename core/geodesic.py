@@ -318,7 +318,7 @@ def _expand(c, f, shape):
     return out.reshape(Hc * f, Wc * f)[:shape[0], :shape[1]]
 
 
-def _step(w, valid, wmask, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
+def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
     """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
@@ -358,9 +358,11 @@ def _step(w, valid, wmask, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
     if cand.any():
         lab, n = ndimage.label(cand, _S8)
         rim = cand & ~_inner(cand)
-        # a rim cell is abrupt when its residual exceeds dh0 plus what the terrain can
-        # rise over one (diagonal, coarse) cell past the dh0 contour
-        abrupt = dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy)
+        # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
+        # than the terrain can rise over one (diagonal) cell, plus 2 dh0
+        # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
+        abrupt = jump if f == 1 else _block_reduce(jump, f, np.maximum, False)
+        abrupt = abrupt & (dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
         dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, dc, rim, abrupt)
         dh_k = dh0 + tan_s * s / 2.0
         keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
@@ -711,8 +713,8 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
         ``tan(slope) * s/2`` above the reconstruction; scan labelling tolerates it too.
     edge_ratio : float
         Height heterogeneity threshold in [0, 1]: a region is an object when at least
-        this fraction of its border cells are abrupt (residual at least
-        ``2 dh0 + tan(slope) * cell diagonal``).
+        this fraction of its border cells hold a wall (a cell above a neighbour by more
+        than ``2 dh0 + tan(slope) * cell diagonal``).
     outlier_threshold_m : float
         Preprocessing: depth (height) below the closing (above the opening) of a low
         (high) outlier, metres.
@@ -783,9 +785,12 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     cleaned = w.copy()
     removed = np.zeros(z.shape, bool)
     ext_limit = EXTENT_FACTOR * max_object_size_m
+    with np.errstate(invalid="ignore"):
+        jump = valid & (w - _filter2d(np.where(valid, w, np.inf), (3, 3), np.minimum, np.inf)
+                        > 2.0 * dh0 + tan_s * np.hypot(dx, dy))
     counts = []
     for k, s in enumerate(sizes, start=1):
-        R, obj = _step(w, valid, wmask, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit)
+        R, obj = _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit)
         new = obj & ~removed
         step[new & (step == 0)] = k
         removed |= obj
@@ -847,8 +852,8 @@ METHOD = Method(
               minimum=0.0, maximum=89.0, advanced=True),
         Param("edge_ratio", "float", 0.45, "Height heterogeneity threshold (0-1): a "
               "region the reconstruction cannot reach is an object when at least this "
-              "fraction of its border cells jump more than 2 dh0 plus the terrain's rise "
-              "over one cell (walls jump, hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
+              "fraction of its border cells stand above a neighbour by more than 2 dh0 plus "
+              "the terrain's rise over one cell (walls jump, hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
         Param("outlier_threshold_m", "float", None, "Preprocessing: a small cluster this "
               "far below the closing (above the opening) is a low (high) outlier, metres; "
               "empty: max(2, 4 x dh0).", minimum=0.01, maximum=1000.0, advanced=True),
