@@ -317,3 +317,38 @@ def test_blocks_agree_with_one_pass():
     assert (one.mask == blk.mask).mean() >= 0.999
     assert np.allclose(one.extras["curvature"], blk.extras["curvature"], equal_nan=True,
                        atol=1e-6)
+
+
+# --------------------------------------------------------------------------- shared scenes
+@pytest.mark.parametrize("seed", [0, 1])
+def test_synthetic_city_buildings_removed_whole(seed):
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(256, 256), seed=seed)
+    res, _ = run(sc.dsm, sc.cell_size)
+    truth_obj = sc.mask == OBJECT
+    buildings = [o for o in sc.objects if o["kind"] == "building"]
+    assert buildings
+    for o in buildings:
+        r0, c0, r1, c1 = o["bbox"]
+        inside = truth_obj[r0:r1, c0:c1]
+        assert (res.mask[r0:r1, c0:c1][inside] == OBJECT).mean() >= 0.99, o
+    ground = sc.mask == GROUND
+    assert (res.mask[ground] != GROUND).mean() <= 0.01
+    assert (res.mask[truth_obj] == GROUND).mean() <= 0.01
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_synthetic_breakline_dam_and_cut_stay_ground(seed):
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("breakline", shape=(256, 256), seed=seed)
+    res, _ = run(sc.dsm, sc.cell_size)
+    works = [o for o in sc.objects if o["kind"] in ("dam", "cut")]
+    assert works
+    for o in works:
+        r0, c0, r1, c1 = o["bbox"]
+        ground = sc.mask[r0:r1, c0:c1] == GROUND
+        assert (res.mask[r0:r1, c0:c1][ground] == GROUND).mean() >= 0.95, o["kind"]
+    # low blunders found, and not invented along the cut or the dam's toes
+    lows = res.mask == LOW
+    assert (sc.mask[lows] == LOW).mean() >= 0.8
+    assert lows[sc.mask == LOW].mean() >= 0.7
