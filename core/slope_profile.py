@@ -21,9 +21,11 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   steep slope rejects the upper side, but the scan coming down the other way accepts it
   (a drop below the reference resets the reference), so terrain steps survive, while a
   building is rejected from both sides.
-* **X and Y combined by union**: a cell is an object when the X or the Y profiles reject
-  it. An object elongated along one axis is short, hence caught, along the other, and the
-  two-direction rule above already keeps terrain steps, so the union costs little Type I.
+* **X and Y combined by connected objects**: the union of the X and Y rejections, keeping
+  each connected object only when at least a tenth of its cells are rejected by both axes.
+  An object elongated along one axis is short, hence caught, along the other; but a road
+  embankment or a dam that a profile runs along is accepted by that profile over most of
+  its length, and goes back to the ground.
 * **Low blunders** (a drop then a rise: pits of one or two cells, typical of image
   matching) are found first by a 3 x 3 grey closing and get class 2; the scans skip them.
 * **Refinement.** Rejected cells lying within the tolerance of the surface interpolated
@@ -45,7 +47,7 @@ from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .methods import Method, Param
 
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
-_MIN_ALPHA_G, _MAX_ALPHA_G = 15.0, 60.0
+_MIN_ALPHA_G, _MAX_ALPHA_G = 25.0, 60.0
 _MIN_ALPHA_T = 8.0
 
 
@@ -126,6 +128,24 @@ def estimate_noise(z):
     return float(1.4826 * np.median(np.abs(d)) / np.sqrt(6.0))
 
 
+def estimate_sample_spacing(z):
+    """Mean run length (cells) of identical neighbouring values along rows and columns.
+
+    A DSM measured at every cell gives 1. A DSM gridded from sparser points with empty
+    cells filled from the nearest point repeats each value over a run of cells, and its
+    height steps come at the run ends: the slope test must span the data's own spacing,
+    not one cell. Returns a value >= 1 (the mean run length ``1 / (1 - p_equal)``).
+    """
+    z = as_surface(z)
+    k = max(1, int(z.size // 2_000_000))
+    eq, n = 0, 0
+    for a in (z[::k, 1:] == z[::k, :-1], z[1:, ::k] == z[:-1, ::k]):
+        eq += int(a.sum())
+        n += a.size
+    p = eq / max(n, 1)
+    return float(1.0 / max(1.0 - p, 1e-3))
+
+
 def _extreme3(a, op):
     """3 x 3 running max or min (``op`` = np.maximum / np.minimum), edges replicated.
 
@@ -204,40 +224,68 @@ def _stack_profiles(seqs):
     return out
 
 
-def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
-    """Forward and backward scans of the X and Y profiles, combined per axis by AND.
+def _scan_set(seqs, step, tan_g, tan_t, dh0, init, edge):
+    """Run forward and backward scans of several profile sets in one stacked pass.
 
-    The four scans run as one vectorised pass: the profiles, reversed ones included, are
-    stacked side by side so each step along the profiles is one numpy operation over all of
-    them. Profiles of the two axes share a pass when their spacing is the same.
-    Returns ``(objects_x, objects_y)`` on the grid of ``zs``.
+    Returns, per set, the cells rejected by both its forward and its backward scan.
     """
-    rows, cols = zs.shape
+    stacked = _stack_profiles([q for q in seqs for q in (q, q[::-1])])
+    rej = _scan(stacked, step, tan_g, tan_t, dh0, init, False, edge)
+    out, c = [], 0
+    for q in seqs:
+        n, w = q.shape
+        out.append(rej[:n, c: c + w] & rej[:n, c + w: c + 2 * w][::-1])
+        c += 2 * w
+    return out
+
+
+def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
+    """Forward and backward scans along X and Y.
+
+    The scans of profiles with the same spacing run as one vectorised pass: the profiles,
+    reversed ones included, are stacked side by side so each step along the profiles is
+    one numpy operation over all of them. A cell is rejected along a direction when both
+    the forward and the backward scan reject it.
+
+    Returns ``(objects_x, objects_y)``.
+    """
     zx = np.ascontiguousarray(zs.T)          # X profiles: positions = columns
-    groups = [[("x", zx, dx, init[0], edge[0])], [("y", zs, dy, init[1], edge[1])]]
     if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-        groups = [groups[0] + groups[1]]
-    res = {}
-    for grp in groups:
-        seqs = []
-        for _, q, *_ in grp:
-            seqs += [q, q[::-1]]
-        stacked = _stack_profiles(seqs)
-        _, _, step, ic, ec = grp[0]
-        rej = _scan(stacked, step, tan_g, tan_t, dh0, ic, False, ec)
-        c = 0
-        for name, q, *_ in grp:
-            n, w = q.shape
-            fwd = rej[:n, c: c + w]
-            bwd = rej[:n, c + w: c + 2 * w][::-1]
-            res[name] = fwd & bwd
-            c += 2 * w
-    return res["x"].T, res["y"]
+        ox, oy = _scan_set([zx, zs], dx, tan_g, tan_t, dh0, init[0], edge[0])
+    else:
+        ox, = _scan_set([zx], dx, tan_g, tan_t, dh0, init[0], edge[0])
+        oy, = _scan_set([zs], dy, tan_g, tan_t, dh0, init[1], edge[1])
+    return ox.T, oy
+
+
+#: Share of an object's cells that both axes must reject (see :func:`_combine_axes`).
+_MIN_BOTH_AXES_SHARE = 0.1
+
+
+def _combine_axes(obj_x, obj_y, ok):
+    """X and Y results -> objects: the union, keeping each connected object only when at
+    least a tenth of its cells are rejected by both axes.
+
+    Buildings and crowns are crossed by both axes; a road embankment or a dam that one
+    axis runs along is accepted by that axis along most of its length, so the other
+    axis's rejections of it are given back to the ground.
+    """
+    union = (obj_x | obj_y) & ok
+    if not union.any():
+        return union
+    both = obj_x & obj_y & ok
+    lab, n = ndimage.label(union, structure=np.ones((3, 3), bool))
+    flat = lab.ravel()
+    total = np.bincount(flat, minlength=n + 1)
+    inboth = np.bincount(flat, weights=both.ravel(), minlength=n + 1)
+    keep = inboth >= _MIN_BOTH_AXES_SHARE * total
+    keep[0] = False
+    return keep[lab]
 
 
 def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
-                         max_object_size_m=100.0, edge_length_m=1.0, refine=True, slope_factor=1.25,
-                         progress=None):
+                         max_object_size_m=100.0, edge_length_m=1.0, sample_spacing_cells=1.0,
+                         refine=True, slope_factor=1.25, progress=None):
     """Slope-profile filter (Luong Chinh Ke 2002, section 2.1).
 
     Parameters
@@ -288,9 +336,12 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
     init_y = max(1, int(round(max_object_size_m / dy)))
     ex = max(1, int(round(edge_length_m / dx)))
     ey = max(1, int(round(edge_length_m / dy)))
-    obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, tolerance_m, (init_x, init_y), (ex, ey))
+    sp_ = max(1.0, float(sample_spacing_cells))
+    # the edge test spans the data's own spacing (stair steps of gridded sparse points)
+    dh_eff = tolerance_m + (sp_ - 1.0) * min(dx, dy) * tan_g
+    obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, dh_eff, (init_x, init_y), (ex, ey))
     report(progress, 0.65)
-    obj = (obj_x | obj_y) & valid & ~low
+    obj = _combine_axes(obj_x, obj_y, valid & ~low)
 
     refined = 0
     dtm = None
@@ -323,17 +374,21 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
 
 def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terrain_slope_deg=None,
                                  tolerance_m=None, max_object_size_m=100.0, edge_length_m=1.0,
-                                 refine=True, slope_factor=1.25):
+                                 sample_spacing_cells=None, refine=True, slope_factor=1.25):
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
       (:func:`estimate_terrain_slope`: slopes between 20 m block minima, which objects do
       not reach), the paper's "average slope" made robust, and at least 8 degrees: the
       ground under a long object may rise at least that fast.
-    * ``slope_threshold_deg`` (alpha_g): twice alpha_t, bounded to [15, 60] degrees:
-      steeper than the terrain's usual slope, far gentler than a wall.
+    * ``slope_threshold_deg`` (alpha_g): twice alpha_t, bounded to [25, 60] degrees:
+      steeper than the terrain's usual slope, far gentler than a wall. Below 25 degrees
+      the sides of road embankments and the stair steps of gridded sparse points start
+      to count as object edges (measured on the ISPRS samples 61 and 71).
     * ``tolerance_m`` (dh0): 3 x the DSM's robust noise (:func:`estimate_noise`),
       bounded to [0.15, 0.5] m.
+    * ``sample_spacing_cells``: the mean run of identical neighbouring values
+      (:func:`estimate_sample_spacing`); the edge test spans it.
 
     Measured on the seven ISPRS samples under ``benchmarks/isprs.py`` (see the README).
     """
@@ -346,9 +401,11 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
         tolerance_m = float(np.clip(3.0 * estimate_noise(z), 0.15, 0.5))
+    if sample_spacing_cells is None:
+        sample_spacing_cells = estimate_sample_spacing(z)
     return {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
             "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
-            "edge_length_m": float(edge_length_m), "refine": bool(refine), "slope_factor": float(slope_factor)}
+            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells), "refine": bool(refine), "slope_factor": float(slope_factor)}
 
 
 def slope_profile_halo(params, cell_size):
@@ -370,7 +427,7 @@ METHOD = Method(
         Param("slope_threshold_deg", "float", None,
               "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
               "from the ground before it starts an object. Empty: twice the average terrain slope "
-              "alpha_t, bounded to 15-60 deg.",
+              "alpha_t, bounded to 25-60 deg.",
               minimum=0.5, maximum=89.0),
         Param("terrain_slope_deg", "float", None,
               "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
@@ -390,6 +447,11 @@ METHOD = Method(
               "(one cell = the paper's point-to-point test; longer runs ignore the stair steps of "
               "sparse or resampled data).",
               minimum=0.0, maximum=50.0, advanced=True),
+        Param("sample_spacing_cells", "float", None,
+              "Spacing of the DSM's real samples, in cells: the slope test spans it. Empty: the mean "
+              "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
+              "grid of sparse points with empty cells filled from the nearest point).",
+              minimum=1.0, maximum=20.0, advanced=True),
         Param("refine", "bool", True,
               "Give rejected cells lying within the tolerance of the interpolated ground back to the "
               "ground (restores terrain edges).", advanced=True),

@@ -10,9 +10,13 @@ PARAMS = dict(slope_threshold_deg=30.0, terrain_slope_deg=8.0, tolerance_m=0.2, 
               refine=False)
 
 
-def profile(values, rows=3):
-    """A raster whose every row is the same profile (so X and Y agree on ground)."""
-    return np.tile(np.asarray(values, dtype=np.float32), (rows, 1))
+def profile(values, rows=3, pad=4):
+    """A raster whose middle ``rows`` rows carry the profile, with ``pad`` rows of flat
+    ground at height 0 above and below (so objects are finite in Y too)."""
+    v = np.asarray(values, dtype=np.float32)
+    z = np.zeros((rows + 2 * pad, v.size), np.float32)
+    z[pad:pad + rows] = v
+    return z
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
@@ -28,22 +32,24 @@ def test_whole_roof_removed_not_only_edges(dtype):
     prof = [0] * 8 + [6] * 10 + [0] * 8        # a 10-cell flat roof 6 m high
     r = sp.filter_slope_profile(profile(prof, 5).astype(dtype), 1.0, **PARAMS)
     expect = np.array([GROUND] * 8 + [OBJECT] * 10 + [GROUND] * 8, np.uint8)
-    np.testing.assert_array_equal(r.mask[2], expect)
+    for row in range(4, 9):
+        np.testing.assert_array_equal(r.mask[row], expect)
+    assert (r.mask[:4] == GROUND).all() and (r.mask[9:] == GROUND).all()
 
 
 def test_object_at_profile_start_removed():
     prof = [5] * 6 + [0] * 20                  # the raster's edge cuts a roof
     r = sp.filter_slope_profile(profile(prof), 1.0, **PARAMS)
-    np.testing.assert_array_equal(r.mask[1, :6], OBJECT)
-    np.testing.assert_array_equal(r.mask[1, 6:], GROUND)
+    np.testing.assert_array_equal(r.mask[5, :6], OBJECT)
+    np.testing.assert_array_equal(r.mask[5, 6:], GROUND)
 
 
 def test_ramp_and_terrace_kept():
     ramp = np.arange(30, dtype=np.float32) * 0.3            # 16.7 deg, below alpha_g
     r = sp.filter_slope_profile(profile(ramp), 1.0, **PARAMS)
     assert (r.mask == GROUND).all()
-    terrace = [0.0] * 15 + [3.0] * 40                        # a terrain step longer than objects
-    r = sp.filter_slope_profile(profile(terrace, 5), 1.0, **PARAMS)
+    terrace = np.tile(np.array([0.0] * 15 + [3.0] * 40, np.float32), (30, 1))  # a terrain step
+    r = sp.filter_slope_profile(terrace, 1.0, **PARAMS)
     assert (r.mask[:, 15:] == GROUND).mean() > 0.9           # the scan coming down accepts it
 
 
@@ -81,7 +87,7 @@ def test_resolve_derives_from_data():
     flat = np.random.default_rng(0).normal(0, 0.05, (200, 200)).astype(np.float32)
     p = sp.resolve_slope_profile_params(flat, 1.0)
     assert p["terrain_slope_deg"] == pytest.approx(8.0)      # the floor on flat ground
-    assert p["slope_threshold_deg"] == pytest.approx(16.0)
+    assert p["slope_threshold_deg"] == pytest.approx(25.0)   # the floor of alpha_g
     assert 0.15 <= p["tolerance_m"] <= 0.5
     assert sp.estimate_noise(flat) == pytest.approx(0.05, rel=0.15)
     yy, xx = np.mgrid[0:200, 0:200]
@@ -125,3 +131,21 @@ def test_tiny_raster():
     res = run_array("slopeprofile", z, 1.0)
     assert res.mask.shape == (3, 3)
     assert np.isfinite(res.dtm).all()
+
+
+def test_sample_spacing_of_nearest_filled_grid():
+    rng = np.random.default_rng(1)
+    dense = rng.normal(0, 1, (100, 100)).astype(np.float32)
+    assert sp.estimate_sample_spacing(dense) == pytest.approx(1.0, abs=0.01)
+    blocky = np.repeat(np.repeat(dense[:25, :25], 4, axis=0), 4, axis=1)   # each value over 4 x 4 cells
+    assert sp.estimate_sample_spacing(blocky) == pytest.approx(4.0, rel=0.05)
+
+
+def test_embankment_along_a_profile_kept_building_removed():
+    z = np.zeros((80, 120), np.float32)
+    z[30:40, :] = 4.0                                       # an embankment along X, 10 m wide
+    z[30:40, :][:, np.r_[0:5, 115:120]] = 0.0               # ...cut at the raster's edges
+    z[60:72, 50:62] = 8.0                                   # a building
+    r = sp.filter_slope_profile(z, 1.0, **PARAMS)
+    assert (r.mask[31:39, 20:100] == GROUND).mean() > 0.95  # X profiles run along it
+    assert (r.mask[60:72, 50:62] == OBJECT).all()

@@ -1,0 +1,153 @@
+"""Speed and peak memory of each filter, file to file (read, filter, fill the DTM, write).
+
+Usage::
+
+    /usr/bin/python3 benchmarks/speed.py [--methods slopeprofile,...] [--sizes 1,4,16] [--big]
+                                          [--workers N] [--out benchmarks/results/speed.jsonl]
+
+Each run is a fresh subprocess, so its peak resident memory (``ru_maxrss``) is its own;
+"extra" is that peak minus the memory of the imports alone. Inputs are synthetic city
+DSMs (``core.synthetic.make_dsm``) written as tiled GeoTIFFs. ``--big`` adds a 100 Mcells
+DSM (written in tiles, never held in memory) run in block mode, and the 16 Mcells one in
+block mode too, to show memory does not grow with the raster in block mode.
+A GDAL read + write of the same file gives the I/O-only speed for scale.
+"""
+import argparse
+import datetime
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import ROOT, setup_path  # noqa: E402
+
+setup_path()
+
+
+def make_input(path, mcells, seed=0):
+    """Write a synthetic DSM of about ``mcells`` million cells to ``path`` (tiled GeoTIFF)."""
+    import numpy as np
+    from osgeo import gdal, osr
+    from bare_earth.core.synthetic import make_dsm
+    side = int(round((mcells * 1e6) ** 0.5))
+    tile = min(side, 4000)
+    drv = gdal.GetDriverByName("GTiff")
+    ds = drv.Create(str(path), side, side, 1, gdal.GDT_Float32,
+                    options=["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "BIGTIFF=IF_SAFER"])
+    ds.SetGeoTransform((500000.0, 1.0, 0.0, 5400000.0 + side, 0.0, -1.0))
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(32632)
+    ds.SetProjection(srs.ExportToWkt())
+    band = ds.GetRasterBand(1)
+    band.SetNoDataValue(-9999.0)
+    k = 0
+    for r0 in range(0, side, tile):
+        for c0 in range(0, side, tile):
+            h, w = min(tile, side - r0), min(tile, side - c0)
+            sc = make_dsm(h * w, seed=seed + k)
+            z = np.asarray(sc.dsm, dtype=np.float32)[:h, :w]
+            if z.shape != (h, w):  # make_dsm gives a square; pad a ragged edge tile
+                pad = np.full((h, w), float(np.nanmedian(z)), np.float32)
+                pad[: z.shape[0], : z.shape[1]] = z
+                z = pad
+            band.WriteArray(np.where(np.isfinite(z), z, -9999.0).astype(np.float32), c0, r0)
+            k += 1
+    ds = None
+    return side * side
+
+
+CHILD = r"""
+import json, resource, sys, time
+sys.path.insert(0, {plugins!r})
+from bare_earth.core import pipeline
+from osgeo import gdal
+import numpy, scipy.ndimage
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t = time.perf_counter()
+if {method!r} == "io":
+    src = gdal.Open({src!r})
+    b = src.GetRasterBand(1)
+    drv = gdal.GetDriverByName("GTiff")
+    dst = drv.Create({dtm!r}, src.RasterXSize, src.RasterYSize, 1, gdal.GDT_Float32,
+                     options=["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "BIGTIFF=IF_SAFER"])
+    for r0 in range(0, src.RasterYSize, 2048):
+        h = min(2048, src.RasterYSize - r0)
+        dst.GetRasterBand(1).WriteArray(b.ReadAsArray(0, r0, src.RasterXSize, h), 0, r0)
+    dst = None
+    info = {{}}
+else:
+    info = pipeline.run_file({method!r}, {src!r}, {{"dtm": {dtm!r}, "mask": {mask!r}}}, block={block},
+                             workers={workers})
+dt = time.perf_counter() - t
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({{"seconds": dt, "peak_mb": peak / 1024, "extra_mb": (peak - base) / 1024,
+                  "blocks": info.get("blocks", 0)}}))
+"""
+
+
+def run_child(method, src, tmp, block=None, workers=1):
+    code = CHILD.format(plugins=str(ROOT / ".build" / "plugins"), method=method, src=str(src),
+                        dtm=str(Path(tmp) / "dtm.tif"), mask=str(Path(tmp) / "mask.tif"),
+                        block=repr(block), workers=int(workers))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if res.returncode != 0:
+        return {"error": (res.stderr.strip().splitlines() or ["failed"])[-1]}
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None):
+    from bare_earth.core.methods import available_methods
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--methods", default=",".join(available_methods()))
+    ap.add_argument("--sizes", default="1,4,16", help="Mcells, comma-separated")
+    ap.add_argument("--big", action="store_true", help="add 100 Mcells (and 16 Mcells) in block mode")
+    ap.add_argument("--workers", type=int, default=1, help="blocks at once (threads)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "speed.jsonl"))
+    ap.add_argument("--no-log", action="store_true")
+    args = ap.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    sizes = [float(s) for s in args.sizes.split(",") if s]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bare_earth_speed_") as tmp:
+        cases = [(s, None) for s in sizes]
+        if args.big:
+            cases += [(16.0, 2048), (100.0, 2048)]
+        inputs = {}
+        print(f"{'method':>14} {'Mcells':>7} {'mode':>10} {'seconds':>8} {'Mcells/s':>9} {'peak MB':>8} "
+              f"{'extra MB':>9} {'input MB':>9}")
+        for size, block in cases:
+            if size not in inputs:
+                p = Path(tmp) / f"dsm_{size:g}.tif"
+                n = make_input(p, size)
+                inputs[size] = (p, n)
+            p, n = inputs[size]
+            for m in ["io"] + methods:
+                if m == "io" and block is not None:
+                    continue
+                r = run_child(m, p, tmp, block=block, workers=args.workers)
+                mode = "io only" if m == "io" else ("one block" if block is None else f"blocks {block}")
+                if "error" in r:
+                    print(f"{m:>14} {n / 1e6:7.1f} {mode:>10}  ERROR {r['error']}")
+                    continue
+                row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, **r,
+                           mcells_per_s=n / 1e6 / r["seconds"], input_mb=n * 4 / 2 ** 20)
+                rows.append(row)
+                print(f"{m:>14} {n / 1e6:7.1f} {mode:>10} {r['seconds']:8.2f} {row['mcells_per_s']:9.2f} "
+                      f"{r['peak_mb']:8.0f} {r['extra_mb']:9.0f} {row['input_mb']:9.0f}")
+    if not args.no_log and rows:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True).stdout.strip()
+        with open(args.out, "a") as f:
+            f.write(json.dumps({"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                                "commit": commit, "cpus": os.cpu_count(),
+                                "load": os.getloadavg()[0], "rows": rows}) + "\n")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""Print the README's algorithm reference (Markdown) from the core's method specs.
+
+Usage: /usr/bin/python3 scripts/algorithm_docs.py [--write README.md]
+With --write, replaces the text between the markers in README.md.
+"""
+import html
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / ".build" / "plugins"))
+
+from bare_earth.core.codes import MASK_CODES  # noqa: E402
+from bare_earth.core.methods import available_methods  # noqa: E402
+
+BEGIN, END = "<!-- algorithms:begin -->", "<!-- algorithms:end -->"
+
+
+def strip_html(s):
+    s = re.sub(r"</p>\s*<p>", "\n\n", s)
+    return html.unescape(re.sub(r"<[^>]+>", "", s)).strip()
+
+
+def plugin_methods():
+    """Method names that have an algorithm class in algorithms/filters.py (no QGIS import)."""
+    text = (ROOT / "algorithms" / "filters.py").read_text()
+    return re.findall(r'METHOD_NAME\s*=\s*"([^"]+)"', text)
+
+
+def render():
+    out = []
+    methods = available_methods()
+    for name in plugin_methods():
+        if name not in methods:
+            continue
+        m = methods[name]
+        out.append(f"### `bareearth:{name}`: {m.title}\n")
+        out.append(strip_html(m.description) + "\n")
+        out.append("| parameter | default | meaning |\n|---|---|---|")
+        out.append("| `INPUT` | | single-band DSM raster |")
+        out.append("| `BAND` | 1 | height band, when the raster has several |")
+        for p in m.params:
+            d = "from the data" if p.default is None else f"`{p.default}`"
+            adv = " (advanced)" if p.advanced else ""
+            out.append(f"| `{p.name.upper()}` | {d} | {p.help}{adv} |")
+        out.append("| `BLOCK_SIZE`, `THREADS` | 0, 1 | block edge in cells (0 automatic) and blocks at once (advanced) |")
+        out.append("| `OUTPUT_DTM`, `OUTPUT_MASK` | | Float32 DTM, UInt8 mask (" +
+                   ", ".join(f"{k} {v}" for k, v in MASK_CODES.items()) + ") |")
+        out.append("| `OUTPUT_NDSM` | optional | DSM minus DTM |")
+        for k in m.extras:
+            out.append(f"| `OUTPUT_{k.upper()}` | optional | per-cell side product `{k}` |")
+        out.append("")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    text = render()
+    if len(sys.argv) > 2 and sys.argv[1] == "--write":
+        p = Path(sys.argv[2])
+        s = p.read_text()
+        a, b = s.index(BEGIN) + len(BEGIN), s.index(END)
+        p.write_text(s[:a] + "\n" + text + "\n" + s[b:])
+    else:
+        print(text)
