@@ -10,15 +10,16 @@ with p = dz/dX, q = dz/dY the first and r = d2z/dX2, s = d2z/dXdY, t = d2z/dY2 t
 second derivatives. A point with ``|K| >= K_g`` lies on a break of the surface: at the foot
 or the top of an object.
 
-Two local surfaces are offered:
-
+Local trend surfaces
+--------------------
 ``"quadratic"`` (default)
     z = a + b x + c y + d x^2 + e x y + f y^2 fitted by least squares to the
     ``window x window`` cells around every cell (Evans-Young / Zevenbergen-Thorne style):
     p = b, q = c, r = 2 d, s = e, t = 2 f. On a regular grid the normal equations
-    separate, so every coefficient is a separable correlation kernel and the whole raster
-    is done with eight 1-D correlations (no loop per cell). Besides K it gives the mean
-    curvature H, whose sign separates convex from concave where K alone cannot.
+    separate, so every coefficient is a separable kernel: the whole raster is done with a
+    few shifted sums (no loop per cell). Besides K it gives the mean curvature H, whose
+    sign separates convex (H > 0) from concave (H < 0) where K alone cannot (K > 0 for a
+    dome and for a bowl alike).
 ``"bilinear"``
     The paper's surface z = a0 + a1 X + a2 Y + a3 X Y (eq. 12), fitted to the window of
     ``window`` neighbouring X profiles (fitted to the points of a single profile it is
@@ -26,21 +27,41 @@ Two local surfaces are offered:
     are r = t = 0, s = a3, so K = -a3^2 / h^4 is never positive: it finds twisted
     breaks (corners) but cannot tell convex from concave, and misses straight edges.
 
-Turning breaks into objects follows the paper's profile reasoning: along every X and
-every Y profile, the run of unmarked points between a break going up and the break
-coming down belongs to an object when it stands above the ground beyond both breaks
-(by at least the minimum object height, across a rise steeper than a wall slope). Regions
-enclosed by marked breaks whose cells are mostly such runs become whole objects. A final
-pass compares every cell with a ground surface interpolated under the objects and
-breaks, so that breaks of the terrain itself (dams, embankments, terrace edges) that
-stand on the interpolated ground go back to ground, and the feet and tops of objects go to
-the side they belong to. Concave breaks well below that surface are low blunders (code 2).
+From curvature to objects
+-------------------------
+1. **Breaks.** A cell is marked when ``|K| >= K_g`` (the paper's test), or by its X
+   profile when the bend of the X trend ``|r| >= sqrt(K_g)``, or by its Y profile when
+   ``|t| >= sqrt(K_g)``. The profile tests are needed: along a straight roof edge one
+   principal curvature is zero, so K = 0, and a tall wall has a tiny K (h^4 is large),
+   but the profile across the edge bends strongly. ``sqrt(K_g)`` is the bend of a point
+   curved as much both ways (K = kappa^2).
+2. **Profiles.** Along every X and Y profile (each scanned both ways, all profiles at
+   once) the points between a break going up and the matching break coming down belong
+   to an object: the object starts at a marked cell on top of a wall (a rise of at least
+   the minimum object height within two cells, steeper than the wall slope and three
+   times steeper than the profile before it: dams, embankments, terrace edges and
+   terrain rasterised in steps are not walls), and ends where the profile comes back down
+   to the ground extended from the wall's foot at the profile's slope before it, or comes
+   down a wall onto ground nearer the foot than the top, or after the largest object
+   size. A terrace step is climbed by one scan only; objects are kept where both agree.
+3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
+   the largest object, not touching the raster's edge) made mostly of such points become
+   whole objects.
+4. **Final pass** (twice). The ground is interpolated (:func:`fill.fill_gaps`, harmonic)
+   under the objects, the breaks next to them and the points with ``|K| >= K_g``; a cell
+   is an object when it stands above that surface by more than the tolerance plus one
+   cell of the surface's slope (breaks outside objects: half the minimum object height
+   more, as the interpolated surface sags a little under convex terrain edges). Straight
+   breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
+   surface, so terrain edges stay ground. A concave break deeper than the minimum object
+   height below the surface and below every cell of the ring around it is a low blunder
+   (code 2): a pit, not a valley or a cut.
 
 Reference
 ---------
 Luong Chinh Ke (2002). Filtering of DSM for generating DTM (local trend and Gaussian
 curvature, section 2.2). The curvature formulas are those of differential geometry of a
-graph surface (e.g. Zevenbergen & Thorne 1987; Evans 1980).
+graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 """
 import numpy as np
 from scipy import ndimage
@@ -52,7 +73,7 @@ from .methods import Method, Param
 
 MODELS = ("quadratic", "bilinear")
 
-#: Break threshold in robust standard deviations of the profile curvature (K_g default).
+#: Break threshold in robust standard deviations of the profile bends (K_g default).
 _K_SIGMAS = 1.5
 #: Smallest height deviation (m) across a half window that counts as a break on
 #: noise-free data (floor of the derived K_g).
@@ -628,10 +649,9 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         ``(dx, dy)`` in metres.
     k_g_per_m2 : float
         Curvature threshold K_g in 1/m^2. A cell is a break when ``|K| >= K_g`` or, with
-        the quadratic model, when the curvature kappa of its X or Y profile has
-        ``kappa^2 >= K_g`` (the Gaussian curvature the point would have if it curved as
-        much across the profile: a straight roof edge has K = 0 but a large profile
-        curvature).
+        the quadratic model, when the bend of its X or Y profile trend ``|r|`` or ``|t|``
+        is at least ``sqrt(K_g)`` (a straight roof edge has K = 0 but its profile across
+        the edge bends strongly).
     window_cells : int
         Odd number of points per profile group (window edge), >= 3; the paper asks for at
         least 5.
@@ -639,18 +659,18 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         Local trend surface. ``"bilinear"`` is the paper's eq. 12 (K <= 0 always,
         r = t = 0: only twisted breaks such as corners are seen).
     min_object_height_m : float
-        An unmarked run between breaks is an object when it stands at least this high
-        above the ground beyond the breaks on both sides; also the depth of a concave
-        break below the ground surface that makes it a low blunder (class 2).
+        A profile enters an object at a break where it has risen at least this much
+        within two cells (a wall); also the depth below the ground surface and below the
+        ring around it that makes a concave break a low blunder (class 2).
     wall_slope_deg : float
-        The rise from the ground beyond a break to the run must contain a step steeper
-        than this (object walls are steep; dams, embankments and terrace edges are not).
+        That rise must be steeper than this, and three times steeper than the profile
+        before it (object walls are steep; dams, embankments and terrace edges are not).
     max_object_size_m : float
-        Longest object (runs and enclosed regions larger than this are ground); also
-        bounds the method's reach (halo).
+        Longest object (profile runs and enclosed regions larger than this are ground);
+        also bounds the method's reach (halo).
     tolerance_m : float
-        Final pass: a cell more than this above the ground surface interpolated under the
-        objects and breaks is an object; within it, ground.
+        Final pass: a cell more than this (plus one cell of the surface's slope) above the
+        ground surface interpolated under the objects and breaks is an object.
     progress : callable, optional
         ``progress(fraction)``; may raise :class:`~.common.Cancelled`.
 
@@ -658,9 +678,11 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     -------
     FilterResult
         ``mask`` (0 ground, 1 object, 2 low blunder, 255 nodata), ``extras["curvature"]``
-        (float32, bands K in 1/m^2 and H in 1/m, H > 0 convex), ``surface`` (the ground
-        surface of the final pass), and ``info`` with K_g and the shares of valid cells
-        marked by X profiles, by Y profiles and by |K| alone.
+        (float32, bands K in 1/m^2 and H in 1/m, H > 0 convex; NaN at nodata),
+        ``surface`` (the ground surface of the final pass), and ``info`` with K_g and the
+        shares of valid cells marked by X profiles (``share_marked_x``), by Y profiles
+        (``share_marked_y``), by ``|K| >= K_g`` (``share_marked_k``) and found inside
+        objects by the X and Y profiles.
 
     References
     ----------
@@ -812,12 +834,16 @@ def _positive(name, value, hint):
 def derive_k_g(z, cell_size, *, window=5, model="quadratic"):
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
-    The profile curvatures kappa of the X and Y profiles (quadratic model) or the twist s
-    (bilinear model) of all valid cells are pooled; their robust spread
-    ``sigma = 1.4826 MAD`` is dominated by the smooth terrain and the noise, breaks being
-    the tails. ``K_g = (3 sigma)^2``, the Gaussian curvature of a point curved by three
-    sigmas in both directions, floored at the curvature of a 5 cm deviation over half a
-    window so that noise-free data do not mark every gentle bend.
+    The bends r and t of the X and Y profile trends (quadratic model) or the normalised
+    twist s / h^2 (bilinear model) are taken on a central sample of at most
+    ``_SAMPLE_CELLS`` cells. Their robust spread ``1.4826 MAD`` is computed per 16 x 16
+    tile and ``sigma`` is the first quartile of the tiles: the curvature noise of the
+    smooth ground and roofs, not inflated by vegetation and object edges, which cover
+    most of an urban scene. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
+    bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
+    window so that noise-free data do not mark every gentle bend. (1.5 rather than a
+    stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
+    missed breaks cost whole objects.)
     """
     dx, dy = as_cell_size(cell_size)
     zs = _sample(as_surface(z))
@@ -840,9 +866,10 @@ def resolve_curvature_params(z, cell_size, *, k_g_per_m2=None, window_cells=5,
                              max_object_size_m=100.0, tolerance_m=None):
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
-    ``k_g_per_m2``: :func:`derive_k_g` (3 robust sigmas of the data's profile curvature,
-    squared). ``tolerance_m``: three times the robust noise of the DSM (second
-    differences), kept within [0.15, 1.0] m.
+    ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the data's profile bends on
+    its smooth parts, squared). ``tolerance_m``: three times the robust noise of the
+    DSM's smooth parts (second differences), kept within [0.3, 1.0] m. The others have
+    fixed defaults (see :data:`METHOD`).
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
@@ -880,9 +907,9 @@ METHOD = Method(
     params=(
         Param("k_g_per_m2", "float", None,
               "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
-              "point with |K| >= K_g (or a profile curvature kappa with kappa^2 >= K_g) is a "
-              "break. Empty: (3 robust sigmas of the data's profile curvature)^2; see the "
-              "CURVATURE output to choose it.", minimum=0.0, maximum=1e6),
+              "cell with |K| >= K_g, or whose X or Y profile bends by sqrt(K_g) 1/m or more, "
+              "is a break. Empty: (1.5 robust sigmas of the data's profile bends)^2; see "
+              "the CURVATURE output to choose it.", minimum=1e-9, maximum=1e6),
         Param("window_cells", "int", 5,
               "Points per profile group (odd window edge, cells) of the local least-squares "
               "trend; the paper asks for at least 5.", minimum=3, maximum=51),
@@ -891,20 +918,22 @@ METHOD = Method(
               "and the mean curvature H) or 'bilinear', the paper's eq. 12 (r = t = 0, so "
               "K <= 0 and straight edges are not seen).", options=MODELS, advanced=True),
         Param("min_object_height_m", "float", 1.0,
-              "Metres an object must stand above the ground beyond the breaks on both sides "
-              "of a profile; also the depth of a low blunder (class 2).",
+              "Metres a profile must rise at a break, within two cells, to enter an object "
+              "(Luong Chinh Ke 2002: points between a break going up and the break coming "
+              "down); also the depth of a low blunder (class 2).",
               minimum=0.05, maximum=100.0),
         Param("wall_slope_deg", "float", 45.0,
-              "Degrees: the rise across a break must contain a step steeper than this to be "
-              "an object's wall (dams, embankments and terrace edges are gentler and stay "
-              "ground).", minimum=1.0, maximum=89.0, advanced=True),
+              "Degrees: that rise must be steeper than this (and 3x steeper than the profile "
+              "before it) to be an object's wall; dams, embankments and terrace edges are "
+              "gentler and stay ground.", minimum=1.0, maximum=89.0, advanced=True),
         Param("max_object_size_m", "float", 100.0,
               "Metres: largest object; larger enclosed regions are ground. Also the method's "
               "reach for block processing.", minimum=1.0, maximum=2000.0),
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
-              "cell may stand and still be ground (final pass). Empty: 3 x the DSM's robust "
-              "noise, within [0.15, 1] m.", minimum=0.01, maximum=10.0, advanced=True),
+              "cell may stand (plus one cell of the surface's slope) and still be ground "
+              "(final pass). Empty: 3 x the DSM's robust noise, within [0.3, 1] m.",
+              minimum=0.01, maximum=10.0, advanced=True),
     ),
     title="Curvature filter (Luong Chinh Ke 2002)",
     description=(
@@ -913,16 +942,18 @@ METHOD = Method(
         "points around every cell (at least five points per X and Y profile) and gives "
         "the Gaussian curvature K = (r t - s<sup>2</sup>) / h<sup>4</sup>, "
         "h<sup>2</sup> = 1 + p<sup>2</sup> + q<sup>2</sup> (eqs. 9-16), and the mean "
-        "curvature H (H &gt; 0 convex, H &lt; 0 concave). Cells with |K| &ge; K<sub>g</sub> "
-        "or a profile curvature &kappa; with &kappa;<sup>2</sup> &ge; K<sub>g</sub> are "
-        "breaks at the feet and tops of objects.</p>"
-        "<p>Along each X and Y profile, the points between a break going up and the break "
-        "coming down form an object when they stand above the ground beyond both breaks "
-        "by the minimum object height, across a wall steeper than the wall slope; regions "
-        "enclosed by breaks and made mostly of such points become whole objects. A final "
-        "pass compares every cell with the ground interpolated under objects and breaks: "
-        "breaks of the terrain itself (dams, embankments) go back to ground, concave "
-        "breaks deeper than the minimum object height are low blunders (class 2).</p>"
+        "curvature H (H &gt; 0 convex, H &lt; 0 concave). Cells with |K| &ge; K<sub>g</sub>, "
+        "or whose X or Y profile bends by &radic;K<sub>g</sub> or more (a straight roof "
+        "edge has K = 0), are breaks at the feet and tops of objects.</p>"
+        "<p>Along each X and Y profile, scanned both ways, the points between a break going "
+        "up a wall (a rise of at least the minimum object height within two cells, steeper "
+        "than the wall slope and than the profile before it) and the matching break coming "
+        "down belong to an object; regions enclosed by breaks and made mostly of such "
+        "points become whole objects. A final pass compares every cell with the ground "
+        "interpolated under the objects and their breaks: straight breaks of the terrain "
+        "itself (dams, embankments, terrace edges) stay ground; concave breaks deeper than "
+        "the minimum object height below the ground and the cells around them are low "
+        "blunders (class 2).</p>"
         "<p><b>The paper's bilinear surface</b> z = a0 + a1 X + a2 Y + a3 XY (eq. 12) is "
         "available as the <i>bilinear</i> model. It has a limit: fitted to the points of "
         "one profile it is degenerate (with Y constant, a2 and a3 cannot be separated), so "
@@ -931,10 +962,11 @@ METHOD = Method(
         "positive: it cannot tell convex from concave and sees only twisted breaks "
         "(corners), not straight edges. The default quadratic surface has none of these "
         "limits.</p>"
-        "<p>Defaults: K<sub>g</sub> = (3 robust standard deviations of the data's profile "
-        "curvature)<sup>2</sup>; tolerance = 3 x the DSM's robust noise. The CURVATURE "
-        "output (band 1 K in 1/m<sup>2</sup>, band 2 H in 1/m) shows what the filter saw; "
-        "the log gives K<sub>g</sub> and the share of cells marked by X and by Y "
-        "profiles.</p>"
+        "<p>Defaults: K<sub>g</sub> = (1.5 robust standard deviations of the profile bends "
+        "of the data's smooth parts)<sup>2</sup>; tolerance = 3 x the DSM's robust noise "
+        "(0.3 to 1 m). The CURVATURE output (band 1 K in 1/m<sup>2</sup>, band 2 H in "
+        "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
+        "cells marked by X and by Y profiles. The curvature is attenuated within "
+        "<i>window</i>/2 cells of the raster's edge (the edge is extended as a plane).</p>"
         "<p>Reference: Luong Chinh Ke (2002), filtering of DSM, section 2.2.</p>"),
 )
