@@ -7,10 +7,11 @@ def all_algorithms():
     from . import filters
     from .fill_dtm import FillDtmAlgorithm
     from .evaluate import EvaluateAlgorithm
+    from .points import ClassifyPointsAlgorithm, RasterizePointsAlgorithm
     methods = available_methods()
     algs = []
     for cls in (getattr(filters, n) for n in filters.__dict__ if n.endswith("Algorithm")):
         if isinstance(cls, type) and getattr(cls, "METHOD_NAME", None) in methods:
             algs.append(cls())
-    algs += [FillDtmAlgorithm(), EvaluateAlgorithm()]
+    algs += [FillDtmAlgorithm(), EvaluateAlgorithm(), RasterizePointsAlgorithm(), ClassifyPointsAlgorithm()]
     return algs

@@ -1,14 +1,15 @@
 """``bareearth:evaluate``: compare a result with truth (masks, DTMs, or points)."""
 import os
 
-import numpy as np
 from qgis.core import (QgsProcessingException, QgsProcessingOutputNumber, QgsProcessingParameterDefinition,
                        QgsProcessingParameterFile, QgsProcessingParameterFileDestination,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterLayer)
+                       QgsProcessingParameterNumber, QgsProcessingParameterRasterLayer,
+                       QgsProcessingParameterString)
 
 from ..core import evaluate as ev
 from ..core import grid
-from ..core.points import classify_points, read_points
+from ..core.pointflow import classify_cloud
+from ..core.points import read_points
 from .fill_dtm import grid_mismatch_message, same_grid
 from .filter_base import BaseAlgorithm, raster_path, tr, with_help
 
@@ -18,6 +19,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
 
     MASK, REFERENCE_MASK, DTM, REFERENCE_DTM, POINTS = "MASK", "REFERENCE_MASK", "DTM", "REFERENCE_DTM", "POINTS"
     THRESHOLD_M, SLOPE_FACTOR = "THRESHOLD_M", "SLOPE_FACTOR"
+    TRUTH_POINTS, TRUTH_COLUMN = "TRUTH_POINTS", "TRUTH_COLUMN"
     OUTPUT_JSON, OUTPUT_HTML = "OUTPUT_JSON", "OUTPUT_HTML"
     GROUP, GROUP_NAME = "tools", "DTM tools"
 
@@ -35,7 +37,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
             "the reference mask's ground cells when a REFERENCE_MASK is given.</li>"
             "<li><b>POINTS</b> (ISPRS text 'x y z class' with class 0 = ground, or a classified LAS/LAZ "
             "file where ASPRS class 2 = ground) classified by the <b>DTM</b>: ground when |z - DTM| &lt;= "
-            "THRESHOLD_M + SLOPE_FACTOR x local DTM slope (Pingel et al. 2013).</li></ul>"
+            "THRESHOLD_M + SLOPE_FACTOR x local DTM slope (Pingel et al. 2013).</li>"
+            "<li>Classified <b>POINTS</b> (e.g. the output of classifypoints or of a filter's INPUT_POINTS: "
+            "text class 0 = ground, 255 = not classified; LAS class 2 = ground) against per-point truth: "
+            "<b>TRUTH_POINTS</b>, the same points with their true classes (ISPRS text 0/1, or LAS with ASPRS "
+            "class 2 = ground; matched by position), or <b>TRUTH_COLUMN</b>, a column of POINTS (text header "
+            "name or LAS dimension) holding the truth. No DTM is needed.</li></ul>"
             "<p>Reports Type I (ground rejected / ground), Type II (objects accepted as ground / "
             "objects), total error and Cohen's kappa (Sithole &amp; Vosselman 2004) as a table in the log, "
             "a JSON file and an HTML report with a map of the Type I and Type II errors.</p>")
@@ -53,7 +60,19 @@ class EvaluateAlgorithm(BaseAlgorithm):
         p = QgsProcessingParameterFile(self.POINTS, tr("Reference points (ISPRS text or LAS/LAZ)"),
                                        optional=True)
         p.setHelp(tr("Points with per-point truth: text 'x y z class' (class 0 = ground, ISPRS) or LAS/LAZ "
-                     "(ASPRS class 2 = ground; needs laspy, and lazrs for LAZ)."))
+                     "(ASPRS class 2 = ground; needs laspy, and lazrs for LAZ). With TRUTH_POINTS or TRUTH_COLUMN: "
+                     "classified points (their class is the prediction)."))
+        self.addParameter(p)
+        p = QgsProcessingParameterFile(self.TRUTH_POINTS, tr("Truth points for classified POINTS"),
+                                       optional=True)
+        p.setHelp(tr("With classified POINTS: the same points with their true classes (ISPRS text class 0 = "
+                     "ground, or LAS/LAZ with ASPRS class 2 = ground), matched by position."))
+        self.addParameter(p)
+        p = QgsProcessingParameterString(self.TRUTH_COLUMN, tr("Truth column of classified POINTS"),
+                                         optional=True)
+        p.setHelp(tr("With classified POINTS: the name of their column (text header) or LAS dimension holding "
+                     "the true class (0 = ground for text, 2 = ground for LAS)."))
+        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         self.addParameter(p)
         t = QgsProcessingParameterNumber(self.THRESHOLD_M, tr("Ground tolerance (m)"),
                                          QgsProcessingParameterNumber.Double, 0.5, minValue=0.0)
@@ -83,12 +102,20 @@ class EvaluateAlgorithm(BaseAlgorithm):
         mask, ref_mask = self._layer(parameters, self.MASK, context), self._layer(parameters, self.REFERENCE_MASK, context)
         dtm, ref_dtm = self._layer(parameters, self.DTM, context), self._layer(parameters, self.REFERENCE_DTM, context)
         points = self.parameterAsFile(parameters, self.POINTS, context) or None
+        truth, column = self._truth(parameters, context)
+        if (truth or column) and not points:
+            raise ValueError("TRUTH_POINTS / TRUTH_COLUMN are the truth of classified POINTS: give POINTS too.")
+        if truth and column:
+            raise ValueError("Give the truth once: TRUTH_POINTS or TRUTH_COLUMN, not both.")
+        if truth and not os.path.isfile(truth):
+            raise ValueError(f"The truth points file {truth!r} does not exist.")
         if (mask is None) != (ref_mask is None) and dtm is None:
             raise ValueError("MASK and REFERENCE_MASK go together: give both, or neither.")
         if ref_dtm is not None and dtm is None:
             raise ValueError("REFERENCE_DTM needs a DTM to compare with.")
-        if points and dtm is None:
-            raise ValueError("POINTS are classified by a DTM: give the DTM too.")
+        if points and dtm is None and not (truth or column):
+            raise ValueError("POINTS are classified by a DTM: give the DTM too (or, for points that are "
+                             "already classified, their truth as TRUTH_POINTS or TRUTH_COLUMN).")
         if not ((mask is not None and ref_mask is not None) or ref_dtm is not None or points):
             raise ValueError("Nothing to compare: give MASK and REFERENCE_MASK, DTM and REFERENCE_DTM, "
                              "or POINTS and DTM.")
@@ -99,6 +126,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
         return mask, ref_mask, dtm, ref_dtm, points
+
+    def _truth(self, parameters, context):
+        truth = self.parameterAsFile(parameters, self.TRUTH_POINTS, context) or None
+        column = (self.parameterAsString(parameters, self.TRUTH_COLUMN, context) or "").strip() or None
+        return truth, column
 
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
@@ -132,7 +164,18 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                ground=None if ref_m is None or ref_m.shape != dtm.shape else (ref_m == 0))
             results["DTM vs reference DTM"] = d
             out["RMSE"] = d["rmse"]
-        if points:
+        truth, column = self._truth(parameters, context)
+        if points and (truth or column):
+            from .points import evaluate_classified
+            feedback.pushInfo(tr(f"Comparing the classified points {points} with "
+                                 + (f"the truth points {truth}" if truth else f"their column {column!r}") + " ..."))
+            try:
+                r, maps["point errors"], gts["point errors"] = evaluate_classified(points, truth, column)
+            except (ValueError, ImportError) as exc:
+                raise QgsProcessingException(str(exc)) from None
+            results["classified points vs truth"] = r
+            out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
+        elif points:
             feedback.pushInfo(tr(f"Reading points {points} ..."))
             try:
                 cloud = read_points(points)
@@ -142,11 +185,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
                 raise QgsProcessingException(tr(f"The points file {points!r} has no class column: it cannot "
                                                 "serve as truth."))
             true_ground = cloud.classification == (2 if cloud.source_format == "las" else 0)
-            dz = dtm.read() / np.float32(dtm.z_to_m) if dtm.z_to_m != 1.0 else dtm.read()
             try:
-                cls = classify_points(cloud.x, cloud.y, cloud.z, dz, dtm.geotransform,
-                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
-                                      slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
+                # in metres whatever the units (feet: the tolerance stays 0.5 m)
+                cls = classify_cloud(cloud, dtm.read(), dtm.geotransform,
+                                     threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
+                                     slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
             except ValueError as exc:
                 raise QgsProcessingException(str(exc)) from None
             inside = cls != 255

@@ -1,0 +1,774 @@
+"""Point clouds through a raster filter: rasterize -> filter -> classify the points.
+
+The filters work on rasters; LiDAR and the ISPRS samples are point clouds. This module
+chains the finished pieces of :mod:`.points` and :mod:`.pipeline` for one cloud and for a
+block of adjoining tiles, in any unit:
+
+* :func:`rasterize_cloud`: the lowest (or highest, mean) point per cell, the cell size in
+  metres (default: about one point per cell), whatever the CRS's unit (metres, feet,
+  degrees),
+* :func:`classify_cloud`: every point ground / above / below a DTM in metres with the
+  SMRF rule ``|z - DTM| <= threshold_m + slope_factor * slope`` (Pingel et al. 2013),
+  evaluated in metres,
+* :func:`filter_cloud`: both around :func:`.pipeline.run_array`,
+* :func:`filter_tiles`: several tile files filtered as one block. Each tile is filtered
+  in a *unit*: the tile's extent plus an overlap (points of the neighbouring tiles) at
+  least the method's reach, on one grid lattice and with one parameter set for the whole
+  block; only the tile's own points are classified, so the classes agree along the
+  seams with an untiled run,
+* :func:`compare_classified`: a classified cloud against per-point truth (Type I / II,
+  total error, kappa; Sithole & Vosselman 2004).
+
+QGIS-free; GDAL only through :mod:`.grid` (raster outputs) and ``osr`` for CRSs.
+
+Units. A cloud's coordinates are in its CRS's unit (``PointCloud.units_to_metre``, e.g.
+0.3048 for feet) and its heights in ``z_units_to_metre``. Filters take metres: the grid
+handed to the filter is ``z * z_units_to_metre`` with the cell size in metres, and the
+classification maps x, y, z to local metres. Raster outputs are written in the cloud's
+own units on its CRS, so they overlay the points.
+"""
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .codes import GROUND, LOW, NODATA, OBJECT
+from .common import report, sub_progress
+from .points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
+                     read_points, write_points)
+
+__all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
+           "filter_cloud", "filter_tiles", "write_rasters", "class_counts",
+           "compare_classified", "match_points", "read_column", "point_output_path",
+           "axis_scales", "DEFAULT_THRESHOLD_M", "DEFAULT_SLOPE_FACTOR", "REDUCERS",
+           "POINT_EXTENSIONS"]
+
+#: SMRF's point rule (Pingel et al. 2013): elevation threshold and slope scale.
+DEFAULT_THRESHOLD_M = 0.5
+DEFAULT_SLOPE_FACTOR = 1.25
+#: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
+REDUCERS = ("min", "max", "mean")
+#: File extensions written as LAS / as text.
+LAS_EXTENSIONS = (".las", ".laz")
+TEXT_EXTENSIONS = (".txt", ".csv", ".xyz", ".pts", ".asc")
+POINT_EXTENSIONS = LAS_EXTENSIONS + TEXT_EXTENSIONS
+#: Class names of :func:`classify_points` codes, for logs.
+CLASS_NAMES = {GROUND: "ground", OBJECT: "above", LOW: "below", NODATA: "outside the DTM"}
+
+
+# --------------------------------------------------------------------------- units
+def _srs(crs):
+    if not crs:
+        return None
+    from osgeo import osr
+    srs = osr.SpatialReference()
+    try:
+        if srs.SetFromUserInput(str(crs)) != 0:
+            return None
+    except RuntimeError:
+        return None
+    return srs
+
+
+def axis_scales(cloud, lat=None):
+    """Metres per unit of x, y and z of a cloud: ``(sx, sy, sz)``.
+
+    Projected or unknown CRS: ``units_to_metre`` for x and y. Geographic CRS (degrees):
+    the WGS84 radii of curvature at latitude ``lat`` (default: the cloud's mid latitude).
+    """
+    sz = float(cloud.z_units_to_metre or 1.0)
+    srs = _srs(cloud.crs)
+    if srs is not None and srs.IsGeographic():
+        if lat is None:
+            lat = 0.5 * (float(np.min(cloud.y)) + float(np.max(cloud.y)))
+        if not -90.0 <= lat <= 90.0:
+            raise ValueError(f"the points' CRS is geographic but their mid y {lat:.3f} is not a "
+                             "latitude: check the CRS.")
+        a, e2 = 6378137.0, 0.00669437999014
+        phi = math.radians(lat)
+        s = 1.0 - e2 * math.sin(phi) ** 2
+        return (math.pi / 180 * a * math.cos(phi) / math.sqrt(s),
+                math.pi / 180 * a * (1 - e2) / s ** 1.5, sz)
+    h = float(cloud.units_to_metre or 1.0)
+    return h, h, sz
+
+
+def _unit_name(cloud):
+    srs = _srs(cloud.crs)
+    if srs is None:
+        return "unit (no CRS: taken as metres)"
+    if srs.IsGeographic():
+        return "degree"
+    return srs.GetLinearUnitsName() or "metre"
+
+
+# --------------------------------------------------------------------------- rasterize
+@dataclass
+class CloudGrid:
+    """A rasterized cloud.
+
+    Attributes
+    ----------
+    z : ndarray of float32
+        Heights in the cloud's z unit, NaN for empty cells (unless filled).
+    geotransform : tuple
+        GDAL geotransform in the cloud's CRS units.
+    cell_size_m : (dx, dy)
+        Cell size in metres (what the filter receives).
+    z_to_m : float
+        Metres per z unit.
+    crs_wkt : str
+    info : dict
+        ``cell_size`` (CRS units), ``shape``, ``n_points``, ``n_empty``, ``points_per_cell``,
+        ``seconds``.
+    raster_z_to_m : float
+        Metres per height unit of a raster written on this grid: the CRS's linear unit
+        (what :func:`.grid.open_dsm` assumes when reading it back), 1 for a geographic
+        CRS or none.
+    """
+    z: np.ndarray
+    geotransform: tuple
+    cell_size_m: tuple
+    z_to_m: float = 1.0
+    crs_wkt: str = ""
+    info: dict = field(default_factory=dict)
+    raster_z_to_m: float = 1.0
+
+    @property
+    def shape(self):
+        return self.z.shape
+
+    def z_metres(self):
+        """Heights in metres (float32, a copy only when a unit conversion is needed)."""
+        return self.z if self.z_to_m == 1.0 else self.z * np.float32(self.z_to_m)
+
+
+def default_cell_size_m(cloud, scales=None):
+    """About one point per cell: ``sqrt(area / n)`` in metres over the bounding box, rounded
+    to 1, 2, 2.5 or 5 times a power of ten (:func:`.points.nice_cell_size`)."""
+    sx, sy, _ = scales or axis_scales(cloud)
+    x0, y0, x1, y1 = cloud.extent
+    w, h = (x1 - x0) * sx, (y1 - y0) * sy
+    area = w * h if w > 0 and h > 0 else max(w, h, 1.0) ** 2
+    return nice_cell_size(math.sqrt(area / max(1, len(cloud))))
+
+
+def _cell_units(cloud, cell_size_m, scales):
+    sx, sy, _ = scales
+    if cell_size_m is None:
+        cell_size_m = default_cell_size_m(cloud, scales)
+    c = float(cell_size_m)
+    if not (np.isfinite(c) and c > 0):
+        raise ValueError(f"the cell size must be a positive number of metres; got {cell_size_m!r}.")
+    return c / sx, c / sy
+
+
+def rasterize_cloud(cloud, cell_size_m=None, *, reducer="min", fill_empty=True, extent=None,
+                    cell_size_units=None):
+    """Grid a cloud: the lowest / highest / mean z per cell.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    cell_size_m : float, optional
+        Cell size in metres (converted to the CRS's unit: feet, degrees at the cloud's
+        latitude). Default :func:`default_cell_size_m` (about one point per cell).
+    reducer : {"min", "max", "mean"}
+    fill_empty : bool
+        Empty cells take the nearest cell's value (True) or stay NaN.
+    extent : (xmin, ymin, xmax, ymax), optional
+        The grid's exact bounds in CRS units (points outside dropped); default the points'
+        bounding box with the origin snapped to the cell size.
+    cell_size_units : (dx, dy), optional
+        The cell size in CRS units, used as is (the tile workflow passes the block's).
+
+    Returns
+    -------
+    CloudGrid
+    """
+    if len(cloud) == 0:
+        raise ValueError("the point cloud is empty; give a file with points.")
+    if reducer not in REDUCERS:
+        raise ValueError(f"reducer must be one of {REDUCERS}; got {reducer!r}.")
+    scales = axis_scales(cloud)
+    cell = cell_size_units or _cell_units(cloud, cell_size_m, scales)
+    info = {}
+    t0 = time.perf_counter()
+    z, gt = rasterize_points(cloud.x, cloud.y, cloud.z, cell, reducer=reducer, extent=extent,
+                             fill_empty="nearest" if fill_empty else None, info=info)
+    info["seconds"] = time.perf_counter() - t0
+    cell_m = (abs(gt[1]) * scales[0], abs(gt[5]) * scales[1])
+    if min(z.shape) < 3:
+        raise ValueError(f"the points give a grid of only {z.shape[1]} x {z.shape[0]} cells of "
+                         f"{cell_m[0]:.3g} m: the filters need at least 3 x 3; use a smaller cell "
+                         "size or more points.")
+    srs = _srs(cloud.crs)
+    raster_z = scales[0] if srs is not None and srs.IsProjected() else 1.0
+    return CloudGrid(z=z, geotransform=tuple(gt), cell_size_m=cell_m, z_to_m=scales[2],
+                     crs_wkt=cloud.crs or "", info=info, raster_z_to_m=raster_z)
+
+
+# --------------------------------------------------------------------------- classify
+def classify_cloud(cloud, dtm_m, geotransform, *, threshold_m=DEFAULT_THRESHOLD_M,
+                   slope_factor=DEFAULT_SLOPE_FACTOR, select=None):
+    """Classify a cloud's points against a DTM in metres, in metres.
+
+    ``dtm_m`` is on ``geotransform`` (the cloud's CRS units) with heights in metres; the
+    points' x, y, z are mapped to metres (feet, degrees) so that the slope term and the
+    threshold keep their meaning. ``select``: an index or boolean array of the points to
+    classify (default all). Returns uint8 codes 0 ground, 1 above, 2 below, 255 outside
+    the DTM (or over a DTM hole). ValueError when most points are outside the DTM.
+    """
+    sx, sy, sz = axis_scales(cloud)
+    x, y, z = cloud.x, cloud.y, cloud.z
+    if select is not None:
+        x, y, z = x[select], y[select], z[select]
+    gt = tuple(float(v) for v in geotransform)
+    if sx == sy == 1.0 and sz == 1.0:
+        return classify_points(x, y, z, dtm_m, gt, threshold_m=threshold_m,
+                               slope_factor=slope_factor)
+    if sx == sy == sz:
+        # one unit for everything (feet): classify in that unit, thresholds converted
+        return classify_points(x, y, z, np.asarray(dtm_m) / np.float32(sz), gt,
+                               threshold_m=threshold_m / sz, slope_factor=slope_factor / sz)
+    ox, oy = gt[0], gt[3]            # local metres around the grid's corner
+    gtm = (0.0, gt[1] * sx, 0.0, 0.0, 0.0, gt[5] * sy)
+    return classify_points((x - ox) * sx, (y - oy) * sy, z * sz, dtm_m, gtm,
+                           threshold_m=threshold_m, slope_factor=slope_factor)
+
+
+def class_counts(classes):
+    """``{name: count}`` of classify codes (ground, above, below, outside the DTM)."""
+    counts = np.bincount(np.asarray(classes, dtype=np.uint8).ravel(), minlength=256)
+    return {name: int(counts[code]) for code, name in CLASS_NAMES.items()}
+
+
+# --------------------------------------------------------------------------- one cloud
+@dataclass
+class CloudResult:
+    """Result of :func:`filter_cloud`: per-point ``classes`` (uint8), the rasterized
+    ``grid`` (:class:`CloudGrid`), the pipeline's ``result`` (mask, dtm and ndsm in metres)
+    and ``info`` (parameters, counts, timings, points/s)."""
+    classes: np.ndarray
+    grid: CloudGrid
+    result: object
+    info: dict = field(default_factory=dict)
+
+
+def filter_cloud(cloud, method="morphological", params=None, *, cell_size_m=None,
+                 threshold_m=DEFAULT_THRESHOLD_M, slope_factor=DEFAULT_SLOPE_FACTOR,
+                 block=None, workers=1, progress=None, extent=None, cell_size_units=None,
+                 select=None):
+    """Rasterize a cloud (lowest point per cell, empty cells from the nearest), filter the
+    grid with ``method`` and classify the points against the DTM.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    method : str or Method
+    params : dict, optional
+        The method's parameters (missing ones derived from the data).
+    cell_size_m : float, optional
+        Metres; default about one point per cell.
+    threshold_m, slope_factor : float
+        The point rule (SMRF defaults 0.5 m and 1.25).
+    block, workers : passed to :func:`.pipeline.run_array`.
+    progress : callable, optional
+    extent, cell_size_units : optional
+        The grid's bounds and cell in CRS units (used by :func:`filter_tiles`).
+    select : array, optional
+        The points to classify (default all); ``classes`` then has their length.
+
+    Returns
+    -------
+    CloudResult
+    """
+    from .pipeline import run_array
+    report(progress, 0.0)
+    g = rasterize_cloud(cloud, cell_size_m, reducer="min", fill_empty=True, extent=extent,
+                        cell_size_units=cell_size_units)
+    n_raster = g.info["n_points"]
+    report(progress, 0.05)
+    res = run_array(method, g.z_metres(), g.cell_size_m, params, block=block, workers=workers,
+                    progress=sub_progress(progress, 0.05, 0.95))
+    t0 = time.perf_counter()
+    classes = classify_cloud(cloud, res.dtm, g.geotransform, threshold_m=threshold_m,
+                             slope_factor=slope_factor, select=select)
+    t_cls = time.perf_counter() - t0
+    info = {"method": res.info.get("method"), "params": res.info.get("params"),
+            "cell_size_m": g.cell_size_m, "grid_shape": g.shape, "points": len(cloud),
+            "empty_cells": g.info.get("n_empty"),
+            "rasterize_seconds": g.info["seconds"], "filter_seconds": res.info.get("seconds"),
+            "classify_seconds": t_cls,
+            "rasterize_points_per_s": n_raster / max(g.info["seconds"], 1e-9),
+            "classify_points_per_s": classes.size / max(t_cls, 1e-9),
+            "classes": class_counts(classes), "filter_info": res.info}
+    report(progress, 1.0)
+    return CloudResult(classes=classes, grid=g, result=res, info=info)
+
+
+def write_rasters(grid_, result, outputs, extras=None):
+    """Write the pipeline's rasters on a cloud's grid, in the cloud's units.
+
+    ``outputs``: ``{"dtm" | "mask" | "ndsm" | "dsm" | <extra>: path}`` (None skipped). Float
+    rasters are Float32 with NaN nodata, heights in the CRS's linear unit (the cloud's z
+    unit in practice; ``CloudGrid.raster_z_to_m``); the mask is UInt8 with its
+    colour table and ``.qml`` style. ``extras``: the method's ``{name: (dtype, bands,
+    nodata)}``. Written atomically by :class:`.grid.OutputSet`.
+    """
+    from . import grid
+    outputs = {k: v for k, v in (outputs or {}).items() if v}
+    if not outputs:
+        return {}
+    info = grid.DSMInfo(path="", band_index=1, shape=grid_.shape, geotransform=grid_.geotransform,
+                        crs_wkt=grid_.crs_wkt or "", nodata=None, cell_size_m=grid_.cell_size_m,
+                        z_to_m=grid_.raster_z_to_m)
+    scale = np.float32(1.0 / grid_.raster_z_to_m)           # metres -> raster unit
+    zscale = np.float32(grid_.z_to_m / grid_.raster_z_to_m)  # cloud z unit -> raster unit
+    nan = float("nan")
+    with grid.OutputSet(info) as out:
+        for key, path in outputs.items():
+            if key == "mask":
+                out.add(key, path, "Byte", nodata=NODATA, mask_style=True,
+                        descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
+                out.write(key, result.mask)
+            elif key in ("dtm", "ndsm"):
+                out.add(key, path, "Float32", nodata=nan, descriptions=[key.upper()])
+                a = getattr(result, key)
+                out.write(key, (a * scale).astype(np.float32) if scale != 1 else a)
+            elif key == "dsm":
+                out.add(key, path, "Float32", nodata=nan, descriptions=["DSM of the points"])
+                out.write(key, grid_.z * zscale if zscale != 1 else grid_.z)
+            elif extras and key in extras and key in result.extras:
+                dt, bands, nod = extras[key]
+                gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
+                       np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
+                out.add(key, path, gdt, bands=bands, nodata=nod)
+                out.write(key, result.extras[key])
+            elif key not in (extras or {}):
+                raise ValueError(f"unknown raster output {key!r}.")
+        out.commit()
+    return outputs
+
+
+def point_output_path(path, input_path, temporary=False):
+    """The path classified points are written to: ``path``, or for a temporary output the
+    same path with the input's extension (LAS in, LAS out). ValueError for an extension
+    that is neither LAS/LAZ nor text."""
+    path = os.fspath(path)
+    root, ext = os.path.splitext(path)
+    in_ext = os.path.splitext(os.fspath(input_path))[1].lower()
+    if temporary or not ext:
+        ext = in_ext if in_ext in POINT_EXTENSIONS else ".txt"
+        return root + ext
+    if ext.lower() not in POINT_EXTENSIONS:
+        raise ValueError(f"the classified points go to a LAS/LAZ file or a text file "
+                         f"({', '.join(POINT_EXTENSIONS)}); got {path!r}.")
+    return path
+
+
+# --------------------------------------------------------------------------- tiles
+@dataclass
+class TileResult:
+    """Result of :func:`filter_tiles`: ``classes`` (one uint8 array per tile), ``params``
+    (the complete filter parameters used for every unit), ``cell_size_units``,
+    ``overlap_m``, ``units`` (each unit's extent), ``info`` (counts, timings) and, with
+    ``keep_results``, ``results`` (each unit's :class:`CloudResult`)."""
+    classes: list
+    params: dict
+    cell_size_units: tuple
+    overlap_m: float
+    units: list
+    info: dict = field(default_factory=dict)
+    results: list = None
+
+
+def _same_crs(a, b):
+    if not a or not b:
+        return True
+    sa, sb = _srs(a), _srs(b)
+    if sa is None or sb is None:
+        return True
+    return bool(sa.IsSame(sb))
+
+
+def _snap_extent(ext, dx, dy):
+    """Grow ``(xmin, ymin, xmax, ymax)`` to the lattice of multiples of the cell size (the
+    lattice :func:`.points.rasterize_points` snaps an untiled grid to)."""
+    x0 = math.floor(ext[0] / dx) * dx
+    y1 = math.ceil(ext[3] / dy) * dy
+    ncols = max(3, int(math.ceil((ext[2] - x0) / dx - 1e-9)))
+    nrows = max(3, int(math.ceil((y1 - ext[1]) / dy - 1e-9)))
+    return (x0, y1 - nrows * dy, x0 + ncols * dx, y1)
+
+
+def _inside(cloud, ext):
+    return (cloud.x >= ext[0]) & (cloud.x <= ext[2]) & (cloud.y >= ext[1]) & (cloud.y <= ext[3])
+
+
+def _merge(clouds):
+    c0 = clouds[0]
+    return PointCloud(x=np.concatenate([c.x for c in clouds]),
+                      y=np.concatenate([c.y for c in clouds]),
+                      z=np.concatenate([c.z for c in clouds]), classification=None,
+                      crs=c0.crs, units_to_metre=c0.units_to_metre,
+                      z_units_to_metre=c0.z_units_to_metre, source_format=c0.source_format)
+
+
+def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, cell_size_m=None,
+                 overlap_m=None, crs=None, threshold_m=DEFAULT_THRESHOLD_M,
+                 slope_factor=DEFAULT_SLOPE_FACTOR, only=None, keep_results=False, progress=None,
+                 log=None):
+    """Filter adjoining tiles of a point cloud as one block, tile by tile.
+
+    Every tile is filtered in a *unit*: its extent grown by ``overlap_m`` and filled with
+    the points of every tile inside it; only the tile's own points are classified. All
+    units share one grid lattice (multiples of the cell size, the lattice of an untiled
+    grid), one cell size (the whole block's density) and one parameter set (derived once,
+    from the tile nearest the block's centre, unless given completely), and the overlap
+    covers the method's reach (its halo plus the slope and interpolation stencils), so a
+    tile's classes equal those of an untiled run of the whole block with the same
+    parameters, seams included.
+
+    Parameters
+    ----------
+    tiles : list of str / path-like / PointCloud
+        The tiles (same CRS and units).
+    outputs : list of paths, optional
+        One classified-points file per tile (``None`` entries skipped), written with
+        :func:`.points.write_points` (LAS keeps every attribute).
+    method, params, cell_size_m, threshold_m, slope_factor : as :func:`filter_cloud`.
+    overlap_m : float, optional
+        Metres added around each tile; default the method's reach plus 4 cells. A smaller
+        value than the reach is refused.
+    crs : str, optional
+        Overrides the files' CRS.
+    only : list of int, optional
+        Filter and classify only these tiles (the others serve as neighbours); their
+        classes are then None. The parameters still come from the block's central tile,
+        so separate runs over the same files agree.
+    keep_results : bool
+        Keep each unit's :class:`CloudResult` (grid, mask, DTM) in ``TileResult.results``.
+    progress : callable, optional
+    log : callable, optional
+        ``log(str)`` for a line per tile.
+
+    Returns
+    -------
+    TileResult
+    """
+    from .pipeline import _method, resolve_params, run_array
+    log = log or (lambda s: None)
+    tiles = list(tiles)
+    if not tiles:
+        raise ValueError("no tile given; pass the point files of the block.")
+    if outputs is not None and len(outputs) != len(tiles):
+        raise ValueError(f"{len(outputs)} outputs for {len(tiles)} tiles: give one per tile.")
+    clouds = [t if isinstance(t, PointCloud) else read_points(t, crs=crs) for t in tiles]
+    names = [getattr(t, "name", None) or (os.path.basename(os.fspath(t)) if not isinstance(t, PointCloud)
+                                          else f"tile {i + 1}") for i, t in enumerate(tiles)]
+    for i, c in enumerate(clouds):
+        if len(c) == 0:
+            raise ValueError(f"{names[i]} has no points.")
+        if not _same_crs(clouds[0].crs, c.crs) or \
+                abs(c.units_to_metre - clouds[0].units_to_metre) > 1e-12 or \
+                abs(c.z_units_to_metre - clouds[0].z_units_to_metre) > 1e-12:
+            raise ValueError(f"{names[i]} is not in the CRS / units of {names[0]}: tiles of one block "
+                             "must share them (reproject first, or pass the CRS).")
+    meth = _method(method)
+    merged_ext = (min(c.extent[0] for c in clouds), min(c.extent[1] for c in clouds),
+                  max(c.extent[2] for c in clouds), max(c.extent[3] for c in clouds))
+    lat = 0.5 * (merged_ext[1] + merged_ext[3])
+    scales = axis_scales(clouds[0], lat=lat)
+    if cell_size_m is None:
+        area = 0.0
+        for c in clouds:
+            e = c.extent
+            area += max(e[2] - e[0], 0.0) * scales[0] * max(e[3] - e[1], 0.0) * scales[1]
+        n = sum(len(c) for c in clouds)
+        cell_size_m = nice_cell_size(math.sqrt(max(area, 1.0) / n))
+    dx, dy = float(cell_size_m) / scales[0], float(cell_size_m) / scales[1]
+    cell_m = (dx * scales[0], dy * scales[1])
+
+    # one parameter set for the block: derived on the central tile, unless complete
+    user = dict(params or {})
+    names_p = [p.name for p in meth.params]
+    cx, cy = 0.5 * (merged_ext[0] + merged_ext[2]), 0.5 * (merged_ext[1] + merged_ext[3])
+    centre = int(np.argmin([math.hypot(0.5 * (c.extent[0] + c.extent[2]) - cx,
+                                       0.5 * (c.extent[1] + c.extent[3]) - cy) for c in clouds]))
+    if any(user.get(k) is None for k in names_p):
+        g = rasterize_cloud(clouds[centre], cell_size_units=(dx, dy))
+        full = resolve_params(meth, g.z_metres(), g.cell_size_m, user)
+        log(f"Parameters derived from {names[centre]} (the tile nearest the block's centre).")
+    else:
+        full = user
+    fixed = {k: full[k] for k in names_p if k in full}
+    halo = int(meth.halo(full, cell_m))
+    need_m = (halo + 4) * max(cell_m)
+    if overlap_m is None:
+        overlap_m = need_m
+    elif overlap_m < need_m:
+        raise ValueError(f"overlap_m = {overlap_m:g} m is less than the filter's reach ({need_m:.1f} m = "
+                         f"{halo} + 4 cells of {max(cell_m):.3g} m): the tiles would not agree at their "
+                         "seams. Give a larger overlap or leave it empty.")
+    ox, oy = overlap_m / scales[0], overlap_m / scales[1]
+    report(progress, 0.02)
+
+    # Units in whole cells of the untiled grid's lattice: (r0, r1, c0, c1) from its
+    # north-west corner, never past its bounds (same border as one pass).
+    bx0, by0, bx1, by1 = _snap_extent(merged_ext, dx, dy)
+    brows, bcols = int(round((by1 - by0) / dy)), int(round((bx1 - bx0) / dx))
+    m_cells = halo + 4                   # cells near a unit edge that may differ
+
+    def cells_of(ext, grow_r, grow_c):
+        c0 = int(math.floor((ext[0] - bx0) / dx + 1e-9)) - grow_c
+        c1 = int(math.ceil((ext[2] - bx0) / dx - 1e-9)) + grow_c
+        r0 = int(math.floor((by1 - ext[3]) / dy + 1e-9)) - grow_r
+        r1 = int(math.ceil((by1 - ext[1]) / dy - 1e-9)) + grow_r
+        return max(r0, 0), min(max(r1, r0 + 1), brows), max(c0, 0), min(max(c1, c0 + 1), bcols)
+
+    def extent_of(win):
+        r0, r1, c0, c1 = win
+        return (bx0 + c0 * dx, by1 - r1 * dy, bx0 + c1 * dx, by1 - r0 * dy)
+
+    def run_unit(i, win, prog):
+        unit = extent_of(win)
+        c = clouds[i]
+        parts = [c]
+        for j, o in enumerate(clouds):
+            if j == i:
+                continue
+            oe = o.extent
+            if oe[0] > unit[2] or oe[2] < unit[0] or oe[1] > unit[3] or oe[3] < unit[1]:
+                continue
+            sel = _inside(o, unit)
+            if sel.any():
+                parts.append(PointCloud(o.x[sel], o.y[sel], o.z[sel], crs=o.crs,
+                                        units_to_metre=o.units_to_metre,
+                                        z_units_to_metre=o.z_units_to_metre))
+        merged = _merge(parts) if len(parts) > 1 else c
+        r = filter_cloud(merged, meth, fixed, threshold_m=threshold_m, slope_factor=slope_factor,
+                         extent=unit, cell_size_units=(dx, dy), select=slice(0, len(c)),
+                         progress=prog)
+        return r, len(merged)
+
+    def cut_holes(r, win, twin):
+        """Cells to add on each side (N, S, W, E) so that every hole (mask 1/2) reaching
+        the tile's cells lies inside the unit's trusted part (its gap filling then sees
+        the whole hole, as one pass does)."""
+        from scipy import ndimage
+        mask = r.result.mask
+        holes = (mask == OBJECT) | (mask == LOW)
+        if not holes.any():
+            return (0, 0, 0, 0)
+        # trusted part: away from the unit's edges that are not the block's
+        t0 = win[0] + (m_cells if win[0] > 0 else 0)
+        t1 = win[1] - (m_cells if win[1] < brows else 0)
+        u0 = win[2] + (m_cells if win[2] > 0 else 0)
+        u1 = win[3] - (m_cells if win[3] < bcols else 0)
+        # the tile's cells plus the stencils of the bilinear sample and the slope
+        a0, a1 = max(twin[0] - 3, win[0]) - win[0], min(twin[1] + 3, win[1]) - win[0]
+        b0, b1 = max(twin[2] - 3, win[2]) - win[2], min(twin[3] + 3, win[3]) - win[2]
+        lab, _ = ndimage.label(holes)
+        ids = np.unique(lab[a0:a1, b0:b1])
+        ids = ids[ids > 0]
+        grow = [0, 0, 0, 0]
+        boxes = ndimage.find_objects(lab)
+        for k in ids:
+            rs, cs = boxes[k - 1]
+            r0, r1 = rs.start + win[0], rs.stop + win[0]
+            c0, c1 = cs.start + win[2], cs.stop + win[2]
+            grow[0] = max(grow[0], t0 - r0)
+            grow[1] = max(grow[1], r1 - t1)
+            grow[2] = max(grow[2], u0 - c0)
+            grow[3] = max(grow[3], c1 - u1)
+        return tuple(max(0, g) for g in grow)
+
+    ov_r, ov_c = int(math.ceil(oy / dy - 1e-9)), int(math.ceil(ox / dx - 1e-9))
+    todo = list(range(len(clouds))) if only is None else sorted(set(int(k) for k in only))
+    out_classes, units, per_tile = [None] * len(clouds), [None] * len(clouds), []
+    results = [None] * len(clouds) if keep_results else None
+    t_all = time.perf_counter()
+    for step, i in enumerate(todo):
+        c = clouds[i]
+        prog = sub_progress(progress, 0.02 + 0.96 * step / len(todo),
+                            0.02 + 0.96 * (step + 1) / len(todo))
+        twin = cells_of(c.extent, 0, 0)
+        win = cells_of(c.extent, ov_r, ov_c)
+        grown = 0
+        while True:
+            r, n_unit = run_unit(i, win, prog)
+            g = cut_holes(r, win, twin)
+            if not any(g) or grown >= 8:
+                break
+            # a hole reaching the tile is cut by the unit's edge: grow past it and rerun
+            grown += 1
+            win = (max(0, win[0] - (g[0] + m_cells if g[0] else 0)),
+                   min(brows, win[1] + (g[1] + m_cells if g[1] else 0)),
+                   max(0, win[2] - (g[2] + m_cells if g[2] else 0)),
+                   min(bcols, win[3] + (g[3] + m_cells if g[3] else 0)))
+        out_classes[i] = r.classes
+        units[i] = extent_of(win)
+        if keep_results:
+            results[i] = r
+        counts = class_counts(r.classes)
+        per_tile.append({"tile": names[i], "points": len(c), "unit_points": n_unit,
+                         "grid_shape": r.grid.shape, "classes": counts, "unit_grown": grown,
+                         "seconds": r.info["rasterize_seconds"] + (r.info["filter_seconds"] or 0)
+                         + r.info["classify_seconds"]})
+        log(f"{names[i]}: {len(c)} points ({n_unit - len(c)} from neighbours), "
+            f"{r.grid.shape[1]} x {r.grid.shape[0]} cells"
+            + (f" (unit grown {grown}x to hold whole holes)" if grown else "") + "; "
+            + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        if outputs is not None and outputs[i]:
+            write_points(outputs[i], c, r.classes)
+    report(progress, 1.0)
+    return TileResult(classes=out_classes, params=full, cell_size_units=(dx, dy),
+                      overlap_m=float(overlap_m), units=units,
+                      info={"tiles": per_tile, "halo_cells": halo, "cell_size_m": cell_m,
+                            "seconds": time.perf_counter() - t_all}, results=results)
+
+
+# --------------------------------------------------------------------------- evaluation
+def read_column(path, name):
+    """One named column of a text point file with a header line, or one LAS dimension.
+
+    Returns an int64 array (one value per point, in file order). ValueError when the file
+    has no header / no such column or dimension.
+    """
+    path = os.fspath(path)
+    if os.path.splitext(path)[1].lower() in LAS_EXTENSIONS:
+        from .points import _import_laspy
+        laspy = _import_laspy()
+        las = laspy.read(path)
+        dims = list(las.point_format.dimension_names)
+        match = [d for d in dims if d.lower() == name.lower()]
+        if not match:
+            raise ValueError(f"{path!r} has no dimension {name!r}; it has {dims}.")
+        return np.asarray(las[match[0]]).astype(np.int64)
+    with open(path, "rb") as fh:
+        first = b""
+        for line in fh:
+            if line.strip():
+                first = line
+                break
+    tokens = [t.strip().strip('"\'').lower() for t in
+              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
+              .replace(";", " ").split()]
+    if not tokens or all(_is_number(t) for t in tokens):
+        raise ValueError(f"{path!r} has no header line naming its columns, so it has no column "
+                         f"{name!r}; use a truth points file instead.")
+    if name.lower() not in tokens:
+        raise ValueError(f"{path!r} has no column {name!r}; its columns are {tokens}.")
+    k = tokens.index(name.lower())
+    with open(path, "rb") as fh:
+        text = fh.read()
+    start = text.find(first) + len(first)
+    body = text[start:].translate(bytes.maketrans(b"\t,;\r", b"    "))
+    try:
+        col = np.loadtxt(body.splitlines(), usecols=(k,), dtype=np.float64, ndmin=1)
+    except ValueError as exc:
+        raise ValueError(f"{path!r}: cannot read the column {name!r}: {exc}") from None
+    if not np.all(col == np.round(col)):
+        raise ValueError(f"{path!r}: the column {name!r} must hold whole-number classes.")
+    return col.astype(np.int64)
+
+
+def _is_number(t):
+    try:
+        float(t)
+        return True
+    except ValueError:
+        return False
+
+
+def match_points(a, b, tolerance=None):
+    """Index into ``b`` of each point of ``a`` (-1 when none within ``tolerance``).
+
+    Same length and the same x, y in order: the identity (fast path). Otherwise the
+    nearest point of ``b`` in x, y, z (``scipy.spatial.cKDTree``). ``tolerance`` defaults
+    to 0.002 units (classified text keeps 3 decimals).
+    """
+    tol = 0.002 if tolerance is None else float(tolerance)
+    if len(a) == len(b) and np.allclose(a.x, b.x, rtol=0, atol=tol) and \
+            np.allclose(a.y, b.y, rtol=0, atol=tol):
+        return np.arange(len(a))
+    from scipy.spatial import cKDTree
+    ox, oy, oz = float(b.x.min()), float(b.y.min()), float(b.z.min())
+    tree = cKDTree(np.column_stack([b.x - ox, b.y - oy, b.z - oz]))
+    d, idx = tree.query(np.column_stack([a.x - ox, a.y - oy, a.z - oz]), k=1,
+                        distance_upper_bound=tol * math.sqrt(3))
+    idx = np.where(np.isfinite(d), idx, -1)
+    return idx.astype(np.int64)
+
+
+def _ground_code(cloud_or_format, codes=None):
+    if codes is not None:
+        return codes
+    fmt = cloud_or_format if isinstance(cloud_or_format, str) else cloud_or_format.source_format
+    return (2,) if fmt == "las" else (0,)
+
+
+def compare_classified(pred, truth=None, truth_column=None, *, truth_ground_codes=None,
+                       tolerance=None):
+    """Errors of a classified cloud against per-point truth.
+
+    Parameters
+    ----------
+    pred : PointCloud
+        Classified points (e.g. written by ``classifypoints``): text class 0 = ground,
+        255 = not classified (left out); LAS class 2 = ground.
+    truth : PointCloud, optional
+        The same points with the true classes (ISPRS text: 0 = ground; LAS: ASPRS 2 =
+        ground), matched by position (:func:`match_points`).
+    truth_column : ndarray, optional
+        The true class per point of ``pred`` instead (:func:`read_column`); ground codes
+        by ``pred``'s format unless ``truth_ground_codes`` is given.
+    truth_ground_codes : tuple of int, optional
+        The truth's ground classes (default (0,) text, (2,) LAS).
+
+    Returns
+    -------
+    dict
+        :func:`.evaluate.confusion` plus ``points_not_classified`` and ``points_unmatched``,
+        and under ``"_arrays"`` the per-point ``pred_ground``, ``true_ground``, ``valid``.
+    """
+    from .evaluate import confusion
+    if pred.classification is None:
+        raise ValueError("the classified points have no class column; classify them first "
+                         "(bareearth:classifypoints).")
+    if (truth is None) == (truth_column is None):
+        raise ValueError("give the truth as a points file or as a column, one of them.")
+    pc = pred.classification
+    if pred.source_format == "las":
+        pred_ground, valid = pc == 2, np.ones(pc.size, bool)
+    else:
+        pred_ground, valid = pc == GROUND, pc != NODATA
+    n_not = int((~valid).sum())
+    unmatched = 0
+    if truth is not None:
+        if truth.classification is None:
+            raise ValueError("the truth points have no class column.")
+        idx = match_points(pred, truth, tolerance)
+        ok = idx >= 0
+        unmatched = int((~ok).sum())
+        if unmatched > 0.01 * len(pred):
+            raise ValueError(f"{unmatched} of {len(pred)} classified points have no truth point at "
+                             "the same position: the files are not the same points (give the file "
+                             "the classified points came from).")
+        codes = _ground_code(truth, truth_ground_codes)
+        true_ground = np.zeros(len(pred), bool)
+        true_ground[ok] = np.isin(truth.classification[idx[ok]], codes)
+        valid &= ok
+    else:
+        tc = np.asarray(truth_column).ravel()
+        if tc.size != len(pred):
+            raise ValueError(f"the truth column has {tc.size} values for {len(pred)} points.")
+        true_ground = np.isin(tc, _ground_code(pred, truth_ground_codes))
+    r = confusion(pred_ground, true_ground, valid=valid)
+    r["points_not_classified"] = n_not
+    r["points_unmatched"] = unmatched
+    r["_arrays"] = {"pred_ground": pred_ground, "true_ground": true_ground, "valid": valid}
+    return r
