@@ -538,7 +538,7 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
     tol_low = tol / np.sqrt(low_weight)
     rows, cols = z.shape
     P = 2
-    zp = np.full((rows + 2 * P, cols + 2 * P), np.nan)
+    zp = np.full((rows + 2 * P, cols + 2 * P), np.nan, np.float32)
     zp[P:-P, P:-P] = np.where(keep, z, np.nan)
     lp = None
     if labels is not None:
