@@ -121,6 +121,18 @@ def _as_bool_raster(a, shape, name):
     return a if a.any() else None
 
 
+def _as_homogeneous(v):
+    """``homogeneous`` as a bool (accepts the Param's enum strings)."""
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if v in ("homogeneous", "yes", 1):
+        return True
+    if v in ("inhomogeneous", "no", 0):
+        return False
+    raise ValueError(f"homogeneous must be True/False, 'homogeneous' or 'inhomogeneous' (or "
+                     f"'auto' in resolve_rascor_params); got {v!r}.")
+
+
 def break_regions(breaklines):
     """Label the regions no comparison may leave.
 
@@ -900,7 +912,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
     terrain_class : {"flat", "rolling", "mountainous"}
         Terrain type (step 1, :func:`characterise_terrain`, done by
         :func:`resolve_rascor_params` on the whole raster so that blocks agree).
-    homogeneous : bool
+    homogeneous : bool or {"homogeneous", "inhomogeneous"}
         Whether the area is homogeneous (step 1); a flat, inhomogeneous area gets the
         linear / inclined-plane models (:func:`model_degree`).
     sigma_m : float
@@ -949,7 +961,8 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
     dx, dy = as_cell_size(cell_size)
     if terrain_class not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES}; got {terrain_class!r}. "
-                         "Leave it empty in resolve_rascor_params to derive it (step 1).")
+                         "Pass 'auto' to resolve_rascor_params to derive it (step 1).")
+    homogeneous = _as_homogeneous(homogeneous)
     for name, val in (("sigma_m", sigma_m), ("jump_m", jump_m), ("max_building_m", max_building_m),
                       ("short_profile_m", short_profile_m), ("long_profile_m", long_profile_m),
                       ("surface_size_m", surface_size_m), ("prediction_radius_m", prediction_radius_m),
@@ -1072,7 +1085,7 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
 
 
 # ----------------------------------------------------------------- parameters
-DEFAULTS = dict(terrain_class=None, homogeneous=None, sigma_m=None, step1_characterise=True,
+DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_characterise=True,
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, height_min_m=None,
@@ -1123,14 +1136,22 @@ def _choose(spreads, sigma):
 def resolve_rascor_params(z, cell_size, **params):
     """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
 
-    ``None`` values are derived: the terrain class and the random error by step 1
-    (:func:`characterise_terrain`); step 2's limits from the height distribution (flat
-    terrain only: Tukey's far fences, never inside the lower envelope's range); the profile
-    lengths by analysing the sequence :data:`PROFILE_LENGTHS_M`: on a sample cleaned by
-    steps 3 and 4, the robust scale of the leave-one-out profile residuals is computed per
-    length; the long profile is the longest whose scale stays within twice the shortest's,
-    the short one the longest of the sequence at most half of it; the surface size likewise
-    from :data:`SURFACE_SIZES_M`; the scales found are the ``*_sigma_m`` of the tests.
+    ``None`` (and ``"auto"``) values are derived from the whole raster, once, so that all
+    blocks use the same values:
+
+    * terrain class, homogeneity and random error ``sigma_m`` by step 1
+      (:func:`characterise_terrain`);
+    * step 2's limits (flat terrain only) from the height distribution: Tukey's far fences,
+      and at least 20 m outside the range of the terrain's lower envelope;
+    * the profile lengths by analysing the sequence :data:`PROFILE_LENGTHS_M` on a sample
+      (the whole raster, or 4 crops of 384 x 384 cells) cleaned by steps 3 and 4: per
+      length, the leave-one-out profile residuals of the class model; the long profile is
+      the longest length before the 90th percentile of ``|v|`` exceeds twice the shortest's
+      (the model stops following the terrain, or objects as long as the profile remain),
+      the short one the longest of the sequence at most half of it;
+      ``profile_sigma_m`` is the robust (MAD) scale of the residuals at the long length;
+    * the surface size and ``surface_sigma_m`` likewise from :data:`SURFACE_SIZES_M`;
+    * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
 
     Returns
     -------
@@ -1145,16 +1166,18 @@ def resolve_rascor_params(z, cell_size, **params):
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
     cs = max(dx, dy)
-    tc = p["terrain_class"]
+    tc = None if p["terrain_class"] in (None, "auto") else p["terrain_class"]
     if tc is not None and tc not in TERRAIN_CLASSES:
-        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or empty (derived); "
-                         f"got {tc!r}.")
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
+                         f"by step 1); got {tc!r}.")
     ch = characterise_terrain(z, (dx, dy))
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
-    if p["homogeneous"] is None:
+    if p["homogeneous"] in (None, "auto"):
         p["homogeneous"] = bool(ch["homogeneous"]) if p["step1_characterise"] else True
+    else:
+        p["homogeneous"] = _as_homogeneous(p["homogeneous"])
     if p["sigma_m"] is None:
         p["sigma_m"] = round(ch["sigma_m"], 3)
     sigma = float(p["sigma_m"])
@@ -1266,12 +1289,13 @@ METHOD = Method(
     name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo,
     extras={"step": (np.uint8, 1, 255)},
     params=(
-        Param("terrain_class", "enum", None, "Terrain type choosing the models (mean / "
-              "linear / polynomial) and defaults; empty: classed from the DSM (step 1).",
-              options=TERRAIN_CLASSES),
-        Param("homogeneous", "bool", None, "Whether the area is homogeneous; empty: from "
+        Param("terrain_class", "enum", "auto", "Terrain type choosing the models (mean / "
+              "linear / polynomial) and defaults; auto: classed from the DSM (step 1).",
+              options=("auto",) + TERRAIN_CLASSES),
+        Param("homogeneous", "enum", "auto", "Whether the area is homogeneous; auto: from "
               "step 1 (90 % of 10 m tiles in the area's class). A flat, inhomogeneous area "
-              "(embankments, cuts) gets the linear models instead of the mean."),
+              "(embankments, cuts) gets the linear models instead of the mean.",
+              options=("auto", "homogeneous", "inhomogeneous")),
         Param("sigma_m", "float", None, "Random error of the DSM in metres; empty: "
               "estimated from the Laplacian residuals (at least 0.1 m).", minimum=0.001,
               maximum=100.0),

@@ -364,6 +364,10 @@ def test_resolve_rejects_unknown_and_derives_everything():
                                           "short_profile_m", "long_profile_m",
                                           "surface_size_m", "profile_sigma_m"))
     assert p["short_profile_m"] < p["long_profile_m"]
+    # the plugin passes the enum strings ("auto" = derived)
+    q = R.resolve_rascor_params(z, 1.0, terrain_class="auto", homogeneous="inhomogeneous")
+    assert q["terrain_class"] in R.TERRAIN_CLASSES and q["homogeneous"] is False
+    assert R.filter_rascor(z, 1.0, **dict(q, homogeneous="homogeneous")).info["homogeneous"]
     assert p["short_profile_m"] in R.PROFILE_LENGTHS_M
     assert p["surface_size_m"] in R.SURFACE_SIZES_M
 
