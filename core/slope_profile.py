@@ -49,6 +49,8 @@ from .methods import Method, Param
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
 _MIN_ALPHA_G, _MAX_ALPHA_G = 25.0, 60.0
 _MIN_ALPHA_T = 8.0
+#: Largest sample spacing (cells) the edge test allows for.
+_MAX_SPACING = 4.0
 
 
 def profile_slopes(z, cell_size):
@@ -128,22 +130,30 @@ def estimate_noise(z):
     return float(1.4826 * np.median(np.abs(d)) / np.sqrt(6.0))
 
 
-def estimate_sample_spacing(z):
-    """Mean run length (cells) of identical neighbouring values along rows and columns.
+def estimate_sample_spacing(z, longest=8):
+    """Mean length (cells) of the runs of identical neighbouring values along rows and columns.
 
     A DSM measured at every cell gives 1. A DSM gridded from sparser points with empty
     cells filled from the nearest point repeats each value over a run of cells, and its
-    height steps come at the run ends: the slope test must span the data's own spacing,
-    not one cell. Returns a value >= 1 (the mean run length ``1 / (1 - p_equal)``).
+    height steps come at the run ends: the edge test must span the data's own spacing,
+    not one cell. Runs longer than ``longest`` cells are constant areas (water, a flat
+    synthetic ground), not gridding, and are left out. Returns a value >= 1.
     """
     z = as_surface(z)
     k = max(1, int(z.size // 2_000_000))
-    eq, n = 0, 0
-    for a in (z[::k, 1:] == z[::k, :-1], z[1:, ::k] == z[:-1, ::k]):
-        eq += int(a.sum())
-        n += a.size
-    p = eq / max(n, 1)
-    return float(1.0 / max(1.0 - p, 1e-3))
+    lengths = []
+    for a in (z[::k], np.ascontiguousarray(z[:, ::k].T)):
+        if a.shape[1] < 2:
+            continue
+        start = np.ones(a.shape, bool)
+        start[:, 1:] = a[:, 1:] != a[:, :-1]
+        idx = np.flatnonzero(start.ravel())
+        lengths.append(np.diff(np.append(idx, a.size)))
+    if not lengths:
+        return 1.0
+    runs = np.concatenate(lengths)
+    runs = runs[runs <= longest]
+    return float(runs.mean()) if runs.size else 1.0
 
 
 def _extreme3(a, op):
@@ -336,8 +346,9 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
     init_y = max(1, int(round(max_object_size_m / dy)))
     ex = max(1, int(round(edge_length_m / dx)))
     ey = max(1, int(round(edge_length_m / dy)))
-    sp_ = max(1.0, float(sample_spacing_cells))
-    # the edge test spans the data's own spacing (stair steps of gridded sparse points)
+    sp_ = min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING)
+    # gridded sparse points rise in stair steps: a slope up to alpha_g over the data's own
+    # spacing comes in one step, which the edge test must allow
     dh_eff = tolerance_m + (sp_ - 1.0) * min(dx, dy) * tan_g
     obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, dh_eff, (init_x, init_y), (ex, ey))
     report(progress, 0.65)
@@ -448,7 +459,8 @@ METHOD = Method(
               "sparse or resampled data).",
               minimum=0.0, maximum=50.0, advanced=True),
         Param("sample_spacing_cells", "float", None,
-              "Spacing of the DSM's real samples, in cells: the slope test spans it. Empty: the mean "
+              "Spacing of the DSM's real samples, in cells (at most 4 is used): the height step of "
+              "the terrain's slope over it is tolerated. Empty: the mean "
               "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
               "grid of sparse points with empty cells filled from the nearest point).",
               minimum=1.0, maximum=20.0, advanced=True),
