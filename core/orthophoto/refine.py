@@ -608,7 +608,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         if smooth_cells and smooth_cells > 1:
             dh_it = _median_nan(dh_it, int(smooth_cells))
         corr_full = fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
-        corr_full = np.where(multi & np.isfinite(corr_full), corr_full, 0.0)
+        # corrections reach unmatched cells within the fill distance (smooth DEM errors)
+        corr_full = np.where(np.isfinite(corr_full), corr_full, 0.0)
         cur = np.where(valid_dem, cur + relaxation * corr_full, np.nan).astype(np.float32)
         rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
         row = dict(iteration=it + 1, rms_correction_m=rms,
