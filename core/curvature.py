@@ -209,33 +209,35 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
             res["bend"] = o
         return res
 
-    # profiles in X (along rows, axis 1) first, then across them in Y (axis 0)
+    # profiles in X (along rows, axis 1) first, then across them in Y (axis 0); in blocks
+    # of rows (with their 2m halo rows) that stay in the cache
     quad = model == "quadratic"
-    xk = kernels(zp, 1, cols, ("box", "slope", "bend") if quad else ("box", "slope"))
+    out = [np.empty(z.shape, np.float32) for _ in range(5)]
+    p_o, q_o, r_o, s_o, t_o = out
+    if not quad:
+        r_o[:] = 0
+        t_o[:] = 0
+    scale = {"p": np.float32(1.0 / (w * A * dx)), "q": np.float32(1.0 / (w * A * dy)),
+             "s": np.float32(1.0 / (A * A * dx * dy)), "r": np.float32(2.0 / (w * B * dx * dx)),
+             "t": np.float32(2.0 / (w * B * dy * dy))}
+    step = max(8, (4 * _CHUNK_CELLS) // max(cols, 1))
+    for i0 in range(0, rows, step):
+        n = min(step, rows - i0)
+        blk = zp[i0:i0 + n + 2 * m]
+        xk = kernels(blk, 1, cols, ("box", "slope", "bend") if quad else ("box", "slope"))
+        y0 = kernels(xk.pop("box"), 0, n, ("slope", "bend") if quad else ("slope",))
+        y1 = kernels(xk.pop("slope"), 0, n, ("box", "slope"))
+        sl = slice(i0, i0 + n)
+        np.multiply(y1["box"], scale["p"], out=p_o[sl])
+        np.multiply(y0["slope"], scale["q"], out=q_o[sl])
+        np.multiply(y1["slope"], scale["s"], out=s_o[sl])
+        if quad:
+            np.multiply(kernels(xk.pop("bend"), 0, n, ("box",))["box"], scale["r"], out=r_o[sl])
+            np.multiply(y0["bend"], scale["t"], out=t_o[sl])
     del zp
-    y0 = kernels(xk.pop("box"), 0, rows, ("slope", "bend") if quad else ("slope",))
-    y1 = kernels(xk.pop("slope"), 0, rows, ("box", "slope"))
-    p = y1["box"]
-    p *= np.float32(1.0 / (w * A * dx))
-    q = y0["slope"]
-    q *= np.float32(1.0 / (w * A * dy))
-    s = y1["slope"]
-    s *= np.float32(1.0 / (A * A * dx * dy))
-    if quad:
-        r = kernels(xk.pop("bend"), 0, rows, ("box",))["box"]
-        r *= np.float32(2.0 / (w * B * dx * dx))
-        t = y0["bend"]
-        t *= np.float32(2.0 / (w * B * dy * dy))
-    else:
-        r = np.zeros(z.shape, np.float32)
-        t = np.zeros(z.shape, np.float32)
-    out = []
-    anybad = bad.any()
-    for a in (p, q, r, s, t):
-        a = np.ascontiguousarray(a, dtype=np.float32)
-        if anybad:
+    if bad.any():
+        for a in out:
             a[bad] = np.nan
-        out.append(a)
     return tuple(out)
 
 
