@@ -26,12 +26,21 @@ algorithm's help.
    * the residual ``d_k = z - R_k`` (what the reconstruction cannot reach) is split into
      8-connected regions where ``d_k > dh0`` (``height_threshold_m``). The *height
      heterogeneity* of each region decides: a region is an object when its highest
-     residual exceeds ``dh_k = dh0 + tan(terrain_slope) * s_k / 2`` (a terrain bump of
-     half-width ``s_k/2`` can rise that much) **and** its rim is abrupt: the mean
-     residual over the region's border cells is at least ``edge_ratio`` times its
-     highest residual. A building (or tree) jumps at its border; a hill of the same
-     footprint with gentle sides rises from zero at its border and is kept. A region
-     whose bounding box exceeds ``2 * max_object_size_m`` is never an object.
+     residual exceeds ``dh_k = dh0 + tan(terrain_slope) * s_k *`` :data:`BUMP_FRACTION`
+     (what a terrain bump of that width may rise) **and** its border is abrupt: at least
+     the fraction ``edge_ratio`` of its border cells hold a *wall*, a cell higher than
+     one of its 8 neighbours by more than ``2 dh0 + tan(terrain_slope) * cell_diagonal``
+     (more than the terrain can rise over one cell). A building (or tree) jumps at its
+     border; a hill of the same footprint with gentle sides does not, and is kept. A
+     region whose bounding box exceeds :data:`EXTENT_FACTOR` ``* max_object_size_m`` is
+     never an object (it bounds the method's reach).
+   * Windows wider than 2 :data:`COARSE_WINDOW` cells run on a grid coarsened by a power
+     of 2 ``f`` (marker: opening of the block minima; mask: block maxima; a border block
+     is abrupt when it holds a wall and its residual exceeds ``2 dh0`` plus the terrain's
+     rise over the block; a fine cell is removed when its block's region is an object
+     and its own residual exceeds ``dh0``). This keeps every step's cost near one pass
+     over the raster whatever the window; the coarse grids are aligned on the raster's
+     origin (see :func:`geodesic_halo`).
 
    The regions found at every step are removed together (the union); the step code is
    the first (smallest) step that removed the cell, so small objects carry small codes
@@ -48,10 +57,11 @@ algorithm's help.
    steep slopes, thin walls, leftovers of merged regions).
 4. Gap filling into the DTM is done by the pipeline (``fill.fill_gaps``).
 
-Speed: openings are separable running min/max filters (O(n) per row whatever the size);
+Speed: openings are separable running min/max filters (log2(size) vectorised passes);
 the reconstruction is iterated 3x3 geodesic dilation that runs on the bounding box of the
 cells that changed and switches to a vectorised frontier (only the neighbours of cells
-that changed) once few cells change, so it stops early where nothing moves.
+that changed) once few cells change, so it stops early where nothing moves; wide steps run
+on coarse grids; scan labelling is two running max/min passes of event keys per axis.
 """
 import time
 
@@ -75,7 +85,7 @@ EXTENT_FACTOR = 2.0
 OUTLIER_MAX_CELLS = 16
 
 _DEFAULTS = dict(min_window_m=2.0, max_object_size_m=64.0, height_threshold_m=None,
-                 terrain_slope_deg=None, edge_ratio=0.45, outlier_threshold_m=None,
+                 terrain_slope_deg=None, edge_ratio=0.55, outlier_threshold_m=None,
                  outlier_width_m=2.0, scan_labelling=True)
 
 
@@ -282,6 +292,15 @@ _S8 = np.ones((3, 3), bool)
 COARSE_WINDOW = 4
 #: Scan labelling passes run by the filter.
 SCAN_PASSES = 2
+#: Default terrain slope: this percentile of the slope of the heavily opened DSM ...
+SLOPE_PERCENTILE = 90
+#: ... clipped to these degrees (a tolerance, not the steepest slope: on the ISPRS
+#: samples above ~25 degrees walls on hillsides pass as terrain).
+SLOPE_CLIP_DEG = (12.0, 22.0)
+#: Default dh0 = max(0.5 m, NOISE_K x robust noise of the DSM).
+NOISE_K = 3.0
+#: A terrain bump as wide as the window may rise tan(slope) * window * this fraction.
+BUMP_FRACTION = 0.5
 
 
 def _coarse_factor(size):
@@ -364,7 +383,7 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
         abrupt = jump if f == 1 else _block_reduce(jump, f, np.maximum, False)
         abrupt = abrupt & (dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
         dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, dc, rim, abrupt)
-        dh_k = dh0 + tan_s * s / 2.0
+        dh_k = dh0 + tan_s * s * BUMP_FRACTION
         keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
                 & (ext_r * f * dy <= ext_limit) & (ext_c * f * dx <= ext_limit))
         keep[0] = False
@@ -545,9 +564,10 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
                              f"{reference.shape}. Pass a surface of the same grid.")
         with np.errstate(invalid="ignore"):
             allowed = (a - reference) > height_m
+    tx, ty = jump_m + s * dx, jump_m + s * dy
     for _ in range(int(passes)):
-        lr = _scan_axis(a, 1, jump_m + s * dx, height_m, max(2, int(max_length_m / dx)))
-        lc = _scan_axis(a, 0, jump_m + s * dy, height_m, max(2, int(max_length_m / dy)))
+        lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)))
+        lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)))
         new = (lr | lc) & ~labelled & allowed
         if not new.any():
             break
@@ -593,17 +613,21 @@ def _terrain_slope_deg(z, valid, dx, dy, max_size_m):
     s = s[np.isfinite(s)]
     if s.size == 0:
         return 30.0
-    return float(np.clip(np.degrees(np.arctan(np.percentile(s, 90))), 10.0, 60.0))
+    return float(np.clip(np.degrees(np.arctan(np.percentile(s, SLOPE_PERCENTILE))),
+                         *SLOPE_CLIP_DEG))
 
 
 def resolve_geodesic_params(z, cell_size, **params):
     """Complete the parameters of :func:`filter_geodesic`, deriving ``None`` from the data.
 
-    * ``height_threshold_m`` (dh0): ``max(0.5, 4 sigma)`` with ``sigma`` the robust noise
-      (MAD of second differences / sqrt(6)).
+    * ``height_threshold_m`` (dh0): ``max(0.5, 3 sigma)`` with ``sigma`` the robust noise
+      of the DSM (lower quartile of the absolute second differences, scaled to a normal
+      sigma: edges and objects fill the upper tail and barely move it).
     * ``outlier_threshold_m``: ``max(2.0, 4 dh0)``.
     * ``terrain_slope_deg``: 90th percentile slope of the surface opened by the largest
-      window on a ~4 m grid (objects gone), clipped to [10, 60] degrees.
+      window on a ~4 m grid (objects gone), clipped to [12, 22] degrees: it is the slope
+      *tolerated* by the wall and rise tests, and on the ISPRS samples a tolerance above
+      ~25 degrees lets walls on hillsides pass as terrain (see :data:`SLOPE_CLIP_DEG`).
 
     Raises
     ------
@@ -621,7 +645,7 @@ def resolve_geodesic_params(z, cell_size, **params):
     _check(p)
     valid = np.isfinite(z)
     if p["height_threshold_m"] is None:
-        p["height_threshold_m"] = round(max(0.5, 4 * _noise_sigma(z, valid)), 3)
+        p["height_threshold_m"] = round(max(0.5, NOISE_K * _noise_sigma(z, valid)), 3)
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
     if p["terrain_slope_deg"] is None:
@@ -688,7 +712,7 @@ def geodesic_halo(params, cell_size):
 
 
 def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
-                    height_threshold_m=0.5, terrain_slope_deg=30.0, edge_ratio=0.45,
+                    height_threshold_m=0.5, terrain_slope_deg=20.0, edge_ratio=0.55,
                     outlier_threshold_m=2.0, outlier_width_m=2.0, scan_labelling=True,
                     progress=None):
     """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
@@ -844,16 +868,17 @@ METHOD = Method(
               "last structuring element) in metres: the widest building.",
               minimum=0.5, maximum=5000.0),
         Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
-              "reconstructed terrain in metres; empty: max(0.5, 4 x robust noise of the DSM).",
+              "reconstructed terrain in metres; empty: max(0.5, 3 x robust noise of the DSM).",
               minimum=0.01, maximum=100.0),
-        Param("terrain_slope_deg", "float", None, "Steepest terrain slope in degrees, "
-              "tolerated by the height test and by scan labelling; empty: 90th percentile "
-              "slope of the heavily opened DSM, clipped to 10-60 degrees.",
+        Param("terrain_slope_deg", "float", None, "Terrain slope in degrees tolerated by "
+              "the wall test, the height test and scan labelling; empty: 90th percentile "
+              "slope of the heavily opened DSM, clipped to 12-22 degrees.",
               minimum=0.0, maximum=89.0, advanced=True),
-        Param("edge_ratio", "float", 0.45, "Height heterogeneity threshold (0-1): a "
+        Param("edge_ratio", "float", 0.55, "Height heterogeneity threshold (0-1): a "
               "region the reconstruction cannot reach is an object when at least this "
-              "fraction of its border cells stand above a neighbour by more than 2 dh0 plus "
-              "the terrain's rise over one cell (walls jump, hills rise gently).", minimum=0.0, maximum=1.0, advanced=True),
+              "fraction of its border cells stand above a neighbour by more than 2 dh0 "
+              "plus the terrain's rise over one cell (walls jump, hills rise gently).",
+              minimum=0.0, maximum=1.0, advanced=True),
         Param("outlier_threshold_m", "float", None, "Preprocessing: a small cluster this "
               "far below the closing (above the opening) is a low (high) outlier, metres; "
               "empty: max(2, 4 x dh0).", minimum=0.01, maximum=1000.0, advanced=True),
@@ -873,14 +898,16 @@ METHOD = Method(
         "reconstructed by geodesic dilation under the DSM; the residual (what the "
         "reconstruction cannot reach) is split into regions, and a region is removed when "
         "it is higher than dh0 plus the rise the terrain slope allows over half the window, "
-        "and its border is abrupt (at least the edge ratio of its border cells jump more "
-        "than 2 dh0 plus the terrain's rise over one cell). Small objects go at the small steps, large "
+        "and its border is abrupt (at least the edge ratio of its border cells stand above "
+        "a neighbour by more than 2 dh0 plus the terrain's rise over one cell). Wide "
+        "windows run on coarsened grids. Small objects go at the small steps, large "
         "buildings at the large ones; terrain edges are restored by the reconstruction "
         "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
         "columns removes runs that open with a rise, close with a fall and stand above "
         "their neighbours. The DTM is the DSM with the removed cells filled by "
-        "interpolation.</p><p>Defaults: dh0 = max(0.5 m, 4 x robust DSM noise); terrain "
-        "slope = 90th percentile slope of the heavily opened DSM. Output STEP: 0 kept, "
+        "interpolation.</p><p>Defaults: dh0 = max(0.5 m, 3 x robust DSM noise); terrain "
+        "slope = 90th percentile slope of the heavily opened DSM, clipped to 12-22 "
+        "degrees; outlier threshold = max(2 m, 4 dh0). Output STEP: 0 kept, "
         "k removed at dilation step k, 250 scan labelling, 251 preprocessing outlier.</p>"
         "<p>After: gradual geodesic dilation and scan labelling for DSM filtering "
         "(2018, in Persian; evaluated on the ISPRS filter test: Type I 4.61 %, Type II "

@@ -107,6 +107,20 @@ def test_reconstruction_max_iter_is_geodesic_reach():
     assert got[0].tolist() == [4, 4, 4, 4, 0, 0, 0, 0, 0, 0]
 
 
+def test_running_filters_match_scipy():
+    rng = np.random.default_rng(2)
+    for _ in range(60):
+        a = rng.random(rng.integers(1, 30, 2)).astype(np.float32)
+        size = (int(rng.integers(0, 7)) * 2 + 1, int(rng.integers(0, 7)) * 2 + 1)
+        assert np.array_equal(G._filter2d(a, size, np.minimum, np.inf),
+                              ndimage.minimum_filter(a, size=size, mode="nearest"))
+        assert np.array_equal(G._filter2d(a, size, np.maximum, -np.inf),
+                              ndimage.maximum_filter(a, size=size, mode="nearest"))
+        b = a > 0.3
+        assert np.array_equal(G._inner(b), ndimage.binary_erosion(b, np.ones((3, 3)),
+                                                                  border_value=0))
+
+
 def test_reconstruction_bad_input():
     with pytest.raises(ValueError, match="same shape"):
         G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 4)))
@@ -254,7 +268,7 @@ def test_resolve_and_errors():
     p = G.resolve_geodesic_params(z, 1.0)
     assert all(v is not None for v in p.values())
     assert 0.5 <= p["height_threshold_m"] < 1.0
-    assert 10.0 <= p["terrain_slope_deg"] <= 60.0
+    assert G.SLOPE_CLIP_DEG[0] <= p["terrain_slope_deg"] <= G.SLOPE_CLIP_DEG[1]
     assert G.resolve_geodesic_params(z, 1.0, height_threshold_m=0.8)["height_threshold_m"] == 0.8
     with pytest.raises(ValueError, match="unknown geodesic parameter"):
         G.resolve_geodesic_params(z, 1.0, window=3)
