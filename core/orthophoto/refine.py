@@ -293,6 +293,32 @@ def _match_pair(a, b, dem, transform, geom, *, window, shiftable, min_corr, max_
                           matched=int(np.isfinite(dh).sum()))
 
 
+def _match_pair_cropped(a, b, dem, transform, both, centres, base_m, height_m, base_direction,
+                        *, window, shiftable, min_corr, max_dh_m, lsm_iterations, relocate):
+    """:func:`_match_pair` on the bounding box of the pair's overlap (plus a margin)."""
+    x0, dx, y0, dy = check_transform(transform)
+    rows = np.nonzero(both.any(axis=1))[0]
+    cols = np.nonzero(both.any(axis=0))[0]
+    # margin: the window, and the relocation/search reach in cells
+    geom_full = None
+    margin = window + 2
+    r0, r1 = max(0, rows[0] - margin), min(dem.shape[0], rows[-1] + margin + 1)
+    c0, c1 = max(0, cols[0] - margin), min(dem.shape[1], cols[-1] + margin + 1)
+    sl = (slice(r0, r1), slice(c0, c1))
+    sub_t = (x0 + c0 * dx, dx, 0.0, y0 - r0 * dy, 0.0, -dy)
+    geom_full = _pair_geometry(dem[sl], sub_t, centres, base_m, height_m, base_direction)
+    dh_s, corr_s, info = _match_pair(np.where(both, a, np.nan)[sl], np.where(both, b, np.nan)[sl],
+                                     dem[sl], sub_t, geom_full, window=window,
+                                     shiftable=shiftable, min_corr=min_corr, max_dh_m=max_dh_m,
+                                     lsm_iterations=lsm_iterations, relocate=relocate)
+    dh = np.full(dem.shape, np.nan, np.float32)
+    corr = np.full(dem.shape, np.nan, np.float32)
+    dh[sl] = dh_s
+    corr[sl] = corr_s
+    info["crop"] = (int(r0), int(r1), int(c0), int(c1))
+    return dh, corr, info
+
+
 def _object_mask(dh, both, sigma_expected, threshold, object_size_cells, k=3.0):
     """Object mask from height corrections relative to their ground trend.
 
@@ -396,7 +422,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
         raise ValueError(f"the orthophotos overlap on only {int(both.sum())} cells; the images do "
                          "not overlap enough to match. Use a pair of overlapping frames.")
     report(progress, 0.05)
-    geom = _pair_geometry(dem, transform, centres, base_m, height_m, base_direction)
+    _pair_geometry(dem, transform, centres, base_m, height_m, base_direction)  # validates
     if max_dh_m is None:
         if centres is not None:
             hgt = min(float(np.asarray(c, float)[2]) for c in centres) - float(np.nanmedian(dem))
@@ -405,9 +431,10 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
         max_dh_m = 0.1 * hgt
     if not max_dh_m > 0:
         raise ValueError(f"max_dh_m must be > 0; got {max_dh_m}.")
-    dh, corr, info = _match_pair(a, b, dem, transform, geom, window=window, shiftable=shiftable,
-                                 min_corr=min_corr, max_dh_m=float(max_dh_m),
-                                 lsm_iterations=lsm_iterations, relocate=relocate)
+    dh, corr, info = _match_pair_cropped(a, b, dem, transform, both, centres, base_m, height_m,
+                                         base_direction, window=window, shiftable=shiftable,
+                                         min_corr=min_corr, max_dh_m=float(max_dh_m),
+                                         lsm_iterations=lsm_iterations, relocate=relocate)
     report(progress, 0.8)
     dh = np.where(both, dh, np.nan).astype(np.float32)
     sigma_exp = precision_cells * info["dh_per_cell_m"]
@@ -585,11 +612,11 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             both = seen[i] & seen[j]
             if both.sum() < window * window * 4:
                 continue
-            geom = _pair_geometry(filled_dem, transform, (cameras[i].centre, cameras[j].centre),
-                                  None, None, None)
-            dh, corr, pi = _match_pair(orthos[i], orthos[j], filled_dem, transform, geom,
-                                       window=window, shiftable=shiftable, min_corr=min_corr,
-                                       max_dh_m=float(max_dh_m), lsm_iterations=3, relocate=True)
+            dh, corr, pi = _match_pair_cropped(
+                orthos[i], orthos[j], filled_dem, transform, both,
+                (cameras[i].centre, cameras[j].centre), None, None, None, window=window,
+                shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
+                lsm_iterations=3, relocate=True)
             ok = np.isfinite(dh) & both & np.isfinite(corr)
             dhs.append(np.where(ok, dh, np.nan).astype(np.float32))
             cors.append(np.where(ok, corr, np.nan).astype(np.float32))
