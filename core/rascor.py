@@ -607,84 +607,82 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
 
 
 # ------------------------------------------------------------------- step 4
-def _prev_next(valid):
-    """Index of the previous / next valid cell along axis 1 (-1 / n where none)."""
-    rows, n = valid.shape
-    idx = np.arange(n, dtype=np.int32)
-    last = np.maximum.accumulate(np.where(valid, idx, -1), axis=1)
-    prev = np.empty_like(last)
-    prev[:, 0] = -1
-    prev[:, 1:] = last[:, :-1]
-    first = np.minimum.accumulate(np.where(valid, idx, n)[:, ::-1], axis=1)[:, ::-1]
-    nxt = np.empty_like(first)
-    nxt[:, -1] = n
-    nxt[:, :-1] = first[:, 1:]
-    return prev, nxt
-
-
 def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
-    """Cells between a jump up and a later jump down along the rows (axis 1)."""
-    rows, n = z.shape
-    idx = np.arange(n, dtype=np.int32)[None, :]
-    prev, nxt = _prev_next(keep)
+    """Cells between a jump up and a later jump down along the rows (axis 1).
 
-    def g(a, i):
-        return np.take_along_axis(a, np.clip(i, 0, n - 1), axis=1)
+    Works on the remaining points of all rows concatenated in row order (a 1-D array), so
+    "the previous point of the profile" is simply the previous element: profile starts
+    (a new row, or a new break-line region along the row) reset the scans.
+    """
+    rr, cc = np.nonzero(keep)
+    out = np.zeros(z.shape, bool)
+    n = rr.size
+    if n < 4:
+        return out
+    zc = z[rr, cc].astype(np.float32, copy=False)
+    pos = cc.astype(np.int64)
+    # same profile as the previous point (same row, same region)
+    same = np.zeros(n, bool)
+    same[1:] = rr[1:] == rr[:-1]
+    if labels is not None:
+        lab = labels[rr, cc]
+        same[1:] &= lab[1:] == lab[:-1]
 
-    zk = np.where(keep, z, np.nan)
-    same_prev = (prev >= 0) & keep
-    if labels is not None:
-        same_prev &= g(labels, prev) == labels
-    p = prev
-    pp = g(prev, np.maximum(p, 0))
-    ppp = g(prev, np.maximum(pp, 0))
-    zp, zpp, zppp = g(zk, p), g(zk, pp), g(zk, ppp)
-    ok_pp = same_prev & (pp >= 0)
-    ok_ppp = ok_pp & (ppp >= 0)
-    if labels is not None:
-        lab_p = g(labels, p)
-        ok_pp &= g(labels, pp) == lab_p
-        ok_ppp &= g(labels, ppp) == lab_p
+    def back(a, k, fill):
+        """a[i - k] (fill where i < k)."""
+        o = np.empty_like(a)
+        o[:k] = fill
+        o[k:] = a[:-k]
+        return o
+
+    def fwd(a, k, fill):
+        o = np.empty_like(a)
+        o[-k:] = fill
+        o[:-k] = a[k:]
+        return o
+
+    s1 = same                                  # i-1 in the profile
+    s2 = s1 & back(same, 1, False)            # i-2
+    s3 = s2 & back(same, 2, False)            # i-3
+    n1 = fwd(same, 1, False)                   # i+1
+    n2 = n1 & fwd(same, 2, False)             # i+2
+    zp, zpp, zppp = back(zc, 1, np.nan), back(zc, 2, np.nan), back(zc, 3, np.nan)
+    zn, znn = fwd(zc, 1, np.nan), fwd(zc, 2, np.nan)
     with np.errstate(invalid="ignore"):
-        # jump up at a: from p (ground) to a; slope allowance = rise before p
-        rise_before = np.where(ok_pp, np.maximum(zp - zpp, 0.0), 0.0)
-        smooth_before = np.where(ok_ppp, np.abs(zp - 2 * zpp + zppp) <= veg_tol, ok_pp)
-        up = same_prev & (zk - zp - rise_before > jump)
-        # jump down at b: from q = prev(b) (high) to b (ground); allowance = fall after b
-        nx = nxt
-        nn = g(nxt, np.minimum(nx, n - 1))
-        ok_n = (nx < n) & keep
-        ok_nn = ok_n & (nn < n)
-        if labels is not None:
-            ok_n &= g(labels, nx) == labels
-            ok_nn &= g(labels, nn) == labels
-        zn, znn = g(zk, nx), g(zk, nn)
-        fall_after = np.where(ok_n, np.maximum(zk - zn, 0.0), 0.0)
-        smooth_after = np.where(ok_nn, np.abs(zk - 2 * zn + znn) <= veg_tol, ok_n)
-        down = same_prev & (zp - zk - fall_after > jump)
+        # jump up at i: from p = i-1 (ground) to i; slope allowance = rise before p
+        rise_before = np.where(s2, np.maximum(zp - zpp, 0.0), 0.0)
+        up = s1 & (zc - zp - rise_before > jump)
+        # jump down at i: from i-1 (high) to i (ground); allowance = fall after i
+        fall_after = np.where(n1, np.maximum(zc - zn, 0.0), 0.0)
+        down = s1 & (zp - zc - fall_after > jump)
         # no vegetation beside the jump: the 3 ground points outside it lie on a smooth
-        # line; crowns and bushes are rough
-        # (the roof side is not tested: mixed wall / roof cells make it rough)
-        up &= smooth_before
-        down &= smooth_after
-    seg_start = keep & ~same_prev
-    # left: last up at or before c must be after the last down / segment start
-    A = np.maximum.accumulate(np.where(up, idx, -1), axis=1)
-    R = np.maximum.accumulate(np.where(down | seg_start & ~up, idx, -1), axis=1)
-    # right: first down after c must come before the next up / segment start
-    big = n + 1
-    B = np.minimum.accumulate(np.where(down, idx, big)[:, ::-1], axis=1)[:, ::-1]
-    B = np.concatenate([B[:, 1:], np.full((rows, 1), big, B.dtype)], axis=1)
-    U = np.minimum.accumulate(np.where(up | seg_start, idx, big)[:, ::-1], axis=1)[:, ::-1]
-    U = np.concatenate([U[:, 1:], np.full((rows, 1), big, U.dtype)], axis=1)
-    cand = keep & (A >= 0) & (A > R) & (B < n) & (B <= U) & ((B - A) <= lmax)
-    pa = g(prev, np.maximum(A, 0))
-    z0, z1 = g(zk, pa), g(zk, np.minimum(B, n - 1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = (idx - pa) / np.maximum(B - pa, 1)
-        ground = z0 + (z1 - z0) * t
-        raised = cand & (zk - ground > 0.5 * jump)
-    return raised
+        # line; crowns and bushes are rough (the roof side is not tested: mixed wall /
+        # roof cells make it rough)
+        up &= np.where(s3, np.abs(zp - 2 * zpp + zppp) <= veg_tol, s2)
+        down &= np.where(n2, np.abs(zc - 2 * zn + znn) <= veg_tol, n1)
+    # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
+    # A raised level is a run from a jump up to the next event when that is a jump down.
+    ev = np.flatnonzero(up | down | ~s1)
+    typ = np.where(up[ev], 1, np.where(down[ev], 2, 0))
+    k = np.flatnonzero((typ[:-1] == 1) & (typ[1:] == 2))
+    a, b = ev[k], ev[k + 1]
+    ok = (pos[b] - pos[a]) <= lmax
+    a, b = a[ok], b[ok]
+    lens = b - a
+    if not lens.size:
+        return out
+    first = np.repeat(a, lens)
+    c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
+    pa = first - 1                             # the ground point before the jump up
+    bb = np.repeat(b, lens)                    # the ground point after the jump down
+    z0, z1 = zc[pa], zc[bb]
+    t = (pos[c] - pos[pa]) / np.maximum(pos[bb] - pos[pa], 1)
+    ground = z0 + (z1 - z0) * t
+    with np.errstate(invalid="ignore"):
+        hit = zc[c] - ground > 0.5 * jump
+    c = c[hit]
+    out[rr[c], cc[c]] = True
+    return out
 
 
 def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m, k=3.0,
