@@ -129,6 +129,12 @@ def _merge_info(infos, weights):
     return out
 
 
+def _code_counts(mask):
+    """``{code: count}`` of a uint8 mask (bincount: no sort of the whole raster)."""
+    n = np.bincount(np.asarray(mask, np.uint8).ravel(), minlength=256)
+    return {int(k): int(n[k]) for k in np.flatnonzero(n)}
+
+
 def class_shares(counts):
     """Counts per mask code -> shares (percent of valid cells) with names."""
     valid = sum(v for k, v in counts.items() if k != NODATA)
@@ -218,8 +224,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     ndsm = (z - dtm).astype(np.float32)
     info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows)}
     info.update(_merge_info(infos, weights))
-    codes, counts = np.unique(mask, return_counts=True)
-    info["classes_percent"] = class_shares(dict(zip(codes.tolist(), counts.tolist())))
+    info["classes_percent"] = class_shares(_code_counts(mask))
     info["seconds"] = time.perf_counter() - t0
     report(progress, 1.0)
     return PipelineResult(mask, dtm, ndsm, extras, info)
@@ -336,8 +341,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
             zc = zb[c]
             with io_lock:
                 _write_block(out, meth, core, m, d, zc, scale, float_nodata, res_extras, h, w)
-            cc, nn = np.unique(m, return_counts=True)
-            for k_, v_ in zip(cc.tolist(), nn.tolist()):
+            for k_, v_ in _code_counts(m).items():
                 counts[k_] = counts.get(k_, 0) + v_
             if res_info is not None:
                 infos.append(res_info)

@@ -26,11 +26,13 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   An object elongated along one axis is short, hence caught, along the other; but a road
   embankment or a dam that a profile runs along is accepted by that profile over most of
   its length, and goes back to the ground.
-* **Low blunders** (a drop then a rise: pits of one or two cells, typical of image
-  matching) are found first by a 3 x 3 grey closing and get class 2; the scans skip them.
-* **Refinement.** Rejected cells lying within the tolerance of the surface interpolated
-  from the accepted ones are given back to the ground (as SMRF's final step does), which
-  restores terrain that a single profile step mistook for an object edge.
+* **Low blunders** (a drop then a rise, typical of image matching and laser multipath) are
+  found first: pits a 3 x 3 grey closing fills that also lie below the lower third of
+  their 7 x 7 neighbourhood (so ground hits between tree crowns stay ground). They get
+  class 2 and the scans skip them.
+* **Refinement** (optional, off by default). Rejected cells lying within the tolerance of
+  the surface interpolated from the accepted ones are given back to the ground (as SMRF's
+  final step does).
 
 References
 ----------
@@ -156,33 +158,66 @@ def estimate_sample_spacing(z, longest=8):
     return float(runs.mean()) if runs.size else 1.0
 
 
-def _extreme3(a, op):
+def _extreme3(a, op, out=None, tmp=None):
     """3 x 3 running max or min (``op`` = np.maximum / np.minimum), edges replicated.
 
-    Separable, by slicing: four passes of one ufunc over the array, no copy per cell.
+    Separable, by slicing: four passes of one ufunc over the array; ``out`` and ``tmp``
+    are optional buffers of ``a``'s shape (``out`` may not be ``a``).
     """
-    t = a.copy()
+    if tmp is None:
+        t = a.copy()
+    else:
+        np.copyto(tmp, a)
+        t = tmp
     op(t[:, 1:], a[:, :-1], out=t[:, 1:])
     op(t[:, :-1], a[:, 1:], out=t[:, :-1])
-    out = t.copy()
+    if out is None:
+        out = t.copy()
+    else:
+        np.copyto(out, t)
     op(out[1:], t[:-1], out=out[1:])
     op(out[:-1], t[1:], out=out[:-1])
     return out
 
 
-def find_low_blunders(z, tolerance_m):
-    """Cells lying in a pit of one or two cells deeper than ``tolerance_m`` (class 2).
+#: Window (cells) and rank of the local ground height a low blunder must lie below.
+_LOW_WINDOW, _LOW_RANK = 7, 16
 
-    A 3 x 3 grey closing fills pits up to 2 x 2 cells; a cell is a low blunder when the
-    closing raises it by more than the tolerance (a drop then a rise along every profile).
+
+def find_low_blunders(z, tolerance_m):
+    """Low blunders: pits of one or two cells deeper than ``tolerance_m`` below the ground.
+
+    Candidates are the cells a 3 x 3 grey closing raises by more than the tolerance (a
+    drop then a rise along every profile). A candidate is a blunder only when it is also
+    more than the tolerance below the 16th-lowest of the 49 values of its 7 x 7
+    neighbourhood (the lower third): a ground hit between tree crowns has other ground
+    hits near it and is kept, while a blunder, even a cluster of a dozen cells, has only
+    itself and its cluster that low.
     """
     z = as_surface(z)
     valid = np.isfinite(z)
-    hi = np.nanmax(z) if valid.any() else 0.0
-    zz = np.where(valid, z, np.float32(hi))  # nodata must not look like a pit's rim... nor its bottom
-    closed = _extreme3(_extreme3(zz, np.maximum), np.minimum)
+    hi = np.float32(np.nanmax(z)) if valid.any() else np.float32(0.0)
+    zz = np.where(valid, z, hi)  # nodata looks like neither a pit's rim nor its bottom
+    tmp = np.empty_like(zz)
+    dil = _extreme3(zz, np.maximum, tmp=tmp)
+    closed = _extreme3(dil, np.minimum, out=tmp, tmp=np.empty_like(zz))
+    del dil
     closed -= zz
-    return (closed > tolerance_m) & valid
+    cand = (closed > tolerance_m) & valid
+    del closed
+    r, c = np.nonzero(cand)
+    if r.size == 0:
+        return cand
+    h = _LOW_WINDOW // 2
+    pad = np.pad(np.where(valid, z, np.float32(np.inf)), h, mode="edge")
+    off = np.arange(-h, h + 1)
+    rr = (r[:, None, None] + h + off[None, :, None])
+    cc = (c[:, None, None] + h + off[None, None, :])
+    neigh = pad[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
+    fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
+    low = np.zeros_like(cand)
+    low[r, c] = z[r, c] < fifth - tolerance_m
+    return low
 
 
 def _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, reverse, edge_cells=1):
@@ -295,7 +330,7 @@ def _combine_axes(obj_x, obj_y, ok):
 
 def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
                          max_object_size_m=100.0, edge_length_m=1.0, sample_spacing_cells=1.0,
-                         refine=True, slope_factor=1.25, progress=None):
+                         refine=False, slope_factor=1.25, progress=None):
     """Slope-profile filter (Luong Chinh Ke 2002, section 2.1).
 
     Parameters
@@ -385,7 +420,7 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
 
 def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terrain_slope_deg=None,
                                  tolerance_m=None, max_object_size_m=100.0, edge_length_m=1.0,
-                                 sample_spacing_cells=None, refine=True, slope_factor=1.25):
+                                 sample_spacing_cells=None, refine=False, slope_factor=1.25):
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
@@ -464,9 +499,10 @@ METHOD = Method(
               "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
               "grid of sparse points with empty cells filled from the nearest point).",
               minimum=1.0, maximum=20.0, advanced=True),
-        Param("refine", "bool", True,
+        Param("refine", "bool", False,
               "Give rejected cells lying within the tolerance of the interpolated ground back to the "
-              "ground (restores terrain edges).", advanced=True),
+              "ground (as SMRF's last step). Off by default: on the ISPRS samples it gained nothing "
+              "and it costs one more interpolation.", advanced=True),
         Param("slope_factor", "float", 1.25,
               "Slope term of the refinement tolerance (rise/run of the interpolated ground), as in SMRF.",
               minimum=0.0, maximum=10.0, advanced=True),
@@ -480,8 +516,9 @@ METHOD = Method(
         "to the ground.</p><p>Each profile is scanned forwards and backwards and a cell is an object for "
         "that axis only when both scans reject it (terrain steps are accepted by the scan that comes "
         "down them); the X and Y results are combined by union, so objects long in one direction are "
-        "caught in the other. One- and two-cell pits are low blunders (class 2). Rejected cells within "
-        "the tolerance of the interpolated ground are given back to it.</p>"
+        "caught in the other; a connected object is kept only where both axes reject part of it, so "
+        "road embankments and dams that a profile runs along stay ground. Small pits below the "
+        "ground around them are low blunders (class 2).</p>"
         "<p>Defaults are derived from the DSM: alpha_g and the terrain slope from slopes between 20 m "
         "block minima, the tolerance from the DSM's noise. The log lists the values used.</p>"),
 )
