@@ -766,7 +766,9 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # Straight breaks away from objects (dams, embankments, terrace edges: K ~ 0 because
     # one principal curvature is zero) stay seeds.
     near = _dilate(objects, m)
-    holes = ~valid | objects | (marked & near) | mark_k
+    holes = objects | (marked & near) | mark_k
+    if not all_valid:
+        holes |= ~valid
     del near
     concave = marked & (H < 0)
     edge = marked & ~objects
@@ -786,13 +788,15 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         # object height more above the surface: interpolated across a band of breaks,
         # the surface sags below convex terrain edges (crest of a dam) by some decimetres
         np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
-        mask = np.where(d > allow, OBJECT, GROUND).astype(np.uint8)
+        mask = np.greater(d, allow).view(np.uint8) * np.uint8(OBJECT)  # else GROUND (0)
         mask[_pits(z, concave & (d < -h_min), m + 2, h_min)] = LOW
         # cells the profiles found between a break up and a break down stay objects when
         # they stand clearly (half the minimum object height) above the ground surface;
         # a profile that overshot along a rising terrain (a dam behind a bush) does not
         mask[objects & (d > np.float32(0.5 * h_min))] = OBJECT
-        holes = ~valid | (mask != GROUND) | mark_k
+        holes = (mask != GROUND) | mark_k
+        if not all_valid:
+            holes |= ~valid
         report(progress, 0.8 + 0.1 * it)
     mask = finish_mask(mask, z)
 
