@@ -5,7 +5,9 @@ orthorectify  orthophotos of frame images on a DEM grid
 match         normalised cross-correlation along a direction (+ LSM, left-right check)
 refine        parallax -> height (eq. 18 and general geometry), orthoparallax, orthorefine
 render        synthetic textured scenes and frames with known truth
+affine8       eq. 17: 8-parameter bilinear DEM <-> orthophoto transformation (no orientation)
 """
+from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
 from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_interior_yaml,
                      read_opensfm_reconstruction, read_opk_csv, rotation_to_opk)
 from .match import MatchResult, match_along, match_rectified, ncc_volume

@@ -504,7 +504,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 window=7, shiftable=5, min_corr=0.6, max_dh_m=None, pairs=None,
                 min_overlap=0.05, smooth_cells=5, height_threshold_m=None,
                 precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
-                relaxation=0.7, outlier_m=None, reference=None, progress=None):
+                relaxation=0.7, outlier_m=None, reference=None, tie_points=None, base_m=None,
+                height_m=None, base_direction=(1.0, 0.0), progress=None):
     """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
 
     Each iteration orthorectifies every frame onto the current DEM (collinearity equations,
@@ -523,8 +524,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         North-up geotransform of ``dem`` (same CRS and units as the camera centres).
     images : sequence of ndarray
         Frame images, (rows, cols) or (bands, rows, cols).
-    cameras : sequence of Camera
-        One per image (:mod:`.camera`).
+    cameras : sequence of Camera, or None
+        One per image (:mod:`.camera`). ``None`` when no orientation is known: then
+        ``images`` are orthophotos registered to the DEM by eq. 17 from ``tie_points``.
     max_iterations : int
     tolerance_m : float, optional
         Stop when the RMS correction of an iteration is below this; default half the
@@ -554,6 +556,16 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         dropped before the correlation-weighted mean; default 3 x the expected precision.
     reference : ndarray, optional
         A reference surface for evaluation only: adds ``rmse_reference_m`` to the table.
+    tie_points : sequence, optional
+        Without ``cameras``: per image, a :class:`~.affine8.Bilinear8` or a pair
+        ``(dem_xy, ortho_xy)`` of at least four ground points (DEM map coordinates and the
+        image's pixel column, row) for eq. 17 of Luong Chinh Ke (2002). The orthophotos
+        cannot be redrawn on a new DEM without an orientation, so this is one pass
+        (:func:`orthoparallax` on every overlapping pair, merged), with the vertical-frame
+        geometry of ``base_m`` (B between consecutive images, along ``base_direction``)
+        and ``height_m`` (H).
+    base_m, height_m, base_direction : float, float, (float, float)
+        B, H and the base direction for ``tie_points`` mode.
     progress : callable, optional
         ``progress(fraction)``; may raise Cancelled.
 
@@ -566,13 +578,24 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         raise ValueError(f"dem must be 2-D; got shape {dem0.shape}.")
     check_transform(transform)
     images = list(images)
-    cameras = list(cameras)
+    cameras = None if cameras is None else list(cameras)
     if len(images) < 2:
         raise ValueError(f"orthorefine needs two or more overlapping frames; got {len(images)}.")
-    if len(images) != len(cameras):
+    if cameras is not None and any(c is None for c in cameras) and not all(c is None for c in cameras):
+        raise ValueError("give a camera for every image, or none (tie_points mode).")
+    if cameras is not None and len(images) != len(cameras):
         raise ValueError(f"{len(images)} images but {len(cameras)} cameras; give one camera per image.")
     if int(max_iterations) < 1:
         raise ValueError(f"max_iterations must be >= 1; got {max_iterations}.")
+    if cameras is None or all(c is None for c in cameras):
+        return _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
+                                  base_direction, window=window, shiftable=shiftable,
+                                  min_corr=min_corr, max_dh_m=max_dh_m, pairs=pairs,
+                                  min_overlap=min_overlap, smooth_cells=smooth_cells,
+                                  height_threshold_m=height_threshold_m,
+                                  precision_cells=precision_cells, object_size_m=object_size_m,
+                                  fill_sigma_cells=fill_sigma_cells, outlier_m=outlier_m,
+                                  reference=reference, progress=progress)
     greys = [_grey(im) for im in images]
     for g, c in zip(greys, cameras):
         if (g.shape[1], g.shape[0]) != (c.interior.width, c.interior.height):
@@ -661,6 +684,71 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 min_corr=min_corr, cells_seen_by_two=int(multi.sum()))
     return RefineResult(cur, orthos, dh_total, np.where(multi, quality, np.nan).astype(np.float32),
                         mask, table, info)
+
+
+def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, base_direction,
+                       *, window, shiftable, min_corr, max_dh_m, pairs, min_overlap,
+                       smooth_cells, height_threshold_m, precision_cells, object_size_m,
+                       fill_sigma_cells, outlier_m, reference, progress):
+    """One refinement pass on orthophotos registered by eq. 17 (no orientation known)."""
+    from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
+    if tie_points is None or len(tie_points) != len(images):
+        raise ValueError("without cameras, give tie_points: per image a Bilinear8 or "
+                         "(dem_xy, ortho_xy) with at least four ground points (eq. 17).")
+    if base_m is None or height_m is None:
+        raise ValueError("without cameras, give base_m (B between consecutive images) and "
+                         "height_m (H) for eq. 18.")
+    parallax_to_dh_vertical(1.0, base_m, height_m)                      # validates B and H
+    if max_dh_m is None:
+        max_dh_m = 0.1 * float(height_m)
+    orthos = []
+    for img, tp in zip(images, tie_points):
+        tr8 = tp if isinstance(tp, Bilinear8) else fit_bilinear8(*tp)
+        orthos.append(_grey(register_orthophoto(img, tr8, dem0.shape, transform)))
+    seen = [np.isfinite(o) & np.isfinite(dem0) for o in orthos]
+    pair_list = pairs if pairs is not None else overlapping_pairs(seen, min_overlap)
+    if not pair_list:
+        raise ValueError("no two registered orthophotos overlap on the DEM grid; check the tie points.")
+    dhs, cors, pinfo = [], [], []
+    for k, (i, j) in enumerate(pair_list):
+        both = seen[i] & seen[j]
+        if both.sum() < window * window * 4:
+            continue
+        dh, corr, pi = _match_pair_cropped(
+            orthos[i], orthos[j], dem0, transform, both, None, (j - i) * float(base_m),
+            float(height_m), base_direction, window=window, shiftable=shiftable,
+            min_corr=min_corr, max_dh_m=float(max_dh_m), lsm_iterations=3, relocate=False)
+        ok = np.isfinite(dh) & both
+        dhs.append(np.where(ok, dh, np.nan).astype(np.float32))
+        cors.append(np.where(ok, corr, np.nan).astype(np.float32))
+        pi.update(pair=(i, j), matched_share=float(ok.sum() / both.sum()))
+        pinfo.append(pi)
+        report(progress, 0.9 * (k + 1) / len(pair_list))
+    sigma = precision_cells * float(np.median([p["dh_per_cell_m"] for p in pinfo])) if pinfo else 1.0
+    dh_it, quality = _merge_pairs(dhs, cors, outlier_m if outlier_m is not None else 3 * max(sigma, 0.1))
+    multi = (np.sum(seen, axis=0) >= 2)
+    matched = np.isfinite(dh_it) & multi
+    if smooth_cells and smooth_cells > 1:
+        dh_it = _median_nan(dh_it, int(smooth_cells))
+    full = fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
+    cur = np.where(np.isfinite(dem0), dem0 + np.where(np.isfinite(full), full, 0), np.nan).astype(np.float32)
+    row = dict(iteration=1, rms_correction_m=float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan"),
+               matched_share=float(matched.sum() / max(1, multi.sum())), pairs=len(pinfo),
+               rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),
+               mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
+    if reference is not None:
+        ev = multi & np.isfinite(reference)
+        row["rmse_reference_m"] = float(np.sqrt(np.mean((cur - reference)[ev] ** 2))) if ev.any() else float("nan")
+    dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
+    mask, thr, _ = _object_mask(dh_total, multi, sigma, height_threshold_m,
+                                _object_cells(object_size_m, transform))
+    report(progress, 1.0)
+    info = dict(mode="eq. 17 registration, one pass (no orientation: orthophotos cannot be redrawn)",
+                pairs=[tuple(p) for p in pair_list], iterations=1, sigma_expected_m=sigma,
+                height_threshold_m=float(thr), max_dh_m=float(max_dh_m), window=window,
+                shiftable=shiftable, min_corr=min_corr, cells_seen_by_two=int(multi.sum()))
+    return RefineResult(cur, orthos, dh_total, np.where(multi, quality, np.nan).astype(np.float32),
+                        mask, [row], info)
 
 
 def _merge_pairs(dhs, cors, outlier_m):
