@@ -263,6 +263,57 @@ def _solve_first_general(M, Z, n_unknowns, chunk=1 << 18):
     return beta, hh
 
 
+def _fit_profile_fast(z, w, size, degree):
+    """Leave-one-out mean (degree 0) or linear regression (degree 1) along axis 1.
+
+    The same result as :func:`_fit_at_centre` for 1-D windows, with fewer passes over the
+    data: centred moments ``M1 = sum w k``, ``M2 = sum w k^2``, ``Z1 = sum w z k`` from
+    exact centred correlations (short windows) or from box sums on absolute positions
+    (long ones; float64), the centre removed from ``M0`` and ``Z0`` only (``k = 0``).
+    ``z`` must be finite where ``w == 0`` is allowed to be anything finite.
+    """
+    wz = w * z
+    m0 = _box(w, size, 1)
+    z0 = _box(wz, size, 1)
+    if degree == 1:
+        if size <= 15:
+            h = size // 2
+            k = np.arange(-h, h + 1, dtype=np.float64)
+            m1 = ndimage.correlate1d(w, k, axis=1, mode="constant", cval=0.0)
+            m2 = ndimage.correlate1d(w, k * k, axis=1, mode="constant", cval=0.0)
+            z1 = ndimage.correlate1d(wz, k, axis=1, mode="constant", cval=0.0)
+        else:
+            n = w.shape[1]
+            x = (np.arange(n, dtype=np.float64) - n // 2)[None, :]
+            wx = w * x
+            b1 = _box(wx, size, 1)
+            wx *= x
+            b2 = _box(wx, size, 1)
+            del wx
+            wzx = wz * x
+            z1 = _box(wzx, size, 1)
+            del wzx
+            z1 -= x * z0
+            m1 = b1 - x * m0
+            m2 = b2 - x * (2.0 * b1 - x * m0)
+            del b1, b2
+    m0 -= w
+    z0 -= wz
+    del wz
+    with np.errstate(all="ignore"):
+        if degree == 0:
+            ok = m0 > 1e-9
+            zhat, hh = z0 / m0, 1.0 / m0
+        else:
+            det = m0 * m2 - m1 * m1
+            ok = det > 1e-9 * m0 * m2
+            zhat = (z0 * m2 - z1 * m1) / det
+            hh = m2 / det
+    zhat[~ok] = np.nan
+    hh[~ok] = np.nan
+    return zhat, hh
+
+
 def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
     """Weighted polynomial fit in a moving window, evaluated at the window's centre.
 
@@ -742,6 +793,8 @@ def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
     def fit(zz, ww, inside):
         if inside is not None:
             ww = np.where(inside, ww, 0.0)
+        if degree <= 1:
+            return _fit_profile_fast(np.where(ww > 0, zz, 0.0), ww, size, degree)
         return _fit_at_centre(zz, ww, size, degree)
 
     zhat, hh = _per_region(fit, labels, (z, w), 2)
