@@ -478,15 +478,22 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     scan coming down the other way meets no break going up: only objects, which have a
     break going up from both sides, are kept.
     """
-    Z = z if valid is None else np.where(valid, z, np.float32(np.nan))
-    out = None
-    for step in (1, -1):
-        W, F, D, S = _walls(Z, valid, marked, cell, reach=reach, h_min=h_min,
-                            tan_wall=tan_wall, step=step)
-        o = _scan(Z, valid, marked, W, F, D, S, tol=tol, max_cells=max_cells, step=step)
-        del W, F, D, S
-        out = o if out is None else np.logical_and(out, o, out=out)
-    return out
+    n, m = z.shape
+
+    def both(a):  # the profiles forwards, then backwards: one scan does both directions
+        if a is None:
+            return None
+        two = np.empty((n, 2 * m), a.dtype)
+        two[:, :m] = a
+        two[:, m:] = a[::-1]
+        return two
+
+    Z = both(z if valid is None else np.where(valid, z, np.float32(np.nan)))
+    V, B = both(valid), both(marked)
+    W, F, D, S = _walls(Z, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
+    o = _scan(Z, V, B, W, F, D, S, tol=tol, max_cells=max_cells)
+    del W, F, D, S, Z, V, B
+    return np.logical_and(o[:, :m], o[::-1, m:])
 
 
 def _enclosed_regions(flag, free, max_cells):
