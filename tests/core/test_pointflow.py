@@ -1,0 +1,269 @@
+"""Tests of core/pointflow.py: units, one cloud, tiled blocks (seams), classified-point evaluation."""
+import numpy as np
+import pytest
+
+from bare_earth.core import pointflow as pf
+from bare_earth.core.points import PointCloud, classify_points, read_points, write_points
+from bare_earth.core.synthetic import make_scene
+
+FEET = 0.3048
+
+
+def scene_cloud(shape=(150, 180), seed=4, density=1.5, kind="city", x0=500000.0, y0=5400000.0):
+    """Points sampled from a synthetic scene: z of the cell, truth 0 ground / 1 object (ISPRS)."""
+    sc = make_scene(kind, shape, seed=seed)
+    rng = np.random.default_rng(seed)
+    h, w = sc.dsm.shape
+    n = int(h * w * density)
+    x, y = rng.uniform(0, w, n), rng.uniform(0, h, n)
+    r = np.clip((h - y).astype(int), 0, h - 1)
+    c = np.clip(x.astype(int), 0, w - 1)
+    z = sc.dsm[r, c].astype(np.float64)
+    ok = np.isfinite(z)
+    truth = (sc.mask[r, c] != 0).astype(np.int32)
+    return PointCloud(x[ok] + x0, y[ok] + y0, z[ok], classification=truth[ok])
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return scene_cloud()
+
+
+# --------------------------------------------------------------------------- units
+def test_axis_scales_and_cell_sizes():
+    c = PointCloud(np.array([0.0, 3280.84, 0, 3280.84]), np.array([0.0, 3280.84, 3280.84, 0]),
+                   np.array([0.0, 1.0, 2.0, 3.0]), units_to_metre=FEET)
+    assert pf.axis_scales(c) == (FEET, FEET, FEET)
+    # 1000 m x 1000 m, 4 points -> sqrt(2.5e5) m = 500 m
+    assert pf.default_cell_size_m(c) == 500.0
+    geo = PointCloud(np.array([10.0, 10.01]), np.array([60.0, 60.01]), np.array([0.0, 1.0]), crs="EPSG:4326")
+    sx, sy, sz = pf.axis_scales(geo)
+    assert sx == pytest.approx(55800, rel=0.01) and sy == pytest.approx(111420, rel=0.01) and sz == 1.0
+    bad = PointCloud(np.array([0.0]), np.array([500000.0]), np.array([0.0]), crs="EPSG:4326")
+    with pytest.raises(ValueError, match="not a latitude"):
+        pf.axis_scales(bad)
+
+
+def test_rasterize_cloud_in_feet_uses_metres(cloud):
+    ft = PointCloud(cloud.x / FEET, cloud.y / FEET, cloud.z / FEET, units_to_metre=FEET)
+    g = pf.rasterize_cloud(ft, 1.0)
+    assert g.geotransform[1] == pytest.approx(1 / FEET)
+    assert g.cell_size_m == pytest.approx((1.0, 1.0))
+    assert g.z_to_m == FEET
+    gm = pf.rasterize_cloud(cloud, 1.0)
+    # same points, same lattice in metres up to the origin snap: the metric heights agree
+    assert abs(g.shape[0] - gm.shape[0]) <= 1 and abs(g.shape[1] - gm.shape[1]) <= 1
+    assert np.nanmedian(g.z_metres()) == pytest.approx(np.nanmedian(gm.z), abs=0.05)
+    with pytest.raises(ValueError, match="3 x 3"):
+        pf.rasterize_cloud(cloud, 1000.0)
+    with pytest.raises(ValueError, match="positive"):
+        pf.rasterize_cloud(cloud, -1.0)
+    with pytest.raises(ValueError, match="reducer"):
+        pf.rasterize_cloud(cloud, 1.0, reducer="median")
+
+
+@pytest.mark.parametrize("units", ["feet", "geographic"])
+def test_classify_cloud_units_equal_metres(units):
+    # a 20 % slope plane, points 0.3 m above it (ground with the 0.5 m tolerance) and 0.8 m
+    # above (ground only thanks to the slope term 1.25 * 0.2 = 0.25 m -> 0.75 m: above)
+    rng = np.random.default_rng(0)
+    n = 2000
+    xm, ym = rng.uniform(1, 99, n), rng.uniform(1, 99, n)
+    dz = np.where(np.arange(n) % 2 == 0, 0.3, 0.8)
+    zm = 0.2 * xm + dz
+    gtm = (0.0, 1.0, 0.0, 100.0, 0.0, -1.0)
+    cols = np.arange(100) + 0.5
+    dtm = np.tile(0.2 * cols, (100, 1)).astype(np.float32)
+    ref = classify_points(xm, ym, zm, dtm, gtm)
+    np.testing.assert_array_equal(ref, np.where(dz < 0.5, 0, 1))
+    if units == "feet":
+        c = PointCloud(xm / FEET, ym / FEET, zm / FEET, units_to_metre=FEET)
+        gt = (0.0, 1 / FEET, 0.0, 100 / FEET, 0.0, -1 / FEET)
+    else:
+        c = PointCloud(xm, ym, zm, crs="EPSG:4326")
+        lat = 45.0
+        c.y = lat + (ym - 50) / 111132.0
+        sx, sy, _ = pf.axis_scales(c)
+        c.x = 7.0 + xm / sx
+        c.y = lat + (ym - 50) / sy
+        gt = (7.0, 1 / sx, 0.0, lat + 50 / sy, 0.0, -1 / sy)
+    got = pf.classify_cloud(c, dtm, gt)
+    np.testing.assert_array_equal(got, ref)
+
+
+# --------------------------------------------------------------------------- one cloud
+def test_filter_cloud_on_a_synthetic_city(cloud):
+    r = pf.filter_cloud(cloud)
+    truth_ground = cloud.classification == 0
+    acc = ((r.classes == 0) == truth_ground).mean()
+    assert acc > 0.98
+    assert r.classes.dtype == np.uint8 and r.classes.size == len(cloud)
+    assert r.info["cell_size_m"] == (1.0, 1.0)          # 1.5 points/m2 -> 1 m
+    assert sum(r.info["classes"].values()) == len(cloud)
+    assert r.result.mask.shape == r.grid.shape == r.result.dtm.shape
+    # select: only some points classified, same classes
+    sub = pf.filter_cloud(cloud, params=r.info["params"] and {k: r.info["params"][k] for k in
+                          ("mode", "max_object_size_m", "dh_m", "slope")}, select=slice(0, 100))
+    np.testing.assert_array_equal(sub.classes, r.classes[:100])
+
+
+def test_write_rasters(tmp_path, cloud):
+    from bare_earth.core import grid
+    r = pf.filter_cloud(cloud)
+    outs = {k: str(tmp_path / f"{k}.tif") for k in ("dtm", "mask", "ndsm", "dsm")}
+    pf.write_rasters(r.grid, r.result, outs)
+    d = grid.open_dsm(outs["dtm"])
+    assert d.shape == r.grid.shape and d.geotransform == pytest.approx(r.grid.geotransform)
+    np.testing.assert_allclose(d.read(), r.result.dtm, atol=1e-5)
+    mi = grid.open_dsm(outs["mask"])
+    np.testing.assert_array_equal(mi.dataset().GetRasterBand(1).ReadAsArray(), r.result.mask)
+    assert (tmp_path / "mask.qml").exists()
+    with pytest.raises(ValueError, match="unknown raster output"):
+        pf.write_rasters(r.grid, r.result, {"nonsense": str(tmp_path / "x.tif")})
+
+
+def test_write_rasters_feet_back_in_feet(tmp_path, cloud):
+    from osgeo import osr
+    from bare_earth.core import grid
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(2264)                       # NAD83 / North Carolina (ftUS)
+    f = srs.GetLinearUnits()
+    ft = PointCloud(cloud.x / f - 1e6, cloud.y / f - 1.7e7, cloud.z / f, crs=srs.ExportToWkt(),
+                    units_to_metre=f)
+    r = pf.filter_cloud(ft, cell_size_m=1.0)
+    pf.write_rasters(r.grid, r.result, {"dtm": str(tmp_path / "dtm.tif"), "dsm": str(tmp_path / "dsm.tif")})
+    d = grid.open_dsm(tmp_path / "dtm.tif")
+    assert d.z_to_m == pytest.approx(f)
+    np.testing.assert_allclose(d.read(), r.result.dtm, atol=1e-3)     # read back in metres
+    np.testing.assert_allclose(grid.open_dsm(tmp_path / "dsm.tif").read(), r.grid.z_metres(), atol=1e-3)
+
+
+def test_point_output_path():
+    assert pf.point_output_path("/t/out.txt", "/in/a.las", temporary=True) == "/t/out.las"
+    assert pf.point_output_path("/t/out.txt", "/in/a.las") == "/t/out.txt"
+    assert pf.point_output_path("/t/out.laz", "/in/a.txt") == "/t/out.laz"
+    assert pf.point_output_path("/t/out", "/in/a.csv") == "/t/out.csv"
+    with pytest.raises(ValueError, match="LAS/LAZ file or a text file"):
+        pf.point_output_path("/t/out.shp", "/in/a.txt")
+
+
+# --------------------------------------------------------------------------- tiles
+def _cut(cloud, nx, ny):
+    xs = np.quantile(cloud.x, np.linspace(0, 1, nx + 1))
+    ys = np.quantile(cloud.y, np.linspace(0, 1, ny + 1))
+    ix = np.clip(np.searchsorted(xs, cloud.x, side="right") - 1, 0, nx - 1)
+    iy = np.clip(np.searchsorted(ys, cloud.y, side="right") - 1, 0, ny - 1)
+    return [np.flatnonzero((ix == i) & (iy == j)) for j in range(ny) for i in range(nx)]
+
+
+def test_tiles_agree_with_the_untiled_run_at_their_seams(tmp_path):
+    """A cloud cut into 3 x 2 tile files, filtered as one block, equals the untiled run."""
+    c = scene_cloud((160, 210), seed=9)
+    parts = _cut(c, 3, 2)
+    paths, outs = [], []
+    for k, idx in enumerate(parts):
+        t = PointCloud(c.x[idx], c.y[idx], c.z[idx], classification=c.classification[idx],
+                       attrs={"header": None, "delimiter": " "})
+        paths.append(tmp_path / f"tile{k}.txt")
+        outs.append(tmp_path / f"tile{k}_cls.txt")
+        write_points(paths[-1], t, t.classification)
+    logs = []
+    res = pf.filter_tiles(paths, outs, log=logs.append)
+    assert len(logs) >= 7 and "neighbours" in logs[-1]
+    fixed = {k: res.params[k] for k in ("mode", "max_object_size_m", "dh_m", "slope", "slope_scale_m",
+                                         "window_growth", "low_outlier_slope")}
+    order = np.concatenate(parts)
+    # the untiled run of the same points (read back from the tiles: 3 decimals) with the same parameters
+    back = [read_points(p) for p in paths]
+    whole = PointCloud(np.concatenate([b.x for b in back]), np.concatenate([b.y for b in back]),
+                       np.concatenate([b.z for b in back]))
+    ref = pf.filter_cloud(whole, params=fixed, cell_size_units=res.cell_size_units)
+    tiled = np.concatenate(res.classes)
+    # points near the seams (within 25 m of an inner tile edge) and everywhere: identical classes
+    xs = sorted({round(u[0], 6) for u in (b.extent for b in back)})[1:]
+    near = np.zeros(len(whole), bool)
+    for b_ext in (b.extent for b in back):
+        for v in (b_ext[0], b_ext[2]):
+            if whole.x.min() + 1 < v < whole.x.max() - 1:
+                near |= np.abs(whole.x - v) < 25
+        for v in (b_ext[1], b_ext[3]):
+            if whole.y.min() + 1 < v < whole.y.max() - 1:
+                near |= np.abs(whole.y - v) < 25
+    assert near.sum() > len(whole) / 3 and xs
+    np.testing.assert_array_equal(tiled[near], ref.classes[near])
+    np.testing.assert_array_equal(tiled, ref.classes)
+    # written tiles hold the same classes, in tile order
+    for k, o in enumerate(outs):
+        np.testing.assert_array_equal(read_points(o).classification, res.classes[k])
+    # and the classes are good ones
+    truth = c.classification[order] == 0
+    assert ((tiled == 0) == truth).mean() > 0.98
+    # one tile alone with the others as neighbours gives the same classes
+    one = pf.filter_tiles(paths, only=[4], keep_results=True)
+    assert one.classes[0] is None and one.results[4] is not None
+    np.testing.assert_array_equal(one.classes[4], res.classes[4])
+
+
+def test_tiles_bad_input(tmp_path, cloud):
+    a = PointCloud(cloud.x[:5000], cloud.y[:5000], cloud.z[:5000])
+    b = PointCloud(cloud.x[5000:], cloud.y[5000:], cloud.z[5000:], units_to_metre=FEET)
+    with pytest.raises(ValueError, match="not in the CRS / units"):
+        pf.filter_tiles([a, b])
+    with pytest.raises(ValueError, match="no tile"):
+        pf.filter_tiles([])
+    with pytest.raises(ValueError, match="one per tile"):
+        pf.filter_tiles([a], outputs=[None, None])
+    b = PointCloud(cloud.x[5000:], cloud.y[5000:], cloud.z[5000:])
+    with pytest.raises(ValueError, match="less than the filter's reach"):
+        pf.filter_tiles([a, b], overlap_m=2.0)
+
+
+# --------------------------------------------------------------------------- evaluation
+def test_compare_classified_exact_and_matching():
+    x = np.arange(6, dtype=float)
+    truth = PointCloud(x, x, x, classification=np.array([0, 0, 0, 1, 1, 1]))
+    pred = PointCloud(x, x, x, classification=np.array([0, 1, 255, 0, 1, 2]))
+    r = pf.compare_classified(pred, truth)
+    # valid: 5 points; a=1 (0->0), b=1 (ground->object), c=1 (object->ground), d=2
+    assert (r["a"], r["b"], r["c"], r["d"]) == (1, 1, 1, 2)
+    assert r["points_not_classified"] == 1 and r["points_unmatched"] == 0
+    # the truth in another order: matched by position
+    perm = np.array([5, 3, 1, 0, 2, 4])
+    shuffled = PointCloud(x[perm], x[perm], x[perm], classification=truth.classification[perm])
+    r2 = pf.compare_classified(pred, shuffled)
+    assert (r2["a"], r2["b"], r2["c"], r2["d"]) == (1, 1, 1, 2)
+    # truth column; LAS-style predictions (2 = ground)
+    r3 = pf.compare_classified(pred, truth_column=np.array([0, 0, 0, 1, 1, 1]))
+    assert r3["n"] == 5
+    las_pred = PointCloud(x, x, x, classification=np.array([2, 1, 2, 2, 1, 7]), source_format="las")
+    r4 = pf.compare_classified(las_pred, truth_column=np.array([2, 2, 1, 1, 1, 2]))
+    assert (r4["a"], r4["b"], r4["c"], r4["d"]) == (1, 2, 2, 1)
+    with pytest.raises(ValueError, match="not the same points"):
+        pf.compare_classified(pred, PointCloud(x + 100, x, x, classification=truth.classification))
+    with pytest.raises(ValueError, match="one of them"):
+        pf.compare_classified(pred)
+    with pytest.raises(ValueError, match="no class column"):
+        pf.compare_classified(PointCloud(x, x, x), truth)
+
+
+def test_read_column(tmp_path):
+    p = tmp_path / "p.csv"
+    p.write_text("x,y,z,class,truth\n1,2,3,0,1\n4,5,6,1,1\n7,8,9,0,0\n")
+    np.testing.assert_array_equal(pf.read_column(p, "truth"), [1, 1, 0])
+    np.testing.assert_array_equal(pf.read_column(p, "CLASS"), [0, 1, 0])
+    with pytest.raises(ValueError, match="no column 'label'"):
+        pf.read_column(p, "label")
+    q = tmp_path / "q.txt"
+    q.write_text("1 2 3 0\n")
+    with pytest.raises(ValueError, match="no header line"):
+        pf.read_column(q, "truth")
+
+
+def test_real_isprs_sample_through_the_flow(shared_data):
+    path = shared_data / "isprs" / "samp11.txt"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    c = read_points(path)
+    r = pf.filter_cloud(c)
+    e = pf.compare_classified(PointCloud(c.x, c.y, c.z, classification=r.classes.astype(np.int32)), c)
+    assert e["n"] == len(c) and e["total"] < 20.0

@@ -1,0 +1,382 @@
+"""Point clouds through the plugin: rasterizepoints, classifypoints, morphological with INPUT_POINTS,
+evaluate on classified points, the example model, processing.run and qgis_process, bad inputs."""
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+
+ROOT = Path(__file__).resolve().parents[2]
+MODEL = ROOT / "examples" / "rasterize_filter_classify.model3"
+
+
+def _scene_points(shape=(110, 130), seed=5, density=1.5):
+    """x y z and ISPRS truth (0 ground, 1 object) sampled from a synthetic city."""
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape, seed=seed)
+    rng = np.random.default_rng(seed)
+    h, w = sc.dsm.shape
+    n = int(h * w * density)
+    x, y = rng.uniform(0, w, n), rng.uniform(0, h, n)
+    r, c = np.clip((h - y).astype(int), 0, h - 1), np.clip(x.astype(int), 0, w - 1)
+    z = sc.dsm[r, c].astype(np.float64)
+    ok = np.isfinite(z)
+    return x[ok] + 500000.0, y[ok] + 5400000.0, z[ok], (sc.mask[r, c] != 0).astype(int)[ok]
+
+
+def _write_text(path, x, y, z, cls=None, delim="\t", header=""):
+    """x y z [class columns...] text, 3 decimals (the ISPRS layout with tabs)."""
+    extra = [] if cls is None else [np.asarray(cls).reshape(len(x), -1)]
+    table = np.column_stack([x, y, z] + extra)
+    fmt = ["%.3f"] * 3 + ["%d"] * (table.shape[1] - 3)
+    np.savetxt(path, table, fmt=fmt, delimiter=delim, header=header, comments="")
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def cloud_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("points")
+    x, y, z, t = _scene_points()
+    txt = _write_text(d / "city.txt", x, y, z, t)
+    (d / "city.prj").write_text("EPSG:32632")
+    from bare_earth.core.points import read_points
+    c = read_points(txt)                       # the coordinates as written (3 decimals)
+    return {"dir": d, "txt": txt, "x": c.x, "y": c.y, "z": c.z, "truth": t}
+
+
+def _las(path, x, y, z, cls, epsg=32632):
+    laspy = pytest.importorskip("laspy")
+    from osgeo import osr
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(epsg)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.array([np.floor(x.min()), np.floor(y.min()), 0.0])
+    header.vlrs.append(laspy.vlrs.known.WktCoordinateSystemVlr(srs.ExportToWkt()))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    rng = np.random.default_rng(2)
+    las.intensity = rng.integers(0, 65535, x.size).astype(np.uint16)
+    las.gps_time = rng.uniform(0, 1e5, x.size)
+    las.point_source_id = np.full(x.size, 9, np.uint16)
+    las.classification = np.where(cls == 0, 2, 6).astype(np.uint8)   # ASPRS truth: 2 ground, 6 building
+    las.write(str(path))
+    return str(path)
+
+
+def _read_raster(path):
+    from osgeo import gdal
+    ds = gdal.Open(str(path))
+    b = ds.GetRasterBand(1)
+    return b.ReadAsArray(), b.GetNoDataValue(), ds.GetGeoTransform(), ds.GetProjection()
+
+
+# --------------------------------------------------------------------------- registration
+def test_point_algorithms_registered(qgis_app):
+    from qgis.core import QgsApplication, QgsProcessingParameterDefinition
+    reg = QgsApplication.processingRegistry()
+    for alg_id in ("bareearth:rasterizepoints", "bareearth:classifypoints", "bareearth:morphological"):
+        assert reg.algorithmById(alg_id) is not None, alg_id
+    m = reg.algorithmById("bareearth:morphological")
+    assert m.parameterDefinition("INPUT").flags() & QgsProcessingParameterDefinition.FlagOptional
+    for key in ("INPUT_POINTS", "CELL_SIZE_M", "OUTPUT_POINTS", "OTHER_TILES"):
+        assert m.parameterDefinition(key) is not None, key
+    # INPUT stays mandatory for the other filters
+    s = reg.algorithmById("bareearth:slopeprofile")
+    assert not s.parameterDefinition("INPUT").flags() & QgsProcessingParameterDefinition.FlagOptional
+    assert s.parameterDefinition("INPUT_POINTS") is None
+
+
+# --------------------------------------------------------------------------- rasterize
+def test_rasterize_points(processing_run, cloud_files, tmp_path):
+    from bare_earth.core.points import rasterize_points
+    out = tmp_path / "dsm.tif"
+    r = processing_run("bareearth:rasterizepoints", {"INPUT": cloud_files["txt"], "OUTPUT": str(out)})
+    g, nd, gt, crs = _read_raster(out)
+    assert r["CELL_SIZE"] == 1.0 and r["POINTS"] == cloud_files["x"].size
+    assert "32632" in crs or "UTM zone 32N" in crs                   # from the .prj beside the text
+    ref, rgt = rasterize_points(cloud_files["x"], cloud_files["y"], cloud_files["z"], 1.0)
+    assert gt == pytest.approx(rgt) and np.isnan(nd)
+    np.testing.assert_allclose(g, ref, atol=1e-3)                    # lowest, filled from the nearest
+    # highest per cell, 2 m cells, empty cells left nodata, CRS given
+    out2 = tmp_path / "dsm_max.tif"
+    r2 = processing_run("bareearth:rasterizepoints", {"INPUT": cloud_files["txt"], "OUTPUT": str(out2),
+                                                       "CELL_SIZE_M": 2.0, "REDUCER": 1, "FILL_EMPTY": False,
+                                                       "CRS": "EPSG:25832"})
+    g2, _, gt2, crs2 = _read_raster(out2)
+    ref2, _ = rasterize_points(cloud_files["x"], cloud_files["y"], cloud_files["z"], 2.0, reducer="max",
+                               fill_empty=None)
+    assert gt2[1] == 2.0 and "25832" in crs2 or "ETRS89" in crs2
+    np.testing.assert_allclose(g2, ref2, atol=1e-3)
+    assert r2["EMPTY_CELLS"] == int(np.isnan(ref2).sum())
+
+
+# --------------------------------------------------------------------------- morphological on points
+def test_morphological_on_points_then_evaluate(processing_run, cloud_files, tmp_path):
+    from bare_earth.core import pointflow as pf
+    from bare_earth.core.points import read_points
+    d = tmp_path
+    r = processing_run("bareearth:morphological", {
+        "INPUT_POINTS": cloud_files["txt"], "OUTPUT_DTM": str(d / "dtm.tif"), "OUTPUT_MASK": str(d / "mask.tif"),
+        "OUTPUT_NDSM": str(d / "ndsm.tif"), "OUTPUT_POINTS": str(d / "cls.txt")})
+    assert Path(r["OUTPUT_POINTS"]).exists() and Path(r["OUTPUT_NDSM"]).exists()
+    out = read_points(r["OUTPUT_POINTS"])
+    assert len(out) == cloud_files["x"].size
+    assert set(np.unique(out.classification)) <= {0, 1, 2, 255}
+    # the same classes as the core flow
+    ref = pf.filter_cloud(read_points(cloud_files["txt"]))
+    np.testing.assert_array_equal(out.classification, ref.classes)
+    dtm, nd, gt, crs = _read_raster(r["OUTPUT_DTM"])
+    assert dtm.shape == ref.grid.shape and gt == pytest.approx(ref.grid.geotransform) and "32632" in crs \
+        or "UTM zone 32N" in crs
+    mask, mnd, _, _ = _read_raster(r["OUTPUT_MASK"])
+    assert mnd == 255 and set(np.unique(mask)) <= {0, 1, 2}
+    # evaluate the classified points against the truth file
+    ev = processing_run("bareearth:evaluate", {"POINTS": r["OUTPUT_POINTS"], "TRUTH_POINTS": cloud_files["txt"],
+                                               "OUTPUT_JSON": str(d / "e.json"), "OUTPUT_HTML": str(d / "e.html")})
+    figs = json.loads((d / "e.json").read_text())["results"]["classified points vs truth"]
+    assert figs["n"] == len(out) and figs["points_unmatched"] == 0
+    assert ev["TOTAL"] == pytest.approx(figs["total"]) and ev["TOTAL"] < 3.0
+    assert ev["TYPE1"] >= 0 and ev["TYPE2"] >= 0 and ev["KAPPA"] > 90
+    assert "point errors" in (d / "e.html").read_text()
+
+
+def test_classified_points_truth_column(processing_run, cloud_files, tmp_path):
+    from bare_earth.core.points import read_points
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"],
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_POINTS": "TEMPORARY_OUTPUT"})
+    assert r["OUTPUT_POINTS"].endswith(".txt")                       # a temporary output takes the input's format
+    c = read_points(r["OUTPUT_POINTS"])
+    both = _write_text(tmp_path / "both.csv", c.x, c.y, c.z, np.column_stack([c.classification,
+                                                                               cloud_files["truth"]]),
+                       delim=",", header="x,y,z,class,truth")
+    ev = processing_run("bareearth:evaluate", {"POINTS": both, "TRUTH_COLUMN": "truth",
+                                               "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    ev2 = processing_run("bareearth:evaluate", {"POINTS": r["OUTPUT_POINTS"], "TRUTH_POINTS": cloud_files["txt"],
+                                                "OUTPUT_JSON": str(tmp_path / "e2.json"),
+                                                "OUTPUT_HTML": str(tmp_path / "e2.html")})
+    assert ev["TOTAL"] == pytest.approx(ev2["TOTAL"]) and ev["KAPPA"] == pytest.approx(ev2["KAPPA"])
+
+
+def test_morphological_on_las_keeps_attributes(processing_run, cloud_files, tmp_path):
+    laspy = pytest.importorskip("laspy")
+    src = _las(tmp_path / "city.las", cloud_files["x"], cloud_files["y"], cloud_files["z"], cloud_files["truth"])
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": src, "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                                   "OUTPUT_MASK": str(tmp_path / "mask.tif"),
+                                                   "OUTPUT_POINTS": "TEMPORARY_OUTPUT"})
+    assert r["OUTPUT_POINTS"].endswith(".las")
+    a, b = laspy.read(src), laspy.read(r["OUTPUT_POINTS"])
+    for dim in ("X", "Y", "Z", "intensity", "gps_time", "point_source_id"):
+        np.testing.assert_array_equal(np.asarray(a[dim]), np.asarray(b[dim]), err_msg=dim)
+    assert set(np.unique(np.asarray(b.classification))) <= {1, 2, 7}
+    ev = processing_run("bareearth:evaluate", {"POINTS": r["OUTPUT_POINTS"], "TRUTH_POINTS": src,
+                                               "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert ev["TOTAL"] < 3.0 and ev["KAPPA"] > 90
+
+
+def test_classifypoints_by_a_dtm(processing_run, cloud_files, tmp_path):
+    from bare_earth.core.points import read_points
+    f = processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"],
+                                                   "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_POINTS": str(tmp_path / "m.txt")})
+    r = processing_run("bareearth:classifypoints", {"INPUT": cloud_files["txt"], "DTM": f["OUTPUT_DTM"],
+                                                    "OUTPUT": str(tmp_path / "c.csv")})
+    n = cloud_files["x"].size
+    assert r["GROUND"] + r["ABOVE"] + r["BELOW"] + r["OUTSIDE"] == n and r["OUTSIDE"] == 0
+    c = read_points(r["OUTPUT"])
+    np.testing.assert_array_equal(c.classification, read_points(tmp_path / "m.txt").classification)
+    assert r["GROUND"] == int((c.classification == 0).sum())
+    # a larger tolerance: more ground
+    r2 = processing_run("bareearth:classifypoints", {"INPUT": cloud_files["txt"], "DTM": f["OUTPUT_DTM"],
+                                                     "THRESHOLD_M": 3.0, "OUTPUT": str(tmp_path / "c2.txt")})
+    assert r2["GROUND"] > r["GROUND"]
+
+
+def test_morphological_tiles_with_neighbours(processing_run, cloud_files, tmp_path):
+    from bare_earth.core import pointflow as pf
+    from bare_earth.core.points import read_points
+    x, y, z, t = cloud_files["x"], cloud_files["y"], cloud_files["z"], cloud_files["truth"]
+    west = x < np.median(x)
+    a = _write_text(tmp_path / "a.txt", x[west], y[west], z[west], t[west])
+    b = _write_text(tmp_path / "b.txt", x[~west], y[~west], z[~west], t[~west])
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": b, "OTHER_TILES": [a, b],
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_POINTS": str(tmp_path / "b_cls.txt")})
+    ref = pf.filter_tiles([a, b])
+    np.testing.assert_array_equal(read_points(r["OUTPUT_POINTS"]).classification, ref.classes[1])
+
+
+def test_raster_input_still_works(processing_run, scene_files):
+    d = scene_files["dir"]
+    r = processing_run("bareearth:morphological", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": str(d / "m_dtm.tif"),
+                                                   "OUTPUT_MASK": str(d / "m_mask.tif")})
+    assert Path(r["OUTPUT_DTM"]).exists() and "OUTPUT_POINTS" not in r
+
+
+# --------------------------------------------------------------------------- bad inputs
+def _bad_files(d):
+    (d / "empty.txt").write_text("")
+    (d / "blank.txt").write_text("\n  \n")
+    (d / "garbage.txt").write_text("1 2 3 0\n4 5 6 1\n7 8 x 0\n")
+    (d / "ragged.txt").write_text("1 2 3\n4 5 6\n7 8\n")
+    (d / "fake.las").write_bytes(b"LASF" + b"\0" * 300)
+    return d
+
+
+BAD_POINTS = [
+    ("empty.txt", "is empty"),
+    ("blank.txt", "is empty"),
+    ("garbage.txt", "line 3"),
+    ("ragged.txt", "line 3"),
+    ("missing.txt", "does not exist"),
+]
+
+
+@pytest.mark.parametrize("alg", ["rasterizepoints", "classifypoints", "morphological"])
+@pytest.mark.parametrize("name,message", BAD_POINTS, ids=[b[0] for b in BAD_POINTS])
+def test_bad_point_files_refused_before_work(processing_run, tmp_path, scene_files, alg, name, message):
+    from qgis.core import QgsProcessingException
+    src = str(_bad_files(tmp_path) / name)
+    out = tmp_path / "out.tif"
+    params = {"rasterizepoints": {"INPUT": src, "OUTPUT": str(out)},
+              "classifypoints": {"INPUT": src, "DTM": scene_files["dtm"], "OUTPUT": str(tmp_path / "o.txt")},
+              "morphological": {"INPUT_POINTS": src, "OUTPUT_DTM": str(out), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                "OUTPUT_POINTS": str(tmp_path / "o.txt")}}[alg]
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run(f"bareearth:{alg}", params)
+    assert not out.exists() and not (tmp_path / "o.txt").exists()
+
+
+def test_las_without_laspy_says_what_to_install(processing_run, tmp_path, monkeypatch, cloud_files):
+    from qgis.core import QgsProcessingException
+    src = _bad_files(tmp_path) / "fake.las"
+    monkeypatch.setitem(sys.modules, "laspy", None)                   # as if laspy were not installed
+    for alg, params in (("rasterizepoints", {"INPUT": str(src), "OUTPUT": str(tmp_path / "o.tif")}),
+                        ("morphological", {"INPUT_POINTS": str(src), "OUTPUT_DTM": str(tmp_path / "o.tif"),
+                                           "OUTPUT_MASK": "TEMPORARY_OUTPUT"})):
+        with pytest.raises(QgsProcessingException, match="pip install laspy lazrs"):
+            processing_run(f"bareearth:{alg}", params)
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_exactly_one_input(processing_run, scene_files, cloud_files, tmp_path):
+    from qgis.core import QgsProcessingException
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    with pytest.raises(QgsProcessingException, match="exactly one input.*neither"):
+        processing_run("bareearth:morphological", outs)
+    with pytest.raises(QgsProcessingException, match="exactly one input.*not both"):
+        processing_run("bareearth:morphological", {"INPUT": scene_files["dsm"],
+                                                   "INPUT_POINTS": cloud_files["txt"], **outs})
+
+
+def test_points_far_outside_the_dtm(processing_run, cloud_files, tmp_path):
+    from qgis.core import QgsProcessingException
+    from bare_earth.core.grid import write_array
+    dtm = write_array(tmp_path / "far.tif", np.zeros((50, 50), np.float32),
+                      (100000.0, 1.0, 0.0, 200000.0, 0.0, -1.0), 32632)
+    with pytest.raises(QgsProcessingException, match="points are outside the DTM.*DTM spans x 100000"):
+        processing_run("bareearth:classifypoints", {"INPUT": cloud_files["txt"], "DTM": dtm,
+                                                    "OUTPUT": str(tmp_path / "o.txt")})
+    assert not (tmp_path / "o.txt").exists()
+
+
+def test_other_bad_parameters(processing_run, cloud_files, scene_files, tmp_path):
+    from qgis.core import QgsProcessingException
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.points import rasterize_points
+    g, gt = rasterize_points(cloud_files["x"], cloud_files["y"], cloud_files["z"], 2.0)
+    dtm = write_array(tmp_path / "dtm.tif", g, gt, 32632)
+    with pytest.raises(QgsProcessingException, match="LAS/LAZ file or a text file"):
+        processing_run("bareearth:classifypoints", {"INPUT": cloud_files["txt"], "DTM": dtm,
+                                                    "OUTPUT": str(tmp_path / "o.shp")})
+    with pytest.raises(QgsProcessingException, match="3 x 3 cells"):
+        processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"], "CELL_SIZE_M": 500.0,
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+    with pytest.raises(QgsProcessingException, match="larger than the points' extent"):
+        processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"],
+                                                   "MAX_OBJECT_SIZE_M": 5000.0, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+    with pytest.raises(QgsProcessingException, match="about .* cells"):
+        processing_run("bareearth:rasterizepoints", {"INPUT": cloud_files["txt"], "CELL_SIZE_M": 0.001,
+                                                     "OUTPUT": "TEMPORARY_OUTPUT"})
+    # evaluate: classified points need their truth or a DTM; truth must be the same points
+    with pytest.raises(QgsProcessingException, match="TRUTH_POINTS or TRUTH_COLUMN"):
+        processing_run("bareearth:evaluate", {"POINTS": cloud_files["txt"], "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                              "OUTPUT_HTML": str(tmp_path / "e.html")})
+    other = _write_text(tmp_path / "other.txt", cloud_files["x"] + 1000, cloud_files["y"], cloud_files["z"],
+                        cloud_files["truth"])
+    with pytest.raises(QgsProcessingException, match="not the same points"):
+        processing_run("bareearth:evaluate", {"POINTS": cloud_files["txt"], "TRUTH_POINTS": other,
+                                              "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                              "OUTPUT_HTML": str(tmp_path / "e.html")})
+    with pytest.raises(QgsProcessingException, match="give POINTS too"):
+        processing_run("bareearth:evaluate", {"TRUTH_POINTS": other, "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                              "OUTPUT_HTML": str(tmp_path / "e.html")})
+
+
+# --------------------------------------------------------------------------- qgis_process and the model
+def test_qgis_process_points_and_evaluate(run_qgis_process, cloud_files, tmp_path):
+    rc, out, data = run_qgis_process("bareearth:morphological", {
+        "INPUT_POINTS": cloud_files["txt"], "OUTPUT_DTM": tmp_path / "dtm.tif", "OUTPUT_MASK": tmp_path / "mask.tif",
+        "OUTPUT_POINTS": tmp_path / "cls.txt"})
+    assert rc == 0, out
+    assert data["results"]["OUTPUT_POINTS"].endswith("cls.txt") and (tmp_path / "cls.txt").exists()
+    rc, out, data = run_qgis_process("bareearth:evaluate", {
+        "POINTS": tmp_path / "cls.txt", "TRUTH_POINTS": cloud_files["txt"],
+        "OUTPUT_JSON": tmp_path / "e.json", "OUTPUT_HTML": tmp_path / "e.html"})
+    assert rc == 0, out
+    assert data["results"]["TOTAL"] < 3.0
+    rc, out, _ = run_qgis_process("bareearth:rasterizepoints", {"INPUT": tmp_path / "nothing.txt",
+                                                                "OUTPUT": tmp_path / "x.tif"}, as_json=False)
+    assert rc != 0 and "does not exist" in out
+
+
+def test_qgis_process_las(run_qgis_process, cloud_files, tmp_path):
+    """qgis_process runs QGIS's own Python: LAS works where laspy is installed for it, and
+    otherwise the error says what to install."""
+    pytest.importorskip("laspy")
+    src = _las(tmp_path / "c.las", cloud_files["x"], cloud_files["y"], cloud_files["z"], cloud_files["truth"])
+    rc, out, _ = run_qgis_process("bareearth:rasterizepoints", {"INPUT": src, "OUTPUT": tmp_path / "d.tif"},
+                                  as_json=False)
+    if rc != 0:
+        assert "pip install laspy lazrs" in out, out
+        assert not (tmp_path / "d.tif").exists()
+    else:
+        assert (tmp_path / "d.tif").exists()
+
+
+def test_model_file_is_a_valid_model(qgis_app):
+    from qgis.core import QgsProcessingModelAlgorithm
+    m = QgsProcessingModelAlgorithm()
+    assert m.fromFile(str(MODEL))
+    assert [c.algorithmId() for c in sorted(m.childAlgorithms().values(), key=lambda c: c.position().y())] == \
+        ["bareearth:rasterizepoints", "bareearth:morphological", "bareearth:classifypoints"]
+    ok, errors = m.validate()
+    assert ok, errors
+
+
+def test_model_through_qgis_process(run_qgis_process, cloud_files, tmp_path):
+    from bare_earth.core import pointflow as pf
+    from bare_earth.core.points import read_points
+    rc, out, data = run_qgis_process(str(MODEL), {
+        "points": cloud_files["txt"], "classify:classified": tmp_path / "cls.txt",
+        "filter:dtm": tmp_path / "dtm.tif", "filter:mask": tmp_path / "mask.tif"})
+    assert rc == 0, out
+    assert "Points per class" in out
+    c = read_points(tmp_path / "cls.txt")
+    # rasterize -> morphological -> classify in the model = the core flow
+    ref = pf.filter_cloud(read_points(cloud_files["txt"]))
+    np.testing.assert_array_equal(c.classification, ref.classes)
+    rc, out, data = run_qgis_process("bareearth:evaluate", {
+        "POINTS": tmp_path / "cls.txt", "TRUTH_POINTS": cloud_files["txt"],
+        "OUTPUT_JSON": tmp_path / "e.json", "OUTPUT_HTML": tmp_path / "e.html"})
+    assert rc == 0, out
+    assert data["results"]["KAPPA"] > 90
