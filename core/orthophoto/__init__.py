@@ -15,3 +15,12 @@ from .orthorectify import grid_xy, orthorectify, visibility
 from .refine import (ParallaxResult, RefineResult, fill_holes, orthoparallax, orthorefine,
                      overlapping_pairs, parallax_to_dh, parallax_to_dh_vertical, view_vectors)
 from .render import OrthoScene, make_ortho_scene, render_frame, render_frames, vertical_cameras
+
+__all__ = ["Bilinear8", "fit_bilinear8", "register_orthophoto",
+           "Camera", "Interior", "cameras_from_opk", "opk_to_rotation", "read_interior_yaml",
+           "read_opensfm_reconstruction", "read_opk_csv", "rotation_to_opk",
+           "MatchResult", "match_along", "match_rectified", "ncc_volume",
+           "grid_xy", "orthorectify", "visibility",
+           "ParallaxResult", "RefineResult", "fill_holes", "orthoparallax", "orthorefine",
+           "overlapping_pairs", "parallax_to_dh", "parallax_to_dh_vertical", "view_vectors",
+           "OrthoScene", "make_ortho_scene", "render_frame", "render_frames", "vertical_cameras"]

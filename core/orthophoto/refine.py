@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
-from ..common import Cancelled, report, sub_progress  # noqa: F401  (Cancelled re-raised)
+from ..common import report, sub_progress
 from .match import match_along
 from .orthorectify import check_transform, grid_xy, orthorectify
 

@@ -4,7 +4,7 @@ import pytest
 from scipy import ndimage
 
 from bare_earth.core.codes import NODATA, OBJECT
-from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify
+from bare_earth.core.orthophoto.orthorectify import orthorectify
 from bare_earth.core.orthophoto.refine import (fill_holes, orthoparallax, orthorefine,
                                                parallax_to_dh, parallax_to_dh_vertical,
                                                view_vectors)
@@ -129,3 +129,35 @@ def test_orthorefine_bad_inputs(scene2):
     far = [type(cams[1])(cams[1].interior, cams[1].centre + np.array([5000.0, 0, 0]), cams[1].R)]
     with pytest.raises(ValueError, match="overlap"):
         orthorefine(sc.terrain, sc.transform, imgs, [cams[0]] + far)
+
+
+def test_progress_can_cancel(scene2):
+    from bare_earth.core.common import Cancelled
+    sc, cams, imgs, _ = scene2
+
+    def stop(f):
+        if f > 0.3:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=3, progress=stop)
+
+
+def test_drone_orthophotos_line_up_on_their_dsm(shared_data):
+    """Real chain (OPK, Brown, collinearity): orthophotos made with the DSM agree."""
+    from osgeo import gdal
+    from bare_earth.core.orthophoto.camera import (cameras_from_opk, read_opensfm_reconstruction,
+                                                   read_opk_csv)
+    d = shared_data / "stereo" / "orthority"
+    ds = gdal.Open(str(d / "odm" / "odm_dem" / "dsm.tif"))
+    dsm = ds.ReadAsArray().astype(np.float32)
+    gt = ds.GetGeoTransform()
+    ios, _, _ = read_opensfm_reconstruction(d / "odm" / "opensfm" / "reconstruction.json")
+    names = ["100_0005_0136", "100_0005_0142"]
+    cams = cameras_from_opk(read_opk_csv(d / "io" / "odm_xyz_opk.csv"), ios, names)
+    imgs = [gdal.Open(str(d / "odm" / "images" / f"{n}.tif")).ReadAsArray().astype(np.float32)
+            for n in names]
+    oa, ob = (orthorectify(ndimage.gaussian_filter(im.mean(0), 2.0), c, dsm, gt)[0]
+              for im, c in zip(imgs, cams))
+    r = orthoparallax(oa, ob, dsm, gt, centres=(cams[0].centre, cams[1].centre), max_dh_m=8)
+    assert r.info["matched_share"] > 0.5
+    assert abs(np.nanmedian(r.dh)) < 0.3 and np.nanmedian(np.abs(r.dh)) < 0.8
