@@ -163,15 +163,29 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
     box = (1, H, 1, W)          # inclusive interior bounds (padded coordinates)
     frontier = None
     stamp = None
+    bufs = None
     it = 0
     while max_iter is None or it < max_iter:
         it += 1
         if frontier is None:                      # dense pass on the bounding box
             r0, r1, c0, c1 = box
+            h, w = r1 - r0 + 1, c1 - c0 + 1
             sub = R[r0 - 1:r1 + 2, c0 - 1:c1 + 2]
-            new = np.minimum(_max3(sub, connectivity), P[r0:r1 + 1, c0:c1 + 1])
+            if bufs is None:                      # reused buffers: no allocation per pass
+                bufs = (np.empty((h + 2, w), dtype), np.empty((h, w), dtype),
+                        np.empty((h, w), bool))
+            new, ch = bufs[1][:h, :w], bufs[2][:h, :w]
+            if connectivity == 8:
+                rb = bufs[0][:h + 2, :w]
+                np.maximum(sub[:, :-2], sub[:, 1:-1], out=rb)
+                np.maximum(rb, sub[:, 2:], out=rb)
+                np.maximum(rb[:-2], rb[1:-1], out=new)
+                np.maximum(new, rb[2:], out=new)
+            else:
+                new[...] = _max3(sub, connectivity)
+            np.minimum(new, P[r0:r1 + 1, c0:c1 + 1], out=new)
             old = R[r0:r1 + 1, c0:c1 + 1]
-            ch = new > old                        # new >= old everywhere
+            np.greater(new, old, out=ch)          # new >= old everywhere
             n_ch = np.count_nonzero(ch)
             if n_ch == 0:
                 break
@@ -451,7 +465,7 @@ def _accumulate(op, key, axis, out, reverse):
         prev = i
 
 
-def _scan_axis(a, axis, t_jump, height_m, max_cells):
+def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
 
     Every edge between neighbours gets a key ``4 * position + type`` (type 0 none,
@@ -467,35 +481,38 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells):
     dz = np.diff(a, axis=axis)                    # edge j: between cells j and j+1
     shape = (n - 1, 1) if axis == 0 else (n - 1,)
     j4 = (4 * np.arange(n - 1, dtype=np.int32)).reshape(shape)
+    code = np.zeros(dz.shape, np.int32)
     with np.errstate(invalid="ignore"):
-        typ = (dz > t_jump).astype(np.int32)
-        typ += 2 * (dz < -t_jump)
-    typ[np.isnan(dz)] = _BREAK
-    ev = typ > 0
-    key = np.where(ev, j4 + typ, np.int32(-4))
+        code[dz > t_jump] = _RISE
+        code[dz < -t_jump] = _FALL
+    if has_nan:
+        code[np.isnan(dz)] = _BREAK
+    none = code == 0
+    key = np.add(j4, code, dtype=np.int32)
     # last event strictly before cell i: running max of the keys of edges <= i-1
+    np.copyto(key, -4, where=none)
     left = np.empty(a.shape, np.int32)
     _axis_slice(left, axis, 0, 1)[...] = -4
     _accumulate(np.maximum, key, axis, _axis_slice(left, axis, 1, n), reverse=False)
     # first event at or after cell i: reversed running min of the keys of edges >= i
     big = np.int32(4 * n)
-    np.copyto(key, big, where=~ev)
+    np.copyto(key, big, where=none)
     right = np.empty(a.shape, np.int32)
     _axis_slice(right, axis, n - 1, n)[...] = big
     _accumulate(np.minimum, key, axis, _axis_slice(right, axis, 0, n - 1), reverse=True)
-    ok = (left & 3) == _RISE
-    ok &= (right & 3) == _FALL
-    ok &= ((right >> 2) - (left >> 2)) <= max_cells
+    ok = np.bitwise_and(left, 3) == _RISE
+    ok &= np.bitwise_and(right, 3) == _FALL
     r, c = np.nonzero(ok)
     if r.size == 0:
         return out
+    jl, jr = left[r, c] >> 2, right[r, c] >> 2
+    short = (jr - jl) <= max_cells                # the run is no longer than an object
+    r, c, jl, jr = r[short], c[short], jl[short], jr[short]
     if axis == 1:
         i = c
-        jl, jr = left[r, c] >> 2, right[r, c] >> 2
         base_l, base_r = a[r, jl], a[r, jr + 1]
     else:
         i = r
-        jl, jr = left[r, c] >> 2, right[r, c] >> 2
         base_l, base_r = a[jl, c], a[jr + 1, c]
     t = (i - jl) / (jr + 1 - jl)                  # cells before the rise / after the fall
     base = base_l + (base_r - base_l).astype(np.float64) * t
@@ -565,9 +582,10 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
         with np.errstate(invalid="ignore"):
             allowed = (a - reference) > height_m
     tx, ty = jump_m + s * dx, jump_m + s * dy
+    has_nan = bool(np.isnan(a).any())
     for _ in range(int(passes)):
-        lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)))
-        lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)))
+        lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
+        lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
         new = (lr | lc) & ~labelled & allowed
         if not new.any():
             break
