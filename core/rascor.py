@@ -347,24 +347,25 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
             hx, hy = len(kx) // 2, len(ky) // 2
             out = {}
             top = max(max(px), max(py))
-            for p in set(px):
-                t = ndimage.correlate1d(v, kx * np.arange(-hx, hx + 1.0) ** p, axis=1,
+            # the slow axis (0) first: fewer passes along it
+            for q in set(py):
+                t = ndimage.correlate1d(v, ky * np.arange(-hy, hy + 1.0) ** q, axis=0,
                                         mode="constant", cval=0.0)
-                for q in (q for q in set(py) if p + q <= top):
-                    out[p, q] = ndimage.correlate1d(t, ky * np.arange(-hy, hy + 1.0) ** q,
-                                                    axis=0, mode="constant", cval=0.0)
+                for p in (p for p in set(px) if p + q <= top):
+                    out[p, q] = ndimage.correlate1d(t, kx * np.arange(-hx, hx + 1.0) ** p,
+                                                    axis=1, mode="constant", cval=0.0)
             return out
         if not two_d:
             return _power_sums(v, sizes, px, 1)
         sy, sx = sizes
-        tx = _power_sums(v, sx, px, 1)
+        ty = _power_sums(v, sy, py, 0)             # the slow axis (0) first: fewer passes
         out = {}
-        top = max(px) if max(px) >= max(py) else max(py)
-        for p in set(px):
-            qs = [q for q in set(py) if p + q <= top]   # only the moments the model needs
-            ty = _power_sums(tx[p], sy, qs, 0)
-            for q in qs:
-                out[p, q] = ty[q]
+        top = max(max(px), max(py))
+        for q in set(py):
+            ps = [p for p in set(px) if p + q <= top]   # only the moments the model needs
+            tx = _power_sums(ty[q], sx, ps, 1)
+            for p in ps:
+                out[p, q] = tx[p]
         return out
 
     if not two_d:
