@@ -332,11 +332,11 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
 
 
 # --------------------------------------------------------------------------- profiles
-def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
-    """Where a profile (axis 0) has just risen as a wall, at its marked positions ``B``.
+def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
+    """Where a profile (axis 0, scanned downwards) has just risen as a wall.
 
-    The foot of position j is the lowest of the ``_WALL_CELLS`` positions before it. j is
-    the top of a wall when
+    Only marked positions ``B`` (breaks) are examined. The foot of position j is the
+    lowest of the ``_WALL_CELLS`` positions before it. j is the top of a wall when
 
     * ``z_j - foot >= h_min`` (high enough),
     * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
@@ -347,37 +347,32 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
       as its risers on average) and walls of a terrain cut from looking like object walls,
       while a wall standing on a hillside still stands out.
 
-    A loop over a handful of shifts, each vectorised over all marked cells.
-
-    The same test mirrored finds where the profile has just come down a wall: ``drop`` is
-    the height come down (the highest of the ``_WALL_CELLS`` positions before, minus
-    ``z_j``), zero elsewhere.
+    The same test mirrored finds where the profile has just come down a wall (by
+    ``drop``: the highest of the ``_WALL_CELLS`` positions before, minus ``z_j``). A loop
+    over a handful of shifts, each vectorised over all marked cells.
 
     Returns
     -------
-    wall : ndarray of bool
-    foot : ndarray of float32 (valid where ``wall``)
-    drop : ndarray of float32
-    slope : ndarray of float32
-        Where ``wall``: the profile's rise per position before the foot (>= 0), so that
-        the scan can follow the ground under the object.
+    walls : tuple of ndarray
+        ``(flat index, foot height, slope)`` of the wall tops, in index order; ``slope`` is
+        the profile's rise per position before the foot (>= 0), so that the scan can
+        follow the ground under the object.
+    downs : tuple of ndarray
+        ``(flat index, drop)`` of the positions just below a wall, in index order.
     """
     n, m = Z.shape
-    wall = np.zeros(Z.shape, bool)
-    foot = np.zeros(Z.shape, np.float32)
-    drop = np.zeros(Z.shape, np.float32)
-    slope = np.zeros(Z.shape, np.float32)
     idx = np.flatnonzero(B if V is None else B & V)
     if idx.size == 0:
-        return wall, foot, drop, slope
+        e = np.zeros(0, np.int64), np.zeros(0, np.float32)
+        return (e[0], e[1], e[1]), e
     zf = (Z if V is None else np.where(V, Z, np.float32(np.nan))).ravel()
     row = idx // m
+    col = idx - row * m
 
-    def back(k):  # heights k positions before, in the scan's direction ``step``
-        src = row - step * k
-        out = (src < 0) | (src >= n)
-        v = zf[np.clip(src, 0, n - 1) * m + idx % m]
-        v[out] = np.nan
+    def back(k):  # heights k positions before (NaN before the profile's start)
+        src = row - k
+        v = zf[np.maximum(src, 0) * m + col]
+        v[src < 0] = np.nan
         return v
 
     zc = zf[idx]
@@ -391,8 +386,7 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
     before = back(_WALL_CELLS + reach)
     nb = np.isnan(before)
     if nb.any():  # near the start of a profile: its first position
-        first = 0 if step == 1 else n - 1
-        before[nb] = zf[first * m + (idx % m)[nb]]
+        before[nb] = zf[col[nb]]
     with np.errstate(invalid="ignore"):
         rise = zc - best
         rate = rise / np.float32(_WALL_CELLS * cell)
@@ -401,35 +395,38 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall, step=1):
               & (rate >= np.float32(_WALL_CONTRAST) * prior))
         fall = top - zc
         down = (fall >= np.float32(h_min)) & (fall >= np.float32(tan_wall * _WALL_CELLS * cell))
-    wall.flat[idx[ok]] = True
-    foot.flat[idx[ok]] = best[ok]
-    drop.flat[idx[down]] = fall[down]
-    slope.flat[idx[ok]] = prior[ok] * np.float32(cell)
-    return wall, foot, drop, slope
+    return ((idx[ok], best[ok], (prior[ok] * np.float32(cell)).astype(np.float32)),
+            (idx[down], fall[down].astype(np.float32)))
 
 
-def _scan(Z, V, B, W, F, D, S, *, tol, max_cells, step=1):
-    """One directed scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
+def _row_slices(flat_idx, n, m):
+    """Start offsets of the entries of each row 0..n in a sorted flat-index array."""
+    return np.searchsorted(flat_idx // m, np.arange(n + 1))
+
+
+def _scan(Z, V, walls, downs, *, tol, max_cells):
+    """The scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
 
     The paper's reading of a profile: the points between a break going up and the
     matching break coming down belong to an object. State per profile: ``g`` the height
-    of the ground before the object (its foot), ``d`` the cells since the last ground.
+    of the ground before the object (its foot), ``jg`` the position of the last ground.
 
-    * ground -> object at a marked cell (a break, ``B``) at the top of a wall (``W``,
-      see :func:`_walls`); the foot ``g`` is the wall's foot ``F``.
+    * ground -> object at the top of a wall (``walls``, see :func:`_walls`: marked cells
+      only); ``g`` becomes the wall's foot.
     * object -> ground when the profile comes back down to the ground extended from the
-      foot at the slope the profile had before the wall (``S``, rising only; within
-      ``tol``), or comes down a wall (``D``, the height come down) closer to the foot
-      than to where it came from (the matching break coming down, onto ground that rose
-      under the object), or after ``max_cells`` (too long for an object). On a
-      slope the scan going uphill overshoots, but the scan coming down finds the
-      building's uphill wall; :func:`_axis_objects` keeps only what both agree on.
+      foot at the slope the profile had before the wall (rising only; within ``tol``),
+      or comes down a wall (``downs``) onto ground nearer the foot than the top (the
+      matching break coming down, onto ground that rose under the object), or after
+      ``max_cells`` (too long for an object). On a slope the scan going uphill
+      overshoots, but the scan coming down finds the building's uphill wall;
+      :func:`_axis_objects` keeps only what both directions agree on.
+
+    Walls and down-walls are sparse: they are applied by index, row by row.
     """
     n, m = Z.shape
     out = np.zeros((n, m), bool)
-    j0 = 0 if step == 1 else n - 1
-    g = (Z[j0] if V is None else np.where(V[j0], Z[j0], np.float32(np.nan))).astype(np.float32)
-    jg = np.full(m, j0, np.float32)        # position of the last ground cell (or foot)
+    g = (Z[0] if V is None else np.where(V[0], Z[0], np.float32(np.nan))).astype(np.float32)
+    jg = np.zeros(m, np.float32)           # position of the last ground cell (or foot)
     gs = np.zeros(m, np.float32)           # slope of the ground under an object
     dist = np.empty(m, np.float32)
     lim = np.empty(m, np.float32)
@@ -437,34 +434,44 @@ def _scan(Z, V, B, W, F, D, S, *, tol, max_cells, step=1):
     rise = np.empty(m, np.float32)
     end = np.empty(m, bool)
     far = np.empty(m, bool)
-    start = np.empty(m, bool)
     newg = np.empty(m, bool)
-    # object -> ground when rise <= max(tol, height come down a wall here)
-    E = np.maximum(D, np.float32(tol))
-    for j in (range(1, n) if step == 1 else range(n - 2, -1, -1)):
+    w_idx, w_foot, w_slope = walls
+    d_idx, d_drop = downs
+    w_ptr = _row_slices(w_idx, n, m)
+    d_ptr = _row_slices(d_idx, n, m)
+    w_col = (w_idx % m).astype(np.intp)
+    d_col = (d_idx % m).astype(np.intp)
+    tol = np.float32(tol)
+    for j in range(1, n):
         zj = Z[j]
         np.subtract(zj, g, out=rise)
-        np.subtract(j, jg, out=dist)
-        if step != 1:
-            np.negative(dist, out=dist)
+        np.subtract(np.float32(j), jg, out=dist)
         np.multiply(gs, dist, out=lim)
-        lim += E[j]
+        a, b = d_ptr[j], d_ptr[j + 1]
+        if b > a:  # down a wall here: end when rise <= slope * dist + drop
+            c = d_col[a:b]
+            lim[c] += np.maximum(d_drop[a:b], tol) - tol
+        lim += tol
         np.less_equal(rise, lim, out=end)
         np.greater(dist, max_cells, out=far)
         end |= far
         end &= obj
-        np.logical_not(obj, out=start)
-        start &= W[j]                          # W is only set at marked cells (breaks)
+        a, b = w_ptr[j], w_ptr[j + 1]
+        if b > a:
+            c = w_col[a:b]
+            ok = ~obj[c]                   # a profile inside an object does not restart
+            c, foot, slope = c[ok], w_foot[a:b][ok], w_slope[a:b][ok]
         obj ^= end
-        obj |= start
-        np.putmask(g, start, F[j])             # putmask: about 2x faster than copyto
-        np.putmask(gs, start, S[j])
         np.logical_not(obj, out=newg)
         if V is not None:
             newg &= V[j]
-        np.putmask(g, newg, zj)
-        newg |= start
+        np.putmask(g, newg, zj)            # putmask: about 2x faster than copyto
         np.putmask(jg, newg, np.float32(j))
+        if b > a and c.size:
+            obj[c] = True
+            g[c] = foot
+            gs[c] = slope
+            jg[c] = j
         out[j] = obj
     if V is not None:
         out &= V
@@ -490,9 +497,10 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
 
     Z = both(z if valid is None else np.where(valid, z, np.float32(np.nan)))
     V, B = both(valid), both(marked)
-    W, F, D, S = _walls(Z, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
-    o = _scan(Z, V, B, W, F, D, S, tol=tol, max_cells=max_cells)
-    del W, F, D, S, Z, V, B
+    walls, downs = _walls(Z, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
+    del B
+    o = _scan(Z, V, walls, downs, tol=tol, max_cells=max_cells)
+    del Z, V
     return np.logical_and(o[:, :m], o[::-1, m:])
 
 
