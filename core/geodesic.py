@@ -241,9 +241,10 @@ def _running(a, size, axis, op, pad):
         return a.copy()
     n = a.shape[axis]
     if r == 1 and n >= 2:                         # 3 cells: two shifted passes
-        out = a.copy()
+        out = np.empty_like(a)
         lo, hi = _axis_slice(out, axis, 0, n - 1), _axis_slice(out, axis, 1, n)
-        op(lo, _axis_slice(a, axis, 1, n), out=lo)
+        op(_axis_slice(a, axis, 0, n - 1), _axis_slice(a, axis, 1, n), out=lo)
+        _axis_slice(out, axis, n - 1, n)[...] = _axis_slice(a, axis, n - 1, n)
         op(hi, _axis_slice(a, axis, 0, n - 1), out=hi)
         if not ((op is np.minimum and pad == np.inf) or (op is np.maximum and pad == -np.inf)
                 or (a.dtype == bool and pad == (op is np.minimum))):
@@ -306,6 +307,8 @@ _S8 = np.ones((3, 3), bool)
 COARSE_WINDOW = 4
 #: Scan labelling passes run by the filter.
 SCAN_PASSES = 2
+#: Geodesic reach of each step's reconstruction, in windows.
+RECON_REACH = 1.0
 #: Default terrain slope: this percentile of the slope of the heavily opened DSM ...
 SLOPE_PERCENTILE = 90
 #: ... clipped to these degrees (a tolerance, not the steepest slope: on the ISPRS
@@ -383,7 +386,8 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
         vc = np.isfinite(zmin)
         size_c = _window(s, dx * f, dy * f)
     marker = _opening(zmin, vc, size_c)
-    Rc = reconstruct_by_dilation(marker, np.where(vc, zmax, np.nan), max_iter=max(size_c))
+    Rc = reconstruct_by_dilation(marker, np.where(vc, zmax, np.nan),
+                                 max_iter=max(1, int(round(max(size_c) * RECON_REACH))))
     with np.errstate(invalid="ignore"):
         dc = zmax - Rc
         cand = vc & (dc > dh0)
