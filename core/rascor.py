@@ -62,12 +62,12 @@ points' tolerance x 7), step 7 off, no second iteration; on the 7 ISPRS referenc
 
 References
 ----------
-Jacobsen, K. (2004). DSM filtering with the program RASCOR (Institute of Photogrammetry
-and GeoInformation, Leibniz University Hannover): terrain characterisation, height
-distribution, neighbour differences, sudden change of level, moving profiles and
-surfaces, local prediction, weights for points below the reference, break lines and
-special areas; the highway example (21.6 % of the points removed without, 10.4 % with
-break lines). Int. Arch. Photogramm. Remote Sens. Spatial Inf. Sci. XXXV-B3, Istanbul.
+Jacobsen, K. (2004). Int. Arch. Photogramm. Remote Sens. Spatial Inf. Sci. XXXV-B3
+(Istanbul). Describes the program RASCOR (Institute of Photogrammetry and GeoInformation,
+Leibniz University Hannover): terrain characterisation, height distribution, neighbour
+differences, sudden change of level, moving profiles and surfaces, local prediction,
+weights for points below the reference, break lines and special areas, and the highway
+example (21.6 % of the points removed without, 10.4 % with break lines).
 """
 from math import comb
 
