@@ -4,7 +4,11 @@ The one place tiling lives. A block is read with ``halo`` extra cells on every s
 (clipped at the raster's edge), processed, and only its core is kept, so a method whose
 reach is at most ``halo`` cells gives the same result blocked as in one pass.
 """
-from concurrent.futures import ThreadPoolExecutor
+import multiprocessing
+import os
+import shutil
+import sys
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, wait, FIRST_COMPLETED
 
 import numpy as np
 
@@ -78,3 +82,57 @@ def run_windows(func, windows, *, workers=1, progress=None):
             fut.result()
             done += 1
             report(progress, done / n)
+
+
+def _process_context():
+    """A multiprocessing context safe where we run.
+
+    Plain Python on Linux forks (cheap: the workers share the loaded modules). Inside a
+    QGIS application (a Qt process, where fork is unsafe) workers are spawned with a real
+    Python interpreter, since ``sys.executable`` is then the QGIS binary.
+    """
+    in_qgis = "qgis.core" in sys.modules and os.path.basename(sys.executable or "").startswith("qgis")
+    if not in_qgis and "qgis.core" not in sys.modules and hasattr(os, "fork"):
+        return multiprocessing.get_context("fork")
+    ctx = multiprocessing.get_context("spawn")
+    exe = sys.executable or ""
+    if not os.path.basename(exe).startswith("python"):
+        exe = shutil.which("python3") or "/usr/bin/python3"
+    ctx.set_executable(exe)
+    return ctx
+
+
+def run_processes(job, items, on_result, *, workers=2, progress=None):
+    """Run ``job(*item)`` for every item in worker processes; ``on_result(core, outer, result)``
+    is called here, in this process, as results arrive (so this process does all writing).
+
+    ``items`` are ``(core, outer, extra)`` tuples; at most ``2 * workers`` are in flight, so
+    memory stays bounded. ``progress`` gets the fraction done and may raise ``Cancelled``:
+    the pending blocks are then cancelled and the workers stopped.
+    """
+    n = len(items)
+    done = 0
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_process_context()) as pool:
+        pending = {}
+        it = iter(items)
+        try:
+            for item in it:
+                pending[pool.submit(job, *item)] = item
+                while len(pending) >= 2 * workers:
+                    finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        core, outer, _x = pending.pop(fut)
+                        on_result(core, outer, fut.result())
+                        done += 1
+                        report(progress, done / n)
+            while pending:
+                finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    core, outer, _x = pending.pop(fut)
+                    on_result(core, outer, fut.result())
+                    done += 1
+                    report(progress, done / n)
+        except BaseException:
+            for fut in pending:
+                fut.cancel()
+            raise

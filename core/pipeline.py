@@ -238,7 +238,7 @@ def _resolve_window(shape):
 
 
 def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=None, workers=1,
-             progress=None, log=None):
+             processes=1, progress=None, log=None):
     """Filter a DSM file into output files, block by block, with bounded memory.
 
     Parameters
@@ -256,6 +256,12 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
     workers : int
         Threads running blocks.
+    processes : int
+        Worker processes running blocks (each reads its own windows; this process writes).
+        With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
+        into one strip of rows per process. Cancellation is checked between blocks. The
+        mask is the same as in one pass; the DTM's filled cells may differ slightly (the
+        interpolation sees the block and its halo, not the whole raster).
     progress : callable, optional
         ``progress(fraction)``; may raise :class:`Cancelled` (nothing is then written).
     log : callable, optional
@@ -290,6 +296,10 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     halo = int(meth.halo(params, cell))
     if block is None:
         block = max(info.shape) if info.cells <= IN_MEMORY_CELLS else blocks.DEFAULT_BLOCK
+        if processes > 1:
+            # strips of rows, one per process (the halo costs least); default blocks when large
+            rows = -(-info.shape[0] // processes) if info.cells <= IN_MEMORY_CELLS else block
+            block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
     single = len(windows) == 1
     report(progress, 0.03)
@@ -318,27 +328,11 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         want_dtm = "dtm" in out or "ndsm" in out
 
         io_lock = threading.Lock()  # GDAL datasets are not safe for concurrent use
+        job = _BlockJob(meth, info.path, info.band_index, cell, params, want_dtm)
 
-        def work(core, outer):
-            with io_lock:
-                zb = info.read(outer)
-            c = blocks.crop(outer, core)
+        def write(core, outer, result):
+            m, d, zc, res_extras, res_info = result
             h, w = core[1] - core[0], core[3] - core[2]
-            if not np.isfinite(zb).any():
-                m = np.full((h, w), NODATA, np.uint8)
-                d = np.full((h, w), np.nan, np.float32)
-                res_extras, res_info = {}, None
-            else:
-                ab = {k: (None if a is None else np.asarray(a)[outer[0]:outer[1], outer[2]:outer[3]])
-                      for k, a in aux.items()}
-                res, m, d = _process(meth, zb, cell, params, ab, want_dtm,
-                                     sub_progress(progress, 0.03, 0.95) if single else None)
-                m = m[c]
-                d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
-                res_extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
-                              for k, a in res.extras.items()}
-                res_info = res.info
-            zc = zb[c]
             with io_lock:
                 _write_block(out, meth, core, m, d, zc, scale, float_nodata, res_extras, h, w)
             for k_, v_ in _code_counts(m).items():
@@ -347,7 +341,21 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
                 infos.append(res_info)
                 weights.append(h * w)
 
-        blocks.run_windows(work, windows, workers=workers, progress=sub_progress(progress, 0.03, 0.97))
+        def aux_for(outer):
+            return {k: (None if a is None else np.asarray(a)[outer[0]:outer[1], outer[2]:outer[3]])
+                    for k, a in aux.items()}
+
+        if processes > 1 and len(windows) > 1:
+            blocks.run_processes(job, [(core, outer, aux_for(outer)) for core, outer in windows], write,
+                                 workers=processes, progress=sub_progress(progress, 0.03, 0.97))
+        else:
+            def work(core, outer):
+                with io_lock:
+                    zb = info.read(outer)
+                write(core, outer, job.compute(core, outer, aux_for(outer), zb,
+                                               sub_progress(progress, 0.03, 0.95) if single else None))
+
+            blocks.run_windows(work, windows, workers=workers, progress=sub_progress(progress, 0.03, 0.97))
         out.commit()
     result = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": list(info.warnings)}
@@ -356,6 +364,43 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     result["seconds"] = time.perf_counter() - t0
     report(progress, 1.0)
     return result
+
+
+class _BlockJob:
+    """The per-block work of :func:`run_file`, picklable for worker processes."""
+
+    def __init__(self, meth, path, band, cell, params, want_dtm):
+        self.meth, self.path, self.band = meth, path, band
+        self.cell, self.params, self.want_dtm = cell, params, want_dtm
+        self._info = None
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d["_info"] = None  # a GDAL dataset does not cross processes: each reopens the file
+        return d
+
+    def read(self, outer):
+        if self._info is None:
+            from . import grid
+            self._info = grid.open_dsm(self.path, self.band)
+        return self._info.read(outer)
+
+    def __call__(self, core, outer, aux):
+        """Read, filter and fill one block (in a worker process)."""
+        return self.compute(core, outer, aux, self.read(outer), None)
+
+    def compute(self, core, outer, aux, zb, progress):
+        """Filter and fill one block read over ``outer``; returns its core's arrays."""
+        meth = self.meth
+        c = blocks.crop(outer, core)
+        h, w = core[1] - core[0], core[3] - core[2]
+        if not np.isfinite(zb).any():
+            return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32), zb[c], {}, None)
+        res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress)
+        extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
+                  for k, a in res.extras.items()}
+        d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
+        return (m[c], d, zb[c], extras, res.info)
 
 
 def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):

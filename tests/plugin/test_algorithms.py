@@ -264,3 +264,15 @@ def test_qgis_process_bad_input_message(run_qgis_process, tmp_path):
     assert rc != 0
     assert "no valid cell" in out
     assert not (tmp_path / "d.tif").exists()
+
+
+def test_worker_processes_and_blocks_give_the_same_mask(processing_run, scene_files, tmp_path):
+    one = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                    "OUTPUT_MASK": str(tmp_path / "one.tif")})
+    par = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "PROCESSES": 2, "BLOCK_SIZE": 64,
+                                                    "OUTPUT_DTM": str(tmp_path / "par_dtm.tif"),
+                                                    "OUTPUT_MASK": str(tmp_path / "par.tif")})
+    np.testing.assert_array_equal(_read(one["OUTPUT_MASK"])[0], _read(par["OUTPUT_MASK"])[0])
+    a, b = _read(one["OUTPUT_DTM"])[0], _read(par["OUTPUT_DTM"])[0]
+    ok = a != -9999.0
+    assert np.median(np.abs(a[ok] - b[ok])) < 1e-3 and np.abs(a[ok] - b[ok]).max() < 1.0
