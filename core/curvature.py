@@ -495,7 +495,9 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
         two[:, m:] = a[::-1]
         return two
 
-    Z = both(z if valid is None else np.where(valid, z, np.float32(np.nan)))
+    Z = both(z)
+    if valid is not None:
+        Z[~both(valid)] = np.nan
     V, B = both(valid), both(marked)
     walls, downs = _walls(Z, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
     del B
@@ -754,9 +756,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # 3. along X and Y profiles: from a break going up to the break coming down
     m = window_cells // 2
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window_cells + 1)
-    vt = None if all_valid else np.ascontiguousarray(valid.T)
-    obj_x = _axis_objects(np.ascontiguousarray(z.T), np.ascontiguousarray(marked.T), vt, dx,
-                          max_cells=int(max_size / dx), **kw).T
+    vt = None if all_valid else valid.T
+    obj_x = _axis_objects(z.T, marked.T, vt, dx, max_cells=int(max_size / dx), **kw).T
     report(progress, 0.45)
     del vt
     obj_y = _axis_objects(z, marked, None if all_valid else valid, dy,
