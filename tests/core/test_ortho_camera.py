@@ -136,3 +136,47 @@ def test_orthority_files(shared_data):
         np.testing.assert_allclose(cam.opk_deg, [ext[name][k] for k in ("omega", "phi", "kappa")],
                                    atol=2e-3)
     assert ref["latitude"] == pytest.approx(24.68, abs=0.01)
+
+
+def test_brown_forward_formula_pinned():
+    # OpenSfM / OpenCV Brown-Conrady: radial on r^2, tangential p1 (y), p2 (x)
+    io = Interior(100, 100, 50.0, 50.0, 49.5, 49.5, k1=0.1, k2=-0.05, k3=0.02, p1=0.01, p2=-0.02)
+    x, y = 0.3, -0.2
+    r2 = x * x + y * y
+    radial = 1 + 0.1 * r2 - 0.05 * r2 ** 2 + 0.02 * r2 ** 3
+    xd = x * radial + 2 * 0.01 * x * y + (-0.02) * (r2 + 2 * x * x)
+    yd = y * radial + 0.01 * (r2 + 2 * y * y) + 2 * (-0.02) * x * y
+    np.testing.assert_allclose(io.distort(x, y), (xd, yd), rtol=1e-14)
+    # the projection applies it: a camera looking down, point at ideal (x, y)
+    cam = Camera.vertical(io, 0.0, 0.0, 10.0)
+    col, row = cam.project(x * 10.0, -y * 10.0, 0.0)       # image y down = world -Y
+    np.testing.assert_allclose([col, row], [49.5 + 50 * xd, 49.5 + 50 * yd], atol=1e-10)
+
+
+def test_tiny_yaml_parser_reads_interior_files(tmp_path, monkeypatch):
+    from bare_earth.core.orthophoto import camera as cam_mod
+    text = ("Integraph DMC:\n    type: pinhole\n    im_size: [640, 1152]\n    focal_len: 120.0\n"
+            "    sensor_size: [92.16, 165.888]   # mm\n    cx: 0.0\n    cy: 0.0\n"
+            "drone cam:\n  type: brown\n  im_size: [1368, 912]\n  focal_len: 0.6665\n"
+            "  k1: -0.264\n  k2: 0.1019\n  p1: 0.00073\n  p2: 0.00026\n  k3: -0.0258\n"
+            "  cx: -0.0015\n  cy: 0.0048\n")
+    parsed = cam_mod._parse_tiny_yaml(text)
+    assert parsed["Integraph DMC"]["im_size"] == [640, 1152]
+    assert parsed["drone cam"]["k3"] == pytest.approx(-0.0258)
+    p = tmp_path / "int.yaml"
+    p.write_text(text)
+    import builtins
+    real_import = builtins.__import__
+
+    def no_yaml(name, *a, **k):
+        if name == "yaml":
+            raise ImportError("no PyYAML")
+        return real_import(name, *a, **k)
+    monkeypatch.setattr(builtins, "__import__", no_yaml)
+    ios = read_interior_yaml(p)
+    assert ios["drone cam"].k1 == pytest.approx(-0.264)
+    assert ios["drone cam"].fx == pytest.approx(0.6665 * 1368)
+    assert ios["drone cam"].r0 == pytest.approx(455.5 + 0.0048 * 1368)
+    p.write_text("cam:\n  type: fisheye\n  im_size: [10, 10]\n  focal_len: 1.0\n")
+    with pytest.raises(ValueError, match="supported"):
+        read_interior_yaml(p)
