@@ -386,8 +386,9 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
         vc = np.isfinite(zmin)
         size_c = _window(s, dx * f, dy * f)
     marker = _opening(zmin, vc, size_c)
-    Rc = reconstruct_by_dilation(marker, np.where(vc, zmax, np.nan),
-                                 max_iter=max(1, int(round(max(size_c) * RECON_REACH))))
+    reach = max(size_c) * RECON_REACH
+    Rc = reconstruct_by_dilation(marker, wmask if f == 1 else np.where(vc, zmax, np.nan),
+                                 max_iter=max(1, int(round(reach))))
     with np.errstate(invalid="ignore"):
         dc = zmax - Rc
         cand = vc & (dc > dh0)
