@@ -518,7 +518,6 @@ class PointsInputMixin:
             thr = self.parameterAsDouble(parameters, self.THRESHOLD_M, context)
             sf = self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context)
             block = self.parameterAsInt(parameters, self.BLOCK_SIZE, context) or None
-            threads = self.parameterAsInt(parameters, self.THREADS, context) or 1
             progress = progress_callback(feedback)
             feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
             if tiles:
@@ -530,7 +529,7 @@ class PointsInputMixin:
                 feedback.pushInfo(tr(f"Overlap {tr_.overlap_m:.1f} m; the rasters cover the tile and its overlap."))
             else:
                 res = pf.filter_cloud(cloud, self.METHOD_NAME, user, cell_size_m=cell, threshold_m=thr,
-                                      slope_factor=sf, block=block, workers=threads, progress=progress)
+                                      slope_factor=sf, block=block, progress=progress)
             pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
             from ..core.points import write_points
             write_points(out_points, cloud, res.classes)

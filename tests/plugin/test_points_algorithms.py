@@ -380,3 +380,37 @@ def test_model_through_qgis_process(run_qgis_process, cloud_files, tmp_path):
         "OUTPUT_JSON": tmp_path / "e.json", "OUTPUT_HTML": tmp_path / "e.html"})
     assert rc == 0, out
     assert data["results"]["KAPPA"] > 90
+
+
+def test_isprs_sample_on_points_and_evaluate(processing_run, shared_data, tmp_path):
+    """The issue's criterion: morphological with INPUT_POINTS on an ISPRS sample gives per-point
+    classes whose errors evaluate reports."""
+    sample = shared_data / "isprs" / "samp11.txt"
+    if not sample.exists():
+        pytest.skip(f"{sample} is absent")
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": str(sample), "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_POINTS": str(tmp_path / "samp11_cls.txt")})
+    ev = processing_run("bareearth:evaluate", {"POINTS": r["OUTPUT_POINTS"], "TRUTH_POINTS": str(sample),
+                                               "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    figs = json.loads((tmp_path / "e.json").read_text())["results"]["classified points vs truth"]
+    assert figs["n"] == 38010 and figs["points_unmatched"] == 0
+    baseline = 100.0 * 16224 / 38010                                 # every point ground
+    assert ev["TOTAL"] < baseline / 2 and ev["KAPPA"] > 50
+
+
+def test_real_las_in_feet_on_points(processing_run, shared_data, tmp_path):
+    pytest.importorskip("laspy")
+    src = shared_data / "lidar" / "4_6_crop.las"
+    if not src.exists():
+        pytest.skip(f"{src} is absent")
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": str(src), "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT",
+                                                   "OUTPUT_POINTS": str(tmp_path / "cls.las")})
+    _, _, gt, crs = _read_raster(r["OUTPUT_DTM"])
+    assert gt[1] == pytest.approx(0.5 / 0.30480060960121924) and "ftUS" in crs   # 0.5 m cells in US feet
+    ev = processing_run("bareearth:evaluate", {"POINTS": r["OUTPUT_POINTS"], "TRUTH_POINTS": str(src),
+                                               "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert ev["TOTAL"] < 10.0
