@@ -564,6 +564,17 @@ def _pits(z, cand, ring, depth):
     return out
 
 
+def _transpose(a, tile=64):
+    """Contiguous transpose of a 2-D array, tile by tile (about 2x faster than numpy's
+    copy of a transposed view, which walks the source with a large stride)."""
+    r, c = a.shape
+    out = np.empty((c, r), a.dtype)
+    for i in range(0, r, tile):
+        for j in range(0, c, tile):
+            out[j:j + tile, i:i + tile] = a[i:i + tile, j:j + tile].T
+    return out
+
+
 def _dilate(mask, m):
     """``mask`` grown by ``m`` cells (square neighbourhood), by shifted ORs."""
     out = mask.copy()
@@ -756,8 +767,9 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # 3. along X and Y profiles: from a break going up to the break coming down
     m = window_cells // 2
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window_cells + 1)
-    vt = None if all_valid else valid.T
-    obj_x = _axis_objects(z.T, marked.T, vt, dx, max_cells=int(max_size / dx), **kw).T
+    vt = None if all_valid else _transpose(valid)
+    obj_x = _transpose(_axis_objects(_transpose(z), _transpose(marked), vt, dx,
+                                     max_cells=int(max_size / dx), **kw))
     report(progress, 0.45)
     del vt
     obj_y = _axis_objects(z, marked, None if all_valid else valid, dy,
