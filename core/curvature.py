@@ -67,8 +67,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, OBJECT
-from .common import (FilterResult, as_cell_size, as_surface, finish_mask, report,
-                     sub_progress)
+from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
 from .methods import Method, Param
 
 MODELS = ("quadratic", "bilinear")

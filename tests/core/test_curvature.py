@@ -352,3 +352,12 @@ def test_synthetic_breakline_dam_and_cut_stay_ground(seed):
     lows = res.mask == LOW
     assert (sc.mask[lows] == LOW).mean() >= 0.8
     assert lows[sc.mask == LOW].mean() >= 0.7
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (2, 2), (3, 9), (7, 1)])
+def test_tiny_and_flat_rasters_are_ground(shape):
+    z = np.arange(np.prod(shape), dtype=np.float32).reshape(shape) * 0.1
+    res, P = run(z)
+    assert res.mask.shape == shape and (res.mask == GROUND).all()
+    flat, _ = run(np.full((20, 20), 5.0))
+    assert (flat.mask == GROUND).all() and flat.info["share_marked"] == 0
