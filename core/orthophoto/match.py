@@ -68,7 +68,7 @@ def _check_window(window):
     return window
 
 
-def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6):
+def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=None):
     """NCC of the window of ``a`` at column ``j`` with the window of ``b`` at ``j + s``.
 
     Parameters
@@ -84,6 +84,8 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6):
         neighbourhood (shiftable windows: the best window that contains the cell).
     min_fill : float
         Minimum share of valid cell pairs in a window.
+    var_floor : float, optional
+        Windows with less variance are flat (no match); default 1e-4 of the variance of ``a``.
 
     Returns
     -------
@@ -97,8 +99,9 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6):
     a0 = np.where(va, a, 0).astype(np.float32)
     b0 = np.where(vb, b, 0).astype(np.float32)
     # a texture floor: windows with less variance than this are "flat" (no match)
-    gv = float(np.var(a0[va])) if va.any() else 0.0
-    var_floor = max(gv * 1e-4, 1e-12)
+    if var_floor is None:
+        gv = float(np.var(a0[va])) if va.any() else 0.0
+        var_floor = max(gv * 1e-4, 1e-12)
     box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
     vol = np.empty((len(shifts),) + a.shape, np.float32)
     for k, s in enumerate(shifts):
@@ -234,11 +237,43 @@ def _lsm_refine(a, b, s, valid, window, iterations):
     return s
 
 
+#: Largest NCC volume (shifts x cells) held at once; bigger inputs are matched in row strips.
+MAX_VOLUME = 40_000_000
+
+
 def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
-                          lsm_iterations, min_fill):
+                          lsm_iterations, min_fill, max_volume=None):
+    """Row strips of :func:`_match_rows_once` (identical result: strips overlap by the reach)."""
+    max_volume = MAX_VOLUME if max_volume is None else max_volume
+    rows, cols = a.shape
+    nshift = 2 * max_shift + 1
+    va = np.isfinite(a)
+    gv = float(np.var(a[va])) if va.any() else 0.0
+    var_floor = max(gv * 1e-4, 1e-12)
+    args = (max_shift, window, shiftable, min_corr, lr_tolerance, lsm_iterations, min_fill, var_floor)
+    strip = max(1, int(max_volume // max(1, nshift * cols)))
+    if strip >= rows:
+        return _match_rows_once(a, b, *args)
+    # reach of one output row in rows: NCC window, shiftable window, each LSM iteration
+    halo = window // 2 + max(int(shiftable), 1) // 2 + lsm_iterations * (window // 2) + 1
+    strip = max(strip, 2 * halo + 1)
+    d = np.full(a.shape, np.nan, np.float32)
+    c = np.full(a.shape, np.nan, np.float32)
+    v = np.zeros(a.shape, bool)
+    for r0 in range(0, rows, strip):
+        r1 = min(rows, r0 + strip)
+        s0, s1 = max(0, r0 - halo), min(rows, r1 + halo)
+        ds, cs, vs = _match_rows_once(a[s0:s1], b[s0:s1], *args)
+        d[r0:r1], c[r0:r1], v[r0:r1] = ds[r0 - s0:r1 - s0], cs[r0 - s0:r1 - s0], vs[r0 - s0:r1 - s0]
+    return d, c, v
+
+
+def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
+                     lsm_iterations, min_fill, var_floor):
     """Symmetric matching along rows: disparity ``s`` at cell j means a(j - s/2) ~ b(j + s/2)."""
     shifts = np.arange(-max_shift, max_shift + 1)
-    vol = ncc_volume(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill)
+    vol = ncc_volume(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill,
+                     var_floor=var_floor)
     rows, cols = a.shape
     rr, cc = np.indices(a.shape)
     ka = np.argmax(vol, axis=0)                                   # a-anchored winner

@@ -97,3 +97,15 @@ def test_middlebury_cones(shared_data):
     m = (gt > 0) & nocc
     share = float((np.abs(r.disparity - gt) <= 1)[m].mean())   # unmatched count as wrong
     assert share >= 0.75
+
+
+def test_row_strips_give_the_same_result(monkeypatch):
+    from bare_earth.core.orthophoto import match as match_mod
+    t = _texture((70, 90), seed=5, sigma=1.5)
+    b = _shifted(t, 1.3)
+    b[30:40, 20:50] = _texture((10, 30), seed=8)
+    whole = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
+    monkeypatch.setattr(match_mod, "MAX_VOLUME", 9 * 90 * 12)   # strips of 12 rows
+    strips = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
+    np.testing.assert_array_equal(whole.valid, strips.valid)
+    np.testing.assert_allclose(whole.disparity, strips.disparity, atol=1e-5, equal_nan=True)
