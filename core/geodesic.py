@@ -236,10 +236,11 @@ def _running(a, size, axis, op, pad):
     Windows of 2, 4, 8 ... cells by doubling, then two overlapping power-of-2 windows
     cover the odd window: ``log2(size) + 1`` vectorised passes of contiguous slices.
     """
+    n = a.shape[axis]
+    size = min(int(size), 2 * n + 1)              # wider windows see the same cells
     r = size // 2
     if r == 0:
         return a.copy()
-    n = a.shape[axis]
     if r == 1 and n >= 2:                         # 3 cells: two shifted passes
         out = np.empty_like(a)
         lo, hi = _axis_slice(out, axis, 0, n - 1), _axis_slice(out, axis, 1, n)
@@ -374,7 +375,9 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
     obj : ndarray of bool
         Cells removed by this step.
     """
+    H, W = w.shape
     size = _window(s, dx, dy)
+    size = (min(size[0], 2 * H + 1), min(size[1], 2 * W + 1))   # no wider than the raster
     f = _coarse_factor(size)
     if f == 1:
         zmin = zmax = w
@@ -631,6 +634,8 @@ def _terrain_slope_deg(z, valid, dx, dy, max_size_m):
     size = _window(max_size_m, dx * f, dy * f)
     o = _opening(zc, vc, size)
     o = np.where(vc & np.isfinite(o), o, np.nan)
+    if min(o.shape) < 2:
+        return SLOPE_CLIP_DEG[0]
     gy, gx = np.gradient(o, dy * f, dx * f)
     s = np.hypot(gx, gy)
     s = s[np.isfinite(s)]
