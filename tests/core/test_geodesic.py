@@ -327,3 +327,12 @@ def test_progress_and_cancel():
             raise Cancelled()
     with pytest.raises(Cancelled):
         G.filter_geodesic(flat_scene(50), 1.0, progress=stop, **PARAMS)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 25), (25, 1), (2, 2)])
+def test_tiny_rasters_and_tiny_cells(shape):
+    z = np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
+    for cell in (1.0, (0.5, 2.0), 1e-3):
+        p = G.resolve_geodesic_params(z, cell)
+        res = G.filter_geodesic(z, cell, **p)
+        assert res.mask.shape == shape and (res.mask == GROUND).all()
