@@ -365,36 +365,36 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
         e = np.zeros(0, np.int64), np.zeros(0, np.float32)
         return (e[0], e[1], e[1]), e
     zf = (Z if V is None else np.where(V, Z, np.float32(np.nan))).ravel()
-    row = idx // m
-    col = idx - row * m
 
-    def back(k):  # heights k positions before (NaN before the profile's start)
-        src = row - k
-        v = zf[np.maximum(src, 0) * m + col]
-        v[src < 0] = np.nan
+    def back(k, at):  # heights k positions before flat indices ``at`` (NaN before row 0)
+        v = zf[np.maximum(at - k * m, 0)]
+        v[at < k * m] = np.nan
         return v
 
     zc = zf[idx]
     best = np.full(idx.size, np.inf, np.float32)
     top = np.full(idx.size, -np.inf, np.float32)
     for k in range(1, _WALL_CELLS + 1):
-        v = back(k)
+        v = back(k, idx)
         np.fmin(best, v, out=best)
         np.fmax(top, v, out=top)
-    base = back(_WALL_CELLS)
-    before = back(_WALL_CELLS + reach)
-    nb = np.isnan(before)
-    if nb.any():  # near the start of a profile: its first position
-        before[nb] = zf[col[nb]]
+    base = v  # the height _WALL_CELLS positions before
     with np.errstate(invalid="ignore"):
         rise = zc - best
-        rate = rise / np.float32(_WALL_CELLS * cell)
-        prior = np.maximum((base - before) / np.float32(reach * cell), 0)
-        ok = ((rise >= np.float32(h_min)) & (rate >= np.float32(tan_wall))
-              & (rate >= np.float32(_WALL_CONTRAST) * prior))
         fall = top - zc
+        # cheap tests first, on all marked cells; the rest only on what passes
         down = (fall >= np.float32(h_min)) & (fall >= np.float32(tan_wall * _WALL_CELLS * cell))
-    return ((idx[ok], best[ok], (prior[ok] * np.float32(cell)).astype(np.float32)),
+        rate = rise / np.float32(_WALL_CELLS * cell)
+        cand = np.flatnonzero((rise >= np.float32(h_min)) & (rate >= np.float32(tan_wall)))
+        ci = idx[cand]
+        before = back(_WALL_CELLS + reach, ci)
+        nb = np.isnan(before)
+        if nb.any():  # near the start of a profile: its first position
+            before[nb] = zf[ci[nb] % m]
+        prior = np.maximum((base[cand] - before) / np.float32(reach * cell), 0)
+        ok = rate[cand] >= np.float32(_WALL_CONTRAST) * prior
+    wsel = cand[ok]
+    return ((idx[wsel], best[wsel], (prior[ok] * np.float32(cell)).astype(np.float32)),
             (idx[down], fall[down].astype(np.float32)))
 
 
