@@ -447,84 +447,56 @@ def _component_stats(lab, n, sel, values, rim, flag):
 
 
 # -------------------------------------------------------------------------- scan labels
-_RISE, _FALL, _BREAK = 1, 2, 3
-
-
-def _accumulate(op, key, axis, out, reverse):
-    """Running ``op`` of ``key`` along ``axis`` into ``out`` (reversed: from the end).
-
-    Along rows numpy's accumulate is fast; down columns it is not, so there the loop runs
-    over the rows, each step vectorised across all columns.
-    """
-    if axis == 1:
-        if reverse:
-            op.accumulate(key[:, ::-1], axis=1, out=out[:, ::-1])
-        else:
-            op.accumulate(key, axis=1, out=out)
-        return
-    n = key.shape[0]
-    order = range(n - 1, -1, -1) if reverse else range(n)
-    prev = None
-    for i in order:
-        if prev is None:
-            out[i] = key[i]
-        else:
-            op(out[prev], key[i], out=out[i])
-        prev = i
 
 
 def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
 
-    Every edge between neighbours gets a key ``4 * position + type`` (type 0 none,
-    rise, fall, break); a running maximum of the keys gives, for each cell, the last
-    event before it and a reversed running minimum the first event after it, with their
-    types, in two vectorised passes over all profiles at once (along the array's own
-    memory order for both axes).
+    Works on the events only: the edges between neighbours that rise, fall or touch
+    nodata are listed profile by profile; a rise followed directly by a fall on the same
+    profile, at most ``max_cells`` apart, bounds a run, whose cells are then generated
+    and tested against the run's base line, all vectorised.
     """
-    n = a.shape[axis]
     out = np.zeros(a.shape, bool)
-    if n < 3:
+    if a.shape[axis] < 3:
         return out
     dz = np.diff(a, axis=axis)                    # edge j: between cells j and j+1
-    shape = (n - 1, 1) if axis == 0 else (n - 1,)
-    j4 = (4 * np.arange(n - 1, dtype=np.int32)).reshape(shape)
-    code = np.zeros(dz.shape, np.int32)
     with np.errstate(invalid="ignore"):
-        code[dz > t_jump] = _RISE
-        code[dz < -t_jump] = _FALL
+        rise = dz > t_jump
+        fall = dz < -t_jump
+    ev = rise | fall
     if has_nan:
-        code[np.isnan(dz)] = _BREAK
-    none = code == 0
-    key = np.add(j4, code, dtype=np.int32)
-    # last event strictly before cell i: running max of the keys of edges <= i-1
-    np.copyto(key, -4, where=none)
-    left = np.empty(a.shape, np.int32)
-    _axis_slice(left, axis, 0, 1)[...] = -4
-    _accumulate(np.maximum, key, axis, _axis_slice(left, axis, 1, n), reverse=False)
-    # first event at or after cell i: reversed running min of the keys of edges >= i
-    big = np.int32(4 * n)
-    np.copyto(key, big, where=none)
-    right = np.empty(a.shape, np.int32)
-    _axis_slice(right, axis, n - 1, n)[...] = big
-    _accumulate(np.minimum, key, axis, _axis_slice(right, axis, 0, n - 1), reverse=True)
-    ok = np.bitwise_and(left, 3) == _RISE
-    ok &= np.bitwise_and(right, 3) == _FALL
-    r, c = np.nonzero(ok)
-    if r.size == 0:
+        ev |= np.isnan(dz)                        # nodata breaks runs
+    r, c = np.nonzero(ev)
+    if r.size < 2:
         return out
-    jl, jr = left[r, c] >> 2, right[r, c] >> 2
-    short = (jr - jl) <= max_cells                # the run is no longer than an object
-    r, c, jl, jr = r[short], c[short], jl[short], jr[short]
-    if axis == 1:
-        i = c
-        base_l, base_r = a[r, jl], a[r, jr + 1]
+    if axis == 0:                                 # order the events profile by profile
+        order = np.lexsort((r, c))
+        r, c = r[order], c[order]
+        line, pos = c, r
     else:
-        i = r
-        base_l, base_r = a[jl, c], a[jr + 1, c]
-    t = (i - jl) / (jr + 1 - jl)                  # cells before the rise / after the fall
-    base = base_l + (base_r - base_l).astype(np.float64) * t
-    out[r, c] = (a[r, c] - base) > height_m
+        line, pos = r, c
+    is_rise, is_fall = rise[r, c], fall[r, c]
+    pair = ((line[:-1] == line[1:]) & is_rise[:-1] & is_fall[1:]
+            & (pos[1:] - pos[:-1] <= max_cells))
+    k = np.flatnonzero(pair)
+    if k.size == 0:
+        return out
+    jl, jr, ln = pos[k], pos[k + 1], line[k]     # rise edge, fall edge, profile
+    n_run = jr - jl                               # cells jl+1 .. jr
+    if axis == 1:
+        base_l, base_r = a[ln, jl], a[ln, jr + 1]
+    else:
+        base_l, base_r = a[jl, ln], a[jr + 1, ln]
+    start = np.cumsum(n_run) - n_run
+    off = np.arange(int(n_run.sum())) - np.repeat(start, n_run) + 1   # 1 .. n_run
+    i = np.repeat(jl, n_run) + off
+    lines = np.repeat(ln, n_run)
+    t = off / np.repeat(n_run + 1, n_run)         # 0 at the cell before the rise
+    base = np.repeat(base_l, n_run) + np.repeat(base_r - base_l, n_run).astype(np.float64) * t
+    rows, cols = (lines, i) if axis == 1 else (i, lines)
+    keep = (a[rows, cols] - base) > height_m
+    out[rows[keep], cols[keep]] = True
     return out
 
 
