@@ -65,7 +65,7 @@ def drone(root, iterations):
     seen = [orthorectify(im, c, dsm, gt)[1] for im, c in zip(imgs, cams)]
     ev = (np.sum(seen, axis=0) >= 2) & ok
     t = time.perf_counter()
-    r = orthorefine(start, gt, imgs, cams, max_iterations=iterations, reference=dsm)
+    r = orthorefine(start, gt, imgs, cams, max_iterations=iterations, reference=dsm, reference_cells=ev)
     dt = time.perf_counter() - t
     e0 = float(np.sqrt(np.mean((start - dsm)[ev] ** 2)))
     e1 = float(np.sqrt(np.mean((r.dem - dsm)[ev] ** 2)))

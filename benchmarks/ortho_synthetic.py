@@ -63,7 +63,8 @@ def run_refine(seed, start_kind, amplitude=3.0):
     seen = [orthorectify(im, c, sc.surface, sc.transform)[1] for im, c in zip(imgs, cams)]
     ev = np.sum(seen, axis=0) >= 2
     t = time.perf_counter()
-    r = orthorefine(start, sc.transform, imgs, cams, max_iterations=6, reference=sc.surface)
+    r = orthorefine(start, sc.transform, imgs, cams, max_iterations=6, reference=sc.surface,
+                    reference_cells=ev)
     dt = time.perf_counter() - t
     e0 = float(np.sqrt(np.mean((start - sc.surface)[ev] ** 2)))
     e1 = float(np.sqrt(np.mean((r.dem - sc.surface)[ev] ** 2)))

@@ -504,7 +504,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 window=7, shiftable=5, min_corr=0.6, max_dh_m=None, pairs=None,
                 min_overlap=0.05, smooth_cells=5, height_threshold_m=None,
                 precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
-                relaxation=0.7, outlier_m=None, reference=None, tie_points=None, base_m=None,
+                relaxation=0.7, outlier_m=None, reference=None, reference_cells=None,
+                tie_points=None, base_m=None,
                 height_m=None, base_direction=(1.0, 0.0), progress=None):
     """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
 
@@ -556,6 +557,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         dropped before the correlation-weighted mean; default 3 x the expected precision.
     reference : ndarray, optional
         A reference surface for evaluation only: adds ``rmse_reference_m`` to the table.
+    reference_cells : ndarray of bool, optional
+        Cells of that evaluation (default: the cells seen by two frames in the iteration).
     tie_points : sequence, optional
         Without ``cameras``: per image, a :class:`~.affine8.Bilinear8` or a pair
         ``(dem_xy, ortho_xy)`` of at least four ground points (DEM map coordinates and the
@@ -668,7 +671,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                    rms_parallax_m=float(np.sqrt(np.nanmean([pi["rms_parallax_m"] ** 2 for pi in pinfo]))),
                    mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
         if reference is not None:
-            ev = multi & np.isfinite(reference)
+            ev = (multi if reference_cells is None else reference_cells) & np.isfinite(reference) & valid_dem
             row["rmse_reference_m"] = float(np.sqrt(np.mean((cur - reference)[ev] ** 2))) if ev.any() else float("nan")
         table.append(row)
         report(prog, 1.0)
