@@ -8,8 +8,9 @@ render        synthetic textured scenes and frames with known truth
 affine8       eq. 17: 8-parameter bilinear DEM <-> orthophoto transformation (no orientation)
 """
 from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
-from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_interior_yaml,
-                     read_opensfm_reconstruction, read_opk_csv, rotation_to_opk)
+from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_cameras,
+                     read_interior_yaml, read_opensfm_reconstruction, read_opk_csv,
+                     rotation_to_opk)
 from .match import MatchResult, match_along, match_rectified, ncc_volume
 from .orthorectify import grid_xy, orthorectify, visibility
 from .refine import (ParallaxResult, RefineResult, fill_holes, orthoparallax, orthorefine,
@@ -17,7 +18,8 @@ from .refine import (ParallaxResult, RefineResult, fill_holes, orthoparallax, or
 from .render import OrthoScene, make_ortho_scene, render_frame, render_frames, vertical_cameras
 
 __all__ = ["Bilinear8", "fit_bilinear8", "register_orthophoto",
-           "Camera", "Interior", "cameras_from_opk", "opk_to_rotation", "read_interior_yaml",
+           "Camera", "Interior", "cameras_from_opk", "opk_to_rotation", "read_cameras",
+           "read_interior_yaml",
            "read_opensfm_reconstruction", "read_opk_csv", "rotation_to_opk",
            "MatchResult", "match_along", "match_rectified", "ncc_volume",
            "grid_xy", "orthorectify", "visibility",

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Interior", "Camera", "opk_to_rotation", "rotation_to_opk", "read_opk_csv",
-           "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk"]
+           "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk", "read_cameras"]
 
 
 # --------------------------------------------------------------------------- rotation
@@ -571,3 +571,32 @@ def cameras_from_opk(exterior, interior, names=None):
             io = interior[cid]
         cams.append(Camera.from_opk(io, e["x"], e["y"], e["z"], e["omega"], e["phi"], e["kappa"], n))
     return cams
+
+
+def read_cameras(exterior_csv, interior_path, names=None):
+    """Cameras from an exterior-orientation CSV and an interior-orientation file.
+
+    Parameters
+    ----------
+    exterior_csv : path
+        ``filename, x, y, z, omega, phi, kappa`` (degrees), see :func:`read_opk_csv`.
+    interior_path : path
+        Orthority-style YAML (``.yaml`` / ``.yml``, :func:`read_interior_yaml`) or an
+        OpenSfM ``reconstruction.json`` (its cameras; the poses come from the CSV).
+    names : sequence of str, optional
+        Images wanted, in this order (file names or stems); default every CSV row.
+
+    Returns
+    -------
+    list of Camera
+    """
+    path = Path(interior_path)
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml"):
+        interiors = read_interior_yaml(path)
+    elif suffix == ".json":
+        interiors = read_opensfm_reconstruction(path)[0]
+    else:
+        raise ValueError(f"{path}: unknown interior orientation format {suffix!r}; give an "
+                         "orthority .yaml or an OpenSfM reconstruction.json.")
+    return cameras_from_opk(read_opk_csv(exterior_csv), interiors, names)

@@ -180,3 +180,15 @@ def test_tiny_yaml_parser_reads_interior_files(tmp_path, monkeypatch):
     p.write_text("cam:\n  type: fisheye\n  im_size: [10, 10]\n  focal_len: 1.0\n")
     with pytest.raises(ValueError, match="supported"):
         read_interior_yaml(p)
+
+
+def test_read_cameras(shared_data, tmp_path):
+    from bare_earth.core.orthophoto.camera import read_cameras
+    d = shared_data / "stereo" / "orthority"
+    ngi = read_cameras(d / "io" / "ngi_xyz_opk.csv", d / "io" / "ngi_int_param.yaml",
+                       ["3324c_2015_1004_06_0251_RGB.tif"])
+    assert ngi[0].name == "3324c_2015_1004_06_0251_RGB" and ngi[0].centre[2] == pytest.approx(5229.213)
+    odm = read_cameras(d / "io" / "odm_xyz_opk.csv", d / "odm" / "opensfm" / "reconstruction.json")
+    assert len(odm) == 4 and odm[0].interior.has_distortion
+    with pytest.raises(ValueError, match="unknown interior"):
+        read_cameras(d / "io" / "ngi_xyz_opk.csv", tmp_path / "x.txt")
