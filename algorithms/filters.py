@@ -4,6 +4,7 @@ Everything but the method name and the help of its side products comes from the 
 ``METHOD`` spec (parameters, defaults, help) and from ``FilterAlgorithm``.
 """
 from .filter_base import FilterAlgorithm
+from .points import PointsInputMixin
 
 
 class SlopeProfileAlgorithm(FilterAlgorithm):
@@ -24,3 +25,9 @@ class GeodesicAlgorithm(FilterAlgorithm):
     METHOD_NAME = "geodesic"
     EXTRA_HELP = {"step": "Step, UInt8: which dilation step (1, 2, ...) or which later stage removed each "
                           "cell (codes in the algorithm's help); 0 kept, 255 nodata."}
+
+
+class MorphologicalAlgorithm(PointsInputMixin, FilterAlgorithm):
+    """``bareearth:morphological``: grey opening, single or progressive (SMRF / Zhang 2003), on a
+    DSM raster (INPUT) or directly on points (INPUT_POINTS: rasterize, filter, classify)."""
+    METHOD_NAME = "morphological"
