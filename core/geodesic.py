@@ -147,14 +147,20 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
         dtype = np.float64
     H, W = mask.shape
     W2 = W + 2
-    P = np.full((H + 2, W2), -np.inf, dtype)
-    P[1:-1, 1:-1] = mask
-    nodata = np.isnan(P)
-    P[nodata] = -np.inf
-    R = np.full((H + 2, W2), -np.inf, dtype)
-    m = marker.astype(dtype, copy=True)
-    m[np.isnan(m)] = -np.inf
-    np.minimum(m, P[1:-1, 1:-1], out=R[1:-1, 1:-1])
+    P = np.empty((H + 2, W2), dtype)              # padded with -inf: nothing outside
+    R = np.empty((H + 2, W2), dtype)
+    for a in (P, R):
+        a[0], a[-1], a[:, 0], a[:, -1] = -np.inf, -np.inf, -np.inf, -np.inf
+    Pi, Ri = P[1:-1, 1:-1], R[1:-1, 1:-1]
+    np.copyto(Pi, mask, casting="unsafe")
+    nodata = np.isnan(Pi)
+    has_nodata = bool(nodata.any())
+    if has_nodata:
+        Pi[nodata] = -np.inf
+    np.minimum(marker, Pi, out=Ri, casting="unsafe")
+    nan_seed = np.isnan(Ri)
+    if nan_seed.any():
+        Ri[nan_seed] = -np.inf
     Rf, Pf = R.ravel(), P.ravel()
     if connectivity == 8:
         offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.intp)
@@ -193,7 +199,7 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
             if n_ch * 64 < (r1 - r0 + 1) * (c1 - c0 + 1):
                 rr, cc = np.nonzero(ch)
                 frontier = (rr + r0) * W2 + (cc + c0)
-            else:
+            elif n_ch * 2 < h * w:                # shrink the box to the changes
                 rows = np.flatnonzero(ch.any(axis=1))
                 cols = np.flatnonzero(ch.any(axis=0))
                 box = (max(rows[0] + r0 - 1, 1), min(rows[-1] + r0 + 1, H),
@@ -220,9 +226,9 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
                 box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
                        max(cc.min() - 1, 1), min(cc.max() + 1, W))
                 frontier = None
-    out = R[1:-1, 1:-1]
-    out[nodata[1:-1, 1:-1]] = np.nan
-    return out
+    if has_nodata:
+        Ri[nodata] = np.nan
+    return Ri
 
 
 def _axis_slice(a, axis, start, stop):
