@@ -27,6 +27,41 @@ class GeodesicAlgorithm(FilterAlgorithm):
                           "cell (codes in the algorithm's help); 0 kept, 255 nodata."}
 
 
+class RascorAlgorithm(FilterAlgorithm):
+    """``bareearth:rascor``: the RASCOR sequence (Jacobsen 2004), with break lines and special areas."""
+    METHOD_NAME = "rascor"
+    BREAKLINES = "BREAKLINES"
+    SPECIAL_AREAS = "SPECIAL_AREAS"
+    EXTRA_HELP = {"step": "Step, UInt8: which RASCOR step removed each cell (0 kept, k = step k, 255 "
+                          "nodata); the share removed by each step is in the log."}
+
+    def extraInputs(self):  # noqa: N802
+        from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+        from .filter_base import with_help
+        return [
+            with_help(QgsProcessingParameterFeatureSource(
+                self.BREAKLINES, self.tr("Break lines"), [QgsProcessing.TypeVectorLine], optional=True),
+                "Optional lines (any CRS; reprojected to the DSM's) along crests, toes, cuts and "
+                "embankment shoulders: no comparison crosses them, so a dam or a road embankment keeps "
+                "its shoulders. An empty layer is allowed."),
+            with_help(QgsProcessingParameterFeatureSource(
+                self.SPECIAL_AREAS, self.tr("Special areas"), [QgsProcessing.TypeVectorPolygon], optional=True),
+                "Optional polygons (any CRS) inside which only a local filter runs (cars and bushes on a "
+                "dam's slope). An empty layer is allowed."),
+        ]
+
+    def auxiliaryArrays(self, parameters, context, info, feedback):  # noqa: N802
+        from .vector_raster import rasterize_source
+        out = {}
+        for key, name in ((self.BREAKLINES, "breaklines"), (self.SPECIAL_AREAS, "special_areas")):
+            if parameters.get(key):
+                src = self.parameterAsSource(parameters, key, context)
+                arr, n = rasterize_source(src, info, context, all_touched=True)
+                feedback.pushInfo(self.tr(f"{name}: {n} feature(s), {int(arr.sum())} cells"))
+                out[name] = arr if n else None
+        return out
+
+
 class MorphologicalAlgorithm(PointsInputMixin, FilterAlgorithm):
     """``bareearth:morphological``: grey opening, single or progressive (SMRF / Zhang 2003), on a
     DSM raster (INPUT) or directly on points (INPUT_POINTS: rasterize, filter, classify)."""
