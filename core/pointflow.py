@@ -227,16 +227,53 @@ def classify_cloud(cloud, dtm_m, geotransform, *, threshold_m=DEFAULT_THRESHOLD_
         x, y, z = x[select], y[select], z[select]
     gt = tuple(float(v) for v in geotransform)
     if sx == sy == 1.0 and sz == 1.0:
-        return classify_points(x, y, z, dtm_m, gt, threshold_m=threshold_m,
-                               slope_factor=slope_factor)
+        return _classify(x, y, z, dtm_m, gt, threshold_m, slope_factor)
     if sx == sy == sz:
         # one unit for everything (feet): classify in that unit, thresholds converted
-        return classify_points(x, y, z, np.asarray(dtm_m) / np.float32(sz), gt,
-                               threshold_m=threshold_m / sz, slope_factor=slope_factor / sz)
+        return _classify(x, y, z, np.asarray(dtm_m) / np.float32(sz), gt, threshold_m / sz,
+                         slope_factor / sz)
     ox, oy = gt[0], gt[3]            # local metres around the grid's corner
     gtm = (0.0, gt[1] * sx, 0.0, 0.0, 0.0, gt[5] * sy)
-    return classify_points((x - ox) * sx, (y - oy) * sy, z * sz, dtm_m, gtm,
-                           threshold_m=threshold_m, slope_factor=slope_factor)
+    return _classify((x - ox) * sx, (y - oy) * sy, z * sz, dtm_m, gtm, threshold_m, slope_factor)
+
+
+#: Points per chunk of :func:`_classify` (temporaries stay in the CPU caches: 3-4x faster
+#: than whole-array passes on millions of points).
+CLASSIFY_CHUNK = 1 << 17
+
+
+def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
+    """:func:`.points.classify_points`, exactly (same rule, same codes, same checks and
+    messages), in chunks of points with the DTM slope computed once."""
+    from .points import _bilinear_many, _grid_extent, _slope
+    x = np.asarray(x, dtype=np.float64).ravel()
+    y = np.asarray(y, dtype=np.float64).ravel()
+    z = np.asarray(z, dtype=np.float64).ravel()
+    dtm = np.asarray(dtm)
+    n = x.size
+    if n <= CLASSIFY_CHUNK or dtm.ndim != 2 or dtm.size == 0 or not (n == y.size == z.size):
+        return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
+    gx0, gy0, gx1, gy1 = _grid_extent(gt, dtm.shape)
+    n_out = n - int(np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
+    if n_out * 2 > n or not (np.isfinite(threshold_m) and threshold_m >= 0) or \
+            not (np.isfinite(slope_factor) and slope_factor >= 0) or gt[2] != 0 or gt[4] != 0 \
+            or gt[1] == 0 or gt[5] == 0:
+        return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
+    slope = _slope(dtm, gt)
+    out = np.empty(n, dtype=np.uint8)
+    for i in range(0, n, CLASSIFY_CHUNK):
+        sl = slice(i, i + CLASSIFY_CHUNK)
+        ground, s = _bilinear_many([dtm, slope], gt, x[sl], y[sl])
+        s = np.where(np.isfinite(s), s, 0.0)          # at a DTM hole's edge: flat
+        tol = threshold_m + slope_factor * s
+        dz = z[sl] - ground
+        o = np.full(dz.size, NODATA, dtype=np.uint8)
+        ok = np.isfinite(dz)
+        o[ok] = GROUND
+        o[ok & (dz > tol)] = OBJECT
+        o[ok & (dz < -tol)] = LOW
+        out[sl] = o
+    return out
 
 
 def class_counts(classes):

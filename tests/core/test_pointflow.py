@@ -267,3 +267,25 @@ def test_real_isprs_sample_through_the_flow(shared_data):
     r = pf.filter_cloud(c)
     e = pf.compare_classified(PointCloud(c.x, c.y, c.z, classification=r.classes.astype(np.int32)), c)
     assert e["n"] == len(c) and e["total"] < 20.0
+
+
+def test_chunked_classify_equals_classify_points(monkeypatch):
+    """classify_cloud works in chunks of points (speed): the same codes as classify_points,
+    DTM holes and the slope term included."""
+    monkeypatch.setattr(pf, "CLASSIFY_CHUNK", 1000)
+    rng = np.random.default_rng(3)
+    n = 20_000
+    x, y = rng.uniform(0, 200, n), rng.uniform(0, 150, n)
+    z = 0.3 * x + 3 * np.sin(y / 10) + rng.normal(0, 0.4, n)
+    z[rng.random(n) < 0.2] += 4
+    c = PointCloud(x, y, z)
+    g = pf.rasterize_cloud(c, 2.0)
+    dtm = g.z.copy()
+    dtm[10:20, 30:45] = np.nan
+    got = pf.classify_cloud(c, dtm, g.geotransform, threshold_m=0.3, slope_factor=2.0)
+    ref = classify_points(x, y, z, dtm, g.geotransform, threshold_m=0.3, slope_factor=2.0)
+    np.testing.assert_array_equal(got, ref)
+    assert set(np.unique(got)) == {0, 1, 2, 255}
+    far = PointCloud(x + 1e4, y, z)
+    with pytest.raises(ValueError, match="outside the DTM"):
+        pf.classify_cloud(far, dtm, g.geotransform)

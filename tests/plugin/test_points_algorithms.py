@@ -414,3 +414,25 @@ def test_real_las_in_feet_on_points(processing_run, shared_data, tmp_path):
                                                "OUTPUT_JSON": str(tmp_path / "e.json"),
                                                "OUTPUT_HTML": str(tmp_path / "e.html")})
     assert ev["TOTAL"] < 10.0
+
+
+def test_model_with_another_filter(processing_run, cloud_files, tmp_path):
+    """Any filter can be the middle step: the example's builder with slopeprofile, run by processing.run."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("build_model", ROOT / "examples" / "build_rasterize_filter_classify.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    model = mod.build("slopeprofile")
+    ok, errors = model.validate()
+    assert ok, errors
+    path = tmp_path / "slope.model3"
+    assert model.toFile(str(path))
+    from qgis.core import QgsProcessingModelAlgorithm
+    m = QgsProcessingModelAlgorithm()
+    assert m.fromFile(str(path))
+    r = processing_run(m, {"points": cloud_files["txt"], "classify:classified": str(tmp_path / "cls.txt"),
+                           "filter:dtm": str(tmp_path / "dtm.tif"), "filter:mask": str(tmp_path / "mask.tif")})
+    from bare_earth.core.points import read_points
+    c = read_points(r["classify:classified"])
+    assert len(c) == cloud_files["x"].size and set(np.unique(c.classification)) <= {0, 1, 2, 255}
+    assert (c.classification == 0).mean() > 0.3
