@@ -314,6 +314,8 @@ _S8 = np.ones((3, 3), bool)
 COARSE_WINDOW = 4
 #: Scan labelling passes run by the filter.
 SCAN_PASSES = 2
+#: Baseline of the wall test in metres (at least one cell).
+WALL_BASE_M = 1.0
 #: Geodesic reach of each step's reconstruction, in windows.
 RECON_REACH = 1.0
 #: Default terrain slope: this percentile of the slope of the heavily opened DSM ...
@@ -709,7 +711,8 @@ def geodesic_halo(params, cell_size):
     c = min(dx, dy)
     size = float(params.get("max_object_size_m", _DEFAULTS["max_object_size_m"]))
     width = float(params.get("outlier_width_m", _DEFAULTS["outlier_width_m"]))
-    reach = int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width) / c)) + OUTLIER_MAX_CELLS + 8
+    reach = (int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
+             + OUTLIER_MAX_CELLS + 8)
     # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     params = dict(_DEFAULTS, **{k: v for k, v in params.items() if v is not None})
     f = max(_coarse_factor(_window(s, dx, dy))
@@ -815,9 +818,14 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     cleaned = w.copy()
     removed = np.zeros(z.shape, bool)
     ext_limit = EXTENT_FACTOR * max_object_size_m
+    # walls: cells above a neighbour within WALL_BASE_M (one cell at 1 m; two at 0.5 m,
+    # where matching smears walls) by more than 2 dh0 + the terrain's rise over that
+    wr = (max(1, int(round(WALL_BASE_M / dy))), max(1, int(round(WALL_BASE_M / dx))))
+    low = _filter2d(np.where(valid, w, np.inf), (2 * wr[0] + 1, 2 * wr[1] + 1), np.minimum,
+                    np.inf)
     with np.errstate(invalid="ignore"):
-        jump = valid & (w - _filter2d(np.where(valid, w, np.inf), (3, 3), np.minimum, np.inf)
-                        > 2.0 * dh0 + tan_s * np.hypot(dx, dy))
+        jump = valid & (w - low > 2.0 * dh0 + tan_s * np.hypot(wr[0] * dy, wr[1] * dx))
+    del low
     counts = []
     for k, s in enumerate(sizes, start=1):
         R, obj = _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit)
