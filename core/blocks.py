@@ -114,24 +114,23 @@ def run_processes(job, items, on_result, *, workers=2, progress=None):
     done = 0
     with ProcessPoolExecutor(max_workers=workers, mp_context=_process_context()) as pool:
         pending = {}
-        it = iter(items)
-        try:
-            for item in it:
-                pending[pool.submit(job, *item)] = item
-                while len(pending) >= 2 * workers:
-                    finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        core, outer, _x = pending.pop(fut)
-                        on_result(core, outer, fut.result())
-                        done += 1
-                        report(progress, done / n)
-            while pending:
+
+        def drain(limit):
+            """Hand finished blocks to ``on_result`` until at most ``limit`` are pending."""
+            nonlocal done
+            while len(pending) > limit:
                 finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
                 for fut in finished:
                     core, outer, _x = pending.pop(fut)
                     on_result(core, outer, fut.result())
                     done += 1
                     report(progress, done / n)
+
+        try:
+            for item in items:
+                pending[pool.submit(job, *item)] = item
+                drain(2 * workers - 1)
+            drain(0)
         except BaseException:
             for fut in pending:
                 fut.cancel()
