@@ -279,20 +279,27 @@ def _filter2d(a, size, op, pad):
     return _running(_running(a, size[1], 1, op, pad), size[0], 0, op, pad)
 
 
+def _fill(z, valid, value):
+    """``z`` with ``value`` at nodata; ``z`` itself when every cell is valid."""
+    return z if valid is None or valid.all() else np.where(valid, z, value)
+
+
 def _opening(z, valid, size):
     """Grey opening by a flat rectangle ``size`` (rows, cols); nodata ignored.
 
     Returns ``-inf`` where the whole window is nodata.
     """
-    e = _filter2d(np.where(valid, z, np.inf), size, np.minimum, np.inf)
-    e[np.isposinf(e)] = -np.inf
+    e = _filter2d(_fill(z, valid, np.inf), size, np.minimum, np.inf)
+    if valid is not None and not valid.all():
+        e[np.isposinf(e)] = -np.inf
     return _filter2d(e, size, np.maximum, -np.inf)
 
 
 def _closing(z, valid, size):
     """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored."""
-    d = _filter2d(np.where(valid, z, -np.inf), size, np.maximum, -np.inf)
-    d[np.isneginf(d)] = np.inf
+    d = _filter2d(_fill(z, valid, -np.inf), size, np.maximum, -np.inf)
+    if valid is not None and not valid.all():
+        d[np.isneginf(d)] = np.inf
     return _filter2d(d, size, np.minimum, np.inf)
 
 
@@ -392,8 +399,8 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
         vc = valid
         size_c = size
     else:
-        zmin = _block_reduce(np.where(valid, w, np.inf), f, np.minimum, np.inf)
-        zmax = _block_reduce(np.where(valid, w, -np.inf), f, np.maximum, -np.inf)
+        zmin = _block_reduce(_fill(w, valid, np.inf), f, np.minimum, np.inf)
+        zmax = _block_reduce(_fill(w, valid, -np.inf), f, np.maximum, -np.inf)
         vc = np.isfinite(zmin)
         size_c = _window(s, dx * f, dy * f)
     marker = _opening(zmin, vc, size_c)
@@ -779,6 +786,7 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
                              "call resolve_geodesic_params first (or use the pipeline).")
     _check(p)
     valid = np.isfinite(z)
+    vnone = None if valid.all() else valid        # fast paths when there is no nodata
     dh0 = float(height_threshold_m)
     tan_s = float(np.tan(np.radians(terrain_slope_deg)))
     step = np.zeros(z.shape, np.uint8)
@@ -787,9 +795,9 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
 
     # 1. preprocessing: isolated low and high outliers
     win = _window(outlier_width_m, dx, dy)
-    w = z.copy()
-    clo = _closing(z, valid, win)
-    ope = _opening(z, valid, win)
+    w = np.where(valid, z, np.float32(np.nan))     # inf counts as nodata too
+    clo = _closing(z, vnone, win)
+    ope = _opening(z, vnone, win)
     with np.errstate(invalid="ignore"):
         low_c = valid & (clo - z > outlier_threshold_m)
         high_c = valid & (z - ope > outlier_threshold_m)
@@ -814,14 +822,14 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
 
     # 2. gradual geodesic dilation
     sizes = _steps(min_window_m, max_object_size_m)
-    wmask = np.where(valid, w, np.nan)
+    wmask = w                                     # NaN at nodata already
     cleaned = w.copy()
     removed = np.zeros(z.shape, bool)
     ext_limit = EXTENT_FACTOR * max_object_size_m
     # walls: cells above a neighbour within WALL_BASE_M (one cell at 1 m; two at 0.5 m,
     # where matching smears walls) by more than 2 dh0 + the terrain's rise over that
     wr = (max(1, int(round(WALL_BASE_M / dy))), max(1, int(round(WALL_BASE_M / dx))))
-    low = _filter2d(np.where(valid, w, np.inf), (2 * wr[0] + 1, 2 * wr[1] + 1), np.minimum,
+    low = _filter2d(_fill(w, valid, np.inf), (2 * wr[0] + 1, 2 * wr[1] + 1), np.minimum,
                     np.inf)
     with np.errstate(invalid="ignore"):
         jump = valid & (w - low > 2.0 * dh0 + tan_s * np.hypot(wr[0] * dy, wr[1] * dx))
@@ -841,7 +849,7 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     # 3. scan labelling on the cleaned surface
     n_scan = 0
     if scan_labelling:
-        lab_s = scan_label(np.where(valid, cleaned, np.nan), (dx, dy), jump_m=dh0,
+        lab_s = scan_label(cleaned, (dx, dy), jump_m=dh0,
                            height_m=dh0, max_length_m=max_object_size_m,
                            terrain_slope_deg=terrain_slope_deg, passes=SCAN_PASSES)
         new = lab_s & ~removed & (step == 0)
