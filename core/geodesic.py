@@ -40,7 +40,10 @@ algorithm's help.
      rise over the block; a fine cell is removed when its block's region is an object
      and its own residual exceeds ``dh0``). This keeps every step's cost near one pass
      over the raster whatever the window; the coarse grids are aligned on the raster's
-     origin (see :func:`geodesic_halo`).
+     origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
+     than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
+     terrain within the noise; this moves ``R_k`` by at most that much and spares the
+     reconstruction from chasing noise over the whole raster).
 
    The regions found at every step are removed together (the union); the step code is
    the first (smallest) step that removed the cell, so small objects carry small codes
@@ -323,6 +326,8 @@ COARSE_WINDOW = 4
 SCAN_PASSES = 2
 #: Baseline of the wall test in metres (at least one cell).
 WALL_BASE_M = 1.0
+#: Markers within this fraction of dh0 under the surface are snapped to it.
+NOISE_SNAP = 0.2
 #: Geodesic reach of each step's reconstruction, in windows.
 RECON_REACH = 1.0
 #: Default terrain slope: this percentile of the slope of the heavily opened DSM ...
@@ -404,9 +409,16 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
         vc = np.isfinite(zmin)
         size_c = _window(s, dx * f, dy * f)
     marker = _opening(zmin, vc, size_c)
+    mask_c = wmask if f == 1 else np.where(vc, zmax, np.nan)
+    if NOISE_SNAP > 0:
+        # cells the opening lowered by less than the noise are terrain already: snap the
+        # marker to the mask there (moves R by at most NOISE_SNAP * dh0, and saves the
+        # reconstruction from chasing noise over the whole raster)
+        with np.errstate(invalid="ignore"):
+            snap = (mask_c - marker) < NOISE_SNAP * dh0
+        np.copyto(marker, mask_c, where=snap)
     reach = max(size_c) * RECON_REACH
-    Rc = reconstruct_by_dilation(marker, wmask if f == 1 else np.where(vc, zmax, np.nan),
-                                 max_iter=max(1, int(round(reach))))
+    Rc = reconstruct_by_dilation(marker, mask_c, max_iter=max(1, int(round(reach))))
     with np.errstate(invalid="ignore"):
         dc = zmax - Rc
         cand = vc & (dc > dh0)
