@@ -5,8 +5,9 @@ Usage::
     /usr/bin/python3 benchmarks/speed.py [--methods slopeprofile,...] [--sizes 1,4,16] [--big]
                                           [--workers N] [--out benchmarks/results/speed.jsonl]
 
-Each run is a fresh subprocess, so its peak resident memory (``ru_maxrss``) is its own;
-"extra" is that peak minus the memory of the imports alone. Inputs are synthetic city
+Each run is a fresh subprocess, so its peak resident memory (``VmHWM``) is its own;
+"extra" is that peak minus the memory of the imports alone. With ``--processes N`` the
+blocks run in N worker processes (their memory is not in these figures; each holds one block). Inputs are synthetic city
 DSMs (``core.synthetic.make_dsm``) written as tiled GeoTIFFs. ``--big`` adds a 100 Mcells
 DSM (written in tiles, never held in memory) run in block mode, and the 16 Mcells one in
 block mode too, to show memory does not grow with the raster in block mode.
@@ -16,7 +17,6 @@ import argparse
 import datetime
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -62,12 +62,20 @@ def make_input(path, mcells, seed=0):
 
 
 CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 sys.path.insert(0, {plugins!r})
 from bare_earth.core import pipeline
 from osgeo import gdal
 import numpy, scipy.ndimage
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+def status_kb(key):
+    # VmHWM is this process image's peak RSS (ru_maxrss would carry the parent's over exec)
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1])
+    return 0
+
+base = status_kb("VmRSS")
 t = time.perf_counter()
 if {method!r} == "io":
     src = gdal.Open({src!r})
@@ -82,9 +90,9 @@ if {method!r} == "io":
     info = {{}}
 else:
     info = pipeline.run_file({method!r}, {src!r}, {{"dtm": {dtm!r}, "mask": {mask!r}}}, block={block},
-                             workers={workers})
+                             processes={workers})
 dt = time.perf_counter() - t
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+peak = status_kb("VmHWM")
 print(json.dumps({{"seconds": dt, "peak_mb": peak / 1024, "extra_mb": (peak - base) / 1024,
                   "blocks": info.get("blocks", 0)}}))
 """
@@ -106,7 +114,8 @@ def main(argv=None):
     ap.add_argument("--methods", default=",".join(available_methods()))
     ap.add_argument("--sizes", default="1,4,16", help="Mcells, comma-separated")
     ap.add_argument("--big", action="store_true", help="add 100 Mcells (and 16 Mcells) in block mode")
-    ap.add_argument("--workers", type=int, default=1, help="blocks at once (threads)")
+    ap.add_argument("--processes", dest="workers", type=int, default=1,
+                    help="worker processes running blocks")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "speed.jsonl"))
     ap.add_argument("--no-log", action="store_true")
     args = ap.parse_args(argv)

@@ -276,3 +276,15 @@ def test_worker_processes_and_blocks_give_the_same_mask(processing_run, scene_fi
     a, b = _read(one["OUTPUT_DTM"])[0], _read(par["OUTPUT_DTM"])[0]
     ok = a != -9999.0
     assert np.median(np.abs(a[ok] - b[ok])) < 1e-3 and np.abs(a[ok] - b[ok]).max() < 1.0
+
+
+@pytest.mark.parametrize("alg", filter_algorithms())
+def test_qgis_process_runs_each_filter(run_qgis_process, scene_files, tmp_path, alg):
+    rc, out, data = run_qgis_process(f"bareearth:{alg}", {
+        "INPUT": scene_files["dsm"], "OUTPUT_DTM": tmp_path / "dtm.tif", "OUTPUT_MASK": tmp_path / "mask.tif",
+        "OUTPUT_NDSM": tmp_path / "ndsm.tif"})
+    assert rc == 0, out
+    mask = _read(tmp_path / "mask.tif")[0]
+    truth = scene_files["scene"].mask
+    assert (mask[truth == 1] != 0).mean() > 0.8
+    assert (tmp_path / "ndsm.tif").exists()
