@@ -71,7 +71,7 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, NODATA, OBJECT
+from .codes import LOW, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
 from .methods import Method, Param
 
