@@ -19,7 +19,7 @@ algorithm's help.
    * the marker ``f_k`` is the grey opening of the surface ``z`` by a flat square of
      side ``s_k`` (it lies under ``z`` and has lost every object narrower than ``s_k``);
    * ``R_k`` is the morphological reconstruction by dilation of ``f_k`` under ``z``
-     (:func:`reconstruct_by_dilation`, geodesic reach limited to ``s_k`` cells): it
+     (:func:`reconstruct_by_dilation`, geodesic reach limited to one window): it
      grows the marker back wherever the terrain itself connects to it, so terrain edges
      and ridges that the opening cut are restored, while objects, which the terrain
      cannot reach from below, stay cut;
@@ -29,8 +29,9 @@ algorithm's help.
      residual exceeds ``dh_k = dh0 + tan(terrain_slope) * s_k *`` :data:`BUMP_FRACTION`
      (what a terrain bump of that width may rise) **and** its border is abrupt: at least
      the fraction ``edge_ratio`` of its border cells hold a *wall*, a cell higher than
-     one of its 8 neighbours by more than ``2 dh0 + tan(terrain_slope) * cell_diagonal``
-     (more than the terrain can rise over one cell). A building (or tree) jumps at its
+     a cell within :data:`WALL_BASE_M` (one cell at 1 m: its 8 neighbours) by more than
+     ``2 dh0 + tan(terrain_slope) * diagonal`` (more than the terrain can rise over that
+     distance). A building (or tree) jumps at its
      border; a hill of the same footprint with gentle sides does not, and is kept. A
      region whose bounding box exceeds :data:`EXTENT_FACTOR` ``* max_object_size_m`` is
      never an object (it bounds the method's reach).
@@ -64,7 +65,9 @@ Speed: openings are separable running min/max filters (log2(size) vectorised pas
 the reconstruction is iterated 3x3 geodesic dilation that runs on the bounding box of the
 cells that changed and switches to a vectorised frontier (only the neighbours of cells
 that changed) once few cells change, so it stops early where nothing moves; wide steps run
-on coarse grids; scan labelling is two running max/min passes of event keys per axis.
+on coarse grids; scan labelling works on the list of rise/fall events, not on every cell.
+Measured (``benchmarks/geodesic_paper.py``, 16.8 Mcells synthetic city, shared 2-core
+machine): about 3 Mcells/s.
 """
 import time
 
