@@ -764,12 +764,14 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     height_threshold_m : float
         dh0: minimal height of an object above the reconstructed terrain, metres.
     terrain_slope_deg : float
-        Steepest terrain slope (degrees): a terrain bump of half-width ``s/2`` may rise
-        ``tan(slope) * s/2`` above the reconstruction; scan labelling tolerates it too.
+        Terrain slope tolerance (degrees): a wall rises more than ``2 dh0 + tan(slope)``
+        times its baseline, a terrain bump of width ``s`` may rise ``tan(slope) * s *``
+        :data:`BUMP_FRACTION` above the reconstruction, and scan labelling's rises
+        exceed ``dh0 + tan(slope) * cell``.
     edge_ratio : float
         Height heterogeneity threshold in [0, 1]: a region is an object when at least
-        this fraction of its border cells hold a wall (a cell above a neighbour by more
-        than ``2 dh0 + tan(slope) * cell diagonal``).
+        this fraction of its border cells hold a wall (a cell above a cell within
+        :data:`WALL_BASE_M` by more than ``2 dh0 + tan(slope) * distance``).
     outlier_threshold_m : float
         Preprocessing: depth (height) below the closing (above the opening) of a low
         (high) outlier, metres.
@@ -913,8 +915,9 @@ METHOD = Method(
               minimum=0.0, maximum=89.0, advanced=True),
         Param("edge_ratio", "float", 0.55, "Height heterogeneity threshold (0-1): a "
               "region the reconstruction cannot reach is an object when at least this "
-              "fraction of its border cells stand above a neighbour by more than 2 dh0 "
-              "plus the terrain's rise over one cell (walls jump, hills rise gently).",
+              "fraction of its border cells stand above a cell within 1 m by more than "
+              "2 dh0 plus the terrain's rise over that distance (walls jump, hills rise "
+              "gently).",
               minimum=0.0, maximum=1.0, advanced=True),
         Param("outlier_threshold_m", "float", None, "Preprocessing: a small cluster this "
               "far below the closing (above the opening) is a low (high) outlier, metres; "
@@ -936,7 +939,7 @@ METHOD = Method(
         "reconstruction cannot reach) is split into regions, and a region is removed when "
         "it is higher than dh0 plus the rise the terrain slope allows over half the window, "
         "and its border is abrupt (at least the edge ratio of its border cells stand above "
-        "a neighbour by more than 2 dh0 plus the terrain's rise over one cell). Wide "
+        "a cell within 1 m by more than 2 dh0 plus the terrain's rise over it). Wide "
         "windows run on coarsened grids. Small objects go at the small steps, large "
         "buildings at the large ones; terrain edges are restored by the reconstruction "
         "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
