@@ -8,10 +8,12 @@ def all_algorithms():
     from .fill_dtm import FillDtmAlgorithm
     from .evaluate import EvaluateAlgorithm
     from .points import ClassifyPointsAlgorithm, RasterizePointsAlgorithm
+    from .orthophoto import OrthoParallaxAlgorithm, OrthoRefineAlgorithm
     methods = available_methods()
     algs = []
     for cls in (getattr(filters, n) for n in filters.__dict__ if n.endswith("Algorithm")):
         if isinstance(cls, type) and getattr(cls, "METHOD_NAME", None) in methods:
             algs.append(cls())
     algs += [FillDtmAlgorithm(), EvaluateAlgorithm(), RasterizePointsAlgorithm(), ClassifyPointsAlgorithm()]
+    algs += [OrthoParallaxAlgorithm(), OrthoRefineAlgorithm()]
     return algs

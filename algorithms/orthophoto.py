@@ -1,0 +1,786 @@
+"""Orthophoto refinement: ``bareearth:orthoparallax`` and ``bareearth:orthorefine``.
+
+Thin over ``core.orthophoto`` (Luong Chinh Ke 2002, section 2.3; Norvelle 1995): this module
+reads the rasters and orientation files, checks them before any work, calls
+:func:`~..core.orthophoto.refine.orthoparallax` / :func:`~..core.orthophoto.refine.orthorefine`
+and writes the outputs on the DEM's grid. Nothing numeric here beyond converting colour
+images to grey.
+"""
+import csv
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from qgis.core import (QgsGeometry, QgsPointXY, QgsProcessing, QgsProcessingException,
+                       QgsProcessingOutputNumber, QgsProcessingParameterFile,
+                       QgsProcessingParameterFileDestination,
+                       QgsProcessingParameterFolderDestination, QgsProcessingParameterMultipleLayers,
+                       QgsProcessingParameterNumber, QgsProcessingParameterRasterDestination,
+                       QgsProcessingParameterRasterLayer, QgsProcessingParameterString,
+                       QgsRectangle)
+
+from ..core import Cancelled, grid
+from ..core.codes import NODATA
+from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr, with_help
+
+try:
+    from osgeo import gdal, osr
+except ImportError:  # pragma: no cover - GDAL ships with QGIS
+    gdal = osr = None
+
+IMAGE_EXTENSIONS = (".tif", ".tiff", ".jpg", ".jpeg", ".png", ".jp2", ".img", ".bmp", ".vrt")
+
+OPK_HELP = ("Angles in degrees in the photogrammetric omega-phi-kappa convention (orthority, PATB/BLUH, "
+            "Pix4D): R = Rx(omega) Ry(phi) Rz(kappa) rotates the camera axes (x right, y up towards the "
+            "top of the image, z backwards: the camera looks along -z) into the world axes (X east, "
+            "Y north, Z up); omega = phi = kappa = 0 is a vertical photo with the top of the image to "
+            "the north, kappa = 180 a vertical photo with its top to the south.")
+
+DH_HELP = ("Float32 height correction dh (m) at the matched cells: the true surface minus the DEM "
+           "(positive: an object the DEM lacks); NaN elsewhere.")
+QUALITY_HELP = "Float32 peak normalised cross-correlation of the match (0..1), NaN where not computed."
+ORTHO_MASK_HELP = ("UInt8 mask from dh against its ground trend: 0 ground, 1 object (dh above the threshold), "
+                   "2 low (below minus the threshold), 255 cells not seen in two orthophotos; a colour table "
+                   "and a .qml style are written with it.")
+
+
+# --------------------------------------------------------------------------- helpers
+def _warn(feedback, text):
+    (feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.pushInfo)(text)
+
+
+def _fmt(v):
+    if isinstance(v, (float, np.floating)):
+        return f"{float(v):.4g}"
+    if isinstance(v, (list, tuple)):
+        return "(" + ", ".join(_fmt(x) for x in v) + ")"
+    return str(v)
+
+
+def _optional_number(alg, parameters, key, context):
+    """An optional number parameter: None when empty, else its value (0 kept)."""
+    v = parameters.get(key)
+    if v is None or v == "":
+        return None
+    v = alg.parameterAsDouble(parameters, key, context)
+    return None if isinstance(v, float) and math.isnan(v) else v
+
+
+def _positive_or_none(alg, parameters, key, context):
+    """An optional number where empty or 0 means 'from the data'."""
+    v = _optional_number(alg, parameters, key, context)
+    return v if v is not None and v > 0 else None
+
+
+def _grid_text(info):
+    return (f"{info.shape[1]} x {info.shape[0]} cells, geotransform "
+            f"{tuple(round(v, 6) for v in info.geotransform)}")
+
+
+def _same_grid(a, b):
+    if a.shape != b.shape:
+        return False
+    tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
+    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
+
+
+def _check_metric(info, what):
+    """The core works in the CRS's units, which must be metres (heights and distances)."""
+    if info.crs_wkt:
+        srs = osr.SpatialReference()
+        srs.ImportFromWkt(info.crs_wkt)
+        if srs.IsGeographic():
+            raise ValueError(f"{what} ({info.path}) is in a geographic CRS (degrees): the orthophoto "
+                             "refinement needs a projected CRS in metres, the same as the camera "
+                             "coordinates. Reproject it first (gdalwarp -t_srs EPSG:<UTM zone>).")
+    if info.z_to_m != 1.0:
+        raise ValueError(f"{what} ({info.path}) is in a CRS whose unit is not the metre (factor "
+                         f"{info.z_to_m:.6g}); reproject it to a metric CRS first.")
+
+
+def _open_grid(path, what):
+    """DSMInfo of band 1 of any raster (for its grid), with a clear error."""
+    try:
+        return grid.open_dsm(path, 1)
+    except ValueError as exc:
+        raise ValueError(f"{what}: {exc}") from None
+
+
+def read_grey(path):
+    """A raster as one float32 grey band, NaN where invalid (nodata, alpha = 0, NaN).
+
+    Single band: as is (a paletted band through its colour table). Three or more colour
+    bands: luminance 0.299 R + 0.587 G + 0.114 B of the first three; alpha bands are masks.
+    """
+    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+    if ds is None:
+        raise ValueError(f"cannot open the raster {path!r}.")
+    bands = [ds.GetRasterBand(k + 1) for k in range(ds.RasterCount)]
+    colour = [b for b in bands if b.GetColorInterpretation() != gdal.GCI_AlphaBand]
+    if not colour:
+        raise ValueError(f"the raster {path!r} has no image band.")
+    if len(colour) >= 3:
+        grey = np.zeros((ds.RasterYSize, ds.RasterXSize), np.float32)
+        for w, b in zip((0.299, 0.587, 0.114), colour[:3]):
+            grey += np.float32(w) * b.ReadAsArray().astype(np.float32)
+        used = colour[:3]
+    else:
+        b = colour[0]
+        a = b.ReadAsArray()
+        ct = b.GetColorTable()
+        if ct is not None and b.GetColorInterpretation() == gdal.GCI_PaletteIndex:
+            lut = np.zeros(256 if a.dtype == np.uint8 else 65536, np.float32)
+            for k in range(min(ct.GetCount(), lut.size)):
+                r, g, bl, _ = ct.GetColorEntry(k)
+                lut[k] = 0.299 * r + 0.587 * g + 0.114 * bl
+            grey = lut[a.astype(np.int64)]
+        else:
+            grey = a.astype(np.float32)
+        used = [b]
+    valid = np.isfinite(grey)
+    for b in used:
+        if b.GetMaskFlags() != gdal.GMF_ALL_VALID:
+            valid &= b.GetMaskBand().ReadAsArray() > 0
+    return np.where(valid, grey, np.nan).astype(np.float32)
+
+
+def _image_size(path):
+    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+    if ds is None:
+        raise ValueError(f"cannot open the image {path!r}.")
+    return ds.RasterXSize, ds.RasterYSize
+
+
+def _stem(path):
+    return Path(str(path)).stem
+
+
+def _decimated(info, max_side=512):
+    """A decimated read of a surface (for cheap checks before the work)."""
+    rows, cols = info.shape
+    step = max(1, int(math.ceil(max(rows, cols) / max_side)))
+    b = info.dataset().GetRasterBand(info.band_index)
+    a = b.ReadAsArray(0, 0, cols, rows, buf_xsize=max(1, cols // step), buf_ysize=max(1, rows // step),
+                      resample_alg=gdal.GRIORA_NearestNeighbour)
+    return grid.to_surface(a, info.nodata, info.z_to_m)
+
+
+def _dem_rect(info):
+    gt = info.geotransform
+    rows, cols = info.shape
+    xs = sorted((gt[0], gt[0] + gt[1] * cols))
+    ys = sorted((gt[3], gt[3] + gt[5] * rows))
+    return QgsRectangle(xs[0], ys[0], xs[1], ys[1])
+
+
+def _footprint(camera, z):
+    """Ground polygon (QgsGeometry) of a frame on the plane of height ``z`` (border samples)."""
+    io = camera.interior
+    t = np.linspace(0.0, 1.0, 9)
+    w, h = io.width - 0.5, io.height - 0.5
+    cols = np.concatenate([-0.5 + t * (w + 0.5), np.full(9, w), -0.5 + t * (w + 0.5), np.full(9, -0.5)])
+    rows = np.concatenate([np.full(9, -0.5), -0.5 + t * (h + 0.5), np.full(9, h), -0.5 + t * (h + 0.5)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        X, Y, _ = camera.pixel_to_world(cols, rows, z)
+    ok = np.isfinite(X) & np.isfinite(Y)
+    if ok.sum() < 3:
+        return None
+    pts = [QgsPointXY(float(x), float(y)) for x, y in zip(X[ok], Y[ok])]
+    return QgsGeometry.fromMultiPointXY(pts).convexHull()
+
+
+def parse_xyz(text, key):
+    """``"X,Y,Z"`` (commas, semicolons or spaces) -> three floats, or ValueError naming ``key``."""
+    parts = [p for p in str(text).replace(";", ",").replace(" ", ",").split(",") if p.strip()]
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise ValueError(f"{key} must be the camera centre as 'X,Y,Z' (three numbers, a dot as decimal "
+                         f"separator, in the DEM's CRS and height datum); got {text!r}.")
+    return tuple(vals)
+
+
+def read_tie_points(path, names):
+    """Tie-point CSV ``image,x,y,col,row`` -> per image ``(dem_xy (n, 2), pixel_colrow (n, 2))``.
+
+    ``x, y``: ground coordinates in the DEM's CRS; ``col, row``: pixel of the same point in the
+    image (the centre of the top-left pixel at 0, 0). Extensions of image names are dropped.
+    """
+    text = Path(path).read_text(encoding="utf-8-sig")
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ValueError(f"{path}: empty tie-point file; expected a header 'image,x,y,col,row' and "
+                         "one row per ground point and image.")
+    delim = "," if "," in lines[0] else ("\t" if "\t" in lines[0] else None)
+    rows = ([[c.strip().strip("'\"") for c in r] for r in csv.reader(lines, delimiter=delim)]
+            if delim else [ln.split() for ln in lines])
+    header = [h.lower() for h in rows[0]]
+    name_col = next((c for c in ("image", "filename", "file", "name", "id") if c in header), None)
+    missing = [c for c in ("x", "y", "col", "row") if c not in header]
+    if name_col is None or missing:
+        raise ValueError(f"{path}: header {rows[0]} lacks column(s) "
+                         f"{(['image'] if name_col is None else []) + missing}; expected 'image,x,y,col,row'.")
+    pts = {}
+    for ln, r in enumerate(rows[1:], start=2):
+        rec = dict(zip(header, r))
+        if len(r) < len(header):
+            raise ValueError(f"{path} line {ln}: {len(r)} values for {len(header)} columns.")
+        try:
+            v = [float(rec[c]) for c in ("x", "y", "col", "row")]
+        except ValueError:
+            raise ValueError(f"{path} line {ln}: x, y, col, row must be numbers; got "
+                             f"{[rec[c] for c in ('x', 'y', 'col', 'row')]}.") from None
+        if not all(math.isfinite(a) for a in v):
+            raise ValueError(f"{path} line {ln}: x, y, col, row must be finite numbers.")
+        pts.setdefault(_stem(rec[name_col]) if "." in rec[name_col] else rec[name_col], []).append(v)
+    absent = [n for n in names if n not in pts]
+    if absent:
+        raise ValueError(f"TIE_POINTS: no tie points for image(s) {absent}; the file has "
+                         f"{sorted(pts)}. Give at least four ground points per image (eq. 17).")
+    few = [f"{n} ({len(pts[n])})" for n in names if len(pts[n]) < 4]
+    if few:
+        raise ValueError(f"TIE_POINTS: eq. 17 has 8 parameters; give at least four ground points per "
+                         f"image: {', '.join(few)}.")
+    out = []
+    for n in names:
+        a = np.asarray(pts[n], dtype=float)
+        out.append((a[:, :2], a[:, 2:]))
+    return out
+
+
+# --------------------------------------------------------------------------- parameters
+def _num(key, label, help_, typ=QgsProcessingParameterNumber.Double, default=None, optional=False,
+         advanced=False, **kw):
+    p = QgsProcessingParameterNumber(key, tr(label), typ, default, optional, **kw)
+    return with_help(p, help_, advanced)
+
+
+class OrthoAlgorithm(BaseAlgorithm):
+    """Shared parameters and outputs of the two orthophoto algorithms."""
+
+    GROUP, GROUP_NAME = "orthophoto", "Orthophoto refinement"
+    DEM = "DEM"
+    BASE_M, HEIGHT_M, BASE_DIRECTION_DEG = "BASE_M", "HEIGHT_M", "BASE_DIRECTION_DEG"
+    WINDOW_CELLS, MIN_CORRELATION, HEIGHT_THRESHOLD_M = "WINDOW_CELLS", "MIN_CORRELATION", "HEIGHT_THRESHOLD_M"
+    MAX_DH_M, OBJECT_SIZE_M = "MAX_DH_M", "OBJECT_SIZE_M"
+    OUTPUT_DEM, OUTPUT_DH, OUTPUT_QUALITY, OUTPUT_MASK = "OUTPUT_DEM", "OUTPUT_DH", "OUTPUT_QUALITY", "OUTPUT_MASK"
+
+    def _geometry_params(self, optional_note=""):
+        return [
+            _num(self.BASE_M, "Base B between the exposures (m)" + optional_note,
+                 "Distance B between the projection centres of the two exposures (metres), for vertical "
+                 "frames when the camera centres are not given; B > 0.", optional=True),
+            _num(self.HEIGHT_M, "Flying height H above the ground (m)" + optional_note,
+                 "Height H of the cameras above the ground (metres), for vertical frames; H > 0. "
+                 "With B: dh = dx H / B (Luong Chinh Ke 2002, eq. 18).", optional=True),
+            _num(self.BASE_DIRECTION_DEG, "Base direction (degrees from +X, counter-clockwise)",
+                 "Direction from the first exposure to the second, in degrees counter-clockwise from "
+                 "the +X axis (east): 0 = along +X, 90 = along +Y (north), 180 = along -X.",
+                 default=0.0, minValue=-360.0, maxValue=360.0)]
+
+    def _matching_params(self):
+        return [
+            _num(self.WINDOW_CELLS, "Correlation window (cells, odd)",
+                 "Side of the normalised cross-correlation window in DEM cells (odd, >= 3). Larger: "
+                 "fewer blunders on weak texture, blurrier object edges.",
+                 QgsProcessingParameterNumber.Integer, 7, minValue=3, maxValue=51),
+            _num(self.MIN_CORRELATION, "Minimum correlation",
+                 "Matches whose peak normalised cross-correlation is below this are rejected (0..1).",
+                 default=0.6, minValue=0.0, maxValue=1.0),
+            _num(self.HEIGHT_THRESHOLD_M, "Object height threshold (m) [empty: from the data]",
+                 "A cell is an object when dh exceeds its ground trend by this (metres). Empty: 3 x the "
+                 "larger of the expected precision (0.2 cell of parallax converted to height) and the "
+                 "robust spread of dh.", optional=True, minValue=0.0),
+            _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.1 x H]",
+                 "Largest |dh| the matching searches for (metres); empty: a tenth of the camera height "
+                 "above the DEM.", optional=True, minValue=0.0, advanced=True),
+            _num(self.OBJECT_SIZE_M, "Largest object width (m)",
+                 "The object mask compares dh with its ground trend (a grey opening of this width), so "
+                 "smooth DEM errors are not objects; 0 compares dh with 0.",
+                 default=40.0, minValue=0.0, advanced=True)]
+
+    def _raster_outputs(self, dem_label):
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_DEM, tr(dem_label)),
+                                    "Float32 DEM on the input DEM's grid and CRS: the input plus the "
+                                    "height corrections (the input's nodata kept)."))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(
+            self.OUTPUT_DH, tr("Height correction dh"), optional=True, createByDefault=True), DH_HELP))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(
+            self.OUTPUT_QUALITY, tr("Match quality (correlation)"), optional=True, createByDefault=True),
+            QUALITY_HELP))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_MASK, tr("Object mask")),
+                                    ORTHO_MASK_HELP))
+
+    def _matching_values(self, parameters, context):
+        window = self.parameterAsInt(parameters, self.WINDOW_CELLS, context)
+        if window < 3 or window % 2 == 0:
+            raise ValueError(f"WINDOW_CELLS must be an odd number of cells >= 3; got {window}.")
+        return dict(window=window,
+                    min_corr=self.parameterAsDouble(parameters, self.MIN_CORRELATION, context),
+                    height_threshold_m=_positive_or_none(self, parameters, self.HEIGHT_THRESHOLD_M, context),
+                    max_dh_m=_positive_or_none(self, parameters, self.MAX_DH_M, context),
+                    object_size_m=self.parameterAsDouble(parameters, self.OBJECT_SIZE_M, context))
+
+    def _base_height(self, parameters, context):
+        """(B, H, direction) or None when neither is given; ValueError for bad values."""
+        B = _optional_number(self, parameters, self.BASE_M, context)
+        H = _optional_number(self, parameters, self.HEIGHT_M, context)
+        if B is None and H is None:
+            return None
+        if B is None or H is None:
+            raise ValueError("give both BASE_M (B) and HEIGHT_M (H), or neither.")
+        if not B > 0:
+            raise ValueError(f"BASE_M: the base B must be > 0 m; got {B:g}. Two exposures from one place "
+                             "give no parallax; give the distance between the camera centres.")
+        if not H > 0:
+            raise ValueError(f"HEIGHT_M: the flying height H must be > 0 m above the ground; got {H:g}.")
+        ang = math.radians(self.parameterAsDouble(parameters, self.BASE_DIRECTION_DEG, context))
+        return B, H, (math.cos(ang), math.sin(ang))
+
+    def _dem(self, parameters, context):
+        layer = self.parameterAsRasterLayer(parameters, self.DEM, context)
+        ok, msg, info = check_dsm(layer, None)
+        if not ok:
+            raise ValueError(f"DEM: {msg}")
+        _check_metric(info, "The DEM")
+        return info
+
+    def _write(self, info, parameters, context, dem, dh, quality, mask):
+        """Write the four rasters on the DEM's grid; returns the outputs dict."""
+        paths = {"dem": self.parameterAsOutputLayer(parameters, self.OUTPUT_DEM, context),
+                 "mask": self.parameterAsOutputLayer(parameters, self.OUTPUT_MASK, context)}
+        for key, pk in (("dh", self.OUTPUT_DH), ("quality", self.OUTPUT_QUALITY)):
+            if parameters.get(pk):
+                paths[key] = self.parameterAsOutputLayer(parameters, pk, context)
+        nd = info.nodata
+        nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
+        dem_out = np.where(np.isfinite(dem), dem, np.float32(nodata)).astype(np.float32)
+        with grid.OutputSet(info) as out:
+            out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
+            out.write("dem", dem_out)
+            if "dh" in paths:
+                out.add("dh", paths["dh"], "Float32", nodata=float("nan"), descriptions=["dh (m)"])
+                out.write("dh", dh.astype(np.float32))
+            if "quality" in paths:
+                out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
+                        descriptions=["peak NCC"])
+                out.write("quality", quality.astype(np.float32))
+            out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
+            out.write("mask", mask.astype(np.uint8))
+            out.commit()
+        return {f"OUTPUT_{k.upper()}": v for k, v in paths.items()}
+
+    def _log_info(self, info, feedback, skip=()):
+        feedback.pushInfo(tr("Values used and statistics:"))
+        for k, v in info.items():
+            if k in skip:
+                continue
+            feedback.pushInfo(f"  {k} = {_fmt(v)}")
+
+    def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = super().checkParameterValues(parameters, context)
+        if not ok:
+            return ok, msg
+        try:
+            self._inputs(parameters, context)
+        except (ValueError, QgsProcessingException) as exc:
+            return False, str(exc)
+        return True, ""
+
+
+# --------------------------------------------------------------------------- orthoparallax
+class OrthoParallaxAlgorithm(OrthoAlgorithm):
+    """``bareearth:orthoparallax``: DEM error from the residual parallax of two orthophotos."""
+
+    ORTHO_A, ORTHO_B, CAMERA_A, CAMERA_B = "ORTHO_A", "ORTHO_B", "CAMERA_A", "CAMERA_B"
+
+    def name(self):
+        return "orthoparallax"
+
+    def displayName(self):  # noqa: N802
+        return tr("DEM correction from the parallax of two orthophotos")
+
+    def shortHelpString(self):  # noqa: N802
+        return tr(
+            "<p>Two orthophotos of overlapping frames made with the same DEM agree where the DEM is right; "
+            "where it is wrong by dh (a building or tree the DEM lacks, a matching blunder) they are "
+            "displaced by a residual parallax along the base. This algorithm matches the orthophotos "
+            "(normalised cross-correlation along the base, left-right check, least-squares sub-pixel) and "
+            "converts the parallax to height: dh = dx H / B for vertical frames (Luong Chinh Ke 2002, "
+            "section 2.3, eq. 18), or dh = p . (v_b - v_a) / |v_b - v_a|^2 with the camera centres "
+            "(any geometry; the measurement is then moved to its ground point). One pass; for frames "
+            "with their orientation use <i>orthorefine</i>, which iterates (Norvelle 1995).</p>"
+            "<h3>Parameters</h3><ul>"
+            "<li><b>ORTHO_A</b>, <b>ORTHO_B</b>: the two orthophotos, on the DEM's grid (same cells and "
+            "geotransform); one band, or RGB(A) converted to grey (alpha and nodata are masks).</li>"
+            "<li><b>DEM</b>: the DEM both orthophotos were made with (single band, projected CRS in metres).</li>"
+            "<li>Geometry, either <b>CAMERA_A</b> and <b>CAMERA_B</b>: projection centres 'X,Y,Z' in the "
+            "DEM's CRS and height datum; or <b>BASE_M</b> (B) and <b>HEIGHT_M</b> (H) for vertical frames, "
+            "with <b>BASE_DIRECTION_DEG</b> (from A to B, degrees counter-clockwise from +X; 0 = +X).</li>"
+            "<li><b>WINDOW_CELLS</b> (odd, default 7), <b>MIN_CORRELATION</b> (default 0.6): matching.</li>"
+            "<li><b>HEIGHT_THRESHOLD_M</b>: object threshold on dh; empty: 3 x the larger of the expected "
+            "precision (0.2 cell of parallax in height) and the robust spread of dh.</li>"
+            "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.1 H) and the "
+            "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
+            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
+            "DEM where the orthophotos do not overlap).</li>"
+            f"<li><b>OUTPUT_DH</b>: {DH_HELP}</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li>"
+            f"<li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li></ul>")
+
+    def initAlgorithm(self, config=None):  # noqa: N802
+        for key, label in ((self.ORTHO_A, "Orthophoto A"), (self.ORTHO_B, "Orthophoto B")):
+            self.addParameter(with_help(QgsProcessingParameterRasterLayer(key, tr(label)),
+                                        "Orthophoto on the DEM's grid made with that DEM: one band, or "
+                                        "RGB(A) converted to grey; nodata and alpha mark unseen cells."))
+        self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.DEM, tr("DEM used for both orthophotos")),
+                                    "Single-band DEM (metres, projected CRS) the orthophotos were made with."))
+        for key, label in ((self.CAMERA_A, "Camera centre of A 'X,Y,Z' [or B and H]"),
+                           (self.CAMERA_B, "Camera centre of B 'X,Y,Z' [or B and H]")):
+            self.addParameter(with_help(QgsProcessingParameterString(key, tr(label), optional=True),
+                                        "Projection centre of the frame the orthophoto was made from, as "
+                                        "'X,Y,Z' (dot decimals) in the DEM's CRS and height datum. Give both "
+                                        "centres, or BASE_M and HEIGHT_M instead."))
+        for p in self._geometry_params(" [or camera centres]"):
+            self.addParameter(p)
+        for p in self._matching_params():
+            self.addParameter(p)
+        self._raster_outputs("Corrected DEM")
+
+    def _inputs(self, parameters, context):
+        info = self._dem(parameters, context)
+        orthos = []
+        for key in (self.ORTHO_A, self.ORTHO_B):
+            layer = self.parameterAsRasterLayer(parameters, key, context)
+            if layer is None:
+                raise ValueError(f"{key}: no orthophoto was given.")
+            path = raster_path(layer)
+            oi = _open_grid(path, key)
+            if not _same_grid(info, oi):
+                raise ValueError(f"{key} ({path}) is not on the DEM's grid: {key} has {_grid_text(oi)}, the "
+                                 f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
+                                 "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")
+            orthos.append(path)
+        ca = (self.parameterAsString(parameters, self.CAMERA_A, context) or "").strip()
+        cb = (self.parameterAsString(parameters, self.CAMERA_B, context) or "").strip()
+        bh = self._base_height(parameters, context)
+        geometry = {}
+        if ca or cb:
+            if not (ca and cb):
+                raise ValueError("give both camera centres CAMERA_A and CAMERA_B ('X,Y,Z'), or BASE_M and "
+                                 "HEIGHT_M instead.")
+            if bh is not None:
+                raise ValueError("give the geometry once: either CAMERA_A and CAMERA_B, or BASE_M and "
+                                 "HEIGHT_M, not both.")
+            A, B = parse_xyz(ca, self.CAMERA_A), parse_xyz(cb, self.CAMERA_B)
+            if math.dist(A, B) < 1e-6 * max(1.0, abs(A[2])):
+                raise ValueError(f"CAMERA_A and CAMERA_B are at the same place {A} (base B = 0): no parallax. "
+                                 "Give the centres of two different exposures.")
+            geometry = dict(centres=(A, B))
+        elif bh is not None:
+            geometry = dict(base_m=bh[0], height_m=bh[1], base_direction=bh[2])
+        else:
+            raise ValueError("give the geometry of the pair: CAMERA_A and CAMERA_B ('X,Y,Z'), or BASE_M (B) "
+                             "and HEIGHT_M (H) for vertical frames.")
+        return info, orthos, geometry, self._matching_values(parameters, context)
+
+    def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
+        from ..core.orthophoto import orthoparallax
+        try:
+            info, (pa, pb), geometry, opts = self._inputs(parameters, context)
+            dem = info.read()
+            a, b = read_grey(pa), read_grey(pb)
+            va, vb = np.isfinite(a) & np.isfinite(dem), np.isfinite(b) & np.isfinite(dem)
+            if not (va & vb).any():
+                raise ValueError(f"the orthophotos do not overlap: no cell is valid in both ORTHO_A ({pa}, "
+                                 f"{int(va.sum())} valid cells on the DEM) and ORTHO_B ({pb}, {int(vb.sum())}). "
+                                 "Use orthophotos of two overlapping frames.")
+            feedback.pushInfo(tr(f"DEM {info.path}: {_grid_text(info)}; {int((va & vb).sum())} cells seen in "
+                                 "both orthophotos."))
+            for w in info.warnings:
+                _warn(feedback, w)
+            r = orthoparallax(a, b, dem, info.geotransform, progress=progress_callback(feedback),
+                              **geometry, **opts)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
+        dem_out = np.where(np.isfinite(dem), r.dem, np.nan)
+        outputs = self._write(info, parameters, context, dem_out, r.dh, r.quality, r.mask)
+        self._log_info(r.info, feedback, skip=("crop",))
+        feedback.setProgress(100)
+        return outputs
+
+
+# --------------------------------------------------------------------------- orthorefine
+class OrthoRefineAlgorithm(OrthoAlgorithm):
+    """``bareearth:orthorefine``: iterative orthophoto refinement of a DEM (Norvelle 1995)."""
+
+    IMAGES, IMAGE_FOLDER, EXTERIOR, INTERIOR, TIE_POINTS = ("IMAGES", "IMAGE_FOLDER", "EXTERIOR", "INTERIOR",
+                                                            "TIE_POINTS")
+    MAX_ITERATIONS, TOLERANCE_M = "MAX_ITERATIONS", "TOLERANCE_M"
+    OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
+    TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "mean_corr")
+
+    def name(self):
+        return "orthorefine"
+
+    def displayName(self):  # noqa: N802
+        return tr("Refine a DEM with orthophotos of oriented frames")
+
+    def shortHelpString(self):  # noqa: N802
+        return tr(
+            "<p>Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, section 2.3). "
+            "Each iteration orthorectifies every frame onto the current DEM (collinearity equations with "
+            "Brown distortion, hidden cells masked), matches the orthophotos of every overlapping pair "
+            "along its base, converts the residual parallax to height corrections, merges the pairs "
+            "(weighted by correlation, outliers dropped), and adds the correction to the DEM; it stops "
+            "when the RMS correction is below TOLERANCE_M or after MAX_ITERATIONS. Without orientation, "
+            "TIE_POINTS registers orthophotos to the DEM by the 8-parameter bilinear transformation "
+            "(eq. 17) and makes one pass with eq. 18 (B and H).</p>"
+            "<h3>Parameters</h3><ul>"
+            "<li><b>DEM</b>: starting DEM (single band, projected CRS in metres, the cameras' CRS and datum).</li>"
+            "<li><b>IMAGES</b> (raster layers) or <b>IMAGE_FOLDER</b> (every image file in it): the frames "
+            "(one band or RGB, converted to grey), two or more. Matched to the CSV by file name without "
+            "extension.</li>"
+            "<li><b>EXTERIOR</b>: CSV (comma, tab or space separated, header) with one row per image: "
+            "<code>filename,x,y,z,omega,phi,kappa</code> (orthority's xyz_opk format; an optional "
+            "<code>camera</code> column names the interior orientation). x, y, z: projection centre in "
+            f"the DEM's CRS. {OPK_HELP}</li>"
+            "<li><b>INTERIOR</b>: interior orientation, orthority YAML <code>{camera id: {type: pinhole|brown, "
+            "im_size: [w, h], focal_len, sensor_size: [w, h], cx, cy, k1, k2, k3, p1, p2}}</code> "
+            "(focal length in the units of the sensor size, or normalised by the larger image side without "
+            "it; cx, cy principal-point offsets normalised by the larger side; Brown k1 k2 k3 radial, p1 p2 "
+            "tangential), or an OpenSfM <code>reconstruction.json</code> (its cameras).</li>"
+            "<li><b>TIE_POINTS</b> (instead of EXTERIOR/INTERIOR): CSV <code>image,x,y,col,row</code>, at "
+            "least four ground points per image: x, y in the DEM's CRS, col, row the pixel in the image "
+            "(top-left pixel centre = 0, 0); needs <b>BASE_M</b> (B between consecutive images, in the "
+            "order given), <b>HEIGHT_M</b> (H) and <b>BASE_DIRECTION_DEG</b>.</li>"
+            "<li><b>MAX_ITERATIONS</b> (default 6), <b>TOLERANCE_M</b> (empty: half the expected height "
+            "precision), <b>WINDOW_CELLS</b>, <b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>: as in "
+            "orthoparallax.</li></ul>"
+            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the refined DEM.</li>"
+            "<li><b>OUTPUT_DH</b>: total correction, refined minus input (m), NaN where fewer than two frames "
+            f"see.</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li><li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li>"
+            "<li><b>OUTPUT_ORTHO_FOLDER</b>: the orthophotos of the last iteration, one Float32 GeoTIFF "
+            "'&lt;image&gt;_ortho.tif' per image on the DEM's grid.</li>"
+            "<li><b>OUTPUT_TABLE</b>: CSV, one row per iteration: RMS correction (m), share of the cells seen "
+            "by two frames that matched, pairs, RMS residual parallax (m), mean correlation; also in the "
+            "log.</li></ul>")
+
+    def initAlgorithm(self, config=None):  # noqa: N802
+        self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.DEM, tr("Starting DEM")),
+                                    "Single-band DEM (metres, projected CRS; the camera coordinates' CRS and "
+                                    "height datum) to refine."))
+        self.addParameter(with_help(QgsProcessingParameterMultipleLayers(
+            self.IMAGES, tr("Frame images [or IMAGE_FOLDER]"), QgsProcessing.TypeRaster, None, True),
+            "The frames (one band, or RGB converted to grey), two or more; each matched to its EXTERIOR "
+            "row (or TIE_POINTS) by file name without extension."))
+        self.addParameter(with_help(QgsProcessingParameterFile(
+            self.IMAGE_FOLDER, tr("Folder of frame images [or IMAGES]"), QgsProcessingParameterFile.Folder,
+            optional=True),
+            "A folder whose image files (" + ", ".join(IMAGE_EXTENSIONS) + ") are the frames, in name order."))
+        self.addParameter(with_help(QgsProcessingParameterFile(
+            self.EXTERIOR, tr("Exterior orientation CSV (filename,x,y,z,omega,phi,kappa)"),
+            QgsProcessingParameterFile.File, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
+            "One row per image: filename,x,y,z,omega,phi,kappa (header; comma, tab or space separated; "
+            "optional 'camera' column). x, y, z in the DEM's CRS. " + OPK_HELP))
+        self.addParameter(with_help(QgsProcessingParameterFile(
+            self.INTERIOR, tr("Interior orientation (orthority YAML or OpenSfM reconstruction.json)"),
+            QgsProcessingParameterFile.File, "", None, True,
+            "Interior orientation (*.yaml *.yml *.json);;All files (*.*)"),
+            "Camera id -> type (pinhole/brown), im_size [w, h], focal_len (with sensor_size [w, h] in the same "
+            "units, else normalised by the larger image side), cx, cy, k1, k2, k3, p1, p2; or an OpenSfM "
+            "reconstruction.json."))
+        self.addParameter(with_help(QgsProcessingParameterFile(
+            self.TIE_POINTS, tr("Tie points CSV (image,x,y,col,row) [no orientation]"),
+            QgsProcessingParameterFile.File, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
+            "Without EXTERIOR/INTERIOR: at least four ground points per image, x, y in the DEM's CRS and "
+            "col, row the pixel in the image (top-left pixel centre 0, 0), for the 8-parameter bilinear "
+            "registration (eq. 17). Needs BASE_M and HEIGHT_M."))
+        for p in self._geometry_params(" [tie points only]"):
+            self.addParameter(p)
+        self.addParameter(_num(self.MAX_ITERATIONS, "Maximum iterations",
+                               "Largest number of orthorectify-match-correct iterations.",
+                               QgsProcessingParameterNumber.Integer, 6, minValue=1, maxValue=50))
+        self.addParameter(_num(self.TOLERANCE_M, "Stop tolerance (m) [empty: from the data]",
+                               "Stop when the RMS correction of an iteration is below this (metres); empty: "
+                               "half the expected height precision of the pairs.", optional=True, minValue=0.0))
+        for p in self._matching_params():
+            self.addParameter(p)
+        self._raster_outputs("Refined DEM")
+        self.addParameter(with_help(QgsProcessingParameterFolderDestination(
+            self.OUTPUT_ORTHO_FOLDER, tr("Folder for the last orthophotos"), optional=True, createByDefault=False),
+            "One Float32 GeoTIFF '<image>_ortho.tif' per image on the DEM's grid: the orthophotos of the "
+            "last iteration (grey)."))
+        self.addParameter(with_help(QgsProcessingParameterFileDestination(
+            self.OUTPUT_TABLE, tr("Iteration table (CSV)"), "CSV files (*.csv)", optional=True,
+            createByDefault=True),
+            "One row per iteration: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
+            "mean_corr."))
+        for key, label in (("ITERATIONS", "Iterations run"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
+            self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
+
+    # -- inputs -------------------------------------------------------------------------
+    def _images(self, parameters, context):
+        layers = (self.parameterAsLayerList(parameters, self.IMAGES, context)
+                  if parameters.get(self.IMAGES) else [])
+        folder = (self.parameterAsFile(parameters, self.IMAGE_FOLDER, context)
+                  if parameters.get(self.IMAGE_FOLDER) else "")
+        if layers and folder:
+            raise ValueError("give the images once: IMAGES or IMAGE_FOLDER, not both.")
+        if folder:
+            if not os.path.isdir(folder):
+                raise ValueError(f"IMAGE_FOLDER {folder!r} is not a folder.")
+            paths = sorted(str(p) for p in Path(folder).iterdir()
+                           if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+        else:
+            paths = [raster_path(lay) for lay in layers]
+        if len(paths) < 2:
+            raise ValueError(f"orthorefine needs two or more overlapping images; got {len(paths)}"
+                             + (f" in {folder}" if folder else "") + ".")
+        names = [_stem(p) for p in paths]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"image name(s) {dup} appear twice; images are matched to the CSV by name.")
+        return paths, names
+
+    def _inputs(self, parameters, context):
+        from ..core.orthophoto import read_cameras
+        info = self._dem(parameters, context)
+        paths, names = self._images(parameters, context)
+        exterior = self.parameterAsFile(parameters, self.EXTERIOR, context) if parameters.get(self.EXTERIOR) else ""
+        interior = self.parameterAsFile(parameters, self.INTERIOR, context) if parameters.get(self.INTERIOR) else ""
+        ties = self.parameterAsFile(parameters, self.TIE_POINTS, context) if parameters.get(self.TIE_POINTS) else ""
+        opts = self._matching_values(parameters, context)
+        opts["max_iterations"] = self.parameterAsInt(parameters, self.MAX_ITERATIONS, context)
+        opts["tolerance_m"] = _positive_or_none(self, parameters, self.TOLERANCE_M, context)
+        for key, p in ((self.EXTERIOR, exterior), (self.INTERIOR, interior), (self.TIE_POINTS, ties)):
+            if p and not os.path.isfile(p):
+                raise ValueError(f"{key}: the file {p!r} does not exist.")
+        if exterior or interior:
+            if not (exterior and interior):
+                raise ValueError("give both EXTERIOR (filename,x,y,z,omega,phi,kappa) and INTERIOR (camera "
+                                 "YAML / reconstruction.json)" + (", or TIE_POINTS alone." if not ties else "."))
+            if ties:
+                raise ValueError("give either the orientation (EXTERIOR and INTERIOR) or TIE_POINTS, not both.")
+            try:
+                cams = read_cameras(exterior, interior, names)
+            except ValueError as exc:
+                raise ValueError(f"EXTERIOR / INTERIOR: {exc}") from None
+            for p, c in zip(paths, cams):
+                w, h = _image_size(p)
+                if (w, h) != (c.interior.width, c.interior.height):
+                    raise ValueError(f"image {c.name!r} ({p}) is {w} x {h} pixels but its interior orientation "
+                                     f"({c.interior.name or 'camera'}) says {c.interior.width} x "
+                                     f"{c.interior.height}; use the matching camera or image.")
+            isolated = self._check_overlap(info, cams, opts["window"])
+            return info, paths, names, dict(cameras=cams, isolated=isolated), opts
+        if not ties:
+            raise ValueError("give the orientation of the images: EXTERIOR and INTERIOR, or (for orthophotos "
+                             "without orientation) TIE_POINTS with BASE_M and HEIGHT_M.")
+        bh = self._base_height(parameters, context)
+        if bh is None:
+            raise ValueError("TIE_POINTS mode needs BASE_M (B between consecutive images) and HEIGHT_M (H).")
+        tie = read_tie_points(ties, names)
+        return info, paths, names, dict(cameras=None, tie_points=tie, base_m=bh[0], height_m=bh[1],
+                                        base_direction=bh[2], isolated=[]), opts
+
+    @staticmethod
+    def _check_overlap(info, cams, window):
+        """Images must reach the DEM, and at least two of them overlap on it (frame footprints)."""
+        z = _decimated(info)
+        if not np.isfinite(z).any():
+            raise ValueError(f"the DEM {info.path!r} has no valid cell.")
+        zmed = float(np.nanmedian(z))
+        low = [c.name for c in cams if not c.centre[2] > zmed]
+        if low:
+            raise ValueError(f"camera(s) {low} are not above the DEM (median height {zmed:.2f}); check the z "
+                             "of the EXTERIOR rows and the DEM's height datum.")
+        rect = QgsGeometry.fromRect(_dem_rect(info))
+        cell_area = abs(info.geotransform[1] * info.geotransform[5])
+        fps, outside = [], []
+        for c in cams:
+            fp = _footprint(c, zmed)
+            fp = None if fp is None else fp.intersection(rect)
+            if fp is None or fp.isEmpty() or fp.area() < 4 * cell_area:
+                outside.append(c.name)
+            fps.append(fp)
+        if outside:
+            r = _dem_rect(info)
+            raise ValueError(f"image(s) {outside} do not overlap the DEM (x {r.xMinimum():.2f}..{r.xMaximum():.2f}, "
+                             f"y {r.yMinimum():.2f}..{r.yMaximum():.2f}): check their x, y, z and angles, and "
+                             "that the CSV and the DEM use the same CRS.")
+        need = max(100, 4 * window * window) * cell_area
+        linked = set()
+        for i in range(len(cams)):
+            for j in range(i + 1, len(cams)):
+                inter = fps[i].intersection(fps[j])
+                if not inter.isEmpty() and inter.area() >= need:
+                    linked |= {i, j}
+        if not linked:
+            raise ValueError(f"no two images overlap on the DEM: the footprints of {[c.name for c in cams]} "
+                             "are disjoint. Give frames of the same area with a common overlap.")
+        return [cams[i].name for i in range(len(cams)) if i not in linked]
+
+    # -- run -----------------------------------------------------------------------------
+    def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
+        from ..core.orthophoto import orthorefine
+        try:
+            info, paths, names, mode, opts = self._inputs(parameters, context)
+            isolated = mode.pop("isolated")
+            if isolated:
+                _warn(feedback, tr(f"Image(s) {isolated} overlap no other image on the DEM: they are not used."))
+            for w in info.warnings:
+                _warn(feedback, w)
+            dem = info.read()
+            feedback.pushInfo(tr(f"DEM {info.path}: {_grid_text(info)}; {len(paths)} images: {', '.join(names)}."))
+            images = []
+            for k, p in enumerate(paths):
+                images.append(read_grey(p))
+                if feedback.isCanceled():
+                    raise Cancelled()
+                feedback.setProgress(2.0 * (k + 1) / len(paths))
+            prog = progress_callback(feedback)
+
+            def progress(f):
+                prog(0.02 + 0.96 * f)
+            r = orthorefine(dem, info.geotransform, images, mode.pop("cameras"), progress=progress,
+                            **mode, **opts)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
+        outputs = self._write(info, parameters, context, np.where(np.isfinite(dem), r.dem, np.nan), r.dh,
+                              r.quality, r.mask)
+        if parameters.get(self.OUTPUT_ORTHO_FOLDER):
+            folder = self.parameterAsFileOutput(parameters, self.OUTPUT_ORTHO_FOLDER, context)
+            os.makedirs(folder, exist_ok=True)
+            with grid.OutputSet(info) as out:
+                for n, o in zip(names, r.orthos):
+                    out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
+                            descriptions=[f"orthophoto of {n} (grey)"])
+                    out.write(n, np.asarray(o, np.float32))
+                out.commit()
+            outputs[self.OUTPUT_ORTHO_FOLDER] = folder
+        feedback.pushInfo(tr("Iterations:"))
+        feedback.pushInfo("  " + "  ".join(f"{c:>16}" for c in self.TABLE_COLUMNS))
+        for row in r.table:
+            feedback.pushInfo("  " + "  ".join(f"{_fmt(row.get(c, '')):>16}" for c in self.TABLE_COLUMNS))
+        if parameters.get(self.OUTPUT_TABLE):
+            path = self.parameterAsFileOutput(parameters, self.OUTPUT_TABLE, context)
+            cols = list(self.TABLE_COLUMNS) + [k for k in r.table[0] if k not in self.TABLE_COLUMNS]
+            with open(path, "w", newline="", encoding="utf-8") as f:
+                wr = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+                wr.writeheader()
+                for row in r.table:
+                    wr.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+            outputs[self.OUTPUT_TABLE] = path
+        self._log_info(r.info, feedback)
+        feedback.setProgress(100)
+        outputs.update(ITERATIONS=len(r.table), RMS_CORRECTION_M=float(r.table[-1]["rms_correction_m"]))
+        return outputs
