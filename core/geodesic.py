@@ -497,15 +497,14 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
     ev = rise | fall
     if has_nan:
         ev |= np.isnan(dz)                        # nodata breaks runs
-    r, c = np.nonzero(ev)
-    if r.size < 2:
-        return out
-    if axis == 0:                                 # order the events profile by profile
-        order = np.lexsort((r, c))
-        r, c = r[order], c[order]
+    if axis == 0:                                 # events profile by profile (columns)
+        c, r = np.nonzero(ev.T)
         line, pos = c, r
     else:
+        r, c = np.nonzero(ev)
         line, pos = r, c
+    if r.size < 2:
+        return out
     is_rise, is_fall = rise[r, c], fall[r, c]
     pair = ((line[:-1] == line[1:]) & is_rise[:-1] & is_fall[1:]
             & (pos[1:] - pos[:-1] <= max_cells))
@@ -514,19 +513,18 @@ def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
         return out
     jl, jr, ln = pos[k], pos[k + 1], line[k]     # rise edge, fall edge, profile
     n_run = jr - jl                               # cells jl+1 .. jr
-    if axis == 1:
-        base_l, base_r = a[ln, jl], a[ln, jr + 1]
-    else:
-        base_l, base_r = a[jl, ln], a[jr + 1, ln]
+    # flat index of cell p on profile l, and the step between neighbours on a profile
+    W = a.shape[1]
+    first, stride = (ln * W, 1) if axis == 1 else (ln, W)
+    af = a.ravel()
+    base_l = af[first + jl * stride]              # the cell before the rise
+    slope = (af[first + (jr + 1) * stride] - base_l) / (n_run + 1).astype(np.float32)
     start = np.cumsum(n_run) - n_run
-    off = np.arange(int(n_run.sum())) - np.repeat(start, n_run) + 1   # 1 .. n_run
-    i = np.repeat(jl, n_run) + off
-    lines = np.repeat(ln, n_run)
-    t = off / np.repeat(n_run + 1, n_run)         # 0 at the cell before the rise
-    base = np.repeat(base_l, n_run) + np.repeat(base_r - base_l, n_run).astype(np.float64) * t
-    rows, cols = (lines, i) if axis == 1 else (i, lines)
-    keep = (a[rows, cols] - base) > height_m
-    out[rows[keep], cols[keep]] = True
+    off = np.arange(int(n_run.sum()), dtype=n_run.dtype) - np.repeat(start, n_run) + 1
+    flat = np.repeat(first + jl * stride, n_run) + off * stride
+    base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * off
+    keep = (af[flat] - base) > height_m
+    out.ravel()[flat[keep]] = True
     return out
 
 
