@@ -197,110 +197,109 @@ def find_low_blunders(z, tolerance_m):
     z = as_surface(z)
     valid = np.isfinite(z)
     hi = np.float32(np.nanmax(z)) if valid.any() else np.float32(0.0)
-    zz = np.where(valid, z, hi)  # nodata looks like neither a pit's rim nor its bottom
-    tmp = np.empty_like(zz)
-    dil = _extreme3(zz, np.maximum, tmp=tmp)
-    closed = _extreme3(dil, np.minimum, out=tmp, tmp=np.empty_like(zz))
-    del dil
-    closed -= zz
-    cand = (closed > tolerance_m) & valid
-    del closed
+    # candidates: cells a 3 x 3 closing raises by more than the tolerance, in strips of
+    # rows (the closing reaches 2 rows), so memory stays a few strips whatever the raster
+    cand = np.zeros(z.shape, bool)
+    rows = z.shape[0]
+    strip = 1024
+    for r0 in range(0, rows, strip):
+        r1 = min(rows, r0 + strip)
+        a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
+        zz = np.where(valid[a0:a1], z[a0:a1], hi)  # nodata: neither a pit's rim nor its bottom
+        tmp = np.empty_like(zz)
+        dil = _extreme3(zz, np.maximum, tmp=tmp)
+        closed = _extreme3(dil, np.minimum, out=tmp, tmp=dil.copy())
+        closed -= zz
+        cand[r0:r1] = (closed[r0 - a0:r0 - a0 + (r1 - r0)] > tolerance_m) & valid[r0:r1]
     r, c = np.nonzero(cand)
     if r.size == 0:
         return cand
     h = _LOW_WINDOW // 2
-    pad = np.pad(np.where(valid, z, np.float32(np.inf)), h, mode="edge")
     off = np.arange(-h, h + 1)
-    rr = (r[:, None, None] + h + off[None, :, None])
-    cc = (c[:, None, None] + h + off[None, None, :])
-    neigh = pad[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
+    rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
+    cc = np.clip(c[:, None, None] + off[None, None, :], 0, z.shape[1] - 1)
+    neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
+    neigh[np.isnan(neigh)] = np.inf                                            # nodata is no ground
     fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
     low = np.zeros_like(cand)
     low[r, c] = z[r, c] < fifth - tolerance_m
     return low
 
 
-def _scan(zp, step_m, tan_g, tan_t, dh0, init_cells, reverse, edge_cells=1):
-    """Scan all profiles at once; positions along axis 0, profiles along axis 1.
+def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
+    """Scan many profile sets at once, one numpy operation per step over all profiles.
+
+    ``sources`` is a list of ``(array, reverse)``: an array ``(npos, nprof)`` holds
+    profiles along axis 0 (C-contiguous rows), scanned from its first row, or from its
+    last with ``reverse``. At each step the current row of every source is copied into
+    one small buffer (no stacked copy of the raster is made), so the per-step Python
+    overhead is shared by all profiles of all sources.
 
     The tolerance after ``d`` cells since the reference point is
     ``dh0 + step tan_g min(d, edge_cells) + step tan_t max(d - edge_cells, 0)``.
-    Returns a boolean array: True where the scan rejects the point (object).
+    Returns one boolean array per source (its shape): True where the scan rejects.
     """
-    npos, nprof = zp.shape
-    order = range(npos - 1, -1, -1) if reverse else range(npos)
-    head = zp[-init_cells:] if reverse else zp[:init_cells]
+    widths = [a.shape[1] for a, _ in sources]
+    offs = np.cumsum([0] + widths)
+    nprof = int(offs[-1])
+    npos = max(a.shape[0] for a, _ in sources)
+    g = np.empty(nprof, np.float32)                  # reference ground height per profile
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        g = np.nanmin(head, axis=0).astype(np.float32)  # reference ground height per profile
-    # tolerance per distance d = 1 .. : a lookup table, d capped where it stops mattering
-    dmax = 65535
-    d = np.ones(nprof, np.int32)      # cells since the reference point
-    steps = np.arange(0, min(npos, dmax) + 2, dtype=np.float64)
+        for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
+            head = a[-init_cells:] if rev else a[:init_cells]
+            g[o0:o1] = np.nanmin(head, axis=0)
+    d = np.ones(nprof, np.int32)                      # cells since the reference point
+    steps = np.arange(0, npos + 2, dtype=np.float64)
     table = (dh0 + step_m * tan_g * np.minimum(steps, edge_cells)
              + step_m * tan_t * np.maximum(steps - edge_cells, 0)).astype(np.float32)
     cap = np.int32(len(table) - 1)
-    rejected = np.zeros((npos, nprof), bool)
+    rejected = [np.zeros(a.shape, bool) for a, _ in sources]
+    v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
-    for i in order:
-        v = zp[i]
+    spans = list(zip(sources, rejected, offs[:-1], offs[1:]))
+    for i in range(npos):
+        for (a, rev), _, o0, o1 in spans:
+            n = a.shape[0]
+            if i < n:
+                v[o0:o1] = a[n - 1 - i] if rev else a[i]
+            elif i == n:
+                v[o0:o1] = np.nan                     # a shorter profile set has ended
         np.subtract(v, g, out=dz)
-        np.greater(dz, table[d], out=up)     # NaN compares False
-        rejected[i] = up
+        np.greater(dz, table[d], out=up)             # NaN compares False
         np.isfinite(v, out=ok)
-        d += ok                               # distance counts valid cells only: a nodata gap
-        ok &= ~up                             # does not let the reference drift up a roof
+        d += ok                                       # distance counts valid cells only: a nodata
+        ok &= ~up                                     # gap does not let the reference drift up a roof
         np.minimum(d, cap, out=d)
         d[ok] = 1
         np.copyto(g, v, where=ok)
+        for (a, rev), r, o0, o1 in spans:
+            n = a.shape[0]
+            if i < n:
+                r[n - 1 - i if rev else i] = up[o0:o1]
     return rejected
 
 
-def _stack_profiles(seqs):
-    """Stack profile sets (each ``(npos_k, nprof_k)``) side by side, NaN-padded at the end."""
-    npos = max(q.shape[0] for q in seqs)
-    out = np.full((npos, sum(q.shape[1] for q in seqs)), np.nan, np.float32)
-    c = 0
-    for q in seqs:
-        out[: q.shape[0], c: c + q.shape[1]] = q
-        c += q.shape[1]
-    return out
-
-
-def _scan_set(seqs, step, tan_g, tan_t, dh0, init, edge):
-    """Run forward and backward scans of several profile sets in one stacked pass.
-
-    Returns, per set, the cells rejected by both its forward and its backward scan.
-    """
-    stacked = _stack_profiles([q for q in seqs for q in (q, q[::-1])])
-    rej = _scan(stacked, step, tan_g, tan_t, dh0, init, False, edge)
-    out, c = [], 0
-    for q in seqs:
-        n, w = q.shape
-        out.append(rej[:n, c: c + w] & rej[:n, c + w: c + 2 * w][::-1])
-        c += 2 * w
-    return out
-
-
 def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
-    """Forward and backward scans along X and Y.
+    """Forward and backward scans along X and Y; returns ``(objects_x, objects_y)``.
 
-    The scans of profiles with the same spacing run as one vectorised pass: the profiles,
-    reversed ones included, are stacked side by side so each step along the profiles is
-    one numpy operation over all of them. A cell is rejected along a direction when both
-    the forward and the backward scan reject it.
-
-    Returns ``(objects_x, objects_y)``.
+    A cell is rejected along an axis when both its forward and its backward scan reject
+    it. The four scans run as one vectorised pass when the two axes share a spacing.
     """
     zx = np.ascontiguousarray(zs.T)          # X profiles: positions = columns
+    sx = [(zx, False), (zx, True)]
+    sy = [(zs, False), (zs, True)]
     if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-        ox, oy = _scan_set([zx, zs], dx, tan_g, tan_t, dh0, init[0], edge[0])
+        fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0])
     else:
-        ox, = _scan_set([zx], dx, tan_g, tan_t, dh0, init[0], edge[0])
-        oy, = _scan_set([zs], dy, tan_g, tan_t, dh0, init[1], edge[1])
-    return ox.T, oy
+        fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0])
+        fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1])
+    del zx
+    fx &= bx
+    fy &= by
+    return fx.T, fy
 
 
 #: Share of an object's cells that both axes must reject (see :func:`_combine_axes`).
@@ -320,9 +319,8 @@ def _combine_axes(obj_x, obj_y, ok):
         return union
     both = obj_x & obj_y & ok
     lab, n = ndimage.label(union, structure=np.ones((3, 3), bool))
-    flat = lab.ravel()
-    total = np.bincount(flat, minlength=n + 1)
-    inboth = np.bincount(flat, weights=both.ravel(), minlength=n + 1)
+    total = np.bincount(lab.ravel(), minlength=n + 1)
+    inboth = np.bincount(lab[both], minlength=n + 1)     # integer counts: no float64 copy
     keep = inboth >= _MIN_BOTH_AXES_SHARE * total
     keep[0] = False
     return keep[lab]
