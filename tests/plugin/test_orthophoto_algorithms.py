@@ -212,7 +212,9 @@ def _parallax_bad(pair, tmp):
     apart = dict(ORTHO_A=_write(tmp / "left.tif", left, gt, nodata=float("nan")),
                  ORTHO_B=_write(tmp / "right.tif", right, gt, nodata=float("nan")))
     bh = dict(BASE_M=pair["B"], HEIGHT_M=pair["H"])
+    geo = _write(tmp / "geo.tif", pair["scene"].terrain, (7.0, 1e-5, 0.0, 45.0, 0.0, -1e-5), epsg=4326)
     return [
+        ("geographic", dict(DEM=geo, **bh), "geographic CRS"),
         ("grid", dict(DEM=crop, **bh), r"ORTHO_A .* is not on the DEM's grid: ORTHO_A has 200 x 160 cells.*"
                                        r"the DEM .*crop.tif\) has 150 x 120 cells"),
         ("b0", dict(BASE_M=0.0, HEIGHT_M=pair["H"]), "base B must be > 0"),
@@ -279,6 +281,28 @@ def test_orthorefine_qgis_process_folder(run_qgis_process, frames, tmp_path):
     assert "rms_correction_m" in out                                   # the table in the log
     _check_grid([tmp_path / "r.tif", tmp_path / "m.tif"], frames["dem"])
     assert (tmp_path / "t.csv").read_text().startswith("iteration,")
+
+
+def test_orthorefine_progress_and_cancel(processing_run, frames, tmp_path):
+    from qgis.core import QgsProcessingFeedback
+
+    class Stop(QgsProcessingFeedback):
+        seen = []
+
+        def setProgress(self, p):  # noqa: N802
+            self.seen.append(p)
+            super().setProgress(p)
+            if p > 40:
+                self.cancel()
+
+    fb = Stop()
+    out = tmp_path / "dem.tif"
+    res = processing_run("bareearth:orthorefine", {
+        "DEM": frames["dem"], "IMAGES": frames["images"], "EXTERIOR": frames["exterior"],
+        "INTERIOR": frames["interior"], "MAX_ITERATIONS": 4, "OUTPUT_DEM": str(out),
+        "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=fb)
+    assert fb.seen and all(0 <= p <= 100 for p in fb.seen) and np.all(np.diff(fb.seen) >= -1e-9)
+    assert max(fb.seen) < 100 and not out.exists() and not res.get("OUTPUT_DEM")
 
 
 def _refine_bad(frames, tmp):
@@ -390,3 +414,32 @@ def test_orthorefine_drone_frames(processing_run, shared_data, tmp_path):
     e0 = math.sqrt(np.mean((start - dsm)[ev] ** 2))
     e1 = math.sqrt(np.mean((refined - dsm)[ev] ** 2))
     assert e1 < 0.9 * e0, (e0, e1)
+
+
+def test_orthoparallax_drone_orthophotos_line_up(processing_run, shared_data, tmp_path):
+    """Two RGB orthophotos of oblique drone frames made with their own DSM: dh is about 0."""
+    from osgeo import gdal
+    from bare_earth.core.orthophoto import orthorectify, read_cameras
+    root = shared_data / "stereo" / "orthority"
+    if not (root / "odm").is_dir():
+        pytest.skip("orthority drone data absent")
+    dsm_path = str(root / "odm" / "odm_dem" / "dsm.tif")
+    ds = gdal.Open(dsm_path)
+    dsm = ds.ReadAsArray().astype(np.float32)
+    gt = ds.GetGeoTransform()
+    names = ["100_0005_0136", "100_0005_0142"]
+    cams = read_cameras(root / "io" / "odm_xyz_opk.csv", root / "odm" / "opensfm" / "reconstruction.json", names)
+    paths = []
+    for n, c in zip(names, cams):
+        im = gdal.Open(str(root / "odm" / "images" / f"{n}.tif")).ReadAsArray().astype(np.float32)
+        o = orthorectify(ndimage.gaussian_filter(im, (0, 2.0, 2.0)), c, dsm, gt)[0]
+        paths.append(_write(tmp_path / f"{n}_ortho.tif", o, gt, nodata=float("nan"), epsg=ds.GetProjection()))
+    res = processing_run("bareearth:orthoparallax", {
+        "ORTHO_A": paths[0], "ORTHO_B": paths[1], "DEM": dsm_path,
+        "CAMERA_A": ",".join(repr(float(v)) for v in cams[0].centre),
+        "CAMERA_B": ",".join(repr(float(v)) for v in cams[1].centre), "MAX_DH_M": 8.0,
+        "OUTPUT_DEM": "TEMPORARY_OUTPUT", "OUTPUT_DH": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+    dh = _read(res["OUTPUT_DH"])[0]
+    mask = _read(res["OUTPUT_MASK"])[0]
+    assert np.isfinite(dh).sum() > 0.5 * (mask != 255).sum()
+    assert abs(np.nanmedian(dh)) < 0.3 and np.nanmedian(np.abs(dh)) < 0.8
