@@ -45,17 +45,10 @@ MEASURES = ("type1", "type2", "total", "kappa")
 
 
 def _bootstrap():
-    """Make ``import bare_earth`` work: link the repo as .build/plugins/bare_earth."""
-    plugins = ROOT / ".build" / "plugins"
-    link = plugins / "bare_earth"
-    if not link.exists():
-        plugins.mkdir(parents=True, exist_ok=True)
-        try:
-            link.symlink_to(Path("..") / "..", target_is_directory=True)
-        except FileExistsError:
-            pass
-    if str(plugins) not in sys.path:
-        sys.path.insert(0, str(plugins))
+    """Make ``import bare_earth`` work (links the repo as .build/plugins/bare_earth)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _common import setup_path
+    setup_path()
 
 
 _bootstrap()

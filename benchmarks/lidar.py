@@ -52,20 +52,10 @@ EXCLUDED = (0, 7, 12, 18)
 GROUND_CLASS = 2
 
 
-def _bootstrap():
-    plugins = ROOT / ".build" / "plugins"
-    link = plugins / "bare_earth"
-    if not link.exists():
-        plugins.mkdir(parents=True, exist_ok=True)
-        try:
-            link.symlink_to(Path("..") / "..", target_is_directory=True)
-        except FileExistsError:
-            pass
-    if str(plugins) not in sys.path:
-        sys.path.insert(0, str(plugins))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import setup_path  # noqa: E402
 
-
-_bootstrap()
+setup_path()
 
 import numpy as np  # noqa: E402
 
