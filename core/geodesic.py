@@ -60,9 +60,10 @@ algorithm's help.
    Two passes catch stepped roofs. This removes what the dilation left (objects on
    steep slopes, thin walls, leftovers of merged regions).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed
-   cell and stands more than ``dh0`` above one of its 8 neighbours is the foot of a wall
-   or the edge of a crown (a cell mixing object and ground): it is removed too, so the
-   interpolated DTM is not pulled up along the objects' borders.
+   cell and stands above one of its 8 neighbours by more than ``dh0 + tan(terrain_slope)
+   * cell_diagonal`` is the foot of a wall or the edge of a crown (a cell mixing object
+   and ground): it is removed too, so the interpolated DTM is not pulled up along the
+   objects' borders.
 5. Gap filling into the DTM is done by the pipeline (``fill.fill_gaps``).
 
 Speed: openings are separable running min/max filters (log2(size) vectorised passes);
@@ -881,13 +882,14 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     stages["scan"] = round(time.perf_counter() - t0 - sum(stages.values()), 3)
     report(progress, 0.95)
 
-    # 4. object borders: a kept cell touching a removed one that stands more than dh0
-    # above one of its neighbours is a wall or crown edge (a mixed cell): removed too
+    # 4. object borders: a kept cell touching a removed one that stands above one of its
+    # neighbours by more than dh0 plus the terrain's rise over a cell diagonal is a wall
+    # foot or crown edge (a mixed cell): removed too
     n_edge = 0
     if removed.any():
         lowc = _filter2d(_fill(cleaned, vnone, np.inf), (3, 3), np.minimum, np.inf)
         with np.errstate(invalid="ignore"):
-            edge = valid & (cleaned - lowc > dh0)
+            edge = valid & (cleaned - lowc > dh0 + tan_s * np.hypot(dx, dy))
         edge &= _filter2d(removed, (3, 3), np.maximum, False) & ~removed & (step == 0)
         step[edge] = STEP_EDGE
         removed |= edge
@@ -963,7 +965,8 @@ METHOD = Method(
         "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
         "columns removes runs that open with a rise, close with a fall and stand above "
         "their neighbours; then the border cells of removed regions that stand above a "
-        "neighbour by more than dh0 (wall feet, crown edges) are removed. The DTM is the "
+        "neighbour by more than dh0 plus the terrain's rise (wall feet, crown edges) are "
+        "removed. The DTM is the "
         "DSM with the removed cells filled by "
         "interpolation.</p><p>Defaults: dh0 = max(0.5 m, 3 x robust DSM noise); terrain "
         "slope = 90th percentile slope of the heavily opened DSM, clipped to 12-22 "
