@@ -267,7 +267,7 @@ class OutputSet:
         drv = _driver_for(path)
         opts = []
         if drv.ShortName == "GTiff":
-            opts = ["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"]
+            opts = ["TILED=YES", "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER"]  # fast, readable anywhere
             if dtype == "Float32":
                 opts.append("PREDICTOR=3")
         gdt = gdal.GetDataTypeByName(dtype)
