@@ -82,7 +82,8 @@ if {method!r} == "io":
     b = src.GetRasterBand(1)
     drv = gdal.GetDriverByName("GTiff")
     dst = drv.Create({dtm!r}, src.RasterXSize, src.RasterYSize, 1, gdal.GDT_Float32,
-                     options=["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3", "BIGTIFF=IF_SAFER"])
+                     options=["TILED=YES", "COMPRESS=DEFLATE", "ZLEVEL=1", "PREDICTOR=3",
+                              "BIGTIFF=IF_SAFER"])  # the options of the plugin's outputs
     for r0 in range(0, src.RasterYSize, 2048):
         h = min(2048, src.RasterYSize - r0)
         dst.GetRasterBand(1).WriteArray(b.ReadAsArray(0, r0, src.RasterXSize, h), 0, r0)
