@@ -209,7 +209,7 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None):
             if n_ch == 0:
                 break
             old[...] = new
-            if n_ch * 64 < (r1 - r0 + 1) * (c1 - c0 + 1):
+            if n_ch * FRONTIER_RATIO < (r1 - r0 + 1) * (c1 - c0 + 1):
                 rr, cc = np.nonzero(ch)
                 frontier = (rr + r0) * W2 + (cc + c0)
             elif n_ch * 2 < h * w:                # shrink the box to the changes
@@ -336,6 +336,8 @@ COARSE_WINDOW = 4
 SCAN_PASSES = 2
 #: Baseline of the wall test in metres (at least one cell).
 WALL_BASE_M = 1.0
+#: The reconstruction leaves its dense passes once fewer than 1/this of the box change.
+FRONTIER_RATIO = 256
 #: Markers within this fraction of dh0 under the surface are snapped to it.
 NOISE_SNAP = 0.2
 #: Geodesic reach of each step's reconstruction, in windows.
