@@ -863,10 +863,11 @@ def filter_geodesic(z, cell_size, *, min_window_m=2.0, max_object_size_m=64.0,
     for k, s in enumerate(sizes, start=1):
         R, obj = _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit)
         new = obj & ~removed
-        step[new & (step == 0)] = k
         removed |= obj
-        cleaned = np.where(obj, np.minimum(cleaned, R), cleaned)
-        counts.append(int(new.sum()))
+        new &= step == 0                          # outliers keep their own code
+        step[new] = k
+        np.minimum(cleaned, R, out=cleaned, where=obj)
+        counts.append(int(np.count_nonzero(new)))
         report(progress, 0.05 + 0.8 * k / len(sizes))
 
     stages["dilation"] = round(time.perf_counter() - t0 - sum(stages.values()), 3)
