@@ -218,21 +218,19 @@ class FilterAlgorithm(BaseAlgorithm):
         return q
 
     def _user_params(self, parameters, context):
+        """The core's keyword arguments; an empty optional number means "from the data" (None)."""
         out = {}
         for p in self.method.params:
             key = p.name.upper()
-            if p.kind == "float":
-                if parameters.get(key) is None or parameters.get(key) == "":
-                    v = None if p.default is None else self.parameterAsDouble(parameters, key, context)
+            if p.kind in ("float", "int"):
+                given = parameters.get(key) not in (None, "")
+                if not given and p.default is None:
+                    v = None
                 else:
-                    v = self.parameterAsDouble(parameters, key, context)
+                    read = self.parameterAsDouble if p.kind == "float" else self.parameterAsInt
+                    v = read(parameters, key, context)
                     if p.default is None and isinstance(v, float) and math.isnan(v):
                         v = None
-            elif p.kind == "int":
-                if parameters.get(key) is None or parameters.get(key) == "":
-                    v = None if p.default is None else self.parameterAsInt(parameters, key, context)
-                else:
-                    v = self.parameterAsInt(parameters, key, context)
             elif p.kind == "bool":
                 v = self.parameterAsBool(parameters, key, context)
             else:

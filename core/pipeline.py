@@ -259,7 +259,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
         With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
-        into one strip of rows per process. Cancellation is checked between blocks. The
+        into two strips of rows per process. Cancellation is checked between blocks. The
         mask is the same as in one pass; the DTM's filled cells may differ slightly (the
         interpolation sees the block and its halo, not the whole raster).
     progress : callable, optional
@@ -297,8 +297,9 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     if block is None:
         block = max(info.shape) if info.cells <= IN_MEMORY_CELLS else blocks.DEFAULT_BLOCK
         if processes > 1:
-            # strips of rows, one per process (the halo costs least); default blocks when large
-            rows = -(-info.shape[0] // processes) if info.cells <= IN_MEMORY_CELLS else block
+            # strips of rows, two per process (writing overlaps the filtering; the halo stays
+            # a small share); default blocks when large
+            rows = -(-info.shape[0] // (2 * processes)) if info.cells <= IN_MEMORY_CELLS else block
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
     single = len(windows) == 1
@@ -328,7 +329,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         want_dtm = "dtm" in out or "ndsm" in out
 
         io_lock = threading.Lock()  # GDAL datasets are not safe for concurrent use
-        job = _BlockJob(meth, info.path, info.band_index, cell, params, want_dtm)
+        job = _BlockJob(meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out)
 
         def write(core, outer, result):
             m, d, zc, res_extras, res_info = result
@@ -369,9 +370,10 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
 class _BlockJob:
     """The per-block work of :func:`run_file`, picklable for worker processes."""
 
-    def __init__(self, meth, path, band, cell, params, want_dtm):
+    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True):
         self.meth, self.path, self.band = meth, path, band
         self.cell, self.params, self.want_dtm = cell, params, want_dtm
+        self.want_z = want_z  # the input block is sent back only when an nDSM is written
         self._info = None
 
     def __getstate__(self):
@@ -395,12 +397,13 @@ class _BlockJob:
         c = blocks.crop(outer, core)
         h, w = core[1] - core[0], core[3] - core[2]
         if not np.isfinite(zb).any():
-            return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32), zb[c], {}, None)
+            return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32),
+                    zb[c] if self.want_z else None, {}, None)
         res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress)
         extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
                   for k, a in res.extras.items()}
         d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
-        return (m[c], d, zb[c], extras, res.info)
+        return (m[c], d, zb[c] if self.want_z else None, extras, res.info)
 
 
 def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
