@@ -272,9 +272,10 @@ class FilterAlgorithm(BaseAlgorithm):
         from ..core.pipeline import run_file
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
         band = self.parameterAsInt(parameters, self.BAND, context) if parameters.get(self.BAND) else None
-        ok, msg, info = check_dsm(layer, band)
-        if not ok:
-            raise QgsProcessingException(msg)
+        try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
+            info = grid.open_dsm(raster_path(layer), band or None)
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
                    "mask": self.parameterAsOutputLayer(parameters, self.OUTPUT_MASK, context)}
         if parameters.get(self.OUTPUT_NDSM):

@@ -275,9 +275,6 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     meth = _method(method)
     log = log or (lambda s: None)
     info = grid.open_dsm(path, band)
-    grid.check_has_data(info)
-    for w in info.warnings:
-        log("Warning: " + w)
     cell = info.cell_size_m
     aux = dict(aux or {})
     for k, a in aux.items():
@@ -285,10 +282,19 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {info.shape}.")
     t0 = time.perf_counter()
     user = _user_params(meth, params)
+    # The window the parameters come from also proves the raster has data (a full scan only
+    # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
     zr = info.read(rw)
     if not np.isfinite(zr).any():
+        grid.check_has_data(info)  # raises ValueError when no cell is valid
         zr = info.read()
+    elif info.nodata is None and info.dtype.startswith("Float") and np.isnan(zr).any():
+        info.nan_undeclared = True
+        info.warnings.append("The raster has NaN cells but declares no nodata value: NaN was treated as "
+                             "nodata, and the outputs declare NaN as nodata.")
+    for w in info.warnings:
+        log("Warning: " + w)
     params = meth.resolve(zr, cell, **user)
     if rw != (0, info.shape[0], 0, info.shape[1]):
         log(f"Parameters derived from the central {rw[1]-rw[0]} x {rw[3]-rw[2]} cells.")
@@ -300,6 +306,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
             # strips of rows, two per process (writing overlaps the filtering; the halo stays
             # a small share); default blocks when large
             rows = -(-info.shape[0] // (2 * processes)) if info.cells <= IN_MEMORY_CELLS else block
+            rows = -(-rows // 64) * 64  # multiples of 64: coarsened grids align as in one pass
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
     single = len(windows) == 1
