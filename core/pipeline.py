@@ -28,6 +28,8 @@ from .methods import Method, get_method
 IN_MEMORY_CELLS = 25_000_000
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
+#: Strips of rows per worker process when a raster is processed in parallel.
+STRIPS_PER_PROCESS = 2
 
 
 @dataclass
@@ -305,7 +307,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         if processes > 1:
             # strips of rows, two per process (writing overlaps the filtering; the halo stays
             # a small share); default blocks when large
-            rows = -(-info.shape[0] // (2 * processes)) if info.cells <= IN_MEMORY_CELLS else block
+            rows = -(-info.shape[0] // (STRIPS_PER_PROCESS * processes)) if info.cells <= IN_MEMORY_CELLS else block
             rows = -(-rows // 64) * 64  # multiples of 64: coarsened grids align as in one pass
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
