@@ -3,7 +3,12 @@
 Usage::
 
     /usr/bin/python3 benchmarks/speed.py [--methods slopeprofile,...] [--sizes 1,4,16] [--big]
-                                          [--workers N] [--out benchmarks/results/speed.jsonl]
+                                          [--stages file,filter,dtm] [--params JSON]
+                                          [--processes N] [--out benchmarks/results/speed.jsonl]
+
+Stages: ``file`` (the default) reads the GeoTIFF, filters, fills the DTM and writes DTM and
+mask, as the plugin does; ``filter`` times the method alone on an array (parameters already
+derived); ``dtm`` the filter plus the DTM's gap filling on an array.
 
 Each run is a fresh subprocess, so its peak resident memory (``VmHWM``) is its own;
 "extra" is that peak minus the memory of the imports alone. With ``--processes N`` the
@@ -77,7 +82,20 @@ def status_kb(key):
 
 base = status_kb("VmRSS")
 t = time.perf_counter()
-if {method!r} == "io":
+if {stage!r} != "file":
+    from bare_earth.core.synthetic import make_dsm
+    from bare_earth.core.methods import get_method
+    z = make_dsm(int({mcells} * 1e6)).dsm
+    meth = get_method({method!r})
+    prm = meth.resolve(z, (1.0, 1.0), **pipeline._user_params(meth, {params!r}))
+    base = status_kb("VmRSS")
+    t = time.perf_counter()
+    if {stage!r} == "filter":
+        meth.run(z, (1.0, 1.0), **prm)
+    else:
+        pipeline.run_array(meth, z, 1.0, params={params!r})
+    info = {{}}
+elif {method!r} == "io":
     src = gdal.Open({src!r})
     b = src.GetRasterBand(1)
     drv = gdal.GetDriverByName("GTiff")
@@ -99,10 +117,11 @@ print(json.dumps({{"seconds": dt, "peak_mb": peak / 1024, "extra_mb": (peak - ba
 """
 
 
-def run_child(method, src, tmp, block=None, workers=1):
+def run_child(method, src, tmp, block=None, workers=1, stage="file", mcells=0, params=None):
     code = CHILD.format(plugins=str(ROOT / ".build" / "plugins"), method=method, src=str(src),
                         dtm=str(Path(tmp) / "dtm.tif"), mask=str(Path(tmp) / "mask.tif"),
-                        block=repr(block), workers=int(workers))
+                        block=repr(block), workers=int(workers), stage=stage, mcells=mcells,
+                        params=dict(params or {}))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if res.returncode != 0:
         return {"error": (res.stderr.strip().splitlines() or ["failed"])[-1]}
@@ -117,10 +136,16 @@ def main(argv=None):
     ap.add_argument("--big", action="store_true", help="add 100 Mcells (and 16 Mcells) in block mode")
     ap.add_argument("--processes", dest="workers", type=int, default=1,
                     help="worker processes running blocks")
+    ap.add_argument("--stages", default="file",
+                    help="comma-separated: file (read, filter, fill the DTM, write: the default), "
+                         "filter (the filter alone on an array), dtm (filter and DTM fill on an array)")
+    ap.add_argument("--params", default="{}", help="method parameters as JSON, e.g. '{\"mode\": \"progressive\"}'")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "speed.jsonl"))
     ap.add_argument("--no-log", action="store_true")
     args = ap.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
+    stages = [x for x in args.stages.split(",") if x]
+    params = json.loads(args.params)
     sizes = [float(s) for s in args.sizes.split(",") if s]
     rows = []
     with tempfile.TemporaryDirectory(prefix="bare_earth_speed_") as tmp:
@@ -128,7 +153,7 @@ def main(argv=None):
         if args.big:
             cases += [(16.0, 2048), (100.0, 2048)]
         inputs = {}
-        print(f"{'method':>14} {'Mcells':>7} {'mode':>10} {'seconds':>8} {'Mcells/s':>9} {'peak MB':>8} "
+        print(f"{'method':>14} {'Mcells':>7} {'mode':>12} {'seconds':>8} {'Mcells/s':>9} {'peak MB':>8} "
               f"{'extra MB':>9} {'input MB':>9}")
         for size, block in cases:
             if size not in inputs:
@@ -137,18 +162,24 @@ def main(argv=None):
                 inputs[size] = (p, n)
             p, n = inputs[size]
             for m in ["io"] + methods:
-                if m == "io" and block is not None:
-                    continue
-                r = run_child(m, p, tmp, block=block, workers=args.workers)
-                mode = "io only" if m == "io" else ("one block" if block is None else f"blocks {block}")
-                if "error" in r:
-                    print(f"{m:>14} {n / 1e6:7.1f} {mode:>10}  ERROR {r['error']}")
-                    continue
-                row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, **r,
-                           mcells_per_s=n / 1e6 / r["seconds"], input_mb=n * 4 / 2 ** 20)
-                rows.append(row)
-                print(f"{m:>14} {n / 1e6:7.1f} {mode:>10} {r['seconds']:8.2f} {row['mcells_per_s']:9.2f} "
-                      f"{r['peak_mb']:8.0f} {r['extra_mb']:9.0f} {row['input_mb']:9.0f}")
+                for stage in (["file"] if m == "io" else stages):
+                    if m == "io" and block is not None:
+                        continue
+                    if stage != "file" and block is not None:
+                        continue
+                    r = run_child(m, p, tmp, block=block, workers=args.workers, stage=stage, mcells=size,
+                                  params=params)
+                    mode = ("io only" if m == "io" else
+                            {"filter": "filter", "dtm": "filter+DTM"}.get(stage) if stage != "file" else
+                            ("file" if block is None else f"file {block}"))
+                    if "error" in r:
+                        print(f"{m:>14} {n / 1e6:7.1f} {mode:>12}  ERROR {r['error']}")
+                        continue
+                    row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, params=params, **r,
+                               mcells_per_s=n / 1e6 / r["seconds"], input_mb=n * 4 / 2 ** 20)
+                    rows.append(row)
+                    print(f"{m:>14} {n / 1e6:7.1f} {mode:>12} {r['seconds']:8.2f} {row['mcells_per_s']:9.2f} "
+                          f"{r['peak_mb']:8.0f} {r['extra_mb']:9.0f} {row['input_mb']:9.0f}")
     if not args.no_log and rows:
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
