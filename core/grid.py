@@ -6,6 +6,7 @@ other linear units by the CRS's factor). Blocks are read as float32 with NaN as 
 and heights in metres; outputs are created on the same grid, written block by block to a
 temporary file and moved into place only when the run succeeds (:class:`OutputSet`).
 """
+import contextlib
 import math
 import os
 import uuid
@@ -228,6 +229,29 @@ def check_has_data(info, max_cells=4_000_000):
         info.warnings.append("The raster has NaN cells but declares no nodata value: NaN was treated as "
                              "nodata, and the outputs declare NaN as nodata.")
     return float(valid.mean())
+
+
+#: GDAL's block cache during a blocked run, bytes. Blocks (2048) are whole 256-cell output
+#: tiles, so no tile waits in the cache for a later block.
+BLOCK_MODE_CACHE = 64 * 2 ** 20
+
+
+@contextlib.contextmanager
+def bounded_cache(active=True, size=BLOCK_MODE_CACHE):
+    """Cap GDAL's block cache while a raster is processed block by block.
+
+    GDAL keeps written tiles in its cache (by default 5 % of the RAM); in block mode that
+    cache, not the blocks, would grow with the raster. The previous size is restored.
+    """
+    if not active or gdal is None:
+        yield
+        return
+    old = gdal.GetCacheMax()
+    gdal.SetCacheMax(min(old, size))
+    try:
+        yield
+    finally:
+        gdal.SetCacheMax(old)
 
 
 def _driver_for(path):

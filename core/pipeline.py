@@ -322,7 +322,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     counts = {}
     infos, weights = [], []
     scale = 1.0 / info.z_to_m
-    with grid.OutputSet(info) as out:
+    with grid.OutputSet(info) as out, grid.bounded_cache(len(windows) > 1):
         if outputs.get("dtm"):
             out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
         if outputs.get("ndsm"):
