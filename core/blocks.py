@@ -85,15 +85,13 @@ def run_windows(func, windows, *, workers=1, progress=None):
 
 
 def _process_context():
-    """A multiprocessing context safe where we run.
+    """A multiprocessing context that is safe wherever we run: spawn, never fork.
 
-    Plain Python on Linux forks (cheap: the workers share the loaded modules). Inside a
-    QGIS application (a Qt process, where fork is unsafe) workers are spawned with a real
-    Python interpreter, since ``sys.executable`` is then the QGIS binary.
+    Forking copies a process whose other threads may hold locks (GDAL's tile-compression
+    threads, Qt's threads inside QGIS), which deadlocks the child; spawned workers start
+    clean. Inside QGIS ``sys.executable`` is the QGIS binary, so a real Python interpreter
+    is named instead.
     """
-    in_qgis = "qgis.core" in sys.modules and os.path.basename(sys.executable or "").startswith("qgis")
-    if not in_qgis and "qgis.core" not in sys.modules and hasattr(os, "fork"):
-        return multiprocessing.get_context("fork")
     ctx = multiprocessing.get_context("spawn")
     exe = sys.executable or ""
     if not os.path.basename(exe).startswith("python"):

@@ -28,6 +28,14 @@ _EXT_DRIVERS = {".tif": "GTiff", ".tiff": "GTiff", ".img": "HFA", ".vrt": None,
                 ".nc": "netCDF", ".asc": None, ".sdat": "SAGA"}
 
 
+def _open_read(path):
+    """Open a raster read-only; GeoTIFFs decompress their tiles on every core."""
+    ds = gdal.Open(path, gdal.GA_ReadOnly)
+    if ds is not None and ds.GetDriver().ShortName == "GTiff":
+        ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY, open_options=["NUM_THREADS=ALL_CPUS"]) or ds
+    return ds
+
+
 def _need_gdal():
     if gdal is None:
         raise ImportError("GDAL's Python bindings are needed (python3-gdal on Debian; QGIS ships them).")
@@ -69,7 +77,7 @@ class DSMInfo:
 
     def dataset(self):
         if self._ds is None:
-            self._ds = gdal.Open(self.path, gdal.GA_ReadOnly)
+            self._ds = _open_read(self.path)
         return self._ds
 
     def read(self, window=None):
@@ -156,7 +164,7 @@ def open_dsm(path, band=None):
     """
     _need_gdal()
     try:
-        ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+        ds = _open_read(str(path))
     except RuntimeError as exc:
         raise ValueError(f"cannot open the raster {path!r}: {exc}. Check the path and format.") from None
     if ds is None:
@@ -291,7 +299,8 @@ class OutputSet:
         drv = _driver_for(path)
         opts = []
         if drv.ShortName == "GTiff":
-            opts = ["TILED=YES", "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER"]  # fast, readable anywhere
+            # fast and readable anywhere; tiles compressed on every core
+            opts = ["TILED=YES", "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
             if dtype == "Float32":
                 opts.append("PREDICTOR=3")
         gdt = gdal.GetDataTypeByName(dtype)

@@ -298,7 +298,8 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     for w in info.warnings:
         log("Warning: " + w)
     params = meth.resolve(zr, cell, **user)
-    if rw != (0, info.shape[0], 0, info.shape[1]):
+    whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
+    if whole is None:
         log(f"Parameters derived from the central {rw[1]-rw[0]} x {rw[3]-rw[2]} cells.")
     del zr
     halo = int(meth.halo(params, cell))
@@ -360,8 +361,11 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
                                  workers=processes, progress=sub_progress(progress, 0.03, 0.97))
         else:
             def work(core, outer):
-                with io_lock:
-                    zb = info.read(outer)
+                if single and whole is not None:
+                    zb = whole
+                else:
+                    with io_lock:
+                        zb = info.read(outer)
                 write(core, outer, job.compute(core, outer, aux_for(outer), zb,
                                                sub_progress(progress, 0.03, 0.95) if single else None))
 
