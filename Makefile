@@ -26,6 +26,7 @@ package:
 	@git ls-files | grep -vE '^(tests/|benchmarks/|scripts/|docs/|\.ci/|\.gitignore|Makefile|pytest\.ini)' \
 	  | while read f; do mkdir -p ".build/package/bare_earth/$$(dirname "$$f")"; cp "$$f" ".build/package/bare_earth/$$f"; done
 	@cd .build/package && zip -qr "$(ROOT)/dist/bare_earth-$(VERSION).zip" bare_earth -x '*__pycache__*' '*.pyc'
+	@rm -rf .build/package
 	@echo "dist/bare_earth-$(VERSION).zip"
 
 clean:

@@ -20,8 +20,9 @@ class CurvatureAlgorithm(FilterAlgorithm):
                                "choose K_G_PER_M2."}
 
 
-class GeodesicAlgorithm(FilterAlgorithm):
-    """``bareearth:geodesic``: gradual geodesic dilation with scan labelling (2018)."""
+class GeodesicAlgorithm(PointsInputMixin, FilterAlgorithm):
+    """``bareearth:geodesic``: gradual geodesic dilation with scan labelling (2018), on a DSM
+    raster (INPUT) or directly on points (INPUT_POINTS: rasterize, filter, classify)."""
     METHOD_NAME = "geodesic"
     EXTRA_HELP = {"step": "Step, UInt8: which dilation step (1, 2, ...) or which later stage removed each "
                           "cell (codes in the algorithm's help); 0 kept, 255 nodata."}
