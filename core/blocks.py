@@ -100,17 +100,32 @@ def _process_context():
     return ctx
 
 
-def run_processes(job, items, on_result, *, workers=2, progress=None):
+def _warm_up():
+    """Run in a new worker: import the heavy modules while the parent does other work."""
+    from . import pipeline  # noqa: F401  (numpy, scipy, GDAL and the methods)
+    return os.getpid()
+
+
+def start_pool(workers):
+    """A process pool whose workers start (spawn and import) right away, in the background."""
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_process_context())
+    for _ in range(workers):
+        pool.submit(_warm_up)
+    return pool
+
+
+def run_processes(job, items, on_result, *, workers=2, progress=None, pool=None):
     """Run ``job(*item)`` for every item in worker processes; ``on_result(core, outer, result)``
     is called here, in this process, as results arrive (so this process does all writing).
 
+    ``pool`` may be one from :func:`start_pool` (it is shut down at the end).
     ``items`` are ``(core, outer, extra)`` tuples; at most ``2 * workers`` are in flight, so
     memory stays bounded. ``progress`` gets the fraction done and may raise ``Cancelled``:
     the pending blocks are then cancelled and the workers stopped.
     """
     n = len(items)
     done = 0
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_process_context()) as pool:
+    with (pool or ProcessPoolExecutor(max_workers=workers, mp_context=_process_context())) as pool:
         pending = {}
 
         def drain(limit):

@@ -28,7 +28,8 @@ from .methods import Method, get_method
 IN_MEMORY_CELLS = 25_000_000
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
-#: Strips of rows per worker process when a raster is processed in parallel.
+#: Strips of rows per worker process when a raster is processed in parallel (one when the
+#: method's halo would make that many strips cost more than a quarter extra).
 STRIPS_PER_PROCESS = 2
 
 
@@ -284,6 +285,19 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {info.shape}.")
     t0 = time.perf_counter()
     user = _user_params(meth, params)
+    # worker processes start (spawn, imports) while this process derives the parameters
+    pool = blocks.start_pool(processes) if processes > 1 and info.cells >= 1_000_000 else None
+    try:
+        return _run_file(meth, info, outputs, user, aux, block, workers, processes, progress, log, t0, pool)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _run_file(meth, info, outputs, user, aux, block, workers, processes, progress, log, t0, pool):
+    """The body of :func:`run_file` once the inputs are checked."""
+    from . import grid
+    cell = info.cell_size_m
     # The window the parameters come from also proves the raster has data (a full scan only
     # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
@@ -308,7 +322,10 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         if processes > 1:
             # strips of rows, two per process (writing overlaps the filtering; the halo stays
             # a small share); default blocks when large
-            rows = -(-info.shape[0] // (STRIPS_PER_PROCESS * processes)) if info.cells <= IN_MEMORY_CELLS else block
+            strips = processes * STRIPS_PER_PROCESS
+            if 2 * halo * strips > info.shape[0] // 4:     # the halo would add more than a quarter
+                strips = processes
+            rows = -(-info.shape[0] // strips) if info.cells <= IN_MEMORY_CELLS else block
             rows = -(-rows // 64) * 64  # multiples of 64: coarsened grids align as in one pass
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
@@ -358,7 +375,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
 
         if processes > 1 and len(windows) > 1:
             blocks.run_processes(job, [(core, outer, aux_for(outer)) for core, outer in windows], write,
-                                 workers=processes, progress=sub_progress(progress, 0.03, 0.97))
+                                 workers=processes, progress=sub_progress(progress, 0.03, 0.97), pool=pool)
         else:
             def work(core, outer):
                 if single and whole is not None:
