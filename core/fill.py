@@ -51,7 +51,7 @@ from .common import report
 #: Largest number of cells of the coarsest level (solved directly).
 _TOP_CELLS = 4096
 #: Red-black Gauss-Seidel sweeps on the finest level.
-_SWEEPS_FINEST = 4
+_SWEEPS_FINEST = 2
 #: Over-relaxation sweeps on level 1, growth factor per coarser level, cap.
 _SWEEPS_COARSE1 = 8
 _SWEEPS_GROWTH = 2
