@@ -25,5 +25,8 @@ class BareEarthPlugin:
 
     def unload(self):
         if self.provider is not None:
-            QgsApplication.processingRegistry().removeProvider(self.provider)
+            try:
+                QgsApplication.processingRegistry().removeProvider(self.provider)
+            except RuntimeError:  # QGIS already deleted it (e.g. while shutting down)
+                pass
             self.provider = None
