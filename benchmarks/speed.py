@@ -109,7 +109,7 @@ elif {method!r} == "io":
     info = {{}}
 else:
     info = pipeline.run_file({method!r}, {src!r}, {{"dtm": {dtm!r}, "mask": {mask!r}}}, block={block},
-                             processes={workers})
+                             processes={workers}, workers={threads})
 dt = time.perf_counter() - t
 peak = status_kb("VmHWM")
 print(json.dumps({{"seconds": dt, "peak_mb": peak / 1024, "extra_mb": (peak - base) / 1024,
@@ -117,10 +117,11 @@ print(json.dumps({{"seconds": dt, "peak_mb": peak / 1024, "extra_mb": (peak - ba
 """
 
 
-def run_child(method, src, tmp, block=None, workers=1, stage="file", mcells=0, params=None):
+def run_child(method, src, tmp, block=None, workers=1, stage="file", mcells=0, params=None, threads=1):
     code = CHILD.format(plugins=str(ROOT / ".build" / "plugins"), method=method, src=str(src),
                         dtm=str(Path(tmp) / "dtm.tif"), mask=str(Path(tmp) / "mask.tif"),
-                        block=repr(block), workers=int(workers), stage=stage, mcells=mcells,
+                        block=repr(block), workers=int(workers), threads=int(threads), stage=stage,
+                        mcells=mcells,
                         params=dict(params or {}))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if res.returncode != 0:
@@ -136,6 +137,7 @@ def main(argv=None):
     ap.add_argument("--big", action="store_true", help="add 100 Mcells (and 16 Mcells) in block mode")
     ap.add_argument("--processes", dest="workers", type=int, default=1,
                     help="worker processes running blocks")
+    ap.add_argument("--threads", type=int, default=1, help="threads running blocks")
     ap.add_argument("--stages", default="file",
                     help="comma-separated: file (read, filter, fill the DTM, write: the default), "
                          "filter (the filter alone on an array), dtm (filter and DTM fill on an array)")
@@ -168,14 +170,15 @@ def main(argv=None):
                     if stage != "file" and block is not None:
                         continue
                     r = run_child(m, p, tmp, block=block, workers=args.workers, stage=stage, mcells=size,
-                                  params=params)
+                                  params=params, threads=args.threads)
                     mode = ("io only" if m == "io" else
                             {"filter": "filter", "dtm": "filter+DTM"}.get(stage) if stage != "file" else
                             ("file" if block is None else f"file {block}"))
                     if "error" in r:
                         print(f"{m:>14} {n / 1e6:7.1f} {mode:>12}  ERROR {r['error']}")
                         continue
-                    row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, params=params, **r,
+                    row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, threads=args.threads,
+                               params=params, **r,
                                mcells_per_s=n / 1e6 / r["seconds"], input_mb=n * 4 / 2 ** 20)
                     rows.append(row)
                     print(f"{m:>14} {n / 1e6:7.1f} {mode:>12} {r['seconds']:8.2f} {row['mcells_per_s']:9.2f} "

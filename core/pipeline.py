@@ -258,7 +258,9 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     block : int, optional
         Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
     workers : int
-        Threads running blocks.
+        Threads running blocks (numpy, scipy and GDAL release the GIL for the heavy work;
+        no start-up cost). With more than one and no ``block``, the raster is cut into strips
+        of rows as for ``processes``.
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
         With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
@@ -319,12 +321,13 @@ def _run_file(meth, info, outputs, user, aux, block, workers, processes, progres
     halo = int(meth.halo(params, cell))
     if block is None:
         block = max(info.shape) if info.cells <= IN_MEMORY_CELLS else blocks.DEFAULT_BLOCK
-        if processes > 1:
+        if processes > 1 or workers > 1:
+            processes_or_threads = max(processes, workers)
             # strips of rows, two per process (writing overlaps the filtering; the halo stays
             # a small share); default blocks when large
-            strips = processes * STRIPS_PER_PROCESS
+            strips = processes_or_threads * STRIPS_PER_PROCESS
             if 2 * halo * strips > info.shape[0] // 4:     # the halo would add more than a quarter
-                strips = processes
+                strips = processes_or_threads
             rows = -(-info.shape[0] // strips) if info.cells <= IN_MEMORY_CELLS else block
             rows = -(-rows // 64) * 64  # multiples of 64: coarsened grids align as in one pass
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
@@ -378,8 +381,8 @@ def _run_file(meth, info, outputs, user, aux, block, workers, processes, progres
                                  workers=processes, progress=sub_progress(progress, 0.03, 0.97), pool=pool)
         else:
             def work(core, outer):
-                if single and whole is not None:
-                    zb = whole
+                if whole is not None:                 # already in memory: a view, no read
+                    zb = whole[outer[0]:outer[1], outer[2]:outer[3]]
                 else:
                     with io_lock:
                         zb = info.read(outer)

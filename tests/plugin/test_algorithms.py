@@ -266,6 +266,15 @@ def test_qgis_process_bad_input_message(run_qgis_process, tmp_path):
     assert not (tmp_path / "d.tif").exists()
 
 
+def test_threads_give_the_same_mask(processing_run, scene_files, tmp_path):
+    one = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                    "OUTPUT_MASK": str(tmp_path / "one.tif")})
+    thr = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "THREADS": 2,
+                                                    "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                    "OUTPUT_MASK": str(tmp_path / "thr.tif")})
+    np.testing.assert_array_equal(_read(one["OUTPUT_MASK"])[0], _read(thr["OUTPUT_MASK"])[0])
+
+
 def test_worker_processes_and_blocks_give_the_same_mask(processing_run, scene_files, tmp_path):
     one = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                     "OUTPUT_MASK": str(tmp_path / "one.tif")})
