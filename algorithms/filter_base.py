@@ -158,29 +158,22 @@ class FilterAlgorithm(BaseAlgorithm):
             self.addParameter(p)
         for p in self.method.params:
             self.addParameter(self._qgs_param(p))
-        bs = QgsProcessingParameterNumber(self.BLOCK_SIZE, tr("Block size (cells, 0 = automatic)"),
-                                          QgsProcessingParameterNumber.Integer, 0, optional=True,
-                                          minValue=0, maxValue=65536)
-        bs.setHelp(tr("Edge of the blocks the raster is processed in, in cells. 0: one block up to 25 "
-                      "million cells, else 2048. Blocks overlap by the method's reach, so the result "
-                      "does not depend on it; memory does."))
-        bs.setFlags(bs.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
-        self.addParameter(bs)
-        th = QgsProcessingParameterNumber(self.THREADS, tr("Threads"), QgsProcessingParameterNumber.Integer,
-                                          1, optional=True, minValue=1, maxValue=64)
-        th.setHelp(tr("Blocks filtered at once in threads (up to the number of cores). The raster is cut "
-                      "into strips of rows that overlap by the method's reach; no start-up cost, so this "
-                      "is the first choice on one machine."))
-        th.setFlags(th.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
-        self.addParameter(th)
-        pr = QgsProcessingParameterNumber(self.PROCESSES, tr("Worker processes"),
-                                          QgsProcessingParameterNumber.Integer, 1, optional=True,
-                                          minValue=1, maxValue=64)
-        pr.setHelp(tr("Blocks filtered at once in separate Python processes (use up to the number of "
-                      "cores). Each holds one block in memory; starting them takes about a second, "
-                      "so it pays on large rasters."))
-        pr.setFlags(pr.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
-        self.addParameter(pr)
+        for key, label, default, lo, hi, text in (
+                (self.BLOCK_SIZE, "Block size (cells, 0 = automatic)", 0, 0, 65536,
+                 "Edge of the blocks the raster is processed in, in cells. 0: one block up to 25 "
+                 "million cells, else 2048. Blocks overlap by the method's reach, so the result "
+                 "does not depend on it; memory does."),
+                (self.THREADS, "Threads", 1, 1, 64,
+                 "Blocks filtered at once in threads (up to the number of cores). The raster is cut "
+                 "into strips of rows that overlap by the method's reach; no start-up cost, so this "
+                 "is the first choice on one machine."),
+                (self.PROCESSES, "Worker processes", 1, 1, 64,
+                 "Blocks filtered at once in separate Python processes (use up to the number of "
+                 "cores). Each holds one block in memory; starting them takes about a second, "
+                 "so it pays on large rasters.")):
+            self.addParameter(with_help(QgsProcessingParameterNumber(
+                key, tr(label), QgsProcessingParameterNumber.Integer, default, optional=True,
+                minValue=lo, maxValue=hi), text, advanced=True))
         self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_DTM, tr("DTM")),
                                     "Float32 bare-earth DTM on the input's grid: removed cells filled by "
                                     "interpolation from the ground around them, the input's nodata kept."))
