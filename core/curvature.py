@@ -331,11 +331,14 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
 
 
 # --------------------------------------------------------------------------- profiles
-def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
+def _walls(Zp, pad, V, B, cell, *, reach, h_min, tan_wall):
     """Where a profile (axis 0, scanned downwards) has just risen as a wall.
 
-    Only marked positions ``B`` (breaks) are examined. The foot of position j is the
-    lowest of the ``_WALL_CELLS`` positions before it. j is the top of a wall when
+    ``Zp`` holds the profiles below ``pad`` rows of NaN (``pad >= _WALL_CELLS + reach``),
+    so that positions before a profile's start read as NaN without a test: ``Z =
+    Zp[pad:]``, NaN at nodata. Only marked positions ``B`` (breaks) are examined. The
+    foot of position j is the lowest of the ``_WALL_CELLS`` positions before it. j is the
+    top of a wall when
 
     * ``z_j - foot >= h_min`` (high enough),
     * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
@@ -348,53 +351,53 @@ def _walls(Z, V, B, cell, *, reach, h_min, tan_wall):
 
     The same test mirrored finds where the profile has just come down a wall (by
     ``drop``: the highest of the ``_WALL_CELLS`` positions before, minus ``z_j``). A loop
-    over a handful of shifts, each vectorised over all marked cells.
+    over a handful of shifts, each a gather (``take``) over all marked cells from a
+    flat view of the rows k positions earlier.
 
     Returns
     -------
     walls : tuple of ndarray
-        ``(flat index, foot height, slope)`` of the wall tops, in index order; ``slope`` is
-        the profile's rise per position before the foot (>= 0), so that the scan can
-        follow the ground under the object.
+        ``(flat index, foot height, slope)`` of the wall tops (flat indices of
+        ``Zp[pad:]``), in index order; ``slope`` is the profile's rise per position
+        before the foot (>= 0), so that the scan can follow the ground under the object.
     downs : tuple of ndarray
         ``(flat index, drop)`` of the positions just below a wall, in index order.
     """
-    n, m = Z.shape
+    n = Zp.shape[0] - pad
+    if pad < _WALL_CELLS + reach:
+        raise ValueError("_walls: the padding must cover the wall and the reach before it")
     idx = np.flatnonzero(B if V is None else B & V)
     if idx.size == 0:
         e = np.zeros(0, np.int64), np.zeros(0, np.float32)
         return (e[0], e[1], e[1]), e
-    zf = (Z if V is None else np.where(V, Z, np.float32(np.nan))).ravel()
 
-    def back(k, at):  # heights k positions before flat indices ``at`` (NaN before row 0)
-        v = zf[np.maximum(at - k * m, 0)]
-        v[at < k * m] = np.nan
-        return v
+    def back(k):  # the profiles k positions earlier (NaN before their start), flat view
+        return Zp[pad - k:pad - k + n].ravel()
 
-    zc = zf[idx]
-    best = np.full(idx.size, np.inf, np.float32)
-    top = np.full(idx.size, -np.inf, np.float32)
-    for k in range(1, _WALL_CELLS + 1):
-        v = back(k, idx)
+    zc = back(0).take(idx)
+    best = back(1).take(idx)
+    top = best.copy()
+    for k in range(2, _WALL_CELLS + 1):
+        v = back(k).take(idx)
         np.fmin(best, v, out=best)
         np.fmax(top, v, out=top)
-    base = v  # the height _WALL_CELLS positions before
+    base = v if _WALL_CELLS > 1 else best  # the height _WALL_CELLS positions before
     with np.errstate(invalid="ignore"):
         rise = zc - best
-        fall = top - zc
+        fall = np.subtract(top, zc, out=top)
         # cheap tests first, on all marked cells; the rest only on what passes
         down = (fall >= np.float32(h_min)) & (fall >= np.float32(tan_wall * _WALL_CELLS * cell))
         rate = rise / np.float32(_WALL_CELLS * cell)
         cand = np.flatnonzero((rise >= np.float32(h_min)) & (rate >= np.float32(tan_wall)))
-        ci = idx[cand]
-        before = back(_WALL_CELLS + reach, ci)
+        ci = idx.take(cand)
+        before = back(_WALL_CELLS + reach).take(ci)
         nb = np.isnan(before)
-        if nb.any():  # near the start of a profile: its first position
-            before[nb] = zf[ci[nb] % m]
-        prior = np.maximum((base[cand] - before) / np.float32(reach * cell), 0)
-        ok = rate[cand] >= np.float32(_WALL_CONTRAST) * prior
+        if nb.any():  # near the start of a profile (or nodata): its first position
+            before[nb] = Zp[pad].take(ci[nb] % Zp.shape[1])
+        prior = np.maximum((base.take(cand) - before) / np.float32(reach * cell), 0)
+        ok = rate.take(cand) >= np.float32(_WALL_CONTRAST) * prior
     wsel = cand[ok]
-    return ((idx[wsel], best[wsel], (prior[ok] * np.float32(cell)).astype(np.float32)),
+    return ((ci[ok], best.take(wsel), (prior[ok] * np.float32(cell)).astype(np.float32)),
             (idx[down], fall[down].astype(np.float32)))
 
 
@@ -407,8 +410,9 @@ def _scan(Z, V, walls, downs, *, tol, max_cells):
     """The scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
 
     The paper's reading of a profile: the points between a break going up and the
-    matching break coming down belong to an object. State per profile: ``g`` the height
-    of the ground before the object (its foot), ``jg`` the position of the last ground.
+    matching break coming down belong to an object. State per profile inside an object:
+    ``g`` the height of the ground before it (its foot), ``gs`` the slope of that ground
+    and ``jg`` the position where the object began.
 
     * ground -> object at the top of a wall (``walls``, see :func:`_walls`: marked cells
       only); ``g`` becomes the wall's foot.
@@ -420,58 +424,54 @@ def _scan(Z, V, walls, downs, *, tol, max_cells):
       overshoots, but the scan coming down finds the building's uphill wall;
       :func:`_axis_objects` keeps only what both directions agree on.
 
-    Walls and down-walls are sparse: they are applied by index, row by row.
+    Walls and down-walls are sparse: they are applied by index, row by row. The state is
+    only read inside an object and every object starts at a wall, which sets it: the
+    dense work per row is the end test alone.
     """
     n, m = Z.shape
     out = np.zeros((n, m), bool)
-    g = (Z[0] if V is None else np.where(V[0], Z[0], np.float32(np.nan))).astype(np.float32)
-    jg = np.zeros(m, np.float32)           # position of the last ground cell (or foot)
-    gs = np.zeros(m, np.float32)           # slope of the ground under an object
+    g = np.zeros(m, np.float32)            # foot height of the current object
+    jg = np.zeros(m, np.float32)           # position where the current object began
+    gs = np.zeros(m, np.float32)           # slope of the ground under the object
     dist = np.empty(m, np.float32)
     lim = np.empty(m, np.float32)
-    obj = np.zeros(m, bool)
     rise = np.empty(m, np.float32)
     end = np.empty(m, bool)
     far = np.empty(m, bool)
-    newg = np.empty(m, bool)
     w_idx, w_foot, w_slope = walls
     d_idx, d_drop = downs
     w_ptr = _row_slices(w_idx, n, m)
     d_ptr = _row_slices(d_idx, n, m)
     w_col = (w_idx % m).astype(np.intp)
     d_col = (d_idx % m).astype(np.intp)
+    d_add = np.maximum(d_drop, np.float32(tol)) - np.float32(tol)
     tol = np.float32(tol)
-    for j in range(1, n):
-        zj = Z[j]
-        np.subtract(zj, g, out=rise)
-        np.subtract(np.float32(j), jg, out=dist)
-        np.multiply(gs, dist, out=lim)
-        a, b = d_ptr[j], d_ptr[j + 1]
-        if b > a:  # down a wall here: end when rise <= slope * dist + drop
-            c = d_col[a:b]
-            lim[c] += np.maximum(d_drop[a:b], tol) - tol
-        lim += tol
-        np.less_equal(rise, lim, out=end)
-        np.greater(dist, max_cells, out=far)
-        end |= far
-        end &= obj
-        a, b = w_ptr[j], w_ptr[j + 1]
-        if b > a:
-            c = w_col[a:b]
-            ok = ~obj[c]                   # a profile inside an object does not restart
-            c, foot, slope = c[ok], w_foot[a:b][ok], w_slope[a:b][ok]
-        obj ^= end
-        np.logical_not(obj, out=newg)
-        if V is not None:
-            newg &= V[j]
-        np.putmask(g, newg, zj)            # putmask: about 2x faster than copyto
-        np.putmask(jg, newg, np.float32(j))
-        if b > a and c.size:
-            obj[c] = True
-            g[c] = foot
-            gs[c] = slope
-            jg[c] = j
-        out[j] = obj
+    with np.errstate(invalid="ignore"):
+        for j in range(1, n):
+            obj = out[j - 1]
+            np.subtract(Z[j], g, out=rise)
+            np.subtract(np.float32(j), jg, out=dist)
+            np.multiply(gs, dist, out=lim)
+            a, b = d_ptr[j], d_ptr[j + 1]
+            if b > a:  # down a wall here: end when rise <= slope * dist + drop
+                lim[d_col[a:b]] += d_add[a:b]
+            lim += tol
+            np.less_equal(rise, lim, out=end)
+            np.greater(dist, max_cells, out=far)
+            end |= far
+            end &= obj
+            now = out[j]
+            np.not_equal(obj, end, out=now)        # obj ^ end: the objects that go on
+            a, b = w_ptr[j], w_ptr[j + 1]
+            if b > a:
+                c = w_col[a:b]
+                ok = ~obj.take(c)                  # a profile inside an object does not restart
+                if ok.any():
+                    c = c[ok]
+                    now[c] = True
+                    g[c] = w_foot[a:b][ok]
+                    gs[c] = w_slope[a:b][ok]
+                    jg[c] = j
     if V is not None:
         out &= V
     return out
@@ -485,23 +485,26 @@ def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_ce
     break going up from both sides, are kept.
     """
     n, m = z.shape
+    pad = _WALL_CELLS + reach
 
-    def both(a):  # the profiles forwards, then backwards: one scan does both directions
+    def both(a, pad=0, fill=0):  # the profiles forwards, then backwards: one scan does both
         if a is None:
             return None
-        two = np.empty((n, 2 * m), a.dtype)
-        two[:, :m] = a
-        two[:, m:] = a[::-1]
+        two = np.empty((pad + n, 2 * m), a.dtype)
+        two[:pad] = fill
+        two[pad:, :m] = a
+        two[pad:, m:] = a[::-1]
         return two
 
-    Z = both(z)
-    if valid is not None:
-        Z[~both(valid)] = np.nan
+    Zp = both(z, pad, np.nan)              # NaN rows before the profiles' start
+    Z = Zp[pad:]
     V, B = both(valid), both(marked)
-    walls, downs = _walls(Z, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
+    if V is not None:
+        Z[~V] = np.nan
+    walls, downs = _walls(Zp, pad, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
     del B
     o = _scan(Z, V, walls, downs, tol=tol, max_cells=max_cells)
-    del Z, V
+    del Z, Zp, V
     return np.logical_and(o[:, :m], o[::-1, m:])
 
 
