@@ -45,7 +45,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
 from .methods import Method, Param
 
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
@@ -107,6 +107,12 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     return {"median": float(np.median(s)), "p90": float(np.percentile(s, 90)), "block_cells": k}
 
 
+#: Rows (columns) are sampled every k-th so that about this many cells per direction
+#: enter the noise and sample-spacing estimates (their medians and means are stable far
+#: below that; ISPRS-sized rasters are used whole).
+_SAMPLE_CELLS = 1_000_000
+
+
 def estimate_noise(z):
     """Robust standard deviation of the DSM's random error, metres.
 
@@ -117,7 +123,7 @@ def estimate_noise(z):
     z = as_surface(z)
     # every k-th row (and column) keeps the median cheap on large rasters; differences
     # stay at full resolution along them
-    k = max(1, int(z.size // 2_000_000))
+    k = max(1, int(z.size // _SAMPLE_CELLS))
     d = []
     if z.shape[1] > 2:
         r = z[::k]
@@ -142,7 +148,7 @@ def estimate_sample_spacing(z, longest=8):
     synthetic ground), not gridding, and are left out. Returns a value >= 1.
     """
     z = as_surface(z)
-    k = max(1, int(z.size // 2_000_000))
+    k = max(1, int(z.size // _SAMPLE_CELLS))
     lengths = []
     for a in (z[::k], np.ascontiguousarray(z[:, ::k].T)):
         if a.shape[1] < 2:
@@ -249,36 +255,38 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
         for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
             head = a[-init_cells:] if rev else a[:init_cells]
             g[o0:o1] = np.nanmin(head, axis=0)
-    d = np.ones(nprof, np.int32)                      # cells since the reference point
+    d = np.ones(nprof, np.intp)                       # cells since the reference point
     steps = np.arange(0, npos + 2, dtype=np.float64)
     table = (dh0 + step_m * tan_g * np.minimum(steps, edge_cells)
              + step_m * tan_t * np.maximum(steps - edge_cells, 0)).astype(np.float32)
-    cap = np.int32(len(table) - 1)
+    cap = len(table) - 1
     rejected = [np.zeros(a.shape, bool) for a, _ in sources]
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
+    thr = np.empty(nprof, np.float32)
     up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
-    spans = list(zip(sources, rejected, offs[:-1], offs[1:]))
+    # per source: its array, direction, result, and its slices of the step buffers
+    spans = [(a, rev, r, v[o0:o1], up[o0:o1], a.shape[0])
+             for (a, rev), r, o0, o1 in zip(sources, rejected, offs[:-1], offs[1:])]
     for i in range(npos):
-        for (a, rev), _, o0, o1 in spans:
-            n = a.shape[0]
+        for a, rev, _, vv, _, n in spans:
             if i < n:
-                v[o0:o1] = a[n - 1 - i] if rev else a[i]
+                vv[...] = a[n - 1 - i] if rev else a[i]
             elif i == n:
-                v[o0:o1] = np.nan                     # a shorter profile set has ended
+                vv[...] = np.nan                      # a shorter profile set has ended
         np.subtract(v, g, out=dz)
-        np.greater(dz, table[d], out=up)             # NaN compares False
+        np.take(table, d, out=thr)
+        np.greater(dz, thr, out=up)                   # NaN compares False
         np.isfinite(v, out=ok)
         d += ok                                       # distance counts valid cells only: a nodata
         ok &= ~up                                     # gap does not let the reference drift up a roof
         np.minimum(d, cap, out=d)
-        d[ok] = 1
+        np.copyto(d, 1, where=ok)
         np.copyto(g, v, where=ok)
-        for (a, rev), r, o0, o1 in spans:
-            n = a.shape[0]
+        for a, rev, r, _, uu, n in spans:
             if i < n:
-                r[n - 1 - i if rev else i] = up[o0:o1]
+                r[n - 1 - i if rev else i] = uu
     return rejected
 
 
@@ -288,7 +296,7 @@ def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
     A cell is rejected along an axis when both its forward and its backward scan reject
     it. The four scans run as one vectorised pass when the two axes share a spacing.
     """
-    zx = np.ascontiguousarray(zs.T)          # X profiles: positions = columns
+    zx = transpose(zs)                       # X profiles: positions = columns
     sx = [(zx, False), (zx, True)]
     sy = [(zs, False), (zs, True)]
     if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
@@ -299,7 +307,7 @@ def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
     del zx
     fx &= bx
     fy &= by
-    return fx.T, fy
+    return transpose(fx), fy
 
 
 #: Share of an object's cells that both axes must reject (see :func:`_combine_axes`).
@@ -314,13 +322,17 @@ def _combine_axes(obj_x, obj_y, ok):
     axis runs along is accepted by that axis along most of its length, so the other
     axis's rejections of it are given back to the ground.
     """
-    union = (obj_x | obj_y) & ok
+    union = obj_x | obj_y
+    union &= ok
     if not union.any():
         return union
-    both = obj_x & obj_y & ok
     lab, n = ndimage.label(union, structure=np.ones((3, 3), bool))
-    total = np.bincount(lab.ravel(), minlength=n + 1)
-    inboth = np.bincount(lab[both], minlength=n + 1)     # integer counts: no float64 copy
+    both = obj_x & obj_y
+    both &= ok
+    # counts over the labelled cells only (a bincount of the whole raster would cast
+    # every cell's label to int64 first)
+    total = np.bincount(lab[union], minlength=n + 1)
+    inboth = np.bincount(lab[both], minlength=n + 1)
     keep = inboth >= _MIN_BOTH_AXES_SHARE * total
     keep[0] = False
     return keep[lab]
