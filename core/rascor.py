@@ -302,54 +302,169 @@ def _solve_first_general(M, Z, n_unknowns):
     return beta, hh
 
 
-def _fit_profile_fast(z, w, size, degree):
+#: Cells per band of the banded kernels: their temporaries (about 1 MB each) stay in the
+#: cache, and no full-size temporary is allocated per moment.
+_BAND_CELLS = 1 << 17
+
+
+def _bands(rows, cols):
+    """Row slices of about :data:`_BAND_CELLS` cells covering ``rows`` rows."""
+    step = max(1, _BAND_CELLS // max(1, cols))
+    return [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
+
+
+def _mean1(v, size, axis, out=None):
+    """Mean of ``v`` over a centred window of ``size`` (odd) cells along ``axis``; 0 outside."""
+    return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0, output=out)
+
+
+def _centred(x, s0, s1, s2=None):
+    """Turn window sums on absolute positions into sums on positions relative to the
+    centre ``x``: ``sum w (x' - x) = s1 - x s0``, ``sum w (x' - x)^2 = s2 - x (2 s1 - x s0)``
+    (in place in ``s1``, ``s2``; ``s2`` first, it needs the raw ``s1``)."""
+    if s2 is not None:
+        s2 -= x * (2.0 * s1 - x * s0)
+    s1 -= x * s0
+
+
+def _fit_rows(z, w, size, degree):
     """Leave-one-out mean (degree 0) or linear regression (degree 1) along axis 1.
 
-    The same result as :func:`_fit_at_centre` for 1-D windows, with fewer passes over the
-    data: centred moments ``M1 = sum w k``, ``M2 = sum w k^2``, ``Z1 = sum w z k`` from
-    exact centred correlations (short windows) or from box sums on absolute positions
-    (long ones; float64), the centre removed from ``M0`` and ``Z0`` only (``k = 0``).
-    ``z`` must be finite where ``w == 0`` is allowed to be anything finite.
+    The same result as :func:`_fit_at_centre` for 1-D windows (to rounding), computed in
+    bands of rows: the window moments ``M0 = sum w``, ``M1 = sum w k``, ``M2 = sum w k^2``,
+    ``Z0 = sum w z``, ``Z1 = sum w z k`` (``k`` the position relative to the centre) come
+    from running box means of ``w x^j`` and ``w z x^j`` on absolute positions ``x``
+    (float64, O(1) per cell whatever the length), recentred by :func:`_centred`; the
+    centre is then taken out of ``M0`` and ``Z0`` (its ``k`` is 0).
+
+    ``z`` must be finite wherever ``w`` is 0 (any value). Returns ``zhat, h`` like
+    :func:`_fit_at_centre`.
     """
-    wz = w * z
-    m0 = _box(w, size, 1)
-    z0 = _box(wz, size, 1)
-    if degree == 1:
-        if size <= 15:
-            h = size // 2
-            k = np.arange(-h, h + 1, dtype=np.float64)
-            m1 = ndimage.correlate1d(w, k, axis=1, mode="constant", cval=0.0)
-            m2 = ndimage.correlate1d(w, k * k, axis=1, mode="constant", cval=0.0)
-            z1 = ndimage.correlate1d(wz, k, axis=1, mode="constant", cval=0.0)
-        else:
-            n = w.shape[1]
-            x = (np.arange(n, dtype=np.float64) - n // 2)[None, :]
-            wx = w * x
-            b1 = _box(wx, size, 1)
-            wx *= x
-            b2 = _box(wx, size, 1)
-            del wx
-            wzx = wz * x
-            z1 = _box(wzx, size, 1)
-            del wzx
-            z1 -= x * z0
-            m1 = b1 - x * m0
-            m2 = b2 - x * (2.0 * b1 - x * m0)
-            del b1, b2
-    m0 -= w
-    z0 -= wz
-    del wz
+    rows, cols = z.shape
+    zhat = np.empty(z.shape)
+    hh = np.empty(z.shape)
+    x = np.arange(cols, dtype=np.float64) - cols // 2
+    inv = 1.0 / size
     with np.errstate(all="ignore"):
-        if degree == 0:
-            ok = m0 > 1e-9
-            zhat, hh = z0 / m0, 1.0 / m0
-        else:
-            det = m0 * m2 - m1 * m1
-            ok = det > 1e-9 * m0 * m2
-            zhat = (z0 * m2 - z1 * m1) / det
-            hh = m2 / det
-    zhat[~ok] = np.nan
-    hh[~ok] = np.nan
+        for b in _bands(rows, cols):
+            wb = w[b]
+            wz = wb * z[b]
+            m0 = _mean1(wb, size, 1)
+            z0 = _mean1(wz, size, 1)
+            t = wb * x
+            if degree == 1:
+                m1 = _mean1(t, size, 1)
+                t *= x
+                m2 = _mean1(t, size, 1)
+                np.multiply(wz, x, out=t)
+                z1 = _mean1(t, size, 1)
+                _centred(x, m0, m1, m2)
+                _centred(x, z0, z1)
+            m0 -= np.multiply(wb, inv, out=t)       # leave the centre out (k = 0)
+            z0 -= np.multiply(wz, inv, out=wz)
+            if degree == 0:
+                ok = m0 > 1e-9 * inv
+                zh = np.divide(z0, m0, out=z0)
+                h = np.divide(inv, m0, out=m0)
+            else:
+                det = np.multiply(m0, m2, out=t)
+                det -= np.multiply(m1, m1, out=wz)
+                ok = det > 1e-9 * np.multiply(m0, m2, out=wz)
+                z0 *= m2
+                z0 -= np.multiply(z1, m1, out=z1)
+                zh = np.divide(z0, det, out=z0)
+                h = np.divide(m2, det, out=m2)
+                h *= inv
+            zh[~ok] = np.nan
+            h[~ok] = np.nan
+            zhat[b] = zh
+            hh[b] = h
+    return zhat, hh
+
+
+def _fit_box_2d(z, w, sizes, degree):
+    """Leave-one-out horizontal (degree 0) or inclined plane (degree 1) in a moving
+    ``rows x cols`` box window, for every cell at once.
+
+    The same result as :func:`_fit_at_centre` (to rounding) with few passes over the
+    data: separable window sums, first along the columns (axis 0: ``w y^j``, ``w z y^j``
+    box means on absolute positions, recentred by :func:`_centred`), then along the rows in
+    bands (the moments ``sum w kx^p ky^q``, ``p + q <= 2``, and ``sum w z kx^p ky^q``,
+    ``p + q <= 1``); the 3 x 3 normal equations are solved by cofactors for the height at
+    the centre and ``h = (N^-1)_00``, the centre having been taken out of ``M00``, ``Z00``.
+
+    ``z`` must be finite wherever ``w`` is 0. Returns ``zhat, h`` like :func:`_fit_at_centre`.
+    """
+    sy, sx = sizes
+    rows, cols = z.shape
+    inv = 1.0 / (sy * sx)
+    wz = w * z
+    y = (np.arange(rows, dtype=np.float64) - rows // 2)[:, None]
+    c0 = _mean1(w, sy, 0)
+    d0 = _mean1(wz, sy, 0)
+    if degree == 1:
+        t = w * y
+        c1 = _mean1(t, sy, 0)
+        t *= y
+        c2 = _mean1(t, sy, 0)
+        np.multiply(wz, y, out=t)
+        d1 = _mean1(t, sy, 0)
+        del t
+        for b in _bands(rows, cols):
+            _centred(y[b], c0[b], c1[b], c2[b])
+            _centred(y[b], d0[b], d1[b])
+    x = np.arange(cols, dtype=np.float64) - cols // 2
+    zhat = np.empty(z.shape)
+    hh = np.empty(z.shape)
+    with np.errstate(all="ignore"):
+        for b in _bands(rows, cols):
+            m00 = _mean1(c0[b], sx, 1)
+            z00 = _mean1(d0[b], sx, 1)
+            if degree == 1:
+                t = c0[b] * x
+                m10 = _mean1(t, sx, 1)
+                t *= x
+                m20 = _mean1(t, sx, 1)
+                _centred(x, m00, m10, m20)
+                m01 = _mean1(c1[b], sx, 1)
+                np.multiply(c1[b], x, out=t)
+                m11 = _mean1(t, sx, 1)
+                _centred(x, m01, m11)
+                m02 = _mean1(c2[b], sx, 1)
+                np.multiply(d0[b], x, out=t)
+                z10 = _mean1(t, sx, 1)
+                _centred(x, z00, z10)
+                z01 = _mean1(d1[b], sx, 1)
+            m00 -= inv * w[b]                      # leave the centre out (k = 0)
+            z00 -= inv * wz[b]
+            if degree == 0:
+                ok = m00 > 1e-9 * inv
+                zh = np.divide(z00, m00, out=z00)
+                h = np.divide(inv, m00, out=m00)
+            else:
+                # cofactors of N = [[m00, m10, m01], [m10, m20, m11], [m01, m11, m02]]
+                c00 = m20 * m02
+                c00 -= np.multiply(m11, m11, out=t)
+                c01 = m11 * m01
+                c01 -= np.multiply(m10, m02, out=t)
+                c02 = m10 * m11
+                c02 -= np.multiply(m20, m01, out=t)
+                scale = m00 * m20
+                scale *= m02
+                det = m00 * c00
+                det += np.multiply(m10, c01, out=t)
+                det += np.multiply(m01, c02, out=t)
+                ok = det > 1e-9 * np.abs(scale)
+                z00 *= c00
+                z00 += np.multiply(z10, c01, out=t)
+                z00 += np.multiply(z01, c02, out=t)
+                zh = np.divide(z00, det, out=z00)
+                h = np.divide(c00, det, out=c00)
+                h *= inv
+            zh[~ok] = np.nan
+            h[~ok] = np.nan
+            zhat[b] = zh
+            hh[b] = h
     return zhat, hh
 
 
@@ -377,8 +492,10 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
         would be biased on a slope).
     """
     z = np.where(w > 0, z, 0.0)
-    wz = w * z
     two_d = not np.isscalar(sizes)
+    if leave_one_out and kernels is None and degree <= 1:
+        return _fit_box_2d(z, w, sizes, degree) if two_d else _fit_rows(z, w, sizes, degree)
+    wz = w * z
 
     def sums(v, px, py=None):
         if kernels is not None:
@@ -452,15 +569,34 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
     """Data snooping of prediction residuals ``v = z - zhat``.
 
     ``v / (s sqrt(1/p + h)) > k`` flags an object (p = 1), ``< -k`` a low blunder with
-    the weight factor ``p = low_weight`` of points below the reference.
+    the weight factor ``p = low_weight`` of points below the reference. Cells where the
+    fit is undetermined (``zhat`` or ``h`` NaN) are not tested. Computed in bands of rows.
+
+    Returns
+    -------
+    high, low, below : ndarray of bool
+        Objects, low blunders, and the tested cells below their fit (``v < 0``: the
+        weight factor applies to them in a next fit).
     """
+    high = np.empty(z.shape, bool)
+    low = np.empty(z.shape, bool)
+    below = np.empty(z.shape, bool)
+    ks2, ksl2 = (k * s) ** 2, (k * s) ** 2 / low_weight
     with np.errstate(invalid="ignore"):
-        v = z - zhat
-        ok = test & np.isfinite(v) & np.isfinite(hh)
-        hh = np.where(ok, np.maximum(hh, 0.0), 0.0)
-        hi = ok & (v > k * s * np.sqrt(1.0 + hh))
-        lo = ok & (v < -k * s * np.sqrt(1.0 / low_weight + hh))
-    return hi, lo, np.where(ok, v, np.nan)
+        for b in _bands(*z.shape):
+            v = np.subtract(z[b], zhat[b], dtype=np.float64)
+            h = np.maximum(hh[b], 0.0)              # NaN stays NaN: no test
+            t = test[b]
+            np.less(v, 0.0, out=below[b])
+            below[b] &= t
+            v *= v
+            # v > k s sqrt(1 + h)  <=>  v^2 > (k s)^2 (1 + h), v > 0
+            hi = np.greater(v, ks2 * (1.0 + h), out=high[b])
+            hi &= ~below[b]
+            hi &= t
+            lo = np.greater(v, ks2 * h + ksl2, out=low[b])
+            lo &= below[b]
+    return high, low, below
 
 
 # ------------------------------------------------------------------- step 1
@@ -826,15 +962,32 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
 
 
 # ------------------------------------------------------------------- step 5
+def _weights(keep, below, low_weight):
+    """Fit weights: 1 for the points kept, ``low_weight`` for those below the reference,
+    0 for the others."""
+    w = keep.astype(np.float64)
+    if below is not None:
+        w[below & keep] = low_weight
+    return w
+
+
+def _finite64(z):
+    """``z`` as float64 with 0 in place of NaN (the fits need finite heights everywhere;
+    the cells concerned have weight 0 and are never tested)."""
+    z = np.array(z, dtype=np.float64)
+    np.copyto(z, 0.0, where=~np.isfinite(z))
+    return z
+
+
 def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
-    """One fit + snooping along the rows (axis 1)."""
-    w = np.where(keep, np.where(below, low_weight, 1.0), 0.0)
+    """One fit + snooping along the rows (axis 1); ``z`` finite (:func:`_finite64`)."""
+    w = _weights(keep, below, low_weight)
 
     def fit(zz, ww, inside):
         if inside is not None:
             ww = np.where(inside, ww, 0.0)
         if degree <= 1:
-            return _fit_profile_fast(np.where(ww > 0, zz, 0.0), ww, size, degree)
+            return _fit_rows(zz, ww, size, degree)
         return _fit_at_centre(zz, ww, size, degree)
 
     zhat, hh = _per_region(fit, labels, (z, w), 2)
@@ -877,7 +1030,7 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
-    z64 = z.astype(np.float64)
+    z64 = _finite64(z)
     views = [(z64, None, labels, dx, lambda a: a, lambda a: a),
              (np.ascontiguousarray(z64.T), None, None if labels is None else
               np.ascontiguousarray(labels.T), dy, lambda a: np.ascontiguousarray(a.T),
@@ -885,12 +1038,11 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
     for L in lengths_m:
         for zz, _, lab, step, fwd, back in views:
             size = _odd(L / step, 3)
-            below = np.zeros(zz.shape, bool)
+            below = None
             c, t = fwd(cur), fwd(test & cur)
             for _ in range(iterations):
-                hi, lo, v = _profile_pass(zz, c, t, below, size, degree, scale_m, k,
-                                          low_weight, lab)
-                below = np.nan_to_num(v, nan=0.0) < 0
+                hi, lo, below = _profile_pass(zz, c, t, below, size, degree, scale_m, k,
+                                              low_weight, lab)
                 c &= ~(hi | lo)
                 t &= ~(hi | lo)
                 hb, lb = back(hi), back(lo)
@@ -923,10 +1075,10 @@ def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
-    below = np.zeros(z.shape, bool)
-    z64 = z.astype(np.float64)
+    below = None
+    z64 = _finite64(z)
     for _ in range(iterations):
-        w = np.where(cur, np.where(below, low_weight, 1.0), 0.0)
+        w = _weights(cur, below, low_weight)
 
         def fit(zz, ww, inside):
             if inside is not None:
@@ -934,8 +1086,7 @@ def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_
             return _fit_at_centre(zz, ww, sizes, degree)
 
         zhat, hh = _per_region(fit, labels, (z64, w), 2)
-        hi, lo, v = _snoop(z64, zhat, hh, test & cur, scale_m, k, low_weight)
-        below = np.nan_to_num(v, nan=0.0) < 0
+        hi, lo, below = _snoop(z64, zhat, hh, test & cur, scale_m, k, low_weight)
         high |= hi
         low |= lo
         cur &= ~(hi | lo)

@@ -409,6 +409,86 @@ def test_blocks_match_one_pass():
     assert np.array_equal(one.extras["step"], blk.extras["step"])
 
 
+# ------------------------------------------------------------- kernels, exact arrays
+def _explicit_fit(z, w, sizes, degree, kernels=None):
+    """Leave-one-out weighted least squares at every cell, one cell at a time (reference)."""
+    sy, sx = sizes
+    hy, hx = sy // 2, sx // 2
+    zhat = np.full(z.shape, np.nan)
+    hh = np.full(z.shape, np.nan)
+    mons = [(a, d - a) for d in range(degree + 1) for a in range(d, -1, -1)]
+    if sy == 1:                                     # a profile along the rows
+        mons = [(a, 0) for a in range(degree + 1)]
+    for r in range(z.shape[0]):
+        for c in range(z.shape[1]):
+            A, zz, ww = [], [], []
+            for dy in range(-hy, hy + 1):
+                for dx in range(-hx, hx + 1):
+                    rr, cc = r + dy, c + dx
+                    if (dy, dx) == (0, 0) or not (0 <= rr < z.shape[0] and 0 <= cc < z.shape[1]):
+                        continue
+                    wk = w[rr, cc] * (1.0 if kernels is None else kernels[0][dy + hy] * kernels[1][dx + hx])
+                    if wk > 0:
+                        A.append([dx ** a * dy ** b for a, b in mons])
+                        zz.append(z[rr, cc])
+                        ww.append(wk)
+            if len(A) < len(mons):
+                continue
+            A, zz, ww = np.array(A, float), np.array(zz), np.array(ww)
+            N = A.T @ (ww[:, None] * A)
+            if np.linalg.cond(N) > 1e8:
+                continue
+            Ni = np.linalg.inv(N)
+            zhat[r, c] = (Ni @ (A.T @ (ww * zz)))[0]
+            hh[r, c] = Ni[0, 0]
+    return zhat, hh
+
+
+def _random_surface(shape, seed):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    z = 300.0 + 0.3 * x - 0.2 * y + rng.normal(0, 0.5, shape)
+    w = np.where(rng.random(shape) < 0.15, 0.0, np.where(rng.random(shape) < 0.2, 0.02, 1.0))
+    z[w == 0] = np.nan
+    return z, w
+
+
+@pytest.mark.parametrize("degree", [0, 1])
+@pytest.mark.parametrize("size", [3, 5, 21])
+def test_profile_kernel_equals_explicit_leave_one_out_fit(degree, size):
+    z, w = _random_surface((6, 40), 3)
+    got = R._fit_at_centre(z, w, size, degree)
+    ref = _explicit_fit(np.where(w > 0, z, 0.0), w, (1, size), degree)
+    both = np.isfinite(ref[0])
+    assert both.sum() > 150
+    assert np.isfinite(got[0][both]).all()
+    np.testing.assert_allclose(got[0][both], ref[0][both], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got[1][both], ref[1][both], rtol=1e-8)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+@pytest.mark.parametrize("sizes", [(3, 3), (5, 7), (9, 5)])
+def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
+    z, w = _random_surface((13, 17), 4)
+    got = R._fit_at_centre(z, w, sizes, degree)
+    ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, degree)
+    both = np.isfinite(ref[0])
+    assert both.sum() > 100
+    assert np.isfinite(got[0][both]).all()
+    np.testing.assert_allclose(got[0][both], ref[0][both], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got[1][both], ref[1][both], rtol=1e-8)
+
+
+def test_banded_kernels_do_not_depend_on_the_bands(monkeypatch):
+    z, w = _random_surface((40, 50), 5)
+    one = [R._fit_at_centre(z, w, 9, 1), R._fit_at_centre(z, w, (7, 9), 1)]
+    monkeypatch.setattr(R, "_BAND_CELLS", 64)       # bands of one row
+    many = [R._fit_at_centre(z, w, 9, 1), R._fit_at_centre(z, w, (7, 9), 1)]
+    for a, b in zip(one, many):
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+
+
 # ------------------------------------------------------------- ISPRS, defaults only
 def _load_bench(name):
     spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
