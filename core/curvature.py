@@ -158,13 +158,31 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
     """
     window = _check_window(window)
     model = _check_model(model)
-    dx, dy = as_cell_size(cell_size)
-    z = as_surface(z)
-    bad = ~np.isfinite(z)
+    out = tuple(np.empty(as_surface(z).shape, np.float32) for _ in range(5))
+    for _ in _derivative_blocks(z, cell_size, window, model, out=out):
+        pass
+    return out
+
+
+def _padded_relief(z, m):
+    """``z`` (float32, nodata bridged) padded by ``m`` cells by odd reflection, minus a
+    reference height (float32 sums of relief, not of absolute heights: precision)."""
     zf = _bridge_nodata(z)
-    m = window // 2
-    if min(z.shape) < 2:
-        zp = np.pad(zf, m, mode="edge")
+    rows, cols = z.shape
+    if m <= min(rows, cols) - 1:
+        # odd reflection written in place (as np.pad's "reflect"/"odd": rows first, then
+        # columns over the padded rows), in float32
+        zp = np.empty((rows + 2 * m, cols + 2 * m), np.float32)
+        zp[m:m + rows, m:m + cols] = zf
+        mid = zp[:, m:m + cols]
+        for k in range(1, m + 1):
+            np.subtract(2 * mid[m], mid[m + k], out=mid[m - k])
+            np.subtract(2 * mid[m + rows - 1], mid[m + rows - 1 - k], out=mid[m + rows - 1 + k])
+        for k in range(1, m + 1):
+            np.subtract(2 * zp[:, m], zp[:, m + k], out=zp[:, m - k])
+            np.subtract(2 * zp[:, m + cols - 1], zp[:, m + cols - 1 - k], out=zp[:, m + cols - 1 + k])
+    elif min(rows, cols) < 2:
+        zp = np.pad(zf, m, mode="edge").astype(np.float32)
     else:
         # odd reflection needs m < size; repeat for tiny arrays
         zp = zf
@@ -173,71 +191,110 @@ def local_derivatives(z, cell_size, *, window=5, model="quadratic"):
             k = min(left, min(zp.shape) - 1)
             zp = np.pad(zp, k, mode="reflect", reflect_type="odd")
             left -= k
-    zp = zp.astype(np.float32)  # a copy: shifted to a reference height in place
+        zp = zp.astype(np.float32)
     ref = np.float32(np.median(zf[np.isfinite(zf)][:: max(1, zf.size // 4096)]))
-    zp -= ref  # float32 sums of relief, not of absolute heights (precision)
+    zp -= ref
+    return zp
+
+
+def _derivative_blocks(z, cell_size, window, model, out=None):
+    """The local derivatives of :func:`local_derivatives`, block of rows by block.
+
+    Yields ``(rows, p, q, r, s, t)`` for consecutive row slices ``rows``. Without ``out``
+    the five arrays are buffers reused by the next block (cache-sized; nothing of the
+    raster's size is allocated but the padded copy of ``z``); with ``out`` (five float32
+    arrays of ``z``'s shape) they are written there and the views are yielded. NaN at
+    nodata cells.
+    """
+    dx, dy = as_cell_size(cell_size)
+    z = as_surface(z)
+    bad = ~np.isfinite(z)
+    any_bad = bool(bad.any())
+    m = window // 2
+    zp = _padded_relief(z, m)
     u = np.arange(-m, m + 1, dtype=np.float64)
     c = float(np.mean(u * u))
     A = float(np.sum(u * u))
     B = float(np.sum((u * u - c) ** 2))
     w = float(window)
     rows, cols = z.shape
-
-    # the three separable kernels (box 1, slope u, bend u^2 - c), as sums of shifted
-    # slices of the padded array: symmetric pairs z[+k] +- z[-k] are formed once
-    def kernels(a, axis, n, which):
-        def tap(k):  # the slice of a at offset k (0 .. 2m) along axis
-            return a[:, k:k + n] if axis == 1 else a[k:k + n]
-        res = {}
-        centre = tap(m)
-        sums = [tap(m + k) + tap(m - k) for k in range(1, m + 1)] if ("box" in which or "bend" in which) else []
-        if "box" in which:
-            o = centre.copy()
-            for sk in sums:
-                o += sk
-            res["box"] = o
-        if "slope" in which:
-            o = tap(m + 1) - tap(m - 1)
-            for k in range(2, m + 1):
-                o += np.float32(k) * (tap(m + k) - tap(m - k))
-            res["slope"] = o
-        if "bend" in which:
-            o = centre * np.float32(-c)
-            for k, sk in enumerate(sums, start=1):
-                o += np.float32(k * k - c) * sk
-            res["bend"] = o
-        return res
-
-    # profiles in X (along rows, axis 1) first, then across them in Y (axis 0); in blocks
-    # of rows (with their 2m halo rows) that stay in the cache
     quad = model == "quadratic"
-    out = [np.empty(z.shape, np.float32) for _ in range(5)]
-    p_o, q_o, r_o, s_o, t_o = out
-    if not quad:
-        r_o[:] = 0
-        t_o[:] = 0
     scale = {"p": np.float32(1.0 / (w * A * dx)), "q": np.float32(1.0 / (w * A * dy)),
              "s": np.float32(1.0 / (A * A * dx * dy)), "r": np.float32(2.0 / (w * B * dx * dx)),
              "t": np.float32(2.0 / (w * B * dy * dy))}
-    step = max(8, (4 * _CHUNK_CELLS) // max(cols, 1))
+    step = max(8, _CHUNK_CELLS // max(cols, 1))
+    nb = min(step, rows)
+    # buffers: the X pass over the block and its halo, the Y pass, the taps' pair sums
+    bx = {k: np.empty((nb + 2 * m, cols), np.float32) for k in ("box", "slope", "bend", "tmp")}
+    pairs = [np.empty((nb + 2 * m, cols), np.float32) for _ in range(m)]
+    ytmp = np.empty((nb, cols), np.float32)
+    ypairs = [np.empty((nb, cols), np.float32) for _ in range(m)]
+    res = [np.empty((nb, cols), np.float32) for _ in range(5)] if out is None else None
+
+    # the three separable kernels (box 1, slope u, bend u^2 - c), as sums of shifted
+    # slices: symmetric pairs a[+k] +- a[-k] are formed once
+    def kernels(a, axis, n, which, dst, sums, tmp):
+        def tap(k):  # the slice of a at offset k (0 .. 2m) along axis
+            return a[:, k:k + n] if axis == 1 else a[k:k + n]
+        centre = tap(m)
+        if "box" in which or "bend" in which:
+            for k in range(1, m + 1):
+                np.add(tap(m + k), tap(m - k), out=sums[k - 1])
+        if "box" in which:
+            o = dst["box"]
+            np.copyto(o, centre)
+            for sk in sums:
+                o += sk
+        if "slope" in which:
+            o = dst["slope"]
+            np.subtract(tap(m + 1), tap(m - 1), out=o)
+            for k in range(2, m + 1):
+                np.subtract(tap(m + k), tap(m - k), out=tmp)
+                tmp *= np.float32(k)
+                o += tmp
+        if "bend" in which:
+            o = dst["bend"]
+            np.multiply(centre, np.float32(-c), out=o)
+            for k, sk in enumerate(sums, start=1):
+                np.multiply(sk, np.float32(k * k - c), out=tmp)
+                o += tmp
+
     for i0 in range(0, rows, step):
         n = min(step, rows - i0)
-        blk = zp[i0:i0 + n + 2 * m]
-        xk = kernels(blk, 1, cols, ("box", "slope", "bend") if quad else ("box", "slope"))
-        y0 = kernels(xk.pop("box"), 0, n, ("slope", "bend") if quad else ("slope",))
-        y1 = kernels(xk.pop("slope"), 0, n, ("box", "slope"))
         sl = slice(i0, i0 + n)
-        np.multiply(y1["box"], scale["p"], out=p_o[sl])
-        np.multiply(y0["slope"], scale["q"], out=q_o[sl])
-        np.multiply(y1["slope"], scale["s"], out=s_o[sl])
+        blk = zp[i0:i0 + n + 2 * m]
+        h = n + 2 * m
+        xk = {k: v[:h] for k, v in bx.items()}
+        sums = [v[:h] for v in pairs]
+        ysums = [v[:n] for v in ypairs]
+        yt = ytmp[:n]
+        if out is None:
+            p_o, q_o, r_o, s_o, t_o = (v[:n] for v in res)
+        else:
+            p_o, q_o, r_o, s_o, t_o = (v[sl] for v in out)
+        # profiles in X (along rows, axis 1) first, then across them in Y (axis 0)
+        kernels(blk, 1, cols, ("box", "slope", "bend") if quad else ("box", "slope"),
+                xk, sums, xk["tmp"][:, :cols])
+        # Y pass of the X box: q (slope) and t (bend); of the X slope: p (box), s (slope);
+        # of the X bend: r (box). Each written straight into its output, then scaled.
+        kernels(xk["box"], 0, n, ("slope", "bend") if quad else ("slope",),
+                {"slope": q_o, "bend": t_o}, ysums, yt)
+        kernels(xk["slope"], 0, n, ("box", "slope"), {"box": p_o, "slope": s_o}, ysums, yt)
+        p_o *= scale["p"]
+        q_o *= scale["q"]
+        s_o *= scale["s"]
         if quad:
-            np.multiply(kernels(xk.pop("bend"), 0, n, ("box",))["box"], scale["r"], out=r_o[sl])
-            np.multiply(y0["bend"], scale["t"], out=t_o[sl])
-    del zp
-    if bad.any():
-        for a in out:
-            a[bad] = np.nan
-    return tuple(out)
+            kernels(xk["bend"], 0, n, ("box",), {"box": r_o}, ysums, yt)
+            r_o *= scale["r"]
+            t_o *= scale["t"]
+        else:
+            r_o[:] = 0
+            t_o[:] = 0
+        if any_bad:
+            b = bad[sl]
+            for a in (p_o, q_o, r_o, s_o, t_o):
+                a[b] = np.nan
+        yield sl, p_o, q_o, r_o, s_o, t_o
 
 
 def curvatures_from_derivatives(p, q, r, s, t, out=None):
@@ -745,23 +802,36 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     valid = np.isfinite(z)
     report(progress, 0.0)
 
-    # 1. local trends and curvature (eqs. 9-16)
-    p, q, r, s, t = local_derivatives(z, (dx, dy), window=window_cells, model=model)
-    curv = np.empty((2,) + z.shape, np.float32)
-    K, H = curvatures_from_derivatives(p, q, r, s, t, out=curv)
-    del p, q, s
-    report(progress, 0.25)
-
+    # 1. local trends and curvature (eqs. 9-16), and
     # 2. breaks: |K| >= K_g (the paper), and the bending of the X and Y profile trends,
     #    |r| or |t| >= kappa_g = sqrt(K_g): a straight roof edge has K = 0 (one principal
     #    curvature is zero) and a tall wall has a tiny K (h^4 is large), but its profile
     #    across the edge bends strongly.
+    # Block of rows by block: the derivatives p, q, r, s, t live in cache-sized buffers.
     kappa_g = np.float32(np.sqrt(k_g))
-    mark_k = np.abs(K) >= np.float32(k_g)      # NaN (nodata) compares False
-    mark_x = np.abs(r) >= kappa_g
-    mark_y = np.abs(t) >= kappa_g
-    marked = mark_k | mark_x | mark_y
-    del r, t
+    curv = np.empty((2,) + z.shape, np.float32)
+    mark_k = np.empty(z.shape, bool)
+    marked = np.empty(z.shape, bool)
+    n_mark_x = n_mark_y = 0
+    buf = None
+    for sl, p, q, r, s, t in _derivative_blocks(z, (dx, dy), window_cells, model):
+        K, H = curvatures_from_derivatives(p, q, r, s, t, out=curv[:, sl])
+        if buf is None:
+            buf = (np.empty(p.shape, np.float32), np.empty(p.shape, bool))
+        a, mx = buf[0][:p.shape[0]], buf[1][:p.shape[0]]
+        mk, mb = mark_k[sl], marked[sl]
+        np.greater_equal(np.abs(K, out=a), np.float32(k_g), out=mk)  # NaN (nodata): False
+        np.copyto(mb, mk)
+        np.greater_equal(np.abs(r, out=a), kappa_g, out=mx)
+        n_mark_x += int(np.count_nonzero(mx))
+        mb |= mx
+        np.greater_equal(np.abs(t, out=a), kappa_g, out=mx)
+        n_mark_y += int(np.count_nonzero(mx))
+        mb |= mx
+    K, H = curv[0], curv[1]
+    del p, q, r, s, t, buf
+    report(progress, 0.25)
+
     all_valid = bool(valid.all())
     n_valid = max(int(valid.sum()), 1)
     report(progress, 0.35)
@@ -833,8 +903,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     info = {"k_g_per_m2": float(k_g), "window_cells": window_cells, "model": model,
             "min_object_height_m": h_min, "wall_slope_deg": float(wall_slope_deg),
             "max_object_size_m": max_size, "tolerance_m": tol,
-            "share_marked_x": float(mark_x.sum()) / n_valid,
-            "share_marked_y": float(mark_y.sum()) / n_valid,
+            "share_marked_x": n_mark_x / n_valid,
+            "share_marked_y": n_mark_y / n_valid,
             "share_marked_k": float(mark_k.sum()) / n_valid,
             "share_marked": float(marked.sum()) / n_valid,
             "share_objects_x": n_obj_x / n_valid,
