@@ -50,6 +50,16 @@ def progress_callback(feedback):
     return progress
 
 
+def auto_threads():
+    """Threads for THREADS = 0: one per core (core ``blocks.default_workers``), within
+    QGIS's "Max cores to use" setting when one is set."""
+    from qgis.core import QgsApplication
+    from ..core.blocks import default_workers
+    n = default_workers()
+    limit = QgsApplication.maxThreads()
+    return max(1, min(n, limit)) if limit and limit > 0 else n
+
+
 def raster_path(layer):
     """The GDAL path of a raster layer (``layer.source()``), refusing non-GDAL providers."""
     if layer is None:
@@ -163,10 +173,11 @@ class FilterAlgorithm(BaseAlgorithm):
                  "Edge of the blocks the raster is processed in, in cells. 0: one block up to 25 "
                  "million cells, else 2048. Blocks overlap by the method's reach, so the result "
                  "does not depend on it; memory does."),
-                (self.THREADS, "Threads", 1, 1, 64,
-                 "Blocks filtered at once in threads (up to the number of cores). The raster is cut "
-                 "into strips of rows that overlap by the method's reach; no start-up cost, so this "
-                 "is the first choice on one machine."),
+                (self.THREADS, "Threads (0 = one per core)", 0, 0, 64,
+                 "Blocks filtered at once in threads. 0 (the default): one per core, at most 8, "
+                 "within QGIS's own limit (Settings > Options > Rendering > Max cores). The raster "
+                 "is cut into strips of rows that overlap by the method's reach; no start-up cost, "
+                 "so this is the first choice on one machine. 1: one block at a time, least memory."),
                 (self.PROCESSES, "Worker processes", 1, 1, 64,
                  "Blocks filtered at once in separate Python processes (use up to the number of "
                  "cores). Each holds one block in memory; starting them takes about a second, "
@@ -287,7 +298,7 @@ class FilterAlgorithm(BaseAlgorithm):
                 outputs[key] = self.parameterAsOutputLayer(parameters, pk, context)
         block = self.parameterAsInt(parameters, self.BLOCK_SIZE, context) or None
         processes = self.parameterAsInt(parameters, self.PROCESSES, context) or 1
-        threads = self.parameterAsInt(parameters, self.THREADS, context) or 1
+        threads = self.parameterAsInt(parameters, self.THREADS, context) or auto_threads()
         user = self._user_params(parameters, context)
         aux = self.auxiliaryArrays(parameters, context, info, feedback)
         feedback.pushInfo(tr(f"Input: {info.path} band {info.band_index}, {info.shape[1]} x {info.shape[0]} "

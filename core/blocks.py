@@ -18,6 +18,27 @@ from .common import report
 DEFAULT_BLOCK = 2048
 
 
+#: Most threads :func:`default_workers` proposes (more gain nothing on memory-bound work).
+MAX_AUTO_WORKERS = 8
+
+
+def default_workers():
+    """Threads to use when the caller says 0 (automatic): the cores this process may run
+    on (its CPU affinity), at most :data:`MAX_AUTO_WORKERS`."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    return max(1, min(int(n), MAX_AUTO_WORKERS))
+
+
+def resolve_workers(workers):
+    """``workers`` as a thread count: None or <= 0 means :func:`default_workers`."""
+    if workers is None or int(workers) <= 0:
+        return default_workers()
+    return int(workers)
+
+
 def iter_windows(shape, block=DEFAULT_BLOCK, halo=0):
     """Yield ``(core, outer)`` windows covering ``shape``.
 

@@ -28,6 +28,9 @@ _EXT_DRIVERS = {".tif": "GTiff", ".tiff": "GTiff", ".img": "HFA", ".vrt": None,
                 ".nc": "netCDF", ".asc": None, ".sdat": "SAGA"}
 
 
+#: Tile edge of the GeoTIFF outputs, cells.
+OUTPUT_TILE = 256
+
 def _open_read(path):
     """Open a raster read-only; GeoTIFFs decompress their tiles on every core."""
     ds = gdal.Open(path, gdal.GA_ReadOnly)
@@ -300,7 +303,8 @@ class OutputSet:
         opts = []
         if drv.ShortName == "GTiff":
             # fast and readable anywhere; tiles compressed on every core
-            opts = ["TILED=YES", "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
+            opts = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT_TILE}",
+                    "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
             if dtype == "Float32":
                 opts.append("PREDICTOR=3")
         gdt = gdal.GetDataTypeByName(dtype)
@@ -343,6 +347,17 @@ class OutputSet:
             a = a[None]
         for k in range(a.shape[0]):
             item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
+
+    def flush(self):
+        """Compress and write every block written so far (GDAL's threads do the work).
+
+        Called after each finished window of a multi-window run, so the compression of
+        the first windows overlaps the filtering of the later ones instead of all coming
+        at :meth:`commit`. Windows must cover whole output tiles (256 x 256), or a tile
+        flushed half-written is written twice.
+        """
+        for item in self._items.values():
+            item["ds"].FlushCache()
 
     def commit(self):
         """Close the temporaries and move them to their final paths (plus QML for masks)."""

@@ -167,7 +167,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     block : int, optional
         Block edge in cells; default one pass. The result does not depend on it.
     workers : int
-        Threads for blocks.
+        Threads for blocks (0: one per core, :func:`blocks.default_workers`).
     progress : callable, optional
         ``progress(fraction)``; may raise :class:`Cancelled`.
 
@@ -176,6 +176,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     PipelineResult
     """
     meth = _method(method)
+    workers = blocks.resolve_workers(workers)
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     aux = dict(aux or {})
@@ -259,7 +260,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
     workers : int
         Threads running blocks (numpy, scipy and GDAL release the GIL for the heavy work;
-        no start-up cost). With more than one and no ``block``, the raster is cut into strips
+        no start-up cost); 0: one per core (:func:`blocks.default_workers`). With more than one and no ``block``, the raster is cut into strips
         of rows as for ``processes``.
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
@@ -278,6 +279,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     """
     from . import grid
     meth = _method(method)
+    workers = blocks.resolve_workers(workers)
     log = log or (lambda s: None)
     info = grid.open_dsm(path, band)
     cell = info.cell_size_m
@@ -329,7 +331,10 @@ def _run_file(meth, info, outputs, user, aux, block, workers, processes, progres
             if 2 * halo * strips > info.shape[0] // 4:     # the halo would add more than a quarter
                 strips = processes_or_threads
             rows = -(-info.shape[0] // strips) if info.cells <= IN_MEMORY_CELLS else block
-            rows = -(-rows // 64) * 64  # multiples of 64: coarsened grids align as in one pass
+            # multiples of 64: coarsened grids align as in one pass; of 256 (the outputs' tile)
+            # for long strips: each strip's tiles are whole when it is flushed
+            align = grid.OUTPUT_TILE if rows >= 4 * grid.OUTPUT_TILE else 64
+            rows = -(-rows // align) * align
             block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
     windows = list(blocks.iter_windows(info.shape, block, halo))
     single = len(windows) == 1
@@ -366,6 +371,8 @@ def _run_file(meth, info, outputs, user, aux, block, workers, processes, progres
             h, w = core[1] - core[0], core[3] - core[2]
             with io_lock:
                 _write_block(out, meth, core, m, d, zc, scale, float_nodata, res_extras, h, w)
+                if not single:
+                    out.flush()   # compress now, while the other windows are being filtered
             for k_, v_ in _code_counts(m).items():
                 counts[k_] = counts.get(k_, 0) + v_
             if res_info is not None:

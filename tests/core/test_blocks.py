@@ -92,3 +92,12 @@ def test_progress_raising_cancelled_stops(workers):
         blocks.run_windows(func, wins, workers=workers, progress=progress)
     # stopped after the first report: at most the blocks already in flight ran
     assert 1 <= len(calls) <= 2 * workers + 1 < len(wins)
+
+
+def test_workers_zero_means_one_per_core(monkeypatch):
+    monkeypatch.setattr(blocks.os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert blocks.default_workers() == 3
+    assert blocks.resolve_workers(0) == 3 and blocks.resolve_workers(None) == 3
+    assert blocks.resolve_workers(2) == 2
+    monkeypatch.setattr(blocks.os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    assert blocks.default_workers() == blocks.MAX_AUTO_WORKERS

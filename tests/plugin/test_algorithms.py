@@ -267,7 +267,8 @@ def test_qgis_process_bad_input_message(run_qgis_process, tmp_path):
 
 
 def test_threads_give_the_same_mask(processing_run, scene_files, tmp_path):
-    one = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+    one = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "THREADS": 1,
+                                                    "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                     "OUTPUT_MASK": str(tmp_path / "one.tif")})
     thr = processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "THREADS": 2,
                                                     "OUTPUT_DTM": "TEMPORARY_OUTPUT",
@@ -297,3 +298,21 @@ def test_qgis_process_runs_each_filter(run_qgis_process, scene_files, tmp_path, 
     truth = scene_files["scene"].mask
     assert (mask[truth == 1] != 0).mean() > 0.8
     assert (tmp_path / "ndsm.tif").exists()
+
+
+def test_threads_default_is_one_per_core(qgis_app):
+    from qgis.core import QgsApplication
+    from bare_earth.algorithms.filter_base import auto_threads
+    from bare_earth.core.blocks import default_workers
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:slopeprofile")
+    p = alg.parameterDefinition("THREADS")
+    assert p.defaultValue() == 0 and p.minimum() == 0
+    assert "one per core" in p.description()
+    old = QgsApplication.maxThreads()
+    try:
+        QgsApplication.setMaxThreads(1)          # QGIS's "Max cores to use" caps it
+        assert auto_threads() == 1
+        QgsApplication.setMaxThreads(-1)         # unset: one per core
+        assert auto_threads() == default_workers()
+    finally:
+        QgsApplication.setMaxThreads(old)
