@@ -580,24 +580,19 @@ def _enclosed_regions(flag, free, max_cells):
     cand = (hit > 0) & (2 * hit >= tot)
     cand[0] = False
     cand[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
+    # a bounding box wider than max_cells needs more than max_cells cells: only such
+    # regions are measured (their bounding boxes, on the labels renumbered 1..k)
+    big = cand & (tot > max_cells)
+    if big.any():
+        ids = np.flatnonzero(big)
+        renum = np.zeros(n + 1, np.int32)
+        renum[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
+        boxes = ndimage.find_objects(renum.take(lab), max_label=ids.size)
+        ext = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
+        cand[ids[ext > max_cells]] = False
     if not cand.any():
         return np.zeros(flag.shape, bool)
-    cells = cand[lab]
-    rr, cc = np.nonzero(cells)
-    ll = lab[rr, cc]
-    big = np.iinfo(np.int64).max
-    lo_r = np.full(n + 1, big)
-    lo_c = np.full(n + 1, big)
-    hi_r = np.full(n + 1, -1)
-    hi_c = np.full(n + 1, -1)
-    np.minimum.at(lo_r, ll, rr)
-    np.minimum.at(lo_c, ll, cc)
-    np.maximum.at(hi_r, ll, rr)
-    np.maximum.at(hi_c, ll, cc)
-    large = np.maximum(hi_r - lo_r, hi_c - lo_c) + 1 > max_cells
-    drop = large[ll]
-    cells[rr[drop], cc[drop]] = False
-    return cells
+    return cand.take(lab)
 
 
 def _pits(z, cand, ring, depth):
