@@ -678,8 +678,12 @@ def characterise_terrain(z, cell_size, tile_m=25.0):
         (rise/run), ``relief_m`` (2-98 % range of the envelope), ``sigma_m`` (random error,
         :func:`estimate_sigma`), ``tile_m``.
     """
-    z = as_surface(z)
-    dx, dy = as_cell_size(cell_size)
+    return _characterise(as_surface(z), as_cell_size(cell_size), tile_m)[0]
+
+
+def _characterise(z, cell_size, tile_m=25.0):
+    """:func:`characterise_terrain` and its lower envelope (for step 2's limits)."""
+    dx, dy = cell_size
     if tile_m <= 0:
         raise ValueError(f"tile_m must be positive (metres); got {tile_m}.")
     n = max(3, int(round(tile_m / max(dx, dy))))
@@ -705,7 +709,7 @@ def characterise_terrain(z, cell_size, tile_m=25.0):
     return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= _HOMOGENEOUS_SHARE),
             "class_shares": shares, "slope_median": med,
             "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,
-            "sigma_m": sigma, "tile_m": n * max(dx, dy)}
+            "sigma_m": sigma, "tile_m": n * max(dx, dy)}, low
 
 
 # ------------------------------------------------------------------- step 2
@@ -1338,7 +1342,7 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 low_weight=0.02)
 
 
-def _analysis_crops(z, edge=384):
+def _analysis_crops(z, edge=256):
     """The analysis sample: the whole surface when small, else 4 crops at the quadrants."""
     rows, cols = z.shape
     if rows * cols <= (2 * edge) ** 2:
@@ -1352,11 +1356,17 @@ def _analysis_crops(z, edge=384):
     return out
 
 
+#: Residuals beyond this count are subsampled (regularly) for their robust scales.
+_SCALE_SAMPLE = 1 << 18
+
+
 def _robust_scale(v):
     """``(MAD scale, 90th percentile of |v|)`` of residuals (NaN when too few)."""
     v = v[np.isfinite(v)]
     if v.size < 20:
         return np.nan, np.nan
+    if v.size > _SCALE_SAMPLE:             # a regular subsample: the scales need no more
+        v = v[:: -(-v.size // _SCALE_SAMPLE)]
     return (float(1.4826 * np.median(np.abs(v - np.median(v)))),
             float(np.percentile(np.abs(v), 90)))
 
@@ -1375,6 +1385,18 @@ def _choose(spreads, sigma):
     return best
 
 
+def _scan(sequence, scale_of, sigma, at_least=1):
+    """``scale_of(value)`` along ``sequence`` as long as :func:`_choose` can still accept
+    the next value: the sequence ends at the first length whose spread is too large (the
+    longer ones are never chosen), but covers at least ``at_least`` values."""
+    out = []
+    for i, value in enumerate(sequence):
+        out.append(scale_of(value))
+        if i + 1 >= at_least and _choose([b for _, b in out], sigma) < i:
+            break
+    return out
+
+
 def resolve_rascor_params(z, cell_size, **params):
     """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
 
@@ -1386,12 +1408,14 @@ def resolve_rascor_params(z, cell_size, **params):
     * step 2's limits (flat terrain only) from the height distribution: Tukey's far fences,
       and at least 20 m outside the range of the terrain's lower envelope;
     * the profile lengths by analysing the sequence :data:`PROFILE_LENGTHS_M` on a sample
-      (the whole raster, or 4 crops of 384 x 384 cells) cleaned by steps 3 and 4: per
-      length, the leave-one-out profile residuals of the class model; the long profile is
-      the longest length before the 90th percentile of ``|v|`` exceeds twice the shortest's
-      (the model stops following the terrain, or objects as long as the profile remain),
-      the short one the longest of the sequence at most half of it;
-      ``profile_sigma_m`` is the robust (MAD) scale of the residuals at the long length;
+      (the whole raster up to 512 x 512 cells, else 4 crops of 256 x 256 cells at the
+      quadrants) cleaned by steps 3 and 4: per length, the leave-one-out profile
+      residuals of the class model; the long profile is the longest length before the
+      90th percentile of ``|v|`` exceeds twice the shortest's (the model stops following
+      the terrain, or objects as long as the profile remain; the analysis of the sequence
+      stops there), the short one the longest of the sequence at most half of it;
+      ``profile_sigma_m`` is the robust (MAD) scale of the residuals at the long length
+      (scales from a regular subsample of at most 262144 residuals);
     * the surface size and ``surface_sigma_m`` likewise from :data:`SURFACE_SIZES_M`;
     * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
 
@@ -1412,7 +1436,7 @@ def resolve_rascor_params(z, cell_size, **params):
     if tc is not None and tc not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
                          f"by step 1); got {tc!r}.")
-    ch = characterise_terrain(z, (dx, dy))
+    ch, low_env = _characterise(z, (dx, dy))
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
@@ -1429,7 +1453,6 @@ def resolve_rascor_params(z, cell_size, **params):
             v = v[:: v.size // 1_000_000]
         q1, q3 = np.percentile(v, [25, 75])
         iqr = max(q3 - q1, 10 * sigma)
-        low_env = _tile_low(z, max(3, int(round(ch["tile_m"] / cs))))
         lv = low_env[np.isfinite(low_env)]
         gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
         # far outside: beyond Tukey's far fences and at least _FAR_M beyond the terrain's
@@ -1444,9 +1467,7 @@ def resolve_rascor_params(z, cell_size, **params):
                                       "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
     if need:
         deg = model_degree(tc, p["homogeneous"])
-        prof_v = {L: [] for L in PROFILE_LENGTHS_M}
-        surf_v = {S: [] for S in SURFACE_SIZES_M}
-        pred_v = []
+        sample = []          # (heights, weights, cells kept) of each crop, after steps 3, 4
         for crop in _analysis_crops(z):
             keep = np.isfinite(crop)
             if keep.sum() < 100:
@@ -1456,21 +1477,15 @@ def resolve_rascor_params(z, cell_size, **params):
             keep &= ~(hi | lo)
             keep &= ~remove_level_changes(crop, (dx, dy), keep, jump_m=p["jump_m"],
                                           max_building_m=p["max_building_m"], sigma_m=sigma)
-            c64 = crop.astype(np.float64)
-            w = keep.astype(np.float64)
-            for L in PROFILE_LENGTHS_M:
-                zh, _ = _fit_at_centre(c64, w, _odd(L / dx), deg)
-                prof_v[L].append((c64 - zh)[keep])
-            for S in SURFACE_SIZES_M:
-                if p["surface_size_m"] is not None and p["surface_sigma_m"] is not None:
-                    break
-                zh, _ = _fit_at_centre(c64, w, (_odd(S / dy), _odd(S / dx)), min(deg, 1))
-                surf_v[S].append((c64 - zh)[keep])
-            g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
-            zh, _ = _fit_at_centre(c64, w, (len(g[0]), len(g[1])), 1, kernels=g)
-            pred_v.append((c64 - zh)[keep])
-        cat = lambda lst: np.concatenate(lst) if lst else np.zeros(0)
-        ps = [_robust_scale(cat(prof_v[L])) for L in PROFILE_LENGTHS_M]
+            sample.append((_finite64(crop), keep.astype(np.float64), keep))
+
+        def scale(fit):
+            """Robust scale of the leave-one-out residuals of ``fit(z, w)`` on the sample."""
+            v = [(c - fit(c, w)[0])[kk] for c, w, kk in sample]
+            return _robust_scale(np.concatenate(v) if v else np.zeros(0))
+
+        ps = _scan(PROFILE_LENGTHS_M, lambda L: scale(
+            lambda c, w: _fit_at_centre(c, w, _odd(L / dx), deg)), sigma, at_least=2)
         i_long = max(_choose([b for _, b in ps], sigma), 1)
         long_m = PROFILE_LENGTHS_M[i_long]
         i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
@@ -1481,15 +1496,19 @@ def resolve_rascor_params(z, cell_size, **params):
         if p["profile_sigma_m"] is None:
             s = ps[i_long][0]
             p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
-        ss = [_robust_scale(cat(surf_v[S])) for S in SURFACE_SIZES_M]
-        i_s = _choose([b for _, b in ss], sigma)
-        if p["surface_size_m"] is None:
-            p["surface_size_m"] = SURFACE_SIZES_M[i_s]
-        if p["surface_sigma_m"] is None:
-            s = ss[i_s][0]
-            p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+        if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
+            ss = _scan(SURFACE_SIZES_M, lambda S: scale(
+                lambda c, w: _fit_at_centre(c, w, (_odd(S / dy), _odd(S / dx)), min(deg, 1))),
+                sigma)
+            i_s = _choose([b for _, b in ss], sigma)
+            if p["surface_size_m"] is None:
+                p["surface_size_m"] = SURFACE_SIZES_M[i_s]
+            if p["surface_sigma_m"] is None:
+                s = ss[i_s][0]
+                p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["prediction_sigma_m"] is None:
-            s = _robust_scale(cat(pred_v))[0]
+            g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
+            s = scale(lambda c, w: _fit_at_centre(c, w, (len(g[0]), len(g[1])), 1, kernels=g))[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
     return p
 
