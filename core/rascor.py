@@ -843,60 +843,61 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
 
     Works on the remaining points of all rows concatenated in row order (a 1-D array), so
     "the previous point of the profile" is simply the previous element: profile starts
-    (a new row, or a new break-line region along the row) reset the scans.
+    (a new row, or a new break-line region along the row) reset the scans. Only the steps
+    larger than ``jump`` can be jumps; the tests run on those candidates alone.
     """
-    rr, cc = np.nonzero(keep)
     out = np.zeros(z.shape, bool)
-    n = rr.size
+    flat = np.flatnonzero(keep)           # within a row, differences of flat indices are
+    n = flat.size                         # differences of column positions
     if n < 4:
         return out
-    zc = z[rr, cc].astype(np.float32, copy=False)
-    pos = cc.astype(np.int64)
-    # same profile as the previous point (same row, same region)
-    same = np.zeros(n, bool)
-    same[1:] = rr[1:] == rr[:-1]
+    P = 3
+    zp = np.full(n + 2 * P, np.nan, np.float32)          # padded: i - 3 .. i + 2 exist
+    zc = zp[P:P + n]
+    zc[:] = z[keep]
+    sp = np.zeros(n + 2 * P, bool)
+    same = sp[P:P + n]                                    # same profile as the previous point
+    same[:] = True
+    cnt = np.count_nonzero(keep, axis=1)
+    same[(np.cumsum(cnt) - cnt)[cnt > 0]] = False         # the first point of each row
     if labels is not None:
-        lab = labels[rr, cc]
+        lab = labels[keep]
         same[1:] &= lab[1:] == lab[:-1]
-
-    def back(a, k, fill):
-        """a[i - k] (fill where i < k)."""
-        o = np.empty_like(a)
-        o[:k] = fill
-        o[k:] = a[:-k]
-        return o
-
-    def fwd(a, k, fill):
-        o = np.empty_like(a)
-        o[-k:] = fill
-        o[:-k] = a[k:]
-        return o
-
-    s1 = same                                  # i-1 in the profile
-    s2 = s1 & back(same, 1, False)            # i-2
-    s3 = s2 & back(same, 2, False)            # i-3
-    n1 = fwd(same, 1, False)                   # i+1
-    n2 = n1 & fwd(same, 2, False)             # i+2
-    zp, zpp, zppp = back(zc, 1, np.nan), back(zc, 2, np.nan), back(zc, 3, np.nan)
-    zn, znn = fwd(zc, 1, np.nan), fwd(zc, 2, np.nan)
+    d = zc[1:] - zc[:-1]                                  # the step to the next point
+    with np.errstate(invalid="ignore"):
+        i = 1 + np.flatnonzero(np.abs(d) > jump)
+    i = i[same[i]]
+    # candidates i: the step from i-1 to i exceeds jump (a jump up or down at i)
+    j = i + P
+    z0, z1, z2, z3 = zp[j], zp[j - 1], zp[j - 2], zp[j - 3]   # z_i, z_{i-1}, z_{i-2}, z_{i-3}
+    s2 = sp[j - 1]
+    s3 = s2 & sp[j - 2]
+    zn, znn = zp[j + 1], zp[j + 2]
+    n1 = sp[j + 1]
+    n2 = n1 & sp[j + 2]
     with np.errstate(invalid="ignore"):
         # jump up at i: from p = i-1 (ground) to i; slope allowance = rise before p
-        rise_before = np.where(s2, np.maximum(zp - zpp, 0.0), 0.0)
-        up = s1 & (zc - zp - rise_before > jump)
+        rise_before = np.where(s2, np.maximum(z1 - z2, 0.0), 0.0)
+        up = z0 - z1 - rise_before > jump
         # jump down at i: from i-1 (high) to i (ground); allowance = fall after i
-        fall_after = np.where(n1, np.maximum(zc - zn, 0.0), 0.0)
-        down = s1 & (zp - zc - fall_after > jump)
+        fall_after = np.where(n1, np.maximum(z0 - zn, 0.0), 0.0)
+        down = z1 - z0 - fall_after > jump
         # no vegetation beside the jump: the 3 ground points outside it lie on a smooth
         # line; crowns and bushes are rough (the roof side is not tested: mixed wall /
         # roof cells make it rough)
-        up &= np.where(s3, np.abs(zp - 2 * zpp + zppp) <= veg_tol, s2)
-        down &= np.where(n2, np.abs(zc - 2 * zn + znn) <= veg_tol, n1)
+        up &= np.where(s3, np.abs(z1 - 2 * z2 + z3) <= veg_tol, s2)
+        down &= np.where(n2, np.abs(z0 - 2 * zn + znn) <= veg_tol, n1)
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
-    ev = np.flatnonzero(up | down | ~s1)
-    typ = np.where(up[ev], 1, np.where(down[ev], 2, 0))
+    starts = np.flatnonzero(~same)
+    ev = np.concatenate([starts, i[up], i[down]])
+    typ = np.concatenate([np.zeros(starts.size, np.int8), np.ones(int(up.sum()), np.int8),
+                          np.full(int(down.sum()), 2, np.int8)])
+    order = np.argsort(ev, kind="stable")
+    ev, typ = ev[order], typ[order]
     k = np.flatnonzero((typ[:-1] == 1) & (typ[1:] == 2))
     a, b = ev[k], ev[k + 1]
+    pos = flat
     ok = (pos[b] - pos[a]) <= lmax
     a, b = a[ok], b[ok]
     lens = b - a
@@ -911,8 +912,7 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
     ground = z0 + (z1 - z0) * t
     with np.errstate(invalid="ignore"):
         hit = zc[c] - ground > 0.5 * jump
-    c = c[hit]
-    out[rr[c], cc[c]] = True
+    out.ravel()[flat[c[hit]]] = True
     return out
 
 
