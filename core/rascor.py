@@ -782,59 +782,82 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
     rows, cols = z.shape
     P = 2
     zp = np.full((rows + 2 * P, cols + 2 * P), np.nan, np.float32)
-    zp[P:-P, P:-P] = np.where(keep, z, np.nan)
+    zp[P:-P, P:-P] = z
+    zp[P:-P, P:-P][~keep] = np.nan
     lp = None
     if labels is not None:
         lp = np.full(zp.shape, -1, np.int64)
         lp[P:-P, P:-P] = labels
+    low = np.zeros(z.shape, bool)
+    high = np.zeros(z.shape, bool)
+    axes = ((0, 1), (1, 0), (1, 1), (1, -1))
 
-    def sh(a, dr, dc):
-        return a[P + dr:P + dr + rows, P + dc:P + dc + cols]
+    def run(band_fn, src):
+        # bands of rows: the few temporaries of each stay in the cache
+        for b in _bands(rows, cols + 2 * P):
+            r0, r1 = b.start, b.stop
 
-    def nb(dr, dc, a=None):
-        a = zp if a is None else a
-        v = sh(a, dr, dc)
-        if lp is not None:
-            v = np.where(sh(lp, dr, dc) == labels, v, np.nan)
-        return v
+            def nb(dr, dc, a=src):
+                v = a[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
+                if lp is not None:
+                    v = np.where(lp[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
+                                 == labels[b], v, np.nan)
+                return v
 
-    zc = sh(zp, 0, 0)
-    # low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
-    # when, on both sides within 2 cells, a point lies higher by more than tol_low (fills
-    # blunders up to 3 cells wide); a ditch or a cut continues along its own axis, so it is
-    # no pit there and stays.
-    with np.errstate(invalid="ignore"):
-        n_axes = np.zeros(z.shape, np.int16)
-        n_pits = np.zeros(z.shape, np.int16)
-        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            sides = []
-            for sgn in (1, -1):
-                a = np.fmax(nb(sgn * dr, sgn * dc), nb(2 * sgn * dr, 2 * sgn * dc)) - zc
-                sides.append(a)
-            has = np.isfinite(sides[0]) & np.isfinite(sides[1])
+            band_fn(b, nb)
+
+    def pits(b, nb):
+        # low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
+        # when, on both sides within 2 cells, a point lies higher by more than tol_low
+        # (fills blunders up to 3 cells wide); a ditch or a cut continues along its own
+        # axis, so it is no pit there and stays.
+        zc = nb(0, 0)
+        n_axes = np.zeros(zc.shape, np.int8)
+        n_pits = np.zeros(zc.shape, np.int8)
+        for dr, dc in axes:
+            s0 = np.fmax(nb(dr, dc), nb(2 * dr, 2 * dc))
+            s0 -= zc
+            s1 = np.fmax(nb(-dr, -dc), nb(-2 * dr, -2 * dc))
+            s1 -= zc
+            has = np.isfinite(s0)
+            has &= np.isfinite(s1)
             n_axes += has
-            n_pits += has & (sides[0] > tol_low) & (sides[1] > tol_low)
-        low = keep & (n_axes >= 2) & (n_pits == n_axes)
-        zq = zp.copy()
-        zq[P:-P, P:-P][low] = np.nan
-        zc = sh(zq, 0, 0)
-        high = np.zeros(z.shape, bool)
-        for dr, dc in _DIRS8:
-            zl = nb(dr, dc, zq)
-            dz = zc - zl
-            zb = nb(2 * dr, 2 * dc, zq)
-            if lp is not None:  # the far cell must lie in the region too (checked above)
-                zb = np.where(sh(lp, dr, dc) == labels, zb, np.nan)
-            beyond = zl - zb
-            up = nb(-dr, -dc, zq) - zc
-            steep_above = np.isfinite(up) & (up >= dz - tol)
-            # no context on either side (edge, gap, break line): the local slope is
-            # unknown, the pair is not tested
-            known = np.isfinite(beyond) | np.isfinite(up)
-            slope = np.where(np.isfinite(beyond), beyond, up)
-            high |= known & (dz > tol + np.maximum(np.nan_to_num(slope, nan=0.0), 0.0)) \
-                & ~steep_above
-    return high & keep & ~low, low
+            has &= s0 > tol_low
+            has &= s1 > tol_low
+            n_pits += has
+        lo = keep[b] & (n_axes >= 2)
+        lo &= n_pits == n_axes
+        low[b] = lo
+
+    def pairs(b, nb):
+        zc = nb(0, 0)
+        hi = np.zeros(zc.shape, bool)
+        for dr, dc in axes:
+            zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
+            d_f, d_r = zc - zf, zc - zr
+            for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
+                                        (d_r, d_f, zr, (-2 * dr, -2 * dc))):
+                # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
+                # lie in the region of l too (nb checks the centre's region for both)
+                beyond = zl - nb(*far)
+                up = -up_neg                           # rise above u: z_{u-e} - z_u
+                # the local slope: beyond the pair, else above u; neither known: no test
+                np.copyto(beyond, up, where=np.isnan(beyond))
+                np.maximum(beyond, 0.0, out=beyond)
+                beyond += tol
+                t = dz > beyond
+                # unless the terrain above u rises at least as steeply (straight or concave)
+                t &= ~(up >= dz - tol)
+                hi |= t
+        hi &= keep[b]
+        hi &= ~low[b]
+        high[b] = hi
+
+    with np.errstate(invalid="ignore"):
+        run(pits, zp)
+        zp[P:-P, P:-P][low] = np.nan
+        run(pairs, zp)
+    return high, low
 
 
 # ------------------------------------------------------------------- step 4
