@@ -388,14 +388,15 @@ def compute_curvature(z, cell_size, *, window=5, model="quadratic"):
 
 
 # --------------------------------------------------------------------------- profiles
-def _walls(Zp, pad, V, B, cell, *, reach, h_min, tan_wall):
+def _walls(Zp, pad, B, first, cell, *, reach, h_min, tan_wall):
     """Where a profile (axis 0, scanned downwards) has just risen as a wall.
 
-    ``Zp`` holds the profiles below ``pad`` rows of NaN (``pad >= _WALL_CELLS + reach``),
-    so that positions before a profile's start read as NaN without a test: ``Z =
-    Zp[pad:]``, NaN at nodata. Only marked positions ``B`` (breaks) are examined. The
-    foot of position j is the lowest of the ``_WALL_CELLS`` positions before it. j is the
-    top of a wall when
+    ``Zp[pad:]`` holds the positions examined (rows) of all profiles (columns), NaN at
+    nodata, below the ``pad >= _WALL_CELLS + reach`` positions before them (NaN before a
+    profile's start): a block of rows of the profiles, see :func:`_axis_objects`.
+    ``first`` is every profile's first position. Only marked positions ``B`` (breaks,
+    shaped as ``Zp[pad:]``) are examined. The foot of position j is the lowest of the
+    ``_WALL_CELLS`` positions before it. j is the top of a wall when
 
     * ``z_j - foot >= h_min`` (high enough),
     * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
@@ -423,7 +424,7 @@ def _walls(Zp, pad, V, B, cell, *, reach, h_min, tan_wall):
     n = Zp.shape[0] - pad
     if pad < _WALL_CELLS + reach:
         raise ValueError("_walls: the padding must cover the wall and the reach before it")
-    idx = np.flatnonzero(B if V is None else B & V)
+    idx = np.flatnonzero(B)
     if idx.size == 0:
         e = np.zeros(0, np.int64), np.zeros(0, np.float32)
         return (e[0], e[1], e[1]), e
@@ -450,7 +451,7 @@ def _walls(Zp, pad, V, B, cell, *, reach, h_min, tan_wall):
         before = back(_WALL_CELLS + reach).take(ci)
         nb = np.isnan(before)
         if nb.any():  # near the start of a profile (or nodata): its first position
-            before[nb] = Zp[pad].take(ci[nb] % Zp.shape[1])
+            before[nb] = first.take(ci[nb] % Zp.shape[1])
         prior = np.maximum((base.take(cand) - before) / np.float32(reach * cell), 0)
         ok = rate.take(cand) >= np.float32(_WALL_CONTRAST) * prior
     wsel = cand[ok]
@@ -463,16 +464,35 @@ def _row_slices(flat_idx, n, m):
     return np.searchsorted(flat_idx // m, np.arange(n + 1))
 
 
-def _scan(Z, V, walls, downs, *, tol, max_cells):
-    """The scan along axis 0 of ``Z`` (positions x profiles), all profiles at once.
+class _ScanState:
+    """What the scan of :func:`_scan_rows` keeps per profile between blocks of rows:
+    inside an object, ``g`` the height of the ground before it (its foot), ``gs`` the
+    slope of that ground and ``jg`` the position where the object began."""
+
+    def __init__(self, m, tol, max_cells):
+        self.g = np.zeros(m, np.float32)
+        self.jg = np.zeros(m, np.float32)
+        self.gs = np.zeros(m, np.float32)
+        self.dist = np.empty(m, np.float32)
+        self.lim = np.empty(m, np.float32)
+        self.rise = np.empty(m, np.float32)
+        self.end = np.empty(m, bool)
+        self.far = np.empty(m, bool)
+        self.tol = np.float32(tol)
+        self.max_cells = max_cells
+
+
+def _scan_rows(Z, j0, walls, downs, out, st):
+    """The scan along axis 0 (positions x profiles), all profiles at once, over the
+    positions ``j0 .. j0 + len(Z) - 1`` (``Z``: their heights, ``walls`` and ``downs``
+    from :func:`_walls` with flat indices into ``Z``); ``out[j]`` is set to the profiles
+    inside an object at position j (``out[j0 - 1]`` must hold the previous position).
 
     The paper's reading of a profile: the points between a break going up and the
-    matching break coming down belong to an object. State per profile inside an object:
-    ``g`` the height of the ground before it (its foot), ``gs`` the slope of that ground
-    and ``jg`` the position where the object began.
+    matching break coming down belong to an object.
 
     * ground -> object at the top of a wall (``walls``, see :func:`_walls`: marked cells
-      only); ``g`` becomes the wall's foot.
+      only); the state ``st`` (:class:`_ScanState`) takes the wall's foot.
     * object -> ground when the profile comes back down to the ground extended from the
       foot at the slope the profile had before the wall (rising only; within ``tol``),
       or comes down a wall (``downs``) onto ground nearer the foot than the top (the
@@ -486,40 +506,36 @@ def _scan(Z, V, walls, downs, *, tol, max_cells):
     dense work per row is the end test alone.
     """
     n, m = Z.shape
-    out = np.zeros((n, m), bool)
-    g = np.zeros(m, np.float32)            # foot height of the current object
-    jg = np.zeros(m, np.float32)           # position where the current object began
-    gs = np.zeros(m, np.float32)           # slope of the ground under the object
-    dist = np.empty(m, np.float32)
-    lim = np.empty(m, np.float32)
-    rise = np.empty(m, np.float32)
-    end = np.empty(m, bool)
-    far = np.empty(m, bool)
+    g, jg, gs, dist, lim = st.g, st.jg, st.gs, st.dist, st.lim
+    rise, end, far, tol = st.rise, st.end, st.far, st.tol
     w_idx, w_foot, w_slope = walls
     d_idx, d_drop = downs
     w_ptr = _row_slices(w_idx, n, m)
     d_ptr = _row_slices(d_idx, n, m)
     w_col = (w_idx % m).astype(np.intp)
     d_col = (d_idx % m).astype(np.intp)
-    d_add = np.maximum(d_drop, np.float32(tol)) - np.float32(tol)
-    tol = np.float32(tol)
+    d_add = np.maximum(d_drop, tol) - tol
     with np.errstate(invalid="ignore"):
-        for j in range(1, n):
+        for i in range(n):
+            j = j0 + i
+            if j == 0:             # the first position is never inside an object
+                out[0] = False
+                continue
             obj = out[j - 1]
-            np.subtract(Z[j], g, out=rise)
+            np.subtract(Z[i], g, out=rise)
             np.subtract(np.float32(j), jg, out=dist)
             np.multiply(gs, dist, out=lim)
-            a, b = d_ptr[j], d_ptr[j + 1]
+            a, b = d_ptr[i], d_ptr[i + 1]
             if b > a:  # down a wall here: end when rise <= slope * dist + drop
                 lim[d_col[a:b]] += d_add[a:b]
             lim += tol
             np.less_equal(rise, lim, out=end)
-            np.greater(dist, max_cells, out=far)
+            np.greater(dist, st.max_cells, out=far)
             end |= far
             end &= obj
             now = out[j]
             np.not_equal(obj, end, out=now)        # obj ^ end: the objects that go on
-            a, b = w_ptr[j], w_ptr[j + 1]
+            a, b = w_ptr[i], w_ptr[i + 1]
             if b > a:
                 c = w_col[a:b]
                 ok = ~obj.take(c)                  # a profile inside an object does not restart
@@ -529,40 +545,74 @@ def _scan(Z, V, walls, downs, *, tol, max_cells):
                     g[c] = w_foot[a:b][ok]
                     gs[c] = w_slope[a:b][ok]
                     jg[c] = j
-    if V is not None:
-        out &= V
-    return out
 
 
-def _axis_objects(z, marked, valid, cell, *, reach, h_min, tan_wall, tol, max_cells):
-    """Object cells of the profiles along axis 0: both scan directions must agree.
+def _profile_rows(a, axis, j0, j1, dst, fill):
+    """Positions ``j0 .. j1 - 1`` of the profiles of ``a`` along ``axis``, forwards then
+    backwards, into ``dst`` (``j1 - j0`` rows): ``dst[:, :m]`` the profiles read from
+    their start, ``dst[:, m:]`` read from their end; positions before the start are
+    ``fill``. Along axis 1 the block is transposed on the fly (no transposed raster)."""
+    n = a.shape[axis]
+    m = a.shape[1 - axis]
+    k0 = min(max(j0, 0), j1)
+    if k0 > j0:
+        dst[:k0 - j0] = fill
+    if j1 <= k0:
+        return
+    d = dst[k0 - j0:j1 - j0]
+    if axis == 0:
+        d[:, :m] = a[k0:j1]
+        d[:, m:] = a[n - j1:n - k0][::-1]
+    else:
+        d[:, :m] = a[:, k0:j1].T
+        d[:, m:] = a[:, n - j1:n - k0][:, ::-1].T
+
+
+def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells):
+    """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
+    profiles, the rows): both scan directions must agree.
 
     A step up of the terrain (terrace edge) is an object to the scan climbing it, but the
     scan coming down the other way meets no break going up: only objects, which have a
     break going up from both sides, are kept.
+
+    Every profile is scanned from its start and from its end at once (the profiles
+    forwards, then backwards, side by side), block of positions by block: a block of the
+    heights with the positions before it and the block's breaks are copied out of ``z``
+    and ``marked``, its walls found (:func:`_walls`) and scanned (:func:`_scan_rows`), so
+    that nothing of the raster's size is held but the result. ``z`` is NaN at nodata.
     """
-    n, m = z.shape
+    n = z.shape[axis]
+    m = z.shape[1 - axis]
+    M = 2 * m
     pad = _WALL_CELLS + reach
-
-    def both(a, pad=0, fill=0):  # the profiles forwards, then backwards: one scan does both
-        if a is None:
-            return None
-        two = np.empty((pad + n, 2 * m), a.dtype)
-        two[:pad] = fill
-        two[pad:, :m] = a
-        two[pad:, m:] = a[::-1]
-        return two
-
-    Zp = both(z, pad, np.nan)              # NaN rows before the profiles' start
-    Z = Zp[pad:]
-    V, B = both(valid), both(marked)
-    if V is not None:
-        Z[~V] = np.nan
-    walls, downs = _walls(Zp, pad, V, B, cell, reach=reach, h_min=h_min, tan_wall=tan_wall)
-    del B
-    o = _scan(Z, V, walls, downs, tol=tol, max_cells=max_cells)
-    del Z, Zp, V
-    return np.logical_and(o[:, :m], o[::-1, m:])
+    rows = max(8, pad, (4 * _CHUNK_CELLS) // max(M, 1))
+    Zc = np.empty((pad + rows, M), np.float32)
+    Bc = np.empty((rows, M), bool)
+    first = np.empty((1, M), np.float32)
+    _profile_rows(z, axis, 0, 1, first, np.nan)
+    first = first[0]
+    out = np.empty((n, M), bool)
+    st = _ScanState(M, tol, max_cells)
+    for j0 in range(0, n, rows):
+        j1 = min(n, j0 + rows)
+        k = j1 - j0
+        if j0 == 0:
+            _profile_rows(z, axis, -pad, j1, Zc[:pad + k], np.nan)
+        else:  # the positions before the block: the end of the previous one
+            Zc[:pad] = Zc[rows:rows + pad]
+            _profile_rows(z, axis, j0, j1, Zc[pad:pad + k], np.nan)
+        _profile_rows(marked, axis, j0, j1, Bc[:k], False)
+        walls, downs = _walls(Zc[:pad + k], pad, Bc[:k], first, cell, reach=reach,
+                              h_min=h_min, tan_wall=tan_wall)
+        _scan_rows(Zc[pad:pad + k], j0, walls, downs, out, st)
+    res = np.logical_and(out[:, :m], out[::-1, m:])
+    del out
+    if axis == 1:
+        res = _transpose(res)
+    if valid is not None:
+        res &= valid
+    return res
 
 
 def _enclosed_regions(flag, free, max_cells):
@@ -834,12 +884,10 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # 3. along X and Y profiles: from a break going up to the break coming down
     m = window_cells // 2
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window_cells + 1)
-    vt = None if all_valid else _transpose(valid)
-    obj_x = _transpose(_axis_objects(_transpose(z), _transpose(marked), vt, dx,
-                                     max_cells=int(max_size / dx), **kw))
+    obj_x = _axis_objects(z, marked, None if all_valid else valid, dx, 1,
+                          max_cells=int(max_size / dx), **kw)
     report(progress, 0.45)
-    del vt
-    obj_y = _axis_objects(z, marked, None if all_valid else valid, dy,
+    obj_y = _axis_objects(z, marked, None if all_valid else valid, dy, 0,
                           max_cells=int(max_size / dy), **kw)
     report(progress, 0.55)
 
