@@ -1276,12 +1276,14 @@ def filter_rascor(z, cell_size, *, terrain_class="rolling", homogeneous=True, si
 
     def record(k, hi, lo):
         new_hi = hi & keep
-        new_lo = lo & keep & ~new_hi
-        mask[new_hi] = OBJECT
-        mask[new_lo] = LOW
-        step[new_hi | new_lo] = k
-        keep[new_hi | new_lo] = False
-        removed[k] = removed.get(k, 0) + int(new_hi.sum() + new_lo.sum())
+        new_lo = lo & keep
+        new_lo &= ~new_hi
+        np.copyto(mask, OBJECT, where=new_hi)
+        np.copyto(mask, LOW, where=new_lo)
+        new = np.logical_or(new_hi, new_lo, out=new_hi)
+        np.copyto(step, k, where=new)
+        np.copyto(keep, False, where=new)
+        removed[k] = removed.get(k, 0) + int(np.count_nonzero(new))
 
     kw = dict(k=snooping_k, low_weight=low_weight, labels=labels)
     mkw = dict(terrain_class=terrain_class, homogeneous=bool(homogeneous),
