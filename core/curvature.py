@@ -915,32 +915,44 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     del near
     concave = marked & (H < 0)
     edge = marked & ~objects
+    invalid = None if all_valid else ~valid
+    allow = None
+    d = np.empty(z.shape, np.float32)
+    tmp = np.empty(z.shape, bool)
     for it in range(_PASSES):
         if not (valid & ~holes).any():
             mask[objects] = OBJECT
             break
         surface = _fill_surface(z, holes)
-        d = z - surface
-        # the tolerance grows with the slope of the surface: one cell of horizontal
-        # uncertainty on a slope is a height difference of tan(slope) * cell
-        if it == 0:  # the slope of the first surface serves both passes
-            slope_cell = _slope(surface, dx, dy)
-            slope_cell *= np.float32(max(dx, dy))
-        allow = slope_cell + np.float32(tol)
-        # a break that no profile found inside an object must stand half the minimum
-        # object height more above the surface: interpolated across a band of breaks,
-        # the surface sags below convex terrain edges (crest of a dam) by some decimetres
-        np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
-        mask = np.greater(d, allow).view(np.uint8) * np.uint8(OBJECT)  # else GROUND (0)
-        mask[_pits(z, concave & (d < -h_min), m + 2, h_min)] = LOW
+        np.subtract(z, surface, out=d)
+        if allow is None:  # the slope of the first surface serves both passes
+            # the tolerance grows with the slope of the surface: one cell of horizontal
+            # uncertainty on a slope is a height difference of tan(slope) * cell
+            allow = _slope(surface, dx, dy)
+            allow *= np.float32(max(dx, dy))
+            allow += np.float32(tol)
+            # a break that no profile found inside an object must stand half the minimum
+            # object height more above the surface: interpolated across a band of breaks,
+            # the surface sags below convex terrain edges (crest of a dam) by some decimetres
+            np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
+        np.greater(d, allow, out=mask.view(bool))       # OBJECT where above, else GROUND
+        if OBJECT != 1:  # pragma: no cover - the codes are fixed
+            mask *= np.uint8(OBJECT)
+        np.less(d, np.float32(-h_min), out=tmp)
+        tmp &= concave
+        mask[_pits(z, tmp, m + 2, h_min)] = LOW
         # cells the profiles found between a break up and a break down stay objects when
         # they stand clearly (half the minimum object height) above the ground surface;
         # a profile that overshot along a rising terrain (a dam behind a bush) does not
-        mask[objects & (d > np.float32(0.5 * h_min))] = OBJECT
-        holes = (mask != GROUND) | mark_k
-        if not all_valid:
-            holes |= ~valid
+        np.greater(d, np.float32(0.5 * h_min), out=tmp)
+        tmp &= objects
+        np.copyto(mask, np.uint8(OBJECT), where=tmp)
+        np.not_equal(mask, GROUND, out=holes)
+        holes |= mark_k
+        if invalid is not None:
+            holes |= invalid
         report(progress, 0.8 + 0.1 * it)
+    del d, tmp
     mask = finish_mask(mask, z)
 
     info = {"k_g_per_m2": float(k_g), "window_cells": window_cells, "model": model,
@@ -957,27 +969,40 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
 
 
 def _slope(a, dx, dy):
-    """tan(slope) of a complete surface by central differences (one-sided at the edges)."""
-    gx = np.empty(a.shape, np.float32)
-    gy = np.empty(a.shape, np.float32)
-    if a.shape[1] > 1:
-        np.subtract(a[:, 2:], a[:, :-2], out=gx[:, 1:-1])
-        gx[:, 1:-1] *= np.float32(0.5 / dx)
-        gx[:, 0] = (a[:, 1] - a[:, 0]) / dx
-        gx[:, -1] = (a[:, -1] - a[:, -2]) / dx
-    else:
-        gx[:] = 0
-    if a.shape[0] > 1:
-        np.subtract(a[2:], a[:-2], out=gy[1:-1])
-        gy[1:-1] *= np.float32(0.5 / dy)
-        gy[0] = (a[1] - a[0]) / dy
-        gy[-1] = (a[-1] - a[-2]) / dy
-    else:
-        gy[:] = 0
-    gx *= gx
-    gy *= gy
-    gx += gy
-    return np.sqrt(gx, out=gx)
+    """tan(slope) of a complete surface by central differences (one-sided at the edges),
+    block of rows by block (the gradients live in cache-sized buffers)."""
+    rows, cols = a.shape
+    out = np.empty(a.shape, np.float32)
+    step = max(1, _CHUNK_CELLS // max(cols, 1))
+    gx_b = np.empty((min(step, rows), cols), np.float32)
+    gy_b = np.empty((min(step, rows), cols), np.float32)
+    for i0 in range(0, rows, step):
+        i1 = min(rows, i0 + step)
+        n = i1 - i0
+        blk, gx, gy = a[i0:i1], gx_b[:n], gy_b[:n]
+        if cols > 1:
+            np.subtract(blk[:, 2:], blk[:, :-2], out=gx[:, 1:-1])
+            gx[:, 1:-1] *= np.float32(0.5 / dx)
+            gx[:, 0] = (blk[:, 1] - blk[:, 0]) / dx
+            gx[:, -1] = (blk[:, -1] - blk[:, -2]) / dx
+        else:
+            gx[:] = 0
+        if rows > 1:
+            lo, hi = max(i0, 1), min(i1, rows - 1)   # rows with both neighbours
+            if hi > lo:
+                np.subtract(a[lo + 1:hi + 1], a[lo - 1:hi - 1], out=gy[lo - i0:hi - i0])
+                gy[lo - i0:hi - i0] *= np.float32(0.5 / dy)
+            if i0 == 0:
+                gy[0] = (a[1] - a[0]) / dy
+            if i1 == rows:
+                gy[n - 1] = (a[-1] - a[-2]) / dy
+        else:
+            gy[:] = 0
+        gx *= gx
+        gy *= gy
+        gx += gy
+        np.sqrt(gx, out=out[i0:i1])
+    return out
 
 
 def _positive(name, value, hint):
