@@ -625,19 +625,30 @@ def _enclosed_regions(flag, free, max_cells):
     lab, n = ndimage.label(free)
     if n == 0:
         return np.zeros(flag.shape, bool)
-    hit = np.bincount(lab[flag & free], minlength=n + 1)
-    tot = np.bincount(lab.ravel(), minlength=n + 1)
+    # cells per label, by blocks of rows (bincount casts its input to intp: a raster-sized
+    # int64 copy at once otherwise); flagged cells outside ``free`` count for label 0
+    hit = np.zeros(n + 1, np.intp)
+    tot = np.zeros(n + 1, np.intp)
+    step = max(1, (16 * _CHUNK_CELLS) // max(lab.shape[1], 1))
+    for i in range(0, lab.shape[0], step):
+        lb = lab[i:i + step]
+        tot += np.bincount(lb.ravel(), minlength=n + 1)
+        hit += np.bincount(lb[flag[i:i + step]], minlength=n + 1)
     cand = (hit > 0) & (2 * hit >= tot)
     cand[0] = False
     cand[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
     # a bounding box wider than max_cells needs more than max_cells cells: only such
-    # regions are measured (their bounding boxes, on the labels renumbered 1..k)
+    # regions are measured
     big = cand & (tot > max_cells)
     if big.any():
         ids = np.flatnonzero(big)
-        renum = np.zeros(n + 1, np.int32)
-        renum[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
-        boxes = ndimage.find_objects(renum.take(lab), max_label=ids.size)
+        if ids[-1] <= 16 * ids.size + 4096:   # few labels up to the last: boxes of all
+            boxes = ndimage.find_objects(lab, max_label=int(ids[-1]))
+            boxes = [boxes[i - 1] for i in ids]
+        else:                                 # many: renumbered 1..k first
+            renum = np.zeros(n + 1, np.int32)
+            renum[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
+            boxes = ndimage.find_objects(renum.take(lab), max_label=ids.size)
         ext = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
         cand[ids[ext > max_cells]] = False
     if not cand.any():
