@@ -75,7 +75,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, report
+from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
 
 #: Step numbers and names (the values of the ``step`` extra).
@@ -176,27 +176,6 @@ def _region_slices(labels):
     if labels is None:
         return None
     return [(i + 1, s) for i, s in enumerate(ndimage.find_objects(labels)) if s is not None]
-
-
-def _per_region(func, labels, arrays, n_out):
-    """Apply ``func(*sub_arrays, inside)`` per region, assemble its ``n_out`` outputs.
-
-    Without labels ``func`` runs once on the whole arrays (``inside`` = None). Cells
-    outside the region have zero weight in every window (the callers zero them), so the
-    region's bounding box is all a window can see.
-    """
-    if labels is None:
-        return func(*arrays, None)
-    shape = arrays[0].shape
-    outs = [np.full(shape, np.nan) for _ in range(n_out)]
-    for rid, sl in _region_slices(labels):
-        inside = labels[sl] == rid
-        if inside.sum() < 3:
-            continue
-        res = func(*[a[sl] for a in arrays], inside)
-        for o, r in zip(outs, res):
-            o[sl][inside] = r[inside]
-    return tuple(outs)
 
 
 def _box(v, size, axis):
@@ -305,6 +284,8 @@ def _solve_first_general(M, Z, n_unknowns):
 #: Cells per band of the banded kernels: their temporaries (about 1 MB each) stay in the
 #: cache, and no full-size temporary is allocated per moment.
 _BAND_CELLS = 1 << 17
+#: Cells per band (halo included) of the window fits run in bands of rows with a halo.
+_HALO_BAND_CELLS = 1 << 20
 
 
 def _bands(rows, cols):
@@ -382,7 +363,7 @@ def _fit_rows(z, w, size, degree):
     return zhat, hh
 
 
-def _fit_box_2d(z, w, sizes, degree):
+def _fit_box_2d(z, w, sizes, degree, out_rows=None):
     """Leave-one-out horizontal (degree 0) or inclined plane (degree 1) in a moving
     ``rows x cols`` box window, for every cell at once.
 
@@ -393,31 +374,36 @@ def _fit_box_2d(z, w, sizes, degree):
     ``p + q <= 1``); the 3 x 3 normal equations are solved by cofactors for the height at
     the centre and ``h = (N^-1)_00``, the centre having been taken out of ``M00``, ``Z00``.
 
-    ``z`` must be finite wherever ``w`` is 0. Returns ``zhat, h`` like :func:`_fit_at_centre`.
+    ``z`` must be finite wherever ``w`` is 0. ``out_rows`` (a slice) limits the result to
+    those rows (the others only feed the windows). Returns ``zhat, h`` like
+    :func:`_fit_at_centre`.
     """
     sy, sx = sizes
     rows, cols = z.shape
+    o0, o1, _ = (out_rows or slice(0, rows)).indices(rows)
     inv = 1.0 / (sy * sx)
     wz = w * z
-    y = (np.arange(rows, dtype=np.float64) - rows // 2)[:, None]
-    c0 = _mean1(w, sy, 0)
-    d0 = _mean1(wz, sy, 0)
+    y = (np.arange(rows, dtype=np.float64) - (o0 + o1) // 2)[:, None]
+    c0 = _mean1(w, sy, 0)[o0:o1]
+    d0 = _mean1(wz, sy, 0)[o0:o1]
     if degree == 1:
         t = w * y
-        c1 = _mean1(t, sy, 0)
+        c1 = _mean1(t, sy, 0)[o0:o1]
         t *= y
-        c2 = _mean1(t, sy, 0)
+        c2 = _mean1(t, sy, 0)[o0:o1]
         np.multiply(wz, y, out=t)
-        d1 = _mean1(t, sy, 0)
+        d1 = _mean1(t, sy, 0)[o0:o1]
         del t
-        for b in _bands(rows, cols):
+        y = y[o0:o1]
+        for b in _bands(o1 - o0, cols):
             _centred(y[b], c0[b], c1[b], c2[b])
             _centred(y[b], d0[b], d1[b])
+    w, wz = w[o0:o1], wz[o0:o1]
     x = np.arange(cols, dtype=np.float64) - cols // 2
-    zhat = np.empty(z.shape)
-    hh = np.empty(z.shape)
+    zhat = np.empty((o1 - o0, cols))
+    hh = np.empty((o1 - o0, cols))
     with np.errstate(all="ignore"):
-        for b in _bands(rows, cols):
+        for b in _bands(o1 - o0, cols):
             m00 = _mean1(c0[b], sx, 1)
             z00 = _mean1(d0[b], sx, 1)
             if degree == 1:
@@ -570,7 +556,7 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
 
     ``v / (s sqrt(1/p + h)) > k`` flags an object (p = 1), ``< -k`` a low blunder with
     the weight factor ``p = low_weight`` of points below the reference. Cells where the
-    fit is undetermined (``zhat`` or ``h`` NaN) are not tested. Computed in bands of rows.
+    fit is undetermined (``zhat`` or ``h`` NaN) are not tested.
 
     Returns
     -------
@@ -578,25 +564,71 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
         Objects, low blunders, and the tested cells below their fit (``v < 0``: the
         weight factor applies to them in a next fit).
     """
-    high = np.empty(z.shape, bool)
-    low = np.empty(z.shape, bool)
-    below = np.empty(z.shape, bool)
-    ks2, ksl2 = (k * s) ** 2, (k * s) ** 2 / low_weight
+    ks2 = (k * s) ** 2
     with np.errstate(invalid="ignore"):
-        for b in _bands(*z.shape):
-            v = np.subtract(z[b], zhat[b], dtype=np.float64)
-            h = np.maximum(hh[b], 0.0)              # NaN stays NaN: no test
-            t = test[b]
-            np.less(v, 0.0, out=below[b])
-            below[b] &= t
-            v *= v
-            # v > k s sqrt(1 + h)  <=>  v^2 > (k s)^2 (1 + h), v > 0
-            hi = np.greater(v, ks2 * (1.0 + h), out=high[b])
-            hi &= ~below[b]
-            hi &= t
-            lo = np.greater(v, ks2 * h + ksl2, out=low[b])
-            lo &= below[b]
+        v = np.subtract(z, zhat, dtype=np.float64)
+        h = np.maximum(hh, 0.0)                     # NaN stays NaN: no test
+        below = v < 0.0
+        below &= test
+        v *= v
+        # v > k s sqrt(1/p + h)  <=>  v^2 > (k s)^2 (1/p + h)  (v > 0, resp. v < 0)
+        h *= ks2
+        high = v > h + ks2
+        high &= ~below
+        high &= test
+        h += ks2 / low_weight
+        low = v > h
+        low &= below
     return high, low, below
+
+
+def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, labels=None):
+    """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
+
+    ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
+    (``z`` finite, ``w`` the weights: :func:`_weights` of ``keep`` and ``below``),
+    evaluated on the rows ``out_rows``. It runs on bands of whole rows (profile fits
+    along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above and below
+    (window fits of at most ``2 halo + 1`` rows): the same result as one fit of the whole
+    arrays, without any full-size float temporary. With break-line ``labels`` each region
+    runs alone on its bounding box, the other cells having weight 0 and no test.
+
+    Returns
+    -------
+    high, low, below : ndarray of bool
+    """
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    under = np.zeros(z.shape, bool)
+    if labels is not None:
+        for rid, sl in _region_slices(labels):
+            inside = labels[sl] == rid
+            if np.count_nonzero(inside) < 3:
+                continue
+            res = _fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
+                                 None if below is None else below[sl], fit, s, k, low_weight,
+                                 halo=halo)
+            for o, r in zip((high, low, under), res):
+                o[sl] |= r
+        return high, low, under
+    rows, cols = z.shape
+    if halo:
+        step = max(2 * halo, _HALO_BAND_CELLS // max(1, cols) - 2 * halo)
+        bands = [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
+    else:
+        bands = _bands(rows, cols)
+    for b in bands:
+        if halo:
+            r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
+            src, out = slice(r0, r1), slice(b.start - r0, b.stop - r0)
+        else:
+            src, out = b, slice(None)
+        zb = z[src].astype(np.float64)
+        np.copyto(zb, 0.0, where=~np.isfinite(zb))
+        wb = _weights(keep[src], None if below is None else below[src], low_weight)
+        zhat, hh = fit(zb, wb, out)
+        high[b], low[b], under[b] = _snoop(zb[out], zhat, hh, test[b], s, k, low_weight)
+    return high, low, under
 
 
 # ------------------------------------------------------------------- step 1
@@ -1006,21 +1038,6 @@ def _finite64(z):
     return z
 
 
-def _profile_pass(z, keep, test, below, size, degree, s, k, low_weight, labels):
-    """One fit + snooping along the rows (axis 1); ``z`` finite (:func:`_finite64`)."""
-    w = _weights(keep, below, low_weight)
-
-    def fit(zz, ww, inside):
-        if inside is not None:
-            ww = np.where(inside, ww, 0.0)
-        if degree <= 1:
-            return _fit_rows(zz, ww, size, degree)
-        return _fit_at_centre(zz, ww, size, degree)
-
-    zhat, hh = _per_region(fit, labels, (z, w), 2)
-    return _snoop(z, zhat, hh, test, s, k, low_weight)
-
-
 def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
                             k=4.0, low_weight=0.02, iterations=1, test=None, labels=None,
                             homogeneous=True):
@@ -1057,24 +1074,27 @@ def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, sca
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
-    z64 = _finite64(z)
-    views = [(z64, None, labels, dx, lambda a: a, lambda a: a),
-             (np.ascontiguousarray(z64.T), None, None if labels is None else
-              np.ascontiguousarray(labels.T), dy, lambda a: np.ascontiguousarray(a.T),
-              lambda a: a.T)]
+    # Y profiles run along the rows of the transposed arrays
+    views = [(z, labels, dx, lambda a: a), (transpose(z), None if labels is None else
+                                           transpose(labels), dy, transpose)]
     for L in lengths_m:
-        for zz, _, lab, step, fwd, back in views:
+        for zz, lab, step, fwd in views:
             size = _odd(L / step, 3)
+
+            def fit(zr, wr, out, size=size):
+                return _fit_rows(zr, wr, size, degree) if degree <= 1 else \
+                    _fit_at_centre(zr, wr, size, degree)
+
             below = None
             c, t = fwd(cur), fwd(test & cur)
             for _ in range(iterations):
-                hi, lo, below = _profile_pass(zz, c, t, below, size, degree, scale_m, k,
-                                              low_weight, lab)
-                c &= ~(hi | lo)
-                t &= ~(hi | lo)
-                hb, lb = back(hi), back(lo)
-                high |= hb
-                low |= lb
+                hi, lo, below = _fit_and_snoop(zz, c, t, below, fit, scale_m, k, low_weight,
+                                               labels=lab)
+                gone = hi | lo
+                c &= ~gone
+                t &= ~gone
+                high |= fwd(hi)                 # the transpose is its own inverse
+                low |= fwd(lo)
             cur &= ~(high | low)
     return high, low
 
@@ -1103,17 +1123,14 @@ def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
     below = None
-    z64 = _finite64(z)
+
+    def fit(zz, ww, out):
+        return _fit_box_2d(zz, ww, sizes, degree, out) if degree <= 1 else \
+            tuple(a[out] for a in _fit_at_centre(zz, ww, sizes, degree))
+
     for _ in range(iterations):
-        w = _weights(cur, below, low_weight)
-
-        def fit(zz, ww, inside):
-            if inside is not None:
-                ww = np.where(inside, ww, 0.0)
-            return _fit_at_centre(zz, ww, sizes, degree)
-
-        zhat, hh = _per_region(fit, labels, (z64, w), 2)
-        hi, lo, below = _snoop(z64, zhat, hh, test & cur, scale_m, k, low_weight)
+        hi, lo, below = _fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
+                                       halo=sizes[0] // 2, labels=labels)
         high |= hi
         low |= lo
         cur &= ~(hi | lo)
@@ -1142,16 +1159,13 @@ def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=4.0,
     dx, dy = as_cell_size(cell_size)
     kernels = (_gauss(radius_m / dy), _gauss(radius_m / dx))
     test = keep if test is None else test & keep
-    w = keep.astype(np.float64)
-    z64 = z.astype(np.float64)
+    sizes = (len(kernels[0]), len(kernels[1]))
 
-    def fit(zz, ww, inside):
-        if inside is not None:
-            ww = np.where(inside, ww, 0.0)
-        return _fit_at_centre(zz, ww, (len(kernels[0]), len(kernels[1])), 1, kernels=kernels)
+    def fit(zz, ww, out):
+        return tuple(a[out] for a in _fit_at_centre(zz, ww, sizes, 1, kernels=kernels))
 
-    zhat, hh = _per_region(fit, labels, (z64, w), 2)
-    hi, lo, _ = _snoop(z64, zhat, hh, test, scale_m, k, low_weight)
+    hi, lo, _ = _fit_and_snoop(z, keep, test, None, fit, scale_m, k, low_weight,
+                               halo=sizes[0] // 2, labels=labels)
     return hi, lo
 
 
