@@ -288,24 +288,32 @@ _BAND_CELLS = 1 << 17
 _HALO_BAND_CELLS = 1 << 20
 
 
-def _bands(rows, cols):
-    """Row slices of about :data:`_BAND_CELLS` cells covering ``rows`` rows."""
-    step = max(1, _BAND_CELLS // max(1, cols))
+def _bands(rows, cols, cells=None):
+    """Row slices of about ``cells`` (default :data:`_BAND_CELLS`) cells covering ``rows``
+    rows."""
+    step = max(1, (cells or _BAND_CELLS) // max(1, cols))
     return [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
 
 
 def _mean1(v, size, axis, out=None):
-    """Mean of ``v`` over a centred window of ``size`` (odd) cells along ``axis``; 0 outside."""
+    """Mean of ``v`` (float64) over a centred window of ``size`` (odd) cells along
+    ``axis``; 0 outside."""
+    if out is None:
+        out = np.empty(v.shape, np.float64)
     return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0, output=out)
 
 
 def _centred(x, s0, s1, s2=None):
     """Turn window sums on absolute positions into sums on positions relative to the
     centre ``x``: ``sum w (x' - x) = s1 - x s0``, ``sum w (x' - x)^2 = s2 - x (2 s1 - x s0)``
-    (in place in ``s1``, ``s2``; ``s2`` first, it needs the raw ``s1``)."""
+    (in place in ``s1``, ``s2``)."""
+    t = np.multiply(s0, x)
     if s2 is not None:
-        s2 -= x * (2.0 * s1 - x * s0)
-    s1 -= x * s0
+        u = np.multiply(s1, 2.0)
+        u -= t
+        u *= x
+        s2 -= u
+    s1 -= t
 
 
 def _fit_rows(z, w, size, degree):
@@ -332,7 +340,7 @@ def _fit_rows(z, w, size, degree):
             wz = wb * z[b]
             m0 = _mean1(wb, size, 1)
             z0 = _mean1(wz, size, 1)
-            t = wb * x
+            t = np.multiply(wb, x)
             if degree == 1:
                 m1 = _mean1(t, size, 1)
                 t *= x
@@ -344,22 +352,19 @@ def _fit_rows(z, w, size, degree):
             m0 -= np.multiply(wb, inv, out=t)       # leave the centre out (k = 0)
             z0 -= np.multiply(wz, inv, out=wz)
             if degree == 0:
-                ok = m0 > 1e-9 * inv
-                zh = np.divide(z0, m0, out=z0)
-                h = np.divide(inv, m0, out=m0)
+                np.copyto(m0, np.nan, where=m0 <= 1e-9 * inv)     # no point: no fit
+                np.divide(z0, m0, out=zhat[b])
+                np.divide(inv, m0, out=hh[b])
             else:
                 det = np.multiply(m0, m2, out=t)
+                small = det * 1e-9
                 det -= np.multiply(m1, m1, out=wz)
-                ok = det > 1e-9 * np.multiply(m0, m2, out=wz)
+                np.copyto(det, np.nan, where=det <= small)       # undetermined: no fit
                 z0 *= m2
                 z0 -= np.multiply(z1, m1, out=z1)
-                zh = np.divide(z0, det, out=z0)
-                h = np.divide(m2, det, out=m2)
-                h *= inv
-            zh[~ok] = np.nan
-            h[~ok] = np.nan
-            zhat[b] = zh
-            hh[b] = h
+                np.divide(z0, det, out=zhat[b])
+                m2 *= inv
+                np.divide(m2, det, out=hh[b])
     return zhat, hh
 
 
@@ -406,8 +411,9 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None):
         for b in _bands(o1 - o0, cols):
             m00 = _mean1(c0[b], sx, 1)
             z00 = _mean1(d0[b], sx, 1)
+            t = np.multiply(w[b], inv)
             if degree == 1:
-                t = c0[b] * x
+                np.multiply(c0[b], x, out=t)
                 m10 = _mean1(t, sx, 1)
                 t *= x
                 m20 = _mean1(t, sx, 1)
@@ -421,36 +427,34 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None):
                 z10 = _mean1(t, sx, 1)
                 _centred(x, z00, z10)
                 z01 = _mean1(d1[b], sx, 1)
-            m00 -= inv * w[b]                      # leave the centre out (k = 0)
-            z00 -= inv * wz[b]
+                np.multiply(w[b], inv, out=t)
+            m00 -= t                               # leave the centre out (k = 0)
+            z00 -= np.multiply(wz[b], inv, out=t)
             if degree == 0:
-                ok = m00 > 1e-9 * inv
-                zh = np.divide(z00, m00, out=z00)
-                h = np.divide(inv, m00, out=m00)
-            else:
-                # cofactors of N = [[m00, m10, m01], [m10, m20, m11], [m01, m11, m02]]
-                c00 = m20 * m02
-                c00 -= np.multiply(m11, m11, out=t)
-                c01 = m11 * m01
-                c01 -= np.multiply(m10, m02, out=t)
-                c02 = m10 * m11
-                c02 -= np.multiply(m20, m01, out=t)
-                scale = m00 * m20
-                scale *= m02
-                det = m00 * c00
-                det += np.multiply(m10, c01, out=t)
-                det += np.multiply(m01, c02, out=t)
-                ok = det > 1e-9 * np.abs(scale)
-                z00 *= c00
-                z00 += np.multiply(z10, c01, out=t)
-                z00 += np.multiply(z01, c02, out=t)
-                zh = np.divide(z00, det, out=z00)
-                h = np.divide(c00, det, out=c00)
-                h *= inv
-            zh[~ok] = np.nan
-            h[~ok] = np.nan
-            zhat[b] = zh
-            hh[b] = h
+                np.copyto(m00, np.nan, where=m00 <= 1e-9 * inv)   # no point: no fit
+                np.divide(z00, m00, out=zhat[b])
+                np.divide(inv, m00, out=hh[b])
+                continue
+            # cofactors of N = [[m00, m10, m01], [m10, m20, m11], [m01, m11, m02]]
+            c00 = m20 * m02
+            small = c00 * m00
+            np.abs(small, out=small)
+            small *= 1e-9
+            c00 -= np.multiply(m11, m11, out=t)
+            c01 = m11 * m01
+            c01 -= np.multiply(m10, m02, out=t)
+            c02 = np.multiply(m10, m11, out=m11)
+            c02 -= np.multiply(m20, m01, out=t)
+            det = np.multiply(m00, c00, out=m00)
+            det += np.multiply(m10, c01, out=t)
+            det += np.multiply(m01, c02, out=t)
+            np.copyto(det, np.nan, where=det <= small)           # undetermined: no fit
+            z00 *= c00
+            z00 += np.multiply(z10, c01, out=t)
+            z00 += np.multiply(z01, c02, out=t)
+            np.divide(z00, det, out=zhat[b])
+            c00 *= inv
+            np.divide(c00, det, out=hh[b])
     return zhat, hh
 
 
@@ -994,29 +998,29 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
     veg_tol = 2.0 * k * sigma_m
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
-    zt = np.ascontiguousarray(z.T)
-    lt = None if labels is None else np.ascontiguousarray(labels.T)
-    rows = np.arange(z.shape[0])
-    cols = np.arange(z.shape[1])
+    # Y profiles run along the rows of the transposed arrays; bands of whole rows
+    views = [(z, labels, int(max_building_m / dx), lambda a: a),
+             (transpose(z), None if labels is None else transpose(labels),
+              int(max_building_m / dy), transpose)]
+    redo = [None, None]
     for _ in range(passes):
-        # a profile's result depends on that profile alone: later passes redo only the
-        # rows / columns where something was removed
-        rx = np.zeros(z.shape, bool)
-        ry = np.zeros(z.shape, bool)
-        if rows.size:
-            rx[rows] = _raised_rows(z[rows], cur[rows], None if labels is None else labels[rows],
-                                    jump_m, int(max_building_m / dx), veg_tol)
-        if cols.size:
-            ry[:, cols] = _raised_rows(zt[cols], np.ascontiguousarray(cur.T[cols]),
-                                       None if lt is None else lt[cols], jump_m,
-                                       int(max_building_m / dy), veg_tol).T
-        new = (rx | ry) & cur
+        new = np.zeros(z.shape, bool)
+        for (zz, lab, lmax, fwd), todo in zip(views, redo):
+            c = fwd(cur)
+            found = np.zeros(zz.shape, bool)
+            for b in _bands(*zz.shape, cells=4 * _BAND_CELLS):
+                # a profile's result depends on that profile alone: later passes redo
+                # only the bands of rows / columns where something was removed
+                if todo is None or todo[b].any():
+                    found[b] = _raised_rows(zz[b], c[b], None if lab is None else lab[b],
+                                            jump_m, lmax, veg_tol)
+            new |= fwd(found)
+        new &= cur
         if not new.any():
             break
         high |= new
         cur &= ~new
-        rows = np.flatnonzero(new.any(axis=1))
-        cols = np.flatnonzero(new.any(axis=0))
+        redo = [new.any(axis=1), new.any(axis=0)]
     return high
 
 
