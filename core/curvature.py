@@ -47,8 +47,9 @@ From curvature to objects
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
    whole objects.
-4. **Final pass** (twice). The ground is interpolated (:func:`fill.fill_gaps`, harmonic)
-   under the objects, the breaks next to them and the points with ``|K| >= K_g``; a cell
+4. **Final pass** (twice). The ground is interpolated (:func:`fill.fill_gaps`, harmonic,
+   on a grid of half the resolution refined bilinearly: :func:`_ground_surface`) under
+   the objects, the breaks next to them and the points with ``|K| >= K_g``; a cell
    is an object when it stands above that surface by more than the tolerance plus one
    cell of the surface's slope (breaks outside objects: half the minimum object height
    more, as the interpolated surface sags a little under convex terrain edges). Straight
@@ -716,6 +717,139 @@ def _fill_surface(z, holes):
     return np.asarray(fill_gaps(z, fill=holes), dtype=np.float32)
 
 
+def _ground_surface(z, holes):
+    """Ground surface of the final pass: ``z`` at the cells not in ``holes``, over the
+    holes the harmonic surface (:func:`fill.fill_gaps`) of a grid of half the resolution,
+    interpolated bilinearly.
+
+    Each 2 x 2 block of cells is one coarse cell. Its height is the mean of the diagonal
+    pairs of known cells it holds (the block centre, exactly on a plane); without a known
+    pair, along a straight edge of a hole, the linear extrapolation of two known cells on
+    one side and the two beyond them (also exact on a plane), else the mean of its known
+    cells, so that a line of known cells one cell wide (the crest of a dam between bands
+    of breaks) still holds the coarse surface up; coarse cells with no known cell are
+    filled (the restriction of :func:`fill.fill_gaps`, one level). The fine surface over the holes is the
+    bilinear interpolation of the coarse one (linear extrapolation at the raster's edge;
+    planes stay planes). A quarter of the cells to interpolate; the final pass only
+    compares heights with this surface, with a tolerance.
+    """
+    h, w = z.shape
+    known = ~holes
+    known &= np.isfinite(z)
+    if min(h, w) < 8 or not known.any():
+        return _fill_surface(z, holes)
+    H, W = (h + 1) // 2, (w + 1) // 2
+    h1, w1 = h // 2, w // 2              # coarse rows / columns with a second child
+    zero = np.float32(0)
+    k00, k01, k10, k11 = known[0::2, 0::2], known[0::2, 1::2], known[1::2, 0::2], known[1::2, 1::2]
+    v00 = np.where(k00, z[0::2, 0::2], zero)
+    v01 = np.where(k01, z[0::2, 1::2], zero)
+    v10 = np.where(k10, z[1::2, 0::2], zero)
+    v11 = np.where(k11, z[1::2, 1::2], zero)
+    # all known cells of the block
+    s = v00.copy()
+    s[:, :w1] += v01
+    s[:h1] += v10
+    s[:h1, :w1] += v11
+    n = k00.astype(np.float32)
+    n[:, :w1] += k01
+    n[:h1] += k10
+    n[:h1, :w1] += k11
+    # the known diagonal pairs, where there is one
+    d1 = k00[:h1, :w1] & k11
+    d2 = k01[:h1] & k10[:, :w1]
+    sd = v00[:h1, :w1] + v11
+    sd *= d1
+    t = v01[:h1] + v10[:, :w1]
+    t *= d2
+    sd += t
+    nd = d1.astype(np.float32)
+    nd += d2
+    nd *= 2
+    diag = np.zeros((H, W), bool)
+    np.greater(nd, 0, out=diag[:h1, :w1])
+    np.copyto(s[:h1, :w1], sd, where=diag[:h1, :w1])
+    np.copyto(n[:h1, :w1], nd, where=diag[:h1, :w1])
+    del v00, v01, v10, v11, sd, t, nd, d1, d2
+    # known cells without a known pair: along a straight edge of a hole, two known
+    # children on one side and the two cells beyond them give the centre by linear
+    # extrapolation (exact on a plane); elsewhere (thin crests, corners) their mean
+    part = n > 0
+    part &= ~diag
+    idx = np.flatnonzero(part)
+    if idx.size:
+        i, j = np.divmod(idx, W)
+        r0, c0 = 2 * i, 2 * j
+        kf, zf = known.ravel(), z.ravel()
+        acc = np.zeros(idx.size, np.float32)
+        cnt = np.zeros(idx.size, np.float32)
+        # (inner cells, outer cells) as (row, col) offsets from the block's first cell
+        for (a, b), (c, d) in ((((0, 0), (0, 1)), ((-1, 0), (-1, 1))),    # top
+                               (((1, 0), (1, 1)), ((2, 0), (2, 1))),      # bottom
+                               (((0, 0), (1, 0)), ((0, -1), (1, -1))),    # left
+                               (((0, 1), (1, 1)), ((0, 2), (1, 2)))):     # right
+            rr = (r0 + min(a[0], c[0]), r0 + max(a[0], b[0], c[0], d[0]))
+            cc = (c0 + min(a[1], c[1]), c0 + max(a[1], b[1], c[1], d[1]))
+            ok = (rr[0] >= 0) & (rr[1] < h) & (cc[0] >= 0) & (cc[1] < w)
+            q = np.flatnonzero(ok)
+            fl = [(r0[q] + o[0]) * w + c0[q] + o[1] for o in (a, b, c, d)]
+            good = kf.take(fl[0]) & kf.take(fl[1]) & kf.take(fl[2]) & kf.take(fl[3])
+            q, fl = q[good], [f[good] for f in fl]
+            est = zf.take(fl[0]) + zf.take(fl[1])
+            est *= np.float32(0.75)
+            est -= np.float32(0.25) * (zf.take(fl[2]) + zf.take(fl[3]))
+            acc[q] += est
+            cnt[q] += 1
+        ok = cnt > 0
+        s.ravel()[idx[ok]] = acc[ok] / cnt[ok]
+        n.ravel()[idx[ok]] = 1
+    empty = n == 0
+    n[empty] = 1
+    s /= n
+    s[empty] = np.nan
+    from .fill import fill_gaps
+    coarse = fill_gaps(s)
+    del s, n, empty
+    surface = _upsample2(coarse, (h, w))
+    np.copyto(surface, z, where=known)
+    return surface
+
+
+def _upsample2(c, shape):
+    """Bilinear interpolation of a grid of half the resolution at the cells of ``shape``
+    (fine cell i lies at coarse coordinate i / 2 - 1/4; the coarse grid is extended by
+    linear extrapolation, so planes stay planes)."""
+    H, W = c.shape
+    cp = np.empty((H + 2, W + 2), np.float32)
+    cp[1:-1, 1:-1] = c
+    if H > 1:
+        np.subtract(2 * c[0], c[1], out=cp[0, 1:-1])
+        np.subtract(2 * c[-1], c[-2], out=cp[-1, 1:-1])
+    else:
+        cp[0, 1:-1] = cp[-1, 1:-1] = c[0]
+    if W > 1:
+        np.subtract(2 * cp[:, 1], cp[:, 2], out=cp[:, 0])
+        np.subtract(2 * cp[:, -2], cp[:, -3], out=cp[:, -1])
+    else:
+        cp[:, 0] = cp[:, -1] = cp[:, 1]
+    a, b = np.float32(0.75), np.float32(0.25)
+    rows = np.empty((2 * H, W + 2), np.float32)
+    tmp = np.empty((H, W + 2), np.float32)
+    for par, nb in ((0, cp[:-2]), (1, cp[2:])):   # even rows lean up, odd rows down
+        dst = rows[par::2]
+        np.multiply(cp[1:-1], a, out=dst)
+        np.multiply(nb, b, out=tmp)
+        dst += tmp
+    out = np.empty((2 * H, 2 * W), np.float32)
+    tmp = np.empty((2 * H, W), np.float32)
+    for par, nb in ((0, rows[:, :-2]), (1, rows[:, 2:])):
+        dst = out[:, par::2]
+        np.multiply(rows[:, 1:-1], a, out=dst)
+        np.multiply(nb, b, out=tmp)
+        dst += tmp
+    return out[:shape[0], :shape[1]]
+
+
 def _push_pull_fill(z, holes):
     """Pyramid (push-pull) interpolation of ``z`` over ``holes`` and NaN cells.
 
@@ -934,7 +1068,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         if not (valid & ~holes).any():
             mask[objects] = OBJECT
             break
-        surface = _fill_surface(z, holes)
+        surface = _ground_surface(z, holes)
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
             # the tolerance grows with the slope of the surface: one cell of horizontal
@@ -1082,11 +1216,14 @@ def resolve_curvature_params(z, cell_size, *, k_g_per_m2=None, window_cells=5,
 
 def curvature_halo(params, cell_size):
     """Reach of the filter in cells: the window, the foot search beyond a break, and
-    twice the largest object (runs, enclosed regions and the ground surface under them)."""
+    twice the largest object (runs, enclosed regions and the ground surface under them);
+    even, so that blocks cut at even rows keep the 2 x 2 grid of the ground surface
+    (:func:`_ground_surface`) of one pass."""
     dx, dy = as_cell_size(cell_size)
     w = _check_window(params.get("window_cells", 5))
     size = float(params.get("max_object_size_m", 100.0))
-    return int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
+    halo = int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
+    return halo + (halo & 1)
 
 
 def _run(z, cell_size, progress=None, **params):

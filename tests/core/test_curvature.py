@@ -361,3 +361,116 @@ def test_tiny_and_flat_rasters_are_ground(shape):
     assert res.mask.shape == shape and (res.mask == GROUND).all()
     flat, _ = run(np.full((20, 20), 5.0))
     assert (flat.mask == GROUND).all() and flat.info["share_marked"] == 0
+
+
+# --------------------------------------------------------------------------- kernels
+def test_upsample2_is_bilinear_and_exact_on_planes():
+    c = np.array([[0.0, 4.0], [8.0, 16.0]], np.float32)
+    up = C._upsample2(c, (4, 4))
+    # fine cell i sits at coarse coordinate i / 2 - 1/4: cell (1, 1) weighs the four
+    # coarse cells 9/16, 3/16, 3/16, 1/16
+    assert up[1, 1] == pytest.approx(0.1875 * 4 + 0.1875 * 8 + 0.0625 * 16)
+    assert up[2, 2] == pytest.approx(0.0625 * 0 + 0.1875 * 4 + 0.1875 * 8 + 0.5625 * 16)
+    # outside the coarse centres: linear extrapolation, so a plane stays a plane
+    y, x = np.mgrid[0:11, 0:9].astype(np.float32)
+    plane = 3 + 0.5 * x - 0.25 * y
+    coarse = (plane[0:10:2, 0:8:2] + plane[1:11:2, 1:9:2]) / 2      # 2 x 2 block centres
+    np.testing.assert_allclose(C._upsample2(coarse, (9, 7)), plane[:9, :7], atol=1e-5)
+
+
+def test_ground_surface_keeps_known_cells_planes_and_thin_crests():
+    y, x = np.mgrid[0:40, 0:37].astype(np.float32)
+    plane = (100 + 0.3 * x - 0.2 * y).astype(np.float32)
+    holes = np.zeros(plane.shape, bool)
+    holes[10:22, 5:30] = True
+    z = plane.copy()
+    z[holes] += 7.0                                   # an object: not a source
+    s = C._ground_surface(z, holes)
+    assert s.dtype == np.float32 and s.shape == z.shape
+    np.testing.assert_array_equal(s[~holes], z[~holes])  # known cells exact
+    np.testing.assert_allclose(s[holes], plane[holes], atol=1e-3)
+    # a crest one cell wide between bands of holes holds the surface up
+    z = np.zeros((40, 40), np.float32)
+    z[20] = 3.0
+    holes = np.zeros(z.shape, bool)
+    holes[12:29] = True
+    holes[20] = False
+    s = C._ground_surface(z, holes)
+    assert (s[19, 8:32] > 2.0).all() and (s[21, 8:32] > 2.0).all()
+
+
+def _box_profiles(n=3, m=24):
+    z = np.zeros((n, m), np.float32)
+    z[:, 8:13] = 5.0                                  # a box, columns 8..12
+    marked = np.zeros((n, m), bool)
+    marked[:, [7, 8, 12, 13]] = True                  # its feet and tops
+    return z, marked
+
+
+@pytest.mark.parametrize("chunk", [16, C._CHUNK_CELLS])
+def test_axis_objects_box_and_step_exact(monkeypatch, chunk):
+    monkeypatch.setattr(C, "_CHUNK_CELLS", chunk)     # many blocks of positions, or one
+    kw = dict(reach=3, h_min=1.0, tan_wall=1.0, tol=0.3, max_cells=15)
+    z, marked = _box_profiles()
+    want = np.zeros(z.shape, bool)
+    want[:, 8:13] = True
+    np.testing.assert_array_equal(C._axis_objects(z, marked, None, 1.0, 1, **kw), want)
+    np.testing.assert_array_equal(C._axis_objects(z.T.copy(), marked.T.copy(), None, 1.0, 0,
+                                                  **kw), want.T)
+    # a step up of the terrain: no break going up from the other side, no object
+    step = np.zeros((3, 24), np.float32)
+    step[:, 8:] = 5.0
+    assert not C._axis_objects(step, marked, None, 1.0, 1, **kw).any()
+    # nodata inside the box: those cells are not objects, the rest of the box is
+    z[1, 10] = np.nan
+    valid = np.isfinite(z)
+    want[1, 10] = False
+    np.testing.assert_array_equal(C._axis_objects(z, marked, valid, 1.0, 1, **kw), want)
+
+
+def test_blocks_of_rows_do_not_change_the_result(monkeypatch):
+    z, _ = building_scene()
+    z = z[:, :97].copy()
+    z[40:44, 50:60] = np.nan
+    P = C.resolve_curvature_params(z, (1.0, 1.2))
+    one = C.filter_curvature(z, (1.0, 1.2), **P)
+    d1 = C.local_derivatives(z, (1.0, 1.2))
+    s1 = C._slope(np.nan_to_num(z), 1.0, 1.2)
+    monkeypatch.setattr(C, "_CHUNK_CELLS", 64)        # blocks of a few rows
+    many = C.filter_curvature(z, (1.0, 1.2), **P)
+    np.testing.assert_array_equal(one.mask, many.mask)
+    np.testing.assert_array_equal(one.extras["curvature"], many.extras["curvature"])
+    for a, b in zip(d1, C.local_derivatives(z, (1.0, 1.2))):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(s1, C._slope(np.nan_to_num(z), 1.0, 1.2))
+
+
+def test_slope_is_the_central_difference_gradient(monkeypatch):
+    monkeypatch.setattr(C, "_CHUNK_CELLS", 16)
+    a = np.random.default_rng(0).normal(0, 2, (9, 7)).astype(np.float32)
+    want = np.hypot(np.gradient(a.astype(float), 1.2, axis=0), np.gradient(a.astype(float), 0.5, axis=1))
+    np.testing.assert_allclose(C._slope(a, 0.5, 1.2), want, rtol=1e-5)
+
+
+def test_enclosed_regions_exact():
+    free = np.ones((12, 14), bool)
+    free[2:7, 2:8] = False                            # a ring of breaks ...
+    free[3:6, 3:7] = True                             # ... around 3 x 4 free cells
+    flag = np.zeros(free.shape, bool)
+    flag[3:5, 3:7] = True                             # 8 of 12 flagged
+    flag[9:11, 0:3] = True                            # outside: region touches the edge
+    got = C._enclosed_regions(flag, free, max_cells=5)
+    want = np.zeros(free.shape, bool)
+    want[3:6, 3:7] = True
+    np.testing.assert_array_equal(got, want)
+    assert not C._enclosed_regions(flag, free, max_cells=3).any()   # wider than 3 cells
+    flag[3:5, 3:7] = False
+    flag[3, 3] = True                                 # 1 of 12: not mostly flagged
+    assert not C._enclosed_regions(flag, free, max_cells=5).any()
+
+
+def test_halo_is_even():
+    for w in (3, 5, 7, 9):
+        for size in (10.0, 33.0, 100.0):
+            h = C.curvature_halo({"window_cells": w, "max_object_size_m": size}, (1.0, 1.0))
+            assert h % 2 == 0 and h >= size + w
