@@ -533,9 +533,8 @@ def _scan_rows(Z, j0, walls, downs, out, st):
             np.less_equal(rise, lim, out=end)
             np.greater(dist, st.max_cells, out=far)
             end |= far
-            end &= obj
             now = out[j]
-            np.not_equal(obj, end, out=now)        # obj ^ end: the objects that go on
+            np.greater(obj, end, out=now)          # obj & ~end: the objects that go on
             a, b = w_ptr[i], w_ptr[i + 1]
             if b > a:
                 c = w_col[a:b]
