@@ -39,6 +39,7 @@ References
 Luong Chinh Ke (2002). Filtering of digital surface models. Section 2.1, slope along X/Y
 profiles.
 """
+import threading
 import warnings
 
 import numpy as np
@@ -207,7 +208,7 @@ def find_low_blunders(z, tolerance_m):
     # rows (the closing reaches 2 rows), so memory stays a few strips whatever the raster
     cand = np.zeros(z.shape, bool)
     rows = z.shape[0]
-    strip = 1024
+    strip = 128  # rows: the closing's buffers stay in the cache
     for r0 in range(0, rows, strip):
         r1 = min(rows, r0 + strip)
         a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
@@ -255,39 +256,51 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
         for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
             head = a[-init_cells:] if rev else a[:init_cells]
             g[o0:o1] = np.nanmin(head, axis=0)
+    g[np.isnan(g)] = np.inf     # no ground in the start window: the first valid cell is accepted
     d = np.ones(nprof, np.intp)                       # cells since the reference point
     steps = np.arange(0, npos + 2, dtype=np.float64)
+    # d grows by at most one per step from 1, so it never passes npos + 1: no clipping
     table = (dh0 + step_m * tan_g * np.minimum(steps, edge_cells)
              + step_m * tan_t * np.maximum(steps - edge_cells, 0)).astype(np.float32)
-    cap = len(table) - 1
-    rejected = [np.zeros(a.shape, bool) for a, _ in sources]
+    rej = np.empty((npos, nprof), bool)   # step i of every profile: row i (one write per step)
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     thr = np.empty(nprof, np.float32)
-    up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
-    # per source: its array, direction, result, and its slices of the step buffers
-    spans = [(a, rev, r, v[o0:o1], up[o0:o1], a.shape[0])
-             for (a, rev), r, o0, o1 in zip(sources, rejected, offs[:-1], offs[1:])]
+    # per source: its array, direction, slice of the step buffers, and length
+    spans = [(a, rev, v[o0:o1], a.shape[0]) for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:])]
+    n_min = min(n for *_, n in spans)
+    # As few numpy calls per step as possible: each is short, and with blocks in threads
+    # every call is a hand-over of the GIL.
     for i in range(npos):
-        for a, rev, _, vv, _, n in spans:
-            if i < n:
-                vv[...] = a[n - 1 - i] if rev else a[i]
-            elif i == n:
-                vv[...] = np.nan                      # a shorter profile set has ended
+        if i < n_min:                                  # every source still runs: one copy
+            np.concatenate([a[n - 1 - i] if rev else a[i] for a, rev, _, n in spans], out=v)
+        else:
+            for a, rev, vv, n in spans:
+                if i < n:
+                    vv[...] = a[n - 1 - i] if rev else a[i]
+                elif i == n:
+                    vv[...] = np.nan                   # a shorter profile set has ended
+        up = rej[i]
         np.subtract(v, g, out=dz)
         np.take(table, d, out=thr)
-        np.greater(dz, thr, out=up)                   # NaN compares False
-        np.isfinite(v, out=ok)
-        d += ok                                       # distance counts valid cells only: a nodata
-        ok &= ~up                                     # gap does not let the reference drift up a roof
-        np.minimum(d, cap, out=d)
-        np.copyto(d, 1, where=ok)
+        np.greater(dz, thr, out=up)                    # rejected (NaN compares False)
+        np.less_equal(dz, thr, out=ok)                 # accepted: valid and not rejected
+        d += up                                        # a nodata cell does not count: a gap does
+        np.copyto(d, 1, where=ok)                      # not let the reference drift up a roof
         np.copyto(g, v, where=ok)
-        for a, rev, r, _, uu, n in spans:
-            if i < n:
-                r[n - 1 - i if rev else i] = uu
-    return rejected
+    out = []
+    for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
+        r = rej[:a.shape[0], o0:o1]
+        out.append(np.ascontiguousarray(r[::-1] if rev else r))
+    return out
+
+
+#: Scans of blocks running in threads take turns: a scan is thousands of short numpy
+#: calls, each handing the GIL over, so two at once run no faster than one after the
+#: other (measured), while a thread waiting here leaves the core to the other threads'
+#: long array operations (filling, labelling).
+_SCAN_LOCK = threading.Lock()
 
 
 def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
@@ -299,11 +312,12 @@ def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
     zx = transpose(zs)                       # X profiles: positions = columns
     sx = [(zx, False), (zx, True)]
     sy = [(zs, False), (zs, True)]
-    if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-        fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0])
-    else:
-        fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0])
-        fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1])
+    with _SCAN_LOCK:
+        if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
+            fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0])
+        else:
+            fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0])
+            fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1])
     del zx
     fx &= bx
     fy &= by
