@@ -727,10 +727,11 @@ def _ground_surface(z, holes):
     one side and the two beyond them (also exact on a plane), else the mean of its known
     cells, so that a line of known cells one cell wide (the crest of a dam between bands
     of breaks) still holds the coarse surface up; coarse cells with no known cell are
-    filled (the restriction of :func:`fill.fill_gaps`, one level). The fine surface over the holes is the
-    bilinear interpolation of the coarse one (linear extrapolation at the raster's edge;
-    planes stay planes). A quarter of the cells to interpolate; the final pass only
-    compares heights with this surface, with a tolerance.
+    filled (as one level of the restriction of :func:`fill.fill_gaps`). The fine surface
+    over the holes is the bilinear interpolation of the coarse one (linear extrapolation
+    at the raster's edge; planes stay planes). A quarter of the cells to interpolate; the
+    final pass only compares heights with this surface, with a tolerance. Restriction and
+    interpolation go by cache-sized blocks of rows.
     """
     h, w = z.shape
     known = ~holes
@@ -738,60 +739,76 @@ def _ground_surface(z, holes):
     if min(h, w) < 8 or not known.any():
         return _fill_surface(z, holes)
     H, W = (h + 1) // 2, (w + 1) // 2
-    h1, w1 = h // 2, w // 2              # coarse rows / columns with a second child
+    w1 = w // 2                          # coarse columns with a second child
+    s = np.empty((H, W), np.float32)     # coarse heights (NaN: to fill)
+    diag = np.zeros((H, W), bool)        # coarse cells set by a known diagonal pair
+    part = np.zeros((H, W), bool)        # coarse cells with known cells but no pair
+    step = max(1, _CHUNK_CELLS // max(w, 1))
     zero = np.float32(0)
-    k00, k01, k10, k11 = known[0::2, 0::2], known[0::2, 1::2], known[1::2, 0::2], known[1::2, 1::2]
-    v00 = np.where(k00, z[0::2, 0::2], zero)
-    v01 = np.where(k01, z[0::2, 1::2], zero)
-    v10 = np.where(k10, z[1::2, 0::2], zero)
-    v11 = np.where(k11, z[1::2, 1::2], zero)
-    # all known cells of the block
-    s = v00.copy()
-    s[:, :w1] += v01
-    s[:h1] += v10
-    s[:h1, :w1] += v11
-    n = k00.astype(np.float32)
-    n[:, :w1] += k01
-    n[:h1] += k10
-    n[:h1, :w1] += k11
-    # the known diagonal pairs, where there is one
-    d1 = k00[:h1, :w1] & k11
-    d2 = k01[:h1] & k10[:, :w1]
-    sd = v00[:h1, :w1] + v11
-    sd *= d1
-    t = v01[:h1] + v10[:, :w1]
-    t *= d2
-    sd += t
-    nd = d1.astype(np.float32)
-    nd += d2
-    nd *= 2
-    diag = np.zeros((H, W), bool)
-    np.greater(nd, 0, out=diag[:h1, :w1])
-    np.copyto(s[:h1, :w1], sd, where=diag[:h1, :w1])
-    np.copyto(n[:h1, :w1], nd, where=diag[:h1, :w1])
-    del v00, v01, v10, v11, sd, t, nd, d1, d2
+    for I0 in range(0, H, step):
+        I1 = min(H, I0 + step)
+        zb, kb = z[2 * I0:2 * I1], known[2 * I0:2 * I1]
+        i1 = zb.shape[0] // 2            # coarse rows of the block with a second child
+        k00, k01, k10, k11 = kb[0::2, 0::2], kb[0::2, 1::2], kb[1::2, 0::2], kb[1::2, 1::2]
+        v00 = np.where(k00, zb[0::2, 0::2], zero)
+        v01 = np.where(k01, zb[0::2, 1::2], zero)
+        v10 = np.where(k10, zb[1::2, 0::2], zero)
+        v11 = np.where(k11, zb[1::2, 1::2], zero)
+        # all known cells of the block
+        sb = s[I0:I1]
+        np.copyto(sb, v00)
+        sb[:, :w1] += v01
+        sb[:i1] += v10
+        sb[:i1, :w1] += v11
+        n = k00.astype(np.float32)
+        n[:, :w1] += k01
+        n[:i1] += k10
+        n[:i1, :w1] += k11
+        # the known diagonal pairs, where there is one
+        d1 = k00[:i1, :w1] & k11
+        d2 = k01[:i1] & k10[:, :w1]
+        sd = v00[:i1, :w1] + v11
+        sd *= d1
+        v01 = v01[:i1] + v10[:, :w1]
+        v01 *= d2
+        sd += v01
+        nd = d1.astype(np.float32)
+        nd += d2
+        nd *= 2
+        db = diag[I0:I0 + i1, :w1]
+        np.greater(nd, 0, out=db)
+        np.copyto(sb[:i1, :w1], sd, where=db)
+        np.copyto(n[:i1, :w1], nd, where=db)
+        pb = part[I0:I1]
+        np.greater(n, 0, out=pb)
+        pb &= ~diag[I0:I1]
+        empty = n == 0
+        n[empty] = 1
+        sb /= n
+        sb[empty] = np.nan
     # known cells without a known pair: along a straight edge of a hole, two known
     # children on one side and the two cells beyond them give the centre by linear
     # extrapolation (exact on a plane); elsewhere (thin crests, corners) their mean
-    part = n > 0
-    part &= ~diag
     idx = np.flatnonzero(part)
+    del diag, part
     if idx.size:
         i, j = np.divmod(idx, W)
-        r0, c0 = 2 * i, 2 * j
+        base = i * (2 * w)
+        base += 2 * j                      # flat index of the block's first cell
         kf, zf = known.ravel(), z.ravel()
         acc = np.zeros(idx.size, np.float32)
         cnt = np.zeros(idx.size, np.float32)
-        # (inner cells, outer cells) as (row, col) offsets from the block's first cell
-        for (a, b), (c, d) in ((((0, 0), (0, 1)), ((-1, 0), (-1, 1))),    # top
-                               (((1, 0), (1, 1)), ((2, 0), (2, 1))),      # bottom
-                               (((0, 0), (1, 0)), ((0, -1), (1, -1))),    # left
-                               (((0, 1), (1, 1)), ((0, 2), (1, 2)))):     # right
-            rr = (r0 + min(a[0], c[0]), r0 + max(a[0], b[0], c[0], d[0]))
-            cc = (c0 + min(a[1], c[1]), c0 + max(a[1], b[1], c[1], d[1]))
-            ok = (rr[0] >= 0) & (rr[1] < h) & (cc[0] >= 0) & (cc[1] < w)
+        inner_c, inner_r = 2 * j + 1 < w, 2 * i + 1 < h
+        # side: where it exists; (inner cells, outer cells) as (row, col) offsets from
+        # the block's first cell
+        for ok, (a, b), (c, d) in (
+                ((i >= 1) & inner_c, ((0, 0), (0, 1)), ((-1, 0), (-1, 1))),         # top
+                ((2 * i + 2 < h) & inner_c, ((1, 0), (1, 1)), ((2, 0), (2, 1))),    # bottom
+                ((j >= 1) & inner_r, ((0, 0), (1, 0)), ((0, -1), (1, -1))),         # left
+                ((2 * j + 2 < w) & inner_r, ((0, 1), (1, 1)), ((0, 2), (1, 2)))):   # right
             q = np.flatnonzero(ok)
-            fl = [(r0[q] + o[0]) * w + c0[q] + o[1] for o in (a, b, c, d)]
+            bq = base.take(q)
+            fl = [bq + (o[0] * w + o[1]) for o in (a, b, c, d)]
             good = kf.take(fl[0]) & kf.take(fl[1]) & kf.take(fl[2]) & kf.take(fl[3])
             q, fl = q[good], [f[good] for f in fl]
             est = zf.take(fl[0]) + zf.take(fl[1])
@@ -801,24 +818,19 @@ def _ground_surface(z, holes):
             cnt[q] += 1
         ok = cnt > 0
         s.ravel()[idx[ok]] = acc[ok] / cnt[ok]
-        n.ravel()[idx[ok]] = 1
-    empty = n == 0
-    n[empty] = 1
-    s /= n
-    s[empty] = np.nan
     from .fill import fill_gaps
     coarse = fill_gaps(s)
-    del s, n, empty
-    surface = _upsample2(coarse, (h, w))
-    np.copyto(surface, z, where=known)
-    return surface
+    del s
+    return _upsample2(coarse, (h, w), z, known)
 
 
-def _upsample2(c, shape):
+def _upsample2(c, shape, z=None, known=None):
     """Bilinear interpolation of a grid of half the resolution at the cells of ``shape``
     (fine cell i lies at coarse coordinate i / 2 - 1/4; the coarse grid is extended by
-    linear extrapolation, so planes stay planes)."""
+    linear extrapolation, so planes stay planes); ``z`` where ``known`` when given. By
+    cache-sized blocks of rows."""
     H, W = c.shape
+    h, w = shape
     cp = np.empty((H + 2, W + 2), np.float32)
     cp[1:-1, 1:-1] = c
     if H > 1:
@@ -832,21 +844,33 @@ def _upsample2(c, shape):
     else:
         cp[:, 0] = cp[:, -1] = cp[:, 1]
     a, b = np.float32(0.75), np.float32(0.25)
-    rows = np.empty((2 * H, W + 2), np.float32)
-    tmp = np.empty((H, W + 2), np.float32)
-    for par, nb in ((0, cp[:-2]), (1, cp[2:])):   # even rows lean up, odd rows down
-        dst = rows[par::2]
-        np.multiply(cp[1:-1], a, out=dst)
-        np.multiply(nb, b, out=tmp)
-        dst += tmp
-    out = np.empty((2 * H, 2 * W), np.float32)
-    tmp = np.empty((2 * H, W), np.float32)
-    for par, nb in ((0, rows[:, :-2]), (1, rows[:, 2:])):
-        dst = out[:, par::2]
-        np.multiply(rows[:, 1:-1], a, out=dst)
-        np.multiply(nb, b, out=tmp)
-        dst += tmp
-    return out[:shape[0], :shape[1]]
+    out = np.empty((h, w), np.float32)
+    step = max(1, _CHUNK_CELLS // max(2 * W, 1))
+    rows = np.empty((2 * min(step, H), W + 2), np.float32)
+    tmp = np.empty((min(step, H), W + 2), np.float32)
+    full = np.empty((2 * min(step, H), 2 * W), np.float32)
+    tmp2 = np.empty((2 * min(step, H), W), np.float32)
+    for I0 in range(0, H, step):
+        I1 = min(H, I0 + step)
+        n = I1 - I0
+        rb, tb = rows[:2 * n], tmp[:n]
+        for par, nb in ((0, cp[I0:I1]), (1, cp[I0 + 2:I1 + 2])):  # even rows lean up, odd down
+            dst = rb[par::2]
+            np.multiply(cp[I0 + 1:I1 + 1], a, out=dst)
+            np.multiply(nb, b, out=tb)
+            dst += tb
+        fb, t2 = full[:2 * n], tmp2[:2 * n]
+        for par, nb in ((0, rb[:, :-2]), (1, rb[:, 2:])):
+            dst = fb[:, par::2]
+            np.multiply(rb[:, 1:-1], a, out=dst)
+            np.multiply(nb, b, out=t2)
+            dst += t2
+        r0, r1 = 2 * I0, min(h, 2 * I1)
+        ob = out[r0:r1]
+        np.copyto(ob, fb[:r1 - r0, :w])
+        if z is not None:
+            np.copyto(ob, z[r0:r1], where=known[r0:r1])
+    return out
 
 
 def _push_pull_fill(z, holes):
