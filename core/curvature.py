@@ -563,9 +563,11 @@ def _profile_rows(a, axis, j0, j1, dst, fill):
     if axis == 0:
         d[:, :m] = a[k0:j1]
         d[:, m:] = a[n - j1:n - k0][::-1]
-    else:
-        d[:, :m] = a[:, k0:j1].T
-        d[:, m:] = a[:, n - j1:n - k0][:, ::-1].T
+    else:  # by bands of rows of ``a``: each band's transposed copy stays in the cache
+        for i in range(0, m, 256):
+            e = min(m, i + 256)
+            d[:, i:e] = a[i:e, k0:j1].T
+            d[:, m + i:m + e] = a[i:e, n - j1:n - k0][:, ::-1].T
 
 
 def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells):
