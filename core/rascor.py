@@ -334,21 +334,31 @@ def _fit_rows(z, w, size, degree):
     hh = np.empty(z.shape)
     x = np.arange(cols, dtype=np.float64) - cols // 2
     inv = 1.0 / size
+    bands = _bands(rows, cols)
+    buf = np.empty((8, bands[0].stop, cols))         # scratch, reused by every band
     with np.errstate(all="ignore"):
-        for b in _bands(rows, cols):
+        for b in bands:
+            wz, t, u, m0, z0, m1, m2, z1 = (a[:b.stop - b.start] for a in buf)
             wb = w[b]
-            wz = wb * z[b]
-            m0 = _mean1(wb, size, 1)
-            z0 = _mean1(wz, size, 1)
-            t = np.multiply(wb, x)
+            np.multiply(wb, z[b], out=wz)
+            _mean1(wb, size, 1, out=m0)
+            _mean1(wz, size, 1, out=z0)
             if degree == 1:
-                m1 = _mean1(t, size, 1)
+                np.multiply(wb, x, out=t)
+                _mean1(t, size, 1, out=m1)
                 t *= x
-                m2 = _mean1(t, size, 1)
+                _mean1(t, size, 1, out=m2)
                 np.multiply(wz, x, out=t)
-                z1 = _mean1(t, size, 1)
-                _centred(x, m0, m1, m2)
-                _centred(x, z0, z1)
+                _mean1(t, size, 1, out=z1)
+                # recentre on each cell (see _centred)
+                np.multiply(m0, x, out=t)
+                np.multiply(m1, 2.0, out=u)
+                u -= t
+                u *= x
+                m2 -= u
+                m1 -= t
+                np.multiply(z0, x, out=t)
+                z1 -= t
             m0 -= np.multiply(wb, inv, out=t)       # leave the centre out (k = 0)
             z0 -= np.multiply(wz, inv, out=wz)
             if degree == 0:
@@ -357,9 +367,9 @@ def _fit_rows(z, w, size, degree):
                 np.divide(inv, m0, out=hh[b])
             else:
                 det = np.multiply(m0, m2, out=t)
-                small = det * 1e-9
+                np.multiply(det, 1e-9, out=u)
                 det -= np.multiply(m1, m1, out=wz)
-                np.copyto(det, np.nan, where=det <= small)       # undetermined: no fit
+                np.copyto(det, np.nan, where=det <= u)           # undetermined: no fit
                 z0 *= m2
                 z0 -= np.multiply(z1, m1, out=z1)
                 np.divide(z0, det, out=zhat[b])
@@ -407,28 +417,36 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None):
     x = np.arange(cols, dtype=np.float64) - cols // 2
     zhat = np.empty((o1 - o0, cols))
     hh = np.empty((o1 - o0, cols))
+    bands = _bands(o1 - o0, cols)
+    buf = np.empty((16, bands[0].stop, cols))        # scratch, reused by every band
     with np.errstate(all="ignore"):
-        for b in _bands(o1 - o0, cols):
-            m00 = _mean1(c0[b], sx, 1)
-            z00 = _mean1(d0[b], sx, 1)
-            t = np.multiply(w[b], inv)
+        for b in bands:
+            (t, u, v, m00, z00, m10, m20, m01, m11, m02, z10, z01, c00, c01, c02,
+             small) = (a[:b.stop - b.start] for a in buf)
+            _mean1(c0[b], sx, 1, out=m00)
+            _mean1(d0[b], sx, 1, out=z00)
             if degree == 1:
                 np.multiply(c0[b], x, out=t)
-                m10 = _mean1(t, sx, 1)
+                _mean1(t, sx, 1, out=m10)
                 t *= x
-                m20 = _mean1(t, sx, 1)
-                _centred(x, m00, m10, m20)
-                m01 = _mean1(c1[b], sx, 1)
+                _mean1(t, sx, 1, out=m20)
                 np.multiply(c1[b], x, out=t)
-                m11 = _mean1(t, sx, 1)
-                _centred(x, m01, m11)
-                m02 = _mean1(c2[b], sx, 1)
+                _mean1(c1[b], sx, 1, out=m01)
+                _mean1(t, sx, 1, out=m11)
+                _mean1(c2[b], sx, 1, out=m02)
                 np.multiply(d0[b], x, out=t)
-                z10 = _mean1(t, sx, 1)
-                _centred(x, z00, z10)
-                z01 = _mean1(d1[b], sx, 1)
-                np.multiply(w[b], inv, out=t)
-            m00 -= t                               # leave the centre out (k = 0)
+                _mean1(t, sx, 1, out=z10)
+                _mean1(d1[b], sx, 1, out=z01)
+                # recentre on each cell (see _centred)
+                np.multiply(m00, x, out=t)
+                np.multiply(m10, 2.0, out=u)
+                u -= t
+                u *= x
+                m20 -= u
+                m10 -= t
+                m11 -= np.multiply(m01, x, out=t)
+                z10 -= np.multiply(z00, x, out=t)
+            m00 -= np.multiply(w[b], inv, out=t)   # leave the centre out (k = 0)
             z00 -= np.multiply(wz[b], inv, out=t)
             if degree == 0:
                 np.copyto(m00, np.nan, where=m00 <= 1e-9 * inv)   # no point: no fit
@@ -436,16 +454,16 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None):
                 np.divide(inv, m00, out=hh[b])
                 continue
             # cofactors of N = [[m00, m10, m01], [m10, m20, m11], [m01, m11, m02]]
-            c00 = m20 * m02
-            small = c00 * m00
+            np.multiply(m20, m02, out=c00)
+            np.multiply(c00, m00, out=small)
             np.abs(small, out=small)
             small *= 1e-9
             c00 -= np.multiply(m11, m11, out=t)
-            c01 = m11 * m01
+            np.multiply(m11, m01, out=c01)
             c01 -= np.multiply(m10, m02, out=t)
-            c02 = np.multiply(m10, m11, out=m11)
+            np.multiply(m10, m11, out=c02)
             c02 -= np.multiply(m20, m01, out=t)
-            det = np.multiply(m00, c00, out=m00)
+            det = np.multiply(m00, c00, out=v)
             det += np.multiply(m10, c01, out=t)
             det += np.multiply(m01, c02, out=t)
             np.copyto(det, np.nan, where=det <= small)           # undetermined: no fit
