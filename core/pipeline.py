@@ -84,12 +84,13 @@ def fill_dtm(z, mask):
     Cells of the input's nodata stay NaN. Returns None when the window has no ground cell.
     """
     from .fill import fill_gaps
-    holes = (mask == OBJECT) | (mask == LOW)
-    ground = np.isfinite(z) & ~holes
-    if not ground.any():
-        return None
+    holes = np.asarray(mask, np.uint8) - np.uint8(OBJECT) <= np.uint8(LOW - OBJECT)  # 1 or 2
     if not holes.any():
+        if not np.isfinite(z).any():
+            return None
         return z.astype(np.float32, copy=True)
+    if not (np.isfinite(z) & ~holes).any():
+        return None
     return fill_gaps(z, fill=holes)
 
 
@@ -133,9 +134,14 @@ def _merge_info(infos, weights):
 
 
 def _code_counts(mask):
-    """``{code: count}`` of a uint8 mask (bincount: no sort of the whole raster)."""
-    n = np.bincount(np.asarray(mask, np.uint8).ravel(), minlength=256)
-    return {int(k): int(n[k]) for k in np.flatnonzero(n)}
+    """``{code: count}`` of a uint8 mask: one count per code of the convention (a bincount
+    would first cast every cell to int64), a bincount only when other codes are present."""
+    mask = np.asarray(mask, np.uint8)
+    out = {c: int(np.count_nonzero(mask == c)) for c in (GROUND, OBJECT, LOW, NODATA)}
+    if sum(out.values()) != mask.size:
+        n = np.bincount(mask.ravel(), minlength=256)
+        out = {int(k): int(n[k]) for k in np.flatnonzero(n)}
+    return {k: v for k, v in out.items() if v}
 
 
 def class_shares(counts):

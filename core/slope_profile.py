@@ -73,11 +73,14 @@ def _block_min(z, k):
     """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN)."""
     rows, cols = z.shape
     R, C = -(-rows // k), -(-cols // k)
-    pad = np.full((R * k, C * k), np.nan, np.float32)
-    pad[:rows, :cols] = z
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmin(pad.reshape(R, k, C, k), axis=(1, 3))
+    if rows % k or cols % k:
+        pad = np.full((R * k, C * k), np.nan, np.float32)
+        pad[:rows, :cols] = z
+    else:
+        pad = z
+    # fmin ignores NaN without the copies of nanmin; along rows first (contiguous)
+    m = np.fmin.reduce(pad.reshape(R * k, C, k), axis=2)
+    return np.fmin.reduce(m.reshape(R, k, C), axis=1)
 
 
 def estimate_terrain_slope(z, cell_size, scale_m=20.0):
@@ -108,10 +111,26 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     return {"median": float(np.median(s)), "p90": float(np.percentile(s, 90)), "block_cells": k}
 
 
-#: Rows (columns) are sampled every k-th so that about this many cells per direction
-#: enter the noise and sample-spacing estimates (their medians and means are stable far
-#: below that; ISPRS-sized rasters are used whole).
+#: Cells that enter the noise and sample-spacing estimates: larger rasters are sampled
+#: by windows spread over them (medians and means are stable far below that; ISPRS-sized
+#: rasters are used whole).
 _SAMPLE_CELLS = 1_000_000
+_SAMPLE_WINDOW = 256
+
+
+def _sample_windows(z, cells=_SAMPLE_CELLS, side=_SAMPLE_WINDOW):
+    """``z`` itself when it has at most ``cells`` cells, else about ``cells / side**2``
+    windows of ``side`` x ``side`` cells on a regular grid over it (views, no copy; each
+    window is contiguous along its rows, so sampling reads a fraction of the raster)."""
+    rows, cols = z.shape
+    if z.size <= cells or rows < 2 * side or cols < 2 * side:
+        return [z]
+    n = max(1, cells // (side * side))
+    ny = max(1, min(rows // side, int(round(np.sqrt(n * rows / cols)))))
+    nx = max(1, min(cols // side, -(-n // ny)))
+    r0 = np.linspace(0, rows - side, ny).astype(int)
+    c0 = np.linspace(0, cols - side, nx).astype(int)
+    return [z[r:r + side, c:c + side] for r in r0 for c in c0]
 
 
 def estimate_noise(z):
@@ -119,19 +138,16 @@ def estimate_noise(z):
 
     From the second differences along rows and columns (``z[i-1] - 2 z[i] + z[i+1]``,
     whose variance is 6 sigma^2 for white noise on a smooth surface), via the median
-    absolute value, so edges and objects do not inflate it.
+    absolute value, so edges and objects do not inflate it. Large rasters are sampled
+    (:func:`_sample_windows`).
     """
     z = as_surface(z)
-    # every k-th row (and column) keeps the median cheap on large rasters; differences
-    # stay at full resolution along them
-    k = max(1, int(z.size // _SAMPLE_CELLS))
     d = []
-    if z.shape[1] > 2:
-        r = z[::k]
-        d.append((r[:, :-2] - 2 * r[:, 1:-1] + r[:, 2:]).ravel())
-    if z.shape[0] > 2:
-        c = z[:, ::k]
-        d.append((c[:-2] - 2 * c[1:-1] + c[2:]).ravel())
+    for w in _sample_windows(z):
+        if w.shape[1] > 2:
+            d.append((w[:, :-2] - 2 * w[:, 1:-1] + w[:, 2:]).ravel())
+        if w.shape[0] > 2:
+            d.append((w[:-2] - 2 * w[1:-1] + w[2:]).ravel())
     d = np.concatenate(d) if d else np.array([0.0])
     d = d[np.isfinite(d)]
     if d.size == 0:
@@ -146,18 +162,19 @@ def estimate_sample_spacing(z, longest=8):
     cells filled from the nearest point repeats each value over a run of cells, and its
     height steps come at the run ends: the edge test must span the data's own spacing,
     not one cell. Runs longer than ``longest`` cells are constant areas (water, a flat
-    synthetic ground), not gridding, and are left out. Returns a value >= 1.
+    synthetic ground), not gridding, and are left out. Returns a value >= 1. Large
+    rasters are sampled (:func:`_sample_windows`).
     """
     z = as_surface(z)
-    k = max(1, int(z.size // _SAMPLE_CELLS))
     lengths = []
-    for a in (z[::k], np.ascontiguousarray(z[:, ::k].T)):
-        if a.shape[1] < 2:
-            continue
-        start = np.ones(a.shape, bool)
-        start[:, 1:] = a[:, 1:] != a[:, :-1]
-        idx = np.flatnonzero(start.ravel())
-        lengths.append(np.diff(np.append(idx, a.size)))
+    for w in _sample_windows(z):
+        for a in (w, w.T.copy()):
+            if a.shape[1] < 2:
+                continue
+            start = np.ones(a.shape, bool)
+            start[:, 1:] = a[:, 1:] != a[:, :-1]
+            idx = np.flatnonzero(start.ravel())
+            lengths.append(np.diff(np.append(idx, a.size)))
     if not lengths:
         return 1.0
     runs = np.concatenate(lengths)
