@@ -230,33 +230,51 @@ def _restrict(known, val):
     if h % 2 or w % 2:
         known = np.pad(known, ((0, h % 2), (0, w % 2)))
         val = np.pad(val, ((0, h % 2), (0, w % 2)))
-    ka, kb, kc, kd = known[0::2, 0::2], known[0::2, 1::2], known[1::2, 0::2], known[1::2, 1::2]
-    va, vb, vc, vd = val[0::2, 0::2], val[0::2, 1::2], val[1::2, 0::2], val[1::2, 1::2]
-    # 1. Diagonals a-d and b-c; their mid-points are the coarse cell centre.
-    d1 = ka & kd
-    d2 = kb & kc
-    ck = d1 | d2
-    s = va + vd
-    s *= d1
-    t = vb + vc
-    t *= d2
-    s += t
+    h2, w2 = h // 2 + h % 2, w // 2 + w % 2
+    ck = np.empty((h2, w2), bool)
+    s = np.empty((h2, w2), np.float32)
+    code = np.empty((h2, w2), np.uint8)
+    t = np.empty((min(h2, _BAND), w2), np.float32)
+    ps = []
+    # The dense part in bands of rows: the four strided children of a band are read while
+    # they are in the cache.
+    for i0 in range(0, h2, _BAND):
+        i1 = min(h2, i0 + _BAND)
+        kk, vv = known[2 * i0:2 * i1], val[2 * i0:2 * i1]
+        ka, kb, kc, kd = kk[0::2, 0::2], kk[0::2, 1::2], kk[1::2, 0::2], kk[1::2, 1::2]
+        va, vb, vc, vd = vv[0::2, 0::2], vv[0::2, 1::2], vv[1::2, 0::2], vv[1::2, 1::2]
+        # 1. Diagonals a-d and b-c; their mid-points are the coarse cell centre.
+        d1 = ka & kd
+        d2 = kb & kc
+        cb = ck[i0:i1]
+        np.bitwise_or(d1, d2, out=cb)
+        sb = s[i0:i1]
+        tb = t[:i1 - i0]
+        np.add(va, vd, out=sb)
+        sb *= d1
+        np.add(vb, vc, out=tb)
+        tb *= d2
+        sb += tb
+        sb *= np.float32(0.25)                         # mean of the diagonals' mid-points:
+        d1 ^= d2                                       # x 1/4 for two, x 1/2 for one (exact)
+        np.multiply(sb, np.float32(2.0), out=sb, where=d1)
+        # Cells with known children but no known diagonal (e.g. along a straight hole
+        # edge, or isolated points); vectorised over these few cells only. `code` holds
+        # the four children as bits: a = 1, b = 2, c = 4, d = 8.
+        cd = code[i0:i1]
+        np.copyto(cd, ka)
+        cd |= kb.view(np.uint8) << 1
+        cd |= kc.view(np.uint8) << 2
+        cd |= kd.view(np.uint8) << 3
+        part = cd != 0
+        part &= ~cb
+        q = np.flatnonzero(part)
+        if q.size:
+            ps.append(q + i0 * w2)
     del t
-    s *= _DIAG_WEIGHT.take(d1.view(np.uint8) + 2 * d2.view(np.uint8))
-    # Cells with known children but no known diagonal (e.g. along a straight hole edge,
-    # or isolated points); vectorised over these few cells only. `code` holds the four
-    # children as bits: a = 1, b = 2, c = 4, d = 8.
-    code = ka.astype(np.uint8)
-    code |= kb.view(np.uint8) << 1
-    code |= kc.view(np.uint8) << 2
-    code |= kd.view(np.uint8) << 3
-    part = code != 0
-    part &= ~ck
-    p = np.flatnonzero(part)
-    del part
+    p = np.concatenate(ps) if ps else np.empty(0, np.intp)
     if p.size == 0:
         return ck, s
-    h2, w2 = ck.shape
     i, j = np.divmod(p, w2)
     cflat = code.ravel()
     # 2. Linear extrapolation across a known side of two children from the two fine cells
@@ -319,8 +337,8 @@ def _restrict(known, val):
     return ck, s
 
 
-#: 1 / (number of known diagonals * 2), indexed by d1 + 2 * d2 (0 where none).
-_DIAG_WEIGHT = np.array([0.0, 0.5, 0.5, 0.25], dtype=np.float32)
+#: Coarse rows per band of the restriction's dense part.
+_BAND = 64
 
 
 def _solve_direct(known, val):
