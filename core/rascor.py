@@ -862,21 +862,43 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
     high = np.zeros(z.shape, bool)
     axes = ((0, 1), (1, 0), (1, 1), (1, -1))
 
-    def run(band_fn, src):
-        # bands of rows: the few temporaries of each stay in the cache
-        for b in _bands(rows, cols + 2 * P):
+    W = cols + 2 * P
+
+    def run(core, src, reach, tol_c, out, keep_b=None):
+        # bands of rows: the few temporaries of each stay in the cache. Without break
+        # lines, only the candidates are tested: cells with a neighbour (within ``reach``
+        # cells along the 8 directions) lower (``reach`` 1) / higher (``reach`` 2) by
+        # more than ``tol_c``, which every removal needs; their neighbours are gathered.
+        flat = src.ravel()
+        for b in _bands(rows, W):
             r0, r1 = b.start, b.stop
+            zc = src[P + r0:P + r1, P:P + cols]
+            if lp is not None:
+                def nb(dr, dc):
+                    v = src[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
+                    return np.where(lp[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
+                                    == labels[b], v, np.nan)
+                out[b] = core(nb, keep[b] if keep_b is None else keep_b[b])
+                continue
+            ext = None
+            for dr, dc in _DIRS8:
+                for m in range(1, reach + 1):
+                    v = src[P + r0 + m * dr:P + r1 + m * dr, P + m * dc:P + m * dc + cols]
+                    ext = v.copy() if ext is None else (np.fmax(ext, v, out=ext) if reach == 2
+                                                         else np.fmin(ext, v, out=ext))
+            ext -= zc
+            cand = ext > tol_c if reach == 2 else ext < -tol_c
+            cand &= keep[b] if keep_b is None else keep_b[b]
+            idx = np.flatnonzero(cand)
+            ob = out[b]
+            ob[:] = False
+            if not idx.size:
+                continue
+            base = idx + (idx // cols) * (2 * P) + (P + r0) * W + P
+            kb = np.ones(idx.size, bool)
+            ob.ravel()[idx] = core(lambda dr, dc: flat[base + (dr * W + dc)], kb)
 
-            def nb(dr, dc, a=src):
-                v = a[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
-                if lp is not None:
-                    v = np.where(lp[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
-                                 == labels[b], v, np.nan)
-                return v
-
-            band_fn(b, nb)
-
-    def pits(b, nb):
+    def pits(nb, kb):
         # low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
         # when, on both sides within 2 cells, a point lies higher by more than tol_low
         # (fills blunders up to 3 cells wide); a ditch or a cut continues along its own
@@ -895,11 +917,11 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
             has &= s0 > tol_low
             has &= s1 > tol_low
             n_pits += has
-        lo = keep[b] & (n_axes >= 2)
+        lo = kb & (n_axes >= 2)
         lo &= n_pits == n_axes
-        low[b] = lo
+        return lo
 
-    def pairs(b, nb):
+    def pairs(nb, kb):
         zc = nb(0, 0)
         hi = np.zeros(zc.shape, bool)
         for dr, dc in axes:
@@ -919,14 +941,13 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
                 # unless the terrain above u rises at least as steeply (straight or concave)
                 t &= ~(up >= dz - tol)
                 hi |= t
-        hi &= keep[b]
-        hi &= ~low[b]
-        high[b] = hi
+        hi &= kb
+        return hi
 
     with np.errstate(invalid="ignore"):
-        run(pits, zp)
+        run(pits, zp, 2, tol_low, low)
         zp[P:-P, P:-P][low] = np.nan
-        run(pairs, zp)
+        run(pairs, zp, 1, tol, high, keep_b=keep & ~low)
     return high, low
 
 
