@@ -595,10 +595,11 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
         v *= v
         # v > k s sqrt(1/p + h)  <=>  v^2 > (k s)^2 (1/p + h)  (v > 0, resp. v < 0)
         h *= ks2
-        high = v > h + ks2
-        high &= ~below
+        h += ks2
+        high = v > h
         high &= test
-        h += ks2 / low_weight
+        high &= ~below
+        h += ks2 / low_weight - ks2
         low = v > h
         low &= below
     return high, low, below
@@ -645,9 +646,10 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
             src, out = slice(r0, r1), slice(b.start - r0, b.stop - r0)
         else:
             src, out = b, slice(None)
+        kb = keep[src]
         zb = z[src].astype(np.float64)
-        np.copyto(zb, 0.0, where=~np.isfinite(zb))
-        wb = _weights(keep[src], None if below is None else below[src], low_weight)
+        np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
+        wb = _weights(kb, None if below is None else below[src], low_weight)
         zhat, hh = fit(zb, wb, out)
         high[b], low[b], under[b] = _snoop(zb[out], zhat, hh, test[b], s, k, low_weight)
     return high, low, under
