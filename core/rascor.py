@@ -46,6 +46,13 @@ Notes on the vectorised implementation
   present is used in the test ``v / (s sqrt(1/p + h)) > k`` (Baarda's data snooping with
   ``p`` the point's weight). Missing neighbours widen ``h``: uneven spacing is handled.
   Where the window's points do not determine the model, the point is not tested.
+* The mean / linear profile and the horizontal / inclined plane have dedicated kernels
+  (:func:`_fit_rows`, :func:`_fit_box_2d`): running box means of ``w x^j``, ``w z x^j``
+  on absolute positions (float64, O(1) per cell for any window), recentred on each cell,
+  the centre taken out of the sums, the normal equations solved by cofactors. Fits and
+  snooping run in bands of rows (:func:`_fit_and_snoop`; window fits with a halo of rows,
+  Y profiles on a transposed copy), so no full-size float temporary is made and the
+  result is that of one fit of the whole raster.
 * Snooping tests all points at once against fits without them (externally studentised
   residuals); with ``snooping_iterations > 1`` the fit is repeated without the removed
   points and with the weight factor on the points found below it.
@@ -54,7 +61,11 @@ Notes on the vectorised implementation
   window could still join two cells of one region around the end of a line that stops
   inside the window; in block mode, regions are labelled per block (the halo keeps the
   difference away from the block's core in practice).
-* Step 4 scans all profiles at once as one concatenated 1-D array of the remaining points.
+* Step 3 tests, without break lines, only the cells a removal is possible for (a
+  neighbour lower by more than the tolerance; higher by more than the low tolerance for
+  the pits), gathering their neighbours; the result is that of the test of every cell.
+* Step 4 scans the profiles of a band of rows at once as one concatenated 1-D array of
+  the remaining points; only the steps larger than the jump are examined further.
 
 Defaults: data snooping critical value 4, one fit per length, weight factor 0.02 (low
 points' tolerance x 7), step 7 off, no second iteration; on the 7 ISPRS reference samples

@@ -489,6 +489,60 @@ def test_banded_kernels_do_not_depend_on_the_bands(monkeypatch):
         np.testing.assert_array_equal(a[1], b[1])
 
 
+def _city(seed=6, n=90):
+    rng = np.random.default_rng(seed)
+    z = plane(n) + rng.normal(0, 0.05, (n, n))
+    for r, c in rng.integers(5, n - 20, (6, 2)):
+        z[r:r + rng.integers(4, 15), c:c + rng.integers(4, 15)] += rng.uniform(1, 9)
+    z[rng.random(z.shape) < 0.01] -= 6.0                 # low blunders
+    z[rng.random(z.shape) < 0.02] += 1.0                 # small objects
+    keep = rng.random(z.shape) > 0.05
+    return z, keep
+
+
+def test_step3_candidates_equal_testing_every_cell():
+    # without break lines only candidate cells are tested; one region of break-line
+    # labels takes the path testing every cell: the same removals
+    z, keep = _city()
+    fast = R.remove_neighbour_differences(z, keep, sigma_m=0.1)
+    every = R.remove_neighbour_differences(z, keep, sigma_m=0.1,
+                                           labels=np.ones(z.shape, np.int32))
+    assert fast[0].any() and fast[1].any()
+    np.testing.assert_array_equal(fast[0], every[0])
+    np.testing.assert_array_equal(fast[1], every[1])
+
+
+def test_banded_steps_equal_one_band(monkeypatch):
+    z, keep = _city(7)
+    kw = dict(terrain_class="rolling", scale_m=0.1)
+    runs = []
+    for cells in (1 << 20, 200):                         # one band / bands of 2-3 rows
+        monkeypatch.setattr(R, "_BAND_CELLS", cells)
+        monkeypatch.setattr(R, "_HALO_BAND_CELLS", 4 * cells)
+        runs.append((R.remove_level_changes(z, 1.0, keep, jump_m=2.0, max_building_m=30.0,
+                                            sigma_m=0.1),
+                     *R.remove_profile_outliers(z, 1.0, keep, lengths_m=[5.0, 15.0], **kw),
+                     *R.remove_surface_outliers(z, 1.0, keep, size_m=15.0, **kw),
+                     *R.remove_prediction_outliers(z, 1.0, keep, radius_m=3.0, scale_m=0.1)))
+    assert all(a.any() for a in runs[0][:3])
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_fit_and_snoop_equals_whole_fit_then_snoop():
+    z, keep = _city(8)
+    zf = np.where(keep, z, 0.0)
+    w = keep.astype(float)
+    zhat, hh = R._fit_at_centre(zf, w, (9, 11), 1)
+    ref = R._snoop(zf, zhat, hh, keep, 0.1, 4.0, 0.02)
+    got = R._fit_and_snoop(z, keep, keep, None,
+                           lambda zz, ww, out: R._fit_box_2d(zz, ww, (9, 11), 1, out),
+                           0.1, 4.0, 0.02, halo=4)
+    assert ref[0].any() and ref[2].any()
+    for a, b in zip(ref, got):
+        np.testing.assert_array_equal(a, b)
+
+
 # ------------------------------------------------------------- ISPRS, defaults only
 def _load_bench(name):
     spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
