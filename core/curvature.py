@@ -659,26 +659,31 @@ def _enclosed_regions(flag, free, max_cells):
 
 
 def _pits(z, cand, ring, depth):
-    """Candidates lower by ``depth`` than every valid cell on the square ring at distance
-    ``ring`` around them: spikes down (low blunders), not valleys, ditches or cuts,
-    whose bottom continues through the ring."""
-    rr, cc = np.nonzero(cand)
-    out = np.zeros(z.shape, bool)
-    if rr.size == 0:
-        return out
-    k = np.arange(-ring, ring + 1)
-    dr = np.concatenate([np.full(k.size, -ring), np.full(k.size, ring), k[1:-1], k[1:-1]])
-    dc = np.concatenate([k, k, np.full(k.size - 2, -ring), np.full(k.size - 2, ring)])
-    R = rr[:, None] + dr[None, :]
-    Cc = cc[:, None] + dc[None, :]
-    inside = (R >= 0) & (R < z.shape[0]) & (Cc >= 0) & (Cc < z.shape[1])
-    vals = np.where(inside, z[np.clip(R, 0, z.shape[0] - 1), np.clip(Cc, 0, z.shape[1] - 1)],
-                    np.nan)
+    """Flat indices of the candidates lower by ``depth`` than every valid cell on the
+    square ring at distance ``ring`` around them: spikes down (low blunders), not valleys,
+    ditches or cuts, whose bottom continues through the ring. One gather per ring offset,
+    over all candidates."""
+    idx = np.flatnonzero(cand)
+    if idx.size == 0:
+        return idx
+    rows, cols = z.shape
+    rr, cc = np.divmod(idx, cols)
+    zf = z.ravel()
+    low = np.full(idx.size, np.inf, np.float32)
+    k = range(-ring, ring + 1)
+    offsets = ([(-ring, d) for d in k] + [(ring, d) for d in k]
+               + [(d, -ring) for d in k[1:-1]] + [(d, ring) for d in k[1:-1]])
     with np.errstate(invalid="ignore"):
-        low = np.nanmin(np.where(np.isfinite(vals), vals, np.inf), axis=1)
-        ok = z[rr, cc] < low - np.float32(depth)
-    out[rr[ok], cc[ok]] = True
-    return out
+        for dr, dc in offsets:
+            r = rr + dr
+            c = cc + dc
+            ok = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+            r *= cols
+            r += c
+            v = zf.take(np.where(ok, r, 0))
+            ok &= np.isfinite(v)             # nodata and cells outside: not on the ring
+            np.minimum(low, np.where(ok, v, np.float32(np.inf)), out=low)
+        return idx[zf.take(idx) < low - np.float32(depth)]
 
 
 def _transpose(a, tile=64):
@@ -1110,7 +1115,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             mask *= np.uint8(OBJECT)
         np.less(d, np.float32(-h_min), out=tmp)
         tmp &= concave
-        mask[_pits(z, tmp, m + 2, h_min)] = LOW
+        mask.ravel()[_pits(z, tmp, m + 2, h_min)] = LOW
         # cells the profiles found between a break up and a break down stay objects when
         # they stand clearly (half the minimum object height) above the ground surface;
         # a profile that overshot along a rising terrain (a dam behind a bush) does not

@@ -474,3 +474,18 @@ def test_halo_is_even():
         for size in (10.0, 33.0, 100.0):
             h = C.curvature_halo({"window_cells": w, "max_object_size_m": size}, (1.0, 1.0))
             assert h % 2 == 0 and h >= size + w
+
+
+def test_pits_exact():
+    z = np.zeros((9, 11), np.float32)
+    z[4, 5] = -3.0                                    # a spike down: a pit
+    z[:, 2] = -3.0                                    # a ditch: its bottom crosses the ring
+    z[0, 10] = -3.0                                   # in a corner: the ring is partly outside
+    z[6, 8] = np.nan                                  # nodata on a ring: ignored
+    cand = z < -1
+    got = np.zeros(z.shape, bool)
+    got.ravel()[C._pits(z, cand, 2, 1.0)] = True
+    want = np.zeros(z.shape, bool)
+    want[4, 5] = want[0, 10] = True
+    np.testing.assert_array_equal(got, want)
+    assert C._pits(z, cand, 2, 5.0).size == 0         # not 5 m below its ring
