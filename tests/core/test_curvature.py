@@ -481,7 +481,7 @@ def test_pits_exact():
     z[4, 5] = -3.0                                    # a spike down: a pit
     z[:, 2] = -3.0                                    # a ditch: its bottom crosses the ring
     z[0, 10] = -3.0                                   # in a corner: the ring is partly outside
-    z[6, 8] = np.nan                                  # nodata on a ring: ignored
+    z[6, 5] = np.nan                                  # nodata on the pit's ring: ignored
     cand = z < -1
     got = np.zeros(z.shape, bool)
     got.ravel()[C._pits(z, cand, 2, 1.0)] = True
