@@ -444,17 +444,16 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
             dtm = surf  # nothing given back: this is the DTM, exact at every ground cell
     report(progress, 0.95)
 
-    mask = np.zeros(z.shape, np.uint8)
-    mask[obj] = OBJECT
-    mask[low] = LOW
-    mask[~valid] = NODATA
-    n = max(1, int(valid.sum()))
+    mask = obj.astype(np.uint8)                      # OBJECT = 1, GROUND = 0
+    np.copyto(mask, np.uint8(LOW), where=low)
+    np.copyto(mask, np.uint8(NODATA), where=~valid)
+    n = max(1, int(np.count_nonzero(valid)))
     info = {"alpha_g_deg": float(slope_threshold_deg), "alpha_t_deg": float(terrain_slope_deg),
             "dh0_m": float(tolerance_m),
-            "rejected_by_x_percent": 100.0 * float((obj_x & valid).sum()) / n,
-            "rejected_by_y_percent": 100.0 * float((obj_y & valid).sum()) / n,
+            "rejected_by_x_percent": 100.0 * float(np.count_nonzero(obj_x & valid)) / n,
+            "rejected_by_y_percent": 100.0 * float(np.count_nonzero(obj_y & valid)) / n,
             "refined_back_percent": 100.0 * refined / n,
-            "low_blunders_percent": 100.0 * float(low.sum()) / n}
+            "low_blunders_percent": 100.0 * float(np.count_nonzero(low)) / n}
     report(progress, 1.0)
     return FilterResult(mask=mask, info=info, dtm=dtm)
 
