@@ -67,8 +67,8 @@ graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
+from .codes import GROUND, LOW, NODATA, OBJECT
+from .common import FilterResult, as_cell_size, as_surface, report
 from .methods import Method, Param
 
 MODELS = ("quadratic", "bilinear")
@@ -932,9 +932,11 @@ def _smooth_spread(v, tile=_TILE):
     tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
     nr, nc = r // tr, c // tc
     t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
-    t = t.reshape(nr * nc, -1).astype(np.float64)
-    med = np.median(t, axis=1, keepdims=True)   # tiles with nodata give NaN: dropped
-    mad = 1.4826 * np.median(np.abs(t - med), axis=1)
+    t = t.reshape(nr * nc, -1).astype(np.float64)  # a copy: partitioned in place
+    med = np.median(t, axis=1, keepdims=True, overwrite_input=True)  # nodata: NaN, dropped
+    t -= med
+    np.abs(t, out=t)
+    mad = 1.4826 * np.median(t, axis=1, overwrite_input=True)
     mad = mad[np.isfinite(mad)]
     return float(np.quantile(mad, _SMOOTH_QUANTILE)) if mad.size else 0.0
 
@@ -1052,8 +1054,9 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     del p, q, r, s, t, buf
     report(progress, 0.25)
 
-    all_valid = bool(valid.all())
-    n_valid = max(int(valid.sum()), 1)
+    n_valid = int(np.count_nonzero(valid))
+    all_valid = n_valid == valid.size
+    n_valid = max(n_valid, 1)
     report(progress, 0.35)
 
     # 3. along X and Y profiles: from a break going up to the break coming down
@@ -1069,7 +1072,7 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # 4. regions enclosed by breaks and mostly such runs -> whole objects
     free = ~marked if all_valid else valid & ~marked
     objects = obj_x | obj_y
-    n_obj_x, n_obj_y = int(obj_x.sum()), int(obj_y.sum())
+    n_obj_x, n_obj_y = int(np.count_nonzero(obj_x)), int(np.count_nonzero(obj_y))
     del obj_x, obj_y
     objects |= _enclosed_regions(objects, free, int(max(max_size / dx, max_size / dy)))
     del free
@@ -1128,15 +1131,16 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
             holes |= invalid
         report(progress, 0.8 + 0.1 * it)
     del d, tmp
-    mask = finish_mask(mask, z)
+    if invalid is not None:
+        mask[invalid] = NODATA
 
     info = {"k_g_per_m2": float(k_g), "window_cells": window_cells, "model": model,
             "min_object_height_m": h_min, "wall_slope_deg": float(wall_slope_deg),
             "max_object_size_m": max_size, "tolerance_m": tol,
             "share_marked_x": n_mark_x / n_valid,
             "share_marked_y": n_mark_y / n_valid,
-            "share_marked_k": float(mark_k.sum()) / n_valid,
-            "share_marked": float(marked.sum()) / n_valid,
+            "share_marked_k": np.count_nonzero(mark_k) / n_valid,
+            "share_marked": np.count_nonzero(marked) / n_valid,
             "share_objects_x": n_obj_x / n_valid,
             "share_objects_y": n_obj_y / n_valid}
     report(progress, 1.0)
