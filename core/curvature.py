@@ -723,7 +723,7 @@ def _fill_surface(z, holes):
     return np.asarray(fill_gaps(z, fill=holes), dtype=np.float32)
 
 
-def _ground_surface(z, holes):
+def _ground_surface(z, holes, out=None):
     """Ground surface of the final pass: ``z`` at the cells not in ``holes``, over the
     holes the harmonic surface (:func:`fill.fill_gaps`) of a grid of half the resolution,
     interpolated bilinearly.
@@ -738,7 +738,8 @@ def _ground_surface(z, holes):
     over the holes is the bilinear interpolation of the coarse one (linear extrapolation
     at the raster's edge; planes stay planes). A quarter of the cells to interpolate; the
     final pass only compares heights with this surface, with a tolerance. Restriction and
-    interpolation go by cache-sized blocks of rows.
+    interpolation go by cache-sized blocks of rows; ``out``, optional: a float32 array of
+    ``z``'s shape receiving the surface.
     """
     h, w = z.shape
     known = ~holes
@@ -828,10 +829,10 @@ def _ground_surface(z, holes):
     from .fill import fill_gaps
     coarse = fill_gaps(s)
     del s
-    return _upsample2(coarse, (h, w), z, known)
+    return _upsample2(coarse, (h, w), z, known, out=out)
 
 
-def _upsample2(c, shape, z=None, known=None):
+def _upsample2(c, shape, z=None, known=None, out=None):
     """Bilinear interpolation of a grid of half the resolution at the cells of ``shape``
     (fine cell i lies at coarse coordinate i / 2 - 1/4; the coarse grid is extended by
     linear extrapolation, so planes stay planes); ``z`` where ``known`` when given. By
@@ -851,7 +852,7 @@ def _upsample2(c, shape, z=None, known=None):
     else:
         cp[:, 0] = cp[:, -1] = cp[:, 1]
     a, b = np.float32(0.75), np.float32(0.25)
-    out = np.empty((h, w), np.float32)
+    out = np.empty((h, w), np.float32) if out is None else out
     step = max(1, _CHUNK_CELLS // max(2 * W, 1))
     rows = np.empty((2 * min(step, H), W + 2), np.float32)
     tmp = np.empty((min(step, H), W + 2), np.float32)
@@ -1101,7 +1102,8 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
         if not (valid & ~holes).any():
             mask[objects] = OBJECT
             break
-        surface = _ground_surface(z, holes)
+        # the first pass's surface is not needed once d and the allowance are known
+        surface = _ground_surface(z, holes, out=surface)
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
             # the tolerance grows with the slope of the surface: one cell of horizontal
