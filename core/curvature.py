@@ -445,16 +445,19 @@ def _walls(Zp, pad, B, first, cell, *, reach, h_min, tan_wall):
         rise = zc - best
         fall = np.subtract(top, zc, out=top)
         # cheap tests first, on all marked cells; the rest only on what passes
-        down = (fall >= np.float32(h_min)) & (fall >= np.float32(tan_wall * _WALL_CELLS * cell))
-        rate = rise / np.float32(_WALL_CELLS * cell)
-        cand = np.flatnonzero((rise >= np.float32(h_min)) & (rate >= np.float32(tan_wall)))
+        down = fall >= max(np.float32(h_min), np.float32(tan_wall * _WALL_CELLS * cell))
+        cand = np.flatnonzero(rise >= np.float32(h_min))
+        rate = rise.take(cand)
+        rate /= np.float32(_WALL_CELLS * cell)
+        steep = rate >= np.float32(tan_wall)
+        cand, rate = cand[steep], rate[steep]
         ci = idx.take(cand)
         before = back(_WALL_CELLS + reach).take(ci)
         nb = np.isnan(before)
         if nb.any():  # near the start of a profile (or nodata): its first position
             before[nb] = first.take(ci[nb] % Zp.shape[1])
         prior = np.maximum((base.take(cand) - before) / np.float32(reach * cell), 0)
-        ok = rate.take(cand) >= np.float32(_WALL_CONTRAST) * prior
+        ok = rate >= np.float32(_WALL_CONTRAST) * prior
     wsel = cand[ok]
     return ((ci[ok], best.take(wsel), (prior[ok] * np.float32(cell)).astype(np.float32)),
             (idx[down], fall[down].astype(np.float32)))
