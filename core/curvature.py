@@ -1090,19 +1090,21 @@ def filter_curvature(z, cell_size, *, k_g_per_m2, window_cells=5, model="quadrat
     # paper's test marks, |K| >= K_g: curved both ways (crowns, corners, spikes, pits).
     # Straight breaks away from objects (dams, embankments, terrace edges: K ~ 0 because
     # one principal curvature is zero) stay seeds.
-    near = _dilate(objects, m)
-    holes = objects | (marked & near) | mark_k
-    if not all_valid:
-        holes |= ~valid
-    del near
-    concave = marked & (H < 0)
-    edge = marked & ~objects
     invalid = None if all_valid else ~valid
+    holes = _dilate(objects, m)           # near objects ...
+    holes &= marked                       # ... the breaks
+    holes |= objects
+    holes |= mark_k
+    if invalid is not None:
+        holes |= invalid
+    concave = np.less(H, 0)
+    concave &= marked
+    edge = marked & ~objects
     allow = None
     d = np.empty(z.shape, np.float32)
     tmp = np.empty(z.shape, bool)
     for it in range(_PASSES):
-        if not (valid & ~holes).any():
+        if holes.all():                   # no ground seed (nodata is in holes)
             mask[objects] = OBJECT
             break
         # the first pass's surface is not needed once d and the allowance are known
