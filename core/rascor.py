@@ -292,9 +292,10 @@ def _solve_first_general(M, Z, n_unknowns):
     return beta, hh
 
 
-#: Cells per band of the banded kernels: their temporaries (about 1 MB each) stay in the
-#: cache, and no full-size temporary is allocated per moment.
-_BAND_CELLS = 1 << 17
+#: Cells per band of the banded kernels: their many temporaries (256 kB of float64 each)
+#: stay in the core's cache, and no full-size temporary is allocated per moment. Steps 3
+#: and 4 (few passes per band) take bands 4 and 16 times larger.
+_BAND_CELLS = 1 << 15
 #: Cells per band (halo included) of the window fits run in bands of rows with a halo.
 _HALO_BAND_CELLS = 1 << 21
 
@@ -883,7 +884,7 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
         # cells along the 8 directions) lower (``reach`` 1) / higher (``reach`` 2) by
         # more than ``tol_c``, which every removal needs; their neighbours are gathered.
         flat = src.ravel()
-        for b in _bands(rows, W):
+        for b in _bands(rows, W, 4 * _BAND_CELLS):
             r0, r1 = b.start, b.stop
             zc = src[P + r0:P + r1, P:P + cols]
             if lp is not None:
@@ -1076,7 +1077,7 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
         for (zz, lab, lmax, fwd), todo in zip(views, redo):
             c = fwd(cur)
             found = np.zeros(zz.shape, bool)
-            for b in _bands(*zz.shape, cells=4 * _BAND_CELLS):
+            for b in _bands(*zz.shape, 16 * _BAND_CELLS):
                 # a profile's result depends on that profile alone: later passes redo
                 # only the bands of rows / columns where something was removed
                 if todo is None or todo[b].any():
