@@ -550,32 +550,26 @@ def _scan_rows(Z, j0, walls, downs, out, st):
                     jg[c] = j
 
 
-def _profile_rows(a, axis, j0, j1, dst, fill):
-    """Positions ``j0 .. j1 - 1`` of the profiles of ``a`` along ``axis``, forwards then
-    backwards, into ``dst`` (``j1 - j0`` rows): ``dst[:, :m]`` the profiles read from
-    their start, ``dst[:, m:]`` read from their end; positions before the start are
-    ``fill``. Along axis 1 the block is transposed on the fly (no transposed raster)."""
-    n = a.shape[axis]
-    m = a.shape[1 - axis]
+def _profile_rows(a, j0, j1, dst, fill):
+    """Positions ``j0 .. j1 - 1`` of the profiles along axis 0 of ``a`` (its columns),
+    forwards then backwards, into ``dst`` (``j1 - j0`` rows): ``dst[:, :m]`` the profiles
+    read from their start, ``dst[:, m:]`` read from their end; positions before the
+    start are ``fill``."""
+    n, m = a.shape
     k0 = min(max(j0, 0), j1)
     if k0 > j0:
         dst[:k0 - j0] = fill
     if j1 <= k0:
         return
     d = dst[k0 - j0:j1 - j0]
-    if axis == 0:
-        d[:, :m] = a[k0:j1]
-        d[:, m:] = a[n - j1:n - k0][::-1]
-    else:  # by bands of rows of ``a``: each band's transposed copy stays in the cache
-        for i in range(0, m, 256):
-            e = min(m, i + 256)
-            d[:, i:e] = a[i:e, k0:j1].T
-            d[:, m + i:m + e] = a[i:e, n - j1:n - k0][:, ::-1].T
+    d[:, :m] = a[k0:j1]
+    d[:, m:] = a[n - j1:n - k0][::-1]
 
 
 def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
-    profiles, the rows): both scan directions must agree.
+    profiles, the rows, scanned as the columns of the transposed raster): both scan
+    directions must agree.
 
     A step up of the terrain (terrace edge) is an object to the scan climbing it, but the
     scan coming down the other way meets no break going up: only objects, which have a
@@ -585,17 +579,23 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     forwards, then backwards, side by side), block of positions by block: a block of the
     heights with the positions before it and the block's breaks are copied out of ``z``
     and ``marked``, its walls found (:func:`_walls`) and scanned (:func:`_scan_rows`), so
-    that nothing of the raster's size is held but the result. ``z`` is NaN at nodata.
+    that no index array of the raster's size is held. ``z`` is NaN at nodata.
     """
-    n = z.shape[axis]
-    m = z.shape[1 - axis]
+    if axis == 1:
+        res = _transpose(_axis_objects(_transpose(z), _transpose(marked), None, cell, 0,
+                                       reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol,
+                                       max_cells=max_cells))
+        if valid is not None:
+            res &= valid
+        return res
+    n, m = z.shape
     M = 2 * m
     pad = _WALL_CELLS + reach
     rows = max(8, pad, (4 * _CHUNK_CELLS) // max(M, 1))
     Zc = np.empty((pad + rows, M), np.float32)
     Bc = np.empty((rows, M), bool)
     first = np.empty((1, M), np.float32)
-    _profile_rows(z, axis, 0, 1, first, np.nan)
+    _profile_rows(z, 0, 1, first, np.nan)
     first = first[0]
     out = np.empty((n, M), bool)
     st = _ScanState(M, tol, max_cells)
@@ -603,18 +603,16 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
         j1 = min(n, j0 + rows)
         k = j1 - j0
         if j0 == 0:
-            _profile_rows(z, axis, -pad, j1, Zc[:pad + k], np.nan)
+            _profile_rows(z, -pad, j1, Zc[:pad + k], np.nan)
         else:  # the positions before the block: the end of the previous one
             Zc[:pad] = Zc[rows:rows + pad]
-            _profile_rows(z, axis, j0, j1, Zc[pad:pad + k], np.nan)
-        _profile_rows(marked, axis, j0, j1, Bc[:k], False)
+            _profile_rows(z, j0, j1, Zc[pad:pad + k], np.nan)
+        _profile_rows(marked, j0, j1, Bc[:k], False)
         walls, downs = _walls(Zc[:pad + k], pad, Bc[:k], first, cell, reach=reach,
                               h_min=h_min, tan_wall=tan_wall)
         _scan_rows(Zc[pad:pad + k], j0, walls, downs, out, st)
     res = np.logical_and(out[:, :m], out[::-1, m:])
     del out
-    if axis == 1:
-        res = _transpose(res)
     if valid is not None:
         res &= valid
     return res
@@ -689,14 +687,14 @@ def _pits(z, cand, ring, depth):
         return idx[zf.take(idx) < low - np.float32(depth)]
 
 
-def _transpose(a, tile=64):
-    """Contiguous transpose of a 2-D array, tile by tile (about 2x faster than numpy's
-    copy of a transposed view, which walks the source with a large stride)."""
+def _transpose(a, rows=256):
+    """Contiguous transpose of a 2-D array, a band of ``rows`` rows at a time (about 2x
+    faster than numpy's copy of a transposed view, which walks the source with a large
+    stride; each band's transposed copy stays in the cache)."""
     r, c = a.shape
     out = np.empty((c, r), a.dtype)
-    for i in range(0, r, tile):
-        for j in range(0, c, tile):
-            out[j:j + tile, i:i + tile] = a[i:i + tile, j:j + tile].T
+    for i in range(0, r, rows):
+        out[:, i:i + rows] = a[i:i + rows].T
     return out
 
 
