@@ -676,10 +676,14 @@ def _tile_low(z, n):
     """
     rows, cols = z.shape
     R, C = -(-rows // n), -(-cols // n)
-    pad = np.full((R * n, C * n), np.inf, np.float32)
-    pad[:rows, :cols] = z
-    np.copyto(pad, np.inf, where=~np.isfinite(pad))
+    pad = np.asarray(z, np.float32)              # NaN sorts last, like missing cells
+    if (R * n, C * n) != pad.shape:
+        pad = np.full((R * n, C * n), np.nan, np.float32)
+        pad[:rows, :cols] = z
+    pad = np.where(np.isinf(pad), np.nan, pad) if np.isinf(pad).any() else pad
     t = pad.reshape(R, n, C, n).transpose(0, 2, 1, 3).reshape(R * C, n * n)
+    if np.may_share_memory(t, z):               # sorted in place below: never sort z
+        t = t.copy()
     del pad
     cnt = np.count_nonzero(np.isfinite(t), axis=1)
     kth = (0.05 * cnt).astype(int)

@@ -543,6 +543,24 @@ def test_fit_and_snoop_equals_whole_fit_then_snoop():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("shape, n", [((30, 10), 10), ((10, 30), 10), ((50, 50), 25), ((41, 38), 25),
+                                      ((9, 11), 3)])
+def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n):
+    rng = np.random.default_rng(n)
+    z = rng.normal(100, 5, shape).astype(np.float32)
+    z[rng.random(shape) < 0.1] = np.nan
+    z.flat[3], z.flat[5] = np.inf, -np.inf           # not heights: missing
+    z0 = z.copy()
+    low = R._tile_low(z, n)
+    np.testing.assert_array_equal(z, z0)
+    for i in range(low.shape[0]):
+        for j in range(low.shape[1]):
+            v = z[i * n:(i + 1) * n, j * n:(j + 1) * n]
+            v = np.sort(v[np.isfinite(v)])
+            ref = v[int(0.05 * v.size)] if v.size >= max(3, n * n // 10) else np.nan
+            np.testing.assert_array_equal(low[i, j], np.float32(ref))
+
+
 # ------------------------------------------------------------- ISPRS, defaults only
 def _load_bench(name):
     spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
