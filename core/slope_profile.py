@@ -261,7 +261,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
 
     The tolerance after ``d`` cells since the reference point is
     ``dh0 + step tan_g min(d, edge_cells) + step tan_t max(d - edge_cells, 0)``.
-    Returns one boolean array per source (its shape): True where the scan rejects.
+    Returns one boolean array per source (its shape; views into buffers shared by the
+    sources of one array): True where the scan rejects.
     """
     widths = [a.shape[1] for a, _ in sources]
     offs = np.cumsum([0] + widths)
@@ -279,12 +280,22 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     # d grows by at most one per step from 1, so it never passes npos + 1: no clipping
     table = (dh0 + step_m * tan_g * np.minimum(steps, edge_cells)
              + step_m * tan_t * np.maximum(steps - edge_cells, 0)).astype(np.float32)
-    rej = np.empty((npos, nprof), bool)   # step i of every profile: row i (one write per step)
+    # Rejections, step by step: one buffer per array scanned (its forward and backward
+    # sources side by side, as many rows as the array), one row written per step.
+    groups = []                                  # [array id, rows, first, last column in v]
+    for (a, _), o0, o1 in zip(sources, offs[:-1], offs[1:]):
+        if groups and groups[-1][0] == id(a) and groups[-1][3] == o0:
+            groups[-1][3] = o1
+        else:
+            groups.append([id(a), a.shape[0], o0, o1])
+    bufs = [np.empty((n, o1 - o0), bool) for _, n, o0, o1 in groups]
+    writes = [(buf, n, o0, o1) for buf, (_, n, o0, o1) in zip(bufs, groups)]
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     thr = np.empty(nprof, np.float32)
+    up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
-    # per source: its array, direction, slice of the step buffers, and length
+    # per source: its array, direction, slice of the step buffer, and length
     spans = [(a, rev, v[o0:o1], a.shape[0]) for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:])]
     n_min = min(n for *_, n in spans)
     # As few numpy calls per step as possible: each is short, and with blocks in threads
@@ -298,7 +309,6 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
                     vv[...] = a[n - 1 - i] if rev else a[i]
                 elif i == n:
                     vv[...] = np.nan                   # a shorter profile set has ended
-        up = rej[i]
         np.subtract(v, g, out=dz)
         np.take(table, d, out=thr)
         np.greater(dz, thr, out=up)                    # rejected (NaN compares False)
@@ -306,10 +316,14 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
         d += up                                        # a nodata cell does not count: a gap does
         np.copyto(d, 1, where=ok)                      # not let the reference drift up a roof
         np.copyto(g, v, where=ok)
+        for buf, n, o0, o1 in writes:
+            if i < n:
+                buf[i] = up[o0:o1]
     out = []
     for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
-        r = rej[:a.shape[0], o0:o1]
-        out.append(np.ascontiguousarray(r[::-1] if rev else r))
+        k = next(j for j, (_, _, g0, g1) in enumerate(groups) if g0 <= o0 and o1 <= g1)
+        r = bufs[k][:, o0 - groups[k][2]:o1 - groups[k][2]]
+        out.append(r[::-1] if rev else r)                # views: row order of the source
     return out
 
 
