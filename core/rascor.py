@@ -307,6 +307,17 @@ def _bands(rows, cols, cells=None):
     return [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
 
 
+def _scratch(work, key, n, shape):
+    """``n`` float64 scratch arrays of ``shape``: views of arrays kept in the dict ``work``
+    (allocated once, reused by the next bands; new arrays without ``work``)."""
+    if work is None:
+        return [np.empty(shape) for _ in range(n)]
+    a = work.get(key)
+    if a is None or a.shape[1] < shape[0] or a.shape[2] != shape[1]:
+        a = work[key] = np.empty((n,) + shape)
+    return [b[:shape[0]] for b in a]
+
+
 def _mean1(v, size, axis, out=None):
     """Mean of ``v`` (float64) over a centred window of ``size`` (odd) cells along
     ``axis``; 0 outside."""
@@ -390,7 +401,7 @@ def _fit_rows(z, w, size, degree):
     return zhat, hh
 
 
-def _fit_box_2d(z, w, sizes, degree, out_rows=None):
+def _fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
     """Leave-one-out horizontal (degree 0) or inclined plane (degree 1) in a moving
     ``rows x cols`` box window, for every cell at once.
 
@@ -402,33 +413,33 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None):
     the centre and ``h = (N^-1)_00``, the centre having been taken out of ``M00``, ``Z00``.
 
     ``z`` must be finite wherever ``w`` is 0. ``out_rows`` (a slice) limits the result to
-    those rows (the others only feed the windows). Returns ``zhat, h`` like
-    :func:`_fit_at_centre`.
+    those rows (the others only feed the windows). ``work`` (a dict) keeps the large
+    scratch arrays from one call to the next. Returns ``zhat, h`` like
+    :func:`_fit_at_centre` (views of ``work`` arrays when given).
     """
     sy, sx = sizes
     rows, cols = z.shape
     o0, o1, _ = (out_rows or slice(0, rows)).indices(rows)
     inv = 1.0 / (sy * sx)
-    wz = w * z
+    wz, c0, d0, t, c1, c2, d1 = _scratch(work, "box", 7, (rows, cols))
+    np.multiply(w, z, out=wz)
     y = (np.arange(rows, dtype=np.float64) - (o0 + o1) // 2)[:, None]
-    c0 = _mean1(w, sy, 0)[o0:o1]
-    d0 = _mean1(wz, sy, 0)[o0:o1]
+    c0 = _mean1(w, sy, 0, out=c0)[o0:o1]
+    d0 = _mean1(wz, sy, 0, out=d0)[o0:o1]
     if degree == 1:
-        t = w * y
-        c1 = _mean1(t, sy, 0)[o0:o1]
+        np.multiply(w, y, out=t)
+        c1 = _mean1(t, sy, 0, out=c1)[o0:o1]
         t *= y
-        c2 = _mean1(t, sy, 0)[o0:o1]
+        c2 = _mean1(t, sy, 0, out=c2)[o0:o1]
         np.multiply(wz, y, out=t)
-        d1 = _mean1(t, sy, 0)[o0:o1]
-        del t
+        d1 = _mean1(t, sy, 0, out=d1)[o0:o1]
         y = y[o0:o1]
         for b in _bands(o1 - o0, cols):
             _centred(y[b], c0[b], c1[b], c2[b])
             _centred(y[b], d0[b], d1[b])
     w, wz = w[o0:o1], wz[o0:o1]
     x = np.arange(cols, dtype=np.float64) - cols // 2
-    zhat = np.empty((o1 - o0, cols))
-    hh = np.empty((o1 - o0, cols))
+    zhat, hh = _scratch(work, "fit", 2, (o1 - o0, cols))
     bands = _bands(o1 - o0, cols)
     buf = np.empty((16, bands[0].stop, cols))        # scratch, reused by every band
     with np.errstate(all="ignore"):
@@ -617,16 +628,19 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
     return high, low, below
 
 
-def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, labels=None):
+def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, labels=None,
+                   work=None):
     """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
 
     ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
-    (``z`` finite, ``w`` the weights: :func:`_weights` of ``keep`` and ``below``),
+    (``z`` finite, ``w`` the weights: 1 where ``keep``, ``low_weight`` where also
+    ``below``, else 0),
     evaluated on the rows ``out_rows``. It runs on bands of whole rows (profile fits
     along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above and below
     (window fits of at most ``2 halo + 1`` rows): the same result as one fit of the whole
     arrays, without any full-size float temporary. With break-line ``labels`` each region
-    runs alone on its bounding box, the other cells having weight 0 and no test.
+    runs alone on its bounding box, the other cells having weight 0 and no test. ``work``
+    (a dict, shared with ``fit``) keeps the band's scratch arrays from band to band.
 
     Returns
     -------
@@ -642,7 +656,7 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
                 continue
             res = _fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
                                  None if below is None else below[sl], fit, s, k, low_weight,
-                                 halo=halo)
+                                 halo=halo, work=work)
             for o, r in zip((high, low, under), res):
                 o[sl] |= r
         return high, low, under
@@ -652,6 +666,7 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
         bands = [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
     else:
         bands = _bands(rows, cols)
+    work = {} if work is None else work
     for b in bands:
         if halo:
             r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
@@ -659,11 +674,16 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
         else:
             src, out = b, slice(None)
         kb = keep[src]
-        zb = z[src].astype(np.float64)
+        zb, wb = _scratch(work, "band", 2, kb.shape)
+        np.copyto(zb, z[src])
         np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
-        wb = _weights(kb, None if below is None else below[src], low_weight)
+        np.copyto(wb, kb)                        # the fit weights
+        if below is not None:
+            np.copyto(wb, low_weight, where=below[src] & kb)
         zhat, hh = fit(zb, wb, out)
-        high[b], low[b], under[b] = _snoop(zb[out], zhat, hh, test[b], s, k, low_weight)
+        zo, tb, hb, lb, ub = zb[out], test[b], high[b], low[b], under[b]
+        for sb in _bands(*zo.shape):            # in cache-sized pieces
+            hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
     return high, low, under
 
 
@@ -1098,15 +1118,6 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
 
 
 # ------------------------------------------------------------------- step 5
-def _weights(keep, below, low_weight):
-    """Fit weights: 1 for the points kept, ``low_weight`` for those below the reference,
-    0 for the others."""
-    w = keep.astype(np.float64)
-    if below is not None:
-        w[below & keep] = low_weight
-    return w
-
-
 def _finite64(z):
     """``z`` as float64 with 0 in place of NaN (the fits need finite heights everywhere;
     the cells concerned have weight 0 and are never tested)."""
@@ -1214,14 +1225,15 @@ def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
     below = None
+    work = {}                                   # scratch arrays reused by every band
 
     def fit(zz, ww, out):
-        return _fit_box_2d(zz, ww, sizes, degree, out) if degree <= 1 else \
+        return _fit_box_2d(zz, ww, sizes, degree, out, work) if degree <= 1 else \
             tuple(a[out] for a in _fit_at_centre(zz, ww, sizes, degree))
 
     for _ in range(iterations):
         hi, lo, below = _fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
-                                       halo=sizes[0] // 2, labels=labels)
+                                       halo=sizes[0] // 2, labels=labels, work=work)
         high |= hi
         low |= lo
         cur &= ~(hi | lo)
