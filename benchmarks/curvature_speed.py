@@ -3,9 +3,11 @@
 Prints the Mcells/s of :func:`core.curvature.filter_curvature` (one pass, the
 filter itself: curvature, breaks, profile scans, final pass with its ground surface) and of
 :func:`core.curvature.compute_curvature` alone, on a rolling terrain with noise and a
-few hundred box buildings. Default ~16 Mcells (4096 x 4096)::
+few hundred box buildings (``--scene rolling``, the default) or on the synthetic city DSM
+of ``benchmarks/speed.py`` (``--scene city``: ``core.synthetic.make_dsm``, about a fifth
+of it objects). Default ~16 Mcells (4096 x 4096)::
 
-    /usr/bin/python3 benchmarks/curvature_speed.py [--side 4096] [--repeat 1]
+    /usr/bin/python3 benchmarks/curvature_speed.py [--side 4096] [--repeat 1] [--scene city]
 
 Not a test: figures depend on the machine and its load.
 """
@@ -44,8 +46,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--side", type=int, default=4096, help="raster side in cells")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs (best is printed)")
+    ap.add_argument("--scene", choices=("rolling", "city"), default="rolling",
+                    help="rolling terrain with boxes, or the city DSM of benchmarks/speed.py")
     a = ap.parse_args(argv)
-    z = scene(a.side)
+    if a.scene == "city":
+        from bare_earth.core.synthetic import make_dsm
+        z = np.asarray(make_dsm(a.side * a.side, seed=0).dsm, np.float32)
+    else:
+        z = scene(a.side)
     cells = z.size / 1e6
     t0 = time.perf_counter()
     params = resolve_curvature_params(z, 1.0)
@@ -58,7 +66,7 @@ def main(argv=None):
             res = call()
             w, c = time.perf_counter() - w0, time.process_time() - c0
             best[name] = [min(best[name][0], w), min(best[name][1], c)]
-    print(f"raster {a.side} x {a.side} = {cells:.1f} Mcells (one thread)")
+    print(f"{a.scene} raster {z.shape[0]} x {z.shape[1]} = {cells:.1f} Mcells (one thread)")
     print(f"resolve (defaults from a <= 1 Mcell sample): {t_res:.2f} s")
     for name, (w, c) in best.items():
         print(f"{name:18s} wall {w:6.2f} s = {cells / w:5.1f} Mcells/s | "
