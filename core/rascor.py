@@ -297,7 +297,7 @@ def _solve_first_general(M, Z, n_unknowns):
 #: and 4 (few passes per band) take bands 4 and 16 times larger.
 _BAND_CELLS = 1 << 15
 #: Cells per band (halo included) of the window fits run in bands of rows with a halo.
-_HALO_BAND_CELLS = 1 << 21
+_HALO_BAND_CELLS = 1 << 20
 
 
 def _bands(rows, cols, cells=None):
