@@ -711,7 +711,9 @@ def _tile_low(z, n):
     full = cnt == n * n
     if n * n >= 256 and full.any():
         k0 = int(kth[np.argmax(full)])
-        low[full] = np.partition(t[full] if not full.all() else t, k0, axis=1)[:, k0]
+        tf = t if full.all() else t[full]
+        tf.partition(k0, axis=1)                 # in place: t is a copy of z
+        low[full] = tf[:, k0]
         rest = np.flatnonzero(~full)
         if rest.size:
             srt = np.sort(t[rest], axis=1)
@@ -1590,9 +1592,10 @@ def resolve_rascor_params(z, cell_size, **params):
         p["sigma_m"] = round(ch["sigma_m"], 3)
     sigma = float(p["sigma_m"])
     if tc == "flat" and (p["height_min_m"] is None or p["height_max_m"] is None):
-        v = z[np.isfinite(z)]
-        if v.size > 2_000_000:
+        v = z.ravel()
+        if v.size > 2_000_000:                   # a regular sample of about 1 M cells
             v = v[:: v.size // 1_000_000]
+        v = v[np.isfinite(v)]
         q1, q3 = np.percentile(v, [25, 75])
         iqr = max(q3 - q1, 10 * sigma)
         lv = low_env[np.isfinite(low_env)]
