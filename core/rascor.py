@@ -634,11 +634,10 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
 
     ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
     (``z`` finite, ``w`` the weights: 1 where ``keep``, ``low_weight`` where also
-    ``below``, else 0),
-    evaluated on the rows ``out_rows``. It runs on bands of whole rows (profile fits
-    along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above and below
-    (window fits of at most ``2 halo + 1`` rows): the same result as one fit of the whole
-    arrays, without any full-size float temporary. With break-line ``labels`` each region
+    ``below``, else 0), evaluated on the rows ``out_rows``. It runs on bands of whole rows
+    (profile fits along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above
+    and below (window fits of at most ``2 halo + 1`` rows): the same result as one fit of
+    the whole arrays, without any full-size float temporary. With break-line ``labels`` each region
     runs alone on its bounding box, the other cells having weight 0 and no test. ``work``
     (a dict, shared with ``fit``) keeps the band's scratch arrays from band to band.
 
