@@ -1214,15 +1214,18 @@ def derive_k_g(z, cell_size, *, window=5, model="quadratic"):
     missed breaks cost whole objects.)
     """
     dx, dy = as_cell_size(cell_size)
+    window = _check_window(window)
+    model = _check_model(model)
     zs = _sample(as_surface(z))
-    p, q, r, s, t = local_derivatives(zs, (dx, dy), window=window, model=model)
-    if model == "quadratic":
-        v = np.concatenate([r.ravel(), t.ravel()])
-    else:
-        v = (s / (1.0 + p * p + q * q)).ravel()
-    v = v.astype(np.float32)
-    sigma = _smooth_spread(v.reshape((-1,) + zs.shape) if model == "quadratic" else
-                           v.reshape((1,) + zs.shape))
+    quad = model == "quadratic"
+    v = np.empty((2 if quad else 1,) + zs.shape, np.float32)  # the bands of bends
+    for sl, p, q, r, s, t in _derivative_blocks(zs, (dx, dy), window, model):
+        if quad:
+            v[0, sl] = r
+            v[1, sl] = t
+        else:
+            np.divide(s, 1.0 + p * p + q * q, out=v[0, sl])
+    sigma = _smooth_spread(v)
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
