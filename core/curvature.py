@@ -651,12 +651,21 @@ def _enclosed_regions(flag, free, max_cells):
         else:                                 # many: renumbered 1..k first
             renum = np.zeros(n + 1, np.int32)
             renum[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
-            boxes = ndimage.find_objects(renum.take(lab), max_label=ids.size)
+            boxes = ndimage.find_objects(_lookup(renum, lab, step), max_label=ids.size)
         ext = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
         cand[ids[ext > max_cells]] = False
     if not cand.any():
         return np.zeros(flag.shape, bool)
-    return cand.take(lab)
+    return _lookup(cand, lab, step)
+
+
+def _lookup(table, lab, step):
+    """``table[lab]`` by blocks of ``step`` rows (a gather casts its indices to intp: a
+    raster-sized int64 copy at once otherwise)."""
+    out = np.empty(lab.shape, table.dtype)
+    for i in range(0, lab.shape[0], step):
+        table.take(lab[i:i + step], out=out[i:i + step])
+    return out
 
 
 def _pits(z, cand, ring, depth):
