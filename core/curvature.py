@@ -699,11 +699,18 @@ def _pits(z, cand, ring, depth):
 def _transpose(a, rows=256):
     """Contiguous transpose of a 2-D array, a band of ``rows`` rows at a time (about 2x
     faster than numpy's copy of a transposed view, which walks the source with a large
-    stride; each band's transposed copy stays in the cache)."""
+    stride; each band's transposed copy stays in the cache). Each band is first copied
+    into a buffer whose rows are a little longer than the array's: the transposed read
+    then does not step by a power of two, which on power-of-two widths (4096) maps every
+    row to the same cache set."""
     r, c = a.shape
     out = np.empty((c, r), a.dtype)
+    buf = np.empty((min(rows, r), c + 16), a.dtype)
     for i in range(0, r, rows):
-        out[:, i:i + rows] = a[i:i + rows].T
+        n = min(rows, r - i)
+        band = buf[:n, :c]
+        band[...] = a[i:i + n]
+        out[:, i:i + n] = band.T
     return out
 
 
