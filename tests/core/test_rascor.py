@@ -427,7 +427,8 @@ def _explicit_fit(z, w, sizes, degree, kernels=None):
                     rr, cc = r + dy, c + dx
                     if (dy, dx) == (0, 0) or not (0 <= rr < z.shape[0] and 0 <= cc < z.shape[1]):
                         continue
-                    wk = w[rr, cc] * (1.0 if kernels is None else kernels[0][dy + hy] * kernels[1][dx + hx])
+                    wk = w[rr, cc] * (1.0 if kernels is None
+                                      else kernels[0][dy + hy] * kernels[1][dx + hx])
                     if wk > 0:
                         A.append([dx ** a * dy ** b for a, b in mons])
                         zz.append(z[rr, cc])
@@ -543,8 +544,8 @@ def test_fit_and_snoop_equals_whole_fit_then_snoop():
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("shape, n", [((30, 10), 10), ((10, 30), 10), ((50, 50), 25), ((41, 38), 25),
-                                      ((9, 11), 3)])
+@pytest.mark.parametrize("shape, n", [((30, 10), 10), ((10, 30), 10), ((50, 50), 25),
+                                      ((41, 38), 25), ((9, 11), 3)])
 def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n):
     rng = np.random.default_rng(n)
     z = rng.normal(100, 5, shape).astype(np.float32)
