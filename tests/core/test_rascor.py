@@ -480,6 +480,19 @@ def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
     np.testing.assert_allclose(got[1][both], ref[1][both], rtol=1e-8)
 
 
+def test_weighted_window_fit_equals_explicit_leave_one_out_fit():
+    # step 7: Gaussian window weights (the general path), run in bands with a halo
+    z, w = _random_surface((15, 18), 9)
+    g = (R._gauss(2.0), R._gauss(3.0))
+    sizes = (len(g[0]), len(g[1]))
+    got = R._fit_at_centre(z, w, sizes, 1, kernels=g)
+    ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, 1, kernels=g)
+    both = np.isfinite(ref[0])
+    assert both.sum() > 150
+    np.testing.assert_allclose(got[0][both], ref[0][both], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got[1][both], ref[1][both], rtol=1e-8)
+
+
 def test_banded_kernels_do_not_depend_on_the_bands(monkeypatch):
     z, w = _random_surface((40, 50), 5)
     one = [R._fit_at_centre(z, w, 9, 1), R._fit_at_centre(z, w, (7, 9), 1)]
