@@ -239,8 +239,9 @@ def _solve_first_general(M, Z, n_unknowns):
     """First unknown and ``(N^-1)_00`` of stacked symmetric positive systems.
 
     Vectorised Cholesky factorisation over all cells at once (arrays of cells, a loop over
-    the few matrix elements), on the system scaled to a unit diagonal; a pivot below
-    1e-9 marks a system the window's points do not determine (NaN).
+    the few matrix elements; in chunks of cells, so the many temporaries stay in the
+    cache), on the system scaled to a unit diagonal; a pivot below 1e-9 marks a system the
+    window's points do not determine (NaN).
     """
     shape = M[0][0].shape
     beta = np.full(shape, np.nan)
@@ -249,46 +250,48 @@ def _solve_first_general(M, Z, n_unknowns):
         ok = np.isfinite(M[0][0]) & (M[0][0] > 0)
         for i in range(n_unknowns):
             ok &= M[i][i] > 0
-        idx = np.flatnonzero(ok)
-        if not idx.size:
-            return beta, hh
+        cells = np.flatnonzero(ok)
         u = n_unknowns
-        d = [np.sqrt(M[i][i].ravel()[idx]) for i in range(u)]
-        A = [[M[i][j].ravel()[idx] / (d[i] * d[j]) for j in range(u)] for i in range(u)]
-        r = [Z[i].ravel()[idx] / d[i] for i in range(u)]
-        L = [[None] * u for _ in range(u)]
-        good = np.ones(idx.size, bool)
-        for j in range(u):
-            s = A[j][j].copy()
-            for k in range(j):
-                s -= L[j][k] * L[j][k]
-            good &= s > 1e-9
-            L[j][j] = np.sqrt(np.where(s > 1e-9, s, 1.0))
-            for i in range(j + 1, u):
-                t = A[i][j].copy()
+        Mf = [[M[i][j].ravel() for j in range(u)] for i in range(u)]
+        Zf = [Z[i].ravel() for i in range(u)]
+        for c0 in range(0, cells.size, _BAND_CELLS):
+            idx = cells[c0:c0 + _BAND_CELLS]
+            d = [np.sqrt(Mf[i][i][idx]) for i in range(u)]
+            A = [[Mf[i][j][idx] / (d[i] * d[j]) for j in range(u)] for i in range(u)]
+            r = [Zf[i][idx] / d[i] for i in range(u)]
+            L = [[None] * u for _ in range(u)]
+            good = np.ones(idx.size, bool)
+            for j in range(u):
+                s = A[j][j]
                 for k in range(j):
-                    t -= L[i][k] * L[j][k]
-                L[i][j] = t / L[j][j]
-        # forward substitution for the right-hand side and for e0
-        y = [None] * u
-        e = [None] * u
-        for i in range(u):
-            t = r[i].copy()
-            q = np.full(idx.size, 1.0) if i == 0 else np.zeros(idx.size)
-            for k in range(i):
-                t -= L[i][k] * y[k]
-                q -= L[i][k] * e[k]
-            y[i] = t / L[i][i]
-            e[i] = q / L[i][i]
-        b = [None] * u
-        for i in range(u - 1, -1, -1):
-            t = y[i].copy()
-            for k in range(i + 1, u):
-                t -= L[k][i] * b[k]
-            b[i] = t / L[i][i]
-        h0 = sum(ek * ek for ek in e)
-    beta.ravel()[idx[good]] = (b[0] / d[0])[good]
-    hh.ravel()[idx[good]] = (h0 / (d[0] * d[0]))[good]
+                    s -= L[j][k] * L[j][k]
+                good &= s > 1e-9
+                L[j][j] = np.sqrt(np.where(s > 1e-9, s, 1.0))
+                for i in range(j + 1, u):
+                    t = A[i][j]
+                    for k in range(j):
+                        t -= L[i][k] * L[j][k]
+                    L[i][j] = t / L[j][j]
+            # forward substitution for the right-hand side and for e0
+            y = [None] * u
+            e = [None] * u
+            for i in range(u):
+                t = r[i]
+                q = np.full(idx.size, 1.0) if i == 0 else np.zeros(idx.size)
+                for k in range(i):
+                    t -= L[i][k] * y[k]
+                    q -= L[i][k] * e[k]
+                y[i] = t / L[i][i]
+                e[i] = q / L[i][i]
+            b = [None] * u
+            for i in range(u - 1, -1, -1):
+                t = y[i]
+                for k in range(i + 1, u):
+                    t -= L[k][i] * b[k]
+                b[i] = t / L[i][i]
+            h0 = sum(ek * ek for ek in e)
+            beta.ravel()[idx[good]] = (b[0] / d[0])[good]
+            hh.ravel()[idx[good]] = (h0 / (d[0] * d[0]))[good]
     return beta, hh
 
 
