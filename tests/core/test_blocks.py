@@ -101,3 +101,17 @@ def test_workers_zero_means_one_per_core(monkeypatch):
     assert blocks.resolve_workers(2) == 2
     monkeypatch.setattr(blocks.os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
     assert blocks.default_workers() == blocks.MAX_AUTO_WORKERS
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (0, 5), (3, 700), (700, 3), (300, 512), (513, 256)])
+@pytest.mark.parametrize("dtype", [np.float32, bool, np.uint8])
+def test_banded_transpose_exact(shape, dtype):
+    from bare_earth.core.common import transpose
+    a = (np.arange(int(np.prod(shape))).reshape(shape) % 7 > 2).astype(dtype)
+    t = transpose(a, rows=64)
+    assert t.flags.c_contiguous and t.dtype == a.dtype and t.shape == shape[::-1]
+    np.testing.assert_array_equal(t, a.T)
+    # a strided view (as the scan's results) transposes the same
+    b = np.zeros((shape[0], 2 * shape[1]), dtype)[:, ::2]
+    b[...] = a
+    np.testing.assert_array_equal(transpose(b, rows=64), a.T)
