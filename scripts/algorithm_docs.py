@@ -44,7 +44,7 @@ def render():
             d = "from the data" if p.default is None else f"`{p.default}`"
             adv = " (advanced)" if p.advanced else ""
             out.append(f"| `{p.name.upper()}` | {d} | {p.help}{adv} |")
-        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 1, 1 | block edge in cells (0 automatic), threads and worker processes running blocks (advanced) |")
+        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 0, 1 | block edge in cells (0 automatic), threads (0: one per core) and worker processes running blocks (advanced) |")
         out.append("| `OUTPUT_DTM`, `OUTPUT_MASK` | | Float32 DTM, UInt8 mask (" +
                    ", ".join(f"{k} {v}" for k, v in MASK_CODES.items()) + ") |")
         out.append("| `OUTPUT_NDSM` | optional | DSM minus DTM |")
