@@ -275,11 +275,18 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
             head = a[-init_cells:] if rev else a[:init_cells]
             g[o0:o1] = np.nanmin(head, axis=0)
     g[np.isnan(g)] = np.inf     # no ground in the start window: the first valid cell is accepted
-    d = np.ones(nprof, np.intp)                       # cells since the reference point
-    steps = np.arange(0, npos + 2, dtype=np.float64)
-    # d grows by at most one per step from 1, so it never passes npos + 1: no clipping
-    table = (dh0 + step_m * tan_g * np.minimum(steps, edge_cells)
-             + step_m * tan_t * np.maximum(steps - edge_cells, 0)).astype(np.float32)
+    # The tolerance is piecewise linear in k = d - 1, the valid cells rejected since the
+    # reference point: line 1, dh0 + step tan_g (k + 1), up to the edge run, then line 2,
+    # dh0 + step (tan_g e + tan_t (k + 1 - e)). The lower of the two when tan_g >= tan_t
+    # (the higher otherwise); line 2 alone when the edge run is one cell. k is a float32
+    # count (exact), so the tolerance costs two operations per step, no table lookup.
+    e = int(edge_cells)
+    a2 = np.float32(dh0 + step_m * (tan_g * e + tan_t * (1 - e)))
+    b2 = np.float32(step_m * tan_t)
+    two_lines = e > 1 and tan_g != tan_t
+    a1, b1 = np.float32(dh0 + step_m * tan_g), np.float32(step_m * tan_g)
+    pick = np.minimum if tan_g >= tan_t else np.maximum
+    k = np.zeros(nprof, np.float32)
     # Rejections, step by step: one buffer per array scanned (its forward and backward
     # sources side by side, as many rows as the array), one row written per step.
     groups = []                                  # [array id, rows, first, last column in v]
@@ -293,6 +300,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     thr = np.empty(nprof, np.float32)
+    thr[:] = pick(a1, a2) if two_lines else a2           # k = 0
+    thr1 = np.empty(nprof, np.float32) if two_lines else None
     up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
     # per source: its array, direction, slice of the step buffer, and length
@@ -310,12 +319,17 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
                 elif i == n:
                     vv[...] = np.nan                   # a shorter profile set has ended
         np.subtract(v, g, out=dz)
-        np.take(table, d, out=thr)
         np.greater(dz, thr, out=up)                    # rejected (NaN compares False)
         np.less_equal(dz, thr, out=ok)                 # accepted: valid and not rejected
-        d += up                                        # a nodata cell does not count: a gap does
-        np.copyto(d, 1, where=ok)                      # not let the reference drift up a roof
+        k += up                                        # a nodata cell does not count: a gap does
+        np.copyto(k, 0.0, where=ok)                    # not let the reference drift up a roof
         np.copyto(g, v, where=ok)
+        np.multiply(k, b2, out=thr)                    # the next step's tolerance
+        thr += a2
+        if two_lines:
+            np.multiply(k, b1, out=thr1)
+            thr1 += a1
+            pick(thr, thr1, out=thr)
         for buf, n, o0, o1 in writes:
             if i < n:
                 buf[i] = up[o0:o1]
