@@ -77,6 +77,9 @@ sys.path.insert(0, {plugins!r})
 from bare_earth.core import pipeline
 from osgeo import gdal
 import numpy, scipy.ndimage
+if {method!r} != "io":  # the plugin has its methods imported before a run starts
+    from bare_earth.core.methods import get_method
+    get_method({method!r})
 
 def status_kb(key):
     # VmHWM is this process image's peak RSS (ru_maxrss would carry the parent's over exec)
