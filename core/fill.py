@@ -85,7 +85,8 @@ def fill_gaps(z, fill=None, *, progress=None):
     ndarray of float32
         Same shape as ``z``: the known cells equal ``z`` (as float32) exactly, the cells
         of ``fill`` hold the interpolated surface (always finite), the other non-finite
-        cells are NaN.
+        cells are NaN. It may be a view into a working array one cell larger on every
+        side (not C-contiguous).
 
     Raises
     ------
@@ -118,13 +119,12 @@ def fill_gaps(z, fill=None, *, progress=None):
         raise ValueError(f"z is empty (shape {z.shape}); pass a raster with cells.")
     if not (np.issubdtype(z.dtype, np.number) or z.dtype == bool):
         raise ValueError(f"z must be numeric; got dtype {z.dtype}.")
-    zf = np.array(z, dtype=np.float32)  # always a copy: z is never modified
-    finite = np.isfinite(zf)
+    finite = np.isfinite(z)
     fill_given = fill is not None
     if fill_given:
         fill = np.asarray(fill)
-        if fill.shape != zf.shape:
-            raise ValueError(f"fill must have the shape of z {zf.shape}; got {fill.shape}. "
+        if fill.shape != z.shape:
+            raise ValueError(f"fill must have the shape of z {z.shape}; got {fill.shape}. "
                              "Pass a boolean mask of the cells to fill, one per cell of z.")
         fill = fill.astype(bool, copy=False)
     unknown = ~finite if fill is None else fill | ~finite
@@ -136,17 +136,23 @@ def fill_gaps(z, fill=None, *, progress=None):
     if fill is None:
         fill = unknown  # every non-finite cell
     if not fill.any():
+        zf = np.array(z, dtype=np.float32)  # a copy: z is never modified
         zf[~finite] = np.nan
         report(progress, 1.0)
         return zf
 
     # Work relative to a reference height: keeps float32 sums precise for large heights.
-    sample = zf[::16, ::16][known[::16, ::16]]
-    z0 = np.float32(np.median(sample) if sample.size else zf[known][0])
-    h, w = zf.shape
-    work = np.zeros((h + 2, w + 2), dtype=np.float32)  # level 0, with a padding ring
+    sample = np.asarray(z[::16, ::16], np.float32)[known[::16, ::16]]
+    z0 = np.float32(np.median(sample) if sample.size else np.float32(z[known][0]))
+    h, w = z.shape
+    # Level 0 with a padding ring; its core becomes the result (no separate copy of z).
+    work = np.zeros((h + 2, w + 2), dtype=np.float32)
     val0 = work[1:-1, 1:-1]
-    np.subtract(zf, z0, out=val0)
+    if z.dtype == np.float32:
+        np.subtract(z, z0, out=val0)
+    else:
+        val0[...] = z                                # as float32 first, as the result keeps it
+        val0 -= z0
     np.copyto(val0, 0.0, where=unknown)              # 0 at the unknown cells (faster than
                                                      # a ufunc's where=)
     nodata_kept = (unknown & ~fill) if fill_given else None  # nodata outside `fill`
@@ -178,12 +184,15 @@ def fill_gaps(z, fill=None, *, progress=None):
         done += 1
         report(progress, done / n_levels)
 
-    # Known cells keep their exact input values; the others get z0 + solution.
-    u += z0                                          # u is the working array: free to change
-    np.copyto(zf, u, where=unknown)
+    # Known cells keep their exact input values (as float32); the others get z0 + solution.
+    out = work[1:-1, 1:-1]
+    if not np.shares_memory(u, work):                # a single level: solved directly
+        out[...] = u
+    out += z0
+    np.copyto(out, z, where=known, casting="unsafe")
     if keep_nan:
-        zf[nodata_kept] = np.nan
-    return zf
+        np.copyto(out, np.float32(np.nan), where=nodata_kept)
+    return out
 
 
 def _near_known(known, reach):
