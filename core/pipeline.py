@@ -456,15 +456,15 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
     """Write one block's core (already cropped arrays) into every requested output."""
     if "mask" in out:
         out.write("mask", m, core)
+    if "ndsm" in out:   # before the DTM, which may be converted in place
+        out.write("ndsm", _to_unit(zc - d, scale, float_nodata, copy=False), core)
     if "dtm" in out:
-        dtm = _to_unit(d, scale, float_nodata)
+        dtm = _to_unit(d, scale, float_nodata, copy=False)   # this block's DTM is ours
         if scale != 1.0:  # ground cells get the input's own values, not a float32 round trip via metres
             raw = out.info.dataset().GetRasterBand(out.info.band_index).ReadAsArray(core[2], core[0], w, h)
             g = m == GROUND
             dtm[g] = raw[g]
         out.write("dtm", dtm, core)
-    if "ndsm" in out:
-        out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
     for name, (dt, bands, nod) in meth.extras.items():
         if name not in out:
             continue
@@ -475,10 +475,12 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
             out.write(name, np.full(shape, nod if nod is not None else 0, dtype=dt), core)
 
 
-def _to_unit(a, scale, nodata):
-    a = a.astype(np.float32, copy=True)
+def _to_unit(a, scale, nodata, copy=True):
+    """``a`` as float32 in the input's height unit with its nodata (in place unless ``copy``
+    or ``a`` is not float32)."""
+    a = a.astype(np.float32, copy=copy)
     if scale != 1.0:
         a *= np.float32(scale)
     if not math.isnan(nodata):
-        a[~np.isfinite(a)] = nodata
+        np.copyto(a, np.float32(nodata), where=~np.isfinite(a))
     return a
