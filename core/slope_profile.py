@@ -70,17 +70,22 @@ def profile_slopes(z, cell_size):
 
 
 def _block_min(z, k):
-    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN)."""
+    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN).
+
+    Band by band of ``k`` rows: the minimum down the band's columns (contiguous rows,
+    cached), then over each run of ``k`` columns; ``fmin`` ignores NaN without copies.
+    """
     rows, cols = z.shape
     R, C = -(-rows // k), -(-cols // k)
-    if rows % k or cols % k:
-        pad = np.full((R * k, C * k), np.nan, np.float32)
-        pad[:rows, :cols] = z
-    else:
-        pad = z
-    # fmin ignores NaN without the copies of nanmin; along rows first (contiguous)
-    m = np.fmin.reduce(pad.reshape(R * k, C, k), axis=2)
-    return np.fmin.reduce(m.reshape(R, k, C), axis=1)
+    out = np.empty((R, C), np.float32)
+    pad = np.full(C * k, np.nan, np.float32) if cols % k else None
+    for i in range(R):
+        band = np.fmin.reduce(z[i * k:(i + 1) * k], axis=0)
+        if pad is not None:
+            pad[:cols] = band
+            band = pad
+        out[i] = np.fmin.reduce(band.reshape(C, k), axis=1)
+    return out
 
 
 def estimate_terrain_slope(z, cell_size, scale_m=20.0):

@@ -149,3 +149,20 @@ def test_embankment_along_a_profile_kept_building_removed():
     r = sp.filter_slope_profile(z, 1.0, **PARAMS)
     assert (r.mask[31:39, 20:100] == GROUND).mean() > 0.95  # X profiles run along it
     assert (r.mask[60:72, 50:62] == OBJECT).all()
+
+
+@pytest.mark.parametrize("shape,k", [((7, 5), 2), ((40, 41), 20), ((20, 20), 20), ((3, 9), 4)])
+def test_block_min_exact(shape, k):
+    from bare_earth.core.slope_profile import _block_min
+    rng = np.random.default_rng(1)
+    z = rng.random(shape).astype(np.float32)
+    z[rng.random(shape) < 0.3] = np.nan
+    z[:k, :k] = np.nan                                   # an all-nodata block
+    R, C = -(-shape[0] // k), -(-shape[1] // k)
+    expect = np.full((R, C), np.nan, np.float32)
+    for i in range(R):
+        for j in range(C):
+            b = z[i * k:(i + 1) * k, j * k:(j + 1) * k]
+            if np.isfinite(b).any():
+                expect[i, j] = np.nanmin(b)
+    np.testing.assert_array_equal(_block_min(z, k), expect)
