@@ -228,9 +228,9 @@ def find_low_blunders(z, tolerance_m):
     hi = np.float32(np.nanmax(z)) if valid.any() else np.float32(0.0)
     # candidates: cells a 3 x 3 closing raises by more than the tolerance, in strips of
     # rows (the closing reaches 2 rows), so memory stays a few strips whatever the raster
-    cand = np.zeros(z.shape, bool)
-    rows = z.shape[0]
-    strip = 128  # rows: the closing's buffers stay in the cache
+    rows, cols = z.shape
+    strip = 64  # rows: the closing's buffers stay in the cache
+    found = []
     for r0 in range(0, rows, strip):
         r1 = min(rows, r0 + strip)
         a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
@@ -239,10 +239,15 @@ def find_low_blunders(z, tolerance_m):
         dil = _extreme3(zz, np.maximum, tmp=tmp)
         closed = _extreme3(dil, np.minimum, out=tmp, tmp=dil.copy())
         closed -= zz
-        cand[r0:r1] = (closed[r0 - a0:r0 - a0 + (r1 - r0)] > tolerance_m) & valid[r0:r1]
-    r, c = np.nonzero(cand)
-    if r.size == 0:
-        return cand
+        cb = closed[r0 - a0:r0 - a0 + (r1 - r0)] > tolerance_m
+        cb &= valid[r0:r1]
+        q = np.flatnonzero(cb)                   # the band's candidates, while it is cached
+        if q.size:
+            found.append(q + r0 * cols)
+    low = np.zeros(z.shape, bool)
+    if not found:
+        return low
+    r, c = np.divmod(np.concatenate(found), cols)
     h = _LOW_WINDOW // 2
     off = np.arange(-h, h + 1)
     rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
@@ -250,7 +255,6 @@ def find_low_blunders(z, tolerance_m):
     neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
     neigh[np.isnan(neigh)] = np.inf                                            # nodata is no ground
     fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
-    low = np.zeros_like(cand)
     low[r, c] = z[r, c] < fifth - tolerance_m
     return low
 
