@@ -399,11 +399,14 @@ def _combine_axes(obj_x, obj_y, ok):
     both &= ok
     # counts over the labelled cells only (a bincount of the whole raster would cast
     # every cell's label to int64 first)
-    total = np.bincount(lab[union], minlength=n + 1)
+    lu = lab[union]
+    total = np.bincount(lu, minlength=n + 1)
     inboth = np.bincount(lab[both], minlength=n + 1)
     keep = inboth >= _MIN_BOTH_AXES_SHARE * total
     keep[0] = False
-    return keep[lab]
+    out = np.zeros(union.shape, bool)
+    out[union] = keep[lu]          # looked up for the labelled cells only
+    return out
 
 
 def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
