@@ -418,11 +418,8 @@ def test_real_las_in_feet_on_points(processing_run, shared_data, tmp_path):
 
 def test_model_with_another_filter(processing_run, cloud_files, tmp_path):
     """Any filter can be the middle step: the example's builder with slopeprofile, run by processing.run."""
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("build_model", ROOT / "examples" / "build_rasterize_filter_classify.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    model = mod.build("slopeprofile")
+    from bare_earth.algorithms.example_model import build
+    model = build("slopeprofile")
     ok, errors = model.validate()
     assert ok, errors
     path = tmp_path / "slope.model3"

@@ -1,7 +1,7 @@
-#!/usr/bin/env python3
-"""Build ``rasterize_filter_classify.model3``: points -> DSM -> filter -> classified points.
+"""Build ``examples/rasterize_filter_classify.model3``: points -> DSM -> filter -> classified points.
 
-A Processing model made with the Python API (QgsProcessingModelAlgorithm), not by hand:
+A Processing model made with the Python API (QgsProcessingModelAlgorithm), not by hand; it
+lives in the plugin's QGIS layer because it is QGIS code (the numeric core stays QGIS-free):
 
     rasterizepoints (lowest point per cell)  ->  <filter> (default: morphological)  ->  classifypoints
 
@@ -13,7 +13,8 @@ takes a DSM ``INPUT`` and gives ``OUTPUT_DTM`` / ``OUTPUT_MASK``.
 
 Usage (QGIS's Python, headless)::
 
-    QT_QPA_PLATFORM=offscreen /usr/bin/python3 examples/build_rasterize_filter_classify.py [--filter NAME] [OUT]
+    PYTHONPATH=.build/plugins QT_QPA_PLATFORM=offscreen /usr/bin/python3 \\
+        -m bare_earth.algorithms.example_model [--filter NAME] [OUT]
 
 Run the model::
 
@@ -27,7 +28,8 @@ import os
 import sys
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
+ROOT = Path(__file__).resolve().parent.parent   # the plugin folder
+EXAMPLES = ROOT / "examples"
 
 
 def build(filter_name="morphological"):
@@ -131,7 +133,7 @@ def build(filter_name="morphological"):
 
 def _init_qgis():
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
-    plugins = HERE.parent / ".build" / "plugins"
+    plugins = ROOT / ".build" / "plugins"
     for p in (str(plugins), "/usr/share/qgis/python/plugins"):
         if p not in sys.path:
             sys.path.insert(0, p)
@@ -148,7 +150,7 @@ def _init_qgis():
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("out", nargs="?", default=str(HERE / "rasterize_filter_classify.model3"))
+    ap.add_argument("out", nargs="?", default=str(EXAMPLES / "rasterize_filter_classify.model3"))
     ap.add_argument("--filter", default="morphological", help="the middle step (a bareearth filter name)")
     args = ap.parse_args(argv)
     app, plugin = _init_qgis()
