@@ -68,7 +68,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, report
+from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
 
 MODELS = ("quadratic", "bilinear")
@@ -582,7 +582,7 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     that no index array of the raster's size is held. ``z`` is NaN at nodata.
     """
     if axis == 1:
-        res = _transpose(_axis_objects(_transpose(z), _transpose(marked), None, cell, 0,
+        res = transpose(_axis_objects(transpose(z), transpose(marked), None, cell, 0,
                                        reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol,
                                        max_cells=max_cells))
         if valid is not None:
@@ -694,24 +694,6 @@ def _pits(z, cand, ring, depth):
             ok &= np.isfinite(v)             # nodata and cells outside: not on the ring
             np.minimum(low, np.where(ok, v, np.float32(np.inf)), out=low)
         return idx[zf.take(idx) < low - np.float32(depth)]
-
-
-def _transpose(a, rows=256):
-    """Contiguous transpose of a 2-D array, a band of ``rows`` rows at a time (about 2x
-    faster than numpy's copy of a transposed view, which walks the source with a large
-    stride; each band's transposed copy stays in the cache). Each band is first copied
-    into a buffer whose rows are a little longer than the array's: the transposed read
-    then does not step by a power of two, which on power-of-two widths (4096) maps every
-    row to the same cache set."""
-    r, c = a.shape
-    out = np.empty((c, r), a.dtype)
-    buf = np.empty((min(rows, r), c + 16), a.dtype)
-    for i in range(0, r, rows):
-        n = min(rows, r - i)
-        band = buf[:n, :c]
-        band[...] = a[i:i + n]
-        out[:, i:i + n] = band.T
-    return out
 
 
 def _dilate(mask, m):

@@ -489,12 +489,3 @@ def test_pits_exact():
     want[4, 5] = want[0, 10] = True
     np.testing.assert_array_equal(got, want)
     assert C._pits(z, cand, 2, 5.0).size == 0         # not 5 m below its ring
-
-
-@pytest.mark.parametrize("shape", [(1, 1), (3, 700), (700, 3), (300, 512)])
-@pytest.mark.parametrize("dtype", [np.float32, bool])
-def test_transpose_exact(shape, dtype):
-    a = (np.arange(np.prod(shape)).reshape(shape) % 7 > 2).astype(dtype)
-    t = C._transpose(a, rows=64)
-    assert t.flags.c_contiguous and t.dtype == a.dtype
-    np.testing.assert_array_equal(t, a.T)
