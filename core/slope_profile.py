@@ -298,14 +298,16 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     k = np.zeros(nprof, np.float32)
     # Rejections, step by step: one buffer per array scanned (its forward and backward
     # sources side by side, as many rows as the array), one row written per step.
-    groups = []                                  # [array id, rows, first, last column in v]
+    groups = []                                  # [array, first, last column in v]
+    member = []                                  # per source: its group
     for (a, _), o0, o1 in zip(sources, offs[:-1], offs[1:]):
-        if groups and groups[-1][0] == id(a) and groups[-1][3] == o0:
-            groups[-1][3] = o1
+        if groups and groups[-1][0] is a and groups[-1][2] == o0:
+            groups[-1][2] = o1
         else:
-            groups.append([id(a), a.shape[0], o0, o1])
-    bufs = [np.empty((n, o1 - o0), bool) for _, n, o0, o1 in groups]
-    writes = [(buf, n, o0, o1) for buf, (_, n, o0, o1) in zip(bufs, groups)]
+            groups.append([a, o0, o1])
+        member.append(len(groups) - 1)
+    bufs = [np.empty((a.shape[0], o1 - o0), bool) for a, o0, o1 in groups]
+    writes = [(buf, a.shape[0], o0, o1) for buf, (a, o0, o1) in zip(bufs, groups)]
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     thr = np.empty(nprof, np.float32)
@@ -343,9 +345,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
             if i < n:
                 buf[i] = up[o0:o1]
     out = []
-    for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
-        k = next(j for j, (_, _, g0, g1) in enumerate(groups) if g0 <= o0 and o1 <= g1)
-        r = bufs[k][:, o0 - groups[k][2]:o1 - groups[k][2]]
+    for (_, rev), o0, o1, k in zip(sources, offs[:-1], offs[1:], member):
+        r = bufs[k][:, o0 - groups[k][1]:o1 - groups[k][1]]
         out.append(r[::-1] if rev else r)                # views: row order of the source
     return out
 
