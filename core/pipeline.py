@@ -85,12 +85,11 @@ def fill_dtm(z, mask):
     """
     from .fill import fill_gaps
     holes = np.asarray(mask, np.uint8) - np.uint8(OBJECT) <= np.uint8(LOW - OBJECT)  # 1 or 2
-    if not holes.any():
-        if not np.isfinite(z).any():
-            return None
-        return z.astype(np.float32, copy=True)
-    if not (np.isfinite(z) & ~holes).any():
+    ground = np.isfinite(z) & ~holes
+    if not ground.any():
         return None
+    if not holes.any():
+        return z.astype(np.float32, copy=True)
     return fill_gaps(z, fill=holes)
 
 
@@ -266,8 +265,8 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
     workers : int
         Threads running blocks (numpy, scipy and GDAL release the GIL for the heavy work;
-        no start-up cost); 0: one per core (:func:`blocks.default_workers`). With more than one and no ``block``, the raster is cut into strips
-        of rows as for ``processes``.
+        no start-up cost); 0: one per core (:func:`blocks.default_workers`). With more than
+        one and no ``block``, the raster is cut into strips of rows as for ``processes``.
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
         With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
@@ -457,9 +456,9 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
     if "mask" in out:
         out.write("mask", m, core)
     if "ndsm" in out:   # before the DTM, which may be converted in place
-        out.write("ndsm", _to_unit(zc - d, scale, float_nodata, copy=False), core)
+        out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
     if "dtm" in out:
-        dtm = _to_unit(d, scale, float_nodata, copy=False)   # this block's DTM is ours
+        dtm = _to_unit(d, scale, float_nodata)   # this block's DTM is ours: converted in place
         if scale != 1.0:  # ground cells get the input's own values, not a float32 round trip via metres
             raw = out.info.dataset().GetRasterBand(out.info.band_index).ReadAsArray(core[2], core[0], w, h)
             g = m == GROUND
@@ -475,10 +474,10 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
             out.write(name, np.full(shape, nod if nod is not None else 0, dtype=dt), core)
 
 
-def _to_unit(a, scale, nodata, copy=True):
-    """``a`` as float32 in the input's height unit with its nodata (in place unless ``copy``
-    or ``a`` is not float32)."""
-    a = a.astype(np.float32, copy=copy)
+def _to_unit(a, scale, nodata):
+    """``a`` (owned by the caller, changed in place when float32) as float32 in the input's
+    height unit, with its nodata."""
+    a = a.astype(np.float32, copy=False)
     if scale != 1.0:
         a *= np.float32(scale)
     if not math.isnan(nodata):
