@@ -81,6 +81,7 @@ from scipy import ndimage
 
 from .codes import LOW, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
+from .estimate import block_minima, noise_second_difference_quartile
 from .methods import Method, Param
 
 #: ``extras["step"]`` code of a cell removed by scan labelling.
@@ -614,21 +615,7 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
 
 
 # ------------------------------------------------------------------------------ filter
-def _noise_sigma(z, valid):
-    """Robust noise of the surface: MAD of second differences along rows and columns."""
-    st = max(1, int(np.sqrt(z.size / 1e6)))
-    zs = z[::st, ::st]
-    d = np.concatenate([(zs[:, 2:] - 2 * zs[:, 1:-1] + zs[:, :-2]).ravel(),
-                        (zs[2:] - 2 * zs[1:-1] + zs[:-2]).ravel()])
-    d = d[np.isfinite(d)]
-    if d.size < 10:
-        return 0.1
-    # 25th percentile of |d| (0.3186 sigma_d for a normal law): edges and objects, which
-    # fill the upper tail, barely move it
-    return float(np.percentile(np.abs(d - np.median(d)), 25) / 0.3186 / np.sqrt(6.0))
-
-
-def _terrain_slope_deg(z, valid, dx, dy, max_size_m):
+def _terrain_slope_deg(z, dx, dy, max_size_m):
     """Robust steep-terrain slope: 90th percentile slope of the largest-window opening,
     computed on a grid coarsened to about 4 m (or the cell) so objects are gone."""
     f = max(1, int(round(4.0 / max(dx, dy))))
@@ -636,7 +623,7 @@ def _terrain_slope_deg(z, valid, dx, dy, max_size_m):
     Hc, Wc = H // f, W // f
     if Hc < 3 or Wc < 3:
         f, Hc, Wc = 1, H, W
-    zc = np.where(valid, z, np.inf)[:Hc * f, :Wc * f].reshape(Hc, f, Wc, f).min(axis=(1, 3))
+    zc = block_minima(z[:Hc * f, :Wc * f], f)    # whole blocks only
     vc = np.isfinite(zc)
     if vc.sum() < 9:
         return 30.0
@@ -659,7 +646,8 @@ def resolve_geodesic_params(z, cell_size, **params):
 
     * ``height_threshold_m`` (dh0): ``max(0.5, 3 sigma)`` with ``sigma`` the robust noise
       of the DSM (lower quartile of the absolute second differences, scaled to a normal
-      sigma: edges and objects fill the upper tail and barely move it).
+      sigma: edges and objects fill the upper tail and barely move it;
+      :func:`~bare_earth.core.estimate.noise_second_difference_quartile`).
     * ``outlier_threshold_m``: ``max(2.0, 4 dh0)``.
     * ``terrain_slope_deg``: 90th percentile slope of the surface opened by the largest
       window on a ~4 m grid (objects gone), clipped to [12, 22] degrees: it is the slope
@@ -680,14 +668,12 @@ def resolve_geodesic_params(z, cell_size, **params):
     p = dict(_DEFAULTS)
     p.update({k: v for k, v in params.items() if v is not None})
     _check(p)
-    valid = np.isfinite(z)
     if p["height_threshold_m"] is None:
-        p["height_threshold_m"] = round(max(0.5, NOISE_K * _noise_sigma(z, valid)), 3)
+        p["height_threshold_m"] = round(max(0.5, NOISE_K * noise_second_difference_quartile(z)), 3)
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
     if p["terrain_slope_deg"] is None:
-        p["terrain_slope_deg"] = round(_terrain_slope_deg(z, valid, dx, dy,
-                                                          p["max_object_size_m"]), 2)
+        p["terrain_slope_deg"] = round(_terrain_slope_deg(z, dx, dy, p["max_object_size_m"]), 2)
     _check(p)
     return p
 

@@ -64,6 +64,7 @@ from scipy import ndimage
 
 from .codes import GROUND, LOW, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
+from .estimate import block_minima, noise_plane_residual, terrain_slopes
 from .methods import Method, Param
 
 MODES = ("auto", "progressive", "single")
@@ -510,55 +511,19 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
 
 
 # --------------------------------------------------------------------------- defaults
-def _block_min(z, k):
-    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN)."""
-    if k <= 1:
-        return z
-    rows, cols = z.shape
-    R, C = -(-rows // k), -(-cols // k)
-    pad = np.full((R * k, C * k), np.inf, np.float32)
-    pad[:rows, :cols] = np.where(np.isfinite(z), z, np.inf)
-    out = pad.reshape(R, k, C, k).min(axis=(1, 3))
-    out[np.isinf(out)] = np.nan
-    return out
-
-
-def estimate_noise(z):
-    """Robust noise of a surface, metres, from the residual to the 4-neighbour mean.
-
-    The residual ``r = z - mean(4 neighbours)`` vanishes on planes; for white noise of
-    standard deviation ``sigma`` it is normal with standard deviation ``sigma sqrt(1.25)``.
-    Edges, roofs and vegetation inflate ``|r|`` on part of the cells, so the lower quartile
-    of ``|r|`` (``0.3186`` standard deviations for a normal law) is used: the cleanest
-    quarter of the surface sets the noise. Returns 0 for a noise-free surface.
-    """
-    z = as_surface(z)
-    if min(z.shape) < 3:
-        return 0.0
-    c = z[1:-1, 1:-1]
-    nb = (z[:-2, 1:-1] + z[2:, 1:-1] + z[1:-1, :-2] + z[1:-1, 2:]) * np.float32(0.25)
-    r = np.abs(c - nb)[np.isfinite(c) & np.isfinite(nb)]
-    if r.size == 0:
-        return 0.0
-    return float(np.percentile(r, 25.0)) / 0.3186 / math.sqrt(1.25)
-
-
 def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
     """Robust terrain slope (rise/run): a high percentile of a coarse minimum surface's slope.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it) and the slope of that coarse surface is taken by central
-    differences; the ``percentile`` of it is returned.
+    block vanish from it; the block side in cells from the coarser axis) and the slope of
+    that coarse surface is taken by central differences
+    (:func:`~bare_earth.core.estimate.terrain_slopes`, at least 3 x 3 blocks); the
+    ``percentile`` of it is returned, NaN when not measurable.
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
     k = max(1, int(round(scale_m / max(dx, dy))))
-    m = _block_min(z, k)
-    if min(m.shape) < 3:
-        return float("nan")
-    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
-    g = np.hypot(gx, gy)
-    g = g[np.isfinite(g)]
+    g = terrain_slopes(z, (dx, dy), k, min_blocks=3)
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
 
@@ -595,7 +560,7 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the robust noise of the DSM
-      (:func:`estimate_noise`), bounded to 0.5-5 m (0.5 m is SMRF's ``e_t``; LiDAR noise
+      (:func:`~bare_earth.core.estimate.noise_plane_residual`), bounded to 0.5-5 m (0.5 m is SMRF's ``e_t``; LiDAR noise
       is far below it, image-matching noise often above).
     * ``slope``: the median slope of the 40 m block-minimum surface
       (:func:`estimate_terrain_slope`), bounded to 0.3-1.5: the threshold ``s r`` must
@@ -609,20 +574,21 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
       opening would cut the terrain by more than ``dh``), else ``"single"``;
       ``mode_reason`` says why.
 
-    Large rasters are reduced to block minima of at most a million cells first.
+    Large rasters are reduced to block minima of at most a million cells for the slope
+    and the object size; the noise is measured at full resolution on windows spread over
+    the raster (:func:`~bare_earth.core.estimate.sample_windows`).
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
-    zs = _block_min(z, k)
+    zs = block_minima(z, k)
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
                low_outlier_slope=low_outlier_slope)
-    r0, c0 = max(0, z.shape[0] // 2 - 500), max(0, z.shape[1] // 2 - 500)
-    noise = estimate_noise(z[r0:r0 + 1000, c0:c0 + 1000])      # full resolution, central window
+    noise = noise_plane_residual(z)             # full resolution, windows over the raster
     out["noise_m"] = noise
     if dh_m is None:
         out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, _DH_NOISE * noise)))

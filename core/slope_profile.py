@@ -47,6 +47,7 @@ from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
+from .estimate import noise_second_difference, sample_windows, terrain_slopes
 from .methods import Method, Param
 
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
@@ -69,31 +70,13 @@ def profile_slopes(z, cell_size):
             np.degrees(np.arctan(np.diff(z, axis=0) / dy)))
 
 
-def _block_min(z, k):
-    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN).
-
-    Band by band of ``k`` rows: the minimum down the band's columns (contiguous rows,
-    cached), then over each run of ``k`` columns; ``fmin`` ignores NaN without copies.
-    """
-    rows, cols = z.shape
-    R, C = -(-rows // k), -(-cols // k)
-    out = np.empty((R, C), np.float32)
-    pad = np.full(C * k, np.nan, np.float32) if cols % k else None
-    for i in range(R):
-        band = np.fmin.reduce(z[i * k:(i + 1) * k], axis=0)
-        if pad is not None:
-            pad[:cols] = band
-            band = pad
-        out[i] = np.fmin.reduce(band.reshape(C, k), axis=1)
-    return out
-
-
 def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     """Robust slopes of the terrain under the objects.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it), and the slopes (rise/run) between neighbouring block minima
-    are summarised.
+    block vanish from it; the block side in cells from the finer axis, at most a third
+    of the raster's shorter side), and the slopes (rise/run) between neighbouring block
+    minima are summarised (:func:`~bare_earth.core.estimate.terrain_slopes`).
 
     Returns
     -------
@@ -103,61 +86,10 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     dx, dy = as_cell_size(cell_size)
     k = int(max(2, round(scale_m / min(dx, dy))))
     k = min(k, max(2, min(z.shape) // 3))
-    m = _block_min(z, k)
-    if min(m.shape) < 2:
-        return {"median": 0.0, "p90": 0.0, "block_cells": k}
-    # gradient magnitude (rise/run) of the block-minimum surface: the steepest slope of
-    # the ground, whatever its direction
-    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
-    s = np.hypot(gx, gy).ravel()
-    s = s[np.isfinite(s)]
+    s = terrain_slopes(z, (dx, dy), k)
     if s.size == 0:
         return {"median": 0.0, "p90": 0.0, "block_cells": k}
     return {"median": float(np.median(s)), "p90": float(np.percentile(s, 90)), "block_cells": k}
-
-
-#: Cells that enter the noise and sample-spacing estimates: larger rasters are sampled
-#: by windows spread over them (medians and means are stable far below that; ISPRS-sized
-#: rasters are used whole).
-_SAMPLE_CELLS = 1_000_000
-_SAMPLE_WINDOW = 256
-
-
-def _sample_windows(z, cells=_SAMPLE_CELLS, side=_SAMPLE_WINDOW):
-    """``z`` itself when it has at most ``cells`` cells, else about ``cells / side**2``
-    windows of ``side`` x ``side`` cells on a regular grid over it (views, no copy; each
-    window is contiguous along its rows, so sampling reads a fraction of the raster)."""
-    rows, cols = z.shape
-    if z.size <= cells or rows < 2 * side or cols < 2 * side:
-        return [z]
-    n = max(1, cells // (side * side))
-    ny = max(1, min(rows // side, int(round(np.sqrt(n * rows / cols)))))
-    nx = max(1, min(cols // side, -(-n // ny)))
-    r0 = np.linspace(0, rows - side, ny).astype(int)
-    c0 = np.linspace(0, cols - side, nx).astype(int)
-    return [z[r:r + side, c:c + side] for r in r0 for c in c0]
-
-
-def estimate_noise(z):
-    """Robust standard deviation of the DSM's random error, metres.
-
-    From the second differences along rows and columns (``z[i-1] - 2 z[i] + z[i+1]``,
-    whose variance is 6 sigma^2 for white noise on a smooth surface), via the median
-    absolute value, so edges and objects do not inflate it. Large rasters are sampled
-    (:func:`_sample_windows`).
-    """
-    z = as_surface(z)
-    d = []
-    for w in _sample_windows(z):
-        if w.shape[1] > 2:
-            d.append((w[:, :-2] - 2 * w[:, 1:-1] + w[:, 2:]).ravel())
-        if w.shape[0] > 2:
-            d.append((w[:-2] - 2 * w[1:-1] + w[2:]).ravel())
-    d = np.concatenate(d) if d else np.array([0.0])
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(d)) / np.sqrt(6.0))
 
 
 def estimate_sample_spacing(z, longest=8):
@@ -168,11 +100,11 @@ def estimate_sample_spacing(z, longest=8):
     height steps come at the run ends: the edge test must span the data's own spacing,
     not one cell. Runs longer than ``longest`` cells are constant areas (water, a flat
     synthetic ground), not gridding, and are left out. Returns a value >= 1. Large
-    rasters are sampled (:func:`_sample_windows`).
+    rasters are sampled (:func:`~bare_earth.core.estimate.sample_windows`).
     """
     z = as_surface(z)
     lengths = []
-    for w in _sample_windows(z):
+    for w in sample_windows(z):
         for a in (w, w.T.copy()):
             if a.shape[1] < 2:
                 continue
@@ -512,7 +444,8 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
       steeper than the terrain's usual slope, far gentler than a wall. Below 25 degrees
       the sides of road embankments and the stair steps of gridded sparse points start
       to count as object edges (measured on the ISPRS samples 61 and 71).
-    * ``tolerance_m`` (dh0): 3 x the DSM's robust noise (:func:`estimate_noise`),
+    * ``tolerance_m`` (dh0): 3 x the DSM's robust noise (the MAD of its second
+      differences, :func:`~bare_earth.core.estimate.noise_second_difference`),
       bounded to [0.15, 0.5] m.
     * ``sample_spacing_cells``: the mean run of identical neighbouring values
       (:func:`estimate_sample_spacing`); the edge test spans it.
@@ -527,7 +460,7 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * estimate_noise(z), 0.15, 0.5))
+        tolerance_m = float(np.clip(3.0 * noise_second_difference(z), 0.15, 0.5))
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
     return {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
