@@ -112,3 +112,34 @@ def transpose(a, rows=256):
         band[...] = a[i:i + n]
         out[:, i:i + n] = band.T
     return out
+
+
+def check_in_range(specs, values):
+    """Check parameter values against the bounds of their specs.
+
+    The bounds a method's ``Param`` specs show in the dialog are the limits its core
+    enforces: its ``filter_*`` and ``resolve_*`` functions call this with their
+    ``PARAMS``, so the two cannot disagree.
+
+    Parameters
+    ----------
+    specs : iterable of Param
+        Objects with ``name``, ``kind``, ``minimum`` and ``maximum``
+        (:class:`~bare_earth.core.methods.Param`).
+    values : dict
+        ``{name: value}``; ``None`` (derived from the data later), absent names and
+        non-numeric kinds are skipped.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, its range and the value (NaN is out of every range).
+    """
+    for spec in specs:
+        v = values.get(spec.name)
+        if v is None or spec.kind not in ("float", "int"):
+            continue
+        lo, hi = spec.minimum, spec.maximum
+        if (lo is not None and not v >= lo) or (hi is not None and not v <= hi):
+            raise ValueError(f"{spec.name} must be in [{lo}, {hi}]; got {v!r}. Give a value in "
+                             "that range (or leave it empty when it is derived from the data).")

@@ -99,11 +99,11 @@ def block_minima(z, k):
     if k == 1:
         return np.where(np.isfinite(z), z, np.float32(np.nan))
     rows, cols = z.shape
-    R, C = -(-rows // k), -(-cols // k)
-    out = np.empty((R, C), np.float32)
-    pad = np.full(C * k, np.nan, np.float32) if cols % k else None
+    nr, nc = -(-rows // k), -(-cols // k)
+    out = np.empty((nr, nc), np.float32)
+    pad = np.full(nc * k, np.nan, np.float32) if cols % k else None
     has_inf = bool(np.isinf(z).any())
-    for i in range(R):
+    for i in range(nr):
         rows_i = z[i * k:(i + 1) * k]
         if has_inf:
             rows_i = np.where(np.isinf(rows_i), np.float32(np.nan), rows_i)
@@ -111,7 +111,7 @@ def block_minima(z, k):
         if pad is not None:
             pad[:cols] = band
             band = pad
-        out[i] = np.fmin.reduce(band.reshape(C, k), axis=1)
+        out[i] = np.fmin.reduce(band.reshape(nc, k), axis=1)
     return out
 
 

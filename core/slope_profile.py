@@ -41,12 +41,13 @@ profiles.
 """
 import threading
 import warnings
+from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
+from .codes import LOW, NODATA
+from .common import FilterResult, as_cell_size, as_surface, check_in_range, report, sub_progress, transpose
 from .estimate import noise_second_difference, sample_windows, terrain_slopes
 from .methods import Method, Param
 
@@ -145,7 +146,7 @@ def _extreme3(a, op, out=None, tmp=None):
 _LOW_WINDOW, _LOW_RANK = 7, 16
 
 
-def find_low_blunders(z, tolerance_m):
+def find_low_blunders(z, tolerance_m, progress=None):
     """Low blunders: pits of one or two cells deeper than ``tolerance_m`` below the ground.
 
     Candidates are the cells a 3 x 3 grey closing raises by more than the tolerance (a
@@ -164,6 +165,8 @@ def find_low_blunders(z, tolerance_m):
     strip = 64  # rows: the closing's buffers stay in the cache
     found = []
     for r0 in range(0, rows, strip):
+        if r0 % (16 * strip) == 0:
+            report(progress, 0.8 * r0 / rows)
         r1 = min(rows, r0 + strip)
         a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
         zz = np.where(valid[a0:a1], z[a0:a1], hi)  # nodata: neither a pit's rim nor its bottom
@@ -191,7 +194,11 @@ def find_low_blunders(z, tolerance_m):
     return low
 
 
-def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
+#: Profile positions scanned between two progress reports.
+_REPORT_STEPS = 128
+
+
+def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress=None):
     """Scan many profile sets at once, one numpy operation per step over all profiles.
 
     ``sources`` is a list of ``(array, reverse)``: an array ``(npos, nprof)`` holds
@@ -203,7 +210,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     The tolerance after ``d`` cells since the reference point is
     ``dh0 + step tan_g min(d, edge_cells) + step tan_t max(d - edge_cells, 0)``.
     Returns one boolean array per source (its shape; views into buffers shared by the
-    sources of one array): True where the scan rejects.
+    sources of one array): True where the scan rejects. ``progress(fraction)`` is called
+    every :data:`_REPORT_STEPS` positions (it may raise Cancelled).
     """
     widths = [a.shape[1] for a, _ in sources]
     offs = np.cumsum([0] + widths)
@@ -253,6 +261,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     # As few numpy calls per step as possible: each is short, and with blocks in threads
     # every call is a hand-over of the GIL.
     for i in range(npos):
+        if progress is not None and i % _REPORT_STEPS == 0:
+            report(progress, i / npos)
         if i < n_min:                                  # every source still runs: one copy
             np.concatenate([a[n - 1 - i] if rev else a[i] for a, rev, _, n in spans], out=v)
         else:
@@ -290,24 +300,29 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
 _SCAN_LOCK = threading.Lock()
 
 
-def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
+def scan_profiles(zs, cell_size, tan_g, tan_t, dh0, init, edge, progress=None):
     """Forward and backward scans along X and Y; returns ``(objects_x, objects_y)``.
 
     A cell is rejected along an axis when both its forward and its backward scan reject
     it. The four scans run as one vectorised pass when the two axes share a spacing.
+    ``init`` and ``edge`` are the start windows and edge runs ``(x, y)`` in cells.
     """
+    dx, dy = cell_size
     zx = transpose(zs)                       # X profiles: positions = columns
+    report(progress, 0.05)
     sx = [(zx, False), (zx, True)]
     sy = [(zs, False), (zs, True)]
     with _SCAN_LOCK:
         if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-            fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0])
+            fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0],
+                                   sub_progress(progress, 0.05, 0.9))
         else:
-            fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0])
-            fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1])
+            fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0], sub_progress(progress, 0.05, 0.45))
+            fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1], sub_progress(progress, 0.45, 0.9))
     del zx
     fx &= bx
     fy &= by
+    report(progress, 0.9)
     return transpose(fx), fy
 
 
@@ -342,9 +357,67 @@ def _combine_axes(obj_x, obj_y, ok):
     return out
 
 
-def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
-                         max_object_size_m=100.0, edge_length_m=1.0, sample_spacing_cells=1.0,
-                         refine=False, slope_factor=1.25, progress=None):
+def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
+    """Give rejected cells lying within the tolerance of the interpolated ground back to
+    the ground (as SMRF's final step).
+
+    The ground is interpolated under the objects and low blunders (``fill.fill_gaps``); a
+    rejected cell within ``tolerance_m + slope_factor * slope`` of it is ground again.
+
+    Returns
+    -------
+    obj : ndarray of bool
+        The objects left.
+    refined : int
+        Cells given back.
+    dtm : ndarray of float32 or None
+        The interpolated ground when nothing was given back (then it is the DTM, exact at
+        every ground cell), else None.
+    """
+    if not obj.any() or not (valid & ~obj & ~low).any():
+        return obj, 0, None
+    from .fill import fill_gaps
+    dx, dy = cell_size
+    surf = fill_gaps(z, fill=obj | low)
+    gy, gx = np.gradient(surf, dy, dx)
+    back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * np.hypot(gx, gy))
+    refined = int(back.sum())
+    return obj & ~back, refined, (None if refined else surf)
+
+
+def _mask_and_info(obj, low, valid, obj_x, obj_y, refined, p):
+    """The mask (1 objects, 2 low blunders, 255 nodata) and the run's info."""
+    mask = obj.astype(np.uint8)                      # OBJECT = 1, GROUND = 0
+    np.copyto(mask, np.uint8(LOW), where=low)
+    np.copyto(mask, np.uint8(NODATA), where=~valid)
+    n = max(1, int(np.count_nonzero(valid)))
+    info = {"alpha_g_deg": float(p["slope_threshold_deg"]), "alpha_t_deg": float(p["terrain_slope_deg"]),
+            "dh0_m": float(p["tolerance_m"]),
+            "rejected_by_x_percent": 100.0 * float(np.count_nonzero(obj_x & valid)) / n,
+            "rejected_by_y_percent": 100.0 * float(np.count_nonzero(obj_y & valid)) / n,
+            "refined_back_percent": 100.0 * refined / n,
+            "low_blunders_percent": 100.0 * float(np.count_nonzero(low)) / n}
+    return mask, info
+
+
+def _scan_geometry(cell_size, tan_g, tolerance_m, max_object_size_m, edge_length_m, sample_spacing_cells):
+    """Start windows and edge runs ``(x, y)`` in cells, and the scans' tolerance dh0.
+
+    Gridded sparse points rise in stair steps: a slope up to alpha_g over the data's own
+    spacing comes in one step, which the edge test must allow.
+    """
+    dx, dy = cell_size
+    init = (max(1, int(round(max_object_size_m / dx))), max(1, int(round(max_object_size_m / dy))))
+    edge = (max(1, int(round(edge_length_m / dx))), max(1, int(round(edge_length_m / dy))))
+    spacing = min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING)
+    return init, edge, tolerance_m + (spacing - 1.0) * min(dx, dy) * tan_g
+
+
+def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
+                         slope_threshold_deg: float, terrain_slope_deg: float, tolerance_m: float,
+                         max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
+                         sample_spacing_cells: float = 1.0, refine: bool = False, slope_factor: float = 1.25,
+                         progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """Slope-profile filter (Luong Chinh Ke 2002, section 2.1).
 
     Parameters
@@ -361,12 +434,16 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
         ``dh0``: height tolerance for the DSM's noise, added to every test.
     max_object_size_m : float
         Largest object; the reference at a profile's start is the lowest point within it.
+    edge_length_m, sample_spacing_cells : float
+        Edge run (metres) and spacing of the real samples (cells) of the edge test.
     refine : bool
         Give rejected cells within the tolerance of the interpolated ground back to the
         ground.
     slope_factor : float
         Slope term of the refinement tolerance (rise/run of the interpolated ground).
     progress : callable, optional
+        ``progress(fraction)`` within every step; may raise
+        :class:`~bare_earth.core.common.Cancelled`.
 
     Returns
     -------
@@ -374,72 +451,48 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
         ``info`` holds the share of cells rejected by X and by Y profiles.
     """
     z = as_surface(z)
-    dx, dy = as_cell_size(cell_size)
-    if not 0 < slope_threshold_deg < 90:
-        raise ValueError(f"slope_threshold_deg must be in (0, 90) degrees; got {slope_threshold_deg}.")
-    if not 0 <= terrain_slope_deg < 90:
-        raise ValueError(f"terrain_slope_deg must be in [0, 90) degrees; got {terrain_slope_deg}.")
-    if tolerance_m < 0:
-        raise ValueError(f"tolerance_m must be >= 0 metres; got {tolerance_m}.")
-    if max_object_size_m <= 0:
-        raise ValueError(f"max_object_size_m must be > 0 metres; got {max_object_size_m}.")
+    cell = as_cell_size(cell_size)
+    p = dict(slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg,
+             tolerance_m=tolerance_m, max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
+             sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor)
+    check_in_range(PARAMS, p)
     tan_g = float(np.tan(np.radians(slope_threshold_deg)))
     tan_t = float(np.tan(np.radians(terrain_slope_deg)))
     valid = np.isfinite(z)
-
-    low = find_low_blunders(z, tolerance_m + max(dx, dy) * tan_g)
+    # 1. low blunders (a drop then a rise): class 2, left out of the scans
+    low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
     zs = np.where(low, np.float32(np.nan), z)
-    report(progress, 0.05)
-
-    init_x = max(1, int(round(max_object_size_m / dx)))
-    init_y = max(1, int(round(max_object_size_m / dy)))
-    ex = max(1, int(round(edge_length_m / dx)))
-    ey = max(1, int(round(edge_length_m / dy)))
-    sp_ = min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING)
-    # gridded sparse points rise in stair steps: a slope up to alpha_g over the data's own
-    # spacing comes in one step, which the edge test must allow
-    dh_eff = tolerance_m + (sp_ - 1.0) * min(dx, dy) * tan_g
-    obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, dh_eff, (init_x, init_y), (ex, ey))
-    report(progress, 0.65)
+    # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
+    init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,
+                                        sample_spacing_cells)
+    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.05, 0.7))
+    del zs
+    # 3. X and Y combined by connected objects
     obj = _combine_axes(obj_x, obj_y, valid & ~low)
-
-    refined = 0
-    dtm = None
-    if refine and obj.any() and (valid & ~obj & ~low).any():
-        from .fill import fill_gaps
-        surf = fill_gaps(z, fill=obj | low)
-        gy, gx = np.gradient(surf, dy, dx)
-        slope = np.hypot(gx, gy)
-        back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * slope)
-        refined = int(back.sum())
-        obj &= ~back
-        if not refined:
-            dtm = surf  # nothing given back: this is the DTM, exact at every ground cell
+    report(progress, 0.8)
+    # 4. optional refinement against the interpolated ground
+    refined, dtm = 0, None
+    if refine:
+        obj, refined, dtm = refine_objects(z, obj, low, valid, cell, tolerance_m, slope_factor)
     report(progress, 0.95)
-
-    mask = obj.astype(np.uint8)                      # OBJECT = 1, GROUND = 0
-    np.copyto(mask, np.uint8(LOW), where=low)
-    np.copyto(mask, np.uint8(NODATA), where=~valid)
-    n = max(1, int(np.count_nonzero(valid)))
-    info = {"alpha_g_deg": float(slope_threshold_deg), "alpha_t_deg": float(terrain_slope_deg),
-            "dh0_m": float(tolerance_m),
-            "rejected_by_x_percent": 100.0 * float(np.count_nonzero(obj_x & valid)) / n,
-            "rejected_by_y_percent": 100.0 * float(np.count_nonzero(obj_y & valid)) / n,
-            "refined_back_percent": 100.0 * refined / n,
-            "low_blunders_percent": 100.0 * float(np.count_nonzero(low)) / n}
+    mask, info = _mask_and_info(obj, low, valid, obj_x, obj_y, refined, p)
     report(progress, 1.0)
     return FilterResult(mask=mask, info=info, dtm=dtm)
 
 
-def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terrain_slope_deg=None,
-                                 tolerance_m=None, max_object_size_m=100.0, edge_length_m=1.0,
-                                 sample_spacing_cells=None, refine=False, slope_factor=1.25):
+def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
+                                 slope_threshold_deg: Optional[float] = None,
+                                 terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
+                                 max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
+                                 sample_spacing_cells: Optional[float] = None, refine: bool = False,
+                                 slope_factor: float = 1.25) -> dict:
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
       (:func:`estimate_terrain_slope`: slopes between 20 m block minima, which objects do
-      not reach), the paper's "average slope" made robust, and at least 8 degrees: the
-      ground under a long object may rise at least that fast.
+      not reach), the paper's "average slope" made robust, at least 8 degrees (the
+      ground under a long object may rise at least that fast) and at most its Param's
+      maximum.
     * ``slope_threshold_deg`` (alpha_g): twice alpha_t, bounded to [25, 60] degrees:
       steeper than the terrain's usual slope, far gentler than a wall. Below 25 degrees
       the sides of road embankments and the stair steps of gridded sparse points start
@@ -454,24 +507,75 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
+    check_in_range(PARAMS, dict(slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg,
+                                tolerance_m=tolerance_m, max_object_size_m=max_object_size_m,
+                                edge_length_m=edge_length_m, sample_spacing_cells=sample_spacing_cells,
+                                slope_factor=slope_factor))
     if terrain_slope_deg is None:
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
-        terrain_slope_deg = max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"]))))
+        terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
+                                _MAX_ALPHA_T)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
         tolerance_m = float(np.clip(3.0 * noise_second_difference(z), 0.15, 0.5))
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
-    return {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
-            "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
-            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells), "refine": bool(refine), "slope_factor": float(slope_factor)}
+    out = {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
+           "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
+           "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
+           "refine": bool(refine), "slope_factor": float(slope_factor)}
+    check_in_range(PARAMS, out)
+    return out
 
 
 def slope_profile_halo(params, cell_size):
     """Reach in cells: the start window plus the longest object crossed by a profile."""
     dx, dy = as_cell_size(cell_size)
     return int(np.ceil(2 * params["max_object_size_m"] / min(dx, dy))) + 2
+
+
+#: The user parameters (dialog order); their bounds are the limits the core enforces.
+PARAMS = (
+    Param("slope_threshold_deg", "float", None,
+          "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
+          "from the ground before it starts an object. Empty: twice the average terrain slope "
+          "alpha_t, bounded to 25-60 deg.",
+          minimum=0.5, maximum=89.0),
+    Param("terrain_slope_deg", "float", None,
+          "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
+          "per cell of its length. Empty: the median slope between 20 m block minima (which objects "
+          "do not reach), at least 8 deg.",
+          minimum=0.0, maximum=80.0, advanced=True),
+    Param("tolerance_m", "float", None,
+          "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
+          "robust noise of the DSM (from second differences), bounded to 0.15-0.5 m.",
+          minimum=0.0, maximum=50.0, advanced=True),
+    Param("max_object_size_m", "float", 100.0,
+          "Largest object, metres: a profile's reference starts at its lowest point within this "
+          "length, so objects cut by the raster's edge are still removed.",
+          minimum=1.0, maximum=5000.0, advanced=True),
+    Param("edge_length_m", "float", 1.0,
+          "Edge run, metres: an object's edge must rise faster than alpha_g over this length "
+          "(one cell = the paper's point-to-point test; longer runs ignore the stair steps of "
+          "sparse or resampled data).",
+          minimum=0.0, maximum=50.0, advanced=True),
+    Param("sample_spacing_cells", "float", None,
+          "Spacing of the DSM's real samples, in cells (at most 4 is used): the height step of "
+          "the terrain's slope over it is tolerated. Empty: the mean "
+          "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
+          "grid of sparse points with empty cells filled from the nearest point).",
+          minimum=1.0, maximum=20.0, advanced=True),
+    Param("refine", "bool", False,
+          "Give rejected cells lying within the tolerance of the interpolated ground back to the "
+          "ground (as SMRF's last step). Off by default: on the ISPRS samples it gained nothing "
+          "and it costs one more interpolation.", advanced=True),
+    Param("slope_factor", "float", 1.25,
+          "Slope term of the refinement tolerance (rise/run of the interpolated ground), as in SMRF.",
+          minimum=0.0, maximum=10.0, advanced=True),
+)
+#: Largest derived alpha_t: the maximum of its Param.
+_MAX_ALPHA_T = next(p.maximum for p in PARAMS if p.name == "terrain_slope_deg")
 
 
 def _run(z, cell_size, progress=None, **params):
@@ -483,44 +587,7 @@ METHOD = Method(
     run=_run,
     resolve=resolve_slope_profile_params,
     halo=slope_profile_halo,
-    params=(
-        Param("slope_threshold_deg", "float", None,
-              "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
-              "from the ground before it starts an object. Empty: twice the average terrain slope "
-              "alpha_t, bounded to 25-60 deg.",
-              minimum=0.5, maximum=89.0),
-        Param("terrain_slope_deg", "float", None,
-              "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
-              "per cell of its length. Empty: the median slope between 20 m block minima (which objects "
-              "do not reach), at least 8 deg.",
-              minimum=0.0, maximum=80.0, advanced=True),
-        Param("tolerance_m", "float", None,
-              "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
-              "robust noise of the DSM (from second differences), bounded to 0.15-0.5 m.",
-              minimum=0.0, maximum=50.0, advanced=True),
-        Param("max_object_size_m", "float", 100.0,
-              "Largest object, metres: a profile's reference starts at its lowest point within this "
-              "length, so objects cut by the raster's edge are still removed.",
-              minimum=1.0, maximum=5000.0, advanced=True),
-        Param("edge_length_m", "float", 1.0,
-              "Edge run, metres: an object's edge must rise faster than alpha_g over this length "
-              "(one cell = the paper's point-to-point test; longer runs ignore the stair steps of "
-              "sparse or resampled data).",
-              minimum=0.0, maximum=50.0, advanced=True),
-        Param("sample_spacing_cells", "float", None,
-              "Spacing of the DSM's real samples, in cells (at most 4 is used): the height step of "
-              "the terrain's slope over it is tolerated. Empty: the mean "
-              "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
-              "grid of sparse points with empty cells filled from the nearest point).",
-              minimum=1.0, maximum=20.0, advanced=True),
-        Param("refine", "bool", False,
-              "Give rejected cells lying within the tolerance of the interpolated ground back to the "
-              "ground (as SMRF's last step). Off by default: on the ISPRS samples it gained nothing "
-              "and it costs one more interpolation.", advanced=True),
-        Param("slope_factor", "float", 1.25,
-              "Slope term of the refinement tolerance (rise/run of the interpolated ground), as in SMRF.",
-              minimum=0.0, maximum=10.0, advanced=True),
-    ),
+    params=PARAMS,
     title="Slope-profile filter (Luong Chinh Ke 2002)",
     description=(
         "<p>Filters a DSM along profiles in X and in Y (Luong Chinh Ke 2002, section 2.1). Along each "

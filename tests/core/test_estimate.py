@@ -4,21 +4,21 @@ import math
 import numpy as np
 import pytest
 
-from bare_earth.core import estimate as E
+from bare_earth.core import estimate as est
 
 
 # --------------------------------------------------------------------------- sampling
 def test_sample_windows_small_raster_is_used_whole():
     z = np.zeros((10, 12), np.float32)
-    w = E.sample_windows(z, cells=120, side=4)
+    w = est.sample_windows(z, cells=120, side=4)
     assert len(w) == 1 and w[0] is z
     narrow = np.zeros((5, 1000), np.float32)                 # narrower than two windows
-    assert E.sample_windows(narrow, cells=100, side=4)[0] is narrow
+    assert est.sample_windows(narrow, cells=100, side=4)[0] is narrow
 
 
 def test_sample_windows_exact_positions_and_views():
     z = np.arange(20 * 30, dtype=np.float32).reshape(20, 30)
-    w = E.sample_windows(z, cells=64, side=4)               # 4 windows of 4 x 4
+    w = est.sample_windows(z, cells=64, side=4)               # 4 windows of 4 x 4
     # ny = round(sqrt(4 * 20 / 30)) = 2, nx = ceil(4 / 2) = 2: rows 0, 16; cols 0, 26
     starts = [(int(v[0, 0]) // 30, int(v[0, 0]) % 30) for v in w]
     assert starts == [(0, 0), (0, 26), (16, 0), (16, 26)]
@@ -33,24 +33,24 @@ def test_block_minima_exact(shape, k):
     z = rng.random(shape).astype(np.float32)
     z[rng.random(shape) < 0.3] = np.nan
     z[:k, :k] = np.nan                                   # an all-nodata block
-    R, C = -(-shape[0] // k), -(-shape[1] // k)
-    expect = np.full((R, C), np.nan, np.float32)
-    for i in range(R):
-        for j in range(C):
+    nr, nc = -(-shape[0] // k), -(-shape[1] // k)
+    expect = np.full((nr, nc), np.nan, np.float32)
+    for i in range(nr):
+        for j in range(nc):
             b = z[i * k:(i + 1) * k, j * k:(j + 1) * k]
             if np.isfinite(b).any():
                 expect[i, j] = np.nanmin(b)
-    got = E.block_minima(z, k)
+    got = est.block_minima(z, k)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, expect)
 
 
 def test_block_minima_inf_is_nodata_and_bad_k():
     z = np.array([[1, -np.inf, 5], [np.inf, 2, 7]], np.float32)
-    np.testing.assert_array_equal(E.block_minima(z, 2), [[1, 5]])
-    np.testing.assert_array_equal(E.block_minima(np.array([[np.inf, 3]]), 1), [[np.nan, 3]])
+    np.testing.assert_array_equal(est.block_minima(z, 2), [[1, 5]])
+    np.testing.assert_array_equal(est.block_minima(np.array([[np.inf, 3]]), 1), [[np.nan, 3]])
     with pytest.raises(ValueError, match="at least 1"):
-        E.block_minima(z, 0)
+        est.block_minima(z, 0)
 
 
 # --------------------------------------------------------------------------- terrain slope
@@ -58,20 +58,20 @@ def test_terrain_slopes_of_a_plane_under_objects():
     yy, xx = np.mgrid[0:12, 0:16].astype(np.float32)
     z = 0.5 * xx + 0.25 * yy                              # a plane: slope hypot(0.5, 0.25)
     z[1, 1] += 10.0                                       # an object: not the block's minimum
-    s = E.terrain_slopes(z, (1.0, 1.0), 4)                # block minima 3 x 4, spacing 4
+    s = est.terrain_slopes(z, (1.0, 1.0), 4)                # block minima 3 x 4, spacing 4
     assert s.shape == (12,)
     np.testing.assert_allclose(s, math.hypot(0.5, 0.25))
-    s = E.terrain_slopes(z, (2.0, 1.0), 4)                # cells 2 m wide: half the x slope
+    s = est.terrain_slopes(z, (2.0, 1.0), 4)                # cells 2 m wide: half the x slope
     np.testing.assert_allclose(s, math.hypot(0.25, 0.25))
 
 
 def test_terrain_slopes_too_few_blocks_and_nodata():
     z = np.zeros((8, 8), np.float32)
-    assert E.terrain_slopes(z, (1.0, 1.0), 4).size == 4          # 2 x 2 blocks
-    assert E.terrain_slopes(z, (1.0, 1.0), 4, min_blocks=3).size == 0
-    assert E.terrain_slopes(z, (1.0, 1.0), 8).size == 0          # one block
+    assert est.terrain_slopes(z, (1.0, 1.0), 4).size == 4          # 2 x 2 blocks
+    assert est.terrain_slopes(z, (1.0, 1.0), 4, min_blocks=3).size == 0
+    assert est.terrain_slopes(z, (1.0, 1.0), 8).size == 0          # one block
     z[:4, :4] = np.nan                                            # one block without data
-    s = E.terrain_slopes(z, (1.0, 1.0), 4)
+    s = est.terrain_slopes(z, (1.0, 1.0), 4)
     assert s.size == 1 and s[0] == 0.0    # NaN gradients dropped: only the block far from it
 
 
@@ -79,33 +79,33 @@ def test_terrain_slopes_too_few_blocks_and_nodata():
 def test_noise_second_difference_exact():
     # one row: second differences 0 - 2*1 + 0 = -2 and 1 - 0 + 1 = 2: median |d| = 2
     z = np.array([[0, 1, 0, 1]], np.float32)
-    assert E.noise_second_difference(z) == pytest.approx(1.4826 * 2 / math.sqrt(6), rel=1e-12)
+    assert est.noise_second_difference(z) == pytest.approx(1.4826 * 2 / math.sqrt(6), rel=1e-12)
     yy, xx = np.mgrid[0:5, 0:6].astype(np.float32)
-    assert E.noise_second_difference(3 * xx - 2 * yy) == 0.0     # planes have none
-    assert E.noise_second_difference(np.ones((2, 2), np.float32)) == 0.0
+    assert est.noise_second_difference(3 * xx - 2 * yy) == 0.0     # planes have none
+    assert est.noise_second_difference(np.ones((2, 2), np.float32)) == 0.0
     z = np.array([[0, 1, 0, np.nan, 0]], np.float32)             # NaN differences dropped
-    assert E.noise_second_difference(z) == pytest.approx(1.4826 * 2 / math.sqrt(6), rel=1e-12)
+    assert est.noise_second_difference(z) == pytest.approx(1.4826 * 2 / math.sqrt(6), rel=1e-12)
 
 
 def test_noise_second_difference_quartile_exact():
     # d = [2, -2, 2, -2, ...] along one row: median 0, |d| = 2 everywhere
     z = np.tile(np.array([0, 1], np.float32), 8)[None, :]
-    assert E.noise_second_difference_quartile(z) == pytest.approx(2 / 0.3186 / math.sqrt(6), rel=1e-6)
-    assert E.noise_second_difference_quartile(z[:, :5]) == 0.1             # fewer than 10
-    assert E.noise_second_difference_quartile(z[:, :5], default=0.0) == 0.0
+    assert est.noise_second_difference_quartile(z) == pytest.approx(2 / 0.3186 / math.sqrt(6), rel=1e-6)
+    assert est.noise_second_difference_quartile(z[:, :5]) == 0.1             # fewer than 10
+    assert est.noise_second_difference_quartile(z[:, :5], default=0.0) == 0.0
 
 
 def test_noise_plane_residual_exact():
     z = np.zeros((3, 3), np.float32)
     z[1, 1] = 1.25                                  # one residual: 1.25 - 0
-    assert E.noise_plane_residual(z) == pytest.approx(1.25 / 0.3186 / math.sqrt(1.25), rel=1e-7)
+    assert est.noise_plane_residual(z) == pytest.approx(1.25 / 0.3186 / math.sqrt(1.25), rel=1e-7)
     yy, xx = np.mgrid[0:6, 0:7].astype(np.float32)
-    assert E.noise_plane_residual(xx - 0.5 * yy) == 0.0
-    assert E.noise_plane_residual(np.ones((2, 9), np.float32)) == 0.0
+    assert est.noise_plane_residual(xx - 0.5 * yy) == 0.0
+    assert est.noise_plane_residual(np.ones((2, 9), np.float32)) == 0.0
 
 
-@pytest.mark.parametrize("func", [E.noise_second_difference, E.noise_second_difference_quartile,
-                                  E.noise_plane_residual])
+@pytest.mark.parametrize("func", [est.noise_second_difference, est.noise_second_difference_quartile,
+                                  est.noise_plane_residual])
 def test_noise_estimators_measure_white_noise_on_a_slope(func):
     rng = np.random.default_rng(2)
     yy, xx = np.mgrid[0:300, 0:300]
@@ -121,8 +121,8 @@ def test_noise_on_a_large_raster_is_sampled_over_all_of_it():
     rng = np.random.default_rng(3)
     z = rng.normal(0, 0.2, (1200, 1200)).astype(np.float32)
     z[460:740, 460:740] = 0.0
-    w = E.sample_windows(z)
+    w = est.sample_windows(z)
     assert len(w) == 16 and all(v.shape == (256, 256) for v in w)
-    assert E.noise_second_difference(z[472:728, 472:728]) == 0.0
-    for func in (E.noise_second_difference, E.noise_second_difference_quartile, E.noise_plane_residual):
+    assert est.noise_second_difference(z[472:728, 472:728]) == 0.0
+    for func in (est.noise_second_difference, est.noise_second_difference_quartile, est.noise_plane_residual):
         assert func(z) == pytest.approx(0.2, rel=0.2)      # the quiet share pulls it down a little

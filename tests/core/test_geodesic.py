@@ -5,6 +5,7 @@ from scipy import ndimage
 
 from bare_earth.core import geodesic as G
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.geodesic import grey
 from bare_earth.core.methods import get_method
 
 
@@ -112,12 +113,12 @@ def test_running_filters_match_scipy():
     for _ in range(60):
         a = rng.random(rng.integers(1, 30, 2)).astype(np.float32)
         size = (int(rng.integers(0, 7)) * 2 + 1, int(rng.integers(0, 7)) * 2 + 1)
-        assert np.array_equal(G._filter2d(a, size, np.minimum, np.inf),
+        assert np.array_equal(grey.rect_filter(a, size, np.minimum, np.inf),
                               ndimage.minimum_filter(a, size=size, mode="nearest"))
-        assert np.array_equal(G._filter2d(a, size, np.maximum, -np.inf),
+        assert np.array_equal(grey.rect_filter(a, size, np.maximum, -np.inf),
                               ndimage.maximum_filter(a, size=size, mode="nearest"))
         b = a > 0.3
-        assert np.array_equal(G._inner(b), ndimage.binary_erosion(b, np.ones((3, 3)),
+        assert np.array_equal(grey.inner_cells(b), ndimage.binary_erosion(b, np.ones((3, 3)),
                                                                   border_value=0))
 
 
@@ -348,3 +349,18 @@ def test_object_border_cells_removed():
     assert (res.extras["step"][20:25, 19] == G.STEP_EDGE).all()
     assert (res.mask[20:25, 19] == OBJECT).all()
     assert (res.mask[:, :19] == GROUND).all() and res.info["removed_edge"] == 5
+
+
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just outside fails, the bounds pass."""
+    z = flat_scene(40)
+    spec = {p.name: p for p in G.PARAMS}
+    for name in ("height_threshold_m", "terrain_slope_deg", "edge_ratio", "outlier_threshold_m",
+                 "outlier_width_m", "min_window_m", "max_object_size_m"):
+        lo, hi = spec[name].minimum, spec[name].maximum
+        for bad in (lo - 0.001, hi + 0.5):
+            with pytest.raises(ValueError, match=rf"{name} must be in \["):
+                G.filter_geodesic(z, 1.0, **dict(PARAMS, **{name: bad}))
+            with pytest.raises(ValueError, match=name):
+                G.resolve_geodesic_params(z, 1.0, **{name: bad})
+    G.filter_geodesic(z, 1.0, **dict(PARAMS, terrain_slope_deg=89.0, edge_ratio=1.0))

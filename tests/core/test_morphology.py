@@ -249,3 +249,18 @@ def test_defaults_on_synthetic_scenes(kind, max_total):
     assert res.info["mode"] == "progressive"
     # the filled DTM follows the true terrain
     assert np.nanmedian(np.abs(res.dtm - sc.dtm)[valid]) < 0.1
+
+
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just outside fails, the bounds pass."""
+    z, _ = _box_scene()
+    args = dict(mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3)
+    spec = {p.name: p for p in M.PARAMS}
+    for name in ("dh_m", "slope", "slope_scale_m", "window_growth", "low_outlier_slope"):
+        lo, hi = spec[name].minimum, spec[name].maximum
+        for bad in (lo - 0.01, hi + 1.0):
+            with pytest.raises(ValueError, match=rf"{name} must be in \["):
+                M.filter_morphological(z, 1.0, **dict(args, **{name: bad}))
+        M.filter_morphological(z, 1.0, **dict(args, **{name: lo if name != "window_growth" else hi}))
+    with pytest.raises(ValueError, match="max_object_size_m must be in"):
+        M.resolve_morphological_params(z, 1.0, max_object_size_m=20000.0)

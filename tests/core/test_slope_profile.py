@@ -100,8 +100,8 @@ def test_resolve_derives_from_data():
 
 
 def test_city_scene_whole_roofs_removed_and_type2_low():
-    from bare_earth.core.synthetic import make_scene
     from bare_earth.core.evaluate import compare_masks
+    from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", shape=(300, 300), seed=3)
     res = run_array("slopeprofile", sc.dsm, sc.cell_size)
     r = compare_masks(res.mask, sc.mask)
@@ -149,3 +149,19 @@ def test_embankment_along_a_profile_kept_building_removed():
     r = sp.filter_slope_profile(z, 1.0, **PARAMS)
     assert (r.mask[31:39, 20:100] == GROUND).mean() > 0.95  # X profiles run along it
     assert (r.mask[60:72, 50:62] == OBJECT).all()
+
+
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just inside passes, just outside fails."""
+    z = profile([0] * 8 + [6] * 10 + [0] * 8)
+    spec = {p.name: p for p in sp.PARAMS}
+    assert spec["slope_threshold_deg"].minimum == 0.5 and spec["slope_threshold_deg"].maximum == 89.0
+    for name, bad in (("slope_threshold_deg", 0.4), ("slope_threshold_deg", 89.5), ("terrain_slope_deg", 80.5),
+                      ("tolerance_m", 50.5), ("max_object_size_m", 0.5), ("sample_spacing_cells", 0.5)):
+        with pytest.raises(ValueError, match=rf"{name} must be in \["):
+            sp.filter_slope_profile(z, 1.0, **dict(PARAMS, **{name: bad}))
+        with pytest.raises(ValueError, match=name):
+            sp.resolve_slope_profile_params(z, 1.0, **{name: bad})
+    for name in ("slope_threshold_deg", "terrain_slope_deg", "tolerance_m", "max_object_size_m"):
+        for edge in (spec[name].minimum, spec[name].maximum):
+            sp.filter_slope_profile(z, 1.0, **dict(PARAMS, **{name: edge}))      # the bounds are valid
