@@ -63,7 +63,7 @@ from typing import Callable, Optional, Tuple, Union
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, OBJECT
+from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, check_in_range, finish_mask, report, sub_progress
 from .estimate import block_minima, noise_plane_residual, terrain_slopes
 from .methods import Method, Param
@@ -226,21 +226,27 @@ def _running(a, r, axis, op, work=None, out=None):
     return out
 
 
-def _erode(a, ry, rx, work=None):
-    """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata."""
+def _erode(a, ry, rx, work=None, progress=None):
+    """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata.
+    ``progress(0.5)`` between the two separable passes."""
     tmp = work.get(2, a.shape) if work is not None and rx > 0 and ry > 0 else None
-    return _running(_running(a, ry, 0, np.minimum, work, tmp), rx, 1, np.minimum, work)
+    down = _running(a, ry, 0, np.minimum, work, tmp)
+    report(progress, 0.5)
+    return _running(down, rx, 1, np.minimum, work)
 
 
-def _dilate(e, ry, rx, has_nodata, work=None):
+def _dilate(e, ry, rx, has_nodata, work=None, progress=None):
     """Grey dilation (running maximum) of an eroded surface ``e`` (+inf = no valid cell).
 
-    Returns the dilated surface with NaN where no valid cell is within reach.
+    Returns the dilated surface with NaN where no valid cell is within reach;
+    ``progress(0.5)`` between the two separable passes.
     """
     if has_nodata:
         e = np.where(np.isposinf(e), np.float32(-np.inf), e)
     tmp = work.get(2, e.shape) if work is not None and rx > 0 and ry > 0 else None
-    d = _running(_running(e, ry, 0, np.maximum, work, tmp), rx, 1, np.maximum, work)
+    down = _running(e, ry, 0, np.maximum, work, tmp)
+    report(progress, 0.5)
+    d = _running(down, rx, 1, np.maximum, work)
     if has_nodata:
         d[np.isneginf(d)] = np.nan
     return d
@@ -326,9 +332,9 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
     for k, (ry, rx, rad_m) in enumerate(radii):
         # Square windows compose: eroding the previous erosion by the increment gives the
         # erosion by the full window (cheaper than starting from the surface).
-        eroded = _erode(eroded, ry - pry, rx - prx, work)
+        eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n))
         report(progress, (k + 0.5) / n)
-        opened = _dilate(eroded, ry, rx, has_nodata, work)
+        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 1) / n))
         with np.errstate(invalid="ignore"):
             np.subtract(prev, opened, out=diff)
             np.greater(diff, np.float32(slope * rad_m), out=above)   # SMRF: t_k = s * r_k * c
@@ -379,9 +385,9 @@ def open_single(z, cell, size_m, dh, work, progress=None):
     base = _close3(z, work)                # pits 1-2 cells wide must not spread
     report(progress, 0.3)
     a, has_nodata = _as_inf(base)
-    eroded = _erode(a, ry, rx, work)
+    eroded = _erode(a, ry, rx, work, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
-    opened = _dilate(eroded, ry, rx, has_nodata, work)
+    opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, 0.6, 0.9))
     report(progress, 0.9)
     with np.errstate(invalid="ignore"):
         d = z - opened
@@ -396,6 +402,7 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
     ``low_slope``). Returns the candidate pits and the surface with them replaced by the
     closing."""
     neg, has_nodata = _as_inf(z, -1.0, nodata)
+    report(progress, 0.05)
     low, neg_open = _progressive(neg, _low_radii(cell, growth), low_slope, has_nodata, progress, work)
     del neg
     low &= ~nodata
@@ -404,19 +411,22 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
     return low, clean
 
 
-def classify_provisional(z, zpro, cell, dh, es):
+def classify_provisional(z, zpro, cell, dh, es, progress=None):
     """SMRF's final test: ground when ``|z - ZIpro| <= e_t + e_s * slope(ZIpro)``, object
     above, low outlier below (a pit of the pre-step is class 2 only when it lies below the
     ground reconstructed around it: a gap between tree crowns does not)."""
     thr = _surface_slope(zpro, cell)
+    report(progress, 0.5)
     thr *= np.float32(es)
     thr += np.float32(dh)
     with np.errstate(invalid="ignore"):
         d = np.subtract(z, zpro)
         mask = np.zeros(z.shape, np.uint8)
         mask[d > thr] = OBJECT
+        report(progress, 0.75)
         np.negative(thr, out=thr)
         mask[d < thr] = LOW
+    report(progress, 1.0)
     return mask
 
 
@@ -442,7 +452,7 @@ def open_progressive(z, cell, p, work, progress=None):
     np.copyto(zpro, opened, where=obj | low | nodata)
     report(progress, 0.9)
     # 4. SMRF's final test against ZIpro
-    mask = classify_provisional(z, zpro, cell, p["dh_m"], p["slope_scale_m"])
+    mask = classify_provisional(z, zpro, cell, p["dh_m"], p["slope_scale_m"], sub_progress(progress, 0.9, 0.97))
     zpro[~valid] = np.nan
     info = {"window_sizes_m": [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii],
             "window_cells": [(2 * ry + 1, 2 * rx + 1) for ry, rx, _ in radii],
@@ -515,11 +525,11 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     else:
         mask, surface, more = open_progressive(z, cell, p, _Work(), progress)
     info.update(more)
+    report(progress, 0.97)
     mask = finish_mask(mask, z)
-    valid = np.isfinite(z)
-    nval = max(1, int(valid.sum()))
-    info["object_percent"] = 100.0 * float((mask == OBJECT).sum()) / nval
-    info["low_percent"] = 100.0 * float((mask == LOW).sum()) / nval
+    nval = max(1, int(np.count_nonzero(mask != NODATA)))
+    info["object_percent"] = 100.0 * float(np.count_nonzero(mask == OBJECT)) / nval
+    info["low_percent"] = 100.0 * float(np.count_nonzero(mask == LOW)) / nval
     info.update({k: p[k] for k in _DERIVED[1:] if k in p})
     report(progress, 1.0)
     return FilterResult(mask=mask, info=info, surface=surface)

@@ -165,8 +165,8 @@ def find_low_blunders(z, tolerance_m, progress=None):
     strip = 64  # rows: the closing's buffers stay in the cache
     found = []
     for r0 in range(0, rows, strip):
-        if r0 % (16 * strip) == 0:
-            report(progress, 0.8 * r0 / rows)
+        if r0 % (4 * strip) == 0:
+            report(progress, 0.7 * r0 / rows)
         r1 = min(rows, r0 + strip)
         a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
         zz = np.where(valid[a0:a1], z[a0:a1], hi)  # nodata: neither a pit's rim nor its bottom
@@ -182,6 +182,7 @@ def find_low_blunders(z, tolerance_m, progress=None):
     low = np.zeros(z.shape, bool)
     if not found:
         return low
+    report(progress, 0.7)
     r, c = np.divmod(np.concatenate(found), cols)
     h = _LOW_WINDOW // 2
     off = np.arange(-h, h + 1)

@@ -55,6 +55,7 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     with np.errstate(invalid="ignore"):
         low_c = valid & (clo - z > threshold_m)
         high_c = valid & (z - ope > threshold_m)
+    report(progress, 0.7)
     counts = []
     for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
         sel = _small_clusters(cand) if cand.any() else None
@@ -63,5 +64,5 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
             mask[sel] = code
             outlier |= sel
             w[sel] = repl[sel]
-        report(progress, 0.8 if code == LOW else 1.0)
+        report(progress, 0.85 if code == LOW else 1.0)
     return w, counts[0], counts[1]

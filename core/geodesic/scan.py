@@ -126,14 +126,16 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     n = int(passes)
     for i in range(n):
         lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
-        report(progress, (i + 0.4) / n)
+        report(progress, (i + 0.35) / n)
         lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
-        report(progress, (i + 0.8) / n)
+        report(progress, (i + 0.7) / n)
         new = (lr | lc) & ~labelled & allowed
         if not new.any():
             break
         labelled |= new
+        report(progress, (i + 0.8) / n)
         # lower the labelled cells to the surrounding level for the next pass
         low = rect_filter(np.where(np.isnan(a), np.inf, a), (3, 3), np.minimum, np.inf)
         a = np.where(new, np.minimum(a, low), a)
+        report(progress, (i + 1.0) / n)
     return labelled

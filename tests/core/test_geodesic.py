@@ -317,19 +317,6 @@ def test_city_scene_accuracy():
     assert err < 0.04, err
 
 
-def test_progress_and_cancel():
-    from bare_earth.core.common import Cancelled
-    seen = []
-    G.filter_geodesic(flat_scene(50), 1.0, progress=seen.append, **PARAMS)
-    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
-
-    def stop(f):
-        if f > 0.3:
-            raise Cancelled()
-    with pytest.raises(Cancelled):
-        G.filter_geodesic(flat_scene(50), 1.0, progress=stop, **PARAMS)
-
-
 @pytest.mark.parametrize("shape", [(1, 1), (1, 25), (25, 1), (2, 2)])
 def test_tiny_rasters_and_tiny_cells(shape):
     z = 100 + 1e-6 * np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
@@ -364,3 +351,25 @@ def test_core_enforces_the_param_limits():
             with pytest.raises(ValueError, match=name):
                 G.resolve_geodesic_params(z, 1.0, **{name: bad})
     G.filter_geodesic(z, 1.0, **dict(PARAMS, terrain_slope_deg=89.0, edge_ratio=1.0))
+
+
+def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
+    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
+    by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(200, 200), seed=3).dsm
+    seen = []
+    G.filter_geodesic(z, 1.0, progress=seen.append, **PARAMS)
+    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
+
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            G.filter_geodesic(z, 1.0, progress=stop, **PARAMS)
+        assert len(calls) == n

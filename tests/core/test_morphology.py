@@ -149,22 +149,6 @@ def test_input_is_not_modified():
     np.testing.assert_array_equal(z, before)
 
 
-def test_progress_is_reported_and_can_cancel():
-    from bare_earth.core import Cancelled
-    z, _ = _box_scene()
-    seen = []
-    M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3,
-                           progress=seen.append)
-    assert seen and seen[-1] == 1.0 and all(0 <= f <= 1 for f in seen)
-
-    def stop(f):
-        if f > 0.2:
-            raise Cancelled()
-    with pytest.raises(Cancelled):
-        M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5,
-                               slope=0.3, progress=stop)
-
-
 @pytest.mark.parametrize("kwargs, match", [
     (dict(mode="fast"), "mode"),
     (dict(dh_m=-1.0), "dh_m"),
@@ -264,3 +248,25 @@ def test_core_enforces_the_param_limits():
         M.filter_morphological(z, 1.0, **dict(args, **{name: lo if name != "window_growth" else hi}))
     with pytest.raises(ValueError, match="max_object_size_m must be in"):
         M.resolve_morphological_params(z, 1.0, max_object_size_m=20000.0)
+
+
+def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
+    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
+    by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(200, 200), seed=3).dsm
+    seen = []
+    M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3, progress=seen.append)
+    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
+
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3, progress=stop)
+        assert len(calls) == n
