@@ -39,8 +39,9 @@ An opening with half-width ``r`` cuts terrain of slope ``s`` by at most ``s r`` 
 rows and columns (``sqrt(2) s r`` on slopes facing a diagonal of the square window, where
 SMRF's disk would give ``s r``), and the cut between two radii is below the cut at the
 larger one, so the SMRF threshold stays valid for steps larger than one cell. Square
-windows are separable: every erosion and dilation is two 1-D running min/max passes, each ``log2(window) + 1`` vectorised numpy passes (van Herk /
-Gil-Werman style doubling), so a 41-cell window costs about twice a 3-cell one.
+windows are separable: every erosion and dilation is two 1-D running min/max passes,
+each ``log2(window) + 1`` vectorised numpy passes (van Herk / Gil-Werman style
+doubling), so a 41-cell window costs about twice a 3-cell one.
 
 Nodata (NaN) is ignored by the min/max filters (the windows are restricted to valid
 cells), so no gap filling is needed; the reach of the filter is bounded by the largest

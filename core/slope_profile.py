@@ -331,19 +331,92 @@ def scan_profiles(zs, cell_size, tan_g, tan_t, dh0, init, edge, progress=None):
 _MIN_BOTH_AXES_SHARE = 0.1
 
 
-def _combine_axes(obj_x, obj_y, ok):
+def _window_sum(a, buf, r, axis):
+    """``a`` (int32) replaced in place by its sums over ``[i - r, i + r]`` along ``axis``
+    (clipped at the edges), from its running sum in ``buf``."""
+    if axis == 1:
+        np.cumsum(a, axis=1, out=buf)        # along the rows: contiguous, fast
+        a, buf = a.T, buf.T                  # the window arithmetic below runs on axis 0
+    else:                                    # row by row: numpy's cumsum down the columns is
+        buf[0] = a[0]                        # ten times slower
+        for i in range(1, a.shape[0]):
+            np.add(buf[i - 1], a[i], out=buf[i])
+    n = a.shape[0]
+    if r >= n:
+        a[...] = buf[n - 1]
+        return
+    a[:n - r] = buf[r:]                      # window end inside
+    a[n - r:] = buf[n - 1]                   # window end clipped
+    a[r + 1:] -= buf[:n - r - 1]             # minus the running sum before the window
+
+
+def _box_sum(a, ry, rx):
+    """``a`` (int32, changed in place and returned) summed over the (2 ry + 1) x (2 rx + 1)
+    window around every cell, windows clipped at the edges: exact integer running sums,
+    one buffer."""
+    buf = np.empty_like(a)
+    _window_sum(a, buf, ry, 0)
+    _window_sum(a, buf, rx, 1)
+    return a
+
+
+def _large_regions(lab, total, reach):
+    """Labels (bool, index = label) of the regions of ``lab`` whose bounding box exceeds
+    ``reach = (rows, cols)``; ``total`` holds their cell counts (only regions with more
+    cells than the smaller reach can be that large)."""
+    large = np.zeros(total.size, bool)
+    cand = np.flatnonzero(total > min(reach))
+    cand = cand[cand > 0]
+    if cand.size == 0:
+        return large
+    boxes = ndimage.find_objects(lab)
+    ext = np.array([(boxes[i - 1][0].stop - boxes[i - 1][0].start, boxes[i - 1][1].stop - boxes[i - 1][1].start)
+                    for i in cand])
+    large[cand] = (ext[:, 0] > reach[0]) | (ext[:, 1] > reach[1])
+    return large
+
+
+def _local_share_kept(big, both, reach):
+    """Cells of the large regions ``big`` where at least :data:`_MIN_BOTH_AXES_SHARE` of the
+    large regions' cells within ``reach / 2`` are rejected by both axes.
+
+    share >= 1/10 <=> the window's sum of (9 where both, -1 elsewhere on ``big``) >= 0,
+    an exact integer box sum, on the bounding box of ``big`` grown by the window only.
+    """
+    ry, rx = reach[0] // 2, reach[1] // 2
+    rows = np.flatnonzero(big.any(axis=1))
+    cols = np.flatnonzero(big.any(axis=0))
+    r0, r1 = max(0, rows[0] - ry), min(big.shape[0], rows[-1] + ry + 1)
+    c0, c1 = max(0, cols[0] - rx), min(big.shape[1], cols[-1] + rx + 1)
+    sub = (slice(r0, r1), slice(c0, c1))
+    w = np.zeros((r1 - r0, c1 - c0), np.int32)
+    w[big[sub]] = -1
+    w[big[sub] & both[sub]] = round(1.0 / _MIN_BOTH_AXES_SHARE) - 1
+    out = np.zeros(big.shape, bool)
+    out[sub] = big[sub] & (_box_sum(w, ry, rx) >= 0)
+    return out
+
+
+def _combine_axes(obj_x, obj_y, ok, reach, progress=None):
     """X and Y results -> objects: the union, keeping each connected object only when at
     least a tenth of its cells are rejected by both axes.
 
     Buildings and crowns are crossed by both axes; a road embankment or a dam that one
     axis runs along is accepted by that axis along most of its length, so the other
     axis's rejections of it are given back to the ground.
+
+    An object is at most ``reach = (rows, cols)`` cells (the largest object): a connected
+    region larger than that is objects touching embankments, hedges or each other, and
+    its share is taken locally, over the region's cells within ``reach / 2`` of each cell
+    (so a building touching a long dam stays an object, and the decision does not depend
+    on how far the region runs: blocks give the one-pass result).
     """
     union = obj_x | obj_y
     union &= ok
     if not union.any():
         return union
     lab, n = ndimage.label(union, structure=np.ones((3, 3), bool))
+    report(progress, 0.4)
     both = obj_x & obj_y
     both &= ok
     # counts over the labelled cells only (a bincount of the whole raster would cast
@@ -352,9 +425,16 @@ def _combine_axes(obj_x, obj_y, ok):
     total = np.bincount(lu, minlength=n + 1)
     inboth = np.bincount(lab[both], minlength=n + 1)
     keep = inboth >= _MIN_BOTH_AXES_SHARE * total
+    large = _large_regions(lab, total, reach)
+    keep &= ~large
     keep[0] = False
     out = np.zeros(union.shape, bool)
     out[union] = keep[lu]          # looked up for the labelled cells only
+    if large.any():
+        report(progress, 0.6)
+        big = np.zeros(union.shape, bool)
+        big[union] = large[lu]
+        out |= _local_share_kept(big, both, reach)
     return out
 
 
@@ -469,7 +549,7 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.05, 0.7))
     del zs
     # 3. X and Y combined by connected objects
-    obj = _combine_axes(obj_x, obj_y, valid & ~low)
+    obj = _combine_axes(obj_x, obj_y, valid & ~low, (init[1], init[0]), sub_progress(progress, 0.7, 0.8))
     report(progress, 0.8)
     # 4. optional refinement against the interpolated ground
     refined, dtm = 0, None
@@ -531,9 +611,13 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
 
 
 def slope_profile_halo(params, cell_size):
-    """Reach in cells: the start window plus the longest object crossed by a profile."""
+    """Reach in cells: the scans' (the start window plus the longest object crossed by a
+    profile, ``2 L + 2`` with ``L`` the largest object in cells) plus the combination's
+    (:func:`_combine_axes`: a region's extent is known ``L + 1`` cells around a cell, and
+    large regions are shared over ``L / 2`` cells), so blocks give the one-pass mask."""
     dx, dy = as_cell_size(cell_size)
-    return int(np.ceil(2 * params["max_object_size_m"] / min(dx, dy))) + 2
+    big = int(np.ceil(params["max_object_size_m"] / min(dx, dy)))
+    return 2 * big + 2 + big + 1 + big // 2
 
 
 #: The user parameters (dialog order); their bounds are the limits the core enforces.
