@@ -25,7 +25,9 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   each connected object only when at least a tenth of its cells are rejected by both axes.
   An object elongated along one axis is short, hence caught, along the other; but a road
   embankment or a dam that a profile runs along is accepted by that profile over most of
-  its length, and goes back to the ground.
+  its length, and goes back to the ground. A region larger than the largest object
+  (objects touching a dam or one another) takes that share locally, over its cells within
+  half the largest object, so the rule's reach is bounded (blocks give the one-pass mask).
 * **Low blunders** (a drop then a rise, typical of image matching and laser multipath) are
   found first: pits a 3 x 3 grey closing fills that also lie below the lower third of
   their 7 x 7 neighbourhood (so ground hits between tree crowns stay ground). They get
