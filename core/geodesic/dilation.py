@@ -102,6 +102,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     obj_c = np.zeros(cand.shape, bool)
     if cand.any():
         lab, n = ndimage.label(cand, S8)
+        report(progress, 0.75)
         rim = cand & ~inner_cells(cand)
         # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
         # than the terrain can rise over one (diagonal) cell, plus 2 dh0
@@ -109,6 +110,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         abrupt = jump if f == 1 else block_reduce(jump, f, np.maximum, False)
         abrupt = abrupt & (dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
         dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, dc, rim, abrupt)
+        report(progress, 0.85)
         dh_k = dh0 + tan_s * s * BUMP_FRACTION
         keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
                 & (ext_r * f * dy <= ext_limit) & (ext_c * f * dx <= ext_limit))
