@@ -146,6 +146,8 @@ def _extreme3(a, op, out=None, tmp=None):
 
 #: Window (cells) and rank of the local ground height a low blunder must lie below.
 _LOW_WINDOW, _LOW_RANK = 7, 16
+#: Candidates whose neighbourhoods are ranked at once.
+_LOW_CHUNK = 1 << 16
 
 
 def find_low_blunders(z, tolerance_m, progress=None):
@@ -185,15 +187,18 @@ def find_low_blunders(z, tolerance_m, progress=None):
     if not found:
         return low
     report(progress, 0.7)
-    r, c = np.divmod(np.concatenate(found), cols)
+    cand = np.concatenate(found)
     h = _LOW_WINDOW // 2
     off = np.arange(-h, h + 1)
-    rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
-    cc = np.clip(c[:, None, None] + off[None, None, :], 0, z.shape[1] - 1)
-    neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
-    neigh[np.isnan(neigh)] = np.inf                                            # nodata is no ground
-    fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
-    low[r, c] = z[r, c] < fifth - tolerance_m
+    for i in range(0, cand.size, _LOW_CHUNK):          # bounded memory: 49 neighbours each
+        r, c = np.divmod(cand[i:i + _LOW_CHUNK], cols)
+        rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
+        cc = np.clip(c[:, None, None] + off[None, None, :], 0, z.shape[1] - 1)
+        neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
+        neigh[np.isnan(neigh)] = np.inf                                        # nodata is no ground
+        fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
+        low[r, c] = z[r, c] < fifth - tolerance_m
+        report(progress, 0.7 + 0.3 * min(cand.size, i + _LOW_CHUNK) / cand.size)
     return low
 
 
