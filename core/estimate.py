@@ -206,7 +206,7 @@ def noise_second_difference_quartile(z, default=0.1):
     return float(np.percentile(np.abs(d - np.median(d)), 25) / _ABS_NORMAL_QUARTILE / np.sqrt(6.0))
 
 
-def noise_plane_residual(z):
+def noise_plane_residual(z, dtype=np.float32):
     """Standard deviation of the DSM's random height error, metres: the lower quartile of
     the residual to the mean of the four neighbours.
 
@@ -214,8 +214,9 @@ def noise_plane_residual(z):
     standard deviation ``sigma`` it is normal with standard deviation
     ``sigma sqrt(1.25)``. Edges, roofs and vegetation inflate ``|r|`` on part of the
     cells, so the lower quartile of ``|r|`` (``0.3186`` standard deviations) is used:
-    the cleanest quarter of the surface sets the noise. Float32 arithmetic, full
-    resolution, :func:`sample_windows` of a large raster.
+    the cleanest quarter of the surface sets the noise. Full resolution,
+    :func:`sample_windows` of a large raster; ``dtype`` is the precision of the
+    arithmetic (float32, the DSM's own, or float64).
 
     Returns
     -------
@@ -223,13 +224,71 @@ def noise_plane_residual(z):
         ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``; 0 for a surface without a residual.
     """
     r = []
-    for w in sample_windows(np.asarray(z, np.float32)):
+    for w in sample_windows(np.asarray(z, dtype)):
         if min(w.shape) < 3:
             continue
         c = w[1:-1, 1:-1]
-        nb = (w[:-2, 1:-1] + w[2:, 1:-1] + w[1:-1, :-2] + w[1:-1, 2:]) * np.float32(0.25)
+        nb = (w[:-2, 1:-1] + w[2:, 1:-1] + w[1:-1, :-2] + w[1:-1, 2:]) * w.dtype.type(0.25)
         r.append(np.abs(c - nb)[np.isfinite(c) & np.isfinite(nb)])
-    r = np.concatenate(r) if r else np.empty(0, np.float32)
+    r = np.concatenate(r) if r else np.empty(0, dtype)
     if r.size == 0:
         return 0.0
     return float(np.percentile(r, 25.0)) / _ABS_NORMAL_QUARTILE / math.sqrt(1.25)
+
+
+def smooth_spread(stacks, tile=16, quantile=0.25):
+    """Robust spread of values on the smooth parts of a surface: a low quantile of the
+    per-tile MADs.
+
+    Every stack (``bands x rows x cols``, NaN = nodata) is cut into ``tile x tile``
+    tiles (all bands of a tile together; partial tiles at the far edges left out), the
+    robust spread ``1.4826 MAD`` is taken per tile, and the ``quantile`` of the tiles'
+    spreads (pooled over the stacks) is returned: the spread of the smooth ground and
+    roofs, not inflated by vegetation or by the objects' edges, which may cover most of
+    an urban scene.
+
+    Returns
+    -------
+    float
+        0 when no tile has a finite spread.
+    """
+    mads = []
+    for v in stacks:
+        b, r, c = v.shape
+        tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
+        nr, nc = r // tr, c // tc
+        t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
+        t = t.reshape(nr * nc, -1).astype(np.float64)  # a copy: partitioned in place
+        med = np.median(t, axis=1, keepdims=True, overwrite_input=True)  # nodata: NaN, dropped
+        t -= med
+        np.abs(t, out=t)
+        mad = _ABS_NORMAL_MEDIAN_INV * np.median(t, axis=1, overwrite_input=True)
+        mads.append(mad[np.isfinite(mad)])
+    mad = np.concatenate(mads) if mads else np.empty(0)
+    return float(np.quantile(mad, quantile)) if mad.size else 0.0
+
+
+def noise_second_difference_tiles(z, tile=16, quantile=0.25):
+    """Standard deviation of the DSM's random height error, metres: the spread of the
+    second differences on the smooth parts of the surface.
+
+    The second differences along X and Y at every interior cell (variance ``6 sigma^2``
+    for white noise) are stacked, and their :func:`smooth_spread` (``1.4826 MAD`` per
+    ``tile x tile`` tile, the ``quantile`` of the tiles) is divided by ``sqrt(6)``: the
+    noise of the smooth ground and roofs even where edges and crowns cover most of the
+    cells. Full resolution, :func:`sample_windows` of a large raster.
+
+    Returns
+    -------
+    float
+        0 when the surface (every window) is narrower than 3 cells.
+    """
+    stacks = []
+    for w in sample_windows(np.asarray(z, np.float32)):
+        if min(w.shape) < 3:
+            continue
+        stacks.append(np.stack([(w[1:-1, :-2] - 2 * w[1:-1, 1:-1] + w[1:-1, 2:]),
+                                (w[:-2, 1:-1] - 2 * w[1:-1, 1:-1] + w[2:, 1:-1])]).astype(np.float32))
+    if not stacks:
+        return 0.0
+    return smooth_spread(stacks, tile, quantile) / np.sqrt(6.0)

@@ -126,3 +126,31 @@ def test_noise_on_a_large_raster_is_sampled_over_all_of_it():
     assert est.noise_second_difference(z[472:728, 472:728]) == 0.0
     for func in (est.noise_second_difference, est.noise_second_difference_quartile, est.noise_plane_residual):
         assert func(z) == pytest.approx(0.2, rel=0.2)      # the quiet share pulls it down a little
+
+
+def test_noise_plane_residual_in_float64():
+    z = np.zeros((3, 3))
+    z[1, 1] = 0.1                                   # not a float32 number
+    assert est.noise_plane_residual(z, dtype=np.float64) == 0.1 / 0.3186 / math.sqrt(1.25)
+    assert est.noise_plane_residual(z) == float(np.float32(0.1)) / 0.3186 / math.sqrt(1.25)
+
+
+def test_smooth_spread_exact():
+    # two 2 x 2 tiles of one band: [0, 0, 0, 4] has median 0, MAD 0; [0, 2, 4, 6] has
+    # median 3, |v - 3| = [3, 1, 1, 3], MAD 2
+    v = np.array([[[0, 0, 0, 2], [0, 4, 4, 6]]], np.float32)
+    tiles = [0.0, 1.4826 * 2]
+    assert est.smooth_spread([v], tile=2, quantile=0.5) == pytest.approx(np.quantile(tiles, 0.5), rel=1e-12)
+    assert est.smooth_spread([v], tile=2, quantile=1.0) == pytest.approx(1.4826 * 2, rel=1e-12)
+    assert est.smooth_spread([v, v[:, :, :2]], tile=2, quantile=0.0) == 0.0          # pooled
+    assert est.smooth_spread([np.full((1, 2, 2), np.nan)], tile=2) == 0.0
+
+
+def test_noise_second_difference_tiles_exact_and_measured():
+    yy, xx = np.mgrid[0:20, 0:20].astype(np.float32)
+    assert est.noise_second_difference_tiles(2 * xx + yy) == 0.0
+    assert est.noise_second_difference_tiles(np.zeros((2, 50), np.float32)) == 0.0
+    rng = np.random.default_rng(5)
+    z = (0.2 * xx + rng.normal(0, 0.1, xx.shape)).astype(np.float32)
+    big = np.pad(z, 140, mode="reflect")                         # 300 x 300, same noise
+    assert est.noise_second_difference_tiles(big, quantile=0.5) == pytest.approx(0.1, rel=0.15)
