@@ -335,7 +335,8 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
         # erosion by the full window (cheaper than starting from the surface).
         eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n))
         report(progress, (k + 0.5) / n)
-        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 1) / n))
+        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n))
+        report(progress, (k + 0.9) / n)
         with np.errstate(invalid="ignore"):
             np.subtract(prev, opened, out=diff)
             np.greater(diff, np.float32(slope * rad_m), out=above)   # SMRF: t_k = s * r_k * c
@@ -444,7 +445,8 @@ def open_progressive(z, cell, p, work, progress=None):
     # 2. progressive opening of the cleaned surface: flags where the opening drops by > s r_k
     radii = window_radii(p["max_object_size_m"], cell, growth)
     a, has_nodata = _as_inf(clean, 1.0, nodata)
-    obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85), work)
+    report(progress, 0.11)
+    obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.11, 0.85), work)
     del a
     obj &= valid
     # 3. provisional surface ZIpro: flagged and low cells, which SMRF leaves out and
