@@ -83,7 +83,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         vc = np.isfinite(zmin)
         size_c = window_cells(s, dx * f, dy * f)
     report(progress, 0.1)
-    marker = grey_opening(zmin, vc, size_c)
+    marker = grey_opening(zmin, vc, size_c, sub_progress(progress, 0.1, 0.25))
     report(progress, 0.25)
     mask_c = wmask if f == 1 else np.where(vc, zmax, np.nan)
     if NOISE_SNAP > 0:

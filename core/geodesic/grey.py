@@ -215,22 +215,26 @@ def fill_nodata(z, valid, value):
     return z if valid is None or valid.all() else np.where(valid, z, value)
 
 
-def grey_opening(z, valid, size):
+def grey_opening(z, valid, size, progress=None):
     """Grey opening by a flat rectangle ``size`` (rows, cols); nodata ignored.
 
-    Returns ``-inf`` where the whole window is nodata.
+    Returns ``-inf`` where the whole window is nodata; ``progress(0.5)`` between the
+    erosion and the dilation.
     """
     e = rect_filter(fill_nodata(z, valid, np.inf), size, np.minimum, np.inf)
     if valid is not None and not valid.all():
         e[np.isposinf(e)] = -np.inf
+    report(progress, 0.5)
     return rect_filter(e, size, np.maximum, -np.inf)
 
 
-def grey_closing(z, valid, size):
-    """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored."""
+def grey_closing(z, valid, size, progress=None):
+    """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored;
+    ``progress(0.5)`` between the dilation and the erosion."""
     d = rect_filter(fill_nodata(z, valid, -np.inf), size, np.maximum, -np.inf)
     if valid is not None and not valid.all():
         d[np.isneginf(d)] = np.inf
+    report(progress, 0.5)
     return rect_filter(d, size, np.minimum, np.inf)
 
 

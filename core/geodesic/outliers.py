@@ -3,7 +3,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import LOW, OBJECT
-from ..common import report
+from ..common import report, sub_progress
 from .grey import S8, grey_closing, grey_opening, window_cells
 
 #: Largest cluster (cells) the preprocessing treats as an isolated outlier.
@@ -48,9 +48,9 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     """
     win = window_cells(width_m, cell_size[0], cell_size[1])
     w = np.where(valid, z, np.float32(np.nan))
-    clo = grey_closing(z, vnone, win)
+    clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3))
     report(progress, 0.3)
-    ope = grey_opening(z, vnone, win)
+    ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
     with np.errstate(invalid="ignore"):
         low_c = valid & (clo - z > threshold_m)
