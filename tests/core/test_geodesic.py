@@ -1,4 +1,4 @@
-"""Tests of the gradual geodesic dilation filter with scan labelling (core/geodesic.py)."""
+"""Tests of the gradual geodesic dilation filter with scan labelling (core/geodesic/)."""
 import numpy as np
 import pytest
 from scipy import ndimage
