@@ -110,8 +110,8 @@ def test_make_package_builds_a_zip_the_plugin_repository_accepts():
 def test_validator_refuses_what_the_repository_refuses(tmp_path):
     """The checks above are not vacuous: a zip without LICENSE, or with a cache, is refused."""
     good = {"pk/__init__.py": "", "pk/LICENSE": "GPL", "pk/metadata.txt":
-            "[general]\n" + "\n".join(f"{k}=https://x.org/a" for k in REQUIRED_METADATA + ("homepage",))
-            + "\nauthor=A\n"}
+            "[general]\n" + "\n".join(f"{k}=" + ("A" if k == "author" else "https://x.org/a")
+                                   for k in REQUIRED_METADATA + ("homepage",)) + "\n"}
     for extra, drop, expect in (({}, None, None), ({}, "pk/LICENSE", "no LICENSE"),
                                 ({"pk/__pycache__/a.cpython-311.pyc": "x"}, None, ".pyc"),
                                 ({"pk/lib.so": "x"}, None, "binary")):
