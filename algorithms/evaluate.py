@@ -22,6 +22,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
     TRUTH_POINTS, TRUTH_COLUMN = "TRUTH_POINTS", "TRUTH_COLUMN"
     OUTPUT_JSON, OUTPUT_HTML = "OUTPUT_JSON", "OUTPUT_HTML"
     GROUP, GROUP_NAME = "tools", "DTM tools"
+    TAGS = ("DTM", "DEM", "ground", "terrain", "bare earth", "evaluate", "accuracy", "error", "RMSE", "kappa",
+            "ISPRS", "Type I", "Type II", "lidar", "reference")
 
     def name(self):
         return "evaluate"

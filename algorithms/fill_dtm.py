@@ -39,6 +39,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
     INPUT, BAND, MASK, FILL_CODES, FILL_NODATA, OUTPUT = ("INPUT", "BAND", "MASK", "FILL_CODES",
                                                           "FILL_NODATA", "OUTPUT")
     GROUP, GROUP_NAME = "tools", "DTM tools"
+    TAGS = ("DTM", "DEM", "DSM", "ground", "terrain", "bare earth", "nodata", "fill", "gaps", "holes", "voids",
+            "interpolation", "fill nodata")
 
     def name(self):
         return "filldtm"

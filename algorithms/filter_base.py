@@ -5,8 +5,10 @@ the dialog from the method's ``Param`` specs, checks the input before any work s
 turns ``feedback`` into the core's progress callback, runs the core's block pipeline and
 returns the outputs.
 """
+import functools
 import math
 import os
+import re
 
 from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
                        QgsProcessingParameterBand, QgsProcessingParameterBoolean,
@@ -80,11 +82,51 @@ def check_dsm(layer, band):
     return True, "", info
 
 
+#: README.md beside the plugin: its headings are the targets of the help buttons
+README = os.path.join(os.path.dirname(os.path.dirname(__file__)), "README.md")
+
+
+def github_anchor(heading):
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped (letters,
+    digits, spaces, '-' and '_' kept), each space a '-'."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def readme_headings(path=README):
+    """The README's headings (text after the '#'s), in order; [] when it is absent."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return []
+    out, fenced = [], False
+    for line in lines:
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        elif not fenced and re.match(r"#{1,6} ", line):
+            out.append(line.lstrip("#").strip())
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def help_anchor(alg_id):
+    """Anchor of the README section of ``bareearth:<name>``: the first heading naming the
+    algorithm, else the "Algorithms" section."""
+    headings = readme_headings()
+    for h in headings:
+        if re.search(rf"`{re.escape(alg_id)}`", h):
+            return github_anchor(h)
+    return "algorithms"
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
-    """Common bits of every Bare Earth algorithm (icon, group, help URL, instance)."""
+    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
 
     GROUP = "filters"
     GROUP_NAME = "DSM filters"
+    #: words users type in the toolbox's search box (the toolbox matches tags, id and name)
+    TAGS = ()
 
     def icon(self):
         return QIcon(ICON)
@@ -98,8 +140,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
     def groupId(self):  # noqa: N802
         return self.GROUP
 
+    def tags(self):
+        return [tr(t) for t in self.TAGS]
+
     def helpUrl(self):  # noqa: N802
-        return f"{HOMEPAGE}#{self.name()}" if HOMEPAGE else ""
+        return "{}#{}".format(HOMEPAGE, help_anchor("bareearth:" + self.name())) if HOMEPAGE else ""
 
     def createInstance(self):  # noqa: N802
         return type(self)()
@@ -117,6 +162,11 @@ class FilterAlgorithm(BaseAlgorithm):
     """
 
     METHOD_NAME = None
+    #: every filter; a subclass adds its own words in METHOD_TAGS
+    FILTER_TAGS = ("DTM", "DEM", "DSM", "digital terrain model", "ground", "ground filter", "terrain",
+                   "bare earth", "filter", "object mask", "buildings", "trees", "vegetation", "nodata",
+                   "classification", "photogrammetry")
+    METHOD_TAGS = ()
     INPUT = "INPUT"
     BAND = "BAND"
     OUTPUT_DTM = "OUTPUT_DTM"
@@ -134,6 +184,10 @@ class FilterAlgorithm(BaseAlgorithm):
 
     def name(self):
         return self.METHOD_NAME
+
+    @property
+    def TAGS(self):  # noqa: N802 (the class constant of BaseAlgorithm)
+        return self.FILTER_TAGS + self.METHOD_TAGS
 
     def displayName(self):  # noqa: N802
         return tr(self.method.title or self.METHOD_NAME)

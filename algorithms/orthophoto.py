@@ -262,6 +262,8 @@ class OrthoAlgorithm(BaseAlgorithm):
     """Shared parameters and outputs of the two orthophoto algorithms."""
 
     GROUP, GROUP_NAME = "orthophoto", "Orthophoto refinement"
+    TAGS = ("orthophoto", "orthorectification", "DEM", "DTM", "DSM", "ground", "terrain", "image matching",
+            "parallax", "stereo", "photogrammetry", "aerial images", "refinement")
     DEM = "DEM"
     BASE_M, HEIGHT_M, BASE_DIRECTION_DEG = "BASE_M", "HEIGHT_M", "BASE_DIRECTION_DEG"
     WINDOW_CELLS, MIN_CORRELATION, HEIGHT_THRESHOLD_M = "WINDOW_CELLS", "MIN_CORRELATION", "HEIGHT_THRESHOLD_M"

@@ -199,8 +199,13 @@ def _rule_params(threshold_key, slope_key, advanced=False):
     return t, s
 
 
+#: what a point-cloud user types in the toolbox search
+POINT_TAGS = ("lidar", "point cloud", "points", "LAS", "LAZ", "ALS", "ground", "DTM", "DSM", "classification")
+
+
 class PointAlgorithmBase(BaseAlgorithm):
     GROUP, GROUP_NAME = "points", "Point clouds"
+    TAGS = POINT_TAGS + ("rasterize", "grid", "classify", "ground points")
 
 
 # --------------------------------------------------------------------------- rasterize
@@ -407,6 +412,10 @@ class PointsInputMixin:
     """
 
     INPUT_POINTS, POINTS_CRS, CELL_SIZE_M = "INPUT_POINTS", "POINTS_CRS", "CELL_SIZE_M"
+
+    @property
+    def TAGS(self):  # noqa: N802
+        return super().TAGS + POINT_TAGS
     THRESHOLD_M, SLOPE_FACTOR, OTHER_TILES, OUTPUT_POINTS = ("THRESHOLD_M", "SLOPE_FACTOR", "OTHER_TILES",
                                                              "OUTPUT_POINTS")
 
