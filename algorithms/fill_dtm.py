@@ -6,7 +6,8 @@ from qgis.core import (QgsProcessingException, QgsProcessingParameterBand, QgsPr
 
 from ..core import Cancelled, grid
 from ..core.fill import fill_gaps
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr, with_help
+from .filter_base import (BaseAlgorithm, check_dsm, format_params, output_options, progress_callback,
+                          raster_path, tr, with_help)
 
 
 def same_grid(a, b):
@@ -76,6 +77,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
         self.addParameter(f)
         self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT, tr("Filled surface")),
                                     "Float32 surface on the input's grid with the filled cells."))
+        for p in format_params():
+            self.addParameter(p)
 
     def _inputs(self, parameters, context):
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
@@ -131,8 +134,11 @@ class FillDtmAlgorithm(BaseAlgorithm):
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
         if np.isfinite(nodata):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
-        with grid.OutputSet(info) as out:
-            out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
-            out.write("out", filled)
-            out.commit()
+        try:
+            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
+                out.write("out", filled)
+                out.commit()
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
         return {self.OUTPUT: out_path}

@@ -5,16 +5,18 @@ the dialog from the method's ``Param`` specs, checks the input before any work s
 turns ``feedback`` into the core's progress callback, runs the core's block pipeline and
 returns the outputs.
 """
+import contextlib
 import functools
 import math
 import os
 import re
 
 from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
-                       QgsProcessingParameterBand, QgsProcessingParameterBoolean,
-                       QgsProcessingParameterDefinition, QgsProcessingParameterEnum,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterDestination,
-                       QgsProcessingParameterRasterLayer)
+                       QgsProcessingOutputLayerDefinition, QgsProcessingParameterBand,
+                       QgsProcessingParameterBoolean, QgsProcessingParameterDefinition,
+                       QgsProcessingParameterEnum, QgsProcessingParameterNumber,
+                       QgsProcessingParameterRasterDestination, QgsProcessingParameterRasterLayer,
+                       QgsProcessingParameterString)
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
 
@@ -24,6 +26,15 @@ from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE
 from ..provider import ICON
+
+#: short names of the filters' side products (dialog labels and layer names), by the core's extras key
+EXTRA_LABELS = {"curvature": "Curvature (K, H)", "step": "Removal step", "confidence": "Confidence (%)"}
+
+
+def extra_label(key):
+    """The short label of a side product (its key, capitalised, when it has none)."""
+    return EXTRA_LABELS.get(key, key.replace("_", " ").capitalize())
+
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
              + "; a colour table and a .qml style are written with it.")
@@ -120,6 +131,53 @@ def help_anchor(alg_id):
     return "algorithms"
 
 
+CREATE_OPTIONS, COG = "CREATE_OPTIONS", "COG"
+
+
+def format_params():
+    """The advanced parameters of GeoTIFF outputs, as QGIS's own raster algorithms offer them:
+    GDAL creation options (with QGIS's profile widget in the dialog) and cloud-optimised GeoTIFF."""
+    o = QgsProcessingParameterString(CREATE_OPTIONS, tr("Additional creation options"), optional=True)
+    o.setMetadata({"widget_wrapper": {
+        "class": "processing.algs.gdal.ui.RasterOptionsWidget.RasterOptionsWidgetWrapper"}})
+    c = QgsProcessingParameterBoolean(COG, tr("Write cloud-optimised GeoTIFFs (COG)"), False, optional=True)
+    return [with_help(o, "GDAL creation options of the GeoTIFF outputs, KEY=VALUE separated by '|' (e.g. "
+                         "COMPRESS=ZSTD|PREDICTOR=2 or COMPRESS=LZW); the dialog offers QGIS's compression "
+                         "profiles. Empty: DEFLATE (fast level) in 256 x 256 tiles.", advanced=True),
+            with_help(c, "Write .tif outputs as cloud-optimised GeoTIFFs (tiled, with overviews, readable "
+                         "over HTTP by range requests), compressed with DEFLATE unless the creation options "
+                         "say otherwise.", advanced=True)]
+
+
+@contextlib.contextmanager
+def output_options(alg, parameters, context):
+    """``grid.write_options`` from an algorithm's CREATE_OPTIONS and COG (if it has them)."""
+    cog = bool(alg.parameterDefinition(COG)) and alg.parameterAsBool(parameters, COG, context)
+    text = alg.parameterAsString(parameters, CREATE_OPTIONS, context) if alg.parameterDefinition(CREATE_OPTIONS) \
+        else ""
+    try:
+        opts = grid.parse_creation_options(text, cog=cog)
+    except ValueError as exc:
+        raise QgsProcessingException(str(exc)) from None
+    with grid.write_options(opts, cog):
+        yield
+
+
+def destination_path(parameters, key):
+    """The file a destination parameter names, or None for a temporary output (or none)."""
+    v = parameters.get(key)
+    if isinstance(v, QgsProcessingOutputLayerDefinition):
+        v = v.sink.staticValue()
+    if v is None or str(v) in ("", QgsProcessing.TEMPORARY_OUTPUT) or str(v).startswith("memory:"):
+        return None
+    return str(v)
+
+
+def label_of(definition):
+    """How messages name a parameter: its label, and its id for qgis_process."""
+    return "'{}' ({})".format(definition.description(), definition.name())
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
     """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
 
@@ -152,6 +210,73 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
     def tr(self, text):
         return tr(text)
 
+    # -- outputs ---------------------------------------------------------------------------
+    def outputBands(self, key):  # noqa: N802
+        """Bands of the raster output ``key`` (1; a filter's side products may have more)."""
+        return 1
+
+    def inputPaths(self, parameters, context):  # noqa: N802
+        """(definition, path) of every file the given inputs read."""
+        out = []
+        for d in self.parameterDefinitions():
+            if d.isDestination() or parameters.get(d.name()) in (None, "", []):
+                continue
+            if d.type() == "raster":
+                lay = self.parameterAsRasterLayer(parameters, d.name(), context)
+                out += [(d, lay.source())] if lay is not None else []
+            elif d.type() == "file":
+                out.append((d, self.parameterAsFile(parameters, d.name(), context)))
+            elif d.type() == "multilayer":
+                out += [(d, p) for p in self.parameterAsFileList(parameters, d.name(), context)]
+                out += [(d, lay.source()) for lay in self.parameterAsLayerList(parameters, d.name(), context)]
+        return [(d, p) for d, p in out if p]
+
+    def checkOutputs(self, parameters, context):  # noqa: N802
+        """(ok, message): no output overwrites an input or another output; each output's folder
+        exists and takes files; each raster output's extension names a format offered (and
+        holds its bands). Runs before any work."""
+        inputs = [(d, os.path.realpath(p)) for d, p in self.inputPaths(parameters, context)]
+        seen = {}
+        for d in self.destinationParameterDefinitions():
+            path = destination_path(parameters, d.name())
+            if path is None:
+                continue
+            real = os.path.realpath(path)
+            for di, p in inputs:
+                if p == real:
+                    return False, tr("The output {} is the input {} ({}): the input would be overwritten. "
+                                     "Choose another file for the output.").format(label_of(d), label_of(di), path)
+            if real in seen:
+                return False, tr("The outputs {} and {} are one file ({}): give each output its own "
+                                 "file.").format(label_of(seen[real]), label_of(d), path)
+            seen[real] = d
+            try:
+                if d.type() == "rasterDestination":
+                    grid.check_output_path(path, self.outputBands(d.name()))
+                else:
+                    grid.check_output_folder(path)
+            except ValueError as exc:
+                return False, "{}: {}".format(label_of(d), exc)
+        if self.parameterDefinition(CREATE_OPTIONS) is not None:
+            try:
+                grid.parse_creation_options(self.parameterAsString(parameters, CREATE_OPTIONS, context),
+                                            cog=self.parameterAsBool(parameters, COG, context))
+            except ValueError as exc:
+                return False, "{}: {}".format(label_of(self.parameterDefinition(CREATE_OPTIONS)), exc)
+        return True, ""
+
+    def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = super().checkParameterValues(parameters, context)
+        if not ok:
+            return ok, msg
+        return self.checkOutputs(parameters, context)
+
+    def postProcessAlgorithm(self, context, feedback):  # noqa: N802
+        """Style the outputs Processing loads (the mask's classes, side products' renderers)."""
+        from .styles import style_loaded_outputs
+        style_loaded_outputs(self, context)
+        return {}
+
 
 class FilterAlgorithm(BaseAlgorithm):
     """Base of every DSM filter algorithm. Subclasses set ``METHOD_NAME``.
@@ -181,6 +306,10 @@ class FilterAlgorithm(BaseAlgorithm):
     @property
     def method(self):
         return get_method(self.METHOD_NAME)
+
+    def outputBands(self, key):  # noqa: N802
+        extra = key[len("OUTPUT_"):].lower()
+        return self.method.extras[extra][1] if key.startswith("OUTPUT_") and extra in self.method.extras else 1
 
     def name(self):
         return self.METHOD_NAME
@@ -249,8 +378,10 @@ class FilterAlgorithm(BaseAlgorithm):
             "Float32 normalised DSM: height above the DTM (metres, or the input's height unit)."))
         for key in self.method.extras:
             self.addParameter(with_help(QgsProcessingParameterRasterDestination(
-                f"OUTPUT_{key.upper()}", tr(self.EXTRA_HELP.get(key, key)), optional=True,
+                f"OUTPUT_{key.upper()}", tr(extra_label(key)), optional=True,
                 createByDefault=False), self.EXTRA_HELP.get(key, key)))
+        for p in format_params():
+            self.addParameter(p)
 
     @staticmethod
     def _qgs_param(p):
@@ -319,10 +450,17 @@ class FilterAlgorithm(BaseAlgorithm):
         defaults = {p.name: p.default for p in self.method.params}
         for name, v in user.items():
             # a default larger than a small raster is clamped by the core; a chosen one is refused
-            if v is not None and v != defaults.get(name) and ("window" in name or "size_m" in name) \
-                    and name.endswith("_m") and isinstance(v, (int, float)) and v > extent_m:
-                return False, tr(f"{name.upper()} = {v} m is larger than the raster itself "
-                                 f"({extent_m:.1f} m across): choose a smaller window or a larger raster.")
+            if v is None or v == defaults.get(name) or not isinstance(v, (int, float)) or "window" not in name \
+                    and "size_m" not in name:
+                continue
+            label = label_of(self.parameterDefinition(name.upper()))
+            if name.endswith("_m") and v > extent_m:
+                return False, tr("{} = {} m is larger than the raster itself ({:.1f} m across): choose a "
+                                 "smaller window or a larger raster.").format(label, v, extent_m)
+            if name.endswith("_cells") and v > min(info.shape):
+                return False, tr("{} = {} cells is larger than the raster itself ({} x {} cells): choose a "
+                                 "smaller window or a larger raster.").format(label, v, info.shape[1],
+                                                                             info.shape[0])
         return self.checkExtraInputs(parameters, context, info)
 
     def checkExtraInputs(self, parameters, context, info):  # noqa: N802
@@ -358,10 +496,11 @@ class FilterAlgorithm(BaseAlgorithm):
         feedback.pushInfo(tr(f"Input: {info.path} band {info.band_index}, {info.shape[1]} x {info.shape[0]} "
                              f"cells of {info.cell_size_m[0]:.4g} x {info.cell_size_m[1]:.4g} m"))
         try:
-            result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
-                              aux=aux, block=block, workers=threads, processes=processes,
-                              progress=progress_callback(feedback),
-                              log=feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError)
+            log = feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError
+            with output_options(self, parameters, context):
+                result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
+                                  aux=aux, block=block, workers=threads, processes=processes,
+                                  progress=progress_callback(feedback), log=log)
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}

@@ -4,7 +4,7 @@
 import os
 import threading
 
-from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
+from qgis.core import (QgsProcessing, QgsProcessingException,
                        QgsProcessingOutputNumber, QgsProcessingParameterBand,
                        QgsProcessingParameterBoolean, QgsProcessingParameterCrs,
                        QgsProcessingParameterDefinition, QgsProcessingParameterEnum,
@@ -16,7 +16,7 @@ from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingExcep
 from ..core import Cancelled
 from ..core import pointflow as pf
 from ..core.points import LAS_INSTALL_HINT, read_points
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, tr
+from .filter_base import BaseAlgorithm, check_dsm, format_params, output_options, progress_callback, tr
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
@@ -246,6 +246,8 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
         o = QgsProcessingParameterRasterDestination(self.OUTPUT, tr("DSM"))
         o.setHelp(tr("Float32 raster on the points' CRS, NaN nodata."))
         self.addParameter(o)
+        for p in format_params():
+            self.addParameter(p)
         for key, label in (("POINTS", "Points"), ("CELL_SIZE", "Cell size (m)"), ("EMPTY_CELLS", "Empty cells")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
 
@@ -285,7 +287,8 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             feedback.setProgress(70)
-            pf.write_rasters(g, None, {"dsm": out})
+            with output_options(self, parameters, context):
+                pf.write_rasters(g, None, {"dsm": out})
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(str(exc)) from None
         finally:
@@ -468,7 +471,7 @@ class PointsInputMixin:
                              + ("not both." if has_r else "neither was given."))
         if has_r:
             return super().checkParameterValues(parameters, context)
-        ok, msg = QgsProcessingAlgorithm.checkParameterValues(self, parameters, context)
+        ok, msg = BaseAlgorithm.checkParameterValues(self, parameters, context)
         if not ok:
             return ok, msg
         try:
@@ -539,7 +542,8 @@ class PointsInputMixin:
             else:
                 res = pf.filter_cloud(cloud, self.METHOD_NAME, user, cell_size_m=cell, threshold_m=thr,
                                       slope_factor=sf, block=block, progress=progress)
-            pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
+            with output_options(self, parameters, context):
+                pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
             from ..core.points import write_points
             write_points(out_points, cloud, res.classes)
         except Cancelled:

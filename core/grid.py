@@ -345,10 +345,17 @@ def check_output_path(path, bands=1):
     """
     _need_gdal()
     path = os.path.abspath(str(path))
-    folder, base = os.path.split(path)
     if os.path.isdir(path):
         raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. dtm.tif).")
     _output_format(path, bands)
+    check_output_folder(path)
+
+
+def check_output_folder(path):
+    """Check that the folder of an output file ``path`` exists and takes new files, and that the
+    file's name fits the file system; ValueError naming the folder otherwise."""
+    path = os.path.abspath(str(path))
+    folder, base = os.path.split(path)
     if not os.path.isdir(folder):
         raise ValueError(f"the output folder {folder!r} does not exist: create it or choose another folder.")
     try:  # a real file: os.access says yes to root on a read-only or virtual file system
