@@ -34,7 +34,8 @@ EXAMPLES = ROOT / "examples"
 
 def build(filter_name="morphological"):
     """Return the model (QgsProcessingModelAlgorithm); QGIS must be initialised."""
-    from qgis.core import (QgsApplication, QgsProcessingModelAlgorithm, QgsProcessingParameterDefinition, QgsProcessingModelChildAlgorithm,
+    from qgis.core import (QgsApplication, QgsProcessingModelAlgorithm, QgsProcessingParameterDefinition,
+                           QgsProcessingModelChildAlgorithm,
                            QgsProcessingModelChildParameterSource, QgsProcessingModelOutput,
                            QgsProcessingModelParameter, QgsProcessingParameterFile,
                            QgsProcessingParameterNumber)

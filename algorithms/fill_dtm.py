@@ -119,7 +119,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         if minfo is not None:
             m = minfo.dataset().GetRasterBand(1).ReadAsArray()
             fill |= np.isin(m, codes)
-        feedback.pushInfo(tr(f"Filling {int(fill.sum())} of {z.size} cells ({100.0 * fill.mean():.2f} %)."))
+        feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)
         try:

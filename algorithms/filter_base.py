@@ -11,6 +11,8 @@ import math
 import os
 import re
 
+import numpy as np
+
 from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
                        QgsProcessingOutputLayerDefinition, QgsProcessingParameterBand,
                        QgsProcessingParameterBoolean, QgsProcessingParameterDefinition,
@@ -26,6 +28,7 @@ from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE
 from ..provider import ICON
+from .labels import is_advanced, param_label
 
 #: short names of the filters' side products (dialog labels and layer names), by the core's extras key
 EXTRA_LABELS = {"curvature": "Curvature (K, H)", "step": "Removal step", "confidence": "Confidence (%)"}
@@ -50,6 +53,17 @@ def with_help(param, text, advanced=False):
     if advanced:
         param.setFlags(param.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
     return param
+
+
+def warning_logger(feedback):
+    """A log callback for the core's warnings: QGIS's warning line already says "WARNING", so a
+    "Warning: " the core put first is dropped."""
+    push = feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError
+
+    def log(text):
+        text = str(text)
+        push(text[len("Warning: "):] if text.startswith("Warning: ") else text)
+    return log
 
 
 def progress_callback(feedback):
@@ -78,8 +92,8 @@ def raster_path(layer):
     if layer is None:
         raise QgsProcessingException(tr("No input raster was given."))
     if layer.providerType() != "gdal":
-        raise QgsProcessingException(tr(f"The layer '{layer.name()}' is served by the "
-                                        f"'{layer.providerType()}' provider; save it as a GeoTIFF first."))
+        raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
+                                        "first.").format(layer.name(), layer.providerType()))
     return layer.source()
 
 
@@ -174,8 +188,9 @@ def destination_path(parameters, key):
 
 
 def label_of(definition):
-    """How messages name a parameter: its label, and its id for qgis_process."""
-    return "'{}' ({})".format(definition.description(), definition.name())
+    """How messages and the log name a parameter: its label (without a trailing note such as
+    "[empty: from the data]"), and its id for qgis_process."""
+    return "'{}' ({})".format(re.sub(r"\s*\[[^\]]*\]$", "", definition.description()), definition.name())
 
 
 class BaseAlgorithm(QgsProcessingAlgorithm):
@@ -323,16 +338,18 @@ class FilterAlgorithm(BaseAlgorithm):
 
     def shortHelpString(self):  # noqa: N802
         m = self.method
-        rows = "".join(f"<li><b>{p.name.upper()}</b>: {p.help}</li>" for p in m.params)
-        extras = "".join(f"<li><b>OUTPUT_{k.upper()}</b>: {self.EXTRA_HELP.get(k, k)}</li>" for k in m.extras)
-        return tr(f"{m.description}<h3>Parameters</h3><ul><li><b>INPUT</b>: single-band DSM raster "
-                  "(heights in metres, or in the unit of a projected CRS in feet; a geographic CRS has "
-                  "its cell size converted to metres at its latitude).</li><li><b>BAND</b>: the height "
-                  f"band when the raster has several.</li>{rows}</ul><h3>Outputs</h3><ul>"
-                  "<li><b>OUTPUT_DTM</b>: Float32 bare-earth DTM: removed cells filled by interpolation "
-                  "from the ground around them, the input's nodata kept.</li>"
-                  f"<li><b>OUTPUT_MASK</b>: {MASK_HELP}</li><li><b>OUTPUT_NDSM</b>: DSM minus DTM "
-                  f"(optional).</li>{extras}</ul>")
+        rows = "".join("<li><b>{}</b> ({}): {}</li>".format(tr(param_label(self.METHOD_NAME, p)), p.name.upper(),
+                                                            tr(p.help)) for p in m.params)
+        extras = "".join("<li><b>{}</b> (OUTPUT_{}): {}</li>".format(tr(extra_label(k)), k.upper(),
+                                                                     tr(self.EXTRA_HELP.get(k, k))) for k in m.extras)
+        return tr("{}<h3>Parameters</h3><ul><li><b>Input DSM</b> (INPUT): single-band DSM raster (heights in "
+                  "metres, or in the unit of a projected CRS in feet; a geographic CRS has its cell size converted "
+                  "to metres at its latitude).</li><li><b>Height band</b> (BAND): the height band when the raster "
+                  "has several.</li>{}</ul><h3>Outputs</h3><ul><li><b>DTM</b> (OUTPUT_DTM): Float32 bare-earth "
+                  "DTM: removed cells filled by interpolation from the ground around them, the input's nodata "
+                  "kept.</li><li><b>Object mask</b> (OUTPUT_MASK): {}</li><li><b>nDSM</b> (OUTPUT_NDSM): DSM "
+                  "minus DTM (optional).</li>{}</ul><p>Outputs are written in the format their extension names: "
+                  "{}.</p>").format(tr(m.description), rows, tr(MASK_HELP), extras, grid.output_formats_text())
 
     # -- parameters ----------------------------------------------------------------------
     def extraInputs(self):  # noqa: N802
@@ -383,15 +400,9 @@ class FilterAlgorithm(BaseAlgorithm):
         for p in format_params():
             self.addParameter(p)
 
-    @staticmethod
-    def _qgs_param(p):
-        label = p.name.replace("_", " ")
-        for unit, text in (("_deg", " (degrees)"), ("_m", " (m)"), ("_cells", " (cells)")):
-            if p.name.endswith(unit):
-                label = p.name[: -len(unit)].replace("_", " ") + text
-        label = label[0].upper() + label[1:]
-        if p.default is None:
-            label += " [empty: from the data]"
+    def _qgs_param(self, p):
+        """The QGIS parameter of a core ``Param``: its label from ``labels.py``, its help from the core."""
+        label = param_label(self.METHOD_NAME, p)
         if p.kind in ("float", "int"):
             typ = (QgsProcessingParameterNumber.Double if p.kind == "float"
                    else QgsProcessingParameterNumber.Integer)
@@ -410,9 +421,20 @@ class FilterAlgorithm(BaseAlgorithm):
         else:  # pragma: no cover - a wrong spec is a programming error
             raise TypeError(f"unknown Param kind {p.kind!r}")
         q.setHelp(tr(p.help))
-        if p.advanced:
+        if is_advanced(self.METHOD_NAME, p):
             q.setFlags(q.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         return q
+
+    def explain(self, message):
+        """A core message with each parameter it names ('window_cells', 'WINDOW_CELLS') given as
+        the dialog's label and the id for qgis_process."""
+        for p in sorted(self.method.params, key=lambda q: -len(q.name)):
+            d = self.parameterDefinition(p.name.upper())
+            if d is None:
+                continue
+            message = re.sub(r"(?<![\w'])({}|{})(?![\w'])".format(re.escape(p.name), re.escape(p.name.upper())),
+                             lambda m, d=d: label_of(d), message)
+        return message
 
     def _user_params(self, parameters, context):
         """The core's keyword arguments; an empty optional number means "from the data" (None)."""
@@ -493,10 +515,10 @@ class FilterAlgorithm(BaseAlgorithm):
         threads = self.parameterAsInt(parameters, self.THREADS, context) or auto_threads()
         user = self._user_params(parameters, context)
         aux = self.auxiliaryArrays(parameters, context, info, feedback)
-        feedback.pushInfo(tr(f"Input: {info.path} band {info.band_index}, {info.shape[1]} x {info.shape[0]} "
-                             f"cells of {info.cell_size_m[0]:.4g} x {info.cell_size_m[1]:.4g} m"))
+        feedback.pushInfo(tr("Input: {} band {}, {} x {} cells of {:.4g} x {:.4g} m").format(
+            info.path, info.band_index, info.shape[1], info.shape[0], info.cell_size_m[0], info.cell_size_m[1]))
         try:
-            log = feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError
+            log = warning_logger(feedback)
             with output_options(self, parameters, context):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,
@@ -505,28 +527,68 @@ class FilterAlgorithm(BaseAlgorithm):
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         self.logResult(result, feedback)
         return {f"OUTPUT_{k.upper()}": v for k, v in outputs.items()}
 
     def logResult(self, result, feedback):  # noqa: N802
-        """Write the values used and the statistics to the log."""
+        """Write the values used (by their labels) and the statistics (each once, with units)."""
+        params = result.get("params", {})
         feedback.pushInfo(tr("Parameters used:"))
-        for k, v in result["params"].items():
-            feedback.pushInfo(f"  {k} = {_fmt(v)}")
+        for k, v in params.items():
+            d = self.parameterDefinition(k.upper())
+            feedback.pushInfo("  {} = {}".format(label_of(d) if d is not None else k, format_value(k, v)))
         feedback.pushInfo(tr("Result:"))
         for k, v in result.items():
-            if k in ("params", "warnings", "method"):
+            if k in ("params", "warnings", "method") or repeats_parameter(k, v, params):
                 continue
             if isinstance(v, dict):
-                feedback.pushInfo(f"  {k}: " + ", ".join(f"{a} {_fmt(b)}" for a, b in v.items()))
+                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(k, b))
+                                                                   for a, b in v.items())))
             else:
-                feedback.pushInfo(f"  {k} = {_fmt(v)}")
+                feedback.pushInfo("  {} = {}".format(k, format_value(k, v)))
 
 
-def _fmt(v):
-    if isinstance(v, float):
-        return f"{v:.4g}"
+#: name endings of the statistics that are fractions (printed in percent) and counts (integers)
+_SHARE_WORDS = ("share", "fraction")
+_COUNT_ENDINGS = ("_cells", "_outliers", "_regions", "_points", "_count", "_per_step", "_scan", "_edge")
+
+
+def _is_count(key):
+    return key.startswith(("n_", "removed_")) and not any(w in key for w in _SHARE_WORDS + ("percent", "seconds")) \
+        or key.endswith(_COUNT_ENDINGS)
+
+
+def format_value(key, v):
+    """A value for the log: percentages with '%', shares (0-1) as percentages, counts as integers,
+    seconds with 's', None as 'not used'."""
     if isinstance(v, (list, tuple)):
-        return "(" + ", ".join(_fmt(x) for x in v) + ")"
-    return str(v)
+        return "(" + ", ".join(format_value(key, x) for x in v) + ")"
+    if v is None:
+        return "not used"
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return str(v)
+    if "percent" in key:
+        return "{:.4g} %".format(v)
+    if any(w in key for w in _SHARE_WORDS):
+        return "{:.4g} %".format(100.0 * v)
+    if _is_count(key):
+        return str(int(round(float(v))))
+    if key.endswith("seconds"):
+        return "{:.3g} s".format(v)
+    return "{:.4g}".format(v) if isinstance(v, (float, np.floating)) else str(v)
+
+
+def repeats_parameter(key, value, params):
+    """True when a statistic only repeats a parameter used: the same name, or the same number in
+    the same unit under the paper's symbol (alpha_g_deg = slope_threshold_deg)."""
+    if key in params:
+        return params[key] == value
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
+        return False
+    for name, v in params.items():
+        unit = next((u for u in ("_deg", "_m") if name.endswith(u)), None)
+        if unit and key.endswith(unit) and isinstance(v, (int, float)) and not isinstance(v, bool) \
+                and math.isclose(float(v), float(value), rel_tol=1e-9, abs_tol=1e-12):
+            return True
+    return False

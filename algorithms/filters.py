@@ -62,7 +62,7 @@ class RascorAlgorithm(FilterAlgorithm):
             if parameters.get(key):
                 src = self.parameterAsSource(parameters, key, context)
                 arr, n = rasterize_source(src, info, context, all_touched=True)
-                feedback.pushInfo(self.tr(f"{name}: {n} feature(s), {int(arr.sum())} cells"))
+                feedback.pushInfo(self.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
                 out[name] = arr if n else None
         return out
 
