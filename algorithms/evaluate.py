@@ -12,7 +12,7 @@ from ..core import grid
 from ..core.pointflow import classify_cloud
 from ..core.points import read_points
 from .fill_dtm import grid_mismatch_message, same_grid
-from .filter_base import BaseAlgorithm, raster_path, tr, with_help
+from .filter_base import BaseAlgorithm, explained, raster_path, tr, with_help
 
 
 #: what each figure of a comparison is, for the log (Sithole & Vosselman 2004's cross matrix:
@@ -177,6 +177,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
         column = (self.parameterAsString(parameters, self.TRUTH_COLUMN, context) or "").strip() or None
         return truth, column
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -191,7 +192,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
         try:
             mask, ref_mask, dtm, ref_dtm, points = self._inputs(parameters, context)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         results, maps, gts = {}, {}, {}
         out = {}
         ref_m = None
@@ -221,7 +222,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             try:
                 r, maps["point errors"], gts["point errors"] = evaluate_classified(points, truth, column)
             except (ValueError, ImportError) as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             results["classified points vs truth"] = r
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
         elif points:
@@ -229,7 +230,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             try:
                 cloud = read_points(points)
             except (ValueError, ImportError) as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             if cloud.classification is None:
                 raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
                                                 "truth.").format(points))
@@ -240,7 +241,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
                                      slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
             except ValueError as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             inside = cls != 255
             r = ev.confusion(cls == 0, true_ground, valid=inside)
             r["points_outside_dtm"] = int((~inside).sum())

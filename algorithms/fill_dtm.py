@@ -6,7 +6,7 @@ from qgis.core import (QgsProcessingException, QgsProcessingParameterBand, QgsPr
 
 from ..core import Cancelled, grid
 from ..core.fill import fill_gaps
-from .filter_base import (BaseAlgorithm, check_dsm, format_params, output_options, progress_callback,
+from .filter_base import (BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback,
                           raster_path, tr, with_help)
 
 
@@ -95,6 +95,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         codes = parse_codes(self.parameterAsString(parameters, self.FILL_CODES, context))
         return info, minfo, codes
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -111,7 +112,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         try:
             info, minfo, codes = self._inputs(parameters, context)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         out_path = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
         fill_nodata = self.parameterAsBool(parameters, self.FILL_NODATA, context)
         z = info.read()
@@ -128,7 +129,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         nd = info.nodata
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
@@ -140,5 +141,5 @@ class FillDtmAlgorithm(BaseAlgorithm):
                 out.write("out", filled)
                 out.commit()
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         return {self.OUTPUT: out_path}

@@ -172,7 +172,7 @@ def output_options(alg, parameters, context):
     try:
         opts = grid.parse_creation_options(text, cog=cog)
     except ValueError as exc:
-        raise QgsProcessingException(str(exc)) from None
+        raise QgsProcessingException(alg.explain(str(exc))) from None
     with grid.write_options(opts, cog):
         yield
 
@@ -185,6 +185,15 @@ def destination_path(parameters, key):
     if v is None or str(v) in ("", QgsProcessing.TEMPORARY_OUTPUT) or str(v).startswith("memory:"):
         return None
     return str(v)
+
+
+def explained(check):
+    """Decorate a ``checkParameterValues``: its refusal names parameters by label and id."""
+    @functools.wraps(check)
+    def checked(self, parameters, context):
+        ok, msg = check(self, parameters, context)
+        return ok, (msg if ok else self.explain(msg))
+    return checked
 
 
 def label_of(definition):
@@ -224,6 +233,26 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def tr(self, text):
         return tr(text)
+
+    # -- messages ----------------------------------------------------------------------------
+    def messageNames(self):  # noqa: N802
+        """{name in messages: definition}: the ids with an underscore (single words such as DTM or
+        MASK are also ordinary words in messages)."""
+        return {d.name(): d for d in self.parameterDefinitions() if "_" in d.name()}
+
+    def explain(self, message):
+        """A message with each parameter it names by id (or by the core's name) given as the
+        dialog's label and the id for qgis_process; names already so given are kept."""
+        names = self.messageNames()
+        if not names or not message:
+            return message
+        pattern = re.compile(r"(?<![\w'/\\.-])(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+                             + r")(?![\w'.])")
+
+        def named(m):
+            before, after = message[m.start() - 1:m.start()], message[m.end():m.end() + 1]
+            return m.group(0) if before == "(" and after == ")" else label_of(names[m.group(1)])
+        return pattern.sub(named, message)
 
     # -- outputs ---------------------------------------------------------------------------
     def outputBands(self, key):  # noqa: N802
@@ -280,6 +309,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 return False, "{}: {}".format(label_of(self.parameterDefinition(CREATE_OPTIONS)), exc)
         return True, ""
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -425,16 +455,14 @@ class FilterAlgorithm(BaseAlgorithm):
             q.setFlags(q.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         return q
 
-    def explain(self, message):
-        """A core message with each parameter it names ('window_cells', 'WINDOW_CELLS') given as
-        the dialog's label and the id for qgis_process."""
-        for p in sorted(self.method.params, key=lambda q: -len(q.name)):
+    def messageNames(self):  # noqa: N802
+        """{name in messages: definition}: the parameter ids, and the core's names of its Params."""
+        out = super().messageNames()
+        for p in self.method.params:
             d = self.parameterDefinition(p.name.upper())
-            if d is None:
-                continue
-            message = re.sub(r"(?<![\w'])({}|{})(?![\w'])".format(re.escape(p.name), re.escape(p.name.upper())),
-                             lambda m, d=d: label_of(d), message)
-        return message
+            if d is not None:
+                out[p.name] = d
+        return out
 
     def _user_params(self, parameters, context):
         """The core's keyword arguments; an empty optional number means "from the data" (None)."""
@@ -458,6 +486,7 @@ class FilterAlgorithm(BaseAlgorithm):
         return out
 
     # -- checks before any work ---------------------------------------------------------------
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -501,7 +530,7 @@ class FilterAlgorithm(BaseAlgorithm):
         try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
             info = grid.open_dsm(raster_path(layer), band or None)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
                    "mask": self.parameterAsOutputLayer(parameters, self.OUTPUT_MASK, context)}
         if parameters.get(self.OUTPUT_NDSM):

@@ -16,7 +16,8 @@ from qgis.core import (QgsProcessing, QgsProcessingException,
 from ..core import Cancelled
 from ..core import pointflow as pf
 from ..core.points import LAS_INSTALL_HINT, read_points
-from .filter_base import BaseAlgorithm, check_dsm, format_params, output_options, progress_callback, tr
+from .filter_base import (BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback,
+                          tr)
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
@@ -270,6 +271,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
                              " (or check the CRS: degrees read as metres?).")
         return path, cloud, cell
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -293,7 +295,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             with output_options(self, parameters, context):
                 pf.write_rasters(g, None, {"dsm": out})
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         i = g.info
@@ -363,6 +365,7 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             raise ValueError(msg)
         return path, cloud, info
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -394,7 +397,7 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             from ..core.points import write_points
             write_points(out, cloud, classes)
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         counts = pf.class_counts(classes)
@@ -467,6 +470,7 @@ class PointsInputMixin:
     def _use_points(self, parameters):
         return self._given(parameters, self.INPUT_POINTS)
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         has_r, has_p = self._given(parameters, self.INPUT), self._given(parameters, self.INPUT_POINTS)
         if has_r == has_p:
@@ -556,7 +560,7 @@ class PointsInputMixin:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         i = res.info

@@ -80,7 +80,7 @@ def test_slopeprofile_log_states_values_used(processing_run, scene_files):
     processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                               "OUTPUT_MASK": "TEMPORARY_OUTPUT"}, feedback=fb)
     log = "\n".join(fb.text)
-    for key in ("slope_threshold_deg", "terrain_slope_deg", "tolerance_m", "rejected_by_x_percent",
+    for key in ("(SLOPE_THRESHOLD_DEG) = ", "(TERRAIN_SLOPE_DEG) = ", "(TOLERANCE_M) = ", "rejected_by_x_percent",
                 "classes_percent"):
         assert key in log
 
@@ -93,7 +93,7 @@ def test_slopeprofile_user_value_used(processing_run, scene_files):
     processing_run("bareearth:slopeprofile", {"INPUT": scene_files["dsm"], "SLOPE_THRESHOLD_DEG": 33.0,
                                               "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"},
                    feedback=fb)
-    assert any("slope_threshold_deg = 33" in s for s in lines)
+    assert any("'Terrain slope threshold (degrees)' (SLOPE_THRESHOLD_DEG) = 33" in s for s in lines)
 
 
 def _write(path, arr, gt=(500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), epsg=32632, nodata=None):

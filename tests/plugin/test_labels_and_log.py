@@ -135,3 +135,18 @@ def _tr_calls_with_fstrings(path):
 def test_translatable_strings_are_constants():
     bad = [b for f in sorted((ROOT / "algorithms").glob("*.py")) for b in _tr_calls_with_fstrings(f)]
     assert bad == [], "tr(f'...') cannot be translated; use tr('... {}').format(x): " + ", ".join(bad)
+
+
+def test_refusals_name_the_label_and_the_id(processing_run, tmp_path):
+    from qgis.core import QgsProcessingException
+    with pytest.raises(QgsProcessingException, match=r"'Mask codes to fill' \(FILL_CODES\) must be integers"):
+        processing_run("bareearth:filldtm", {"INPUT": _dsm(tmp_path), "MASK": _dsm(tmp_path), "FILL_CODES": "a,b",
+                                             "OUTPUT": "TEMPORARY_OUTPUT"})
+
+
+def test_names_in_paths_are_left_alone(qgis_app):
+    from qgis.core import QgsApplication
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:slopeprofile")
+    msg = alg.explain("cannot write /tmp/x/OUTPUT_DTM.tif: OUTPUT_MASK and 'DTM' (OUTPUT_DTM) and tolerance_m")
+    assert msg == ("cannot write /tmp/x/OUTPUT_DTM.tif: 'Object mask' (OUTPUT_MASK) and 'DTM' (OUTPUT_DTM) and "
+                   "'Height tolerance (m)' (TOLERANCE_M)")
