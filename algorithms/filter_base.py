@@ -28,16 +28,7 @@ from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE
 from ..provider import ICON
-from .labels import is_advanced, param_label
-
-#: short names of the filters' side products (dialog labels and layer names), by the core's extras key
-EXTRA_LABELS = {"curvature": "Curvature (K, H)", "step": "Removal step", "confidence": "Confidence (%)"}
-
-
-def extra_label(key):
-    """The short label of a side product (its key, capitalised, when it has none)."""
-    return EXTRA_LABELS.get(key, key.replace("_", " ").capitalize())
-
+from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
              + "; a colour table and a .qml style are written with it.")

@@ -82,6 +82,15 @@ ADVANCED = {("rascor", n) for n in ("step1_characterise", "step2_height_distribu
                                     "step6_surfaces", "step7_prediction", "second_iteration")}
 
 
+#: short names of the filters' side products (dialog labels and layer names), by the core's extras key
+EXTRA_LABELS = {"curvature": "Curvature (K, H)", "step": "Removal step", "confidence": "Confidence (%)"}
+
+
+def extra_label(key):
+    """The short label of a side product (its key, capitalised, when it has none)."""
+    return EXTRA_LABELS.get(key, key.replace("_", " ").capitalize())
+
+
 def has_label(method, name):
     """True when the parameter ``name`` of ``method`` has a hand-written label."""
     return (method, name) in METHOD_LABELS or name in LABELS
