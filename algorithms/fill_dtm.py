@@ -14,7 +14,8 @@ def same_grid(a, b):
     """True when two DSMInfo share shape and geotransform (to a tolerance of 1e-6 cell)."""
     if a.shape != b.shape:
         return False
-    return all(abs(x - y) <= 1e-6 * max(1.0, abs(a.geotransform[1])) for x, y in zip(a.geotransform, b.geotransform, strict=True))
+    tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
+    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform, strict=True))
 
 
 def grid_mismatch_message(a, b, what):
