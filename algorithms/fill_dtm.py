@@ -15,7 +15,7 @@ def same_grid(a, b):
     if a.shape != b.shape:
         return False
     tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
-    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform, strict=True))
+    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
 
 
 def grid_mismatch_message(a, b, what):
