@@ -2,10 +2,16 @@
 import os
 
 import numpy as np
-from qgis.core import (QgsProcessingException, QgsProcessingOutputNumber, QgsProcessingParameterDefinition,
-                       QgsProcessingParameterFile, QgsProcessingParameterFileDestination,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterLayer,
-                       QgsProcessingParameterString)
+from qgis.core import (
+    QgsProcessingException,
+    QgsProcessingOutputNumber,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 
 from ..core import evaluate as ev
 from ..core import grid
@@ -13,7 +19,6 @@ from ..core.pointflow import classify_cloud
 from ..core.points import read_points
 from .fill_dtm import grid_mismatch_message, same_grid
 from .filter_base import BaseAlgorithm, explained, raster_path, tr, with_help
-
 
 #: what each figure of a comparison is, for the log (Sithole & Vosselman 2004's cross matrix:
 #: rows the truth, columns the result)

@@ -1,13 +1,27 @@
 """``bareearth:filldtm``: fill removed and nodata cells of a surface from the ground around them."""
 import numpy as np
-from qgis.core import (QgsProcessingException, QgsProcessingParameterBand, QgsProcessingParameterBoolean,
-                       QgsProcessingParameterRasterDestination, QgsProcessingParameterRasterLayer,
-                       QgsProcessingParameterString)
+from qgis.core import (
+    QgsProcessingException,
+    QgsProcessingParameterBand,
+    QgsProcessingParameterBoolean,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 
 from ..core import Cancelled, grid
 from ..core.fill import fill_gaps
-from .filter_base import (BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback,
-                          raster_path, tr, with_help)
+from .filter_base import (
+    BaseAlgorithm,
+    check_dsm,
+    explained,
+    format_params,
+    output_options,
+    progress_callback,
+    raster_path,
+    tr,
+    with_help,
+)
 
 
 def same_grid(a, b):

@@ -12,18 +12,24 @@ import os
 import re
 
 import numpy as np
-
-from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
-                       QgsProcessingOutputLayerDefinition, QgsProcessingParameterBand,
-                       QgsProcessingParameterBoolean, QgsProcessingParameterDefinition,
-                       QgsProcessingParameterEnum, QgsProcessingParameterNumber,
-                       QgsProcessingParameterRasterDestination, QgsProcessingParameterRasterLayer,
-                       QgsProcessingParameterString)
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingAlgorithm,
+    QgsProcessingException,
+    QgsProcessingOutputLayerDefinition,
+    QgsProcessingParameterBand,
+    QgsProcessingParameterBoolean,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
 
-from ..core import Cancelled
-from ..core import grid
+from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE
@@ -72,6 +78,7 @@ def auto_threads():
     """Threads for THREADS = 0: one per core (core ``blocks.default_workers``), within
     QGIS's "Max cores to use" setting when one is set."""
     from qgis.core import QgsApplication
+
     from ..core.blocks import default_workers
     n = default_workers()
     limit = QgsApplication.maxThreads()

@@ -42,6 +42,7 @@ class RascorAlgorithm(FilterAlgorithm):
 
     def extraInputs(self):  # noqa: N802
         from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+
         from .filter_base import with_help
         return [
             with_help(QgsProcessingParameterFeatureSource(

@@ -5,9 +5,16 @@ show the GeoTIFF's 256-entry palette, or an RGB composite of a two-band raster).
 :func:`style_loaded_outputs` gives each output Processing will load a layer post-processor
 (``QgsProcessingLayerPostProcessorInterface``) that sets the renderer once the layer exists.
 """
-from qgis.core import (QgsColorRampShader, QgsGradientColorRamp, QgsGradientStop, QgsPalettedRasterRenderer,
-                       QgsProcessingLayerPostProcessorInterface, QgsRasterLayer, QgsRasterShader,
-                       QgsSingleBandPseudoColorRenderer)
+from qgis.core import (
+    QgsColorRampShader,
+    QgsGradientColorRamp,
+    QgsGradientStop,
+    QgsPalettedRasterRenderer,
+    QgsProcessingLayerPostProcessorInterface,
+    QgsRasterLayer,
+    QgsRasterShader,
+    QgsSingleBandPseudoColorRenderer,
+)
 from qgis.PyQt.QtGui import QColor
 
 from ..core.codes import MASK_CODES, MASK_COLOURS, NODATA

@@ -22,7 +22,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from .codes import MASK_CODES, MASK_COLOURS, NODATA
+from .codes import MASK_CODES, MASK_COLOURS
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3

@@ -166,6 +166,7 @@ def test_nan_without_nodata_handled(processing_run, tmp_path):
 
 def test_cancel_leaves_no_output(qgis_app, tmp_path, scene_files):
     from qgis.core import QgsProcessingContext, QgsProcessingFeedback
+
     from bare_earth.algorithms.filters import SlopeProfileAlgorithm
     alg = SlopeProfileAlgorithm()
     alg.initAlgorithm()
@@ -226,8 +227,8 @@ def test_evaluate_points_against_isprs_truth(processing_run, tmp_path, shared_da
     sample = shared_data / "isprs" / "samp21.txt"
     if not sample.exists():
         pytest.skip("samp21 absent")
-    from bare_earth.core.points import rasterize_points, read_points
     from bare_earth.core.grid import write_array
+    from bare_earth.core.points import rasterize_points, read_points
     cloud = read_points(sample)
     g, gt = rasterize_points(cloud.x, cloud.y, cloud.z, 1.0)
     src = write_array(tmp_path / "samp21.tif", g, gt, 31467)
@@ -302,6 +303,7 @@ def test_qgis_process_runs_each_filter(run_qgis_process, scene_files, tmp_path, 
 
 def test_threads_default_is_one_per_core(qgis_app):
     from qgis.core import QgsApplication
+
     from bare_earth.algorithms.filter_base import auto_threads
     from bare_earth.core.blocks import default_workers
     alg = QgsApplication.processingRegistry().algorithmById("bareearth:slopeprofile")

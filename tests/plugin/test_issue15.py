@@ -266,6 +266,7 @@ def _run_and_load(alg, params):
 
 def test_loaded_mask_has_the_four_classes(qgis_app, tmp_path):
     from qgis.core import QgsPalettedRasterRenderer
+
     from bare_earth.core.codes import MASK_CODES
     layers = _run_and_load("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                       "OUTPUT_MASK": str(tmp_path / "m.tif")})

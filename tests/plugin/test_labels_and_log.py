@@ -20,6 +20,7 @@ def test_every_param_of_every_method_has_a_written_label():
 
 def test_dialogs_show_the_written_labels_uniquely(qgis_app):
     from qgis.core import QgsApplication, QgsProcessingParameterDefinition
+
     from bare_earth.algorithms.labels import param_label
     from bare_earth.core.methods import get_method
     for alg in QgsApplication.processingRegistry().providerById("bareearth").algorithms():
