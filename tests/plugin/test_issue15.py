@@ -292,3 +292,17 @@ def test_side_products_get_short_names_and_renderers(qgis_app, tmp_path):
     labels = {c.value: c.label for c in s.classes()}
     assert labels[0] == "kept" and len(labels) >= 2
     assert all(v == 0 or lab.startswith("removed by step") for v, lab in labels.items())
+
+
+def test_confidence_outputs_ramp_red_to_green(qgis_app, tmp_path):
+    from qgis.core import QgsRasterLayer, QgsSingleBandPseudoColorRenderer
+
+    from bare_earth.algorithms.styles import OUTPUT_RENDERERS, RENDERERS
+    conf = np.tile(np.linspace(0, 100, 20, dtype=np.float32), (10, 1))
+    layer = QgsRasterLayer(_write(tmp_path / "conf.tif", conf), "c")
+    r = RENDERERS[OUTPUT_RENDERERS["OUTPUT_CONFIDENCE"]](layer)
+    assert isinstance(r, QgsSingleBandPseudoColorRenderer)
+    assert (r.classificationMin(), r.classificationMax()) == (0.0, 100.0)
+    items = r.shader().rasterShaderFunction().colorRampItemList()
+    low, high = items[0].color, items[-1].color
+    assert low.red() > 200 > low.green() and high.green() > 100 > high.red()
