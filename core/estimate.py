@@ -20,7 +20,9 @@ says so:
     second differences (urban or wooded scenes where edges and crowns may cover most
     of the raster);
   - :func:`noise_plane_residual`: lower quartile of the residual to the mean of the
-    four neighbours (the plane through them), the same quantity on a 5-cell stencil.
+    four neighbours (the plane through them), the same quantity on a 5-cell stencil;
+  - :func:`noise_second_difference_tiles`: the second differences' spread on the smooth
+    parts of the surface (:func:`smooth_spread`: a low quantile of per-tile MADs).
 """
 import math
 
