@@ -120,6 +120,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     if f == 1:
         return Rc, obj_c
     R = np.fmin(expand_blocks(Rc, f, w.shape), wmask)
+    report(progress, 0.95)
     with np.errstate(invalid="ignore"):
         obj = expand_blocks(obj_c, f, w.shape) & (w - R > dh0)
     return R, obj
@@ -197,6 +198,7 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
         removed |= obj
         new &= step == 0                          # outliers keep their own code
         step[new] = k
+        report(part, 0.98)
         np.minimum(cleaned, R, out=cleaned, where=obj)
         counts.append(int(np.count_nonzero(new)))
         report(part, 1.0)
