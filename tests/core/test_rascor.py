@@ -1,4 +1,4 @@
-"""Tests of the RASCOR sequential filter (Jacobsen 2004): core/rascor.py."""
+"""Tests of the RASCOR sequential filter (Jacobsen 2004): the package core/rascor/."""
 import importlib.util
 
 import numpy as np
@@ -7,6 +7,7 @@ import pytest
 from conftest import ROOT
 
 from bare_earth.core import rascor as R
+from bare_earth.core.rascor import fits, kernels, steps, terrain
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 
 N = 64
@@ -458,7 +459,7 @@ def _random_surface(shape, seed):
 @pytest.mark.parametrize("size", [3, 5, 21])
 def test_profile_kernel_equals_explicit_leave_one_out_fit(degree, size):
     z, w = _random_surface((6, 40), 3)
-    got = R._fit_at_centre(z, w, size, degree)
+    got = fits._fit_at_centre(z, w, size, degree)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, (1, size), degree)
     both = np.isfinite(ref[0])
     assert both.sum() > 150
@@ -471,7 +472,7 @@ def test_profile_kernel_equals_explicit_leave_one_out_fit(degree, size):
 @pytest.mark.parametrize("sizes", [(3, 3), (5, 7), (9, 5)])
 def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
     z, w = _random_surface((13, 17), 4)
-    got = R._fit_at_centre(z, w, sizes, degree)
+    got = fits._fit_at_centre(z, w, sizes, degree)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, degree)
     both = np.isfinite(ref[0])
     assert both.sum() > 100
@@ -483,9 +484,9 @@ def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
 def test_weighted_window_fit_equals_explicit_leave_one_out_fit():
     # step 7: Gaussian window weights (the general path), run in bands with a halo
     z, w = _random_surface((15, 18), 9)
-    g = (R._gauss(2.0), R._gauss(3.0))
+    g = (kernels._gauss(2.0), kernels._gauss(3.0))
     sizes = (len(g[0]), len(g[1]))
-    got = R._fit_at_centre(z, w, sizes, 1, kernels=g)
+    got = fits._fit_at_centre(z, w, sizes, 1, kernels=g)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, 1, kernels=g)
     both = np.isfinite(ref[0])
     assert both.sum() > 150
@@ -495,9 +496,9 @@ def test_weighted_window_fit_equals_explicit_leave_one_out_fit():
 
 def test_banded_kernels_do_not_depend_on_the_bands(monkeypatch):
     z, w = _random_surface((40, 50), 5)
-    one = [R._fit_at_centre(z, w, 9, 1), R._fit_at_centre(z, w, (7, 9), 1)]
-    monkeypatch.setattr(R, "_BAND_CELLS", 64)       # bands of one row
-    many = [R._fit_at_centre(z, w, 9, 1), R._fit_at_centre(z, w, (7, 9), 1)]
+    one = [fits._fit_at_centre(z, w, 9, 1), fits._fit_at_centre(z, w, (7, 9), 1)]
+    monkeypatch.setattr(kernels, "_BAND_CELLS", 64)       # bands of one row
+    many = [fits._fit_at_centre(z, w, 9, 1), fits._fit_at_centre(z, w, (7, 9), 1)]
     for a, b in zip(one, many):
         np.testing.assert_array_equal(a[0], b[0])
         np.testing.assert_array_equal(a[1], b[1])
@@ -531,8 +532,10 @@ def test_banded_steps_equal_one_band(monkeypatch):
     kw = dict(terrain_class="rolling", scale_m=0.1)
     runs = []
     for cells in (1 << 20, 90):                          # one band / several bands
-        monkeypatch.setattr(R, "_BAND_CELLS", cells)
-        monkeypatch.setattr(R, "_HALO_BAND_CELLS", 4 * cells)
+        for mod in (kernels, fits, steps):               # every module holding the band sizes
+            for name, value in (("_BAND_CELLS", cells), ("_HALO_BAND_CELLS", 4 * cells)):
+                if hasattr(mod, name):
+                    monkeypatch.setattr(mod, name, value)
         runs.append((R.remove_level_changes(z, 1.0, keep, jump_m=2.0, max_building_m=30.0,
                                             sigma_m=0.1),
                      *R.remove_profile_outliers(z, 1.0, keep, lengths_m=[5.0, 15.0], **kw),
@@ -547,11 +550,11 @@ def test_fit_and_snoop_equals_whole_fit_then_snoop():
     z, keep = _city(8)
     zf = np.where(keep, z, 0.0)
     w = keep.astype(float)
-    zhat, hh = R._fit_at_centre(zf, w, (9, 11), 1)
-    ref = R._snoop(zf, zhat, hh, keep, 0.1, 4.0, 0.02)
-    got = R._fit_and_snoop(z, keep, keep, None,
-                           lambda zz, ww, out: R._fit_box_2d(zz, ww, (9, 11), 1, out),
-                           0.1, 4.0, 0.02, halo=4)
+    zhat, hh = fits._fit_at_centre(zf, w, (9, 11), 1)
+    ref = fits._snoop(zf, zhat, hh, keep, 0.1, 4.0, 0.02)
+    got = fits._fit_and_snoop(z, keep, keep, None,
+                              lambda zz, ww, out: fits._fit_box_2d(zz, ww, (9, 11), 1, out),
+                              0.1, 4.0, 0.02, halo=4)
     assert ref[0].any() and ref[2].any()
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(a, b)
@@ -565,7 +568,7 @@ def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n):
     z[rng.random(shape) < 0.1] = np.nan
     z.flat[3], z.flat[5] = np.inf, -np.inf           # not heights: missing
     z0 = z.copy()
-    low = R._tile_low(z, n)
+    low = terrain._tile_low(z, n)
     np.testing.assert_array_equal(z, z0)
     for i in range(low.shape[0]):
         for j in range(low.shape[1]):
