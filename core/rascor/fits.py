@@ -11,7 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..common import report, sub_progress
-from .kernels import (_HALO_BAND_CELLS, _bands, _centred, _mean1, _power_sums, _scratch, _solve3_first,
+from .kernels import (_BAND_CELLS, _HALO_BAND_CELLS, _bands, _centred, _mean1, _power_sums, _scratch, _solve3_first,
                       _solve_first_general)
 from .regions import _region_slices
 
@@ -305,8 +305,29 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
     return high, low, below
 
 
-def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, labels=None,
-                   work=None, progress=None):
+def _tiles(rows, cols, halo, halo_cols, cells=None):
+    """``[(row slice, column slice)]`` covering a ``rows x cols`` array, for fits of
+    windows reaching ``halo`` rows and ``halo_cols`` columns.
+
+    Without a halo, bands of whole rows of :data:`_BAND_CELLS` cells; with a row halo,
+    bands of whole rows of about ``cells`` (default :data:`_HALO_BAND_CELLS`) cells, halo
+    included; with a column halo too, tiles of about ``cells`` cells, halos included.
+    """
+    whole = slice(0, cols)
+    if not halo:
+        return [(b, whole) for b in _bands(rows, cols)]
+    cells = cells or _HALO_BAND_CELLS
+    if not halo_cols:
+        step = max(2 * halo, cells // max(1, cols) - 2 * halo)
+        return [(slice(r0, min(rows, r0 + step)), whole) for r0 in range(0, rows, step)]
+    side = int(np.sqrt(cells))
+    step_r, step_c = max(2 * halo, side - 2 * halo), max(2 * halo_cols, side - 2 * halo_cols)
+    return [(slice(r0, min(rows, r0 + step_r)), slice(c0, min(cols, c0 + step_c)))
+            for r0 in range(0, rows, step_r) for c0 in range(0, cols, step_c)]
+
+
+def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_cols=0,
+                   tile_cells=None, labels=None, work=None, progress=None):
     """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
 
     ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
@@ -314,7 +335,10 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
     ``below``, else 0), evaluated on the rows ``out_rows``. It runs on bands of whole rows
     (profile fits along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above
     and below (window fits of at most ``2 halo + 1`` rows): the same result as one fit of
-    the whole arrays, without any full-size float temporary. With break-line ``labels`` each region
+    the whole arrays, without any full-size float temporary. With ``halo_cols`` too, it
+    runs on tiles of about ``tile_cells`` cells with a halo on all sides (:func:`_tiles`;
+    for fits whose result at a cell does not depend on where the array starts: the
+    polynomial surface, whose bands would take seconds each). With break-line ``labels`` each region
     runs alone on its bounding box, the other cells having weight 0 and no test. ``work``
     (a dict, shared with ``fit``) keeps the band's scratch arrays from band to band.
     ``progress(fraction)`` is called before each band (it may raise ``Cancelled``).
@@ -336,33 +360,30 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, label
                 continue
             res = _fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
                                  None if below is None else below[sl], fit, s, k, low_weight,
-                                 halo=halo, work=work, progress=sub_progress(progress, a, e))
+                                 halo=halo, halo_cols=halo_cols, tile_cells=tile_cells, work=work,
+                                 progress=sub_progress(progress, a, e))
             for o, r in zip((high, low, under), res):
                 o[sl] |= r
         return high, low, under
     rows, cols = z.shape
-    if halo:
-        step = max(2 * halo, _HALO_BAND_CELLS // max(1, cols) - 2 * halo)
-        bands = [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
-    else:
-        bands = _bands(rows, cols)
+    tiles = _tiles(rows, cols, halo, halo_cols, tile_cells)
     work = {} if work is None else work
-    for i, b in enumerate(bands):
-        report(progress, i / len(bands))
-        if halo:
-            r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
-            src, out = slice(r0, r1), slice(b.start - r0, b.stop - r0)
-        else:
-            src, out = b, slice(None)
+    for i, (b, bc) in enumerate(tiles):
+        report(progress, i / len(tiles))
+        r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
+        c0, c1 = max(0, bc.start - halo_cols), min(cols, bc.stop + halo_cols)
+        src = (slice(r0, r1), slice(c0, c1))
+        out, out_c = slice(b.start - r0, b.stop - r0), slice(bc.start - c0, bc.stop - c0)
         kb = keep[src]
-        zb, wb = _scratch(work, "band", 2, kb.shape)
+        zb, wb = _scratch(work, ("band", kb.shape[1]), 2, kb.shape)
         np.copyto(zb, z[src])
         np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
         np.copyto(wb, kb)                        # the fit weights
         if below is not None:
             np.copyto(wb, low_weight, where=below[src] & kb)
         zhat, hh = fit(zb, wb, out)
-        zo, tb, hb, lb, ub = zb[out], test[b], high[b], low[b], under[b]
+        zhat, hh, zo = zhat[:, out_c], hh[:, out_c], zb[out, out_c]
+        tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
         for sb in _bands(*zo.shape):            # in cache-sized pieces
             hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
     return high, low, under

@@ -5,8 +5,6 @@ The building blocks of the moving fits (:mod:`.fits`) of Jacobsen's (2004) RASCO
 first unknown and ``(N^-1)_00`` of stacked symmetric systems, and the bands of rows the
 banded kernels work in so their temporaries stay in the cache.
 """
-from math import comb
-
 import numpy as np
 from scipy import ndimage
 
@@ -25,29 +23,17 @@ def _box(v, size, axis):
 def _power_sums(v, size, powers, axis):
     """``{p: sum_{k=-h..h} v[c+k] k**p}`` along ``axis`` for every centre ``c``.
 
-    Small windows use exact centred correlations; long ones box sums of ``v x**j`` on
-    centred absolute positions ``x`` combined binomially (float64), O(1) per cell.
+    Exact centred correlations (``p = 0``: a running box sum), O(size) per cell: each
+    cell's sum is made of the same products in the same order wherever the array starts,
+    so a block gives the same sums as one pass. (Box sums of ``v x**j`` on absolute
+    positions ``x`` combined binomially would be O(1) per cell, but their rounding grows
+    with ``|x|**p``, ``x`` counted from the array's centre: on a 865-column DSM the
+    degree-2 profile moved by up to 3e-4 m between a block and one pass.)
     """
     h = size // 2
-    out = {}
-    powers = sorted(set(powers))
-    if size <= 15 or powers == [0]:
-        k = np.arange(-h, h + 1, dtype=np.float64)
-        for p in powers:
-            out[p] = _box(v, size, axis) if p == 0 else ndimage.correlate1d(
-                v, k ** p, axis=axis, mode="constant", cval=0.0)
-        return out
-    n = v.shape[axis]
-    shp = [1] * v.ndim
-    shp[axis] = n
-    x = (np.arange(n, dtype=np.float64) - n // 2).reshape(shp)
-    raw = [_box(v * x ** j if j else v, size, axis) for j in range(max(powers) + 1)]
-    for p in powers:
-        s = raw[p].copy()
-        for j in range(p):
-            s += comb(p, j) * (-x) ** (p - j) * raw[j]
-        out[p] = s
-    return out
+    k = np.arange(-h, h + 1, dtype=np.float64)
+    return {p: _box(v, size, axis) if p == 0 else ndimage.correlate1d(
+        v, k ** p, axis=axis, mode="constant", cval=0.0) for p in sorted(set(powers))}
 
 
 def _solve3_first(a, r):
