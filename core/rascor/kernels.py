@@ -15,25 +15,21 @@ def _odd(n, minimum=3):
     return n if n % 2 else n + 1
 
 
-def _box(v, size, axis):
-    """Sum of ``v`` over a centred window of ``size`` (odd) cells along ``axis``; 0 outside."""
-    return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0) * size
-
-
 def _power_sums(v, size, powers, axis):
     """``{p: sum_{k=-h..h} v[c+k] k**p}`` along ``axis`` for every centre ``c``.
 
-    Exact centred correlations (``p = 0``: a running box sum), O(size) per cell: each
-    cell's sum is made of the same products in the same order wherever the array starts,
-    so a block gives the same sums as one pass. (Box sums of ``v x**j`` on absolute
-    positions ``x`` combined binomially would be O(1) per cell, but their rounding grows
-    with ``|x|**p``, ``x`` counted from the array's centre: on a 865-column DSM the
-    degree-2 profile moved by up to 3e-4 m between a block and one pass.)
+    Exact centred correlations, O(size) per cell: each cell's sum is made of the same
+    products in the same order wherever the array starts, so a block gives the same sums
+    as one pass, bit for bit. (A running box sum, or box sums of ``v x**j`` on absolute
+    positions ``x`` combined binomially, would be O(1) per cell, but their rounding
+    depends on the cells before, and grows with ``|x|**p``, ``x`` counted from the array's
+    centre: on a 865-column DSM the degree-2 profile moved by up to 3e-4 m between a block
+    and one pass.)
     """
     h = size // 2
     k = np.arange(-h, h + 1, dtype=np.float64)
-    return {p: _box(v, size, axis) if p == 0 else ndimage.correlate1d(
-        v, k ** p, axis=axis, mode="constant", cval=0.0) for p in sorted(set(powers))}
+    return {p: ndimage.correlate1d(v, k ** p, axis=axis, mode="constant", cval=0.0)
+            for p in sorted(set(powers))}
 
 
 def _solve3_first(a, r):
