@@ -5,6 +5,8 @@ neighbourhood (profile, surface window, Gaussian-weighted plane) by data snoopin
 model chosen by the terrain class; points below the fit get the weight factor
 ``low_weight`` instead of removal.
 """
+from typing import Callable, Optional, Sequence, Tuple, Union
+
 import numpy as np
 
 from ..common import as_cell_size, sub_progress, transpose
@@ -17,9 +19,12 @@ from .terrain import model_degree
 _POLY_TILE_CELLS = 1 << 17
 
 
-def remove_profile_outliers(z, cell_size, keep, *, lengths_m, terrain_class, scale_m,
-                            k=4.0, low_weight=0.02, iterations=1, test=None, labels=None,
-                            homogeneous=True, progress=None):
+def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                            lengths_m: Sequence[float], terrain_class: str, scale_m: float,
+                            k: float = 4.0, low_weight: float = 0.02, iterations: int = 1,
+                            test: Optional[np.ndarray] = None, labels: Optional[np.ndarray] = None,
+                            homogeneous: bool = True, progress: Optional[Callable[[float], None]] = None
+                            ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
     For each length of ``lengths_m`` and each direction, every height is compared with the
@@ -99,16 +104,21 @@ def _or_into(dst, src, transposed):
 
 
 # ------------------------------------------------------------------- step 6
-def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_m, k=4.0,
-                            low_weight=0.02, iterations=1, test=None, labels=None,
-                            homogeneous=True, progress=None):
+def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                            size_m: float, terrain_class: str, scale_m: float, k: float = 4.0,
+                            low_weight: float = 0.02, iterations: int = 1,
+                            test: Optional[np.ndarray] = None, labels: Optional[np.ndarray] = None,
+                            homogeneous: bool = True, progress: Optional[Callable[[float], None]] = None
+                            ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
 
     Every height is compared with the leave-one-out weighted least-squares surface of its
     ``size_m`` x ``size_m`` window (horizontal plane in flat, inclined plane in rolling,
     2nd-order polynomial in mountainous terrain), with the same data snooping and weight
     factor as :func:`remove_profile_outliers`. Windows never reach across a break line.
-    A flat but inhomogeneous area gets the inclined plane (:func:`model_degree`).
+    A flat but inhomogeneous area gets the inclined plane (:func:`model_degree`). In
+    mountainous terrain (the polynomial) the windows run in tiles of bounded work.
+    ``progress(fraction)`` is called every band or tile (it may raise ``Cancelled``).
 
     Returns
     -------
@@ -141,13 +151,17 @@ def remove_surface_outliers(z, cell_size, keep, *, size_m, terrain_class, scale_
     return high, low
 
 
-def remove_prediction_outliers(z, cell_size, keep, *, radius_m, scale_m, k=4.0,
-                               low_weight=0.02, test=None, labels=None, progress=None):
+def remove_prediction_outliers(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                               radius_m: float, scale_m: float, k: float = 4.0,
+                               low_weight: float = 0.02, test: Optional[np.ndarray] = None,
+                               labels: Optional[np.ndarray] = None, progress: Optional[Callable[[float], None]] = None
+                               ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 7: final local prediction (least-squares interpolation from the neighbourhood).
 
     Each height is predicted from the remaining points within ``radius_m`` by a weighted
     least-squares inclined plane with Gaussian (covariance-like) weights, itself excluded,
-    and tested as in :func:`remove_profile_outliers`.
+    and tested as in :func:`remove_profile_outliers`. ``progress(fraction)`` is called
+    every band of rows (it may raise ``Cancelled``).
 
     Returns
     -------

@@ -4,6 +4,8 @@ Jacobsen (2004): no comparison crosses a break line, so a dam or an embankment k
 shoulders. The plugin layer rasterises the lines and areas; the core receives boolean
 rasters on the DSM's grid.
 """
+from typing import Tuple
+
 import numpy as np
 from scipy import ndimage
 
@@ -20,7 +22,7 @@ def _as_bool_raster(a, shape, name):
     return a if a.any() else None
 
 
-def break_regions(breaklines):
+def break_regions(breaklines: np.ndarray) -> Tuple[np.ndarray, int]:
     """Label the regions no comparison may leave.
 
     Non-break cells are labelled by 4-connected components (a diagonal step between two

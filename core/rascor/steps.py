@@ -4,13 +4,16 @@ Jacobsen (2004): each step removes what the others miss, on the points the previ
 left; these three test heights against the distribution of heights (step 2), against
 their neighbours (step 3) and along X and Y profiles for raised levels (step 4).
 """
+from typing import Callable, Optional, Sequence, Tuple, Union
+
 import numpy as np
 
 from ..common import as_cell_size, report, sub_progress, transpose
 from .kernels import _BAND_CELLS, _bands
 
 
-def remove_height_outliers(z, keep, height_min_m, height_max_m):
+def remove_height_outliers(z: np.ndarray, keep: np.ndarray, height_min_m: float,
+                           height_max_m: float) -> Tuple[np.ndarray, np.ndarray]:
     """Step 2: remove heights far outside the distribution of heights (flat areas only).
 
     Parameters
@@ -38,8 +41,10 @@ def remove_height_outliers(z, keep, height_min_m, height_max_m):
 _DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 
 
-def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, labels=None,
-                                 progress=None):
+def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: float, k: float = 3.0,
+                                 low_weight: float = 0.02, labels: Optional[np.ndarray] = None,
+                                 progress: Optional[Callable[[float], None]] = None
+                                 ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
 
     For each of the 8 directions ``e``, with ``u`` the tested cell, ``l = u + e`` its lower
@@ -70,6 +75,8 @@ def remove_neighbour_differences(z, keep, *, sigma_m, k=3.0, low_weight=0.02, la
         Weight factor of low points (0 < p <= 1).
     labels : ndarray of int, optional
         Break-line regions (:func:`break_regions`).
+    progress : callable, optional
+        ``progress(fraction)``, called every band of rows; it may raise ``Cancelled``.
 
     Returns
     -------
@@ -260,8 +267,10 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
     return out
 
 
-def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m, k=3.0,
-                         labels=None, passes=2, progress=None):
+def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                         jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
+                         labels: Optional[np.ndarray] = None, passes: int = 2,
+                         progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4: sudden change of level along X and Y profiles (buildings).
 
     Along each profile (consecutive remaining points, never across a break line) a *jump
@@ -273,7 +282,8 @@ def remove_level_changes(z, cell_size, keep, *, jump_m, max_building_m, sigma_m,
     no vegetation beside the jumps (the three points outside each jump lie on a smooth
     line: second difference below ``2 k sigma``; ground is smooth, crowns and bushes are
     not). X and Y profiles are combined by union; ``passes``
-    repetitions peel nested levels (roof superstructures).
+    repetitions peel nested levels (roof superstructures). ``progress(fraction)`` is
+    called every band of rows (it may raise ``Cancelled``).
 
     Returns
     -------
