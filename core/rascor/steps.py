@@ -85,107 +85,140 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     tol = k * sigma_m * np.sqrt(2.0)
     tol_low = tol / np.sqrt(low_weight)
     rows, cols = z.shape
-    P = 2
-    zp = np.full((rows + 2 * P, cols + 2 * P), np.nan, np.float32)
-    zp[P:-P, P:-P] = z
-    zp[P:-P, P:-P][~keep] = np.nan
+    zp = np.full((rows + 2 * _PAD, cols + 2 * _PAD), np.nan, np.float32)
+    inner = (slice(_PAD, -_PAD), slice(_PAD, -_PAD))
+    zp[inner] = z
+    zp[inner][~keep] = np.nan
     lp = None
     if labels is not None:
         lp = np.full(zp.shape, -1, np.int64)
-        lp[P:-P, P:-P] = labels
+        lp[inner] = labels
     low = np.zeros(z.shape, bool)
     high = np.zeros(z.shape, bool)
-    axes = ((0, 1), (1, 0), (1, 1), (1, -1))
-
-    W = cols + 2 * P
-
-    def run(core, src, reach, tol_c, out, keep_b=None, progress=None):
-        # bands of rows: the few temporaries of each stay in the cache. Without break
-        # lines, only the candidates are tested: cells with a neighbour (within ``reach``
-        # cells along the 8 directions) lower (``reach`` 1) / higher (``reach`` 2) by
-        # more than ``tol_c``, which every removal needs; their neighbours are gathered.
-        flat = src.ravel()
-        bands = _bands(rows, W, 4 * _BAND_CELLS)
-        for i, b in enumerate(bands):
-            report(progress, i / len(bands))
-            r0, r1 = b.start, b.stop
-            zc = src[P + r0:P + r1, P:P + cols]
-            if lp is not None:
-                def nb(dr, dc):
-                    v = src[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
-                    return np.where(lp[P + r0 + dr:P + r1 + dr, P + dc:P + dc + cols]
-                                    == labels[b], v, np.nan)
-                out[b] = core(nb, keep[b] if keep_b is None else keep_b[b])
-                continue
-            ext = None
-            for dr, dc in _DIRS8:
-                for m in range(1, reach + 1):
-                    v = src[P + r0 + m * dr:P + r1 + m * dr, P + m * dc:P + m * dc + cols]
-                    ext = v.copy() if ext is None else (np.fmax(ext, v, out=ext) if reach == 2
-                                                         else np.fmin(ext, v, out=ext))
-            ext -= zc
-            cand = ext > tol_c if reach == 2 else ext < -tol_c
-            cand &= keep[b] if keep_b is None else keep_b[b]
-            idx = np.flatnonzero(cand)
-            ob = out[b]
-            ob[:] = False
-            if not idx.size:
-                continue
-            base = idx + (idx // cols) * (2 * P) + (P + r0) * W + P
-            kb = np.ones(idx.size, bool)
-            ob.ravel()[idx] = core(lambda dr, dc: flat[base + (dr * W + dc)], kb)
-
-    def pits(nb, kb):
-        # low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
-        # when, on both sides within 2 cells, a point lies higher by more than tol_low
-        # (fills blunders up to 3 cells wide); a ditch or a cut continues along its own
-        # axis, so it is no pit there and stays.
-        zc = nb(0, 0)
-        n_axes = np.zeros(zc.shape, np.int8)
-        n_pits = np.zeros(zc.shape, np.int8)
-        for dr, dc in axes:
-            s0 = np.fmax(nb(dr, dc), nb(2 * dr, 2 * dc))
-            s0 -= zc
-            s1 = np.fmax(nb(-dr, -dc), nb(-2 * dr, -2 * dc))
-            s1 -= zc
-            has = np.isfinite(s0)
-            has &= np.isfinite(s1)
-            n_axes += has
-            has &= s0 > tol_low
-            has &= s1 > tol_low
-            n_pits += has
-        lo = kb & (n_axes >= 2)
-        lo &= n_pits == n_axes
-        return lo
-
-    def pairs(nb, kb):
-        zc = nb(0, 0)
-        hi = np.zeros(zc.shape, bool)
-        for dr, dc in axes:
-            zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
-            d_f, d_r = zc - zf, zc - zr
-            for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
-                                        (d_r, d_f, zr, (-2 * dr, -2 * dc))):
-                # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
-                # lie in the region of l too (nb checks the centre's region for both)
-                beyond = zl - nb(*far)
-                up = -up_neg                           # rise above u: z_{u-e} - z_u
-                # the local slope: beyond the pair, else above u; neither known: no test
-                np.copyto(beyond, up, where=np.isnan(beyond))
-                np.maximum(beyond, 0.0, out=beyond)
-                beyond += tol
-                t = dz > beyond
-                # unless the terrain above u rises at least as steeply (straight or concave)
-                t &= ~(up >= dz - tol)
-                hi |= t
-        hi &= kb
-        return hi
-
     with np.errstate(invalid="ignore"):
-        run(pits, zp, 2, tol_low, low, progress=sub_progress(progress, 0.0, 0.4))
-        zp[P:-P, P:-P][low] = np.nan
-        run(pairs, zp, 1, tol, high, keep_b=keep & ~low, progress=sub_progress(progress, 0.4, 1.0))
+        _test_bands(_pits, tol_low, zp, lp, labels, keep, 2, low, sub_progress(progress, 0.0, 0.4))
+        zp[inner][low] = np.nan
+        _test_bands(_pairs, tol, zp, lp, labels, keep & ~low, 1, high,
+                    sub_progress(progress, 0.4, 1.0))
     return high, low
+
+
+#: Padding (cells) of step 3's arrays: the tests reach 2 cells.
+_PAD = 2
+#: The 4 axes of step 3's pairs and pits.
+_AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+class _RegionNeighbours:
+    """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of every cell of the rows ``r0:r1``,
+    NaN where it lies in another break-line region than the cell."""
+
+    def __init__(self, src, lp, labels, r0, r1):
+        self.src, self.lp, self.lab, self.r0, self.r1 = src, lp, labels[r0:r1], r0, r1
+        self.cols = labels.shape[1]
+
+    def __call__(self, dr, dc):
+        rows = slice(_PAD + self.r0 + dr, _PAD + self.r1 + dr)
+        cols = slice(_PAD + dc, _PAD + dc + self.cols)
+        return np.where(self.lp[rows, cols] == self.lab, self.src[rows, cols], np.nan)
+
+
+class _GatheredNeighbours:
+    """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of the candidate cells, whose flat indices
+    in the padded array of width ``width`` are ``base``."""
+
+    def __init__(self, flat, base, width):
+        self.flat, self.base, self.width = flat, base, width
+
+    def __call__(self, dr, dc):
+        return self.flat[self.base + (dr * self.width + dc)]
+
+
+def _test_bands(test, tol_test, src, lp, labels, keep, reach, out, progress):
+    """Run ``test(nb, keep, tol_test)`` (:func:`_pits` or :func:`_pairs`) on every cell of
+    ``keep``, in bands of rows, into ``out``.
+
+    Bands of rows keep the few temporaries of each in the cache. Without break lines, only
+    the candidates are tested: cells with a neighbour (within ``reach`` cells along the 8
+    directions) lower (``reach`` 1) / higher (``reach`` 2) by more than ``tol_test``, which
+    every removal needs; their neighbours are gathered.
+    """
+    rows, cols = keep.shape
+    width = cols + 2 * _PAD
+    flat = src.ravel()
+    bands = _bands(rows, width, 4 * _BAND_CELLS)
+    for i, b in enumerate(bands):
+        report(progress, i / len(bands))
+        r0, r1 = b.start, b.stop
+        if lp is not None:
+            out[b] = test(_RegionNeighbours(src, lp, labels, r0, r1), keep[b], tol_test)
+            continue
+        ext = None
+        for dr, dc in _DIRS8:
+            for m in range(1, reach + 1):
+                v = src[_PAD + r0 + m * dr:_PAD + r1 + m * dr, _PAD + m * dc:_PAD + m * dc + cols]
+                ext = v.copy() if ext is None else (np.fmax(ext, v, out=ext) if reach == 2
+                                                     else np.fmin(ext, v, out=ext))
+        ext -= src[_PAD + r0:_PAD + r1, _PAD:_PAD + cols]
+        cand = ext > tol_test if reach == 2 else ext < -tol_test
+        cand &= keep[b]
+        idx = np.flatnonzero(cand)
+        ob = out[b]
+        ob[:] = False
+        if not idx.size:
+            continue
+        base = idx + (idx // cols) * (2 * _PAD) + (_PAD + r0) * width + _PAD
+        ob.ravel()[idx] = test(_GatheredNeighbours(flat, base, width), np.ones(idx.size, bool), tol_test)
+
+
+def _pits(nb, kb, tol_low):
+    """Low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
+    when, on both sides within 2 cells, a point lies higher by more than ``tol_low``
+    (fills blunders up to 3 cells wide); a ditch or a cut continues along its own axis,
+    so it is no pit there and stays."""
+    zc = nb(0, 0)
+    n_axes = np.zeros(zc.shape, np.int8)
+    n_pits = np.zeros(zc.shape, np.int8)
+    for dr, dc in _AXES:
+        s0 = np.fmax(nb(dr, dc), nb(2 * dr, 2 * dc))
+        s0 -= zc
+        s1 = np.fmax(nb(-dr, -dc), nb(-2 * dr, -2 * dc))
+        s1 -= zc
+        has = np.isfinite(s0)
+        has &= np.isfinite(s1)
+        n_axes += has
+        has &= s0 > tol_low
+        has &= s1 > tol_low
+        n_pits += has
+    lo = kb & (n_axes >= 2)
+    lo &= n_pits == n_axes
+    return lo
+
+
+def _pairs(nb, kb, tol):
+    """The upper points of neighbouring pairs differing beyond ``tol`` and the local slope
+    (see :func:`remove_neighbour_differences`)."""
+    zc = nb(0, 0)
+    hi = np.zeros(zc.shape, bool)
+    for dr, dc in _AXES:
+        zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
+        d_f, d_r = zc - zf, zc - zr
+        for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
+                                    (d_r, d_f, zr, (-2 * dr, -2 * dc))):
+            # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
+            # lie in the region of l too (nb checks the centre's region for both)
+            beyond = zl - nb(*far)
+            up = -up_neg                           # rise above u: z_{u-e} - z_u
+            # the local slope: beyond the pair, else above u; neither known: no test
+            np.copyto(beyond, up, where=np.isnan(beyond))
+            np.maximum(beyond, 0.0, out=beyond)
+            beyond += tol
+            t = dz > beyond
+            # unless the terrain above u rises at least as steeply (straight or concave)
+            t &= ~(up >= dz - tol)
+            hi |= t
+    hi &= kb
+    return hi
 
 
 # ------------------------------------------------------------------- step 4
