@@ -11,8 +11,16 @@ import numpy as np
 from scipy import ndimage
 
 from ..common import report, sub_progress
-from .kernels import (_BAND_CELLS, _HALO_BAND_CELLS, _bands, _centred, _mean1, _power_sums, _scratch, _solve3_first,
-                      _solve_first_general)
+from .kernels import (
+    _HALO_BAND_CELLS,
+    _bands,
+    _centred,
+    _mean1,
+    _power_sums,
+    _scratch,
+    _solve3_first,
+    _solve_first_general,
+)
 from .regions import _region_slices
 
 

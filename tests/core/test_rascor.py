@@ -3,14 +3,12 @@ import importlib.util
 
 import numpy as np
 import pytest
-
 from conftest import ROOT
 
-from bare_earth.core import rascor as R
-from bare_earth.core import synthetic
+from bare_earth.core import rascor, synthetic
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 from bare_earth.core.common import Cancelled
 from bare_earth.core.rascor import fits, kernels, moving, steps, terrain
-from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 
 N = 64
 
@@ -29,7 +27,7 @@ BASE = dict(terrain_class="rolling", homogeneous=True, sigma_m=0.1, short_profil
 def run(z, **kw):
     p = dict(BASE)
     p.update(kw)
-    return R.filter_rascor(z, 1.0, **p)
+    return rascor.filter_rascor(z, 1.0, **p)
 
 
 def only_step(res, feature, k):
@@ -48,28 +46,28 @@ def test_characterise_classes_and_sigma():
     flat = 50 + 0.01 * x + rng.normal(0, 0.3, x.shape)
     rolling = 50 + 0.10 * x + rng.normal(0, 0.05, x.shape)
     mountain = 50 + 0.45 * x + 0.2 * y
-    c = R.characterise_terrain(flat, 1.0)
+    c = rascor.characterise_terrain(flat, 1.0)
     assert c["terrain_class"] == "flat" and c["homogeneous"]
     assert 0.2 < c["sigma_m"] < 0.4          # estimated random error ~ 0.3 m
-    assert R.characterise_terrain(rolling, 1.0)["terrain_class"] == "rolling"
-    assert R.characterise_terrain(mountain, 1.0)["terrain_class"] == "mountainous"
+    assert rascor.characterise_terrain(rolling, 1.0)["terrain_class"] == "rolling"
+    assert rascor.characterise_terrain(mountain, 1.0)["terrain_class"] == "mountainous"
     # a flat area with an embankment is flat but not homogeneous
     emb = 50 + 0.01 * x + np.clip(6 - (np.abs(x - 100) - 6) / 1.5, 0, 6)
-    c = R.characterise_terrain(emb, 1.0)
+    c = rascor.characterise_terrain(emb, 1.0)
     assert c["terrain_class"] == "flat" and not c["homogeneous"]
-    assert R.model_degree("flat", True) == 0 and R.model_degree("flat", False) == 1
-    assert R.model_degree("mountainous", False) == 2
+    assert rascor.model_degree("flat", True) == 0 and rascor.model_degree("flat", False) == 1
+    assert rascor.model_degree("mountainous", False) == 2
 
 
 def test_class_chooses_defaults_and_is_reported():
     z = plane(80, 0.45, 0.1)
-    p = R.resolve_rascor_params(z, 1.0)
+    p = rascor.resolve_rascor_params(z, 1.0)
     assert p["terrain_class"] == "mountainous" and p["height_min_m"] is None
-    res = R.filter_rascor(z, 1.0, **p)
+    res = rascor.filter_rascor(z, 1.0, **p)
     assert res.info["terrain_class"] == "mountainous"
     assert res.info["model"] == "polynomial"
     assert any("skipped" in n for n in res.info["notes"])   # step 2 not in mountains
-    pf = R.resolve_rascor_params(plane(80, 0.01, 0.0), 1.0)
+    pf = rascor.resolve_rascor_params(plane(80, 0.01, 0.0), 1.0)
     assert pf["terrain_class"] == "flat" and pf["height_max_m"] is not None
 
 
@@ -103,12 +101,12 @@ def test_step3_neighbour_differences_small_object():
 def test_step3_tolerance_follows_local_slope():
     # a steep but straight slope (60 %) is not an object: nothing removed
     z = plane(sx=0.6, sy=0.0)
-    hi, lo = R.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
+    hi, lo = rascor.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
     assert not hi.any() and not lo.any()
     # the same step up on flat ground is removed (upper point only)
     z = plane(sx=0.0, sy=0.0)
     z[:, 32:] += 0.6
-    hi, _ = R.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
+    hi, _ = rascor.remove_neighbour_differences(z, np.ones(z.shape, bool), sigma_m=0.1)
     assert hi[:, 32].all() and not hi[:, 31].any() and not hi[:, 34:].any()
 
 
@@ -134,7 +132,7 @@ def test_step4_level_change_building():
     # no jump down (a terrace edge): nothing is a building
     z = plane()
     z[:, 32:] += 5.0
-    hi = R.remove_level_changes(z, 1.0, np.ones(z.shape, bool), jump_m=2.0,
+    hi = rascor.remove_level_changes(z, 1.0, np.ones(z.shape, bool), jump_m=2.0,
                                 max_building_m=60.0, sigma_m=0.1)
     assert not hi.any()
 
@@ -145,12 +143,12 @@ def test_step4_vegetation_beside_is_not_a_building():
     z[:, 20:40] += 7.0
     keep = np.ones(z.shape, bool)
     kw = dict(jump_m=2.0, max_building_m=60.0, sigma_m=0.1)
-    hi = R.remove_level_changes(z, 1.0, keep, **kw)
+    hi = rascor.remove_level_changes(z, 1.0, keep, **kw)
     assert hi[:, 20:40].all() and not hi[:, :20].any() and not hi[:, 40:].any()
     # the same with rough vegetation beside the jump up: not a building
     veg = z.copy()
     veg[:, 10:20] += np.tile([1.0, 3.5, 0.5, 3.0, 1.5], 2)
-    hi = R.remove_level_changes(veg, 1.0, keep, **kw)
+    hi = rascor.remove_level_changes(veg, 1.0, keep, **kw)
     assert not hi.any()
 
 
@@ -179,17 +177,17 @@ def test_step5_uneven_spacing_and_models():
     z = plane(sx=0.3, sy=0.0)
     keep = np.ones(z.shape, bool)
     keep[:, ::3] = False
-    hi, lo = R.remove_profile_outliers(z, 1.0, keep, lengths_m=[9.0], terrain_class="rolling",
+    hi, lo = rascor.remove_profile_outliers(z, 1.0, keep, lengths_m=[9.0], terrain_class="rolling",
                                        scale_m=0.05)
     assert not hi.any() and not lo.any()
     # parabolic valley: the polynomial follows it, the mean does not
     y, x = np.mgrid[0:N, 0:N].astype(float)
     zc = 0.02 * (x - 32) ** 2
     full = np.ones(zc.shape, bool)
-    hi2, lo2 = R.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
+    hi2, lo2 = rascor.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
                                          terrain_class="mountainous", scale_m=0.05)
     assert not (hi2 | lo2)[:, 8:-8].any()
-    hi0, lo0 = R.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
+    hi0, lo0 = rascor.remove_profile_outliers(zc, 1.0, full, lengths_m=[15.0],
                                          terrain_class="flat", scale_m=0.05)
     assert (hi0 | lo0).any()
 
@@ -268,7 +266,7 @@ def test_break_line_keeps_shoulder():
 
 def test_break_regions_do_not_leak_diagonally():
     bl = np.eye(8, dtype=bool)
-    lab, n = R.break_regions(bl)
+    lab, n = rascor.break_regions(bl)
     assert n == 3 and lab[0, 5] != lab[5, 0]
     assert len(set(lab[bl].tolist())) == 1
 
@@ -324,7 +322,7 @@ def test_dtypes_and_outputs(dtype):
     assert (res.mask[11:13, 11:13] == OBJECT).all() and res.mask[30, 30] == LOW
     assert (res.mask == 0).sum() == 40 * 40 - 16 - 1
     shares = res.info["removed_share_by_step"]
-    assert set(shares) == {f"{k} {R.STEP_NAMES[k]}" for k in range(2, 8)}
+    assert set(shares) == {f"{k} {rascor.STEP_NAMES[k]}" for k in range(2, 8)}
     assert abs(sum(shares.values()) - 17 / 1600) < 1e-9
 
 
@@ -359,40 +357,41 @@ def test_errors_name_the_problem(kw, word):
 
 def test_resolve_rejects_unknown_and_derives_everything():
     with pytest.raises(ValueError, match="unknown"):
-        R.resolve_rascor_params(plane(), 1.0, bogus=1)
+        rascor.resolve_rascor_params(plane(), 1.0, bogus=1)
     rng = np.random.default_rng(5)
     z = plane(96) + rng.normal(0, 0.1, (96, 96))
-    p = R.resolve_rascor_params(z, 1.0)
+    p = rascor.resolve_rascor_params(z, 1.0)
     assert all(p[k] is not None for k in ("terrain_class", "homogeneous", "sigma_m",
                                           "short_profile_m", "long_profile_m",
                                           "surface_size_m", "profile_sigma_m"))
     assert p["short_profile_m"] < p["long_profile_m"]
     # the plugin passes the enum strings ("auto" = derived)
-    q = R.resolve_rascor_params(z, 1.0, terrain_class="auto", homogeneous="inhomogeneous")
-    assert q["terrain_class"] in R.TERRAIN_CLASSES and q["homogeneous"] is False
-    assert R.filter_rascor(z, 1.0, **dict(q, homogeneous="homogeneous")).info["homogeneous"]
-    assert p["short_profile_m"] in R.PROFILE_LENGTHS_M
-    assert p["surface_size_m"] in R.SURFACE_SIZES_M
+    q = rascor.resolve_rascor_params(z, 1.0, terrain_class="auto", homogeneous="inhomogeneous")
+    assert q["terrain_class"] in rascor.TERRAIN_CLASSES and q["homogeneous"] is False
+    assert rascor.filter_rascor(z, 1.0, **dict(q, homogeneous="homogeneous")).info["homogeneous"]
+    assert p["short_profile_m"] in rascor.PROFILE_LENGTHS_M
+    assert p["surface_size_m"] in rascor.SURFACE_SIZES_M
 
 
 def test_registry_params_match_core():
     import inspect
+
     from bare_earth.core.methods import get_method
     m = get_method("rascor")
     names = [p.name for p in m.params]
-    sig = inspect.signature(R.filter_rascor).parameters
+    sig = inspect.signature(rascor.filter_rascor).parameters
     assert all(n in sig for n in names)
     assert "breaklines" not in names and "special_areas" not in names
-    assert set(names) == set(R.DEFAULTS)
+    assert set(names) == set(rascor.DEFAULTS)
     assert m.extras["step"][0] is np.uint8
 
 
 def test_halo_covers_reach():
-    p = R.resolve_rascor_params(plane(), 1.0)
-    h1 = R.rascor_halo(p, 1.0)
+    p = rascor.resolve_rascor_params(plane(), 1.0)
+    h1 = rascor.rascor_halo(p, 1.0)
     assert h1 >= 2 * p["max_building_m"]
-    assert R.rascor_halo(dict(p, second_iteration=True), 1.0) > h1
-    assert R.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
+    assert rascor.rascor_halo(dict(p, second_iteration=True), 1.0) > h1
+    assert rascor.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
 
 
 def test_blocks_match_one_pass():
@@ -521,8 +520,8 @@ def test_step3_candidates_equal_testing_every_cell():
     # without break lines only candidate cells are tested; one region of break-line
     # labels takes the path testing every cell: the same removals
     z, keep = _city()
-    fast = R.remove_neighbour_differences(z, keep, sigma_m=0.1)
-    every = R.remove_neighbour_differences(z, keep, sigma_m=0.1,
+    fast = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1)
+    every = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1,
                                            labels=np.ones(z.shape, np.int32))
     assert fast[0].any() and fast[1].any()
     np.testing.assert_array_equal(fast[0], every[0])
@@ -538,11 +537,11 @@ def test_banded_steps_equal_one_band(monkeypatch):
             for name, value in (("_BAND_CELLS", cells), ("_HALO_BAND_CELLS", 4 * cells)):
                 if hasattr(mod, name):
                     monkeypatch.setattr(mod, name, value)
-        runs.append((R.remove_level_changes(z, 1.0, keep, jump_m=2.0, max_building_m=30.0,
+        runs.append((rascor.remove_level_changes(z, 1.0, keep, jump_m=2.0, max_building_m=30.0,
                                             sigma_m=0.1),
-                     *R.remove_profile_outliers(z, 1.0, keep, lengths_m=[5.0, 15.0], **kw),
-                     *R.remove_surface_outliers(z, 1.0, keep, size_m=15.0, **kw),
-                     *R.remove_prediction_outliers(z, 1.0, keep, radius_m=3.0, scale_m=0.1)))
+                     *rascor.remove_profile_outliers(z, 1.0, keep, lengths_m=[5.0, 15.0], **kw),
+                     *rascor.remove_surface_outliers(z, 1.0, keep, size_m=15.0, **kw),
+                     *rascor.remove_prediction_outliers(z, 1.0, keep, radius_m=3.0, scale_m=0.1)))
     assert all(a.any() for a in runs[0][:3])
     for a, b in zip(*runs):
         np.testing.assert_array_equal(a, b)
@@ -634,7 +633,7 @@ def test_polynomial_surface_in_tiles_equals_one_tile():
     z = synthetic.make_scene("mountain", (150, 170), seed=3).dsm
     keep = np.isfinite(z)
     kw = dict(size_m=15.0, terrain_class="mountainous", scale_m=0.1)
-    one = R.remove_surface_outliers(z, 1.0, keep, **kw)
+    one = rascor.remove_surface_outliers(z, 1.0, keep, **kw)
     tiles = fits._tiles(150, 170, 7, 7, 40 * 40)
     assert len(tiles) > 9
     cover = np.zeros(z.shape, int)
@@ -644,7 +643,7 @@ def test_polynomial_surface_in_tiles_equals_one_tile():
     mp = pytest.MonkeyPatch()
     mp.setattr(moving, "_POLY_TILE_CELLS", 40 * 40)
     try:
-        many = R.remove_surface_outliers(z, 1.0, keep, **kw)
+        many = rascor.remove_surface_outliers(z, 1.0, keep, **kw)
     finally:
         mp.undo()
     assert one[0].any()
@@ -682,9 +681,9 @@ def _progress_run(monkeypatch, progress, **kw):
     bl = np.zeros(z.shape, bool)                     # break lines: the per-region path too
     bl[:, 120] = True
     bl[70, :120] = True
-    p = R.resolve_rascor_params(z, 1.0)
+    p = rascor.resolve_rascor_params(z, 1.0)
     p.update(step7_prediction=True, second_iteration=True, **kw)
-    return R.filter_rascor(z, 1.0, progress=progress, breaklines=bl, **p)
+    return rascor.filter_rascor(z, 1.0, progress=progress, breaklines=bl, **p)
 
 
 def test_progress_is_monotonic_in_the_unit_interval_and_reported_inside_the_steps(monkeypatch):
