@@ -6,11 +6,11 @@ analysing a sequence of lengths and sizes, the standard deviations of the models
 residuals. :func:`resolve_rascor_params` does this once on the whole raster (so all blocks
 agree); :func:`rascor_halo` gives the reach of the whole sequence for block processing.
 """
-from typing import Sequence, Union
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
-from ..common import as_cell_size, as_surface
+from ..common import as_cell_size, as_surface, report, sub_progress
 from .fits import _fit_at_centre
 from .kernels import _finite64, _gauss, _odd
 from .steps import remove_level_changes, remove_neighbour_differences
@@ -78,19 +78,46 @@ def _choose(spreads, sigma):
     return best
 
 
-def _scan(sequence, scale_of, sigma, at_least=1):
-    """``scale_of(value)`` along ``sequence`` as long as :func:`_choose` can still accept
-    the next value: the sequence ends at the first length whose spread is too large (the
-    longer ones are never chosen), but covers at least ``at_least`` values."""
+def _analysis_sample(z, cell_size, sigma, p):
+    """``[(heights, weights, cells kept)]`` of each analysis crop (:func:`_analysis_crops`)
+    cleaned by steps 3 and 4."""
+    sample = []
+    for crop in _analysis_crops(z):
+        keep = np.isfinite(crop)
+        if keep.sum() < 100:
+            continue
+        hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
+                                              low_weight=p["low_weight"])
+        keep &= ~(hi | lo)
+        keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
+                                      max_building_m=p["max_building_m"], sigma_m=sigma)
+        sample.append((_finite64(crop), keep.astype(np.float64), keep))
+    return sample
+
+
+def _sample_scale(sample, sizes, degree, kernels=None):
+    """Robust scales (:func:`_robust_scale`) of the leave-one-out residuals of the moving
+    fit of ``sizes`` cells and ``degree`` on the analysis sample."""
+    v = [(c - _fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
+    return _robust_scale(np.concatenate(v) if v else np.zeros(0))
+
+
+def _scan(windows, sample, degree, sigma, at_least=1, progress=None):
+    """:func:`_sample_scale` along the sequence of ``windows`` (cells) as long as
+    :func:`_choose` can still accept the next one: the sequence ends at the first window
+    whose spread is too large (the longer ones are never chosen), but covers at least
+    ``at_least`` windows."""
     out = []
-    for i, value in enumerate(sequence):
-        out.append(scale_of(value))
+    for i, sizes in enumerate(windows):
+        out.append(_sample_scale(sample, sizes, degree))
+        report(progress, (i + 1) / len(windows))
         if i + 1 >= at_least and _choose([b for _, b in out], sigma) < i:
             break
     return out
 
 
-def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], **params) -> dict:
+def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
+                          progress: Optional[Callable[[float], None]] = None, **params) -> dict:
     """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
 
     ``None`` (and ``"auto"``) values are derived from the whole raster, once, so that all
@@ -112,6 +139,9 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     * the surface size and ``surface_sigma_m`` likewise from :data:`SURFACE_SIZES_M`;
     * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
 
+    ``progress(fraction)`` (optional) is called after each stage of the analysis; it may
+    raise ``Cancelled``.
+
     Returns
     -------
     dict
@@ -130,6 +160,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
                          f"by step 1); got {tc!r}.")
     ch, low_env = _characterise(z, (dx, dy))
+    report(progress, 0.5)
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
@@ -161,25 +192,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                                       "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
     if need:
         deg = model_degree(tc, p["homogeneous"])
-        sample = []          # (heights, weights, cells kept) of each crop, after steps 3, 4
-        for crop in _analysis_crops(z):
-            keep = np.isfinite(crop)
-            if keep.sum() < 100:
-                continue
-            hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
-                                                  low_weight=p["low_weight"])
-            keep &= ~(hi | lo)
-            keep &= ~remove_level_changes(crop, (dx, dy), keep, jump_m=p["jump_m"],
-                                          max_building_m=p["max_building_m"], sigma_m=sigma)
-            sample.append((_finite64(crop), keep.astype(np.float64), keep))
-
-        def scale(fit):
-            """Robust scale of the leave-one-out residuals of ``fit(z, w)`` on the sample."""
-            v = [(c - fit(c, w)[0])[kk] for c, w, kk in sample]
-            return _robust_scale(np.concatenate(v) if v else np.zeros(0))
-
-        ps = _scan(PROFILE_LENGTHS_M, lambda L: scale(
-            lambda c, w: _fit_at_centre(c, w, _odd(L / dx), deg)), sigma, at_least=2)
+        sample = _analysis_sample(z, (dx, dy), sigma, p)
+        report(progress, 0.6)
+        ps = _scan([_odd(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
+                   progress=sub_progress(progress, 0.6, 0.8))
         i_long = max(_choose([b for _, b in ps], sigma), 1)
         long_m = PROFILE_LENGTHS_M[i_long]
         i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
@@ -191,9 +207,8 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             s = ps[i_long][0]
             p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
-            ss = _scan(SURFACE_SIZES_M, lambda S: scale(
-                lambda c, w: _fit_at_centre(c, w, (_odd(S / dy), _odd(S / dx)), min(deg, 1))),
-                sigma)
+            ss = _scan([(_odd(S / dy), _odd(S / dx)) for S in SURFACE_SIZES_M], sample, min(deg, 1),
+                       sigma, progress=sub_progress(progress, 0.8, 0.95))
             i_s = _choose([b for _, b in ss], sigma)
             if p["surface_size_m"] is None:
                 p["surface_size_m"] = SURFACE_SIZES_M[i_s]
@@ -202,8 +217,9 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["prediction_sigma_m"] is None:
             g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
-            s = scale(lambda c, w: _fit_at_centre(c, w, (len(g[0]), len(g[1])), 1, kernels=g))[0]
+            s = _sample_scale(sample, (len(g[0]), len(g[1])), 1, kernels=g)[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+    report(progress, 1.0)
     return p
 
 

@@ -712,3 +712,18 @@ def test_cancel_raised_by_progress_stops_the_run_at_once(monkeypatch, share):
     with pytest.raises(Cancelled):
         _progress_run(monkeypatch, progress)
     assert len(calls) == n                      # no further call: the run stopped there
+
+
+def test_resolve_reports_progress_and_can_be_cancelled():
+    z = synthetic.make_scene("city", (160, 192), seed=1).dsm
+    seen = []
+    p = rascor.resolve_rascor_params(z, 1.0, progress=seen.append)
+    assert p == rascor.resolve_rascor_params(z, 1.0)
+    assert len(seen) >= 4 and seen[-1] == 1.0
+    assert all(b >= a for a, b in zip(seen, seen[1:]))
+
+    def cancel(f):
+        raise Cancelled("stop")
+
+    with pytest.raises(Cancelled):
+        rascor.resolve_rascor_params(z, 1.0, progress=cancel)
