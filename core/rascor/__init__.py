@@ -52,7 +52,16 @@ Notes on the vectorised implementation
   the centre taken out of the sums, the normal equations solved by cofactors. Fits and
   snooping run in bands of rows (:func:`_fit_and_snoop`; window fits with a halo of rows,
   Y profiles on a transposed copy), so no full-size float temporary is made and the
-  result is that of one fit of the whole raster.
+  result is that of one fit of the whole raster. Their rounding depends (around 1e-9 m on
+  a 865-column DSM) on where the array starts.
+* The polynomial (mountainous terrain) and the Gaussian-weighted prediction sum
+  ``w k^p``, ``w z k^p`` by exact centred correlations (O(window) per cell): a block gives
+  the same fit as one pass, bit for bit (box sums on absolute positions moved the
+  polynomial by up to 3e-4 m and changed 4 cells of a Pleiades DSM between blocks and one
+  pass). The polynomial surface runs in tiles with a halo on all sides, so the work
+  between two progress reports stays bounded.
+* ``progress(fraction)`` is called every band or tile of every step (hundreds of times on
+  16 Mcells, at most 0.2 s apart there); a ``Cancelled`` it raises stops the run at once.
 * Snooping tests all points at once against fits without them (externally studentised
   residuals); with ``snooping_iterations > 1`` the fit is repeated without the removed
   points and with the weight factor on the points found below it.
