@@ -42,10 +42,11 @@ def sample_windows(z, cells=SAMPLE_CELLS, side=SAMPLE_WINDOW):
     """The parts of a raster a parameter estimate looks at.
 
     ``z`` itself when it has at most ``cells`` cells (or is narrower than two windows),
-    else about ``cells / side**2`` windows of ``side x side`` cells on a regular grid
-    spread over the whole raster (first and last windows at its edges). Windows are
-    views (no copy), contiguous along their rows, so sampling reads a fraction of the
-    raster and sees all its parts (not only its centre).
+    else about ``cells / side**2`` windows of ``side x side`` cells, one centred in each
+    cell of a regular ``ny x nx`` grid over the raster (four windows: centred on the
+    quadrants), so the sample sees all its parts, not only its centre, and keeps away
+    from its edges (nodata collars). Windows are views (no copy), contiguous along their
+    rows, so sampling reads a fraction of the raster.
 
     Parameters
     ----------
@@ -67,8 +68,8 @@ def sample_windows(z, cells=SAMPLE_CELLS, side=SAMPLE_WINDOW):
     n = max(1, cells // (side * side))
     ny = max(1, min(rows // side, int(round(np.sqrt(n * rows / cols)))))
     nx = max(1, min(cols // side, -(-n // ny)))
-    r0 = np.linspace(0, rows - side, ny).astype(int)
-    c0 = np.linspace(0, cols - side, nx).astype(int)
+    r0 = [int(max(0, min(rows - side, (i + 0.5) / ny * rows - side / 2))) for i in range(ny)]
+    c0 = [int(max(0, min(cols - side, (j + 0.5) / nx * cols - side / 2))) for j in range(nx)]
     return [z[r:r + side, c:c + side] for r in r0 for c in c0]
 
 
@@ -208,7 +209,7 @@ def noise_second_difference_quartile(z, default=0.1):
     return float(np.percentile(np.abs(d - np.median(d)), 25) / _ABS_NORMAL_QUARTILE / np.sqrt(6.0))
 
 
-def noise_plane_residual(z, dtype=np.float32):
+def noise_plane_residual(z, dtype=np.float32, min_count=1, default=0.0):
     """Standard deviation of the DSM's random height error, metres: the lower quartile of
     the residual to the mean of the four neighbours.
 
@@ -223,7 +224,8 @@ def noise_plane_residual(z, dtype=np.float32):
     Returns
     -------
     float
-        ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``; 0 for a surface without a residual.
+        ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``; ``default`` when fewer than
+        ``min_count`` residuals exist.
     """
     r = []
     for w in sample_windows(np.asarray(z, dtype)):
@@ -233,8 +235,8 @@ def noise_plane_residual(z, dtype=np.float32):
         nb = (w[:-2, 1:-1] + w[2:, 1:-1] + w[1:-1, :-2] + w[1:-1, 2:]) * w.dtype.type(0.25)
         r.append(np.abs(c - nb)[np.isfinite(c) & np.isfinite(nb)])
     r = np.concatenate(r) if r else np.empty(0, dtype)
-    if r.size == 0:
-        return 0.0
+    if r.size < max(1, min_count):
+        return default
     return float(np.percentile(r, 25.0)) / _ABS_NORMAL_QUARTILE / math.sqrt(1.25)
 
 

@@ -19,11 +19,12 @@ def test_sample_windows_small_raster_is_used_whole():
 def test_sample_windows_exact_positions_and_views():
     z = np.arange(20 * 30, dtype=np.float32).reshape(20, 30)
     w = est.sample_windows(z, cells=64, side=4)               # 4 windows of 4 x 4
-    # ny = round(sqrt(4 * 20 / 30)) = 2, nx = ceil(4 / 2) = 2: rows 0, 16; cols 0, 26
+    # ny = round(sqrt(4 * 20 / 30)) = 2, nx = ceil(4 / 2) = 2, centred on the quadrants:
+    # rows int(0.25 * 20 - 2) = 3, int(0.75 * 20 - 2) = 13; cols int(5.5) = 5, int(20.5) = 20
     starts = [(int(v[0, 0]) // 30, int(v[0, 0]) % 30) for v in w]
-    assert starts == [(0, 0), (0, 26), (16, 0), (16, 26)]
+    assert starts == [(3, 5), (3, 20), (13, 5), (13, 20)]
     assert all(v.shape == (4, 4) and np.shares_memory(v, z) for v in w)
-    np.testing.assert_array_equal(w[3], z[16:20, 26:30])
+    np.testing.assert_array_equal(w[3], z[13:17, 20:24])
 
 
 # --------------------------------------------------------------------------- block minima
@@ -126,6 +127,14 @@ def test_noise_on_a_large_raster_is_sampled_over_all_of_it():
     assert est.noise_second_difference(z[472:728, 472:728]) == 0.0
     for func in (est.noise_second_difference, est.noise_second_difference_quartile, est.noise_plane_residual):
         assert func(z) == pytest.approx(0.2, rel=0.2)      # the quiet share pulls it down a little
+
+
+def test_noise_plane_residual_too_few_residuals():
+    z = np.zeros((3, 4), np.float32)                # two residuals
+    z[1, 1] = 1.25
+    assert est.noise_plane_residual(z, min_count=3, default=0.1) == 0.1
+    assert est.noise_plane_residual(z, min_count=2) == pytest.approx(
+        float(np.percentile([1.25, 0.3125], 25)) / 0.3186 / math.sqrt(1.25), rel=1e-7)
 
 
 def test_noise_plane_residual_in_float64():
