@@ -15,9 +15,25 @@ from ..fill import fill_gaps
 
 MODELS = ("quadratic", "bilinear")
 
+#: Heights are bounded to +-this (m) for the arithmetic: no terrain comes near it, and with
+#: bounded heights every product of the fit and of K and H stays within float32's range
+#: (cells down to 1 mm), so heights such as +-1e30 (a nodata value not declared) give
+#: large spikes, not overflow.
+HEIGHT_BOUND_M = 1.0e6
+
 #: Cells per block of rows of the element-wise work (cache-sized); used by every
 #: submodule of the filter.
 CHUNK_CELLS = 1 << 16
+
+
+def bounded_heights(z: np.ndarray) -> np.ndarray:
+    """``z`` (float32) with heights beyond +-:data:`HEIGHT_BOUND_M` set to that bound
+    (a copy only when some are); NaN stays NaN."""
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(z), np.nanmax(z)
+    if lo >= -HEIGHT_BOUND_M and hi <= HEIGHT_BOUND_M:
+        return z
+    return np.clip(z, np.float32(-HEIGHT_BOUND_M), np.float32(HEIGHT_BOUND_M))
 
 
 def check_window(window) -> int:
@@ -138,7 +154,7 @@ def derivative_blocks(z: np.ndarray, cell_size, window: int, model: str,
     nodata cells.
     """
     dx, dy = as_cell_size(cell_size)
-    z = as_surface(z)
+    z = bounded_heights(as_surface(z))
     bad = ~np.isfinite(z)
     any_bad = bool(bad.any())
     m = window // 2
@@ -260,30 +276,33 @@ def curvatures_from_derivatives(p, q, r, s, t, out: Optional[np.ndarray] = None
             curvatures_from_derivatives(p[sl], q[sl], r[sl], s[sl], t[sl], out=out[:, sl])
         return out[0], out[1]
     K, H = out[0], out[1]
-    pp = p * p
-    qq = q * q
-    h2 = pp + qq
-    h2 += 1
-    # K = (r t - s^2) / h^4
-    np.multiply(r, t, out=K)
-    tmp = s * s
-    K -= tmp
-    K /= h2
-    K /= h2
-    # H = -((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)
-    qq += 1
-    np.multiply(qq, r, out=H)
-    pp += 1
-    pp *= t
-    H += pp
-    np.multiply(p, q, out=tmp)
-    tmp *= s
-    tmp *= 2
-    H -= tmp
-    np.sqrt(h2, out=tmp)
-    tmp *= h2
-    tmp *= -2
-    H /= tmp
+    # slopes beyond ~1e9 (heights far outside any terrain) overflow h^4 to inf: K and H
+    # are then 0 or NaN (not breaks), without numpy's warnings
+    with np.errstate(over="ignore", invalid="ignore"):
+        pp = p * p
+        qq = q * q
+        h2 = pp + qq
+        h2 += 1
+        # K = (r t - s^2) / h^4
+        np.multiply(r, t, out=K)
+        tmp = s * s
+        K -= tmp
+        K /= h2
+        K /= h2
+        # H = -((1 + q^2) r - 2 p q s + (1 + p^2) t) / (2 h^3)
+        qq += 1
+        np.multiply(qq, r, out=H)
+        pp += 1
+        pp *= t
+        H += pp
+        np.multiply(p, q, out=tmp)
+        tmp *= s
+        tmp *= 2
+        H -= tmp
+        np.sqrt(h2, out=tmp)
+        tmp *= h2
+        tmp *= -2
+        H /= tmp
     return K, H
 
 

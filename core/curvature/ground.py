@@ -14,7 +14,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
-from ..common import report
+from ..common import report, sub_progress
 from ..fill import fill_gaps
 from .derivatives import CHUNK_CELLS, Breaks
 
@@ -63,7 +63,7 @@ def _dilate(mask, m):
     return out
 
 
-def _ground_surface(z, holes, out=None):
+def _ground_surface(z, holes, out=None, progress=None):
     """Ground surface of the final pass: ``z`` at the cells not in ``holes``, over the
     holes the harmonic surface (:func:`~bare_earth.core.fill.fill_gaps`) of a grid of half the resolution,
     interpolated bilinearly.
@@ -79,7 +79,7 @@ def _ground_surface(z, holes, out=None):
     at the raster's edge; planes stay planes). A quarter of the cells to interpolate; the
     final pass only compares heights with this surface, with a tolerance. Restriction and
     interpolation go by cache-sized blocks of rows; ``out``, optional: a float32 array of
-    ``z``'s shape receiving the surface.
+    ``z``'s shape receiving the surface; ``progress(fraction)`` as the work goes.
     """
     h, w = z.shape
     known = ~holes
@@ -134,6 +134,7 @@ def _ground_surface(z, holes, out=None):
         n[empty] = 1
         sb /= n
         sb[empty] = np.nan
+        report(progress, 0.2 * I1 / H)
     # known cells without a known pair: along a straight edge of a hole, two known
     # children on one side and the two cells beyond them give the centre by linear
     # extrapolation (exact on a plane); elsewhere (thin crests, corners) their mean
@@ -166,12 +167,13 @@ def _ground_surface(z, holes, out=None):
             cnt[q] += 1
         ok = cnt > 0
         s.ravel()[idx[ok]] = acc[ok] / cnt[ok]
-    coarse = fill_gaps(s)
+    report(progress, 0.25)
+    coarse = fill_gaps(s, progress=sub_progress(progress, 0.25, 0.7))
     del s
-    return _upsample2(coarse, (h, w), z, known, out=out)
+    return _upsample2(coarse, (h, w), z, known, out=out, progress=sub_progress(progress, 0.7, 1.0))
 
 
-def _upsample2(c, shape, z=None, known=None, out=None):
+def _upsample2(c, shape, z=None, known=None, out=None, progress=None):
     """Bilinear interpolation of a grid of half the resolution at the cells of ``shape``
     (fine cell i lies at coarse coordinate i / 2 - 1/4; the coarse grid is extended by
     linear extrapolation, so planes stay planes); ``z`` where ``known`` when given. By
@@ -217,10 +219,11 @@ def _upsample2(c, shape, z=None, known=None, out=None):
         np.copyto(ob, fb[:r1 - r0, :w])
         if z is not None:
             np.copyto(ob, z[r0:r1], where=known[r0:r1])
+        report(progress, I1 / H)
     return out
 
 
-def _slope(a, dx, dy):
+def _slope(a, dx, dy, progress=None):
     """tan(slope) of a complete surface by central differences (one-sided at the edges),
     block of rows by block (the gradients live in cache-sized buffers)."""
     rows, cols = a.shape
@@ -254,6 +257,7 @@ def _slope(a, dx, dy):
         gy *= gy
         gx += gy
         np.sqrt(gx, out=out[i0:i1])
+        report(progress, i1 / rows)
     return out
 
 
@@ -285,11 +289,14 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         if holes.all():                   # no ground seed (nodata is in holes)
             mask[objects] = OBJECT
             break
+        step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
-        surface = _ground_surface(z, holes, out=surface)
+        surface = _ground_surface(z, holes, out=surface, progress=sub_progress(step, 0.0, 0.7))
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
-            allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol)
+            allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol,
+                               progress=sub_progress(step, 0.7, 0.85))
+        report(step, 0.85)
         _classify(z, d, allow, objects, concave, mask, tmp, ring=m + 2, h_min=h_min)
         np.not_equal(mask, GROUND, out=holes)
         holes |= breaks.by_k
@@ -317,7 +324,7 @@ def _first_holes(objects, breaks, invalid, m):
     return holes
 
 
-def _allowance(surface, edge, dx, dy, *, h_min, tol):
+def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):
     """How far a cell may stand above the ground surface and still be ground.
 
     The tolerance grows with the slope of the surface: one cell of horizontal uncertainty
@@ -325,7 +332,7 @@ def _allowance(surface, edge, dx, dy, *, h_min, tol):
     inside an object (``edge``) must stand half the minimum object height more above the
     surface: interpolated across a band of breaks, the surface sags below convex terrain
     edges (crest of a dam) by some decimetres."""
-    allow = _slope(surface, dx, dy)
+    allow = _slope(surface, dx, dy, progress)
     allow *= np.float32(max(dx, dy))
     allow += np.float32(tol)
     np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)

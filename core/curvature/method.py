@@ -8,7 +8,7 @@ import numpy as np
 
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from ..methods import Method, Param
-from .derivatives import MODELS, check_model, check_window, derivative_blocks, mark_breaks
+from .derivatives import MODELS, bounded_heights, check_model, check_window, derivative_blocks, mark_breaks
 from .ground import find_ground
 from .profiles import find_enclosed_objects, find_profile_objects
 
@@ -83,7 +83,7 @@ def filter_curvature(z: np.ndarray, cell_size, *, k_g_per_m2: float, window_cell
     ----------
     Luong Chinh Ke (2002). Filtering of DSM, section 2.2 (local trend, Gaussian curvature).
     """
-    z = as_surface(z)
+    z = bounded_heights(as_surface(z))          # +-1e30 and the like: spikes, not overflow
     cell = as_cell_size(cell_size)
     s = _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
                           max_object_size_m, tolerance_m)
@@ -99,8 +99,8 @@ def filter_curvature(z: np.ndarray, cell_size, *, k_g_per_m2: float, window_cell
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
         tol=s.tol, max_size=s.max_size, progress=sub_progress(progress, 0.35, 0.55))
     # 4. regions enclosed by breaks and made mostly of such runs -> whole objects
-    objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size)
-    report(progress, 0.65)
+    objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size,
+                                     progress=sub_progress(progress, 0.55, 0.65))
     # 5. final pass against the ground interpolated under objects and breaks (twice)
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
                                 h_min=s.h_min, tol=s.tol, progress=sub_progress(progress, 0.65, 1.0))
@@ -246,7 +246,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size, *, k_g_per_m2: Optional[f
     DSM's smooth parts (second differences), kept within [0.3, 1.0] m. The others have
     fixed defaults (see :data:`METHOD`).
     """
-    z = as_surface(z)
+    z = bounded_heights(as_surface(z))
     dx, dy = as_cell_size(cell_size)
     window_cells = check_window(window_cells)
     model = check_model(model)

@@ -10,7 +10,7 @@ from typing import Optional, Tuple
 import numpy as np
 from scipy import ndimage
 
-from ..common import report, transpose
+from ..common import report, sub_progress, transpose
 from .derivatives import CHUNK_CELLS
 
 #: Width (cells) within which an object's wall rises, and how much steeper than the
@@ -19,13 +19,13 @@ _WALL_CELLS = 2
 _WALL_CONTRAST = 3.0
 
 
-def _walls(Zp, pad, B, first, cell, *, reach, h_min, tan_wall):
+def _walls(Zp, pad, B, cell, *, reach, h_min, tan_wall):
     """Where a profile (axis 0, scanned downwards) has just risen as a wall.
 
     ``Zp[pad:]`` holds the positions examined (rows) of all profiles (columns), NaN at
     nodata, below the ``pad >= _WALL_CELLS + reach`` positions before them (NaN before a
     profile's start): a block of rows of the profiles, see :func:`_axis_objects`.
-    ``first`` is every profile's first position. Only marked positions ``B`` (breaks,
+    Only marked positions ``B`` (breaks,
     shaped as ``Zp[pad:]``) are examined. The foot of position j is the lowest of the
     ``_WALL_CELLS`` positions before it. j is the top of a wall when
 
@@ -33,7 +33,10 @@ def _walls(Zp, pad, B, first, cell, *, reach, h_min, tan_wall):
     * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
       tan(wall slope)``, and
     * it is much steeper (``_WALL_CONTRAST`` times) than the profile's own rise over
-      the ``reach`` positions before the foot. This keeps terrain rasterised in steps
+      the ``reach`` positions before the foot (where that position is nodata or before
+      the profile's start: from the farthest valid position within the reach; flat when
+      there is none: the test never looks beyond the reach). This keeps terrain
+      rasterised in steps
       (sparse points filled from the nearest one: a staircase whose treads are as steep
       as its risers on average) and walls of a terrain cut from looking like object walls,
       while a wall standing on a hillside still stands out.
@@ -82,15 +85,33 @@ def _walls(Zp, pad, B, first, cell, *, reach, h_min, tan_wall):
         steep = rate >= np.float32(tan_wall)
         cand, rate = cand[steep], rate[steep]
         ci = idx.take(cand)
+        base = base.take(cand)
         before = back(_WALL_CELLS + reach).take(ci)
-        nb = np.isnan(before)
-        if nb.any():  # near the start of a profile (or nodata): its first position
-            before[nb] = first.take(ci[nb] % Zp.shape[1])
-        prior = np.maximum((base.take(cand) - before) / np.float32(reach * cell), 0)
+        _nearer_before(back, ci, before, base, reach)
+        prior = np.maximum((base - before) / np.float32(reach * cell), 0)
         ok = rate >= np.float32(_WALL_CONTRAST) * prior
     wsel = cand[ok]
     return ((ci[ok], best.take(wsel), (prior[ok] * np.float32(cell)).astype(np.float32)),
             (idx[down], fall[down].astype(np.float32)))
+
+
+def _nearer_before(back, ci, before, base, reach):
+    """Where ``before`` (the height ``_WALL_CELLS + reach`` positions before the walls
+    ``ci``) is NaN (nodata, or before the profile's start), the farthest valid position
+    within the reach (at a profile's start: its first position); ``base`` (a flat
+    profile) where there is none. In place; ``back(k)`` is the flat view k positions
+    earlier. Nothing beyond the reach is read, so blocks with a halo see what one pass
+    sees."""
+    miss = np.flatnonzero(np.isnan(before))
+    for k in range(_WALL_CELLS + reach - 1, _WALL_CELLS, -1):
+        if miss.size == 0:
+            return
+        v = back(k).take(ci.take(miss))
+        ok = ~np.isnan(v)
+        hit = miss[ok]
+        before[hit] = v[ok]
+        miss = miss[~ok]
+    before[miss] = base.take(miss)
 
 
 def _row_slices(flat_idx, n, m):
@@ -196,7 +217,7 @@ def _profile_rows(a, j0, j1, dst, fill):
     d[:, m:] = a[n - j1:n - k0][::-1]
 
 
-def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells):
+def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
     profiles, the rows, scanned as the columns of the transposed raster): both scan
     directions must agree.
@@ -212,9 +233,12 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     that no index array of the raster's size is held. ``z`` is NaN at nodata.
     """
     if axis == 1:
-        res = transpose(_axis_objects(transpose(z), transpose(marked), None, cell, 0,
-                                       reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol,
-                                       max_cells=max_cells))
+        zt, mt = transpose(z), transpose(marked)
+        report(progress, 0.1)
+        res = _axis_objects(zt, mt, None, cell, 0, reach=reach, h_min=h_min, tan_wall=tan_wall,
+                            tol=tol, max_cells=max_cells, progress=sub_progress(progress, 0.1, 0.9))
+        del zt, mt
+        res = transpose(res)
         if valid is not None:
             res &= valid
         return res
@@ -224,9 +248,6 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     rows = max(8, pad, (4 * CHUNK_CELLS) // max(M, 1))
     Zc = np.empty((pad + rows, M), np.float32)
     Bc = np.empty((rows, M), bool)
-    first = np.empty((1, M), np.float32)
-    _profile_rows(z, 0, 1, first, np.nan)
-    first = first[0]
     out = np.empty((n, M), bool)
     st = _ScanState(M, tol, max_cells)
     for j0 in range(0, n, rows):
@@ -238,9 +259,10 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
             Zc[:pad] = Zc[rows:rows + pad]
             _profile_rows(z, j0, j1, Zc[pad:pad + k], np.nan)
         _profile_rows(marked, j0, j1, Bc[:k], False)
-        walls, downs = _walls(Zc[:pad + k], pad, Bc[:k], first, cell, reach=reach,
+        walls, downs = _walls(Zc[:pad + k], pad, Bc[:k], cell, reach=reach,
                               h_min=h_min, tan_wall=tan_wall)
         _scan_rows(Zc[pad:pad + k], j0, walls, downs, out, st)
+        report(progress, j1 / n)
     res = np.logical_and(out[:, :m], out[::-1, m:])
     del out
     if valid is not None:
@@ -248,7 +270,7 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     return res
 
 
-def _enclosed_regions(flag, free, max_cells):
+def _enclosed_regions(flag, free, max_cells, progress=None):
     """Regions of ``free`` cells (4-connected) mostly made of ``flag`` cells.
 
     A region is kept when at least half its cells are flagged, it does not touch the
@@ -256,6 +278,7 @@ def _enclosed_regions(flag, free, max_cells):
     decision never depends on cells farther than ``max_cells`` (block-safe).
     """
     lab, n = ndimage.label(free)
+    report(progress, 0.4)
     if n == 0:
         return np.zeros(flag.shape, bool)
     # cells per label, by blocks of rows (bincount casts its input to intp: a raster-sized
@@ -267,6 +290,7 @@ def _enclosed_regions(flag, free, max_cells):
         lb = lab[i:i + step]
         tot += np.bincount(lb.ravel(), minlength=n + 1)
         hit += np.bincount(lb[flag[i:i + step]], minlength=n + 1)
+        report(progress, 0.4 + 0.3 * min(i + step, lab.shape[0]) / lab.shape[0])
     cand = (hit > 0) & (2 * hit >= tot)
     cand[0] = False
     cand[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
@@ -284,6 +308,7 @@ def _enclosed_regions(flag, free, max_cells):
             boxes = ndimage.find_objects(_lookup(renum, lab, step), max_label=ids.size)
         ext = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
         cand[ids[ext > max_cells]] = False
+    report(progress, 0.8)
     if not cand.any():
         return np.zeros(flag.shape, bool)
     return _lookup(cand, lab, step)
@@ -310,21 +335,23 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     """
     dx, dy = cell_size
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window + 1)
-    obj_x = _axis_objects(z, marked, valid, dx, 1, max_cells=int(max_size / dx), **kw)
-    report(progress, 0.5)
-    obj_y = _axis_objects(z, marked, valid, dy, 0, max_cells=int(max_size / dy), **kw)
-    report(progress, 1.0)
+    obj_x = _axis_objects(z, marked, valid, dx, 1, max_cells=int(max_size / dx),
+                          progress=sub_progress(progress, 0.0, 0.5), **kw)
+    obj_y = _axis_objects(z, marked, valid, dy, 0, max_cells=int(max_size / dy),
+                          progress=sub_progress(progress, 0.5, 1.0), **kw)
     n_x, n_y = int(np.count_nonzero(obj_x)), int(np.count_nonzero(obj_y))
     obj_x |= obj_y
     return obj_x, n_x, n_y
 
 
 def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray],
-                          cell_size, max_size: float) -> np.ndarray:
+                          cell_size, max_size: float, progress=None) -> np.ndarray:
     """Step 4: regions enclosed by breaks (4-connected valid unmarked cells, at most
     ``max_size`` metres across, not touching the raster's edge) made mostly of the
     ``objects`` of the profiles (:func:`_enclosed_regions`). ``valid`` is None when every
-    cell is valid."""
+    cell is valid. ``progress(fraction)`` as the work goes."""
     dx, dy = cell_size
     free = ~marked if valid is None else valid & ~marked
-    return _enclosed_regions(objects, free, int(max(max_size / dx, max_size / dy)))
+    regions = _enclosed_regions(objects, free, int(max(max_size / dx, max_size / dy)), progress)
+    report(progress, 1.0)
+    return regions

@@ -496,3 +496,112 @@ def test_pits_exact():
     want[4, 5] = want[0, 10] = True
     np.testing.assert_array_equal(got, want)
     assert ground._pits(z, cand, 2, 5.0).size == 0         # not 5 m below its ring
+
+
+# --------------------------------------------------------------------------- blocks, progress, extremes
+def test_wall_test_reads_nothing_beyond_its_reach():
+    """The profile's rise before a wall is taken within the reach: where the position
+    ``reach`` before the foot is nodata, from the farthest valid one after it, never
+    from the profile's far start (which a block does not see)."""
+    kw = dict(reach=3, h_min=1.0, tan_wall=1.0, tol=0.3, max_cells=15)
+    z = np.zeros((1, 26), np.float32)
+    z[0, :9] = -100.0                                 # far before: a deep valley ...
+    z[0, 9:12] = np.nan                               # ... then nodata up to the reach
+    z[0, 15:20] = 5.0                                 # a box, positions 15..19
+    marked = np.zeros(z.shape, bool)
+    marked[0, [14, 15, 19, 20]] = True
+    want = np.zeros(z.shape, bool)
+    want[0, 15:20] = True
+    np.testing.assert_array_equal(profiles._axis_objects(z, marked, None, 1.0, 1, **kw), want)
+    for start in (0, 5, 9, 10):                       # what a block starting there sees
+        got = profiles._axis_objects(z[:, start:], marked[:, start:], None, 1.0, 1, **kw)
+        np.testing.assert_array_equal(got, want[:, start:])
+
+
+def ragged_nodata_city(seed=3):
+    """A city with 40 rectangles of nodata (occlusion shadows), 1 m cells."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(256, 256), seed=seed).dsm.astype(np.float32)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        r, c = rng.integers(0, 240, 2)
+        z[r:r + rng.integers(3, 30), c:c + rng.integers(3, 30)] = np.nan
+    return z
+
+
+def test_profile_objects_of_blocks_equal_one_pass_near_nodata():
+    from bare_earth.core import blocks
+    z = ragged_nodata_city()
+    P = curvature.resolve_curvature_params(z, 1.0, max_object_size_m=30.0)
+    halo = curvature.curvature_halo(P, 1.0)
+
+    def objects(a):
+        br = derivatives.mark_breaks(a, (1.0, 1.0), P["k_g_per_m2"], window=5, model="quadratic")
+        obj, _, _ = profiles.find_profile_objects(a, br.marked, np.isfinite(a), (1.0, 1.0), window=5,
+                                                  h_min=1.0, tan_wall=1.0, tol=P["tolerance_m"], max_size=30.0)
+        return obj
+    one = objects(z)
+    assert one.sum() > 1000
+    for core, outer in blocks.iter_windows(z.shape, 64, halo):
+        part = objects(z[outer[0]:outer[1], outer[2]:outer[3]])[blocks.crop(outer, core)]
+        np.testing.assert_array_equal(part, one[core[0]:core[1], core[2]:core[3]])
+
+
+def test_progress_comes_from_inside_the_stages(monkeypatch):
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(256, 256), seed=2, nodata_holes=True)
+    P = curvature.resolve_curvature_params(sc.dsm, sc.cell_size)
+    small_chunks(monkeypatch, 4096)                   # blocks of 16 rows, as on a big raster
+    seen = []
+    curvature.filter_curvature(sc.dsm, sc.cell_size, progress=seen.append, **P)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+    assert len(set(seen)) >= 60
+    assert np.diff(seen).max() <= 0.05                # no stage runs without a word
+
+
+def test_cancel_from_progress_stops_at_once():
+    from bare_earth.core.common import Cancelled
+    z, _ = building_scene()
+    P = curvature.resolve_curvature_params(z, 1.0)
+    total = []
+    curvature.filter_curvature(z, 1.0, progress=total.append, **P)
+    for n in (1, len(total) // 3, len(total) - 2):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            curvature.filter_curvature(z, 1.0, progress=stop, **P)
+        assert len(calls) == n                        # not called again once cancelled
+
+
+@pytest.mark.parametrize("model", ["quadratic", "bilinear"])
+def test_heights_far_outside_any_terrain_give_no_numpy_warning(model):
+    import warnings
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(120, 130), seed=1)
+    z = sc.dsm.astype(np.float32)
+    P = curvature.resolve_curvature_params(z, 1.0, model=model)
+    clean = curvature.filter_curvature(z, 1.0, **P).mask
+    spiky = z.copy()
+    spikes = {(30, 40): 1e30, (80, 90): -1e30, (50, 5): -3e38, (10, 100): 3e38, (11, 101): 3e38}
+    for rc, v in spikes.items():
+        spiky[rc] = v
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        P2 = curvature.resolve_curvature_params(spiky, 1.0, model=model)
+        res = curvature.filter_curvature(spiky, 1.0, **P2)
+        curvature.compute_curvature(spiky, 1.0, model=model)
+        big = np.full((4, 4), 1e30, np.float32)
+        K, H = curvature.curvatures_from_derivatives(big, big, big, big, big)
+    assert P2 == P                                    # defaults not thrown by the spikes
+    assert np.isfinite(res.extras["curvature"][:, 60:70, 60:70]).all()
+    if model == "quadratic":
+        assert res.mask[30, 40] == OBJECT and res.mask[10, 100] == OBJECT
+        assert res.mask[80, 90] == LOW and res.mask[50, 5] == LOW
+    near = np.zeros(z.shape, bool)
+    for r, c in spikes:
+        near[max(0, r - 6):r + 7, max(0, c - 6):c + 7] = True
+    np.testing.assert_array_equal(res.mask[~near], clean[~near])
