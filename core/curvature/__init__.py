@@ -54,7 +54,9 @@ From curvature to objects
    cell of the surface's slope (breaks outside objects: half the minimum object height
    more, as the interpolated surface sags a little under convex terrain edges). Straight
    breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
-   surface, so terrain edges stay ground. A concave break deeper than the minimum object
+   surface, so terrain edges stay ground. Nodata takes the height of the nearest ground
+   seed rather than being spanned by the surface (the surface then depends on the ground
+   near a cell, not on the far side of a nodata area). A concave break deeper than the minimum object
    height below the surface and below every cell of the ring around it is a low blunder
    (code 2): a pit, not a valley or a cut.
 

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 from typing import Iterator, Optional, Tuple
 
 import numpy as np
+from scipy import ndimage
 
 from ..common import as_cell_size, as_surface, report
-from ..fill import fill_gaps
 
 MODELS = ("quadratic", "bilinear")
 
@@ -60,12 +60,48 @@ def check_model(model) -> str:
 
 
 def _bridge_nodata(z):
-    """``z`` with NaN cells bridged by the harmonic surface of the shared gap filler
-    (planes stay planes, so gaps make no false breaks); ``z`` itself when complete."""
-    bad = ~np.isfinite(z)
-    if not bad.any():
+    """``z`` with NaN cells bridged from their nearest valid cell by point reflection
+    (:func:`bridge_from_nearest`: planes stay planes, so gaps make no false breaks);
+    ``z`` itself when complete. Local: a window around a valid cell sees bridged values
+    that depend only on cells within twice the window, whatever the block."""
+    valid = np.isfinite(z)
+    if valid.all():
         return z
-    return np.asarray(fill_gaps(z, fill=bad), dtype=np.float32)
+    return bridge_from_nearest(z, valid, reflect=True)
+
+
+def bridge_from_nearest(z: np.ndarray, known: np.ndarray, *, reflect: bool) -> np.ndarray:
+    """``z`` (float32, a copy) with every cell not ``known`` set from its nearest known
+    cell n (Euclidean; :func:`scipy.ndimage.distance_transform_edt`).
+
+    With ``reflect``, the point reflection through n, ``2 z[n] - z[2n - x]``, where the
+    mirror cell 2n - x is known (exact on planes), else ``z[n]``; without, ``z[n]``. Each
+    value depends only on its nearest known cell (and that cell's mirror), so a block
+    that holds them gives the value of one pass.
+    """
+    h, w = z.shape
+    near = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+    cells = np.flatnonzero(~known)
+    r, c = np.divmod(cells, w)
+    nr, nc = near[0].ravel().take(cells), near[1].ravel().take(cells)
+    del near
+    zf, kf = z.ravel(), known.ravel()
+    n = nr * w
+    n += nc
+    val = zf.take(n)
+    if reflect:
+        mr = 2 * nr - r
+        mc = 2 * nc - c
+        ok = (mr >= 0) & (mr < h) & (mc >= 0) & (mc < w)
+        mr *= w
+        mr += mc
+        np.copyto(mr, 0, where=~ok)
+        ok &= kf.take(mr)
+        mirror = zf.take(mr)
+        np.subtract(2 * val, mirror, out=val, where=ok)
+    out = np.array(z, dtype=np.float32)
+    out.ravel()[cells] = val
+    return out
 
 
 def local_derivatives(z: np.ndarray, cell_size, *, window: int = 5,
@@ -75,8 +111,8 @@ def local_derivatives(z: np.ndarray, cell_size, *, window: int = 5,
     Parameters
     ----------
     z : array_like, 2-D
-        Surface (NaN = nodata; nodata cells are bridged by a harmonic surface for the
-        fit and get NaN derivatives).
+        Surface (NaN = nodata; nodata cells are bridged from their nearest valid cell
+        for the fit, :func:`bridge_from_nearest`, and get NaN derivatives).
     cell_size : float or (float, float)
         ``(dx, dy)`` in metres.
     window : int

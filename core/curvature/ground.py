@@ -16,7 +16,7 @@ import numpy as np
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress
 from ..fill import fill_gaps
-from .derivatives import CHUNK_CELLS, Breaks
+from .derivatives import CHUNK_CELLS, Breaks, bridge_from_nearest
 
 #: Final passes against the interpolated ground surface.
 _PASSES = 2
@@ -291,7 +291,9 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
             break
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
-        surface = _ground_surface(z, holes, out=surface, progress=sub_progress(step, 0.0, 0.7))
+        zs, hs = _surface_input(z, holes, invalid)
+        surface = _ground_surface(zs, hs, out=surface, progress=sub_progress(step, 0.0, 0.7))
+        del zs, hs
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
             allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol,
@@ -307,6 +309,17 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
+
+
+def _surface_input(z, holes, invalid):
+    """Heights and holes for :func:`_ground_surface`: nodata (``invalid``) takes the height
+    of the nearest ground seed (:func:`.derivatives.bridge_from_nearest`) instead of being
+    spanned by the membrane, so that the surface under an object beside a nodata area
+    depends on the ground near it, not on the far side of that area (which a block may not
+    hold)."""
+    if invalid is None:
+        return z, holes
+    return bridge_from_nearest(z, ~holes, reflect=False), holes & ~invalid
 
 
 def _first_holes(objects, breaks, invalid, m):

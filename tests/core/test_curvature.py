@@ -605,3 +605,47 @@ def test_heights_far_outside_any_terrain_give_no_numpy_warning(model):
     for r, c in spikes:
         near[max(0, r - 6):r + 7, max(0, c - 6):c + 7] = True
     np.testing.assert_array_equal(res.mask[~near], clean[~near])
+
+
+def test_bridge_from_nearest_is_local_and_keeps_planes():
+    y, x = np.mgrid[0:12, 0:15].astype(np.float32)
+    plane = (10 + 0.5 * x - 0.25 * y).astype(np.float32)
+    known = np.ones(plane.shape, bool)
+    known[3:7, 4:9] = False                           # a hole, mirrors known all round
+    z = np.where(known, plane, np.nan).astype(np.float32)
+    np.testing.assert_allclose(derivatives.bridge_from_nearest(z, known, reflect=True), plane, atol=1e-5)
+    flat = derivatives.bridge_from_nearest(z, known, reflect=False)
+    np.testing.assert_array_equal(flat[3, 5:8], plane[2, 5:8])      # the nearest known cell
+    np.testing.assert_array_equal(flat[known], plane[known])
+    # each value depends on its nearest known cell and that cell's mirror only: windows
+    # holding them (the hole and twice its depth around it) give the same values
+    z = np.pad(z, 10, mode="reflect")
+    known = np.isfinite(z)
+    known[20:22, 20:30] = False                       # a second hole, 2 cells deep
+    z[~known] = np.nan
+    one = derivatives.bridge_from_nearest(z, known, reflect=True)
+    for r0, c0 in ((7, 8), (8, 9), (16, 16), (15, 17)):
+        part = derivatives.bridge_from_nearest(z[r0:, c0:], known[r0:, c0:], reflect=True)
+        np.testing.assert_array_equal(part, one[r0:, c0:])
+
+
+def test_ground_surface_beside_nodata_ignores_the_far_side():
+    """An object beside a wide nodata band: its ground comes from the ground near it, so
+    what lies beyond the band (a block may not hold it) changes nothing."""
+    z = np.zeros((40, 120), np.float32)
+    z[:, 40:80] = np.nan                              # a wide nodata band
+    z[15:25, 30:40] = 6.0                             # an object against the band
+    far = z.copy()
+    far[:, 80:] = 25.0                                # a plateau on the far side
+    objects = np.zeros(z.shape, bool)
+    objects[15:25, 30:40] = True
+    masks = []
+    for a in (z, far):
+        valid = np.isfinite(a)
+        br = derivatives.Breaks(np.zeros((2,) + a.shape, np.float32), np.zeros(a.shape, bool),
+                                np.zeros(a.shape, bool), 0, 0)
+        mask, surface = ground.find_ground(a, objects, br, valid, (1.0, 1.0), window=5, h_min=1.0, tol=0.3)
+        np.testing.assert_allclose(surface[15:25, 30:40], 0.0, atol=1e-4)
+        masks.append(mask)
+    np.testing.assert_array_equal(masks[0][:, :40], masks[1][:, :40])
+    assert (masks[0][15:25, 30:40] == OBJECT).all()
