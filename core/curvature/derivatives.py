@@ -146,9 +146,9 @@ def local_derivatives(z: np.ndarray, cell_size, *, window: int = 5,
     return out
 
 
-def _padded_relief(z, m):
-    """``z`` (float32, nodata bridged) padded by ``m`` cells by odd reflection, minus a
-    reference height (float32 sums of relief, not of absolute heights: precision)."""
+def _padded(z, m):
+    """``z`` (float32, nodata bridged) padded by ``m`` cells by odd reflection (planes
+    stay planes)."""
     zf = _bridge_nodata(z)
     rows, cols = z.shape
     if m <= min(rows, cols) - 1:
@@ -174,8 +174,6 @@ def _padded_relief(z, m):
             zp = np.pad(zp, k, mode="reflect", reflect_type="odd")
             left -= k
         zp = zp.astype(np.float32)
-    ref = np.float32(np.median(zf[np.isfinite(zf)][:: max(1, zf.size // 4096)]))
-    zp -= ref
     return zp
 
 
@@ -194,7 +192,7 @@ def derivative_blocks(z: np.ndarray, cell_size, window: int, model: str,
     bad = ~np.isfinite(z)
     any_bad = bool(bad.any())
     m = window // 2
-    zp = _padded_relief(z, m)
+    zp = _padded(z, m)
     u = np.arange(-m, m + 1, dtype=np.float64)
     c = float(np.mean(u * u))
     A = float(np.sum(u * u))
@@ -207,39 +205,39 @@ def derivative_blocks(z: np.ndarray, cell_size, window: int, model: str,
              "t": np.float32(2.0 / (w * B * dy * dy))}
     step = max(8, CHUNK_CELLS // max(cols, 1))
     nb = min(step, rows)
-    # buffers: the X pass over the block and its halo, the Y pass, the taps' pair sums
-    bx = {k: np.empty((nb + 2 * m, cols), np.float32) for k in ("box", "slope", "bend", "tmp")}
-    pairs = [np.empty((nb + 2 * m, cols), np.float32) for _ in range(m)]
-    ytmp = np.empty((nb, cols), np.float32)
-    ypairs = [np.empty((nb, cols), np.float32) for _ in range(m)]
+    first = ("slope", "bend") if quad else ("slope",)
+    # buffers: the X pass over the block and its halo rows, the Y pass over the block's
+    # rows and the halo columns, two scratch arrays for each
+    bx = {k: np.empty((nb + 2 * m, cols), np.float32) for k in first + ("t1", "t2")}
+    by = {k: np.empty((nb, cols + 2 * m), np.float32) for k in first + ("t1", "t2")}
     res = [np.empty((nb, cols), np.float32) for _ in range(5)] if out is None else None
 
     for i0 in range(0, rows, step):
         n = min(step, rows - i0)
         sl = slice(i0, i0 + n)
         blk = zp[i0:i0 + n + 2 * m]
-        h = n + 2 * m
-        xk = {k: v[:h] for k, v in bx.items()}
-        sums = [v[:h] for v in pairs]
-        ysums = [v[:n] for v in ypairs]
-        yt = ytmp[:n]
+        xk = {k: v[:n + 2 * m] for k, v in bx.items()}
+        yk = {k: v[:n] for k, v in by.items()}
         if out is None:
             p_o, q_o, r_o, s_o, t_o = (v[:n] for v in res)
         else:
             p_o, q_o, r_o, s_o, t_o = (v[sl] for v in out)
-        # profiles in X (along rows, axis 1) first, then across them in Y (axis 0)
-        _kernels(blk, 1, cols, m, c, ("box", "slope", "bend") if quad else ("box", "slope"),
-                xk, sums, xk["tmp"][:, :cols])
-        # Y pass of the X box: q (slope) and t (bend); of the X slope: p (box), s (slope);
-        # of the X bend: r (box). Each written straight into its output, then scaled.
-        _kernels(xk["box"], 0, n, m, c, ("slope", "bend") if quad else ("slope",),
-                {"slope": q_o, "bend": t_o}, ysums, yt)
-        _kernels(xk["slope"], 0, n, m, c, ("box", "slope"), {"box": p_o, "slope": s_o}, ysums, yt)
+        # first along the X profiles (axis 1) and along the Y profiles (axis 0) of the
+        # heights: slopes and bends, differences only (no sum of absolute heights, so no
+        # reference height is needed and a cell's result depends on its window alone)
+        _kernels(blk, 1, cols, m, c, first, xk, xk["t1"], xk["t2"])
+        _kernels(blk, 0, n, m, c, first, yk, yk["t1"], yk["t2"])
+        # then across: p = Y box of the X slope, s = Y slope of the X slope, r = Y box of
+        # the X bend; q = X box of the Y slope, t = X box of the Y bend
+        _kernels(xk["slope"], 0, n, m, c, ("box", "slope"), {"box": p_o, "slope": s_o},
+                 xk["t1"][:n], xk["t2"][:n])
+        _kernels(yk["slope"], 1, cols, m, c, ("box",), {"box": q_o}, None, None)
         p_o *= scale["p"]
         q_o *= scale["q"]
         s_o *= scale["s"]
         if quad:
-            _kernels(xk["bend"], 0, n, m, c, ("box",), {"box": r_o}, ysums, yt)
+            _kernels(xk["bend"], 0, n, m, c, ("box",), {"box": r_o}, None, None)
+            _kernels(yk["bend"], 1, cols, m, c, ("box",), {"box": t_o}, None, None)
             r_o *= scale["r"]
             t_o *= scale["t"]
         else:
@@ -257,20 +255,23 @@ def _tap(a, axis, k, n):
     return a[:, k:k + n] if axis == 1 else a[k:k + n]
 
 
-def _kernels(a, axis, n, m, c, which, dst, sums, tmp):
-    """The three separable kernels of the local fit along ``axis`` of ``a`` (box 1, slope
-    u, bend u^2 - c, u = -m..m), as sums of shifted slices, for the ``n`` window centres:
-    ``dst[name]`` receives each kernel named in ``which``. The symmetric pairs
-    a[+k] + a[-k] are formed once (into ``sums``); ``tmp`` is a buffer of the output's shape."""
+def _kernels(a, axis, n, m, c, which, dst, tmp, tmp2):
+    """The separable kernels of the local fit along ``axis`` of ``a`` (box 1, slope u,
+    bend u^2 - c; u = -m..m) for the ``n`` window centres, as sums of shifted slices:
+    ``dst[name]`` receives each kernel named in ``which``.
+
+    The slope sums ``k (a[+k] - a[-k])`` and the bend ``(k^2 - c) ((a[+k] - a[0]) +
+    (a[-k] - a[0]))`` (the weights sum to zero) are sums of differences, exact for any
+    height offset; only the box sums the values themselves (used on derivatives).
+    ``tmp`` and ``tmp2`` are scratch arrays of the output's shape (slope and bend).
+    """
     centre = _tap(a, axis, m, n)
-    if "box" in which or "bend" in which:
-        for k in range(1, m + 1):
-            np.add(_tap(a, axis, m + k, n), _tap(a, axis, m - k, n), out=sums[k - 1])
     if "box" in which:
         o = dst["box"]
         np.copyto(o, centre)
-        for sk in sums:
-            o += sk
+        for k in range(1, m + 1):
+            o += _tap(a, axis, m + k, n)
+            o += _tap(a, axis, m - k, n)
     if "slope" in which:
         o = dst["slope"]
         np.subtract(_tap(a, axis, m + 1, n), _tap(a, axis, m - 1, n), out=o)
@@ -280,9 +281,12 @@ def _kernels(a, axis, n, m, c, which, dst, sums, tmp):
             o += tmp
     if "bend" in which:
         o = dst["bend"]
-        np.multiply(centre, np.float32(-c), out=o)
-        for k, sk in enumerate(sums, start=1):
-            np.multiply(sk, np.float32(k * k - c), out=tmp)
+        o[...] = 0
+        for k in range(1, m + 1):
+            np.subtract(_tap(a, axis, m + k, n), centre, out=tmp)
+            np.subtract(_tap(a, axis, m - k, n), centre, out=tmp2)
+            tmp += tmp2
+            tmp *= np.float32(k * k - c)
             o += tmp
 
 

@@ -649,3 +649,15 @@ def test_ground_surface_beside_nodata_ignores_the_far_side():
         masks.append(mask)
     np.testing.assert_array_equal(masks[0][:, :40], masks[1][:, :40])
     assert (masks[0][15:25, 30:40] == OBJECT).all()
+
+
+@pytest.mark.parametrize("model", ["quadratic", "bilinear"])
+def test_curvature_of_a_window_is_bit_identical_to_one_pass(model):
+    """The fit sums differences only: no reference height taken from the block, so a
+    cell's K and H depend on its window alone (blocks give the one-pass bits)."""
+    z = ragged_nodata_city() + np.float32(100.1)     # heights with nodata
+    one = curvature.compute_curvature(z, (1.0, 1.2), model=model)
+    for r0, r1, c0, c1 in ((20, 130, 30, 200), (100, 256, 0, 120)):
+        part = curvature.compute_curvature(z[r0:r1, c0:c1], (1.0, 1.2), model=model)
+        for a, b in zip(one, part, strict=True):
+            np.testing.assert_array_equal(b[6:-6, 6:-6], a[r0 + 6:r1 - 6, c0 + 6:c1 - 6])
