@@ -25,8 +25,7 @@ if not (PLUGINS / "bare_earth").exists():
     (PLUGINS / "bare_earth").symlink_to(ROOT, target_is_directory=True)
 sys.path.insert(0, str(PLUGINS))
 
-from bare_earth.core.curvature import (compute_curvature, filter_curvature,  # noqa: E402
-                                       resolve_curvature_params)
+from bare_earth.core.curvature import compute_curvature, filter_curvature, resolve_curvature_params  # noqa: E402
 
 
 def scene(side, seed=1):

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from bare_earth.core import curvature
-from bare_earth.core.curvature import derivatives, ground, profiles
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 from bare_earth.core.common import FilterResult
+from bare_earth.core.curvature import derivatives, ground, profiles
 from bare_earth.core.methods import get_method
 
 DTYPES = [np.float32, np.float64]
@@ -447,7 +447,7 @@ def test_blocks_of_rows_do_not_change_the_result(monkeypatch):
     many = curvature.filter_curvature(z, (1.0, 1.2), **P)
     np.testing.assert_array_equal(one.mask, many.mask)
     np.testing.assert_array_equal(one.extras["curvature"], many.extras["curvature"])
-    for a, b in zip(d1, curvature.local_derivatives(z, (1.0, 1.2)), strict=True):
+    for a, b in zip(d1, curvature.local_derivatives(z, (1.0, 1.2))):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(s1, ground._slope(np.nan_to_num(z), 1.0, 1.2))
 
@@ -580,6 +580,7 @@ def test_cancel_from_progress_stops_at_once():
 @pytest.mark.parametrize("model", ["quadratic", "bilinear"])
 def test_heights_far_outside_any_terrain_give_no_numpy_warning(model):
     import warnings
+
     from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", shape=(120, 130), seed=1)
     z = sc.dsm.astype(np.float32)
@@ -659,5 +660,5 @@ def test_curvature_of_a_window_is_bit_identical_to_one_pass(model):
     one = curvature.compute_curvature(z, (1.0, 1.2), model=model)
     for r0, r1, c0, c1 in ((20, 130, 30, 200), (100, 256, 0, 120)):
         part = curvature.compute_curvature(z[r0:r1, c0:c1], (1.0, 1.2), model=model)
-        for a, b in zip(one, part, strict=True):
+        for a, b in zip(one, part):
             np.testing.assert_array_equal(b[6:-6, 6:-6], a[r0 + 6:r1 - 6, c0 + 6:c1 - 6])
