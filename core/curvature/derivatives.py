@@ -6,7 +6,7 @@ the cells with ``|K| >= K_g`` or whose X or Y profile bends by ``sqrt(K_g)`` or 
 (:func:`mark_breaks`).
 """
 from dataclasses import dataclass
-from typing import Iterator, Optional, Tuple
+from typing import Callable, Iterator, Optional, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
@@ -14,6 +14,11 @@ from scipy import ndimage
 from ..common import as_cell_size, as_surface, report
 
 MODELS = ("quadratic", "bilinear")
+
+#: ``(dx, dy)`` in metres, or one number for square cells.
+CellSize = Union[float, Tuple[float, float]]
+#: ``progress(fraction)``; it may raise :class:`~bare_earth.core.common.Cancelled`.
+Progress = Callable[[float], None]
 
 #: Heights are bounded to +-this (m) for the arithmetic: no terrain comes near it, and with
 #: bounded heights every product of the fit and of K and H stays within float32's range
@@ -36,7 +41,7 @@ def bounded_heights(z: np.ndarray) -> np.ndarray:
     return np.clip(z, np.float32(-HEIGHT_BOUND_M), np.float32(HEIGHT_BOUND_M))
 
 
-def check_window(window) -> int:
+def check_window(window: int) -> int:
     """``window`` as an odd integer >= 3 (ValueError naming the fix otherwise)."""
     if isinstance(window, bool) or not isinstance(window, (int, np.integer)):
         if isinstance(window, float) and float(window).is_integer():
@@ -51,7 +56,7 @@ def check_window(window) -> int:
     return window
 
 
-def check_model(model) -> str:
+def check_model(model: str) -> str:
     """``model`` if it is one of :data:`MODELS` (ValueError naming the fix otherwise)."""
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}; got {model!r}. Use 'quadratic' "
@@ -104,7 +109,7 @@ def bridge_from_nearest(z: np.ndarray, known: np.ndarray, *, reflect: bool) -> n
     return out
 
 
-def local_derivatives(z: np.ndarray, cell_size, *, window: int = 5,
+def local_derivatives(z: np.ndarray, cell_size: CellSize, *, window: int = 5,
                       model: str = "quadratic") -> Tuple[np.ndarray, ...]:
     """Least-squares local surface derivatives p, q, r, s, t for every cell.
 
@@ -177,7 +182,7 @@ def _padded(z, m):
     return zp
 
 
-def derivative_blocks(z: np.ndarray, cell_size, window: int, model: str,
+def derivative_blocks(z: np.ndarray, cell_size: CellSize, window: int, model: str,
                       out: Optional[Tuple[np.ndarray, ...]] = None) -> Iterator[tuple]:
     """The local derivatives of :func:`local_derivatives`, block of rows by block.
 
@@ -290,7 +295,8 @@ def _kernels(a, axis, n, m, c, which, dst, tmp, tmp2):
             o += tmp
 
 
-def curvatures_from_derivatives(p, q, r, s, t, out: Optional[np.ndarray] = None
+def curvatures_from_derivatives(p: np.ndarray, q: np.ndarray, r: np.ndarray, s: np.ndarray,
+                                t: np.ndarray, out: Optional[np.ndarray] = None
                                 ) -> Tuple[np.ndarray, np.ndarray]:
     """Gaussian curvature K and mean curvature H from the local derivatives.
 
@@ -346,7 +352,7 @@ def curvatures_from_derivatives(p, q, r, s, t, out: Optional[np.ndarray] = None
     return K, H
 
 
-def compute_curvature(z: np.ndarray, cell_size, *, window: int = 5,
+def compute_curvature(z: np.ndarray, cell_size: CellSize, *, window: int = 5,
                       model: str = "quadratic") -> Tuple[np.ndarray, ...]:
     """Gaussian and mean curvature of a local least-squares surface at every cell.
 
@@ -408,8 +414,8 @@ class Breaks:
     n_y: int
 
 
-def mark_breaks(z: np.ndarray, cell_size, k_g: float, *, window: int, model: str,
-                progress=None) -> Breaks:
+def mark_breaks(z: np.ndarray, cell_size: CellSize, k_g: float, *, window: int, model: str,
+                progress: Optional[Progress] = None) -> Breaks:
     """Steps 1 and 2: local trends and curvature (eqs. 9-16), and the breaks.
 
     A cell is a break when ``|K| >= K_g`` (Luong Chinh Ke 2002), or when the bend of its X

@@ -16,7 +16,7 @@ import numpy as np
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress
 from ..fill import fill_gaps
-from .derivatives import CHUNK_CELLS, Breaks, bridge_from_nearest
+from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest
 
 #: Final passes against the interpolated ground surface.
 _PASSES = 2
@@ -262,8 +262,8 @@ def _slope(a, dx, dy, progress=None):
 
 
 def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optional[np.ndarray],
-                cell_size, *, window: int, h_min: float, tol: float,
-                progress=None) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+                cell_size: CellSize, *, window: int, h_min: float, tol: float,
+                progress: Optional[Progress] = None) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     """Step 5, the final pass (twice): the cells standing above the ground interpolated
     under the objects and the breaks next to them are objects; deep concave spikes are
     low blunders.

@@ -2,13 +2,22 @@
 (derived from the data where not given), its reach for blocks, and its registry entry.
 """
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from ..methods import Method, Param
-from .derivatives import MODELS, bounded_heights, check_model, check_window, derivative_blocks, mark_breaks
+from .derivatives import (
+    MODELS,
+    CellSize,
+    Progress,
+    bounded_heights,
+    check_model,
+    check_window,
+    derivative_blocks,
+    mark_breaks,
+)
 from .ground import find_ground
 from .profiles import find_enclosed_objects, find_profile_objects
 
@@ -24,11 +33,11 @@ _SMOOTH_QUANTILE = 0.25
 _SAMPLE_CELLS = 1_048_576
 
 
-def filter_curvature(z: np.ndarray, cell_size, *, k_g_per_m2: float, window_cells: int = 5,
+def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, window_cells: int = 5,
                      model: str = "quadratic", min_object_height_m: float = 1.0,
                      wall_slope_deg: float = 45.0, max_object_size_m: float = 100.0,
                      tolerance_m: float = 0.3,
-                     progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+                     progress: Optional[Progress] = None) -> FilterResult:
     """Separate objects from the ground by the Gaussian curvature of local trends.
 
     Luong Chinh Ke (2002), section 2.2: a local surface fitted by least squares around
@@ -201,7 +210,7 @@ def _sample(z):
     return z[r0:r0 + h, c0:c0 + w]
 
 
-def derive_k_g(z: np.ndarray, cell_size, *, window: int = 5, model: str = "quadratic") -> float:
+def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic") -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
     The bends r and t of the X and Y profile trends (quadratic model) or the normalised
@@ -234,7 +243,7 @@ def derive_k_g(z: np.ndarray, cell_size, *, window: int = 5, model: str = "quadr
     return kappa * kappa
 
 
-def resolve_curvature_params(z: np.ndarray, cell_size, *, k_g_per_m2: Optional[float] = None,
+def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: Optional[float] = None,
                              window_cells: int = 5, model: str = "quadratic",
                              min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
                              max_object_size_m: float = 100.0,
@@ -260,7 +269,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size, *, k_g_per_m2: Optional[f
             "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m)}
 
 
-def curvature_halo(params: dict, cell_size) -> int:
+def curvature_halo(params: dict, cell_size: CellSize) -> int:
     """Reach of the filter in cells: the window, the foot search beyond a break, and
     twice the largest object (runs, enclosed regions and the ground surface under them);
     even, so that blocks cut at even rows keep the 2 x 2 grid of the ground surface

@@ -11,7 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..common import report, sub_progress, transpose
-from .derivatives import CHUNK_CELLS
+from .derivatives import CHUNK_CELLS, CellSize, Progress
 
 #: Width (cells) within which an object's wall rises, and how much steeper than the
 #: profile before it the wall must be.
@@ -323,9 +323,9 @@ def _lookup(table, lab, step):
     return out
 
 
-def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size, *,
+def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
                          window: int, h_min: float, tan_wall: float, tol: float, max_size: float,
-                         progress=None) -> Tuple[np.ndarray, int, int]:
+                         progress: Optional[Progress] = None) -> Tuple[np.ndarray, int, int]:
     """Step 3: along the X and Y profiles, the cells from a break going up a wall to the
     break coming down (:func:`_axis_objects`, both scan directions agreeing).
 
@@ -345,7 +345,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
 
 
 def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray],
-                          cell_size, max_size: float, progress=None) -> np.ndarray:
+                          cell_size: CellSize, max_size: float, progress: Optional[Progress] = None) -> np.ndarray:
     """Step 4: regions enclosed by breaks (4-connected valid unmarked cells, at most
     ``max_size`` metres across, not touching the raster's edge) made mostly of the
     ``objects`` of the profiles (:func:`_enclosed_regions`). ``valid`` is None when every
