@@ -9,7 +9,6 @@ from dataclasses import dataclass
 from typing import Callable, Iterator, Optional, Tuple, Union
 
 import numpy as np
-from scipy import ndimage
 
 from ..common import as_cell_size, as_surface, report
 
@@ -64,48 +63,85 @@ def check_model(model: str) -> str:
     return model
 
 
-def _bridge_nodata(z):
-    """``z`` with NaN cells bridged from their nearest valid cell by point reflection
-    (:func:`bridge_from_nearest`: planes stay planes, so gaps make no false breaks);
-    ``z`` itself when complete. Local: a window around a valid cell sees bridged values
-    that depend only on cells within twice the window, whatever the block."""
+def _bridge_nodata(z, m):
+    """``z`` with the NaN cells within ``m`` cells of a valid one bridged from their
+    nearest valid cell by point reflection (:func:`bridge_from_nearest`: planes stay
+    planes, so gaps make no false breaks); ``z`` itself when complete. Those are all the
+    nodata cells a window around a valid cell holds; the others stay NaN (they reach only
+    the derivatives of nodata cells, which are NaN anyway)."""
     valid = np.isfinite(z)
     if valid.all():
         return z
-    return bridge_from_nearest(z, valid, reflect=True)
+    return bridge_from_nearest(z, valid, m, reflect=True)
 
 
-def bridge_from_nearest(z: np.ndarray, known: np.ndarray, *, reflect: bool) -> np.ndarray:
-    """``z`` (float32, a copy) with every cell not ``known`` set from its nearest known
-    cell n (Euclidean; :func:`scipy.ndimage.distance_transform_edt`).
+def bridge_from_nearest(z: np.ndarray, known: np.ndarray, reach: int, *, reflect: bool,
+                        fill: Optional[np.ndarray] = None) -> np.ndarray:
+    """``z`` (float32, a copy) with the cells within ``reach`` cells (chessboard) of a
+    ``known`` cell (and in ``fill``, when given) set from their nearest known cell n; the
+    others as in ``z``.
 
-    With ``reflect``, the point reflection through n, ``2 z[n] - z[2n - x]``, where the
-    mirror cell 2n - x is known (exact on planes), else ``z[n]``; without, ``z[n]``. Each
-    value depends only on its nearest known cell (and that cell's mirror), so a block
-    that holds them gives the value of one pass.
+    The nearest is searched among the offsets within the reach in a fixed order (by
+    Euclidean distance, then row and column offset), so the value of a cell depends only
+    on the cells within ``2 reach`` of it: a block that holds them gives the value of one
+    pass. With ``reflect``, the point reflection through n, ``2 z[n] - z[2n - x]``, where
+    the mirror cell 2n - x is known (exact on planes), else ``z[n]``; without, ``z[n]``.
+    The cells are taken by chunks (bounded temporaries).
     """
-    h, w = z.shape
-    near = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
-    cells = np.flatnonzero(~known)
-    r, c = np.divmod(cells, w)
-    nr, nc = near[0].ravel().take(cells), near[1].ravel().take(cells)
-    del near
-    zf, kf = z.ravel(), known.ravel()
-    n = nr * w
-    n += nc
-    val = zf.take(n)
-    if reflect:
-        mr = 2 * nr - r
-        mc = 2 * nc - c
-        ok = (mr >= 0) & (mr < h) & (mc >= 0) & (mc < w)
-        mr *= w
-        mr += mc
-        np.copyto(mr, 0, where=~ok)
-        ok &= kf.take(mr)
-        mirror = zf.take(mr)
-        np.subtract(2 * val, mirror, out=val, where=ok)
+    band = dilate(known, reach)
+    band &= ~known
+    if fill is not None:
+        band &= fill
     out = np.array(z, dtype=np.float32)
-    out.ravel()[cells] = val
+    span = range(-reach, reach + 1)
+    offsets = sorted(((a, b) for a in span for b in span if a or b), key=lambda o: (o[0] ** 2 + o[1] ** 2, o))
+    kf, zf = known.ravel(), out.ravel()
+    step = max(1, (16 * CHUNK_CELLS) // max(z.shape[1], 1))
+    for i0 in range(0, z.shape[0], step):
+        cells = np.flatnonzero(band[i0:i0 + step])
+        if cells.size:
+            cells += i0 * z.shape[1]
+            zf[cells] = _from_nearest(zf, kf, z.shape, cells, offsets, reflect)
+    return out
+
+
+def _from_nearest(zf, kf, shape, cells, offsets, reflect):
+    """The values :func:`bridge_from_nearest` gives the flat ``cells`` (each has a known
+    cell among ``offsets``); ``zf``, ``kf``: flat heights and known cells."""
+    h, w = shape
+    r, c = np.divmod(cells, w)
+    near = np.zeros(cells.size, np.intp)
+    todo = np.arange(cells.size)
+    for dr, dc in offsets:
+        rr, cc = r.take(todo) + dr, c.take(todo) + dc
+        ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        q = np.where(ok, rr * w + cc, 0)
+        ok &= kf.take(q)
+        near[todo[ok]] = q[ok]
+        todo = todo[~ok]
+        if todo.size == 0:
+            break
+    val = zf.take(near)
+    if reflect:
+        nr, nc = np.divmod(near, w)
+        mr, mc = 2 * nr - r, 2 * nc - c
+        ok = (mr >= 0) & (mr < h) & (mc >= 0) & (mc < w)
+        m = np.where(ok, mr * w + mc, 0)
+        ok &= kf.take(m)
+        np.subtract(2 * val, zf.take(m), out=val, where=ok)
+    return val
+
+
+def dilate(mask: np.ndarray, m: int) -> np.ndarray:
+    """``mask`` grown by ``m`` cells (square neighbourhood), by shifted ORs."""
+    out = mask.copy()
+    for k in range(1, m + 1):
+        out[:, k:] |= mask[:, :-k]
+        out[:, :-k] |= mask[:, k:]
+    tmp = out.copy()
+    for k in range(1, m + 1):
+        out[k:] |= tmp[:-k]
+        out[:-k] |= tmp[k:]
     return out
 
 
@@ -154,7 +190,7 @@ def local_derivatives(z: np.ndarray, cell_size: CellSize, *, window: int = 5,
 def _padded(z, m):
     """``z`` (float32, nodata bridged) padded by ``m`` cells by odd reflection (planes
     stay planes)."""
-    zf = _bridge_nodata(z)
+    zf = _bridge_nodata(z, m)
     rows, cols = z.shape
     if m <= min(rows, cols) - 1:
         # odd reflection written in place (as np.pad's "reflect"/"odd": rows first, then

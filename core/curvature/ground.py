@@ -16,7 +16,7 @@ import numpy as np
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress
 from ..fill import fill_gaps
-from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest
+from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest, dilate
 
 #: Final passes against the interpolated ground surface.
 _PASSES = 2
@@ -48,19 +48,6 @@ def _pits(z, cand, ring, depth):
             ok &= np.isfinite(v)             # nodata and cells outside: not on the ring
             np.minimum(low, np.where(ok, v, np.float32(np.inf)), out=low)
         return idx[zf.take(idx) < low - np.float32(depth)]
-
-
-def _dilate(mask, m):
-    """``mask`` grown by ``m`` cells (square neighbourhood), by shifted ORs."""
-    out = mask.copy()
-    for k in range(1, m + 1):
-        out[:, k:] |= mask[:, :-k]
-        out[:, :-k] |= mask[:, k:]
-    tmp = out.copy()
-    for k in range(1, m + 1):
-        out[k:] |= tmp[:-k]
-        out[:-k] |= tmp[k:]
-    return out
 
 
 def _ground_surface(z, holes, out=None, progress=None):
@@ -291,7 +278,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
             break
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
-        zs, hs = _surface_input(z, holes, invalid)
+        zs, hs = _surface_input(z, holes, invalid, window)
         surface = _ground_surface(zs, hs, out=surface, progress=sub_progress(step, 0.0, 0.7))
         del zs, hs
         np.subtract(z, surface, out=d)
@@ -311,15 +298,18 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     return mask, surface
 
 
-def _surface_input(z, holes, invalid):
-    """Heights and holes for :func:`_ground_surface`: nodata (``invalid``) takes the height
-    of the nearest ground seed (:func:`.derivatives.bridge_from_nearest`) instead of being
-    spanned by the membrane, so that the surface under an object beside a nodata area
-    depends on the ground near it, not on the far side of that area (which a block may not
-    hold)."""
+def _surface_input(z, holes, invalid, reach):
+    """Heights and holes for :func:`_ground_surface`: nodata (``invalid``) within ``reach``
+    cells of a ground seed takes the height of the nearest seed
+    (:func:`.derivatives.bridge_from_nearest`) instead of being spanned by the membrane.
+    That band shields the surface under an object beside a nodata area from the far side
+    of the area (which a block may not hold): the surface depends on the ground near it."""
     if invalid is None:
         return z, holes
-    return bridge_from_nearest(z, ~holes, reflect=False), holes & ~invalid
+    zs = bridge_from_nearest(z, ~holes, reach, reflect=False, fill=invalid)
+    bridged = np.isfinite(zs)
+    bridged &= invalid
+    return zs, holes & ~bridged
 
 
 def _first_holes(objects, breaks, invalid, m):
@@ -328,7 +318,7 @@ def _first_holes(objects, breaks, invalid, m):
     ``|K| >= K_g`` (curved both ways: crowns, corners, spikes, pits), and nodata. Straight
     breaks away from objects (dams, embankments, terrace edges: K ~ 0 because one
     principal curvature is zero) stay seeds."""
-    holes = _dilate(objects, m)           # near objects ...
+    holes = dilate(objects, m)           # near objects ...
     holes &= breaks.marked                # ... the breaks
     holes |= objects
     holes |= breaks.by_k

@@ -614,19 +614,21 @@ def test_bridge_from_nearest_is_local_and_keeps_planes():
     known = np.ones(plane.shape, bool)
     known[3:7, 4:9] = False                           # a hole, mirrors known all round
     z = np.where(known, plane, np.nan).astype(np.float32)
-    np.testing.assert_allclose(derivatives.bridge_from_nearest(z, known, reflect=True), plane, atol=1e-5)
-    flat = derivatives.bridge_from_nearest(z, known, reflect=False)
+    np.testing.assert_allclose(derivatives.bridge_from_nearest(z, known, 12, reflect=True), plane, atol=1e-5)
+    flat = derivatives.bridge_from_nearest(z, known, 12, reflect=False)
     np.testing.assert_array_equal(flat[3, 5:8], plane[2, 5:8])      # the nearest known cell
     np.testing.assert_array_equal(flat[known], plane[known])
+    near = derivatives.bridge_from_nearest(z, known, 1, reflect=False)   # within one cell only
+    assert np.isnan(near[4:6, 5:8]).all() and np.isfinite(near[3, 4:9]).all()
     # each value depends on its nearest known cell and that cell's mirror only: windows
     # holding them (the hole and twice its depth around it) give the same values
     z = np.pad(z, 10, mode="reflect")
     known = np.isfinite(z)
     known[20:22, 20:30] = False                       # a second hole, 2 cells deep
     z[~known] = np.nan
-    one = derivatives.bridge_from_nearest(z, known, reflect=True)
+    one = derivatives.bridge_from_nearest(z, known, 12, reflect=True)
     for r0, c0 in ((7, 8), (8, 9), (16, 16), (15, 17)):
-        part = derivatives.bridge_from_nearest(z[r0:, c0:], known[r0:, c0:], reflect=True)
+        part = derivatives.bridge_from_nearest(z[r0:, c0:], known[r0:, c0:], 12, reflect=True)
         np.testing.assert_array_equal(part, one[r0:, c0:])
 
 
