@@ -76,7 +76,7 @@ def _bridge_nodata(z, m):
 
 
 def bridge_from_nearest(z: np.ndarray, known: np.ndarray, reach: int, *, reflect: bool,
-                        fill: Optional[np.ndarray] = None) -> np.ndarray:
+                        fill: Optional[np.ndarray] = None, progress: Optional[Progress] = None) -> np.ndarray:
     """``z`` (float32, a copy) with the cells within ``reach`` cells (chessboard) of a
     ``known`` cell (and in ``fill``, when given) set from their nearest known cell n; the
     others as in ``z``.
@@ -86,12 +86,13 @@ def bridge_from_nearest(z: np.ndarray, known: np.ndarray, reach: int, *, reflect
     on the cells within ``2 reach`` of it: a block that holds them gives the value of one
     pass. With ``reflect``, the point reflection through n, ``2 z[n] - z[2n - x]``, where
     the mirror cell 2n - x is known (exact on planes), else ``z[n]``; without, ``z[n]``.
-    The cells are taken by chunks (bounded temporaries).
+    The cells are taken by chunks (bounded temporaries); ``progress(fraction)`` after each.
     """
     band = dilate(known, reach)
     band &= ~known
     if fill is not None:
         band &= fill
+    report(progress, 0.0)
     out = np.array(z, dtype=np.float32)
     span = range(-reach, reach + 1)
     offsets = sorted(((a, b) for a in span for b in span if a or b), key=lambda o: (o[0] ** 2 + o[1] ** 2, o))
@@ -102,6 +103,7 @@ def bridge_from_nearest(z: np.ndarray, known: np.ndarray, reach: int, *, reflect
         if cells.size:
             cells += i0 * z.shape[1]
             zf[cells] = _from_nearest(zf, kf, z.shape, cells, offsets, reflect)
+        report(progress, min(i0 + step, z.shape[0]) / z.shape[0])
     return out
 
 

@@ -265,6 +265,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     invalid = None if valid is None else ~valid
     marked = breaks.marked
     holes = _first_holes(objects, breaks, invalid, m)
+    report(progress, 0.0)
     concave = np.less(breaks.curvature[1], 0)     # H < 0
     concave &= marked
     edge = marked & ~objects
@@ -278,8 +279,8 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
             break
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
-        zs, hs = _surface_input(z, holes, invalid, window)
-        surface = _ground_surface(zs, hs, out=surface, progress=sub_progress(step, 0.0, 0.7))
+        zs, hs = _surface_input(z, holes, invalid, window, sub_progress(step, 0.0, 0.15))
+        surface = _ground_surface(zs, hs, out=surface, progress=sub_progress(step, 0.15, 0.7))
         del zs, hs
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
@@ -298,7 +299,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     return mask, surface
 
 
-def _surface_input(z, holes, invalid, reach):
+def _surface_input(z, holes, invalid, reach, progress=None):
     """Heights and holes for :func:`_ground_surface`: nodata (``invalid``) within ``reach``
     cells of a ground seed takes the height of the nearest seed
     (:func:`.derivatives.bridge_from_nearest`) instead of being spanned by the membrane.
@@ -306,7 +307,7 @@ def _surface_input(z, holes, invalid, reach):
     of the area (which a block may not hold): the surface depends on the ground near it."""
     if invalid is None:
         return z, holes
-    zs = bridge_from_nearest(z, ~holes, reach, reflect=False, fill=invalid)
+    zs = bridge_from_nearest(z, ~holes, reach, reflect=False, fill=invalid, progress=progress)
     bridged = np.isfinite(zs)
     bridged &= invalid
     return zs, holes & ~bridged
