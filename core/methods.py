@@ -6,7 +6,7 @@ this registry, so adding a paper costs one numeric module and one thin algorithm
 """
 import importlib
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable, Dict, Optional, Tuple
 
 
 @dataclass(frozen=True)
@@ -33,11 +33,11 @@ class Param:
     """
     name: str
     kind: str
-    default: object = None
+    default: Any = None
     help: str = ""
-    minimum: float = None
-    maximum: float = None
-    options: tuple = ()
+    minimum: Optional[float] = None
+    maximum: Optional[float] = None
+    options: Tuple[str, ...] = ()
     advanced: bool = False
 
 
@@ -70,36 +70,36 @@ class Method:
         Help text: what the method does, how the defaults are derived, the paper cited.
     """
     name: str
-    run: Callable
-    resolve: Callable
-    halo: Callable
-    extras: dict = field(default_factory=dict)
-    params: tuple = ()
+    run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
+    resolve: Callable[..., Dict[str, Any]]      # (z, cell_size, **params) -> complete params
+    halo: Callable[[Dict[str, Any], Tuple[float, float]], int]
+    extras: Dict[str, Tuple[Any, int, Optional[float]]] = field(default_factory=dict)
+    params: Tuple[Param, ...] = ()
     title: str = ""
     description: str = ""
 
 
-# Modules that define METHOD, in the order the plugin lists them.
-_MODULES = ["slope_profile", "curvature", "rascor", "geodesic", "morphology"]
+#: Modules that define METHOD, in the order the plugin lists them.
+METHOD_MODULES = ("slope_profile", "curvature", "rascor", "geodesic", "morphology")
 
 
-def available_methods():
-    """Return ``{name: Method}`` for every filter module that imports."""
+def available_methods() -> Dict[str, Method]:
+    """Return ``{name: Method}`` for every filter module of :data:`METHOD_MODULES`.
+
+    A module that fails to import is a bug, not a missing method: its ImportError
+    propagates (a toolbox that silently lacks a filter hides it).
+    """
     found = {}
-    for mod in _MODULES:
-        try:
-            m = importlib.import_module(f"{__package__}.{mod}")
-        except ImportError as exc:  # a module not written yet
-            if f"{__package__}.{mod}" in str(exc) or mod in str(exc):
-                continue
-            raise
+    for mod in METHOD_MODULES:
+        m = importlib.import_module(f"{__package__}.{mod}")
         meth = getattr(m, "METHOD", None)
-        if meth is not None:
-            found[meth.name] = meth
+        if not isinstance(meth, Method):
+            raise TypeError(f"{m.__name__} is listed in methods.METHOD_MODULES but defines no METHOD.")
+        found[meth.name] = meth
     return found
 
 
-def get_method(name):
+def get_method(name: str) -> Method:
     """Return the registered :class:`Method` called ``name`` (ValueError if unknown)."""
     methods = available_methods()
     if name not in methods:
