@@ -20,8 +20,7 @@ from ..core import Cancelled
 from ..core import grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
-from ..meta import HOMEPAGE
-from ..provider import ICON
+from ..meta import HOMEPAGE, ICON
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
              + "; a colour table and a .qml style are written with it.")
