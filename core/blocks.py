@@ -6,9 +6,8 @@ reach is at most ``halo`` cells gives the same result blocked as in one pass.
 """
 import multiprocessing
 import os
-import shutil
 import sys
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, wait, FIRST_COMPLETED
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 
 import numpy as np
 
@@ -105,33 +104,61 @@ def run_windows(func, windows, *, workers=1, progress=None):
             report(progress, done / n)
 
 
+def python_interpreter():
+    """The Python interpreter worker processes are started with: the one running us.
+
+    ``sys.executable`` when it is a Python interpreter. Inside QGIS it is the QGIS binary
+    (``qgis``, ``qgis_process``, ``qgis-bin.exe``); the workers then get the interpreter
+    QGIS's Python was built with, found from ``sys.base_prefix`` and ``sys.version_info``
+    (``<prefix>/bin/python3.11``, ``<prefix>\\python.exe``), never by a PATH lookup: the
+    ``python3`` first on PATH may be another build (a pyenv shim) or a planted program.
+
+    Raises
+    ------
+    RuntimeError
+        When no interpreter of our version is found (name it in the message; threads need none).
+    """
+    exe = sys.executable or ""
+    if os.path.basename(exe).lower().startswith("python") and os.access(exe, os.X_OK):
+        return exe
+    major, minor = sys.version_info[:2]
+    candidates = []
+    for prefix in dict.fromkeys((sys.base_exec_prefix, sys.base_prefix, sys.exec_prefix, sys.prefix)):
+        if not prefix:
+            continue
+        candidates += [os.path.join(prefix, "bin", f"python{major}.{minor}"),
+                       os.path.join(prefix, "bin", f"python{major}"),
+                       os.path.join(prefix, "python.exe"), os.path.join(prefix, f"python{major}.exe")]
+    for c in candidates:
+        if os.path.isfile(c) and os.access(c, os.X_OK):
+            return c
+    raise RuntimeError(f"cannot find the Python {major}.{minor} interpreter this program runs on (looked "
+                       f"for {', '.join(candidates)}) to start worker processes: use threads (THREADS) "
+                       "instead of processes.")
+
+
 def _process_context():
     """A multiprocessing context that is safe wherever we run: spawn, never fork.
 
     Forking copies a process whose other threads may hold locks (GDAL's tile-compression
     threads, Qt's threads inside QGIS), which deadlocks the child; spawned workers start
-    clean. Inside QGIS ``sys.executable`` is the QGIS binary, so a real Python interpreter
-    is named instead.
+    clean, with :func:`python_interpreter`.
     """
     ctx = multiprocessing.get_context("spawn")
-    exe = sys.executable or ""
-    if not os.path.basename(exe).startswith("python"):
-        exe = shutil.which("python3") or "/usr/bin/python3"
-    ctx.set_executable(exe)
+    ctx.set_executable(python_interpreter())
     return ctx
 
 
-def _warm_up():
-    """Run in a new worker: import the heavy modules while the parent does other work."""
-    from . import pipeline  # noqa: F401  (numpy, scipy, GDAL and the methods)
-    return os.getpid()
+def start_pool(workers, warm_up=None):
+    """A process pool whose workers start (spawn and import) right away, in the background.
 
-
-def start_pool(workers):
-    """A process pool whose workers start (spawn and import) right away, in the background."""
+    ``warm_up``: a module-level function each new worker runs first, to import what the
+    jobs will need (numpy, scipy, GDAL, the methods) while this process does other work.
+    """
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=_process_context())
-    for _ in range(workers):
-        pool.submit(_warm_up)
+    if warm_up is not None:
+        for _ in range(workers):
+            pool.submit(warm_up)
     return pool
 
 

@@ -1,5 +1,6 @@
 """Small shared pieces: the dtype rule, cell sizes, progress, results."""
 from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Optional
 
 import numpy as np
 
@@ -31,10 +32,14 @@ class FilterResult:
         filling again.
     """
     mask: np.ndarray
-    extras: dict = field(default_factory=dict)
-    info: dict = field(default_factory=dict)
-    surface: np.ndarray = None
-    dtm: np.ndarray = None
+    extras: Dict[str, np.ndarray] = field(default_factory=dict)
+    info: Dict[str, Any] = field(default_factory=dict)
+    surface: Optional[np.ndarray] = None
+    dtm: Optional[np.ndarray] = None
+
+
+#: A progress callback: ``progress(fraction in [0, 1])``; it may raise :class:`Cancelled`.
+Progress = Optional[Callable[[float], None]]
 
 
 def as_surface(z, name="z"):

@@ -12,6 +12,7 @@ memory (the plugin's path). Both cut the raster into the same windows with the m
 halo, so blocked and one-pass results agree.
 """
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ import numpy as np
 from . import blocks
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import Cancelled, as_cell_size, as_surface, report, sub_progress
-from .methods import Method, get_method
+from .methods import Method, available_methods, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
 #: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
@@ -68,6 +69,13 @@ def _user_params(meth, params):
             raise ValueError(f"{name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
                              f"{meth.name!r}: {p.help}")
     return full
+
+
+def warm_up_worker():
+    """Run first in a new worker process (:func:`blocks.start_pool`): unpickling this function
+    imports this module (numpy, scipy), then the methods. Returns the worker's pid."""
+    available_methods()
+    return os.getpid()
 
 
 def resolve_params(method, z, cell_size, params=None):
@@ -295,7 +303,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     t0 = time.perf_counter()
     user = _user_params(meth, params)
     # worker processes start (spawn, imports) while this process derives the parameters
-    pool = blocks.start_pool(processes) if processes > 1 and info.cells >= 1_000_000 else None
+    pool = blocks.start_pool(processes, warm_up=warm_up_worker) if processes > 1 and info.cells >= 1_000_000 else None
     try:
         return _run_file(meth, info, outputs, user, aux, block, workers, processes, progress, log, t0, pool)
     finally:
