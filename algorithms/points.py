@@ -277,7 +277,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             reducer = pf.REDUCERS[self.parameterAsEnum(parameters, self.REDUCER, context)]
             fill = self.parameterAsBool(parameters, self.FILL_EMPTY, context)
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
-            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
+            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf.unit_name(cloud)})."))
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             feedback.setProgress(70)
             pf.write_rasters(g, None, {"dsm": out})
@@ -519,7 +519,7 @@ class PointsInputMixin:
             sf = self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context)
             block = self.parameterAsInt(parameters, self.BLOCK_SIZE, context) or None
             progress = progress_callback(feedback)
-            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
+            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf.unit_name(cloud)})."))
             if tiles:
                 feedback.pushInfo(tr(f"Filtering as one block with {len(tiles)} neighbouring tile(s)."))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,

@@ -96,7 +96,7 @@ def evaluate_file(path, method="morphological", cell_size_m=None, params=None):
         return {"skipped": f"cannot be read: {exc}"}
     if cloud.classification is None or not (cloud.classification == GROUND_CLASS).any():
         return {"skipped": "no ASPRS class 2 (ground) point: no truth to compare with"}
-    unit = pf._unit_name(cloud)
+    unit = pf.unit_name(cloud)
     t0 = time.perf_counter()
     try:
         res = pf.filter_cloud(cloud, method, params, cell_size_m=cell_size_m)

@@ -96,7 +96,7 @@ if {stage!r} != "file":
     from bare_earth.core.methods import get_method
     z = make_dsm(int({mcells} * 1e6)).dsm
     meth = get_method({method!r})
-    prm = meth.resolve(z, (1.0, 1.0), **pipeline._user_params(meth, {params!r}))
+    prm = meth.resolve(z, (1.0, 1.0), **pipeline.complete_params(meth, {params!r}))
     base = status_kb("VmRSS")
     t = time.perf_counter()
     if {stage!r} == "filter":

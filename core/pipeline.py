@@ -16,6 +16,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Optional, Union
 
 import numpy as np
 
@@ -45,12 +46,20 @@ class PipelineResult:
     info: dict = field(default_factory=dict)
 
 
-def _method(method):
+def as_method(method: Union[str, Method]) -> Method:
+    """A :class:`Method`, or the registered method of that name (ValueError if unknown)."""
     return method if isinstance(method, Method) else get_method(method)
 
 
-def _user_params(meth, params):
-    """Complete the user's params with the Param defaults, rejecting unknown names."""
+def complete_params(meth: Method, params: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+    """The user's params completed with the ``Param`` defaults (``None``: derived later by
+    ``meth.resolve``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, or a number outside its ``Param``'s [minimum, maximum] (NaN too).
+    """
     params = dict(params or {})
     known = {p.name: p for p in meth.params}
     if known:
@@ -80,10 +89,10 @@ def warm_up_worker():
 
 def resolve_params(method, z, cell_size, params=None):
     """All parameters of ``method`` for surface ``z``, data-derived ones filled in."""
-    meth = _method(method)
+    meth = as_method(method)
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    return meth.resolve(z, cell, **_user_params(meth, params))
+    return meth.resolve(z, cell, **complete_params(meth, params))
 
 
 def fill_dtm(z, mask):
@@ -188,7 +197,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     -------
     PipelineResult
     """
-    meth = _method(method)
+    meth = as_method(method)
     workers = blocks.resolve_workers(workers)
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -198,7 +207,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {z.shape}: "
                              "rasterise it on the DSM's grid.")
     t0 = time.perf_counter()
-    params = meth.resolve(z, cell, **_user_params(meth, params))
+    params = meth.resolve(z, cell, **complete_params(meth, params))
     halo = int(meth.halo(params, cell))
     report(progress, 0.02)
     mask = np.full(z.shape, NODATA, np.uint8)
@@ -291,7 +300,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     from . import grid
-    meth = _method(method)
+    meth = as_method(method)
     workers = blocks.resolve_workers(workers)
     log = log or (lambda s: None)
     info = grid.open_dsm(path, band)
@@ -301,7 +310,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         if a is not None and np.shape(a) != info.shape:
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {info.shape}.")
     t0 = time.perf_counter()
-    user = _user_params(meth, params)
+    user = complete_params(meth, params)
     # worker processes start (spawn, imports) while this process derives the parameters
     pool = blocks.start_pool(processes, warm_up=warm_up_worker) if processes > 1 and info.cells >= 1_000_000 else None
     try:

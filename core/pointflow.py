@@ -95,7 +95,8 @@ def axis_scales(cloud, lat=None):
     return h, h, sz
 
 
-def _unit_name(cloud):
+def unit_name(cloud):
+    """Name of the x/y unit of a cloud's CRS, for logs (``"metre"``, ``"foot"``, ``"degree"``)."""
     srs = _srs(cloud.crs)
     if srs is None:
         return "unit (no CRS: taken as metres)"
@@ -245,7 +246,7 @@ CLASSIFY_CHUNK = 1 << 17
 def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
     """:func:`.points.classify_points`, exactly (same rule, same codes, same checks and
     messages), in chunks of points with the DTM slope computed once."""
-    from .points import _bilinear_many, _grid_extent, _slope
+    from .points import dtm_slope, grid_extent, sample_bilinear_many
     x = np.asarray(x, dtype=np.float64).ravel()
     y = np.asarray(y, dtype=np.float64).ravel()
     z = np.asarray(z, dtype=np.float64).ravel()
@@ -253,17 +254,17 @@ def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
     n = x.size
     if n <= CLASSIFY_CHUNK or dtm.ndim != 2 or dtm.size == 0 or not (n == y.size == z.size):
         return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
-    gx0, gy0, gx1, gy1 = _grid_extent(gt, dtm.shape)
+    gx0, gy0, gx1, gy1 = grid_extent(gt, dtm.shape)
     n_out = n - int(np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
     if n_out * 2 > n or not (np.isfinite(threshold_m) and threshold_m >= 0) or \
             not (np.isfinite(slope_factor) and slope_factor >= 0) or gt[2] != 0 or gt[4] != 0 \
             or gt[1] == 0 or gt[5] == 0:
         return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
-    slope = _slope(dtm, gt)
+    slope = dtm_slope(dtm, gt)
     out = np.empty(n, dtype=np.uint8)
     for i in range(0, n, CLASSIFY_CHUNK):
         sl = slice(i, i + CLASSIFY_CHUNK)
-        ground, s = _bilinear_many([dtm, slope], gt, x[sl], y[sl])
+        ground, s = sample_bilinear_many([dtm, slope], gt, x[sl], y[sl])
         s = np.where(np.isfinite(s), s, 0.0)          # at a DTM hole's edge: flat
         tol = threshold_m + slope_factor * s
         dz = z[sl] - ground
@@ -496,7 +497,7 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
     -------
     TileResult
     """
-    from .pipeline import _method, resolve_params, run_array
+    from .pipeline import as_method, resolve_params, run_array
     log = log or (lambda s: None)
     tiles = list(tiles)
     if not tiles:
@@ -514,7 +515,7 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
                 abs(c.z_units_to_metre - clouds[0].z_units_to_metre) > 1e-12:
             raise ValueError(f"{names[i]} is not in the CRS / units of {names[0]}: tiles of one block "
                              "must share them (reproject first, or pass the CRS).")
-    meth = _method(method)
+    meth = as_method(method)
     merged_ext = (min(c.extent[0] for c in clouds), min(c.extent[1] for c in clouds),
                   max(c.extent[2] for c in clouds), max(c.extent[3] for c in clouds))
     lat = 0.5 * (merged_ext[1] + merged_ext[3])
@@ -677,8 +678,8 @@ def read_column(path, name):
     """
     path = os.fspath(path)
     if os.path.splitext(path)[1].lower() in LAS_EXTENSIONS:
-        from .points import _import_laspy
-        laspy = _import_laspy()
+        from .points import import_laspy
+        laspy = import_laspy()
         las = laspy.read(path)
         dims = list(las.point_format.dimension_names)
         match = [d for d in dims if d.lower() == name.lower()]

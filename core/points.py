@@ -343,7 +343,8 @@ def _first_bad_line(data, nl, filled):
     return None
 
 
-def _import_laspy():
+def import_laspy():
+    """The ``laspy`` module; ImportError with :data:`LAS_INSTALL_HINT` when it is missing."""
     try:
         import laspy  # noqa: F401
     except ImportError as exc:
@@ -352,7 +353,7 @@ def _import_laspy():
 
 
 def _read_las(path):
-    laspy = _import_laspy()
+    laspy = import_laspy()
     try:
         las = laspy.read(path)
     except laspy.errors.LaspyException as exc:
@@ -613,7 +614,8 @@ def _check_geotransform(geotransform, shape):
     return gt
 
 
-def _grid_extent(gt, shape):
+def grid_extent(gt, shape):
+    """``(xmin, ymin, xmax, ymax)`` of a north-up grid of ``shape`` on geotransform ``gt``."""
     xs = (gt[0], gt[0] + gt[1] * shape[1])
     ys = (gt[3], gt[3] + gt[5] * shape[0])
     return min(xs), min(ys), max(xs), max(ys)
@@ -648,11 +650,16 @@ def sample_bilinear(grid, geotransform, x, y):
     y = np.asarray(y, dtype=np.float64)
     shape = np.broadcast(x, y).shape
     x, y = np.broadcast_to(x, shape).ravel(), np.broadcast_to(y, shape).ravel()
-    return _bilinear_many([grid], gt, x, y)[0].reshape(shape)
+    return sample_bilinear_many([grid], gt, x, y)[0].reshape(shape)
 
 
-def _bilinear_many(grids, gt, x, y):
-    """Bilinear samples of several grids of one shape at 1-D points (weights computed once)."""
+def sample_bilinear_many(grids, gt, x, y):
+    """Bilinear samples of several grids of one shape at 1-D points (weights computed once).
+
+    As :func:`sample_bilinear` for each grid of ``grids``, with ``gt`` already checked
+    (:func:`sample_bilinear` checks it) and ``x``, ``y`` 1-D float64. Returns a list of
+    float64 arrays, NaN outside the grid.
+    """
     nrows, ncols = grids[0].shape
     u = (x - gt[0]) / gt[1]          # column coordinate, 0 at the west edge
     v = (y - gt[3]) / gt[5]          # row coordinate, 0 at the north edge
@@ -680,7 +687,7 @@ def _bilinear_many(grids, gt, x, y):
     return outs
 
 
-def _slope(dtm, gt):
+def dtm_slope(dtm, gt):
     """Terrain slope (rise / run, dimensionless) of a grid, NaN where the DTM is NaN."""
     dtm = np.asarray(dtm, dtype=np.float64)
     if min(dtm.shape) < 2:
@@ -737,7 +744,7 @@ def classify_points(x, y, z, dtm, geotransform, *, threshold_m=0.5, slope_factor
         raise ValueError(f"x, y and z must have the same length; got {x.size}, {y.size}, {z.size}.")
     if x.size == 0:
         return np.zeros(0, dtype=np.uint8)
-    gx0, gy0, gx1, gy1 = _grid_extent(gt, dtm.shape)
+    gx0, gy0, gx1, gy1 = grid_extent(gt, dtm.shape)
     outside = ~((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1))
     if outside.sum() * 2 > x.size:
         raise ValueError(
@@ -745,7 +752,7 @@ def classify_points(x, y, z, dtm, geotransform, *, threshold_m=0.5, slope_factor
             f"x {np.nanmin(x):.3f}..{np.nanmax(x):.3f}, y {np.nanmin(y):.3f}..{np.nanmax(y):.3f}; "
             f"the DTM spans x {gx0:.3f}..{gx1:.3f}, y {gy0:.3f}..{gy1:.3f}. Use a DTM of the "
             "same area, in the same CRS and units as the points.")
-    ground, slope = _bilinear_many([dtm, _slope(dtm, gt)], gt, x, y)
+    ground, slope = sample_bilinear_many([dtm, dtm_slope(dtm, gt)], gt, x, y)
     slope = np.where(np.isfinite(slope), slope, 0.0)   # at a DTM hole's edge: flat
     tol = threshold_m + slope_factor * slope
     dz = z - ground
@@ -798,7 +805,7 @@ def _asprs_codes(classes, original):
 
 
 def _write_las(path, cloud, classes):
-    laspy = _import_laspy()
+    laspy = import_laspy()
     if cloud.source_format == "las" and cloud.attrs is not None:
         src = cloud.attrs
         # a copy of the header: writing updates counts and bounds in place
