@@ -36,6 +36,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
+from .grid import metres_per_degree
 from .points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
                      read_points, write_points)
 
@@ -76,7 +77,7 @@ def axis_scales(cloud, lat=None):
     """Metres per unit of x, y and z of a cloud: ``(sx, sy, sz)``.
 
     Projected or unknown CRS: ``units_to_metre`` for x and y. Geographic CRS (degrees):
-    the WGS84 radii of curvature at latitude ``lat`` (default: the cloud's mid latitude).
+    :func:`.grid.metres_per_degree` at latitude ``lat`` (default: the cloud's mid latitude).
     """
     sz = float(cloud.z_units_to_metre or 1.0)
     srs = _srs(cloud.crs)
@@ -86,11 +87,7 @@ def axis_scales(cloud, lat=None):
         if not -90.0 <= lat <= 90.0:
             raise ValueError(f"the points' CRS is geographic but their mid y {lat:.3f} is not a "
                              "latitude: check the CRS.")
-        a, e2 = 6378137.0, 0.00669437999014
-        phi = math.radians(lat)
-        s = 1.0 - e2 * math.sin(phi) ** 2
-        return (math.pi / 180 * a * math.cos(phi) / math.sqrt(s),
-                math.pi / 180 * a * (1 - e2) / s ** 1.5, sz)
+        return metres_per_degree(lat) + (sz,)
     h = float(cloud.units_to_metre or 1.0)
     return h, h, sz
 

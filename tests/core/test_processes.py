@@ -83,3 +83,12 @@ def test_processes_run_with_planted_python3_first_on_path(dsm, tmp_path, planted
     par = run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif"}, processes=2, block=100)
     assert par["blocks"] > 2
     assert not planted_python.exists(), "the python3 first on PATH was started"
+
+
+def test_processes_forward_the_blocks_own_progress(dsm, tmp_path):
+    fractions = []
+    par = run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
+                   processes=2, block=100, progress=fractions.append)
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    # more reports than blocks: the workers' progress (filter and fill) reaches the bar
+    assert len(fractions) > par["blocks"] + 3
