@@ -41,6 +41,40 @@ class Param:
     advanced: bool = False
 
 
+def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, Any]) -> None:
+    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too).
+
+    The one copy of the limits check: every ``Method.resolve`` runs it on the values it is
+    given (``None``, derived later, is not checked), so the limits the dialog shows are the
+    limits the core enforces.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, the range and the parameter's help.
+    """
+    for p in params:
+        value = values.get(p.name)
+        if value is None or p.kind not in ("float", "int") or isinstance(value, bool):
+            continue
+        if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
+                or (p.maximum is not None and not value <= p.maximum)):
+            raise ValueError(f"{p.name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
+                             f"{method_name!r}: {p.help}")
+
+
+class _CheckedResolve:
+    """A method's ``resolve`` with its ``Param`` limits checked first (picklable: worker
+    processes receive the Method)."""
+
+    def __init__(self, resolve, method_name, params):
+        self.resolve, self.method_name, self.params = resolve, method_name, params
+
+    def __call__(self, z, cell_size, **values):
+        check_values(self.method_name, self.params, values)
+        return self.resolve(z, cell_size, **values)
+
+
 @dataclass(frozen=True)
 class Method:
     """A filter method.
@@ -55,7 +89,8 @@ class Method:
     resolve : callable
         ``resolve(z, cell_size, **params) -> dict``: the complete parameter set, with every
         ``None`` replaced by a value derived from the data (on the whole raster or a
-        sample of it). Called once per raster, before any block runs.
+        sample of it). Called once per raster, before any block runs. The given values are
+        first checked against ``params``' limits (:func:`check_values`).
     halo : callable
         ``halo(params, cell_size) -> int``: the method's reach in cells; blocks overlap by
         at least this much so that blocked and one-pass results agree.
@@ -77,6 +112,10 @@ class Method:
     params: Tuple[Param, ...] = ()
     title: str = ""
     description: str = ""
+
+    def __post_init__(self):
+        if self.params and not isinstance(self.resolve, _CheckedResolve):
+            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params)))
 
 
 #: Modules that define METHOD, in the order the plugin lists them.

@@ -24,7 +24,7 @@ from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import (Cancelled, Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress,
                      without_far_heights)
-from .methods import Method, available_methods, get_method
+from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
 #: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
@@ -73,15 +73,8 @@ def complete_params(meth: Method, params: Optional[Dict[str, Any]]) -> Dict[str,
             raise ValueError(f"unknown parameter(s) {unknown} for method {meth.name!r}; "
                              f"it takes {sorted(known)}.")
     full = {p.name: p.default for p in meth.params}
-    full.update({k: v for k, v in params.items()})
-    for name, value in list(full.items()):
-        p = known.get(name)
-        if p is None or value is None or p.kind not in ("float", "int"):
-            continue
-        if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
-                or (p.maximum is not None and not value <= p.maximum)):
-            raise ValueError(f"{name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
-                             f"{meth.name!r}: {p.help}")
+    full.update(params)
+    check_values(meth.name, meth.params, full)
     return full
 
 

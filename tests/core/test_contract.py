@@ -2,14 +2,19 @@
 of ``available_methods()``, and the code-health rules checked by code (no private imports
 across modules, no import cycle among core modules, no hidden method)."""
 import ast
+import functools
 import importlib.abc
 import importlib.util
+import re
 import sys
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from bare_earth.core import methods
+from bare_earth.core import methods, pipeline, synthetic
+from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 
 
 class _BrokenFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -170,3 +175,220 @@ def test_no_import_cycle_among_core_modules():
              if m != ""}
     cycle = _find_cycle(graph)
     assert cycle is None, "import cycle among core modules: " + " -> ".join(cycle)
+
+
+# --------------------------------------------------------------------------- filter contracts
+METHODS = sorted(methods.available_methods())
+
+
+@functools.lru_cache(maxsize=None)
+def _scene(name):
+    """Synthetic scenes with known truth: ``(dsm, cell_size)``."""
+    if name == "city_holes":          # nodata holes and a nodata border strip, non-square cells
+        sc = synthetic.make_scene("city", shape=(200, 170), cell_size=(0.5, 0.6), seed=5, nodata_holes=True)
+        return sc.dsm, (0.5, 0.6)
+    if name == "mixed":
+        sc = synthetic.make_scene("mixed", shape=(160, 192), cell_size=1.0, seed=3)
+        return sc.dsm, (1.0, 1.0)
+    if name == "integral":            # integral heights >= 1 m, no nodata: every dtype holds them
+        sc = synthetic.make_scene("city", shape=(96, 112), cell_size=1.0, seed=7)
+        z = np.round(sc.dsm - np.floor(np.nanmin(sc.dsm)) + 1.0)
+        assert z.max() < 30000
+        return z.astype(np.float64), (1.0, 1.0)
+    if name == "small":
+        sc = synthetic.make_scene("city", shape=(48, 56), cell_size=1.0, seed=2)
+        return sc.dsm, (1.0, 1.0)
+    raise KeyError(name)
+
+
+@functools.lru_cache(maxsize=None)
+def _one_pass(method, scene):
+    z, cell = _scene(scene)
+    return pipeline.run_array(method, z, cell)
+
+
+@pytest.mark.parametrize("scene", ["city_holes", "mixed"])
+@pytest.mark.parametrize("block,workers", [(48, 1), ((37, 61), 2)])
+@pytest.mark.parametrize("method", METHODS)
+def test_blocked_equals_one_pass(method, scene, block, workers):
+    """Blocks smaller than the buildings (cut through objects and holes), in threads or not:
+    the mask is the one-pass mask, cell for cell."""
+    z, cell = _scene(scene)
+    one = _one_pass(method, scene)
+    blk = pipeline.run_array(method, z, cell, block=block, workers=workers)
+    assert blk.info["blocks"] > 4
+    diff = int(np.count_nonzero(blk.mask != one.mask))
+    assert diff == 0, f"{diff} cells differ between blocks {block} and one pass"
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_input_not_modified(method):
+    z, cell = _scene("city_holes")
+    z = z.astype(np.float32)                   # float32: as_surface passes it through uncopied
+    before = z.copy()
+    meth = methods.available_methods()[method]
+    params = meth.resolve(z, cell, **pipeline.complete_params(meth, None))
+    np.testing.assert_array_equal(z, before)
+    meth.run(z, cell, **params)
+    np.testing.assert_array_equal(z, before)
+    pipeline.run_array(method, z, cell, block=64)
+    np.testing.assert_array_equal(z, before)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_nodata_coded_255_and_only_there(method):
+    z, cell = _scene("city_holes")
+    res = _one_pass(method, "city_holes")
+    nodata = ~np.isfinite(z)
+    assert nodata.any()
+    np.testing.assert_array_equal(res.mask == NODATA, nodata)
+    assert set(np.unique(res.mask[~nodata])) <= {GROUND, OBJECT, LOW}
+    assert np.isnan(res.dtm[nodata]).all() and np.isfinite(res.dtm[~nodata]).all()
+    meth = methods.available_methods()[method]
+    direct = meth.run(z, cell, **res.info["params"])          # the method itself codes nodata 255
+    np.testing.assert_array_equal(np.asarray(direct.mask) == NODATA, nodata)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_input_dtype_gives_the_same_mask(method):
+    z64, cell = _scene("integral")
+    meth = methods.available_methods()[method]
+    masks = {}
+    for dt in (np.float32, np.float64, np.int16, np.uint16):
+        z = z64.astype(dt)
+        params = meth.resolve(z, cell, **pipeline.complete_params(meth, None))
+        masks[np.dtype(dt).name] = np.asarray(meth.run(z, cell, **params).mask)
+    for name, m in masks.items():
+        diff = int(np.count_nonzero(m != masks["float32"]))
+        assert diff == 0, f"{name}: {diff} cells differ from float32"
+
+
+def _bound_cases():
+    for name in METHODS:
+        meth = methods.available_methods()[name]
+        for p in meth.params:
+            if p.kind not in ("float", "int"):
+                continue
+            for side, bound in (("min", p.minimum), ("max", p.maximum)):
+                if bound is not None:
+                    yield pytest.param(name, p.name, side, id=f"{name}-{p.name}-{side}")
+
+
+def _outside(p, side):
+    bound = p.minimum if side == "min" else p.maximum
+    if p.kind == "int":
+        return int(bound) - 1 if side == "min" else int(bound) + 1
+    step = max(1e-6, 1e-6 * abs(bound))
+    return bound - step if side == "min" else bound + step
+
+
+@pytest.mark.parametrize("method,param,side", list(_bound_cases()))
+def test_param_limits_are_the_limits_the_core_enforces(method, param, side):
+    """A value at a ``Param``'s bound is accepted by the whole run; a value just outside it is
+    refused by the core itself (resolve or run with ValueError), not only by the pipeline's
+    check of the ``Param`` limits: the dialog, the checks and the core agree."""
+    meth = methods.available_methods()[method]
+    p = {q.name: q for q in meth.params}[param]
+    bound = p.minimum if side == "min" else p.maximum
+    z, cell = _scene("small")
+    res = pipeline.run_array(method, z, cell, params={param: int(bound) if p.kind == "int" else bound})
+    assert res.info["params"][param] == bound
+    bad = _outside(p, side)
+    with pytest.raises(ValueError):
+        pipeline.run_array(method, z, cell, params={param: bad})
+    full = dict(pipeline.complete_params(meth, None), **{param: bad})   # past the Param check
+    with pytest.raises(ValueError):
+        params = meth.resolve(z, cell, **full)
+        meth.run(z, cell, **params)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_defaults_are_stated_in_the_info(method):
+    """Every parameter left empty is derived, and the value used is in the result's info
+    (the log shows it). A value may stay empty only when the step using it did not run and
+    the info's notes say so."""
+    meth = methods.available_methods()[method]
+    res = _one_pass(method, "mixed")
+    used = res.info["params"]
+    notes = res.info.get("notes", [])
+    for p in meth.params:
+        assert p.name in used, f"{p.name} missing from the info"
+        v = used[p.name]
+        if v is None:
+            step = re.match(r"Step (\d+)", p.help)
+            assert step and any(n.startswith(step.group(1) + ":") and "skipped" in n for n in notes), \
+                f"{p.name}: derived value not stated"
+            continue
+        if p.kind == "float":
+            assert np.isfinite(float(v)), (p.name, v)
+            if p.minimum is not None:
+                assert v >= p.minimum, (p.name, v)
+            if p.maximum is not None:
+                assert v <= p.maximum, (p.name, v)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_far_heights_never_reach_a_filter(method):
+    """+-1e30 cells (an undeclared nodata) are nodata, with a log line and no numpy warning."""
+    z, cell = _scene("mixed")
+    z = z.copy()
+    z[40, 50], z[90, 120], z[91, 120] = 1e30, -1e30, -3.4e38
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = pipeline.run_array(method, z, cell)
+    assert all(res.mask[rc] == NODATA for rc in ((40, 50), (90, 120), (91, 120)))
+    assert any("3 cell" in w for w in res.info["warnings"])
+    one = _one_pass(method, "mixed")
+    far = np.zeros(z.shape, bool)
+    far[40, 50] = far[90, 120] = far[91, 120] = True
+    assert np.count_nonzero((res.mask != one.mask) & ~far) < 0.01 * z.size
+
+
+# ---- #15 defect 4: blocked and threaded equal one pass on large and real DSMs ----------------
+
+@functools.lru_cache(maxsize=None)
+def _big_city():
+    sc = synthetic.make_dsm(4_000_000)
+    return sc.dsm
+
+
+@functools.lru_cache(maxsize=None)
+def _big_one_pass(method):
+    return pipeline.run_array(method, _big_city(), 1.0).mask
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("method", METHODS)
+def test_blocked_equals_one_pass_4_mcells(method, workers):
+    blk = pipeline.run_array(method, _big_city(), 1.0, block=256, workers=workers)
+    diff = int(np.count_nonzero(blk.mask != _big_one_pass(method)))
+    assert diff == 0, f"{diff} cells differ (block 256, {workers} thread(s))"
+
+
+def _read_mask(path):
+    from osgeo import gdal
+    return gdal.Open(str(path)).GetRasterBand(1).ReadAsArray()
+
+
+@functools.lru_cache(maxsize=None)
+def _pleiades_one_pass(method, src, folder):
+    out = Path(folder) / f"{method}-one.tif"
+    pipeline.run_file(method, src, {"mask": out}, workers=1)
+    return _read_mask(out)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("block,workers", [(256, 1), (256, 2), (None, 2)])
+@pytest.mark.parametrize("method", METHODS)
+def test_blocked_and_threaded_equal_one_pass_on_pleiades(shared_data, tmp_path_factory, method, block, workers):
+    src = shared_data / "raster" / "pleiades" / "triplet_dsm.tif"
+    if not src.exists():
+        pytest.skip(f"{src} is absent")
+    folder = tmp_path_factory.getbasetemp() / "pleiades-one-pass"
+    folder.mkdir(exist_ok=True)
+    one = _pleiades_one_pass(method, str(src), str(folder))
+    out = tmp_path_factory.mktemp("pleiades") / "mask.tif"
+    pipeline.run_file(method, src, {"mask": out}, block=block, workers=workers)
+    diff = int(np.count_nonzero(_read_mask(out) != one))
+    assert diff == 0, f"{diff} cells differ (block {block}, {workers} thread(s))"
