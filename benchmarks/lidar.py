@@ -103,7 +103,8 @@ def evaluate_file(path, method="morphological", cell_size_m=None, params=None):
     except ValueError as exc:
         return {"skipped": f"the filter refused it ({len(cloud)} points over "
                            f"{(cloud.extent[2] - cloud.extent[0]):.0f} x {(cloud.extent[3] - cloud.extent[1]):.0f} "
-                           f"CRS units ({unit}), cell {pf.default_cell_size_m(cloud) if cell_size_m is None else cell_size_m:g} m): "
+                           f"CRS units ({unit}), cell "
+                           f"{pf.default_cell_size_m(cloud) if cell_size_m is None else cell_size_m:g} m): "
                            f"{exc}"}
     seconds = time.perf_counter() - t0
     cls = cloud.classification

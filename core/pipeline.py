@@ -22,8 +22,7 @@ import numpy as np
 
 from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import (Cancelled, Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress,
-                     without_far_heights)
+from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
 from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
@@ -145,7 +144,7 @@ def _merge_info(infos, weights):
         if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
             vals = [inf.get(k) for inf in infos]
             if all(isinstance(x, (int, float, np.floating, np.integer)) for x in vals):
-                out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)
+                out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)  # noqa: B905 (3.9: no strict)
     return out
 
 

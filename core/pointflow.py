@@ -39,8 +39,7 @@ from .common import report, sub_progress
 from .grid import metres_per_degree
 from .pipeline import as_method, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column
-from .points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
-                     read_points, write_points)
+from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
 
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
            "filter_cloud", "filter_tiles", "write_rasters", "class_counts",

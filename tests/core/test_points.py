@@ -5,8 +5,15 @@ import numpy as np
 import pytest
 
 from bare_earth.core import pointfiles
-from bare_earth.core.points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
-                                    read_points, sample_bilinear, write_points)
+from bare_earth.core.points import (
+    PointCloud,
+    classify_points,
+    nice_cell_size,
+    rasterize_points,
+    read_points,
+    sample_bilinear,
+    write_points,
+)
 
 DTYPES = [np.float32, np.float64, np.int16]
 

@@ -72,6 +72,7 @@ def planted_python(tmp_path, monkeypatch):
 def test_worker_interpreter_is_ours_not_path_python3(planted_python):
     import os
     import sys
+
     from bare_earth.core.blocks import python_interpreter
     exe = python_interpreter()
     assert os.path.dirname(exe) != os.path.dirname(sys.executable)          # not the planted bin dir
