@@ -368,7 +368,8 @@ def test_blocked_equals_one_pass_4_mcells(method, workers):
 
 def _read_mask(path):
     from osgeo import gdal
-    return gdal.Open(str(path)).GetRasterBand(1).ReadAsArray()
+    ds = gdal.Open(str(path))                 # kept alive while its band is read
+    return ds.GetRasterBand(1).ReadAsArray()
 
 
 @functools.lru_cache(maxsize=None)

@@ -371,7 +371,8 @@ def test_run_file_extras_written(tmp_path):
     assert not (tmp_path / "dtm.tif").exists() and not (tmp_path / "mask.tif").exists()
     flag, fnd, fgt, _ = read(outs["flag"])
     assert fnd == 255 and fgt == pytest.approx(GT)
-    assert gdal.Open(outs["flag"]).GetRasterBand(1).DataType == gdal.GDT_Byte
+    fds = gdal.Open(outs["flag"])                # kept alive while its band is used
+    assert fds.GetRasterBand(1).DataType == gdal.GDT_Byte
     expect = np.zeros(z.shape, np.uint8)
     for rc in objs:
         expect[rc] = 7
