@@ -20,7 +20,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from .codes import MASK_CODES, MASK_COLOURS, NODATA
+from .codes import MASK_CODES, MASK_COLOURS
 from .common import without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.

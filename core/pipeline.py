@@ -144,7 +144,7 @@ def _merge_info(infos, weights):
         if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
             vals = [inf.get(k) for inf in infos]
             if all(isinstance(x, (int, float, np.floating, np.integer)) for x in vals):
-                out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)  # noqa: B905 (3.9: no strict)
+                out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)
     return out
 
 
