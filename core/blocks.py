@@ -161,14 +161,27 @@ def run_windows(func, windows, *, workers=1, progress=None):
             raise
 
 
+def _is_this_process(exe):
+    """False when ``exe`` is known not to be the program running us (Linux: /proc/self/exe)."""
+    try:
+        me = os.path.realpath("/proc/self/exe")
+    except OSError:
+        return True
+    if not os.path.exists("/proc/self/exe"):
+        return True                                   # no /proc: nothing to compare with
+    return os.path.realpath(exe) == me
+
+
 def python_interpreter():
     """The Python interpreter worker processes are started with: the one running us.
 
-    ``sys.executable`` when it is a Python interpreter. Inside QGIS it is the QGIS binary
-    (``qgis``, ``qgis_process``, ``qgis-bin.exe``); the workers then get the interpreter
-    QGIS's Python was built with, found from ``sys.base_prefix`` and ``sys.version_info``
-    (``<prefix>/bin/python3.11``, ``<prefix>\\python.exe``), never by a PATH lookup: the
-    ``python3`` first on PATH may be another build (a pyenv shim) or a planted program.
+    ``sys.executable`` when it is a Python interpreter and the program running us. Inside
+    QGIS it is the QGIS binary (``qgis``, ``qgis-bin.exe``), or, in an embedded interpreter
+    that looked its program name up on PATH (``qgis_process``), whatever ``python3`` comes
+    first on PATH; the workers then get the interpreter QGIS's Python was built with, found
+    from ``sys.base_prefix`` and ``sys.version_info`` (``<prefix>/bin/python3.11``,
+    ``<prefix>\\python.exe``), never by a PATH lookup: the ``python3`` first on PATH may be
+    another build (a pyenv shim) or a planted program.
 
     Raises
     ------
@@ -176,7 +189,8 @@ def python_interpreter():
         When no interpreter of our version is found (name it in the message; threads need none).
     """
     exe = sys.executable or ""
-    if os.path.basename(exe).lower().startswith("python") and os.access(exe, os.X_OK):
+    if (os.path.basename(exe).lower().startswith("python") and os.access(exe, os.X_OK)
+            and _is_this_process(exe)):
         return exe
     major, minor = sys.version_info[:2]
     candidates = []

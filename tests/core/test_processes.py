@@ -45,7 +45,7 @@ def test_processes_cancel_leaves_nothing(dsm, tmp_path):
         run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
                  processes=2, block=64, progress=progress)
     assert not (tmp_path / "m.tif").exists() and not (tmp_path / "d.tif").exists()
-    assert not list(tmp_path.glob("*.partial-*"))
+    assert not list(tmp_path.glob("*.partial*"))
 
 
 @pytest.fixture
@@ -77,6 +77,20 @@ def test_worker_interpreter_is_ours_not_path_python3(planted_python):
     exe = python_interpreter()
     assert os.path.dirname(exe) != os.path.dirname(sys.executable)          # not the planted bin dir
     assert os.path.basename(exe).startswith(f"python{sys.version_info[0]}")
+    assert os.path.realpath(exe).startswith(os.path.realpath(sys.base_prefix))
+
+
+def test_embedded_sys_executable_from_path_is_not_trusted(planted_python, monkeypatch):
+    """An embedded interpreter (qgis_process) may set sys.executable to the ``python3`` it
+    found first on PATH: that program is not the one running us, so it is not used."""
+    import os
+    import sys
+
+    from bare_earth.core.blocks import python_interpreter
+    planted = os.path.join(os.path.dirname(sys.executable), "python3")
+    monkeypatch.setattr(sys, "executable", planted)
+    exe = python_interpreter()
+    assert os.path.realpath(exe) != os.path.realpath(planted)
     assert os.path.realpath(exe).startswith(os.path.realpath(sys.base_prefix))
 
 
