@@ -65,9 +65,9 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, check_in_range, finish_mask, report, sub_progress
+from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
 from .estimate import block_minima, noise_plane_residual, terrain_slopes
-from .methods import Method, Param
+from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
 #: SMRF's low-outlier pre-step: slope 500 % over windows up to 1 m (Pingel et al. 2013).
@@ -368,7 +368,7 @@ def _complete(z, cell, p):
     for name in _NUMBERS:
         if p[name] is None:
             raise ValueError(f"{name} is None: give a number or leave it to resolve_morphological_params.")
-    check_in_range(PARAMS, p)
+    check_values("morphological", PARAMS, p)
     if not p["max_object_size_m"] >= 2 * min(cell):
         raise ValueError(f"max_object_size_m must be at least two cells ({2 * min(cell)} m); got "
                          f"{p['max_object_size_m']!r}. Give the side of the largest object to remove in metres.")
@@ -616,7 +616,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     cell = as_cell_size(cell_size)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
-    check_in_range(PARAMS, dict(max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
+    check_values("morphological", PARAMS, dict(max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                                 slope_scale_m=slope_scale_m, window_growth=window_growth,
                                 low_outlier_slope=low_outlier_slope))
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))

@@ -49,9 +49,9 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import LOW, NODATA
-from .common import FilterResult, as_cell_size, as_surface, check_in_range, report, sub_progress, transpose
+from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
 from .estimate import noise_second_difference, sample_windows, terrain_slopes
-from .methods import Method, Param
+from .methods import Method, Param, check_values
 
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
 _MIN_ALPHA_G, _MAX_ALPHA_G = 25.0, 60.0
@@ -543,7 +543,7 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     p = dict(slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg,
              tolerance_m=tolerance_m, max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
              sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor)
-    check_in_range(PARAMS, p)
+    check_values("slopeprofile", PARAMS, p)
     tan_g = float(np.tan(np.radians(slope_threshold_deg)))
     tan_t = float(np.tan(np.radians(terrain_slope_deg)))
     valid = np.isfinite(z)
@@ -595,10 +595,10 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    check_in_range(PARAMS, dict(slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg,
-                                tolerance_m=tolerance_m, max_object_size_m=max_object_size_m,
-                                edge_length_m=edge_length_m, sample_spacing_cells=sample_spacing_cells,
-                                slope_factor=slope_factor))
+    check_values("slopeprofile", PARAMS, dict(
+        slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg, tolerance_m=tolerance_m,
+        max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
+        sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor))
     if terrain_slope_deg is None:
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
         terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
@@ -613,7 +613,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
            "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
            "refine": bool(refine), "slope_factor": float(slope_factor)}
-    check_in_range(PARAMS, out)
+    check_values("slopeprofile", PARAMS, out)
     return out
 
 

@@ -4,9 +4,9 @@ from typing import Tuple, Union
 
 import numpy as np
 
-from ..common import as_cell_size, as_surface, check_in_range
+from ..common import as_cell_size, as_surface
 from ..estimate import block_minima, noise_second_difference_quartile
-from ..methods import Param
+from ..methods import Param, check_values
 from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
 from .outliers import OUTLIER_MAX_CELLS
@@ -120,7 +120,7 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
 def check_params(p):
     """Raise ValueError for a parameter outside its :data:`PARAMS` bounds, or a largest
     window smaller than the first (None values, still to be derived, pass)."""
-    check_in_range(PARAMS, p)
+    check_values("geodesic", PARAMS, p)
     if p["max_object_size_m"] < p["min_window_m"]:
         raise ValueError(f"max_object_size_m ({p['max_object_size_m']}) is smaller than "
                          f"min_window_m ({p['min_window_m']}); raise the first or lower "
