@@ -368,10 +368,7 @@ def _complete(z, cell, p):
     for name in _NUMBERS:
         if p[name] is None:
             raise ValueError(f"{name} is None: give a number or leave it to resolve_morphological_params.")
-    check_values("morphological", PARAMS, p)
-    if not p["max_object_size_m"] >= 2 * min(cell):
-        raise ValueError(f"max_object_size_m must be at least two cells ({2 * min(cell)} m); got "
-                         f"{p['max_object_size_m']!r}. Give the side of the largest object to remove in metres.")
+    check_values("morphological", PARAMS, p)      # a window under 3 cells is 3 cells (_half_widths)
     return p
 
 

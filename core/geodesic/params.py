@@ -118,17 +118,15 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
 
 
 def check_params(p):
-    """Raise ValueError for a parameter outside its :data:`PARAMS` bounds, or a largest
-    window smaller than the first (None values, still to be derived, pass)."""
+    """Raise ValueError for a parameter outside its :data:`PARAMS` bounds (None values,
+    still to be derived, pass). A first window larger than the largest object is no error:
+    :func:`step_sizes` then runs one step of ``max_object_size_m``."""
     check_values("geodesic", PARAMS, p)
-    if p["max_object_size_m"] < p["min_window_m"]:
-        raise ValueError(f"max_object_size_m ({p['max_object_size_m']}) is smaller than "
-                         f"min_window_m ({p['min_window_m']}); raise the first or lower "
-                         "the second.")
 
 
 def step_sizes(min_window_m, max_object_size_m):
-    """Structuring-element sizes in metres: doubling from min to max (last = max)."""
+    """Structuring-element sizes in metres: doubling from min to max (last = max; only max
+    when min is not below it)."""
     sizes = []
     s = float(min_window_m)
     while s < max_object_size_m * 0.999:

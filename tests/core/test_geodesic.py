@@ -275,8 +275,8 @@ def test_resolve_and_errors():
         geo.resolve_geodesic_params(z, 1.0, window=3)
     with pytest.raises(ValueError, match="edge_ratio"):
         geo.resolve_geodesic_params(z, 1.0, edge_ratio=2.0)
-    with pytest.raises(ValueError, match="max_object_size_m"):
-        geo.resolve_geodesic_params(z, 1.0, min_window_m=10.0, max_object_size_m=5.0)
+    assert geo.filter_geodesic(z, 1.0, **dict(PARAMS, min_window_m=10.0, max_object_size_m=5.0)).info[
+        "step_sizes_m"] == [5.0]                  # a first window above the largest: one step
     with pytest.raises(ValueError, match="resolve_geodesic_params"):
         geo.filter_geodesic(z, 1.0, **dict(PARAMS, height_threshold_m=None))
 

@@ -152,7 +152,7 @@ def test_input_is_not_modified():
 @pytest.mark.parametrize("kwargs, match", [
     (dict(mode="fast"), "mode"),
     (dict(dh_m=-1.0), "dh_m"),
-    (dict(max_object_size_m=0.5), "max_object_size_m"),
+    (dict(max_object_size_m=0.05), "max_object_size_m"),
     (dict(slope=-0.1), "slope"),
     (dict(window_growth=0.5), "window_growth"),
 ])
