@@ -363,8 +363,8 @@ def _decide(out, seen, window, max_sigma_cells):
     the window has texture enough against the noise: the least-squares precision of the
     shift (Foerstner 1984), ``sigma_s^2 = var(r) / sum_w g_s^2``, is at most
     ``max_sigma_cells``. ``var(r)`` is the noise of the residual ``b - a`` estimated once for
-    the pair (median over the cells with a correlation; mismatches raise it, which makes the
-    test stricter, never looser), and ``g_s`` the signal
+    the pair (median over the cells whose correlation, left-right and range tests passed),
+    and ``g_s`` the signal
     part of the gradient (the noise adds ``var(r) / 8`` to the mean square of the averaged
     central-difference gradient).
 
@@ -378,7 +378,7 @@ def _decide(out, seen, window, max_sigma_cells):
     """
     reason = np.where(seen, out["reason"], 1).astype(np.uint8)
     res = out["residual"]
-    pool = res[seen & np.isfinite(out["corr"]) & np.isfinite(res)]
+    pool = res[(reason == ACCEPTED) & np.isfinite(res)]
     var_r = float(np.median(pool)) if pool.size else float("nan")
     with np.errstate(divide="ignore", invalid="ignore"):
         signal = out["energy"] - var_r / 8.0
