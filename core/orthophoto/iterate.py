@@ -23,6 +23,9 @@ __all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MI
 RELAXATION = 1.0
 #: Default smallest relative improvement of the pairs' agreement that continues the iteration.
 MIN_GAIN = 0.05
+#: An update after which the pairs lose more than this share of their trusted matches made
+#: them agree worse (the parallax of the remaining, easier cells alone would hide it).
+MAX_LOST = 0.5
 
 
 @dataclass
@@ -96,8 +99,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
-    previous one. An update that made the pairs agree worse (or lost more than 10 % of the
-    trusted matches) is undone and the iteration stops; when the agreement improved by
+    previous one. An update that made the pairs agree worse (or lost more than
+    :data:`MAX_LOST` of the trusted matches) is undone and the iteration stops; when the agreement improved by
     less than ``min_gain`` (relative) the iteration stops keeping the update. It also stops
     when the RMS correction falls below ``tolerance_m``, and after ``max_iterations``
     updates (the last one checked by one more measurement). When fewer than
@@ -243,7 +246,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             before = float(np.sqrt(np.mean(prev["parallax"][common] ** 2))) if common.any() else float("nan")
             after = float(np.sqrt(np.mean(meas["parallax"][common] ** 2))) if common.any() else float("nan")
             row["agreement"] = after / before if before > 0 else float("nan")
-            if not (after <= before) or share < prev["share"] - 0.1:
+            if not (after <= before) or share < (1.0 - MAX_LOST) * prev["share"]:
                 cur, meas = prev_dem, prev           # the update made the pairs agree worse: undo it
                 table[-2]["status"] = "undone"
                 _reference(table[-2], reference, reference_cells, cur, meas["multi"], valid_dem)

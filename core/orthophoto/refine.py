@@ -438,8 +438,9 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
 
 
 #: Below this share of trusted matches among the cells seen by two frames, the pairs
-#: cannot support a refinement of the whole DEM (the log says so).
-MIN_MATCHED_SHARE = 0.3
+#: cannot support a refinement (the log says so): the matches are then more than about
+#: three cells apart, beyond what the fill of a few cells bridges.
+MIN_MATCHED_SHARE = 0.1
 
 
 def plain_warning(matched_share, reasons, sigma_data, sigma_expected):

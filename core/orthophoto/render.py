@@ -242,6 +242,6 @@ def render_frame(scene, camera, *, noise=1.0, seed=0, dz_m=None, bisections=10):
     return img.reshape(io.height, io.width).astype(np.float32)
 
 
-def render_frames(scene, cameras, *, noise=1.0, seed=0):
-    """:func:`render_frame` for every camera (different noise per frame)."""
-    return [render_frame(scene, c, noise=noise, seed=seed + i) for i, c in enumerate(cameras)]
+def render_frames(scene, cameras, *, noise=1.0, seed=0, dz_m=None):
+    """:func:`render_frame` for every camera (different noise per frame, grey levels sd)."""
+    return [render_frame(scene, c, noise=noise, seed=seed + i, dz_m=dz_m) for i, c in enumerate(cameras)]
