@@ -128,7 +128,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         the default object threshold, in height.
     window, shiftable, min_corr : matcher settings (see :func:`~.match.match_along`).
     max_dh_m : float, optional
-        Largest correction searched per iteration; default 0.1 * camera height above the DEM.
+        Largest correction searched per iteration, and the largest total change of a cell;
+        default 0.1 * camera height above the DEM.
     pairs : list of (int, int), optional
         Pairs to match; default every pair that overlaps by ``min_overlap``.
     smooth_cells : int
@@ -275,7 +276,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         corr_full = fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
         corr_full = np.where(np.isfinite(corr_full), corr_full, 0.0)
         prev_dem, prev = cur, meas
-        cur = np.where(valid_dem, cur + float(relaxation) * corr_full, np.nan).astype(np.float32)
+        cur = cur + float(relaxation) * corr_full
+        # no cell moves by more than the search range in total (the accumulated corrections of
+        # several iterations could otherwise exceed what one measurement can see)
+        cur = np.where(valid_dem, np.clip(cur, dem0 - max_dh_m, dem0 + max_dh_m), np.nan).astype(np.float32)
         row["status"] = "applied"
         _reference(row, reference, reference_cells, cur, meas["multi"], valid_dem)
     if "rmse_reference_m" not in table[-1]:
@@ -290,7 +294,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 stop=stop, relaxation=float(relaxation), tolerance_m=float(tolerance_m),
                 max_dh_m=float(max_dh_m), height_threshold_m=float(thr), sigma_data_m=sig,
                 window=window, shiftable=shiftable, min_corr=min_corr,
-                cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"])
+                cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
+                rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
