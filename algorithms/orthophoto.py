@@ -776,7 +776,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                 _warn(feedback, tr("IMAGE_FOLDER: skipped {} file(s) that EXTERIOR does not name: {}.").format(
                     len(skipped), ", ".join(skipped)))
             if isolated:
-                _warn(feedback, tr("Image(s) {} overlap no other image on the DEM: they are not used.").format(isolated))
+                _warn(feedback, tr("Image(s) {} overlap no other image on the DEM: they are not used.").format(
+                    isolated))
             for w in info.warnings:
                 _warn(feedback, w)
             dem = info.read()
