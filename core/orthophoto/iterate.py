@@ -13,7 +13,7 @@ from scipy import ndimage
 
 from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
-from .quality import fill_holes, merge_pairs, nan_median_filter, object_mask
+from .quality import keep_significant, merge_pairs, nan_median_filter, object_mask, spread_corrections
 from .refine import (MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical,
                      plain_warning)
 
@@ -94,8 +94,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     overlapping pair along its base (:func:`orthoparallax`'s matcher), converts the parallax
     to height corrections with the general geometry, keeps the trusted ones (the matcher's
     per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
-    pairs' corrections weighted by correlation, fills gaps of a few cells and adds
-    ``relaxation`` x the correction to the DEM.
+    pairs' corrections weighted by correlation, keeps their smooth part and their detail
+    where it stands out of the noise (:func:`~.quality.keep_significant`), fills gaps of a
+    few cells and adds ``relaxation`` x the correction to the DEM.
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
@@ -128,8 +129,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         the default object threshold, in height.
     window, shiftable, min_corr : matcher settings (see :func:`~.match.match_along`).
     max_dh_m : float, optional
-        Largest correction searched per iteration, and the largest total change of a cell;
-        default 0.1 * camera height above the DEM.
+        Largest correction searched (default 0.1 * camera height above the DEM); after an
+        update the search range is the 99th percentile of the correction just applied (at
+        least 6 x the expected precision). No cell moves by more than ``2 * max_dh_m`` in total.
     pairs : list of (int, int), optional
         Pairs to match; default every pair that overlaps by ``min_overlap``.
     smooth_cells : int
@@ -144,7 +146,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         objects; 0 compares with 0.
     fill_sigma_cells : float
         Reach (Gaussian sigma, cells) of the interpolation of each iteration's correction
-        into unmatched cells; farther cells keep their height.
+        into unmatched cells, fading to 0 (:func:`~.quality.spread_corrections`); farther
+        cells keep their height.
     relaxation : float
         Share of each iteration's correction applied, in (0, 1]; default :data:`RELAXATION`
         = 1 (the whole measured correction: one iteration gives full heights). Below 1
@@ -271,15 +274,18 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             break
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-        # corrections reach unmatched cells within the fill distance; farther cells keep
-        # their height (nothing was measured there)
-        corr_full = fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
-        corr_full = np.where(np.isfinite(corr_full), corr_full, 0.0)
+        dh_it = keep_significant(dh_it, info["sigma_expected_m"], window)
+        # corrections reach unmatched cells within the fill distance, fading out; farther
+        # cells keep their height (nothing was measured there)
+        corr_full = spread_corrections(dh_it, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
         cur = cur + float(relaxation) * corr_full
-        # no cell moves by more than the search range in total (the accumulated corrections of
-        # several iterations could otherwise exceed what one measurement can see)
-        cur = np.where(valid_dem, np.clip(cur, dem0 - max_dh_m, dem0 + max_dh_m), np.nan).astype(np.float32)
+        # no cell moves by more than twice the search range in total
+        cur = np.where(valid_dem, np.clip(cur, dem0 - 2 * max_dh_m, dem0 + 2 * max_dh_m), np.nan).astype(np.float32)
+        # what is left after an update is at most what was just measured: the next search
+        # range is the 99th percentile of |correction| (at least 6 x the expected precision)
+        big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
+        setup["match"]["max_dh_m"] = float(min(max_dh_m, max(big, 6 * info["sigma_expected_m"])))
         row["status"] = "applied"
         _reference(row, reference, reference_cells, cur, meas["multi"], valid_dem)
     if "rmse_reference_m" not in table[-1]:
@@ -408,8 +414,9 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
     refused = share < MIN_MATCHED_SHARE
     if smooth_cells and smooth_cells > 1:
         dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-    full = np.zeros(dem0.shape, np.float32) if refused else fill_holes(dh_it, matched, max_sigma=fill_sigma_cells)
-    cur = np.where(np.isfinite(dem0), dem0 + np.where(np.isfinite(full), full, 0), np.nan).astype(np.float32)
+    dh_it = keep_significant(dh_it, sigma, window)
+    full = np.zeros(dem0.shape, np.float32) if refused else spread_corrections(dh_it, matched, fill_sigma_cells)
+    cur = np.where(np.isfinite(dem0), dem0 + full, np.nan).astype(np.float32)
     rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
     row = dict(iteration=1, rms_correction_m=rms, matched_share=share, pairs=len(pinfo),
                rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),

@@ -9,12 +9,16 @@ module keeps the corrections consistent with their neighbours and with each othe
 * :func:`remove_blunders`: a robust test of each corrected height ``z = DEM + dh`` against
   the median of its neighbours (a spike is a blunder unless a cluster of neighbours
   confirms it, as on the corners of roofs);
+* :func:`keep_significant`: the smooth part of the corrections everywhere, their detail only
+  where it stands out of the noise (the refined DEM gets no rougher than the data support);
 * :func:`merge_pairs`: the correlation-weighted mean of the pairs after dropping the pairs
   that disagree with the median;
 * :func:`ground_trend` and :func:`object_mask`: the smooth ground part of ``dh`` (a median of
   the cells below the threshold, iterated) and the mask of the cells above it, with the
   threshold derived from the spread of the very quantity it is applied to;
-* :func:`fill_holes`: normalised convolution into unmatched cells.
+* :func:`fill_holes`: normalised convolution into unmatched cells;
+* :func:`spread_corrections`: the same, fading to 0 away from the measurements (no step in
+  the DEM where the measurements end).
 """
 import math
 import warnings
@@ -24,8 +28,8 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
-__all__ = ["fill_holes", "nan_median_filter", "remove_blunders", "merge_pairs", "ground_trend",
-           "object_mask"]
+__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs", "keep_significant",
+           "ground_trend", "object_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -57,18 +61,45 @@ def fill_holes(values, valid=None, max_sigma=64.0):
     return out.astype(np.float32)
 
 
+def spread_corrections(dh, valid, sigma_cells):
+    """Corrections at every cell: measured where ``valid``, elsewhere fading out.
+
+    An unmatched cell takes the normalised Gaussian mean (sigma ``sigma_cells``) of the
+    measured corrections around it, scaled by the measured share of its neighbourhood over
+    a quarter (cells in a gap of a roof get the whole value, cells far from any measurement
+    get 0): the corrected DEM has no step where the measurements end.
+
+    Returns
+    -------
+    ndarray float32
+        No NaN.
+    """
+    ok = np.asarray(valid, bool) & np.isfinite(dh)
+    z = np.where(ok, dh, 0.0).astype(np.float64)
+    num = ndimage.gaussian_filter(z, sigma_cells, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), sigma_cells, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(den > 1e-6, num / den, 0.0)
+    fade = np.clip(den / 0.25, 0.0, 1.0)
+    return np.where(ok, z, mean * fade).astype(np.float32)
+
+
 def _stack(x, r0, r1, size):
-    """The ``size x size`` neighbourhoods of rows ``r0:r1`` of ``x`` as layers (NaN outside)."""
+    """The ``size x size`` neighbourhoods of rows ``r0:r1`` of ``x`` on the last axis (NaN outside)."""
     h = size // 2
     rows, cols = x.shape
     pad = np.full((r1 - r0 + 2 * h, cols + 2 * h), np.nan, np.float32)
     s0, s1 = max(0, r0 - h), min(rows, r1 + h)
     pad[s0 - (r0 - h):s1 - (r0 - h), h:h + cols] = x[s0:s1]
-    return np.stack([pad[i:i + r1 - r0, j:j + cols] for i in range(size) for j in range(size)])
+    return np.stack([pad[i:i + r1 - r0, j:j + cols] for i in range(size) for j in range(size)], axis=-1)
 
 
 def nan_median_filter(x, size=5, *, tolerance=None):
     """Median of the finite values in the ``size x size`` window of every cell.
+
+    For an even number of finite values, the upper of the two middle ones. The missing
+    values of a window are set alternately to +inf and -inf, so the middle element of the
+    whole window (one partition, no sort) is the median of the finite ones.
 
     Parameters
     ----------
@@ -97,19 +128,21 @@ def nan_median_filter(x, size=5, *, tolerance=None):
     cnt = np.zeros(x.shape, np.int16)
     sup = np.zeros(x.shape, np.int16) if tolerance is not None else None
     tol = None if tolerance is None else np.broadcast_to(np.asarray(tolerance, np.float32), x.shape)
+    mid = size * size // 2
     for r0 in range(0, x.shape[0], _BAND_ROWS):
         r1 = min(x.shape[0], r0 + _BAND_ROWS)
         s = _stack(x, r0, r1, size)
-        n = np.count_nonzero(np.isfinite(s), axis=0)
+        nan = np.isnan(s)
+        n = size * size - np.count_nonzero(nan, axis=-1)
         if sup is not None:
             with np.errstate(invalid="ignore"):
-                agree = np.abs(s - x[r0:r1]) <= tol[r0:r1]
-            sup[r0:r1] = np.count_nonzero(agree, axis=0) - np.isfinite(x[r0:r1])
-        s.sort(axis=0)                                         # NaN last
-        lo = np.take_along_axis(s, np.maximum(n - 1, 0)[None] // 2, axis=0)[0]
-        hi = np.take_along_axis(s, (n // 2)[None], axis=0)[0] if size > 1 else lo
-        hi = np.where(n % 2 == 1, lo, hi)
-        med[r0:r1] = np.where(n > 0, 0.5 * (lo + hi), np.nan)
+                agree = np.abs(s - x[r0:r1, :, None]) <= tol[r0:r1, :, None]
+            sup[r0:r1] = np.count_nonzero(agree, axis=-1) - np.isfinite(x[r0:r1])
+        odd = (np.cumsum(nan, axis=-1, dtype=np.int16) % 2).astype(bool)
+        s[nan & odd] = np.inf
+        s[nan & ~odd] = -np.inf
+        m = np.partition(s, mid, axis=-1)[..., mid]
+        med[r0:r1] = np.where(n > 0, m, np.nan)
         cnt[r0:r1] = n
     return (med, cnt, sup) if sup is not None else (med, cnt)
 
@@ -187,6 +220,36 @@ def merge_pairs(dhs, cors, outlier_m):
         dh = np.where(den > 0, np.nansum(np.where(W > 0, D, 0) * W, axis=0) / den, np.nan)
         q = np.where(den > 0, np.nansum(np.nan_to_num(C) * W, axis=0) / den, np.nan)
     return dh.astype(np.float32), q.astype(np.float32)
+
+
+def keep_significant(dh, sigma_m, scale_cells, k=3.0):
+    """The smooth part of the corrections, plus their detail where it is significant.
+
+    Each correction measures an average over the correlation window, with noise of sd
+    ``sigma_m``; applied cell by cell, that noise becomes speckle in the DEM. The smooth part
+    is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells / 2`` (about the
+    window), whose noise is several times smaller; the detail ``dh - smooth`` is kept only
+    where ``|detail| > k * sigma_m`` (an object, a step the window resolves) and dropped
+    elsewhere. With precise corrections (``sigma_m`` small) nearly all detail stays.
+
+    Returns
+    -------
+    ndarray float32
+        NaN where ``dh`` is NaN.
+    """
+    dh = np.asarray(dh, np.float32)
+    ok = np.isfinite(dh)
+    if not ok.any():
+        return dh
+    s = max(0.5, float(scale_cells) / 2.0)
+    num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = np.where(den > 1e-3, num / den, np.nan)
+    detail = dh - smooth
+    with np.errstate(invalid="ignore"):
+        out = np.where(np.abs(detail) > k * float(sigma_m), dh, smooth)
+    return np.where(ok, out, np.nan).astype(np.float32)
 
 
 def _block_median(x, b):

@@ -46,7 +46,7 @@ def test_nan_median_filter_exact():
     med, cnt = nan_median_filter(x, 3)
     assert cnt.tolist() == [[4, 5, 3], [5, 7, 5], [3, 5, 4]]
     assert med[1, 1] == np.median([1, 2, 4, 100, 6, 8, 9]) == 6
-    assert med[0, 0] == np.median([1, 2, 4, 100]) == 3
+    assert med[0, 0] == 4                              # [1, 2, 4, 100]: the upper middle value
     med, cnt, sup = nan_median_filter(x, 3, tolerance=2.0)
     assert sup[1, 1] == 0 and sup[0, 0] == 1          # 100 agrees with none; 1 with 2
     with pytest.raises(ValueError, match="odd"):
@@ -195,15 +195,12 @@ def test_iterations_never_make_it_worse_and_edges_stay_bounded(clean_three):
     rises from one kept update to the next; building edges do not fatten with iterations;
     RELAXATION scales the first step."""
     sc, cams, imgs, one = clean_three
-    r = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=3, relaxation=0.5,
-                    reference=sc.surface)
+    half = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=1, relaxation=0.5)
+    ratio = np.nanmedian(half.dh[sc.labels > 0]) / np.nanmedian(one.dh[sc.labels > 0])
+    assert ratio == pytest.approx(0.5, abs=0.05)          # one half step
+    r = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=3, reference=sc.surface)
     t = r.table
     assert r.info["stop"] and t[0]["status"] == "applied"
-    ratio = np.nanmedian(r.dh[sc.labels > 0]) / np.nanmedian(one.dh[sc.labels > 0])
-    if r.info["iterations"] == 1:
-        assert ratio == pytest.approx(0.5, abs=0.05)      # one half step
-    else:
-        assert ratio > 0.7, ratio                          # 0.5, then 0.75, ...
     for k, row in enumerate(t[:-1]):
         if row["status"] == "applied":
             assert t[k + 1]["agreement"] < 1 or t[k + 1]["status"] == "undone"
