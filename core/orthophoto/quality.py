@@ -227,10 +227,10 @@ def keep_significant(dh, sigma_m, scale_cells, k=3.0):
 
     Each correction measures an average over the correlation window, with noise of sd
     ``sigma_m``; applied cell by cell, that noise becomes speckle in the DEM. The smooth part
-    is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells / 2`` (about the
-    window), whose noise is several times smaller; the detail ``dh - smooth`` is kept only
-    where ``|detail| > k * sigma_m`` (an object, a step the window resolves) and dropped
-    elsewhere. With precise corrections (``sigma_m`` small) nearly all detail stays.
+    is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells`` (the window), whose
+    noise is several times smaller; the detail ``dh - smooth`` is kept only where
+    ``|detail| > k * sigma_m`` in a region that holds a square of ``scale_cells // 2 + 1``
+    cells (an object or a step the window resolves) and dropped elsewhere. With precise corrections (``sigma_m`` small) nearly all detail stays.
 
     Returns
     -------
@@ -241,14 +241,19 @@ def keep_significant(dh, sigma_m, scale_cells, k=3.0):
     ok = np.isfinite(dh)
     if not ok.any():
         return dh
-    s = max(0.5, float(scale_cells) / 2.0)
+    s = max(0.5, float(scale_cells))
     num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
     den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = np.where(den > 1e-3, num / den, np.nan)
     detail = dh - smooth
     with np.errstate(invalid="ignore"):
-        out = np.where(np.abs(detail) > k * float(sigma_m), dh, smooth)
+        sig = np.abs(detail) > k * float(sigma_m)
+    # the matcher cannot resolve features narrower than about half its window: significant
+    # detail must hold a square of that side
+    side = max(1, int(scale_cells) // 2 + 1)
+    sig = ndimage.binary_opening(sig, structure=np.ones((side, side), bool))
+    out = np.where(sig, dh, smooth)
     return np.where(ok, out, np.nan).astype(np.float32)
 
 
