@@ -295,8 +295,8 @@ class OrthoAlgorithm(BaseAlgorithm):
                  "A cell is an object when dh exceeds its ground trend by this (metres). Empty: 3 x the "
                  "larger of the expected precision (0.2 cell of parallax converted to height) and the "
                  "robust spread of dh about its trend on the ground.", optional=True, minValue=0.0),
-            _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.1 x H]",
-                 "Largest |dh| the matching searches for (metres); empty: a tenth of the camera height "
+            _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.2 x H]",
+                 "Largest |dh| the matching searches for (metres); empty: a fifth of the camera height "
                  "above the DEM.", optional=True, minValue=0.0, advanced=True),
             _num(self.OBJECT_SIZE_M, "Largest object width (m)",
                  "The object mask compares dh with its ground trend (the median of the ground cells over "
@@ -429,7 +429,7 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             "<li><b>WINDOW_CELLS</b> (odd, default 7), <b>MIN_CORRELATION</b> (default 0.6): matching.</li>"
             "<li><b>HEIGHT_THRESHOLD_M</b>: object threshold on dh; empty: 3 x the larger of the expected "
             "precision (0.2 cell of parallax in height) and the robust spread of dh.</li>"
-            "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.1 H) and the "
+            "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.2 H) and the "
             "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
             "DEM where the orthophotos do not overlap).</li>"

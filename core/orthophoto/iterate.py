@@ -129,7 +129,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         the default object threshold, in height.
     window, shiftable, min_corr : matcher settings (see :func:`~.match.match_along`).
     max_dh_m : float, optional
-        Largest correction searched (default 0.1 * camera height above the DEM); after an
+        Largest correction searched (default 0.2 * camera height above the DEM); after an
         update the search range is the 99th percentile of the correction just applied (at
         least 6 x the expected precision). No cell moves by more than ``2 * max_dh_m`` in total.
     pairs : list of (int, int), optional
@@ -217,7 +217,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     if not hgt > 0:
         raise ValueError("the cameras are not above the DEM; check the camera Z and the DEM datum.")
     if max_dh_m is None:
-        max_dh_m = 0.1 * hgt
+        max_dh_m = 0.2 * hgt
     if antialias:
         greys = [_antialias(g, c, dem0, transform) for g, c in zip(greys, cameras)]
     setup = dict(greys=greys, cameras=cameras, transform=transform, valid=valid_dem, pairs=pairs,
@@ -381,7 +381,7 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
                          "height_m (H) for eq. 18.")
     parallax_to_dh_vertical(1.0, base_m, height_m)                      # validates B and H
     if max_dh_m is None:
-        max_dh_m = 0.1 * float(height_m)
+        max_dh_m = 0.2 * float(height_m)
     orthos = []
     for img, tp in zip(images, tie_points):
         tr8 = tp if isinstance(tp, Bilinear8) else fit_bilinear8(*tp)

@@ -367,7 +367,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     min_corr : float
         Correlation threshold.
     max_dh_m : float, optional
-        Largest |dh| searched; default 0.1 * H (the camera height above the DEM).
+        Largest |dh| searched; default 0.2 * H (the camera height above the DEM): objects up to a fifth of it.
     height_threshold_m : float, optional
         Object threshold on ``dh - trend``; default ``3 * max(expected precision, robust sd
         of dh - trend on the ground)``, the expected precision being ``precision_cells`` of
@@ -408,7 +408,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
             hgt = min(float(np.asarray(c, float)[2]) for c in centres) - float(np.nanmedian(dem))
         else:
             hgt = float(height_m)
-        max_dh_m = 0.1 * hgt
+        max_dh_m = 0.2 * hgt
     if not max_dh_m > 0:
         raise ValueError(f"max_dh_m must be > 0; got {max_dh_m}.")
     dh, corr, _, info = match_pair(a, b, dem, transform, both, centres=centres, base_m=base_m,
