@@ -263,6 +263,8 @@ class OrthoAlgorithm(BaseAlgorithm):
     """Shared parameters and outputs of the two orthophoto algorithms."""
 
     GROUP, GROUP_NAME = "orthophoto", "Orthophoto refinement"
+    TAGS = ("orthophoto", "orthorectification", "DEM", "DTM", "DSM", "ground", "terrain", "image matching",
+            "parallax", "stereo", "photogrammetry", "aerial images", "refinement")
     DEM = "DEM"
     BASE_M, HEIGHT_M, BASE_DIRECTION_DEG = "BASE_M", "HEIGHT_M", "BASE_DIRECTION_DEG"
     WINDOW_CELLS, MIN_CORRELATION, HEIGHT_THRESHOLD_M = "WINDOW_CELLS", "MIN_CORRELATION", "HEIGHT_THRESHOLD_M"
@@ -433,8 +435,8 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
             "DEM where the orthophotos do not overlap).</li>"
-            f"<li><b>OUTPUT_DH</b>: {DH_HELP}</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li>"
-            f"<li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li></ul>")
+            "<li><b>OUTPUT_DH</b>: {}</li><li><b>OUTPUT_QUALITY</b>: {}</li>"
+            "<li><b>OUTPUT_MASK</b>: {}</li></ul>").format(tr(DH_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         for key, label in ((self.ORTHO_A, "Orthophoto A"), (self.ORTHO_B, "Orthophoto B")):
@@ -549,7 +551,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "and adds RELAXATION x the correction to the DEM. Each update is checked by the next "
             "measurement: an update that makes the pairs agree worse is undone and the iteration stops; it "
             "also stops when the agreement improves by less than 5 %, when the RMS correction is below "
-            "TOLERANCE_M, or after MAX_ITERATIONS updates. When fewer than 30 % of the cells seen by two "
+            "TOLERANCE_M, or after MAX_ITERATIONS updates. When fewer than 10 % of the cells seen by two "
             "frames can be matched with confidence (weak texture, noise), the log says why and the DEM is "
             "kept; cells far from any trusted match keep their height. Without orientation, "
             "TIE_POINTS registers orthophotos to the DEM by the 8-parameter bilinear transformation "
@@ -563,9 +565,9 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<li><b>EXTERIOR</b>: CSV (comma, tab or space separated, header) with one row per image: "
             "<code>filename,x,y,z,omega,phi,kappa</code> (orthority's xyz_opk format; an optional "
             "<code>camera</code> column names the interior orientation). x, y, z: projection centre in "
-            f"the DEM's CRS. {OPK_HELP}</li>"
-            "<li><b>INTERIOR</b>: interior orientation, orthority YAML <code>{camera id: {type: pinhole|brown, "
-            "im_size: [w, h], focal_len, sensor_size: [w, h], cx, cy, k1, k2, k3, p1, p2}}</code> "
+            "the DEM's CRS. {}</li>"
+            "<li><b>INTERIOR</b>: interior orientation, orthority YAML <code>{{camera id: {{type: pinhole|brown, "
+            "im_size: [w, h], focal_len, sensor_size: [w, h], cx, cy, k1, k2, k3, p1, p2}}}}</code> "
             "(focal length in the units of the sensor size, or normalised by the larger image side without "
             "it; cx, cy principal-point offsets normalised by the larger side; Brown k1 k2 k3 radial, p1 p2 "
             "tangential), or an OpenSfM <code>reconstruction.json</code> (its cameras).</li>"
@@ -578,13 +580,14 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>: as in orthoparallax.</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the refined DEM.</li>"
             "<li><b>OUTPUT_DH</b>: total correction, refined minus input (m), NaN where fewer than two frames "
-            f"see.</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li><li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li>"
+            "see.</li><li><b>OUTPUT_QUALITY</b>: {}</li><li><b>OUTPUT_MASK</b>: {}</li>"
             "<li><b>OUTPUT_ORTHO_FOLDER</b>: the orthophotos of the last iteration, one Float32 GeoTIFF "
             "'&lt;image&gt;_ortho.tif' per image on the DEM's grid.</li>"
             "<li><b>OUTPUT_TABLE</b>: CSV, one row per measurement: RMS correction (m), share of the cells seen "
             "by two frames with a trusted match, pairs, RMS residual parallax (m), agreement (RMS parallax on "
             "the cells matched now and before, over its value before: below 1 the last update helped), status "
-            "(applied, undone, measured), mean correlation; also in the log.</li></ul>")
+            "(applied, undone, measured), mean correlation; also in the log.</li></ul>").format(
+                tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.DEM, tr("Starting DEM")),
