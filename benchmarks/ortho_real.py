@@ -23,14 +23,18 @@ import time
 import warnings
 
 import numpy as np
+from _common import data_dir, setup_path
 from scipy import ndimage
 
-from _common import data_dir, setup_path
-
 setup_path()
-from bare_earth.core.orthophoto import (cameras_from_opk, orthorectify, orthorefine,  # noqa: E402
-                                        read_interior_yaml, read_opensfm_reconstruction,
-                                        read_opk_csv)
+from bare_earth.core.orthophoto import (  # noqa: E402
+    cameras_from_opk,
+    orthorectify,
+    orthorefine,
+    read_interior_yaml,
+    read_opensfm_reconstruction,
+    read_opk_csv,
+)
 
 
 def _read(path):

@@ -10,9 +10,17 @@ render        synthetic textured scenes and frames with known truth
 affine8       eq. 17: 8-parameter bilinear DEM <-> orthophoto transformation (no orientation)
 """
 from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
-from .camera import (Camera, Interior, cameras_from_opk, opk_to_rotation, read_cameras,
-                     read_interior_yaml, read_opensfm_reconstruction, read_opk_csv,
-                     rotation_to_opk)
+from .camera import (
+                     Camera,
+                     Interior,
+                     cameras_from_opk,
+                     opk_to_rotation,
+                     read_cameras,
+                     read_interior_yaml,
+                     read_opensfm_reconstruction,
+                     read_opk_csv,
+                     rotation_to_opk,
+)
 from .iterate import RefineResult, orthorefine, overlapping_pairs
 from .match import MatchResult, match_along, match_rectified, ncc_volume
 from .orthorectify import grid_xy, orthorectify, visibility

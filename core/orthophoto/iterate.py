@@ -14,8 +14,7 @@ from scipy import ndimage
 from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
 from .quality import keep_significant, merge_pairs, nan_median_filter, object_mask, spread_corrections
-from .refine import (MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical,
-                     plain_warning)
+from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
 
 __all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MIN_GAIN"]
 

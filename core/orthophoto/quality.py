@@ -28,7 +28,8 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
-__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs", "keep_significant",
+__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs",
+           "keep_significant",
            "ground_trend", "object_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
@@ -230,7 +231,8 @@ def keep_significant(dh, sigma_m, scale_cells, k=3.0):
     is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells`` (the window), whose
     noise is several times smaller; the detail ``dh - smooth`` is kept only where
     ``|detail| > k * sigma_m`` in a region that holds a square of ``scale_cells // 2 + 1``
-    cells (an object or a step the window resolves) and dropped elsewhere. With precise corrections (``sigma_m`` small) nearly all detail stays.
+    cells (an object or a step the window resolves) and dropped elsewhere. With precise
+    corrections (``sigma_m`` small) nearly all detail stays.
 
     Returns
     -------

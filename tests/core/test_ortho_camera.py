@@ -4,9 +4,16 @@ import math
 import numpy as np
 import pytest
 
-from bare_earth.core.orthophoto.camera import (Camera, Interior, cameras_from_opk, opk_to_rotation,
-                                               read_interior_yaml, read_opensfm_reconstruction,
-                                               read_opk_csv, rotation_to_opk)
+from bare_earth.core.orthophoto.camera import (
+    Camera,
+    Interior,
+    cameras_from_opk,
+    opk_to_rotation,
+    read_interior_yaml,
+    read_opensfm_reconstruction,
+    read_opk_csv,
+    rotation_to_opk,
+)
 from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify
 
 

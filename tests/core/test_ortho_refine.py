@@ -4,8 +4,14 @@ import pytest
 from scipy import ndimage
 
 from bare_earth.core.codes import NODATA, OBJECT
-from bare_earth.core.orthophoto import (fill_holes, orthoparallax, orthorefine, parallax_to_dh,
-                                        parallax_to_dh_vertical, view_vectors)
+from bare_earth.core.orthophoto import (
+    fill_holes,
+    orthoparallax,
+    orthorefine,
+    parallax_to_dh,
+    parallax_to_dh_vertical,
+    view_vectors,
+)
 from bare_earth.core.orthophoto.orthorectify import orthorectify
 from bare_earth.core.orthophoto.render import make_ortho_scene, render_frames, vertical_cameras
 
@@ -144,8 +150,8 @@ def test_progress_can_cancel(scene2):
 def test_drone_orthophotos_line_up_on_their_dsm(shared_data):
     """Real chain (OPK, Brown, collinearity): orthophotos made with the DSM agree."""
     from osgeo import gdal
-    from bare_earth.core.orthophoto.camera import (cameras_from_opk, read_opensfm_reconstruction,
-                                                   read_opk_csv)
+
+    from bare_earth.core.orthophoto.camera import cameras_from_opk, read_opensfm_reconstruction, read_opk_csv
     d = shared_data / "stereo" / "orthority"
     ds = gdal.Open(str(d / "odm" / "odm_dem" / "dsm.tif"))
     dsm = ds.ReadAsArray().astype(np.float32)

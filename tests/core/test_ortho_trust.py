@@ -11,11 +11,23 @@ import pytest
 from scipy import ndimage
 
 from bare_earth.core.codes import NODATA, OBJECT
-from bare_earth.core.orthophoto import (make_ortho_scene, match_along, orthoparallax, orthorefine,
-                                        orthorectify, render_frames, vertical_cameras)
+from bare_earth.core.orthophoto import (
+    make_ortho_scene,
+    match_along,
+    orthoparallax,
+    orthorectify,
+    orthorefine,
+    render_frames,
+    vertical_cameras,
+)
 from bare_earth.core.orthophoto.match import REASONS
-from bare_earth.core.orthophoto.quality import (ground_trend, merge_pairs, nan_median_filter,
-                                                object_mask, remove_blunders)
+from bare_earth.core.orthophoto.quality import (
+    ground_trend,
+    merge_pairs,
+    nan_median_filter,
+    object_mask,
+    remove_blunders,
+)
 
 
 def _scene(seed, contrast=0.3125):
