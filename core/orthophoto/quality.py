@@ -63,12 +63,12 @@ def fill_holes(values, valid=None, max_sigma=64.0):
 
 
 def spread_corrections(dh, valid, sigma_cells):
-    """Corrections at every cell: measured where ``valid``, elsewhere fading out.
+    """Corrections at every cell: measured where ``valid``, elsewhere filled, then fading out.
 
     An unmatched cell takes the normalised Gaussian mean (sigma ``sigma_cells``) of the
-    measured corrections around it, scaled by the measured share of its neighbourhood over
-    a quarter (cells in a gap of a roof get the whole value, cells far from any measurement
-    get 0): the corrected DEM has no step where the measurements end.
+    measured corrections around it: the whole value within ``2 * sigma_cells`` cells of a
+    measurement (gaps next to walls, occlusions), fading linearly to 0 at ``4 * sigma_cells``
+    (the corrected DEM has no step where the measurements end); farther cells get 0.
 
     Returns
     -------
@@ -76,12 +76,15 @@ def spread_corrections(dh, valid, sigma_cells):
         No NaN.
     """
     ok = np.asarray(valid, bool) & np.isfinite(dh)
+    if not ok.any():
+        return np.zeros(np.shape(dh), np.float32)
     z = np.where(ok, dh, 0.0).astype(np.float64)
     num = ndimage.gaussian_filter(z, sigma_cells, mode="nearest")
     den = ndimage.gaussian_filter(ok.astype(np.float64), sigma_cells, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(den > 1e-6, num / den, 0.0)
-    fade = np.clip(den / 0.25, 0.0, 1.0)
+        mean = np.where(den > 1e-9, num / den, 0.0)
+    dist = ndimage.distance_transform_edt(~ok)
+    fade = np.clip((4.0 * sigma_cells - dist) / (2.0 * sigma_cells), 0.0, 1.0)
     return np.where(ok, z, mean * fade).astype(np.float32)
 
 
