@@ -442,8 +442,10 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             "precision (0.2 cell of parallax in height) and the robust spread of dh.</li>"
             "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.2 H) and the "
             "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
-            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
-            "DEM where the orthophotos do not overlap).</li>"
+            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus the trusted dh (gaps of a few cells "
+            "interpolated; the input DEM where nothing was measured or the orthophotos do not overlap). Only "
+            "matches with a distinct correlation peak, left-right agreement and texture enough against the "
+            "noise are trusted; when fewer than 10 % of the cells are, the log says why.</li>"
             "<li><b>OUTPUT_DH</b>: {}</li><li><b>OUTPUT_QUALITY</b>: {}</li>"
             "<li><b>OUTPUT_MASK</b>: {}</li></ul>").format(tr(DH_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
