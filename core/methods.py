@@ -80,7 +80,7 @@ class Method:
 
 
 # Modules that define METHOD, in the order the plugin lists them.
-_MODULES = ["slope_profile", "curvature", "rascor", "geodesic", "morphology"]
+_MODULES = ["dtm", "slope_profile", "curvature", "rascor", "geodesic", "morphology"]
 
 
 def available_methods():
