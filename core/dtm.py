@@ -238,6 +238,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
         del res, mk, g
     n = len(meths)
     need = n // 2 + 1
+    info["rule"] = f"ground where at least {need} of the {n} members say ground"
     mask = np.where(ground_votes >= need, GROUND, np.where(low_votes >= need, LOW, OBJECT)).astype(np.uint8)
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
@@ -273,10 +274,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
 
 
 def _run(z, cell_size, progress=None, input_description=None, **params):
-    res = filter_dtm(z, cell_size, progress=progress, **params)
-    if input_description:
-        res.info.update({f"input_{k}": v for k, v in input_description.items()})
-    return res
+    """Registry entry: the input's description is for the log (it is in the parameters used)."""
+    return filter_dtm(z, cell_size, progress=progress, **params)
 
 
 METHOD = Method(
