@@ -133,11 +133,13 @@ def _as_bool(a, shape, name):
     return a if a.any() else None
 
 
-def _box_mean(a, r, valid):
-    """Mean of ``a`` over the valid cells of a (2r+1)^2 window."""
+def _box_mean(a, r, valid, all_valid):
+    """Mean of ``a`` over the valid cells of a (2r+1)^2 window (reflected at the raster's edges)."""
     size = 2 * r + 1
-    num = ndimage.uniform_filter(np.where(valid, a, 0).astype(np.float32), size, mode="constant")
-    den = ndimage.uniform_filter(valid.astype(np.float32), size, mode="constant")
+    if all_valid:
+        return ndimage.uniform_filter(a.astype(np.float32, copy=False), size, mode="reflect")
+    num = ndimage.uniform_filter(np.where(valid, a, 0).astype(np.float32), size, mode="reflect")
+    den = ndimage.uniform_filter(valid.astype(np.float32), size, mode="reflect")
     return num / np.maximum(den, 1e-6)
 
 
@@ -170,13 +172,14 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     half = n / 2.0
     a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
     t = max(float(tolerance_m), 1e-3)
-    zz = np.where(valid, z, 0.0).astype(np.float32)
-    dd = np.where(valid, dtm, 0.0).astype(np.float32)
-    local = _box_mean(dd, 1, valid)
+    all_valid = bool(valid.all())
+    zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
+    dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
+    local = _box_mean(dd, 1, valid, all_valid)
     m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
     m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
     m = np.where(ground, m_ground, m_object)
-    share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid)
+    share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
     s = np.where(ground, share_ground, 1.0 - share_ground)
     conf = np.rint(100.0 * (a + m + s) / 3.0)
     out = np.clip(conf, 0, 100).astype(np.uint8)
