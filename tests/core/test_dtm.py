@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from bare_earth.core import dtm as D
+from bare_earth.core import dtm as dtm_method
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, NODATA, OBJECT
 from bare_earth.core.methods import available_methods
@@ -33,7 +33,7 @@ def test_majority_of_members():
     p = res.info["params"]["members"]
     votes = sum((pipeline.run_array(n, s.dsm, 1.0, params={k: v for k, v in p[n].items()
                                                           if k in {q.name for q in available_methods()[n].params}})
-                 .mask == GROUND).astype(int) for n in D.MEMBERS)
+                 .mask == GROUND).astype(int) for n in dtm_method.MEMBERS)
     valid = np.isfinite(s.dsm)
     assert np.array_equal(res.mask[valid] == GROUND, votes[valid] >= 2)
     assert res.info["rule"].startswith("ground where at least 2 of the 3")
@@ -71,7 +71,7 @@ def test_confidence_map_exact():
     mask = np.zeros((9, 9), np.uint8)
     votes = np.full((9, 9), 3, np.uint8)
     z[4, 4], mask[4, 4], votes[4, 4] = 0.5, OBJECT, 1
-    conf = D.confidence_map(z, mask, dtm, votes, 3, 0.5, 1)
+    conf = dtm_method.confidence_map(z, mask, dtm, votes, 3, 0.5, 1)
     assert conf[0, 0] == 100 and conf[4, 4] == round(100 * (1 / 3 + 1 / 9) / 3)
     assert conf[4, 6] == 100 and conf[4, 5] < 100    # the object's neighbours: less support
 
@@ -125,7 +125,7 @@ def test_ground_areas_keep_a_raised_car_park_among_trees():
 
 def test_aux_on_another_grid_refused():
     with pytest.raises(ValueError, match="object_areas"):
-        D.filter_dtm(np.zeros((20, 20), np.float32), 1.0, members={}, tolerance_m=0.5, support_cells=1,
+        dtm_method.filter_dtm(np.zeros((20, 20), np.float32), 1.0, members={}, tolerance_m=0.5, support_cells=1,
                      object_areas=np.ones((5, 5), bool))
 
 
@@ -133,6 +133,6 @@ def test_characterise():
     z = np.zeros((10, 10), np.float32)
     z[:, 5:] = 3.0
     z[0, 0] = np.nan
-    d = D.characterise(z, (2.0, 2.0))
+    d = dtm_method.characterise(z, (2.0, 2.0))
     assert d["cell_m"] == 2.0 and d["valid_share"] == pytest.approx(0.99)
     assert d["rough_share"] == pytest.approx(10 / 89)
