@@ -259,13 +259,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     mask[~valid] = NODATA
     report(progress, 0.85)
     holes = (mask == OBJECT) | (mask == LOW)
-    if not (valid & ~holes).any():
-        raise ValueError("no cell of the DSM was taken as ground: the window holds only objects. Use a larger "
-                         "raster, or mark known ground with GROUND_AREAS.")
-    dtm = fill_gaps(z, fill=holes) if holes.any() else z.astype(np.float32, copy=True)
-    dtm[~valid] = np.nan
+    dtm = None
+    if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
+        dtm = fill_gaps(z, fill=holes) if holes.any() else z.astype(np.float32, copy=True)
+        dtm[~valid] = np.nan
+    else:
+        info["warning"] = "no ground cell in this window: its DTM is left empty"
     report(progress, 0.95)
-    conf = confidence_map(z, mask, dtm, ground_votes, n, tolerance_m, support_cells)
+    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells)
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100

@@ -136,3 +136,14 @@ def test_characterise():
     d = dtm_method.characterise(z, (2.0, 2.0))
     assert d["cell_m"] == 2.0 and d["valid_share"] == pytest.approx(0.99)
     assert d["rough_share"] == pytest.approx(10 / 89)
+
+
+def test_window_without_ground_leaves_its_dtm_empty():
+    """A block lying inside one object has no ground to interpolate from: no DTM, no error."""
+    z = np.full((24, 24), 10.0, np.float32)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    res = dtm_method.filter_dtm(z, 1.0, object_areas=np.ones(z.shape, bool),
+                                **{k: v for k, v in p.items() if k != "input_description"})
+    assert res.dtm is None and (res.mask == OBJECT).all() and (res.extras["confidence"] == 100).all()
+    out = pipeline.run_array("dtm", z, 1.0, aux={"object_areas": np.ones(z.shape, bool)})
+    assert np.isnan(out.dtm).all()
