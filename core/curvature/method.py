@@ -112,7 +112,8 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
                                      progress=sub_progress(progress, 0.55, 0.65))
     # 5. final pass against the ground interpolated under objects and breaks (twice)
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
-                                h_min=s.h_min, tol=s.tol, progress=sub_progress(progress, 0.65, 1.0))
+                                h_min=s.h_min, tol=s.tol, max_size=s.max_size,
+                                progress=sub_progress(progress, 0.65, 1.0))
     info = _info(s, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": breaks.curvature}, info=info, surface=surface)
