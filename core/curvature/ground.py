@@ -78,8 +78,6 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     ``progress(fraction)`` as the work goes.
     """
     h, w = z.shape
-    rx, ry = reach
-    dx, dy = cell_size
     known = ~holes
     known &= np.isfinite(z)
     out = np.empty((h, w), np.float32) if out is None else out
@@ -88,62 +86,69 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     if cells.size == 0:
         report(progress, 1.0)
         return out
-    r, c = np.divmod(cells, w)
-    r = r.astype(np.int32)
-    c = c.astype(np.int32)
     # nearest known column left/right (X profile) and row above/below (Y profile) of each cell
-    left, right, up, down = _profile_ends(known, cells, r, c, sub_progress(progress, 0.0, 0.7))
+    left, right, up, down = _profile_ends(known, cells, sub_progress(progress, 0.0, 0.6))
+    del known
     zf = z.ravel()
-    num = np.zeros(cells.size, np.float32)
-    den = np.zeros(cells.size, np.float32)
-    rowbase = r * np.intp(w)                # flat indices in intp, whatever the raster's size
-    for lo, hi, pos, lim, step, to_flat in ((left, right, c, rx, dx, lambda q: rowbase + q),
-                                              (up, down, r, ry, dy, lambda q: q * np.intp(w) + c)):
-        a = np.minimum(pos - lo, lim + 1)  # cells to the end before (left / above)
-        b = np.minimum(hi - pos, lim + 1)  # cells to the end after (right / below)
-        ok_a, ok_b = a <= lim, b <= lim
-        za = zf.take(to_flat(np.where(ok_a, lo, pos)))
-        zb = zf.take(to_flat(np.where(ok_b, hi, pos)))
-        both = ok_a & ok_b
-        span = (a + b).astype(np.float32)
-        span *= np.float32(step)
-        wgt = np.float32(1.0) / (span * span)
-        # the straight line between the two ends: (b za + a zb) / (a + b)
-        v = za * b.astype(np.float32)
-        v += zb * a.astype(np.float32)
-        v /= (a + b).astype(np.float32)
-        np.copyto(v, 0, where=~both)
-        num += np.where(both, wgt * v, 0)
-        den += np.where(both, wgt, 0)
-    two = den > 0
-    # no profile with two ends: the ends found, by 1 / distance^2
-    one = np.flatnonzero(~two)
-    if one.size:
-        n1 = np.zeros(one.size, np.float32)
-        d1 = np.zeros(one.size, np.float32)
-        ro, co = r.take(one), c.take(one)
-        for end, pos, lim, step, flat in ((left.take(one), co, rx, dx, lambda q: ro * np.intp(w) + q),
-                                          (right.take(one), co, rx, dx, lambda q: ro * np.intp(w) + q),
-                                          (up.take(one), ro, ry, dy, lambda q: q * np.intp(w) + co),
-                                          (down.take(one), ro, ry, dy, lambda q: q * np.intp(w) + co)):
-            dist = np.minimum(np.abs(end - pos), lim + 1)
-            ok = dist <= lim
-            dm = dist.astype(np.float32) * np.float32(step)
-            wgt = np.where(ok, np.float32(1.0) / (dm * dm), 0)    # dist >= 1: a hole is not known
-            n1 += np.where(ok, wgt * zf.take(flat(np.where(ok, end, pos))), 0)   # not NaN * 0
-            d1 += wgt
-        some = d1 > 0
-        num[one[some]] = n1[some]
-        den[one[some]] = d1[some]
-    found = den > 0
-    cells = cells[found]
+    val = np.empty(cells.size, np.float32)
+    found = np.empty(cells.size, bool)
+    step = CHUNK_CELLS                     # cache-sized chunks of the cells
+    for i0 in range(0, cells.size, step):
+        sl = slice(i0, i0 + step)
+        _along_profiles(zf, w, cells[sl], left[sl], right[sl], up[sl], down[sl], reach, cell_size,
+                        val[sl], found[sl])
+        report(progress, 0.6 + 0.2 * min(i0 + step, cells.size) / cells.size)
+    del left, right, up, down
+    cells, val = cells[found], val[found]
     res = out.ravel()
-    res[cells] = num[found] / den[found]
-    del r, c, left, right, up, down, num, den
+    res[cells] = val
+    del val
     if smooth > 0:
         res[cells] = _window_mean(out, cells, smooth, sub_progress(progress, 0.8, 1.0))
     report(progress, 1.0)
     return out
+
+
+def _along_profiles(zf, w, cells, left, right, up, down, reach, cell_size, val, found):
+    """The heights :func:`_ground_surface` gives the flat ``cells`` (a chunk) into ``val``
+    (``found``: False where no profile end lies within the reach) from the ends of their
+    profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the raster's width."""
+    rx, ry = reach
+    dx, dy = cell_size
+    r, c = np.divmod(cells, w)
+    num = np.zeros(cells.size, np.float32)
+    den = np.zeros(cells.size, np.float32)
+    n1 = np.zeros(cells.size, np.float32)  # one-sided ends, by 1 / distance^2
+    d1 = np.zeros(cells.size, np.float32)
+    for lo, hi, pos, lim, step, base, stride in ((left, right, c, rx, dx, r * w, 1),
+                                                 (up, down, r, ry, dy, c, w)):
+        a = np.minimum(pos - lo, lim + 1)  # cells to the end before (left / above)
+        b = np.minimum(hi - pos, lim + 1)  # cells to the end after (right / below)
+        ok_a, ok_b = a <= lim, b <= lim
+        za = zf.take(base + np.where(ok_a, lo, pos) * stride)
+        zb = zf.take(base + np.where(ok_b, hi, pos) * stride)
+        both = ok_a & ok_b
+        fa, fb = a.astype(np.float32), b.astype(np.float32)
+        span = fa + fb
+        # the straight line between the two ends, (b za + a zb) / (a + b), by 1 / span^2
+        v = np.where(both, za * fb + zb * fa, 0)
+        v /= span
+        span *= np.float32(step)
+        wgt = np.where(both, np.float32(1.0) / (span * span), 0)
+        v *= wgt
+        num += v
+        den += wgt
+        for ok, zz, f in ((ok_a, za, fa), (ok_b, zb, fb)):
+            f *= np.float32(step)
+            wgt = np.where(ok, np.float32(1.0) / (f * f), 0)   # f >= 1 cell: a hole is not known
+            n1 += np.where(ok, wgt * zz, 0)                   # not NaN * 0
+            d1 += wgt
+    two = den > 0
+    np.copyto(num, n1, where=~two)
+    np.copyto(den, d1, where=~two)
+    np.greater(den, 0, out=found)
+    den[~found] = 1
+    np.divide(num, den, out=val)
 
 
 def _window_mean(a, cells, k, progress=None):
@@ -184,12 +189,12 @@ def _window_mean(a, cells, k, progress=None):
     return out
 
 
-def _profile_ends(known, cells, r, c, progress=None):
-    """For the flat ``cells`` (rows ``r``, columns ``c``): the column of the nearest known
-    cell left of and right of each on its row, and the row of the nearest known cell above
-    and below it on its column (``-2**30`` / ``2**30`` where there is none). Running maxima
-    and minima of the known cells' indices, by blocks of rows (the column scans carry the
-    last row of a block into the next)."""
+def _profile_ends(known, cells, progress=None):
+    """For the flat ``cells`` (sorted): the column of the nearest known cell left of and
+    right of each on its row, and the row of the nearest known cell above and below it on
+    its column (``-2**30`` / ``2**30`` where there is none). Running maxima and minima of
+    the known cells' indices, by blocks of rows (the column scans carry the last row of a
+    block into the next, row by row: numpy's accumulate along the first axis is slow)."""
     h, w = known.shape
     far = np.int32(1 << 30)
     left = np.empty(cells.size, np.int32)
@@ -200,47 +205,50 @@ def _profile_ends(known, cells, r, c, progress=None):
     cols = np.arange(w, dtype=np.int32)
     rows = np.arange(h, dtype=np.int32)[:, None]
     buf = np.empty((min(step, h), w), np.int32)
-    starts = np.arange(0, h, step) * w
-    bounds = np.searchsorted(cells, np.append(starts, h * w))
-    carry = np.full(w, -far, np.int32)
+    starts = np.arange(0, h, step)
+    bounds = np.searchsorted(cells, np.append(starts * w, h * w))
     n_blocks = len(starts)
-    for k, i0 in enumerate(range(0, h, step)):
+
+    def index_or(kb, idx, none, b):
+        """``idx`` where ``kb``, else ``none``, into ``b`` (a product: faster than a
+        masked copy)."""
+        np.multiply(kb, idx - none, out=b)
+        b += none
+
+    prev = np.full(w, -far, np.int32)
+    for k, i0 in enumerate(starts):
         i1 = min(h, i0 + step)
-        kb = known[i0:i1]
-        b = buf[:i1 - i0]
+        kb, b = known[i0:i1], buf[:i1 - i0]
         s0, s1 = bounds[k], bounds[k + 1]
         lr = cells[s0:s1] - i0 * w
         # X: running max of known columns from the left, running min from the right
-        np.copyto(b, -far)
-        np.copyto(b, cols, where=kb)
+        index_or(kb, cols, -far, b)
         np.maximum.accumulate(b, axis=1, out=b)
         left[s0:s1] = b.ravel().take(lr)
-        np.copyto(b, far)
-        np.copyto(b, cols, where=kb)
+        index_or(kb, cols, far, b)
         np.minimum.accumulate(b[:, ::-1], axis=1, out=b[:, ::-1])
         right[s0:s1] = b.ravel().take(lr)
         # Y, downwards: running max of known rows, from the rows above
-        np.copyto(b, -far)
-        np.copyto(b, rows[i0:i1], where=kb)
-        np.maximum(b[0], carry, out=b[0])
-        np.maximum.accumulate(b, axis=0, out=b)
-        carry[:] = b[-1]
+        index_or(kb, rows[i0:i1], -far, b)
+        for i in range(b.shape[0]):
+            np.maximum(b[i], prev, out=b[i])
+            prev = b[i]
+        prev = prev.copy()
         up[s0:s1] = b.ravel().take(lr)
-        report(progress, 0.5 * (k + 1) / n_blocks)
-    carry[:] = far
+        report(progress, 0.6 * (k + 1) / n_blocks)
+    prev = np.full(w, far, np.int32)
     for k in range(n_blocks - 1, -1, -1):
-        i0 = k * step
+        i0 = starts[k]
         i1 = min(h, i0 + step)
-        kb = known[i0:i1]
-        b = buf[:i1 - i0]
+        kb, b = known[i0:i1], buf[:i1 - i0]
         s0, s1 = bounds[k], bounds[k + 1]
-        np.copyto(b, far)
-        np.copyto(b, rows[i0:i1], where=kb)
-        np.minimum(b[-1], carry, out=b[-1])
-        np.minimum.accumulate(b[::-1], axis=0, out=b[::-1])
-        carry[:] = b[0]
+        index_or(kb, rows[i0:i1], far, b)
+        for i in range(b.shape[0] - 1, -1, -1):
+            np.minimum(b[i], prev, out=b[i])
+            prev = b[i]
+        prev = prev.copy()
         down[s0:s1] = b.ravel().take(cells[s0:s1] - i0 * w)
-        report(progress, 0.5 + 0.5 * (n_blocks - k) / n_blocks)
+        report(progress, 0.6 + 0.4 * (n_blocks - k) / n_blocks)
     return left, right, up, down
 
 
@@ -320,15 +328,14 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         del zs
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
-            # its slope over the window of the local trends (the profile lines' creases
-            # do not count)
-            smooth = surface.copy()
+            # its slope over the window of the local trends (the creases of the profile
+            # lines do not count); d is known, so the surface is averaged in place (the
+            # next pass overwrites it)
             cells = np.flatnonzero(hs)
-            smooth.ravel()[cells] = _window_mean(surface, cells, m)
+            surface.ravel()[cells] = _window_mean(surface, cells, m)
             del cells
-            allow = _allowance(smooth, edge, dx, dy, h_min=h_min, tol=tol,
+            allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol,
                                progress=sub_progress(step, 0.7, 0.85))
-            del smooth
         report(step, 0.85)
         _classify(z, d, allow, objects, concave, mask, tmp, ring=m + 2, h_min=h_min)
         np.not_equal(mask, GROUND, out=holes)
