@@ -731,6 +731,7 @@ def _file_mask(path):
 @pytest.mark.parametrize("name,runs", [
     ("opengeos/dsm.tif", ((256, 1), (129, 1), (None, 2))),
     ("pleiades/triplet_dsm.tif", ((256, 1), (None, 2))),
+    ("pleiades/pair_dsm.tif", ((256, 1), (None, 2))),
 ])
 def test_blocked_and_threaded_equal_one_pass_on_real_dsms(shared_data, tmp_path, name, runs):
     """Real DSMs (the Pleiades triplet: 42 % nodata in networks across the raster): blocks
