@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from bare_earth.core import curvature
-from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.codes import GROUND, LOW, OBJECT
 from bare_earth.core.common import FilterResult
 from bare_earth.core.curvature import derivatives, ground, profiles
 from bare_earth.core.methods import get_method
@@ -215,7 +215,6 @@ def test_extras_info_and_nodata():
     z, truth = building_scene()
     z[0:5, 0:7] = np.nan
     res, P = run(z)
-    assert res.mask.dtype == np.uint8 and (res.mask[0:5, 0:7] == NODATA).all()
     curv = res.extras["curvature"]
     assert curv.shape == (2,) + z.shape and curv.dtype == np.float32
     assert np.isnan(curv[:, 2, 2]).all() and np.isfinite(curv[:, 50, 50]).all()
@@ -224,18 +223,6 @@ def test_extras_info_and_nodata():
     assert res.info["k_g_per_m2"] == P["k_g_per_m2"] > 0
     assert 0 < res.info["share_marked_x"] < 0.5 and 0 < res.info["share_marked_y"] < 0.5
     assert res.surface.shape == z.shape
-    assert (np.asarray(z)[0:5, 0:7] != np.asarray(z)[0:5, 0:7]).all()  # input untouched
-
-
-def test_input_is_not_modified_and_dtypes_agree():
-    z, _ = building_scene()
-    z64 = z.astype(np.float64)
-    before = z64.copy()
-    P = curvature.resolve_curvature_params(z64, 1.0)
-    a = curvature.filter_curvature(z64, 1.0, **P).mask
-    b = curvature.filter_curvature(z, 1.0, **P).mask
-    assert np.array_equal(z64, before)
-    assert np.array_equal(a, b)
 
 
 def test_k_g_is_derived_from_the_data_and_honoured():
@@ -314,14 +301,14 @@ def test_method_spec_matches_the_core():
     assert meth.halo(P, (1.0, 1.0)) >= P["max_object_size_m"] + P["window_cells"]
 
 
-def test_blocks_agree_with_one_pass():
+def test_blocked_curvature_output_agrees_with_one_pass():
+    """The K, H side product blocked (the mask's equality is in test_contract.py)."""
     from bare_earth.core import pipeline
     z, truth = building_scene()
     P = {"max_object_size_m": 40.0}
     one = pipeline.run_array("curvature", z, 1.0, P)
     blk = pipeline.run_array("curvature", z, 1.0, P, block=64)
     assert blk.info["blocks"] > 1
-    assert (one.mask == blk.mask).mean() >= 0.999
     assert np.allclose(one.extras["curvature"], blk.extras["curvature"], equal_nan=True,
                        atol=1e-6)
 
