@@ -28,8 +28,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import isprs  # noqa: E402  (links the repo as the package bare_earth)
 
-from bare_earth.core.morphology import (filter_morphological,  # noqa: E402
-                                        resolve_morphological_params)
+from bare_earth.core.morphology import filter_morphological, resolve_morphological_params  # noqa: E402
 
 
 def scene(side, seed=1):

@@ -4,5 +4,295 @@ and the sampling of a large raster for them.
 One copy of each estimate lives here, public, with a docstring that says what it measures
 and on which surface. Filter modules call these when they derive their defaults (their
 ``resolve_*`` functions); where a method deliberately needs another statistic, its name
-says so.
+says so:
+
+* :func:`sample_windows`: the cells a parameter estimate looks at on a large raster
+  (windows spread over the whole raster; small rasters whole).
+* :func:`block_minima`: the minimum surface of ``k x k`` blocks (objects smaller than a
+  block vanish from it: an approximation of the terrain under them).
+* :func:`terrain_slopes`: slopes (rise/run) of that block-minimum surface.
+* Noise of the DSM (the standard deviation ``sigma`` of its random height error), three
+  robust statistics for three needs:
+
+  - :func:`noise_second_difference`: median of the absolute second differences
+    (a MAD: any surface with fewer than half its cells on edges or objects);
+  - :func:`noise_second_difference_quartile`: lower quartile of the centred absolute
+    second differences (urban or wooded scenes where edges and crowns may cover most
+    of the raster);
+  - :func:`noise_plane_residual`: lower quartile of the residual to the mean of the
+    four neighbours (the plane through them), the same quantity on a 5-cell stencil;
+  - :func:`noise_second_difference_tiles`: the second differences' spread on the smooth
+    parts of the surface (:func:`smooth_spread`: a low quantile of per-tile MADs).
 """
+import math
+
+import numpy as np
+
+#: Cells a parameter estimate looks at on a large raster (:func:`sample_windows`):
+#: medians and quantiles are stable far below that.
+SAMPLE_CELLS = 1_000_000
+#: Side (cells) of the windows :func:`sample_windows` spreads over a large raster.
+SAMPLE_WINDOW = 256
+#: Quantiles of ``|N(0, 1)|``: its median (1 / 1.4826) and its lower quartile.
+_ABS_NORMAL_MEDIAN_INV = 1.4826
+_ABS_NORMAL_QUARTILE = 0.3186
+
+
+def sample_windows(z, cells=SAMPLE_CELLS, side=SAMPLE_WINDOW):
+    """The parts of a raster a parameter estimate looks at.
+
+    ``z`` itself when it has at most ``cells`` cells (or is narrower than two windows),
+    else about ``cells / side**2`` windows of ``side x side`` cells, one centred in each
+    cell of a regular ``ny x nx`` grid over the raster (four windows: centred on the
+    quadrants), so the sample sees all its parts, not only its centre, and keeps away
+    from its edges (nodata collars). Windows are views (no copy), contiguous along their
+    rows, so sampling reads a fraction of the raster.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D
+        The raster (any dtype).
+    cells : int
+        Largest raster used whole, and about the cells sampled from a larger one.
+    side : int
+        Window side, cells.
+
+    Returns
+    -------
+    list of ndarray
+        Views of ``z``.
+    """
+    rows, cols = z.shape
+    if z.size <= cells or rows < 2 * side or cols < 2 * side:
+        return [z]
+    n = max(1, cells // (side * side))
+    ny = max(1, min(rows // side, int(round(np.sqrt(n * rows / cols)))))
+    nx = max(1, min(cols // side, -(-n // ny)))
+    r0 = [int(max(0, min(rows - side, (i + 0.5) / ny * rows - side / 2))) for i in range(ny)]
+    c0 = [int(max(0, min(cols - side, (j + 0.5) / nx * cols - side / 2))) for j in range(nx)]
+    return [z[r:r + side, c:c + side] for r in r0 for c in c0]
+
+
+def block_minima(z, k):
+    """Minimum of every ``k x k`` block of a surface (nodata ignored).
+
+    Blocks start at the raster's origin; the last row and column of blocks may be
+    partial. Non-finite cells (NaN, +-inf) are nodata; a block without a valid cell is
+    NaN. Objects smaller than a block vanish from this surface: on a DSM it
+    approximates the terrain under them.
+
+    Band by band of ``k`` rows: the minimum down the band's columns (contiguous rows,
+    cached), then over each run of ``k`` columns; ``fmin`` ignores NaN without copies.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface.
+    k : int
+        Block side, cells (>= 1).
+
+    Returns
+    -------
+    ndarray of float32, shape ``(ceil(rows / k), ceil(cols / k))``
+    """
+    z = np.asarray(z, np.float32)
+    k = int(k)
+    if k < 1:
+        raise ValueError(f"block side k must be at least 1 cell; got {k}.")
+    if k == 1:
+        return np.where(np.isfinite(z), z, np.float32(np.nan))
+    rows, cols = z.shape
+    nr, nc = -(-rows // k), -(-cols // k)
+    out = np.empty((nr, nc), np.float32)
+    pad = np.full(nc * k, np.nan, np.float32) if cols % k else None
+    has_inf = bool(np.isinf(z).any())
+    for i in range(nr):
+        rows_i = z[i * k:(i + 1) * k]
+        if has_inf:
+            rows_i = np.where(np.isinf(rows_i), np.float32(np.nan), rows_i)
+        band = np.fmin.reduce(rows_i, axis=0)
+        if pad is not None:
+            pad[:cols] = band
+            band = pad
+        out[i] = np.fmin.reduce(band.reshape(nc, k), axis=1)
+    return out
+
+
+def terrain_slopes(z, cell_size, k, min_blocks=2):
+    """Slopes (rise/run) of the terrain under the objects: the gradient magnitude of the
+    block-minimum surface.
+
+    The surface is reduced to the minimum of ``k x k`` blocks (:func:`block_minima`) and
+    its gradient is taken by central differences (``np.gradient``, one-sided at the
+    edges) with the block spacing ``(k dy, k dx)``; its magnitude is the steepest slope
+    of the ground whatever its direction.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata.
+    cell_size : (float, float)
+        ``(dx, dy)``, metres.
+    k : int
+        Block side, cells: larger than the objects to be ignored.
+    min_blocks : int
+        Fewest blocks along each axis for a slope (>= 2); fewer give no slopes.
+
+    Returns
+    -------
+    ndarray of float64, 1-D
+        The finite slopes, one per block (empty when not measurable). Summarise them
+        with the statistic the method needs (median, a percentile).
+    """
+    dx, dy = cell_size
+    m = block_minima(z, k)
+    if min(m.shape) < max(2, int(min_blocks)):
+        return np.empty(0)
+    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
+    s = np.hypot(gx, gy).ravel()
+    return s[np.isfinite(s)]
+
+
+def _second_differences(windows):
+    """Second differences ``z[i-1] - 2 z[i] + z[i+1]`` along the rows then the columns of
+    every window, finite ones only (1-D, the windows' dtype)."""
+    d = []
+    for w in windows:
+        if w.shape[1] > 2:
+            d.append((w[:, :-2] - 2 * w[:, 1:-1] + w[:, 2:]).ravel())
+        if w.shape[0] > 2:
+            d.append((w[:-2] - 2 * w[1:-1] + w[2:]).ravel())
+    d = np.concatenate(d) if d else np.empty(0, np.float32)
+    return d[np.isfinite(d)]
+
+
+def noise_second_difference(z):
+    """Standard deviation of the DSM's random height error, metres: the MAD of the
+    second differences along rows and columns.
+
+    On a smooth surface the second difference ``z[i-1] - 2 z[i] + z[i+1]`` of white
+    noise of standard deviation ``sigma`` has variance ``6 sigma^2``; the median of its
+    absolute value (``1 / 1.4826`` standard deviations for a normal law) ignores edges
+    and objects as long as they cover less than half the cells. Measured on the DSM
+    itself at full resolution, on :func:`sample_windows` of a large raster.
+
+    Returns
+    -------
+    float
+        ``1.4826 median(|d|) / sqrt(6)``; 0 when no second difference exists.
+    """
+    d = _second_differences(sample_windows(np.asarray(z, np.float32)))
+    if d.size == 0:
+        return 0.0
+    return float(_ABS_NORMAL_MEDIAN_INV * np.median(np.abs(d)) / np.sqrt(6.0))
+
+
+def noise_second_difference_quartile(z, default=0.1):
+    """Standard deviation of the DSM's random height error, metres: the lower quartile
+    of the centred absolute second differences along rows and columns.
+
+    As :func:`noise_second_difference`, but from the lower quartile of
+    ``|d - median(d)|`` (``0.3186`` standard deviations for a normal law): only the
+    quietest quarter of the cells sets it, so edges, roofs and crowns may cover most of
+    the raster without moving it. Full resolution, :func:`sample_windows` of a large
+    raster.
+
+    Returns
+    -------
+    float
+        ``quantile_25(|d - median(d)|) / 0.3186 / sqrt(6)``; ``default`` when fewer than
+        10 second differences exist.
+    """
+    d = _second_differences(sample_windows(np.asarray(z, np.float32)))
+    if d.size < 10:
+        return default
+    return float(np.percentile(np.abs(d - np.median(d)), 25) / _ABS_NORMAL_QUARTILE / np.sqrt(6.0))
+
+
+def noise_plane_residual(z, dtype=np.float32, min_count=1, default=0.0):
+    """Standard deviation of the DSM's random height error, metres: the lower quartile of
+    the residual to the mean of the four neighbours.
+
+    The residual ``r = z - mean(4 neighbours)`` vanishes on planes; for white noise of
+    standard deviation ``sigma`` it is normal with standard deviation
+    ``sigma sqrt(1.25)``. Edges, roofs and vegetation inflate ``|r|`` on part of the
+    cells, so the lower quartile of ``|r|`` (``0.3186`` standard deviations) is used:
+    the cleanest quarter of the surface sets the noise. Full resolution,
+    :func:`sample_windows` of a large raster; ``dtype`` is the precision of the
+    arithmetic (float32, the DSM's own, or float64).
+
+    Returns
+    -------
+    float
+        ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``; ``default`` when fewer than
+        ``min_count`` residuals exist.
+    """
+    r = []
+    for w in sample_windows(np.asarray(z, dtype)):
+        if min(w.shape) < 3:
+            continue
+        c = w[1:-1, 1:-1]
+        nb = (w[:-2, 1:-1] + w[2:, 1:-1] + w[1:-1, :-2] + w[1:-1, 2:]) * w.dtype.type(0.25)
+        r.append(np.abs(c - nb)[np.isfinite(c) & np.isfinite(nb)])
+    r = np.concatenate(r) if r else np.empty(0, dtype)
+    if r.size < max(1, min_count):
+        return default
+    return float(np.percentile(r, 25.0)) / _ABS_NORMAL_QUARTILE / math.sqrt(1.25)
+
+
+def smooth_spread(stacks, tile=16, quantile=0.25):
+    """Robust spread of values on the smooth parts of a surface: a low quantile of the
+    per-tile MADs.
+
+    Every stack (``bands x rows x cols``, NaN = nodata) is cut into ``tile x tile``
+    tiles (all bands of a tile together; partial tiles at the far edges left out), the
+    robust spread ``1.4826 MAD`` is taken per tile, and the ``quantile`` of the tiles'
+    spreads (pooled over the stacks) is returned: the spread of the smooth ground and
+    roofs, not inflated by vegetation or by the objects' edges, which may cover most of
+    an urban scene.
+
+    Returns
+    -------
+    float
+        0 when no tile has a finite spread.
+    """
+    mads = []
+    for v in stacks:
+        b, r, c = v.shape
+        tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
+        nr, nc = r // tr, c // tc
+        t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
+        t = t.reshape(nr * nc, -1).astype(np.float64)  # a copy: partitioned in place
+        med = np.median(t, axis=1, keepdims=True, overwrite_input=True)  # nodata: NaN, dropped
+        t -= med
+        np.abs(t, out=t)
+        mad = _ABS_NORMAL_MEDIAN_INV * np.median(t, axis=1, overwrite_input=True)
+        mads.append(mad[np.isfinite(mad)])
+    mad = np.concatenate(mads) if mads else np.empty(0)
+    return float(np.quantile(mad, quantile)) if mad.size else 0.0
+
+
+def noise_second_difference_tiles(z, tile=16, quantile=0.25):
+    """Standard deviation of the DSM's random height error, metres: the spread of the
+    second differences on the smooth parts of the surface.
+
+    The second differences along X and Y at every interior cell (variance ``6 sigma^2``
+    for white noise) are stacked, and their :func:`smooth_spread` (``1.4826 MAD`` per
+    ``tile x tile`` tile, the ``quantile`` of the tiles) is divided by ``sqrt(6)``: the
+    noise of the smooth ground and roofs even where edges and crowns cover most of the
+    cells. Full resolution, :func:`sample_windows` of a large raster.
+
+    Returns
+    -------
+    float
+        0 when the surface (every window) is narrower than 3 cells.
+    """
+    stacks = []
+    for w in sample_windows(np.asarray(z, np.float32)):
+        if min(w.shape) < 3:
+            continue
+        stacks.append(np.stack([(w[1:-1, :-2] - 2 * w[1:-1, 1:-1] + w[1:-1, 2:]),
+                                (w[:-2, 1:-1] - 2 * w[1:-1, 1:-1] + w[2:, 1:-1])]).astype(np.float32))
+    if not stacks:
+        return 0.0
+    return smooth_spread(stacks, tile, quantile) / np.sqrt(6.0)

@@ -38,9 +38,10 @@ exponential windows of Zhang et al. 2003); ``window_growth=1`` gives SMRF's one-
 An opening with half-width ``r`` cuts terrain of slope ``s`` by at most ``s r`` along the
 rows and columns (``sqrt(2) s r`` on slopes facing a diagonal of the square window, where
 SMRF's disk would give ``s r``), and the cut between two radii is below the cut at the
-larger one, so the SMRF threshold stays valid for steps larger than one cell. Square windows are separable: every erosion and dilation is two
-1-D running min/max passes, each ``log2(window) + 1`` vectorised numpy passes (van Herk /
-Gil-Werman style doubling), so a 41-cell window costs about twice a 3-cell one.
+larger one, so the SMRF threshold stays valid for steps larger than one cell. Square
+windows are separable: every erosion and dilation is two 1-D running min/max passes,
+each ``log2(window) + 1`` vectorised numpy passes (van Herk / Gil-Werman style
+doubling), so a 41-cell window costs about twice a 3-cell one.
 
 Nodata (NaN) is ignored by the min/max filters (the windows are restricted to valid
 cells), so no gap filling is needed; the reach of the filter is bounded by the largest
@@ -58,13 +59,15 @@ for the terrain classification of airborne LIDAR data. ISPRS J. Photogramm. Remo
 77, 21-30.
 """
 import math
+from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, OBJECT
+from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
-from .methods import Method, Param
+from .estimate import block_minima, noise_plane_residual, terrain_slopes
+from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
 #: SMRF's low-outlier pre-step: slope 500 % over windows up to 1 m (Pingel et al. 2013).
@@ -224,21 +227,27 @@ def _running(a, r, axis, op, work=None, out=None):
     return out
 
 
-def _erode(a, ry, rx, work=None):
-    """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata."""
+def _erode(a, ry, rx, work=None, progress=None):
+    """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata.
+    ``progress(0.5)`` between the two separable passes."""
     tmp = work.get(2, a.shape) if work is not None and rx > 0 and ry > 0 else None
-    return _running(_running(a, ry, 0, np.minimum, work, tmp), rx, 1, np.minimum, work)
+    down = _running(a, ry, 0, np.minimum, work, tmp)
+    report(progress, 0.5)
+    return _running(down, rx, 1, np.minimum, work)
 
 
-def _dilate(e, ry, rx, has_nodata, work=None):
+def _dilate(e, ry, rx, has_nodata, work=None, progress=None):
     """Grey dilation (running maximum) of an eroded surface ``e`` (+inf = no valid cell).
 
-    Returns the dilated surface with NaN where no valid cell is within reach.
+    Returns the dilated surface with NaN where no valid cell is within reach;
+    ``progress(0.5)`` between the two separable passes.
     """
     if has_nodata:
         e = np.where(np.isposinf(e), np.float32(-np.inf), e)
     tmp = work.get(2, e.shape) if work is not None and rx > 0 and ry > 0 else None
-    d = _running(_running(e, ry, 0, np.maximum, work, tmp), rx, 1, np.maximum, work)
+    down = _running(e, ry, 0, np.maximum, work, tmp)
+    report(progress, 0.5)
+    d = _running(down, rx, 1, np.maximum, work)
     if has_nodata:
         d[np.isneginf(d)] = np.nan
     return d
@@ -324,8 +333,10 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
     for k, (ry, rx, rad_m) in enumerate(radii):
         # Square windows compose: eroding the previous erosion by the increment gives the
         # erosion by the full window (cheaper than starting from the surface).
-        eroded = _erode(eroded, ry - pry, rx - prx, work)
-        opened = _dilate(eroded, ry, rx, has_nodata, work)
+        eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n))
+        report(progress, (k + 0.5) / n)
+        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n))
+        report(progress, (k + 0.9) / n)
         with np.errstate(invalid="ignore"):
             np.subtract(prev, opened, out=diff)
             np.greater(diff, np.float32(slope * rad_m), out=above)   # SMRF: t_k = s * r_k * c
@@ -347,16 +358,116 @@ def _surface_slope(s, cell):
     return g.astype(np.float32, copy=False)
 
 
-def _check(name, value, lo, hi, fix):
-    if value is None or not np.isfinite(value) or not (lo <= value <= hi):
-        raise ValueError(f"{name} must be a number in [{lo}, {hi}]; got {value!r}. {fix}")
-    return float(value)
+def _complete(z, cell, p):
+    """The filter's parameters ``p`` complete (derived from the data where None or where
+    the mode is "auto") and checked against :data:`PARAMS` and the cell size."""
+    if any(p[k] is None for k in ("max_object_size_m", "dh_m", "slope")) or p["mode"] == "auto":
+        p = resolve_morphological_params(z, cell, **p)
+    if p["mode"] not in ("progressive", "single"):
+        raise ValueError(f"mode must be one of {MODES}; got {p['mode']!r}.")
+    for name in _NUMBERS:
+        if p[name] is None:
+            raise ValueError(f"{name} is None: give a number or leave it to resolve_morphological_params.")
+    check_values("morphological", PARAMS, p)      # a window under 3 cells is 3 cells (_half_widths)
+    return p
+
+
+def open_single(z, cell, size_m, dh, work, progress=None):
+    """The single-window form (1996): one opening of the pit-closed surface, then the
+    two-sided test ``|z - O| > dh``.
+
+    Returns the mask (1 above, 2 below, 0 ground), the opened surface ``O`` (NaN at
+    nodata) and the window for the log.
+    """
+    ry, rx = _half_widths(size_m, cell)
+    report(progress, 0.05)
+    base = _close3(z, work)                # pits 1-2 cells wide must not spread
+    report(progress, 0.3)
+    a, has_nodata = _as_inf(base)
+    eroded = _erode(a, ry, rx, work, sub_progress(progress, 0.3, 0.6))
+    report(progress, 0.6)
+    opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, 0.6, 0.9))
+    report(progress, 0.9)
+    with np.errstate(invalid="ignore"):
+        d = z - opened
+        mask = np.where(d > dh, OBJECT, np.where(d < -dh, LOW, GROUND)).astype(np.uint8)
+    opened[~np.isfinite(z)] = np.nan
+    return mask, opened, {"window_sizes_m": [round((2 * rx + 1) * cell[0], 3)],
+                          "window_cells": [(2 * ry + 1, 2 * rx + 1)]}
+
+
+def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
+    """SMRF's low-outlier pre-step: the progressive filter on ``-z`` (1 m window, slope
+    ``low_slope``). Returns the candidate pits and the surface with them replaced by the
+    closing."""
+    neg, has_nodata = _as_inf(z, -1.0, nodata)
+    report(progress, 0.05)
+    low, neg_open = _progressive(neg, _low_radii(cell, growth), low_slope, has_nodata, progress, work)
+    del neg
+    low &= ~nodata
+    clean = z.copy()
+    clean[low] = -neg_open[low]             # pits replaced by the closing
+    return low, clean
+
+
+def classify_provisional(z, zpro, cell, dh, es, progress=None):
+    """SMRF's final test: ground when ``|z - ZIpro| <= e_t + e_s * slope(ZIpro)``, object
+    above, low outlier below (a pit of the pre-step is class 2 only when it lies below the
+    ground reconstructed around it: a gap between tree crowns does not)."""
+    thr = _surface_slope(zpro, cell)
+    report(progress, 0.5)
+    thr *= np.float32(es)
+    thr += np.float32(dh)
+    with np.errstate(invalid="ignore"):
+        d = np.subtract(z, zpro)
+        mask = np.zeros(z.shape, np.uint8)
+        mask[d > thr] = OBJECT
+        report(progress, 0.75)
+        np.negative(thr, out=thr)
+        mask[d < thr] = LOW
+    report(progress, 1.0)
+    return mask
+
+
+def open_progressive(z, cell, p, work, progress=None):
+    """The progressive form (Zhang et al. 2003; Pingel et al. 2013, SMRF), in SMRF's four
+    steps. Returns the mask, the provisional surface ``ZIpro`` (NaN at nodata) and the
+    windows, thresholds and counts for the log."""
+    valid = np.isfinite(z)
+    nodata = ~valid
+    s, growth = p["slope"], p["window_growth"]
+    # 1. low-outlier pre-step on the inverted surface
+    low, clean = find_low_outliers(z, nodata, cell, growth, p["low_outlier_slope"], work,
+                                   sub_progress(progress, 0.0, 0.1))
+    # 2. progressive opening of the cleaned surface: flags where the opening drops by > s r_k
+    radii = window_radii(p["max_object_size_m"], cell, growth)
+    a, has_nodata = _as_inf(clean, 1.0, nodata)
+    report(progress, 0.11)
+    obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.11, 0.85), work)
+    del a
+    obj &= valid
+    # 3. provisional surface ZIpro: flagged and low cells, which SMRF leaves out and
+    #    interpolates, take the last opening (the ground reconstructed under them)
+    zpro = clean
+    np.copyto(zpro, opened, where=obj | low | nodata)
+    report(progress, 0.9)
+    # 4. SMRF's final test against ZIpro
+    mask = classify_provisional(z, zpro, cell, p["dh_m"], p["slope_scale_m"], sub_progress(progress, 0.9, 0.97))
+    zpro[~valid] = np.nan
+    info = {"window_sizes_m": [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii],
+            "window_cells": [(2 * ry + 1, 2 * rx + 1) for ry, rx, _ in radii],
+            "thresholds_m": [round(s * r, 4) for _, _, r in radii], "slope_scale_m": p["slope_scale_m"],
+            "window_growth": growth, "low_outlier_cells_prestep": int(low.sum()),
+            "flagged_by_opening_percent": 100.0 * float(obj.sum()) / max(1, int(valid.sum()))}
+    return mask, zpro, info
 
 
 # --------------------------------------------------------------------------- the filter
-def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, dh_m=None,
-                         slope=None, slope_scale_m=1.25, window_growth=2.0,
-                         low_outlier_slope=LOW_OUTLIER_SLOPE, progress=None):
+def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *, mode: str = "auto",
+                         max_object_size_m: Optional[float] = None, dh_m: Optional[float] = None,
+                         slope: Optional[float] = None, slope_scale_m: float = 1.25, window_growth: float = 2.0,
+                         low_outlier_slope: float = LOW_OUTLIER_SLOPE,
+                         progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """Classify a DSM into ground, objects and low outliers by grey opening.
 
     Parameters
@@ -370,20 +481,12 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
         test with ``dh_m`` (the 1996 form). ``"progressive"``: SMRF / Zhang et al. (2003)
         growing windows with a slope-dependent threshold, then SMRF's final test against
         the provisional surface. ``"auto"``: resolved by
-        :func:`resolve_morphological_params`: progressive unless the terrain is flat at the
-        scale of the window (``s90 * max_object_size_m / 2 <= dh_m``, ``s90`` the
-        90th-percentile terrain slope: a single opening then cuts no ground by more than
-        ``dh``).
-    max_object_size_m : float, optional
-        Largest object to remove, metres (side of the largest window). Default: derived
-        from the data (:func:`resolve_morphological_params`).
-    dh_m : float, optional
-        Height threshold of the two-sided test, metres (SMRF's ``e_t``). Default: derived
-        from the data's noise.
-    slope : float, optional
-        Terrain slope ``s`` (rise/run) of the progressive threshold ``t_k = s r_k``; terrain
-        steeper than ``s`` over more than the window (narrow embankments, ridges) is cut.
-        Default: the median slope of a coarse minimum surface, at least 0.3.
+        :func:`resolve_morphological_params` (progressive unless the terrain is flat at
+        the scale of the window).
+    max_object_size_m, dh_m, slope : float, optional
+        Largest object (side of the largest window, metres), height threshold of the
+        two-sided test (metres, SMRF's ``e_t``) and terrain slope ``s`` (rise/run) of the
+        progressive threshold ``t_k = s r_k``. Default: derived from the data.
     slope_scale_m : float
         SMRF's ``e_s``: metres of extra tolerance per unit of slope of the provisional
         surface in the final test of the progressive form (1.25 in SMRF).
@@ -393,7 +496,8 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
     low_outlier_slope : float
         Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window); 5 = 500 %.
     progress : callable, optional
-        ``progress(fraction)``; may raise :class:`~bare_earth.core.common.Cancelled`.
+        ``progress(fraction)`` within every step; may raise
+        :class:`~bare_earth.core.common.Cancelled`.
 
     Returns
     -------
@@ -410,155 +514,45 @@ def filter_morphological(z, cell_size, *, mode="auto", max_object_size_m=None, d
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    if any(v is None for v in (max_object_size_m, dh_m, slope)) or mode == "auto":
-        p = resolve_morphological_params(z, cell, mode=mode, max_object_size_m=max_object_size_m,
-                                         dh_m=dh_m, slope=slope, slope_scale_m=slope_scale_m,
-                                         window_growth=window_growth,
-                                         low_outlier_slope=low_outlier_slope)
+    p = _complete(z, cell, dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
+                                slope_scale_m=slope_scale_m, window_growth=window_growth,
+                                low_outlier_slope=low_outlier_slope))
+    p = {k: (float(v) if k in _NUMBERS else v) for k, v in p.items()}
+    info = {"mode": p["mode"], "mode_reason": p.get("mode_reason", "mode given by the user"),
+            "dh_m": p["dh_m"], "slope": p["slope"], "max_object_size_m": p["max_object_size_m"]}
+    if p["mode"] == "single":
+        mask, surface, more = open_single(z, cell, p["max_object_size_m"], p["dh_m"], _Work(), progress)
     else:
-        p = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
-                 slope_scale_m=slope_scale_m, window_growth=window_growth,
-                 low_outlier_slope=low_outlier_slope)
-    mode = p["mode"]
-    if mode not in ("progressive", "single"):
-        raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
-    size_m = _check("max_object_size_m", p["max_object_size_m"], 2 * min(cell), 1e5,
-                    "Give the side of the largest object to remove in metres (at least two cells).")
-    dh = _check("dh_m", p["dh_m"], 0.0, 1e4, "Give the height threshold in metres (e.g. 0.5).")
-    s = _check("slope", p["slope"], 0.0, 100.0, "Give the terrain slope as rise/run (0.15 = 15 %).")
-    es = _check("slope_scale_m", p["slope_scale_m"], 0.0, 100.0, "SMRF uses 1.25.")
-    growth = _check("window_growth", p["window_growth"], 1.0, 10.0,
-                    "Use 1 (SMRF's one-cell steps) to 2 (doubling windows).")
-    low_s = _check("low_outlier_slope", p["low_outlier_slope"], 0.0, 1e3, "SMRF uses 5 (500 %).")
-    valid = np.isfinite(z)
-    work = _Work()
-    info = {"mode": mode, "mode_reason": p.get("mode_reason", "mode given by the user"),
-            "dh_m": dh, "slope": s, "max_object_size_m": size_m}
-
-    if mode == "single":
-        ry, rx = _half_widths(size_m, cell)
-        report(progress, 0.05)
-        base = _close3(z, work)                # pits 1-2 cells wide must not spread
-        report(progress, 0.3)
-        a, has_nodata = _as_inf(base)
-        opened = _dilate(_erode(a, ry, rx, work), ry, rx, has_nodata, work)
-        report(progress, 0.9)
-        with np.errstate(invalid="ignore"):
-            d = z - opened
-            mask = np.where(d > dh, OBJECT, np.where(d < -dh, LOW, GROUND)).astype(np.uint8)
-        opened[~valid] = np.nan
-        surface = opened
-        info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3)]
-        info["window_cells"] = [(2 * ry + 1, 2 * rx + 1)]
-    else:
-        # 1. SMRF low-outlier pre-step: the progressive filter on -z, 1 m window, slope 5.
-        nodata = ~valid
-        neg, has_nodata = _as_inf(z, -1.0, nodata)
-        low, neg_open = _progressive(neg, _low_radii(cell, growth), low_s, has_nodata,
-                                     sub_progress(progress, 0.0, 0.1), work)
-        del neg
-        low &= valid
-        clean = z.copy()
-        clean[low] = -neg_open[low]             # pits replaced by the closing
-        del neg_open
-        # 2. Progressive opening of the cleaned surface (Zhang 2003; SMRF).
-        radii = window_radii(size_m, cell, growth)
-        a, _ = _as_inf(clean, 1.0, nodata)
-        obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.1, 0.85), work)
-        del a
-        obj &= valid
-        # 3. Provisional surface ZIpro: unflagged cells keep their height; object and
-        #    low-outlier cells, which SMRF leaves out and interpolates, take the last
-        #    opening (the ground reconstructed under them, bounded reach).
-        out_cells = obj | low
-        out_cells |= nodata
-        zpro = clean
-        np.copyto(zpro, opened, where=out_cells)
-        del out_cells
-        report(progress, 0.9)
-        # 4. SMRF's final test: ground when |z - ZIpro| <= e_t + e_s * slope(ZIpro).
-        thr = _surface_slope(zpro, cell)
-        thr *= np.float32(es)
-        thr += np.float32(dh)
-        with np.errstate(invalid="ignore"):
-            d = np.subtract(z, zpro)
-            # a pit of the pre-step is a low outlier only when it lies below the ground
-            # reconstructed around it (a gap between tree crowns does not)
-            mask = np.zeros(z.shape, np.uint8)
-            mask[d > thr] = OBJECT
-            np.negative(thr, out=thr)
-            mask[d < thr] = LOW
-        del d, thr
-        zpro[~valid] = np.nan
-        surface = zpro
-        info["window_sizes_m"] = [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii]
-        info["window_cells"] = [(2 * ry + 1, 2 * rx + 1) for ry, rx, _ in radii]
-        info["thresholds_m"] = [round(s * r, 4) for _, _, r in radii]
-        info["slope_scale_m"] = es
-        info["window_growth"] = growth
-        info["low_outlier_cells_prestep"] = int(low.sum())
-        info["flagged_by_opening_percent"] = 100.0 * float(obj.sum()) / max(1, int(valid.sum()))
+        mask, surface, more = open_progressive(z, cell, p, _Work(), progress)
+    info.update(more)
+    report(progress, 0.97)
     mask = finish_mask(mask, z)
-    nval = max(1, int(valid.sum()))
-    info["object_percent"] = 100.0 * float((mask == OBJECT).sum()) / nval
-    info["low_percent"] = 100.0 * float((mask == LOW).sum()) / nval
-    for k in _DERIVED[1:]:
-        if k in p:
-            info[k] = p[k]
+    nval = max(1, int(np.count_nonzero(mask != NODATA)))
+    info["object_percent"] = 100.0 * float(np.count_nonzero(mask == OBJECT)) / nval
+    info["low_percent"] = 100.0 * float(np.count_nonzero(mask == LOW)) / nval
+    info.update({k: p[k] for k in _DERIVED[1:] if k in p})
     report(progress, 1.0)
     return FilterResult(mask=mask, info=info, surface=surface)
 
 
+#: The numeric parameters (floats in the log).
+_NUMBERS = ("max_object_size_m", "dh_m", "slope", "slope_scale_m", "window_growth", "low_outlier_slope")
+
+
 # --------------------------------------------------------------------------- defaults
-def _block_min(z, k):
-    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN)."""
-    if k <= 1:
-        return z
-    rows, cols = z.shape
-    R, C = -(-rows // k), -(-cols // k)
-    pad = np.full((R * k, C * k), np.inf, np.float32)
-    pad[:rows, :cols] = np.where(np.isfinite(z), z, np.inf)
-    out = pad.reshape(R, k, C, k).min(axis=(1, 3))
-    out[np.isinf(out)] = np.nan
-    return out
-
-
-def estimate_noise(z):
-    """Robust noise of a surface, metres, from the residual to the 4-neighbour mean.
-
-    The residual ``r = z - mean(4 neighbours)`` vanishes on planes; for white noise of
-    standard deviation ``sigma`` it is normal with standard deviation ``sigma sqrt(1.25)``.
-    Edges, roofs and vegetation inflate ``|r|`` on part of the cells, so the lower quartile
-    of ``|r|`` (``0.3186`` standard deviations for a normal law) is used: the cleanest
-    quarter of the surface sets the noise. Returns 0 for a noise-free surface.
-    """
-    z = as_surface(z)
-    if min(z.shape) < 3:
-        return 0.0
-    c = z[1:-1, 1:-1]
-    nb = (z[:-2, 1:-1] + z[2:, 1:-1] + z[1:-1, :-2] + z[1:-1, 2:]) * np.float32(0.25)
-    r = np.abs(c - nb)[np.isfinite(c) & np.isfinite(nb)]
-    if r.size == 0:
-        return 0.0
-    return float(np.percentile(r, 25.0)) / 0.3186 / math.sqrt(1.25)
-
-
 def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
     """Robust terrain slope (rise/run): a high percentile of a coarse minimum surface's slope.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it) and the slope of that coarse surface is taken by central
-    differences; the ``percentile`` of it is returned.
+    block vanish from it; the block side in cells from the coarser axis) and the slope of
+    that coarse surface is taken by central differences
+    (:func:`~bare_earth.core.estimate.terrain_slopes`, at least 3 x 3 blocks); the
+    ``percentile`` of it is returned, NaN when not measurable.
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
     k = max(1, int(round(scale_m / max(dx, dy))))
-    m = _block_min(z, k)
-    if min(m.shape) < 3:
-        return float("nan")
-    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
-    g = np.hypot(gx, gy)
-    g = g[np.isfinite(g)]
+    g = terrain_slopes(z, (dx, dy), k, min_blocks=3)
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
 
@@ -589,13 +583,15 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
     return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 
-def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m=None, dh_m=None,
-                                 slope=None, slope_scale_m=1.25, window_growth=2.0,
-                                 low_outlier_slope=LOW_OUTLIER_SLOPE, **_ignored):
+def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
+                                 mode: str = "auto", max_object_size_m: Optional[float] = None,
+                                 dh_m: Optional[float] = None, slope: Optional[float] = None,
+                                 slope_scale_m: float = 1.25, window_growth: float = 2.0,
+                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, **_ignored) -> dict:
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the robust noise of the DSM
-      (:func:`estimate_noise`), bounded to 0.5-5 m (0.5 m is SMRF's ``e_t``; LiDAR noise
+      (:func:`~bare_earth.core.estimate.noise_plane_residual`), bounded to 0.5-5 m (0.5 m is SMRF's ``e_t``; LiDAR noise
       is far below it, image-matching noise often above).
     * ``slope``: the median slope of the 40 m block-minimum surface
       (:func:`estimate_terrain_slope`), bounded to 0.3-1.5: the threshold ``s r`` must
@@ -609,20 +605,24 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
       opening would cut the terrain by more than ``dh``), else ``"single"``;
       ``mode_reason`` says why.
 
-    Large rasters are reduced to block minima of at most a million cells first.
+    Large rasters are reduced to block minima of at most a million cells for the slope
+    and the object size; the noise is measured at full resolution on windows spread over
+    the raster (:func:`~bare_earth.core.estimate.sample_windows`).
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
+    check_values("morphological", PARAMS, dict(max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
+                                slope_scale_m=slope_scale_m, window_growth=window_growth,
+                                low_outlier_slope=low_outlier_slope))
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
-    zs = _block_min(z, k)
+    zs = block_minima(z, k)
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
                low_outlier_slope=low_outlier_slope)
-    r0, c0 = max(0, z.shape[0] // 2 - 500), max(0, z.shape[1] // 2 - 500)
-    noise = estimate_noise(z[r0:r0 + 1000, c0:c0 + 1000])      # full resolution, central window
+    noise = noise_plane_residual(z)             # full resolution, windows over the raster
     out["noise_m"] = noise
     if dh_m is None:
         out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, _DH_NOISE * noise)))
@@ -690,6 +690,39 @@ _DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", 
             "slope_source", "max_object_size_source")
 
 
+#: The user parameters (dialog order); their bounds are the limits the core enforces.
+PARAMS = (
+    Param("mode", "enum", "auto",
+          "auto: progressive windows where the terrain is not flat (slope x half the largest window "
+          "> dh), else one window; progressive: growing windows with a slope-dependent threshold "
+          "(Zhang et al. 2003, SMRF); single: one opening and the two-sided dh test (1996 form).",
+          options=MODES),
+    Param("max_object_size_m", "float", None,
+          "Largest object to remove, metres (side of the largest window). Empty: the width of the "
+          "largest objects found by the progressive filter with windows up to 100 m, 10-80 m.",
+          minimum=0.1, maximum=10000.0),
+    Param("dh_m", "float", None,
+          "Height threshold dh, metres: cells more than dh above the opened / provisional surface are "
+          "objects, more than dh below are low outliers. Empty: 3 x the robust noise of the DSM, "
+          "0.5-5 m.", minimum=0.0, maximum=1000.0),
+    Param("slope", "float", None,
+          "Terrain slope s (rise/run) of the progressive threshold s x window radius. Empty: the median "
+          "slope of the 40 m block-minimum surface, 0.3-1.5.",
+          minimum=0.0, maximum=100.0, advanced=True),
+    Param("slope_scale_m", "float", 1.25,
+          "Extra tolerance of the final test per unit of slope of the provisional surface, metres "
+          "(SMRF's e_s). Progressive form only.", minimum=0.0, maximum=100.0, advanced=True),
+    Param("window_growth", "float", 2.0,
+          "Ratio between consecutive window radii of the progressive form: 1 = one-cell steps "
+          "(SMRF), 2 = doubling windows (Zhang et al. 2003, faster).",
+          minimum=1.0, maximum=10.0, advanced=True),
+    Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
+          "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
+          "this x its radius is a low outlier. 5 = 500 % (SMRF).",
+          minimum=0.0, maximum=1000.0, advanced=True),
+)
+
+
 def _run(z, cell_size, progress=None, **params):
     """Registry entry: run the filter on complete parameters, log the derived statistics."""
     derived = {k: params.pop(k) for k in _DERIVED if k in params}
@@ -703,36 +736,7 @@ METHOD = Method(
     run=_run,
     resolve=resolve_morphological_params,
     halo=morphological_halo,
-    params=(
-        Param("mode", "enum", "auto",
-              "auto: progressive windows where the terrain is not flat (slope x half the largest window "
-              "> dh), else one window; progressive: growing windows with a slope-dependent threshold "
-              "(Zhang et al. 2003, SMRF); single: one opening and the two-sided dh test (1996 form).",
-              options=MODES),
-        Param("max_object_size_m", "float", None,
-              "Largest object to remove, metres (side of the largest window). Empty: the width of the "
-              "largest objects found by the progressive filter with windows up to 100 m, 10-80 m.",
-              minimum=0.1, maximum=10000.0),
-        Param("dh_m", "float", None,
-              "Height threshold dh, metres: cells more than dh above the opened / provisional surface are "
-              "objects, more than dh below are low outliers. Empty: 3 x the robust noise of the DSM, "
-              "0.5-5 m.", minimum=0.0, maximum=1000.0),
-        Param("slope", "float", None,
-              "Terrain slope s (rise/run) of the progressive threshold s x window radius. Empty: the median "
-              "slope of the 40 m block-minimum surface, 0.3-1.5.",
-              minimum=0.0, maximum=100.0, advanced=True),
-        Param("slope_scale_m", "float", 1.25,
-              "Extra tolerance of the final test per unit of slope of the provisional surface, metres "
-              "(SMRF's e_s). Progressive form only.", minimum=0.0, maximum=100.0, advanced=True),
-        Param("window_growth", "float", 2.0,
-              "Ratio between consecutive window radii of the progressive form: 1 = one-cell steps "
-              "(SMRF), 2 = doubling windows (Zhang et al. 2003, faster).",
-              minimum=1.0, maximum=10.0, advanced=True),
-        Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
-              "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
-              "this x its radius is a low outlier. 5 = 500 % (SMRF).",
-              minimum=0.0, maximum=1000.0, advanced=True),
-    ),
+    params=PARAMS,
     title="Morphological filter (opening; progressive SMRF / Zhang 2003)",
     description=(
         "<p>Grey opening of the lowest surface. <b>single</b>: one square window a little larger than "

@@ -25,7 +25,9 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   each connected object only when at least a tenth of its cells are rejected by both axes.
   An object elongated along one axis is short, hence caught, along the other; but a road
   embankment or a dam that a profile runs along is accepted by that profile over most of
-  its length, and goes back to the ground.
+  its length, and goes back to the ground. A region larger than the largest object
+  (objects touching a dam or one another) takes that share locally, over its cells within
+  half the largest object, so the rule's reach is bounded (blocks give the one-pass mask).
 * **Low blunders** (a drop then a rise, typical of image matching and laser multipath) are
   found first: pits a 3 x 3 grey closing fills that also lie below the lower third of
   their 7 x 7 neighbourhood (so ground hits between tree crowns stay ground). They get
@@ -41,13 +43,15 @@ profiles.
 """
 import threading
 import warnings
+from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, LOW, NODATA, OBJECT
+from .codes import LOW, NODATA
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
-from .methods import Method, Param
+from .estimate import noise_second_difference, sample_windows, terrain_slopes
+from .methods import Method, Param, check_values
 
 #: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
 _MIN_ALPHA_G, _MAX_ALPHA_G = 25.0, 60.0
@@ -69,31 +73,13 @@ def profile_slopes(z, cell_size):
             np.degrees(np.arctan(np.diff(z, axis=0) / dy)))
 
 
-def _block_min(z, k):
-    """Minimum over non-overlapping k x k blocks (NaN ignored; all-NaN blocks -> NaN).
-
-    Band by band of ``k`` rows: the minimum down the band's columns (contiguous rows,
-    cached), then over each run of ``k`` columns; ``fmin`` ignores NaN without copies.
-    """
-    rows, cols = z.shape
-    R, C = -(-rows // k), -(-cols // k)
-    out = np.empty((R, C), np.float32)
-    pad = np.full(C * k, np.nan, np.float32) if cols % k else None
-    for i in range(R):
-        band = np.fmin.reduce(z[i * k:(i + 1) * k], axis=0)
-        if pad is not None:
-            pad[:cols] = band
-            band = pad
-        out[i] = np.fmin.reduce(band.reshape(C, k), axis=1)
-    return out
-
-
 def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     """Robust slopes of the terrain under the objects.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it), and the slopes (rise/run) between neighbouring block minima
-    are summarised.
+    block vanish from it; the block side in cells from the finer axis, at most a third
+    of the raster's shorter side), and the slopes (rise/run) between neighbouring block
+    minima are summarised (:func:`~bare_earth.core.estimate.terrain_slopes`).
 
     Returns
     -------
@@ -103,61 +89,10 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     dx, dy = as_cell_size(cell_size)
     k = int(max(2, round(scale_m / min(dx, dy))))
     k = min(k, max(2, min(z.shape) // 3))
-    m = _block_min(z, k)
-    if min(m.shape) < 2:
-        return {"median": 0.0, "p90": 0.0, "block_cells": k}
-    # gradient magnitude (rise/run) of the block-minimum surface: the steepest slope of
-    # the ground, whatever its direction
-    gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
-    s = np.hypot(gx, gy).ravel()
-    s = s[np.isfinite(s)]
+    s = terrain_slopes(z, (dx, dy), k)
     if s.size == 0:
         return {"median": 0.0, "p90": 0.0, "block_cells": k}
     return {"median": float(np.median(s)), "p90": float(np.percentile(s, 90)), "block_cells": k}
-
-
-#: Cells that enter the noise and sample-spacing estimates: larger rasters are sampled
-#: by windows spread over them (medians and means are stable far below that; ISPRS-sized
-#: rasters are used whole).
-_SAMPLE_CELLS = 1_000_000
-_SAMPLE_WINDOW = 256
-
-
-def _sample_windows(z, cells=_SAMPLE_CELLS, side=_SAMPLE_WINDOW):
-    """``z`` itself when it has at most ``cells`` cells, else about ``cells / side**2``
-    windows of ``side`` x ``side`` cells on a regular grid over it (views, no copy; each
-    window is contiguous along its rows, so sampling reads a fraction of the raster)."""
-    rows, cols = z.shape
-    if z.size <= cells or rows < 2 * side or cols < 2 * side:
-        return [z]
-    n = max(1, cells // (side * side))
-    ny = max(1, min(rows // side, int(round(np.sqrt(n * rows / cols)))))
-    nx = max(1, min(cols // side, -(-n // ny)))
-    r0 = np.linspace(0, rows - side, ny).astype(int)
-    c0 = np.linspace(0, cols - side, nx).astype(int)
-    return [z[r:r + side, c:c + side] for r in r0 for c in c0]
-
-
-def estimate_noise(z):
-    """Robust standard deviation of the DSM's random error, metres.
-
-    From the second differences along rows and columns (``z[i-1] - 2 z[i] + z[i+1]``,
-    whose variance is 6 sigma^2 for white noise on a smooth surface), via the median
-    absolute value, so edges and objects do not inflate it. Large rasters are sampled
-    (:func:`_sample_windows`).
-    """
-    z = as_surface(z)
-    d = []
-    for w in _sample_windows(z):
-        if w.shape[1] > 2:
-            d.append((w[:, :-2] - 2 * w[:, 1:-1] + w[:, 2:]).ravel())
-        if w.shape[0] > 2:
-            d.append((w[:-2] - 2 * w[1:-1] + w[2:]).ravel())
-    d = np.concatenate(d) if d else np.array([0.0])
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(d)) / np.sqrt(6.0))
 
 
 def estimate_sample_spacing(z, longest=8):
@@ -168,11 +103,11 @@ def estimate_sample_spacing(z, longest=8):
     height steps come at the run ends: the edge test must span the data's own spacing,
     not one cell. Runs longer than ``longest`` cells are constant areas (water, a flat
     synthetic ground), not gridding, and are left out. Returns a value >= 1. Large
-    rasters are sampled (:func:`_sample_windows`).
+    rasters are sampled (:func:`~bare_earth.core.estimate.sample_windows`).
     """
     z = as_surface(z)
     lengths = []
-    for w in _sample_windows(z):
+    for w in sample_windows(z):
         for a in (w, w.T.copy()):
             if a.shape[1] < 2:
                 continue
@@ -211,9 +146,11 @@ def _extreme3(a, op, out=None, tmp=None):
 
 #: Window (cells) and rank of the local ground height a low blunder must lie below.
 _LOW_WINDOW, _LOW_RANK = 7, 16
+#: Candidates whose neighbourhoods are ranked at once.
+_LOW_CHUNK = 1 << 16
 
 
-def find_low_blunders(z, tolerance_m):
+def find_low_blunders(z, tolerance_m, progress=None):
     """Low blunders: pits of one or two cells deeper than ``tolerance_m`` below the ground.
 
     Candidates are the cells a 3 x 3 grey closing raises by more than the tolerance (a
@@ -232,6 +169,8 @@ def find_low_blunders(z, tolerance_m):
     strip = 64  # rows: the closing's buffers stay in the cache
     found = []
     for r0 in range(0, rows, strip):
+        if r0 % (4 * strip) == 0:
+            report(progress, 0.7 * r0 / rows)
         r1 = min(rows, r0 + strip)
         a0, a1 = max(0, r0 - 2), min(rows, r1 + 2)
         zz = np.where(valid[a0:a1], z[a0:a1], hi)  # nodata: neither a pit's rim nor its bottom
@@ -247,19 +186,27 @@ def find_low_blunders(z, tolerance_m):
     low = np.zeros(z.shape, bool)
     if not found:
         return low
-    r, c = np.divmod(np.concatenate(found), cols)
+    report(progress, 0.7)
+    cand = np.concatenate(found)
     h = _LOW_WINDOW // 2
     off = np.arange(-h, h + 1)
-    rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
-    cc = np.clip(c[:, None, None] + off[None, None, :], 0, z.shape[1] - 1)
-    neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
-    neigh[np.isnan(neigh)] = np.inf                                            # nodata is no ground
-    fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
-    low[r, c] = z[r, c] < fifth - tolerance_m
+    for i in range(0, cand.size, _LOW_CHUNK):          # bounded memory: 49 neighbours each
+        r, c = np.divmod(cand[i:i + _LOW_CHUNK], cols)
+        rr = np.clip(r[:, None, None] + off[None, :, None], 0, z.shape[0] - 1)   # edges replicated
+        cc = np.clip(c[:, None, None] + off[None, None, :], 0, z.shape[1] - 1)
+        neigh = z[rr, cc].reshape(r.size, _LOW_WINDOW * _LOW_WINDOW)
+        neigh[np.isnan(neigh)] = np.inf                                        # nodata is no ground
+        fifth = np.partition(neigh, _LOW_RANK - 1, axis=1)[:, _LOW_RANK - 1]
+        low[r, c] = z[r, c] < fifth - tolerance_m
+        report(progress, 0.7 + 0.3 * min(cand.size, i + _LOW_CHUNK) / cand.size)
     return low
 
 
-def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
+#: Profile positions scanned between two progress reports.
+_REPORT_STEPS = 128
+
+
+def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress=None):
     """Scan many profile sets at once, one numpy operation per step over all profiles.
 
     ``sources`` is a list of ``(array, reverse)``: an array ``(npos, nprof)`` holds
@@ -271,7 +218,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     The tolerance after ``d`` cells since the reference point is
     ``dh0 + step tan_g min(d, edge_cells) + step tan_t max(d - edge_cells, 0)``.
     Returns one boolean array per source (its shape; views into buffers shared by the
-    sources of one array): True where the scan rejects.
+    sources of one array): True where the scan rejects. ``progress(fraction)`` is called
+    every :data:`_REPORT_STEPS` positions (it may raise Cancelled).
     """
     widths = [a.shape[1] for a, _ in sources]
     offs = np.cumsum([0] + widths)
@@ -321,6 +269,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
     # As few numpy calls per step as possible: each is short, and with blocks in threads
     # every call is a hand-over of the GIL.
     for i in range(npos):
+        if progress is not None and i % _REPORT_STEPS == 0:
+            report(progress, i / npos)
         if i < n_min:                                  # every source still runs: one copy
             np.concatenate([a[n - 1 - i] if rev else a[i] for a, rev, _, n in spans], out=v)
         else:
@@ -358,24 +308,29 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1):
 _SCAN_LOCK = threading.Lock()
 
 
-def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
+def scan_profiles(zs, cell_size, tan_g, tan_t, dh0, init, edge, progress=None):
     """Forward and backward scans along X and Y; returns ``(objects_x, objects_y)``.
 
     A cell is rejected along an axis when both its forward and its backward scan reject
     it. The four scans run as one vectorised pass when the two axes share a spacing.
+    ``init`` and ``edge`` are the start windows and edge runs ``(x, y)`` in cells.
     """
+    dx, dy = cell_size
     zx = transpose(zs)                       # X profiles: positions = columns
+    report(progress, 0.05)
     sx = [(zx, False), (zx, True)]
     sy = [(zs, False), (zs, True)]
     with _SCAN_LOCK:
         if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-            fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0])
+            fx, bx, fy, by = _scan(sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0],
+                                   sub_progress(progress, 0.05, 0.9))
         else:
-            fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0])
-            fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1])
+            fx, bx = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0], sub_progress(progress, 0.05, 0.45))
+            fy, by = _scan(sy, dy, tan_g, tan_t, dh0, init[1], edge[1], sub_progress(progress, 0.45, 0.9))
     del zx
     fx &= bx
     fy &= by
+    report(progress, 0.9)
     return transpose(fx), fy
 
 
@@ -383,19 +338,92 @@ def _scan_all(zs, dx, dy, tan_g, tan_t, dh0, init, edge):
 _MIN_BOTH_AXES_SHARE = 0.1
 
 
-def _combine_axes(obj_x, obj_y, ok):
+def _window_sum(a, buf, r, axis):
+    """``a`` (int32) replaced in place by its sums over ``[i - r, i + r]`` along ``axis``
+    (clipped at the edges), from its running sum in ``buf``."""
+    if axis == 1:
+        np.cumsum(a, axis=1, out=buf)        # along the rows: contiguous, fast
+        a, buf = a.T, buf.T                  # the window arithmetic below runs on axis 0
+    else:                                    # row by row: numpy's cumsum down the columns is
+        buf[0] = a[0]                        # ten times slower
+        for i in range(1, a.shape[0]):
+            np.add(buf[i - 1], a[i], out=buf[i])
+    n = a.shape[0]
+    if r >= n:
+        a[...] = buf[n - 1]
+        return
+    a[:n - r] = buf[r:]                      # window end inside
+    a[n - r:] = buf[n - 1]                   # window end clipped
+    a[r + 1:] -= buf[:n - r - 1]             # minus the running sum before the window
+
+
+def _box_sum(a, ry, rx):
+    """``a`` (int32, changed in place and returned) summed over the (2 ry + 1) x (2 rx + 1)
+    window around every cell, windows clipped at the edges: exact integer running sums,
+    one buffer."""
+    buf = np.empty_like(a)
+    _window_sum(a, buf, ry, 0)
+    _window_sum(a, buf, rx, 1)
+    return a
+
+
+def _large_regions(lab, total, reach):
+    """Labels (bool, index = label) of the regions of ``lab`` whose bounding box exceeds
+    ``reach = (rows, cols)``; ``total`` holds their cell counts (only regions with more
+    cells than the smaller reach can be that large)."""
+    large = np.zeros(total.size, bool)
+    cand = np.flatnonzero(total > min(reach))
+    cand = cand[cand > 0]
+    if cand.size == 0:
+        return large
+    boxes = ndimage.find_objects(lab)
+    ext = np.array([(boxes[i - 1][0].stop - boxes[i - 1][0].start, boxes[i - 1][1].stop - boxes[i - 1][1].start)
+                    for i in cand])
+    large[cand] = (ext[:, 0] > reach[0]) | (ext[:, 1] > reach[1])
+    return large
+
+
+def _local_share_kept(big, both, reach):
+    """Cells of the large regions ``big`` where at least :data:`_MIN_BOTH_AXES_SHARE` of the
+    large regions' cells within ``reach / 2`` are rejected by both axes.
+
+    share >= 1/10 <=> the window's sum of (9 where both, -1 elsewhere on ``big``) >= 0,
+    an exact integer box sum, on the bounding box of ``big`` grown by the window only.
+    """
+    ry, rx = reach[0] // 2, reach[1] // 2
+    rows = np.flatnonzero(big.any(axis=1))
+    cols = np.flatnonzero(big.any(axis=0))
+    r0, r1 = max(0, rows[0] - ry), min(big.shape[0], rows[-1] + ry + 1)
+    c0, c1 = max(0, cols[0] - rx), min(big.shape[1], cols[-1] + rx + 1)
+    sub = (slice(r0, r1), slice(c0, c1))
+    w = np.zeros((r1 - r0, c1 - c0), np.int32)
+    w[big[sub]] = -1
+    w[big[sub] & both[sub]] = round(1.0 / _MIN_BOTH_AXES_SHARE) - 1
+    out = np.zeros(big.shape, bool)
+    out[sub] = big[sub] & (_box_sum(w, ry, rx) >= 0)
+    return out
+
+
+def _combine_axes(obj_x, obj_y, ok, reach, progress=None):
     """X and Y results -> objects: the union, keeping each connected object only when at
     least a tenth of its cells are rejected by both axes.
 
     Buildings and crowns are crossed by both axes; a road embankment or a dam that one
     axis runs along is accepted by that axis along most of its length, so the other
     axis's rejections of it are given back to the ground.
+
+    An object is at most ``reach = (rows, cols)`` cells (the largest object): a connected
+    region larger than that is objects touching embankments, hedges or each other, and
+    its share is taken locally, over the region's cells within ``reach / 2`` of each cell
+    (so a building touching a long dam stays an object, and the decision does not depend
+    on how far the region runs: blocks give the one-pass result).
     """
     union = obj_x | obj_y
     union &= ok
     if not union.any():
         return union
     lab, n = ndimage.label(union, structure=np.ones((3, 3), bool))
+    report(progress, 0.4)
     both = obj_x & obj_y
     both &= ok
     # counts over the labelled cells only (a bincount of the whole raster would cast
@@ -404,15 +432,80 @@ def _combine_axes(obj_x, obj_y, ok):
     total = np.bincount(lu, minlength=n + 1)
     inboth = np.bincount(lab[both], minlength=n + 1)
     keep = inboth >= _MIN_BOTH_AXES_SHARE * total
+    large = _large_regions(lab, total, reach)
+    keep &= ~large
     keep[0] = False
     out = np.zeros(union.shape, bool)
     out[union] = keep[lu]          # looked up for the labelled cells only
+    if large.any():
+        report(progress, 0.6)
+        big = np.zeros(union.shape, bool)
+        big[union] = large[lu]
+        out |= _local_share_kept(big, both, reach)
     return out
 
 
-def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg, tolerance_m,
-                         max_object_size_m=100.0, edge_length_m=1.0, sample_spacing_cells=1.0,
-                         refine=False, slope_factor=1.25, progress=None):
+def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
+    """Give rejected cells lying within the tolerance of the interpolated ground back to
+    the ground (as SMRF's final step).
+
+    The ground is interpolated under the objects and low blunders (``fill.fill_gaps``); a
+    rejected cell within ``tolerance_m + slope_factor * slope`` of it is ground again.
+
+    Returns
+    -------
+    obj : ndarray of bool
+        The objects left.
+    refined : int
+        Cells given back.
+    dtm : ndarray of float32 or None
+        The interpolated ground when nothing was given back (then it is the DTM, exact at
+        every ground cell), else None.
+    """
+    if not obj.any() or not (valid & ~obj & ~low).any():
+        return obj, 0, None
+    from .fill import fill_gaps
+    dx, dy = cell_size
+    surf = fill_gaps(z, fill=obj | low)
+    gy, gx = np.gradient(surf, dy, dx)
+    back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * np.hypot(gx, gy))
+    refined = int(back.sum())
+    return obj & ~back, refined, (None if refined else surf)
+
+
+def _mask_and_info(obj, low, valid, obj_x, obj_y, refined, p):
+    """The mask (1 objects, 2 low blunders, 255 nodata) and the run's info."""
+    mask = obj.astype(np.uint8)                      # OBJECT = 1, GROUND = 0
+    np.copyto(mask, np.uint8(LOW), where=low)
+    np.copyto(mask, np.uint8(NODATA), where=~valid)
+    n = max(1, int(np.count_nonzero(valid)))
+    info = {"alpha_g_deg": float(p["slope_threshold_deg"]), "alpha_t_deg": float(p["terrain_slope_deg"]),
+            "dh0_m": float(p["tolerance_m"]),
+            "rejected_by_x_percent": 100.0 * float(np.count_nonzero(obj_x & valid)) / n,
+            "rejected_by_y_percent": 100.0 * float(np.count_nonzero(obj_y & valid)) / n,
+            "refined_back_percent": 100.0 * refined / n,
+            "low_blunders_percent": 100.0 * float(np.count_nonzero(low)) / n}
+    return mask, info
+
+
+def _scan_geometry(cell_size, tan_g, tolerance_m, max_object_size_m, edge_length_m, sample_spacing_cells):
+    """Start windows and edge runs ``(x, y)`` in cells, and the scans' tolerance dh0.
+
+    Gridded sparse points rise in stair steps: a slope up to alpha_g over the data's own
+    spacing comes in one step, which the edge test must allow.
+    """
+    dx, dy = cell_size
+    init = (max(1, int(round(max_object_size_m / dx))), max(1, int(round(max_object_size_m / dy))))
+    edge = (max(1, int(round(edge_length_m / dx))), max(1, int(round(edge_length_m / dy))))
+    spacing = min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING)
+    return init, edge, tolerance_m + (spacing - 1.0) * min(dx, dy) * tan_g
+
+
+def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
+                         slope_threshold_deg: float, terrain_slope_deg: float, tolerance_m: float,
+                         max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
+                         sample_spacing_cells: float = 1.0, refine: bool = False, slope_factor: float = 1.25,
+                         progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """Slope-profile filter (Luong Chinh Ke 2002, section 2.1).
 
     Parameters
@@ -429,12 +522,16 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
         ``dh0``: height tolerance for the DSM's noise, added to every test.
     max_object_size_m : float
         Largest object; the reference at a profile's start is the lowest point within it.
+    edge_length_m, sample_spacing_cells : float
+        Edge run (metres) and spacing of the real samples (cells) of the edge test.
     refine : bool
         Give rejected cells within the tolerance of the interpolated ground back to the
         ground.
     slope_factor : float
         Slope term of the refinement tolerance (rise/run of the interpolated ground).
     progress : callable, optional
+        ``progress(fraction)`` within every step; may raise
+        :class:`~bare_earth.core.common.Cancelled`.
 
     Returns
     -------
@@ -442,77 +539,54 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
         ``info`` holds the share of cells rejected by X and by Y profiles.
     """
     z = as_surface(z)
-    dx, dy = as_cell_size(cell_size)
-    if not 0 < slope_threshold_deg < 90:
-        raise ValueError(f"slope_threshold_deg must be in (0, 90) degrees; got {slope_threshold_deg}.")
-    if not 0 <= terrain_slope_deg < 90:
-        raise ValueError(f"terrain_slope_deg must be in [0, 90) degrees; got {terrain_slope_deg}.")
-    if tolerance_m < 0:
-        raise ValueError(f"tolerance_m must be >= 0 metres; got {tolerance_m}.")
-    if max_object_size_m <= 0:
-        raise ValueError(f"max_object_size_m must be > 0 metres; got {max_object_size_m}.")
+    cell = as_cell_size(cell_size)
+    p = dict(slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg,
+             tolerance_m=tolerance_m, max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
+             sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor)
+    check_values("slopeprofile", PARAMS, p)
     tan_g = float(np.tan(np.radians(slope_threshold_deg)))
     tan_t = float(np.tan(np.radians(terrain_slope_deg)))
     valid = np.isfinite(z)
-
-    low = find_low_blunders(z, tolerance_m + max(dx, dy) * tan_g)
+    # 1. low blunders (a drop then a rise): class 2, left out of the scans
+    low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
     zs = np.where(low, np.float32(np.nan), z)
-    report(progress, 0.05)
-
-    init_x = max(1, int(round(max_object_size_m / dx)))
-    init_y = max(1, int(round(max_object_size_m / dy)))
-    ex = max(1, int(round(edge_length_m / dx)))
-    ey = max(1, int(round(edge_length_m / dy)))
-    sp_ = min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING)
-    # gridded sparse points rise in stair steps: a slope up to alpha_g over the data's own
-    # spacing comes in one step, which the edge test must allow
-    dh_eff = tolerance_m + (sp_ - 1.0) * min(dx, dy) * tan_g
-    obj_x, obj_y = _scan_all(zs, dx, dy, tan_g, tan_t, dh_eff, (init_x, init_y), (ex, ey))
-    report(progress, 0.65)
-    obj = _combine_axes(obj_x, obj_y, valid & ~low)
-
-    refined = 0
-    dtm = None
-    if refine and obj.any() and (valid & ~obj & ~low).any():
-        from .fill import fill_gaps
-        surf = fill_gaps(z, fill=obj | low)
-        gy, gx = np.gradient(surf, dy, dx)
-        slope = np.hypot(gx, gy)
-        back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * slope)
-        refined = int(back.sum())
-        obj &= ~back
-        if not refined:
-            dtm = surf  # nothing given back: this is the DTM, exact at every ground cell
+    # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
+    init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,
+                                        sample_spacing_cells)
+    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.05, 0.7))
+    del zs
+    # 3. X and Y combined by connected objects
+    obj = _combine_axes(obj_x, obj_y, valid & ~low, (init[1], init[0]), sub_progress(progress, 0.7, 0.8))
+    report(progress, 0.8)
+    # 4. optional refinement against the interpolated ground
+    refined, dtm = 0, None
+    if refine:
+        obj, refined, dtm = refine_objects(z, obj, low, valid, cell, tolerance_m, slope_factor)
     report(progress, 0.95)
-
-    mask = obj.astype(np.uint8)                      # OBJECT = 1, GROUND = 0
-    np.copyto(mask, np.uint8(LOW), where=low)
-    np.copyto(mask, np.uint8(NODATA), where=~valid)
-    n = max(1, int(np.count_nonzero(valid)))
-    info = {"alpha_g_deg": float(slope_threshold_deg), "alpha_t_deg": float(terrain_slope_deg),
-            "dh0_m": float(tolerance_m),
-            "rejected_by_x_percent": 100.0 * float(np.count_nonzero(obj_x & valid)) / n,
-            "rejected_by_y_percent": 100.0 * float(np.count_nonzero(obj_y & valid)) / n,
-            "refined_back_percent": 100.0 * refined / n,
-            "low_blunders_percent": 100.0 * float(np.count_nonzero(low)) / n}
+    mask, info = _mask_and_info(obj, low, valid, obj_x, obj_y, refined, p)
     report(progress, 1.0)
     return FilterResult(mask=mask, info=info, dtm=dtm)
 
 
-def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terrain_slope_deg=None,
-                                 tolerance_m=None, max_object_size_m=100.0, edge_length_m=1.0,
-                                 sample_spacing_cells=None, refine=False, slope_factor=1.25):
+def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
+                                 slope_threshold_deg: Optional[float] = None,
+                                 terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
+                                 max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
+                                 sample_spacing_cells: Optional[float] = None, refine: bool = False,
+                                 slope_factor: float = 1.25) -> dict:
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
       (:func:`estimate_terrain_slope`: slopes between 20 m block minima, which objects do
-      not reach), the paper's "average slope" made robust, and at least 8 degrees: the
-      ground under a long object may rise at least that fast.
+      not reach), the paper's "average slope" made robust, at least 8 degrees (the
+      ground under a long object may rise at least that fast) and at most its Param's
+      maximum.
     * ``slope_threshold_deg`` (alpha_g): twice alpha_t, bounded to [25, 60] degrees:
       steeper than the terrain's usual slope, far gentler than a wall. Below 25 degrees
       the sides of road embankments and the stair steps of gridded sparse points start
       to count as object edges (measured on the ISPRS samples 61 and 71).
-    * ``tolerance_m`` (dh0): 3 x the DSM's robust noise (:func:`estimate_noise`),
+    * ``tolerance_m`` (dh0): 3 x the DSM's robust noise (the MAD of its second
+      differences, :func:`~bare_earth.core.estimate.noise_second_difference`),
       bounded to [0.15, 0.5] m.
     * ``sample_spacing_cells``: the mean run of identical neighbouring values
       (:func:`estimate_sample_spacing`); the edge test spans it.
@@ -521,24 +595,79 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
+    check_values("slopeprofile", PARAMS, dict(
+        slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg, tolerance_m=tolerance_m,
+        max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
+        sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor))
     if terrain_slope_deg is None:
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
-        terrain_slope_deg = max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"]))))
+        terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
+                                _MAX_ALPHA_T)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * estimate_noise(z), 0.15, 0.5))
+        tolerance_m = float(np.clip(3.0 * noise_second_difference(z), 0.15, 0.5))
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
-    return {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
-            "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
-            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells), "refine": bool(refine), "slope_factor": float(slope_factor)}
+    out = {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
+           "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
+           "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
+           "refine": bool(refine), "slope_factor": float(slope_factor)}
+    check_values("slopeprofile", PARAMS, out)
+    return out
 
 
 def slope_profile_halo(params, cell_size):
-    """Reach in cells: the start window plus the longest object crossed by a profile."""
+    """Reach in cells: the scans' (the start window plus the longest object crossed by a
+    profile, ``2 L + 2`` with ``L`` the largest object in cells) plus the combination's
+    (:func:`_combine_axes`: a region's extent is known ``L + 1`` cells around a cell, and
+    large regions are shared over ``L / 2`` cells), so blocks give the one-pass mask."""
     dx, dy = as_cell_size(cell_size)
-    return int(np.ceil(2 * params["max_object_size_m"] / min(dx, dy))) + 2
+    big = int(np.ceil(params["max_object_size_m"] / min(dx, dy)))
+    return 2 * big + 2 + big + 1 + big // 2
+
+
+#: The user parameters (dialog order); their bounds are the limits the core enforces.
+PARAMS = (
+    Param("slope_threshold_deg", "float", None,
+          "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
+          "from the ground before it starts an object. Empty: twice the average terrain slope "
+          "alpha_t, bounded to 25-60 deg.",
+          minimum=0.5, maximum=89.0),
+    Param("terrain_slope_deg", "float", None,
+          "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
+          "per cell of its length. Empty: the median slope between 20 m block minima (which objects "
+          "do not reach), at least 8 deg.",
+          minimum=0.0, maximum=80.0, advanced=True),
+    Param("tolerance_m", "float", None,
+          "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
+          "robust noise of the DSM (from second differences), bounded to 0.15-0.5 m.",
+          minimum=0.0, maximum=50.0, advanced=True),
+    Param("max_object_size_m", "float", 100.0,
+          "Largest object, metres: a profile's reference starts at its lowest point within this "
+          "length, so objects cut by the raster's edge are still removed.",
+          minimum=1.0, maximum=5000.0, advanced=True),
+    Param("edge_length_m", "float", 1.0,
+          "Edge run, metres: an object's edge must rise faster than alpha_g over this length "
+          "(one cell = the paper's point-to-point test; longer runs ignore the stair steps of "
+          "sparse or resampled data).",
+          minimum=0.0, maximum=50.0, advanced=True),
+    Param("sample_spacing_cells", "float", None,
+          "Spacing of the DSM's real samples, in cells (at most 4 is used): the height step of "
+          "the terrain's slope over it is tolerated. Empty: the mean "
+          "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
+          "grid of sparse points with empty cells filled from the nearest point).",
+          minimum=1.0, maximum=20.0, advanced=True),
+    Param("refine", "bool", False,
+          "Give rejected cells lying within the tolerance of the interpolated ground back to the "
+          "ground (as SMRF's last step). Off by default: on the ISPRS samples it gained nothing "
+          "and it costs one more interpolation.", advanced=True),
+    Param("slope_factor", "float", 1.25,
+          "Slope term of the refinement tolerance (rise/run of the interpolated ground), as in SMRF.",
+          minimum=0.0, maximum=10.0, advanced=True),
+)
+#: Largest derived alpha_t: the maximum of its Param.
+_MAX_ALPHA_T = next(p.maximum for p in PARAMS if p.name == "terrain_slope_deg")
 
 
 def _run(z, cell_size, progress=None, **params):
@@ -550,44 +679,7 @@ METHOD = Method(
     run=_run,
     resolve=resolve_slope_profile_params,
     halo=slope_profile_halo,
-    params=(
-        Param("slope_threshold_deg", "float", None,
-              "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
-              "from the ground before it starts an object. Empty: twice the average terrain slope "
-              "alpha_t, bounded to 25-60 deg.",
-              minimum=0.5, maximum=89.0),
-        Param("terrain_slope_deg", "float", None,
-              "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
-              "per cell of its length. Empty: the median slope between 20 m block minima (which objects "
-              "do not reach), at least 8 deg.",
-              minimum=0.0, maximum=80.0, advanced=True),
-        Param("tolerance_m", "float", None,
-              "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
-              "robust noise of the DSM (from second differences), bounded to 0.15-0.5 m.",
-              minimum=0.0, maximum=50.0, advanced=True),
-        Param("max_object_size_m", "float", 100.0,
-              "Largest object, metres: a profile's reference starts at its lowest point within this "
-              "length, so objects cut by the raster's edge are still removed.",
-              minimum=1.0, maximum=5000.0, advanced=True),
-        Param("edge_length_m", "float", 1.0,
-              "Edge run, metres: an object's edge must rise faster than alpha_g over this length "
-              "(one cell = the paper's point-to-point test; longer runs ignore the stair steps of "
-              "sparse or resampled data).",
-              minimum=0.0, maximum=50.0, advanced=True),
-        Param("sample_spacing_cells", "float", None,
-              "Spacing of the DSM's real samples, in cells (at most 4 is used): the height step of "
-              "the terrain's slope over it is tolerated. Empty: the mean "
-              "run of identical neighbouring values (1 for a DSM measured at every cell; more for a "
-              "grid of sparse points with empty cells filled from the nearest point).",
-              minimum=1.0, maximum=20.0, advanced=True),
-        Param("refine", "bool", False,
-              "Give rejected cells lying within the tolerance of the interpolated ground back to the "
-              "ground (as SMRF's last step). Off by default: on the ISPRS samples it gained nothing "
-              "and it costs one more interpolation.", advanced=True),
-        Param("slope_factor", "float", 1.25,
-              "Slope term of the refinement tolerance (rise/run of the interpolated ground), as in SMRF.",
-              minimum=0.0, maximum=10.0, advanced=True),
-    ),
+    params=PARAMS,
     title="Slope-profile filter (Luong Chinh Ke 2002)",
     description=(
         "<p>Filters a DSM along profiles in X and in Y (Luong Chinh Ke 2002, section 2.1). Along each "

@@ -7,6 +7,7 @@ from typing import Optional
 import numpy as np
 
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from ..estimate import noise_second_difference_tiles, sample_windows, smooth_spread
 from ..methods import Method, Param
 from .derivatives import (
     MODELS,
@@ -29,8 +30,6 @@ _MIN_BREAK_M = 0.05
 #: Tile edge (cells) and quantile of the tile spreads used for the smooth-part noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
-#: Largest sample (cells) used to derive defaults on big rasters.
-_SAMPLE_CELLS = 1_048_576
 
 
 def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, window_cells: int = 5,
@@ -172,52 +171,28 @@ def _positive(name, value, hint):
     return v
 
 
-def _noise_sigma(z):
-    """Robust noise (m) of the smooth parts of ``z``: spread of the second differences
-    along X and Y (1.4826 MAD, of the quieter tiles, see :func:`_smooth_spread`) / sqrt(6)."""
-    if min(z.shape) < 3:
-        return 0.0
-    d2 = np.stack([(z[1:-1, :-2] - 2 * z[1:-1, 1:-1] + z[1:-1, 2:]),
-                   (z[:-2, 1:-1] - 2 * z[1:-1, 1:-1] + z[2:, 1:-1])]).astype(np.float32)
-    return _smooth_spread(d2) / np.sqrt(6.0)
-
-
-def _smooth_spread(v, tile=_TILE):
-    """Robust spread (1.4826 MAD) of ``v`` (bands x rows x cols) on its smooth parts.
-
-    The spread is taken per ``tile x tile`` tile and the ``_SMOOTH_QUANTILE`` quantile of
-    the tiles is returned: the noise of the smooth ground and roofs, not inflated by
-    vegetation or by the objects' edges, which may cover most of an urban scene.
-    """
-    b, r, c = v.shape
-    tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
-    nr, nc = r // tr, c // tc
-    t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
-    t = t.reshape(nr * nc, -1).astype(np.float64)  # a copy: partitioned in place
-    med = np.median(t, axis=1, keepdims=True, overwrite_input=True)  # nodata: NaN, dropped
-    t -= med
-    np.abs(t, out=t)
-    mad = 1.4826 * np.median(t, axis=1, overwrite_input=True)
-    mad = mad[np.isfinite(mad)]
-    return float(np.quantile(mad, _SMOOTH_QUANTILE)) if mad.size else 0.0
-
-
-def _sample(z):
-    """Central window of at most ``_SAMPLE_CELLS`` cells (defaults on big rasters)."""
-    side = int(np.sqrt(_SAMPLE_CELLS))
-    r, c = z.shape
-    h, w = min(r, side), min(c, side)
-    r0, c0 = (r - h) // 2, (c - w) // 2
-    return z[r0:r0 + h, c0:c0 + w]
+def _bends(zs, cell_size, window, model):
+    """The bands of profile bends of a surface: r and t of the X and Y profile trends
+    (quadratic model) or the normalised twist s / h^2 (bilinear model)."""
+    quad = model == "quadratic"
+    v = np.empty((2 if quad else 1,) + zs.shape, np.float32)
+    for sl, p, q, r, s, t in derivative_blocks(zs, cell_size, window, model):
+        if quad:
+            v[0, sl] = r
+            v[1, sl] = t
+        else:
+            np.divide(s, 1.0 + p * p + q * q, out=v[0, sl])
+    return v
 
 
 def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic") -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
     The bends r and t of the X and Y profile trends (quadratic model) or the normalised
-    twist s / h^2 (bilinear model) are taken on a central sample of at most
-    ``_SAMPLE_CELLS`` cells. Their robust spread ``1.4826 MAD`` is computed per 16 x 16
-    tile and ``sigma`` is the first quartile of the tiles: the curvature noise of the
+    twist s / h^2 (bilinear model) are taken on the whole raster, or on windows spread
+    over a large one (:func:`~bare_earth.core.estimate.sample_windows`). Their robust
+    spread ``1.4826 MAD`` is computed per 16 x 16 tile and ``sigma`` is the first
+    quartile of the tiles (:func:`~bare_earth.core.estimate.smooth_spread`): the curvature noise of the
     smooth ground and roofs, not inflated by vegetation and object edges, which cover
     most of an urban scene. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
     bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
@@ -228,16 +203,8 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     dx, dy = as_cell_size(cell_size)
     window = check_window(window)
     model = check_model(model)
-    zs = _sample(as_surface(z))
-    quad = model == "quadratic"
-    v = np.empty((2 if quad else 1,) + zs.shape, np.float32)  # the bands of bends
-    for sl, p, q, r, s, t in derivative_blocks(zs, (dx, dy), window, model):
-        if quad:
-            v[0, sl] = r
-            v[1, sl] = t
-        else:
-            np.divide(s, 1.0 + p * p + q * q, out=v[0, sl])
-    sigma = _smooth_spread(v)
+    bends = [_bends(w, (dx, dy), window, model) for w in sample_windows(as_surface(z))]
+    sigma = smooth_spread(bends, _TILE, _SMOOTH_QUANTILE)
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
@@ -253,7 +220,9 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the data's profile bends on
     its smooth parts, squared). ``tolerance_m``: three times the robust noise of the
-    DSM's smooth parts (second differences), kept within [0.3, 1.0] m. The others have
+    DSM's smooth parts (second differences,
+    :func:`~bare_earth.core.estimate.noise_second_difference_tiles`), kept within
+    [0.3, 1.0] m. The others have
     fixed defaults (see :data:`METHOD`).
     """
     z = bounded_heights(as_surface(z))
@@ -263,7 +232,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     if k_g_per_m2 is None:
         k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * _noise_sigma(_sample(z)), 0.3, 1.0))
+        tolerance_m = float(np.clip(3.0 * noise_second_difference_tiles(z, _TILE, _SMOOTH_QUANTILE), 0.3, 1.0))
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),

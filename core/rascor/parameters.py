@@ -11,6 +11,7 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
+from ..estimate import sample_windows
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
 from .steps import remove_level_changes, remove_neighbour_differences
@@ -35,18 +36,10 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 low_weight=0.02)
 
 
-def _analysis_crops(z, edge=256):
-    """The analysis sample: the whole surface when small, else 4 crops at the quadrants."""
-    rows, cols = z.shape
-    if rows * cols <= (2 * edge) ** 2:
-        return [z]
-    out = []
-    for fr in (0.25, 0.75):
-        for fc in (0.25, 0.75):
-            r0 = int(max(0, min(rows - edge, fr * rows - edge / 2)))
-            c0 = int(max(0, min(cols - edge, fc * cols - edge / 2)))
-            out.append(z[r0:r0 + edge, c0:c0 + edge])
-    return out
+#: The analysis sample of a large raster: windows of this side, this many cells in all
+#: (four windows, centred on the quadrants).
+_CROP_EDGE = 256
+_CROP_CELLS = 4 * _CROP_EDGE ** 2
 
 
 #: Residuals beyond this count are subsampled (regularly) for their robust scales.
@@ -79,10 +72,11 @@ def _choose(spreads, sigma):
 
 
 def _analysis_sample(z, cell_size, sigma, p):
-    """``[(heights, weights, cells kept)]`` of each analysis crop (:func:`_analysis_crops`)
-    cleaned by steps 3 and 4."""
+    """``[(heights, weights, cells kept)]`` of each analysis crop (the whole surface when
+    small, else windows centred on its quadrants:
+    :func:`~bare_earth.core.estimate.sample_windows`) cleaned by steps 3 and 4."""
     sample = []
-    for crop in _analysis_crops(z):
+    for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
         keep = np.isfinite(crop)
         if keep.sum() < 100:
             continue

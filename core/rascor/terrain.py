@@ -10,6 +10,7 @@ from typing import Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface
+from ..estimate import noise_plane_residual
 
 #: Terrain classes and the degree of the profile / surface model each selects.
 TERRAIN_CLASSES = ("flat", "rolling", "mountainous")
@@ -88,17 +89,12 @@ def estimate_sigma(z: np.ndarray) -> float:
     ``r = z - mean(4 neighbours)`` has standard deviation ``sigma sqrt(1.25)`` on smooth
     ground; the lower quartile of ``|r|`` (0.3186 standard deviations for normal errors,
     robust to objects, edges and vegetation even when they cover half the area) gives
-    ``sigma``, floored at 0.1 m.
+    ``sigma`` (:func:`~bare_earth.core.estimate.noise_plane_residual`, float64, windows
+    spread over a large raster), floored at 0.1 m (the floor also when fewer than 10
+    residuals exist).
     """
-    z = np.asarray(z, dtype=np.float64)
-    if z.shape[0] < 3 or z.shape[1] < 3:
-        return _SIGMA_FLOOR
-    c = z[1:-1, 1:-1]
-    r = c - 0.25 * (z[:-2, 1:-1] + z[2:, 1:-1] + z[1:-1, :-2] + z[1:-1, 2:])
-    r = r[np.isfinite(r)]
-    if r.size < 10:
-        return _SIGMA_FLOOR
-    return float(max(_SIGMA_FLOOR, np.percentile(np.abs(r), 25) / 0.3186 / np.sqrt(1.25)))
+    return float(max(_SIGMA_FLOOR, noise_plane_residual(z, dtype=np.float64, min_count=10,
+                                                        default=_SIGMA_FLOOR)))
 
 
 def _tile_slopes(low, sx, sy):
@@ -170,10 +166,7 @@ def characterise_with_envelope(z, cell_size, tile_m=25.0):
         s = np.zeros(1)
     lv = low[np.isfinite(low)]
     relief = float(np.percentile(lv, 98) - np.percentile(lv, 2)) if lv.size else 0.0
-    # sigma on a central crop of at most 1024 x 1024 cells
-    r0 = max(0, z.shape[0] // 2 - 512)
-    c0 = max(0, z.shape[1] // 2 - 512)
-    sigma = estimate_sigma(z[r0:r0 + 1024, c0:c0 + 1024])
+    sigma = estimate_sigma(z)                 # on windows spread over a large raster
     return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= _HOMOGENEOUS_SHARE),
             "class_shares": shares, "slope_median": med,
             "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,

@@ -1,10 +1,11 @@
-"""Tests of the gradual geodesic dilation filter with scan labelling (core/geodesic.py)."""
+"""Tests of the gradual geodesic dilation filter with scan labelling (core/geodesic/)."""
 import numpy as np
 import pytest
 from scipy import ndimage
 
-from bare_earth.core import geodesic as G
+from bare_earth.core import geodesic as geo
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
+from bare_earth.core.geodesic import grey
 from bare_earth.core.methods import get_method
 
 
@@ -66,7 +67,7 @@ def test_reconstruction_matches_brute_force(dtype, connectivity):
         mask = (rng.normal(size=(h, w)).cumsum(0) * 5).astype(dtype)
         marker = (mask - rng.integers(0, 6, (h, w))).astype(dtype)
         max_iter = None if trial % 2 else int(rng.integers(0, 6))
-        got = G.reconstruct_by_dilation(marker, mask, connectivity=connectivity,
+        got = geo.reconstruct_by_dilation(marker, mask, connectivity=connectivity,
                                         max_iter=max_iter)
         ref = brute_reconstruction(marker, mask, connectivity, max_iter)
         assert same(got, ref), (trial, h, w, max_iter)
@@ -83,7 +84,7 @@ def test_reconstruction_long_path_uses_frontier_and_matches():
     marker = np.full_like(mask, -5.0)
     marker[1, 1] = 7.0
     for conn in (4, 8):
-        got = G.reconstruct_by_dilation(marker, mask, connectivity=conn)
+        got = geo.reconstruct_by_dilation(marker, mask, connectivity=conn)
         assert same(got, brute_reconstruction(marker, mask, conn))
         assert (got[mask == 10.0] == 7.0).all() and (got[mask < 0] == -5.0).all()
 
@@ -93,7 +94,7 @@ def test_reconstruction_nan_blocks_and_stays_nan():
     mask[:, 3] = np.nan                       # a nodata wall
     marker = np.zeros_like(mask)
     marker[2, 0] = 9.0
-    got = G.reconstruct_by_dilation(marker, mask)
+    got = geo.reconstruct_by_dilation(marker, mask)
     assert np.isnan(got[:, 3]).all()
     assert (got[:, :3] == 9.0).all() and (got[:, 4:] == 0.0).all()
     assert same(got, brute_reconstruction(marker, mask))
@@ -103,7 +104,7 @@ def test_reconstruction_max_iter_is_geodesic_reach():
     mask = np.full((1, 10), 5.0)
     marker = np.zeros((1, 10))
     marker[0, 0] = 4.0
-    got = G.reconstruct_by_dilation(marker, mask, max_iter=3)
+    got = geo.reconstruct_by_dilation(marker, mask, max_iter=3)
     assert got[0].tolist() == [4, 4, 4, 4, 0, 0, 0, 0, 0, 0]
 
 
@@ -112,28 +113,28 @@ def test_running_filters_match_scipy():
     for _ in range(60):
         a = rng.random(rng.integers(1, 30, 2)).astype(np.float32)
         size = (int(rng.integers(0, 7)) * 2 + 1, int(rng.integers(0, 7)) * 2 + 1)
-        assert np.array_equal(G._filter2d(a, size, np.minimum, np.inf),
+        assert np.array_equal(grey.rect_filter(a, size, np.minimum, np.inf),
                               ndimage.minimum_filter(a, size=size, mode="nearest"))
-        assert np.array_equal(G._filter2d(a, size, np.maximum, -np.inf),
+        assert np.array_equal(grey.rect_filter(a, size, np.maximum, -np.inf),
                               ndimage.maximum_filter(a, size=size, mode="nearest"))
         b = a > 0.3
-        assert np.array_equal(G._inner(b), ndimage.binary_erosion(b, np.ones((3, 3)),
+        assert np.array_equal(grey.inner_cells(b), ndimage.binary_erosion(b, np.ones((3, 3)),
                                                                   border_value=0))
 
 
 def test_reconstruction_bad_input():
     with pytest.raises(ValueError, match="same shape"):
-        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 4)))
+        geo.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 4)))
     with pytest.raises(ValueError, match="connectivity"):
-        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), connectivity=6)
+        geo.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), connectivity=6)
     with pytest.raises(ValueError, match="max_iter"):
-        G.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), max_iter=-1)
+        geo.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 3)), max_iter=-1)
 
 
 # ------------------------------------------------------------ gradual dilation
 def test_large_building_removed_by_a_later_step():
     z = add_box(flat_scene(), 60, 60, 24, 10.0)
-    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    res = geo.filter_geodesic(z, 1.0, **PARAMS)
     sizes = res.info["step_sizes_m"]
     step = res.extras["step"]
     bld = np.zeros(z.shape, bool)
@@ -142,7 +143,7 @@ def test_large_building_removed_by_a_later_step():
     # the first steps' elements (2, 4, 8, 16 m) fit inside the 24 m roof: a later step
     codes = np.unique(step[bld])
     assert codes.min() >= 2 and all(sizes[c - 1] > 24 for c in codes if c < 250), codes
-    assert codes.max() < G.STEP_SCAN
+    assert codes.max() < geo.STEP_SCAN
     assert (res.mask[~ndimage.binary_dilation(bld, iterations=2)] == GROUND).mean() > 0.995
 
 
@@ -150,14 +151,14 @@ def test_hill_with_gentle_sides_kept_building_of_same_size_removed():
     n = 160
     base = flat_scene(n)
     hill = (base + cos_hill(n, 80, 80, 14, 4.0)).astype(np.float32)
-    res = G.filter_geodesic(hill, 1.0, **PARAMS)
+    res = geo.filter_geodesic(hill, 1.0, **PARAMS)
     assert (res.mask == OBJECT).mean() < 0.002
     # the same footprint with walls is removed
     bld = add_box(base, 66, 66, 28, 4.0)
-    res_b = G.filter_geodesic(bld, 1.0, **PARAMS)
+    res_b = geo.filter_geodesic(bld, 1.0, **PARAMS)
     assert (res_b.mask[66:94, 66:94] == OBJECT).mean() > 0.99
     # the height heterogeneity test is what keeps the hill: without it the hill goes
-    res_0 = G.filter_geodesic(hill, 1.0, **dict(PARAMS, edge_ratio=0.0,
+    res_0 = geo.filter_geodesic(hill, 1.0, **dict(PARAMS, edge_ratio=0.0,
                                                 scan_labelling=False))
     assert (res_0.mask == OBJECT).sum() > 100
 
@@ -167,7 +168,7 @@ def test_terrain_step_edge_kept():
     # reconstruction restores what it would; no object along the edge
     z = flat_scene(120)
     z[:, 60:] += 6.0
-    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    res = geo.filter_geodesic(z, 1.0, **PARAMS)
     assert (res.mask == OBJECT).mean() < 0.002
 
 
@@ -175,7 +176,7 @@ def test_small_objects_removed_at_small_steps():
     z = flat_scene(100)
     z = add_box(z, 20, 20, 2, 1.5)          # a 2 m "car"
     z = add_box(z, 50, 50, 6, 3.0)          # a 6 m shed
-    res = G.filter_geodesic(z, 1.0, **PARAMS)
+    res = geo.filter_geodesic(z, 1.0, **PARAMS)
     step = res.extras["step"]
     sizes = res.info["step_sizes_m"]
     assert (res.mask[20:22, 20:22] == OBJECT).all()
@@ -191,11 +192,11 @@ def test_scan_label_profile_with_roof():
     prof[30:42] += 6.0                            # a 12 m roof
     prof[35:37] += 1.0                            # a chimney on it (stepped roof)
     z = np.tile(prof, (3, 1))
-    lab = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
+    lab = geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
     assert lab[:, 30:42].all()
     assert not lab[:, :30].any() and not lab[:, 42:].any()
     # with one pass only the inner (chimney) run is bounded by a rise and a fall next
-    one = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0, passes=1)
+    one = geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0, passes=1)
     assert one[:, 35:37].all() and not one[:, 30:35].any()
 
 
@@ -203,20 +204,20 @@ def test_scan_label_columns_and_limits():
     prof = np.zeros(60)
     prof[20:30] = 5.0
     z = np.tile(prof, (4, 1)).T                   # the roof along the columns
-    lab = G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
+    lab = geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0)
     assert lab[20:30].all() and not lab[:20].any() and not lab[30:].any()
     # longer than max_length_m: kept
-    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=8.0).any()
+    assert not geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=8.0).any()
     # gentle ridge (no rise beyond the terrain slope): kept
     ridge = np.tile(30 - np.abs(np.arange(60) - 30) * 0.3, (3, 1))
-    assert not G.scan_label(ridge, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    assert not geo.scan_label(ridge, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
     # a ditch (fall then rise) is not a roof
-    assert not G.scan_label(-z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    assert not geo.scan_label(-z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
     # a steep slope within terrain_slope_deg is no rise
     steep = np.tile(np.arange(40) * 0.4, (2, 1))
     steep[:, 10:14] += 1.5
-    assert G.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
-    assert not G.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
+    assert geo.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    assert not geo.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
                             terrain_slope_deg=60.0).any()
 
 
@@ -225,15 +226,15 @@ def test_scan_label_nodata_breaks_runs_and_reference():
     prof[10:20] = 5.0
     z = np.tile(prof, (2, 1))
     z[:, 15] = np.nan
-    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
+    assert not geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
     z = np.tile(prof, (2, 1))
     ref = z.copy()                                # a reference on the roof: not above it
-    assert not G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
+    assert not geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
                             reference=ref).any()
     with pytest.raises(ValueError, match="max_length_m"):
-        G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=0)
+        geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=0)
     with pytest.raises(ValueError, match="reference"):
-        G.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=9, reference=ref[:1])
+        geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=9, reference=ref[:1])
 
 
 # ------------------------------------------------------------ contract
@@ -247,15 +248,15 @@ def test_outliers_nodata_codes_and_dtypes(dtype):
     z[50:, 50:] = np.nan if dtype != np.int16 else 100.0
     zin = z.astype(dtype)
     keep = zin.copy()
-    res = G.filter_geodesic(zin, 1.0, **PARAMS)
+    res = geo.filter_geodesic(zin, 1.0, **PARAMS)
     assert np.array_equal(zin, keep, equal_nan=True)
     assert res.mask.dtype == np.uint8 and res.extras["step"].dtype == np.uint8
-    assert res.mask[10, 10] == LOW and res.extras["step"][10, 10] == G.STEP_OUTLIER
+    assert res.mask[10, 10] == LOW and res.extras["step"][10, 10] == geo.STEP_OUTLIER
     assert (res.mask[40:42, 40:42] == LOW).all()
-    assert res.mask[30, 15] == OBJECT and res.extras["step"][30, 15] == G.STEP_OUTLIER
+    assert res.mask[30, 15] == OBJECT and res.extras["step"][30, 15] == geo.STEP_OUTLIER
     if dtype != np.int16:
         assert (res.mask[50:, 50:] == NODATA).all()
-        assert (res.extras["step"][50:, 50:] == G.STEP_NODATA).all()
+        assert (res.extras["step"][50:, 50:] == geo.STEP_NODATA).all()
     other = np.ones(z.shape, bool)
     other[[10, 30], [10, 15]] = False
     other[40:42, 40:42] = False
@@ -265,25 +266,25 @@ def test_outliers_nodata_codes_and_dtypes(dtype):
 
 def test_resolve_and_errors():
     z = add_box(flat_scene(100), 30, 30, 10, 8.0)
-    p = G.resolve_geodesic_params(z, 1.0)
+    p = geo.resolve_geodesic_params(z, 1.0)
     assert all(v is not None for v in p.values())
     assert 0.5 <= p["height_threshold_m"] < 1.0
-    assert G.SLOPE_CLIP_DEG[0] <= p["terrain_slope_deg"] <= G.SLOPE_CLIP_DEG[1]
-    assert G.resolve_geodesic_params(z, 1.0, height_threshold_m=0.8)["height_threshold_m"] == 0.8
+    assert geo.SLOPE_CLIP_DEG[0] <= p["terrain_slope_deg"] <= geo.SLOPE_CLIP_DEG[1]
+    assert geo.resolve_geodesic_params(z, 1.0, height_threshold_m=0.8)["height_threshold_m"] == 0.8
     with pytest.raises(ValueError, match="unknown geodesic parameter"):
-        G.resolve_geodesic_params(z, 1.0, window=3)
+        geo.resolve_geodesic_params(z, 1.0, window=3)
     with pytest.raises(ValueError, match="edge_ratio"):
-        G.resolve_geodesic_params(z, 1.0, edge_ratio=2.0)
-    with pytest.raises(ValueError, match="max_object_size_m"):
-        G.resolve_geodesic_params(z, 1.0, min_window_m=10.0, max_object_size_m=5.0)
+        geo.resolve_geodesic_params(z, 1.0, edge_ratio=2.0)
+    assert geo.filter_geodesic(z, 1.0, **dict(PARAMS, min_window_m=10.0, max_object_size_m=5.0)).info[
+        "step_sizes_m"] == [5.0]                  # a first window above the largest: one step
     with pytest.raises(ValueError, match="resolve_geodesic_params"):
-        G.filter_geodesic(z, 1.0, **dict(PARAMS, height_threshold_m=None))
+        geo.filter_geodesic(z, 1.0, **dict(PARAMS, height_threshold_m=None))
 
 
 def test_method_registered_and_params_match_signature():
     import inspect
     m = get_method("geodesic")
-    sig = inspect.signature(G.filter_geodesic).parameters
+    sig = inspect.signature(geo.filter_geodesic).parameters
     assert {p.name for p in m.params} <= set(sig)
     assert m.extras["step"][2] == 255
     res = m.run(flat_scene(40), (1.0, 1.0), **m.resolve(flat_scene(40), 1.0))
@@ -296,7 +297,7 @@ def test_blocks_agree_with_one_pass():
     from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", (320, 320), seed=4)
     params = dict(max_object_size_m=20.0)
-    halo = G.geodesic_halo(G.resolve_geodesic_params(sc.dsm, 1.0, **params), 1.0)
+    halo = geo.geodesic_halo(geo.resolve_geodesic_params(sc.dsm, 1.0, **params), 1.0)
     assert halo % 2 == 0                          # aligned on the coarse grids
     one = run_array("geodesic", sc.dsm, 1.0, params=params)
     blk = run_array("geodesic", sc.dsm, 1.0, params=params, block=160)
@@ -307,8 +308,8 @@ def test_blocks_agree_with_one_pass():
 def test_city_scene_accuracy():
     from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", (256, 256), seed=1)
-    p = G.resolve_geodesic_params(sc.dsm, sc.cell_size)
-    res = G.filter_geodesic(sc.dsm, sc.cell_size, **p)
+    p = geo.resolve_geodesic_params(sc.dsm, sc.cell_size)
+    res = geo.filter_geodesic(sc.dsm, sc.cell_size, **p)
     truth_obj = sc.mask == OBJECT
     pred_obj = res.mask != GROUND
     valid = sc.mask != NODATA
@@ -316,25 +317,12 @@ def test_city_scene_accuracy():
     assert err < 0.04, err
 
 
-def test_progress_and_cancel():
-    from bare_earth.core.common import Cancelled
-    seen = []
-    G.filter_geodesic(flat_scene(50), 1.0, progress=seen.append, **PARAMS)
-    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
-
-    def stop(f):
-        if f > 0.3:
-            raise Cancelled()
-    with pytest.raises(Cancelled):
-        G.filter_geodesic(flat_scene(50), 1.0, progress=stop, **PARAMS)
-
-
 @pytest.mark.parametrize("shape", [(1, 1), (1, 25), (25, 1), (2, 2)])
 def test_tiny_rasters_and_tiny_cells(shape):
     z = 100 + 1e-6 * np.arange(np.prod(shape), dtype=np.float32).reshape(shape)
     for cell in (1.0, (0.5, 2.0), 1e-3):
-        p = G.resolve_geodesic_params(z, cell)
-        res = G.filter_geodesic(z, cell, **p)
+        p = geo.resolve_geodesic_params(z, cell)
+        res = geo.filter_geodesic(z, cell, **p)
         assert res.mask.shape == shape and (res.mask == GROUND).all()
 
 
@@ -343,8 +331,45 @@ def test_object_border_cells_removed():
     z[20:25, 20:25] = 110.0                       # a building
     z[20:25, 19] = 100.4                          # mixed wall-foot cells, below dh0 ...
     z[20:25, 18] = 99.7                           # ... but above their outer neighbours
-    res = G.filter_geodesic(z, 1.0, **dict(PARAMS, max_object_size_m=6.0))
+    res = geo.filter_geodesic(z, 1.0, **dict(PARAMS, max_object_size_m=6.0))
     assert (res.mask[20:25, 20:25] == OBJECT).all()
-    assert (res.extras["step"][20:25, 19] == G.STEP_EDGE).all()
+    assert (res.extras["step"][20:25, 19] == geo.STEP_EDGE).all()
     assert (res.mask[20:25, 19] == OBJECT).all()
     assert (res.mask[:, :19] == GROUND).all() and res.info["removed_edge"] == 5
+
+
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just outside fails, the bounds pass."""
+    z = flat_scene(40)
+    spec = {p.name: p for p in geo.PARAMS}
+    for name in ("height_threshold_m", "terrain_slope_deg", "edge_ratio", "outlier_threshold_m",
+                 "outlier_width_m", "min_window_m", "max_object_size_m"):
+        lo, hi = spec[name].minimum, spec[name].maximum
+        for bad in (lo - 0.001, hi + 0.5):
+            with pytest.raises(ValueError, match=rf"{name} = .* is out of range \["):
+                geo.filter_geodesic(z, 1.0, **dict(PARAMS, **{name: bad}))
+            with pytest.raises(ValueError, match=name):
+                geo.resolve_geodesic_params(z, 1.0, **{name: bad})
+    geo.filter_geodesic(z, 1.0, **dict(PARAMS, terrain_slope_deg=89.0, edge_ratio=1.0))
+
+
+def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
+    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
+    by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(200, 200), seed=3).dsm
+    seen = []
+    geo.filter_geodesic(z, 1.0, progress=seen.append, **PARAMS)
+    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
+
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            geo.filter_geodesic(z, 1.0, progress=stop, **PARAMS)
+        assert len(calls) == n

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from bare_earth.core import LOW, NODATA, OBJECT
-from bare_earth.core import morphology as M
+from bare_earth.core import morphology as morph
 from bare_earth.core.methods import get_method
 from bare_earth.core.pipeline import run_array
 
@@ -34,8 +34,8 @@ def _ridge(with_box=True):
 def test_opening_removes_a_narrow_box_and_keeps_a_wide_one():
     z = np.zeros((12, 12), np.float32)
     z[4:7, 4:7] = 5.0                          # 3 x 3 box
-    np.testing.assert_array_equal(M.open_surface(z, 1.0, 5.0), np.zeros_like(z))
-    np.testing.assert_array_equal(M.open_surface(z, 1.0, 3.0), z)   # the 3 x 3 window fits
+    np.testing.assert_array_equal(morph.open_surface(z, 1.0, 5.0), np.zeros_like(z))
+    np.testing.assert_array_equal(morph.open_surface(z, 1.0, 3.0), z)   # the 3 x 3 window fits
 
 
 def test_opening_of_a_step_and_a_spike_profile():
@@ -45,7 +45,7 @@ def test_opening_of_a_step_and_a_spike_profile():
     expect = row.copy()
     expect[4] = 0
     expect[14:16] = 3
-    out = M.open_surface(z, 1.0, 3.0)
+    out = morph.open_surface(z, 1.0, 3.0)
     np.testing.assert_array_equal(out, np.tile(expect, (7, 1)))
     # both spikes are narrower than the 3-cell window and go; the step stays
 
@@ -55,9 +55,9 @@ def test_opening_keeps_a_ramp_exactly_and_cuts_a_ridge_by_slope_times_radius():
     ramp = np.tile(0.5 * j, (20, 1))
     # exact except within one radius (5 cells) of the raster's uphill edge, where the
     # clipped window cannot fit under the ramp's high end
-    np.testing.assert_allclose(M.open_surface(ramp, 1.0, 11.0)[:, :36], ramp[:, :36])
+    np.testing.assert_allclose(morph.open_surface(ramp, 1.0, 11.0)[:, :36], ramp[:, :36])
     z, _ = _ridge(with_box=False)
-    out = M.open_surface(z, 1.0, 11.0)         # r = 5 cells
+    out = morph.open_surface(z, 1.0, 11.0)         # r = 5 cells
     assert out[20, 30] == pytest.approx(30.0 - 0.5 * 5)     # the top is flattened
     assert np.all(out <= z + 1e-6)
 
@@ -66,7 +66,7 @@ def test_opening_ignores_nodata_and_keeps_it_nan():
     z = np.zeros((10, 10), np.float32)
     z[2:4, 2:4] = 4.0
     z[7, 7] = np.nan
-    out = M.open_surface(z, 1.0, 5.0)
+    out = morph.open_surface(z, 1.0, 5.0)
     assert np.isnan(out[7, 7])
     np.testing.assert_array_equal(np.nan_to_num(out, nan=-1.0)[np.isfinite(z)], 0.0)
 
@@ -77,21 +77,21 @@ def test_running_min_max_equal_ndimage():
     a = rng.normal(size=(37, 53)).astype(np.float32)
     for r in (1, 2, 3, 4, 7, 8, 20, 40):
         for axis in (0, 1):
-            got = M._running(a, r, axis, np.minimum)
+            got = morph._running(a, r, axis, np.minimum)
             ref = ndimage.minimum_filter1d(a, 2 * r + 1, axis=axis, mode="nearest")
             np.testing.assert_array_equal(got, ref)
-            got = M._running(a, r, axis, np.maximum)
+            got = morph._running(a, r, axis, np.maximum)
             ref = ndimage.maximum_filter1d(a, 2 * r + 1, axis=axis, mode="nearest")
             np.testing.assert_array_equal(got, ref)
 
 
 def test_window_radii():
-    assert [r[1] for r in M.window_radii(41.0, 1.0)] == [1, 2, 4, 8, 16, 20]
-    assert [r[1] for r in M.window_radii(11.0, 1.0, growth=1.0)] == [1, 2, 3, 4, 5]
-    radii = M.window_radii(20.0, (0.5, 1.0))
+    assert [r[1] for r in morph.window_radii(41.0, 1.0)] == [1, 2, 4, 8, 16, 20]
+    assert [r[1] for r in morph.window_radii(11.0, 1.0, growth=1.0)] == [1, 2, 3, 4, 5]
+    radii = morph.window_radii(20.0, (0.5, 1.0))
     assert radii[-1][:2] == (10, 20)           # same metres along both axes
     with pytest.raises(ValueError, match="window_growth"):
-        M.window_radii(20.0, 1.0, growth=0.5)
+        morph.window_radii(20.0, 1.0, growth=0.5)
 
 
 # --------------------------------------------------------------------------- the filter
@@ -99,7 +99,7 @@ def test_window_radii():
 @pytest.mark.parametrize("mode", ["single", "progressive"])
 def test_box_building_is_removed(dtype, mode):
     z, truth = _box_scene(dtype)
-    res = M.filter_morphological(z, 1.0, mode=mode, max_object_size_m=9.0, dh_m=0.5, slope=0.3)
+    res = morph.filter_morphological(z, 1.0, mode=mode, max_object_size_m=9.0, dh_m=0.5, slope=0.3)
     np.testing.assert_array_equal(res.mask, truth)
     assert res.mask.dtype == np.uint8
     assert res.surface.dtype == np.float32
@@ -110,11 +110,11 @@ def test_box_building_is_removed(dtype, mode):
 
 def test_ridge_kept_by_progressive_but_cut_by_single():
     z, truth = _ridge()
-    prog = M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=21.0, dh_m=0.5,
+    prog = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=21.0, dh_m=0.5,
                                   slope=0.6)
     np.testing.assert_array_equal(prog.mask, truth)
     assert prog.info["window_cells"][-1] == (21, 21)
-    single = M.filter_morphological(z, 1.0, mode="single", max_object_size_m=21.0, dh_m=0.5)
+    single = morph.filter_morphological(z, 1.0, mode="single", max_object_size_m=21.0, dh_m=0.5)
     assert np.all(single.mask[truth == OBJECT] == OBJECT)
     top = single.mask[:, 28:33]
     assert np.all(top == OBJECT)                # the ridge top is cut: Type I errors
@@ -126,7 +126,7 @@ def test_low_outlier_is_class_2(mode):
     z = np.full((15, 15), 5.0, np.float32)
     z[7, 7] = -10.0
     z[3, 10] = -20.0
-    res = M.filter_morphological(z, 1.0, mode=mode, max_object_size_m=7.0, dh_m=0.5, slope=0.3)
+    res = morph.filter_morphological(z, 1.0, mode=mode, max_object_size_m=7.0, dh_m=0.5, slope=0.3)
     expect = np.zeros(z.shape, np.uint8)
     expect[7, 7] = expect[3, 10] = LOW
     np.testing.assert_array_equal(res.mask, expect)
@@ -137,7 +137,7 @@ def test_nodata_cells_are_255_and_do_not_disturb():
     z[0:3, 20:24] = np.nan
     truth[0:3, 20:24] = NODATA
     for mode in ("single", "progressive"):
-        res = M.filter_morphological(z, 1.0, mode=mode, max_object_size_m=9.0, dh_m=0.5, slope=0.3)
+        res = morph.filter_morphological(z, 1.0, mode=mode, max_object_size_m=9.0, dh_m=0.5, slope=0.3)
         np.testing.assert_array_equal(res.mask, truth)
         assert np.isnan(res.surface[1, 21])
 
@@ -145,30 +145,14 @@ def test_nodata_cells_are_255_and_do_not_disturb():
 def test_input_is_not_modified():
     z, _ = _box_scene()
     before = z.copy()
-    M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3)
+    morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3)
     np.testing.assert_array_equal(z, before)
-
-
-def test_progress_is_reported_and_can_cancel():
-    from bare_earth.core import Cancelled
-    z, _ = _box_scene()
-    seen = []
-    M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3,
-                           progress=seen.append)
-    assert seen and seen[-1] == 1.0 and all(0 <= f <= 1 for f in seen)
-
-    def stop(f):
-        if f > 0.2:
-            raise Cancelled()
-    with pytest.raises(Cancelled):
-        M.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=9.0, dh_m=0.5,
-                               slope=0.3, progress=stop)
 
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(mode="fast"), "mode"),
     (dict(dh_m=-1.0), "dh_m"),
-    (dict(max_object_size_m=0.5), "max_object_size_m"),
+    (dict(max_object_size_m=0.05), "max_object_size_m"),
     (dict(slope=-0.1), "slope"),
     (dict(window_growth=0.5), "window_growth"),
 ])
@@ -177,7 +161,7 @@ def test_bad_parameters_raise_value_error(kwargs, match):
     args = dict(mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3)
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
-        M.filter_morphological(z, 1.0, **args)
+        morph.filter_morphological(z, 1.0, **args)
 
 
 # --------------------------------------------------------------------------- defaults
@@ -187,26 +171,26 @@ def test_resolve_derives_parameters_and_chooses_the_mode():
     flat = 100.0 + rng.normal(0, 0.05, (200, 200)).astype(np.float32)
     for r, c in ((20, 30), (100, 120), (150, 40)):
         flat[r:r + 15, c:c + 12] += 9.0
-    p = M.resolve_morphological_params(flat, 1.0)
+    p = morph.resolve_morphological_params(flat, 1.0)
     assert p["mode"] == "single" and "flat" in p["mode_reason"]
     assert p["dh_m"] == pytest.approx(0.5)                  # 3 x 0.05 m noise -> the 0.5 m floor
     assert p["noise_m"] == pytest.approx(0.05, rel=0.3)
     assert 12.0 <= p["max_object_size_m"] <= 25.0            # the 12-15 m wide buildings
     steep = flat + 0.4 * xx
-    p = M.resolve_morphological_params(steep, 1.0)
+    p = morph.resolve_morphological_params(steep, 1.0)
     assert p["mode"] == "progressive" and "not flat" in p["mode_reason"]
     assert p["slope"] == pytest.approx(0.4, abs=0.05)
     noisy = flat + rng.normal(0, 0.4, flat.shape).astype(np.float32)
-    assert M.resolve_morphological_params(noisy, 1.0)["dh_m"] == pytest.approx(1.2, rel=0.25)
+    assert morph.resolve_morphological_params(noisy, 1.0)["dh_m"] == pytest.approx(1.2, rel=0.25)
     # user values are kept
-    p = M.resolve_morphological_params(steep, 1.0, mode="single", dh_m=2.0, slope=0.1,
+    p = morph.resolve_morphological_params(steep, 1.0, mode="single", dh_m=2.0, slope=0.1,
                                        max_object_size_m=30.0)
     assert (p["mode"], p["dh_m"], p["slope"], p["max_object_size_m"]) == ("single", 2.0, 0.1, 30.0)
 
 
 def test_halo_covers_the_reach():
-    assert M.morphological_halo({"max_object_size_m": 41.0}, 1.0) >= 2 * 20 + 2
-    assert M.morphological_halo({"max_object_size_m": 41.0}, 0.5) >= 2 * 40 + 4
+    assert morph.morphological_halo({"max_object_size_m": 41.0}, 1.0) >= 2 * 20 + 2
+    assert morph.morphological_halo({"max_object_size_m": 41.0}, 0.5) >= 2 * 40 + 4
 
 
 @pytest.mark.parametrize("mode", ["single", "progressive"])
@@ -249,3 +233,41 @@ def test_defaults_on_synthetic_scenes(kind, max_total):
     assert res.info["mode"] == "progressive"
     # the filled DTM follows the true terrain
     assert np.nanmedian(np.abs(res.dtm - sc.dtm)[valid]) < 0.1
+
+
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just outside fails, the bounds pass."""
+    z, _ = _box_scene()
+    args = dict(mode="progressive", max_object_size_m=9.0, dh_m=0.5, slope=0.3)
+    spec = {p.name: p for p in morph.PARAMS}
+    for name in ("dh_m", "slope", "slope_scale_m", "window_growth", "low_outlier_slope"):
+        lo, hi = spec[name].minimum, spec[name].maximum
+        for bad in (lo - 0.01, hi + 1.0):
+            with pytest.raises(ValueError, match=rf"{name} = .* is out of range \["):
+                morph.filter_morphological(z, 1.0, **dict(args, **{name: bad}))
+        morph.filter_morphological(z, 1.0, **dict(args, **{name: lo if name != "window_growth" else hi}))
+    with pytest.raises(ValueError, match="max_object_size_m = .* is out of range"):
+        morph.resolve_morphological_params(z, 1.0, max_object_size_m=20000.0)
+
+
+def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
+    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
+    by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(200, 200), seed=3).dsm
+    seen = []
+    args = dict(mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3)
+    morph.filter_morphological(z, 1.0, progress=seen.append, **args)
+    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
+
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            morph.filter_morphological(z, 1.0, progress=stop, **args)
+        assert len(calls) == n

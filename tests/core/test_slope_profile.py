@@ -89,7 +89,7 @@ def test_resolve_derives_from_data():
     assert p["terrain_slope_deg"] == pytest.approx(8.0)      # the floor on flat ground
     assert p["slope_threshold_deg"] == pytest.approx(25.0)   # the floor of alpha_g
     assert 0.15 <= p["tolerance_m"] <= 0.5
-    assert sp.estimate_noise(flat) == pytest.approx(0.05, rel=0.15)
+    assert p["tolerance_m"] == pytest.approx(3 * 0.05, rel=0.15)  # 3 x the 0.05 m noise
     yy, xx = np.mgrid[0:200, 0:200]
     steep = (0.5 * xx).astype(np.float32)                    # 26.6 deg slope
     p = sp.resolve_slope_profile_params(steep, 1.0)
@@ -100,8 +100,8 @@ def test_resolve_derives_from_data():
 
 
 def test_city_scene_whole_roofs_removed_and_type2_low():
-    from bare_earth.core.synthetic import make_scene
     from bare_earth.core.evaluate import compare_masks
+    from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", shape=(300, 300), seed=3)
     res = run_array("slopeprofile", sc.dsm, sc.cell_size)
     r = compare_masks(res.mask, sc.mask)
@@ -151,18 +151,62 @@ def test_embankment_along_a_profile_kept_building_removed():
     assert (r.mask[60:72, 50:62] == OBJECT).all()
 
 
-@pytest.mark.parametrize("shape,k", [((7, 5), 2), ((40, 41), 20), ((20, 20), 20), ((3, 9), 4)])
-def test_block_min_exact(shape, k):
-    from bare_earth.core.slope_profile import _block_min
-    rng = np.random.default_rng(1)
-    z = rng.random(shape).astype(np.float32)
-    z[rng.random(shape) < 0.3] = np.nan
-    z[:k, :k] = np.nan                                   # an all-nodata block
-    R, C = -(-shape[0] // k), -(-shape[1] // k)
-    expect = np.full((R, C), np.nan, np.float32)
-    for i in range(R):
-        for j in range(C):
-            b = z[i * k:(i + 1) * k, j * k:(j + 1) * k]
-            if np.isfinite(b).any():
-                expect[i, j] = np.nanmin(b)
-    np.testing.assert_array_equal(_block_min(z, k), expect)
+def test_core_enforces_the_param_limits():
+    """The dialog's bounds (PARAMS) are the core's: just inside passes, just outside fails."""
+    z = profile([0] * 8 + [6] * 10 + [0] * 8)
+    spec = {p.name: p for p in sp.PARAMS}
+    assert spec["slope_threshold_deg"].minimum == 0.5 and spec["slope_threshold_deg"].maximum == 89.0
+    for name, bad in (("slope_threshold_deg", 0.4), ("slope_threshold_deg", 89.5), ("terrain_slope_deg", 80.5),
+                      ("tolerance_m", 50.5), ("max_object_size_m", 0.5), ("sample_spacing_cells", 0.5)):
+        with pytest.raises(ValueError, match=rf"{name} = .* is out of range \["):
+            sp.filter_slope_profile(z, 1.0, **dict(PARAMS, **{name: bad}))
+        with pytest.raises(ValueError, match=name):
+            sp.resolve_slope_profile_params(z, 1.0, **{name: bad})
+    for name in ("slope_threshold_deg", "terrain_slope_deg", "tolerance_m", "max_object_size_m"):
+        for edge in (spec[name].minimum, spec[name].maximum):
+            sp.filter_slope_profile(z, 1.0, **dict(PARAMS, **{name: edge}))      # the bounds are valid
+
+
+def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
+    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
+    by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(800, 800), seed=3).dsm
+    seen = []
+    sp.filter_slope_profile(z, 1.0, progress=seen.append, **PARAMS)
+    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
+
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            sp.filter_slope_profile(z, 1.0, progress=stop, **PARAMS)
+        assert len(calls) == n
+
+
+@pytest.mark.parametrize("shape,ry,rx", [((7, 9), 1, 2), ((5, 4), 3, 0), ((6, 6), 10, 10), ((1, 8), 0, 3)])
+def test_box_sum_exact(shape, ry, rx):
+    a = np.random.default_rng(4).integers(-3, 9, shape).astype(np.int32)
+    expect = np.array([[a[max(0, i - ry):i + ry + 1, max(0, j - rx):j + rx + 1].sum() for j in range(shape[1])]
+                       for i in range(shape[0])])
+    np.testing.assert_array_equal(sp._box_sum(a.copy(), ry, rx), expect)
+
+
+def test_building_touching_a_long_dam_is_an_object_blocked_or_not():
+    """#15 defect 4: the share of both-axes rejections was taken over a whole connected
+    region, so a building touching a dam longer than the halo was ground in one pass and
+    an object in blocks. Regions larger than the largest object share locally now."""
+    z = np.zeros((200, 600), np.float32)
+    z[100:110, 40:560] = 5.0                 # a dam along X: Y profiles reject it, X ones do not
+    z[80:100, 300:316] = 8.0                 # a building touching it
+    params = dict(PARAMS)
+    one = run_array("slopeprofile", z, 1.0, params)
+    blocked = run_array("slopeprofile", z, 1.0, params, block=64)
+    assert (one.mask[80:100, 300:316] == OBJECT).all()
+    assert (one.mask[100:110, 40:200] == GROUND).all() and (one.mask[100:110, 420:560] == GROUND).all()
+    np.testing.assert_array_equal(blocked.mask, one.mask)

@@ -1,0 +1,160 @@
+"""The geodesic filter as its sequence of stages (:func:`filter_geodesic`), and its last
+stage, the borders of the removed objects."""
+import time
+from typing import Callable, Optional, Tuple, Union
+
+import numpy as np
+
+from ..codes import LOW, OBJECT
+from ..common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
+from .dilation import gradual_dilation
+from .grey import fill_nodata, rect_filter
+from .outliers import remove_outliers
+from .params import check_params, step_sizes
+from .scan import SCAN_PASSES, scan_label
+
+#: ``extras["step"]`` code of a cell removed by scan labelling.
+STEP_SCAN = 250
+#: ``extras["step"]`` code of a preprocessing outlier (high: mask 1, low: mask 2).
+STEP_OUTLIER = 251
+#: ``extras["step"]`` code of a border cell of a removed region (wall or crown edge).
+STEP_EDGE = 252
+#: ``extras["step"]`` code of nodata cells.
+STEP_NODATA = 255
+
+
+def label_scans(cleaned, cell_size, p, removed, step, progress=None):
+    """Stage 3: scan labelling of the cleaned surface (:func:`~.scan.scan_label`).
+
+    Runs of cells that open with a rise and close with a fall are removed (``removed``
+    updated in place); cells not coded yet get :data:`STEP_SCAN`. Returns their count.
+    """
+    lab = scan_label(cleaned, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
+                     max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
+                     passes=SCAN_PASSES, progress=progress)
+    new = lab & ~removed & (step == 0)
+    step[new] = STEP_SCAN
+    removed |= lab
+    return int(new.sum())
+
+
+def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step):
+    """Stage 4: the borders of the removed objects.
+
+    A kept cell that touches a removed one and stands above one of its 8 neighbours by
+    more than ``dh0`` plus the terrain's rise over a cell diagonal is the foot of a wall
+    or the edge of a crown (a cell mixing object and ground): it is removed too
+    (``removed`` and ``step`` updated in place, code :data:`STEP_EDGE`), so the
+    interpolated DTM is not pulled up along the objects' borders. Returns the count.
+    """
+    if not removed.any():
+        return 0
+    dx, dy = cell_size
+    lowc = rect_filter(fill_nodata(cleaned, vnone, np.inf), (3, 3), np.minimum, np.inf)
+    with np.errstate(invalid="ignore"):
+        edge = valid & (cleaned - lowc > dh0 + tan_s * np.hypot(dx, dy))
+    edge &= rect_filter(removed, (3, 3), np.maximum, False) & ~removed & (step == 0)
+    step[edge] = STEP_EDGE
+    removed |= edge
+    return int(edge.sum())
+
+
+def _complete(p):
+    """``p`` checked: every value given (not None) and within its bounds."""
+    for k, v in p.items():
+        if v is None:
+            raise ValueError(f"{k} is None: filter_geodesic needs complete parameters; "
+                             "call resolve_geodesic_params first (or use the pipeline).")
+    check_params(p)
+    p["scan_labelling"] = bool(p["scan_labelling"])
+    return p
+
+
+def _lap(stages, name, t0):
+    """Record the seconds since the previous stage ended under ``name``."""
+    stages[name] = round(time.perf_counter() - t0 - sum(stages.values()), 3)
+
+
+def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *, min_window_m: float = 2.0,
+                    max_object_size_m: float = 64.0, height_threshold_m: float = 0.5,
+                    terrain_slope_deg: float = 20.0, edge_ratio: float = 0.55, outlier_threshold_m: float = 2.0,
+                    outlier_width_m: float = 2.0, scan_labelling: bool = True,
+                    progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+    """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
+
+    See the package docstring for the method. Parameters are complete values (use
+    :func:`~.params.resolve_geodesic_params` to derive defaults from the data).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata (not modified).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    min_window_m, max_object_size_m : float
+        Sides of the first (smallest) and the last structuring element, metres.
+    height_threshold_m : float
+        dh0: minimal height of an object above the reconstructed terrain, metres.
+    terrain_slope_deg : float
+        Terrain slope tolerance (degrees) of the wall test, the height test and scan
+        labelling.
+    edge_ratio : float
+        Height heterogeneity threshold in [0, 1]: a region is an object when at least
+        this fraction of its border cells hold a wall.
+    outlier_threshold_m, outlier_width_m : float
+        Preprocessing: depth (height) below the closing (above the opening) of a low
+        (high) outlier, and the width of their window, metres.
+    scan_labelling : bool
+        Run scan labelling after the dilation steps.
+    progress : callable, optional
+        ``progress(fraction)`` within every stage; may raise
+        :class:`~bare_earth.core.common.Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low outlier, 255 nodata); ``extras["step"]``
+        (uint8: 0 kept, k = removed at dilation step k, :data:`STEP_SCAN`,
+        :data:`STEP_OUTLIER`, :data:`STEP_EDGE`, 255 nodata); ``surface`` the cleaned
+        surface (removed cells lowered to the reconstruction); ``info`` parameters, step
+        sizes and counts.
+    """
+    t0 = time.perf_counter()
+    z = as_surface(z)
+    cell = as_cell_size(cell_size)
+    p = _complete(dict(min_window_m=min_window_m, max_object_size_m=max_object_size_m,
+                       height_threshold_m=height_threshold_m, terrain_slope_deg=terrain_slope_deg,
+                       edge_ratio=edge_ratio, outlier_threshold_m=outlier_threshold_m,
+                       outlier_width_m=outlier_width_m, scan_labelling=scan_labelling))
+    valid = np.isfinite(z)
+    vnone = None if valid.all() else valid        # fast paths when there is no nodata
+    dh0, tan_s = float(height_threshold_m), float(np.tan(np.radians(terrain_slope_deg)))
+    step, mask, outlier = np.zeros(z.shape, np.uint8), np.zeros(z.shape, np.uint8), np.zeros(z.shape, bool)
+    stages = {}
+    report(progress, 0.0)
+    # 1. preprocessing: isolated low and high outliers
+    w, n_low, n_high = remove_outliers(z, valid, vnone, cell, outlier_threshold_m, outlier_width_m,
+                                       mask, outlier, sub_progress(progress, 0.0, 0.05))
+    step[outlier] = STEP_OUTLIER
+    _lap(stages, "preprocessing", t0)
+    # 2. gradual geodesic dilation
+    sizes = step_sizes(min_window_m, max_object_size_m)
+    removed, cleaned, counts = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
+                                                sub_progress(progress, 0.05, 0.85))
+    _lap(stages, "dilation", t0)
+    # 3. scan labelling on the cleaned surface
+    n_scan = label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95)) if scan_labelling else 0
+    _lap(stages, "scan", t0)
+    report(progress, 0.95)
+    # 4. object borders (wall feet, crown edges)
+    n_edge = remove_borders(cleaned, valid, vnone, removed, cell, dh0, tan_s, step)
+    mask[removed & (mask != LOW)] = OBJECT
+    mask = finish_mask(mask, z)
+    step[~valid] = STEP_NODATA
+    cleaned[~valid] = np.nan
+    info = dict(p, method="geodesic", step_sizes_m=sizes, removed_per_step=counts, removed_scan=n_scan,
+                removed_edge=n_edge, low_outliers=n_low, high_outliers=n_high,
+                object_fraction=float((mask == OBJECT).sum() / max(valid.sum(), 1)),
+                seconds=round(time.perf_counter() - t0, 3), stage_seconds=stages)
+    report(progress, 1.0)
+    return FilterResult(mask=mask, extras={"step": step}, info=info, surface=cleaned.astype(np.float32))

@@ -1,0 +1,68 @@
+"""Stage 1 of the geodesic filter: the noise-removal preprocessing (isolated outliers)."""
+import numpy as np
+from scipy import ndimage
+
+from ..codes import LOW, OBJECT
+from ..common import report, sub_progress
+from .grey import S8, grey_closing, grey_opening, window_cells
+
+#: Largest cluster (cells) the preprocessing treats as an isolated outlier.
+OUTLIER_MAX_CELLS = 16
+
+
+def _small_clusters(cand):
+    """Cells of ``cand`` in 8-connected clusters of at most :data:`OUTLIER_MAX_CELLS`."""
+    lab, n = ndimage.label(cand, S8)
+    size = np.bincount(lab.ravel(), minlength=n + 1)
+    small = size <= OUTLIER_MAX_CELLS
+    small[0] = False
+    return small[lab]
+
+
+def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):
+    """Isolated low and high outliers, replaced by the closing / opening.
+
+    A cluster of at most :data:`OUTLIER_MAX_CELLS` cells lying more than ``threshold_m``
+    below the grey closing by a window of ``width_m`` (a pit) is a low outlier (mask
+    class 2); one standing more than ``threshold_m`` above the grey opening is a high
+    outlier (class 1). Larger clusters are left to the later stages (ditches and walls
+    are long, blunders are not).
+
+    Parameters
+    ----------
+    z : ndarray of float32
+        DSM, NaN = nodata.
+    valid, vnone : ndarray of bool, and the same or None when every cell is valid
+    cell_size : (float, float)
+    threshold_m, width_m : float
+        ``outlier_threshold_m`` and ``outlier_width_m``.
+    mask, outlier : ndarray of uint8 and bool
+        Written in place: the outliers' classes, and True at every outlier.
+    progress : callable, optional
+
+    Returns
+    -------
+    w : ndarray of float32
+        The surface with outliers replaced (NaN at nodata, inf counts as nodata too).
+    n_low, n_high : int
+    """
+    win = window_cells(width_m, cell_size[0], cell_size[1])
+    w = np.where(valid, z, np.float32(np.nan))
+    clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3))
+    report(progress, 0.3)
+    ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
+    report(progress, 0.6)
+    with np.errstate(invalid="ignore"):
+        low_c = valid & (clo - z > threshold_m)
+        high_c = valid & (z - ope > threshold_m)
+    report(progress, 0.7)
+    counts = []
+    for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
+        sel = _small_clusters(cand) if cand.any() else None
+        counts.append(0 if sel is None else int(sel.sum()))
+        if sel is not None:
+            mask[sel] = code
+            outlier |= sel
+            w[sel] = repl[sel]
+        report(progress, 0.85 if code == LOW else 1.0)
+    return w, counts[0], counts[1]

@@ -1,0 +1,141 @@
+"""Stage 3 of the geodesic filter: scan labelling along rows and columns."""
+import numpy as np
+
+from ..common import as_cell_size, as_surface, report
+from .grey import rect_filter
+
+#: Scan labelling passes run by the filter.
+SCAN_PASSES = 2
+
+
+def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
+    """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
+
+    Works on the events only: the edges between neighbours that rise, fall or touch
+    nodata are listed profile by profile; a rise followed directly by a fall on the same
+    profile, at most ``max_cells`` apart, bounds a run, whose cells are then generated
+    and tested against the run's base line, all vectorised.
+    """
+    out = np.zeros(a.shape, bool)
+    if a.shape[axis] < 3:
+        return out
+    dz = np.diff(a, axis=axis)                    # edge j: between cells j and j+1
+    with np.errstate(invalid="ignore"):
+        rise = dz > t_jump
+        fall = dz < -t_jump
+    ev = rise | fall
+    if has_nan:
+        ev |= np.isnan(dz)                        # nodata breaks runs
+    if axis == 0:                                 # events profile by profile (columns)
+        c, r = np.nonzero(ev.T)
+        line, pos = c, r
+    else:
+        r, c = np.nonzero(ev)
+        line, pos = r, c
+    if r.size < 2:
+        return out
+    is_rise, is_fall = rise[r, c], fall[r, c]
+    pair = ((line[:-1] == line[1:]) & is_rise[:-1] & is_fall[1:]
+            & (pos[1:] - pos[:-1] <= max_cells))
+    k = np.flatnonzero(pair)
+    if k.size == 0:
+        return out
+    jl, jr, ln = pos[k], pos[k + 1], line[k]     # rise edge, fall edge, profile
+    n_run = jr - jl                               # cells jl+1 .. jr
+    # flat index of cell p on profile l, and the step between neighbours on a profile
+    W = a.shape[1]
+    first, stride = (ln * W, 1) if axis == 1 else (ln, W)
+    af = a.ravel()
+    base_l = af[first + jl * stride]              # the cell before the rise
+    slope = (af[first + (jr + 1) * stride] - base_l) / (n_run + 1).astype(np.float32)
+    start = np.cumsum(n_run) - n_run
+    off = np.arange(int(n_run.sum()), dtype=n_run.dtype) - np.repeat(start, n_run) + 1
+    flat = np.repeat(first + jl * stride, n_run) + off * stride
+    base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * off
+    keep = (af[flat] - base) > height_m
+    out.ravel()[flat[keep]] = True
+    return out
+
+
+def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
+               passes=2, reference=None, progress=None):
+    """Scan labelling: non-ground runs along rows and columns.
+
+    Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
+    *rise* when ``z[i+1] - z[i] > jump_m + tan(terrain_slope) * cell`` (the slope
+    differential: steeper than the terrain may be by more than ``jump_m`` over one
+    cell), a *fall* when ``z[i+1] - z[i] < -(...)``. A run of cells that opens with a
+    rise, closes with the next event being a fall, spans at most ``max_length_m`` and
+    stands more than ``height_m`` above the straight line from the cell before the rise to
+    the cell after the fall is labelled non-ground. Rows and columns are combined with OR.
+    ``passes`` > 1 repeats the labelling on the surface with the labelled cells lowered
+    to their base line, so stepped roofs (a rise, a rise, a fall, a fall) are peeled
+    level by level. NaN cells break runs.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (NaN = nodata).
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    jump_m : float
+        Excess height step over one cell, beyond the terrain slope, that makes a rise/fall.
+    height_m : float
+        Minimal height of a labelled cell above the run's base line.
+    max_length_m : float
+        Longest labelled run (the largest object).
+    terrain_slope_deg : float
+        Steepest terrain slope (degrees); its rise over one cell is tolerated.
+    passes : int
+        Number of labelling passes (>= 1).
+    reference : array_like, optional
+        A terrain approximation (the filter passes its lowest geodesic reconstruction):
+        a labelled cell must also stand more than ``height_m`` above it, so terrain
+        ridges, which the reconstruction follows, are never labelled.
+    progress : callable, optional
+        ``progress(fraction)`` after each axis of each pass; it may raise
+        :class:`~bare_earth.core.common.Cancelled`.
+
+    Returns
+    -------
+    ndarray of bool
+        True where a cell is labelled non-ground.
+    """
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    if jump_m < 0 or height_m < 0 or max_length_m <= 0:
+        raise ValueError(f"scan_label needs jump_m >= 0, height_m >= 0, max_length_m > 0; "
+                         f"got {jump_m}, {height_m}, {max_length_m}.")
+    if not 0 <= terrain_slope_deg < 90:
+        raise ValueError(f"terrain_slope_deg must be in [0, 90); got {terrain_slope_deg}.")
+    if int(passes) < 1:
+        raise ValueError(f"passes must be at least 1; got {passes}.")
+    s = np.tan(np.radians(terrain_slope_deg))
+    a = z.copy()
+    labelled = np.zeros(z.shape, bool)
+    allowed = np.ones(z.shape, bool)
+    if reference is not None:
+        reference = np.asarray(reference, dtype=np.float64)
+        if reference.shape != z.shape:
+            raise ValueError(f"reference must have the shape of z {z.shape}; got "
+                             f"{reference.shape}. Pass a surface of the same grid.")
+        with np.errstate(invalid="ignore"):
+            allowed = (a - reference) > height_m
+    tx, ty = jump_m + s * dx, jump_m + s * dy
+    has_nan = bool(np.isnan(a).any())
+    n = int(passes)
+    for i in range(n):
+        lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
+        report(progress, (i + 0.35) / n)
+        lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
+        report(progress, (i + 0.7) / n)
+        new = (lr | lc) & ~labelled & allowed
+        if not new.any():
+            break
+        labelled |= new
+        report(progress, (i + 0.8) / n)
+        # lower the labelled cells to the surrounding level for the next pass
+        low = rect_filter(np.where(np.isnan(a), np.inf, a), (3, 3), np.minimum, np.inf)
+        a = np.where(new, np.minimum(a, low), a)
+        report(progress, (i + 1.0) / n)
+    return labelled
