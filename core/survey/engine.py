@@ -30,6 +30,9 @@ IN_FLIGHT_PER_WORKER = 3
 #: Times Dask re-runs a task that raised (a task on a killed worker is rescheduled by
 #: the scheduler itself, up to its ``allowed-failures``).
 RETRIES = 1
+#: Times a tile whose result was lost with its worker (finished, then the worker died
+#: before the result reached this client) is submitted again.
+RESUBMITS = 3
 
 
 def have_dask():
@@ -131,30 +134,50 @@ def run_tasks(client, func, job, items, on_done, on_failed, progress=None):
         return
     queue = iter(items)
     inflight = {}
+    again = []                 # items whose result was lost with their worker
+    resubmitted = {}
     ac = distributed.as_completed()
+
+    def submit(item):
+        fut = client.submit(func, job, item, pure=False, retries=RETRIES)
+        inflight[fut] = item
+        ac.add(fut)
 
     def top_up():
         limit = max(2, IN_FLIGHT_PER_WORKER * max(1, len(client.scheduler_info().get("workers", {}))))
+        while again:
+            submit(again.pop())
         while len(inflight) < limit:
             item = next(queue, None)
             if item is None:
                 return
-            fut = client.submit(func, job, item, pure=False, retries=RETRIES)
-            inflight[fut] = item
-            ac.add(fut)
+            submit(item)
 
     finished = 0
     try:
         top_up()
         for fut in ac:
             item = inflight.pop(fut)
-            if fut.status == "finished":
-                on_done(item, fut.result())
-            elif fut.status == "error":
-                on_failed(item, fut.exception())
-            else:
-                on_failed(item, RuntimeError(f"the task ended {fut.status}"))
+            status, result = fut.status, None
+            if status == "finished":
+                try:
+                    result = fut.result()
+                except Exception:            # noqa: BLE001 - lost between the status and the fetch
+                    status = "lost"
+            elif status == "error":
+                result = fut.exception()
             fut.release()
+            if status not in ("finished", "error") and resubmitted.get(id(item), 0) < RESUBMITS:
+                resubmitted[id(item)] = resubmitted.get(id(item), 0) + 1
+                again.append(item)
+                top_up()
+                continue
+            if status == "finished":
+                on_done(item, result)
+            elif status == "error":
+                on_failed(item, result)
+            else:
+                on_failed(item, RuntimeError(f"the task ended {status} {RESUBMITS + 1} times"))
             finished += 1
             report(progress, finished / n)
             top_up()

@@ -7,6 +7,7 @@
           --as each finishes--> run.json --at the end--> dtm.vrt, mask.vrt
 """
 import os
+import re
 import time
 
 import numpy as np
@@ -24,6 +25,48 @@ SURVEY_VRT = "survey.vrt"
 #: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
 #: end in any case; a tile finished in the last interval of a killed run is redone).
 RECORD_INTERVAL = 1.0
+
+
+def _param_value(param, text):
+    """A parameter's text as its Param kind (float, int, bool, enum)."""
+    if param.kind == "float":
+        return float(text)
+    if param.kind == "int":
+        return int(text)
+    if param.kind == "bool":
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"{param.name} takes true or false; got {text!r}.")
+    if param.options and text not in param.options:
+        raise ValueError(f"{param.name} takes one of {', '.join(param.options)}; got {text!r}.")
+    return text
+
+
+def parse_params(method, items):
+    """``KEY=VALUE`` strings (or one string of them separated by spaces, commas, semicolons or
+    new lines) -> the keyword arguments of ``method`` (a Method or its id), each converted
+    to its Param kind; an empty value means "derived from the data". ValueError names a
+    bad one."""
+    if isinstance(method, str):
+        method = get_method(method)
+    if isinstance(items, str):
+        items = [s for s in re.split(r"[\s,;]+", items) if s]
+    known = {p.name: p for p in method.params}
+    out = {}
+    for item in items or ():
+        key, sep, text = item.partition("=")
+        key = key.strip().lower()
+        if not sep or not key:
+            raise ValueError(f"parameter {item!r}: write KEY=VALUE.")
+        if key not in known:
+            raise ValueError(f"parameter {key}: method {method.name!r} takes {', '.join(sorted(known))}.")
+        try:
+            out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
+        except ValueError as exc:
+            raise ValueError(f"parameter {item!r}: {exc}") from None
+    return out
 
 
 def filter_params(meth, resolved):
