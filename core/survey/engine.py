@@ -56,20 +56,27 @@ def require_dask():
 def python_executable():
     """The Python interpreter local workers are started with.
 
-    ``sys.executable`` when it is a Python interpreter (Debian's /usr/bin/python3 for the
-    command line and the tests); inside QGIS, where it is the QGIS binary, the interpreter
-    of the same installation (``sys.exec_prefix``), else /usr/bin/python3. Never a PATH
-    lookup.
+    ``sys.executable`` when it is a Python interpreter of this installation (under
+    ``sys.exec_prefix``: Debian's /usr/bin/python3, or a virtual environment's python, for
+    the command line and the tests). Inside QGIS ``sys.executable`` is the QGIS binary, or
+    whatever ``python3`` the embedded interpreter found first on PATH (a pyenv shim, say,
+    with another standard library and no GDAL): then the interpreter of the running
+    installation itself, ``sys.exec_prefix``/bin/python3.X, is named. Never a PATH lookup.
     """
     exe = sys.executable or ""
-    if os.path.basename(exe).lower().startswith("python") and os.path.exists(exe):
+    name = os.path.basename(exe).lower()
+    prefixes = {os.path.abspath(p) + os.sep for p in (sys.exec_prefix, sys.base_exec_prefix) if p}
+    if name.startswith("python") and os.path.exists(exe) and any(os.path.abspath(exe).startswith(p)
+                                                                 for p in prefixes):
         return exe
-    for cand in (os.path.join(sys.exec_prefix, "bin", "python3"), os.path.join(sys.exec_prefix, "python.exe"),
-                 "/usr/bin/python3"):
-        if os.path.exists(cand):
-            return cand
-    raise RuntimeError(f"no Python interpreter found to start Dask workers (sys.executable is {exe!r}): "
-                       "start a cluster yourself and give its scheduler address.")
+    version = f"python{sys.version_info[0]}.{sys.version_info[1]}"
+    for prefix in (sys.exec_prefix, sys.base_exec_prefix):
+        for cand in (os.path.join(prefix, "bin", version), os.path.join(prefix, "bin", "python3"),
+                     os.path.join(prefix, "python.exe")):
+            if os.path.exists(cand):
+                return cand
+    raise RuntimeError(f"no Python interpreter of this installation ({sys.exec_prefix}) to start Dask workers "
+                       f"(sys.executable is {exe!r}): start a cluster yourself and give its scheduler address.")
 
 
 def start_client(workers=0, scheduler=None, log=None):
