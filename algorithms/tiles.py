@@ -5,11 +5,19 @@ folder), the method, its parameters as KEY=VALUE text, an output folder and opti
 Dask scheduler's address. Progress per finished tile; cancel stops handing out tiles.
 Without Dask the algorithm says what to install; every other algorithm works without it.
 """
-from qgis.core import (QgsProcessing, QgsProcessingContext, QgsProcessingException,
-                       QgsProcessingOutputFile, QgsProcessingOutputRasterLayer, QgsProcessingParameterEnum,
-                       QgsProcessingParameterFile, QgsProcessingParameterFolderDestination,
-                       QgsProcessingParameterMultipleLayers, QgsProcessingParameterNumber,
-                       QgsProcessingParameterString)
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingContext,
+    QgsProcessingException,
+    QgsProcessingOutputFile,
+    QgsProcessingOutputRasterLayer,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFolderDestination,
+    QgsProcessingParameterMultipleLayers,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterString,
+)
 
 from ..core import Cancelled
 from ..core.methods import available_methods
@@ -127,6 +135,7 @@ class TilesAlgorithm(BaseAlgorithm):
 
     def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
         import os
+
         from ..core.survey import parse_params, require_dask, run_survey
         try:
             require_dask()

@@ -107,7 +107,7 @@ def summarise(rec, workers):
     gaps = []
     for ts in by_worker.values():
         ts.sort(key=lambda t: t["start"])
-        gaps += [b["start"] - a["end"] for a, b in zip(ts, ts[1:])]
+        gaps += [b["start"] - a["end"] for a, b in zip(ts, ts[1:], strict=False)]
     compute = float(np.mean([t["seconds"] for t in tiles]))
     cells = sum(t["cells"] for t in tiles)
     wall = run["tiles_wall_s"]
@@ -206,8 +206,9 @@ def main():
     st = seams(rec, str(out), args.method, args.side, len(tiles))
     print(f"seams ({st['block_cells'] / 1e6:.0f} Mcells around the central seams against one pass in "
           f"{st['one_pass_s']:.1f} s): mask cells differing {st['mask_cells_differ']}; ground cells identical "
-          f"{st['ground_identical']}; DTM on filled cells within a halo of the seams: max {st['dtm_max_diff_seams_m']:.4f} m,"
-          f" rms {st['dtm_rms_diff_seams_m']:.4f} m; anywhere: max {st['dtm_max_diff_m']:.4f} m, "
+          f"{st['ground_identical']}; DTM on filled cells within a halo of the seams: max "
+          f"{st['dtm_max_diff_seams_m']:.4f} m, rms {st['dtm_rms_diff_seams_m']:.4f} m; anywhere: max "
+          f"{st['dtm_max_diff_m']:.4f} m, "
           f"99 % {st['dtm_p99_diff_m']:.4f} m over {st['filled_cells']} filled cells")
     line = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "method": args.method,
             "params": json.loads(args.params), "tiles": len(tiles), "side": args.side, "load_start": load0[0],

@@ -69,6 +69,12 @@ def same_arguments(rec, arguments):
         json.loads(json.dumps(arguments, default=_plain))
 
 
+def tiles_with_status(rec, status="done"):
+    """``{name: entry}`` of the tiles of the record with ``status`` ("pending", "done" or
+    "failed")."""
+    return {k: v for k, v in (rec or {}).get("tiles", {}).items() if v.get("status") == status}
+
+
 def done_tiles(rec, out_dir):
     """Names of the tiles recorded done whose output files all exist."""
     out = set()

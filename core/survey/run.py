@@ -174,7 +174,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     done = record.done_tiles(rec, out_dir)
     todo = [t for t in index.tiles if t.name not in done]
     for t in todo:
-        rec["tiles"].pop(t.name, None)
+        rec["tiles"][t.name] = {"status": "pending", "input": t.path}
     if done:
         log(f"{len(done)} tile(s) already done (recorded in run.json); {len(todo)} to do.")
     record.save_record(out_dir, rec)
@@ -210,7 +210,7 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
         t_start = time.perf_counter()
 
         def done(tile, entry):
-            rec["tiles"][tile.name] = entry
+            rec["tiles"][tile.name] = dict(entry, input=tile.path)
             this["tiles_done"] += 1
             log(f"{tile.name}: done in {entry['seconds']:.2f} s on {entry['worker']} "
                 f"({entry['counts']['object']} object cells)")
@@ -220,12 +220,14 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
 
         def failed(tile, exc):
             this["failed"][tile.name] = f"{type(exc).__name__}: {exc}"
+            rec["tiles"][tile.name] = {"status": "failed", "input": tile.path, "error": this["failed"][tile.name]}
             log(f"{tile.name}: FAILED ({type(exc).__name__}: {exc}); a rerun retries it.")
 
         engine.run_tasks(client, run_tile, job, todo, done, failed, progress)
         wall = time.perf_counter() - t_start
         this["tiles_wall_s"] = round(wall, 3)
-        cells = sum(t.cells for t in todo if t.name in rec["tiles"])
+        done_now = record.tiles_with_status(rec, "done")
+        cells = sum(t.cells for t in todo if t.name in done_now)
         this["mcells_per_s"] = round(cells / 1e6 / wall, 3) if wall > 0 else None
         this["workers"] = engine.worker_summary(client) or this["workers"]
     finally:
@@ -238,7 +240,8 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
 
 def _write_mosaics(index, rec, out_dir, log):
     """dtm.vrt and mask.vrt over the finished tiles (mask.qml beside the mask)."""
-    names = [t.name for t in index.tiles if t.name in rec["tiles"] and rec["tiles"][t.name].get("status") == "done"]
+    done = record.tiles_with_status(rec, "done")
+    names = [t.name for t in index.tiles if t.name in done]
     if not names:
         return
     for kind, k in (("dtm", 0), ("mask", 1)):
