@@ -107,7 +107,7 @@ def summarise(rec, workers):
     gaps = []
     for ts in by_worker.values():
         ts.sort(key=lambda t: t["start"])
-        gaps += [b["start"] - a["end"] for a, b in zip(ts, ts[1:], strict=False)]
+        gaps += [b["start"] - a["end"] for a, b in zip(ts, ts[1:])]
     compute = float(np.mean([t["seconds"] for t in tiles]))
     cells = sum(t["cells"] for t in tiles)
     wall = run["tiles_wall_s"]

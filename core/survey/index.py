@@ -167,7 +167,7 @@ def index_tiles(inputs):
                          "CRS (gdalwarp -t_srs) first.")
     gts = np.array([i.geotransform for i in infos], float)
     dx, dy = gts[0, 1], gts[0, 5]
-    other_cell = [i.path for i, g in zip(infos, gts, strict=True)
+    other_cell = [i.path for i, g in zip(infos, gts)
                   if abs(g[1] - dx) > GRID_TOLERANCE * abs(dx) or abs(g[5] - dy) > GRID_TOLERANCE * abs(dy)]
     if other_cell:
         g = other_cell[0]
@@ -182,7 +182,7 @@ def index_tiles(inputs):
     c0, r0 = np.rint(cols_f), np.rint(rows_f)
     off = (np.abs(cols_f - c0) > 1e-3) | (np.abs(rows_f - r0) > 1e-3)
     if off.any():
-        shifted = [i.path for i, o in zip(infos, off, strict=True) if o]
+        shifted = [i.path for i, o in zip(infos, off) if o]
         raise ValueError(f"tiles {_short(shifted)} are not on the grid of "
                          f"{os.path.basename(ref.path)}: their origins are not a whole number of cells apart. "
                          "Resample them onto one grid (gdalwarp -tap) first.")

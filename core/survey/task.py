@@ -4,7 +4,6 @@ mask as COGs (each atomically), and return what the run record keeps about it.
 """
 import math
 import os
-import resource
 import socket
 import time
 from dataclasses import dataclass
@@ -49,6 +48,24 @@ class TileJob:
     shape: tuple
     cell_size: tuple
     crs_wkt: str = ""
+
+
+def peak_memory_mb():
+    """Peak resident memory of this (worker) process in MB, or None where unknown.
+
+    ``getrusage`` on Unix (``ru_maxrss``, kB on Linux); psutil's peak working set on Windows.
+    """
+    try:
+        import resource
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    except ImportError:
+        pass
+    try:
+        import psutil  # installed with distributed
+        peak = getattr(psutil.Process().memory_info(), "peak_wset", None)
+        return round(peak / 2 ** 20, 1) if peak else None
+    except ImportError:
+        return None
 
 
 def output_names(tile_name):
@@ -106,4 +123,4 @@ def run_tile(job, tile):
             "seconds": round(time.perf_counter() - t0, 4), "read_s": round(t_read, 4),
             "filter_s": round(t_filter, 4), "write_s": round(t_write, 4), "start": start, "end": time.time(),
             "worker": f"{socket.gethostname()}:{os.getpid()}",
-            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+            "peak_rss_mb": peak_memory_mb()}

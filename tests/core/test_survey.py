@@ -204,8 +204,9 @@ def test_tiled_mask_equals_the_one_pass_mask(survey, method):
 
 
 def test_vrt_input_and_cancel_then_rerun_redoes_only_the_rest(survey, tmp_path):
-    from bare_earth.core.common import Cancelled
     from osgeo import gdal
+
+    from bare_earth.core.common import Cancelled
     vrt = str(tmp_path / "survey_in.vrt")
     gdal.BuildVRT(vrt, survey["tiles"])
     out = tmp_path / "out"
