@@ -29,6 +29,8 @@ class TilesAlgorithm(BaseAlgorithm):
 
     GROUP = "survey"
     GROUP_NAME = "Surveys"
+    TAGS = ("DTM", "ground", "bare earth", "terrain", "survey", "tiles", "mosaic", "VRT", "Dask", "cluster",
+            "batch", "seamless")
     INPUT_LAYERS = "INPUT_LAYERS"
     INPUT_FOLDER = "INPUT_FOLDER"
     METHOD = "METHOD"
