@@ -25,6 +25,8 @@ SURVEY_VRT = "survey.vrt"
 #: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
 #: end in any case; a tile finished in the last interval of a killed run is redone).
 RECORD_INTERVAL = 1.0
+#: Names of the temporary files of io.write_cog, io.build_vrt and record.save_record.
+PARTIAL = re.compile(r"\.partial-[0-9a-f]+(\.[A-Za-z]+)*$")
 
 
 def _param_value(param, text):
@@ -146,6 +148,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                          f"{a.get('params')}, {len(a.get('tiles', []))} tiles): choose another output folder, or "
                          "delete its run.json to start again there.")
     os.makedirs(out_dir, exist_ok=True)
+    _remove_partials(out_dir, log)
     vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata)
     info = grid.open_dsm(vrt)
     cell = tuple(float(v) for v in info.cell_size_m)
@@ -199,6 +202,19 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     record.save_record(out_dir, rec)
     rec["this_run"] = this
     return rec
+
+
+def _remove_partials(out_dir, log):
+    """Remove the temporary files a killed run left in ``out_dir`` (``*.partial-*``: tiles,
+    VRTs and run.json being written when it died). Called before any task starts."""
+    stale = [f for f in os.listdir(out_dir) if PARTIAL.search(f)]
+    for f in stale:
+        try:
+            os.remove(os.path.join(out_dir, f))
+        except OSError:
+            pass
+    if stale:
+        log(f"Removed {len(stale)} unfinished file(s) of an earlier run.")
 
 
 def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log, last_save):

@@ -304,14 +304,16 @@ def test_cli_killed_run_resumes_only_unrecorded_tiles(survey, tmp_path):
         time.sleep(0.02)
     p.wait(timeout=60)
     assert 1 <= len(recorded) < 9, "the run finished before it could be killed"
+    (out / "t22_dtm.partial-0123abcd.tif").write_bytes(b"half a GeoTIFF")     # as a write cut short leaves
+    (out / "t22_mask.partial-0123abcd.tif.aux.xml").write_text("<PAMDataset/>")
     res = subprocess.run(cmd[:-1], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr
     assert f"{len(recorded)} tile(s) already done" in res.stdout
-    assert "9/9 tiles done" in res.stdout
+    assert "9/9 tiles done" in res.stdout and "unfinished file(s) of an earlier run" in res.stdout
     rec = json.loads(rec_path.read_text())
     assert rec["runs"][-1]["tiles_done"] == 9 - len(recorded)
     assert {k: rec["tiles"][k]["start"] for k in recorded} == {k: v["start"] for k, v in recorded.items()}
-    assert not any(".partial-" in f for f in os.listdir(out) if f.endswith(".tif"))
+    assert not any(".partial-" in f for f in os.listdir(out))          # a killed write's leftovers removed
     assert np.array_equal(read_mosaic(out, "mask"), one_pass("rascor", survey["scene"], rec).mask)
 
 
