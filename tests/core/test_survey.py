@@ -102,7 +102,7 @@ def test_sample_is_the_whole_small_survey_and_spread_crops_of_a_large_one(survey
     index = index_tiles(survey["tiles"])
     assert plan.sample_layout(index.tiles, 288 * 288) is None
     parts, shape = plan.sample_layout(index.tiles, 288 * 288, max_cells=2 * 40 * 40)
-    # 9 tiles <= 16: every tile gives a central crop; 3 x 3 crops of side 40 // 3 ... with gutters
+    # 9 tiles <= 16: every tile gives a central crop, laid 3 x 3 with nodata gutters between them
     assert len(parts) == 9
     side = parts[0][1][1] - parts[0][1][0]
     assert all(w[1] - w[0] == side and w[3] - w[2] == side for _t, w, _p in parts)
