@@ -85,7 +85,8 @@ class TilesAlgorithm(BaseAlgorithm):
         methods = self._methods()
         self.addParameter(with_help(QgsProcessingParameterEnum(
             self.METHOD, tr("Method"), methods, False,
-            methods.index("slopeprofile") if "slopeprofile" in methods else 0), "The filter run on every tile."))
+            next((methods.index(m) for m in ("dtm", "slopeprofile") if m in methods), 0)),
+            "The filter run on every tile (default: the recommended one)."))
         self.addParameter(with_help(QgsProcessingParameterString(
             self.PARAMETERS, tr("Method parameters (KEY=VALUE ...)"), "", multiLine=False, optional=True),
             "For example: max_object_size_m=60 slope_threshold_deg=30. Empty: every parameter derived from "

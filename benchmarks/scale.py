@@ -24,7 +24,7 @@ LocalCluster of that many processes, one thread each) into ``--dir/out-<n>w`` an
   compute; and the whole idle share (start, tail and gaps: workers x wall - task time).
 
 Seams: the central 2 x 2 tiles (the whole survey when smaller) are filtered in one pass
-(``pipeline.run_array``, same parameters) over a window reaching two halos beyond them,
+(``survey.task.filter_array``, same parameters) over a window reaching two halos beyond them,
 and compared with the tiled mosaics: mask cells that differ, and the DTM's largest and
 RMS difference on filled cells near the internal seams (within one halo) and anywhere.
 """
@@ -45,10 +45,9 @@ from _common import ROOT, setup_path  # noqa: E402
 
 setup_path()
 
-from bare_earth.core import grid, pipeline  # noqa: E402
-from bare_earth.core.methods import get_method  # noqa: E402
+from bare_earth.core import grid  # noqa: E402
 from bare_earth.core.survey import engine, plan, run_survey  # noqa: E402
-from bare_earth.core.survey.run import filter_params  # noqa: E402
+from bare_earth.core.survey.task import filter_array  # noqa: E402
 
 #: Upper-left corner of the survey (UTM 32N metres).
 ORIGIN = (500000.0, 5600000.0)
@@ -125,8 +124,6 @@ def summarise(rec, workers):
 
 def seams(rec, out_dir, method, side, n_tiles):
     """Tiled mosaics against a single pass over the central 2 x 2 tiles (plus two halos)."""
-    meth = get_method(method)
-    params = filter_params(meth, rec["params"])
     halo = rec["halo_cells"]
     shape = tuple(rec["survey"]["shape"])
     k = int(math.ceil(math.sqrt(n_tiles)))
@@ -138,11 +135,11 @@ def seams(rec, out_dir, method, side, n_tiles):
            max(0, (block[2] - 2 * halo) // a * a), min(shape[1], block[3] + 2 * halo))
     z = grid.open_dsm(os.path.join(out_dir, "survey.vrt")).read(win)
     t0 = time.perf_counter()
-    ref = pipeline.run_array(method, z, rec["survey"]["cell_size_m"], params)
+    ref_mask, ref_dtm, _info = filter_array(method, z, rec["survey"]["cell_size_m"], rec["params"])
     t_one = time.perf_counter() - t0
     inner = (slice(block[0] - win[0], block[1] - win[0]), slice(block[2] - win[2], block[3] - win[2]))
-    rm, rd, zi = ref.mask[inner], ref.dtm[inner], z[inner]
-    del ref, z
+    rm, rd, zi = ref_mask[inner], ref_dtm[inner], z[inner]
+    del ref_mask, ref_dtm, z
     mask_info = grid.open_dsm(os.path.join(out_dir, "mask.vrt"))
     tm = mask_info.dataset().GetRasterBand(1).ReadAsArray(block[2], block[0], block[3] - block[2],
                                                           block[1] - block[0])

@@ -71,12 +71,6 @@ def parse_params(method, items):
     return out
 
 
-def filter_params(meth, resolved):
-    """The resolved parameters the method takes (a resolve may add statistics for the log)."""
-    known = {p.name for p in meth.params}
-    return {k: v for k, v in resolved.items() if k in known} if known else dict(resolved)
-
-
 def read_sample(index, info):
     """The surface the survey's parameters are derived from, and what it is.
 
@@ -181,7 +175,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     if done:
         log(f"{len(done)} tile(s) already done (recorded in run.json); {len(todo)} to do.")
     record.save_record(out_dir, rec)
-    job = TileJob(meth.name, filter_params(meth, resolved), vrt, out_dir, halo, align, tuple(index.shape), cell,
+    job = TileJob(meth.name, resolved, vrt, out_dir, halo, align, tuple(index.shape), cell,
                   index.crs_wkt)
     this = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "scheduler": scheduler or "local",
             "tiles_to_do": len(todo), "tiles_done": 0, "failed": {}}

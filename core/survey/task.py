@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import grid, pipeline
 from ..codes import GROUND, LOW, NODATA, OBJECT
+from ..common import as_cell_size, as_surface
 from . import io, plan
 
 
@@ -24,7 +25,8 @@ class TileJob:
     method : str
         Registered method id.
     params : dict
-        The method's complete parameters (resolved once for the survey).
+        The method's complete parameters as its resolve returned them (once for the survey);
+        passed to ``Method.run`` as they are, as ``pipeline.run_file`` does for its blocks.
     vrt : str
         The survey VRT the windows are read from.
     out_dir : str
@@ -73,6 +75,41 @@ def output_names(tile_name):
     return f"{tile_name}_dtm.tif", f"{tile_name}_mask.tif"
 
 
+def filter_array(method, z, cell_size, params):
+    """Filter a window with complete parameters and fill its DTM (no resolve on the window).
+
+    The per-window step of the pipeline's blocks: ``Method.run`` with the parameters
+    resolved once for the whole survey (a resolve on each window would derive other values
+    per tile: seams), nodata cells coded 255, the method's own DTM when it returns a usable
+    one, else :func:`pipeline.fill_dtm`.
+
+    Returns
+    -------
+    mask : uint8 array, dtm : float32 array (NaN nodata), info : dict
+    """
+    meth = pipeline.as_method(method)
+    z = as_surface(z)
+    res = meth.run(z, as_cell_size(cell_size), progress=None, **params)
+    mask = np.array(res.mask, dtype=np.uint8)
+    if mask.shape != z.shape:
+        raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a window of "
+                           f"shape {z.shape}")
+    valid = np.isfinite(z)
+    mask[~valid] = NODATA
+    dtm = None
+    if res.dtm is not None:
+        dtm = np.array(res.dtm, dtype=np.float32)
+        if dtm.shape != z.shape or not np.isfinite(dtm[valid]).all():
+            dtm = None
+        else:
+            dtm[~valid] = np.nan
+    if dtm is None:
+        dtm = pipeline.fill_dtm(z, mask)
+    if dtm is None:                                   # no ground cell in the window
+        dtm = np.full(z.shape, np.nan, np.float32)
+    return mask, dtm, res.info
+
+
 def filter_window(job, tile):
     """The tile's mask and DTM (metres, NaN nodata) from its window of the survey VRT.
 
@@ -87,8 +124,8 @@ def filter_window(job, tile):
     if not np.isfinite(z[core]).any():
         shape = tile.shape
         return np.full(shape, NODATA, np.uint8), np.full(shape, np.nan, np.float32), {}, t_read
-    res = pipeline.run_array(job.method, z, job.cell_size, job.params, workers=1)
-    return (np.ascontiguousarray(res.mask[core]), np.ascontiguousarray(res.dtm[core]), res.info, t_read)
+    mask, dtm, info = filter_array(job.method, z, job.cell_size, job.params)
+    return np.ascontiguousarray(mask[core]), np.ascontiguousarray(dtm[core]), info, t_read
 
 
 def run_tile(job, tile):

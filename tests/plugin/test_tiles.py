@@ -11,8 +11,7 @@ import pytest
 pytest.importorskip("distributed", reason="Dask distributed is not installed (scripts/setup.sh installs it)")
 
 from bare_earth.core import grid, pipeline  # noqa: E402
-from bare_earth.core.methods import available_methods, get_method  # noqa: E402
-from bare_earth.core.survey.run import filter_params  # noqa: E402
+from bare_earth.core.methods import available_methods  # noqa: E402
 from bare_earth.core.synthetic import make_scene  # noqa: E402
 
 TILE = 96
@@ -48,8 +47,7 @@ def test_tiles_from_layers_equal_the_one_pass_mask(processing_run, tiles, tmp_pa
     assert {v["status"] for v in rec["tiles"].values()} == {"done"} and len(rec["tiles"]) == 6
     assert rec["params"]["max_object_size_m"] == 16.0
     sc = tiles["scene"]
-    ref = pipeline.run_array("morphological", sc.dsm, sc.cell_size,
-                             filter_params(get_method("morphological"), rec["params"]))
+    ref = pipeline.run_array("morphological", sc.dsm, sc.cell_size, {"max_object_size_m": 16.0})
     info = grid.open_dsm(res["OUTPUT_MASK"])
     assert np.array_equal(info.dataset().GetRasterBand(1).ReadAsArray(), ref.mask)
 
