@@ -35,3 +35,5 @@ class BareEarthProvider(QgsProcessingProvider):
         from .algorithms import all_algorithms
         for alg in all_algorithms():
             self.addAlgorithm(alg)
+        from .algorithms.tiles import TilesAlgorithm  # a whole survey on Dask (imported lazily inside)
+        self.addAlgorithm(TilesAlgorithm())

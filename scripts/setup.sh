@@ -7,7 +7,9 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 PY=/usr/bin/python3
-PKGS="qgis python3-qgis qgis-providers gdal-bin python3-gdal python3-scipy python3-numpy python3-venv python3-pip zip"
+# python3-dask and python3-distributed: the engine of bareearth:tiles and bin/bare-earth (whole surveys)
+PKGS="qgis python3-qgis qgis-providers gdal-bin python3-gdal python3-scipy python3-numpy python3-venv python3-pip zip
+      python3-dask python3-distributed"
 
 missing=""
 for p in $PKGS; do
@@ -23,7 +25,8 @@ if [ -n "$missing" ]; then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing
 fi
-$PY -c "import qgis.core, osgeo.gdal, scipy, numpy" || { echo "QGIS/GDAL/scipy Python modules do not import in $PY" >&2; exit 1; }
+$PY -c "import qgis.core, osgeo.gdal, scipy, numpy, distributed" || {
+  echo "QGIS/GDAL/scipy/Dask Python modules do not import in $PY" >&2; exit 1; }
 
 # The plugin under its own name, whatever the clone's folder is called.
 mkdir -p "$ROOT/.build/plugins"

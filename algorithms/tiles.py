@@ -1,0 +1,173 @@
+"""``bareearth:tiles``: a whole survey of tiles through one filter on Dask distributed.
+
+The QGIS face of ``core.survey.run_survey``: the tiles (several raster layers, a VRT, or a
+folder), the method, its parameters as KEY=VALUE text, an output folder and optionally a
+Dask scheduler's address. Progress per finished tile; cancel stops handing out tiles.
+Without Dask the algorithm says what to install; every other algorithm works without it.
+"""
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingContext,
+    QgsProcessingException,
+    QgsProcessingOutputFile,
+    QgsProcessingOutputRasterLayer,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFolderDestination,
+    QgsProcessingParameterMultipleLayers,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterString,
+)
+
+from ..core import Cancelled
+from ..core.methods import available_methods
+from .filter_base import BaseAlgorithm, progress_callback, raster_path, tr, with_help
+
+
+class TilesAlgorithm(BaseAlgorithm):
+    """Filter a survey of tiles seamlessly into one DTM and one mask per tile plus mosaics."""
+
+    GROUP = "survey"
+    GROUP_NAME = "Surveys"
+    TAGS = ("DTM", "ground", "bare earth", "terrain", "survey", "tiles", "mosaic", "VRT", "Dask", "cluster",
+            "batch", "seamless")
+    INPUT_LAYERS = "INPUT_LAYERS"
+    INPUT_FOLDER = "INPUT_FOLDER"
+    METHOD = "METHOD"
+    PARAMETERS = "PARAMETERS"
+    SCHEDULER = "SCHEDULER"
+    WORKERS = "WORKERS"
+    OUTPUT_FOLDER = "OUTPUT_FOLDER"
+    OUTPUT_DTM = "OUTPUT_DTM"
+    OUTPUT_MASK = "OUTPUT_MASK"
+    OUTPUT_RECORD = "OUTPUT_RECORD"
+
+    @staticmethod
+    def _methods():
+        return sorted(available_methods())
+
+    def name(self):
+        return "tiles"
+
+    def displayName(self):  # noqa: N802
+        return tr("Filter a whole survey of tiles (Dask)")
+
+    def shortHelpString(self):  # noqa: N802
+        return tr("<p>Filters a whole survey of DSM tiles with one method, as if it were one raster: the "
+                  "parameters are derived once for the survey (from a sample spread over its tiles) and each "
+                  "tile is read with the method's reach (halo) from its neighbours, so the mask has no seam. "
+                  "The tiles run on Dask distributed: worker processes on this computer's cores, or an existing "
+                  "Dask cluster given by its scheduler's address.</p>"
+                  "<p>Outputs in the folder: one DTM and one mask per tile (cloud-optimised GeoTIFF on the "
+                  "tile's grid), dtm.vrt and mask.vrt (loaded into the project), run.json (parameters used, "
+                  "each tile's status and timings, the workers). Running again with the same inputs and "
+                  "parameters into the same folder does only the tiles not recorded as done.</p>"
+                  "<p>Needs Dask distributed (python3-distributed on Debian; pip install \"dask[distributed]\" "
+                  "elsewhere).</p><h3>Parameters</h3><ul>"
+                  "<li><b>INPUT_LAYERS</b>: the tiles as raster layers, or one VRT over them.</li>"
+                  "<li><b>INPUT_FOLDER</b>: or a folder holding the tiles.</li>"
+                  "<li><b>METHOD</b>: the filter.</li>"
+                  "<li><b>PARAMETERS</b>: the method's parameters as KEY=VALUE separated by spaces or "
+                  "semicolons (names as in the method's own algorithm, in lower case); the others are "
+                  "derived from the data.</li>"
+                  "<li><b>SCHEDULER</b>: address of a Dask scheduler (tcp://host:8786); its workers must import "
+                  "bare_earth and see the tiles and the output folder at the same paths. Empty: a local "
+                  "cluster.</li><li><b>WORKERS</b>: local worker processes (0: one per core).</li></ul>")
+
+    def initAlgorithm(self, config=None):  # noqa: N802
+        self.addParameter(with_help(QgsProcessingParameterMultipleLayers(
+            self.INPUT_LAYERS, tr("Tiles (raster layers, or one VRT)"), QgsProcessing.TypeRaster, optional=True),
+            "The DSM tiles of the survey: one CRS, one cell size, one grid, not overlapping. One VRT layer "
+            "stands for its source tiles."))
+        self.addParameter(with_help(QgsProcessingParameterFile(
+            self.INPUT_FOLDER, tr("Or a folder of tiles"), QgsProcessingParameterFile.Folder, optional=True),
+            "A folder whose rasters (.tif, .tiff, .img, ...) are the tiles."))
+        methods = self._methods()
+        self.addParameter(with_help(QgsProcessingParameterEnum(
+            self.METHOD, tr("Method"), methods, False,
+            next((methods.index(m) for m in ("dtm", "slopeprofile") if m in methods), 0)),
+            "The filter run on every tile (default: the recommended one)."))
+        self.addParameter(with_help(QgsProcessingParameterString(
+            self.PARAMETERS, tr("Method parameters (KEY=VALUE ...)"), "", multiLine=False, optional=True),
+            "For example: max_object_size_m=60 slope_threshold_deg=30. Empty: every parameter derived from "
+            "the data (once for the whole survey)."))
+        self.addParameter(with_help(QgsProcessingParameterString(
+            self.SCHEDULER, tr("Dask scheduler address (empty: this computer)"), "", optional=True),
+            "tcp://host:8786 of a running dask-scheduler; empty starts worker processes on this computer."))
+        self.addParameter(with_help(QgsProcessingParameterNumber(
+            self.WORKERS, tr("Local worker processes (0 = one per core)"), QgsProcessingParameterNumber.Integer,
+            0, optional=True, minValue=0, maxValue=256),
+            "Worker processes of the local cluster, one thread each; ignored with a scheduler address.",
+            advanced=True))
+        self.addParameter(with_help(QgsProcessingParameterFolderDestination(
+            self.OUTPUT_FOLDER, tr("Output folder")),
+            "Receives <tile>_dtm.tif and <tile>_mask.tif per tile, dtm.vrt, mask.vrt and run.json."))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.OUTPUT_DTM, tr("DTM mosaic (dtm.vrt)")))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.OUTPUT_MASK, tr("Mask mosaic (mask.vrt)")))
+        self.addOutput(QgsProcessingOutputFile(self.OUTPUT_RECORD, tr("Run record (run.json)")))
+
+    def _inputs(self, parameters, context):
+        layers = self.parameterAsLayerList(parameters, self.INPUT_LAYERS, context) or []
+        folder = self.parameterAsFile(parameters, self.INPUT_FOLDER, context) if parameters.get(self.INPUT_FOLDER) \
+            else ""
+        if layers and folder:
+            raise QgsProcessingException(tr("Give the tiles as layers or as a folder, not both."))
+        if folder:
+            return folder
+        if not layers:
+            raise QgsProcessingException(tr("No tiles: choose raster layers, a VRT or a folder."))
+        return [raster_path(lyr) for lyr in layers]
+
+    def _method(self, parameters, context):
+        return self._methods()[self.parameterAsEnum(parameters, self.METHOD, context)]
+
+    def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = super().checkParameterValues(parameters, context)
+        if not ok:
+            return ok, msg
+        from ..core.survey import INSTALL_HINT, have_dask, index_tiles, parse_params
+        if not have_dask():
+            return False, tr(INSTALL_HINT)
+        try:
+            parse_params(self._method(parameters, context),
+                         self.parameterAsString(parameters, self.PARAMETERS, context))
+            index_tiles(self._inputs(parameters, context))
+        except (ValueError, QgsProcessingException) as exc:
+            return False, str(exc)
+        return True, ""
+
+    def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
+        import os
+
+        from ..core.survey import parse_params, require_dask, run_survey
+        try:
+            require_dask()
+            method = self._method(parameters, context)
+            params = parse_params(method, self.parameterAsString(parameters, self.PARAMETERS, context))
+            inputs = self._inputs(parameters, context)
+        except (ImportError, ValueError) as exc:
+            raise QgsProcessingException(str(exc)) from None
+        out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
+        scheduler = (self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip() or None
+        workers = self.parameterAsInt(parameters, self.WORKERS, context) if parameters.get(self.WORKERS) else 0
+        try:
+            rec = run_survey(method, inputs, out_dir, params, workers=workers, scheduler=scheduler,
+                             progress=progress_callback(feedback), log=feedback.pushInfo)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: the finished tiles are recorded in run.json; run again to finish."))
+            return {self.OUTPUT_FOLDER: out_dir}
+        except (ValueError, ImportError) as exc:
+            raise QgsProcessingException(str(exc)) from None
+        failed = rec["this_run"]["failed"]
+        if failed:
+            feedback.reportError(tr("{} tile(s) failed: {}; run again to retry them.").format(
+                len(failed), ", ".join(sorted(failed))))
+        out = {self.OUTPUT_FOLDER: out_dir, self.OUTPUT_RECORD: os.path.join(out_dir, "run.json")}
+        for key, name in ((self.OUTPUT_DTM, "dtm.vrt"), (self.OUTPUT_MASK, "mask.vrt")):
+            path = os.path.join(out_dir, name)
+            if os.path.exists(path):
+                out[key] = path
+                if context.project() is not None:
+                    context.addLayerToLoadOnCompletion(path, QgsProcessingContext.LayerDetails(
+                        os.path.splitext(name)[0], context.project(), key))
+        return out

@@ -1,0 +1,235 @@
+"""The tile index of a survey: which rasters, where each lies on the survey's grid, and
+the checks that refuse a bad survey before any work.
+
+A survey is given as several rasters, a VRT over them, or a folder holding them. Every
+tile is opened with :func:`core.grid.open_dsm` (single band, north-up, readable); then
+the set is checked as a whole: one CRS, one cell size, origins on one grid (a whole
+number of cells apart), no two tiles overlapping, no VRT source missing. Each failed
+check names the tiles.
+"""
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import grid
+from . import io
+
+#: Extensions of the rasters a folder is scanned for.
+RASTER_EXTENSIONS = (".tif", ".tiff", ".img", ".asc", ".sdat", ".nc")
+#: Relative tolerance on cell sizes and on origins (in cells) between tiles.
+GRID_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One input tile and its place on the survey's grid.
+
+    Attributes
+    ----------
+    name : str
+        The file name without its extension; names the tile's outputs.
+    path : str
+        The raster.
+    window : tuple of int
+        ``(r0, r1, c0, c1)`` of the tile on the survey's grid (half-open).
+    nodata : float or None
+        The tile's declared nodata value.
+    geotransform : tuple
+        The tile's own GDAL geotransform (its outputs get it).
+    z_to_m : float
+        Metres per height unit of the tile's CRS.
+    """
+    name: str
+    path: str
+    window: tuple
+    nodata: object
+    geotransform: tuple
+    z_to_m: float = 1.0
+
+    @property
+    def shape(self):
+        return (self.window[1] - self.window[0], self.window[3] - self.window[2])
+
+    @property
+    def cells(self):
+        return self.shape[0] * self.shape[1]
+
+
+@dataclass
+class TileIndex:
+    """The checked tiles of a survey and its grid.
+
+    Attributes
+    ----------
+    tiles : list of Tile
+        In reading order (north to south, west to east).
+    shape : (rows, cols)
+        The survey's bounding grid.
+    geotransform : tuple
+        GDAL geotransform of the survey's grid (origin at its upper-left corner).
+    crs_wkt : str
+    vrt_nodata : float, str or None
+        The nodata value of the survey VRT (cells no tile covers).
+    """
+    tiles: list
+    shape: tuple
+    geotransform: tuple
+    crs_wkt: str
+    vrt_nodata: object = None
+
+    @property
+    def cells(self):
+        """Cells of the tiles (not of the bounding grid)."""
+        return sum(t.cells for t in self.tiles)
+
+
+def list_inputs(inputs):
+    """The tile paths of a survey given as rasters, one VRT or one folder.
+
+    Parameters
+    ----------
+    inputs : str or list of str
+        Several rasters; or one ``.vrt`` (its sources are the tiles); or one folder (every
+        raster of :data:`RASTER_EXTENSIONS` directly in it, sorted by name).
+
+    Returns
+    -------
+    list of str
+        Absolute paths; missing ones are kept so that :func:`index_tiles` can name them.
+    """
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    inputs = [os.path.abspath(str(p)) for p in inputs]
+    if not inputs:
+        raise ValueError("no input tile was given: pass rasters, a VRT or a folder of rasters.")
+    if len(inputs) == 1 and os.path.isdir(inputs[0]):
+        folder = inputs[0]
+        found = sorted(os.path.join(folder, f) for f in os.listdir(folder)
+                       if f.lower().endswith(RASTER_EXTENSIONS) and ".partial-" not in f)
+        if not found:
+            raise ValueError(f"the folder {folder!r} holds no raster ({', '.join(RASTER_EXTENSIONS)}): "
+                             "point --input at the folder of the tiles.")
+        return found
+    if len(inputs) == 1 and inputs[0].lower().endswith(".vrt"):
+        if not os.path.exists(inputs[0]):
+            raise ValueError(f"the VRT {inputs[0]!r} does not exist. Check the path.")
+        found = io.vrt_sources(inputs[0])
+        if not found:
+            raise ValueError(f"the VRT {inputs[0]!r} names no source raster.")
+        return found
+    dirs = [p for p in inputs if os.path.isdir(p) or p.lower().endswith(".vrt")]
+    if dirs:
+        raise ValueError(f"{', '.join(dirs)}: give one folder or one VRT alone, or a list of rasters.")
+    return inputs
+
+
+def _short(paths, n=8):
+    names = [os.path.basename(p) for p in paths]
+    return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
+
+
+def index_tiles(inputs):
+    """Open and check the tiles of a survey; return its :class:`TileIndex`.
+
+    Raises
+    ------
+    ValueError
+        Before any work, naming the tiles: missing or unreadable tiles, tiles of another
+        CRS or cell size, tiles off the survey's grid, overlapping tiles, two tiles of the
+        same name (their outputs would collide).
+    """
+    paths = list_inputs(inputs)
+    missing = [p for p in paths if not os.path.exists(p)]
+    if missing:
+        raise ValueError(f"{len(missing)} tile(s) are missing: {_short(missing)}. Restore them or rebuild the "
+                         "VRT without them.")
+    infos, bad = [], []
+    for p in paths:
+        try:
+            infos.append(grid.open_dsm(p))
+        except ValueError as exc:
+            bad.append(f"{os.path.basename(p)} ({exc})")
+    if bad:
+        raise ValueError(f"{len(bad)} tile(s) cannot be used: " + "; ".join(bad[:5]))
+    names = [os.path.splitext(os.path.basename(p))[0] for p in paths]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"several tiles are named {', '.join(dup)}: each tile's outputs are named after it; "
+                         "rename them or filter the folders separately.")
+    ref = infos[0]
+    other_crs = [i.path for i in infos[1:] if not io.same_crs(i.crs_wkt, ref.crs_wkt)]
+    if other_crs:
+        raise ValueError(f"the tiles are in different CRSs: {_short(other_crs)} "
+                         f"({io.crs_label(grid.open_dsm(other_crs[0]).crs_wkt)}) differ from "
+                         f"{os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). Reproject them to one "
+                         "CRS (gdalwarp -t_srs) first.")
+    gts = np.array([i.geotransform for i in infos], float)
+    dx, dy = gts[0, 1], gts[0, 5]
+    other_cell = [i.path for i, g in zip(infos, gts)
+                  if abs(g[1] - dx) > GRID_TOLERANCE * abs(dx) or abs(g[5] - dy) > GRID_TOLERANCE * abs(dy)]
+    if other_cell:
+        g = other_cell[0]
+        raise ValueError(f"the tiles have different cell sizes: {_short(other_cell)} "
+                         f"({abs(grid.open_dsm(g).geotransform[1]):.6g} x {abs(grid.open_dsm(g).geotransform[5]):.6g}) "
+                         f"differ from {os.path.basename(ref.path)} ({abs(dx):.6g} x {abs(dy):.6g}). Resample them "
+                         "to one cell size (gdalwarp -tr) first.")
+    x0 = gts[:, 0].min() if dx > 0 else gts[:, 0].max()
+    y0 = gts[:, 3].max() if dy < 0 else gts[:, 3].min()
+    cols_f = (gts[:, 0] - x0) / dx
+    rows_f = (gts[:, 3] - y0) / dy
+    c0, r0 = np.rint(cols_f), np.rint(rows_f)
+    off = (np.abs(cols_f - c0) > 1e-3) | (np.abs(rows_f - r0) > 1e-3)
+    if off.any():
+        shifted = [i.path for i, o in zip(infos, off) if o]
+        raise ValueError(f"tiles {_short(shifted)} are not on the grid of "
+                         f"{os.path.basename(ref.path)}: their origins are not a whole number of cells apart. "
+                         "Resample them onto one grid (gdalwarp -tap) first.")
+    r0, c0 = r0.astype(np.int64), c0.astype(np.int64)
+    r1 = r0 + np.array([i.shape[0] for i in infos])
+    c1 = c0 + np.array([i.shape[1] for i in infos])
+    pairs = _overlaps(r0, r1, c0, c1)
+    if pairs:
+        txt = "; ".join(f"{os.path.basename(paths[a])} and {os.path.basename(paths[b])}" for a, b in pairs[:5])
+        more = f" and {len(pairs) - 5} more pair(s)" if len(pairs) > 5 else ""
+        raise ValueError(f"tiles overlap: {txt}{more}. Each cell must come from one tile: clip the overlaps "
+                         "(or build the VRT from tiles that only touch).")
+    order = np.lexsort((c0, r0))
+    tiles = [Tile(names[k], paths[k], (int(r0[k]), int(r1[k]), int(c0[k]), int(c1[k])), infos[k].nodata,
+                  tuple(infos[k].geotransform), infos[k].z_to_m) for k in order]
+    gt = (float(x0), float(dx), 0.0, float(y0), 0.0, float(dy))
+    return TileIndex(tiles, (int(r1.max()), int(c1.max())), gt, ref.crs_wkt, _vrt_nodata(infos))
+
+
+def _overlaps(r0, r1, c0, c1):
+    """Pairs ``(i, j)`` of rectangles that share a cell: a sweep over the columns (each tile
+    is compared with the tiles starting before it ends), vectorised per tile."""
+    order = np.argsort(c0, kind="stable")
+    cs = c0[order]
+    pairs = []
+    for k, i in enumerate(order):
+        stop = int(np.searchsorted(cs, c1[i], side="left"))
+        cand = order[k + 1:stop]
+        if cand.size == 0:
+            continue
+        hit = cand[(r0[cand] < r1[i]) & (r0[i] < r1[cand])]
+        pairs += [(int(min(i, j)), int(max(i, j))) for j in hit]
+    return sorted(pairs)
+
+
+def _vrt_nodata(infos):
+    """The survey VRT's nodata: the tiles' common value; NaN for float tiles without one
+    or with different ones; the type's minimum for integer tiles without one."""
+    values = {None if v is None else float(v) for v in (i.nodata for i in infos)}
+    if len(values) == 1 and None not in values:
+        v = values.pop()
+        return "nan" if math.isnan(v) else v
+    if all(i.dtype.startswith("Float") for i in infos):
+        return "nan"
+    if len(values - {None}) > 1:
+        raise ValueError("the integer tiles declare different nodata values: give them one value "
+                         "(gdal_translate -a_nodata) first.")
+    limits = {"Byte": 0, "UInt16": 0, "Int16": -32768, "UInt32": 0, "Int32": -2147483648}
+    v = (values - {None}).pop() if values - {None} else limits.get(infos[0].dtype, -32768)
+    return float(v)

@@ -1,0 +1,265 @@
+"""A whole survey through one filter: index, parameters once, tiles on Dask, mosaics.
+
+::
+
+    tiles --index_tiles--> checked grid --survey.vrt--> sample --resolve--> params, halo
+          --Dask: run_tile(tile + halo from survey.vrt)--> <tile>_dtm.tif, <tile>_mask.tif
+          --as each finishes--> run.json --at the end--> dtm.vrt, mask.vrt
+"""
+import os
+import re
+import time
+
+import numpy as np
+
+from .. import grid, pipeline
+from ..common import Cancelled
+from ..methods import get_method
+from . import engine, io, plan, record
+from .index import index_tiles
+from .task import TileJob, output_names, run_tile
+
+#: The survey VRT the tasks read their windows from (in the output folder, which every
+#: worker sees).
+SURVEY_VRT = "survey.vrt"
+#: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
+#: end in any case; a tile finished in the last interval of a killed run is redone).
+RECORD_INTERVAL = 1.0
+#: Names of the temporary files of io.write_cog, io.build_vrt and record.save_record.
+PARTIAL = re.compile(r"\.partial-[0-9a-f]+(\.[A-Za-z]+)*$")
+
+
+def _param_value(param, text):
+    """A parameter's text as its Param kind (float, int, bool, enum)."""
+    if param.kind == "float":
+        return float(text)
+    if param.kind == "int":
+        return int(text)
+    if param.kind == "bool":
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"{param.name} takes true or false; got {text!r}.")
+    if param.options and text not in param.options:
+        raise ValueError(f"{param.name} takes one of {', '.join(param.options)}; got {text!r}.")
+    return text
+
+
+def parse_params(method, items):
+    """``KEY=VALUE`` strings (or one string of them separated by spaces, commas, semicolons or
+    new lines) -> the keyword arguments of ``method`` (a Method or its id), each converted
+    to its Param kind; an empty value means "derived from the data". ValueError names a
+    bad one."""
+    if isinstance(method, str):
+        method = get_method(method)
+    if isinstance(items, str):
+        items = [s for s in re.split(r"[\s,;]+", items) if s]
+    known = {p.name: p for p in method.params}
+    out = {}
+    for item in items or ():
+        key, sep, text = item.partition("=")
+        key = key.strip().lower()
+        if not sep or not key:
+            raise ValueError(f"parameter {item!r}: write KEY=VALUE.")
+        if key not in known:
+            raise ValueError(f"parameter {key}: method {method.name!r} takes {', '.join(sorted(known))}.")
+        try:
+            out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
+        except ValueError as exc:
+            raise ValueError(f"parameter {item!r}: {exc}") from None
+    return out
+
+
+def read_sample(index, info):
+    """The surface the survey's parameters are derived from, and what it is.
+
+    The whole survey when small (:data:`plan.SAMPLE_CELLS`), else central crops of tiles
+    spread over it, laid side by side with nodata between them (:func:`plan.sample_layout`).
+    """
+    layout = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1])
+    if layout is None:
+        return info.read(), f"the whole survey ({index.shape[1]} x {index.shape[0]} cells)"
+    parts, shape = layout
+    z = np.full(shape, np.nan, np.float32)
+    for _tile, (r0, r1, c0, c1), (r, c) in parts:
+        z[r:r + r1 - r0, c:c + c1 - c0] = info.read((r0, r1, c0, c1))
+    side = parts[0][1][1] - parts[0][1][0]
+    names = ", ".join(t.name for t, _w, _p in parts)
+    return z, f"central crops of up to {side} x {side} cells of {len(parts)} tiles spread over the survey ({names})"
+
+
+def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=None, progress=None, log=None):
+    """Filter a survey of tiles into one DTM and one mask per tile, seamlessly, on Dask.
+
+    Parameters
+    ----------
+    method : str
+        A registered method id (``methods.available_methods``).
+    inputs : str or list of str
+        The tiles: several rasters, one VRT over them, or one folder of rasters.
+    out_dir : str
+        Output folder: ``<tile>_dtm.tif`` and ``<tile>_mask.tif`` per tile (COG, the
+        tile's grid), ``dtm.vrt``, ``mask.vrt`` (+ ``mask.qml``), ``run.json``, and the
+        ``survey.vrt`` the tasks read. Every worker must see it at this path.
+    params : dict, optional
+        The method's parameters; missing or None ones are derived once for the whole
+        survey from a sample spread over its tiles.
+    workers : int
+        Local worker processes (0: one per core); ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://host:8786``).
+    progress : callable, optional
+        ``progress(fraction of tiles finished)``; may raise :class:`Cancelled`: no new
+        tile is handed out, the pending ones are cancelled, the finished ones stay
+        recorded, and Cancelled propagates.
+    log : callable, optional
+        ``log(str)`` for the parameters used, the sample and each finished tile.
+
+    Returns
+    -------
+    dict
+        The run record (as in ``run.json``) with ``"this_run"``: this run's summary.
+
+    Raises
+    ------
+    ValueError
+        Before any work: unknown method or parameters, missing tiles, tiles of mixed CRS
+        or cell size, overlapping tiles, an output folder holding a run of other
+        arguments. ImportError when Dask is missing.
+    """
+    log = log or (lambda s: None)
+    meth = get_method(method)
+    engine.require_dask()
+    index = index_tiles(inputs)
+    out_dir = os.path.abspath(str(out_dir))
+    user = {k: v for k, v in (params or {}).items() if v is not None}
+    arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
+    rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
+    if rec is not None and not record.same_arguments(rec, arguments):
+        a = rec.get("arguments", {})
+        raise ValueError(f"{out_dir} holds a run of other arguments (method {a.get('method')!r}, parameters "
+                         f"{a.get('params')}, {len(a.get('tiles', []))} tiles): choose another output folder, or "
+                         "delete its run.json to start again there.")
+    os.makedirs(out_dir, exist_ok=True)
+    _remove_partials(out_dir, log)
+    vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata)
+    info = grid.open_dsm(vrt)
+    cell = tuple(float(v) for v in info.cell_size_m)
+    if rec is None:
+        rec = record.new_record(arguments)
+    if "params" not in rec:
+        t0 = time.perf_counter()
+        zs, where = read_sample(index, info)
+        resolved = pipeline.resolve_params(meth, zs, cell, user)
+        del zs
+        rec.update({"method": meth.name, "params": resolved, "sample": where,
+                    "resolve_seconds": round(time.perf_counter() - t0, 3)})
+    resolved = rec["params"]
+    halo = int(meth.halo(resolved, cell))
+    align = plan.alignment(halo)
+    rec.update({"halo_cells": halo, "align_cells": align,
+                "survey": {"tiles": len(index.tiles), "cells": index.cells, "shape": list(index.shape),
+                           "geotransform": list(index.geotransform), "crs": io.crs_label(index.crs_wkt),
+                           "cell_size_m": list(cell), "vrt": SURVEY_VRT}})
+    log(f"Survey: {len(index.tiles)} tiles, {index.cells / 1e6:.1f} Mcells on a {index.shape[1]} x "
+        f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
+    log(f"Parameters derived once for the survey from {rec['sample']}:")
+    for k, v in resolved.items():
+        log(f"  {k} = {v}")
+    log(f"Halo: {halo} cells read from the neighbouring tiles around each tile (windows aligned on {align}).")
+    done = record.done_tiles(rec, out_dir)
+    todo = [t for t in index.tiles if t.name not in done]
+    for t in todo:
+        rec["tiles"][t.name] = {"status": "pending", "input": t.path}
+    if done:
+        log(f"{len(done)} tile(s) already done (recorded in run.json); {len(todo)} to do.")
+    record.save_record(out_dir, rec)
+    job = TileJob(meth.name, resolved, vrt, out_dir, halo, align, tuple(index.shape), cell,
+                  index.crs_wkt)
+    this = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "scheduler": scheduler or "local",
+            "tiles_to_do": len(todo), "tiles_done": 0, "failed": {}}
+    rec["runs"].append(this)
+    t_run = time.perf_counter()
+    last_save = [time.perf_counter()]
+    try:
+        if todo:
+            _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log, last_save)
+    except Cancelled:
+        this["cancelled"] = True
+        log("Cancelled: no new tile handed out; the finished tiles are recorded, a rerun does the rest.")
+        raise
+    finally:
+        this["wall_s"] = round(time.perf_counter() - t_run, 3)
+        record.save_record(out_dir, rec)
+    _write_mosaics(index, rec, out_dir, log)
+    record.save_record(out_dir, rec)
+    rec["this_run"] = this
+    return rec
+
+
+def _remove_partials(out_dir, log):
+    """Remove the temporary files a killed run left in ``out_dir`` (``*.partial-*``: tiles,
+    VRTs and run.json being written when it died). Called before any task starts."""
+    stale = [f for f in os.listdir(out_dir) if PARTIAL.search(f)]
+    for f in stale:
+        try:
+            os.remove(os.path.join(out_dir, f))
+        except OSError:
+            pass
+    if stale:
+        log(f"Removed {len(stale)} unfinished file(s) of an earlier run.")
+
+
+def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log, last_save):
+    """Hand the tiles to the cluster and record each as it finishes."""
+    client, cluster = engine.start_client(workers, scheduler, log)
+    try:
+        this["workers"] = engine.worker_summary(client)
+        this["scheduler_address"] = client.scheduler.address
+        t_start = time.perf_counter()
+
+        def done(tile, entry):
+            rec["tiles"][tile.name] = dict(entry, input=tile.path)
+            this["tiles_done"] += 1
+            log(f"{tile.name}: done in {entry['seconds']:.2f} s on {entry['worker']} "
+                f"({entry['counts']['object']} object cells)")
+            if time.perf_counter() - last_save[0] >= RECORD_INTERVAL:
+                record.save_record(out_dir, rec)
+                last_save[0] = time.perf_counter()
+
+        def failed(tile, exc):
+            this["failed"][tile.name] = f"{type(exc).__name__}: {exc}"
+            rec["tiles"][tile.name] = {"status": "failed", "input": tile.path, "error": this["failed"][tile.name]}
+            log(f"{tile.name}: FAILED ({type(exc).__name__}: {exc}); a rerun retries it.")
+
+        engine.run_tasks(client, run_tile, job, todo, done, failed, progress)
+        wall = time.perf_counter() - t_start
+        this["tiles_wall_s"] = round(wall, 3)
+        done_now = record.tiles_with_status(rec, "done")
+        cells = sum(t.cells for t in todo if t.name in done_now)
+        this["mcells_per_s"] = round(cells / 1e6 / wall, 3) if wall > 0 else None
+        this["workers"] = engine.worker_summary(client) or this["workers"]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    if this["failed"]:
+        log(f"{len(this['failed'])} tile(s) failed: {', '.join(sorted(this['failed']))}.")
+
+
+def _write_mosaics(index, rec, out_dir, log):
+    """dtm.vrt and mask.vrt over the finished tiles (mask.qml beside the mask)."""
+    done = record.tiles_with_status(rec, "done")
+    names = [t.name for t in index.tiles if t.name in done]
+    if not names:
+        return
+    for kind, k in (("dtm", 0), ("mask", 1)):
+        files = [os.path.join(out_dir, output_names(n)[k]) for n in names]
+        nod = 255 if kind == "mask" else None
+        io.build_vrt(os.path.join(out_dir, f"{kind}.vrt"), files, nod)
+    grid.write_mask_qml(os.path.join(out_dir, "mask.qml"))
+    missing = len(index.tiles) - len(names)
+    rec["mosaics"] = {"dtm": "dtm.vrt", "mask": "mask.vrt", "tiles": len(names), "tiles_missing": missing}
+    log(f"Mosaics: dtm.vrt and mask.vrt over {len(names)} tile(s)"
+        + (f"; {missing} tile(s) not done yet (rerun to finish)." if missing else "."))

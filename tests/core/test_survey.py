@@ -1,0 +1,330 @@
+"""A whole survey of tiles on Dask (core.survey): seamless masks, real clusters, resume, refusals.
+
+The survey is a 288 x 288 synthetic city cut into 3 x 3 tiles of 96 x 96 cells; the
+single pass over the mosaic (``pipeline.run_array`` with the survey's resolved parameters)
+is the reference.
+"""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed", reason="Dask distributed is not installed (scripts/setup.sh installs it)")
+
+from bare_earth.core import grid, pipeline  # noqa: E402
+from bare_earth.core.methods import available_methods, get_method  # noqa: E402
+from bare_earth.core.survey import index_tiles, list_inputs, output_names, parse_params, plan, run_survey  # noqa: E402
+from bare_earth.core.synthetic import make_scene  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+PY = "/usr/bin/python3" if os.path.exists("/usr/bin/python3") else sys.executable
+TILE = 96
+#: Parameters that keep each method's halo below the tile side where the method's halo is
+#: exact for them (so the windows really cut through the neighbours); the others use the
+#: defaults (curvature's halo is exact for objects up to max_object_size_m only).
+SMALL = {"slopeprofile": {"max_object_size_m": 20.0}, "geodesic": {"max_object_size_m": 8.0},
+         "morphological": {"max_object_size_m": 16.0}}
+
+
+def write_survey(folder, scene, tile=TILE, epsg=None, names=None):
+    """Cut ``scene.dsm`` into tiles of ``tile`` cells written as GeoTIFFs (nodata -9999)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    gt = scene.geotransform
+    rows, cols = scene.dsm.shape
+    paths = []
+    for i in range(0, rows, tile):
+        for j in range(0, cols, tile):
+            a = scene.dsm[i:i + tile, j:j + tile]
+            g = (gt[0] + j * gt[1], gt[1], 0.0, gt[3] + i * gt[5], 0.0, gt[5])
+            name = f"t{i // tile}{j // tile}"
+            p = folder / f"{name}.tif"
+            code = (epsg or {}).get(name, scene.epsg)
+            grid.write_array(p, np.where(np.isfinite(a), a, -9999.0), g, code, nodata=-9999.0)
+            paths.append(str(p))
+    return paths
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    d = tmp_path_factory.mktemp("survey")
+    sc = make_scene("city", shape=(3 * TILE, 3 * TILE), seed=3, nodata_holes=True)
+    return {"scene": sc, "tiles": write_survey(d / "tiles", sc), "dir": d}
+
+
+def read_mosaic(out_dir, kind):
+    info = grid.open_dsm(os.path.join(out_dir, f"{kind}.vrt"))
+    if kind == "mask":
+        return info.dataset().GetRasterBand(1).ReadAsArray()
+    return info.read()
+
+
+def one_pass(method, scene, rec):
+    """The single pass over the mosaic with the run's parameters (derived again from the whole
+    mosaic, the survey's own sample when it is small: the same values)."""
+    ref = pipeline.run_array(method, scene.dsm, scene.cell_size, rec["arguments"]["params"])
+    same = [json.loads(json.dumps(p, default=float)) for p in (ref.info["params"], rec["params"])]
+    assert same[0] == same[1]
+    return ref
+
+
+def done(rec):
+    """The tiles recorded done."""
+    return {k: v for k, v in rec["tiles"].items() if v["status"] == "done"}
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# -- planning -----------------------------------------------------------------------------------
+def test_alignment_is_the_halos_power_of_two_at_least_64():
+    assert plan.alignment(42) == 64
+    assert plan.alignment(416) == 64          # 416 = 32 x 13
+    assert plan.alignment(384) == 128         # geodesic-like halo, a multiple of 128
+    assert plan.alignment(0) == 64
+
+
+def test_tile_window_aligns_its_corner_and_keeps_the_tile():
+    outer, core = plan.tile_window((96, 192, 192, 288), (288, 288), 42, align=64)
+    assert outer == (0, 234, 128, 288)        # 96 - 42 = 54 -> 0; 192 - 42 = 150 -> 128; ends clipped
+    a = np.arange(288 * 288).reshape(288, 288)
+    win = a[outer[0]:outer[1], outer[2]:outer[3]]
+    assert np.array_equal(win[core], a[96:192, 192:288])
+
+
+def test_sample_is_the_whole_small_survey_and_spread_crops_of_a_large_one(survey):
+    index = index_tiles(survey["tiles"])
+    assert plan.sample_layout(index.tiles, 288 * 288) is None
+    parts, shape = plan.sample_layout(index.tiles, 288 * 288, max_cells=2 * 40 * 40)
+    # 9 tiles <= 16: every tile gives a central crop, laid 3 x 3 with nodata gutters between them
+    assert len(parts) == 9
+    side = parts[0][1][1] - parts[0][1][0]
+    assert all(w[1] - w[0] == side and w[3] - w[2] == side for _t, w, _p in parts)
+    assert shape == (3 * side + 2 * plan.SAMPLE_GUTTER,) * 2
+    big = [t for t in index.tiles for _ in range(4)]          # 36 tiles: 16 spread ones chosen
+    chosen = plan.sample_tiles(big)
+    assert len(chosen) == 16 and len({t.name for t in chosen}) == 9
+
+
+# -- checks before any work --------------------------------------------------------------------
+def test_index_places_tiles_on_the_survey_grid(survey):
+    index = index_tiles(survey["tiles"][::-1])            # any order in, reading order out
+    assert index.shape == (288, 288)
+    assert [t.name for t in index.tiles] == [f"t{i}{j}" for i in range(3) for j in range(3)]
+    assert index.tiles[5].window == (96, 192, 192, 288)
+    assert list_inputs(os.path.dirname(survey["tiles"][0])) == sorted(survey["tiles"])
+
+
+def test_mixed_crs_refused_naming_the_tile(tmp_path):
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path, sc, tile=32, epsg={"t11": 32633})
+    with pytest.raises(ValueError, match=r"different CRSs: t11\.tif \(EPSG:32633\)"):
+        index_tiles(paths)
+    with pytest.raises(ValueError, match="t11.tif"):
+        run_survey("slopeprofile", paths, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()                # refused before any work
+
+
+def test_missing_vrt_source_refused_naming_the_tile(tmp_path):
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path, sc, tile=32)
+    gdal.BuildVRT(str(tmp_path / "mosaic.vrt"), paths)
+    os.remove(paths[2])
+    with pytest.raises(ValueError, match=r"1 tile\(s\) are missing: t10\.tif"):
+        index_tiles(str(tmp_path / "mosaic.vrt"))
+    with pytest.raises(ValueError, match=r"2 tile\(s\) are missing: t10\.tif, gone\.tif"):
+        index_tiles([paths[0], paths[2], str(tmp_path / "gone.tif")])
+
+
+def test_other_cell_size_and_overlap_refused_naming_the_tiles(tmp_path):
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "a", sc, tile=32)
+    gt = sc.geotransform
+    fine = tmp_path / "fine.tif"
+    grid.write_array(fine, np.zeros((20, 20), np.float32), (gt[0] + 64, 0.5, 0, gt[3], 0, -0.5), sc.epsg)
+    with pytest.raises(ValueError, match=r"different cell sizes: fine\.tif \(0\.5 x 0\.5\)"):
+        index_tiles(paths + [str(fine)])
+    over = tmp_path / "over.tif"
+    grid.write_array(over, np.zeros((32, 32), np.float32), (gt[0] + 16, gt[1], 0, gt[3] - 16, 0, gt[5]), sc.epsg)
+    with pytest.raises(ValueError, match=r"tiles overlap: .*over\.tif"):
+        index_tiles(paths + [str(over)])
+    shifted = tmp_path / "shifted.tif"
+    grid.write_array(shifted, np.zeros((32, 32), np.float32), (gt[0] + 64.5, gt[1], 0, gt[3], 0, gt[5]), sc.epsg)
+    with pytest.raises(ValueError, match=r"shifted\.tif are not on the grid"):
+        index_tiles(paths + [str(shifted)])
+
+
+def test_parse_params_converts_to_the_params_kinds():
+    meth = get_method("slopeprofile")
+    assert parse_params(meth, "max_object_size_m=30; refine=true tolerance_m=") == {
+        "max_object_size_m": 30.0, "refine": True, "tolerance_m": None}
+    with pytest.raises(ValueError, match="method 'slopeprofile' takes"):
+        parse_params(meth, ["size=3"])
+
+
+# -- seamless ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", sorted(available_methods()))
+def test_tiled_mask_equals_the_one_pass_mask(survey, method):
+    out = survey["dir"] / f"out-{method}"
+    rec = run_survey(method, survey["tiles"], out, SMALL.get(method), workers=2)
+    sc = survey["scene"]
+    assert rec["sample"].startswith("the whole survey")
+    assert len(done(rec)) == 9 and not rec["this_run"]["failed"]
+    ref = one_pass(method, sc, rec)
+    mask = read_mosaic(out, "mask")
+    assert mask.shape == sc.dsm.shape
+    assert np.array_equal(mask, ref.mask), f"{int((mask != ref.mask).sum())} cells differ"
+    dtm = read_mosaic(out, "dtm")
+    ground = ref.mask == 0
+    assert np.array_equal(dtm[ground], sc.dsm[ground])            # ground cells are the DSM's
+    assert np.array_equal(np.isnan(dtm), np.isnan(ref.dtm))
+    filled = np.isfinite(dtm) & ~ground
+    # the fill sees the tile's window, not the mosaic: within the cascade's own error
+    # (1.5-2.5 % of the relief across a hole, fill.py) of the single pass
+    assert np.abs(dtm[filled] - ref.dtm[filled]).max() <= 0.025 * float(np.ptp(sc.dsm[ground]))
+    # one COG per tile on the tile's grid
+    from osgeo import gdal
+    for t in survey["tiles"]:
+        name = os.path.splitext(os.path.basename(t))[0]
+        for f in output_names(name):
+            ds = gdal.Open(str(out / f))
+            assert ds.GetMetadata("IMAGE_STRUCTURE").get("LAYOUT") == "COG"
+            assert ds.GetGeoTransform() == gdal.Open(t).GetGeoTransform()
+    ds = gdal.Open(str(out / output_names("t11")[1]))
+    m = ds.GetRasterBand(1)
+    assert m.GetNoDataValue() == 255 and m.GetColorTable().GetColorEntry(1) == (220, 40, 40, 255)
+    assert json.loads((out / "run.json").read_text())["halo_cells"] == rec["halo_cells"]
+
+
+def test_vrt_input_and_cancel_then_rerun_redoes_only_the_rest(survey, tmp_path):
+    from osgeo import gdal
+
+    from bare_earth.core.common import Cancelled
+    vrt = str(tmp_path / "survey_in.vrt")
+    gdal.BuildVRT(vrt, survey["tiles"])
+    out = tmp_path / "out"
+    params = SMALL["slopeprofile"]
+
+    def stop_after_three(fraction):
+        if fraction >= 3 / 9:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        run_survey("slopeprofile", vrt, out, params, workers=1, progress=stop_after_three)
+    first = json.loads((out / "run.json").read_text())
+    done_first = {k: v["start"] for k, v in done(first).items()}
+    assert 3 <= len(done_first) < 9 and first["runs"][0]["cancelled"]
+    assert {v["status"] for k, v in first["tiles"].items() if k not in done_first} == {"pending"}
+    rec = run_survey("slopeprofile", vrt, out, params, workers=1)
+    assert rec["this_run"]["tiles_to_do"] == 9 - len(done_first) == rec["this_run"]["tiles_done"]
+    assert {k: rec["tiles"][k]["start"] for k in done_first} == done_first      # not redone
+    assert np.array_equal(read_mosaic(out, "mask"), one_pass("slopeprofile", survey["scene"], rec).mask)
+    with pytest.raises(ValueError, match="holds a run of other arguments"):
+        run_survey("slopeprofile", vrt, out, {"max_object_size_m": 30.0}, workers=1)
+
+
+# -- a real cluster --------------------------------------------------------------------------------
+@pytest.fixture
+def cluster(tmp_path):
+    """A dask-scheduler and two dask-worker processes (no nanny) on 127.0.0.1, torn down after."""
+    port = free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=str(ROOT / ".build" / "plugins"))
+    procs = [subprocess.Popen([PY, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port",
+                               str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, cwd=tmp_path)]
+    workers = []
+    try:
+        for k in range(2):
+            w = subprocess.Popen([PY, "-m", "distributed.cli.dask_worker", addr, "--nthreads", "1", "--no-nanny",
+                                  "--no-dashboard", "--name", f"w{k}", "--death-timeout", "60"],
+                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path)
+            procs.append(w)
+            workers.append(w)
+        from distributed import Client
+        with Client(addr, timeout="30s") as c:
+            c.wait_for_workers(2, timeout=60)
+        yield addr, workers
+    finally:
+        for p in procs[::-1]:
+            if p.poll() is None:
+                p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def test_runs_on_an_existing_cluster_and_survives_a_killed_worker(survey, cluster, tmp_path):
+    addr, workers = cluster
+    out = tmp_path / "out"
+    killed = []
+
+    def kill_second_worker(fraction):
+        if not killed:
+            workers[1].send_signal(signal.SIGKILL)     # mid-run: its tiles in flight are lost
+            workers[1].wait(timeout=20)
+            killed.append(fraction)
+
+    rec = run_survey("geodesic", survey["tiles"], out, SMALL["geodesic"], scheduler=addr, progress=kill_second_worker)
+    assert killed and killed[0] < 1.0
+    run = rec["this_run"]
+    assert run["scheduler"] == addr and len(run["workers"]) >= 1
+    assert not run["failed"] and len(done(rec)) == 9
+    pids = {int(v["worker"].rsplit(":", 1)[1]) for v in done(rec).values()}
+    assert pids <= {w.pid for w in workers}           # the tiles ran in the cluster's processes
+    assert workers[0].pid in pids
+    ref = one_pass("geodesic", survey["scene"], rec)
+    assert np.array_equal(read_mosaic(out, "mask"), ref.mask)
+
+
+# -- the command line ----------------------------------------------------------------------------
+def test_cli_killed_run_resumes_only_unrecorded_tiles(survey, tmp_path):
+    out = tmp_path / "out"
+    cmd = [str(ROOT / "bin" / "bare-earth"), "tiles", "rascor", "--input", *survey["tiles"], "--output-dir",
+           str(out), "--workers", "1", "--quiet"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    rec_path = out / "run.json"
+    recorded = {}
+    t0 = time.time()
+    while time.time() - t0 < 240 and p.poll() is None:
+        if rec_path.exists():
+            recorded = done(json.loads(rec_path.read_text()))
+            if recorded:
+                os.killpg(p.pid, signal.SIGKILL)     # the client and its local workers
+                break
+        time.sleep(0.02)
+    p.wait(timeout=60)
+    assert 1 <= len(recorded) < 9, "the run finished before it could be killed"
+    (out / "t22_dtm.partial-0123abcd.tif").write_bytes(b"half a GeoTIFF")     # as a write cut short leaves
+    (out / "t22_mask.partial-0123abcd.tif.aux.xml").write_text("<PAMDataset/>")
+    res = subprocess.run(cmd[:-1], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert f"{len(recorded)} tile(s) already done" in res.stdout
+    assert "9/9 tiles done" in res.stdout and "unfinished file(s) of an earlier run" in res.stdout
+    rec = json.loads(rec_path.read_text())
+    assert rec["runs"][-1]["tiles_done"] == 9 - len(recorded)
+    assert {k: rec["tiles"][k]["start"] for k in recorded} == {k: v["start"] for k, v in recorded.items()}
+    assert not any(".partial-" in f for f in os.listdir(out))          # a killed write's leftovers removed
+    assert np.array_equal(read_mosaic(out, "mask"), one_pass("rascor", survey["scene"], rec).mask)
+
+
+def test_cli_refuses_mixed_crs_naming_the_tile(tmp_path):
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path, sc, tile=32, epsg={"t01": 32633})
+    res = subprocess.run([str(ROOT / "bin" / "bare-earth"), "tiles", "morphological", "--input", str(tmp_path),
+                          "--output-dir", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "t01.tif (EPSG:32633)" in res.stderr
+    assert len(paths) == 4 and not (tmp_path / "out").exists()

@@ -1,0 +1,100 @@
+"""bareearth:tiles through processing.run: layers or a folder in, seamless mosaics out, cancel,
+and the refusal (naming what to install) when Dask is missing."""
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed", reason="Dask distributed is not installed (scripts/setup.sh installs it)")
+
+from bare_earth.core import grid, pipeline  # noqa: E402
+from bare_earth.core.methods import available_methods  # noqa: E402
+from bare_earth.core.synthetic import make_scene  # noqa: E402
+
+TILE = 96
+
+
+@pytest.fixture(scope="module")
+def tiles(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiles")
+    sc = make_scene("city", shape=(2 * TILE, 3 * TILE), seed=5, nodata_holes=True)
+    gt = sc.geotransform
+    paths = []
+    for i in range(0, sc.dsm.shape[0], TILE):
+        for j in range(0, sc.dsm.shape[1], TILE):
+            a = sc.dsm[i:i + TILE, j:j + TILE]
+            p = d / f"tile_{i // TILE}_{j // TILE}.tif"
+            grid.write_array(p, np.where(np.isfinite(a), a, -9999.0),
+                             (gt[0] + j * gt[1], gt[1], 0.0, gt[3] + i * gt[5], 0.0, gt[5]), sc.epsg, nodata=-9999.0)
+            paths.append(str(p))
+    return {"scene": sc, "paths": paths, "dir": str(d)}
+
+
+def method_index(name):
+    return sorted(available_methods()).index(name)
+
+
+def test_tiles_from_layers_equal_the_one_pass_mask(processing_run, tiles, tmp_path):
+    out = str(tmp_path / "out")
+    res = processing_run("bareearth:tiles", {
+        "INPUT_LAYERS": tiles["paths"], "METHOD": method_index("morphological"),
+        "PARAMETERS": "max_object_size_m=16", "WORKERS": 2, "OUTPUT_FOLDER": out})
+    assert res["OUTPUT_MASK"] == os.path.join(out, "mask.vrt") and os.path.exists(res["OUTPUT_DTM"])
+    rec = json.loads(Path(res["OUTPUT_RECORD"]).read_text())
+    assert {v["status"] for v in rec["tiles"].values()} == {"done"} and len(rec["tiles"]) == 6
+    assert rec["params"]["max_object_size_m"] == 16.0
+    sc = tiles["scene"]
+    ref = pipeline.run_array("morphological", sc.dsm, sc.cell_size, {"max_object_size_m": 16.0})
+    info = grid.open_dsm(res["OUTPUT_MASK"])
+    assert np.array_equal(info.dataset().GetRasterBand(1).ReadAsArray(), ref.mask)
+
+
+def test_tiles_from_a_folder_report_progress_per_tile_and_cancel(processing_run, tiles, tmp_path):
+    from qgis.core import QgsProcessingFeedback
+    seen = []
+
+    class StopAfterTwo(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            seen.append(p)
+            super().setProgress(p)
+            if p >= 200 / 6 - 1e-6:
+                self.cancel()
+
+    out = str(tmp_path / "out")
+    params = {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+              "PARAMETERS": "max_object_size_m=20", "WORKERS": 1, "OUTPUT_FOLDER": out}
+    processing_run("bareearth:tiles", params, feedback=StopAfterTwo())
+    rec = json.loads(Path(out, "run.json").read_text())
+    done_first = [k for k, v in rec["tiles"].items() if v["status"] == "done"]
+    assert 2 <= len(done_first) < 6 and rec["runs"][-1].get("cancelled")
+    assert seen[:2] == pytest.approx([100 / 6, 200 / 6])            # one step per finished tile
+    res = processing_run("bareearth:tiles", params)                   # the rest only
+    rec2 = json.loads(Path(res["OUTPUT_RECORD"]).read_text())
+    assert rec2["runs"][-1]["tiles_done"] == 6 - len(done_first)
+    assert {v["status"] for v in rec2["tiles"].values()} == {"done"}
+
+
+def test_bad_survey_refused_before_any_work(processing_run, tiles, tmp_path):
+    from qgis.core import QgsProcessingException
+    other = tmp_path / "other.tif"
+    grid.write_array(other, np.zeros((40, 40), np.float32), (0.0, 2.0, 0.0, 80.0, 0.0, -2.0), 32632)
+    with pytest.raises(QgsProcessingException, match="different cell sizes: other.tif"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": tiles["paths"] + [str(other)],
+                                           "METHOD": method_index("slopeprofile"),
+                                           "OUTPUT_FOLDER": str(tmp_path / "out")})
+
+
+def test_without_dask_the_algorithm_says_what_to_install(qgis_app, processing_run, tiles, tmp_path, monkeypatch):
+    from qgis.core import QgsApplication, QgsProcessingContext
+    monkeypatch.setitem(sys.modules, "distributed", None)          # import distributed -> ImportError
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:tiles")
+    ok, msg = alg.checkParameterValues({"INPUT_LAYERS": tiles["paths"], "METHOD": 0,
+                                        "OUTPUT_FOLDER": str(tmp_path / "o")}, QgsProcessingContext())
+    assert not ok and "python3-distributed" in msg and "dask[distributed]" in msg
+    # every other algorithm still runs
+    res = processing_run("bareearth:slopeprofile", {"INPUT": tiles["paths"][0], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert os.path.exists(res["OUTPUT_MASK"])
