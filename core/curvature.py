@@ -67,6 +67,7 @@ graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 import numpy as np
 from scipy import ndimage
 
+from .estimate import noise_ground_level
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
@@ -1247,7 +1248,8 @@ def resolve_curvature_params(z, cell_size, *, k_g_per_m2=None, window_cells=5,
     if k_g_per_m2 is None:
         k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * _noise_sigma(_sample(z)), 0.3, 1.0))
+        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),

@@ -6,3 +6,148 @@ and on which surface. Filter modules call these when they derive their defaults 
 ``resolve_*`` functions); where a method deliberately needs another statistic, its name
 says so.
 """
+import math
+
+import numpy as np
+from scipy import ndimage
+
+#: Block side (metres) of the ground-level reference surface of
+#: :func:`noise_ground_level`: wider than a tree crown or a house, so almost every block
+#: holds a ground cell (a gap between crowns, a yard) and its minimum is at ground level.
+GROUND_BLOCK_M = 20.0
+#: Height (metres) above the ground-level reference surface within which a cell counts as
+#: ground level before the noise is known: below any tree, car or building.
+GROUND_BAND_M = 2.0
+#: Second differences fewer than this on ground-level cells: the noise is not measurable.
+GROUND_MIN_SAMPLES = 100
+#: Lower quartile of ``|N(0, 1)|``.
+_ABS_NORMAL_Q25 = 0.3186
+#: Largest window (cells per side) the ground-level noise is measured on.
+_GROUND_WINDOW = 1024
+
+
+def _block_minima(z, k):
+    """Minimum of every ``k x k`` block (NaN ignored; all-NaN blocks NaN)."""
+    rows, cols = z.shape
+    R, C = -(-rows // k), -(-cols // k)
+    pad = np.full((R * k, C * k), np.nan, np.float32)
+    pad[:rows, :cols] = z
+    with np.errstate(invalid="ignore"):
+        return np.fmin.reduce(np.fmin.reduce(pad.reshape(R, k, C, k), axis=3), axis=1)
+
+
+def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M):
+    """The ground-level reference surface of a DSM and the terrain's median slope under it.
+
+    The minimum of every block of ``block_m`` metres (at least 2 cells; blocks without a
+    valid cell take the nearest block's value), interpolated bilinearly between the block
+    centres back to the cells. Objects narrower than a block vanish from it; where a block
+    holds no ground it stands on the object, which the caller's height band then admits.
+
+    Returns
+    -------
+    surface : ndarray of float32
+        Same shape as ``z``.
+    slope : float
+        Median gradient magnitude (rise/run) of the block-minimum surface (0 with fewer
+        than 2 x 2 blocks).
+    k : int
+        Block side in cells.
+    """
+    z = np.asarray(z, np.float32)
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    k = max(2, int(round(block_m / max(dx, dy))))
+    m = _block_minima(z, k)
+    bad = ~np.isfinite(m)
+    if bad.all():
+        return np.full(z.shape, np.nan, np.float32), 0.0, k
+    if bad.any():
+        idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+        m = m[tuple(idx)]
+    slope = 0.0
+    if min(m.shape) >= 2:
+        gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
+        slope = float(np.median(np.hypot(gx, gy)))
+    u = (np.arange(z.shape[0]) + 0.5) / k - 0.5
+    v = (np.arange(z.shape[1]) + 0.5) / k - 0.5
+    # separable bilinear interpolation between block centres (edges held)
+    rows = ndimage.map_coordinates(m, np.meshgrid(u, np.arange(m.shape[1]), indexing="ij"),
+                                   order=1, mode="nearest")
+    surf = ndimage.map_coordinates(rows, np.meshgrid(np.arange(z.shape[0]), v, indexing="ij"),
+                                   order=1, mode="nearest")
+    return surf.astype(np.float32), slope, k
+
+
+def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M,
+                       iterations=3):
+    """Standard deviation of the DSM's random height error measured on its ground-level
+    cells only, metres (NaN when too few ground-level cells are seen).
+
+    Noise measured on the whole DSM (second differences, residuals to the neighbours)
+    measures the canopy wherever trees cover most of it: a forest at 4 m cells reads
+    4-5 m of "noise" where the lidar's is 0.05 m, and every threshold derived from it
+    (a height test of 3 sigma, a single-window mode) follows. Here the same statistic is
+    taken on the cells at ground level:
+
+    1. the ground-level reference surface (:func:`ground_level_reference`: minima of
+       ``block_m`` blocks, interpolated), which objects narrower than a block do not
+       reach;
+    2. a cell is at ground level when it stands less than ``max(band_m, 6 sigma)`` plus
+       the median terrain slope times the block side above that surface (``sigma`` the
+       previous iteration's estimate; ``band_m`` to start);
+    3. ``sigma`` is the lower quartile of the absolute second differences along rows and
+       columns whose three cells are all at ground level, ``/ 0.3186 / sqrt(6)`` (white
+       noise of ``sigma`` gives second differences of variance ``6 sigma^2``; the lower
+       quartile ignores the edges and low vegetation left among them).
+
+    Measured at full resolution on a central window of at most 1024 x 1024 cells.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata.
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+
+    Returns
+    -------
+    dict
+        ``sigma`` (float, NaN when fewer than :data:`GROUND_MIN_SAMPLES` second
+        differences lie on ground-level cells), ``samples`` (their number),
+        ``ground_share`` (the share of valid cells at ground level), ``block_cells``.
+    """
+    z = np.asarray(z, np.float32)
+    rows, cols = z.shape
+    h, w = min(rows, _GROUND_WINDOW), min(cols, _GROUND_WINDOW)
+    r0, c0 = (rows - h) // 2, (cols - w) // 2
+    z = z[r0:r0 + h, c0:c0 + w]
+    out = {"sigma": float("nan"), "samples": 0, "ground_share": 0.0, "block_cells": 0}
+    if min(z.shape) < 3 or not np.isfinite(z).any():
+        return out
+    ref, slope, k = ground_level_reference(z, cell_size, block_m)
+    out["block_cells"] = k
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    d_row = z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]
+    d_col = z[:-2] - 2 * z[1:-1] + z[2:]
+    height = z - ref
+    valid = np.isfinite(z)
+    sigma = None
+    for _ in range(iterations):
+        band = (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
+        with np.errstate(invalid="ignore"):
+            g = height <= band
+        d = np.concatenate([d_row[g[:, :-2] & g[:, 1:-1] & g[:, 2:]],
+                            d_col[g[:-2] & g[1:-1] & g[2:]]])
+        d = d[np.isfinite(d)]
+        out["samples"] = int(d.size)
+        out["ground_share"] = float(np.count_nonzero(g) / max(1, np.count_nonzero(valid)))
+        if d.size < GROUND_MIN_SAMPLES:
+            out["sigma"] = float("nan")
+            return out
+        new = float(np.percentile(np.abs(d), 25.0)) / _ABS_NORMAL_Q25 / math.sqrt(6.0)
+        if sigma is not None and abs(new - sigma) <= 1e-3 * max(sigma, 1e-6):
+            sigma = new
+            break
+        sigma = new
+    out["sigma"] = sigma
+    return out

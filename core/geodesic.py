@@ -79,6 +79,7 @@ import time
 import numpy as np
 from scipy import ndimage
 
+from .estimate import noise_ground_level
 from .codes import LOW, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report
 from .methods import Method, Param
@@ -682,7 +683,8 @@ def resolve_geodesic_params(z, cell_size, **params):
     _check(p)
     valid = np.isfinite(z)
     if p["height_threshold_m"] is None:
-        p["height_threshold_m"] = round(max(0.5, NOISE_K * _noise_sigma(z, valid)), 3)
+        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        p["height_threshold_m"] = round(max(0.5, NOISE_K * sigma), 3) if np.isfinite(sigma) else 0.5
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
     if p["terrain_slope_deg"] is None:

@@ -63,6 +63,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, OBJECT
+from .estimate import noise_ground_level
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
 from .methods import Method, Param
 
@@ -622,12 +623,19 @@ def resolve_morphological_params(z, cell_size, *, mode="auto", max_object_size_m
                slope_scale_m=slope_scale_m, window_growth=window_growth,
                low_outlier_slope=low_outlier_slope)
     r0, c0 = max(0, z.shape[0] // 2 - 500), max(0, z.shape[1] // 2 - 500)
-    noise = estimate_noise(z[r0:r0 + 1000, c0:c0 + 1000])      # full resolution, central window
+    gn = noise_ground_level(z[r0:r0 + 1000, c0:c0 + 1000], cell)   # full resolution, central window
+    noise = gn["sigma"]
     out["noise_m"] = noise
     if dh_m is None:
-        out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, _DH_NOISE * noise)))
-        out["dh_source"] = (f"derived: {_DH_NOISE:g} x the DSM's noise {noise:.3f} m, bounded to "
-                            f"{_MIN_DH:g}-{_MAX_DH:g} m")
+        if np.isfinite(noise):
+            out["dh_m"] = float(min(_MAX_DH, max(_MIN_DH, _DH_NOISE * noise)))
+            out["dh_source"] = (f"derived: {_DH_NOISE:g} x the noise {noise:.3f} m of the DSM's ground-level "
+                                f"cells ({100 * gn['ground_share']:.0f} % of them), bounded to "
+                                f"{_MIN_DH:g}-{_MAX_DH:g} m")
+        else:
+            out["dh_m"] = _MIN_DH
+            out["dh_source"] = (f"the noise is not measurable on ground-level cells ({gn['samples']} samples): "
+                                f"{_MIN_DH:g} m (SMRF's elevation threshold)")
     else:
         out["dh_source"] = "given"
     s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0)

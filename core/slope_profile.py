@@ -45,6 +45,7 @@ import warnings
 import numpy as np
 from scipy import ndimage
 
+from .estimate import noise_ground_level
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
 from .methods import Method, Param
@@ -527,7 +528,8 @@ def resolve_slope_profile_params(z, cell_size, *, slope_threshold_deg=None, terr
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * estimate_noise(z), 0.15, 0.5))
+        sigma = noise_ground_level(z, cell)["sigma"]
+        tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
     return {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
