@@ -67,7 +67,7 @@ graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 import numpy as np
 from scipy import ndimage
 
-from .estimate import noise_ground_level
+from .estimate import ground_level_cells, noise_ground_level
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
@@ -942,6 +942,31 @@ def _smooth_spread(v, tile=_TILE):
     return float(np.quantile(mad, _SMOOTH_QUANTILE)) if mad.size else 0.0
 
 
+def _ground_spread(v, tile=_TILE):
+    """:func:`_smooth_spread` of bends with the off-ground cells NaN: per tile the robust
+    spread of its ground cells when they are at least a quarter of the tile; with no such
+    tile, the spread of all ground cells pooled (0 with fewer than 100)."""
+    b, r, c = v.shape
+    tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
+    nr, nc = r // tr, c // tc
+    t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
+    t = t.reshape(nr * nc, -1).astype(np.float64)
+    n = np.count_nonzero(np.isfinite(t), axis=1)
+    ok = n >= t.shape[1] // 4
+    if ok.any():
+        t = t[ok]
+        with np.errstate(invalid="ignore"):
+            med = np.nanmedian(t, axis=1, keepdims=True)
+            mad = 1.4826 * np.nanmedian(np.abs(t - med), axis=1)
+        mad = mad[np.isfinite(mad)]
+        if mad.size:
+            return float(np.quantile(mad, _SMOOTH_QUANTILE))
+    a = v[np.isfinite(v)].astype(np.float64)
+    if a.size < 100:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(a - np.median(a))))
+
+
 def _sample(z):
     """Central window of at most ``_SAMPLE_CELLS`` cells (defaults on big rasters)."""
     side = int(np.sqrt(_SAMPLE_CELLS))
@@ -1224,7 +1249,12 @@ def derive_k_g(z, cell_size, *, window=5, model="quadratic"):
             v[1, sl] = t
         else:
             np.divide(s, 1.0 + p * p + q * q, out=v[0, sl])
-    sigma = _smooth_spread(v)
+    # the bends of the ground, not of the canopy or the roofs: cells off the ground level
+    # are left out, tiles keep their robust spread when at least a quarter is ground
+    ground = ground_level_cells(zs, (dx, dy), noise_ground_level(zs, (dx, dy))["sigma"])
+    ground = ndimage.binary_erosion(ground, np.ones((window, window), bool), border_value=1)
+    v[:, ~ground] = np.nan
+    sigma = _ground_spread(v)
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)

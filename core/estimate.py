@@ -78,6 +78,23 @@ def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M):
     return surf.astype(np.float32), slope, k
 
 
+def ground_level_cells(z, cell_size, sigma=None, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M):
+    """Cells of a DSM standing at ground level (bool, same shape).
+
+    A cell is at ground level when it stands less than ``max(band_m, 6 sigma)`` plus the
+    median terrain slope times the block side above the ground-level reference surface
+    (:func:`ground_level_reference`); ``sigma`` is the DSM's noise when known (None:
+    ``band_m`` alone). Crowns and roofs, which stand metres above it, are left out; the
+    ground between them, gaps in a canopy and low vegetation are in.
+    """
+    z = np.asarray(z, np.float32)
+    ref, slope, k = ground_level_reference(z, cell_size, block_m)
+    band = (band_m if sigma is None or not np.isfinite(sigma) else max(band_m, 6.0 * sigma))
+    band += slope * k * max(float(cell_size[0]), float(cell_size[1]))
+    with np.errstate(invalid="ignore"):
+        return (z - ref) <= band
+
+
 def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M,
                        iterations=3):
     """Standard deviation of the DSM's random height error measured on its ground-level
