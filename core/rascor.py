@@ -85,7 +85,7 @@ from math import comb
 import numpy as np
 from scipy import ndimage
 
-from .estimate import noise_ground_level
+from .estimate import below_surroundings, noise_ground_level
 from .codes import LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
@@ -128,52 +128,6 @@ _STEP_SWITCHES = ("step1_characterise", "step2_height_distribution",
 
 
 # --------------------------------------------------------------------------- helpers
-#: Radius (m) of the ring of cells a low blunder must lie below (:func:`below_surroundings`).
-_PIT_RADIUS_M = 10.0
-#: Half-width (m, at least 2 cells) of the blunder cluster left out of that ring.
-_PIT_CLUSTER_M = 1.0
-
-
-def _min_over_offsets(b, lo, hi, axis):
-    """``out[i] = min(b[i + lo .. i + hi])`` along ``axis`` (+inf outside the array)."""
-    n = hi - lo + 1
-    m = ndimage.minimum_filter1d(b, n, axis=axis, mode="constant", cval=np.inf)
-    shift = lo + n // 2                   # m[j] covers j - n//2 .. j - n//2 + n - 1
-    out = np.full(b.shape, np.inf, b.dtype)
-    length = b.shape[axis]
-    src = [slice(None)] * b.ndim
-    dst = [slice(None)] * b.ndim
-    if shift >= 0:
-        src[axis], dst[axis] = slice(shift, length), slice(0, max(0, length - shift))
-    else:
-        src[axis], dst[axis] = slice(0, length + shift), slice(-shift, length)
-    out[tuple(dst)] = m[tuple(src)]
-    return out
-
-
-def below_surroundings(z, cell_size, depth_m, radius_m=_PIT_RADIUS_M, cluster_m=_PIT_CLUSTER_M):
-    """Cells lying more than ``depth_m`` below every cell of the square ring around them.
-
-    The ring spans ``radius_m`` around the cell without the cell's own cluster (half-width
-    ``cluster_m``, at least 2 cells): a matching blunder or multipath pit is below all the
-    ground around it, a gap between tree crowns or roofs is at the level of the other gaps
-    within the ring. Translation-invariant (four rectangular minimum filters), NaN ignored.
-    """
-    dx, dy = cell_size
-    a = np.where(np.isfinite(z), z, np.inf).astype(np.float32)
-    iy = max(2, int(np.ceil(cluster_m / dy)))
-    ix = max(2, int(np.ceil(cluster_m / dx)))
-    ry = max(iy + 2, int(np.ceil(radius_m / dy)))
-    rx = max(ix + 2, int(np.ceil(radius_m / dx)))
-    rows = ndimage.minimum_filter1d(a, 2 * rx + 1, axis=1, mode="constant", cval=np.inf)
-    mid = ndimage.minimum_filter1d(a, 2 * iy + 1, axis=0, mode="constant", cval=np.inf)
-    ring = np.minimum(_min_over_offsets(rows, -ry, -iy - 1, 0), _min_over_offsets(rows, iy + 1, ry, 0))
-    np.minimum(ring, _min_over_offsets(mid, -rx, -ix - 1, 1), out=ring)
-    np.minimum(ring, _min_over_offsets(mid, ix + 1, rx, 1), out=ring)
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(ring) & (a < ring - np.float32(depth_m))
-
-
 def _odd(n, minimum=3):
     n = max(int(round(n)), minimum)
     return n if n % 2 else n + 1

@@ -45,7 +45,7 @@ import warnings
 import numpy as np
 from scipy import ndimage
 
-from .estimate import noise_ground_level
+from .estimate import below_surroundings, noise_ground_level
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
 from .methods import Method, Param
@@ -457,6 +457,7 @@ def filter_slope_profile(z, cell_size, *, slope_threshold_deg, terrain_slope_deg
     valid = np.isfinite(z)
 
     low = find_low_blunders(z, tolerance_m + max(dx, dy) * tan_g)
+    low &= below_surroundings(z, (dx, dy), tolerance_m)   # below all the ground around, not a gap
     zs = np.where(low, np.float32(np.nan), z)
     report(progress, 0.05)
 
