@@ -67,3 +67,60 @@ def test_make_canopy_is_the_same_landscape_at_every_cell_size():
     assert np.allclose(a.dtm, b.dtm.reshape(64, 2, 64, 2).mean(axis=(1, 3)), atol=0.01)
     with pytest.raises(ValueError, match="16 cells"):
         make_canopy(10.0, 1.0)
+
+
+def _brute_below_ring(z, depth, r, c):
+    out = np.zeros(z.shape, bool)
+    for i in range(z.shape[0]):
+        for j in range(z.shape[1]):
+            lo = np.inf
+            for di in range(-r, r + 1):
+                for dj in range(-r, r + 1):
+                    ii, jj = i + di, j + dj
+                    if max(abs(di), abs(dj)) > c and 0 <= ii < z.shape[0] and 0 <= jj < z.shape[1] \
+                            and np.isfinite(z[ii, jj]):
+                        lo = min(lo, z[ii, jj])
+            out[i, j] = np.isfinite(lo) and z[i, j] < lo - depth
+    return out
+
+
+@pytest.mark.parametrize("cell", [1.0, 0.5])
+def test_below_surroundings_equals_the_brute_force_ring_minimum(cell):
+    from bare_earth.core.estimate import below_surroundings
+    rng = np.random.default_rng(4)
+    z = rng.normal(0.0, 1.0, (23, 29)).astype(np.float32)
+    z[5, 7] = np.nan
+    got = below_surroundings(z, (cell, cell), 0.5, radius_m=6.0, cluster_m=1.0)
+    r, c = int(np.ceil(6.0 / cell)), max(2, int(np.ceil(1.0 / cell)))
+    assert (got == _brute_below_ring(z, 0.5, r, c)).all()
+
+
+def test_below_surroundings_tells_a_blunder_from_a_gap_between_crowns():
+    from bare_earth.core.estimate import below_surroundings
+    z = np.full((40, 40), 20.0, np.float32)          # canopy
+    z[::6, ::6] = 0.0                                  # gaps down to the ground every 6 m
+    z[21, 21] = -5.0                                   # a blunder below the ground
+    got = below_surroundings(z, (1.0, 1.0), 0.5)
+    assert got[21, 21]
+    assert not got[::6, ::6].any()
+
+
+def test_low_blunders_of_the_filters_are_not_the_gaps_of_a_canopy_at_4_m():
+    from bare_earth.core.codes import LOW
+    from bare_earth.core.pipeline import run_array
+    s = make_canopy(512.0, 4.0, cover=0.85, seed=0, noise_m=0.05)
+    gaps = s.mask == 0
+    for name in ("slopeprofile", "rascor"):
+        res = run_array(name, s.dsm, s.cell_size)
+        assert np.mean(res.mask[gaps] == LOW) < 0.05, name   # slope profile before: 0.92
+
+
+def test_curvature_threshold_comes_from_the_ground_not_the_canopy():
+    # the same ground with and without a closed canopy gives the same K_g (order of
+    # magnitude); on the whole surface the canopy's bends set it thousands of times higher
+    from bare_earth.core.curvature import derive_k_g
+    s = make_canopy(256.0, 1.0, cover=0.85, seed=1, noise_m=0.05)
+    bare = make_canopy(256.0, 1.0, cover=0.0, seed=1, noise_m=0.05)
+    k_canopy = derive_k_g(s.dsm, s.cell_size)
+    k_bare = derive_k_g(bare.dsm, bare.cell_size)
+    assert k_canopy < 10 * k_bare
