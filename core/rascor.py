@@ -85,7 +85,7 @@ from math import comb
 import numpy as np
 from scipy import ndimage
 
-from .estimate import below_surroundings, noise_ground_level
+from .estimate import below_surroundings
 from .codes import LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, transpose
 from .methods import Method, Param
@@ -818,8 +818,7 @@ def _characterise(z, cell_size, tile_m=25.0):
     # sigma on a central crop of at most 1024 x 1024 cells
     r0 = max(0, z.shape[0] // 2 - 512)
     c0 = max(0, z.shape[1] // 2 - 512)
-    sigma = noise_ground_level(z[r0:r0 + 1024, c0:c0 + 1024], cell_size)["sigma"]
-    sigma = max(_SIGMA_FLOOR, sigma) if np.isfinite(sigma) else 0.5 / 3.0
+    sigma = estimate_sigma(z[r0:r0 + 1024, c0:c0 + 1024])
     return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= _HOMOGENEOUS_SHARE),
             "class_shares": shares, "slope_median": med,
             "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,
