@@ -9,7 +9,7 @@ export XDG_RUNTIME_DIR ?= /tmp/runtime-$(shell id -u)
 DEMO_DIR ?= $(ROOT)/out/demo
 VERSION := $(shell sed -n 's/^version=//p' metadata.txt)
 
-.PHONY: setup demo test package clean
+.PHONY: setup demo test lint package clean
 
 setup:
 	@bash scripts/setup.sh
@@ -20,6 +20,10 @@ demo: setup
 test:
 	@bash scripts/setup.sh --venv
 	$(VENV_PY) -m pytest -q tests
+
+lint:
+	@bash scripts/setup.sh --venv >/dev/null
+	$(ROOT)/.venv/bin/ruff check .
 
 package:
 	@rm -rf .build/package dist && mkdir -p .build/package/bare_earth dist

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Idempotent set-up on Debian 12: install what is missing (QGIS, GDAL, scipy from Debian's
-# packages; pytest and laspy into a venv that sees them), link the plugin under its own name
+# packages; pytest, laspy and ruff into a venv that sees them), link the plugin under its own name
 # in .build/plugins, and enable it for qgis_process. Safe to run any number of times.
 #   scripts/setup.sh          system packages + plugin link + enable
-#   scripts/setup.sh --venv   also the test venv (.venv with pytest, laspy, lazrs)
+#   scripts/setup.sh --venv   also the test venv (.venv with pytest, laspy, lazrs, ruff)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 PY=/usr/bin/python3
@@ -42,7 +42,7 @@ if [ "${1:-}" = "--venv" ]; then
   if [ ! -x "$ROOT/.venv/bin/python" ]; then
     $PY -m venv --system-site-packages "$ROOT/.venv"
   fi
-  "$ROOT/.venv/bin/python" -c "import pytest, laspy, lazrs" 2>/dev/null || \
-    "$ROOT/.venv/bin/python" -m pip install -q --disable-pip-version-check "pytest>=7" "laspy>=2" lazrs
+  { "$ROOT/.venv/bin/python" -c "import pytest, laspy, lazrs" 2>/dev/null && [ -x "$ROOT/.venv/bin/ruff" ]; } || \
+    "$ROOT/.venv/bin/python" -m pip install -q --disable-pip-version-check "pytest>=7" "laspy>=2" lazrs "ruff>=0.4"
 fi
 echo "Set-up OK: plugin linked at .build/plugins/bare_earth and enabled for qgis_process."
