@@ -81,7 +81,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import isprs  # noqa: E402  (its bootstrap makes ``import bare_earth`` work)
-
 import numpy as np  # noqa: E402
 
 from bare_earth.core.evaluate import compare_dtm, compare_masks, confusion  # noqa: E402
