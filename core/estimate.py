@@ -112,8 +112,10 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     2. a cell is at ground level when it stands less than ``max(band_m, 6 sigma)`` plus
        the median terrain slope times the block side above that surface (``sigma`` the
        previous iteration's estimate; ``band_m`` to start);
-    3. ``sigma`` is the lower quartile of the absolute second differences along rows and
-       columns whose three cells are all at ground level, ``/ 0.3186 / sqrt(6)`` (white
+    3. ``sigma`` is the lower quartile of the absolute second differences along rows,
+       columns and both diagonals whose three cells are all at ground level (four
+       directions: twice the samples of rows and columns where the ground shows only in
+       small gaps), ``/ 0.3186 / sqrt(6)`` (white
        noise of ``sigma`` gives second differences of variance ``6 sigma^2``; the lower
        quartile ignores the edges and low vegetation left among them).
 
@@ -146,6 +148,8 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     dx, dy = float(cell_size[0]), float(cell_size[1])
     d_row = z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]
     d_col = z[:-2] - 2 * z[1:-1] + z[2:]
+    d_dia = z[:-2, :-2] - 2 * z[1:-1, 1:-1] + z[2:, 2:]
+    d_ant = z[:-2, 2:] - 2 * z[1:-1, 1:-1] + z[2:, :-2]
     height = z - ref
     valid = np.isfinite(z)
     sigma = None
@@ -153,8 +157,11 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
         band = (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
         with np.errstate(invalid="ignore"):
             g = height <= band
+        mid = g[1:-1, 1:-1]
         d = np.concatenate([d_row[g[:, :-2] & g[:, 1:-1] & g[:, 2:]],
-                            d_col[g[:-2] & g[1:-1] & g[2:]]])
+                            d_col[g[:-2] & g[1:-1] & g[2:]],
+                            d_dia[g[:-2, :-2] & mid & g[2:, 2:]],
+                            d_ant[g[:-2, 2:] & mid & g[2:, :-2]]])
         d = d[np.isfinite(d)]
         out["samples"] = int(d.size)
         out["ground_share"] = float(np.count_nonzero(g) / max(1, np.count_nonzero(valid)))
