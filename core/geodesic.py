@@ -439,6 +439,9 @@ def _step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit):
     if cand.any():
         lab, n = ndimage.label(cand, _S8)
         rim = cand & ~_inner(cand)
+        # the raster's edge ends the data, it is not the region's border: no evidence
+        rim[0, :] = rim[-1, :] = False
+        rim[:, 0] = rim[:, -1] = False
         # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
         # than the terrain can rise over one (diagonal) cell, plus 2 dh0
         # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
