@@ -25,11 +25,15 @@ lint:
 	@bash scripts/setup.sh --venv >/dev/null
 	$(ROOT)/.venv/bin/ruff check .
 
+# The zip the QGIS plugin repository accepts: one folder bare_earth/ with metadata.txt, __init__.py and
+# LICENSE (required since 2024), no caches, no compiled files (tests/test_packaging.py checks it).
 package:
+	@git ls-files --error-unmatch LICENSE metadata.txt >/dev/null 2>&1 || \
+	  { echo "LICENSE and metadata.txt must be committed: the plugin repository refuses a zip without them" >&2; exit 1; }
 	@rm -rf .build/package dist && mkdir -p .build/package/bare_earth dist
-	@git ls-files | grep -vE '^(tests/|benchmarks/|scripts/|docs/|\.ci/|\.gitignore|Makefile|pytest\.ini)' \
+	@git ls-files | grep -vE '^(tests/|benchmarks/|scripts/|docs/|\.ci/|\.gitignore|Makefile|pytest\.ini|pyproject\.toml)' \
 	  | while read f; do mkdir -p ".build/package/bare_earth/$$(dirname "$$f")"; cp "$$f" ".build/package/bare_earth/$$f"; done
-	@cd .build/package && zip -qr "$(ROOT)/dist/bare_earth-$(VERSION).zip" bare_earth -x '*__pycache__*' '*.pyc'
+	@cd .build/package && zip -qrX "$(ROOT)/dist/bare_earth-$(VERSION).zip" bare_earth -x '*__pycache__*' '*.pyc' '*.pyo' '*.so'
 	@rm -rf .build/package
 	@echo "dist/bare_earth-$(VERSION).zip"
 

@@ -27,6 +27,14 @@ class BareEarthProvider(QgsProcessingProvider):
     def svgIconPath(self):  # noqa: N802
         return ICON
 
+    def supportedOutputRasterLayerExtensions(self):  # noqa: N802
+        """The raster formats the outputs are written in (others are refused by name)."""
+        from .core.grid import output_extensions
+        return output_extensions()
+
+    def defaultRasterFileExtension(self):  # noqa: N802
+        return "tif"
+
     def loadAlgorithms(self):  # noqa: N802
         from .algorithms import all_algorithms
         for alg in all_algorithms():

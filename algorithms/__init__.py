@@ -5,10 +5,10 @@ def all_algorithms():
     """Instances of every algorithm whose core method is available, in toolbox order."""
     from ..core.methods import available_methods
     from . import filters
-    from .fill_dtm import FillDtmAlgorithm
     from .evaluate import EvaluateAlgorithm
-    from .points import ClassifyPointsAlgorithm, RasterizePointsAlgorithm
+    from .fill_dtm import FillDtmAlgorithm
     from .orthophoto import OrthoParallaxAlgorithm, OrthoRefineAlgorithm
+    from .points import ClassifyPointsAlgorithm, RasterizePointsAlgorithm
     methods = available_methods()
     algs = []
     for cls in (getattr(filters, n) for n in filters.__dict__ if n.endswith("Algorithm")):

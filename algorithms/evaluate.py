@@ -1,17 +1,64 @@
 """``bareearth:evaluate``: compare a result with truth (masks, DTMs, or points)."""
 import os
 
-from qgis.core import (QgsProcessingException, QgsProcessingOutputNumber, QgsProcessingParameterDefinition,
-                       QgsProcessingParameterFile, QgsProcessingParameterFileDestination,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterLayer,
-                       QgsProcessingParameterString)
+import numpy as np
+from qgis.core import (
+    QgsProcessingException,
+    QgsProcessingOutputNumber,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 
 from ..core import evaluate as ev
 from ..core import grid
 from ..core.pointflow import classify_cloud
 from ..core.points import read_points
 from .fill_dtm import grid_mismatch_message, same_grid
-from .filter_base import BaseAlgorithm, raster_path, tr, with_help
+from .filter_base import BaseAlgorithm, explained, raster_path, tr, with_help
+
+#: what each figure of a comparison is, for the log (Sithole & Vosselman 2004's cross matrix:
+#: rows the truth, columns the result)
+FIGURES = {
+    "a": "a: ground kept as ground",
+    "b": "b: ground rejected (Type I errors)",
+    "c": "c: objects accepted as ground (Type II errors)",
+    "d": "d: objects rejected",
+    "n": "compared",
+    "n_ground": "of which ground (a + b)",
+    "n_object": "of which objects (c + d)",
+    "type1": "Type I error, b / (a + b)",
+    "type2": "Type II error, c / (c + d)",
+    "total": "Total error, (b + c) / n",
+    "kappa": "Cohen's kappa",
+    "points_outside_dtm": "points outside the DTM (not counted)",
+    "rmse": "RMSE (m)", "mean": "mean error (m)", "max_abs": "largest error (m)",
+    "ground_rmse": "RMSE on reference ground (m)", "ground_mean": "mean error on reference ground (m)",
+    "ground_max_abs": "largest error on reference ground (m)", "ground_n": "reference ground cells compared",
+}
+PERCENT_FIGURES = ("type1", "type2", "total", "kappa")
+
+
+def log_figures(feedback, name, figures):
+    """One comparison in the log: what each figure is, percentages with '%', counts as integers
+    in cells or points."""
+    unit = tr("points") if "point" in name else tr("cells")
+    feedback.pushInfo("{}:".format(name))
+    width = max(len(tr(FIGURES.get(k, k))) for k in figures)
+    for k, v in figures.items():
+        label = tr(FIGURES.get(k, k)).ljust(width)
+        if k in PERCENT_FIGURES:
+            text = tr("not defined") if v is None or v != v else "{:.4g} %".format(v)
+        elif isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+            text = "{} {}".format(int(v), unit)
+        elif isinstance(v, float):
+            text = "{:.4g}".format(v)
+        else:
+            text = str(v)
+        feedback.pushInfo("  {}  {}".format(label, text))
 
 
 class EvaluateAlgorithm(BaseAlgorithm):
@@ -22,6 +69,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
     TRUTH_POINTS, TRUTH_COLUMN = "TRUTH_POINTS", "TRUTH_COLUMN"
     OUTPUT_JSON, OUTPUT_HTML = "OUTPUT_JSON", "OUTPUT_HTML"
     GROUP, GROUP_NAME = "tools", "DTM tools"
+    TAGS = ("DTM", "DEM", "ground", "terrain", "bare earth", "evaluate", "accuracy", "error", "RMSE", "kappa",
+            "ISPRS", "Type I", "Type II", "lidar", "reference")
 
     def name(self):
         return "evaluate"
@@ -99,7 +148,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
         return None if lay is None else grid.open_dsm(raster_path(lay), 1)
 
     def _inputs(self, parameters, context):
-        mask, ref_mask = self._layer(parameters, self.MASK, context), self._layer(parameters, self.REFERENCE_MASK, context)
+        mask = self._layer(parameters, self.MASK, context)
+        ref_mask = self._layer(parameters, self.REFERENCE_MASK, context)
         dtm, ref_dtm = self._layer(parameters, self.DTM, context), self._layer(parameters, self.REFERENCE_DTM, context)
         points = self.parameterAsFile(parameters, self.POINTS, context) or None
         truth, column = self._truth(parameters, context)
@@ -132,6 +182,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
         column = (self.parameterAsString(parameters, self.TRUTH_COLUMN, context) or "").strip() or None
         return truth, column
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -146,7 +197,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
         try:
             mask, ref_mask, dtm, ref_dtm, points = self._inputs(parameters, context)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         results, maps, gts = {}, {}, {}
         out = {}
         ref_m = None
@@ -167,23 +218,27 @@ class EvaluateAlgorithm(BaseAlgorithm):
         truth, column = self._truth(parameters, context)
         if points and (truth or column):
             from .points import evaluate_classified
-            feedback.pushInfo(tr(f"Comparing the classified points {points} with "
-                                 + (f"the truth points {truth}" if truth else f"their column {column!r}") + " ..."))
+            if truth:
+                feedback.pushInfo(tr("Comparing the classified points {} with the truth points {} ...").format(
+                    points, truth))
+            else:
+                feedback.pushInfo(tr("Comparing the classified points {} with their column '{}' ...").format(
+                    points, column))
             try:
                 r, maps["point errors"], gts["point errors"] = evaluate_classified(points, truth, column)
             except (ValueError, ImportError) as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             results["classified points vs truth"] = r
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
         elif points:
-            feedback.pushInfo(tr(f"Reading points {points} ..."))
+            feedback.pushInfo(tr("Reading points {} ...").format(points))
             try:
                 cloud = read_points(points)
             except (ValueError, ImportError) as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             if cloud.classification is None:
-                raise QgsProcessingException(tr(f"The points file {points!r} has no class column: it cannot "
-                                                "serve as truth."))
+                raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
+                                                "truth.").format(points))
             true_ground = cloud.classification == (2 if cloud.source_format == "las" else 0)
             try:
                 # in metres whatever the units (feet: the tolerance stays 0.5 m)
@@ -191,7 +246,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
                                      slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
             except ValueError as exc:
-                raise QgsProcessingException(str(exc)) from None
+                raise QgsProcessingException(self.explain(str(exc))) from None
             inside = cls != 255
             r = ev.confusion(cls == 0, true_ground, valid=inside)
             r["points_outside_dtm"] = int((~inside).sum())
@@ -201,9 +256,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             gts["point errors"] = dtm.geotransform
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
         for name, r in results.items():
-            feedback.pushInfo(f"{name}:")
-            for k, v in r.items():
-                feedback.pushInfo(f"  {k:>20}: {v:.4g}" if isinstance(v, float) else f"  {k:>20}: {v}")
+            log_figures(feedback, name, r)
         json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)
         html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context)
         ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,

@@ -34,10 +34,17 @@ EXAMPLES = ROOT / "examples"
 
 def build(filter_name="morphological"):
     """Return the model (QgsProcessingModelAlgorithm); QGIS must be initialised."""
-    from qgis.core import (QgsApplication, QgsProcessingModelAlgorithm, QgsProcessingParameterDefinition, QgsProcessingModelChildAlgorithm,
-                           QgsProcessingModelChildParameterSource, QgsProcessingModelOutput,
-                           QgsProcessingModelParameter, QgsProcessingParameterFile,
-                           QgsProcessingParameterNumber)
+    from qgis.core import (
+        QgsApplication,
+        QgsProcessingModelAlgorithm,
+        QgsProcessingModelChildAlgorithm,
+        QgsProcessingModelChildParameterSource,
+        QgsProcessingModelOutput,
+        QgsProcessingModelParameter,
+        QgsProcessingParameterDefinition,
+        QgsProcessingParameterFile,
+        QgsProcessingParameterNumber,
+    )
     from qgis.PyQt.QtCore import QPointF
 
     model = QgsProcessingModelAlgorithm("Rasterize, filter and classify points", "Bare Earth examples",

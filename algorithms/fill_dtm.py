@@ -1,19 +1,35 @@
 """``bareearth:filldtm``: fill removed and nodata cells of a surface from the ground around them."""
 import numpy as np
-from qgis.core import (QgsProcessingException, QgsProcessingParameterBand, QgsProcessingParameterBoolean,
-                       QgsProcessingParameterRasterDestination, QgsProcessingParameterRasterLayer,
-                       QgsProcessingParameterString)
+from qgis.core import (
+    QgsProcessingException,
+    QgsProcessingParameterBand,
+    QgsProcessingParameterBoolean,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 
 from ..core import Cancelled, grid
 from ..core.fill import fill_gaps
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr, with_help
+from .filter_base import (
+    BaseAlgorithm,
+    check_dsm,
+    explained,
+    format_params,
+    output_options,
+    progress_callback,
+    raster_path,
+    tr,
+    with_help,
+)
 
 
 def same_grid(a, b):
     """True when two DSMInfo share shape and geotransform (to a tolerance of 1e-6 cell)."""
     if a.shape != b.shape:
         return False
-    return all(abs(x - y) <= 1e-6 * max(1.0, abs(a.geotransform[1])) for x, y in zip(a.geotransform, b.geotransform))
+    tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
+    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
 
 
 def grid_mismatch_message(a, b, what):
@@ -39,6 +55,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
     INPUT, BAND, MASK, FILL_CODES, FILL_NODATA, OUTPUT = ("INPUT", "BAND", "MASK", "FILL_CODES",
                                                           "FILL_NODATA", "OUTPUT")
     GROUP, GROUP_NAME = "tools", "DTM tools"
+    TAGS = ("DTM", "DEM", "DSM", "ground", "terrain", "bare earth", "nodata", "fill", "gaps", "holes", "voids",
+            "interpolation", "fill nodata")
 
     def name(self):
         return "filldtm"
@@ -74,6 +92,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
         self.addParameter(f)
         self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT, tr("Filled surface")),
                                     "Float32 surface on the input's grid with the filled cells."))
+        for p in format_params():
+            self.addParameter(p)
 
     def _inputs(self, parameters, context):
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
@@ -90,6 +110,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         codes = parse_codes(self.parameterAsString(parameters, self.FILL_CODES, context))
         return info, minfo, codes
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -106,7 +127,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         try:
             info, minfo, codes = self._inputs(parameters, context)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         out_path = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
         fill_nodata = self.parameterAsBool(parameters, self.FILL_NODATA, context)
         z = info.read()
@@ -114,7 +135,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         if minfo is not None:
             m = minfo.dataset().GetRasterBand(1).ReadAsArray()
             fill |= np.isin(m, codes)
-        feedback.pushInfo(tr(f"Filling {int(fill.sum())} of {z.size} cells ({100.0 * fill.mean():.2f} %)."))
+        feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)
         try:
@@ -123,14 +144,17 @@ class FillDtmAlgorithm(BaseAlgorithm):
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         nd = info.nodata
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
         if np.isfinite(nodata):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
-        with grid.OutputSet(info) as out:
-            out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
-            out.write("out", filled)
-            out.commit()
+        try:
+            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
+                out.write("out", filled)
+                out.commit()
+        except ValueError as exc:
+            raise QgsProcessingException(self.explain(str(exc))) from None
         return {self.OUTPUT: out_path}

@@ -5,23 +5,36 @@ the dialog from the method's ``Param`` specs, checks the input before any work s
 turns ``feedback`` into the core's progress callback, runs the core's block pipeline and
 returns the outputs.
 """
+import contextlib
+import functools
 import math
 import os
+import re
 
-from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
-                       QgsProcessingParameterBand, QgsProcessingParameterBoolean,
-                       QgsProcessingParameterDefinition, QgsProcessingParameterEnum,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterDestination,
-                       QgsProcessingParameterRasterLayer)
+import numpy as np
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingAlgorithm,
+    QgsProcessingException,
+    QgsProcessingOutputLayerDefinition,
+    QgsProcessingParameterBand,
+    QgsProcessingParameterBoolean,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+)
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
 
-from ..core import Cancelled
-from ..core import grid
+from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE
 from ..provider import ICON
+from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
              + "; a colour table and a .qml style are written with it.")
@@ -39,6 +52,17 @@ def with_help(param, text, advanced=False):
     return param
 
 
+def warning_logger(feedback):
+    """A log callback for the core's warnings: QGIS's warning line already says "WARNING", so a
+    "Warning: " the core put first is dropped."""
+    push = feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError
+
+    def log(text):
+        text = str(text)
+        push(text[len("Warning: "):] if text.startswith("Warning: ") else text)
+    return log
+
+
 def progress_callback(feedback):
     """The core's plain progress callback for a QGIS feedback (raises Cancelled)."""
     def progress(fraction):
@@ -54,6 +78,7 @@ def auto_threads():
     """Threads for THREADS = 0: one per core (core ``blocks.default_workers``), within
     QGIS's "Max cores to use" setting when one is set."""
     from qgis.core import QgsApplication
+
     from ..core.blocks import default_workers
     n = default_workers()
     limit = QgsApplication.maxThreads()
@@ -65,8 +90,8 @@ def raster_path(layer):
     if layer is None:
         raise QgsProcessingException(tr("No input raster was given."))
     if layer.providerType() != "gdal":
-        raise QgsProcessingException(tr(f"The layer '{layer.name()}' is served by the "
-                                        f"'{layer.providerType()}' provider; save it as a GeoTIFF first."))
+        raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
+                                        "first.").format(layer.name(), layer.providerType()))
     return layer.source()
 
 
@@ -80,11 +105,108 @@ def check_dsm(layer, band):
     return True, "", info
 
 
+#: README.md beside the plugin: its headings are the targets of the help buttons
+README = os.path.join(os.path.dirname(os.path.dirname(__file__)), "README.md")
+
+
+def github_anchor(heading):
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped (letters,
+    digits, spaces, '-' and '_' kept), each space a '-'."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def readme_headings(path=README):
+    """The README's headings (text after the '#'s), in order; [] when it is absent."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return []
+    out, fenced = [], False
+    for line in lines:
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        elif not fenced and re.match(r"#{1,6} ", line):
+            out.append(line.lstrip("#").strip())
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def help_anchor(alg_id):
+    """Anchor of the README section of ``bareearth:<name>``: the first heading naming the
+    algorithm, else the "Algorithms" section."""
+    headings = readme_headings()
+    for h in headings:
+        if re.search(rf"`{re.escape(alg_id)}`", h):
+            return github_anchor(h)
+    return "algorithms"
+
+
+CREATE_OPTIONS, COG = "CREATE_OPTIONS", "COG"
+
+
+def format_params():
+    """The advanced parameters of GeoTIFF outputs, as QGIS's own raster algorithms offer them:
+    GDAL creation options (with QGIS's profile widget in the dialog) and cloud-optimised GeoTIFF."""
+    o = QgsProcessingParameterString(CREATE_OPTIONS, tr("Additional creation options"), optional=True)
+    o.setMetadata({"widget_wrapper": {
+        "class": "processing.algs.gdal.ui.RasterOptionsWidget.RasterOptionsWidgetWrapper"}})
+    c = QgsProcessingParameterBoolean(COG, tr("Write cloud-optimised GeoTIFFs (COG)"), False, optional=True)
+    return [with_help(o, "GDAL creation options of the GeoTIFF outputs, KEY=VALUE separated by '|' (e.g. "
+                         "COMPRESS=ZSTD|PREDICTOR=2 or COMPRESS=LZW); the dialog offers QGIS's compression "
+                         "profiles. Empty: DEFLATE (fast level) in 256 x 256 tiles.", advanced=True),
+            with_help(c, "Write .tif outputs as cloud-optimised GeoTIFFs (tiled, with overviews, readable "
+                         "over HTTP by range requests), compressed with DEFLATE unless the creation options "
+                         "say otherwise.", advanced=True)]
+
+
+@contextlib.contextmanager
+def output_options(alg, parameters, context):
+    """``grid.write_options`` from an algorithm's CREATE_OPTIONS and COG (if it has them)."""
+    cog = bool(alg.parameterDefinition(COG)) and alg.parameterAsBool(parameters, COG, context)
+    text = alg.parameterAsString(parameters, CREATE_OPTIONS, context) if alg.parameterDefinition(CREATE_OPTIONS) \
+        else ""
+    try:
+        opts = grid.parse_creation_options(text, cog=cog)
+    except ValueError as exc:
+        raise QgsProcessingException(alg.explain(str(exc))) from None
+    with grid.write_options(opts, cog):
+        yield
+
+
+def destination_path(parameters, key):
+    """The file a destination parameter names, or None for a temporary output (or none)."""
+    v = parameters.get(key)
+    if isinstance(v, QgsProcessingOutputLayerDefinition):
+        v = v.sink.staticValue()
+    if v is None or str(v) in ("", QgsProcessing.TEMPORARY_OUTPUT) or str(v).startswith("memory:"):
+        return None
+    return str(v)
+
+
+def explained(check):
+    """Decorate a ``checkParameterValues``: its refusal names parameters by label and id."""
+    @functools.wraps(check)
+    def checked(self, parameters, context):
+        ok, msg = check(self, parameters, context)
+        return ok, (msg if ok else self.explain(msg))
+    return checked
+
+
+def label_of(definition):
+    """How messages and the log name a parameter: its label (without a trailing note such as
+    "[empty: from the data]"), and its id for qgis_process."""
+    return "'{}' ({})".format(re.sub(r"\s*\[[^\]]*\]$", "", definition.description()), definition.name())
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
-    """Common bits of every Bare Earth algorithm (icon, group, help URL, instance)."""
+    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
 
     GROUP = "filters"
     GROUP_NAME = "DSM filters"
+    #: words users type in the toolbox's search box (the toolbox matches tags, id and name)
+    TAGS = ()
 
     def icon(self):
         return QIcon(ICON)
@@ -98,14 +220,105 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
     def groupId(self):  # noqa: N802
         return self.GROUP
 
+    def tags(self):
+        return [tr(t) for t in self.TAGS]
+
     def helpUrl(self):  # noqa: N802
-        return f"{HOMEPAGE}#{self.name()}" if HOMEPAGE else ""
+        return "{}#{}".format(HOMEPAGE, help_anchor("bareearth:" + self.name())) if HOMEPAGE else ""
 
     def createInstance(self):  # noqa: N802
         return type(self)()
 
     def tr(self, text):
         return tr(text)
+
+    # -- messages ----------------------------------------------------------------------------
+    def messageNames(self):  # noqa: N802
+        """{name in messages: definition}: the ids with an underscore (single words such as DTM or
+        MASK are also ordinary words in messages)."""
+        return {d.name(): d for d in self.parameterDefinitions() if "_" in d.name()}
+
+    def explain(self, message):
+        """A message with each parameter it names by id (or by the core's name) given as the
+        dialog's label and the id for qgis_process; names already so given are kept."""
+        names = self.messageNames()
+        if not names or not message:
+            return message
+        pattern = re.compile(r"(?<![\w'/\\.-])(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+                             + r")(?![\w'.])")
+
+        def named(m):
+            before, after = message[m.start() - 1:m.start()], message[m.end():m.end() + 1]
+            return m.group(0) if before == "(" and after == ")" else label_of(names[m.group(1)])
+        return pattern.sub(named, message)
+
+    # -- outputs ---------------------------------------------------------------------------
+    def outputBands(self, key):  # noqa: N802
+        """Bands of the raster output ``key`` (1; a filter's side products may have more)."""
+        return 1
+
+    def inputPaths(self, parameters, context):  # noqa: N802
+        """(definition, path) of every file the given inputs read."""
+        out = []
+        for d in self.parameterDefinitions():
+            if d.isDestination() or parameters.get(d.name()) in (None, "", []):
+                continue
+            if d.type() == "raster":
+                lay = self.parameterAsRasterLayer(parameters, d.name(), context)
+                out += [(d, lay.source())] if lay is not None else []
+            elif d.type() == "file":
+                out.append((d, self.parameterAsFile(parameters, d.name(), context)))
+            elif d.type() == "multilayer":
+                out += [(d, p) for p in self.parameterAsFileList(parameters, d.name(), context)]
+                out += [(d, lay.source()) for lay in self.parameterAsLayerList(parameters, d.name(), context)]
+        return [(d, p) for d, p in out if p]
+
+    def checkOutputs(self, parameters, context):  # noqa: N802
+        """(ok, message): no output overwrites an input or another output; each output's folder
+        exists and takes files; each raster output's extension names a format offered (and
+        holds its bands). Runs before any work."""
+        inputs = [(d, os.path.realpath(p)) for d, p in self.inputPaths(parameters, context)]
+        seen = {}
+        for d in self.destinationParameterDefinitions():
+            path = destination_path(parameters, d.name())
+            if path is None:
+                continue
+            real = os.path.realpath(path)
+            for di, p in inputs:
+                if p == real:
+                    return False, tr("The output {} is the input {} ({}): the input would be overwritten. "
+                                     "Choose another file for the output.").format(label_of(d), label_of(di), path)
+            if real in seen:
+                return False, tr("The outputs {} and {} are one file ({}): give each output its own "
+                                 "file.").format(label_of(seen[real]), label_of(d), path)
+            seen[real] = d
+            try:
+                if d.type() == "rasterDestination":
+                    grid.check_output_path(path, self.outputBands(d.name()))
+                else:
+                    grid.check_output_folder(path)
+            except ValueError as exc:
+                return False, "{}: {}".format(label_of(d), exc)
+        if self.parameterDefinition(CREATE_OPTIONS) is not None:
+            try:
+                grid.parse_creation_options(self.parameterAsString(parameters, CREATE_OPTIONS, context),
+                                            cog=self.parameterAsBool(parameters, COG, context))
+            except ValueError as exc:
+                return False, "{}: {}".format(label_of(self.parameterDefinition(CREATE_OPTIONS)), exc)
+        return True, ""
+
+    @explained
+    def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = super().checkParameterValues(parameters, context)
+        if not ok:
+            return ok, msg
+        return self.checkOutputs(parameters, context)
+
+    def postProcessAlgorithm(self, context, feedback):  # noqa: N802
+        """Style the outputs Processing loads (the mask's classes, side products' renderers)."""
+        from .styles import style_loaded_outputs
+        style_loaded_outputs(self, context)
+        return {}
 
 
 class FilterAlgorithm(BaseAlgorithm):
@@ -117,6 +330,11 @@ class FilterAlgorithm(BaseAlgorithm):
     """
 
     METHOD_NAME = None
+    #: every filter; a subclass adds its own words in METHOD_TAGS
+    FILTER_TAGS = ("DTM", "DEM", "DSM", "digital terrain model", "ground", "ground filter", "terrain",
+                   "bare earth", "filter", "object mask", "buildings", "trees", "vegetation", "nodata",
+                   "classification", "photogrammetry")
+    METHOD_TAGS = ()
     INPUT = "INPUT"
     BAND = "BAND"
     OUTPUT_DTM = "OUTPUT_DTM"
@@ -132,24 +350,34 @@ class FilterAlgorithm(BaseAlgorithm):
     def method(self):
         return get_method(self.METHOD_NAME)
 
+    def outputBands(self, key):  # noqa: N802
+        extra = key[len("OUTPUT_"):].lower()
+        return self.method.extras[extra][1] if key.startswith("OUTPUT_") and extra in self.method.extras else 1
+
     def name(self):
         return self.METHOD_NAME
+
+    @property
+    def TAGS(self):  # noqa: N802 (the class constant of BaseAlgorithm)
+        return self.FILTER_TAGS + self.METHOD_TAGS
 
     def displayName(self):  # noqa: N802
         return tr(self.method.title or self.METHOD_NAME)
 
     def shortHelpString(self):  # noqa: N802
         m = self.method
-        rows = "".join(f"<li><b>{p.name.upper()}</b>: {p.help}</li>" for p in m.params)
-        extras = "".join(f"<li><b>OUTPUT_{k.upper()}</b>: {self.EXTRA_HELP.get(k, k)}</li>" for k in m.extras)
-        return tr(f"{m.description}<h3>Parameters</h3><ul><li><b>INPUT</b>: single-band DSM raster "
-                  "(heights in metres, or in the unit of a projected CRS in feet; a geographic CRS has "
-                  "its cell size converted to metres at its latitude).</li><li><b>BAND</b>: the height "
-                  f"band when the raster has several.</li>{rows}</ul><h3>Outputs</h3><ul>"
-                  "<li><b>OUTPUT_DTM</b>: Float32 bare-earth DTM: removed cells filled by interpolation "
-                  "from the ground around them, the input's nodata kept.</li>"
-                  f"<li><b>OUTPUT_MASK</b>: {MASK_HELP}</li><li><b>OUTPUT_NDSM</b>: DSM minus DTM "
-                  f"(optional).</li>{extras}</ul>")
+        rows = "".join("<li><b>{}</b> ({}): {}</li>".format(tr(param_label(self.METHOD_NAME, p)), p.name.upper(),
+                                                            tr(p.help)) for p in m.params)
+        extras = "".join("<li><b>{}</b> (OUTPUT_{}): {}</li>".format(tr(extra_label(k)), k.upper(),
+                                                                     tr(self.EXTRA_HELP.get(k, k))) for k in m.extras)
+        return tr("{}<h3>Parameters</h3><ul><li><b>Input DSM</b> (INPUT): single-band DSM raster (heights in "
+                  "metres, or in the unit of a projected CRS in feet; a geographic CRS has its cell size converted "
+                  "to metres at its latitude).</li><li><b>Height band</b> (BAND): the height band when the raster "
+                  "has several.</li>{}</ul><h3>Outputs</h3><ul><li><b>DTM</b> (OUTPUT_DTM): Float32 bare-earth "
+                  "DTM: removed cells filled by interpolation from the ground around them, the input's nodata "
+                  "kept.</li><li><b>Object mask</b> (OUTPUT_MASK): {}</li><li><b>nDSM</b> (OUTPUT_NDSM): DSM "
+                  "minus DTM (optional).</li>{}</ul><p>Outputs are written in the format their extension names: "
+                  "{}.</p>").format(tr(m.description), rows, tr(MASK_HELP), extras, grid.output_formats_text())
 
     # -- parameters ----------------------------------------------------------------------
     def extraInputs(self):  # noqa: N802
@@ -195,18 +423,14 @@ class FilterAlgorithm(BaseAlgorithm):
             "Float32 normalised DSM: height above the DTM (metres, or the input's height unit)."))
         for key in self.method.extras:
             self.addParameter(with_help(QgsProcessingParameterRasterDestination(
-                f"OUTPUT_{key.upper()}", tr(self.EXTRA_HELP.get(key, key)), optional=True,
+                f"OUTPUT_{key.upper()}", tr(extra_label(key)), optional=True,
                 createByDefault=False), self.EXTRA_HELP.get(key, key)))
+        for p in format_params():
+            self.addParameter(p)
 
-    @staticmethod
-    def _qgs_param(p):
-        label = p.name.replace("_", " ")
-        for unit, text in (("_deg", " (degrees)"), ("_m", " (m)"), ("_cells", " (cells)")):
-            if p.name.endswith(unit):
-                label = p.name[: -len(unit)].replace("_", " ") + text
-        label = label[0].upper() + label[1:]
-        if p.default is None:
-            label += " [empty: from the data]"
+    def _qgs_param(self, p):
+        """The QGIS parameter of a core ``Param``: its label from ``labels.py``, its help from the core."""
+        label = param_label(self.METHOD_NAME, p)
         if p.kind in ("float", "int"):
             typ = (QgsProcessingParameterNumber.Double if p.kind == "float"
                    else QgsProcessingParameterNumber.Integer)
@@ -225,9 +449,18 @@ class FilterAlgorithm(BaseAlgorithm):
         else:  # pragma: no cover - a wrong spec is a programming error
             raise TypeError(f"unknown Param kind {p.kind!r}")
         q.setHelp(tr(p.help))
-        if p.advanced:
+        if is_advanced(self.METHOD_NAME, p):
             q.setFlags(q.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
         return q
+
+    def messageNames(self):  # noqa: N802
+        """{name in messages: definition}: the parameter ids, and the core's names of its Params."""
+        out = super().messageNames()
+        for p in self.method.params:
+            d = self.parameterDefinition(p.name.upper())
+            if d is not None:
+                out[p.name] = d
+        return out
 
     def _user_params(self, parameters, context):
         """The core's keyword arguments; an empty optional number means "from the data" (None)."""
@@ -251,6 +484,7 @@ class FilterAlgorithm(BaseAlgorithm):
         return out
 
     # -- checks before any work ---------------------------------------------------------------
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -265,10 +499,17 @@ class FilterAlgorithm(BaseAlgorithm):
         defaults = {p.name: p.default for p in self.method.params}
         for name, v in user.items():
             # a default larger than a small raster is clamped by the core; a chosen one is refused
-            if v is not None and v != defaults.get(name) and ("window" in name or "size_m" in name) \
-                    and name.endswith("_m") and isinstance(v, (int, float)) and v > extent_m:
-                return False, tr(f"{name.upper()} = {v} m is larger than the raster itself "
-                                 f"({extent_m:.1f} m across): choose a smaller window or a larger raster.")
+            if v is None or v == defaults.get(name) or not isinstance(v, (int, float)) or "window" not in name \
+                    and "size_m" not in name:
+                continue
+            label = label_of(self.parameterDefinition(name.upper()))
+            if name.endswith("_m") and v > extent_m:
+                return False, tr("{} = {} m is larger than the raster itself ({:.1f} m across): choose a "
+                                 "smaller window or a larger raster.").format(label, v, extent_m)
+            if name.endswith("_cells") and v > min(info.shape):
+                return False, tr("{} = {} cells is larger than the raster itself ({} x {} cells): choose a "
+                                 "smaller window or a larger raster.").format(label, v, info.shape[1],
+                                                                             info.shape[0])
         return self.checkExtraInputs(parameters, context, info)
 
     def checkExtraInputs(self, parameters, context, info):  # noqa: N802
@@ -287,7 +528,7 @@ class FilterAlgorithm(BaseAlgorithm):
         try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
             info = grid.open_dsm(raster_path(layer), band or None)
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
                    "mask": self.parameterAsOutputLayer(parameters, self.OUTPUT_MASK, context)}
         if parameters.get(self.OUTPUT_NDSM):
@@ -301,39 +542,80 @@ class FilterAlgorithm(BaseAlgorithm):
         threads = self.parameterAsInt(parameters, self.THREADS, context) or auto_threads()
         user = self._user_params(parameters, context)
         aux = self.auxiliaryArrays(parameters, context, info, feedback)
-        feedback.pushInfo(tr(f"Input: {info.path} band {info.band_index}, {info.shape[1]} x {info.shape[0]} "
-                             f"cells of {info.cell_size_m[0]:.4g} x {info.cell_size_m[1]:.4g} m"))
+        feedback.pushInfo(tr("Input: {} band {}, {} x {} cells of {:.4g} x {:.4g} m").format(
+            info.path, info.band_index, info.shape[1], info.shape[0], info.cell_size_m[0], info.cell_size_m[1]))
         try:
-            result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
-                              aux=aux, block=block, workers=threads, processes=processes,
-                              progress=progress_callback(feedback),
-                              log=feedback.pushWarning if hasattr(feedback, "pushWarning") else feedback.reportError)
+            log = warning_logger(feedback)
+            with output_options(self, parameters, context):
+                result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
+                                  aux=aux, block=block, workers=threads, processes=processes,
+                                  progress=progress_callback(feedback), log=log)
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except ValueError as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         self.logResult(result, feedback)
         return {f"OUTPUT_{k.upper()}": v for k, v in outputs.items()}
 
     def logResult(self, result, feedback):  # noqa: N802
-        """Write the values used and the statistics to the log."""
+        """Write the values used (by their labels) and the statistics (each once, with units)."""
+        params = result.get("params", {})
         feedback.pushInfo(tr("Parameters used:"))
-        for k, v in result["params"].items():
-            feedback.pushInfo(f"  {k} = {_fmt(v)}")
+        for k, v in params.items():
+            d = self.parameterDefinition(k.upper())
+            feedback.pushInfo("  {} = {}".format(label_of(d) if d is not None else k, format_value(k, v)))
         feedback.pushInfo(tr("Result:"))
         for k, v in result.items():
-            if k in ("params", "warnings", "method"):
+            if k in ("params", "warnings", "method") or repeats_parameter(k, v, params):
                 continue
             if isinstance(v, dict):
-                feedback.pushInfo(f"  {k}: " + ", ".join(f"{a} {_fmt(b)}" for a, b in v.items()))
+                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(k, b))
+                                                                   for a, b in v.items())))
             else:
-                feedback.pushInfo(f"  {k} = {_fmt(v)}")
+                feedback.pushInfo("  {} = {}".format(k, format_value(k, v)))
 
 
-def _fmt(v):
-    if isinstance(v, float):
-        return f"{v:.4g}"
+#: name endings of the statistics that are fractions (printed in percent) and counts (integers)
+_SHARE_WORDS = ("share", "fraction")
+_COUNT_ENDINGS = ("_cells", "_outliers", "_regions", "_points", "_count", "_per_step", "_scan", "_edge")
+
+
+def _is_count(key):
+    return key.startswith(("n_", "removed_")) and not any(w in key for w in _SHARE_WORDS + ("percent", "seconds")) \
+        or key.endswith(_COUNT_ENDINGS)
+
+
+def format_value(key, v):
+    """A value for the log: percentages with '%', shares (0-1) as percentages, counts as integers,
+    seconds with 's', None as 'not used'."""
     if isinstance(v, (list, tuple)):
-        return "(" + ", ".join(_fmt(x) for x in v) + ")"
-    return str(v)
+        return "(" + ", ".join(format_value(key, x) for x in v) + ")"
+    if v is None:
+        return "not used"
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return str(v)
+    if "percent" in key:
+        return "{:.4g} %".format(v)
+    if any(w in key for w in _SHARE_WORDS):
+        return "{:.4g} %".format(100.0 * v)
+    if _is_count(key):
+        return str(int(round(float(v))))
+    if key.endswith("seconds"):
+        return "{:.3g} s".format(v)
+    return "{:.4g}".format(v) if isinstance(v, (float, np.floating)) else str(v)
+
+
+def repeats_parameter(key, value, params):
+    """True when a statistic only repeats a parameter used: the same name, or the same number in
+    the same unit under the paper's symbol (alpha_g_deg = slope_threshold_deg)."""
+    if key in params:
+        return params[key] == value
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
+        return False
+    for name, v in params.items():
+        unit = next((u for u in ("_deg", "_m") if name.endswith(u)), None)
+        if unit and key.endswith(unit) and isinstance(v, (int, float)) and not isinstance(v, bool) \
+                and math.isclose(float(v), float(value), rel_tol=1e-9, abs_tol=1e-12):
+            return True
+    return False

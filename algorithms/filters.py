@@ -10,11 +10,13 @@ from .points import PointsInputMixin
 class SlopeProfileAlgorithm(FilterAlgorithm):
     """``bareearth:slopeprofile``: slope along X/Y profiles (Luong Chinh Ke 2002, sec. 2.1)."""
     METHOD_NAME = "slopeprofile"
+    METHOD_TAGS = ("slope", "profile")
 
 
 class CurvatureAlgorithm(FilterAlgorithm):
     """``bareearth:curvature``: local trend by Gaussian curvature (Luong Chinh Ke 2002, sec. 2.2)."""
     METHOD_NAME = "curvature"
+    METHOD_TAGS = ("curvature", "Gaussian curvature")
     EXTRA_HELP = {"curvature": "Curvature, two Float32 bands: Gaussian curvature K (1/m^2) and mean "
                                "curvature H (1/m; H > 0 convex, H < 0 concave): what the filter saw, to "
                                "choose K_G_PER_M2."}
@@ -24,6 +26,7 @@ class GeodesicAlgorithm(PointsInputMixin, FilterAlgorithm):
     """``bareearth:geodesic``: gradual geodesic dilation with scan labelling (2018), on a DSM
     raster (INPUT) or directly on points (INPUT_POINTS: rasterize, filter, classify)."""
     METHOD_NAME = "geodesic"
+    METHOD_TAGS = ("geodesic", "dilation", "reconstruction")
     EXTRA_HELP = {"step": "Step, UInt8: which dilation step (1, 2, ...) or which later stage removed each "
                           "cell (codes in the algorithm's help); 0 kept, 255 nodata."}
 
@@ -31,6 +34,7 @@ class GeodesicAlgorithm(PointsInputMixin, FilterAlgorithm):
 class RascorAlgorithm(FilterAlgorithm):
     """``bareearth:rascor``: the RASCOR sequence (Jacobsen 2004), with break lines and special areas."""
     METHOD_NAME = "rascor"
+    METHOD_TAGS = ("RASCOR", "break lines", "matching blunders")
     BREAKLINES = "BREAKLINES"
     SPECIAL_AREAS = "SPECIAL_AREAS"
     EXTRA_HELP = {"step": "Step, UInt8: which RASCOR step removed each cell (0 kept, k = step k, 255 "
@@ -38,6 +42,7 @@ class RascorAlgorithm(FilterAlgorithm):
 
     def extraInputs(self):  # noqa: N802
         from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+
         from .filter_base import with_help
         return [
             with_help(QgsProcessingParameterFeatureSource(
@@ -58,7 +63,7 @@ class RascorAlgorithm(FilterAlgorithm):
             if parameters.get(key):
                 src = self.parameterAsSource(parameters, key, context)
                 arr, n = rasterize_source(src, info, context, all_touched=True)
-                feedback.pushInfo(self.tr(f"{name}: {n} feature(s), {int(arr.sum())} cells"))
+                feedback.pushInfo(self.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
                 out[name] = arr if n else None
         return out
 
@@ -67,3 +72,4 @@ class MorphologicalAlgorithm(PointsInputMixin, FilterAlgorithm):
     """``bareearth:morphological``: grey opening, single or progressive (SMRF / Zhang 2003), on a
     DSM raster (INPUT) or directly on points (INPUT_POINTS: rasterize, filter, classify)."""
     METHOD_NAME = "morphological"
+    METHOD_TAGS = ("morphology", "morphological", "opening", "SMRF", "progressive")

@@ -262,6 +262,8 @@ class OrthoAlgorithm(BaseAlgorithm):
     """Shared parameters and outputs of the two orthophoto algorithms."""
 
     GROUP, GROUP_NAME = "orthophoto", "Orthophoto refinement"
+    TAGS = ("orthophoto", "orthorectification", "DEM", "DTM", "DSM", "ground", "terrain", "image matching",
+            "parallax", "stereo", "photogrammetry", "aerial images", "refinement")
     DEM = "DEM"
     BASE_M, HEIGHT_M, BASE_DIRECTION_DEG = "BASE_M", "HEIGHT_M", "BASE_DIRECTION_DEG"
     WINDOW_CELLS, MIN_CORRELATION, HEIGHT_THRESHOLD_M = "WINDOW_CELLS", "MIN_CORRELATION", "HEIGHT_THRESHOLD_M"
@@ -427,8 +429,8 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
             "DEM where the orthophotos do not overlap).</li>"
-            f"<li><b>OUTPUT_DH</b>: {DH_HELP}</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li>"
-            f"<li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li></ul>")
+            "<li><b>OUTPUT_DH</b>: {}</li><li><b>OUTPUT_QUALITY</b>: {}</li>"
+            "<li><b>OUTPUT_MASK</b>: {}</li></ul>").format(tr(DH_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         for key, label in ((self.ORTHO_A, "Orthophoto A"), (self.ORTHO_B, "Orthophoto B")):
@@ -497,8 +499,8 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError(f"the orthophotos do not overlap: no cell is valid in both ORTHO_A ({pa}, "
                                  f"{int(va.sum())} valid cells on the DEM) and ORTHO_B ({pb}, {int(vb.sum())}). "
                                  "Use orthophotos of two overlapping frames.")
-            feedback.pushInfo(tr(f"DEM {info.path}: {_grid_text(info)}; {int((va & vb).sum())} cells seen in "
-                                 "both orthophotos."))
+            feedback.pushInfo(tr("DEM {}: {}; {} cells seen in both orthophotos.").format(
+                info.path, _grid_text(info), int((va & vb).sum())))
             for w in info.warnings:
                 _warn(feedback, w)
             r = orthoparallax(a, b, dem, info.geotransform, progress=progress_callback(feedback),
@@ -549,9 +551,9 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<li><b>EXTERIOR</b>: CSV (comma, tab or space separated, header) with one row per image: "
             "<code>filename,x,y,z,omega,phi,kappa</code> (orthority's xyz_opk format; an optional "
             "<code>camera</code> column names the interior orientation). x, y, z: projection centre in "
-            f"the DEM's CRS. {OPK_HELP}</li>"
-            "<li><b>INTERIOR</b>: interior orientation, orthority YAML <code>{camera id: {type: pinhole|brown, "
-            "im_size: [w, h], focal_len, sensor_size: [w, h], cx, cy, k1, k2, k3, p1, p2}}</code> "
+            "the DEM's CRS. {}</li>"
+            "<li><b>INTERIOR</b>: interior orientation, orthority YAML <code>{{camera id: {{type: pinhole|brown, "
+            "im_size: [w, h], focal_len, sensor_size: [w, h], cx, cy, k1, k2, k3, p1, p2}}}}</code> "
             "(focal length in the units of the sensor size, or normalised by the larger image side without "
             "it; cx, cy principal-point offsets normalised by the larger side; Brown k1 k2 k3 radial, p1 p2 "
             "tangential), or an OpenSfM <code>reconstruction.json</code> (its cameras).</li>"
@@ -564,12 +566,12 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "orthoparallax.</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the refined DEM.</li>"
             "<li><b>OUTPUT_DH</b>: total correction, refined minus input (m), NaN where fewer than two frames "
-            f"see.</li><li><b>OUTPUT_QUALITY</b>: {QUALITY_HELP}</li><li><b>OUTPUT_MASK</b>: {ORTHO_MASK_HELP}</li>"
+            "see.</li><li><b>OUTPUT_QUALITY</b>: {}</li><li><b>OUTPUT_MASK</b>: {}</li>"
             "<li><b>OUTPUT_ORTHO_FOLDER</b>: the orthophotos of the last iteration, one Float32 GeoTIFF "
             "'&lt;image&gt;_ortho.tif' per image on the DEM's grid.</li>"
             "<li><b>OUTPUT_TABLE</b>: CSV, one row per iteration: RMS correction (m), share of the cells seen "
             "by two frames that matched, pairs, RMS residual parallax (m), mean correlation; also in the "
-            "log.</li></ul>")
+            "log.</li></ul>").format(tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.DEM, tr("Starting DEM")),
@@ -733,11 +735,13 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             info, paths, names, mode, opts = self._inputs(parameters, context)
             isolated = mode.pop("isolated")
             if isolated:
-                _warn(feedback, tr(f"Image(s) {isolated} overlap no other image on the DEM: they are not used."))
+                _warn(feedback, tr("Image(s) {} overlap no other image on the DEM: they are not used.").format(
+                    isolated))
             for w in info.warnings:
                 _warn(feedback, w)
             dem = info.read()
-            feedback.pushInfo(tr(f"DEM {info.path}: {_grid_text(info)}; {len(paths)} images: {', '.join(names)}."))
+            feedback.pushInfo(tr("DEM {}: {}; {} images: {}.").format(info.path, _grid_text(info), len(paths),
+                                                                     ", ".join(names)))
             images = []
             for k, p in enumerate(paths):
                 images.append(read_grey(p))

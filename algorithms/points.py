@@ -4,19 +4,28 @@
 import os
 import threading
 
-from qgis.core import (QgsProcessing, QgsProcessingAlgorithm, QgsProcessingException,
-                       QgsProcessingOutputNumber, QgsProcessingParameterBand,
-                       QgsProcessingParameterBoolean, QgsProcessingParameterCrs,
-                       QgsProcessingParameterDefinition, QgsProcessingParameterEnum,
-                       QgsProcessingParameterFile, QgsProcessingParameterFileDestination,
-                       QgsProcessingParameterMultipleLayers, QgsProcessingParameterNumber,
-                       QgsProcessingParameterRasterDestination, QgsProcessingParameterRasterLayer,
-                       QgsProcessingUtils)
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingException,
+    QgsProcessingOutputNumber,
+    QgsProcessingParameterBand,
+    QgsProcessingParameterBoolean,
+    QgsProcessingParameterCrs,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterMultipleLayers,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingUtils,
+)
 
 from ..core import Cancelled
 from ..core import pointflow as pf
 from ..core.points import LAS_INSTALL_HINT, read_points
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, tr
+from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
@@ -71,11 +80,12 @@ def check_points(path, crs=None, what="INPUT"):
     try:
         cloud = load_points(path, crs)
     except ImportError as exc:
-        return False, tr(f"{what}: {exc}" if LAS_INSTALL_HINT in str(exc) else f"{what}: {exc} {LAS_INSTALL_HINT}"), None
+        hint = "" if LAS_INSTALL_HINT in str(exc) else " " + LAS_INSTALL_HINT
+        return False, "{}: {}{}".format(what, exc, hint), None
     except ValueError as exc:
-        return False, tr(f"{what}: {exc}"), None
+        return False, "{}: {}".format(what, exc), None
     if len(cloud) == 0:
-        return False, tr(f"{what}: the point file {path!r} has no points."), None
+        return False, tr("{}: the point file '{}' has no points.").format(what, path), None
     return True, "", cloud
 
 
@@ -127,10 +137,10 @@ def check_in_grid(cloud, info):
     n_out = int(outside.sum())
     if n_out * 2 > len(cloud):
         x0, y0, x1, y1 = cloud.extent
-        return False, tr(f"{n_out} of {len(cloud)} points are outside the DTM: the points span x {x0:.3f}..{x1:.3f}, "
-                         f"y {y0:.3f}..{y1:.3f}; the DTM spans x {xs[0]:.3f}..{xs[1]:.3f}, y {ys[0]:.3f}..{ys[1]:.3f}. "
-                         "Use a DTM of the same area, in the same CRS and units as the points (set the points' CRS "
-                         "if the file has none).")
+        return False, tr("{} of {} points are outside the DTM: the points span x {:.3f}..{:.3f}, y {:.3f}..{:.3f}; "
+                         "the DTM spans x {:.3f}..{:.3f}, y {:.3f}..{:.3f}. Use a DTM of the same area, in the same "
+                         "CRS and units as the points (set the points' CRS if the file has none).").format(
+            n_out, len(cloud), x0, x1, y0, y1, xs[0], xs[1], ys[0], ys[1])
     return True, ""
 
 
@@ -199,8 +209,13 @@ def _rule_params(threshold_key, slope_key, advanced=False):
     return t, s
 
 
+#: what a point-cloud user types in the toolbox search
+POINT_TAGS = ("lidar", "point cloud", "points", "LAS", "LAZ", "ALS", "ground", "DTM", "DSM", "classification")
+
+
 class PointAlgorithmBase(BaseAlgorithm):
     GROUP, GROUP_NAME = "points", "Point clouds"
+    TAGS = POINT_TAGS + ("rasterize", "grid", "classify", "ground points")
 
 
 # --------------------------------------------------------------------------- rasterize
@@ -220,13 +235,14 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
     def shortHelpString(self):  # noqa: N802
         return tr("<p>Grids a point cloud: the lowest (default, the surface the filters expect), highest or mean "
                   "z of the points in each cell. Vectorised (several million points per second).</p><ul>"
-                  f"<li><b>INPUT</b>: {POINTS_HELP}</li><li><b>CRS</b>: {CRS_HELP}</li>"
+                  "<li><b>INPUT</b>: {}</li><li><b>CRS</b>: {}</li>"
                   "<li><b>CELL_SIZE_M</b>: metres; empty: about one point per cell.</li>"
                   "<li><b>REDUCER</b>: lowest, highest or mean z per cell.</li>"
                   "<li><b>FILL_EMPTY</b>: cells without a point take the nearest cell's value (default); "
                   "otherwise they are nodata.</li>"
                   "<li><b>OUTPUT</b>: Float32 GeoTIFF in the points' CRS, heights in its unit, NaN nodata; "
-                  "the origin is a multiple of the cell size, so grids of neighbouring tiles line up.</li></ul>")
+                  "the origin is a multiple of the cell size, so grids of neighbouring tiles line up.</li></ul>"
+                  ).format(tr(POINTS_HELP), tr(CRS_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(_file_param(self.INPUT, "Points (text/CSV or LAS/LAZ)", POINTS_HELP))
@@ -241,6 +257,8 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
         o = QgsProcessingParameterRasterDestination(self.OUTPUT, tr("DSM"))
         o.setHelp(tr("Float32 raster on the points' CRS, NaN nodata."))
         self.addParameter(o)
+        for p in format_params():
+            self.addParameter(p)
         for key, label in (("POINTS", "Points"), ("CELL_SIZE", "Cell size (m)"), ("EMPTY_CELLS", "Empty cells")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
 
@@ -261,6 +279,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
                              " (or check the CRS: degrees read as metres?).")
         return path, cloud, cell
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -277,21 +296,23 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             reducer = pf.REDUCERS[self.parameterAsEnum(parameters, self.REDUCER, context)]
             fill = self.parameterAsBool(parameters, self.FILL_EMPTY, context)
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
-            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
+            feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
+                                                                                  pf._unit_name(cloud)))
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             feedback.setProgress(70)
-            pf.write_rasters(g, None, {"dsm": out})
+            with output_options(self, parameters, context):
+                pf.write_rasters(g, None, {"dsm": out})
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         i = g.info
-        feedback.pushInfo(tr(f"Grid: {g.shape[1]} x {g.shape[0]} cells of {g.cell_size_m[0]:.4g} x "
-                             f"{g.cell_size_m[1]:.4g} m ({i['cell_size'][0]:.6g} CRS units), "
-                             f"{i['points_per_cell']:.2f} points per cell, {i['n_empty']} empty cells "
-                             f"({'filled from the nearest' if fill else 'nodata'})."))
-        feedback.pushInfo(tr(f"Rasterized in {i['seconds']:.3f} s "
-                             f"({i['n_points'] / max(i['seconds'], 1e-9) / 1e6:.2f} million points/s)."))
+        feedback.pushInfo(tr("Grid: {} x {} cells of {:.4g} x {:.4g} m ({:.6g} CRS units), {:.2f} points per cell, "
+                             "{} empty cells ({}).").format(
+            g.shape[1], g.shape[0], g.cell_size_m[0], g.cell_size_m[1], i["cell_size"][0], i["points_per_cell"],
+            int(i["n_empty"]), tr("filled from the nearest") if fill else tr("nodata")))
+        feedback.pushInfo(tr("Rasterized in {:.3f} s ({:.2f} million points/s).").format(
+            i["seconds"], i["n_points"] / max(i["seconds"], 1e-9) / 1e6))
         return {self.OUTPUT: out, "POINTS": len(cloud), "CELL_SIZE": float(g.cell_size_m[0]),
                 "EMPTY_CELLS": int(i["n_empty"])}
 
@@ -314,9 +335,9 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
                   "SLOPE_FACTOR x the local DTM slope (bilinear samples; the SMRF rule, Pingel et al. 2013, "
                   "defaults 0.5 m and 1.25), <b>above</b> when higher, <b>below</b> when lower. Works in metres "
                   "whatever the CRS's unit (feet, degrees). Counts per class go to the log.</p><ul>"
-                  f"<li><b>INPUT</b>: {POINTS_HELP}</li><li><b>CRS</b>: {CRS_HELP}</li>"
+                  "<li><b>INPUT</b>: {}</li><li><b>CRS</b>: {}</li>"
                   "<li><b>DTM</b>: the DTM raster, in the points' CRS (e.g. the DTM of a Bare Earth filter).</li>"
-                  f"<li><b>OUTPUT</b>: {OUTPUT_POINTS_HELP}</li></ul>")
+                  "<li><b>OUTPUT</b>: {}</li></ul>").format(tr(POINTS_HELP), tr(CRS_HELP), tr(OUTPUT_POINTS_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(_file_param(self.INPUT, "Points (text/CSV or LAS/LAZ)", POINTS_HELP))
@@ -352,6 +373,7 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             raise ValueError(msg)
         return path, cloud, info
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
@@ -371,7 +393,7 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             w = crs_warning(cloud, info)
             if w:
                 warn(feedback, w)
-            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path}."))
+            feedback.pushInfo(tr("Read {} points from {}.").format(len(cloud), path))
             dtm = info.read()
             feedback.setProgress(30)
             t0 = time.perf_counter()
@@ -383,13 +405,13 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             from ..core.points import write_points
             write_points(out, cloud, classes)
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         counts = pf.class_counts(classes)
         log_counts(feedback, counts)
-        feedback.pushInfo(tr(f"Classified in {dt:.3f} s ({len(cloud) / max(dt, 1e-9) / 1e6:.2f} million points/s); "
-                             f"written to {out}."))
+        feedback.pushInfo(tr("Classified in {:.3f} s ({:.2f} million points/s); written to {}.").format(
+            dt, len(cloud) / max(dt, 1e-9) / 1e6, out))
         return {self.OUTPUT: out, "GROUND": counts["ground"], "ABOVE": counts["above"],
                 "BELOW": counts["below"], "OUTSIDE": counts["outside the DTM"]}
 
@@ -407,19 +429,23 @@ class PointsInputMixin:
     """
 
     INPUT_POINTS, POINTS_CRS, CELL_SIZE_M = "INPUT_POINTS", "POINTS_CRS", "CELL_SIZE_M"
+
+    @property
+    def TAGS(self):  # noqa: N802
+        return super().TAGS + POINT_TAGS
     THRESHOLD_M, SLOPE_FACTOR, OTHER_TILES, OUTPUT_POINTS = ("THRESHOLD_M", "SLOPE_FACTOR", "OTHER_TILES",
                                                              "OUTPUT_POINTS")
 
     def shortHelpString(self):  # noqa: N802
         return super().shortHelpString() + tr(
             "<h3>On points</h3><p>Give <b>INPUT_POINTS</b> instead of INPUT (exactly one of them): "
-            f"{POINTS_HELP} The points are rasterized (lowest point per cell, <b>CELL_SIZE_M</b> or about one "
+            "{} The points are rasterized (lowest point per cell, <b>CELL_SIZE_M</b> or about one "
             "point per cell, empty cells from the nearest), filtered, and classified against the DTM "
             "(ground when |z - DTM| &lt;= THRESHOLD_M + SLOPE_FACTOR x slope, SMRF) into "
-            f"<b>OUTPUT_POINTS</b>: {OUTPUT_POINTS_HELP} The rasters are written on the points' grid and CRS. "
+            "<b>OUTPUT_POINTS</b>: {} The rasters are written on the points' grid and CRS. "
             "<b>OTHER_TILES</b>: the neighbouring tiles of a block; the input tile is filtered with their "
             "points around it (an overlap of the filter's reach) and one parameter set for the block, so "
-            "the tiles agree along their seams.</p>")
+            "the tiles agree along their seams.</p>").format(tr(POINTS_HELP), tr(OUTPUT_POINTS_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         super().initAlgorithm(config)
@@ -452,6 +478,7 @@ class PointsInputMixin:
     def _use_points(self, parameters):
         return self._given(parameters, self.INPUT_POINTS)
 
+    @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
         has_r, has_p = self._given(parameters, self.INPUT), self._given(parameters, self.INPUT_POINTS)
         if has_r == has_p:
@@ -459,7 +486,7 @@ class PointsInputMixin:
                              + ("not both." if has_r else "neither was given."))
         if has_r:
             return super().checkParameterValues(parameters, context)
-        ok, msg = QgsProcessingAlgorithm.checkParameterValues(self, parameters, context)
+        ok, msg = BaseAlgorithm.checkParameterValues(self, parameters, context)
         if not ok:
             return ok, msg
         try:
@@ -489,7 +516,8 @@ class PointsInputMixin:
             raise ValueError(f"INPUT_POINTS span only {w:.1f} x {h:.1f} m: with cells of {c:g} m that is less than "
                              "the 3 x 3 cells a filter needs; use a smaller CELL_SIZE_M or more points.")
         if (w / c) * (h / c) > 1e9:
-            raise ValueError(f"CELL_SIZE_M = {c:g} m gives about {(w / c) * (h / c):.3g} cells: use a larger cell size.")
+            raise ValueError(f"CELL_SIZE_M = {c:g} m gives about {(w / c) * (h / c):.3g} cells: use a larger "
+                             "cell size.")
         user = self._user_params(parameters, context)
         defaults = {p.name: p.default for p in self.method.params}
         extent_m = max(w, h)
@@ -519,37 +547,40 @@ class PointsInputMixin:
             sf = self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context)
             block = self.parameterAsInt(parameters, self.BLOCK_SIZE, context) or None
             progress = progress_callback(feedback)
-            feedback.pushInfo(tr(f"Read {len(cloud)} points from {path} (x/y unit: {pf._unit_name(cloud)})."))
+            feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
+                                                                                  pf._unit_name(cloud)))
             if tiles:
-                feedback.pushInfo(tr(f"Filtering as one block with {len(tiles)} neighbouring tile(s)."))
+                feedback.pushInfo(tr("Filtering as one block with {} neighbouring tile(s).").format(len(tiles)))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,
                                       crs=crs, threshold_m=thr, slope_factor=sf, only=[0], keep_results=True,
                                       progress=progress, log=feedback.pushInfo)
                 res = tr_.results[0]
-                feedback.pushInfo(tr(f"Overlap {tr_.overlap_m:.1f} m; the rasters cover the tile and its overlap."))
+                feedback.pushInfo(tr("Overlap {:.1f} m; the rasters cover the tile and its overlap.").format(
+                    tr_.overlap_m))
             else:
                 res = pf.filter_cloud(cloud, self.METHOD_NAME, user, cell_size_m=cell, threshold_m=thr,
                                       slope_factor=sf, block=block, progress=progress)
-            pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
+            with output_options(self, parameters, context):
+                pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
             from ..core.points import write_points
             write_points(out_points, cloud, res.classes)
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}
         except (ValueError, ImportError) as exc:
-            raise QgsProcessingException(str(exc)) from None
+            raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
             release_points()
         i = res.info
-        feedback.pushInfo(tr(f"Grid: {res.grid.shape[1]} x {res.grid.shape[0]} cells of {i['cell_size_m'][0]:.4g} m, "
-                             f"{i['empty_cells']} empty cells filled from the nearest."))
+        feedback.pushInfo(tr("Grid: {} x {} cells of {:.4g} m, {} empty cells filled from the nearest.").format(
+            res.grid.shape[1], res.grid.shape[0], i["cell_size_m"][0], int(i["empty_cells"])))
         info = dict(res.result.info)
         info["cell_size_m"] = i["cell_size_m"]
         info.setdefault("warnings", [])
         self.logResult(info, feedback)
         log_counts(feedback, i["classes"])
-        feedback.pushInfo(tr(f"Rasterize {i['rasterize_points_per_s'] / 1e6:.2f} M points/s, classify "
-                             f"{i['classify_points_per_s'] / 1e6:.2f} M points/s; points written to {out_points}."))
+        feedback.pushInfo(tr("Rasterize {:.2f} M points/s, classify {:.2f} M points/s; points written to {}.").format(
+            i["rasterize_points_per_s"] / 1e6, i["classify_points_per_s"] / 1e6, out_points))
         outs = {f"OUTPUT_{k.upper()}": v for k, v in rasters.items()}
         outs[self.OUTPUT_POINTS] = out_points
         return outs

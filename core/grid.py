@@ -7,8 +7,11 @@ and heights in metres; outputs are created on the same grid, written block by bl
 temporary file and moved into place only when the run succeeds (:class:`OutputSet`).
 """
 import contextlib
+import contextvars
 import math
 import os
+import re
+import tempfile
 import uuid
 from dataclasses import dataclass, field
 
@@ -19,14 +22,10 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from .codes import MASK_CODES, MASK_COLOURS, NODATA
+from .codes import MASK_CODES, MASK_COLOURS
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
-
-_EXT_DRIVERS = {".tif": "GTiff", ".tiff": "GTiff", ".img": "HFA", ".vrt": None,
-                ".nc": "netCDF", ".asc": None, ".sdat": "SAGA"}
-
 
 #: Tile edge of the GeoTIFF outputs, cells.
 OUTPUT_TILE = 256
@@ -265,19 +264,277 @@ def bounded_cache(active=True, size=BLOCK_MODE_CACHE):
         gdal.SetCacheMax(old)
 
 
-def _driver_for(path):
+#: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
+#: None, name for messages). A run writes a tiled GeoTIFF work file; the other formats (and the
+#: cloud-optimised GeoTIFF) are copied from it with the driver's CreateCopy once the run succeeded.
+OUTPUT_FORMATS = {
+    ".tif": ("GTiff", None, "GeoTIFF"), ".tiff": ("GTiff", None, "GeoTIFF"),
+    ".img": ("HFA", None, "ERDAS Imagine"),
+    ".sdat": ("SAGA", 1, "SAGA grid"),
+    ".asc": ("AAIGrid", 1, "Arc/Info ASCII grid"),
+    ".nc": ("netCDF", 1, "netCDF"),
+}
+
+#: Extensions GDAL could name but the outputs refuse, with the reason.
+REFUSED_FORMATS = {
+    ".vrt": "a VRT only points at other rasters; write a GeoTIFF and build the VRT from it (gdalbuildvrt)",
+    ".xyz": "XYZ text loses the nodata cells (GDAL reads them back as 0)",
+    ".gpkg": "GDAL cannot copy a Float32 or palette raster into a GeoPackage tile set",
+}
+
+#: Extension of the work files: GDAL identifies a GeoTIFF by its bytes, so the name (hidden,
+#: ``.<output name>.<pid>-<id>.partial``) is what tells people it is not a result.
+PARTIAL_SUFFIX = ".partial"
+_PARTIAL_RE = re.compile(r"\.(?P<stem>.*)\.(?P<pid>\d{10})-[0-9a-f]{8}\.partial(?P<rest>\..*)?")
+_TAG_BYTES = len(".0000000000-00000000.partial".encode())
+#: room kept in a work file's name for the extension and sidecars of a copy (.sdat, .aux.xml)
+_SIDECAR_BYTES = 16
+_LIVE = set()        # work files of this process still being written
+
+_WRITE_OPTIONS = contextvars.ContextVar("bare_earth_write_options", default=((), False))
+
+
+def output_formats_text():
+    """The formats offered, for messages: 'GeoTIFF (.tif, .tiff), ERDAS Imagine (.img), ...'."""
+    _need_gdal()
+    names = {}
+    for ext, (drv, _, name) in OUTPUT_FORMATS.items():
+        if gdal.GetDriverByName(drv) is not None:
+            names.setdefault(name, []).append(ext)
+    return ", ".join(f"{n} ({', '.join(e)})" for n, e in names.items())
+
+
+def output_extensions():
+    """Extensions (without the dot) the outputs can be written in with this GDAL."""
+    _need_gdal()
+    return [e[1:] for e, (drv, _, _) in OUTPUT_FORMATS.items() if gdal.GetDriverByName(drv) is not None]
+
+
+def _name_max(folder):
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError):
+        return 255
+
+
+def _output_format(path, bands=1):
+    """(driver name, format name) of an output path, or ValueError naming the formats offered."""
     ext = os.path.splitext(str(path))[1].lower()
-    name = _EXT_DRIVERS.get(ext, "GTiff")
-    if name is None:
-        name = "GTiff"
-    return gdal.GetDriverByName(name)
+    if not ext:
+        return "GTiff", "GeoTIFF"
+    if ext in REFUSED_FORMATS or ext not in OUTPUT_FORMATS or gdal.GetDriverByName(OUTPUT_FORMATS[ext][0]) is None:
+        why = REFUSED_FORMATS.get(ext, "GDAL cannot write it here")
+        raise ValueError(f"cannot write the output {str(path)!r} as '{ext}': {why}. Formats offered: "
+                         f"{output_formats_text()}; choose one of these extensions.")
+    drv, most, name = OUTPUT_FORMATS[ext]
+    if most is not None and bands > most:
+        raise ValueError(f"the output {str(path)!r} has {bands} bands, but a {name} ('{ext}') holds {most}: "
+                         "write it as a GeoTIFF (.tif) or ERDAS Imagine (.img) file.")
+    return drv, name
+
+
+def check_output_path(path, bands=1):
+    """Check an output path before any work: format, folder, name length.
+
+    Raises
+    ------
+    ValueError
+        For a format not offered (naming the ones that are), a format holding fewer bands than
+        the output, a missing or unwritable folder (naming it), a folder given as the file, or
+        a file name longer than the file system allows.
+    """
+    _need_gdal()
+    path = os.path.abspath(str(path))
+    if os.path.isdir(path):
+        raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. dtm.tif).")
+    _output_format(path, bands)
+    check_output_folder(path)
+
+
+def check_output_folder(path):
+    """Check that the folder of an output file ``path`` exists and takes new files, and that the
+    file's name fits the file system; ValueError naming the folder otherwise."""
+    path = os.path.abspath(str(path))
+    folder, base = os.path.split(path)
+    if not os.path.isdir(folder):
+        raise ValueError(f"the output folder {folder!r} does not exist: create it or choose another folder.")
+    try:  # a real file: os.access says yes to root on a read-only or virtual file system
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-probe-"):
+            pass
+    except OSError as exc:
+        raise ValueError(f"the output folder {folder!r} is not writable ({exc.strerror}): choose a folder "
+                         "you can write to.") from None
+    limit = _name_max(folder)
+    if len(base.encode()) > limit:
+        raise ValueError(f"the output file name is {len(base.encode())} bytes long; the file system of "
+                         f"{folder!r} allows {limit}: choose a shorter name.")
+
+
+def _creation_option_specs(driver):
+    """{NAME: [allowed values] or None} from a driver's creation option list."""
+    import xml.etree.ElementTree as ET
+    text = gdal.GetDriverByName(driver).GetMetadataItem("DMD_CREATIONOPTIONLIST") or ""
+    if not text:
+        return {}
+    specs = {}
+    for opt in ET.fromstring(text).iter("Option"):
+        values = [v.text.upper() for v in opt.iter("Value") if v.text]
+        specs[opt.get("name", "").upper()] = values or None
+    return specs
+
+
+def parse_creation_options(text, cog=False):
+    """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces too) -> list of 'KEY=VALUE',
+    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value."""
+    _need_gdal()
+    opts = [t for t in re.split(r"[|\s]+", str(text or "").strip()) if t]
+    specs = _creation_option_specs("COG" if cog else "GTiff")
+    for o in opts:
+        key, sep, value = o.partition("=")
+        if not sep or not key or not value:
+            raise ValueError(f"creation option {o!r} is not KEY=VALUE (e.g. COMPRESS=ZSTD|PREDICTOR=2).")
+        if specs and key.upper() not in specs:
+            raise ValueError(f"the {'COG' if cog else 'GeoTIFF'} driver has no creation option {key!r}; "
+                             f"it has {', '.join(sorted(specs))}.")
+        allowed = specs.get(key.upper())
+        if allowed and value.upper() not in allowed:
+            raise ValueError(f"creation option {key}={value}: allowed values are {', '.join(allowed)}.")
+    return opts
+
+
+@contextlib.contextmanager
+def write_options(creation_options=(), cog=False):
+    """GeoTIFF creation options (``['COMPRESS=ZSTD', ...]``) and cloud-optimised GeoTIFF for the
+    :class:`OutputSet` s made inside the block (the caller's thread)."""
+    token = _WRITE_OPTIONS.set((tuple(creation_options or ()), bool(cog)))
+    try:
+        yield
+    finally:
+        _WRITE_OPTIONS.reset(token)
+
+
+def _merge_options(defaults, given):
+    out = {o.partition("=")[0].upper(): o for o in defaults}
+    out.update({o.partition("=")[0].upper(): o for o in given})
+    return list(out.values())
+
+
+def _truncate_utf8(text, nbytes):
+    return text.encode()[:max(0, nbytes)].decode("utf-8", "ignore")
+
+
+def _work_stem(path):
+    """The stem of ``path``'s work files: its name without extension, cut so that a work file's
+    name (dot, stem, tag, a copy's extension and sidecar) stays within the file-name limit."""
+    folder, base = os.path.split(os.path.abspath(str(path)))
+    root = os.path.splitext(base)[0]
+    return _truncate_utf8(root, _name_max(folder) - 1 - _TAG_BYTES - _SIDECAR_BYTES)
+
+
+def _work_path(path):
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    tag = f".{os.getpid():010d}-{uuid.uuid4().hex[:8]}{PARTIAL_SUFFIX}"
+    return os.path.join(folder, f".{_work_stem(path)}{tag}")
+
+
+def _pid_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def remove_stale_partials(path):
+    """Remove the work files of earlier runs of the output ``path`` that were killed (their
+    process is gone, or it is this process and the file is not being written); returns their
+    names. Also removes the ``<name>.partial-<id><ext>`` files of older versions."""
+    path = os.path.abspath(str(path))
+    folder, base = os.path.split(path)
+    root, ext = os.path.splitext(base)
+    stem = _work_stem(path)
+    old = re.compile(re.escape(root) + r"\.partial-[0-9a-f]{8}" + re.escape(ext) + r"(\.aux\.xml)?")
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return []
+    removed = []
+    for name in names:
+        full = os.path.join(folder, name)
+        m = _PARTIAL_RE.fullmatch(name)
+        if m and m.group("stem") == stem:
+            pid = int(m.group("pid"))
+            work = full[:len(full) - len(m.group("rest") or "")]
+            if (pid != os.getpid() and _pid_alive(pid)) or work in _LIVE:
+                continue
+        elif not old.fullmatch(name):
+            continue
+        try:
+            os.remove(full)
+            removed.append(name)
+        except OSError:
+            pass
+    return removed
+
+
+def _remove_work(work):
+    """Remove a work file and every file named after it (sidecars, copies)."""
+    _LIVE.discard(work)
+    folder, base = os.path.split(work)
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        if name == base or name.startswith(base + "."):
+            try:
+                os.remove(os.path.join(folder, name))
+            except OSError:
+                pass
+
+
+def _move_dataset(files, tmp_main, work, path):
+    """Rename the files of a finished dataset ``tmp_main`` (named ``work`` + extension) to the
+    output ``path``: the main file to ``path``, ``<tmp_main>.aux.xml`` to ``<path>.aux.xml``, and
+    ``<work>.sgrd``-like sidecars to ``<root of path>.sgrd``. A sidecar whose final name would pass
+    the file-name limit is dropped (the raster does not need it)."""
+    root = os.path.splitext(path)[0]
+    limit = _name_max(os.path.dirname(path))
+    _delete_raster(path)
+    for f in files:
+        if f == tmp_main:
+            new = path
+        elif f.startswith(tmp_main):
+            new = path + f[len(tmp_main):]
+        elif f.startswith(work):
+            new = root + f[len(work):]
+        else:
+            continue
+        if f != tmp_main and len(os.path.basename(new).encode()) > limit:
+            os.remove(f)
+            continue
+        os.replace(f, new)
+
+
+#: GeoTIFF creation options of the work file: fast and readable anywhere; tiles compressed on
+#: every core
+_GTIFF_OPTIONS = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT_TILE}", "COMPRESS=DEFLATE",
+                  "ZLEVEL=1", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
+_COG_OPTIONS = ["COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
 
 
 class OutputSet:
-    """Output rasters on a DSM's grid, written to temporary files until :meth:`commit`.
+    """Output rasters on a DSM's grid, written to hidden work files until :meth:`commit`.
 
-    A failed or cancelled run calls :meth:`discard` (also done on garbage collection of an
-    uncommitted set via the context manager), so no half-written output looks valid.
+    Each output is written to a tiled GeoTIFF named ``.<name>.<pid>-<id>.partial`` beside it
+    (within the file-name limit, whatever the output's length); work files of killed earlier
+    runs of the same output are removed first. :meth:`commit` moves them into place, or copies
+    them into the format the output's extension names (:data:`OUTPUT_FORMATS`; a
+    cloud-optimised GeoTIFF with ``write_options(cog=True)``). A failed or cancelled run calls
+    :meth:`discard` (also done by the context manager for an uncommitted set), so no
+    half-written output looks valid.
 
     Use::
 
@@ -292,26 +549,33 @@ class OutputSet:
         self.info = info
         self._items = {}
         self._committed = False
+        self._options, self._cog = _WRITE_OPTIONS.get()
 
     def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
-        """Create output ``key`` at ``path`` (written to ``path``'s temporary sibling)."""
-        path = str(path)
-        root, ext = os.path.splitext(path)
-        ext = ext or ".tif"
-        tmp = f"{root}.partial-{uuid.uuid4().hex[:8]}{ext}"
-        drv = _driver_for(path)
-        opts = []
-        if drv.ShortName == "GTiff":
-            # fast and readable anywhere; tiles compressed on every core
-            opts = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT_TILE}",
-                    "COMPRESS=DEFLATE", "ZLEVEL=1", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
-            if dtype == "Float32":
-                opts.append("PREDICTOR=3")
-        gdt = gdal.GetDataTypeByName(dtype)
+        """Create output ``key`` at ``path`` (written to a hidden work file beside it)."""
+        path = os.path.abspath(str(path))
+        if self.info.path and os.path.abspath(str(self.info.path)) == path:
+            raise ValueError(f"the output {path!r} is the input raster: choose another file name.")
+        for other, item in self._items.items():
+            if item["path"] == path:
+                raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
+        drv, _ = _output_format(path, bands)
+        remove_stale_partials(path)
+        work = _work_path(path)
+        opts = list(_GTIFF_OPTIONS)
+        if dtype == "Float32":
+            opts.append("PREDICTOR=3")
+        if drv == "GTiff" and not self._cog:
+            opts = _merge_options(opts, self._options)
         rows, cols = self.info.shape
-        ds = drv.Create(tmp, cols, rows, bands, gdt, options=opts)
-        if ds is None:
-            raise ValueError(f"cannot create the output {path!r} with driver {drv.ShortName}.")
+        try:
+            ds = gdal.GetDriverByName("GTiff").Create(work, cols, rows, bands, gdal.GetDataTypeByName(dtype),
+                                                      options=opts)
+        except RuntimeError as exc:
+            _remove_work(work)
+            raise ValueError(f"cannot create the output {path!r}: {exc}. Check the folder and the "
+                             "creation options.") from None
+        _LIVE.add(work)
         ds.SetGeoTransform(self.info.geotransform)
         if self.info.crs_wkt:
             ds.SetProjection(self.info.crs_wkt)
@@ -322,17 +586,9 @@ class OutputSet:
             if descriptions:
                 b.SetDescription(descriptions[k - 1])
         if mask_style:
-            b = ds.GetRasterBand(1)
-            ct = gdal.ColorTable()
-            for code, rgba in MASK_COLOURS.items():
-                ct.SetColorEntry(code, rgba)
-            b.SetRasterColorTable(ct)
-            b.SetRasterColorInterpretation(gdal.GCI_PaletteIndex)
-            names = [""] * 256
-            for code, name in MASK_CODES.items():
-                names[code] = name
-            b.SetRasterCategoryNames(names)
-        self._items[key] = dict(path=path, tmp=tmp, ds=ds, dtype=dtype, mask_style=mask_style, nodata=nodata)
+            style_mask_band(ds.GetRasterBand(1))
+        self._items[key] = dict(path=path, tmp=work, ds=ds, driver=drv, dtype=dtype, mask_style=mask_style,
+                                nodata=nodata)
         return key
 
     def __contains__(self, key):
@@ -360,31 +616,51 @@ class OutputSet:
             item["ds"].FlushCache()
 
     def commit(self):
-        """Close the temporaries and move them to their final paths (plus QML for masks)."""
-        for key, item in self._items.items():
+        """Close the work files and move (or copy into the output's format) them to their
+        final paths; a ``.qml`` style beside each mask."""
+        for item in self._items.values():
             item["ds"].FlushCache()
             item["ds"] = None
-        for key, item in self._items.items():
-            if os.path.exists(item["path"]):
-                _delete_raster(item["path"])
-            os.replace(item["tmp"], item["path"])
-            aux = item["tmp"] + ".aux.xml"
-            if os.path.exists(aux):
-                os.replace(aux, item["path"] + ".aux.xml")
+        for item in self._items.values():
+            work, path = item["tmp"], item["path"]
+            if item["driver"] == "GTiff" and not self._cog:
+                files = [work] + [work + ".aux.xml"] * os.path.exists(work + ".aux.xml")
+                _move_dataset(files, work, work, path)
+            else:
+                self._copy(item)
+            _LIVE.discard(work)
             if item["mask_style"]:
-                write_mask_qml(os.path.splitext(item["path"])[0] + ".qml")
+                write_mask_qml(os.path.splitext(path)[0] + ".qml")
         self._committed = True
 
+    def _copy(self, item):
+        """Copy a finished work file into its output's format, then move the copy into place."""
+        work, path, drv = item["tmp"], item["path"], item["driver"]
+        cog = drv == "GTiff" and self._cog
+        ext = os.path.splitext(path)[1] or ".tif"
+        tmp_main = work + ext
+        if cog:
+            opts = _COG_OPTIONS + (["PREDICTOR=FLOATING_POINT"] if item["dtype"] == "Float32" else [])
+            opts = _merge_options(opts, self._options)
+        else:
+            opts = []
+        try:
+            src = gdal.Open(work)
+            out = gdal.GetDriverByName("COG" if cog else drv).CreateCopy(tmp_main, src, options=opts)
+            out.FlushCache()
+            files = out.GetFileList() or [tmp_main]
+            out = src = None
+        except RuntimeError as exc:
+            _remove_work(work)
+            raise ValueError(f"cannot write the output {path!r} as {drv}: {exc}") from None
+        _move_dataset(files, tmp_main, work, path)
+        _remove_work(work)
+
     def discard(self):
-        """Remove every temporary file (nothing is left that looks like a result)."""
+        """Remove every work file (nothing is left that looks like a result)."""
         for item in self._items.values():
             item["ds"] = None
-            for p in (item["tmp"], item["tmp"] + ".aux.xml"):
-                if os.path.exists(p):
-                    try:
-                        os.remove(p)
-                    except OSError:
-                        pass
+            _remove_work(item["tmp"])
         self._items = {}
 
     def __enter__(self):
@@ -397,10 +673,32 @@ class OutputSet:
 
 
 def _delete_raster(path):
+    """Remove an existing raster with its sidecars (by its own driver), or a plain file."""
+    if not os.path.exists(path):
+        return
     try:
-        gdal.GetDriverByName("GTiff").Delete(path)
+        drv = gdal.IdentifyDriver(path)
+        if drv is not None:
+            drv.Delete(path)
+            return
     except RuntimeError:
-        os.remove(path)
+        pass
+    os.remove(path)
+
+
+def style_mask_band(band):
+    """Give a mask band its palette: the mask codes' colours and names, every other entry
+    unnamed (and transparent where the format keeps alpha; a TIFF palette of 8-bit data always
+    holds 256 RGB entries, so QGIS is given the 4-class style by the .qml and the algorithms)."""
+    ct = gdal.ColorTable()
+    for code in range(256):
+        ct.SetColorEntry(code, MASK_COLOURS.get(code, (0, 0, 0, 0)))
+    band.SetRasterColorTable(ct)
+    band.SetRasterColorInterpretation(gdal.GCI_PaletteIndex)
+    names = [""] * 256
+    for code, name in MASK_CODES.items():
+        names[code] = name
+    band.SetRasterCategoryNames(names)
 
 
 def write_mask_qml(path):
@@ -447,9 +745,6 @@ def write_array(path, array, geotransform, crs_wkt="", nodata=None, dtype=None, 
             b.SetNoDataValue(float(nodata))
         b.WriteArray(a[k])
     if mask_style:
-        ct = gdal.ColorTable()
-        for code, rgba in MASK_COLOURS.items():
-            ct.SetColorEntry(code, rgba)
-        ds.GetRasterBand(1).SetRasterColorTable(ct)
+        style_mask_band(ds.GetRasterBand(1))
     ds = None
     return str(path)

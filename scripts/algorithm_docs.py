@@ -1,4 +1,5 @@
-"""Print the README's algorithm reference (Markdown) from the core's method specs.
+"""Print the README's algorithm reference (Markdown) from the core's method specs and the
+dialog labels of the QGIS layer (``algorithms/labels.py``, which imports no QGIS).
 
 Usage: /usr/bin/python3 scripts/algorithm_docs.py [--write README.md]
 With --write, replaces the text between the markers in README.md.
@@ -11,7 +12,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / ".build" / "plugins"))
 
+from bare_earth.algorithms.labels import extra_label, is_advanced, param_label  # noqa: E402
 from bare_earth.core.codes import MASK_CODES  # noqa: E402
+from bare_earth.core.grid import OUTPUT_FORMATS  # noqa: E402
 from bare_earth.core.methods import available_methods  # noqa: E402
 
 BEGIN, END = "<!-- algorithms:begin -->", "<!-- algorithms:end -->"
@@ -37,20 +40,26 @@ def render():
         m = methods[name]
         out.append(f"### `bareearth:{name}`: {m.title}\n")
         out.append(strip_html(m.description) + "\n")
-        out.append("| parameter | default | meaning |\n|---|---|---|")
-        out.append("| `INPUT` | | single-band DSM raster |")
-        out.append("| `BAND` | 1 | height band, when the raster has several |")
+        out.append("| parameter (dialog label) | default | meaning |\n|---|---|---|")
+        out.append("| `INPUT` (Input DSM) | | single-band DSM raster |")
+        out.append("| `BAND` (Height band) | 1 | height band, when the raster has several |")
         for p in m.params:
             d = "from the data" if p.default is None else f"`{p.default}`"
-            adv = " (advanced)" if p.advanced else ""
-            out.append(f"| `{p.name.upper()}` | {d} | {p.help}{adv} |")
-        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 0, 1 | block edge in cells (0 automatic), threads (0: one per core) and worker processes running blocks (advanced) |")
+            adv = " (advanced)" if is_advanced(name, p) else ""
+            label = param_label(name, p).replace(" [empty: from the data]", "")
+            out.append(f"| `{p.name.upper()}` ({label}) | {d} | {p.help}{adv} |")
+        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 0, 1 | block edge in cells (0 automatic), threads "
+                   "(0: one per core) and worker processes running blocks (advanced) |")
+        out.append("| `CREATE_OPTIONS`, `COG` | empty, no | GeoTIFF creation options (`COMPRESS=ZSTD\\|PREDICTOR=2`) "
+                   "and cloud-optimised GeoTIFF outputs (advanced) |")
         out.append("| `OUTPUT_DTM`, `OUTPUT_MASK` | | Float32 DTM, UInt8 mask (" +
                    ", ".join(f"{k} {v}" for k, v in MASK_CODES.items()) + ") |")
         out.append("| `OUTPUT_NDSM` | optional | DSM minus DTM |")
         for k in m.extras:
-            out.append(f"| `OUTPUT_{k.upper()}` | optional | per-cell side product `{k}` |")
+            out.append(f"| `OUTPUT_{k.upper()}` ({extra_label(k)}) | optional | per-cell side product `{k}` |")
         out.append("")
+        out.append("Outputs are written in the format their extension names: "
+                   + ", ".join(f"`{e}`" for e in OUTPUT_FORMATS) + ".\n")
     return "\n".join(out)
 
 

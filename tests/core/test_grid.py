@@ -25,7 +25,7 @@ def tif(tmp_path, a, name="dsm.tif", gt=GT, crs=32633, nodata=None, dtype=None):
 
 
 def leftovers(folder):
-    return [p for p in os.listdir(folder) if ".partial-" in p]
+    return [p for p in os.listdir(folder) if ".partial" in p]
 
 
 # ---- open_dsm: errors -----------------------------------------------------------------

@@ -197,7 +197,7 @@ def read(path):
 
 
 def partials(folder):
-    return [p for p in os.listdir(folder) if ".partial-" in p]
+    return [p for p in os.listdir(folder) if ".partial" in p]
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.int16])

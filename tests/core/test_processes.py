@@ -45,4 +45,4 @@ def test_processes_cancel_leaves_nothing(dsm, tmp_path):
         run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
                  processes=2, block=64, progress=progress)
     assert not (tmp_path / "m.tif").exists() and not (tmp_path / "d.tif").exists()
-    assert not list(tmp_path.glob("*.partial-*"))
+    assert not list(tmp_path.glob("*.partial*"))

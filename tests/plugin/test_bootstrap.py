@@ -1,6 +1,5 @@
 """The plugin as QGIS loads it: classFactory, initGui/initProcessing, unload; styled masks."""
 import subprocess
-import sys
 import textwrap
 from pathlib import Path
 

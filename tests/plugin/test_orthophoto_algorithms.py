@@ -419,6 +419,7 @@ def test_orthorefine_drone_frames(processing_run, shared_data, tmp_path):
 def test_orthoparallax_drone_orthophotos_line_up(processing_run, shared_data, tmp_path):
     """Two RGB orthophotos of oblique drone frames made with their own DSM: dh is about 0."""
     from osgeo import gdal
+
     from bare_earth.core.orthophoto import orthorectify, read_cameras
     root = shared_data / "stereo" / "orthority"
     if not (root / "odm").is_dir():

@@ -16,8 +16,15 @@ def dam_scene(tmp_path):
 
 def line_layer(lines, epsg, to_epsg=None, polygons=False):
     """A memory layer of lines (Nx2 map coordinates), optionally transformed to another CRS."""
-    from qgis.core import (QgsCoordinateReferenceSystem, QgsCoordinateTransform, QgsFeature, QgsGeometry,
-                           QgsPointXY, QgsProject, QgsVectorLayer)
+    from qgis.core import (
+        QgsCoordinateReferenceSystem,
+        QgsCoordinateTransform,
+        QgsFeature,
+        QgsGeometry,
+        QgsPointXY,
+        QgsProject,
+        QgsVectorLayer,
+    )
     crs = to_epsg or epsg
     kind = "Polygon" if polygons else "LineString"
     lay = QgsVectorLayer(f"{kind}?crs=EPSG:{crs}", "lines", "memory")
@@ -44,10 +51,10 @@ def _mask(res):
 
 
 def test_breaklines_in_another_crs_are_reprojected_and_burned(qgis_app, dam_scene):
-    from qgis.core import QgsProcessingContext
+    from qgis.core import QgsProcessingContext, QgsProcessingFeatureSource
+
     from bare_earth.algorithms.vector_raster import rasterize_source
     from bare_earth.core.grid import open_dsm
-    from qgis.core import QgsProcessingFeatureSource
     sc, path = dam_scene
     info = open_dsm(path)
     utm = line_layer(sc.breaklines, sc.epsg)

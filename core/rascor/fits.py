@@ -1,0 +1,399 @@
+"""RASCOR moving fits and data snooping (Jacobsen 2004, steps 5-7).
+
+Moving fits are computed for every cell at once from windowed moment sums (box filters or
+small centred correlations), *leave-one-out*: the tested point is not in its own fit, and
+the prediction variance factor ``h = (N^-1)_00`` of the fit on the points actually present
+is used in the test ``v / (s sqrt(1/p + h)) > k`` (Baarda's data snooping with ``p`` the
+point's weight). Missing neighbours widen ``h``: uneven spacing is handled. Where the
+window's points do not determine the model, the point is not tested.
+"""
+import numpy as np
+from scipy import ndimage
+
+from ..common import report, sub_progress
+from .kernels import (
+    _HALO_BAND_CELLS,
+    _bands,
+    _centred,
+    _mean1,
+    _power_sums,
+    _scratch,
+    _solve3_first,
+    _solve_first_general,
+)
+from .regions import _region_slices
+
+
+def _fit_rows(z, w, size, degree):
+    """Leave-one-out mean (degree 0) or linear regression (degree 1) along axis 1.
+
+    The same result as :func:`_fit_at_centre` for 1-D windows (to rounding), computed in
+    bands of rows: the window moments ``M0 = sum w``, ``M1 = sum w k``, ``M2 = sum w k^2``,
+    ``Z0 = sum w z``, ``Z1 = sum w z k`` (``k`` the position relative to the centre) come
+    from running box means of ``w x^j`` and ``w z x^j`` on absolute positions ``x``
+    (float64, O(1) per cell whatever the length), recentred by :func:`_centred`; the
+    centre is then taken out of ``M0`` and ``Z0`` (its ``k`` is 0).
+
+    ``z`` must be finite wherever ``w`` is 0 (any value). Returns ``zhat, h`` like
+    :func:`_fit_at_centre`.
+    """
+    rows, cols = z.shape
+    zhat = np.empty(z.shape)
+    hh = np.empty(z.shape)
+    x = np.arange(cols, dtype=np.float64) - cols // 2
+    inv = 1.0 / size
+    bands = _bands(rows, cols)
+    buf = np.empty((8, bands[0].stop, cols))         # scratch, reused by every band
+    with np.errstate(all="ignore"):
+        for b in bands:
+            wz, t, u, m0, z0, m1, m2, z1 = (a[:b.stop - b.start] for a in buf)
+            wb = w[b]
+            np.multiply(wb, z[b], out=wz)
+            _mean1(wb, size, 1, out=m0)
+            _mean1(wz, size, 1, out=z0)
+            if degree == 1:
+                np.multiply(wb, x, out=t)
+                _mean1(t, size, 1, out=m1)
+                t *= x
+                _mean1(t, size, 1, out=m2)
+                np.multiply(wz, x, out=t)
+                _mean1(t, size, 1, out=z1)
+                # recentre on each cell (see _centred)
+                np.multiply(m0, x, out=t)
+                np.multiply(m1, 2.0, out=u)
+                u -= t
+                u *= x
+                m2 -= u
+                m1 -= t
+                np.multiply(z0, x, out=t)
+                z1 -= t
+            m0 -= np.multiply(wb, inv, out=t)       # leave the centre out (k = 0)
+            z0 -= np.multiply(wz, inv, out=wz)
+            if degree == 0:
+                np.copyto(m0, np.nan, where=m0 <= 1e-9 * inv)     # no point: no fit
+                np.divide(z0, m0, out=zhat[b])
+                np.divide(inv, m0, out=hh[b])
+            else:
+                det = np.multiply(m0, m2, out=t)
+                np.multiply(det, 1e-9, out=u)
+                det -= np.multiply(m1, m1, out=wz)
+                np.copyto(det, np.nan, where=det <= u)           # undetermined: no fit
+                z0 *= m2
+                z0 -= np.multiply(z1, m1, out=z1)
+                np.divide(z0, det, out=zhat[b])
+                m2 *= inv
+                np.divide(m2, det, out=hh[b])
+    return zhat, hh
+
+
+def _fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
+    """Leave-one-out horizontal (degree 0) or inclined plane (degree 1) in a moving
+    ``rows x cols`` box window, for every cell at once.
+
+    The same result as :func:`_fit_at_centre` (to rounding) with few passes over the
+    data: separable window sums, first along the columns (axis 0: ``w y^j``, ``w z y^j``
+    box means on absolute positions, recentred by :func:`_centred`), then along the rows in
+    bands (the moments ``sum w kx^p ky^q``, ``p + q <= 2``, and ``sum w z kx^p ky^q``,
+    ``p + q <= 1``); the 3 x 3 normal equations are solved by cofactors for the height at
+    the centre and ``h = (N^-1)_00``, the centre having been taken out of ``M00``, ``Z00``.
+
+    ``z`` must be finite wherever ``w`` is 0. ``out_rows`` (a slice) limits the result to
+    those rows (the others only feed the windows). ``work`` (a dict) keeps the large
+    scratch arrays from one call to the next. Returns ``zhat, h`` like
+    :func:`_fit_at_centre` (views of ``work`` arrays when given).
+    """
+    sy, sx = sizes
+    rows, cols = z.shape
+    o0, o1, _ = (out_rows or slice(0, rows)).indices(rows)
+    inv = 1.0 / (sy * sx)
+    wz, c0, d0, t, c1, c2, d1 = _scratch(work, "box", 7, (rows, cols))
+    np.multiply(w, z, out=wz)
+    y = (np.arange(rows, dtype=np.float64) - (o0 + o1) // 2)[:, None]
+    c0 = _mean1(w, sy, 0, out=c0)[o0:o1]
+    d0 = _mean1(wz, sy, 0, out=d0)[o0:o1]
+    if degree == 1:
+        np.multiply(w, y, out=t)
+        c1 = _mean1(t, sy, 0, out=c1)[o0:o1]
+        t *= y
+        c2 = _mean1(t, sy, 0, out=c2)[o0:o1]
+        np.multiply(wz, y, out=t)
+        d1 = _mean1(t, sy, 0, out=d1)[o0:o1]
+        y = y[o0:o1]
+        for b in _bands(o1 - o0, cols):
+            _centred(y[b], c0[b], c1[b], c2[b])
+            _centred(y[b], d0[b], d1[b])
+    w, wz = w[o0:o1], wz[o0:o1]
+    x = np.arange(cols, dtype=np.float64) - cols // 2
+    zhat, hh = _scratch(work, "fit", 2, (o1 - o0, cols))
+    bands = _bands(o1 - o0, cols)
+    buf = np.empty((16, bands[0].stop, cols))        # scratch, reused by every band
+    with np.errstate(all="ignore"):
+        for b in bands:
+            (t, u, v, m00, z00, m10, m20, m01, m11, m02, z10, z01, c00, c01, c02,
+             small) = (a[:b.stop - b.start] for a in buf)
+            _mean1(c0[b], sx, 1, out=m00)
+            _mean1(d0[b], sx, 1, out=z00)
+            if degree == 1:
+                np.multiply(c0[b], x, out=t)
+                _mean1(t, sx, 1, out=m10)
+                t *= x
+                _mean1(t, sx, 1, out=m20)
+                np.multiply(c1[b], x, out=t)
+                _mean1(c1[b], sx, 1, out=m01)
+                _mean1(t, sx, 1, out=m11)
+                _mean1(c2[b], sx, 1, out=m02)
+                np.multiply(d0[b], x, out=t)
+                _mean1(t, sx, 1, out=z10)
+                _mean1(d1[b], sx, 1, out=z01)
+                # recentre on each cell (see _centred)
+                np.multiply(m00, x, out=t)
+                np.multiply(m10, 2.0, out=u)
+                u -= t
+                u *= x
+                m20 -= u
+                m10 -= t
+                m11 -= np.multiply(m01, x, out=t)
+                z10 -= np.multiply(z00, x, out=t)
+            m00 -= np.multiply(w[b], inv, out=t)   # leave the centre out (k = 0)
+            z00 -= np.multiply(wz[b], inv, out=t)
+            if degree == 0:
+                np.copyto(m00, np.nan, where=m00 <= 1e-9 * inv)   # no point: no fit
+                np.divide(z00, m00, out=zhat[b])
+                np.divide(inv, m00, out=hh[b])
+                continue
+            # cofactors of N = [[m00, m10, m01], [m10, m20, m11], [m01, m11, m02]]
+            np.multiply(m20, m02, out=c00)
+            np.multiply(c00, m00, out=small)
+            np.abs(small, out=small)
+            small *= 1e-9
+            c00 -= np.multiply(m11, m11, out=t)
+            np.multiply(m11, m01, out=c01)
+            c01 -= np.multiply(m10, m02, out=t)
+            np.multiply(m10, m11, out=c02)
+            c02 -= np.multiply(m20, m01, out=t)
+            det = np.multiply(m00, c00, out=v)
+            det += np.multiply(m10, c01, out=t)
+            det += np.multiply(m01, c02, out=t)
+            np.copyto(det, np.nan, where=det <= small)           # undetermined: no fit
+            z00 *= c00
+            z00 += np.multiply(z10, c01, out=t)
+            z00 += np.multiply(z01, c02, out=t)
+            np.divide(z00, det, out=zhat[b])
+            c00 *= inv
+            np.divide(c00, det, out=hh[b])
+    return zhat, hh
+
+
+def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
+    """Weighted polynomial fit in a moving window, evaluated at the window's centre.
+
+    Parameters
+    ----------
+    z, w : ndarray (float64)
+        Heights (any value where ``w == 0``) and weights (0 = not in the fits).
+    sizes : (int, int) or int
+        Window in cells: an int for a 1-D profile along axis 1, ``(rows, cols)`` for 2-D.
+    degree : int
+        0 mean / horizontal plane, 1 linear / inclined plane, 2 polynomial.
+    leave_one_out : bool
+        Exclude the centre point from its own fit (prediction residuals).
+    kernels : (ndarray, ndarray), optional
+        Separable window weights (rows, cols) instead of a box (Gaussian for step 7).
+
+    Returns
+    -------
+    zhat, h : ndarray
+        Fitted height at the centre and the variance factor ``(N^-1)_00``; NaN where the
+        window's points do not determine the model (no test there: a lower-degree model
+        would be biased on a slope).
+    """
+    z = np.where(w > 0, z, 0.0)
+    two_d = not np.isscalar(sizes)
+    if leave_one_out and kernels is None and degree <= 1:
+        return _fit_box_2d(z, w, sizes, degree) if two_d else _fit_rows(z, w, sizes, degree)
+    wz = w * z
+
+    def sums(v, px, py=None):
+        if kernels is not None:
+            ky, kx = kernels
+            hx, hy = len(kx) // 2, len(ky) // 2
+            out = {}
+            top = max(max(px), max(py))
+            # the slow axis (0) first: fewer passes along it
+            for q in set(py):
+                t = ndimage.correlate1d(v, ky * np.arange(-hy, hy + 1.0) ** q, axis=0,
+                                        mode="constant", cval=0.0)
+                for p in (p for p in set(px) if p + q <= top):
+                    out[p, q] = ndimage.correlate1d(t, kx * np.arange(-hx, hx + 1.0) ** p,
+                                                    axis=1, mode="constant", cval=0.0)
+            return out
+        if not two_d:
+            return _power_sums(v, sizes, px, 1)
+        sy, sx = sizes
+        ty = _power_sums(v, sy, py, 0)             # the slow axis (0) first: fewer passes
+        out = {}
+        top = max(max(px), max(py))
+        for q in set(py):
+            ps = [p for p in set(px) if p + q <= top]   # only the moments the model needs
+            tx = _power_sums(ty[q], sx, ps, 1)
+            for p in ps:
+                out[p, q] = tx[p]
+        return out
+
+    if not two_d:
+        m = sums(w, range(2 * degree + 1))
+        zz = sums(wz, range(degree + 1))
+        if leave_one_out:
+            m[0] = m[0] - w
+            zz[0] = zz[0] - wz
+        with np.errstate(all="ignore"):
+            if degree == 0:
+                ok = m[0] > 1e-9
+                zhat, hh = zz[0] / m[0], 1.0 / m[0]
+            elif degree == 1:
+                det = m[0] * m[2] - m[1] ** 2
+                ok = det > 1e-9 * m[0] * m[2]
+                zhat, hh = (zz[0] * m[2] - zz[1] * m[1]) / det, m[2] / det
+            else:
+                zhat, hh = _solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]),
+                                          (m[2], m[3], m[4])), (zz[0], zz[1], zz[2]))
+                ok = np.isfinite(zhat)
+        return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
+
+    # 2-D: monomials x^a y^b with a + b <= degree
+    mons = [(a, b) for d in range(degree + 1) for a in range(d, -1, -1) for b in (d - a,)]
+    px = range(2 * degree + 1)
+    m = sums(w, px, px)
+    zz = sums(wz, range(degree + 1), range(degree + 1))
+    if leave_one_out:
+        m[0, 0] = m[0, 0] - w
+        zz[0, 0] = zz[0, 0] - wz
+    nu = len(mons)
+    M = [[m[mons[i][0] + mons[j][0], mons[i][1] + mons[j][1]] for j in range(nu)]
+         for i in range(nu)]
+    with np.errstate(all="ignore"):
+        if degree == 0:
+            ok = m[0, 0] > 1e-9
+            zhat, hh = zz[0, 0] / m[0, 0], 1.0 / m[0, 0]
+            return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
+        if degree == 1:
+            return _solve3_first(M, [zz[mons[i]] for i in range(3)])
+        return _solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
+
+
+def _snoop(z, zhat, hh, test, s, k, low_weight):
+    """Data snooping of prediction residuals ``v = z - zhat``.
+
+    ``v / (s sqrt(1/p + h)) > k`` flags an object (p = 1), ``< -k`` a low blunder with
+    the weight factor ``p = low_weight`` of points below the reference. Cells where the
+    fit is undetermined (``zhat`` or ``h`` NaN) are not tested.
+
+    Returns
+    -------
+    high, low, below : ndarray of bool
+        Objects, low blunders, and the tested cells below their fit (``v < 0``: the
+        weight factor applies to them in a next fit).
+    """
+    ks2 = (k * s) ** 2
+    with np.errstate(invalid="ignore"):
+        v = np.subtract(z, zhat, dtype=np.float64)
+        h = np.maximum(hh, 0.0)                     # NaN stays NaN: no test
+        below = v < 0.0
+        below &= test
+        v *= v
+        # v > k s sqrt(1/p + h)  <=>  v^2 > (k s)^2 (1/p + h)  (v > 0, resp. v < 0)
+        h *= ks2
+        h += ks2
+        high = v > h
+        high &= test
+        high &= ~below
+        h += ks2 / low_weight - ks2
+        low = v > h
+        low &= below
+    return high, low, below
+
+
+def _tiles(rows, cols, halo, halo_cols, cells=None):
+    """``[(row slice, column slice)]`` covering a ``rows x cols`` array, for fits of
+    windows reaching ``halo`` rows and ``halo_cols`` columns.
+
+    Without a halo, bands of whole rows of :data:`_BAND_CELLS` cells; with a row halo,
+    bands of whole rows of about ``cells`` (default :data:`_HALO_BAND_CELLS`) cells, halo
+    included; with a column halo too, tiles of about ``cells`` cells, halos included.
+    """
+    whole = slice(0, cols)
+    if not halo:
+        return [(b, whole) for b in _bands(rows, cols)]
+    cells = cells or _HALO_BAND_CELLS
+    if not halo_cols:
+        step = max(2 * halo, cells // max(1, cols) - 2 * halo)
+        return [(slice(r0, min(rows, r0 + step)), whole) for r0 in range(0, rows, step)]
+    side = int(np.sqrt(cells))
+    step_r, step_c = max(2 * halo, side - 2 * halo), max(2 * halo_cols, side - 2 * halo_cols)
+    return [(slice(r0, min(rows, r0 + step_r)), slice(c0, min(cols, c0 + step_c)))
+            for r0 in range(0, rows, step_r) for c0 in range(0, cols, step_c)]
+
+
+def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_cols=0,
+                   tile_cells=None, labels=None, work=None, progress=None):
+    """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
+
+    ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
+    (``z`` finite, ``w`` the weights: 1 where ``keep``, ``low_weight`` where also
+    ``below``, else 0), evaluated on the rows ``out_rows``. It runs on bands of whole rows
+    (profile fits along the rows: ``halo`` 0) or on bands of rows with ``halo`` rows above
+    and below (window fits of at most ``2 halo + 1`` rows): the same result as one fit of
+    the whole arrays, without any full-size float temporary. With ``halo_cols`` too, it
+    runs on tiles of about ``tile_cells`` cells with a halo on all sides (:func:`_tiles`;
+    for fits whose result at a cell does not depend on where the array starts: the
+    polynomial surface, whose bands would take seconds each). With break-line ``labels`` each region
+    runs alone on its bounding box, the other cells having weight 0 and no test. ``work``
+    (a dict, shared with ``fit``) keeps the band's scratch arrays from band to band.
+    ``progress(fraction)`` is called before each band (it may raise ``Cancelled``).
+
+    Returns
+    -------
+    high, low, below : ndarray of bool
+    """
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    under = np.zeros(z.shape, bool)
+    if labels is not None:
+        regions = _region_slices(labels)
+        ends = np.cumsum([z[sl].size for _, sl in regions]) / max(1, sum(z[sl].size for _, sl in regions))
+        for (rid, sl), a, e in zip(regions, np.concatenate([[0.0], ends[:-1]]), ends):
+            report(progress, a)
+            inside = labels[sl] == rid
+            if np.count_nonzero(inside) < 3:
+                continue
+            res = _fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
+                                 None if below is None else below[sl], fit, s, k, low_weight,
+                                 halo=halo, halo_cols=halo_cols, tile_cells=tile_cells, work=work,
+                                 progress=sub_progress(progress, a, e))
+            for o, r in zip((high, low, under), res):
+                o[sl] |= r
+        return high, low, under
+    rows, cols = z.shape
+    tiles = _tiles(rows, cols, halo, halo_cols, tile_cells)
+    work = {} if work is None else work
+    for i, (b, bc) in enumerate(tiles):
+        report(progress, i / len(tiles))
+        r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
+        c0, c1 = max(0, bc.start - halo_cols), min(cols, bc.stop + halo_cols)
+        src = (slice(r0, r1), slice(c0, c1))
+        out, out_c = slice(b.start - r0, b.stop - r0), slice(bc.start - c0, bc.stop - c0)
+        kb = keep[src]
+        zb, wb = _scratch(work, ("band", kb.shape[1]), 2, kb.shape)
+        np.copyto(zb, z[src])
+        np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
+        np.copyto(wb, kb)                        # the fit weights
+        if below is not None:
+            np.copyto(wb, low_weight, where=below[src] & kb)
+        zhat, hh = fit(zb, wb, out)
+        zhat, hh, zo = zhat[:, out_c], hh[:, out_c], zb[out, out_c]
+        tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
+        for sb in _bands(*zo.shape):            # in cache-sized pieces
+            hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
+    return high, low, under
+
+

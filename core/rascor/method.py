@@ -1,0 +1,106 @@
+"""RASCOR's entry in the method registry: :data:`METHOD` (parameters, dialog texts)."""
+import numpy as np
+
+from ..methods import Method, Param
+from .parameters import rascor_halo, resolve_rascor_params
+from .sequence import filter_rascor
+from .terrain import TERRAIN_CLASSES
+
+
+def _run(z, cell_size, progress=None, breaklines=None, special_areas=None, **params):
+    return filter_rascor(z, cell_size, breaklines=breaklines, special_areas=special_areas,
+                         progress=progress, **params)
+
+
+METHOD = Method(
+    name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo,
+    extras={"step": (np.uint8, 1, 255)},
+    params=(
+        Param("terrain_class", "enum", "auto", "Terrain type choosing the models (mean / "
+              "linear / polynomial) and defaults; auto: classed from the DSM (step 1).",
+              options=("auto",) + TERRAIN_CLASSES),
+        Param("homogeneous", "enum", "auto", "Whether the area is homogeneous; auto: from "
+              "step 1 (90 % of 10 m tiles in the area's class). A flat, inhomogeneous area "
+              "(embankments, cuts) gets the linear models instead of the mean.",
+              options=("auto", "homogeneous", "inhomogeneous")),
+        Param("sigma_m", "float", None, "Random error of the DSM in metres; empty: "
+              "estimated from the Laplacian residuals (at least 0.1 m).", minimum=0.001,
+              maximum=100.0),
+        Param("step1_characterise", "bool", True, "Step 1: class the terrain from the DSM "
+              "(off: 'rolling' unless a terrain class is given)."),
+        Param("step2_height_distribution", "bool", True, "Step 2: remove heights far "
+              "outside the height distribution (flat terrain only; skipped otherwise)."),
+        Param("step3_neighbour_differences", "bool", True, "Step 3: remove the upper point "
+              "of neighbouring pairs differing beyond sigma and the local slope."),
+        Param("step4_level_change", "bool", True, "Step 4: remove raised levels between a "
+              "jump up and a jump down along X / Y profiles (buildings)."),
+        Param("step5_profiles", "bool", True, "Step 5: moving local profiles in X and Y, "
+              "short then long, with data snooping."),
+        Param("step6_surfaces", "bool", True, "Step 6: moving surfaces (horizontal, "
+              "inclined plane or polynomial by terrain class)."),
+        Param("step7_prediction", "bool", False, "Step 7: final local least-squares "
+              "prediction (optional; always on inside special areas)."),
+        Param("second_iteration", "bool", False, "Repeat steps 3, 5, 6, 7 once. Warning "
+              "(Jacobsen): removes small vegetation but may generalise the terrain."),
+        Param("height_min_m", "float", None, "Step 2 lower height limit in metres; empty: "
+              "far fence of the height distribution (flat terrain).", advanced=True),
+        Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
+              "far fence of the height distribution (flat terrain).", advanced=True),
+        Param("neighbour_k", "float", 3.0, "Step 3 critical value: tolerance = k sigma "
+              "sqrt(2) + local slope.", minimum=0.5, maximum=20.0, advanced=True),
+        Param("jump_m", "float", 2.0, "Step 4 minimum sudden change of level in metres.",
+              minimum=0.1, maximum=100.0, advanced=True),
+        Param("max_building_m", "float", 120.0, "Step 4 longest raised level removed "
+              "(metres); also sets the block halo.", minimum=1.0, maximum=2000.0,
+              advanced=True),
+        Param("short_profile_m", "float", None, "Step 5 short profile length in metres; "
+              "empty: chosen by analysing a sequence of lengths.", minimum=0.1,
+              maximum=10000.0, advanced=True),
+        Param("long_profile_m", "float", None, "Step 5 long profile length in metres; "
+              "empty: the longest of the sequence whose residual scale stays within twice "
+              "the shortest's.", minimum=0.1, maximum=10000.0, advanced=True),
+        Param("profile_sigma_m", "float", None, "Step 5 standard deviation of a height "
+              "about the profile model (m); empty: from the length analysis.", minimum=0.001,
+              maximum=100.0, advanced=True),
+        Param("surface_size_m", "float", None, "Step 6 moving-surface window edge in "
+              "metres; empty: chosen by checking a sequence of sizes.", minimum=0.1,
+              maximum=10000.0, advanced=True),
+        Param("surface_sigma_m", "float", None, "Step 6 standard deviation about the "
+              "surface (m); empty: from the size analysis.", minimum=0.001, maximum=100.0,
+              advanced=True),
+        Param("prediction_radius_m", "float", None, "Step 7 neighbourhood radius in "
+              "metres; empty: 3 cells.", minimum=0.01, maximum=1000.0, advanced=True),
+        Param("prediction_sigma_m", "float", None, "Step 7 standard deviation of the "
+              "prediction (m); empty: from the prediction residuals.", minimum=0.001,
+              maximum=100.0, advanced=True),
+        Param("snooping_k", "float", 4.0, "Critical value of the data snooping in steps "
+              "5-7 (standardised residual).", minimum=0.5, maximum=20.0, advanced=True),
+        Param("snooping_iterations", "int", 1, "Fits per profile length / direction and "
+              "per surface (outliers removed between fits).", minimum=1, maximum=10,
+              advanced=True),
+        Param("low_weight", "float", 0.02, "Weight factor of points below the reference: "
+              "their tolerance is 1/sqrt(weight) wider, so ditches stay while deep low "
+              "blunders go (class 2).", minimum=0.001, maximum=1.0, advanced=True),
+    ),
+    title="RASCOR sequential filter (Jacobsen 2004)",
+    description=(
+        "<p>Filters a raster DSM by a sequence of tests, each catching what the others "
+        "miss, with parameters determined from an analysis of the DSM (Jacobsen 2004, "
+        "program RASCOR): 1 terrain characterisation (flat / rolling / mountainous, "
+        "homogeneity), 2 height distribution (flat terrain only), 3 height differences of "
+        "neighbours (tolerance from the random error and the local slope), 4 sudden change "
+        "of level along X and Y profiles (buildings), 5 moving local profiles short then "
+        "long (mean, linear regression or polynomial, with data snooping), 6 moving "
+        "surfaces (horizontal, inclined plane or polynomial), 7 optional local prediction. "
+        "Points below the reference get a weight factor instead of removal, so ditches and "
+        "cuts stay while deep low blunders are removed (class 2).</p>"
+        "<p><b>Second iteration</b>: removes small vegetation but may generalise the "
+        "terrain (the paper's warning).</p>"
+        "<p><b>Break lines</b> (optional line layer, rasterised to the cells it crosses): "
+        "no comparison crosses a break line, so dams, embankments and cuts keep their "
+        "shoulders. <b>Special areas</b> (optional polygons): inside them only the local "
+        "filters (steps 3 and 7) run, e.g. for cars and bushes on a dam's slope. The core "
+        "receives both as boolean rasters <code>breaklines</code> and "
+        "<code>special_areas</code> (keyword arrays, not parameters).</p>"
+        "<p>Output extra <i>step</i>: which step removed each cell (0 kept).</p>"),
+)

@@ -1,0 +1,251 @@
+"""RASCOR parameters: derived from an analysis of the DSM (Jacobsen 2004), and the halo.
+
+Jacobsen's program determines its parameters automatically: the terrain class (step 1),
+step 2's limits from the height distribution, the profile lengths and surface sizes by
+analysing a sequence of lengths and sizes, the standard deviations of the models from the
+residuals. :func:`resolve_rascor_params` does this once on the whole raster (so all blocks
+agree); :func:`rascor_halo` gives the reach of the whole sequence for block processing.
+"""
+from typing import Callable, Optional, Sequence, Union
+
+import numpy as np
+
+from ..common import as_cell_size, as_surface, report, sub_progress
+from .fits import _fit_at_centre
+from .kernels import _finite64, _gauss, _odd
+from .steps import remove_level_changes, remove_neighbour_differences
+from .terrain import TERRAIN_CLASSES, _as_homogeneous, _characterise, model_degree
+
+#: Sequences analysed for the profile lengths and the surface sizes (metres).
+PROFILE_LENGTHS_M = (5.0, 9.0, 15.0, 25.0, 41.0, 65.0)
+SURFACE_SIZES_M = (9.0, 15.0, 25.0, 41.0, 65.0)
+#: A length is accepted while its residual scale stays below this factor of the shortest's.
+_SCALE_GROWTH = 2.0
+#: Step 2: the limits lie at least this far (m) outside the terrain's lower envelope.
+_FAR_M = 20.0
+
+DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_characterise=True,
+                step2_height_distribution=True, step3_neighbour_differences=True,
+                step4_level_change=True, step5_profiles=True, step6_surfaces=True,
+                step7_prediction=False, second_iteration=False, height_min_m=None,
+                height_max_m=None, neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
+                short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
+                surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
+                prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
+                low_weight=0.02)
+
+
+def _analysis_crops(z, edge=256):
+    """The analysis sample: the whole surface when small, else 4 crops at the quadrants."""
+    rows, cols = z.shape
+    if rows * cols <= (2 * edge) ** 2:
+        return [z]
+    out = []
+    for fr in (0.25, 0.75):
+        for fc in (0.25, 0.75):
+            r0 = int(max(0, min(rows - edge, fr * rows - edge / 2)))
+            c0 = int(max(0, min(cols - edge, fc * cols - edge / 2)))
+            out.append(z[r0:r0 + edge, c0:c0 + edge])
+    return out
+
+
+#: Residuals beyond this count are subsampled (regularly) for their robust scales.
+_SCALE_SAMPLE = 1 << 18
+
+
+def _robust_scale(v):
+    """``(MAD scale, 90th percentile of |v|)`` of residuals (NaN when too few)."""
+    v = v[np.isfinite(v)]
+    if v.size < 20:
+        return np.nan, np.nan
+    if v.size > _SCALE_SAMPLE:             # a regular subsample: the scales need no more
+        v = v[:: -(-v.size // _SCALE_SAMPLE)]
+    return (float(1.4826 * np.median(np.abs(v - np.median(v)))),
+            float(np.percentile(np.abs(v), 90)))
+
+
+def _choose(spreads, sigma):
+    """Index of the longest length whose residual spread stays within ``_SCALE_GROWTH`` x
+    the shortest's (the spread grows with the length once the model no longer follows the
+    terrain, or objects larger than the length remain)."""
+    ref = max(sigma, spreads[0]) if np.isfinite(spreads[0]) else sigma
+    best = 0
+    for i, s in enumerate(spreads):
+        if np.isfinite(s) and s <= _SCALE_GROWTH * ref:
+            best = i
+        else:
+            break
+    return best
+
+
+def _analysis_sample(z, cell_size, sigma, p):
+    """``[(heights, weights, cells kept)]`` of each analysis crop (:func:`_analysis_crops`)
+    cleaned by steps 3 and 4."""
+    sample = []
+    for crop in _analysis_crops(z):
+        keep = np.isfinite(crop)
+        if keep.sum() < 100:
+            continue
+        hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
+                                              low_weight=p["low_weight"])
+        keep &= ~(hi | lo)
+        keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
+                                      max_building_m=p["max_building_m"], sigma_m=sigma)
+        sample.append((_finite64(crop), keep.astype(np.float64), keep))
+    return sample
+
+
+def _sample_scale(sample, sizes, degree, kernels=None):
+    """Robust scales (:func:`_robust_scale`) of the leave-one-out residuals of the moving
+    fit of ``sizes`` cells and ``degree`` on the analysis sample."""
+    v = [(c - _fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
+    return _robust_scale(np.concatenate(v) if v else np.zeros(0))
+
+
+def _scan(windows, sample, degree, sigma, at_least=1, progress=None):
+    """:func:`_sample_scale` along the sequence of ``windows`` (cells) as long as
+    :func:`_choose` can still accept the next one: the sequence ends at the first window
+    whose spread is too large (the longer ones are never chosen), but covers at least
+    ``at_least`` windows."""
+    out = []
+    for i, sizes in enumerate(windows):
+        out.append(_sample_scale(sample, sizes, degree))
+        report(progress, (i + 1) / len(windows))
+        if i + 1 >= at_least and _choose([b for _, b in out], sigma) < i:
+            break
+    return out
+
+
+def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
+                          progress: Optional[Callable[[float], None]] = None, **params) -> dict:
+    """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
+
+    ``None`` (and ``"auto"``) values are derived from the whole raster, once, so that all
+    blocks use the same values:
+
+    * terrain class, homogeneity and random error ``sigma_m`` by step 1
+      (:func:`characterise_terrain`);
+    * step 2's limits (flat terrain only) from the height distribution: Tukey's far fences,
+      and at least 20 m outside the range of the terrain's lower envelope;
+    * the profile lengths by analysing the sequence :data:`PROFILE_LENGTHS_M` on a sample
+      (the whole raster up to 512 x 512 cells, else 4 crops of 256 x 256 cells at the
+      quadrants) cleaned by steps 3 and 4: per length, the leave-one-out profile
+      residuals of the class model; the long profile is the longest length before the
+      90th percentile of ``|v|`` exceeds twice the shortest's (the model stops following
+      the terrain, or objects as long as the profile remain; the analysis of the sequence
+      stops there), the short one the longest of the sequence at most half of it;
+      ``profile_sigma_m`` is the robust (MAD) scale of the residuals at the long length
+      (scales from a regular subsample of at most 262144 residuals);
+    * the surface size and ``surface_sigma_m`` likewise from :data:`SURFACE_SIZES_M`;
+    * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
+
+    ``progress(fraction)`` (optional) is called after each stage of the analysis; it may
+    raise ``Cancelled``.
+
+    Returns
+    -------
+    dict
+        Every parameter of :func:`filter_rascor` except the rasters and ``progress``.
+    """
+    unknown = sorted(set(params) - set(DEFAULTS))
+    if unknown:
+        raise ValueError(f"unknown RASCOR parameter(s) {unknown}; known: {sorted(DEFAULTS)}.")
+    p = dict(DEFAULTS)
+    p.update({k: v for k, v in params.items() if v is not None or DEFAULTS[k] is None})
+    z = as_surface(z)
+    dx, dy = as_cell_size(cell_size)
+    cs = max(dx, dy)
+    tc = None if p["terrain_class"] in (None, "auto") else p["terrain_class"]
+    if tc is not None and tc not in TERRAIN_CLASSES:
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
+                         f"by step 1); got {tc!r}.")
+    ch, low_env = _characterise(z, (dx, dy))
+    report(progress, 0.5)
+    if tc is None:
+        tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
+    p["terrain_class"] = tc
+    if p["homogeneous"] in (None, "auto"):
+        p["homogeneous"] = bool(ch["homogeneous"]) if p["step1_characterise"] else True
+    else:
+        p["homogeneous"] = _as_homogeneous(p["homogeneous"])
+    if p["sigma_m"] is None:
+        p["sigma_m"] = round(ch["sigma_m"], 3)
+    sigma = float(p["sigma_m"])
+    if tc == "flat" and (p["height_min_m"] is None or p["height_max_m"] is None):
+        v = z.ravel()
+        if v.size > 2_000_000:                   # a regular sample of about 1 M cells
+            v = v[:: v.size // 1_000_000]
+        v = v[np.isfinite(v)]
+        q1, q3 = np.percentile(v, [25, 75])
+        iqr = max(q3 - q1, 10 * sigma)
+        lv = low_env[np.isfinite(low_env)]
+        gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
+        # far outside: beyond Tukey's far fences and at least _FAR_M beyond the terrain's
+        # lower envelope (a dam or an embankment in a flat area is not far outside)
+        if p["height_min_m"] is None:
+            p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2)
+        if p["height_max_m"] is None:
+            p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
+    if p["prediction_radius_m"] is None:
+        p["prediction_radius_m"] = round(3.0 * cs, 3)
+    need = any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m",
+                                      "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
+    if need:
+        deg = model_degree(tc, p["homogeneous"])
+        sample = _analysis_sample(z, (dx, dy), sigma, p)
+        report(progress, 0.6)
+        ps = _scan([_odd(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
+                   progress=sub_progress(progress, 0.6, 0.8))
+        i_long = max(_choose([b for _, b in ps], sigma), 1)
+        long_m = PROFILE_LENGTHS_M[i_long]
+        i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
+        if p["long_profile_m"] is None:
+            p["long_profile_m"] = long_m
+        if p["short_profile_m"] is None:
+            p["short_profile_m"] = PROFILE_LENGTHS_M[i_short]
+        if p["profile_sigma_m"] is None:
+            s = ps[i_long][0]
+            p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+        if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
+            ss = _scan([(_odd(S / dy), _odd(S / dx)) for S in SURFACE_SIZES_M], sample, min(deg, 1),
+                       sigma, progress=sub_progress(progress, 0.8, 0.95))
+            i_s = _choose([b for _, b in ss], sigma)
+            if p["surface_size_m"] is None:
+                p["surface_size_m"] = SURFACE_SIZES_M[i_s]
+            if p["surface_sigma_m"] is None:
+                s = ss[i_s][0]
+                p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+        if p["prediction_sigma_m"] is None:
+            g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
+            s = _sample_scale(sample, (len(g[0]), len(g[1])), 1, kernels=g)[0]
+            p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+    report(progress, 1.0)
+    return p
+
+
+def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
+    """Reach of the whole sequence in cells (the sum of the enabled steps' reaches).
+
+    Steps are chained, so a cell's fate depends on what earlier steps did within their
+    reach around every cell of the later windows: the reaches add up (x 2 with the second
+    iteration).
+    """
+    dx, dy = as_cell_size(cell_size)
+    cs = min(dx, dy)
+    p = dict(DEFAULTS)
+    p.update({k: v for k, v in params.items() if v is not None})
+
+    def cells(m):
+        return int(np.ceil((m or 0) / cs))
+
+    iters = int(p.get("snooping_iterations") or 1)
+    r3 = 3 if p["step3_neighbour_differences"] else 0
+    r4 = 2 * (cells(p["max_building_m"]) + 4) if p["step4_level_change"] else 0
+    r5 = iters * sum(cells(L) // 2 + 1 for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
+                                                p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
+        if p["step5_profiles"] else 0
+    r6 = iters * (cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1) \
+        if p["step6_surfaces"] else 0
+    r7 = cells(p["prediction_radius_m"] or 3 * cs) + 1
+    once = r3 + r5 + r6 + r7
+    return int(r4 + once * (2 if p["second_iteration"] else 1))

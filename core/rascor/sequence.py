@@ -1,0 +1,342 @@
+"""RASCOR's sequence of steps (Jacobsen 2004): :func:`filter_rascor`.
+
+The enabled steps run in the paper's order on the points the previous ones left: 2 height
+distribution, 3 neighbour differences, 4 sudden change of level, 5 moving local profiles,
+6 moving surfaces, 7 local prediction (step 1, the terrain characterisation, decides the
+class in :func:`~.parameters.resolve_rascor_params`). A second iteration repeats 3, 5, 6
+(7). Each step is a named function here; the filters themselves live in :mod:`.steps` and
+:mod:`.moving`.
+"""
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Optional, Sequence, Union
+
+import numpy as np
+
+from ..codes import LOW, NODATA, OBJECT
+from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from ..estimate import below_surroundings
+from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
+from .regions import _as_bool_raster, break_regions
+from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
+from .terrain import TERRAIN_CLASSES, _as_homogeneous, model_degree
+
+#: Step numbers and names (the values of the ``step`` extra).
+STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
+              3: "neighbour height differences", 4: "sudden change of level",
+              5: "moving local profiles", 6: "moving surfaces", 7: "local prediction"}
+#: Steps repeated by the second iteration.
+_REPEATED = (3, 5, 6, 7)
+#: Relative run time of each step, the share of the progress bar it gets (seconds measured
+#: on the 16 Mcells city of ``synthetic.make_dsm`` at 1 m, in the sequence: 0.05, 1.0-1.4,
+#: 1.2, 3.1, 1.8; step 7 alone 3.0).
+_COST = {2: 0.05, 3: 1.0, 4: 1.2, 5: 3.0, 6: 2.0, 7: 3.0}
+
+
+@dataclass
+class _Settings:
+    """The checked parameters of one run."""
+    cell: tuple
+    terrain_class: str
+    homogeneous: bool
+    sigma_m: float
+    on: dict
+    second_iteration: bool
+    height_min_m: Optional[float]
+    height_max_m: Optional[float]
+    neighbour_k: float
+    jump_m: float
+    max_building_m: float
+    lengths: list
+    surface_size_m: float
+    prediction_radius_m: float
+    profile_sigma_m: float
+    surface_sigma_m: float
+    prediction_sigma_m: float
+    snooping_k: float
+    snooping_iterations: int
+    low_weight: float
+
+
+@dataclass
+class _State:
+    """The points left and what each step removed."""
+    z: np.ndarray
+    valid: np.ndarray
+    keep: np.ndarray
+    global_ok: np.ndarray                 # valid and outside the special areas
+    special: Optional[np.ndarray]
+    labels: Optional[np.ndarray]
+    n_regions: int
+    mask: np.ndarray
+    step: np.ndarray
+    removed: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    pit: Optional[np.ndarray] = None      # cells below every cell of the ring around them
+
+
+def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,
+                    second_iteration, height_min_m, height_max_m, neighbour_k, jump_m,
+                    max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
+                    surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
+                    snooping_k, snooping_iterations, low_weight):
+    """Check the parameters (ValueError naming the fix) and return the :class:`_Settings`."""
+    dx, dy = as_cell_size(cell_size)
+    if terrain_class not in TERRAIN_CLASSES:
+        raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES}; got {terrain_class!r}. "
+                         "Pass 'auto' to resolve_rascor_params to derive it (step 1).")
+    homogeneous = _as_homogeneous(homogeneous)
+    for name, val in (("sigma_m", sigma_m), ("jump_m", jump_m), ("max_building_m", max_building_m),
+                      ("short_profile_m", short_profile_m), ("long_profile_m", long_profile_m),
+                      ("surface_size_m", surface_size_m), ("prediction_radius_m", prediction_radius_m),
+                      ("snooping_k", snooping_k), ("neighbour_k", neighbour_k)):
+        if val is None or not np.isfinite(val) or val <= 0:
+            raise ValueError(f"{name} must be a positive number; got {val!r}. Pass a value or "
+                             "call resolve_rascor_params to derive it from the DSM.")
+    if not 0 < low_weight <= 1:
+        raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
+                         "factor of points below the reference (0.02: tolerance x 7).")
+    if int(snooping_iterations) < 1:
+        raise ValueError(f"snooping_iterations must be >= 1; got {snooping_iterations}.")
+    if steps is not None:
+        steps = {int(s) for s in steps}
+        bad = steps - set(STEP_NAMES)
+        if bad:
+            raise ValueError(f"steps {sorted(bad)} do not exist; RASCOR steps are 1-7 "
+                             f"({STEP_NAMES}).")
+        on = {i + 1: (i + 1) in steps for i in range(7)}
+    else:
+        on = dict(zip(range(1, 8), switches))
+    lengths = [short_profile_m] if long_profile_m <= short_profile_m else [short_profile_m,
+                                                                          long_profile_m]
+    return _Settings(
+        cell=(dx, dy), terrain_class=terrain_class, homogeneous=homogeneous, sigma_m=sigma_m,
+        on=on, second_iteration=bool(second_iteration), height_min_m=height_min_m,
+        height_max_m=height_max_m, neighbour_k=neighbour_k, jump_m=jump_m,
+        max_building_m=max_building_m, lengths=lengths, surface_size_m=surface_size_m,
+        prediction_radius_m=prediction_radius_m,
+        profile_sigma_m=max(sigma_m, profile_sigma_m or sigma_m),
+        surface_sigma_m=max(sigma_m, surface_sigma_m or sigma_m),
+        prediction_sigma_m=max(sigma_m, prediction_sigma_m or sigma_m),
+        snooping_k=snooping_k, snooping_iterations=int(snooping_iterations),
+        low_weight=low_weight)
+
+
+def _start(z, breaklines, special_areas):
+    """All valid points kept; the break-line regions and special areas (Jacobsen 2004)."""
+    bl = _as_bool_raster(breaklines, z.shape, "breaklines")
+    sp = _as_bool_raster(special_areas, z.shape, "special_areas")
+    labels, n_regions = (None, 0) if bl is None else break_regions(bl)
+    valid = np.isfinite(z)
+    return _State(z=z, valid=valid, keep=valid.copy(),
+                  global_ok=valid if sp is None else valid & ~sp, special=sp, labels=labels,
+                  n_regions=n_regions, mask=np.zeros(z.shape, np.uint8),
+                  step=np.zeros(z.shape, np.uint8))
+
+
+def _plan(cfg, st):
+    """The steps to run, in order: the enabled ones (step 7 always inside special areas),
+    then those the second iteration repeats."""
+    first = [k for k in (2, 3, 4, 5, 6, 7) if cfg.on[k] or (k == 7 and st.special is not None)]
+    again = [k for k in first if k in _REPEATED] if cfg.second_iteration else []
+    return first + again
+
+
+def _record(st, k, hi, lo):
+    """Remove the points step ``k`` found: objects (1) and low blunders (2)."""
+    new_hi = hi & st.keep
+    new_lo = lo & st.keep
+    if st.pit is not None:                # a low blunder lies below all the ground around it
+        new_lo &= st.pit
+    new_lo &= ~new_hi
+    np.copyto(st.mask, OBJECT, where=new_hi)
+    np.copyto(st.mask, LOW, where=new_lo)
+    new = np.logical_or(new_hi, new_lo, out=new_hi)
+    np.copyto(st.step, k, where=new)
+    np.copyto(st.keep, False, where=new)
+    st.removed[k] = st.removed.get(k, 0) + int(np.count_nonzero(new))
+
+
+def _step2_height_distribution(st, cfg, progress):
+    """Step 2, flat terrain only: heights far outside the height distribution."""
+    if cfg.terrain_class == "flat" and cfg.height_min_m is not None and cfg.height_max_m is not None:
+        hi, lo = remove_height_outliers(st.z, st.keep & st.global_ok, cfg.height_min_m,
+                                        cfg.height_max_m)
+        _record(st, 2, hi, lo)
+    else:
+        st.notes.append("2: height distribution skipped (terrain is "
+                        f"{cfg.terrain_class}, the step applies to flat areas only)")
+
+
+def _step3_neighbour_differences(st, cfg, progress):
+    """Step 3: the upper point of neighbouring pairs differing beyond the tolerance."""
+    hi, lo = remove_neighbour_differences(st.z, st.keep, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
+                                          low_weight=cfg.low_weight, labels=st.labels,
+                                          progress=progress)
+    _record(st, 3, hi, lo)
+
+
+def _step4_level_change(st, cfg, progress):
+    """Step 4: raised levels between a jump up and a jump down (buildings)."""
+    hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
+                              max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
+                              k=cfg.neighbour_k, labels=st.labels, progress=progress)
+    _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
+
+
+def _step5_profiles(st, cfg, progress):
+    """Step 5: moving local profiles in X and Y, short then long, with data snooping."""
+    hi, lo = remove_profile_outliers(
+        st.z, cfg.cell, st.keep, lengths_m=cfg.lengths, scale_m=cfg.profile_sigma_m,
+        terrain_class=cfg.terrain_class, homogeneous=cfg.homogeneous,
+        iterations=cfg.snooping_iterations, test=st.global_ok, k=cfg.snooping_k,
+        low_weight=cfg.low_weight, labels=st.labels, progress=progress)
+    _record(st, 5, hi, lo)
+
+
+def _step6_surfaces(st, cfg, progress):
+    """Step 6: moving surfaces (horizontal, inclined plane or polynomial)."""
+    hi, lo = remove_surface_outliers(
+        st.z, cfg.cell, st.keep, size_m=cfg.surface_size_m, scale_m=cfg.surface_sigma_m,
+        terrain_class=cfg.terrain_class, homogeneous=cfg.homogeneous,
+        iterations=cfg.snooping_iterations, test=st.global_ok, k=cfg.snooping_k,
+        low_weight=cfg.low_weight, labels=st.labels, progress=progress)
+    _record(st, 6, hi, lo)
+
+
+def _step7_prediction(st, cfg, progress):
+    """Step 7: local least-squares prediction (everywhere when on, else in special areas)."""
+    hi, lo = remove_prediction_outliers(
+        st.z, cfg.cell, st.keep, radius_m=cfg.prediction_radius_m, scale_m=cfg.prediction_sigma_m,
+        test=st.valid if cfg.on[7] else st.special, k=cfg.snooping_k, low_weight=cfg.low_weight,
+        labels=st.labels, progress=progress)
+    _record(st, 7, hi, lo)
+
+
+#: The steps of the sequence, by number.
+_STEPS = {2: _step2_height_distribution, 3: _step3_neighbour_differences,
+          4: _step4_level_change, 5: _step5_profiles, 6: _step6_surfaces, 7: _step7_prediction}
+
+
+def _result(st, cfg):
+    """The mask, the ``step`` extra and the log's figures."""
+    valid = st.valid
+    n_valid = max(1, int(valid.sum()))
+    st.mask[~valid] = NODATA
+    st.step[~valid] = 255
+    shares = {f"{k} {STEP_NAMES[k]}": st.removed.get(k, 0) / n_valid for k in range(2, 8)}
+    info = {"terrain_class": cfg.terrain_class, "homogeneous": bool(cfg.homogeneous),
+            "model": ("mean / horizontal plane", "linear regression / inclined plane",
+                      "polynomial")[model_degree(cfg.terrain_class, cfg.homogeneous)],
+            "sigma_m": cfg.sigma_m,
+            "steps_on": [k for k in range(1, 8) if cfg.on[k]],
+            "removed_share_by_step": shares,
+            "removed_share": float(sum(st.removed.values()) / n_valid),
+            "low_share": float(np.mean(st.mask[valid] == LOW)),
+            "breakline_regions": st.n_regions,
+            "special_area_share": float(st.special[valid].mean()) if st.special is not None else 0.0,
+            "second_iteration": cfg.second_iteration, "notes": st.notes}
+    return FilterResult(mask=st.mask, extras={"step": st.step}, info=info)
+
+
+def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
+                  terrain_class: str = "rolling", homogeneous: Union[bool, str] = True,
+                  sigma_m: float = 0.15, step1_characterise: bool = True,
+                  step2_height_distribution: bool = True, step3_neighbour_differences: bool = True,
+                  step4_level_change: bool = True, step5_profiles: bool = True,
+                  step6_surfaces: bool = True, step7_prediction: bool = False,
+                  second_iteration: bool = False, height_min_m: Optional[float] = None,
+                  height_max_m: Optional[float] = None, neighbour_k: float = 3.0,
+                  jump_m: float = 2.0, max_building_m: float = 120.0,
+                  short_profile_m: float = 9.0, long_profile_m: float = 25.0,
+                  profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
+                  surface_sigma_m: Optional[float] = None, prediction_radius_m: float = 3.0,
+                  prediction_sigma_m: Optional[float] = None, snooping_k: float = 4.0,
+                  snooping_iterations: int = 1, low_weight: float = 0.02,
+                  steps: Optional[Iterable[int]] = None, breaklines: Optional[np.ndarray] = None,
+                  special_areas: Optional[np.ndarray] = None,
+                  progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+    """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
+
+    Runs the enabled steps in order on the points the previous ones left (see the module
+    docstring); each step is switchable (``stepN_...`` or ``steps``) and reported.
+
+    Parameters
+    ----------
+    z : array_like
+        DSM (2-D, NaN = nodata); not modified.
+    cell_size : float or (float, float)
+        (dx, dy) in metres.
+    terrain_class : {"flat", "rolling", "mountainous"}
+        Terrain type (step 1, :func:`characterise_terrain`, done by
+        :func:`resolve_rascor_params` on the whole raster so that blocks agree).
+    homogeneous : bool or {"homogeneous", "inhomogeneous"}
+        Whether the area is homogeneous (step 1); a flat, inhomogeneous area gets the
+        linear / inclined-plane models (:func:`model_degree`).
+    sigma_m : float
+        Random error of the DSM, metres.
+    step1_characterise ... step7_prediction : bool
+        Switch each step (step 1 only decides the class, in ``resolve``).
+    second_iteration : bool
+        Repeat steps 3, 5, 6 (7) once more on the points left.
+    height_min_m, height_max_m : float or None
+        Step 2 limits (None: step 2 does nothing).
+    neighbour_k : float
+        Critical value of step 3.
+    jump_m, max_building_m : float
+        Step 4: minimum level change and maximum building length, metres.
+    short_profile_m, long_profile_m : float
+        Step 5 profile lengths, metres.
+    profile_sigma_m, surface_sigma_m, prediction_sigma_m : float or None
+        Standard deviation of a height about the model of steps 5, 6, 7 (None: sigma_m).
+    surface_size_m : float
+        Step 6 window edge, metres.
+    prediction_radius_m : float
+        Step 7 neighbourhood radius, metres.
+    snooping_k : float
+        Critical value of the data snooping of steps 5-7.
+    snooping_iterations : int
+        Fits per length / direction (step 5) and per surface (step 6).
+    low_weight : float
+        Weight factor of points below the reference (0 < p <= 1).
+    steps : iterable of int, optional
+        If given, overrides the switches: the step numbers (1-7) to run.
+    breaklines : array_like of bool, optional
+        Cells crossed by a break line (rasterised by the plugin; not a Param).
+    special_areas : array_like of bool, optional
+        Cells where only the local filters (steps 3 and 7) run (not a Param).
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low blunder, 255 nodata), ``extras["step"]``
+        (uint8: 0 kept, k removed by step k, 255 nodata) and ``info`` with
+        ``removed_share_by_step`` (share of valid cells removed by each step).
+    """
+    z = as_surface(z)
+    cfg = _check_settings(
+        cell_size, terrain_class=terrain_class, homogeneous=homogeneous, sigma_m=sigma_m,
+        switches=(step1_characterise, step2_height_distribution, step3_neighbour_differences,
+                  step4_level_change, step5_profiles, step6_surfaces, step7_prediction),
+        steps=steps, second_iteration=second_iteration, height_min_m=height_min_m,
+        height_max_m=height_max_m, neighbour_k=neighbour_k, jump_m=jump_m,
+        max_building_m=max_building_m, short_profile_m=short_profile_m,
+        long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
+        surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,
+        prediction_radius_m=prediction_radius_m, prediction_sigma_m=prediction_sigma_m,
+        snooping_k=snooping_k, snooping_iterations=snooping_iterations, low_weight=low_weight)
+    report(progress, 0.0)
+    st = _start(z, breaklines, special_areas)
+    # a gap between crowns or roofs is at the level of the other low cells around it and is
+    # no blunder (Jacobsen's weight factor alone takes it for one where the ground shows
+    # only in such gaps: a closed canopy at 4 m cells)
+    st.pit = below_surroundings(z, cfg.cell, 3.0 * cfg.sigma_m * np.sqrt(2.0))
+    plan = _plan(cfg, st)
+    ends = np.cumsum([_COST[k] for k in plan]) / max(1e-9, sum(_COST[k] for k in plan))
+    for k, a, b in zip(plan, np.concatenate([[0.0], ends[:-1]]), ends):
+        _STEPS[k](st, cfg, sub_progress(progress, a, b))
+        report(progress, b)
+    result = _result(st, cfg)
+    report(progress, 1.0)
+    return result

@@ -1,0 +1,356 @@
+"""RASCOR steps 2-4: height distribution, neighbour differences, sudden change of level.
+
+Jacobsen (2004): each step removes what the others miss, on the points the previous ones
+left; these three test heights against the distribution of heights (step 2), against
+their neighbours (step 3) and along X and Y profiles for raised levels (step 4).
+"""
+from typing import Callable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from ..common import as_cell_size, report, sub_progress, transpose
+from .kernels import _BAND_CELLS, _bands
+
+
+def remove_height_outliers(z: np.ndarray, keep: np.ndarray, height_min_m: float,
+                           height_max_m: float) -> Tuple[np.ndarray, np.ndarray]:
+    """Step 2: remove heights far outside the distribution of heights (flat areas only).
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM.
+    keep : ndarray of bool
+        Cells still in the data (tested and used).
+    height_min_m, height_max_m : float
+        Limits; :func:`resolve_rascor_params` sets them to Tukey's far fences
+        ``Q1 - 3 IQR`` and ``Q3 + 3 IQR`` of the heights, and at least 20 m outside the
+        range of the terrain's lower envelope (gross errors, not embankments).
+
+    Returns
+    -------
+    high, low : ndarray of bool
+        Cells above ``height_max_m`` (objects, high blunders) / below ``height_min_m``
+        (low blunders).
+    """
+    with np.errstate(invalid="ignore"):
+        return keep & (z > height_max_m), keep & (z < height_min_m)
+
+
+# ------------------------------------------------------------------- step 3
+_DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
+
+
+def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: float, k: float = 3.0,
+                                 low_weight: float = 0.02, labels: Optional[np.ndarray] = None,
+                                 progress: Optional[Callable[[float], None]] = None
+                                 ) -> Tuple[np.ndarray, np.ndarray]:
+    """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
+
+    For each of the 8 directions ``e``, with ``u`` the tested cell, ``l = u + e`` its lower
+    neighbour and ``b = u + 2e`` the next one, ``u`` is removed when
+
+    ``z_u - z_l > k sigma sqrt(2) + max(0, z_l - z_b)``  (the local slope beyond the pair;
+    where ``b`` is missing, the slope above ``u``; with neither, the pair is not tested)
+
+    unless the terrain above ``u`` rises at least as steeply (``z_{u-e} - z_u >= z_u - z_l
+    - tol``: a straight or concave slope, e.g. the toe of an embankment). A point that is
+    a pit along all four axes (on both sides, within 2 cells, a point higher by more than
+    the tolerance widened by the weight factor, ``tol / sqrt(low_weight)``) is a low
+    blunder (class 2, up to 3 cells wide) and takes no part in the pairs, so it does not
+    take its neighbours with it; a ditch is no pit along its own axis and stays. Pairs never cross a region boundary
+    (break line).
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM.
+    keep : ndarray of bool
+        Cells still in the data.
+    sigma_m : float
+        Random error of the DSM, metres.
+    k : float
+        Critical value of the tolerance.
+    low_weight : float
+        Weight factor of low points (0 < p <= 1).
+    labels : ndarray of int, optional
+        Break-line regions (:func:`break_regions`).
+    progress : callable, optional
+        ``progress(fraction)``, called every band of rows; it may raise ``Cancelled``.
+
+    Returns
+    -------
+    high, low : ndarray of bool
+    """
+    tol = k * sigma_m * np.sqrt(2.0)
+    tol_low = tol / np.sqrt(low_weight)
+    rows, cols = z.shape
+    zp = np.full((rows + 2 * _PAD, cols + 2 * _PAD), np.nan, np.float32)
+    inner = (slice(_PAD, -_PAD), slice(_PAD, -_PAD))
+    zp[inner] = z
+    zp[inner][~keep] = np.nan
+    lp = None
+    if labels is not None:
+        lp = np.full(zp.shape, -1, np.int64)
+        lp[inner] = labels
+    low = np.zeros(z.shape, bool)
+    high = np.zeros(z.shape, bool)
+    with np.errstate(invalid="ignore"):
+        _test_bands(_pits, tol_low, zp, lp, labels, keep, 2, low, sub_progress(progress, 0.0, 0.4))
+        zp[inner][low] = np.nan
+        _test_bands(_pairs, tol, zp, lp, labels, keep & ~low, 1, high,
+                    sub_progress(progress, 0.4, 1.0))
+    return high, low
+
+
+#: Padding (cells) of step 3's arrays: the tests reach 2 cells.
+_PAD = 2
+#: The 4 axes of step 3's pairs and pits.
+_AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+class _RegionNeighbours:
+    """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of every cell of the rows ``r0:r1``,
+    NaN where it lies in another break-line region than the cell."""
+
+    def __init__(self, src, lp, labels, r0, r1):
+        self.src, self.lp, self.lab, self.r0, self.r1 = src, lp, labels[r0:r1], r0, r1
+        self.cols = labels.shape[1]
+
+    def __call__(self, dr, dc):
+        rows = slice(_PAD + self.r0 + dr, _PAD + self.r1 + dr)
+        cols = slice(_PAD + dc, _PAD + dc + self.cols)
+        return np.where(self.lp[rows, cols] == self.lab, self.src[rows, cols], np.nan)
+
+
+class _GatheredNeighbours:
+    """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of the candidate cells, whose flat indices
+    in the padded array of width ``width`` are ``base``."""
+
+    def __init__(self, flat, base, width):
+        self.flat, self.base, self.width = flat, base, width
+
+    def __call__(self, dr, dc):
+        return self.flat[self.base + (dr * self.width + dc)]
+
+
+def _test_bands(test, tol_test, src, lp, labels, keep, reach, out, progress):
+    """Run ``test(nb, keep, tol_test)`` (:func:`_pits` or :func:`_pairs`) on every cell of
+    ``keep``, in bands of rows, into ``out``.
+
+    Bands of rows keep the few temporaries of each in the cache. Without break lines, only
+    the candidates are tested: cells with a neighbour (within ``reach`` cells along the 8
+    directions) lower (``reach`` 1) / higher (``reach`` 2) by more than ``tol_test``, which
+    every removal needs; their neighbours are gathered.
+    """
+    rows, cols = keep.shape
+    width = cols + 2 * _PAD
+    flat = src.ravel()
+    bands = _bands(rows, width, 4 * _BAND_CELLS)
+    for i, b in enumerate(bands):
+        report(progress, i / len(bands))
+        r0, r1 = b.start, b.stop
+        if lp is not None:
+            out[b] = test(_RegionNeighbours(src, lp, labels, r0, r1), keep[b], tol_test)
+            continue
+        ext = None
+        for dr, dc in _DIRS8:
+            for m in range(1, reach + 1):
+                v = src[_PAD + r0 + m * dr:_PAD + r1 + m * dr, _PAD + m * dc:_PAD + m * dc + cols]
+                ext = v.copy() if ext is None else (np.fmax(ext, v, out=ext) if reach == 2
+                                                     else np.fmin(ext, v, out=ext))
+        ext -= src[_PAD + r0:_PAD + r1, _PAD:_PAD + cols]
+        cand = ext > tol_test if reach == 2 else ext < -tol_test
+        cand &= keep[b]
+        idx = np.flatnonzero(cand)
+        ob = out[b]
+        ob[:] = False
+        if not idx.size:
+            continue
+        base = idx + (idx // cols) * (2 * _PAD) + (_PAD + r0) * width + _PAD
+        ob.ravel()[idx] = test(_GatheredNeighbours(flat, base, width), np.ones(idx.size, bool), tol_test)
+
+
+def _pits(nb, kb, tol_low):
+    """Low blunders: pits in every direction. Along each of the 4 axes the cell is a pit
+    when, on both sides within 2 cells, a point lies higher by more than ``tol_low``
+    (fills blunders up to 3 cells wide); a ditch or a cut continues along its own axis,
+    so it is no pit there and stays."""
+    zc = nb(0, 0)
+    n_axes = np.zeros(zc.shape, np.int8)
+    n_pits = np.zeros(zc.shape, np.int8)
+    for dr, dc in _AXES:
+        s0 = np.fmax(nb(dr, dc), nb(2 * dr, 2 * dc))
+        s0 -= zc
+        s1 = np.fmax(nb(-dr, -dc), nb(-2 * dr, -2 * dc))
+        s1 -= zc
+        has = np.isfinite(s0)
+        has &= np.isfinite(s1)
+        n_axes += has
+        has &= s0 > tol_low
+        has &= s1 > tol_low
+        n_pits += has
+    lo = kb & (n_axes >= 2)
+    lo &= n_pits == n_axes
+    return lo
+
+
+def _pairs(nb, kb, tol):
+    """The upper points of neighbouring pairs differing beyond ``tol`` and the local slope
+    (see :func:`remove_neighbour_differences`)."""
+    zc = nb(0, 0)
+    hi = np.zeros(zc.shape, bool)
+    for dr, dc in _AXES:
+        zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
+        d_f, d_r = zc - zf, zc - zr
+        for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
+                                    (d_r, d_f, zr, (-2 * dr, -2 * dc))):
+            # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
+            # lie in the region of l too (nb checks the centre's region for both)
+            beyond = zl - nb(*far)
+            up = -up_neg                           # rise above u: z_{u-e} - z_u
+            # the local slope: beyond the pair, else above u; neither known: no test
+            np.copyto(beyond, up, where=np.isnan(beyond))
+            np.maximum(beyond, 0.0, out=beyond)
+            beyond += tol
+            t = dz > beyond
+            # unless the terrain above u rises at least as steeply (straight or concave)
+            t &= ~(up >= dz - tol)
+            hi |= t
+    hi &= kb
+    return hi
+
+
+# ------------------------------------------------------------------- step 4
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
+    """Cells between a jump up and a later jump down along the rows (axis 1).
+
+    Works on the remaining points of all rows concatenated in row order (a 1-D array), so
+    "the previous point of the profile" is simply the previous element: profile starts
+    (a new row, or a new break-line region along the row) reset the scans. Only the steps
+    larger than ``jump`` can be jumps; the tests run on those candidates alone.
+    """
+    out = np.zeros(z.shape, bool)
+    flat = np.flatnonzero(keep)           # within a row, differences of flat indices are
+    n = flat.size                         # differences of column positions
+    if n < 4:
+        return out
+    P = 3
+    zp = np.full(n + 2 * P, np.nan, np.float32)          # padded: i - 3 .. i + 2 exist
+    zc = zp[P:P + n]
+    zc[:] = z[keep]
+    sp = np.zeros(n + 2 * P, bool)
+    same = sp[P:P + n]                                    # same profile as the previous point
+    same[:] = True
+    cnt = np.count_nonzero(keep, axis=1)
+    same[(np.cumsum(cnt) - cnt)[cnt > 0]] = False         # the first point of each row
+    if labels is not None:
+        lab = labels[keep]
+        same[1:] &= lab[1:] == lab[:-1]
+    d = zc[1:] - zc[:-1]                                  # the step to the next point
+    with np.errstate(invalid="ignore"):
+        i = 1 + np.flatnonzero(np.abs(d) > jump)
+    i = i[same[i]]
+    # candidates i: the step from i-1 to i exceeds jump (a jump up or down at i)
+    j = i + P
+    z0, z1, z2, z3 = zp[j], zp[j - 1], zp[j - 2], zp[j - 3]   # z_i, z_{i-1}, z_{i-2}, z_{i-3}
+    s2 = sp[j - 1]
+    s3 = s2 & sp[j - 2]
+    zn, znn = zp[j + 1], zp[j + 2]
+    n1 = sp[j + 1]
+    n2 = n1 & sp[j + 2]
+    with np.errstate(invalid="ignore"):
+        # jump up at i: from p = i-1 (ground) to i; slope allowance = rise before p
+        rise_before = np.where(s2, np.maximum(z1 - z2, 0.0), 0.0)
+        up = z0 - z1 - rise_before > jump
+        # jump down at i: from i-1 (high) to i (ground); allowance = fall after i
+        fall_after = np.where(n1, np.maximum(z0 - zn, 0.0), 0.0)
+        down = z1 - z0 - fall_after > jump
+        # no vegetation beside the jump: the 3 ground points outside it lie on a smooth
+        # line; crowns and bushes are rough (the roof side is not tested: mixed wall /
+        # roof cells make it rough)
+        up &= np.where(s3, np.abs(z1 - 2 * z2 + z3) <= veg_tol, s2)
+        down &= np.where(n2, np.abs(z0 - 2 * zn + znn) <= veg_tol, n1)
+    # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
+    # A raised level is a run from a jump up to the next event when that is a jump down.
+    starts = np.flatnonzero(~same)
+    ev = np.concatenate([starts, i[up], i[down]])
+    typ = np.concatenate([np.zeros(starts.size, np.int8), np.ones(int(up.sum()), np.int8),
+                          np.full(int(down.sum()), 2, np.int8)])
+    order = np.argsort(ev, kind="stable")
+    ev, typ = ev[order], typ[order]
+    k = np.flatnonzero((typ[:-1] == 1) & (typ[1:] == 2))
+    a, b = ev[k], ev[k + 1]
+    pos = flat
+    ok = (pos[b] - pos[a]) <= lmax
+    a, b = a[ok], b[ok]
+    lens = b - a
+    if not lens.size:
+        return out
+    first = np.repeat(a, lens)
+    c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
+    pa = first - 1                             # the ground point before the jump up
+    bb = np.repeat(b, lens)                    # the ground point after the jump down
+    z0, z1 = zc[pa], zc[bb]
+    t = (pos[c] - pos[pa]) / np.maximum(pos[bb] - pos[pa], 1)
+    ground = z0 + (z1 - z0) * t
+    with np.errstate(invalid="ignore"):
+        hit = zc[c] - ground > 0.5 * jump
+    out.ravel()[flat[c[hit]]] = True
+    return out
+
+
+def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                         jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
+                         labels: Optional[np.ndarray] = None, passes: int = 2,
+                         progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
+    """Step 4: sudden change of level along X and Y profiles (buildings).
+
+    Along each profile (consecutive remaining points, never across a break line) a *jump
+    up* is a rise of more than ``jump_m`` beyond the slope of the terrain before it, a
+    *jump down* a fall of more than ``jump_m`` beyond the slope after it. The points from
+    a jump up to the next jump down are removed when the two are at most
+    ``max_building_m`` apart, no other jump lies between, the points lie at least
+    ``jump_m / 2`` above the line joining the ground points outside the jumps, and there is
+    no vegetation beside the jumps (the three points outside each jump lie on a smooth
+    line: second difference below ``2 k sigma``; ground is smooth, crowns and bushes are
+    not). X and Y profiles are combined by union; ``passes``
+    repetitions peel nested levels (roof superstructures). ``progress(fraction)`` is
+    called every band of rows (it may raise ``Cancelled``).
+
+    Returns
+    -------
+    high : ndarray of bool
+    """
+    dx, dy = as_cell_size(cell_size)
+    veg_tol = 2.0 * k * sigma_m
+    cur = keep.copy()
+    high = np.zeros(z.shape, bool)
+    # Y profiles run along the rows of the transposed arrays; bands of whole rows
+    views = [(z, labels, int(max_building_m / dx), lambda a: a),
+             (transpose(z), None if labels is None else transpose(labels),
+              int(max_building_m / dy), transpose)]
+    redo = [None, None]
+    for p in range(passes):
+        new = np.zeros(z.shape, bool)
+        for d, ((zz, lab, lmax, fwd), todo) in enumerate(zip(views, redo)):
+            c = fwd(cur)
+            found = np.zeros(zz.shape, bool)
+            bands = _bands(*zz.shape, 16 * _BAND_CELLS)
+            for i, b in enumerate(bands):
+                report(progress, (2 * p + d + i / len(bands)) / (2 * passes))
+                # a profile's result depends on that profile alone: later passes redo
+                # only the bands of rows / columns where something was removed
+                if todo is None or todo[b].any():
+                    found[b] = _raised_rows(zz[b], c[b], None if lab is None else lab[b],
+                                            jump_m, lmax, veg_tol)
+            new |= fwd(found)
+        new &= cur
+        if not new.any():
+            break
+        high |= new
+        cur &= ~new
+        redo = [new.any(axis=1), new.any(axis=0)]
+    return high
+
+

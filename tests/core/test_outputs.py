@@ -1,0 +1,208 @@
+"""The write side of core.grid: formats by extension, work files, stale leftovers, long names,
+creation options and the cloud-optimised GeoTIFF."""
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from bare_earth.core import grid
+from bare_earth.core.codes import NODATA
+
+gdal = pytest.importorskip("osgeo.gdal")
+GT = (500000.0, 0.5, 0.0, 5400000.0, 0.0, -0.5)
+
+
+def _info(tmp_path):
+    src = grid.write_array(tmp_path / "dsm.tif", np.zeros((6, 7), np.float32), GT, 32632)
+    return grid.open_dsm(src)
+
+
+def _scene():
+    d = (np.arange(42, dtype=np.float32).reshape(6, 7) * 0.25 + 100).astype(np.float32)
+    d[0, 0] = np.nan
+    m = np.array([[0, 1, 2, 255, 0, 1, 2]] * 6, np.uint8)
+    return d, m
+
+
+def _read(path):
+    ds = gdal.Open(str(path))
+    a = ds.GetRasterBand(1).ReadAsArray()
+    ds = None
+    return a
+
+
+def _partials(folder):
+    return sorted(p for p in os.listdir(folder) if ".partial" in p)
+
+
+def _write(info, outputs, **kw):
+    d, m = _scene()
+    with grid.OutputSet(info) as out:
+        for key, path in outputs.items():
+            if key == "mask":
+                out.add(key, path, "Byte", nodata=NODATA, mask_style=True)
+                out.write(key, m)
+            else:
+                out.add(key, path, "Float32", nodata=float("nan"), **kw)
+                out.write(key, d)
+        out.commit()
+    return d, m
+
+
+@pytest.mark.parametrize("ext,driver", [(".tif", "GTiff"), (".img", "HFA"), (".sdat", "SAGA"),
+                                        (".asc", "AAIGrid"), (".nc", "netCDF")])
+def test_each_offered_format_is_written_in_that_format(tmp_path, ext, driver):
+    if gdal.GetDriverByName(driver) is None:
+        pytest.skip(f"GDAL has no {driver} driver")
+    info = _info(tmp_path)
+    d, m = _write(info, {"dtm": tmp_path / f"dtm{ext}", "mask": tmp_path / f"mask{ext}"})
+    for name, want in (("dtm", d), ("mask", m)):
+        ds = gdal.Open(str(tmp_path / f"{name}{ext}"))
+        assert ds.GetDriver().ShortName == driver
+        got = ds.GetRasterBand(1).ReadAsArray()
+        np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], atol=1e-4)
+        assert np.allclose(ds.GetGeoTransform(), GT)
+        ds = None
+    assert _partials(tmp_path) == []
+    assert (tmp_path / "mask.qml").exists()
+
+
+def test_saga_grid_readable_and_nothing_left_behind(tmp_path):
+    info = _info(tmp_path)
+    _write(info, {"dtm": tmp_path / "dtm.sdat"})
+    ds = gdal.Open(str(tmp_path / "dtm.sdat"))
+    assert ds.GetDriver().ShortName == "SAGA" and (tmp_path / "dtm.sgrd").exists()
+    assert {"dtm.sdat", "dtm.sgrd"} <= {os.path.basename(f) for f in ds.GetFileList()}
+    assert not [p for p in os.listdir(tmp_path) if "partial" in p]
+
+
+@pytest.mark.parametrize("ext", [".vrt", ".xyz", ".gpkg", ".png", ".jpg"])
+def test_formats_not_offered_are_refused_naming_the_offered_ones(tmp_path, ext):
+    with pytest.raises(ValueError, match=r"Formats offered: GeoTIFF \(\.tif, \.tiff\)"):
+        grid.check_output_path(tmp_path / f"dtm{ext}")
+    with pytest.raises(ValueError, match="Formats offered"):
+        _write(_info(tmp_path), {"dtm": tmp_path / f"dtm{ext}"})
+    assert not (tmp_path / f"dtm{ext}").exists() and _partials(tmp_path) == []
+
+
+def test_single_band_formats_refuse_two_bands(tmp_path):
+    with pytest.raises(ValueError, match="2 bands.*holds 1"):
+        grid.check_output_path(tmp_path / "curv.asc", bands=2)
+    grid.check_output_path(tmp_path / "curv.tif", bands=2)
+
+
+def test_missing_or_unwritable_folder_refused_naming_it(tmp_path):
+    missing = tmp_path / "no" / "such"
+    with pytest.raises(ValueError, match=f"output folder '{missing}' does not exist"):
+        grid.check_output_path(missing / "dtm.tif")
+    with pytest.raises(ValueError, match="output folder '/proc' is not writable"):
+        grid.check_output_path("/proc/dtm.tif")
+
+
+def test_long_valid_name_is_written(tmp_path):
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    long_dtm = tmp_path / ("d" * (limit - 4) + ".tif")         # the longest valid name
+    long_mask = tmp_path / ("m" * (limit - 5) + ".tiff")
+    grid.check_output_path(long_dtm)
+    d, m = _write(_info(tmp_path), {"dtm": long_dtm, "mask": long_mask})
+    assert _read(long_dtm)[1, 1] == d[1, 1]
+    assert (_read(long_mask) == m).all()
+    assert _partials(tmp_path) == []
+    with pytest.raises(ValueError, match="file name is"):
+        grid.check_output_path(tmp_path / ("x" * limit + ".tif"))
+
+
+def test_work_files_are_hidden_and_not_named_as_rasters(tmp_path):
+    info = _info(tmp_path)
+    out = grid.OutputSet(info)
+    out.add("dtm", tmp_path / "dtm.tif", "Float32")
+    (work,) = _partials(tmp_path)
+    assert work.startswith(".dtm.") and work.endswith(".partial")
+    out.discard()
+    assert _partials(tmp_path) == []
+
+
+KILLED_RUN = textwrap.dedent("""
+    import os, sys
+    sys.path.insert(0, {plugins!r})
+    import numpy as np
+    from bare_earth.core import grid
+    info = grid.open_dsm({dsm!r})
+    out = grid.OutputSet(info)
+    out.add("dtm", {dtm!r}, "Float32")
+    out.write("dtm", np.ones(info.shape, np.float32))
+    out.flush()
+    os._exit(9)                                    # killed: no discard, no commit
+""")
+
+
+def test_killed_run_leftovers_removed_by_the_next_run_of_that_output(tmp_path):
+    info = _info(tmp_path)
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__)))
+    code = KILLED_RUN.format(plugins=plugins, dsm=info.path, dtm=str(tmp_path / "dtm.tif"))
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 9
+    (left,) = _partials(tmp_path)
+    assert gdal.Open(str(tmp_path / left)) is not None           # GDAL would open it: it must go
+    (tmp_path / "dtm.partial-0123abcd.tif").write_bytes(b"old")  # an older version's leftover
+    other = tmp_path / f".other.{os.getppid():010d}-0123abcd.partial"   # another output's, alive
+    other.write_bytes(b"x")
+    _write(info, {"dtm": tmp_path / "dtm.tif"})
+    assert _partials(tmp_path) == [other.name]
+    assert _read(tmp_path / "dtm.tif")[1, 1] == 100.25 + 0.25 * 7
+
+
+def test_a_running_output_is_not_taken_for_a_leftover(tmp_path):
+    info = _info(tmp_path)
+    with grid.OutputSet(info) as first:
+        first.add("dtm", tmp_path / "dtm.tif", "Float32")
+        assert grid.remove_stale_partials(tmp_path / "dtm.tif") == []
+        assert len(_partials(tmp_path)) == 1
+
+
+def test_output_equal_to_input_or_shared_path_refused(tmp_path):
+    info = _info(tmp_path)
+    with grid.OutputSet(info) as out, pytest.raises(ValueError, match="is the input raster"):
+        out.add("dtm", info.path, "Float32")
+    with grid.OutputSet(info) as out, pytest.raises(ValueError, match="have one path"):
+        out.add("dtm", tmp_path / "a.tif", "Float32")
+        out.add("mask", tmp_path / "a.tif", "Byte")
+    assert _partials(tmp_path) == []
+
+
+def test_creation_options_and_cloud_optimised_geotiff(tmp_path):
+    info = _info(tmp_path)
+    opts = grid.parse_creation_options("COMPRESS=LZW|PREDICTOR=2")
+    with grid.write_options(opts):
+        _write(info, {"dtm": tmp_path / "lzw.tif"})
+    ds = gdal.Open(str(tmp_path / "lzw.tif"))
+    assert ds.GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW"
+    with grid.write_options(cog=True):
+        _write(info, {"dtm": tmp_path / "cog.tif", "mask": tmp_path / "cogmask.tif"})
+    ds = gdal.Open(str(tmp_path / "cog.tif"))
+    assert ds.GetMetadata("IMAGE_STRUCTURE").get("LAYOUT") == "COG"
+    ds = gdal.Open(str(tmp_path / "cogmask.tif"))
+    assert ds.GetRasterBand(1).GetColorTable() is not None
+    assert _partials(tmp_path) == []
+    with pytest.raises(ValueError, match="allowed values"):
+        grid.parse_creation_options("COMPRESS=NOPE")
+    with pytest.raises(ValueError, match="no creation option 'FOO'"):
+        grid.parse_creation_options("FOO=1")
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        grid.parse_creation_options("COMPRESS")
+
+
+def test_mask_palette_names_only_the_mask_codes(tmp_path):
+    from bare_earth.core.codes import MASK_CODES, MASK_COLOURS
+    _write(_info(tmp_path), {"mask": tmp_path / "mask.tif"})
+    ds = gdal.Open(str(tmp_path / "mask.tif"))
+    b = ds.GetRasterBand(1)
+    ct = b.GetColorTable()
+    names = b.GetCategoryNames()
+    for code in range(ct.GetCount()):    # a TIFF palette holds 256 RGB entries: only 4 are named
+        if code in MASK_CODES:
+            assert ct.GetColorEntry(code)[:3] == MASK_COLOURS[code][:3] and names[code] == MASK_CODES[code]
+        else:
+            assert not names[code]

@@ -1,0 +1,77 @@
+"""Found in the toolbox, helped by the README: tags through QGIS's own toolbox search, and
+every help button's anchor against the README's headings (computed as GitHub does)."""
+import re
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.qgis
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _algorithms(qgis_app):
+    from qgis.core import QgsApplication
+    return QgsApplication.processingRegistry().providerById("bareearth").algorithms()
+
+
+def _toolbox_search(text):
+    """Ids of the Bare Earth algorithms QGIS's toolbox shows for ``text`` in its search box."""
+    from qgis.core import QgsApplication
+    from qgis.gui import QgsProcessingToolboxProxyModel
+    from qgis.PyQt.QtCore import QModelIndex
+    model = QgsProcessingToolboxProxyModel(None, QgsApplication.processingRegistry())
+    model.setFilters(QgsProcessingToolboxProxyModel.FilterToolbox)
+    model.setFilterString(text)
+    found = set()
+
+    def walk(parent):
+        for r in range(model.rowCount(parent)):
+            idx = model.index(r, 0, parent)
+            alg = model.toolboxModel().algorithmForIndex(model.mapToSource(idx))
+            if alg is not None and alg.provider().id() == "bareearth":
+                found.add(alg.id())
+            walk(idx)
+    walk(QModelIndex())
+    return found
+
+
+def test_each_algorithm_found_by_the_words_users_type(qgis_app):
+    algs = _algorithms(qgis_app)
+    dtm, ground = _toolbox_search("DTM"), _toolbox_search("ground")
+    lidar, ortho = _toolbox_search("lidar"), _toolbox_search("orthophoto")
+    for a in algs:
+        assert a.id() in dtm | ground, f"{a.id()} is found neither by 'DTM' nor by 'ground'"
+        assert a.tags(), a.id()
+        points = a.group() == "Point clouds" or a.parameterDefinition("INPUT_POINTS") is not None
+        if points:
+            assert a.id() in lidar, f"{a.id()} works on points but 'lidar' does not find it"
+        if a.groupId() == "orthophoto":
+            assert a.id() in ortho, a.id()
+    filters = {a.id() for a in algs if a.groupId() == "filters"}
+    assert filters and filters <= _toolbox_search("terrain") & _toolbox_search("bare earth")
+    assert "bareearth:filldtm" in _toolbox_search("nodata")
+    assert not _toolbox_search("xyzzy")                           # the search is not "everything"
+
+
+def github_slug(heading):
+    """GitHub's heading anchor (github-slugger): lower case, keep letters, digits, '_', '-' and
+    spaces; spaces to '-'."""
+    return re.sub(r"[^a-z0-9_\- ]", "", heading.lower()).replace(" ", "-")
+
+
+def test_github_slug_of_a_readme_heading():
+    assert github_slug("`bareearth:slopeprofile`: Slope-profile filter (Luong Chinh Ke 2002)") == \
+        "bareearthslopeprofile-slope-profile-filter-luong-chinh-ke-2002"
+
+
+def test_help_urls_point_at_readme_sections_that_exist(qgis_app):
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = re.sub(r"```.*?```", "", text, flags=re.S)
+    headings = [m.group(1).strip() for m in re.finditer(r"^#{1,6} (.+)$", text, flags=re.M)]
+    anchors = {github_slug(h): h for h in headings}
+    for a in _algorithms(qgis_app):
+        url = a.helpUrl()
+        assert url.startswith("https://github.com/") and "#" in url, url
+        anchor = url.split("#", 1)[1]
+        assert anchor in anchors, f"{a.id()}: #{anchor} is not a heading of README.md"
+        assert f"`{a.id()}`" in anchors[anchor], f"{a.id()}'s help opens '{anchors[anchor]}'"
