@@ -50,9 +50,13 @@ The rows (each with its figure of merit, total error in percent unless said othe
   defaults measured on the whole DSM fail) against their truth masks: total error per cell
   (ground = mask 0), and the DTM's RMSE against the true terrain.
 
-Floor. Each point row also shows ``floor``: the same scoring of the reference's own DTM
-(the truth's ground points, mean per cell on the row's grid, gaps filled harmonically):
-what the protocol itself costs on that row (0 for the mask-scored rows).
+Floor and raw. Each point row also shows ``floor``: the same scoring of the reference's own
+DTM (the truth's ground points, mean per cell on the row's grid, gaps filled harmonically):
+what the protocol itself costs on that row (0 for the mask-scored rows); and every row
+``raw``: the input DSM itself scored as the DTM (a filter that removes nothing). Where raw
+is high and the filters are no better (``hexbin-crop`` at 4 m: the lowest point of a 4 m
+cell on a steep slope lies metres below the cell's other ground points), the row measures
+the lowest-point grid, not the filters.
 
 Fixed halves. The sources (a sample, a file, the opengeos raster, a synthetic kind) are
 listed in a fixed order (ISPRS samples by name, LiDAR files by name, opengeos, synthetic
@@ -339,6 +343,10 @@ def run_matrix(data, methods, only=None, progress=print):
             fl = getattr(score, "floor", None)
             fl = fl() if fl is not None else None
             row["floor"] = fl["total"] if fl is not None else 0.0
+            # the input itself taken as the DTM (every cell ground): what removing nothing scores
+            raw = score(type("R", (), {"dtm": np.asarray(z, np.float32), "mask": np.where(
+                np.isfinite(z), 0, 255).astype(np.uint8)}))
+            row["raw"] = raw["total"]
             for m in methods:
                 t1 = time.perf_counter()
                 try:
@@ -408,10 +416,11 @@ def format_summary(summary, methods):
 
 
 def format_matrix(rows, methods):
-    head = f"{'input (total error %)':<36} {'half':<4} {'floor':>6}" + "".join(f"{m[:12]:>13}" for m in methods)
+    head = (f"{'input (total error %)':<36} {'half':<4} {'floor':>6} {'raw':>6}"
+            + "".join(f"{m[:12]:>13}" for m in methods))
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['row']:<36} {r['half']:<4} {_fmt(r.get('floor')):>6}" + "".join(
+        lines.append(f"{r['row']:<36} {r['half']:<4} {_fmt(r.get('floor')):>6} {_fmt(r.get('raw')):>6}" + "".join(
             f"{_fmt(r['filters'].get(m, {}).get('total')):>13}" for m in methods))
     return "\n".join(lines)
 
@@ -428,9 +437,10 @@ def markdown(record):
         out.append(f"| {m} | {_fmt(s.get('mean_all'))} | {_fmt(s.get('mean_A'))} | {_fmt(s.get('mean_B'))} | "
                    f"{_fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | {_fmt(s.get('opengeos_rmse_m'))} |")
     out += ["", "<details><summary>The whole matrix</summary>", "",
-            "| input | half | floor | " + " | ".join(methods) + " |", "|---|---|---|" + "---|" * len(methods)]
+            "| input | half | floor | raw | " + " | ".join(methods) + " |",
+            "|---|---|---|---|" + "---|" * len(methods)]
     for r in rows:
-        out.append(f"| `{r['row']}` | {r['half']} | {_fmt(r.get('floor'))} | " + " | ".join(
+        out.append(f"| `{r['row']}` | {r['half']} | {_fmt(r.get('floor'))} | {_fmt(r.get('raw'))} | " + " | ".join(
             _fmt(r["filters"].get(m, {}).get("total")) for m in methods) + " |")
     out += ["", "</details>", "", "```", ANCHORS, "```"]
     return "\n".join(out) + "\n"
