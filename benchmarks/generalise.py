@@ -454,7 +454,12 @@ def write_readme(text, path=README):
         post = rest.split(MARK_END, 1)[1]
         src = pre + block + post
     else:
-        src = src.rstrip("\n") + "\n\n## Generalisation benchmark\n\n" + block + "\n"
+        head = "### Generalisation matrix (every filter on data nobody tuned it on)\n\n"
+        anchor = "### Speed and memory"
+        if anchor in src:
+            src = src.replace(anchor, head + block + "\n\n" + anchor, 1)
+        else:
+            src = src.rstrip("\n") + "\n\n" + head + block + "\n"
     path.write_text(src, encoding="utf-8")
 
 
