@@ -1,4 +1,5 @@
-"""Version and links, read from metadata.txt (the one place they are written)."""
+"""Version, links and the icon path: plain constants with no QGIS import, so the provider and
+the algorithms both import them from here (neither imports the other for them)."""
 import configparser
 import os
 
@@ -7,3 +8,6 @@ _cp.read(os.path.join(os.path.dirname(__file__), "metadata.txt"), encoding="utf-
 VERSION = _cp.get("general", "version", fallback="0.0.0")
 HOMEPAGE = _cp.get("general", "homepage", fallback="")
 TRACKER = _cp.get("general", "tracker", fallback="")
+
+#: The plugin's icon (provider and every algorithm).
+ICON = os.path.join(os.path.dirname(__file__), "icons", "bare_earth.svg")

@@ -1,12 +1,8 @@
 """The Bare Earth Processing provider (id ``bareearth``)."""
-import os
-
 from qgis.core import QgsProcessingProvider
 from qgis.PyQt.QtGui import QIcon
 
-from .meta import VERSION
-
-ICON = os.path.join(os.path.dirname(__file__), "icons", "bare_earth.svg")
+from .meta import ICON, VERSION
 
 
 class BareEarthProvider(QgsProcessingProvider):

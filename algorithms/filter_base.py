@@ -32,8 +32,7 @@ from qgis.PyQt.QtGui import QIcon
 from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
-from ..meta import HOMEPAGE
-from ..provider import ICON
+from ..meta import HOMEPAGE, ICON
 from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())

@@ -297,7 +297,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             fill = self.parameterAsBool(parameters, self.FILL_EMPTY, context)
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
-                                                                                  pf._unit_name(cloud)))
+                                                                                  pf.unit_name(cloud)))
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             feedback.setProgress(70)
             with output_options(self, parameters, context):
@@ -548,7 +548,7 @@ class PointsInputMixin:
             block = self.parameterAsInt(parameters, self.BLOCK_SIZE, context) or None
             progress = progress_callback(feedback)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
-                                                                                  pf._unit_name(cloud)))
+                                                                                  pf.unit_name(cloud)))
             if tiles:
                 feedback.pushInfo(tr("Filtering as one block with {} neighbouring tile(s).").format(len(tiles)))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,

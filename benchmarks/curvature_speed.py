@@ -9,6 +9,15 @@ of it objects). Default ~16 Mcells (4096 x 4096)::
 
     /usr/bin/python3 benchmarks/curvature_speed.py [--side 4096] [--repeat 1] [--scene city]
 
+``--progress`` also prints the number of progress calls of one filter run and the largest
+gap between them (what a user waits for the bar, and for a cancel to be seen).
+``--seams [DSM]`` instead filters a DSM file (default: the 4 Mcells synthetic city written
+to a temporary GeoTIFF) through ``pipeline.run_file`` in one block with one thread, with
+two threads (strips) and in blocks of 256 cells, and prints how many mask cells differ
+from the one-block run (0 when blocks equal one pass)::
+
+    /usr/bin/python3 benchmarks/curvature_speed.py --seams ../shared/data/raster/pleiades/triplet_dsm.tif
+
 Not a test: figures depend on the machine and its load.
 """
 import argparse
@@ -25,8 +34,7 @@ if not (PLUGINS / "bare_earth").exists():
     (PLUGINS / "bare_earth").symlink_to(ROOT, target_is_directory=True)
 sys.path.insert(0, str(PLUGINS))
 
-from bare_earth.core.curvature import (compute_curvature, filter_curvature,  # noqa: E402
-                                       resolve_curvature_params)
+from bare_earth.core.curvature import compute_curvature, filter_curvature, resolve_curvature_params  # noqa: E402
 
 
 def scene(side, seed=1):
@@ -42,13 +50,52 @@ def scene(side, seed=1):
     return z
 
 
+def progress_gaps(z, params):
+    """Calls of ``progress`` during one filter run and the largest gap between them (s)."""
+    times = [time.perf_counter()]
+    filter_curvature(z, 1.0, progress=lambda f: times.append(time.perf_counter()), **params)
+    times.append(time.perf_counter())
+    return len(times) - 2, float(np.max(np.diff(times)))
+
+
+def seams(path):
+    """Mask cells of ``run_file`` that differ from one block: with 2 threads, with blocks of 256."""
+    import tempfile
+
+    from osgeo import gdal
+
+    from bare_earth.core import grid, pipeline
+    from bare_earth.core.synthetic import make_dsm
+    with tempfile.TemporaryDirectory() as tmp:
+        if path is None:
+            path = str(Path(tmp) / "city.tif")
+            grid.write_array(path, np.asarray(make_dsm(4_000_000).dsm, np.float32), (0, 1.0, 0, 0, 0, -1.0))
+        masks = {}
+        for name, kw in (("one block", dict(workers=1)), ("2 threads", dict(workers=2)),
+                         ("blocks of 256", dict(workers=1, block=256))):
+            out = str(Path(tmp) / f"mask{len(masks)}.tif")
+            t0 = time.perf_counter()
+            pipeline.run_file("curvature", path, {"mask": out}, **kw)
+            ds = gdal.Open(out)                      # kept while its band is read
+            masks[name] = ds.GetRasterBand(1).ReadAsArray()
+            ds = None
+            print(f"{name:14s} {time.perf_counter() - t0:6.1f} s, mask cells differing from one block: "
+                  f"{int(np.count_nonzero(masks[name] != masks['one block']))}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--side", type=int, default=4096, help="raster side in cells")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs (best is printed)")
     ap.add_argument("--scene", choices=("rolling", "city"), default="rolling",
                     help="rolling terrain with boxes, or the city DSM of benchmarks/speed.py")
+    ap.add_argument("--progress", action="store_true", help="also the largest gap between progress calls")
+    ap.add_argument("--seams", nargs="?", const="", default=None, metavar="DSM",
+                    help="blocks and threads vs one block on a DSM file (default: synthetic city)")
     a = ap.parse_args(argv)
+    if a.seams is not None:
+        seams(a.seams or None)
+        return
     if a.scene == "city":
         from bare_earth.core.synthetic import make_dsm
         z = np.asarray(make_dsm(a.side * a.side, seed=0).dsm, np.float32)
@@ -71,6 +118,9 @@ def main(argv=None):
     for name, (w, c) in best.items():
         print(f"{name:18s} wall {w:6.2f} s = {cells / w:5.1f} Mcells/s | "
               f"CPU {c:6.2f} s = {cells / c:5.1f} Mcells/s")
+    if a.progress:
+        calls, gap = progress_gaps(z, params)
+        print(f"progress: {calls} calls, largest gap {gap:.2f} s")
     print(f"objects {100 * np.mean(res.mask == 1):.1f} %, K_g {params['k_g_per_m2']:.4g} 1/m2. "
           "Wall time counts waiting for a CPU on a loaded machine; CPU time does not.")
 

@@ -96,14 +96,15 @@ def evaluate_file(path, method="morphological", cell_size_m=None, params=None):
         return {"skipped": f"cannot be read: {exc}"}
     if cloud.classification is None or not (cloud.classification == GROUND_CLASS).any():
         return {"skipped": "no ASPRS class 2 (ground) point: no truth to compare with"}
-    unit = pf._unit_name(cloud)
+    unit = pf.unit_name(cloud)
     t0 = time.perf_counter()
     try:
         res = pf.filter_cloud(cloud, method, params, cell_size_m=cell_size_m)
     except ValueError as exc:
         return {"skipped": f"the filter refused it ({len(cloud)} points over "
                            f"{(cloud.extent[2] - cloud.extent[0]):.0f} x {(cloud.extent[3] - cloud.extent[1]):.0f} "
-                           f"CRS units ({unit}), cell {pf.default_cell_size_m(cloud) if cell_size_m is None else cell_size_m:g} m): "
+                           f"CRS units ({unit}), cell "
+                           f"{pf.default_cell_size_m(cloud) if cell_size_m is None else cell_size_m:g} m): "
                            f"{exc}"}
     seconds = time.perf_counter() - t0
     cls = cloud.classification

@@ -31,7 +31,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -44,6 +43,7 @@ def make_input(path, mcells, seed=0):
     """Write a synthetic DSM of about ``mcells`` million cells to ``path`` (tiled GeoTIFF)."""
     import numpy as np
     from osgeo import gdal, osr
+
     from bare_earth.core.synthetic import make_dsm
     side = int(round((mcells * 1e6) ** 0.5))
     tile = min(side, 4000)
@@ -96,7 +96,7 @@ if {stage!r} != "file":
     from bare_earth.core.methods import get_method
     z = make_dsm(int({mcells} * 1e6)).dsm
     meth = get_method({method!r})
-    prm = meth.resolve(z, (1.0, 1.0), **pipeline._user_params(meth, {params!r}))
+    prm = meth.resolve(z, (1.0, 1.0), **pipeline.complete_params(meth, {params!r}))
     base = status_kb("VmRSS")
     t = time.perf_counter()
     if {stage!r} == "filter":

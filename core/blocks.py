@@ -4,15 +4,17 @@ The one place tiling lives. A block is read with ``halo`` extra cells on every s
 (clipped at the raster's edge), processed, and only its core is kept, so a method whose
 reach is at most ``halo`` cells gives the same result blocked as in one pass.
 """
+import functools
 import multiprocessing
 import os
-import shutil
+import queue as queue_module
 import sys
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, wait, FIRST_COMPLETED
+import threading
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 
 import numpy as np
 
-from .common import report
+from .common import Cancelled, report
 
 #: Default block edge in cells (about 16 MB of float32 per block with its halo).
 DEFAULT_BLOCK = 2048
@@ -75,34 +77,135 @@ def block_count(shape, block=DEFAULT_BLOCK):
     return -(-shape[0] // block[0]) * -(-shape[1] // block[1])
 
 
-def run_windows(func, windows, *, workers=1, progress=None):
-    """Call ``func(core, outer)`` for every window pair, in order of completion.
+class BlockProgress:
+    """The progress of ``n`` blocks running at once, as one fraction for ``progress``.
 
-    ``func`` does the reading, the work and the writing of one block; with
-    ``workers > 1`` blocks run in threads (numpy and GDAL release the GIL for most of the
-    heavy lifting). At most ``2 * workers`` blocks are in flight, so memory stays bounded
-    whatever the raster's size. ``progress`` gets the fraction of blocks done.
+    Each block reports its own fraction (its method's progress); the whole is the mean of
+    the blocks' fractions, so the bar moves while blocks run, not only when one ends.
+    Thread-safe. Once ``progress`` has raised (:class:`~.common.Cancelled`), every later
+    report raises that again at once: blocks still running stop at their next progress
+    call, blocks not started yet do not start.
+    """
+
+    def __init__(self, progress, n):
+        self._progress, self._n = progress, max(1, int(n))
+        self._done = [0.0] * self._n
+        self._total = 0.0
+        self._lock = threading.Lock()
+        self.error = None
+
+    def check(self):
+        """Raise the error the callback raised, if it did."""
+        if self.error is not None:
+            raise self.error
+
+    def report(self, k, fraction):
+        """Block ``k`` is ``fraction`` done (0..1); forwards the whole's fraction."""
+        self.check()
+        f = min(max(float(fraction), 0.0), 1.0)
+        with self._lock:
+            if f <= self._done[k]:
+                return
+            self._total += f - self._done[k]
+            self._done[k] = f
+            try:
+                report(self._progress, self._total / self._n)
+            except BaseException as exc:
+                self.error = exc
+                raise
+
+    def of_block(self, k):
+        """The ``progress(fraction)`` callback of block ``k`` (checks cancellation even when
+        the caller gave no callback)."""
+        return lambda f: self.report(k, f)
+
+
+def run_windows(func, windows, *, workers=1, progress=None):
+    """Call ``func(core, outer, block_progress)`` for every window pair, in order of completion.
+
+    ``func`` does the reading, the work and the writing of one block and reports its own
+    progress through ``block_progress(fraction)`` (which raises when the run is cancelled);
+    ``progress`` gets the whole's fraction (:class:`BlockProgress`). With ``workers > 1``
+    blocks run in threads (numpy and GDAL release the GIL for most of the heavy lifting). At
+    most ``2 * workers`` blocks are in flight, so memory stays bounded whatever the raster's
+    size. On cancellation the blocks not started are dropped and the running ones stop at
+    their next progress call.
     """
     windows = list(windows)
     n = len(windows)
+    bp = BlockProgress(progress, n)
+
+    def one(k, core, outer):
+        bp.check()                                  # cancelled while queued: do not start
+        func(core, outer, bp.of_block(k))
+        bp.report(k, 1.0)
+
     if workers <= 1 or n <= 1:
         for k, (core, outer) in enumerate(windows):
-            func(core, outer)
-            report(progress, (k + 1) / n)
+            one(k, core, outer)
         return
-    done = 0
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending = []
-        for core, outer in windows:
-            pending.append(pool.submit(func, core, outer))
-            if len(pending) >= 2 * workers:
-                pending.pop(0).result()
-                done += 1
-                report(progress, done / n)
-        for fut in pending:
-            fut.result()
-            done += 1
-            report(progress, done / n)
+        try:
+            for k, (core, outer) in enumerate(windows):
+                pending.append(pool.submit(one, k, core, outer))
+                if len(pending) >= 2 * workers:
+                    pending.pop(0).result()
+            for fut in pending:
+                fut.result()
+        except BaseException as exc:
+            if bp.error is None:
+                bp.error = exc                      # the running blocks stop at their next report
+            for fut in pending:
+                fut.cancel()
+            raise
+
+
+def _is_this_process(exe):
+    """False when ``exe`` is known not to be the program running us (Linux: /proc/self/exe)."""
+    try:
+        me = os.path.realpath("/proc/self/exe")
+    except OSError:
+        return True
+    if not os.path.exists("/proc/self/exe"):
+        return True                                   # no /proc: nothing to compare with
+    return os.path.realpath(exe) == me
+
+
+def python_interpreter():
+    """The Python interpreter worker processes are started with: the one running us.
+
+    ``sys.executable`` when it is a Python interpreter and the program running us. Inside
+    QGIS it is the QGIS binary (``qgis``, ``qgis-bin.exe``), or, in an embedded interpreter
+    that looked its program name up on PATH (``qgis_process``), whatever ``python3`` comes
+    first on PATH; the workers then get the interpreter QGIS's Python was built with, found
+    from ``sys.base_prefix`` and ``sys.version_info`` (``<prefix>/bin/python3.11``,
+    ``<prefix>\\python.exe``), never by a PATH lookup: the ``python3`` first on PATH may be
+    another build (a pyenv shim) or a planted program.
+
+    Raises
+    ------
+    RuntimeError
+        When no interpreter of our version is found (name it in the message; threads need none).
+    """
+    exe = sys.executable or ""
+    if (os.path.basename(exe).lower().startswith("python") and os.access(exe, os.X_OK)
+            and _is_this_process(exe)):
+        return exe
+    major, minor = sys.version_info[:2]
+    candidates = []
+    for prefix in dict.fromkeys((sys.base_exec_prefix, sys.base_prefix, sys.exec_prefix, sys.prefix)):
+        if not prefix:
+            continue
+        candidates += [os.path.join(prefix, "bin", f"python{major}.{minor}"),
+                       os.path.join(prefix, "bin", f"python{major}"),
+                       os.path.join(prefix, "python.exe"), os.path.join(prefix, f"python{major}.exe")]
+    for c in candidates:
+        if os.path.isfile(c) and os.access(c, os.X_OK):
+            return c
+    raise RuntimeError(f"cannot find the Python {major}.{minor} interpreter this program runs on (looked "
+                       f"for {', '.join(candidates)}) to start worker processes: use threads (THREADS) "
+                       "instead of processes.")
 
 
 def _process_context():
@@ -110,62 +213,118 @@ def _process_context():
 
     Forking copies a process whose other threads may hold locks (GDAL's tile-compression
     threads, Qt's threads inside QGIS), which deadlocks the child; spawned workers start
-    clean. Inside QGIS ``sys.executable`` is the QGIS binary, so a real Python interpreter
-    is named instead.
+    clean, with :func:`python_interpreter`.
     """
     ctx = multiprocessing.get_context("spawn")
-    exe = sys.executable or ""
-    if not os.path.basename(exe).startswith("python"):
-        exe = shutil.which("python3") or "/usr/bin/python3"
-    ctx.set_executable(exe)
+    ctx.set_executable(python_interpreter())
     return ctx
 
 
-def _warm_up():
-    """Run in a new worker: import the heavy modules while the parent does other work."""
-    from . import pipeline  # noqa: F401  (numpy, scipy, GDAL and the methods)
-    return os.getpid()
+#: Set in a worker process by :func:`_init_worker`: the queue its progress goes to and the
+#: event that says the run was cancelled.
+_worker_channel = {}
 
 
-def start_pool(workers):
-    """A process pool whose workers start (spawn and import) right away, in the background."""
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_process_context())
-    for _ in range(workers):
-        pool.submit(_warm_up)
-    return pool
+def _init_worker(queue, cancelled):
+    _worker_channel.update(queue=queue, cancelled=cancelled, last=0.0)
+
+
+def _worker_progress(k, fraction):
+    """A worker's block ``k`` is ``fraction`` done: raise Cancelled when the run was
+    cancelled, else send the fraction home (at most every 1 %)."""
+    ch = _worker_channel
+    if ch["cancelled"].is_set():
+        raise Cancelled()
+    if fraction - ch["last"] >= 0.01 or fraction >= 1.0:
+        ch["last"] = fraction
+        ch["queue"].put((k, fraction))
+
+
+def _run_job(job, k, *item):
+    """Run ``job(*item, progress=...)`` in a worker, its progress sent home as block ``k``."""
+    _worker_channel["last"] = 0.0
+    if _worker_channel["cancelled"].is_set():
+        raise Cancelled()
+    return job(*item, progress=functools.partial(_worker_progress, k))
+
+
+class WorkerPool:
+    """Worker processes (spawned with :func:`python_interpreter`) and the channel their
+    blocks' progress comes back on: a queue of ``(block, fraction)`` and an event that
+    tells them the run was cancelled (they stop at their next progress call)."""
+
+    def __init__(self, workers, warm_up=None):
+        ctx = _process_context()
+        self.queue, self.cancelled = ctx.Queue(), ctx.Event()
+        self.executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                                            initargs=(self.queue, self.cancelled))
+        if warm_up is not None:
+            for _ in range(workers):
+                self.executor.submit(warm_up)
+
+    def messages(self):
+        """The ``(block, fraction)`` reports that arrived so far."""
+        out = []
+        while True:
+            try:
+                out.append(self.queue.get_nowait())
+            except queue_module.Empty:
+                return out
+
+    def shutdown(self, wait=True):
+        """Stop the workers (``wait=False``: running blocks are told to stop and not awaited)."""
+        if not wait:
+            self.cancelled.set()
+        self.executor.shutdown(wait=wait, cancel_futures=True)
+
+
+def start_pool(workers, warm_up=None):
+    """A :class:`WorkerPool` whose workers start (spawn and import) right away, in the background.
+
+    ``warm_up``: a module-level function each new worker runs first, to import what the
+    jobs will need (numpy, scipy, GDAL, the methods) while this process does other work.
+    """
+    return WorkerPool(workers, warm_up)
 
 
 def run_processes(job, items, on_result, *, workers=2, progress=None, pool=None):
-    """Run ``job(*item)`` for every item in worker processes; ``on_result(core, outer, result)``
-    is called here, in this process, as results arrive (so this process does all writing).
+    """Run ``job(*item, progress=...)`` for every item in worker processes; ``on_result(core,
+    outer, result)`` is called here, in this process, as results arrive (so this process
+    does all writing).
 
-    ``pool`` may be one from :func:`start_pool` (it is shut down at the end).
-    ``items`` are ``(core, outer, extra)`` tuples; at most ``2 * workers`` are in flight, so
-    memory stays bounded. ``progress`` gets the fraction done and may raise ``Cancelled``:
-    the pending blocks are then cancelled and the workers stopped.
+    ``job`` must be picklable and report its progress through its ``progress`` keyword
+    (it raises :class:`~.common.Cancelled` once the run is cancelled). ``pool`` may be one
+    from :func:`start_pool` (it is shut down at the end). ``items`` are ``(core, outer,
+    extra)`` tuples; at most ``2 * workers`` are in flight, so memory stays bounded.
+    ``progress`` gets the whole's fraction, blocks' own progress included, and may raise
+    ``Cancelled``: the pending blocks are then cancelled, and the running ones stop at their
+    next progress call.
     """
-    n = len(items)
-    done = 0
-    with (pool or ProcessPoolExecutor(max_workers=workers, mp_context=_process_context())) as pool:
-        pending = {}
+    pool = pool or WorkerPool(workers)
+    bp = BlockProgress(progress, len(items))
+    pending = {}
 
-        def drain(limit):
-            """Hand finished blocks to ``on_result`` until at most ``limit`` are pending."""
-            nonlocal done
-            while len(pending) > limit:
-                finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    core, outer, _x = pending.pop(fut)
-                    on_result(core, outer, fut.result())
-                    done += 1
-                    report(progress, done / n)
+    def drain(limit):
+        """Forward progress and hand finished blocks to ``on_result`` until at most ``limit``
+        are pending."""
+        while len(pending) > limit:
+            finished, _ = wait(list(pending), timeout=0.2, return_when=FIRST_COMPLETED)
+            for k, f in pool.messages():
+                bp.report(k, f)
+            for fut in finished:
+                k, (core, outer, _x) = pending.pop(fut)
+                on_result(core, outer, fut.result())
+                bp.report(k, 1.0)
 
-        try:
-            for item in items:
-                pending[pool.submit(job, *item)] = item
-                drain(2 * workers - 1)
-            drain(0)
-        except BaseException:
-            for fut in pending:
-                fut.cancel()
-            raise
+    try:
+        for k, item in enumerate(items):
+            pending[pool.executor.submit(_run_job, job, k, *item)] = (k, item)
+            drain(2 * workers - 1)
+        drain(0)
+    except BaseException:
+        pool.cancelled.set()                      # running blocks stop at their next progress call
+        for fut in pending:
+            fut.cancel()
+        pool.shutdown(wait=True)
+        raise
+    pool.shutdown(wait=True)

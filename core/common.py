@@ -1,5 +1,6 @@
 """Small shared pieces: the dtype rule, cell sizes, progress, results."""
 from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Optional
 
 import numpy as np
 
@@ -31,10 +32,14 @@ class FilterResult:
         filling again.
     """
     mask: np.ndarray
-    extras: dict = field(default_factory=dict)
-    info: dict = field(default_factory=dict)
-    surface: np.ndarray = None
-    dtm: np.ndarray = None
+    extras: Dict[str, np.ndarray] = field(default_factory=dict)
+    info: Dict[str, Any] = field(default_factory=dict)
+    surface: Optional[np.ndarray] = None
+    dtm: Optional[np.ndarray] = None
+
+
+#: A progress callback: ``progress(fraction in [0, 1])``; it may raise :class:`Cancelled`.
+Progress = Optional[Callable[[float], None]]
 
 
 def as_surface(z, name="z"):
@@ -50,10 +55,40 @@ def as_surface(z, name="z"):
         raise ValueError(f"{name} is empty (shape {z.shape}); pass a raster with cells.")
     if not np.issubdtype(z.dtype, np.number):
         raise ValueError(f"{name} must be numeric; got dtype {z.dtype}.")
-    z = z.astype(np.float32, copy=False)
+    with np.errstate(over="ignore"):             # float64 beyond float32's range -> inf = nodata
+        z = z.astype(np.float32, copy=False)
     if not np.isfinite(z).any():
         raise ValueError(f"{name} has no valid cell (all nodata/NaN); pass a raster with data.")
     return z
+
+
+#: Heights beyond this many metres (either sign) are no terrain (the deepest trench and the
+#: highest summit lie within 11 km): such cells are nodata, never data a filter sees.
+MAX_ABS_HEIGHT_M = 1e5
+
+
+def without_far_heights(z, count_in=None):
+    """``(z, n)``: float array ``z`` with the cells beyond ``MAX_ABS_HEIGHT_M`` (either sign, or
+    infinite) set to NaN, and how many there were (NaN cells not counted; only those inside
+    the slices ``count_in`` when given). ``z`` itself is returned when there is none, else a
+    copy (the caller's array is never changed).
+
+    Such values are an undeclared nodata (``-3.4e38``, ``-1e30``) or corrupt cells: left in,
+    they would overflow the filters' arithmetic (squares of 1e30) and ruin every estimate.
+    """
+    with np.errstate(invalid="ignore"):
+        far = np.abs(z) > MAX_ABS_HEIGHT_M          # inf too; NaN compares False
+    if far.any():
+        z = np.where(far, np.array(np.nan, z.dtype), z)
+        return z, int(np.count_nonzero(far if count_in is None else far[count_in]))
+    return z, 0
+
+
+def far_heights_message(n):
+    """The log line for :func:`without_far_heights`'s count (one wording for arrays and files)."""
+    return (f"{n} cell(s) with heights beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite) were treated as "
+            "nodata: no terrain is that high or deep, so they are an undeclared nodata value or corrupt "
+            "cells. Declare the raster's nodata value to silence this.")
 
 
 def as_cell_size(cell_size):

@@ -177,6 +177,39 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     return out
 
 
+def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25):
+    """:func:`smooth_spread` of values kept only on chosen cells (the others NaN).
+
+    Per ``tile x tile`` tile the robust spread ``1.4826 MAD`` of its finite values when
+    they are at least ``min_share`` of the tile, and the ``quantile`` of those tiles'
+    spreads; with no such tile, the spread of all finite values pooled (0 with fewer than
+    100). Used on the bends of ground-level cells (curvature's threshold), where the
+    ground shows in gaps that rarely fill a tile.
+    """
+    mads, pooled = [], []
+    for v in stacks:
+        b, r, c = v.shape
+        tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
+        nr, nc = r // tr, c // tc
+        t = v[:, :nr * tr, :nc * tc].reshape(b, nr, tr, nc, tc).transpose(1, 3, 0, 2, 4)
+        t = t.reshape(nr * nc, -1).astype(np.float64)
+        ok = np.count_nonzero(np.isfinite(t), axis=1) >= max(1, int(min_share * t.shape[1]))
+        if ok.any():
+            t = t[ok]
+            with np.errstate(invalid="ignore"):
+                med = np.nanmedian(t, axis=1, keepdims=True)
+                mad = 1.4826 * np.nanmedian(np.abs(t - med), axis=1)
+            mads.append(mad[np.isfinite(mad)])
+        pooled.append(v[np.isfinite(v)].astype(np.float64))
+    mad = np.concatenate(mads) if mads else np.empty(0)
+    if mad.size:
+        return float(np.quantile(mad, quantile))
+    a = np.concatenate(pooled) if pooled else np.empty(0)
+    if a.size < 100:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(a - np.median(a))))
+
+
 #: Radius (m) of the ring of cells a low blunder must lie below (:func:`below_surroundings`).
 PIT_RADIUS_M = 10.0
 #: Half-width (m, at least 2 cells) of the blunder cluster left out of that ring.

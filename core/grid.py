@@ -14,6 +14,7 @@ import re
 import tempfile
 import uuid
 from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -23,6 +24,7 @@ except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
 from .codes import MASK_CODES, MASK_COLOURS
+from .common import without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
@@ -30,11 +32,82 @@ MIN_SIDE = 3
 #: Tile edge of the GeoTIFF outputs, cells.
 OUTPUT_TILE = 256
 
+#: WGS84 ellipsoid: semi-major axis (m) and first eccentricity squared.
+WGS84_A, WGS84_E2 = 6378137.0, 0.00669437999014
+
+
+def metres_per_degree(lat):
+    """Metres per degree of longitude and of latitude at latitude ``lat`` (degrees), on the
+    WGS84 ellipsoid: ``pi/180 * N cos(phi)`` and ``pi/180 * M`` with the radii of curvature
+    ``N = a / sqrt(1 - e2 sin^2 phi)`` (prime vertical) and ``M = a (1 - e2) / (1 - e2 sin^2
+    phi)^1.5`` (meridian). Returns ``(m_per_deg_lon, m_per_deg_lat)``."""
+    phi = math.radians(lat)
+    s = 1.0 - WGS84_E2 * math.sin(phi) ** 2
+    return (math.pi / 180 * WGS84_A * math.cos(phi) / math.sqrt(s),
+            math.pi / 180 * WGS84_A * (1 - WGS84_E2) / s ** 1.5)
+
+
+#: The log line of a raster with NaN cells and no declared nodata (one wording everywhere).
+NAN_UNDECLARED_WARNING = ("The raster has NaN cells but declares no nodata value: NaN was treated as nodata, "
+                          "and the outputs declare NaN as nodata.")
+
+
+@contextlib.contextmanager
+def _reading(path, what="read"):
+    """GDAL calls on an input: raw-band VRTs refused where GDAL honours it, and every GDAL
+    error (a RuntimeError, sometimes with an empty message) turned into a ValueError naming
+    the file."""
+    gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", "NO")
+    gdal.ErrorReset()
+    try:
+        yield
+    except RuntimeError as exc:
+        msg = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason"
+        raise ValueError(f"cannot {what} the raster {str(path)!r}: {msg}. The file may be truncated or "
+                         "corrupt, or a file it refers to is missing: check it (gdalinfo -checksum) or "
+                         "export it again.") from None
+    finally:
+        gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", None)
+
+
+def _vrt_problems(ds, depth=0):
+    """Why a VRT input is refused: a raw band (``VRTRawRasterBand`` reads any local file's
+    bytes as cells) anywhere in it or in the VRTs it refers to. Returns a message or None."""
+    import xml.etree.ElementTree as ET
+    xml = (ds.GetMetadata("xml:VRT") or [""])[0]
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    base = os.path.dirname(ds.GetDescription())
+    for band in root.iter("VRTRasterBand"):
+        if band.get("subClass") == "VRTRawRasterBand":
+            src = band.findtext("SourceFilename", "")
+            return (f"it has a raw band (VRTRawRasterBand) reading the bytes of {src!r}: such VRTs can read "
+                    "any local file and are refused as inputs. Convert the data to a GeoTIFF first")
+    if depth < 4:
+        for el in root.iter("SourceFilename"):
+            name = (el.text or "").strip()
+            if el.get("relativeToVRT", el.get("relativetoVRT", "0")) == "1":
+                name = os.path.join(base, name)
+            if name.lower().endswith(".vrt") and os.path.isfile(name):
+                sub = gdal.Open(name, gdal.GA_ReadOnly)
+                problem = sub is not None and _vrt_problems(sub, depth + 1)
+                if problem:
+                    return problem
+    return None
+
+
 def _open_read(path):
     """Open a raster read-only; GeoTIFFs decompress their tiles on every core."""
-    ds = gdal.Open(path, gdal.GA_ReadOnly)
-    if ds is not None and ds.GetDriver().ShortName == "GTiff":
-        ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY, open_options=["NUM_THREADS=ALL_CPUS"]) or ds
+    with _reading(path, "open"):
+        ds = gdal.Open(path, gdal.GA_ReadOnly)
+        if ds is not None and ds.GetDriver().ShortName == "GTiff":
+            ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY, open_options=["NUM_THREADS=ALL_CPUS"]) or ds
+    if ds is not None and ds.GetDriver().ShortName == "VRT":
+        problem = _vrt_problems(ds)
+        if problem:
+            raise ValueError(f"the raster {path!r} is refused: {problem}.")
     return ds
 
 
@@ -54,24 +127,33 @@ class DSMInfo:
     shape : (rows, cols)
     geotransform : GDAL 6-tuple
     crs_wkt : str ('' when the raster has no CRS)
-    nodata : float or None, the declared nodata value
+    nodata : float or None, the declared nodata value (of the stored values, before scale/offset)
     cell_size_m : (dx, dy) in metres
     z_to_m : factor from the raster's height unit to metres (1 unless the CRS is in feet...)
     nan_undeclared : True when NaN cells are present without a declared nodata value
+    dtype : GDAL data type name of the band
     warnings : list of str for the log
+    scale, offset : the band's scale and offset: heights = stored value * scale + offset
+    notes : list of str, facts for the log that are no warning (scale and offset applied)
+    far_cells : cells seen by :meth:`read` with heights beyond ``common.MAX_ABS_HEIGHT_M``
+        (or infinite), read as nodata
     """
     path: str
     band_index: int
-    shape: tuple
+    shape: Tuple[int, int]
     geotransform: tuple
     crs_wkt: str
-    nodata: float
-    cell_size_m: tuple
+    nodata: Optional[float]
+    cell_size_m: Tuple[float, float]
     z_to_m: float = 1.0
     nan_undeclared: bool = False
     dtype: str = "Float32"
-    warnings: list = field(default_factory=list)
+    warnings: List[str] = field(default_factory=list)
     _ds: object = None
+    scale: float = 1.0
+    offset: float = 0.0
+    notes: List[str] = field(default_factory=list)
+    far_cells: int = 0
 
     @property
     def cells(self):
@@ -82,17 +164,65 @@ class DSMInfo:
             self._ds = _open_read(self.path)
         return self._ds
 
-    def read(self, window=None):
-        """Read ``(r0, r1, c0, c1)`` (default all) as float32 metres, NaN = nodata."""
-        band = self.dataset().GetRasterBand(self.band_index)
+    def read_stored(self, window=None, step=1):
+        """The band's stored values over ``(r0, r1, c0, c1)`` (default all), as GDAL gives them
+        (no nodata, scale or unit applied); every ``step``-th cell when ``step > 1``
+        (nearest-neighbour decimation). ValueError naming the file when GDAL fails."""
         r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
-        a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
-        return to_surface(a, self.nodata, self.z_to_m)
+        with _reading(self.path):
+            band = self.dataset().GetRasterBand(self.band_index)
+            if step > 1:
+                a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0, buf_xsize=max(1, (c1 - c0) // step),
+                                     buf_ysize=max(1, (r1 - r0) // step),
+                                     resample_alg=gdal.GRIORA_NearestNeighbour)
+            else:
+                a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
+        if a is None:
+            raise ValueError(f"cannot read the raster {self.path!r} (rows {r0}-{r1}, columns {c0}-{c1}): "
+                             f"{gdal.GetLastErrorMsg() or 'GDAL gave no reason'}. Check the file.")
+        return a
+
+    def read_heights(self, window=None):
+        """Heights over ``window`` in the raster's own unit (scale and offset applied, float32;
+        nodata cells hold whatever is stored there): the values an output DTM copies."""
+        return _apply_scale(self.read_stored(window), self.scale, self.offset)
+
+    def read(self, window=None, step=1, far_in=None):
+        """Read ``(r0, r1, c0, c1)`` (default all) as float32 metres, NaN = nodata.
+
+        Heights beyond ``common.MAX_ABS_HEIGHT_M`` are nodata too (counted in ``far_cells``:
+        those inside the slices ``far_in`` of the window when given, e.g. a block's core);
+        NaN without a declared nodata is noted (:meth:`note_nan`).
+        """
+        a = self.read_stored(window, step)
+        self.note_nan(a)
+        z, n_far = without_far_heights(to_surface(a, self.nodata, self.z_to_m, self.scale, self.offset), far_in)
+        self.far_cells += n_far
+        return z
+
+    def note_nan(self, stored):
+        """Record (once) that ``stored`` values hold NaN while the band declares no nodata."""
+        if (not self.nan_undeclared and self.nodata is None and np.asarray(stored).dtype.kind == "f"
+                and np.isnan(stored).any()):
+            self.nan_undeclared = True
+            self.warnings.append(NAN_UNDECLARED_WARNING)
 
 
-def to_surface(a, nodata=None, z_to_m=1.0):
-    """Array read from a band -> float32 metres with NaN for nodata (``a`` untouched)."""
-    z = np.array(a, dtype=np.float32, copy=True)
+def _apply_scale(a, scale=1.0, offset=0.0):
+    """Stored values -> heights in the raster's unit, float32 (``a * scale + offset`` in float64)."""
+    if scale == 1.0 and offset == 0.0:
+        return np.array(a, dtype=np.float32, copy=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return (np.asarray(a, np.float64) * scale + offset).astype(np.float32)
+
+
+def to_surface(a, nodata=None, z_to_m=1.0, scale=1.0, offset=0.0):
+    """Stored band values -> float32 metres with NaN for nodata (``a`` untouched).
+
+    ``nodata`` is compared with the stored values; then ``a * scale + offset`` (the band's
+    scale and offset) and ``* z_to_m`` (the height unit in metres). Non-finite cells are NaN.
+    """
+    z = _apply_scale(a, scale, offset)
     if nodata is not None and not (isinstance(nodata, float) and math.isnan(nodata)):
         z[a == nodata] = np.nan
     z[~np.isfinite(z)] = np.nan
@@ -113,7 +243,7 @@ def cell_size_metres(geotransform, shape, srs=None):
     """Cell size ``(dx, dy)`` in metres and warnings, from a geotransform and a CRS.
 
     Geographic CRSs (degrees) are converted at the latitude of the raster's centre with
-    the WGS84 ellipsoid's radii of curvature.
+    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`).
     """
     gt = geotransform
     dx, dy = abs(gt[1]), abs(gt[5])
@@ -126,11 +256,7 @@ def cell_size_metres(geotransform, shape, srs=None):
         if not -90 <= lat <= 90:
             raise ValueError(f"the raster's CRS is geographic but its centre latitude {lat:.3f} is "
                              "not a latitude: check the georeference.")
-        a, e2 = 6378137.0, 0.00669437999014
-        phi = math.radians(lat)
-        s = 1 - e2 * math.sin(phi) ** 2
-        m_per_deg_lat = math.pi / 180 * a * (1 - e2) / s ** 1.5
-        m_per_deg_lon = math.pi / 180 * a * math.cos(phi) / math.sqrt(s)
+        m_per_deg_lon, m_per_deg_lat = metres_per_degree(lat)
         cell = (dx * m_per_deg_lon, dy * m_per_deg_lat)
         warns.append(f"The raster's CRS is geographic (degrees): its cell size {dx:.3g} x {dy:.3g} deg "
                      f"was converted to {cell[0]:.4g} x {cell[1]:.4g} m at latitude {lat:.4f}; heights "
@@ -150,7 +276,7 @@ def open_dsm(path, band=None):
     Parameters
     ----------
     path : str
-        Anything GDAL opens.
+        Anything GDAL opens (VRTs with raw bands refused).
     band : int, optional
         1-based band index; required when the raster has several bands.
 
@@ -161,16 +287,18 @@ def open_dsm(path, band=None):
     Raises
     ------
     ValueError
-        For an unreadable, empty, too small, rotated or multi-band raster without ``band``,
-        or a band out of range.
+        For an unreadable (missing, corrupt, truncated at its first cell), empty, too small,
+        rotated or multi-band raster without ``band``, a band out of range, or a refused VRT.
     """
     _need_gdal()
     try:
         ds = _open_read(str(path))
-    except RuntimeError as exc:
-        raise ValueError(f"cannot open the raster {path!r}: {exc}. Check the path and format.") from None
+    except ValueError as exc:
+        if "is refused" in str(exc):
+            raise
+        raise ValueError(f"{exc} Check the path and format.") from None
     if ds is None:
-        raise ValueError(f"cannot open the raster {path!r}. Check the path and format.")
+        raise ValueError(f"cannot open the raster {str(path)!r}. Check the path and format.")
     nb = ds.RasterCount
     if nb == 0:
         raise ValueError(f"the raster {path!r} has no band: pass a single-band DSM.")
@@ -205,39 +333,41 @@ def open_dsm(path, band=None):
     b = ds.GetRasterBand(int(band))
     nodata = b.GetNoDataValue()
     dtype = gdal.GetDataTypeName(b.DataType)
+    scale, offset = b.GetScale(), b.GetOffset()
+    scale = 1.0 if scale in (None, 0) else float(scale)
+    offset = 0.0 if offset is None else float(offset)
     if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
-                   dtype=dtype, warnings=warns, _ds=ds)
+                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    if scale != 1.0 or offset != 0.0:
+        info.notes.append(f"Heights are the band's stored values x {scale:g} + {offset:g} (its scale and "
+                          "offset); the DTM and nDSM are written as those heights.")
+    info.read_stored((rows // 2, rows // 2 + 1, cols // 2, cols // 2 + 1))   # unreadable: ValueError now
     return info
 
 
 def check_has_data(info, max_cells=4_000_000):
     """Scan the band (decimated when large) and raise ValueError if it holds no valid cell.
 
-    Also sets ``info.nan_undeclared`` (NaN present, no nodata declared) with a warning.
+    Also notes NaN cells without a declared nodata (``info.note_nan``).
     Returns the fraction of valid cells seen.
     """
-    band = info.dataset().GetRasterBand(info.band_index)
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
-    a = band.ReadAsArray(0, 0, cols, rows, buf_xsize=max(1, cols // step), buf_ysize=max(1, rows // step),
-                         resample_alg=gdal.GRIORA_NearestNeighbour) if step > 1 else band.ReadAsArray()
-    z = to_surface(a, info.nodata)
+    a = info.read_stored(step=step)
+    z, _ = without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
     valid = np.isfinite(z)
     if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
         strip = max(1, max_cells // cols)
         for r in range(0, rows, strip):
-            valid = np.isfinite(to_surface(band.ReadAsArray(0, r, cols, min(strip, rows - r)), info.nodata))
+            valid = np.isfinite(info.read((r, min(rows, r + strip), 0, cols)))
             if valid.any():
                 break
     if not valid.any():
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
-    if info.nodata is None and np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
-        info.nan_undeclared = True
-        info.warnings.append("The raster has NaN cells but declares no nodata value: NaN was treated as "
-                             "nodata, and the outputs declare NaN as nodata.")
+    info.note_nan(a)
     return float(valid.mean())
 
 

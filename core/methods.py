@@ -6,7 +6,7 @@ this registry, so adding a paper costs one numeric module and one thin algorithm
 """
 import importlib
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable, Dict, Optional, Tuple
 
 
 @dataclass(frozen=True)
@@ -33,12 +33,46 @@ class Param:
     """
     name: str
     kind: str
-    default: object = None
+    default: Any = None
     help: str = ""
-    minimum: float = None
-    maximum: float = None
-    options: tuple = ()
+    minimum: Optional[float] = None
+    maximum: Optional[float] = None
+    options: Tuple[str, ...] = ()
     advanced: bool = False
+
+
+def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, Any]) -> None:
+    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too).
+
+    The one copy of the limits check: every ``Method.resolve`` runs it on the values it is
+    given (``None``, derived later, is not checked), so the limits the dialog shows are the
+    limits the core enforces.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, the range and the parameter's help.
+    """
+    for p in params:
+        value = values.get(p.name)
+        if value is None or p.kind not in ("float", "int") or isinstance(value, bool):
+            continue
+        if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
+                or (p.maximum is not None and not value <= p.maximum)):
+            raise ValueError(f"{p.name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
+                             f"{method_name!r}: {p.help}")
+
+
+class _CheckedResolve:
+    """A method's ``resolve`` with its ``Param`` limits checked first (picklable: worker
+    processes receive the Method)."""
+
+    def __init__(self, resolve, method_name, params):
+        self.resolve, self.method_name, self.params = resolve, method_name, params
+
+    def __call__(self, z, cell_size, **values):
+        check_values(self.method_name, self.params, values)
+        return self.resolve(z, cell_size, **values)
 
 
 @dataclass(frozen=True)
@@ -55,7 +89,8 @@ class Method:
     resolve : callable
         ``resolve(z, cell_size, **params) -> dict``: the complete parameter set, with every
         ``None`` replaced by a value derived from the data (on the whole raster or a
-        sample of it). Called once per raster, before any block runs.
+        sample of it). Called once per raster, before any block runs. The given values are
+        first checked against ``params``' limits (:func:`check_values`).
     halo : callable
         ``halo(params, cell_size) -> int``: the method's reach in cells; blocks overlap by
         at least this much so that blocked and one-pass results agree.
@@ -70,36 +105,40 @@ class Method:
         Help text: what the method does, how the defaults are derived, the paper cited.
     """
     name: str
-    run: Callable
-    resolve: Callable
-    halo: Callable
-    extras: dict = field(default_factory=dict)
-    params: tuple = ()
+    run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
+    resolve: Callable[..., Dict[str, Any]]      # (z, cell_size, **params) -> complete params
+    halo: Callable[[Dict[str, Any], Tuple[float, float]], int]
+    extras: Dict[str, Tuple[Any, int, Optional[float]]] = field(default_factory=dict)
+    params: Tuple[Param, ...] = ()
     title: str = ""
     description: str = ""
 
+    def __post_init__(self):
+        if self.params and not isinstance(self.resolve, _CheckedResolve):
+            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params)))
 
-# Modules that define METHOD, in the order the plugin lists them.
-_MODULES = ["slope_profile", "curvature", "rascor", "geodesic", "morphology"]
+
+#: Modules that define METHOD, in the order the plugin lists them.
+METHOD_MODULES = ("slope_profile", "curvature", "rascor", "geodesic", "morphology")
 
 
-def available_methods():
-    """Return ``{name: Method}`` for every filter module that imports."""
+def available_methods() -> Dict[str, Method]:
+    """Return ``{name: Method}`` for every filter module of :data:`METHOD_MODULES`.
+
+    A module that fails to import is a bug, not a missing method: its ImportError
+    propagates (a toolbox that silently lacks a filter hides it).
+    """
     found = {}
-    for mod in _MODULES:
-        try:
-            m = importlib.import_module(f"{__package__}.{mod}")
-        except ImportError as exc:  # a module not written yet
-            if f"{__package__}.{mod}" in str(exc) or mod in str(exc):
-                continue
-            raise
+    for mod in METHOD_MODULES:
+        m = importlib.import_module(f"{__package__}.{mod}")
         meth = getattr(m, "METHOD", None)
-        if meth is not None:
-            found[meth.name] = meth
+        if not isinstance(meth, Method):
+            raise TypeError(f"{m.__name__} is listed in methods.METHOD_MODULES but defines no METHOD.")
+        found[meth.name] = meth
     return found
 
 
-def get_method(name):
+def get_method(name: str) -> Method:
     """Return the registered :class:`Method` called ``name`` (ValueError if unknown)."""
     methods = available_methods()
     if name not in methods:

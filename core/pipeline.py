@@ -12,16 +12,18 @@ memory (the plugin's path). Both cut the raster into the same windows with the m
 halo, so blocked and one-pass results agree.
 """
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Optional, Tuple, Union
 
 import numpy as np
 
-from . import blocks
+from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import Cancelled, as_cell_size, as_surface, report, sub_progress
-from .methods import Method, get_method
+from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
+from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
 #: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
@@ -31,6 +33,10 @@ RESOLVE_SIDE = 4096
 #: Strips of rows per worker process when a raster is processed in parallel (one when the
 #: method's halo would make that many strips cost more than a quarter extra).
 STRIPS_PER_PROCESS = 2
+#: Share of a block's progress the filter takes (the rest is the DTM's gap filling).
+FILTER_SHARE = 0.85
+#: The part of run_file's progress before the blocks start (parameters derived).
+RESOLVED = 0.03
 
 
 @dataclass
@@ -44,12 +50,20 @@ class PipelineResult:
     info: dict = field(default_factory=dict)
 
 
-def _method(method):
+def as_method(method: Union[str, Method]) -> Method:
+    """A :class:`Method`, or the registered method of that name (ValueError if unknown)."""
     return method if isinstance(method, Method) else get_method(method)
 
 
-def _user_params(meth, params):
-    """Complete the user's params with the Param defaults, rejecting unknown names."""
+def complete_params(meth: Method, params: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+    """The user's params completed with the ``Param`` defaults (``None``: derived later by
+    ``meth.resolve``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, or a number outside its ``Param``'s [minimum, maximum] (NaN too).
+    """
     params = dict(params or {})
     known = {p.name: p for p in meth.params}
     if known:
@@ -58,30 +72,32 @@ def _user_params(meth, params):
             raise ValueError(f"unknown parameter(s) {unknown} for method {meth.name!r}; "
                              f"it takes {sorted(known)}.")
     full = {p.name: p.default for p in meth.params}
-    full.update({k: v for k, v in params.items()})
-    for name, value in list(full.items()):
-        p = known.get(name)
-        if p is None or value is None or p.kind not in ("float", "int"):
-            continue
-        if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
-                or (p.maximum is not None and not value <= p.maximum)):
-            raise ValueError(f"{name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
-                             f"{meth.name!r}: {p.help}")
+    full.update(params)
+    check_values(meth.name, meth.params, full)
     return full
 
 
-def resolve_params(method, z, cell_size, params=None):
+def warm_up_worker():
+    """Run first in a new worker process (:func:`blocks.start_pool`): unpickling this function
+    imports this module (numpy, scipy), then the methods. Returns the worker's pid."""
+    available_methods()
+    return os.getpid()
+
+
+def resolve_params(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
+                   params: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
     """All parameters of ``method`` for surface ``z``, data-derived ones filled in."""
-    meth = _method(method)
-    z = as_surface(z)
+    meth = as_method(method)
+    z, _ = without_far_heights(as_surface(z))
     cell = as_cell_size(cell_size)
-    return meth.resolve(z, cell, **_user_params(meth, params))
+    return meth.resolve(z, cell, **complete_params(meth, params))
 
 
-def fill_dtm(z, mask):
+def fill_dtm(z, mask, progress=None):
     """The DTM of a filtered surface: cells of class 1 and 2 filled from the ground cells.
 
     Cells of the input's nodata stay NaN. Returns None when the window has no ground cell.
+    ``progress``: the fill's own progress (:func:`.fill.fill_gaps`).
     """
     from .fill import fill_gaps
     holes = np.asarray(mask, np.uint8) - np.uint8(OBJECT) <= np.uint8(LOW - OBJECT)  # 1 or 2
@@ -90,12 +106,12 @@ def fill_dtm(z, mask):
         return None
     if not holes.any():
         return z.astype(np.float32, copy=True)
-    return fill_gaps(z, fill=holes)
+    return fill_gaps(z, fill=holes, progress=progress)
 
 
 def _process(meth, z, cell, params, aux, want_dtm=True, progress=None):
     """Filter one window and fill its DTM."""
-    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, 0.85), **params, **aux)
+    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, FILTER_SHARE), **params, **aux)
     mask = np.asarray(res.mask, dtype=np.uint8)
     if mask.shape != z.shape:
         raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a "
@@ -111,7 +127,7 @@ def _process(meth, z, cell, params, aux, want_dtm=True, progress=None):
             dtm = dtm.copy() if dtm is res.dtm else dtm
             dtm[~valid] = np.nan
     if want_dtm and dtm is None:
-        dtm = fill_dtm(z, mask)
+        dtm = fill_dtm(z, mask, progress=sub_progress(progress, FILTER_SHARE, 1.0))
     report(progress, 1.0)
     return res, mask, dtm
 
@@ -153,8 +169,10 @@ def class_shares(counts):
     return shares
 
 
-def run_array(method, z, cell_size, params=None, *, aux=None, block=None, workers=1,
-              progress=None, want_dtm=True):
+def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
+              params: Optional[Dict[str, Any]] = None, *, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
+              block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, progress: Progress = None,
+              want_dtm: bool = True) -> PipelineResult:
     """Filter a DSM array and fill its DTM.
 
     Parameters
@@ -180,9 +198,11 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     -------
     PipelineResult
     """
-    meth = _method(method)
+    meth = as_method(method)
     workers = blocks.resolve_workers(workers)
-    z = as_surface(z)
+    z, n_far = without_far_heights(as_surface(z))
+    if n_far and not np.isfinite(z).any():
+        raise ValueError("z has no valid cell: " + far_heights_message(n_far))
     cell = as_cell_size(cell_size)
     aux = dict(aux or {})
     for k, a in aux.items():
@@ -190,7 +210,7 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {z.shape}: "
                              "rasterise it on the DSM's grid.")
     t0 = time.perf_counter()
-    params = meth.resolve(z, cell, **_user_params(meth, params))
+    params = meth.resolve(z, cell, **complete_params(meth, params))
     halo = int(meth.halo(params, cell))
     report(progress, 0.02)
     mask = np.full(z.shape, NODATA, np.uint8)
@@ -202,16 +222,14 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
     infos, weights = [], []
     bshape = block or max(z.shape)
     windows = list(blocks.iter_windows(z.shape, bshape, halo))
-    single = len(windows) == 1
 
-    def work(core, outer):
+    def work(core, outer, block_progress):
         sl = (slice(outer[0], outer[1]), slice(outer[2], outer[3]))
         zb = z[sl]
         if not np.isfinite(zb).any():
             return
         ab = {k: (None if a is None else np.asarray(a)[sl]) for k, a in aux.items()}
-        p = sub_progress(progress, 0.02, 0.98) if single else None
-        res, m, d = _process(meth, zb, cell, params, ab, want_dtm, p)
+        res, m, d = _process(meth, zb, cell, params, ab, want_dtm, block_progress)
         c = blocks.crop(outer, core)
         dst = (slice(core[0], core[1]), slice(core[2], core[3]))
         mask[dst] = m[c]
@@ -227,11 +245,11 @@ def run_array(method, z, cell_size, params=None, *, aux=None, block=None, worker
         infos.append(res.info)
         weights.append((core[1] - core[0]) * (core[3] - core[2]))
 
-    blocks.run_windows(work, windows, workers=workers,
-                       progress=None if single else sub_progress(progress, 0.02, 0.98))
+    blocks.run_windows(work, windows, workers=workers, progress=sub_progress(progress, 0.02, 0.98))
     dtm[~np.isfinite(z)] = np.nan
     ndsm = (z - dtm).astype(np.float32)
-    info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows)}
+    info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
+            "warnings": [far_heights_message(n_far)] if n_far else []}
     info.update(_merge_info(infos, weights))
     info["classes_percent"] = class_shares(_code_counts(mask))
     info["seconds"] = time.perf_counter() - t0
@@ -246,15 +264,65 @@ def _resolve_window(shape):
     return (r0, r0 + h, c0, c0 + w)
 
 
-def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=None, workers=1,
-             processes=1, progress=None, log=None):
+def plan_block(shape, halo, *, block=None, workers=1, processes=1):
+    """The block shape :func:`run_file` cuts a raster of ``shape`` into (a pure function).
+
+    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`,
+    blocks of :data:`blocks.DEFAULT_BLOCK` above; with several threads or processes, strips
+    of whole rows, :data:`STRIPS_PER_PROCESS` per worker (one per worker when the halo would
+    add more than a quarter), their height a multiple of 64 cells (coarsened grids align as
+    in one pass) or of the output tile for long strips (each strip's tiles are whole when
+    it is flushed), at least ``2 * halo`` and 64 rows.
+
+    Returns
+    -------
+    int or (rows, cols)
+    """
+    if block is not None:
+        return block
+    rows_all = shape[0]
+    small = shape[0] * shape[1] <= IN_MEMORY_CELLS
+    block = max(shape) if small else blocks.DEFAULT_BLOCK
+    n = max(int(processes), int(workers))
+    if n <= 1:
+        return block
+    strips = n * STRIPS_PER_PROCESS
+    if 2 * halo * strips > rows_all // 4:
+        strips = n
+    rows = -(-rows_all // strips) if small else block
+    align = grid.OUTPUT_TILE if rows >= 4 * grid.OUTPUT_TILE else 64
+    rows = -(-rows // align) * align
+    return (max(rows, 2 * halo, 64), shape[1] if small else block)
+
+
+@dataclass
+class FileRun:
+    """The settings of one :func:`run_file` call, checked (``params`` complete but for the
+    ``None`` values the method derives)."""
+    meth: Method
+    outputs: Dict[str, Any]
+    params: Dict[str, Any]
+    aux: Dict[str, Optional[np.ndarray]]
+    block: Optional[Union[int, Tuple[int, int]]]
+    workers: int
+    processes: int
+    progress: Progress
+    log: Callable[[str], None]
+    t0: float = field(default_factory=time.perf_counter)
+
+
+def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, band: Optional[int] = None,
+             params: Optional[Dict[str, Any]] = None, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
+             block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, processes: int = 1,
+             progress: Progress = None, log: Optional[Callable[[str], None]] = None) -> Dict[str, Any]:
     """Filter a DSM file into output files, block by block, with bounded memory.
 
     Parameters
     ----------
     method : str or Method
     path : str
-        The DSM (any GDAL raster; checked by :func:`grid.open_dsm` before any work).
+        The DSM (any GDAL raster; checked by :func:`grid.open_dsm` before any work; its
+        band's scale and offset applied, heights beyond ``common.MAX_ABS_HEIGHT_M`` nodata).
     outputs : dict
         Keys ``"dtm"``, ``"mask"``, ``"ndsm"`` and any of the method's extras, each a
         path or None. Outputs are on the DSM's grid with its CRS; the DTM and nDSM keep
@@ -262,7 +330,7 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
         UInt8 with a colour table, nodata 255, and a ``.qml`` style beside it.
     aux : dict of str -> 2-D bool/number array on the DSM's grid, optional
     block : int, optional
-        Block edge in cells; default: one block up to IN_MEMORY_CELLS, else 2048.
+        Block edge in cells; default :func:`plan_block`.
     workers : int
         Threads running blocks (numpy, scipy and GDAL release the GIL for the heavy work;
         no start-up cost); 0: one per core (:func:`blocks.default_workers`). With more than
@@ -270,11 +338,13 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
         With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
-        into two strips of rows per process. Cancellation is checked between blocks. The
-        mask is the same as in one pass; the DTM's filled cells may differ slightly (the
-        interpolation sees the block and its halo, not the whole raster).
+        into two strips of rows per process. The mask is the same as in one pass; the DTM's
+        filled cells may differ slightly (the interpolation sees the block and its halo,
+        not the whole raster).
     progress : callable, optional
-        ``progress(fraction)``; may raise :class:`Cancelled` (nothing is then written).
+        ``progress(fraction)``, fed by the methods' own progress in every block; may raise
+        :class:`Cancelled` (nothing is then written; running blocks stop at their next
+        progress call).
     log : callable, optional
         ``log(str)`` for warnings and the values used.
 
@@ -282,31 +352,27 @@ def run_file(method, path, outputs, *, band=None, params=None, aux=None, block=N
     -------
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
-    from . import grid
-    meth = _method(method)
-    workers = blocks.resolve_workers(workers)
-    log = log or (lambda s: None)
+    meth = as_method(method)
     info = grid.open_dsm(path, band)
-    cell = info.cell_size_m
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != info.shape:
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {info.shape}.")
-    t0 = time.perf_counter()
-    user = _user_params(meth, params)
+    run = FileRun(meth, dict(outputs), complete_params(meth, params), aux, block, blocks.resolve_workers(workers),
+                  int(processes), progress, log or (lambda s: None))
     # worker processes start (spawn, imports) while this process derives the parameters
-    pool = blocks.start_pool(processes) if processes > 1 and info.cells >= 1_000_000 else None
+    pool = (blocks.start_pool(run.processes, warm_up=warm_up_worker)
+            if run.processes > 1 and info.cells >= 1_000_000 else None)
     try:
-        return _run_file(meth, info, outputs, user, aux, block, workers, processes, progress, log, t0, pool)
+        return _run_file(info, run, pool)
     finally:
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            pool.shutdown(wait=False)
 
 
-def _run_file(meth, info, outputs, user, aux, block, workers, processes, progress, log, t0, pool):
-    """The body of :func:`run_file` once the inputs are checked."""
-    from . import grid
-    cell = info.cell_size_m
+def _derive_params(info, run):
+    """The complete parameters (from a central window, or the whole raster when it fits in
+    one) and the raster itself when it was read whole (else None); logs what it did."""
     # The window the parameters come from also proves the raster has data (a full scan only
     # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
@@ -314,101 +380,117 @@ def _run_file(meth, info, outputs, user, aux, block, workers, processes, progres
     if not np.isfinite(zr).any():
         grid.check_has_data(info)  # raises ValueError when no cell is valid
         zr = info.read()
-    elif info.nodata is None and info.dtype.startswith("Float") and np.isnan(zr).any():
-        info.nan_undeclared = True
-        info.warnings.append("The raster has NaN cells but declares no nodata value: NaN was treated as "
-                             "nodata, and the outputs declare NaN as nodata.")
     for w in info.warnings:
-        log("Warning: " + w)
-    params = meth.resolve(zr, cell, **user)
+        run.log("Warning: " + w)
+    for note in info.notes:
+        run.log(note)
+    params = run.meth.resolve(zr, info.cell_size_m, **run.params)
     whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
     if whole is None:
-        log(f"Parameters derived from the central {rw[1]-rw[0]} x {rw[3]-rw[2]} cells.")
-    del zr
-    halo = int(meth.halo(params, cell))
-    if block is None:
-        block = max(info.shape) if info.cells <= IN_MEMORY_CELLS else blocks.DEFAULT_BLOCK
-        if processes > 1 or workers > 1:
-            processes_or_threads = max(processes, workers)
-            # strips of rows, two per process (writing overlaps the filtering; the halo stays
-            # a small share); default blocks when large
-            strips = processes_or_threads * STRIPS_PER_PROCESS
-            if 2 * halo * strips > info.shape[0] // 4:     # the halo would add more than a quarter
-                strips = processes_or_threads
-            rows = -(-info.shape[0] // strips) if info.cells <= IN_MEMORY_CELLS else block
-            # multiples of 64: coarsened grids align as in one pass; of 256 (the outputs' tile)
-            # for long strips: each strip's tiles are whole when it is flushed
-            align = grid.OUTPUT_TILE if rows >= 4 * grid.OUTPUT_TILE else 64
-            rows = -(-rows // align) * align
-            block = (max(rows, 2 * halo, 64), info.shape[1] if info.cells <= IN_MEMORY_CELLS else block)
-    windows = list(blocks.iter_windows(info.shape, block, halo))
-    single = len(windows) == 1
-    report(progress, 0.03)
+        run.log(f"Parameters derived from the central {rw[1] - rw[0]} x {rw[3] - rw[2]} cells.")
+        if info.far_cells:
+            run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
+    return params, whole
 
-    nd = info.nodata
+
+def _output_nodata(nd):
+    """The float outputs' nodata: the DSM's own when float32 holds it, else NaN."""
     if nd is None or (isinstance(nd, float) and math.isnan(nd)):
-        float_nodata = float("nan")
-    else:
-        float_nodata = float(np.float32(nd)) if np.isfinite(np.float32(nd)) else float("nan")
-    counts = {}
-    infos, weights = [], []
-    scale = 1.0 / info.z_to_m
-    with grid.OutputSet(info) as out, grid.bounded_cache(len(windows) > 1):
-        if outputs.get("dtm"):
-            out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
-        if outputs.get("ndsm"):
-            out.add("ndsm", outputs["ndsm"], "Float32", nodata=float_nodata, descriptions=["nDSM"])
-        if outputs.get("mask"):
-            out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
-                    descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
-        for name, (dt, bands, nod) in meth.extras.items():
-            if outputs.get(name):
-                gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
-                       np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
-                out.add(name, outputs[name], gdt, bands=bands, nodata=nod)
-        want_dtm = "dtm" in out or "ndsm" in out
+        return float("nan")
+    return float(np.float32(nd)) if np.isfinite(np.float32(nd)) else float("nan")
 
-        io_lock = threading.Lock()  # GDAL datasets are not safe for concurrent use
-        job = _BlockJob(meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out)
 
-        def write(core, outer, result):
-            m, d, zc, res_extras, res_info = result
-            h, w = core[1] - core[0], core[3] - core[2]
-            with io_lock:
-                _write_block(out, meth, core, m, d, zc, scale, float_nodata, res_extras, h, w)
-                if not single:
-                    out.flush()   # compress now, while the other windows are being filtered
-            for k_, v_ in _code_counts(m).items():
-                counts[k_] = counts.get(k_, 0) + v_
+def _add_outputs(out, meth, outputs, float_nodata):
+    """Create the requested outputs in ``out`` (a :class:`grid.OutputSet`)."""
+    if outputs.get("dtm"):
+        out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
+    if outputs.get("ndsm"):
+        out.add("ndsm", outputs["ndsm"], "Float32", nodata=float_nodata, descriptions=["nDSM"])
+    if outputs.get("mask"):
+        out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
+                descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
+    for name, (dt, bands, nod) in meth.extras.items():
+        if outputs.get(name):
+            gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
+                   np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
+            out.add(name, outputs[name], gdt, bands=bands, nodata=nod)
+
+
+def _aux_window(aux, outer):
+    return {k: (None if a is None else np.asarray(a)[outer[0]:outer[1], outer[2]:outer[3]])
+            for k, a in aux.items()}
+
+
+class _BlockWriter:
+    """Writes each finished block's core into the outputs (in this process, one block at a
+    time: GDAL datasets are not safe for concurrent use) and tallies what the run saw."""
+
+    def __init__(self, out, meth, info, float_nodata, flush):
+        self.out, self.meth, self.info = out, meth, info
+        self.scale, self.float_nodata, self.flush = 1.0 / info.z_to_m, float_nodata, flush
+        self.io_lock = threading.Lock()
+        self.counts, self.infos, self.weights = {}, [], []
+        self.far_cells = 0
+
+    def __call__(self, core, outer, result):
+        m, d, zc, res_extras, res_info, n_far = result
+        h, w = core[1] - core[0], core[3] - core[2]
+        with self.io_lock:
+            _write_block(self.out, self.meth, core, m, d, zc, self.scale, self.float_nodata, res_extras, h, w)
+            if self.flush:
+                self.out.flush()   # compress now, while the other windows are being filtered
+            for k, v in _code_counts(m).items():
+                self.counts[k] = self.counts.get(k, 0) + v
             if res_info is not None:
-                infos.append(res_info)
-                weights.append(h * w)
+                self.infos.append(res_info)
+                self.weights.append(h * w)
+            self.far_cells += n_far
 
-        def aux_for(outer):
-            return {k: (None if a is None else np.asarray(a)[outer[0]:outer[1], outer[2]:outer[3]])
-                    for k, a in aux.items()}
 
-        if processes > 1 and len(windows) > 1:
-            blocks.run_processes(job, [(core, outer, aux_for(outer)) for core, outer in windows], write,
-                                 workers=processes, progress=sub_progress(progress, 0.03, 0.97), pool=pool)
+def _run_file(info, run, pool):
+    """The body of :func:`run_file` once the inputs are checked: derive the parameters, plan
+    the windows, filter them into the outputs, summarise."""
+    cell = info.cell_size_m
+    params, whole = _derive_params(info, run)
+    halo = int(run.meth.halo(params, cell))
+    windows = list(blocks.iter_windows(
+        info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes),
+        halo))
+    report(run.progress, RESOLVED)
+    float_nodata = _output_nodata(info.nodata)
+    progress = sub_progress(run.progress, RESOLVED, 0.97)
+    with grid.OutputSet(info) as out, grid.bounded_cache(len(windows) > 1):
+        _add_outputs(out, run.meth, run.outputs, float_nodata)
+        want_dtm = "dtm" in out or "ndsm" in out
+        job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out)
+        writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
+        if run.processes > 1 and len(windows) > 1:
+            blocks.run_processes(job, [(core, outer, _aux_window(run.aux, outer)) for core, outer in windows],
+                                 writer, workers=run.processes, progress=progress, pool=pool)
         else:
-            def work(core, outer):
-                if whole is not None:                 # already in memory: a view, no read
-                    zb = whole[outer[0]:outer[1], outer[2]:outer[3]]
-                else:
-                    with io_lock:
-                        zb = info.read(outer)
-                write(core, outer, job.compute(core, outer, aux_for(outer), zb,
-                                               sub_progress(progress, 0.03, 0.95) if single else None))
+            job.use_dataset(info)
 
-            blocks.run_windows(work, windows, workers=workers, progress=sub_progress(progress, 0.03, 0.97))
+            def work(core, outer, block_progress):
+                if whole is not None:                 # already in memory: a view, no read
+                    zb, n_far = whole[outer[0]:outer[1], outer[2]:outer[3]], 0
+                else:
+                    with writer.io_lock:
+                        zb, n_far = job.read(core, outer)
+                writer(core, outer, job.compute(core, outer, _aux_window(run.aux, outer), zb, n_far,
+                                                block_progress))
+
+            blocks.run_windows(work, windows, workers=run.workers, progress=progress)
         out.commit()
-    result = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
-              "cell_size_m": cell, "warnings": list(info.warnings)}
-    result.update(_merge_info(infos, weights))
-    result["classes_percent"] = class_shares(counts)
-    result["seconds"] = time.perf_counter() - t0
-    report(progress, 1.0)
+    far = info.far_cells if whole is not None else writer.far_cells
+    warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
+    if far and whole is None:
+        run.log("Warning: " + far_heights_message(far))
+    result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
+              "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}
+    result.update(_merge_info(writer.infos, writer.weights))
+    result["classes_percent"] = class_shares(writer.counts)
+    result["seconds"] = time.perf_counter() - run.t0
+    report(run.progress, 1.0)
     return result
 
 
@@ -426,29 +508,37 @@ class _BlockJob:
         d["_info"] = None  # a GDAL dataset does not cross processes: each reopens the file
         return d
 
-    def read(self, outer):
+    def use_dataset(self, info):
+        """Read through ``info`` (an opened :class:`grid.DSMInfo`) instead of reopening the file."""
+        self._info = info
+
+    def read(self, core, outer):
+        """The block over ``outer`` (float32 metres) and its core's count of far heights."""
         if self._info is None:
-            from . import grid
             self._info = grid.open_dsm(self.path, self.band)
-        return self._info.read(outer)
+        before = self._info.far_cells
+        z = self._info.read(outer, far_in=blocks.crop(outer, core))
+        return z, self._info.far_cells - before
 
-    def __call__(self, core, outer, aux):
+    def __call__(self, core, outer, aux, progress=None):
         """Read, filter and fill one block (in a worker process)."""
-        return self.compute(core, outer, aux, self.read(outer), None)
+        zb, n_far = self.read(core, outer)
+        return self.compute(core, outer, aux, zb, n_far, progress)
 
-    def compute(self, core, outer, aux, zb, progress):
-        """Filter and fill one block read over ``outer``; returns its core's arrays."""
+    def compute(self, core, outer, aux, zb, n_far, progress):
+        """Filter and fill one block read over ``outer``; returns its core's arrays, the
+        method's info and ``n_far`` (the core's far heights, for the tally)."""
         meth = self.meth
         c = blocks.crop(outer, core)
         h, w = core[1] - core[0], core[3] - core[2]
         if not np.isfinite(zb).any():
             return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32),
-                    zb[c] if self.want_z else None, {}, None)
+                    zb[c] if self.want_z else None, {}, None, n_far)
         res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress)
         extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
                   for k, a in res.extras.items()}
         d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
-        return (m[c], d, zb[c] if self.want_z else None, extras, res.info)
+        return (m[c], d, zb[c] if self.want_z else None, extras, res.info, n_far)
 
 
 def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
@@ -459,10 +549,10 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
         out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
     if "dtm" in out:
         dtm = _to_unit(d, scale, float_nodata)   # this block's DTM is ours: converted in place
-        if scale != 1.0:  # ground cells get the input's own values, not a float32 round trip via metres
-            raw = out.info.dataset().GetRasterBand(out.info.band_index).ReadAsArray(core[2], core[0], w, h)
+        if scale != 1.0:  # ground cells get the input's own heights, not a float32 round trip via metres
+            own = out.info.read_heights(core)
             g = m == GROUND
-            dtm[g] = raw[g]
+            dtm[g] = own[g]
         out.write("dtm", dtm, core)
     for name, (dt, bands, nod) in meth.extras.items():
         if name not in out:

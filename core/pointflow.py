@@ -36,8 +36,10 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
-from .points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
-                     read_points, write_points)
+from .grid import metres_per_degree
+from .pipeline import as_method, resolve_params, run_array
+from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column
+from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
 
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
            "filter_cloud", "filter_tiles", "write_rasters", "class_counts",
@@ -50,10 +52,6 @@ DEFAULT_THRESHOLD_M = 0.5
 DEFAULT_SLOPE_FACTOR = 1.25
 #: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
 REDUCERS = ("min", "max", "mean")
-#: File extensions written as LAS / as text.
-LAS_EXTENSIONS = (".las", ".laz")
-TEXT_EXTENSIONS = (".txt", ".csv", ".xyz", ".pts", ".asc")
-POINT_EXTENSIONS = LAS_EXTENSIONS + TEXT_EXTENSIONS
 #: Class names of :func:`classify_points` codes, for logs.
 CLASS_NAMES = {GROUND: "ground", OBJECT: "above", LOW: "below", NODATA: "outside the DTM"}
 
@@ -76,7 +74,7 @@ def axis_scales(cloud, lat=None):
     """Metres per unit of x, y and z of a cloud: ``(sx, sy, sz)``.
 
     Projected or unknown CRS: ``units_to_metre`` for x and y. Geographic CRS (degrees):
-    the WGS84 radii of curvature at latitude ``lat`` (default: the cloud's mid latitude).
+    :func:`.grid.metres_per_degree` at latitude ``lat`` (default: the cloud's mid latitude).
     """
     sz = float(cloud.z_units_to_metre or 1.0)
     srs = _srs(cloud.crs)
@@ -86,16 +84,13 @@ def axis_scales(cloud, lat=None):
         if not -90.0 <= lat <= 90.0:
             raise ValueError(f"the points' CRS is geographic but their mid y {lat:.3f} is not a "
                              "latitude: check the CRS.")
-        a, e2 = 6378137.0, 0.00669437999014
-        phi = math.radians(lat)
-        s = 1.0 - e2 * math.sin(phi) ** 2
-        return (math.pi / 180 * a * math.cos(phi) / math.sqrt(s),
-                math.pi / 180 * a * (1 - e2) / s ** 1.5, sz)
+        return metres_per_degree(lat) + (sz,)
     h = float(cloud.units_to_metre or 1.0)
     return h, h, sz
 
 
-def _unit_name(cloud):
+def unit_name(cloud):
+    """Name of the x/y unit of a cloud's CRS, for logs (``"metre"``, ``"foot"``, ``"degree"``)."""
     srs = _srs(cloud.crs)
     if srs is None:
         return "unit (no CRS: taken as metres)"
@@ -245,7 +240,7 @@ CLASSIFY_CHUNK = 1 << 17
 def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
     """:func:`.points.classify_points`, exactly (same rule, same codes, same checks and
     messages), in chunks of points with the DTM slope computed once."""
-    from .points import _bilinear_many, _grid_extent, _slope
+    from .points import dtm_slope, grid_extent, sample_bilinear_many
     x = np.asarray(x, dtype=np.float64).ravel()
     y = np.asarray(y, dtype=np.float64).ravel()
     z = np.asarray(z, dtype=np.float64).ravel()
@@ -253,17 +248,17 @@ def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
     n = x.size
     if n <= CLASSIFY_CHUNK or dtm.ndim != 2 or dtm.size == 0 or not (n == y.size == z.size):
         return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
-    gx0, gy0, gx1, gy1 = _grid_extent(gt, dtm.shape)
+    gx0, gy0, gx1, gy1 = grid_extent(gt, dtm.shape)
     n_out = n - int(np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
     if n_out * 2 > n or not (np.isfinite(threshold_m) and threshold_m >= 0) or \
             not (np.isfinite(slope_factor) and slope_factor >= 0) or gt[2] != 0 or gt[4] != 0 \
             or gt[1] == 0 or gt[5] == 0:
         return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
-    slope = _slope(dtm, gt)
+    slope = dtm_slope(dtm, gt)
     out = np.empty(n, dtype=np.uint8)
     for i in range(0, n, CLASSIFY_CHUNK):
         sl = slice(i, i + CLASSIFY_CHUNK)
-        ground, s = _bilinear_many([dtm, slope], gt, x[sl], y[sl])
+        ground, s = sample_bilinear_many([dtm, slope], gt, x[sl], y[sl])
         s = np.where(np.isfinite(s), s, 0.0)          # at a DTM hole's edge: flat
         tol = threshold_m + slope_factor * s
         dz = z[sl] - ground
@@ -322,7 +317,6 @@ def filter_cloud(cloud, method="morphological", params=None, *, cell_size_m=None
     -------
     CloudResult
     """
-    from .pipeline import run_array
     report(progress, 0.0)
     g = rasterize_cloud(cloud, cell_size_m, reducer="min", fill_empty=True, extent=extent,
                         cell_size_units=cell_size_units)
@@ -388,22 +382,6 @@ def write_rasters(grid_, result, outputs, extras=None):
                 raise ValueError(f"unknown raster output {key!r}.")
         out.commit()
     return outputs
-
-
-def point_output_path(path, input_path, temporary=False):
-    """The path classified points are written to: ``path``, or for a temporary output the
-    same path with the input's extension (LAS in, LAS out). ValueError for an extension
-    that is neither LAS/LAZ nor text."""
-    path = os.fspath(path)
-    root, ext = os.path.splitext(path)
-    in_ext = os.path.splitext(os.fspath(input_path))[1].lower()
-    if temporary or not ext:
-        ext = in_ext if in_ext in POINT_EXTENSIONS else ".txt"
-        return root + ext
-    if ext.lower() not in POINT_EXTENSIONS:
-        raise ValueError(f"the classified points go to a LAS/LAZ file or a text file "
-                         f"({', '.join(POINT_EXTENSIONS)}); got {path!r}.")
-    return path
 
 
 # --------------------------------------------------------------------------- tiles
@@ -496,8 +474,49 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
     -------
     TileResult
     """
-    from .pipeline import _method, resolve_params, run_array
     log = log or (lambda s: None)
+    clouds, names = _load_tiles(tiles, outputs, crs)
+    meth = as_method(method)
+    lattice, scales = _block_lattice(clouds, cell_size_m)
+    full, fixed = _block_params(meth, clouds, names, params, lattice, log)
+    cell_m = (lattice.dx * scales[0], lattice.dy * scales[1])
+    halo = int(meth.halo(full, cell_m))
+    lattice.margin = halo + 4                     # cells near a unit edge that may differ
+    need_m = lattice.margin * max(cell_m)
+    if overlap_m is None:
+        overlap_m = need_m
+    elif overlap_m < need_m:
+        raise ValueError(f"overlap_m = {overlap_m:g} m is less than the filter's reach ({need_m:.1f} m = "
+                         f"{halo} + 4 cells of {max(cell_m):.3g} m): the tiles would not agree at their "
+                         "seams. Give a larger overlap or leave it empty.")
+    overlap = (int(math.ceil(overlap_m / scales[1] / lattice.dy - 1e-9)),
+               int(math.ceil(overlap_m / scales[0] / lattice.dx - 1e-9)))
+    report(progress, 0.02)
+    run = _TileRun(meth, fixed, threshold_m, slope_factor)
+    todo = list(range(len(clouds))) if only is None else sorted(set(int(k) for k in only))
+    out_classes, units, per_tile = [None] * len(clouds), [None] * len(clouds), []
+    results = [None] * len(clouds) if keep_results else None
+    t_all = time.perf_counter()
+    for step, i in enumerate(todo):
+        prog = sub_progress(progress, 0.02 + 0.96 * step / len(todo), 0.02 + 0.96 * (step + 1) / len(todo))
+        r, n_unit, win, grown = _filter_tile(run, clouds, i, lattice, overlap, prog)
+        out_classes[i] = r.classes
+        units[i] = lattice.extent_of(win)
+        if keep_results:
+            results[i] = r
+        per_tile.append(_tile_summary(names[i], len(clouds[i]), n_unit, r, grown, log))
+        if outputs is not None and outputs[i]:
+            write_points(outputs[i], clouds[i], r.classes)
+    report(progress, 1.0)
+    return TileResult(classes=out_classes, params=full, cell_size_units=(lattice.dx, lattice.dy),
+                      overlap_m=float(overlap_m), units=units,
+                      info={"tiles": per_tile, "halo_cells": halo, "cell_size_m": cell_m,
+                            "seconds": time.perf_counter() - t_all}, results=results)
+
+
+def _load_tiles(tiles, outputs, crs):
+    """The tiles as clouds (read when paths) with their names; ValueError for no tile, an
+    output list of another length, an empty tile or tiles of different CRSs / units."""
     tiles = list(tiles)
     if not tiles:
         raise ValueError("no tile given; pass the point files of the block.")
@@ -514,213 +533,180 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
                 abs(c.z_units_to_metre - clouds[0].z_units_to_metre) > 1e-12:
             raise ValueError(f"{names[i]} is not in the CRS / units of {names[0]}: tiles of one block "
                              "must share them (reproject first, or pass the CRS).")
-    meth = _method(method)
-    merged_ext = (min(c.extent[0] for c in clouds), min(c.extent[1] for c in clouds),
-                  max(c.extent[2] for c in clouds), max(c.extent[3] for c in clouds))
-    lat = 0.5 * (merged_ext[1] + merged_ext[3])
-    scales = axis_scales(clouds[0], lat=lat)
+    return clouds, names
+
+
+def _merged_extent(clouds):
+    return (min(c.extent[0] for c in clouds), min(c.extent[1] for c in clouds),
+            max(c.extent[2] for c in clouds), max(c.extent[3] for c in clouds))
+
+
+@dataclass
+class TileLattice:
+    """The untiled grid of a block of tiles: its bounds ``(x0, y0, x1, y1)`` on the lattice of
+    multiples of the cell ``(dx, dy)`` (CRS units), ``rows`` x ``cols`` cells, and ``margin``:
+    the cells near a unit's edge that may differ from one pass (the halo plus 4). Windows
+    are ``(r0, r1, c0, c1)`` cells from its north-west corner."""
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    dx: float
+    dy: float
+    rows: int
+    cols: int
+    margin: int = 0
+
+    @classmethod
+    def around(cls, ext, dx, dy):
+        x0, y0, x1, y1 = _snap_extent(ext, dx, dy)
+        return cls(x0, y0, x1, y1, dx, dy, int(round((y1 - y0) / dy)), int(round((x1 - x0) / dx)))
+
+    def cells_of(self, ext, grow_r=0, grow_c=0):
+        """The window of whole cells covering extent ``ext``, grown by ``grow_r`` rows and
+        ``grow_c`` columns, never past the lattice's bounds."""
+        c0 = int(math.floor((ext[0] - self.x0) / self.dx + 1e-9)) - grow_c
+        c1 = int(math.ceil((ext[2] - self.x0) / self.dx - 1e-9)) + grow_c
+        r0 = int(math.floor((self.y1 - ext[3]) / self.dy + 1e-9)) - grow_r
+        r1 = int(math.ceil((self.y1 - ext[1]) / self.dy - 1e-9)) + grow_r
+        return max(r0, 0), min(max(r1, r0 + 1), self.rows), max(c0, 0), min(max(c1, c0 + 1), self.cols)
+
+    def extent_of(self, win):
+        """The extent ``(xmin, ymin, xmax, ymax)`` of window ``win``."""
+        r0, r1, c0, c1 = win
+        return (self.x0 + c0 * self.dx, self.y1 - r1 * self.dy, self.x0 + c1 * self.dx, self.y1 - r0 * self.dy)
+
+    def trusted(self, win):
+        """The part of ``win`` away from its edges that are not the block's (``margin`` cells)."""
+        m = self.margin
+        return (win[0] + (m if win[0] > 0 else 0), win[1] - (m if win[1] < self.rows else 0),
+                win[2] + (m if win[2] > 0 else 0), win[3] - (m if win[3] < self.cols else 0))
+
+    def grow(self, win, g):
+        """``win`` grown past the holes that stick out by ``g`` cells (N, S, W, E), plus the margin."""
+        m = self.margin
+        return (max(0, win[0] - (g[0] + m if g[0] else 0)), min(self.rows, win[1] + (g[1] + m if g[1] else 0)),
+                max(0, win[2] - (g[2] + m if g[2] else 0)), min(self.cols, win[3] + (g[3] + m if g[3] else 0)))
+
+
+def _block_lattice(clouds, cell_size_m):
+    """The block's lattice (cell: ``cell_size_m``, default about one point per cell over the
+    tiles' own areas) and the metres per x, y, z unit at the block's mid latitude."""
+    merged_ext = _merged_extent(clouds)
+    scales = axis_scales(clouds[0], lat=0.5 * (merged_ext[1] + merged_ext[3]))
     if cell_size_m is None:
         area = 0.0
         for c in clouds:
             e = c.extent
             area += max(e[2] - e[0], 0.0) * scales[0] * max(e[3] - e[1], 0.0) * scales[1]
-        n = sum(len(c) for c in clouds)
-        cell_size_m = nice_cell_size(math.sqrt(max(area, 1.0) / n))
+        cell_size_m = nice_cell_size(math.sqrt(max(area, 1.0) / sum(len(c) for c in clouds)))
     dx, dy = float(cell_size_m) / scales[0], float(cell_size_m) / scales[1]
-    cell_m = (dx * scales[0], dy * scales[1])
+    return TileLattice.around(merged_ext, dx, dy), scales
 
-    # one parameter set for the block: derived on the central tile, unless complete
+
+def _block_params(meth, clouds, names, params, lattice, log):
+    """One parameter set for the block: derived on the tile nearest the block's centre,
+    unless complete. Returns ``(full, fixed)``: every parameter, and the method's own."""
     user = dict(params or {})
     names_p = [p.name for p in meth.params]
-    cx, cy = 0.5 * (merged_ext[0] + merged_ext[2]), 0.5 * (merged_ext[1] + merged_ext[3])
-    centre = int(np.argmin([math.hypot(0.5 * (c.extent[0] + c.extent[2]) - cx,
-                                       0.5 * (c.extent[1] + c.extent[3]) - cy) for c in clouds]))
     if any(user.get(k) is None for k in names_p):
-        g = rasterize_cloud(clouds[centre], cell_size_units=(dx, dy))
+        ext = _merged_extent(clouds)
+        cx, cy = 0.5 * (ext[0] + ext[2]), 0.5 * (ext[1] + ext[3])
+        centre = int(np.argmin([math.hypot(0.5 * (c.extent[0] + c.extent[2]) - cx,
+                                           0.5 * (c.extent[1] + c.extent[3]) - cy) for c in clouds]))
+        g = rasterize_cloud(clouds[centre], cell_size_units=(lattice.dx, lattice.dy))
         full = resolve_params(meth, g.z_metres(), g.cell_size_m, user)
         log(f"Parameters derived from {names[centre]} (the tile nearest the block's centre).")
     else:
         full = user
-    fixed = {k: full[k] for k in names_p if k in full}
-    halo = int(meth.halo(full, cell_m))
-    need_m = (halo + 4) * max(cell_m)
-    if overlap_m is None:
-        overlap_m = need_m
-    elif overlap_m < need_m:
-        raise ValueError(f"overlap_m = {overlap_m:g} m is less than the filter's reach ({need_m:.1f} m = "
-                         f"{halo} + 4 cells of {max(cell_m):.3g} m): the tiles would not agree at their "
-                         "seams. Give a larger overlap or leave it empty.")
-    ox, oy = overlap_m / scales[0], overlap_m / scales[1]
-    report(progress, 0.02)
+    return full, {k: full[k] for k in names_p if k in full}
 
-    # Units in whole cells of the untiled grid's lattice: (r0, r1, c0, c1) from its
-    # north-west corner, never past its bounds (same border as one pass).
-    bx0, by0, bx1, by1 = _snap_extent(merged_ext, dx, dy)
-    brows, bcols = int(round((by1 - by0) / dy)), int(round((bx1 - bx0) / dx))
-    m_cells = halo + 4                   # cells near a unit edge that may differ
 
-    def cells_of(ext, grow_r, grow_c):
-        c0 = int(math.floor((ext[0] - bx0) / dx + 1e-9)) - grow_c
-        c1 = int(math.ceil((ext[2] - bx0) / dx - 1e-9)) + grow_c
-        r0 = int(math.floor((by1 - ext[3]) / dy + 1e-9)) - grow_r
-        r1 = int(math.ceil((by1 - ext[1]) / dy - 1e-9)) + grow_r
-        return max(r0, 0), min(max(r1, r0 + 1), brows), max(c0, 0), min(max(c1, c0 + 1), bcols)
+@dataclass
+class _TileRun:
+    """What every unit of a block is filtered and classified with."""
+    meth: object
+    params: dict
+    threshold_m: float
+    slope_factor: float
 
-    def extent_of(win):
-        r0, r1, c0, c1 = win
-        return (bx0 + c0 * dx, by1 - r1 * dy, bx0 + c1 * dx, by1 - r0 * dy)
 
-    def run_unit(i, win, prog):
-        unit = extent_of(win)
-        c = clouds[i]
-        parts = [c]
-        for j, o in enumerate(clouds):
-            if j == i:
-                continue
-            oe = o.extent
-            if oe[0] > unit[2] or oe[2] < unit[0] or oe[1] > unit[3] or oe[3] < unit[1]:
-                continue
-            sel = _inside(o, unit)
-            if sel.any():
-                parts.append(PointCloud(o.x[sel], o.y[sel], o.z[sel], crs=o.crs,
-                                        units_to_metre=o.units_to_metre,
-                                        z_units_to_metre=o.z_units_to_metre))
-        merged = _merge(parts) if len(parts) > 1 else c
-        r = filter_cloud(merged, meth, fixed, threshold_m=threshold_m, slope_factor=slope_factor,
-                         extent=unit, cell_size_units=(dx, dy), select=slice(0, len(c)),
-                         progress=prog)
-        return r, len(merged)
+def _unit_cloud(clouds, i, unit):
+    """Tile ``i``'s points first, then every other tile's points inside extent ``unit``."""
+    c = clouds[i]
+    parts = [c]
+    for j, o in enumerate(clouds):
+        if j == i:
+            continue
+        oe = o.extent
+        if oe[0] > unit[2] or oe[2] < unit[0] or oe[1] > unit[3] or oe[3] < unit[1]:
+            continue
+        sel = _inside(o, unit)
+        if sel.any():
+            parts.append(PointCloud(o.x[sel], o.y[sel], o.z[sel], crs=o.crs, units_to_metre=o.units_to_metre,
+                                    z_units_to_metre=o.z_units_to_metre))
+    return _merge(parts) if len(parts) > 1 else c
 
-    def cut_holes(r, win, twin):
-        """Cells to add on each side (N, S, W, E) so that every hole (mask 1/2) reaching
-        the tile's cells lies inside the unit's trusted part (its gap filling then sees
-        the whole hole, as one pass does)."""
-        from scipy import ndimage
-        mask = r.result.mask
-        holes = (mask == OBJECT) | (mask == LOW)
-        if not holes.any():
-            return (0, 0, 0, 0)
-        # trusted part: away from the unit's edges that are not the block's
-        t0 = win[0] + (m_cells if win[0] > 0 else 0)
-        t1 = win[1] - (m_cells if win[1] < brows else 0)
-        u0 = win[2] + (m_cells if win[2] > 0 else 0)
-        u1 = win[3] - (m_cells if win[3] < bcols else 0)
-        # the tile's cells plus the stencils of the bilinear sample and the slope
-        a0, a1 = max(twin[0] - 3, win[0]) - win[0], min(twin[1] + 3, win[1]) - win[0]
-        b0, b1 = max(twin[2] - 3, win[2]) - win[2], min(twin[3] + 3, win[3]) - win[2]
-        lab, _ = ndimage.label(holes)
-        ids = np.unique(lab[a0:a1, b0:b1])
-        ids = ids[ids > 0]
-        grow = [0, 0, 0, 0]
-        boxes = ndimage.find_objects(lab)
-        for k in ids:
-            rs, cs = boxes[k - 1]
-            r0, r1 = rs.start + win[0], rs.stop + win[0]
-            c0, c1 = cs.start + win[2], cs.stop + win[2]
-            grow[0] = max(grow[0], t0 - r0)
-            grow[1] = max(grow[1], r1 - t1)
-            grow[2] = max(grow[2], u0 - c0)
-            grow[3] = max(grow[3], c1 - u1)
-        return tuple(max(0, g) for g in grow)
 
-    ov_r, ov_c = int(math.ceil(oy / dy - 1e-9)), int(math.ceil(ox / dx - 1e-9))
-    todo = list(range(len(clouds))) if only is None else sorted(set(int(k) for k in only))
-    out_classes, units, per_tile = [None] * len(clouds), [None] * len(clouds), []
-    results = [None] * len(clouds) if keep_results else None
-    t_all = time.perf_counter()
-    for step, i in enumerate(todo):
-        c = clouds[i]
-        prog = sub_progress(progress, 0.02 + 0.96 * step / len(todo),
-                            0.02 + 0.96 * (step + 1) / len(todo))
-        twin = cells_of(c.extent, 0, 0)
-        win = cells_of(c.extent, ov_r, ov_c)
-        grown = 0
-        while True:
-            r, n_unit = run_unit(i, win, prog)
-            g = cut_holes(r, win, twin)
-            if not any(g) or grown >= 8:
-                break
-            # a hole reaching the tile is cut by the unit's edge: grow past it and rerun
-            grown += 1
-            win = (max(0, win[0] - (g[0] + m_cells if g[0] else 0)),
-                   min(brows, win[1] + (g[1] + m_cells if g[1] else 0)),
-                   max(0, win[2] - (g[2] + m_cells if g[2] else 0)),
-                   min(bcols, win[3] + (g[3] + m_cells if g[3] else 0)))
-        out_classes[i] = r.classes
-        units[i] = extent_of(win)
-        if keep_results:
-            results[i] = r
-        counts = class_counts(r.classes)
-        per_tile.append({"tile": names[i], "points": len(c), "unit_points": n_unit,
-                         "grid_shape": r.grid.shape, "classes": counts, "unit_grown": grown,
-                         "seconds": r.info["rasterize_seconds"] + (r.info["filter_seconds"] or 0)
-                         + r.info["classify_seconds"]})
-        log(f"{names[i]}: {len(c)} points ({n_unit - len(c)} from neighbours), "
-            f"{r.grid.shape[1]} x {r.grid.shape[0]} cells"
-            + (f" (unit grown {grown}x to hold whole holes)" if grown else "") + "; "
-            + ", ".join(f"{k} {v}" for k, v in counts.items()))
-        if outputs is not None and outputs[i]:
-            write_points(outputs[i], c, r.classes)
-    report(progress, 1.0)
-    return TileResult(classes=out_classes, params=full, cell_size_units=(dx, dy),
-                      overlap_m=float(overlap_m), units=units,
-                      info={"tiles": per_tile, "halo_cells": halo, "cell_size_m": cell_m,
-                            "seconds": time.perf_counter() - t_all}, results=results)
+def _holes_beyond_trust(mask, win, twin, lattice):
+    """Cells to add on each side (N, S, W, E) of unit ``win`` so that every hole (mask 1/2)
+    reaching the tile's cells ``twin`` lies inside the unit's trusted part (its gap filling
+    then sees the whole hole, as one pass does)."""
+    from scipy import ndimage
+    holes = (mask == OBJECT) | (mask == LOW)
+    if not holes.any():
+        return (0, 0, 0, 0)
+    t0, t1, u0, u1 = lattice.trusted(win)
+    # the tile's cells plus the stencils of the bilinear sample and the slope
+    a0, a1 = max(twin[0] - 3, win[0]) - win[0], min(twin[1] + 3, win[1]) - win[0]
+    b0, b1 = max(twin[2] - 3, win[2]) - win[2], min(twin[3] + 3, win[3]) - win[2]
+    lab, _ = ndimage.label(holes)
+    ids = np.unique(lab[a0:a1, b0:b1])
+    ids = ids[ids > 0]
+    grow = [0, 0, 0, 0]
+    boxes = ndimage.find_objects(lab)
+    for k in ids:
+        rs, cs = boxes[k - 1]
+        grow[0] = max(grow[0], t0 - (rs.start + win[0]))
+        grow[1] = max(grow[1], rs.stop + win[0] - t1)
+        grow[2] = max(grow[2], u0 - (cs.start + win[2]))
+        grow[3] = max(grow[3], cs.stop + win[2] - u1)
+    return tuple(max(0, g) for g in grow)
+
+
+def _filter_tile(run, clouds, i, lattice, overlap, progress):
+    """Filter tile ``i`` in its unit (its cells grown by ``overlap`` (rows, cols)); a unit
+    whose edge cuts a hole reaching the tile grows past it and runs again (at most 8 times).
+    Returns ``(CloudResult, points in the unit, the unit's window, times grown)``."""
+    c = clouds[i]
+    twin = lattice.cells_of(c.extent)
+    win = lattice.cells_of(c.extent, *overlap)
+    grown = 0
+    while True:
+        merged = _unit_cloud(clouds, i, lattice.extent_of(win))
+        r = filter_cloud(merged, run.meth, run.params, threshold_m=run.threshold_m,
+                         slope_factor=run.slope_factor, extent=lattice.extent_of(win),
+                         cell_size_units=(lattice.dx, lattice.dy), select=slice(0, len(c)), progress=progress)
+        g = _holes_beyond_trust(r.result.mask, win, twin, lattice)
+        if not any(g) or grown >= 8:
+            return r, len(merged), win, grown
+        grown += 1
+        win = lattice.grow(win, g)
+
+
+def _tile_summary(name, n_points, n_unit, r, grown, log):
+    """One tile's line of the info (and of the log)."""
+    counts = class_counts(r.classes)
+    log(f"{name}: {n_points} points ({n_unit - n_points} from neighbours), "
+        f"{r.grid.shape[1]} x {r.grid.shape[0]} cells"
+        + (f" (unit grown {grown}x to hold whole holes)" if grown else "") + "; "
+        + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    return {"tile": name, "points": n_points, "unit_points": n_unit, "grid_shape": r.grid.shape,
+            "classes": counts, "unit_grown": grown,
+            "seconds": r.info["rasterize_seconds"] + (r.info["filter_seconds"] or 0) + r.info["classify_seconds"]}
 
 
 # --------------------------------------------------------------------------- evaluation
-def read_column(path, name):
-    """One named column of a text point file with a header line, or one LAS dimension.
-
-    Returns an int64 array (one value per point, in file order). ValueError when the file
-    has no header / no such column or dimension.
-    """
-    path = os.fspath(path)
-    if os.path.splitext(path)[1].lower() in LAS_EXTENSIONS:
-        from .points import _import_laspy
-        laspy = _import_laspy()
-        las = laspy.read(path)
-        dims = list(las.point_format.dimension_names)
-        match = [d for d in dims if d.lower() == name.lower()]
-        if not match:
-            raise ValueError(f"{path!r} has no dimension {name!r}; it has {dims}.")
-        return np.asarray(las[match[0]]).astype(np.int64)
-    with open(path, "rb") as fh:
-        first = b""
-        for line in fh:
-            if line.strip():
-                first = line
-                break
-    tokens = [t.strip().strip('"\'').lower() for t in
-              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
-              .replace(";", " ").split()]
-    if not tokens or all(_is_number(t) for t in tokens):
-        raise ValueError(f"{path!r} has no header line naming its columns, so it has no column "
-                         f"{name!r}; use a truth points file instead.")
-    if name.lower() not in tokens:
-        raise ValueError(f"{path!r} has no column {name!r}; its columns are {tokens}.")
-    k = tokens.index(name.lower())
-    with open(path, "rb") as fh:
-        text = fh.read()
-    start = text.find(first) + len(first)
-    body = text[start:].translate(bytes.maketrans(b"\t,;\r", b"    "))
-    try:
-        col = np.loadtxt(body.splitlines(), usecols=(k,), dtype=np.float64, ndmin=1)
-    except ValueError as exc:
-        raise ValueError(f"{path!r}: cannot read the column {name!r}: {exc}") from None
-    if not np.all(col == np.round(col)):
-        raise ValueError(f"{path!r}: the column {name!r} must hold whole-number classes.")
-    return col.astype(np.int64)
-
-
-def _is_number(t):
-    try:
-        float(t)
-        return True
-    except ValueError:
-        return False
-
-
 def match_points(a, b, tolerance=None):
     """Index into ``b`` of each point of ``a`` (-1 when none within ``tolerance``).
 

@@ -1,5 +1,6 @@
 """Block engine: windows cover the raster once, halos are clipped, run_windows runs each once."""
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -51,7 +52,7 @@ def test_run_windows_calls_each_window_once_and_reaches_one(workers):
     calls, fractions = [], []
     lock = threading.Lock()
 
-    def func(core, outer):
+    def func(core, outer, block_progress):
         with lock:
             calls.append((core, outer))
 
@@ -66,7 +67,7 @@ def test_run_windows_calls_each_window_once_and_reaches_one(workers):
 def test_run_windows_error_in_func_propagates(workers):
     wins = list(blocks.iter_windows((6, 6), 2, 0))
 
-    def func(core, outer):
+    def func(core, outer, block_progress):
         if core == wins[3][0]:
             raise ZeroDivisionError("boom")
 
@@ -80,7 +81,7 @@ def test_progress_raising_cancelled_stops(workers):
     calls = []
     lock = threading.Lock()
 
-    def func(core, outer):
+    def func(core, outer, block_progress):
         with lock:
             calls.append(core)
 
@@ -115,3 +116,61 @@ def test_banded_transpose_exact(shape, dtype):
     b = np.zeros((shape[0], 2 * shape[1]), dtype)[:, ::2]
     b[...] = a
     np.testing.assert_array_equal(transpose(b, rows=64), a.T)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_run_windows_forwards_each_blocks_progress_scaled(workers):
+    """Each block's own progress moves the whole (mean of the blocks), monotonic, ending at 1."""
+    wins = list(blocks.iter_windows((8, 8), 4, 0))          # 4 windows
+    fractions = []
+    lock = threading.Lock()
+
+    def func(core, outer, block_progress):
+        for f in (0.25, 0.5, 0.75):
+            block_progress(f)
+
+    def progress(f):
+        with lock:
+            fractions.append(f)
+
+    blocks.run_windows(func, wins, workers=workers, progress=progress)
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    assert len(fractions) == 4 * 4                          # 3 steps + the end, per block
+    if workers == 1:                                         # in order: exact quarters of quarters
+        np.testing.assert_allclose(fractions[:4], [0.0625, 0.125, 0.1875, 0.25])
+
+
+def test_cancel_stops_running_blocks_at_their_next_progress_call():
+    """A block still running when the run is cancelled stops at its next progress call,
+    instead of running to its end."""
+    wins = list(blocks.iter_windows((4, 8), 4, 0))          # 2 windows, both start at once
+    steps = {0: 0, 4: 0}
+    started = threading.Barrier(2, timeout=5)
+
+    def func(core, outer, block_progress):
+        started.wait()
+        for _ in range(200):
+            steps[core[2]] += 1
+            if core[2] == 0 and steps[0] == 3:
+                raise Cancelled()                            # block 0 is cancelled here
+            block_progress(steps[core[2]] / 400)
+            time.sleep(0.002)
+
+    with pytest.raises(Cancelled):
+        blocks.run_windows(func, wins, workers=2)
+    assert steps[4] < 150         # the other block stopped at a progress call soon after, not at 200
+
+
+def test_block_progress_repeats_the_callbacks_error():
+    calls = []
+
+    def progress(f):
+        calls.append(f)
+        raise Cancelled()
+
+    bp = blocks.BlockProgress(progress, 2)
+    with pytest.raises(Cancelled):
+        bp.report(0, 0.5)
+    with pytest.raises(Cancelled):
+        bp.report(1, 0.1)
+    assert calls == [0.25]                                  # the callback is not asked again

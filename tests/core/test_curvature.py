@@ -3,12 +3,19 @@ local trends and curvatures, small synthetic scenes with known truth for the fil
 import numpy as np
 import pytest
 
-from bare_earth.core import curvature as C
+from bare_earth.core import curvature
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 from bare_earth.core.common import FilterResult
+from bare_earth.core.curvature import derivatives, ground, profiles
 from bare_earth.core.methods import get_method
 
 DTYPES = [np.float32, np.float64]
+
+
+def small_chunks(monkeypatch, cells):
+    """Make every submodule of the filter work in blocks of ``cells`` cells."""
+    for mod in (derivatives, profiles, ground):
+        monkeypatch.setattr(mod, "CHUNK_CELLS", cells)
 
 
 def grid(n, cell=1.0, m=None):
@@ -20,11 +27,11 @@ def grid(n, cell=1.0, m=None):
 
 # --------------------------------------------------------------------------- exact surfaces
 @pytest.mark.parametrize("dtype", DTYPES + [np.int16])
-@pytest.mark.parametrize("model", C.MODELS)
+@pytest.mark.parametrize("model", curvature.MODELS)
 def test_plane_has_zero_curvature_everywhere(dtype, model):
     x, y = grid(15, m=19)
     z = (100 + 2 * x - 3 * y).astype(dtype)  # integer heights: int16 is exact too
-    K, H, p, q, r, s, t = C.compute_curvature(z, 1.0, window=5, model=model)
+    K, H, p, q, r, s, t = curvature.compute_curvature(z, 1.0, window=5, model=model)
     for a in (K, H, r, s, t):
         assert a.dtype == np.float32 and a.shape == z.shape
         assert np.abs(a).max() < 1e-4  # edges included: odd reflection keeps planes
@@ -37,7 +44,7 @@ def test_sphere_cap_gaussian_and_mean_curvature(dtype, window):
     R = 60.0
     x, y = grid(41, cell=0.5)
     z = np.sqrt(R * R - x * x - y * y).astype(dtype)
-    K, H, *_ = C.compute_curvature(z, 0.5, window=window)
+    K, H, *_ = curvature.compute_curvature(z, 0.5, window=window)
     inner = (slice(5, -5), slice(5, -5))
     # a sphere has K = 1/R^2 and H = 1/R (convex: H > 0) at every point
     assert np.allclose(K[inner], 1 / R ** 2, rtol=0.02)
@@ -48,7 +55,7 @@ def test_sphere_cap_gaussian_and_mean_curvature(dtype, window):
 def test_bowl_is_concave():
     R = 40.0
     x, y = grid(31)
-    K, H, *_ = C.compute_curvature(-np.sqrt(R * R - x * x - y * y), 1.0)
+    K, H, *_ = curvature.compute_curvature(-np.sqrt(R * R - x * x - y * y), 1.0)
     assert K[15, 15] == pytest.approx(1 / R ** 2, rel=0.01)  # K alone cannot tell...
     assert H[15, 15] == pytest.approx(-1 / R, rel=0.01)      # ...H can: concave
 
@@ -58,7 +65,7 @@ def test_saddle_exact(dtype):
     a = 8.0
     x, y = grid(25, m=29, cell=0.5)
     z = ((x * x - y * y) / (2 * a)).astype(dtype)
-    K, H, p, q, r, s, t = C.compute_curvature(z, 0.5)
+    K, H, p, q, r, s, t = curvature.compute_curvature(z, 0.5)
     h2 = 1 + (x / a) ** 2 + (y / a) ** 2
     K_true = -1 / a ** 2 / h2 ** 2  # (r t - s^2) / h^4 with r = 1/a, t = -1/a, s = 0
     H_true = -((1 + (y / a) ** 2) / a - (1 + (x / a) ** 2) / a) / (2 * h2 ** 1.5)
@@ -76,7 +83,7 @@ def test_anisotropic_cells():
     dx, dy = 0.5, 2.0
     xm, ym = x * dx, y * dy
     z = 0.3 * xm * xm + 0.1 * xm * ym - 0.2 * ym * ym + xm
-    K, H, p, q, r, s, t = C.compute_curvature(z, (dx, dy))
+    K, H, p, q, r, s, t = curvature.compute_curvature(z, (dx, dy))
     inner = (slice(3, -3), slice(3, -3))
     assert np.allclose(r[inner], 0.6, atol=1e-4)
     assert np.allclose(s[inner], 0.1, atol=1e-4)
@@ -91,7 +98,7 @@ def test_bilinear_model_reproduces_eq12(dtype):
     a0, a1, a2, a3 = 50.0, 0.2, -0.1, 0.03
     x, y = grid(17, m=21)
     z = (a0 + a1 * x + a2 * y + a3 * x * y).astype(dtype)
-    K, H, p, q, r, s, t = C.compute_curvature(z, 1.0, window=5, model="bilinear")
+    K, H, p, q, r, s, t = curvature.compute_curvature(z, 1.0, window=5, model="bilinear")
     assert np.allclose(p, a1 + a3 * y, atol=1e-4)
     assert np.allclose(q, a2 + a3 * x, atol=1e-4)
     assert np.allclose(s, a3, atol=1e-5)
@@ -100,7 +107,7 @@ def test_bilinear_model_reproduces_eq12(dtype):
     assert np.allclose(K, K_true, rtol=1e-3, atol=1e-9)
     assert (K <= 0).all()  # never positive: the bilinear surface cannot see convexity
     # the quadratic model gives the same on this surface (it contains the bilinear one)
-    Kq, *_ = C.compute_curvature(z, 1.0, window=5, model="quadratic")
+    Kq, *_ = curvature.compute_curvature(z, 1.0, window=5, model="quadratic")
     assert np.allclose(Kq, K_true, rtol=1e-3, atol=1e-9)
 
 
@@ -108,7 +115,7 @@ def test_nodata_stays_nodata_and_does_not_spread():
     x, y = grid(21)
     z = (0.1 * x + 0.05 * y).astype(np.float32)
     z[10, 10] = np.nan
-    K, H, p, *_ = C.compute_curvature(z, 1.0)
+    K, H, p, *_ = curvature.compute_curvature(z, 1.0)
     assert np.isnan(K[10, 10]) and np.isnan(p[10, 10])
     assert np.isfinite(np.delete(K.ravel(), 10 * 21 + 10)).all()
     assert np.nanmax(np.abs(K)) < 1e-5  # the gap is bridged by neighbours: still a plane
@@ -117,12 +124,12 @@ def test_nodata_stays_nodata_and_does_not_spread():
 @pytest.mark.parametrize("window", [4, 1, 2.5, "5", True])
 def test_bad_window_is_rejected(window):
     with pytest.raises(ValueError, match="window_cells must be an odd integer"):
-        C.compute_curvature(np.zeros((9, 9)), 1.0, window=window)
+        curvature.compute_curvature(np.zeros((9, 9)), 1.0, window=window)
 
 
 def test_bad_model_is_rejected():
     with pytest.raises(ValueError, match="model must be one of"):
-        C.compute_curvature(np.zeros((9, 9)), 1.0, model="cubic")
+        curvature.compute_curvature(np.zeros((9, 9)), 1.0, model="cubic")
 
 
 # --------------------------------------------------------------------------- scenes
@@ -162,8 +169,8 @@ def embankment_scene(side_slope=1.5):
 
 
 def run(z, cell=1.0, **params):
-    P = C.resolve_curvature_params(z, cell, **params)
-    return C.filter_curvature(z, cell, **P), P
+    P = curvature.resolve_curvature_params(z, cell, **params)
+    return curvature.filter_curvature(z, cell, **P), P
 
 
 def test_buildings_are_removed_whole():
@@ -224,24 +231,24 @@ def test_input_is_not_modified_and_dtypes_agree():
     z, _ = building_scene()
     z64 = z.astype(np.float64)
     before = z64.copy()
-    P = C.resolve_curvature_params(z64, 1.0)
-    a = C.filter_curvature(z64, 1.0, **P).mask
-    b = C.filter_curvature(z, 1.0, **P).mask
+    P = curvature.resolve_curvature_params(z64, 1.0)
+    a = curvature.filter_curvature(z64, 1.0, **P).mask
+    b = curvature.filter_curvature(z, 1.0, **P).mask
     assert np.array_equal(z64, before)
     assert np.array_equal(a, b)
 
 
 def test_k_g_is_derived_from_the_data_and_honoured():
     z, _ = building_scene()
-    P = C.resolve_curvature_params(z, 1.0)
+    P = curvature.resolve_curvature_params(z, 1.0)
     noisy = z + np.random.default_rng(5).normal(0, 0.3, z.shape).astype(np.float32)
-    Pn = C.resolve_curvature_params(noisy, 1.0)
+    Pn = curvature.resolve_curvature_params(noisy, 1.0)
     assert Pn["k_g_per_m2"] > 10 * P["k_g_per_m2"]   # follows the data's own curvature
     assert Pn["tolerance_m"] > P["tolerance_m"]
-    given = C.resolve_curvature_params(z, 1.0, k_g_per_m2=0.5, tolerance_m=0.4)
+    given = curvature.resolve_curvature_params(z, 1.0, k_g_per_m2=0.5, tolerance_m=0.4)
     assert given["k_g_per_m2"] == 0.5 and given["tolerance_m"] == 0.4
-    r_lo = C.filter_curvature(z, 1.0, **given)
-    r_hi = C.filter_curvature(z, 1.0, **{**given, "k_g_per_m2": 1e5})
+    r_lo = curvature.filter_curvature(z, 1.0, **given)
+    r_hi = curvature.filter_curvature(z, 1.0, **{**given, "k_g_per_m2": 1e5})
     assert r_hi.info["share_marked"] == 0 < r_lo.info["share_marked"]
     assert not (r_hi.mask == OBJECT).any()  # no break, no object
 
@@ -266,25 +273,25 @@ def test_bilinear_model_runs_and_marks_only_by_k():
 ])
 def test_bad_parameters_are_explained(bad, match):
     z, _ = building_scene()
-    P = C.resolve_curvature_params(z, 1.0)
+    P = curvature.resolve_curvature_params(z, 1.0)
     P.update(bad)
     with pytest.raises(ValueError, match=match):
-        C.filter_curvature(z, 1.0, **P)
+        curvature.filter_curvature(z, 1.0, **P)
 
 
 def test_progress_is_reported_and_can_cancel():
     from bare_earth.core.common import Cancelled
     z, _ = building_scene()
-    P = C.resolve_curvature_params(z, 1.0)
+    P = curvature.resolve_curvature_params(z, 1.0)
     seen = []
-    C.filter_curvature(z, 1.0, progress=seen.append, **P)
+    curvature.filter_curvature(z, 1.0, progress=seen.append, **P)
     assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
 
     def stop(f):
         if f > 0.3:
             raise Cancelled()
     with pytest.raises(Cancelled):
-        C.filter_curvature(z, 1.0, progress=stop, **P)
+        curvature.filter_curvature(z, 1.0, progress=stop, **P)
 
 
 # --------------------------------------------------------------------------- registry
@@ -293,8 +300,8 @@ def test_method_spec_matches_the_core():
     meth = get_method("curvature")
     assert meth.name == "curvature" and "Luong Chinh Ke" in meth.title
     assert "curvature" in meth.extras and meth.extras["curvature"][1] == 2
-    kw = inspect.signature(C.filter_curvature).parameters
-    rs = inspect.signature(C.resolve_curvature_params).parameters
+    kw = inspect.signature(curvature.filter_curvature).parameters
+    rs = inspect.signature(curvature.resolve_curvature_params).parameters
     for p in meth.params:
         assert p.name in kw and p.name in rs, p.name
         assert p.help and ("2002" in p.help or p.kind != "float" or p.help)
@@ -366,7 +373,7 @@ def test_tiny_and_flat_rasters_are_ground(shape):
 # --------------------------------------------------------------------------- kernels
 def test_upsample2_is_bilinear_and_exact_on_planes():
     c = np.array([[0.0, 4.0], [8.0, 16.0]], np.float32)
-    up = C._upsample2(c, (4, 4))
+    up = ground._upsample2(c, (4, 4))
     # fine cell i sits at coarse coordinate i / 2 - 1/4: cell (1, 1) weighs the four
     # coarse cells 9/16, 3/16, 3/16, 1/16
     assert up[1, 1] == pytest.approx(0.1875 * 4 + 0.1875 * 8 + 0.0625 * 16)
@@ -375,7 +382,7 @@ def test_upsample2_is_bilinear_and_exact_on_planes():
     y, x = np.mgrid[0:11, 0:9].astype(np.float32)
     plane = 3 + 0.5 * x - 0.25 * y
     coarse = (plane[0:10:2, 0:8:2] + plane[1:11:2, 1:9:2]) / 2      # 2 x 2 block centres
-    np.testing.assert_allclose(C._upsample2(coarse, (9, 7)), plane[:9, :7], atol=1e-5)
+    np.testing.assert_allclose(ground._upsample2(coarse, (9, 7)), plane[:9, :7], atol=1e-5)
 
 
 def test_ground_surface_keeps_known_cells_planes_and_thin_crests():
@@ -385,7 +392,7 @@ def test_ground_surface_keeps_known_cells_planes_and_thin_crests():
     holes[10:22, 5:30] = True
     z = plane.copy()
     z[holes] += 7.0                                   # an object: not a source
-    s = C._ground_surface(z, holes)
+    s = ground._ground_surface(z, holes)
     assert s.dtype == np.float32 and s.shape == z.shape
     np.testing.assert_array_equal(s[~holes], z[~holes])  # known cells exact
     np.testing.assert_allclose(s[holes], plane[holes], atol=1e-3)
@@ -395,7 +402,7 @@ def test_ground_surface_keeps_known_cells_planes_and_thin_crests():
     holes = np.zeros(z.shape, bool)
     holes[12:29] = True
     holes[20] = False
-    s = C._ground_surface(z, holes)
+    s = ground._ground_surface(z, holes)
     assert (s[19, 8:32] > 2.0).all() and (s[21, 8:32] > 2.0).all()
 
 
@@ -407,49 +414,49 @@ def _box_profiles(n=3, m=24):
     return z, marked
 
 
-@pytest.mark.parametrize("chunk", [16, C._CHUNK_CELLS])
+@pytest.mark.parametrize("chunk", [16, derivatives.CHUNK_CELLS])
 def test_axis_objects_box_and_step_exact(monkeypatch, chunk):
-    monkeypatch.setattr(C, "_CHUNK_CELLS", chunk)     # many blocks of positions, or one
+    small_chunks(monkeypatch, chunk)                  # many blocks of positions, or one
     kw = dict(reach=3, h_min=1.0, tan_wall=1.0, tol=0.3, max_cells=15)
     z, marked = _box_profiles()
     want = np.zeros(z.shape, bool)
     want[:, 8:13] = True
-    np.testing.assert_array_equal(C._axis_objects(z, marked, None, 1.0, 1, **kw), want)
-    np.testing.assert_array_equal(C._axis_objects(z.T.copy(), marked.T.copy(), None, 1.0, 0,
+    np.testing.assert_array_equal(profiles._axis_objects(z, marked, None, 1.0, 1, **kw), want)
+    np.testing.assert_array_equal(profiles._axis_objects(z.T.copy(), marked.T.copy(), None, 1.0, 0,
                                                   **kw), want.T)
     # a step up of the terrain: no break going up from the other side, no object
     step = np.zeros((3, 24), np.float32)
     step[:, 8:] = 5.0
-    assert not C._axis_objects(step, marked, None, 1.0, 1, **kw).any()
+    assert not profiles._axis_objects(step, marked, None, 1.0, 1, **kw).any()
     # nodata inside the box: those cells are not objects, the rest of the box is
     z[1, 10] = np.nan
     valid = np.isfinite(z)
     want[1, 10] = False
-    np.testing.assert_array_equal(C._axis_objects(z, marked, valid, 1.0, 1, **kw), want)
+    np.testing.assert_array_equal(profiles._axis_objects(z, marked, valid, 1.0, 1, **kw), want)
 
 
 def test_blocks_of_rows_do_not_change_the_result(monkeypatch):
     z, _ = building_scene()
     z = z[:, :97].copy()
     z[40:44, 50:60] = np.nan
-    P = C.resolve_curvature_params(z, (1.0, 1.2))
-    one = C.filter_curvature(z, (1.0, 1.2), **P)
-    d1 = C.local_derivatives(z, (1.0, 1.2))
-    s1 = C._slope(np.nan_to_num(z), 1.0, 1.2)
-    monkeypatch.setattr(C, "_CHUNK_CELLS", 64)        # blocks of a few rows
-    many = C.filter_curvature(z, (1.0, 1.2), **P)
+    P = curvature.resolve_curvature_params(z, (1.0, 1.2))
+    one = curvature.filter_curvature(z, (1.0, 1.2), **P)
+    d1 = curvature.local_derivatives(z, (1.0, 1.2))
+    s1 = ground._slope(np.nan_to_num(z), 1.0, 1.2)
+    small_chunks(monkeypatch, 64)                     # blocks of a few rows
+    many = curvature.filter_curvature(z, (1.0, 1.2), **P)
     np.testing.assert_array_equal(one.mask, many.mask)
     np.testing.assert_array_equal(one.extras["curvature"], many.extras["curvature"])
-    for a, b in zip(d1, C.local_derivatives(z, (1.0, 1.2))):
+    for a, b in zip(d1, curvature.local_derivatives(z, (1.0, 1.2))):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(s1, C._slope(np.nan_to_num(z), 1.0, 1.2))
+    np.testing.assert_array_equal(s1, ground._slope(np.nan_to_num(z), 1.0, 1.2))
 
 
 def test_slope_is_the_central_difference_gradient(monkeypatch):
-    monkeypatch.setattr(C, "_CHUNK_CELLS", 16)
+    small_chunks(monkeypatch, 16)
     a = np.random.default_rng(0).normal(0, 2, (9, 7)).astype(np.float32)
     want = np.hypot(np.gradient(a.astype(float), 1.2, axis=0), np.gradient(a.astype(float), 0.5, axis=1))
-    np.testing.assert_allclose(C._slope(a, 0.5, 1.2), want, rtol=1e-5)
+    np.testing.assert_allclose(ground._slope(a, 0.5, 1.2), want, rtol=1e-5)
 
 
 def test_enclosed_regions_exact():
@@ -459,20 +466,20 @@ def test_enclosed_regions_exact():
     flag = np.zeros(free.shape, bool)
     flag[3:5, 3:7] = True                             # 8 of 12 flagged
     flag[9:11, 0:3] = True                            # outside: region touches the edge
-    got = C._enclosed_regions(flag, free, max_cells=5)
+    got = profiles._enclosed_regions(flag, free, max_cells=5)
     want = np.zeros(free.shape, bool)
     want[3:6, 3:7] = True
     np.testing.assert_array_equal(got, want)
-    assert not C._enclosed_regions(flag, free, max_cells=3).any()   # wider than 3 cells
+    assert not profiles._enclosed_regions(flag, free, max_cells=3).any()   # wider than 3 cells
     flag[3:5, 3:7] = False
     flag[3, 3] = True                                 # 1 of 12: not mostly flagged
-    assert not C._enclosed_regions(flag, free, max_cells=5).any()
+    assert not profiles._enclosed_regions(flag, free, max_cells=5).any()
 
 
 def test_halo_is_even():
     for w in (3, 5, 7, 9):
         for size in (10.0, 33.0, 100.0):
-            h = C.curvature_halo({"window_cells": w, "max_object_size_m": size}, (1.0, 1.0))
+            h = curvature.curvature_halo({"window_cells": w, "max_object_size_m": size}, (1.0, 1.0))
             assert h % 2 == 0 and h >= size + w
 
 
@@ -484,8 +491,176 @@ def test_pits_exact():
     z[6, 5] = np.nan                                  # nodata on the pit's ring: ignored
     cand = z < -1
     got = np.zeros(z.shape, bool)
-    got.ravel()[C._pits(z, cand, 2, 1.0)] = True
+    got.ravel()[ground._pits(z, cand, 2, 1.0)] = True
     want = np.zeros(z.shape, bool)
     want[4, 5] = want[0, 10] = True
     np.testing.assert_array_equal(got, want)
-    assert C._pits(z, cand, 2, 5.0).size == 0         # not 5 m below its ring
+    assert ground._pits(z, cand, 2, 5.0).size == 0         # not 5 m below its ring
+
+
+# --------------------------------------------------------------------------- blocks, progress, extremes
+def test_wall_test_reads_nothing_beyond_its_reach():
+    """The profile's rise before a wall is taken within the reach: where the position
+    ``reach`` before the foot is nodata, from the farthest valid one after it, never
+    from the profile's far start (which a block does not see)."""
+    kw = dict(reach=3, h_min=1.0, tan_wall=1.0, tol=0.3, max_cells=15)
+    z = np.zeros((1, 26), np.float32)
+    z[0, :9] = -100.0                                 # far before: a deep valley ...
+    z[0, 9:12] = np.nan                               # ... then nodata up to the reach
+    z[0, 15:20] = 5.0                                 # a box, positions 15..19
+    marked = np.zeros(z.shape, bool)
+    marked[0, [14, 15, 19, 20]] = True
+    want = np.zeros(z.shape, bool)
+    want[0, 15:20] = True
+    np.testing.assert_array_equal(profiles._axis_objects(z, marked, None, 1.0, 1, **kw), want)
+    for start in (0, 5, 9, 10):                       # what a block starting there sees
+        got = profiles._axis_objects(z[:, start:], marked[:, start:], None, 1.0, 1, **kw)
+        np.testing.assert_array_equal(got, want[:, start:])
+
+
+def ragged_nodata_city(seed=3):
+    """A city with 40 rectangles of nodata (occlusion shadows), 1 m cells."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", shape=(256, 256), seed=seed).dsm.astype(np.float32)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        r, c = rng.integers(0, 240, 2)
+        z[r:r + rng.integers(3, 30), c:c + rng.integers(3, 30)] = np.nan
+    return z
+
+
+def test_profile_objects_of_blocks_equal_one_pass_near_nodata():
+    from bare_earth.core import blocks
+    z = ragged_nodata_city()
+    P = curvature.resolve_curvature_params(z, 1.0, max_object_size_m=30.0)
+    halo = curvature.curvature_halo(P, 1.0)
+
+    def objects(a):
+        br = derivatives.mark_breaks(a, (1.0, 1.0), P["k_g_per_m2"], window=5, model="quadratic")
+        obj, _, _ = profiles.find_profile_objects(a, br.marked, np.isfinite(a), (1.0, 1.0), window=5,
+                                                  h_min=1.0, tan_wall=1.0, tol=P["tolerance_m"], max_size=30.0)
+        return obj
+    one = objects(z)
+    assert one.sum() > 1000
+    for core, outer in blocks.iter_windows(z.shape, 64, halo):
+        part = objects(z[outer[0]:outer[1], outer[2]:outer[3]])[blocks.crop(outer, core)]
+        np.testing.assert_array_equal(part, one[core[0]:core[1], core[2]:core[3]])
+
+
+def test_progress_comes_from_inside_the_stages(monkeypatch):
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(256, 256), seed=2, nodata_holes=True)
+    P = curvature.resolve_curvature_params(sc.dsm, sc.cell_size)
+    small_chunks(monkeypatch, 4096)                   # blocks of 16 rows, as on a big raster
+    seen = []
+    curvature.filter_curvature(sc.dsm, sc.cell_size, progress=seen.append, **P)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+    assert len(set(seen)) >= 60
+    assert np.diff(seen).max() <= 0.05                # no stage runs without a word
+
+
+def test_cancel_from_progress_stops_at_once():
+    from bare_earth.core.common import Cancelled
+    z, _ = building_scene()
+    P = curvature.resolve_curvature_params(z, 1.0)
+    total = []
+    curvature.filter_curvature(z, 1.0, progress=total.append, **P)
+    for n in (1, len(total) // 3, len(total) - 2):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            curvature.filter_curvature(z, 1.0, progress=stop, **P)
+        assert len(calls) == n                        # not called again once cancelled
+
+
+@pytest.mark.parametrize("model", ["quadratic", "bilinear"])
+def test_heights_far_outside_any_terrain_give_no_numpy_warning(model):
+    import warnings
+
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(120, 130), seed=1)
+    z = sc.dsm.astype(np.float32)
+    P = curvature.resolve_curvature_params(z, 1.0, model=model)
+    clean = curvature.filter_curvature(z, 1.0, **P).mask
+    spiky = z.copy()
+    spikes = {(30, 40): 1e30, (80, 90): -1e30, (50, 5): -3e38, (10, 100): 3e38, (11, 101): 3e38}
+    for rc, v in spikes.items():
+        spiky[rc] = v
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        P2 = curvature.resolve_curvature_params(spiky, 1.0, model=model)
+        res = curvature.filter_curvature(spiky, 1.0, **P2)
+        curvature.compute_curvature(spiky, 1.0, model=model)
+        big = np.full((4, 4), 1e30, np.float32)
+        K, H = curvature.curvatures_from_derivatives(big, big, big, big, big)
+    assert P2 == P                                    # defaults not thrown by the spikes
+    assert np.isfinite(res.extras["curvature"][:, 60:70, 60:70]).all()
+    if model == "quadratic":
+        assert res.mask[30, 40] == OBJECT and res.mask[10, 100] == OBJECT
+        assert res.mask[80, 90] == LOW and res.mask[50, 5] == LOW
+    near = np.zeros(z.shape, bool)
+    for r, c in spikes:
+        near[max(0, r - 6):r + 7, max(0, c - 6):c + 7] = True
+    np.testing.assert_array_equal(res.mask[~near], clean[~near])
+
+
+def test_bridge_from_nearest_is_local_and_keeps_planes():
+    y, x = np.mgrid[0:12, 0:15].astype(np.float32)
+    plane = (10 + 0.5 * x - 0.25 * y).astype(np.float32)
+    known = np.ones(plane.shape, bool)
+    known[3:7, 4:9] = False                           # a hole, mirrors known all round
+    z = np.where(known, plane, np.nan).astype(np.float32)
+    np.testing.assert_allclose(derivatives.bridge_from_nearest(z, known, 12, reflect=True), plane, atol=1e-5)
+    flat = derivatives.bridge_from_nearest(z, known, 12, reflect=False)
+    np.testing.assert_array_equal(flat[3, 5:8], plane[2, 5:8])      # the nearest known cell
+    np.testing.assert_array_equal(flat[known], plane[known])
+    near = derivatives.bridge_from_nearest(z, known, 1, reflect=False)   # within one cell only
+    assert np.isnan(near[4:6, 5:8]).all() and np.isfinite(near[3, 4:9]).all()
+    # each value depends on its nearest known cell and that cell's mirror only: windows
+    # holding them (the hole and twice its depth around it) give the same values
+    z = np.pad(z, 10, mode="reflect")
+    known = np.isfinite(z)
+    known[20:22, 20:30] = False                       # a second hole, 2 cells deep
+    z[~known] = np.nan
+    one = derivatives.bridge_from_nearest(z, known, 12, reflect=True)
+    for r0, c0 in ((7, 8), (8, 9), (16, 16), (15, 17)):
+        part = derivatives.bridge_from_nearest(z[r0:, c0:], known[r0:, c0:], 12, reflect=True)
+        np.testing.assert_array_equal(part, one[r0:, c0:])
+
+
+def test_ground_surface_beside_nodata_ignores_the_far_side():
+    """An object beside a wide nodata band: its ground comes from the ground near it, so
+    what lies beyond the band (a block may not hold it) changes nothing."""
+    z = np.zeros((40, 120), np.float32)
+    z[:, 40:80] = np.nan                              # a wide nodata band
+    z[15:25, 30:40] = 6.0                             # an object against the band
+    far = z.copy()
+    far[:, 80:] = 25.0                                # a plateau on the far side
+    objects = np.zeros(z.shape, bool)
+    objects[15:25, 30:40] = True
+    masks = []
+    for a in (z, far):
+        valid = np.isfinite(a)
+        br = derivatives.Breaks(np.zeros((2,) + a.shape, np.float32), np.zeros(a.shape, bool),
+                                np.zeros(a.shape, bool), 0, 0)
+        mask, surface = ground.find_ground(a, objects, br, valid, (1.0, 1.0), window=5, h_min=1.0, tol=0.3)
+        np.testing.assert_allclose(surface[15:25, 30:40], 0.0, atol=1e-4)
+        masks.append(mask)
+    np.testing.assert_array_equal(masks[0][:, :40], masks[1][:, :40])
+    assert (masks[0][15:25, 30:40] == OBJECT).all()
+
+
+@pytest.mark.parametrize("model", ["quadratic", "bilinear"])
+def test_curvature_of_a_window_is_bit_identical_to_one_pass(model):
+    """The fit sums differences only: no reference height taken from the block, so a
+    cell's K and H depend on its window alone (blocks give the one-pass bits)."""
+    z = ragged_nodata_city() + np.float32(100.1)     # heights with nodata
+    one = curvature.compute_curvature(z, (1.0, 1.2), model=model)
+    for r0, r1, c0, c1 in ((20, 130, 30, 200), (100, 256, 0, 120)):
+        part = curvature.compute_curvature(z[r0:r1, c0:c1], (1.0, 1.2), model=model)
+        for a, b in zip(one, part):
+            np.testing.assert_array_equal(b[6:-6, 6:-6], a[r0 + 6:r1 - 6, c0 + 6:c1 - 6])

@@ -308,3 +308,122 @@ def test_geographic_bad_latitude(tmp_path):
     gt = (10.0, 0.1, 0.0, 250.0, 0.0, -0.1)
     with pytest.raises(ValueError, match="not a latitude"):
         grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt, crs=4326))
+
+
+# ---- geodesy: one formula ---------------------------------------------------------------
+
+def test_metres_per_degree_known_values():
+    lon0, lat0 = grid.metres_per_degree(0.0)
+    assert lon0 == pytest.approx(111319.49, abs=0.01)        # equator: pi/180 * a
+    assert lat0 == pytest.approx(110574.28, abs=0.01)        # pi/180 * a (1 - e2)
+    lon60, lat60 = grid.metres_per_degree(60.0)
+    assert lon60 == pytest.approx(55799.98, abs=0.05) and lat60 == pytest.approx(111412.24, abs=0.05)
+    assert grid.metres_per_degree(-60.0) == grid.metres_per_degree(60.0)
+
+
+# ---- corrupt and unsafe inputs (#15 defects 2, 6) -------------------------------------------
+
+def _tiled(tmp_path, name="src.tif", shape=(300, 300)):
+    a = np.random.default_rng(0).random(shape, dtype=np.float32) * 10
+    return tif(tmp_path, a, name=name), a
+
+
+def test_truncated_geotiff_gives_value_error_naming_the_file(tmp_path):
+    p, _ = _tiled(tmp_path)
+    data = open(p, "rb").read()
+    bad = tmp_path / "truncated.tif"
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"truncated\.tif.*(truncated or corrupt|TIFF)") as ei:
+        info = grid.open_dsm(bad)
+        info.read()
+    assert str(ei.value)
+
+
+def test_vrt_with_missing_source_gives_value_error(tmp_path):
+    p, _ = _tiled(tmp_path)
+    vrt = str(tmp_path / "dsm.vrt")
+    gdal.Translate(vrt, p, format="VRT")
+    os.rename(p, tmp_path / "moved.tif")
+    with pytest.raises(ValueError, match=r"dsm\.vrt.*src\.tif"):
+        grid.open_dsm(vrt)
+
+
+def test_read_error_in_a_later_block_is_a_value_error(tmp_path):
+    """The first cells read fine, a later tile is cut off: the read names the file."""
+    p, _ = _tiled(tmp_path, shape=(1024, 1024))
+    data = open(p, "rb").read()
+    bad = tmp_path / "cut.tif"
+    bad.write_bytes(data[: int(len(data) * 0.9)])
+    info = None
+    try:
+        info = grid.open_dsm(bad)
+    except ValueError as exc:                 # the probe cell may already be cut off
+        assert "cut.tif" in str(exc)
+    if info is not None:
+        with pytest.raises(ValueError, match=r"cut\.tif"):
+            info.read()
+
+
+RAW_VRT = """<VRTDataset rasterXSize="8" rasterYSize="8">
+  <VRTRasterBand dataType="Byte" band="1" subClass="VRTRawRasterBand">
+    <SourceFilename relativetoVRT="0">{src}</SourceFilename>
+    <ImageOffset>0</ImageOffset><PixelOffset>1</PixelOffset><LineOffset>8</LineOffset>
+  </VRTRasterBand>
+</VRTDataset>"""
+
+
+def test_raw_band_vrt_refused(tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_bytes(b"root:x:0:0:root:/root:/bin/bash\n" * 4)
+    vrt = tmp_path / "raw.vrt"
+    vrt.write_text(RAW_VRT.format(src=secret))
+    with pytest.raises(ValueError, match=r"raw\.vrt.*refused.*VRTRawRasterBand"):
+        grid.open_dsm(vrt)
+    # hidden one level down: a VRT whose source is the raw VRT
+    outer = tmp_path / "outer.vrt"
+    gdal.Translate(str(outer), str(vrt), format="VRT")
+    with pytest.raises(ValueError, match=r"outer\.vrt.*refused"):
+        grid.open_dsm(outer)
+
+
+def test_plain_vrt_accepted(tmp_path):
+    p, a = _tiled(tmp_path)
+    vrt = str(tmp_path / "ok.vrt")
+    gdal.Translate(vrt, p, format="VRT")
+    np.testing.assert_array_equal(grid.open_dsm(vrt).read(), a)
+
+
+# ---- scale and offset (#15 defect 3), heights beyond any terrain (defect 11) ------------------
+
+def _scaled(tmp_path, counts, scale=0.1, offset=100.0, nodata=-32768):
+    p = tif(tmp_path, counts, name="scaled.tif", nodata=nodata, dtype="Int16")
+    ds = gdal.Open(p, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(scale)
+    ds.GetRasterBand(1).SetOffset(offset)
+    ds = None
+    return p
+
+
+def test_scale_and_offset_applied_on_read(tmp_path):
+    counts = np.array([[1880, 1900, 2081], [1950, -32768, 2000], [1883, 1884, 1885]], np.int16)
+    info = grid.open_dsm(_scaled(tmp_path, counts))
+    assert (info.scale, info.offset) == (0.1, 100.0)
+    assert any("scale" in n and "0.1" in n and "100" in n for n in info.notes)
+    z = info.read()
+    want = (counts * 0.1 + 100.0).astype(np.float32)
+    want[1, 1] = np.nan
+    np.testing.assert_array_equal(z, want)
+    np.testing.assert_array_equal(info.read_heights((0, 1, 0, 3)), want[:1])
+    assert grid.check_has_data(info) == pytest.approx(8 / 9)
+
+
+@pytest.mark.parametrize("far", [1e30, -1e30, -3.4e38, np.inf])
+def test_far_heights_read_as_nodata(tmp_path, far):
+    a = np.full((5, 6), 12.5, np.float32)
+    a[2, 3] = far
+    a[0, 0] = np.nan
+    info = grid.open_dsm(tif(tmp_path, a))
+    z = info.read()
+    assert np.isnan(z[2, 3]) and np.isnan(z[0, 0]) and np.isfinite(z).sum() == 28
+    assert info.far_cells == (1 if np.isfinite(far) else 0)   # inf: nodata as every non-finite cell
+    assert info.nan_undeclared       # the NaN cell, not the far one, makes this warning

@@ -122,16 +122,6 @@ def test_unknown_parameter_named():
         pipeline.run_array("slopeprofile", z, 1.0, {"bogus": 1})
 
 
-@pytest.mark.parametrize("params", [{"slope_threshold_deg": 95.0}, {"slope_threshold_deg": 0.1},
-                                    {"max_object_size_m": 0.5}, {"tolerance_m": -1.0},
-                                    {"slope_threshold_deg": float("nan")}])
-def test_out_of_range_parameter(params):
-    z, _ = scene()
-    name = next(iter(params))
-    with pytest.raises(ValueError, match=name if math.isnan(params[name]) else f"{name}.*out of range"):
-        pipeline.run_array("slopeprofile", z, 1.0, params)
-
-
 @pytest.mark.parametrize("value", [101.0, -0.5, float("nan")])
 def test_out_of_range_custom_method(value):
     z, _ = scene()
@@ -381,7 +371,8 @@ def test_run_file_extras_written(tmp_path):
     assert not (tmp_path / "dtm.tif").exists() and not (tmp_path / "mask.tif").exists()
     flag, fnd, fgt, _ = read(outs["flag"])
     assert fnd == 255 and fgt == pytest.approx(GT)
-    assert gdal.Open(outs["flag"]).GetRasterBand(1).DataType == gdal.GDT_Byte
+    fds = gdal.Open(outs["flag"])                # kept alive while its band is used
+    assert fds.GetRasterBand(1).DataType == gdal.GDT_Byte
     expect = np.zeros(z.shape, np.uint8)
     for rc in objs:
         expect[rc] = 7
@@ -461,3 +452,74 @@ def test_run_file_resolves_on_central_window(tmp_path, monkeypatch):
     logs = []
     pipeline.run_file(meth, write(tmp_path, z), outputs(tmp_path, "mask"), log=logs.append)
     assert seen == [(6, 6)] and any("central 6 x 6" in s for s in logs)
+
+
+# ---- #15: scale/offset, corrupt files, far heights, window planning ------------------------------
+
+def test_run_file_applies_scale_and_offset_and_says_so(tmp_path):
+    """Int16 counts with scale 0.1 and offset 100: filtered as heights 100 + 0.1 * count
+    (the raw counts, about -1000, would all be low outliers)."""
+    z, objs = scene()
+    counts = np.round((np.nan_to_num(z, nan=-3176.8) - 100.0) * 10).astype(np.int16)    # heights = z
+    p = grid.write_array(tmp_path / "scaled.tif", counts, GT, 32633, nodata=-32768, dtype="Int16")
+    ds = gdal.Open(p, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.1)
+    ds.GetRasterBand(1).SetOffset(100.0)
+    ds = None
+    lines = []
+    info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
+                             log=lines.append)
+    assert any("scale" in s and "0.1" in s and "100" in s for s in lines)
+    assert info["notes"] and "scale" in info["notes"][0]
+    mask = gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()
+    dtm = gdal.Open(str(tmp_path / "d.tif")).ReadAsArray()
+    assert all(mask[rc] == OBJECT for rc in objs) and mask[8, 8] == LOW
+    ground = mask == GROUND
+    want = (counts * 0.1 + 100.0).astype(np.float32)
+    np.testing.assert_array_equal(dtm[ground], want[ground])  # the heights, not the counts
+    valid = dtm != -32768                                      # the DSM's nodata, kept
+    assert valid.sum() == dtm.size - 2 and -1 < dtm[valid].min() and dtm[valid].max() < 3
+
+
+def test_run_file_corrupt_input_is_a_value_error(tmp_path):
+    z = np.random.default_rng(1).random((600, 600), dtype=np.float32)
+    p = grid.write_array(tmp_path / "ok.tif", z, GT, 32633)
+    data = open(p, "rb").read()
+    bad = tmp_path / "broken.tif"
+    bad.write_bytes(data[: len(data) // 3])
+    with pytest.raises(ValueError, match=r"broken\.tif"):
+        pipeline.run_file(ABOVE, bad, {"mask": tmp_path / "m.tif"}, block=128)
+    assert not (tmp_path / "m.tif").exists() and partials(tmp_path) == []
+
+
+@pytest.mark.parametrize("far", [1e30, -1e30, -3.4e38])
+def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
+    import warnings
+    z, objs = scene()
+    z[3, 3] = far
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = pipeline.run_array(ABOVE, z, 1.0)
+        assert res.mask[3, 3] == NODATA and np.isnan(res.dtm[3, 3])
+        assert any("1 cell" in w and "nodata" in w for w in res.info["warnings"])
+        p = grid.write_array(tmp_path / "far.tif", z, GT, 32633)
+        lines = []
+        for block in (None, 5):
+            info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif"}, block=block, log=lines.append)
+            assert any("1 cell" in w for w in info["warnings"]), block
+            assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
+
+
+def test_plan_block_pure():
+    plan = pipeline.plan_block
+    assert plan((500, 400), 3, block=77) == 77                        # given: as is
+    assert plan((500, 400), 3) == 500                                  # one block in memory
+    assert plan((6000, 6000), 3) == pipeline.blocks.DEFAULT_BLOCK       # large: default blocks
+    # two threads, small halo: 4 strips of whole rows, multiples of 64
+    assert plan((500, 400), 3, workers=2) == (128, 400)
+    # long strips align to the output tile
+    assert plan((4096, 300), 3, workers=2) == (1024, 300)
+    # a halo that would add more than a quarter: one strip per worker, at least 2 * halo rows
+    assert plan((500, 400), 40, processes=2) == (256, 400)
+    # large raster with workers: default blocks, rows aligned
+    assert plan((6000, 6000), 3, workers=2) == (2048, 2048)

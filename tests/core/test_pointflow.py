@@ -124,6 +124,7 @@ def test_write_rasters(tmp_path, cloud):
 
 def test_write_rasters_feet_back_in_feet(tmp_path, cloud):
     from osgeo import osr
+
     from bare_earth.core import grid
     srs = osr.SpatialReference()
     srs.ImportFromEPSG(2264)                       # NAD83 / North Carolina (ftUS)
@@ -289,3 +290,15 @@ def test_chunked_classify_equals_classify_points(monkeypatch):
     far = PointCloud(x + 1e4, y, z)
     with pytest.raises(ValueError, match="outside the DTM"):
         pf.classify_cloud(far, dtm, g.geotransform)
+
+
+def test_tile_lattice_windows_pure():
+    """The tiles' window planning: whole cells of the block's lattice, clipped to its bounds."""
+    lat = pf.TileLattice.around((0.3, 0.2, 9.7, 5.9), 1.0, 1.0)          # snapped to (0, 0, 10, 6)
+    assert (lat.x0, lat.y0, lat.x1, lat.y1, lat.rows, lat.cols) == (0.0, 0.0, 10.0, 6.0, 6, 10)
+    assert lat.cells_of((2.5, 1.0, 4.0, 3.2)) == (2, 5, 2, 4)            # rows from the north edge
+    assert lat.cells_of((2.5, 1.0, 4.0, 3.2), 2, 3) == (0, 6, 0, 7)      # grown, clipped
+    assert lat.extent_of((2, 5, 2, 4)) == (2.0, 1.0, 4.0, 4.0)
+    lat.margin = 1
+    assert lat.trusted((0, 4, 2, 10)) == (0, 3, 3, 10)                    # block edges stay trusted
+    assert lat.grow((1, 4, 2, 8), (2, 0, 0, 5)) == (0, 4, 2, 10)

@@ -4,9 +4,16 @@ import sys
 import numpy as np
 import pytest
 
-from bare_earth.core import points as P
-from bare_earth.core.points import (PointCloud, classify_points, nice_cell_size, rasterize_points,
-                                    read_points, sample_bilinear, write_points)
+from bare_earth.core import pointfiles
+from bare_earth.core.points import (
+    PointCloud,
+    classify_points,
+    nice_cell_size,
+    rasterize_points,
+    read_points,
+    sample_bilinear,
+    write_points,
+)
 
 DTYPES = [np.float32, np.float64, np.int16]
 
@@ -15,8 +22,8 @@ DTYPES = [np.float32, np.float64, np.int16]
 def parser(request, monkeypatch):
     """Run a text test through both parsers (numpy >= 1.23 C loadtxt, and the fallback)."""
     if request.param == "fromstring":
-        monkeypatch.setattr(P, "_FAST_LOADTXT", False)
-    elif not P._FAST_LOADTXT:
+        monkeypatch.setattr(pointfiles, "_FAST_LOADTXT", False)
+    elif not pointfiles._FAST_LOADTXT:
         pytest.skip("numpy < 1.23 has no C loadtxt")
     return request.param
 
@@ -185,8 +192,8 @@ GT = (100.0, 2.0, 0.0, 50.0, 0.0, -2.0)
 def _plane_grid(rows=6, cols=8):
     cx = GT[0] + (np.arange(cols) + 0.5) * GT[1]
     cy = GT[3] + (np.arange(rows) + 0.5) * GT[5]
-    X, Y = np.meshgrid(cx, cy)
-    return 2.0 * X + 3.0 * Y + 1.0
+    xx, yy = np.meshgrid(cx, cy)
+    return 2.0 * xx + 3.0 * yy + 1.0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

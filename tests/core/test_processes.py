@@ -46,3 +46,64 @@ def test_processes_cancel_leaves_nothing(dsm, tmp_path):
                  processes=2, block=64, progress=progress)
     assert not (tmp_path / "m.tif").exists() and not (tmp_path / "d.tif").exists()
     assert not list(tmp_path.glob("*.partial*"))
+
+
+@pytest.fixture
+def planted_python(tmp_path, monkeypatch):
+    """A ``python3`` first on PATH that must never run (it leaves a marker), and a
+    ``sys.executable`` that is not a Python (as inside QGIS: the QGIS binary)."""
+    import os
+    import sys
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    marker = tmp_path / "planted-ran"
+    for name in ("python3", "python"):
+        p = bindir / name
+        p.write_text(f"#!/bin/sh\ntouch {marker}\nexit 1\n")
+        p.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ.get('PATH', '')}")
+    fake_qgis = bindir / "qgis"
+    fake_qgis.write_text("#!/bin/sh\nexit 1\n")
+    fake_qgis.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(fake_qgis))
+    return marker
+
+
+def test_worker_interpreter_is_ours_not_path_python3(planted_python):
+    import os
+    import sys
+
+    from bare_earth.core.blocks import python_interpreter
+    exe = python_interpreter()
+    assert os.path.dirname(exe) != os.path.dirname(sys.executable)          # not the planted bin dir
+    assert os.path.basename(exe).startswith(f"python{sys.version_info[0]}")
+    assert os.path.realpath(exe).startswith(os.path.realpath(sys.base_prefix))
+
+
+def test_embedded_sys_executable_from_path_is_not_trusted(planted_python, monkeypatch):
+    """An embedded interpreter (qgis_process) may set sys.executable to the ``python3`` it
+    found first on PATH: that program is not the one running us, so it is not used."""
+    import os
+    import sys
+
+    from bare_earth.core.blocks import python_interpreter
+    planted = os.path.join(os.path.dirname(sys.executable), "python3")
+    monkeypatch.setattr(sys, "executable", planted)
+    exe = python_interpreter()
+    assert os.path.realpath(exe) != os.path.realpath(planted)
+    assert os.path.realpath(exe).startswith(os.path.realpath(sys.base_prefix))
+
+
+def test_processes_run_with_planted_python3_first_on_path(dsm, tmp_path, planted_python):
+    par = run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif"}, processes=2, block=100)
+    assert par["blocks"] > 2
+    assert not planted_python.exists(), "the python3 first on PATH was started"
+
+
+def test_processes_forward_the_blocks_own_progress(dsm, tmp_path):
+    fractions = []
+    par = run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
+                   processes=2, block=100, progress=fractions.append)
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    # more reports than blocks: the workers' progress (filter and fill) reaches the bar
+    assert len(fractions) > par["blocks"] + 3

@@ -1,0 +1,78 @@
+"""Local-trend filter by Gaussian curvature (Luong Chinh Ke 2002, section 2.2).
+
+Luong Chinh Ke (2002) fits local trends of the surface to groups of neighbouring points
+along profiles in X (Y constant) and in Y (X constant), at least five points per group,
+by least squares, and gives each point the Gaussian curvature of the fitted surface
+
+    K = (r t - s^2) / h^4,      h^2 = 1 + p^2 + q^2                      (eqs. 9-16)
+
+with p = dz/dX, q = dz/dY the first and r = d2z/dX2, s = d2z/dXdY, t = d2z/dY2 the
+second derivatives. A point with ``|K| >= K_g`` lies on a break of the surface: at the foot
+or the top of an object.
+
+Local trend surfaces
+--------------------
+``"quadratic"`` (default)
+    z = a + b x + c y + d x^2 + e x y + f y^2 fitted by least squares to the
+    ``window x window`` cells around every cell (Evans-Young / Zevenbergen-Thorne style):
+    p = b, q = c, r = 2 d, s = e, t = 2 f. On a regular grid the normal equations
+    separate, so every coefficient is a separable kernel: the whole raster is done with a
+    few shifted sums (no loop per cell). Besides K it gives the mean curvature H, whose
+    sign separates convex (H > 0) from concave (H < 0) where K alone cannot (K > 0 for a
+    dome and for a bowl alike).
+``"bilinear"``
+    The paper's surface z = a0 + a1 X + a2 Y + a3 X Y (eq. 12), fitted to the window of
+    ``window`` neighbouring X profiles (fitted to the points of a single profile it is
+    degenerate: with Y constant, a2 and a3 cannot be separated). Its second derivatives
+    are r = t = 0, s = a3, so K = -a3^2 / h^4 is never positive: it finds twisted
+    breaks (corners) but cannot tell convex from concave, and misses straight edges.
+
+From curvature to objects
+-------------------------
+1. **Breaks.** A cell is marked when ``|K| >= K_g`` (the paper's test), or by its X
+   profile when the bend of the X trend ``|r| >= sqrt(K_g)``, or by its Y profile when
+   ``|t| >= sqrt(K_g)``. The profile tests are needed: along a straight roof edge one
+   principal curvature is zero, so K = 0, and a tall wall has a tiny K (h^4 is large),
+   but the profile across the edge bends strongly. ``sqrt(K_g)`` is the bend of a point
+   curved as much both ways (K = kappa^2).
+2. **Profiles.** Along every X and Y profile (each scanned both ways, all profiles at
+   once) the points between a break going up and the matching break coming down belong
+   to an object: the object starts at a marked cell on top of a wall (a rise of at least
+   the minimum object height within two cells, steeper than the wall slope and three
+   times steeper than the profile before it: dams, embankments, terrace edges and
+   terrain rasterised in steps are not walls), and ends where the profile comes back down
+   to the ground extended from the wall's foot at the profile's slope before it, or comes
+   down a wall onto ground nearer the foot than the top, or after the largest object
+   size. A terrace step is climbed by one scan only; objects are kept where both agree.
+3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
+   the largest object, not touching the raster's edge) made mostly of such points become
+   whole objects.
+4. **Final pass** (twice). The ground is interpolated (harmonic,
+   :func:`~bare_earth.core.fill.fill_gaps`, on a grid of half the resolution refined
+   bilinearly) under the objects, the breaks next to them and the points with ``|K| >= K_g``; a cell
+   is an object when it stands above that surface by more than the tolerance plus one
+   cell of the surface's slope (breaks outside objects: half the minimum object height
+   more, as the interpolated surface sags a little under convex terrain edges). Straight
+   breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
+   surface, so terrain edges stay ground. Nodata takes the height of the nearest ground
+   seed rather than being spanned by the surface (the surface then depends on the ground
+   near a cell, not on the far side of a nodata area). A concave break deeper than the minimum object
+   height below the surface and below every cell of the ring around it is a low blunder
+   (code 2): a pit, not a valley or a cut.
+
+The package's files follow these steps: :mod:`.derivatives` (the local fit, K and H, the
+breaks: steps 1-2), :mod:`.profiles` (profile scans and enclosed regions: steps 3-4),
+:mod:`.ground` (the final pass against the ground surface: step 5) and :mod:`.method`
+(:func:`filter_curvature`, the parameters, the halo and :data:`METHOD`).
+
+Reference
+---------
+Luong Chinh Ke (2002). Filtering of DSM for generating DTM (local trend and Gaussian
+curvature, section 2.2). The curvature formulas are those of differential geometry of a
+graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
+"""
+from .derivatives import MODELS, compute_curvature, curvatures_from_derivatives, local_derivatives
+from .method import METHOD, curvature_halo, derive_k_g, filter_curvature, resolve_curvature_params
+
+__all__ = ["METHOD", "MODELS", "compute_curvature", "curvature_halo", "curvatures_from_derivatives",
+           "derive_k_g", "filter_curvature", "local_derivatives", "resolve_curvature_params"]

@@ -1,0 +1,343 @@
+"""The curvature filter's orchestration: the paper's steps in order, its parameters
+(derived from the data where not given), its reach for blocks, and its registry entry.
+"""
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from scipy import ndimage
+
+from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from ..estimate import ground_level_cells, ground_spread, noise_ground_level
+from ..methods import Method, Param
+from .derivatives import (
+    MODELS,
+    CellSize,
+    Progress,
+    bounded_heights,
+    check_model,
+    check_window,
+    derivative_blocks,
+    mark_breaks,
+)
+from .ground import find_ground
+from .profiles import find_enclosed_objects, find_profile_objects
+
+#: Break threshold in robust standard deviations of the profile bends (K_g default).
+_K_SIGMAS = 1.5
+#: Smallest height deviation (m) across a half window that counts as a break on
+#: noise-free data (floor of the derived K_g).
+_MIN_BREAK_M = 0.05
+#: Largest sample (cells) used to derive defaults on big rasters.
+_SAMPLE_CELLS = 1_048_576
+
+
+def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, window_cells: int = 5,
+                     model: str = "quadratic", min_object_height_m: float = 1.0,
+                     wall_slope_deg: float = 45.0, max_object_size_m: float = 100.0,
+                     tolerance_m: float = 0.3,
+                     progress: Optional[Progress] = None) -> FilterResult:
+    """Separate objects from the ground by the Gaussian curvature of local trends.
+
+    Luong Chinh Ke (2002), section 2.2: a local surface fitted by least squares around
+    every point gives its Gaussian curvature K = (r t - s^2) / h^4 (eqs. 9-16); a point
+    with |K| >= K_g is a break at the foot or the top of an object. Breaks are then
+    turned into whole objects along the X and Y profiles (see :mod:`bare_earth.core.curvature`).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM in metres, NaN = nodata. Not modified.
+    cell_size : float or (float, float)
+        ``(dx, dy)`` in metres.
+    k_g_per_m2 : float
+        Curvature threshold K_g in 1/m^2. A cell is a break when ``|K| >= K_g`` or, with
+        the quadratic model, when the bend of its X or Y profile trend ``|r|`` or ``|t|``
+        is at least ``sqrt(K_g)`` (a straight roof edge has K = 0 but its profile across
+        the edge bends strongly).
+    window_cells : int
+        Odd number of points per profile group (window edge), >= 3; the paper asks for at
+        least 5.
+    model : {"quadratic", "bilinear"}
+        Local trend surface. ``"bilinear"`` is the paper's eq. 12 (K <= 0 always,
+        r = t = 0: only twisted breaks such as corners are seen).
+    min_object_height_m : float
+        A profile enters an object at a break where it has risen at least this much
+        within two cells (a wall); also the depth below the ground surface and below the
+        ring around it that makes a concave break a low blunder (class 2).
+    wall_slope_deg : float
+        That rise must be steeper than this, and three times steeper than the profile
+        before it (object walls are steep; dams, embankments and terrace edges are not).
+    max_object_size_m : float
+        Longest object (profile runs and enclosed regions larger than this are ground);
+        also bounds the method's reach (halo).
+    tolerance_m : float
+        Final pass: a cell more than this (plus one cell of the surface's slope) above the
+        ground surface interpolated under the objects and breaks is an object.
+    progress : callable, optional
+        ``progress(fraction)``; may raise :class:`~.common.Cancelled`.
+
+    Returns
+    -------
+    FilterResult
+        ``mask`` (0 ground, 1 object, 2 low blunder, 255 nodata), ``extras["curvature"]``
+        (float32, bands K in 1/m^2 and H in 1/m, H > 0 convex; NaN at nodata),
+        ``surface`` (the ground surface of the final pass), and ``info`` with K_g and the
+        shares of valid cells marked by X profiles (``share_marked_x``), by Y profiles
+        (``share_marked_y``), by ``|K| >= K_g`` (``share_marked_k``) and found inside
+        objects by the X and Y profiles.
+
+    References
+    ----------
+    Luong Chinh Ke (2002). Filtering of DSM, section 2.2 (local trend, Gaussian curvature).
+    """
+    z = bounded_heights(as_surface(z))          # +-1e30 and the like: spikes, not overflow
+    cell = as_cell_size(cell_size)
+    s = _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
+                          max_object_size_m, tolerance_m)
+    valid = np.isfinite(z)
+    n_valid = int(np.count_nonzero(valid))
+    some_valid = None if n_valid == valid.size else valid     # None: every cell is valid
+    report(progress, 0.0)
+    # 1. local trends and curvature (eqs. 9-16); 2. breaks: |K| >= K_g, |r| or |t| >= sqrt(K_g)
+    breaks = mark_breaks(z, cell, s.k_g, window=s.window, model=s.model,
+                         progress=sub_progress(progress, 0.0, 0.35))
+    # 3. along X and Y profiles: from a break going up to the break coming down
+    objects, n_obj_x, n_obj_y = find_profile_objects(
+        z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
+        tol=s.tol, max_size=s.max_size, progress=sub_progress(progress, 0.35, 0.55))
+    # 4. regions enclosed by breaks and made mostly of such runs -> whole objects
+    objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size,
+                                     progress=sub_progress(progress, 0.55, 0.65))
+    # 5. final pass against the ground interpolated under objects and breaks (twice)
+    mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
+                                h_min=s.h_min, tol=s.tol, progress=sub_progress(progress, 0.65, 1.0))
+    info = _info(s, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
+    report(progress, 1.0)
+    return FilterResult(mask=mask, extras={"curvature": breaks.curvature}, info=info, surface=surface)
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """The checked parameters of :func:`filter_curvature` (tan_wall: tan of the wall slope)."""
+    k_g: float
+    window: int
+    model: str
+    h_min: float
+    wall_slope_deg: float
+    tan_wall: float
+    max_size: float
+    tol: float
+
+
+def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
+                      max_object_size_m, tolerance_m):
+    """The parameters of :func:`filter_curvature`, checked (ValueError naming the fix)."""
+    window = check_window(window_cells)
+    model = check_model(model)
+    k_g = _positive("k_g_per_m2", k_g_per_m2, "a curvature threshold K_g in 1/m^2, e.g. "
+                    "leave it empty to derive it from the data")
+    h_min = _positive("min_object_height_m", min_object_height_m, "e.g. 1.0")
+    tol = _positive("tolerance_m", tolerance_m, "e.g. 0.3")
+    max_size = _positive("max_object_size_m", max_object_size_m, "e.g. 100")
+    if not (0.0 < float(wall_slope_deg) < 90.0):
+        raise ValueError(f"wall_slope_deg must be between 0 and 90 degrees; got {wall_slope_deg}. "
+                         "Use e.g. 45.")
+    tan_wall = float(np.tan(np.radians(float(wall_slope_deg))))
+    return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol)
+
+
+def _info(s, breaks, n_obj_x, n_obj_y, n_valid):
+    """The parameters used and the shares of valid cells marked and found inside objects."""
+    return {"k_g_per_m2": float(s.k_g), "window_cells": s.window, "model": s.model,
+            "min_object_height_m": s.h_min, "wall_slope_deg": s.wall_slope_deg,
+            "max_object_size_m": s.max_size, "tolerance_m": s.tol,
+            "share_marked_x": breaks.n_x / n_valid,
+            "share_marked_y": breaks.n_y / n_valid,
+            "share_marked_k": np.count_nonzero(breaks.by_k) / n_valid,
+            "share_marked": np.count_nonzero(breaks.marked) / n_valid,
+            "share_objects_x": n_obj_x / n_valid,
+            "share_objects_y": n_obj_y / n_valid}
+
+
+def _positive(name, value, hint):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive number; got {value!r}: {hint}.") from None
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a positive number; got {value!r}: {hint}.")
+    return v
+
+
+def _sample(z):
+    """Central window of at most ``_SAMPLE_CELLS`` cells (defaults on big rasters)."""
+    side = int(np.sqrt(_SAMPLE_CELLS))
+    r, c = z.shape
+    h, w = min(r, side), min(c, side)
+    r0, c0 = (r - h) // 2, (c - w) // 2
+    return z[r0:r0 + h, c0:c0 + w]
+
+
+def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic") -> float:
+    """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
+
+    The bends r and t of the X and Y profile trends (quadratic model) or the normalised
+    twist s / h^2 (bilinear model) are taken on a central sample of at most
+    ``_SAMPLE_CELLS`` cells, on the cells whose whole window stands at ground level
+    (:func:`~bare_earth.core.estimate.ground_level_cells`: never the crowns or roofs,
+    whose smooth parts fill a closed canopy). Their robust spread ``1.4826 MAD`` is
+    computed per 16 x 16 tile holding at least a quarter of such cells and ``sigma`` is the
+    first quartile of the tiles (:func:`~bare_earth.core.estimate.ground_spread`): the
+    curvature noise of the smooth ground. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
+    bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
+    window so that noise-free data do not mark every gentle bend. (1.5 rather than a
+    stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
+    missed breaks cost whole objects.)
+    """
+    dx, dy = as_cell_size(cell_size)
+    window = check_window(window)
+    model = check_model(model)
+    zs = _sample(as_surface(z))
+    quad = model == "quadratic"
+    v = np.empty((2 if quad else 1,) + zs.shape, np.float32)  # the bands of bends
+    for sl, p, q, r, s, t in derivative_blocks(zs, (dx, dy), window, model):
+        if quad:
+            v[0, sl] = r
+            v[1, sl] = t
+        else:
+            np.divide(s, 1.0 + p * p + q * q, out=v[0, sl])
+    # the bends of the ground, not of the canopy or the roofs: only cells whose whole
+    # window stands at ground level (a closed canopy's smooth parts are crowns, and its
+    # K_g read 100 times the ground's)
+    ground = ground_level_cells(zs, (dx, dy), noise_ground_level(zs, (dx, dy))["sigma"])
+    ground = ndimage.binary_erosion(ground, np.ones((window, window), bool), border_value=1)
+    v[:, ~ground] = np.nan
+    sigma = ground_spread([v], tile=16, quantile=0.25)
+    half = (window // 2) * max(dx, dy)
+    floor = 2.0 * _MIN_BREAK_M / (half * half)
+    kappa = max(_K_SIGMAS * sigma, floor)
+    return kappa * kappa
+
+
+def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: Optional[float] = None,
+                             window_cells: int = 5, model: str = "quadratic",
+                             min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
+                             max_object_size_m: float = 100.0,
+                             tolerance_m: Optional[float] = None) -> dict:
+    """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
+
+    ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
+    ground, squared). ``tolerance_m``: three times the noise of the DSM's ground-level
+    cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
+    [0.3, 1.0] m; 0.5 m when too few ground cells are seen. The others have
+    fixed defaults (see :data:`METHOD`).
+    """
+    z = bounded_heights(as_surface(z))
+    dx, dy = as_cell_size(cell_size)
+    window_cells = check_window(window_cells)
+    model = check_model(model)
+    if k_g_per_m2 is None:
+        k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
+    if tolerance_m is None:
+        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
+    return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
+            "min_object_height_m": float(min_object_height_m),
+            "wall_slope_deg": float(wall_slope_deg),
+            "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m)}
+
+
+def curvature_halo(params: dict, cell_size: CellSize) -> int:
+    """Reach of the filter in cells: the window, the foot search beyond a break, and
+    twice the largest object (runs, enclosed regions and the ground surface under them);
+    even, so that blocks cut at even rows keep the 2 x 2 grid of the ground surface
+    (:func:`.ground._ground_surface`) of one pass."""
+    dx, dy = as_cell_size(cell_size)
+    w = check_window(params.get("window_cells", 5))
+    size = float(params.get("max_object_size_m", 100.0))
+    halo = int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
+    return halo + (halo & 1)
+
+
+def _run(z, cell_size, progress=None, **params):
+    return filter_curvature(z, cell_size, progress=progress, **params)
+
+
+METHOD = Method(
+    name="curvature",
+    run=_run,
+    resolve=resolve_curvature_params,
+    halo=curvature_halo,
+    extras={"curvature": (np.float32, 2, float("nan"))},
+    params=(
+        Param("k_g_per_m2", "float", None,
+              "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
+              "cell with |K| >= K_g, or whose X or Y profile bends by sqrt(K_g) 1/m or more, "
+              "is a break. Empty: (1.5 robust sigmas of the data's profile bends)^2; see "
+              "the CURVATURE output to choose it.", minimum=1e-9, maximum=1e6),
+        Param("window_cells", "int", 5,
+              "Points per profile group (odd window edge, cells) of the local least-squares "
+              "trend; the paper asks for at least 5.", minimum=3, maximum=51),
+        Param("model", "enum", "quadratic",
+              "Local trend surface: 'quadratic' (z = a + bx + cy + dx^2 + exy + fy^2, gives K "
+              "and the mean curvature H) or 'bilinear', the paper's eq. 12 (r = t = 0, so "
+              "K <= 0 and straight edges are not seen).", options=MODELS, advanced=True),
+        Param("min_object_height_m", "float", 1.0,
+              "Metres a profile must rise at a break, within two cells, to enter an object "
+              "(Luong Chinh Ke 2002: points between a break going up and the break coming "
+              "down); also the depth of a low blunder (class 2).",
+              minimum=0.05, maximum=100.0),
+        Param("wall_slope_deg", "float", 45.0,
+              "Degrees: that rise must be steeper than this (and 3x steeper than the profile "
+              "before it) to be an object's wall; dams, embankments and terrace edges are "
+              "gentler and stay ground.", minimum=1.0, maximum=89.0, advanced=True),
+        Param("max_object_size_m", "float", 100.0,
+              "Metres: largest object; larger enclosed regions are ground. Also the method's "
+              "reach for block processing.", minimum=1.0, maximum=2000.0),
+        Param("tolerance_m", "float", None,
+              "Metres above the ground surface interpolated under objects and breaks that a "
+              "cell may stand (plus one cell of the surface's slope) and still be ground "
+              "(final pass). Empty: 3 x the DSM's robust noise, within [0.3, 1] m.",
+              minimum=0.01, maximum=10.0, advanced=True),
+    ),
+    title="Curvature filter (Luong Chinh Ke 2002)",
+    description=(
+        "<p>Local-trend filter by Gaussian curvature (Luong Chinh Ke 2002, section 2.2). A "
+        "local surface is fitted by least squares to the <i>window</i> x <i>window</i> "
+        "points around every cell (at least five points per X and Y profile) and gives "
+        "the Gaussian curvature K = (r t - s<sup>2</sup>) / h<sup>4</sup>, "
+        "h<sup>2</sup> = 1 + p<sup>2</sup> + q<sup>2</sup> (eqs. 9-16), and the mean "
+        "curvature H (H &gt; 0 convex, H &lt; 0 concave). Cells with |K| &ge; K<sub>g</sub>, "
+        "or whose X or Y profile bends by &radic;K<sub>g</sub> or more (a straight roof "
+        "edge has K = 0), are breaks at the feet and tops of objects.</p>"
+        "<p>Along each X and Y profile, scanned both ways, the points between a break going "
+        "up a wall (a rise of at least the minimum object height within two cells, steeper "
+        "than the wall slope and than the profile before it) and the matching break coming "
+        "down belong to an object; regions enclosed by breaks and made mostly of such "
+        "points become whole objects. A final pass compares every cell with the ground "
+        "interpolated under the objects and their breaks: straight breaks of the terrain "
+        "itself (dams, embankments, terrace edges) stay ground; concave breaks deeper than "
+        "the minimum object height below the ground and the cells around them are low "
+        "blunders (class 2).</p>"
+        "<p><b>The paper's bilinear surface</b> z = a0 + a1 X + a2 Y + a3 XY (eq. 12) is "
+        "available as the <i>bilinear</i> model. It has a limit: fitted to the points of "
+        "one profile it is degenerate (with Y constant, a2 and a3 cannot be separated), so "
+        "it is fitted here to the window of neighbouring profiles; and its second "
+        "derivatives are r = t = 0, so r t - s<sup>2</sup> = -a3<sup>2</sup> is never "
+        "positive: it cannot tell convex from concave and sees only twisted breaks "
+        "(corners), not straight edges. The default quadratic surface has none of these "
+        "limits.</p>"
+        "<p>Defaults: K<sub>g</sub> = (1.5 robust standard deviations of the profile bends "
+        "of the ground: cells whose whole window stands at ground level)<sup>2</sup>; the "
+        "paper derives K<sub>g</sub> from the data's curvature, and on a closed canopy the "
+        "smooth parts are crowns, whose bends set K<sub>g</sub> a hundred times too high "
+        "(no break found, half the cells wrong). Tolerance = 3 x the noise of the DSM's "
+        "ground-level cells (0.3 to 1 m). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
+        "noise of the fit falls with the square of the cell, so it differs between cell "
+        "sizes by design. The CURVATURE output (band 1 K in 1/m<sup>2</sup>, band 2 H in "
+        "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
+        "cells marked by X and by Y profiles. The curvature is attenuated within "
+        "<i>window</i>/2 cells of the raster's edge (the edge is extended as a plane).</p>"
+        "<p>Reference: Luong Chinh Ke (2002), filtering of DSM, section 2.2.</p>"),
+)
