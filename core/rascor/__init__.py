@@ -47,10 +47,10 @@ Notes on the vectorised implementation
   ``p`` the point's weight). Missing neighbours widen ``h``: uneven spacing is handled.
   Where the window's points do not determine the model, the point is not tested.
 * The mean / linear profile and the horizontal / inclined plane have dedicated kernels
-  (:func:`_fit_rows`, :func:`_fit_box_2d`): running box means of ``w x^j``, ``w z x^j``
+  (:func:`fit_rows`, :func:`fit_box_2d`): running box means of ``w x^j``, ``w z x^j``
   on absolute positions (float64, O(1) per cell for any window), recentred on each cell,
   the centre taken out of the sums, the normal equations solved by cofactors. Fits and
-  snooping run in bands of rows (:func:`_fit_and_snoop`; window fits with a halo of rows,
+  snooping run in bands of rows (:func:`fit_and_snoop`; window fits with a halo of rows,
   Y profiles on a transposed copy), so no full-size float temporary is made and the
   result is that of one fit of the whole raster. Their rounding depends (around 1e-9 m on
   a 865-column DSM) on where the array starts.

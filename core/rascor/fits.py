@@ -12,53 +12,53 @@ from scipy import ndimage
 
 from ..common import report, sub_progress
 from .kernels import (
-    _HALO_BAND_CELLS,
-    _bands,
-    _centred,
-    _mean1,
-    _power_sums,
-    _scratch,
-    _solve3_first,
-    _solve_first_general,
+    HALO_BAND_CELLS,
+    centred_moments,
+    power_sums,
+    row_bands,
+    running_mean,
+    scratch_arrays,
+    solve3_first,
+    solve_first_general,
 )
-from .regions import _region_slices
+from .regions import region_slices
 
 
-def _fit_rows(z, w, size, degree):
+def fit_rows(z, w, size, degree):
     """Leave-one-out mean (degree 0) or linear regression (degree 1) along axis 1.
 
-    The same result as :func:`_fit_at_centre` for 1-D windows (to rounding), computed in
+    The same result as :func:`fit_at_centre` for 1-D windows (to rounding), computed in
     bands of rows: the window moments ``M0 = sum w``, ``M1 = sum w k``, ``M2 = sum w k^2``,
     ``Z0 = sum w z``, ``Z1 = sum w z k`` (``k`` the position relative to the centre) come
     from running box means of ``w x^j`` and ``w z x^j`` on absolute positions ``x``
-    (float64, O(1) per cell whatever the length), recentred by :func:`_centred`; the
+    (float64, O(1) per cell whatever the length), recentred by :func:`centred_moments`; the
     centre is then taken out of ``M0`` and ``Z0`` (its ``k`` is 0).
 
     ``z`` must be finite wherever ``w`` is 0 (any value). Returns ``zhat, h`` like
-    :func:`_fit_at_centre`.
+    :func:`fit_at_centre`.
     """
     rows, cols = z.shape
     zhat = np.empty(z.shape)
     hh = np.empty(z.shape)
     x = np.arange(cols, dtype=np.float64) - cols // 2
     inv = 1.0 / size
-    bands = _bands(rows, cols)
+    bands = row_bands(rows, cols)
     buf = np.empty((8, bands[0].stop, cols))         # scratch, reused by every band
     with np.errstate(all="ignore"):
         for b in bands:
             wz, t, u, m0, z0, m1, m2, z1 = (a[:b.stop - b.start] for a in buf)
             wb = w[b]
             np.multiply(wb, z[b], out=wz)
-            _mean1(wb, size, 1, out=m0)
-            _mean1(wz, size, 1, out=z0)
+            running_mean(wb, size, 1, out=m0)
+            running_mean(wz, size, 1, out=z0)
             if degree == 1:
                 np.multiply(wb, x, out=t)
-                _mean1(t, size, 1, out=m1)
+                running_mean(t, size, 1, out=m1)
                 t *= x
-                _mean1(t, size, 1, out=m2)
+                running_mean(t, size, 1, out=m2)
                 np.multiply(wz, x, out=t)
-                _mean1(t, size, 1, out=z1)
-                # recentre on each cell (see _centred)
+                running_mean(t, size, 1, out=z1)
+                # recentre on each cell (see centred_moments)
                 np.multiply(m0, x, out=t)
                 np.multiply(m1, 2.0, out=u)
                 u -= t
@@ -86,13 +86,13 @@ def _fit_rows(z, w, size, degree):
     return zhat, hh
 
 
-def _fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
+def fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
     """Leave-one-out horizontal (degree 0) or inclined plane (degree 1) in a moving
     ``rows x cols`` box window, for every cell at once.
 
-    The same result as :func:`_fit_at_centre` (to rounding) with few passes over the
+    The same result as :func:`fit_at_centre` (to rounding) with few passes over the
     data: separable window sums, first along the columns (axis 0: ``w y^j``, ``w z y^j``
-    box means on absolute positions, recentred by :func:`_centred`), then along the rows in
+    box means on absolute positions, recentred by :func:`centred_moments`), then along the rows in
     bands (the moments ``sum w kx^p ky^q``, ``p + q <= 2``, and ``sum w z kx^p ky^q``,
     ``p + q <= 1``); the 3 x 3 normal equations are solved by cofactors for the height at
     the centre and ``h = (N^-1)_00``, the centre having been taken out of ``M00``, ``Z00``.
@@ -100,52 +100,52 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
     ``z`` must be finite wherever ``w`` is 0. ``out_rows`` (a slice) limits the result to
     those rows (the others only feed the windows). ``work`` (a dict) keeps the large
     scratch arrays from one call to the next. Returns ``zhat, h`` like
-    :func:`_fit_at_centre` (views of ``work`` arrays when given).
+    :func:`fit_at_centre` (views of ``work`` arrays when given).
     """
     sy, sx = sizes
     rows, cols = z.shape
     o0, o1, _ = (out_rows or slice(0, rows)).indices(rows)
     inv = 1.0 / (sy * sx)
-    wz, c0, d0, t, c1, c2, d1 = _scratch(work, "box", 7, (rows, cols))
+    wz, c0, d0, t, c1, c2, d1 = scratch_arrays(work, "box", 7, (rows, cols))
     np.multiply(w, z, out=wz)
     y = (np.arange(rows, dtype=np.float64) - (o0 + o1) // 2)[:, None]
-    c0 = _mean1(w, sy, 0, out=c0)[o0:o1]
-    d0 = _mean1(wz, sy, 0, out=d0)[o0:o1]
+    c0 = running_mean(w, sy, 0, out=c0)[o0:o1]
+    d0 = running_mean(wz, sy, 0, out=d0)[o0:o1]
     if degree == 1:
         np.multiply(w, y, out=t)
-        c1 = _mean1(t, sy, 0, out=c1)[o0:o1]
+        c1 = running_mean(t, sy, 0, out=c1)[o0:o1]
         t *= y
-        c2 = _mean1(t, sy, 0, out=c2)[o0:o1]
+        c2 = running_mean(t, sy, 0, out=c2)[o0:o1]
         np.multiply(wz, y, out=t)
-        d1 = _mean1(t, sy, 0, out=d1)[o0:o1]
+        d1 = running_mean(t, sy, 0, out=d1)[o0:o1]
         y = y[o0:o1]
-        for b in _bands(o1 - o0, cols):
-            _centred(y[b], c0[b], c1[b], c2[b])
-            _centred(y[b], d0[b], d1[b])
+        for b in row_bands(o1 - o0, cols):
+            centred_moments(y[b], c0[b], c1[b], c2[b])
+            centred_moments(y[b], d0[b], d1[b])
     w, wz = w[o0:o1], wz[o0:o1]
     x = np.arange(cols, dtype=np.float64) - cols // 2
-    zhat, hh = _scratch(work, "fit", 2, (o1 - o0, cols))
-    bands = _bands(o1 - o0, cols)
+    zhat, hh = scratch_arrays(work, "fit", 2, (o1 - o0, cols))
+    bands = row_bands(o1 - o0, cols)
     buf = np.empty((16, bands[0].stop, cols))        # scratch, reused by every band
     with np.errstate(all="ignore"):
         for b in bands:
             (t, u, v, m00, z00, m10, m20, m01, m11, m02, z10, z01, c00, c01, c02,
              small) = (a[:b.stop - b.start] for a in buf)
-            _mean1(c0[b], sx, 1, out=m00)
-            _mean1(d0[b], sx, 1, out=z00)
+            running_mean(c0[b], sx, 1, out=m00)
+            running_mean(d0[b], sx, 1, out=z00)
             if degree == 1:
                 np.multiply(c0[b], x, out=t)
-                _mean1(t, sx, 1, out=m10)
+                running_mean(t, sx, 1, out=m10)
                 t *= x
-                _mean1(t, sx, 1, out=m20)
+                running_mean(t, sx, 1, out=m20)
                 np.multiply(c1[b], x, out=t)
-                _mean1(c1[b], sx, 1, out=m01)
-                _mean1(t, sx, 1, out=m11)
-                _mean1(c2[b], sx, 1, out=m02)
+                running_mean(c1[b], sx, 1, out=m01)
+                running_mean(t, sx, 1, out=m11)
+                running_mean(c2[b], sx, 1, out=m02)
                 np.multiply(d0[b], x, out=t)
-                _mean1(t, sx, 1, out=z10)
-                _mean1(d1[b], sx, 1, out=z01)
-                # recentre on each cell (see _centred)
+                running_mean(t, sx, 1, out=z10)
+                running_mean(d1[b], sx, 1, out=z01)
+                # recentre on each cell (see centred_moments)
                 np.multiply(m00, x, out=t)
                 np.multiply(m10, 2.0, out=u)
                 u -= t
@@ -184,7 +184,7 @@ def _fit_box_2d(z, w, sizes, degree, out_rows=None, work=None):
     return zhat, hh
 
 
-def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
+def fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
     """Weighted polynomial fit in a moving window, evaluated at the window's centre.
 
     Parameters
@@ -210,7 +210,7 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
     z = np.where(w > 0, z, 0.0)
     two_d = not np.isscalar(sizes)
     if leave_one_out and kernels is None and degree <= 1:
-        return _fit_box_2d(z, w, sizes, degree) if two_d else _fit_rows(z, w, sizes, degree)
+        return fit_box_2d(z, w, sizes, degree) if two_d else fit_rows(z, w, sizes, degree)
     wz = w * z
 
     def sums(v, px, py=None):
@@ -228,14 +228,14 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
                                                     axis=1, mode="constant", cval=0.0)
             return out
         if not two_d:
-            return _power_sums(v, sizes, px, 1)
+            return power_sums(v, sizes, px, 1)
         sy, sx = sizes
-        ty = _power_sums(v, sy, py, 0)             # the slow axis (0) first: fewer passes
+        ty = power_sums(v, sy, py, 0)             # the slow axis (0) first: fewer passes
         out = {}
         top = max(max(px), max(py))
         for q in set(py):
             ps = [p for p in set(px) if p + q <= top]   # only the moments the model needs
-            tx = _power_sums(ty[q], sx, ps, 1)
+            tx = power_sums(ty[q], sx, ps, 1)
             for p in ps:
                 out[p, q] = tx[p]
         return out
@@ -255,7 +255,7 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
                 ok = det > 1e-9 * m[0] * m[2]
                 zhat, hh = (zz[0] * m[2] - zz[1] * m[1]) / det, m[2] / det
             else:
-                zhat, hh = _solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]),
+                zhat, hh = solve3_first(((m[0], m[1], m[2]), (m[1], m[2], m[3]),
                                           (m[2], m[3], m[4])), (zz[0], zz[1], zz[2]))
                 ok = np.isfinite(zhat)
         return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
@@ -277,8 +277,8 @@ def _fit_at_centre(z, w, sizes, degree, leave_one_out=True, kernels=None):
             zhat, hh = zz[0, 0] / m[0, 0], 1.0 / m[0, 0]
             return np.where(ok, zhat, np.nan), np.where(ok, hh, np.nan)
         if degree == 1:
-            return _solve3_first(M, [zz[mons[i]] for i in range(3)])
-        return _solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
+            return solve3_first(M, [zz[mons[i]] for i in range(3)])
+        return solve_first_general(M, [zz[mons[i]] for i in range(6)], 6)
 
 
 def _snoop(z, zhat, hh, test, s, k, low_weight):
@@ -317,14 +317,14 @@ def _tiles(rows, cols, halo, halo_cols, cells=None):
     """``[(row slice, column slice)]`` covering a ``rows x cols`` array, for fits of
     windows reaching ``halo`` rows and ``halo_cols`` columns.
 
-    Without a halo, bands of whole rows of :data:`_BAND_CELLS` cells; with a row halo,
-    bands of whole rows of about ``cells`` (default :data:`_HALO_BAND_CELLS`) cells, halo
+    Without a halo, bands of whole rows of :data:`BAND_CELLS` cells; with a row halo,
+    bands of whole rows of about ``cells`` (default :data:`HALO_BAND_CELLS`) cells, halo
     included; with a column halo too, tiles of about ``cells`` cells, halos included.
     """
     whole = slice(0, cols)
     if not halo:
-        return [(b, whole) for b in _bands(rows, cols)]
-    cells = cells or _HALO_BAND_CELLS
+        return [(b, whole) for b in row_bands(rows, cols)]
+    cells = cells or HALO_BAND_CELLS
     if not halo_cols:
         step = max(2 * halo, cells // max(1, cols) - 2 * halo)
         return [(slice(r0, min(rows, r0 + step)), whole) for r0 in range(0, rows, step)]
@@ -334,7 +334,7 @@ def _tiles(rows, cols, halo, halo_cols, cells=None):
             for r0 in range(0, rows, step_r) for c0 in range(0, cols, step_c)]
 
 
-def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_cols=0,
+def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_cols=0,
                    tile_cells=None, labels=None, work=None, progress=None):
     """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
 
@@ -359,14 +359,14 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_
     low = np.zeros(z.shape, bool)
     under = np.zeros(z.shape, bool)
     if labels is not None:
-        regions = _region_slices(labels)
+        regions = region_slices(labels)
         ends = np.cumsum([z[sl].size for _, sl in regions]) / max(1, sum(z[sl].size for _, sl in regions))
         for (rid, sl), a, e in zip(regions, np.concatenate([[0.0], ends[:-1]]), ends):
             report(progress, a)
             inside = labels[sl] == rid
             if np.count_nonzero(inside) < 3:
                 continue
-            res = _fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
+            res = fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
                                  None if below is None else below[sl], fit, s, k, low_weight,
                                  halo=halo, halo_cols=halo_cols, tile_cells=tile_cells, work=work,
                                  progress=sub_progress(progress, a, e))
@@ -383,7 +383,7 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_
         src = (slice(r0, r1), slice(c0, c1))
         out, out_c = slice(b.start - r0, b.stop - r0), slice(bc.start - c0, bc.stop - c0)
         kb = keep[src]
-        zb, wb = _scratch(work, ("band", kb.shape[1]), 2, kb.shape)
+        zb, wb = scratch_arrays(work, ("band", kb.shape[1]), 2, kb.shape)
         np.copyto(zb, z[src])
         np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
         np.copyto(wb, kb)                        # the fit weights
@@ -392,7 +392,7 @@ def _fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_
         zhat, hh = fit(zb, wb, out)
         zhat, hh, zo = zhat[:, out_c], hh[:, out_c], zb[out, out_c]
         tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
-        for sb in _bands(*zo.shape):            # in cache-sized pieces
+        for sb in row_bands(*zo.shape):            # in cache-sized pieces
             hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
     return high, low, under
 

@@ -9,13 +9,13 @@ import numpy as np
 from scipy import ndimage
 
 
-def _odd(n, minimum=3):
+def odd_window(n, minimum=3):
     """``n`` rounded to an odd window length of at least ``minimum`` cells."""
     n = max(int(round(n)), minimum)
     return n if n % 2 else n + 1
 
 
-def _power_sums(v, size, powers, axis):
+def power_sums(v, size, powers, axis):
     """``{p: sum_{k=-h..h} v[c+k] k**p}`` along ``axis`` for every centre ``c``.
 
     Exact centred correlations, O(size) per cell: each cell's sum is made of the same
@@ -32,7 +32,7 @@ def _power_sums(v, size, powers, axis):
             for p in sorted(set(powers))}
 
 
-def _solve3_first(a, r):
+def solve3_first(a, r):
     """First unknown and ``(N^-1)_00`` of symmetric 3x3 systems given element-wise."""
     (a00, a01, a02), (_, a11, a12), (_, _, a22) = a
     c00 = a11 * a22 - a12 * a12
@@ -45,7 +45,7 @@ def _solve3_first(a, r):
         return np.where(ok, num / det, np.nan), np.where(ok, c00 / det, np.nan)
 
 
-def _solve_first_general(M, Z, n_unknowns):
+def solve_first_general(M, Z, n_unknowns):
     """First unknown and ``(N^-1)_00`` of stacked symmetric positive systems.
 
     Vectorised Cholesky factorisation over all cells at once (arrays of cells, a loop over
@@ -64,8 +64,8 @@ def _solve_first_general(M, Z, n_unknowns):
         u = n_unknowns
         Mf = [[M[i][j].ravel() for j in range(u)] for i in range(u)]
         Zf = [Z[i].ravel() for i in range(u)]
-        for c0 in range(0, cells.size, _BAND_CELLS):
-            idx = cells[c0:c0 + _BAND_CELLS]
+        for c0 in range(0, cells.size, BAND_CELLS):
+            idx = cells[c0:c0 + BAND_CELLS]
             d = [np.sqrt(Mf[i][i][idx]) for i in range(u)]
             A = [[Mf[i][j][idx] / (d[i] * d[j]) for j in range(u)] for i in range(u)]
             r = [Zf[i][idx] / d[i] for i in range(u)]
@@ -108,19 +108,19 @@ def _solve_first_general(M, Z, n_unknowns):
 #: Cells per band of the banded kernels: their many temporaries (256 kB of float64 each)
 #: stay in the core's cache, and no full-size temporary is allocated per moment. Steps 3
 #: and 4 (few passes per band) take bands 4 and 16 times larger.
-_BAND_CELLS = 1 << 15
+BAND_CELLS = 1 << 15
 #: Cells per band (halo included) of the window fits run in bands of rows with a halo.
-_HALO_BAND_CELLS = 1 << 20
+HALO_BAND_CELLS = 1 << 20
 
 
-def _bands(rows, cols, cells=None):
-    """Row slices of about ``cells`` (default :data:`_BAND_CELLS`) cells covering ``rows``
+def row_bands(rows, cols, cells=None):
+    """Row slices of about ``cells`` (default :data:`BAND_CELLS`) cells covering ``rows``
     rows."""
-    step = max(1, (cells or _BAND_CELLS) // max(1, cols))
+    step = max(1, (cells or BAND_CELLS) // max(1, cols))
     return [slice(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
 
 
-def _scratch(work, key, n, shape):
+def scratch_arrays(work, key, n, shape):
     """``n`` float64 scratch arrays of ``shape``: views of arrays kept in the dict ``work``
     (allocated once, reused by the next bands; new arrays without ``work``)."""
     if work is None:
@@ -131,7 +131,7 @@ def _scratch(work, key, n, shape):
     return [b[:shape[0]] for b in a]
 
 
-def _mean1(v, size, axis, out=None):
+def running_mean(v, size, axis, out=None):
     """Mean of ``v`` (float64) over a centred window of ``size`` (odd) cells along
     ``axis``; 0 outside."""
     if out is None:
@@ -139,7 +139,7 @@ def _mean1(v, size, axis, out=None):
     return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0, output=out)
 
 
-def _centred(x, s0, s1, s2=None):
+def centred_moments(x, s0, s1, s2=None):
     """Turn window sums on absolute positions into sums on positions relative to the
     centre ``x``: ``sum w (x' - x) = s1 - x s0``, ``sum w (x' - x)^2 = s2 - x (2 s1 - x s0)``
     (in place in ``s1``, ``s2``)."""
@@ -153,7 +153,7 @@ def _centred(x, s0, s1, s2=None):
 
 
 
-def _finite64(z):
+def finite_float64(z):
     """``z`` as float64 with 0 in place of NaN (the fits need finite heights everywhere;
     the cells concerned have weight 0 and are never tested)."""
     z = np.array(z, dtype=np.float64)
@@ -161,7 +161,7 @@ def _finite64(z):
     return z
 
 
-def _gauss(radius_cells):
+def gauss_weights(radius_cells):
     """Gaussian window weights reaching ``radius_cells`` (step 7's covariance-like weights)."""
     r = max(1, int(np.ceil(radius_cells)))
     x = np.arange(-r, r + 1.0)

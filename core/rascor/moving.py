@@ -10,8 +10,8 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, sub_progress, transpose
-from .fits import _fit_and_snoop, _fit_at_centre, _fit_box_2d, _fit_rows
-from .kernels import _gauss, _odd
+from .fits import fit_and_snoop, fit_at_centre, fit_box_2d, fit_rows
+from .kernels import gauss_weights, odd_window
 from .terrain import model_degree
 
 #: Cells per tile (halo included) of the polynomial surface: 65 m windows took 0.8-0.9 s a
@@ -68,16 +68,16 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     for L in lengths_m:
         for zz, lab, step, tr in views:
             fwd = tr or (lambda a: a)
-            size = _odd(L / step, 3)
+            size = odd_window(L / step, 3)
 
             def fit(zr, wr, out, size=size):
-                return _fit_rows(zr, wr, size, degree) if degree <= 1 else \
-                    _fit_at_centre(zr, wr, size, degree)
+                return fit_rows(zr, wr, size, degree) if degree <= 1 else \
+                    fit_at_centre(zr, wr, size, degree)
 
             below = None
             c, t = fwd(cur), fwd(test & cur)
             for _ in range(iterations):
-                hi, lo, below = _fit_and_snoop(zz, c, t, below, fit, scale_m, k, low_weight, labels=lab,
+                hi, lo, below = fit_and_snoop(zz, c, t, below, fit, scale_m, k, low_weight, labels=lab,
                                                progress=sub_progress(progress, i_fit / n_fits,
                                                                      (i_fit + 1) / n_fits))
                 i_fit += 1
@@ -126,7 +126,7 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     """
     dx, dy = as_cell_size(cell_size)
     degree = model_degree(terrain_class, homogeneous)
-    sizes = (_odd(size_m / dy, 3), _odd(size_m / dx, 3))
+    sizes = (odd_window(size_m / dy, 3), odd_window(size_m / dx, 3))
     test = keep if test is None else test & keep
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
@@ -135,13 +135,13 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     work = {}                                   # scratch arrays reused by every band
 
     def fit(zz, ww, out):
-        return _fit_box_2d(zz, ww, sizes, degree, out, work) if degree <= 1 else \
-            tuple(a[out] for a in _fit_at_centre(zz, ww, sizes, degree))
+        return fit_box_2d(zz, ww, sizes, degree, out, work) if degree <= 1 else \
+            tuple(a[out] for a in fit_at_centre(zz, ww, sizes, degree))
 
     # the polynomial's centred sums cost O(window) per cell: tiles of bounded work
     tiles = {} if degree <= 1 else dict(halo_cols=sizes[1] // 2, tile_cells=_POLY_TILE_CELLS)
     for i in range(iterations):
-        hi, lo, below = _fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
+        hi, lo, below = fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
                                        halo=sizes[0] // 2, labels=labels, work=work, **tiles,
                                        progress=sub_progress(progress, i / iterations,
                                                              (i + 1) / iterations))
@@ -168,14 +168,14 @@ def remove_prediction_outliers(z: np.ndarray, cell_size: Union[float, Sequence[f
     high, low : ndarray of bool
     """
     dx, dy = as_cell_size(cell_size)
-    kernels = (_gauss(radius_m / dy), _gauss(radius_m / dx))
+    kernels = (gauss_weights(radius_m / dy), gauss_weights(radius_m / dx))
     test = keep if test is None else test & keep
     sizes = (len(kernels[0]), len(kernels[1]))
 
     def fit(zz, ww, out):
-        return tuple(a[out] for a in _fit_at_centre(zz, ww, sizes, 1, kernels=kernels))
+        return tuple(a[out] for a in fit_at_centre(zz, ww, sizes, 1, kernels=kernels))
 
-    hi, lo, _ = _fit_and_snoop(z, keep, test, None, fit, scale_m, k, low_weight,
+    hi, lo, _ = fit_and_snoop(z, keep, test, None, fit, scale_m, k, low_weight,
                                halo=sizes[0] // 2, labels=labels, progress=progress)
     return hi, lo
 

@@ -11,10 +11,10 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from .fits import _fit_at_centre
-from .kernels import _finite64, _gauss, _odd
+from .fits import fit_at_centre
+from .kernels import finite_float64, gauss_weights, odd_window
 from .steps import remove_level_changes, remove_neighbour_differences
-from .terrain import TERRAIN_CLASSES, _as_homogeneous, _characterise, model_degree
+from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope, model_degree
 
 #: Sequences analysed for the profile lengths and the surface sizes (metres).
 PROFILE_LENGTHS_M = (5.0, 9.0, 15.0, 25.0, 41.0, 65.0)
@@ -91,14 +91,14 @@ def _analysis_sample(z, cell_size, sigma, p):
         keep &= ~(hi | lo)
         keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
                                       max_building_m=p["max_building_m"], sigma_m=sigma)
-        sample.append((_finite64(crop), keep.astype(np.float64), keep))
+        sample.append((finite_float64(crop), keep.astype(np.float64), keep))
     return sample
 
 
 def _sample_scale(sample, sizes, degree, kernels=None):
     """Robust scales (:func:`_robust_scale`) of the leave-one-out residuals of the moving
     fit of ``sizes`` cells and ``degree`` on the analysis sample."""
-    v = [(c - _fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
+    v = [(c - fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
     return _robust_scale(np.concatenate(v) if v else np.zeros(0))
 
 
@@ -159,7 +159,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     if tc is not None and tc not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
                          f"by step 1); got {tc!r}.")
-    ch, low_env = _characterise(z, (dx, dy))
+    ch, low_env = characterise_with_envelope(z, (dx, dy))
     report(progress, 0.5)
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
@@ -167,7 +167,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     if p["homogeneous"] in (None, "auto"):
         p["homogeneous"] = bool(ch["homogeneous"]) if p["step1_characterise"] else True
     else:
-        p["homogeneous"] = _as_homogeneous(p["homogeneous"])
+        p["homogeneous"] = as_homogeneous(p["homogeneous"])
     if p["sigma_m"] is None:
         p["sigma_m"] = round(ch["sigma_m"], 3)
     sigma = float(p["sigma_m"])
@@ -194,7 +194,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         deg = model_degree(tc, p["homogeneous"])
         sample = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
-        ps = _scan([_odd(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
+        ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
                    progress=sub_progress(progress, 0.6, 0.8))
         i_long = max(_choose([b for _, b in ps], sigma), 1)
         long_m = PROFILE_LENGTHS_M[i_long]
@@ -207,7 +207,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             s = ps[i_long][0]
             p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
-            ss = _scan([(_odd(S / dy), _odd(S / dx)) for S in SURFACE_SIZES_M], sample, min(deg, 1),
+            ss = _scan([(odd_window(S / dy), odd_window(S / dx)) for S in SURFACE_SIZES_M], sample, min(deg, 1),
                        sigma, progress=sub_progress(progress, 0.8, 0.95))
             i_s = _choose([b for _, b in ss], sigma)
             if p["surface_size_m"] is None:
@@ -216,7 +216,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 s = ss[i_s][0]
                 p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
         if p["prediction_sigma_m"] is None:
-            g = (_gauss(p["prediction_radius_m"] / dy), _gauss(p["prediction_radius_m"] / dx))
+            g = (gauss_weights(p["prediction_radius_m"] / dy), gauss_weights(p["prediction_radius_m"] / dx))
             s = _sample_scale(sample, (len(g[0]), len(g[1])), 1, kernels=g)[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
     report(progress, 1.0)

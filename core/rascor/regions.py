@@ -10,7 +10,7 @@ import numpy as np
 from scipy import ndimage
 
 
-def _as_bool_raster(a, shape, name):
+def as_bool_raster(a, shape, name):
     """``a`` as a boolean raster of ``shape`` (None when absent or empty)."""
     if a is None:
         return None
@@ -49,7 +49,7 @@ def break_regions(breaklines: np.ndarray) -> Tuple[np.ndarray, int]:
     return lab, n1 + n2
 
 
-def _region_slices(labels):
+def region_slices(labels):
     """``[(region id, slice)]`` of every region (bounding boxes)."""
     if labels is None:
         return None

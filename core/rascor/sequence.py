@@ -16,9 +16,9 @@ from ..codes import LOW, NODATA, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from ..estimate import below_surroundings
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
-from .regions import _as_bool_raster, break_regions
+from .regions import as_bool_raster, break_regions
 from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
-from .terrain import TERRAIN_CLASSES, _as_homogeneous, model_degree
+from .terrain import TERRAIN_CLASSES, as_homogeneous, model_degree
 
 #: Step numbers and names (the values of the ``step`` extra).
 STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
@@ -84,7 +84,7 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
     if terrain_class not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES}; got {terrain_class!r}. "
                          "Pass 'auto' to resolve_rascor_params to derive it (step 1).")
-    homogeneous = _as_homogeneous(homogeneous)
+    homogeneous = as_homogeneous(homogeneous)
     for name, val in (("sigma_m", sigma_m), ("jump_m", jump_m), ("max_building_m", max_building_m),
                       ("short_profile_m", short_profile_m), ("long_profile_m", long_profile_m),
                       ("surface_size_m", surface_size_m), ("prediction_radius_m", prediction_radius_m),
@@ -123,8 +123,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
 
 def _start(z, breaklines, special_areas):
     """All valid points kept; the break-line regions and special areas (Jacobsen 2004)."""
-    bl = _as_bool_raster(breaklines, z.shape, "breaklines")
-    sp = _as_bool_raster(special_areas, z.shape, "special_areas")
+    bl = as_bool_raster(breaklines, z.shape, "breaklines")
+    sp = as_bool_raster(special_areas, z.shape, "special_areas")
     labels, n_regions = (None, 0) if bl is None else break_regions(bl)
     valid = np.isfinite(z)
     return _State(z=z, valid=valid, keep=valid.copy(),

@@ -9,7 +9,7 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, report, sub_progress, transpose
-from .kernels import _BAND_CELLS, _bands
+from .kernels import BAND_CELLS, row_bands
 
 
 def remove_height_outliers(z: np.ndarray, keep: np.ndarray, height_min_m: float,
@@ -146,7 +146,7 @@ def _test_bands(test, tol_test, src, lp, labels, keep, reach, out, progress):
     rows, cols = keep.shape
     width = cols + 2 * _PAD
     flat = src.ravel()
-    bands = _bands(rows, width, 4 * _BAND_CELLS)
+    bands = row_bands(rows, width, 4 * BAND_CELLS)
     for i, b in enumerate(bands):
         report(progress, i / len(bands))
         r0, r1 = b.start, b.stop
@@ -336,7 +336,7 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
         for d, ((zz, lab, lmax, fwd), todo) in enumerate(zip(views, redo)):
             c = fwd(cur)
             found = np.zeros(zz.shape, bool)
-            bands = _bands(*zz.shape, 16 * _BAND_CELLS)
+            bands = row_bands(*zz.shape, 16 * BAND_CELLS)
             for i, b in enumerate(bands):
                 report(progress, (2 * p + d + i / len(bands)) / (2 * passes))
                 # a profile's result depends on that profile alone: later passes redo

@@ -33,7 +33,7 @@ def model_degree(terrain_class: str, homogeneous: bool = True) -> int:
     return d if homogeneous else max(d, 1)
 
 
-def _as_homogeneous(v):
+def as_homogeneous(v):
     """``homogeneous`` as a bool (accepts the Param's enum strings)."""
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
@@ -146,10 +146,10 @@ def characterise_terrain(z: np.ndarray, cell_size: Union[float, Sequence[float]]
         (rise/run), ``relief_m`` (2-98 % range of the envelope), ``sigma_m`` (random error,
         :func:`estimate_sigma`), ``tile_m``.
     """
-    return _characterise(as_surface(z), as_cell_size(cell_size), tile_m)[0]
+    return characterise_with_envelope(as_surface(z), as_cell_size(cell_size), tile_m)[0]
 
 
-def _characterise(z, cell_size, tile_m=25.0):
+def characterise_with_envelope(z, cell_size, tile_m=25.0):
     """:func:`characterise_terrain` and its lower envelope (for step 2's limits)."""
     dx, dy = cell_size
     if tile_m <= 0:

@@ -460,7 +460,7 @@ def _random_surface(shape, seed):
 @pytest.mark.parametrize("size", [3, 5, 21])
 def test_profile_kernel_equals_explicit_leave_one_out_fit(degree, size):
     z, w = _random_surface((6, 40), 3)
-    got = fits._fit_at_centre(z, w, size, degree)
+    got = fits.fit_at_centre(z, w, size, degree)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, (1, size), degree)
     both = np.isfinite(ref[0])
     assert both.sum() > 150
@@ -473,7 +473,7 @@ def test_profile_kernel_equals_explicit_leave_one_out_fit(degree, size):
 @pytest.mark.parametrize("sizes", [(3, 3), (5, 7), (9, 5)])
 def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
     z, w = _random_surface((13, 17), 4)
-    got = fits._fit_at_centre(z, w, sizes, degree)
+    got = fits.fit_at_centre(z, w, sizes, degree)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, degree)
     both = np.isfinite(ref[0])
     assert both.sum() > 100
@@ -485,9 +485,9 @@ def test_surface_kernel_equals_explicit_leave_one_out_fit(degree, sizes):
 def test_weighted_window_fit_equals_explicit_leave_one_out_fit():
     # step 7: Gaussian window weights (the general path), run in bands with a halo
     z, w = _random_surface((15, 18), 9)
-    g = (kernels._gauss(2.0), kernels._gauss(3.0))
+    g = (kernels.gauss_weights(2.0), kernels.gauss_weights(3.0))
     sizes = (len(g[0]), len(g[1]))
-    got = fits._fit_at_centre(z, w, sizes, 1, kernels=g)
+    got = fits.fit_at_centre(z, w, sizes, 1, kernels=g)
     ref = _explicit_fit(np.where(w > 0, z, 0.0), w, sizes, 1, kernels=g)
     both = np.isfinite(ref[0])
     assert both.sum() > 150
@@ -497,9 +497,9 @@ def test_weighted_window_fit_equals_explicit_leave_one_out_fit():
 
 def test_banded_kernels_do_not_depend_on_the_bands(monkeypatch):
     z, w = _random_surface((40, 50), 5)
-    one = [fits._fit_at_centre(z, w, 9, 1), fits._fit_at_centre(z, w, (7, 9), 1)]
-    monkeypatch.setattr(kernels, "_BAND_CELLS", 64)       # bands of one row
-    many = [fits._fit_at_centre(z, w, 9, 1), fits._fit_at_centre(z, w, (7, 9), 1)]
+    one = [fits.fit_at_centre(z, w, 9, 1), fits.fit_at_centre(z, w, (7, 9), 1)]
+    monkeypatch.setattr(kernels, "BAND_CELLS", 64)       # bands of one row
+    many = [fits.fit_at_centre(z, w, 9, 1), fits.fit_at_centre(z, w, (7, 9), 1)]
     for a, b in zip(one, many):
         np.testing.assert_array_equal(a[0], b[0])
         np.testing.assert_array_equal(a[1], b[1])
@@ -534,7 +534,7 @@ def test_banded_steps_equal_one_band(monkeypatch):
     runs = []
     for cells in (1 << 20, 90):                          # one band / several bands
         for mod in (kernels, fits, steps):               # every module holding the band sizes
-            for name, value in (("_BAND_CELLS", cells), ("_HALO_BAND_CELLS", 4 * cells)):
+            for name, value in (("BAND_CELLS", cells), ("HALO_BAND_CELLS", 4 * cells)):
                 if hasattr(mod, name):
                     monkeypatch.setattr(mod, name, value)
         runs.append((rascor.remove_level_changes(z, 1.0, keep, jump_m=2.0, max_building_m=30.0,
@@ -551,10 +551,10 @@ def test_fit_and_snoop_equals_whole_fit_then_snoop():
     z, keep = _city(8)
     zf = np.where(keep, z, 0.0)
     w = keep.astype(float)
-    zhat, hh = fits._fit_at_centre(zf, w, (9, 11), 1)
+    zhat, hh = fits.fit_at_centre(zf, w, (9, 11), 1)
     ref = fits._snoop(zf, zhat, hh, keep, 0.1, 4.0, 0.02)
-    got = fits._fit_and_snoop(z, keep, keep, None,
-                              lambda zz, ww, out: fits._fit_box_2d(zz, ww, (9, 11), 1, out),
+    got = fits.fit_and_snoop(z, keep, keep, None,
+                              lambda zz, ww, out: fits.fit_box_2d(zz, ww, (9, 11), 1, out),
                               0.1, 4.0, 0.02, halo=4)
     assert ref[0].any() and ref[2].any()
     for a, b in zip(ref, got):
@@ -606,8 +606,8 @@ def test_polynomial_profile_fit_does_not_depend_on_where_the_array_starts(size):
     z = 200.0 + np.cumsum(rng.normal(0, 0.3, (16, 1500)), axis=1)
     w = (rng.random(z.shape) > 0.2).astype(float)
     c0, c1, h = 900, 1200, size // 2
-    whole = fits._fit_at_centre(z, w, size, 2)
-    part = fits._fit_at_centre(z[:, c0 - h:c1 + h], w[:, c0 - h:c1 + h], size, 2)
+    whole = fits.fit_at_centre(z, w, size, 2)
+    part = fits.fit_at_centre(z[:, c0 - h:c1 + h], w[:, c0 - h:c1 + h], size, 2)
     for a, b in zip(whole, part):
         assert np.isfinite(a[:, c0:c1]).mean() > 0.9
         np.testing.assert_array_equal(a[:, c0:c1], b[:, h:-h])
@@ -620,8 +620,8 @@ def test_polynomial_surface_fit_does_not_depend_on_where_the_array_starts():
     sizes = (17, 21)
     hy, hx = sizes[0] // 2, sizes[1] // 2
     r0, r1, c0, c1 = 200, 260, 400, 520
-    whole = fits._fit_at_centre(z, w, sizes, 2)
-    part = fits._fit_at_centre(z[r0 - hy:r1 + hy, c0 - hx:c1 + hx], w[r0 - hy:r1 + hy, c0 - hx:c1 + hx],
+    whole = fits.fit_at_centre(z, w, sizes, 2)
+    part = fits.fit_at_centre(z[r0 - hy:r1 + hy, c0 - hx:c1 + hx], w[r0 - hy:r1 + hy, c0 - hx:c1 + hx],
                                sizes, 2)
     for a, b in zip(whole, part):
         np.testing.assert_array_equal(a[r0:r1, c0:c1], b[hy:-hy, hx:-hx])
@@ -674,7 +674,7 @@ def test_pleiades_blocked_equals_one_pass(shared_data):
 def _progress_run(monkeypatch, progress, **kw):
     """RASCOR on a mid-size city with small bands (many progress calls), every step on."""
     for mod in (kernels, fits, steps):
-        for name, value in (("_BAND_CELLS", 2048), ("_HALO_BAND_CELLS", 8192)):
+        for name, value in (("BAND_CELLS", 2048), ("HALO_BAND_CELLS", 8192)):
             if hasattr(mod, name):
                 monkeypatch.setattr(mod, name, value)
     z = synthetic.make_scene("city", (160, 192), seed=1).dsm
