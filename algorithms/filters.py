@@ -7,6 +7,71 @@ from .filter_base import FilterAlgorithm
 from .points import PointsInputMixin
 
 
+class DtmAlgorithm(FilterAlgorithm):
+    """``bareearth:dtm``: the recommended filter: the majority of three filters built on different
+    principles, a confidence map, and what the user knows (object areas, ground areas, break lines)."""
+    METHOD_NAME = "dtm"
+    METHOD_TAGS = ("recommended", "ensemble", "confidence", "break lines", "building footprints")
+    OBJECT_AREAS = "OBJECT_AREAS"
+    GROUND_AREAS = "GROUND_AREAS"
+    BREAKLINES = "BREAKLINES"
+    EXTRA_HELP = {"confidence": "Confidence, UInt8 0-100 (255 nodata): how sure each cell's class is, from the "
+                                "members' agreement, the cell's distance from the height threshold and the share "
+                                "of cells around it with the same class; cells under the optional layers are "
+                                "100. Look first where it is low."}
+
+    def extraInputs(self):  # noqa: N802
+        from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+
+        from .filter_base import with_help
+        return [
+            with_help(QgsProcessingParameterFeatureSource(
+                self.OBJECT_AREAS, self.tr("Object areas (e.g. building footprints)"),
+                [QgsProcessing.TypeVectorPolygon], optional=True),
+                "Optional polygons (any CRS; reprojected to the DSM's) that are objects whatever the filters "
+                "say, e.g. building footprints: every cell they touch is an object and the ground under them "
+                "is interpolated. An empty layer is allowed."),
+            with_help(QgsProcessingParameterFeatureSource(
+                self.GROUND_AREAS, self.tr("Ground areas (known bare ground)"),
+                [QgsProcessing.TypeVectorPolygon, QgsProcessing.TypeVectorPoint], optional=True),
+                "Optional polygons or points (any CRS) of known bare ground: their cells are ground whatever "
+                "the filters say (a car park under trees, survey points). They win over object areas. An "
+                "empty layer is allowed."),
+            with_help(QgsProcessingParameterFeatureSource(
+                self.BREAKLINES, self.tr("Break lines"), [QgsProcessing.TypeVectorLine], optional=True),
+                "Optional lines (any CRS) along crests, toes, terrace edges and embankment shoulders: no "
+                "comparison crosses them (as in RASCOR), and near them RASCOR's decision, which honours them, "
+                "stands alone. An empty layer is allowed."),
+        ]
+
+    def auxiliaryArrays(self, parameters, context, info, feedback):  # noqa: N802
+        from .vector_raster import rasterize_source
+        out = {}
+        for key, name in ((self.OBJECT_AREAS, "object_areas"), (self.GROUND_AREAS, "ground_areas"),
+                          (self.BREAKLINES, "breaklines")):
+            if parameters.get(key):
+                src = self.parameterAsSource(parameters, key, context)
+                arr, n = rasterize_source(src, info, context, all_touched=True)
+                feedback.pushInfo(self.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
+                out[name] = arr if n else None
+        return out
+
+    def logResult(self, result, feedback):  # noqa: N802
+        """The input's description and each member's parameters on a line of their own, then the rest."""
+        from .filter_base import format_value
+        params = dict(result.get("params", {}))
+        members = params.pop("members", None) or {}
+        desc = params.pop("input_description", None) or {}
+
+        def listed(d):
+            return ", ".join("{} {}".format(k, format_value(k, v)) for k, v in d.items())
+        feedback.pushInfo(self.tr("Input: {}").format(listed(desc)))
+        feedback.pushInfo(self.tr("Members (each with the parameters it derived from the data):"))
+        for name, p in members.items():
+            feedback.pushInfo("  {}: {}".format(name, listed(p)))
+        super().logResult(dict(result, params=params), feedback)
+
+
 class SlopeProfileAlgorithm(FilterAlgorithm):
     """``bareearth:slopeprofile``: slope along X/Y profiles (Luong Chinh Ke 2002, sec. 2.1)."""
     METHOD_NAME = "slopeprofile"

@@ -119,7 +119,7 @@ class Method:
 
 
 #: Modules that define METHOD, in the order the plugin lists them.
-METHOD_MODULES = ("slope_profile", "curvature", "rascor", "geodesic", "morphology")
+METHOD_MODULES = ("dtm", "slope_profile", "curvature", "rascor", "geodesic", "morphology")
 
 
 def available_methods() -> Dict[str, Method]:

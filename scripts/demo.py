@@ -17,7 +17,7 @@ from bare_earth.core.grid import write_array  # noqa: E402
 from bare_earth.core.preview import write_preview  # noqa: E402
 from bare_earth.core.synthetic import make_scene  # noqa: E402
 
-RECOMMENDED = "slopeprofile"  # best on the generated city DSM (Type II 1.4 %); see the README
+RECOMMENDED = "dtm"  # the filter a user runs without choosing (issue 13); see the README
 
 
 def qgis_process(*args):
@@ -42,7 +42,7 @@ def main(out):
     print(f"Sample DSM: {dsm} ({scene.dsm.shape[1]} x {scene.dsm.shape[0]} cells, synthetic city with truth)")
     log = qgis_process("run", f"bareearth:{RECOMMENDED}", "--",
                        f"INPUT={dsm}", f"OUTPUT_DTM={out / 'dtm.tif'}", f"OUTPUT_MASK={out / 'mask.tif'}",
-                       f"OUTPUT_NDSM={out / 'ndsm.tif'}")
+                       f"OUTPUT_NDSM={out / 'ndsm.tif'}", f"OUTPUT_CONFIDENCE={out / 'confidence.tif'}")
     (out / "filter_log.txt").write_text(log)
     qgis_process("run", "bareearth:evaluate", "--", f"MASK={out / 'mask.tif'}",
                  f"REFERENCE_MASK={out / 'true_mask.tif'}", f"DTM={out / 'dtm.tif'}",
@@ -51,7 +51,8 @@ def main(out):
     preview = write_preview(out / "preview.png", str(dsm), str(out / "dtm.tif"), str(out / "mask.tif"))
     figures = json.loads((out / "evaluation.json").read_text())
     print("Wrote:")
-    for name in ("dtm.tif", "mask.tif", "mask.qml", "ndsm.tif", "preview.png", "evaluation.html", "evaluation.json"):
+    for name in ("dtm.tif", "mask.tif", "mask.qml", "ndsm.tif", "confidence.tif", "preview.png", "evaluation.html",
+                 "evaluation.json"):
         print(f"  {out / name}")
     for k, v in figures.get("results", figures).items():
         if isinstance(v, dict):

@@ -1,0 +1,149 @@
+"""bareearth:dtm: the majority of independent filters, its confidence, and what the user knows."""
+import numpy as np
+import pytest
+
+from bare_earth.core import dtm as dtm_method
+from bare_earth.core import pipeline
+from bare_earth.core.codes import GROUND, NODATA, OBJECT
+from bare_earth.core.methods import available_methods
+from bare_earth.core.synthetic import make_scene
+
+
+def _grid(n):
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+    return y, x
+
+
+def _noisy(ground, seed=0, sd=0.03):
+    rng = np.random.default_rng(seed)
+    return (ground + rng.normal(0.0, sd, ground.shape)).astype(np.float32)
+
+
+def test_registered_without_parameters():
+    m = available_methods()["dtm"]
+    assert m.params == () and "confidence" in m.extras
+    with pytest.raises(ValueError, match="takes no parameters"):
+        pipeline.run_array("dtm", np.zeros((20, 20), np.float32), 1.0, params={"dh_m": 1.0})
+
+
+def test_majority_of_members():
+    """Ground exactly where at least two of the three members say ground."""
+    s = make_scene("city", (96, 96), seed=3)
+    res = pipeline.run_array("dtm", s.dsm, 1.0)
+    p = res.info["params"]["members"]
+    votes = sum((pipeline.run_array(n, s.dsm, 1.0, params={k: v for k, v in p[n].items()
+                                                          if k in {q.name for q in available_methods()[n].params}})
+                 .mask == GROUND).astype(int) for n in dtm_method.MEMBERS)
+    valid = np.isfinite(s.dsm)
+    assert np.array_equal(res.mask[valid] == GROUND, votes[valid] >= 2)
+    assert res.info["rule"].startswith("ground where at least 2 of the 3")
+
+
+def test_blocked_equals_one_pass():
+    s = make_scene("city", (96, 120), seed=5, nodata_holes=True)
+    one = pipeline.run_array("dtm", s.dsm, 1.0)
+    blk = pipeline.run_array("dtm", s.dsm, 1.0, block=40)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.mask, blk.mask)
+    assert np.array_equal(one.extras["confidence"], blk.extras["confidence"])
+
+
+def test_confidence_low_where_the_errors_are():
+    """On a forest scene with known truth, the cells of confidence < 50 hold most of the errors, and
+    the error rate of confidence >= 80 is far below that of < 50."""
+    s = make_scene("forest", (192, 192), seed=0)
+    res = pipeline.run_array("dtm", s.dsm, 1.0)
+    conf = res.extras["confidence"]
+    valid = s.mask != NODATA
+    assert (conf[~np.isfinite(s.dsm)] == NODATA).all() and conf[valid].max() <= 100
+    err = ((res.mask == GROUND) != (s.mask == GROUND)) & valid
+    lo, hi = valid & (conf < 50), valid & (conf >= 80)
+    assert err.sum() > 20
+    assert err[lo].sum() > 0.5 * err.sum()
+    assert err[hi].mean() < 0.1 * err[lo].mean()
+
+
+def test_confidence_map_exact():
+    """Unanimous ground on a plane: agreement 1, margin 1, support 1 -> 100; a lone object cell 1 t
+    above ground decided by a bare majority: agreement 1/3, margin 0, support 1/9 -> 15."""
+    z = np.zeros((9, 9), np.float32)
+    dtm = z.copy()
+    mask = np.zeros((9, 9), np.uint8)
+    votes = np.full((9, 9), 3, np.uint8)
+    z[4, 4], mask[4, 4], votes[4, 4] = 0.5, OBJECT, 1
+    conf = dtm_method.confidence_map(z, mask, dtm, votes, 3, 0.5, 1)
+    assert conf[0, 0] == 100 and conf[4, 4] == round(100 * (1 / 3 + 1 / 9) / 3)
+    assert conf[4, 6] == 100 and conf[4, 5] < 100    # the object's neighbours: less support
+
+
+def test_object_areas_fix_a_warehouse_larger_than_any_window():
+    y, x = _grid(300)
+    ground = 50 + 0.02 * x + 0.01 * y
+    wh = np.zeros(ground.shape, bool)
+    wh[60:240, 60:240] = True                 # 180 m: wider than every member's largest window
+    z = _noisy(ground + np.where(wh, 9.0, 0.0))
+    alone = pipeline.run_array("dtm", z, 1.0)
+    assert (alone.mask[wh] == GROUND).mean() > 0.5                   # the roof taken as ground
+    fixed = pipeline.run_array("dtm", z, 1.0, aux={"object_areas": wh})
+    assert (fixed.mask[wh] == OBJECT).all()
+    assert np.sqrt(np.mean((fixed.dtm - ground)[wh] ** 2)) < 0.1      # the ground under it interpolated
+    assert (fixed.extras["confidence"][wh] == 100).all()
+
+
+def test_breaklines_keep_a_terrace():
+    y, x = _grid(160)
+    # a terrace 24 m wide and 4 m high, its edges 3 m long slopes (x 65-68 up, 92-95 down)
+    ground = 100 + 0.02 * y + np.clip(np.minimum((x - 65) / 3.0, (95 - x) / 3.0), 0, 1) * 4.0
+    z = _noisy(ground)
+    bl = np.zeros(z.shape, bool)
+    bl[:, [65, 68, 92, 95]] = True
+    alone = pipeline.run_array("dtm", z, 1.0)
+    assert (alone.mask[:, 70:90] != GROUND).mean() > 0.9               # taken for a building
+    fixed = pipeline.run_array("dtm", z, 1.0, aux={"breaklines": bl})
+    assert (fixed.mask != GROUND).sum() == 0
+    assert fixed.info["breakline_band_share"] > 0
+
+
+def test_ground_areas_keep_a_raised_car_park_among_trees():
+    y, x = _grid(200)
+    cp = np.zeros(y.shape, bool)
+    cp[80:120, 80:120] = True
+    ground = 20 + 0.01 * x + np.where(cp, 2.5, 0.0)     # a car park deck 2.5 m above its surroundings
+    z = _noisy(ground)
+    rng = np.random.default_rng(1)
+    for cy, cx, r in zip(rng.integers(0, 200, 120), rng.integers(0, 200, 120), rng.uniform(3, 6, 120)):
+        d = np.hypot(y - cy, x - cx)
+        z = np.where((d < r) & ~cp, np.maximum(z, ground + 12 * (1 - (d / r) ** 2)), z).astype(np.float32)
+    alone = pipeline.run_array("dtm", z, 1.0)
+    assert (alone.mask[cp] == GROUND).mean() < 0.5
+    pts = np.zeros(cp.shape, bool)
+    pts[cp] = True
+    fixed = pipeline.run_array("dtm", z, 1.0, aux={"ground_areas": pts})
+    assert (fixed.mask[cp] == GROUND).all()
+    assert np.sqrt(np.mean((fixed.dtm - ground)[cp] ** 2)) < 0.1
+
+
+def test_aux_on_another_grid_refused():
+    with pytest.raises(ValueError, match="object_areas"):
+        dtm_method.filter_dtm(np.zeros((20, 20), np.float32), 1.0, members={}, tolerance_m=0.5, support_cells=1,
+                     object_areas=np.ones((5, 5), bool))
+
+
+def test_characterise():
+    z = np.zeros((10, 10), np.float32)
+    z[:, 5:] = 3.0
+    z[0, 0] = np.nan
+    d = dtm_method.characterise(z, (2.0, 2.0))
+    assert d["cell_m"] == 2.0 and d["valid_share"] == pytest.approx(0.99)
+    assert d["rough_share"] == pytest.approx(10 / 89)
+
+
+def test_window_without_ground_leaves_its_dtm_empty():
+    """A block lying inside one object has no ground to interpolate from: no DTM, no error."""
+    z = np.full((24, 24), 10.0, np.float32)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    res = dtm_method.filter_dtm(z, 1.0, object_areas=np.ones(z.shape, bool),
+                                **{k: v for k, v in p.items() if k != "input_description"})
+    assert res.dtm is None and (res.mask == OBJECT).all() and (res.extras["confidence"] == 100).all()
+    out = pipeline.run_array("dtm", z, 1.0, aux={"object_areas": np.ones(z.shape, bool)})
+    assert np.isnan(out.dtm).all()
