@@ -12,13 +12,22 @@ import os
 from pathlib import Path
 
 import numpy as np
-from qgis.core import (QgsGeometry, QgsPointXY, QgsProcessing, QgsProcessingException,
-                       QgsProcessingOutputNumber, QgsProcessingParameterFile,
-                       QgsProcessingParameterFileDestination,
-                       QgsProcessingParameterFolderDestination, QgsProcessingParameterMultipleLayers,
-                       QgsProcessingParameterNumber, QgsProcessingParameterRasterDestination,
-                       QgsProcessingParameterRasterLayer, QgsProcessingParameterString,
-                       QgsRectangle)
+from qgis.core import (
+    QgsGeometry,
+    QgsPointXY,
+    QgsProcessing,
+    QgsProcessingException,
+    QgsProcessingOutputNumber,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterFolderDestination,
+    QgsProcessingParameterMultipleLayers,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterDestination,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
+    QgsRectangle,
+)
 
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
@@ -41,8 +50,9 @@ DH_HELP = ("Float32 height correction dh (m) at the matched cells: the true surf
            "(positive: an object the DEM lacks); NaN elsewhere.")
 QUALITY_HELP = "Float32 peak normalised cross-correlation of the match (0..1), NaN where not computed."
 ORTHO_MASK_HELP = ("UInt8 mask from dh against its ground trend: 0 ground, 1 object (dh above the threshold), "
-                   "2 low (below minus the threshold), 255 cells not seen in two orthophotos; a colour table "
-                   "and a .qml style are written with it.")
+                   "2 low (below minus the threshold), 255 cells not seen in two orthophotos (or, for "
+                   "orthoparallax, with no trusted match within a few cells); a colour table and a .qml style "
+                   "are written with it.")
 
 
 # --------------------------------------------------------------------------- helpers
@@ -295,13 +305,13 @@ class OrthoAlgorithm(BaseAlgorithm):
             _num(self.HEIGHT_THRESHOLD_M, "Object height threshold (m) [empty: from the data]",
                  "A cell is an object when dh exceeds its ground trend by this (metres). Empty: 3 x the "
                  "larger of the expected precision (0.2 cell of parallax converted to height) and the "
-                 "robust spread of dh.", optional=True, minValue=0.0),
-            _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.1 x H]",
-                 "Largest |dh| the matching searches for (metres); empty: a tenth of the camera height "
+                 "robust spread of dh about its trend on the ground.", optional=True, minValue=0.0),
+            _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.2 x H]",
+                 "Largest |dh| the matching searches for (metres); empty: a fifth of the camera height "
                  "above the DEM.", optional=True, minValue=0.0, advanced=True),
             _num(self.OBJECT_SIZE_M, "Largest object width (m)",
-                 "The object mask compares dh with its ground trend (a grey opening of this width), so "
-                 "smooth DEM errors are not objects; 0 compares dh with 0.",
+                 "The object mask compares dh with its ground trend (the median of the ground cells over "
+                 "about this width), so smooth DEM errors are not objects; 0 compares dh with 0.",
                  default=40.0, minValue=0.0, advanced=True)]
 
     def _raster_outputs(self, dem_label):
@@ -313,8 +323,8 @@ class OrthoAlgorithm(BaseAlgorithm):
         self.addParameter(with_help(QgsProcessingParameterRasterDestination(
             self.OUTPUT_QUALITY, tr("Match quality (correlation)"), optional=True, createByDefault=True),
             QUALITY_HELP))
-        self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_MASK, tr("Object mask")),
-                                    ORTHO_MASK_HELP))
+        self.addParameter(with_help(QgsProcessingParameterRasterDestination(
+            self.OUTPUT_MASK, tr("Object mask"), optional=True, createByDefault=True), ORTHO_MASK_HELP))
 
     def _matching_values(self, parameters, context):
         window = self.parameterAsInt(parameters, self.WINDOW_CELLS, context)
@@ -352,9 +362,8 @@ class OrthoAlgorithm(BaseAlgorithm):
 
     def _write(self, info, parameters, context, dem, dh, quality, mask):
         """Write the four rasters on the DEM's grid; returns the outputs dict."""
-        paths = {"dem": self.parameterAsOutputLayer(parameters, self.OUTPUT_DEM, context),
-                 "mask": self.parameterAsOutputLayer(parameters, self.OUTPUT_MASK, context)}
-        for key, pk in (("dh", self.OUTPUT_DH), ("quality", self.OUTPUT_QUALITY)):
+        paths = {"dem": self.parameterAsOutputLayer(parameters, self.OUTPUT_DEM, context)}
+        for key, pk in (("dh", self.OUTPUT_DH), ("quality", self.OUTPUT_QUALITY), ("mask", self.OUTPUT_MASK)):
             if parameters.get(pk):
                 paths[key] = self.parameterAsOutputLayer(parameters, pk, context)
         nd = info.nodata
@@ -370,16 +379,22 @@ class OrthoAlgorithm(BaseAlgorithm):
                 out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
                         descriptions=["peak NCC"])
                 out.write("quality", quality.astype(np.float32))
-            out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
-            out.write("mask", mask.astype(np.uint8))
+            if "mask" in paths:
+                out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
+                out.write("mask", mask.astype(np.uint8))
             out.commit()
         return {f"OUTPUT_{k.upper()}": v for k, v in paths.items()}
 
     def _log_info(self, info, feedback, skip=()):
+        if info.get("warning"):
+            _warn(feedback, tr("Warning: {}.").format(info["warning"]))
         feedback.pushInfo(tr("Values used and statistics:"))
         for k, v in info.items():
-            if k in skip:
+            if k in skip or k == "warning":
                 continue
+            if isinstance(v, dict):
+                v = ", ".join(f"{kk} {100 * vv:.1f} %" if isinstance(vv, float) else f"{kk} {vv}"
+                              for kk, vv in v.items())
             feedback.pushInfo(f"  {k} = {_fmt(v)}")
 
     def checkParameterValues(self, parameters, context):  # noqa: N802
@@ -425,10 +440,12 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             "<li><b>WINDOW_CELLS</b> (odd, default 7), <b>MIN_CORRELATION</b> (default 0.6): matching.</li>"
             "<li><b>HEIGHT_THRESHOLD_M</b>: object threshold on dh; empty: 3 x the larger of the expected "
             "precision (0.2 cell of parallax in height) and the robust spread of dh.</li>"
-            "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.1 H) and the "
+            "<li><b>MAX_DH_M</b>, <b>OBJECT_SIZE_M</b> (advanced): search range (default 0.2 H) and the "
             "largest object width for the ground trend of the mask (default 40 m).</li></ul>"
-            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus dh (gaps in dh interpolated; the input "
-            "DEM where the orthophotos do not overlap).</li>"
+            "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the DEM plus the trusted dh (gaps of a few cells "
+            "interpolated; the input DEM where nothing was measured or the orthophotos do not overlap). Only "
+            "matches with a distinct correlation peak, left-right agreement and texture enough against the "
+            "noise are trusted; when fewer than 10 % of the cells are, the log says why.</li>"
             "<li><b>OUTPUT_DH</b>: {}</li><li><b>OUTPUT_QUALITY</b>: {}</li>"
             "<li><b>OUTPUT_MASK</b>: {}</li></ul>").format(tr(DH_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
@@ -523,9 +540,10 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
 
     IMAGES, IMAGE_FOLDER, EXTERIOR, INTERIOR, TIE_POINTS = ("IMAGES", "IMAGE_FOLDER", "EXTERIOR", "INTERIOR",
                                                             "TIE_POINTS")
-    MAX_ITERATIONS, TOLERANCE_M = "MAX_ITERATIONS", "TOLERANCE_M"
+    MAX_ITERATIONS, TOLERANCE_M, RELAXATION = "MAX_ITERATIONS", "TOLERANCE_M", "RELAXATION"
     OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
-    TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "mean_corr")
+    TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "agreement",
+                     "status", "mean_corr")
 
     def name(self):
         return "orthorefine"
@@ -538,16 +556,23 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<p>Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, section 2.3). "
             "Each iteration orthorectifies every frame onto the current DEM (collinearity equations with "
             "Brown distortion, hidden cells masked), matches the orthophotos of every overlapping pair "
-            "along its base, converts the residual parallax to height corrections, merges the pairs "
-            "(weighted by correlation, outliers dropped), and adds the correction to the DEM; it stops "
-            "when the RMS correction is below TOLERANCE_M or after MAX_ITERATIONS. Without orientation, "
+            "along its base, keeps the trusted matches (peak correlation, left-right agreement, a distinct "
+            "peak, texture enough against the noise, confirmed by the neighbours), converts the residual "
+            "parallax to height corrections, merges the pairs (weighted by correlation, outliers dropped), "
+            "and adds RELAXATION x the correction to the DEM. Each update is checked by the next "
+            "measurement: an update that makes the pairs agree worse is undone and the iteration stops; it "
+            "also stops when the agreement improves by less than 5 %, when the RMS correction is below "
+            "TOLERANCE_M, or after MAX_ITERATIONS updates. When fewer than 10 % of the cells seen by two "
+            "frames can be matched with confidence (weak texture, noise), the log says why and the DEM is "
+            "kept; cells far from any trusted match keep their height. Without orientation, "
             "TIE_POINTS registers orthophotos to the DEM by the 8-parameter bilinear transformation "
             "(eq. 17) and makes one pass with eq. 18 (B and H).</p>"
             "<h3>Parameters</h3><ul>"
             "<li><b>DEM</b>: starting DEM (single band, projected CRS in metres, the cameras' CRS and datum).</li>"
             "<li><b>IMAGES</b> (raster layers) or <b>IMAGE_FOLDER</b> (every image file in it): the frames "
             "(one band or RGB, converted to grey), two or more. Matched to the CSV by file name without "
-            "extension.</li>"
+            "extension; files of IMAGE_FOLDER that EXTERIOR does not name (a DEM beside the frames) are "
+            "skipped, and the log lists them.</li>"
             "<li><b>EXTERIOR</b>: CSV (comma, tab or space separated, header) with one row per image: "
             "<code>filename,x,y,z,omega,phi,kappa</code> (orthority's xyz_opk format; an optional "
             "<code>camera</code> column names the interior orientation). x, y, z: projection centre in "
@@ -562,16 +587,18 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "(top-left pixel centre = 0, 0); needs <b>BASE_M</b> (B between consecutive images, in the "
             "order given), <b>HEIGHT_M</b> (H) and <b>BASE_DIRECTION_DEG</b>.</li>"
             "<li><b>MAX_ITERATIONS</b> (default 6), <b>TOLERANCE_M</b> (empty: half the expected height "
-            "precision), <b>WINDOW_CELLS</b>, <b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>: as in "
-            "orthoparallax.</li></ul>"
+            "precision), <b>RELAXATION</b> (advanced, default 1: the whole correction), <b>WINDOW_CELLS</b>, "
+            "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>: as in orthoparallax.</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the refined DEM.</li>"
             "<li><b>OUTPUT_DH</b>: total correction, refined minus input (m), NaN where fewer than two frames "
             "see.</li><li><b>OUTPUT_QUALITY</b>: {}</li><li><b>OUTPUT_MASK</b>: {}</li>"
             "<li><b>OUTPUT_ORTHO_FOLDER</b>: the orthophotos of the last iteration, one Float32 GeoTIFF "
             "'&lt;image&gt;_ortho.tif' per image on the DEM's grid.</li>"
-            "<li><b>OUTPUT_TABLE</b>: CSV, one row per iteration: RMS correction (m), share of the cells seen "
-            "by two frames that matched, pairs, RMS residual parallax (m), mean correlation; also in the "
-            "log.</li></ul>").format(tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
+            "<li><b>OUTPUT_TABLE</b>: CSV, one row per measurement: RMS correction (m), share of the cells seen "
+            "by two frames with a trusted match, pairs, RMS residual parallax (m), agreement (RMS parallax on "
+            "the cells matched now and before, over its value before: below 1 the last update helped), status "
+            "(applied, undone, measured), mean correlation; also in the log.</li></ul>").format(
+                tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(with_help(QgsProcessingParameterRasterLayer(self.DEM, tr("Starting DEM")),
@@ -611,6 +638,12 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         self.addParameter(_num(self.TOLERANCE_M, "Stop tolerance (m) [empty: from the data]",
                                "Stop when the RMS correction of an iteration is below this (metres); empty: "
                                "half the expected height precision of the pairs.", optional=True, minValue=0.0))
+        self.addParameter(_num(self.RELAXATION, "Share of each correction applied (relaxation)",
+                               "Each iteration adds this share of the measured correction to the DEM, in (0, 1]. "
+                               "Default 1: the whole correction (one iteration gives full heights); below 1 damps "
+                               "each step. Whatever the value, an update that makes the pairs agree worse is "
+                               "undone and the iteration stops.", default=1.0, minValue=0.01, maxValue=1.0,
+                               advanced=True))
         for p in self._matching_params():
             self.addParameter(p)
         self._raster_outputs("Refined DEM")
@@ -621,9 +654,9 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         self.addParameter(with_help(QgsProcessingParameterFileDestination(
             self.OUTPUT_TABLE, tr("Iteration table (CSV)"), "CSV files (*.csv)", optional=True,
             createByDefault=True),
-            "One row per iteration: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
-            "mean_corr."))
-        for key, label in (("ITERATIONS", "Iterations run"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
+            "One row per measurement: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
+            "agreement, status, mean_corr."))
+        for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
 
     # -- inputs -------------------------------------------------------------------------
@@ -651,7 +684,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         return paths, names
 
     def _inputs(self, parameters, context):
-        from ..core.orthophoto import read_cameras
+        from ..core.orthophoto import read_cameras, read_opk_csv
         info = self._dem(parameters, context)
         paths, names = self._images(parameters, context)
         exterior = self.parameterAsFile(parameters, self.EXTERIOR, context) if parameters.get(self.EXTERIOR) else ""
@@ -660,6 +693,10 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         opts = self._matching_values(parameters, context)
         opts["max_iterations"] = self.parameterAsInt(parameters, self.MAX_ITERATIONS, context)
         opts["tolerance_m"] = _positive_or_none(self, parameters, self.TOLERANCE_M, context)
+        opts["relaxation"] = self.parameterAsDouble(parameters, self.RELAXATION, context)
+        if not 0 < opts["relaxation"] <= 1:
+            raise ValueError(f"RELAXATION must be in (0, 1] (the share of each correction applied); got "
+                             f"{opts['relaxation']:g}.")
         for key, p in ((self.EXTERIOR, exterior), (self.INTERIOR, interior), (self.TIE_POINTS, ties)):
             if p and not os.path.isfile(p):
                 raise ValueError(f"{key}: the file {p!r} does not exist.")
@@ -669,6 +706,20 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                  "YAML / reconstruction.json)" + (", or TIE_POINTS alone." if not ties else "."))
             if ties:
                 raise ValueError("give either the orientation (EXTERIOR and INTERIOR) or TIE_POINTS, not both.")
+            skipped = []
+            if parameters.get(self.IMAGE_FOLDER):
+                # a folder may hold other rasters (the DEM beside the frames): use the files the CSV names
+                try:
+                    known = set(read_opk_csv(exterior))
+                except ValueError as exc:
+                    raise ValueError(f"EXTERIOR: {exc}") from None
+                skipped = [os.path.basename(p) for p, n in zip(paths, names) if n not in known]
+                kept = [(p, n) for p, n in zip(paths, names) if n in known]
+                if len(kept) < 2:
+                    raise ValueError(f"IMAGE_FOLDER: only {len(kept)} of its image files are named in EXTERIOR "
+                                     f"({exterior}); the CSV names {sorted(known)}, the folder holds "
+                                     f"{[os.path.basename(p) for p in paths]}.")
+                paths, names = [p for p, _ in kept], [n for _, n in kept]
             try:
                 cams = read_cameras(exterior, interior, names)
             except ValueError as exc:
@@ -680,7 +731,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                      f"({c.interior.name or 'camera'}) says {c.interior.width} x "
                                      f"{c.interior.height}; use the matching camera or image.")
             isolated = self._check_overlap(info, cams, opts["window"])
-            return info, paths, names, dict(cameras=cams, isolated=isolated), opts
+            return info, paths, names, dict(cameras=cams, isolated=isolated, skipped=skipped), opts
         if not ties:
             raise ValueError("give the orientation of the images: EXTERIOR and INTERIOR, or (for orthophotos "
                              "without orientation) TIE_POINTS with BASE_M and HEIGHT_M.")
@@ -689,7 +740,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             raise ValueError("TIE_POINTS mode needs BASE_M (B between consecutive images) and HEIGHT_M (H).")
         tie = read_tie_points(ties, names)
         return info, paths, names, dict(cameras=None, tie_points=tie, base_m=bh[0], height_m=bh[1],
-                                        base_direction=bh[2], isolated=[]), opts
+                                        base_direction=bh[2], isolated=[], skipped=[]), opts
 
     @staticmethod
     def _check_overlap(info, cams, window):
@@ -734,6 +785,10 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         try:
             info, paths, names, mode, opts = self._inputs(parameters, context)
             isolated = mode.pop("isolated")
+            skipped = mode.pop("skipped")
+            if skipped:
+                _warn(feedback, tr("IMAGE_FOLDER: skipped {} file(s) that EXTERIOR does not name: {}.").format(
+                    len(skipped), ", ".join(skipped)))
             if isolated:
                 _warn(feedback, tr("Image(s) {} overlap no other image on the DEM: they are not used.").format(
                     isolated))
@@ -785,6 +840,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                     wr.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
             outputs[self.OUTPUT_TABLE] = path
         self._log_info(r.info, feedback)
+        feedback.pushInfo(tr("Stopped: {}.").format(r.info.get("stop", "")))
         feedback.setProgress(100)
-        outputs.update(ITERATIONS=len(r.table), RMS_CORRECTION_M=float(r.table[-1]["rms_correction_m"]))
+        outputs.update(ITERATIONS=int(r.info.get("iterations", len(r.table))),
+                       RMS_CORRECTION_M=float(r.table[-1]["rms_correction_m"]))
         return outputs

@@ -16,7 +16,6 @@ import sys
 import time
 
 import numpy as np
-
 from _common import data_dir, setup_path
 
 setup_path()

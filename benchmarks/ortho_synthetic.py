@@ -19,16 +19,14 @@ import sys
 import time
 
 import numpy as np
-from scipy import ndimage
-
 from _common import setup_path
+from scipy import ndimage
 
 setup_path()
 from bare_earth.core.codes import NODATA, OBJECT  # noqa: E402
+from bare_earth.core.orthophoto import orthoparallax, orthorefine  # noqa: E402
 from bare_earth.core.orthophoto.orthorectify import orthorectify  # noqa: E402
-from bare_earth.core.orthophoto.refine import orthoparallax, orthorefine  # noqa: E402
-from bare_earth.core.orthophoto.render import (make_ortho_scene, render_frames,  # noqa: E402
-                                               vertical_cameras)
+from bare_earth.core.orthophoto.render import make_ortho_scene, render_frames, vertical_cameras  # noqa: E402
 
 
 def run_parallax(seed, bh):

@@ -43,7 +43,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Interior", "Camera", "opk_to_rotation", "rotation_to_opk", "read_opk_csv",
-           "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk", "read_cameras"]
+           "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk", "read_cameras",
+           "parse_tiny_yaml"]
 
 
 # --------------------------------------------------------------------------- rotation
@@ -414,7 +415,7 @@ def read_opk_csv(path):
     return out
 
 
-def _parse_tiny_yaml(text):
+def parse_tiny_yaml(text):
     """Parse the small nested-mapping YAML of interior-orientation files (no PyYAML needed)."""
     root = {}
     stack = [(-1, root)]
@@ -469,7 +470,7 @@ def read_interior_yaml(path):
         import yaml  # optional; the tiny parser below covers these files
         data = yaml.safe_load(text)
     except ImportError:
-        data = _parse_tiny_yaml(text)
+        data = parse_tiny_yaml(text)
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: expected a mapping of camera id -> parameters.")
     if "im_size" in data:                        # a single camera without an id

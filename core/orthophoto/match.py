@@ -104,25 +104,55 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=Non
         var_floor = max(gv * 1e-4, 1e-12)
     box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
     vol = np.empty((len(shifts),) + a.shape, np.float32)
+    if min_fill >= 1.0:
+        _ncc_full_windows(vol, a0, b0, va, vb, shifts, window, box, var_floor)
     for k, s in enumerate(shifts):
-        bs = _shift_cols(b0, int(s), 0.0)
-        w = (va & _shift_cols(vb, int(s), False)).astype(np.float32)
-        n = box(w)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / np.maximum(n, 1e-6)
-            aw = a0 * w
-            bw = bs * w
-            ma = box(aw) * inv
-            mb = box(bw) * inv
-            vara = box(aw * a0) * inv - ma * ma
-            varb = box(bw * bs) * inv - mb * mb
-            cov = box(aw * bs) * inv - ma * mb
-            ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
-        ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
-        vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        if min_fill < 1.0:
+            bs = _shift_cols(b0, int(s), 0.0)
+            w = (va & _shift_cols(vb, int(s), False)).astype(np.float32)
+            n = box(w)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inv = 1.0 / np.maximum(n, 1e-6)
+                aw = a0 * w
+                bw = bs * w
+                ma = box(aw) * inv
+                mb = box(bw) * inv
+                vara = box(aw * a0) * inv - ma * ma
+                varb = box(bw * bs) * inv - mb * mb
+                cov = box(aw * bs) * inv - ma * mb
+                ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
+            ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
+            vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
         if shiftable and shiftable > 1:
+            ok = vol[k] > _BAD
             vol[k] = np.where(ok, ndimage.maximum_filter(vol[k], int(shiftable), mode="nearest"), _BAD)
     return vol
+
+
+def _ncc_full_windows(vol, a0, b0, va, vb, shifts, window, box, var_floor):
+    """NCC where both windows are complete (``min_fill = 1``): one box filter per shift.
+
+    With every cell of both windows valid, the means and variances of ``a`` are one box
+    filter for all shifts and those of ``b`` shift with ``b``; only the cross term
+    ``sum a b_s`` depends on the shift. Same values as the general path on those cells.
+    """
+    full_a = box(va.astype(np.float32)) > 1 - 1e-4
+    full_b = box(vb.astype(np.float32)) > 1 - 1e-4
+    ma = box(a0)
+    vara = box(a0 * a0) - ma * ma
+    mb = box(b0)
+    varb = box(b0 * b0) - mb * mb
+    ok_a = full_a & (vara > var_floor)
+    ok_b = full_b & (varb > var_floor)
+    sa = np.sqrt(np.maximum(vara, 0))
+    sb = np.sqrt(np.maximum(varb, 0))
+    for k, s in enumerate(shifts):
+        s = int(s)
+        cov = box(a0 * _shift_cols(b0, s, 0.0)) - ma * _shift_cols(mb, s, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ncc = cov / np.maximum(sa * _shift_cols(sb, s, 0.0), 1e-15)
+        ok = ok_a & _shift_cols(ok_b, s, False)
+        vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
 
 
 def _parabola(vol, k, rows, cols):
@@ -200,15 +230,39 @@ def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_cor
                                  matched_share=float(valid.mean())))
 
 
+def _sample_rows(images, valid, cols):
+    """Linear interpolation of ``images`` at fractional columns ``cols`` of their own rows.
+
+    Columns beyond the edges take the edge value; the sample is valid when the cells it
+    draws on are valid and it lies inside the row (the shift of the matcher is along rows,
+    so this is the 1-D case of ``map_coordinates(order=1)``, several times faster).
+    """
+    n = valid.shape[1]
+    c = np.clip(cols, 0, n - 1)
+    j0 = np.floor(c).astype(np.intp)
+    f = (c - j0).astype(np.float32)
+    j1 = np.minimum(j0 + 1, n - 1)
+    out = []
+    for img in images:
+        v0 = np.take_along_axis(img, j0, axis=1)
+        v1 = np.take_along_axis(img, j1, axis=1)
+        out.append(v0 + f * (v1 - v0))
+    ok = (np.take_along_axis(valid, j0, axis=1) & (np.take_along_axis(valid, j1, axis=1) | (f < 1e-3))
+          & (cols >= -1e-3) & (cols <= n - 1 + 1e-3))
+    return out, ok
+
+
 def _lsm_refine(a, b, s, valid, window, iterations):
     """Least-squares refinement of a symmetric shift ``s`` (a at j - s/2, b at j + s/2).
 
     Gauss-Newton on ``sum_w (b(j + s/2) - a(j - s/2) - offset)^2`` for every cell at once
     (window sums by box filters); the radiometric offset is eliminated by centring in the
-    window.
+    window. Returns ``(s, residual, energy)``: the shift, and at that shift the window mean
+    of the squared residual ``r = b - a - offset`` and of the squared gradient ``g`` along
+    the match direction (the normal equation ``sum g^2`` of the adjustment), for the
+    precision of the match (:func:`_decide`).
     """
-    rows, cols = a.shape
-    rr, cc = np.indices(a.shape, dtype=np.float32)
+    cc = np.arange(a.shape[1], dtype=np.float32)[None, :]
     va, vb = np.isfinite(a), np.isfinite(b)
     a0 = np.where(va, a, 0).astype(np.float32)
     b0 = np.where(vb, b, 0).astype(np.float32)
@@ -216,25 +270,22 @@ def _lsm_refine(a, b, s, valid, window, iterations):
     gb = np.gradient(b0, axis=1).astype(np.float32)
     box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
     s = np.where(valid, s, 0).astype(np.float32)
-    vaf, vbf = va.astype(np.float32), vb.astype(np.float32)
-    for _ in range(iterations):
-        ca, cb = cc - s / 2, cc + s / 2
-        A = ndimage.map_coordinates(a0, [rr, ca], order=1, mode="nearest")
-        B = ndimage.map_coordinates(b0, [rr, cb], order=1, mode="nearest")
-        GA = ndimage.map_coordinates(ga, [rr, ca], order=1, mode="nearest")
-        GB = ndimage.map_coordinates(gb, [rr, cb], order=1, mode="nearest")
-        w = ((ndimage.map_coordinates(vaf, [rr, ca], order=1, mode="constant") > 0.999)
-             & (ndimage.map_coordinates(vbf, [rr, cb], order=1, mode="constant") > 0.999)
-             ).astype(np.float32)
+    for it in range(iterations + 1):
+        (A, GA), wa = _sample_rows((a0, ga), va, cc - s / 2)
+        (B, GB), wb = _sample_rows((b0, gb), vb, cc + s / 2)
+        w = (wa & wb).astype(np.float32)
         r = (B - A) * w
         g = 0.5 * (GA + GB) * w
         n = np.maximum(box(w), 1e-6)
         with np.errstate(divide="ignore", invalid="ignore"):
-            num = box(r * g) - box(r) * box(g) / n
-            den = box(g * g) - box(g) ** 2 / n
+            br, bg = box(r), box(g)
+            den = box(g * g) - bg ** 2 / n
+            if it == iterations:      # statistics at the final shift (per cell of window)
+                res = (box(r * r) - br ** 2 / n) / n
+                return s, res.astype(np.float32), (den / n).astype(np.float32)
+            num = box(r * g) - br * bg / n
             ds = np.where(den > 1e-12, -num / den, 0.0)
         s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
-    return s
 
 
 #: Largest NCC volume (shifts x cells) held at once; bigger inputs are matched in row strips.
@@ -254,18 +305,20 @@ def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_toler
     strip = max(1, int(max_volume // max(1, nshift * cols)))
     if strip >= rows:
         return _match_rows_once(a, b, *args)
+    names = ("disparity", "corr", "reason", "peak_ok", "residual", "energy")
     # reach of one output row in rows: NCC window, shiftable window, each LSM iteration
     halo = window // 2 + max(int(shiftable), 1) // 2 + lsm_iterations * (window // 2) + 1
     strip = max(strip, 2 * halo + 1)
-    d = np.full(a.shape, np.nan, np.float32)
-    c = np.full(a.shape, np.nan, np.float32)
-    v = np.zeros(a.shape, bool)
+    out = None
     for r0 in range(0, rows, strip):
         r1 = min(rows, r0 + strip)
         s0, s1 = max(0, r0 - halo), min(rows, r1 + halo)
-        ds, cs, vs = _match_rows_once(a[s0:s1], b[s0:s1], *args)
-        d[r0:r1], c[r0:r1], v[r0:r1] = ds[r0 - s0:r1 - s0], cs[r0 - s0:r1 - s0], vs[r0 - s0:r1 - s0]
-    return d, c, v
+        part = _match_rows_once(a[s0:s1], b[s0:s1], *args)
+        if out is None:
+            out = {k: np.empty(a.shape, part[k].dtype) for k in names}
+        for k in names:
+            out[k][r0:r1] = part[k][r0 - s0:r1 - s0]
+    return out
 
 
 def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
@@ -284,6 +337,11 @@ def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
     c = sym[k, rr, cc]
     si = shifts[k]
     s = si + _parabola(sym, k, rr, cc)
+    # a distinct peak: the NCC falls to the neighbouring shifts by more than the sampling
+    # sd of an NCC of n cells at that level, (1 - c^2) / sqrt(n) (Fisher)
+    km, kp = np.clip(k - 1, 0, len(shifts) - 1), np.clip(k + 1, 0, len(shifts) - 1)
+    drop = c - 0.5 * (sym[km, rr, cc] + sym[kp, rr, cc])
+    peak_ok = drop >= (1.0 - np.minimum(c * c, 1.0)) / window
     del sym
     ja = np.clip(cc - np.floor(si / 2).astype(int), 0, cols - 1)
     jb = np.clip(cc + np.ceil(si / 2).astype(int), 0, cols - 1)
@@ -291,13 +349,62 @@ def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
              & (np.abs(shifts[kb[rr, jb]] - si) <= lr_tolerance))
     inner = (k > 0) & (k < len(shifts) - 1)
     valid = (c > _BAD) & (c >= min_corr) & lr_ok & inner
+    s_lsm, res, energy = _lsm_refine(a, b, s, valid, window, lsm_iterations)
     if lsm_iterations and valid.any():
-        s_lsm = _lsm_refine(a, b, s, valid, window, lsm_iterations)
         # keep the least-squares result where it stays near the correlation peak
         good = np.abs(s_lsm - s) <= 1.0
         s = np.where(good, s_lsm, s)
     corr = np.where(c > _BAD, c, np.nan).astype(np.float32)
-    return np.where(valid, s, np.nan).astype(np.float32), corr, valid
+    # reasons, kept apart for the decision: 1 low correlation, 2 left-right, 5 edge of range
+    base = np.where(c <= _BAD, 1, np.where(~inner, 5, np.where(c < min_corr, 1, np.where(~lr_ok, 2, 0))))
+    return dict(disparity=np.where(valid, s, np.nan).astype(np.float32), corr=corr,
+                reason=base.astype(np.uint8), peak_ok=peak_ok, residual=res, energy=energy)
+
+
+#: Decision codes of :func:`match_along` (``reason``).
+ACCEPTED = 0
+REASONS = {0: "accepted", 1: "low correlation", 2: "left-right disagreement", 3: "flat peak",
+           4: "weak texture", 5: "edge of the search range"}
+#: Default largest predicted sd of an accepted match, in cells (the expected matching
+#: precision of the refinement, ``precision_cells``).
+MAX_SIGMA_CELLS = 0.2
+
+
+def _decide(out, seen, window, max_sigma_cells):
+    """Explicit per-cell decision on a match from the matcher's quality measures.
+
+    A match is accepted when its peak correlation reaches ``min_corr``, the matches seen
+    from ``a`` and from ``b`` agree (left-right), the NCC peak is distinct (it drops to the
+    neighbouring shifts by more than the sampling sd of an NCC, ``(1 - c^2) / sqrt(n)``) and
+    the window has texture enough against the noise: the least-squares precision of the
+    shift (Foerstner 1984), ``sigma_s^2 = var(r) / sum_w g_s^2``, is at most
+    ``max_sigma_cells``. ``var(r)`` is the noise of the residual ``b - a`` estimated once for
+    the pair (median over the cells whose correlation, left-right and range tests passed),
+    and ``g_s`` the signal
+    part of the gradient (the noise adds ``var(r) / 8`` to the mean square of the averaged
+    central-difference gradient).
+
+    Returns
+    -------
+    reason : ndarray uint8
+    precision : ndarray float32
+        Predicted sd of the disparity in cells (NaN where not computed).
+    noise : float
+        Estimated image noise (sd, grey levels) of one orthophoto.
+    """
+    reason = np.where(seen, out["reason"], 1).astype(np.uint8)
+    res = out["residual"]
+    pool = res[(reason == ACCEPTED) & np.isfinite(res)]
+    var_r = float(np.median(pool)) if pool.size else float("nan")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        signal = out["energy"] - var_r / 8.0
+        precision = np.where(signal > 0, np.sqrt(var_r / (np.maximum(signal, 1e-30) * window * window)),
+                             np.inf).astype(np.float32)
+    precision = np.where(np.isfinite(out["corr"]), precision, np.nan).astype(np.float32)
+    reason[(reason == ACCEPTED) & ~out["peak_ok"].astype(bool)] = 3
+    with np.errstate(invalid="ignore"):
+        reason[(reason == ACCEPTED) & ~(precision <= max_sigma_cells)] = 4
+    return reason, precision, float(np.sqrt(max(var_r, 0.0) / 2.0)) if np.isfinite(var_r) else float("nan")
 
 
 def _rotation_grid(shape, u):
@@ -315,7 +422,7 @@ def _rotation_grid(shape, u):
 
 
 def match_along(a, b, direction, max_shift, *, window=7, shiftable=5, min_corr=0.5,
-                lr_tolerance=1.0, lsm_iterations=3, min_fill=0.6):
+                lr_tolerance=1.0, lsm_iterations=3, min_fill=1.0, max_sigma_cells=MAX_SIGMA_CELLS):
     """Parallax of orthophoto ``b`` against ``a`` along ``direction`` by NCC (and LSM).
 
     The matching of two orthophotos along the base in Luong Chinh Ke (2002, section 2.3)
@@ -343,12 +450,19 @@ def match_along(a, b, direction, max_shift, *, window=7, shiftable=5, min_corr=0
         Left-right consistency tolerance in cells.
     lsm_iterations : int
         Least-squares sub-pixel iterations (0: parabola only).
+    max_sigma_cells : float
+        Largest predicted standard deviation of a match (cells) that is accepted (texture
+        against noise, see :func:`_decide`).
 
     Returns
     -------
     MatchResult
         ``disparity`` in cells along ``direction`` (``b`` displaced by ``d * u`` from
-        ``a``), ``corr``, ``valid``, ``info``.
+        ``a``), ``corr``, ``valid``, ``reason`` (uint8 per cell, :data:`REASONS`: 0 accepted,
+        1 low correlation, 2 left-right disagreement, 3 flat peak, 4 weak texture, 5 edge of
+        the search range), ``precision`` (predicted sd of the disparity in cells) and
+        ``info`` (with ``noise_grey``, the image noise estimated from the pair, and the
+        ``shares`` of the cells seen in both images per reason).
     """
     a, b = _check_pair(a, b)
     window = _check_window(window)
@@ -371,23 +485,32 @@ def match_along(a, b, direction, max_shift, *, window=7, shiftable=5, min_corr=0
                "+r": lambda x: x.T, "-r": lambda x: x[::-1, :].T}[axis]
         inv = {"+c": lambda x: x, "-c": lambda x: x[:, ::-1],
                "+r": lambda x: x.T, "-r": lambda x: x.T[::-1, :]}[axis]
-        d, c, v = _match_symmetric_rows(np.ascontiguousarray(fwd(a)), np.ascontiguousarray(fwd(b)), *args)
-        d, c, v = inv(d), inv(c), inv(v)
+        out = _match_symmetric_rows(np.ascontiguousarray(fwd(a)), np.ascontiguousarray(fwd(b)), *args)
+        out = {k: inv(v) for k, v in out.items()}
     else:
         C, R, (o_c, o_r, n, nv) = _rotation_grid(a.shape, u)
         ra = ndimage.map_coordinates(a, [R, C], order=1, mode="constant", cval=np.nan)
         rb = ndimage.map_coordinates(b, [R, C], order=1, mode="constant", cval=np.nan)
-        d_r, c_r, v_r = _match_symmetric_rows(ra, rb, *args)
+        out_r = _match_symmetric_rows(ra, rb, *args)
         rr, cc = np.indices(a.shape, dtype=float)
         q = (cc - o_c) * u[0] + (rr - o_r) * u[1] + (n - 1) / 2.0
         p = (cc - o_c) * nv[0] + (rr - o_r) * nv[1] + (n - 1) / 2.0
-        d = ndimage.map_coordinates(d_r, [p, q], order=0, mode="constant", cval=np.nan)
-        c = ndimage.map_coordinates(c_r, [p, q], order=0, mode="constant", cval=np.nan)
-        v = np.isfinite(d)
-    v = v & np.isfinite(a) & np.isfinite(b)
-    d = np.where(v, d, np.nan).astype(np.float32)
+        out = {}
+        for k, v in out_r.items():
+            cval = np.nan if v.dtype.kind == "f" else 1
+            out[k] = ndimage.map_coordinates(v.astype(np.float32), [p, q], order=0, mode="constant",
+                                             cval=cval).astype(v.dtype)
+    seen = np.isfinite(a) & np.isfinite(b)
+    reason, precision, noise = _decide(out, seen, window, max_sigma_cells)
+    v = (reason == ACCEPTED) & np.isfinite(out["disparity"])
+    d = np.where(v, out["disparity"], np.nan).astype(np.float32)
+    c = out["corr"]
+    shares = {name: float(np.count_nonzero(seen & (reason == code)) / max(1, np.count_nonzero(seen)))
+              for code, name in REASONS.items()}
     return MatchResult(disparity=d, corr=np.asarray(c, np.float32), valid=v,
                        info=dict(window=window, shiftable=shiftable, min_corr=min_corr,
                                  lr_tolerance=lr_tolerance, max_shift=max_shift,
                                  lsm_iterations=lsm_iterations, direction=tuple(u.tolist()),
-                                 matched_share=float(v.sum() / max(1, (np.isfinite(a) & np.isfinite(b)).sum()))))
+                                 max_sigma_cells=max_sigma_cells, noise_grey=noise, shares=shares,
+                                 matched_share=float(v.sum() / max(1, seen.sum()))),
+                       reason=reason, precision=precision)

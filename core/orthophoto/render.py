@@ -63,7 +63,7 @@ class OrthoScene:
 
 def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m=8.0,
                      building_height_m=(5.0, 12.0), building_width_cells=(10, 24), seed=0,
-                     texture_factor=2):
+                     texture_factor=2, contrast=0.3125):
     """Smooth terrain with flat-roofed rectangular buildings and a random texture.
 
     Parameters
@@ -81,6 +81,10 @@ def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m
     seed : int
     texture_factor : int
         The texture grid is this many times finer than the DEM.
+    contrast : float
+        Standard deviation of the albedo over its mean (128 grey levels): the default 0.31
+        is a well-textured scene (sd 40), 0.03 a weak texture (sd 3.8) that image noise of a
+        few grey levels drowns.
 
     Returns
     -------
@@ -116,9 +120,11 @@ def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m
     tex = rng.normal(size=(rows * f, cols * f))
     tex = (ndimage.gaussian_filter(tex, 1.0 * f) * 1.0
            + ndimage.gaussian_filter(rng.normal(size=tex.shape), 3.0 * f) * 2.5)
-    tex = ((tex - tex.mean()) / tex.std() * 40 + 128).astype(np.float32)
+    if not contrast > 0:
+        raise ValueError(f"contrast must be > 0 (albedo sd / mean); got {contrast}.")
+    tex = ((tex - tex.mean()) / tex.std() * (128.0 * float(contrast)) + 128).astype(np.float32)
     return OrthoScene(t, surface.astype(np.float32), labels, heights, transform, tex, f,
-                      info=dict(seed=seed, relief_m=relief_m))
+                      info=dict(seed=seed, relief_m=relief_m, contrast=float(contrast)))
 
 
 def vertical_cameras(scene, n=2, *, base_over_height=0.45, height_m=150.0, gsd_m=None,
@@ -236,6 +242,6 @@ def render_frame(scene, camera, *, noise=1.0, seed=0, dz_m=None, bisections=10):
     return img.reshape(io.height, io.width).astype(np.float32)
 
 
-def render_frames(scene, cameras, *, noise=1.0, seed=0):
-    """:func:`render_frame` for every camera (different noise per frame)."""
-    return [render_frame(scene, c, noise=noise, seed=seed + i) for i, c in enumerate(cameras)]
+def render_frames(scene, cameras, *, noise=1.0, seed=0, dz_m=None):
+    """:func:`render_frame` for every camera (different noise per frame, grey levels sd)."""
+    return [render_frame(scene, c, noise=noise, seed=seed + i, dz_m=dz_m) for i, c in enumerate(cameras)]

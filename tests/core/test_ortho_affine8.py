@@ -5,8 +5,8 @@ from scipy import ndimage
 
 from bare_earth.core.codes import NODATA
 from bare_earth.core.orthophoto.affine8 import Bilinear8, fit_bilinear8, register_orthophoto
+from bare_earth.core.orthophoto.iterate import orthorefine
 from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify
-from bare_earth.core.orthophoto.refine import orthorefine
 from bare_earth.core.orthophoto.render import make_ortho_scene, render_frames, vertical_cameras
 
 

@@ -4,9 +4,16 @@ import math
 import numpy as np
 import pytest
 
-from bare_earth.core.orthophoto.camera import (Camera, Interior, cameras_from_opk, opk_to_rotation,
-                                               read_interior_yaml, read_opensfm_reconstruction,
-                                               read_opk_csv, rotation_to_opk)
+from bare_earth.core.orthophoto.camera import (
+    Camera,
+    Interior,
+    cameras_from_opk,
+    opk_to_rotation,
+    read_interior_yaml,
+    read_opensfm_reconstruction,
+    read_opk_csv,
+    rotation_to_opk,
+)
 from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify
 
 
@@ -160,7 +167,7 @@ def test_tiny_yaml_parser_reads_interior_files(tmp_path, monkeypatch):
             "drone cam:\n  type: brown\n  im_size: [1368, 912]\n  focal_len: 0.6665\n"
             "  k1: -0.264\n  k2: 0.1019\n  p1: 0.00073\n  p2: 0.00026\n  k3: -0.0258\n"
             "  cx: -0.0015\n  cy: 0.0048\n")
-    parsed = cam_mod._parse_tiny_yaml(text)
+    parsed = cam_mod.parse_tiny_yaml(text)
     assert parsed["Integraph DMC"]["im_size"] == [640, 1152]
     assert parsed["drone cam"]["k3"] == pytest.approx(-0.0258)
     p = tmp_path / "int.yaml"

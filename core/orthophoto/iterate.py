@@ -1,0 +1,455 @@
+"""Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, section 2.3).
+
+:func:`orthorefine` orthorectifies every frame on the current DEM, measures the residual
+parallax of every overlapping pair (:func:`~.refine.match_pair`), merges the pairs'
+corrections, and updates the DEM while the pairs' agreement improves; every update is
+checked by the next measurement and undone if it made the pairs agree worse.
+"""
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from ..common import report, sub_progress
+from .orthorectify import check_transform, grid_xy, orthorectify
+from .quality import keep_significant, merge_pairs, nan_median_filter, object_mask, spread_corrections
+from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
+
+__all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MIN_GAIN"]
+
+#: Default share of each measured correction applied to the DEM (the whole correction).
+RELAXATION = 1.0
+#: Default smallest relative improvement of the pairs' agreement that continues the iteration.
+MIN_GAIN = 0.05
+#: An update after which the pairs lose more than this share of their trusted matches made
+#: them agree worse (the parallax of the remaining, easier cells alone would hide it).
+MAX_LOST = 0.5
+
+
+@dataclass
+class RefineResult:
+    """Result of :func:`orthorefine`.
+
+    Attributes
+    ----------
+    dem : ndarray float32
+        Refined DEM.
+    orthos : list of ndarray float32
+        The orthophotos of the last iteration (made with the DEM of that iteration).
+    dh : ndarray float32
+        Total correction, refined minus input DEM (NaN where fewer than two frames see).
+    quality : ndarray float32
+        Correlation-weighted mean peak NCC of the last iteration.
+    mask : ndarray uint8
+        1 object where ``dh`` exceeds the threshold, 2 low, 0 ground, 255 not seen by two frames.
+    table : list of dict
+        One row per measurement (orthorectify and match on the DEM of that moment):
+        ``iteration``, ``rms_correction_m`` (RMS of the merged correction over matched
+        cells), ``matched_share`` (trusted matches / cells seen by two frames), ``pairs``,
+        ``rms_parallax_m`` (RMS residual parallax of the pairs' trusted matches, ground
+        units), ``agreement`` (RMS parallax on the cells matched now and at the previous
+        measurement, over its value then: below 1 the last update made the pairs agree
+        better), ``status`` (``applied``: this correction went into the DEM; ``undone``: the
+        next measurement showed it made the pairs agree worse, so it was taken back;
+        ``measured``: not applied, see ``info['stop']``), ``mean_corr`` and, with
+        ``reference``, ``rmse_reference_m`` of the DEM after that row.
+    info : dict
+        Parameters used, ``stop`` (why the iteration ended, in words) and ``warning``
+        (plain words when the data could not support the refinement, else '').
+    """
+    dem: np.ndarray
+    orthos: list
+    dh: np.ndarray
+    quality: np.ndarray
+    mask: np.ndarray
+    table: list
+    info: dict = field(default_factory=dict)
+
+
+def overlapping_pairs(seen, min_overlap=0.05, min_cells=100):
+    """Index pairs ``(i, j)`` whose seen-cell masks share at least ``min_overlap`` of the smaller."""
+    pairs = []
+    for i in range(len(seen)):
+        for j in range(i + 1, len(seen)):
+            both = int((seen[i] & seen[j]).sum())
+            small = max(1, min(int(seen[i].sum()), int(seen[j].sum())))
+            if both >= min_cells and both / small >= min_overlap:
+                pairs.append((i, j))
+    return pairs
+
+
+def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_m=None,
+                window=7, shiftable=5, min_corr=0.6, max_dh_m=None, pairs=None,
+                min_overlap=0.05, smooth_cells=5, height_threshold_m=None,
+                precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
+                relaxation=RELAXATION, min_gain=MIN_GAIN, outlier_m=None, reference=None,
+                reference_cells=None, tie_points=None, base_m=None,
+                height_m=None, base_direction=(1.0, 0.0), progress=None):
+    """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
+
+    Each iteration orthorectifies every frame onto the current DEM (collinearity equations,
+    bilinear resampling, hidden and unseen cells masked), matches the orthophotos of every
+    overlapping pair along its base (:func:`orthoparallax`'s matcher), converts the parallax
+    to height corrections with the general geometry, keeps the trusted ones (the matcher's
+    per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
+    pairs' corrections weighted by correlation, keeps their smooth part and their detail
+    where it stands out of the noise (:func:`~.quality.keep_significant`), fills gaps of a
+    few cells and adds ``relaxation`` x the correction to the DEM.
+
+    The iteration rule: each update is checked by the next measurement, which compares
+    the pairs' agreement (RMS residual parallax on the cells matched both times) with the
+    previous one. An update that made the pairs agree worse (or lost more than
+    :data:`MAX_LOST` of the trusted matches) is undone and the iteration stops; when the agreement improved by
+    less than ``min_gain`` (relative) the iteration stops keeping the update. It also stops
+    when the RMS correction falls below ``tolerance_m``, and after ``max_iterations``
+    updates (the last one checked by one more measurement). When fewer than
+    :data:`~.refine.MIN_MATCHED_SHARE` of the cells seen by two frames hold a trusted match
+    at the first measurement, the DEM is returned unchanged and ``info['warning']`` says
+    why. Cells farther than the fill reach from any trusted match keep their height.
+
+    Parameters
+    ----------
+    dem : ndarray (rows, cols)
+        Starting DEM (NaN = nodata).
+    transform : 6 floats
+        North-up geotransform of ``dem`` (same CRS and units as the camera centres).
+    images : sequence of ndarray
+        Frame images, (rows, cols) or (bands, rows, cols).
+    cameras : sequence of Camera, or None
+        One per image (:mod:`.camera`). ``None`` when no orientation is known: then
+        ``images`` are orthophotos registered to the DEM by eq. 17 from ``tie_points``.
+    max_iterations : int
+    tolerance_m : float, optional
+        Stop when the RMS correction of an iteration is below this; default half the
+        expected height precision of the pairs (``precision_cells`` of parallax).
+    precision_cells : float
+        Expected matching precision in cells (default 0.2): the blunder tolerance (3 x) and
+        the default object threshold, in height.
+    window, shiftable, min_corr : matcher settings (see :func:`~.match.match_along`).
+    max_dh_m : float, optional
+        Largest correction searched (default 0.2 * camera height above the DEM); after an
+        update the search range is the 99th percentile of the correction just applied (at
+        least 6 x the expected precision). No cell moves by more than ``2 * max_dh_m`` in total.
+    pairs : list of (int, int), optional
+        Pairs to match; default every pair that overlaps by ``min_overlap``.
+    smooth_cells : int
+        NaN-aware median filter size applied to each iteration's correction (0: none).
+    height_threshold_m : float, optional
+        Object threshold on the total correction (default from the data, as orthoparallax).
+    antialias : bool
+        Low-pass the images to the ground cell size before resampling.
+    object_size_m : float
+        Largest object width: the object mask compares ``dh`` with its ground trend (a
+        median of the ground cells over about this width), so smooth DEM errors are not
+        objects; 0 compares with 0.
+    fill_sigma_cells : float
+        Reach (Gaussian sigma, cells) of the interpolation of each iteration's correction
+        into unmatched cells, fading to 0 (:func:`~.quality.spread_corrections`); farther
+        cells keep their height.
+    relaxation : float
+        Share of each iteration's correction applied, in (0, 1]; default :data:`RELAXATION`
+        = 1 (the whole measured correction: one iteration gives full heights). Below 1
+        damps each step; the iteration rule guards against noise either way.
+    min_gain : float
+        Smallest relative improvement of the pairs' agreement that continues the iteration
+        (default :data:`MIN_GAIN`).
+    outlier_m : float, optional
+        Pair corrections farther than this from the per-cell median of the pairs are
+        dropped before the correlation-weighted mean; default 3 x the expected precision.
+    reference : ndarray, optional
+        A reference surface for evaluation only: adds ``rmse_reference_m`` to the table.
+    reference_cells : ndarray of bool, optional
+        Cells of that evaluation (default: the cells seen by two frames in the iteration).
+    tie_points : sequence, optional
+        Without ``cameras``: per image, a :class:`~.affine8.Bilinear8` or a pair
+        ``(dem_xy, ortho_xy)`` of at least four ground points (DEM map coordinates and the
+        image's pixel column, row) for eq. 17 of Luong Chinh Ke (2002). The orthophotos
+        cannot be redrawn on a new DEM without an orientation, so this is one pass
+        (:func:`orthoparallax` on every overlapping pair, merged), with the vertical-frame
+        geometry of ``base_m`` (B between consecutive images, along ``base_direction``)
+        and ``height_m`` (H).
+    base_m, height_m, base_direction : float, float, (float, float)
+        B, H and the base direction for ``tie_points`` mode.
+    progress : callable, optional
+        ``progress(fraction)``; may raise Cancelled.
+
+    Returns
+    -------
+    RefineResult
+    """
+    dem0 = np.asarray(dem, dtype=np.float32)
+    if dem0.ndim != 2:
+        raise ValueError(f"dem must be 2-D; got shape {dem0.shape}.")
+    check_transform(transform)
+    images = list(images)
+    cameras = None if cameras is None else list(cameras)
+    if len(images) < 2:
+        raise ValueError(f"orthorefine needs two or more overlapping frames; got {len(images)}.")
+    if cameras is not None and any(c is None for c in cameras) and not all(c is None for c in cameras):
+        raise ValueError("give a camera for every image, or none (tie_points mode).")
+    if cameras is not None and len(images) != len(cameras):
+        raise ValueError(f"{len(images)} images but {len(cameras)} cameras; give one camera per image.")
+    if not 0 < float(relaxation) <= 1:
+        raise ValueError(f"relaxation must be in (0, 1] (the share of each correction applied); "
+                         f"got {relaxation}.")
+    if int(max_iterations) < 1:
+        raise ValueError(f"max_iterations must be >= 1; got {max_iterations}.")
+    if cameras is None or all(c is None for c in cameras):
+        return _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
+                                  base_direction, window=window, shiftable=shiftable,
+                                  min_corr=min_corr, max_dh_m=max_dh_m, pairs=pairs,
+                                  min_overlap=min_overlap, smooth_cells=smooth_cells,
+                                  height_threshold_m=height_threshold_m,
+                                  precision_cells=precision_cells, object_size_m=object_size_m,
+                                  fill_sigma_cells=fill_sigma_cells, outlier_m=outlier_m,
+                                  reference=reference, progress=progress)
+    greys = [as_grey(im) for im in images]
+    for g, c in zip(greys, cameras):
+        if (g.shape[1], g.shape[0]) != (c.interior.width, c.interior.height):
+            raise ValueError(f"image of camera {c.name!r} is {g.shape[1]} x {g.shape[0]} pixels, its "
+                             f"interior orientation {c.interior.width} x {c.interior.height}.")
+    valid_dem = np.isfinite(dem0)
+    if not valid_dem.any():
+        raise ValueError("dem has no valid cell.")
+    hgt = min(float(c.centre[2]) for c in cameras) - float(np.nanmedian(dem0))
+    if not hgt > 0:
+        raise ValueError("the cameras are not above the DEM; check the camera Z and the DEM datum.")
+    if max_dh_m is None:
+        max_dh_m = 0.2 * hgt
+    if antialias:
+        greys = [_antialias(g, c, dem0, transform) for g, c in zip(greys, cameras)]
+    setup = dict(greys=greys, cameras=cameras, transform=transform, valid=valid_dem, pairs=pairs,
+                 min_overlap=min_overlap, match=dict(window=window, shiftable=shiftable,
+                                                     min_corr=min_corr, max_dh_m=float(max_dh_m),
+                                                     precision_cells=precision_cells))
+    total = int(max_iterations) + 1
+    cur, prev_dem, prev = dem0.copy(), None, None
+    table, info, stop = [], {}, ""
+    for it in range(total):
+        meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
+        setup["pairs"] = meas["pairs"]
+        if it == 0:
+            if reference_cells is None:
+                reference_cells = meas["multi"]
+            info["sigma_expected_m"] = precision_cells * meas["dh_per_cell_m"]
+            if tolerance_m is None:
+                tolerance_m = 0.5 * info["sigma_expected_m"]
+            outlier = outlier_m if outlier_m is not None else 3.0 * max(info["sigma_expected_m"], 0.1)
+        dh_it, meas["quality"] = merge_pairs(meas["dhs"], meas["cors"], outlier)
+        matched = np.isfinite(dh_it) & meas["multi"]
+        rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
+        meas["share"] = share = float(matched.sum() / max(1, meas["multi"].sum()))
+        row = dict(iteration=it + 1, rms_correction_m=rms, matched_share=share, pairs=len(meas["pinfo"]),
+                   rms_parallax_m=meas["rms_parallax_m"], agreement=float("nan"), status="measured",
+                   mean_corr=float(np.nanmean(meas["quality"][matched])) if matched.any() else float("nan"))
+        table.append(row)
+        if prev is not None:
+            common = np.isfinite(prev["parallax"]) & np.isfinite(meas["parallax"])
+            before = float(np.sqrt(np.mean(prev["parallax"][common] ** 2))) if common.any() else float("nan")
+            after = float(np.sqrt(np.mean(meas["parallax"][common] ** 2))) if common.any() else float("nan")
+            row["agreement"] = after / before if before > 0 else float("nan")
+            if not (after <= before) or share < (1.0 - MAX_LOST) * prev["share"]:
+                cur, meas = prev_dem, prev           # the update made the pairs agree worse: undo it
+                table[-2]["status"] = "undone"
+                _reference(table[-2], reference, reference_cells, cur, meas["multi"], valid_dem)
+                stop = (f"the last update made the pairs agree worse (RMS parallax {before:.3g} -> "
+                        f"{after:.3g} m on the cells matched both times, trusted matches "
+                        f"{100 * prev['share']:.0f} -> {100 * share:.0f} %); it was undone")
+                break
+            if after > (1.0 - min_gain) * before:
+                stop = (f"the pairs' agreement improved by less than {100 * min_gain:.0f} % "
+                        f"(RMS parallax {before:.3g} -> {after:.3g} m)")
+                break
+        if it == total - 1:
+            stop = f"{int(max_iterations)} update(s) done, the last one checked"
+            break
+        if it == 0 and share < MIN_MATCHED_SHARE:
+            info["warning"] = _refusal(share, meas["pinfo"], float("nan"), info["sigma_expected_m"])
+            stop = "refused: the pairs cannot support a refinement (see the warning)"
+            break
+        if not np.isfinite(rms) or rms < tolerance_m:
+            stop = f"RMS correction {rms:.3g} m below the tolerance {tolerance_m:.3g} m"
+            break
+        if smooth_cells and smooth_cells > 1:
+            dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
+        dh_it = keep_significant(dh_it, info["sigma_expected_m"], window)
+        # corrections reach unmatched cells within the fill distance, fading out; farther
+        # cells keep their height (nothing was measured there)
+        corr_full = spread_corrections(dh_it, matched, fill_sigma_cells)
+        prev_dem, prev = cur, meas
+        cur = cur + float(relaxation) * corr_full
+        # no cell moves by more than twice the search range in total
+        cur = np.where(valid_dem, np.clip(cur, dem0 - 2 * max_dh_m, dem0 + 2 * max_dh_m), np.nan).astype(np.float32)
+        # what is left after an update is at most what was just measured: the next search
+        # range is the 99th percentile of |correction| (at least 6 x the expected precision)
+        big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
+        setup["match"]["max_dh_m"] = float(min(max_dh_m, max(big, 6 * info["sigma_expected_m"])))
+        row["status"] = "applied"
+        _reference(row, reference, reference_cells, cur, meas["multi"], valid_dem)
+    if "rmse_reference_m" not in table[-1]:
+        _reference(table[-1], reference, reference_cells, cur, meas["multi"], valid_dem)
+    multi = meas["multi"] & valid_dem
+    dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
+    mask, thr, sig = object_mask(dh_total, multi, info["sigma_expected_m"], height_threshold_m,
+                                 object_cells(object_size_m, transform))
+    info.setdefault("warning", _refusal(1.0, meas["pinfo"], sig, info["sigma_expected_m"]))
+    info.update(pairs=[tuple(p) for p in setup["pairs"]],
+                iterations=sum(r["status"] == "applied" for r in table), measurements=len(table),
+                stop=stop, relaxation=float(relaxation), tolerance_m=float(tolerance_m),
+                max_dh_m=float(max_dh_m), height_threshold_m=float(thr), sigma_data_m=sig,
+                window=window, shiftable=shiftable, min_corr=min_corr,
+                cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
+                rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
+    report(progress, 1.0)
+    return RefineResult(cur, meas["orthos"], dh_total,
+                        np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
+
+
+def _measure(cur, setup, prog):
+    """Orthorectify every frame on ``cur`` and match every overlapping pair (one measurement)."""
+    valid = setup["valid"]
+    filled_dem = np.where(valid, cur, np.nan)
+    res = [orthorectify(g, c, filled_dem, setup["transform"]) for g, c in zip(setup["greys"], setup["cameras"])]
+    orthos = [r[0] for r in res]
+    seen = [r[1] for r in res]
+    pair_list = setup["pairs"]
+    if pair_list is None:
+        pair_list = overlapping_pairs(seen, setup["min_overlap"])
+        if not pair_list:
+            raise ValueError("no two images overlap on the DEM grid (each pair shares less than "
+                             f"{setup['min_overlap']:.0%} of its cells); check the orientations, the CRS "
+                             "and that the DEM covers the images.")
+    report(prog, 0.2)
+    window = setup["match"]["window"]
+    cams = setup["cameras"]
+    dhs, cors, pinfo = [], [], []
+    p2, pn = np.zeros(cur.shape), np.zeros(cur.shape, np.int16)
+    for k, (i, j) in enumerate(pair_list):
+        both = seen[i] & seen[j]
+        if both.sum() < window * window * 4:
+            continue
+        dh, corr, par, pi = match_pair(orthos[i], orthos[j], filled_dem, setup["transform"], both,
+                                       centres=(cams[i].centre, cams[j].centre), **setup["match"])
+        ok = np.isfinite(dh) & both
+        dhs.append(np.where(ok, dh, np.nan).astype(np.float32))
+        cors.append(np.where(ok, corr, np.nan).astype(np.float32))
+        p2 += np.where(ok, par.astype(np.float64) ** 2, 0.0)
+        pn += ok
+        pi.update(pair=(i, j), matched_share=float(ok.sum() / both.sum()))
+        pinfo.append(pi)
+        report(prog, 0.2 + 0.8 * (k + 1) / len(pair_list))
+    if not pinfo:
+        raise ValueError("no pair of orthophotos overlaps enough to match; check that the images overlap.")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        parallax = np.where(pn > 0, np.sqrt(p2 / np.maximum(pn, 1)), np.nan).astype(np.float32)
+    pv = parallax[np.isfinite(parallax)].astype(np.float64)
+    return dict(orthos=orthos, multi=(np.sum(seen, axis=0) >= 2) & valid, pairs=pair_list, dhs=dhs,
+                cors=cors, pinfo=pinfo, parallax=parallax,
+                rms_parallax_m=float(np.sqrt(np.mean(pv ** 2))) if pv.size else float("nan"),
+                dh_per_cell_m=float(np.median([p["dh_per_cell_m"] for p in pinfo])),
+                noise_grey=float(np.nanmedian([p["noise_grey"] for p in pinfo])))
+
+
+def _reference(row, reference, reference_cells, cur, multi, valid):
+    """``rmse_reference_m`` of ``cur`` into ``row`` (evaluation only)."""
+    if reference is not None:
+        ev = (multi if reference_cells is None else reference_cells) & np.isfinite(reference) & valid
+        row["rmse_reference_m"] = (float(np.sqrt(np.mean((cur - reference)[ev] ** 2))) if ev.any()
+                                   else float("nan"))
+
+
+def _refusal(share, pinfo, sigma_data, sigma_expected):
+    """The warning of the whole refinement, the pairs' decision shares pooled ('' if none)."""
+    keys = pinfo[0]["reasons"].keys() if pinfo else ()
+    pooled = {k: float(np.mean([p["reasons"][k] for p in pinfo])) for k in keys}
+    return plain_warning(share, pooled, sigma_data, sigma_expected)
+
+
+def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, base_direction,
+                       *, window, shiftable, min_corr, max_dh_m, pairs, min_overlap,
+                       smooth_cells, height_threshold_m, precision_cells, object_size_m,
+                       fill_sigma_cells, outlier_m, reference, progress):
+    """One refinement pass on orthophotos registered by eq. 17 (no orientation known)."""
+    from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
+    if tie_points is None or len(tie_points) != len(images):
+        raise ValueError("without cameras, give tie_points: per image a Bilinear8 or "
+                         "(dem_xy, ortho_xy) with at least four ground points (eq. 17).")
+    if base_m is None or height_m is None:
+        raise ValueError("without cameras, give base_m (B between consecutive images) and "
+                         "height_m (H) for eq. 18.")
+    parallax_to_dh_vertical(1.0, base_m, height_m)                      # validates B and H
+    if max_dh_m is None:
+        max_dh_m = 0.2 * float(height_m)
+    orthos = []
+    for img, tp in zip(images, tie_points):
+        tr8 = tp if isinstance(tp, Bilinear8) else fit_bilinear8(*tp)
+        orthos.append(as_grey(register_orthophoto(img, tr8, dem0.shape, transform)))
+    seen = [np.isfinite(o) & np.isfinite(dem0) for o in orthos]
+    pair_list = pairs if pairs is not None else overlapping_pairs(seen, min_overlap)
+    if not pair_list:
+        raise ValueError("no two registered orthophotos overlap on the DEM grid; check the tie points.")
+    dhs, cors, pinfo = [], [], []
+    for k, (i, j) in enumerate(pair_list):
+        both = seen[i] & seen[j]
+        if both.sum() < window * window * 4:
+            continue
+        dh, corr, _, pi = match_pair(orthos[i], orthos[j], dem0, transform, both,
+                                     base_m=(j - i) * float(base_m), height_m=float(height_m),
+                                     base_direction=base_direction, window=window, shiftable=shiftable,
+                                     min_corr=min_corr, max_dh_m=float(max_dh_m),
+                                     precision_cells=precision_cells)
+        ok = np.isfinite(dh) & both
+        dhs.append(np.where(ok, dh, np.nan).astype(np.float32))
+        cors.append(np.where(ok, corr, np.nan).astype(np.float32))
+        pi.update(pair=(i, j), matched_share=float(ok.sum() / both.sum()))
+        pinfo.append(pi)
+        report(progress, 0.9 * (k + 1) / len(pair_list))
+    sigma = precision_cells * float(np.median([p["dh_per_cell_m"] for p in pinfo])) if pinfo else 1.0
+    dh_it, quality = merge_pairs(dhs, cors, outlier_m if outlier_m is not None else 3 * max(sigma, 0.1))
+    multi = (np.sum(seen, axis=0) >= 2)
+    matched = np.isfinite(dh_it) & multi
+    share = float(matched.sum() / max(1, multi.sum()))
+    refused = share < MIN_MATCHED_SHARE
+    if smooth_cells and smooth_cells > 1:
+        dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
+    dh_it = keep_significant(dh_it, sigma, window)
+    full = np.zeros(dem0.shape, np.float32) if refused else spread_corrections(dh_it, matched, fill_sigma_cells)
+    cur = np.where(np.isfinite(dem0), dem0 + full, np.nan).astype(np.float32)
+    rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
+    row = dict(iteration=1, rms_correction_m=rms, matched_share=share, pairs=len(pinfo),
+               rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),
+               agreement=float("nan"), status="measured" if refused else "applied",
+               mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
+    _reference(row, reference, None, cur, multi, np.isfinite(dem0))
+    dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
+    mask, thr, sig = object_mask(dh_total, multi, sigma, height_threshold_m, object_cells(object_size_m, transform))
+    report(progress, 1.0)
+    info = dict(mode="eq. 17 registration, one pass (no orientation: orthophotos cannot be redrawn)",
+                pairs=[tuple(p) for p in pair_list], iterations=0 if refused else 1, measurements=1,
+                stop=("refused: the pairs cannot support a refinement (see the warning)" if refused
+                      else "one pass (no orientation)"),
+                warning=_refusal(share, pinfo, sig, sigma), sigma_expected_m=sigma, sigma_data_m=sig,
+                height_threshold_m=float(thr), max_dh_m=float(max_dh_m), window=window,
+                shiftable=shiftable, min_corr=min_corr, cells_seen_by_two=int(multi.sum()))
+    return RefineResult(cur, orthos, dh_total, np.where(multi, quality, np.nan).astype(np.float32),
+                        mask, [row], info)
+
+
+def _antialias(img, camera, dem, transform):
+    """Gaussian low-pass of a frame to the ground cell size (avoids aliasing in orthophotos)."""
+    _, dx, _, dy = check_transform(transform)
+    X, Y = grid_xy(dem.shape, transform)
+    z = float(np.nanmedian(dem))
+    # pixels per cell near the image centre, from the nadir-ish scale f * cell / distance
+    dist = float(np.linalg.norm(camera.centre - np.array([X.mean(), Y.mean(), z])))
+    ppc = camera.interior.fx * min(dx, dy) / max(dist, 1e-9)
+    if ppc <= 1.5:
+        return img
+    sigma = 0.5 * math.sqrt(ppc * ppc - 1.0)
+    ok = np.isfinite(img)
+    z0 = np.where(ok, img, 0).astype(np.float32)
+    num = ndimage.gaussian_filter(z0, sigma)
+    den = ndimage.gaussian_filter(ok.astype(np.float32), sigma)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ok & (den > 0.5), num / den, np.nan).astype(np.float32)

@@ -1,0 +1,358 @@
+"""Trust in the measured height corrections: blunders, merging, ground trend, object mask.
+
+The orthophoto refinement (Luong Chinh Ke 2002, section 2.3; Norvelle 1995) measures a
+height correction ``dh`` per cell from the residual parallax of orthophoto pairs. The
+matcher decides per cell whether a match is trusted (:func:`~.match.match_along`); this
+module keeps the corrections consistent with their neighbours and with each other:
+
+* :func:`nan_median_filter`: the median of the valid values around each cell;
+* :func:`remove_blunders`: a robust test of each corrected height ``z = DEM + dh`` against
+  the median of its neighbours (a spike is a blunder unless a cluster of neighbours
+  confirms it, as on the corners of roofs);
+* :func:`keep_significant`: the smooth part of the corrections everywhere, their detail only
+  where it stands out of the noise (the refined DEM gets no rougher than the data support);
+* :func:`merge_pairs`: the correlation-weighted mean of the pairs after dropping the pairs
+  that disagree with the median;
+* :func:`ground_trend` and :func:`object_mask`: the smooth ground part of ``dh`` (a median of
+  the cells below the threshold, iterated) and the mask of the cells above it, with the
+  threshold derived from the spread of the very quantity it is applied to;
+* :func:`fill_holes`: normalised convolution into unmatched cells;
+* :func:`spread_corrections`: the same, fading to 0 away from the measurements (no step in
+  the DEM where the measurements end).
+"""
+import math
+import warnings
+
+import numpy as np
+from scipy import ndimage
+
+from ..codes import GROUND, LOW, NODATA, OBJECT
+
+__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs",
+           "keep_significant",
+           "ground_trend", "object_mask"]
+
+#: Rows per band of the stacked neighbourhoods (bounded memory).
+_BAND_ROWS = 128
+
+
+def fill_holes(values, valid=None, max_sigma=64.0):
+    """Fill NaN cells by normalised convolution at growing Gaussian scales (vectorised).
+
+    Returns a float32 copy with every NaN replaced where data lie within about
+    ``3 * max_sigma`` cells; farther cells stay NaN.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(v) if valid is None else (valid & np.isfinite(v))
+    out = np.where(ok, v, np.nan)
+    if ok.all() or not ok.any():
+        return out.astype(np.float32)
+    z = np.where(ok, v, 0.0)
+    w = ok.astype(np.float64)
+    s = 1.0
+    while s <= max_sigma:
+        holes = ~np.isfinite(out)
+        if not holes.any():
+            break
+        num = ndimage.gaussian_filter(z, s, mode="nearest")
+        den = ndimage.gaussian_filter(w, s, mode="nearest")
+        fill = holes & (den > 1e-3)
+        out[fill] = num[fill] / den[fill]
+        s *= 2
+    return out.astype(np.float32)
+
+
+def spread_corrections(dh, valid, sigma_cells):
+    """Corrections at every cell: measured where ``valid``, elsewhere filled, then fading out.
+
+    An unmatched cell takes the normalised Gaussian mean (sigma ``sigma_cells``) of the
+    measured corrections around it: the whole value within ``2 * sigma_cells`` cells of a
+    measurement (gaps next to walls, occlusions), fading linearly to 0 at ``4 * sigma_cells``
+    (the corrected DEM has no step where the measurements end); farther cells get 0.
+
+    Returns
+    -------
+    ndarray float32
+        No NaN.
+    """
+    ok = np.asarray(valid, bool) & np.isfinite(dh)
+    if not ok.any():
+        return np.zeros(np.shape(dh), np.float32)
+    z = np.where(ok, dh, 0.0).astype(np.float64)
+    num = ndimage.gaussian_filter(z, sigma_cells, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), sigma_cells, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(den > 1e-9, num / den, 0.0)
+    dist = ndimage.distance_transform_edt(~ok)
+    fade = np.clip((4.0 * sigma_cells - dist) / (2.0 * sigma_cells), 0.0, 1.0)
+    return np.where(ok, z, mean * fade).astype(np.float32)
+
+
+def _stack(x, r0, r1, size):
+    """The ``size x size`` neighbourhoods of rows ``r0:r1`` of ``x`` on the last axis (NaN outside)."""
+    h = size // 2
+    rows, cols = x.shape
+    pad = np.full((r1 - r0 + 2 * h, cols + 2 * h), np.nan, np.float32)
+    s0, s1 = max(0, r0 - h), min(rows, r1 + h)
+    pad[s0 - (r0 - h):s1 - (r0 - h), h:h + cols] = x[s0:s1]
+    return np.stack([pad[i:i + r1 - r0, j:j + cols] for i in range(size) for j in range(size)], axis=-1)
+
+
+def nan_median_filter(x, size=5, *, tolerance=None):
+    """Median of the finite values in the ``size x size`` window of every cell.
+
+    For an even number of finite values, the upper of the two middle ones. The missing
+    values of a window are set alternately to +inf and -inf, so the middle element of the
+    whole window (one partition, no sort) is the median of the finite ones.
+
+    Parameters
+    ----------
+    x : ndarray (rows, cols)
+        Values; NaN = missing.
+    size : int
+        Odd window side in cells.
+    tolerance : float or ndarray, optional
+        With it, also count the neighbours (the cell itself excluded) within ``tolerance``
+        of the cell's own value.
+
+    Returns
+    -------
+    median : ndarray float32
+        NaN where the window holds no finite value.
+    count : ndarray int16
+        Finite values in the window.
+    support : ndarray int16
+        Only with ``tolerance``: neighbours agreeing with the cell.
+    """
+    x = np.asarray(x, dtype=np.float32)
+    size = int(size)
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"size must be an odd number of cells >= 1; got {size}.")
+    med = np.full(x.shape, np.nan, np.float32)
+    cnt = np.zeros(x.shape, np.int16)
+    sup = np.zeros(x.shape, np.int16) if tolerance is not None else None
+    tol = None if tolerance is None else np.broadcast_to(np.asarray(tolerance, np.float32), x.shape)
+    mid = size * size // 2
+    for r0 in range(0, x.shape[0], _BAND_ROWS):
+        r1 = min(x.shape[0], r0 + _BAND_ROWS)
+        s = _stack(x, r0, r1, size)
+        nan = np.isnan(s)
+        n = size * size - np.count_nonzero(nan, axis=-1)
+        if sup is not None:
+            with np.errstate(invalid="ignore"):
+                agree = np.abs(s - x[r0:r1, :, None]) <= tol[r0:r1, :, None]
+            sup[r0:r1] = np.count_nonzero(agree, axis=-1) - np.isfinite(x[r0:r1])
+        odd = (np.cumsum(nan, axis=-1, dtype=np.int16) % 2).astype(bool)
+        s[nan & odd] = np.inf
+        s[nan & ~odd] = -np.inf
+        m = np.partition(s, mid, axis=-1)[..., mid]
+        med[r0:r1] = np.where(n > 0, m, np.nan)
+        cnt[r0:r1] = n
+    return (med, cnt, sup) if sup is not None else (med, cnt)
+
+
+def remove_blunders(dh, dem, tolerance_m, size=5):
+    """Drop corrections that the neighbouring corrected heights do not confirm.
+
+    The corrected surface ``z = DEM + dh`` is tested against the median of the valid ``z``
+    in the ``size x size`` window (a robust estimate of what the neighbours say; on a
+    smooth DEM it follows the DEM's slope): a value farther than ``tolerance_m`` from it is
+    a blunder unless at least ``(size // 2 + 1)^2 - 1`` neighbours agree with it within
+    ``tolerance_m`` (the corner of a roof, where the median belongs to the ground). A value
+    with fewer than ``size // 2 + 1`` valid neighbours has no support and is dropped too.
+
+    Parameters
+    ----------
+    dh : ndarray
+        Corrections (NaN = not measured).
+    dem : ndarray
+        The DEM they correct.
+    tolerance_m : float
+        Largest departure from the neighbours' median that needs no confirmation
+        (3 x the expected precision of ``dh``).
+    size : int
+        Odd window side in cells.
+
+    Returns
+    -------
+    dh : ndarray float32
+        The corrections with the blunders set to NaN.
+    dropped : int
+        Number of blunders removed.
+    """
+    dh = np.asarray(dh, np.float32)
+    z = np.where(np.isfinite(dh) & np.isfinite(dem), dem + dh, np.nan).astype(np.float32)
+    med, cnt, sup = nan_median_filter(z, size, tolerance=float(tolerance_m))
+    ok = np.isfinite(z)
+    cluster = (size // 2 + 1) ** 2 - 1
+    with np.errstate(invalid="ignore"):
+        bad = ok & (((np.abs(z - med) > tolerance_m) & (sup < cluster)) | (cnt - 1 < size // 2 + 1))
+    return np.where(bad, np.nan, dh).astype(np.float32), int(np.count_nonzero(bad))
+
+
+def merge_pairs(dhs, cors, outlier_m):
+    """Correlation-weighted mean of the pairs' corrections after dropping per-cell outliers.
+
+    With three or more pairs at a cell, values farther than ``outlier_m`` from their median
+    are dropped; two values that differ by more than ``2 * outlier_m`` are both dropped.
+
+    Returns
+    -------
+    dh, quality : ndarray float32
+        The merged correction (NaN where no pair matched) and the correlation-weighted mean
+        peak NCC.
+    """
+    if not dhs:
+        raise ValueError("no pair of orthophotos could be matched; check that the images overlap.")
+    D = np.stack(dhs)
+    C = np.stack(cors)
+    if len(dhs) > 1:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(D, axis=0)
+            n = np.sum(np.isfinite(D), axis=0)
+            with np.errstate(invalid="ignore"):
+                far = (np.abs(D - med) > outlier_m) & (n >= 3)
+            D = np.where(far, np.nan, D)
+            spread = np.nanmax(D, axis=0) - np.nanmin(D, axis=0)
+            with np.errstate(invalid="ignore"):
+                two_bad = (n == 2) & (spread > 2 * outlier_m)
+            D = np.where(two_bad, np.nan, D)
+    W = np.where(np.isfinite(D), np.clip(np.nan_to_num(C, nan=0.0), 1e-3, 1), 0.0)
+    den = W.sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dh = np.where(den > 0, np.nansum(np.where(W > 0, D, 0) * W, axis=0) / den, np.nan)
+        q = np.where(den > 0, np.nansum(np.nan_to_num(C) * W, axis=0) / den, np.nan)
+    return dh.astype(np.float32), q.astype(np.float32)
+
+
+def keep_significant(dh, sigma_m, scale_cells, k=3.0):
+    """The smooth part of the corrections, plus their detail where it is significant.
+
+    Each correction measures an average over the correlation window, with noise of sd
+    ``sigma_m``; applied cell by cell, that noise becomes speckle in the DEM. The smooth part
+    is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells`` (the window), whose
+    noise is several times smaller; the detail ``dh - smooth`` is kept only where
+    ``|detail| > k * sigma_m`` in a region that holds a square of ``scale_cells // 2 + 1``
+    cells (an object or a step the window resolves) and dropped elsewhere. With precise
+    corrections (``sigma_m`` small) nearly all detail stays.
+
+    Returns
+    -------
+    ndarray float32
+        NaN where ``dh`` is NaN.
+    """
+    dh = np.asarray(dh, np.float32)
+    ok = np.isfinite(dh)
+    if not ok.any():
+        return dh
+    s = max(0.5, float(scale_cells))
+    num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = np.where(den > 1e-3, num / den, np.nan)
+    detail = dh - smooth
+    with np.errstate(invalid="ignore"):
+        sig = np.abs(detail) > k * float(sigma_m)
+    # the matcher cannot resolve features narrower than about half its window: significant
+    # detail must hold a square of that side
+    side = max(1, int(scale_cells) // 2 + 1)
+    sig = ndimage.binary_opening(sig, structure=np.ones((side, side), bool))
+    out = np.where(sig, dh, smooth)
+    return np.where(ok, out, np.nan).astype(np.float32)
+
+
+def _block_median(x, b):
+    """Median of the finite values of ``x`` in ``b x b`` blocks (NaN for blocks under a quarter full)."""
+    rows, cols = x.shape
+    nr, nc = -(-rows // b), -(-cols // b)
+    pad = np.full((nr * b, nc * b), np.nan, np.float32)
+    pad[:rows, :cols] = x
+    blocks = pad.reshape(nr, b, nc, b).transpose(0, 2, 1, 3).reshape(nr, nc, b * b)
+    n = np.count_nonzero(np.isfinite(blocks), axis=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(blocks, axis=2)
+    return np.where(n >= max(1, b * b // 4), med, np.nan).astype(np.float32)
+
+
+def ground_trend(dh, valid, object_size_cells, sigma_expected, threshold=None, k=3.0, passes=3):
+    """The smooth ground part of ``dh`` and the object threshold, computed consistently.
+
+    The ground trend is the median of the ground cells' ``dh`` in blocks of a quarter of
+    the largest object width, then the median of those over 5 x 5 blocks (1.25 object
+    widths), interpolated back to the cells; a median, so it is not biased by the noise of
+    ``dh`` the way a grey opening is (an opening of noisy values lies below their median by
+    about two standard deviations). The ground cells start as all valid cells; each pass
+    drops the cells above the threshold and recomputes. The spread is measured on the same
+    quantity the threshold is applied to, ``rel = dh - trend``: ``sigma_data = 1.4826 x``
+    the median of ``|rel|`` of the ground cells below the trend (objects lie above it and do
+    not widen it), and ``threshold = k * max(sigma_expected, sigma_data)``.
+
+    Parameters
+    ----------
+    dh : ndarray
+        Height corrections (NaN = none).
+    valid : ndarray of bool
+        Cells to classify.
+    object_size_cells : int
+        Largest object width in cells (0: the trend is 0).
+    sigma_expected : float
+        Expected precision of ``dh`` (m).
+    threshold : float, optional
+        A given threshold (m) instead of the derived one.
+    k : float
+        Multiple of the spread for the derived threshold.
+
+    Returns
+    -------
+    trend : ndarray float32
+    threshold : float
+    sigma_data : float
+    """
+    d = np.where(valid & np.isfinite(dh), dh, np.nan).astype(np.float32)
+    trend = np.zeros(d.shape, np.float32)
+    ground = np.isfinite(d)
+    thr = threshold
+    sig = float("nan")
+    size = int(object_size_cells)
+    for _ in range(passes if size >= 3 else 1):
+        if size >= 3 and ground.any():
+            b = max(1, int(math.ceil(size / 4)))
+            coarse = _block_median(np.where(ground, d, np.nan), b)
+            coarse, _ = nan_median_filter(coarse, 5)
+            coarse = fill_holes(coarse, max_sigma=max(coarse.shape))
+            if np.isfinite(coarse).any():
+                coarse = np.where(np.isfinite(coarse), coarse, np.nanmedian(coarse))
+                rr = (np.arange(d.shape[0]) + 0.5) / b - 0.5
+                cc = (np.arange(d.shape[1]) + 0.5) / b - 0.5
+                trend = ndimage.map_coordinates(coarse, np.meshgrid(rr, cc, indexing="ij"), order=1,
+                                                mode="nearest").astype(np.float32)
+        rel = d - trend
+        below = rel[ground & (rel <= 0)]
+        sig = 1.4826 * float(np.median(-below)) if below.size else float("nan")
+        if threshold is None:
+            thr = k * max(float(sigma_expected), sig if np.isfinite(sig) else 0.0)
+        with np.errstate(invalid="ignore"):
+            ground = np.isfinite(d) & (rel <= thr)
+    return trend, float(thr), sig
+
+
+def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
+    """Mask of the cells whose ``dh`` exceeds its ground trend (:func:`ground_trend`).
+
+    Returns
+    -------
+    mask : ndarray uint8
+        1 object (``dh - trend > threshold``), 2 low (``< -threshold``), 0 ground, 255 not
+        ``valid``.
+    threshold, sigma_data : float
+    """
+    trend, thr, sig = ground_trend(dh, valid, object_size_cells, sigma_expected, threshold, k)
+    d = np.where(np.isfinite(dh), dh, trend)
+    rel = d - trend
+    mask = np.full(d.shape, NODATA, np.uint8)
+    mask[valid] = GROUND
+    mask[valid & (rel > thr)] = OBJECT
+    mask[valid & (rel < -thr)] = LOW
+    return mask, thr, sig

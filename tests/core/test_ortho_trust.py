@@ -1,0 +1,258 @@
+"""Issue 16: a dh that is right or absent, honest iterations, refusal on weak data.
+
+Synthetic stereo from the paper's geometry (Luong Chinh Ke 2002, section 2.3: dh = dx H / B;
+Norvelle 1995: iterative orthophoto refinement), rendered by ray casting
+(:mod:`core.orthophoto.render`) with image noise (grey levels), weak texture (contrast), three
+frames and rotated frames. 0.5 m cells, 19 flat-roofed buildings 3-14 m high. The seeds here
+are held out: none was used while the defaults were set.
+"""
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from bare_earth.core.codes import NODATA, OBJECT
+from bare_earth.core.orthophoto import (
+    make_ortho_scene,
+    match_along,
+    orthoparallax,
+    orthorectify,
+    orthorefine,
+    render_frames,
+    vertical_cameras,
+)
+from bare_earth.core.orthophoto.match import REASONS
+from bare_earth.core.orthophoto.quality import (
+    ground_trend,
+    merge_pairs,
+    nan_median_filter,
+    object_mask,
+    remove_blunders,
+)
+
+
+def _scene(seed, contrast=0.3125):
+    sc = make_ortho_scene(shape=(160, 200), cell_size=0.5, n_buildings=19, seed=seed, contrast=contrast,
+                          building_width_cells=(8, 20), building_height_m=(3.0, 14.0))
+    assert len(sc.heights) == 19
+    return sc
+
+
+def _buildings_within(sc, dh, valid):
+    """Buildings whose median dh is within 10 % or 0.5 m of the truth."""
+    true_dh = sc.surface - sc.terrain
+    good = 0
+    for k in sc.heights:
+        m = (sc.labels == k) & valid
+        est, tru = float(np.nanmedian(dh[m])), float(np.median(true_dh[m]))
+        good += abs(est - tru) <= max(0.1 * tru, 0.5)
+    return good
+
+
+def _far_ground(sc, valid, metres=3.0):
+    return ~ndimage.binary_dilation(sc.labels > 0, iterations=int(np.ceil(metres / sc.cell_size))) & valid
+
+
+# --------------------------------------------------------------------------- exact pieces
+def test_nan_median_filter_exact():
+    x = np.array([[1, 2, np.nan], [4, 100, 6], [np.nan, 8, 9]], np.float32)
+    med, cnt = nan_median_filter(x, 3)
+    assert cnt.tolist() == [[4, 5, 3], [5, 7, 5], [3, 5, 4]]
+    assert med[1, 1] == np.median([1, 2, 4, 100, 6, 8, 9]) == 6
+    assert med[0, 0] == 4                              # [1, 2, 4, 100]: the upper middle value
+    med, cnt, sup = nan_median_filter(x, 3, tolerance=2.0)
+    assert sup[1, 1] == 0 and sup[0, 0] == 1          # 100 agrees with none; 1 with 2
+    with pytest.raises(ValueError, match="odd"):
+        nan_median_filter(x, 4)
+
+
+def test_remove_blunders_drops_spikes_keeps_roof_corners():
+    dem = np.zeros((20, 20), np.float32)
+    dh = np.zeros((20, 20), np.float32)
+    dh[5:12, 5:12] = 8.0                               # a roof: its corner has 8 roof neighbours in 5 x 5
+    dh[16, 16] = 30.0                                  # a spike on the ground
+    dh[2, 17] = np.nan
+    out, dropped = remove_blunders(dh, dem, tolerance_m=1.0)
+    assert dropped == 1 and np.isnan(out[16, 16])
+    np.testing.assert_array_equal(out[5:12, 5:12], 8.0)  # corners included
+    lone = np.full((9, 9), np.nan, np.float32)
+    lone[4, 4] = 3.0                                   # no neighbour: no support
+    assert np.isnan(remove_blunders(lone, np.zeros_like(lone), 1.0)[0][4, 4])
+
+
+def test_merge_pairs_drops_the_odd_pair():
+    d = [np.array([[1.0, 1.0]], np.float32), np.array([[1.2, 9.0]], np.float32),
+         np.array([[0.9, np.nan]], np.float32)]
+    c = [np.ones((1, 2), np.float32)] * 3
+    dh, _ = merge_pairs(d, c, outlier_m=1.0)
+    assert dh[0, 0] == pytest.approx((1.0 + 1.2 + 0.9) / 3, rel=1e-6)
+    assert np.isnan(dh[0, 1])                          # two pairs disagreeing by 8 m: neither trusted
+
+
+def test_ground_trend_is_unbiased_and_threshold_consistent():
+    """Noisy dh on open ground with a smooth offset and objects: the trend follows the ground
+    (an opening of noisy dh lies about two sd below it) and the false alarms stay near the
+    Gaussian share above 3 sd."""
+    rng = np.random.default_rng(3)
+    rows, cols = 200, 240
+    yy, xx = np.mgrid[0:rows, 0:cols]
+    smooth = (1.5 + 0.01 * xx).astype(np.float32)
+    dh = smooth + rng.normal(0, 0.3, (rows, cols)).astype(np.float32)
+    obj = np.zeros((rows, cols), bool)
+    for r0, c0 in ((20, 30), (90, 150), (140, 40), (60, 90)):
+        obj[r0:r0 + 25, c0:c0 + 30] = True
+    dh[obj] += 6.0
+    valid = np.ones((rows, cols), bool)
+    trend, thr, sig = ground_trend(dh, valid, 80, 0.1)
+    assert abs(float(np.median((trend - smooth)[~obj]))) < 0.05
+    assert sig == pytest.approx(0.3, rel=0.1) and thr == pytest.approx(3 * sig)
+    mask, _, _ = object_mask(dh, valid, 0.1, None, 80)
+    far = ~ndimage.binary_dilation(obj, iterations=3)
+    assert (mask[far] == OBJECT).mean() < 0.01
+    assert (mask[obj] == OBJECT).mean() > 0.99
+    mask0, thr0, _ = object_mask(dh, valid, 0.1, 2.5, 0)          # a given threshold, trend 0
+    assert thr0 == 2.5
+    np.testing.assert_array_equal(mask0 == OBJECT, dh > 2.5)
+
+
+def test_matcher_decides_weak_texture_and_keeps_textured():
+    rng = np.random.default_rng(4)
+    tex = ndimage.gaussian_filter(rng.normal(size=(80, 120)), 1.2)
+    tex = (tex / tex.std()).astype(np.float32)
+    a = 128 + 30 * tex
+    a[:, 60:] = 128 + 0.3 * tex[:, 60:]                # right half: almost no texture
+    b = np.roll(a, 2, axis=1)
+    a = a + rng.normal(0, 2, a.shape).astype(np.float32)
+    b = b + rng.normal(0, 2, b.shape).astype(np.float32)
+    m = match_along(a, b, (1, 0), 5, window=7)
+    left, right = (slice(10, -10), slice(10, 50)), (slice(10, -10), slice(70, 110))
+    assert m.valid[left].mean() > 0.95 and np.nanmedian(np.abs(m.disparity[left] - 2)) < 0.05
+    assert m.valid[right].mean() < 0.05
+    assert set(np.unique(m.reason[right])) <= {1, 2, 3, 4, 5}
+    assert m.info["noise_grey"] == pytest.approx(2.0, rel=0.25)
+    assert set(m.info["shares"]) == set(REASONS.values())
+    assert np.all(m.precision[left][m.valid[left]] <= 0.2)
+
+
+# --------------------------------------------------------------------------- rendered scenes
+@pytest.fixture(scope="module")
+def noisy_pair():
+    sc = _scene(21)
+    cams = vertical_cameras(sc, 2, base_over_height=0.45)
+    imgs = render_frames(sc, cams, noise=6.0, seed=21, dz_m=0.5)
+    orthos = [orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams)]
+    return sc, cams, orthos
+
+
+def test_noise_6dn_false_alarms_and_recall(noisy_pair):
+    """6 DN image noise: object false alarms on ground more than 3 m from objects <= 3 % (was
+    19.7 %: an opening of noisy dh as the trend, biased low), recall about 95 %."""
+    sc, cams, (oa, ob) = noisy_pair
+    r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre))
+    seen = r.mask != NODATA
+    far = _far_ground(sc, seen)
+    fa = float((r.mask[far] == OBJECT).mean())
+    recall = float((r.mask[(sc.labels > 0) & seen] == OBJECT).mean())
+    # measured: false alarms 0.9 %, recall 94.1 % (95.2 and 94.2 % on seeds 25, 26); the misses are
+    # the outermost roof cells of these small buildings (4-10 m wide), 84 % recalled there
+    assert fa <= 0.03 and recall >= 0.93, (fa, recall)
+    # the share of far-ground cells truly above the threshold in the measured dh
+    truly = float(np.mean(r.dh[far & np.isfinite(r.dh)] > r.info["height_threshold_m"]))
+    assert fa <= truly + 0.02, (fa, truly)
+    assert _buildings_within(sc, r.dh, seen) >= 18
+    assert r.info["warning"] == "" and r.info["direction_xy"] == pytest.approx((1.0, 0.0), abs=1e-9)
+
+
+def test_base_and_height_mode_places_corrections_like_centres(noisy_pair):
+    """BASE_M/HEIGHT_M: corrections moved to their ground point as with the camera centres."""
+    sc, cams, (oa, ob) = noisy_pair
+    rc = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre))
+    B = float(cams[1].centre[0] - cams[0].centre[0])
+    H = float(cams[0].centre[2] - np.mean(sc.terrain))
+    rb = orthoparallax(oa, ob, sc.terrain, sc.transform, base_m=B, height_m=H)
+    obj = sc.labels > 0
+    ev = (rc.mask != NODATA) & (rb.mask != NODATA)
+    e_c = np.sqrt(np.mean((rc.dem - sc.surface)[ev & obj] ** 2))
+    e_b = np.sqrt(np.mean((rb.dem - sc.surface)[ev & obj] ** 2))
+    assert e_b < 1.25 * e_c + 0.1, (e_b, e_c)
+    # without relocation the edges shift: clearly worse
+    rn = orthoparallax(oa, ob, sc.terrain, sc.transform, base_m=B, height_m=H, relocate=False)
+    e_n = np.sqrt(np.mean((rn.dem - sc.surface)[ev & obj] ** 2))
+    assert e_n > 1.2 * e_b, (e_n, e_b)
+
+
+@pytest.fixture(scope="module")
+def clean_three():
+    sc = _scene(22)
+    cams = vertical_cameras(sc, 3, base_over_height=0.3)
+    imgs = render_frames(sc, cams, noise=1.0, seed=22, dz_m=0.5)
+    one = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=1)
+    return sc, cams, imgs, one
+
+
+def test_one_iteration_gives_full_heights(clean_three):
+    """No hidden damping: one iteration on a clean scene puts >= 90 % of the buildings within
+    10 % / 0.5 m (was 0.69-0.71 of every height with the old 0.7 relaxation)."""
+    sc, cams, imgs, r = clean_three
+    seen = r.mask != NODATA
+    assert _buildings_within(sc, r.dh, seen) >= 0.9 * 19
+    assert r.info["relaxation"] == 1.0 and r.info["iterations"] == 1
+    assert [row["status"] for row in r.table] == ["applied", "measured"]
+    assert r.table[1]["agreement"] < 0.5                  # the update made the pairs agree
+    with pytest.raises(ValueError, match="relaxation"):
+        orthorefine(sc.terrain, sc.transform, imgs, cams, relaxation=0.0)
+
+
+def test_iterations_never_make_it_worse_and_edges_stay_bounded(clean_three):
+    """Every kept update lowers the pairs' residual parallax; the RMSE against the truth never
+    rises from one kept update to the next; building edges do not fatten with iterations;
+    RELAXATION scales the first step."""
+    sc, cams, imgs, one = clean_three
+    half = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=1, relaxation=0.5)
+    ratio = np.nanmedian(half.dh[sc.labels > 0]) / np.nanmedian(one.dh[sc.labels > 0])
+    assert ratio == pytest.approx(0.5, abs=0.05)          # one half step
+    r = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=3, reference=sc.surface)
+    t = r.table
+    assert r.info["stop"] and t[0]["status"] == "applied"
+    for k, row in enumerate(t[:-1]):
+        if row["status"] == "applied":
+            assert t[k + 1]["agreement"] < 1 or t[k + 1]["status"] == "undone"
+    kept = [row["rmse_reference_m"] for row in t if row["status"] == "applied"]
+    assert all(b <= a + 0.05 for a, b in zip(kept, kept[1:])), kept
+    seen = (r.mask != NODATA) & (one.mask != NODATA)
+    obj = sc.labels > 0
+    ring = ndimage.binary_dilation(obj, iterations=6) & ~obj & seen       # ground within 3 m
+    e_many = np.sqrt(np.mean((r.dem - sc.surface)[ring] ** 2))
+    e_one = np.sqrt(np.mean((one.dem - sc.surface)[ring] ** 2))
+    assert e_many <= 1.1 * e_one + 0.05, (e_many, e_one, [(row["status"], row["agreement"]) for row in t], ratio)
+    assert e_one < 4.0                                    # measured 3.0 m (edges blur by about a cell)
+
+
+def test_weak_texture_and_noise_refuses_and_says_why():
+    """Contrast 0.03 + 6 DN: the DEM is never worse; either most buildings are right, or the
+    result says in plain words that it could not refine and why."""
+    sc = _scene(23, contrast=0.03)
+    cams = vertical_cameras(sc, 3, base_over_height=0.3)
+    imgs = render_frames(sc, cams, noise=6.0, seed=23, dz_m=0.5)
+    r = orthorefine(sc.terrain, sc.transform, imgs, cams, max_iterations=3)
+    seen = r.mask != NODATA
+    e0 = np.sqrt(np.mean((sc.terrain - sc.surface)[seen] ** 2))
+    e1 = np.sqrt(np.mean((r.dem - sc.surface)[seen] ** 2))
+    assert e1 <= e0 + 1e-6, (e0, e1)
+    good = _buildings_within(sc, r.dh, seen)
+    if good < 15:
+        assert "could be matched with confidence" in r.info["warning"]
+        assert "texture" in r.info["warning"] and r.info["stop"].startswith("refused")
+        np.testing.assert_array_equal(r.dem, sc.terrain)
+
+
+def test_rotated_frames_diagonal_base():
+    """Frames rotated by kappa 30 degrees along a diagonal base: heights still recovered."""
+    sc = make_ortho_scene(shape=(120, 120), cell_size=0.5, n_buildings=6, seed=24,
+                          building_width_cells=(10, 18), building_height_m=(3.0, 10.0))
+    cams = vertical_cameras(sc, 2, base_over_height=0.45, direction=(1.0, 1.0), kappa_deg=30.0)
+    imgs = render_frames(sc, cams, noise=2.0, seed=24, dz_m=0.5)
+    oa, ob = (orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams))
+    r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre))
+    assert _buildings_within(sc, r.dh, r.mask != NODATA) >= len(sc.heights) - 1
+    e = np.asarray(r.info["direction_xy"])
+    assert e == pytest.approx(np.array([1.0, 1.0]) / np.sqrt(2), abs=0.02)
