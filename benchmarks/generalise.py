@@ -156,7 +156,7 @@ def _point_score(truth, valid, classify, floor_dtm=None):
     def score(res):
         cls = classify(np.asarray(res.dtm, dtype=np.float32))
         ok = valid & (cls != 255)
-        return isprs._figures(confusion(cls == 0, truth, valid=ok))
+        return isprs.figures(confusion(cls == 0, truth, valid=ok))
 
     def floor():
         return score(type("R", (), {"dtm": floor_dtm()})) if floor_dtm else None
@@ -278,7 +278,7 @@ def opengeos_cases(data, notes):
         valid = np.isfinite(z) & np.isfinite(ref)
 
         def score(res):
-            r = isprs._figures(confusion(res.mask == 0, truth, valid=valid & (res.mask != 255)))
+            r = isprs.figures(confusion(res.mask == 0, truth, valid=valid & (res.mask != 255)))
             d = compare_dtm(res.dtm, ref)
             r.update(rmse_m=d["rmse"], mean_m=d["mean"])
             return r
@@ -295,7 +295,7 @@ def synthetic_cases(notes):
             s = make_scene(kind, (n, n), cell_size=cell, seed=0, noise_m=0.05)
 
             def score(res, s=s):
-                r = isprs._figures(compare_masks(res.mask, s.mask))
+                r = isprs.figures(compare_masks(res.mask, s.mask))
                 r["rmse_m"] = compare_dtm(res.dtm, s.dtm)["rmse"]
                 return r
             return s.dsm, (cell, cell), score
@@ -306,7 +306,7 @@ def synthetic_cases(notes):
             s = make_canopy(512.0, cell, seed=0, noise_m=0.05)
 
             def score(res, s=s):
-                r = isprs._figures(compare_masks(res.mask, s.mask))
+                r = isprs.figures(compare_masks(res.mask, s.mask))
                 r["rmse_m"] = compare_dtm(res.dtm, s.dtm)["rmse"]
                 return r
             return s.dsm, s.cell_size, score
@@ -324,7 +324,7 @@ def all_cases(data, notes):
 # --------------------------------------------------------------------------- running
 def _param_scalars(info):
     p = (info or {}).get("params") or {}
-    return {k: v for k, v in isprs._scalars(p).items() if not k.endswith("_source") and k != "mode_reason"}
+    return {k: v for k, v in isprs.scalars(p).items() if not k.endswith("_source") and k != "mode_reason"}
 
 
 def run_matrix(data, methods, only=None, progress=print):
