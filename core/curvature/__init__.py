@@ -47,9 +47,10 @@ From curvature to objects
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
    whole objects.
-4. **Final pass** (twice). The ground is interpolated (harmonic,
-   :func:`~bare_earth.core.fill.fill_gaps`, on a grid of half the resolution refined
-   bilinearly) under the objects, the breaks next to them and the points with ``|K| >= K_g``; a cell
+4. **Final pass** (twice). The ground is interpolated under the objects, the breaks next
+   to them and the points with ``|K| >= K_g`` along the X and Y profiles (the straight line
+   between the nearest ground on either side, within half the largest object; averaged
+   over 3 x 3 cells), so that it depends on the data near a cell only; a cell
    is an object when it stands above that surface by more than the tolerance plus one
    cell of the surface's slope (breaks outside objects: half the minimum object height
    more, as the interpolated surface sags a little under convex terrain edges). Straight

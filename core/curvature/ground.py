@@ -1,13 +1,15 @@
 """The ground surface of the final pass: step 5 of the curvature filter.
 
 The ground is interpolated under the objects, the breaks next to them and the points with
-``|K| >= K_g`` (:func:`_ground_surface`: the harmonic surface of the shared gap filler on a
-grid of half the resolution, refined bilinearly); a cell is an object when it stands above
-that surface by more than the tolerance plus one cell of the surface's slope. Straight
-breaks away from objects (dams, embankments, terrace edges: K ~ 0) are seeds of the
-surface, so terrain edges stay ground; a concave break deeper than the minimum object
-height below the surface and below every cell of the ring around it is a low blunder
-(:func:`find_ground`, Luong Chinh Ke 2002, sec. 2.2).
+``|K| >= K_g`` along the X and Y profiles through each cell, as Luong Chinh Ke (2002,
+sec. 2.2) reads the profiles: the straight line between the nearest ground on either side,
+within half the largest object (:func:`_ground_surface`); the surface at a cell depends
+on the data within that reach only, so blocks and threads give the surface of one pass. A
+cell is an object when it stands above that surface by more than the tolerance plus one
+cell of the surface's slope. Straight breaks away from objects (dams, embankments, terrace
+edges: K ~ 0) are seeds of the surface, so terrain edges stay ground; a concave break
+deeper than the minimum object height below the surface and below every cell of the ring
+around it is a low blunder (:func:`find_ground`, Luong Chinh Ke 2002, sec. 2.2).
 """
 from typing import Optional, Tuple
 
@@ -15,11 +17,15 @@ import numpy as np
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress
-from ..fill import fill_gaps
 from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest, dilate
 
 #: Final passes against the interpolated ground surface.
 _PASSES = 2
+#: Reach of the ground surface (in largest objects) on either side of a hole.
+_REACH = 0.5
+#: Half width (cells) of the window over which the heights interpolated along the
+#: profiles are averaged (the creases where the X and Y profiles' weights change).
+_SMOOTH = 1
 
 
 def _pits(z, cand, ring, depth):
@@ -50,164 +56,200 @@ def _pits(z, cand, ring, depth):
         return idx[zf.take(idx) < low - np.float32(depth)]
 
 
-def _ground_surface(z, holes, out=None, progress=None):
-    """Ground surface of the final pass: ``z`` at the cells not in ``holes``, over the
-    holes the harmonic surface (:func:`~bare_earth.core.fill.fill_gaps`) of a grid of half the resolution,
-    interpolated bilinearly.
+def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=None):
+    """Ground surface of the final pass: ``z`` at the cells not in ``holes``; over the
+    holes, the linear interpolation along the X and Y profiles through the cell between
+    the nearest known cells on either side, within ``reach = (rx, ry)`` cells.
 
-    Each 2 x 2 block of cells is one coarse cell. Its height is the mean of the diagonal
-    pairs of known cells it holds (the block centre, exactly on a plane); without a known
-    pair, along a straight edge of a hole, the linear extrapolation of two known cells on
-    one side and the two beyond them (also exact on a plane), else the mean of its known
-    cells, so that a line of known cells one cell wide (the crest of a dam between bands
-    of breaks) still holds the coarse surface up; coarse cells with no known cell are
-    filled (as one level of the restriction of :func:`fill.fill_gaps`). The fine surface
-    over the holes is the bilinear interpolation of the coarse one (linear extrapolation
-    at the raster's edge; planes stay planes). A quarter of the cells to interpolate; the
-    final pass only compares heights with this surface, with a tolerance. Restriction and
-    interpolation go by cache-sized blocks of rows; ``out``, optional: a float32 array of
-    ``z``'s shape receiving the surface; ``progress(fraction)`` as the work goes.
+    Luong Chinh Ke (2002), sec. 2.2, compares each point with the ground interpolated
+    under the objects along the profiles. Each profile whose two ends (the nearest known
+    cells left and right, or above and below) lie within the reach gives the height of the
+    straight line between them (exact on a plane); the X and Y profiles are combined with
+    the weights 1 / span^2 (the shorter profile, across an object, counts more). Where no
+    profile has both ends within the reach (beside nodata or the raster's edge), the ends
+    found count with the weights 1 / distance^2. A hole cell with no known cell within the
+    reach on its profiles keeps its own height (an object larger than the largest object is
+    ground); nodata stays NaN there.
+
+    The height at a cell depends only on the cells within the reach on its row and column,
+    so a block holding them gives the surface of one pass, whatever its origin. Nodata in a
+    hole is crossed like any unknown cell. The scans go by cache-sized blocks of rows;
+    ``out``, optional: a float32 array of ``z``'s shape receiving the surface;
+    ``progress(fraction)`` as the work goes.
     """
     h, w = z.shape
     known = ~holes
     known &= np.isfinite(z)
-    if min(h, w) < 8 or not known.any():
-        return np.asarray(fill_gaps(z, fill=holes), dtype=np.float32)
-    H, W = (h + 1) // 2, (w + 1) // 2
-    w1 = w // 2                          # coarse columns with a second child
-    s = np.empty((H, W), np.float32)     # coarse heights (NaN: to fill)
-    diag = np.zeros((H, W), bool)        # coarse cells set by a known diagonal pair
-    part = np.zeros((H, W), bool)        # coarse cells with known cells but no pair
-    step = max(1, CHUNK_CELLS // max(w, 1))
-    zero = np.float32(0)
-    for I0 in range(0, H, step):
-        I1 = min(H, I0 + step)
-        zb, kb = z[2 * I0:2 * I1], known[2 * I0:2 * I1]
-        i1 = zb.shape[0] // 2            # coarse rows of the block with a second child
-        k00, k01, k10, k11 = kb[0::2, 0::2], kb[0::2, 1::2], kb[1::2, 0::2], kb[1::2, 1::2]
-        v00 = np.where(k00, zb[0::2, 0::2], zero)
-        v01 = np.where(k01, zb[0::2, 1::2], zero)
-        v10 = np.where(k10, zb[1::2, 0::2], zero)
-        v11 = np.where(k11, zb[1::2, 1::2], zero)
-        # all known cells of the block
-        sb = s[I0:I1]
-        np.copyto(sb, v00)
-        sb[:, :w1] += v01
-        sb[:i1] += v10
-        sb[:i1, :w1] += v11
-        n = k00.astype(np.float32)
-        n[:, :w1] += k01
-        n[:i1] += k10
-        n[:i1, :w1] += k11
-        # the known diagonal pairs, where there is one
-        d1 = k00[:i1, :w1] & k11
-        d2 = k01[:i1] & k10[:, :w1]
-        sd = v00[:i1, :w1] + v11
-        sd *= d1
-        v01 = v01[:i1] + v10[:, :w1]
-        v01 *= d2
-        sd += v01
-        nd = d1.astype(np.float32)
-        nd += d2
-        nd *= 2
-        db = diag[I0:I0 + i1, :w1]
-        np.greater(nd, 0, out=db)
-        np.copyto(sb[:i1, :w1], sd, where=db)
-        np.copyto(n[:i1, :w1], nd, where=db)
-        pb = part[I0:I1]
-        np.greater(n, 0, out=pb)
-        pb &= ~diag[I0:I1]
-        empty = n == 0
-        n[empty] = 1
-        sb /= n
-        sb[empty] = np.nan
-        report(progress, 0.2 * I1 / H)
-    # known cells without a known pair: along a straight edge of a hole, two known
-    # children on one side and the two cells beyond them give the centre by linear
-    # extrapolation (exact on a plane); elsewhere (thin crests, corners) their mean
-    idx = np.flatnonzero(part)
-    del diag, part
-    if idx.size:
-        i, j = np.divmod(idx, W)
-        base = i * (2 * w)
-        base += 2 * j                      # flat index of the block's first cell
-        kf, zf = known.ravel(), z.ravel()
-        acc = np.zeros(idx.size, np.float32)
-        cnt = np.zeros(idx.size, np.float32)
-        inner_c, inner_r = 2 * j + 1 < w, 2 * i + 1 < h
-        # side: where it exists; (inner cells, outer cells) as (row, col) offsets from
-        # the block's first cell
-        for ok, (a, b), (c, d) in (
-                ((i >= 1) & inner_c, ((0, 0), (0, 1)), ((-1, 0), (-1, 1))),         # top
-                ((2 * i + 2 < h) & inner_c, ((1, 0), (1, 1)), ((2, 0), (2, 1))),    # bottom
-                ((j >= 1) & inner_r, ((0, 0), (1, 0)), ((0, -1), (1, -1))),         # left
-                ((2 * j + 2 < w) & inner_r, ((0, 1), (1, 1)), ((0, 2), (1, 2)))):   # right
-            q = np.flatnonzero(ok)
-            bq = base.take(q)
-            fl = [bq + (o[0] * w + o[1]) for o in (a, b, c, d)]
-            good = kf.take(fl[0]) & kf.take(fl[1]) & kf.take(fl[2]) & kf.take(fl[3])
-            q, fl = q[good], [f[good] for f in fl]
-            est = zf.take(fl[0]) + zf.take(fl[1])
-            est *= np.float32(0.75)
-            est -= np.float32(0.25) * (zf.take(fl[2]) + zf.take(fl[3]))
-            acc[q] += est
-            cnt[q] += 1
-        ok = cnt > 0
-        s.ravel()[idx[ok]] = acc[ok] / cnt[ok]
-    report(progress, 0.25)
-    coarse = fill_gaps(s, progress=sub_progress(progress, 0.25, 0.7))
-    del s
-    return _upsample2(coarse, (h, w), z, known, out=out, progress=sub_progress(progress, 0.7, 1.0))
-
-
-def _upsample2(c, shape, z=None, known=None, out=None, progress=None):
-    """Bilinear interpolation of a grid of half the resolution at the cells of ``shape``
-    (fine cell i lies at coarse coordinate i / 2 - 1/4; the coarse grid is extended by
-    linear extrapolation, so planes stay planes); ``z`` where ``known`` when given. By
-    cache-sized blocks of rows."""
-    H, W = c.shape
-    h, w = shape
-    cp = np.empty((H + 2, W + 2), np.float32)
-    cp[1:-1, 1:-1] = c
-    if H > 1:
-        np.subtract(2 * c[0], c[1], out=cp[0, 1:-1])
-        np.subtract(2 * c[-1], c[-2], out=cp[-1, 1:-1])
-    else:
-        cp[0, 1:-1] = cp[-1, 1:-1] = c[0]
-    if W > 1:
-        np.subtract(2 * cp[:, 1], cp[:, 2], out=cp[:, 0])
-        np.subtract(2 * cp[:, -2], cp[:, -3], out=cp[:, -1])
-    else:
-        cp[:, 0] = cp[:, -1] = cp[:, 1]
-    a, b = np.float32(0.75), np.float32(0.25)
     out = np.empty((h, w), np.float32) if out is None else out
-    step = max(1, CHUNK_CELLS // max(2 * W, 1))
-    rows = np.empty((2 * min(step, H), W + 2), np.float32)
-    tmp = np.empty((min(step, H), W + 2), np.float32)
-    full = np.empty((2 * min(step, H), 2 * W), np.float32)
-    tmp2 = np.empty((2 * min(step, H), W), np.float32)
-    for I0 in range(0, H, step):
-        I1 = min(H, I0 + step)
-        n = I1 - I0
-        rb, tb = rows[:2 * n], tmp[:n]
-        for par, nb in ((0, cp[I0:I1]), (1, cp[I0 + 2:I1 + 2])):  # even rows lean up, odd down
-            dst = rb[par::2]
-            np.multiply(cp[I0 + 1:I1 + 1], a, out=dst)
-            np.multiply(nb, b, out=tb)
-            dst += tb
-        fb, t2 = full[:2 * n], tmp2[:2 * n]
-        for par, nb in ((0, rb[:, :-2]), (1, rb[:, 2:])):
-            dst = fb[:, par::2]
-            np.multiply(rb[:, 1:-1], a, out=dst)
-            np.multiply(nb, b, out=t2)
-            dst += t2
-        r0, r1 = 2 * I0, min(h, 2 * I1)
-        ob = out[r0:r1]
-        np.copyto(ob, fb[:r1 - r0, :w])
-        if z is not None:
-            np.copyto(ob, z[r0:r1], where=known[r0:r1])
-        report(progress, I1 / H)
+    np.copyto(out, z)
+    cells = np.flatnonzero(holes)
+    if cells.size == 0:
+        report(progress, 1.0)
+        return out
+    # nearest known column left/right (X profile) and row above/below (Y profile) of each cell
+    left, right, up, down = _profile_ends(known, cells, sub_progress(progress, 0.0, 0.6))
+    del known
+    zf = z.ravel()
+    val = np.empty(cells.size, np.float32)
+    found = np.empty(cells.size, bool)
+    step = CHUNK_CELLS                     # cache-sized chunks of the cells
+    for i0 in range(0, cells.size, step):
+        sl = slice(i0, i0 + step)
+        _along_profiles(zf, w, cells[sl], left[sl], right[sl], up[sl], down[sl], reach, cell_size,
+                        val[sl], found[sl])
+        report(progress, 0.6 + 0.2 * min(i0 + step, cells.size) / cells.size)
+    del left, right, up, down
+    cells, val = cells[found], val[found]
+    res = out.ravel()
+    res[cells] = val
+    del val
+    if smooth > 0:
+        res[cells] = _window_mean(out, cells, smooth, sub_progress(progress, 0.8, 1.0))
+    report(progress, 1.0)
     return out
+
+
+def _along_profiles(zf, w, cells, left, right, up, down, reach, cell_size, val, found):
+    """The heights :func:`_ground_surface` gives the flat ``cells`` (a chunk) into ``val``
+    (``found``: False where no profile end lies within the reach) from the ends of their
+    profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the raster's width."""
+    rx, ry = reach
+    dx, dy = cell_size
+    r, c = np.divmod(cells, w)
+    num = np.zeros(cells.size, np.float32)
+    den = np.zeros(cells.size, np.float32)
+    n1 = np.zeros(cells.size, np.float32)  # one-sided ends, by 1 / distance^2
+    d1 = np.zeros(cells.size, np.float32)
+    for lo, hi, pos, lim, step, base, stride in ((left, right, c, rx, dx, r * w, 1),
+                                                 (up, down, r, ry, dy, c, w)):
+        a = np.minimum(pos - lo, lim + 1)  # cells to the end before (left / above)
+        b = np.minimum(hi - pos, lim + 1)  # cells to the end after (right / below)
+        ok_a, ok_b = a <= lim, b <= lim
+        za = zf.take(base + np.where(ok_a, lo, pos) * stride)
+        zb = zf.take(base + np.where(ok_b, hi, pos) * stride)
+        both = ok_a & ok_b
+        fa, fb = a.astype(np.float32), b.astype(np.float32)
+        span = fa + fb
+        # the straight line between the two ends, (b za + a zb) / (a + b), by 1 / span^2
+        v = np.where(both, za * fb + zb * fa, 0)
+        v /= span
+        span *= np.float32(step)
+        wgt = np.where(both, np.float32(1.0) / (span * span), 0)
+        v *= wgt
+        num += v
+        den += wgt
+        for ok, zz, f in ((ok_a, za, fa), (ok_b, zb, fb)):
+            f *= np.float32(step)
+            wgt = np.where(ok, np.float32(1.0) / (f * f), 0)   # f >= 1 cell: a hole is not known
+            n1 += np.where(ok, wgt * zz, 0)                   # not NaN * 0
+            d1 += wgt
+    two = den > 0
+    np.copyto(num, n1, where=~two)
+    np.copyto(den, d1, where=~two)
+    np.greater(den, 0, out=found)
+    den[~found] = 1
+    np.divide(num, den, out=val)
+
+
+def _window_mean(a, cells, k, progress=None):
+    """Mean of the finite cells of ``a`` in the ``(2 k + 1)^2`` window around each of the
+    flat ``cells`` (sorted), by blocks of rows; sums of shifted slices in a fixed order,
+    so that a cell's value depends on its window alone."""
+    h, w = a.shape
+    out = np.empty(cells.size, np.float32)
+    step = max(1, CHUNK_CELLS // max(w, 1))
+    starts = np.arange(0, h, step)
+    bounds = np.searchsorted(cells, np.append(starts * w, h * w))
+    for n, i0 in enumerate(starts):
+        s0, s1 = bounds[n], bounds[n + 1]
+        if s1 == s0:
+            continue
+        i1 = min(h, i0 + step)
+        lo, hi = max(0, i0 - k), min(h, i1 + k)
+        src = a[lo:hi]
+        ok = np.isfinite(src)
+        v = np.where(ok, src, np.float32(0))
+        cnt = ok.astype(np.float32)
+        vs = np.zeros((hi - lo, w), np.float32)        # sums along the rows
+        cs = np.zeros((hi - lo, w), np.float32)
+        for d in range(-k, k + 1):
+            t0, t1 = max(0, -d), min(w, w - d)
+            vs[:, t0:t1] += v[:, t0 + d:t1 + d]
+            cs[:, t0:t1] += cnt[:, t0 + d:t1 + d]
+        vb = np.zeros((i1 - i0, w), np.float32)        # then along the columns
+        cb = np.zeros((i1 - i0, w), np.float32)
+        for d in range(-k, k + 1):
+            r0, r1 = max(i0, -d, i0), min(i1, h - d)
+            vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
+            cb[r0 - i0:r1 - i0] += cs[r0 + d - lo:r1 + d - lo]
+        q = cells[s0:s1] - i0 * w
+        sv, sc = vb.ravel().take(q), cb.ravel().take(q)
+        out[s0:s1] = np.where(sc > 0, sv / np.maximum(sc, np.float32(1)), np.nan)
+        report(progress, i1 / h)
+    return out
+
+
+def _profile_ends(known, cells, progress=None):
+    """For the flat ``cells`` (sorted): the column of the nearest known cell left of and
+    right of each on its row, and the row of the nearest known cell above and below it on
+    its column (``-2**30`` / ``2**30`` where there is none). Running maxima and minima of
+    the known cells' indices, by blocks of rows (the column scans carry the last row of a
+    block into the next, row by row: numpy's accumulate along the first axis is slow)."""
+    h, w = known.shape
+    far = np.int32(1 << 30)
+    left = np.empty(cells.size, np.int32)
+    right = np.empty(cells.size, np.int32)
+    up = np.empty(cells.size, np.int32)
+    down = np.empty(cells.size, np.int32)
+    step = max(1, CHUNK_CELLS // max(w, 1))
+    cols = np.arange(w, dtype=np.int32)
+    rows = np.arange(h, dtype=np.int32)[:, None]
+    buf = np.empty((min(step, h), w), np.int32)
+    starts = np.arange(0, h, step)
+    bounds = np.searchsorted(cells, np.append(starts * w, h * w))
+    n_blocks = len(starts)
+
+    def index_or(kb, idx, none, b):
+        """``idx`` where ``kb``, else ``none``, into ``b`` (a product: faster than a
+        masked copy)."""
+        np.multiply(kb, idx - none, out=b)
+        b += none
+
+    prev = np.full(w, -far, np.int32)
+    for k, i0 in enumerate(starts):
+        i1 = min(h, i0 + step)
+        kb, b = known[i0:i1], buf[:i1 - i0]
+        s0, s1 = bounds[k], bounds[k + 1]
+        lr = cells[s0:s1] - i0 * w
+        # X: running max of known columns from the left, running min from the right
+        index_or(kb, cols, -far, b)
+        np.maximum.accumulate(b, axis=1, out=b)
+        left[s0:s1] = b.ravel().take(lr)
+        index_or(kb, cols, far, b)
+        np.minimum.accumulate(b[:, ::-1], axis=1, out=b[:, ::-1])
+        right[s0:s1] = b.ravel().take(lr)
+        # Y, downwards: running max of known rows, from the rows above
+        index_or(kb, rows[i0:i1], -far, b)
+        for i in range(b.shape[0]):
+            np.maximum(b[i], prev, out=b[i])
+            prev = b[i]
+        prev = prev.copy()
+        up[s0:s1] = b.ravel().take(lr)
+        report(progress, 0.6 * (k + 1) / n_blocks)
+    prev = np.full(w, far, np.int32)
+    for k in range(n_blocks - 1, -1, -1):
+        i0 = starts[k]
+        i1 = min(h, i0 + step)
+        kb, b = known[i0:i1], buf[:i1 - i0]
+        s0, s1 = bounds[k], bounds[k + 1]
+        index_or(kb, rows[i0:i1], far, b)
+        for i in range(b.shape[0] - 1, -1, -1):
+            np.minimum(b[i], prev, out=b[i])
+            prev = b[i]
+        prev = prev.copy()
+        down[s0:s1] = b.ravel().take(cells[s0:s1] - i0 * w)
+        report(progress, 0.6 + 0.4 * (n_blocks - k) / n_blocks)
+    return left, right, up, down
 
 
 def _slope(a, dx, dy, progress=None):
@@ -249,7 +291,7 @@ def _slope(a, dx, dy, progress=None):
 
 
 def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optional[np.ndarray],
-                cell_size: CellSize, *, window: int, h_min: float, tol: float,
+                cell_size: CellSize, *, window: int, h_min: float, tol: float, max_size: float,
                 progress: Optional[Progress] = None) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     """Step 5, the final pass (twice): the cells standing above the ground interpolated
     under the objects and the breaks next to them are objects; deep concave spikes are
@@ -262,6 +304,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     """
     dx, dy = cell_size
     m = window // 2
+    reach = surface_reach(cell_size, window=window, max_size=max_size)
     invalid = None if valid is None else ~valid
     marked = breaks.marked
     holes = _first_holes(objects, breaks, invalid, m)
@@ -280,10 +323,17 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(step, 0.0, 0.15))
-        surface = _ground_surface(zs, hs, out=surface, progress=sub_progress(step, 0.15, 0.7))
-        del zs, hs
+        surface = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, out=surface,
+                                  progress=sub_progress(step, 0.15, 0.7))
+        del zs
         np.subtract(z, surface, out=d)
         if allow is None:  # the slope of the first surface serves both passes
+            # its slope over the window of the local trends (the creases of the profile
+            # lines do not count); d is known, so the surface is averaged in place (the
+            # next pass overwrites it)
+            cells = np.flatnonzero(hs)
+            surface.ravel()[cells] = _window_mean(surface, cells, m)
+            del cells
             allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol,
                                progress=sub_progress(step, 0.7, 0.85))
         report(step, 0.85)
@@ -297,6 +347,15 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
+
+
+def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:
+    """Cells ``(along X, along Y)`` within which :func:`find_ground` looks for the ground
+    on either side of a hole: half the largest object (the middle of an object of that
+    size is that far from its edge) plus half a window (the breaks at its feet)."""
+    dx, dy = cell_size
+    m = window // 2
+    return (int(np.ceil(_REACH * max_size / dx)) + m, int(np.ceil(_REACH * max_size / dy)) + m)
 
 
 def _surface_input(z, holes, invalid, reach, progress=None):
@@ -339,6 +398,7 @@ def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):
     allow = _slope(surface, dx, dy, progress)
     allow *= np.float32(max(dx, dy))
     allow += np.float32(tol)
+    np.copyto(allow, np.float32(tol), where=np.isnan(allow))   # beside nodata left unfilled
     np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
     return allow
 

@@ -20,7 +20,7 @@ from .derivatives import (
     derivative_blocks,
     mark_breaks,
 )
-from .ground import find_ground
+from .ground import find_ground, surface_reach
 from .profiles import find_enclosed_objects, find_profile_objects
 
 #: Break threshold in robust standard deviations of the profile bends (K_g default).
@@ -111,7 +111,8 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
                                      progress=sub_progress(progress, 0.55, 0.65))
     # 5. final pass against the ground interpolated under objects and breaks (twice)
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
-                                h_min=s.h_min, tol=s.tol, progress=sub_progress(progress, 0.65, 1.0))
+                                h_min=s.h_min, tol=s.tol, max_size=s.max_size,
+                                progress=sub_progress(progress, 0.65, 1.0))
     info = _info(s, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": breaks.curvature}, info=info, surface=surface)
@@ -249,14 +250,14 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
 
 
 def curvature_halo(params: dict, cell_size: CellSize) -> int:
-    """Reach of the filter in cells: the window, the foot search beyond a break, and
-    twice the largest object (runs, enclosed regions and the ground surface under them);
-    even, so that blocks cut at even rows keep the 2 x 2 grid of the ground surface
-    (:func:`.ground._ground_surface`) of one pass."""
+    """Reach of the filter in cells: the window, the foot search beyond a break, twice
+    the largest object (runs and enclosed regions), and the reach of the ground surface
+    under them (:func:`.ground.surface_reach`: half the largest object); even."""
     dx, dy = as_cell_size(cell_size)
     w = check_window(params.get("window_cells", 5))
     size = float(params.get("max_object_size_m", 100.0))
     halo = int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
+    halo += max(surface_reach((dx, dy), window=w, max_size=size))
     return halo + (halo & 1)
 
 
