@@ -111,7 +111,7 @@ def _runner(method, params):
     return run
 
 
-def _scalars(info):
+def scalars(info):
     """The JSON-able scalar items of a filter's info dict (parameters used, stats)."""
     out = {}
     for k, v in (info or {}).items():
@@ -133,7 +133,8 @@ def _mean(per_sample):
     return {m: float(np.mean([r[m] for r in per_sample.values()])) for m in MEASURES}
 
 
-def _figures(conf):
+def figures(conf):
+    """The protocol's measures and the cross matrix of a :func:`~bare_earth.core.evaluate.confusion`."""
     keep = MEASURES + ("a", "b", "c", "d", "n")
     return {k: conf[k] for k in keep}
 
@@ -178,12 +179,12 @@ def evaluate_method(name, samples, params=None, maps=None):
         cls = classify_points(cloud.x, cloud.y, cloud.z, dtm, gt,
                               threshold_m=THRESHOLD_M, slope_factor=SLOPE_FACTOR)
         truth = cloud.classification == 0
-        r = _figures(confusion(cls == 0, truth))
+        r = figures(confusion(cls == 0, truth))
         if maps is not None:
             maps[sname] = (error_map_from_points(cls == 0, truth, cloud.x, cloud.y, gt,
                                                  z.shape, fill_empty="nearest")[0], gt)
         r["seconds"] = round(time.perf_counter() - t0, 3)
-        r["info"] = _scalars(getattr(res, "info", None))
+        r["info"] = scalars(getattr(res, "info", None))
         per[sname] = r
     label = name if isinstance(name, str) else getattr(name, "__name__", "callable")
     return {"method": label, "params": dict(params or {}), "samples": per,
@@ -196,7 +197,7 @@ def baseline(samples):
     per = {}
     for sname, cloud in samples.items():
         truth = cloud.classification == 0
-        per[sname] = _figures(confusion(np.ones(truth.shape, bool), truth))
+        per[sname] = figures(confusion(np.ones(truth.shape, bool), truth))
     return {"method": "all ground", "params": {}, "samples": per, "mean": _mean(per)}
 
 

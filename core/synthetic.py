@@ -222,6 +222,69 @@ def make_dsm(n_cells, seed=0, cell_size=1.0):
     return make_scene("city", (side, side), cell_size=cell_size, seed=seed)
 
 
+def make_canopy(extent_m=512.0, cell_size=1.0, cover=0.85, seed=0, noise_m=0.05):
+    """Closed canopy over gentle ground, the same landscape at any cell size.
+
+    The failure case of data-derived defaults (issue 12): where crowns cover most of the
+    DSM, statistics taken on the whole surface (noise, roughness) measure the canopy. The
+    ground is a plane rising 4 % in x and 2 % in y with a 2 m undulation; crowns stand on
+    a 7 m lattice jittered by up to 2 m, each present with probability ``cover``, radius
+    3.5-5.5 m, height ``h`` of 12-25 m with a rounded top ``h (1 - 0.6 d^2)`` (``d`` the
+    distance from the stem over the radius), so a crown's edge drops by ``0.4 h`` to the
+    ground as in a real DSM. The scene is a continuous landscape sampled at the cell
+    centres: the same ``seed`` at 0.5, 1, 2 and 4 m cells is the same forest.
+
+    Parameters
+    ----------
+    extent_m : float
+        Side of the square scene, metres.
+    cell_size : float
+        Cell size in metres (``extent_m / cell_size`` cells per side, at least 16).
+    cover : float
+        Probability that a lattice site holds a crown (0-1); 0.85 covers about 85 % of
+        the ground.
+    seed : int
+    noise_m : float
+        Standard deviation of the Gaussian height noise of the DSM.
+
+    Returns
+    -------
+    Scene
+        ``kind="canopy"``; mask 1 under crowns, 0 elsewhere; no low blunders or nodata.
+    """
+    n = int(round(float(extent_m) / float(cell_size)))
+    if n < 16 or not np.isfinite(cell_size) or cell_size <= 0:
+        raise ValueError(f"extent_m / cell_size must give at least 16 cells; got {extent_m!r} / "
+                         f"{cell_size!r}.")
+    if not 0.0 <= cover <= 1.0 or not np.isfinite(noise_m) or noise_m < 0:
+        raise ValueError(f"cover must be in [0, 1] and noise_m >= 0; got {cover!r}, {noise_m!r}.")
+    c = float(cell_size)
+    rng = np.random.default_rng(int(seed))
+    lat = 7.0
+    m = int(np.ceil(extent_m / lat)) + 2
+    jx, jy = rng.uniform(-2, 2, (m, m)), rng.uniform(-2, 2, (m, m))
+    rad, hgt = rng.uniform(3.5, 5.5, (m, m)), rng.uniform(12, 25, (m, m))
+    present = rng.random((m, m)) < cover
+    x = (np.arange(n) + 0.5) * c
+    X, Y = np.meshgrid(x, x[::-1])                   # north up: y decreases down the rows
+    ground = 0.04 * X + 0.02 * Y + 2.0 * np.sin(X / 90.0) * np.cos(Y / 120.0) + 300.0
+    top = np.zeros((n, n))
+    ci, cj = np.floor(Y / lat).astype(int), np.floor(X / lat).astype(int)
+    for di in (-1, 0, 1):                            # the 3 x 3 lattice sites around a cell
+        for dj in (-1, 0, 1):
+            i, j = np.clip(ci + di, 0, m - 1), np.clip(cj + dj, 0, m - 1)
+            sx, sy = (j + 0.5) * lat + jx[i, j], (i + 0.5) * lat + jy[i, j]
+            d2 = ((X - sx) ** 2 + (Y - sy) ** 2) / rad[i, j] ** 2
+            crown = np.where(present[i, j] & (d2 < 1.0), hgt[i, j] * (1.0 - 0.6 * d2), 0.0)
+            np.maximum(top, crown, out=top)
+    noise = np.clip(rng.normal(0.0, 1.0, (n, n)), -4.5, 4.5) * noise_m
+    dsm = (ground + top + noise).astype(np.float32)
+    mask = np.where(top > 0, OBJECT, GROUND).astype(np.uint8)
+    gt = (_ORIGIN[0], c, 0.0, _ORIGIN[1] + n * c, 0.0, -c)
+    return Scene(dsm=dsm, dtm=ground.astype(np.float32), mask=mask, cell_size=(c, c), kind="canopy",
+                 geotransform=gt)
+
+
 # ---------------------------------------------------------------------------------------
 # terrain
 

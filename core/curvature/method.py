@@ -5,9 +5,10 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
+from scipy import ndimage
 
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
-from ..estimate import noise_second_difference_tiles, sample_windows, smooth_spread
+from ..estimate import ground_level_cells, ground_spread, noise_ground_level, sample_windows
 from ..methods import Method, Param
 from .derivatives import (
     MODELS,
@@ -27,7 +28,7 @@ _K_SIGMAS = 1.5
 #: Smallest height deviation (m) across a half window that counts as a break on
 #: noise-free data (floor of the derived K_g).
 _MIN_BREAK_M = 0.05
-#: Tile edge (cells) and quantile of the tile spreads used for the smooth-part noise.
+#: Tile edge (cells) and quantile of the tile spreads used for the ground's bend noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
 
@@ -185,16 +186,30 @@ def _bends(zs, cell_size, window, model):
     return v
 
 
+def _ground_bends(zs, cell_size, window, model):
+    """:func:`_bends` kept only where the whole window stands at ground level
+    (:func:`~bare_earth.core.estimate.ground_level_cells`), NaN elsewhere: the bends of the
+    ground, not of the canopy or the roofs (a closed canopy's smooth parts are crowns, and
+    its K_g read 100 times the ground's)."""
+    v = _bends(zs, cell_size, window, model)
+    ground = ground_level_cells(zs, cell_size, noise_ground_level(zs, cell_size)["sigma"])
+    ground = ndimage.binary_erosion(ground, np.ones((window, window), bool), border_value=1)
+    v[:, ~ground] = np.nan
+    return v
+
+
 def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic") -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
     The bends r and t of the X and Y profile trends (quadratic model) or the normalised
     twist s / h^2 (bilinear model) are taken on the whole raster, or on windows spread
-    over a large one (:func:`~bare_earth.core.estimate.sample_windows`). Their robust
-    spread ``1.4826 MAD`` is computed per 16 x 16 tile and ``sigma`` is the first
-    quartile of the tiles (:func:`~bare_earth.core.estimate.smooth_spread`): the curvature noise of the
-    smooth ground and roofs, not inflated by vegetation and object edges, which cover
-    most of an urban scene. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
+    over a large one (:func:`~bare_earth.core.estimate.sample_windows`), on the cells whose
+    whole window stands at ground level (:func:`~bare_earth.core.estimate.ground_level_cells`:
+    never the crowns or roofs, whose smooth parts fill a closed canopy). Their robust
+    spread ``1.4826 MAD`` is computed per 16 x 16 tile holding at least a quarter of such
+    cells and ``sigma`` is the first quartile of the tiles
+    (:func:`~bare_earth.core.estimate.ground_spread`): the curvature noise of the smooth
+    ground. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
     bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
     window so that noise-free data do not mark every gentle bend. (1.5 rather than a
     stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
@@ -203,8 +218,8 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     dx, dy = as_cell_size(cell_size)
     window = check_window(window)
     model = check_model(model)
-    bends = [_bends(w, (dx, dy), window, model) for w in sample_windows(as_surface(z))]
-    sigma = smooth_spread(bends, _TILE, _SMOOTH_QUANTILE)
+    bends = [_ground_bends(w, (dx, dy), window, model) for w in sample_windows(as_surface(z))]
+    sigma = ground_spread(bends, tile=_TILE, quantile=_SMOOTH_QUANTILE)
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
@@ -218,11 +233,10 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                              tolerance_m: Optional[float] = None) -> dict:
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
-    ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the data's profile bends on
-    its smooth parts, squared). ``tolerance_m``: three times the robust noise of the
-    DSM's smooth parts (second differences,
-    :func:`~bare_earth.core.estimate.noise_second_difference_tiles`), kept within
-    [0.3, 1.0] m. The others have
+    ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
+    ground, squared). ``tolerance_m``: three times the noise of the DSM's ground-level
+    cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
+    [0.3, 1.0] m; 0.5 m when too few ground cells are seen. The others have
     fixed defaults (see :data:`METHOD`).
     """
     z = bounded_heights(as_surface(z))
@@ -232,7 +246,8 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     if k_g_per_m2 is None:
         k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
     if tolerance_m is None:
-        tolerance_m = float(np.clip(3.0 * noise_second_difference_tiles(z, _TILE, _SMOOTH_QUANTILE), 0.3, 1.0))
+        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),
@@ -320,8 +335,13 @@ METHOD = Method(
         "(corners), not straight edges. The default quadratic surface has none of these "
         "limits.</p>"
         "<p>Defaults: K<sub>g</sub> = (1.5 robust standard deviations of the profile bends "
-        "of the data's smooth parts)<sup>2</sup>; tolerance = 3 x the DSM's robust noise "
-        "(0.3 to 1 m). The CURVATURE output (band 1 K in 1/m<sup>2</sup>, band 2 H in "
+        "of the ground: cells whose whole window stands at ground level)<sup>2</sup>; the "
+        "paper derives K<sub>g</sub> from the data's curvature, and on a closed canopy the "
+        "smooth parts are crowns, whose bends set K<sub>g</sub> a hundred times too high "
+        "(no break found, half the cells wrong). Tolerance = 3 x the noise of the DSM's "
+        "ground-level cells (0.3 to 1 m). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
+        "noise of the fit falls with the square of the cell, so it differs between cell "
+        "sizes by design. The CURVATURE output (band 1 K in 1/m<sup>2</sup>, band 2 H in "
         "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
         "cells marked by X and by Y profiles. The curvature is attenuated within "
         "<i>window</i>/2 cells of the raster's edge (the edge is extended as a plane).</p>"

@@ -104,6 +104,9 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         lab, n = ndimage.label(cand, S8)
         report(progress, 0.75)
         rim = cand & ~inner_cells(cand)
+        # the raster's edge ends the data, it is not the region's border: no evidence
+        rim[0, :] = rim[-1, :] = False
+        rim[:, 0] = rim[:, -1] = False
         # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
         # than the terrain can rise over one (diagonal) cell, plus 2 dh0
         # and the residual there exceeds 2 dh0 plus the terrain's rise over the block

@@ -5,7 +5,7 @@ from typing import Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface
-from ..estimate import block_minima, noise_second_difference_quartile
+from ..estimate import block_minima, noise_ground_level
 from ..methods import Param, check_values
 from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
@@ -107,7 +107,8 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
     p.update({k: v for k, v in params.items() if v is not None})
     check_params(p)
     if p["height_threshold_m"] is None:
-        dh0 = max(0.5, NOISE_K * noise_second_difference_quartile(z))
+        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        dh0 = max(0.5, NOISE_K * sigma) if np.isfinite(sigma) else 0.5
         p["height_threshold_m"] = round(min(dh0, _MAXIMUM["height_threshold_m"]), 3)
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)

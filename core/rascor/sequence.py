@@ -14,6 +14,7 @@ import numpy as np
 
 from ..codes import LOW, NODATA, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from ..estimate import below_surroundings
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
 from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
@@ -70,6 +71,7 @@ class _State:
     step: np.ndarray
     removed: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    pit: Optional[np.ndarray] = None      # cells below every cell of the ring around them
 
 
 def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,
@@ -143,6 +145,8 @@ def _record(st, k, hi, lo):
     """Remove the points step ``k`` found: objects (1) and low blunders (2)."""
     new_hi = hi & st.keep
     new_lo = lo & st.keep
+    if st.pit is not None:                # a low blunder lies below all the ground around it
+        new_lo &= st.pit
     new_lo &= ~new_hi
     np.copyto(st.mask, OBJECT, where=new_hi)
     np.copyto(st.mask, LOW, where=new_lo)
@@ -324,6 +328,10 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         snooping_k=snooping_k, snooping_iterations=snooping_iterations, low_weight=low_weight)
     report(progress, 0.0)
     st = _start(z, breaklines, special_areas)
+    # a gap between crowns or roofs is at the level of the other low cells around it and is
+    # no blunder (Jacobsen's weight factor alone takes it for one where the ground shows
+    # only in such gaps: a closed canopy at 4 m cells)
+    st.pit = below_surroundings(z, cfg.cell, 3.0 * cfg.sigma_m * np.sqrt(2.0))
     plan = _plan(cfg, st)
     ends = np.cumsum([_COST[k] for k in plan]) / max(1e-9, sum(_COST[k] for k in plan))
     for k, a, b in zip(plan, np.concatenate([[0.0], ends[:-1]]), ends):
