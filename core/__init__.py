@@ -16,8 +16,8 @@ Conventions (every module follows them):
   ``fraction`` in [0, 1]; it may raise :class:`Cancelled` to stop the work.
 * Bad arguments raise ``ValueError`` whose message names the problem and the fix.
 """
-from .codes import GROUND, OBJECT, LOW, NODATA, MASK_CODES
-from .common import Cancelled, FilterResult, as_surface, as_cell_size
+from .codes import GROUND, LOW, MASK_CODES, NODATA, OBJECT
+from .common import Cancelled, FilterResult, as_cell_size, as_surface
 
 __all__ = ["GROUND", "OBJECT", "LOW", "NODATA", "MASK_CODES", "Cancelled",
            "FilterResult", "as_surface", "as_cell_size", "filter_dsm"]

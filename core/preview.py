@@ -39,6 +39,7 @@ def mask_rgb(mask):
 def write_preview(path, dsm_path, dtm_path, mask_path, gap=8):
     """Write ``path`` (PNG): DSM | DTM | mask, each shaded, side by side. Returns the path."""
     from osgeo import gdal
+
     from .grid import open_dsm
     dsm, dtm = open_dsm(dsm_path), open_dsm(dtm_path)
     zd, zt = dsm.read(), dtm.read()

@@ -10,8 +10,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bare_earth.core.evaluate import (ERROR_LEGEND, compare_dtm, compare_masks, confusion,
-                                      error_map_from_masks, write_report)
+from bare_earth.core.evaluate import (
+    ERROR_LEGEND,
+    compare_dtm,
+    compare_masks,
+    confusion,
+    error_map_from_masks,
+    write_report,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -189,7 +195,7 @@ def test_harness_with_inline_methods(tmp_path):
         return SimpleNamespace(mask=high.astype(np.uint8), dtm=dtm[tuple(idx)], info={})
 
     base = bench.evaluate_method(everything_ground, samples)
-    for name, r in base["samples"].items():
+    for r in base["samples"].values():
         assert r["type1"] == 0.0 and r["type2"] == 100.0 and r["kappa"] == pytest.approx(0.0)
     good = bench.evaluate_method(oracle, samples)
     assert good["mean"]["total"] < 2.0 and good["mean"]["kappa"] > 95.0

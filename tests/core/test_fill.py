@@ -140,7 +140,10 @@ def test_matches_exact_harmonic_solution_closely():
     z[hole] = np.nan
     # exact: interior Dirichlet problem on the hole (all of its neighbours are known)
     hh, hw = 50, 40
-    t = lambda m: diags([-1, 2, -1], [-1, 0, 1], shape=(m, m))
+
+    def t(m):
+        return diags([-1, 2, -1], [-1, 0, 1], shape=(m, m))
+
     a = (kron(identity(hh), t(hw)) + kron(t(hh), identity(hw))).tocsc()
     rhs = np.zeros((hh, hw))
     rhs[0, :] += truth[9, 15:55]
