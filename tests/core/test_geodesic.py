@@ -292,19 +292,6 @@ def test_method_registered_and_params_match_signature():
     assert m.halo(m.resolve(flat_scene(40), 1.0), 1.0) >= 6 * 64
 
 
-def test_blocks_agree_with_one_pass():
-    from bare_earth.core.pipeline import run_array
-    from bare_earth.core.synthetic import make_scene
-    sc = make_scene("city", (320, 320), seed=4)
-    params = dict(max_object_size_m=20.0)
-    halo = geo.geodesic_halo(geo.resolve_geodesic_params(sc.dsm, 1.0, **params), 1.0)
-    assert halo % 2 == 0                          # aligned on the coarse grids
-    one = run_array("geodesic", sc.dsm, 1.0, params=params)
-    blk = run_array("geodesic", sc.dsm, 1.0, params=params, block=160)
-    assert blk.info["blocks"] > 1
-    assert np.array_equal(one.mask, blk.mask)
-
-
 def test_city_scene_accuracy():
     from bare_earth.core.synthetic import make_scene
     sc = make_scene("city", (256, 256), seed=1)

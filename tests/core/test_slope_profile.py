@@ -116,16 +116,6 @@ def test_city_scene_whole_roofs_removed_and_type2_low():
         assert removed.mean() > 0.95, o                     # whole roofs, not edges
 
 
-def test_blocked_equals_one_pass():
-    from bare_earth.core.synthetic import make_scene
-    sc = make_scene("city", shape=(260, 300), seed=5)
-    params = dict(max_object_size_m=40.0)
-    one = run_array("slopeprofile", sc.dsm, 1.0, params=params)
-    blocked = run_array("slopeprofile", sc.dsm, 1.0, params=params, block=64, workers=2)
-    assert blocked.info["blocks"] > 1
-    np.testing.assert_array_equal(one.mask, blocked.mask)
-
-
 def test_tiny_raster():
     z = np.array([[0, 0, 0], [0, 9, 0], [0, 0, 0]], np.float32)
     res = run_array("slopeprofile", z, 1.0)
