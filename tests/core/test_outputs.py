@@ -141,7 +141,8 @@ KILLED_RUN = textwrap.dedent("""
 
 def test_killed_run_leftovers_removed_by_the_next_run_of_that_output(tmp_path):
     info = _info(tmp_path)
-    plugins = os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__)))
+    # grid.__file__ is .build/plugins/bare_earth/core/grid/__init__.py
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__))))
     code = KILLED_RUN.format(plugins=plugins, dsm=info.path, dtm=str(tmp_path / "dtm.tif"))
     assert subprocess.run([sys.executable, "-c", code]).returncode == 9
     (left,) = _partials(tmp_path)

@@ -1,0 +1,388 @@
+"""Reading rasters with GDAL: the one place where nodata, scale/offset and units are resolved.
+
+A DSM is opened with :func:`open_dsm`, which checks it before any work starts and works
+out the cell size in metres (converting degrees at the raster's latitude, and feet and
+other linear units by the CRS's factor). Blocks are read as float32 with NaN as nodata
+and heights in metres.
+"""
+import contextlib
+import math
+import os
+from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+try:
+    from osgeo import gdal, osr
+except ImportError:  # pragma: no cover - GDAL ships with QGIS
+    gdal = osr = None
+
+from ..common import without_far_heights
+
+#: Smallest raster the filters accept, in cells per side.
+MIN_SIDE = 3
+
+#: Tile edge of the GeoTIFF outputs, cells.
+OUTPUT_TILE = 256
+
+#: WGS84 ellipsoid: semi-major axis (m) and first eccentricity squared.
+WGS84_A, WGS84_E2 = 6378137.0, 0.00669437999014
+
+
+def metres_per_degree(lat):
+    """Metres per degree of longitude and of latitude at latitude ``lat`` (degrees), on the
+    WGS84 ellipsoid: ``pi/180 * N cos(phi)`` and ``pi/180 * M`` with the radii of curvature
+    ``N = a / sqrt(1 - e2 sin^2 phi)`` (prime vertical) and ``M = a (1 - e2) / (1 - e2 sin^2
+    phi)^1.5`` (meridian). Returns ``(m_per_deg_lon, m_per_deg_lat)``."""
+    phi = math.radians(lat)
+    s = 1.0 - WGS84_E2 * math.sin(phi) ** 2
+    return (math.pi / 180 * WGS84_A * math.cos(phi) / math.sqrt(s),
+            math.pi / 180 * WGS84_A * (1 - WGS84_E2) / s ** 1.5)
+
+
+#: The log line of a raster with NaN cells and no declared nodata (one wording everywhere).
+NAN_UNDECLARED_WARNING = ("The raster has NaN cells but declares no nodata value: NaN was treated as nodata, "
+                          "and the outputs declare NaN as nodata.")
+
+
+@contextlib.contextmanager
+def _reading(path, what="read"):
+    """GDAL calls on an input: raw-band VRTs refused where GDAL honours it, and every GDAL
+    error (a RuntimeError, sometimes with an empty message) turned into a ValueError naming
+    the file."""
+    gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", "NO")
+    gdal.ErrorReset()
+    try:
+        yield
+    except RuntimeError as exc:
+        msg = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason"
+        raise ValueError(f"cannot {what} the raster {str(path)!r}: {msg}. The file may be truncated or "
+                         "corrupt, or a file it refers to is missing: check it (gdalinfo -checksum) or "
+                         "export it again.") from None
+    finally:
+        gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", None)
+
+
+def _vrt_problems(ds, depth=0):
+    """Why a VRT input is refused: a raw band (``VRTRawRasterBand`` reads any local file's
+    bytes as cells) anywhere in it or in the VRTs it refers to. Returns a message or None."""
+    import xml.etree.ElementTree as ET
+    xml = (ds.GetMetadata("xml:VRT") or [""])[0]
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    base = os.path.dirname(ds.GetDescription())
+    for band in root.iter("VRTRasterBand"):
+        if band.get("subClass") == "VRTRawRasterBand":
+            src = band.findtext("SourceFilename", "")
+            return (f"it has a raw band (VRTRawRasterBand) reading the bytes of {src!r}: such VRTs can read "
+                    "any local file and are refused as inputs. Convert the data to a GeoTIFF first")
+    if depth < 4:
+        for el in root.iter("SourceFilename"):
+            name = (el.text or "").strip()
+            if el.get("relativeToVRT", el.get("relativetoVRT", "0")) == "1":
+                name = os.path.join(base, name)
+            if name.lower().endswith(".vrt") and os.path.isfile(name):
+                sub = gdal.Open(name, gdal.GA_ReadOnly)
+                problem = sub is not None and _vrt_problems(sub, depth + 1)
+                if problem:
+                    return problem
+    return None
+
+
+def _open_read(path):
+    """Open a raster read-only; GeoTIFFs decompress their tiles on every core."""
+    with _reading(path, "open"):
+        ds = gdal.Open(path, gdal.GA_ReadOnly)
+        if ds is not None and ds.GetDriver().ShortName == "GTiff":
+            ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY, open_options=["NUM_THREADS=ALL_CPUS"]) or ds
+    if ds is not None and ds.GetDriver().ShortName == "VRT":
+        problem = _vrt_problems(ds)
+        if problem:
+            raise ValueError(f"the raster {path!r} is refused: {problem}.")
+    return ds
+
+
+def need_gdal():
+    if gdal is None:
+        raise ImportError("GDAL's Python bindings are needed (python3-gdal on Debian; QGIS ships them).")
+    gdal.UseExceptions()
+
+
+@dataclass
+class DSMInfo:
+    """An opened, checked DSM band and everything known about its grid.
+
+    Attributes
+    ----------
+    path, band_index : the source
+    shape : (rows, cols)
+    geotransform : GDAL 6-tuple
+    crs_wkt : str ('' when the raster has no CRS)
+    nodata : float or None, the declared nodata value (of the stored values, before scale/offset)
+    cell_size_m : (dx, dy) in metres
+    z_to_m : factor from the raster's height unit to metres (1 unless the CRS is in feet...)
+    nan_undeclared : True when NaN cells are present without a declared nodata value
+    dtype : GDAL data type name of the band
+    warnings : list of str for the log
+    scale, offset : the band's scale and offset: heights = stored value * scale + offset
+    notes : list of str, facts for the log that are no warning (scale and offset applied)
+    far_cells : cells seen by :meth:`read` with heights beyond ``common.MAX_ABS_HEIGHT_M``
+        (or infinite), read as nodata
+    """
+    path: str
+    band_index: int
+    shape: Tuple[int, int]
+    geotransform: tuple
+    crs_wkt: str
+    nodata: Optional[float]
+    cell_size_m: Tuple[float, float]
+    z_to_m: float = 1.0
+    nan_undeclared: bool = False
+    dtype: str = "Float32"
+    warnings: List[str] = field(default_factory=list)
+    _ds: object = None
+    scale: float = 1.0
+    offset: float = 0.0
+    notes: List[str] = field(default_factory=list)
+    far_cells: int = 0
+
+    @property
+    def cells(self):
+        return self.shape[0] * self.shape[1]
+
+    def dataset(self):
+        if self._ds is None:
+            self._ds = _open_read(self.path)
+        return self._ds
+
+    def read_stored(self, window=None, step=1):
+        """The band's stored values over ``(r0, r1, c0, c1)`` (default all), as GDAL gives them
+        (no nodata, scale or unit applied); every ``step``-th cell when ``step > 1``
+        (nearest-neighbour decimation). ValueError naming the file when GDAL fails."""
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        with _reading(self.path):
+            band = self.dataset().GetRasterBand(self.band_index)
+            if step > 1:
+                a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0, buf_xsize=max(1, (c1 - c0) // step),
+                                     buf_ysize=max(1, (r1 - r0) // step),
+                                     resample_alg=gdal.GRIORA_NearestNeighbour)
+            else:
+                a = band.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
+        if a is None:
+            raise ValueError(f"cannot read the raster {self.path!r} (rows {r0}-{r1}, columns {c0}-{c1}): "
+                             f"{gdal.GetLastErrorMsg() or 'GDAL gave no reason'}. Check the file.")
+        return a
+
+    def read_heights(self, window=None):
+        """Heights over ``window`` in the raster's own unit (scale and offset applied, float32;
+        nodata cells hold whatever is stored there): the values an output DTM copies."""
+        return _apply_scale(self.read_stored(window), self.scale, self.offset)
+
+    def read(self, window=None, step=1, far_in=None):
+        """Read ``(r0, r1, c0, c1)`` (default all) as float32 metres, NaN = nodata.
+
+        Heights beyond ``common.MAX_ABS_HEIGHT_M`` are nodata too (counted in ``far_cells``:
+        those inside the slices ``far_in`` of the window when given, e.g. a block's core);
+        NaN without a declared nodata is noted (:meth:`note_nan`).
+        """
+        a = self.read_stored(window, step)
+        self.note_nan(a)
+        z, n_far = without_far_heights(to_surface(a, self.nodata, self.z_to_m, self.scale, self.offset), far_in)
+        self.far_cells += n_far
+        return z
+
+    def note_nan(self, stored):
+        """Record (once) that ``stored`` values hold NaN while the band declares no nodata."""
+        if (not self.nan_undeclared and self.nodata is None and np.asarray(stored).dtype.kind == "f"
+                and np.isnan(stored).any()):
+            self.nan_undeclared = True
+            self.warnings.append(NAN_UNDECLARED_WARNING)
+
+
+def _apply_scale(a, scale=1.0, offset=0.0):
+    """Stored values -> heights in the raster's unit, float32 (``a * scale + offset`` in float64)."""
+    if scale == 1.0 and offset == 0.0:
+        return np.array(a, dtype=np.float32, copy=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return (np.asarray(a, np.float64) * scale + offset).astype(np.float32)
+
+
+def to_surface(a, nodata=None, z_to_m=1.0, scale=1.0, offset=0.0):
+    """Stored band values -> float32 metres with NaN for nodata (``a`` untouched).
+
+    ``nodata`` is compared with the stored values; then ``a * scale + offset`` (the band's
+    scale and offset) and ``* z_to_m`` (the height unit in metres). Non-finite cells are NaN.
+    """
+    z = _apply_scale(a, scale, offset)
+    if nodata is not None and not (isinstance(nodata, float) and math.isnan(nodata)):
+        z[a == nodata] = np.nan
+    z[~np.isfinite(z)] = np.nan
+    if z_to_m != 1.0:
+        z *= np.float32(z_to_m)
+    return z
+
+
+def _linear_unit_factor(srs):
+    """Metres per CRS linear unit, or None for a geographic CRS."""
+    if srs.IsGeographic():
+        return None
+    f = srs.GetLinearUnits()
+    return float(f) if f and f > 0 else 1.0
+
+
+def cell_size_metres(geotransform, shape, srs=None):
+    """Cell size ``(dx, dy)`` in metres and warnings, from a geotransform and a CRS.
+
+    Geographic CRSs (degrees) are converted at the latitude of the raster's centre with
+    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`).
+    """
+    gt = geotransform
+    dx, dy = abs(gt[1]), abs(gt[5])
+    warns = []
+    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and not srs.ExportToWkt()):
+        warns.append("The raster has no CRS: its cell size and heights are taken to be in metres.")
+        return (dx, dy), warns, 1.0
+    if srs.IsGeographic():
+        lat = gt[3] + gt[5] * shape[0] / 2.0
+        if not -90 <= lat <= 90:
+            raise ValueError(f"the raster's CRS is geographic but its centre latitude {lat:.3f} is "
+                             "not a latitude: check the georeference.")
+        m_per_deg_lon, m_per_deg_lat = metres_per_degree(lat)
+        cell = (dx * m_per_deg_lon, dy * m_per_deg_lat)
+        warns.append(f"The raster's CRS is geographic (degrees): its cell size {dx:.3g} x {dy:.3g} deg "
+                     f"was converted to {cell[0]:.4g} x {cell[1]:.4g} m at latitude {lat:.4f}; heights "
+                     "are taken to be in metres. Reproject to a projected CRS for exact distances.")
+        return cell, warns, 1.0
+    f = _linear_unit_factor(srs)
+    if abs(f - 1.0) > 1e-9:
+        unit = srs.GetLinearUnitsName()
+        warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
+                     "converted to metres for the thresholds; outputs are written back in the raster's unit.")
+    return (dx * f, dy * f), warns, f
+
+
+def open_dsm(path, band=None):
+    """Open and check a single-band DSM before any work starts.
+
+    Parameters
+    ----------
+    path : str
+        Anything GDAL opens (VRTs with raw bands refused).
+    band : int, optional
+        1-based band index; required when the raster has several bands.
+
+    Returns
+    -------
+    DSMInfo
+
+    Raises
+    ------
+    ValueError
+        For an unreadable (missing, corrupt, truncated at its first cell), empty, too small,
+        rotated or multi-band raster without ``band``, a band out of range, or a refused VRT.
+    """
+    need_gdal()
+    try:
+        ds = _open_read(str(path))
+    except ValueError as exc:
+        if "is refused" in str(exc):
+            raise
+        raise ValueError(f"{exc} Check the path and format.") from None
+    if ds is None:
+        raise ValueError(f"cannot open the raster {str(path)!r}. Check the path and format.")
+    nb = ds.RasterCount
+    if nb == 0:
+        raise ValueError(f"the raster {path!r} has no band: pass a single-band DSM.")
+    if band in (None, 0):
+        if nb > 1:
+            raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
+                             "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)))
+        band = 1
+    if not 1 <= int(band) <= nb:
+        raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    rows, cols = ds.RasterYSize, ds.RasterXSize
+    if rows == 0 or cols == 0:
+        raise ValueError(f"the raster {path!r} is empty ({cols} x {rows} cells).")
+    if rows < MIN_SIDE or cols < MIN_SIDE:
+        raise ValueError(f"the raster {path!r} is too small ({cols} x {rows} cells): the filters need at "
+                         f"least {MIN_SIDE} x {MIN_SIDE} cells.")
+    gt = ds.GetGeoTransform(can_return_null=True)
+    warns = []
+    if gt is None:
+        gt = (0.0, 1.0, 0.0, float(rows), 0.0, -1.0)
+        warns.append("The raster has no georeference: cells are taken as 1 m squares.")
+    if gt[2] != 0 or gt[4] != 0:
+        raise ValueError(f"the raster {path!r} is rotated (geotransform terms {gt[2]}, {gt[4]}): "
+                         "warp it to a north-up grid first (gdalwarp).")
+    wkt = ds.GetProjection() or ""
+    srs = None
+    if wkt:
+        srs = osr.SpatialReference()
+        srs.ImportFromWkt(wkt)
+    cell, w2, z_to_m = cell_size_metres(gt, (rows, cols), srs)
+    warns += w2
+    b = ds.GetRasterBand(int(band))
+    nodata = b.GetNoDataValue()
+    dtype = gdal.GetDataTypeName(b.DataType)
+    scale, offset = b.GetScale(), b.GetOffset()
+    scale = 1.0 if scale in (None, 0) else float(scale)
+    offset = 0.0 if offset is None else float(offset)
+    if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
+        warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
+    info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
+                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    if scale != 1.0 or offset != 0.0:
+        info.notes.append(f"Heights are the band's stored values x {scale:g} + {offset:g} (its scale and "
+                          "offset); the DTM and nDSM are written as those heights.")
+    info.read_stored((rows // 2, rows // 2 + 1, cols // 2, cols // 2 + 1))   # unreadable: ValueError now
+    return info
+
+
+def check_has_data(info, max_cells=4_000_000):
+    """Scan the band (decimated when large) and raise ValueError if it holds no valid cell.
+
+    Also notes NaN cells without a declared nodata (``info.note_nan``).
+    Returns the fraction of valid cells seen.
+    """
+    rows, cols = info.shape
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    a = info.read_stored(step=step)
+    z, _ = without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
+    valid = np.isfinite(z)
+    if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
+        strip = max(1, max_cells // cols)
+        for r in range(0, rows, strip):
+            valid = np.isfinite(info.read((r, min(rows, r + strip), 0, cols)))
+            if valid.any():
+                break
+    if not valid.any():
+        raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
+                         f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
+    info.note_nan(a)
+    return float(valid.mean())
+
+
+#: GDAL's block cache during a blocked run, bytes. Blocks (2048) are whole 256-cell output
+#: tiles, so no tile waits in the cache for a later block.
+BLOCK_MODE_CACHE = 64 * 2 ** 20
+
+
+@contextlib.contextmanager
+def bounded_cache(active=True, size=BLOCK_MODE_CACHE):
+    """Cap GDAL's block cache while a raster is processed block by block.
+
+    GDAL keeps written tiles in its cache (by default 5 % of the RAM); in block mode that
+    cache, not the blocks, would grow with the raster. The previous size is restored.
+    """
+    if not active or gdal is None:
+        yield
+        return
+    old = gdal.GetCacheMax()
+    gdal.SetCacheMax(min(old, size))
+    try:
+        yield
+    finally:
+        gdal.SetCacheMax(old)
