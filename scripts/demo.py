@@ -56,8 +56,17 @@ def main(out):
         print(f"  {out / name}")
     for k, v in figures.get("results", figures).items():
         if isinstance(v, dict):
-            print(f"{k}: " + ", ".join(f"{a} {b:.3g}" for a, b in v.items() if isinstance(b, (int, float))))
+            print(f"{k}: " + ", ".join(f"{a} {_figure(a, b)}" for a, b in v.items() if isinstance(b, (int, float))))
     return preview
+
+
+def _figure(name, value):
+    """A figure as people read it: counts as integers, percentages with %, metres with m."""
+    if isinstance(value, int) or name in ("a", "b", "c", "d", "n") or name.startswith("n_") or name.endswith("_n"):
+        return f"{int(value):,}"
+    if name in ("type1", "type2", "total", "kappa"):
+        return f"{value:.2f} %"
+    return f"{value:.3f} m"
 
 
 if __name__ == "__main__":
