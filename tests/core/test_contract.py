@@ -250,6 +250,29 @@ def test_nodata_coded_255_and_only_there(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_progress_from_inside_the_stages_and_cancel_stops_at_once(method):
+    """Progress comes from inside the method's stages (many calls), never goes back and ends
+    at 1; a Cancelled raised by the N-th call stops the run there (no later call)."""
+    from bare_earth.core.common import Cancelled
+    z = synthetic.make_scene("city", shape=(400, 400), cell_size=1.0, seed=3).dsm
+    meth = methods.available_methods()[method]
+    params = meth.resolve(z, (1.0, 1.0), **pipeline.complete_params(meth, None))
+    seen = []
+    meth.run(z, (1.0, 1.0), progress=seen.append, **params)
+    assert len(seen) >= 10 and seen == sorted(seen) and seen[-1] == 1.0
+    for n in (1, len(seen) // 2, len(seen) - 1):
+        calls = []
+
+        def stop(f, n=n, calls=calls):
+            calls.append(f)
+            if len(calls) == n:
+                raise Cancelled()
+        with pytest.raises(Cancelled):
+            meth.run(z, (1.0, 1.0), progress=stop, **params)
+        assert len(calls) == n
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_every_input_dtype_gives_the_same_mask(method):
     z64, cell = _scene("integral")
     meth = methods.available_methods()[method]

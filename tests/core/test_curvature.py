@@ -581,24 +581,6 @@ def test_progress_comes_from_inside_the_stages(monkeypatch):
     assert np.diff(seen).max() <= 0.05                # no stage runs without a word
 
 
-def test_cancel_from_progress_stops_at_once():
-    from bare_earth.core.common import Cancelled
-    z, _ = building_scene()
-    P = curvature.resolve_curvature_params(z, 1.0)
-    total = []
-    curvature.filter_curvature(z, 1.0, progress=total.append, **P)
-    for n in (1, len(total) // 3, len(total) - 2):
-        calls = []
-
-        def stop(f, n=n, calls=calls):
-            calls.append(f)
-            if len(calls) == n:
-                raise Cancelled()
-        with pytest.raises(Cancelled):
-            curvature.filter_curvature(z, 1.0, progress=stop, **P)
-        assert len(calls) == n                        # not called again once cancelled
-
-
 @pytest.mark.parametrize("model", ["quadratic", "bilinear"])
 def test_heights_far_outside_any_terrain_give_no_numpy_warning(model):
     import warnings

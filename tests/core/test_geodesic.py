@@ -338,25 +338,3 @@ def test_core_enforces_the_param_limits():
             with pytest.raises(ValueError, match=name):
                 geo.resolve_geodesic_params(z, 1.0, **{name: bad})
     geo.filter_geodesic(z, 1.0, **dict(PARAMS, terrain_slope_deg=89.0, edge_ratio=1.0))
-
-
-def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
-    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
-    by the N-th call stops the run there (no later call)."""
-    from bare_earth.core.common import Cancelled
-    from bare_earth.core.synthetic import make_scene
-    z = make_scene("city", shape=(200, 200), seed=3).dsm
-    seen = []
-    geo.filter_geodesic(z, 1.0, progress=seen.append, **PARAMS)
-    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
-
-    for n in (1, len(seen) // 2, len(seen) - 1):
-        calls = []
-
-        def stop(f, n=n, calls=calls):
-            calls.append(f)
-            if len(calls) == n:
-                raise Cancelled()
-        with pytest.raises(Cancelled):
-            geo.filter_geodesic(z, 1.0, progress=stop, **PARAMS)
-        assert len(calls) == n

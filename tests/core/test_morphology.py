@@ -226,26 +226,3 @@ def test_core_enforces_the_param_limits():
         morph.filter_morphological(z, 1.0, **dict(args, **{name: lo if name != "window_growth" else hi}))
     with pytest.raises(ValueError, match="max_object_size_m = .* is out of range"):
         morph.resolve_morphological_params(z, 1.0, max_object_size_m=20000.0)
-
-
-def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
-    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
-    by the N-th call stops the run there (no later call)."""
-    from bare_earth.core.common import Cancelled
-    from bare_earth.core.synthetic import make_scene
-    z = make_scene("city", shape=(200, 200), seed=3).dsm
-    seen = []
-    args = dict(mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3)
-    morph.filter_morphological(z, 1.0, progress=seen.append, **args)
-    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
-
-    for n in (1, len(seen) // 2, len(seen) - 1):
-        calls = []
-
-        def stop(f, n=n, calls=calls):
-            calls.append(f)
-            if len(calls) == n:
-                raise Cancelled()
-        with pytest.raises(Cancelled):
-            morph.filter_morphological(z, 1.0, progress=stop, **args)
-        assert len(calls) == n

@@ -157,28 +157,6 @@ def test_core_enforces_the_param_limits():
             sp.filter_slope_profile(z, 1.0, **dict(PARAMS, **{name: edge}))      # the bounds are valid
 
 
-def test_progress_many_monotonic_calls_and_cancel_stops_at_once():
-    """Progress comes from inside the stages, never goes back, ends at 1; Cancelled raised
-    by the N-th call stops the run there (no later call)."""
-    from bare_earth.core.common import Cancelled
-    from bare_earth.core.synthetic import make_scene
-    z = make_scene("city", shape=(800, 800), seed=3).dsm
-    seen = []
-    sp.filter_slope_profile(z, 1.0, progress=seen.append, **PARAMS)
-    assert len(seen) >= 12 and seen == sorted(seen) and seen[-1] == 1.0
-
-    for n in (1, len(seen) // 2, len(seen) - 1):
-        calls = []
-
-        def stop(f, n=n, calls=calls):
-            calls.append(f)
-            if len(calls) == n:
-                raise Cancelled()
-        with pytest.raises(Cancelled):
-            sp.filter_slope_profile(z, 1.0, progress=stop, **PARAMS)
-        assert len(calls) == n
-
-
 @pytest.mark.parametrize("shape,ry,rx", [((7, 9), 1, 2), ((5, 4), 3, 0), ((6, 6), 10, 10), ((1, 8), 0, 3)])
 def test_box_sum_exact(shape, ry, rx):
     a = np.random.default_rng(4).integers(-3, 9, shape).astype(np.int32)
