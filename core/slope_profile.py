@@ -549,7 +549,7 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     valid = np.isfinite(z)
     # 1. low blunders (a drop then a rise): class 2, left out of the scans
     low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
-    low &= below_surroundings(z, cell, tolerance_m)      # below all the ground around: not a gap
+    low = below_surroundings(z, cell, tolerance_m, candidates=low)  # below all the ground around: not a gap
     zs = np.where(low, np.float32(np.nan), z)
     # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
     init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,

@@ -286,3 +286,16 @@ def test_curvature_threshold_comes_from_the_ground_not_the_canopy():
     k_canopy = derive_k_g(s.dsm, s.cell_size)
     k_bare = derive_k_g(bare.dsm, bare.cell_size)
     assert k_canopy < 10 * k_bare
+
+
+@pytest.mark.parametrize("cell", [(1.0, 1.0), (0.5, 0.7)])
+def test_below_surroundings_at_candidates_equals_the_full_answer_there(cell):
+    rng = np.random.default_rng(1)
+    z = rng.normal(100.0, 0.2, (120, 110)).astype(np.float32)
+    z[rng.random(z.shape) < 0.005] -= 5.0                     # pits
+    z[rng.random(z.shape) < 0.01] = np.nan
+    full = est.below_surroundings(z, cell, 0.3)
+    assert full.sum() > 5
+    cand = rng.random(z.shape) < 0.3
+    np.testing.assert_array_equal(est.below_surroundings(z, cell, 0.3, candidates=cand), full & cand)
+    assert not est.below_surroundings(z, cell, 0.3, candidates=np.zeros(z.shape, bool)).any()
