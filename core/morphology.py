@@ -712,7 +712,7 @@ PARAMS = (
           minimum=0.1, maximum=10000.0),
     Param("dh_m", "float", None,
           "Height threshold dh, metres: cells more than dh above the opened / provisional surface are "
-          "objects, more than dh below are low outliers. Empty: 3 x the robust noise of the DSM, "
+          "objects, more than dh below are low outliers. Empty: 3 x the noise of the DSM's ground-level cells, "
           "0.5-5 m.", minimum=0.0, maximum=1000.0),
     Param("slope", "float", None,
           "Terrain slope s (rise/run) of the progressive threshold s x window radius. Empty: the median "

@@ -643,7 +643,7 @@ PARAMS = (
           minimum=0.0, maximum=80.0, advanced=True),
     Param("tolerance_m", "float", None,
           "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
-          "robust noise of the DSM (from second differences), bounded to 0.15-0.5 m.",
+          "noise of the DSM's ground-level cells (never the canopy's), bounded to 0.15-0.5 m.",
           minimum=0.0, maximum=50.0, advanced=True),
     Param("max_object_size_m", "float", 100.0,
           "Largest object, metres: a profile's reference starts at its lowest point within this "

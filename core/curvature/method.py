@@ -304,7 +304,7 @@ METHOD = Method(
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
               "cell may stand (plus one cell of the surface's slope) and still be ground "
-              "(final pass). Empty: 3 x the DSM's robust noise, within [0.3, 1] m.",
+              "(final pass). Empty: 3 x the noise of the DSM's ground-level cells, within [0.3, 1] m.",
               minimum=0.01, maximum=10.0, advanced=True),
     ),
     title="Curvature filter (Luong Chinh Ke 2002)",

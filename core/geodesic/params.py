@@ -20,7 +20,7 @@ PARAMS = (
           "last structuring element) in metres: the widest building.",
           minimum=0.5, maximum=5000.0),
     Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
-          "reconstructed terrain in metres; empty: max(0.5, 3 x robust noise of the DSM).",
+          "reconstructed terrain in metres; empty: max(0.5, 3 x the noise of the DSM's ground-level cells).",
           minimum=0.01, maximum=100.0),
     Param("terrain_slope_deg", "float", None, "Terrain slope in degrees tolerated by "
           "the wall test, the height test and scan labelling; empty: 90th percentile "
