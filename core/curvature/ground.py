@@ -299,8 +299,9 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
 
     The second pass's surface also rests on the breaks the first found to be ground.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
-    :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface (None when
-    no cell could seed it).
+    :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
+    ground seed within the reach, a cell keeps its own height (every rule is local: a block
+    without seeds decides as one pass does).
     """
     dx, dy = cell_size
     m = window // 2
@@ -317,9 +318,6 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     d = np.empty(z.shape, np.float32)
     tmp = np.empty(z.shape, bool)
     for it in range(_PASSES):
-        if holes.all():                   # no ground seed (nodata is in holes)
-            mask[objects] = OBJECT
-            break
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(step, 0.0, 0.15))
@@ -347,6 +345,25 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
+
+
+def ground_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
+    """Cells (in any direction) within which the objects and breaks decide a cell's class in
+    :func:`find_ground`: ``2 R + 2 window + 2 m + 3`` with ``R`` the larger
+    :func:`surface_reach` and ``m = window // 2``.
+
+    Each pass's holes come from the objects within ``m`` (the breaks next to them); the
+    nodata bridge reads the holes within ``window`` (:func:`_surface_input`), the surface
+    the holes within ``R`` along the row and column and its 3 x 3 mean one cell more; the
+    allowance averages the first surface over ``m`` cells and takes its slope (1 cell): the
+    first pass's class at a cell depends on the objects within ``G1 = R + window + 2 m +
+    2``. The second pass's holes are the first pass's classes, read by its surface within
+    ``R + window + 1``: ``G1 + R + window + 1`` in all (the low blunders' ring reads the
+    heights only)."""
+    m = window // 2
+    r = max(surface_reach(cell_size, window=window, max_size=max_size))
+    g1 = r + window + 2 * m + 2
+    return g1 + (_PASSES - 1) * (r + window + 1)
 
 
 def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:
