@@ -86,7 +86,7 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     if cells.size == 0:
         report(progress, 1.0)
         return out
-    # nearest known column left/right (X profile) and row above/below (Y profile) of each cell
+    # distances to the nearest known cell left/right (X profile) and above/below (Y profile)
     left, right, up, down = _profile_ends(known, cells, sub_progress(progress, 0.0, 0.6))
     del known
     zf = z.ravel()
@@ -111,37 +111,47 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
 
 def _along_profiles(zf, w, cells, left, right, up, down, reach, cell_size, val, found):
     """The heights :func:`_ground_surface` gives the flat ``cells`` (a chunk) into ``val``
-    (``found``: False where no profile end lies within the reach) from the ends of their
-    profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the raster's width."""
+    (``found``: False where no profile end lies within the reach) from the distances to the
+    ends of their profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the
+    raster's width."""
     rx, ry = reach
     dx, dy = cell_size
-    r, c = np.divmod(cells, w)
-    num = np.zeros(cells.size, np.float32)
-    den = np.zeros(cells.size, np.float32)
-    n1 = np.zeros(cells.size, np.float32)  # one-sided ends, by 1 / distance^2
-    d1 = np.zeros(cells.size, np.float32)
-    for lo, hi, pos, lim, step, base, stride in ((left, right, c, rx, dx, r * w, 1),
-                                                 (up, down, r, ry, dy, c, w)):
-        a = np.minimum(pos - lo, lim + 1)  # cells to the end before (left / above)
-        b = np.minimum(hi - pos, lim + 1)  # cells to the end after (right / below)
+    n = cells.size
+    num = np.zeros(n, np.float32)
+    den = np.zeros(n, np.float32)
+    n1 = np.zeros(n, np.float32)  # one-sided ends, by 1 / distance^2
+    d1 = np.zeros(n, np.float32)
+    zero = np.float32(0)
+    for da, db, lim, step, stride in ((left, right, rx, dx, 1), (up, down, ry, dy, w)):
+        a = np.minimum(da, lim + 1)  # cells to the end before (left / above)
+        b = np.minimum(db, lim + 1)  # cells to the end after (right / below)
         ok_a, ok_b = a <= lim, b <= lim
-        za = zf.take(base + np.where(ok_a, lo, pos) * stride)
-        zb = zf.take(base + np.where(ok_b, hi, pos) * stride)
-        both = ok_a & ok_b
+        za = zf.take(cells - (a * ok_a) * stride)      # the cell itself where no end
+        zb = zf.take(cells + (b * ok_b) * stride)
+        no = ~(ok_a & ok_b)
         fa, fb = a.astype(np.float32), b.astype(np.float32)
         span = fa + fb
         # the straight line between the two ends, (b za + a zb) / (a + b), by 1 / span^2
-        v = np.where(both, za * fb + zb * fa, 0)
+        v = za * fb
+        v += zb * fa
+        np.copyto(v, zero, where=no)
         v /= span
         span *= np.float32(step)
-        wgt = np.where(both, np.float32(1.0) / (span * span), 0)
+        wgt = np.multiply(span, span, out=span)
+        np.divide(np.float32(1.0), wgt, out=wgt)
+        np.copyto(wgt, zero, where=no)
         v *= wgt
         num += v
         den += wgt
         for ok, zz, f in ((ok_a, za, fa), (ok_b, zb, fb)):
             f *= np.float32(step)
-            wgt = np.where(ok, np.float32(1.0) / (f * f), 0)   # f >= 1 cell: a hole is not known
-            n1 += np.where(ok, wgt * zz, 0)                   # not NaN * 0
+            wgt = np.multiply(f, f, out=f)          # f >= 1 cell: a hole is not known
+            np.divide(np.float32(1.0), wgt, out=wgt)
+            no = ~ok
+            np.copyto(wgt, zero, where=no)
+            zz *= wgt
+            np.copyto(zz, zero, where=no)            # not NaN * 0
+            n1 += zz
             d1 += wgt
     two = den > 0
     np.copyto(num, n1, where=~two)
@@ -160,6 +170,10 @@ def _window_mean(a, cells, k, progress=None):
     step = max(1, CHUNK_CELLS // max(w, 1))
     starts = np.arange(0, h, step)
     bounds = np.searchsorted(cells, np.append(starts * w, h * w))
+    # rows and columns of the window inside the array, per row and per column
+    r, c = np.arange(h), np.arange(w)
+    row_n = (np.minimum(r + k, h - 1) - np.maximum(r - k, 0) + 1).astype(np.float32)
+    col_n = (np.minimum(c + k, w - 1) - np.maximum(c - k, 0) + 1).astype(np.float32)
     for n, i0 in enumerate(starts):
         s0, s1 = bounds[n], bounds[n + 1]
         if s1 == s0:
@@ -168,31 +182,39 @@ def _window_mean(a, cells, k, progress=None):
         lo, hi = max(0, i0 - k), min(h, i1 + k)
         src = a[lo:hi]
         ok = np.isfinite(src)
-        v = np.where(ok, src, np.float32(0))
-        cnt = ok.astype(np.float32)
-        vs = np.zeros((hi - lo, w), np.float32)        # sums along the rows
-        cs = np.zeros((hi - lo, w), np.float32)
-        for d in range(-k, k + 1):
-            t0, t1 = max(0, -d), min(w, w - d)
-            vs[:, t0:t1] += v[:, t0 + d:t1 + d]
-            cs[:, t0:t1] += cnt[:, t0 + d:t1 + d]
-        vb = np.zeros((i1 - i0, w), np.float32)        # then along the columns
-        cb = np.zeros((i1 - i0, w), np.float32)
-        for d in range(-k, k + 1):
-            r0, r1 = max(i0, -d, i0), min(i1, h - d)
-            vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
-            cb[r0 - i0:r1 - i0] += cs[r0 + d - lo:r1 + d - lo]
+        whole = bool(ok.all())              # the usual case: no count to sum
+        v = src if whole else np.where(ok, src, np.float32(0))
+        vb = _box_sum(v, h, w, i0, i1, lo, k)
         q = cells[s0:s1] - i0 * w
-        sv, sc = vb.ravel().take(q), cb.ravel().take(q)
+        sv = vb.ravel().take(q)
+        if whole:   # the count of the window's cells inside the array, as the sums give it
+            sc = np.multiply(row_n[i0:i1, None], col_n).ravel().take(q)
+        else:
+            sc = _box_sum(ok.astype(np.float32), h, w, i0, i1, lo, k).ravel().take(q)
         out[s0:s1] = np.where(sc > 0, sv / np.maximum(sc, np.float32(1)), np.nan)
         report(progress, i1 / h)
     return out
 
 
+def _box_sum(v, h, w, i0, i1, lo, k):
+    """Sums over the ``(2 k + 1)^2`` windows of rows ``i0 .. i1 - 1`` of an ``h x w`` array
+    whose rows ``lo ..`` are ``v`` (those rows and ``k`` more on either side, where the
+    array has them): along the rows, then along the columns, in a fixed order."""
+    vs = np.zeros(v.shape, np.float32)        # sums along the rows
+    for d in range(-k, k + 1):
+        t0, t1 = max(0, -d), min(w, w - d)
+        vs[:, t0:t1] += v[:, t0 + d:t1 + d]
+    vb = np.zeros((i1 - i0, w), np.float32)   # then along the columns
+    for d in range(-k, k + 1):
+        r0, r1 = max(i0, -d), min(i1, h - d)
+        vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
+    return vb
+
+
 def _profile_ends(known, cells, progress=None):
-    """For the flat ``cells`` (sorted): the column of the nearest known cell left of and
-    right of each on its row, and the row of the nearest known cell above and below it on
-    its column (``-2**30`` / ``2**30`` where there is none). Running maxima and minima of
+    """For the flat ``cells`` (sorted): the distances (cells) to the nearest known cell left
+    of and right of each on its row, and above and below it on its column (``2**30`` or
+    more where there is none). Running maxima and minima of
     the known cells' indices, by blocks of rows (the column scans carry the last row of a
     block into the next, row by row: numpy's accumulate along the first axis is slow)."""
     h, w = known.shape
@@ -224,9 +246,11 @@ def _profile_ends(known, cells, progress=None):
         # X: running max of known columns from the left, running min from the right
         index_or(kb, cols, -far, b)
         np.maximum.accumulate(b, axis=1, out=b)
+        np.subtract(cols, b, out=b)
         left[s0:s1] = b.ravel().take(lr)
         index_or(kb, cols, far, b)
         np.minimum.accumulate(b[:, ::-1], axis=1, out=b[:, ::-1])
+        b -= cols
         right[s0:s1] = b.ravel().take(lr)
         # Y, downwards: running max of known rows, from the rows above
         index_or(kb, rows[i0:i1], -far, b)
@@ -234,6 +258,7 @@ def _profile_ends(known, cells, progress=None):
             np.maximum(b[i], prev, out=b[i])
             prev = b[i]
         prev = prev.copy()
+        np.subtract(rows[i0:i1], b, out=b)
         up[s0:s1] = b.ravel().take(lr)
         report(progress, 0.6 * (k + 1) / n_blocks)
     prev = np.full(w, far, np.int32)
@@ -247,6 +272,7 @@ def _profile_ends(known, cells, progress=None):
             np.minimum(b[i], prev, out=b[i])
             prev = b[i]
         prev = prev.copy()
+        b -= rows[i0:i1]
         down[s0:s1] = b.ravel().take(cells[s0:s1] - i0 * w)
         report(progress, 0.6 + 0.4 * (n_blocks - k) / n_blocks)
     return left, right, up, down
