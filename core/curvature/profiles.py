@@ -116,10 +116,10 @@ def _runs(zover, walls, sd, tol, max_cells, out):
     profile comes back down to the ground extended from the foot at the slope before the
     wall, ``z - g <= gs dist + tol`` (rising only), or comes down a wall onto ground
     nearer the foot than the top, ``z - g <= gs dist + drop``; or after ``max_cells``
-    positions (the largest object), or at the profile's end. ``zover`` (flat int64) holds
-    each cell's height and, beside it, the drop beyond the tolerance where the profile has
-    just come down a wall (0 elsewhere; -inf heights beyond the profile's ends): one
-    gather reads both. ``out`` (flat bool) receives the runs' cells.
+    positions (the largest object), or at the profile's end. ``zover`` (flat int64,
+    :func:`_heights_and_drops`) holds each cell's height and, beside it, the drop beyond
+    the tolerance where the profile has just come down a wall (0 elsewhere): one gather
+    reads both. ``out`` (flat bool) receives the runs' cells.
 
     A run depends on its wall and the positions it covers only (every wall starts one,
     also inside another run), so a cell's result depends on the profile within the
@@ -142,7 +142,7 @@ def _runs(zover, walls, sd, tol, max_cells, out):
             lim = np.multiply(fg[:, 1], np.float32(k))
             lim += zo[1::2]
             lim += tol
-            go = np.flatnonzero(~(rise <= lim))       # NaN (nodata): the run goes on
+            go = np.flatnonzero(rise > lim)           # +inf (nodata): the run goes on
             f = f.take(go)
             fg = fg.view(np.int64).take(go).view(np.float32).reshape(-1, 2)
             out[f] = True
@@ -170,7 +170,20 @@ def _set_frame(zp, frame, v):
     zp[:, zp.shape[1] - frame:] = v
 
 
-def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None):
+def _heights_and_drops(zp, frame):
+    """The heights of the framed ``zp`` (:func:`_framed`) for :func:`_runs`, each beside a
+    drop of 0 (float32 pairs): -inf in the frame (a run ends beyond a profile's end),
+    +inf at nodata (a run goes on across it)."""
+    zover = np.zeros((zp.size, 2), np.float32)
+    hz = zover[:, 0]
+    np.copyto(hz, zp.ravel())
+    hz[np.isnan(hz)] = np.inf
+    _set_frame(zover.reshape(zp.shape + (2,))[..., 0], frame, -np.inf)
+    return zover
+
+
+def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None,
+               zover=None):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
     profiles, the rows) of the framed heights ``zp`` and breaks ``bp`` (:func:`_framed`),
     shaped as the frame's inside ``shape``: the runs of :func:`_runs` read forwards and
@@ -180,6 +193,8 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
     scan coming down the other way meets no break going up: only objects, which have a
     break going up from both sides, are kept. The walls are found by blocks of rows (no
     index array of the raster's size at once); every direction's runs go at once.
+    ``zover``: :func:`_heights_and_drops` of ``zp`` when the caller has it (its drops are
+    0 again on return).
     """
     h, w = shape
     W = zp.shape[1]
@@ -201,11 +216,8 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
             report(progress, (i + (r1 - frame) / h) / 4)
         found.append((tuple(np.concatenate(a) for a in zip(*walls)), downs))
     both = None
-    zover = np.empty((zf.size, 2), np.float32)    # height and drop side by side
-    zover[:, 1] = 0
-    _set_frame(zp, frame, -np.inf)    # the runs stop at a profile's end
-    zover[:, 0] = zf
-    _set_frame(zp, frame, np.nan)
+    if zover is None:
+        zover = _heights_and_drops(zp, frame)
     zi = zover.view(np.int64).ravel()
     for i, d in enumerate((1, -1)):
         wl, downs = found[i]
@@ -220,7 +232,6 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
         else:
             both &= out
         report(progress, 0.5 + (i + 1) / 4)
-    del zover, zi
     return both.reshape(zp.shape)[frame:frame + h, frame:frame + w].copy()
 
 
@@ -321,7 +332,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     reach = 2 * window + 1
     frame = _WALL_CELLS + reach
     zp, bp = _framed(z, frame, np.nan), _framed(marked, frame, False)
-    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach)
+    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame))
     obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx),
                        progress=sub_progress(progress, 0.0, 0.5), **kw)
     obj_y = _axis_runs(zp, bp, frame, z.shape, dy, 0, max_cells=int(max_size / dy),
