@@ -56,7 +56,7 @@ def _pits(z, cand, ring, depth):
         return idx[zf.take(idx) < low - np.float32(depth)]
 
 
-def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=None):
+def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, lost=None, progress=None):
     """Ground surface of the final pass: ``z`` at the cells not in ``holes``; over the
     holes, the linear interpolation along the X and Y profiles through the cell between
     the nearest known cells on either side, within ``reach = (rx, ry)`` cells.
@@ -74,8 +74,9 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     The height at a cell depends only on the cells within the reach on its row and column,
     so a block holding them gives the surface of one pass, whatever its origin. Nodata in a
     hole is crossed like any unknown cell. The scans go by cache-sized blocks of rows;
-    ``out``, optional: a float32 array of ``z``'s shape receiving the surface;
-    ``progress(fraction)`` as the work goes.
+    ``out``, optional: a float32 array of ``z``'s shape receiving the surface; ``lost``,
+    optional: a boolean array of ``z``'s shape set True at the holes with no known cell
+    within the reach (False elsewhere); ``progress(fraction)`` as the work goes.
     """
     h, w = z.shape
     known = ~holes
@@ -83,6 +84,8 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     out = np.empty((h, w), np.float32) if out is None else out
     np.copyto(out, z)
     cells = np.flatnonzero(holes)
+    if lost is not None:
+        lost.fill(False)
     if cells.size == 0:
         report(progress, 1.0)
         return out
@@ -99,6 +102,8 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
                         val[sl], found[sl])
         report(progress, 0.6 + 0.2 * min(i0 + step, cells.size) / cells.size)
     del left, right, up, down
+    if lost is not None:
+        lost.ravel()[cells[~found]] = True
     cells, val = cells[found], val[found]
     res = out.ravel()
     res[cells] = val
@@ -326,8 +331,9 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     The second pass's surface also rests on the breaks the first found to be ground.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
     :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
-    ground seed within the reach, a cell keeps its own height (every rule is local: a block
-    without seeds decides as one pass does).
+    ground seed within the reach a cell keeps its own height, and the profiles' objects
+    there stay objects (every rule is local: a block without seeds decides as one pass
+    does).
     """
     dx, dy = cell_size
     m = window // 2
@@ -343,11 +349,12 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     surface = allow = None
     d = np.empty(z.shape, np.float32)
     tmp = np.empty(z.shape, bool)
+    lost = np.empty(z.shape, bool)
     for it in range(_PASSES):
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(step, 0.0, 0.15))
-        surface = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, out=surface,
+        surface = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, out=surface, lost=lost,
                                   progress=sub_progress(step, 0.15, 0.7))
         del zs
         np.subtract(z, surface, out=d)
@@ -362,12 +369,16 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
                                progress=sub_progress(step, 0.7, 0.85))
         report(step, 0.85)
         _classify(z, d, allow, objects, concave, mask, tmp, ring=m + 2, h_min=h_min)
+        # the profiles' objects with no ground within the reach (a closed canopy, every
+        # cell a break) stay objects: nothing near them says otherwise
+        np.logical_and(lost, objects, out=tmp)
+        np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
         holes |= breaks.by_k
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
-    del d, tmp
+    del d, tmp, lost
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
