@@ -65,6 +65,24 @@ def test_nan_median_filter_exact():
         nan_median_filter(x, 4)
 
 
+@pytest.mark.parametrize("size", [3, 5, 7])
+def test_nan_median_filter_equals_the_sorted_window(size):
+    """The selection network gives the upper middle of the sorted finite values, with ties."""
+    rng = np.random.default_rng(size)
+    x = np.round(rng.normal(size=(23, 17)) * 2).astype(np.float32)     # many ties
+    x[rng.random(x.shape) < 0.35] = np.nan
+    x[:6, :6] = np.nan                                                  # windows with no value
+    med, cnt = nan_median_filter(x, size)
+    h = size // 2
+    pad = np.pad(x, h, constant_values=np.nan)
+    for r in range(x.shape[0]):
+        for c in range(x.shape[1]):
+            w = pad[r:r + size, c:c + size]
+            v = np.sort(w[np.isfinite(w)])
+            assert cnt[r, c] == v.size
+            assert (np.isnan(med[r, c]) if v.size == 0 else med[r, c] == v[v.size // 2])
+
+
 def test_remove_blunders_drops_spikes_keeps_roof_corners():
     dem = np.zeros((20, 20), np.float32)
     dh = np.zeros((20, 20), np.float32)
