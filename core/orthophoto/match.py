@@ -271,17 +271,22 @@ def _sample_rows(images, valid, cols):
     draws on are valid and it lies inside the row (the shift of the matcher is along rows,
     so this is the 1-D case of ``map_coordinates(order=1)``, several times faster).
     """
-    n = valid.shape[1]
+    rows, n = valid.shape
     c = np.clip(cols, 0, n - 1)
     j0 = np.floor(c).astype(np.intp)
     f = (c - j0).astype(np.float32)
     j1 = np.minimum(j0 + 1, n - 1)
+    base = (np.arange(rows, dtype=np.intp) * n)[:, None]
+    i0, i1 = (base + j0).ravel(), (base + j1).ravel()    # flat indices: one gather per array
+    shape = j0.shape
     out = []
     for img in images:
-        v0 = np.take_along_axis(img, j0, axis=1)
-        v1 = np.take_along_axis(img, j1, axis=1)
+        flat = img.reshape(-1)
+        v0 = flat.take(i0).reshape(shape)
+        v1 = flat.take(i1).reshape(shape)
         out.append(v0 + f * (v1 - v0))
-    ok = (np.take_along_axis(valid, j0, axis=1) & (np.take_along_axis(valid, j1, axis=1) | (f < 1e-3))
+    vflat = valid.reshape(-1)
+    ok = (vflat.take(i0).reshape(shape) & (vflat.take(i1).reshape(shape) | (f < 1e-3))
           & (cols >= -1e-3) & (cols <= n - 1 + 1e-3))
     return out, ok
 

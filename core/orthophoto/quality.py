@@ -29,7 +29,7 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
-__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs",
+__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
            "ground_trend", "object_mask"]
 
@@ -201,6 +201,36 @@ def nan_median_filter(x, size=5, *, tolerance=None):
         if sup is not None:
             sup[r0:r1] = sup_b
     return (med, cnt, sup) if sup is not None else (med, cnt)
+
+
+def nan_median_at(x, cells, size=3):
+    """:func:`nan_median_filter` at the given cells only (for a few cells of a large grid).
+
+    Parameters
+    ----------
+    x : ndarray (rows, cols)
+    cells : (ndarray, ndarray)
+        Row and column indices (as from ``np.nonzero``).
+    size : int
+        Odd window side.
+
+    Returns
+    -------
+    ndarray
+        The upper middle of the sorted finite values of each window (NaN sorts last), NaN
+        where none is finite: the values of :func:`nan_median_filter` at those cells.
+    """
+    size = int(size)
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"size must be an odd number of cells >= 1; got {size}.")
+    rr, cc = cells
+    h = size // 2
+    pad = np.pad(np.asarray(x, np.float32), h, constant_values=np.nan)
+    nb = np.stack([pad[rr + i, cc + j] for i in range(size) for j in range(size)], axis=1)
+    nb.sort(axis=1)
+    n = np.count_nonzero(np.isfinite(nb), axis=1)
+    m = nb[np.arange(nb.shape[0]), n // 2] if nb.shape[0] else np.zeros(0, np.float32)
+    return np.where(n > 0, m, np.nan).astype(np.float32)
 
 
 def remove_blunders(dh, dem, tolerance_m, size=5):

@@ -24,6 +24,7 @@ from bare_earth.core.orthophoto.match import REASONS
 from bare_earth.core.orthophoto.quality import (
     ground_trend,
     merge_pairs,
+    nan_median_at,
     nan_median_filter,
     object_mask,
     remove_blunders,
@@ -81,6 +82,8 @@ def test_nan_median_filter_equals_the_sorted_window(size):
             v = np.sort(w[np.isfinite(w)])
             assert cnt[r, c] == v.size
             assert (np.isnan(med[r, c]) if v.size == 0 else med[r, c] == v[v.size // 2])
+    cells = np.nonzero(rng.random(x.shape) < 0.3)
+    np.testing.assert_array_equal(nan_median_at(x, cells, size), med[cells])
 
 
 def test_remove_blunders_drops_spikes_keeps_roof_corners():
