@@ -139,7 +139,8 @@ def _ncc_planes(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=No
         planes = _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill)
     for plane in planes:
         if shiftable and shiftable > 1:
-            plane = np.where(plane > _BAD, _max_filter_nearest(plane, int(shiftable)), _BAD).astype(np.float32)
+            plane = np.where(plane > _BAD, _max_filter_nearest(plane, int(shiftable)), _BAD).astype(
+                np.float32, copy=False)
         yield plane
 
 
@@ -160,7 +161,7 @@ def _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill):
             cov = box(aw * bs) * inv - ma * mb
             ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
         ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
-        yield np.where(ok, np.clip(ncc, -1, 1), _BAD).astype(np.float32)
+        yield np.where(ok, np.clip(ncc, -1, 1), _BAD).astype(np.float32, copy=False)
 
 
 def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
@@ -180,13 +181,25 @@ def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
     ok_b = full_b & (varb > var_floor)
     sa = np.sqrt(np.maximum(vara, 0))
     sb = np.sqrt(np.maximum(varb, 0))
+    n = a0.shape[1]
+    prod = np.zeros_like(a0)
     for s in shifts:
         s = int(s)
-        cov = box(a0 * _shift_cols(b0, s, 0.0)) - ma * _shift_cols(mb, s, 0.0)
+        plane = np.full(a0.shape, _BAD, np.float32)
+        if abs(s) >= n:
+            yield plane
+            continue
+        ja, jb = (slice(0, n - s), slice(s, n)) if s >= 0 else (slice(-s, n), slice(0, n + s))
+        jo = slice(n - s, n) if s >= 0 else slice(0, -s)
+        # a(j) b(j + s) with b = 0 beyond its edge: the same sums as the shifted copy of b
+        np.multiply(a0[:, ja], b0[:, jb], out=prod[:, ja])
+        prod[:, jo] = 0.0
+        cov = box(prod)[:, ja] - ma[:, ja] * mb[:, jb]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ncc = cov / np.maximum(sa * _shift_cols(sb, s, 0.0), 1e-15)
-        ok = ok_a & _shift_cols(ok_b, s, False)
-        yield np.where(ok, np.clip(ncc, -1, 1), _BAD).astype(np.float32)
+            ncc = cov / np.maximum(sa[:, ja] * sb[:, jb], 1e-15)
+        ok = ok_a[:, ja] & ok_b[:, jb]
+        plane[:, ja] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        yield plane
 
 
 def _parabola(vol, k, rows, cols):
@@ -381,7 +394,7 @@ class _RunningBest:
     def offer(self, k, plane):
         upd = plane > self.best
         np.copyto(self.best, plane, where=upd)
-        self.k[upd] = k
+        np.copyto(self.k, k, where=upd)
         if self.neighbours:
             if k == 0:
                 self.before[...] = plane
@@ -394,7 +407,7 @@ class _RunningBest:
         view = self.best[:, lo:hi]
         upd = plane > view
         np.copyto(view, plane, where=upd)
-        self.k[:, lo:hi][upd] = k
+        np.copyto(self.k[:, lo:hi], k, where=upd)
 
     def finish(self):
         if self.neighbours and self.prev is not None:
