@@ -340,21 +340,22 @@ def _lsm_refine(a, b, s, valid, window, iterations):
         s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
 
 
-#: Largest NCC volume (shifts x cells) held at once; bigger inputs are matched in row strips.
-MAX_VOLUME = 40_000_000
+#: Largest number of cells matched at once; bigger inputs are matched in row strips. The NCC
+#: volume is never held (its planes are taken one shift at a time), so the working set is
+#: about twenty float32 planes of a strip whatever the search range.
+MAX_CELLS = 4_000_000
 
 
 def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
-                          lsm_iterations, min_fill, max_volume=None):
+                          lsm_iterations, min_fill, max_cells=None):
     """Row strips of :func:`_match_rows_once` (identical result: strips overlap by the reach)."""
-    max_volume = MAX_VOLUME if max_volume is None else max_volume
+    max_cells = MAX_CELLS if max_cells is None else max_cells
     rows, cols = a.shape
-    nshift = 2 * max_shift + 1
     va = np.isfinite(a)
     gv = float(np.var(a[va])) if va.any() else 0.0
     var_floor = max(gv * 1e-4, 1e-12)
     args = (max_shift, window, shiftable, min_corr, lr_tolerance, lsm_iterations, min_fill, var_floor)
-    strip = max(1, int(max_volume // max(1, nshift * cols)))
+    strip = max(1, int(max_cells // max(1, cols)))
     if strip >= rows:
         return _match_rows_once(a, b, *args)
     names = ("disparity", "corr", "reason", "peak_ok", "residual", "energy")

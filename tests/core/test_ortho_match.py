@@ -105,7 +105,7 @@ def test_row_strips_give_the_same_result(monkeypatch):
     b = _shifted(t, 1.3)
     b[30:40, 20:50] = _texture((10, 30), seed=8)
     whole = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
-    monkeypatch.setattr(match_mod, "MAX_VOLUME", 9 * 90 * 12)   # strips of 12 rows
+    monkeypatch.setattr(match_mod, "MAX_CELLS", 90 * 12)   # strips of 12 rows
     strips = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
     np.testing.assert_array_equal(whole.valid, strips.valid)
     np.testing.assert_allclose(whole.disparity, strips.disparity, atol=1e-5, equal_nan=True)
