@@ -272,6 +272,20 @@ def remove_blunders(dh, dem, tolerance_m, size=5):
     return np.where(bad, np.nan, dh).astype(np.float32), int(np.count_nonzero(bad))
 
 
+def _nanmedian_stack(D):
+    """``np.nanmedian(D, axis=0)`` for a short stack (a few pairs): one sort, same values.
+
+    NaN sorts last; the median of the ``n`` finite values is the middle one, or the mean of
+    the two middle ones for even ``n``; NaN where none is finite.
+    """
+    S = np.sort(D, axis=0)
+    n = np.sum(np.isfinite(D), axis=0)
+    last = D.shape[0] - 1
+    lo = np.take_along_axis(S, np.clip((n - 1) // 2, 0, last)[None], 0)[0]
+    hi = np.take_along_axis(S, np.clip(n // 2, 0, last)[None], 0)[0]
+    return np.where(n > 0, np.where(n % 2 == 1, hi, (lo + hi) / 2), np.nan).astype(D.dtype)
+
+
 def merge_pairs(dhs, cors, outlier_m):
     """Correlation-weighted mean of the pairs' corrections after dropping per-cell outliers.
 
@@ -291,7 +305,7 @@ def merge_pairs(dhs, cors, outlier_m):
     if len(dhs) > 1:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(D, axis=0)
+            med = _nanmedian_stack(D)
             n = np.sum(np.isfinite(D), axis=0)
             with np.errstate(invalid="ignore"):
                 far = (np.abs(D - med) > outlier_m) & (n >= 3)
