@@ -9,7 +9,11 @@ displacement with the highest normalised cross-correlation (NCC) is the parallax
   ``a, b, a^2, b^2, ab``), NaN cells excluded from the sums;
 * optional *shiftable windows* (the best NCC over the windows containing the cell), which
   keeps object edges sharp;
-* a left-right consistency check from the same NCC volume (the best shift seen from A and
+* the volume of NCC over all shifts is never held: its planes come one shift at a time and
+  running winners (maximum and first index, as ``argmax``) are kept seen from A, seen from B
+  and for the symmetric anchor (with the neighbouring planes of its peak), so memory does
+  not grow with the search range;
+* a left-right consistency check from the same NCC planes (the best shift seen from A and
   the best shift seen from B must agree), a correlation threshold, and rejection of peaks
   at the end of the search range;
 * sub-pixel refinement by a parabola through the NCC peak, and for orthophotos optionally
