@@ -206,29 +206,12 @@ def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
         yield plane
 
 
-def _parabola(vol, k, rows, cols):
-    """Sub-pixel offset of the NCC peak at index ``k`` by a parabola through k-1, k, k+1."""
-    K = vol.shape[0]
-    km = np.clip(k - 1, 0, K - 1)
-    kp = np.clip(k + 1, 0, K - 1)
-    c0 = vol[k, rows, cols]
-    cm = vol[km, rows, cols]
-    cp = vol[kp, rows, cols]
+def _parabola_offset(c0, cm, cp):
+    """Sub-pixel offset of an NCC peak ``c0`` by a parabola through its neighbours ``cm``, ``cp``."""
     den = cm - 2 * c0 + cp
     with np.errstate(divide="ignore", invalid="ignore"):
         off = np.where((den < 0) & (cm > _BAD) & (cp > _BAD), 0.5 * (cm - cp) / den, 0.0)
     return np.clip(off, -0.5, 0.5)
-
-
-def _argmax_vol(vol):
-    k = np.argmax(vol, axis=0)
-    rows, cols = np.indices(k.shape)
-    return k, vol[k, rows, cols], rows, cols
-
-
-def _anchored_b(vol, shifts):
-    """Volume re-anchored on ``b``: ``W[s, y] = V[s, y - s]``."""
-    return np.stack([_shift_cols(vol[k], -int(s), _BAD) for k, s in enumerate(shifts)])
 
 
 def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_corr=0.3,
@@ -264,12 +247,22 @@ def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_cor
     if d_max < d_min:
         raise ValueError(f"d_max ({d_max}) must be >= d_min ({d_min}).")
     shifts = np.arange(-d_max, -d_min + 1)            # b column = j + s = j - d
-    vol = ncc_volume(left, right, shifts, window, shiftable=shiftable, min_fill=min_fill)
-    k, c, rr, cc = _argmax_vol(vol)
-    s = shifts[k] + _parabola(vol, k, rr, cc)
+    cols = left.shape[1]
+    win_a = _RunningBest(left.shape, neighbours=True)       # left-anchored, with the peak's neighbours
+    win_b = _RunningBest(left.shape)                        # right-anchored: V[s, y - s]
+    for k, plane in enumerate(_ncc_planes(left, right, shifts, window, shiftable=shiftable, min_fill=min_fill)):
+        win_a.offer(k, plane)
+        sk = int(shifts[k])
+        if sk >= 0:
+            win_b.offer_cols(k, plane[:, :cols - sk], sk, cols)
+        else:
+            win_b.offer_cols(k, plane[:, -sk:], 0, cols + sk)
+    win_a.finish()
+    k, c = win_a.k, win_a.best
+    rr, cc = np.indices(k.shape)
+    s = shifts[k] + _parabola_offset(c, win_a.before, win_a.after)
     # right-anchored winner: for right column y the left column is y - s
-    kb = np.argmax(_anchored_b(vol, shifts), axis=0)
-    sb = shifts[kb].astype(np.float32)
+    sb = shifts[win_b.k].astype(np.float32)
     target = np.clip(np.rint(cc + shifts[k]), 0, left.shape[1] - 1).astype(int)
     lr_ok = np.abs(sb[rr, target] - shifts[k]) <= lr_tolerance
     valid = (c > _BAD) & (c >= min_corr) & lr_ok
@@ -449,10 +442,7 @@ def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
     si = shifts[k]
     # parabola through the peak and its neighbours (k - 1, k + 1, clipped at the ends)
     cm, cp = win_s.before, win_s.after
-    den = cm - 2 * c + cp
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = np.where((den < 0) & (cm > _BAD) & (cp > _BAD), 0.5 * (cm - cp) / den, 0.0)
-    s = si + np.clip(off, -0.5, 0.5)
+    s = si + _parabola_offset(c, cm, cp)
     # a distinct peak: the NCC falls to the neighbouring shifts by more than the sampling
     # sd of an NCC of n cells at that level, (1 - c^2) / sqrt(n) (Fisher)
     drop = c - 0.5 * (cm + cp)
