@@ -439,8 +439,11 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     height = z - ref
     valid = np.isfinite(z)
     sigma = None
+    band = None
     for _ in range(iterations):
-        band = (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
+        last, band = band, (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
+        if band == last:        # the same cells as the last iteration: the same sigma (converged)
+            break
         with np.errstate(invalid="ignore"):
             g = height <= band
         mid = g[1:-1, 1:-1]
