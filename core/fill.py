@@ -527,31 +527,33 @@ def _relax_level(known, val, coarse, sweeps, relax=None, omega=1.0, work=None, n
         return core
     groups.sort(key=lambda g: g[0])  # all of colour 0, then all of colour 1
     nmax = max(g[1].size for g in groups)
-    nb = np.empty(nmax, dtype=np.intp)
     s_buf = np.empty(nmax, dtype=np.float32)
     t_buf = np.empty(nmax, dtype=np.float32)
+    # The four neighbours (and the cell) gathered through views of the padded array shifted
+    # so that one index array serves all five: idx - wp - 1 (>= 0, every cell to relax lies
+    # inside the padding ring); no index arithmetic per sweep.
+    left, up = uf[wp:], uf[1:]
+    right, down, own = uf[wp + 2:], uf[2 * wp + 1:], uf[wp + 1:]
+    for _col, idx, _inv in groups:
+        idx -= wp + 1
     for _ in range(sweeps):
         for _col, idx, inv in groups:
             m = idx.size
-            nbm, s, t = nb[:m], s_buf[:m], t_buf[:m]
-            np.subtract(idx, 1, out=nbm)
-            np.take(uf, nbm, out=s, mode="clip")
-            np.add(idx, 1, out=nbm)
-            np.take(uf, nbm, out=t, mode="clip")
+            s, t = s_buf[:m], t_buf[:m]
+            np.take(left, idx, out=s, mode="clip")
+            np.take(right, idx, out=t, mode="clip")
             s += t
-            np.subtract(idx, wp, out=nbm)
-            np.take(uf, nbm, out=t, mode="clip")
+            np.take(up, idx, out=t, mode="clip")
             s += t
-            np.add(idx, wp, out=nbm)
-            np.take(uf, nbm, out=t, mode="clip")
+            np.take(down, idx, out=t, mode="clip")
             s += t
             s *= inv
             if omega != 1.0:                 # successive over-relaxation
-                np.take(uf, idx, out=t, mode="clip")
+                np.take(own, idx, out=t, mode="clip")
                 s -= t
                 s *= omega
                 s += t
-            uf[idx] = s
+            own[idx] = s
     return core
 
 
