@@ -273,10 +273,12 @@ def _relax_reference(known, val, coarse, sweeps, relax, omega):
     return u[1:-1, 1:-1]
 
 
+@pytest.mark.parametrize("chunk", [5, 1 << 14])              # sweeps in chunks of 5 cells, one chunk
 @pytest.mark.parametrize("omega,use_relax", [(1.0, False), (1.8, False), (1.0, True)])
-def test_relax_level_equals_the_cell_by_cell_reference(omega, use_relax):
+def test_relax_level_equals_the_cell_by_cell_reference(omega, use_relax, chunk, monkeypatch):
     # holes on the raster's edges and corners (Neumann cells, own weights), one inside
     from bare_earth.core import fill
+    monkeypatch.setattr(fill, "_SWEEP_CHUNK", chunk)
     rng = np.random.default_rng(11)
     h, w = 14, 17
     known = rng.random((h, w)) > 0.45
