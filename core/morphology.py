@@ -605,8 +605,9 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
         return float("nan")
     lab, n = ndimage.label(obj)
     dist = ndimage.distance_transform_edt(obj, sampling=(cell[1], cell[0]))
-    width = 2.0 * ndimage.maximum(dist, lab, index=np.arange(1, n + 1))
-    area = ndimage.sum_labels(obj, lab, index=np.arange(1, n + 1))
+    lab_obj = lab[obj]                         # per object, over its own cells only (no sort of the
+    width = 2.0 * ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))   # whole grid)
+    area = np.bincount(lab_obj, minlength=n + 1)[1:].astype(np.float64)
     order = np.argsort(width)
     cum = np.cumsum(area[order]) / area.sum()
     w = float(width[order][np.searchsorted(cum, 0.98)])
