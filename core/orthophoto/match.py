@@ -431,7 +431,9 @@ def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
                                           var_floor=var_floor)):
         s = int(shifts[k])
         win_a.offer(k, plane)
-        if s >= 0:
+        if abs(s) >= cols:
+            pass                                      # no cell of b is seen at this shift
+        elif s >= 0:
             win_b.offer_cols(k, plane[:, :cols - s], s, cols)
         else:
             win_b.offer_cols(k, plane[:, -s:], 0, cols + s)

@@ -140,3 +140,17 @@ def test_streamed_planes_give_the_argmax_of_the_volume():
     assert ok.mean() > 0.5
     np.testing.assert_array_equal(got[ok], want[ok])
     np.testing.assert_array_equal(np.nan_to_num(r.corr, nan=-2.0), c0)
+
+
+@pytest.mark.parametrize("cols", [12, 20])
+def test_search_range_wider_than_the_image(cols):
+    """Shifts beyond the image's width see no cell of the other image: the match is the one of
+    a search range clipped to the width (a 60 x 60 pair with the default 0.2 H search once failed
+    with a raw broadcast error)."""
+    t = _texture((30, cols), seed=4, sigma=1.2)
+    b = _shifted(t, 1.0)
+    wide = match_along(t, b, (1, 0), cols + 7, window=5, shiftable=0, lsm_iterations=0, min_corr=0.5)
+    assert wide.disparity.shape == t.shape
+    inner = wide.disparity[5:-5, 4:-4]
+    assert np.isfinite(inner).mean() > 0.5
+    assert np.nanmedian(np.abs(inner - 1.0)) < 0.2
