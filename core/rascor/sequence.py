@@ -104,24 +104,26 @@ class _Pits:
         self.reach = tuple(max(int(np.ceil(PIT_RADIUS_M / d)), int(np.ceil(PIT_CLUSTER_M / d)) + 2, 4)
                            for d in (dy, dx))
 
-    def at(self, cand):
-        """``cand`` restricted to the cells that are pits."""
-        need = cand & ~self.known
-        idx = np.flatnonzero(need)
-        if idx.size:
-            self._test(need, idx)
-        return cand & self.pit
+    def at(self, idx):
+        """Whether each cell of ``idx`` (flat indices) is a pit (boolean array)."""
+        known = self.known.reshape(-1)
+        need = idx[~known[idx]]
+        if need.size:
+            self._test(need)
+            known[need] = True
+        return self.pit.reshape(-1)[idx]
 
     def _ring_test(self, z, candidates):
         return below_surroundings(z, self.cell, self.depth, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M,
                                   candidates=candidates)
 
-    def _test(self, need, idx):
+    def _test(self, idx):
         my, mx = self.reach
         py, px = 2 * my + 1, 2 * mx + 1
         if idx.size * py * px >= self.z.size:       # windows larger than the array
+            need = np.zeros(self.z.shape, bool)
+            need.reshape(-1)[idx] = True
             self.pit |= self._ring_test(self.z, need)
-            self.known |= need
             return
         for i0 in range(0, idx.size, _PIT_BATCH):
             part = idx[i0:i0 + _PIT_BATCH]
@@ -134,8 +136,7 @@ class _Pits:
             centre = np.zeros((g * py, g * px), bool)
             centre[my::py, mx::px] = True
             hit = self._ring_test(mosaic, centre)[my::py, mx::px].ravel()[:part.size]
-            self.pit.ravel()[part[hit]] = True
-        self.known |= need
+            self.pit.reshape(-1)[part[hit]] = True
 
     def _windows(self, idx):
         """The heights around the cells ``idx`` (flat), ``(n, 2 my + 1, 2 mx + 1)``,
@@ -225,18 +226,23 @@ def _plan(cfg, st):
 
 
 def _record(st, k, hi, lo):
-    """Remove the points step ``k`` found: objects (1) and low blunders (2)."""
-    new_hi = hi & st.keep
-    new_lo = lo & st.keep
-    if st.pit is not None:                # a low blunder lies below all the ground around it
-        new_lo = st.pit.at(new_lo)
-    new_lo &= ~new_hi
-    np.copyto(st.mask, OBJECT, where=new_hi)
-    np.copyto(st.mask, LOW, where=new_lo)
-    new = np.logical_or(new_hi, new_lo, out=new_hi)
-    np.copyto(st.step, k, where=new)
-    np.copyto(st.keep, False, where=new)
-    st.removed[k] = st.removed.get(k, 0) + int(np.count_nonzero(new))
+    """Remove the points step ``k`` found: objects (1) and low blunders (2).
+
+    By the flat indices of the cells found (a step finds a few per cent of the cells at
+    most), not by passes over the whole rasters.
+    """
+    keep = st.keep.reshape(-1)
+    new_hi = np.flatnonzero(hi)
+    new_hi = new_hi[keep[new_hi]]
+    new_lo = np.flatnonzero(lo)
+    new_lo = new_lo[keep[new_lo] & ~hi.reshape(-1)[new_lo]]
+    if st.pit is not None and new_lo.size:  # a low blunder lies below all the ground around it
+        new_lo = new_lo[st.pit.at(new_lo)]
+    for idx, code in ((new_hi, OBJECT), (new_lo, LOW)):
+        st.mask.reshape(-1)[idx] = code
+        st.step.reshape(-1)[idx] = k
+        keep[idx] = False
+    st.removed[k] = st.removed.get(k, 0) + int(new_hi.size + new_lo.size)
 
 
 def _step2_height_distribution(st, cfg, progress):
