@@ -74,6 +74,15 @@ class _State:
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
 
 
+def ring_reach(cell_size: Union[float, Sequence[float]]) -> tuple:
+    """``(rows, cols)``: how far, in cells, the low blunders' ring test reaches from the
+    tested cell (:func:`~bare_earth.core.estimate.below_surroundings` with its default
+    ``PIT_RADIUS_M`` and ``PIT_CLUSTER_M``): the ring's radius, and at least the cluster
+    + 2 cells and 4 cells, along each axis."""
+    dx, dy = as_cell_size(cell_size)
+    return tuple(max(int(np.ceil(PIT_RADIUS_M / d)), int(np.ceil(PIT_CLUSTER_M / d)) + 2, 4) for d in (dy, dx))
+
+
 #: Candidates per gathered batch of the low-blunder ring test (:class:`_Pits`): their
 #: windows (21 x 21 cells at 1 m) take some 30 MB of float32 a batch.
 _PIT_BATCH = 1 << 14
@@ -98,11 +107,7 @@ class _Pits:
         self.z, self.cell, self.depth = z, cell, depth_m
         self.known = np.zeros(z.shape, bool)     # cells tested so far
         self.pit = np.zeros(z.shape, bool)       # ... and their answers
-        # the ring's reach along each axis: radius_m, and at least the cluster + 2 cells
-        # (and 4 cells), as in below_surroundings
-        dx, dy = cell
-        self.reach = tuple(max(int(np.ceil(PIT_RADIUS_M / d)), int(np.ceil(PIT_CLUSTER_M / d)) + 2, 4)
-                           for d in (dy, dx))
+        self.reach = ring_reach(cell)
 
     def at(self, idx):
         """Whether each cell of ``idx`` (flat indices) is a pit (boolean array)."""

@@ -392,6 +392,26 @@ def test_halo_covers_reach():
     assert rascor.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
 
 
+def test_halo_covers_the_ring_test_of_low_blunders():
+    """Step 3 alone (and step 7's reach) is 3-4 cells, but a low blunder it finds is
+    removed only when it lies below the whole ring around it (10 m): a pit 10 rows from a
+    deeper-lying cell (its witness, so no blunder) near a block's edge is a blunder to a
+    block whose halo stops short of the witness."""
+    z = plane(120, 0.002, 0.001)[:, :60]
+    z[46, 30] -= 5.0                                  # in the first block's core (rows 0-47)
+    z[56, 30] -= 4.8                                  # 10 rows below: the ring's witness
+    p = rascor.resolve_rascor_params(z, 1.0, sigma_m=0.1)
+    p.update(step2_height_distribution=False, step4_level_change=False, step5_profiles=False,
+             step6_surfaces=False)
+    assert rascor.rascor_halo(p, 1.0) >= 10 + 3
+    from bare_earth.core import pipeline
+    one = pipeline.run_array("rascor", z, 1.0, params=p, want_dtm=False)
+    assert one.mask[46, 30] == GROUND and one.mask[56, 30] == GROUND
+    blk = pipeline.run_array("rascor", z, 1.0, params=p, block=48, want_dtm=False)
+    assert blk.info["blocks"] > 1
+    np.testing.assert_array_equal(one.mask, blk.mask)
+
+
 def test_blocks_match_one_pass():
     pipeline = pytest.importorskip("bare_earth.core.pipeline")
     rng = np.random.default_rng(7)
