@@ -266,11 +266,23 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     # per source: its array, direction, slice of the step buffer, and length
     spans = [(a, rev, v[o0:o1], a.shape[0]) for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:])]
     n_min = min(n for *_, n in spans)
+    # Once the trailing sources have ended, the steps work on the profiles before them only
+    # (a strip's Y profiles end before its X profiles: a third less work there).
+    ends = np.zeros(npos, np.intp)                 # per step: the end of the last running source
+    for (a, _), o1 in zip(sources, offs[1:]):
+        np.maximum(ends[:a.shape[0]], o1, out=ends[:a.shape[0]])
+    ends = ends.tolist()
+    state = (v, dz, thr, up, ok, k, g) + ((thr1,) if two_lines else ())
+    views, end = state, nprof
     # As few numpy calls per step as possible: each is short, and with blocks in threads
     # every call is a hand-over of the GIL.
     for i in range(npos):
         if progress is not None and i % _REPORT_STEPS == 0:
             report(progress, i / npos)
+        if ends[i] != end:
+            end = ends[i]
+            views = tuple(x[:end] for x in state)
+        vw, dzw, thrw, upw, okw, kw, gw = views[:7]
         if i < n_min:                                  # every source still runs: one copy
             np.concatenate([a[n - 1 - i] if rev else a[i] for a, rev, _, n in spans], out=v)
         else:
@@ -279,18 +291,19 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
                     vv[...] = a[n - 1 - i] if rev else a[i]
                 elif i == n:
                     vv[...] = np.nan                   # a shorter profile set has ended
-        np.subtract(v, g, out=dz)
-        np.greater(dz, thr, out=up)                    # rejected (NaN compares False)
-        np.less_equal(dz, thr, out=ok)                 # accepted: valid and not rejected
-        k += up                                        # a nodata cell does not count: a gap does
-        np.copyto(k, 0.0, where=ok)                    # not let the reference drift up a roof
-        np.copyto(g, v, where=ok)
-        np.multiply(k, b2, out=thr)                    # the next step's tolerance
-        thr += a2
+        np.subtract(vw, gw, out=dzw)
+        np.greater(dzw, thrw, out=upw)                 # rejected (NaN compares False)
+        np.less_equal(dzw, thrw, out=okw)              # accepted: valid and not rejected
+        kw += upw                                      # a nodata cell does not count: a gap does
+        np.copyto(kw, 0.0, where=okw)                  # not let the reference drift up a roof
+        np.copyto(gw, vw, where=okw)
+        np.multiply(kw, b2, out=thrw)                  # the next step's tolerance
+        thrw += a2
         if two_lines:
-            np.multiply(k, b1, out=thr1)
-            thr1 += a1
-            pick(thr, thr1, out=thr)
+            thr1w = views[7]
+            np.multiply(kw, b1, out=thr1w)
+            thr1w += a1
+            pick(thrw, thr1w, out=thrw)
         for buf, n, o0, o1 in writes:
             if i < n:
                 buf[i] = up[o0:o1]
