@@ -11,12 +11,12 @@ OUTLIER_MAX_CELLS = 16
 
 
 def _small_clusters(cand):
-    """Cells of ``cand`` in 8-connected clusters of at most :data:`OUTLIER_MAX_CELLS`."""
+    """Flat indices of the cells of ``cand`` in 8-connected clusters of at most
+    :data:`OUTLIER_MAX_CELLS` (sizes counted on the candidates only: they are few)."""
     lab, n = ndimage.label(cand, S8)
-    size = np.bincount(lab.ravel(), minlength=n + 1)
-    small = size <= OUTLIER_MAX_CELLS
-    small[0] = False
-    return small[lab]
+    idx = np.flatnonzero(cand)
+    lab_c = lab.ravel()[idx]
+    return idx[np.bincount(lab_c, minlength=n + 1)[lab_c] <= OUTLIER_MAX_CELLS]
 
 
 def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):
@@ -58,11 +58,10 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     report(progress, 0.7)
     counts = []
     for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
-        sel = _small_clusters(cand) if cand.any() else None
-        counts.append(0 if sel is None else int(sel.sum()))
-        if sel is not None:
-            mask[sel] = code
-            outlier |= sel
-            w[sel] = repl[sel]
+        sel = _small_clusters(cand) if cand.any() else np.zeros(0, np.intp)
+        counts.append(int(sel.size))
+        mask.ravel()[sel] = code
+        outlier.ravel()[sel] = True
+        w.ravel()[sel] = repl.ravel()[sel]
         report(progress, 0.85 if code == LOW else 1.0)
     return w, counts[0], counts[1]
