@@ -1,15 +1,18 @@
 """Grey morphology of the geodesic filter: running min/max, openings and closings that
-ignore nodata, block reduction and expansion, and the morphological reconstruction by
-dilation (Vincent 1993) with a bounded geodesic reach.
+ignore nodata, block reduction, and the morphological reconstruction by dilation
+(Vincent 1993) with a bounded geodesic reach.
 
 Every function here works on whole arrays (separable passes of contiguous slices); the
-filter's stages (:mod:`.dilation`, :mod:`.scan`, :mod:`.filter`) call them.
+3 x 3 and 5 x 5 windows and the reconstruction's dense passes run band by band on the flat
+arrays, so each pass reads and writes a raster-sized array about once (memory traffic, not
+arithmetic, limits them). The filter's stages (:mod:`.dilation`, :mod:`.scan`,
+:mod:`.filter`) call them.
 """
 import numpy as np
 
 from ..common import report
 
-#: The reconstruction leaves its dense passes once fewer than 1/this of the box change.
+#: The reconstruction leaves its dense passes once fewer than 1/this of their cells change.
 FRONTIER_RATIO = 256
 #: 8-connectivity structure for ``ndimage.label``.
 S8 = np.ones((3, 3), bool)
@@ -145,9 +148,12 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None, prog
     """Morphological reconstruction by dilation of ``marker`` under ``mask``.
 
     ``R = sup_n delta^(n)(marker)`` where ``delta(f) = min(dilate_3x3(f), mask)`` is the
-    elementary geodesic dilation (Vincent 1993). The iteration runs on the bounding box
-    of the cells that changed, and on the 8 (4) neighbours of the changed cells only once
-    they are few (a vectorised frontier), so it stops early where nothing changes.
+    elementary geodesic dilation (Vincent 1993). The iteration runs on the rows between
+    the first and the last that changed (dense passes, band by band: Jacobi, every new
+    value from the previous iteration's), and on the 8 (4) neighbours of the changed cells
+    only once they are few (a vectorised frontier), so it stops early where nothing
+    changes. Each iteration is one exact elementary dilation, so ``max_iter`` is the
+    geodesic reach whichever way it runs.
 
     Parameters
     ----------

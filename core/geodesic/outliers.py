@@ -47,14 +47,17 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     n_low, n_high : int
     """
     win = window_cells(width_m, cell_size[0], cell_size[1])
-    w = np.where(valid, z, np.float32(np.nan))
+    w = z.copy() if vnone is None else np.where(valid, z, np.float32(np.nan))
     clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3))
     report(progress, 0.3)
     ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
     with np.errstate(invalid="ignore"):
-        low_c = valid & (clo - z > threshold_m)
-        high_c = valid & (z - ope > threshold_m)
+        low_c = clo - z > threshold_m             # NaN (nodata) compares False
+        high_c = z - ope > threshold_m
+    if vnone is not None:
+        low_c &= valid
+        high_c &= valid
     report(progress, 0.7)
     counts = []
     for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
