@@ -29,7 +29,7 @@ def _band_rows(width, itemsize):
 def _neutral(op, pad, dtype):
     """True when ``pad`` never changes ``op`` (outside cells then need no handling)."""
     return ((op is np.minimum and pad == np.inf) or (op is np.maximum and pad == -np.inf)
-            or (dtype == bool and pad == (op is np.minimum)))
+            or (np.dtype(dtype).kind == "b" and pad == (op is np.minimum)))
 
 
 def _run3_rows(src, op, out):
