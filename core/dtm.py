@@ -35,9 +35,12 @@ independent pieces of evidence, each 0-1:
 
 ``confidence = 100 (a + m + s) / 3``; cells the user forced are 100.
 """
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy import ndimage
 
+from .blocks import default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .fill import fill_gaps
@@ -110,11 +113,18 @@ def resolve_dtm_params(z, cell_size, **params):
     from .pipeline import resolve_params
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    members = {n: resolve_params(n, z, cell) for n in MEMBERS}
+    # the members' derivations and the description are independent reads of z: they run side
+    # by side, one per core (numpy releases the GIL in their array work); the same values as
+    # one after the other
+    with ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
+        derived = {n: pool.submit(resolve_params, n, z, cell) for n in MEMBERS}
+        description = pool.submit(characterise, z, cell)
+        members = {n: f.result() for n, f in derived.items()}
+        description = description.result()
     tol = float(members["morphological"].get("dh_m") or 0.5)
     support = max(1, int(round(SUPPORT_M / min(cell))))
     return {"members": members, "tolerance_m": tol, "support_cells": support,
-            "input_description": characterise(z, cell)}
+            "input_description": description}
 
 
 def dtm_halo(params, cell_size):
