@@ -17,6 +17,12 @@ often than any one (ISPRS seven, old defaults, total error: 4.26 / 5.35 / 5.50 %
 3.84 % by majority). The vote is a rule from that principle, not a tuned constant: a cell is
 ground when more members say ground than object, and a low outlier when most say so.
 
+The vote keeps low objects every member tolerates (bushes, hedges, the bottoms of canopy gaps on
+flat wooded ground): :func:`.dtm_refine.refine_ground` then turns into objects the voted ground
+cells that stand above lower voted ground on both sides of a row, column or diagonal (a
+slope-based test in the manner of Vosselman 2000, with the terrain's 90th-percentile slope and
+the threshold ``t`` below; see that module for why both sides, and what it measured).
+
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison
 crosses: RASCOR honours them, and within the reach of the other members from a break line
@@ -43,6 +49,7 @@ from scipy import ndimage
 from .blocks import default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from .dtm_refine import refine_ground, refine_halo
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -130,7 +137,7 @@ def resolve_dtm_params(z, cell_size, **params):
 def dtm_halo(params, cell_size):
     """Reach in cells: the largest member reach, plus the confidence's windows."""
     reach = max(int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS))
-    return reach + 2 * int(params["support_cells"]) + 2
+    return reach + refine_halo(as_cell_size(cell_size)) + 2 * int(params["support_cells"]) + 2
 
 
 def _as_bool(a, shape, name):
@@ -253,6 +260,12 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
     mask = np.where(ground_votes >= need, GROUND, np.where(low_votes >= need, LOW, OBJECT)).astype(np.uint8)
+    # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
+    morph = members.get("morphological", {})
+    slope = morph.get("terrain_slope_p90", float("nan"))    # NaN on rasters too small to measure it
+    mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m,
+                                  slope=slope if np.isfinite(slope) else morph.get("slope", 0.0))
+    info.update(refined)
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
         reach = max(int(m.halo(members[m.name], cell)) for m in meths if m.name != BREAKLINE_MEMBER)
@@ -304,8 +317,10 @@ METHOD = Method(
         "<p>The filter to start with: no parameter to choose. Three filters built on different principles "
         "(the progressive morphological opening, RASCOR's sequence of local tests, the gradual geodesic "
         "dilation), each with the defaults it derives from the data, vote on every cell; a cell is ground "
-        "where most of them say so, and the DTM is interpolated under the rest. The log gives each "
-        "member's parameters and how often they agreed.</p>"
+        "where most of them say so; voted ground standing above lower ground on both sides of a line (bushes, "
+        "hedges, the bottoms of gaps in a canopy, which every member may keep) is then taken as an object, "
+        "and the DTM is interpolated under the rest. The log gives each member's parameters and how often "
+        "they agreed.</p>"
         "<p>The confidence map (0-100) combines the members' agreement, the cell's distance from the "
         "height threshold, and the share of cells around it with the same class: low values mark where "
         "to look first.</p>"
