@@ -46,7 +46,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy import ndimage
 
-from .blocks import default_workers
+from .blocks import alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .dtm_refine import refine_ground, refine_halo
@@ -135,9 +135,14 @@ def resolve_dtm_params(z, cell_size, **params):
 
 
 def dtm_halo(params, cell_size):
-    """Reach in cells: the largest member reach, plus the confidence's windows."""
-    reach = max(int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS))
-    return reach + refine_halo(as_cell_size(cell_size)) + 2 * int(params["support_cells"]) + 2
+    """Reach in cells: the largest member reach, plus the refinement's and the confidence's
+    windows, rounded up to a multiple of the members' window alignment
+    (:func:`~.blocks.alignment` of each member's halo), so that a window's corner keeps the
+    members' coarse grids those of the single pass."""
+    halos = [int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS)]
+    reach = max(halos) + refine_halo(as_cell_size(cell_size)) + 2 * int(params["support_cells"]) + 2
+    a = max(alignment(h) for h in halos)
+    return -(-reach // a) * a
 
 
 def _as_bool(a, shape, name):
