@@ -84,7 +84,7 @@ def characterise(z, cell_size):
             "relief_m": float(hi - lo), "rough_share": rough}
 
 
-def resolve_dtm_params(z, cell_size, **params):
+def resolve_dtm_params(z, cell_size, progress=None, **params):
     """Every member's parameters derived from the data, and the confidence's scales.
 
     Parameters
@@ -93,6 +93,8 @@ def resolve_dtm_params(z, cell_size, **params):
         The DSM (NaN nodata).
     cell_size : float or (float, float)
         Metres.
+    progress : callable, optional
+        ``progress(fraction)`` from inside each member's estimates; may raise ``Cancelled``.
     **params
         None are taken (the method has no user parameter); unknown names are refused.
 
@@ -110,7 +112,9 @@ def resolve_dtm_params(z, cell_size, **params):
     from .pipeline import resolve_params
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    members = {n: resolve_params(n, z, cell) for n in MEMBERS}
+    members = {n: resolve_params(n, z, cell, progress=sub_progress(progress, 0.95 * i / len(MEMBERS),
+                                                                    0.95 * (i + 1) / len(MEMBERS)))
+               for i, n in enumerate(MEMBERS)}
     tol = float(members["morphological"].get("dh_m") or 0.5)
     support = max(1, int(round(SUPPORT_M / min(cell))))
     return {"members": members, "tolerance_m": tol, "support_cells": support,
@@ -143,7 +147,7 @@ def _box_mean(a, r, valid, all_valid):
     return num / np.maximum(den, 1e-6)
 
 
-def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells):
+def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells, progress=None):
     """Per-cell confidence 0-100 (uint8, 255 nodata) of a ground / object decision.
 
     Parameters
@@ -158,6 +162,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
         The decision threshold ``t`` (metres).
     support_cells : int
         Radius of the support window (cells).
+    progress : callable, optional
+        ``progress(fraction)`` between the terms; may raise ``Cancelled``.
 
     Returns
     -------
@@ -171,16 +177,20 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     agree = np.where(ground, v, n - v)                         # members agreeing with the decision
     half = n / 2.0
     a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
+    report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
     zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
     dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     local = _box_mean(dd, 1, valid, all_valid)
+    report(progress, 0.35)
     m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
     m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
     m = np.where(ground, m_ground, m_object)
+    report(progress, 0.6)
     share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
     s = np.where(ground, share_ground, 1.0 - share_ground)
+    report(progress, 0.8)
     conf = np.rint(100.0 * (a + m + s) / 3.0)
     out = np.clip(conf, 0, 100).astype(np.uint8)
     out[~valid] = NODATA
@@ -261,12 +271,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     holes = (mask == OBJECT) | (mask == LOW)
     dtm = None
     if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
-        dtm = fill_gaps(z, fill=holes) if holes.any() else z.astype(np.float32, copy=True)
+        dtm = (fill_gaps(z, fill=holes, progress=sub_progress(progress, 0.85, 0.93)) if holes.any()
+               else z.astype(np.float32, copy=True))
         dtm[~valid] = np.nan
     else:
         info["warning"] = "no ground cell in this window: its DTM is left empty"
-    report(progress, 0.95)
-    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells)
+    report(progress, 0.93)
+    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
+                          progress=sub_progress(progress, 0.93, 1.0))
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100

@@ -30,6 +30,8 @@ _REPEATED = (3, 5, 6, 7)
 #: on the 16 Mcells city of ``synthetic.make_dsm`` at 1 m, in the sequence: 0.05, 1.0-1.4,
 #: 1.2, 3.1, 1.8; step 7 alone 3.0).
 _COST = {2: 0.05, 3: 1.0, 4: 1.2, 5: 3.0, 6: 2.0, 7: 3.0}
+#: Share of the progress bar of the pits' test (``below_surroundings``) before the steps.
+_PIT_SHARE = 0.08
 
 
 @dataclass
@@ -331,10 +333,12 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
     # a gap between crowns or roofs is at the level of the other low cells around it and is
     # no blunder (Jacobsen's weight factor alone takes it for one where the ground shows
     # only in such gaps: a closed canopy at 4 m cells)
-    st.pit = below_surroundings(z, cfg.cell, 3.0 * cfg.sigma_m * np.sqrt(2.0))
+    st.pit = below_surroundings(z, cfg.cell, 3.0 * cfg.sigma_m * np.sqrt(2.0),
+                                progress=sub_progress(progress, 0.0, _PIT_SHARE))
     plan = _plan(cfg, st)
-    ends = np.cumsum([_COST[k] for k in plan]) / max(1e-9, sum(_COST[k] for k in plan))
-    for k, a, b in zip(plan, np.concatenate([[0.0], ends[:-1]]), ends):
+    ends = _PIT_SHARE + (1.0 - _PIT_SHARE) * np.cumsum([_COST[k] for k in plan]) / max(
+        1e-9, sum(_COST[k] for k in plan))
+    for k, a, b in zip(plan, np.concatenate([[_PIT_SHARE], ends[:-1]]), ends):
         _STEPS[k](st, cfg, sub_progress(progress, a, b))
         report(progress, b)
     result = _result(st, cfg)
