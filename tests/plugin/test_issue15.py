@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 pytestmark = pytest.mark.qgis
 GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
@@ -83,6 +84,23 @@ def _vrt_raw(tmp):
     return {"INPUT": str(tmp / "raw.vrt"), "OUTPUT_DTM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
 
 
+def _ortho_pair(tmp, shape=(60, 60)):
+    """A flat DEM and two textured orthophotos of it on its grid (zero parallax), with B and H."""
+    rng = np.random.default_rng(7)
+    tex = 255.0 * ndimage.gaussian_filter(rng.random(shape), 1.5)
+    return {"DEM": _write(tmp / "dem.tif", np.full(shape, 100.0, np.float32)),
+            "ORTHO_A": _write(tmp / "a.tif", tex.astype(np.float32)),
+            "ORTHO_B": _write(tmp / "b.tif", tex.astype(np.float32)),
+            "BASE_M": 300.0, "HEIGHT_M": 1000.0, "OUTPUT_DEM": str(tmp / "o.tif"), "OUTPUT_DH": str(tmp / "dh.tif"),
+            "OUTPUT_QUALITY": str(tmp / "q.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
+
+
+def _ortho_refine(tmp, shape):
+    p = _ortho_pair(tmp, shape)
+    return {"DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]], "BASE_M": 300.0, "HEIGHT_M": 1000.0,
+            "OUTPUT_DEM": p["OUTPUT_DEM"]}
+
+
 BAD = [
     # defect 1: an output on the input, for every filter, filldtm and the point tools
     *[pytest.param(f"1-{a}-dtm-is-input", a, lambda t: {"INPUT": _dsm(t), "OUTPUT_DTM": str(t / "dsm.tif"),
@@ -118,6 +136,16 @@ BAD = [
                                                           "OUTPUT_DTM": str(t / "o.tif"),
                                                           "OUTPUT_MASK": str(t / "m.tif")},
                  r"\(WINDOW_CELLS\) = 7 cells is larger than the raster", id="9-window-cells"),
+    # the orthophoto tools check their windows against the DEM as the filters do
+    pytest.param("9-orthoparallax-window", "orthoparallax", lambda t: {**_ortho_pair(t, (5, 40)), "WINDOW_CELLS": 9},
+                 r"\(WINDOW_CELLS\) = 9 cells is larger than the raster itself \(40 x 5 cells\)",
+                 id="9-orthoparallax-window"),
+    pytest.param("9-orthorefine-window", "orthorefine", lambda t: {**_ortho_refine(t, (5, 40)), "WINDOW_CELLS": 9},
+                 r"\(WINDOW_CELLS\) = 9 cells is larger than the raster itself", id="9-orthorefine-window"),
+    pytest.param("9-orthoparallax-object-size", "orthoparallax", lambda t: {**_ortho_pair(t, (8, 40)),
+                                                                           "OBJECT_SIZE_M": 100.0},
+                 r"\(OBJECT_SIZE_M\) = 100.0 m is larger than the raster itself \(40.0 m across\)",
+                 id="9-orthoparallax-object-size"),
     # formats: an extension naming a format the outputs do not write, or too few bands
     *[pytest.param(f"format-{ext}", "slopeprofile", lambda t, ext=ext: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / f"o{ext}"), "OUTPUT_MASK": str(t / "m.tif")},
@@ -130,6 +158,9 @@ BAD = [
     pytest.param("creation-options", "slopeprofile", lambda t: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / "o.tif"), "OUTPUT_MASK": str(t / "m.tif"),
         "CREATE_OPTIONS": "COMPRESS=NOPE"}, r"\(CREATE_OPTIONS\).*allowed values", id="creation-options"),
+    *[pytest.param(f"creation-options-{alg}", alg, lambda t, make=make: {**make(t), "CREATE_OPTIONS": "COMPRESS=NOPE"},
+                   r"\(CREATE_OPTIONS\).*allowed values", id=f"creation-options-{alg}")
+      for alg, make in (("orthoparallax", _ortho_pair), ("orthorefine", lambda t: _ortho_refine(t, (60, 60))))],
 ]
 
 
@@ -137,7 +168,8 @@ BAD = [
 def test_bad_input_refused_before_any_work(processing_run, tmp_path, name, alg, make, message):
     from qgis.core import QgsProcessingException
     params = make(tmp_path)
-    inputs = {k: _sha(v) for k, v in params.items() if k in ("INPUT", "DTM") and os.path.isfile(v)}
+    inputs = {k: _sha(v) for k, v in params.items() if k in ("INPUT", "DTM", "DEM", "ORTHO_A", "ORTHO_B")
+              and os.path.isfile(v)}
     before = _files(tmp_path)
     with pytest.raises(QgsProcessingException, match=message):
         processing_run(f"bareearth:{alg}", params)
@@ -245,6 +277,42 @@ def test_cloud_optimised_geotiff_and_creation_options(processing_run, tmp_path):
                                                     "CREATE_OPTIONS": "COMPRESS=LZW|PREDICTOR=2"})
     ds = gdal.Open(res["OUTPUT_DTM"])
     assert ds.GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW"
+
+
+def test_orthophoto_outputs_take_creation_options_and_cog(processing_run, tmp_path):
+    """orthoparallax and orthorefine offer CREATE_OPTIONS and COG as the filters do."""
+    from osgeo import gdal
+    params = _ortho_pair(tmp_path)
+    res = processing_run("bareearth:orthoparallax", {**params, "CREATE_OPTIONS": "COMPRESS=LZW|PREDICTOR=2"})
+    for key in ("OUTPUT_DEM", "OUTPUT_DH", "OUTPUT_QUALITY", "OUTPUT_MASK"):
+        assert gdal.Open(res[key]).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW", key
+    res = processing_run("bareearth:orthoparallax", {**params, "COG": True})
+    for key in ("OUTPUT_DEM", "OUTPUT_MASK"):
+        assert gdal.Open(res[key]).GetMetadata("IMAGE_STRUCTURE").get("LAYOUT") == "COG", key
+    from qgis.core import QgsApplication
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:orthorefine")
+    assert alg.parameterDefinition("CREATE_OPTIONS") is not None and alg.parameterDefinition("COG") is not None
+
+
+def test_orthorefine_writes_with_creation_options(processing_run, tmp_path):
+    from osgeo import gdal
+    p = _ortho_pair(tmp_path)
+    ties = tmp_path / "ties.csv"
+    gt = GT
+    rows = ["image,x,y,col,row"]
+    for name in ("a", "b"):
+        for r, c in ((5, 5), (5, 54), (54, 5), (54, 54), (30, 30)):
+            rows.append(f"{name},{gt[0] + (c + 0.5) * gt[1]!r},{gt[3] + (r + 0.5) * gt[5]!r},{c},{r}")
+    ties.write_text("\n".join(rows) + "\n")
+    res = processing_run("bareearth:orthorefine", {
+        "DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]], "TIE_POINTS": str(ties), "BASE_M": 300.0,
+        "HEIGHT_M": 1000.0, "MAX_ITERATIONS": 1, "OUTPUT_DEM": str(tmp_path / "r.tif"),
+        "OUTPUT_ORTHO_FOLDER": str(tmp_path / "orthos"), "OUTPUT_TABLE": str(tmp_path / "t.csv"),
+        "CREATE_OPTIONS": "COMPRESS=LZW"})
+    assert gdal.Open(res["OUTPUT_DEM"]).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW"
+    orthos = sorted(os.listdir(tmp_path / "orthos"))
+    assert orthos and all(gdal.Open(str(tmp_path / "orthos" / f)).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"]
+                          == "LZW" for f in orthos if f.endswith(".tif"))
 
 
 def test_provider_offers_the_formats_written(qgis_app):
