@@ -2,6 +2,7 @@
 output formats by extension, creation options, and the styles of the layers Processing loads."""
 import hashlib
 import os
+import re
 import subprocess
 import sys
 
@@ -62,7 +63,8 @@ def _filters():
 # ---- the bad-input table: (id, algorithm, parameters from tmp, message) ---------------------------
 def _truncated(tmp):
     src = _dsm(tmp, "whole.tif", (300, 300))
-    data = open(src, "rb").read()
+    with open(src, "rb") as f:
+        data = f.read()
     (tmp / "cut.tif").write_bytes(data[: len(data) // 3])
     return {"INPUT": str(tmp / "cut.tif"), "OUTPUT_DTM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
 
@@ -123,6 +125,13 @@ BAD = [
     # defect 2: corrupt inputs refused naming the file (core: coreB)
     pytest.param("2-truncated-tif", "slopeprofile", _truncated, "cut.tif", id="2-truncated-tif"),
     pytest.param("2-vrt-missing-source", "slopeprofile", _vrt_missing, "v.vrt", id="2-vrt-missing-source"),
+    pytest.param("2-evaluate-truncated-mask", "evaluate", lambda t: {
+        "MASK": _truncated(t)["INPUT"], "REFERENCE_MASK": _dsm(t, shape=(300, 300)),
+        "OUTPUT_JSON": str(t / "e.json"), "OUTPUT_HTML": str(t / "e.html")},
+        r"cannot read the raster '.*cut\.tif'.*truncated or corrupt", id="2-evaluate-truncated-mask"),
+    pytest.param("2-orthoparallax-truncated-dem", "orthoparallax", lambda t: {
+        **_ortho_pair(t, (300, 300)), "DEM": _truncated(t)["INPUT"]},
+        r"DEM: cannot read the raster '.*cut\.tif'.*truncated or corrupt", id="2-orthoparallax-truncated-dem"),
     # defect 6: a raw-band VRT must not read any local file (core: coreB)
     pytest.param("6-vrt-raw-band", "slopeprofile", _vrt_raw, "raw", id="6-vrt-raw-band"),
     # defect 8: missing or unwritable output folder, named, before any work
@@ -180,6 +189,18 @@ def test_bad_input_refused_before_any_work(processing_run, tmp_path, name, alg, 
     assert _files(tmp_path) == before                              # nothing written
 
 
+def test_defect2_corrupt_input_refused_by_qgis_process(run_qgis_process, tmp_path):
+    """qgis_process refuses a truncated GeoTIFF with a message naming it (it died with rc 134, an
+    uncaught GDAL RuntimeError); no traceback, nothing written."""
+    params = _truncated(tmp_path)
+    before = _files(tmp_path)
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", params, as_json=False)
+    assert rc == 1, out
+    assert re.search(r"cannot read the raster '.*cut\.tif'.*truncated or corrupt", out), out
+    assert "Traceback" not in out and "RuntimeError" not in out
+    assert _files(tmp_path) == before
+
+
 def test_defect3_scale_and_offset_applied(processing_run, tmp_path):
     from osgeo import gdal
     z = np.full((40, 40), 300.0)
@@ -190,10 +211,15 @@ def test_defect3_scale_and_offset_applied(processing_run, tmp_path):
     ds.GetRasterBand(1).SetScale(0.1)
     ds.GetRasterBand(1).SetOffset(100.0)
     ds = None
+    from qgis.core import QgsProcessingFeedback
+    lines = []
+    fb = QgsProcessingFeedback()
+    fb.pushInfo = lines.append
     res = processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "o.tif"),
-                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=fb)
     dtm = _read(res["OUTPUT_DTM"])[0]
     assert 299 < np.nanmin(dtm) and np.nanmax(dtm) < 301
+    assert any(re.search(r"stored values x 0\.1 \+ 100 \(its scale and offset\)", line) for line in lines), lines
 
 
 def test_defect5_workers_start_with_qgis_python_not_path(tmp_path):
