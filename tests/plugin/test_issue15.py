@@ -86,7 +86,7 @@ def _vrt_raw(tmp):
     return {"INPUT": str(tmp / "raw.vrt"), "OUTPUT_DTM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
 
 
-def _ortho_pair(tmp, shape=(60, 60)):
+def _ortho_pair(tmp, shape=(100, 100)):
     """A flat DEM and two textured orthophotos of it on its grid (zero parallax), with B and H."""
     rng = np.random.default_rng(7)
     tex = 255.0 * ndimage.gaussian_filter(rng.random(shape), 1.5)
@@ -169,7 +169,7 @@ BAD = [
         "CREATE_OPTIONS": "COMPRESS=NOPE"}, r"\(CREATE_OPTIONS\).*allowed values", id="creation-options"),
     *[pytest.param(f"creation-options-{alg}", alg, lambda t, make=make: {**make(t), "CREATE_OPTIONS": "COMPRESS=NOPE"},
                    r"\(CREATE_OPTIONS\).*allowed values", id=f"creation-options-{alg}")
-      for alg, make in (("orthoparallax", _ortho_pair), ("orthorefine", lambda t: _ortho_refine(t, (60, 60))))],
+      for alg, make in (("orthoparallax", _ortho_pair), ("orthorefine", lambda t: _ortho_refine(t, (100, 100))))],
 ]
 
 
@@ -327,7 +327,7 @@ def test_orthorefine_writes_with_creation_options(processing_run, tmp_path):
     gt = GT
     rows = ["image,x,y,col,row"]
     for name in ("a", "b"):
-        for r, c in ((5, 5), (5, 54), (54, 5), (54, 54), (30, 30)):
+        for r, c in ((5, 5), (5, 94), (94, 5), (94, 94), (50, 50)):
             rows.append(f"{name},{gt[0] + (c + 0.5) * gt[1]!r},{gt[3] + (r + 0.5) * gt[5]!r},{c},{r}")
     ties.write_text("\n".join(rows) + "\n")
     res = processing_run("bareearth:orthorefine", {
