@@ -46,7 +46,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy import ndimage
 
-from .blocks import alignment, default_workers
+from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .dtm_refine import refine_ground, refine_halo
@@ -94,7 +94,7 @@ def characterise(z, cell_size):
             "relief_m": float(hi - lo), "rough_share": rough}
 
 
-def resolve_dtm_params(z, cell_size, **params):
+def resolve_dtm_params(z, cell_size, progress=None, **params):
     """Every member's parameters derived from the data, and the confidence's scales.
 
     Parameters
@@ -103,6 +103,8 @@ def resolve_dtm_params(z, cell_size, **params):
         The DSM (NaN nodata).
     cell_size : float or (float, float)
         Metres.
+    progress : callable, optional
+        ``progress(fraction)`` from inside each member's estimates; may raise ``Cancelled``.
     **params
         None are taken (the method has no user parameter); unknown names are refused.
 
@@ -122,9 +124,12 @@ def resolve_dtm_params(z, cell_size, **params):
     cell = as_cell_size(cell_size)
     # the members' derivations and the description are independent reads of z: they run side
     # by side, one per core (numpy releases the GIL in their array work); the same values as
-    # one after the other
+    # one after the other. Their progress is the mean of the members' fractions (BlockProgress:
+    # thread-safe, and a cancel raised by one stops the others at their next report).
+    shares = BlockProgress(sub_progress(progress, 0.0, 0.95), len(MEMBERS))
     with ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
-        derived = {n: pool.submit(resolve_params, n, z, cell) for n in MEMBERS}
+        derived = {n: pool.submit(resolve_params, n, z, cell, progress=shares.of_block(i))
+                   for i, n in enumerate(MEMBERS)}
         description = pool.submit(characterise, z, cell)
         members = {n: f.result() for n, f in derived.items()}
         description = description.result()
@@ -165,7 +170,7 @@ def _box_mean(a, r, valid, all_valid):
     return num / np.maximum(den, 1e-6)
 
 
-def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells):
+def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells, progress=None):
     """Per-cell confidence 0-100 (uint8, 255 nodata) of a ground / object decision.
 
     Parameters
@@ -180,6 +185,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
         The decision threshold ``t`` (metres).
     support_cells : int
         Radius of the support window (cells).
+    progress : callable, optional
+        ``progress(fraction)`` between the terms; may raise ``Cancelled``.
 
     Returns
     -------
@@ -193,16 +200,20 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     agree = np.where(ground, v, n - v)                         # members agreeing with the decision
     half = n / 2.0
     a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
+    report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
     zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
     dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     local = _box_mean(dd, 1, valid, all_valid)
+    report(progress, 0.35)
     m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
     m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
     m = np.where(ground, m_ground, m_object)
+    report(progress, 0.6)
     share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
     s = np.where(ground, share_ground, 1.0 - share_ground)
+    report(progress, 0.8)
     conf = np.rint(100.0 * (a + m + s) / 3.0)
     out = np.clip(conf, 0, 100).astype(np.uint8)
     out[~valid] = NODATA
@@ -289,12 +300,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     holes = (mask == OBJECT) | (mask == LOW)
     dtm = None
     if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
-        dtm = fill_gaps(z, fill=holes) if holes.any() else z.astype(np.float32, copy=True)
+        dtm = (fill_gaps(z, fill=holes, progress=sub_progress(progress, 0.85, 0.93)) if holes.any()
+               else z.astype(np.float32, copy=True))
         dtm[~valid] = np.nan
     else:
         info["warning"] = "no ground cell in this window: its DTM is left empty"
-    report(progress, 0.95)
-    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells)
+    report(progress, 0.93)
+    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
+                          progress=sub_progress(progress, 0.93, 1.0))
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100

@@ -39,6 +39,8 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from .common import report
+
 #: Cells a parameter estimate looks at on a large raster (:func:`sample_windows`):
 #: medians and quantiles are stable far below that.
 SAMPLE_CELLS = 1_000_000
@@ -382,7 +384,7 @@ def ground_level_cells(z, cell_size, sigma=None, *, block_m=GROUND_BLOCK_M, band
 
 
 def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M,
-                       iterations=3):
+                       iterations=3, progress=None):
     """Standard deviation of the DSM's random height error measured on its ground-level
     cells only, metres (NaN when too few ground-level cells are seen).
 
@@ -413,6 +415,9 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
         DSM, NaN = nodata.
     cell_size : (float, float)
         ``(dx, dy)`` metres.
+    progress : callable, optional
+        ``progress(fraction)`` after the reference surface and each iteration; may raise
+        ``Cancelled``.
 
     Returns
     -------
@@ -430,6 +435,7 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     if min(z.shape) < 3 or not np.isfinite(z).any():
         return out
     ref, slope, k = ground_level_reference(z, cell_size, block_m)
+    report(progress, 0.4)
     out["block_cells"] = k
     dx, dy = float(cell_size[0]), float(cell_size[1])
     d_row = z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]
@@ -440,7 +446,8 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     valid = np.isfinite(z)
     sigma = None
     band = None
-    for _ in range(iterations):
+    for it in range(iterations):
+        report(progress, 0.4 + 0.6 * it / iterations)
         last, band = band, (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
         if band == last:        # the same cells as the last iteration: the same sigma (converged)
             break
@@ -463,20 +470,23 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
             break
         sigma = new
     out["sigma"] = sigma
+    report(progress, 1.0)
     return out
 
 
-def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25):
+def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25, progress=None):
     """:func:`smooth_spread` of values kept only on chosen cells (the others NaN).
 
     Per ``tile x tile`` tile the robust spread ``1.4826 MAD`` of its finite values when
     they are at least ``min_share`` of the tile, and the ``quantile`` of those tiles'
     spreads; with no such tile, the spread of all finite values pooled (0 with fewer than
     100). Used on the bends of ground-level cells (curvature's threshold), where the
-    ground shows in gaps that rarely fill a tile.
+    ground shows in gaps that rarely fill a tile. ``progress(fraction)`` (optional, may
+    raise ``Cancelled``) after each stack.
     """
     mads, pooled = [], []
-    for v in stacks:
+    stacks = list(stacks)
+    for i, v in enumerate(stacks):
         b, r, c = v.shape
         tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
         nr, nc = r // tr, c // tc
@@ -490,6 +500,7 @@ def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25):
                 mad = _ABS_NORMAL_MEDIAN_INV * np.nanmedian(np.abs(t - med), axis=1)
             mads.append(mad[np.isfinite(mad)])
         pooled.append(v[np.isfinite(v)].astype(np.float64))
+        report(progress, (i + 1) / len(stacks))
     mad = np.concatenate(mads) if mads else np.empty(0)
     if mad.size:
         return float(np.quantile(mad, quantile))
@@ -527,7 +538,8 @@ _RING_CHUNK = 1 << 12
 _RING_GATHER_PER_CELL = 3.0
 
 
-def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M, candidates=None):
+def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M, candidates=None,
+                       progress=None):
     """Cells lying more than ``depth_m`` below every cell of the square ring around them.
 
     The ring spans ``radius_m`` around the cell without the cell's own cluster (half-width
@@ -537,7 +549,7 @@ def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=P
     ``candidates`` (optional boolean raster): only these cells are tested (the others are
     False); when they are few (a filter's low-blunder candidates) each one's ring is
     gathered directly, without a pass over the raster: the same answer at a fraction of
-    the cost.
+    the cost. ``progress(fraction)`` (optional, may raise ``Cancelled``) after each filter.
     """
     dx, dy = cell_size
     iy = max(2, int(np.ceil(cluster_m / dy)))
@@ -551,14 +563,25 @@ def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=P
             return _below_gathered(np.asarray(z), idx, (iy, ix, ry, rx), depth_m)
     a = np.where(np.isfinite(z), z, np.inf).astype(np.float32)
     rows = ndimage.minimum_filter1d(a, 2 * rx + 1, axis=1, mode="constant", cval=np.inf)
+    report(progress, 0.15)
     mid = ndimage.minimum_filter1d(a, 2 * iy + 1, axis=0, mode="constant", cval=np.inf)
+    report(progress, 0.3)
     if candidates is not None:
-        return _below_at(a, rows, mid, idx, (iy, ix, ry, rx), depth_m)
-    ring = np.minimum(_min_over_offsets(rows, -ry, -iy - 1, 0), _min_over_offsets(rows, iy + 1, ry, 0))
+        out = _below_at(a, rows, mid, idx, (iy, ix, ry, rx), depth_m)
+        report(progress, 1.0)
+        return out
+    ring = _min_over_offsets(rows, -ry, -iy - 1, 0)
+    report(progress, 0.45)
+    np.minimum(ring, _min_over_offsets(rows, iy + 1, ry, 0), out=ring)
+    report(progress, 0.6)
     np.minimum(ring, _min_over_offsets(mid, -rx, -ix - 1, 1), out=ring)
+    report(progress, 0.75)
     np.minimum(ring, _min_over_offsets(mid, ix + 1, rx, 1), out=ring)
+    report(progress, 0.9)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(ring) & (a < ring - np.float32(depth_m))
+        out = np.isfinite(ring) & (a < ring - np.float32(depth_m))
+    report(progress, 1.0)
+    return out
 
 
 def _below_gathered(z, idx, reach, depth_m):

@@ -586,7 +586,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
 
-def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
+def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
@@ -595,11 +595,13 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
     square window it holds). The object size is the width below which 98 % of the object
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the filter.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     res = filter_morphological(z, cell, mode="progressive", max_object_size_m=search_m,
-                               dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope)
+                               dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope,
+                               progress=sub_progress(progress, 0.0, 0.9))
     obj = res.mask == OBJECT
     if not obj.any():
         return float("nan")
@@ -618,7 +620,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  mode: str = "auto", max_object_size_m: Optional[float] = None,
                                  dh_m: Optional[float] = None, slope: Optional[float] = None,
                                  slope_scale_m: float = 1.25, window_growth: float = 2.0,
-                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, **_ignored) -> dict:
+                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, progress=None, **_ignored) -> dict:
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the noise of the DSM's ground-level cells
@@ -640,7 +642,8 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
 
     Large rasters are reduced to block minima of at most a million cells for the slope
     and the object size; the noise is measured at full resolution on windows spread over
-    the raster (:func:`~bare_earth.core.estimate.sample_windows`).
+    the raster (:func:`~bare_earth.core.estimate.sample_windows`). ``progress(fraction)``
+    (optional, may raise ``Cancelled``) from inside the estimates.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -651,11 +654,12 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                 low_outlier_slope=low_outlier_slope))
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
     zs = block_minima(z, k)
+    report(progress, 0.1)
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
                low_outlier_slope=low_outlier_slope)
-    gn = noise_ground_level(z, cell)             # full resolution, on the ground-level cells
+    gn = noise_ground_level(z, cell, progress=sub_progress(progress, 0.1, 0.4))  # full resolution, ground level
     noise = gn["sigma"]
     out["noise_m"] = noise
     if dh_m is None:
@@ -672,6 +676,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         out["dh_source"] = "given"
     s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0)
     s90 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 90.0)
+    report(progress, 0.45)
     out["terrain_slope_p50"], out["terrain_slope_p90"] = s50, s90
     if slope is None:
         out["slope"] = float(min(_MAX_SLOPE, max(_MIN_SLOPE, s50 if np.isfinite(s50) else 0.0)))
@@ -684,7 +689,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     else:
         out["slope_source"] = "given"
     if max_object_size_m is None:
-        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"])
+        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0))
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
             out["max_object_size_source"] = (

@@ -562,12 +562,13 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     valid = np.isfinite(z)
     # 1. low blunders (a drop then a rise): class 2, left out of the scans
     low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
-    low = below_surroundings(z, cell, tolerance_m, candidates=low)  # below all the ground around: not a gap
+    low = below_surroundings(z, cell, tolerance_m, candidates=low,  # below all the ground around: not a gap
+                             progress=sub_progress(progress, 0.05, 0.07))
     zs = np.where(low, np.float32(np.nan), z)
     # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
     init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,
                                         sample_spacing_cells)
-    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.05, 0.7))
+    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.07, 0.7))
     del zs
     # 3. X and Y combined by connected objects
     obj = _combine_axes(obj_x, obj_y, valid & ~low, (init[1], init[0]), sub_progress(progress, 0.7, 0.8))
@@ -587,7 +588,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
                                  max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
                                  sample_spacing_cells: Optional[float] = None, refine: bool = False,
-                                 slope_factor: float = 1.25) -> dict:
+                                 slope_factor: float = 1.25, progress=None) -> dict:
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
@@ -606,6 +607,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       (:func:`estimate_sample_spacing`); the edge test spans it.
 
     Measured on the seven ISPRS samples under ``benchmarks/isprs.py`` (see the README).
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the estimates.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -617,11 +619,13 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
         terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
                                 _MAX_ALPHA_T)
+    report(progress, 0.3)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
-        sigma = noise_ground_level(z, cell)["sigma"]
+        sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
+    report(progress, 0.8)
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
     out = {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),

@@ -154,8 +154,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     if tc is not None and tc not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
                          f"by step 1); got {tc!r}.")
-    ch, low_env = characterise_with_envelope(z, (dx, dy))
-    report(progress, 0.5)
+    ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5))
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
