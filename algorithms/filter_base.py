@@ -174,6 +174,31 @@ def output_options(alg, parameters, context):
         yield
 
 
+def check_window_sizes(alg, values, defaults, info):
+    """(ok, message): a chosen window larger than the raster is refused before any work.
+
+    ``values`` and ``defaults`` map Processing ids to numbers; a parameter whose id names a
+    window (``..._CELLS`` in cells against the raster's shorter side, ``..._M`` in metres
+    against its extent) or a size in metres (``..._SIZE_M``) is compared with ``info``'s
+    raster (a :class:`~bare_earth.core.grid.DSMInfo`). Defaults pass: the cores clamp a
+    default larger than a small raster, only a value the user chose is refused.
+    """
+    extent_m = max(info.shape[0] * info.cell_size_m[1], info.shape[1] * info.cell_size_m[0])
+    for key, v in values.items():
+        name = key.lower()
+        if (v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or v == defaults.get(key)
+                or ("window" not in name and "size_m" not in name)):
+            continue
+        label = label_of(alg.parameterDefinition(key))
+        if name.endswith("_m") and v > extent_m:
+            return False, tr("{} = {} m is larger than the raster itself ({:.1f} m across): choose a "
+                             "smaller window or a larger raster.").format(label, v, extent_m)
+        if name.endswith("_cells") and v > min(info.shape):
+            return False, tr("{} = {} cells is larger than the raster itself ({} x {} cells): choose a "
+                             "smaller window or a larger raster.").format(label, v, info.shape[1], info.shape[0])
+    return True, ""
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -493,22 +518,10 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
-        user = self._user_params(parameters, context)
-        extent_m = max(info.shape[0] * info.cell_size_m[1], info.shape[1] * info.cell_size_m[0])
-        defaults = {p.name: p.default for p in self.method.params}
-        for name, v in user.items():
-            # a default larger than a small raster is clamped by the core; a chosen one is refused
-            if v is None or v == defaults.get(name) or not isinstance(v, (int, float)) or "window" not in name \
-                    and "size_m" not in name:
-                continue
-            label = label_of(self.parameterDefinition(name.upper()))
-            if name.endswith("_m") and v > extent_m:
-                return False, tr("{} = {} m is larger than the raster itself ({:.1f} m across): choose a "
-                                 "smaller window or a larger raster.").format(label, v, extent_m)
-            if name.endswith("_cells") and v > min(info.shape):
-                return False, tr("{} = {} cells is larger than the raster itself ({} x {} cells): choose a "
-                                 "smaller window or a larger raster.").format(label, v, info.shape[1],
-                                                                             info.shape[0])
+        user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
+        ok, msg = check_window_sizes(self, user, {p.name.upper(): p.default for p in self.method.params}, info)
+        if not ok:
+            return False, msg
         return self.checkExtraInputs(parameters, context, info)
 
     def checkExtraInputs(self, parameters, context, info):  # noqa: N802

@@ -31,7 +31,17 @@ from qgis.core import (
 
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
-from .filter_base import BaseAlgorithm, check_dsm, progress_callback, raster_path, tr, with_help
+from .filter_base import (
+    BaseAlgorithm,
+    check_dsm,
+    check_window_sizes,
+    format_params,
+    output_options,
+    progress_callback,
+    raster_path,
+    tr,
+    with_help,
+)
 
 try:
     from osgeo import gdal, osr
@@ -353,11 +363,22 @@ class OrthoAlgorithm(BaseAlgorithm):
         return B, H, (math.cos(ang), math.sin(ang))
 
     def _dem(self, parameters, context):
+        """The DEM, checked (one band, metric), and the windows chosen checked against it."""
         layer = self.parameterAsRasterLayer(parameters, self.DEM, context)
         ok, msg, info = check_dsm(layer, None)
         if not ok:
             raise ValueError(f"DEM: {msg}")
         _check_metric(info, "The DEM")
+        chosen, defaults = {}, {}
+        for k in (self.WINDOW_CELLS, self.OBJECT_SIZE_M):
+            d = self.parameterDefinition(k)
+            if parameters.get(k) is not None:
+                whole = d.dataType() == QgsProcessingParameterNumber.Integer
+                chosen[k] = (self.parameterAsInt if whole else self.parameterAsDouble)(parameters, k, context)
+                defaults[k] = d.defaultValue()
+        ok, msg = check_window_sizes(self, chosen, defaults, info)
+        if not ok:
+            raise ValueError(msg)
         return info
 
     def _write(self, info, parameters, context, dem, dh, quality, mask):
@@ -369,7 +390,7 @@ class OrthoAlgorithm(BaseAlgorithm):
         nd = info.nodata
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         dem_out = np.where(np.isfinite(dem), dem, np.float32(nodata)).astype(np.float32)
-        with grid.OutputSet(info) as out:
+        with output_options(self, parameters, context), grid.OutputSet(info) as out:
             out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
             out.write("dem", dem_out)
             if "dh" in paths:
@@ -467,6 +488,8 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
         for p in self._matching_params():
             self.addParameter(p)
         self._raster_outputs("Corrected DEM")
+        for p in format_params():
+            self.addParameter(p)
 
     def _inputs(self, parameters, context):
         info = self._dem(parameters, context)
@@ -656,6 +679,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             createByDefault=True),
             "One row per measurement: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
             "agreement, status, mean_corr."))
+        for p in format_params():
+            self.addParameter(p)
         for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
 
@@ -819,7 +844,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         if parameters.get(self.OUTPUT_ORTHO_FOLDER):
             folder = self.parameterAsFileOutput(parameters, self.OUTPUT_ORTHO_FOLDER, context)
             os.makedirs(folder, exist_ok=True)
-            with grid.OutputSet(info) as out:
+            with output_options(self, parameters, context), grid.OutputSet(info) as out:
                 for n, o in zip(names, r.orthos):
                     out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
                             descriptions=[f"orthophoto of {n} (grey)"])

@@ -41,28 +41,57 @@ def resolve_workers(workers):
     return int(workers)
 
 
-def iter_windows(shape, block=DEFAULT_BLOCK, halo=0):
-    """Yield ``(core, outer)`` windows covering ``shape``.
+#: Least alignment of a window's upper-left corner on the raster's grid, cells.
+MIN_ALIGN = 64
 
-    Each window is ``(r0, r1, c0, c1)`` (half-open). ``outer`` is ``core`` grown by
-    ``halo`` cells and clipped to the raster.
+
+def alignment(halo):
+    """Alignment of a window's upper-left corner: the largest power of two dividing ``halo``,
+    at least :data:`MIN_ALIGN`.
+
+    Methods that coarsen their grid internally anchor the coarse cells on the array they are
+    given. They round their halo up to their coarsening factor (a power of two:
+    ``geodesic_halo``) or to an even number (``curvature_halo``); a window whose corner lies
+    on a multiple of this sees the coarse grids of the single pass, whatever the block size.
 
     Examples
     --------
-    >>> list(iter_windows((3, 5), block=4, halo=1))
+    >>> alignment(42), alignment(416), alignment(384)
+    (64, 64, 128)
+    """
+    halo = int(halo)
+    p = halo & -halo if halo > 0 else 1
+    return max(MIN_ALIGN, p)
+
+
+def iter_windows(shape, block=DEFAULT_BLOCK, halo=0, align=None):
+    """Yield ``(core, outer)`` windows covering ``shape``.
+
+    Each window is ``(r0, r1, c0, c1)`` (half-open). ``outer`` is ``core`` grown by
+    ``halo`` cells and clipped to the raster, its upper-left corner moved further out onto
+    a multiple of ``align`` (default :func:`alignment` of the halo; 1 for none), so that
+    blocked equals one pass for any block size.
+
+    Examples
+    --------
+    >>> list(iter_windows((3, 5), block=4, halo=1, align=1))
     [((0, 3, 0, 4), (0, 3, 0, 5)), ((0, 3, 4, 5), (0, 3, 3, 5))]
+    >>> list(iter_windows((3, 70), block=(3, 66), halo=1))
+    [((0, 3, 0, 66), (0, 3, 0, 67)), ((0, 3, 66, 70), (0, 3, 64, 70))]
     """
     rows, cols = shape
     if isinstance(block, (int, np.integer)):
         block = (int(block), int(block))
     br, bc = max(1, int(block[0])), max(1, int(block[1]))
     halo = max(0, int(halo))
+    a = max(1, int(alignment(halo) if align is None else align))
     for r0 in range(0, rows, br):
         r1 = min(rows, r0 + br)
         for c0 in range(0, cols, bc):
             c1 = min(cols, c0 + bc)
             yield ((r0, r1, c0, c1),
-                   (max(0, r0 - halo), min(rows, r1 + halo), max(0, c0 - halo), min(cols, c1 + halo)))
+                   (max(0, (r0 - halo) // a * a), min(rows, r1 + halo),
+                    max(0, (c0 - halo) // a * a), min(cols, c1 + halo)))
 
 
 def crop(outer, core):

@@ -17,6 +17,12 @@ often than any one (ISPRS seven, old defaults, total error: 4.26 / 5.35 / 5.50 %
 3.84 % by majority). The vote is a rule from that principle, not a tuned constant: a cell is
 ground when more members say ground than object, and a low outlier when most say so.
 
+The vote keeps low objects every member tolerates (bushes, hedges, the bottoms of canopy gaps on
+flat wooded ground): :func:`.dtm_refine.refine_ground` then turns into objects the voted ground
+cells that stand above lower voted ground on both sides of a row, column or diagonal (a
+slope-based test in the manner of Vosselman 2000, with the terrain's 90th-percentile slope and
+the threshold ``t`` below; see that module for why both sides, and what it measured).
+
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison
 crosses: RASCOR honours them, and within the reach of the other members from a break line
@@ -35,11 +41,15 @@ independent pieces of evidence, each 0-1:
 
 ``confidence = 100 (a + m + s) / 3``; cells the user forced are 100.
 """
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy import ndimage
 
+from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from .dtm_refine import refine_ground, refine_halo
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -84,7 +94,7 @@ def characterise(z, cell_size):
             "relief_m": float(hi - lo), "rough_share": rough}
 
 
-def resolve_dtm_params(z, cell_size, **params):
+def resolve_dtm_params(z, cell_size, progress=None, **params):
     """Every member's parameters derived from the data, and the confidence's scales.
 
     Parameters
@@ -93,6 +103,8 @@ def resolve_dtm_params(z, cell_size, **params):
         The DSM (NaN nodata).
     cell_size : float or (float, float)
         Metres.
+    progress : callable, optional
+        ``progress(fraction)`` from inside each member's estimates; may raise ``Cancelled``.
     **params
         None are taken (the method has no user parameter); unknown names are refused.
 
@@ -110,17 +122,32 @@ def resolve_dtm_params(z, cell_size, **params):
     from .pipeline import resolve_params
     z = as_surface(z)
     cell = as_cell_size(cell_size)
-    members = {n: resolve_params(n, z, cell) for n in MEMBERS}
+    # the members' derivations and the description are independent reads of z: they run side
+    # by side, one per core (numpy releases the GIL in their array work); the same values as
+    # one after the other. Their progress is the mean of the members' fractions (BlockProgress:
+    # thread-safe, and a cancel raised by one stops the others at their next report).
+    shares = BlockProgress(sub_progress(progress, 0.0, 0.95), len(MEMBERS))
+    with ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
+        derived = {n: pool.submit(resolve_params, n, z, cell, progress=shares.of_block(i))
+                   for i, n in enumerate(MEMBERS)}
+        description = pool.submit(characterise, z, cell)
+        members = {n: f.result() for n, f in derived.items()}
+        description = description.result()
     tol = float(members["morphological"].get("dh_m") or 0.5)
     support = max(1, int(round(SUPPORT_M / min(cell))))
     return {"members": members, "tolerance_m": tol, "support_cells": support,
-            "input_description": characterise(z, cell)}
+            "input_description": description}
 
 
 def dtm_halo(params, cell_size):
-    """Reach in cells: the largest member reach, plus the confidence's windows."""
-    reach = max(int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS))
-    return reach + 2 * int(params["support_cells"]) + 2
+    """Reach in cells: the largest member reach, plus the refinement's and the confidence's
+    windows, rounded up to a multiple of the members' window alignment
+    (:func:`~.blocks.alignment` of each member's halo), so that a window's corner keeps the
+    members' coarse grids those of the single pass."""
+    halos = [int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS)]
+    reach = max(halos) + refine_halo(as_cell_size(cell_size)) + 2 * int(params["support_cells"]) + 2
+    a = max(alignment(h) for h in halos)
+    return -(-reach // a) * a
 
 
 def _as_bool(a, shape, name):
@@ -143,7 +170,7 @@ def _box_mean(a, r, valid, all_valid):
     return num / np.maximum(den, 1e-6)
 
 
-def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells):
+def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells, progress=None):
     """Per-cell confidence 0-100 (uint8, 255 nodata) of a ground / object decision.
 
     Parameters
@@ -158,6 +185,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
         The decision threshold ``t`` (metres).
     support_cells : int
         Radius of the support window (cells).
+    progress : callable, optional
+        ``progress(fraction)`` between the terms; may raise ``Cancelled``.
 
     Returns
     -------
@@ -171,16 +200,20 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     agree = np.where(ground, v, n - v)                         # members agreeing with the decision
     half = n / 2.0
     a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
+    report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
     zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
     dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     local = _box_mean(dd, 1, valid, all_valid)
+    report(progress, 0.35)
     m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
     m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
     m = np.where(ground, m_ground, m_object)
+    report(progress, 0.6)
     share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
     s = np.where(ground, share_ground, 1.0 - share_ground)
+    report(progress, 0.8)
     conf = np.rint(100.0 * (a + m + s) / 3.0)
     out = np.clip(conf, 0, 100).astype(np.uint8)
     out[~valid] = NODATA
@@ -243,6 +276,12 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
     mask = np.where(ground_votes >= need, GROUND, np.where(low_votes >= need, LOW, OBJECT)).astype(np.uint8)
+    # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
+    morph = members.get("morphological", {})
+    slope = morph.get("terrain_slope_p90", float("nan"))    # NaN on rasters too small to measure it
+    mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m,
+                                  slope=slope if np.isfinite(slope) else morph.get("slope", 0.0))
+    info.update(refined)
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
         reach = max(int(m.halo(members[m.name], cell)) for m in meths if m.name != BREAKLINE_MEMBER)
@@ -261,12 +300,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     holes = (mask == OBJECT) | (mask == LOW)
     dtm = None
     if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
-        dtm = fill_gaps(z, fill=holes) if holes.any() else z.astype(np.float32, copy=True)
+        dtm = (fill_gaps(z, fill=holes, progress=sub_progress(progress, 0.85, 0.93)) if holes.any()
+               else z.astype(np.float32, copy=True))
         dtm[~valid] = np.nan
     else:
         info["warning"] = "no ground cell in this window: its DTM is left empty"
-    report(progress, 0.95)
-    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells)
+    report(progress, 0.93)
+    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
+                          progress=sub_progress(progress, 0.93, 1.0))
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100
@@ -294,8 +335,10 @@ METHOD = Method(
         "<p>The filter to start with: no parameter to choose. Three filters built on different principles "
         "(the progressive morphological opening, RASCOR's sequence of local tests, the gradual geodesic "
         "dilation), each with the defaults it derives from the data, vote on every cell; a cell is ground "
-        "where most of them say so, and the DTM is interpolated under the rest. The log gives each "
-        "member's parameters and how often they agreed.</p>"
+        "where most of them say so; voted ground standing above lower ground on both sides of a line (bushes, "
+        "hedges, the bottoms of gaps in a canopy, which every member may keep) is then taken as an object, "
+        "and the DTM is interpolated under the rest. The log gives each member's parameters and how often "
+        "they agreed.</p>"
         "<p>The confidence map (0-100) combines the members' agreement, the cell's distance from the "
         "height threshold, and the share of cells around it with the same class: low values mark where "
         "to look first.</p>"

@@ -39,6 +39,8 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from .common import report
+
 #: Cells a parameter estimate looks at on a large raster (:func:`sample_windows`):
 #: medians and quantiles are stable far below that.
 SAMPLE_CELLS = 1_000_000
@@ -382,7 +384,7 @@ def ground_level_cells(z, cell_size, sigma=None, *, block_m=GROUND_BLOCK_M, band
 
 
 def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M,
-                       iterations=3):
+                       iterations=3, progress=None):
     """Standard deviation of the DSM's random height error measured on its ground-level
     cells only, metres (NaN when too few ground-level cells are seen).
 
@@ -413,6 +415,9 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
         DSM, NaN = nodata.
     cell_size : (float, float)
         ``(dx, dy)`` metres.
+    progress : callable, optional
+        ``progress(fraction)`` after the reference surface and each iteration; may raise
+        ``Cancelled``.
 
     Returns
     -------
@@ -430,6 +435,7 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     if min(z.shape) < 3 or not np.isfinite(z).any():
         return out
     ref, slope, k = ground_level_reference(z, cell_size, block_m)
+    report(progress, 0.4)
     out["block_cells"] = k
     dx, dy = float(cell_size[0]), float(cell_size[1])
     d_row = z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:]
@@ -439,8 +445,12 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     height = z - ref
     valid = np.isfinite(z)
     sigma = None
-    for _ in range(iterations):
-        band = (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
+    band = None
+    for it in range(iterations):
+        report(progress, 0.4 + 0.6 * it / iterations)
+        last, band = band, (band_m if sigma is None else max(band_m, 6.0 * sigma)) + slope * k * max(dx, dy)
+        if band == last:        # the same cells as the last iteration: the same sigma (converged)
+            break
         with np.errstate(invalid="ignore"):
             g = height <= band
         mid = g[1:-1, 1:-1]
@@ -460,20 +470,23 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
             break
         sigma = new
     out["sigma"] = sigma
+    report(progress, 1.0)
     return out
 
 
-def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25):
+def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25, progress=None):
     """:func:`smooth_spread` of values kept only on chosen cells (the others NaN).
 
     Per ``tile x tile`` tile the robust spread ``1.4826 MAD`` of its finite values when
     they are at least ``min_share`` of the tile, and the ``quantile`` of those tiles'
     spreads; with no such tile, the spread of all finite values pooled (0 with fewer than
     100). Used on the bends of ground-level cells (curvature's threshold), where the
-    ground shows in gaps that rarely fill a tile.
+    ground shows in gaps that rarely fill a tile. ``progress(fraction)`` (optional, may
+    raise ``Cancelled``) after each stack.
     """
     mads, pooled = [], []
-    for v in stacks:
+    stacks = list(stacks)
+    for i, v in enumerate(stacks):
         b, r, c = v.shape
         tr, tc = max(1, min(tile, r)), max(1, min(tile, c))
         nr, nc = r // tr, c // tc
@@ -487,6 +500,7 @@ def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25):
                 mad = _ABS_NORMAL_MEDIAN_INV * np.nanmedian(np.abs(t - med), axis=1)
             mads.append(mad[np.isfinite(mad)])
         pooled.append(v[np.isfinite(v)].astype(np.float64))
+        report(progress, (i + 1) / len(stacks))
     mad = np.concatenate(mads) if mads else np.empty(0)
     if mad.size:
         return float(np.quantile(mad, quantile))
@@ -516,7 +530,16 @@ def _min_over_offsets(b, lo, hi, axis):
     return m[tuple(idx)]
 
 
-def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M, candidates=None):
+#: Candidates per ring gathered at once (:func:`below_surroundings`; bounds the memory).
+_RING_CHUNK = 1 << 12
+#: The ring's minimum filters cost about as much as gathering this many ring cells per
+#: raster cell (measured: 16 Mcells, rings of 416 cells); with more candidates the
+#: filters are cheaper than gathering each candidate's ring.
+_RING_GATHER_PER_CELL = 3.0
+
+
+def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M, candidates=None,
+                       progress=None):
     """Cells lying more than ``depth_m`` below every cell of the square ring around them.
 
     The ring spans ``radius_m`` around the cell without the cell's own cluster (half-width
@@ -524,25 +547,75 @@ def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=P
     ground around it, a gap between tree crowns or roofs is at the level of the other gaps
     within the ring. Translation-invariant (four rectangular minimum filters), NaN ignored.
     ``candidates`` (optional boolean raster): only these cells are tested (the others are
-    False), the ring minima then gathered at them alone: the same answer at a fraction of
-    the cost when the candidates are few (a filter's low-blunder candidates).
+    False); when they are few (a filter's low-blunder candidates) each one's ring is
+    gathered directly, without a pass over the raster: the same answer at a fraction of
+    the cost. ``progress(fraction)`` (optional, may raise ``Cancelled``) after each filter.
     """
     dx, dy = cell_size
-    a = np.where(np.isfinite(z), z, np.inf).astype(np.float32)
     iy = max(2, int(np.ceil(cluster_m / dy)))
     ix = max(2, int(np.ceil(cluster_m / dx)))
     ry = max(iy + 2, int(np.ceil(radius_m / dy)))
     rx = max(ix + 2, int(np.ceil(radius_m / dx)))
-    rows = ndimage.minimum_filter1d(a, 2 * rx + 1, axis=1, mode="constant", cval=np.inf)
-    mid = ndimage.minimum_filter1d(a, 2 * iy + 1, axis=0, mode="constant", cval=np.inf)
     if candidates is not None:
-        return _below_at(a, rows, mid, np.flatnonzero(candidates), (iy, ix, ry, rx), depth_m)
-    ring = np.minimum(_min_over_offsets(rows, -ry, -iy - 1, 0), _min_over_offsets(rows, iy + 1, ry, 0))
+        idx = np.flatnonzero(candidates)
+        ring_cells = (2 * ry + 1) * (2 * rx + 1) - (2 * iy + 1) * (2 * ix + 1)
+        if idx.size * ring_cells <= _RING_GATHER_PER_CELL * np.size(z):
+            return _below_gathered(np.asarray(z), idx, (iy, ix, ry, rx), depth_m)
+    a = np.where(np.isfinite(z), z, np.inf).astype(np.float32)
+    rows = ndimage.minimum_filter1d(a, 2 * rx + 1, axis=1, mode="constant", cval=np.inf)
+    report(progress, 0.15)
+    mid = ndimage.minimum_filter1d(a, 2 * iy + 1, axis=0, mode="constant", cval=np.inf)
+    report(progress, 0.3)
+    if candidates is not None:
+        out = _below_at(a, rows, mid, idx, (iy, ix, ry, rx), depth_m)
+        report(progress, 1.0)
+        return out
+    ring = _min_over_offsets(rows, -ry, -iy - 1, 0)
+    report(progress, 0.45)
+    np.minimum(ring, _min_over_offsets(rows, iy + 1, ry, 0), out=ring)
+    report(progress, 0.6)
     np.minimum(ring, _min_over_offsets(mid, -rx, -ix - 1, 1), out=ring)
+    report(progress, 0.75)
     np.minimum(ring, _min_over_offsets(mid, ix + 1, rx, 1), out=ring)
+    report(progress, 0.9)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(ring) & (a < ring - np.float32(depth_m))
+        out = np.isfinite(ring) & (a < ring - np.float32(depth_m))
+    report(progress, 1.0)
+    return out
 
+
+def _below_gathered(z, idx, reach, depth_m):
+    """:func:`below_surroundings` at the flat indices ``idx`` only, each ring's cells
+    gathered from ``z`` itself (NaN and cells outside the array count as +inf), in
+    chunks of :data:`_RING_CHUNK` candidates. The ring's minimum is exact whatever the
+    order, so the answer is the filters'."""
+    iy, ix, ry, rx = reach
+    h, w = z.shape
+    out = np.zeros(z.shape, bool)
+    if idx.size == 0:
+        return out
+    dr, dc = np.meshgrid(np.arange(-ry, ry + 1), np.arange(-rx, rx + 1), indexing="ij")
+    ring = (np.abs(dr) > iy) | (np.abs(dc) > ix)
+    dr, dc = dr[ring], dc[ring]
+    flat = z.ravel()
+    for i in range(0, idx.size, _RING_CHUNK):
+        q = idx[i:i + _RING_CHUNK]
+        r, c = np.divmod(q, w)
+        rr = r[:, None] + dr[None, :]
+        cc = c[:, None] + dc[None, :]
+        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        np.clip(rr, 0, h - 1, out=rr)
+        np.clip(cc, 0, w - 1, out=cc)
+        rr *= w
+        rr += cc
+        v = flat.take(rr).astype(np.float32, copy=False)
+        v[~(inside & np.isfinite(v))] = np.inf
+        lo = v.min(axis=1)
+        with np.errstate(invalid="ignore"):
+            own = flat.take(q).astype(np.float32, copy=False)
+            hit = np.isfinite(lo) & (own < lo - np.float32(depth_m))
+        out.ravel()[q[hit]] = True
+    return out
 
 
 def _below_at(a, rows, mid, idx, reach, depth_m):

@@ -5,6 +5,7 @@ The pipeline, the block engine, the plugin and the benchmarks see methods only t
 this registry, so adding a paper costs one numeric module and one thin algorithm class.
 """
 import importlib
+import inspect
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Optional, Tuple
 
@@ -63,15 +64,26 @@ def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, 
                              f"{method_name!r}: {p.help}")
 
 
+def takes_progress(func) -> bool:
+    """Whether ``func`` has a keyword parameter named ``progress``."""
+    try:
+        return "progress" in inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 class _CheckedResolve:
     """A method's ``resolve`` with its ``Param`` limits checked first (picklable: worker
-    processes receive the Method)."""
+    processes receive the Method). ``progress`` (optional, may raise ``Cancelled``) goes to
+    a resolve that takes one (its estimates report through it)."""
 
     def __init__(self, resolve, method_name, params):
         self.resolve, self.method_name, self.params = resolve, method_name, params
 
-    def __call__(self, z, cell_size, **values):
+    def __call__(self, z, cell_size, progress=None, **values):
         check_values(self.method_name, self.params, values)
+        if progress is not None and takes_progress(self.resolve):
+            values["progress"] = progress
         return self.resolve(z, cell_size, **values)
 
 
@@ -90,7 +102,9 @@ class Method:
         ``resolve(z, cell_size, **params) -> dict``: the complete parameter set, with every
         ``None`` replaced by a value derived from the data (on the whole raster or a
         sample of it). Called once per raster, before any block runs. The given values are
-        first checked against ``params``' limits (:func:`check_values`).
+        first checked against ``params``' limits (:func:`check_values`). A resolve with a
+        keyword ``progress`` is given the pipeline's callback (its long estimates report
+        through it, at least about once a second; it may raise ``Cancelled``).
     halo : callable
         ``halo(params, cell_size) -> int``: the method's reach in cells; blocks overlap by
         at least this much so that blocked and one-pass results agree.

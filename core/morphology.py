@@ -179,6 +179,36 @@ class _Work:
         return self._bufs[i][:size].reshape(shape)
 
 
+def _running_banded(a, r, axis, op, work=None, out=None, band=None):
+    """:func:`_running` in bands across ``axis`` (rows for ``axis=1``, columns for
+    ``axis=0``) of about :data:`_BAND_BYTES` each, so that the ``log2(2 r + 1)`` passes of a
+    band run in the cache instead of streaming the whole array through memory each time.
+    The bands are independent (the window runs along ``axis``): the same result.
+
+    Measured on 1108 x 4000 float32 cells, radii 1-40: along the rows 0.155 -> 0.115 s
+    (bands of 64 rows); down the columns no gain (its passes are whole contiguous rows
+    already), so :func:`_erode` and :func:`_dilate` band only the pass along the rows."""
+    if r <= 0:
+        return a
+    n, m = a.shape[axis], a.shape[1 - axis]
+    if band is None:
+        band = max(8, _BAND_BYTES // max(1, n * a.itemsize))
+    if band >= m or n < 2 * r + 2:
+        return _running(a, r, axis, op, work, out)
+    work = work or _Work()
+    if out is None:
+        out = np.empty(a.shape, a.dtype)
+    for j0 in range(0, m, band):
+        j1 = min(m, j0 + band)
+        sl = (slice(None), slice(j0, j1)) if axis == 0 else (slice(j0, j1), slice(None))
+        _running(a[sl], r, axis, op, work, out[sl])
+    return out
+
+
+#: Bytes of one band of :func:`_running_banded` (64 rows of 4000 float32 cells).
+_BAND_BYTES = 1 << 20
+
+
 def _running(a, r, axis, op, work=None, out=None):
     """``op`` (np.minimum / np.maximum) over the window ``[i - r, i + r]`` along ``axis``.
 
@@ -233,7 +263,7 @@ def _erode(a, ry, rx, work=None, progress=None):
     tmp = work.get(2, a.shape) if work is not None and rx > 0 and ry > 0 else None
     down = _running(a, ry, 0, np.minimum, work, tmp)
     report(progress, 0.5)
-    return _running(down, rx, 1, np.minimum, work)
+    return _running_banded(down, rx, 1, np.minimum, work)
 
 
 def _dilate(e, ry, rx, has_nodata, work=None, progress=None):
@@ -247,7 +277,7 @@ def _dilate(e, ry, rx, has_nodata, work=None, progress=None):
     tmp = work.get(2, e.shape) if work is not None and rx > 0 and ry > 0 else None
     down = _running(e, ry, 0, np.maximum, work, tmp)
     report(progress, 0.5)
-    d = _running(down, rx, 1, np.maximum, work)
+    d = _running_banded(down, rx, 1, np.maximum, work)
     if has_nodata:
         d[np.isneginf(d)] = np.nan
     return d
@@ -556,7 +586,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
 
-def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
+def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
@@ -565,18 +595,21 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M):
     square window it holds). The object size is the width below which 98 % of the object
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the filter.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     res = filter_morphological(z, cell, mode="progressive", max_object_size_m=search_m,
-                               dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope)
+                               dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope,
+                               progress=sub_progress(progress, 0.0, 0.9))
     obj = res.mask == OBJECT
     if not obj.any():
         return float("nan")
     lab, n = ndimage.label(obj)
     dist = ndimage.distance_transform_edt(obj, sampling=(cell[1], cell[0]))
-    width = 2.0 * ndimage.maximum(dist, lab, index=np.arange(1, n + 1))
-    area = ndimage.sum_labels(obj, lab, index=np.arange(1, n + 1))
+    lab_obj = lab[obj]                         # per object, over its own cells only (no sort of the
+    width = 2.0 * ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))   # whole grid)
+    area = np.bincount(lab_obj, minlength=n + 1)[1:].astype(np.float64)
     order = np.argsort(width)
     cum = np.cumsum(area[order]) / area.sum()
     w = float(width[order][np.searchsorted(cum, 0.98)])
@@ -587,7 +620,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  mode: str = "auto", max_object_size_m: Optional[float] = None,
                                  dh_m: Optional[float] = None, slope: Optional[float] = None,
                                  slope_scale_m: float = 1.25, window_growth: float = 2.0,
-                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, **_ignored) -> dict:
+                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, progress=None, **_ignored) -> dict:
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the noise of the DSM's ground-level cells
@@ -609,7 +642,8 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
 
     Large rasters are reduced to block minima of at most a million cells for the slope
     and the object size; the noise is measured at full resolution on windows spread over
-    the raster (:func:`~bare_earth.core.estimate.sample_windows`).
+    the raster (:func:`~bare_earth.core.estimate.sample_windows`). ``progress(fraction)``
+    (optional, may raise ``Cancelled``) from inside the estimates.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -620,11 +654,12 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                 low_outlier_slope=low_outlier_slope))
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
     zs = block_minima(z, k)
+    report(progress, 0.1)
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
                low_outlier_slope=low_outlier_slope)
-    gn = noise_ground_level(z, cell)             # full resolution, on the ground-level cells
+    gn = noise_ground_level(z, cell, progress=sub_progress(progress, 0.1, 0.4))  # full resolution, ground level
     noise = gn["sigma"]
     out["noise_m"] = noise
     if dh_m is None:
@@ -641,6 +676,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         out["dh_source"] = "given"
     s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0)
     s90 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 90.0)
+    report(progress, 0.45)
     out["terrain_slope_p50"], out["terrain_slope_p90"] = s50, s90
     if slope is None:
         out["slope"] = float(min(_MAX_SLOPE, max(_MIN_SLOPE, s50 if np.isfinite(s50) else 0.0)))
@@ -653,7 +689,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     else:
         out["slope_source"] = "given"
     if max_object_size_m is None:
-        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"])
+        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0))
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
             out["max_object_size_source"] = (

@@ -23,7 +23,7 @@ import numpy as np
 from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
-from .methods import Method, available_methods, check_values, get_method
+from .methods import Method, available_methods, check_values, get_method, takes_progress
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
 #: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
@@ -35,8 +35,16 @@ RESOLVE_SIDE = 4096
 STRIPS_PER_PROCESS = 2
 #: Share of a block's progress the filter takes (the rest is the DTM's gap filling).
 FILTER_SHARE = 0.85
-#: The part of run_file's progress before the blocks start (parameters derived).
-RESOLVED = 0.03
+#: Share of a block's progress in run_file before its outputs are written (the rest: writing).
+COMPUTE_SHARE = 0.95
+#: The part of run_file's progress before the blocks start: the parameters derived (on a
+#: 16 Mcells raster that takes a third of the run or more; larger rasters are derived from a
+#: window of RESOLVE_SIDE^2 cells, so less).
+RESOLVED = 0.1
+#: The share of that part taken by reading the window the parameters come from.
+READ_SHARE = 0.2
+#: Rows read between two progress reports while reading that window.
+READ_ROWS = 1024
 
 
 @dataclass
@@ -85,12 +93,26 @@ def warm_up_worker():
 
 
 def resolve_params(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
-                   params: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-    """All parameters of ``method`` for surface ``z``, data-derived ones filled in."""
+                   params: Optional[Dict[str, Any]] = None, progress: Progress = None) -> Dict[str, Any]:
+    """All parameters of ``method`` for surface ``z``, data-derived ones filled in.
+
+    ``progress(fraction)`` (optional) is fed by the method's estimates while they run; it
+    may raise :class:`~.common.Cancelled`, which stops the derivation there.
+    """
     meth = as_method(method)
     z, _ = without_far_heights(as_surface(z))
     cell = as_cell_size(cell_size)
-    return meth.resolve(z, cell, **complete_params(meth, params))
+    return _resolve(meth, z, cell, complete_params(meth, params), progress)
+
+
+def _resolve(meth, z, cell, params, progress):
+    """``meth.resolve`` given ``progress`` when it takes one (else reported when done)."""
+    if progress is not None and takes_progress(meth.resolve):
+        out = meth.resolve(z, cell, progress=progress, **params)
+    else:
+        out = meth.resolve(z, cell, **params)
+    report(progress, 1.0)
+    return out
 
 
 def fill_dtm(z, mask, progress=None):
@@ -210,9 +232,8 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {z.shape}: "
                              "rasterise it on the DSM's grid.")
     t0 = time.perf_counter()
-    params = meth.resolve(z, cell, **complete_params(meth, params))
+    params = _resolve(meth, z, cell, complete_params(meth, params), sub_progress(progress, 0.0, 0.02))
     halo = int(meth.halo(params, cell))
-    report(progress, 0.02)
     mask = np.full(z.shape, NODATA, np.uint8)
     dtm = np.full(z.shape, np.nan, np.float32)
     extras = {}
@@ -370,13 +391,29 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
             pool.shutdown(wait=False)
 
 
+def _read_reporting(info, window, progress):
+    """``info.read(window)`` in bands of :data:`READ_ROWS` rows, reporting after each."""
+    r0, r1, c0, c1 = window
+    if progress is None or r1 - r0 <= READ_ROWS:
+        z = info.read(window)
+    else:
+        z = np.empty((r1 - r0, c1 - c0), np.float32)
+        for a in range(r0, r1, READ_ROWS):
+            b = min(a + READ_ROWS, r1)
+            z[a - r0:b - r0] = info.read((a, b, c0, c1))
+            report(progress, (b - r0) / (r1 - r0))
+    report(progress, 1.0)
+    return z
+
+
 def _derive_params(info, run):
     """The complete parameters (from a central window, or the whole raster when it fits in
-    one) and the raster itself when it was read whole (else None); logs what it did."""
+    one) and the raster itself when it was read whole (else None); logs what it did.
+    Reports progress on ``run.progress``'s [0, RESOLVED] while reading and deriving."""
     # The window the parameters come from also proves the raster has data (a full scan only
     # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
-    zr = info.read(rw)
+    zr = _read_reporting(info, rw, sub_progress(run.progress, 0.0, READ_SHARE * RESOLVED))
     if not np.isfinite(zr).any():
         grid.check_has_data(info)  # raises ValueError when no cell is valid
         zr = info.read()
@@ -384,7 +421,8 @@ def _derive_params(info, run):
         run.log("Warning: " + w)
     for note in info.notes:
         run.log(note)
-    params = run.meth.resolve(zr, info.cell_size_m, **run.params)
+    params = _resolve(run.meth, zr, info.cell_size_m, run.params,
+                      sub_progress(run.progress, READ_SHARE * RESOLVED, RESOLVED))
     whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
     if whole is None:
         run.log(f"Parameters derived from the central {rw[1] - rw[0]} x {rw[3] - rw[2]} cells.")
@@ -432,13 +470,15 @@ class _BlockWriter:
         self.counts, self.infos, self.weights = {}, [], []
         self.far_cells = 0
 
-    def __call__(self, core, outer, result):
+    def __call__(self, core, outer, result, progress=None):
         m, d, zc, res_extras, res_info, n_far = result
         h, w = core[1] - core[0], core[3] - core[2]
         with self.io_lock:
             _write_block(self.out, self.meth, core, m, d, zc, self.scale, self.float_nodata, res_extras, h, w)
+            report(progress, 0.3)
             if self.flush:
-                self.out.flush()   # compress now, while the other windows are being filtered
+                self.out.flush(sub_progress(progress, 0.3, 1.0))  # compress now, while others are filtered
+            report(progress, 1.0)
             for k, v in _code_counts(m).items():
                 self.counts[k] = self.counts.get(k, 0) + v
             if res_info is not None:
@@ -477,10 +517,11 @@ def _run_file(info, run, pool):
                     with writer.io_lock:
                         zb, n_far = job.read(core, outer)
                 writer(core, outer, job.compute(core, outer, _aux_window(run.aux, outer), zb, n_far,
-                                                block_progress))
+                                                sub_progress(block_progress, 0.0, COMPUTE_SHARE)),
+                       progress=sub_progress(block_progress, COMPUTE_SHARE, 1.0))
 
             blocks.run_windows(work, windows, workers=run.workers, progress=progress)
-        out.commit()
+        out.commit(progress=sub_progress(run.progress, 0.97, 1.0))
     far = info.far_cells if whole is not None else writer.far_cells
     warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
     if far and whole is None:

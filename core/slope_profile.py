@@ -266,11 +266,23 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     # per source: its array, direction, slice of the step buffer, and length
     spans = [(a, rev, v[o0:o1], a.shape[0]) for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:])]
     n_min = min(n for *_, n in spans)
+    # Once the trailing sources have ended, the steps work on the profiles before them only
+    # (a strip's Y profiles end before its X profiles: a third less work there).
+    ends = np.zeros(npos, np.intp)                 # per step: the end of the last running source
+    for (a, _), o1 in zip(sources, offs[1:]):
+        np.maximum(ends[:a.shape[0]], o1, out=ends[:a.shape[0]])
+    ends = ends.tolist()
+    state = (v, dz, thr, up, ok, k, g) + ((thr1,) if two_lines else ())
+    views, end = state, nprof
     # As few numpy calls per step as possible: each is short, and with blocks in threads
     # every call is a hand-over of the GIL.
     for i in range(npos):
         if progress is not None and i % _REPORT_STEPS == 0:
             report(progress, i / npos)
+        if ends[i] != end:
+            end = ends[i]
+            views = tuple(x[:end] for x in state)
+        vw, dzw, thrw, upw, okw, kw, gw = views[:7]
         if i < n_min:                                  # every source still runs: one copy
             np.concatenate([a[n - 1 - i] if rev else a[i] for a, rev, _, n in spans], out=v)
         else:
@@ -279,18 +291,19 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
                     vv[...] = a[n - 1 - i] if rev else a[i]
                 elif i == n:
                     vv[...] = np.nan                   # a shorter profile set has ended
-        np.subtract(v, g, out=dz)
-        np.greater(dz, thr, out=up)                    # rejected (NaN compares False)
-        np.less_equal(dz, thr, out=ok)                 # accepted: valid and not rejected
-        k += up                                        # a nodata cell does not count: a gap does
-        np.copyto(k, 0.0, where=ok)                    # not let the reference drift up a roof
-        np.copyto(g, v, where=ok)
-        np.multiply(k, b2, out=thr)                    # the next step's tolerance
-        thr += a2
+        np.subtract(vw, gw, out=dzw)
+        np.greater(dzw, thrw, out=upw)                 # rejected (NaN compares False)
+        np.less_equal(dzw, thrw, out=okw)              # accepted: valid and not rejected
+        kw += upw                                      # a nodata cell does not count: a gap does
+        np.copyto(kw, 0.0, where=okw)                  # not let the reference drift up a roof
+        np.copyto(gw, vw, where=okw)
+        np.multiply(kw, b2, out=thrw)                  # the next step's tolerance
+        thrw += a2
         if two_lines:
-            np.multiply(k, b1, out=thr1)
-            thr1 += a1
-            pick(thr, thr1, out=thr)
+            thr1w = views[7]
+            np.multiply(kw, b1, out=thr1w)
+            thr1w += a1
+            pick(thrw, thr1w, out=thrw)
         for buf, n, o0, o1 in writes:
             if i < n:
                 buf[i] = up[o0:o1]
@@ -549,12 +562,13 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     valid = np.isfinite(z)
     # 1. low blunders (a drop then a rise): class 2, left out of the scans
     low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
-    low = below_surroundings(z, cell, tolerance_m, candidates=low)  # below all the ground around: not a gap
+    low = below_surroundings(z, cell, tolerance_m, candidates=low,  # below all the ground around: not a gap
+                             progress=sub_progress(progress, 0.05, 0.07))
     zs = np.where(low, np.float32(np.nan), z)
     # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
     init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,
                                         sample_spacing_cells)
-    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.05, 0.7))
+    obj_x, obj_y = scan_profiles(zs, cell, tan_g, tan_t, dh_eff, init, edge, sub_progress(progress, 0.07, 0.7))
     del zs
     # 3. X and Y combined by connected objects
     obj = _combine_axes(obj_x, obj_y, valid & ~low, (init[1], init[0]), sub_progress(progress, 0.7, 0.8))
@@ -574,7 +588,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
                                  max_object_size_m: float = 100.0, edge_length_m: float = 1.0,
                                  sample_spacing_cells: Optional[float] = None, refine: bool = False,
-                                 slope_factor: float = 1.25) -> dict:
+                                 slope_factor: float = 1.25, progress=None) -> dict:
     """Complete the parameters, deriving the missing ones from the data.
 
     * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
@@ -593,6 +607,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       (:func:`estimate_sample_spacing`); the edge test spans it.
 
     Measured on the seven ISPRS samples under ``benchmarks/isprs.py`` (see the README).
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the estimates.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -604,11 +619,13 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
         terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
                                 _MAX_ALPHA_T)
+    report(progress, 0.3)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
     if tolerance_m is None:
-        sigma = noise_ground_level(z, cell)["sigma"]
+        sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
+    report(progress, 0.8)
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
     out = {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),

@@ -198,7 +198,8 @@ def _ground_bends(zs, cell_size, window, model):
     return v
 
 
-def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic") -> float:
+def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic",
+               progress=None) -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
     The bends r and t of the X and Y profile trends (quadratic model) or the normalised
@@ -213,13 +214,18 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
     window so that noise-free data do not mark every gentle bend. (1.5 rather than a
     stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
-    missed breaks cost whole objects.)
+    missed breaks cost whole objects.) ``progress(fraction)`` (optional, may raise
+    ``Cancelled``) after each window.
     """
     dx, dy = as_cell_size(cell_size)
     window = check_window(window)
     model = check_model(model)
-    bends = [_ground_bends(w, (dx, dy), window, model) for w in sample_windows(as_surface(z))]
-    sigma = ground_spread(bends, tile=_TILE, quantile=_SMOOTH_QUANTILE)
+    windows = sample_windows(as_surface(z))
+    bends = []
+    for i, w in enumerate(windows):
+        bends.append(_ground_bends(w, (dx, dy), window, model))
+        report(progress, 0.6 * (i + 1) / len(windows))
+    sigma = ground_spread(bends, tile=_TILE, quantile=_SMOOTH_QUANTILE, progress=sub_progress(progress, 0.6, 1.0))
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
@@ -230,23 +236,25 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                              window_cells: int = 5, model: str = "quadratic",
                              min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
                              max_object_size_m: float = 100.0,
-                             tolerance_m: Optional[float] = None) -> dict:
+                             tolerance_m: Optional[float] = None, progress=None) -> dict:
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
     ground, squared). ``tolerance_m``: three times the noise of the DSM's ground-level
     cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
     [0.3, 1.0] m; 0.5 m when too few ground cells are seen. The others have
-    fixed defaults (see :data:`METHOD`).
+    fixed defaults (see :data:`METHOD`). ``progress(fraction)`` (optional, may raise
+    ``Cancelled``) from inside the estimates.
     """
     z = bounded_heights(as_surface(z))
     dx, dy = as_cell_size(cell_size)
     window_cells = check_window(window_cells)
     model = check_model(model)
     if k_g_per_m2 is None:
-        k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model)
+        k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model,
+                                progress=sub_progress(progress, 0.0, 0.75))
     if tolerance_m is None:
-        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 1.0))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),

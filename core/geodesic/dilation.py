@@ -12,7 +12,6 @@ from ..common import report, sub_progress
 from .grey import (
     S8,
     block_reduce,
-    expand_blocks,
     fill_nodata,
     grey_opening,
     inner_cells,
@@ -46,7 +45,55 @@ def coarse_factor(size):
 
 
 
-def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, progress=None):
+def coarse_grids(w, valid, jump, factors):
+    """The coarse grids of the steps: for every factor ``f`` in ``factors`` (powers of 2),
+    the block minima and maxima of ``w`` (nodata ignored; ``inf`` / ``-inf`` where a block
+    holds none) and the block maxima of ``jump``, over ``f`` x ``f`` blocks aligned on the
+    array's origin. Each level is reduced from the previous one (a block of ``2f`` is four
+    blocks of ``f``: the same cells, so the same extremes as reducing the raster itself).
+
+    Returns
+    -------
+    dict
+        ``{f: (zmin, zmax, jump_c)}``.
+    """
+    out = {}
+    zmin = zmax = jc = None
+    f = 1
+    for target in sorted(set(factors) - {1}):
+        while f < target:
+            if f == 1:
+                zmin = block_reduce(fill_nodata(w, valid, np.inf), 2, np.minimum, np.inf)
+                zmax = block_reduce(fill_nodata(w, valid, -np.inf), 2, np.maximum, -np.inf)
+                jc = block_reduce(jump, 2, np.maximum, False)
+            else:
+                zmin = block_reduce(zmin, 2, np.minimum, np.inf)
+                zmax = block_reduce(zmax, 2, np.maximum, -np.inf)
+                jc = block_reduce(jc, 2, np.maximum, False)
+            f *= 2
+        out[f] = (zmin, zmax, jc)
+    return out
+
+
+def _fine_cells(blocks, f, coarse_width, shape):
+    """Flat indices of the fine cells of the coarse cells ``blocks`` (flat indices on a grid
+    ``coarse_width`` wide, blocks of ``f`` x ``f`` cropped to ``shape``), block by block, and
+    for each its block's position in ``blocks``."""
+    H, W = shape
+    rb, cb = np.divmod(blocks, coarse_width)
+    k = np.arange(f)
+    rr = rb[:, None] * f + k
+    cc = cb[:, None] * f + k
+    flat = (rr * W)[:, :, None] + cc[:, None, :]
+    owner = np.repeat(np.arange(blocks.size), f * f)
+    if H % f or W % f:
+        ok = ((rr < H)[:, :, None] & (cc < W)[:, None, :]).ravel()
+        return flat.ravel()[ok], owner[ok]
+    return flat.ravel(), owner
+
+
+def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, progress=None,
+                  grids=None):
     """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
@@ -62,12 +109,17 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     ``progress(fraction)`` is called between the sub-steps and during the
     reconstruction (it may raise :class:`~bare_earth.core.common.Cancelled`).
 
+    Parameters
+    ----------
+    grids : dict, optional
+        :func:`coarse_grids` of ``w`` (computed here when a coarse step needs one).
+
     Returns
     -------
+    cells : ndarray of intp
+        Flat indices of the cells removed by this step.
     R : ndarray
-        ``R_k`` at full resolution (NaN at nodata).
-    obj : ndarray of bool
-        Cells removed by this step.
+        ``R_k`` at those cells (the reconstruction, under ``w`` there).
     """
     H, W = w.shape
     size = window_cells(s, dx, dy)
@@ -77,9 +129,11 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         zmin = zmax = w
         vc = valid
         size_c = size
+        jump_c = jump
     else:
-        zmin = block_reduce(fill_nodata(w, valid, np.inf), f, np.minimum, np.inf)
-        zmax = block_reduce(fill_nodata(w, valid, -np.inf), f, np.maximum, -np.inf)
+        if grids is None or f not in grids:
+            grids = coarse_grids(w, valid, jump, [f])
+        zmin, zmax, jump_c = grids[f]
         vc = np.isfinite(zmin)
         size_c = window_cells(s, dx * f, dy * f)
     report(progress, 0.1)
@@ -93,46 +147,59 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         with np.errstate(invalid="ignore"):
             snap = (mask_c - marker) < NOISE_SNAP * dh0
         np.copyto(marker, mask_c, where=snap)
+        del snap
     reach = max(size_c) * RECON_REACH
     Rc = reconstruct_by_dilation(marker, mask_c, max_iter=max(1, int(round(reach))),
                                  progress=sub_progress(progress, 0.25, 0.7))
+    del marker
     with np.errstate(invalid="ignore"):
         dc = zmax - Rc
         cand = vc & (dc > dh0)
-    obj_c = np.zeros(cand.shape, bool)
-    if cand.any():
-        lab, n = ndimage.label(cand, S8)
-        report(progress, 0.75)
-        rim = cand & ~inner_cells(cand)
-        # the raster's edge ends the data, it is not the region's border: no evidence
-        rim[0, :] = rim[-1, :] = False
-        rim[:, 0] = rim[:, -1] = False
-        # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
-        # than the terrain can rise over one (diagonal) cell, plus 2 dh0
-        # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
-        abrupt = jump if f == 1 else block_reduce(jump, f, np.maximum, False)
-        abrupt = abrupt & (dc >= 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
-        dmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, dc, rim, abrupt)
-        report(progress, 0.85)
-        dh_k = dh0 + tan_s * s * BUMP_FRACTION
-        keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
-                & (ext_r * f * dy <= ext_limit) & (ext_c * f * dx <= ext_limit))
-        keep[0] = False
-        obj_c = keep[lab]
+    none = np.zeros(0, np.intp)
+    if not cand.any():
+        report(progress, 0.9)
+        return none, Rc.ravel()[none]
+    lab, n = ndimage.label(cand, S8)
+    report(progress, 0.75)
+    # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
+    # than the terrain can rise over one (diagonal) cell, plus 2 dh0
+    # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
+    idx, lab_c, dmax, rim_frac, ext_r, ext_c = _component_stats(
+        lab, n, cand, dc, inner_cells(cand), jump_c, 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
+    del lab
+    report(progress, 0.85)
+    dh_k = dh0 + tan_s * s * BUMP_FRACTION
+    keep = ((dmax > dh_k) & (rim_frac >= edge_ratio)
+            & (ext_r * f * dy <= ext_limit) & (ext_c * f * dx <= ext_limit))
+    keep[0] = False
+    obj_c = idx[keep[lab_c]]                      # the coarse cells of object regions
     report(progress, 0.9)
+    Rcf = Rc.ravel()
     if f == 1:
-        return Rc, obj_c
-    R = np.fmin(expand_blocks(Rc, f, w.shape), wmask)
+        return obj_c, Rcf[obj_c]
+    # a fine cell of an object block is removed when its own residual exceeds dh0; there
+    # R_k = min(w, Rc) = Rc of its block
+    cells, owner = _fine_cells(obj_c, f, Rc.shape[1], w.shape)
+    Rk = Rcf[obj_c][owner]
     report(progress, 0.95)
     with np.errstate(invalid="ignore"):
-        obj = expand_blocks(obj_c, f, w.shape) & (w - R > dh0)
-    return R, obj
+        sel = (w.ravel()[cells] - Rk) > dh0
+    return cells[sel], Rk[sel]
 
 
-def _component_stats(lab, n, sel, values, rim, flag):
-    """Per-label max of ``values``, fraction of ``rim`` cells where ``flag``, bbox extents.
+def _component_stats(lab, n, sel, values, inner, flag, flag_min):
+    """Per-label statistics of the cells of ``sel`` (labelled ``lab``, ``n`` labels).
 
-    Returns arrays indexed by label (0 unused).
+    A cell is on its region's *rim* when it is not ``inner`` (a neighbour is outside the
+    region) and not on the raster's edge (the edge ends the data, it is no border). A rim
+    cell is *abrupt* when ``flag`` holds there and ``values >= flag_min``.
+
+    Returns
+    -------
+    idx, lab_c : ndarray
+        Flat indices of the cells of ``sel`` and their labels.
+    vmax, rim_mean, ext_r, ext_c : ndarray, indexed by label (0 unused)
+        Max of ``values``; share of rim cells that are abrupt; bounding-box rows, columns.
     """
     idx = np.flatnonzero(sel)
     lab_c = lab.ravel()[idx]
@@ -141,22 +208,22 @@ def _component_stats(lab, n, sel, values, rim, flag):
     ls = lab_c[order]
     starts = np.r_[0, np.flatnonzero(np.diff(ls)) + 1]
     present = ls[starts]
-    W = lab.shape[1]
-    rows, cols = np.divmod(idx[order], W)
+    H, W = lab.shape
+    rows, cols = np.divmod(idx, W)
     vmax = np.full(n + 1, -np.inf)
     vmax[present] = np.maximum.reduceat(v[order], starts)
     ext_r = np.zeros(n + 1, np.int64)
     ext_c = np.zeros(n + 1, np.int64)
-    ext_r[present] = np.maximum.reduceat(rows, starts) - np.minimum.reduceat(rows, starts) + 1
+    ro, co = rows[order], cols[order]
+    ext_r[present] = np.maximum.reduceat(ro, starts) - np.minimum.reduceat(ro, starts) + 1
     # columns are not sorted within a label: min/max of columns via reduceat too
-    ext_c[present] = np.maximum.reduceat(cols, starts) - np.minimum.reduceat(cols, starts) + 1
-    r = rim.ravel()[idx].astype(np.float64)
+    ext_c[present] = np.maximum.reduceat(co, starts) - np.minimum.reduceat(co, starts) + 1
+    rim = ~inner.ravel()[idx] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
+    r = rim.astype(np.float64)
     rim_n = np.bincount(lab_c, weights=r, minlength=n + 1)
-    rim_s = np.bincount(lab_c, weights=r * flag.ravel()[idx], minlength=n + 1)
+    rim_s = np.bincount(lab_c, weights=r * (flag.ravel()[idx] & (v >= flag_min)), minlength=n + 1)
     rim_mean = np.divide(rim_s, rim_n, out=np.zeros(n + 1), where=rim_n > 0)
-    return vmax, rim_mean, ext_r, ext_c
-
-
+    return idx, lab_c, vmax, rim_mean, ext_r, ext_c
 
 
 def wall_cells(w, valid, cell_size, dh0, tan_s):
@@ -192,17 +259,21 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     removed = np.zeros(w.shape, bool)
     ext_limit = EXTENT_FACTOR * sizes[-1]
     jump = wall_cells(w, valid, cell_size, dh0, tan_s)
+    H, W = w.shape
+    factors = [coarse_factor((min(c[0], 2 * H + 1), min(c[1], 2 * W + 1)))
+               for c in (window_cells(s, dx, dy) for s in sizes)]
+    grids = coarse_grids(w, valid, jump, factors)
     report(progress, 0.02)
     counts = []
+    rf, sf, cf = removed.ravel(), step.ravel(), cleaned.ravel()
     for k, s in enumerate(sizes, start=1):
         part = sub_progress(progress, 0.02 + 0.98 * (k - 1) / len(sizes), 0.02 + 0.98 * k / len(sizes))
-        R, obj = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part)
-        new = obj & ~removed
-        removed |= obj
-        new &= step == 0                          # outliers keep their own code
-        step[new] = k
+        cells, R = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part, grids)
+        new = ~rf[cells] & (sf[cells] == 0)       # outliers keep their own code
+        rf[cells] = True
+        sf[cells[new]] = k
         report(part, 0.98)
-        np.minimum(cleaned, R, out=cleaned, where=obj)
+        cf[cells] = np.minimum(cf[cells], R)
         counts.append(int(np.count_nonzero(new)))
         report(part, 1.0)
     return removed, cleaned, counts

@@ -1,40 +1,159 @@
 """Grey morphology of the geodesic filter: running min/max, openings and closings that
-ignore nodata, block reduction and expansion, and the morphological reconstruction by
-dilation (Vincent 1993) with a bounded geodesic reach.
+ignore nodata, block reduction, and the morphological reconstruction by dilation
+(Vincent 1993) with a bounded geodesic reach.
 
 Every function here works on whole arrays (separable passes of contiguous slices); the
-filter's stages (:mod:`.dilation`, :mod:`.scan`, :mod:`.filter`) call them.
+3 x 3 and 5 x 5 windows and the reconstruction's dense passes run band by band on the flat
+arrays, so each pass reads and writes a raster-sized array about once (memory traffic, not
+arithmetic, limits them). The filter's stages (:mod:`.dilation`, :mod:`.scan`,
+:mod:`.filter`) call them.
 """
 import numpy as np
 
 from ..common import report
 
-#: The reconstruction leaves its dense passes once fewer than 1/this of the box change.
+#: The reconstruction leaves its dense passes once fewer than 1/this of their cells change.
 FRONTIER_RATIO = 256
 #: 8-connectivity structure for ``ndimage.label``.
 S8 = np.ones((3, 3), bool)
+#: Bytes of one band of rows in the banded 3 x 3 passes (a band and its few work rows stay
+#: in the L2 cache, so a pass reads and writes each raster-sized array once).
+BAND_BYTES = 1 << 18
 
 
-def _max3(a, connectivity):
-    """3x3 (8-connected) or cross (4-connected) maximum of a padded array's interior."""
-    c = a[1:-1, 1:-1]
-    if connectivity == 8:
-        r = np.maximum(np.maximum(a[:, :-2], a[:, 1:-1]), a[:, 2:])
-        return np.maximum(np.maximum(r[:-2], r[1:-1]), r[2:])
-    out = np.maximum(c, a[:-2, 1:-1])
-    np.maximum(out, a[2:, 1:-1], out=out)
-    np.maximum(out, a[1:-1, :-2], out=out)
-    np.maximum(out, a[1:-1, 2:], out=out)
+def _band_rows(width, itemsize):
+    """Rows per band of a raster ``width`` cells wide (at least 4)."""
+    return max(4, BAND_BYTES // max(1, int(width) * int(itemsize)))
+
+
+def _neutral(op, pad, dtype):
+    """True when ``pad`` never changes ``op`` (outside cells then need no handling)."""
+    return ((op is np.minimum and pad == np.inf) or (op is np.maximum and pad == -np.inf)
+            or (np.dtype(dtype).kind == "b" and pad == (op is np.minimum)))
+
+
+def _run3_rows(src, op, out):
+    """``out[r, c] = op(src[r, c - 1], src[r, c], src[r, c + 1])`` over the cells that exist.
+
+    ``src`` and ``out`` are distinct C-contiguous 2-D arrays of at least 2 columns. The two
+    passes run on the flat arrays (contiguous, vectorised); they mix the last cell of a row
+    with the first of the next, so the first and last columns are recomputed after.
+    """
+    sf, of = src.ravel(), out.ravel()
+    op(sf[:-1], sf[1:], out=of[:-1])
+    op(of[1:], sf[:-1], out=of[1:])
+    op(src[:, 0], src[:, 1], out=out[:, 0])
+    op(src[:, -1], src[:, -2], out=out[:, -1])
+
+
+def filter3x3(a, op, pad, out=None):
+    """``op`` (np.minimum / np.maximum) over the 3 x 3 window of every cell, cells outside
+    the array counting as ``pad``: the same values as ``rect_filter(a, (3, 3), op, pad)``
+    (min and max select one of the window's values; NaN anywhere in it gives NaN either way).
+
+    Banded: the row pass of a band of rows (and the two rows around it) is kept in a buffer
+    that stays in the cache, so the array is read once and ``out`` written once.
+
+    Parameters
+    ----------
+    a : ndarray, 2-D, at least 2 x 2
+    op : np.minimum or np.maximum
+    pad : scalar
+    out : ndarray, optional
+        Same shape and dtype as ``a``, not ``a`` itself.
+    """
+    a = np.ascontiguousarray(a)
+    H, W = a.shape
+    if out is None:
+        out = np.empty_like(a)
+    B = _band_rows(W, a.itemsize)
+    hb = np.empty((B + 2, W), a.dtype)
+    for r0 in range(0, H, B):
+        r1 = min(H, r0 + B)
+        lo, hi = max(0, r0 - 1), min(H, r1 + 1)
+        h = hb[:hi - lo]
+        _run3_rows(a[lo:hi], op, h)
+        o, i0, n = out[r0:r1], r0 - lo, r1 - r0
+        nd = min(n, H - 1 - r0)                   # rows of the band with a row below
+        op(h[i0:i0 + nd], h[i0 + 1:i0 + 1 + nd], out=o[:nd])
+        if nd < n:
+            o[nd:] = h[i0 + nd:i0 + n]
+        u = 1 if r0 == 0 else 0                   # rows of the band with a row above
+        op(o[u:], h[i0 - 1 + u:i0 - 1 + n], out=o[u:])
+    if not _neutral(op, pad, a.dtype):
+        for edge in (out[0], out[-1], out[:, 0], out[:, -1]):
+            op(edge, pad, out=edge)
     return out
+
+
+class _DenseWork:
+    """Buffers of the dense passes of :func:`reconstruct_by_dilation`, and the pass."""
+
+    def __init__(self, H, W2, dtype):
+        self.W2 = W2
+        self.B = _band_rows(W2, np.dtype(dtype).itemsize)
+        self.hb = np.empty((self.B + 2) * W2, dtype)      # row maxima of a band and its 2 rows
+        self.new = np.empty(self.B * W2, dtype)
+        self.changed = np.zeros((H + 2) * W2, bool)        # cells changed by the last pass
+
+    def _row_max(self, Rbuf, first, last, out, connectivity):
+        """Running max over 3 cells along the padded rows ``first..last`` (8-connectivity),
+        or the rows themselves (4-connectivity), into ``out`` (flat)."""
+        s, e = first * self.W2, (last + 1) * self.W2
+        o = out[:e - s]
+        if connectivity == 8:                    # Rbuf[k + 1] is cell k: guards at both ends
+            np.maximum(Rbuf[s:e], Rbuf[s + 1:e + 1], out=o)
+            np.maximum(o, Rbuf[s + 2:e + 2], out=o)
+        else:
+            o[...] = Rbuf[s + 1:e + 1]
+
+    def dilate(self, Rbuf, Pf, rows, connectivity):
+        """One elementary geodesic dilation of the padded rows ``rows`` (inclusive) of ``R``,
+        in place, band by band (Jacobi: every new value from the old ones; the row maxima of
+        the two rows above a band are carried over from the previous band, computed before
+        it was written). Pad cells stay ``-inf`` (``P`` is ``-inf`` there). Returns the
+        number of changed cells and the padded rows that changed."""
+        W2, B, hb = self.W2, self.B, self.hb
+        Rf = Rbuf[1:-1]
+        r0, r1 = rows
+        self._row_max(Rbuf, r0 - 1, r0, hb, connectivity)
+        n_ch, changed_rows = 0, []
+        for a in range(r0, r1 + 1, B):
+            b = min(r1 + 1, a + B)               # band rows a .. b-1; row maxima of a-1 .. b
+            n = b - a
+            self._row_max(Rbuf, a + 1, b, hb[2 * W2:], connectivity)
+            new = self.new[:n * W2]
+            if connectivity == 8:
+                np.maximum(hb[:n * W2], hb[W2:(n + 1) * W2], out=new)
+                np.maximum(new, hb[2 * W2:(n + 2) * W2], out=new)
+            else:                                # the cross: vertical neighbours, and the row's
+                np.maximum(hb[:n * W2], hb[2 * W2:(n + 2) * W2], out=new)
+                np.maximum(new, Rbuf[a * W2:b * W2], out=new)
+                np.maximum(new, Rbuf[a * W2 + 2:b * W2 + 2], out=new)
+                np.maximum(new, hb[W2:(n + 1) * W2], out=new)
+            np.minimum(new, Pf[a * W2:b * W2], out=new)
+            old = Rf[a * W2:b * W2]
+            ch = self.changed[a * W2:b * W2]
+            np.greater(new, old, out=ch)         # new >= old everywhere
+            k = np.count_nonzero(ch)
+            if k:
+                n_ch += k
+                old[...] = new
+                changed_rows.append(np.flatnonzero(ch.reshape(n, W2).any(axis=1)) + a)
+            hb[:2 * W2] = hb[n * W2:(n + 2) * W2]
+        return n_ch, (np.concatenate(changed_rows) if changed_rows else None)
 
 
 def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None, progress=None):
     """Morphological reconstruction by dilation of ``marker`` under ``mask``.
 
     ``R = sup_n delta^(n)(marker)`` where ``delta(f) = min(dilate_3x3(f), mask)`` is the
-    elementary geodesic dilation (Vincent 1993). The iteration runs on the bounding box
-    of the cells that changed, and on the 8 (4) neighbours of the changed cells only once
-    they are few (a vectorised frontier), so it stops early where nothing changes.
+    elementary geodesic dilation (Vincent 1993). The iteration runs on the rows between
+    the first and the last that changed (dense passes, band by band: Jacobi, every new
+    value from the previous iteration's), and on the 8 (4) neighbours of the changed cells
+    only once they are few (a vectorised frontier), so it stops early where nothing
+    changes. Each iteration is one exact elementary dilation, so ``max_iter`` is the
+    geodesic reach whichever way it runs.
 
     Parameters
     ----------
@@ -76,8 +195,14 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None, prog
         dtype = np.float64
     H, W = mask.shape
     W2 = W + 2
-    P = np.empty((H + 2, W2), dtype)              # padded with -inf: nothing outside
-    R = np.empty((H + 2, W2), dtype)
+    N = (H + 2) * W2
+    # R and P padded with -inf (nothing outside); R's flat buffer has one more guard cell
+    # at each end, so the banded row passes read one cell before and after any row range
+    Rbuf = np.empty(N + 2, dtype)
+    Rbuf[0] = Rbuf[-1] = -np.inf
+    Rf = Rbuf[1:-1]
+    R = Rf.reshape(H + 2, W2)
+    P = np.empty((H + 2, W2), dtype)
     for a in (P, R):
         a[0], a[-1], a[:, 0], a[:, -1] = -np.inf, -np.inf, -np.inf, -np.inf
     Pi, Ri = P[1:-1, 1:-1], R[1:-1, 1:-1]
@@ -90,51 +215,31 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None, prog
     nan_seed = np.isnan(Ri)
     if nan_seed.any():
         Ri[nan_seed] = -np.inf
-    Rf, Pf = R.ravel(), P.ravel()
+    Pf = P.ravel()
     if connectivity == 8:
         offs = np.array([-W2 - 1, -W2, -W2 + 1, -1, 1, W2 - 1, W2, W2 + 1], np.intp)
     else:
         offs = np.array([-W2, -1, 1, W2], np.intp)
-    box = (1, H, 1, W)          # inclusive interior bounds (padded coordinates)
+    rows = (1, H)               # inclusive interior rows of the dense passes (padded coordinates)
     frontier = None
     stamp = None
-    bufs = None
+    work = None
     it = 0
     while max_iter is None or it < max_iter:
         if progress is not None and (frontier is None or it % 16 == 0):
             report(progress, it / max_iter if max_iter else it / (it + 64.0))
         it += 1
-        if frontier is None:                      # dense pass on the bounding box
-            r0, r1, c0, c1 = box
-            h, w = r1 - r0 + 1, c1 - c0 + 1
-            sub = R[r0 - 1:r1 + 2, c0 - 1:c1 + 2]
-            if bufs is None:                      # reused buffers: no allocation per pass
-                bufs = (np.empty((h + 2, w), dtype), np.empty((h, w), dtype),
-                        np.empty((h, w), bool))
-            new, ch = bufs[1][:h, :w], bufs[2][:h, :w]
-            if connectivity == 8:
-                rb = bufs[0][:h + 2, :w]
-                np.maximum(sub[:, :-2], sub[:, 1:-1], out=rb)
-                np.maximum(rb, sub[:, 2:], out=rb)
-                np.maximum(rb[:-2], rb[1:-1], out=new)
-                np.maximum(new, rb[2:], out=new)
-            else:
-                new[...] = _max3(sub, connectivity)
-            np.minimum(new, P[r0:r1 + 1, c0:c1 + 1], out=new)
-            old = R[r0:r1 + 1, c0:c1 + 1]
-            np.greater(new, old, out=ch)          # new >= old everywhere
-            n_ch = np.count_nonzero(ch)
+        if frontier is None:                      # dense pass on the rows that may change
+            if work is None:                      # reused buffers: no allocation per pass
+                work = _DenseWork(H, W2, dtype)
+            n_ch, changed_rows = work.dilate(Rbuf, Pf, rows, connectivity)
             if n_ch == 0:
                 break
-            old[...] = new
-            if n_ch * FRONTIER_RATIO < (r1 - r0 + 1) * (c1 - c0 + 1):
-                rr, cc = np.nonzero(ch)
-                frontier = (rr + r0) * W2 + (cc + c0)
-            elif n_ch * 2 < h * w:                # shrink the box to the changes
-                rows = np.flatnonzero(ch.any(axis=1))
-                cols = np.flatnonzero(ch.any(axis=0))
-                box = (max(rows[0] + r0 - 1, 1), min(rows[-1] + r0 + 1, H),
-                       max(cols[0] + c0 - 1, 1), min(cols[-1] + c0 + 1, W))
+            r0, r1 = rows
+            if n_ch * FRONTIER_RATIO < (r1 - r0 + 1) * W:
+                frontier = np.flatnonzero(work.changed[r0 * W2:(r1 + 1) * W2]) + r0 * W2
+            elif n_ch * 2 < (r1 - r0 + 1) * W:    # shrink the rows to the changes
+                rows = (max(changed_rows[0] - 1, 1), min(changed_rows[-1] + 1, H))
         else:                                     # sparse pass on the frontier
             nb = (frontier[:, None] + offs).ravel()
             if stamp is None:
@@ -153,9 +258,8 @@ def reconstruct_by_dilation(marker, mask, *, connectivity=8, max_iter=None, prog
                 break
             Rf[frontier] = new[ch]
             if frontier.size * 32 > H * W:
-                rr, cc = np.divmod(frontier, W2)
-                box = (max(rr.min() - 1, 1), min(rr.max() + 1, H),
-                       max(cc.min() - 1, 1), min(cc.max() + 1, W))
+                rr = frontier // W2
+                rows = (max(rr.min() - 1, 1), min(rr.max() + 1, H))
                 frontier = None
     if has_nodata:
         Ri[nodata] = np.nan
@@ -206,7 +310,14 @@ def running_extreme(a, size, axis, op, pad):
 
 
 def rect_filter(a, size, op, pad):
-    """Separable running ``op`` over a ``size = (rows, cols)`` rectangle."""
+    """Separable running ``op`` over a ``size = (rows, cols)`` rectangle.
+
+    3 x 3 and 5 x 5 windows (every full-resolution window of the filter) run as one or two
+    banded :func:`filter3x3` passes (a 5-cell window is a 3-cell window of the 3-cell
+    windows; cells outside count as ``pad`` either way)."""
+    if a.ndim == 2 and min(a.shape) >= 2 and tuple(size) in ((3, 3), (5, 5)):
+        out = filter3x3(a, op, pad)
+        return out if tuple(size) == (3, 3) else filter3x3(out, op, pad)
     return running_extreme(running_extreme(a, size[1], 1, op, pad), size[0], 0, op, pad)
 
 
@@ -264,14 +375,3 @@ def block_reduce(a, f, op, fill):
     while a.shape[1] > Wc:
         a = op(a[:, 0::2], a[:, 1::2])
     return a
-
-
-def expand_blocks(c, f, shape):
-    """Nearest expansion of a coarse grid by ``f``, cropped to ``shape``."""
-    if f == 1:
-        return c
-    Hc, Wc = c.shape
-    out = np.empty((Hc, f, Wc, f), c.dtype)
-    out[...] = c[:, None, :, None]
-    return out.reshape(Hc * f, Wc * f)[:shape[0], :shape[1]]
-

@@ -11,12 +11,12 @@ OUTLIER_MAX_CELLS = 16
 
 
 def _small_clusters(cand):
-    """Cells of ``cand`` in 8-connected clusters of at most :data:`OUTLIER_MAX_CELLS`."""
+    """Flat indices of the cells of ``cand`` in 8-connected clusters of at most
+    :data:`OUTLIER_MAX_CELLS` (sizes counted on the candidates only: they are few)."""
     lab, n = ndimage.label(cand, S8)
-    size = np.bincount(lab.ravel(), minlength=n + 1)
-    small = size <= OUTLIER_MAX_CELLS
-    small[0] = False
-    return small[lab]
+    idx = np.flatnonzero(cand)
+    lab_c = lab.ravel()[idx]
+    return idx[np.bincount(lab_c, minlength=n + 1)[lab_c] <= OUTLIER_MAX_CELLS]
 
 
 def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):
@@ -47,22 +47,24 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     n_low, n_high : int
     """
     win = window_cells(width_m, cell_size[0], cell_size[1])
-    w = np.where(valid, z, np.float32(np.nan))
+    w = z.copy() if vnone is None else np.where(valid, z, np.float32(np.nan))
     clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3))
     report(progress, 0.3)
     ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
     with np.errstate(invalid="ignore"):
-        low_c = valid & (clo - z > threshold_m)
-        high_c = valid & (z - ope > threshold_m)
+        low_c = clo - z > threshold_m             # NaN (nodata) compares False
+        high_c = z - ope > threshold_m
+    if vnone is not None:
+        low_c &= valid
+        high_c &= valid
     report(progress, 0.7)
     counts = []
     for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
-        sel = _small_clusters(cand) if cand.any() else None
-        counts.append(0 if sel is None else int(sel.sum()))
-        if sel is not None:
-            mask[sel] = code
-            outlier |= sel
-            w[sel] = repl[sel]
+        sel = _small_clusters(cand) if cand.any() else np.zeros(0, np.intp)
+        counts.append(int(sel.size))
+        mask.ravel()[sel] = code
+        outlier.ravel()[sel] = True
+        w.ravel()[sel] = repl.ravel()[sel]
         report(progress, 0.85 if code == LOW else 1.0)
     return w, counts[0], counts[1]

@@ -4,7 +4,7 @@ from typing import Tuple, Union
 
 import numpy as np
 
-from ..common import as_cell_size, as_surface
+from ..common import as_cell_size, as_surface, report, sub_progress
 from ..estimate import block_minima, noise_ground_level
 from ..methods import Param, check_values
 from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
@@ -79,7 +79,8 @@ def _terrain_slope_deg(z, dx, dy, max_size_m):
                          *SLOPE_CLIP_DEG))
 
 
-def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], **params) -> dict:
+def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], progress=None,
+                            **params) -> dict:
     """Complete the parameters of :func:`filter_geodesic`, deriving ``None`` from the data.
 
     * ``height_threshold_m`` (dh0): ``max(0.5, 3 sigma)`` (at most its Param's maximum) with ``sigma`` the robust noise
@@ -91,6 +92,8 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
       window on a ~4 m grid (objects gone), clipped to [12, 22] degrees: it is the slope
       *tolerated* by the wall and rise tests, and on the ISPRS samples a tolerance above
       ~25 degrees lets walls on hillsides pass as terrain (see :data:`SLOPE_CLIP_DEG`).
+
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the estimates.
 
     Raises
     ------
@@ -107,11 +110,12 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
     p.update({k: v for k, v in params.items() if v is not None})
     check_params(p)
     if p["height_threshold_m"] is None:
-        sigma = noise_ground_level(z, (dx, dy))["sigma"]
+        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.6))["sigma"]
         dh0 = max(0.5, NOISE_K * sigma) if np.isfinite(sigma) else 0.5
         p["height_threshold_m"] = round(min(dh0, _MAXIMUM["height_threshold_m"]), 3)
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
+    report(progress, 0.6)
     if p["terrain_slope_deg"] is None:
         p["terrain_slope_deg"] = round(_terrain_slope_deg(z, dx, dy, p["max_object_size_m"]), 2)
     check_params(p)

@@ -1,60 +1,93 @@
 """Stage 3 of the geodesic filter: scan labelling along rows and columns."""
 import numpy as np
 
-from ..common import as_cell_size, as_surface, report
+from ..common import as_cell_size, as_surface, report, transpose
 from .grey import rect_filter
 
 #: Scan labelling passes run by the filter.
 SCAN_PASSES = 2
 
 
-def _scan_axis(a, axis, t_jump, height_m, max_cells, has_nan=True):
-    """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`).
+#: Edges per chunk of the event pass (the chunk's differences stay in the cache).
+_CHUNK = 1 << 16
 
-    Works on the events only: the edges between neighbours that rise, fall or touch
-    nodata are listed profile by profile; a rise followed directly by a fall on the same
-    profile, at most ``max_cells`` apart, bounds a run, whose cells are then generated
-    and tested against the run's base line, all vectorised.
+
+def _events(a, axis, t_jump, has_nan):
+    """The edges between neighbours along ``axis`` that rise or fall by more than
+    ``t_jump`` or touch nodata (when ``has_nan``), profile by profile.
+
+    The differences are taken chunk by chunk on the flat array (an edge ``e`` joins the cell
+    ``e`` and the next one along the axis); columns' events are listed in column order
+    through the transposed event array (a bool array: a quarter of the surface's bytes).
+
+    Returns
+    -------
+    line, pos : ndarray of intp
+        Profile (row or column) and position along it of the cell before each edge, sorted
+        by profile then position.
     """
-    out = np.zeros(a.shape, bool)
-    if a.shape[axis] < 3:
-        return out
-    dz = np.diff(a, axis=axis)                    # edge j: between cells j and j+1
+    H, W = a.shape
+    af = a.ravel()
+    step = 1 if axis == 1 else W
+    n = af.size - step
+    ev = np.empty(n, bool)
+    buf = np.empty(min(n, _CHUNK), af.dtype)
     with np.errstate(invalid="ignore"):
-        rise = dz > t_jump
-        fall = dz < -t_jump
-    ev = rise | fall
-    if has_nan:
-        ev |= np.isnan(dz)                        # nodata breaks runs
-    if axis == 0:                                 # events profile by profile (columns)
-        c, r = np.nonzero(ev.T)
-        line, pos = c, r
-    else:
-        r, c = np.nonzero(ev)
-        line, pos = r, c
-    if r.size < 2:
-        return out
-    is_rise, is_fall = rise[r, c], fall[r, c]
+        for s in range(0, n, _CHUNK):
+            e = min(n, s + _CHUNK)
+            d = buf[:e - s]
+            np.subtract(af[s + step:e + step], af[s:e], out=d)
+            np.abs(d, out=d)
+            if has_nan:                           # nodata breaks runs
+                np.less_equal(d, t_jump, out=ev[s:e])
+                np.logical_not(ev[s:e], out=ev[s:e])
+            else:
+                np.greater(d, t_jump, out=ev[s:e])
+    if axis == 1:
+        ev[W - 1::W] = False                      # a row's last cell and the next row's first
+        return np.divmod(np.flatnonzero(ev), W)
+    return np.divmod(np.flatnonzero(transpose(ev.reshape(H - 1, W))), H - 1)
+
+
+def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True):
+    """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`): flat indices of the
+    labelled cells.
+
+    Works on the events only (:func:`_events`): a rise followed directly by a fall on the
+    same profile, at most ``max_cells`` apart, bounds a run, whose cells are then
+    generated and tested against the run's base line, all vectorised.
+    """
+    none = np.zeros(0, np.intp)
+    H, W = a.shape
+    if a.shape[axis] < 3:
+        return none
+    line, pos = _events(a, axis, t_jump, has_nan)
+    if line.size < 2:
+        return none
+    # flat index of cell p on profile l: l * fl + p * fp
+    fl, fp = (W, 1) if axis == 1 else (1, W)
+    af = a.ravel()
+    at = line * fl + pos * fp
+    d = af[at + fp] - af[at]                      # the events' height steps
+    del at
+    with np.errstate(invalid="ignore"):
+        is_rise, is_fall = d > t_jump, d < -t_jump
     pair = ((line[:-1] == line[1:]) & is_rise[:-1] & is_fall[1:]
             & (pos[1:] - pos[:-1] <= max_cells))
     k = np.flatnonzero(pair)
     if k.size == 0:
-        return out
+        return none
     jl, jr, ln = pos[k], pos[k + 1], line[k]     # rise edge, fall edge, profile
     n_run = jr - jl                               # cells jl+1 .. jr
-    # flat index of cell p on profile l, and the step between neighbours on a profile
-    W = a.shape[1]
-    first, stride = (ln * W, 1) if axis == 1 else (ln, W)
-    af = a.ravel()
-    base_l = af[first + jl * stride]              # the cell before the rise
-    slope = (af[first + (jr + 1) * stride] - base_l) / (n_run + 1).astype(np.float32)
+    first = ln * fl
+    base_l = af[first + jl * fp]                  # the cell before the rise
+    slope = (af[first + (jr + 1) * fp] - base_l) / (n_run + 1).astype(np.float32)
     start = np.cumsum(n_run) - n_run
     off = np.arange(int(n_run.sum()), dtype=n_run.dtype) - np.repeat(start, n_run) + 1
-    flat = np.repeat(first + jl * stride, n_run) + off * stride
+    flat = np.repeat(first + jl * fp, n_run) + off * fp
     base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * off
     keep = (af[flat] - base) > height_m
-    out.ravel()[flat[keep]] = True
-    return out
+    return flat[keep]
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
@@ -125,17 +158,23 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     has_nan = bool(np.isnan(a).any())
     n = int(passes)
     for i in range(n):
-        lr = _scan_axis(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
+        lr = _scan_runs(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
         report(progress, (i + 0.35) / n)
-        lc = _scan_axis(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
+        lc = _scan_runs(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
         report(progress, (i + 0.7) / n)
-        new = (lr | lc) & ~labelled & allowed
-        if not new.any():
+        new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
+        del lr, lc
+        new = new[~labelled.ravel()[new] & allowed.ravel()[new]]
+        if new.size == 0:
             break
-        labelled |= new
+        labelled.ravel()[new] = True
         report(progress, (i + 0.8) / n)
-        # lower the labelled cells to the surrounding level for the next pass
-        low = rect_filter(np.where(np.isnan(a), np.inf, a), (3, 3), np.minimum, np.inf)
-        a = np.where(new, np.minimum(a, low), a)
+        if i + 1 < n:
+            # lower the labelled cells to the surrounding level (3 x 3 minimum, nodata
+            # ignored) for the next pass
+            low = rect_filter(np.where(np.isnan(a), np.inf, a) if has_nan else a, (3, 3), np.minimum, np.inf)
+            af = a.ravel()
+            af[new] = np.minimum(af[new], low.ravel()[new])
+            del low
         report(progress, (i + 1.0) / n)
     return labelled

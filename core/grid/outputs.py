@@ -14,6 +14,7 @@ import uuid
 import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
+from ..common import Cancelled, report, sub_progress
 from .read import OUTPUT_TILE, gdal, need_gdal, osr
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
@@ -356,37 +357,56 @@ class OutputSet:
         for k in range(a.shape[0]):
             item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
 
-    def flush(self):
+    def flush(self, progress=None):
         """Compress and write every block written so far (GDAL's threads do the work).
 
         Called after each finished window of a multi-window run, so the compression of
         the first windows overlaps the filtering of the later ones instead of all coming
         at :meth:`commit`. Windows must cover whole output tiles (256 x 256), or a tile
-        flushed half-written is written twice.
+        flushed half-written is written twice. ``progress(fraction)`` (optional, may raise
+        ``Cancelled``) after each output.
         """
-        for item in self._items.values():
+        for i, item in enumerate(self._items.values()):
             item["ds"].FlushCache()
+            report(progress, (i + 1) / len(self._items))
 
-    def commit(self):
+    def commit(self, progress=None):
         """Close the work files and move (or copy into the output's format) them to their
-        final paths; a ``.qml`` style beside each mask."""
-        for item in self._items.values():
+        final paths; a ``.qml`` style beside each mask.
+
+        ``progress(fraction)`` (optional) after each file is flushed and while copies are
+        made; it may raise ``Cancelled`` until the first output is moved into place (then
+        the work files and copies are removed as for :meth:`discard`, nothing is left).
+        """
+        items = list(self._items.values())
+        n = max(1, len(items))
+        for i, item in enumerate(items):
             item["ds"].FlushCache()
             item["ds"] = None
-        for item in self._items.values():
-            work, path = item["tmp"], item["path"]
+            report(progress, 0.5 * (i + 1) / n)
+        moves = []
+        for i, item in enumerate(items):
+            work = item["tmp"]
             if item["driver"] == "GTiff" and not self._cog:
                 files = [work] + [work + ".aux.xml"] * os.path.exists(work + ".aux.xml")
-                _move_dataset(files, work, work, path)
+                moves.append((files, work))
             else:
-                self._copy(item)
+                moves.append(self._copy(item, sub_progress(progress, 0.5 + 0.5 * i / n,
+                                                           0.5 + 0.5 * (i + 1) / n)))
+        report(progress, 1.0)             # the last point a cancel stops at: the outputs move now
+        for item, (files, tmp_main) in zip(items, moves):
+            work, path = item["tmp"], item["path"]
+            _move_dataset(files, tmp_main, work, path)
+            if tmp_main != work:
+                _remove_work(work)
             _LIVE.discard(work)
             if item["mask_style"]:
                 write_mask_qml(os.path.splitext(path)[0] + ".qml")
         self._committed = True
 
-    def _copy(self, item):
-        """Copy a finished work file into its output's format, then move the copy into place."""
+    def _copy(self, item, progress=None):
+        """Copy a finished work file into its output's format beside it (the copy's files
+        are named after the work file until they are moved); returns ``(files, main file)``."""
         work, path, drv = item["tmp"], item["path"], item["driver"]
         cog = drv == "GTiff" and self._cog
         ext = os.path.splitext(path)[1] or ".tif"
@@ -396,17 +416,32 @@ class OutputSet:
             opts = _merge_options(opts, self._options)
         else:
             opts = []
+        stopped = []
+
+        def callback(fraction, _message, _data):
+            try:
+                report(progress, fraction)
+            except Cancelled as exc:
+                stopped.append(exc)
+                return 0
+            return 1
+
         try:
             src = gdal.Open(work)
-            out = gdal.GetDriverByName("COG" if cog else drv).CreateCopy(tmp_main, src, options=opts)
+            out = gdal.GetDriverByName("COG" if cog else drv).CreateCopy(tmp_main, src, options=opts,
+                                                                          callback=callback)
+            if out is None:
+                raise RuntimeError("the copy was stopped")
             out.FlushCache()
             files = out.GetFileList() or [tmp_main]
             out = src = None
         except RuntimeError as exc:
+            out = src = None
             _remove_work(work)
+            if stopped:
+                raise stopped[0] from None
             raise ValueError(f"cannot write the output {path!r} as {drv}: {exc}") from None
-        _move_dataset(files, tmp_main, work, path)
-        _remove_work(work)
+        return files, tmp_main
 
     def discard(self):
         """Remove every work file (nothing is left that looks like a result)."""

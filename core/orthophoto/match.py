@@ -9,7 +9,11 @@ displacement with the highest normalised cross-correlation (NCC) is the parallax
   ``a, b, a^2, b^2, ab``), NaN cells excluded from the sums;
 * optional *shiftable windows* (the best NCC over the windows containing the cell), which
   keeps object edges sharp;
-* a left-right consistency check from the same NCC volume (the best shift seen from A and
+* the volume of NCC over all shifts is never held: its planes come one shift at a time and
+  running winners (maximum and first index, as ``argmax``) are kept seen from A, seen from B
+  and for the symmetric anchor (with the neighbouring planes of its peak), so memory does
+  not grow with the search range;
+* a left-right consistency check from the same NCC planes (the best shift seen from A and
   the best shift seen from B must agree), a correlation threshold, and rejection of peaks
   at the end of the search range;
 * sub-pixel refinement by a parabola through the NCC peak, and for orthophotos optionally
@@ -91,7 +95,37 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=Non
     -------
     ndarray of float32, (len(shifts), rows, cols)
         NCC in [-1, 1]; ``-2`` where it could not be computed (too few valid cells, no texture).
+        The matchers do not hold this volume: they take its planes one shift at a time.
     """
+    a, b = _check_pair(a, b)
+    vol = np.empty((len(shifts),) + a.shape, np.float32)
+    for k, plane in enumerate(_ncc_planes(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill,
+                                          var_floor=var_floor)):
+        vol[k] = plane
+    return vol
+
+
+def _max_filter_nearest(x, size):
+    """``ndimage.maximum_filter(x, size, mode="nearest")`` of a 2-D array by shifted maxima.
+
+    The same values (a maximum is exact), three to four times faster for the small sizes of
+    the shiftable windows: per axis, the edge-padded array and ``size - 1`` in-place maxima.
+    """
+    h = int(size) // 2
+    out = x
+    for ax in (0, 1):
+        n = out.shape[ax]
+        xp = np.pad(out, [(h, h) if a == ax else (0, 0) for a in (0, 1)], mode="edge")
+        take = (lambda t: xp[t:t + n]) if ax == 0 else (lambda t: xp[:, t:t + n])  # noqa: B023
+        o = take(0).copy()
+        for t in range(1, 2 * h + 1):
+            np.maximum(o, take(t), out=o)
+        out = o
+    return out
+
+
+def _ncc_planes(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=None):
+    """The planes of :func:`ncc_volume`, one shift at a time (a generator: no volume held)."""
     a, b = _check_pair(a, b)
     window = _check_window(window)
     va = np.isfinite(a)
@@ -103,34 +137,39 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=Non
         gv = float(np.var(a0[va])) if va.any() else 0.0
         var_floor = max(gv * 1e-4, 1e-12)
     box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
-    vol = np.empty((len(shifts),) + a.shape, np.float32)
     if min_fill >= 1.0:
-        _ncc_full_windows(vol, a0, b0, va, vb, shifts, window, box, var_floor)
-    for k, s in enumerate(shifts):
-        if min_fill < 1.0:
-            bs = _shift_cols(b0, int(s), 0.0)
-            w = (va & _shift_cols(vb, int(s), False)).astype(np.float32)
-            n = box(w)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inv = 1.0 / np.maximum(n, 1e-6)
-                aw = a0 * w
-                bw = bs * w
-                ma = box(aw) * inv
-                mb = box(bw) * inv
-                vara = box(aw * a0) * inv - ma * ma
-                varb = box(bw * bs) * inv - mb * mb
-                cov = box(aw * bs) * inv - ma * mb
-                ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
-            ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
-            vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        planes = _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor)
+    else:
+        planes = _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill)
+    for plane in planes:
         if shiftable and shiftable > 1:
-            ok = vol[k] > _BAD
-            vol[k] = np.where(ok, ndimage.maximum_filter(vol[k], int(shiftable), mode="nearest"), _BAD)
-    return vol
+            plane = np.where(plane > _BAD, _max_filter_nearest(plane, int(shiftable)), _BAD).astype(
+                np.float32, copy=False)
+        yield plane
 
 
-def _ncc_full_windows(vol, a0, b0, va, vb, shifts, window, box, var_floor):
-    """NCC where both windows are complete (``min_fill = 1``): one box filter per shift.
+def _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill):
+    """NCC planes over the valid cell pairs of each window (at least ``min_fill`` of it)."""
+    for s in shifts:
+        bs = _shift_cols(b0, int(s), 0.0)
+        w = (va & _shift_cols(vb, int(s), False)).astype(np.float32)
+        n = box(w)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.maximum(n, 1e-6)
+            aw = a0 * w
+            bw = bs * w
+            ma = box(aw) * inv
+            mb = box(bw) * inv
+            vara = box(aw * a0) * inv - ma * ma
+            varb = box(bw * bs) * inv - mb * mb
+            cov = box(aw * bs) * inv - ma * mb
+            ncc = cov / np.sqrt(np.maximum(vara * varb, 1e-30))
+        ok = (n >= min_fill) & (vara > var_floor) & (varb > var_floor) & va
+        yield np.where(ok, np.clip(ncc, -1, 1), _BAD).astype(np.float32, copy=False)
+
+
+def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
+    """NCC planes where both windows are complete (``min_fill = 1``): one box filter per shift.
 
     With every cell of both windows valid, the means and variances of ``a`` are one box
     filter for all shifts and those of ``b`` shift with ``b``; only the cross term
@@ -146,38 +185,33 @@ def _ncc_full_windows(vol, a0, b0, va, vb, shifts, window, box, var_floor):
     ok_b = full_b & (varb > var_floor)
     sa = np.sqrt(np.maximum(vara, 0))
     sb = np.sqrt(np.maximum(varb, 0))
-    for k, s in enumerate(shifts):
+    n = a0.shape[1]
+    prod = np.zeros_like(a0)
+    for s in shifts:
         s = int(s)
-        cov = box(a0 * _shift_cols(b0, s, 0.0)) - ma * _shift_cols(mb, s, 0.0)
+        plane = np.full(a0.shape, _BAD, np.float32)
+        if abs(s) >= n:
+            yield plane
+            continue
+        ja, jb = (slice(0, n - s), slice(s, n)) if s >= 0 else (slice(-s, n), slice(0, n + s))
+        jo = slice(n - s, n) if s >= 0 else slice(0, -s)
+        # a(j) b(j + s) with b = 0 beyond its edge: the same sums as the shifted copy of b
+        np.multiply(a0[:, ja], b0[:, jb], out=prod[:, ja])
+        prod[:, jo] = 0.0
+        cov = box(prod)[:, ja] - ma[:, ja] * mb[:, jb]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ncc = cov / np.maximum(sa * _shift_cols(sb, s, 0.0), 1e-15)
-        ok = ok_a & _shift_cols(ok_b, s, False)
-        vol[k] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+            ncc = cov / np.maximum(sa[:, ja] * sb[:, jb], 1e-15)
+        ok = ok_a[:, ja] & ok_b[:, jb]
+        plane[:, ja] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        yield plane
 
 
-def _parabola(vol, k, rows, cols):
-    """Sub-pixel offset of the NCC peak at index ``k`` by a parabola through k-1, k, k+1."""
-    K = vol.shape[0]
-    km = np.clip(k - 1, 0, K - 1)
-    kp = np.clip(k + 1, 0, K - 1)
-    c0 = vol[k, rows, cols]
-    cm = vol[km, rows, cols]
-    cp = vol[kp, rows, cols]
+def _parabola_offset(c0, cm, cp):
+    """Sub-pixel offset of an NCC peak ``c0`` by a parabola through its neighbours ``cm``, ``cp``."""
     den = cm - 2 * c0 + cp
     with np.errstate(divide="ignore", invalid="ignore"):
         off = np.where((den < 0) & (cm > _BAD) & (cp > _BAD), 0.5 * (cm - cp) / den, 0.0)
     return np.clip(off, -0.5, 0.5)
-
-
-def _argmax_vol(vol):
-    k = np.argmax(vol, axis=0)
-    rows, cols = np.indices(k.shape)
-    return k, vol[k, rows, cols], rows, cols
-
-
-def _anchored_b(vol, shifts):
-    """Volume re-anchored on ``b``: ``W[s, y] = V[s, y - s]``."""
-    return np.stack([_shift_cols(vol[k], -int(s), _BAD) for k, s in enumerate(shifts)])
 
 
 def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_corr=0.3,
@@ -213,12 +247,22 @@ def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_cor
     if d_max < d_min:
         raise ValueError(f"d_max ({d_max}) must be >= d_min ({d_min}).")
     shifts = np.arange(-d_max, -d_min + 1)            # b column = j + s = j - d
-    vol = ncc_volume(left, right, shifts, window, shiftable=shiftable, min_fill=min_fill)
-    k, c, rr, cc = _argmax_vol(vol)
-    s = shifts[k] + _parabola(vol, k, rr, cc)
+    cols = left.shape[1]
+    win_a = _RunningBest(left.shape, neighbours=True)       # left-anchored, with the peak's neighbours
+    win_b = _RunningBest(left.shape)                        # right-anchored: V[s, y - s]
+    for k, plane in enumerate(_ncc_planes(left, right, shifts, window, shiftable=shiftable, min_fill=min_fill)):
+        win_a.offer(k, plane)
+        sk = int(shifts[k])
+        if sk >= 0:
+            win_b.offer_cols(k, plane[:, :cols - sk], sk, cols)
+        else:
+            win_b.offer_cols(k, plane[:, -sk:], 0, cols + sk)
+    win_a.finish()
+    k, c = win_a.k, win_a.best
+    rr, cc = np.indices(k.shape)
+    s = shifts[k] + _parabola_offset(c, win_a.before, win_a.after)
     # right-anchored winner: for right column y the left column is y - s
-    kb = np.argmax(_anchored_b(vol, shifts), axis=0)
-    sb = shifts[kb].astype(np.float32)
+    sb = shifts[win_b.k].astype(np.float32)
     target = np.clip(np.rint(cc + shifts[k]), 0, left.shape[1] - 1).astype(int)
     lr_ok = np.abs(sb[rr, target] - shifts[k]) <= lr_tolerance
     valid = (c > _BAD) & (c >= min_corr) & lr_ok
@@ -237,17 +281,22 @@ def _sample_rows(images, valid, cols):
     draws on are valid and it lies inside the row (the shift of the matcher is along rows,
     so this is the 1-D case of ``map_coordinates(order=1)``, several times faster).
     """
-    n = valid.shape[1]
+    rows, n = valid.shape
     c = np.clip(cols, 0, n - 1)
     j0 = np.floor(c).astype(np.intp)
     f = (c - j0).astype(np.float32)
     j1 = np.minimum(j0 + 1, n - 1)
+    base = (np.arange(rows, dtype=np.intp) * n)[:, None]
+    i0, i1 = (base + j0).ravel(), (base + j1).ravel()    # flat indices: one gather per array
+    shape = j0.shape
     out = []
     for img in images:
-        v0 = np.take_along_axis(img, j0, axis=1)
-        v1 = np.take_along_axis(img, j1, axis=1)
+        flat = img.reshape(-1)
+        v0 = flat.take(i0).reshape(shape)
+        v1 = flat.take(i1).reshape(shape)
         out.append(v0 + f * (v1 - v0))
-    ok = (np.take_along_axis(valid, j0, axis=1) & (np.take_along_axis(valid, j1, axis=1) | (f < 1e-3))
+    vflat = valid.reshape(-1)
+    ok = (vflat.take(i0).reshape(shape) & (vflat.take(i1).reshape(shape) | (f < 1e-3))
           & (cols >= -1e-3) & (cols <= n - 1 + 1e-3))
     return out, ok
 
@@ -288,21 +337,22 @@ def _lsm_refine(a, b, s, valid, window, iterations):
         s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
 
 
-#: Largest NCC volume (shifts x cells) held at once; bigger inputs are matched in row strips.
-MAX_VOLUME = 40_000_000
+#: Largest number of cells matched at once; bigger inputs are matched in row strips. The NCC
+#: volume is never held (its planes are taken one shift at a time), so the working set is
+#: about twenty float32 planes of a strip whatever the search range.
+MAX_CELLS = 4_000_000
 
 
 def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
-                          lsm_iterations, min_fill, max_volume=None):
+                          lsm_iterations, min_fill, max_cells=None):
     """Row strips of :func:`_match_rows_once` (identical result: strips overlap by the reach)."""
-    max_volume = MAX_VOLUME if max_volume is None else max_volume
+    max_cells = MAX_CELLS if max_cells is None else max_cells
     rows, cols = a.shape
-    nshift = 2 * max_shift + 1
     va = np.isfinite(a)
     gv = float(np.var(a[va])) if va.any() else 0.0
     var_floor = max(gv * 1e-4, 1e-12)
     args = (max_shift, window, shiftable, min_corr, lr_tolerance, lsm_iterations, min_fill, var_floor)
-    strip = max(1, int(max_volume // max(1, nshift * cols)))
+    strip = max(1, int(max_cells // max(1, cols)))
     if strip >= rows:
         return _match_rows_once(a, b, *args)
     names = ("disparity", "corr", "reason", "peak_ok", "residual", "energy")
@@ -321,28 +371,84 @@ def _match_symmetric_rows(a, b, max_shift, window, shiftable, min_corr, lr_toler
     return out
 
 
+class _RunningBest:
+    """Running maximum and its first index over planes offered one at a time (``np.argmax``).
+
+    ``offer(k, plane, lo, hi)`` offers ``plane`` for columns ``lo:hi`` (the other columns
+    hold ``_BAD`` there, which never beats the start value ``_BAD``); ties keep the first.
+    With ``neighbours``, the plane values at ``k - 1`` and ``k + 1`` of the winner are kept
+    too (clipped at the ends of the range, as the parabola of the peak needs them).
+    """
+
+    def __init__(self, shape, neighbours=False):
+        self.best = np.full(shape, _BAD, np.float32)
+        self.k = np.zeros(shape, np.intp)
+        self.neighbours = neighbours
+        if neighbours:
+            self.before = np.empty(shape, np.float32)
+            self.after = np.empty(shape, np.float32)
+            self.prev = None
+
+    def offer(self, k, plane):
+        upd = plane > self.best
+        np.copyto(self.best, plane, where=upd)
+        np.copyto(self.k, k, where=upd)
+        if self.neighbours:
+            if k == 0:
+                self.before[...] = plane
+            else:
+                np.copyto(self.after, plane, where=self.k == k - 1)
+                np.copyto(self.before, self.prev, where=upd)
+            self.prev, self.last = plane, k
+
+    def offer_cols(self, k, plane, lo, hi):
+        view = self.best[:, lo:hi]
+        upd = plane > view
+        np.copyto(view, plane, where=upd)
+        np.copyto(self.k[:, lo:hi], k, where=upd)
+
+    def finish(self):
+        if self.neighbours and self.prev is not None:
+            np.copyto(self.after, self.prev, where=self.k == self.last)
+        return self
+
+
 def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
                      lsm_iterations, min_fill, var_floor):
-    """Symmetric matching along rows: disparity ``s`` at cell j means a(j - s/2) ~ b(j + s/2)."""
+    """Symmetric matching along rows: disparity ``s`` at cell j means a(j - s/2) ~ b(j + s/2).
+
+    The NCC planes are taken one shift at a time and three running winners kept (seen from
+    ``a``, from ``b`` and from the symmetric anchor, with the neighbouring planes of that
+    peak): the volume is never held, the result is the one of the argmax over it.
+    """
     shifts = np.arange(-max_shift, max_shift + 1)
-    vol = ncc_volume(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill,
-                     var_floor=var_floor)
     rows, cols = a.shape
     rr, cc = np.indices(a.shape)
-    ka = np.argmax(vol, axis=0)                                   # a-anchored winner
-    kb = np.argmax(_anchored_b(vol, shifts), axis=0)              # b-anchored winner
-    # symmetric anchor: S[s, m] = V[s, m - floor(s/2)]
-    sym = np.stack([_shift_cols(vol[k], -int(np.floor(s / 2)), _BAD) for k, s in enumerate(shifts)])
-    k = np.argmax(sym, axis=0)
-    c = sym[k, rr, cc]
+    win_a = _RunningBest(a.shape)                     # a-anchored: V[s, j]
+    win_b = _RunningBest(a.shape)                     # b-anchored: V[s, y - s]
+    win_s = _RunningBest(a.shape, neighbours=True)    # symmetric: V[s, m - floor(s/2)]
+    for k, plane in enumerate(_ncc_planes(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill,
+                                          var_floor=var_floor)):
+        s = int(shifts[k])
+        win_a.offer(k, plane)
+        if abs(s) >= cols:
+            pass                                      # no cell of b is seen at this shift
+        elif s >= 0:
+            win_b.offer_cols(k, plane[:, :cols - s], s, cols)
+        else:
+            win_b.offer_cols(k, plane[:, -s:], 0, cols + s)
+        win_s.offer(k, _shift_cols(plane, -int(np.floor(s / 2)), _BAD))
+    win_s.finish()
+    ka, kb, k = win_a.k, win_b.k, win_s.k
+    c = win_s.best
     si = shifts[k]
-    s = si + _parabola(sym, k, rr, cc)
+    # parabola through the peak and its neighbours (k - 1, k + 1, clipped at the ends)
+    cm, cp = win_s.before, win_s.after
+    s = si + _parabola_offset(c, cm, cp)
     # a distinct peak: the NCC falls to the neighbouring shifts by more than the sampling
     # sd of an NCC of n cells at that level, (1 - c^2) / sqrt(n) (Fisher)
-    km, kp = np.clip(k - 1, 0, len(shifts) - 1), np.clip(k + 1, 0, len(shifts) - 1)
-    drop = c - 0.5 * (sym[km, rr, cc] + sym[kp, rr, cc])
+    drop = c - 0.5 * (cm + cp)
     peak_ok = drop >= (1.0 - np.minimum(c * c, 1.0)) / window
-    del sym
     ja = np.clip(cc - np.floor(si / 2).astype(int), 0, cols - 1)
     jb = np.clip(cc + np.ceil(si / 2).astype(int), 0, cols - 1)
     lr_ok = ((np.abs(shifts[ka[rr, ja]] - si) <= lr_tolerance)

@@ -20,6 +20,7 @@ module keeps the corrections consistent with their neighbours and with each othe
 * :func:`spread_corrections`: the same, fading to 0 away from the measurements (no step in
   the DEM where the measurements end).
 """
+import functools
 import math
 import warnings
 
@@ -28,7 +29,7 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
-__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "remove_blunders", "merge_pairs",
+__all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
            "ground_trend", "object_mask"]
 
@@ -88,14 +89,51 @@ def spread_corrections(dh, valid, sigma_cells):
     return np.where(ok, z, mean * fade).astype(np.float32)
 
 
-def _stack(x, r0, r1, size):
-    """The ``size x size`` neighbourhoods of rows ``r0:r1`` of ``x`` on the last axis (NaN outside)."""
-    h = size // 2
-    rows, cols = x.shape
-    pad = np.full((r1 - r0 + 2 * h, cols + 2 * h), np.nan, np.float32)
-    s0, s1 = max(0, r0 - h), min(rows, r1 + h)
-    pad[s0 - (r0 - h):s1 - (r0 - h), h:h + cols] = x[s0:s1]
-    return np.stack([pad[i:i + r1 - r0, j:j + cols] for i in range(size) for j in range(size)], axis=-1)
+def _batcher_pairs(n):
+    """Comparators of Batcher's odd-even merge sort of ``n`` wires (a power of two), in order."""
+    pairs = []
+    p = 1
+    while p < n:
+        k = p
+        while k >= 1:
+            for j in range(k % p, n - k, 2 * k):
+                for i in range(min(k, n - j - k)):
+                    if (i + j) // (2 * p) == (i + j + k) // (2 * p):
+                        pairs.append((i + j, i + j + k))
+            k //= 2
+        p *= 2
+    return pairs
+
+
+@functools.lru_cache(maxsize=None)
+def _selection_network(n, rank):
+    """The comparators of a sorting network of ``n`` values that the ``rank``-th output needs.
+
+    Batcher's network on the next power of two (the extra wires hold +inf, which never
+    moves down, so their comparators are dropped), pruned backwards to the comparators
+    whose outputs reach wire ``rank``. Each entry is ``(i, j, need_low, need_high)``.
+    """
+    m = 1 << max(0, (n - 1).bit_length())
+    net = [(i, j) for i, j in _batcher_pairs(m) if j < n]   # wire j >= n holds +inf: no change
+    need, out = {rank}, []
+    for i, j in reversed(net):
+        lo, hi = i in need, j in need
+        if lo or hi:
+            out.append((i, j, lo, hi))
+            need |= {i, j}
+    return tuple(reversed(out))
+
+
+def _select(planes, rank):
+    """The ``rank``-th smallest of the arrays ``planes`` (elementwise, no NaN) by a network."""
+    w = list(planes)
+    for i, j, lo, hi in _selection_network(len(w), rank):
+        a, b = w[i], w[j]
+        if lo:
+            w[i] = np.minimum(a, b)
+        if hi:
+            w[j] = np.maximum(a, b)
+    return w[rank]
 
 
 def nan_median_filter(x, size=5, *, tolerance=None):
@@ -103,7 +141,8 @@ def nan_median_filter(x, size=5, *, tolerance=None):
 
     For an even number of finite values, the upper of the two middle ones. The missing
     values of a window are set alternately to +inf and -inf, so the middle element of the
-    whole window (one partition, no sort) is the median of the finite ones.
+    whole window is the median of the finite ones; it is taken by a pruned sorting network
+    (Batcher 1968) of elementwise minima and maxima over the window's shifted planes.
 
     Parameters
     ----------
@@ -128,27 +167,70 @@ def nan_median_filter(x, size=5, *, tolerance=None):
     size = int(size)
     if size < 1 or size % 2 == 0:
         raise ValueError(f"size must be an odd number of cells >= 1; got {size}.")
+    rows, cols = x.shape
+    h = size // 2
     med = np.full(x.shape, np.nan, np.float32)
     cnt = np.zeros(x.shape, np.int16)
     sup = np.zeros(x.shape, np.int16) if tolerance is not None else None
     tol = None if tolerance is None else np.broadcast_to(np.asarray(tolerance, np.float32), x.shape)
     mid = size * size // 2
-    for r0 in range(0, x.shape[0], _BAND_ROWS):
-        r1 = min(x.shape[0], r0 + _BAND_ROWS)
-        s = _stack(x, r0, r1, size)
-        nan = np.isnan(s)
-        n = size * size - np.count_nonzero(nan, axis=-1)
+    band = max(_BAND_ROWS, 4 * _BAND_ROWS * 25 // (size * size))
+    for r0 in range(0, rows, band):
+        r1 = min(rows, r0 + band)
+        pad = np.full((r1 - r0 + 2 * h, cols + 2 * h), np.nan, np.float32)
+        s0, s1 = max(0, r0 - h), min(rows, r1 + h)
+        pad[s0 - (r0 - h):s1 - (r0 - h), h:h + cols] = x[s0:s1]
+        nan_pad = np.isnan(pad)
+        planes, n, parity = [], np.zeros((r1 - r0, cols), np.int16), np.zeros((r1 - r0, cols), bool)
+        xc = x[r0:r1]
         if sup is not None:
-            with np.errstate(invalid="ignore"):
-                agree = np.abs(s - x[r0:r1, :, None]) <= tol[r0:r1, :, None]
-            sup[r0:r1] = np.count_nonzero(agree, axis=-1) - np.isfinite(x[r0:r1])
-        odd = (np.cumsum(nan, axis=-1, dtype=np.int16) % 2).astype(bool)
-        s[nan & odd] = np.inf
-        s[nan & ~odd] = -np.inf
-        m = np.partition(s, mid, axis=-1)[..., mid]
+            sup_b = -np.isfinite(xc).astype(np.int16)
+        for i in range(size):
+            for j in range(size):
+                v = pad[i:i + r1 - r0, j:j + cols]
+                nan = nan_pad[i:i + r1 - r0, j:j + cols]
+                if sup is not None:
+                    with np.errstate(invalid="ignore"):
+                        sup_b += np.abs(v - xc) <= tol[r0:r1]
+                parity ^= nan                               # odd count of NaN so far: +inf
+                n += ~nan
+                planes.append(np.where(nan, np.where(parity, np.inf, -np.inf), v).astype(np.float32))
+        m = _select(planes, mid)
         med[r0:r1] = np.where(n > 0, m, np.nan)
         cnt[r0:r1] = n
+        if sup is not None:
+            sup[r0:r1] = sup_b
     return (med, cnt, sup) if sup is not None else (med, cnt)
+
+
+def nan_median_at(x, cells, size=3):
+    """:func:`nan_median_filter` at the given cells only (for a few cells of a large grid).
+
+    Parameters
+    ----------
+    x : ndarray (rows, cols)
+    cells : (ndarray, ndarray)
+        Row and column indices (as from ``np.nonzero``).
+    size : int
+        Odd window side.
+
+    Returns
+    -------
+    ndarray
+        The upper middle of the sorted finite values of each window (NaN sorts last), NaN
+        where none is finite: the values of :func:`nan_median_filter` at those cells.
+    """
+    size = int(size)
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"size must be an odd number of cells >= 1; got {size}.")
+    rr, cc = cells
+    h = size // 2
+    pad = np.pad(np.asarray(x, np.float32), h, constant_values=np.nan)
+    nb = np.stack([pad[rr + i, cc + j] for i in range(size) for j in range(size)], axis=1)
+    nb.sort(axis=1)
+    n = np.count_nonzero(np.isfinite(nb), axis=1)
+    m = nb[np.arange(nb.shape[0]), n // 2] if nb.shape[0] else np.zeros(0, np.float32)
+    return np.where(n > 0, m, np.nan).astype(np.float32)
 
 
 def remove_blunders(dh, dem, tolerance_m, size=5):
@@ -190,6 +272,20 @@ def remove_blunders(dh, dem, tolerance_m, size=5):
     return np.where(bad, np.nan, dh).astype(np.float32), int(np.count_nonzero(bad))
 
 
+def _nanmedian_stack(D):
+    """``np.nanmedian(D, axis=0)`` for a short stack (a few pairs): one sort, same values.
+
+    NaN sorts last; the median of the ``n`` finite values is the middle one, or the mean of
+    the two middle ones for even ``n``; NaN where none is finite.
+    """
+    S = np.sort(D, axis=0)
+    n = np.sum(np.isfinite(D), axis=0)
+    last = D.shape[0] - 1
+    lo = np.take_along_axis(S, np.clip((n - 1) // 2, 0, last)[None], 0)[0]
+    hi = np.take_along_axis(S, np.clip(n // 2, 0, last)[None], 0)[0]
+    return np.where(n > 0, np.where(n % 2 == 1, hi, (lo + hi) / 2), np.nan).astype(D.dtype)
+
+
 def merge_pairs(dhs, cors, outlier_m):
     """Correlation-weighted mean of the pairs' corrections after dropping per-cell outliers.
 
@@ -209,7 +305,7 @@ def merge_pairs(dhs, cors, outlier_m):
     if len(dhs) > 1:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(D, axis=0)
+            med = _nanmedian_stack(D)
             n = np.sum(np.isfinite(D), axis=0)
             with np.errstate(invalid="ignore"):
                 far = (np.abs(D - med) > outlier_m) & (n >= 3)

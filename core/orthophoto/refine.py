@@ -27,7 +27,7 @@ from scipy import ndimage
 from ..common import report
 from .match import REASONS, match_along
 from .orthorectify import check_transform, grid_xy
-from .quality import fill_holes, nan_median_filter, object_mask, remove_blunders
+from .quality import fill_holes, nan_median_at, object_mask, remove_blunders
 
 __all__ = ["view_vectors", "parallax_to_dh", "parallax_to_dh_vertical", "orthoparallax",
            "ParallaxResult", "fill_holes", "as_grey", "pair_geometry", "match_pair",
@@ -141,9 +141,10 @@ def _relocate(dh, corr, shift_x_m, shift_y_m, transform):
     holes = ~np.isfinite(out) & ndimage.binary_erosion(
         ndimage.binary_closing(np.isfinite(out), iterations=1, border_value=0), border_value=1)
     if holes.any():
-        f, _ = nan_median_filter(out, 3)
-        filled = fill_holes(out, np.isfinite(out), max_sigma=1.0)
-        out[holes] = np.where(np.isfinite(f[holes]), f[holes], filled[holes])
+        f = nan_median_at(out, np.nonzero(holes), 3)
+        if not np.isfinite(f).all():
+            f = np.where(np.isfinite(f), f, fill_holes(out, np.isfinite(out), max_sigma=1.0)[holes])
+        out[holes] = f
         fc = fill_holes(outc, np.isfinite(outc), max_sigma=1.0)
         outc[holes] = fc[holes]
     return out, outc

@@ -14,6 +14,7 @@ from ..common import as_cell_size, as_surface, report, sub_progress
 from ..estimate import sample_windows
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
+from .sequence import ring_reach
 from .steps import remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope, model_degree
 
@@ -153,8 +154,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     if tc is not None and tc not in TERRAIN_CLASSES:
         raise ValueError(f"terrain_class must be one of {TERRAIN_CLASSES} or 'auto' (derived "
                          f"by step 1); got {tc!r}.")
-    ch, low_env = characterise_with_envelope(z, (dx, dy))
-    report(progress, 0.5)
+    ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5))
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc
@@ -222,7 +222,8 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
 
     Steps are chained, so a cell's fate depends on what earlier steps did within their
     reach around every cell of the later windows: the reaches add up (x 2 with the second
-    iteration).
+    iteration). A step removing low blunders (3, 5, 6, 7) reaches at least as far as the
+    ring test that confirms them (:func:`~.sequence.ring_reach`, 10 m).
     """
     dx, dy = as_cell_size(cell_size)
     cs = min(dx, dy)
@@ -232,14 +233,15 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     def cells(m):
         return int(np.ceil((m or 0) / cs))
 
+    ring = max(ring_reach((dx, dy)))
     iters = int(p.get("snooping_iterations") or 1)
-    r3 = 3 if p["step3_neighbour_differences"] else 0
+    r3 = max(3, ring) if p["step3_neighbour_differences"] else 0
     r4 = 2 * (cells(p["max_building_m"]) + 4) if p["step4_level_change"] else 0
-    r5 = iters * sum(cells(L) // 2 + 1 for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
-                                                p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
+    r5 = iters * sum(max(cells(L) // 2 + 1, ring) for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
+                                                            p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
         if p["step5_profiles"] else 0
-    r6 = iters * (cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1) \
+    r6 = iters * max(cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1, ring) \
         if p["step6_surfaces"] else 0
-    r7 = cells(p["prediction_radius_m"] or 3 * cs) + 1
+    r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
     once = r3 + r5 + r6 + r7
     return int(r4 + once * (2 if p["second_iteration"] else 1))

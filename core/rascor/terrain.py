@@ -9,7 +9,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from ..common import as_cell_size, as_surface
+from ..common import as_cell_size, as_surface, report
 from ..estimate import noise_plane_residual
 
 #: Terrain classes and the degree of the profile / surface model each selects.
@@ -49,8 +49,9 @@ def as_homogeneous(v):
 def _tile_low(z, n):
     """Low envelope on non-overlapping ``n x n`` tiles: the 5th percentile of each tile.
 
-    The order statistic comes from sorting each tile, or, for large full tiles (all of the
-    same rank), from partial sorting (``np.partition``: the same value, faster).
+    The order statistic comes from partial sorting (``np.partition``: the value a sort
+    gives, 3 x faster on 10 x 10 tiles) for the full tiles (all of the same rank), from
+    sorting each tile for the others.
     """
     rows, cols = z.shape
     R, C = -(-rows // n), -(-cols // n)
@@ -67,7 +68,7 @@ def _tile_low(z, n):
     kth = (0.05 * cnt).astype(int)
     low = np.empty(R * C, np.float32)
     full = cnt == n * n
-    if n * n >= 256 and full.any():
+    if full.any():
         k0 = int(kth[np.argmax(full)])
         tf = t if full.all() else t[full]
         tf.partition(k0, axis=1)                 # in place: t is a copy of z
@@ -145,20 +146,23 @@ def characterise_terrain(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     return characterise_with_envelope(as_surface(z), as_cell_size(cell_size), tile_m)[0]
 
 
-def characterise_with_envelope(z, cell_size, tile_m=25.0):
-    """:func:`characterise_terrain` and its lower envelope (for step 2's limits)."""
+def characterise_with_envelope(z, cell_size, tile_m=25.0, progress=None):
+    """:func:`characterise_terrain` and its lower envelope (for step 2's limits).
+    ``progress(fraction)`` (optional, may raise ``Cancelled``) after each stage."""
     dx, dy = cell_size
     if tile_m <= 0:
         raise ValueError(f"tile_m must be positive (metres); got {tile_m}.")
     n = max(3, int(round(tile_m / max(dx, dy))))
     n = min(n, max(3, min(z.shape) // 3))
     low = _tile_low(z, n).astype(np.float64)
+    report(progress, 0.4)
     s = _tile_slopes(low, n * dx, n * dy)
     med = float(np.median(s)) if s.size else 0.0
     cls = "flat" if med < _FLAT_MAX_SLOPE else "rolling" if med < _ROLLING_MAX_SLOPE else "mountainous"
     # homogeneity on tiles 2.5 x finer: embankments, cuts and terraces show up there
     nf = max(3, n * 2 // 5)
     sf = _tile_slopes(_tile_low(z, nf).astype(np.float64), nf * dx, nf * dy)
+    report(progress, 0.8)
     sf = sf if sf.size else np.zeros(1)
     tiles = np.where(sf < _FLAT_MAX_SLOPE, 0, np.where(sf < _ROLLING_MAX_SLOPE, 1, 2))
     shares = {c: float(np.mean(tiles == i)) for i, c in enumerate(TERRAIN_CLASSES)}
@@ -167,6 +171,7 @@ def characterise_with_envelope(z, cell_size, tile_m=25.0):
     lv = low[np.isfinite(low)]
     relief = float(np.percentile(lv, 98) - np.percentile(lv, 2)) if lv.size else 0.0
     sigma = estimate_sigma(z)                 # on windows spread over a large raster
+    report(progress, 1.0)
     return {"terrain_class": cls, "homogeneous": bool(shares[cls] >= _HOMOGENEOUS_SHARE),
             "class_shares": shares, "slope_median": med,
             "slope_p90": float(np.percentile(s, 90)), "relief_m": relief,

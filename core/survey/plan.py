@@ -5,7 +5,7 @@ A task reads its tile grown by the method's halo (``Method.halo``, the method's 
 every side, clipped to the survey, from the survey VRT: the neighbours' cells around the
 tile are read as if the survey were one raster, so the tile's mask is the one of a single
 pass over the mosaic (the block property of every method, ``core.blocks``). The window's
-upper-left corner is moved further out onto a multiple of :func:`alignment`, so that the
+upper-left corner is moved further out onto a multiple of :func:`~.blocks.alignment`, so that the
 grids a method coarsens internally (geodesic's power-of-two grids, curvature's 2 x 2 ground
 surface, the fill's pyramid) are those of the single pass too, as in ``pipeline.run_file``.
 """
@@ -13,27 +13,14 @@ import math
 
 import numpy as np
 
-#: Least alignment of a task window's corner on the survey grid, cells (as pipeline.run_file).
-MIN_ALIGN = 64
+from ..blocks import alignment
+
 #: Cells of the sample the survey's parameters are derived from (pipeline.RESOLVE_SIDE ** 2).
 SAMPLE_CELLS = 4096 * 4096
 #: Most tiles the sample is drawn from.
 SAMPLE_TILES = 16
 #: Nodata gutter between the sample's crops, cells (no false edge between two crops).
 SAMPLE_GUTTER = 8
-
-
-def alignment(halo):
-    """Alignment of a task window's corner: the largest power of two dividing ``halo``, at
-    least :data:`MIN_ALIGN`.
-
-    Methods that coarsen their grid round their halo up to their coarsening factor (a
-    power of two: ``geodesic_halo``) or to an even number (``curvature_halo``); a window
-    corner on a multiple of this keeps their coarse grids those of the single pass.
-    """
-    halo = int(halo)
-    p = halo & -halo if halo > 0 else 1
-    return max(MIN_ALIGN, p)
 
 
 def tile_window(tile_window_, shape, halo, align=None):

@@ -12,17 +12,22 @@ from bare_earth.core.common import Cancelled
 @pytest.mark.parametrize("shape,block,halo", [
     ((3, 5), 4, 1), ((10, 10), 3, 2), ((7, 13), (2, 5), 3), ((1, 1), 4, 2), ((9, 4), 9, 0),
     ((6, 6), 1, 1), ((5, 8), 100, 4)])
-def test_windows_cover_every_cell_once_and_halo_clipped(shape, block, halo):
+@pytest.mark.parametrize("align", [1, 4, None])
+def test_windows_cover_every_cell_once_and_halo_clipped(shape, block, halo, align):
     rows, cols = shape
     seen = np.zeros(shape, int)
-    wins = list(blocks.iter_windows(shape, block, halo))
+    wins = list(blocks.iter_windows(shape, block, halo, align=align))
+    a = blocks.alignment(halo) if align is None else align
     br, bc = (block, block) if isinstance(block, int) else block
     for core, outer in wins:
         r0, r1, c0, c1 = core
         assert 0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols
         assert r1 - r0 <= br and c1 - c0 <= bc
         seen[r0:r1, c0:c1] += 1
-        assert outer == (max(0, r0 - halo), min(rows, r1 + halo), max(0, c0 - halo), min(cols, c1 + halo))
+        # grown by the halo, the upper-left corner moved out onto a multiple of the alignment
+        assert outer == (max(0, (r0 - halo) // a * a), min(rows, r1 + halo),
+                         max(0, (c0 - halo) // a * a), min(cols, c1 + halo))
+        assert outer[0] % a == 0 and outer[2] % a == 0
         # crop cuts the core back out of an array read over the outer window
         grid = np.arange(rows * cols).reshape(shape)
         read = grid[outer[0]:outer[1], outer[2]:outer[3]]
@@ -32,9 +37,11 @@ def test_windows_cover_every_cell_once_and_halo_clipped(shape, block, halo):
 
 
 def test_iter_windows_exact_small_case():
-    assert list(blocks.iter_windows((3, 5), block=4, halo=1)) == [
+    assert list(blocks.iter_windows((3, 5), block=4, halo=1, align=1)) == [
         ((0, 3, 0, 4), (0, 3, 0, 5)), ((0, 3, 4, 5), (0, 3, 3, 5))]
-    assert list(blocks.iter_windows((4, 4), block=2, halo=1)) == [
+    assert list(blocks.iter_windows((3, 70), block=(3, 66), halo=1)) == [      # corner on 64
+        ((0, 3, 0, 66), (0, 3, 0, 67)), ((0, 3, 66, 70), (0, 3, 64, 70))]
+    assert list(blocks.iter_windows((4, 4), block=2, halo=1, align=1)) == [
         ((0, 2, 0, 2), (0, 3, 0, 3)), ((0, 2, 2, 4), (0, 3, 1, 4)),
         ((2, 4, 0, 2), (1, 4, 0, 3)), ((2, 4, 2, 4), (1, 4, 1, 4))]
     assert blocks.crop((1, 4, 1, 4), (2, 4, 2, 4)) == (slice(1, 3), slice(1, 3))

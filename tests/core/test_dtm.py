@@ -39,6 +39,15 @@ def test_majority_of_members():
     assert res.info["rule"].startswith("ground where at least 2 of the 3")
 
 
+def test_members_derived_side_by_side_as_one_after_the_other():
+    """The members' parameters derived in threads are each member's own derivation."""
+    s = make_scene("mixed", (120, 140), seed=2)
+    p = dtm_method.resolve_dtm_params(s.dsm, 1.0)
+    assert p["members"] == {n: pipeline.resolve_params(n, s.dsm, 1.0) for n in dtm_method.MEMBERS}
+    assert p["input_description"] == dtm_method.characterise(s.dsm, (1.0, 1.0))
+    assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
+
+
 def test_blocked_equals_one_pass():
     s = make_scene("city", (96, 120), seed=5, nodata_holes=True)
     one = pipeline.run_array("dtm", s.dsm, 1.0)

@@ -288,8 +288,10 @@ def test_curvature_threshold_comes_from_the_ground_not_the_canopy():
     assert k_canopy < 10 * k_bare
 
 
+@pytest.mark.parametrize("gather", [0.0, 1e9])          # the filters' path, the gathered rings
 @pytest.mark.parametrize("cell", [(1.0, 1.0), (0.5, 0.7)])
-def test_below_surroundings_at_candidates_equals_the_full_answer_there(cell):
+def test_below_surroundings_at_candidates_equals_the_full_answer_there(cell, gather, monkeypatch):
+    monkeypatch.setattr(est, "_RING_GATHER_PER_CELL", gather)
     rng = np.random.default_rng(1)
     z = rng.normal(100.0, 0.2, (120, 110)).astype(np.float32)
     z[10::45, 12::45] -= 5.0                                  # pits farther apart than a ring
@@ -299,3 +301,26 @@ def test_below_surroundings_at_candidates_equals_the_full_answer_there(cell):
     cand = rng.random(z.shape) < 0.3
     np.testing.assert_array_equal(est.below_surroundings(z, cell, 0.3, candidates=cand), full & cand)
     assert not est.below_surroundings(z, cell, 0.3, candidates=np.zeros(z.shape, bool)).any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_below_surroundings_gathered_rings_equal_the_filters_at_edges_and_nodata(dtype, monkeypatch):
+    # pits on the raster's edges and corners, next to nodata and in a nodata-only ring
+    rng = np.random.default_rng(7)
+    z = rng.normal(50.0, 0.3, (41, 37))
+    z[::13, ::11] -= 4.0
+    z[0, 0] = z[0, 36] = z[40, 5] = z[20, 0] = 40.0
+    if dtype != np.int16:
+        z[rng.random(z.shape) < 0.05] = np.nan
+        z[30:41, 25:37] = np.nan
+        z[35, 31] = 30.0                                  # a valid cell in a nodata ring
+    z = z.astype(dtype)
+    cand = np.ones(z.shape, bool)
+    cand[::2, 1::3] = False
+    monkeypatch.setattr(est, "_RING_GATHER_PER_CELL", 0.0)
+    filters = est.below_surroundings(z, (1.0, 0.8), 0.5, candidates=cand)
+    monkeypatch.setattr(est, "_RING_GATHER_PER_CELL", 1e9)
+    gathered = est.below_surroundings(z, (1.0, 0.8), 0.5, candidates=cand)
+    assert filters.sum() >= 4
+    np.testing.assert_array_equal(gathered, filters)
+    np.testing.assert_array_equal(gathered, est.below_surroundings(z, (1.0, 0.8), 0.5) & cand)

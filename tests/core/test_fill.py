@@ -243,3 +243,51 @@ def test_scattered_data_close_to_exact_membrane(known_fraction):
     span = np.ptp(exact)
     assert np.sqrt(np.mean(err ** 2)) < 0.01 * span
     assert err.max() < 0.04 * span
+
+
+def _relax_reference(known, val, coarse, sweeps, relax, omega):
+    """Cell-by-cell red-black relaxation with the kernel's float32 arithmetic (the order of
+    the sums included): the exact values :func:`fill._relax_level` must give."""
+    from bare_earth.core import fill
+    h, w = known.shape
+    u = np.zeros((h + 2, w + 2), np.float32)
+    u[1:-1, 1:-1] = val
+    r, c = np.nonzero(~known)
+    u[r + 1, c + 1] = fill._prolong(fill._pad_linear(coarse), r, c)
+    cells = [(i, j) for i, j in zip(r, c) if relax is None or relax[i, j]]
+    for _ in range(sweeps):
+        for colour in (0, 1):
+            for i, j in cells:
+                if (i + j) % 2 != colour:
+                    continue
+                n = 4 - (i == 0) - (i == h - 1) - (j == 0) - (j == w - 1)
+                inv = np.float32(0.25) if n == 4 else np.float32(1.0 / max(n, 1))
+                s = u[i + 1, j] + u[i + 1, j + 2]
+                s = s + u[i, j + 1]
+                s = s + u[i + 2, j + 1]
+                s = np.float32(s * inv)
+                if omega != 1.0:
+                    t = u[i + 1, j + 1]
+                    s = np.float32((s - t) * np.float32(omega) + t)
+                u[i + 1, j + 1] = s
+    return u[1:-1, 1:-1]
+
+
+@pytest.mark.parametrize("chunk", [5, 1 << 14])              # sweeps in chunks of 5 cells, one chunk
+@pytest.mark.parametrize("omega,use_relax", [(1.0, False), (1.8, False), (1.0, True)])
+def test_relax_level_equals_the_cell_by_cell_reference(omega, use_relax, chunk, monkeypatch):
+    # holes on the raster's edges and corners (Neumann cells, own weights), one inside
+    from bare_earth.core import fill
+    monkeypatch.setattr(fill, "_SWEEP_CHUNK", chunk)
+    rng = np.random.default_rng(11)
+    h, w = 14, 17
+    known = rng.random((h, w)) > 0.45
+    known[0, :] = False
+    known[:, -1] = False
+    known[5:9, 4:10] = False
+    val = np.where(known, rng.normal(10.0, 2.0, (h, w)), 0.0).astype(np.float32)
+    coarse = rng.normal(10.0, 2.0, ((h + 1) // 2, (w + 1) // 2)).astype(np.float32)
+    relax = (rng.random((h, w)) > 0.3) if use_relax else None
+    got = fill._relax_level(known, val, coarse, 3, relax, omega)
+    ref = _relax_reference(known, val, coarse, 3, relax, omega)
+    np.testing.assert_array_equal(got, ref)

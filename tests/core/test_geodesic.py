@@ -122,6 +122,101 @@ def test_running_filters_match_scipy():
                                                                   border_value=0))
 
 
+@pytest.fixture
+def small_bands(monkeypatch):
+    """Bands of 4 rows in the banded passes, so small arrays cross many band seams."""
+    monkeypatch.setattr(grey, "BAND_BYTES", 1)
+
+
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_reconstruction_banded_passes_match_brute_force(small_bands, connectivity):
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        h, w = rng.integers(2, 40, 2)
+        mask = (rng.normal(size=(h, w)).cumsum(0) * 5).astype(np.float32)
+        mask[rng.random((h, w)) < 0.05] = np.nan
+        marker = (mask - rng.integers(0, 6, (h, w))).astype(np.float32)
+        max_iter = None if trial % 2 else int(rng.integers(0, 9))
+        got = geo.reconstruct_by_dilation(marker, mask, connectivity=connectivity, max_iter=max_iter)
+        assert same(got, brute_reconstruction(marker, mask, connectivity, max_iter)), (trial, h, w)
+
+
+def separable(a, size, op, pad):
+    """The generic separable running filter (the path every other window size takes)."""
+    return grey.running_extreme(grey.running_extreme(a, size[1], 1, op, pad), size[0], 0, op, pad)
+
+
+@pytest.mark.parametrize("banded", [False, True])
+def test_filter3x3_equals_separable_filter(request, banded):
+    """3 x 3 and 5 x 5 windows (banded flat passes) give the very values of the separable
+    running filter: every dtype, NaN and inf, neutral and non-neutral pads, odd shapes."""
+    if banded:
+        request.getfixturevalue("small_bands")
+    rng = np.random.default_rng(5)
+    for shape in [(2, 2), (2, 9), (9, 2), (3, 3), (7, 13), (37, 23)]:
+        for dtype in (np.float32, np.float64, bool):
+            a = rng.random(shape)
+            if dtype is bool:
+                a, pads = a > 0.6, (False, True)
+            else:
+                a = (a * 10).astype(dtype)
+                a[rng.random(shape) < 0.1] = np.nan
+                a[rng.random(shape) < 0.05] = np.inf
+                pads = (np.inf, -np.inf, 3.0, np.nan)
+            for op in (np.minimum, np.maximum):
+                for pad in pads:
+                    for size in ((3, 3), (5, 5)):
+                        got, ref = grey.rect_filter(a, size, op, pad), separable(a, size, op, pad)
+                        assert got.dtype == ref.dtype and got.tobytes() == ref.tobytes(), (shape, dtype, op, pad)
+
+
+def test_coarse_grids_equal_block_reduction_of_the_raster():
+    from bare_earth.core.geodesic.dilation import coarse_grids
+    rng = np.random.default_rng(4)
+    w = rng.random((37, 51)).astype(np.float32)
+    valid = rng.random(w.shape) > 0.1
+    w[~valid] = np.nan
+    jump = rng.random(w.shape) > 0.8
+    grids = coarse_grids(w, valid, jump, [1, 2, 8, 16])
+    assert sorted(grids) == [2, 8, 16]
+    for f, (zmin, zmax, jc) in grids.items():
+        assert np.array_equal(zmin, grey.block_reduce(np.where(valid, w, np.inf), f, np.minimum, np.inf))
+        assert np.array_equal(zmax, grey.block_reduce(np.where(valid, w, -np.inf), f, np.maximum, -np.inf))
+        assert np.array_equal(jc, grey.block_reduce(jump, f, np.maximum, False))
+
+
+def brute_scan(a, t, h, max_cells):
+    """Scan labelling of the rows of ``a``, profile by profile, cell by cell (one pass)."""
+    out = np.zeros(a.shape, bool)
+    for r, row in enumerate(a):
+        ev = [j for j in range(len(row) - 1)
+              if not abs(row[j + 1] - row[j]) <= t]          # rise, fall or nodata
+        for j0, j1 in zip(ev[:-1], ev[1:]):
+            d0, d1 = row[j0 + 1] - row[j0], row[j1 + 1] - row[j1]
+            if d0 > t and d1 < -t and j1 - j0 <= max_cells:
+                for p in range(j0 + 1, j1 + 1):
+                    base = row[j0] + (row[j1 + 1] - row[j0]) * (p - j0) / (j1 - j0 + 1)
+                    out[r, p] |= row[p] - base > h
+    return out
+
+
+def test_scan_label_one_pass_matches_brute_force_rows_and_columns():
+    rng = np.random.default_rng(8)
+    labelled = 0
+    for trial in range(12):
+        h, w = rng.integers(3, 30, 2)
+        z = rng.normal(0, 0.1, (h, w)).astype(np.float32)
+        for _ in range(4):                         # boxes of random heights
+            r0, c0 = rng.integers(0, h - 1), rng.integers(0, w - 1)
+            z[r0:r0 + rng.integers(1, 6), c0:c0 + rng.integers(1, 9)] += rng.uniform(-3, 4)
+        z[rng.random((h, w)) < 0.03] = np.nan
+        got = geo.scan_label(z, 1.0, jump_m=0.5, height_m=0.5, max_length_m=6.0, passes=1)
+        ref = brute_scan(z, 0.5, 0.5, 6) | brute_scan(z.T, 0.5, 0.5, 6).T
+        assert np.array_equal(got, ref), trial
+        labelled += int(ref.sum())
+    assert labelled > 50                           # the runs were there to find
+
+
 def test_reconstruction_bad_input():
     with pytest.raises(ValueError, match="same shape"):
         geo.reconstruct_by_dilation(np.zeros((3, 3)), np.zeros((3, 4)))

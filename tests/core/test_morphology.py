@@ -85,6 +85,24 @@ def test_running_min_max_equal_ndimage():
             np.testing.assert_array_equal(got, ref)
 
 
+@pytest.mark.parametrize("band", [1, 3, 8, 60])
+def test_running_in_bands_equals_one_pass(band):
+    # bands across the window's axis (ragged last band, bands of one line, one band for all),
+    # with +-inf (nodata of the erosion and the dilation) and windows longer than the array
+    from scipy import ndimage
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(29, 41)).astype(np.float32)
+    a[rng.random(a.shape) < 0.1] = np.inf
+    a[3, :] = -np.inf
+    work = morph._Work()
+    for r in (1, 2, 5, 16, 30):
+        for axis in (0, 1):
+            for op, flt in ((np.minimum, ndimage.minimum_filter1d), (np.maximum, ndimage.maximum_filter1d)):
+                got = morph._running_banded(a, r, axis, op, work, band=band)
+                np.testing.assert_array_equal(got, morph._running(a, r, axis, op))
+                np.testing.assert_array_equal(got, flt(a, 2 * r + 1, axis=axis, mode="nearest"))
+
+
 def test_window_radii():
     assert [r[1] for r in morph.window_radii(41.0, 1.0)] == [1, 2, 4, 8, 16, 20]
     assert [r[1] for r in morph.window_radii(11.0, 1.0, growth=1.0)] == [1, 2, 3, 4, 5]

@@ -105,7 +105,52 @@ def test_row_strips_give_the_same_result(monkeypatch):
     b = _shifted(t, 1.3)
     b[30:40, 20:50] = _texture((10, 30), seed=8)
     whole = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
-    monkeypatch.setattr(match_mod, "MAX_VOLUME", 9 * 90 * 12)   # strips of 12 rows
+    monkeypatch.setattr(match_mod, "MAX_CELLS", 90 * 12)   # strips of 12 rows
     strips = match_along(t, b, (1, 0), 4, window=7, shiftable=5)
     np.testing.assert_array_equal(whole.valid, strips.valid)
     np.testing.assert_allclose(whole.disparity, strips.disparity, atol=1e-5, equal_nan=True)
+
+
+def test_streamed_planes_give_the_argmax_of_the_volume():
+    """match_along takes the NCC planes one shift at a time; its winner is the volume's argmax."""
+    t = _texture((60, 80), seed=6, sigma=1.3)
+    b = _shifted(t, 2.4)
+    b[20:30, 30:45] = 0.5                            # flat patch: no NCC (ties at -2)
+    b[40:50, 10:30] = _texture((10, 20), seed=11)    # content only in b
+    shifts = np.arange(-5, 6)
+    vol = ncc_volume(t, b, shifts, 7, shiftable=5, min_fill=1.0)
+    # the symmetric anchor of match_along: S[s, m] = V[s, m - floor(s / 2)]
+    sym = np.full_like(vol, -2.0)
+    for k, s in enumerate(shifts):
+        h = int(np.floor(s / 2))
+        if h >= 0:
+            sym[k][:, h:] = vol[k][:, :80 - h]
+        else:
+            sym[k][:, :80 + h] = vol[k][:, -h:]
+    k = np.argmax(sym, axis=0)
+    rr, cc = np.indices(k.shape)
+    c0, cm, cp = sym[k, rr, cc], sym[np.maximum(k - 1, 0), rr, cc], sym[np.minimum(k + 1, 10), rr, cc]
+    den = cm - 2 * c0 + cp
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.clip(np.where((den < 0) & (cm > -2) & (cp > -2), 0.5 * (cm - cp) / den, 0.0), -0.5, 0.5)
+    want = (shifts[k] + off).astype(np.float32)
+    r = match_along(t, b, (1, 0), 5, window=7, shiftable=5, lsm_iterations=0, min_corr=0.5)
+    got = r.disparity
+    ok = np.isfinite(got)
+    assert ok.mean() > 0.5
+    np.testing.assert_array_equal(got[ok], want[ok])
+    np.testing.assert_array_equal(np.nan_to_num(r.corr, nan=-2.0), c0)
+
+
+@pytest.mark.parametrize("cols", [12, 20])
+def test_search_range_wider_than_the_image(cols):
+    """Shifts beyond the image's width see no cell of the other image: the match is the one of
+    a search range clipped to the width (a 60 x 60 pair with the default 0.2 H search once failed
+    with a raw broadcast error)."""
+    t = _texture((30, cols), seed=4, sigma=1.2)
+    b = _shifted(t, 1.0)
+    wide = match_along(t, b, (1, 0), cols + 7, window=5, shiftable=0, lsm_iterations=0, min_corr=0.5)
+    assert wide.disparity.shape == t.shape
+    inner = wide.disparity[5:-5, 4:-4]
+    assert np.isfinite(inner).mean() > 0.5
+    assert np.nanmedian(np.abs(inner - 1.0)) < 0.2

@@ -8,7 +8,8 @@ from conftest import ROOT
 from bare_earth.core import rascor, synthetic
 from bare_earth.core.codes import GROUND, LOW, OBJECT
 from bare_earth.core.common import Cancelled
-from bare_earth.core.rascor import fits, kernels, moving, steps, terrain
+from bare_earth.core.estimate import PIT_RADIUS_M, below_surroundings
+from bare_earth.core.rascor import fits, kernels, moving, sequence, steps, terrain
 
 N = 64
 
@@ -391,6 +392,26 @@ def test_halo_covers_reach():
     assert rascor.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
 
 
+def test_halo_covers_the_ring_test_of_low_blunders():
+    """Step 3 alone (and step 7's reach) is 3-4 cells, but a low blunder it finds is
+    removed only when it lies below the whole ring around it (10 m): a pit 10 rows from a
+    deeper-lying cell (its witness, so no blunder) near a block's edge is a blunder to a
+    block whose halo stops short of the witness."""
+    z = plane(120, 0.002, 0.001)[:, :60]
+    z[46, 30] -= 5.0                                  # in the first block's core (rows 0-47)
+    z[56, 30] -= 4.8                                  # 10 rows below: the ring's witness
+    p = rascor.resolve_rascor_params(z, 1.0, sigma_m=0.1)
+    p.update(step2_height_distribution=False, step4_level_change=False, step5_profiles=False,
+             step6_surfaces=False)
+    assert rascor.rascor_halo(p, 1.0) >= 10 + 3
+    from bare_earth.core import pipeline
+    one = pipeline.run_array("rascor", z, 1.0, params=p, want_dtm=False)
+    assert one.mask[46, 30] == GROUND and one.mask[56, 30] == GROUND
+    blk = pipeline.run_array("rascor", z, 1.0, params=p, block=48, want_dtm=False)
+    assert blk.info["blocks"] > 1
+    np.testing.assert_array_equal(one.mask, blk.mask)
+
+
 def test_blocks_match_one_pass():
     pipeline = pytest.importorskip("bare_earth.core.pipeline")
     rng = np.random.default_rng(7)
@@ -558,12 +579,14 @@ def test_fit_and_snoop_equals_whole_fit_then_snoop():
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("shape, n", [((30, 10), 10), ((10, 30), 10), ((50, 50), 25),
-                                      ((41, 38), 25), ((9, 11), 3)])
-def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n):
+@pytest.mark.parametrize("shape, n, nan_share", [((30, 10), 10, 0.1), ((10, 30), 10, 0.1), ((50, 50), 25, 0.1),
+                                                 ((41, 38), 25, 0.1), ((9, 11), 3, 0.1), ((40, 30), 10, 0.002),
+                                                 ((12, 9), 3, 0.02)])
+def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n, nan_share):
+    """Full tiles (partial sort) and tiles with gaps (sort) give the order statistic."""
     rng = np.random.default_rng(n)
     z = rng.normal(100, 5, shape).astype(np.float32)
-    z[rng.random(shape) < 0.1] = np.nan
+    z[rng.random(shape) < nan_share] = np.nan
     z.flat[3], z.flat[5] = np.inf, -np.inf           # not heights: missing
     z0 = z.copy()
     low = terrain._tile_low(z, n)
@@ -574,6 +597,52 @@ def test_tile_low_equals_explicit_tiles_and_keeps_input(shape, n):
             v = np.sort(v[np.isfinite(v)])
             ref = v[int(0.05 * v.size)] if v.size >= max(3, n * n // 10) else np.nan
             np.testing.assert_array_equal(low[i, j], np.float32(ref))
+
+
+def _pitted_surface(shape, cell, seed):
+    """A gently tilted plane with pits 1 m deep, every second of them with a witness: a cell
+    0.8 m deep at the ring's outer edge (estimate.PIT_RADIUS_M away along y, along x or
+    both) that makes it no pit; missing cells and pits at the edges too."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:shape[0], 0:shape[1]]
+    z = 100.0 + 0.002 * x - 0.001 * y + rng.normal(0, 0.01, shape)
+    ry, rx = (int(np.ceil(PIT_RADIUS_M / d)) for d in (cell[1], cell[0]))
+    step = 3 * max(ry, rx) + 3
+    for k, (r, c) in enumerate((r, c) for r in range(0, shape[0], step) for c in range(0, shape[1], step)):
+        z[r, c] -= 1.0
+        wr, wc = ((r + ry, c), (r, c + rx), (r - ry, c - rx))[k % 3]
+        if k % 2 and 0 <= wr < shape[0] and 0 <= wc < shape[1]:
+            z[wr, wc] -= 0.8
+    z[rng.random(shape) < 0.02] = np.nan
+    return z
+
+
+@pytest.mark.parametrize("cell, shape", [((1.0, 1.0), (150, 200)), ((0.5, 1.0), (120, 260)), ((2.0, 2.0), (60, 90))])
+@pytest.mark.parametrize("share", [0.0, 0.001, 1.0])
+def test_ring_test_at_the_candidates_equals_the_whole_map(monkeypatch, cell, shape, share):
+    """sequence._Pits (the low blunders' ring test gathered in windows at the candidates,
+    in batches, or over the whole array when they are many) answers as the full map of
+    estimate.below_surroundings, at the array's edges and corners too, for non-square
+    cells; each cell is tested once."""
+    monkeypatch.setattr(sequence, "_PIT_BATCH", 37)        # several batches and mosaics
+    z = _pitted_surface(shape, cell, 7)
+    depth = 0.42
+    full = below_surroundings(z, cell, depth)
+    assert full.any() and not full.all()
+    rng = np.random.default_rng(3)
+    pits = sequence._Pits(z, cell, depth)
+    cand = np.flatnonzero((rng.random(z.size) < share) | (z.ravel() < 99.5))
+    corners = np.ravel_multi_index(([0, 0, shape[0] - 1, shape[0] - 1], [0, shape[1] - 1, 0, shape[1] - 1]), shape)
+    cand = np.union1d(cand, corners)
+    first = cand[: cand.size // 2]
+    np.testing.assert_array_equal(pits.at(first), full.reshape(-1)[first])
+    calls = []
+    monkeypatch.setattr(sequence, "below_surroundings", lambda *a, **k: calls.append(1) or below_surroundings(*a, **k))
+    np.testing.assert_array_equal(pits.at(cand), full.reshape(-1)[cand])
+    n_calls = len(calls)
+    np.testing.assert_array_equal(pits.at(first), full.reshape(-1)[first])
+    assert len(calls) == n_calls >= 1                     # the first half was not tested again
+    assert np.count_nonzero(pits.known) == cand.size and pits.known.reshape(-1)[cand].all()
 
 
 # ------------------------------------------------------------- ISPRS, defaults only

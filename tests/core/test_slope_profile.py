@@ -178,3 +178,23 @@ def test_building_touching_a_long_dam_is_an_object_blocked_or_not():
     assert (one.mask[80:100, 300:316] == OBJECT).all()
     assert (one.mask[100:110, 40:200] == GROUND).all() and (one.mask[100:110, 420:560] == GROUND).all()
     np.testing.assert_array_equal(blocked.mask, one.mask)
+
+
+@pytest.mark.parametrize("edge", [1, 3])
+def test_scan_of_sources_of_unequal_lengths_equals_each_source_alone(edge):
+    # one scan over profile sets of different lengths (the short ones first, last and in
+    # the middle: the steps shrink to the running ones) gives what each set gives alone
+    rng = np.random.default_rng(2)
+    long_ = np.cumsum(rng.normal(0, 0.3, (57, 9)), axis=0).astype(np.float32)
+    long_[20:31, 3:6] += 6.0                                   # objects
+    long_[rng.random(long_.shape) < 0.05] = np.nan
+    short = np.cumsum(rng.normal(0, 0.3, (23, 12)), axis=0).astype(np.float32)
+    short[8:14, :4] += 4.0
+    mid = np.cumsum(rng.normal(0, 0.3, (40, 5)), axis=0).astype(np.float32)
+    args = (1.0, np.tan(np.radians(30)), np.tan(np.radians(8)), 0.2, 4, edge)
+    for sources in ([(long_, False), (long_, True), (short, False), (short, True)],
+                    [(short, False), (long_, True), (mid, False), (short, True)]):
+        together = sp._scan(sources, *args)
+        for src, got in zip(sources, together):
+            np.testing.assert_array_equal(got, sp._scan([src], *args)[0])
+        assert any(r.any() for r in together)

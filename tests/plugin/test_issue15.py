@@ -2,11 +2,13 @@
 output formats by extension, creation options, and the styles of the layers Processing loads."""
 import hashlib
 import os
+import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 pytestmark = pytest.mark.qgis
 GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
@@ -61,7 +63,8 @@ def _filters():
 # ---- the bad-input table: (id, algorithm, parameters from tmp, message) ---------------------------
 def _truncated(tmp):
     src = _dsm(tmp, "whole.tif", (300, 300))
-    data = open(src, "rb").read()
+    with open(src, "rb") as f:
+        data = f.read()
     (tmp / "cut.tif").write_bytes(data[: len(data) // 3])
     return {"INPUT": str(tmp / "cut.tif"), "OUTPUT_DTM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
 
@@ -81,6 +84,23 @@ def _vrt_raw(tmp):
         '/etc/passwd</SourceFilename><ImageOffset>0</ImageOffset><PixelOffset>1</PixelOffset>'
         '<LineOffset>16</LineOffset></VRTRasterBand></VRTDataset>')
     return {"INPUT": str(tmp / "raw.vrt"), "OUTPUT_DTM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
+
+
+def _ortho_pair(tmp, shape=(100, 100)):
+    """A flat DEM and two textured orthophotos of it on its grid (zero parallax), with B and H."""
+    rng = np.random.default_rng(7)
+    tex = 255.0 * ndimage.gaussian_filter(rng.random(shape), 1.5)
+    return {"DEM": _write(tmp / "dem.tif", np.full(shape, 100.0, np.float32)),
+            "ORTHO_A": _write(tmp / "a.tif", tex.astype(np.float32)),
+            "ORTHO_B": _write(tmp / "b.tif", tex.astype(np.float32)),
+            "BASE_M": 300.0, "HEIGHT_M": 1000.0, "OUTPUT_DEM": str(tmp / "o.tif"), "OUTPUT_DH": str(tmp / "dh.tif"),
+            "OUTPUT_QUALITY": str(tmp / "q.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
+
+
+def _ortho_refine(tmp, shape):
+    p = _ortho_pair(tmp, shape)
+    return {"DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]], "BASE_M": 300.0, "HEIGHT_M": 1000.0,
+            "OUTPUT_DEM": p["OUTPUT_DEM"]}
 
 
 BAD = [
@@ -105,6 +125,13 @@ BAD = [
     # defect 2: corrupt inputs refused naming the file (core: coreB)
     pytest.param("2-truncated-tif", "slopeprofile", _truncated, "cut.tif", id="2-truncated-tif"),
     pytest.param("2-vrt-missing-source", "slopeprofile", _vrt_missing, "v.vrt", id="2-vrt-missing-source"),
+    pytest.param("2-evaluate-truncated-mask", "evaluate", lambda t: {
+        "MASK": _truncated(t)["INPUT"], "REFERENCE_MASK": _dsm(t, shape=(300, 300)),
+        "OUTPUT_JSON": str(t / "e.json"), "OUTPUT_HTML": str(t / "e.html")},
+        r"cannot read the raster '.*cut\.tif'.*truncated or corrupt", id="2-evaluate-truncated-mask"),
+    pytest.param("2-orthoparallax-truncated-dem", "orthoparallax", lambda t: {
+        **_ortho_pair(t, (300, 300)), "DEM": _truncated(t)["INPUT"]},
+        r"DEM: cannot read the raster '.*cut\.tif'.*truncated or corrupt", id="2-orthoparallax-truncated-dem"),
     # defect 6: a raw-band VRT must not read any local file (core: coreB)
     pytest.param("6-vrt-raw-band", "slopeprofile", _vrt_raw, "raw", id="6-vrt-raw-band"),
     # defect 8: missing or unwritable output folder, named, before any work
@@ -118,6 +145,16 @@ BAD = [
                                                           "OUTPUT_DTM": str(t / "o.tif"),
                                                           "OUTPUT_MASK": str(t / "m.tif")},
                  r"\(WINDOW_CELLS\) = 7 cells is larger than the raster", id="9-window-cells"),
+    # the orthophoto tools check their windows against the DEM as the filters do
+    pytest.param("9-orthoparallax-window", "orthoparallax", lambda t: {**_ortho_pair(t, (5, 40)), "WINDOW_CELLS": 9},
+                 r"\(WINDOW_CELLS\) = 9 cells is larger than the raster itself \(40 x 5 cells\)",
+                 id="9-orthoparallax-window"),
+    pytest.param("9-orthorefine-window", "orthorefine", lambda t: {**_ortho_refine(t, (5, 40)), "WINDOW_CELLS": 9},
+                 r"\(WINDOW_CELLS\) = 9 cells is larger than the raster itself", id="9-orthorefine-window"),
+    pytest.param("9-orthoparallax-object-size", "orthoparallax", lambda t: {**_ortho_pair(t, (8, 40)),
+                                                                           "OBJECT_SIZE_M": 100.0},
+                 r"\(OBJECT_SIZE_M\) = 100.0 m is larger than the raster itself \(40.0 m across\)",
+                 id="9-orthoparallax-object-size"),
     # formats: an extension naming a format the outputs do not write, or too few bands
     *[pytest.param(f"format-{ext}", "slopeprofile", lambda t, ext=ext: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / f"o{ext}"), "OUTPUT_MASK": str(t / "m.tif")},
@@ -130,6 +167,9 @@ BAD = [
     pytest.param("creation-options", "slopeprofile", lambda t: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / "o.tif"), "OUTPUT_MASK": str(t / "m.tif"),
         "CREATE_OPTIONS": "COMPRESS=NOPE"}, r"\(CREATE_OPTIONS\).*allowed values", id="creation-options"),
+    *[pytest.param(f"creation-options-{alg}", alg, lambda t, make=make: {**make(t), "CREATE_OPTIONS": "COMPRESS=NOPE"},
+                   r"\(CREATE_OPTIONS\).*allowed values", id=f"creation-options-{alg}")
+      for alg, make in (("orthoparallax", _ortho_pair), ("orthorefine", lambda t: _ortho_refine(t, (100, 100))))],
 ]
 
 
@@ -137,7 +177,8 @@ BAD = [
 def test_bad_input_refused_before_any_work(processing_run, tmp_path, name, alg, make, message):
     from qgis.core import QgsProcessingException
     params = make(tmp_path)
-    inputs = {k: _sha(v) for k, v in params.items() if k in ("INPUT", "DTM") and os.path.isfile(v)}
+    inputs = {k: _sha(v) for k, v in params.items() if k in ("INPUT", "DTM", "DEM", "ORTHO_A", "ORTHO_B")
+              and os.path.isfile(v)}
     before = _files(tmp_path)
     with pytest.raises(QgsProcessingException, match=message):
         processing_run(f"bareearth:{alg}", params)
@@ -146,6 +187,18 @@ def test_bad_input_refused_before_any_work(processing_run, tmp_path, name, alg, 
         # pretty-printed, a <ByteOrder> added) before our refusal; every other input stays as it was.
         assert {k: _sha(params[k]) for k in inputs} == inputs      # inputs untouched
     assert _files(tmp_path) == before                              # nothing written
+
+
+def test_defect2_corrupt_input_refused_by_qgis_process(run_qgis_process, tmp_path):
+    """qgis_process refuses a truncated GeoTIFF with a message naming it (it died with rc 134, an
+    uncaught GDAL RuntimeError); no traceback, nothing written."""
+    params = _truncated(tmp_path)
+    before = _files(tmp_path)
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", params, as_json=False)
+    assert rc == 1, out
+    assert re.search(r"cannot read the raster '.*cut\.tif'.*truncated or corrupt", out), out
+    assert "Traceback" not in out and "RuntimeError" not in out
+    assert _files(tmp_path) == before
 
 
 def test_defect3_scale_and_offset_applied(processing_run, tmp_path):
@@ -158,10 +211,15 @@ def test_defect3_scale_and_offset_applied(processing_run, tmp_path):
     ds.GetRasterBand(1).SetScale(0.1)
     ds.GetRasterBand(1).SetOffset(100.0)
     ds = None
+    from qgis.core import QgsProcessingFeedback
+    lines = []
+    fb = QgsProcessingFeedback()
+    fb.pushInfo = lines.append
     res = processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "o.tif"),
-                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=fb)
     dtm = _read(res["OUTPUT_DTM"])[0]
     assert 299 < np.nanmin(dtm) and np.nanmax(dtm) < 301
+    assert any(re.search(r"stored values x 0\.1 \+ 100 \(its scale and offset\)", line) for line in lines), lines
 
 
 def test_defect5_workers_start_with_qgis_python_not_path(tmp_path):
@@ -245,6 +303,42 @@ def test_cloud_optimised_geotiff_and_creation_options(processing_run, tmp_path):
                                                     "CREATE_OPTIONS": "COMPRESS=LZW|PREDICTOR=2"})
     ds = gdal.Open(res["OUTPUT_DTM"])
     assert ds.GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW"
+
+
+def test_orthophoto_outputs_take_creation_options_and_cog(processing_run, tmp_path):
+    """orthoparallax and orthorefine offer CREATE_OPTIONS and COG as the filters do."""
+    from osgeo import gdal
+    params = _ortho_pair(tmp_path)
+    res = processing_run("bareearth:orthoparallax", {**params, "CREATE_OPTIONS": "COMPRESS=LZW|PREDICTOR=2"})
+    for key in ("OUTPUT_DEM", "OUTPUT_DH", "OUTPUT_QUALITY", "OUTPUT_MASK"):
+        assert gdal.Open(res[key]).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW", key
+    res = processing_run("bareearth:orthoparallax", {**params, "COG": True})
+    for key in ("OUTPUT_DEM", "OUTPUT_MASK"):
+        assert gdal.Open(res[key]).GetMetadata("IMAGE_STRUCTURE").get("LAYOUT") == "COG", key
+    from qgis.core import QgsApplication
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:orthorefine")
+    assert alg.parameterDefinition("CREATE_OPTIONS") is not None and alg.parameterDefinition("COG") is not None
+
+
+def test_orthorefine_writes_with_creation_options(processing_run, tmp_path):
+    from osgeo import gdal
+    p = _ortho_pair(tmp_path)
+    ties = tmp_path / "ties.csv"
+    gt = GT
+    rows = ["image,x,y,col,row"]
+    for name in ("a", "b"):
+        for r, c in ((5, 5), (5, 94), (94, 5), (94, 94), (50, 50)):
+            rows.append(f"{name},{gt[0] + (c + 0.5) * gt[1]!r},{gt[3] + (r + 0.5) * gt[5]!r},{c},{r}")
+    ties.write_text("\n".join(rows) + "\n")
+    res = processing_run("bareearth:orthorefine", {
+        "DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]], "TIE_POINTS": str(ties), "BASE_M": 300.0,
+        "HEIGHT_M": 1000.0, "MAX_ITERATIONS": 1, "OUTPUT_DEM": str(tmp_path / "r.tif"),
+        "OUTPUT_ORTHO_FOLDER": str(tmp_path / "orthos"), "OUTPUT_TABLE": str(tmp_path / "t.csv"),
+        "CREATE_OPTIONS": "COMPRESS=LZW"})
+    assert gdal.Open(res["OUTPUT_DEM"]).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"] == "LZW"
+    orthos = sorted(os.listdir(tmp_path / "orthos"))
+    assert orthos and all(gdal.Open(str(tmp_path / "orthos" / f)).GetMetadata("IMAGE_STRUCTURE")["COMPRESSION"]
+                          == "LZW" for f in orthos if f.endswith(".tif"))
 
 
 def test_provider_offers_the_formats_written(qgis_app):

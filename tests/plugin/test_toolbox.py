@@ -75,3 +75,15 @@ def test_help_urls_point_at_readme_sections_that_exist(qgis_app):
         anchor = url.split("#", 1)[1]
         assert anchor in anchors, f"{a.id()}: #{anchor} is not a heading of README.md"
         assert f"`{a.id()}`" in anchors[anchor], f"{a.id()}'s help opens '{anchors[anchor]}'"
+
+
+def test_metadata_about_and_changelog_name_every_algorithm(qgis_app):
+    """The plugin manager's texts describe the plugin as it is: every algorithm of the
+    provider is named (by its id) in the about text and the changelog."""
+    import configparser
+    cp = configparser.ConfigParser()
+    cp.read(ROOT / "metadata.txt", encoding="utf-8")
+    about, changelog = cp["general"]["about"], cp["general"]["changelog"]
+    for a in _algorithms(qgis_app):
+        assert re.search(rf"\b{a.name()}\b", about), f"metadata about does not name {a.id()}"
+        assert re.search(rf"\b{a.name()}\b", changelog), f"metadata changelog does not name {a.id()}"

@@ -1,0 +1,146 @@
+"""The dtm's final ground refinement (core/dtm_refine.py): exact floors on tiny arrays, what is and
+is not bracketed, and a scene with known truth where it removes what the vote kept."""
+import math
+
+import numpy as np
+import pytest
+
+from bare_earth.core import dtm_refine as dr
+from bare_earth.core.codes import GROUND, NODATA, OBJECT
+from bare_earth.core.dtm import filter_dtm, resolve_dtm_params
+from bare_earth.core.fill import fill_gaps
+from bare_earth.core.methods import get_method
+from bare_earth.core.synthetic import make_canopy
+
+
+def _brute_floor(zg, n, di, dj, inc):
+    rows, cols = zg.shape
+    out = np.full(zg.shape, np.inf)
+    for i in range(rows):
+        for j in range(cols):
+            for k in range(n + 1):
+                a, b = i - k * di, j - k * dj
+                if 0 <= a < rows and 0 <= b < cols:
+                    out[i, j] = min(out[i, j], zg[a, b] + k * inc)
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8])
+@pytest.mark.parametrize("di,dj", [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)])
+def test_floor_equals_brute_force(n, di, dj):
+    rng = np.random.default_rng(n)
+    zg = rng.normal(0, 2, (9, 11)).astype(np.float32)
+    zg[rng.random(zg.shape) < 0.3] = np.inf
+    got = dr._floor(zg, n, di, dj, 0.25)
+    np.testing.assert_allclose(got, _brute_floor(zg.astype(np.float64), n, di, dj, 0.25), rtol=0, atol=1e-5)
+
+
+def test_steps_and_halo():
+    assert dr.refine_steps((1.0, 1.0), 12.0) == {(0, 1): 12, (1, 0): 12, (1, 1): 8, (1, -1): 8}
+    assert dr.refine_steps((2.0, 4.0), 12.0) == {(0, 1): 6, (1, 0): 3, (1, 1): 3, (1, -1): 3}
+    assert dr.refine_steps((20.0, 20.0), 12.0) == {(0, 1): 1, (1, 0): 1, (1, 1): 1, (1, -1): 1}
+    assert dr.refine_halo((1.0, 1.0), 12.0) == 13
+    assert dr.refine_halo((4.0, 4.0), 12.0) == 4
+
+
+def test_single_bump_on_flat_ground():
+    z = np.zeros((7, 9), np.float32)
+    z[3, 4] = 1.0
+    out = dr.find_bracketed(z, np.ones(z.shape, bool), (1.0, 1.0), slope=0.0, height_m=0.5, reach_m=3.0)
+    expect = np.zeros(z.shape, bool)
+    expect[3, 4] = True
+    np.testing.assert_array_equal(out, expect)
+
+
+@pytest.mark.parametrize("slope,bracketed", [(0.4, True), (0.6, False)])
+def test_slope_allowance(slope, bracketed):
+    # the floor beside a 1 m bump is 0 + s * 1 m: above it by more than 0.5 m iff s < 0.5
+    z = np.zeros((1, 5), np.float32)
+    z[0, 2] = 1.0
+    out = dr.find_bracketed(z, np.ones(z.shape, bool), (1.0, 1.0), slope=slope, height_m=0.5, reach_m=2.0)
+    assert bool(out[0, 2]) is bracketed and out.sum() == int(bracketed)
+
+
+@pytest.mark.parametrize("reach_m,bracketed", [(1.0, False), (2.0, True)])
+def test_reach(reach_m, bracketed):
+    # a 3-cell wide object: its middle sees lower ground only two cells away
+    z = np.zeros((1, 9), np.float32)
+    z[0, 3:6] = 2.0
+    out = dr.find_bracketed(z, np.ones(z.shape, bool), (1.0, 1.0), slope=0.0, height_m=0.5, reach_m=reach_m)
+    assert bool(out[0, 4]) is bracketed
+
+
+@pytest.mark.parametrize("gx,gy", [(2.0, 0.0), (0.0, -1.5), (0.7, 0.7), (3.0, -2.0)])
+def test_no_plane_cell_is_bracketed_whatever_its_slope(gx, gy):
+    jj, ii = np.meshgrid(np.arange(15), np.arange(13))
+    z = (gx * jj + gy * ii).astype(np.float32)
+    out = dr.find_bracketed(z, np.ones(z.shape, bool), (1.0, 1.0), slope=0.0, height_m=0.1, reach_m=6.0)
+    assert not out.any()
+
+
+def test_terrace_edge_is_not_bracketed():
+    z = np.zeros((9, 12), np.float32)
+    z[:, 6:] = 3.0
+    out = dr.find_bracketed(z, np.ones(z.shape, bool), (1.0, 1.0), slope=0.0, height_m=0.5, reach_m=5.0)
+    assert not out.any()
+
+
+def test_only_ground_cells_are_sources_and_nodata_ignored():
+    z = np.zeros((1, 7), np.float32)
+    z[0, 3] = 1.0
+    z[0, 0:3] = -5.0
+    ground = np.ones(z.shape, bool)
+    ground[0, 0:3] = False                  # lower, but not ground: no floor on the left
+    out = dr.find_bracketed(z, ground, (1.0, 1.0), slope=0.0, height_m=0.5, reach_m=3.0)
+    assert not out.any()
+    z2 = z.copy()
+    z2[0, 0:3] = np.nan                     # nodata is never a source either
+    assert not dr.find_bracketed(z2, np.ones(z.shape, bool), (1.0, 1.0), slope=0.0, height_m=0.5,
+                                 reach_m=3.0).any()
+
+
+@pytest.mark.parametrize("kw", [{"slope": float("nan"), "height_m": 0.5}, {"slope": -0.1, "height_m": 0.5},
+                                {"slope": 0.1, "height_m": 0.0}])
+def test_bad_parameters(kw):
+    with pytest.raises(ValueError, match="slope|height_m"):
+        dr.find_bracketed(np.zeros((3, 3), np.float32), np.ones((3, 3), bool), (1.0, 1.0), **kw)
+
+
+def test_refine_ground_turns_bracketed_ground_into_objects_only():
+    z = np.zeros((7, 9), np.float32)
+    z[3, 4] = 1.0
+    z[0, 0] = np.nan
+    mask = np.zeros(z.shape, np.uint8)
+    mask[0, 0] = NODATA
+    mask[5, 5] = OBJECT
+    new, info = dr.refine_ground(z, mask, (1.0, 1.0), tolerance_m=0.5, slope=float("nan"))
+    expect = mask.copy()
+    expect[3, 4] = OBJECT
+    np.testing.assert_array_equal(new, expect)
+    assert mask[3, 4] == GROUND                 # the input is not modified
+    assert info["refine_slope"] == 0.0 and info["refine_removed_share"] == pytest.approx(1 / 61)
+
+
+def test_canopy_gaps_the_vote_keeps_are_removed():
+    """A closed canopy over gentle ground (synthetic truth): the three members keep low crown
+    edges and the bottoms of narrow gaps as ground, and the DTM under the crowns rests on them.
+    The refinement removes them: fewer kept objects, hardly any true ground lost, a better DTM."""
+    s = make_canopy(192.0, 1.0, seed=3, noise_m=0.05)
+    z = s.dsm.astype(np.float32)
+    params = resolve_dtm_params(z, (1.0, 1.0))
+    votes = sum((get_method(n).run(z, (1.0, 1.0), **p).mask == GROUND).astype(np.uint8)
+                for n, p in params["members"].items())
+    vote_ground = votes >= 2
+    vote_dtm = fill_gaps(z, fill=~vote_ground)
+    res = filter_dtm(z, (1.0, 1.0), **{k: v for k, v in params.items() if k != "input_description"})
+    ground = res.mask == GROUND
+    truth = s.mask == 0
+    kept_before = np.count_nonzero(vote_ground & ~truth)
+    kept_after = np.count_nonzero(ground & ~truth)
+    assert kept_before > 50                                         # the failure is there
+    assert kept_after < 0.7 * kept_before
+    assert np.count_nonzero(vote_ground & truth & ~ground) < 0.01 * np.count_nonzero(truth)
+    rmse = lambda d: float(np.sqrt(np.mean((d - s.dtm) ** 2)))     # noqa: E731
+    assert rmse(res.dtm) < 0.9 * rmse(vote_dtm)
+    assert res.info["refine_removed_share"] > 0
+    assert math.isclose(res.info["refine_reach_m"], dr.REACH_M)

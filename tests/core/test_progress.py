@@ -1,0 +1,129 @@
+"""Progress and cancel of a whole file run (issue 15): every stage of ``pipeline.run_file``
+reports (reading and deriving the parameters, the blocks, writing), for every method, and a
+cancel raised while the parameters are derived or the outputs written stops the run there
+and leaves no file. Counts of progress calls, never timings."""
+import os
+
+import numpy as np
+import pytest
+
+from bare_earth.core import estimate, grid, methods, pipeline, synthetic
+from bare_earth.core.common import Cancelled
+
+METHODS = sorted(methods.available_methods())
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+#: The progress range of the parameters' derivation (after reading the window they come from).
+DERIVE = (pipeline.READ_SHARE * pipeline.RESOLVED, pipeline.RESOLVED)
+#: The progress range of writing the outputs (after the blocks).
+WRITE = (0.97, 1.0)
+
+
+@pytest.fixture(scope="module")
+def dsm(tmp_path_factory):
+    z = synthetic.make_scene("city", shape=(300, 300), cell_size=1.0, seed=5).dsm
+    return grid.write_array(tmp_path_factory.mktemp("dsm") / "city.tif", z, GT, 32632)
+
+
+def _outputs(folder):
+    return {"dtm": str(folder / "dtm.tif"), "mask": str(folder / "mask.tif")}
+
+
+def _inside(calls, bounds):
+    return [f for f in calls if bounds[0] < f < bounds[1]]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_file_run_reports_from_inside_every_stage(method, dsm, tmp_path):
+    """The method's estimates report while the parameters are derived (not only their end),
+    the blocks report, and so does the writing of the outputs; the bar never goes back."""
+    calls = []
+    pipeline.run_file(method, dsm, _outputs(tmp_path), progress=calls.append, workers=1)
+    assert calls == sorted(calls) and calls[-1] == 1.0
+    assert len(set(_inside(calls, DERIVE))) >= 3, calls[:20]
+    assert len(_inside(calls, (pipeline.RESOLVED, WRITE[0]))) >= 10
+    assert _inside(calls, WRITE)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_cancel_while_parameters_are_derived_stops_there_and_leaves_nothing(method, dsm, tmp_path):
+    calls = []
+
+    def stop(f):
+        calls.append(f)
+        if len(_inside(calls, DERIVE)) == 2:      # the second report from inside the estimates
+            raise Cancelled()
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(Cancelled):
+        pipeline.run_file(method, dsm, _outputs(out), progress=stop, workers=1)
+    assert len(_inside(calls, DERIVE)) == 2 and DERIVE[0] < calls[-1] < DERIVE[1]   # no call after the raise
+    assert os.listdir(out) == []
+
+
+@pytest.mark.parametrize("cog", [False, True])
+def test_cancel_while_the_outputs_are_written_leaves_nothing(dsm, tmp_path, cog):
+    """Writing reports (the files flushed, a cloud-optimised copy made) and a cancel there
+    moves no output into place; no work file is left."""
+    calls = []
+
+    def stop(f):
+        calls.append(f)
+        if len(_inside(calls, WRITE)) == 2:
+            raise Cancelled()
+
+    with grid.write_options(cog=cog), pytest.raises(Cancelled):
+        pipeline.run_file("morphological", dsm, _outputs(tmp_path), progress=stop, workers=1)
+    assert WRITE[0] < calls[-1] < WRITE[1]
+    assert os.listdir(tmp_path) == []
+
+
+def test_block_writing_reports_between_the_blocks(dsm, tmp_path):
+    """In a run of several blocks, each block's writing (its arrays, then their compression)
+    reports: the bar moves between the end of a block's filter and the next block."""
+    calls = []
+    pipeline.run_file("morphological", dsm, _outputs(tmp_path), block=128, progress=calls.append, workers=1)
+    per_block = (WRITE[0] - pipeline.RESOLVED) / 9               # 9 blocks of 128 x 128 on 300 x 300
+    fractions = [(f - pipeline.RESOLVED) / per_block % 1.0 for f in _inside(calls, (pipeline.RESOLVED, WRITE[0]))]
+    writing = [x for x in fractions if pipeline.COMPUTE_SHARE < x < 1.0 - 1e-9]
+    assert len(writing) >= 9
+
+
+def test_resolve_without_progress_keyword_still_runs(dsm, tmp_path):
+    """A method whose resolve takes no ``progress`` is called without one (and the pipeline
+    reports the derivation's end itself)."""
+    base = methods.get_method("morphological")
+
+    def resolve(z, cell_size, **params):
+        return base.resolve(z, cell_size, **params)
+
+    meth = methods.Method(name="plain", run=base.run, resolve=resolve, halo=base.halo, params=base.params)
+    calls = []
+    pipeline.run_file(meth, dsm, _outputs(tmp_path), progress=calls.append, workers=1)
+    assert pipeline.RESOLVED in calls and calls[-1] == 1.0
+
+
+@pytest.mark.parametrize("name,call", [
+    ("noise_ground_level", lambda z, p: estimate.noise_ground_level(z, (1.0, 1.0), progress=p)["sigma"]),
+    ("below_surroundings", lambda z, p: estimate.below_surroundings(z, (1.0, 1.0), 0.5, progress=p)),
+    ("below_surroundings candidates", lambda z, p: estimate.below_surroundings(
+        z, (1.0, 1.0), 0.5, candidates=z < np.nanpercentile(z, 5), progress=p)),
+    ("ground_spread", lambda z, p: estimate.ground_spread([z[None, :100, :100], z[None, 100:200, :100]],
+                                                          progress=p)),
+])
+def test_long_estimates_report_and_stop_on_cancel(name, call):
+    """The estimates the parameters come from report several times, end at 1, give the same
+    answer with a callback, and stop at the call that raises."""
+    z = synthetic.make_scene("city", shape=(300, 300), cell_size=1.0, seed=5).dsm
+    calls = []
+    with_progress = call(z, calls.append)
+    np.testing.assert_array_equal(with_progress, call(z, None))
+    assert len(calls) >= 2 and calls == sorted(calls) and calls[-1] == 1.0
+    seen = []
+
+    def stop(f):
+        seen.append(f)
+        raise Cancelled()
+    with pytest.raises(Cancelled):
+        call(z, stop)
+    assert len(seen) == 1
