@@ -43,7 +43,10 @@ From curvature to objects
    terrain rasterised in steps are not walls), and ends where the profile comes back down
    to the ground extended from the wall's foot at the profile's slope before it, or comes
    down a wall onto ground nearer the foot than the top, or after the largest object
-   size. A terrace step is climbed by one scan only; objects are kept where both agree.
+   size. Every wall starts its own run, also inside another one (a run depends on the
+   profile within the largest object after its wall only: the objects do not chain along
+   a profile beyond the filter's reach). A terrace step is climbed by one scan only;
+   objects are kept where both agree.
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
    whole objects.

@@ -56,7 +56,7 @@ def _pits(z, cand, ring, depth):
         return idx[zf.take(idx) < low - np.float32(depth)]
 
 
-def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=None):
+def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, lost=None, progress=None):
     """Ground surface of the final pass: ``z`` at the cells not in ``holes``; over the
     holes, the linear interpolation along the X and Y profiles through the cell between
     the nearest known cells on either side, within ``reach = (rx, ry)`` cells.
@@ -74,8 +74,9 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     The height at a cell depends only on the cells within the reach on its row and column,
     so a block holding them gives the surface of one pass, whatever its origin. Nodata in a
     hole is crossed like any unknown cell. The scans go by cache-sized blocks of rows;
-    ``out``, optional: a float32 array of ``z``'s shape receiving the surface;
-    ``progress(fraction)`` as the work goes.
+    ``out``, optional: a float32 array of ``z``'s shape receiving the surface; ``lost``,
+    optional: a boolean array of ``z``'s shape set True at the holes with no known cell
+    within the reach (False elsewhere); ``progress(fraction)`` as the work goes.
     """
     h, w = z.shape
     known = ~holes
@@ -83,10 +84,12 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
     out = np.empty((h, w), np.float32) if out is None else out
     np.copyto(out, z)
     cells = np.flatnonzero(holes)
+    if lost is not None:
+        lost.fill(False)
     if cells.size == 0:
         report(progress, 1.0)
         return out
-    # nearest known column left/right (X profile) and row above/below (Y profile) of each cell
+    # distances to the nearest known cell left/right (X profile) and above/below (Y profile)
     left, right, up, down = _profile_ends(known, cells, sub_progress(progress, 0.0, 0.6))
     del known
     zf = z.ravel()
@@ -99,6 +102,8 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
                         val[sl], found[sl])
         report(progress, 0.6 + 0.2 * min(i0 + step, cells.size) / cells.size)
     del left, right, up, down
+    if lost is not None:
+        lost.ravel()[cells[~found]] = True
     cells, val = cells[found], val[found]
     res = out.ravel()
     res[cells] = val
@@ -111,37 +116,47 @@ def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, progress=Non
 
 def _along_profiles(zf, w, cells, left, right, up, down, reach, cell_size, val, found):
     """The heights :func:`_ground_surface` gives the flat ``cells`` (a chunk) into ``val``
-    (``found``: False where no profile end lies within the reach) from the ends of their
-    profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the raster's width."""
+    (``found``: False where no profile end lies within the reach) from the distances to the
+    ends of their profiles (:func:`_profile_ends`); ``zf``: the flat heights, ``w``: the
+    raster's width."""
     rx, ry = reach
     dx, dy = cell_size
-    r, c = np.divmod(cells, w)
-    num = np.zeros(cells.size, np.float32)
-    den = np.zeros(cells.size, np.float32)
-    n1 = np.zeros(cells.size, np.float32)  # one-sided ends, by 1 / distance^2
-    d1 = np.zeros(cells.size, np.float32)
-    for lo, hi, pos, lim, step, base, stride in ((left, right, c, rx, dx, r * w, 1),
-                                                 (up, down, r, ry, dy, c, w)):
-        a = np.minimum(pos - lo, lim + 1)  # cells to the end before (left / above)
-        b = np.minimum(hi - pos, lim + 1)  # cells to the end after (right / below)
+    n = cells.size
+    num = np.zeros(n, np.float32)
+    den = np.zeros(n, np.float32)
+    n1 = np.zeros(n, np.float32)  # one-sided ends, by 1 / distance^2
+    d1 = np.zeros(n, np.float32)
+    zero = np.float32(0)
+    for da, db, lim, step, stride in ((left, right, rx, dx, 1), (up, down, ry, dy, w)):
+        a = np.minimum(da, lim + 1)  # cells to the end before (left / above)
+        b = np.minimum(db, lim + 1)  # cells to the end after (right / below)
         ok_a, ok_b = a <= lim, b <= lim
-        za = zf.take(base + np.where(ok_a, lo, pos) * stride)
-        zb = zf.take(base + np.where(ok_b, hi, pos) * stride)
-        both = ok_a & ok_b
+        za = zf.take(cells - (a * ok_a) * stride)      # the cell itself where no end
+        zb = zf.take(cells + (b * ok_b) * stride)
+        no = ~(ok_a & ok_b)
         fa, fb = a.astype(np.float32), b.astype(np.float32)
         span = fa + fb
         # the straight line between the two ends, (b za + a zb) / (a + b), by 1 / span^2
-        v = np.where(both, za * fb + zb * fa, 0)
+        v = za * fb
+        v += zb * fa
+        np.copyto(v, zero, where=no)
         v /= span
         span *= np.float32(step)
-        wgt = np.where(both, np.float32(1.0) / (span * span), 0)
+        wgt = np.multiply(span, span, out=span)
+        np.divide(np.float32(1.0), wgt, out=wgt)
+        np.copyto(wgt, zero, where=no)
         v *= wgt
         num += v
         den += wgt
         for ok, zz, f in ((ok_a, za, fa), (ok_b, zb, fb)):
             f *= np.float32(step)
-            wgt = np.where(ok, np.float32(1.0) / (f * f), 0)   # f >= 1 cell: a hole is not known
-            n1 += np.where(ok, wgt * zz, 0)                   # not NaN * 0
+            wgt = np.multiply(f, f, out=f)          # f >= 1 cell: a hole is not known
+            np.divide(np.float32(1.0), wgt, out=wgt)
+            no = ~ok
+            np.copyto(wgt, zero, where=no)
+            zz *= wgt
+            np.copyto(zz, zero, where=no)            # not NaN * 0
+            n1 += zz
             d1 += wgt
     two = den > 0
     np.copyto(num, n1, where=~two)
@@ -160,6 +175,10 @@ def _window_mean(a, cells, k, progress=None):
     step = max(1, CHUNK_CELLS // max(w, 1))
     starts = np.arange(0, h, step)
     bounds = np.searchsorted(cells, np.append(starts * w, h * w))
+    # rows and columns of the window inside the array, per row and per column
+    r, c = np.arange(h), np.arange(w)
+    row_n = (np.minimum(r + k, h - 1) - np.maximum(r - k, 0) + 1).astype(np.float32)
+    col_n = (np.minimum(c + k, w - 1) - np.maximum(c - k, 0) + 1).astype(np.float32)
     for n, i0 in enumerate(starts):
         s0, s1 = bounds[n], bounds[n + 1]
         if s1 == s0:
@@ -168,31 +187,39 @@ def _window_mean(a, cells, k, progress=None):
         lo, hi = max(0, i0 - k), min(h, i1 + k)
         src = a[lo:hi]
         ok = np.isfinite(src)
-        v = np.where(ok, src, np.float32(0))
-        cnt = ok.astype(np.float32)
-        vs = np.zeros((hi - lo, w), np.float32)        # sums along the rows
-        cs = np.zeros((hi - lo, w), np.float32)
-        for d in range(-k, k + 1):
-            t0, t1 = max(0, -d), min(w, w - d)
-            vs[:, t0:t1] += v[:, t0 + d:t1 + d]
-            cs[:, t0:t1] += cnt[:, t0 + d:t1 + d]
-        vb = np.zeros((i1 - i0, w), np.float32)        # then along the columns
-        cb = np.zeros((i1 - i0, w), np.float32)
-        for d in range(-k, k + 1):
-            r0, r1 = max(i0, -d, i0), min(i1, h - d)
-            vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
-            cb[r0 - i0:r1 - i0] += cs[r0 + d - lo:r1 + d - lo]
+        whole = bool(ok.all())              # the usual case: no count to sum
+        v = src if whole else np.where(ok, src, np.float32(0))
+        vb = _box_sum(v, h, w, i0, i1, lo, k)
         q = cells[s0:s1] - i0 * w
-        sv, sc = vb.ravel().take(q), cb.ravel().take(q)
+        sv = vb.ravel().take(q)
+        if whole:   # the count of the window's cells inside the array, as the sums give it
+            sc = np.multiply(row_n[i0:i1, None], col_n).ravel().take(q)
+        else:
+            sc = _box_sum(ok.astype(np.float32), h, w, i0, i1, lo, k).ravel().take(q)
         out[s0:s1] = np.where(sc > 0, sv / np.maximum(sc, np.float32(1)), np.nan)
         report(progress, i1 / h)
     return out
 
 
+def _box_sum(v, h, w, i0, i1, lo, k):
+    """Sums over the ``(2 k + 1)^2`` windows of rows ``i0 .. i1 - 1`` of an ``h x w`` array
+    whose rows ``lo ..`` are ``v`` (those rows and ``k`` more on either side, where the
+    array has them): along the rows, then along the columns, in a fixed order."""
+    vs = np.zeros(v.shape, np.float32)        # sums along the rows
+    for d in range(-k, k + 1):
+        t0, t1 = max(0, -d), min(w, w - d)
+        vs[:, t0:t1] += v[:, t0 + d:t1 + d]
+    vb = np.zeros((i1 - i0, w), np.float32)   # then along the columns
+    for d in range(-k, k + 1):
+        r0, r1 = max(i0, -d), min(i1, h - d)
+        vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
+    return vb
+
+
 def _profile_ends(known, cells, progress=None):
-    """For the flat ``cells`` (sorted): the column of the nearest known cell left of and
-    right of each on its row, and the row of the nearest known cell above and below it on
-    its column (``-2**30`` / ``2**30`` where there is none). Running maxima and minima of
+    """For the flat ``cells`` (sorted): the distances (cells) to the nearest known cell left
+    of and right of each on its row, and above and below it on its column (``2**30`` or
+    more where there is none). Running maxima and minima of
     the known cells' indices, by blocks of rows (the column scans carry the last row of a
     block into the next, row by row: numpy's accumulate along the first axis is slow)."""
     h, w = known.shape
@@ -224,9 +251,11 @@ def _profile_ends(known, cells, progress=None):
         # X: running max of known columns from the left, running min from the right
         index_or(kb, cols, -far, b)
         np.maximum.accumulate(b, axis=1, out=b)
+        np.subtract(cols, b, out=b)
         left[s0:s1] = b.ravel().take(lr)
         index_or(kb, cols, far, b)
         np.minimum.accumulate(b[:, ::-1], axis=1, out=b[:, ::-1])
+        b -= cols
         right[s0:s1] = b.ravel().take(lr)
         # Y, downwards: running max of known rows, from the rows above
         index_or(kb, rows[i0:i1], -far, b)
@@ -234,6 +263,7 @@ def _profile_ends(known, cells, progress=None):
             np.maximum(b[i], prev, out=b[i])
             prev = b[i]
         prev = prev.copy()
+        np.subtract(rows[i0:i1], b, out=b)
         up[s0:s1] = b.ravel().take(lr)
         report(progress, 0.6 * (k + 1) / n_blocks)
     prev = np.full(w, far, np.int32)
@@ -247,6 +277,7 @@ def _profile_ends(known, cells, progress=None):
             np.minimum(b[i], prev, out=b[i])
             prev = b[i]
         prev = prev.copy()
+        b -= rows[i0:i1]
         down[s0:s1] = b.ravel().take(cells[s0:s1] - i0 * w)
         report(progress, 0.6 + 0.4 * (n_blocks - k) / n_blocks)
     return left, right, up, down
@@ -299,8 +330,10 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
 
     The second pass's surface also rests on the breaks the first found to be ground.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
-    :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface (None when
-    no cell could seed it).
+    :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
+    ground seed within the reach a cell keeps its own height, and the profiles' objects
+    there stay objects (every rule is local: a block without seeds decides as one pass
+    does).
     """
     dx, dy = cell_size
     m = window // 2
@@ -316,14 +349,12 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     surface = allow = None
     d = np.empty(z.shape, np.float32)
     tmp = np.empty(z.shape, bool)
+    lost = np.empty(z.shape, bool)
     for it in range(_PASSES):
-        if holes.all():                   # no ground seed (nodata is in holes)
-            mask[objects] = OBJECT
-            break
         step = sub_progress(progress, it / _PASSES, (it + 1) / _PASSES)
         # the first pass's surface is not needed once d and the allowance are known
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(step, 0.0, 0.15))
-        surface = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, out=surface,
+        surface = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, out=surface, lost=lost,
                                   progress=sub_progress(step, 0.15, 0.7))
         del zs
         np.subtract(z, surface, out=d)
@@ -338,15 +369,38 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
                                progress=sub_progress(step, 0.7, 0.85))
         report(step, 0.85)
         _classify(z, d, allow, objects, concave, mask, tmp, ring=m + 2, h_min=h_min)
+        # the profiles' objects with no ground within the reach (a closed canopy, every
+        # cell a break) stay objects: nothing near them says otherwise
+        np.logical_and(lost, objects, out=tmp)
+        np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
         holes |= breaks.by_k
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
-    del d, tmp
+    del d, tmp, lost
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
+
+
+def ground_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
+    """Cells (in any direction) within which the objects and breaks decide a cell's class in
+    :func:`find_ground`: ``2 R + 2 window + 2 m + 3`` with ``R`` the larger
+    :func:`surface_reach` and ``m = window // 2``.
+
+    Each pass's holes come from the objects within ``m`` (the breaks next to them); the
+    nodata bridge reads the holes within ``window`` (:func:`_surface_input`), the surface
+    the holes within ``R`` along the row and column and its 3 x 3 mean one cell more; the
+    allowance averages the first surface over ``m`` cells and takes its slope (1 cell): the
+    first pass's class at a cell depends on the objects within ``G1 = R + window + 2 m +
+    2``. The second pass's holes are the first pass's classes, read by its surface within
+    ``R + window + 1``: ``G1 + R + window + 1`` in all (the low blunders' ring reads the
+    heights only)."""
+    m = window // 2
+    r = max(surface_reach(cell_size, window=window, max_size=max_size))
+    g1 = r + window + 2 * m + 2
+    return g1 + (_PASSES - 1) * (r + window + 1)
 
 
 def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:

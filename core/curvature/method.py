@@ -20,8 +20,8 @@ from .derivatives import (
     derivative_blocks,
     mark_breaks,
 )
-from .ground import find_ground, surface_reach
-from .profiles import find_enclosed_objects, find_profile_objects
+from .ground import find_ground, ground_reach
+from .profiles import enclosed_reach, find_enclosed_objects, find_profile_objects, profile_reach
 
 #: Break threshold in robust standard deviations of the profile bends (K_g default).
 _K_SIGMAS = 1.5
@@ -263,14 +263,17 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
 
 
 def curvature_halo(params: dict, cell_size: CellSize) -> int:
-    """Reach of the filter in cells: the window, the foot search beyond a break, twice
-    the largest object (runs and enclosed regions), and the reach of the ground surface
-    under them (:func:`.ground.surface_reach`: half the largest object); even."""
+    """Reach of the filter in cells, the sum of its stages' reaches: the profile objects
+    (:func:`.profiles.profile_reach`: the largest object plus the wall test), the enclosed
+    regions (:func:`.profiles.enclosed_reach`: the largest object) and the final pass's two
+    ground surfaces (:func:`.ground.ground_reach`: twice half the largest object, plus the
+    windows); even. Every rule of the filter is local within its reach, so blocks with this
+    halo give the mask of one pass."""
     dx, dy = as_cell_size(cell_size)
     w = check_window(params.get("window_cells", 5))
     size = float(params.get("max_object_size_m", 100.0))
-    halo = int(w // 2 + 2 * w + 2 * int(np.ceil(size / min(dx, dy))) + 2)
-    halo += max(surface_reach((dx, dy), window=w, max_size=size))
+    halo = (profile_reach((dx, dy), window=w, max_size=size) + enclosed_reach((dx, dy), max_size=size)
+            + ground_reach((dx, dy), window=w, max_size=size))
     return halo + (halo & 1)
 
 

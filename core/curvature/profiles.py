@@ -10,7 +10,7 @@ from typing import Optional, Tuple
 import numpy as np
 from scipy import ndimage
 
-from ..common import report, sub_progress, transpose
+from ..common import report, sub_progress
 from .derivatives import CHUNK_CELLS, CellSize, Progress
 
 #: Width (cells) within which an object's wall rises, and how much steeper than the
@@ -19,15 +19,14 @@ _WALL_CELLS = 2
 _WALL_CONTRAST = 3.0
 
 
-def _walls(Zp, pad, B, cell, *, reach, h_min, tan_wall):
-    """Where a profile (axis 0, scanned downwards) has just risen as a wall.
+def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
+    """Where the profiles through the flat cells ``idx`` (the marked cells, breaks), read in
+    steps of ``sd`` flat cells, have just risen as a wall, and where they have just come
+    down one.
 
-    ``Zp[pad:]`` holds the positions examined (rows) of all profiles (columns), NaN at
-    nodata, below the ``pad >= _WALL_CELLS + reach`` positions before them (NaN before a
-    profile's start): a block of rows of the profiles, see :func:`_axis_objects`.
-    Only marked positions ``B`` (breaks,
-    shaped as ``Zp[pad:]``) are examined. The foot of position j is the lowest of the
-    ``_WALL_CELLS`` positions before it. j is the top of a wall when
+    ``zf`` is the flat NaN-framed raster of :func:`_framed` (NaN at nodata and in the frame,
+    so positions before a profile's start read NaN). The foot of position j is the lowest of
+    the ``_WALL_CELLS`` positions before it. j is the top of a wall when
 
     * ``z_j - foot >= h_min`` (high enough),
     * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
@@ -36,41 +35,32 @@ def _walls(Zp, pad, B, cell, *, reach, h_min, tan_wall):
       the ``reach`` positions before the foot (where that position is nodata or before
       the profile's start: from the farthest valid position within the reach; flat when
       there is none: the test never looks beyond the reach). This keeps terrain
-      rasterised in steps
-      (sparse points filled from the nearest one: a staircase whose treads are as steep
-      as its risers on average) and walls of a terrain cut from looking like object walls,
-      while a wall standing on a hillside still stands out.
+      rasterised in steps (sparse points filled from the nearest one: a staircase whose
+      treads are as steep as its risers on average) and walls of a terrain cut from looking
+      like object walls, while a wall standing on a hillside still stands out.
 
     The same test mirrored finds where the profile has just come down a wall (by
-    ``drop``: the highest of the ``_WALL_CELLS`` positions before, minus ``z_j``). A loop
-    over a handful of shifts, each a gather (``take``) over all marked cells from a
-    flat view of the rows k positions earlier.
+    ``drop``: the highest of the ``_WALL_CELLS`` positions before, minus ``z_j``). A
+    handful of gathers (``take``) over all marked cells.
 
     Returns
     -------
     walls : tuple of ndarray
-        ``(flat index, foot height, slope)`` of the wall tops (flat indices of
-        ``Zp[pad:]``), in index order; ``slope`` is the profile's rise per position
-        before the foot (>= 0), so that the scan can follow the ground under the object.
+        ``(flat index, foot height, slope)`` of the wall tops, in index order; ``slope``
+        is the profile's rise per position before the foot (>= 0), so that the run can
+        follow the ground under the object.
     downs : tuple of ndarray
-        ``(flat index, drop)`` of the positions just below a wall, in index order.
+        ``(flat index, drop - tol)`` of the positions just below a wall (the drop beyond
+        the tolerance, >= 0), in index order.
     """
-    n = Zp.shape[0] - pad
-    if pad < _WALL_CELLS + reach:
-        raise ValueError("_walls: the padding must cover the wall and the reach before it")
-    idx = np.flatnonzero(B)
-    if idx.size == 0:
-        e = np.zeros(0, np.int64), np.zeros(0, np.float32)
-        return (e[0], e[1], e[1]), e
+    def back(k, at):  # the heights k positions before the flat cells ``at``
+        return zf.take(at - k * sd)
 
-    def back(k):  # the profiles k positions earlier (NaN before their start), flat view
-        return Zp[pad - k:pad - k + n].ravel()
-
-    zc = back(0).take(idx)
-    best = back(1).take(idx)
+    zc = zf.take(idx)
+    best = back(1, idx)
     top = best.copy()
     for k in range(2, _WALL_CELLS + 1):
-        v = back(k).take(idx)
+        v = back(k, idx)
         np.fmin(best, v, out=best)
         np.fmax(top, v, out=top)
     base = v if _WALL_CELLS > 1 else best  # the height _WALL_CELLS positions before
@@ -86,27 +76,30 @@ def _walls(Zp, pad, B, cell, *, reach, h_min, tan_wall):
         cand, rate = cand[steep], rate[steep]
         ci = idx.take(cand)
         base = base.take(cand)
-        before = back(_WALL_CELLS + reach).take(ci)
+        before = back(_WALL_CELLS + reach, ci)
         _nearer_before(back, ci, before, base, reach)
         prior = np.maximum((base - before) / np.float32(reach * cell), 0)
         ok = rate >= np.float32(_WALL_CONTRAST) * prior
     wsel = cand[ok]
+    tol = np.float32(tol)
+    drop = np.maximum(fall[down], tol)
+    drop -= tol
     return ((ci[ok], best.take(wsel), (prior[ok] * np.float32(cell)).astype(np.float32)),
-            (idx[down], fall[down].astype(np.float32)))
+            (idx[down], drop))
 
 
 def _nearer_before(back, ci, before, base, reach):
     """Where ``before`` (the height ``_WALL_CELLS + reach`` positions before the walls
     ``ci``) is NaN (nodata, or before the profile's start), the farthest valid position
     within the reach (at a profile's start: its first position); ``base`` (a flat
-    profile) where there is none. In place; ``back(k)`` is the flat view k positions
-    earlier. Nothing beyond the reach is read, so blocks with a halo see what one pass
-    sees."""
+    profile) where there is none. In place; ``back(k, at)`` gathers the heights k
+    positions before the flat cells ``at``. Nothing beyond the reach is read, so blocks
+    with a halo see what one pass sees."""
     miss = np.flatnonzero(np.isnan(before))
     for k in range(_WALL_CELLS + reach - 1, _WALL_CELLS, -1):
         if miss.size == 0:
             return
-        v = back(k).take(ci.take(miss))
+        v = back(k, ci.take(miss))
         ok = ~np.isnan(v)
         hit = miss[ok]
         before[hit] = v[ok]
@@ -114,157 +107,141 @@ def _nearer_before(back, ci, before, base, reach):
     before[miss] = base.take(miss)
 
 
-def _row_slices(flat_idx, n, m):
-    """Start offsets of the entries of each row 0..n in a sorted flat-index array."""
-    return np.searchsorted(flat_idx // m, np.arange(n + 1))
+def _runs(zover, walls, sd, tol, max_cells, out):
+    """The paper's reading of a profile, every wall at once: the points from a break going
+    up (a wall, :func:`_walls`) to the matching break coming down belong to an object.
 
+    Each wall ``(flat index, foot g, slope gs)`` starts its own run, read in steps of
+    ``sd`` flat cells; the run covers the wall and the positions after it until the
+    profile comes back down to the ground extended from the foot at the slope before the
+    wall, ``z - g <= gs dist + tol`` (rising only), or comes down a wall onto ground
+    nearer the foot than the top, ``z - g <= gs dist + drop``; or after ``max_cells``
+    positions (the largest object), or at the profile's end. ``zover`` (flat int64,
+    :func:`_heights_and_drops`) holds each cell's height and, beside it, the drop beyond
+    the tolerance where the profile has just come down a wall (0 elsewhere): one gather
+    reads both. ``out`` (flat bool) receives the runs' cells.
 
-class _ScanState:
-    """What the scan of :func:`_scan_rows` keeps per profile between blocks of rows:
-    inside an object, ``g`` the height of the ground before it (its foot), ``gs`` the
-    slope of that ground and ``jg`` the position where the object began."""
-
-    def __init__(self, m, tol, max_cells):
-        self.g = np.zeros(m, np.float32)
-        self.jg = np.zeros(m, np.float32)
-        self.gs = np.zeros(m, np.float32)
-        self.dist = np.empty(m, np.float32)
-        self.lim = np.empty(m, np.float32)
-        self.rise = np.empty(m, np.float32)
-        self.end = np.empty(m, bool)
-        self.far = np.empty(m, bool)
-        self.tol = np.float32(tol)
-        self.max_cells = max_cells
-
-
-def _scan_rows(Z, j0, walls, downs, out, st):
-    """The scan along axis 0 (positions x profiles), all profiles at once, over the
-    positions ``j0 .. j0 + len(Z) - 1`` (``Z``: their heights, ``walls`` and ``downs``
-    from :func:`_walls` with flat indices into ``Z``); ``out[j]`` is set to the profiles
-    inside an object at position j (``out[j0 - 1]`` must hold the previous position).
-
-    The paper's reading of a profile: the points between a break going up and the
-    matching break coming down belong to an object.
-
-    * ground -> object at the top of a wall (``walls``, see :func:`_walls`: marked cells
-      only); the state ``st`` (:class:`_ScanState`) takes the wall's foot.
-    * object -> ground when the profile comes back down to the ground extended from the
-      foot at the slope the profile had before the wall (rising only; within ``tol``),
-      or comes down a wall (``downs``) onto ground nearer the foot than the top (the
-      matching break coming down, onto ground that rose under the object), or after
-      ``max_cells`` (too long for an object). On a slope the scan going uphill
-      overshoots, but the scan coming down finds the building's uphill wall;
-      :func:`_axis_objects` keeps only what both directions agree on.
-
-    Walls and down-walls are sparse: they are applied by index, row by row. The state is
-    only read inside an object and every object starts at a wall, which sets it: the
-    dense work per row is the end test alone.
+    A run depends on its wall and the positions it covers only (every wall starts one,
+    also inside another run), so a cell's result depends on the profile within the
+    largest object and the wall test's reach before it: blocks with that halo give the
+    result of one pass. A loop over the positions after the walls, all runs at once, on
+    the runs still going on.
     """
-    n, m = Z.shape
-    g, jg, gs, dist, lim = st.g, st.jg, st.gs, st.dist, st.lim
-    rise, end, far, tol = st.rise, st.end, st.far, st.tol
-    w_idx, w_foot, w_slope = walls
-    d_idx, d_drop = downs
-    w_ptr = _row_slices(w_idx, n, m)
-    d_ptr = _row_slices(d_idx, n, m)
-    w_col = (w_idx % m).astype(np.intp)
-    d_col = (d_idx % m).astype(np.intp)
-    d_add = np.maximum(d_drop, tol) - tol
+    f, g, gs = walls
+    out[f] = True
+    f = f + sd
+    fg = np.empty((f.size, 2), np.float32)            # foot and slope side by side: one gather
+    fg[:, 0], fg[:, 1] = g, gs
+    tol = np.float32(tol)
     with np.errstate(invalid="ignore"):
-        for i in range(n):
-            j = j0 + i
-            if j == 0:             # the first position is never inside an object
-                out[0] = False
-                continue
-            obj = out[j - 1]
-            np.subtract(Z[i], g, out=rise)
-            np.subtract(np.float32(j), jg, out=dist)
-            np.multiply(gs, dist, out=lim)
-            a, b = d_ptr[i], d_ptr[i + 1]
-            if b > a:  # down a wall here: end when rise <= slope * dist + drop
-                lim[d_col[a:b]] += d_add[a:b]
+        for k in range(1, max_cells + 1):
+            if f.size == 0:
+                break
+            zo = zover.take(f).view(np.float32)       # height and drop at f
+            rise = np.subtract(zo[0::2], fg[:, 0])
+            lim = np.multiply(fg[:, 1], np.float32(k))
+            lim += zo[1::2]
             lim += tol
-            np.less_equal(rise, lim, out=end)
-            np.greater(dist, st.max_cells, out=far)
-            end |= far
-            now = out[j]
-            np.greater(obj, end, out=now)          # obj & ~end: the objects that go on
-            a, b = w_ptr[i], w_ptr[i + 1]
-            if b > a:
-                c = w_col[a:b]
-                ok = ~obj.take(c)                  # a profile inside an object does not restart
-                if ok.any():
-                    c = c[ok]
-                    now[c] = True
-                    g[c] = w_foot[a:b][ok]
-                    gs[c] = w_slope[a:b][ok]
-                    jg[c] = j
+            go = np.flatnonzero(rise > lim)           # +inf (nodata): the run goes on
+            f = f.take(go)
+            fg = fg.view(np.int64).take(go).view(np.float32).reshape(-1, 2)
+            out[f] = True
+            f += sd
 
 
-def _profile_rows(a, j0, j1, dst, fill):
-    """Positions ``j0 .. j1 - 1`` of the profiles along axis 0 of ``a`` (its columns),
-    forwards then backwards, into ``dst`` (``j1 - j0`` rows): ``dst[:, :m]`` the profiles
-    read from their start, ``dst[:, m:]`` read from their end; positions before the
-    start are ``fill``."""
-    n, m = a.shape
-    k0 = min(max(j0, 0), j1)
-    if k0 > j0:
-        dst[:k0 - j0] = fill
-    if j1 <= k0:
-        return
-    d = dst[k0 - j0:j1 - j0]
-    d[:, :m] = a[k0:j1]
-    d[:, m:] = a[n - j1:n - k0][::-1]
+def _framed(a, frame, fill):
+    """``a`` inside a frame of ``frame`` cells of ``fill`` (a flat index then reaches
+    ``frame`` positions beyond any profile's ends)."""
+    h, w = a.shape
+    out = np.empty((h + 2 * frame, w + 2 * frame), a.dtype)
+    out[:frame] = fill
+    out[frame + h:] = fill
+    out[frame:frame + h, :frame] = fill
+    out[frame:frame + h, frame + w:] = fill
+    out[frame:frame + h, frame:frame + w] = a
+    return out
 
 
-def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None):
+def _set_frame(zp, frame, v):
+    """The frame of ``frame`` cells of ``zp`` (:func:`_framed`) set to ``v``."""
+    zp[:frame] = v
+    zp[zp.shape[0] - frame:] = v
+    zp[:, :frame] = v
+    zp[:, zp.shape[1] - frame:] = v
+
+
+def _heights_and_drops(zp, frame):
+    """The heights of the framed ``zp`` (:func:`_framed`) for :func:`_runs`, each beside a
+    drop of 0 (float32 pairs): -inf in the frame (a run ends beyond a profile's end),
+    +inf at nodata (a run goes on across it)."""
+    zover = np.zeros((zp.size, 2), np.float32)
+    hz = zover[:, 0]
+    np.copyto(hz, zp.ravel())
+    hz[np.isnan(hz)] = np.inf
+    _set_frame(zover.reshape(zp.shape + (2,))[..., 0], frame, -np.inf)
+    return zover
+
+
+def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None,
+               zover=None):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
-    profiles, the rows, scanned as the columns of the transposed raster): both scan
-    directions must agree.
+    profiles, the rows) of the framed heights ``zp`` and breaks ``bp`` (:func:`_framed`),
+    shaped as the frame's inside ``shape``: the runs of :func:`_runs` read forwards and
+    backwards, kept where both directions agree.
 
     A step up of the terrain (terrace edge) is an object to the scan climbing it, but the
     scan coming down the other way meets no break going up: only objects, which have a
-    break going up from both sides, are kept.
-
-    Every profile is scanned from its start and from its end at once (the profiles
-    forwards, then backwards, side by side), block of positions by block: a block of the
-    heights with the positions before it and the block's breaks are copied out of ``z``
-    and ``marked``, its walls found (:func:`_walls`) and scanned (:func:`_scan_rows`), so
-    that no index array of the raster's size is held. ``z`` is NaN at nodata.
+    break going up from both sides, are kept. The walls are found by blocks of rows (no
+    index array of the raster's size at once); every direction's runs go at once.
+    ``zover``: :func:`_heights_and_drops` of ``zp`` when the caller has it (its drops are
+    0 again on return).
     """
-    if axis == 1:
-        zt, mt = transpose(z), transpose(marked)
-        report(progress, 0.1)
-        res = _axis_objects(zt, mt, None, cell, 0, reach=reach, h_min=h_min, tan_wall=tan_wall,
-                            tol=tol, max_cells=max_cells, progress=sub_progress(progress, 0.1, 0.9))
-        del zt, mt
-        res = transpose(res)
-        if valid is not None:
-            res &= valid
-        return res
-    n, m = z.shape
-    M = 2 * m
-    pad = _WALL_CELLS + reach
-    rows = max(8, pad, (4 * CHUNK_CELLS) // max(M, 1))
-    Zc = np.empty((pad + rows, M), np.float32)
-    Bc = np.empty((rows, M), bool)
-    out = np.empty((n, M), bool)
-    st = _ScanState(M, tol, max_cells)
-    for j0 in range(0, n, rows):
-        j1 = min(n, j0 + rows)
-        k = j1 - j0
-        if j0 == 0:
-            _profile_rows(z, -pad, j1, Zc[:pad + k], np.nan)
-        else:  # the positions before the block: the end of the previous one
-            Zc[:pad] = Zc[rows:rows + pad]
-            _profile_rows(z, j0, j1, Zc[pad:pad + k], np.nan)
-        _profile_rows(marked, j0, j1, Bc[:k], False)
-        walls, downs = _walls(Zc[:pad + k], pad, Bc[:k], cell, reach=reach,
-                              h_min=h_min, tan_wall=tan_wall)
-        _scan_rows(Zc[pad:pad + k], j0, walls, downs, out, st)
-        report(progress, j1 / n)
-    res = np.logical_and(out[:, :m], out[::-1, m:])
-    del out
+    h, w = shape
+    W = zp.shape[1]
+    zf, bf = zp.ravel(), bp.ravel()
+    s = 1 if axis == 1 else W
+    out = np.empty(zf.size, bool)
+    both = None
+    rows = max(1, (16 * CHUNK_CELLS) // W)
+    found = []
+    for i, d in enumerate((1, -1)):   # the walls of both directions, on the NaN frame
+        walls, downs = [], []
+        for r0 in range(frame, frame + h, rows):
+            r1 = min(frame + h, r0 + rows)
+            idx = np.flatnonzero(bf[r0 * W:r1 * W])
+            idx += r0 * W
+            wl, dn = _walls(zf, idx, d * s, cell, reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol)
+            walls.append(wl)
+            downs.append(dn)
+            report(progress, (i + (r1 - frame) / h) / 4)
+        found.append((tuple(np.concatenate(a) for a in zip(*walls)), downs))
+    both = None
+    if zover is None:
+        zover = _heights_and_drops(zp, frame)
+    zi = zover.view(np.int64).ravel()
+    for i, d in enumerate((1, -1)):
+        wl, downs = found[i]
+        for di, drop in downs:
+            zover[di, 1] = drop
+        out.fill(False)
+        _runs(zi, wl, d * s, tol, max_cells, out)
+        for di, _ in downs:
+            zover[di, 1] = 0
+        if both is None:
+            both = out.copy()
+        else:
+            both &= out
+        report(progress, 0.5 + (i + 1) / 4)
+    return both.reshape(zp.shape)[frame:frame + h, frame:frame + w].copy()
+
+
+def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None):
+    """:func:`_axis_runs` of the raster ``z`` (NaN at nodata) and its breaks ``marked``,
+    ``& valid`` (None: every cell valid)."""
+    frame = _WALL_CELLS + reach
+    res = _axis_runs(_framed(z, frame, np.nan), _framed(marked, frame, False), frame, z.shape, cell, axis,
+                     reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol, max_cells=max_cells,
+                     progress=progress)
     if valid is not None:
         res &= valid
     return res
@@ -323,6 +300,24 @@ def _lookup(table, lab, step):
     return out
 
 
+def profile_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
+    """Cells (in any direction) within which the heights decide the objects of
+    :func:`find_profile_objects`: a run covers at most the largest object after its wall
+    (``int(max_size / cell)`` positions), and the wall test reads ``_WALL_CELLS + 2 window +
+    1`` positions before it (more than the breaks' window, ``3 (window // 2)`` with the
+    nodata bridge); both scan directions mirror it."""
+    dx, dy = cell_size
+    return max(int(max_size / dx), int(max_size / dy)) + _WALL_CELLS + 2 * window + 1
+
+
+def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
+    """Cells within which the profile objects and breaks decide :func:`find_enclosed_objects`
+    at a cell: a region kept is at most ``max_size`` across (its cells and its rim lie
+    within that many cells); one larger is rejected by any window that holds that much."""
+    dx, dy = cell_size
+    return int(max(max_size / dx, max_size / dy))
+
+
 def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
                          window: int, h_min: float, tan_wall: float, tol: float, max_size: float,
                          progress: Optional[Progress] = None) -> Tuple[np.ndarray, int, int]:
@@ -334,11 +329,18 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     Returns the union of the X and Y objects and the cells found by each.
     """
     dx, dy = cell_size
-    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=2 * window + 1)
-    obj_x = _axis_objects(z, marked, valid, dx, 1, max_cells=int(max_size / dx),
-                          progress=sub_progress(progress, 0.0, 0.5), **kw)
-    obj_y = _axis_objects(z, marked, valid, dy, 0, max_cells=int(max_size / dy),
-                          progress=sub_progress(progress, 0.5, 1.0), **kw)
+    reach = 2 * window + 1
+    frame = _WALL_CELLS + reach
+    zp, bp = _framed(z, frame, np.nan), _framed(marked, frame, False)
+    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame))
+    obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx),
+                       progress=sub_progress(progress, 0.0, 0.5), **kw)
+    obj_y = _axis_runs(zp, bp, frame, z.shape, dy, 0, max_cells=int(max_size / dy),
+                       progress=sub_progress(progress, 0.5, 1.0), **kw)
+    del zp, bp
+    if valid is not None:
+        obj_x &= valid
+        obj_y &= valid
     n_x, n_y = int(np.count_nonzero(obj_x)), int(np.count_nonzero(obj_y))
     obj_x |= obj_y
     return obj_x, n_x, n_y
