@@ -202,7 +202,9 @@ def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
         with np.errstate(divide="ignore", invalid="ignore"):
             ncc = cov / np.maximum(sa[:, ja] * sb[:, jb], 1e-15)
         ok = ok_a[:, ja] & ok_b[:, jb]
-        plane[:, ja] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        np.maximum(ncc, -1, out=ncc)                # = np.clip(ncc, -1, 1), in place
+        np.minimum(ncc, 1, out=ncc)
+        np.copyto(plane[:, ja], ncc, where=ok)
         yield plane
 
 

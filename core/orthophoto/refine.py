@@ -132,11 +132,19 @@ def _relocate(dh, corr, shift_x_m, shift_y_m, transform):
     vals = dh[ok][inside]
     cv = corr[ok][inside]
     tr, tc = tr[inside], tc[inside]
-    order = np.argsort(vals, kind="stable")                       # last write (highest) wins
     out = np.full_like(dh, np.nan)
     outc = np.full_like(corr, np.nan)
-    out[tr[order], tc[order]] = vals[order]
-    outc[tr[order], tc[order]] = cv[order]
+    # cells hit once take their value; only cells hit several times need the order by value
+    t = tr * dh.shape[1] + tc
+    hits = np.bincount(t, minlength=dh.size)
+    one = hits[t] == 1
+    out.flat[t[one]] = vals[one]
+    outc.flat[t[one]] = cv[one]
+    many = ~one
+    t, vals, cv = t[many], vals[many], cv[many]
+    order = np.argsort(vals, kind="stable")                       # last write (highest) wins
+    out.flat[t[order]] = vals[order]
+    outc.flat[t[order]] = cv[order]
     # single-cell holes from rounding: take the neighbourhood median of written cells
     holes = ~np.isfinite(out) & ndimage.binary_erosion(
         ndimage.binary_closing(np.isfinite(out), iterations=1, border_value=0), border_value=1)
