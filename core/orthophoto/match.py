@@ -109,17 +109,18 @@ def _max_filter_nearest(x, size):
     """``ndimage.maximum_filter(x, size, mode="nearest")`` of a 2-D array by shifted maxima.
 
     The same values (a maximum is exact), three to four times faster for the small sizes of
-    the shiftable windows: per axis, the edge-padded array and ``size - 1`` in-place maxima.
+    the shiftable windows: per axis, ``size - 1`` in-place maxima with the neighbours ``t``
+    cells before and after (no padding: near an edge the clipped window's cells are the
+    same as those of the edge-padded one, and a maximum does not count repeats).
     """
     h = int(size) // 2
     out = x
     for ax in (0, 1):
-        n = out.shape[ax]
-        xp = np.pad(out, [(h, h) if a == ax else (0, 0) for a in (0, 1)], mode="edge")
-        take = (lambda t: xp[t:t + n]) if ax == 0 else (lambda t: xp[:, t:t + n])  # noqa: B023
-        o = take(0).copy()
-        for t in range(1, 2 * h + 1):
-            np.maximum(o, take(t), out=o)
+        sl = (lambda a, b: np.s_[a:b]) if ax == 0 else (lambda a, b: np.s_[:, a:b])  # noqa: E731
+        o = out.copy()
+        for t in range(1, min(h, out.shape[ax] - 1) + 1):
+            np.maximum(o[sl(0, -t)], out[sl(t, None)], out=o[sl(0, -t)])
+            np.maximum(o[sl(t, None)], out[sl(0, -t)], out=o[sl(t, None)])
         out = o
     return out
 

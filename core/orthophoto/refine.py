@@ -47,8 +47,8 @@ def view_vectors(centre, X, Y, Z):
     """
     C = np.asarray(centre, dtype=float).reshape(3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        hgt = C[2] - np.asarray(Z, dtype=float)
-        hgt = np.where(hgt > 0, hgt, np.nan)
+        hgt = np.asarray(C[2] - np.asarray(Z, dtype=float))      # a new array: masked in place
+        hgt[~(hgt > 0)] = np.nan
         return (np.asarray(X, float) - C[0]) / hgt, (np.asarray(Y, float) - C[1]) / hgt
 
 
