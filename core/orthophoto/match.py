@@ -144,8 +144,9 @@ def _ncc_planes(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=No
         planes = _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill)
     for plane in planes:
         if shiftable and shiftable > 1:
-            plane = np.where(plane > _BAD, _max_filter_nearest(plane, int(shiftable)), _BAD).astype(
-                np.float32, copy=False)
+            m = _max_filter_nearest(plane, int(shiftable))
+            m[~(plane > _BAD)] = _BAD                 # a new array: = np.where(plane > _BAD, m, _BAD)
+            plane = m.astype(np.float32, copy=False)
         yield plane
 
 
@@ -286,8 +287,9 @@ def _sample_rows(images, valid, cols):
     """
     rows, n = valid.shape
     c = np.clip(cols, 0, n - 1)
-    j0 = np.floor(c).astype(np.intp)
-    f = (c - j0).astype(np.float32)
+    fl = np.floor(c)
+    j0 = fl.astype(np.intp)
+    f = (c - fl).astype(np.float32, copy=False)     # the fraction of a float32 is exact in float32
     j1 = np.minimum(j0 + 1, n - 1)
     base = (np.arange(rows, dtype=np.intp) * n)[:, None]
     i0, i1 = (base + j0).ravel(), (base + j1).ravel()    # flat indices: one gather per array
