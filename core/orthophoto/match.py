@@ -387,7 +387,7 @@ class _RunningBest:
 
     def __init__(self, shape, neighbours=False):
         self.best = np.full(shape, _BAD, np.float32)
-        self.k = np.zeros(shape, np.intp)
+        self.k = np.zeros(shape, np.int32)         # shift indices (few): half the traffic of intp
         self.neighbours = neighbours
         if neighbours:
             self.before = np.empty(shape, np.float32)
