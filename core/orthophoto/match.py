@@ -109,17 +109,18 @@ def _max_filter_nearest(x, size):
     """``ndimage.maximum_filter(x, size, mode="nearest")`` of a 2-D array by shifted maxima.
 
     The same values (a maximum is exact), three to four times faster for the small sizes of
-    the shiftable windows: per axis, the edge-padded array and ``size - 1`` in-place maxima.
+    the shiftable windows: per axis, ``size - 1`` in-place maxima with the neighbours ``t``
+    cells before and after (no padding: near an edge the clipped window's cells are the
+    same as those of the edge-padded one, and a maximum does not count repeats).
     """
     h = int(size) // 2
     out = x
     for ax in (0, 1):
-        n = out.shape[ax]
-        xp = np.pad(out, [(h, h) if a == ax else (0, 0) for a in (0, 1)], mode="edge")
-        take = (lambda t: xp[t:t + n]) if ax == 0 else (lambda t: xp[:, t:t + n])  # noqa: B023
-        o = take(0).copy()
-        for t in range(1, 2 * h + 1):
-            np.maximum(o, take(t), out=o)
+        sl = (lambda a, b: np.s_[a:b]) if ax == 0 else (lambda a, b: np.s_[:, a:b])  # noqa: E731
+        o = out.copy()
+        for t in range(1, min(h, out.shape[ax] - 1) + 1):
+            np.maximum(o[sl(0, -t)], out[sl(t, None)], out=o[sl(0, -t)])
+            np.maximum(o[sl(t, None)], out[sl(0, -t)], out=o[sl(t, None)])
         out = o
     return out
 
@@ -143,8 +144,9 @@ def _ncc_planes(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=No
         planes = _ncc_partial_windows(a0, b0, va, vb, shifts, box, var_floor, min_fill)
     for plane in planes:
         if shiftable and shiftable > 1:
-            plane = np.where(plane > _BAD, _max_filter_nearest(plane, int(shiftable)), _BAD).astype(
-                np.float32, copy=False)
+            m = _max_filter_nearest(plane, int(shiftable))
+            m[~(plane > _BAD)] = _BAD                 # a new array: = np.where(plane > _BAD, m, _BAD)
+            plane = m.astype(np.float32, copy=False)
         yield plane
 
 
@@ -202,7 +204,9 @@ def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
         with np.errstate(divide="ignore", invalid="ignore"):
             ncc = cov / np.maximum(sa[:, ja] * sb[:, jb], 1e-15)
         ok = ok_a[:, ja] & ok_b[:, jb]
-        plane[:, ja] = np.where(ok, np.clip(ncc, -1, 1), _BAD)
+        np.maximum(ncc, -1, out=ncc)                # = np.clip(ncc, -1, 1), in place
+        np.minimum(ncc, 1, out=ncc)
+        np.copyto(plane[:, ja], ncc, where=ok)
         yield plane
 
 
@@ -283,8 +287,9 @@ def _sample_rows(images, valid, cols):
     """
     rows, n = valid.shape
     c = np.clip(cols, 0, n - 1)
-    j0 = np.floor(c).astype(np.intp)
-    f = (c - j0).astype(np.float32)
+    fl = np.floor(c)
+    j0 = fl.astype(np.intp)
+    f = (c - fl).astype(np.float32, copy=False)     # the fraction of a float32 is exact in float32
     j1 = np.minimum(j0 + 1, n - 1)
     base = (np.arange(rows, dtype=np.intp) * n)[:, None]
     i0, i1 = (base + j0).ravel(), (base + j1).ravel()    # flat indices: one gather per array
@@ -382,7 +387,7 @@ class _RunningBest:
 
     def __init__(self, shape, neighbours=False):
         self.best = np.full(shape, _BAD, np.float32)
-        self.k = np.zeros(shape, np.intp)
+        self.k = np.zeros(shape, np.int32)         # shift indices (few): half the traffic of intp
         self.neighbours = neighbours
         if neighbours:
             self.before = np.empty(shape, np.float32)

@@ -72,9 +72,17 @@ def visibility(camera, dem, transform, col=None, row=None, tolerance_m=None):
     bc -= bc.min()
     br -= br.min()
     key = br * (bc.max() + 1) + bc
+    d = dist[ok]
     zbuf = np.full(int(key.max()) + 1, np.inf)
-    np.minimum.at(zbuf, key, dist[ok])
-    vis[ok] = dist[ok] <= zbuf[key] + tolerance_m
+    # nearest distance per bin (= np.minimum.at, much faster): write, then rewrite with the
+    # cells still nearer than their bin's value; each round lowers every such bin to one of
+    # its own distances, so it ends with every bin at its minimum
+    kk, dd = key, d
+    while kk.size:
+        zbuf[kk] = dd
+        nearer = dd < zbuf[kk]
+        kk, dd = kk[nearer], dd[nearer]
+    vis[ok] = d <= zbuf[key] + tolerance_m
     return vis
 
 

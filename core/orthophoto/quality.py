@@ -35,6 +35,7 @@ __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
+_INF32 = np.float32(np.inf)
 
 
 def fill_holes(values, valid=None, max_sigma=64.0):
@@ -125,14 +126,25 @@ def _selection_network(n, rank):
 
 
 def _select(planes, rank):
-    """The ``rank``-th smallest of the arrays ``planes`` (elementwise, no NaN) by a network."""
+    """The ``rank``-th smallest of the arrays ``planes`` (elementwise, no NaN) by a network.
+
+    The planes (distinct arrays of one shape and dtype) are overwritten: every comparator
+    writes into them or into one spare plane, so the network allocates a single array.
+    """
     w = list(planes)
+    spare = None
     for i, j, lo, hi in _selection_network(len(w), rank):
         a, b = w[i], w[j]
-        if lo:
-            w[i] = np.minimum(a, b)
-        if hi:
-            w[j] = np.maximum(a, b)
+        if lo and hi:
+            if spare is None:
+                spare = np.empty_like(a)
+            np.minimum(a, b, out=spare)
+            np.maximum(a, b, out=b)
+            w[i], spare = spare, a
+        elif lo:
+            np.minimum(a, b, out=a)
+        elif hi:
+            np.maximum(a, b, out=b)
     return w[rank]
 
 
@@ -194,7 +206,7 @@ def nan_median_filter(x, size=5, *, tolerance=None):
                         sup_b += np.abs(v - xc) <= tol[r0:r1]
                 parity ^= nan                               # odd count of NaN so far: +inf
                 n += ~nan
-                planes.append(np.where(nan, np.where(parity, np.inf, -np.inf), v).astype(np.float32))
+                planes.append(np.where(nan, np.where(parity, _INF32, -_INF32), v))   # float32 throughout
         m = _select(planes, mid)
         med[r0:r1] = np.where(n > 0, m, np.nan)
         cnt[r0:r1] = n

@@ -47,8 +47,8 @@ def view_vectors(centre, X, Y, Z):
     """
     C = np.asarray(centre, dtype=float).reshape(3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        hgt = C[2] - np.asarray(Z, dtype=float)
-        hgt = np.where(hgt > 0, hgt, np.nan)
+        hgt = np.asarray(C[2] - np.asarray(Z, dtype=float))      # a new array: masked in place
+        hgt[~(hgt > 0)] = np.nan
         return (np.asarray(X, float) - C[0]) / hgt, (np.asarray(Y, float) - C[1]) / hgt
 
 
@@ -132,11 +132,19 @@ def _relocate(dh, corr, shift_x_m, shift_y_m, transform):
     vals = dh[ok][inside]
     cv = corr[ok][inside]
     tr, tc = tr[inside], tc[inside]
-    order = np.argsort(vals, kind="stable")                       # last write (highest) wins
     out = np.full_like(dh, np.nan)
     outc = np.full_like(corr, np.nan)
-    out[tr[order], tc[order]] = vals[order]
-    outc[tr[order], tc[order]] = cv[order]
+    # cells hit once take their value; only cells hit several times need the order by value
+    t = tr * dh.shape[1] + tc
+    hits = np.bincount(t, minlength=dh.size)
+    one = hits[t] == 1
+    out.flat[t[one]] = vals[one]
+    outc.flat[t[one]] = cv[one]
+    many = ~one
+    t, vals, cv = t[many], vals[many], cv[many]
+    order = np.argsort(vals, kind="stable")                       # last write (highest) wins
+    out.flat[t[order]] = vals[order]
+    outc.flat[t[order]] = cv[order]
     # single-cell holes from rounding: take the neighbourhood median of written cells
     holes = ~np.isfinite(out) & ndimage.binary_erosion(
         ndimage.binary_closing(np.isfinite(out), iterations=1, border_value=0), border_value=1)
