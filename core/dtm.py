@@ -195,27 +195,45 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     """
     valid = mask != NODATA
     ground = mask == GROUND
+    # every term in float32 with the same operations as the formulas above, in place (few
+    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed
     n = float(n_members)
-    v = ground_votes.astype(np.float32)
-    agree = np.where(ground, v, n - v)                         # members agreeing with the decision
+    votes = np.asarray(ground_votes, np.uint8)
+    top = max(int(n_members), int(votes.max()) if votes.size else 0) + 1
+    v = np.arange(top, dtype=np.float32)
     half = n / 2.0
-    a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
+    table = np.clip((np.concatenate([n - v, v]) - half) / (n - half), 0.0, 1.0)   # [object: n - v, ground: v]
+    key = ground.astype(np.uint16)
+    key *= top
+    key += votes
+    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
+    del key
     report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
     zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
     dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
-    local = _box_mean(dd, 1, valid, all_valid)
+    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.35)
-    m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
-    m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
-    m = np.where(ground, m_ground, m_object)
+    np.copyto(m, dd, where=~ground)                              # object: the DTM under it
+    np.subtract(zz, m, out=m)
+    np.abs(m, out=m)
+    np.divide(m, t, out=m)
+    np.subtract(m, 1.0, out=m)                                   # object: |z - DTM| / t - 1
+    np.negative(m, out=m, where=ground)                          # ground: 1 - |z - mean| / t (exact negation)
+    np.clip(m, 0.0, 1.0, out=m)
     report(progress, 0.6)
-    share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.where(ground, share_ground, 1.0 - share_ground)
+    s = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
+    np.subtract(1.0, s, out=s, where=~ground)                    # the share of the cell's own class
     report(progress, 0.8)
-    conf = np.rint(100.0 * (a + m + s) / 3.0)
-    out = np.clip(conf, 0, 100).astype(np.uint8)
+    np.add(a, m, out=a)
+    del m
+    np.add(a, s, out=a)
+    del s
+    np.multiply(a, 100.0, out=a)
+    np.divide(a, 3.0, out=a)
+    np.rint(a, out=a)
+    out = np.clip(a, 0, 100).astype(np.uint8)
     out[~valid] = NODATA
     return out
 
