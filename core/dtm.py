@@ -293,7 +293,10 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
-    mask = np.where(ground_votes >= need, GROUND, np.where(low_votes >= need, LOW, OBJECT)).astype(np.uint8)
+    mask = np.full(shape, OBJECT, np.uint8)          # the vote, in uint8 (no int64 temporaries)
+    mask[low_votes >= need] = LOW
+    mask[ground_votes >= need] = GROUND
+    del low_votes
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
     morph = members.get("morphological", {})
     slope = morph.get("terrain_slope_p90", float("nan"))    # NaN on rasters too small to measure it
