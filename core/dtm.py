@@ -170,6 +170,15 @@ def _box_mean(a, r, valid, all_valid):
     return num / np.maximum(den, 1e-6)
 
 
+def _select(pick, a, b, out):
+    """``where(pick, a, b)`` of float32 arrays, bit for bit, with ``pick`` 0 or all bits (uint32)."""
+    ai, bi = a.view(np.uint32), b.view(np.uint32)
+    d = np.bitwise_xor(ai, bi)
+    np.bitwise_and(d, pick, out=d)
+    np.bitwise_xor(bi, d, out=out.view(np.uint32))
+    return out
+
+
 def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells, progress=None):
     """Per-cell confidence 0-100 (uint8, 255 nodata) of a ground / object decision.
 
@@ -211,20 +220,29 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
-    zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
-    dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
+    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
+    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.35)
-    np.copyto(m, dd, where=~ground)                              # object: the DTM under it
+    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
+    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
+    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
+    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    _select(pick, m, dd, out=m)                                  # object: the DTM under it
     np.subtract(zz, m, out=m)
     np.abs(m, out=m)
     np.divide(m, t, out=m)
     np.subtract(m, 1.0, out=m)                                   # object: |z - DTM| / t - 1
-    np.negative(m, out=m, where=ground)                          # ground: 1 - |z - mean| / t (exact negation)
-    np.clip(m, 0.0, 1.0, out=m)
+    np.left_shift(one, 31, out=one)
+    np.bitwise_xor(m.view(np.uint32), one, out=m.view(np.uint32))   # ground: 1 - |z - mean| / t (exact negation)
+    del one
+    np.maximum(m, 0.0, out=m)
+    np.minimum(m, 1.0, out=m)
     report(progress, 0.6)
-    s = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    np.subtract(1.0, s, out=s, where=~ground)                    # the share of the cell's own class
+    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
+    del share, pick
     report(progress, 0.8)
     np.add(a, m, out=a)
     del m
@@ -233,7 +251,9 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     np.multiply(a, 100.0, out=a)
     np.divide(a, 3.0, out=a)
     np.rint(a, out=a)
-    out = np.clip(a, 0, 100).astype(np.uint8)
+    np.maximum(a, 0, out=a)
+    np.minimum(a, 100, out=a)
+    out = a.astype(np.uint8)
     out[~valid] = NODATA
     return out
 
