@@ -170,6 +170,15 @@ def _box_mean(a, r, valid, all_valid):
     return num / np.maximum(den, 1e-6)
 
 
+def _select(pick, a, b, out):
+    """``where(pick, a, b)`` of float32 arrays, bit for bit, with ``pick`` 0 or all bits (uint32)."""
+    ai, bi = a.view(np.uint32), b.view(np.uint32)
+    d = np.bitwise_xor(ai, bi)
+    np.bitwise_and(d, pick, out=d)
+    np.bitwise_xor(bi, d, out=out.view(np.uint32))
+    return out
+
+
 def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_cells, progress=None):
     """Per-cell confidence 0-100 (uint8, 255 nodata) of a ground / object decision.
 
@@ -195,27 +204,56 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     """
     valid = mask != NODATA
     ground = mask == GROUND
+    # every term in float32 with the same operations as the formulas above, in place (few
+    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed
     n = float(n_members)
-    v = ground_votes.astype(np.float32)
-    agree = np.where(ground, v, n - v)                         # members agreeing with the decision
+    votes = np.asarray(ground_votes, np.uint8)
+    top = max(int(n_members), int(votes.max()) if votes.size else 0) + 1
+    v = np.arange(top, dtype=np.float32)
     half = n / 2.0
-    a = np.clip((agree - half) / (n - half), 0.0, 1.0)          # n: 1, bare majority of 3: 1/3
+    table = np.clip((np.concatenate([n - v, v]) - half) / (n - half), 0.0, 1.0)   # [object: n - v, ground: v]
+    key = ground.astype(np.uint16)
+    key *= top
+    key += votes
+    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
+    del key
     report(progress, 0.2)
     t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
-    zz = z if all_valid else np.where(valid, z, 0.0).astype(np.float32)
-    dd = dtm if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
-    local = _box_mean(dd, 1, valid, all_valid)
+    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
+    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
+    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.35)
-    m_ground = np.clip(1.0 - np.abs(zz - local) / t, 0.0, 1.0)
-    m_object = np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0)
-    m = np.where(ground, m_ground, m_object)
+    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
+    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
+    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
+    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    _select(pick, m, dd, out=m)                                  # object: the DTM under it
+    np.subtract(zz, m, out=m)
+    np.abs(m, out=m)
+    np.divide(m, t, out=m)
+    np.subtract(m, 1.0, out=m)                                   # object: |z - DTM| / t - 1
+    np.left_shift(one, 31, out=one)
+    np.bitwise_xor(m.view(np.uint32), one, out=m.view(np.uint32))   # ground: 1 - |z - mean| / t (exact negation)
+    del one
+    np.maximum(m, 0.0, out=m)
+    np.minimum(m, 1.0, out=m)
     report(progress, 0.6)
-    share_ground = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.where(ground, share_ground, 1.0 - share_ground)
+    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
+    del share, pick
     report(progress, 0.8)
-    conf = np.rint(100.0 * (a + m + s) / 3.0)
-    out = np.clip(conf, 0, 100).astype(np.uint8)
+    np.add(a, m, out=a)
+    del m
+    np.add(a, s, out=a)
+    del s
+    np.multiply(a, 100.0, out=a)
+    np.divide(a, 3.0, out=a)
+    np.rint(a, out=a)
+    np.maximum(a, 0, out=a)
+    np.minimum(a, 100, out=a)
+    out = a.astype(np.uint8)
     out[~valid] = NODATA
     return out
 
@@ -275,7 +313,10 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
-    mask = np.where(ground_votes >= need, GROUND, np.where(low_votes >= need, LOW, OBJECT)).astype(np.uint8)
+    mask = np.full(shape, OBJECT, np.uint8)          # the vote, in uint8 (no int64 temporaries)
+    mask[low_votes >= need] = LOW
+    mask[ground_votes >= need] = GROUND
+    del low_votes
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
     morph = members.get("morphological", {})
     slope = morph.get("terrain_slope_p90", float("nan"))    # NaN on rasters too small to measure it

@@ -84,14 +84,16 @@ def _floor(zg, n, di, dj, inc):
     running minimum of ``zg - p inc`` with ``minimum_filter1d`` on bands of 88 x 2000 cells).
     """
     r = zg.copy()
+    cand = np.empty_like(r)                       # one buffer for every pass's shifted candidates
     rows, cols = r.shape
     cover = 1
     while cover < n + 1:
         m = min(cover, n + 1 - cover)
         (dr, sr), (dc, sc) = _slices(m * di, rows), _slices(m * dj, cols)
         if dr.start < dr.stop and dc.start < dc.stop:
-            cand = r[sr, sc] + np.float32(m * inc)
-            np.minimum(r[dr, dc], cand, out=r[dr, dc])
+            c = cand[dr, dc]
+            np.add(r[sr, sc], np.float32(m * inc), out=c)
+            np.minimum(r[dr, dc], c, out=r[dr, dc])
         cover += m
     return r
 
@@ -139,16 +141,21 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
         b = min(rows, a + _BAND_ROWS)
         lo, hi = max(0, a - halo), min(rows, b + halo)
         zb = z[lo:hi]
-        gb = ground[lo:hi] & np.isfinite(zb)
-        zg = np.where(gb, zb, np.float32(np.inf))
-        top = zb - np.float32(height_m)               # above a floor: floor < z - dh
-        hit = np.zeros(zb.shape, bool)
+        zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
+        zt = z[a:b]
+        top = zt - np.float32(height_m)               # above a floor: floor < z - dh
+        hit = np.zeros(zt.shape, bool)
         for (di, dj), n in steps.items():
             inc = float(slope) * math.hypot(di * dy, dj * dx)
-            both = _floor(zg, n, di, dj, inc) < top
-            both &= _floor(zg, n, -di, -dj, inc) < top
+            both = None
+            for sdi, sdj in ((di, dj), (-di, -dj)):
+                # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
+                # along a row none: the floors of the band's rows only, from the same terms
+                r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
+                below = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0] < top
+                both = below if both is None else np.logical_and(both, below, out=both)
             hit |= both
-        out[a:b] = (hit & gb)[a - lo:a - lo + (b - a)]
+        out[a:b] = hit & ground[a:b] & np.isfinite(zt)
     return out
 
 

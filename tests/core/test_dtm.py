@@ -85,6 +85,46 @@ def test_confidence_map_exact():
     assert conf[4, 6] == 100 and conf[4, 5] < 100    # the object's neighbours: less support
 
 
+
+def _confidence_by_the_formulas(z, mask, dtm, votes, n, t, r):
+    """The module docstring's ``100 (a + m + s) / 3`` term by term, with boolean ``where`` and ``clip``."""
+    from scipy import ndimage
+    valid, ground = mask != NODATA, mask == GROUND
+    v = votes.astype(np.float32)
+    a = np.clip((np.where(ground, v, n - v) - n / 2.0) / (n - n / 2.0), 0.0, 1.0)
+    zz, dd = np.where(valid, z, 0.0).astype(np.float32), np.where(valid, dtm, 0.0).astype(np.float32)
+
+    def box(x, k):
+        num = ndimage.uniform_filter(np.where(valid, x, 0).astype(np.float32), 2 * k + 1, mode="reflect")
+        return num / np.maximum(ndimage.uniform_filter(valid.astype(np.float32), 2 * k + 1, mode="reflect"), 1e-6)
+    m = np.where(ground, np.clip(1.0 - np.abs(zz - box(dd, 1)) / t, 0.0, 1.0),
+                 np.clip(np.abs(zz - dd) / t - 1.0, 0.0, 1.0))
+    share = box(ground.astype(np.float32), r)
+    s = np.where(ground, share, 1.0 - share)
+    out = np.clip(np.rint(100.0 * (a + m + s) / 3.0), 0, 100).astype(np.uint8)
+    out[~valid] = NODATA
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 3, 5])
+def test_confidence_map_equals_its_formulas_bit_for_bit(n):
+    """The in-place terms (a table for the agreement, bit-mask choices, max/min clips) give the formulas'
+    values exactly, with nodata, any votes and heights on and around the tolerance."""
+    rng = np.random.default_rng(n)
+    z = (rng.random((60, 70)) * 4).astype(np.float32)
+    mask = rng.integers(0, 3, z.shape).astype(np.uint8)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    mask[np.isnan(z)] = NODATA
+    dtm = (z - np.float32(0.5) * rng.integers(0, 4, z.shape)).astype(np.float32)
+    votes = rng.integers(0, n + 1, z.shape).astype(np.uint8)
+    for t, r in ((0.5, 1), (0.37, 3)):
+        got = dtm_method.confidence_map(z, mask, dtm, votes, n, t, r)
+        np.testing.assert_array_equal(got, _confidence_by_the_formulas(z, mask, dtm, votes, n, t, r))
+        full = np.nan_to_num(z)                           # every cell valid: the all-valid path
+        m2 = np.where(mask == NODATA, OBJECT, mask).astype(np.uint8)
+        got = dtm_method.confidence_map(full, m2, np.nan_to_num(dtm), votes, n, t, r)
+        np.testing.assert_array_equal(got, _confidence_by_the_formulas(full, m2, np.nan_to_num(dtm), votes, n, t, r))
+
 def test_object_areas_fix_a_warehouse_larger_than_any_window():
     y, x = _grid(300)
     ground = 50 + 0.02 * x + 0.01 * y
