@@ -538,6 +538,26 @@ _RING_CHUNK = 1 << 12
 _RING_GATHER_PER_CELL = 3.0
 
 
+def surroundings_reach(cell_size, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M):
+    """``(iy, ix, ry, rx)``: the cells :func:`below_surroundings` leaves out around the
+    tested cell (its cluster, half-widths ``iy``, ``ix``: at least 2) and how far its ring
+    reaches (``ry``, ``rx``: the radius, at least the cluster + 2), along rows and columns.
+
+    The one copy of the test's reach: a filter's halo that must cover the test uses it.
+
+    Examples
+    --------
+    >>> surroundings_reach((1.0, 1.0), radius_m=10.0, cluster_m=1.5)
+    (2, 2, 10, 10)
+    >>> surroundings_reach((0.5, 2.0), radius_m=10.0, cluster_m=1.5)
+    (2, 3, 5, 20)
+    """
+    dx, dy = cell_size
+    iy = max(2, int(np.ceil(cluster_m / dy)))
+    ix = max(2, int(np.ceil(cluster_m / dx)))
+    return iy, ix, max(iy + 2, int(np.ceil(radius_m / dy))), max(ix + 2, int(np.ceil(radius_m / dx)))
+
+
 def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M, candidates=None,
                        progress=None):
     """Cells lying more than ``depth_m`` below every cell of the square ring around them.
@@ -551,11 +571,7 @@ def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=P
     gathered directly, without a pass over the raster: the same answer at a fraction of
     the cost. ``progress(fraction)`` (optional, may raise ``Cancelled``) after each filter.
     """
-    dx, dy = cell_size
-    iy = max(2, int(np.ceil(cluster_m / dy)))
-    ix = max(2, int(np.ceil(cluster_m / dx)))
-    ry = max(iy + 2, int(np.ceil(radius_m / dy)))
-    rx = max(ix + 2, int(np.ceil(radius_m / dx)))
+    iy, ix, ry, rx = surroundings_reach(cell_size, radius_m, cluster_m)
     if candidates is not None:
         idx = np.flatnonzero(candidates)
         ring_cells = (2 * ry + 1) * (2 * rx + 1) - (2 * iy + 1) * (2 * ix + 1)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..codes import LOW, NODATA, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
-from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_surroundings
+from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
 from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
@@ -79,8 +79,7 @@ def ring_reach(cell_size: Union[float, Sequence[float]]) -> tuple:
     tested cell (:func:`~bare_earth.core.estimate.below_surroundings` with its default
     ``PIT_RADIUS_M`` and ``PIT_CLUSTER_M``): the ring's radius, and at least the cluster
     + 2 cells and 4 cells, along each axis."""
-    dx, dy = as_cell_size(cell_size)
-    return tuple(max(int(np.ceil(PIT_RADIUS_M / d)), int(np.ceil(PIT_CLUSTER_M / d)) + 2, 4) for d in (dy, dx))
+    return surroundings_reach(as_cell_size(cell_size), PIT_RADIUS_M, PIT_CLUSTER_M)[2:]
 
 
 #: Candidates per gathered batch of the low-blunder ring test (:class:`_Pits`): their

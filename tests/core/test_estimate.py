@@ -324,3 +324,19 @@ def test_below_surroundings_gathered_rings_equal_the_filters_at_edges_and_nodata
     assert filters.sum() >= 4
     np.testing.assert_array_equal(gathered, filters)
     np.testing.assert_array_equal(gathered, est.below_surroundings(z, (1.0, 0.8), 0.5) & cand)
+
+
+@pytest.mark.parametrize("cell", [(1.0, 1.0), (0.5, 2.0), (2.0, 0.25)])
+def test_surroundings_reach_is_where_the_ring_ends(cell):
+    """A pit 5 m deep is below its surroundings unless one cell of its ring is as low: a low
+    cell at the reach (ry rows or rx columns away) makes it no pit, one cell farther does not."""
+    iy, ix, ry, rx = est.surroundings_reach(cell)
+    assert (iy, ix) == tuple(max(2, math.ceil(est.PIT_CLUSTER_M / d)) for d in (cell[1], cell[0]))
+    h, w = 2 * ry + 5, 2 * rx + 5
+    r0, c0 = h // 2, w // 2
+    for dr, dc in ((ry, 0), (0, rx), (ry + 1, 0), (0, rx + 1)):
+        z = np.full((h, w), 10.0, np.float32)
+        z[r0, c0] = 5.0
+        z[r0 + dr, c0 + dc] = 4.0
+        inside = dr <= ry and dc <= rx
+        assert bool(est.below_surroundings(z, cell, 1.0)[r0, c0]) is (not inside), (dr, dc)
