@@ -82,11 +82,6 @@ def ring_reach(cell_size: Union[float, Sequence[float]]) -> tuple:
     return surroundings_reach(as_cell_size(cell_size), PIT_RADIUS_M, PIT_CLUSTER_M)[2:]
 
 
-#: Candidates per gathered batch of the low-blunder ring test (:class:`_Pits`): their
-#: windows (21 x 21 cells at 1 m) take some 30 MB of float32 a batch.
-_PIT_BATCH = 1 << 14
-
-
 class _Pits:
     """The cells lying more than ``depth_m`` below every cell of the ring around them
     (:func:`~bare_earth.core.estimate.below_surroundings`), evaluated at the cells asked
@@ -94,72 +89,27 @@ class _Pits:
 
     The test depends on the DSM alone (not on the points the steps left), and the low
     blunder candidates of a step are few (4,500 of the 9.5 Mcells of a 16 Mcells city
-    strip): each candidate's window, as far as the ring reaches, is cut out (NaN, i.e.
-    +inf, beyond the array's edge, as in the full test), the windows stacked into one
-    array and tested there at their centres. The test is translation-invariant and no
-    centre's ring leaves its own window, so the answer is that of the whole array's test,
-    which runs instead when the windows would hold more cells than the array. The full map
-    of that strip took 2.3-2.8 s; the candidates' windows take a few hundredths.
+    strip): ``below_surroundings`` is asked at those cells only (``candidates``), which
+    gathers their rings instead of filtering the whole array, and the answers are kept, so
+    a cell asked about again by a later step is not tested twice.
     """
 
     def __init__(self, z, cell, depth_m):
         self.z, self.cell, self.depth = z, cell, depth_m
         self.known = np.zeros(z.shape, bool)     # cells tested so far
         self.pit = np.zeros(z.shape, bool)       # ... and their answers
-        self.reach = ring_reach(cell)
 
     def at(self, idx):
         """Whether each cell of ``idx`` (flat indices) is a pit (boolean array)."""
         known = self.known.reshape(-1)
         need = idx[~known[idx]]
         if need.size:
-            self._test(need)
+            ask = np.zeros(self.z.shape, bool)
+            ask.reshape(-1)[need] = True
+            self.pit |= below_surroundings(self.z, self.cell, self.depth, radius_m=PIT_RADIUS_M,
+                                           cluster_m=PIT_CLUSTER_M, candidates=ask)
             known[need] = True
         return self.pit.reshape(-1)[idx]
-
-    def _ring_test(self, z, candidates):
-        return below_surroundings(z, self.cell, self.depth, radius_m=PIT_RADIUS_M, cluster_m=PIT_CLUSTER_M,
-                                  candidates=candidates)
-
-    def _test(self, idx):
-        my, mx = self.reach
-        py, px = 2 * my + 1, 2 * mx + 1
-        if idx.size * py * px >= self.z.size:       # windows larger than the array
-            need = np.zeros(self.z.shape, bool)
-            need.reshape(-1)[idx] = True
-            self.pit |= self._ring_test(self.z, need)
-            return
-        for i0 in range(0, idx.size, _PIT_BATCH):
-            part = idx[i0:i0 + _PIT_BATCH]
-            win = self._windows(part)
-            # the windows side by side in a g x g mosaic (long lines for the filters)
-            g = int(np.ceil(np.sqrt(part.size)))
-            mosaic = np.full((g * g, py, px), np.nan, np.float32)
-            mosaic[:part.size] = win
-            mosaic = mosaic.reshape(g, g, py, px).transpose(0, 2, 1, 3).reshape(g * py, g * px)
-            centre = np.zeros((g * py, g * px), bool)
-            centre[my::py, mx::px] = True
-            hit = self._ring_test(mosaic, centre)[my::py, mx::px].ravel()[:part.size]
-            self.pit.reshape(-1)[part[hit]] = True
-
-    def _windows(self, idx):
-        """The heights around the cells ``idx`` (flat), ``(n, 2 my + 1, 2 mx + 1)``,
-        NaN beyond the array's edges."""
-        rows, cols = self.z.shape
-        my, mx = self.reach
-        r, c = np.divmod(idx, cols)
-        win = np.empty((idx.size, 2 * my + 1, 2 * mx + 1), np.float32)
-        inner = (r >= my) & (r < rows - my) & (c >= mx) & (c < cols - mx)
-        if inner.any():                          # views of the array, gathered at once
-            view = np.lib.stride_tricks.sliding_window_view(self.z, (2 * my + 1, 2 * mx + 1))
-            win[inner] = view[r[inner] - my, c[inner] - mx]
-        edge = ~inner
-        if edge.any():
-            rr = r[edge, None, None] + np.arange(-my, my + 1)[None, :, None]
-            cc = c[edge, None, None] + np.arange(-mx, mx + 1)[None, None, :]
-            ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-            win[edge] = np.where(ok, self.z.ravel().take(np.where(ok, rr * cols + cc, 0)), np.nan)
-        return win
 
 
 def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,

@@ -620,11 +620,9 @@ def _pitted_surface(shape, cell, seed):
 @pytest.mark.parametrize("cell, shape", [((1.0, 1.0), (150, 200)), ((0.5, 1.0), (120, 260)), ((2.0, 2.0), (60, 90))])
 @pytest.mark.parametrize("share", [0.0, 0.001, 1.0])
 def test_ring_test_at_the_candidates_equals_the_whole_map(monkeypatch, cell, shape, share):
-    """sequence._Pits (the low blunders' ring test gathered in windows at the candidates,
-    in batches, or over the whole array when they are many) answers as the full map of
-    estimate.below_surroundings, at the array's edges and corners too, for non-square
-    cells; each cell is tested once."""
-    monkeypatch.setattr(sequence, "_PIT_BATCH", 37)        # several batches and mosaics
+    """sequence._Pits (the low blunders' ring test asked at the candidates only, few or
+    many) answers as the full map of estimate.below_surroundings, at the array's edges and
+    corners too, for non-square cells; each cell is tested once."""
     z = _pitted_surface(shape, cell, 7)
     depth = 0.42
     full = below_surroundings(z, cell, depth)
