@@ -64,7 +64,7 @@ def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, 
                              f"{method_name!r}: {p.help}")
 
 
-def takes_progress(func) -> bool:
+def _takes_progress(func) -> bool:
     """Whether ``func`` has a keyword parameter named ``progress``."""
     try:
         return "progress" in inspect.signature(func).parameters
@@ -82,7 +82,7 @@ class _CheckedResolve:
 
     def __call__(self, z, cell_size, progress=None, **values):
         check_values(self.method_name, self.params, values)
-        if progress is not None and takes_progress(self.resolve):
+        if progress is not None and _takes_progress(self.resolve):
             values["progress"] = progress
         return self.resolve(z, cell_size, **values)
 
@@ -128,7 +128,7 @@ class Method:
     description: str = ""
 
     def __post_init__(self):
-        if self.params and not isinstance(self.resolve, _CheckedResolve):
+        if not isinstance(self.resolve, _CheckedResolve):
             object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params)))
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
-from .methods import Method, available_methods, check_values, get_method, takes_progress
+from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
 #: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
@@ -106,11 +106,9 @@ def resolve_params(method: Union[str, Method], z: np.ndarray, cell_size: Union[f
 
 
 def _resolve(meth, z, cell, params, progress):
-    """``meth.resolve`` given ``progress`` when it takes one (else reported when done)."""
-    if progress is not None and takes_progress(meth.resolve):
-        out = meth.resolve(z, cell, progress=progress, **params)
-    else:
-        out = meth.resolve(z, cell, **params)
+    """``meth.resolve`` with ``progress`` (passed on when the method's own resolve takes it:
+    :class:`~.methods.Method`), reported done at the end."""
+    out = meth.resolve(z, cell, progress=progress, **params)
     report(progress, 1.0)
     return out
 
