@@ -147,18 +147,34 @@ class _BoxMean:
         w, h, rows, cols, width = self.w, self.h, self.rows, self.cols, self.width
         pad = self.pad
         pad[h:h + rows, h:h + cols] = x
-        down = self.down.reshape(rows, width)
-        np.add(pad[0:rows], pad[1:rows + 1], out=down)             # sums over the window's rows
-        for t in range(2, w):
-            down += pad[t:rows + t]
+        _window_sums(pad, w, self.down.reshape(rows, width))        # over the window's rows
         n = rows * width
-        src, acc = self.down, self.across[h:n - h]                  # then over its columns
-        np.add(src[0:n - 2 * h], src[1:n - 2 * h + 1], out=acc)
-        for t in range(2, w):
-            acc += src[t:n - 2 * h + t]
+        _window_sums(self.down, w, self.across[h:n - h])           # then over its columns
         if out is None:
             out = np.empty((rows, cols), np.float32)
         return np.multiply(self.across.reshape(rows, width)[:, h:h + cols], self.scale, out=out)
+
+
+def _window_sums(v, w, out):
+    """``out[i] = v[i] + ... + v[i + w - 1]`` along the first axis, by doubling.
+
+    Sums of runs of 1, 2, 4 ... entries, then the runs of the binary digits of ``w`` one
+    after the other (four additions for ``w = 7`` instead of six).
+    """
+    m = v.shape[0]
+    runs, r, run = {1: v}, v, 1
+    while 2 * run <= w:
+        r = np.add(r[:-run], r[run:])
+        run *= 2
+        runs[run] = r
+    size = m - w + 1
+    np.copyto(out, r[:size])
+    off = run
+    for q in sorted(runs, reverse=True):
+        if q < run and w & q:
+            out += runs[q][off:off + size]
+            off += q
+    return out
 
 
 def _max_filter_nearest(x, size):
@@ -459,23 +475,35 @@ def _lsm_refine(a, b, s, valid, window, iterations):
     tb = _row_table(b0, np.gradient(b0, axis=1).astype(np.float32), vb)
     box = _BoxMean(a.shape, window)
     s = np.where(valid, s, 0).astype(np.float32)
+    sq, term = np.empty_like(s), np.empty_like(s)
     for it in range(iterations + 1):
         half = s / 2
         (A, GA), wa = _sample_rows(ta, cc - half)
         (B, GB), wb = _sample_rows(tb, cc + half)
-        w = (wa & wb).astype(np.float32)
-        r = (B - A) * w
-        g = 0.5 * (GA + GB) * w
-        n = np.maximum(box(w), 1e-6)
+        w = np.logical_and(wa, wb, out=wa).astype(np.float32)
+        r = np.subtract(B, A, out=B)
+        r *= w                                        # r = (B - A) w
+        g = np.add(GA, GB, out=GA)
+        g *= 0.5
+        g *= w                                        # g = (GA + GB) / 2 w
+        n = box(w)
+        np.maximum(n, 1e-6, out=n)
         with np.errstate(divide="ignore", invalid="ignore"):
             br, bg = box(r), box(g)
-            den = box(g * g) - bg ** 2 / n
+            den = box(np.multiply(g, g, out=sq))
+            den -= np.divide(np.square(bg, out=term), n, out=term)          # sum g^2 - (sum g)^2 / n
             if it == iterations:      # statistics at the final shift (per cell of window)
-                res = (box(r * r) - br ** 2 / n) / n
-                return s, res.astype(np.float32), (den / n).astype(np.float32)
-            num = box(r * g) - br * bg / n
-            ds = np.where(den > 1e-12, -num / den, 0.0)
-        s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
+                res = box(np.multiply(r, r, out=sq))
+                res -= np.divide(np.square(br, out=term), n, out=term)
+                res /= n
+                return s, res, np.divide(den, n, out=den)
+            num = box(np.multiply(r, g, out=sq))
+            num -= np.divide(np.multiply(br, bg, out=term), n, out=term)    # sum r g - sum r sum g / n
+            ds = np.divide(np.negative(num, out=num), den, out=num)
+            ds[~(den > 1e-12)] = 0.0
+        np.maximum(ds, -0.5, out=ds)                  # = np.clip(ds, -0.5, 0.5)
+        np.minimum(ds, 0.5, out=ds)
+        s += ds
 
 
 #: Largest number of cells matched at once; bigger inputs are matched in row strips. The NCC
@@ -532,7 +560,7 @@ class _RunningBest:
 
     def offer(self, k, plane):
         upd = plane > self.best
-        np.copyto(self.best, plane, where=upd)
+        np.maximum(self.best, plane, out=self.best)     # = where(upd, plane, best), no masked copy
         np.copyto(self.k, k, where=upd)
         if self.neighbours:
             if k == 0:
@@ -559,7 +587,7 @@ class _RunningBest:
         lo, hi = max(0, -s), fb.size - max(0, s)
         view, p = fb[lo + s:hi + s], fp[lo:hi]
         upd = p > view
-        np.copyto(view, p, where=upd)
+        np.maximum(view, p, out=view)
         np.copyto(self.k.reshape(-1)[lo + s:hi + s], k, where=upd)
 
     def finish(self):
