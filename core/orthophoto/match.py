@@ -168,12 +168,16 @@ def _window_sums(v, w, out):
         run *= 2
         runs[run] = r
     size = m - w + 1
-    np.copyto(out, r[:size])
+    rest = [q for q in sorted(runs, reverse=True) if q < run and w & q]
+    if not rest:
+        np.copyto(out, r[:size])
     off = run
-    for q in sorted(runs, reverse=True):
-        if q < run and w & q:
+    for i, q in enumerate(rest):
+        if i == 0:
+            np.add(r[:size], runs[q][off:off + size], out=out)
+        else:
             out += runs[q][off:off + size]
-            off += q
+        off += q
     return out
 
 
