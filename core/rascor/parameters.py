@@ -11,7 +11,7 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import sample_windows
+from ..estimate import ground_level_cells, ground_level_reference, object_widths, sample_windows
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
 from .sequence import ring_reach
@@ -21,8 +21,6 @@ from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope
 #: Sequences analysed for the profile lengths and the surface sizes (metres).
 PROFILE_LENGTHS_M = (5.0, 9.0, 15.0, 25.0, 41.0, 65.0)
 SURFACE_SIZES_M = (9.0, 15.0, 25.0, 41.0, 65.0)
-#: A length is accepted while its residual scale stays below this factor of the shortest's.
-_SCALE_GROWTH = 2.0
 #: Step 2: the limits lie at least this far (m) outside the terrain's lower envelope.
 _FAR_M = 20.0
 
@@ -35,6 +33,10 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 surface_size_m=None, surface_sigma_m=None, prediction_radius_m=None,
                 prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
                 low_weight=0.02)
+#: A length is accepted while its residual scale stays below this factor of the shortest's.
+_SCALE_GROWTH = 2.0
+#: What the resolve adds for the log only (the filter passes it on to its ``info``).
+DERIVED = ("object_width_m", "lengths_source")
 
 
 #: The analysis sample of a large raster: windows of this side, this many cells in all
@@ -72,31 +74,6 @@ def _choose(spreads, sigma):
     return best
 
 
-def _analysis_sample(z, cell_size, sigma, p):
-    """``[(heights, weights, cells kept)]`` of each analysis crop (the whole surface when
-    small, else windows centred on its quadrants:
-    :func:`~bare_earth.core.estimate.sample_windows`) cleaned by steps 3 and 4."""
-    sample = []
-    for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
-        keep = np.isfinite(crop)
-        if keep.sum() < 100:
-            continue
-        hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
-                                              low_weight=p["low_weight"])
-        keep &= ~(hi | lo)
-        keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
-                                      max_building_m=p["max_building_m"], sigma_m=sigma)
-        sample.append((finite_float64(crop), keep.astype(np.float64), keep))
-    return sample
-
-
-def _sample_scale(sample, sizes, degree, kernels=None):
-    """Robust scales (:func:`_robust_scale`) of the leave-one-out residuals of the moving
-    fit of ``sizes`` cells and ``degree`` on the analysis sample."""
-    v = [(c - fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
-    return _robust_scale(np.concatenate(v) if v else np.zeros(0))
-
-
 def _scan(windows, sample, degree, sigma, at_least=1, progress=None):
     """:func:`_sample_scale` along the sequence of ``windows`` (cells) as long as
     :func:`_choose` can still accept the next one: the sequence ends at the first window
@@ -109,6 +86,117 @@ def _scan(windows, sample, degree, sigma, at_least=1, progress=None):
         if i + 1 >= at_least and _choose([b for _, b in out], sigma) < i:
             break
     return out
+
+
+def _longest_following(errors, sigma):
+    """Index of the longest window of the sequence up to which the model follows the
+    terrain within the random error: the model error ``errors[i]`` (robust scale of the
+    leave-one-out residuals on the ground-level reference surface, :func:`_model_errors`)
+    at most ``sigma`` for this window and every shorter one (0 when even the first fails)."""
+    best = 0
+    for i, (e, _) in enumerate(errors):
+        if np.isfinite(e) and e <= sigma:
+            best = i
+        else:
+            break
+    return best
+
+
+def _model_errors(sample, windows, degree, sigma, at_least=1, progress=None, transposed=False):
+    """Model error of each window of the sequence: ``(MAD scale, 90th percentile of |v|)``
+    (:func:`_robust_scale`) of the leave-one-out residuals ``v`` of the moving fit
+    (``windows`` in cells: an int for profiles, ``(rows, cols)`` for surfaces) on the
+    ground-level reference surfaces ``sample`` (:func:`_analysis_sample`); profiles along X
+    and, with ``transposed``, Y. The sequence stops after the first window whose MAD scale
+    exceeds ``sigma`` (the longer ones are never chosen), but covers at least ``at_least``
+    windows."""
+    out = []
+    for i, sizes in enumerate(windows):
+        v = []
+        for c, w, kk in sample:
+            v.append((c - fit_at_centre(c, w, sizes, degree)[0])[kk])
+            if transposed:
+                ct, wt = np.ascontiguousarray(c.T), np.ascontiguousarray(w.T)
+                v.append((ct - fit_at_centre(ct, wt, sizes, degree)[0])[kk.T])
+        out.append(_robust_scale(np.concatenate(v) if v else np.zeros(0)))
+        report(progress, (i + 1) / len(windows))
+        if i + 1 >= at_least and not (np.isfinite(out[-1][0]) and out[-1][0] <= sigma):
+            break
+    return out
+
+
+def _error_at(errors, sequence, value, compute):
+    """The model error of the window ``value`` (metres): from ``errors`` (along
+    ``sequence``) when it is there, else ``compute(value)``."""
+    if value in sequence and sequence.index(value) < len(errors):
+        return errors[sequence.index(value)]
+    return compute(value)
+
+
+def _about_model(sigma, error):
+    """Standard deviation of a ground height about the model: the random error and the
+    model's error combined, ``sqrt(sigma^2 + e^2)``, ``e`` the 90th percentile of the
+    model's residuals (:func:`_model_errors`) / 1.645, the Gaussian scale with that tail
+    (``sigma`` alone when the error is not measurable)."""
+    e = error[1] / 1.645 if error is not None and np.isfinite(error[1]) else 0.0
+    return round(float(np.hypot(sigma, e)), 3)
+
+
+def _analysis_sample(z, cell_size, sigma, p):
+    """The analysis crops (the whole surface when small, else windows centred on its
+    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(sample, ground,
+    objects)``, with ``sample`` the ``[(heights, weights, cells kept)]`` of each crop
+    cleaned by steps 3 and 4, ``ground`` the same of its ground-level reference surface
+    (:func:`~bare_earth.core.estimate.ground_level_reference`: 20 m block minima
+    interpolated, which objects narrower than a block do not reach) and ``objects`` the
+    masks of the cells steps 3 and 4 left standing above the ground level
+    (:func:`~bare_earth.core.estimate.ground_level_cells`)."""
+    sample, ground, objects, levels = [], [], [], []
+    for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
+        keep = np.isfinite(crop)
+        if keep.sum() < 100:
+            continue
+        hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
+                                              low_weight=p["low_weight"])
+        keep &= ~(hi | lo)
+        keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
+                                      max_building_m=p["max_building_m"], sigma_m=sigma)
+        sample.append((finite_float64(crop), keep.astype(np.float64), keep))
+        ref = ground_level_reference(crop, cell_size)[0]
+        ok = np.isfinite(ref)
+        ground.append((finite_float64(ref), ok.astype(np.float64), ok))
+        low = keep & ground_level_cells(crop, cell_size, sigma)
+        objects.append(keep & ~low)
+        levels.append((finite_float64(crop), low.astype(np.float64), low))
+    return sample, ground, objects, levels
+
+
+def _side_by_side(masks):
+    """The masks in one array, side by side with an empty column between them (their
+    objects stay apart)."""
+    rows = max(m.shape[0] for m in masks)
+    out = np.zeros((rows, sum(m.shape[1] + 1 for m in masks)), bool)
+    c = 0
+    for m in masks:
+        out[:m.shape[0], c:c + m.shape[1]] = m
+        c += m.shape[1] + 1
+    return out
+
+
+def _shortest_covering(sequence, need_m):
+    """Index of the shortest length of ``sequence`` at least ``need_m`` (the last when none
+    is)."""
+    for i, L in enumerate(sequence):
+        if L >= need_m:
+            return i
+    return len(sequence) - 1
+
+
+def _sample_scale(sample, sizes, degree, kernels=None):
+    """Robust scales (:func:`_robust_scale`) of the leave-one-out residuals of the moving
+    fit of ``sizes`` cells and ``degree`` on the analysis sample."""
+    v = [(c - fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
+    return _robust_scale(np.concatenate(v) if v else np.zeros(0))
 
 
 def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
@@ -128,10 +216,24 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
       residuals of the class model; the long profile is the longest length before the
       90th percentile of ``|v|`` exceeds twice the shortest's (the model stops following
       the terrain, or objects as long as the profile remain; the analysis of the sequence
-      stops there), the short one the longest of the sequence at most half of it;
-      ``profile_sigma_m`` is the robust (MAD) scale of the residuals at the long length
-      (scales from a regular subsample of at most 262144 residuals);
-    * the surface size and ``surface_sigma_m`` likewise from :data:`SURFACE_SIZES_M`;
+      stops there; long profiles cut the shoulders of cuts and embankments, which break
+      lines protect), the short one the longest of the sequence at most half of it;
+    * the scales ``profile_sigma_m`` and ``surface_sigma_m``: the standard deviation of a
+      ground height about the model, ``sqrt(sigma^2 + e^2)`` with ``e`` the model's error
+      measured where objects are not, on the ground-level reference surface of the crops
+      (:func:`~bare_earth.core.estimate.ground_level_reference`: 20 m block minima
+      interpolated), as the 90th percentile of its leave-one-out residuals / 1.645 (the
+      tail a Gaussian scale must cover, so that ground at the terrain's bends passes the
+      snooping); the residuals of the DSM itself, which the objects left by steps 3 and 4
+      widen, put 0.27 m (and windows of 9 m) on the opengeos 2 m city;
+    * the surface size ``surface_size_m``: the shortest of :data:`SURFACE_SIZES_M`
+      covering ``sqrt(2)`` times the width of the objects steps 3 and 4 leave standing
+      above the ground level (:func:`~bare_earth.core.estimate.object_widths`, 98 % of
+      their area: a window then holds at least as much ground as object, so its plane
+      stays on the ground), and at most the longest size whose model error (robust scale
+      on the ground-level reference surface) stays within ``sigma`` (the model follows the
+      terrain within the random error); ``object_width_m`` and ``lengths_source`` give the
+      figures in the log;
     * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
 
     ``progress(fraction)`` (optional) is called after each stage of the analysis; it may
@@ -142,11 +244,11 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     dict
         Every parameter of :func:`filter_rascor` except the rasters and ``progress``.
     """
-    unknown = sorted(set(params) - set(DEFAULTS))
+    unknown = sorted(set(params) - set(DEFAULTS) - set(DERIVED))
     if unknown:
         raise ValueError(f"unknown RASCOR parameter(s) {unknown}; known: {sorted(DEFAULTS)}.")
     p = dict(DEFAULTS)
-    p.update({k: v for k, v in params.items() if v is not None or DEFAULTS[k] is None})
+    p.update({k: v for k, v in params.items() if k in DEFAULTS and (v is not None or DEFAULTS[k] is None)})
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
     cs = max(dx, dy)
@@ -182,37 +284,58 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
-    need = any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m",
-                                      "surface_size_m", "surface_sigma_m", "prediction_sigma_m"))
+    need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
+                        "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
-        deg = model_degree(tc, p["homogeneous"])
-        sample = _analysis_sample(z, (dx, dy), sigma, p)
+        sample, ground, objects, levels = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
-        ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
-                   progress=sub_progress(progress, 0.6, 0.8))
-        i_long = max(_choose([b for _, b in ps], sigma), 1)
-        long_m = PROFILE_LENGTHS_M[i_long]
-        i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
-        if p["long_profile_m"] is None:
-            p["long_profile_m"] = long_m
-        if p["short_profile_m"] is None:
-            p["short_profile_m"] = PROFILE_LENGTHS_M[i_short]
-        if p["profile_sigma_m"] is None:
-            s = ps[i_long][0]
-            p["profile_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+        if objects:
+            # how wide the objects steps 3 and 4 leave are: a window reaches the ground
+            # beyond them when it holds at least as much ground as object
+            width = object_widths(_side_by_side(objects), (dx, dy))
+            p["object_width_m"] = round(width, 1)
+        width = p.get("object_width_m", 0.0)
+        deg = model_degree(tc, p["homogeneous"])
+        notes = []
+        if any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m")):
+            ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
+                       progress=sub_progress(progress, 0.6, 0.8))
+            i_long = max(_choose([b for _, b in ps], sigma), 1)
+            long_m = PROFILE_LENGTHS_M[i_long]
+            i_short = max(i for i, L in enumerate(PROFILE_LENGTHS_M) if L <= max(long_m / 2, PROFILE_LENGTHS_M[0]))
+            if p["long_profile_m"] is None:
+                p["long_profile_m"] = long_m
+            if p["short_profile_m"] is None:
+                p["short_profile_m"] = PROFILE_LENGTHS_M[i_short]
+            if p["profile_sigma_m"] is None:
+                e = _model_errors(ground, [odd_window(p["long_profile_m"] / dx)], deg, np.inf, transposed=True)[0]
+                p["profile_sigma_m"] = _about_model(sigma, e)
+                notes.append(f"profile scale {p['profile_sigma_m']:g} m: sigma and the model error "
+                             f"{e[1] / 1.645:.3f} m of the {p['long_profile_m']:g} m profile on the "
+                             "ground-level reference surface")
         if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
-            ss = _scan([(odd_window(S / dy), odd_window(S / dx)) for S in SURFACE_SIZES_M], sample, min(deg, 1),
-                       sigma, progress=sub_progress(progress, 0.8, 0.95))
-            i_s = _choose([b for _, b in ss], sigma)
+            def win(S):
+                return odd_window(S / dy), odd_window(S / dx)
+            ss = _model_errors(ground, [win(S) for S in SURFACE_SIZES_M], min(deg, 1), sigma,
+                               progress=sub_progress(progress, 0.8, 0.9))
             if p["surface_size_m"] is None:
-                p["surface_size_m"] = SURFACE_SIZES_M[i_s]
+                i_t = _longest_following(ss, sigma)
+                i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * width)
+                p["surface_size_m"] = SURFACE_SIZES_M[min(i_t, i_o)]
+                notes.append(f"surface {p['surface_size_m']:g} m: the shortest covering sqrt(2) x the "
+                             f"objects' width ({SURFACE_SIZES_M[i_o]:g} m), at most the longest "
+                             f"the model follows the terrain within sigma ({SURFACE_SIZES_M[i_t]:g} m)")
+            e_s = _error_at(ss, SURFACE_SIZES_M, p["surface_size_m"],
+                            lambda S: _model_errors(ground, [win(S)], min(deg, 1), np.inf)[0])
             if p["surface_sigma_m"] is None:
-                s = ss[i_s][0]
-                p["surface_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+                p["surface_sigma_m"] = _about_model(sigma, e_s)
         if p["prediction_sigma_m"] is None:
+            report(progress, 0.95)
             g = (gauss_weights(p["prediction_radius_m"] / dy), gauss_weights(p["prediction_radius_m"] / dx))
             s = _sample_scale(sample, (len(g[0]), len(g[1])), 1, kernels=g)[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
+        if notes:
+            p["lengths_source"] = "; ".join(notes)
     report(progress, 1.0)
     return p
 
