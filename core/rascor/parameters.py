@@ -35,8 +35,6 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 low_weight=0.02)
 #: A length is accepted while its residual scale stays below this factor of the shortest's.
 _SCALE_GROWTH = 2.0
-#: What the resolve adds for the log only (the filter passes it on to its ``info``).
-DERIVED = ("object_width_m", "lengths_source")
 
 
 #: The analysis sample of a large raster: windows of this side, this many cells in all
@@ -232,8 +230,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
       their area: a window then holds at least as much ground as object, so its plane
       stays on the ground), and at most the longest size whose model error (robust scale
       on the ground-level reference surface) stays within ``sigma`` (the model follows the
-      terrain within the random error); ``object_width_m`` and ``lengths_source`` give the
-      figures in the log;
+      terrain within the random error);
     * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
 
     ``progress(fraction)`` (optional) is called after each stage of the analysis; it may
@@ -244,7 +241,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     dict
         Every parameter of :func:`filter_rascor` except the rasters and ``progress``.
     """
-    unknown = sorted(set(params) - set(DEFAULTS) - set(DERIVED))
+    unknown = sorted(set(params) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown RASCOR parameter(s) {unknown}; known: {sorted(DEFAULTS)}.")
     p = dict(DEFAULTS)
@@ -292,11 +289,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         if objects:
             # how wide the objects steps 3 and 4 leave are: a window reaches the ground
             # beyond them when it holds at least as much ground as object
-            width = object_widths(_side_by_side(objects), (dx, dy))
-            p["object_width_m"] = round(width, 1)
-        width = p.get("object_width_m", 0.0)
+            width = round(object_widths(_side_by_side(objects), (dx, dy)), 1)
+        else:
+            width = 0.0
         deg = model_degree(tc, p["homogeneous"])
-        notes = []
         if any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m")):
             ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
                        progress=sub_progress(progress, 0.6, 0.8))
@@ -310,9 +306,6 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             if p["profile_sigma_m"] is None:
                 e = _model_errors(ground, [odd_window(p["long_profile_m"] / dx)], deg, np.inf, transposed=True)[0]
                 p["profile_sigma_m"] = _about_model(sigma, e)
-                notes.append(f"profile scale {p['profile_sigma_m']:g} m: sigma and the model error "
-                             f"{e[1] / 1.645:.3f} m of the {p['long_profile_m']:g} m profile on the "
-                             "ground-level reference surface")
         if p["surface_size_m"] is None or p["surface_sigma_m"] is None:
             def win(S):
                 return odd_window(S / dy), odd_window(S / dx)
@@ -322,9 +315,6 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 i_t = _longest_following(ss, sigma)
                 i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * width)
                 p["surface_size_m"] = SURFACE_SIZES_M[min(i_t, i_o)]
-                notes.append(f"surface {p['surface_size_m']:g} m: the shortest covering sqrt(2) x the "
-                             f"objects' width ({SURFACE_SIZES_M[i_o]:g} m), at most the longest "
-                             f"the model follows the terrain within sigma ({SURFACE_SIZES_M[i_t]:g} m)")
             e_s = _error_at(ss, SURFACE_SIZES_M, p["surface_size_m"],
                             lambda S: _model_errors(ground, [win(S)], min(deg, 1), np.inf)[0])
             if p["surface_sigma_m"] is None:
@@ -334,8 +324,6 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             g = (gauss_weights(p["prediction_radius_m"] / dy), gauss_weights(p["prediction_radius_m"] / dx))
             s = _sample_scale(sample, (len(g[0]), len(g[1])), 1, kernels=g)[0]
             p["prediction_sigma_m"] = round(float(max(sigma, s if np.isfinite(s) else sigma)), 3)
-        if notes:
-            p["lengths_source"] = "; ".join(notes)
     report(progress, 1.0)
     return p
 

@@ -296,8 +296,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   prediction_sigma_m: Optional[float] = None, snooping_k: float = 4.0,
                   snooping_iterations: int = 1, low_weight: float = 0.02,
                   steps: Optional[Iterable[int]] = None, breaklines: Optional[np.ndarray] = None,
-                  special_areas: Optional[np.ndarray] = None, object_width_m: Optional[float] = None,
-                  lengths_source: Optional[str] = None,
+                  special_areas: Optional[np.ndarray] = None,
                   progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
 
@@ -348,9 +347,6 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         Cells crossed by a break line (rasterised by the plugin; not a Param).
     special_areas : array_like of bool, optional
         Cells where only the local filters (steps 3 and 7) run (not a Param).
-    object_width_m, lengths_source : float, str, optional
-        For the log only (:func:`resolve_rascor_params` derives them): the width of the
-        objects steps 3 and 4 leave and why the lengths were chosen; copied to ``info``.
     progress : callable, optional
         ``progress(fraction)``; may raise :class:`Cancelled`.
 
@@ -385,7 +381,5 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         _STEPS[k](st, cfg, sub_progress(progress, a, b))
         report(progress, b)
     result = _result(st, cfg)
-    result.info.update({k: v for k, v in (("object_width_m", object_width_m),
-                                          ("lengths_source", lengths_source)) if v is not None})
     report(progress, 1.0)
     return result

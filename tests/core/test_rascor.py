@@ -791,3 +791,70 @@ def test_resolve_reports_progress_and_can_be_cancelled():
 
     with pytest.raises(Cancelled):
         rascor.resolve_rascor_params(z, 1.0, progress=cancel)
+
+
+# ----------------------------------------------------------------- #12: the surface size and the scales
+def test_opengeos_dtm_under_objects(shared_data):
+    """#12: on the 2 m lidar DSM of a city (opengeos) the DTM was 2.87 m RMSE from the
+    reference (+1.70 m mean): surfaces of 15 m and a scale of 0.56 m from residuals the
+    objects left by steps 3 and 4 widened, so the roofs' cells steps 3-4 missed stayed ground
+    and the fill stood on them. Now the surface covers sqrt(2) x the objects' width and the
+    scales come from the model error on the ground-level reference surface."""
+    path = shared_data / "raster" / "opengeos"
+    if not (path / "dsm.tif").exists():
+        pytest.skip(f"{path} is absent")
+    from bare_earth.core import grid, pipeline
+    info = grid.open_dsm(str(path / "dsm.tif"))
+    z = info.read()
+    ref = grid.open_dsm(str(path / "dtm.tif")).read()
+    res = pipeline.run_array("rascor", z, info.cell_size_m, {})
+    p = res.info["params"]
+    assert p["surface_size_m"] >= 41.0          # 15 m before
+    ok = np.isfinite(z) & np.isfinite(ref)
+    e = (res.dtm - ref)[ok]
+    assert np.sqrt(np.mean(e ** 2)) <= 1.2
+
+
+def test_scales_cover_sigma_and_the_surface_the_objects():
+    """Square roofs with crowns against two walls, which step 4 cannot take: the surface
+    window covers sqrt(2) x the width of what steps 3-4 leave (at most the sequence's end),
+    and the scales are at least the random error."""
+    from bare_earth.core.estimate import object_widths
+    from bare_earth.core.rascor import parameters as rp
+    rng = np.random.default_rng(3)
+    n = 160
+    z = plane(n, 0.01, 0.005) + rng.normal(0, 0.05, (n, n))
+    for r0, c0 in ((20, 20), (20, 95), (95, 20), (95, 95)):
+        z[r0:r0 + 13, c0:c0 + 13] += 9.0                     # 13 m roofs
+        for sl in ((slice(r0 - 2, r0 + 15), slice(c0 - 2, c0)), (slice(r0 - 2, r0), slice(c0, c0 + 15))):
+            z[sl] += rng.uniform(2.0, 8.0, z[sl].shape)       # crowns against two walls
+    p = rascor.resolve_rascor_params(z, 1.0)
+    _, _, objects, _ = rp._analysis_sample(z, (1.0, 1.0), p["sigma_m"], p)
+    w = round(object_widths(rp._side_by_side(objects), (1.0, 1.0)), 1)
+    fits = [s for s in rascor.SURFACE_SIZES_M if s >= np.sqrt(2.0) * w] or [rascor.SURFACE_SIZES_M[-1]]
+    assert p["surface_size_m"] <= fits[0]
+    assert p["surface_sigma_m"] >= p["sigma_m"] and p["profile_sigma_m"] >= p["sigma_m"]
+    rascor.filter_rascor(z, 1.0, **p)                          # the resolved parameters run as they are
+
+
+def test_defaults_in_metres_do_not_depend_on_the_cell():
+    """#12: the same scene at 0.5, 1, 2 and 4 m cells: sigma, the scales and the surface size (in
+    metres) within 20 % of each other, or one step of the sequence for the size."""
+    rng = np.random.default_rng(0)
+    side = 256.0
+    out = []
+    for cell in (0.5, 1.0, 2.0, 4.0):
+        n = int(side / cell)
+        x = np.arange(n) * cell
+        z = 0.02 * x[None, :] + 0.01 * x[:, None] + 0.5 * np.sin(x[:, None] / 40.0)
+        z = z + rng.normal(0, 0.05, (n, n))
+        for r0 in (40.0, 150.0):
+            a, b = int(r0 / cell), int(r0 / cell)
+            k = int(24 / cell)
+            z[a:a + k, b:b + k] += 8.0
+        out.append(rascor.resolve_rascor_params(z.astype(np.float32), cell))
+    for key in ("sigma_m", "surface_sigma_m"):
+        v = [p[key] for p in out]
+        assert max(v) <= 1.2 * min(v), (key, v)
+    idx = [rascor.SURFACE_SIZES_M.index(p["surface_size_m"]) for p in out]
+    assert max(idx) - min(idx) <= 1, [p["surface_size_m"] for p in out]
