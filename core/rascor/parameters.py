@@ -11,7 +11,7 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import ground_level_cells, ground_level_reference, object_widths, sample_windows
+from ..estimate import GROUND_BLOCK_M, ground_level_cells, ground_level_reference, object_widths, sample_windows
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
 from .sequence import ring_reach
@@ -142,31 +142,38 @@ def _about_model(sigma, error):
 
 def _analysis_sample(z, cell_size, sigma, p):
     """The analysis crops (the whole surface when small, else windows centred on its
-    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(sample, ground,
+    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample,
     objects)``, with ``sample`` the ``[(heights, weights, cells kept)]`` of each crop
-    cleaned by steps 3 and 4, ``ground`` the same of its ground-level reference surface
-    (:func:`~bare_earth.core.estimate.ground_level_reference`: 20 m block minima
-    interpolated, which objects narrower than a block do not reach) and ``objects`` the
-    masks of the cells steps 3 and 4 left standing above the ground level
-    (:func:`~bare_earth.core.estimate.ground_level_cells`)."""
-    sample, ground, objects, levels = [], [], [], []
+    cleaned by steps 3 and 4, and ``objects`` the masks of its cells standing above the
+    ground level (:func:`~bare_earth.core.estimate.ground_level_cells` with blocks of the
+    longest surface of the sequence: more than 2 m and the terrain's rise over a block
+    above the interpolated block minima)."""
+    crops, sample, objects = [], [], []
     for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
         keep = np.isfinite(crop)
         if keep.sum() < 100:
             continue
+        objects.append(keep & ~ground_level_cells(crop, cell_size, block_m=SURFACE_SIZES_M[-1]))
         hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
                                               low_weight=p["low_weight"])
         keep &= ~(hi | lo)
         keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
                                       max_building_m=p["max_building_m"], sigma_m=sigma)
+        crops.append(crop)
         sample.append((finite_float64(crop), keep.astype(np.float64), keep))
-        ref = ground_level_reference(crop, cell_size)[0]
+    return crops, sample, objects
+
+
+def _ground_sample(crops, cell_size, block_m):
+    """``[(heights, weights, cells kept)]`` of the ground-level reference surface of each
+    crop (:func:`~bare_earth.core.estimate.ground_level_reference`: the minima of
+    ``block_m`` blocks interpolated, which objects narrower than a block do not reach)."""
+    out = []
+    for crop in crops:
+        ref = ground_level_reference(crop, cell_size, block_m=block_m)[0]
         ok = np.isfinite(ref)
-        ground.append((finite_float64(ref), ok.astype(np.float64), ok))
-        low = keep & ground_level_cells(crop, cell_size, sigma)
-        objects.append(keep & ~low)
-        levels.append((finite_float64(crop), low.astype(np.float64), low))
-    return sample, ground, objects, levels
+        out.append((finite_float64(ref), ok.astype(np.float64), ok))
+    return out
 
 
 def _side_by_side(masks):
@@ -284,14 +291,15 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
                         "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
-        sample, ground, objects, levels = _analysis_sample(z, (dx, dy), sigma, p)
+        crops, sample, objects = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
-        if objects:
-            # how wide the objects steps 3 and 4 leave are: a window reaches the ground
-            # beyond them when it holds at least as much ground as object
-            width = round(object_widths(_side_by_side(objects), (dx, dy)), 1)
-        else:
-            width = 0.0
+        # how wide the objects are (98 % of their area): a surface window holds at least
+        # as much ground as object when it is sqrt(2) x as wide
+        width = round(object_widths(_side_by_side(objects), (dx, dy)), 1) if objects else 0.0
+        i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * width)
+        # the terrain's own bends: the minima of 20 m blocks (wider blocks hide the shoulders
+        # of cuts and embankments, whose ground then fails the snooping)
+        ground = _ground_sample(crops, (dx, dy), GROUND_BLOCK_M)
         deg = model_degree(tc, p["homogeneous"])
         if any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m")):
             ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
@@ -312,9 +320,12 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             ss = _model_errors(ground, [win(S) for S in SURFACE_SIZES_M], min(deg, 1), sigma,
                                progress=sub_progress(progress, 0.8, 0.9))
             if p["surface_size_m"] is None:
-                i_t = _longest_following(ss, sigma)
-                i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * width)
-                p["surface_size_m"] = SURFACE_SIZES_M[min(i_t, i_o)]
+                # how far the model follows the terrain, on block minima the objects do not
+                # reach (blocks as wide as the window that covers them)
+                block = max(GROUND_BLOCK_M, SURFACE_SIZES_M[i_o])
+                bound = ss if block == GROUND_BLOCK_M else _model_errors(
+                    _ground_sample(crops, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1), sigma)
+                p["surface_size_m"] = SURFACE_SIZES_M[min(_longest_following(bound, sigma), i_o)]
             e_s = _error_at(ss, SURFACE_SIZES_M, p["surface_size_m"],
                             lambda S: _model_errors(ground, [win(S)], min(deg, 1), np.inf)[0])
             if p["surface_sigma_m"] is None:
