@@ -345,7 +345,9 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     Steps are chained, so a cell's fate depends on what earlier steps did within their
     reach around every cell of the later windows: the reaches add up (x 2 with the second
     iteration). A step removing low blunders (3, 5, 6, 7) reaches at least as far as the
-    ring test that confirms them (:func:`~.sequence.ring_reach`, 10 m).
+    ring test that confirms them (:func:`~.sequence.ring_reach`, 10 m). A ``steps`` entry
+    (the override :func:`filter_rascor` takes) chooses the steps instead of the switches;
+    step 7's reach always counts (it runs inside special areas).
     """
     dx, dy = as_cell_size(cell_size)
     cs = min(dx, dy)
@@ -357,13 +359,17 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
 
     ring = max(ring_reach((dx, dy)))
     iters = int(p.get("snooping_iterations") or 1)
-    r3 = max(3, ring) if p["step3_neighbour_differences"] else 0
-    r4 = 2 * (cells(p["max_building_m"]) + 4) if p["step4_level_change"] else 0
+    on = {3: p["step3_neighbour_differences"], 4: p["step4_level_change"], 5: p["step5_profiles"],
+          6: p["step6_surfaces"]}
+    if p.get("steps") is not None:          # filter_rascor's ``steps`` overrides the switches
+        chosen = {int(k) for k in p["steps"]}
+        on = {k: k in chosen for k in on}
+    r3 = max(3, ring) if on[3] else 0
+    r4 = 2 * (cells(p["max_building_m"]) + 4) if on[4] else 0
     r5 = iters * sum(max(cells(L) // 2 + 1, ring) for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
                                                             p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
-        if p["step5_profiles"] else 0
-    r6 = iters * max(cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1, ring) \
-        if p["step6_surfaces"] else 0
+        if on[5] else 0
+    r6 = iters * max(cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1, ring) if on[6] else 0
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
     once = r3 + r5 + r6 + r7
     return int(r4 + once * (2 if p["second_iteration"] else 1))

@@ -390,6 +390,10 @@ def test_halo_covers_reach():
     assert h1 >= 2 * p["max_building_m"]
     assert rascor.rascor_halo(dict(p, second_iteration=True), 1.0) > h1
     assert rascor.rascor_halo(dict(p, max_building_m=10.0), 1.0) < h1
+    # filter_rascor's ``steps`` override: the halo of the steps it runs, not of the switches
+    only3 = dict(p, step4_level_change=False, step5_profiles=False, step6_surfaces=False)
+    assert rascor.rascor_halo(dict(p, steps=[1, 3]), 1.0) == rascor.rascor_halo(only3, 1.0) < h1
+    assert rascor.rascor_halo(dict(only3, steps=range(1, 8)), 1.0) == h1
 
 
 def test_halo_covers_the_ring_test_of_low_blunders():
@@ -815,46 +819,48 @@ def test_opengeos_dtm_under_objects(shared_data):
     assert np.sqrt(np.mean(e ** 2)) <= 1.2
 
 
-def test_scales_cover_sigma_and_the_surface_the_objects():
-    """Square roofs with crowns against two walls, which step 4 cannot take: the surface
-    window covers sqrt(2) x the width of what steps 3-4 leave (at most the sequence's end),
-    and the scales are at least the random error."""
-    from bare_earth.core.estimate import object_widths
-    from bare_earth.core.rascor import parameters as rp
-    rng = np.random.default_rng(3)
-    n = 160
-    z = plane(n, 0.01, 0.005) + rng.normal(0, 0.05, (n, n))
-    for r0, c0 in ((20, 20), (20, 95), (95, 20), (95, 95)):
-        z[r0:r0 + 13, c0:c0 + 13] += 9.0                     # 13 m roofs
-        for sl in ((slice(r0 - 2, r0 + 15), slice(c0 - 2, c0)), (slice(r0 - 2, r0), slice(c0, c0 + 15))):
-            z[sl] += rng.uniform(2.0, 8.0, z[sl].shape)       # crowns against two walls
-    p = rascor.resolve_rascor_params(z, 1.0)
-    _, _, objects, _ = rp._analysis_sample(z, (1.0, 1.0), p["sigma_m"], p)
-    w = round(object_widths(rp._side_by_side(objects), (1.0, 1.0)), 1)
-    fits = [s for s in rascor.SURFACE_SIZES_M if s >= np.sqrt(2.0) * w] or [rascor.SURFACE_SIZES_M[-1]]
-    assert p["surface_size_m"] <= fits[0]
+def _domes(cell, side=256.0, radius=20.0, height=8.0, seed=0):
+    """A gentle plane with 9 domes (crowns or mounds) 40 m wide and 8 m high, which steps
+    3 and 4 only partly take (no sudden change of level): DSM, terrain, dome cells."""
+    n = int(side / cell)
+    rng = np.random.default_rng(seed)
+    x = (np.arange(n) + 0.5) * cell
+    g = 0.01 * x[None, :] + 0.005 * x[:, None]
+    z = g + rng.normal(0, 0.05, (n, n))
+    obj = np.zeros((n, n), bool)
+    for cy in (50.0, 128.0, 206.0):
+        for cx in (50.0, 128.0, 206.0):
+            r2 = ((x[:, None] - cy) ** 2 + (x[None, :] - cx) ** 2) / radius ** 2
+            dome = height * np.sqrt(np.clip(1.0 - r2, 0.0, 1.0))
+            z += dome
+            obj |= dome > 0.3
+    return z.astype(np.float32), g, obj
+
+
+def test_dtm_under_objects_wider_than_the_windows_of_the_residual_analysis():
+    """#12 (the opengeos failure, reproduced): objects steps 3 and 4 leave in pieces widen
+    the residuals of longer windows, so the analysis of the sequence chose a 9 m surface at
+    0.5 m cells; the pieces left on the domes stayed ground and the DTM's fill stood on
+    them (RMSE 2.0 m, 4.9 m under the domes). The surface now covers sqrt(2) x the width of
+    what stands above the ground level."""
+    from bare_earth.core import pipeline
+    z, g, obj = _domes(0.5)
+    res = pipeline.run_array("rascor", z, 0.5, {})
+    p = res.info["params"]
+    assert p["surface_size_m"] >= np.sqrt(2.0) * 36.0 or p["surface_size_m"] == rascor.SURFACE_SIZES_M[-1]
+    e = res.dtm - g
+    assert np.sqrt(np.mean(e[obj] ** 2)) < 0.5
+    assert np.sqrt(np.mean(e ** 2)) < 0.2
     assert p["surface_sigma_m"] >= p["sigma_m"] and p["profile_sigma_m"] >= p["sigma_m"]
-    rascor.filter_rascor(z, 1.0, **p)                          # the resolved parameters run as they are
 
 
 def test_defaults_in_metres_do_not_depend_on_the_cell():
-    """#12: the same scene at 0.5, 1, 2 and 4 m cells: sigma, the scales and the surface size (in
-    metres) within 20 % of each other, or one step of the sequence for the size."""
-    rng = np.random.default_rng(0)
-    side = 256.0
-    out = []
-    for cell in (0.5, 1.0, 2.0, 4.0):
-        n = int(side / cell)
-        x = np.arange(n) * cell
-        z = 0.02 * x[None, :] + 0.01 * x[:, None] + 0.5 * np.sin(x[:, None] / 40.0)
-        z = z + rng.normal(0, 0.05, (n, n))
-        for r0 in (40.0, 150.0):
-            a, b = int(r0 / cell), int(r0 / cell)
-            k = int(24 / cell)
-            z[a:a + k, b:b + k] += 8.0
-        out.append(rascor.resolve_rascor_params(z.astype(np.float32), cell))
-    for key in ("sigma_m", "surface_sigma_m"):
+    """#12: the same scene at 0.5, 1, 2 and 4 m cells: sigma and the surface size (in
+    metres) within 20 % of each other (on main: surfaces of 9, 15, 65 and 65 m). The
+    surface scale, the 90th percentile of the model's residuals on 20 m block minima,
+    grows with the cell (0.33 m at 0.5 m, 0.44 m at 4 m: the minima of fewer, coarser
+    cells): within a third."""
+    out = [rascor.resolve_rascor_params(_domes(cell)[0], cell) for cell in (0.5, 1.0, 2.0, 4.0)]
+    for key, within in (("sigma_m", 1.2), ("surface_size_m", 1.2), ("surface_sigma_m", 4.0 / 3.0)):
         v = [p[key] for p in out]
-        assert max(v) <= 1.2 * min(v), (key, v)
-    idx = [rascor.SURFACE_SIZES_M.index(p["surface_size_m"]) for p in out]
-    assert max(idx) - min(idx) <= 1, [p["surface_size_m"] for p in out]
+        assert max(v) <= within * min(v), (key, v)
