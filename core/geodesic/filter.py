@@ -82,18 +82,17 @@ def remove_islands(w, valid, removed, mask, terrain, cell_size, size_m, height_m
     if valid is not None:
         kept &= valid
     lab, n = ndimage.label(kept, S8)
+    del kept
     if n == 0:
         return 0
-    idx = np.flatnonzero(lab)
-    lab_c = lab.ravel()[idx]
-    size = np.bincount(lab_c, minlength=n + 1)
-    small = size <= int(np.prod(window_cells(size_m, *cell_size)))
+    small = np.bincount(lab.ravel(), minlength=n + 1) <= int(np.prod(window_cells(size_m, *cell_size)))
     small[0] = False
     small[lab[0]] = small[lab[-1]] = small[lab[:, 0]] = small[lab[:, -1]] = False
-    sel = small[lab_c]
-    idx, lab_c = idx[sel], lab_c[sel]
-    if idx.size == 0:
+    if not small.any():
         return 0
+    idx = np.flatnonzero(small.take(lab))     # the few cells of small enclosed sets
+    lab_c = lab.ravel()[idx]
+    del lab
     with np.errstate(invalid="ignore"):
         above = w.ravel()[idx] - terrain_at(terrain, idx, w.shape)
     lowest = np.full(n + 1, np.inf)
