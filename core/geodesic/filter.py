@@ -96,7 +96,8 @@ def remove_islands(w, valid, removed, mask, terrain, cell_size, size_m, height_m
     with np.errstate(invalid="ignore"):
         above = w.ravel()[idx] - terrain_at(terrain, idx, w.shape)
     lowest = np.full(n + 1, np.inf)
-    np.minimum.at(lowest, lab_c, np.where(np.isnan(above), -np.inf, above))
+    # no terrain level known (nodata, no marker within reach): no evidence, kept
+    np.minimum.at(lowest, lab_c, np.where(np.isfinite(above), above, -np.inf))
     isl = idx[lowest[lab_c] > height_m]
     step.ravel()[isl] = STEP_ISLAND
     removed.ravel()[isl] = True
@@ -159,7 +160,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     FilterResult
         ``mask`` (0 ground, 1 object, 2 low outlier, 255 nodata); ``extras["step"]``
         (uint8: 0 kept, k = removed at dilation step k, :data:`STEP_SCAN`,
-        :data:`STEP_OUTLIER`, :data:`STEP_EDGE`, 255 nodata); ``surface`` the cleaned
+        :data:`STEP_OUTLIER`, :data:`STEP_EDGE`, :data:`STEP_ISLAND`, 255 nodata); ``surface`` the cleaned
         surface (removed cells lowered to the reconstruction); ``info`` parameters, step
         sizes and counts.
     """
