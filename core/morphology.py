@@ -497,25 +497,38 @@ def find_outline_cells(clean, opened, flagged, cell, dh, work=None):
     ndarray of bool
         The outline cells (never flagged ones).
     """
-    near = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool))
+    near = _touching(flagged)
     near &= ~flagged
-    near &= np.isfinite(clean)
+    un = np.array(clean, np.float32)
+    un[flagged] = np.inf
+    lowest = _erode(un, 1, 1, work)                   # the lowest unflagged cell around
+    with np.errstate(invalid="ignore"):
+        np.subtract(clean, lowest, out=un)              # height above it
+        near &= un > np.float32(dh)                     # rise >= 0: only these can pass
     idx = np.flatnonzero(near)
     if idx.size == 0:
         return near
-    un = np.where(flagged, np.float32(np.inf), clean).astype(np.float32, copy=False)
-    lowest = _erode(un, 1, 1, work).ravel()[idx]         # the lowest unflagged cell around
     rows, cols = clean.shape
     i, j = np.divmod(idx, cols)
     dx, dy = cell
     o = opened.ravel()
-    gx = (o[i * cols + np.minimum(j + 1, cols - 1)] - o[i * cols + np.maximum(j - 1, 0)]) / np.float32(2 * dx)
-    gy = (o[np.minimum(i + 1, rows - 1) * cols + j] - o[np.maximum(i - 1, 0) * cols + j]) / np.float32(2 * dy)
+    gx = (o[idx + (j < cols - 1)] - o[idx - (j > 0)]) / np.float32(2 * dx)
+    gy = (o[idx + cols * (i < rows - 1)] - o[idx - cols * (i > 0)]) / np.float32(2 * dy)
     rise = np.hypot(gx, gy) * np.float32(math.hypot(dx, dy)) + np.float32(dh)
     with np.errstate(invalid="ignore"):
-        keep = clean.ravel()[idx] - lowest > rise
-    out = np.zeros(clean.shape, bool)
-    out.ravel()[idx[keep]] = True
+        keep = un.ravel()[idx] > rise
+    near.ravel()[idx[~keep]] = False
+    return near
+
+
+def _touching(a):
+    """Cells whose 3 x 3 neighbourhood (themselves included) holds a True cell of ``a``."""
+    g = a.copy()
+    g[1:] |= a[:-1]
+    g[:-1] |= a[1:]
+    out = g.copy()
+    out[:, 1:] |= g[:, :-1]
+    out[:, :-1] |= g[:, 1:]
     return out
 
 
