@@ -391,7 +391,7 @@ def _surface_slope(s, cell):
 def _complete(z, cell, p):
     """The filter's parameters ``p`` complete (derived from the data where None or where
     the mode is "auto") and checked against :data:`PARAMS` and the cell size."""
-    if any(p[k] is None for k in ("max_object_size_m", "dh_m", "slope")) or p["mode"] == "auto":
+    if any(p[k] is None for k in ("max_object_size_m", "dh_m", "slope", "outline_slope")) or p["mode"] == "auto":
         p = resolve_morphological_params(z, cell, **p)
     if p["mode"] not in ("progressive", "single"):
         raise ValueError(f"mode must be one of {MODES}; got {p['mode']!r}.")
@@ -459,7 +459,7 @@ def classify_provisional(z, zpro, cell, dh, es, progress=None):
     return mask
 
 
-def find_outline_cells(clean, opened, flagged, cell, dh, work=None):
+def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
     """Mixed cells on the outlines of the flagged objects: cells next to them that stand on
     the object's flank, not on the ground beside it.
 
@@ -474,10 +474,13 @@ def find_outline_cells(clean, opened, flagged, cell, dh, work=None):
     paper leaves open.
 
     An unflagged cell touching a flagged cell (8-neighbourhood) is an outline cell when
-    it stands more than ``dh`` plus the terrain's rise over one cell diagonal (the slope
-    of the opened surface there, by central differences, times the diagonal) above the
+    it stands more than ``dh`` plus the terrain's rise over one cell diagonal above the
     lowest unflagged cell next to it: ground beside an object has a neighbour at its own
-    level, a cell on the object's flank stands above the ground around it.
+    level, a cell on the object's flank stands above the ground around it. The rise is the
+    diagonal times the larger of ``slope`` (the terrain's slope measured on the whole
+    raster) and the slope of the opened surface there (central differences): the opened
+    surface alone is flat where the largest window cuts a dike or a crest, whose ground
+    beside trees must stay ground.
 
     Parameters
     ----------
@@ -491,11 +494,20 @@ def find_outline_cells(clean, opened, flagged, cell, dh, work=None):
         Metres.
     dh : float
         SMRF's elevation threshold ``e_t``, metres.
+    slope : float
+        The terrain's slope (rise/run) the ground beside an object may show.
 
     Returns
     -------
     ndarray of bool
         The outline cells (never flagged ones).
+
+    Examples
+    --------
+    >>> z = np.full((5, 5), 10.0, np.float32); z[2, 2] = 16.0; z[1, 2] = 13.0
+    >>> flagged = z == 16.0
+    >>> np.argwhere(find_outline_cells(z, np.full_like(z, 10.0), flagged, (1.0, 1.0), 0.5))
+    array([[1, 2]])
     """
     near = _touching(flagged)
     near &= ~flagged
@@ -514,7 +526,7 @@ def find_outline_cells(clean, opened, flagged, cell, dh, work=None):
     o = opened.ravel()
     gx = (o[idx + (j < cols - 1)] - o[idx - (j > 0)]) / np.float32(2 * dx)
     gy = (o[idx + cols * (i < rows - 1)] - o[idx - cols * (i > 0)]) / np.float32(2 * dy)
-    rise = np.hypot(gx, gy) * np.float32(math.hypot(dx, dy)) + np.float32(dh)
+    rise = np.maximum(np.hypot(gx, gy), np.float32(slope)) * np.float32(math.hypot(dx, dy)) + np.float32(dh)
     with np.errstate(invalid="ignore"):
         keep = un.ravel()[idx] > rise
     near.ravel()[idx[~keep]] = False
@@ -553,7 +565,7 @@ def open_progressive(z, cell, p, work, progress=None):
     #    interpolates, take the last opening (the ground reconstructed under them), and
     #    so do the mixed cells on the objects' outlines (find_outline_cells)
     left_out = obj | low | nodata
-    outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], work)
+    outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], p["outline_slope"], work)
     left_out |= outline
     zpro = clean
     np.copyto(zpro, opened, where=left_out)
@@ -564,7 +576,7 @@ def open_progressive(z, cell, p, work, progress=None):
     info = {"window_sizes_m": [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii],
             "window_cells": [(2 * ry + 1, 2 * rx + 1) for ry, rx, _ in radii],
             "thresholds_m": [round(s * r, 4) for _, _, r in radii], "slope_scale_m": p["slope_scale_m"],
-            "window_growth": growth, "low_outlier_cells_prestep": int(low.sum()),
+            "window_growth": growth, "low_outlier_cells_prestep": int(low.sum()), "outline_slope": p["outline_slope"],
             "flagged_by_opening_percent": 100.0 * float(obj.sum()) / max(1, int(valid.sum())),
             "outline_percent": 100.0 * float(outline.sum()) / max(1, int(valid.sum()))}
     return mask, zpro, info
@@ -574,7 +586,7 @@ def open_progressive(z, cell, p, work, progress=None):
 def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *, mode: str = "auto",
                          max_object_size_m: Optional[float] = None, dh_m: Optional[float] = None,
                          slope: Optional[float] = None, slope_scale_m: float = 1.25, window_growth: float = 2.0,
-                         low_outlier_slope: float = LOW_OUTLIER_SLOPE,
+                         low_outlier_slope: float = LOW_OUTLIER_SLOPE, outline_slope: Optional[float] = None,
                          progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """Classify a DSM into ground, objects and low outliers by grey opening.
 
@@ -603,6 +615,9 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
         one-cell steps; 2: Zhang's doubling windows, the default, 3-5x faster).
     low_outlier_slope : float
         Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window); 5 = 500 %.
+    outline_slope : float, optional
+        Terrain slope (rise/run) the ground beside an object may show over one cell
+        (:func:`find_outline_cells`); progressive form. Default: derived from the data.
     progress : callable, optional
         ``progress(fraction)`` within every step; may raise
         :class:`~bare_earth.core.common.Cancelled`.
@@ -624,7 +639,7 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     cell = as_cell_size(cell_size)
     p = _complete(z, cell, dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                                 slope_scale_m=slope_scale_m, window_growth=window_growth,
-                                low_outlier_slope=low_outlier_slope))
+                                low_outlier_slope=low_outlier_slope, outline_slope=outline_slope))
     p = {k: (float(v) if k in _NUMBERS else v) for k, v in p.items()}
     info = {"mode": p["mode"], "mode_reason": p.get("mode_reason", "mode given by the user"),
             "dh_m": p["dh_m"], "slope": p["slope"], "max_object_size_m": p["max_object_size_m"]}
@@ -644,7 +659,8 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
 
 
 #: The numeric parameters (floats in the log).
-_NUMBERS = ("max_object_size_m", "dh_m", "slope", "slope_scale_m", "window_growth", "low_outlier_slope")
+_NUMBERS = ("max_object_size_m", "dh_m", "slope", "slope_scale_m", "window_growth", "low_outlier_slope",
+            "outline_slope")
 
 
 # --------------------------------------------------------------------------- defaults
@@ -664,7 +680,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
 
-def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None):
+def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None, outline_slope=None):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
@@ -673,12 +689,15 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     square window it holds). The object size is the width below which 98 % of the object
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
-    ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the filter.
+    ``outline_slope`` (default ``slope``) is the filter's, so the objects include their
+    outline cells. ``progress(fraction)`` (optional, may raise ``Cancelled``) from inside the
+    filter.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
     res = filter_morphological(z, cell, mode="progressive", max_object_size_m=search_m,
                                dh_m=max(dh, _OBJECT_HEIGHT_M), slope=slope,
+                               outline_slope=slope if outline_slope is None else outline_slope,
                                progress=sub_progress(progress, 0.0, 0.9))
     obj = res.mask == OBJECT
     if not obj.any():
@@ -698,7 +717,8 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  mode: str = "auto", max_object_size_m: Optional[float] = None,
                                  dh_m: Optional[float] = None, slope: Optional[float] = None,
                                  slope_scale_m: float = 1.25, window_growth: float = 2.0,
-                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, progress=None, **_ignored) -> dict:
+                                 low_outlier_slope: float = LOW_OUTLIER_SLOPE, outline_slope: Optional[float] = None,
+                                 progress=None, **_ignored) -> dict:
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the noise of the DSM's ground-level cells
@@ -713,6 +733,10 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     * ``max_object_size_m``: the width of the largest objects the progressive filter
       finds with windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
       (40 m when there are no objects).
+    * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
+      over one cell the ground beside an object may show before a cell on the object's
+      outline is taken for a mixed cell (:func:`find_outline_cells`); SMRF's ``slope``
+      when the raster holds fewer than 3 x 3 blocks of 40 m (not measurable).
     * ``mode``: ``"auto"`` becomes ``"progressive"`` when ``s90 * max_object_size_m / 2 >
       dh_m``, ``s90`` the 90th-percentile slope of the coarse minimum surface (a single
       opening would cut the terrain by more than ``dh``), else ``"single"``;
@@ -729,14 +753,14 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         raise ValueError(f"mode must be one of {MODES}; got {mode!r}.")
     check_values("morphological", PARAMS, dict(max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                                 slope_scale_m=slope_scale_m, window_growth=window_growth,
-                                low_outlier_slope=low_outlier_slope))
+                                low_outlier_slope=low_outlier_slope, outline_slope=outline_slope))
     k = max(1, int(math.ceil(math.sqrt(z.size / _RESOLVE_CELLS))))
     zs = block_minima(z, k)
     report(progress, 0.1)
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
-               low_outlier_slope=low_outlier_slope)
+               low_outlier_slope=low_outlier_slope, outline_slope=outline_slope)
     gn = noise_ground_level(z, cell, progress=sub_progress(progress, 0.1, 0.4))  # full resolution, ground level
     noise = gn["sigma"]
     out["noise_m"] = noise
@@ -766,8 +790,20 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                    f"measurable, {_MIN_SLOPE:g} used")
     else:
         out["slope_source"] = "given"
+    if outline_slope is None:
+        if np.isfinite(s90):
+            out["outline_slope"] = float(s90)
+            out["outline_slope_source"] = (f"derived: 90th-percentile slope {s90:.3f} of the {_SLOPE_SCALE_M:g} m "
+                                           "block-minimum surface")
+        else:
+            out["outline_slope"] = out["slope"]
+            out["outline_slope_source"] = (f"raster under 3 x 3 blocks of {_SLOPE_SCALE_M:g} m: the terrain slope "
+                                           f"s = {out['slope']:.3f} used")
+    else:
+        out["outline_slope_source"] = "given"
     if max_object_size_m is None:
-        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0))
+        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0),
+                                 outline_slope=out["outline_slope"])
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
             out["max_object_size_source"] = (
@@ -810,7 +846,7 @@ def morphological_halo(params, cell_size):
 
 
 #: Keys of the resolved parameters that are statistics for the log, not arguments.
-_DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", "dh_source",
+_DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", "dh_source", "outline_slope_source",
             "slope_source", "max_object_size_source")
 
 
@@ -840,6 +876,12 @@ PARAMS = (
           "Ratio between consecutive window radii of the progressive form: 1 = one-cell steps "
           "(SMRF), 2 = doubling windows (Zhang et al. 2003, faster).",
           minimum=1.0, maximum=10.0, advanced=True),
+    Param("outline_slope", "float", None,
+          "Terrain slope (rise/run) the ground beside an object may show over one cell: a cell next to an "
+          "object standing more than dh plus this rise over a cell diagonal above its lowest ground neighbour "
+          "is a mixed cell of the object's outline, classified against the ground under the object. Empty: "
+          "the 90th-percentile slope of the 40 m block-minimum surface. Progressive form only.",
+          minimum=0.0, maximum=100.0, advanced=True),
     Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
           "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
           "this x its radius is a low outlier. 5 = 500 % (SMRF).",

@@ -275,7 +275,7 @@ def test_outline_cells_exact():
     flagged = np.zeros(z.shape, bool)
     flagged[3:6, 3:6] = True
     opened = np.full(z.shape, 10.0, np.float32)
-    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5)
+    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0)
     expect = np.zeros(z.shape, bool)
     expect[2, 2:7] = True
     np.testing.assert_array_equal(out, expect)
@@ -283,12 +283,12 @@ def test_outline_cells_exact():
     # cells around it stand 0.5-1 m above their lowest neighbour, under dh + the rise
     ramp = 0.5 * np.arange(9, dtype=np.float32)[None, :] + np.zeros((9, 1), np.float32)
     out = morph.find_outline_cells(ramp + np.where(flagged, 6.0, 0.0).astype(np.float32), ramp, flagged,
-                                   (1.0, 1.0), 0.5)
+                                   (1.0, 1.0), 0.5, 0.0)
     assert not out.any()
     # nodata among the neighbours is ignored; a flagged cell is never outline
     z2 = z.copy()
     z2[1, 1] = np.nan
-    out = morph.find_outline_cells(z2, opened, flagged | np.isnan(z2), (1.0, 1.0), 0.5)
+    out = morph.find_outline_cells(z2, opened, flagged | np.isnan(z2), (1.0, 1.0), 0.5, 0.0)
     np.testing.assert_array_equal(out, expect)
 
 
