@@ -292,6 +292,43 @@ def test_outline_cells_exact():
     np.testing.assert_array_equal(out, expect)
 
 
+def test_outline_slope_keeps_ground_beside_a_tree_on_a_cut_crest():
+    """A tree on a crest (sides 0.6) whose top the largest window cut (the opened surface
+    flat): without the terrain's slope the eight crest cells around the tree, 0.6 m above
+    their lowest neighbour, are taken for outline cells; with outline_slope 0.6 (rise 0.5 +
+    0.6 sqrt 2 = 1.35 m over a diagonal) they stay ground; the tree's half-height ring
+    (3 m) is outline either way."""
+    j = np.arange(9, dtype=np.float32)
+    crest = np.tile(10.0 - 0.6 * np.abs(j - 4.0), (9, 1)).astype(np.float32)
+    flagged = np.zeros(crest.shape, bool)
+    flagged[4, 4] = True
+    z = crest + np.where(flagged, 6.0, 0.0).astype(np.float32)
+    opened = np.full(z.shape, 8.0, np.float32)
+    bare = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0)
+    expect = np.zeros(z.shape, bool)
+    expect[3:6, 3:6] = True
+    expect[4, 4] = False
+    np.testing.assert_array_equal(bare, expect)
+    assert not morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6).any()
+    z[3, 4] += 3.0                                          # a mixed cell: half the tree's height
+    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6)
+    np.testing.assert_array_equal(np.argwhere(out), [[3, 4]])
+
+
+def test_outline_slope_is_derived_and_logged():
+    z, _, _, _ = _rimmed_roofs()
+    p = morph.resolve_morphological_params(z, 2.0)
+    assert p["outline_slope"] == pytest.approx(p["terrain_slope_p90"])
+    assert p["outline_slope"] == pytest.approx(0.05, abs=0.02)          # the ground's slope
+    assert "90th-percentile" in p["outline_slope_source"]
+    small = morph.resolve_morphological_params(z[:20, :20], 2.0)       # under 3 x 3 blocks of 40 m
+    assert small["outline_slope"] == small["slope"] and "3 x 3 blocks" in small["outline_slope_source"]
+    assert morph.resolve_morphological_params(z, 2.0, outline_slope=0.2)["outline_slope"] == 0.2
+    res = run_array("morphological", z, 2.0)
+    assert res.info["outline_slope"] == pytest.approx(p["outline_slope"])
+    assert res.info["outline_slope_source"] == p["outline_slope_source"]
+
+
 def test_half_height_outlines_are_objects_with_derived_defaults():
     """The opengeos failure on a small surface: a 2 m top-surface DSM whose roofs carry a
     one-cell ring of mixed cells. SMRF's flags miss the ring (it drops by 3 m < s r_k when
