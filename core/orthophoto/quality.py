@@ -16,6 +16,8 @@ module keeps the corrections consistent with their neighbours and with each othe
 * :func:`ground_trend` and :func:`object_mask`: the smooth ground part of ``dh`` (a median of
   the cells below the threshold, iterated) and the mask of the cells above it, with the
   threshold derived from the spread of the very quantity it is applied to;
+* :func:`settle_boundary`: the cells along the object outlines decided by testing the object's
+  and the ground's height on the orthophotos with small shiftable windows;
 * :func:`fill_holes`: normalised convolution into unmatched cells;
 * :func:`spread_corrections`: the same, fading to 0 away from the measurements (no step in
   the DEM where the measurements end).
@@ -31,7 +33,7 @@ from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
-           "ground_trend", "object_mask"]
+           "ground_trend", "object_mask", "settle_boundary"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -464,3 +466,104 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
     mask[valid & (rel > thr)] = OBJECT
     mask[valid & (rel < -thr)] = LOW
     return mask, thr, sig
+
+
+def _window_residual(a, b, rr, cc, disp, half):
+    """Offset-free squared difference of ``a`` and ``b`` over the best small window containing a cell.
+
+    ``disp = (dca, dra, dcb, drb)`` per candidate cell: where a point of the cell's
+    neighbourhood appears in ``a`` and in ``b`` (cells). For each of the ``(2 half + 1)^2``
+    windows of side ``2 half + 1`` that contain the cell (shiftable windows), the mean of
+    ``(a - b)^2``; the smallest of them (NaN where no window is seen whole).
+    """
+    dca, dra, dcb, drb = disp
+    w = 2 * half + 1
+    r = 2 * half
+    D = np.empty((2 * r + 1, 2 * r + 1, rr.size), np.float64)
+    for i in range(-r, r + 1):
+        for j in range(-r, r + 1):
+            va = ndimage.map_coordinates(a, [rr + i + dra, cc + j + dca], order=1, mode="constant", cval=np.nan)
+            vb = ndimage.map_coordinates(b, [rr + i + drb, cc + j + dcb], order=1, mode="constant", cval=np.nan)
+            D[i + r, j + r] = va - vb
+    best = np.full(rr.size, np.inf)
+    for i in range(w):
+        for j in range(w):
+            sub = D[i:i + w, j:j + w].reshape(w * w, -1)
+            s = np.mean(sub * sub, axis=0)                # NaN when a pixel is unseen
+            best = np.where(s < best, s, best)
+    return np.where(np.isfinite(best), best, np.nan)
+
+
+def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, half=1, chunk=1 << 17):
+    """Decide the cells along the object outlines by testing the two heights they may have.
+
+    A correlation window of side ``2 * radius + 1`` that straddles an outline measures
+    whichever surface fills most of it (a shiftable window may even prefer the ground's
+    side), so the outline of the object mask wanders by up to ``radius`` cells both ways. A
+    cell within ``radius`` of the outline with object measurements in its window can carry
+    one of two heights: the object's (median ``dh`` of the object cells of that window) or
+    the ground's (median of its ground cells, else the trend). For each, the two
+    orthophotos are sampled where that height puts the cell and its neighbours, and the
+    best of the small windows of side ``2 * half + 1`` containing the cell (shiftable, so
+    one can lie wholly on the cell's own side of the outline) gives the mean squared
+    difference ``(a - b)^2``; the height under which the orthophotos agree better decides
+    the cell (the maximum-likelihood choice under Gaussian image noise). A cell is decided
+    only when the two heights put its images at least a cell apart relative to each other;
+    closer, their windows overlap and the test cannot tell them apart.
+
+    Parameters
+    ----------
+    a, b : ndarray
+        The orthophotos (grey, NaN = unseen).
+    is_object : ndarray of bool
+        Current object mask.
+    dh : ndarray
+        Measured corrections (NaN = none).
+    trend : ndarray
+        The ground trend of ``dh`` (:func:`ground_trend`).
+    valid : ndarray of bool
+        Cells to decide.
+    displacement : callable
+        ``displacement(h) -> (dca, dra, dcb, drb)``: for an array ``h`` of height errors per
+        cell, where a point of the cell appears in ``a`` and ``b`` relative to the cell
+        (cells, column and row).
+    radius : int
+        Half the matcher's window.
+    half : int
+        Half the side of the test windows.
+    chunk : int
+        Candidate cells per batch (bounded memory).
+
+    Returns
+    -------
+    ndarray of bool
+        The object mask with the outline cells decided.
+    """
+    obj = np.asarray(is_object, bool) & valid
+    gnd = ~obj & valid
+    size = 2 * int(radius) + 1
+    fin = np.isfinite(dh)
+    h_obj, n_obj = nan_median_filter(np.where(obj & fin, dh, np.nan), size)
+    h_gnd, n_gnd = nan_median_filter(np.where(gnd & fin, dh, np.nan), size)
+    h_gnd = np.where(n_gnd > 0, h_gnd, trend)
+    box = np.ones((size, size), bool)
+    cand = valid & (n_obj > 0) & ndimage.binary_dilation(gnd, box)
+    new = obj.copy()
+    if not cand.any():
+        return new
+    d_obj = displacement(np.where(cand, h_obj, 0.0).astype(np.float64))
+    d_gnd = displacement(np.where(cand, h_gnd, 0.0).astype(np.float64))
+    a = np.asarray(a, np.float32)
+    b = np.asarray(b, np.float32)
+    rr_all, cc_all = np.nonzero(cand)
+    for k0 in range(0, rr_all.size, chunk):
+        rr, cc = rr_all[k0:k0 + chunk], cc_all[k0:k0 + chunk]
+        p1 = [np.asarray(x)[rr, cc] for x in d_obj]
+        p0 = [np.asarray(x)[rr, cc] for x in d_gnd]
+        s_obj = _window_residual(a, b, rr.astype(float), cc.astype(float), p1, half)
+        s_gnd = _window_residual(a, b, rr.astype(float), cc.astype(float), p0, half)
+        # relative displacement of the two images under each height, in cells
+        sep = np.hypot((p1[2] - p1[0]) - (p0[2] - p0[0]), (p1[3] - p1[1]) - (p0[3] - p0[1]))
+        decided = np.isfinite(s_obj) & np.isfinite(s_gnd) & (sep >= 1.0)
+        new[rr[decided], cc[decided]] = (s_obj < s_gnd)[decided]
+    return new
