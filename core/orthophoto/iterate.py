@@ -13,7 +13,14 @@ from scipy import ndimage
 
 from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
-from .quality import keep_significant, merge_pairs, nan_median_filter, object_mask, spread_corrections
+from .quality import (
+    close_mask,
+    keep_significant,
+    merge_pairs,
+    nan_median_filter,
+    object_mask,
+    spread_corrections,
+)
 from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
 
 __all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MIN_GAIN"]
@@ -293,6 +300,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
     mask, thr, sig = object_mask(dh_total, multi, info["sigma_expected_m"], height_threshold_m,
                                  object_cells(object_size_m, transform))
+    mask = close_mask(mask, window)
     info.setdefault("warning", _refusal(1.0, meas["pinfo"], sig, info["sigma_expected_m"]))
     info.update(pairs=[tuple(p) for p in setup["pairs"]],
                 iterations=sum(r["status"] == "applied" for r in table), measurements=len(table),

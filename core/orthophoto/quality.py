@@ -33,7 +33,7 @@ from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
-           "ground_trend", "object_mask", "settle_boundary"]
+           "ground_trend", "object_mask", "settle_boundary", "close_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -567,3 +567,19 @@ def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, hal
         decided = np.isfinite(s_obj) & np.isfinite(s_gnd) & (sep >= 1.0)
         new[rr[decided], cc[decided]] = (s_obj < s_gnd)[decided]
     return new
+
+
+def close_mask(mask, window):
+    """Close the objects of a mask (codes) over ``window // 2 + 1`` cells.
+
+    The matcher resolves no gap narrower than about half its window (as
+    :func:`keep_significant` keeps no narrower detail), so ground gaps and notches that
+    narrow inside or between objects are closed; only cells seen by two frames change.
+    """
+    side = int(window) // 2 + 1
+    valid = mask != NODATA
+    obj = mask == OBJECT
+    new = ndimage.binary_closing(obj, structure=np.ones((side, side), bool)) & valid & ~obj
+    out = mask.copy()
+    out[new] = OBJECT
+    return out

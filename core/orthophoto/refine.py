@@ -28,7 +28,15 @@ from ..codes import GROUND, NODATA, OBJECT
 from ..common import report
 from .match import REASONS, match_along
 from .orthorectify import check_transform, grid_xy
-from .quality import fill_holes, ground_trend, nan_median_at, object_mask, remove_blunders, settle_boundary
+from .quality import (
+    close_mask,
+    fill_holes,
+    ground_trend,
+    nan_median_at,
+    object_mask,
+    remove_blunders,
+    settle_boundary,
+)
 
 __all__ = ["view_vectors", "parallax_to_dh", "parallax_to_dh_vertical", "orthoparallax",
            "ParallaxResult", "fill_holes", "as_grey", "pair_geometry", "match_pair",
@@ -459,8 +467,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
 def _settle_mask(mask, a, b, dh, dem, transform, crop, window, cam, trend):
     """The object mask with its outline decided on the orthophotos (:func:`~.quality.settle_boundary`).
 
-    Then closed with a square of half the window plus one: the matcher resolves no gap
-    narrower than that (as :func:`~.quality.keep_significant` keeps no narrower detail).
+    Then closed over half the window plus one cell (:func:`~.quality.close_mask`).
     """
     r0, r1, c0, c1 = crop
     sl = (slice(r0, r1), slice(c0, c1))
@@ -477,13 +484,11 @@ def _settle_mask(mask, a, b, dh, dem, transform, crop, window, cam, trend):
     valid = (mask != NODATA)[sl]
     new = settle_boundary(a[sl], b[sl], (mask == OBJECT)[sl], dh[sl], trend[sl], valid, displacement,
                           window // 2)
-    side = window // 2 + 1
-    new = (new | ndimage.binary_closing(new, structure=np.ones((side, side), bool))) & valid
     out = mask.copy()
     sub = out[sl]
     sub[new] = OBJECT
     sub[valid & ~new & (sub == OBJECT)] = GROUND
-    return out
+    return close_mask(out, window)
 
 
 #: Below this share of trusted matches among the cells seen by two frames, the pairs

@@ -22,6 +22,7 @@ from bare_earth.core.orthophoto import (
 )
 from bare_earth.core.orthophoto.match import REASONS
 from bare_earth.core.orthophoto.quality import (
+    close_mask,
     ground_trend,
     merge_pairs,
     nan_median_at,
@@ -153,6 +154,20 @@ def test_matcher_decides_weak_texture_and_keeps_textured():
     assert m.info["noise_grey"] == pytest.approx(2.0, rel=0.25)
     assert set(m.info["shares"]) == set(REASONS.values())
     assert np.all(m.precision[left][m.valid[left]] <= 0.2)
+
+
+def test_close_mask_fills_gaps_narrower_than_half_the_window():
+    m = np.zeros((20, 30), np.uint8)
+    m[5:15, 3:10] = OBJECT
+    m[5:15, 13:20] = OBJECT                               # a 3-cell gap: closed by 4 x 4 (window 7)
+    m[5:15, 25:29] = OBJECT                               # a 5-cell gap: two objects stay apart
+    m[9, 5] = 0                                           # a hole in a roof
+    m[0, :] = NODATA
+    out = close_mask(m, 7)
+    assert (out[5:15, 3:20] == OBJECT).all()
+    assert (out[5:15, 20:25] == 0).all()
+    assert (out[0] == NODATA).all() and (out[15:] == 0).all()
+    np.testing.assert_array_equal(close_mask(m, 1), m)     # window 1 resolves every gap
 
 
 def test_settle_boundary_moves_a_wandering_outline_back():
