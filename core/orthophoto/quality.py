@@ -448,7 +448,7 @@ def ground_trend(dh, valid, object_size_cells, sigma_expected, threshold=None, k
     return trend, float(thr), sig
 
 
-def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
+def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0, return_trend=False):
     """Mask of the cells whose ``dh`` exceeds its ground trend (:func:`ground_trend`).
 
     Returns
@@ -457,6 +457,8 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
         1 object (``dh - trend > threshold``), 2 low (``< -threshold``), 0 ground, 255 not
         ``valid``.
     threshold, sigma_data : float
+    trend : ndarray float32
+        Only with ``return_trend``: the ground trend.
     """
     trend, thr, sig = ground_trend(dh, valid, object_size_cells, sigma_expected, threshold, k)
     d = np.where(np.isfinite(dh), dh, trend)
@@ -465,7 +467,7 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
     mask[valid] = GROUND
     mask[valid & (rel > thr)] = OBJECT
     mask[valid & (rel < -thr)] = LOW
-    return mask, thr, sig
+    return (mask, thr, sig, trend) if return_trend else (mask, thr, sig)
 
 
 def _window_residual(a, b, rr, cc, disp, half):
@@ -543,28 +545,37 @@ def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, hal
     gnd = ~obj & valid
     size = 2 * int(radius) + 1
     fin = np.isfinite(dh)
-    h_obj, n_obj = nan_median_filter(np.where(obj & fin, dh, np.nan), size)
-    h_gnd, n_gnd = nan_median_filter(np.where(gnd & fin, dh, np.nan), size)
-    h_gnd = np.where(n_gnd > 0, h_gnd, trend)
     box = np.ones((size, size), bool)
-    cand = valid & (n_obj > 0) & ndimage.binary_dilation(gnd, box)
+    o_meas = np.where(obj & fin, dh, np.nan).astype(np.float32)
+    g_meas = np.where(gnd & fin, dh, np.nan).astype(np.float32)
+    cand = (valid & ndimage.binary_dilation(np.isfinite(o_meas), box)
+            & ndimage.binary_dilation(gnd, box))
     new = obj.copy()
     if not cand.any():
         return new
-    d_obj = displacement(np.where(cand, h_obj, 0.0).astype(np.float64))
-    d_gnd = displacement(np.where(cand, h_gnd, 0.0).astype(np.float64))
+    rr_all, cc_all = np.nonzero(cand)
+    h_obj = np.zeros(dh.shape)
+    h_gnd = np.zeros(dh.shape)
+    for k0 in range(0, rr_all.size, chunk):             # the two medians at the candidates only
+        cells = (rr_all[k0:k0 + chunk], cc_all[k0:k0 + chunk])
+        h_obj[cells] = nan_median_at(o_meas, cells, size)
+        g = nan_median_at(g_meas, cells, size)
+        h_gnd[cells] = np.where(np.isfinite(g), g, np.asarray(trend)[cells])
+    d_obj = displacement(h_obj)
+    d_gnd = displacement(h_gnd)
     a = np.asarray(a, np.float32)
     b = np.asarray(b, np.float32)
-    rr_all, cc_all = np.nonzero(cand)
     for k0 in range(0, rr_all.size, chunk):
         rr, cc = rr_all[k0:k0 + chunk], cc_all[k0:k0 + chunk]
         p1 = [np.asarray(x)[rr, cc] for x in d_obj]
         p0 = [np.asarray(x)[rr, cc] for x in d_gnd]
-        s_obj = _window_residual(a, b, rr.astype(float), cc.astype(float), p1, half)
-        s_gnd = _window_residual(a, b, rr.astype(float), cc.astype(float), p0, half)
         # relative displacement of the two images under each height, in cells
         sep = np.hypot((p1[2] - p1[0]) - (p0[2] - p0[0]), (p1[3] - p1[1]) - (p0[3] - p0[1]))
-        decided = np.isfinite(s_obj) & np.isfinite(s_gnd) & (sep >= 1.0)
+        t = sep >= 1.0
+        rr, cc, p1, p0 = rr[t], cc[t], [x[t] for x in p1], [x[t] for x in p0]
+        s_obj = _window_residual(a, b, rr.astype(float), cc.astype(float), p1, half)
+        s_gnd = _window_residual(a, b, rr.astype(float), cc.astype(float), p0, half)
+        decided = np.isfinite(s_obj) & np.isfinite(s_gnd)
         new[rr[decided], cc[decided]] = (s_obj < s_gnd)[decided]
     return new
 

@@ -31,7 +31,6 @@ from .orthorectify import check_transform, grid_xy
 from .quality import (
     close_mask,
     fill_holes,
-    ground_trend,
     nan_median_at,
     object_mask,
     remove_blunders,
@@ -448,9 +447,9 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     filled = np.where(both, filled, np.nan)
     corrected = np.where(both & np.isfinite(filled), dem + filled, dem).astype(np.float32)
     size = object_cells(object_size_m, transform)
-    mask, thr, sig = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size)
+    mask, thr, sig, trend = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size,
+                                        return_trend=True)
     if settle:
-        trend, _, _ = ground_trend(filled, both & np.isfinite(filled), size, sigma_exp, height_threshold_m)
         mask = _settle_mask(mask, a, b, dh, dem, transform, info["crop"], window, dict(
             centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend)
     info.update(window=window, shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
