@@ -449,9 +449,14 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     size = object_cells(object_size_m, transform)
     mask, thr, sig, trend = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size,
                                         return_trend=True)
+    before = mask == OBJECT
     if settle:
         mask = _settle_mask(mask, a, b, dh, dem, transform, info["crop"], window, dict(
             centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend)
+    after = mask == OBJECT
+    # the outline test and the closing, counted for the log
+    info.update(outline_to_object=int(np.count_nonzero(after & ~before)),
+                outline_to_ground=int(np.count_nonzero(before & ~after)))
     info.update(window=window, shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
                 height_threshold_m=float(thr), sigma_expected_m=float(sigma_exp),
                 sigma_data_m=sig, overlap_cells=int(both.sum()),

@@ -229,6 +229,7 @@ def test_noise_6dn_false_alarms_and_recall(noisy_pair):
     assert float((plain.mask[(sc.labels > 0) & seen] == OBJECT).mean()) < recall
     ring = ndimage.binary_dilation(sc.labels > 0, iterations=2) & (sc.labels == 0) & seen
     assert (r.mask[ring] == OBJECT).mean() < (plain.mask[ring] == OBJECT).mean()   # less fattening
+    assert r.info["outline_to_object"] > 0 and r.info["outline_to_ground"] > 0     # logged, both ways
     # the share of far-ground cells truly above the threshold in the measured dh
     truly = float(np.mean(r.dh[far & np.isfinite(r.dh)] > r.info["height_threshold_m"]))
     assert fa <= truly + 0.02, (fa, truly)
@@ -269,7 +270,7 @@ def test_one_iteration_gives_full_heights(clean_three):
     sc, cams, imgs, r = clean_three
     seen = r.mask != NODATA
     assert _buildings_within(sc, r.dh, seen) >= 0.9 * 19
-    assert r.info["relaxation"] == 1.0 and r.info["iterations"] == 1
+    assert r.info["relaxation"] == 1.0 and r.info["iterations"] == 1 and r.info["mask_closed_cells"] >= 0
     assert [row["status"] for row in r.table] == ["applied", "measured"]
     assert r.table[1]["agreement"] < 0.5                  # the update made the pairs agree
     with pytest.raises(ValueError, match="relaxation"):
