@@ -9,13 +9,19 @@ the profile comes back down to the ground: whole objects are removed, not only t
 
 Details this implementation adds to the paper, each for a failure the paper's rule has:
 
-* **Distance-aware tolerance.** After ``d`` rejected cells the ground may have risen by
-  the terrain's own slope: a point is accepted when
-  ``dZ <= dh0 + dX tan(alpha_g) + (d - 1) dX tan(alpha_t)``, with ``alpha_t`` the typical
-  terrain slope (far below ``alpha_g``) and ``dh0`` the DSM's noise. With ``d = 1`` this
-  is the paper's test plus a noise allowance.
+* **Distance-aware tolerance.** A point ``d`` cells after the reference (the last ground
+  point) is accepted when ``dZ <= dh0 + d dX tan(alpha_g)`` over the edge run
+  (``d dX <= edge_length_m``; with ``d = 1`` the paper's test plus a noise allowance
+  ``dh0``), and further on when ``dZ <= dh0 + d dX tan(alpha_t)``: under an object the
+  ground may have risen at the terrain's slope ``alpha_t`` (far below ``alpha_g``) over
+  the whole distance from the reference. The edge's steeper allowance is not carried
+  along the object: carried, it let every object lower than ``dX tan(alpha_g)`` plus the
+  terrain's rise pass (shrubs 1-3 m at 2 m cells, issue 12).
 * **Objects at the start of a profile.** The reference starts at the lowest point of the
-  profile's first ``max_object_size_m``, not at its first point.
+  profile's first ``max_object_size_m``, ``m`` cells in, not at its first point; the
+  profile is taken as mirrored at its start, so that point lies ``m`` cells before the
+  first one and the tolerance grows with the distance from it as anywhere else (ground
+  sloping down into the raster is not rejected up to that point).
 * **Both directions.** Each profile is scanned forwards and backwards; a cell is an object
   for that axis only when both scans reject it. A scan that climbs a terrace edge or a
   steep slope rejects the upper side, but the scan coming down the other way accepts it
@@ -53,9 +59,12 @@ from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .estimate import below_surroundings, noise_ground_level, sample_windows, terrain_slopes
 from .methods import Method, Param, check_values
 
-#: Bounds of the derived slope threshold alpha_g and floor of alpha_t, degrees.
-_MIN_ALPHA_G, _MAX_ALPHA_G = 25.0, 60.0
-_MIN_ALPHA_T = 8.0
+#: Largest derived slope threshold alpha_g, degrees.
+_MAX_ALPHA_G = 60.0
+#: Highest value (degrees) up to which the terrain's upper-quartile slope raises the derived
+#: alpha_t above its median: beyond it the upper quartile of block-minimum slopes measures
+#: roofs and crowns wider than a block (a closed canopy reads 30-40 degrees), not terrain.
+_MAX_QUARTILE_ALPHA_T = 8.0
 #: Largest sample spacing (cells) the edge test allows for.
 _MAX_SPACING = 4.0
 
@@ -83,7 +92,8 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
 
     Returns
     -------
-    dict with ``median`` and ``p90`` of |slope| (rise/run) and the block size in cells.
+    dict with ``median``, upper quartile ``p75`` and ``p90`` of |slope| (rise/run) and the
+    block size in cells.
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
@@ -91,8 +101,9 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     k = min(k, max(2, min(z.shape) // 3))
     s = terrain_slopes(z, (dx, dy), k)
     if s.size == 0:
-        return {"median": 0.0, "p90": 0.0, "block_cells": k}
-    return {"median": float(np.median(s)), "p90": float(np.percentile(s, 90)), "block_cells": k}
+        return {"median": 0.0, "p75": 0.0, "p90": 0.0, "block_cells": k}
+    p50, p75, p90 = np.percentile(s, [50, 75, 90])
+    return {"median": float(p50), "p75": float(p75), "p90": float(p90), "block_cells": k}
 
 
 def estimate_sample_spacing(z, longest=8):
@@ -215,8 +226,14 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     one small buffer (no stacked copy of the raster is made), so the per-step Python
     overhead is shared by all profiles of all sources.
 
-    The tolerance after ``d`` cells since the reference point is
-    ``dh0 + step tan_g min(d, edge_cells) + step tan_t max(d - edge_cells, 0)``.
+    The tolerance ``d`` cells after the reference point is ``dh0 + step tan_g d`` over the
+    edge run (``d <= edge_cells``: the paper's slope test from the reference point), then
+    ``dh0 + step tan_t d``: under an object the ground may have risen at the terrain's
+    slope over the whole distance from the reference (the edge's steeper allowance is not
+    carried along the object). A profile starts from the lowest point of its first
+    ``init_cells``, ``m`` cells in: the profile is taken as mirrored at its start, so that
+    point is the reference ``m`` cells before the first cell, and the tolerance grows with
+    the distance from it as anywhere else.
     Returns one boolean array per source (its shape; views into buffers shared by the
     sources of one array): True where the scan rejects. ``progress(fraction)`` is called
     every :data:`_REPORT_STEPS` positions (it may raise Cancelled).
@@ -226,24 +243,27 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     nprof = int(offs[-1])
     npos = max(a.shape[0] for a, _ in sources)
     g = np.empty(nprof, np.float32)                  # reference ground height per profile
+    k = np.zeros(nprof, np.float32)                  # k = d - 1 (see below)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for (a, rev), o0, o1 in zip(sources, offs[:-1], offs[1:]):
             head = a[-init_cells:] if rev else a[:init_cells]
             g[o0:o1] = np.nanmin(head, axis=0)
+            # the start minimum's position m from the scan's start: mirrored, it lies m
+            # cells before the first cell (d = m there, k = m - 1)
+            head = np.where(np.isnan(head), np.inf, head)
+            m = np.argmin(head[::-1] if rev else head, axis=0)
+            k[o0:o1] = np.maximum(m - 1, 0)
     g[np.isnan(g)] = np.inf     # no ground in the start window: the first valid cell is accepted
     # The tolerance is piecewise linear in k = d - 1, the valid cells rejected since the
-    # reference point: line 1, dh0 + step tan_g (k + 1), up to the edge run, then line 2,
-    # dh0 + step (tan_g e + tan_t (k + 1 - e)). The lower of the two when tan_g >= tan_t
-    # (the higher otherwise); line 2 alone when the edge run is one cell. k is a float32
-    # count (exact), so the tolerance costs two operations per step, no table lookup.
+    # reference point: line 1, dh0 + step tan_g (k + 1), over the edge run (k < e), then
+    # line 2, dh0 + step tan_t (k + 1). k is a float32 count (exact), so a line costs two
+    # operations per step, no table lookup; with a one-cell edge run line 1 is only needed
+    # at k = 0, i.e. right after an accepted cell: one copy.
     e = int(edge_cells)
-    a2 = np.float32(dh0 + step_m * (tan_g * e + tan_t * (1 - e)))
-    b2 = np.float32(step_m * tan_t)
-    two_lines = e > 1 and tan_g != tan_t
+    a2, b2 = np.float32(dh0 + step_m * tan_t), np.float32(step_m * tan_t)
     a1, b1 = np.float32(dh0 + step_m * tan_g), np.float32(step_m * tan_g)
-    pick = np.minimum if tan_g >= tan_t else np.maximum
-    k = np.zeros(nprof, np.float32)
+    two_lines = e > 1
     # Rejections, step by step: one buffer per array scanned (its forward and backward
     # sources side by side, as many rows as the array), one row written per step.
     groups = []                                  # [array, first, last column in v]
@@ -259,8 +279,9 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     v = np.full(nprof, np.nan, np.float32)
     dz = np.empty(nprof, np.float32)
     thr = np.empty(nprof, np.float32)
-    thr[:] = pick(a1, a2) if two_lines else a2           # k = 0
+    thr[:] = np.where(k < e, a1 + k * b1, a2 + k * b2)   # the mirrored start's distances
     thr1 = np.empty(nprof, np.float32) if two_lines else None
+    edge_run = np.empty(nprof, bool) if two_lines else None
     up = np.empty(nprof, bool)
     ok = np.empty(nprof, bool)
     # per source: its array, direction, slice of the step buffer, and length
@@ -272,7 +293,7 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     for (a, _), o1 in zip(sources, offs[1:]):
         np.maximum(ends[:a.shape[0]], o1, out=ends[:a.shape[0]])
     ends = ends.tolist()
-    state = (v, dz, thr, up, ok, k, g) + ((thr1,) if two_lines else ())
+    state = (v, dz, thr, up, ok, k, g) + ((thr1, edge_run) if two_lines else ())
     views, end = state, nprof
     # As few numpy calls per step as possible: each is short, and with blocks in threads
     # every call is a hand-over of the GIL.
@@ -299,11 +320,14 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
         np.copyto(gw, vw, where=okw)
         np.multiply(kw, b2, out=thrw)                  # the next step's tolerance
         thrw += a2
-        if two_lines:
-            thr1w = views[7]
+        if two_lines:                                  # line 1 over the edge run, k < e
+            thr1w, edgew = views[7], views[8]
             np.multiply(kw, b1, out=thr1w)
             thr1w += a1
-            pick(thrw, thr1w, out=thrw)
+            np.less(kw, e, out=edgew)
+            np.copyto(thrw, thr1w, where=edgew)
+        else:                                          # line 1 at k = 0: after an accepted cell
+            np.copyto(thrw, a1, where=okw)
         for buf, n, o0, o1 in writes:
             if i < n:
                 buf[i] = up[o0:o1]
@@ -583,6 +607,18 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     return FilterResult(mask=mask, info=info, dtm=dtm)
 
 
+def derive_terrain_slope(est):
+    """alpha_t, degrees, from the terrain's slopes (:func:`estimate_terrain_slope`).
+
+    The median (the paper's average slope), raised to the upper quartile (the slope three
+    quarters of the terrain stays under: the ground under most objects rises no faster)
+    as long as that is at most :data:`_MAX_QUARTILE_ALPHA_T`; at most the Param's maximum.
+    """
+    med = float(np.degrees(np.arctan(est["median"])))
+    upper = float(np.degrees(np.arctan(est.get("p75", est["median"]))))
+    return float(min(max(med, min(upper, _MAX_QUARTILE_ALPHA_T)), _MAX_ALPHA_T))
+
+
 def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
                                  slope_threshold_deg: Optional[float] = None,
                                  terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
@@ -591,15 +627,19 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  slope_factor: float = 1.25, progress=None) -> dict:
     """Complete the parameters, deriving the missing ones from the data.
 
-    * ``terrain_slope_deg`` (alpha_t): the median slope of the terrain under the objects
+    * ``terrain_slope_deg`` (alpha_t): the slope of the terrain under the objects
       (:func:`estimate_terrain_slope`: slopes between 20 m block minima, which objects do
-      not reach), the paper's "average slope" made robust, at least 8 degrees (the
-      ground under a long object may rise at least that fast) and at most its Param's
-      maximum.
-    * ``slope_threshold_deg`` (alpha_g): twice alpha_t, bounded to [25, 60] degrees:
-      steeper than the terrain's usual slope, far gentler than a wall. Below 25 degrees
-      the sides of road embankments and the stair steps of gridded sparse points start
-      to count as object edges (measured on the ISPRS samples 61 and 71).
+      not reach): the median (the paper's "average slope" made robust), raised to the
+      upper quartile (the ground under three objects in four rises no faster) while that
+      is at most 8 degrees (:func:`derive_terrain_slope`: beyond, the quartile measures
+      roofs and crowns wider than a block); at most its Param's maximum. No floor: the
+      former 8 degree floor let the ground rise 0.28 m per 2 m cell under an object, so
+      shrubs and trees 1-5 m high on flat ground were taken back as ground (opengeos).
+    * ``slope_threshold_deg`` (alpha_g): twice alpha_t (steeper than the terrain's usual
+      slope, far gentler than a wall), bounded to [5, 60] degrees: 5 degrees is the slope
+      of the ground's micro-relief that 20 m block minima do not see (a kerb or a furrow,
+      0.1-0.2 m over 1-2 m). The former floor of 25 degrees let every object rise 0.93 m
+      per 2 m cell (1.9 m per 4 m cell) and stay ground.
     * ``tolerance_m`` (dh0): 3 x the noise of the DSM's ground-level cells
       (:func:`~bare_earth.core.estimate.noise_ground_level`, not the canopy's roughness),
       bounded to [0.15, 0.5] m; 0.5 m when too few ground cells are seen.
@@ -615,13 +655,19 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg, tolerance_m=tolerance_m,
         max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
         sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor))
+    why = {}
     if terrain_slope_deg is None:
         est = estimate_terrain_slope(z, cell, scale_m=20.0)
-        terrain_slope_deg = min(max(_MIN_ALPHA_T, float(np.degrees(np.arctan(est["median"])))),
-                                _MAX_ALPHA_T)
+        terrain_slope_deg = derive_terrain_slope(est)
+        why["terrain_slope_source"] = (
+            f"derived: slopes between {est['block_cells']}-cell block minima, median "
+            f"{np.degrees(np.arctan(est['median'])):.2f} deg, upper quartile "
+            f"{np.degrees(np.arctan(est['p75'])):.2f} deg (used up to {_MAX_QUARTILE_ALPHA_T:g} deg)")
     report(progress, 0.3)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
+        why["slope_threshold_source"] = (f"derived: twice alpha_t, bounded to [{_MIN_ALPHA_G:g}, "
+                                         f"{_MAX_ALPHA_G:g}] deg")
     if tolerance_m is None:
         sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
@@ -633,6 +679,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
            "refine": bool(refine), "slope_factor": float(slope_factor)}
     check_values("slopeprofile", PARAMS, out)
+    out.update(why)
     return out
 
 
@@ -650,13 +697,13 @@ def slope_profile_halo(params, cell_size):
 PARAMS = (
     Param("slope_threshold_deg", "float", None,
           "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
-          "from the ground before it starts an object. Empty: twice the average terrain slope "
-          "alpha_t, bounded to 25-60 deg.",
+          "from the ground before it starts an object. Empty: twice the terrain slope "
+          "alpha_t, bounded to 5-60 deg.",
           minimum=0.5, maximum=89.0),
     Param("terrain_slope_deg", "float", None,
           "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "
           "per cell of its length. Empty: the median slope between 20 m block minima (which objects "
-          "do not reach), at least 8 deg.",
+          "do not reach), raised to their upper quartile while that is at most 8 deg.",
           minimum=0.0, maximum=80.0, advanced=True),
     Param("tolerance_m", "float", None,
           "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
@@ -687,10 +734,21 @@ PARAMS = (
 )
 #: Largest derived alpha_t: the maximum of its Param.
 _MAX_ALPHA_T = next(p.maximum for p in PARAMS if p.name == "terrain_slope_deg")
+#: Smallest derived alpha_g, degrees: the ground's micro-relief (a kerb or a furrow, 0.1-0.2 m
+#: over 1-2 m), which the 20 m block minima of the terrain slope do not see.
+_MIN_ALPHA_G = 5.0
+
+
+#: Log entries of the resolve (why each default has its value), not filter arguments.
+_DERIVED = ("terrain_slope_source", "slope_threshold_source")
 
 
 def _run(z, cell_size, progress=None, **params):
-    return filter_slope_profile(z, cell_size, progress=progress, **params)
+    """Registry entry: run the filter on complete parameters, log why the defaults are what they are."""
+    derived = {k: params.pop(k) for k in _DERIVED if k in params}
+    res = filter_slope_profile(z, cell_size, progress=progress, **params)
+    res.info.update(derived)
+    return res
 
 
 METHOD = Method(
@@ -716,7 +774,8 @@ METHOD = Method(
         "block minima, the tolerance from the noise of the DSM's ground-level cells (not the "
         "canopy's roughness). The log lists the values used.</p>"
         "<p>Known limit of the paper's rule: one terrain slope alpha_t and threshold alpha_g for the "
-        "whole raster, with floors of 8 and 25 degrees; on flat ground under rounded tree crowns "
-        "(opengeos, 2 m) the crowns rise gentler than alpha_g and stay ground (DTM RMSE 2.1 m), "
-        "while lower floors cost 5-8 points on the ISPRS samples.</p>"),
+        "whole raster. Where gentle ground is cut by a few steep banks (a cutting, a river bank), a "
+        "plateau that profiles reach only by climbing a bank may stay rejected: the measured slope "
+        "of the gentle ground lets its level rise too slowly under the profile (ISPRS sample 71: "
+        "7.6 % total error).</p>"),
 )
