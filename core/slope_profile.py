@@ -60,8 +60,10 @@ from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .estimate import below_surroundings, noise_ground_level, sample_windows, terrain_slopes
 from .methods import Method, Param, check_values
 
-#: Largest derived slope threshold alpha_g, degrees.
-_MAX_ALPHA_G = 60.0
+#: Bounds of the derived slope threshold alpha_g, degrees. The lower one is the slope of the
+#: ground's micro-relief (a kerb or a furrow, 0.1-0.2 m over 1-2 m), which the 20 m block
+#: minima of the terrain slope do not see.
+_MIN_ALPHA_G, _MAX_ALPHA_G = 5.0, 60.0
 #: Highest value (degrees) up to which the terrain's upper-quartile slope raises the derived
 #: alpha_t above its median: beyond it the upper quartile of block-minimum slopes measures
 #: roofs and crowns wider than a block (a closed canopy reads 30-40 degrees), not terrain.
@@ -231,10 +233,10 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
     ``dh0 + step max(tan_g min(d, edge_cells), tan_t d)``: the paper's slope test from the
     reference point over the edge run, and further on the larger of the edge's allowance
     and the terrain's rise over the whole distance from the reference (the edge's
-    allowance is not added to the terrain's rise along the object). A profile starts from the lowest point of its first
-    ``init_cells``, ``m`` cells in: the profile is taken as mirrored at its start, so that
-    point is the reference ``m`` cells before the first cell, and the tolerance grows with
-    the distance from it as anywhere else.
+    allowance is not added to the terrain's rise along the object). A profile starts from
+    the lowest point of its first ``init_cells``, ``m`` cells in: the profile is taken as
+    mirrored at its start, so that point is the reference ``m`` cells before the first
+    cell, and the tolerance grows with the distance from it as anywhere else.
     Returns one boolean array per source (its shape; views into buffers shared by the
     sources of one array): True where the scan rejects. ``progress(fraction)`` is called
     every :data:`_REPORT_STEPS` positions (it may raise Cancelled).
@@ -318,9 +320,9 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
         np.greater(dzw, thrw, out=upw)                 # rejected (NaN compares False)
         np.less_equal(dzw, thrw, out=okw)              # accepted: valid and not rejected
         kw += upw                                      # a nodata cell does not count: a gap does
-        np.logical_not(okw, out=nokw)                  # not let the reference drift up a roof;
-        kw *= nokw                                     # k = 0 where accepted (a product: 5 x faster
-        np.putmask(gw, okw, vw)                        # than copyto's where=; putmask twice)
+        np.logical_not(okw, out=nokw)                  # not let the reference drift up a roof.
+        kw *= nokw                                     # k = 0 and g = v where accepted: a product
+        np.putmask(gw, okw, vw)                        # and putmask, 2-5 x faster than where=
         np.multiply(kw, b2, out=thrw)                  # the next step's tolerance
         thrw += a2
         if two_lines:                                  # the edge's line, up to the edge run
@@ -611,12 +613,23 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
 
 
 def derive_terrain_slope(est):
-    """alpha_t, degrees, from the terrain's slopes (:func:`estimate_terrain_slope`).
+    """alpha_t, degrees, from the terrain's slopes.
 
     The median (the paper's average slope), raised towards the upper quartile (the slope
     three quarters of the terrain stays under: the ground under most objects rises no
-    faster), but by the quartile no higher than :data:`_MAX_QUARTILE_ALPHA_T` (continuous:
-    ``max(median, min(p75, 8 deg))``); at most the Param's maximum.
+    faster), but by the quartile no higher than :data:`_MAX_QUARTILE_ALPHA_T`:
+    ``max(median, min(p75, 8 deg))``, continuous in both (no mode flips at a threshold);
+    at most the Param's maximum.
+
+    Parameters
+    ----------
+    est : dict
+        ``median`` and ``p75`` of the terrain's slopes, rise/run
+        (:func:`estimate_terrain_slope`).
+
+    Returns
+    -------
+    float
     """
     med = float(np.degrees(np.arctan(est["median"])))
     upper = float(np.degrees(np.arctan(est.get("p75", est["median"]))))
@@ -738,9 +751,6 @@ PARAMS = (
 )
 #: Largest derived alpha_t: the maximum of its Param.
 _MAX_ALPHA_T = next(p.maximum for p in PARAMS if p.name == "terrain_slope_deg")
-#: Smallest derived alpha_g, degrees: the ground's micro-relief (a kerb or a furrow, 0.1-0.2 m
-#: over 1-2 m), which the 20 m block minima of the terrain slope do not see.
-_MIN_ALPHA_G = 5.0
 
 
 #: Log entries of the resolve (why each default has its value), not filter arguments.
