@@ -672,19 +672,11 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg, tolerance_m=tolerance_m,
         max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
         sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor))
-    why = {}
     if terrain_slope_deg is None:
-        est = estimate_terrain_slope(z, cell, scale_m=20.0)
-        terrain_slope_deg = derive_terrain_slope(est)
-        why["terrain_slope_source"] = (
-            f"derived: slopes between {est['block_cells']}-cell block minima, median "
-            f"{np.degrees(np.arctan(est['median'])):.2f} deg, upper quartile "
-            f"{np.degrees(np.arctan(est['p75'])):.2f} deg (used up to {_MAX_QUARTILE_ALPHA_T:g} deg)")
+        terrain_slope_deg = derive_terrain_slope(estimate_terrain_slope(z, cell, scale_m=20.0))
     report(progress, 0.3)
     if slope_threshold_deg is None:
         slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
-        why["slope_threshold_source"] = (f"derived: twice alpha_t, bounded to [{_MIN_ALPHA_G:g}, "
-                                         f"{_MAX_ALPHA_G:g}] deg")
     if tolerance_m is None:
         sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
@@ -696,7 +688,6 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
            "refine": bool(refine), "slope_factor": float(slope_factor)}
     check_values("slopeprofile", PARAMS, out)
-    out.update(why)
     return out
 
 
@@ -753,16 +744,8 @@ PARAMS = (
 _MAX_ALPHA_T = next(p.maximum for p in PARAMS if p.name == "terrain_slope_deg")
 
 
-#: Log entries of the resolve (why each default has its value), not filter arguments.
-_DERIVED = ("terrain_slope_source", "slope_threshold_source")
-
-
 def _run(z, cell_size, progress=None, **params):
-    """Registry entry: run the filter on complete parameters, log why the defaults are what they are."""
-    derived = {k: params.pop(k) for k in _DERIVED if k in params}
-    res = filter_slope_profile(z, cell_size, progress=progress, **params)
-    res.info.update(derived)
-    return res
+    return filter_slope_profile(z, cell_size, progress=progress, **params)
 
 
 METHOD = Method(

@@ -286,4 +286,3 @@ def test_shrub_defaults_agree_from_0_5_to_4_m():
     for key in ("terrain_slope_deg", "slope_threshold_deg"):
         v = np.array([p[key] for p in got])
         assert v.max() / v.min() <= 1.2, (key, v)
-    assert all("derived" in p["terrain_slope_source"] for p in got)
