@@ -64,6 +64,7 @@ LABELS = {
     "slope_scale_m": "Slope tolerance of the final test (m per unit slope)",
     "window_growth": "Window growth between steps",
     "low_outlier_slope": "Low-outlier test slope (rise/run)",
+    "outline_slope": "Terrain slope beside objects (rise/run)",
 }
 
 #: a method's own wording of a shared name: {(method, name): label}

@@ -33,6 +33,8 @@ says so:
   - :func:`ground_spread`: :func:`smooth_spread` on chosen cells only;
   - :func:`below_surroundings`: a pit lies below every cell of the ring around it (a
     low blunder, not a gap between crowns).
+* :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
+  fit needs to reach ground beyond them).
 """
 import math
 
@@ -657,3 +659,45 @@ def _below_at(a, rows, mid, idx, reach, depth_m):
         hit = np.isfinite(ring) & (a.ravel().take(idx) < ring - np.float32(depth_m))
     out.ravel()[idx[hit]] = True
     return out
+
+
+def object_widths(objects, cell_size, area_share=0.98):
+    """Width of the widest objects of a mask, metres: the width below which ``area_share``
+    of the objects' area lies.
+
+    The width of an object (a 4-connected component of ``objects``) is twice the largest
+    distance (metres) from one of its cells to the nearest cell outside it, i.e. the side
+    of the largest square, or the diameter of the largest disc, it holds; a long bridge or
+    hedge is as wide as it is across, not as long. Objects are ranked by width and their
+    areas accumulated: the result is the width at which ``area_share`` of the object area
+    is reached (large objects weigh by their area, a few wide ones are not outvoted by many
+    small ones). Exact (to the cell) for odd widths in cells, one cell less for even ones
+    (a one-cell object is one cell wide); 0 without objects.
+
+    Parameters
+    ----------
+    objects : array_like of bool, 2-D
+        The object cells (e.g. the cells of a DSM left standing above the ground level).
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    area_share : float
+        Share of the object area at or below the returned width (0 < share <= 1).
+    """
+    obj = np.asarray(objects, bool)
+    if not 0 < area_share <= 1:
+        raise ValueError(f"area_share must be in (0, 1]; got {area_share}.")
+    if obj.ndim != 2 or not obj.any():
+        return 0.0
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    lab, n = ndimage.label(obj)
+    # distance from each object cell to the nearest non-object cell, counted to the cell's
+    # far edge (a one-cell object: half a cell to its edge, so one cell wide)
+    dist = ndimage.distance_transform_edt(np.pad(obj, 1), sampling=(dy, dx))[1:-1, 1:-1]
+    lab_obj = lab[obj]
+    inner = ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))
+    width = 2.0 * np.asarray(inner, np.float64) - min(dx, dy)
+    area = np.bincount(lab_obj, minlength=n + 1)[1:].astype(np.float64)
+    order = np.argsort(width, kind="stable")
+    cum = np.cumsum(area[order]) / area.sum()
+    i = min(int(np.searchsorted(cum, area_share - 1e-12)), n - 1)
+    return float(width[order][i])

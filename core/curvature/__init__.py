@@ -38,7 +38,9 @@ From curvature to objects
 2. **Profiles.** Along every X and Y profile (each scanned both ways, all profiles at
    once) the points between a break going up and the matching break coming down belong
    to an object: the object starts at a marked cell on top of a wall (a rise of at least
-   the minimum object height within two cells, steeper than the wall slope and three
+   the minimum object height within two cells, steeper than the wall slope (judged over
+   two cells but over 3 m at most: a vertical wall is smeared over two cells, and at
+   coarse cells the slope's rise over two cells would exceed every low object) and three
    times steeper than the profile before it: dams, embankments, terrace edges and
    terrain rasterised in steps are not walls), and ends where the profile comes back down
    to the ground extended from the wall's foot at the profile's slope before it, or comes

@@ -21,7 +21,7 @@ from .derivatives import (
     mark_breaks,
 )
 from .ground import find_ground, ground_reach
-from .profiles import enclosed_reach, find_enclosed_objects, find_profile_objects, profile_reach
+from .profiles import enclosed_reach, find_enclosed_objects, find_profile_objects, profile_reach, wall_rise
 
 #: Break threshold in robust standard deviations of the profile bends (K_g default).
 _K_SIGMAS = 1.5
@@ -114,7 +114,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
                                 h_min=s.h_min, tol=s.tol, max_size=s.max_size,
                                 progress=sub_progress(progress, 0.65, 1.0))
-    info = _info(s, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
+    info = _info(s, cell, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
     report(progress, 1.0)
     return FilterResult(mask=mask, extras={"curvature": breaks.curvature}, info=info, surface=surface)
 
@@ -149,10 +149,14 @@ def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall
     return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol)
 
 
-def _info(s, breaks, n_obj_x, n_obj_y, n_valid):
-    """The parameters used and the shares of valid cells marked and found inside objects."""
+def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
+    """The parameters used, the rise that makes a wall along X and Y
+    (:func:`.profiles.wall_rise`) and the shares of valid cells marked and found inside
+    objects."""
     return {"k_g_per_m2": float(s.k_g), "window_cells": s.window, "model": s.model,
             "min_object_height_m": s.h_min, "wall_slope_deg": s.wall_slope_deg,
+            "wall_rise_x_m": round(wall_rise(cell[0], h_min=s.h_min, tan_wall=s.tan_wall), 4),
+            "wall_rise_y_m": round(wall_rise(cell[1], h_min=s.h_min, tan_wall=s.tan_wall), 4),
             "max_object_size_m": s.max_size, "tolerance_m": s.tol,
             "share_marked_x": breaks.n_x / n_valid,
             "share_marked_y": breaks.n_y / n_valid,
@@ -308,7 +312,9 @@ METHOD = Method(
         Param("wall_slope_deg", "float", 45.0,
               "Degrees: that rise must be steeper than this (and 3x steeper than the profile "
               "before it) to be an object's wall; dams, embankments and terrace edges are "
-              "gentler and stay ground.", minimum=1.0, maximum=89.0, advanced=True),
+              "gentler and stay ground. The slope is judged over two cells but over 3 m at "
+              "most (coarser cells cannot show it; the log gives the rise used).",
+              minimum=1.0, maximum=89.0, advanced=True),
         Param("max_object_size_m", "float", 100.0,
               "Metres: largest object; larger enclosed regions are ground. Also the method's "
               "reach for block processing.", minimum=1.0, maximum=2000.0),
@@ -352,7 +358,11 @@ METHOD = Method(
         "(no break found, half the cells wrong). Tolerance = 3 x the noise of the DSM's "
         "ground-level cells (0.3 to 1 m). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
         "noise of the fit falls with the square of the cell, so it differs between cell "
-        "sizes by design. The CURVATURE output (band 1 K in 1/m<sup>2</sup>, band 2 H in "
+        "sizes by design. A wall's slope is judged over two cells, but over 3 m at most: "
+        "a vertical wall is smeared over two cells, and at 4 m cells a 45&deg; slope over "
+        "two cells would demand 8 m of rise, so shrubs, hedges and houses would never be "
+        "walls (the log gives the rise used along X and Y). The CURVATURE output (band 1 "
+        "K in 1/m<sup>2</sup>, band 2 H in "
         "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
         "cells marked by X and by Y profiles. The curvature is attenuated within "
         "<i>window</i>/2 cells of the raster's edge (the edge is extended as a plane).</p>"

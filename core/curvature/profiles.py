@@ -17,6 +17,22 @@ from .derivatives import CHUNK_CELLS, CellSize, Progress
 #: profile before it the wall must be.
 _WALL_CELLS = 2
 _WALL_CONTRAST = 3.0
+#: Widest horizontal span (m) over which the wall slope is judged (:func:`wall_rise`).
+_WALL_SPAN_M = 3.0
+
+
+def wall_rise(cell: float, *, h_min: float, tan_wall: float) -> float:
+    """Metres a profile must rise (or fall) within ``_WALL_CELLS`` cells of ``cell``
+    metres to be an object's wall: the minimum object height ``h_min``, and the rise of the
+    wall slope over those cells, but over :data:`_WALL_SPAN_M` at most.
+
+    A vertical wall is smeared over two cells (one of them mixed), so over two cells the
+    slope test demands ``2 cell tan(wall)``: 2 m at 1 m cells, but 8 m at 4 m cells,
+    where no shrub, hedge or house would be a wall. Judged over at most
+    :data:`_WALL_SPAN_M`, the demand stops growing where the raster no longer resolves
+    the slope (it is unchanged up to 1.5 m cells).
+    """
+    return max(float(h_min), float(tan_wall) * min(_WALL_CELLS * float(cell), _WALL_SPAN_M))
 
 
 def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
@@ -28,9 +44,9 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
     so positions before a profile's start read NaN). The foot of position j is the lowest of
     the ``_WALL_CELLS`` positions before it. j is the top of a wall when
 
-    * ``z_j - foot >= h_min`` (high enough),
-    * the rise is steeper than the wall slope: ``(z_j - foot) / (_WALL_CELLS cell) >=
-      tan(wall slope)``, and
+    * ``z_j - foot >= h_min`` (high enough) and steeper than the wall slope: ``z_j - foot
+      >= _WALL_CELLS cell tan(wall slope)``, the slope judged over at most
+      :data:`_WALL_SPAN_M` (:func:`wall_rise`), and
     * it is much steeper (``_WALL_CONTRAST`` times) than the profile's own rise over
       the ``reach`` positions before the foot (where that position is nodata or before
       the profile's start: from the farthest valid position within the reach; flat when
@@ -68,12 +84,11 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
         rise = zc - best
         fall = np.subtract(top, zc, out=top)
         # cheap tests first, on all marked cells; the rest only on what passes
-        down = fall >= max(np.float32(h_min), np.float32(tan_wall * _WALL_CELLS * cell))
-        cand = np.flatnonzero(rise >= np.float32(h_min))
+        need = np.float32(wall_rise(cell, h_min=h_min, tan_wall=tan_wall))
+        down = fall >= need
+        cand = np.flatnonzero(rise >= need)
         rate = rise.take(cand)
         rate /= np.float32(_WALL_CELLS * cell)
-        steep = rate >= np.float32(tan_wall)
-        cand, rate = cand[steep], rate[steep]
         ci = idx.take(cand)
         base = base.take(cand)
         before = back(_WALL_CELLS + reach, ci)

@@ -93,7 +93,7 @@ def _fine_cells(blocks, f, coarse_width, shape):
 
 
 def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, progress=None,
-                  grids=None):
+                  grids=None, reconstruction=None):
     """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
@@ -113,6 +113,8 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     ----------
     grids : dict, optional
         :func:`coarse_grids` of ``w`` (computed here when a coarse step needs one).
+    reconstruction : list, optional
+        Receives ``(Rc, f)``: the step's reconstruction on its grid and the grid's factor.
 
     Returns
     -------
@@ -152,6 +154,8 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     Rc = reconstruct_by_dilation(marker, mask_c, max_iter=max(1, int(round(reach))),
                                  progress=sub_progress(progress, 0.25, 0.7))
     del marker
+    if reconstruction is not None:
+        reconstruction.append((Rc, f))
     with np.errstate(invalid="ignore"):
         dc = zmax - Rc
         cand = vc & (dc > dh0)
@@ -253,6 +257,9 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
         ``w`` with removed cells lowered to the reconstruction.
     counts : list of int
         Cells newly coded per step.
+    terrain : (ndarray, int)
+        The last (largest) step's reconstruction on its grid and the grid's factor: the
+        terrain level that no object reaches (see :func:`terrain_at`).
     """
     dx, dy = cell_size
     cleaned = w.copy()
@@ -264,11 +271,13 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
                for c in (window_cells(s, dx, dy) for s in sizes)]
     grids = coarse_grids(w, valid, jump, factors)
     report(progress, 0.02)
-    counts = []
+    counts, recon = [], []
     rf, sf, cf = removed.ravel(), step.ravel(), cleaned.ravel()
     for k, s in enumerate(sizes, start=1):
         part = sub_progress(progress, 0.02 + 0.98 * (k - 1) / len(sizes), 0.02 + 0.98 * k / len(sizes))
-        cells, R = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part, grids)
+        keep = recon if k == len(sizes) else None
+        cells, R = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part, grids,
+                                 reconstruction=keep)
         new = ~rf[cells] & (sf[cells] == 0)       # outliers keep their own code
         rf[cells] = True
         sf[cells[new]] = k
@@ -276,4 +285,13 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
         cf[cells] = np.minimum(cf[cells], R)
         counts.append(int(np.count_nonzero(new)))
         report(part, 1.0)
-    return removed, cleaned, counts
+    return removed, cleaned, counts, recon[0]
+
+
+def terrain_at(terrain, cells, shape):
+    """The terrain level of :func:`gradual_dilation` (its largest step's reconstruction
+    ``(Rc, f)``) at the flat ``cells`` of a raster of ``shape``: ``Rc`` of the block of
+    ``f`` x ``f`` cells holding each (NaN at nodata, ``-inf`` where no marker reaches)."""
+    Rc, f = terrain
+    r, c = np.divmod(cells, shape[1])
+    return Rc[r // f, c // f]

@@ -1,14 +1,15 @@
 """The geodesic filter as its sequence of stages (:func:`filter_geodesic`), and its last
-stage, the borders of the removed objects."""
+stages, the borders of the removed objects and the islands among them."""
 import time
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
+from scipy import ndimage
 
 from ..codes import LOW, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
-from .dilation import gradual_dilation
-from .grey import fill_nodata, rect_filter
+from .dilation import BUMP_FRACTION, gradual_dilation, terrain_at
+from .grey import S8, fill_nodata, rect_filter, window_cells
 from .outliers import remove_outliers
 from .params import check_params, step_sizes
 from .scan import SCAN_PASSES, scan_label
@@ -19,6 +20,8 @@ STEP_SCAN = 250
 STEP_OUTLIER = 251
 #: ``extras["step"]`` code of a border cell of a removed region (wall or crown edge).
 STEP_EDGE = 252
+#: ``extras["step"]`` code of a kept island inside removed objects, above the terrain.
+STEP_ISLAND = 253
 #: ``extras["step"]`` code of nodata cells.
 STEP_NODATA = 255
 
@@ -57,6 +60,48 @@ def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step):
     step[edge] = STEP_EDGE
     removed |= edge
     return int(edge.sum())
+
+
+def remove_islands(w, valid, removed, mask, terrain, cell_size, size_m, height_m, step):
+    """Stage 5: kept islands inside the removed objects that stand above the terrain.
+
+    A set of kept cells (8-connected; outliers count as removed) no larger than the
+    first structuring element (``size_m``: its window's cells), enclosed by removed cells
+    (not touching the raster's edge, which ends the data), is a gap between objects that
+    no step could see as terrain: every step's window is wider. It is the terrain when it
+    reaches it; it is a gap in a canopy or a roof (a crown's lower side, a light well)
+    when even its lowest cell stands above the terrain level of the largest step (its
+    reconstruction, which no object reaches: :func:`~.dilation.terrain_at`) by more than
+    ``height_m`` (the first step's height threshold: what a terrain bump of that width
+    may rise). Such islands are removed (``removed`` and ``step`` updated in place, code
+    :data:`STEP_ISLAND`), so the interpolated DTM does not rest on canopy gaps. Their
+    cells are few: the labelling and the test run on them only. Returns the count.
+    """
+    kept = ~removed
+    kept &= mask == 0                     # outliers (low and high) are not kept
+    if valid is not None:
+        kept &= valid
+    lab, n = ndimage.label(kept, S8)
+    del kept
+    if n == 0:
+        return 0
+    small = np.bincount(lab.ravel(), minlength=n + 1) <= int(np.prod(window_cells(size_m, *cell_size)))
+    small[0] = False
+    small[lab[0]] = small[lab[-1]] = small[lab[:, 0]] = small[lab[:, -1]] = False
+    if not small.any():
+        return 0
+    idx = np.flatnonzero(small.take(lab))     # the few cells of small enclosed sets
+    lab_c = lab.ravel()[idx]
+    del lab
+    with np.errstate(invalid="ignore"):
+        above = w.ravel()[idx] - terrain_at(terrain, idx, w.shape)
+    lowest = np.full(n + 1, np.inf)
+    # no terrain level known (nodata, no marker within reach): no evidence, kept
+    np.minimum.at(lowest, lab_c, np.where(np.isfinite(above), above, -np.inf))
+    isl = idx[lowest[lab_c] > height_m]
+    step.ravel()[isl] = STEP_ISLAND
+    removed.ravel()[isl] = True
+    return int(isl.size)
 
 
 def _complete(p):
@@ -115,7 +160,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     FilterResult
         ``mask`` (0 ground, 1 object, 2 low outlier, 255 nodata); ``extras["step"]``
         (uint8: 0 kept, k = removed at dilation step k, :data:`STEP_SCAN`,
-        :data:`STEP_OUTLIER`, :data:`STEP_EDGE`, 255 nodata); ``surface`` the cleaned
+        :data:`STEP_OUTLIER`, :data:`STEP_EDGE`, :data:`STEP_ISLAND`, 255 nodata); ``surface`` the cleaned
         surface (removed cells lowered to the reconstruction); ``info`` parameters, step
         sizes and counts.
     """
@@ -139,8 +184,8 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     _lap(stages, "preprocessing", t0)
     # 2. gradual geodesic dilation
     sizes = step_sizes(min_window_m, max_object_size_m)
-    removed, cleaned, counts = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
-                                                sub_progress(progress, 0.05, 0.85))
+    removed, cleaned, counts, terrain = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
+                                                         sub_progress(progress, 0.05, 0.85))
     _lap(stages, "dilation", t0)
     # 3. scan labelling on the cleaned surface
     n_scan = label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95)) if scan_labelling else 0
@@ -148,12 +193,15 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     report(progress, 0.95)
     # 4. object borders (wall feet, crown edges)
     n_edge = remove_borders(cleaned, valid, vnone, removed, cell, dh0, tan_s, step)
+    # 5. islands inside the objects that stand above the terrain (canopy gaps)
+    n_island = remove_islands(w, vnone, removed, mask, terrain, cell, sizes[0],
+                              dh0 + tan_s * sizes[0] * BUMP_FRACTION, step)
     mask[removed & (mask != LOW)] = OBJECT
     mask = finish_mask(mask, z)
     step[~valid] = STEP_NODATA
     cleaned[~valid] = np.nan
     info = dict(p, method="geodesic", step_sizes_m=sizes, removed_per_step=counts, removed_scan=n_scan,
-                removed_edge=n_edge, low_outliers=n_low, high_outliers=n_high,
+                removed_edge=n_edge, removed_island=n_island, low_outliers=n_low, high_outliers=n_high,
                 object_fraction=float((mask == OBJECT).sum() / max(valid.sum(), 1)),
                 seconds=round(time.perf_counter() - t0, 3), stage_seconds=stages)
     report(progress, 1.0)

@@ -151,7 +151,8 @@ def geodesic_halo(params, cell_size):
     within its opening (two half-windows: ``S``) and its geodesic reconstruction (reach
     ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
     within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to ``S``
-    (``2 S``); the preprocessing two outlier windows and a cluster. The halo is rounded
+    (``2 S``); the preprocessing two outlier windows and a cluster; the islands (stage
+    5) at most the first window's cells and their ring. The halo is rounded
     up to a multiple of the largest coarsening factor, so that blocks whose edge is a
     multiple of it (the default 2048 is) see the same coarse grids as one pass.
     """
@@ -159,10 +160,11 @@ def geodesic_halo(params, cell_size):
     c = min(dx, dy)
     size = float(params.get("max_object_size_m", DEFAULTS["max_object_size_m"]))
     width = float(params.get("outlier_width_m", DEFAULTS["outlier_width_m"]))
-    reach = (int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
-             + OUTLIER_MAX_CELLS + 8)
-    # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     params = dict(DEFAULTS, **{k: v for k, v in params.items() if v is not None})
+    island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
+    reach = (int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
+             + OUTLIER_MAX_CELLS + 8 + island)
+    # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     f = max(coarse_factor(window_cells(s, dx, dy))
             for s in step_sizes(params["min_window_m"], params["max_object_size_m"]))
     return int(-(-reach // f) * f)

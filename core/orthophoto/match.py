@@ -53,6 +53,22 @@ def _shift_cols(arr, s, fill):
     return out
 
 
+def _shift_cols_flat(arr, s, fill):
+    """:func:`_shift_cols` of a C-contiguous 2-D array by one copy of its flattened rows."""
+    rows, n = arr.shape
+    if abs(s) >= n:
+        return np.full_like(arr, fill)
+    out = np.empty_like(arr)
+    fo, fa = out.reshape(-1), arr.reshape(-1)
+    if s >= 0:
+        fo[:fo.size - s] = fa[s:]                     # out[:, j] = arr[:, j + s]
+        out[:, n - s:] = fill
+    else:
+        fo[-s:] = fa[:fa.size + s]
+        out[:, :-s] = fill
+    return out
+
+
 def _check_pair(a, b):
     a = np.asarray(a, dtype=np.float32)
     b = np.asarray(b, dtype=np.float32)
@@ -105,15 +121,112 @@ def ncc_volume(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=Non
     return vol
 
 
+class _BoxMean:
+    """Window means of float32 grids of one shape, zero outside (``uniform_filter``, ``constant``).
+
+    The box filters of the NCC and of the least-squares matching: ``window`` shifted views
+    summed in float32 along each axis (columns, then rows) on a zero-padded copy, every
+    view contiguous (along the rows on the flattened padded grid: a padded row holds the
+    whole reach of its cells), then scaled by ``1 / window^2``. The same values as
+    ``ndimage.uniform_filter(x, window, mode="constant")`` to float32 rounding (a sum of
+    ``window`` float32 terms per axis, where that filter keeps a float64 running mean per
+    line and rounds between the axes), two to three times faster. The buffers are kept
+    between calls: one instance per grid shape.
+    """
+
+    def __init__(self, shape, window):
+        self.w, self.h = int(window), int(window) // 2
+        self.rows, self.cols = rows, cols = shape
+        self.width = cols + 2 * self.h
+        self.pad = np.zeros((rows + 2 * self.h, self.width), np.float32)
+        self.down = np.zeros(rows * self.width, np.float32)
+        self.across = np.zeros(rows * self.width, np.float32)
+        self.scale = np.float32(1.0 / (self.w * self.w))
+
+    def __call__(self, x, out=None):
+        w, h, rows, cols, width = self.w, self.h, self.rows, self.cols, self.width
+        pad = self.pad
+        pad[h:h + rows, h:h + cols] = x
+        _window_sums(pad, w, self.down.reshape(rows, width))        # over the window's rows
+        n = rows * width
+        _window_sums(self.down, w, self.across[h:n - h])           # then over its columns
+        if out is None:
+            out = np.empty((rows, cols), np.float32)
+        return np.multiply(self.across.reshape(rows, width)[:, h:h + cols], self.scale, out=out)
+
+
+def _window_sums(v, w, out):
+    """``out[i] = v[i] + ... + v[i + w - 1]`` along the first axis, by doubling.
+
+    Sums of runs of 1, 2, 4 ... entries, then the runs of the binary digits of ``w`` one
+    after the other (four additions for ``w = 7`` instead of six).
+    """
+    m = v.shape[0]
+    runs, r, run = {1: v}, v, 1
+    while 2 * run <= w:
+        r = np.add(r[:-run], r[run:])
+        run *= 2
+        runs[run] = r
+    size = m - w + 1
+    rest = [q for q in sorted(runs, reverse=True) if q < run and w & q]
+    if not rest:
+        np.copyto(out, r[:size])
+    off = run
+    for i, q in enumerate(rest):
+        if i == 0:
+            np.add(r[:size], runs[q][off:off + size], out=out)
+        else:
+            out += runs[q][off:off + size]
+        off += q
+    return out
+
+
 def _max_filter_nearest(x, size):
     """``ndimage.maximum_filter(x, size, mode="nearest")`` of a 2-D array by shifted maxima.
 
-    The same values (a maximum is exact), three to four times faster for the small sizes of
-    the shiftable windows: per axis, ``size - 1`` in-place maxima with the neighbours ``t``
-    cells before and after (no padding: near an edge the clipped window's cells are the
-    same as those of the edge-padded one, and a maximum does not count repeats).
+    The same values (a maximum is exact; near an edge the clipped window's cells are those
+    of the edge-padded one, and a maximum does not count repeats), several times faster for
+    the small sizes of the shiftable windows: per axis a sparse table (the maxima of runs of
+    1, 2, 4 ... cells, then of two overlapping runs: three passes for 5 cells), over
+    contiguous memory only. Along the rows the passes run over the flattened array (the
+    windows that cross the end of a row, at the first and last ``size // 2`` columns, are
+    then taken again within their row): shifted views of whole rows are several times
+    slower than contiguous ones.
     """
     h = int(size) // 2
+    rows, cols = x.shape
+    if h < 1:
+        return x.copy()
+    if rows <= 2 * h or cols <= 2 * h:
+        return _max_filter_shifted(x, h)
+    y = _running_max(x, h)
+    for i in (*range(h), *range(rows - h, rows)):
+        y[i] = x[max(0, i - h):i + h + 1].max(axis=0)
+    z = _running_max(y.reshape(-1), h).reshape(rows, cols)
+    for j in (*range(h), *range(cols - h, cols)):
+        z[:, j] = y[:, max(0, j - h):j + h + 1].max(axis=1)
+    return z
+
+
+def _running_max(v, h):
+    """Maxima of ``v[i - h:i + h + 1]`` along the first axis for ``h <= i < len(v) - h``.
+
+    A sparse table: runs of ``L`` cells (the largest power of two <= ``2 h + 1``) by
+    doubling, then two overlapping runs per window. The first and last ``h`` entries of the
+    result are left for the caller (its windows are clipped there).
+    """
+    m = v.shape[0]
+    r, run = v, 1
+    while 2 * run <= 2 * h + 1:
+        r = np.maximum(r[:-run], r[run:])
+        run *= 2
+    out = np.empty_like(v)
+    np.maximum(r[0:m - 2 * h], r[2 * h + 1 - run:m - run + 1], out=out[h:m - h])
+    return out
+
+
+def _max_filter_shifted(x, h):
+    """:func:`_max_filter_nearest` by ``2 h`` shifted maxima per axis (any shape)."""
     out = x
     for ax in (0, 1):
         sl = (lambda a, b: np.s_[a:b]) if ax == 0 else (lambda a, b: np.s_[:, a:b])  # noqa: E731
@@ -137,7 +250,7 @@ def _ncc_planes(a, b, shifts, window, *, shiftable=0, min_fill=0.6, var_floor=No
     if var_floor is None:
         gv = float(np.var(a0[va])) if va.any() else 0.0
         var_floor = max(gv * 1e-4, 1e-12)
-    box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
+    box = _BoxMean(a0.shape, window)
     if min_fill >= 1.0:
         planes = _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor)
     else:
@@ -187,26 +300,46 @@ def _ncc_full_windows(a0, b0, va, vb, shifts, box, var_floor):
     ok_b = full_b & (varb > var_floor)
     sa = np.sqrt(np.maximum(vara, 0))
     sb = np.sqrt(np.maximum(varb, 0))
-    n = a0.shape[1]
+    rows, n = a0.shape
+    size = a0.size
+    # the terms of a shift pair a(j) with b(j + s) of the same row; on the flattened grids
+    # (rows one after the other) that is the pair of flat indices i, i + s: contiguous views,
+    # several times faster than the 2-D column slices. The pairs that cross a row end are
+    # the columns without a partner (jo), which take 0 (product) and _BAD (NCC) afterwards.
+    fa, fb, fma, fmb, fsa, fsb, foa, fob = (v.reshape(-1) for v in (a0, b0, ma, mb, sa, sb, ok_a, ok_b))
     prod = np.zeros_like(a0)
+    fprod = prod.reshape(-1)
+    summed = np.empty_like(a0)
+    fsum = summed.reshape(-1)
+    num = np.empty(size, np.float32)
+    den = np.empty(size, np.float32)
+    ok = np.empty(size, bool)
     for s in shifts:
         s = int(s)
         plane = np.full(a0.shape, _BAD, np.float32)
         if abs(s) >= n:
             yield plane
             continue
-        ja, jb = (slice(0, n - s), slice(s, n)) if s >= 0 else (slice(-s, n), slice(0, n + s))
+        lo, hi = max(0, -s), size - max(0, s)               # flat i with i + s on the grid
+        ia, ib = slice(lo, hi), slice(lo + s, hi + s)
         jo = slice(n - s, n) if s >= 0 else slice(0, -s)
         # a(j) b(j + s) with b = 0 beyond its edge: the same sums as the shifted copy of b
-        np.multiply(a0[:, ja], b0[:, jb], out=prod[:, ja])
+        np.multiply(fa[ia], fb[ib], out=fprod[ia])
         prod[:, jo] = 0.0
-        cov = box(prod)[:, ja] - ma[:, ja] * mb[:, jb]
+        box(prod, summed)
+        m = hi - lo
+        cov, sd, okv = num[:m], den[:m], ok[:m]
+        np.multiply(fma[ia], fmb[ib], out=cov)
+        np.subtract(fsum[ia], cov, out=cov)
+        np.multiply(fsa[ia], fsb[ib], out=sd)
+        np.maximum(sd, 1e-15, out=sd)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ncc = cov / np.maximum(sa[:, ja] * sb[:, jb], 1e-15)
-        ok = ok_a[:, ja] & ok_b[:, jb]
-        np.maximum(ncc, -1, out=ncc)                # = np.clip(ncc, -1, 1), in place
-        np.minimum(ncc, 1, out=ncc)
-        np.copyto(plane[:, ja], ncc, where=ok)
+            np.divide(cov, sd, out=cov)
+        np.logical_and(foa[ia], fob[ib], out=okv)
+        np.maximum(cov, -1, out=cov)                # = np.clip(ncc, -1, 1), in place
+        np.minimum(cov, 1, out=cov)
+        np.copyto(plane.reshape(-1)[ia], cov, where=okv)
+        plane[:, jo] = _BAD
         yield plane
 
 
@@ -278,31 +411,53 @@ def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_cor
                                  matched_share=float(valid.mean())))
 
 
-def _sample_rows(images, valid, cols):
-    """Linear interpolation of ``images`` at fractional columns ``cols`` of their own rows.
+def _row_table(img, grad, valid):
+    """What :func:`_sample_rows` gathers at a cell: the values and their steps along the row.
 
-    Columns beyond the edges take the edge value; the sample is valid when the cells it
-    draws on are valid and it lies inside the row (the shift of the matcher is along rows,
-    so this is the 1-D case of ``map_coordinates(order=1)``, several times faster).
+    ``(img, step of img, grad, step of grad)`` as float32 arrays, the step being the
+    difference to the next column of the row (0 at the last column, whose next column is
+    itself as :func:`_sample_rows` clips: ``v1 - v0`` of the interpolation, so one gather
+    per array), and a uint8 code of the validity of the cell (bit 0) and of its next
+    column (bit 1).
     """
-    rows, n = valid.shape
-    c = np.clip(cols, 0, n - 1)
+    out = []
+    for x in (img, grad):
+        step = np.empty_like(x)
+        np.subtract(x[:, 1:], x[:, :-1], out=step[:, :-1])
+        step[:, -1] = x[:, -1] - x[:, -1]
+        out += [x.reshape(-1), step.reshape(-1)]
+    code = valid.astype(np.uint8)
+    code[:, :-1] |= valid[:, 1:].view(np.uint8) << 1
+    code[:, -1] |= valid[:, -1].view(np.uint8) << 1
+    return out, code.reshape(-1)
+
+
+def _sample_rows(table, cols):
+    """Linear interpolation of an image and its gradient at fractional columns of their rows.
+
+    ``table`` from :func:`_row_table`. Columns beyond the edges take the edge value; the
+    sample is valid when the cells it draws on are valid and it lies inside the row (the
+    shift of the matcher is along rows, so this is the 1-D case of
+    ``map_coordinates(order=1)``, several times faster). Returns ``(value, gradient), ok``.
+    """
+    (x, dx, g, dg), code = table
+    rows, n = cols.shape
+    c = np.maximum(cols, 0)                          # = np.clip(cols, 0, n - 1)
+    np.minimum(c, n - 1, out=c)
     fl = np.floor(c)
     j0 = fl.astype(np.intp)
-    f = (c - fl).astype(np.float32, copy=False)     # the fraction of a float32 is exact in float32
-    j1 = np.minimum(j0 + 1, n - 1)
-    base = (np.arange(rows, dtype=np.intp) * n)[:, None]
-    i0, i1 = (base + j0).ravel(), (base + j1).ravel()    # flat indices: one gather per array
-    shape = j0.shape
+    f = np.subtract(c, fl, out=c)                    # the fraction of a float32 is exact in float32
+    j0 += (np.arange(rows, dtype=np.intp) * n)[:, None]
+    i0 = j0.reshape(-1)                              # flat indices: one gather per array
     out = []
-    for img in images:
-        flat = img.reshape(-1)
-        v0 = flat.take(i0).reshape(shape)
-        v1 = flat.take(i1).reshape(shape)
-        out.append(v0 + f * (v1 - v0))
-    vflat = valid.reshape(-1)
-    ok = (vflat.take(i0).reshape(shape) & (vflat.take(i1).reshape(shape) | (f < 1e-3))
-          & (cols >= -1e-3) & (cols <= n - 1 + 1e-3))
+    for v0, step in ((x, dx), (g, dg)):
+        v = step.take(i0).reshape(rows, n)
+        v *= f
+        v += v0.take(i0).reshape(rows, n)            # = v0 + f (v1 - v0)
+        out.append(v)
+    k = code.take(i0).reshape(rows, n)
+    ok = (k == 3) | ((k == 1) & (f < 1e-3))           # = valid(j0) & (valid(j1) | f < 1e-3)
+    ok &= (cols >= -1e-3) & (cols <= n - 1 + 1e-3)
     return out, ok
 
 
@@ -320,26 +475,39 @@ def _lsm_refine(a, b, s, valid, window, iterations):
     va, vb = np.isfinite(a), np.isfinite(b)
     a0 = np.where(va, a, 0).astype(np.float32)
     b0 = np.where(vb, b, 0).astype(np.float32)
-    ga = np.gradient(a0, axis=1).astype(np.float32)
-    gb = np.gradient(b0, axis=1).astype(np.float32)
-    box = lambda x: ndimage.uniform_filter(x, window, mode="constant")  # noqa: E731
+    ta = _row_table(a0, np.gradient(a0, axis=1).astype(np.float32), va)
+    tb = _row_table(b0, np.gradient(b0, axis=1).astype(np.float32), vb)
+    box = _BoxMean(a.shape, window)
     s = np.where(valid, s, 0).astype(np.float32)
+    sq, term = np.empty_like(s), np.empty_like(s)
     for it in range(iterations + 1):
-        (A, GA), wa = _sample_rows((a0, ga), va, cc - s / 2)
-        (B, GB), wb = _sample_rows((b0, gb), vb, cc + s / 2)
-        w = (wa & wb).astype(np.float32)
-        r = (B - A) * w
-        g = 0.5 * (GA + GB) * w
-        n = np.maximum(box(w), 1e-6)
+        half = s / 2
+        (A, GA), wa = _sample_rows(ta, cc - half)
+        (B, GB), wb = _sample_rows(tb, cc + half)
+        w = np.logical_and(wa, wb, out=wa).astype(np.float32)
+        r = np.subtract(B, A, out=B)
+        r *= w                                        # r = (B - A) w
+        g = np.add(GA, GB, out=GA)
+        g *= 0.5
+        g *= w                                        # g = (GA + GB) / 2 w
+        n = box(w)
+        np.maximum(n, 1e-6, out=n)
         with np.errstate(divide="ignore", invalid="ignore"):
             br, bg = box(r), box(g)
-            den = box(g * g) - bg ** 2 / n
+            den = box(np.multiply(g, g, out=sq))
+            den -= np.divide(np.square(bg, out=term), n, out=term)          # sum g^2 - (sum g)^2 / n
             if it == iterations:      # statistics at the final shift (per cell of window)
-                res = (box(r * r) - br ** 2 / n) / n
-                return s, res.astype(np.float32), (den / n).astype(np.float32)
-            num = box(r * g) - br * bg / n
-            ds = np.where(den > 1e-12, -num / den, 0.0)
-        s = s + np.clip(ds, -0.5, 0.5).astype(np.float32)
+                res = box(np.multiply(r, r, out=sq))
+                res -= np.divide(np.square(br, out=term), n, out=term)
+                res /= n
+                return s, res, np.divide(den, n, out=den)
+            num = box(np.multiply(r, g, out=sq))
+            num -= np.divide(np.multiply(br, bg, out=term), n, out=term)    # sum r g - sum r sum g / n
+            ds = np.divide(np.negative(num, out=num), den, out=num)
+            ds[~(den > 1e-12)] = 0.0
+        np.maximum(ds, -0.5, out=ds)                  # = np.clip(ds, -0.5, 0.5)
+        np.minimum(ds, 0.5, out=ds)
+        s += ds
 
 
 #: Largest number of cells matched at once; bigger inputs are matched in row strips. The NCC
@@ -396,7 +564,7 @@ class _RunningBest:
 
     def offer(self, k, plane):
         upd = plane > self.best
-        np.copyto(self.best, plane, where=upd)
+        np.maximum(self.best, plane, out=self.best)     # = where(upd, plane, best), no masked copy
         np.copyto(self.k, k, where=upd)
         if self.neighbours:
             if k == 0:
@@ -411,6 +579,20 @@ class _RunningBest:
         upd = plane > view
         np.copyto(view, plane, where=upd)
         np.copyto(self.k[:, lo:hi], k, where=upd)
+
+    def offer_shifted(self, k, plane, s):
+        """Offer ``plane[:, j]`` to column ``j + s``: the flat views of whole rows, shifted by ``s``.
+
+        The cells whose ``j + s`` falls off their row land at the start of the next row (or
+        the end of the previous one): ``plane`` must hold ``_BAD`` there (the ``|s|`` columns
+        of its far side), which never beats a winner.
+        """
+        fb, fp = self.best.reshape(-1), plane.reshape(-1)
+        lo, hi = max(0, -s), fb.size - max(0, s)
+        view, p = fb[lo + s:hi + s], fp[lo:hi]
+        upd = p > view
+        np.maximum(view, p, out=view)
+        np.copyto(self.k.reshape(-1)[lo + s:hi + s], k, where=upd)
 
     def finish(self):
         if self.neighbours and self.prev is not None:
@@ -435,14 +617,12 @@ def _match_rows_once(a, b, max_shift, window, shiftable, min_corr, lr_tolerance,
     for k, plane in enumerate(_ncc_planes(a, b, shifts, window, shiftable=shiftable, min_fill=min_fill,
                                           var_floor=var_floor)):
         s = int(shifts[k])
+        win_s.offer(k, _shift_cols_flat(plane, -int(np.floor(s / 2)), _BAD))
         win_a.offer(k, plane)
-        if abs(s) >= cols:
-            pass                                      # no cell of b is seen at this shift
-        elif s >= 0:
-            win_b.offer_cols(k, plane[:, :cols - s], s, cols)
-        else:
-            win_b.offer_cols(k, plane[:, -s:], 0, cols + s)
-        win_s.offer(k, _shift_cols(plane, -int(np.floor(s / 2)), _BAD))
+        if abs(s) < cols:                             # else no cell of b is seen at this shift
+            # the cells of a without a partner in b hold no NCC (the plane is ours now)
+            plane[:, slice(cols - s, cols) if s >= 0 else slice(0, -s)] = _BAD
+            win_b.offer_shifted(k, plane, s)
     win_s.finish()
     ka, kb, k = win_a.k, win_b.k, win_s.k
     c = win_s.best

@@ -135,17 +135,32 @@ def orthorectify(image, camera, dem, transform, *, occlusion=True, order=1):
         cc = np.clip(col[seen], 0, w - 1)
         rr = np.clip(row[seen], 0, h - 1)
         for b in range(bands.shape[0]):
-            band = bands[b].astype(np.float32)
+            band = bands[b].astype(np.float32, copy=False)
             bad = ~np.isfinite(band)
             if bad.any():
                 band = np.where(bad, 0, band)
             out[b][seen] = ndimage.map_coordinates(band, [rr, cc], order=order, mode="nearest",
                                                    prefilter=order > 1)
             if bad.any():
-                hit = ndimage.map_coordinates(bad.astype(np.float32), [rr, cc], order=1,
-                                              mode="nearest") > 0.01
                 vals = out[b][seen]
-                vals[hit] = np.nan
+                near = _near_bad(bad, rr, cc)
+                hit = ndimage.map_coordinates(bad.astype(np.float32), [rr[near], cc[near]], order=1,
+                                              mode="nearest") > 0.01
+                vals[np.flatnonzero(near)[hit]] = np.nan
                 out[b][seen] = vals
         seen = seen & np.all(np.isfinite(out), axis=0)
     return (out[0] if img.ndim == 2 else out), seen
+
+
+def _near_bad(bad, rr, cc):
+    """Samples at ``(rr, cc)`` whose bilinear cells (the 2 x 2 block from the floor) hold a bad pixel.
+
+    Elsewhere the interpolated bad mask is exactly 0: only these samples need it.
+    """
+    h, w = bad.shape
+    block = bad.copy()
+    block[:-1] |= bad[1:]
+    block[:, :-1] |= block[:, 1:].copy()
+    r0 = np.clip(np.floor(rr), 0, h - 1).astype(np.intp)
+    c0 = np.clip(np.floor(cc), 0, w - 1).astype(np.intp)
+    return block[r0, c0]

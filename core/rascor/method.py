@@ -60,13 +60,16 @@ METHOD = Method(
               "empty: the longest of the sequence whose residual scale stays within twice "
               "the shortest's.", minimum=0.1, maximum=10000.0, advanced=True),
         Param("profile_sigma_m", "float", None, "Step 5 standard deviation of a height "
-              "about the profile model (m); empty: from the length analysis.", minimum=0.001,
+              "about the profile model (m); empty: sigma and the model's error at the long "
+              "length on the ground-level surface (20 m block minima).", minimum=0.001,
               maximum=100.0, advanced=True),
         Param("surface_size_m", "float", None, "Step 6 moving-surface window edge in "
-              "metres; empty: chosen by checking a sequence of sizes.", minimum=0.1,
+              "metres; empty: the shortest of a sequence of sizes covering sqrt(2) x the "
+              "width of the objects, as long as the model follows the terrain.", minimum=0.1,
               maximum=10000.0, advanced=True),
         Param("surface_sigma_m", "float", None, "Step 6 standard deviation about the "
-              "surface (m); empty: from the size analysis.", minimum=0.001, maximum=100.0,
+              "surface (m); empty: sigma and the model's error on the ground-level surface.",
+              minimum=0.001, maximum=100.0,
               advanced=True),
         Param("prediction_radius_m", "float", None, "Step 7 neighbourhood radius in "
               "metres; empty: 3 cells.", minimum=0.01, maximum=1000.0, advanced=True),
@@ -98,6 +101,13 @@ METHOD = Method(
         "where the ground shows only in gaps between crowns or roofs (a closed canopy at "
         "4 m cells), the weight factor alone takes those gaps for blunders; a gap is at the "
         "level of the other gaps around it, a blunder below all of them.</p>"
+        "<p>The moving surface covers sqrt(2) x the width of the objects standing above "
+        "the ground level (98 % of their area), so each window holds as much ground as "
+        "object: steps 3 and 4 leave pieces of wide objects scattered over their "
+        "footprint, which a smaller window keeps as ground. The scales of the profiles and "
+        "surfaces are the random error and the model's error on the ground-level surface "
+        "(20 m block minima), never the residuals of the DSM that the objects widen. Long "
+        "windows cut the shoulders of cuts and embankments: draw break lines there.</p>"
         "<p>The random error sigma is the lower quartile of the whole DSM's Laplacian "
         "residual: the cell-scale roughness that the neighbour and profile tests must pass. "
         "On a closed canopy it measures the crowns, which is what those tests need there; "

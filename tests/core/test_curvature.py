@@ -781,3 +781,54 @@ def test_blocked_equals_one_pass_on_real_dsm_crops(shared_data, name, window, si
         assert res.info["blocks"] > 4
         diff = int(np.count_nonzero(res.mask != one.mask))
         assert diff == 0, f"{name}: {diff} cells differ (block {block}, {workers} thread(s))"
+
+
+# ------------------------------------------------------------ walls at coarse cells (issue 12)
+def test_wall_rise_exact():
+    """Two cells of the wall slope, judged over 3 m at most, and never below h_min."""
+    wall_rise = profiles.wall_rise
+    t45 = 1.0
+    assert wall_rise(0.25, h_min=1.0, tan_wall=t45) == 1.0       # 0.5 m of slope < h_min
+    assert wall_rise(0.5, h_min=1.0, tan_wall=t45) == 1.0
+    assert wall_rise(1.0, h_min=1.0, tan_wall=t45) == 2.0       # unchanged up to 1.5 m cells
+    assert wall_rise(1.5, h_min=1.0, tan_wall=t45) == 3.0
+    assert wall_rise(2.0, h_min=1.0, tan_wall=t45) == 3.0       # was 4 m
+    assert wall_rise(4.0, h_min=1.0, tan_wall=t45) == 3.0       # was 8 m
+    assert wall_rise(4.0, h_min=4.0, tan_wall=t45) == 4.0
+    assert wall_rise(4.0, h_min=1.0, tan_wall=0.5) == 1.5
+
+
+def _low_houses(cell, height=3.5, side=240.0):
+    """Houses ``height`` m high, 12-20 m wide, on a gentle slope with 5 cm noise."""
+    n = int(side / cell)
+    rng = np.random.default_rng(1)
+    yy, xx = np.mgrid[0:n, 0:n] * cell
+    z = 100 + 0.01 * xx + 0.05 * rng.standard_normal((n, n))
+    truth = np.zeros((n, n), bool)
+    for i, (r, c) in enumerate([(40, 40), (40, 120), (120, 40), (120, 120), (170, 80), (60, 190), (180, 180)]):
+        w = 12 + 4 * (i % 3)
+        m = (yy >= r) & (yy < r + w) & (xx >= c) & (xx < c + w)
+        z[m] += height
+        truth |= m
+    return z.astype(np.float32), truth
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+def test_low_objects_found_at_every_cell_size(cell):
+    """3.5 m houses are walls at 0.5-4 m cells; the wall's rise is the same in metres at
+    2 and 4 m (3 m: the slope judged over 3 m), and at 2 m cells the old rule (the slope
+    over two cells: 4 m of rise) missed half of them."""
+    z, truth = _low_houses(cell)
+    p = curvature.resolve_curvature_params(z, cell)
+    res = curvature.filter_curvature(z, cell, **p)
+    assert (res.mask[truth] == OBJECT).mean() > 0.99
+    assert (res.mask[~truth] == OBJECT).mean() < 0.002
+    assert res.info["wall_rise_x_m"] == res.info["wall_rise_y_m"] == max(1.0, min(2.0 * cell, 3.0))
+    if cell == 2.0:
+        old = profiles._WALL_SPAN_M
+        try:
+            profiles._WALL_SPAN_M = np.inf
+            res_old = curvature.filter_curvature(z, cell, **p)
+        finally:
+            profiles._WALL_SPAN_M = old
+        assert (res_old.mask[truth] == OBJECT).mean() < 0.8

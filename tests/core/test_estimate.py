@@ -340,3 +340,23 @@ def test_surroundings_reach_is_where_the_ring_ends(cell):
         z[r0 + dr, c0 + dc] = 4.0
         inside = dr <= ry and dc <= rx
         assert bool(est.below_surroundings(z, cell, 1.0)[r0, c0]) is (not inside), (dr, dc)
+
+
+# ----------------------------------------------------------------- object_widths
+def test_object_widths_exact_on_tiny_masks():
+    m = np.zeros((12, 12), bool)
+    assert est.object_widths(m, (1.0, 1.0)) == 0.0            # no object
+    m[5, 5] = True
+    assert est.object_widths(m, (1.0, 1.0)) == 1.0            # one cell: one cell wide
+    m = np.zeros((12, 12), bool)
+    m[1:4, 1:4] = True                                        # 3 x 3 cells (9 cells of area)
+    assert est.object_widths(m, (1.0, 1.0)) == 3.0
+    assert est.object_widths(m, (2.0, 2.0)) == 6.0            # in metres
+    m[6:11, 6:11] = True                                      # 5 x 5 (25 cells): 98 % of the area
+    assert est.object_widths(m, (1.0, 1.0)) == 5.0            # lies at or below 5 m
+    assert est.object_widths(m, (1.0, 1.0), area_share=0.25) == 3.0   # 9 / 34 cells >= 25 %
+    bridge = np.zeros((9, 40), bool)
+    bridge[3:6, :] = True                                     # long, 3 cells across
+    assert est.object_widths(bridge, (1.0, 1.0)) == 3.0
+    with pytest.raises(ValueError, match="area_share"):
+        est.object_widths(m, (1.0, 1.0), area_share=0.0)

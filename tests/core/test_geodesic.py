@@ -433,3 +433,86 @@ def test_core_enforces_the_param_limits():
             with pytest.raises(ValueError, match=name):
                 geo.resolve_geodesic_params(z, 1.0, **{name: bad})
     geo.filter_geodesic(z, 1.0, **dict(PARAMS, terrain_slope_deg=89.0, edge_ratio=1.0))
+
+
+# ------------------------------------------------------------ islands (stage 5)
+def test_remove_islands_tiny_exact():
+    """Kept sets no larger than the first window, enclosed by removed cells, go when even
+    their lowest cell stands above the terrain level by more than the height given."""
+    from bare_earth.core.geodesic.filter import remove_islands
+    w = np.full((9, 12), 100.0, np.float32)
+    removed = np.zeros(w.shape, bool)
+    removed[1:6, 1:6] = True                  # an object around an island at (3, 3)
+    removed[3, 3] = False
+    w[3, 3] = 104.0                           # a gap in a canopy, 4 m above the terrain
+    removed[1:6, 7:11] = True                 # an object around a 2-cell island at terrain level
+    removed[3, 8:10] = False
+    w[3, 8] = 100.3
+    w[3, 9] = 104.0                           # its lowest cell reaches the terrain: kept
+    removed[6:9, 0:3] = True                  # a set touching the raster's edge: kept
+    removed[8, 0] = False
+    w[8, 0] = 104.0
+    mask = np.zeros(w.shape, np.uint8)
+    step = np.zeros(w.shape, np.uint8)
+    terrain = (np.full((3, 3), 100.0, np.float32), 4)   # a coarse terrain level (blocks of 4)
+    n = remove_islands(w, None, removed, mask, terrain, (1.0, 1.0), 2.0, 0.7, step)
+    assert n == 1
+    assert removed[3, 3] and step[3, 3] == geo.STEP_ISLAND
+    assert not removed[3, 8:10].any() and not removed[8, 0]
+    assert (step == geo.STEP_ISLAND).sum() == 1
+    # an outlier (mask != 0) counts as removed: the island's other cell is then alone, and goes
+    mask[3, 8] = LOW
+    removed2 = np.zeros(w.shape, bool)
+    removed2[1:6, 7:11] = True
+    removed2[3, 8:10] = False
+    n = remove_islands(w, None, removed2, mask, terrain, (1.0, 1.0), 2.0, 0.7, np.zeros(w.shape, np.uint8))
+    assert n == 1 and removed2[3, 9] and not removed2[3, 8]
+    # larger than the first window (3 x 3 cells at 1 m): kept
+    big = np.zeros(w.shape, bool)
+    big[0:8, 0:8] = True
+    big[2:6, 2:5] = False                     # 12 cells
+    w2 = np.where(big, 100.0, 104.0).astype(np.float32)
+    assert remove_islands(w2, None, big, np.zeros(w.shape, np.uint8), terrain, (1.0, 1.0), 2.0, 0.7,
+                          np.zeros(w.shape, np.uint8)) == 0
+    # nodata cells are never kept
+    valid = np.ones(w.shape, bool)
+    valid[3, 3] = False
+    removed3 = np.zeros(w.shape, bool)
+    removed3[1:6, 1:6] = True
+    removed3[3, 3] = False
+    assert remove_islands(w, valid, removed3, np.zeros(w.shape, np.uint8), terrain, (1.0, 1.0), 2.0, 0.7,
+                          np.zeros(w.shape, np.uint8)) == 0
+
+
+def test_terrain_at_reads_the_block_of_each_cell():
+    from bare_earth.core.geodesic.dilation import terrain_at
+    rc = np.arange(6, dtype=np.float32).reshape(2, 3)
+    cells = np.array([0, 3, 4, 7 * 10 + 9, 5 * 10 + 2])       # raster 8 x 10, blocks of 4
+    np.testing.assert_array_equal(terrain_at((rc, 4), cells, (8, 10)), [0, 0, 1, 5, 3])
+
+
+def test_hole_to_the_ground_inside_an_object_kept():
+    """An island that reaches the terrain is ground (a courtyard, a gap to the ground)."""
+    z = np.full((60, 60), 100.0, np.float32)
+    z[15:30, 15:30] = 108.0                       # a 30 m roof at 2 m cells
+    z[21:24, 21:24] = 100.05                      # a 6 m courtyard: as large as the first window
+    res = geo.filter_geodesic(z, 2.0, **PARAMS)
+    roof = np.zeros(z.shape, bool)
+    roof[15:30, 15:30] = True
+    roof[21:24, 21:24] = False
+    assert (res.mask[roof] == OBJECT).all()
+    assert (res.mask[21:24, 21:24] == GROUND).all() and res.info["removed_island"] == 0
+
+
+def test_canopy_islands_are_objects_and_lower_the_error():
+    from bare_earth.core.synthetic import make_canopy
+    s = make_canopy(512.0, 4.0, seed=0, noise_m=0.05)
+    p = geo.resolve_geodesic_params(s.dsm, s.cell_size)
+    res = geo.filter_geodesic(s.dsm, s.cell_size, **p)
+    isl = res.extras["step"] == geo.STEP_ISLAND
+    assert isl.sum() == res.info["removed_island"] > 100
+    assert (s.mask[isl] == OBJECT).mean() > 0.95
+    truth = s.mask == OBJECT
+    err = ((res.mask != GROUND) != truth).mean()
+    err_kept = (((res.mask != GROUND) & ~isl) != truth).mean()     # the islands left as ground
+    assert err < 0.6 * err_kept, (err, err_kept)

@@ -244,3 +244,114 @@ def test_core_enforces_the_param_limits():
         morph.filter_morphological(z, 1.0, **dict(args, **{name: lo if name != "window_growth" else hi}))
     with pytest.raises(ValueError, match="max_object_size_m = .* is out of range"):
         morph.resolve_morphological_params(z, 1.0, max_object_size_m=20000.0)
+
+
+# --------------------------------------------------------------------------- outlines (issue 12)
+def _rimmed_roofs(cell=2.0, seed=0):
+    """Gentle ground (slope 0.05, noise 0.05 m) with four roofs 6 m high, each ringed by one
+    cell at half height: the mixed cells of a top-surface DSM on the roofs' outlines.
+    Returns (dsm, ground, truth mask, rim mask)."""
+    rng = np.random.default_rng(seed)
+    ground = (20.0 + 0.05 * cell * np.arange(90, dtype=np.float32)[None, :]
+              + np.zeros((90, 1), np.float32))
+    z = (ground + rng.normal(0, 0.05, (90, 90))).astype(np.float32)
+    truth = np.zeros(z.shape, np.uint8)
+    rim = np.zeros(z.shape, bool)
+    for r, c, h, w in ((10, 10, 8, 12), (15, 50, 12, 10), (55, 15, 10, 10), (55, 55, 11, 11)):
+        z[r - 1:r + h + 1, c - 1:c + w + 1] += 3.0
+        rim[r - 1:r + h + 1, c - 1:c + w + 1] = True
+        z[r:r + h, c:c + w] += 3.0
+        rim[r:r + h, c:c + w] = False
+        truth[r - 1:r + h + 1, c - 1:c + w + 1] = OBJECT
+    return z, ground, truth, rim
+
+
+def test_outline_cells_exact():
+    """A one-cell ring at half height around a flagged roof is outline; ground beside the
+    roof, ground on a slope beside it and the roof itself are not."""
+    z = np.full((9, 9), 10.0, np.float32)
+    z[3:6, 3:6] = 16.0                        # roof (flagged)
+    z[2, 2:7] = 13.0                           # rim row above it, half height
+    flagged = np.zeros(z.shape, bool)
+    flagged[3:6, 3:6] = True
+    opened = np.full(z.shape, 10.0, np.float32)
+    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0)
+    expect = np.zeros(z.shape, bool)
+    expect[2, 2:7] = True
+    np.testing.assert_array_equal(out, expect)
+    # the same roof on a ramp of slope 0.5 (rise 0.71 m over a cell diagonal): the ground
+    # cells around it stand 0.5-1 m above their lowest neighbour, under dh + the rise
+    ramp = 0.5 * np.arange(9, dtype=np.float32)[None, :] + np.zeros((9, 1), np.float32)
+    out = morph.find_outline_cells(ramp + np.where(flagged, 6.0, 0.0).astype(np.float32), ramp, flagged,
+                                   (1.0, 1.0), 0.5, 0.0)
+    assert not out.any()
+    # nodata among the neighbours is ignored; a flagged cell is never outline
+    z2 = z.copy()
+    z2[1, 1] = np.nan
+    out = morph.find_outline_cells(z2, opened, flagged | np.isnan(z2), (1.0, 1.0), 0.5, 0.0)
+    np.testing.assert_array_equal(out, expect)
+
+
+def test_outline_slope_keeps_ground_beside_a_tree_on_a_cut_crest():
+    """A tree on a crest (sides 0.6) whose top the largest window cut (the opened surface
+    flat): without the terrain's slope the eight crest cells around the tree, 0.6 m above
+    their lowest neighbour, are taken for outline cells; with outline_slope 0.6 (rise 0.5 +
+    0.6 sqrt 2 = 1.35 m over a diagonal) they stay ground; the tree's half-height ring
+    (3 m) is outline either way."""
+    j = np.arange(9, dtype=np.float32)
+    crest = np.tile(10.0 - 0.6 * np.abs(j - 4.0), (9, 1)).astype(np.float32)
+    flagged = np.zeros(crest.shape, bool)
+    flagged[4, 4] = True
+    z = crest + np.where(flagged, 6.0, 0.0).astype(np.float32)
+    opened = np.full(z.shape, 8.0, np.float32)
+    bare = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0)
+    expect = np.zeros(z.shape, bool)
+    expect[3:6, 3:6] = True
+    expect[4, 4] = False
+    np.testing.assert_array_equal(bare, expect)
+    assert not morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6).any()
+    z[3, 4] += 3.0                                          # a mixed cell: half the tree's height
+    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6)
+    np.testing.assert_array_equal(np.argwhere(out), [[3, 4]])
+
+
+def test_outline_slope_is_derived_and_logged():
+    z, _, _, _ = _rimmed_roofs()
+    p = morph.resolve_morphological_params(z, 2.0)
+    assert p["outline_slope"] == pytest.approx(p["terrain_slope_p90"])
+    assert p["outline_slope"] == pytest.approx(0.05, abs=0.02)          # the ground's slope
+    assert "90th-percentile" in p["outline_slope_source"]
+    small = morph.resolve_morphological_params(z[:20, :20], 2.0)       # under 3 x 3 blocks of 40 m
+    assert small["outline_slope"] == small["slope"] and "3 x 3 blocks" in small["outline_slope_source"]
+    assert morph.resolve_morphological_params(z, 2.0, outline_slope=0.2)["outline_slope"] == 0.2
+    res = run_array("morphological", z, 2.0)
+    assert res.info["outline_slope"] == pytest.approx(p["outline_slope"])
+    assert res.info["outline_slope_source"] == p["outline_slope_source"]
+
+
+def test_half_height_outlines_are_objects_with_derived_defaults():
+    """The opengeos failure on a small surface: a 2 m top-surface DSM whose roofs carry a
+    one-cell ring of mixed cells. SMRF's flags miss the ring (it drops by 3 m < s r_k when
+    the window outgrows the roof) and it passed as ground, lifting the DTM around every roof;
+    as outline cells it is classified against the ground under the roof."""
+    z, ground, truth, rim = _rimmed_roofs()
+    res = run_array("morphological", z, 2.0)
+    assert res.info["mode"] == "progressive", res.info["mode_reason"]
+    assert np.all(res.mask[rim] == OBJECT)
+    assert np.mean(res.mask[truth == 0] == 0) > 0.99
+    assert np.abs(res.dtm - ground).max() < 0.5
+    assert res.info["outline_percent"] > 0
+
+
+def test_ground_beside_trees_on_a_slope_stays_ground():
+    """Outline cells are those on an object's flank, not the ground beside it: single-cell
+    trees on a 0.2 slope at 4 m cells leave the ground around them ground."""
+    rng = np.random.default_rng(1)
+    n = 64
+    z = (0.2 * 4.0 * np.arange(n, dtype=np.float32)[None, :] + np.zeros((n, 1), np.float32)
+         + rng.normal(0, 0.05, (n, n)).astype(np.float32))
+    trees = np.zeros(z.shape, bool)
+    trees[4::8, 4::8] = True
+    z[trees] += 8.0
+    res = morph.filter_morphological(z, 4.0, mode="progressive", max_object_size_m=20.0, dh_m=0.5, slope=0.3)
+    np.testing.assert_array_equal(res.mask == OBJECT, trees)

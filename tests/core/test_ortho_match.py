@@ -154,3 +154,82 @@ def test_search_range_wider_than_the_image(cols):
     inner = wide.disparity[5:-5, 4:-4]
     assert np.isfinite(inner).mean() > 0.5
     assert np.nanmedian(np.abs(inner - 1.0)) < 0.2
+
+
+# --------------------------------------------------------------------------- fast kernels
+@pytest.mark.parametrize("shape", [(40, 57), (7, 9), (3, 30), (25, 4)])
+@pytest.mark.parametrize("window", [3, 5, 7, 9, 11])
+def test_box_mean_is_the_constant_mode_uniform_filter(shape, window):
+    """The matcher's box filter: ndimage's window mean (zero outside) to float32 rounding."""
+    from bare_earth.core.orthophoto import match as match_mod
+    rng = np.random.default_rng(window)
+    x = (rng.random(shape) * 255).astype(np.float32) ** 2          # squared grey levels, as in the NCC
+    box = match_mod._BoxMean(shape, window)
+    got = box(x)
+    want = ndimage.uniform_filter(x.astype(np.float64), window, mode="constant")
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-6 * float(x.max()))
+    out = np.empty(shape, np.float32)                               # the kept buffers: a second call
+    assert box(x[::-1].copy(), out) is out
+    np.testing.assert_allclose(out, ndimage.uniform_filter(x[::-1].astype(np.float64), window,
+                                                           mode="constant"), rtol=0, atol=2e-6 * float(x.max()))
+
+
+@pytest.mark.parametrize("w", list(range(1, 14)))
+def test_window_sums_by_doubling_are_the_sums(w):
+    from bare_earth.core.orthophoto import match as match_mod
+    v = np.arange(40, dtype=np.float32) ** 2                        # integers: every sum exact
+    out = np.empty(40 - w + 1, np.float32)
+    match_mod._window_sums(v, w, out)
+    np.testing.assert_array_equal(out, [v[i:i + w].sum() for i in range(40 - w + 1)])
+
+
+@pytest.mark.parametrize("shape", [(30, 41), (5, 5), (4, 30), (30, 3), (12, 12)])
+@pytest.mark.parametrize("size", [3, 5, 7, 9])
+def test_shiftable_maximum_is_the_nearest_mode_maximum_filter(shape, size):
+    from bare_earth.core.orthophoto import match as match_mod
+    x = np.random.default_rng(size).random(shape).astype(np.float32)
+    x[x < 0.2] = -2.0                                               # cells without an NCC
+    np.testing.assert_array_equal(match_mod._max_filter_nearest(x, size),
+                                  ndimage.maximum_filter(x, size, mode="nearest"))
+
+
+def test_sample_rows_is_linear_interpolation_along_rows():
+    from bare_earth.core.orthophoto import match as match_mod
+    rng = np.random.default_rng(3)
+    img = rng.random((6, 20)).astype(np.float32)
+    grad = rng.random((6, 20)).astype(np.float32)
+    valid = np.ones(img.shape, bool)
+    valid[2, 7] = False
+    cols = (np.arange(20, dtype=np.float32)[None, :] + rng.uniform(-3, 3, img.shape)).astype(np.float32)
+    (val, g), ok = match_mod._sample_rows(match_mod._row_table(img, grad, valid), cols)
+    rr = np.indices(img.shape)[0]
+    c = np.clip(cols, 0, 19)
+    for arr, got in ((img, val), (grad, g)):
+        want = ndimage.map_coordinates(arr.astype(np.float64), [rr, c], order=1, mode="nearest")
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+    inside = (cols >= -1e-3) & (cols <= 19 + 1e-3)
+    j0 = np.floor(c).astype(int)
+    touches_bad = (rr == 2) & ((j0 == 7) | ((j0 == 6) & (c - j0 >= 1e-3)))
+    np.testing.assert_array_equal(ok, inside & ~touches_bad)
+
+
+@pytest.mark.parametrize("s", [-7, -1, 0, 3, 11])
+def test_shifted_offer_is_the_column_offer(s):
+    """The b-anchored winner fed through the flattened rows equals the 2-D column offer."""
+    from bare_earth.core.orthophoto import match as match_mod
+    rng = np.random.default_rng(abs(s))
+    cols = 16
+    planes = [rng.uniform(-1, 1, (5, cols)).astype(np.float32) for _ in range(3)]
+    flat, ref = match_mod._RunningBest((5, cols)), np.full((5, cols), -2.0, np.float32)
+    kref = np.zeros((5, cols), np.int32)
+    for k, p in enumerate(planes):
+        p = p.copy()
+        p[:, slice(cols - s, cols) if s >= 0 else slice(0, -s)] = -2.0   # no partner in b
+        flat.offer_shifted(k, p, s)
+        view = p[:, :cols - s] if s >= 0 else p[:, -s:]
+        lo = max(0, s)
+        upd = view > ref[:, lo:lo + view.shape[1]]
+        ref[:, lo:lo + view.shape[1]][upd] = view[upd]
+        kref[:, lo:lo + view.shape[1]][upd] = k
+    np.testing.assert_array_equal(flat.best, ref)
+    np.testing.assert_array_equal(flat.k, kref)
