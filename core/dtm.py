@@ -21,7 +21,10 @@ The vote keeps low objects every member tolerates (bushes, hedges, the bottoms o
 flat wooded ground): :func:`.dtm_refine.refine_ground` then turns into objects the voted ground
 cells that stand above lower voted ground on both sides of a row, column or diagonal (a
 slope-based test in the manner of Vosselman 2000, with the terrain's 90th-percentile slope and
-the threshold ``t`` below; see that module for why both sides, and what it measured).
+the threshold ``t`` below; see that module for why both sides, and what it measured), and the
+ground at the objects' edges standing more than ``t`` above every straight continuation of the
+ground beside it (:func:`.fill.find_edge_spikes`: wall feet, crown skirts), on which the DTM
+under the objects would otherwise rest.
 
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison

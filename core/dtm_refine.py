@@ -25,6 +25,16 @@ applied to the vote's ground cells only and made safe for terrain the vote got r
   rises, so a bracketed cell is never a plane's cell; only convex ground (a ridge, a hill
   top) can be bracketed, and ``s`` covers it up to the terrain's steep slopes.
 
+Then the ground at the objects' edges that no line brackets (every line through it runs into
+an object whose far side is beyond the reach: a shed in a courtyard, low vegetation in the
+corners of a canopy, the mixed cell of a crown's skirt in a top-surface DSM) but that stands
+more than ``dh`` above every straight continuation of the ground beside it is an object too
+(:func:`~.fill.find_edge_spikes`, three passes): the DTM under the objects rests on their
+boundary, and these cells carry the objects' height into it. Measured on the generalisation
+matrix (dtm, against the floors alone): opengeos DTM RMSE 1.21 -> 1.11 m, mean total error
+8.77 -> 8.72 % (halves 4.23 / 13.46 -> 4.17 / 13.41), ISPRS seven 3.97 -> 3.95 %; largest row
+regressions +0.23 (ISPRS 41, 2 m highest point), +0.22 (61, 2 m lowest), +0.20 (mvk, 20 m).
+
 Why not SMRF's re-inclusion (what the previous session tried: every cell within
 ``0.5 m + 1.25 slope`` of the provisional DTM taken as ground): its test only adds ground,
 while the vote's errors are mostly objects kept (Type II); its provisional DTM rests on those
@@ -43,7 +53,8 @@ import math
 
 import numpy as np
 
-from .codes import GROUND, OBJECT
+from .codes import GROUND, LOW, OBJECT
+from .fill import edge_spikes_reach, find_edge_spikes
 
 #: Reach of the floors, metres: a kept object is bracketed by ground within this distance on
 #: both sides of a line (bushes, hedges, cars, sheds and the gaps of a canopy are narrower).
@@ -65,8 +76,10 @@ def refine_steps(cell_size, reach_m=REACH_M):
 
 
 def refine_halo(cell_size, reach_m=REACH_M):
-    """Reach of :func:`refine_ground` in cells (rows and columns): the longest floor plus one."""
-    return max(max(abs(di), abs(dj)) * n for (di, dj), n in refine_steps(cell_size, reach_m).items()) + 1
+    """Reach of :func:`refine_ground` in cells (rows and columns): the longest floor plus one, and the
+    edge test's reach (:func:`~.fill.edge_spikes_reach`)."""
+    floors = max(max(abs(di), abs(dj)) * n for (di, dj), n in refine_steps(cell_size, reach_m).items()) + 1
+    return floors + edge_spikes_reach()
 
 
 def _slices(shift, size):
@@ -180,10 +193,12 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M):
     Returns
     -------
     mask : ndarray of uint8
-        A new mask: the bracketed ground cells (:func:`find_bracketed`) are objects.
+        A new mask: the bracketed ground cells (:func:`find_bracketed`), then the ground cells
+        bordering an object that stand more than ``dh`` above every continuation of the ground
+        beside them (:func:`~.fill.find_edge_spikes`), are objects.
     info : dict
-        ``refine_removed_share`` (of the ground cells), ``refine_slope``, ``refine_height_m``,
-        ``refine_reach_m``.
+        ``refine_removed_share`` (bracketed, of the ground cells), ``refine_edge_removed_share``
+        (edge spikes, of the ground cells), ``refine_slope``, ``refine_height_m``, ``refine_reach_m``.
     """
     s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
     dh = max(float(tolerance_m), 1e-3)
@@ -191,7 +206,12 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M):
     out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m)
     new = mask.copy()
     new[out] = OBJECT
+    # 2. the ground at the objects' edges standing above every straight continuation of the ground
+    # around it by more than dh (fill.find_edge_spikes)
+    spikes = find_edge_spikes(z, ((new == OBJECT) | (new == LOW)) & np.isfinite(z), dh)
+    new[spikes] = OBJECT
     n_ground = max(1, int(np.count_nonzero(ground)))
-    info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground, "refine_slope": s,
+    info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground,
+            "refine_edge_removed_share": float(np.count_nonzero(spikes)) / n_ground, "refine_slope": s,
             "refine_height_m": dh, "refine_reach_m": float(reach_m)}
     return new, info

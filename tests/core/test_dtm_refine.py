@@ -39,8 +39,9 @@ def test_steps_and_halo():
     assert dr.refine_steps((1.0, 1.0), 12.0) == {(0, 1): 12, (1, 0): 12, (1, 1): 8, (1, -1): 8}
     assert dr.refine_steps((2.0, 4.0), 12.0) == {(0, 1): 6, (1, 0): 3, (1, 1): 3, (1, -1): 3}
     assert dr.refine_steps((20.0, 20.0), 12.0) == {(0, 1): 1, (1, 0): 1, (1, 1): 1, (1, -1): 1}
-    assert dr.refine_halo((1.0, 1.0), 12.0) == 13
-    assert dr.refine_halo((4.0, 4.0), 12.0) == 4
+    # the floors' reach plus one, and the edge test's (fill.edge_spikes_reach: 7 cells)
+    assert dr.refine_halo((1.0, 1.0), 12.0) == 13 + 7
+    assert dr.refine_halo((4.0, 4.0), 12.0) == 4 + 7
 
 
 def test_single_bump_on_flat_ground():
@@ -144,3 +145,33 @@ def test_canopy_gaps_the_vote_keeps_are_removed():
     assert rmse(res.dtm) < 0.9 * rmse(vote_dtm)
     assert res.info["refine_removed_share"] > 0
     assert math.isclose(res.info["refine_reach_m"], dr.REACH_M)
+
+
+def test_edge_spike_in_a_courtyard_is_removed_and_the_dtm_no_longer_rests_on_it():
+    # A large building (a 10 m block, 72 m square) with a 7 m courtyard of bare ground; in the courtyard's
+    # corners a 1.5 m shed against the walls that the vote took as ground. Every line through a corner runs
+    # into the building on one side and finds no ground within the reach there: nothing brackets it (the
+    # floors alone keep it, as on main); it stands above every continuation of the courtyard's ground.
+    n = 80
+    z = np.zeros((n, n), np.float32)
+    truth = np.zeros((n, n), bool)
+    truth[4:76, 4:76] = True
+    truth[34:41, 34:41] = False                     # the courtyard
+    z[truth] = 10.0
+    corners = [(34, 34), (34, 40), (40, 34), (40, 40)]
+    for r, c in corners:
+        z[r, c] = 1.5
+        truth[r, c] = True
+    vote = np.where(truth, OBJECT, GROUND).astype(np.uint8)
+    for r, c in corners:
+        vote[r, c] = GROUND                         # what the members kept
+    bracketed = dr.find_bracketed(z, vote == GROUND, (1.0, 1.0), slope=0.1, height_m=0.5)
+    assert not any(bracketed[r, c] for r, c in corners)
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1)
+    np.testing.assert_array_equal(mask == OBJECT, truth)
+    assert info["refine_edge_removed_share"] == pytest.approx(4 / np.count_nonzero(vote == GROUND))
+    dtm = fill_gaps(z, fill=mask == OBJECT)
+    assert float(np.abs(dtm).max()) < 1e-3          # the ground is flat at 0 everywhere, under the sheds too
+    kept = fill_gaps(z, fill=vote == OBJECT)        # the vote's DTM rests on the sheds: 1.5 m there and
+    assert all(kept[r, c] == 1.5 for r, c in corners)                    # raised under the walls behind them
+    assert min(kept[r + dr_, c + dc] for (r, c), (dr_, dc) in zip(corners, [(-1, -1), (-1, 1), (1, -1), (1, 1)])) > 0.2
