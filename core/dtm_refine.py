@@ -63,6 +63,17 @@ from .fill import edge_spikes_reach, find_edge_spikes
 #: ISPRS terrain (samples 21, 61, 71: ISPRS seven 4.5 / 5.0 %); the reach is where a wider
 #: object is the members' job.
 REACH_M = 12.0
+#: The reach grows on gentle terrain: the floors reach as far as their slope allowance ``s L`` stays
+#: within this many decision thresholds ``dh`` (:func:`refine_reach`). Beyond it the allowance swamps
+#: ``dh``; up to it the floors still tell a bush from the ground a few tens of metres away on flat
+#: land, where the trees' gaps and the hedges are wider than ``REACH_M``.
+ALLOWANCE_RATIO = 3.0
+#: A bracketed cell is kept as ground when no second difference (along the rows or the columns) in
+#: its 3 x 3 neighbourhood exceeds this many ``dh`` (:func:`find_smooth`): smooth terrain (a crest,
+#: an embankment, a road over a rise), not the edge of a low object. The noise of the ground
+#: (``dh`` = 3 sigma) enters a second difference of three heights with a standard deviation of
+#: ``sqrt(6) sigma``: ``2 dh`` is about 2.4 of those, while a step of ``h`` reads as ``h``.
+SMOOTH_RATIO = 2.0
 #: The four lines (row step, column step): rows, columns, both diagonals.
 LINES = ((0, 1), (1, 0), (1, 1), (1, -1))
 #: Rows per band of :func:`find_bracketed` (a band and its floors stay in the cache).
@@ -76,10 +87,67 @@ def refine_steps(cell_size, reach_m=REACH_M):
 
 
 def refine_halo(cell_size, reach_m=REACH_M):
-    """Reach of :func:`refine_ground` in cells (rows and columns): the longest floor plus one, and the
-    edge test's reach (:func:`~.fill.edge_spikes_reach`)."""
+    """Reach of :func:`refine_ground` in cells (rows and columns): the longest floor plus one, the
+    smoothness test's two cells (:func:`find_smooth`) and the edge test's reach
+    (:func:`~.fill.edge_spikes_reach`)."""
     floors = max(max(abs(di), abs(dj)) * n for (di, dj), n in refine_steps(cell_size, reach_m).items()) + 1
-    return floors + edge_spikes_reach()
+    return floors + 2 + edge_spikes_reach()
+
+
+def refine_reach(tolerance_m, slope, limit_m):
+    """Length of the floors, metres: ``clip(ALLOWANCE_RATIO dh / s, REACH_M, limit_m)``.
+
+    On steep terrain the reach stays ``REACH_M`` (wider objects are the members' job); on gentle
+    terrain the floors reach as far as their slope allowance ``s L`` stays within
+    ``ALLOWANCE_RATIO`` decision thresholds, never beyond ``limit_m`` (``bareearth:dtm`` passes
+    the farthest its members look). Measured on the generalisation matrix (against a fixed
+    12 m): opengeos DTM RMSE 1.11 -> 0.70 m, ISPRS seven 3.95 -> 3.93 %; without the smoothness
+    test (:func:`find_smooth`) the longer reach cut smooth convex ground (ISPRS 71: +1 point).
+    """
+    dh = max(float(tolerance_m), 1e-3)
+    s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
+    limit = max(float(limit_m), REACH_M)
+    return float(min(limit, max(REACH_M, ALLOWANCE_RATIO * dh / s))) if s > 0 else limit
+
+
+def find_smooth(z, cells, height_m):
+    """The given cells on smooth ground: no second difference in their 3 x 3 neighbourhood above ``height_m``.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D float32
+        The DSM (NaN nodata: second differences touching it are not counted).
+    cells : ndarray of bool
+        The cells to test (same shape).
+    height_m : float
+        The largest second difference ``|z(i-1) - 2 z(i) + z(i+1)|`` (along the rows or the
+        columns, centred on any cell of the 3 x 3 neighbourhood) of smooth ground.
+
+    Returns
+    -------
+    ndarray of bool
+        ``cells`` where every such second difference is at most ``height_m``.
+    """
+    z = np.asarray(z, np.float32)
+    h, w = z.shape
+    pad = 2
+    wp = w + 2 * pad
+    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
+    zp[pad:-pad, pad:-pad] = z
+    flat = zp.ravel()
+    r, c = np.nonzero(cells)
+    idx = (r + pad) * wp + (c + pad)
+    worst = np.zeros(idx.size, np.float32)
+    for a in (-1, 0, 1):
+        for b in (-1, 0, 1):
+            p = idx + (a * wp + b)
+            mid = 2 * flat.take(p)
+            for step in (1, wp):
+                d = np.abs(flat.take(p - step) - mid + flat.take(p + step))
+                np.fmax(worst, d, out=worst)                     # NaN (nodata) ignored
+    out = np.zeros(z.shape, bool)
+    out[r[worst <= height_m], c[worst <= height_m]] = True
+    return out
 
 
 def _slices(shift, size):
@@ -204,6 +272,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M):
     dh = max(float(tolerance_m), 1e-3)
     ground = mask == GROUND
     out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m)
+    smooth = find_smooth(z, out, SMOOTH_RATIO * dh)        # smooth convex ground, not a low object
+    out &= ~smooth
     new = mask.copy()
     new[out] = OBJECT
     # 2. the ground at the objects' edges standing above every straight continuation of the ground
@@ -212,6 +282,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M):
     new[spikes] = OBJECT
     n_ground = max(1, int(np.count_nonzero(ground)))
     info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground,
+            "refine_smooth_kept_share": float(np.count_nonzero(smooth)) / n_ground,
             "refine_edge_removed_share": float(np.count_nonzero(spikes)) / n_ground, "refine_slope": s,
             "refine_height_m": dh, "refine_reach_m": float(reach_m)}
     return new, info
