@@ -45,7 +45,6 @@ All work on a level is vectorised over the unknown cells of that level (gathers 
 neighbours of flat indices), so the cost is O(number of cells) with a small constant.
 """
 import numpy as np
-from scipy import ndimage
 
 from .common import report
 
@@ -272,27 +271,35 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
     np.copyto(core, z)
     np.copyto(core, np.float32(np.nan), where=fill)
     found = np.zeros((h, w), bool)
-    near = np.ones((3, 3), bool)
     test = fill
     tol = np.float32(tolerance_m)
     flat = zp.ravel()
     for _ in range(int(passes)):
         # the known cells with a cell to fill (or a spike found by the last pass) among their neighbours
-        edge = ndimage.binary_dilation(test, near)
+        edge = _touching(test)
         edge &= np.isfinite(core)
-        r, c = np.nonzero(edge)
-        if r.size == 0:
+        cand = np.flatnonzero(edge)
+        if cand.size == 0:
             break
+        r, c = np.divmod(cand, w)
         idx = (r + pad) * wp + (c + pad)
         zc = flat.take(idx)
-        best = np.full(idx.size, np.inf, np.float32)
+        seen = np.zeros(idx.size, bool)
+        # a spike stands above the continuation along every direction that has one: a cell leaves
+        # the candidates at its first continuation within the tolerance (most cells at the first)
         for di, dj in EDGE_DIRECTIONS:
             off = di * wp + dj
             z1 = flat.take(idx + off)
             cont = 2 * z1 - flat.take(idx + 2 * off)                  # NaN where a source is unknown
             np.maximum(cont, z1, out=cont)                             # and never below the neighbour
-            np.fmin(best, zc - cont, out=best)                         # fmin ignores NaN
-        new = (best > tol) & np.isfinite(best)
+            res = zc - cont
+            keep = ~(res <= tol)                                       # NaN (no continuation) keeps it
+            seen |= np.isfinite(res)
+            if not keep.all():
+                idx, zc, seen, r, c = idx[keep], zc[keep], seen[keep], r[keep], c[keep]
+            if idx.size == 0:
+                break
+        new = seen
         if not new.any():
             break
         test = np.zeros((h, w), bool)
@@ -300,6 +307,17 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
         found |= test
         flat[idx[new]] = np.nan                      # no longer a source of the next pass
     return found
+
+
+def _touching(a):
+    """Cells of ``a`` or with a cell of ``a`` among their eight neighbours (3 x 3 dilation, bool)."""
+    out = a.copy()
+    out[1:] |= a[:-1]
+    out[:-1] |= a[1:]
+    rows = out.copy()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
+    return out
 
 
 def _near_known(known, reach):
