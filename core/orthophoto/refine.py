@@ -284,7 +284,7 @@ def _match_geometry(a, b, dem, transform, geom, *, window, shiftable, min_corr, 
     pv = p[np.isfinite(p)]
     # direction_xy: from camera a to camera b (v_b - v_a points against the base)
     return dh, corr, np.abs(p).astype(np.float32), dict(
-        max_shift=max_shift, dh_per_cell_m=prec, direction_xy=(-ux, -uy),
+        max_shift=max_shift, dh_per_cell_m=prec, step_m=step_m, direction_xy=(-ux, -uy),
         rms_parallax_m=float(np.sqrt(np.mean(pv ** 2))) if pv.size else float("nan"),
         b_over_h=float(np.nanmedian(np.abs(along0))), noise_grey=m.info["noise_grey"],
         reasons=m.info["shares"])
@@ -308,7 +308,8 @@ def match_pair(a, b, dem, transform, both, *, centres=None, base_m=None, height_
         Trusted corrections (NaN elsewhere), peak NCC and ``|parallax|`` (ground units)
         at those cells.
     info : dict
-        ``max_shift``, ``dh_per_cell_m``, ``direction_xy`` (camera a to b), ``rms_parallax_m``,
+        ``max_shift``, ``dh_per_cell_m``, ``step_m`` (ground metres per cell of parallax),
+        ``direction_xy`` (camera a to b), ``rms_parallax_m``,
         ``b_over_h``, ``noise_grey``, ``reasons`` (share of cells per matcher decision),
         ``blunders``, ``crop``.
     """

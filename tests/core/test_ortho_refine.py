@@ -184,3 +184,22 @@ def test_pair_geometry_along_equals_dv_projection():
         for h in (np.zeros(dem.shape), dh):
             (dvx, dvy), _ = g["dv"](h)
             np.testing.assert_array_equal(g["along"](h), dvx * ux + dvy * uy)
+
+
+def test_orthorefine_stops_one_update_after_parallax_within_noise():
+    # once the pairs' RMS residual parallax is below precision_cells of a cell, the update
+    # measured then is applied, checked by one more measurement, and the iteration ends
+    sc = make_ortho_scene(seed=2)
+    cams = vertical_cameras(sc, 3, base_over_height=0.3)
+    imgs = render_frames(sc, cams)
+    rng = np.random.default_rng(5)
+    err = ndimage.gaussian_filter(rng.normal(size=sc.surface.shape), 25)
+    start = sc.surface + err / err.std() * 3.0
+    r = orthorefine(start, sc.transform, imgs, cams, max_iterations=6, precision_cells=0.2, tolerance_m=1e-6)
+    noise = 0.2 * sc.transform[1]
+    below = [k for k, row in enumerate(r.table) if k >= 1 and row["rms_parallax_m"] < noise]
+    assert below, [row["rms_parallax_m"] for row in r.table]
+    k = below[0]
+    assert len(r.table) == k + 2, r.table
+    assert r.table[k]["status"] == "applied" and r.table[-1]["status"] == "measured"
+    assert "expected matching precision" in r.info["stop"], r.info["stop"]
