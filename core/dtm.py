@@ -21,7 +21,10 @@ The vote keeps low objects every member tolerates (bushes, hedges, the bottoms o
 flat wooded ground): :func:`.dtm_refine.refine_ground` then turns into objects the voted ground
 cells that stand above lower voted ground on both sides of a row, column or diagonal (a
 slope-based test in the manner of Vosselman 2000, with the terrain's 90th-percentile slope and
-the threshold ``t`` below; see that module for why both sides, and what it measured).
+the threshold ``t`` below; see that module for why both sides, and what it measured), and the
+ground at the objects' edges standing more than ``t`` above every straight continuation of the
+ground beside it (:func:`.fill.find_edge_spikes`: wall feet, crown skirts), on which the DTM
+under the objects would otherwise rest.
 
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison
@@ -49,7 +52,7 @@ from scipy import ndimage
 from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
-from .dtm_refine import refine_ground, refine_halo
+from .dtm_refine import REACH_M, refine_ground, refine_halo, refine_reach
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -65,6 +68,14 @@ SUPPORT_M = 3.0
 
 def _members(names):
     return [get_method(n) for n in names]
+
+
+def refine_slope(members):
+    """``s`` of the refinement: the morphological member's 90th-percentile terrain slope (rise/run), its
+    slope parameter where the raster is too small to measure it."""
+    morph = members.get("morphological", {})
+    slope = morph.get("terrain_slope_p90", float("nan"))
+    return float(slope) if slope is not None and np.isfinite(slope) else float(morph.get("slope", 0.0))
 
 
 def characterise(z, cell_size):
@@ -113,8 +124,10 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     dict
         ``members`` ({name: complete parameters}), ``tolerance_m`` (the decision threshold
         ``t`` of the confidence's margin: the morphological member's dh, 3 x the robust noise
-        of the ground), ``support_cells`` (radius of the ground support) and the
-        description of the input (:func:`characterise`).
+        of the ground), ``support_cells`` (radius of the ground support), ``refine_reach_m``
+        (the refinement's reach, :func:`.dtm_refine.refine_reach` with the terrain slope of
+        :func:`refine_slope`, at most the farthest a member looks) and the description of the
+        input (:func:`characterise`).
     """
     if params:
         raise ValueError(f"the dtm method takes no parameters (got {sorted(params)}): every choice is "
@@ -135,7 +148,10 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         description = description.result()
     tol = float(members["morphological"].get("dh_m") or 0.5)
     support = max(1, int(round(SUPPORT_M / min(cell))))
-    return {"members": members, "tolerance_m": tol, "support_cells": support,
+    # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
+    limit = max(int(m.halo(members[m.name], cell)) for m in _members(MEMBERS)) * min(cell)
+    reach = refine_reach(tol, refine_slope(members), limit)
+    return {"members": members, "tolerance_m": tol, "support_cells": support, "refine_reach_m": reach,
             "input_description": description}
 
 
@@ -145,7 +161,8 @@ def dtm_halo(params, cell_size):
     (:func:`~.blocks.alignment` of each member's halo), so that a window's corner keeps the
     members' coarse grids those of the single pass."""
     halos = [int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS)]
-    reach = max(halos) + refine_halo(as_cell_size(cell_size)) + 2 * int(params["support_cells"]) + 2
+    reach = (max(halos) + refine_halo(as_cell_size(cell_size), params.get("refine_reach_m", REACH_M))
+             + 2 * int(params["support_cells"]) + 2)
     a = max(alignment(h) for h in halos)
     return -(-reach // a) * a
 
@@ -258,8 +275,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     return out
 
 
-def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_areas=None, ground_areas=None,
-               breaklines=None, progress=None):
+def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, object_areas=None,
+               ground_areas=None, breaklines=None, progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -274,6 +291,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
         Decision threshold of the confidence's margin, metres.
     support_cells : int
         Radius of the confidence's support window, cells.
+    refine_reach_m : float
+        Length of the refinement's floors, metres.
     object_areas, ground_areas, breaklines : ndarray of bool, optional
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
@@ -318,10 +337,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, object_area
     mask[ground_votes >= need] = GROUND
     del low_votes
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
-    morph = members.get("morphological", {})
-    slope = morph.get("terrain_slope_p90", float("nan"))    # NaN on rasters too small to measure it
-    mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m,
-                                  slope=slope if np.isfinite(slope) else morph.get("slope", 0.0))
+    mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
+                                  reach_m=refine_reach_m)
     info.update(refined)
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
@@ -377,9 +394,11 @@ METHOD = Method(
         "(the progressive morphological opening, RASCOR's sequence of local tests, the gradual geodesic "
         "dilation), each with the defaults it derives from the data, vote on every cell; a cell is ground "
         "where most of them say so; voted ground standing above lower ground on both sides of a line (bushes, "
-        "hedges, the bottoms of gaps in a canopy, which every member may keep) is then taken as an object, "
-        "and the DTM is interpolated under the rest. The log gives each member's parameters and how often "
-        "they agreed.</p>"
+        "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "
+        "terrain, and smooth ground such as a rounded crest is kept) is then taken as an object, as is voted "
+        "ground at an object's edge standing above every straight continuation of the ground beside it (wall "
+        "feet, crown skirts); the DTM is interpolated under the rest. The log gives each member's parameters, "
+        "the refinement's reach and how often the members agreed.</p>"
         "<p>The confidence map (0-100) combines the members' agreement, the cell's distance from the "
         "height threshold, and the share of cells around it with the same class: low values mark where "
         "to look first.</p>"

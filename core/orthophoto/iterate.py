@@ -13,7 +13,14 @@ from scipy import ndimage
 
 from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
-from .quality import keep_significant, merge_pairs, nan_median_filter, object_mask, spread_corrections
+from .quality import (
+    close_mask,
+    keep_significant,
+    merge_pairs,
+    nan_median_filter,
+    object_mask,
+    spread_corrections,
+)
 from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
 
 __all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MIN_GAIN"]
@@ -306,6 +313,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
     mask, thr, sig = object_mask(dh_total, multi, info["sigma_expected_m"], height_threshold_m,
                                  object_cells(object_size_m, transform))
+    closed = close_mask(mask, window)
+    info["mask_closed_cells"] = int(np.count_nonzero(closed != mask))   # gaps narrower than half the window
+    mask = closed
     info.setdefault("warning", _refusal(1.0, meas["pinfo"], sig, info["sigma_expected_m"]))
     info.update(pairs=[tuple(p) for p in setup["pairs"]],
                 iterations=sum(r["status"] == "applied" for r in table), measurements=len(table),
@@ -437,6 +447,9 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
     _reference(row, reference, None, cur, multi, np.isfinite(dem0))
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
     mask, thr, sig = object_mask(dh_total, multi, sigma, height_threshold_m, object_cells(object_size_m, transform))
+    closed = close_mask(mask, window)
+    n_closed = int(np.count_nonzero(closed != mask))
+    mask = closed
     report(progress, 1.0)
     info = dict(mode="eq. 17 registration, one pass (no orientation: orthophotos cannot be redrawn)",
                 pairs=[tuple(p) for p in pair_list], iterations=0 if refused else 1, measurements=1,
@@ -444,7 +457,8 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
                       else "one pass (no orientation)"),
                 warning=_refusal(share, pinfo, sig, sigma), sigma_expected_m=sigma, sigma_data_m=sig,
                 height_threshold_m=float(thr), max_dh_m=float(max_dh_m), window=window,
-                shiftable=shiftable, min_corr=min_corr, cells_seen_by_two=int(multi.sum()))
+                shiftable=shiftable, min_corr=min_corr, cells_seen_by_two=int(multi.sum()),
+                mask_closed_cells=n_closed)
     return RefineResult(cur, orthos, dh_total, np.where(multi, quality, np.nan).astype(np.float32),
                         mask, [row], info)
 

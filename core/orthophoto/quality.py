@@ -16,6 +16,8 @@ module keeps the corrections consistent with their neighbours and with each othe
 * :func:`ground_trend` and :func:`object_mask`: the smooth ground part of ``dh`` (a median of
   the cells below the threshold, iterated) and the mask of the cells above it, with the
   threshold derived from the spread of the very quantity it is applied to;
+* :func:`settle_boundary`: the cells along the object outlines decided by testing the object's
+  and the ground's height on the orthophotos with small shiftable windows;
 * :func:`fill_holes`: normalised convolution into unmatched cells;
 * :func:`spread_corrections`: the same, fading to 0 away from the measurements (no step in
   the DEM where the measurements end).
@@ -31,7 +33,7 @@ from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
-           "ground_trend", "object_mask"]
+           "ground_trend", "object_mask", "settle_boundary", "close_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -446,7 +448,7 @@ def ground_trend(dh, valid, object_size_cells, sigma_expected, threshold=None, k
     return trend, float(thr), sig
 
 
-def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
+def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0, return_trend=False):
     """Mask of the cells whose ``dh`` exceeds its ground trend (:func:`ground_trend`).
 
     Returns
@@ -455,6 +457,8 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
         1 object (``dh - trend > threshold``), 2 low (``< -threshold``), 0 ground, 255 not
         ``valid``.
     threshold, sigma_data : float
+    trend : ndarray float32
+        Only with ``return_trend``: the ground trend.
     """
     trend, thr, sig = ground_trend(dh, valid, object_size_cells, sigma_expected, threshold, k)
     d = np.where(np.isfinite(dh), dh, trend)
@@ -463,4 +467,130 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0):
     mask[valid] = GROUND
     mask[valid & (rel > thr)] = OBJECT
     mask[valid & (rel < -thr)] = LOW
-    return mask, thr, sig
+    return (mask, thr, sig, trend) if return_trend else (mask, thr, sig)
+
+
+def _window_residual(a, b, rr, cc, disp, half):
+    """Offset-free squared difference of ``a`` and ``b`` over the best small window containing a cell.
+
+    ``disp = (dca, dra, dcb, drb)`` per candidate cell: where a point of the cell's
+    neighbourhood appears in ``a`` and in ``b`` (cells). For each of the ``(2 half + 1)^2``
+    windows of side ``2 half + 1`` that contain the cell (shiftable windows), the mean of
+    ``(a - b)^2``; the smallest of them (NaN where no window is seen whole).
+    """
+    dca, dra, dcb, drb = disp
+    w = 2 * half + 1
+    r = 2 * half
+    D = np.empty((2 * r + 1, 2 * r + 1, rr.size), np.float64)
+    for i in range(-r, r + 1):
+        for j in range(-r, r + 1):
+            va = ndimage.map_coordinates(a, [rr + i + dra, cc + j + dca], order=1, mode="constant", cval=np.nan)
+            vb = ndimage.map_coordinates(b, [rr + i + drb, cc + j + dcb], order=1, mode="constant", cval=np.nan)
+            D[i + r, j + r] = va - vb
+    best = np.full(rr.size, np.inf)
+    for i in range(w):
+        for j in range(w):
+            sub = D[i:i + w, j:j + w].reshape(w * w, -1)
+            s = np.mean(sub * sub, axis=0)                # NaN when a pixel is unseen
+            best = np.where(s < best, s, best)
+    return np.where(np.isfinite(best), best, np.nan)
+
+
+def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, half=1, chunk=1 << 17):
+    """Decide the cells along the object outlines by testing the two heights they may have.
+
+    A correlation window of side ``2 * radius + 1`` that straddles an outline measures
+    whichever surface fills most of it (a shiftable window may even prefer the ground's
+    side), so the outline of the object mask wanders by up to ``radius`` cells both ways. A
+    cell within ``radius`` of the outline with object measurements in its window can carry
+    one of two heights: the object's (median ``dh`` of the object cells of that window) or
+    the ground's (median of its ground cells, else the trend). For each, the two
+    orthophotos are sampled where that height puts the cell and its neighbours, and the
+    best of the small windows of side ``2 * half + 1`` containing the cell (shiftable, so
+    one can lie wholly on the cell's own side of the outline) gives the mean squared
+    difference ``(a - b)^2``; the height under which the orthophotos agree better decides
+    the cell (the maximum-likelihood choice under Gaussian image noise). A cell is decided
+    only when the two heights put its images at least a cell apart relative to each other;
+    closer, their windows overlap and the test cannot tell them apart.
+
+    Parameters
+    ----------
+    a, b : ndarray
+        The orthophotos (grey, NaN = unseen).
+    is_object : ndarray of bool
+        Current object mask.
+    dh : ndarray
+        Measured corrections (NaN = none).
+    trend : ndarray
+        The ground trend of ``dh`` (:func:`ground_trend`).
+    valid : ndarray of bool
+        Cells to decide.
+    displacement : callable
+        ``displacement(h) -> (dca, dra, dcb, drb)``: for an array ``h`` of height errors per
+        cell, where a point of the cell appears in ``a`` and ``b`` relative to the cell
+        (cells, column and row).
+    radius : int
+        Half the matcher's window.
+    half : int
+        Half the side of the test windows.
+    chunk : int
+        Candidate cells per batch (bounded memory).
+
+    Returns
+    -------
+    ndarray of bool
+        The object mask with the outline cells decided.
+    """
+    obj = np.asarray(is_object, bool) & valid
+    gnd = ~obj & valid
+    size = 2 * int(radius) + 1
+    fin = np.isfinite(dh)
+    box = np.ones((size, size), bool)
+    o_meas = np.where(obj & fin, dh, np.nan).astype(np.float32)
+    g_meas = np.where(gnd & fin, dh, np.nan).astype(np.float32)
+    cand = (valid & ndimage.binary_dilation(np.isfinite(o_meas), box)
+            & ndimage.binary_dilation(gnd, box))
+    new = obj.copy()
+    if not cand.any():
+        return new
+    rr_all, cc_all = np.nonzero(cand)
+    h_obj = np.zeros(dh.shape)
+    h_gnd = np.zeros(dh.shape)
+    for k0 in range(0, rr_all.size, chunk):             # the two medians at the candidates only
+        cells = (rr_all[k0:k0 + chunk], cc_all[k0:k0 + chunk])
+        h_obj[cells] = nan_median_at(o_meas, cells, size)
+        g = nan_median_at(g_meas, cells, size)
+        h_gnd[cells] = np.where(np.isfinite(g), g, np.asarray(trend)[cells])
+    d_obj = displacement(h_obj)
+    d_gnd = displacement(h_gnd)
+    a = np.asarray(a, np.float32)
+    b = np.asarray(b, np.float32)
+    for k0 in range(0, rr_all.size, chunk):
+        rr, cc = rr_all[k0:k0 + chunk], cc_all[k0:k0 + chunk]
+        p1 = [np.asarray(x)[rr, cc] for x in d_obj]
+        p0 = [np.asarray(x)[rr, cc] for x in d_gnd]
+        # relative displacement of the two images under each height, in cells
+        sep = np.hypot((p1[2] - p1[0]) - (p0[2] - p0[0]), (p1[3] - p1[1]) - (p0[3] - p0[1]))
+        t = sep >= 1.0
+        rr, cc, p1, p0 = rr[t], cc[t], [x[t] for x in p1], [x[t] for x in p0]
+        s_obj = _window_residual(a, b, rr.astype(float), cc.astype(float), p1, half)
+        s_gnd = _window_residual(a, b, rr.astype(float), cc.astype(float), p0, half)
+        decided = np.isfinite(s_obj) & np.isfinite(s_gnd)
+        new[rr[decided], cc[decided]] = (s_obj < s_gnd)[decided]
+    return new
+
+
+def close_mask(mask, window):
+    """Close the objects of a mask (codes) over ``window // 2 + 1`` cells.
+
+    The matcher resolves no gap narrower than about half its window (as
+    :func:`keep_significant` keeps no narrower detail), so ground gaps and notches that
+    narrow inside or between objects are closed; only cells seen by two frames change.
+    """
+    side = int(window) // 2 + 1
+    valid = mask != NODATA
+    obj = mask == OBJECT
+    new = ndimage.binary_closing(obj, structure=np.ones((side, side), bool)) & valid & ~obj
+    out = mask.copy()
+    out[new] = OBJECT
+    return out

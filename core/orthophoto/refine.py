@@ -24,10 +24,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from ..codes import GROUND, NODATA, OBJECT
 from ..common import report
 from .match import REASONS, match_along
 from .orthorectify import check_transform, grid_xy
-from .quality import fill_holes, nan_median_at, object_mask, remove_blunders
+from .quality import (
+    close_mask,
+    fill_holes,
+    nan_median_at,
+    object_mask,
+    remove_blunders,
+    settle_boundary,
+)
 
 __all__ = ["view_vectors", "parallax_to_dh", "parallax_to_dh_vertical", "orthoparallax",
            "ParallaxResult", "fill_holes", "as_grey", "pair_geometry", "match_pair",
@@ -354,7 +362,7 @@ def reasons_text(reasons):
 def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None, height_m=None,
                   base_direction=(1.0, 0.0), window=7, shiftable=5, min_corr=0.6,
                   max_dh_m=None, height_threshold_m=None, precision_cells=0.2,
-                  lsm_iterations=3, relocate=True, object_size_m=40.0, progress=None):
+                  lsm_iterations=3, relocate=True, object_size_m=40.0, settle=True, progress=None):
     """Measure the DEM error from the residual parallax of two orthophotos (one pass).
 
     Luong Chinh Ke (2002, section 2.3): two orthophotos of overlapping frames made with
@@ -399,6 +407,11 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
         Least-squares sub-pixel iterations.
     relocate : bool
         Move measurements from the matched location to the ground point (needs centres).
+    settle : bool
+        Decide the cells along the object outlines on the orthophotos
+        (:func:`~.quality.settle_boundary`: the object's or the ground's height, whichever
+        makes the two agree better in small shiftable windows), then close the mask over
+        half the window plus one cell (gaps the matcher cannot resolve).
     object_size_m : float
         Largest object width: the object mask compares ``dh`` with its ground trend (a
         median of the ground cells over about this width, :func:`~.quality.ground_trend`),
@@ -446,7 +459,16 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     filled = np.where(both, filled, np.nan)
     corrected = np.where(both & np.isfinite(filled), dem + filled, dem).astype(np.float32)
     size = object_cells(object_size_m, transform)
-    mask, thr, sig = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size)
+    mask, thr, sig, trend = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size,
+                                        return_trend=True)
+    before = mask == OBJECT
+    if settle:
+        mask = _settle_mask(mask, a, b, dh, dem, transform, info["crop"], window, dict(
+            centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend)
+    after = mask == OBJECT
+    # the outline test and the closing, counted for the log
+    info.update(outline_to_object=int(np.count_nonzero(after & ~before)),
+                outline_to_ground=int(np.count_nonzero(before & ~after)))
     info.update(window=window, shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
                 height_threshold_m=float(thr), sigma_expected_m=float(sigma_exp),
                 sigma_data_m=sig, overlap_cells=int(both.sum()),
@@ -456,6 +478,33 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     report(progress, 1.0)
     quality = np.where(both, corr, np.nan).astype(np.float32)
     return ParallaxResult(corrected, dh, quality, mask, info)
+
+
+def _settle_mask(mask, a, b, dh, dem, transform, crop, window, cam, trend):
+    """The object mask with its outline decided on the orthophotos (:func:`~.quality.settle_boundary`).
+
+    Then closed over half the window plus one cell (:func:`~.quality.close_mask`).
+    """
+    r0, r1, c0, c1 = crop
+    sl = (slice(r0, r1), slice(c0, c1))
+    x0, dx, y0, dy = check_transform(transform)
+    sub_t = (x0 + c0 * dx, dx, 0.0, y0 - r0 * dy, 0.0, -dy)
+    geom = pair_geometry(dem[sl], sub_t, cam["centres"], cam["base_m"], cam["height_m"], cam["base_direction"])
+
+    def displacement(h):
+        # a DEM error h moves a point by h * v in an orthophoto: v_a, v_b from v_b - v_a and their mean
+        (dvx, dvy), (mx, my) = geom["dv"](h)
+        return (h * (mx - 0.5 * dvx) / dx, -h * (my - 0.5 * dvy) / dy,
+                h * (mx + 0.5 * dvx) / dx, -h * (my + 0.5 * dvy) / dy)
+
+    valid = (mask != NODATA)[sl]
+    new = settle_boundary(a[sl], b[sl], (mask == OBJECT)[sl], dh[sl], trend[sl], valid, displacement,
+                          window // 2)
+    out = mask.copy()
+    sub = out[sl]
+    sub[new] = OBJECT
+    sub[valid & ~new & (sub == OBJECT)] = GROUND
+    return close_mask(out, window)
 
 
 #: Below this share of trusted matches among the cells seen by two frames, the pairs

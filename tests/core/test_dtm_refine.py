@@ -39,8 +39,9 @@ def test_steps_and_halo():
     assert dr.refine_steps((1.0, 1.0), 12.0) == {(0, 1): 12, (1, 0): 12, (1, 1): 8, (1, -1): 8}
     assert dr.refine_steps((2.0, 4.0), 12.0) == {(0, 1): 6, (1, 0): 3, (1, 1): 3, (1, -1): 3}
     assert dr.refine_steps((20.0, 20.0), 12.0) == {(0, 1): 1, (1, 0): 1, (1, 1): 1, (1, -1): 1}
-    assert dr.refine_halo((1.0, 1.0), 12.0) == 13
-    assert dr.refine_halo((4.0, 4.0), 12.0) == 4
+    # the floors' reach plus one, the smoothness test's 2 cells and the edge test's (fill.edge_spikes_reach: 7)
+    assert dr.refine_halo((1.0, 1.0), 12.0) == 13 + 2 + 7
+    assert dr.refine_halo((4.0, 4.0), 12.0) == 4 + 2 + 7
 
 
 def test_single_bump_on_flat_ground():
@@ -143,4 +144,91 @@ def test_canopy_gaps_the_vote_keeps_are_removed():
     rmse = lambda d: float(np.sqrt(np.mean((d - s.dtm) ** 2)))     # noqa: E731
     assert rmse(res.dtm) < 0.9 * rmse(vote_dtm)
     assert res.info["refine_removed_share"] > 0
-    assert math.isclose(res.info["refine_reach_m"], dr.REACH_M)
+    assert math.isclose(res.info["refine_reach_m"], params["refine_reach_m"]) and params["refine_reach_m"] >= dr.REACH_M
+
+
+def test_edge_spike_in_a_courtyard_is_removed_and_the_dtm_no_longer_rests_on_it():
+    # A large building (a 10 m block, 72 m square) with a 7 m courtyard of bare ground; in the courtyard's
+    # corners a 1.5 m shed against the walls that the vote took as ground. Every line through a corner runs
+    # into the building on one side and finds no ground within the reach there: nothing brackets it (the
+    # floors alone keep it, as on main); it stands above every continuation of the courtyard's ground.
+    n = 80
+    z = np.zeros((n, n), np.float32)
+    truth = np.zeros((n, n), bool)
+    truth[4:76, 4:76] = True
+    truth[34:41, 34:41] = False                     # the courtyard
+    z[truth] = 10.0
+    corners = [(34, 34), (34, 40), (40, 34), (40, 40)]
+    for r, c in corners:
+        z[r, c] = 1.5
+        truth[r, c] = True
+    vote = np.where(truth, OBJECT, GROUND).astype(np.uint8)
+    for r, c in corners:
+        vote[r, c] = GROUND                         # what the members kept
+    bracketed = dr.find_bracketed(z, vote == GROUND, (1.0, 1.0), slope=0.1, height_m=0.5)
+    assert not any(bracketed[r, c] for r, c in corners)
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1)
+    np.testing.assert_array_equal(mask == OBJECT, truth)
+    assert info["refine_edge_removed_share"] == pytest.approx(4 / np.count_nonzero(vote == GROUND))
+    dtm = fill_gaps(z, fill=mask == OBJECT)
+    assert float(np.abs(dtm).max()) < 1e-3          # the ground is flat at 0 everywhere, under the sheds too
+    kept = fill_gaps(z, fill=vote == OBJECT)        # the vote's DTM rests on the sheds: 1.5 m there and
+    assert all(kept[r, c] == 1.5 for r, c in corners)                    # raised under the walls behind them
+    assert min(kept[r + dr_, c + dc] for (r, c), (dr_, dc) in zip(corners, [(-1, -1), (-1, 1), (1, -1), (1, 1)])) > 0.2
+
+
+def test_refine_reach_grows_on_gentle_terrain_within_its_limits():
+    assert dr.refine_reach(0.5, 0.6, 500.0) == dr.REACH_M                  # steep: 3 x 0.5 / 0.6 = 2.5 m < 12 m
+    assert dr.refine_reach(0.5, 0.036, 500.0) == pytest.approx(3 * 0.5 / 0.036)
+    assert dr.refine_reach(0.5, 0.001, 100.0) == 100.0                      # the limit
+    assert dr.refine_reach(0.5, 0.0, 100.0) == 100.0                        # flat: as far as the limit
+    assert dr.refine_reach(0.5, float("nan"), 100.0) == 100.0
+    assert dr.refine_reach(0.5, 0.01, 5.0) == dr.REACH_M                    # never below REACH_M
+
+
+def test_find_smooth_exact():
+    z = np.add.outer(0.3 * np.arange(6.0), -0.7 * np.arange(7.0)).astype(np.float32)   # a plane: smooth
+    every = np.ones(z.shape, bool)
+    np.testing.assert_array_equal(dr.find_smooth(z, every, 0.01), every)
+    z[:, 4:] += 1.2                                 # a 1.2 m step between columns 3 and 4
+    got = dr.find_smooth(z, every, 1.0)
+    # second differences of 1.2 m are centred on columns 3 and 4; their 3 x 3 neighbourhoods: columns 2-5
+    np.testing.assert_array_equal(got, np.broadcast_to(~np.isin(np.arange(7), [2, 3, 4, 5]), z.shape))
+    np.testing.assert_array_equal(dr.find_smooth(z, every, 1.2 + 1e-3), every)
+    only = np.zeros(z.shape, bool)
+    only[2, 0] = only[2, 3] = True                  # only the given cells are answered
+    np.testing.assert_array_equal(dr.find_smooth(z, only, 1.0), only & got)
+    z[:, 4:] = np.nan                               # nodata: its differences are not counted
+    np.testing.assert_array_equal(dr.find_smooth(z, every, 0.01), every)
+
+
+def test_smooth_convex_crest_stays_ground():
+    # an embankment's rounded crest: z = 3 - 0.02 (x - 30)^2; at 12 m from the crest the ground lies
+    # 2.88 m lower, more than the slope allowance 0.1 x 12 m plus dh: the floors bracket the crest
+    # (as on main); its second differences are 0.04 m: smooth ground, kept.
+    x = np.arange(61.0)
+    z = np.broadcast_to(3.0 - 0.02 * (x - 30.0) ** 2, (21, 61)).astype(np.float32)
+    vote = np.full(z.shape, GROUND, np.uint8)
+    bracketed = dr.find_bracketed(z, vote == GROUND, (1.0, 1.0), slope=0.1, height_m=0.5)
+    assert bracketed[:, 30].all()
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1)
+    assert (mask == GROUND).all()
+    assert info["refine_removed_share"] == 0.0 and info["refine_smooth_kept_share"] > 0
+
+
+def test_wide_shrubs_on_flat_land_need_the_longer_reach():
+    # 40 m of rough shrubs (1.5 and 3 m, alternating) on flat land that the vote kept: 12 m from their
+    # middle there is no ground, so the fixed reach leaves the middle as ground; the reach of gentle
+    # terrain (3 x 0.5 m / 0.03 = 50 m) finds ground on both sides of every shrub cell.
+    z = np.zeros((30, 90), np.float32)
+    i, j = np.mgrid[5:25, 25:65]
+    z[5:25, 25:65] = 1.5 + 1.5 * ((i + j) % 2)
+    vote = np.full(z.shape, GROUND, np.uint8)
+    reach = dr.refine_reach(0.5, 0.03, 500.0)
+    assert reach == pytest.approx(50.0)
+    fixed, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=dr.REACH_M)
+    assert (fixed[5:25, 40:50] == GROUND).any()     # the middle: out of the fixed reach
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=reach)
+    shrubs = np.zeros(z.shape, bool)
+    shrubs[5:25, 25:65] = True
+    np.testing.assert_array_equal(mask == OBJECT, shrubs)

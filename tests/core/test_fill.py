@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from bare_earth.core.common import Cancelled
-from bare_earth.core.fill import fill_gaps
+from bare_earth.core.fill import edge_spikes_reach, fill_gaps, find_edge_spikes
 
 DTYPES = [np.float32, np.float64, np.int16]
 
@@ -291,3 +291,59 @@ def test_relax_level_equals_the_cell_by_cell_reference(omega, use_relax, chunk, 
     got = fill._relax_level(known, val, coarse, 3, relax, omega)
     ref = _relax_reference(known, val, coarse, 3, relax, omega)
     np.testing.assert_array_equal(got, ref)
+
+
+# --------------------------------------------------------------------------- find_edge_spikes
+def _spikes(z, fill, tol=0.5, passes=3):
+    return [tuple(int(v) for v in p) for p in np.argwhere(find_edge_spikes(z, fill, tol, passes=passes))]
+
+
+def test_edge_spike_above_every_continuation():
+    z = np.zeros((5, 7), np.float32)
+    z[:, 4:] = 3.0                                  # an object on columns 4-6
+    z[2, 3] = 1.0                                   # a raised cell at its edge: 1 m above every continuation
+    assert _spikes(z, z > 2.0) == [(2, 3)]
+    assert _spikes(z, z > 2.0, tol=1.0) == []       # not more than 1 m above them
+    z[2, 3] = 0.4                                   # within the tolerance
+    assert _spikes(z, z > 2.0) == []
+
+
+def test_edge_spikes_never_on_a_plane():
+    i, j = np.mgrid[0:12, 0:12]
+    z = (0.7 * i - 0.9 * j).astype(np.float32)     # steep plane: every continuation is exact
+    hole = (i >= 4) & (i < 8) & (j >= 3) & (j < 9)
+    z[hole] += 5.0
+    assert _spikes(z, hole) == []
+
+
+def test_edge_spike_needs_two_known_cells_in_a_direction():
+    z = np.full((5, 5), 5.0, np.float32)
+    z[2, 2] = 1.0                                   # a lone known cell amid an object: no continuation
+    assert _spikes(z, z > 2.0) == []
+    z[2, 3] = 0.0                                   # one known neighbour: still no direction of two cells
+    assert _spikes(z, z > 2.0) == []
+    z[2, 4] = 0.0                                   # (2, 3), (2, 4) continue to 0 at (2, 2): 1 m below it;
+    assert _spikes(z, z > 2.0) == [(2, 2)]          # (2, 4) is not raised by the bump two cells away
+
+
+def test_edge_spike_passes_peel_a_skirt():
+    z = np.zeros((7, 9), np.float32)
+    z[:, 6:] = 5.0                                  # the object
+    z[3, 5] = 2.0                                   # its skirt: 2 m at the edge,
+    z[3, 4] = 0.6                                   # 0.6 m one cell further out
+    hole = z > 4.0
+    assert _spikes(z, hole, passes=1) == [(3, 5)]   # (3, 4) borders no cell to fill yet
+    assert _spikes(z, hole, passes=2) == [(3, 4), (3, 5)]
+    assert _spikes(z, hole, passes=3) == [(3, 4), (3, 5)]
+
+
+def test_edge_spikes_ignore_nodata_and_refuse_bad_input():
+    z = np.zeros((5, 7), np.float32)
+    z[:, 4:] = np.nan                               # nodata, not to fill: no edge
+    z[2, 3] = 1.0
+    assert _spikes(z, np.zeros(z.shape, bool)) == []
+    with pytest.raises(ValueError, match="tolerance_m"):
+        find_edge_spikes(z, np.zeros(z.shape, bool), 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        find_edge_spikes(z, np.zeros((2, 2), bool), 0.5)
+    assert edge_spikes_reach(3) == 7

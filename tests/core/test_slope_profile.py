@@ -86,8 +86,8 @@ def test_bad_parameters_raise_clear_errors():
 def test_resolve_derives_from_data():
     flat = np.random.default_rng(0).normal(0, 0.05, (200, 200)).astype(np.float32)
     p = sp.resolve_slope_profile_params(flat, 1.0)
-    assert p["terrain_slope_deg"] == pytest.approx(8.0)      # the floor on flat ground
-    assert p["slope_threshold_deg"] == pytest.approx(25.0)   # the floor of alpha_g
+    assert p["terrain_slope_deg"] < 1.0                      # flat ground: the measured slope
+    assert p["slope_threshold_deg"] == pytest.approx(sp._MIN_ALPHA_G)   # the floor of alpha_g
     assert 0.15 <= p["tolerance_m"] <= 0.5
     assert p["tolerance_m"] == pytest.approx(3 * 0.05, rel=0.15)  # 3 x the 0.05 m noise
     yy, xx = np.mgrid[0:200, 0:200]
@@ -198,3 +198,91 @@ def test_scan_of_sources_of_unequal_lengths_equals_each_source_alone(edge):
         for src, got in zip(sources, together):
             np.testing.assert_array_equal(got, sp._scan([src], *args)[0])
         assert any(r.any() for r in together)
+
+
+def _scan1(values, tan_g, tan_t, dh0, init_cells=1, edge_cells=1):
+    """One profile scanned forwards alone: its rejections as a list of bools."""
+    a = np.asarray(values, np.float32)[:, None]
+    return sp._scan([(a, False)], 1.0, tan_g, tan_t, dh0, init_cells, edge_cells)[0][:, 0].tolist()
+
+
+def test_scan_tolerance_is_the_larger_of_edge_and_terrain_rise_not_their_sum():
+    # tan_g 0.5, tan_t 0.1, dh0 0: d cells after the reference (0 at index 1) the tolerance
+    # is max(0.5, 0.1 d). After the 3 m step, 0.55 (d = 2) and 0.65 (d = 3) are above 0.5:
+    # rejected; 0.45 is ground again. The old rule added the two (0.5 + 0.1 (d - 1): 0.6,
+    # 0.7) and accepted them.
+    z = [0.0, 0.0, 3.0, 0.55, 0.65, 0.45, 0.5]
+    assert _scan1(z, 0.5, 0.1, 0.0) == [False, False, True, True, True, False, False]
+    # after a long object the terrain's rise takes over: 0.55 m at d = 6 is within 0.6
+    assert _scan1([0.0, 0.0, 3, 3, 3, 3, 3, 0.55], 0.5, 0.1, 0.0) == [False, False] + [True] * 5 + [False]
+    assert _scan1([0.0, 0.0, 3, 3, 3, 3, 3, 0.65], 0.5, 0.1, 0.0) == [False, False] + [True] * 6
+    # an edge run of 2 cells: the paper's slope test 0.5 per cell over it (1.0 m at d = 2)
+    assert _scan1(z, 0.5, 0.1, 0.0, edge_cells=2) == [False, False, True, False, False, False, False]
+    # dh0 is added to every test: with 0.2 m, 0.55 is within 0.2 + 0.5
+    assert _scan1(z, 0.5, 0.1, 0.2) == [False, False, True, False, False, False, False]
+    # right after an accepted cell the test is the edge's: 0.7 <= 0.2 + 0.5 from 0.0, 1.5 is not
+    assert _scan1([0.0, 0.0, 0.7, 1.5], 0.5, 0.1, 0.2) == [False, False, False, True]
+
+
+def test_scan_start_minimum_is_the_reference_mirrored_before_the_first_cell():
+    # ground sloping down into the profile, 0.3 m per cell (tan_t 0.3): the start window's
+    # minimum lies m = 3 cells in, taken as 3 cells before the first cell: 0.8 m there is
+    # within dh0 + 3 x 0.3 = 0.9 m of it, so the slope is ground (the old start, 0.3 m of
+    # tolerance at the first cell, rejected 0.8)
+    assert _scan1([0.8, 0.5, 0.25, 0.0, 0.1], 0.3, 0.3, 0.0, init_cells=4) == [False] * 5
+    # an object cut by the raster's edge stays rejected: 2 m at 2 and 1 cells from the
+    # start minimum (2 cells in) is far above 0.1 m per cell
+    assert _scan1([2.0, 2.0, 0.0, 0.0, 0.0], 0.5, 0.1, 0.1, init_cells=4) == [True, True, False, False, False]
+
+
+@pytest.mark.parametrize("median, p75, expected", [
+    (np.tan(np.radians(1.0)), np.tan(np.radians(3.0)), 3.0),     # raised to the upper quartile
+    (np.tan(np.radians(1.0)), np.tan(np.radians(30.0)), 8.0),    # ... at most 8 deg
+    (np.tan(np.radians(20.0)), np.tan(np.radians(30.0)), 20.0),  # never below the median
+    (0.0, 0.0, 0.0),                                             # no floor
+])
+def test_derive_terrain_slope_exact(median, p75, expected):
+    got = sp.derive_terrain_slope({"median": median, "p75": p75, "p90": p75, "block_cells": 20})
+    assert got == pytest.approx(expected, abs=1e-9)
+
+
+def shrub_scene(extent_m, cell, seed=0, noise_m=0.05):
+    """Shrubs 1-3 m high over gentle ground (the opengeos failure of issue 12), the same
+    landscape at any cell size: ground rising 2 % in x and 1 % in y with a 1 m undulation;
+    about 30 % covered by domes ``h (1 - d^2)`` of radius 2.5-6 m (rounded: their edges rise
+    gently, less than 1 m per 2 m cell). Returns (dsm, ground, shrub heights)."""
+    n = int(round(extent_m / cell))
+    rng = np.random.default_rng(seed)
+    x = (np.arange(n) + 0.5) * cell
+    xx, yy = np.meshgrid(x, x[::-1])
+    ground = 300.0 + 0.02 * xx + 0.01 * yy + np.sin(xx / 70.0) * np.cos(yy / 90.0)
+    k = int(extent_m * extent_m * 0.3 / (np.pi * 16.0))
+    cx, cy = rng.uniform(0, extent_m, k), rng.uniform(0, extent_m, k)
+    r, h = rng.uniform(2.5, 6.0, k), rng.uniform(1.0, 3.0, k)
+    top = np.zeros((n, n))
+    for i in range(k):
+        d2 = ((xx - cx[i]) ** 2 + (yy - cy[i]) ** 2) / r[i] ** 2
+        np.maximum(top, np.where(d2 < 1.0, h[i] * (1.0 - d2), 0.0), out=top)
+    noise = np.clip(rng.normal(0.0, 1.0, (n, n)), -4.5, 4.5) * noise_m
+    return (ground + top + noise).astype(np.float32), ground, top
+
+
+@pytest.mark.parametrize("cell", [2.0, 4.0])
+def test_shrubs_over_gentle_ground_are_objects_with_the_defaults(cell):
+    # the old defaults (alpha_g 25, alpha_t 8 deg floors) kept 92 % (2 m) and 100 % (4 m)
+    # of these shrubs as ground, DTM RMSE 0.63 / 0.68 m
+    z, ground, top = shrub_scene(256.0, cell)
+    res = run_array("slopeprofile", z, cell, {})
+    obj = res.mask == OBJECT
+    assert obj[top > 0.5].mean() >= 0.75
+    assert (~obj[top == 0]).mean() >= 0.98
+    assert np.sqrt(np.mean((res.dtm - ground) ** 2)) < 0.3
+    p = res.info["params"]
+    assert p["slope_threshold_deg"] < 15.0 and p["terrain_slope_deg"] < 5.0
+
+
+def test_shrub_defaults_agree_from_0_5_to_4_m():
+    got = [sp.resolve_slope_profile_params(shrub_scene(256.0, c)[0], c) for c in (0.5, 1.0, 2.0, 4.0)]
+    for key in ("terrain_slope_deg", "slope_threshold_deg"):
+        v = np.array([p[key] for p in got])
+        assert v.max() / v.min() <= 1.2, (key, v)
