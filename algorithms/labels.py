@@ -44,6 +44,7 @@ LABELS = {
     "long_profile_m": "Long profile length (m)",
     "profile_sigma_m": "Height spread about the profiles (m)",
     "surface_size_m": "Moving surface size (m)",
+    "surface_rule": "Moving surface size rule",
     "surface_sigma_m": "Height spread about the surfaces (m)",
     "prediction_radius_m": "Prediction radius (m)",
     "prediction_sigma_m": "Height spread of the prediction (m)",

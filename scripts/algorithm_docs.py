@@ -31,6 +31,23 @@ def plugin_methods():
     return re.findall(r'METHOD_NAME\s*=\s*"([^"]+)"', text)
 
 
+#: Inputs a method's algorithm adds to its parameters (rows after ``BAND``).
+LAYER_ROWS = {
+    "dtm": [
+        "| `OBJECT_AREAS` (Object areas) | optional | polygons (e.g. building footprints) that are objects "
+        "whatever the filters say; the ground under them is interpolated |",
+        "| `GROUND_AREAS` (Ground areas) | optional | polygons or points of known bare ground (a car park "
+        "under trees, survey points): ground whatever the filters say |",
+        "| `BREAKLINES` (Break lines) | optional | lines along crests, toes and terrace edges: no comparison "
+        "crosses them (as in RASCOR), and near them RASCOR's decision stands alone |",
+    ],
+}
+#: What a side product holds, where more than its name says.
+EXTRA_MEANING = {
+    "confidence": "UInt8 0-100, 255 nodata: how sure each cell's class is (styled red to green)",
+}
+
+
 def render():
     out = []
     methods = available_methods()
@@ -43,6 +60,7 @@ def render():
         out.append("| parameter (dialog label) | default | meaning |\n|---|---|---|")
         out.append("| `INPUT` (Input DSM) | | single-band DSM raster |")
         out.append("| `BAND` (Height band) | 1 | height band, when the raster has several |")
+        out.extend(LAYER_ROWS.get(name, []))
         for p in m.params:
             d = "from the data" if p.default is None else f"`{p.default}`"
             adv = " (advanced)" if is_advanced(name, p) else ""
@@ -56,7 +74,8 @@ def render():
                    ", ".join(f"{k} {v}" for k, v in MASK_CODES.items()) + ") |")
         out.append("| `OUTPUT_NDSM` | optional | DSM minus DTM |")
         for k in m.extras:
-            out.append(f"| `OUTPUT_{k.upper()}` ({extra_label(k)}) | optional | per-cell side product `{k}` |")
+            meaning = EXTRA_MEANING.get(k, f"per-cell side product `{k}`")
+            out.append(f"| `OUTPUT_{k.upper()}` ({extra_label(k)}) | optional | {meaning} |")
         out.append("")
         out.append("Outputs are written in the format their extension names: "
                    + ", ".join(f"`{e}`" for e in OUTPUT_FORMATS) + ".\n")

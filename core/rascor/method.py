@@ -67,6 +67,13 @@ METHOD = Method(
               "metres; empty: the shortest of a sequence of sizes covering sqrt(2) x the "
               "width of the objects, as long as the model follows the terrain.", minimum=0.1,
               maximum=10000.0, advanced=True),
+        Param("surface_rule", "enum", "objects", "Step 6: how an empty surface size is "
+              "derived. objects: the shortest size covering sqrt(2) x the width of the "
+              "objects (RASCOR on its own must span its widest objects); residuals: the "
+              "longest size before the fits' residual spread grows (the model-selection rule "
+              "alone; what the dtm filter asks of its RASCOR member, since the opening and the "
+              "reconstruction there remove wide objects).", options=("objects", "residuals"),
+              advanced=True),
         Param("surface_sigma_m", "float", None, "Step 6 standard deviation about the "
               "surface (m); empty: sigma and the model's error on the ground-level surface.",
               minimum=0.001, maximum=100.0,

@@ -281,6 +281,10 @@ def _result(st, cfg):
     return FilterResult(mask=st.mask, extras={"step": st.step}, info=info)
 
 
+#: How :func:`~.parameters.resolve_rascor_params` derives an empty ``surface_size_m``.
+SURFACE_RULES = ("objects", "residuals")
+
+
 def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   terrain_class: str = "rolling", homogeneous: Union[bool, str] = True,
                   sigma_m: float = 0.15, step1_characterise: bool = True,
@@ -292,6 +296,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   jump_m: float = 2.0, max_building_m: float = 120.0,
                   short_profile_m: float = 9.0, long_profile_m: float = 25.0,
                   profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
+                  surface_rule: str = "objects",
                   surface_sigma_m: Optional[float] = None, prediction_radius_m: float = 3.0,
                   prediction_sigma_m: Optional[float] = None, snooping_k: float = 4.0,
                   snooping_iterations: int = 1, low_weight: float = 0.02,
@@ -333,6 +338,9 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         Standard deviation of a height about the model of steps 5, 6, 7 (None: sigma_m).
     surface_size_m : float
         Step 6 window edge, metres.
+    surface_rule : {"objects", "residuals"}
+        How :func:`resolve_rascor_params` derived an empty ``surface_size_m`` (checked and
+        kept in ``info``; the filter itself uses only ``surface_size_m``).
     prediction_radius_m : float
         Step 7 neighbourhood radius, metres.
     snooping_k : float
@@ -358,6 +366,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         ``removed_share_by_step`` (share of valid cells removed by each step).
     """
     z = as_surface(z)
+    if surface_rule not in SURFACE_RULES:
+        raise ValueError(f"surface_rule must be one of {SURFACE_RULES}; got {surface_rule!r}.")
     cfg = _check_settings(
         cell_size, terrain_class=terrain_class, homogeneous=homogeneous, sigma_m=sigma_m,
         switches=(step1_characterise, step2_height_distribution, step3_neighbour_differences,

@@ -43,7 +43,10 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     """The members' parameters derived in threads are each member's own derivation."""
     s = make_scene("mixed", (120, 140), seed=2)
     p = dtm_method.resolve_dtm_params(s.dsm, 1.0)
-    assert p["members"] == {n: pipeline.resolve_params(n, s.dsm, 1.0) for n in dtm_method.MEMBERS}
+    assert p["members"] == {n: pipeline.resolve_params(n, s.dsm, 1.0, dtm_method.MEMBER_SETTINGS.get(n))
+                            for n in dtm_method.MEMBERS}
+    # the vote asks RASCOR for its surface size by the model-selection rule alone
+    assert p["members"]["rascor"]["surface_rule"] == "residuals"
     assert p["input_description"] == dtm_method.characterise(s.dsm, (1.0, 1.0))
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
 

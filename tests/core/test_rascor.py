@@ -854,6 +854,25 @@ def test_dtm_under_objects_wider_than_the_windows_of_the_residual_analysis():
     assert p["surface_sigma_m"] >= p["sigma_m"] and p["profile_sigma_m"] >= p["sigma_m"]
 
 
+def test_surface_rule_residuals_keeps_the_model_selection_size():
+    """``surface_rule="residuals"`` (what the dtm vote asks): the surface size is the one the
+    residual spread chooses (:data:`SURFACE_SIZES_M` up to where it grows), not the window
+    covering the domes; only the size differs, and a wrong rule is refused by both the
+    derivation and the filter."""
+    z = _domes(1.0)[0]
+    cover = rascor.resolve_rascor_params(z, 1.0)
+    fits = rascor.resolve_rascor_params(z, 1.0, surface_rule="residuals")
+    assert cover["surface_rule"] == "objects" and fits["surface_rule"] == "residuals"
+    assert fits["surface_size_m"] in rascor.SURFACE_SIZES_M
+    assert fits["surface_size_m"] < cover["surface_size_m"]
+    assert {k: v for k, v in fits.items() if k not in ("surface_rule", "surface_size_m", "surface_sigma_m")} == \
+        {k: v for k, v in cover.items() if k not in ("surface_rule", "surface_size_m", "surface_sigma_m")}
+    with pytest.raises(ValueError, match="surface_rule"):
+        rascor.resolve_rascor_params(z, 1.0, surface_rule="widest")
+    with pytest.raises(ValueError, match="surface_rule"):
+        rascor.filter_rascor(z, 1.0, **dict(cover, surface_rule="widest"))
+
+
 def test_defaults_in_metres_do_not_depend_on_the_cell():
     """#12: the same scene at 0.5, 1, 2 and 4 m cells: sigma and the surface size (in
     metres) within 20 % of each other (on main: surfaces of 9, 15, 65 and 65 m). The
