@@ -108,7 +108,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
     previous one. An update that made the pairs agree worse (or lost more than
     :data:`MAX_LOST` of the trusted matches) is undone and the iteration stops; when the agreement improved by
-    less than ``min_gain`` (relative) the iteration stops keeping the update. It also stops
+    less than ``min_gain`` (relative) the iteration stops keeping the update. Once the pairs'
+    RMS residual parallax is below the expected matching precision (``precision_cells`` of
+    a cell), what remains is matching noise: the correction measured then is applied and
+    checked by one more measurement, the last. It also stops
     when the RMS correction falls below ``tolerance_m``, and after ``max_iterations``
     updates (the last one checked by one more measurement). When fewer than
     :data:`~.refine.MIN_MATCHED_SHARE` of the cells seen by two frames hold a trusted match
@@ -232,7 +235,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                                      precision_cells=precision_cells))
     total = int(max_iterations) + 1
     cur, prev_dem, prev = dem0.copy(), None, None
-    table, info, stop = [], {}, ""
+    table, info, stop, last = [], {}, "", ""
     for it in range(total):
         meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
         setup["pairs"] = meas["pairs"]
@@ -268,6 +271,16 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 stop = (f"the pairs' agreement improved by less than {100 * min_gain:.0f} % "
                         f"(RMS parallax {before:.3g} -> {after:.3g} m)")
                 break
+            if last:
+                stop = last
+                break
+            # the pairs' residual parallax is within the matching noise: the correction just
+            # measured is applied and checked by one more measurement, the last
+            noise = precision_cells * float(np.median([p["step_m"] for p in meas["pinfo"]]))
+            if meas["rms_parallax_m"] < noise:
+                last = (f"the pairs' RMS residual parallax {meas['rms_parallax_m']:.3g} m fell below the "
+                        f"expected matching precision {noise:.3g} m ({precision_cells:g} cell); the "
+                        "update measured then was the last, checked")
         if it == total - 1:
             stop = f"{int(max_iterations)} update(s) done, the last one checked"
             break

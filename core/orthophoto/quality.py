@@ -278,12 +278,38 @@ def remove_blunders(dh, dem, tolerance_m, size=5):
     """
     dh = np.asarray(dh, np.float32)
     z = np.where(np.isfinite(dh) & np.isfinite(dem), dem + dh, np.nan).astype(np.float32)
-    med, cnt, sup = nan_median_filter(z, size, tolerance=float(tolerance_m))
+    cnt, sup = _count_support(z, size, float(tolerance_m))
     ok = np.isfinite(z)
     cluster = (size // 2 + 1) ** 2 - 1
+    bad = ok & (cnt - 1 < size // 2 + 1)
+    # the median decides only where too few neighbours confirm the value: take it there
+    # (the values of nan_median_filter at those cells)
+    test = np.nonzero(ok & ~bad & (sup < cluster))
+    med = nan_median_at(z, test, size)
     with np.errstate(invalid="ignore"):
-        bad = ok & (((np.abs(z - med) > tolerance_m) & (sup < cluster)) | (cnt - 1 < size // 2 + 1))
+        bad[test] = np.abs(z[test] - med) > tolerance_m
     return np.where(bad, np.nan, dh).astype(np.float32), int(np.count_nonzero(bad))
+
+
+def _count_support(z, size, tolerance):
+    """Finite values in the ``size x size`` window and neighbours within ``tolerance`` of the cell.
+
+    The ``count`` and ``support`` of :func:`nan_median_filter` with ``tolerance``, without
+    the median.
+    """
+    rows, cols = z.shape
+    h = size // 2
+    pad = np.pad(z, h, constant_values=np.nan)
+    fin = np.isfinite(pad)
+    tol = np.float32(tolerance)
+    cnt = np.zeros(z.shape, np.int16)
+    sup = -np.isfinite(z).astype(np.int16)
+    with np.errstate(invalid="ignore"):
+        for i in range(size):
+            for j in range(size):
+                cnt += fin[i:i + rows, j:j + cols]
+                sup += np.abs(pad[i:i + rows, j:j + cols] - z) <= tol
+    return cnt, sup
 
 
 def _nanmedian_stack(D):

@@ -196,7 +196,8 @@ def pair_geometry(dem, transform, centres, base_m, height_m, base_direction):
     """Geometry of a pair: the match direction and ``v_b - v_a`` as a function of ``dh``.
 
     The view vectors belong to the true point, at height ``DEM + dh``; the returned
-    ``dv(dh)`` gives ``(v_b - v_a, (v_a + v_b) / 2)`` per cell for a trial ``dh``. With B
+    ``dv(dh)`` gives ``(v_b - v_a, (v_a + v_b) / 2)`` per cell for a trial ``dh``, ``along(dh)``
+    only ``(v_b - v_a) . u`` (``u`` the unit match direction, ``geom['u']``). With B
     and H instead of the centres, the nadir point of the middle of the base is taken at the
     centre of the grid (the pair's overlap, cropped by :func:`match_pair`: two vertical
     frames of one size overlap symmetrically about the middle of their base), so the
@@ -215,12 +216,15 @@ def pair_geometry(dem, transform, centres, base_m, height_m, base_direction):
             raise ValueError("a camera centre is not above the DEM; check the Z of the centres "
                              "and that the DEM heights use the same datum.")
 
-        def dv(dh):
+        def diff(dh):
             Z = Zs + np.where(np.isfinite(dh), dh, 0.0)
             va = view_vectors(ca, X, Y, Z)
             vb = view_vectors(cb, X, Y, Z)
-            return ((vb[0] - va[0], vb[1] - va[1]),
-                    (0.5 * (va[0] + vb[0]), 0.5 * (va[1] + vb[1])))
+            return va, vb, (vb[0] - va[0], vb[1] - va[1])
+
+        def dv(dh):
+            va, vb, d = diff(dh)
+            return d, (0.5 * (va[0] + vb[0]), 0.5 * (va[1] + vb[1]))
     else:
         if base_m is None or height_m is None:
             raise ValueError("give either the two camera centres or both base_m (B) and height_m (H).")
@@ -239,13 +243,22 @@ def pair_geometry(dem, transform, centres, base_m, height_m, base_direction):
             hh = H - np.where(np.isfinite(dh), dh, 0.0) + np.zeros(dem.shape)
             hh = np.where(hh > 0, hh, np.nan)
             return (-B / hh * e[0], -B / hh * e[1]), ((X - xm) / hh, (Y - ym) / hh)
+
+        def diff(dh):
+            return None, None, dv(dh)[0]
     (dvx, dvy), _ = dv(np.zeros(dem.shape))
     mx, my = float(np.nanmean(dvx)), float(np.nanmean(dvy))
     nrm = math.hypot(mx, my)
     if not nrm > 1e-9:
         raise ValueError("the two cameras give no parallax over this grid (base B = 0 or "
                          "cameras on one vertical line); use another pair.")
-    return dict(dv=dv, u=(mx / nrm, my / nrm))
+    ux, uy = mx / nrm, my / nrm
+
+    def along(dh):
+        # (v_b - v_a) . u alone: the conversion's fixed point needs no mean vector
+        _, _, (dx_, dy_) = diff(dh)
+        return dx_ * ux + dy_ * uy
+    return dict(dv=dv, along=along, u=(ux, uy))
 
 
 def _match_geometry(a, b, dem, transform, geom, *, window, shiftable, min_corr, max_dh_m,
@@ -258,8 +271,7 @@ def _match_geometry(a, b, dem, transform, geom, *, window, shiftable, min_corr, 
     nrm = math.hypot(wc, wr)
     wc, wr = wc / nrm, wr / nrm
     step_m = math.hypot(wc * dx, wr * dy)                 # metres per cell of shift
-    (dvx, dvy), _ = geom["dv"](np.zeros(dem.shape))
-    along0 = dvx * ux + dvy * uy                           # (v_b - v_a) . u at the DEM
+    along0 = geom["along"](np.zeros(dem.shape))            # (v_b - v_a) . u at the DEM
     max_shift = int(math.ceil(max_dh_m * float(np.nanmax(np.abs(along0))) * 1.1 / step_m)) + 1
     m = match_along(a, b, (wc, wr), max_shift, window=window, shiftable=shiftable,
                     min_corr=min_corr, lsm_iterations=lsm_iterations)
@@ -267,8 +279,7 @@ def _match_geometry(a, b, dem, transform, geom, *, window, shiftable, min_corr, 
     with np.errstate(divide="ignore", invalid="ignore"):
         dh = p / along0
         for _ in range(4):   # the view vectors belong to the true point at DEM + dh
-            (dvx, dvy), _ = geom["dv"](dh)
-            dh = p / (dvx * ux + dvy * uy)
+            dh = p / geom["along"](dh)
     dh = np.where(np.abs(dh) <= max_dh_m, dh, np.nan).astype(np.float32)
     corr = m.corr
     if relocate:
@@ -281,7 +292,7 @@ def _match_geometry(a, b, dem, transform, geom, *, window, shiftable, min_corr, 
     pv = p[np.isfinite(p)]
     # direction_xy: from camera a to camera b (v_b - v_a points against the base)
     return dh, corr, np.abs(p).astype(np.float32), dict(
-        max_shift=max_shift, dh_per_cell_m=prec, direction_xy=(-ux, -uy),
+        max_shift=max_shift, dh_per_cell_m=prec, step_m=step_m, direction_xy=(-ux, -uy),
         rms_parallax_m=float(np.sqrt(np.mean(pv ** 2))) if pv.size else float("nan"),
         b_over_h=float(np.nanmedian(np.abs(along0))), noise_grey=m.info["noise_grey"],
         reasons=m.info["shares"])
@@ -305,7 +316,8 @@ def match_pair(a, b, dem, transform, both, *, centres=None, base_m=None, height_
         Trusted corrections (NaN elsewhere), peak NCC and ``|parallax|`` (ground units)
         at those cells.
     info : dict
-        ``max_shift``, ``dh_per_cell_m``, ``direction_xy`` (camera a to b), ``rms_parallax_m``,
+        ``max_shift``, ``dh_per_cell_m``, ``step_m`` (ground metres per cell of parallax),
+        ``direction_xy`` (camera a to b), ``rms_parallax_m``,
         ``b_over_h``, ``noise_grey``, ``reasons`` (share of cells per matcher decision),
         ``blunders``, ``crop``.
     """

@@ -13,6 +13,7 @@ from bare_earth.core.orthophoto import (
     view_vectors,
 )
 from bare_earth.core.orthophoto.orthorectify import orthorectify
+from bare_earth.core.orthophoto.refine import pair_geometry
 from bare_earth.core.orthophoto.render import make_ortho_scene, render_frames, vertical_cameras
 
 
@@ -166,3 +167,39 @@ def test_drone_orthophotos_line_up_on_their_dsm(shared_data):
     r = orthoparallax(oa, ob, dsm, gt, centres=(cams[0].centre, cams[1].centre), max_dh_m=8)
     assert r.info["matched_share"] > 0.5
     assert abs(np.nanmedian(r.dh)) < 0.3 and np.nanmedian(np.abs(r.dh)) < 0.8
+
+
+def test_pair_geometry_along_equals_dv_projection():
+    # along(dh) is exactly (v_b - v_a) . u of dv(dh), in both geometry modes
+    rng = np.random.default_rng(5)
+    dem = (100 + rng.normal(0, 3, (40, 50))).astype(np.float32)
+    dem[3, 4] = np.nan
+    t = (1000.0, 0.5, 0.0, 2000.0, 0.0, -0.5)
+    dh = rng.normal(0, 4, dem.shape)
+    dh[7, 9] = np.nan
+    for kw in (dict(centres=((1005.0, 1990.0, 900.0), (1012.0, 1985.0, 905.0)), base_m=None, height_m=None),
+               dict(centres=None, base_m=240.0, height_m=800.0)):
+        g = pair_geometry(dem, t, kw["centres"], kw["base_m"], kw["height_m"], (0.6, 0.8))
+        ux, uy = g["u"]
+        for h in (np.zeros(dem.shape), dh):
+            (dvx, dvy), _ = g["dv"](h)
+            np.testing.assert_array_equal(g["along"](h), dvx * ux + dvy * uy)
+
+
+def test_orthorefine_stops_one_update_after_parallax_within_noise():
+    # once the pairs' RMS residual parallax is below precision_cells of a cell, the update
+    # measured then is applied, checked by one more measurement, and the iteration ends
+    sc = make_ortho_scene(seed=2)
+    cams = vertical_cameras(sc, 3, base_over_height=0.3)
+    imgs = render_frames(sc, cams)
+    rng = np.random.default_rng(5)
+    err = ndimage.gaussian_filter(rng.normal(size=sc.surface.shape), 25)
+    start = sc.surface + err / err.std() * 3.0
+    r = orthorefine(start, sc.transform, imgs, cams, max_iterations=6, precision_cells=0.2, tolerance_m=1e-6)
+    noise = 0.2 * sc.transform[1]
+    below = [k for k, row in enumerate(r.table) if k >= 1 and row["rms_parallax_m"] < noise]
+    assert below, [row["rms_parallax_m"] for row in r.table]
+    k = below[0]
+    assert len(r.table) == k + 2, r.table
+    assert r.table[k]["status"] == "applied" and r.table[-1]["status"] == "measured"
+    assert "expected matching precision" in r.info["stop"], r.info["stop"]

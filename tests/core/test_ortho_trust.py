@@ -331,3 +331,31 @@ def test_rotated_frames_diagonal_base():
     assert _buildings_within(sc, r.dh, r.mask != NODATA) >= len(sc.heights) - 1
     e = np.asarray(r.info["direction_xy"])
     assert e == pytest.approx(np.array([1.0, 1.0]) / np.sqrt(2), abs=0.02)
+
+
+def _remove_blunders_full_median(dh, dem, tolerance_m, size=5):
+    # the former form: the median filter over the whole grid
+    dh = np.asarray(dh, np.float32)
+    z = np.where(np.isfinite(dh) & np.isfinite(dem), dem + dh, np.nan).astype(np.float32)
+    med, cnt, sup = nan_median_filter(z, size, tolerance=float(tolerance_m))
+    ok = np.isfinite(z)
+    cluster = (size // 2 + 1) ** 2 - 1
+    with np.errstate(invalid="ignore"):
+        bad = ok & (((np.abs(z - med) > tolerance_m) & (sup < cluster)) | (cnt - 1 < size // 2 + 1))
+    return np.where(bad, np.nan, dh).astype(np.float32), int(np.count_nonzero(bad))
+
+
+@pytest.mark.parametrize("size", [3, 5, 7])
+def test_remove_blunders_equals_full_median_form(size):
+    rng = np.random.default_rng(size)
+    dem = (50 + np.cumsum(rng.normal(0, 0.3, (90, 70)), axis=1)).astype(np.float32)
+    dh = rng.normal(0, 0.4, dem.shape).astype(np.float32)
+    dh[20:40, 10:30] += 8.0                                   # an object
+    dh[rng.random(dem.shape) < 0.05] += rng.normal(0, 6, 1)   # spikes
+    dh[rng.random(dem.shape) < 0.3] = np.nan                   # gaps
+    dem[5, 5] = np.nan
+    for tol in (0.3, 1.0):
+        got, n = remove_blunders(dh, dem, tol, size)
+        want, m = _remove_blunders_full_median(dh, dem, tol, size)
+        np.testing.assert_array_equal(got, want)
+        assert n == m and n > 0
