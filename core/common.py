@@ -126,6 +126,26 @@ def sub_progress(progress, start, stop):
     return lambda f: progress(start + (stop - start) * min(max(f, 0.0), 1.0))
 
 
+def touching(a):
+    """Cells of the boolean array ``a`` or with a True cell among their eight neighbours: the
+    3 x 3 binary dilation by four shifted ORs (several times faster than
+    ``ndimage.binary_dilation`` with a 3 x 3 structure, the same result).
+
+    Examples
+    --------
+    >>> touching(np.eye(3, dtype=bool)[:, :1]).ravel().tolist()
+    [True, True, False]
+    """
+    a = np.asarray(a, bool)
+    g = a.copy()
+    g[1:] |= a[:-1]
+    g[:-1] |= a[1:]
+    out = g.copy()
+    out[:, 1:] |= g[:, :-1]
+    out[:, :-1] |= g[:, 1:]
+    return out
+
+
 def transpose(a, rows=256):
     """C-contiguous transpose of a 2-D array, a band of ``rows`` rows at a time.
 

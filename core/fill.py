@@ -46,7 +46,7 @@ neighbours of flat indices), so the cost is O(number of cells) with a small cons
 """
 import numpy as np
 
-from .common import report
+from .common import report, touching
 
 #: Largest number of cells of the coarsest level (solved directly).
 _TOP_CELLS = 4096
@@ -276,7 +276,7 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
     flat = zp.ravel()
     for _ in range(int(passes)):
         # the known cells with a cell to fill (or a spike found by the last pass) among their neighbours
-        edge = _touching(test)
+        edge = touching(test)
         edge &= np.isfinite(core)
         cand = np.flatnonzero(edge)
         if cand.size == 0:
@@ -307,17 +307,6 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
         found |= test
         flat[idx[new]] = np.nan                      # no longer a source of the next pass
     return found
-
-
-def _touching(a):
-    """Cells of ``a`` or with a cell of ``a`` among their eight neighbours (3 x 3 dilation, bool)."""
-    out = a.copy()
-    out[1:] |= a[:-1]
-    out[:-1] |= a[1:]
-    rows = out.copy()
-    out[:, 1:] |= rows[:, :-1]
-    out[:, :-1] |= rows[:, 1:]
-    return out
 
 
 def _near_known(known, reach):

@@ -78,7 +78,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
+from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
 from .estimate import block_minima, noise_ground_level, terrain_slopes
 from .methods import Method, Param, check_values
 
@@ -522,7 +522,7 @@ def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
     >>> np.argwhere(find_outline_cells(z, np.full_like(z, 10.0), flagged, (1.0, 1.0), 0.5))
     array([[1, 2]])
     """
-    near = _touching(flagged)
+    near = touching(flagged)
     near &= ~flagged
     un = np.array(clean, np.float32)
     un[flagged] = np.inf
@@ -544,17 +544,6 @@ def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
         keep = un.ravel()[idx] > rise
     near.ravel()[idx[~keep]] = False
     return near
-
-
-def _touching(a):
-    """Cells whose 3 x 3 neighbourhood (themselves included) holds a True cell of ``a``."""
-    g = a.copy()
-    g[1:] |= a[:-1]
-    g[:-1] |= a[1:]
-    out = g.copy()
-    out[:, 1:] |= g[:, :-1]
-    out[:, :-1] |= g[:, 1:]
-    return out
 
 
 def open_progressive(z, cell, p, work, progress=None):

@@ -181,3 +181,21 @@ def test_block_progress_repeats_the_callbacks_error():
     with pytest.raises(Cancelled):
         bp.report(1, 0.1)
     assert calls == [0.25]                                  # the callback is not asked again
+
+
+def test_touching_is_the_3x3_binary_dilation():
+    """common.touching (fill's edge test and morphology's outline cells use it) equals the
+    3 x 3 binary dilation exactly, edges and empty arrays included."""
+    from scipy import ndimage
+
+    from bare_earth.core.common import touching
+    rng = np.random.default_rng(3)
+    for shape in ((1, 1), (1, 7), (6, 1), (9, 13)):
+        a = rng.random(shape) < 0.15
+        assert np.array_equal(touching(a), ndimage.binary_dilation(a, np.ones((3, 3), bool)))
+    a = np.zeros((4, 5), bool)
+    a[0, 4] = True
+    expect = np.zeros((4, 5), bool)
+    expect[0:2, 3:5] = True
+    assert np.array_equal(touching(a), expect)
+    assert touching(np.zeros((0, 3), bool)).shape == (0, 3)

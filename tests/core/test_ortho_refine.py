@@ -106,13 +106,20 @@ def test_orthoparallax_with_base_and_height(scene2):
         orthoparallax(a2, empty, sc.terrain, sc.transform, base_m=B, height_m=H)
 
 
-def test_orthorefine_reduces_smooth_errors(scene2):
+def _three_frames_smooth_error():
+    """Scene 2 seen by three vertical frames (B/H 0.3), and a start DEM with a smooth 3 m
+    RMS error."""
     sc = make_ortho_scene(seed=2)
     cams = vertical_cameras(sc, 3, base_over_height=0.3)
     imgs = render_frames(sc, cams)
     rng = np.random.default_rng(5)
     err = ndimage.gaussian_filter(rng.normal(size=sc.surface.shape), 25)
     start = sc.surface + err / err.std() * 3.0
+    return sc, cams, imgs, start
+
+
+def test_orthorefine_reduces_smooth_errors(scene2):
+    sc, cams, imgs, start = _three_frames_smooth_error()
     calls = []
     r = orthorefine(start, sc.transform, imgs, cams, max_iterations=4, progress=calls.append)
     seen2 = r.mask != NODATA
@@ -189,12 +196,7 @@ def test_pair_geometry_along_equals_dv_projection():
 def test_orthorefine_stops_one_update_after_parallax_within_noise():
     # once the pairs' RMS residual parallax is below precision_cells of a cell, the update
     # measured then is applied, checked by one more measurement, and the iteration ends
-    sc = make_ortho_scene(seed=2)
-    cams = vertical_cameras(sc, 3, base_over_height=0.3)
-    imgs = render_frames(sc, cams)
-    rng = np.random.default_rng(5)
-    err = ndimage.gaussian_filter(rng.normal(size=sc.surface.shape), 25)
-    start = sc.surface + err / err.std() * 3.0
+    sc, cams, imgs, start = _three_frames_smooth_error()
     r = orthorefine(start, sc.transform, imgs, cams, max_iterations=6, precision_cells=0.2, tolerance_m=1e-6)
     noise = 0.2 * sc.transform[1]
     below = [k for k, row in enumerate(r.table) if k >= 1 and row["rms_parallax_m"] < noise]
