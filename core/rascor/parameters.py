@@ -142,18 +142,14 @@ def _about_model(sigma, error):
 
 def _analysis_sample(z, cell_size, sigma, p):
     """The analysis crops (the whole surface when small, else windows centred on its
-    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample,
-    objects)``, with ``sample`` the ``[(heights, weights, cells kept)]`` of each crop
-    cleaned by steps 3 and 4, and ``objects`` the masks of its cells standing above the
-    ground level (:func:`~bare_earth.core.estimate.ground_level_cells` with blocks of the
-    longest surface of the sequence: more than 2 m and the terrain's rise over a block
-    above the interpolated block minima)."""
-    crops, sample, objects = [], [], []
+    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample)``, with
+    ``sample`` the ``[(heights, weights, cells kept)]`` of each crop cleaned by steps 3 and
+    4."""
+    crops, sample = [], []
     for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
         keep = np.isfinite(crop)
         if keep.sum() < 100:
             continue
-        objects.append(keep & ~ground_level_cells(crop, cell_size, block_m=SURFACE_SIZES_M[-1]))
         hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
                                               low_weight=p["low_weight"])
         keep &= ~(hi | lo)
@@ -161,7 +157,17 @@ def _analysis_sample(z, cell_size, sigma, p):
                                       max_building_m=p["max_building_m"], sigma_m=sigma)
         crops.append(crop)
         sample.append((finite_float64(crop), keep.astype(np.float64), keep))
-    return crops, sample, objects
+    return crops, sample
+
+
+def _objects_width(crops, cell_size):
+    """Width (m) of the objects of the analysis crops (:func:`~bare_earth.core.estimate.object_widths`,
+    98 % of their area): the cells standing above the ground level
+    (:func:`~bare_earth.core.estimate.ground_level_cells` with blocks of the longest surface
+    of the sequence: more than 2 m and the terrain's rise over a block above the
+    interpolated block minima); 0 without crops."""
+    objects = [np.isfinite(c) & ~ground_level_cells(c, cell_size, block_m=SURFACE_SIZES_M[-1]) for c in crops]
+    return round(object_widths(_side_by_side(objects), cell_size), 1) if objects else 0.0
 
 
 def _ground_sample(crops, cell_size, block_m):
@@ -304,12 +310,8 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
                         "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
-        crops, sample, objects = _analysis_sample(z, (dx, dy), sigma, p)
+        crops, sample = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
-        # how wide the objects are (98 % of their area): a surface window holds at least
-        # as much ground as object when it is sqrt(2) x as wide
-        width = round(object_widths(_side_by_side(objects), (dx, dy)), 1) if objects else 0.0
-        i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * width)
         # the terrain's own bends: the minima of 20 m blocks (wider blocks hide the shoulders
         # of cuts and embankments, whose ground then fails the snooping)
         ground = _ground_sample(crops, (dx, dy), GROUND_BLOCK_M)
@@ -341,6 +343,9 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                     spread = _scan([win(S) for S in SURFACE_SIZES_M], sample, min(deg, 1), sigma)
                     p["surface_size_m"] = SURFACE_SIZES_M[_choose([b for _, b in spread], sigma)]
                 else:
+                    # how wide the objects are: a surface window holds at least as much
+                    # ground as object when it is sqrt(2) x as wide
+                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy)))
                     block = max(GROUND_BLOCK_M, SURFACE_SIZES_M[i_o])
                     bound = ss if block == GROUND_BLOCK_M else _model_errors(
                         _ground_sample(crops, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1),
