@@ -394,8 +394,10 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
     ``slope * radius_m`` at some step) and the last opened surface.
     """
     flags = np.zeros(a.shape, bool)
-    diff = np.empty(a.shape, np.float32)
-    above = np.empty(a.shape, bool)
+    # the drop test in bands of rows whose temporaries stay in the cache (no raster-sized ones)
+    band = max(1, _BAND_BYTES // max(1, a.shape[1] * 4))
+    diff = np.empty((min(band, a.shape[0]), a.shape[1]), np.float32)
+    above = np.empty(diff.shape, bool)
     prev = a
     eroded = a
     pry = prx = 0
@@ -407,10 +409,14 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
         report(progress, (k + 0.5) / n)
         opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n))
         report(progress, (k + 0.9) / n)
+        t_k = np.float32(slope * rad_m)                                # SMRF: t_k = s * r_k * c
         with np.errstate(invalid="ignore"):
-            np.subtract(prev, opened, out=diff)
-            np.greater(diff, np.float32(slope * rad_m), out=above)   # SMRF: t_k = s * r_k * c
-            flags |= above
+            for i0 in range(0, a.shape[0], band):
+                i1 = min(a.shape[0], i0 + band)
+                d, up = diff[:i1 - i0], above[:i1 - i0]
+                np.subtract(prev[i0:i1], opened[i0:i1], out=d)
+                np.greater(d, t_k, out=up)
+                flags[i0:i1] |= up
         prev = opened
         pry, prx = ry, rx
         report(progress, (k + 1) / n)
