@@ -234,8 +234,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                                      min_corr=min_corr, max_dh_m=float(max_dh_m),
                                                      precision_cells=precision_cells))
     total = int(max_iterations) + 1
-    cur, prev_dem, prev, update = dem0.copy(), None, None, None
-    refuted = np.zeros(dem0.shape, bool)      # cells whose detail a later measurement refuted
+    cur, prev_dem, prev = dem0.copy(), None, None
     table, info, stop, last = [], {}, "", ""
     for it in range(total):
         meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
@@ -248,6 +247,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 tolerance_m = 0.5 * info["sigma_expected_m"]
             outlier = outlier_m if outlier_m is not None else 3.0 * max(info["sigma_expected_m"], 0.1)
         dh_it, meas["quality"] = merge_pairs(meas["dhs"], meas["cors"], outlier)
+        merged = dh_it
         matched = np.isfinite(dh_it) & meas["multi"]
         rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
         meas["share"] = share = float(matched.sum() / max(1, meas["multi"].sum()))
@@ -268,18 +268,6 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                         f"{after:.3g} m on the cells matched both times, trusted matches "
                         f"{100 * prev['share']:.0f} -> {100 * share:.0f} %); it was undone")
                 break
-            # the same rule per detail region of the update: detail the pairs do not confirm is undone
-            undo, n_undone = _unconfirmed_detail(update, prev, meas)
-            table[-2]["detail_regions"] = update["regions"]
-            table[-2]["detail_undone"] = n_undone
-            if n_undone:
-                cur = np.where(undo, update["without_detail"], cur).astype(np.float32)
-                refuted |= np.isin(update["labels"], update["bad"])
-                # what was measured there was measured on the undone heights: not used
-                dh_it = np.where(undo, np.nan, dh_it)
-                matched = matched & ~undo
-                meas["parallax"] = np.where(undo, np.nan, meas["parallax"]).astype(np.float32)
-                _reference(table[-2], reference, reference_cells, cur, meas["multi"], valid_dem)
             if after > (1.0 - min_gain) * before:
                 stop = (f"the pairs' agreement improved by less than {100 * min_gain:.0f} % "
                         f"(RMS parallax {before:.3g} -> {after:.3g} m)")
@@ -306,23 +294,15 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             break
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-        # the smooth part everywhere, the significant detail where the data have not refuted it
-        smooth = keep_significant(dh_it, info["sigma_expected_m"], window, k=np.inf)
-        dh_it = np.where(refuted, smooth, keep_significant(dh_it, info["sigma_expected_m"], window))
-        detail = np.isfinite(dh_it) & (dh_it != smooth)
+        dh_it, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier, info["sigma_expected_m"], window)
+        row["detail_single_pair"] = n_single
         # corrections reach unmatched cells within the fill distance, fading out; farther
         # cells keep their height (nothing was measured there)
         corr_full = spread_corrections(dh_it, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
-        bound = (dem0 - max_dh_m, dem0 + max_dh_m)
+        cur = cur + float(relaxation) * corr_full
         # no cell moves by more than the range the first measurement searched
-        cur = np.where(valid_dem, np.clip(cur + float(relaxation) * corr_full, *bound), np.nan).astype(np.float32)
-        update = _detail_regions(detail, corr_full, spread_corrections(smooth, matched, fill_sigma_cells)
-                                 if detail.any() else corr_full)
-        update["side"] = max(1, int(window) // 2 + 1)       # keep_significant's resolvable square
-        update["without_detail"] = (np.where(valid_dem, np.clip(prev_dem + float(relaxation) * update.pop("smooth"),
-                                                                *bound), np.nan).astype(np.float32)
-                                    if detail.any() else None)
+        cur = np.where(valid_dem, np.clip(cur, dem0 - max_dh_m, dem0 + max_dh_m), np.nan).astype(np.float32)
         # what is left after an update is at most what was just measured: the next search
         # range is the 99th percentile of |correction| (at least 6 x the expected precision)
         big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
@@ -351,50 +331,41 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
 
 
-def _detail_regions(detail, corr_full, corr_smooth):
-    """The connected regions of an update's significant detail and the cells each one moved.
+def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
+    """The smooth part of the corrections plus their significant detail where two pairs agree.
 
-    Every cell where the applied correction differs from its smooth part (the detail and
-    its fill into unmatched neighbours) belongs to the region of the nearest detail cell.
+    :func:`~.quality.keep_significant` keeps the detail (correction minus its smooth part)
+    where it stands out of the expected noise over a square the matcher resolves. One pair
+    alone cannot tell such a detail from its own blunder (repetitive texture, a shadow);
+    pairs with other bases see a blunder at another height. So a region of significant
+    detail is kept when at least half of its cells hold two or more pairs whose corrections
+    agree with the merged one within ``outlier_m`` (the tolerance of
+    :func:`~.quality.merge_pairs`); elsewhere the smooth part is applied. With a single
+    pair nothing can be confirmed and the detail is kept as measured.
+
+    Returns
+    -------
+    dh : ndarray float32
+        The corrections to apply (NaN where ``dh`` is NaN).
+    single : int
+        Cells of detail dropped because only one pair measured them.
     """
+    out = keep_significant(dh, sigma_m, window)
+    if len(dhs) < 2:
+        return out, 0
+    smooth = keep_significant(dh, sigma_m, window, k=np.inf)
+    detail = np.isfinite(out) & (out != smooth)
+    if not detail.any():
+        return out, 0
+    support = np.zeros(dh.shape, np.int16)
+    with np.errstate(invalid="ignore"):
+        for d in dhs:
+            support += np.abs(d - merged) <= outlier_m
     labels, n = ndimage.label(detail, structure=np.ones((3, 3), bool))
-    out = dict(labels=labels, regions=int(n), smooth=corr_smooth, moved=labels)
-    if n:
-        idx = ndimage.distance_transform_edt(~detail, return_distances=False, return_indices=True)
-        moved = labels[idx[0], idx[1]]
-        out["moved"] = np.where((corr_full != corr_smooth) | detail, moved, 0)
-    return out
-
-
-def _unconfirmed_detail(update, prev, meas):
-    """Cells of the detail regions that the next measurement does not confirm, and their count.
-
-    The iteration rule per region: a region of significant detail (an object, a step) is
-    confirmed when the next measurement holds trusted matches on at least a square of the
-    side the matcher resolves (the evidence that made the detail significant; half of a
-    smaller region) and the pairs' RMS residual parallax on its cells matched both times did
-    not grow. Otherwise the data do not support it (the matches it should have made agree
-    are gone, or they agree worse) and its detail is undone.
-    """
-    n = update["regions"]
-    if not n:
-        update["bad"] = np.zeros(0, int)
-        return None, 0
-    lab, idx = update["labels"], np.arange(1, n + 1)
-    now = np.isfinite(meas["parallax"])
-    both = now & np.isfinite(prev["parallax"])
-    size = ndimage.sum_labels(np.ones(lab.shape), lab, idx)
-    kept = ndimage.sum_labels(now, lab, idx)
-    before = ndimage.sum_labels(np.where(both, prev["parallax"], 0.0) ** 2, lab, idx)
-    after = ndimage.sum_labels(np.where(both, meas["parallax"], 0.0) ** 2, lab, idx)
-    # confirmation needs as much evidence as made the detail significant: matches covering a
-    # square of the side the matcher resolves (or half of a smaller region)
-    need = np.minimum(float(update["side"]) ** 2, (1.0 - MAX_LOST) * size)
-    bad = idx[(kept < need) | (after > before)]
-    update["bad"] = bad
-    if not bad.size:
-        return None, 0
-    return np.isin(update["moved"], bad), int(bad.size)
+    idx = np.arange(1, n + 1)
+    confirmed = ndimage.mean(support >= 2, labels, idx) >= 0.5
+    drop = detail & ~np.concatenate(([False], confirmed))[labels]
+    return np.where(drop, smooth, out).astype(np.float32), int(drop.sum())
 
 
 def _measure(cur, setup, prog):
