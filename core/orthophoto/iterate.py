@@ -294,11 +294,14 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             break
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-        dh_it, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier, info["sigma_expected_m"], window)
+        smooth, detail, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
+                                                     info["sigma_expected_m"], window)
         row["detail_single_pair"] = n_single
-        # corrections reach unmatched cells within the fill distance, fading out; farther
+        # the smooth part is a field, applied as such; the detail reaches unmatched cells
+        # within the fill distance; both fade out as the corrections always did, and farther
         # cells keep their height (nothing was measured there)
-        corr_full = spread_corrections(dh_it, matched, fill_sigma_cells)
+        dh_it = np.where(matched, smooth + detail, np.nan)
+        corr_full = _fade(smooth, matched, fill_sigma_cells) + spread_corrections(detail, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
         cur = cur + float(relaxation) * corr_full
         # no cell moves by more than the range the first measurement searched
@@ -331,41 +334,70 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
 
 
-def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
-    """The smooth part of the corrections plus their significant detail where two pairs agree.
+def _smooth_field(dh, scale_cells):
+    """The normalised Gaussian mean of the finite ``dh`` (sigma ``scale_cells``) at every cell.
 
+    The smooth part of :func:`~.quality.keep_significant` (same filter, same values where
+    ``dh`` is finite), also between the measurements (NaN where none lies within reach).
+    """
+    ok = np.isfinite(dh)
+    s = max(0.5, float(scale_cells))
+    num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 1e-3, num / den, np.nan)
+
+
+def _fade(field, valid, sigma_cells):
+    """``field`` at full value within ``2 * sigma_cells`` of a ``valid`` cell, fading to 0 at
+    ``4 * sigma_cells`` (the reach of :func:`~.quality.spread_corrections`); 0 where NaN."""
+    if not valid.any():
+        return np.zeros(field.shape, np.float32)
+    dist = ndimage.distance_transform_edt(~valid)
+    fade = np.clip((4.0 * sigma_cells - dist) / (2.0 * sigma_cells), 0.0, 1.0)
+    return (np.nan_to_num(field) * fade).astype(np.float32)
+
+
+def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
+    """The smooth part of the corrections (everywhere) and their confirmed significant detail.
+
+    The smooth part is the Gaussian mean over about the window (:func:`_smooth_field`), a
+    field defined between the measurements too: applied as such it adds no structure finer
+    than its own scale (filling it in again from the matched cells alone would: the fill is
+    another filter, and where matches are sparse the two part by a step).
     :func:`~.quality.keep_significant` keeps the detail (correction minus its smooth part)
     where it stands out of the expected noise over a square the matcher resolves. One pair
     alone cannot tell such a detail from its own blunder (repetitive texture, a shadow);
     pairs with other bases see a blunder at another height. So a region of significant
     detail is kept when at least half of its cells hold two or more pairs whose corrections
     agree with the merged one within ``outlier_m`` (the tolerance of
-    :func:`~.quality.merge_pairs`); elsewhere the smooth part is applied. With a single
-    pair nothing can be confirmed and the detail is kept as measured.
+    :func:`~.quality.merge_pairs`). With a single pair nothing can be confirmed and the
+    detail is kept as measured.
 
     Returns
     -------
-    dh : ndarray float32
-        The corrections to apply (NaN where ``dh`` is NaN).
+    smooth : ndarray float64
+        The smooth part at every cell (NaN out of reach of any measurement).
+    detail : ndarray float32
+        The kept detail at the cells of ``dh`` (0 elsewhere on them; NaN where ``dh`` is NaN).
     single : int
         Cells of detail dropped because only one pair measured them.
     """
+    smooth = _smooth_field(dh, window)
     out = keep_significant(dh, sigma_m, window)
-    if len(dhs) < 2:
-        return out, 0
-    smooth = keep_significant(dh, sigma_m, window, k=np.inf)
-    detail = np.isfinite(out) & (out != smooth)
-    if not detail.any():
-        return out, 0
+    sig = np.isfinite(out) & (out != keep_significant(dh, sigma_m, window, k=np.inf))
+    detail = np.where(sig, out - smooth, np.where(np.isfinite(dh), 0.0, np.nan))
+    if len(dhs) < 2 or not sig.any():
+        return smooth, detail.astype(np.float32), 0
     support = np.zeros(dh.shape, np.int16)
     with np.errstate(invalid="ignore"):
         for d in dhs:
             support += np.abs(d - merged) <= outlier_m
-    labels, n = ndimage.label(detail, structure=np.ones((3, 3), bool))
-    idx = np.arange(1, n + 1)
-    confirmed = ndimage.mean(support >= 2, labels, idx) >= 0.5
-    drop = detail & ~np.concatenate(([False], confirmed))[labels]
-    return np.where(drop, smooth, out).astype(np.float32), int(drop.sum())
+    labels, n = ndimage.label(sig, structure=np.ones((3, 3), bool))
+    confirmed = ndimage.mean(support >= 2, labels, np.arange(1, n + 1)) >= 0.5
+    keep = sig & np.concatenate(([False], confirmed))[labels]
+    detail = np.where(keep | np.isnan(detail), detail, 0.0)
+    return smooth, detail.astype(np.float32), int(np.count_nonzero(sig & ~keep))
 
 
 def _measure(cur, setup, prog):
