@@ -93,7 +93,8 @@ def drone(root, iterations):
     mv = (r2.dem - dsm)[ev]
     sig = r2.info["sigma_expected_m"]
     q0, q1 = _roughness(dsm, ev), _roughness(r2.dem, ev)
-    print(f"   started from the DSM itself: cells moved RMS {np.sqrt(np.mean(mv ** 2)):.2f} m, mean {mv.mean():+.2f} m, "
+    print(f"   started from the DSM itself: cells moved RMS {np.sqrt(np.mean(mv ** 2)):.2f} m, "
+          f"mean {mv.mean():+.2f} m, "
           f"{100 * np.mean(np.abs(mv) > 3 * sig):.1f} % by more than 3 x the expected precision ({3 * sig:.2f} m), "
           f"max {np.abs(mv).max():.1f} m; roughness {q0:.3f} -> {q1:.3f} m; {r2.info['iterations']} update(s) kept, "
           f"{len(r2.table)} measurements in {dt:.1f} s; stop: {r2.info['stop']}")
