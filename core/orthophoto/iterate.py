@@ -59,7 +59,9 @@ class RefineResult:
         measurement, over its value then: below 1 the last update made the pairs agree
         better), ``status`` (``applied``: this correction went into the DEM; ``undone``: the
         next measurement showed it made the pairs agree worse, so it was taken back;
-        ``measured``: not applied, see ``info['stop']``), ``mean_corr`` and, with
+        ``measured``: not applied, see ``info['stop']``), ``mean_corr``,
+        ``detail_single_pair`` (cells of significant detail not applied because only one
+        pair measured them) and, with
         ``reference``, ``rmse_reference_m`` of the DEM after that row.
     info : dict
         Parameters used, ``stop`` (why the iteration ended, in words) and ``warning``
@@ -100,9 +102,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     overlapping pair along its base (:func:`orthoparallax`'s matcher), converts the parallax
     to height corrections with the general geometry, keeps the trusted ones (the matcher's
     per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
-    pairs' corrections weighted by correlation, keeps their smooth part and their detail
-    where it stands out of the noise (:func:`~.quality.keep_significant`), fills gaps of a
-    few cells and adds ``relaxation`` x the correction to the DEM.
+    pairs' corrections weighted by correlation, keeps their smooth part (a field, applied as
+    such) and their detail where it stands out of the noise (:func:`~.quality.keep_significant`)
+    and two pairs agree on it (one pair cannot tell a detail from its own blunder), fills gaps
+    of a few cells and adds ``relaxation`` x the correction to the DEM.
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
@@ -140,7 +143,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     max_dh_m : float, optional
         Largest correction searched (default 0.2 * camera height above the DEM); after an
         update the search range is the 99th percentile of the correction just applied (at
-        least 6 x the expected precision). No cell moves by more than ``2 * max_dh_m`` in total.
+        least 6 x the expected precision). No cell moves by more than ``max_dh_m`` in total:
+        nothing larger was measured.
     pairs : list of (int, int), optional
         Pairs to match; default every pair that overlaps by ``min_overlap``.
     smooth_cells : int
@@ -253,6 +257,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         meas["share"] = share = float(matched.sum() / max(1, meas["multi"].sum()))
         row = dict(iteration=it + 1, rms_correction_m=rms, matched_share=share, pairs=len(meas["pinfo"]),
                    rms_parallax_m=meas["rms_parallax_m"], agreement=float("nan"), status="measured",
+                   detail_single_pair=0,
                    mean_corr=float(np.nanmean(meas["quality"][matched])) if matched.any() else float("nan"))
         table.append(row)
         if prev is not None:
