@@ -128,20 +128,29 @@ def ngi(root, iterations, cell, max_dh_m):
     t = time.perf_counter()
     r = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m)
     dt = time.perf_counter() - t
-    ev = np.isfinite(r.dh)
+    # the cells seen by two frames on the start DEM: the same cells for every build
+    ev = (np.sum([orthorectify(im, c, dem, gt)[1] for im, c in zip(imgs, cams)], axis=0) >= 2) & np.isfinite(dem)
     p0, p1 = r.info["rms_parallax_start_m"], r.info["rms_parallax_m"]
     moved = np.abs(r.dem - dem)[ev]
+    moved_max = float(np.nanmax(np.abs(r.dem - dem)))      # over the whole DEM
     l0, l1 = _roughness(dem, ev), _roughness(r.dem, ev)
     print(f"2. NGI, {len(imgs)} frames, DEM {gt24[1]:g} m" + (f" resampled to {cell:g} m" if cell != gt24[1] else "")
           + f" ({dem.shape[1]}x{dem.shape[0]}); pairs {r.info['pairs']}; max_dh_m {max_dh_m:g}")
     print(f"   RMS residual parallax {p0:.2f} m -> {p1:.2f} m on the final DEM (reduction "
           f"{100 * (1 - p1 / p0):.1f} %); {r.info['iterations']} update(s) kept, {len(r.table)} measurements, "
           f"{dt:.1f} s; stop: {r.info['stop']}")
-    print(f"   roughness (Laplacian sd, cells seen by two) {l0:.3f} -> {l1:.3f} m; cells moved: RMS "
-          f"{np.sqrt(np.mean(moved ** 2)):.2f} m, 99.9 % {np.percentile(moved, 99.9):.1f} m, max {moved.max():.1f} m "
+    print(f"   roughness (Laplacian sd, cells seen by two on the start DEM) {l0:.3f} -> {l1:.3f} m; cells moved: RMS "
+          f"{np.sqrt(np.mean(moved ** 2)):.2f} m, 99.9 % {np.percentile(moved, 99.9):.1f} m, max {moved_max:.1f} m "
           f"(bound {max_dh_m:g} m); warning: {r.info['warning'] or 'none'}")
+    # the correction's own curvature, and how it goes with the start's (0: independent, so the
+    # variances add; > 0: it deepens the start's valleys and raises its ridges)
+    inner = ev & ndimage.binary_erosion(ev, iterations=2)
+    lap_c = ndimage.laplace(np.nan_to_num(r.dem - dem).astype(np.float64))[inner]
+    lap_0 = ndimage.laplace(np.nan_to_num(dem).astype(np.float64))[inner]
+    print(f"   the correction's Laplacian: sd {lap_c.std():.3f} m, correlation with the start's "
+          f"{np.corrcoef(lap_c, lap_0)[0, 1]:+.3f}")
     _table(r.table)
-    return p1 < p0 and l1 <= l0 and moved.max() <= max_dh_m + 1e-3
+    return p1 < p0 and l1 <= l0 and moved_max <= max_dh_m + 1e-3
 
 
 def main(argv=None):
