@@ -302,11 +302,11 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         smooth, detail, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
                                                      info["sigma_expected_m"], window)
         row["detail_single_pair"] = n_single
-        # the smooth part is a field, applied as such; the detail reaches unmatched cells
-        # within the fill distance; both fade out as the corrections always did, and farther
-        # cells keep their height (nothing was measured there)
+        # the smooth part is a field, applied as such (fading out with its certainty); the
+        # detail reaches unmatched cells within the fill distance, fading out; farther cells
+        # keep their height (nothing was measured there)
         dh_it = np.where(matched, smooth + detail, np.nan)
-        corr_full = _fade(smooth, matched, fill_sigma_cells) + spread_corrections(detail, matched, fill_sigma_cells)
+        corr_full = smooth + spread_corrections(detail, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
         cur = cur + float(relaxation) * corr_full
         # no cell moves by more than the range the first measurement searched
@@ -342,25 +342,20 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
 def _smooth_field(dh, scale_cells):
     """The normalised Gaussian mean of the finite ``dh`` (sigma ``scale_cells``) at every cell.
 
-    The smooth part of :func:`~.quality.keep_significant` (same filter, same values where
-    ``dh`` is finite), also between the measurements (NaN where none lies within reach).
+    The smooth part of :func:`~.quality.keep_significant` (same filter), also between the
+    measurements, weighted by its certainty (normalised convolution, Knutsson & Westin 1993):
+    the whole mean where the Gaussian holds at least a square of the side the matcher
+    resolves (half the window plus one cell) of measurements, in proportion to their weight
+    below that, so it fades out where the measurements thin out without a step or a kink;
+    0 far from any.
     """
     ok = np.isfinite(dh)
     s = max(0.5, float(scale_cells))
     num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
     den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 1e-3, num / den, np.nan)
-
-
-def _fade(field, valid, sigma_cells):
-    """``field`` at full value within ``2 * sigma_cells`` of a ``valid`` cell, fading to 0 at
-    ``4 * sigma_cells`` (the reach of :func:`~.quality.spread_corrections`); 0 where NaN."""
-    if not valid.any():
-        return np.zeros(field.shape, np.float32)
-    dist = ndimage.distance_transform_edt(~valid)
-    fade = np.clip((4.0 * sigma_cells - dist) / (2.0 * sigma_cells), 0.0, 1.0)
-    return (np.nan_to_num(field) * fade).astype(np.float32)
+    side = max(1, int(scale_cells) // 2 + 1)
+    d0 = side * side / (2.0 * np.pi * s * s)
+    return num / np.maximum(den, d0)
 
 
 def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
@@ -382,7 +377,7 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
     Returns
     -------
     smooth : ndarray float64
-        The smooth part at every cell (NaN out of reach of any measurement).
+        The smooth part at every cell (:func:`_smooth_field`).
     detail : ndarray float32
         The kept detail at the cells of ``dh`` (0 elsewhere on them; NaN where ``dh`` is NaN).
     single : int
