@@ -500,20 +500,24 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
         pinfo.append(pi)
         report(progress, 0.9 * (k + 1) / len(pair_list))
     sigma = precision_cells * float(np.median([p["dh_per_cell_m"] for p in pinfo])) if pinfo else 1.0
-    dh_it, quality = merge_pairs(dhs, cors, outlier_m if outlier_m is not None else 3 * max(sigma, 0.1))
+    outlier = outlier_m if outlier_m is not None else 3 * max(sigma, 0.1)
+    dh_it, quality = merge_pairs(dhs, cors, outlier)
+    merged = dh_it
     multi = (np.sum(seen, axis=0) >= 2)
     matched = np.isfinite(dh_it) & multi
     share = float(matched.sum() / max(1, multi.sum()))
     refused = share < MIN_MATCHED_SHARE
     if smooth_cells and smooth_cells > 1:
         dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-    dh_it = keep_significant(dh_it, sigma, window)
-    full = np.zeros(dem0.shape, np.float32) if refused else spread_corrections(dh_it, matched, fill_sigma_cells)
+    smooth, detail, n_single = _confirmed_detail(dh_it, merged, dhs, outlier, sigma, window)
+    dh_it = np.where(matched, smooth + detail, np.nan)
+    full = (np.zeros(dem0.shape, np.float32) if refused
+            else (smooth + spread_corrections(detail, matched, fill_sigma_cells)).astype(np.float32))
     cur = np.where(np.isfinite(dem0), dem0 + full, np.nan).astype(np.float32)
     rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
     row = dict(iteration=1, rms_correction_m=rms, matched_share=share, pairs=len(pinfo),
                rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),
-               agreement=float("nan"), status="measured" if refused else "applied",
+               agreement=float("nan"), status="measured" if refused else "applied", detail_single_pair=n_single,
                mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
     _reference(row, reference, None, cur, multi, np.isfinite(dem0))
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
