@@ -568,7 +568,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
     MAX_ITERATIONS, TOLERANCE_M, RELAXATION = "MAX_ITERATIONS", "TOLERANCE_M", "RELAXATION"
     OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
     TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "agreement",
-                     "status", "mean_corr")
+                     "status", "mean_corr", "detail_single_pair")
 
     def name(self):
         return "orthorefine"
@@ -628,7 +628,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<li><b>OUTPUT_TABLE</b>: CSV, one row per measurement: RMS correction (m), share of the cells seen "
             "by two frames with a trusted match, pairs, RMS residual parallax (m), agreement (RMS parallax on "
             "the cells matched now and before, over its value before: below 1 the last update helped), status "
-            "(applied, undone, measured), mean correlation; also in the log.</li></ul>").format(
+            "(applied, undone, measured), mean correlation, cells of detail left out for lack of a second "
+            "pair; also in the log.</li></ul>").format(
                 tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
@@ -686,7 +687,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.OUTPUT_TABLE, tr("Iteration table (CSV)"), "CSV files (*.csv)", optional=True,
             createByDefault=True),
             "One row per measurement: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
-            "agreement, status, mean_corr."))
+            "agreement, status, mean_corr, detail_single_pair (cells of significant detail left out because "
+            "only one pair measured them)."))
         for p in format_params():
             self.addParameter(p)
         for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
