@@ -128,6 +128,24 @@ def test_confidence_map_equals_its_formulas_bit_for_bit(n):
         got = dtm_method.confidence_map(full, m2, np.nan_to_num(dtm), votes, n, t, r)
         np.testing.assert_array_equal(got, _confidence_by_the_formulas(full, m2, np.nan_to_num(dtm), votes, n, t, r))
 
+@pytest.mark.parametrize("band", [1, 4, 64])
+def test_box_mean_down_the_columns_is_scipys_bit_for_bit(band, monkeypatch):
+    """The pass down the columns along whole rows reproduces SciPy's running sums exactly: any
+    band of rows (the running sums carried across), reflected edges, columns as short as the
+    window or shorter (SciPy itself), large offsets (rounding), NaN."""
+    from scipy import ndimage
+    monkeypatch.setattr(dtm_method, "_DOWN_BAND_ROWS", band)
+    rng = np.random.default_rng(7)
+    for rows, cols in ((1, 5), (3, 4), (7, 9), (8, 3), (61, 47)):
+        for a in ((rng.normal(size=(rows, cols)) * 40 + 1500).astype(np.float32),
+                  (rng.random((rows, cols)) < 0.4).astype(np.float32)):
+            a[rng.random(a.shape) < 0.02] = np.nan
+            for size in (1, 3, 7, 13):
+                got = dtm_method._uniform(a, size)
+                ref = ndimage.uniform_filter(a, size, mode="reflect")
+                np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))   # every bit
+
+
 def test_object_areas_fix_a_warehouse_larger_than_any_window():
     y, x = _grid(300)
     ground = 50 + 0.02 * x + 0.01 * y
