@@ -53,6 +53,7 @@ from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .dtm_refine import REACH_M, refine_ground, refine_halo, refine_reach
+from .dtm_regions import find_raised_regions, regions_halo
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -70,6 +71,8 @@ BREAKLINE_MEMBER = "rascor"
 #: Radius of the ground support of the confidence, metres (a car or a bush is smaller; a cell
 #: among ground cells a few metres around it is better supported than a lone one).
 SUPPORT_M = 3.0
+#: Each member's parameters giving the widest object its window removes, metres.
+MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
 
 def _members(names):
@@ -82,6 +85,33 @@ def refine_slope(members):
     morph = members.get("morphological", {})
     slope = morph.get("terrain_slope_p90", float("nan"))
     return float(slope) if slope is not None and np.isfinite(slope) else float(morph.get("slope", 0.0))
+
+
+def region_scales(members, cell_size):
+    """The scales of the raised-region stage (:func:`.dtm_regions.find_raised_regions`).
+
+    Returns ``(width_m, max_cells)``: the widest object the vote's majority removes (the
+    widest object windows of the members, :data:`MEMBER_WINDOWS`, sorted: the one of the
+    member that makes the majority; wider raised regions are the stage's candidates), and the
+    farthest a member looks, in cells (the largest member halo: the stage decides about
+    regions spanning up to that many cells, no farther than the vote it corrects).
+    """
+    cell = as_cell_size(cell_size)
+    windows = sorted((float(members[n].get(k) or 0.0) for n, k in MEMBER_WINDOWS.items() if n in members),
+                     reverse=True)
+    need = len(MEMBERS) // 2 + 1
+    width = windows[need - 1] if len(windows) >= need else 0.0
+    reach = max(int(m.halo(members[m.name], cell)) for m in _members(MEMBERS))
+    return width, reach
+
+
+def describe_region(d):
+    """One decision of :func:`.dtm_regions.find_raised_regions` as a sentence for the log."""
+    r0, c0, r1, c1 = d["bbox"]
+    above = "not tested" if d["above_share"] is None else "{:.0f} %".format(100 * d["above_share"])
+    return ("rows {}-{}, columns {}-{}: {} cells, {:g} m wide, {:.0f} % of its outline on steps, {} above the "
+            "ground around: {}").format(r0, r1, c0, c1, d["cells"], d["width_m"], 100 * d["step_share"], above,
+                                        "object" if d["object"] else "ground")
 
 
 def characterise(z, cell_size):
@@ -157,8 +187,9 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(int(m.halo(members[m.name], cell)) for m in _members(MEMBERS)) * min(cell)
     reach = refine_reach(tol, refine_slope(members), limit)
+    width, span = region_scales(members, cell)
     return {"members": members, "tolerance_m": tol, "support_cells": support, "refine_reach_m": reach,
-            "input_description": description}
+            "region_width_m": width, "region_max_cells": span, "input_description": description}
 
 
 def dtm_halo(params, cell_size):
@@ -168,7 +199,7 @@ def dtm_halo(params, cell_size):
     members' coarse grids those of the single pass."""
     halos = [int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS)]
     reach = (max(halos) + refine_halo(as_cell_size(cell_size), params.get("refine_reach_m", REACH_M))
-             + 2 * int(params["support_cells"]) + 2)
+             + regions_halo(int(params.get("region_max_cells", 0))) + 2 * int(params["support_cells"]) + 2)
     a = max(alignment(h) for h in halos)
     return -(-reach // a) * a
 
@@ -281,8 +312,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     return out
 
 
-def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, object_areas=None,
-               ground_areas=None, breaklines=None, progress=None):
+def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
+               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -299,6 +330,10 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         Radius of the confidence's support window, cells.
     refine_reach_m : float
         Length of the refinement's floors, metres.
+    region_width_m, region_max_cells : float, int
+        Voted ground regions wider than ``region_width_m`` and spanning at most
+        ``region_max_cells`` cells, standing on steps above the ground around, become objects
+        (:func:`.dtm_regions.find_raised_regions`; ``region_max_cells`` 0: not looked for).
     object_areas, ground_areas, breaklines : ndarray of bool, optional
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
@@ -346,6 +381,12 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                   reach_m=refine_reach_m)
     info.update(refined)
+    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around
+    raised, decisions = find_raised_regions(z, mask, cell, tolerance_m=tolerance_m, min_width_m=region_width_m,
+                                            max_cells=region_max_cells)
+    mask[raised & valid] = OBJECT
+    info["raised_region_cells"] = int(np.count_nonzero(raised & valid))
+    info["raised_regions"] = [describe_region(d) for d in decisions]
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
         reach = max(int(m.halo(members[m.name], cell)) for m in meths if m.name != BREAKLINE_MEMBER)
