@@ -16,8 +16,9 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    vote's object height threshold) are labelled into 8-connected regions: a roof's rim (cells
    above a wall) and every cell of a slope steeper than ``t`` per cell separate the region
    on top from the ground around. Candidates are the regions whose footprint (holes filled)
-   is wider (twice the largest distance from a cell to its edge, less a cell) than ``min_width_m``, the window of the vote's
-   majority: narrower ones the members' windows reach, and their vote stands.
+   is wider (twice the largest distance from a cell to its edge, less a cell) than
+   ``min_width_m``, the window of the vote's majority: narrower ones the members' windows
+   reach, and their vote stands.
 2. **Outline of steps.** An outline cell ``p`` of the region (a cell with a neighbour outside
    it, or on the raster's edge) stands on a *step* when, along some direction ``d`` leaving
    the region, the ground beyond a wall of one or two cells (cells ``a = p + j d``, ``j`` = 2
@@ -41,13 +42,15 @@ interpolated under them from the ground around, as under every object.
 Regions spanning more than ``max_cells`` cells (rows or columns) are never candidates, so the
 decision about any cell depends on cells within ``max_cells`` + :data:`REACH_CELLS` of it
 (:func:`regions_halo`): a region reaching a block's window edge spans more than that and is
-left alone there as in the single pass. ``bareearth:dtm`` takes ``max_cells`` as the farthest
-a member looks (its largest halo): the stage decides no farther than the vote it corrects.
+left alone there as in the single pass. ``bareearth:dtm`` takes ``max_cells`` as twice the
+widest window of its members (:func:`.dtm.region_scales`): one more doubling of the windows;
+wider regions (a roof running off the raster, a mall wider than that) are left to the
+vote and, where known, to the user's object areas.
 """
 import numpy as np
 from scipy import ndimage
 
-from .codes import GROUND, OBJECT
+from .codes import GROUND
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
 #: it (``a`` at 2-3 cells, ``b`` 2 cells further) and the rim test's neighbours.
