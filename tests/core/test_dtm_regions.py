@@ -150,3 +150,19 @@ def test_dtm_keeps_raised_ground(kind):
     res = pipeline.run_array("dtm", z, 1.0)
     assert res.info["raised_region_cells"] == 0
     assert all(s.endswith(": ground") for s in res.info["raised_regions"])
+
+
+def test_dtm_halo_adds_the_stage_reach_to_the_members():
+    """dtm's halo covers the members' reach and, beyond it, the stage's (the stage reads the vote)."""
+    from bare_earth.core import dtm as dtm_method
+    from bare_earth.core.methods import get_method
+    y, x = _grid(128)
+    z = _noisy(20 + 0.01 * x)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    width, span = dtm_method.region_scales(p["members"], 1.0)
+    assert (p["region_width_m"], p["region_max_cells"]) == (width, span)
+    windows = [p["members"][n][k] for n, k in dtm_method.MEMBER_WINDOWS.items()]
+    assert width == sorted(windows)[-2] and span == int(np.ceil(2 * max(windows)))
+    members = max(int(get_method(n).halo(p["members"][n], (1.0, 1.0))) for n in dtm_method.MEMBERS)
+    assert dtm_method.dtm_halo(p, 1.0) >= members + regions_halo(span)
+    assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + regions_halo(span)
