@@ -19,20 +19,23 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    is wider (twice the largest distance from a cell to its edge, less a cell) than
    ``min_width_m``, the window of the vote's majority: narrower ones the members' windows
    reach, and their vote stands.
-2. **Outline of steps.** An outline cell ``p`` of the region (a cell with a neighbour outside
-   it, or on the raster's edge) stands on a *step* when, along some direction ``d`` leaving
+2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
+   outside its footprint, or on the raster's edge; the edges of its holes - objects on a roof,
+   a courtyard - say nothing of what bounds it) stands on a *step* when, along some direction ``d`` leaving
    the region, the ground beyond a wall of one or two cells (cells ``a = p + j d``, ``j`` = 2
    or 3, and ``b = a + 2 d``, both voted ground, outside the region and not rims themselves)
    continues below it: ``z(p) - (z(a) + j (z(a) - z(b)) / 2) > t``, the straight continuation of
    the ground beyond the wall extended to ``p``. A slope wider than the wall (a bank, a
    hillside, an embankment's side) carries its own continuation up to ``p`` and is no step;
    the raster's edge is no step (nothing is known beyond it). The region is *bounded by
-   steps* when more than half of its outline cells stand on steps.
+   steps* when more than half of its outer outline cells stand on steps (a majority, as in
+   the vote).
 3. **Above the ground around.** A plane is fitted (least squares) to the ground cells ``a``
-   beyond the whole outline; the region is an object when more than half of its cells stand
+   beyond the outer outline; the region is an object when more than half of its cells stand
    more than ``t`` above that plane. A terrace's upper level (one steep edge, the rest of its
    outline at the raster's edge or on slopes), a plateau, a hilltop or a dam with banks of
-   more than two cells fails the outline test; a roof over a tile's hollow fails the plane.
+   more than two cells fails the outline test; a region that sinks below the ground around
+   behind its walls fails the plane.
 
 The decided regions and their rims (voted ground cells next to the region standing more than
 ``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
