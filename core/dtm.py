@@ -26,6 +26,15 @@ ground at the objects' edges standing more than ``t`` above every straight conti
 ground beside it (:func:`.fill.find_edge_spikes`: wall feet, crown skirts), on which the DTM
 under the objects would otherwise rest.
 
+A flat roof wider than the windows of a majority of the members (a warehouse, a mall) comes out
+of the vote as ground: :func:`.dtm_regions.find_raised_regions` turns into objects the voted
+ground regions wider than that window whose outer outline stands on steps (a jump of more than
+``t`` over one or two cells down to ground that continues beyond it) over more than half its
+length and which stand more than ``t`` above the plane of the ground beyond those steps over more
+than half their area; a terrace's upper level, a plateau, a hilltop or a dam (banks wider than a
+wall, or one steep edge and the rest of the outline at the raster's edge) stays ground. Every
+candidate's decision is in ``info["raised_regions"]``.
+
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison
 crosses: RASCOR honours them, and within the reach of the other members from a break line
@@ -53,6 +62,7 @@ from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .dtm_refine import REACH_M, refine_ground, refine_halo, refine_reach
+from .dtm_regions import find_raised_regions, regions_halo
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -70,6 +80,8 @@ BREAKLINE_MEMBER = "rascor"
 #: Radius of the ground support of the confidence, metres (a car or a bush is smaller; a cell
 #: among ground cells a few metres around it is better supported than a lone one).
 SUPPORT_M = 3.0
+#: Each member's parameters giving the widest object its window removes, metres.
+MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
 
 def _members(names):
@@ -82,6 +94,36 @@ def refine_slope(members):
     morph = members.get("morphological", {})
     slope = morph.get("terrain_slope_p90", float("nan"))
     return float(slope) if slope is not None and np.isfinite(slope) else float(morph.get("slope", 0.0))
+
+
+def region_scales(members, cell_size):
+    """The scales of the raised-region stage (:func:`.dtm_regions.find_raised_regions`).
+
+    Returns ``(width_m, max_cells)``: the widest object the vote's majority removes (the
+    widest object windows of the members, :data:`MEMBER_WINDOWS`, sorted: the one of the
+    member that makes the majority; wider raised regions are the stage's candidates), and the
+    largest span the stage looks at, in cells: one more doubling of the widest window any
+    member uses (the morphological member's progression of windows, ``window_growth`` 2,
+    taken one step further). The span is added to the filter's halo (:func:`dtm_halo`): the
+    farthest a member looks (up to 7 times its window) would have doubled the halo and made a
+    blocked run of a large raster 1.8 times as slow; twice the majority's window (64 m where
+    the morphological member measured 40 m) missed a 150 m warehouse.
+    """
+    cell = as_cell_size(cell_size)
+    windows = sorted((float(members[n].get(k) or 0.0) for n, k in MEMBER_WINDOWS.items() if n in members),
+                     reverse=True)
+    need = len(MEMBERS) // 2 + 1
+    width = windows[need - 1] if len(windows) >= need else 0.0
+    return width, int(np.ceil(2.0 * (windows[0] if windows else 0.0) / min(cell)))
+
+
+def describe_region(d):
+    """One decision of :func:`.dtm_regions.find_raised_regions` as a sentence for the log."""
+    r0, c0, r1, c1 = d["bbox"]
+    above = "not tested" if d["above_share"] is None else "{:.0f} %".format(100 * d["above_share"])
+    return ("rows {}-{}, columns {}-{}: {} cells, {:g} m wide, {:.0f} % of its outline on steps, {} above the "
+            "ground around: {}").format(r0, r1, c0, c1, d["cells"], d["width_m"], 100 * d["step_share"], above,
+                                        "object" if d["object"] else "ground")
 
 
 def characterise(z, cell_size):
@@ -157,8 +199,9 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(int(m.halo(members[m.name], cell)) for m in _members(MEMBERS)) * min(cell)
     reach = refine_reach(tol, refine_slope(members), limit)
+    width, span = region_scales(members, cell)
     return {"members": members, "tolerance_m": tol, "support_cells": support, "refine_reach_m": reach,
-            "input_description": description}
+            "region_width_m": width, "region_max_cells": span, "input_description": description}
 
 
 def dtm_halo(params, cell_size):
@@ -168,7 +211,7 @@ def dtm_halo(params, cell_size):
     members' coarse grids those of the single pass."""
     halos = [int(m.halo(params["members"][m.name], cell_size)) for m in _members(MEMBERS)]
     reach = (max(halos) + refine_halo(as_cell_size(cell_size), params.get("refine_reach_m", REACH_M))
-             + 2 * int(params["support_cells"]) + 2)
+             + regions_halo(int(params.get("region_max_cells", 0))) + 2 * int(params["support_cells"]) + 2)
     a = max(alignment(h) for h in halos)
     return -(-reach // a) * a
 
@@ -342,8 +385,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     return out
 
 
-def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, object_areas=None,
-               ground_areas=None, breaklines=None, progress=None):
+def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
+               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -360,6 +403,10 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         Radius of the confidence's support window, cells.
     refine_reach_m : float
         Length of the refinement's floors, metres.
+    region_width_m, region_max_cells : float, int
+        Voted ground regions wider than ``region_width_m`` and spanning at most
+        ``region_max_cells`` cells, standing on steps above the ground around, become objects
+        (:func:`.dtm_regions.find_raised_regions`; ``region_max_cells`` 0: not looked for).
     object_areas, ground_areas, breaklines : ndarray of bool, optional
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
@@ -407,6 +454,12 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                   reach_m=refine_reach_m)
     info.update(refined)
+    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around
+    raised, decisions = find_raised_regions(z, mask, cell, tolerance_m=tolerance_m, min_width_m=region_width_m,
+                                            max_cells=region_max_cells)
+    mask[raised & valid] = OBJECT
+    info["raised_region_cells"] = int(np.count_nonzero(raised & valid))
+    info["raised_regions"] = [describe_region(d) for d in decisions]
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side
         reach = max(int(m.halo(members[m.name], cell)) for m in meths if m.name != BREAKLINE_MEMBER)
@@ -464,8 +517,12 @@ METHOD = Method(
         "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "
         "terrain, and smooth ground such as a rounded crest is kept) is then taken as an object, as is voted "
         "ground at an object's edge standing above every straight continuation of the ground beside it (wall "
-        "feet, crown skirts); the DTM is interpolated under the rest. The log gives each member's parameters, "
-        "the refinement's reach and how often the members agreed.</p>"
+        "feet, crown skirts); so is a region wider than the members' windows (a warehouse's flat roof) whose "
+        "outline stands on walls down to the ground over more than half its length and which stands above the "
+        "ground around it (a terrace, a plateau or a dam, with banks or one steep edge, stays ground; a roof "
+        "running off the raster on most sides is left to the vote); the DTM is interpolated under the rest. The "
+        "log gives each member's parameters, "
+        "the refinement's reach, each raised region's decision and how often the members agreed.</p>"
         "<p>The confidence map (0-100) combines the members' agreement, the cell's distance from the "
         "height threshold, and the share of cells around it with the same class: low values mark where "
         "to look first.</p>"

@@ -1,0 +1,198 @@
+"""Raised regions wider than the vote's windows: voted ground bounded by steps down to the ground.
+
+Every member of ``bareearth:dtm`` looks at the surface through a window: the opening removes
+what its largest window cannot reach across, RASCOR's level changes what is shorter than its
+longest raised level, the geodesic reconstruction what its largest window spans. A flat roof
+wider than the windows of a majority of the members (a warehouse, a mall, a roof over most of
+a tile) comes out of the vote as ground, and the DTM then runs over it.
+
+Such a roof is recognised by its outline, as the slope-profile scans (Luong Chinh Ke 2002:
+a rise steeper than any terrain slope, the profile staying up until it comes back down) and
+the geodesic reconstruction's scan labelling recognise a building's edge: it stands on steep
+*steps* - a height jump over one or two cells - down to ground that continues beyond the step.
+:func:`find_raised_regions` tests that, region by region:
+
+1. **Regions.** The voted ground cells with no 8-neighbour more than ``t`` lower (``t``: the
+   vote's object height threshold) are labelled into 8-connected regions: a roof's rim (cells
+   above a wall) and every cell of a slope steeper than ``t`` per cell separate the region
+   on top from the ground around. Candidates are the regions whose footprint (holes filled)
+   is wider (twice the largest distance from a cell to its edge, less a cell) than
+   ``min_width_m``, the window of the vote's majority: narrower ones the members' windows
+   reach, and their vote stands.
+2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
+   outside its footprint, or on the raster's edge; the edges of its holes - objects on a roof,
+   a courtyard - say nothing of what bounds it) stands on a *step* when, along some direction ``d`` leaving
+   the region, the ground beyond a wall of one or two cells (cells ``a = p + j d``, ``j`` = 2
+   or 3, and ``b = a + 2 d``, both voted ground, outside the region and not rims themselves)
+   continues below it: ``z(p) - (z(a) + j (z(a) - z(b)) / 2) > t``, the straight continuation of
+   the ground beyond the wall extended to ``p``. A slope wider than the wall (a bank, a
+   hillside, an embankment's side) carries its own continuation up to ``p`` and is no step;
+   the raster's edge is no step (nothing is known beyond it). The region is *bounded by
+   steps* when more than half of its outer outline cells stand on steps (a majority, as in
+   the vote).
+3. **Above the ground around.** A plane is fitted (least squares) to the ground cells ``a``
+   beyond the outer outline; the region is an object when more than half of its cells stand
+   more than ``t`` above that plane. A terrace's upper level (one steep edge, the rest of its
+   outline at the raster's edge or on slopes), a plateau, a hilltop or a dam with banks of
+   more than two cells fails the outline test; a region that sinks below the ground around
+   behind its walls fails the plane.
+
+The decided regions and their rims (voted ground cells next to the region standing more than
+``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
+interpolated under them from the ground around, as under every object.
+
+**Blocks.** A region's decision depends on its cells and the 5 cells beyond its outline.
+Regions spanning more than ``max_cells`` cells (rows or columns) are never candidates, so the
+decision about any cell depends on cells within ``max_cells`` + :data:`REACH_CELLS` of it
+(:func:`regions_halo`): a region reaching a block's window edge spans more than that and is
+left alone there as in the single pass. ``bareearth:dtm`` takes ``max_cells`` as twice the
+widest window of its members (:func:`.dtm.region_scales`): one more doubling of the windows;
+wider regions (a roof running off the raster, a mall wider than that) are left to the
+vote and, where known, to the user's object areas.
+"""
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND
+
+#: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
+#: it (``a`` at 2-3 cells, ``b`` 2 cells further) and the rim test's neighbours.
+REACH_CELLS = 8
+#: The eight directions (row, column) leaving a cell.
+_DIRECTIONS = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc)
+
+
+def regions_halo(max_cells):
+    """Cells a decision of :func:`find_raised_regions` depends on around a cell (0: off)."""
+    return int(max_cells) + REACH_CELLS if max_cells > 0 else 0
+
+
+def _shifted(a, pad, dr, dc, k):
+    """``a[r + k dr, c + k dc]`` for every cell ``(r, c)`` of the unpadded array (``a`` padded by ``pad``)."""
+    h, w = a.shape[0] - 2 * pad, a.shape[1] - 2 * pad
+    r0, c0 = pad + k * dr, pad + k * dc
+    return a[r0:r0 + h, c0:c0 + w]
+
+
+def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells):
+    """Voted ground regions wider than the vote's windows that stand on steps above the ground around.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D float32
+        The DSM (NaN nodata).
+    mask : ndarray of uint8
+        The vote's decision (0 ground).
+    cell_size : (float, float)
+        Metres.
+    tolerance_m : float
+        ``t``: the object height threshold (a step, and a region above the ground around, by more).
+    min_width_m : float
+        Regions narrower than this are left to the vote (the window of the vote's majority).
+    max_cells : int
+        Regions spanning more cells (rows or columns) are left alone (the stage's reach, see
+        :func:`regions_halo`); 0 turns the stage off.
+
+    Returns
+    -------
+    objects : ndarray of bool
+        The cells of the decided regions and their rims.
+    decisions : list of dict
+        One per candidate region: its bounding box (cells), size, width (m), share of outline
+        cells on steps, share of cells above the plane of the ground around, and the decision.
+    """
+    z = np.asarray(z, np.float32)
+    shape = z.shape
+    objects = np.zeros(shape, bool)
+    if max_cells <= 0 or min(shape) < 3:
+        return objects, []
+    t = float(tolerance_m)
+    valid = np.isfinite(z)
+    ground = (np.asarray(mask) == GROUND) & valid
+    if not ground.any():
+        return objects, []
+    zi = np.where(valid, z, np.inf).astype(np.float32)
+    rim = ground & (z - ndimage.minimum_filter(zi, size=3, mode="nearest") > t)
+    free = ground & ~rim
+    labels, n = ndimage.label(free, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return objects, []
+    boxes = ndimage.find_objects(labels)
+    cell = float(min(cell_size))
+    spans = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
+    idx = np.flatnonzero((spans * cell >= min_width_m) & (spans <= max_cells)) + 1
+    if idx.size == 0:
+        return objects, []
+    keep = np.zeros(n + 1, bool)
+    keep[idx] = True
+    lab = np.where(keep[labels], labels, 0)
+    pad = 6
+    lp = np.pad(lab, pad, constant_values=-1)              # -1: beyond the raster
+    fp = np.pad(free, pad, constant_values=False)
+    zp = np.pad(np.where(valid, z, np.nan), pad, constant_values=np.nan)
+    outline = (lab > 0) & np.any([_shifted(lp, pad, dr, dc, 1) != lab for dr, dc in _DIRECTIONS], axis=0)
+    step = np.zeros(shape, bool)
+    samples = []                                        # (region, row, col, z) of the ground beyond the outline
+    rows, cols = np.nonzero(outline)
+    zo, lo = z[rows, cols], lab[rows, cols]
+    for dr, dc in _DIRECTIONS:
+        leaves = _shifted(lp, pad, dr, dc, 1)[rows, cols] != lo
+        for j in (2, 3):
+            la = _shifted(lp, pad, dr, dc, j)[rows, cols]
+            ok = (leaves & _shifted(fp, pad, dr, dc, j)[rows, cols] & _shifted(fp, pad, dr, dc, j + 2)[rows, cols]
+                  & (la != lo) & (_shifted(lp, pad, dr, dc, j + 2)[rows, cols] != lo))
+            za = _shifted(zp, pad, dr, dc, j)[rows, cols]
+            zb = _shifted(zp, pad, dr, dc, j + 2)[rows, cols]
+            cont = za + j * (za - zb) / 2.0             # the ground beyond the wall continued to p
+            on = ok & (zo - cont > t)
+            step[rows[on], cols[on]] = True
+            samples.append((lo[ok], rows[ok], cols[ok], rows[ok] + j * dr, cols[ok] + j * dc, za[ok]))
+    s_lab, s_pr, s_pc, s_r, s_c = (np.concatenate([s[q] for s in samples]) for q in range(5))
+    s_z = np.concatenate([s[5] for s in samples]).astype(np.float64)
+    order = np.argsort(s_lab, kind="stable")            # each region's samples in the same order in any window
+    s_lab, s_pr, s_pc, s_r, s_c, s_z = (v[order] for v in (s_lab, s_pr, s_pc, s_r, s_c, s_z))
+    starts = np.searchsorted(s_lab, idx, side="left")
+    stops = np.searchsorted(s_lab, idx, side="right")
+    decisions = []
+    for k, i in enumerate(idx):
+        box = boxes[i - 1]
+        r0, c0 = box[0].start, box[1].start
+        # the region and its rim (one cell around it), in coordinates relative to its box's corner
+        g0, g1 = max(r0 - 1, 0), max(c0 - 1, 0)
+        sub = (slice(g0, min(box[0].stop + 1, shape[0])), slice(g1, min(box[1].stop + 1, shape[1])))
+        reg = lab[sub] == i
+        # its footprint (holes filled: objects on a roof, a courtyard) and the footprint's width:
+        # twice the largest distance from a cell's centre to the nearest cell outside it (the
+        # raster's edge included: only what is seen), less one cell (a row of cells is one wide)
+        filled = ndimage.binary_fill_holes(np.pad(reg, 1))
+        width = 2.0 * float(ndimage.distance_transform_edt(filled, sampling=(cell_size[1], cell_size[0])).max()) - cell
+        if width < min_width_m:
+            continue
+        # its outer outline: cells next to the outside (beyond the raster included), not to its holes,
+        # which say nothing of what bounds it
+        outer = reg & ndimage.binary_dilation(~filled, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
+        n_outer = int(np.count_nonzero(outer))
+        step_share = float(np.count_nonzero(outer & step[sub])) / max(1, n_outer)
+        d = {"bbox": [int(r0), int(c0), int(box[0].stop), int(box[1].stop)],
+             "cells": int(np.count_nonzero(reg)), "width_m": round(width, 1),
+             "outline_cells": n_outer, "step_share": round(step_share, 3), "above_share": None, "object": False}
+        a, b = starts[k], stops[k]
+        use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
+        if step_share > 0.5 and np.count_nonzero(use) >= 3:
+            # the plane of the ground beyond the outline, in coordinates centred on its samples
+            x = (s_c[a:b][use] - c0).astype(np.float64) * cell_size[0]
+            y = (s_r[a:b][use] - r0).astype(np.float64) * cell_size[1]
+            zs = s_z[a:b][use]
+            xm, ym, zm = x.mean(), y.mean(), zs.mean()
+            coef = np.linalg.lstsq(np.column_stack([x - xm, y - ym]), zs - zm, rcond=None)[0]
+            rr, cc = np.mgrid[sub[0], sub[1]]
+            plane = zm + coef[0] * ((cc - c0) * cell_size[0] - xm) + coef[1] * ((rr - r0) * cell_size[1] - ym)
+            above = z[sub] - plane > t
+            share = float(np.count_nonzero(above & reg)) / max(1, d["cells"])
+            d["above_share"] = round(share, 3)
+            if share > 0.5:
+                d["object"] = True
+                near = ndimage.binary_dilation(reg, structure=np.ones((3, 3), bool))
+                objects[sub] |= reg | (near & rim[sub] & above)
+        decisions.append(d)
+    return objects, decisions

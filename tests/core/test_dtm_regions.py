@@ -1,0 +1,168 @@
+"""bareearth:dtm's raised regions: voted ground wider than the vote's windows standing on steps above the ground."""
+import numpy as np
+import pytest
+
+from bare_earth.core import pipeline
+from bare_earth.core.codes import GROUND, OBJECT
+from bare_earth.core.dtm_regions import REACH_CELLS, find_raised_regions, regions_halo
+
+
+def _grid(n):
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+    return y, x
+
+
+def _noisy(ground, seed=0, sd=0.05):
+    rng = np.random.default_rng(seed)
+    return (ground + rng.normal(0.0, sd, ground.shape)).astype(np.float32)
+
+
+def _find(z, mask=None, **kw):
+    kw = {"tolerance_m": 0.5, "min_width_m": 10.0, "max_cells": 100, **kw}
+    m = np.zeros(z.shape, np.uint8) if mask is None else mask
+    return find_raised_regions(z, m, (1.0, 1.0), **kw)
+
+
+def test_a_block_standing_on_walls_is_an_object_with_its_rim():
+    z = np.zeros((40, 40), np.float32)
+    z[10:30, 8:28] = 5.0
+    objects, decisions = _find(z)
+    box = np.zeros(z.shape, bool)
+    box[10:30, 8:28] = True
+    assert np.array_equal(objects, box)             # the region (18 x 18) and its rim on top of the walls
+    roof = [d for d in decisions if d["object"]]
+    assert len(roof) == 1 and roof[0]["cells"] == 18 * 18
+    assert roof[0]["step_share"] == 1.0 and roof[0]["above_share"] == 1.0
+    assert not any(d["object"] for d in decisions if d is not roof[0])     # the ground around: no steps
+
+
+def test_objects_on_the_roof_do_not_hide_its_walls():
+    z = np.zeros((40, 40), np.float32)
+    z[10:30, 8:28] = 5.0
+    mask = np.zeros(z.shape, np.uint8)
+    mask[14:17, 12:15] = OBJECT                     # plant rooms on the roof: holes of the region
+    mask[20:26, 18:24] = OBJECT
+    objects, decisions = _find(z, mask)
+    assert objects[10:30, 8:28][mask[10:30, 8:28] == GROUND].all()
+    assert [d["step_share"] for d in decisions if d["object"]] == [1.0]
+
+
+def test_what_the_vote_reaches_or_the_stage_cannot_see_whole_is_left_alone():
+    z = np.zeros((40, 40), np.float32)
+    z[10:30, 8:28] = 5.0
+    assert not _find(z, min_width_m=40.0)[0].any()          # narrower than the vote's window
+    assert not _find(z, max_cells=17)[0].any()              # spans more cells than the stage reaches
+    assert not _find(z, tolerance_m=6.0)[0].any()           # walls lower than the object height threshold
+    assert not _find(z, max_cells=0)[0].any() and regions_halo(0) == 0
+    assert regions_halo(17) == 17 + REACH_CELLS
+
+
+def test_a_level_running_off_the_raster_is_no_object():
+    # a raised level with one wall and three sides at the raster's edge (a terrace's upper level,
+    # or a roof over most of a tile as in lidar/sample_c): not bounded by steps, left to the vote
+    z = np.zeros((40, 40), np.float32)
+    z[:, 15:] = 4.0
+    objects, decisions = _find(z)
+    assert not objects.any()
+    upper = [d for d in decisions if d["bbox"][1] > 0]
+    assert len(upper) == 1 and 0 < upper[0]["step_share"] <= 0.5
+
+
+def test_a_raised_level_on_banks_wider_than_a_wall_is_no_object():
+    y, x = _grid(60)
+    r = np.maximum(np.abs(y - 30), np.abs(x - 30))
+    for rise in (1.0, 2.0):                      # 45 and 63 degree banks, 6 m high: 6 and 3 cells wide
+        z = np.clip((24 - r) * rise, 0, 6).astype(np.float32)
+        objects, decisions = _find(z)
+        assert not objects.any()
+        assert all(d["step_share"] == 0.0 for d in decisions)
+
+
+def test_a_region_on_steps_but_mostly_below_the_ground_around_is_no_object():
+    # walls 2 m high at its outline, then the region sinks 0.3 m per cell to 4 m below the ground
+    # around: steps all round, but only the cells within 4 cells of its edge stand above the ground
+    y, x = _grid(60)
+    inside = (y >= 10) & (y < 50) & (x >= 10) & (x < 50)
+    depth = np.minimum(np.minimum(y - 10, 49 - y), np.minimum(x - 10, 49 - x))
+    z = np.where(inside, np.maximum(2.0 - 0.3 * depth, -4.0), 0.0).astype(np.float32)
+    objects, decisions = _find(z)
+    bowl = [d for d in decisions if d["step_share"] > 0.5]
+    assert len(bowl) == 1 and bowl[0]["step_share"] == 1.0
+    assert bowl[0]["above_share"] == pytest.approx((38 ** 2 - 30 ** 2) / 38 ** 2, abs=1e-3)
+    assert not objects.any()
+
+
+def test_blocked_equals_one_pass():
+    """The stage on windows of a block plus regions_halo cells gives the one-pass decision in the block."""
+    rng = np.random.default_rng(4)
+    n = 180
+    y, x = _grid(n)
+    z = (10 + 0.02 * x + 0.01 * y + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    mask = np.zeros((n, n), np.uint8)
+    for r0, c0, h, w, top in ((5, 5, 30, 40, 6.0), (60, 20, 50, 70, 9.0), (20, 100, 70, 60, 4.0),
+                              (130, 110, 40, 25, 7.0), (120, 10, 55, 55, 3.0)):
+        z[r0:r0 + h, c0:c0 + w] += top
+        mask[r0 + h // 2, c0 + w // 2] = OBJECT
+    kw = {"tolerance_m": 0.5, "min_width_m": 20.0, "max_cells": 60}
+    whole, _ = find_raised_regions(z, mask, (1.0, 1.0), **kw)
+    assert whole.any() and not whole.all()
+    halo = regions_halo(kw["max_cells"])
+    for b in (37, 50):
+        got = np.zeros_like(whole)
+        for r in range(0, n, b):
+            for c in range(0, n, b):
+                wr = slice(max(r - halo, 0), min(r + b + halo, n))
+                wc = slice(max(c - halo, 0), min(c + b + halo, n))
+                part, _ = find_raised_regions(z[wr, wc], mask[wr, wc], (1.0, 1.0), **kw)
+                got[r:r + b, c:c + b] = part[r - wr.start:r - wr.start + b, c - wc.start:c - wc.start + b]
+        assert np.array_equal(got, whole)
+
+
+# ----------------------------------------------------------------------------- through bareearth:dtm
+
+def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object():
+    y, x = _grid(300)
+    ground = 50 + 0.02 * x + 0.01 * y
+    wh = (np.abs(x - 150) < 75) & (np.abs(y - 150) < 75)          # 150 m x 150 m flat roof, 9 m high
+    z = _noisy(ground + np.where(wh, 9.0, 0.0))
+    res = pipeline.run_array("dtm", z, 1.0)
+    p = res.info["params"]
+    assert p["region_width_m"] < 150 and p["region_max_cells"] >= 150
+    assert (res.mask[wh] == OBJECT).all()
+    assert (res.mask[~wh] == GROUND).mean() > 0.99
+    assert np.sqrt(np.mean((res.dtm - ground)[wh] ** 2)) < 0.1          # the ground under it interpolated
+    assert res.info["raised_region_cells"] > 0.9 * wh.sum()
+    assert any(s.endswith(": object") for s in res.info["raised_regions"])
+
+
+@pytest.mark.parametrize("kind", ["terrace", "plateau", "embankment", "hilltop"])
+def test_dtm_keeps_raised_ground(kind):
+    y, x = _grid(300)
+    base = 50 + 0.02 * x + 0.01 * y
+    r = np.hypot(x - 150, y - 150)
+    raised = {
+        "terrace": np.where(x > 150, 4.0, 0.0),                      # a 4 m wall across the raster
+        "plateau": np.clip((100 - r) * 1.73, 0, 20),                 # 60 degree sides, 20 m high, 160 m top
+        "embankment": np.clip((30 - np.abs(y - 150)) / 1.5, 0, 6),    # a dam, 1:1.5 banks, 6 m high
+        "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
+    }[kind]
+    z = _noisy(base + raised)
+    res = pipeline.run_array("dtm", z, 1.0)
+    assert res.info["raised_region_cells"] == 0
+    assert all(s.endswith(": ground") for s in res.info["raised_regions"])
+
+
+def test_dtm_halo_adds_the_stage_reach_to_the_members():
+    """dtm's halo covers the members' reach and, beyond it, the stage's (the stage reads the vote)."""
+    from bare_earth.core import dtm as dtm_method
+    from bare_earth.core.methods import get_method
+    y, x = _grid(128)
+    z = _noisy(20 + 0.01 * x)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    width, span = dtm_method.region_scales(p["members"], 1.0)
+    assert (p["region_width_m"], p["region_max_cells"]) == (width, span)
+    windows = [p["members"][n][k] for n, k in dtm_method.MEMBER_WINDOWS.items()]
+    assert width == sorted(windows)[-2] and span == int(np.ceil(2 * max(windows)))
+    members = max(int(get_method(n).halo(p["members"][n], (1.0, 1.0))) for n in dtm_method.MEMBERS)
+    assert dtm_method.dtm_halo(p, 1.0) >= members + regions_halo(span)
+    assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + regions_halo(span)
