@@ -522,8 +522,8 @@ def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, tren
     o_meas = np.where(is_obj & np.isfinite(sub_dh), sub_dh, np.nan).astype(np.float32)
     # cells within half the window plus one cell of an object measurement (as close_mask)
     reach = window // 2 + 1
-    cand = is_obj & ~np.isfinite(sub_dh) & ~ndimage.binary_dilation(
-        np.isfinite(o_meas), np.ones((2 * reach + 1, 2 * reach + 1), bool))
+    held = ndimage.binary_opening(np.isfinite(o_meas), np.ones((reach, reach), bool))
+    cand = is_obj & ~np.isfinite(sub_dh) & ~ndimage.binary_dilation(held, np.ones((2 * reach + 1, 2 * reach + 1), bool))
     if cand.any() and np.isfinite(noise_var) and noise_var > 0:
         gone = cand & ~agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var)
         is_obj &= ~gone
