@@ -78,14 +78,15 @@ def run_refine(seed, start_kind, amplitude=3.0):
     return e0, e1, r.table, dt
 
 
-#: Section 3's configurations: building widths in cells (0.5 m cells) and the scene shape;
-#: each is run at every B/H of ``--noisy-bh``.
-NOISY_WIDTHS = {"narrow 3-10 m": ((6, 20), (160, 200)), "all 3-25 m": ((6, 50), (240, 300)),
-                "wide 10-25 m": ((20, 50), (240, 300))}
+#: Section 3's configurations: building widths in cells (0.5 m cells), the scene shape and
+#: the number of trees (crowns 3-8 m across, 4-12 m high); each is run at every B/H of
+#: ``--noisy-bh``.
+NOISY_WIDTHS = {"narrow 3-10 m": ((6, 20), (160, 200), 0), "all 3-25 m": ((6, 50), (240, 300), 0),
+                "wide 10-25 m": ((20, 50), (240, 300), 0), "trees, 3-25 m": ((6, 50), (240, 300), 15)}
 
 
 def imaged_in_both(sc, cams, orthos):
-    """Building cells whose roof point appears on the grid in both orthophotos.
+    """Object cells whose surface point appears on the grid in both orthophotos.
 
     An orthophoto made on the terrain shows a roof point ``P`` where the ray from the camera
     through ``P`` meets the terrain (taken at the terrain height of ``P``); near the edge of
@@ -95,7 +96,7 @@ def imaged_in_both(sc, cams, orthos):
     X, Y = grid_xy(sc.terrain.shape, sc.transform)
     X, Y = np.broadcast_to(X, sc.terrain.shape), np.broadcast_to(Y, sc.terrain.shape)
     x0, dx, _, y0, _, ndy = sc.transform
-    ok = sc.labels > 0
+    ok = sc.labels != 0
     for cam, ortho in zip(cams, orthos):
         C = np.asarray(cam.centre, float)
         s = (C[2] - sc.terrain) / (C[2] - sc.surface)
@@ -107,18 +108,19 @@ def imaged_in_both(sc, cams, orthos):
     return ok
 
 
-def run_noisy(seed, bh, widths, noise=6.0, shape=(160, 200), plain=False, **kw):
+def run_noisy(seed, bh, widths, noise=6.0, shape=(160, 200), plain=False, n_trees=0, **kw):
     """Recall of building cells, false alarms on ground > 3 m from objects (with the outline
     test; ``plain``: also without it) and recall on the small buildings (a side <= 6 m).
 
     Recall counts the building cells seen in both orthophotos: the cell itself and its roof
     point's image (:func:`imaged_in_both`)."""
-    sc = make_ortho_scene(shape=shape, cell_size=0.5, n_buildings=19, seed=seed,
+    sc = make_ortho_scene(shape=shape, cell_size=0.5, n_buildings=19, seed=seed, n_trees=n_trees,
                           building_width_cells=tuple(widths), building_height_m=(3.0, 14.0))
     cams = vertical_cameras(sc, 2, base_over_height=bh)
     imgs = render_frames(sc, cams, noise=noise, seed=seed, dz_m=0.5)
     oa, ob = (orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams))
     obj = sc.labels > 0
+    anything = sc.labels != 0                     # buildings and tree crowns
     both = imaged_in_both(sc, cams, (oa, ob))
     small = np.zeros_like(obj)
     for k, sl in enumerate(ndimage.find_objects(sc.labels), start=1):
@@ -131,10 +133,12 @@ def run_noisy(seed, bh, widths, noise=6.0, shape=(160, 200), plain=False, **kw):
                           settle=settle, **kw)
         dt = time.perf_counter() - t
         seen = r.mask != NODATA
-        far = ~ndimage.binary_dilation(obj, iterations=int(np.ceil(3.0 / sc.cell_size))) & seen
+        far = ~ndimage.binary_dilation(anything, iterations=int(np.ceil(3.0 / sc.cell_size))) & seen
         rs = float((r.mask[small & seen & both] == OBJECT).mean()) if (small & seen & both).any() else float("nan")
+        tree = (sc.labels < 0) & seen & both
         out.append((float((r.mask[obj & seen & both] == OBJECT).mean()), float((r.mask[far] == OBJECT).mean()), rs, dt,
-                    float((r.mask[obj & seen] == OBJECT).mean())))
+                    float((r.mask[obj & seen] == OBJECT).mean()),
+                    float((r.mask[tree] == OBJECT).mean()) if tree.any() else float("nan")))
     return out
 
 
@@ -142,9 +146,10 @@ def noisy_section(bhs, names, seeds, plain=False, **kw):
     """Section 3 over every configuration; returns (worst recall, worst false alarms) in %."""
     worst = []
     for name in names:
-        widths, shape = NOISY_WIDTHS[name]
+        widths, shape, n_trees = NOISY_WIDTHS[name]
         for bh in bhs:
-            res = np.array([sum(run_noisy(s, bh, widths, shape=shape, plain=plain, **kw), ()) for s in seeds])
+            res = np.array([sum(run_noisy(s, bh, widths, shape=shape, plain=plain, n_trees=n_trees, **kw), ())
+                            for s in seeds])
             v = res * 100
             worst.append((name, bh, v[:, 0].min(), v[:, 1].max()))
             line = (f"  {name:14s} B/H {bh:.2f}: recall worst {v[:, 0].min():5.1f} % (mean {v[:, 0].mean():5.1f}), "
@@ -152,10 +157,12 @@ def noisy_section(bhs, names, seeds, plain=False, **kw):
                     + (f"small buildings recall worst {np.nanmin(v[:, 2]):5.1f} % (mean {np.nanmean(v[:, 2]):5.1f}); "
                        if np.isfinite(v[:, 2]).any() else "no small buildings; ")
                     + f"counting roofs imaged off the grid {v[:, 4].min():5.1f} % (mean {v[:, 4].mean():5.1f}); "
-                    f"{res[:, 3].mean():.2f} s")
+                    + (f"tree crowns recall worst {np.nanmin(v[:, 5]):5.1f} % (mean {np.nanmean(v[:, 5]):5.1f}); "
+                       if np.isfinite(v[:, 5]).any() else "")
+                    + f"{res[:, 3].mean():.2f} s")
             if plain:
-                line += (f"; without the outline test {v[:, 5].min():5.1f} % (mean {v[:, 5].mean():5.1f}), "
-                         f"{v[:, 6].max():4.2f} %")
+                line += (f"; without the outline test {v[:, 6].min():5.1f} % (mean {v[:, 6].mean():5.1f}), "
+                         f"{v[:, 7].max():4.2f} %")
             print(line)
             bad = [f"{s}: {v[i, 0]:.1f} / {v[i, 1]:.2f}" for i, s in enumerate(seeds)
                    if v[i, 0] < 95 or v[i, 1] > 3]
@@ -176,7 +183,7 @@ def main(argv=None):
     ap.add_argument("--bh", type=float, default=0.45)
     ap.add_argument("--noisy-seeds", type=int, default=12)
     ap.add_argument("--noisy-bh", type=float, nargs="+", default=[0.3, 0.45, 0.6])
-    ap.add_argument("--widths", choices=["narrow", "all", "wide"], default=None,
+    ap.add_argument("--widths", choices=["narrow", "all", "wide", "trees"], default=None,
                     help="section 3: one configuration of building widths (default all three)")
     ap.add_argument("--plain", action="store_true", help="section 3: also without the outline test")
     ap.add_argument("--quick", action="store_true", help="section 3 only, 4 held-out seeds")

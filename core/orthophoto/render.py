@@ -30,7 +30,7 @@ class OrthoScene:
     surface : ndarray (rows, cols) float32
         Terrain plus objects (the DSM).
     labels : ndarray (rows, cols) int32
-        0 ground, k > 0 building number k.
+        0 ground, k > 0 building number k, -1 tree crown.
     heights : dict of int -> float
         Height of each building above the terrain at its centre (m).
     transform : tuple
@@ -63,7 +63,8 @@ class OrthoScene:
 
 def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m=8.0,
                      building_height_m=(5.0, 12.0), building_width_cells=(10, 24), seed=0,
-                     texture_factor=2, contrast=0.3125):
+                     texture_factor=2, contrast=0.3125, n_trees=0, tree_height_m=(4.0, 12.0),
+                     crown_diameter_m=(3.0, 8.0)):
     """Smooth terrain with flat-roofed rectangular buildings and a random texture.
 
     Parameters
@@ -118,6 +119,9 @@ def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m
         heights[k] = hb
     f = int(texture_factor)
     tex = rng.normal(size=(rows * f, cols * f))
+    if n_trees:
+        _add_trees(np.random.default_rng([seed, 1]), t, surface, labels, int(n_trees), float(cell_size),
+                   tree_height_m, crown_diameter_m)
     tex = (ndimage.gaussian_filter(tex, 1.0 * f) * 1.0
            + ndimage.gaussian_filter(rng.normal(size=tex.shape), 3.0 * f) * 2.5)
     if not contrast > 0:
@@ -125,6 +129,30 @@ def make_ortho_scene(shape=(160, 200), cell_size=1.0, *, n_buildings=7, relief_m
     tex = ((tex - tex.mean()) / tex.std() * (128.0 * float(contrast)) + 128).astype(np.float32)
     return OrthoScene(t, surface.astype(np.float32), labels, heights, transform, tex, f,
                       info=dict(seed=seed, relief_m=relief_m, contrast=float(contrast)))
+
+
+def _add_trees(rng, terrain, surface, labels, n, cell, height_m, diameter_m):
+    """Half-ellipsoid crowns on free ground (in place); see :func:`make_ortho_scene`."""
+    rows, cols = terrain.shape
+    rr, cc = np.indices(terrain.shape)
+    placed = 0
+    for _ in range(n * 30):
+        if placed >= n:
+            break
+        rad = float(rng.uniform(*diameter_m)) / 2.0 / cell             # crown radius in cells
+        r0 = float(rng.uniform(rad + 2, rows - rad - 2))
+        c0 = float(rng.uniform(rad + 2, cols - rad - 2))
+        q = ((rr - r0) ** 2 + (cc - c0) ** 2) / (rad * rad)
+        crown = q < 1.0
+        lo, hi = int(r0 - rad) - 2, int(r0 + rad) + 3
+        lc, hc = int(c0 - rad) - 2, int(c0 + rad) + 3
+        if labels[max(0, lo):hi, max(0, lc):hc].any():
+            continue
+        ht = float(rng.uniform(*height_m))
+        z = terrain + ht * np.sqrt(np.clip(1.0 - q, 0.0, 1.0))
+        surface[crown] = z[crown]
+        labels[crown] = -1
+        placed += 1
 
 
 def vertical_cameras(scene, n=2, *, base_over_height=0.45, height_m=150.0, gsd_m=None,
