@@ -34,8 +34,13 @@ from scipy import ndimage
 setup_path()
 from bare_earth.core.codes import NODATA, OBJECT  # noqa: E402
 from bare_earth.core.orthophoto import orthoparallax, orthorefine  # noqa: E402
-from bare_earth.core.orthophoto.orthorectify import grid_xy, orthorectify  # noqa: E402
-from bare_earth.core.orthophoto.render import make_ortho_scene, render_frames, vertical_cameras  # noqa: E402
+from bare_earth.core.orthophoto.orthorectify import orthorectify  # noqa: E402
+from bare_earth.core.orthophoto.render import (  # noqa: E402
+    imaged_in_both,
+    make_ortho_scene,
+    render_frames,
+    vertical_cameras,
+)
 
 
 def run_parallax(seed, bh):
@@ -85,35 +90,12 @@ NOISY_WIDTHS = {"narrow 3-10 m": ((6, 20), (160, 200), 0), "all 3-25 m": ((6, 50
                 "wide 10-25 m": ((20, 50), (240, 300), 0), "trees, 3-25 m": ((6, 50), (240, 300), 15)}
 
 
-def imaged_in_both(sc, cams, orthos):
-    """Object cells whose surface point appears on the grid in both orthophotos.
-
-    An orthophoto made on the terrain shows a roof point ``P`` where the ray from the camera
-    through ``P`` meets the terrain (taken at the terrain height of ``P``); near the edge of
-    the grid that place can lie off the grid (at B/H 0.6 a 14 m roof moves by up to 18
-    cells), and no matcher can measure ``P`` there.
-    """
-    X, Y = grid_xy(sc.terrain.shape, sc.transform)
-    X, Y = np.broadcast_to(X, sc.terrain.shape), np.broadcast_to(Y, sc.terrain.shape)
-    x0, dx, _, y0, _, ndy = sc.transform
-    ok = sc.labels != 0
-    for cam, ortho in zip(cams, orthos):
-        C = np.asarray(cam.centre, float)
-        s = (C[2] - sc.terrain) / (C[2] - sc.surface)
-        c = np.floor((C[0] + (X - C[0]) * s - x0) / dx).astype(int)
-        r = np.floor((y0 - (C[1] + (Y - C[1]) * s)) / -ndy).astype(int)
-        on = (c >= 0) & (c < sc.terrain.shape[1]) & (r >= 0) & (r < sc.terrain.shape[0])
-        ok &= on
-        ok[ok] &= np.isfinite(ortho[r[ok], c[ok]])
-    return ok
-
-
 def run_noisy(seed, bh, widths, noise=6.0, shape=(160, 200), plain=False, n_trees=0, **kw):
     """Recall of building cells, false alarms on ground > 3 m from objects (with the outline
     test; ``plain``: also without it) and recall on the small buildings (a side <= 6 m).
 
     Recall counts the building cells seen in both orthophotos: the cell itself and its roof
-    point's image (:func:`imaged_in_both`)."""
+    point's image (:func:`~bare_earth.core.orthophoto.render.imaged_in_both`)."""
     sc = make_ortho_scene(shape=shape, cell_size=0.5, n_buildings=19, seed=seed, n_trees=n_trees,
                           building_width_cells=tuple(widths), building_height_m=(3.0, 14.0))
     cams = vertical_cameras(sc, 2, base_over_height=bh)

@@ -628,7 +628,7 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
     a, b : ndarray
         The orthophotos (grey, NaN = unseen).
     h : ndarray
-        Height error tested per cell (NaN = none: no window through the cell agrees).
+        Height error tested per cell (NaN = none: no window through the cell is tested).
     displacement : callable
         ``displacement(h) -> (dca, dra, dcb, drb)``: where a point of each cell appears in
         ``a`` and ``b`` relative to the cell (cells, column and row), as for
@@ -640,7 +640,10 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
 
     Returns
     -------
-    ndarray of bool
+    agree : ndarray of bool
+    tested : ndarray of bool
+        Cells with a window seen whole in both images (elsewhere the test cannot be made:
+        the height puts the cell's images off an orthophoto).
     """
     n = (2 * int(half) + 1) ** 2
     bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n   # chi2.isf(tail, n - 1)
@@ -658,7 +661,7 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
     m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
     var = np.where(full, m2 - m1 * m1, np.inf)
     best = ndimage.minimum_filter(var, w, mode="constant", cval=np.inf)
-    return best <= bound
+    return best <= bound, np.isfinite(best)
 
 
 def close_mask(mask, window):

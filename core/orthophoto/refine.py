@@ -491,7 +491,7 @@ def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, tren
 
     First, an unmatched cell the fill made an object, farther than half the window plus one
     cell from any object measurement (nearer, it lies in that measurement's window), stays
-    one only where the orthophotos agree within their noise at its filled height
+    one unless the orthophotos, seen there, disagree beyond their noise at its filled height
     (:func:`~.quality.agree_at_height`): ground hidden from one camera beside a wall is never
     matched, the fill carries the roof's height into it, and the orthophotos show the roof
     there in one image and the ground in the other. Then the outline (:func:`~.quality.settle_boundary`), then the
@@ -525,7 +525,8 @@ def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, tren
     held = ndimage.binary_opening(np.isfinite(o_meas), np.ones((reach, reach), bool))
     cand = is_obj & ~np.isfinite(sub_dh) & ~ndimage.binary_dilation(held, np.ones((2 * reach + 1, 2 * reach + 1), bool))
     if cand.any() and np.isfinite(noise_var) and noise_var > 0:
-        gone = cand & ~agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var)
+        agree, tested = agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var)
+        gone = cand & tested & ~agree
         is_obj &= ~gone
         unconfirmed[sl] = gone
     new = settle_boundary(a[sl], b[sl], is_obj, sub_dh, trend[sl], valid, displacement, window // 2)
