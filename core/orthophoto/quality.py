@@ -609,7 +609,7 @@ def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, hal
     return new
 
 
-def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
+def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, where=None):
     """Where the orthophotos agree, within their noise, at the heights ``h``.
 
     A surface point seen by both cameras appears in ``a`` and ``b`` where its height puts
@@ -637,6 +637,8 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
         Variance of ``a - b`` where they agree (twice an orthophoto's noise variance).
     half : int
         Half the side of the test windows.
+    where : ndarray of bool, optional
+        The cells to test (the work is confined to their bounding box); default all.
 
     Returns
     -------
@@ -647,21 +649,37 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3):
     """
     n = (2 * int(half) + 1) ** 2
     bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n   # chi2.isf(tail, n - 1)
+    h = np.asarray(h, np.float64)
+    agree = np.zeros(h.shape, bool)
+    tested = np.zeros(h.shape, bool)
+    if where is None:
+        where = np.ones(h.shape, bool)
+    rows, cols = np.nonzero(where.any(axis=1))[0], np.nonzero(where.any(axis=0))[0]
+    if rows.size == 0:
+        return agree, tested
+    w = 2 * int(half) + 1
+    m = 2 * w                                   # the windows through a cell reach 2 * half cells
+    r0, r1 = max(0, rows[0] - m), min(h.shape[0], rows[-1] + m + 1)
+    c0, c1 = max(0, cols[0] - m), min(h.shape[1], cols[-1] + m + 1)
+    box = (slice(r0, r1), slice(c0, c1))
     ok = np.isfinite(h)
-    dca, dra, dcb, drb = displacement(np.where(ok, h, 0.0))
-    rr, cc = np.indices(np.shape(h), dtype=np.float64)
+    dca, dra, dcb, drb = (np.asarray(x)[box] for x in displacement(np.where(ok, h, 0.0)))
+    rr, cc = np.indices((r1 - r0, c1 - c0), dtype=np.float64)
+    rr += r0
+    cc += c0
     va = ndimage.map_coordinates(np.asarray(a, np.float32), [rr + dra, cc + dca], order=1, mode="constant", cval=np.nan)
     vb = ndimage.map_coordinates(np.asarray(b, np.float32), [rr + drb, cc + dcb], order=1, mode="constant", cval=np.nan)
-    d = np.where(ok, va - vb, np.nan).astype(np.float64)
+    d = np.where(ok[box], va - vb, np.nan).astype(np.float32)
     fin = np.isfinite(d)
-    d0 = np.where(fin, d, 0.0)
-    w = 2 * int(half) + 1
-    full = ndimage.uniform_filter(fin.astype(np.float64), w, mode="constant") > 1 - 1e-9
+    d0 = np.where(fin, d, np.float32(0))
+    full = ndimage.uniform_filter(fin.astype(np.float32), w, mode="constant") > 1 - 1e-4
     m1 = ndimage.uniform_filter(d0, w, mode="constant")
     m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
-    var = np.where(full, m2 - m1 * m1, np.inf)
+    var = np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
     best = ndimage.minimum_filter(var, w, mode="constant", cval=np.inf)
-    return best <= bound, np.isfinite(best)
+    agree[box] = (best <= bound) & where[box]
+    tested[box] = np.isfinite(best) & where[box]
+    return agree, tested
 
 
 def close_mask(mask, window):

@@ -522,10 +522,15 @@ def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, tren
     o_meas = np.where(is_obj & np.isfinite(sub_dh), sub_dh, np.nan).astype(np.float32)
     # cells within half the window plus one cell of an object measurement (as close_mask)
     reach = window // 2 + 1
-    held = ndimage.binary_opening(np.isfinite(o_meas), np.ones((reach, reach), bool))
-    cand = is_obj & ~np.isfinite(sub_dh) & ~ndimage.binary_dilation(held, np.ones((2 * reach + 1, 2 * reach + 1), bool))
+    # (an opening by a square of that side, then a dilation by twice it plus one: separable
+    # minimum and maximum filters, the same sets as the binary morphology)
+    u8 = np.isfinite(o_meas).view(np.uint8)
+    held = ndimage.maximum_filter(ndimage.minimum_filter(u8, reach, mode="constant", cval=0), reach,
+                                  origin=-1 if reach % 2 == 0 else 0, mode="constant", cval=0)
+    near = ndimage.maximum_filter(held, 2 * reach + 1, mode="constant", cval=0).view(bool)
+    cand = is_obj & ~np.isfinite(sub_dh) & ~near
     if cand.any() and np.isfinite(noise_var) and noise_var > 0:
-        agree, tested = agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var)
+        agree, tested = agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var, where=cand)
         gone = cand & tested & ~agree
         is_obj &= ~gone
         unconfirmed[sl] = gone
