@@ -318,7 +318,9 @@ class OrthoAlgorithm(BaseAlgorithm):
                  "robust spread of dh about its trend on the ground.", optional=True, minValue=0.0),
             _num(self.MAX_DH_M, "Largest height correction searched (m) [empty: 0.2 x H]",
                  "Largest |dh| the matching searches for (metres); empty: a fifth of the camera height "
-                 "above the DEM.", optional=True, minValue=0.0, advanced=True),
+                 "above the DEM. orthorefine searches this range first, then within the 99th percentile "
+                 "of the last correction, and moves no cell by more than this in total (nothing larger "
+                 "was measured).", optional=True, minValue=0.0, advanced=True),
             _num(self.OBJECT_SIZE_M, "Largest object width (m)",
                  "The object mask compares dh with its ground trend (the median of the ground cells over "
                  "about this width), so smooth DEM errors are not objects; 0 compares dh with 0.",
@@ -566,7 +568,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
     MAX_ITERATIONS, TOLERANCE_M, RELAXATION = "MAX_ITERATIONS", "TOLERANCE_M", "RELAXATION"
     OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
     TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "agreement",
-                     "status", "mean_corr")
+                     "status", "mean_corr", "detail_single_pair")
 
     def name(self):
         return "orthorefine"
@@ -582,7 +584,10 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "along its base, keeps the trusted matches (peak correlation, left-right agreement, a distinct "
             "peak, texture enough against the noise, confirmed by the neighbours), converts the residual "
             "parallax to height corrections, merges the pairs (weighted by correlation, outliers dropped), "
-            "and adds RELAXATION x the correction to the DEM. Each update is checked by the next "
+            "and adds RELAXATION x the correction to the DEM: its smooth part (a Gaussian mean over about "
+            "the window), and its detail where it stands out of the noise and two pairs agree on it (one "
+            "pair cannot tell a detail from its own blunder). No cell moves by more than MAX_DH_M in "
+            "total. Each update is checked by the next "
             "measurement: an update that makes the pairs agree worse is undone and the iteration stops; it "
             "also stops when the agreement improves by less than 5 %, one checked update after the pairs' "
             "residual parallax falls within the matching noise (0.2 cell), when the RMS correction is below "
@@ -612,7 +617,9 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "order given), <b>HEIGHT_M</b> (H) and <b>BASE_DIRECTION_DEG</b>.</li>"
             "<li><b>MAX_ITERATIONS</b> (default 6), <b>TOLERANCE_M</b> (empty: half the expected height "
             "precision), <b>RELAXATION</b> (advanced, default 1: the whole correction), <b>WINDOW_CELLS</b>, "
-            "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>: as in orthoparallax.</li></ul>"
+            "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>, <b>MAX_DH_M</b> (advanced, empty: 0.2 H; "
+            "also the largest total move of a cell), <b>OBJECT_SIZE_M</b> (advanced, 40): as in "
+            "orthoparallax.</li></ul>"
             "<h3>Outputs</h3><ul><li><b>OUTPUT_DEM</b>: the refined DEM.</li>"
             "<li><b>OUTPUT_DH</b>: total correction, refined minus input (m), NaN where fewer than two frames "
             "see.</li><li><b>OUTPUT_QUALITY</b>: {}</li><li><b>OUTPUT_MASK</b>: {}</li>"
@@ -621,7 +628,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "<li><b>OUTPUT_TABLE</b>: CSV, one row per measurement: RMS correction (m), share of the cells seen "
             "by two frames with a trusted match, pairs, RMS residual parallax (m), agreement (RMS parallax on "
             "the cells matched now and before, over its value before: below 1 the last update helped), status "
-            "(applied, undone, measured), mean correlation; also in the log.</li></ul>").format(
+            "(applied, undone, measured), mean correlation, cells of detail left out for lack of a second "
+            "pair; also in the log.</li></ul>").format(
                 tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
@@ -679,7 +687,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.OUTPUT_TABLE, tr("Iteration table (CSV)"), "CSV files (*.csv)", optional=True,
             createByDefault=True),
             "One row per measurement: iteration, rms_correction_m, matched_share, pairs, rms_parallax_m, "
-            "agreement, status, mean_corr."))
+            "agreement, status, mean_corr, detail_single_pair (cells of significant detail left out because "
+            "only one pair measured them)."))
         for p in format_params():
             self.addParameter(p)
         for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):

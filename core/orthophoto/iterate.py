@@ -59,7 +59,9 @@ class RefineResult:
         measurement, over its value then: below 1 the last update made the pairs agree
         better), ``status`` (``applied``: this correction went into the DEM; ``undone``: the
         next measurement showed it made the pairs agree worse, so it was taken back;
-        ``measured``: not applied, see ``info['stop']``), ``mean_corr`` and, with
+        ``measured``: not applied, see ``info['stop']``), ``mean_corr``,
+        ``detail_single_pair`` (cells of significant detail not applied because only one
+        pair measured them) and, with
         ``reference``, ``rmse_reference_m`` of the DEM after that row.
     info : dict
         Parameters used, ``stop`` (why the iteration ended, in words) and ``warning``
@@ -100,9 +102,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     overlapping pair along its base (:func:`orthoparallax`'s matcher), converts the parallax
     to height corrections with the general geometry, keeps the trusted ones (the matcher's
     per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
-    pairs' corrections weighted by correlation, keeps their smooth part and their detail
-    where it stands out of the noise (:func:`~.quality.keep_significant`), fills gaps of a
-    few cells and adds ``relaxation`` x the correction to the DEM.
+    pairs' corrections weighted by correlation, keeps their smooth part (a field, applied as
+    such) and their detail where it stands out of the noise (:func:`~.quality.keep_significant`)
+    and two pairs agree on it (one pair cannot tell a detail from its own blunder), fills gaps
+    of a few cells and adds ``relaxation`` x the correction to the DEM.
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
@@ -140,7 +143,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     max_dh_m : float, optional
         Largest correction searched (default 0.2 * camera height above the DEM); after an
         update the search range is the 99th percentile of the correction just applied (at
-        least 6 x the expected precision). No cell moves by more than ``2 * max_dh_m`` in total.
+        least 6 x the expected precision). No cell moves by more than ``max_dh_m`` in total:
+        nothing larger was measured.
     pairs : list of (int, int), optional
         Pairs to match; default every pair that overlaps by ``min_overlap``.
     smooth_cells : int
@@ -247,11 +251,13 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 tolerance_m = 0.5 * info["sigma_expected_m"]
             outlier = outlier_m if outlier_m is not None else 3.0 * max(info["sigma_expected_m"], 0.1)
         dh_it, meas["quality"] = merge_pairs(meas["dhs"], meas["cors"], outlier)
+        merged = dh_it
         matched = np.isfinite(dh_it) & meas["multi"]
         rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
         meas["share"] = share = float(matched.sum() / max(1, meas["multi"].sum()))
         row = dict(iteration=it + 1, rms_correction_m=rms, matched_share=share, pairs=len(meas["pinfo"]),
                    rms_parallax_m=meas["rms_parallax_m"], agreement=float("nan"), status="measured",
+                   detail_single_pair=0,
                    mean_corr=float(np.nanmean(meas["quality"][matched])) if matched.any() else float("nan"))
         table.append(row)
         if prev is not None:
@@ -293,14 +299,18 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             break
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-        dh_it = keep_significant(dh_it, info["sigma_expected_m"], window)
-        # corrections reach unmatched cells within the fill distance, fading out; farther
-        # cells keep their height (nothing was measured there)
-        corr_full = spread_corrections(dh_it, matched, fill_sigma_cells)
+        smooth, detail, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
+                                                     info["sigma_expected_m"], window)
+        row["detail_single_pair"] = n_single
+        # the smooth part is a field, applied as such (fading out with its certainty); the
+        # detail reaches unmatched cells within the fill distance, fading out; farther cells
+        # keep their height (nothing was measured there)
+        dh_it = np.where(matched, smooth + detail, np.nan)
+        corr_full = smooth + spread_corrections(detail, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
         cur = cur + float(relaxation) * corr_full
-        # no cell moves by more than twice the search range in total
-        cur = np.where(valid_dem, np.clip(cur, dem0 - 2 * max_dh_m, dem0 + 2 * max_dh_m), np.nan).astype(np.float32)
+        # no cell moves by more than the range the first measurement searched
+        cur = np.where(valid_dem, np.clip(cur, dem0 - max_dh_m, dem0 + max_dh_m), np.nan).astype(np.float32)
         # what is left after an update is at most what was just measured: the next search
         # range is the 99th percentile of |correction| (at least 6 x the expected precision)
         big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
@@ -327,6 +337,67 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
+
+
+def _smooth_field(dh, scale_cells):
+    """The normalised Gaussian mean of the finite ``dh`` (sigma ``scale_cells``) at every cell.
+
+    The smooth part of :func:`~.quality.keep_significant` (same filter), also between the
+    measurements, weighted by its certainty (normalised convolution, Knutsson & Westin 1993):
+    the whole mean where the Gaussian holds at least a square of the side the matcher
+    resolves (half the window plus one cell) of measurements, in proportion to their weight
+    below that, so it fades out where the measurements thin out without a step or a kink;
+    0 far from any.
+    """
+    ok = np.isfinite(dh)
+    s = max(0.5, float(scale_cells))
+    num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
+    side = max(1, int(scale_cells) // 2 + 1)
+    d0 = side * side / (2.0 * np.pi * s * s)
+    return num / np.maximum(den, d0)
+
+
+def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
+    """The smooth part of the corrections (everywhere) and their confirmed significant detail.
+
+    The smooth part is the Gaussian mean over about the window (:func:`_smooth_field`), a
+    field defined between the measurements too: applied as such it adds no structure finer
+    than its own scale (filling it in again from the matched cells alone would: the fill is
+    another filter, and where matches are sparse the two part by a step).
+    :func:`~.quality.keep_significant` keeps the detail (correction minus its smooth part)
+    where it stands out of the expected noise over a square the matcher resolves. One pair
+    alone cannot tell such a detail from its own blunder (repetitive texture, a shadow);
+    pairs with other bases see a blunder at another height. So a region of significant
+    detail is kept when at least half of its cells hold two or more pairs whose corrections
+    agree with the merged one within ``outlier_m`` (the tolerance of
+    :func:`~.quality.merge_pairs`). With a single pair nothing can be confirmed and the
+    detail is kept as measured.
+
+    Returns
+    -------
+    smooth : ndarray float64
+        The smooth part at every cell (:func:`_smooth_field`).
+    detail : ndarray float32
+        The kept detail at the cells of ``dh`` (0 elsewhere on them; NaN where ``dh`` is NaN).
+    single : int
+        Cells of detail dropped because only one pair measured them.
+    """
+    smooth = _smooth_field(dh, window)
+    out = keep_significant(dh, sigma_m, window)
+    sig = np.isfinite(out) & (out != keep_significant(dh, sigma_m, window, k=np.inf))
+    detail = np.where(sig, out - smooth, np.where(np.isfinite(dh), 0.0, np.nan))
+    if len(dhs) < 2 or not sig.any():
+        return smooth, detail.astype(np.float32), 0
+    support = np.zeros(dh.shape, np.int16)
+    with np.errstate(invalid="ignore"):
+        for d in dhs:
+            support += np.abs(d - merged) <= outlier_m
+    labels, n = ndimage.label(sig, structure=np.ones((3, 3), bool))
+    confirmed = ndimage.mean(support >= 2, labels, np.arange(1, n + 1)) >= 0.5
+    keep = sig & np.concatenate(([False], confirmed))[labels]
+    detail = np.where(keep | np.isnan(detail), detail, 0.0)
+    return smooth, detail.astype(np.float32), int(np.count_nonzero(sig & ~keep))
 
 
 def _measure(cur, setup, prog):
@@ -429,20 +500,24 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
         pinfo.append(pi)
         report(progress, 0.9 * (k + 1) / len(pair_list))
     sigma = precision_cells * float(np.median([p["dh_per_cell_m"] for p in pinfo])) if pinfo else 1.0
-    dh_it, quality = merge_pairs(dhs, cors, outlier_m if outlier_m is not None else 3 * max(sigma, 0.1))
+    outlier = outlier_m if outlier_m is not None else 3 * max(sigma, 0.1)
+    dh_it, quality = merge_pairs(dhs, cors, outlier)
+    merged = dh_it
     multi = (np.sum(seen, axis=0) >= 2)
     matched = np.isfinite(dh_it) & multi
     share = float(matched.sum() / max(1, multi.sum()))
     refused = share < MIN_MATCHED_SHARE
     if smooth_cells and smooth_cells > 1:
         dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-    dh_it = keep_significant(dh_it, sigma, window)
-    full = np.zeros(dem0.shape, np.float32) if refused else spread_corrections(dh_it, matched, fill_sigma_cells)
+    smooth, detail, n_single = _confirmed_detail(dh_it, merged, dhs, outlier, sigma, window)
+    dh_it = np.where(matched, smooth + detail, np.nan)
+    full = (np.zeros(dem0.shape, np.float32) if refused
+            else (smooth + spread_corrections(detail, matched, fill_sigma_cells)).astype(np.float32))
     cur = np.where(np.isfinite(dem0), dem0 + full, np.nan).astype(np.float32)
     rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
     row = dict(iteration=1, rms_correction_m=rms, matched_share=share, pairs=len(pinfo),
                rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),
-               agreement=float("nan"), status="measured" if refused else "applied",
+               agreement=float("nan"), status="measured" if refused else "applied", detail_single_pair=n_single,
                mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
     _reference(row, reference, None, cur, multi, np.isfinite(dem0))
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
