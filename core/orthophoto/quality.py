@@ -27,13 +27,13 @@ import math
 import warnings
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "keep_significant",
-           "ground_trend", "object_mask", "settle_boundary", "close_mask"]
+           "ground_trend", "object_mask", "settle_boundary", "agree_at_height", "close_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -496,13 +496,14 @@ def object_mask(dh, valid, sigma_expected, threshold, object_size_cells, k=3.0, 
     return (mask, thr, sig, trend) if return_trend else (mask, thr, sig)
 
 
-def _window_residual(a, b, rr, cc, disp, half):
-    """Offset-free squared difference of ``a`` and ``b`` over the best small window containing a cell.
+def _window_residual(a, b, rr, cc, disp, half, centred=False):
+    """Squared difference of ``a`` and ``b`` over the best small window containing a cell.
 
     ``disp = (dca, dra, dcb, drb)`` per candidate cell: where a point of the cell's
     neighbourhood appears in ``a`` and in ``b`` (cells). For each of the ``(2 half + 1)^2``
     windows of side ``2 half + 1`` that contain the cell (shiftable windows), the mean of
-    ``(a - b)^2``; the smallest of them (NaN where no window is seen whole).
+    ``(a - b)^2`` (``centred``: of ``(a - b - mean(a - b))^2``, free of a radiometric offset);
+    the smallest of them (NaN where no window is seen whole).
     """
     dca, dra, dcb, drb = disp
     w = 2 * half + 1
@@ -517,6 +518,8 @@ def _window_residual(a, b, rr, cc, disp, half):
     for i in range(w):
         for j in range(w):
             sub = D[i:i + w, j:j + w].reshape(w * w, -1)
+            if centred:
+                sub = sub - np.mean(sub, axis=0)
             s = np.mean(sub * sub, axis=0)                # NaN when a pixel is unseen
             best = np.where(s < best, s, best)
     return np.where(np.isfinite(best), best, np.nan)
@@ -604,6 +607,79 @@ def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, hal
         decided = np.isfinite(s_obj) & np.isfinite(s_gnd)
         new[rr[decided], cc[decided]] = (s_obj < s_gnd)[decided]
     return new
+
+
+def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, where=None):
+    """Where the orthophotos agree, within their noise, at the heights ``h``.
+
+    A surface point seen by both cameras appears in ``a`` and ``b`` where its height puts
+    it, and the two images agree there up to their noise: over a window of ``n = (2 half +
+    1)^2`` cells the offset-free mean square of ``a - b``, times ``n / var(a - b)``, follows a
+    chi-square law with ``n - 1`` degrees of freedom. A cell agrees when the best of the
+    windows containing it (shiftable, so one can lie wholly on the cell's side of an outline)
+    stays below that law's upper ``tail`` quantile (the one-sided 3 sigma share by default).
+    Each cell of a window is sampled where its own ``h`` puts it (``h`` smooth over a
+    window: the object's height near it). Where the cell is no surface point at that
+    height (ground hidden from one camera beside a wall, which one orthophoto shows as the
+    wall's roof), the images disagree by about twice the texture's variance.
+
+    Parameters
+    ----------
+    a, b : ndarray
+        The orthophotos (grey, NaN = unseen).
+    h : ndarray
+        Height error tested per cell (NaN = none: no window through the cell is tested).
+    displacement : callable
+        ``displacement(h) -> (dca, dra, dcb, drb)``: where a point of each cell appears in
+        ``a`` and ``b`` relative to the cell (cells, column and row), as for
+        :func:`settle_boundary`.
+    noise_var : float
+        Variance of ``a - b`` where they agree (twice an orthophoto's noise variance).
+    half : int
+        Half the side of the test windows.
+    where : ndarray of bool, optional
+        The cells to test (the work is confined to their bounding box); default all.
+
+    Returns
+    -------
+    agree : ndarray of bool
+    tested : ndarray of bool
+        Cells with a window seen whole in both images (elsewhere the test cannot be made:
+        the height puts the cell's images off an orthophoto).
+    """
+    n = (2 * int(half) + 1) ** 2
+    bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n   # chi2.isf(tail, n - 1)
+    h = np.asarray(h, np.float64)
+    agree = np.zeros(h.shape, bool)
+    tested = np.zeros(h.shape, bool)
+    if where is None:
+        where = np.ones(h.shape, bool)
+    rows, cols = np.nonzero(where.any(axis=1))[0], np.nonzero(where.any(axis=0))[0]
+    if rows.size == 0:
+        return agree, tested
+    w = 2 * int(half) + 1
+    m = 2 * w                                   # the windows through a cell reach 2 * half cells
+    r0, r1 = max(0, rows[0] - m), min(h.shape[0], rows[-1] + m + 1)
+    c0, c1 = max(0, cols[0] - m), min(h.shape[1], cols[-1] + m + 1)
+    box = (slice(r0, r1), slice(c0, c1))
+    ok = np.isfinite(h)
+    dca, dra, dcb, drb = (np.asarray(x)[box] for x in displacement(np.where(ok, h, 0.0)))
+    rr, cc = np.indices((r1 - r0, c1 - c0), dtype=np.float64)
+    rr += r0
+    cc += c0
+    va = ndimage.map_coordinates(np.asarray(a, np.float32), [rr + dra, cc + dca], order=1, mode="constant", cval=np.nan)
+    vb = ndimage.map_coordinates(np.asarray(b, np.float32), [rr + drb, cc + dcb], order=1, mode="constant", cval=np.nan)
+    d = np.where(ok[box], va - vb, np.nan).astype(np.float32)
+    fin = np.isfinite(d)
+    d0 = np.where(fin, d, np.float32(0))
+    full = ndimage.uniform_filter(fin.astype(np.float32), w, mode="constant") > 1 - 1e-4
+    m1 = ndimage.uniform_filter(d0, w, mode="constant")
+    m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
+    var = np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
+    best = ndimage.minimum_filter(var, w, mode="constant", cval=np.inf)
+    agree[box] = (best <= bound) & where[box]
+    tested[box] = np.isfinite(best) & where[box]
+    return agree, tested
 
 
 def close_mask(mask, window):

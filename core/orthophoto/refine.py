@@ -29,6 +29,7 @@ from ..common import report
 from .match import REASONS, match_along
 from .orthorectify import check_transform, grid_xy
 from .quality import (
+    agree_at_height,
     close_mask,
     fill_holes,
     nan_median_at,
@@ -462,13 +463,18 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     mask, thr, sig, trend = object_mask(filled, both & np.isfinite(filled), sigma_exp, height_threshold_m, size,
                                         return_trend=True)
     before = mask == OBJECT
+    unconfirmed = np.zeros(mask.shape, bool)
     if settle:
-        mask = _settle_mask(mask, a, b, dh, dem, transform, info["crop"], window, dict(
-            centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend)
+        mask, unconfirmed = _settle_mask(mask, a, b, dh, filled, dem, transform, info["crop"], window, dict(
+            centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend,
+            2.0 * info["noise_grey"] ** 2)
+        # unmatched cells the images do not confirm at the filled height are ground: the DEM keeps its trend there
+        corrected = np.where(unconfirmed, dem + trend, corrected).astype(np.float32)
     after = mask == OBJECT
     # the outline test and the closing, counted for the log
     info.update(outline_to_object=int(np.count_nonzero(after & ~before)),
-                outline_to_ground=int(np.count_nonzero(before & ~after)))
+                outline_to_ground=int(np.count_nonzero(before & ~after)),
+                unconfirmed_to_ground=int(np.count_nonzero(unconfirmed)))
     info.update(window=window, shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
                 height_threshold_m=float(thr), sigma_expected_m=float(sigma_exp),
                 sigma_data_m=sig, overlap_cells=int(both.sum()),
@@ -480,10 +486,22 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     return ParallaxResult(corrected, dh, quality, mask, info)
 
 
-def _settle_mask(mask, a, b, dh, dem, transform, crop, window, cam, trend):
-    """The object mask with its outline decided on the orthophotos (:func:`~.quality.settle_boundary`).
+def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, trend, noise_var):
+    """The object mask with its unmatched cells confirmed and its outline decided on the orthophotos.
 
-    Then closed over half the window plus one cell (:func:`~.quality.close_mask`).
+    First, an unmatched cell the fill made an object, farther than half the window plus one
+    cell from any object measurement (nearer, it lies in that measurement's window), stays
+    one unless the orthophotos, seen there, disagree beyond their noise at its filled height
+    (:func:`~.quality.agree_at_height`): ground hidden from one camera beside a wall is never
+    matched, the fill carries the roof's height into it, and the orthophotos show the roof
+    there in one image and the ground in the other. Then the outline (:func:`~.quality.settle_boundary`), then the
+    closing over half the window plus one cell (:func:`~.quality.close_mask`).
+
+    Returns
+    -------
+    mask : ndarray uint8
+    unconfirmed : ndarray of bool
+        The unmatched cells turned to ground by the first step.
     """
     r0, r1, c0, c1 = crop
     sl = (slice(r0, r1), slice(c0, c1))
@@ -498,13 +516,30 @@ def _settle_mask(mask, a, b, dh, dem, transform, crop, window, cam, trend):
                 h * (mx + 0.5 * dvx) / dx, -h * (my + 0.5 * dvy) / dy)
 
     valid = (mask != NODATA)[sl]
-    new = settle_boundary(a[sl], b[sl], (mask == OBJECT)[sl], dh[sl], trend[sl], valid, displacement,
-                          window // 2)
+    is_obj = (mask == OBJECT)[sl]
+    unconfirmed = np.zeros(mask.shape, bool)
+    sub_dh = dh[sl]
+    o_meas = np.where(is_obj & np.isfinite(sub_dh), sub_dh, np.nan).astype(np.float32)
+    # cells within half the window plus one cell of an object measurement (as close_mask)
+    reach = window // 2 + 1
+    # (an opening by a square of that side, then a dilation by twice it plus one: separable
+    # minimum and maximum filters, the same sets as the binary morphology)
+    u8 = np.isfinite(o_meas).view(np.uint8)
+    held = ndimage.maximum_filter(ndimage.minimum_filter(u8, reach, mode="constant", cval=0), reach,
+                                  origin=-1 if reach % 2 == 0 else 0, mode="constant", cval=0)
+    near = ndimage.maximum_filter(held, 2 * reach + 1, mode="constant", cval=0).view(bool)
+    cand = is_obj & ~np.isfinite(sub_dh) & ~near
+    if cand.any() and np.isfinite(noise_var) and noise_var > 0:
+        agree, tested = agree_at_height(a[sl], b[sl], filled[sl], displacement, noise_var, where=cand)
+        gone = cand & tested & ~agree
+        is_obj &= ~gone
+        unconfirmed[sl] = gone
+    new = settle_boundary(a[sl], b[sl], is_obj, sub_dh, trend[sl], valid, displacement, window // 2)
     out = mask.copy()
     sub = out[sl]
     sub[new] = OBJECT
     sub[valid & ~new & (sub == OBJECT)] = GROUND
-    return close_mask(out, window)
+    return close_mask(out, window), unconfirmed & (out != OBJECT)
 
 
 #: Below this share of trusted matches among the cells seen by two frames, the pairs
