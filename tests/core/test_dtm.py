@@ -1,22 +1,13 @@
 """bareearth:dtm: the majority of independent filters, its confidence, and what the user knows."""
 import numpy as np
 import pytest
+from surfaces import grid, noisy
 
 from bare_earth.core import dtm as dtm_method
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, NODATA, OBJECT
 from bare_earth.core.methods import available_methods
 from bare_earth.core.synthetic import make_scene
-
-
-def _grid(n):
-    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
-    return y, x
-
-
-def _noisy(ground, seed=0, sd=0.03):
-    rng = np.random.default_rng(seed)
-    return (ground + rng.normal(0.0, sd, ground.shape)).astype(np.float32)
 
 
 def test_registered_without_parameters():
@@ -147,13 +138,13 @@ def test_box_mean_down_the_columns_is_scipys_bit_for_bit(band, monkeypatch):
 
 
 def test_object_areas_fix_a_warehouse_larger_than_any_window():
-    y, x = _grid(300)
+    y, x = grid(300)
     ground = np.full(y.shape, 50.0)           # flat: the ground under the roof is extrapolated from one side
     wh = np.zeros(ground.shape, bool)
     # 180 m: wider than every member's largest window, and running off the raster on three sides
     # (as lidar/sample_c's roof): one wall is no evidence of an object (dtm_regions), a terrace looks the same
     wh[:, 120:] = True
-    z = _noisy(ground + np.where(wh, 9.0, 0.0))
+    z = noisy(ground + np.where(wh, 9.0, 0.0))
     alone = pipeline.run_array("dtm", z, 1.0)
     assert (alone.mask[wh] == GROUND).mean() > 0.5                   # the roof taken as ground
     fixed = pipeline.run_array("dtm", z, 1.0, aux={"object_areas": wh})
@@ -163,10 +154,10 @@ def test_object_areas_fix_a_warehouse_larger_than_any_window():
 
 
 def test_breaklines_keep_a_terrace():
-    y, x = _grid(160)
+    y, x = grid(160)
     # a terrace 24 m wide and 4 m high, its edges 3 m long slopes (x 65-68 up, 92-95 down)
     ground = 100 + 0.02 * y + np.clip(np.minimum((x - 65) / 3.0, (95 - x) / 3.0), 0, 1) * 4.0
-    z = _noisy(ground)
+    z = noisy(ground)
     bl = np.zeros(z.shape, bool)
     bl[:, [65, 68, 92, 95]] = True
     alone = pipeline.run_array("dtm", z, 1.0)
@@ -177,11 +168,11 @@ def test_breaklines_keep_a_terrace():
 
 
 def test_ground_areas_keep_a_raised_car_park_among_trees():
-    y, x = _grid(200)
+    y, x = grid(200)
     cp = np.zeros(y.shape, bool)
     cp[80:120, 80:120] = True
     ground = 20 + 0.01 * x + np.where(cp, 2.5, 0.0)     # a car park deck 2.5 m above its surroundings
-    z = _noisy(ground)
+    z = noisy(ground)
     rng = np.random.default_rng(1)
     for cy, cx, r in zip(rng.integers(0, 200, 120), rng.integers(0, 200, 120), rng.uniform(3, 6, 120)):
         d = np.hypot(y - cy, x - cx)

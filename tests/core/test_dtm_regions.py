@@ -1,20 +1,11 @@
 """bareearth:dtm's raised regions: voted ground wider than the vote's windows standing on steps above the ground."""
 import numpy as np
 import pytest
+from surfaces import grid, noisy
 
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, OBJECT
 from bare_earth.core.dtm_regions import REACH_CELLS, find_raised_regions, regions_halo
-
-
-def _grid(n):
-    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
-    return y, x
-
-
-def _noisy(ground, seed=0, sd=0.05):
-    rng = np.random.default_rng(seed)
-    return (ground + rng.normal(0.0, sd, ground.shape)).astype(np.float32)
 
 
 def _find(z, mask=None, **kw):
@@ -69,7 +60,7 @@ def test_a_level_running_off_the_raster_is_no_object():
 
 
 def test_a_raised_level_on_banks_wider_than_a_wall_is_no_object():
-    y, x = _grid(60)
+    y, x = grid(60)
     r = np.maximum(np.abs(y - 30), np.abs(x - 30))
     for rise in (1.0, 2.0):                      # 45 and 63 degree banks, 6 m high: 6 and 3 cells wide
         z = np.clip((24 - r) * rise, 0, 6).astype(np.float32)
@@ -81,7 +72,7 @@ def test_a_raised_level_on_banks_wider_than_a_wall_is_no_object():
 def test_a_region_on_steps_but_mostly_below_the_ground_around_is_no_object():
     # walls 2 m high at its outline, then the region sinks 0.3 m per cell to 4 m below the ground
     # around: steps all round, but only the cells within 4 cells of its edge stand above the ground
-    y, x = _grid(60)
+    y, x = grid(60)
     inside = (y >= 10) & (y < 50) & (x >= 10) & (x < 50)
     depth = np.minimum(np.minimum(y - 10, 49 - y), np.minimum(x - 10, 49 - x))
     z = np.where(inside, np.maximum(2.0 - 0.3 * depth, -4.0), 0.0).astype(np.float32)
@@ -96,7 +87,7 @@ def test_blocked_equals_one_pass():
     """The stage on windows of a block plus regions_halo cells gives the one-pass decision in the block."""
     rng = np.random.default_rng(4)
     n = 180
-    y, x = _grid(n)
+    y, x = grid(n)
     z = (10 + 0.02 * x + 0.01 * y + rng.normal(0, 0.03, (n, n))).astype(np.float32)
     mask = np.zeros((n, n), np.uint8)
     for r0, c0, h, w, top in ((5, 5, 30, 40, 6.0), (60, 20, 50, 70, 9.0), (20, 100, 70, 60, 4.0),
@@ -121,10 +112,10 @@ def test_blocked_equals_one_pass():
 # ----------------------------------------------------------------------------- through bareearth:dtm
 
 def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object():
-    y, x = _grid(300)
+    y, x = grid(300)
     ground = 50 + 0.02 * x + 0.01 * y
     wh = (np.abs(x - 150) < 75) & (np.abs(y - 150) < 75)          # 150 m x 150 m flat roof, 9 m high
-    z = _noisy(ground + np.where(wh, 9.0, 0.0))
+    z = noisy(ground + np.where(wh, 9.0, 0.0), sd=0.05)
     res = pipeline.run_array("dtm", z, 1.0)
     p = res.info["params"]
     assert p["region_width_m"] < 150 and p["region_max_cells"] >= 150
@@ -137,7 +128,7 @@ def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object():
 
 @pytest.mark.parametrize("kind", ["terrace", "plateau", "embankment", "hilltop"])
 def test_dtm_keeps_raised_ground(kind):
-    y, x = _grid(300)
+    y, x = grid(300)
     base = 50 + 0.02 * x + 0.01 * y
     r = np.hypot(x - 150, y - 150)
     raised = {
@@ -146,7 +137,7 @@ def test_dtm_keeps_raised_ground(kind):
         "embankment": np.clip((30 - np.abs(y - 150)) / 1.5, 0, 6),    # a dam, 1:1.5 banks, 6 m high
         "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
     }[kind]
-    z = _noisy(base + raised)
+    z = noisy(base + raised, sd=0.05)
     res = pipeline.run_array("dtm", z, 1.0)
     assert res.info["raised_region_cells"] == 0
     assert all(s.endswith(": ground") for s in res.info["raised_regions"])
@@ -156,8 +147,8 @@ def test_dtm_halo_adds_the_stage_reach_to_the_members():
     """dtm's halo covers the members' reach and, beyond it, the stage's (the stage reads the vote)."""
     from bare_earth.core import dtm as dtm_method
     from bare_earth.core.methods import get_method
-    y, x = _grid(128)
-    z = _noisy(20 + 0.01 * x)
+    y, x = grid(128)
+    z = noisy(20 + 0.01 * x, sd=0.05)
     p = dtm_method.resolve_dtm_params(z, 1.0)
     width, span = dtm_method.region_scales(p["members"], 1.0)
     assert (p["region_width_m"], p["region_max_cells"]) == (width, span)

@@ -2,6 +2,7 @@
 confidence output and the log."""
 import numpy as np
 import pytest
+from surfaces import noisy
 
 pytestmark = pytest.mark.qgis
 
@@ -42,16 +43,13 @@ def _read(path):
     return ds.GetRasterBand(1).ReadAsArray()
 
 
-def _noisy(ground, seed=0):
-    return (ground + np.random.default_rng(seed).normal(0.0, 0.03, ground.shape)).astype(np.float32)
-
 
 def test_object_areas_and_confidence(processing_run, tmp_path):
     y, x = np.mgrid[0:300, 0:300].astype(np.float32)
     ground = 50 + 0.02 * x + 0.01 * y
     wh = np.zeros(ground.shape, bool)
     wh[60:240, 60:240] = True
-    path = _write(tmp_path, "warehouse.tif", _noisy(ground + np.where(wh, 9.0, 0.0)))
+    path = _write(tmp_path, "warehouse.tif", noisy(ground + np.where(wh, 9.0, 0.0)))
     base = {"INPUT": str(path), "OUTPUT_DTM": str(tmp_path / "dtm0.tif"), "OUTPUT_MASK": str(tmp_path / "m0.tif")}
     processing_run("bareearth:dtm", base)
     # 180 m: wider than every member's window; bounded by walls, it is found alone (dtm_regions)
@@ -71,7 +69,7 @@ def test_object_areas_and_confidence(processing_run, tmp_path):
 def test_breaklines_keep_a_terrace(processing_run, tmp_path):
     y, x = np.mgrid[0:160, 0:160].astype(np.float32)
     ground = 100 + 0.02 * y + np.clip(np.minimum((x - 65) / 3.0, (95 - x) / 3.0), 0, 1) * 4.0
-    path = _write(tmp_path, "terrace.tif", _noisy(ground))
+    path = _write(tmp_path, "terrace.tif", noisy(ground))
     lines = [[_xy(0, c + 0.5), _xy(160, c + 0.5)] for c in (65, 68, 92, 95)]
     out = {"OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": str(tmp_path / "m.tif")}
     res = processing_run("bareearth:dtm", {"INPUT": str(path), **out, "BREAKLINES": _layer("LineString", lines)})
@@ -83,7 +81,7 @@ def test_ground_area_points_keep_a_car_park(processing_run, tmp_path):
     cp = np.zeros(y.shape, bool)
     cp[80:120, 80:120] = True
     ground = 20 + 0.01 * x + np.where(cp, 2.5, 0.0)
-    z = _noisy(ground)
+    z = noisy(ground)
     rng = np.random.default_rng(1)
     for cy, cx, r in zip(rng.integers(0, 200, 120), rng.integers(0, 200, 120), rng.uniform(3, 6, 120)):
         d = np.hypot(y - cy, x - cx)
