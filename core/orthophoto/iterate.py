@@ -15,10 +15,10 @@ from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
 from .quality import (
     close_mask,
-    keep_significant,
     merge_pairs,
     nan_median_filter,
     object_mask,
+    split_significant,
     spread_corrections,
 )
 from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
@@ -103,7 +103,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     to height corrections with the general geometry, keeps the trusted ones (the matcher's
     per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
     pairs' corrections weighted by correlation, keeps their smooth part (a field, applied as
-    such) and their detail where it stands out of the noise (:func:`~.quality.keep_significant`)
+    such) and their detail where it stands out of the noise (:func:`~.quality.split_significant`)
     and two pairs agree on it (one pair cannot tell a detail from its own blunder), fills gaps
     of a few cells and adds ``relaxation`` x the correction to the DEM.
 
@@ -339,34 +339,20 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
 
 
-def _smooth_field(dh, scale_cells):
-    """The normalised Gaussian mean of the finite ``dh`` (sigma ``scale_cells``) at every cell.
-
-    The smooth part of :func:`~.quality.keep_significant` (same filter), also between the
-    measurements, weighted by its certainty (normalised convolution, Knutsson & Westin 1993):
-    the whole mean where the Gaussian holds at least a square of the side the matcher
-    resolves (half the window plus one cell) of measurements, in proportion to their weight
-    below that, so it fades out where the measurements thin out without a step or a kink;
-    0 far from any.
-    """
-    ok = np.isfinite(dh)
-    s = max(0.5, float(scale_cells))
-    num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
-    den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
-    side = max(1, int(scale_cells) // 2 + 1)
-    d0 = side * side / (2.0 * np.pi * s * s)
-    return num / np.maximum(den, d0)
-
-
 def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
     """The smooth part of the corrections (everywhere) and their confirmed significant detail.
 
-    The smooth part is the Gaussian mean over about the window (:func:`_smooth_field`), a
-    field defined between the measurements too: applied as such it adds no structure finer
-    than its own scale (filling it in again from the matched cells alone would: the fill is
-    another filter, and where matches are sparse the two part by a step).
-    :func:`~.quality.keep_significant` keeps the detail (correction minus its smooth part)
-    where it stands out of the expected noise over a square the matcher resolves. One pair
+    The smooth part is the normalised Gaussian mean over about the window of
+    :func:`~.quality.split_significant`, a field defined between the measurements too and
+    weighted by its certainty (Knutsson & Westin 1993): the whole mean where the Gaussian
+    holds at least a square of the side the matcher resolves (half the window plus one
+    cell) of measurements, in proportion to their weight below that, so it fades out where
+    the measurements thin out without a step or a kink; 0 far from any. Applied as such it
+    adds no structure finer than its own scale (filling it in again from the matched cells
+    alone would: the fill is another filter, and where matches are sparse the two part by a
+    step). The detail (correction minus its smooth part) is kept where
+    :func:`~.quality.split_significant` finds it standing out of the expected noise over a
+    square the matcher resolves. One pair
     alone cannot tell such a detail from its own blunder (repetitive texture, a shadow);
     pairs with other bases see a blunder at another height. So a region of significant
     detail is kept when at least half of its cells hold two or more pairs whose corrections
@@ -377,16 +363,18 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
     Returns
     -------
     smooth : ndarray float64
-        The smooth part at every cell (:func:`_smooth_field`).
+        The smooth part at every cell.
     detail : ndarray float32
         The kept detail at the cells of ``dh`` (0 elsewhere on them; NaN where ``dh`` is NaN).
     single : int
         Cells of detail dropped because only one pair measured them.
     """
-    smooth = _smooth_field(dh, window)
-    out = keep_significant(dh, sigma_m, window)
-    sig = np.isfinite(out) & (out != keep_significant(dh, sigma_m, window, k=np.inf))
-    detail = np.where(sig, out - smooth, np.where(np.isfinite(dh), 0.0, np.nan))
+    dh = np.asarray(dh, np.float32)
+    num, den, sig = split_significant(dh, sigma_m, window)
+    s = max(0.5, float(window))
+    side = max(1, int(window) // 2 + 1)
+    smooth = num / np.maximum(den, side * side / (2.0 * np.pi * s * s))
+    detail = np.where(sig, dh - smooth, np.where(np.isfinite(dh), 0.0, np.nan))
     if len(dhs) < 2 or not sig.any():
         return smooth, detail.astype(np.float32), 0
     support = np.zeros(dh.shape, np.int16)

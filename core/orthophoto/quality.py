@@ -9,8 +9,9 @@ module keeps the corrections consistent with their neighbours and with each othe
 * :func:`remove_blunders`: a robust test of each corrected height ``z = DEM + dh`` against
   the median of its neighbours (a spike is a blunder unless a cluster of neighbours
   confirms it, as on the corners of roofs);
-* :func:`keep_significant`: the smooth part of the corrections everywhere, their detail only
-  where it stands out of the noise (the refined DEM gets no rougher than the data support);
+* :func:`split_significant`: the smooth part of the corrections (a normalised Gaussian mean)
+  and where their detail stands out of the noise (the rest is not applied: the refined DEM
+  gets no rougher than the data support);
 * :func:`merge_pairs`: the correlation-weighted mean of the pairs after dropping the pairs
   that disagree with the median;
 * :func:`ground_trend` and :func:`object_mask`: the smooth ground part of ``dh`` (a median of
@@ -32,7 +33,7 @@ from scipy import ndimage, special
 from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
-           "keep_significant",
+           "split_significant",
            "ground_trend", "object_mask", "settle_boundary", "agree_at_height", "close_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
@@ -362,40 +363,37 @@ def merge_pairs(dhs, cors, outlier_m):
     return dh.astype(np.float32), q.astype(np.float32)
 
 
-def keep_significant(dh, sigma_m, scale_cells, k=3.0):
-    """The smooth part of the corrections, plus their detail where it is significant.
+def split_significant(dh, sigma_m, scale_cells, k=3.0):
+    """The corrections' normalised Gaussian mean and where their detail is significant.
 
     Each correction measures an average over the correlation window, with noise of sd
     ``sigma_m``; applied cell by cell, that noise becomes speckle in the DEM. The smooth part
     is the normalised Gaussian mean of ``dh`` with sigma ``scale_cells`` (the window), whose
-    noise is several times smaller; the detail ``dh - smooth`` is kept only where
-    ``|detail| > k * sigma_m`` in a region that holds a square of ``scale_cells // 2 + 1``
-    cells (an object or a step the window resolves) and dropped elsewhere. With precise
-    corrections (``sigma_m`` small) nearly all detail stays.
+    noise is several times smaller (normalised convolution, Knutsson & Westin 1993: ``num /
+    den``, ``den`` the weight of the measurements under the Gaussian); the detail ``dh -
+    smooth`` is significant where ``|detail| > k * sigma_m`` in a region that holds a square
+    of ``scale_cells // 2 + 1`` cells (an object or a step the window resolves).
 
     Returns
     -------
-    ndarray float32
-        NaN where ``dh`` is NaN.
+    num, den : ndarray float64
+        The Gaussian sums of the finite ``dh`` and of their weight (``num / den`` is the mean).
+    sig : ndarray of bool
+        The cells of significant detail (never where ``dh`` is NaN).
     """
     dh = np.asarray(dh, np.float32)
     ok = np.isfinite(dh)
-    if not ok.any():
-        return dh
     s = max(0.5, float(scale_cells))
     num = ndimage.gaussian_filter(np.where(ok, dh, 0).astype(np.float64), s, mode="nearest")
     den = ndimage.gaussian_filter(ok.astype(np.float64), s, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = np.where(den > 1e-3, num / den, np.nan)
-    detail = dh - smooth
-    with np.errstate(invalid="ignore"):
-        sig = np.abs(detail) > k * float(sigma_m)
+        sig = np.abs(dh - smooth) > k * float(sigma_m)
     # the matcher cannot resolve features narrower than about half its window: significant
     # detail must hold a square of that side
     side = max(1, int(scale_cells) // 2 + 1)
     sig = ndimage.binary_opening(sig, structure=np.ones((side, side), bool))
-    out = np.where(sig, dh, smooth)
-    return np.where(ok, out, np.nan).astype(np.float32)
+    return num, den, sig
 
 
 def _block_median(x, b):
@@ -686,7 +684,7 @@ def close_mask(mask, window):
     """Close the objects of a mask (codes) over ``window // 2 + 1`` cells.
 
     The matcher resolves no gap narrower than about half its window (as
-    :func:`keep_significant` keeps no narrower detail), so ground gaps and notches that
+    :func:`split_significant` finds no narrower detail), so ground gaps and notches that
     narrow inside or between objects are closed; only cells seen by two frames change.
     """
     side = int(window) // 2 + 1
