@@ -66,6 +66,10 @@ class RefineResult:
     info : dict
         Parameters used, ``stop`` (why the iteration ended, in words) and ``warning``
         (plain words when the data could not support the refinement, else '').
+    parallax_start, parallax : ndarray float32 or None
+        Per cell, the RMS residual parallax of the pairs' trusted matches (ground units, NaN
+        where no pair matched) measured on the starting DEM and on the returned one: where
+        the pairs agree better after the refinement (oriented frames; None in tie-point mode).
     """
     dem: np.ndarray
     orthos: list
@@ -74,6 +78,8 @@ class RefineResult:
     mask: np.ndarray
     table: list
     info: dict = field(default_factory=dict)
+    parallax_start: np.ndarray = None
+    parallax: np.ndarray = None
 
 
 def overlapping_pairs(seen, min_overlap=0.05, min_cells=100):
@@ -244,6 +250,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
         setup["pairs"] = meas["pairs"]
         if it == 0:
+            parallax_start = meas["parallax"]
             if reference_cells is None:
                 reference_cells = meas["multi"]
             info["sigma_expected_m"] = precision_cells * meas["dh_per_cell_m"]
@@ -336,7 +343,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
-                        np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info)
+                        np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info,
+                        parallax_start=parallax_start, parallax=meas["parallax"])
 
 
 def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special
 
 from ..codes import GROUND, NODATA, OBJECT
 from ..common import report
@@ -363,7 +363,8 @@ def reasons_text(reasons):
 def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None, height_m=None,
                   base_direction=(1.0, 0.0), window=7, shiftable=5, min_corr=0.6,
                   max_dh_m=None, height_threshold_m=None, precision_cells=0.2,
-                  lsm_iterations=3, relocate=True, object_size_m=40.0, settle=True, progress=None):
+                  lsm_iterations=3, relocate=True, object_size_m=40.0, settle=True, fine=True,
+                  progress=None):
     """Measure the DEM error from the residual parallax of two orthophotos (one pass).
 
     Luong Chinh Ke (2002, section 2.3): two orthophotos of overlapping frames made with
@@ -408,6 +409,10 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
         Least-squares sub-pixel iterations.
     relocate : bool
         Move measurements from the matched location to the ground point (needs centres).
+    fine : bool
+        Match a finer window (half the window plus one cell, made odd) where the window's own
+        matching fails, and keep its matches where the orthophotos agree at their height
+        (:func:`_fine_matches`): objects narrower than the window.
     settle : bool
         Decide the cells along the object outlines on the orthophotos
         (:func:`~.quality.settle_boundary`: the object's or the ground's height, whichever
@@ -451,6 +456,13 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
                                    shiftable=shiftable, min_corr=min_corr, max_dh_m=float(max_dh_m),
                                    lsm_iterations=lsm_iterations, relocate=relocate,
                                    precision_cells=precision_cells)
+    cam = dict(centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction)
+    info["fine_matches"] = 0
+    if fine:
+        dh, corr, info["fine_matches"] = _fine_matches(
+            a, b, dh, corr, dem, transform, both, info, cam, window=window, min_corr=min_corr,
+            max_dh_m=float(max_dh_m), lsm_iterations=lsm_iterations, relocate=relocate,
+            precision_cells=precision_cells)
     report(progress, 0.8)
     sigma_exp = precision_cells * info["dh_per_cell_m"]
     matched = np.isfinite(dh)
@@ -465,9 +477,8 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     before = mask == OBJECT
     unconfirmed = np.zeros(mask.shape, bool)
     if settle:
-        mask, unconfirmed = _settle_mask(mask, a, b, dh, filled, dem, transform, info["crop"], window, dict(
-            centres=centres, base_m=base_m, height_m=height_m, base_direction=base_direction), trend,
-            2.0 * info["noise_grey"] ** 2)
+        mask, unconfirmed = _settle_mask(mask, a, b, dh, filled, dem, transform, info["crop"], window, cam, trend,
+                                         2.0 * info["noise_grey"] ** 2)
         # unmatched cells the images do not confirm at the filled height are ground: the DEM keeps its trend there
         corrected = np.where(unconfirmed, dem + trend, corrected).astype(np.float32)
     after = mask == OBJECT
@@ -484,6 +495,109 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     report(progress, 1.0)
     quality = np.where(both, corr, np.nan).astype(np.float32)
     return ParallaxResult(corrected, dh, quality, mask, info)
+
+
+def _crop_displacement(dem, transform, crop, cam):
+    """The pair's crop (slices) and ``displacement(h)`` on it: where a point of each cell with
+    height error ``h`` appears in ``a`` and ``b`` (cells, ``(dca, dra, dcb, drb)``)."""
+    r0, r1, c0, c1 = crop
+    sl = (slice(r0, r1), slice(c0, c1))
+    x0, dx, y0, dy = check_transform(transform)
+    sub_t = (x0 + c0 * dx, dx, 0.0, y0 - r0 * dy, 0.0, -dy)
+    geom = pair_geometry(dem[sl], sub_t, cam["centres"], cam["base_m"], cam["height_m"], cam["base_direction"])
+
+    def displacement(h):
+        # a DEM error h moves a point by h * v in an orthophoto: v_a, v_b from v_b - v_a and their mean
+        (dvx, dvy), (mx, my) = geom["dv"](h)
+        return (h * (mx - 0.5 * dvx) / dx, -h * (my - 0.5 * dvy) / dy,
+                h * (mx + 0.5 * dvx) / dx, -h * (my + 0.5 * dvy) / dy)
+    return sl, displacement
+
+
+def _fine_matches(a, b, dh, corr, dem, transform, both, info, cam, *, window, min_corr, max_dh_m,
+                  lsm_iterations, relocate, precision_cells):
+    """Matches of a finer window where the coarse one has none or a worse one, kept where the images agree.
+
+    A window wider than an object straddles its outline everywhere and measures the surface
+    that fills most of it (or nothing: the left-right check fails): a building narrower than
+    the window is missed whole. The finer window is the smallest odd one that holds a square
+    of half the coarse window plus one cell (the narrowest detail the coarse window resolves,
+    as :func:`~.quality.close_mask`): 5 x 5 for 7 x 7, without shiftable windows (the best
+    window containing the cell would reach over the outline again). Its match is taken at a
+    cell where the coarse window has none (a rejected match: left-right disagreement, low or
+    flat correlation), or has one farther than the blunder tolerance (3 x the expected
+    precision) from it at which the images agree worse (a window mostly on the ground beside
+    a narrow roof measures the ground there). A fine window holds fewer cells, so its correlation alone does
+    not tell a small object from a blunder: the match is kept only where the orthophotos,
+    sampled where its height puts the cell, agree within their noise over the best fine
+    window containing the cell (:func:`_agree_constant`, the chi-square bound of
+    :func:`~.quality.agree_at_height` with the noise the matcher estimated from the pair).
+
+    Returns
+    -------
+    dh, corr : ndarray float32
+    added : int
+        Cells whose correction comes from the finer window.
+    """
+    fw = (int(window) // 2 + 1) | 1
+    hole = both & ~np.isfinite(dh)
+    if fw >= window or not hole.any() or not np.isfinite(info["noise_grey"]):
+        return dh, corr, 0
+    dh_f, corr_f, _, _ = match_pair(a, b, dem, transform, both, centres=cam["centres"], base_m=cam["base_m"],
+                                    height_m=cam["height_m"], base_direction=cam["base_direction"], window=fw,
+                                    shiftable=0, min_corr=min_corr, max_dh_m=max_dh_m,
+                                    lsm_iterations=lsm_iterations, relocate=relocate,
+                                    precision_cells=precision_cells)
+    tol = 3.0 * precision_cells * info["dh_per_cell_m"]       # the blunder tolerance of the pair
+    with np.errstate(invalid="ignore"):
+        differ = both & np.isfinite(dh) & np.isfinite(dh_f) & (np.abs(dh_f - dh) > tol)
+    cand = (hole & np.isfinite(dh_f)) | differ
+    if not cand.any():
+        return dh, corr, 0
+    sl, displacement = _crop_displacement(dem, transform, info["crop"], cam)
+    noise_var = 2.0 * info["noise_grey"] ** 2
+    rr, cc = np.nonzero(cand[sl])
+    hf = dh_f[sl][rr, cc]
+    agree, best_f = _agree_constant(a[sl], b[sl], rr, cc, hf, displacement, noise_var, fw // 2)
+    was = np.isfinite(dh[sl][rr, cc])
+    if was.any():
+        # where both windows measured, the coarse height stays unless the images agree better at the fine one
+        _, best_c = _agree_constant(a[sl], b[sl], rr[was], cc[was], dh[sl][rr[was], cc[was]], displacement,
+                                    noise_var, fw // 2)
+        agree[was] &= best_f[was] < best_c
+    use = np.zeros(dh.shape, bool)
+    use[sl][rr[agree], cc[agree]] = True
+    return (np.where(use, dh_f, dh).astype(np.float32), np.where(use, corr_f, corr).astype(np.float32),
+            int(np.count_nonzero(use)))
+
+
+def _agree_constant(a, b, rr, cc, h, displacement, noise_var, half, tail=1.35e-3):
+    """The orthophotos at cells ``(rr, cc)``, each at its own constant height ``h`` over its windows.
+
+    As :func:`~.quality.agree_at_height`, but every window through a cell is sampled where
+    the cell's own height puts it (a plane hypothesis, as a match is): the best of the
+    windows of side ``2 half + 1`` containing the cell, offset-free mean square of ``a - b``
+    against the chi-square bound of the pair's noise. Returns (agree, best mean square).
+    """
+    n = (2 * half + 1) ** 2
+    bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n
+    full = np.zeros(a.shape)
+    full[rr, cc] = h
+    dca, dra, dcb, drb = (np.asarray(x)[rr, cc] for x in displacement(full))
+    o = np.arange(-2 * half, 2 * half + 1, dtype=np.float64)
+    orr, occ = np.broadcast_arrays(rr[:, None, None] + o[None, :, None], cc[:, None, None] + o[None, None, :])
+    va = ndimage.map_coordinates(np.asarray(a, np.float32), [orr + dra[:, None, None], occ + dca[:, None, None]],
+                                 order=1, mode="constant", cval=np.nan)
+    vb = ndimage.map_coordinates(np.asarray(b, np.float32), [orr + drb[:, None, None], occ + dcb[:, None, None]],
+                                 order=1, mode="constant", cval=np.nan)
+    d = (va - vb).astype(np.float64)
+    w = 2 * half + 1
+    # the mean square about the mean of every window of side w inside the 2w - 1 square (NaN: unseen)
+    s1 = ndimage.uniform_filter(d, (1, w, w), mode="constant")[:, half:-half or None, half:-half or None]
+    s2 = ndimage.uniform_filter(d * d, (1, w, w), mode="constant")[:, half:-half or None, half:-half or None]
+    var = (s2 - s1 * s1).reshape(len(rr), -1)
+    best = np.min(np.where(np.isfinite(var), var, np.inf), axis=1)
+    return best <= bound, best
 
 
 def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, trend, noise_var):
@@ -503,18 +617,7 @@ def _settle_mask(mask, a, b, dh, filled, dem, transform, crop, window, cam, tren
     unconfirmed : ndarray of bool
         The unmatched cells turned to ground by the first step.
     """
-    r0, r1, c0, c1 = crop
-    sl = (slice(r0, r1), slice(c0, c1))
-    x0, dx, y0, dy = check_transform(transform)
-    sub_t = (x0 + c0 * dx, dx, 0.0, y0 - r0 * dy, 0.0, -dy)
-    geom = pair_geometry(dem[sl], sub_t, cam["centres"], cam["base_m"], cam["height_m"], cam["base_direction"])
-
-    def displacement(h):
-        # a DEM error h moves a point by h * v in an orthophoto: v_a, v_b from v_b - v_a and their mean
-        (dvx, dvy), (mx, my) = geom["dv"](h)
-        return (h * (mx - 0.5 * dvx) / dx, -h * (my - 0.5 * dvy) / dy,
-                h * (mx + 0.5 * dvx) / dx, -h * (my + 0.5 * dvy) / dy)
-
+    sl, displacement = _crop_displacement(dem, transform, crop, cam)
     valid = (mask != NODATA)[sl]
     is_obj = (mask == OBJECT)[sl]
     unconfirmed = np.zeros(mask.shape, bool)

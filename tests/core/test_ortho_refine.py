@@ -131,6 +131,14 @@ def test_orthorefine_reduces_smooth_errors(scene2):
     assert len(r.orthos) == 3 and r.orthos[0].shape == sc.surface.shape
     assert calls and all(0 <= c <= 1 for c in calls) and np.all(np.diff(calls) >= -1e-12)
     assert calls[-1] == 1.0
+    # where the pairs agree: the residual parallax per cell on the start DEM and on the result,
+    # the same quantities as the table's first and last RMS parallax
+    both = np.isfinite(r.parallax_start) & np.isfinite(r.parallax)
+    assert both.mean() > 0.5
+    for grid, row in ((r.parallax_start, r.table[0]), (r.parallax, r.table[-1])):
+        v = grid[np.isfinite(grid)].astype(np.float64)
+        assert np.sqrt(np.mean(v ** 2)) == pytest.approx(row["rms_parallax_m"], rel=1e-5)
+    assert np.sqrt(np.mean(r.parallax[both] ** 2)) < 0.3 * np.sqrt(np.mean(r.parallax_start[both] ** 2))
 
 
 def test_orthorefine_bad_inputs(scene2):

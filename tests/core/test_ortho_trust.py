@@ -412,3 +412,32 @@ def test_noise_6dn_wide_tall_buildings_hidden_ground_is_not_an_object():
     # the DEM keeps the ground's height there
     gone = (r.mask == 0) & far & ~np.isfinite(r.dh)
     assert np.sqrt(np.mean((r.dem - sc.surface)[gone] ** 2)) < 1.0
+
+
+def test_noise_6dn_buildings_narrower_than_the_window_are_found_by_a_finer_window():
+    """Buildings 3-10 m wide at B/H 0.6 and 6 grey levels of noise: a building 3-3.5 m wide (6-7
+    cells) is narrower than the 7 x 7 window, every window through it straddles its outline and
+    measures the ground (or fails the left-right check), and the whole building is missed. A 5 x 5
+    window (half the window plus one cell, made odd) fits on the roof; its matches are kept where
+    the coarse window has none or the images agree better at the fine height than at the coarse
+    one, and the images agree within their noise at that height (chi-square bound)."""
+    sc = make_ortho_scene(shape=(160, 200), cell_size=0.5, n_buildings=19, seed=27,
+                          building_width_cells=(6, 20), building_height_m=(3.0, 14.0))
+    cams = vertical_cameras(sc, 2, base_over_height=0.6)
+    imgs = render_frames(sc, cams, noise=6.0, seed=27, dz_m=0.5)
+    oa, ob = (orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams))
+    narrow = np.zeros(sc.labels.shape, bool)
+    for k, sl in enumerate(ndimage.find_objects(sc.labels), start=1):
+        if sl is not None and min(s.stop - s.start for s in sl) <= 7:
+            narrow[sl] |= sc.labels[sl] == k
+    out = {}
+    for fine in (0, 1):
+        r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre), fine=fine)
+        seen = r.mask != NODATA
+        out[fine] = (float((r.mask[narrow & seen] == OBJECT).mean()),
+                     float((r.mask[(sc.labels > 0) & seen] == OBJECT).mean()),
+                     float((r.mask[_far_ground(sc, seen)] == OBJECT).mean()), r.info["fine_matches"])
+    # measured (recall of the narrow buildings, of all, far-ground false alarms): without the finer
+    # window 47 %, 88 %, 0.8 %; with it 96 %, 94 %, 0.8 %
+    assert out[0][3] == 0 and out[0][0] < 0.6
+    assert out[1][3] > 0 and out[1][0] >= 0.9 and out[1][1] >= 0.93 and out[1][2] <= 0.03, out
