@@ -1,0 +1,46 @@
+"""Edge inputs and outputs through processing.run and qgis_process (the adversarial QA round):
+each test failed before the fix it names."""
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+
+
+def _write(path, arr, gt=GT, nodata=None, **kw):
+    from bare_earth.core.grid import write_array
+    return write_array(path, arr, gt, 32632, nodata=nodata, **kw)
+
+
+def _ramp_with_box(shape=(40, 40)):
+    """A gentle ramp (0-3 m) with a 6 m box on it."""
+    z = np.zeros(shape, np.float32) + np.linspace(0.0, 3.0, shape[1], dtype=np.float32)[None, :]
+    z[10:20, 10:20] += 6.0
+    return z
+
+
+def _read(path):
+    from osgeo import gdal
+    ds = gdal.Open(str(path))
+    b = ds.GetRasterBand(1)
+    return b.ReadAsArray(), b.GetNoDataValue()
+
+
+def test_ndsm_of_a_dsm_with_nodata_zero_keeps_its_ground_cells(processing_run, tmp_path):
+    """nodata = 0 is a value every ground cell of an nDSM holds (DSM - DTM = 0): the nDSM then
+    declares NaN, so its ground cells stay valid (they all read as nodata before)."""
+    z = _ramp_with_box()
+    z[:, :3] = 0.0
+    src = _write(tmp_path / "dsm.tif", z, nodata=0.0)
+    res = processing_run("bareearth:slopeprofile", {
+        "INPUT": src, "OUTPUT_DTM": str(tmp_path / "dtm.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+        "OUTPUT_NDSM": str(tmp_path / "ndsm.tif")})
+    ndsm, nd = _read(res["OUTPUT_NDSM"])
+    mask, _ = _read(res["OUTPUT_MASK"])
+    dtm, dnd = _read(res["OUTPUT_DTM"])
+    assert dnd == 0.0 and (dtm[:, :3] == 0).all()            # the DTM keeps the input's nodata
+    ground = mask == 0
+    assert ground.sum() > 1000
+    assert np.isnan(nd) and (ndsm[ground] == 0).all()         # valid zeros, not nodata
+    assert np.isnan(ndsm[:, :3]).all() and (mask[:, :3] == 255).all()
+    assert (ndsm[mask == 1] > 5).all()
