@@ -44,3 +44,23 @@ def test_ndsm_of_a_dsm_with_nodata_zero_keeps_its_ground_cells(processing_run, t
     assert np.isnan(nd) and (ndsm[ground] == 0).all()         # valid zeros, not nodata
     assert np.isnan(ndsm[:, :3]).all() and (mask[:, :3] == 255).all()
     assert (ndsm[mask == 1] > 5).all()
+
+
+def test_heights_in_millimetres_refused_naming_the_unit(processing_run, tmp_path):
+    """An Int32 DSM in millimetres without a scale: every height is beyond +-1e5 m. The refusal
+    says so and how to give the band its scale (it said "every cell is nodata" before)."""
+    from qgis.core import QgsProcessingException
+    z = (np.round(_ramp_with_box() * 1000.0) + 250_000).astype(np.int32)
+    src = _write(tmp_path / "mm.tif", z, nodata=-99999, dtype="Int32")
+    out = tmp_path / "dtm.tif"
+    with pytest.raises(QgsProcessingException, match=r"beyond \+-100000 m.*gdal_edit.py -scale 0.001"):
+        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(out), "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not out.exists()
+    from osgeo import gdal
+    ds = gdal.Open(src, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.001)
+    ds = None
+    res = processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(out),
+                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    mask, _ = _read(res["OUTPUT_MASK"])
+    assert (mask[12:18, 12:18] == 1).all() and (mask[30:, 30:] == 0).all()
