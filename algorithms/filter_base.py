@@ -70,6 +70,8 @@ def progress_callback(feedback):
         if feedback.isCanceled():
             raise Cancelled()
         feedback.setProgress(100.0 * fraction)
+        if feedback.isCanceled():   # a cancel handled while the bar was drawn stops here, not later
+            raise Cancelled()
     return progress
 
 

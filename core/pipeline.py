@@ -11,6 +11,7 @@
 memory (the plugin's path). Both cut the raster into the same windows with the method's
 halo, so blocked and one-pass results agree.
 """
+import contextlib
 import math
 import os
 import threading
@@ -22,7 +23,16 @@ import numpy as np
 
 from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
+from .common import (
+    Cancelled,
+    Progress,
+    as_cell_size,
+    as_surface,
+    far_heights_message,
+    report,
+    sub_progress,
+    without_far_heights,
+)
 from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
@@ -538,7 +548,8 @@ def _run_file(info, run, pool):
     result.update(_merge_info(writer.infos, writer.weights))
     result["classes_percent"] = class_shares(writer.counts)
     result["seconds"] = time.perf_counter() - run.t0
-    report(run.progress, 1.0)
+    with contextlib.suppress(Cancelled):   # the outputs are in place: a cancel now comes too late
+        report(run.progress, 1.0)
     return result
 
 

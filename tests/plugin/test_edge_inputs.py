@@ -64,3 +64,46 @@ def test_heights_in_millimetres_refused_naming_the_unit(processing_run, tmp_path
                                                     "OUTPUT_MASK": str(tmp_path / "m.tif")})
     mask, _ = _read(res["OUTPUT_MASK"])
     assert (mask[12:18, 12:18] == 1).all() and (mask[30:, 30:] == 0).all()
+
+
+def _cancel_at(percent):
+    """A feedback that asks to cancel once the bar reaches ``percent`` (as a user's click handled
+    while the bar is drawn)."""
+    from qgis.core import QgsProcessingFeedback
+
+    class CancelAt(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            super().setProgress(p)
+            if p >= percent:
+                self.cancel()
+    return CancelAt()
+
+
+@pytest.mark.parametrize("percent", [50, 100])
+def test_cancel_from_the_bar_leaves_no_output(processing_run, tmp_path, percent):
+    """A cancel asked while the bar shows 100 % (the outputs about to move into place) stops the
+    run with nothing written; before, the outputs were moved into place and the run then said
+    "Cancelled: no output was written" and returned no result."""
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((120, 130)))
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+            "OUTPUT_NDSM": str(tmp_path / "n.tif")}
+    res = processing_run("bareearth:slopeprofile", {"INPUT": src, **outs}, feedback=_cancel_at(percent))
+    assert not res or not any(res.values())
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.endswith(".aux.xml")) == ["dsm.tif"]
+
+
+def test_a_cancel_after_the_outputs_are_in_place_comes_too_late(tmp_path):
+    """Once the outputs are moved into place a cancel no longer raises: the run returns its
+    result (before, the final progress call raised Cancelled over complete outputs)."""
+    from bare_earth.core import pipeline
+    from bare_earth.core.common import Cancelled
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    seen = []
+
+    def progress(f):
+        if f >= 1.0 and seen.count(1.0) >= 1:     # the call after the outputs were moved
+            raise Cancelled()
+        seen.append(f)
+    res = pipeline.run_file("slopeprofile", src, {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")},
+                            progress=progress)
+    assert res["method"] == "slopeprofile" and (tmp_path / "m.tif").exists()
