@@ -201,6 +201,24 @@ def check_window_sizes(alg, values, defaults, info):
     return True, ""
 
 
+#: Smallest block edge a user may ask for (cells): the windows' corners align on 64 cells, and
+#: a smaller block reads far more halo than block (1-cell blocks: one filter run per cell).
+MIN_BLOCK_SIZE = 64
+
+
+def check_block_size(alg, parameters, context):
+    """(ok, message): BLOCK_SIZE is 0 (automatic) or at least :data:`MIN_BLOCK_SIZE` cells."""
+    d = alg.parameterDefinition("BLOCK_SIZE")
+    if d is None or parameters.get("BLOCK_SIZE") in (None, ""):
+        return True, ""
+    b = alg.parameterAsInt(parameters, "BLOCK_SIZE", context)
+    if 0 < b < MIN_BLOCK_SIZE:
+        return False, tr("{} = {} cells is too small: use 0 (automatic) or at least {} cells (a block is "
+                         "read with the method's reach around it, so tiny blocks repeat the work many "
+                         "times over).").format(label_of(d), b, MIN_BLOCK_SIZE)
+    return True, ""
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -338,6 +356,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
+        ok, msg = check_block_size(self, parameters, context)
+        if not ok:
+            return ok, msg
         return self.checkOutputs(parameters, context)
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802
@@ -424,8 +445,8 @@ class FilterAlgorithm(BaseAlgorithm):
             self.addParameter(self._qgs_param(p))
         for key, label, default, lo, hi, text in (
                 (self.BLOCK_SIZE, "Block size (cells, 0 = automatic)", 0, 0, 65536,
-                 "Edge of the blocks the raster is processed in, in cells. 0: one block up to 25 "
-                 "million cells, else 2048. Blocks overlap by the method's reach, so the result "
+                 "Edge of the blocks the raster is processed in, in cells: 0 or at least 64. 0: one "
+                 "block up to 25 million cells, else 2048. Blocks overlap by the method's reach, so the result "
                  "does not depend on it; memory does."),
                 (self.THREADS, "Threads (0 = one per core)", 0, 0, 64,
                  "Blocks filtered at once in threads. 0 (the default): one per core, at most 8, "

@@ -107,3 +107,30 @@ def test_a_cancel_after_the_outputs_are_in_place_comes_too_late(tmp_path):
     res = pipeline.run_file("slopeprofile", src, {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")},
                             progress=progress)
     assert res["method"] == "slopeprofile" and (tmp_path / "m.tif").exists()
+
+
+@pytest.mark.parametrize("block", [1, 8, 63])
+def test_tiny_block_size_refused_before_work(processing_run, tmp_path, block):
+    """BLOCK_SIZE below 64 cells is refused naming the parameter (before, BLOCK_SIZE = 1 ran one
+    filter per cell over a halo of tens of cells: a 120 x 130 raster had not finished in 10 min)."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    out = tmp_path / "d.tif"
+    with pytest.raises(QgsProcessingException, match=rf"'Block size.*\(BLOCK_SIZE\) = {block} cells is too small"):
+        processing_run("bareearth:geodesic", {"INPUT": src, "OUTPUT_DTM": str(out),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif"), "BLOCK_SIZE": block})
+    assert not out.exists()
+
+
+def test_smallest_block_size_equals_one_pass(processing_run, tmp_path):
+    """BLOCK_SIZE = 64 on a raster of 2 x 3 blocks gives the one-pass mask."""
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(120, 150), seed=3)
+    src = _write(tmp_path / "dsm.tif", sc.dsm)
+    masks = []
+    for b in (0, 64):
+        res = processing_run("bareearth:morphological", {
+            "INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{b}.tif"), "OUTPUT_MASK": str(tmp_path / f"m{b}.tif"),
+            "BLOCK_SIZE": b, "THREADS": 1})
+        masks.append(_read(res["OUTPUT_MASK"])[0])
+    assert (masks[0] == masks[1]).all() and (masks[0] == 1).any()
