@@ -107,6 +107,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
             minfo = grid.open_dsm(raster_path(mlayer), 1)
             if not same_grid(info, minfo):
                 raise ValueError(grid_mismatch_message(info, minfo, "The mask"))
+            grid.read_mask(minfo, "The mask (MASK)")   # codes, not heights: refused now, not read as codes
         codes = parse_codes(self.parameterAsString(parameters, self.FILL_CODES, context))
         return info, minfo, codes
 
@@ -133,8 +134,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         z = info.read()
         fill = ~np.isfinite(z) if fill_nodata else np.zeros(z.shape, bool)
         if minfo is not None:
-            m = minfo.dataset().GetRasterBand(1).ReadAsArray()
-            fill |= np.isin(m, codes)
+            fill |= np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
         feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)

@@ -379,6 +379,34 @@ def check_has_data(info, max_cells=4_000_000):
     return float(valid.mean())
 
 
+def read_mask(info, what="the mask"):
+    """The codes of a mask band as uint8; NaN cells and those of a declared nodata outside
+    0-255 (e.g. -9999) are 255 (a nodata within 0-255 is itself a code and stays as stored).
+
+    A mask holds whole numbers 0-255 (a Bare Earth mask: 0 ground, 1 object, 2 low outlier,
+    255 nodata; a classification's codes are accepted too). ValueError naming ``what``, the
+    file and a value found when a cell holds anything else (a DSM or a float raster given as
+    a mask), so it is refused before any work instead of read as codes.
+    """
+    a = info.read_stored()
+    nodata = np.zeros(a.shape, bool)
+    if a.dtype.kind == "f":
+        nodata |= np.isnan(a)
+    if info.nodata is not None and not math.isnan(info.nodata) and not 0 <= info.nodata <= 255:
+        nodata |= a == info.nodata
+    v = a[~nodata]
+    with np.errstate(invalid="ignore"):
+        bad = (v < 0) | (v > 255) | (v != np.round(v)) if a.dtype.kind == "f" else (v < 0) | (v > 255)
+    if bad.any():
+        raise ValueError(f"{what} {info.path!r} holds {int(np.count_nonzero(bad))} cell(s) that are no mask code "
+                         f"(e.g. {v[bad][0]!r}): a mask holds whole numbers 0-255 (0 ground, 1 object, 2 low "
+                         "outlier, 255 nodata). Give the object mask a Bare Earth filter wrote, or convert the "
+                         "raster into such codes first.")
+    out = np.full(a.shape, 255, np.uint8)
+    out[~nodata] = v
+    return out
+
+
 #: GDAL's block cache during a blocked run, bytes. Blocks (2048) are whole 256-cell output
 #: tiles, so no tile waits in the cache for a later block.
 BLOCK_MODE_CACHE = 64 * 2 ** 20

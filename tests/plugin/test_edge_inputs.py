@@ -134,3 +134,41 @@ def test_smallest_block_size_equals_one_pass(processing_run, tmp_path):
             "BLOCK_SIZE": b, "THREADS": 1})
         masks.append(_read(res["OUTPUT_MASK"])[0])
     assert (masks[0] == masks[1]).all() and (masks[0] == 1).any()
+
+
+def _mask(shape=(40, 40)):
+    m = np.zeros(shape, np.uint8)
+    m[10:20, 10:20] = 1
+    return m
+
+
+@pytest.mark.parametrize("alg", ["filldtm", "evaluate"])
+def test_a_dsm_given_as_mask_refused_before_work(processing_run, tmp_path, alg):
+    """A float raster of heights given as MASK is refused naming the parameter and a value
+    (before, filldtm filled nothing and evaluate counted every non-zero height as an object)."""
+    from qgis.core import QgsProcessingException
+    dsm = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    good = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    out = tmp_path / "out.tif"
+    params = ({"INPUT": dsm, "MASK": dsm, "OUTPUT": str(out)} if alg == "filldtm" else
+              {"MASK": dsm, "REFERENCE_MASK": good, "OUTPUT_JSON": str(tmp_path / "e.json"),
+               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    with pytest.raises(QgsProcessingException, match=r"The mask \(MASK\) '.*dsm.tif' holds \d+ cell\(s\) that are "
+                                                     r"no mask code \(e.g. 0.07"):
+        processing_run(f"bareearth:{alg}", params)
+    assert not out.exists() and not (tmp_path / "e.json").exists()
+
+
+def test_mask_codes_read_with_their_nodata(processing_run, tmp_path):
+    """An Int16 reference mask with nodata -9999: those cells are not evaluated, the others are
+    read as codes (a whole-number Float32 mask too)."""
+    m = _mask().astype(np.int16)
+    ref = m.copy()
+    ref[:5] = -9999
+    ref_path = _write(tmp_path / "ref.tif", ref, nodata=-9999, dtype="Int16")
+    mine = m.astype(np.float32)
+    mine[:5] = 0.0                            # ground where the reference has no data: not evaluated
+    res = processing_run("bareearth:evaluate", {"MASK": _write(tmp_path / "mine.tif", mine),
+                                                "REFERENCE_MASK": ref_path, "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                                "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert res["TOTAL"] == 0.0 and res["KAPPA"] == 100.0
