@@ -172,3 +172,47 @@ def test_mask_codes_read_with_their_nodata(processing_run, tmp_path):
                                                 "REFERENCE_MASK": ref_path, "OUTPUT_JSON": str(tmp_path / "e.json"),
                                                 "OUTPUT_HTML": str(tmp_path / "e.html")})
     assert res["TOTAL"] == 0.0 and res["KAPPA"] == 100.0
+
+
+def _ortho_pair(tmp, shape=(100, 100)):
+    """A flat DEM and two textured orthophotos of it on its grid (zero parallax)."""
+    from scipy import ndimage
+    rng = np.random.default_rng(7)
+    tex = (255.0 * ndimage.gaussian_filter(rng.random(shape), 1.5)).astype(np.float32)
+    return {"DEM": _write(tmp / "dem.tif", np.full(shape, 100.0, np.float32)),
+            "ORTHO_A": _write(tmp / "a.tif", tex), "ORTHO_B": _write(tmp / "b.tif", tex[:, ::-1].copy()),
+            "OUTPUT_DEM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "MAX_DH_M": 1e6}, r"parallax searched.*wider than the DEM \(100 m.*"
+                                                             r"MAX_DH_M below 333.3 m"),
+    ({"BASE_M": 1e9, "HEIGHT_M": 1000.0}, r"B / H = 1e\+06"),
+    ({"CAMERA_A": "0,50,1100", "CAMERA_B": "1e9,50,1100"}, r"parallax searched.*wider than the DEM"),
+    ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "ORTHO_B": "A"}, r"ORTHO_A and ORTHO_B are one file"),
+], ids=["max_dh", "base", "centres", "same_file"])
+def test_orthoparallax_absurd_geometry_refused_before_work(processing_run, tmp_path, extra, message):
+    """A parallax search wider than the DEM is refused naming the values and the bound (before, MAX_DH_M
+    = 1e6 m ran 12 min on 200 x 160 cells and BASE_M = 1e9 did not finish); so is one file as both
+    orthophotos (it ran, and measured no parallax)."""
+    from qgis.core import QgsProcessingException
+    params = _ortho_pair(tmp_path)
+    params.update(extra)
+    if params.get("ORTHO_B") == "A":
+        params["ORTHO_B"] = params["ORTHO_A"]
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:orthoparallax", params)
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_orthorefine_tie_points_absurd_base_refused(processing_run, tmp_path):
+    """The same bound in orthorefine's tie-point mode (B and H given)."""
+    from qgis.core import QgsProcessingException
+    p = _ortho_pair(tmp_path)
+    ties = tmp_path / "ties.csv"
+    ties.write_text("image,x,y,col,row\na,500010,5399990,10,10\nb,500010,5399990,12,10\n")
+    with pytest.raises(QgsProcessingException, match=r"B / H = 1e\+06"):
+        processing_run("bareearth:orthorefine", {"DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]],
+                                                 "TIE_POINTS": str(ties), "BASE_M": 1e9, "HEIGHT_M": 1000.0,
+                                                 "OUTPUT_DEM": p["OUTPUT_DEM"]})
+    assert not (tmp_path / "o.tif").exists()
