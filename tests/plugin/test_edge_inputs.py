@@ -216,3 +216,16 @@ def test_orthorefine_tie_points_absurd_base_refused(processing_run, tmp_path):
                                                  "TIE_POINTS": str(ties), "BASE_M": 1e9, "HEIGHT_M": 1000.0,
                                                  "OUTPUT_DEM": p["OUTPUT_DEM"]})
     assert not (tmp_path / "o.tif").exists()
+
+
+def test_saga_header_extension_names_the_sdat(processing_run, tmp_path):
+    """An output named .sgrd (SAGA's header) is refused saying to name the .sdat (it said "GDAL
+    cannot write it here"); the .sdat is written with its .sgrd beside it."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    with pytest.raises(QgsProcessingException, match=r"header of a SAGA grid: name its .sdat"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.sgrd"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.sdat"),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert (tmp_path / "d.sgrd").exists() and _read(tmp_path / "d.sdat")[0].shape == (40, 40)
