@@ -120,6 +120,13 @@ class FillDtmAlgorithm(BaseAlgorithm):
             info, minfo, codes = self._inputs(parameters, context)
             if minfo is None and not self.parameterAsBool(parameters, self.FILL_NODATA, context):
                 return False, tr("Nothing to fill: give a MASK, or set FILL_NODATA.")
+            if minfo is not None:
+                known = np.isfinite(info.read()) & ~np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
+                if not known.any():
+                    return False, tr("Nothing to fill from: every cell of the surface (INPUT) is nodata or masked "
+                                     "(its code in the mask (MASK) is one of FILL_CODES: {}). Check the mask and "
+                                     "the codes."
+                                     ).format(", ".join(map(str, codes)))
         except (ValueError, QgsProcessingException) as exc:
             return False, str(exc)
         return True, ""

@@ -229,3 +229,15 @@ def test_saga_header_extension_names_the_sdat(processing_run, tmp_path):
     processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.sdat"),
                                               "OUTPUT_MASK": str(tmp_path / "m.tif")})
     assert (tmp_path / "d.sgrd").exists() and _read(tmp_path / "d.sdat")[0].shape == (40, 40)
+
+
+def test_filldtm_with_every_cell_masked_refused_before_work(processing_run, tmp_path):
+    """A mask covering every valid cell leaves nothing to fill from: refused naming INPUT, MASK and
+    FILL_CODES (before, the core's "fill_gaps: ... outside `fill`" came after the work started)."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    m = _write(tmp_path / "m.tif", np.full((40, 40), 2, np.uint8), nodata=255)
+    with pytest.raises(QgsProcessingException, match=r"Nothing to fill from: every cell of the surface "
+                                                     r"\(INPUT\).*\(MASK\).*\(FILL_CODES\): 1, 2\)"):
+        processing_run("bareearth:filldtm", {"INPUT": src, "MASK": m, "OUTPUT": str(tmp_path / "o.tif")})
+    assert not (tmp_path / "o.tif").exists()
