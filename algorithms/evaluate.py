@@ -171,6 +171,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
                              "or POINTS and DTM.")
         if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
             raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask"))
+        for d, name in ((dtm, "DTM"), (ref_dtm, "REFERENCE_DTM")):
+            if d is not None and (ref_dtm is not None or points):
+                try:
+                    grid.check_has_data(d)
+                except ValueError as exc:
+                    raise ValueError(f"{name}: {exc}") from None
         for m, name in ((mask, "The mask (MASK)"), (ref_mask, "The reference mask (REFERENCE_MASK)")):
             if m is not None:
                 grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes

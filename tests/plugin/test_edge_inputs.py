@@ -241,3 +241,14 @@ def test_filldtm_with_every_cell_masked_refused_before_work(processing_run, tmp_
                                                      r"\(INPUT\).*\(MASK\).*\(FILL_CODES\): 1, 2\)"):
         processing_run("bareearth:filldtm", {"INPUT": src, "MASK": m, "OUTPUT": str(tmp_path / "o.tif")})
     assert not (tmp_path / "o.tif").exists()
+
+
+def test_evaluate_all_nodata_reference_dtm_refused(processing_run, tmp_path):
+    """A reference DTM without a valid cell is refused naming it (before: RMSE NaN, no word)."""
+    from qgis.core import QgsProcessingException
+    dtm = _write(tmp_path / "dtm.tif", _ramp_with_box())
+    ref = _write(tmp_path / "ref.tif", np.full((40, 40), -9999.0, np.float32), nodata=-9999.0)
+    with pytest.raises(QgsProcessingException, match=r"\(REFERENCE_DTM\): the raster '.*ref.tif' has no valid cell"):
+        processing_run("bareearth:evaluate", {"DTM": dtm, "REFERENCE_DTM": ref, "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                              "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert not (tmp_path / "e.json").exists()
