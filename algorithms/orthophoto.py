@@ -792,6 +792,12 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                      f"({c.interior.name or 'camera'}) says {c.interior.width} x "
                                      f"{c.interior.height}; use the matching camera or image.")
             isolated = self._check_overlap(info, cams, opts["window"])
+            xyz = np.array([c.centre for c in cams], float)
+            gaps = np.hypot(*(xyz[:, None, :2] - xyz[None, :, :2]).transpose(2, 0, 1))
+            gaps = gaps[gaps > 0]
+            if gaps.size:   # the closest pair: refused only when even its search is wider than the DEM
+                h = float(xyz[:, 2].min() - np.nanmedian(_decimated(info)))
+                check_parallax_range(info, float(gaps.min()), h, opts["max_dh_m"])
             return info, paths, names, dict(cameras=cams, isolated=isolated, skipped=skipped), opts
         if not ties:
             raise ValueError("give the orientation of the images: EXTERIOR and INTERIOR, or (for orthophotos "

@@ -252,3 +252,4 @@ def test_evaluate_all_nodata_reference_dtm_refused(processing_run, tmp_path):
         processing_run("bareearth:evaluate", {"DTM": dtm, "REFERENCE_DTM": ref, "OUTPUT_JSON": str(tmp_path / "e.json"),
                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
     assert not (tmp_path / "e.json").exists()
+
