@@ -605,7 +605,7 @@ class FilterAlgorithm(BaseAlgorithm):
             if k in ("params", "warnings", "method") or repeats_parameter(k, v, params):
                 continue
             if isinstance(v, dict):
-                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(k, b))
+                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(inner_key(k, a), b))
                                                                    for a, b in v.items())))
             else:
                 feedback.pushInfo("  {} = {}".format(k, format_value(k, v)))
@@ -619,6 +619,13 @@ _COUNT_ENDINGS = ("_cells", "_outliers", "_regions", "_points", "_count", "_per_
 def _is_count(key):
     return key.startswith(("n_", "removed_")) and not any(w in key for w in _SHARE_WORDS + ("percent", "seconds")) \
         or key.endswith(_COUNT_ENDINGS)
+
+
+def inner_key(key, name):
+    """The key a value inside a dict statistic is formatted by: its own name when that names a
+    count ('nodata cells' in ``classes_percent`` is a number of cells, not a percentage)."""
+    own = str(name).replace(" ", "_")
+    return own if _is_count(own) else key
 
 
 def format_value(key, v):

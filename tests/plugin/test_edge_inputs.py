@@ -1,5 +1,7 @@
 """Edge inputs and outputs through processing.run and qgis_process (the adversarial QA round):
 each test failed before the fix it names."""
+import re
+
 import numpy as np
 import pytest
 
@@ -253,3 +255,36 @@ def test_evaluate_all_nodata_reference_dtm_refused(processing_run, tmp_path):
                                               "OUTPUT_HTML": str(tmp_path / "e.html")})
     assert not (tmp_path / "e.json").exists()
 
+
+
+def test_log_gives_nodata_cells_as_a_count(processing_run, tmp_path):
+    """The classes' line gives the nodata cells as a number of cells (it said "nodata cells 120 %"
+    for 120 cells), the classes in percent."""
+    from qgis.core import QgsProcessingFeedback
+    lines = []
+
+    class Log(QgsProcessingFeedback):
+        def pushInfo(self, info):  # noqa: N802
+            lines.append(info)
+
+    z = _ramp_with_box()
+    z[:, :3] = -9999.0
+    processing_run("bareearth:slopeprofile", {"INPUT": _write(tmp_path / "dsm.tif", z, nodata=-9999.0),
+                                              "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=Log())
+    line = next(s for s in lines if "classes_percent" in s)
+    assert re.search(r"ground \d+(\.\d+)? %", line) and line.rstrip().endswith("nodata cells 120"), line
+
+
+def test_qgis_process_tiny_block_and_ndsm_of_nodata_zero(run_qgis_process, tmp_path):
+    """Through qgis_process: the block-size refusal (exit code 1, the message, no file) and the nDSM
+    of a DSM with nodata 0 (NaN declared, the reason in the log)."""
+    z = _ramp_with_box()
+    z[:, :3] = 0.0
+    src = _write(tmp_path / "dsm.tif", z, nodata=0.0)
+    outs = {"OUTPUT_DTM": tmp_path / "d.tif", "OUTPUT_MASK": tmp_path / "m.tif", "OUTPUT_NDSM": tmp_path / "n.tif"}
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, "BLOCK_SIZE": 5, **outs})
+    assert rc != 0 and "(BLOCK_SIZE) = 5 cells is too small" in out and not (tmp_path / "d.tif").exists()
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, **outs})
+    assert rc == 0, out
+    assert "the nDSM declares NaN as nodata" in out and np.isnan(_read(tmp_path / "n.tif")[1])
