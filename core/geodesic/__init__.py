@@ -56,7 +56,12 @@ algorithm's help.
    terrain's own rise over one cell by more than ``dh0`` (``dz > dh0 + tan(slope) *
    cell``), a *fall* symmetrically. A run of cells that opens with a rise, closes with a
    fall, is shorter than ``max_object_size_m`` and stands more than ``dh0`` above the
-   straight line joining the cells before the rise and after the fall is non-ground.
+   straight line joining the cells before the rise and after the fall is non-ground when
+   one of its two edges, beyond the terrain's rise over the cell, carries at least half
+   of that height (:data:`~.scan.WALL_SHARE`: an object stands on a wall, while a ridge
+   or an embankment whose flanks are steeper than the tolerated slope rises over many
+   cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
+   cell``, falls and such flanks would open runs; our design, issue 12).
    Two passes catch stepped roofs. This removes what the dilation left (objects on
    steep slopes, thin walls, leftovers of merged regions).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed

@@ -8,6 +8,14 @@ from .grey import rect_filter
 SCAN_PASSES = 2
 
 
+#: Share of a run's height above its base line that one of its two edges (the rise or the
+#: fall), beyond the terrain's rise over that cell, must carry: an object stands on a wall;
+#: a ridge or an embankment whose flanks are steeper than the tolerated slope rises over
+#: many cells, and at coarse cells its flanks exceed the per-cell tolerance
+#: ``dh0 + tan(slope) cell`` (a slope of ``tan(slope) + dh0 / cell``, lower at every
+#: coarser cell) while each edge carries only a fraction of its height (issue 12).
+WALL_SHARE = 0.5
+
 #: Edges per chunk of the event pass (the chunk's differences stay in the cache).
 _CHUNK = 1 << 16
 
@@ -49,13 +57,15 @@ def _events(a, axis, t_jump, has_nan):
     return np.divmod(np.flatnonzero(transpose(ev.reshape(H - 1, W))), H - 1)
 
 
-def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True):
+def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`): flat indices of the
     labelled cells.
 
     Works on the events only (:func:`_events`): a rise followed directly by a fall on the
     same profile, at most ``max_cells`` apart, bounds a run, whose cells are then
-    generated and tested against the run's base line, all vectorised.
+    generated and tested against the run's base line, all vectorised. A run is kept when
+    its rise or its fall exceeds the terrain's rise over one cell (``t_terrain``) by at
+    least :data:`WALL_SHARE` of the run's greatest height above its base line.
     """
     none = np.zeros(0, np.intp)
     H, W = a.shape
@@ -86,7 +96,13 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True):
     off = np.arange(int(n_run.sum()), dtype=n_run.dtype) - np.repeat(start, n_run) + 1
     flat = np.repeat(first + jl * fp, n_run) + off * fp
     base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * off
-    keep = (af[flat] - base) > height_m
+    above = af[flat] - base
+    # the run's greatest height above its base line, and the larger of its two walls
+    # beyond the terrain's rise over a cell (the rise and the fall carry the object)
+    top = np.maximum.reduceat(np.where(np.isfinite(above), above, -np.inf), start)
+    wall = np.maximum(d[k], -d[k + 1]) - t_terrain
+    on_walls = np.repeat(wall >= WALL_SHARE * top, n_run)
+    keep = (above > height_m) & on_walls
     return flat[keep]
 
 
@@ -100,7 +116,11 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     cell), a *fall* when ``z[i+1] - z[i] < -(...)``. A run of cells that opens with a
     rise, closes with the next event being a fall, spans at most ``max_length_m`` and
     stands more than ``height_m`` above the straight line from the cell before the rise to
-    the cell after the fall is labelled non-ground. Rows and columns are combined with OR.
+    the cell after the fall is labelled non-ground, when its rise or its fall carries at
+    least :data:`WALL_SHARE` of the run's greatest height above that line beyond the
+    terrain's rise over the cell (an object stands on a wall; a ridge or an embankment
+    steeper than the tolerated slope rises over many cells: each of its edges carries a
+    fraction of its height). Rows and columns are combined with OR.
     ``passes`` > 1 repeats the labelling on the surface with the labelled cells lowered
     to their base line, so stepped roofs (a rise, a rise, a fall, a fall) are peeled
     level by level. NaN cells break runs.
@@ -158,9 +178,9 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     has_nan = bool(np.isnan(a).any())
     n = int(passes)
     for i in range(n):
-        lr = _scan_runs(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan)
+        lr = _scan_runs(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan, s * dx)
         report(progress, (i + 0.35) / n)
-        lc = _scan_runs(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan)
+        lc = _scan_runs(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan, s * dy)
         report(progress, (i + 0.7) / n)
         new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
         del lr, lc

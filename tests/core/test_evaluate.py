@@ -245,3 +245,43 @@ def test_harness_log_line(tmp_path):
     assert {"date", "commit", "method", "samples", "mean", "protocol"} <= set(rec)
     assert rec["protocol"]["cell_size"] == 1.0 and rec["samples"]["samp11"]["n"] == 3000
     assert bench.main(["--data", str(tmp_path / "absent")]) == 0
+
+
+def _load_generalise():
+    spec = importlib.util.spec_from_file_location("generalise_bench", ROOT / "benchmarks" / "generalise.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _isprs_rows(gen, folder):
+    notes = []
+    return {name: build for _, _, rows in gen.isprs_cases(folder, notes) for name, build in rows}
+
+
+def test_generalise_grid_column_separates_the_grid_from_the_filter(tmp_path):
+    """``grid``: the row's DSM with a perfect object mask. On a building over a plane it is
+    near the floor while the raw DSM is not; on bare rough ground rasterised by its highest
+    point per 2 m cell, removing the cells that stand too high still leaves most of raw's
+    error: it is the grid's."""
+    gen = _load_generalise()
+    (tmp_path / "isprs").mkdir()
+    _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 3)
+    build = _isprs_rows(gen, tmp_path)["isprs/samp11/1m/min"]
+    z, cell, score = build()
+    raw = score(SimpleNamespace(dtm=z))["total"]
+    grid = score.grid(z, cell)["total"]
+    assert raw > 5.0 and grid < 1.0 and grid >= score.floor()["total"] - 0.5
+
+    rng = np.random.default_rng(5)
+    n = 20000
+    x, y = rng.uniform(0, 60, n), rng.uniform(0, 40, n)
+    z = 100 + 0.9 * x + 1.5 * np.sin(x) * np.sin(y)  # steep rough ground, no object
+    (tmp_path / "isprs" / "samp11.txt").write_text(
+        "".join("%.3f\t%.3f\t%.3f\t0\n" % p for p in zip(x, y, z)))
+    build = _isprs_rows(gen, tmp_path)["isprs/samp11/2m/max"]
+    z, cell, score = build()
+    raw = score(SimpleNamespace(dtm=z))["total"]
+    assert raw > 5.0                               # the highest point of a cell stands above its ground
+    grid, floor = score.grid(z, cell)["total"], score.floor()["total"]
+    assert grid <= raw and grid > floor + 5.0      # what is left is the grid's, no filter's

@@ -6,6 +6,7 @@ from scipy import ndimage
 from bare_earth.core import geodesic as geo
 from bare_earth.core.codes import GROUND, LOW, NODATA, OBJECT
 from bare_earth.core.geodesic import grey
+from bare_earth.core.geodesic.scan import WALL_SHARE
 from bare_earth.core.methods import get_method
 
 
@@ -185,7 +186,7 @@ def test_coarse_grids_equal_block_reduction_of_the_raster():
         assert np.array_equal(jc, grey.block_reduce(jump, f, np.maximum, False))
 
 
-def brute_scan(a, t, h, max_cells):
+def brute_scan(a, t, h, max_cells, t_terrain=0.0):
     """Scan labelling of the rows of ``a``, profile by profile, cell by cell (one pass)."""
     out = np.zeros(a.shape, bool)
     for r, row in enumerate(a):
@@ -194,9 +195,12 @@ def brute_scan(a, t, h, max_cells):
         for j0, j1 in zip(ev[:-1], ev[1:]):
             d0, d1 = row[j0 + 1] - row[j0], row[j1 + 1] - row[j1]
             if d0 > t and d1 < -t and j1 - j0 <= max_cells:
-                for p in range(j0 + 1, j1 + 1):
-                    base = row[j0] + (row[j1 + 1] - row[j0]) * (p - j0) / (j1 - j0 + 1)
-                    out[r, p] |= row[p] - base > h
+                cells = range(j0 + 1, j1 + 1)
+                above = [row[p] - (row[j0] + (row[j1 + 1] - row[j0]) * (p - j0) / (j1 - j0 + 1)) for p in cells]
+                if max(d0, -d1) - t_terrain < WALL_SHARE * max(above):
+                    continue                                  # no wall carries the run: terrain
+                for p, dz in zip(cells, above):
+                    out[r, p] |= dz > h
     return out
 
 
@@ -314,6 +318,29 @@ def test_scan_label_columns_and_limits():
     assert geo.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0).any()
     assert not geo.scan_label(steep, 1.0, jump_m=0.5, height_m=0.5, max_length_m=40.0,
                             terrain_slope_deg=60.0).any()
+
+
+def _hill_and_house(cell):
+    """Rows of a profile sampled at ``cell`` metres: a 5.8 m hill whose foot rises 1 m over
+    2 m (slope 0.5) and whose flanks rise at 0.4, and a 6 m house with vertical walls."""
+    x = (np.arange(int(round(140 / cell))) + 0.5) * cell
+    hill = np.interp(x, [41, 43, 55, 63, 75, 77], [0, 1.0, 5.8, 5.8, 1.0, 0])
+    house = np.interp(x, [101, 101.01, 112.99, 113], [0, 6, 6, 0])
+    return np.tile(100.0 + hill + house, (3, 1)).astype(np.float32), x
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0])
+def test_scan_label_keeps_a_hill_whose_flanks_exceed_the_tolerance_at_coarse_cells(cell):
+    # issue 12: at 2 m the per-cell tolerance 0.5 + tan(12 deg) 2 = 0.93 m is a slope of
+    # 0.46; the hill's foot (1 m over a cell) opens a run that its fall closes, and the
+    # whole hill stood above the run's base line (labelled before WALL_SHARE). At 1 m
+    # (tolerance: a slope of 0.71) no edge of the hill is an event. Its edges carry 1 m of
+    # its 5.8 m; the house's walls carry all of its 6 m.
+    z, x = _hill_and_house(cell)
+    lab = geo.scan_label(z, cell, jump_m=0.5, height_m=0.5, max_length_m=64.0, terrain_slope_deg=12.0)
+    assert not lab[:, x < 90].any()
+    assert lab[:, (x > 102) & (x < 112)].all()
+    assert not lab[:, x > 114].any()
 
 
 def test_scan_label_nodata_breaks_runs_and_reference():
