@@ -171,6 +171,15 @@ class EvaluateAlgorithm(BaseAlgorithm):
                              "or POINTS and DTM.")
         if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
             raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask"))
+        for d, name in ((dtm, "DTM"), (ref_dtm, "REFERENCE_DTM")):
+            if d is not None and (ref_dtm is not None or points):
+                try:
+                    grid.check_has_data(d)
+                except ValueError as exc:
+                    raise ValueError(f"{name}: {exc}") from None
+        for m, name in ((mask, "The mask (MASK)"), (ref_mask, "The reference mask (REFERENCE_MASK)")):
+            if m is not None:
+                grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
             raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM"))
         if points and not os.path.isfile(points):
@@ -202,9 +211,9 @@ class EvaluateAlgorithm(BaseAlgorithm):
         out = {}
         ref_m = None
         if ref_mask is not None:
-            ref_m = ref_mask.dataset().GetRasterBand(1).ReadAsArray()
+            ref_m = grid.read_mask(ref_mask, "The reference mask (REFERENCE_MASK)")
         if mask is not None and ref_mask is not None:
-            m = mask.dataset().GetRasterBand(1).ReadAsArray()
+            m = grid.read_mask(mask, "The mask (MASK)")
             r = ev.compare_masks(m, ref_m)
             results["mask vs reference mask"] = r
             maps["mask errors"], _ = ev.error_map_from_masks(m, ref_m)

@@ -107,6 +107,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
             minfo = grid.open_dsm(raster_path(mlayer), 1)
             if not same_grid(info, minfo):
                 raise ValueError(grid_mismatch_message(info, minfo, "The mask"))
+            grid.read_mask(minfo, "The mask (MASK)")   # codes, not heights: refused now, not read as codes
         codes = parse_codes(self.parameterAsString(parameters, self.FILL_CODES, context))
         return info, minfo, codes
 
@@ -119,6 +120,13 @@ class FillDtmAlgorithm(BaseAlgorithm):
             info, minfo, codes = self._inputs(parameters, context)
             if minfo is None and not self.parameterAsBool(parameters, self.FILL_NODATA, context):
                 return False, tr("Nothing to fill: give a MASK, or set FILL_NODATA.")
+            if minfo is not None:
+                known = np.isfinite(info.read()) & ~np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
+                if not known.any():
+                    return False, tr("Nothing to fill from: every cell of the surface (INPUT) is nodata or masked "
+                                     "(its code in the mask (MASK) is one of FILL_CODES: {}). Check the mask and "
+                                     "the codes."
+                                     ).format(", ".join(map(str, codes)))
         except (ValueError, QgsProcessingException) as exc:
             return False, str(exc)
         return True, ""
@@ -133,8 +141,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         z = info.read()
         fill = ~np.isfinite(z) if fill_nodata else np.zeros(z.shape, bool)
         if minfo is not None:
-            m = minfo.dataset().GetRasterBand(1).ReadAsArray()
-            fill |= np.isin(m, codes)
+            fill |= np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
         feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)

@@ -70,6 +70,8 @@ def progress_callback(feedback):
         if feedback.isCanceled():
             raise Cancelled()
         feedback.setProgress(100.0 * fraction)
+        if feedback.isCanceled():   # a cancel handled while the bar was drawn stops here, not later
+            raise Cancelled()
     return progress
 
 
@@ -196,6 +198,24 @@ def check_window_sizes(alg, values, defaults, info):
         if name.endswith("_cells") and v > min(info.shape):
             return False, tr("{} = {} cells is larger than the raster itself ({} x {} cells): choose a "
                              "smaller window or a larger raster.").format(label, v, info.shape[1], info.shape[0])
+    return True, ""
+
+
+#: Smallest block edge a user may ask for (cells): the windows' corners align on 64 cells, and
+#: a smaller block reads far more halo than block (1-cell blocks: one filter run per cell).
+MIN_BLOCK_SIZE = 64
+
+
+def check_block_size(alg, parameters, context):
+    """(ok, message): BLOCK_SIZE is 0 (automatic) or at least :data:`MIN_BLOCK_SIZE` cells."""
+    d = alg.parameterDefinition("BLOCK_SIZE")
+    if d is None or parameters.get("BLOCK_SIZE") in (None, ""):
+        return True, ""
+    b = alg.parameterAsInt(parameters, "BLOCK_SIZE", context)
+    if 0 < b < MIN_BLOCK_SIZE:
+        return False, tr("{} = {} cells is too small: use 0 (automatic) or at least {} cells (a block is "
+                         "read with the method's reach around it, so tiny blocks repeat the work many "
+                         "times over).").format(label_of(d), b, MIN_BLOCK_SIZE)
     return True, ""
 
 
@@ -336,6 +356,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
+        ok, msg = check_block_size(self, parameters, context)
+        if not ok:
+            return ok, msg
         return self.checkOutputs(parameters, context)
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802
@@ -422,8 +445,8 @@ class FilterAlgorithm(BaseAlgorithm):
             self.addParameter(self._qgs_param(p))
         for key, label, default, lo, hi, text in (
                 (self.BLOCK_SIZE, "Block size (cells, 0 = automatic)", 0, 0, 65536,
-                 "Edge of the blocks the raster is processed in, in cells. 0: one block up to 25 "
-                 "million cells, else 2048. Blocks overlap by the method's reach, so the result "
+                 "Edge of the blocks the raster is processed in, in cells: 0 or at least 64. 0: one "
+                 "block up to 25 million cells, else 2048. Blocks overlap by the method's reach, so the result "
                  "does not depend on it; memory does."),
                 (self.THREADS, "Threads (0 = one per core)", 0, 0, 64,
                  "Blocks filtered at once in threads. 0 (the default): one per core, at most 8, "
@@ -582,7 +605,7 @@ class FilterAlgorithm(BaseAlgorithm):
             if k in ("params", "warnings", "method") or repeats_parameter(k, v, params):
                 continue
             if isinstance(v, dict):
-                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(k, b))
+                feedback.pushInfo("  {}: {}".format(k, ", ".join("{} {}".format(a, format_value(inner_key(k, a), b))
                                                                    for a, b in v.items())))
             else:
                 feedback.pushInfo("  {} = {}".format(k, format_value(k, v)))
@@ -596,6 +619,13 @@ _COUNT_ENDINGS = ("_cells", "_outliers", "_regions", "_points", "_count", "_per_
 def _is_count(key):
     return key.startswith(("n_", "removed_")) and not any(w in key for w in _SHARE_WORDS + ("percent", "seconds")) \
         or key.endswith(_COUNT_ENDINGS)
+
+
+def inner_key(key, name):
+    """The key a value inside a dict statistic is formatted by: its own name when that names a
+    count ('nodata cells' in ``classes_percent`` is a number of cells, not a percentage)."""
+    own = str(name).replace(" ", "_")
+    return own if _is_count(own) else key
 
 
 def format_value(key, v):

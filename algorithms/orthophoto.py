@@ -186,6 +186,20 @@ def _decimated(info, max_side=512):
     return grid.to_surface(a, info.nodata, info.z_to_m)
 
 
+def check_parallax_range(info, base_m, height_m, max_dh_m):
+    """ValueError when the parallax searched, ``max_dh_m * B / H`` (eq. 18; default ``max_dh_m``
+    0.2 H), is wider than the DEM: no pair is matched over more than its own extent, and such a
+    search (an absurd MAX_DH_M, or B / H from swapped or mistyped values) runs for hours."""
+    dh = 0.2 * height_m if max_dh_m is None else max_dh_m
+    p_m = dh * base_m / height_m
+    extent_m = min(info.shape[0] * info.cell_size_m[1], info.shape[1] * info.cell_size_m[0])
+    if p_m > extent_m:
+        raise ValueError(f"the parallax searched, MAX_DH_M x B / H = {dh:.4g} x {base_m:.4g} / {height_m:.4g} = "
+                         f"{p_m:.4g} m, is wider than the DEM ({extent_m:.4g} m across): check BASE_M (B) and "
+                         f"HEIGHT_M (H) (B / H = {base_m / height_m:.3g}; frames overlap at B / H below about 1) "
+                         f"or choose MAX_DH_M below {extent_m * height_m / base_m:.4g} m.")
+
+
 def _dem_rect(info):
     gt = info.geotransform
     rows, cols = info.shape
@@ -507,6 +521,9 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")
             orthos.append(path)
+        if os.path.realpath(orthos[0]) == os.path.realpath(orthos[1]):
+            raise ValueError(f"ORTHO_A and ORTHO_B are one file ({orthos[0]}): an orthophoto matched with itself "
+                             "has no parallax. Give the orthophotos of two different frames.")
         ca = (self.parameterAsString(parameters, self.CAMERA_A, context) or "").strip()
         cb = (self.parameterAsString(parameters, self.CAMERA_B, context) or "").strip()
         bh = self._base_height(parameters, context)
@@ -528,7 +545,16 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
         else:
             raise ValueError("give the geometry of the pair: CAMERA_A and CAMERA_B ('X,Y,Z'), or BASE_M (B) "
                              "and HEIGHT_M (H) for vertical frames.")
-        return info, orthos, geometry, self._matching_values(parameters, context)
+        opts = self._matching_values(parameters, context)
+        if bh is not None:
+            check_parallax_range(info, bh[0], bh[1], opts["max_dh_m"])
+        else:
+            z = _decimated(info)
+            if np.isfinite(z).any():
+                h = 0.5 * (A[2] + B[2]) - float(np.nanmedian(z))
+                if h > 0:
+                    check_parallax_range(info, math.dist(A[:2], B[:2]), h, opts["max_dh_m"])
+        return info, orthos, geometry, opts
 
     def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
         from ..core.orthophoto import orthoparallax
@@ -766,6 +792,12 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                      f"({c.interior.name or 'camera'}) says {c.interior.width} x "
                                      f"{c.interior.height}; use the matching camera or image.")
             isolated = self._check_overlap(info, cams, opts["window"])
+            xyz = np.array([c.centre for c in cams], float)
+            gaps = np.hypot(*(xyz[:, None, :2] - xyz[None, :, :2]).transpose(2, 0, 1))
+            gaps = gaps[gaps > 0]
+            if gaps.size:   # the closest pair: refused only when even its search is wider than the DEM
+                h = float(xyz[:, 2].min() - np.nanmedian(_decimated(info)))
+                check_parallax_range(info, float(gaps.min()), h, opts["max_dh_m"])
             return info, paths, names, dict(cameras=cams, isolated=isolated, skipped=skipped), opts
         if not ties:
             raise ValueError("give the orientation of the images: EXTERIOR and INTERIOR, or (for orthophotos "
@@ -773,6 +805,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         bh = self._base_height(parameters, context)
         if bh is None:
             raise ValueError("TIE_POINTS mode needs BASE_M (B between consecutive images) and HEIGHT_M (H).")
+        check_parallax_range(info, bh[0], bh[1], opts["max_dh_m"])
         tie = read_tie_points(ties, names)
         return info, paths, names, dict(cameras=None, tie_points=tie, base_m=bh[0], height_m=bh[1],
                                         base_direction=bh[2], isolated=[], skipped=[]), opts

@@ -11,6 +11,7 @@
 memory (the plugin's path). Both cut the raster into the same windows with the method's
 halo, so blocked and one-pass results agree.
 """
+import contextlib
 import math
 import os
 import threading
@@ -22,7 +23,16 @@ import numpy as np
 
 from . import blocks, grid
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import Progress, as_cell_size, as_surface, far_heights_message, report, sub_progress, without_far_heights
+from .common import (
+    Cancelled,
+    Progress,
+    as_cell_size,
+    as_surface,
+    far_heights_message,
+    report,
+    sub_progress,
+    without_far_heights,
+)
 from .methods import Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
@@ -345,7 +355,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     outputs : dict
         Keys ``"dtm"``, ``"mask"``, ``"ndsm"`` and any of the method's extras, each a
         path or None. Outputs are on the DSM's grid with its CRS; the DTM and nDSM keep
-        the DSM's nodata (NaN when it declares none) and its height unit; the mask is
+        the DSM's nodata (NaN when it declares none; the nDSM NaN when it is 0) and its height unit; the mask is
         UInt8 with a colour table, nodata 255, and a ``.qml`` style beside it.
     aux : dict of str -> 2-D bool/number array on the DSM's grid, optional
     block : int, optional
@@ -436,12 +446,18 @@ def _output_nodata(nd):
     return float(np.float32(nd)) if np.isfinite(np.float32(nd)) else float("nan")
 
 
+def _ndsm_nodata(float_nodata):
+    """The nDSM's nodata: the DTM's, except 0 (every ground cell of an nDSM is DSM - DTM = 0,
+    so a nodata of 0 would hide them all): NaN then."""
+    return float("nan") if float_nodata == 0 else float_nodata
+
+
 def _add_outputs(out, meth, outputs, float_nodata):
     """Create the requested outputs in ``out`` (a :class:`grid.OutputSet`)."""
     if outputs.get("dtm"):
         out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
     if outputs.get("ndsm"):
-        out.add("ndsm", outputs["ndsm"], "Float32", nodata=float_nodata, descriptions=["nDSM"])
+        out.add("ndsm", outputs["ndsm"], "Float32", nodata=_ndsm_nodata(float_nodata), descriptions=["nDSM"])
     if outputs.get("mask"):
         out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
                 descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
@@ -496,6 +512,9 @@ def _run_file(info, run, pool):
         halo))
     report(run.progress, RESOLVED)
     float_nodata = _output_nodata(info.nodata)
+    if run.outputs.get("ndsm") and float_nodata == 0:
+        run.log("The DSM's nodata is 0, the height of every ground cell in an nDSM: the nDSM declares NaN "
+                "as nodata instead.")
     progress = sub_progress(run.progress, RESOLVED, 0.97)
     with grid.OutputSet(info) as out, grid.bounded_cache(len(windows) > 1):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
@@ -529,7 +548,8 @@ def _run_file(info, run, pool):
     result.update(_merge_info(writer.infos, writer.weights))
     result["classes_percent"] = class_shares(writer.counts)
     result["seconds"] = time.perf_counter() - run.t0
-    report(run.progress, 1.0)
+    with contextlib.suppress(Cancelled):   # the outputs are in place: a cancel now comes too late
+        report(run.progress, 1.0)
     return result
 
 
@@ -585,7 +605,7 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
     if "mask" in out:
         out.write("mask", m, core)
     if "ndsm" in out:   # before the DTM, which may be converted in place
-        out.write("ndsm", _to_unit(zc - d, scale, float_nodata), core)
+        out.write("ndsm", _to_unit(zc - d, scale, _ndsm_nodata(float_nodata)), core)
     if "dtm" in out:
         dtm = _to_unit(d, scale, float_nodata)   # this block's DTM is ours: converted in place
         if scale != 1.0:  # ground cells get the input's own heights, not a float32 round trip via metres

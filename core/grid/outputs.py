@@ -33,6 +33,7 @@ REFUSED_FORMATS = {
     ".vrt": "a VRT only points at other rasters; write a GeoTIFF and build the VRT from it (gdalbuildvrt)",
     ".xyz": "XYZ text loses the nodata cells (GDAL reads them back as 0)",
     ".gpkg": "GDAL cannot copy a Float32 or palette raster into a GeoPackage tile set",
+    ".sgrd": "a .sgrd file is the header of a SAGA grid: name its .sdat file (the .sgrd is written beside it)",
 }
 
 #: Extension of the work files: GDAL identifies a GeoTIFF by its bytes, so the name (hidden,

@@ -18,7 +18,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from ..common import without_far_heights
+from ..common import MAX_ABS_HEIGHT_M, without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
@@ -344,25 +344,67 @@ def open_dsm(path, band=None):
 def check_has_data(info, max_cells=4_000_000):
     """Scan the band (decimated when large) and raise ValueError if it holds no valid cell.
 
-    Also notes NaN cells without a declared nodata (``info.note_nan``).
-    Returns the fraction of valid cells seen.
+    The message says whether the cells are all nodata or hold heights beyond
+    ``common.MAX_ABS_HEIGHT_M`` (heights in millimetres or centimetres without the band's
+    scale, or an undeclared nodata). Also notes NaN cells without a declared nodata
+    (``info.note_nan``). Returns the fraction of valid cells seen.
     """
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+
+    def heights(a):
+        return without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
+
     a = info.read_stored(step=step)
-    z, _ = without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
+    z, n_far = heights(a)
     valid = np.isfinite(z)
     if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
         strip = max(1, max_cells // cols)
         for r in range(0, rows, strip):
-            valid = np.isfinite(info.read((r, min(rows, r + strip), 0, cols)))
+            zs, n = heights(info.read_stored((r, min(rows, r + strip), 0, cols)))
+            n_far += n
+            valid = np.isfinite(zs)
             if valid.any():
                 break
+    if not valid.any() and n_far:
+        raise ValueError(f"the raster {info.path!r} has no valid cell: its cells are nodata or hold heights "
+                         f"beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite), which no terrain has. If the heights "
+                         "are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py -scale "
+                         "0.001 for millimetres); if that value marks missing cells, declare it as the nodata "
+                         "value.")
     if not valid.any():
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
     info.note_nan(a)
     return float(valid.mean())
+
+
+def read_mask(info, what="the mask"):
+    """The codes of a mask band as uint8; NaN cells and those of a declared nodata outside
+    0-255 (e.g. -9999) are 255 (a nodata within 0-255 is itself a code and stays as stored).
+
+    A mask holds whole numbers 0-255 (a Bare Earth mask: 0 ground, 1 object, 2 low outlier,
+    255 nodata; a classification's codes are accepted too). ValueError naming ``what``, the
+    file and a value found when a cell holds anything else (a DSM or a float raster given as
+    a mask), so it is refused before any work instead of read as codes.
+    """
+    a = info.read_stored()
+    nodata = np.zeros(a.shape, bool)
+    if a.dtype.kind == "f":
+        nodata |= np.isnan(a)
+    if info.nodata is not None and not math.isnan(info.nodata) and not 0 <= info.nodata <= 255:
+        nodata |= a == info.nodata
+    v = a[~nodata]
+    with np.errstate(invalid="ignore"):
+        bad = (v < 0) | (v > 255) | (v != np.round(v)) if a.dtype.kind == "f" else (v < 0) | (v > 255)
+    if bad.any():
+        raise ValueError(f"{what} {info.path!r} holds {int(np.count_nonzero(bad))} cell(s) that are no mask code "
+                         f"(e.g. {v[bad][0]!r}): a mask holds whole numbers 0-255 (0 ground, 1 object, 2 low "
+                         "outlier, 255 nodata). Give the object mask a Bare Earth filter wrote, or convert the "
+                         "raster into such codes first.")
+    out = np.full(a.shape, 255, np.uint8)
+    out[~nodata] = v
+    return out
 
 
 #: GDAL's block cache during a blocked run, bytes. Blocks (2048) are whole 256-cell output

@@ -462,3 +462,16 @@ def test_orthoparallax_drone_orthophotos_line_up(processing_run, shared_data, tm
     mask = _read(res["OUTPUT_MASK"])[0]
     assert np.isfinite(dh).sum() > 0.5 * (mask != 255).sum()
     assert abs(np.nanmedian(dh)) < 0.3 and np.nanmedian(np.abs(dh)) < 0.8
+
+
+def test_orthorefine_with_orientation_absurd_max_dh_refused(processing_run, frames, tmp_path):
+    """A parallax search wider than the DEM is refused with exterior orientation too (B: the closest
+    pair of camera centres, H: above the DEM's median); MAX_DH_M = 1e6 m had not finished after
+    8 min on these three 200 x 160 frames."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "o.tif"
+    with pytest.raises(QgsProcessingException, match=r"parallax searched.*wider than the DEM.*MAX_DH_M below"):
+        processing_run("bareearth:orthorefine", {
+            "DEM": frames["dem"], "IMAGES": frames["images"], "EXTERIOR": frames["exterior"],
+            "INTERIOR": frames["interior"], "MAX_DH_M": 1e6, "OUTPUT_DEM": str(out)})
+    assert not out.exists()

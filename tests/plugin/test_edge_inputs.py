@@ -1,0 +1,290 @@
+"""Edge inputs and outputs through processing.run and qgis_process (the adversarial QA round):
+each test failed before the fix it names."""
+import re
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+
+
+def _write(path, arr, gt=GT, nodata=None, **kw):
+    from bare_earth.core.grid import write_array
+    return write_array(path, arr, gt, 32632, nodata=nodata, **kw)
+
+
+def _ramp_with_box(shape=(40, 40)):
+    """A gentle ramp (0-3 m) with a 6 m box on it."""
+    z = np.zeros(shape, np.float32) + np.linspace(0.0, 3.0, shape[1], dtype=np.float32)[None, :]
+    z[10:20, 10:20] += 6.0
+    return z
+
+
+def _read(path):
+    from osgeo import gdal
+    ds = gdal.Open(str(path))
+    b = ds.GetRasterBand(1)
+    return b.ReadAsArray(), b.GetNoDataValue()
+
+
+def test_ndsm_of_a_dsm_with_nodata_zero_keeps_its_ground_cells(processing_run, tmp_path):
+    """nodata = 0 is a value every ground cell of an nDSM holds (DSM - DTM = 0): the nDSM then
+    declares NaN, so its ground cells stay valid (they all read as nodata before)."""
+    z = _ramp_with_box()
+    z[:, :3] = 0.0
+    src = _write(tmp_path / "dsm.tif", z, nodata=0.0)
+    res = processing_run("bareearth:slopeprofile", {
+        "INPUT": src, "OUTPUT_DTM": str(tmp_path / "dtm.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+        "OUTPUT_NDSM": str(tmp_path / "ndsm.tif")})
+    ndsm, nd = _read(res["OUTPUT_NDSM"])
+    mask, _ = _read(res["OUTPUT_MASK"])
+    dtm, dnd = _read(res["OUTPUT_DTM"])
+    assert dnd == 0.0 and (dtm[:, :3] == 0).all()            # the DTM keeps the input's nodata
+    ground = mask == 0
+    assert ground.sum() > 1000
+    assert np.isnan(nd) and (ndsm[ground] == 0).all()         # valid zeros, not nodata
+    assert np.isnan(ndsm[:, :3]).all() and (mask[:, :3] == 255).all()
+    assert (ndsm[mask == 1] > 5).all()
+
+
+def test_heights_in_millimetres_refused_naming_the_unit(processing_run, tmp_path):
+    """An Int32 DSM in millimetres without a scale: every height is beyond +-1e5 m. The refusal
+    says so and how to give the band its scale (it said "every cell is nodata" before)."""
+    from qgis.core import QgsProcessingException
+    z = (np.round(_ramp_with_box() * 1000.0) + 250_000).astype(np.int32)
+    src = _write(tmp_path / "mm.tif", z, nodata=-99999, dtype="Int32")
+    out = tmp_path / "dtm.tif"
+    with pytest.raises(QgsProcessingException, match=r"beyond \+-100000 m.*gdal_edit.py -scale 0.001"):
+        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(out), "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not out.exists()
+    from osgeo import gdal
+    ds = gdal.Open(src, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.001)
+    ds = None
+    res = processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(out),
+                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    mask, _ = _read(res["OUTPUT_MASK"])
+    assert (mask[12:18, 12:18] == 1).all() and (mask[30:, 30:] == 0).all()
+
+
+def _cancel_at(percent):
+    """A feedback that asks to cancel once the bar reaches ``percent`` (as a user's click handled
+    while the bar is drawn)."""
+    from qgis.core import QgsProcessingFeedback
+
+    class CancelAt(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            super().setProgress(p)
+            if p >= percent:
+                self.cancel()
+    return CancelAt()
+
+
+@pytest.mark.parametrize("percent", [50, 100])
+def test_cancel_from_the_bar_leaves_no_output(processing_run, tmp_path, percent):
+    """A cancel asked while the bar shows 100 % (the outputs about to move into place) stops the
+    run with nothing written; before, the outputs were moved into place and the run then said
+    "Cancelled: no output was written" and returned no result."""
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((120, 130)))
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+            "OUTPUT_NDSM": str(tmp_path / "n.tif")}
+    res = processing_run("bareearth:slopeprofile", {"INPUT": src, **outs}, feedback=_cancel_at(percent))
+    assert not res or not any(res.values())
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.endswith(".aux.xml")) == ["dsm.tif"]
+
+
+def test_a_cancel_after_the_outputs_are_in_place_comes_too_late(tmp_path):
+    """Once the outputs are moved into place a cancel no longer raises: the run returns its
+    result (before, the final progress call raised Cancelled over complete outputs)."""
+    from bare_earth.core import pipeline
+    from bare_earth.core.common import Cancelled
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    seen = []
+
+    def progress(f):
+        if f >= 1.0 and seen.count(1.0) >= 1:     # the call after the outputs were moved
+            raise Cancelled()
+        seen.append(f)
+    res = pipeline.run_file("slopeprofile", src, {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")},
+                            progress=progress)
+    assert res["method"] == "slopeprofile" and (tmp_path / "m.tif").exists()
+
+
+@pytest.mark.parametrize("block", [1, 8, 63])
+def test_tiny_block_size_refused_before_work(processing_run, tmp_path, block):
+    """BLOCK_SIZE below 64 cells is refused naming the parameter (before, BLOCK_SIZE = 1 ran one
+    filter per cell over a halo of tens of cells: a 120 x 130 raster had not finished in 10 min)."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    out = tmp_path / "d.tif"
+    with pytest.raises(QgsProcessingException, match=rf"'Block size.*\(BLOCK_SIZE\) = {block} cells is too small"):
+        processing_run("bareearth:geodesic", {"INPUT": src, "OUTPUT_DTM": str(out),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif"), "BLOCK_SIZE": block})
+    assert not out.exists()
+
+
+def test_smallest_block_size_equals_one_pass(processing_run, tmp_path):
+    """BLOCK_SIZE = 64 on a raster of 2 x 3 blocks gives the one-pass mask."""
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(120, 150), seed=3)
+    src = _write(tmp_path / "dsm.tif", sc.dsm)
+    masks = []
+    for b in (0, 64):
+        res = processing_run("bareearth:morphological", {
+            "INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{b}.tif"), "OUTPUT_MASK": str(tmp_path / f"m{b}.tif"),
+            "BLOCK_SIZE": b, "THREADS": 1})
+        masks.append(_read(res["OUTPUT_MASK"])[0])
+    assert (masks[0] == masks[1]).all() and (masks[0] == 1).any()
+
+
+def _mask(shape=(40, 40)):
+    m = np.zeros(shape, np.uint8)
+    m[10:20, 10:20] = 1
+    return m
+
+
+@pytest.mark.parametrize("alg", ["filldtm", "evaluate"])
+def test_a_dsm_given_as_mask_refused_before_work(processing_run, tmp_path, alg):
+    """A float raster of heights given as MASK is refused naming the parameter and a value
+    (before, filldtm filled nothing and evaluate counted every non-zero height as an object)."""
+    from qgis.core import QgsProcessingException
+    dsm = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    good = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    out = tmp_path / "out.tif"
+    params = ({"INPUT": dsm, "MASK": dsm, "OUTPUT": str(out)} if alg == "filldtm" else
+              {"MASK": dsm, "REFERENCE_MASK": good, "OUTPUT_JSON": str(tmp_path / "e.json"),
+               "OUTPUT_HTML": str(tmp_path / "e.html")})
+    with pytest.raises(QgsProcessingException, match=r"The mask \(MASK\) '.*dsm.tif' holds \d+ cell\(s\) that are "
+                                                     r"no mask code \(e.g. 0.07"):
+        processing_run(f"bareearth:{alg}", params)
+    assert not out.exists() and not (tmp_path / "e.json").exists()
+
+
+def test_mask_codes_read_with_their_nodata(processing_run, tmp_path):
+    """An Int16 reference mask with nodata -9999: those cells are not evaluated, the others are
+    read as codes (a whole-number Float32 mask too)."""
+    m = _mask().astype(np.int16)
+    ref = m.copy()
+    ref[:5] = -9999
+    ref_path = _write(tmp_path / "ref.tif", ref, nodata=-9999, dtype="Int16")
+    mine = m.astype(np.float32)
+    mine[:5] = 0.0                            # ground where the reference has no data: not evaluated
+    res = processing_run("bareearth:evaluate", {"MASK": _write(tmp_path / "mine.tif", mine),
+                                                "REFERENCE_MASK": ref_path, "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                                "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert res["TOTAL"] == 0.0 and res["KAPPA"] == 100.0
+
+
+def _ortho_pair(tmp, shape=(100, 100)):
+    """A flat DEM and two textured orthophotos of it on its grid (zero parallax)."""
+    from scipy import ndimage
+    rng = np.random.default_rng(7)
+    tex = (255.0 * ndimage.gaussian_filter(rng.random(shape), 1.5)).astype(np.float32)
+    return {"DEM": _write(tmp / "dem.tif", np.full(shape, 100.0, np.float32)),
+            "ORTHO_A": _write(tmp / "a.tif", tex), "ORTHO_B": _write(tmp / "b.tif", tex[:, ::-1].copy()),
+            "OUTPUT_DEM": str(tmp / "o.tif"), "OUTPUT_MASK": str(tmp / "m.tif")}
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "MAX_DH_M": 1e6}, r"parallax searched.*wider than the DEM \(100 m.*"
+                                                             r"MAX_DH_M below 333.3 m"),
+    ({"BASE_M": 1e9, "HEIGHT_M": 1000.0}, r"B / H = 1e\+06"),
+    ({"CAMERA_A": "0,50,1100", "CAMERA_B": "1e9,50,1100"}, r"parallax searched.*wider than the DEM"),
+    ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "ORTHO_B": "A"}, r"ORTHO_A and ORTHO_B are one file"),
+], ids=["max_dh", "base", "centres", "same_file"])
+def test_orthoparallax_absurd_geometry_refused_before_work(processing_run, tmp_path, extra, message):
+    """A parallax search wider than the DEM is refused naming the values and the bound (before, MAX_DH_M
+    = 1e6 m ran 12 min on 200 x 160 cells and BASE_M = 1e9 did not finish); so is one file as both
+    orthophotos (it ran, and measured no parallax)."""
+    from qgis.core import QgsProcessingException
+    params = _ortho_pair(tmp_path)
+    params.update(extra)
+    if params.get("ORTHO_B") == "A":
+        params["ORTHO_B"] = params["ORTHO_A"]
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:orthoparallax", params)
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_orthorefine_tie_points_absurd_base_refused(processing_run, tmp_path):
+    """The same bound in orthorefine's tie-point mode (B and H given)."""
+    from qgis.core import QgsProcessingException
+    p = _ortho_pair(tmp_path)
+    ties = tmp_path / "ties.csv"
+    ties.write_text("image,x,y,col,row\na,500010,5399990,10,10\nb,500010,5399990,12,10\n")
+    with pytest.raises(QgsProcessingException, match=r"B / H = 1e\+06"):
+        processing_run("bareearth:orthorefine", {"DEM": p["DEM"], "IMAGES": [p["ORTHO_A"], p["ORTHO_B"]],
+                                                 "TIE_POINTS": str(ties), "BASE_M": 1e9, "HEIGHT_M": 1000.0,
+                                                 "OUTPUT_DEM": p["OUTPUT_DEM"]})
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_saga_header_extension_names_the_sdat(processing_run, tmp_path):
+    """An output named .sgrd (SAGA's header) is refused saying to name the .sdat (it said "GDAL
+    cannot write it here"); the .sdat is written with its .sgrd beside it."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    with pytest.raises(QgsProcessingException, match=r"header of a SAGA grid: name its .sdat"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.sgrd"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.sdat"),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert (tmp_path / "d.sgrd").exists() and _read(tmp_path / "d.sdat")[0].shape == (40, 40)
+
+
+def test_filldtm_with_every_cell_masked_refused_before_work(processing_run, tmp_path):
+    """A mask covering every valid cell leaves nothing to fill from: refused naming INPUT, MASK and
+    FILL_CODES (before, the core's "fill_gaps: ... outside `fill`" came after the work started)."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    m = _write(tmp_path / "m.tif", np.full((40, 40), 2, np.uint8), nodata=255)
+    with pytest.raises(QgsProcessingException, match=r"Nothing to fill from: every cell of the surface "
+                                                     r"\(INPUT\).*\(MASK\).*\(FILL_CODES\): 1, 2\)"):
+        processing_run("bareearth:filldtm", {"INPUT": src, "MASK": m, "OUTPUT": str(tmp_path / "o.tif")})
+    assert not (tmp_path / "o.tif").exists()
+
+
+def test_evaluate_all_nodata_reference_dtm_refused(processing_run, tmp_path):
+    """A reference DTM without a valid cell is refused naming it (before: RMSE NaN, no word)."""
+    from qgis.core import QgsProcessingException
+    dtm = _write(tmp_path / "dtm.tif", _ramp_with_box())
+    ref = _write(tmp_path / "ref.tif", np.full((40, 40), -9999.0, np.float32), nodata=-9999.0)
+    with pytest.raises(QgsProcessingException, match=r"\(REFERENCE_DTM\): the raster '.*ref.tif' has no valid cell"):
+        processing_run("bareearth:evaluate", {"DTM": dtm, "REFERENCE_DTM": ref, "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                              "OUTPUT_HTML": str(tmp_path / "e.html")})
+    assert not (tmp_path / "e.json").exists()
+
+
+
+def test_log_gives_nodata_cells_as_a_count(processing_run, tmp_path):
+    """The classes' line gives the nodata cells as a number of cells (it said "nodata cells 120 %"
+    for 120 cells), the classes in percent."""
+    from qgis.core import QgsProcessingFeedback
+    lines = []
+
+    class Log(QgsProcessingFeedback):
+        def pushInfo(self, info):  # noqa: N802
+            lines.append(info)
+
+    z = _ramp_with_box()
+    z[:, :3] = -9999.0
+    processing_run("bareearth:slopeprofile", {"INPUT": _write(tmp_path / "dsm.tif", z, nodata=-9999.0),
+                                              "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                              "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=Log())
+    line = next(s for s in lines if "classes_percent" in s)
+    assert re.search(r"ground \d+(\.\d+)? %", line) and line.rstrip().endswith("nodata cells 120"), line
+
+
+def test_qgis_process_tiny_block_and_ndsm_of_nodata_zero(run_qgis_process, tmp_path):
+    """Through qgis_process: the block-size refusal (exit code 1, the message, no file) and the nDSM
+    of a DSM with nodata 0 (NaN declared, the reason in the log)."""
+    z = _ramp_with_box()
+    z[:, :3] = 0.0
+    src = _write(tmp_path / "dsm.tif", z, nodata=0.0)
+    outs = {"OUTPUT_DTM": tmp_path / "d.tif", "OUTPUT_MASK": tmp_path / "m.tif", "OUTPUT_NDSM": tmp_path / "n.tif"}
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, "BLOCK_SIZE": 5, **outs})
+    assert rc != 0 and "(BLOCK_SIZE) = 5 cells is too small" in out and not (tmp_path / "d.tif").exists()
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, **outs})
+    assert rc == 0, out
+    assert "the nDSM declares NaN as nodata" in out and np.isnan(_read(tmp_path / "n.tif")[1])
