@@ -210,3 +210,32 @@ def test_window_without_ground_leaves_its_dtm_empty():
     assert res.dtm is None and (res.mask == OBJECT).all() and (res.extras["confidence"] == 100).all()
     out = pipeline.run_array("dtm", z, 1.0, aux={"object_areas": np.ones(z.shape, bool)})
     assert np.isnan(out.dtm).all()
+
+
+def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found():
+    """A 6 m embankment (30 m crown, 1:1 banks) across flat land with 8 m buildings beside it and one on its
+    crown. RASCOR and the geodesic member take the embankment as an object, the slope-following opening
+    keeps it: the majority rejects four fifths of it and the DTM would cut it. Its smooth ground continues
+    the undisputed ground (dtm_refine.continue_ground): it stays ground and the DTM follows it, while every
+    building, walls standing on steps, is found."""
+    n = 160
+    y, x = grid(n)
+    dam = np.clip((15 + 6 - np.abs(y - 80)) / 6, 0, 1) * 6.0
+    ground = 20 + 0.01 * x + dam
+    buildings = np.zeros((n, n), bool)
+    for r0, c0 in ((20, 20), (20, 100), (120, 30), (120, 110), (74, 60)):
+        buildings[r0:r0 + 14, c0:c0 + 14] = True
+    z = noisy(ground + 8.0 * buildings, sd=0.05)
+    res = pipeline.run_array("dtm", z, 1.0)
+    p = res.info["params"]["members"]
+    votes = sum((pipeline.run_array(m, z, 1.0, params={k: v for k, v in p[m].items()
+                                                       if k in {q.name for q in available_methods()[m].params}})
+                 .mask == GROUND).astype(int) for m in dtm_method.MEMBERS)
+    on_dam = (dam > 0) & ~buildings
+    assert np.count_nonzero((votes < 2) & on_dam) > 0.7 * np.count_nonzero(on_dam)      # the vote rejects it
+    assert np.count_nonzero((res.mask != GROUND) & on_dam) < 0.25 * np.count_nonzero(on_dam)
+    assert (res.mask[buildings] == OBJECT).all()
+    assert np.abs(res.dtm - ground)[~buildings].max() < 1.5
+    assert res.info["continued_ground_share"] > 0.1
+    logged = int(res.info["continued_ground_rule"].split(" cells")[0])
+    assert logged >= np.count_nonzero((res.mask == GROUND) & (votes < 2)) > 0

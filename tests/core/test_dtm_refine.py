@@ -232,3 +232,82 @@ def test_wide_shrubs_on_flat_land_need_the_longer_reach():
     shrubs = np.zeros(z.shape, bool)
     shrubs[5:25, 25:65] = True
     np.testing.assert_array_equal(mask == OBJECT, shrubs)
+
+
+def test_continue_ground_exact():
+    """Disputed cells on smooth ground joined to the anchors within the reach become ground; a step,
+    a path longer than the reach, or voted ground cut from the anchors does not carry it."""
+    z = np.zeros((5, 12), np.float32)
+    z[:, 4:] = 0.5 * np.arange(1, 9)                 # a bank rising at 0.5 m per cell from column 4
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4:] = True
+    anchors = ~disputed
+    got = dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=20)
+    np.testing.assert_array_equal(got, disputed)     # a plane continues the flat ground: all ground
+    # the reach: 3 cells from the anchors, columns 4-6
+    got = dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=3)
+    np.testing.assert_array_equal(got.all(axis=0), np.isin(np.arange(12), [4, 5, 6]))
+    assert got.any(axis=0).sum() == 3
+    # a wall: a 2 m step at column 4 (second differences 2 m around it); beyond its 3 x 3 neighbourhood
+    # the roof is smooth but only joined through the step
+    wall = z.copy()
+    wall[:, 4:] = 2.0
+    assert not dr.continue_ground(wall, disputed, anchors, anchors, height_m=1.0, reach_cells=20).any()
+    # voted ground cut from the anchors by objects no member calls ground (the walls around a patch of voted
+    # ground on a roof): no continuation from it
+    anchors2 = np.zeros(z.shape, bool)
+    anchors2[:, :2] = True
+    ground = anchors2.copy()
+    ground[:, 11] = True
+    got = dr.continue_ground(z, disputed & ~ground, ground, anchors2, height_m=1.0, reach_cells=20)
+    assert not got.any()
+    # nodata is never continued; no anchor or no reach: nothing
+    holes = z.copy()
+    holes[2, 8] = np.nan
+    got = dr.continue_ground(holes, disputed, anchors, anchors, height_m=1.0, reach_cells=20)
+    assert not got[2, 8] and got[0, 8]
+    assert not dr.continue_ground(z, disputed, anchors, np.zeros_like(anchors), height_m=1.0, reach_cells=20).any()
+    assert not dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=0).any()
+
+
+@pytest.mark.parametrize("kw", [{"height_m": 0.0}, {"height_m": float("nan")}])
+def test_continue_ground_bad_parameters(kw):
+    z = np.zeros((4, 4), np.float32)
+    with pytest.raises(ValueError, match="height_m"):
+        dr.continue_ground(z, z > 0, z == 0, z == 0, reach_cells=3, **kw)
+    with pytest.raises(ValueError, match="share the DSM's shape"):
+        dr.continue_ground(z, np.zeros((3, 4), bool), z == 0, z == 0, height_m=1.0, reach_cells=3)
+
+
+def test_continue_ground_blocked_equals_one_pass():
+    """On windows of a block plus continuation_cells + 2 cells, the one-pass result in the block."""
+    rng = np.random.default_rng(7)
+    n = 150
+    i, j = np.mgrid[0:n, 0:n].astype(np.float32)
+    z = (10 + 3.0 * np.clip((j - 60) / 8.0, 0, 1) + rng.normal(0, 0.03, (n, n))).astype(np.float32)  # a bank
+    z[20:40, 20:45] += 8.0                                                                             # a house
+    z[100:130, 90:120] += 6.0
+    disputed = (j >= 55) & (j < 75) | (z > 15)                # the bank and the roofs
+    anchors = (j < 55) & ~(z > 15)
+    ground = anchors | (j >= 75) & ~(z > 15)
+    anchors &= i < 120                                        # anchors on part of the flat land only
+    reach = dr.continuation_cells((1.0, 1.0), 30.0)
+    whole = dr.continue_ground(z, disputed, ground, anchors, height_m=1.0, reach_cells=reach)
+    assert whole.any() and not whole[z > 15].any()
+    halo = reach + 2
+    for b in (23, 40):
+        got = np.zeros_like(whole)
+        for r in range(0, n, b):
+            for c in range(0, n, b):
+                wr = slice(max(r - halo, 0), min(r + b + halo, n))
+                wc = slice(max(c - halo, 0), min(c + b + halo, n))
+                part = dr.continue_ground(z[wr, wc], disputed[wr, wc], ground[wr, wc], anchors[wr, wc], height_m=1.0,
+                                          reach_cells=reach)
+                got[r:r + b, c:c + b] = part[r - wr.start:r - wr.start + b, c - wc.start:c - wc.start + b]
+        assert np.array_equal(got, whole)
+
+
+def test_continuation_cells():
+    assert dr.continuation_cells((1.0, 1.0)) == 12
+    assert dr.continuation_cells((2.0, 4.0), 30.0) == 15
+    assert dr.continuation_cells((50.0, 50.0)) == 1

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 from surfaces import grid, noisy
 
+from bare_earth.core import dtm_refine as dr
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, OBJECT
 from bare_earth.core.dtm_regions import REACH_CELLS, find_raised_regions, regions_halo
@@ -144,7 +145,8 @@ def test_dtm_keeps_raised_ground(kind):
 
 
 def test_dtm_halo_adds_the_stage_reach_to_the_members():
-    """dtm's halo covers the members' reach and, beyond it, the stage's (the stage reads the vote)."""
+    """dtm's halo covers the members' reach and, beyond it, the stages' (each reads the one before):
+    the continuation, the refinement, the raised regions and the confidence."""
     from bare_earth.core import dtm as dtm_method
     from bare_earth.core.methods import get_method
     y, x = grid(128)
@@ -155,5 +157,8 @@ def test_dtm_halo_adds_the_stage_reach_to_the_members():
     windows = [p["members"][n][k] for n, k in dtm_method.MEMBER_WINDOWS.items()]
     assert width == sorted(windows)[-2] and span == int(np.ceil(2 * max(windows)))
     members = max(int(get_method(n).halo(p["members"][n], (1.0, 1.0))) for n in dtm_method.MEMBERS)
-    assert dtm_method.dtm_halo(p, 1.0) >= members + regions_halo(span)
-    assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + regions_halo(span)
+    cell = (1.0, 1.0)
+    stages = (dr.continuation_cells(cell, p["refine_reach_m"]) + 2 + dr.refine_halo(cell, p["refine_reach_m"])
+              + 2 * p["support_cells"] + 2)
+    assert dtm_method.dtm_halo(p, 1.0) >= members + stages + regions_halo(span)
+    assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + stages + regions_halo(span)
