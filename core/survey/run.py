@@ -133,6 +133,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     engine.require_dask()
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
+    check_output_folder(index, out_dir)
     user = {k: v for k, v in (params or {}).items() if v is not None}
     arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
     rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
@@ -196,6 +197,22 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     record.save_record(out_dir, rec)
     rec["this_run"] = this
     return rec
+
+
+def check_output_folder(index, out_dir):
+    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: an
+    existing file, or the folder of one of the tiles (the outputs would lie among the tiles,
+    and the folder given again as the input would take them for tiles)."""
+    out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
+                         "(a new one is created).")
+    inside = [t.path for t in index.tiles if os.path.realpath(os.path.dirname(t.path)) == out_dir]
+    if inside:
+        raise ValueError(f"the output folder {out_dir!r} holds the tiles ({os.path.basename(inside[0])}"
+                         + (f" and {len(inside) - 1} more" if len(inside) > 1 else "") + "): the outputs would be "
+                         "mixed with them, and the folder given again as the input would take the outputs for "
+                         "tiles. Choose another output folder.")
 
 
 def _remove_partials(out_dir, log):

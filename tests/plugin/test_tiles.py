@@ -98,3 +98,22 @@ def test_without_dask_the_algorithm_says_what_to_install(qgis_app, processing_ru
     res = processing_run("bareearth:slopeprofile", {"INPUT": tiles["paths"][0], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                     "OUTPUT_MASK": str(tmp_path / "m.tif")})
     assert os.path.exists(res["OUTPUT_MASK"])
+
+
+def test_output_folder_holding_the_tiles_or_a_file_refused_before_any_work(processing_run, tiles, tmp_path):
+    """The folder of the tile layers as OUTPUT_FOLDER (before: accepted, the outputs written among the
+    tiles, so the folder given again would take them for tiles) and an existing file as OUTPUT_FOLDER
+    (before: a FileExistsError traceback after the tile index) are refused naming the problem."""
+    from qgis.core import QgsProcessingException
+    before = sorted(os.listdir(tiles["dir"]))
+    with pytest.raises(QgsProcessingException, match=r"output folder .* holds the tiles \(tile_0_0.tif and 5 more\)"
+                                                     r".*Choose another output folder"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": tiles["paths"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": tiles["dir"]})
+    assert sorted(os.listdir(tiles["dir"])) == before
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("keep me")
+    with pytest.raises(QgsProcessingException, match=r"output folder .*notes.txt' is an existing file, not a folder"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(a_file)})
+    assert a_file.read_text() == "keep me"
