@@ -180,6 +180,9 @@ def _read_text(path):
         data = fh.read()
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
         data = b"   " + data[3:]
+    if b"\x00" in data[:4096]:                           # text never holds NUL bytes
+        raise ValueError(f"{path!r} is not a text point file (it holds binary data): a raster DSM goes to "
+                         "INPUT, not to the points; a LAS/LAZ file needs its .las or .laz extension.")
     flat = data.translate(_SEPARATORS)                   # every separator -> space
     m = re.search(rb"[^ \n]", flat)
     if m is None:
@@ -223,8 +226,12 @@ def _read_text(path):
         cls_col = next((names.index(c) for c in _CLASS_NAMES if c in names), None)
     else:
         if ncols not in (3, 4):
+            head = data[body_start:body_start + 4096]
+            comma = (b";" in head and re.search(rb"\d,\d", head) is not None and ncols in (6, 8))
             raise ValueError(f"{path}: {ncols} values per line; expected 3 (x y z) or 4 "
-                             "(x y z class), or a header line naming the x, y, z columns.")
+                             "(x y z class), or a header line naming the x, y, z columns."
+                             + (" The values seem to be written with decimal commas and separated by ';': "
+                                "write them with decimal points." if comma else ""))
         cols, cls_col = [0, 1, 2], (3 if ncols == 4 else None)
 
     x = np.ascontiguousarray(table[:, cols[0]])
