@@ -142,6 +142,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         raise ValueError(f"{out_dir} holds a run of other arguments (method {a.get('method')!r}, parameters "
                          f"{a.get('params')}, {len(a.get('tiles', []))} tiles): choose another output folder, or "
                          "delete its run.json to start again there.")
+    created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
     vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata)
@@ -152,6 +153,13 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     if "params" not in rec:
         t0 = time.perf_counter()
         zs, where = read_sample(index, info)
+        if not np.isfinite(zs).any():
+            os.remove(vrt)
+            if created:
+                os.rmdir(out_dir)
+            raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
+                             "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
+                             "the tiles that hold data.")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,

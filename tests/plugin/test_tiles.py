@@ -117,3 +117,20 @@ def test_output_folder_holding_the_tiles_or_a_file_refused_before_any_work(proce
         processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
                                            "WORKERS": 1, "OUTPUT_FOLDER": str(a_file)})
     assert a_file.read_text() == "keep me"
+
+
+def test_survey_of_nodata_tiles_refused_naming_it_and_leaving_no_folder(processing_run, tmp_path):
+    """Tiles holding only nodata: refused saying the survey holds no data (before: "z has no valid
+    cell", naming no tile, with the output folder and its survey.vrt left behind)."""
+    from qgis.core import QgsProcessingException
+    src = tmp_path / "sea"
+    src.mkdir()
+    for j in range(2):
+        grid.write_array(src / f"t{j}.tif", np.full((40, 40), -9999.0, np.float32),
+                         (500000.0 + 40 * j, 1.0, 0.0, 5400040.0, 0.0, -1.0), 32632, nodata=-9999.0)
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"the survey holds no data in the whole survey \(80 x 40 cells\)"
+                                                     r".*Check the tiles' nodata value"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": str(src), "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
