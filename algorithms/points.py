@@ -536,6 +536,10 @@ class PointsInputMixin:
         for t in tiles:
             if not os.path.isfile(t):
                 raise ValueError(f"OTHER_TILES: the point file {t!r} does not exist.")
+        try:
+            pf.check_tiles_crs(tiles, cloud, crs)
+        except ValueError as exc:
+            raise ValueError(f"OTHER_TILES: {exc}") from None
         cell = cell_size_value(self, parameters, self.CELL_SIZE_M, context)
         c = cell or pf.default_cell_size_m(cloud)
         sx, sy, _ = pf.axis_scales(cloud)

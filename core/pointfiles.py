@@ -21,7 +21,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
 
-__all__ = ["PointCloud", "read_points", "write_points", "read_column", "point_output_path", "import_laspy",
+__all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
            "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS"]
 
 #: File extensions written as LAS / as text.
@@ -180,9 +180,7 @@ def _read_text(path):
         data = fh.read()
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
         data = b"   " + data[3:]
-    if b"\x00" in data[:4096]:                           # text never holds NUL bytes
-        raise ValueError(f"{path!r} is not a text point file (it holds binary data): a raster DSM goes to "
-                         "INPUT, not to the points; a LAS/LAZ file needs its .las or .laz extension.")
+    _refuse_binary(path, data[:4096])
     flat = data.translate(_SEPARATORS)                   # every separator -> space
     m = re.search(rb"[^ \n]", flat)
     if m is None:
@@ -255,6 +253,54 @@ def _read_text(path):
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
                       source_format="text")
+
+
+def _refuse_binary(path, head):
+    """ValueError when the first bytes of a "text" point file hold a NUL byte (never in text)."""
+    if b"\x00" in head:
+        raise ValueError(f"{path!r} is not a text point file (it holds binary data): a raster DSM goes to "
+                         "INPUT, not to the points; a LAS/LAZ file needs its .las or .laz extension.")
+
+
+def read_crs(path, crs=None):
+    """The CRS and units of a point file without reading its points.
+
+    Parameters
+    ----------
+    path : str or path-like
+        LAS/LAZ (its header is read) or text (its sidecar ``.prj``, as :func:`read_points`).
+    crs : str, optional
+        Overrides the file's CRS, as in :func:`read_points`.
+
+    Returns
+    -------
+    (wkt or None, metres per x/y unit, metres per z unit)
+
+    Raises
+    ------
+    ValueError
+        A missing file, a LAS/LAZ file laspy cannot open, a "text" file holding binary data.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ValueError(f"point file {path!r} does not exist; check the path.")
+    if crs is not None:
+        return _crs_units(crs)
+    if os.path.splitext(path)[1].lower() in (".las", ".laz"):
+        laspy = import_laspy()
+        try:
+            with laspy.open(path) as fh:
+                return _las_crs(fh.header)
+        except (laspy.errors.LaspyException, ValueError, OSError, EOFError, struct.error) as exc:
+            raise ValueError(f"{path!r} is not a readable LAS/LAZ file: {exc}") from exc
+    with open(path, "rb") as fh:
+        _refuse_binary(path, fh.read(4096))
+    for prj in (path + ".prj", os.path.splitext(path)[0] + ".prj"):
+        if os.path.isfile(prj):
+            with open(prj, encoding="utf-8", errors="replace") as fh:
+                text = fh.read().strip()
+            return _crs_units(text) if text else (None, 1.0, 1.0)
+    return None, 1.0, 1.0
 
 
 def _row_line(data, body_start, row):

@@ -1,6 +1,7 @@
 """Point clouds through the plugin: rasterizepoints, classifypoints, morphological with INPUT_POINTS,
 evaluate on classified points, the example model, processing.run and qgis_process, bad inputs."""
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -493,3 +494,23 @@ def test_rasterize_points_too_small_a_grid_refused_in_the_check(qgis_app, tmp_pa
     ok, msg = alg.checkParameterValues({"INPUT": area, "CELL_SIZE_M": 1000.0, "OUTPUT": str(tmp_path / "d.tif")},
                                        QgsProcessingContext())
     assert not ok and "cells of 1000 m" in msg
+
+
+@pytest.mark.parametrize("kind,message", [
+    ("other_crs", r"\(OTHER_TILES\): b.las is not in the CRS / units of the input points"),
+    ("raster", r"\(OTHER_TILES\): .*dsm.tif' is not a text point file"),
+])
+def test_other_tiles_of_another_crs_or_not_points_refused_in_the_check(qgis_app, tmp_path, kind, message):
+    """A neighbouring tile in another CRS, or a raster given as a tile, is refused by the check from
+    the LAS header / first bytes (before: only once the run had read every tile)."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+    x, y, z, t = _scene_points(shape=(60, 60))
+    a = _las(tmp_path / "a.las", x, y, z, t)
+    other = (_las(tmp_path / "b.las", x + 60.0, y, z, t, epsg=25832) if kind == "other_crs"
+             else _bad_point_file("raster", tmp_path))
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    ok, msg = alg.checkParameterValues({"INPUT_POINTS": a, "OTHER_TILES": [other],
+                                        "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                        "OUTPUT_POINTS": str(tmp_path / "o.las")}, QgsProcessingContext())
+    assert not ok
+    assert re.search(message, msg), msg
