@@ -142,6 +142,13 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         raise ValueError(f"{out_dir} holds a run of other arguments (method {a.get('method')!r}, parameters "
                          f"{a.get('params')}, {len(a.get('tiles', []))} tiles): choose another output folder, or "
                          "delete its run.json to start again there.")
+    changed = record.changed_inputs(rec, arguments["tiles"]) if rec is not None else []
+    if changed:
+        raise ValueError(f"{len(changed)} tile(s) changed since the run recorded in {record.record_path(out_dir)} "
+                         f"(size or modification time): {', '.join(os.path.basename(p) for p in changed[:5])}"
+                         + (f" and {len(changed) - 5} more" if len(changed) > 5 else "") + ". Their outputs, their "
+                         "neighbours' (the halo) and the parameters derived from the survey may be stale: choose "
+                         "another output folder, or delete its run.json to start again there.")
     created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
@@ -150,6 +157,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     cell = tuple(float(v) for v in info.cell_size_m)
     if rec is None:
         rec = record.new_record(arguments)
+        rec["input_stamps"] = record.input_stamps(arguments["tiles"])
     if "params" not in rec:
         t0 = time.perf_counter()
         zs, where = read_sample(index, info)

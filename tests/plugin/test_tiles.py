@@ -134,3 +134,28 @@ def test_survey_of_nodata_tiles_refused_naming_it_and_leaving_no_folder(processi
         processing_run("bareearth:tiles", {"INPUT_FOLDER": str(src), "METHOD": method_index("slopeprofile"),
                                            "WORKERS": 1, "OUTPUT_FOLDER": str(out)})
     assert not out.exists()
+
+
+def test_rerun_after_a_tile_changed_is_refused_naming_it(processing_run, tmp_path):
+    """A rerun into a finished survey's folder after one tile was edited (same path, new heights) is
+    refused naming the tile (before: every tile was "already done", the old outputs kept silently)."""
+    from qgis.core import QgsProcessingException
+    src = tmp_path / "tiles"
+    src.mkdir()
+    sc = make_scene("city", shape=(64, 128), seed=2)
+    gt = sc.geotransform
+    for j in range(2):
+        a = sc.dsm[:, 64 * j:64 * (j + 1)]
+        grid.write_array(src / f"t{j}.tif", np.where(np.isfinite(a), a, -9999.0),
+                         (gt[0] + 64 * j * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]), sc.epsg, nodata=-9999.0)
+    params = {"INPUT_FOLDER": str(src), "METHOD": method_index("slopeprofile"), "WORKERS": 1,
+              "OUTPUT_FOLDER": str(tmp_path / "out")}
+    processing_run("bareearth:tiles", params)
+    res = processing_run("bareearth:tiles", params)                 # unchanged: nothing redone
+    assert json.loads(Path(res["OUTPUT_RECORD"]).read_text())["runs"][-1]["tiles_to_do"] == 0
+    a = sc.dsm[:, 64:] + 5.0
+    grid.write_array(src / "t1.tif", np.where(np.isfinite(a), a, -9999.0),
+                     (gt[0] + 64 * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]), sc.epsg, nodata=-9999.0)
+    with pytest.raises(QgsProcessingException, match=r"1 tile\(s\) changed since the run recorded in .*run.json "
+                                                     r"\(size or modification time\): t1.tif"):
+        processing_run("bareearth:tiles", params)
