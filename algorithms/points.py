@@ -5,7 +5,6 @@ import os
 import threading
 
 import numpy as np
-
 from qgis.core import (
     QgsProcessing,
     QgsProcessingException,
