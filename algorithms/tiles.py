@@ -125,12 +125,13 @@ class TilesAlgorithm(BaseAlgorithm):
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
-        from ..core.survey import INSTALL_HINT, check_output_folder, have_dask, index_tiles, parse_params
+        from ..core.survey import INSTALL_HINT, check_output_folder, engine, have_dask, index_tiles, parse_params
         if not have_dask():
             return False, tr(INSTALL_HINT)
         try:
             parse_params(self._method(parameters, context),
                          self.parameterAsString(parameters, self.PARAMETERS, context))
+            engine.check_scheduler_address((self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip())
             index = index_tiles(self._inputs(parameters, context))
             out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
             if out_dir:

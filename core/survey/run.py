@@ -131,6 +131,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     log = log or (lambda s: None)
     meth = get_method(method)
     engine.require_dask()
+    engine.check_scheduler_address(scheduler)
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
     check_output_folder(index, out_dir)

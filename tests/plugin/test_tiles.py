@@ -159,3 +159,15 @@ def test_rerun_after_a_tile_changed_is_refused_naming_it(processing_run, tmp_pat
     with pytest.raises(QgsProcessingException, match=r"1 tile\(s\) changed since the run recorded in .*run.json "
                                                      r"\(size or modification time\): t1.tif"):
         processing_run("bareearth:tiles", params)
+
+
+@pytest.mark.parametrize("address", ["not an address", "tcp://host", "tcp://host:port"])
+def test_malformed_scheduler_address_refused_before_any_work(processing_run, tiles, tmp_path, address):
+    """A SCHEDULER that is no Dask address is refused saying the expected form (before: "missing port
+    number in address ..." after the parameters were derived, with the output folder made)."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"is not a Dask address .*give it as tcp://host:8786"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "SCHEDULER": address, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
