@@ -171,3 +171,16 @@ def test_malformed_scheduler_address_refused_before_any_work(processing_run, til
         processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
                                            "SCHEDULER": address, "OUTPUT_FOLDER": str(out)})
     assert not out.exists()
+
+
+def test_an_output_folder_given_as_the_tiles_is_refused_naming_it(processing_run, tiles, tmp_path):
+    """A survey's output folder given back as INPUT_FOLDER (its *_dtm.tif and *_mask.tif are no tiles)
+    is refused saying so (before: "tiles overlap: tile_0_0_dtm.tif and tile_0_0_mask.tif")."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    params = {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"), "WORKERS": 1,
+              "PARAMETERS": "max_object_size_m=20", "OUTPUT_FOLDER": str(out)}
+    processing_run("bareearth:tiles", params)
+    with pytest.raises(QgsProcessingException, match=r"holds the outputs of a survey run \(run.json\), not tiles"):
+        processing_run("bareearth:tiles", dict(params, INPUT_FOLDER=str(out), OUTPUT_FOLDER=str(tmp_path / "again")))
+    assert not (tmp_path / "again").exists()
