@@ -12,3 +12,23 @@ def noisy(ground, seed=0, sd=0.03):
     """``ground`` plus Gaussian noise of ``sd`` (seeded), as float32."""
     rng = np.random.default_rng(seed)
     return (ground + rng.normal(0.0, sd, ground.shape)).astype(np.float32)
+
+
+def in_blocks(fn, shape, block, halo):
+    """``fn`` run block by block: each ``block`` x ``block`` block read with ``halo`` cells around it.
+
+    ``fn(rows, cols)`` gets the slices of the read window and returns its result (same shape);
+    the block's part of it is pasted into the whole. Equals ``fn`` on the whole raster when
+    ``halo`` covers everything a cell's result depends on (the contract of blocked runs).
+    """
+    n_rows, n_cols = shape
+    out = None
+    for r in range(0, n_rows, block):
+        for c in range(0, n_cols, block):
+            wr = slice(max(r - halo, 0), min(r + block + halo, n_rows))
+            wc = slice(max(c - halo, 0), min(c + block + halo, n_cols))
+            part = fn(wr, wc)
+            if out is None:
+                out = np.zeros(shape, part.dtype)
+            out[r:r + block, c:c + block] = part[r - wr.start:r - wr.start + block, c - wc.start:c - wc.start + block]
+    return out

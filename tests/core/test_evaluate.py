@@ -153,8 +153,9 @@ def test_write_report_flat_and_large_map(tmp_path):
 
 
 # --------------------------------------------------------------------------- benchmark harness
-def _load_harness():
-    spec = importlib.util.spec_from_file_location("isprs_bench", ROOT / "benchmarks" / "isprs.py")
+def _load_benchmark(name):
+    """The script ``benchmarks/<name>.py`` loaded as a module (the benchmarks are no package)."""
+    spec = importlib.util.spec_from_file_location(f"{name}_bench", ROOT / "benchmarks" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -175,7 +176,7 @@ def _synthetic_sample(path, seed):
 
 
 def test_harness_with_inline_methods(tmp_path):
-    bench = _load_harness()
+    bench = _load_benchmark("isprs")
     for i in (1, 2):
         _synthetic_sample(tmp_path / f"samp{i}1.txt", i)
     samples = bench.load_samples(tmp_path)
@@ -229,7 +230,7 @@ def test_error_map_from_points_and_several_maps(tmp_path):
 
 
 def test_harness_log_line(tmp_path):
-    bench = _load_harness()
+    bench = _load_benchmark("isprs")
     _synthetic_sample(tmp_path / "samp11.txt", 1)
     res = bench.evaluate_method(
         lambda z, cs: SimpleNamespace(mask=np.zeros(z.shape, np.uint8), dtm=z,
@@ -247,13 +248,6 @@ def test_harness_log_line(tmp_path):
     assert bench.main(["--data", str(tmp_path / "absent")]) == 0
 
 
-def _load_generalise():
-    spec = importlib.util.spec_from_file_location("generalise_bench", ROOT / "benchmarks" / "generalise.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def _isprs_rows(gen, folder):
     notes = []
     return {name: build for _, _, rows in gen.isprs_cases(folder, notes) for name, build in rows}
@@ -264,7 +258,7 @@ def test_generalise_grid_column_separates_the_grid_from_the_filter(tmp_path):
     near the floor while the raw DSM is not; on bare rough ground rasterised by its highest
     point per 2 m cell, removing the cells that stand too high still leaves most of raw's
     error: it is the grid's."""
-    gen = _load_generalise()
+    gen = _load_benchmark("generalise")
     (tmp_path / "isprs").mkdir()
     _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 3)
     build = _isprs_rows(gen, tmp_path)["isprs/samp11/1m/min"]
