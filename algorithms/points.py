@@ -94,15 +94,27 @@ def check_points(path, crs=None, what="INPUT"):
 
 
 def check_width(cloud, cell_m, scales, what="INPUT_POINTS"):
-    """ValueError when the points lie along a line: across their principal direction (the
-    minor axis of the x/y covariance, in metres) they span less than the 3 cells a filter
-    needs, however large their bounding box (a diagonal line of points has a square one)."""
+    """ValueError when the points cannot fill the 3 x 3 cells a filter needs although their
+    bounding box does: 99 % of them span less (a few stray points far away made the box, and
+    the default cell, huge), or they lie along a line (across their principal direction, the
+    minor axis of the x/y covariance, in metres, they span less than 3 cells; a diagonal line
+    of points has a square bounding box)."""
     ok = np.isfinite(cloud.x) & np.isfinite(cloud.y) & np.isfinite(cloud.z)
     x = (cloud.x[ok] - cloud.x[ok].mean()) * scales[0]
     y = (cloud.y[ok] - cloud.y[ok].mean()) * scales[1]
     if x.size < 3:
         raise ValueError(f"{what}: only {x.size} point(s) with finite x, y and z; a filter needs points "
                          "over at least 3 x 3 cells.")
+    qx, qy = np.quantile(x, [0.005, 0.995]), np.quantile(y, [0.005, 0.995])
+    bw, bh = float(qx[1] - qx[0]), float(qy[1] - qy[0])
+    if bw / cell_m < 3 or bh / cell_m < 3:
+        w, h = float(np.ptp(x)), float(np.ptp(y))
+        stray = w > 2 * bw and h > 2 * bh
+        raise ValueError(f"{what}: 99 % of the points span only {bw:.4g} x {bh:.4g} m: with cells of {cell_m:g} m "
+                         "that is less than the 3 x 3 cells a filter needs. "
+                         + (f"A few points lie far from the others (the whole extent is {w:.4g} x {h:.4g} m): remove "
+                            "those stray points (e.g. the LAS noise classes) or clip the file." if stray else
+                            "Give points covering an area (or a smaller CELL_SIZE_M)."))
     _, vecs = np.linalg.eigh(np.cov(np.vstack([x, y])))
     minor = vecs[:, 0]                                  # eigh: ascending eigenvalues
     width = float(np.ptp(x * minor[0] + y * minor[1]))

@@ -452,6 +452,8 @@ def _bad_point_file(kind, d):
         return _write_text(d / "nan.txt", x, y, np.full_like(z, np.nan))
     if kind == "diagonal_line":
         return _write_text(d / "line.txt", x, x - 500000.0 + 5400000.0, z)
+    if kind == "one_stray_point":                       # e.g. a bad GPS record at (0, 0)
+        return _write_text(d / "stray.txt", np.append(x, 0.0), np.append(y, 0.0), np.append(z, 0.0))
     if kind == "decimal_commas":
         p = d / "eu.txt"
         p.write_text("".join(f"{a:.3f};{b:.3f};{c:.3f}\n".replace(".", ",") for a, b, c in zip(x, y, z)))
@@ -464,11 +466,14 @@ def _bad_point_file(kind, d):
     ("z_all_nan", r"no point of .* has a finite height"),
     ("diagonal_line", r"the points lie along a line, .* m wide across it.*less than the 3 cells"),
     ("decimal_commas", r"6 values per line.*decimal commas and separated by ';'"),
+    ("one_stray_point", r"99 % of the points span only 59.* x 59.* m: with cells of 50000 m.*A few points lie far "
+                        r"from the others \(the whole extent is 5.001e\+05 x 5.4e\+06 m\): remove those stray points"),
 ])
 def test_degenerate_point_files_refused_before_work(qgis_app, processing_run, tmp_path, kind, message):
     """Before: a raster given as INPUT_POINTS was "a header line but no points", z NaN on every line
     failed inside the run, points along a diagonal line (a square bounding box) were filtered into a
-    grid filled from one line, and decimal commas with ';' were only "6 values per line"."""
+    grid filled from one line, decimal commas with ';' were only "6 values per line", and one stray point
+    5000 km away made the default cell 50 km (every other point in one cell) and ran."""
     from qgis.core import QgsApplication, QgsProcessingContext, QgsProcessingException
     params = {"INPUT_POINTS": _bad_point_file(kind, tmp_path), "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
               "OUTPUT_MASK": str(tmp_path / "mask.tif"), "OUTPUT_POINTS": str(tmp_path / "out.txt")}
