@@ -132,10 +132,11 @@ class TilesAlgorithm(BaseAlgorithm):
             parse_params(self._method(parameters, context),
                          self.parameterAsString(parameters, self.PARAMETERS, context))
             engine.check_scheduler_address((self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip())
-            index = index_tiles(self._inputs(parameters, context))
+            inputs = self._inputs(parameters, context)
+            index = index_tiles(inputs)
             out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
             if out_dir:
-                check_output_folder(index, out_dir)
+                check_output_folder(index, out_dir, inputs)
         except (ValueError, QgsProcessingException) as exc:
             return False, str(exc)
         return True, ""

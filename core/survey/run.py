@@ -134,7 +134,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     engine.check_scheduler_address(scheduler)
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
-    check_output_folder(index, out_dir)
+    check_output_folder(index, out_dir, inputs)
     user = {k: v for k, v in (params or {}).items() if v is not None}
     arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
     rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
@@ -216,11 +216,21 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     return rec
 
 
-def check_output_folder(index, out_dir):
+def check_output_folder(index, out_dir, inputs=None):
     """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: an
-    existing file, or the folder of one of the tiles (the outputs would lie among the tiles,
-    and the folder given again as the input would take them for tiles)."""
+    existing file, the folder of one of the tiles (the outputs would lie among the tiles,
+    and the folder given again as the input would take them for tiles), or a folder where an
+    output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
+    ``mask.vrt`` or ``survey.vrt``)."""
     out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
+    given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
+    names = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
+    names += [n for t in index.tiles for n in output_names(t.name)]
+    outputs = {os.path.realpath(os.path.join(out_dir, n)) for n in names}
+    hit = [str(p) for p in given if os.path.realpath(os.path.abspath(str(p))) in outputs]
+    if hit:
+        raise ValueError(f"an output in {out_dir!r} would replace the input {hit[0]!r}: choose another output "
+                         "folder (or rename the input).")
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
                          "(a new one is created).")

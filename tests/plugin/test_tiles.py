@@ -184,3 +184,19 @@ def test_an_output_folder_given_as_the_tiles_is_refused_naming_it(processing_run
     with pytest.raises(QgsProcessingException, match=r"holds the outputs of a survey run \(run.json\), not tiles"):
         processing_run("bareearth:tiles", dict(params, INPUT_FOLDER=str(out), OUTPUT_FOLDER=str(tmp_path / "again")))
     assert not (tmp_path / "again").exists()
+
+
+def test_a_vrt_input_named_like_an_output_is_not_overwritten(processing_run, tiles, tmp_path):
+    """One VRT over the tiles, named dtm.vrt, with its own folder as OUTPUT_FOLDER: refused (before:
+    the survey ran and replaced the input VRT with its DTM mosaic)."""
+    from osgeo import gdal
+    from qgis.core import QgsProcessingException
+    vrt = tmp_path / "dtm.vrt"
+    gdal.BuildVRT(str(vrt), tiles["paths"])
+    with pytest.raises(QgsProcessingException, match=r"an output in .* would replace the input .*dtm.vrt"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": [str(vrt)], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(tmp_path)})
+    # still the VRT over the tiles (QGIS, loading the layer, may add band statistics to it: not ours)
+    from bare_earth.core.survey import io
+    assert sorted(io.vrt_sources(str(vrt))) == sorted(os.path.abspath(p) for p in tiles["paths"])
+    assert not (tmp_path / "run.json").exists() and not (tmp_path / "survey.vrt").exists()
