@@ -246,7 +246,10 @@ def _read_text(path):
         if nonint.size:
             ln, text = _row_line(data, body_start, int(nonint[0]))
             raise ValueError(f"{path}: line {ln}: the class column must hold whole "
-                             f"numbers; got {c[nonint[0]]!r} in {text!r}.")
+                             f"numbers; got {c[nonint[0]]!r} in {text!r}."
+                             + ("" if names is not None else " Without a header line the 4th column is read as "
+                                "the class: to keep another value there, add a header line naming the columns "
+                                "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
     head = data[body_start:body_start + 4096]
     delim = "\t" if b"\t" in head else ("," if b"," in head else " ")

@@ -427,3 +427,14 @@ def test_read_crs_from_the_header_or_prj_without_the_points(tmp_path):
         pointfiles.read_crs(tmp_path / "r.txt")
     with pytest.raises(ValueError, match="does not exist"):
         pointfiles.read_crs(tmp_path / "nope.las")
+
+
+def test_fourth_column_not_a_class_names_the_header_fix(tmp_path):
+    """x y z intensity without a header: the refusal says the 4th column is read as the class and
+    how to name the columns (before: only "the class column must hold whole numbers")."""
+    p = _write(tmp_path, "1 2 3 12.5\n4 5 6 13.25\n")
+    with pytest.raises(ValueError, match=r"line 1: the class column must hold whole numbers; got 12.5.*"
+                                         r"4th column is read as the class.*header line naming the columns"):
+        read_points(p)
+    c = read_points(_write(tmp_path, "x y z intensity\n1 2 3 12.5\n4 5 6 13.25\n", name="named.txt"))
+    assert c.classification is None and c.z.tolist() == [3.0, 6.0]
