@@ -356,8 +356,19 @@ class OrthoAlgorithm(BaseAlgorithm):
         window = self.parameterAsInt(parameters, self.WINDOW_CELLS, context)
         if window < 3 or window % 2 == 0:
             raise ValueError(f"WINDOW_CELLS must be an odd number of cells >= 3; got {window}.")
+        min_corr = self.parameterAsDouble(parameters, self.MIN_CORRELATION, context)
+        if not 0.0 <= min_corr < 1.0:
+            raise ValueError(f"MIN_CORRELATION must be in 0 .. 1 (1 excluded); got {min_corr:g}. A correlation of "
+                             "exactly 1 is reached only by identical windows, never by two orthophotos of one "
+                             "scene, so no match would be kept and nothing measured: choose a value below 1 "
+                             "(default 0.6).")
+        max_dh = _optional_number(self, parameters, self.MAX_DH_M, context)
+        if max_dh is not None and not max_dh > 0:
+            raise ValueError(f"MAX_DH_M must be > 0 m; got {max_dh:g}: a search of 0 m measures no height "
+                             "correction. Leave it empty for the default (a fifth of the flying height H) or give "
+                             "the largest correction expected, in metres.")
         return dict(window=window,
-                    min_corr=self.parameterAsDouble(parameters, self.MIN_CORRELATION, context),
+                    min_corr=min_corr,
                     height_threshold_m=_positive_or_none(self, parameters, self.HEIGHT_THRESHOLD_M, context),
                     max_dh_m=_positive_or_none(self, parameters, self.MAX_DH_M, context),
                     object_size_m=self.parameterAsDouble(parameters, self.OBJECT_SIZE_M, context))

@@ -4,6 +4,7 @@
 import os
 import threading
 
+import numpy as np
 from qgis.core import (
     QgsProcessing,
     QgsProcessingException,
@@ -86,7 +87,41 @@ def check_points(path, crs=None, what="INPUT"):
         return False, "{}: {}".format(what, exc), None
     if len(cloud) == 0:
         return False, tr("{}: the point file '{}' has no points.").format(what, path), None
+    if not (np.isfinite(cloud.x) & np.isfinite(cloud.y) & np.isfinite(cloud.z)).any():
+        return False, tr("{}: no point of '{}' has a finite height (z is NaN or infinite on every line); "
+                         "check the z column.").format(what, path), None
     return True, "", cloud
+
+
+def check_width(cloud, cell_m, scales, what="INPUT_POINTS"):
+    """ValueError when the points cannot fill the 3 x 3 cells a filter needs although their
+    bounding box does: 99 % of them span less (a few stray points far away made the box, and
+    the default cell, huge), or they lie along a line (across their principal direction, the
+    minor axis of the x/y covariance, in metres, they span less than 3 cells; a diagonal line
+    of points has a square bounding box)."""
+    ok = np.isfinite(cloud.x) & np.isfinite(cloud.y) & np.isfinite(cloud.z)
+    x = (cloud.x[ok] - cloud.x[ok].mean()) * scales[0]
+    y = (cloud.y[ok] - cloud.y[ok].mean()) * scales[1]
+    if x.size < 3:
+        raise ValueError(f"{what}: only {x.size} point(s) with finite x, y and z; a filter needs points "
+                         "over at least 3 x 3 cells.")
+    qx, qy = np.quantile(x, [0.005, 0.995]), np.quantile(y, [0.005, 0.995])
+    bw, bh = float(qx[1] - qx[0]), float(qy[1] - qy[0])
+    if bw / cell_m < 3 or bh / cell_m < 3:
+        w, h = float(np.ptp(x)), float(np.ptp(y))
+        stray = w > 2 * bw and h > 2 * bh
+        raise ValueError(f"{what}: 99 % of the points span only {bw:.4g} x {bh:.4g} m: with cells of {cell_m:g} m "
+                         "that is less than the 3 x 3 cells a filter needs. "
+                         + (f"A few points lie far from the others (the whole extent is {w:.4g} x {h:.4g} m): remove "
+                            "those stray points (e.g. the LAS noise classes) or clip the file." if stray else
+                            "Give points covering an area (or a smaller CELL_SIZE_M)."))
+    _, vecs = np.linalg.eigh(np.cov(np.vstack([x, y])))
+    minor = vecs[:, 0]                                  # eigh: ascending eigenvalues
+    width = float(np.ptp(x * minor[0] + y * minor[1]))
+    if width / cell_m < 3:
+        raise ValueError(f"{what}: the points lie along a line, {width:.3g} m wide across it: with cells of "
+                         f"{cell_m:g} m that is less than the 3 cells a filter needs. Give points covering an "
+                         "area (or a smaller CELL_SIZE_M).")
 
 
 def crs_value(alg, parameters, key, context):
@@ -277,6 +312,11 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             raise ValueError(f"CELL_SIZE_M = {c:g} m gives about {cells:.3g} cells over the points' "
                              f"{(x1 - x0) * sx:.0f} x {(y1 - y0) * sy:.0f} m: use a larger cell size"
                              " (or check the CRS: degrees read as metres?).")
+        w, h = (x1 - x0) * sx, (y1 - y0) * sy
+        if w / c < 3 or h / c < 3:
+            raise ValueError(f"INPUT: the points span only {w:.3g} x {h:.3g} m: with cells of {c:g} m that is less "
+                             "than the 3 x 3 cells of a DSM the filters can use; use a smaller CELL_SIZE_M or more "
+                             "points.")
         return path, cloud, cell
 
     @explained
@@ -507,6 +547,10 @@ class PointsInputMixin:
         for t in tiles:
             if not os.path.isfile(t):
                 raise ValueError(f"OTHER_TILES: the point file {t!r} does not exist.")
+        try:
+            pf.check_tiles_crs(tiles, cloud, crs)
+        except ValueError as exc:
+            raise ValueError(f"OTHER_TILES: {exc}") from None
         cell = cell_size_value(self, parameters, self.CELL_SIZE_M, context)
         c = cell or pf.default_cell_size_m(cloud)
         sx, sy, _ = pf.axis_scales(cloud)
@@ -518,6 +562,7 @@ class PointsInputMixin:
         if (w / c) * (h / c) > 1e9:
             raise ValueError(f"CELL_SIZE_M = {c:g} m gives about {(w / c) * (h / c):.3g} cells: use a larger "
                              "cell size.")
+        check_width(cloud, c, (sx, sy), self.INPUT_POINTS)
         user = self._user_params(parameters, context)
         defaults = {p.name: p.default for p in self.method.params}
         extent_m = max(w, h)

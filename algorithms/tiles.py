@@ -125,13 +125,18 @@ class TilesAlgorithm(BaseAlgorithm):
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
-        from ..core.survey import INSTALL_HINT, have_dask, index_tiles, parse_params
+        from ..core.survey import INSTALL_HINT, check_output_folder, engine, have_dask, index_tiles, parse_params
         if not have_dask():
             return False, tr(INSTALL_HINT)
         try:
             parse_params(self._method(parameters, context),
                          self.parameterAsString(parameters, self.PARAMETERS, context))
-            index_tiles(self._inputs(parameters, context))
+            engine.check_scheduler_address((self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip())
+            inputs = self._inputs(parameters, context)
+            index = index_tiles(inputs)
+            out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
+            if out_dir:
+                check_output_folder(index, out_dir, inputs)
         except (ValueError, QgsProcessingException) as exc:
             return False, str(exc)
         return True, ""

@@ -21,7 +21,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
 
-__all__ = ["PointCloud", "read_points", "write_points", "read_column", "point_output_path", "import_laspy",
+__all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
            "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS"]
 
 #: File extensions written as LAS / as text.
@@ -180,6 +180,7 @@ def _read_text(path):
         data = fh.read()
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
         data = b"   " + data[3:]
+    _refuse_binary(path, data[:4096])
     flat = data.translate(_SEPARATORS)                   # every separator -> space
     m = re.search(rb"[^ \n]", flat)
     if m is None:
@@ -223,8 +224,12 @@ def _read_text(path):
         cls_col = next((names.index(c) for c in _CLASS_NAMES if c in names), None)
     else:
         if ncols not in (3, 4):
+            head = data[body_start:body_start + 4096]
+            comma = (b";" in head and re.search(rb"\d,\d", head) is not None and ncols in (6, 8))
             raise ValueError(f"{path}: {ncols} values per line; expected 3 (x y z) or 4 "
-                             "(x y z class), or a header line naming the x, y, z columns.")
+                             "(x y z class), or a header line naming the x, y, z columns."
+                             + (" The values seem to be written with decimal commas and separated by ';': "
+                                "write them with decimal points." if comma else ""))
         cols, cls_col = [0, 1, 2], (3 if ncols == 4 else None)
 
     x = np.ascontiguousarray(table[:, cols[0]])
@@ -241,13 +246,64 @@ def _read_text(path):
         if nonint.size:
             ln, text = _row_line(data, body_start, int(nonint[0]))
             raise ValueError(f"{path}: line {ln}: the class column must hold whole "
-                             f"numbers; got {c[nonint[0]]!r} in {text!r}.")
+                             f"numbers; got {c[nonint[0]]!r} in {text!r}."
+                             + ("" if names is not None else " Without a header line the 4th column is read as "
+                                "the class: to keep another value there, add a header line naming the columns "
+                                "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
     head = data[body_start:body_start + 4096]
     delim = "\t" if b"\t" in head else ("," if b"," in head else " ")
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
                       source_format="text")
+
+
+def _refuse_binary(path, head):
+    """ValueError when the first bytes of a "text" point file hold a NUL byte (never in text)."""
+    if b"\x00" in head:
+        raise ValueError(f"{path!r} is not a text point file (it holds binary data): a raster DSM goes to "
+                         "INPUT, not to the points; a LAS/LAZ file needs its .las or .laz extension.")
+
+
+def read_crs(path, crs=None):
+    """The CRS and units of a point file without reading its points.
+
+    Parameters
+    ----------
+    path : str or path-like
+        LAS/LAZ (its header is read) or text (its sidecar ``.prj``, as :func:`read_points`).
+    crs : str, optional
+        Overrides the file's CRS, as in :func:`read_points`.
+
+    Returns
+    -------
+    (wkt or None, metres per x/y unit, metres per z unit)
+
+    Raises
+    ------
+    ValueError
+        A missing file, a LAS/LAZ file laspy cannot open, a "text" file holding binary data.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ValueError(f"point file {path!r} does not exist; check the path.")
+    if crs is not None:
+        return _crs_units(crs)
+    if os.path.splitext(path)[1].lower() in (".las", ".laz"):
+        laspy = import_laspy()
+        try:
+            with laspy.open(path) as fh:
+                return _las_crs(fh.header)
+        except (laspy.errors.LaspyException, ValueError, OSError, EOFError, struct.error) as exc:
+            raise ValueError(f"{path!r} is not a readable LAS/LAZ file: {exc}") from exc
+    with open(path, "rb") as fh:
+        _refuse_binary(path, fh.read(4096))
+    for prj in (path + ".prj", os.path.splitext(path)[0] + ".prj"):
+        if os.path.isfile(prj):
+            with open(prj, encoding="utf-8", errors="replace") as fh:
+                text = fh.read().strip()
+            return _crs_units(text) if text else (None, 1.0, 1.0)
+    return None, 1.0, 1.0
 
 
 def _row_line(data, body_start, row):

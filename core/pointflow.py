@@ -38,11 +38,11 @@ from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
 from .grid import metres_per_degree
 from .pipeline import as_method, resolve_params, run_array
-from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column
+from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
 
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
-           "filter_cloud", "filter_tiles", "write_rasters", "class_counts",
+           "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "class_counts",
            "compare_classified", "match_points", "read_column", "point_output_path",
            "axis_scales", "DEFAULT_THRESHOLD_M", "DEFAULT_SLOPE_FACTOR", "REDUCERS",
            "POINT_EXTENSIONS"]
@@ -512,6 +512,18 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
                       overlap_m=float(overlap_m), units=units,
                       info={"tiles": per_tile, "halo_cells": halo, "cell_size_m": cell_m,
                             "seconds": time.perf_counter() - t_all}, results=results)
+
+
+def check_tiles_crs(paths, cloud, crs=None):
+    """ValueError, before any point is read, when a point file of ``paths`` is not in the CRS /
+    units of ``cloud`` (the block's first tile), is not a point file, or is missing: the test
+    :func:`filter_tiles` makes after reading them, on the LAS headers / ``.prj`` files only."""
+    for p in paths:
+        wkt, h, v = read_crs(p, crs)
+        if not _same_crs(cloud.crs, wkt) or abs(h - cloud.units_to_metre) > 1e-12 or \
+                abs((v if v is not None else h) - cloud.z_units_to_metre) > 1e-12:
+            raise ValueError(f"{os.path.basename(os.fspath(p))} is not in the CRS / units of the input points: "
+                             "tiles of one block must share them (reproject first, or pass the CRS).")
 
 
 def _load_tiles(tiles, outputs, crs):

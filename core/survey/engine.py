@@ -79,6 +79,22 @@ def python_executable():
                        f"(sys.executable is {exe!r}): start a cluster yourself and give its scheduler address.")
 
 
+def check_scheduler_address(scheduler):
+    """ValueError, before any work, when ``scheduler`` (not empty) is not a Dask address
+    (``protocol://host:port``, e.g. ``tcp://host:8786``; ``host:port`` means tcp)."""
+    if not scheduler:
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+    try:
+        proto, loc = parse_address(str(scheduler))
+        if proto in ("tcp", "tls"):
+            parse_host_port(loc)
+    except ValueError as exc:
+        raise ValueError(f"the scheduler address {scheduler!r} is not a Dask address ({exc}): give it as "
+                         "tcp://host:8786 (protocol://host:port), or leave it empty for worker processes on this "
+                         "computer.") from None
+
+
 def start_client(workers=0, scheduler=None, log=None):
     """A Dask client: connected to ``scheduler`` (an address such as
     ``tcp://host:8786``), else to a new LocalCluster of ``workers`` processes (0: one per

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import grid
-from . import io
+from . import io, record
 
 #: Extensions of the rasters a folder is scanned for.
 RASTER_EXTENSIONS = (".tif", ".tiff", ".img", ".asc", ".sdat", ".nc")
@@ -106,6 +106,9 @@ def list_inputs(inputs):
         raise ValueError("no input tile was given: pass rasters, a VRT or a folder of rasters.")
     if len(inputs) == 1 and os.path.isdir(inputs[0]):
         folder = inputs[0]
+        if os.path.isfile(record.record_path(folder)):
+            raise ValueError(f"the folder {folder!r} holds the outputs of a survey run ({record.NAME}), not "
+                             "tiles: give the folder of the input tiles (their paths are in its run.json).")
         found = sorted(os.path.join(folder, f) for f in os.listdir(folder)
                        if f.lower().endswith(RASTER_EXTENSIONS) and ".partial-" not in f)
         if not found:

@@ -83,3 +83,23 @@ def done_tiles(rec, out_dir):
                                              for f in t.get("files", ())):
             out.add(name)
     return out
+
+
+def input_stamps(paths):
+    """``{path: [size in bytes, modification time in ns]}`` of the input tiles: what a rerun
+    compares to tell whether a tile changed since its outputs were recorded."""
+    out = {}
+    for p in paths:
+        st = os.stat(p)
+        out[str(p)] = [int(st.st_size), int(st.st_mtime_ns)]
+    return out
+
+
+def changed_inputs(rec, paths):
+    """The tiles of ``paths`` whose size or modification time differ from those recorded in
+    ``rec`` (none when the record holds no stamps: a record of an older version)."""
+    stamps = (rec or {}).get("input_stamps")
+    if not stamps:
+        return []
+    now = input_stamps(paths)
+    return [p for p in paths if str(p) in stamps and list(stamps[str(p)]) != now[str(p)]]

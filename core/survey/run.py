@@ -131,8 +131,10 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     log = log or (lambda s: None)
     meth = get_method(method)
     engine.require_dask()
+    engine.check_scheduler_address(scheduler)
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
+    check_output_folder(index, out_dir, inputs)
     user = {k: v for k, v in (params or {}).items() if v is not None}
     arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
     rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
@@ -141,6 +143,14 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         raise ValueError(f"{out_dir} holds a run of other arguments (method {a.get('method')!r}, parameters "
                          f"{a.get('params')}, {len(a.get('tiles', []))} tiles): choose another output folder, or "
                          "delete its run.json to start again there.")
+    changed = record.changed_inputs(rec, arguments["tiles"]) if rec is not None else []
+    if changed:
+        raise ValueError(f"{len(changed)} tile(s) changed since the run recorded in {record.record_path(out_dir)} "
+                         f"(size or modification time): {', '.join(os.path.basename(p) for p in changed[:5])}"
+                         + (f" and {len(changed) - 5} more" if len(changed) > 5 else "") + ". Their outputs, their "
+                         "neighbours' (the halo) and the parameters derived from the survey may be stale: choose "
+                         "another output folder, or delete its run.json to start again there.")
+    created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
     vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata)
@@ -148,9 +158,17 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     cell = tuple(float(v) for v in info.cell_size_m)
     if rec is None:
         rec = record.new_record(arguments)
+        rec["input_stamps"] = record.input_stamps(arguments["tiles"])
     if "params" not in rec:
         t0 = time.perf_counter()
         zs, where = read_sample(index, info)
+        if not np.isfinite(zs).any():
+            os.remove(vrt)
+            if created:
+                os.rmdir(out_dir)
+            raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
+                             "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
+                             "the tiles that hold data.")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,
@@ -196,6 +214,32 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     record.save_record(out_dir, rec)
     rec["this_run"] = this
     return rec
+
+
+def check_output_folder(index, out_dir, inputs=None):
+    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: an
+    existing file, the folder of one of the tiles (the outputs would lie among the tiles,
+    and the folder given again as the input would take them for tiles), or a folder where an
+    output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
+    ``mask.vrt`` or ``survey.vrt``)."""
+    out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
+    given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
+    names = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
+    names += [n for t in index.tiles for n in output_names(t.name)]
+    outputs = {os.path.realpath(os.path.join(out_dir, n)) for n in names}
+    hit = [str(p) for p in given if os.path.realpath(os.path.abspath(str(p))) in outputs]
+    if hit:
+        raise ValueError(f"an output in {out_dir!r} would replace the input {hit[0]!r}: choose another output "
+                         "folder (or rename the input).")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
+                         "(a new one is created).")
+    inside = [t.path for t in index.tiles if os.path.realpath(os.path.dirname(t.path)) == out_dir]
+    if inside:
+        raise ValueError(f"the output folder {out_dir!r} holds the tiles ({os.path.basename(inside[0])}"
+                         + (f" and {len(inside) - 1} more" if len(inside) > 1 else "") + "): the outputs would be "
+                         "mixed with them, and the folder given again as the input would take the outputs for "
+                         "tiles. Choose another output folder.")
 
 
 def _remove_partials(out_dir, log):

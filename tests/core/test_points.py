@@ -403,3 +403,38 @@ def test_bilinear_one_row_and_one_column_grids():
     np.testing.assert_allclose(sample_bilinear(col, gt_col, [0.5, 0.2, 0.9], [2.5, 2.0, 0.1]),
                                [0.0, 5.0, 20.0])
     assert sample_bilinear([[7.0]], gt, 0.3, 0.8) == 7.0
+
+
+def test_read_crs_from_the_header_or_prj_without_the_points(tmp_path):
+    """read_crs gives what read_points would: the LAS header's CRS, a text file's .prj, an override;
+    a binary "text" file and a missing file are refused."""
+    from osgeo import osr
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(2263)                                         # US feet
+    las_path = tmp_path / "a.las"
+    _make_las(las_path, n=20, crs_wkt=srs.ExportToWkt())
+    wkt, h, v = pointfiles.read_crs(las_path)
+    c = read_points(las_path)
+    assert (wkt, h, v) == (c.crs, c.units_to_metre, c.z_units_to_metre) and h == pytest.approx(0.3048006096)
+    p = _write(tmp_path, "1 2 3\n")
+    assert pointfiles.read_crs(p) == (None, 1.0, 1.0)
+    (tmp_path / "pts.prj").write_text("EPSG:25832")
+    wkt, h, _ = pointfiles.read_crs(p)
+    assert "25832" in wkt and h == 1.0
+    assert "2263" in pointfiles.read_crs(p, crs="EPSG:2263")[0]
+    (tmp_path / "r.txt").write_bytes(b"II*\x00" + bytes(100))
+    with pytest.raises(ValueError, match="holds binary data"):
+        pointfiles.read_crs(tmp_path / "r.txt")
+    with pytest.raises(ValueError, match="does not exist"):
+        pointfiles.read_crs(tmp_path / "nope.las")
+
+
+def test_fourth_column_not_a_class_names_the_header_fix(tmp_path):
+    """x y z intensity without a header: the refusal says the 4th column is read as the class and
+    how to name the columns (before: only "the class column must hold whole numbers")."""
+    p = _write(tmp_path, "1 2 3 12.5\n4 5 6 13.25\n")
+    with pytest.raises(ValueError, match=r"line 1: the class column must hold whole numbers; got 12.5.*"
+                                         r"4th column is read as the class.*header line naming the columns"):
+        read_points(p)
+    c = read_points(_write(tmp_path, "x y z intensity\n1 2 3 12.5\n4 5 6 13.25\n", name="named.txt"))
+    assert c.classification is None and c.z.tolist() == [3.0, 6.0]

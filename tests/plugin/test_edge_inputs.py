@@ -288,3 +288,19 @@ def test_qgis_process_tiny_block_and_ndsm_of_nodata_zero(run_qgis_process, tmp_p
     rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, **outs})
     assert rc == 0, out
     assert "the nDSM declares NaN as nodata" in out and np.isnan(_read(tmp_path / "n.tif")[1])
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"MAX_DH_M": 0.0}, r"MAX_DH_M must be > 0 m; got 0.*Leave it empty for the default"),
+    ({"MIN_CORRELATION": 1.0}, r"MIN_CORRELATION must be in 0 \.\. 1 \(1 excluded\); got 1.*below 1"),
+], ids=["max_dh_0", "min_corr_1"])
+def test_orthoparallax_meaningless_matching_values_refused_before_work(processing_run, tmp_path, extra, message):
+    """MAX_DH_M = 0 (no height searched) and MIN_CORRELATION = 1 (no real match is kept) are refused
+    naming the parameter and the valid range (before, 0 silently meant the default 0.2 H search and
+    1 ran to a DEM with nothing measured)."""
+    from qgis.core import QgsProcessingException
+    params = _ortho_pair(tmp_path)
+    params.update({"BASE_M": 300.0, "HEIGHT_M": 1000.0}, **extra)
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:orthoparallax", params)
+    assert not (tmp_path / "o.tif").exists()

@@ -1,6 +1,7 @@
 """Point clouds through the plugin: rasterizepoints, classifypoints, morphological with INPUT_POINTS,
 evaluate on classified points, the example model, processing.run and qgis_process, bad inputs."""
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -435,3 +436,86 @@ def test_model_with_another_filter(processing_run, cloud_files, tmp_path):
     c = read_points(r["classify:classified"])
     assert len(c) == cloud_files["x"].size and set(np.unique(c.classification)) <= {0, 1, 2, 255}
     assert (c.classification == 0).mean() > 0.3
+
+
+# --------------------------------------------------------------------------- degenerate point inputs
+def _bad_point_file(kind, d):
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0, 60, 2000) + 500000.0, rng.uniform(0, 60, 2000) + 5400000.0
+    z = 100.0 + 0.05 * (x - 500000.0)
+    if kind == "raster":
+        from bare_earth.core import grid
+        p = d / "dsm.tif"
+        grid.write_array(p, np.ones((20, 20), np.float32), (0.0, 1.0, 0.0, 20.0, 0.0, -1.0), 32632)
+        return str(p)
+    if kind == "z_all_nan":
+        return _write_text(d / "nan.txt", x, y, np.full_like(z, np.nan))
+    if kind == "diagonal_line":
+        return _write_text(d / "line.txt", x, x - 500000.0 + 5400000.0, z)
+    if kind == "one_stray_point":                       # e.g. a bad GPS record at (0, 0)
+        return _write_text(d / "stray.txt", np.append(x, 0.0), np.append(y, 0.0), np.append(z, 0.0))
+    if kind == "decimal_commas":
+        p = d / "eu.txt"
+        p.write_text("".join(f"{a:.3f};{b:.3f};{c:.3f}\n".replace(".", ",") for a, b, c in zip(x, y, z)))
+        return str(p)
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("kind,message", [
+    ("raster", r"not a text point file \(it holds binary data\): a raster DSM goes to INPUT"),
+    ("z_all_nan", r"no point of .* has a finite height"),
+    ("diagonal_line", r"the points lie along a line, .* m wide across it.*less than the 3 cells"),
+    ("decimal_commas", r"6 values per line.*decimal commas and separated by ';'"),
+    ("one_stray_point", r"99 % of the points span only 59.* x 59.* m: with cells of 50000 m.*A few points lie far "
+                        r"from the others \(the whole extent is 5.001e\+05 x 5.4e\+06 m\): remove those stray points"),
+])
+def test_degenerate_point_files_refused_before_work(qgis_app, processing_run, tmp_path, kind, message):
+    """Before: a raster given as INPUT_POINTS was "a header line but no points", z NaN on every line
+    failed inside the run, points along a diagonal line (a square bounding box) were filtered into a
+    grid filled from one line, decimal commas with ';' were only "6 values per line", and one stray point
+    5000 km away made the default cell 50 km (every other point in one cell) and ran."""
+    from qgis.core import QgsApplication, QgsProcessingContext, QgsProcessingException
+    params = {"INPUT_POINTS": _bad_point_file(kind, tmp_path), "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+              "OUTPUT_MASK": str(tmp_path / "mask.tif"), "OUTPUT_POINTS": str(tmp_path / "out.txt")}
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    ok, msg = alg.checkParameterValues(params, QgsProcessingContext())
+    assert not ok
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:morphological", params)
+    assert not any((tmp_path / f).exists() for f in ("dtm.tif", "mask.tif", "out.txt"))
+
+
+def test_rasterize_points_too_small_a_grid_refused_in_the_check(qgis_app, tmp_path):
+    """All points at one place (or a cell larger than the points' extent) give fewer than 3 x 3 cells:
+    refused by the check before work (before: only inside the run)."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+    n = 50
+    same = _write_text(tmp_path / "same.txt", np.full(n, 500000.0), np.full(n, 5400000.0), np.arange(n) * 0.1)
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:rasterizepoints")
+    ok, msg = alg.checkParameterValues({"INPUT": same, "OUTPUT": str(tmp_path / "d.tif")}, QgsProcessingContext())
+    assert not ok and "span only 0 x 0 m" in msg and "3 x 3 cells" in msg
+    x = np.linspace(0, 60, 400) + 500000.0
+    area = _write_text(tmp_path / "area.txt", x, x[::-1] - 500000.0 + 5400000.0, np.ones(400))
+    ok, msg = alg.checkParameterValues({"INPUT": area, "CELL_SIZE_M": 1000.0, "OUTPUT": str(tmp_path / "d.tif")},
+                                       QgsProcessingContext())
+    assert not ok and "cells of 1000 m" in msg
+
+
+@pytest.mark.parametrize("kind,message", [
+    ("other_crs", r"\(OTHER_TILES\): b.las is not in the CRS / units of the input points"),
+    ("raster", r"\(OTHER_TILES\): .*dsm.tif' is not a text point file"),
+])
+def test_other_tiles_of_another_crs_or_not_points_refused_in_the_check(qgis_app, tmp_path, kind, message):
+    """A neighbouring tile in another CRS, or a raster given as a tile, is refused by the check from
+    the LAS header / first bytes (before: only once the run had read every tile)."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+    x, y, z, t = _scene_points(shape=(60, 60))
+    a = _las(tmp_path / "a.las", x, y, z, t)
+    other = (_las(tmp_path / "b.las", x + 60.0, y, z, t, epsg=25832) if kind == "other_crs"
+             else _bad_point_file("raster", tmp_path))
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    ok, msg = alg.checkParameterValues({"INPUT_POINTS": a, "OTHER_TILES": [other],
+                                        "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                        "OUTPUT_POINTS": str(tmp_path / "o.las")}, QgsProcessingContext())
+    assert not ok
+    assert re.search(message, msg), msg

@@ -98,3 +98,105 @@ def test_without_dask_the_algorithm_says_what_to_install(qgis_app, processing_ru
     res = processing_run("bareearth:slopeprofile", {"INPUT": tiles["paths"][0], "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                     "OUTPUT_MASK": str(tmp_path / "m.tif")})
     assert os.path.exists(res["OUTPUT_MASK"])
+
+
+def test_output_folder_holding_the_tiles_or_a_file_refused_before_any_work(processing_run, tiles, tmp_path):
+    """The folder of the tile layers as OUTPUT_FOLDER (before: accepted, the outputs written among the
+    tiles, so the folder given again would take them for tiles) and an existing file as OUTPUT_FOLDER
+    (before: a FileExistsError traceback after the tile index) are refused naming the problem."""
+    from qgis.core import QgsProcessingException
+    before = sorted(os.listdir(tiles["dir"]))
+    with pytest.raises(QgsProcessingException, match=r"output folder .* holds the tiles \(tile_0_0.tif and 5 more\)"
+                                                     r".*Choose another output folder"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": tiles["paths"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": tiles["dir"]})
+    assert sorted(os.listdir(tiles["dir"])) == before
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("keep me")
+    with pytest.raises(QgsProcessingException, match=r"output folder .*notes.txt' is an existing file, not a folder"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(a_file)})
+    assert a_file.read_text() == "keep me"
+
+
+def test_survey_of_nodata_tiles_refused_naming_it_and_leaving_no_folder(processing_run, tmp_path):
+    """Tiles holding only nodata: refused saying the survey holds no data (before: "z has no valid
+    cell", naming no tile, with the output folder and its survey.vrt left behind)."""
+    from qgis.core import QgsProcessingException
+    src = tmp_path / "sea"
+    src.mkdir()
+    for j in range(2):
+        grid.write_array(src / f"t{j}.tif", np.full((40, 40), -9999.0, np.float32),
+                         (500000.0 + 40 * j, 1.0, 0.0, 5400040.0, 0.0, -1.0), 32632, nodata=-9999.0)
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"the survey holds no data in the whole survey \(80 x 40 cells\)"
+                                                     r".*Check the tiles' nodata value"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": str(src), "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
+
+
+def test_rerun_after_a_tile_changed_is_refused_naming_it(processing_run, tmp_path):
+    """A rerun into a finished survey's folder after one tile was edited (same path, new heights) is
+    refused naming the tile (before: every tile was "already done", the old outputs kept silently)."""
+    from qgis.core import QgsProcessingException
+    src = tmp_path / "tiles"
+    src.mkdir()
+    sc = make_scene("city", shape=(64, 128), seed=2)
+    gt = sc.geotransform
+    for j in range(2):
+        a = sc.dsm[:, 64 * j:64 * (j + 1)]
+        grid.write_array(src / f"t{j}.tif", np.where(np.isfinite(a), a, -9999.0),
+                         (gt[0] + 64 * j * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]), sc.epsg, nodata=-9999.0)
+    params = {"INPUT_FOLDER": str(src), "METHOD": method_index("slopeprofile"), "WORKERS": 1,
+              "OUTPUT_FOLDER": str(tmp_path / "out")}
+    processing_run("bareearth:tiles", params)
+    res = processing_run("bareearth:tiles", params)                 # unchanged: nothing redone
+    assert json.loads(Path(res["OUTPUT_RECORD"]).read_text())["runs"][-1]["tiles_to_do"] == 0
+    a = sc.dsm[:, 64:] + 5.0
+    grid.write_array(src / "t1.tif", np.where(np.isfinite(a), a, -9999.0),
+                     (gt[0] + 64 * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]), sc.epsg, nodata=-9999.0)
+    with pytest.raises(QgsProcessingException, match=r"1 tile\(s\) changed since the run recorded in .*run.json "
+                                                     r"\(size or modification time\): t1.tif"):
+        processing_run("bareearth:tiles", params)
+
+
+@pytest.mark.parametrize("address", ["not an address", "tcp://host", "tcp://host:port"])
+def test_malformed_scheduler_address_refused_before_any_work(processing_run, tiles, tmp_path, address):
+    """A SCHEDULER that is no Dask address is refused saying the expected form (before: "missing port
+    number in address ..." after the parameters were derived, with the output folder made)."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"is not a Dask address .*give it as tcp://host:8786"):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "SCHEDULER": address, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
+
+
+def test_an_output_folder_given_as_the_tiles_is_refused_naming_it(processing_run, tiles, tmp_path):
+    """A survey's output folder given back as INPUT_FOLDER (its *_dtm.tif and *_mask.tif are no tiles)
+    is refused saying so (before: "tiles overlap: tile_0_0_dtm.tif and tile_0_0_mask.tif")."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    params = {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"), "WORKERS": 1,
+              "PARAMETERS": "max_object_size_m=20", "OUTPUT_FOLDER": str(out)}
+    processing_run("bareearth:tiles", params)
+    with pytest.raises(QgsProcessingException, match=r"holds the outputs of a survey run \(run.json\), not tiles"):
+        processing_run("bareearth:tiles", dict(params, INPUT_FOLDER=str(out), OUTPUT_FOLDER=str(tmp_path / "again")))
+    assert not (tmp_path / "again").exists()
+
+
+def test_a_vrt_input_named_like_an_output_is_not_overwritten(processing_run, tiles, tmp_path):
+    """One VRT over the tiles, named dtm.vrt, with its own folder as OUTPUT_FOLDER: refused (before:
+    the survey ran and replaced the input VRT with its DTM mosaic)."""
+    from osgeo import gdal
+    from qgis.core import QgsProcessingException
+    vrt = tmp_path / "dtm.vrt"
+    gdal.BuildVRT(str(vrt), tiles["paths"])
+    with pytest.raises(QgsProcessingException, match=r"an output in .* would replace the input .*dtm.vrt"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": [str(vrt)], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 1, "OUTPUT_FOLDER": str(tmp_path)})
+    # still the VRT over the tiles (QGIS, loading the layer, may add band statistics to it: not ours)
+    from bare_earth.core.survey import io
+    assert sorted(io.vrt_sources(str(vrt))) == sorted(os.path.abspath(p) for p in tiles["paths"])
+    assert not (tmp_path / "run.json").exists() and not (tmp_path / "survey.vrt").exists()
