@@ -607,6 +607,34 @@ def settle_boundary(a, b, is_object, dh, trend, valid, displacement, radius, hal
     return new
 
 
+def agreement_bound(noise_var, half, tail=1.35e-3):
+    """The largest offset-free mean square of ``a - b`` over a window that noise alone explains.
+
+    Over a window of ``n = (2 half + 1)**2`` cells where two orthophotos show the same ground,
+    ``a - b`` is noise of variance ``noise_var``; its sum of squares about the window's mean
+    over ``noise_var`` is chi-square with ``n - 1`` degrees of freedom. The bound is the
+    quantile exceeded with probability ``tail`` (default 1.35e-3, the one-sided 3 sigma tail),
+    divided by ``n``.
+
+    Parameters
+    ----------
+    noise_var : float
+        Variance of ``a - b`` where they agree.
+    half : int
+        Half the side of the window.
+    tail : float
+        Probability that agreeing windows exceed the bound.
+
+    Returns
+    -------
+    float
+    """
+    if not 0.0 < tail < 1.0:
+        raise ValueError("tail must lie in (0, 1), got {!r}".format(tail))
+    n = (2 * int(half) + 1) ** 2
+    return float(noise_var) * 2.0 * float(special.gammainccinv((n - 1) / 2.0, tail)) / n   # chi2.isf(tail, n - 1) / n
+
+
 def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, where=None):
     """Where the orthophotos agree, within their noise, at the heights ``h``.
 
@@ -645,8 +673,7 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, wher
         Cells with a window seen whole in both images (elsewhere the test cannot be made:
         the height puts the cell's images off an orthophoto).
     """
-    n = (2 * int(half) + 1) ** 2
-    bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n   # chi2.isf(tail, n - 1)
+    bound = agreement_bound(noise_var, half, tail)
     h = np.asarray(h, np.float64)
     agree = np.zeros(h.shape, bool)
     tested = np.zeros(h.shape, bool)

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage, special
+from scipy import ndimage
 
 from ..codes import GROUND, NODATA, OBJECT
 from ..common import report
@@ -30,6 +30,7 @@ from .match import REASONS, match_along
 from .orthorectify import check_transform, grid_xy
 from .quality import (
     agree_at_height,
+    agreement_bound,
     close_mask,
     fill_holes,
     nan_median_at,
@@ -579,8 +580,7 @@ def _agree_constant(a, b, rr, cc, h, displacement, noise_var, half, tail=1.35e-3
     windows of side ``2 half + 1`` containing the cell, offset-free mean square of ``a - b``
     against the chi-square bound of the pair's noise. Returns (agree, best mean square).
     """
-    n = (2 * half + 1) ** 2
-    bound = float(noise_var) * 2.0 * special.gammainccinv((n - 1) / 2.0, tail) / n
+    bound = agreement_bound(noise_var, half, tail)
     full = np.zeros(a.shape)
     full[rr, cc] = h
     dca, dra, dcb, drb = (np.asarray(x)[rr, cc] for x in displacement(full))

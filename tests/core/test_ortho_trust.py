@@ -23,6 +23,7 @@ from bare_earth.core.orthophoto import (
 from bare_earth.core.orthophoto.match import REASONS
 from bare_earth.core.orthophoto.quality import (
     agree_at_height,
+    agreement_bound,
     close_mask,
     ground_trend,
     merge_pairs,
@@ -364,6 +365,21 @@ def test_remove_blunders_equals_full_median_form(size):
         want, m = _remove_blunders_full_median(dh, dem, tol, size)
         np.testing.assert_array_equal(got, want)
         assert n == m and n > 0
+
+
+def test_agreement_bound_is_the_chi_square_quantile_over_the_window():
+    # 3 x 3 window: 8 degrees of freedom; chi2.isf(1.35e-3, 8) = 25.361, / 9 cells
+    assert agreement_bound(1.0, 1) == pytest.approx(25.361 / 9, rel=1e-4)
+    # scales with the noise variance; a wider window's bound tends to the variance itself
+    assert agreement_bound(4.0, 1) == pytest.approx(4 * agreement_bound(1.0, 1))
+    assert 1.0 < agreement_bound(1.0, 7) < agreement_bound(1.0, 2) < agreement_bound(1.0, 1)
+    # empirical: noise alone exceeds it in about `tail` of windows
+    rng = np.random.default_rng(0)
+    d = rng.normal(0.0, 1.0, (200000, 9))
+    ms = d.var(axis=1)
+    assert np.mean(ms > agreement_bound(1.0, 1)) == pytest.approx(1.35e-3, abs=5e-4)
+    with pytest.raises(ValueError, match="tail"):
+        agreement_bound(1.0, 1, tail=0.0)
 
 
 def test_agree_at_height_confirms_the_true_height_only():
