@@ -415,7 +415,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
 
 
 def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
-               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, progress=None):
+               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, workers=1,
+               progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -439,6 +440,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     object_areas, ground_areas, breaklines : ndarray of bool, optional
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
+    workers : int
+        Threads the members run in, side by side (1: one after the other; the same result).
     progress : callable, optional
 
     Returns
@@ -461,27 +464,50 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     low_votes = np.zeros(shape, np.uint8)
     line_decision = None
     info = {}
-    for i, meth in enumerate(meths):
+    # the members are independent reads of z: with workers > 1 they run side by side (numpy
+    # and SciPy release the GIL in their array work), each result taken in the members' order,
+    # so the vote, the counts and the info are those of one after the other
+    shares = BlockProgress(sub_progress(progress, 0.0, 0.8), len(meths))
+
+    def run_member(i):
+        meth = meths[i]
         aux = {"breaklines": bl} if meth.name == BREAKLINE_MEMBER and bl is not None else {}
-        res = meth.run(z, cell, progress=sub_progress(progress, 0.8 * i / len(meths), 0.8 * (i + 1) / len(meths)),
-                       **members[meth.name], **aux)
-        mk = np.asarray(res.mask, np.uint8)
+        return np.asarray(meth.run(z, cell, progress=shares.of_block(i), **members[meth.name], **aux).mask, np.uint8)
+
+    def tally(i, mk):
+        nonlocal line_decision, slope_ground
+        meth = meths[i]
         g = mk == GROUND
-        ground_votes += g
-        low_votes += mk == LOW
+        np.add(ground_votes, g, out=ground_votes)
+        np.add(low_votes, mk == LOW, out=low_votes)
         if meth.name == BREAKLINE_MEMBER and bl is not None:
-            line_decision = mk.copy()
+            line_decision = mk
         if meth.name == SLOPE_MEMBER:
-            slope_ground = g.copy()
+            slope_ground = g
         info[f"{meth.name}_object_share"] = float(np.count_nonzero(valid & ~g)) / nvalid
-        del res, mk, g
+
+    if workers <= 1:
+        for i in range(len(meths)):
+            tally(i, run_member(i))
+    else:
+        with ThreadPoolExecutor(max_workers=min(int(workers), len(meths))) as pool:
+            # the longest first (RASCOR's sequence), so the others share the second thread
+            order = sorted(range(len(meths)), key=lambda i: meths[i].name != BREAKLINE_MEMBER)
+            futures = {i: pool.submit(run_member, i) for i in order}
+            try:
+                for i in range(len(meths)):
+                    tally(i, futures[i].result())
+            except BaseException as exc:
+                if shares.error is None:
+                    shares.error = exc               # the running members stop at their next report
+                raise
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
     mask = np.full(shape, OBJECT, np.uint8)          # the vote, in uint8 (no int64 temporaries)
     mask[low_votes >= need] = LOW
     mask[ground_votes >= need] = GROUND
-    del low_votes
+    low_votes = None                                # freed
     # the slope-following member's lone ground on smooth ground continuing the undisputed ground (dtm_refine)
     if slope_ground is not None:
         reach_cells = continuation_cells(cell, refine_reach_m)
@@ -552,6 +578,7 @@ METHOD = Method(
     halo=dtm_halo,
     extras={"confidence": (np.uint8, 1, NODATA)},
     params=(),
+    threads=True,
     title="DTM from DSM (recommended)",
     description=(
         "<p>The filter to start with: no parameter to choose. Three filters built on different principles "
