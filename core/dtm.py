@@ -65,7 +65,7 @@ independent pieces of evidence, each 0-1:
 
 ``confidence = 100 (a + m + s) / 3``; cells the user forced are 100.
 """
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from scipy import ndimage
@@ -341,7 +341,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     Parameters
     ----------
     z, dtm : ndarray, 2-D float32
-        The DSM and its DTM (equal at ground cells).
+        The DSM and its DTM (equal at ground cells); ``dtm`` may be a ``concurrent.futures.Future``
+        of it (the terms that do not need it are computed while it is being filled).
     mask : ndarray of uint8
         The decision: 0 ground, 1 object, 2 low outlier, 255 nodata.
     ground_votes : ndarray of uint8
@@ -361,7 +362,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     valid = mask != NODATA
     ground = mask == GROUND
     # every term in float32 with the same operations as the formulas above, in place (few
-    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed
+    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed.
+    # The terms without the DTM first: ``dtm`` may still be being filled (a Future)
     n = float(n_members)
     votes = np.asarray(ground_votes, np.uint8)
     top = max(int(n_members), int(votes.max()) if votes.size else 0) + 1
@@ -373,18 +375,25 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     key += votes
     a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
     del key
-    report(progress, 0.2)
-    t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
-    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
-    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
-    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
-    report(progress, 0.35)
     # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
     # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
     one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
     pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
+    del share
+    if isinstance(dtm, Future):
+        dtm = dtm.result()
+    report(progress, 0.35)
+    t = max(float(tolerance_m), 1e-3)
+    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
+    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
+    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
+    report(progress, 0.6)
     _select(pick, m, dd, out=m)                                  # object: the DTM under it
+    del pick
     np.subtract(zz, m, out=m)
     np.abs(m, out=m)
     np.divide(m, t, out=m)
@@ -394,11 +403,6 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     del one
     np.maximum(m, 0.0, out=m)
     np.minimum(m, 1.0, out=m)
-    report(progress, 0.6)
-    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.subtract(1.0, share)
-    _select(pick, share, s, out=s)                               # the share of the cell's own class
-    del share, pick
     report(progress, 0.8)
     np.add(a, m, out=a)
     del m
@@ -412,6 +416,13 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     out = a.astype(np.uint8)
     out[~valid] = NODATA
     return out
+
+
+def _fill_dtm(z, holes, valid, progress):
+    """The DTM: ``z`` with the ``holes`` filled (:func:`.fill.fill_gaps`), NaN off ``valid``."""
+    dtm = fill_gaps(z, fill=holes, progress=progress) if holes.any() else z.astype(np.float32, copy=True)
+    dtm[~valid] = np.nan
+    return dtm
 
 
 def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
@@ -441,7 +452,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
     workers : int
-        Threads the members run in, side by side (1: one after the other; the same result).
+        Threads the members run in, side by side, and the DTM is filled in beside the confidence (1: one
+        after the other; the same result).
     progress : callable, optional
 
     Returns
@@ -547,15 +559,23 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     report(progress, 0.85)
     holes = (mask == OBJECT) | (mask == LOW)
     dtm = None
-    if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
-        dtm = (fill_gaps(z, fill=holes, progress=sub_progress(progress, 0.85, 0.93)) if holes.any()
-               else z.astype(np.float32, copy=True))
-        dtm[~valid] = np.nan
-    else:
-        info["warning"] = "no ground cell in this window: its DTM is left empty"
-    report(progress, 0.93)
-    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
-                          progress=sub_progress(progress, 0.93, 1.0))
+    # with workers > 1 the DTM is filled in a second thread while the confidence computes its terms without it
+    pool = ThreadPoolExecutor(max_workers=1) if workers > 1 and holes.any() else None
+    try:
+        if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
+            args = (z, holes, valid, sub_progress(progress, 0.85, 0.93))
+            dtm = _fill_dtm(*args) if pool is None else pool.submit(_fill_dtm, *args)
+        else:
+            info["warning"] = "no ground cell in this window: its DTM is left empty"
+        if pool is None:
+            report(progress, 0.93)
+        conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
+                              progress=sub_progress(progress, 0.93, 1.0))
+        if isinstance(dtm, Future):
+            dtm = dtm.result()
+    finally:
+        if pool is not None:
+            pool.shutdown()
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100
