@@ -164,9 +164,13 @@ class TilesAlgorithm(BaseAlgorithm):
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(str(exc)) from None
         failed = rec["this_run"]["failed"]
-        if failed:
-            feedback.reportError(tr("{} tile(s) failed: {}; run again to retry them.").format(
-                len(failed), ", ".join(sorted(failed))))
+        if not rec.get("complete"):
+            missing = rec.get("missing_tiles", [])
+            raise QgsProcessingException(tr(
+                "The survey is incomplete: {} tile(s) not done ({} failed: {}), so no dtm.vrt or mask.vrt was "
+                "written; the log gives each failure. Run the algorithm again with the same inputs, parameters "
+                "and output folder {}: the finished tiles are kept (run.json) and only the missing ones are "
+                "done.").format(len(missing), len(failed), ", ".join(sorted(failed)[:10]) or "none", out_dir))
         out = {self.OUTPUT_FOLDER: out_dir, self.OUTPUT_RECORD: os.path.join(out_dir, "run.json")}
         for key, name in ((self.OUTPUT_DTM, "dtm.vrt"), (self.OUTPUT_MASK, "mask.vrt")):
             path = os.path.join(out_dir, name)

@@ -4,7 +4,12 @@
 
     tiles --index_tiles--> checked grid --survey.vrt--> sample --resolve--> params, halo
           --Dask: run_tile(tile + halo from survey.vrt)--> <tile>_dtm.tif, <tile>_mask.tif
-          --as each finishes--> run.json --at the end--> dtm.vrt, mask.vrt
+          --as each finishes--> run.json --when every tile is done--> dtm.vrt, mask.vrt
+
+The mosaics exist only over a complete survey: a run that leaves a tile failed, pending
+(cancelled) or unstarted (killed) leaves no ``dtm.vrt`` / ``mask.vrt`` (those of an earlier
+complete run are removed before any tile is redone), ``run.json`` says ``"complete": false``
+and the log names the tiles missing and how to finish (the same command again).
 """
 import os
 import re
@@ -25,6 +30,8 @@ SURVEY_VRT = "survey.vrt"
 #: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
 #: end in any case; a tile finished in the last interval of a killed run is redone).
 RECORD_INTERVAL = 1.0
+#: The mosaics written once every tile is done.
+MOSAICS = ("dtm.vrt", "mask.vrt")
 #: Names of the temporary files of io.write_cog, io.build_vrt and record.save_record.
 PARTIAL = re.compile(r"\.partial-[0-9a-f]+(\.[A-Za-z]+)*$")
 
@@ -190,6 +197,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     todo = [t for t in index.tiles if t.name not in done]
     for t in todo:
         rec["tiles"][t.name] = {"status": "pending", "input": t.path}
+    if todo:   # mosaics of an earlier run no longer stand for the survey: gone before any tile runs
+        _remove_mosaics(rec, out_dir)
     if done:
         log(f"{len(done)} tile(s) already done (recorded in run.json); {len(todo)} to do.")
     record.save_record(out_dir, rec)
@@ -242,6 +251,16 @@ def check_output_folder(index, out_dir, inputs=None):
                          "tiles. Choose another output folder.")
 
 
+def _remove_mosaics(rec, out_dir):
+    """Remove ``dtm.vrt`` and ``mask.vrt`` and mark the record incomplete."""
+    for name in MOSAICS:
+        path = os.path.join(out_dir, name)
+        if os.path.lexists(path):
+            os.remove(path)
+    rec.pop("mosaics", None)
+    rec["complete"] = False
+
+
 def _remove_partials(out_dir, log):
     """Remove the temporary files a killed run left in ``out_dir`` (``*.partial-*``: tiles,
     VRTs and run.json being written when it died). Called before any task starts."""
@@ -275,6 +294,10 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
         def failed(tile, exc):
             this["failed"][tile.name] = f"{type(exc).__name__}: {exc}"
             rec["tiles"][tile.name] = {"status": "failed", "input": tile.path, "error": this["failed"][tile.name]}
+            for name in output_names(tile.name):     # one file of the pair may be in place: never half a tile
+                path = os.path.join(out_dir, name)
+                if os.path.isfile(path):
+                    os.remove(path)
             log(f"{tile.name}: FAILED ({type(exc).__name__}: {exc}); a rerun retries it.")
 
         engine.run_tasks(client, run_tile, job, todo, done, failed, progress)
@@ -293,17 +316,30 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
 
 
 def _write_mosaics(index, rec, out_dir, log):
-    """dtm.vrt and mask.vrt over the finished tiles (mask.qml beside the mask)."""
+    """dtm.vrt and mask.vrt over the tiles (mask.qml beside the mask) when every tile is done;
+    else none (a mosaic with holes would look like the survey's result), the record marked
+    incomplete and the log naming the tiles missing and how to finish."""
     done = record.tiles_with_status(rec, "done")
-    names = [t.name for t in index.tiles if t.name in done]
-    if not names:
+    missing = [t for t in index.tiles if t.name not in done]
+    if missing:
+        _remove_mosaics(rec, out_dir)
+        failed = {t.name: rec["tiles"].get(t.name, {}).get("error") for t in missing
+                  if rec["tiles"].get(t.name, {}).get("status") == "failed"}
+        rec["missing_tiles"] = [t.name for t in missing]
+        log(f"INCOMPLETE: {len(missing)} of {len(index.tiles)} tile(s) not done, so no dtm.vrt or mask.vrt was "
+            f"written (run.json says \"complete\": false): {', '.join(t.name for t in missing[:20])}"
+            + (f" and {len(missing) - 20} more" if len(missing) > 20 else "") + ".")
+        for name, err in list(failed.items())[:20]:
+            log(f"  {name} failed: {err}")
+        log(f"Run the same command again with the output folder {out_dir}: the {len(done)} finished tile(s) are "
+            "kept and only the missing ones are done, then the mosaics are written.")
         return
     for kind, k in (("dtm", 0), ("mask", 1)):
-        files = [os.path.join(out_dir, output_names(n)[k]) for n in names]
+        files = [os.path.join(out_dir, output_names(t.name)[k]) for t in index.tiles]
         nod = 255 if kind == "mask" else None
         io.build_vrt(os.path.join(out_dir, f"{kind}.vrt"), files, nod)
     grid.write_mask_qml(os.path.join(out_dir, "mask.qml"))
-    missing = len(index.tiles) - len(names)
-    rec["mosaics"] = {"dtm": "dtm.vrt", "mask": "mask.vrt", "tiles": len(names), "tiles_missing": missing}
-    log(f"Mosaics: dtm.vrt and mask.vrt over {len(names)} tile(s)"
-        + (f"; {missing} tile(s) not done yet (rerun to finish)." if missing else "."))
+    rec.pop("missing_tiles", None)
+    rec["complete"] = True
+    rec["mosaics"] = {"dtm": "dtm.vrt", "mask": "mask.vrt", "tiles": len(index.tiles)}
+    log(f"Mosaics: dtm.vrt and mask.vrt over all {len(index.tiles)} tile(s).")

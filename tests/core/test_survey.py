@@ -234,6 +234,36 @@ def test_vrt_input_and_cancel_then_rerun_redoes_only_the_rest(survey, tmp_path):
         run_survey("slopeprofile", vrt, out, {"max_object_size_m": 30.0}, workers=1)
 
 
+def test_failed_tile_leaves_no_mosaic_and_the_rerun_finishes_it(survey, tmp_path):
+    """A tile that fails (its output name taken by a folder) leaves no dtm.vrt / mask.vrt, a record saying
+    incomplete and a log naming the tile and the rerun; before: the mosaics were written over the 8 finished
+    tiles, a hole where t11 was, and looked like the survey's result. A rerun that fails again removes the
+    mosaics of the earlier complete run."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "t11_dtm.tif").mkdir()                   # os.replace onto a folder fails: the tile fails
+    params = SMALL["slopeprofile"]
+    lines = []
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1, log=lines.append)
+    assert list(rec["this_run"]["failed"]) == ["t11"] and len(done(rec)) == 8
+    assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
+    assert not (out / "t11_mask.tif").exists()
+    saved = json.loads((out / "run.json").read_text())
+    assert saved["complete"] is False and saved["missing_tiles"] == ["t11"] and "mosaics" not in saved
+    text = "\n".join(lines)
+    assert "INCOMPLETE: 1 of 9 tile(s) not done" in text and "t11 failed: " in text
+    assert "Run the same command again" in text
+    (out / "t11_dtm.tif").rmdir()
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert rec["this_run"]["tiles_to_do"] == 1 and rec["complete"] is True
+    assert np.array_equal(read_mosaic(out, "mask"), one_pass("slopeprofile", survey["scene"], rec).mask)
+    os.remove(out / "t22_dtm.tif")                  # gone since: t22 is redone, and fails
+    (out / "t22_dtm.tif").mkdir()
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert list(rec["this_run"]["failed"]) == ["t22"] and rec["complete"] is False
+    assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
+
+
 # -- a real cluster --------------------------------------------------------------------------------
 @pytest.fixture
 def cluster(tmp_path):
