@@ -21,6 +21,7 @@ from qgis.core import (
     QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
+    QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
@@ -244,6 +245,57 @@ def label_of(definition):
     return "'{}' ({})".format(re.sub(r"\s*\[[^\]]*\]$", "", definition.description()), definition.name())
 
 
+def _copy_definition(src, dst):
+    """Help, flags and metadata of ``src`` onto ``dst`` (a definition of the same kind)."""
+    dst.setHelp(src.help())
+    dst.setFlags(src.flags())
+    dst.setMetadata(src.metadata())
+    return dst
+
+
+class InputRasterParameter(QgsProcessingParameterRasterLayer):
+    """A raster input whose check loads the layer without GDAL's side file (Processing and
+    qgis_process load an input given as a path to check it, and QGIS's statistics of the
+    new layer would be saved as ``.aux.xml`` beside the input: :func:`grid.without_side_files`)."""
+
+    def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
+        with grid.without_side_files():
+            return super().checkValueIsAcceptable(value, context)
+
+    def clone(self):
+        return _copy_definition(self, InputRasterParameter(self.name(), self.description(), self.defaultValue(),
+                                                           bool(self.flags() & QgsProcessingParameterDefinition
+                                                                .FlagOptional)))
+
+
+class InputLayersParameter(QgsProcessingParameterMultipleLayers):
+    """Several layers, checked as :class:`InputRasterParameter` is."""
+
+    def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
+        with grid.without_side_files():
+            return super().checkValueIsAcceptable(value, context)
+
+    def clone(self):
+        return _copy_definition(self, InputLayersParameter(
+            self.name(), self.description(), self.layerType(), self.defaultValue(),
+            bool(self.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+
+
+def reading_inputs_only(param):
+    """``param`` as one of the input kinds above when it is a plain raster or multiple-layer
+    input (every algorithm's inputs pass through :meth:`BaseAlgorithm.addParameter`)."""
+    if type(param) is QgsProcessingParameterRasterLayer:
+        return _copy_definition(param, InputRasterParameter(
+            param.name(), param.description(), param.defaultValue(),
+            bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+    if type(param) is QgsProcessingParameterMultipleLayers:
+        q = InputLayersParameter(param.name(), param.description(), param.layerType(), param.defaultValue(),
+                                 bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional))
+        q.setMinimumNumberInputs(param.minimumNumberInputs())
+        return _copy_definition(param, q)
+    return param
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
     """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
 
@@ -351,9 +403,25 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 return False, "{}: {}".format(label_of(self.parameterDefinition(CREATE_OPTIONS)), exc)
         return True, ""
 
+    # -- inputs loaded as layers without writing beside them ----------------------------------
+    def addParameter(self, param, createOutput=True):  # noqa: N802,N803
+        return super().addParameter(reading_inputs_only(param), createOutput)
+
+    def parameterAsRasterLayer(self, parameters, name, context):  # noqa: N802
+        """The layer of a raster input; one Processing loads from a path is opened without GDAL's
+        side file, so QGIS's statistics are not saved as ``.aux.xml`` beside the input
+        (:func:`grid.without_side_files`)."""
+        with grid.without_side_files():
+            return super().parameterAsRasterLayer(parameters, name, context)
+
+    def parameterAsLayerList(self, parameters, name, context):  # noqa: N802
+        with grid.without_side_files():
+            return super().parameterAsLayerList(parameters, name, context)
+
     @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
-        ok, msg = super().checkParameterValues(parameters, context)
+        with grid.without_side_files():  # Processing loads the inputs given as paths here
+            ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
         ok, msg = check_block_size(self, parameters, context)

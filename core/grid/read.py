@@ -64,6 +64,28 @@ def _reading(path, what="read"):
         gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", None)
 
 
+@contextlib.contextmanager
+def without_side_files():
+    """GDAL's side files (PAM ``.aux.xml``) off, in this thread, while the block runs.
+
+    A dataset opened inside never writes ``<raster>.aux.xml`` beside its file. QGIS computes
+    a raster's statistics when it loads it as a layer (for its default renderer) and GDAL
+    saves them beside the input when the layer closes; the plugin's algorithms load their
+    inputs as layers inside this block, so an input folder is left as it was. Our own reads
+    (:func:`open_dsm`) keep PAM on: a nodata, scale or CRS declared in an existing side file
+    is still read.
+    """
+    if gdal is None:
+        yield
+        return
+    old = gdal.GetThreadLocalConfigOption("GDAL_PAM_ENABLED", None)
+    gdal.SetThreadLocalConfigOption("GDAL_PAM_ENABLED", "NO")
+    try:
+        yield
+    finally:
+        gdal.SetThreadLocalConfigOption("GDAL_PAM_ENABLED", old)
+
+
 def _vrt_problems(ds, depth=0):
     """Why a VRT input is refused: a raw band (``VRTRawRasterBand`` reads any local file's
     bytes as cells) anywhere in it or in the VRTs it refers to. Returns a message or None."""

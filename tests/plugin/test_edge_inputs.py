@@ -304,3 +304,40 @@ def test_orthoparallax_meaningless_matching_values_refused_before_work(processin
     with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:orthoparallax", params)
     assert not (tmp_path / "o.tif").exists()
+
+
+def _listing(folder):
+    """{name: bytes} of every file in ``folder``."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_inputs_given_as_paths_get_no_side_file(processing_run, tmp_path):
+    """An input folder is left byte for byte as it was: no ``.aux.xml`` beside the inputs. Before: QGIS
+    computed the statistics of each raster it loaded from a path (its default renderer) and GDAL saved
+    them as dsm.tif.aux.xml, mask.tif.aux.xml, ... when the layers closed."""
+    import gc
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    z = _ramp_with_box()
+    dsm = _write(src / "dsm.tif", z, nodata=-9999.0)
+    mask = _write(src / "mask.tif", np.where(z > 4, 1, 0).astype(np.uint8), nodata=255, dtype="Byte")
+    before = _listing(src)
+    processing_run("bareearth:dtm", {"INPUT": dsm, "OUTPUT_DTM": str(out / "d.tif"), "OUTPUT_MASK": str(out / "m.tif")})
+    processing_run("bareearth:filldtm", {"INPUT": dsm, "MASK": mask, "OUTPUT": str(out / "f.tif")})
+    processing_run("bareearth:evaluate", {"MASK": str(out / "m.tif"), "REFERENCE_MASK": mask, "DTM": str(out / "d.tif"),
+                                          "REFERENCE_DTM": dsm, "OUTPUT_JSON": str(out / "e.json"),
+                                          "OUTPUT_HTML": str(out / "e.html")})
+    gc.collect()                     # the layers Processing loaded are closed (their side files written then)
+    assert _listing(src) == before
+
+
+def test_qgis_process_leaves_the_input_folder_unchanged(run_qgis_process, tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    dsm = _write(src / "dsm.tif", _ramp_with_box(), nodata=-9999.0)
+    before = _listing(src)
+    rc, out, _ = run_qgis_process("bareearth:dtm", {"INPUT": dsm, "OUTPUT_DTM": tmp_path / "d.tif",
+                                                    "OUTPUT_MASK": tmp_path / "m.tif"})
+    assert rc == 0, out
+    assert _listing(src) == before
