@@ -227,7 +227,8 @@ class DSMInfo:
 def _apply_scale(a, scale=1.0, offset=0.0):
     """Stored values -> heights in the raster's unit, float32 (``a * scale + offset`` in float64)."""
     if scale == 1.0 and offset == 0.0:
-        return np.array(a, dtype=np.float32, copy=True)
+        with np.errstate(over="ignore"):       # float64 beyond float32 (a -1e300 nodata): -inf, nodata
+            return np.array(a, dtype=np.float32, copy=True)
     with np.errstate(over="ignore", invalid="ignore"):
         return (np.asarray(a, np.float64) * scale + offset).astype(np.float32)
 

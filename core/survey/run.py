@@ -189,6 +189,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                            "cell_size_m": list(cell), "vrt": SURVEY_VRT}})
     log(f"Survey: {len(index.tiles)} tiles, {index.cells / 1e6:.1f} Mcells on a {index.shape[1]} x "
         f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
+    for note in sorted({grid.nodata_not_kept(t.nodata) for t in index.tiles} - {None}):
+        log(note)
     log(f"Parameters derived once for the survey from {rec['sample']}:")
     for k, v in resolved.items():
         log(f"  {k} = {v}")

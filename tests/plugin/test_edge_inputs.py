@@ -341,3 +341,51 @@ def test_qgis_process_leaves_the_input_folder_unchanged(run_qgis_process, tmp_pa
                                                     "OUTPUT_MASK": tmp_path / "m.tif"})
     assert rc == 0, out
     assert _listing(src) == before
+
+
+@pytest.mark.parametrize("nodata,dtype", [(np.inf, "Float32"), (-np.inf, "Float32"), (-1e300, "Float64")],
+                         ids=["plus_inf", "minus_inf", "beyond_float32"])
+def test_infinite_nodata_outputs_declare_nan(processing_run, tmp_path, nodata, dtype):
+    """An input nodata of +-inf (or beyond float32) is nodata; the DTM and nDSM declare NaN with NaN
+    cells exactly there, none infinite, and the log says why (before: NaN without a word in one file,
+    and the survey's tile DTMs carried +-inf cells)."""
+    from qgis.core import QgsProcessingFeedback
+    z = _ramp_with_box().astype(np.float64)
+    z[30:35, 30:35] = nodata
+    src = _write(tmp_path / "dsm.tif", z, nodata=nodata, dtype=dtype)
+    lines = []
+
+    class Log(QgsProcessingFeedback):
+        def pushInfo(self, text):  # noqa: N802
+            lines.append(text)
+
+        def pushWarning(self, text):  # noqa: N802
+            lines.append(text)
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                           "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                           "OUTPUT_NDSM": str(tmp_path / "n.tif")}, feedback=Log())
+    hole = np.zeros(z.shape, bool)
+    hole[30:35, 30:35] = True
+    for key in ("OUTPUT_DTM", "OUTPUT_NDSM"):
+        a, nd = _read(res[key])
+        assert np.isnan(nd) and not np.isinf(a).any()
+        assert np.array_equal(np.isnan(a), hole)
+    assert np.array_equal(_read(res["OUTPUT_MASK"])[0] == 255, hole)
+    assert any("declare NaN as nodata instead" in t for t in lines)
+
+
+def test_survey_tiles_with_infinite_nodata_write_nan(tmp_path):
+    pytest.importorskip("distributed")
+    from bare_earth.core.survey import run_survey
+    paths = []
+    for k in range(2):
+        z = _ramp_with_box((64, 64))
+        z[:4, :4] = np.inf
+        gt = (GT[0] + 64 * k, 1.0, 0.0, GT[3], 0.0, -1.0)
+        paths.append(_write(tmp_path / f"t{k}.tif", z, gt=gt, nodata=np.inf))
+    lines = []
+    run_survey("morphological", paths, tmp_path / "out", {"max_object_size_m": 16.0}, workers=1, log=lines.append)
+    for k in range(2):
+        a, nd = _read(tmp_path / "out" / f"t{k}_dtm.tif")
+        assert np.isnan(nd) and not np.isinf(a).any() and np.isnan(a[:4, :4]).all()
+    assert any("declare NaN as nodata instead" in t for t in lines)
