@@ -131,7 +131,10 @@ class TilesAlgorithm(BaseAlgorithm):
         try:
             parse_params(self._method(parameters, context),
                          self.parameterAsString(parameters, self.PARAMETERS, context))
-            engine.check_scheduler_address((self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip())
+            scheduler = (self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip()
+            engine.check_scheduler_address(scheduler)
+            if not scheduler and parameters.get(self.WORKERS) not in (None, ""):
+                engine.check_workers(self.parameterAsInt(parameters, self.WORKERS, context))
             inputs = self._inputs(parameters, context)
             index = index_tiles(inputs)
             out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)

@@ -139,6 +139,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     meth = get_method(method)
     engine.require_dask()
     engine.check_scheduler_address(scheduler)
+    if not scheduler:
+        engine.check_workers(workers)
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
     check_output_folder(index, out_dir, inputs)
@@ -195,6 +197,11 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     for k, v in resolved.items():
         log(f"  {k} = {v}")
     log(f"Halo: {halo} cells read from the neighbouring tiles around each tile (windows aligned on {align}).")
+    if not scheduler:
+        windows = [plan.tile_window(t.window, index.shape, halo, align)[0] for t in index.tiles]
+        warning = engine.memory_warning(workers, max((w[1] - w[0]) * (w[3] - w[2]) for w in windows))
+        if warning:
+            log("Warning: " + warning)
     done = record.done_tiles(rec, out_dir)
     todo = [t for t in index.tiles if t.name not in done]
     for t in todo:

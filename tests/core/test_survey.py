@@ -264,6 +264,28 @@ def test_failed_tile_leaves_no_mosaic_and_the_rerun_finishes_it(survey, tmp_path
     assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
 
 
+def test_more_workers_than_cores_refused_before_any_work(survey, tmp_path):
+    """WORKERS = 256 on this computer: refused naming its cores and memory (before: 256 processes were
+    started, each given 1/256 of the memory by Dask, and the tiles failed as the workers were restarted)."""
+    from bare_earth.core.blocks import available_cores
+    n = available_cores() + 1
+    with pytest.raises(ValueError, match=rf"WORKERS = {n} local worker processes, but this computer has "
+                                         rf"{n - 1} core\(s\) and [0-9.]+ GB of memory.*Use at most {n - 1}"):
+        run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=n)
+    assert not (tmp_path / "out").exists()
+
+
+def test_memory_warning_names_the_workers_that_fit():
+    from bare_earth.core.survey import engine
+    gb = 2 ** 30
+    # 150 MB + 10 Mcells x 64 B (610 MB) = 760 MB per worker: 2 sharing 2 GB (1 GB each) fit, 4 (512 MB) not
+    assert engine.memory_warning(2, 10_000_000, total_bytes=2 * gb) is None
+    text = engine.memory_warning(4, 10_000_000, total_bytes=2 * gb)
+    assert "each of the 4 local worker(s) gets 512 MB of this computer's 2.0 GB" in text
+    assert "needs about 760 MB: use WORKERS = 2 or fewer" in text
+    assert "cut the survey into smaller tiles" in engine.memory_warning(1, 100_000_000, total_bytes=2 * gb)
+
+
 # -- a real cluster --------------------------------------------------------------------------------
 @pytest.fixture
 def cluster(tmp_path):

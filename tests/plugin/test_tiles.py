@@ -219,3 +219,12 @@ def test_a_failed_tile_fails_the_algorithm_and_leaves_no_mosaic(processing_run, 
     (out / "tile_1_2_mask.tif").rmdir()
     res = processing_run("bareearth:tiles", params)
     assert os.path.exists(res["OUTPUT_DTM"]) and os.path.exists(res["OUTPUT_MASK"])
+
+
+def test_more_workers_than_cores_refused_before_any_work(processing_run, tiles, tmp_path):
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"WORKERS = 256 local worker processes, but this computer has "):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 256, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
