@@ -78,22 +78,40 @@ def parse_params(method, items):
     return out
 
 
-def read_sample(index, info):
+def read_sample(index, info, max_cells=None):
     """The surface the survey's parameters are derived from, and what it is.
 
-    The whole survey when small (:data:`plan.SAMPLE_CELLS`), else central crops of tiles
-    spread over it, laid side by side with nodata between them (:func:`plan.sample_layout`).
+    The whole survey when small (``max_cells``, default :data:`plan.SAMPLE_CELLS`), else
+    central crops of tiles spread over it, laid side by side with nodata between them
+    (:func:`plan.sample_layout`). Nodata cells are NaN (the estimates never see them), and a
+    chosen tile whose crop holds no data at all (sea, a hole in the survey) gives way to the
+    nearest tile whose crop does, so the sample holds the survey's data wherever it lies.
     """
-    layout = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1])
+    layout = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1], max_cells or plan.SAMPLE_CELLS)
     if layout is None:
         return info.read(), f"the whole survey ({index.shape[1]} x {index.shape[0]} cells)"
     parts, shape = layout
+    side = max(max(w[1] - w[0], w[3] - w[2]) for _t, w, _p in parts)
     z = np.full(shape, np.nan, np.float32)
-    for _tile, (r0, r1, c0, c1), (r, c) in parts:
-        z[r:r + r1 - r0, c:c + c1 - c0] = info.read((r0, r1, c0, c1))
-    side = parts[0][1][1] - parts[0][1][0]
-    names = ", ".join(t.name for t, _w, _p in parts)
-    return z, f"central crops of up to {side} x {side} cells of {len(parts)} tiles spread over the survey ({names})"
+    used, empty, names, replaced = {t.name for t, _w, _p in parts}, set(), [], 0
+    for tile, _window, (r, c) in parts:
+        for cand in plan.nearest_tiles([t for t in index.tiles if t.name not in empty], tile):
+            if cand is not tile and cand.name in used:
+                continue
+            r0, r1, c0, c1 = plan.central_crop(cand, side)
+            crop = info.read((r0, r1, c0, c1))
+            if np.isfinite(crop).any():
+                z[r:r + r1 - r0, c:c + c1 - c0] = crop
+                used.add(cand.name)
+                names.append(cand.name)
+                replaced += cand is not tile
+                break
+            empty.add(cand.name)
+    where = (f"central crops of up to {side} x {side} cells of {len(names)} tiles spread over the survey "
+             f"({', '.join(names) or 'none with data'})")
+    if replaced:
+        where += f"; {replaced} chosen tile(s) without data at their centre replaced by the nearest with data"
+    return z, where
 
 
 def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=None, progress=None, log=None):

@@ -21,6 +21,7 @@ pytest.importorskip("distributed", reason="Dask distributed is not installed (sc
 from bare_earth.core import grid, pipeline  # noqa: E402
 from bare_earth.core.methods import available_methods, get_method  # noqa: E402
 from bare_earth.core.survey import index_tiles, list_inputs, output_names, parse_params, plan, run_survey  # noqa: E402
+from bare_earth.core.survey import io as survey_io  # noqa: E402
 from bare_earth.core.synthetic import make_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,6 +115,35 @@ def test_sample_is_the_whole_small_survey_and_spread_crops_of_a_large_one(survey
     big = [t for t in index.tiles for _ in range(4)]          # 36 tiles: 16 spread ones chosen
     chosen = plan.sample_tiles(big)
     assert len(chosen) == 16 and len({t.name for t in chosen}) == 9
+
+
+def test_sample_of_a_large_survey_takes_its_crops_where_the_data_is(tmp_path):
+    """A large survey (5 x 5 tiles; sample limited to 6400 cells: crops of 12 x 12) whose 16 tiles chosen for the
+    sample hold only nodata (-9999): their crops give way to the nearest tiles with data, and no nodata
+    value reaches the sample. Before: the sample was all NaN and the survey was refused as holding no
+    data, though 9 of its tiles hold heights."""
+    from bare_earth.core.survey.run import read_sample
+    tiles, gt = [], (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+    for i in range(5):
+        for j in range(5):
+            tiles.append((f"t{i}{j}", (gt[0] + 32 * j, 1.0, 0.0, gt[3] - 32 * i, 0.0, -1.0)))
+    index = index_tiles([str(grid.write_array(tmp_path / f"{n}.tif", np.zeros((32, 32), np.float32), g, 32632,
+                                              nodata=-9999.0)) for n, g in tiles])
+    chosen = {t.name for t in plan.sample_tiles(index.tiles)}
+    assert len(chosen) == 16
+    heights = {}
+    for k, (name, g) in enumerate(tiles):
+        a = np.full((32, 32), -9999.0 if name in chosen else 100.0 + k, np.float32)
+        a[:3, :3] = -9999.0
+        grid.write_array(tmp_path / f"{name}.tif", a, g, 32632, nodata=-9999.0)
+        if name not in chosen:
+            heights[name] = 100.0 + k
+    vrt = survey_io.build_vrt(tmp_path / "survey.vrt", [t.path for t in index.tiles], index.vrt_nodata)
+    z, where = read_sample(index, grid.open_dsm(vrt), max_cells=16 * 20 * 20)
+    values = set(np.unique(z[np.isfinite(z)]).tolist())
+    assert values and values <= set(heights.values())            # heights only: no -9999, no empty crop
+    assert len(values) == len(heights) == 9
+    assert "replaced by the nearest with data" in where and all(n in where for n in heights)
 
 
 # -- checks before any work --------------------------------------------------------------------
