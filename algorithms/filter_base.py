@@ -220,6 +220,21 @@ def check_block_size(alg, parameters, context):
     return True, ""
 
 
+def check_processes(alg, parameters, context):
+    """(ok, message): PROCESSES at most this computer's cores (each process holds a block and
+    its halo in memory; beyond the cores they only share them)."""
+    from ..core.blocks import available_cores
+    d = alg.parameterDefinition("PROCESSES")
+    if d is None or parameters.get("PROCESSES") in (None, ""):
+        return True, ""
+    n, cores = alg.parameterAsInt(parameters, "PROCESSES", context), available_cores()
+    if n > cores:
+        return False, tr("{} = {}, but this computer has {} core(s): processes beyond the cores run no faster "
+                         "(they share the cores) and each holds a block in memory. Use at most {}.").format(
+            label_of(d), n, cores, cores)
+    return True, ""
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -418,15 +433,47 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():
             return super().parameterAsLayerList(parameters, name, context)
 
+    def checkValuesGiven(self, parameters):  # noqa: N802
+        """(ok, message): every key names a parameter of this algorithm (a misspelt one would be
+        silently left out, its default used), and a number, band or yes/no given as text (as
+        qgis_process gives every value) reads as one: QGIS reads 'abc' as 0 or false and runs,
+        and 'nan' as "not given"."""
+        defs = {d.name(): d for d in self.parameterDefinitions()}
+        unknown = sorted(k for k in parameters if k not in defs)
+        if unknown:
+            return False, tr("{} is no parameter of {} (a misspelt name would be left out and its default "
+                             "used): 'qgis_process help {}' lists its parameters.").format(
+                ", ".join(unknown), self.id(), self.id())
+        for key, v in parameters.items():
+            d = defs[key]
+            if not isinstance(v, str) or v.strip() == "":
+                continue
+            text = v.strip()
+            if d.type() in ("number", "band"):
+                try:
+                    number = float(text)
+                except ValueError:
+                    number = float("nan")
+                if not math.isfinite(number):
+                    return False, tr("{} = '{}' is not a number: give a number{}.").format(
+                        label_of(d), text, tr(", or leave it out") if d.flags() & d.FlagOptional else "")
+            elif d.type() == "boolean" and text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                return False, tr("{} = '{}' is not a yes/no value: give true or false.").format(label_of(d), text)
+        return True, ""
+
     @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
+        ok, msg = self.checkValuesGiven(parameters)
+        if not ok:
+            return ok, msg
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
-        ok, msg = check_block_size(self, parameters, context)
-        if not ok:
-            return ok, msg
+        for check in (check_block_size, check_processes):
+            ok, msg = check(self, parameters, context)
+            if not ok:
+                return ok, msg
         return self.checkOutputs(parameters, context)
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802

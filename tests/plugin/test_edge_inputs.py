@@ -408,7 +408,8 @@ BOWTIE = "POLYGON((500010 5399990, 500020 5399980, 500020 5399990, 500010 539998
 
 
 @pytest.mark.parametrize("key,kind,wkt,message", [
-    ("OBJECT_AREAS", "Point", "POINT(500015 5399985)", r"\(OBJECT_AREAS\) holds points \(feature 1\) but takes polygons"),
+    ("OBJECT_AREAS", "Point", "POINT(500015 5399985)",
+     r"\(OBJECT_AREAS\) holds points \(feature 1\) but takes polygons"),
     ("OBJECT_AREAS", "LineString", "LINESTRING(500010 5399990, 500030 5399970)",
      r"\(OBJECT_AREAS\) holds lines \(feature 1\) but takes polygons"),
     ("BREAKLINES", "Polygon", SQUARE, r"\(BREAKLINES\) holds polygons \(feature 1\) but takes lines"),
@@ -449,7 +450,30 @@ def test_dtm_layer_outside_the_dsm_warns_and_other_crs_is_reprojected(processing
                             "500031 5399969))")
     g.transform(QgsCoordinateTransform(QgsCoordinateReferenceSystem("EPSG:32632"),
                                        QgsCoordinateReferenceSystem("EPSG:4326"), QgsProject.instance()))
-    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": _memory_layer("Polygon", [g.asWkt()],
-                                                                                     "EPSG:4326"),
-                                           "OUTPUT_DTM": str(tmp_path / "d2.tif"), "OUTPUT_MASK": str(tmp_path / "m2.tif")})
+    degrees = _memory_layer("Polygon", [g.asWkt()], "EPSG:4326")
+    outs = {"OUTPUT_DTM": str(tmp_path / "d2.tif"), "OUTPUT_MASK": str(tmp_path / "m2.tif")}
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": degrees, **outs})
     assert (_read(res["OUTPUT_MASK"])[0][32:38, 32:38] == 1).all()
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"THREADS": "abc"}, r"\(THREADS\) = 'abc' is not a number"),
+    ({"BAND": "abc"}, r"\(BAND\) = 'abc' is not a number"),
+    ({"SLOPE_THRESHOLD_DEG": "nan"}, r"\(SLOPE_THRESHOLD_DEG\) = 'nan' is not a number: give a number, or leave it"),
+    ({"COG": "maybe"}, r"\(COG\) = 'maybe' is not a yes/no value"),
+    ({"SLOPE_TRESHOLD_DEG": "30"}, r"SLOPE_TRESHOLD_DEG is no parameter of bareearth:slopeprofile"),
+    ({"PROCESSES": "64"}, r"\(PROCESSES\) = 64, but this computer has [0-9]+ core\(s\)"),
+], ids=["threads_text", "band_text", "nan_text", "bool_text", "misspelt", "processes_beyond_cores"])
+def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, message):
+    """Values qgis_process passes as text that QGIS read as 0, false or "not given" (a run with other
+    values than asked), a misspelt parameter name (silently left out) and more worker processes than
+    cores: refused before any work (before: each ran, exit code 0)."""
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box(), nodata=-9999.0)
+    if "PROCESSES" in extra:
+        from bare_earth.core.blocks import available_cores
+        extra = {"PROCESSES": str(available_cores() + 1)}
+        message = message.replace("64", str(available_cores() + 1))
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": tmp_path / "d.tif",
+                                                             "OUTPUT_MASK": tmp_path / "m.tif", **extra})
+    assert rc != 0 and re.search(message, out), out
+    assert not (tmp_path / "d.tif").exists()
