@@ -211,6 +211,12 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
     for note in sorted({grid.nodata_not_kept(t.nodata) for t in index.tiles} - {None}):
         log(note)
+    undeclared = [t.name for t in index.tiles if t.nodata is None]
+    if undeclared and index.vrt_nodata not in (None, "nan"):
+        log(f"Warning: {len(undeclared)} tile(s) declare no nodata value ({', '.join(undeclared[:5])}"
+            + (" ..." if len(undeclared) > 5 else "") + f"): their cells of {index.vrt_nodata:g} (the value the "
+            "survey's gaps between tiles take) are read as nodata. If that is a height, declare another nodata "
+            "value on the tiles (gdal_edit.py -a_nodata).")
     log(f"Parameters derived once for the survey from {rec['sample']}:")
     for k, v in resolved.items():
         log(f"  {k} = {v}")

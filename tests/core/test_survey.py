@@ -316,6 +316,23 @@ def test_memory_warning_names_the_workers_that_fit():
     assert "cut the survey into smaller tiles" in engine.memory_warning(1, 100_000_000, total_bytes=2 * gb)
 
 
+def test_integer_tiles_without_nodata_say_which_value_is_read_as_nodata(tmp_path):
+    """UInt16 tiles declaring no nodata: the survey VRT's gaps take 0, so their cells of 0 are nodata; the log
+    says so and how to change it (before: those cells were dropped without a word, a single file keeps them)."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = []
+    for k in range(2):
+        a = np.round(sc.dsm[:, 32 * k:32 * k + 32] * 10 + 100).astype(np.uint16)
+        a[:2, :2] = 0
+        g = (sc.geotransform[0] + 32 * k, 1.0, 0.0, sc.geotransform[3], 0.0, -1.0)
+        paths.append(str(grid.write_array(tmp_path / f"t{k}.tif", a, g, sc.epsg, dtype="UInt16")))
+    lines = []
+    run_survey("morphological", paths, tmp_path / "out", SMALL["morphological"], workers=1, log=lines.append)
+    assert any("2 tile(s) declare no nodata value (t0, t1): their cells of 0" in t for t in lines), lines
+    dtm = grid.open_dsm(str(tmp_path / "out" / "t0_dtm.tif")).read()
+    assert np.isnan(dtm[:2, :2]).all() and np.isfinite(dtm[2:, 2:]).all()
+
+
 # -- a real cluster --------------------------------------------------------------------------------
 @pytest.fixture
 def cluster(tmp_path):
