@@ -50,6 +50,9 @@ def test_tiles_from_layers_equal_the_one_pass_mask(processing_run, tiles, tmp_pa
     ref = pipeline.run_array("morphological", sc.dsm, sc.cell_size, {"max_object_size_m": 16.0})
     info = grid.open_dsm(res["OUTPUT_MASK"])
     assert np.array_equal(info.dataset().GetRasterBand(1).ReadAsArray(), ref.mask)
+    import gc
+    gc.collect()                     # the layers Processing loaded are closed (side files were written then)
+    assert not [f for f in os.listdir(tiles["dir"]) if f.endswith(".aux.xml")]     # the tiles' folder untouched
 
 
 def test_tiles_from_a_folder_report_progress_per_tile_and_cancel(processing_run, tiles, tmp_path):
