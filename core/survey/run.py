@@ -144,7 +144,9 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     Returns
     -------
     dict
-        The run record (as in ``run.json``) with ``"this_run"``: this run's summary.
+        The run record (as in ``run.json``) with ``"this_run"``: this run's summary;
+        ``"complete"`` is True only when every tile is done (then ``dtm.vrt`` and
+        ``mask.vrt`` exist), else ``"missing_tiles"`` names the others.
 
     Raises
     ------
