@@ -66,8 +66,8 @@ def render():
             adv = " (advanced)" if is_advanced(name, p) else ""
             label = param_label(name, p).replace(" [empty: from the data]", "")
             out.append(f"| `{p.name.upper()}` ({label}) | {d} | {p.help}{adv} |")
-        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 0, 1 | block edge in cells (0 automatic), threads "
-                   "(0: one per core) and worker processes running blocks (advanced) |")
+        out.append("| `BLOCK_SIZE`, `THREADS`, `PROCESSES` | 0, 0, 1 | block edge in cells (0 automatic, else at "
+                   "least 64), threads (0: one per core) and worker processes running blocks (advanced) |")
         out.append("| `CREATE_OPTIONS`, `COG` | empty, no | GeoTIFF creation options (`COMPRESS=ZSTD\\|PREDICTOR=2`) "
                    "and cloud-optimised GeoTIFF outputs (advanced) |")
         out.append("| `OUTPUT_DTM`, `OUTPUT_MASK` | | Float32 DTM, UInt8 mask (" +

@@ -132,3 +132,16 @@ def test_metadata_accepted_by_qgis_4_and_licence_named():
     assert "GPL" in g["about"] and "LICENSE" in g["about"]
     for alg in ("slope", "curvature", "RASCOR", "geodesic", "morpholog", "point", "orthophoto"):
         assert alg.lower() in g["about"].lower(), alg
+
+
+def test_readme_algorithm_reference_is_generated_from_the_code():
+    # the README's algorithm reference is what scripts/algorithm_docs.py renders from the methods'
+    # help and parameters: a help text edited in one place only is caught here
+    res = subprocess.run(["/usr/bin/python3" if Path("/usr/bin/python3").exists() else sys.executable,
+                          str(ROOT / "scripts" / "algorithm_docs.py")], capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    begin, end = "<!-- algorithms:begin -->", "<!-- algorithms:end -->"
+    section = readme[readme.index(begin) + len(begin):readme.index(end)].strip()
+    assert section == res.stdout.strip(), ("README.md's algorithm reference differs from the code's help: run "
+                                           "`/usr/bin/python3 scripts/algorithm_docs.py --write README.md`")
