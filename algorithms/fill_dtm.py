@@ -153,7 +153,9 @@ class FillDtmAlgorithm(BaseAlgorithm):
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         nd = info.nodata
-        nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
+        nodata = grid.float_output_nodata(nd)
+        if grid.nodata_not_kept(nd):
+            feedback.pushInfo(grid.nodata_not_kept(nd))
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
         if np.isfinite(nodata):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)

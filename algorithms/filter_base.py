@@ -21,6 +21,7 @@ from qgis.core import (
     QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
+    QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
@@ -219,6 +220,21 @@ def check_block_size(alg, parameters, context):
     return True, ""
 
 
+def check_processes(alg, parameters, context):
+    """(ok, message): PROCESSES at most this computer's cores (each process holds a block and
+    its halo in memory; beyond the cores they only share them)."""
+    from ..core.blocks import available_cores
+    d = alg.parameterDefinition("PROCESSES")
+    if d is None or parameters.get("PROCESSES") in (None, ""):
+        return True, ""
+    n, cores = alg.parameterAsInt(parameters, "PROCESSES", context), available_cores()
+    if n > cores:
+        return False, tr("{} = {}, but this computer has {} core(s): processes beyond the cores run no faster "
+                         "(they share the cores) and each holds a block in memory. Use at most {}.").format(
+            label_of(d), n, cores, cores)
+    return True, ""
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -242,6 +258,57 @@ def label_of(definition):
     """How messages and the log name a parameter: its label (without a trailing note such as
     "[empty: from the data]"), and its id for qgis_process."""
     return "'{}' ({})".format(re.sub(r"\s*\[[^\]]*\]$", "", definition.description()), definition.name())
+
+
+def _copy_definition(src, dst):
+    """Help, flags and metadata of ``src`` onto ``dst`` (a definition of the same kind)."""
+    dst.setHelp(src.help())
+    dst.setFlags(src.flags())
+    dst.setMetadata(src.metadata())
+    return dst
+
+
+class InputRasterParameter(QgsProcessingParameterRasterLayer):
+    """A raster input whose check loads the layer without GDAL's side file (Processing and
+    qgis_process load an input given as a path to check it, and QGIS's statistics of the
+    new layer would be saved as ``.aux.xml`` beside the input: :func:`grid.without_side_files`)."""
+
+    def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
+        with grid.without_side_files():
+            return super().checkValueIsAcceptable(value, context)
+
+    def clone(self):
+        return _copy_definition(self, InputRasterParameter(self.name(), self.description(), self.defaultValue(),
+                                                           bool(self.flags() & QgsProcessingParameterDefinition
+                                                                .FlagOptional)))
+
+
+class InputLayersParameter(QgsProcessingParameterMultipleLayers):
+    """Several layers, checked as :class:`InputRasterParameter` is."""
+
+    def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
+        with grid.without_side_files():
+            return super().checkValueIsAcceptable(value, context)
+
+    def clone(self):
+        return _copy_definition(self, InputLayersParameter(
+            self.name(), self.description(), self.layerType(), self.defaultValue(),
+            bool(self.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+
+
+def reading_inputs_only(param):
+    """``param`` as one of the input kinds above when it is a plain raster or multiple-layer
+    input (every algorithm's inputs pass through :meth:`BaseAlgorithm.addParameter`)."""
+    if type(param) is QgsProcessingParameterRasterLayer:
+        return _copy_definition(param, InputRasterParameter(
+            param.name(), param.description(), param.defaultValue(),
+            bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+    if type(param) is QgsProcessingParameterMultipleLayers:
+        q = InputLayersParameter(param.name(), param.description(), param.layerType(), param.defaultValue(),
+                                 bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional))
+        q.setMinimumNumberInputs(param.minimumNumberInputs())
+        return _copy_definition(param, q)
+    return param
 
 
 class BaseAlgorithm(QgsProcessingAlgorithm):
@@ -351,14 +418,62 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 return False, "{}: {}".format(label_of(self.parameterDefinition(CREATE_OPTIONS)), exc)
         return True, ""
 
+    # -- inputs loaded as layers without writing beside them ----------------------------------
+    def addParameter(self, param, createOutput=True):  # noqa: N802,N803
+        return super().addParameter(reading_inputs_only(param), createOutput)
+
+    def parameterAsRasterLayer(self, parameters, name, context):  # noqa: N802
+        """The layer of a raster input; one Processing loads from a path is opened without GDAL's
+        side file, so QGIS's statistics are not saved as ``.aux.xml`` beside the input
+        (:func:`grid.without_side_files`)."""
+        with grid.without_side_files():
+            return super().parameterAsRasterLayer(parameters, name, context)
+
+    def parameterAsLayerList(self, parameters, name, context):  # noqa: N802
+        with grid.without_side_files():
+            return super().parameterAsLayerList(parameters, name, context)
+
+    def checkValuesGiven(self, parameters):  # noqa: N802
+        """(ok, message): every key names a parameter of this algorithm (a misspelt one would be
+        silently left out, its default used), and a number, band or yes/no given as text (as
+        qgis_process gives every value) reads as one: QGIS reads 'abc' as 0 or false and runs,
+        and 'nan' as "not given"."""
+        defs = {d.name(): d for d in self.parameterDefinitions()}
+        unknown = sorted(k for k in parameters if k not in defs)
+        if unknown:
+            return False, tr("{} is no parameter of {} (a misspelt name would be left out and its default "
+                             "used): 'qgis_process help {}' lists its parameters.").format(
+                ", ".join(unknown), self.id(), self.id())
+        for key, v in parameters.items():
+            d = defs[key]
+            if not isinstance(v, str) or v.strip() == "":
+                continue
+            text = v.strip()
+            if d.type() in ("number", "band"):
+                try:
+                    number = float(text)
+                except ValueError:
+                    number = float("nan")
+                if not math.isfinite(number):
+                    return False, tr("{} = '{}' is not a number: give a number{}.").format(
+                        label_of(d), text, tr(", or leave it out") if d.flags() & d.FlagOptional else "")
+            elif d.type() == "boolean" and text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                return False, tr("{} = '{}' is not a yes/no value: give true or false.").format(label_of(d), text)
+        return True, ""
+
     @explained
     def checkParameterValues(self, parameters, context):  # noqa: N802
-        ok, msg = super().checkParameterValues(parameters, context)
+        ok, msg = self.checkValuesGiven(parameters)
         if not ok:
             return ok, msg
-        ok, msg = check_block_size(self, parameters, context)
+        with grid.without_side_files():  # Processing loads the inputs given as paths here
+            ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
+        for check in (check_block_size, check_processes):
+            ok, msg = check(self, parameters, context)
+            if not ok:
+                return ok, msg
         return self.checkOutputs(parameters, context)
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802

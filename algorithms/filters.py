@@ -7,6 +7,52 @@ from .filter_base import FilterAlgorithm
 from .points import PointsInputMixin
 
 
+def check_layers(alg, parameters, context, info, keys):
+    """(ok, message) before any work: each given layer input holds only the geometry kinds it
+    takes, and valid ones as Processing's setting asks (:func:`vector_raster.source_geometries`)."""
+    from .filter_base import label_of
+    from .vector_raster import source_geometries
+    for key in keys:
+        if not parameters.get(key):
+            continue
+        d = alg.parameterDefinition(key)
+        src = alg.parameterAsSource(parameters, key, context)
+        if src is None:
+            return False, alg.tr("{}: the layer cannot be read.").format(label_of(d))
+        try:
+            source_geometries(src, info, context, label_of(d), d.dataTypes())
+        except ValueError as exc:
+            return False, str(exc)
+    return True, ""
+
+
+def layer_arrays(alg, parameters, context, info, feedback, keys):
+    """``{name: bool array}`` of the layer inputs burnt on the DSM's grid (None for an empty
+    layer); the log gives each one's features and cells, and warns when features lie wholly
+    outside the DSM (a layer in the wrong CRS, or of another place)."""
+    from .filter_base import label_of, warning_logger
+    from .vector_raster import rasterize_source
+    out = {}
+    for key, name in keys:
+        if parameters.get(key):
+            d = alg.parameterDefinition(key)
+            src = alg.parameterAsSource(parameters, key, context)
+            try:
+                arr, n = rasterize_source(src, info, context, all_touched=True, label=label_of(d),
+                                          types=d.dataTypes())
+            except ValueError as exc:
+                from qgis.core import QgsProcessingException
+                raise QgsProcessingException(str(exc)) from None
+            feedback.pushInfo(alg.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
+            if n and not arr.any():
+                warning_logger(feedback)(alg.tr(
+                    "{}: none of its {} feature(s) touches the DSM, so it changes nothing: check that it "
+                    "covers this DSM and that its CRS ({}) is the one its coordinates are in.").format(
+                        label_of(d), n, src.sourceCrs().authid() or alg.tr("none")))
+            out[name] = arr if n else None
+    return out
+
+
 class DtmAlgorithm(FilterAlgorithm):
     """``bareearth:dtm``: the recommended filter: the majority of three filters built on different
     principles, a confidence map, and what the user knows (object areas, ground areas, break lines)."""
@@ -44,17 +90,12 @@ class DtmAlgorithm(FilterAlgorithm):
                 "stands alone. An empty layer is allowed."),
         ]
 
+    def checkExtraInputs(self, parameters, context, info):  # noqa: N802
+        return check_layers(self, parameters, context, info, (self.OBJECT_AREAS, self.GROUND_AREAS, self.BREAKLINES))
+
     def auxiliaryArrays(self, parameters, context, info, feedback):  # noqa: N802
-        from .vector_raster import rasterize_source
-        out = {}
-        for key, name in ((self.OBJECT_AREAS, "object_areas"), (self.GROUND_AREAS, "ground_areas"),
-                          (self.BREAKLINES, "breaklines")):
-            if parameters.get(key):
-                src = self.parameterAsSource(parameters, key, context)
-                arr, n = rasterize_source(src, info, context, all_touched=True)
-                feedback.pushInfo(self.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
-                out[name] = arr if n else None
-        return out
+        return layer_arrays(self, parameters, context, info, feedback, (
+            (self.OBJECT_AREAS, "object_areas"), (self.GROUND_AREAS, "ground_areas"), (self.BREAKLINES, "breaklines")))
 
     def logResult(self, result, feedback):  # noqa: N802
         """The input's description and each member's parameters on a line of their own, then the rest."""
@@ -121,16 +162,12 @@ class RascorAlgorithm(FilterAlgorithm):
                 "dam's slope). An empty layer is allowed."),
         ]
 
+    def checkExtraInputs(self, parameters, context, info):  # noqa: N802
+        return check_layers(self, parameters, context, info, (self.BREAKLINES, self.SPECIAL_AREAS))
+
     def auxiliaryArrays(self, parameters, context, info, feedback):  # noqa: N802
-        from .vector_raster import rasterize_source
-        out = {}
-        for key, name in ((self.BREAKLINES, "breaklines"), (self.SPECIAL_AREAS, "special_areas")):
-            if parameters.get(key):
-                src = self.parameterAsSource(parameters, key, context)
-                arr, n = rasterize_source(src, info, context, all_touched=True)
-                feedback.pushInfo(self.tr("{}: {} feature(s), {} cells").format(name, n, int(arr.sum())))
-                out[name] = arr if n else None
-        return out
+        return layer_arrays(self, parameters, context, info, feedback,
+                            ((self.BREAKLINES, "breaklines"), (self.SPECIAL_AREAS, "special_areas")))
 
 
 class MorphologicalAlgorithm(PointsInputMixin, FilterAlgorithm):

@@ -59,7 +59,8 @@ class TilesAlgorithm(BaseAlgorithm):
                   "The tiles run on Dask distributed: worker processes on this computer's cores, or an existing "
                   "Dask cluster given by its scheduler's address.</p>"
                   "<p>Outputs in the folder: one DTM and one mask per tile (cloud-optimised GeoTIFF on the "
-                  "tile's grid), dtm.vrt and mask.vrt (loaded into the project), run.json (parameters used, "
+                  "tile's grid), dtm.vrt and mask.vrt (loaded into the project; written only when every tile is "
+                  "done: a run with a failed tile fails, naming it), run.json (parameters used, "
                   "each tile's status and timings, the workers). Running again with the same inputs and "
                   "parameters into the same folder does only the tiles not recorded as done.</p>"
                   "<p>Needs Dask distributed (python3-distributed on Debian; pip install \"dask[distributed]\" "
@@ -131,7 +132,10 @@ class TilesAlgorithm(BaseAlgorithm):
         try:
             parse_params(self._method(parameters, context),
                          self.parameterAsString(parameters, self.PARAMETERS, context))
-            engine.check_scheduler_address((self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip())
+            scheduler = (self.parameterAsString(parameters, self.SCHEDULER, context) or "").strip()
+            engine.check_scheduler_address(scheduler)
+            if not scheduler and parameters.get(self.WORKERS) not in (None, ""):
+                engine.check_workers(self.parameterAsInt(parameters, self.WORKERS, context))
             inputs = self._inputs(parameters, context)
             index = index_tiles(inputs)
             out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
@@ -164,9 +168,13 @@ class TilesAlgorithm(BaseAlgorithm):
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(str(exc)) from None
         failed = rec["this_run"]["failed"]
-        if failed:
-            feedback.reportError(tr("{} tile(s) failed: {}; run again to retry them.").format(
-                len(failed), ", ".join(sorted(failed))))
+        if not rec.get("complete"):
+            missing = rec.get("missing_tiles", [])
+            raise QgsProcessingException(tr(
+                "The survey is incomplete: {} tile(s) not done ({} failed: {}), so no dtm.vrt or mask.vrt was "
+                "written; the log gives each failure. Run the algorithm again with the same inputs, parameters "
+                "and output folder {}: the finished tiles are kept (run.json) and only the missing ones are "
+                "done.").format(len(missing), len(failed), ", ".join(sorted(failed)[:10]) or "none", out_dir))
         out = {self.OUTPUT_FOLDER: out_dir, self.OUTPUT_RECORD: os.path.join(out_dir, "run.json")}
         for key, name in ((self.OUTPUT_DTM, "dtm.vrt"), (self.OUTPUT_MASK, "mask.vrt")):
             path = os.path.join(out_dir, name)

@@ -1,25 +1,80 @@
 """Vector layers -> boolean rasters on a DSM's grid (break lines, special areas)."""
 import numpy as np
 from osgeo import gdal, ogr, osr
-from qgis.core import QgsCoordinateReferenceSystem, QgsFeatureRequest
+from qgis.core import (
+    QgsCoordinateReferenceSystem,
+    QgsFeatureRequest,
+    QgsProcessing,
+    QgsProcessingFeatureSource,
+    QgsWkbTypes,
+)
+
+#: The geometry kind and its name of each Processing vector type a layer input accepts.
+KINDS = {QgsProcessing.TypeVectorPoint: (QgsWkbTypes.PointGeometry, "points"),
+         QgsProcessing.TypeVectorLine: (QgsWkbTypes.LineGeometry, "lines"),
+         QgsProcessing.TypeVectorPolygon: (QgsWkbTypes.PolygonGeometry, "polygons")}
 
 
-def rasterize_source(source, info, context, all_touched=True):
-    """Burn the features of a Processing feature source onto ``info``'s grid.
+def source_geometries(source, info, context, label="the layer", types=None):
+    """The geometries of a Processing feature source in the DSM's CRS, checked.
 
-    Features are reprojected to the DSM's CRS. Returns ``(bool array, feature count)``; an
-    empty or missing source gives an all-False array.
+    Empty geometries are left out. ValueError naming ``label`` and the fix for a geometry of
+    a kind the input does not take (``types``: Processing vector types, e.g. points given
+    as object areas) and, as Processing's "invalid features filtering" setting says (stop,
+    the default), for an invalid one; with "skip" invalid ones are left out, with "do not
+    filter" kept (GDAL burns them as drawn). QGIS's own check is not used: its exception
+    raised inside the feature iterator broke the next Python call of the session.
+
+    Returns
+    -------
+    list of QgsGeometry, number of invalid geometries skipped
     """
-    rows, cols = info.shape
-    out = np.zeros((rows, cols), bool)
-    if source is None:
-        return out, 0
     dest = QgsCoordinateReferenceSystem()
     if info.crs_wkt:
         dest = QgsCoordinateReferenceSystem.fromWkt(info.crs_wkt)
     req = QgsFeatureRequest()
     if dest.isValid() and source.sourceCrs().isValid() and source.sourceCrs() != dest:
         req.setDestinationCrs(dest, context.transformContext())
+    allowed = {KINDS[t][0]: KINDS[t][1] for t in (types or ()) if t in KINDS}
+    names = {k: n for k, n in KINDS.values()}
+    check = context.invalidGeometryCheck() if context is not None else QgsFeatureRequest.GeometryAbortOnInvalid
+    if isinstance(source, QgsProcessingFeatureSource):
+        features = source.getFeatures(req, QgsProcessingFeatureSource.FlagSkipGeometryValidityChecks)
+    else:
+        features = source.getFeatures(req)
+    out, skipped = [], 0
+    for f in features:
+        g = f.geometry()
+        if g is None or g.isNull() or g.isEmpty():
+            continue
+        if allowed and g.type() not in allowed:
+            raise ValueError(f"{label} holds {names.get(g.type(), 'geometries')} (feature {f.id()}) but takes "
+                             f"{' or '.join(allowed.values())}: give a layer of {' or '.join(allowed.values())}.")
+        if check != QgsFeatureRequest.GeometryNoCheck and not g.isGeosValid():
+            if check == QgsFeatureRequest.GeometrySkipInvalid:
+                skipped += 1
+                continue
+            errors = g.validateGeometry()
+            why = errors[0].what() if errors else "invalid"
+            raise ValueError(f"{label}: feature {f.id()} has an invalid geometry ({why}): repair the layer "
+                             "(Vector > Geometry Tools > Fix Geometries), or set Processing's invalid features "
+                             "filtering to skip or not to filter them.")
+        out.append(g)
+    return out, skipped
+
+
+def rasterize_source(source, info, context, all_touched=True, label="the layer", types=None):
+    """Burn the features of a Processing feature source onto ``info``'s grid.
+
+    Features are reprojected to the DSM's CRS and checked (:func:`source_geometries`).
+    Returns ``(bool array, feature count)``; an empty or missing source gives an all-False
+    array.
+    """
+    rows, cols = info.shape
+    out = np.zeros((rows, cols), bool)
+    if source is None:
+        return out, 0
+    geometries, _skipped = source_geometries(source, info, context, label, types)
     drv = ogr.GetDriverByName("Memory")
     vds = drv.CreateDataSource("burn")
     srs = osr.SpatialReference()
@@ -27,10 +82,7 @@ def rasterize_source(source, info, context, all_touched=True):
         srs.ImportFromWkt(info.crs_wkt)
     layer = vds.CreateLayer("burn", srs if info.crs_wkt else None)
     n = 0
-    for f in source.getFeatures(req):
-        g = f.geometry()
-        if g is None or g.isEmpty():
-            continue
+    for g in geometries:
         og = ogr.CreateGeometryFromWkb(bytes(g.asWkb()))
         if og is None:
             continue

@@ -24,14 +24,19 @@ DEFAULT_BLOCK = 2048
 MAX_AUTO_WORKERS = 8
 
 
-def default_workers():
-    """Threads to use when the caller says 0 (automatic): the cores this process may run
-    on (its CPU affinity), at most :data:`MAX_AUTO_WORKERS`."""
+def available_cores():
+    """The cores this process may run on (its CPU affinity; else the machine's count)."""
     try:
         n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         n = os.cpu_count() or 1
-    return max(1, min(int(n), MAX_AUTO_WORKERS))
+    return max(1, int(n))
+
+
+def default_workers():
+    """Threads to use when the caller says 0 (automatic): the cores this process may run
+    on (:func:`available_cores`), at most :data:`MAX_AUTO_WORKERS`."""
+    return min(available_cores(), MAX_AUTO_WORKERS)
 
 
 def resolve_workers(workers):

@@ -447,13 +447,6 @@ def _derive_params(info, run):
     return params, whole
 
 
-def _output_nodata(nd):
-    """The float outputs' nodata: the DSM's own when float32 holds it, else NaN."""
-    if nd is None or (isinstance(nd, float) and math.isnan(nd)):
-        return float("nan")
-    return float(np.float32(nd)) if np.isfinite(np.float32(nd)) else float("nan")
-
-
 def _ndsm_nodata(float_nodata):
     """The nDSM's nodata: the DTM's, except 0 (every ground cell of an nDSM is DSM - DTM = 0,
     so a nodata of 0 would hide them all): NaN then."""
@@ -519,7 +512,9 @@ def _run_file(info, run, pool):
         info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                                threads=run.meth.threads), halo))
     report(run.progress, RESOLVED)
-    float_nodata = _output_nodata(info.nodata)
+    float_nodata = grid.float_output_nodata(info.nodata)
+    if grid.nodata_not_kept(info.nodata):
+        run.log(grid.nodata_not_kept(info.nodata))
     if run.outputs.get("ndsm") and float_nodata == 0:
         run.log("The DSM's nodata is 0, the height of every ground cell in an nDSM: the nDSM declares NaN "
                 "as nodata instead.")

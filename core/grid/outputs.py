@@ -6,6 +6,7 @@ removed; the mask gets its 4-code colour table and a QGIS style.
 """
 import contextlib
 import contextvars
+import math
 import os
 import re
 import tempfile
@@ -507,6 +508,31 @@ def write_mask_qml(path):
 """
     with open(path, "w", encoding="utf-8") as f:
         f.write(qml)
+
+
+def float_output_nodata(nodata):
+    """The nodata of the Float32 outputs (DTM, nDSM, filled surface) of an input declaring
+    ``nodata``: the same value when float32 holds it as a finite number, else NaN (the
+    convention of an input without a declared nodata). An input's nodata of +-inf (or one
+    beyond float32, such as -1e300) is read as nodata like any other (:func:`to_surface`),
+    but is no value to write: an output cell of +-inf is read as a height by tools that do
+    not check the declared nodata, and float32 turns -1e300 into -inf. See
+    :func:`nodata_not_kept`."""
+    if nodata is None or math.isnan(float(nodata)):
+        return float("nan")
+    with np.errstate(over="ignore"):
+        v = np.float32(nodata)
+    return float(v) if np.isfinite(v) else float("nan")
+
+
+def nodata_not_kept(nodata):
+    """The log line saying the float outputs declare NaN instead of the input's ``nodata``
+    (:func:`float_output_nodata`), or None when they keep it (or the input declares none)."""
+    if nodata is None or math.isnan(float(nodata)) or not math.isnan(float_output_nodata(nodata)):
+        return None
+    return (f"The input's nodata value is {float(nodata):g}, which a Float32 output cannot carry as a finite value: "
+            "the DTM and nDSM declare NaN as nodata instead (their nodata cells are NaN), as for an input without "
+            "a declared nodata.")
 
 
 def write_array(path, array, geotransform, crs_wkt="", nodata=None, dtype=None, mask_style=False):

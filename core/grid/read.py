@@ -64,6 +64,28 @@ def _reading(path, what="read"):
         gdal.SetThreadLocalConfigOption("GDAL_VRT_ENABLE_RAWRASTERBAND", None)
 
 
+@contextlib.contextmanager
+def without_side_files():
+    """GDAL's side files (PAM ``.aux.xml``) off, in this thread, while the block runs.
+
+    A dataset opened inside never writes ``<raster>.aux.xml`` beside its file. QGIS computes
+    a raster's statistics when it loads it as a layer (for its default renderer) and GDAL
+    saves them beside the input when the layer closes; the plugin's algorithms load their
+    inputs as layers inside this block, so an input folder is left as it was. Our own reads
+    (:func:`open_dsm`) keep PAM on: a nodata, scale or CRS declared in an existing side file
+    is still read.
+    """
+    if gdal is None:
+        yield
+        return
+    old = gdal.GetThreadLocalConfigOption("GDAL_PAM_ENABLED", None)
+    gdal.SetThreadLocalConfigOption("GDAL_PAM_ENABLED", "NO")
+    try:
+        yield
+    finally:
+        gdal.SetThreadLocalConfigOption("GDAL_PAM_ENABLED", old)
+
+
 def _vrt_problems(ds, depth=0):
     """Why a VRT input is refused: a raw band (``VRTRawRasterBand`` reads any local file's
     bytes as cells) anywhere in it or in the VRTs it refers to. Returns a message or None."""
@@ -205,7 +227,8 @@ class DSMInfo:
 def _apply_scale(a, scale=1.0, offset=0.0):
     """Stored values -> heights in the raster's unit, float32 (``a * scale + offset`` in float64)."""
     if scale == 1.0 and offset == 0.0:
-        return np.array(a, dtype=np.float32, copy=True)
+        with np.errstate(over="ignore"):       # float64 beyond float32 (a -1e300 nodata): -inf, nodata
+            return np.array(a, dtype=np.float32, copy=True)
     with np.errstate(over="ignore", invalid="ignore"):
         return (np.asarray(a, np.float64) * scale + offset).astype(np.float32)
 

@@ -35,6 +35,60 @@ RETRIES = 1
 RESUBMITS = 3
 
 
+#: Resident memory of a local worker process before its first tile, MB: Python, numpy, scipy,
+#: GDAL, Dask and the plugin's core (measured 110 MB for the imports alone on Debian 12, plus
+#: Dask's worker).
+WORKER_BASE_MB = 150
+#: Peak memory of a filter per cell of the window it works on, bytes: the heaviest filter,
+#: dtm (its vote holds its three members' working arrays), peaks at about 970 MB above its
+#: input on 16 Mcells (benchmarks/speed.py), 61 B per cell.
+WINDOW_BYTES_PER_CELL = 64
+
+
+def machine_memory():
+    """Bytes of memory this process may use (Dask's own figure: RAM, or a cgroup's limit)."""
+    from distributed.system import MEMORY_LIMIT
+    return int(MEMORY_LIMIT)
+
+
+def check_workers(workers):
+    """ValueError, before any work, when more local worker processes are asked for than this
+    computer has cores: one thread each, they only share the cores (no faster), each holds a
+    tile's window, and Dask splits the memory between them (a worker beyond its share is
+    restarted and its tile fails). 0 or None (one per core) always passes."""
+    if workers is None or int(workers) <= 0:
+        return
+    cores = blocks.available_cores()
+    if int(workers) > cores:
+        raise ValueError(f"WORKERS = {int(workers)} local worker processes, but this computer has {cores} core(s) "
+                         f"and {machine_memory() / 2 ** 30:.1f} GB of memory: workers beyond the cores run no "
+                         "faster (one thread each, sharing the cores), each holds a tile in memory and gets only "
+                         f"1/{int(workers)} of it from Dask. Use at most {cores} (0: one per core), or give the "
+                         "address of a Dask cluster (SCHEDULER) to use more computers.")
+
+
+def memory_warning(workers, window_cells, total_bytes=None):
+    """The warning (or None) when ``workers`` local workers, each filtering a window of
+    ``window_cells`` cells (a tile and its halo), would need more memory than each gets.
+
+    Dask's LocalCluster gives each worker ``total / workers`` and restarts one that passes
+    95 % of it (its tile then fails); a worker needs about :data:`WORKER_BASE_MB` plus
+    :data:`WINDOW_BYTES_PER_CELL` per cell of its window.
+    """
+    n = blocks.resolve_workers(workers)
+    total = int(total_bytes or machine_memory())
+    need = WORKER_BASE_MB * 2 ** 20 + int(window_cells) * WINDOW_BYTES_PER_CELL
+    share = total / n
+    if need <= 0.95 * share:
+        return None
+    fits = int(0.95 * total // need)
+    fix = (f"use WORKERS = {fits} or fewer" if fits >= 1 else "cut the survey into smaller tiles") + \
+        " (or a Dask cluster with more memory)"
+    return (f"Memory: each of the {n} local worker(s) gets {share / 2 ** 20:.0f} MB of this computer's "
+            f"{total / 2 ** 30:.1f} GB (Dask restarts a worker above 95 % of it, and its tile fails), but a tile's "
+            f"window of {window_cells / 1e6:.2f} Mcells (tile and halo) needs about {need / 2 ** 20:.0f} MB: {fix}.")
+
+
 def have_dask():
     """True when ``distributed`` imports."""
     try:

@@ -77,6 +77,23 @@ def sample_tiles(tiles, n=SAMPLE_TILES):
     return [tiles[i] for i in sorted(chosen[:n])]
 
 
+def central_crop(tile, side):
+    """The window ``(r0, r1, c0, c1)`` on the survey grid of the central ``side x side``
+    cells of ``tile`` (the whole tile along a side shorter than ``side``)."""
+    r0, r1, c0, c1 = tile.window
+    h, w = min(side, r1 - r0), min(side, c1 - c0)
+    rr, cc = r0 + (r1 - r0 - h) // 2, c0 + (c1 - c0 - w) // 2
+    return rr, rr + h, cc, cc + w
+
+
+def nearest_tiles(tiles, tile):
+    """``tiles`` ordered by the distance of their centres from ``tile``'s (``tile`` first)."""
+    def centre(t):
+        return (t.window[0] + t.window[1]) / 2, (t.window[2] + t.window[3]) / 2
+    r, c = centre(tile)
+    return sorted(tiles, key=lambda t: (centre(t)[0] - r) ** 2 + (centre(t)[1] - c) ** 2)
+
+
 def sample_layout(tiles, survey_cells, max_cells=SAMPLE_CELLS):
     """Where the parameter sample comes from.
 
@@ -97,11 +114,8 @@ def sample_layout(tiles, survey_cells, max_cells=SAMPLE_CELLS):
     side = int(math.sqrt(max_cells)) // k - SAMPLE_GUTTER
     parts = []
     for j, t in enumerate(chosen):
-        r0, r1, c0, c1 = t.window
-        h, w = min(side, r1 - r0), min(side, c1 - c0)
-        rr, cc = r0 + (r1 - r0 - h) // 2, c0 + (c1 - c0 - w) // 2
-        parts.append((t, (rr, rr + h, cc, cc + w), ((j // k) * (side + SAMPLE_GUTTER),
-                                                    (j % k) * (side + SAMPLE_GUTTER))))
+        parts.append((t, central_crop(t, side), ((j // k) * (side + SAMPLE_GUTTER),
+                                                 (j % k) * (side + SAMPLE_GUTTER))))
     rows = -(-len(chosen) // k) * (side + SAMPLE_GUTTER) - SAMPLE_GUTTER
     cols = min(len(chosen), k) * (side + SAMPLE_GUTTER) - SAMPLE_GUTTER
     return parts, (rows, cols)

@@ -76,10 +76,10 @@ def tiles_with_status(rec, status="done"):
 
 
 def done_tiles(rec, out_dir):
-    """Names of the tiles recorded done whose output files all exist."""
+    """Names of the tiles recorded done whose output files all exist (as files)."""
     out = set()
     for name, t in (rec or {}).get("tiles", {}).items():
-        if t.get("status") == "done" and all(os.path.exists(os.path.join(str(out_dir), f))
+        if t.get("status") == "done" and all(os.path.isfile(os.path.join(str(out_dir), f))
                                              for f in t.get("files", ())):
             out.add(name)
     return out

@@ -4,7 +4,12 @@
 
     tiles --index_tiles--> checked grid --survey.vrt--> sample --resolve--> params, halo
           --Dask: run_tile(tile + halo from survey.vrt)--> <tile>_dtm.tif, <tile>_mask.tif
-          --as each finishes--> run.json --at the end--> dtm.vrt, mask.vrt
+          --as each finishes--> run.json --when every tile is done--> dtm.vrt, mask.vrt
+
+The mosaics exist only over a complete survey: a run that leaves a tile failed, pending
+(cancelled) or unstarted (killed) leaves no ``dtm.vrt`` / ``mask.vrt`` (those of an earlier
+complete run are removed before any tile is redone), ``run.json`` says ``"complete": false``
+and the log names the tiles missing and how to finish (the same command again).
 """
 import os
 import re
@@ -25,6 +30,8 @@ SURVEY_VRT = "survey.vrt"
 #: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
 #: end in any case; a tile finished in the last interval of a killed run is redone).
 RECORD_INTERVAL = 1.0
+#: The mosaics written once every tile is done.
+MOSAICS = ("dtm.vrt", "mask.vrt")
 #: Names of the temporary files of io.write_cog, io.build_vrt and record.save_record.
 PARTIAL = re.compile(r"\.partial-[0-9a-f]+(\.[A-Za-z]+)*$")
 
@@ -71,22 +78,40 @@ def parse_params(method, items):
     return out
 
 
-def read_sample(index, info):
+def read_sample(index, info, max_cells=None):
     """The surface the survey's parameters are derived from, and what it is.
 
-    The whole survey when small (:data:`plan.SAMPLE_CELLS`), else central crops of tiles
-    spread over it, laid side by side with nodata between them (:func:`plan.sample_layout`).
+    The whole survey when small (``max_cells``, default :data:`plan.SAMPLE_CELLS`), else
+    central crops of tiles spread over it, laid side by side with nodata between them
+    (:func:`plan.sample_layout`). Nodata cells are NaN (the estimates never see them), and a
+    chosen tile whose crop holds no data at all (sea, a hole in the survey) gives way to the
+    nearest tile whose crop does, so the sample holds the survey's data wherever it lies.
     """
-    layout = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1])
+    layout = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1], max_cells or plan.SAMPLE_CELLS)
     if layout is None:
         return info.read(), f"the whole survey ({index.shape[1]} x {index.shape[0]} cells)"
     parts, shape = layout
+    side = max(max(w[1] - w[0], w[3] - w[2]) for _t, w, _p in parts)
     z = np.full(shape, np.nan, np.float32)
-    for _tile, (r0, r1, c0, c1), (r, c) in parts:
-        z[r:r + r1 - r0, c:c + c1 - c0] = info.read((r0, r1, c0, c1))
-    side = parts[0][1][1] - parts[0][1][0]
-    names = ", ".join(t.name for t, _w, _p in parts)
-    return z, f"central crops of up to {side} x {side} cells of {len(parts)} tiles spread over the survey ({names})"
+    used, empty, names, replaced = {t.name for t, _w, _p in parts}, set(), [], 0
+    for tile, _window, (r, c) in parts:
+        for cand in plan.nearest_tiles([t for t in index.tiles if t.name not in empty], tile):
+            if cand is not tile and cand.name in used:
+                continue
+            r0, r1, c0, c1 = plan.central_crop(cand, side)
+            crop = info.read((r0, r1, c0, c1))
+            if np.isfinite(crop).any():
+                z[r:r + r1 - r0, c:c + c1 - c0] = crop
+                used.add(cand.name)
+                names.append(cand.name)
+                replaced += cand is not tile
+                break
+            empty.add(cand.name)
+    where = (f"central crops of up to {side} x {side} cells of {len(names)} tiles spread over the survey "
+             f"({', '.join(names) or 'none with data'})")
+    if replaced:
+        where += f"; {replaced} chosen tile(s) without data at their centre replaced by the nearest with data"
+    return z, where
 
 
 def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=None, progress=None, log=None):
@@ -119,7 +144,9 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     Returns
     -------
     dict
-        The run record (as in ``run.json``) with ``"this_run"``: this run's summary.
+        The run record (as in ``run.json``) with ``"this_run"``: this run's summary;
+        ``"complete"`` is True only when every tile is done (then ``dtm.vrt`` and
+        ``mask.vrt`` exist), else ``"missing_tiles"`` names the others.
 
     Raises
     ------
@@ -132,6 +159,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     meth = get_method(method)
     engine.require_dask()
     engine.check_scheduler_address(scheduler)
+    if not scheduler:
+        engine.check_workers(workers)
     index = index_tiles(inputs)
     out_dir = os.path.abspath(str(out_dir))
     check_output_folder(index, out_dir, inputs)
@@ -182,14 +211,29 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                            "cell_size_m": list(cell), "vrt": SURVEY_VRT}})
     log(f"Survey: {len(index.tiles)} tiles, {index.cells / 1e6:.1f} Mcells on a {index.shape[1]} x "
         f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
+    for note in sorted({grid.nodata_not_kept(t.nodata) for t in index.tiles} - {None}):
+        log(note)
+    undeclared = [t.name for t in index.tiles if t.nodata is None]
+    if undeclared and index.vrt_nodata not in (None, "nan"):
+        log(f"Warning: {len(undeclared)} tile(s) declare no nodata value ({', '.join(undeclared[:5])}"
+            + (" ..." if len(undeclared) > 5 else "") + f"): their cells of {index.vrt_nodata:g} (the value the "
+            "survey's gaps between tiles take) are read as nodata. If that is a height, declare another nodata "
+            "value on the tiles (gdal_edit.py -a_nodata).")
     log(f"Parameters derived once for the survey from {rec['sample']}:")
     for k, v in resolved.items():
         log(f"  {k} = {v}")
     log(f"Halo: {halo} cells read from the neighbouring tiles around each tile (windows aligned on {align}).")
+    if not scheduler:
+        windows = [plan.tile_window(t.window, index.shape, halo, align)[0] for t in index.tiles]
+        warning = engine.memory_warning(workers, max((w[1] - w[0]) * (w[3] - w[2]) for w in windows))
+        if warning:
+            log("Warning: " + warning)
     done = record.done_tiles(rec, out_dir)
     todo = [t for t in index.tiles if t.name not in done]
     for t in todo:
         rec["tiles"][t.name] = {"status": "pending", "input": t.path}
+    if todo:   # mosaics of an earlier run no longer stand for the survey: gone before any tile runs
+        _remove_mosaics(rec, out_dir)
     if done:
         log(f"{len(done)} tile(s) already done (recorded in run.json); {len(todo)} to do.")
     record.save_record(out_dir, rec)
@@ -242,6 +286,16 @@ def check_output_folder(index, out_dir, inputs=None):
                          "tiles. Choose another output folder.")
 
 
+def _remove_mosaics(rec, out_dir):
+    """Remove ``dtm.vrt`` and ``mask.vrt`` and mark the record incomplete."""
+    for name in MOSAICS:
+        path = os.path.join(out_dir, name)
+        if os.path.lexists(path):
+            os.remove(path)
+    rec.pop("mosaics", None)
+    rec["complete"] = False
+
+
 def _remove_partials(out_dir, log):
     """Remove the temporary files a killed run left in ``out_dir`` (``*.partial-*``: tiles,
     VRTs and run.json being written when it died). Called before any task starts."""
@@ -275,6 +329,10 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
         def failed(tile, exc):
             this["failed"][tile.name] = f"{type(exc).__name__}: {exc}"
             rec["tiles"][tile.name] = {"status": "failed", "input": tile.path, "error": this["failed"][tile.name]}
+            for name in output_names(tile.name):     # one file of the pair may be in place: never half a tile
+                path = os.path.join(out_dir, name)
+                if os.path.isfile(path):
+                    os.remove(path)
             log(f"{tile.name}: FAILED ({type(exc).__name__}: {exc}); a rerun retries it.")
 
         engine.run_tasks(client, run_tile, job, todo, done, failed, progress)
@@ -293,17 +351,30 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
 
 
 def _write_mosaics(index, rec, out_dir, log):
-    """dtm.vrt and mask.vrt over the finished tiles (mask.qml beside the mask)."""
+    """dtm.vrt and mask.vrt over the tiles (mask.qml beside the mask) when every tile is done;
+    else none (a mosaic with holes would look like the survey's result), the record marked
+    incomplete and the log naming the tiles missing and how to finish."""
     done = record.tiles_with_status(rec, "done")
-    names = [t.name for t in index.tiles if t.name in done]
-    if not names:
+    missing = [t for t in index.tiles if t.name not in done]
+    if missing:
+        _remove_mosaics(rec, out_dir)
+        failed = {t.name: rec["tiles"].get(t.name, {}).get("error") for t in missing
+                  if rec["tiles"].get(t.name, {}).get("status") == "failed"}
+        rec["missing_tiles"] = [t.name for t in missing]
+        log(f"INCOMPLETE: {len(missing)} of {len(index.tiles)} tile(s) not done, so no dtm.vrt or mask.vrt was "
+            f"written (run.json says \"complete\": false): {', '.join(t.name for t in missing[:20])}"
+            + (f" and {len(missing) - 20} more" if len(missing) > 20 else "") + ".")
+        for name, err in list(failed.items())[:20]:
+            log(f"  {name} failed: {err}")
+        log(f"Run the same command again with the output folder {out_dir}: the {len(done)} finished tile(s) are "
+            "kept and only the missing ones are done, then the mosaics are written.")
         return
     for kind, k in (("dtm", 0), ("mask", 1)):
-        files = [os.path.join(out_dir, output_names(n)[k]) for n in names]
+        files = [os.path.join(out_dir, output_names(t.name)[k]) for t in index.tiles]
         nod = 255 if kind == "mask" else None
         io.build_vrt(os.path.join(out_dir, f"{kind}.vrt"), files, nod)
     grid.write_mask_qml(os.path.join(out_dir, "mask.qml"))
-    missing = len(index.tiles) - len(names)
-    rec["mosaics"] = {"dtm": "dtm.vrt", "mask": "mask.vrt", "tiles": len(names), "tiles_missing": missing}
-    log(f"Mosaics: dtm.vrt and mask.vrt over {len(names)} tile(s)"
-        + (f"; {missing} tile(s) not done yet (rerun to finish)." if missing else "."))
+    rec.pop("missing_tiles", None)
+    rec["complete"] = True
+    rec["mosaics"] = {"dtm": "dtm.vrt", "mask": "mask.vrt", "tiles": len(index.tiles)}
+    log(f"Mosaics: dtm.vrt and mask.vrt over all {len(index.tiles)} tile(s).")

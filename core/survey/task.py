@@ -145,7 +145,7 @@ def run_tile(job, tile):
         raw = io.read_raw(tile.path, (0, tile.shape[0], 0, tile.shape[1]))
         ground = mask == GROUND
         dtm[ground] = raw[ground]
-    nodata = tile.nodata if tile.nodata is not None else float("nan")
+    nodata = grid.float_output_nodata(tile.nodata)
     if not math.isnan(nodata):
         np.copyto(dtm, np.float32(nodata), where=~np.isfinite(dtm))
     dtm_name, mask_name = output_names(tile.name)

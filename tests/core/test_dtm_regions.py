@@ -6,7 +6,7 @@ from surfaces import grid, in_blocks, noisy
 from bare_earth.core import dtm_refine as dr
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, OBJECT
-from bare_earth.core.dtm_regions import REACH_CELLS, find_raised_regions, regions_halo
+from bare_earth.core.dtm_regions import REACH_CELLS, find_detached_levels, find_raised_regions, regions_halo
 
 
 def _find(z, mask=None, **kw):
@@ -105,6 +105,116 @@ def test_blocked_equals_one_pass():
 
     for b in (37, 50):
         assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
+
+
+# ----------------------------------------------------------------------------- detached levels
+
+def _annex(n=60):
+    """Ground at 0 (every member agrees), a 3 m annex (RASCOR alone dissents) against a 12 m block."""
+    z = np.zeros((n, n), np.float32)
+    z[10:20, 10:50] = 12.0                          # the tall block: objects of the vote
+    z[20:32, 15:45] = 3.0                           # the annex: 12 x 30 cells
+    ground = z < 10
+    dissent = z == 3.0
+    anchors = z == 0.0
+    return z, ground, dissent, anchors
+
+
+def _detached(z, ground, dissent, anchors, **kw):
+    kw = {"jump_m": 2.0, "slope": 0.1, "max_cells": 40, **kw}
+    return find_detached_levels(z, ground, dissent, anchors, (1.0, 1.0), **kw)
+
+
+def test_a_level_cut_by_level_changes_from_the_undisputed_ground_is_an_object_with_its_edge():
+    z, ground, dissent, anchors = _annex()
+    out = _detached(z, ground, dissent, anchors)
+    assert np.array_equal(out, dissent)             # its inside, and its edge on top of the walls
+
+
+def test_a_level_joined_to_the_undisputed_ground_or_not_dissented_stays_ground():
+    z, ground, dissent, anchors = _annex()
+    anchored = anchors.copy()
+    anchored[25, 30] = True                         # one cell of it every member agrees on
+    assert not _detached(z, ground, dissent, anchored).any()
+    assert not _detached(z, ground, np.zeros_like(dissent), anchors).any()          # RASCOR agrees: no dissent
+    assert not _detached(z, ground, dissent, anchors, jump_m=3.5).any()             # walls below a level change
+    assert not _detached(z, ground, dissent, anchors, max_cells=27).any()           # wider (28) than the reach
+    assert not _detached(z, ground, dissent, anchors, max_cells=0).any()
+
+
+def test_a_bank_rising_within_the_slope_allowance_is_one_level_with_the_ground():
+    # the same 3 m reached over a bank of 1 m per cell (< jump_m + s d): no level change, joined to the ground
+    z, ground, dissent, anchors = _annex()
+    z[20:23, 15:45] = np.array([[1.0], [2.0], [3.0]], np.float32) * np.ones((1, 30), np.float32)
+    z[20:32, 12:15] = np.array([1.0, 2.0, 3.0], np.float32)
+    z[20:32, 45:48] = np.array([3.0, 2.0, 1.0], np.float32)
+    z[32:35, 12:48] = np.array([[2.0], [1.0], [0.0]], np.float32)
+    ground = z < 10
+    assert not _detached(z, ground, ground & (z > 0), anchors).any()
+
+
+def test_detached_levels_refuse_bad_input():
+    z, ground, dissent, anchors = _annex()
+    with pytest.raises(ValueError, match="jump_m"):
+        _detached(z, ground, dissent, anchors, jump_m=0.0)
+    with pytest.raises(ValueError, match="shape"):
+        _detached(z, ground[:-1], dissent, anchors)
+
+
+def test_detached_levels_blocked_equal_one_pass():
+    """On windows of a block plus regions_halo cells, the one-pass decision in the block."""
+    rng = np.random.default_rng(7)
+    n = 180
+    y, x = grid(n)
+    z = (10 + 0.02 * x + 0.01 * y + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    dissent = np.zeros((n, n), bool)
+    for r0, c0, h, w, top in ((5, 5, 30, 40, 3.0), (60, 20, 50, 70, 2.5), (20, 100, 70, 60, 4.0),
+                              (130, 110, 40, 25, 3.5), (120, 10, 55, 55, 6.0)):
+        z[r0:r0 + h, c0:c0 + w] += top
+        dissent[r0:r0 + h, c0:c0 + w] = True
+    ground = np.ones((n, n), bool)
+    anchors = ~dissent & (rng.random((n, n)) < 0.5)
+    anchors[60:110, 20:90] |= rng.random((50, 70)) < 0.001          # a few joined levels
+    kw = {"jump_m": 2.0, "slope": 0.05, "max_cells": 60}
+    whole = find_detached_levels(z, ground, dissent, anchors, (1.0, 1.0), **kw)
+    assert whole.any() and not whole.all()
+
+    def part(wr, wc):
+        return find_detached_levels(z[wr, wc], ground[wr, wc], dissent[wr, wc], anchors[wr, wc], (1.0, 1.0), **kw)
+
+    for b in (37, 50):
+        assert np.array_equal(in_blocks(part, z.shape, b, regions_halo(kw["max_cells"])), whole)
+
+
+def test_dtm_takes_a_low_annex_only_rascor_rejects_as_an_object(monkeypatch):
+    """A 3 m annex against a tall block, which the opening and the reconstruction both accept (as on
+    ISPRS sample 31, where their allowances grow with the window and the terrain slope): the vote
+    keeps it; RASCOR's dissent on a level cut by walls from all undisputed ground makes it an object."""
+    from bare_earth.core import dtm as dtm_method
+    from bare_earth.core.methods import get_method
+    y, x = grid(128)
+    ground = 50 + 0.01 * x + 0.005 * y
+    tall = (np.abs(x - 64) < 40) & (y >= 20) & (y < 40)
+    annex = (np.abs(x - 64) < 25) & (y >= 40) & (y < 54)
+    z = noisy(ground + np.where(tall, 12.0, 0.0) + np.where(annex, 3.0, 0.0), sd=0.05)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    real = get_method("geodesic")
+
+    def accepting(z_, cell, progress=None, **kw):          # the reconstruction accepting the annex
+        res = real.run(z_, cell, progress=progress, **kw)
+        res.mask[(res.mask == OBJECT) & (np.abs(z_ - ground.astype(np.float32)) < 3.5)] = GROUND
+        return res
+
+    import dataclasses
+    fake = dataclasses.replace(real, run=accepting)
+    monkeypatch.setattr(dtm_method, "get_method", lambda name: fake if name == "geodesic" else get_method(name))
+    res = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
+    assert (res.mask[annex] == OBJECT).mean() > 0.95
+    assert (res.mask[~annex & ~tall] == GROUND).mean() > 0.99
+    assert res.info["detached_level_share"] > 0.5 * annex.sum() / z.size
+    monkeypatch.setattr(dtm_method, "find_detached_levels", lambda z_, *a, **k: np.zeros(z_.shape, bool))
+    without = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
+    assert (without.mask[annex] == GROUND).mean() > 0.5          # the vote alone keeps it
 
 
 # ----------------------------------------------------------------------------- through bareearth:dtm

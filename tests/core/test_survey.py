@@ -21,6 +21,7 @@ pytest.importorskip("distributed", reason="Dask distributed is not installed (sc
 from bare_earth.core import grid, pipeline  # noqa: E402
 from bare_earth.core.methods import available_methods, get_method  # noqa: E402
 from bare_earth.core.survey import index_tiles, list_inputs, output_names, parse_params, plan, run_survey  # noqa: E402
+from bare_earth.core.survey import io as survey_io  # noqa: E402
 from bare_earth.core.synthetic import make_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,6 +115,35 @@ def test_sample_is_the_whole_small_survey_and_spread_crops_of_a_large_one(survey
     big = [t for t in index.tiles for _ in range(4)]          # 36 tiles: 16 spread ones chosen
     chosen = plan.sample_tiles(big)
     assert len(chosen) == 16 and len({t.name for t in chosen}) == 9
+
+
+def test_sample_of_a_large_survey_takes_its_crops_where_the_data_is(tmp_path):
+    """A large survey (5 x 5 tiles; sample limited to 6400 cells: crops of 12 x 12) whose 16 tiles chosen for the
+    sample hold only nodata (-9999): their crops give way to the nearest tiles with data, and no nodata
+    value reaches the sample. Before: the sample was all NaN and the survey was refused as holding no
+    data, though 9 of its tiles hold heights."""
+    from bare_earth.core.survey.run import read_sample
+    tiles, gt = [], (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+    for i in range(5):
+        for j in range(5):
+            tiles.append((f"t{i}{j}", (gt[0] + 32 * j, 1.0, 0.0, gt[3] - 32 * i, 0.0, -1.0)))
+    index = index_tiles([str(grid.write_array(tmp_path / f"{n}.tif", np.zeros((32, 32), np.float32), g, 32632,
+                                              nodata=-9999.0)) for n, g in tiles])
+    chosen = {t.name for t in plan.sample_tiles(index.tiles)}
+    assert len(chosen) == 16
+    heights = {}
+    for k, (name, g) in enumerate(tiles):
+        a = np.full((32, 32), -9999.0 if name in chosen else 100.0 + k, np.float32)
+        a[:3, :3] = -9999.0
+        grid.write_array(tmp_path / f"{name}.tif", a, g, 32632, nodata=-9999.0)
+        if name not in chosen:
+            heights[name] = 100.0 + k
+    vrt = survey_io.build_vrt(tmp_path / "survey.vrt", [t.path for t in index.tiles], index.vrt_nodata)
+    z, where = read_sample(index, grid.open_dsm(vrt), max_cells=16 * 20 * 20)
+    values = set(np.unique(z[np.isfinite(z)]).tolist())
+    assert values and values <= set(heights.values())            # heights only: no -9999, no empty crop
+    assert len(values) == len(heights) == 9
+    assert "replaced by the nearest with data" in where and all(n in where for n in heights)
 
 
 # -- checks before any work --------------------------------------------------------------------
@@ -232,6 +262,75 @@ def test_vrt_input_and_cancel_then_rerun_redoes_only_the_rest(survey, tmp_path):
     assert np.array_equal(read_mosaic(out, "mask"), one_pass("slopeprofile", survey["scene"], rec).mask)
     with pytest.raises(ValueError, match="holds a run of other arguments"):
         run_survey("slopeprofile", vrt, out, {"max_object_size_m": 30.0}, workers=1)
+
+
+def test_failed_tile_leaves_no_mosaic_and_the_rerun_finishes_it(survey, tmp_path):
+    """A tile that fails (its output name taken by a folder) leaves no dtm.vrt / mask.vrt, a record saying
+    incomplete and a log naming the tile and the rerun; before: the mosaics were written over the 8 finished
+    tiles, a hole where t11 was, and looked like the survey's result. A rerun that fails again removes the
+    mosaics of the earlier complete run."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "t11_dtm.tif").mkdir()                   # os.replace onto a folder fails: the tile fails
+    params = SMALL["slopeprofile"]
+    lines = []
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1, log=lines.append)
+    assert list(rec["this_run"]["failed"]) == ["t11"] and len(done(rec)) == 8
+    assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
+    assert not (out / "t11_mask.tif").exists()
+    saved = json.loads((out / "run.json").read_text())
+    assert saved["complete"] is False and saved["missing_tiles"] == ["t11"] and "mosaics" not in saved
+    text = "\n".join(lines)
+    assert "INCOMPLETE: 1 of 9 tile(s) not done" in text and "t11 failed: " in text
+    assert "Run the same command again" in text
+    (out / "t11_dtm.tif").rmdir()
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert rec["this_run"]["tiles_to_do"] == 1 and rec["complete"] is True
+    assert np.array_equal(read_mosaic(out, "mask"), one_pass("slopeprofile", survey["scene"], rec).mask)
+    os.remove(out / "t22_dtm.tif")                  # gone since: t22 is redone, and fails
+    (out / "t22_dtm.tif").mkdir()
+    rec = run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert list(rec["this_run"]["failed"]) == ["t22"] and rec["complete"] is False
+    assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
+
+
+def test_more_workers_than_cores_refused_before_any_work(survey, tmp_path):
+    """WORKERS = 256 on this computer: refused naming its cores and memory (before: 256 processes were
+    started, each given 1/256 of the memory by Dask, and the tiles failed as the workers were restarted)."""
+    from bare_earth.core.blocks import available_cores
+    n = available_cores() + 1
+    with pytest.raises(ValueError, match=rf"WORKERS = {n} local worker processes, but this computer has "
+                                         rf"{n - 1} core\(s\) and [0-9.]+ GB of memory.*Use at most {n - 1}"):
+        run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=n)
+    assert not (tmp_path / "out").exists()
+
+
+def test_memory_warning_names_the_workers_that_fit():
+    from bare_earth.core.survey import engine
+    gb = 2 ** 30
+    # 150 MB + 10 Mcells x 64 B (610 MB) = 760 MB per worker: 2 sharing 2 GB (1 GB each) fit, 4 (512 MB) not
+    assert engine.memory_warning(2, 10_000_000, total_bytes=2 * gb) is None
+    text = engine.memory_warning(4, 10_000_000, total_bytes=2 * gb)
+    assert "each of the 4 local worker(s) gets 512 MB of this computer's 2.0 GB" in text
+    assert "needs about 760 MB: use WORKERS = 2 or fewer" in text
+    assert "cut the survey into smaller tiles" in engine.memory_warning(1, 100_000_000, total_bytes=2 * gb)
+
+
+def test_integer_tiles_without_nodata_say_which_value_is_read_as_nodata(tmp_path):
+    """UInt16 tiles declaring no nodata: the survey VRT's gaps take 0, so their cells of 0 are nodata; the log
+    says so and how to change it (before: those cells were dropped without a word, a single file keeps them)."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = []
+    for k in range(2):
+        a = np.round(sc.dsm[:, 32 * k:32 * k + 32] * 10 + 100).astype(np.uint16)
+        a[:2, :2] = 0
+        g = (sc.geotransform[0] + 32 * k, 1.0, 0.0, sc.geotransform[3], 0.0, -1.0)
+        paths.append(str(grid.write_array(tmp_path / f"t{k}.tif", a, g, sc.epsg, dtype="UInt16")))
+    lines = []
+    run_survey("morphological", paths, tmp_path / "out", SMALL["morphological"], workers=1, log=lines.append)
+    assert any("2 tile(s) declare no nodata value (t0, t1): their cells of 0" in t for t in lines), lines
+    dtm = grid.open_dsm(str(tmp_path / "out" / "t0_dtm.tif")).read()
+    assert np.isnan(dtm[:2, :2]).all() and np.isfinite(dtm[2:, 2:]).all()
 
 
 # -- a real cluster --------------------------------------------------------------------------------

@@ -304,3 +304,176 @@ def test_orthoparallax_meaningless_matching_values_refused_before_work(processin
     with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:orthoparallax", params)
     assert not (tmp_path / "o.tif").exists()
+
+
+def _listing(folder):
+    """{name: bytes} of every file in ``folder``."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_inputs_given_as_paths_get_no_side_file(processing_run, tmp_path):
+    """An input folder is left byte for byte as it was: no ``.aux.xml`` beside the inputs. Before: QGIS
+    computed the statistics of each raster it loaded from a path (its default renderer) and GDAL saved
+    them as dsm.tif.aux.xml, mask.tif.aux.xml, ... when the layers closed."""
+    import gc
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    z = _ramp_with_box()
+    dsm = _write(src / "dsm.tif", z, nodata=-9999.0)
+    mask = _write(src / "mask.tif", np.where(z > 4, 1, 0).astype(np.uint8), nodata=255, dtype="Byte")
+    before = _listing(src)
+    processing_run("bareearth:dtm", {"INPUT": dsm, "OUTPUT_DTM": str(out / "d.tif"), "OUTPUT_MASK": str(out / "m.tif")})
+    processing_run("bareearth:filldtm", {"INPUT": dsm, "MASK": mask, "OUTPUT": str(out / "f.tif")})
+    processing_run("bareearth:evaluate", {"MASK": str(out / "m.tif"), "REFERENCE_MASK": mask, "DTM": str(out / "d.tif"),
+                                          "REFERENCE_DTM": dsm, "OUTPUT_JSON": str(out / "e.json"),
+                                          "OUTPUT_HTML": str(out / "e.html")})
+    gc.collect()                     # the layers Processing loaded are closed (their side files written then)
+    assert _listing(src) == before
+
+
+def test_qgis_process_leaves_the_input_folder_unchanged(run_qgis_process, tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    dsm = _write(src / "dsm.tif", _ramp_with_box(), nodata=-9999.0)
+    before = _listing(src)
+    rc, out, _ = run_qgis_process("bareearth:dtm", {"INPUT": dsm, "OUTPUT_DTM": tmp_path / "d.tif",
+                                                    "OUTPUT_MASK": tmp_path / "m.tif"})
+    assert rc == 0, out
+    assert _listing(src) == before
+
+
+@pytest.mark.parametrize("nodata,dtype", [(np.inf, "Float32"), (-np.inf, "Float32"), (-1e300, "Float64")],
+                         ids=["plus_inf", "minus_inf", "beyond_float32"])
+def test_infinite_nodata_outputs_declare_nan(processing_run, tmp_path, nodata, dtype):
+    """An input nodata of +-inf (or beyond float32) is nodata; the DTM and nDSM declare NaN with NaN
+    cells exactly there, none infinite, and the log says why (before: NaN without a word in one file,
+    and the survey's tile DTMs carried +-inf cells)."""
+    from qgis.core import QgsProcessingFeedback
+    z = _ramp_with_box().astype(np.float64)
+    z[30:35, 30:35] = nodata
+    src = _write(tmp_path / "dsm.tif", z, nodata=nodata, dtype=dtype)
+    lines = []
+
+    class Log(QgsProcessingFeedback):
+        def pushInfo(self, text):  # noqa: N802
+            lines.append(text)
+
+        def pushWarning(self, text):  # noqa: N802
+            lines.append(text)
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                           "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                           "OUTPUT_NDSM": str(tmp_path / "n.tif")}, feedback=Log())
+    hole = np.zeros(z.shape, bool)
+    hole[30:35, 30:35] = True
+    for key in ("OUTPUT_DTM", "OUTPUT_NDSM"):
+        a, nd = _read(res[key])
+        assert np.isnan(nd) and not np.isinf(a).any()
+        assert np.array_equal(np.isnan(a), hole)
+    assert np.array_equal(_read(res["OUTPUT_MASK"])[0] == 255, hole)
+    assert any("declare NaN as nodata instead" in t for t in lines)
+
+
+def test_survey_tiles_with_infinite_nodata_write_nan(tmp_path):
+    pytest.importorskip("distributed")
+    from bare_earth.core.survey import run_survey
+    paths = []
+    for k in range(2):
+        z = _ramp_with_box((64, 64))
+        z[:4, :4] = np.inf
+        gt = (GT[0] + 64 * k, 1.0, 0.0, GT[3], 0.0, -1.0)
+        paths.append(_write(tmp_path / f"t{k}.tif", z, gt=gt, nodata=np.inf))
+    lines = []
+    run_survey("morphological", paths, tmp_path / "out", {"max_object_size_m": 16.0}, workers=1, log=lines.append)
+    for k in range(2):
+        a, nd = _read(tmp_path / "out" / f"t{k}_dtm.tif")
+        assert np.isnan(nd) and not np.isinf(a).any() and np.isnan(a[:4, :4]).all()
+    assert any("declare NaN as nodata instead" in t for t in lines)
+
+
+def _memory_layer(kind, wkts, crs="EPSG:32632"):
+    from qgis.core import QgsFeature, QgsGeometry, QgsVectorLayer
+    lay = QgsVectorLayer(f"{kind}?crs={crs}", "l", "memory")
+    feats = []
+    for w in wkts:
+        f = QgsFeature()
+        f.setGeometry(QgsGeometry.fromWkt(w))
+        feats.append(f)
+    lay.dataProvider().addFeatures(feats)
+    return lay
+
+
+SQUARE = "POLYGON((500010 5399990, 500020 5399990, 500020 5399980, 500010 5399980, 500010 5399990))"
+BOWTIE = "POLYGON((500010 5399990, 500020 5399980, 500020 5399990, 500010 5399980, 500010 5399990))"
+
+
+@pytest.mark.parametrize("key,kind,wkt,message", [
+    ("OBJECT_AREAS", "Point", "POINT(500015 5399985)",
+     r"\(OBJECT_AREAS\) holds points \(feature 1\) but takes polygons"),
+    ("OBJECT_AREAS", "LineString", "LINESTRING(500010 5399990, 500030 5399970)",
+     r"\(OBJECT_AREAS\) holds lines \(feature 1\) but takes polygons"),
+    ("BREAKLINES", "Polygon", SQUARE, r"\(BREAKLINES\) holds polygons \(feature 1\) but takes lines"),
+    ("OBJECT_AREAS", "Polygon", BOWTIE, r"\(OBJECT_AREAS\): feature 1 has an invalid geometry \(.*intersect.*\): "
+                                        r"repair the layer"),
+], ids=["points_as_objects", "lines_as_objects", "polygons_as_breaklines", "invalid_polygon"])
+def test_dtm_layers_of_the_wrong_kind_or_invalid_refused_before_work(processing_run, tmp_path, key, kind, wkt,
+                                                                     message):
+    """Points or lines as OBJECT_AREAS, polygons as BREAKLINES: refused naming the layer (before: burnt as
+    objects or break lines over whole polygons). An invalid polygon: refused by our check, naming the
+    feature and the fix; before: QGIS's check raised inside the feature iterator and the next run of the
+    session crashed the interpreter ('XXX lineno: 367, opcode: 151'), so a valid run follows here."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((60, 60)), nodata=-9999.0)
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:dtm", {"INPUT": src, key: _memory_layer(kind, [wkt]), **outs})
+    assert not (tmp_path / "d.tif").exists()
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": _memory_layer("Point", []), **outs})
+    assert (tmp_path / "d.tif").exists() and res["OUTPUT_MASK"]
+
+
+def test_dtm_layer_outside_the_dsm_warns_and_other_crs_is_reprojected(processing_run, tmp_path):
+    from qgis.core import QgsProcessingFeedback
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((60, 60)), nodata=-9999.0)
+    warnings = []
+
+    class Log(QgsProcessingFeedback):
+        def pushWarning(self, text):  # noqa: N802
+            warnings.append(text)
+    far = _memory_layer("Polygon", ["POLYGON((600000 5000000, 600010 5000000, 600010 4999990, 600000 5000000))"])
+    processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": far, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                     "OUTPUT_MASK": str(tmp_path / "m.tif")}, feedback=Log())
+    assert any("none of its 1 feature(s) touches the DSM" in w and "EPSG:32632" in w for w in warnings)
+    # the square 30..40 m east, 30..40 m south of the corner, given in degrees: objects there after reprojection
+    from qgis.core import QgsCoordinateReferenceSystem, QgsCoordinateTransform, QgsGeometry, QgsProject
+    g = QgsGeometry.fromWkt("POLYGON((500031 5399969, 500039 5399969, 500039 5399961, 500031 5399961, "
+                            "500031 5399969))")
+    g.transform(QgsCoordinateTransform(QgsCoordinateReferenceSystem("EPSG:32632"),
+                                       QgsCoordinateReferenceSystem("EPSG:4326"), QgsProject.instance()))
+    degrees = _memory_layer("Polygon", [g.asWkt()], "EPSG:4326")
+    outs = {"OUTPUT_DTM": str(tmp_path / "d2.tif"), "OUTPUT_MASK": str(tmp_path / "m2.tif")}
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": degrees, **outs})
+    assert (_read(res["OUTPUT_MASK"])[0][32:38, 32:38] == 1).all()
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"THREADS": "abc"}, r"\(THREADS\) = 'abc' is not a number"),
+    ({"BAND": "abc"}, r"\(BAND\) = 'abc' is not a number"),
+    ({"SLOPE_THRESHOLD_DEG": "nan"}, r"\(SLOPE_THRESHOLD_DEG\) = 'nan' is not a number: give a number, or leave it"),
+    ({"COG": "maybe"}, r"\(COG\) = 'maybe' is not a yes/no value"),
+    ({"SLOPE_TRESHOLD_DEG": "30"}, r"SLOPE_TRESHOLD_DEG is no parameter of bareearth:slopeprofile"),
+    ({"PROCESSES": "64"}, r"\(PROCESSES\) = 64, but this computer has [0-9]+ core\(s\)"),
+], ids=["threads_text", "band_text", "nan_text", "bool_text", "misspelt", "processes_beyond_cores"])
+def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, message):
+    """Values qgis_process passes as text that QGIS read as 0, false or "not given" (a run with other
+    values than asked), a misspelt parameter name (silently left out) and more worker processes than
+    cores: refused before any work (before: each ran, exit code 0)."""
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box(), nodata=-9999.0)
+    if "PROCESSES" in extra:
+        from bare_earth.core.blocks import available_cores
+        extra = {"PROCESSES": str(available_cores() + 1)}
+        message = message.replace("64", str(available_cores() + 1))
+    rc, out, _ = run_qgis_process("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": tmp_path / "d.tif",
+                                                             "OUTPUT_MASK": tmp_path / "m.tif", **extra})
+    assert rc != 0 and re.search(message, out), out
+    assert not (tmp_path / "d.tif").exists()

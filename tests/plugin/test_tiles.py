@@ -50,6 +50,9 @@ def test_tiles_from_layers_equal_the_one_pass_mask(processing_run, tiles, tmp_pa
     ref = pipeline.run_array("morphological", sc.dsm, sc.cell_size, {"max_object_size_m": 16.0})
     info = grid.open_dsm(res["OUTPUT_MASK"])
     assert np.array_equal(info.dataset().GetRasterBand(1).ReadAsArray(), ref.mask)
+    import gc
+    gc.collect()                     # the layers Processing loaded are closed (side files were written then)
+    assert not [f for f in os.listdir(tiles["dir"]) if f.endswith(".aux.xml")]     # the tiles' folder untouched
 
 
 def test_tiles_from_a_folder_report_progress_per_tile_and_cancel(processing_run, tiles, tmp_path):
@@ -200,3 +203,31 @@ def test_a_vrt_input_named_like_an_output_is_not_overwritten(processing_run, til
     from bare_earth.core.survey import io
     assert sorted(io.vrt_sources(str(vrt))) == sorted(os.path.abspath(p) for p in tiles["paths"])
     assert not (tmp_path / "run.json").exists() and not (tmp_path / "survey.vrt").exists()
+
+
+def test_a_failed_tile_fails_the_algorithm_and_leaves_no_mosaic(processing_run, tiles, tmp_path):
+    """A tile that fails (its output name taken by a folder): the algorithm fails naming the tile and the
+    rerun, with no dtm.vrt / mask.vrt; before: it succeeded and loaded mosaics with a hole."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "tile_1_2_mask.tif").mkdir()
+    params = {"INPUT_LAYERS": tiles["paths"], "METHOD": method_index("morphological"),
+              "PARAMETERS": "max_object_size_m=16", "WORKERS": 1, "OUTPUT_FOLDER": str(out)}
+    with pytest.raises(QgsProcessingException, match=r"incomplete: 1 tile\(s\) not done \(1 failed: tile_1_2\).*"
+                                                     r"Run the algorithm again"):
+        processing_run("bareearth:tiles", params)
+    assert not (out / "dtm.vrt").exists() and not (out / "mask.vrt").exists()
+    assert not (out / "tile_1_2_dtm.tif").exists()          # the half of the pair written is removed
+    (out / "tile_1_2_mask.tif").rmdir()
+    res = processing_run("bareearth:tiles", params)
+    assert os.path.exists(res["OUTPUT_DTM"]) and os.path.exists(res["OUTPUT_MASK"])
+
+
+def test_more_workers_than_cores_refused_before_any_work(processing_run, tiles, tmp_path):
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"WORKERS = 256 local worker processes, but this computer has "):
+        processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
+                                           "WORKERS": 256, "OUTPUT_FOLDER": str(out)})
+    assert not out.exists()
