@@ -75,7 +75,7 @@ independent pieces of evidence, each 0-1:
 
 ``confidence = 100 (a + m + s) / 3``; cells the user forced are 100.
 """
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from scipy import ndimage
@@ -355,7 +355,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     Parameters
     ----------
     z, dtm : ndarray, 2-D float32
-        The DSM and its DTM (equal at ground cells).
+        The DSM and its DTM (equal at ground cells); ``dtm`` may be a ``concurrent.futures.Future``
+        of it (the terms that do not need it are computed while it is being filled).
     mask : ndarray of uint8
         The decision: 0 ground, 1 object, 2 low outlier, 255 nodata.
     ground_votes : ndarray of uint8
@@ -375,7 +376,8 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     valid = mask != NODATA
     ground = mask == GROUND
     # every term in float32 with the same operations as the formulas above, in place (few
-    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed
+    # full-size temporaries); the agreement takes one of 2 (n + 1) values: a table, indexed.
+    # The terms without the DTM first: ``dtm`` may still be being filled (a Future)
     n = float(n_members)
     votes = np.asarray(ground_votes, np.uint8)
     top = max(int(n_members), int(votes.max()) if votes.size else 0) + 1
@@ -387,18 +389,25 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     key += votes
     a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
     del key
-    report(progress, 0.2)
-    t = max(float(tolerance_m), 1e-3)
     all_valid = bool(valid.all())
-    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
-    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
-    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
-    report(progress, 0.35)
     # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
     # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
     one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
     pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
+    del share
+    if isinstance(dtm, Future):
+        dtm = dtm.result()
+    report(progress, 0.35)
+    t = max(float(tolerance_m), 1e-3)
+    zz = np.asarray(z, np.float32) if all_valid else np.where(valid, z, 0.0).astype(np.float32)
+    dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
+    m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
+    report(progress, 0.6)
     _select(pick, m, dd, out=m)                                  # object: the DTM under it
+    del pick
     np.subtract(zz, m, out=m)
     np.abs(m, out=m)
     np.divide(m, t, out=m)
@@ -408,11 +417,6 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     del one
     np.maximum(m, 0.0, out=m)
     np.minimum(m, 1.0, out=m)
-    report(progress, 0.6)
-    share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.subtract(1.0, share)
-    _select(pick, share, s, out=s)                               # the share of the cell's own class
-    del share, pick
     report(progress, 0.8)
     np.add(a, m, out=a)
     del m
@@ -428,8 +432,16 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     return out
 
 
+def _fill_dtm(z, holes, valid, progress):
+    """The DTM: ``z`` with the ``holes`` filled (:func:`.fill.fill_gaps`), NaN off ``valid``."""
+    dtm = fill_gaps(z, fill=holes, progress=progress) if holes.any() else z.astype(np.float32, copy=True)
+    dtm[~valid] = np.nan
+    return dtm
+
+
 def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
-               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, progress=None):
+               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, workers=1,
+               progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -453,6 +465,9 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     object_areas, ground_areas, breaklines : ndarray of bool, optional
         Forced object cells (the ground under them interpolated), forced ground cells, cells
         crossed by a break line.
+    workers : int
+        Threads the members run in, side by side, and the DTM is filled in beside the confidence (1: one
+        after the other; the same result).
     progress : callable, optional
 
     Returns
@@ -476,32 +491,55 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     low_votes = np.zeros(shape, np.uint8)
     line_decision = None
     info = {}
-    for i, meth in enumerate(meths):
+    # the members are independent reads of z: with workers > 1 they run side by side (numpy
+    # and SciPy release the GIL in their array work), each result taken in the members' order,
+    # so the vote, the counts and the info are those of one after the other
+    shares = BlockProgress(sub_progress(progress, 0.0, 0.8), len(meths))
+
+    def run_member(i):
+        meth = meths[i]
         aux = {"breaklines": bl} if meth.name == BREAKLINE_MEMBER and bl is not None else {}
-        res = meth.run(z, cell, progress=sub_progress(progress, 0.8 * i / len(meths), 0.8 * (i + 1) / len(meths)),
-                       **members[meth.name], **aux)
-        mk = np.asarray(res.mask, np.uint8)
+        return np.asarray(meth.run(z, cell, progress=shares.of_block(i), **members[meth.name], **aux).mask, np.uint8)
+
+    def tally(i, mk):
+        nonlocal line_decision, slope_ground, level_ground
+        meth = meths[i]
         g = mk == GROUND
-        ground_votes += g
-        low_votes += mk == LOW
+        np.add(ground_votes, g, out=ground_votes)
+        np.add(low_votes, mk == LOW, out=low_votes)
         if meth.name == BREAKLINE_MEMBER and bl is not None:
-            line_decision = mk.copy()
+            line_decision = mk
         if meth.name == SLOPE_MEMBER:
-            slope_ground = g.copy()
+            slope_ground = g
         if meth.name == LEVEL_MEMBER:
-            level_ground = g.copy()
+            level_ground = g
         info[f"{meth.name}_object_share"] = float(np.count_nonzero(valid & ~g)) / nvalid
-        del res, mk, g
+
+    if workers <= 1:
+        for i in range(len(meths)):
+            tally(i, run_member(i))
+    else:
+        with ThreadPoolExecutor(max_workers=min(int(workers), len(meths))) as pool:
+            # the longest first (RASCOR's sequence), so the others share the second thread
+            order = sorted(range(len(meths)), key=lambda i: meths[i].name != BREAKLINE_MEMBER)
+            futures = {i: pool.submit(run_member, i) for i in order}
+            try:
+                for i in range(len(meths)):
+                    tally(i, futures[i].result())
+            except BaseException as exc:
+                if shares.error is None:
+                    shares.error = exc               # the running members stop at their next report
+                raise
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
     mask = np.full(shape, OBJECT, np.uint8)          # the vote, in uint8 (no int64 temporaries)
     mask[low_votes >= need] = LOW
     mask[ground_votes >= need] = GROUND
-    del low_votes
+    low_votes = None                                # freed
     # the slope member's ground the level member rejects (judged after the refinement: find_detached_levels)
     dissent = None if slope_ground is None or level_ground is None else slope_ground & ~level_ground
-    del level_ground
+    level_ground = None                             # freed
     # the slope-following member's lone ground on smooth ground continuing the undisputed ground (dtm_refine)
     if slope_ground is not None:
         reach_cells = continuation_cells(cell, refine_reach_m)
@@ -553,15 +591,23 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     report(progress, 0.85)
     holes = (mask == OBJECT) | (mask == LOW)
     dtm = None
-    if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
-        dtm = (fill_gaps(z, fill=holes, progress=sub_progress(progress, 0.85, 0.93)) if holes.any()
-               else z.astype(np.float32, copy=True))
-        dtm[~valid] = np.nan
-    else:
-        info["warning"] = "no ground cell in this window: its DTM is left empty"
-    report(progress, 0.93)
-    conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
-                          progress=sub_progress(progress, 0.93, 1.0))
+    # with workers > 1 the DTM is filled in a second thread while the confidence computes its terms without it
+    pool = ThreadPoolExecutor(max_workers=1) if workers > 1 and holes.any() else None
+    try:
+        if (valid & ~holes).any():          # a window of objects only (a block inside a roof): no DTM here
+            args = (z, holes, valid, sub_progress(progress, 0.85, 0.93))
+            dtm = _fill_dtm(*args) if pool is None else pool.submit(_fill_dtm, *args)
+        else:
+            info["warning"] = "no ground cell in this window: its DTM is left empty"
+        if pool is None:
+            report(progress, 0.93)
+        conf = confidence_map(z, mask, z if dtm is None else dtm, ground_votes, n, tolerance_m, support_cells,
+                              progress=sub_progress(progress, 0.93, 1.0))
+        if isinstance(dtm, Future):
+            dtm = dtm.result()
+    finally:
+        if pool is not None:
+            pool.shutdown()
     for forced in (objects, known_ground):
         if forced is not None:
             conf[forced & valid] = 100
@@ -584,6 +630,7 @@ METHOD = Method(
     halo=dtm_halo,
     extras={"confidence": (np.uint8, 1, NODATA)},
     params=(),
+    threads=True,
     title="DTM from DSM (recommended)",
     description=(
         "<p>The filter to start with: no parameter to choose. Three filters built on different principles "

@@ -56,6 +56,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND
+from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
 #: it (``a`` at 2-3 cells, ``b`` 2 cells further) and the rim test's neighbours.
@@ -114,7 +115,9 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     if not ground.any():
         return objects, []
     zi = np.where(valid, z, np.inf).astype(np.float32)
-    rim = ground & (z - ndimage.minimum_filter(zi, size=3, mode="nearest") > t)
+    # the 3 x 3 minimum (cells beyond the raster ignored: ndimage's mode "nearest", the same values) by banded
+    # shifted minima, ~10x faster than SciPy's generic filter
+    rim = ground & (z - filter3x3(zi, np.minimum, np.inf) > t)
     free = ground & ~rim
     labels, n = ndimage.label(free, structure=np.ones((3, 3), bool))
     if n == 0:

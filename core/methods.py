@@ -117,6 +117,10 @@ class Method:
         Display name ("Slope-profile filter (Luong Chinh Ke 2002)").
     description : str
         Help text: what the method does, how the defaults are derived, the paper cited.
+    threads : bool
+        ``run`` takes ``workers=`` (threads it may use inside one window, the same result
+        with any count): :func:`.pipeline.run_file` then runs a raster that fits in memory
+        in one window with its threads rather than in strips that each recompute a halo.
     """
     name: str
     run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
@@ -126,6 +130,7 @@ class Method:
     params: Tuple[Param, ...] = ()
     title: str = ""
     description: str = ""
+    threads: bool = False
 
     def __post_init__(self):
         if not isinstance(self.resolve, _CheckedResolve):

@@ -139,9 +139,11 @@ def fill_dtm(z, mask, progress=None):
     return fill_gaps(z, fill=holes, progress=progress)
 
 
-def _process(meth, z, cell, params, aux, want_dtm=True, progress=None):
-    """Filter one window and fill its DTM."""
-    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, FILTER_SHARE), **params, **aux)
+def _process(meth, z, cell, params, aux, want_dtm=True, progress=None, workers=1):
+    """Filter one window and fill its DTM (``workers``: the threads a method with
+    ``Method.threads`` may use inside it)."""
+    inner = {"workers": int(workers)} if meth.threads else {}
+    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, FILTER_SHARE), **params, **aux, **inner)
     mask = np.asarray(res.mask, dtype=np.uint8)
     if mask.shape != z.shape:
         raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a "
@@ -258,7 +260,8 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
         if not np.isfinite(zb).any():
             return
         ab = {k: (None if a is None else np.asarray(a)[sl]) for k, a in aux.items()}
-        res, m, d = _process(meth, zb, cell, params, ab, want_dtm, block_progress)
+        res, m, d = _process(meth, zb, cell, params, ab, want_dtm, block_progress,
+                             workers if len(windows) == 1 else 1)
         c = blocks.crop(outer, core)
         dst = (slice(core[0], core[1]), slice(core[2], core[3]))
         mask[dst] = m[c]
@@ -293,10 +296,12 @@ def _resolve_window(shape):
     return (r0, r0 + h, c0, c0 + w)
 
 
-def plan_block(shape, halo, *, block=None, workers=1, processes=1):
+def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False):
     """The block shape :func:`run_file` cuts a raster of ``shape`` into (a pure function).
 
-    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`,
+    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`
+    (also with several threads when the method uses them inside a window, ``threads``:
+    strips would each recompute a halo),
     blocks of :data:`blocks.DEFAULT_BLOCK` above; with several threads or processes, strips
     of whole rows, :data:`STRIPS_PER_PROCESS` per worker (one per worker when the halo would
     add more than a quarter), their height a multiple of 64 cells (coarsened grids align as
@@ -313,7 +318,7 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1):
     small = shape[0] * shape[1] <= IN_MEMORY_CELLS
     block = max(shape) if small else blocks.DEFAULT_BLOCK
     n = max(int(processes), int(workers))
-    if n <= 1:
+    if n <= 1 or (small and threads and int(processes) <= 1):
         return block
     strips = n * STRIPS_PER_PROCESS
     if 2 * halo * strips > rows_all // 4:
@@ -363,7 +368,10 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     workers : int
         Threads running blocks (numpy, scipy and GDAL release the GIL for the heavy work;
         no start-up cost); 0: one per core (:func:`blocks.default_workers`). With more than
-        one and no ``block``, the raster is cut into strips of rows as for ``processes``.
+        one and no ``block``, the raster is cut into strips of rows as for ``processes``,
+        except for a method that uses threads inside a window (``Method.threads``, e.g.
+        ``dtm``'s members side by side): a raster of up to IN_MEMORY_CELLS is then one
+        window filtered with the threads (no halo computed twice; the result of one pass).
     processes : int
         Worker processes running blocks (each reads its own windows; this process writes).
         With more than one and no ``block`` given, a raster of up to IN_MEMORY_CELLS is cut
@@ -501,8 +509,8 @@ def _run_file(info, run, pool):
     params, whole = _derive_params(info, run)
     halo = int(run.meth.halo(params, cell))
     windows = list(blocks.iter_windows(
-        info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes),
-        halo))
+        info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
+                               threads=run.meth.threads), halo))
     report(run.progress, RESOLVED)
     float_nodata = grid.float_output_nodata(info.nodata)
     if grid.nodata_not_kept(info.nodata):
@@ -514,7 +522,8 @@ def _run_file(info, run, pool):
     with grid.OutputSet(info) as out, grid.bounded_cache(len(windows) > 1):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
         want_dtm = "dtm" in out or "ndsm" in out
-        job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out)
+        job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out,
+                        workers=run.workers if len(windows) == 1 else 1)
         writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
         if run.processes > 1 and len(windows) > 1:
             blocks.run_processes(job, [(core, outer, _aux_window(run.aux, outer)) for core, outer in windows],
@@ -551,9 +560,10 @@ def _run_file(info, run, pool):
 class _BlockJob:
     """The per-block work of :func:`run_file`, picklable for worker processes."""
 
-    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True):
+    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1):
         self.meth, self.path, self.band = meth, path, band
         self.cell, self.params, self.want_dtm = cell, params, want_dtm
+        self.workers = workers  # threads inside a block (Method.threads), when blocks do not run side by side
         self.want_z = want_z  # the input block is sent back only when an nDSM is written
         self._info = None
 
@@ -588,7 +598,7 @@ class _BlockJob:
         if not np.isfinite(zb).any():
             return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32),
                     zb[c] if self.want_z else None, {}, None, n_far)
-        res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress)
+        res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress, self.workers)
         extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
                   for k, a in res.extras.items()}
         d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)

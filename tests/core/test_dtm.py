@@ -42,6 +42,28 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
 
 
+def test_members_run_side_by_side_as_one_after_the_other():
+    """The members run in threads (workers > 1) give the vote, confidence, DTM and info of one after the other;
+    a cancel raised by one member's progress stops the run."""
+    from bare_earth.core.common import Cancelled
+    s = make_scene("city", (96, 120), seed=5, nodata_holes=True)
+    p = dtm_method.resolve_dtm_params(s.dsm, 1.0)
+    p.pop("input_description")
+    one = dtm_method.filter_dtm(s.dsm, 1.0, **p)
+    for workers in (2, 3):
+        par = dtm_method.filter_dtm(s.dsm, 1.0, workers=workers, **p)
+        assert np.array_equal(one.mask, par.mask)
+        assert np.array_equal(one.dtm, par.dtm, equal_nan=True)
+        assert np.array_equal(one.extras["confidence"], par.extras["confidence"])
+        assert one.info == par.info
+
+    def cancel(f):
+        if f > 0.1:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        dtm_method.filter_dtm(s.dsm, 1.0, workers=2, progress=cancel, **p)
+
+
 def test_blocked_equals_one_pass():
     s = make_scene("city", (96, 120), seed=5, nodata_holes=True)
     one = pipeline.run_array("dtm", s.dsm, 1.0)

@@ -525,3 +525,31 @@ def test_plan_block_pure():
     assert plan((500, 400), 40, processes=2) == (256, 400)
     # large raster with workers: default blocks, rows aligned
     assert plan((6000, 6000), 3, workers=2) == (2048, 2048)
+    # a method using threads inside a window: one window in memory (no halo recomputed), blocks above
+    assert plan((500, 400), 40, workers=2, threads=True) == 500
+    assert plan((500, 400), 40, processes=2, threads=True) == (256, 400)
+    assert plan((6000, 6000), 3, workers=2, threads=True) == (2048, 2048)
+
+
+def test_run_file_threads_method_one_window_with_its_threads(tmp_path):
+    """A method using threads inside a window (Method.threads) is run in one window with the
+    run's threads (no strips recomputing a halo); the others get none."""
+    seen = []
+
+    def run(z, cell_size, progress=None, workers=1, **p):
+        seen.append((z.shape, workers))
+        return _run(z, cell_size, progress=progress, **p)
+
+    threaded = Method(name="threaded", run=run, resolve=_resolve, halo=lambda p, c: 1, threads=True)
+    z = np.arange(200 * 30, dtype=np.float32).reshape(200, 30) % 11
+    src = write(tmp_path, z, nodata=-9999)
+    one, par = outputs(tmp_path, "mask", prefix="one_"), outputs(tmp_path, "mask", prefix="par_")
+    pipeline.run_file(threaded, src, one)
+    info = pipeline.run_file(threaded, src, par, workers=2)
+    assert info["blocks"] == 1 and seen == [((200, 30), 1), ((200, 30), 2)]
+    np.testing.assert_array_equal(gdal.Open(one["mask"]).ReadAsArray(), gdal.Open(par["mask"]).ReadAsArray())
+    seen.clear()
+    info = pipeline.run_file(threaded, src, par, block=64, workers=2)   # blocks side by side: one thread each
+    assert info["blocks"] > 1 and {w for _, w in seen} == {1}
+    res = pipeline.run_array(threaded, z, 1.0, workers=2)
+    assert res.info["blocks"] == 1 and seen[-1] == ((200, 30), 2)
