@@ -8,7 +8,14 @@ import numpy as np
 from scipy import ndimage
 
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
-from ..estimate import ground_level_cells, ground_spread, noise_ground_level, sample_windows
+from ..estimate import (
+    GROUND_BLOCK_M,
+    ground_level_cells,
+    ground_spread,
+    noise_ground_level,
+    sample_windows,
+    terrain_slopes,
+)
 from ..methods import Method, Param
 from .derivatives import (
     MODELS,
@@ -202,6 +209,18 @@ def _ground_bends(zs, cell_size, window, model):
     return v
 
 
+def bend_noise_gain(cell_size: CellSize, window: int = 5) -> float:
+    """Standard deviation (1/m) of the profile bend ``r`` of the quadratic local fit
+    (:func:`.derivatives.local_derivatives`) per metre of white height noise:
+    ``2 / (sqrt(w B) dx^2)``, ``B = sum (u^2 - c)^2`` over ``u = -m..m`` (``r = 2 d`` with
+    ``d = sum((u^2 - c) z) / (w B dx^2)``); the coarser of ``dx``, ``dy``."""
+    m = check_window(window) // 2
+    u = np.arange(-m, m + 1, dtype=np.float64)
+    b = float(np.sum((u * u - np.mean(u * u)) ** 2))
+    d = max(as_cell_size(cell_size))
+    return 2.0 / (np.sqrt((2 * m + 1) * b) * d * d)
+
+
 def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic",
                progress=None) -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
@@ -214,8 +233,15 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     spread ``1.4826 MAD`` is computed per 16 x 16 tile holding at least a quarter of such
     cells and ``sigma`` is the first quartile of the tiles
     (:func:`~bare_earth.core.estimate.ground_spread`): the curvature noise of the smooth
-    ground. ``K_g = (1.5 sigma)^2``, the Gaussian curvature of a point
-    bent by 1.5 sigma both ways, floored at the bend of a 5 cm deviation over half a
+    ground. The smoothest tiles are the flat ones; on sloping ground a cell's height is a
+    point somewhere inside the cell, and its place alone moves the height by ``g / sqrt(12)``
+    (``g = s cell`` the rise of the ground's median slope ``s`` over one cell, the slope of
+    20 m block minima, :func:`~bare_earth.core.estimate.terrain_slopes`), which bends the
+    fit by :func:`bend_noise_gain` times that; the two add in quadrature,
+    ``sigma_b = hypot(sigma, gain g / sqrt(12))`` (the term grows with the cell: a 2 m cell
+    on a slope holds twice the rise of a 1 m cell, so the fit's bend noise falls as 1 /
+    cell there, not as 1 / cell^2). ``K_g = (1.5 sigma_b)^2``, the Gaussian curvature of a
+    point bent by 1.5 sigma_b both ways, floored at the bend of a 5 cm deviation over half a
     window so that noise-free data do not mark every gentle bend. (1.5 rather than a
     stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
     missed breaks cost whole objects.) ``progress(fraction)`` (optional, may raise
@@ -230,10 +256,21 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
         bends.append(_ground_bends(w, (dx, dy), window, model))
         report(progress, 0.6 * (i + 1) / len(windows))
     sigma = ground_spread(bends, tile=_TILE, quantile=_SMOOTH_QUANTILE, progress=sub_progress(progress, 0.6, 1.0))
+    sigma = float(np.hypot(sigma, _place_bend(z, (dx, dy), window)))
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
     kappa = max(_K_SIGMAS * sigma, floor)
     return kappa * kappa
+
+
+def _place_bend(z, cell_size, window):
+    """Bend noise (1/m) of the fit from the place of a height inside its cell on ground of
+    the median slope (20 m block minima): :func:`bend_noise_gain` x ``s cell / sqrt(12)``."""
+    dx, dy = cell_size
+    d = max(dx, dy)
+    s = terrain_slopes(as_surface(z), (dx, dy), max(2, int(round(GROUND_BLOCK_M / d))))
+    s = float(np.median(s)) if s.size else 0.0
+    return bend_noise_gain((dx, dy), window) * s * d / np.sqrt(12.0)
 
 
 def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: Optional[float] = None,
@@ -295,7 +332,8 @@ METHOD = Method(
         Param("k_g_per_m2", "float", None,
               "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
               "cell with |K| >= K_g, or whose X or Y profile bends by sqrt(K_g) 1/m or more, "
-              "is a break. Empty: (1.5 robust sigmas of the data's profile bends)^2; see "
+              "is a break. Empty: (1.5 robust sigmas of the data's profile bends, with the "
+              "bend a height's place inside its cell gives on the median slope)^2; see "
               "the CURVATURE output to choose it.", minimum=1e-9, maximum=1e6),
         Param("window_cells", "int", 5,
               "Points per profile group (odd window edge, cells) of the local least-squares "
@@ -352,13 +390,19 @@ METHOD = Method(
         "(corners), not straight edges. The default quadratic surface has none of these "
         "limits.</p>"
         "<p>Defaults: K<sub>g</sub> = (1.5 robust standard deviations of the profile bends "
-        "of the ground: cells whose whole window stands at ground level)<sup>2</sup>; the "
+        "of the ground: cells whose whole window stands at ground level, combined in "
+        "quadrature with the bend that a height's place inside its cell gives the fit on "
+        "ground of the median slope s: a cell's height is a point anywhere inside it, which "
+        "moves it by s x cell / sqrt(12); the smoothest ground tiles are flat and do not "
+        "show it, and at 2-4 m cells it marked a third of a sloping plane as "
+        "breaks)<sup>2</sup>; the "
         "paper derives K<sub>g</sub> from the data's curvature, and on a closed canopy the "
         "smooth parts are crowns, whose bends set K<sub>g</sub> a hundred times too high "
         "(no break found, half the cells wrong). Tolerance = 3 x the noise of the DSM's "
         "ground-level cells (0.3 to 1 m). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
-        "noise of the fit falls with the square of the cell, so it differs between cell "
-        "sizes by design. A wall's slope is judged over two cells, but over 3 m at most: "
+        "noise of the fit falls with the square of the cell (with the cell alone where the "
+        "place of the heights on a slope sets it), so it differs between cell sizes by design. "
+        "A wall's slope is judged over two cells, but over 3 m at most: "
         "a vertical wall is smeared over two cells, and at 4 m cells a 45&deg; slope over "
         "two cells would demand 8 m of rise, so shrubs, hedges and houses would never be "
         "walls (the log gives the rise used along X and Y). The CURVATURE output (band 1 "

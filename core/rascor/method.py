@@ -47,7 +47,13 @@ METHOD = Method(
         Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
               "far fence of the height distribution (flat terrain).", advanced=True),
         Param("neighbour_k", "float", 3.0, "Step 3 critical value: tolerance = k sigma "
-              "sqrt(2) + local slope.", minimum=0.5, maximum=20.0, advanced=True),
+              "sqrt(2) (widened by the terrain slope's rise over one cell) + local slope.",
+              minimum=0.5, maximum=20.0, advanced=True),
+        Param("terrain_slope", "float", None, "Step 3: terrain slope (rise/run) whose rise over "
+              "one cell widens the tolerance: a height lies anywhere inside its cell, so on a "
+              "slope its position adds sqrt(1/12) of that rise to its error (coarse cells on "
+              "slopes). Empty: the median slope of step 1; 0: the paper's tolerance alone.",
+              minimum=0.0, maximum=10.0, advanced=True),
         Param("jump_m", "float", 2.0, "Step 4 minimum sudden change of level in metres.",
               minimum=0.1, maximum=100.0, advanced=True),
         Param("max_building_m", "float", 120.0, "Step 4 longest raised level removed "
@@ -119,7 +125,13 @@ METHOD = Method(
         "residual: the cell-scale roughness that the neighbour and profile tests must pass. "
         "On a closed canopy it measures the crowns, which is what those tests need there; "
         "taken on the ground only, step 3 strips the walls and crown edges before step 4 "
-        "can see the level changes (measured in benchmarks/generalise.py).</p>"
+        "can see the level changes (measured in benchmarks/generalise.py). A cell's height "
+        "lies anywhere inside the cell: on a slope its position adds the slope's rise over "
+        "one cell times sqrt(1/12) to its error, so step 3's tolerance k sqrt(2) sigma "
+        "becomes sqrt((k sqrt(2) sigma)^2 + k^2 g^2 / 6), g the local rise beyond the pair "
+        "up to the median terrain slope's rise over one cell (steeper rises are walls and "
+        "crowns): at 2-4 m cells the same hillside rises 2-4 times more per cell, which "
+        "the paper's fixed tolerance took for objects.</p>"
         "<p><b>Second iteration</b>: removes small vegetation but may generalise the "
         "terrain (the paper's warning).</p>"
         "<p><b>Break lines</b> (optional line layer, rasterised to the cells it crosses): "

@@ -14,7 +14,7 @@ from ..common import as_cell_size, as_surface, report, sub_progress
 from ..estimate import GROUND_BLOCK_M, ground_level_cells, ground_level_reference, object_widths, sample_windows
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
-from .sequence import SURFACE_RULES, ring_reach
+from .sequence import SURFACE_RULES, cell_rise, ring_reach
 from .steps import remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope, model_degree
 
@@ -28,7 +28,7 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, height_min_m=None,
-                height_max_m=None, neighbour_k=3.0, jump_m=2.0, max_building_m=120.0,
+                height_max_m=None, neighbour_k=3.0, terrain_slope=None, jump_m=2.0, max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
                 prediction_radius_m=None, prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
@@ -151,7 +151,8 @@ def _analysis_sample(z, cell_size, sigma, p):
         if keep.sum() < 100:
             continue
         hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
-                                              low_weight=p["low_weight"])
+                                              low_weight=p["low_weight"],
+                                              cell_rise_m=cell_rise(p["terrain_slope"], cell_size))
         keep &= ~(hi | lo)
         keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
                                       max_building_m=p["max_building_m"], sigma_m=sigma)
@@ -219,6 +220,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
 
     * terrain class, homogeneity and random error ``sigma_m`` by step 1
       (:func:`characterise_terrain`);
+    * ``terrain_slope``: the median slope of step 1's lower envelope; step 3 widens its
+      tolerance by the rise of that slope over one cell (the position of a height inside
+      its cell, :func:`remove_neighbour_differences`), so that its test means the same
+      at every cell size;
     * step 2's limits (flat terrain only) from the height distribution: Tukey's far fences,
       and at least 20 m outside the range of the terrain's lower envelope;
     * the profile lengths by analysing the sequence :data:`PROFILE_LENGTHS_M` on a sample
@@ -305,6 +310,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
             p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2)
         if p["height_max_m"] is None:
             p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
+    if p["terrain_slope"] is None:
+        # step 3's tolerance: the rise of the typical ground over one cell (a height's
+        # position inside its cell); the median slope of step 1's lower envelope
+        p["terrain_slope"] = round(float(ch["slope_median"]), 4)
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",

@@ -44,6 +44,7 @@ class _Settings:
     height_min_m: Optional[float]
     height_max_m: Optional[float]
     neighbour_k: float
+    terrain_slope: float
     jump_m: float
     max_building_m: float
     lengths: list
@@ -72,6 +73,13 @@ class _State:
     removed: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
+
+
+def cell_rise(terrain_slope: float, cell_size: Union[float, Sequence[float]]) -> tuple:
+    """``(along X, along Y)``: the rise (m) of ``terrain_slope`` (rise/run) over one cell,
+    step 3's allowance for the position of a height inside its cell."""
+    dx, dy = as_cell_size(cell_size)
+    return float(terrain_slope) * dx, float(terrain_slope) * dy
 
 
 def ring_reach(cell_size: Union[float, Sequence[float]]) -> tuple:
@@ -113,7 +121,7 @@ class _Pits:
 
 
 def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,
-                    second_iteration, height_min_m, height_max_m, neighbour_k, jump_m,
+                    second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, jump_m,
                     max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
                     snooping_k, snooping_iterations, low_weight):
@@ -130,6 +138,10 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         if val is None or not np.isfinite(val) or val <= 0:
             raise ValueError(f"{name} must be a positive number; got {val!r}. Pass a value or "
                              "call resolve_rascor_params to derive it from the DSM.")
+    if terrain_slope is None or not np.isfinite(terrain_slope) or terrain_slope < 0:
+        raise ValueError(f"terrain_slope must be a number >= 0 (rise/run); got {terrain_slope!r}. "
+                         "Pass 0 for the paper's step 3 tolerance alone, or call resolve_rascor_params "
+                         "to derive it (step 1's median slope).")
     if not 0 < low_weight <= 1:
         raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
                          "factor of points below the reference (0.02: tolerance x 7).")
@@ -149,8 +161,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
     return _Settings(
         cell=(dx, dy), terrain_class=terrain_class, homogeneous=homogeneous, sigma_m=sigma_m,
         on=on, second_iteration=bool(second_iteration), height_min_m=height_min_m,
-        height_max_m=height_max_m, neighbour_k=neighbour_k, jump_m=jump_m,
-        max_building_m=max_building_m, lengths=lengths, surface_size_m=surface_size_m,
+        height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=float(terrain_slope),
+        jump_m=jump_m, max_building_m=max_building_m, lengths=lengths, surface_size_m=surface_size_m,
         prediction_radius_m=prediction_radius_m,
         profile_sigma_m=max(sigma_m, profile_sigma_m or sigma_m),
         surface_sigma_m=max(sigma_m, surface_sigma_m or sigma_m),
@@ -214,6 +226,7 @@ def _step3_neighbour_differences(st, cfg, progress):
     """Step 3: the upper point of neighbouring pairs differing beyond the tolerance."""
     hi, lo = remove_neighbour_differences(st.z, st.keep, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                           low_weight=cfg.low_weight, labels=st.labels,
+                                          cell_rise_m=cell_rise(cfg.terrain_slope, cfg.cell),
                                           progress=progress)
     _record(st, 3, hi, lo)
 
@@ -271,6 +284,7 @@ def _result(st, cfg):
             "model": ("mean / horizontal plane", "linear regression / inclined plane",
                       "polynomial")[model_degree(cfg.terrain_class, cfg.homogeneous)],
             "sigma_m": cfg.sigma_m,
+            "step3_cell_rise_m": [round(v, 4) for v in cell_rise(cfg.terrain_slope, cfg.cell)],
             "steps_on": [k for k in range(1, 8) if cfg.on[k]],
             "removed_share_by_step": shares,
             "removed_share": float(sum(st.removed.values()) / n_valid),
@@ -293,7 +307,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   step6_surfaces: bool = True, step7_prediction: bool = False,
                   second_iteration: bool = False, height_min_m: Optional[float] = None,
                   height_max_m: Optional[float] = None, neighbour_k: float = 3.0,
-                  jump_m: float = 2.0, max_building_m: float = 120.0,
+                  terrain_slope: float = 0.0, jump_m: float = 2.0, max_building_m: float = 120.0,
                   short_profile_m: float = 9.0, long_profile_m: float = 25.0,
                   profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
                   surface_rule: str = "objects",
@@ -330,6 +344,10 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         Step 2 limits (None: step 2 does nothing).
     neighbour_k : float
         Critical value of step 3.
+    terrain_slope : float
+        Step 3: the terrain's slope (rise/run) whose rise over one cell widens the
+        tolerance (:func:`remove_neighbour_differences`; 0: the paper's ``k sigma sqrt(2)``
+        alone; :func:`resolve_rascor_params` derives it, step 1's median slope).
     jump_m, max_building_m : float
         Step 4: minimum level change and maximum building length, metres.
     short_profile_m, long_profile_m : float
@@ -373,7 +391,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         switches=(step1_characterise, step2_height_distribution, step3_neighbour_differences,
                   step4_level_change, step5_profiles, step6_surfaces, step7_prediction),
         steps=steps, second_iteration=second_iteration, height_min_m=height_min_m,
-        height_max_m=height_max_m, neighbour_k=neighbour_k, jump_m=jump_m,
+        height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=terrain_slope, jump_m=jump_m,
         max_building_m=max_building_m, short_profile_m=short_profile_m,
         long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,

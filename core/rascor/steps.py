@@ -4,6 +4,7 @@ Jacobsen (2004): each step removes what the others miss, on the points the previ
 left; these three test heights against the distribution of heights (step 2), against
 their neighbours (step 3) and along X and Y profiles for raised levels (step 4).
 """
+from functools import partial
 from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -43,6 +44,7 @@ _DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 
 def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: float, k: float = 3.0,
                                  low_weight: float = 0.02, labels: Optional[np.ndarray] = None,
+                                 cell_rise_m: Union[float, Tuple[float, float]] = 0.0,
                                  progress: Optional[Callable[[float], None]] = None
                                  ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
@@ -54,7 +56,19 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     where ``b`` is missing, the slope above ``u``; with neither, the pair is not tested)
 
     unless the terrain above ``u`` rises at least as steeply (``z_{u-e} - z_u >= z_u - z_l
-    - tol``: a straight or concave slope, e.g. the toe of an embankment). A point that is
+    - tol``: a straight or concave slope, e.g. the toe of an embankment).
+
+    The tolerance is that of a difference of two heights, ``k sqrt(2) sigma_h``. A raster
+    cell's height is a point somewhere inside the cell (the lowest of a lidar cell, the
+    nearest to its centre): on ground rising by ``g`` over one cell its position alone
+    changes the height by ``g`` times a uniform offset of variance 1/12, so
+    ``sigma_h^2 = sigma^2 + g^2 / 12`` and the tolerance is ``sqrt(tol^2 + k^2 g^2 / 6)``
+    with ``tol = k sqrt(2) sigma``. ``g`` is the local rise beyond the pair (the slope
+    the test already uses), at most the terrain's rise over one step of the pair
+    (``cell_rise_m`` along X and Y, their hypotenuse along the diagonals): steeper rises
+    are walls and crowns, not ground.
+    The rise of a slope over one cell grows with the cell, and so does this term; with
+    ``cell_rise_m = 0`` the tolerance is the paper's ``k sqrt(2) sigma`` alone. A point that is
     a pit along all four axes (on both sides, within 2 cells, a point higher by more than
     the tolerance widened by the weight factor, ``tol / sqrt(low_weight)``) is a low
     blunder (class 2, up to 3 cells wide) and takes no part in the pairs, so it does not
@@ -75,6 +89,10 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
         Weight factor of low points (0 < p <= 1).
     labels : ndarray of int, optional
         Break-line regions (:func:`break_regions`).
+    cell_rise_m : float or (float, float)
+        The terrain's rise over one cell along X and Y, metres (:func:`filter_rascor`: the
+        median terrain slope of step 1 times the cell); 0: no allowance for the position
+        inside the cell.
     progress : callable, optional
         ``progress(fraction)``, called every band of rows; it may raise ``Cancelled``.
 
@@ -83,6 +101,9 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     high, low : ndarray of bool
     """
     tol = k * sigma_m * np.sqrt(2.0)
+    rx, ry = (cell_rise_m, cell_rise_m) if np.isscalar(cell_rise_m) else cell_rise_m
+    rx, ry = max(0.0, float(rx)), max(0.0, float(ry))
+    pairs = _pairs if rx == ry == 0.0 else partial(_pairs, k=float(k), rise=(rx, ry))
     tol_low = tol / np.sqrt(low_weight)
     rows, cols = z.shape
     zp = np.full((rows + 2 * _PAD, cols + 2 * _PAD), np.nan, np.float32)
@@ -98,7 +119,7 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     with np.errstate(invalid="ignore"):
         _test_bands(_pits, tol_low, zp, lp, labels, keep, 2, low, sub_progress(progress, 0.0, 0.4))
         zp[inner][low] = np.nan
-        _test_bands(_pairs, tol, zp, lp, labels, keep & ~low, 1, high,
+        _test_bands(pairs, tol, zp, lp, labels, keep & ~low, 1, high,
                     sub_progress(progress, 0.4, 1.0))
     return high, low
 
@@ -195,14 +216,17 @@ def _pits(nb, kb, tol_low):
     return lo
 
 
-def _pairs(nb, kb, tol):
-    """The upper points of neighbouring pairs differing beyond ``tol`` and the local slope
-    (see :func:`remove_neighbour_differences`)."""
+def _pairs(nb, kb, tol, k=0.0, rise=None):
+    """The upper points of neighbouring pairs differing beyond the tolerance and the local
+    slope (see :func:`remove_neighbour_differences`; ``rise = (along X, along Y)``: the
+    tolerance of each pair widened by the position of the heights inside their cells on
+    a slope rising by at most that much per cell, ``k`` the critical value)."""
     zc = nb(0, 0)
     hi = np.zeros(zc.shape, bool)
     for dr, dc in _AXES:
         zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
         d_f, d_r = zc - zf, zc - zr
+        cap = None if rise is None else np.float32(np.hypot(dc * rise[0], dr * rise[1]))  # per step
         for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
                                     (d_r, d_f, zr, (-2 * dr, -2 * dc))):
             # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
@@ -211,11 +235,20 @@ def _pairs(nb, kb, tol):
             up = -up_neg                           # rise above u: z_{u-e} - z_u
             # the local slope: beyond the pair, else above u; neither known: no test
             np.copyto(beyond, up, where=np.isnan(beyond))
+            t_pair = tol
+            if cap is not None:
+                # sigma_h^2 = sigma^2 + g^2 / 12 for both heights: tol^2 + k^2 g^2 / 6
+                g = np.minimum(np.abs(beyond), cap)
+                g *= g
+                g *= np.float32(k * k / 6.0)
+                g += np.float32(tol * tol)
+                t_pair = np.sqrt(g, out=g)
+                np.copyto(t_pair, np.float32(tol), where=np.isnan(t_pair))
             np.maximum(beyond, 0.0, out=beyond)
-            beyond += tol
+            beyond += t_pair
             t = dz > beyond
             # unless the terrain above u rises at least as steeply (straight or concave)
-            t &= ~(up >= dz - tol)
+            t &= ~(up >= dz - t_pair)
             hi |= t
     hi &= kb
     return hi

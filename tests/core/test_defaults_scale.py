@@ -4,7 +4,8 @@ A closed canopy over gentle ground (``synthetic.make_canopy``) is the case where
 measured on the whole DSM follow the canopy and the cell size (a whole-DSM noise of 0.2 m
 at 0.5 m cells, 4.5 m at 4 m cells). Defaults measured on the right surface are the same in
 metres at every cell size. Left out, by design: the curvature threshold K_g (1/m^2: the
-bend noise of a least-squares fit falls with the square of the cell), the morphological
+bend noise of a least-squares fit falls with the square of the cell, with the cell alone on
+slopes: see test_curvature), the morphological
 filter's largest object (at coarser cells the gaps between crowns vanish and crowns merge
 into wider objects: a property of the coarser DSM) and RASCOR's lengths and sigma (chosen
 from its own residual analysis of the whole surface, see the RASCOR help).
