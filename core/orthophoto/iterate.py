@@ -338,6 +338,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 iterations=sum(r["status"] == "applied" for r in table), measurements=len(table),
                 stop=stop, relaxation=float(relaxation), tolerance_m=float(tolerance_m),
                 max_dh_m=float(max_dh_m), height_threshold_m=float(thr), sigma_data_m=sig,
+                # how far the cells moved, against the bound max_dh_m (README, iteration rule)
+                moved_max_m=float(np.nanmax(np.abs(cur - dem0))) if np.isfinite(cur - dem0).any() else 0.0,
                 window=window, shiftable=shiftable, min_corr=min_corr,
                 cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
                 rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])

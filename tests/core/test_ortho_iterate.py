@@ -54,6 +54,10 @@ def test_buildings_are_still_recovered_from_bare_terrain(noisy_three):
     assert good >= 16
     e0 = np.sqrt(np.mean((sc.terrain - sc.surface)[seen] ** 2))
     assert np.sqrt(np.mean((r.dem - sc.surface)[seen] ** 2)) < 0.5 * e0
+    # the log states the largest move beside its bound, and it is the DEM's own
+    moved = float(np.nanmax(np.abs(r.dem - sc.terrain)))
+    assert r.info["moved_max_m"] == pytest.approx(moved)
+    assert moved <= r.info["max_dh_m"] and moved > 3.0                # the buildings moved up
 
 
 @pytest.mark.parametrize("pairs_with_it", [1, 3])
