@@ -5,7 +5,6 @@ import numpy as np
 from qgis.core import (
     QgsProcessingException,
     QgsProcessingOutputNumber,
-    QgsProcessingParameterDefinition,
     QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterNumber,
@@ -17,6 +16,7 @@ from ..core import evaluate as ev
 from ..core import grid
 from ..core.pointflow import classify_cloud
 from ..core.points import read_points
+from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
 from .filter_base import BaseAlgorithm, explained, raster_path, tr, with_help
 
@@ -121,17 +121,17 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                          optional=True)
         p.setHelp(tr("With classified POINTS: the name of their column (text header) or LAS dimension holding "
                      "the true class (0 = ground for text, 2 = ground for LAS)."))
-        p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(p)
         self.addParameter(p)
         t = QgsProcessingParameterNumber(self.THRESHOLD_M, tr("Ground tolerance (m)"),
-                                         QgsProcessingParameterNumber.Double, 0.5, minValue=0.0)
+                                         NUMBER_DOUBLE, 0.5, minValue=0.0)
         t.setHelp(tr("A point within this height of the DTM, plus the slope term, is ground (metres)."))
-        t.setFlags(t.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(t)
         self.addParameter(t)
         s = QgsProcessingParameterNumber(self.SLOPE_FACTOR, tr("Slope factor"),
-                                         QgsProcessingParameterNumber.Double, 1.25, minValue=0.0)
+                                         NUMBER_DOUBLE, 1.25, minValue=0.0)
         s.setHelp(tr("Multiplies the local DTM slope (rise/run) in the point tolerance (SMRF: 1.25)."))
-        s.setFlags(s.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(s)
         self.addParameter(s)
         self.addParameter(with_help(QgsProcessingParameterFileDestination(
             self.OUTPUT_JSON, tr("Figures (JSON)"), "JSON files (*.json)"),

@@ -41,11 +41,12 @@ def build(filter_name="morphological"):
         QgsProcessingModelChildParameterSource,
         QgsProcessingModelOutput,
         QgsProcessingModelParameter,
-        QgsProcessingParameterDefinition,
         QgsProcessingParameterFile,
         QgsProcessingParameterNumber,
     )
     from qgis.PyQt.QtCore import QPointF
+
+    from .compat import FILE_FILE, NUMBER_DOUBLE, is_optional
 
     model = QgsProcessingModelAlgorithm("Rasterize, filter and classify points", "Bare Earth examples",
                                         "bareearthexamples")
@@ -64,17 +65,17 @@ def build(filter_name="morphological"):
         mp.setPosition(QPointF(x, y))
         model.addModelParameter(param, mp)
 
-    add_input(QgsProcessingParameterFile("points", "Points (text/CSV or LAS/LAZ)", QgsProcessingParameterFile.File,
+    add_input(QgsProcessingParameterFile("points", "Points (text/CSV or LAS/LAZ)", FILE_FILE,
                                          "", None, False,
                                          "Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;All files (*.*)"),
               120, 60)
     add_input(QgsProcessingParameterNumber("cell_size_m", "Cell size (m) [empty: from the point density]",
-                                           QgsProcessingParameterNumber.Double, None, True, 0.0, 100000.0),
+                                           NUMBER_DOUBLE, None, True, 0.0, 100000.0),
               340, 60)
     add_input(QgsProcessingParameterNumber("threshold_m", "Ground tolerance (m)",
-                                           QgsProcessingParameterNumber.Double, 0.5, False, 0.0, 1000.0), 560, 60)
+                                           NUMBER_DOUBLE, 0.5, False, 0.0, 1000.0), 560, 60)
     add_input(QgsProcessingParameterNumber("slope_factor", "Slope factor (m per unit slope)",
-                                           QgsProcessingParameterNumber.Double, 1.25, False, 0.0, 1000.0), 780, 60)
+                                           NUMBER_DOUBLE, 1.25, False, 0.0, 1000.0), 780, 60)
 
     src = QgsProcessingModelChildParameterSource
 
@@ -85,7 +86,7 @@ def build(filter_name="morphological"):
             raise RuntimeError(f"{child.algorithmId()} is not registered: is the Bare Earth plugin loaded?")
         for d in alg.parameterDefinitions():
             if d.isDestination() or d.name() in child.parameterSources() or \
-                    d.flags() & QgsProcessingParameterDefinition.FlagOptional:
+                    is_optional(d):
                 continue
             child.addParameterSources(d.name(), [src.fromStaticValue(d.defaultValue())])
 

@@ -19,7 +19,6 @@ from qgis.core import (
     QgsProcessingOutputLayerDefinition,
     QgsProcessingParameterBand,
     QgsProcessingParameterBoolean,
-    QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
     QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
@@ -34,6 +33,7 @@ from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE, ICON
+from .compat import NUMBER_DOUBLE, NUMBER_INTEGER, is_optional, mark_advanced
 from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
@@ -48,7 +48,7 @@ def with_help(param, text, advanced=False):
     """Set a parameter's help (and the advanced flag); returns the parameter."""
     param.setHelp(tr(text))
     if advanced:
-        param.setFlags(param.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(param)
     return param
 
 
@@ -279,8 +279,7 @@ class InputRasterParameter(QgsProcessingParameterRasterLayer):
 
     def clone(self):
         return _copy_definition(self, InputRasterParameter(self.name(), self.description(), self.defaultValue(),
-                                                           bool(self.flags() & QgsProcessingParameterDefinition
-                                                                .FlagOptional)))
+                                                           is_optional(self)))
 
 
 class InputLayersParameter(QgsProcessingParameterMultipleLayers):
@@ -293,7 +292,7 @@ class InputLayersParameter(QgsProcessingParameterMultipleLayers):
     def clone(self):
         return _copy_definition(self, InputLayersParameter(
             self.name(), self.description(), self.layerType(), self.defaultValue(),
-            bool(self.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+            is_optional(self)))
 
 
 def reading_inputs_only(param):
@@ -302,10 +301,10 @@ def reading_inputs_only(param):
     if type(param) is QgsProcessingParameterRasterLayer:
         return _copy_definition(param, InputRasterParameter(
             param.name(), param.description(), param.defaultValue(),
-            bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional)))
+            is_optional(param)))
     if type(param) is QgsProcessingParameterMultipleLayers:
         q = InputLayersParameter(param.name(), param.description(), param.layerType(), param.defaultValue(),
-                                 bool(param.flags() & QgsProcessingParameterDefinition.FlagOptional))
+                                 is_optional(param))
         q.setMinimumNumberInputs(param.minimumNumberInputs())
         return _copy_definition(param, q)
     return param
@@ -456,7 +455,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                     number = float("nan")
                 if not math.isfinite(number):
                     return False, tr("{} = '{}' is not a number: give a number{}.").format(
-                        label_of(d), text, tr(", or leave it out") if d.flags() & d.FlagOptional else "")
+                        label_of(d), text, tr(", or leave it out") if is_optional(d) else "")
             elif d.type() == "boolean" and text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
                 return False, tr("{} = '{}' is not a yes/no value: give true or false.").format(label_of(d), text)
         return True, ""
@@ -573,7 +572,7 @@ class FilterAlgorithm(BaseAlgorithm):
                  "cores). Each holds one block in memory; starting them takes about a second, "
                  "so it pays on large rasters.")):
             self.addParameter(with_help(QgsProcessingParameterNumber(
-                key, tr(label), QgsProcessingParameterNumber.Integer, default, optional=True,
+                key, tr(label), NUMBER_INTEGER, default, optional=True,
                 minValue=lo, maxValue=hi), text, advanced=True))
         self.addParameter(with_help(QgsProcessingParameterRasterDestination(self.OUTPUT_DTM, tr("DTM")),
                                     "Float32 bare-earth DTM on the input's grid: removed cells filled by "
@@ -594,8 +593,7 @@ class FilterAlgorithm(BaseAlgorithm):
         """The QGIS parameter of a core ``Param``: its label from ``labels.py``, its help from the core."""
         label = param_label(self.METHOD_NAME, p)
         if p.kind in ("float", "int"):
-            typ = (QgsProcessingParameterNumber.Double if p.kind == "float"
-                   else QgsProcessingParameterNumber.Integer)
+            typ = NUMBER_DOUBLE if p.kind == "float" else NUMBER_INTEGER
             kw = {}
             if p.minimum is not None:
                 kw["minValue"] = p.minimum
@@ -612,7 +610,7 @@ class FilterAlgorithm(BaseAlgorithm):
             raise TypeError(f"unknown Param kind {p.kind!r}")
         q.setHelp(tr(p.help))
         if is_advanced(self.METHOD_NAME, p):
-            q.setFlags(q.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+            mark_advanced(q)
         return q
 
     def messageNames(self):  # noqa: N802

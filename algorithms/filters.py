@@ -3,6 +3,7 @@
 Everything but the method name and the help of its side products comes from the core's
 ``METHOD`` spec (parameters, defaults, help) and from ``FilterAlgorithm``.
 """
+from .compat import SOURCE_VECTOR_LINE, SOURCE_VECTOR_POINT, SOURCE_VECTOR_POLYGON
 from .filter_base import FilterAlgorithm
 from .points import PointsInputMixin
 
@@ -67,24 +68,24 @@ class DtmAlgorithm(FilterAlgorithm):
                                 "100. Look first where it is low."}
 
     def extraInputs(self):  # noqa: N802
-        from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+        from qgis.core import QgsProcessingParameterFeatureSource
 
         from .filter_base import with_help
         return [
             with_help(QgsProcessingParameterFeatureSource(
                 self.OBJECT_AREAS, self.tr("Object areas (e.g. building footprints)"),
-                [QgsProcessing.TypeVectorPolygon], optional=True),
+                [SOURCE_VECTOR_POLYGON], optional=True),
                 "Optional polygons (any CRS; reprojected to the DSM's) that are objects whatever the filters "
                 "say, e.g. building footprints: every cell they touch is an object and the ground under them "
                 "is interpolated. An empty layer is allowed."),
             with_help(QgsProcessingParameterFeatureSource(
                 self.GROUND_AREAS, self.tr("Ground areas (known bare ground)"),
-                [QgsProcessing.TypeVectorPolygon, QgsProcessing.TypeVectorPoint], optional=True),
+                [SOURCE_VECTOR_POLYGON, SOURCE_VECTOR_POINT], optional=True),
                 "Optional polygons or points (any CRS) of known bare ground: their cells are ground whatever "
                 "the filters say (a car park under trees, survey points). They win over object areas. An "
                 "empty layer is allowed."),
             with_help(QgsProcessingParameterFeatureSource(
-                self.BREAKLINES, self.tr("Break lines"), [QgsProcessing.TypeVectorLine], optional=True),
+                self.BREAKLINES, self.tr("Break lines"), [SOURCE_VECTOR_LINE], optional=True),
                 "Optional lines (any CRS) along crests, toes, terrace edges and embankment shoulders: no "
                 "comparison crosses them (as in RASCOR), and near them RASCOR's decision, which honours them, "
                 "stands alone. An empty layer is allowed."),
@@ -147,17 +148,17 @@ class RascorAlgorithm(FilterAlgorithm):
                           "nodata); the share removed by each step is in the log."}
 
     def extraInputs(self):  # noqa: N802
-        from qgis.core import QgsProcessing, QgsProcessingParameterFeatureSource
+        from qgis.core import QgsProcessingParameterFeatureSource
 
         from .filter_base import with_help
         return [
             with_help(QgsProcessingParameterFeatureSource(
-                self.BREAKLINES, self.tr("Break lines"), [QgsProcessing.TypeVectorLine], optional=True),
+                self.BREAKLINES, self.tr("Break lines"), [SOURCE_VECTOR_LINE], optional=True),
                 "Optional lines (any CRS; reprojected to the DSM's) along crests, toes, cuts and "
                 "embankment shoulders: no comparison crosses them, so a dam or a road embankment keeps "
                 "its shoulders. An empty layer is allowed."),
             with_help(QgsProcessingParameterFeatureSource(
-                self.SPECIAL_AREAS, self.tr("Special areas"), [QgsProcessing.TypeVectorPolygon], optional=True),
+                self.SPECIAL_AREAS, self.tr("Special areas"), [SOURCE_VECTOR_POLYGON], optional=True),
                 "Optional polygons (any CRS) inside which only a local filter runs (cars and bushes on a "
                 "dam's slope). An empty layer is allowed."),
         ]

@@ -15,7 +15,6 @@ import numpy as np
 from qgis.core import (
     QgsGeometry,
     QgsPointXY,
-    QgsProcessing,
     QgsProcessingException,
     QgsProcessingOutputNumber,
     QgsProcessingParameterFile,
@@ -31,6 +30,7 @@ from qgis.core import (
 
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
+from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
@@ -286,7 +286,7 @@ def read_tie_points(path, names):
 
 
 # --------------------------------------------------------------------------- parameters
-def _num(key, label, help_, typ=QgsProcessingParameterNumber.Double, default=None, optional=False,
+def _num(key, label, help_, typ=NUMBER_DOUBLE, default=None, optional=False,
          advanced=False, **kw):
     p = QgsProcessingParameterNumber(key, tr(label), typ, default, optional, **kw)
     return with_help(p, help_, advanced)
@@ -322,7 +322,7 @@ class OrthoAlgorithm(BaseAlgorithm):
             _num(self.WINDOW_CELLS, "Correlation window (cells, odd)",
                  "Side of the normalised cross-correlation window in DEM cells (odd, >= 3). Larger: "
                  "fewer blunders on weak texture, blurrier object edges.",
-                 QgsProcessingParameterNumber.Integer, 7, minValue=3, maxValue=51),
+                 NUMBER_INTEGER, 7, minValue=3, maxValue=51),
             _num(self.MIN_CORRELATION, "Minimum correlation",
                  "Matches whose peak normalised cross-correlation is below this are rejected (0..1).",
                  default=0.6, minValue=0.0, maxValue=1.0),
@@ -400,7 +400,7 @@ class OrthoAlgorithm(BaseAlgorithm):
         for k in (self.WINDOW_CELLS, self.OBJECT_SIZE_M):
             d = self.parameterDefinition(k)
             if parameters.get(k) is not None:
-                whole = d.dataType() == QgsProcessingParameterNumber.Integer
+                whole = d.dataType() == NUMBER_INTEGER
                 chosen[k] = (self.parameterAsInt if whole else self.parameterAsDouble)(parameters, k, context)
                 defaults[k] = d.defaultValue()
         ok, msg = check_window_sizes(self, chosen, defaults, info)
@@ -674,28 +674,28 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                     "Single-band DEM (metres, projected CRS; the camera coordinates' CRS and "
                                     "height datum) to refine."))
         self.addParameter(with_help(QgsProcessingParameterMultipleLayers(
-            self.IMAGES, tr("Frame images [or IMAGE_FOLDER]"), QgsProcessing.TypeRaster, None, True),
+            self.IMAGES, tr("Frame images [or IMAGE_FOLDER]"), SOURCE_RASTER, None, True),
             "The frames (one band, or RGB converted to grey), two or more; each matched to its EXTERIOR "
             "row (or TIE_POINTS) by file name without extension."))
         self.addParameter(with_help(QgsProcessingParameterFile(
-            self.IMAGE_FOLDER, tr("Folder of frame images [or IMAGES]"), QgsProcessingParameterFile.Folder,
+            self.IMAGE_FOLDER, tr("Folder of frame images [or IMAGES]"), FILE_FOLDER,
             optional=True),
             "A folder whose image files (" + ", ".join(IMAGE_EXTENSIONS) + ") are the frames, in name order."))
         self.addParameter(with_help(QgsProcessingParameterFile(
             self.EXTERIOR, tr("Exterior orientation CSV (filename,x,y,z,omega,phi,kappa)"),
-            QgsProcessingParameterFile.File, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
+            FILE_FILE, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
             "One row per image: filename,x,y,z,omega,phi,kappa (header; comma, tab or space separated; "
             "optional 'camera' column). x, y, z in the DEM's CRS. " + OPK_HELP))
         self.addParameter(with_help(QgsProcessingParameterFile(
             self.INTERIOR, tr("Interior orientation (orthority YAML or OpenSfM reconstruction.json)"),
-            QgsProcessingParameterFile.File, "", None, True,
+            FILE_FILE, "", None, True,
             "Interior orientation (*.yaml *.yml *.json);;All files (*.*)"),
             "Camera id -> type (pinhole/brown), im_size [w, h], focal_len (with sensor_size [w, h] in the same "
             "units, else normalised by the larger image side), cx, cy, k1, k2, k3, p1, p2; or an OpenSfM "
             "reconstruction.json."))
         self.addParameter(with_help(QgsProcessingParameterFile(
             self.TIE_POINTS, tr("Tie points CSV (image,x,y,col,row) [no orientation]"),
-            QgsProcessingParameterFile.File, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
+            FILE_FILE, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
             "Without EXTERIOR/INTERIOR: at least four ground points per image, x, y in the DEM's CRS and "
             "col, row the pixel in the image (top-left pixel centre 0, 0), for the 8-parameter bilinear "
             "registration (eq. 17). Needs BASE_M and HEIGHT_M."))
@@ -703,7 +703,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.addParameter(p)
         self.addParameter(_num(self.MAX_ITERATIONS, "Maximum iterations",
                                "Largest number of orthorectify-match-correct iterations.",
-                               QgsProcessingParameterNumber.Integer, 6, minValue=1, maxValue=50))
+                               NUMBER_INTEGER, 6, minValue=1, maxValue=50))
         self.addParameter(_num(self.TOLERANCE_M, "Stop tolerance (m) [empty: from the data]",
                                "Stop when the RMS correction of an iteration is below this (metres); empty: "
                                "half the expected height precision of the pairs.", optional=True, minValue=0.0))

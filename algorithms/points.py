@@ -12,7 +12,6 @@ from qgis.core import (
     QgsProcessingParameterBand,
     QgsProcessingParameterBoolean,
     QgsProcessingParameterCrs,
-    QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
@@ -26,6 +25,7 @@ from qgis.core import (
 from ..core import Cancelled
 from ..core import pointflow as pf
 from ..core.points import LAS_INSTALL_HINT, read_points
+from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_advanced
 from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
@@ -208,7 +208,7 @@ def warn(feedback, text):
 
 
 def _file_param(key, label, help_, optional=False):
-    p = QgsProcessingParameterFile(key, tr(label), QgsProcessingParameterFile.File, "", None, optional,
+    p = QgsProcessingParameterFile(key, tr(label), FILE_FILE, "", None, optional,
                                    POINT_FILE_FILTER)
     p.setHelp(tr(help_))
     return p
@@ -222,7 +222,7 @@ def _crs_param(key):
 
 def _cell_param(key):
     p = QgsProcessingParameterNumber(key, tr("Cell size (m) [empty: from the point density]"),
-                                     QgsProcessingParameterNumber.Double, None, optional=True,
+                                     NUMBER_DOUBLE, None, optional=True,
                                      minValue=0.0, maxValue=100000.0)
     p.setHelp(tr("Cell size of the grid in metres (converted to the CRS's unit: feet, degrees). Empty or 0: "
                  "about one point per cell, sqrt(area / points) rounded to 1, 2, 2.5 or 5 x 10^k m."))
@@ -230,17 +230,17 @@ def _cell_param(key):
 
 
 def _rule_params(threshold_key, slope_key, advanced=False):
-    t = QgsProcessingParameterNumber(threshold_key, tr("Ground tolerance (m)"), QgsProcessingParameterNumber.Double,
+    t = QgsProcessingParameterNumber(threshold_key, tr("Ground tolerance (m)"), NUMBER_DOUBLE,
                                      pf.DEFAULT_THRESHOLD_M, minValue=0.0, maxValue=1000.0)
     t.setHelp(tr("A point within this height of the DTM, plus the slope term, is ground (metres; SMRF: 0.5)."))
     s = QgsProcessingParameterNumber(slope_key, tr("Slope factor (m per unit slope)"),
-                                     QgsProcessingParameterNumber.Double, pf.DEFAULT_SLOPE_FACTOR,
+                                     NUMBER_DOUBLE, pf.DEFAULT_SLOPE_FACTOR,
                                      minValue=0.0, maxValue=1000.0)
     s.setHelp(tr("Extra tolerance in metres per unit of local DTM slope (rise/run): ground when "
                  "|z - DTM| <= tolerance + factor x slope (SMRF: 1.25, Pingel et al. 2013)."))
     if advanced:
         for p in (t, s):
-            p.setFlags(p.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+            mark_advanced(p)
     return t, s
 
 
@@ -387,7 +387,7 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
         self.addParameter(d)
         b = QgsProcessingParameterBand(self.BAND, tr("DTM band"), None, self.DTM, optional=True)
         b.setHelp(tr("Band holding the heights; needed only when the raster has several bands."))
-        b.setFlags(b.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(b)
         self.addParameter(b)
         for p in _rule_params(self.THRESHOLD_M, self.SLOPE_FACTOR):
             self.addParameter(p)
@@ -490,20 +490,20 @@ class PointsInputMixin:
     def initAlgorithm(self, config=None):  # noqa: N802
         super().initAlgorithm(config)
         inp = self.parameterDefinition(self.INPUT)
-        inp.setFlags(inp.flags() | QgsProcessingParameterDefinition.FlagOptional)
+        inp.setFlags(inp.flags() | FLAG_OPTIONAL)
         inp.setDescription(tr("Input DSM [or INPUT_POINTS]"))
         self.addParameter(_file_param(self.INPUT_POINTS, "Input points [or INPUT]", POINTS_HELP, optional=True))
         crs = _crs_param(self.POINTS_CRS)
-        crs.setFlags(crs.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(crs)
         self.addParameter(crs)
         self.addParameter(_cell_param(self.CELL_SIZE_M))
         for p in _rule_params(self.THRESHOLD_M, self.SLOPE_FACTOR, advanced=True):
             self.addParameter(p)
         t = QgsProcessingParameterMultipleLayers(self.OTHER_TILES, tr("Neighbouring tiles of the points"),
-                                                 QgsProcessing.TypeFile, None, optional=True)
+                                                 SOURCE_FILE, None, optional=True)
         t.setHelp(tr("Other point files of the same block (same CRS). Their points around INPUT_POINTS are "
                      "filtered with it so that classes agree along tile seams; only INPUT_POINTS is classified."))
-        t.setFlags(t.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+        mark_advanced(t)
         self.addParameter(t)
         o = QgsProcessingParameterFileDestination(self.OUTPUT_POINTS, tr("Classified points"), POINT_OUTPUT_FILTER,
                                                   optional=True, createByDefault=True)

@@ -18,6 +18,7 @@ from qgis.core import (
 from qgis.PyQt.QtGui import QColor
 
 from ..core.codes import MASK_CODES, MASK_COLOURS, NODATA
+from .compat import SHADER_LINEAR
 
 #: renderer of each output, by output parameter
 OUTPUT_RENDERERS = {"OUTPUT_MASK": "mask", "OUTPUT_CURVATURE": "curvature", "OUTPUT_STEP": "steps",
@@ -35,7 +36,7 @@ def _ramp_renderer(layer, lo, hi, stops, band=1):
     """Single-band pseudocolour of ``band`` from ``lo`` to ``hi`` through ``stops`` [(t, QColor)]."""
     ramp = QgsGradientColorRamp(stops[0][1], stops[-1][1], False,
                                 [QgsGradientStop(t, c) for t, c in stops[1:-1]])
-    shader_fn = QgsColorRampShader(lo, hi, ramp, QgsColorRampShader.Interpolated)
+    shader_fn = QgsColorRampShader(lo, hi, ramp, SHADER_LINEAR)
     shader_fn.classifyColorRamp(5, band, layer.extent(), layer.dataProvider())
     shader = QgsRasterShader(lo, hi)
     shader.setRasterShaderFunction(shader_fn)

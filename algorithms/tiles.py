@@ -6,7 +6,6 @@ Dask scheduler's address. Progress per finished tile; cancel stops handing out t
 Without Dask the algorithm says what to install; every other algorithm works without it.
 """
 from qgis.core import (
-    QgsProcessing,
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingOutputFile,
@@ -21,6 +20,7 @@ from qgis.core import (
 
 from ..core import Cancelled
 from ..core.methods import available_methods
+from .compat import FILE_FOLDER, NUMBER_INTEGER, SOURCE_RASTER
 from .filter_base import BaseAlgorithm, progress_callback, raster_path, tr, with_help
 
 
@@ -77,11 +77,11 @@ class TilesAlgorithm(BaseAlgorithm):
 
     def initAlgorithm(self, config=None):  # noqa: N802
         self.addParameter(with_help(QgsProcessingParameterMultipleLayers(
-            self.INPUT_LAYERS, tr("Tiles (raster layers, or one VRT)"), QgsProcessing.TypeRaster, optional=True),
+            self.INPUT_LAYERS, tr("Tiles (raster layers, or one VRT)"), SOURCE_RASTER, optional=True),
             "The DSM tiles of the survey: one CRS, one cell size, one grid, not overlapping. One VRT layer "
             "stands for its source tiles."))
         self.addParameter(with_help(QgsProcessingParameterFile(
-            self.INPUT_FOLDER, tr("Or a folder of tiles"), QgsProcessingParameterFile.Folder, optional=True),
+            self.INPUT_FOLDER, tr("Or a folder of tiles"), FILE_FOLDER, optional=True),
             "A folder whose rasters (.tif, .tiff, .img, ...) are the tiles."))
         methods = self._methods()
         self.addParameter(with_help(QgsProcessingParameterEnum(
@@ -96,7 +96,7 @@ class TilesAlgorithm(BaseAlgorithm):
             self.SCHEDULER, tr("Dask scheduler address (empty: this computer)"), "", optional=True),
             "tcp://host:8786 of a running dask-scheduler; empty starts worker processes on this computer."))
         self.addParameter(with_help(QgsProcessingParameterNumber(
-            self.WORKERS, tr("Local worker processes (0 = one per core)"), QgsProcessingParameterNumber.Integer,
+            self.WORKERS, tr("Local worker processes (0 = one per core)"), NUMBER_INTEGER,
             0, optional=True, minValue=0, maxValue=256),
             "Worker processes of the local cluster, one thread each; ignored with a scheduler address.",
             advanced=True))

@@ -4,15 +4,28 @@ from osgeo import gdal, ogr, osr
 from qgis.core import (
     QgsCoordinateReferenceSystem,
     QgsFeatureRequest,
-    QgsProcessing,
     QgsProcessingFeatureSource,
-    QgsWkbTypes,
 )
 
-#: The geometry kind and its name of each Processing vector type a layer input accepts.
-KINDS = {QgsProcessing.TypeVectorPoint: (QgsWkbTypes.PointGeometry, "points"),
-         QgsProcessing.TypeVectorLine: (QgsWkbTypes.LineGeometry, "lines"),
-         QgsProcessing.TypeVectorPolygon: (QgsWkbTypes.PolygonGeometry, "polygons")}
+from .compat import (
+    GEOMETRY_LINE,
+    GEOMETRY_POINT,
+    GEOMETRY_POLYGON,
+    INVALID_GEOMETRY_ABORT,
+    INVALID_GEOMETRY_NO_CHECK,
+    INVALID_GEOMETRY_SKIP,
+    SOURCE_SKIP_GEOMETRY_CHECKS,
+    SOURCE_VECTOR_LINE,
+    SOURCE_VECTOR_POINT,
+    SOURCE_VECTOR_POLYGON,
+    as_int,
+)
+
+#: The geometry kind and its name of each Processing vector type a layer input accepts, by the
+#: type's int (``dataTypes()`` lists ints in every QGIS; PyQt6 enums are no ints).
+KINDS = {as_int(SOURCE_VECTOR_POINT): (GEOMETRY_POINT, "points"),
+         as_int(SOURCE_VECTOR_LINE): (GEOMETRY_LINE, "lines"),
+         as_int(SOURCE_VECTOR_POLYGON): (GEOMETRY_POLYGON, "polygons")}
 
 
 def source_geometries(source, info, context, label="the layer", types=None):
@@ -35,11 +48,11 @@ def source_geometries(source, info, context, label="the layer", types=None):
     req = QgsFeatureRequest()
     if dest.isValid() and source.sourceCrs().isValid() and source.sourceCrs() != dest:
         req.setDestinationCrs(dest, context.transformContext())
-    allowed = {KINDS[t][0]: KINDS[t][1] for t in (types or ()) if t in KINDS}
+    allowed = {KINDS[as_int(t)][0]: KINDS[as_int(t)][1] for t in (types or ()) if as_int(t) in KINDS}
     names = {k: n for k, n in KINDS.values()}
-    check = context.invalidGeometryCheck() if context is not None else QgsFeatureRequest.GeometryAbortOnInvalid
+    check = context.invalidGeometryCheck() if context is not None else INVALID_GEOMETRY_ABORT
     if isinstance(source, QgsProcessingFeatureSource):
-        features = source.getFeatures(req, QgsProcessingFeatureSource.FlagSkipGeometryValidityChecks)
+        features = source.getFeatures(req, SOURCE_SKIP_GEOMETRY_CHECKS)
     else:
         features = source.getFeatures(req)
     out, skipped = [], 0
@@ -50,8 +63,8 @@ def source_geometries(source, info, context, label="the layer", types=None):
         if allowed and g.type() not in allowed:
             raise ValueError(f"{label} holds {names.get(g.type(), 'geometries')} (feature {f.id()}) but takes "
                              f"{' or '.join(allowed.values())}: give a layer of {' or '.join(allowed.values())}.")
-        if check != QgsFeatureRequest.GeometryNoCheck and not g.isGeosValid():
-            if check == QgsFeatureRequest.GeometrySkipInvalid:
+        if check != INVALID_GEOMETRY_NO_CHECK and not g.isGeosValid():
+            if check == INVALID_GEOMETRY_SKIP:
                 skipped += 1
                 continue
             errors = g.validateGeometry()

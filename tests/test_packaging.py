@@ -129,6 +129,8 @@ def test_metadata_accepted_by_qgis_4_and_licence_named():
     cp.read(ROOT / "metadata.txt", encoding="utf-8")
     g = cp["general"]
     assert tuple(int(v) for v in g["qgisMaximumVersion"].split(".")[:2]) >= (4, 0)
+    # the key the plugin repository reads for Qt6 builds; earned by tests/plugin/test_qgis4_compat.py
+    assert g.getboolean("supportsQt6") is True
     assert "GPL" in g["about"] and "LICENSE" in g["about"]
     for alg in ("slope", "curvature", "RASCOR", "geodesic", "morpholog", "point", "orthophoto"):
         assert alg.lower() in g["about"].lower(), alg

@@ -19,8 +19,9 @@ def test_every_param_of_every_method_has_a_written_label():
 
 
 def test_dialogs_show_the_written_labels_uniquely(qgis_app):
-    from qgis.core import QgsApplication, QgsProcessingParameterDefinition
+    from qgis.core import QgsApplication
 
+    from bare_earth.algorithms.compat import FLAG_ADVANCED
     from bare_earth.algorithms.labels import param_label
     from bare_earth.core.methods import get_method
     for alg in QgsApplication.processingRegistry().providerById("bareearth").algorithms():
@@ -34,7 +35,7 @@ def test_dialogs_show_the_written_labels_uniquely(qgis_app):
     rascor = QgsApplication.processingRegistry().algorithmById("bareearth:rascor")
     steps = [d for d in rascor.parameterDefinitions() if d.name().startswith("STEP") or d.name() == "SECOND_ITERATION"]
     assert len(steps) == 8
-    assert all(d.flags() & QgsProcessingParameterDefinition.FlagAdvanced for d in steps)
+    assert all(d.flags() & FLAG_ADVANCED for d in steps)
 
 
 def _dsm(tmp_path, shape=(30, 30)):

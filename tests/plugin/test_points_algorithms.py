@@ -77,17 +77,19 @@ def _read_raster(path):
 
 # --------------------------------------------------------------------------- registration
 def test_point_algorithms_registered(qgis_app):
-    from qgis.core import QgsApplication, QgsProcessingParameterDefinition
+    from qgis.core import QgsApplication
+
+    from bare_earth.algorithms.compat import is_optional
     reg = QgsApplication.processingRegistry()
     for alg_id in ("bareearth:rasterizepoints", "bareearth:classifypoints", "bareearth:morphological"):
         assert reg.algorithmById(alg_id) is not None, alg_id
     m = reg.algorithmById("bareearth:morphological")
-    assert m.parameterDefinition("INPUT").flags() & QgsProcessingParameterDefinition.FlagOptional
+    assert is_optional(m.parameterDefinition("INPUT"))
     for key in ("INPUT_POINTS", "CELL_SIZE_M", "OUTPUT_POINTS", "OTHER_TILES"):
         assert m.parameterDefinition(key) is not None, key
     # INPUT stays mandatory for the other filters
     s = reg.algorithmById("bareearth:slopeprofile")
-    assert not s.parameterDefinition("INPUT").flags() & QgsProcessingParameterDefinition.FlagOptional
+    assert not is_optional(s.parameterDefinition("INPUT"))
     assert s.parameterDefinition("INPUT_POINTS") is None
 
 

@@ -19,8 +19,11 @@ def _toolbox_search(text):
     from qgis.core import QgsApplication
     from qgis.gui import QgsProcessingToolboxProxyModel
     from qgis.PyQt.QtCore import QModelIndex
+
+    from bare_earth.algorithms.compat import resolve
     model = QgsProcessingToolboxProxyModel(None, QgsApplication.processingRegistry())
-    model.setFilters(QgsProcessingToolboxProxyModel.FilterToolbox)
+    model.setFilters(resolve((QgsProcessingToolboxProxyModel, "Filter.Toolbox"),         # QGIS >= 3.36
+                             (QgsProcessingToolboxProxyModel, "Filter.FilterToolbox")))  # QGIS 3.22
     model.setFilterString(text)
     found = set()
 
