@@ -160,42 +160,55 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
 
 
 def _held_out(dem, gt, imgs, cams, pairs, iterations, max_dh_m, ev, cross_check=False):
-    """Is the roughness the refinement adds terrain? Refine with one family of pairs, check with the other.
+    """Is the roughness the refinement adds terrain? Refine with some pairs, check with the others.
 
-    The pairs are split by the direction of their base (``pair_families``: within 45 degrees of
-    the first pair's, along the strip; the rest, across). With ``cross_check`` the refined DEM
-    is the cross-checked refinement with all pairs (families confirm each other), measured by
-    each family. The DEM refined with one family is measured by the
-    other next to the start DEM: the held-out pairs' RMS residual parallax, and their first
-    update on the 1 % of cells the refinement moved most. A change
-    the held-out pairs also measure on the start DEM, and no longer on the refined one, is in
-    the images, not speckle of the pairs that made it.
+    The pairs are split by the direction of their base (:func:`pair_families`). Without
+    ``cross_check``: the first family (along the strip) against all the others. With it,
+    every family in turn is held out and the refinement uses the other families (two or more
+    are needed to cross-check, so three base directions), plain and cross-checked. The held-out
+    pairs measure each refined DEM next to the start DEM: their RMS residual parallax, and
+    their first update on the 1 % of cells the refinement moved most. A change the held-out
+    pairs also measure on the start DEM, and no longer on the refined one, is in the images,
+    not speckle of the pairs that made it.
     """
     fam = pair_families([k.centre for k in cams], pairs)
-    families = [[p for p, f in zip(pairs, fam) if f == 0], [p for p, f in zip(pairs, fam) if f != 0]]
-    if not all(families):
+    if max(fam) == 0:
         print("   held-out check: all pairs have one base direction; skipped")
         return
-    # with cross_check nothing is held out: both families made the result; each measures it
-    both = (orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, pairs=pairs,
-                        cross_check=True) if cross_check else None)
-    for train, held in (families, families[::-1]):
+    if cross_check:
+        if max(fam) < 2:
+            print("   held-out check of the cross-check: needs three base directions (two to cross-check, "
+                  "one to hold out); skipped")
+            return
+        splits = [([p for p, f in zip(pairs, fam) if f != g], [p for p, f in zip(pairs, fam) if f == g])
+                  for g in range(max(fam) + 1)]
+    else:
+        fams = [[p for p, f in zip(pairs, fam) if f == 0], [p for p, f in zip(pairs, fam) if f != 0]]
+        splits = [fams, fams[::-1]]
+    for train, held in splits:
+        runs = [(False, orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m,
+                                    pairs=train))]
         if cross_check:
-            t, train = both, pairs
-        else:
-            t = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, pairs=train)
-        move = t.dem - dem
-        top = ev & (np.abs(move) >= np.percentile(np.abs(move[ev]), 99))
-        words = []
-        for name, z in (("start", dem), ("refined", t.dem)):
-            h = orthorefine(z, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m, pairs=held)
-            # the held-out update along the move, as a share of the move (1: they measure it all, 0: nothing)
-            along = np.nanmean(np.sign(move[top]) * h.dh[top]) / np.mean(np.abs(move[top]))
-            words.append(f"on the {name} DEM RMS parallax {h.table[0]['rms_parallax_m']:.3f} m and along the move "
-                         f"{100 * along:+.0f} % of it")
-        print(f"   held-out check, refined with {train}: roughness {_roughness(dem, ev):.4f} -> "
-              f"{_roughness(t.dem, ev):.4f} m, the 1 % of cells moved most by {np.mean(np.abs(move[top])):.1f} m "
-              f"(mean |move|); the pairs {held} measure " + "; ".join(words))
+            runs.append((True, orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m,
+                                           pairs=train, cross_check=True)))
+        h0 = orthorefine(dem, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m, pairs=held)
+        for checked, t in runs:
+            move = t.dem - dem
+            top = ev & (np.abs(move) >= np.percentile(np.abs(move[ev]), 99))
+            words = []
+            for name, z in (("start", dem), ("refined", t.dem)):
+                h = h0 if name == "start" else orthorefine(z, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m,
+                                                            pairs=held)
+                # the held-out update along the move, as a share of the move (1: they measure it all, 0: nothing)
+                along = np.nanmean(np.sign(move[top]) * h.dh[top]) / np.mean(np.abs(move[top]))
+                words.append(f"on the {name} DEM RMS parallax {h.table[0]['rms_parallax_m']:.3f} m and along the "
+                             f"move {100 * along:+.0f} % of it")
+            kind = "cross-checked, " if checked else ""
+            print(f"   held-out check, refined with {train} ({kind}largest move {t.info['moved_max_m']:.1f} m, "
+                  f"parallax {t.info['rms_parallax_start_m']:.3f} -> {t.info['rms_parallax_m']:.3f} m): "
+                  f"roughness {_roughness(dem, ev):.4f} -> {_roughness(t.dem, ev):.4f} m, the 1 % of cells moved "
+                  f"most by {np.mean(np.abs(move[top])):.1f} m (mean |move|); the pairs {held} measure "
+                  + "; ".join(words))
 
 
 def _rise_where_agreement(r, dem, ev):

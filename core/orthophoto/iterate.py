@@ -297,8 +297,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         parallel) nothing can be cross-checked: the refinement runs as without it and
         ``info['cross_check']`` says so. ``info`` gives ``confirmed_share`` (cells with a
         confirmed correction at the first measurement over those matched) and
-        ``confirmed_max_m`` (the largest total move of a cell confirmed in some iteration:
-        the bound the independent pairs support). Oriented frames only.
+        ``confirmed_max_m`` (the largest total move of a cell where the families' correction,
+        or the part they share, was accepted in some iteration: the bound the independent
+        pairs support; ``moved_max_m`` is larger where the smooth part and the fill carry
+        it past those cells). Oriented frames only.
     progress : callable, optional
         ``progress(fraction)``; may raise Cancelled.
 
@@ -324,7 +326,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     if int(max_iterations) < 1:
         raise ValueError(f"max_iterations must be >= 1; got {max_iterations}.")
     if cameras is None or all(c is None for c in cameras):
-        return _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
+        res = _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
                                   base_direction, window=window, shiftable=shiftable,
                                   min_corr=min_corr, max_dh_m=max_dh_m, pairs=pairs,
                                   min_overlap=min_overlap, smooth_cells=smooth_cells,
@@ -332,6 +334,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                   precision_cells=precision_cells, object_size_m=object_size_m,
                                   fill_sigma_cells=fill_sigma_cells, outlier_m=outlier_m,
                                   reference=reference, progress=progress)
+        # every registered frame lies along one base_direction: no independent pair
+        res.info["cross_check"] = ("not possible: all pairs have one base direction (tie_points mode)"
+                                   if cross_check else "off")
+        return res
     greys = [as_grey(im) for im in images]
     for g, c in zip(greys, cameras):
         if (g.shape[1], g.shape[0]) != (c.interior.width, c.interior.height):
@@ -418,7 +424,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             info.setdefault("pair_families", families)
             if max(families) >= 1:
                 dh_it, conf, checked = _cross_check(dh_it, meas, families, outlier, precision_cells)
-                ever_confirmed |= conf
+                ever_confirmed |= checked & np.isfinite(dh_it)
                 merged = np.where(np.isfinite(dh_it), merged, np.nan)
                 if it == 0:
                     info["confirmed_share"] = float(conf.sum() / max(1, matched.sum()))
@@ -474,8 +480,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         info["cross_check"] = (f"{max(families) + 1} pair families by base direction; "
                                f"{100 * info.get('confirmed_share', 0.0):.1f} % of the matched cells hold a "
                                f"correction the families confirm ({100 * info.get('checked_share', 0.0):.1f} % "
-                               f"measured by two or more); largest confirmed move "
-                               f"{info['confirmed_max_m']:.2f} m, largest move {info['moved_max_m']:.2f} m")
+                               f"measured by two or more, the part they share kept where they disagree, "
+                               f"nothing where one family alone measured); largest move of a cross-checked "
+                               f"cell {info['confirmed_max_m']:.2f} m, of any cell {info['moved_max_m']:.2f} m")
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info,
