@@ -12,9 +12,13 @@
    pairs' trusted matches on the start DEM and on the final DEM (orthorefine's checking
    measurement), the roughness (Laplacian sd) before and after, and how far cells moved
    against the bound ``--ngi-max-dh``; ``--held-out``: refined with the pairs of one base
-   direction and checked by the others (is the roughness it adds in the images?).
+   direction and checked by the others (is the roughness it adds in the images?);
+   ``--cross-check``: orthorefine(cross_check=True), a correction kept only where the pair
+   families agree; with ``--held-out`` each family is held out in turn, the others refine
+   plain and cross-checked.
 
     /usr/bin/python3 benchmarks/ortho_real.py [--data DIR] [--iterations 3] [--ngi-cell 24 12] [--held-out]
+        [--cross-check] [--skip-drone]
 
 Data credits: see ``stereo/PROVENANCE.md`` (orthority, AGPL-3.0; imagery and DEM of NGI,
 the CGA Stellenbosch, Yu-Huang Wang / OpenDroneMap community). Skips when absent.
@@ -141,7 +145,7 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
     print(f"   RMS residual parallax {p0:.2f} m -> {p1:.2f} m on the final DEM (reduction "
           f"{100 * (1 - p1 / p0):.1f} %); {r.info['iterations']} update(s) kept, {len(r.table)} measurements, "
           f"{dt:.1f} s; stop: {r.info['stop']}")
-    print(f"   roughness (Laplacian sd, cells seen by two on the start DEM) {l0:.3f} -> {l1:.3f} m; cells moved: RMS "
+    print(f"   roughness (Laplacian sd, cells seen by two on the start DEM) {l0:.5f} -> {l1:.5f} m; cells moved: RMS "
           f"{np.sqrt(np.mean(moved ** 2)):.2f} m, 99.9 % {np.percentile(moved, 99.9):.1f} m, max {moved_max:.1f} m "
           f"(bound {max_dh_m:g} m); warning: {r.info['warning'] or 'none'}")
     # the correction's own curvature, and how it goes with the start's (0: independent, so the
