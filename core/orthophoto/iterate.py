@@ -423,7 +423,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             families = pair_families([c.centre for c in cameras], [p["pair"] for p in meas["pinfo"]])
             info.setdefault("pair_families", families)
             if max(families) >= 1:
-                dh_it, conf, checked = _cross_check(dh_it, meas, families, outlier, precision_cells)
+                dh_it, conf, checked, fam_s = _cross_check(dh_it, meas, families, outlier, precision_cells)
+                info.setdefault("family_sigma_m", fam_s)
                 ever_confirmed |= checked & np.isfinite(dh_it)
                 merged = np.where(np.isfinite(dh_it), merged, np.nan)
                 if it == 0:
@@ -478,6 +479,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     else:
         info["confirmed_max_m"] = float(moved[ever_confirmed].max()) if ever_confirmed.any() else 0.0
         info["cross_check"] = (f"{max(families) + 1} pair families by base direction; "
+                               f"precision {', '.join(f'{v:.2g}' for v in info['family_sigma_m'])} m; "
                                f"{100 * info.get('confirmed_share', 0.0):.1f} % of the matched cells hold a "
                                f"correction the families confirm ({100 * info.get('checked_share', 0.0):.1f} % "
                                f"measured by two or more, the part they share kept where they disagree, "
@@ -548,7 +550,7 @@ def _cross_check(dh, meas, families, outlier, precision_cells):
         d, _ = merge_pairs([meas["dhs"][k] for k in idx], [meas["cors"][k] for k in idx], outlier)
         fam_dhs.append(d)
         fam_s.append(precision_cells * float(np.median([meas["pinfo"][k]["dh_per_cell_m"] for k in idx])))
-    return cross_check_families(dh, fam_dhs, fam_s)
+    return (*cross_check_families(dh, fam_dhs, fam_s), fam_s)
 
 
 def _measure(cur, setup, prog):
