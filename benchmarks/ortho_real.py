@@ -12,9 +12,13 @@
    pairs' trusted matches on the start DEM and on the final DEM (orthorefine's checking
    measurement), the roughness (Laplacian sd) before and after, and how far cells moved
    against the bound ``--ngi-max-dh``; ``--held-out``: refined with the pairs of one base
-   direction and checked by the others (is the roughness it adds in the images?).
+   direction and checked by the others (is the roughness it adds in the images?);
+   ``--cross-check``: orthorefine(cross_check=True), a correction kept only where the pair
+   families agree; with ``--held-out`` each family is held out in turn, the others refine
+   plain and cross-checked.
 
     /usr/bin/python3 benchmarks/ortho_real.py [--data DIR] [--iterations 3] [--ngi-cell 24 12] [--held-out]
+        [--cross-check] [--skip-drone]
 
 Data credits: see ``stereo/PROVENANCE.md`` (orthority, AGPL-3.0; imagery and DEM of NGI,
 the CGA Stellenbosch, Yu-Huang Wang / OpenDroneMap community). Skips when absent.
@@ -33,6 +37,7 @@ from bare_earth.core.orthophoto import (  # noqa: E402
     cameras_from_opk,
     orthorectify,
     orthorefine,
+    pair_families,
     read_interior_yaml,
     read_opensfm_reconstruction,
     read_opk_csv,
@@ -110,7 +115,7 @@ def _roughness(z, ev):
     return float(np.std(lap[inner]))
 
 
-def ngi(root, iterations, cell, max_dh_m, held_out=False):
+def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
     dem24, gt24 = _read(root / "ngi" / "dem.tif")
     if cell == gt24[1]:
         dem, gt = dem24, gt24
@@ -127,7 +132,7 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False):
     cams = cameras_from_opk(ext, ios, names)
     imgs = [_read(root / "ngi" / f"{n}.tif")[0] for n in names]
     t = time.perf_counter()
-    r = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m)
+    r = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, cross_check=cross_check)
     dt = time.perf_counter() - t
     # the cells seen by two frames on the start DEM: the same cells for every build
     ev = (np.sum([orthorectify(im, c, dem, gt)[1] for im, c in zip(imgs, cams)], axis=0) >= 2) & np.isfinite(dem)
@@ -140,7 +145,7 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False):
     print(f"   RMS residual parallax {p0:.2f} m -> {p1:.2f} m on the final DEM (reduction "
           f"{100 * (1 - p1 / p0):.1f} %); {r.info['iterations']} update(s) kept, {len(r.table)} measurements, "
           f"{dt:.1f} s; stop: {r.info['stop']}")
-    print(f"   roughness (Laplacian sd, cells seen by two on the start DEM) {l0:.3f} -> {l1:.3f} m; cells moved: RMS "
+    print(f"   roughness (Laplacian sd, cells seen by two on the start DEM) {l0:.5f} -> {l1:.5f} m; cells moved: RMS "
           f"{np.sqrt(np.mean(moved ** 2)):.2f} m, 99.9 % {np.percentile(moved, 99.9):.1f} m, max {moved_max:.1f} m "
           f"(bound {max_dh_m:g} m); warning: {r.info['warning'] or 'none'}")
     # the correction's own curvature, and how it goes with the start's (0: independent, so the
@@ -150,45 +155,64 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False):
     lap_0 = ndimage.laplace(np.nan_to_num(dem).astype(np.float64))[inner]
     print(f"   the correction's Laplacian: sd {lap_c.std():.3f} m, correlation with the start's "
           f"{np.corrcoef(lap_c, lap_0)[0, 1]:+.3f}")
+    print(f"   cross-check of the pair families: {r.info['cross_check']}")
     _rise_where_agreement(r, dem, ev)
     _table(r.table)
     if held_out:
-        _held_out(dem, gt, imgs, cams, r.info["pairs"], iterations, max_dh_m, ev)
+        _held_out(dem, gt, imgs, cams, r.info["pairs"], iterations, max_dh_m, ev, cross_check)
     return p1 < p0 and l1 <= l0 and moved_max <= max_dh_m + 1e-3
 
 
-def _held_out(dem, gt, imgs, cams, pairs, iterations, max_dh_m, ev):
-    """Is the roughness the refinement adds terrain? Refine with one family of pairs, check with the other.
+def _held_out(dem, gt, imgs, cams, pairs, iterations, max_dh_m, ev, cross_check=False):
+    """Is the roughness the refinement adds terrain? Refine with some pairs, check with the others.
 
-    The pairs are split by the direction of their base (within 45 degrees of the first pair's:
-    along the strip; the rest: across). The DEM refined with one family is measured by the
-    other next to the start DEM: the held-out pairs' RMS residual parallax, and their first
-    update on the 1 % of cells the refinement moved most. A change
-    the held-out pairs also measure on the start DEM, and no longer on the refined one, is in
-    the images, not speckle of the pairs that made it.
+    The pairs are split by the direction of their base (:func:`pair_families`). Without
+    ``cross_check``: the first family (along the strip) against all the others. With it,
+    every family in turn is held out and the refinement uses the other families (two or more
+    are needed to cross-check, so three base directions), plain and cross-checked. The held-out
+    pairs measure each refined DEM next to the start DEM: their RMS residual parallax, and
+    their first update on the 1 % of cells the refinement moved most. A change the held-out
+    pairs also measure on the start DEM, and no longer on the refined one, is in the images,
+    not speckle of the pairs that made it.
     """
-    c = [np.asarray(k.centre, float) for k in cams]
-    base = [c[j][:2] - c[i][:2] for i, j in pairs]
-    u = base[0] / np.hypot(*base[0])
-    along = [abs(float(b @ u)) / np.hypot(*b) >= np.cos(np.pi / 4) for b in base]
-    families = [[p for p, f in zip(pairs, along) if f], [p for p, f in zip(pairs, along) if not f]]
-    if not all(families):
+    fam = pair_families([k.centre for k in cams], pairs)
+    if max(fam) == 0:
         print("   held-out check: all pairs have one base direction; skipped")
         return
-    for train, held in (families, families[::-1]):
-        t = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, pairs=train)
-        move = t.dem - dem
-        top = ev & (np.abs(move) >= np.percentile(np.abs(move[ev]), 99))
-        words = []
-        for name, z in (("start", dem), ("refined", t.dem)):
-            h = orthorefine(z, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m, pairs=held)
-            # the held-out update along the move, as a share of the move (1: they measure it all, 0: nothing)
-            along = np.nanmean(np.sign(move[top]) * h.dh[top]) / np.mean(np.abs(move[top]))
-            words.append(f"on the {name} DEM RMS parallax {h.table[0]['rms_parallax_m']:.3f} m and along the move "
-                         f"{100 * along:+.0f} % of it")
-        print(f"   held-out check, refined with {train}: roughness {_roughness(dem, ev):.4f} -> "
-              f"{_roughness(t.dem, ev):.4f} m, the 1 % of cells moved most by {np.mean(np.abs(move[top])):.1f} m "
-              f"(mean |move|); the pairs {held} measure " + "; ".join(words))
+    if cross_check:
+        if max(fam) < 2:
+            print("   held-out check of the cross-check: needs three base directions (two to cross-check, "
+                  "one to hold out); skipped")
+            return
+        splits = [([p for p, f in zip(pairs, fam) if f != g], [p for p, f in zip(pairs, fam) if f == g])
+                  for g in range(max(fam) + 1)]
+    else:
+        fams = [[p for p, f in zip(pairs, fam) if f == 0], [p for p, f in zip(pairs, fam) if f != 0]]
+        splits = [fams, fams[::-1]]
+    for train, held in splits:
+        runs = [(False, orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m,
+                                    pairs=train))]
+        if cross_check:
+            runs.append((True, orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m,
+                                           pairs=train, cross_check=True)))
+        h0 = orthorefine(dem, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m, pairs=held)
+        for checked, t in runs:
+            move = t.dem - dem
+            top = ev & (np.abs(move) >= np.percentile(np.abs(move[ev]), 99))
+            words = []
+            for name, z in (("start", dem), ("refined", t.dem)):
+                h = h0 if name == "start" else orthorefine(z, gt, imgs, cams, max_iterations=1, max_dh_m=max_dh_m,
+                                                            pairs=held)
+                # the held-out update along the move, as a share of the move (1: they measure it all, 0: nothing)
+                along = np.nanmean(np.sign(move[top]) * h.dh[top]) / np.mean(np.abs(move[top]))
+                words.append(f"on the {name} DEM RMS parallax {h.table[0]['rms_parallax_m']:.3f} m and along the "
+                             f"move {100 * along:+.0f} % of it")
+            kind = "cross-checked, " if checked else ""
+            print(f"   held-out check, refined with {train} ({kind}largest move {t.info['moved_max_m']:.1f} m, "
+                  f"parallax {t.info['rms_parallax_start_m']:.3f} -> {t.info['rms_parallax_m']:.3f} m): "
+                  f"roughness {_roughness(dem, ev):.4f} -> {_roughness(t.dem, ev):.4f} m, the 1 % of cells moved "
+                  f"most by {np.mean(np.abs(move[top])):.1f} m (mean |move|); the pairs {held} measure "
+                  + "; ".join(words))
 
 
 def _rise_where_agreement(r, dem, ev):
@@ -227,15 +251,18 @@ def main(argv=None):
                          "Stellenbosch frames (about 30 m), far above the 24 m DEM's own error")
     ap.add_argument("--held-out", action="store_true",
                     help="NGI: refine with the pairs of one base direction, check with the others")
+    ap.add_argument("--cross-check", action="store_true",
+                    help="NGI: orthorefine(cross_check=True), a correction kept only where the pair families agree")
+    ap.add_argument("--skip-drone", action="store_true", help="NGI only")
     a = ap.parse_args(argv)
     root = data_dir(a.data) / "stereo" / "orthority"
     if not root.is_dir():
         print(f"SKIP: {root} is absent (set BARE_EARTH_DATA)")
         return 0
     warnings.simplefilter("ignore", RuntimeWarning)
-    ok = drone(root, a.iterations)
+    ok = True if a.skip_drone else drone(root, a.iterations)
     for cell in a.ngi_cell:
-        ok &= ngi(root, a.iterations, cell, a.ngi_max_dh, a.held_out)
+        ok &= ngi(root, a.iterations, cell, a.ngi_max_dh, a.held_out, a.cross_check)
     print("ALL CHECKS MET" if ok else "SOME CHECK MISSED")
     return 0 if ok else 1
 

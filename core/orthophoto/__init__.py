@@ -21,7 +21,7 @@ from .camera import (
                      read_opk_csv,
                      rotation_to_opk,
 )
-from .iterate import RefineResult, orthorefine, overlapping_pairs
+from .iterate import RefineResult, cross_check_families, orthorefine, overlapping_pairs, pair_families
 from .match import MatchResult, match_along, match_rectified, ncc_volume
 from .orthorectify import grid_xy, orthorectify, visibility
 from .quality import fill_holes
@@ -35,5 +35,6 @@ __all__ = ["Bilinear8", "fit_bilinear8", "register_orthophoto",
            "MatchResult", "match_along", "match_rectified", "ncc_volume",
            "grid_xy", "orthorectify", "visibility",
            "ParallaxResult", "RefineResult", "fill_holes", "orthoparallax", "orthorefine",
-           "overlapping_pairs", "parallax_to_dh", "parallax_to_dh_vertical", "view_vectors",
+           "overlapping_pairs", "pair_families", "cross_check_families", "parallax_to_dh",
+           "parallax_to_dh_vertical", "view_vectors",
            "OrthoScene", "make_ortho_scene", "render_frame", "render_frames", "vertical_cameras"]

@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special
 
 from ..common import report, sub_progress
 from .orthorectify import check_transform, grid_xy, orthorectify
@@ -23,7 +23,8 @@ from .quality import (
 )
 from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
 
-__all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "RELAXATION", "MIN_GAIN"]
+__all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "pair_families", "cross_check_families",
+           "RELAXATION", "MIN_GAIN", "CROSS_CHECK", "FAMILY_TAIL"]
 
 #: Default share of each measured correction applied to the DEM (the whole correction).
 RELAXATION = 1.0
@@ -32,6 +33,12 @@ MIN_GAIN = 0.05
 #: An update after which the pairs lose more than this share of their trusted matches made
 #: them agree worse (the parallax of the remaining, easier cells alone would hide it).
 MAX_LOST = 0.5
+#: Default of ``cross_check``: keep a correction only where pair families of different base
+#: directions agree (see :func:`cross_check_families`).
+CROSS_CHECK = False
+#: One-sided tail of the families' agreement test: the 3 sigma tail of
+#: :func:`~.quality.agreement_bound`, so k = 3.
+FAMILY_TAIL = 1.35e-3
 
 
 @dataclass
@@ -94,13 +101,102 @@ def overlapping_pairs(seen, min_overlap=0.05, min_cells=100):
     return pairs
 
 
+def pair_families(centres, pairs, max_angle_deg=45.0):
+    """Group pairs by the direction of their base: the families of independent pairs.
+
+    A pair's base is the horizontal vector between its two camera centres. The first pair
+    opens a family; each next pair joins the first family whose opening base lies within
+    ``max_angle_deg`` of its own (directions, so a base and its opposite are one), else opens
+    a new one. Pairs of one family see a blunder (repetitive texture along the base, a
+    shadow) at the same height; pairs of another base direction see it elsewhere.
+
+    Parameters
+    ----------
+    centres : sequence of 3-vectors
+        Camera centres, one per frame.
+    pairs : sequence of (int, int)
+    max_angle_deg : float
+
+    Returns
+    -------
+    list of int
+        The family of each pair (0, 1, ...).
+    """
+    cos_max = math.cos(math.radians(float(max_angle_deg)))
+    heads, fam = [], []
+    for i, j in pairs:
+        b = np.asarray(centres[j], float)[:2] - np.asarray(centres[i], float)[:2]
+        n = float(np.hypot(*b))
+        u = b / n if n > 0 else np.array([1.0, 0.0])
+        for f, h in enumerate(heads):
+            if abs(float(u @ h)) >= cos_max:
+                fam.append(f)
+                break
+        else:
+            heads.append(u)
+            fam.append(len(heads) - 1)
+    return fam
+
+
+def cross_check_families(dh, family_dhs, family_sigmas, tail=FAMILY_TAIL):
+    """Keep a merged correction only where pair families of different base directions agree.
+
+    At a cell measured by two or more families, the families' corrections agree when every
+    two of them differ by at most ``k * sqrt(s_f**2 + s_g**2)`` (``s`` each family's matching
+    precision in height, ``k`` the normal quantile of the one-sided ``tail``: 3 for the
+    default, the tail of :func:`~.quality.agreement_bound`). There the merged correction
+    ``dh`` is confirmed and kept. Where they disagree, only the part they share is kept: the
+    smallest of their corrections in magnitude when all have one sign, else 0 (the input
+    height). A cell measured by one family alone cannot be cross-checked: NaN (not
+    measured; the refinement keeps the input height there beyond the fill's reach).
+
+    Parameters
+    ----------
+    dh : ndarray
+        The merged correction of all pairs (:func:`~.quality.merge_pairs`).
+    family_dhs : sequence of ndarray
+        Per family, the merge of its own pairs (NaN where none matched).
+    family_sigmas : sequence of float
+        Per family, the matching precision in height (m).
+    tail : float
+
+    Returns
+    -------
+    out : ndarray float32
+        The accepted correction.
+    confirmed : ndarray of bool
+        Cells where the families agree.
+    checked : ndarray of bool
+        Cells measured by two or more families.
+    """
+    if not 0.0 < tail < 1.0:
+        raise ValueError(f"tail must lie in (0, 1); got {tail!r}.")
+    k = float(-special.ndtri(float(tail)))
+    D = np.stack([np.asarray(d, np.float64) for d in family_dhs])
+    fin = np.isfinite(D)
+    checked = fin.sum(axis=0) >= 2
+    agree = checked.copy()
+    with np.errstate(invalid="ignore"):
+        for f in range(len(D)):
+            for g in range(f + 1, len(D)):
+                both = fin[f] & fin[g]
+                tol = k * math.hypot(float(family_sigmas[f]), float(family_sigmas[g]))
+                agree &= ~(both & (np.abs(D[f] - D[g]) > tol))
+        lo = np.nanmin(np.where(fin, D, np.inf), axis=0)
+        hi = np.nanmax(np.where(fin, D, -np.inf), axis=0)
+    shared = np.where(lo > 0, lo, np.where(hi < 0, hi, 0.0))
+    dh = np.asarray(dh, np.float64)
+    out = np.where(agree, dh, np.where(checked & np.isfinite(dh), shared, np.nan))
+    return out.astype(np.float32), agree & np.isfinite(dh), checked
+
+
 def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_m=None,
                 window=7, shiftable=5, min_corr=0.6, max_dh_m=None, pairs=None,
                 min_overlap=0.05, smooth_cells=5, height_threshold_m=None,
                 precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
                 relaxation=RELAXATION, min_gain=MIN_GAIN, outlier_m=None, reference=None,
                 reference_cells=None, tie_points=None, base_m=None,
-                height_m=None, base_direction=(1.0, 0.0), progress=None):
+                height_m=None, base_direction=(1.0, 0.0), cross_check=CROSS_CHECK, progress=None):
     """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
 
     Each iteration orthorectifies every frame onto the current DEM (collinearity equations,
@@ -191,6 +287,20 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         and ``height_m`` (H).
     base_m, height_m, base_direction : float, float, (float, float)
         B, H and the base direction for ``tie_points`` mode.
+    cross_check : bool
+        Keep a correction only where independent pairs agree (default :data:`CROSS_CHECK`).
+        The pairs are grouped by base direction (:func:`pair_families`); with two or more
+        families each iteration's merged correction is kept where the families' corrections
+        agree within their combined precision, reduced to the part they share where they
+        disagree, and dropped where one family alone measured
+        (:func:`cross_check_families`). With one base direction (two frames, or all bases
+        parallel) nothing can be cross-checked: the refinement runs as without it and
+        ``info['cross_check']`` says so. ``info`` gives ``confirmed_share`` (cells with a
+        confirmed correction at the first measurement over those matched) and
+        ``confirmed_max_m`` (the largest total move of a cell where the families' correction,
+        or the part they share, was accepted in some iteration: the bound the independent
+        pairs support; ``moved_max_m`` is larger where the smooth part and the fill carry
+        it past those cells). Oriented frames only.
     progress : callable, optional
         ``progress(fraction)``; may raise Cancelled.
 
@@ -216,7 +326,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     if int(max_iterations) < 1:
         raise ValueError(f"max_iterations must be >= 1; got {max_iterations}.")
     if cameras is None or all(c is None for c in cameras):
-        return _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
+        res = _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
                                   base_direction, window=window, shiftable=shiftable,
                                   min_corr=min_corr, max_dh_m=max_dh_m, pairs=pairs,
                                   min_overlap=min_overlap, smooth_cells=smooth_cells,
@@ -224,6 +334,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                   precision_cells=precision_cells, object_size_m=object_size_m,
                                   fill_sigma_cells=fill_sigma_cells, outlier_m=outlier_m,
                                   reference=reference, progress=progress)
+        # every registered frame lies along one base_direction: no independent pair
+        res.info["cross_check"] = ("not possible: all pairs have one base direction (tie_points mode)"
+                                   if cross_check else "off")
+        return res
     greys = [as_grey(im) for im in images]
     for g, c in zip(greys, cameras):
         if (g.shape[1], g.shape[0]) != (c.interior.width, c.interior.height):
@@ -246,6 +360,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     total = int(max_iterations) + 1
     cur, prev_dem, prev = dem0.copy(), None, None
     table, info, stop, last = [], {}, "", ""
+    families, ever_confirmed = None, np.zeros(dem0.shape, bool)
     for it in range(total):
         meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
         setup["pairs"] = meas["pairs"]
@@ -304,6 +419,18 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         if not np.isfinite(rms) or rms < tolerance_m:
             stop = f"RMS correction {rms:.3g} m below the tolerance {tolerance_m:.3g} m"
             break
+        if cross_check:
+            families = pair_families([c.centre for c in cameras], [p["pair"] for p in meas["pinfo"]])
+            info.setdefault("pair_families", families)
+            if max(families) >= 1:
+                dh_it, conf, checked, fam_s = _cross_check(dh_it, meas, families, outlier, precision_cells)
+                info.setdefault("family_sigma_m", fam_s)
+                ever_confirmed |= checked & np.isfinite(dh_it)
+                merged = np.where(np.isfinite(dh_it), merged, np.nan)
+                if it == 0:
+                    info["confirmed_share"] = float(conf.sum() / max(1, matched.sum()))
+                    info["checked_share"] = float((checked & matched).sum() / max(1, matched.sum()))
+                matched = np.isfinite(dh_it) & meas["multi"]
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
         smooth, detail, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
@@ -343,6 +470,21 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 window=window, shiftable=shiftable, min_corr=min_corr,
                 cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
                 rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
+    moved = np.abs(cur - dem0)
+    if not cross_check:
+        info["cross_check"] = "off"
+    elif families is None or max(families) < 1:
+        info["cross_check"] = ("not possible: all pairs have one base direction, so no independent pair "
+                               "could confirm a correction; refined as without the cross-check")
+    else:
+        info["confirmed_max_m"] = float(moved[ever_confirmed].max()) if ever_confirmed.any() else 0.0
+        info["cross_check"] = (f"{max(families) + 1} pair families by base direction; "
+                               f"precision {', '.join(f'{v:.2g}' for v in info['family_sigma_m'])} m; "
+                               f"{100 * info.get('confirmed_share', 0.0):.1f} % of the matched cells hold a "
+                               f"correction the families confirm ({100 * info.get('checked_share', 0.0):.1f} % "
+                               f"measured by two or more, the part they share kept where they disagree, "
+                               f"nothing where one family alone measured); largest move of a cross-checked "
+                               f"cell {info['confirmed_max_m']:.2f} m, of any cell {info['moved_max_m']:.2f} m")
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info,
@@ -396,6 +538,19 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
     keep = sig & np.concatenate(([False], confirmed))[labels]
     detail = np.where(keep | np.isnan(detail), detail, 0.0)
     return smooth, detail.astype(np.float32), int(np.count_nonzero(sig & ~keep))
+
+
+def _cross_check(dh, meas, families, outlier, precision_cells):
+    """:func:`cross_check_families` on one measurement: each family merged from its own pairs."""
+    fam_dhs, fam_s = [], []
+    for f in range(max(families) + 1):
+        idx = [k for k, g in enumerate(families) if g == f]
+        if not idx:
+            continue
+        d, _ = merge_pairs([meas["dhs"][k] for k in idx], [meas["cors"][k] for k in idx], outlier)
+        fam_dhs.append(d)
+        fam_s.append(precision_cells * float(np.median([meas["pinfo"][k]["dh_per_cell_m"] for k in idx])))
+    return (*cross_check_families(dh, fam_dhs, fam_s), fam_s)
 
 
 def _measure(cur, setup, prog):

@@ -102,3 +102,93 @@ def test_detail_needs_two_pairs(noisy_three, monkeypatch, pairs_with_it):
     else:
         assert r.table[0]["detail_single_pair"] == 0
         assert moved > 3.5
+
+
+def test_pair_families_group_bases_by_direction():
+    """Bases within 45 degrees of a family's first base join it (a base and its opposite are one
+    direction); others open a family."""
+    centres = [(0, 0, 100), (10, 0, 100), (10, 5, 100), (-20, 1, 100)]
+    pairs = [(0, 1), (0, 2), (1, 2), (0, 3), (1, 3)]
+    assert iterate_module.pair_families(centres, pairs) == [0, 0, 1, 0, 0]
+
+
+def test_cross_check_families_keeps_agreement_and_the_shared_part():
+    """Exact cells: agreement within 3 x sqrt(s1^2 + s2^2) keeps the merged value; beyond it
+    the smaller of two same-sign corrections is kept, 0 for opposite signs; one family alone
+    gives NaN (not cross-checked)."""
+    nan = np.nan
+    d1 = np.array([1.0, 5.0, 5.0, -4.0, 2.0, nan])
+    d2 = np.array([1.5, 1.0, -1.0, -9.0, nan, nan])
+    merged = np.array([1.2, 3.0, 2.0, -6.0, 2.0, nan])
+    out, conf, checked = iterate_module.cross_check_families(merged, [d1, d2], [0.1, 0.2])
+    # tolerance 3 * sqrt(0.01 + 0.04) = 0.67 m
+    np.testing.assert_allclose(out, [1.2, 1.0, 0.0, -4.0, nan, nan], rtol=1e-6)
+    assert conf.tolist() == [True, False, False, False, False, False]
+    assert checked.tolist() == [True, True, True, True, False, False]
+    with pytest.raises(ValueError, match="tail"):
+        iterate_module.cross_check_families(merged, [d1, d2], [0.1, 0.2], tail=0.0)
+
+
+@pytest.fixture(scope="module")
+def triangle_three():
+    """Three vertical frames in a triangle: pairs (0, 1) and (0, 2) are one family (bases within
+    27 degrees), pair (1, 2) another (its base at 90 degrees)."""
+    sc = make_ortho_scene(shape=(160, 200), cell_size=0.5, n_buildings=19, seed=24,
+                          building_width_cells=(8, 20), building_height_m=(3.0, 14.0))
+    ref = vertical_cameras(sc, 3, base_over_height=0.3)
+    io, (x0, y0, z0) = ref[0].interior, ref[1].centre
+    b = 0.3 * 150.0
+    cams = [type(ref[0]).vertical(io, x0 - b / 2, y0 - b / 4, z0, name="f0"),
+            type(ref[0]).vertical(io, x0 + b / 2, y0 - b / 4, z0, name="f1"),
+            type(ref[0]).vertical(io, x0 + b / 2, y0 + b / 4, z0, name="f2")]
+    imgs = render_frames(sc, cams, noise=6.0, seed=24, dz_m=0.5)
+    return sc, cams, imgs
+
+
+def test_cross_check_keeps_the_input_where_one_family_sees_a_blunder(triangle_three, monkeypatch):
+    """The two pairs of one base direction both see a 4 m blunder on a 12 x 12 patch of open
+    ground (repetitive texture along their base would); the pair of the other direction sees
+    the ground. Two against one, the per-cell median of merge_pairs keeps the blunder and the
+    DEM rises by about 4 m there; with cross_check the families disagree and the input height
+    is kept. Elsewhere the refinement still runs, and the log says what was confirmed."""
+    sc, cams, imgs = triangle_three
+    assert iterate_module.pair_families([c.centre for c in cams], [(0, 1), (0, 2), (1, 2)]) == [0, 0, 1]
+    far = ndimage.distance_transform_edt(sc.labels == 0)
+    rows, cols = far.shape
+    far[:rows // 3], far[-rows // 3:], far[:, :cols // 3], far[:, -cols // 3:] = 0, 0, 0, 0
+    r0, c0 = np.unravel_index(np.argmax(far), far.shape)
+    assert far[r0, c0] >= 8
+    patch = np.zeros(sc.surface.shape, bool)
+    patch[r0 - 6:r0 + 6, c0 - 6:c0 + 6] = True
+    real = iterate_module.match_pair
+
+    def injected(*args, **kwargs):
+        dh, corr, par, info = real(*args, **kwargs)
+        ca, cb = kwargs["centres"]
+        if abs(cb[0] - ca[0]) > abs(cb[1] - ca[1]):              # the family along X: the blunder
+            left = 4.0 - (args[2] - sc.surface)
+            dh = np.where(patch, left, dh)
+            corr = np.where(patch, 0.99, corr)
+            par = np.where(patch, np.abs(left) * 0.3, par)
+        return dh, corr, par, info
+
+    monkeypatch.setattr(iterate_module, "match_pair", injected)
+    plain = orthorefine(sc.surface, sc.transform, imgs, cams, max_iterations=1)
+    checked = orthorefine(sc.surface, sc.transform, imgs, cams, max_iterations=1, cross_check=True)
+    assert plain.info["cross_check"] == "off"
+    assert float(np.median((plain.dem - sc.surface)[patch])) > 3.0          # the blunder went in
+    assert abs(float(np.median((checked.dem - sc.surface)[patch]))) < checked.info["sigma_expected_m"]
+    assert checked.info["pair_families"] == [0, 0, 1]
+    assert 0 < checked.info["confirmed_share"] <= 1
+    assert checked.info["confirmed_max_m"] <= checked.info["moved_max_m"] + 1e-6
+    assert "2 pair families" in checked.info["cross_check"]
+
+
+def test_cross_check_with_one_base_direction_changes_nothing_and_says_so(noisy_three):
+    """Three frames along one base: no independent pair, the refinement is the plain one."""
+    sc, cams, imgs = noisy_three
+    start = ndimage.gaussian_filter(sc.surface, 8)
+    plain = orthorefine(start, sc.transform, imgs, cams, max_iterations=1)
+    checked = orthorefine(start, sc.transform, imgs, cams, max_iterations=1, cross_check=True)
+    np.testing.assert_array_equal(checked.dem, plain.dem)
+    assert checked.info["cross_check"].startswith("not possible: all pairs have one base direction")
