@@ -17,6 +17,7 @@ from qgis.core import (
     QgsPointXY,
     QgsProcessingException,
     QgsProcessingOutputNumber,
+    QgsProcessingParameterBoolean,
     QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterFolderDestination,
@@ -30,6 +31,7 @@ from qgis.core import (
 
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
+from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .filter_base import (
     BaseAlgorithm,
@@ -603,6 +605,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
     IMAGES, IMAGE_FOLDER, EXTERIOR, INTERIOR, TIE_POINTS = ("IMAGES", "IMAGE_FOLDER", "EXTERIOR", "INTERIOR",
                                                             "TIE_POINTS")
     MAX_ITERATIONS, TOLERANCE_M, RELAXATION = "MAX_ITERATIONS", "TOLERANCE_M", "RELAXATION"
+    CROSS_CHECK = "CROSS_CHECK"
     OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
     TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "agreement",
                      "status", "mean_corr", "detail_single_pair")
@@ -653,7 +656,11 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "(top-left pixel centre = 0, 0); needs <b>BASE_M</b> (B between consecutive images, in the "
             "order given), <b>HEIGHT_M</b> (H) and <b>BASE_DIRECTION_DEG</b>.</li>"
             "<li><b>MAX_ITERATIONS</b> (default 6), <b>TOLERANCE_M</b> (empty: half the expected height "
-            "precision), <b>RELAXATION</b> (advanced, default 1: the whole correction), <b>WINDOW_CELLS</b>, "
+            "precision), <b>RELAXATION</b> (advanced, default 1: the whole correction), <b>CROSS_CHECK</b> "
+            "(advanced, default off: with pairs of two or more base directions, keep a correction only where "
+            "the pairs of different directions agree within 3 x their combined precision, their shared part "
+            "where they disagree, nothing one direction alone measured; the log gives the largest move they "
+            "confirm), <b>WINDOW_CELLS</b>, "
             "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>, <b>MAX_DH_M</b> (advanced, empty: 0.2 H; "
             "also the largest total move of a cell), <b>OBJECT_SIZE_M</b> (advanced, 40): as in "
             "orthoparallax.</li></ul>"
@@ -713,6 +720,15 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                "each step. Whatever the value, an update that makes the pairs agree worse is "
                                "undone and the iteration stops.", default=1.0, minValue=0.01, maxValue=1.0,
                                advanced=True))
+        cross = QgsProcessingParameterBoolean(self.CROSS_CHECK, tr("Keep only corrections independent pairs confirm"),
+                                              defaultValue=CROSS_CHECK_DEFAULT)
+        self.addParameter(with_help(
+            cross, "With pairs of two or more base directions (frames in several strips): a cell's correction is "
+                   "kept where the pairs of different directions agree within 3 x their combined precision, "
+                   "their shared part where they disagree, and a correction one direction alone measured is "
+                   "not taken (the cell keeps its height). Off by default: only the cells seen by two "
+                   "directions (the strips' side lap) are refined then. With one base direction nothing can "
+                   "be cross-checked and the log says so.", advanced=True))
         for p in self._matching_params():
             self.addParameter(p)
         self._raster_outputs("Refined DEM")
@@ -766,6 +782,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         opts["max_iterations"] = self.parameterAsInt(parameters, self.MAX_ITERATIONS, context)
         opts["tolerance_m"] = _positive_or_none(self, parameters, self.TOLERANCE_M, context)
         opts["relaxation"] = self.parameterAsDouble(parameters, self.RELAXATION, context)
+        opts["cross_check"] = self.parameterAsBool(parameters, self.CROSS_CHECK, context)
         if not 0 < opts["relaxation"] <= 1:
             raise ValueError(f"RELAXATION must be in (0, 1] (the share of each correction applied); got "
                              f"{opts['relaxation']:g}.")

@@ -284,7 +284,7 @@ def test_orthorefine_qgis_process_folder(run_qgis_process, frames, tmp_path):
     shutil.copy(frames["dem"], folder / "dem.tif")
     rc, out, data = run_qgis_process("bareearth:orthorefine", {
         "DEM": frames["dem"], "IMAGE_FOLDER": str(folder), "EXTERIOR": frames["exterior"],
-        "INTERIOR": frames["interior"], "MAX_ITERATIONS": 1,
+        "INTERIOR": frames["interior"], "MAX_ITERATIONS": 1, "CROSS_CHECK": True,
         "OUTPUT_DEM": str(tmp_path / "r.tif"),
         "OUTPUT_DH": str(tmp_path / "dh.tif"), "OUTPUT_QUALITY": str(tmp_path / "q.tif"),
         "OUTPUT_TABLE": str(tmp_path / "t.csv")})
@@ -292,6 +292,8 @@ def test_orthorefine_qgis_process_folder(run_qgis_process, frames, tmp_path):
     assert data is not None and data["results"]["ITERATIONS"] == 1
     assert "skipped 1 file(s) that EXTERIOR does not name: dem.tif" in out
     assert "rms_correction_m" in out                                   # the table in the log
+    # CROSS_CHECK reaches the core: three frames along one base give one family, nothing to cross-check
+    assert "not possible: all pairs have one base direction" in out
     _check_grid([tmp_path / "r.tif", tmp_path / "dh.tif"], frames["dem"])
     assert not data["results"].get("OUTPUT_MASK") and not list(tmp_path.glob("*mask*"))
     assert (tmp_path / "t.csv").read_text().startswith("iteration,")
