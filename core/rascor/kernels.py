@@ -133,65 +133,10 @@ def scratch_arrays(work, key, n, shape):
 
 def running_mean(v, size, axis, out=None):
     """Mean of ``v`` (float64) over a centred window of ``size`` (odd) cells along
-    ``axis``; 0 outside. ``ndimage.uniform_filter1d(..., mode="constant")`` bit for bit
-    (down the columns of a 2-D array by :func:`_running_mean_down`)."""
+    ``axis``; 0 outside."""
     if out is None:
         out = np.empty(v.shape, np.float64)
-    if axis == 0 and v.ndim == 2 and v.dtype == np.float64 and out.dtype == np.float64 \
-            and v.shape[0] > size and v.shape[1] >= _DOWN_MIN_COLS and not np.may_share_memory(v, out):
-        return _running_mean_down(v, size, out)
     return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0, output=out)
-
-
-#: Rows per band of :func:`_running_mean_down` (a band's float64 sums stay in the cache).
-_DOWN_BAND_ROWS = 64
-#: Narrower arrays go to SciPy: :func:`_running_mean_down` pays a NumPy call per row.
-_DOWN_MIN_COLS = 256
-
-
-def _running_mean_down(v, size, out):
-    """``ndimage.uniform_filter1d(v, size, axis=0, mode="constant", cval=0.0, output=out)``
-    for a 2-D float64 ``v`` with more rows than ``size``, bit for bit, along whole rows.
-
-    SciPy filters each column as a line gathered with the array's row stride (measured
-    4.5-5.5 ns a cell on bands of 262 x 4000 cells, 13-15 ns on 4000 x 4000, against
-    3-3.6 ns here and along the rows). Its arithmetic is
-    reproduced in the same order on whole rows at once: each column's running sum ``S``
-    starts as the sum, from 0 and in order, of the first window (rows ``-s1 .. s2``, 0
-    outside), each next row adds ``v[i + s2] - v[i - s1 - 1]`` (0 outside), and the mean
-    is ``S / size``.
-    """
-    n = v.shape[0]
-    s1 = size // 2
-    s2 = size - s1 - 1
-    carry = np.zeros(v.shape[1])
-    for j in range(s2 + 1):                       # the first window: a sum from 0, in order
-        np.add(carry, v[j], out=carry)
-    step = _DOWN_BAND_ROWS
-    for r0 in range(0, n, step):
-        r1 = min(n, r0 + step)
-        d = out[r0:r1]
-        a = max(r0, 1)
-        both = (max(a, s1 + 1), min(r1, n - s2))  # rows with both terms inside the array
-        if both[0] < both[1]:
-            np.subtract(v[both[0] + s2:both[1] + s2], v[both[0] - s1 - 1:both[1] - s1 - 1],
-                        out=d[both[0] - r0:both[1] - r0])
-        for i in list(range(a, min(r1, both[0]))) + list(range(max(a, both[1]), r1)):
-            if i + s2 < n:                        # v[i + s2] - 0
-                np.copyto(d[i - r0], v[i + s2])
-            elif i - s1 - 1 >= 0:                 # 0 - v[i - s1 - 1]
-                np.subtract(0.0, v[i - s1 - 1], out=d[i - r0])
-            else:
-                d[i - r0] = 0.0
-        if r0 == 0:
-            d[0] = carry
-        else:
-            np.add(carry, d[0], out=d[0])
-        for i in range(1, r1 - r0):               # the running sum, row after row
-            np.add(d[i - 1], d[i], out=d[i])
-        np.copyto(carry, d[-1])
-        np.divide(d, float(size), out=d)
-    return out
 
 
 def centred_moments(x, s0, s1, s2=None):

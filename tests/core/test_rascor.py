@@ -939,19 +939,3 @@ def test_defaults_in_metres_do_not_depend_on_the_cell():
                         ("terrain_slope", 1.2)):
         v = [p[key] for p in out]
         assert max(v) <= within * min(v), (key, v)
-
-
-@pytest.mark.parametrize("rows,cols,size", [(300, 300, 61), (262, 520, 25), (40, 256, 3), (30, 300, 29),
-                                            (31, 300, 31), (200, 257, 1), (5, 400, 9)])
-def test_running_mean_down_the_columns_is_scipys_bit_for_bit(rows, cols, size):
-    # running_mean(axis=0) reproduces SciPy's column pass along whole rows: the same bits,
-    # on heights far from 0, zero weights and a strided view (bands of rows, windows wider
-    # than the array, first and last rows whose window reaches outside)
-    rng = np.random.default_rng(rows + cols + size)
-    v = rng.normal(size=(rows, 2 * cols)) * 10.0 ** rng.uniform(-3, 6, size=(rows, 1)) + 400.0
-    v[rng.random(v.shape) < 0.3] = 0.0
-    v = v[:, ::2]
-    out = kernels.running_mean(v, size, 0)
-    ref = ndimage.uniform_filter1d(v, size, axis=0, mode="constant", cval=0.0)
-    assert out.dtype == np.float64
-    assert np.array_equal(out.view(np.int64), ref.view(np.int64))
