@@ -86,6 +86,36 @@ def filter3x3(a, op, pad, out=None):
     return out
 
 
+def filter5x5(a, op, pad, out=None):
+    """``op`` (np.minimum / np.maximum) over the 5 x 5 window of every cell, cells outside
+    the array counting as ``pad``: the same values as two :func:`filter3x3` passes (a
+    5-cell window is a 3-cell window of the 3-cell windows), in one banded pass (the array
+    is read once and ``out`` written once, no raster-sized intermediate). ``a`` and ``out``
+    as in :func:`filter3x3`; the array at least 2 x 2."""
+    a = np.ascontiguousarray(a)
+    if not _neutral(op, pad, a.dtype):           # a pad that counts: the two passes
+        return filter3x3(filter3x3(a, op, pad), op, pad, out)
+    H, W = a.shape
+    if out is None:
+        out = np.empty_like(a)
+    B = _band_rows(W, a.itemsize)
+    h1 = np.empty((B + 4, W), a.dtype)
+    hb = np.empty((B + 4, W), a.dtype)
+    for r0 in range(0, H, B):
+        r1 = min(H, r0 + B)
+        lo, hi = max(0, r0 - 2), min(H, r1 + 2)
+        h = hb[:hi - lo]
+        _run3_rows(a[lo:hi], op, h1[:hi - lo])   # the 5-cell row windows: 3 of 3
+        _run3_rows(h1[:hi - lo], op, h)
+        o, n = out[r0:r1], r1 - r0
+        o[...] = h[r0 - lo:r0 - lo + n]
+        for d in (1, -1, 2, -2):                 # the rows above and below that exist
+            s0, s1 = max(r0, -d), min(r1, H - d)
+            if s0 < s1:
+                op(o[s0 - r0:s1 - r0], h[s0 + d - lo:s1 + d - lo], out=o[s0 - r0:s1 - r0])
+    return out
+
+
 class _DenseWork:
     """Buffers of the dense passes of :func:`reconstruct_by_dilation`, and the pass."""
 
@@ -312,12 +342,10 @@ def running_extreme(a, size, axis, op, pad):
 def rect_filter(a, size, op, pad):
     """Separable running ``op`` over a ``size = (rows, cols)`` rectangle.
 
-    3 x 3 and 5 x 5 windows (every full-resolution window of the filter) run as one or two
-    banded :func:`filter3x3` passes (a 5-cell window is a 3-cell window of the 3-cell
-    windows; cells outside count as ``pad`` either way)."""
+    3 x 3 and 5 x 5 windows (every full-resolution window of the filter) run as one banded
+    pass (:func:`filter3x3`, :func:`filter5x5`)."""
     if a.ndim == 2 and min(a.shape) >= 2 and tuple(size) in ((3, 3), (5, 5)):
-        out = filter3x3(a, op, pad)
-        return out if tuple(size) == (3, 3) else filter3x3(out, op, pad)
+        return filter3x3(a, op, pad) if tuple(size) == (3, 3) else filter5x5(a, op, pad)
     return running_extreme(running_extreme(a, size[1], 1, op, pad), size[0], 0, op, pad)
 
 

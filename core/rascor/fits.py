@@ -286,7 +286,8 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
 
     ``v / (s sqrt(1/p + h)) > k`` flags an object (p = 1), ``< -k`` a low blunder with
     the weight factor ``p = low_weight`` of points below the reference. Cells where the
-    fit is undetermined (``zhat`` or ``h`` NaN) are not tested.
+    fit is undetermined (``zhat`` or ``h`` NaN) are not tested: their comparisons are
+    False (the caller silences NumPy's warning about them, once for all its bands).
 
     Returns
     -------
@@ -295,21 +296,20 @@ def _snoop(z, zhat, hh, test, s, k, low_weight):
         weight factor applies to them in a next fit).
     """
     ks2 = (k * s) ** 2
-    with np.errstate(invalid="ignore"):
-        v = np.subtract(z, zhat, dtype=np.float64)
-        h = np.maximum(hh, 0.0)                     # NaN stays NaN: no test
-        below = v < 0.0
-        below &= test
-        v *= v
-        # v > k s sqrt(1/p + h)  <=>  v^2 > (k s)^2 (1/p + h)  (v > 0, resp. v < 0)
-        h *= ks2
-        h += ks2
-        high = v > h
-        high &= test
-        high &= ~below
-        h += ks2 / low_weight - ks2
-        low = v > h
-        low &= below
+    v = np.subtract(z, zhat, dtype=np.float64)
+    h = np.maximum(hh, 0.0)                     # NaN stays NaN: no test
+    below = v < 0.0
+    below &= test
+    v *= v
+    # v > k s sqrt(1/p + h)  <=>  v^2 > (k s)^2 (1/p + h)  (v > 0, resp. v < 0)
+    h *= ks2
+    h += ks2
+    high = v > h
+    high &= test
+    high &= ~below
+    h += ks2 / low_weight - ks2
+    low = v > h
+    low &= below
     return high, low, below
 
 
@@ -376,24 +376,25 @@ def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_c
     rows, cols = z.shape
     tiles = _tiles(rows, cols, halo, halo_cols, tile_cells)
     work = {} if work is None else work
-    for i, (b, bc) in enumerate(tiles):
-        report(progress, i / len(tiles))
-        r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
-        c0, c1 = max(0, bc.start - halo_cols), min(cols, bc.stop + halo_cols)
-        src = (slice(r0, r1), slice(c0, c1))
-        out, out_c = slice(b.start - r0, b.stop - r0), slice(bc.start - c0, bc.stop - c0)
-        kb = keep[src]
-        zb, wb = scratch_arrays(work, ("band", kb.shape[1]), 2, kb.shape)
-        np.copyto(zb, z[src])
-        np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
-        np.copyto(wb, kb)                        # the fit weights
-        if below is not None:
-            np.copyto(wb, low_weight, where=below[src] & kb)
-        zhat, hh = fit(zb, wb, out)
-        zhat, hh, zo = zhat[:, out_c], hh[:, out_c], zb[out, out_c]
-        tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
-        for sb in row_bands(*zo.shape):            # in cache-sized pieces
-            hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
+    with np.errstate(invalid="ignore"):            # NaN fits are not tested (_snoop)
+        for i, (b, bc) in enumerate(tiles):
+            report(progress, i / len(tiles))
+            r0, r1 = max(0, b.start - halo), min(rows, b.stop + halo)
+            c0, c1 = max(0, bc.start - halo_cols), min(cols, bc.stop + halo_cols)
+            src = (slice(r0, r1), slice(c0, c1))
+            out, out_c = slice(b.start - r0, b.stop - r0), slice(bc.start - c0, bc.stop - c0)
+            kb = keep[src]
+            zb, wb = scratch_arrays(work, ("band", kb.shape[1]), 2, kb.shape)
+            np.copyto(zb, z[src])
+            np.copyto(zb, 0.0, where=~kb)            # weight 0 there (NaN must not reach the sums)
+            np.copyto(wb, kb)                        # the fit weights
+            if below is not None:
+                np.copyto(wb, low_weight, where=below[src] & kb)
+            zhat, hh = fit(zb, wb, out)
+            zhat, hh, zo = zhat[:, out_c], hh[:, out_c], zb[out, out_c]
+            tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
+            for sb in row_bands(*zo.shape):            # in cache-sized pieces
+                hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
     return high, low, under
 
 
