@@ -120,7 +120,8 @@ row of a source (its cell sizes, lowest / highest) is in its source's half, so n
 seen in both halves in another form. The halves' means are means of the rows' total error.
 
 Every run appends one JSON line (date, commit, uncommitted files, per row and filter the
-figures and the filter's derived parameters) to ``benchmarks/results/generalise.jsonl``;
+figures and the filter's derived parameters) to ``benchmarks/results/generalise.jsonl``
+(bounded: older records lose the parameters and only the last ten stay, :func:`append_record`);
 ``--markdown FILE`` writes the summary and matrix as markdown, ``--readme`` replaces the
 block between ``<!-- generalise:begin -->`` and ``<!-- generalise:end -->`` in README.md,
 ``--from-log`` renders them from the log's last record instead of running.
@@ -133,6 +134,7 @@ import argparse
 import datetime
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -536,6 +538,28 @@ def write_readme(text, path=README):
     path.write_text(src, encoding="utf-8")
 
 
+#: Records the log keeps: older runs are in git's history of the file.
+KEEP_RECORDS = 10
+
+
+def append_record(path, record, keep=KEEP_RECORDS):
+    """Append ``record`` to the JSON-lines log at ``path``, bounded: the filters' derived
+    parameters per row (most of a record's size) stay in the newest record only, and only the
+    last ``keep`` records stay (their figures complete)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    old = [json.loads(ln) for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()] \
+        if path.exists() else []
+    for rec in old:
+        for row in rec.get("rows", []):
+            for fig in row.get("filters", {}).values():
+                fig.pop("params", None)
+    lines = [json.dumps(r, allow_nan=False, default=str) for r in old[-(keep - 1):] + [record]]
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
@@ -569,9 +593,7 @@ def main(argv=None):
                   "data": str(data), "only": args.only, "methods": methods, "seconds": round(seconds, 1),
                   "notes": notes, "summary": summarise(rows, methods), "rows": rows}
         if not args.no_log:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            with open(args.out, "a", encoding="utf-8") as fh:
-                fh.write(json.dumps(record, allow_nan=False, default=str) + "\n")
+            append_record(args.out, record)
     methods, rows = record["methods"], record["rows"]
     print()
     print(format_matrix(rows, methods))

@@ -279,3 +279,19 @@ def test_generalise_grid_column_separates_the_grid_from_the_filter(tmp_path):
     assert raw > 5.0                               # the highest point of a cell stands above its ground
     grid, floor = score.grid(z, cell)["total"], score.floor()["total"]
     assert grid <= raw and grid > floor + 5.0      # what is left is the grid's, no filter's
+
+
+def test_generalise_log_stays_bounded(tmp_path):
+    """The log keeps the derived parameters in its newest record only and at most ``keep``
+    records, every record's figures complete."""
+    gen = _load_benchmark("generalise")
+    log = tmp_path / "g.jsonl"
+    for k in range(5):
+        rec = {"commit": str(k), "summary": {"m": {"mean_all": float(k)}},
+               "rows": [{"row": "r", "filters": {"m": {"total": float(k), "params": {"dh": k}}}}]}
+        gen.append_record(log, rec, keep=3)
+    recs = [json.loads(ln) for ln in log.read_text().splitlines()]
+    assert [r["commit"] for r in recs] == ["2", "3", "4"]
+    assert [r["rows"][0]["filters"]["m"]["total"] for r in recs] == [2.0, 3.0, 4.0]
+    assert [("params" in r["rows"][0]["filters"]["m"]) for r in recs] == [False, False, True]
+    assert not list(tmp_path.glob("*.partial"))
