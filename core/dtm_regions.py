@@ -114,7 +114,7 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     ground = (np.asarray(mask) == GROUND) & valid
     if not ground.any():
         return objects, []
-    zi = np.where(valid, z, np.inf).astype(np.float32)
+    zi = np.where(valid, z, np.float32(np.inf))                # float32, as z (no second copy)
     # the 3 x 3 minimum (cells beyond the raster ignored: ndimage's mode "nearest", the same values) by banded
     # shifted minima, ~10x faster than SciPy's generic filter
     rim = ground & (z - filter3x3(zi, np.minimum, np.inf) > t)
@@ -290,7 +290,7 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     if max_cells <= 0 or not cand.any():
         return out
     dx, dy = float(cell_size[0]), float(cell_size[1])
-    zi = np.where(valid, z, np.inf).astype(np.float32)
+    zi = np.where(valid, z, np.float32(np.inf))                # float32, as z (no second copy)
     h, w = z.shape
     # a level's edge: a cell more than jump_m + s d above one of its neighbours (rows, columns, diagonals),
     # by shifted slices (a footprint minimum filter is 8 times slower)
@@ -327,13 +327,4 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     for _, (dst, src) in shifts:
         near[dst] |= out[src]
     out |= cand & edge & near
-    return out
-    joined = np.zeros(n + 1, bool)
-    joined[labels[levels & anchors]] = True
-    spans = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in ndimage.find_objects(labels)])
-    joined[1:] |= spans > max_cells                   # too wide to judge within the reach: left to the vote
-    joined[0] = True
-    out = cand & ~joined[labels]
-    # the level's own edge (the cells on top of its walls) goes with it
-    out |= cand & edge & ndimage.binary_dilation(out, structure=np.ones((3, 3), bool))
     return out
