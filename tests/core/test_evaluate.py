@@ -295,3 +295,36 @@ def test_generalise_log_stays_bounded(tmp_path):
     assert [r["rows"][0]["filters"]["m"]["total"] for r in recs] == [2.0, 3.0, 4.0]
     assert [("params" in r["rows"][0]["filters"]["m"]) for r in recs] == [False, False, True]
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_anchors_compare_dtm_with_the_best_peer_row_by_row():
+    """The peers' table: per tool means and halves, the best peer per row, and dtm's gap to
+    it; the lidar rows beyond the issue's 0.5 points are named."""
+    anc = _load_benchmark("anchors")
+    rows = [{"row": "lidar/a/2m", "half": "A", "tools": {"saga": {"total": 2.0}, "csf": {"total": 3.0}}},
+            {"row": "lidar/b/4m", "half": "B", "tools": {"saga": {"error": "x"}, "csf": {"total": 1.0}}},
+            {"row": "isprs/s/1m/min", "half": "A", "tools": {"saga": {"total": 6.0}, "csf": {"total": 4.0}}}]
+    ours = {"lidar/a/2m": {"dtm": 2.3}, "lidar/b/4m": {"dtm": 2.0}, "isprs/s/1m/min": {"dtm": 3.0}}
+    s = anc.summarise(rows, ["saga", "csf"], ours)
+    assert s["saga"]["rows"] == 2 and s["saga"]["mean_all"] == pytest.approx(4.0)
+    assert s["best"]["mean_all"] == pytest.approx((2.0 + 1.0 + 4.0) / 3)
+    assert s["best"]["mean_A"] == pytest.approx(3.0) and s["best"]["mean_B"] == pytest.approx(1.0)
+    gaps = {g["row"]: (g["best_tool"], round(g["gap"], 6)) for g in s["dtm_gap"]}
+    assert gaps == {"lidar/a/2m": ("saga", 0.3), "lidar/b/4m": ("csf", 1.0), "isprs/s/1m/min": ("csf", -1.0)}
+    text = anc.markdown({"tools": ["saga", "csf"], "rows": rows, "summary": s, "ours": ours,
+                         "date": "2026-11-25T00:00:00", "ours_commit": "abc"})
+    assert "1 of 2 rows within" in text and "`lidar/b/4m` 2.00 vs csf 1.00" in text
+
+
+def test_anchor_saga_removes_a_building_when_installed():
+    anc = _load_benchmark("anchors")
+    if not anc.saga_available():
+        pytest.skip("SAGA GIS (saga_cmd) is not installed")
+    z = np.full((60, 60), 100.0, np.float32) + np.random.default_rng(2).normal(0, 0.03, (60, 60)).astype(np.float32)
+    z[20:29, 25:34] += 9.0                                       # within SAGA's 5-cell kernel of ground
+    z[0, 0] = np.nan
+    res = anc.run_saga(z, (1.0, 1.0))
+    assert res.mask[0, 0] == 255
+    assert (res.mask[20:29, 25:34] == 1).all()                  # the roof is removed
+    assert (res.mask[45:, :] == 0).mean() > 0.95                 # open ground kept
+    assert np.nanmax(np.abs(res.dtm[20:29, 25:34] - 100.0)) < 0.5  # the DTM under it is the ground
