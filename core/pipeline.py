@@ -391,6 +391,9 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     """
     meth = as_method(method)
     info = grid.open_dsm(path, band)
+    for target in outputs.values():
+        if target:
+            grid.check_output_cells(target, info.geotransform)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != info.shape:

@@ -106,6 +106,23 @@ def check_output_path(path, bands=1):
     check_output_folder(path)
 
 
+def check_output_cells(path, geotransform):
+    """Check that an output's format holds the input's cells: a SAGA grid (``.sdat``) has
+    square cells only.
+
+    Raises
+    ------
+    ValueError
+        Naming the cell size and the formats that hold it.
+    """
+    need_gdal()
+    drv, name = _output_format(path)
+    dx, dy = abs(float(geotransform[1])), abs(float(geotransform[5]))
+    if drv == "SAGA" and not math.isclose(dx, dy, rel_tol=1e-9):
+        raise ValueError(f"the output {str(path)!r} is a {name}, which holds square cells only, but the input's "
+                         f"cells are {dx:g} x {dy:g}: write it as a GeoTIFF (.tif) or ERDAS Imagine (.img) file.")
+
+
 def check_output_folder(path):
     """Check that the folder of an output file ``path`` exists and takes new files, and that the
     file's name fits the file system; ValueError naming the folder otherwise."""
@@ -315,6 +332,7 @@ class OutputSet:
             if item["path"] == path:
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
+        check_output_cells(path, self.info.geotransform)
         remove_stale_partials(path)
         work = _work_path(path)
         opts = list(_GTIFF_OPTIONS)
@@ -428,8 +446,15 @@ class OutputSet:
                 return 0
             return 1
 
+        vrt = None
         try:
             src = gdal.Open(work)
+            if drv in _TEXT_NODATA_DRIVERS and item["nodata"] is not None and math.isnan(float(item["nodata"])):
+                vrt = f"/vsimem/{os.path.basename(work)}.vrt"
+                x0, dx, _, y0, _, dy = src.GetGeoTransform()
+                src = gdal.Warp(vrt, src, format="VRT", srcNodata="nan", dstNodata=finite_text_nodata(src),
+                                outputBounds=(x0, y0 + dy * src.RasterYSize, x0 + dx * src.RasterXSize, y0),
+                                xRes=abs(dx), yRes=abs(dy), resampleAlg="near")
             out = gdal.GetDriverByName("COG" if cog else drv).CreateCopy(tmp_main, src, options=opts,
                                                                           callback=callback)
             if out is None:
@@ -443,6 +468,9 @@ class OutputSet:
             if stopped:
                 raise stopped[0] from None
             raise ValueError(f"cannot write the output {path!r} as {drv}: {exc}") from None
+        finally:
+            if vrt is not None:
+                gdal.Unlink(vrt)
         return files, tmp_main
 
     def discard(self):
@@ -508,6 +536,28 @@ def write_mask_qml(path):
 """
     with open(path, "w", encoding="utf-8") as f:
         f.write(qml)
+
+
+#: Formats whose header carries the nodata value as text read by other software (ESRI's ASCII
+#: grid, SAGA): a NaN nodata is written there as a finite value (:func:`finite_text_nodata`).
+_TEXT_NODATA_DRIVERS = ("AAIGrid", "SAGA")
+#: The finite nodata of those formats when the raster declares NaN (ESRI's convention).
+TEXT_NODATA = -9999.0
+
+
+def finite_text_nodata(ds):
+    """The finite nodata an Arc/Info ASCII or SAGA copy of the Float32 raster ``ds`` (NaN
+    nodata) declares instead of NaN, which other software cannot read from the header:
+    :data:`TEXT_NODATA` (-9999), or, when the heights reach it, the next power of ten below
+    the lowest height (-99999, ...), so no height is taken for nodata."""
+    try:
+        lo = ds.GetRasterBand(1).ComputeRasterMinMax(False)[0]
+    except RuntimeError:            # no valid cell
+        lo = math.inf
+    value = TEXT_NODATA
+    while math.isfinite(lo) and lo <= value:
+        value = value * 10.0 - 9.0
+    return value
 
 
 def float_output_nodata(nodata):

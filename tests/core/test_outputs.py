@@ -207,3 +207,50 @@ def test_mask_palette_names_only_the_mask_codes(tmp_path):
             assert ct.GetColorEntry(code)[:3] == MASK_COLOURS[code][:3] and names[code] == MASK_CODES[code]
         else:
             assert not names[code]
+
+
+@pytest.mark.parametrize("ext,driver,gt", [(".asc", "AAIGrid", (500.0, 2.0, 0.0, 900.0, 0.0, -1.0)),
+                                           (".sdat", "SAGA", (500.0, 2.0, 0.0, 900.0, 0.0, -2.0))])
+def test_text_header_formats_declare_a_finite_nodata_for_nan(tmp_path, ext, driver, gt):
+    # ESRI's ASCII grid and SAGA carry the nodata as text other software reads: "nan" there is
+    # not a number to them. The NaN cells become -9999, declared as the nodata; the heights
+    # are copied exactly (no CRS; non-square cells where the format holds them).
+    if gdal.GetDriverByName(driver) is None:
+        pytest.skip(f"GDAL has no {driver} driver")
+    z = np.random.default_rng(3).normal(100.0, 30.0, (23, 17)).astype(np.float32)
+    z[3, 4] = z[0, 0] = z[22, 16] = np.nan
+    info = grid.open_dsm(grid.write_array(tmp_path / "dsm.tif", np.zeros(z.shape, np.float32), gt))
+    with grid.OutputSet(info) as out:
+        out.add("dtm", tmp_path / f"dtm{ext}", "Float32", nodata=float("nan"))
+        out.write("dtm", z)
+        out.commit()
+    ds = gdal.Open(str(tmp_path / f"dtm{ext}"))
+    assert ds.GetDriver().ShortName == driver
+    assert ds.GetRasterBand(1).GetNoDataValue() == grid.TEXT_NODATA
+    got = ds.GetRasterBand(1).ReadAsArray()
+    np.testing.assert_array_equal(got == grid.TEXT_NODATA, np.isnan(z))
+    np.testing.assert_allclose(got[~np.isnan(z)], z[~np.isnan(z)], rtol=1e-6)
+    assert np.allclose(ds.GetGeoTransform(), gt)
+    if driver == "AAIGrid":
+        assert "nan" not in (tmp_path / "dtm.asc").read_text().lower()
+    assert _partials(tmp_path) == [] and not gdal.ReadDir("/vsimem/")
+
+
+def test_text_nodata_steps_below_heights_that_reach_it(tmp_path):
+    ds = gdal.GetDriverByName("MEM").Create("", 3, 1, 1, gdal.GDT_Float32)
+    ds.GetRasterBand(1).SetNoDataValue(float("nan"))
+    ds.GetRasterBand(1).WriteArray(np.array([[-12000.0, np.nan, 5.0]], np.float32))
+    assert grid.finite_text_nodata(ds) == -99999.0
+    ds.GetRasterBand(1).WriteArray(np.full((1, 3), np.nan, np.float32))
+    assert grid.finite_text_nodata(ds) == grid.TEXT_NODATA
+
+
+def test_saga_output_of_non_square_cells_is_refused_before_any_work(tmp_path):
+    from bare_earth.core.pipeline import run_file
+    z = np.random.default_rng(1).normal(50.0, 1.0, (40, 30)).astype(np.float32)
+    src = grid.write_array(tmp_path / "dsm.tif", z, (0.0, 2.0, 0.0, 80.0, 0.0, -1.0), 32632)
+    with pytest.raises(ValueError, match=r"square cells only, but the input's cells are 2 x 1.*GeoTIFF"):
+        run_file("morphological", src, {"dtm": str(tmp_path / "dtm.sdat"), "mask": str(tmp_path / "m.tif")})
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
+    grid.check_output_cells(tmp_path / "dtm.sdat", (0.0, 2.0, 0.0, 80.0, 0.0, -2.0))   # square: accepted
+    grid.check_output_cells(tmp_path / "dtm.asc", (0.0, 2.0, 0.0, 80.0, 0.0, -1.0))    # ASCII holds dx, dy
