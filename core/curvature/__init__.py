@@ -78,7 +78,15 @@ curvature, section 2.2). The curvature formulas are those of differential geomet
 graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 """
 from .derivatives import MODELS, compute_curvature, curvatures_from_derivatives, local_derivatives
-from .method import METHOD, bend_noise_gain, curvature_halo, derive_k_g, filter_curvature, resolve_curvature_params
+from .method import (
+    METHOD,
+    bend_noise_gain,
+    curvature_halo,
+    derive_k_g,
+    edge_bend,
+    filter_curvature,
+    resolve_curvature_params,
+)
 
 __all__ = ["METHOD", "MODELS", "bend_noise_gain", "compute_curvature", "curvature_halo", "curvatures_from_derivatives",
-           "derive_k_g", "filter_curvature", "local_derivatives", "resolve_curvature_params"]
+           "derive_k_g", "edge_bend", "filter_curvature", "local_derivatives", "resolve_curvature_params"]

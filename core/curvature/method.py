@@ -35,6 +35,9 @@ _K_SIGMAS = 1.5
 #: Smallest height deviation (m) across a half window that counts as a break on
 #: noise-free data (floor of the derived K_g).
 _MIN_BREAK_M = 0.05
+#: Half window (m) over which that deviation sets the cell-free floor of the bend: 5 cm over
+#: 2 m, a curvature radius of 40 m (the 5-cell window at 1 m cells, where the floor was set).
+_FLOOR_HALF_M = 2.0
 #: Tile edge (cells) and quantile of the tile spreads used for the ground's bend noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
@@ -221,8 +224,22 @@ def bend_noise_gain(cell_size: CellSize, window: int = 5) -> float:
     return 2.0 / (np.sqrt((2 * m + 1) * b) * d * d)
 
 
+def edge_bend(cell_size: CellSize, window: int, height_m: float) -> float:
+    """Bend (1/m) of the quadratic profile trend (:func:`.derivatives.local_derivatives`)
+    centred on the foot of a wall of ``height_m``: ``r = 2 d`` with ``d = sum((u^2 - c) z)
+    / (B dx^2)`` over ``u = -m..m`` (the mean over the window's rows), ``z = height_m``
+    for ``u > 0``: ``2 height_m sum_{u>0}(u^2 - c) / (B dx^2)``; the coarser of ``dx``,
+    ``dy`` (5 cells: ``height_m / (7 dx^2)``)."""
+    m = check_window(window) // 2
+    u = np.arange(-m, m + 1, dtype=np.float64)
+    c = float(np.mean(u * u))
+    b = float(np.sum((u * u - c) ** 2))
+    d = max(as_cell_size(cell_size))
+    return 2.0 * float(height_m) * float(np.sum(u[u > 0] ** 2 - c)) / (b * d * d)
+
+
 def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: str = "quadratic",
-               progress=None) -> float:
+               min_object_height_m: Optional[float] = None, progress=None) -> float:
     """Curvature threshold K_g (1/m^2) from the data's own curvature distribution.
 
     The bends r and t of the X and Y profile trends (quadratic model) or the normalised
@@ -242,8 +259,16 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     on a slope holds twice the rise of a 1 m cell, so the fit's bend noise falls as 1 /
     cell there, not as 1 / cell^2). ``K_g = (1.5 sigma_b)^2``, the Gaussian curvature of a
     point bent by 1.5 sigma_b both ways, floored at the bend of a 5 cm deviation over half a
-    window so that noise-free data do not mark every gentle bend. (1.5 rather than a
-    stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
+    window so that noise-free data do not mark every gentle bend. With
+    ``min_object_height_m`` the floor is at least the bend of 5 cm over 2 m (a curvature
+    radius of 40 m, the same at every cell) but at most the bend of an object of that
+    height over half a window: the ground's own bends are the same in 1/m at every cell
+    size while a window's noise bends, and the floor of 5 cm over half a window, fall as
+    1/cell^2, so at 2 and 4 m cells most of the ground became breaks (ISPRS samp71 at 2 m:
+    9 % total error; a forest at 4 m), and the final pass interpolated the ground under
+    them; the smallest object the filter looks for still bends the fit by at least the
+    threshold at 10 or 20 m cells. At 1 m cells and finer the floor is unchanged. (1.5
+    rather than a stricter 3 sigma: the wall and surface tests downstream reject the extra breaks, and
     missed breaks cost whole objects.) ``progress(fraction)`` (optional, may raise
     ``Cancelled``) after each window.
     """
@@ -259,6 +284,9 @@ def derive_k_g(z: np.ndarray, cell_size: CellSize, *, window: int = 5, model: st
     sigma = float(np.hypot(sigma, _place_bend(z, (dx, dy), window)))
     half = (window // 2) * max(dx, dy)
     floor = 2.0 * _MIN_BREAK_M / (half * half)
+    if min_object_height_m is not None:
+        floor = max(floor, min(2.0 * _MIN_BREAK_M / (_FLOOR_HALF_M * _FLOOR_HALF_M),
+                               edge_bend((dx, dy), window, float(min_object_height_m))))
     kappa = max(_K_SIGMAS * sigma, floor)
     return kappa * kappa
 
@@ -281,8 +309,9 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
-    ground, squared). ``tolerance_m``: three times the noise of the DSM's ground-level
-    cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
+    ground, squared; its floor at least 5 cm over 2 m, at most the bend of a
+    ``min_object_height_m`` object over half a window). ``tolerance_m``: three times the
+    noise of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
     [0.3, 1.0] m; 0.5 m when too few ground cells are seen. The others have
     fixed defaults (see :data:`METHOD`). ``progress(fraction)`` (optional, may raise
     ``Cancelled``) from inside the estimates.
@@ -293,7 +322,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     model = check_model(model)
     if k_g_per_m2 is None:
         k_g_per_m2 = derive_k_g(z, (dx, dy), window=window_cells, model=model,
-                                progress=sub_progress(progress, 0.0, 0.75))
+                                min_object_height_m=min_object_height_m, progress=sub_progress(progress, 0.0, 0.75))
     if tolerance_m is None:
         sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 1.0))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
@@ -333,7 +362,9 @@ METHOD = Method(
               "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
               "cell with |K| >= K_g, or whose X or Y profile bends by sqrt(K_g) 1/m or more, "
               "is a break. Empty: (1.5 robust sigmas of the data's profile bends, with the "
-              "bend a height's place inside its cell gives on the median slope)^2; see "
+              "bend a height's place inside its cell gives on the median slope)^2, at least "
+              "the bend of 5 cm over 2 m (at most that of a minimum-height object over half "
+              "a window); see "
               "the CURVATURE output to choose it.", minimum=1e-9, maximum=1e6),
         Param("window_cells", "int", 5,
               "Points per profile group (odd window edge, cells) of the local least-squares "

@@ -291,6 +291,65 @@ def test_k_g_floor_governs_a_plane_at_1_m():
     z = _lowest_point_plane(1.0)
     assert curvature.derive_k_g(z, 1.0) == pytest.approx((2 * 0.05 / 2.0 ** 2) ** 2)
 
+def _undulating_ground(cell, side=512.0, amplitude=1.0, wavelength=64.0):
+    """Noise-free ground (no objects): flat on the west half, on the east half ``amplitude``
+    m bumps of ``wavelength`` m along x and y (curvature up to ``amplitude (2 pi /
+    wavelength)^2`` = 0.0096 1/m). The flat half's tiles are the smoothest: the bend noise
+    reads ~0 and the floor of K_g governs."""
+    n = int(round(side / cell))
+    u = (np.arange(n) + 0.5) * cell
+    k = 2 * np.pi / wavelength
+    bumps = amplitude * np.sin(k * u)[:, None] * np.sin(k * u)[None, :]
+    return (100 + np.where(u[None, :] >= side / 2, bumps, 0.0)).astype(np.float32)
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0])
+def test_k_g_floor_is_the_same_bend_in_metres_at_1_and_2_m(cell):
+    """#12: noise-free ground at 1 and 2 m cells: with the minimum object height the
+    floor of sqrt(K_g) is the bend of 5 cm over 2 m (0.025 1/m) at both cells; without it
+    (the old floor, 5 cm over half a window) it fell as 1 / cell^2 (0.00625 1/m at 2 m)."""
+    z = _lowest_point_plane(cell, slope=0.0)
+    k = curvature.derive_k_g(z, cell, min_object_height_m=1.0)
+    assert np.sqrt(k) == pytest.approx(2 * 0.05 / 2.0 ** 2, rel=1e-9)
+    old = curvature.derive_k_g(z, cell)
+    assert np.sqrt(old) == pytest.approx(max(2 * 0.05 / (2 * cell) ** 2, np.sqrt(old)), rel=1e-9)
+    assert np.sqrt(old) <= np.sqrt(k) + 1e-12
+
+
+def test_edge_bend_is_the_fits_bend_at_a_walls_foot():
+    """The quadratic trend's bend at the foot of a wall of height h (5 cells: h / (7 dx^2)),
+    equal to the r of :func:`local_derivatives` on such a wall."""
+    assert curvature.edge_bend(2.0, 5, 1.0) == pytest.approx(1.0 / (7 * 4.0), rel=1e-12)
+    z = np.zeros((9, 9), np.float32)
+    z[:, 5:] = 3.0
+    p, q, r, s, t = derivatives.local_derivatives(z, (4.0, 4.0), window=5, model="quadratic")
+    assert r[4, 4] == pytest.approx(curvature.edge_bend((4.0, 4.0), 5, 3.0), rel=1e-5)
+
+
+@pytest.mark.parametrize("cell", [4.0, 10.0, 20.0])
+def test_k_g_floor_at_most_the_bend_of_the_smallest_object(cell):
+    """At 4, 10 and 20 m cells the floor is the fit's bend at the foot of a wall of the
+    minimum object height (:func:`edge_bend`): such an object still makes a break."""
+    z = _undulating_ground(cell, side=64 * cell, amplitude=0.0)
+    for h in (1.0, 2.5):
+        k = curvature.derive_k_g(z, cell, min_object_height_m=h)
+        assert np.sqrt(k) == pytest.approx(min(0.025, curvature.edge_bend(cell, 5, h)), rel=1e-9)
+
+
+@pytest.mark.parametrize("cell", [2.0, 4.0])
+def test_rolling_ground_is_no_break_at_coarse_cells(cell):
+    """#12: rolling ground (curvature up to 0.0096 1/m, no objects) at 2 and 4 m cells: the
+    floor in 1/m leaves it unmarked; the old floor (5 cm over half a window) marked most
+    of it (21 % at 2 m, 46 % at 4 m), the final pass interpolating under those breaks."""
+    z = _undulating_ground(cell)
+    p = curvature.resolve_curvature_params(z, cell)
+    new = derivatives.mark_breaks(z, (cell, cell), p["k_g_per_m2"], window=5, model="quadratic")
+    old = derivatives.mark_breaks(z, (cell, cell), curvature.derive_k_g(z, cell), window=5, model="quadratic")
+    assert new.marked.mean() < 0.01 and old.marked.mean() > 0.15
+    res = curvature.filter_curvature(z, cell, **p)
+    assert np.count_nonzero(res.mask != GROUND) == 0
+
+
 def test_bilinear_model_runs_and_marks_only_by_k():
     z, truth = building_scene()
     res, P = run(z, model="bilinear")
