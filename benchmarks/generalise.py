@@ -49,6 +49,14 @@ The rows (each with its figure of merit, total error in percent unless said othe
   (85 % crowns over gentle ground, 512 m square, 1 m and 4 m cells: the forest on which
   defaults measured on the whole DSM fail) against their truth masks: total error per cell
   (ground = mask 0), and the DTM's RMSE against the true terrain.
+* ``synthetic-lidar/<kind>/<cell>m``: simulated dense airborne lidar
+  (``synthetic.make_lidar_points``: forest on a 34-40 degree hillside with a bank, mixed
+  town / forest / open land with a hillside and a road cutting, urban blocks with a hall
+  over 60 m; crowns that pulses pass with a Beer-Lambert probability, shrubs, first to
+  fourth returns, flight strips with their overlaps; 400 m square, 10 pulses per m2, seed
+  0) at 1, 2 and 4 m, lowest point per cell, scored exactly as the ``lidar/`` rows
+  (:func:`point_cloud_rows`): the stand-in for the held-out dense tiles of issue 12 (urban
+  at 1 m, mixed at 2 m, forest at 4 m), which the project does not have.
 
 Floor, grid and raw. Each point row also shows ``floor``: the same scoring of the reference's
 own DTM (the truth's ground points, mean per cell on the row's grid, gaps filled
@@ -115,9 +123,10 @@ filter with its defaults, type I split into "ground point above the DTM" and "be
 
 Fixed halves. The sources (a sample, a file, the opengeos raster, a synthetic kind) are
 listed in a fixed order (ISPRS samples by name, LiDAR files by name, opengeos, synthetic
-kinds in ``synthetic.KINDS`` order) and alternately assigned to half A and half B; every
-row of a source (its cell sizes, lowest / highest) is in its source's half, so no input is
-seen in both halves in another form. The halves' means are means of the rows' total error.
+kinds in ``synthetic.KINDS`` order, then the simulated lidar kinds: forest A, mixed B, urban
+A) and alternately assigned to half A and half B; every row of a source (its cell sizes,
+lowest / highest) is in its source's half, so no input is seen in both halves in another
+form. The halves' means are means of the rows' total error.
 
 Every run appends one JSON line (date, commit, uncommitted files, per row and filter the
 figures and the filter's derived parameters) to ``benchmarks/results/generalise.jsonl``
@@ -167,6 +176,10 @@ SYNTHETIC = [(k, 1.0, 384) for k in ("flat", "rolling", "mountain", "city", "for
     [("forest", 4.0, 768), ("city", 0.5, 256)]
 #: Cells of the closed-canopy scene (``synthetic.make_canopy``, 512 m square, 85 % crowns).
 CANOPY_CELLS = (1.0, 4.0)
+#: Simulated airborne lidar (``synthetic.make_lidar_points``): (kind, square side m, pulses
+#: per m2), each at SYNTHETIC_LIDAR_CELLS, lowest point per cell, seed 0.
+SYNTHETIC_LIDAR = (("forest", 400.0, 10.0), ("mixed", 400.0, 10.0), ("urban", 400.0, 10.0))
+SYNTHETIC_LIDAR_CELLS = (1.0, 2.0, 4.0)
 
 #: Published figures of other tools and of the held-out data (issue 12); notes, not rows.
 ANCHORS = """\
@@ -266,6 +279,44 @@ def _lidar_truth(cls):
     return np.isin(cls, LIDAR_GROUND), ~excluded
 
 
+def point_cloud_rows(cloud, cells, notes, label, name):
+    """The rows of one classified cloud at ``cells`` (metres): lowest point per cell through
+    :mod:`bare_earth.core.pointflow`, every point scored against its ASPRS class
+    (:func:`_lidar_truth`), the object points the point rule cannot tell from the reference's
+    own ground surface left out (counted in ``notes``); ``name(cell)`` names a row."""
+    from bare_earth.core import pointflow as pf
+    truth, valid = _lidar_truth(cloud.classification)
+    sx, sy, _ = pf.axis_scales(cloud)
+    x0, y0, x1, y1 = cloud.extent
+    spacing = math.sqrt(max((x1 - x0) * sx * (y1 - y0) * sy, 1.0) / len(cloud))
+    # object points the point rule cannot tell from the reference's own ground surface
+    # (class 1 'unclassified' ground of files whose ground class is not exhaustive)
+    gref = pf.rasterize_cloud(cloud, max(2.0, spacing), reducer="min", fill_empty=True)
+    ref = truth_dtm(cloud.x, cloud.y, cloud.z, truth, gref.geotransform, gref.shape) * np.float32(gref.z_to_m)
+    near = (pf.classify_cloud(cloud, ref, gref.geotransform) == 0) & ~truth & valid
+    valid = valid & ~near
+    notes.append(f"{label}: {int(near.sum())} of {int((~truth).sum())} object points lie within the point "
+                 "rule of the reference's own ground surface: left out")
+    rows = []
+    for cell in cells:
+        if cell < LIDAR_FINEST * spacing:
+            notes.append(f"{label}: {cell:g} m cells skipped (point spacing {spacing:.1f} m: "
+                         "fewer than one point per 16 cells)")
+            continue
+
+        def build(cell=cell, cloud=cloud, truth=truth, valid=valid):
+            g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=True)
+
+            def classify(dtm, g=g, cloud=cloud):
+                return pf.classify_cloud(cloud, dtm, g.geotransform)
+
+            def floor(g=g, cloud=cloud):
+                return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)
+            return g.z_metres(), g.cell_size_m, _point_score(truth, valid, classify, floor)
+        rows.append((name(cell), build))
+    return rows
+
+
 def lidar_cases(data, notes):
     folder = data / "lidar"
     files = sorted(list(folder.glob("*.las")) + list(folder.glob("*.laz"))) if folder.is_dir() else []
@@ -293,38 +344,11 @@ def lidar_cases(data, notes):
                                crs=cloud.crs, units_to_metre=cloud.units_to_metre,
                                z_units_to_metre=cloud.z_units_to_metre)
             notes.append(f"{p.name}: thinned to every {k}-th point ({len(cloud)} points)")
-        truth, valid = _lidar_truth(cloud.classification)
         native = pf.default_cell_size_m(cloud)
-        sx, sy, _ = pf.axis_scales(cloud)
-        x0, y0, x1, y1 = cloud.extent
-        spacing = math.sqrt(max((x1 - x0) * sx * (y1 - y0) * sy, 1.0) / len(cloud))
-        # object points the point rule cannot tell from the reference's own ground surface
-        # (class 1 'unclassified' ground of files whose ground class is not exhaustive)
-        gref = pf.rasterize_cloud(cloud, max(2.0, spacing), reducer="min", fill_empty=True)
-        ref = truth_dtm(cloud.x, cloud.y, cloud.z, truth, gref.geotransform, gref.shape) * np.float32(gref.z_to_m)
-        near = (pf.classify_cloud(cloud, ref, gref.geotransform) == 0) & ~truth & valid
-        valid = valid & ~near
-        notes.append(f"{p.name}: {int(near.sum())} of {int((~truth).sum())} object points lie within the point "
-                     "rule of the reference's own ground surface: left out")
         cells = [native] + [c for c in LIDAR_CELLS if abs(c - native) > 1e-9]
-        rows = []
-        for cell in cells:
-            if cell < LIDAR_FINEST * spacing:
-                notes.append(f"{p.name}: {cell:g} m cells skipped (point spacing {spacing:.1f} m: "
-                             "fewer than one point per 16 cells)")
-                continue
-
-            def build(cell=cell, cloud=cloud, truth=truth, valid=valid):
-                g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=True)
-
-                def classify(dtm, g=g, cloud=cloud):
-                    return pf.classify_cloud(cloud, dtm, g.geotransform)
-
-                def floor(g=g, cloud=cloud):
-                    return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)
-                return g.z_metres(), g.cell_size_m, _point_score(truth, valid, classify, floor)
-            tag = "native" if cell == native else ""
-            rows.append((f"lidar/{p.stem}/{cell:g}m{'*' if tag else ''}", build))
+        rows = point_cloud_rows(cloud, cells, notes, p.name,
+                                lambda cell, native=native, stem=p.stem: f"lidar/{stem}/{cell:g}m"
+                                + ("*" if cell == native else ""))
         out.append((f"lidar/{p.stem}", "lidar", rows))
     return out
 
@@ -384,10 +408,37 @@ def synthetic_cases(notes):
     return [(f"synthetic/{k}", "synthetic", rows) for k, rows in by_kind.items()]
 
 
+def synthetic_lidar_cases(notes):
+    """The simulated lidar clouds (:data:`SYNTHETIC_LIDAR`), scored as the classified files
+    are (:func:`point_cloud_rows`); each cloud is made when one of its rows is first built."""
+    from bare_earth.core.synthetic import make_lidar_points
+    cache, out = {}, []
+
+    def name(kind, cell):
+        return f"synthetic-lidar/{kind}/{cell:g}m"
+
+    def rows_of(kind, extent, density):
+        if kind not in cache:
+            cloud = make_lidar_points(kind, extent_m=extent, density_per_m2=density, seed=0).to_cloud()
+            label = f"synthetic-lidar/{kind} ({extent:g} m square, {density:g} pulses per m2, {len(cloud)} points)"
+            cache[kind] = dict(point_cloud_rows(cloud, SYNTHETIC_LIDAR_CELLS, notes, label,
+                                                lambda cell: name(kind, cell)))
+        return cache[kind]
+
+    def lazy(row, args):
+        return lambda: rows_of(*args)[row]()
+
+    for kind, extent, density in SYNTHETIC_LIDAR:
+        rows = [(name(kind, c), lazy(name(kind, c), (kind, extent, density))) for c in SYNTHETIC_LIDAR_CELLS]
+        out.append((f"synthetic-lidar/{kind}", "synthetic-lidar", rows))
+    return out
+
+
 def all_cases(data, notes):
-    """``[(source, family, half, [(row name, build)])]`` in the fixed order of the halves."""
+    """``[(source, family, half, [(row name, build)])]`` in the fixed order of the halves (the
+    simulated lidar last, so the earlier sources keep their halves)."""
     sources = (isprs_cases(data, notes) + lidar_cases(data, notes) + opengeos_cases(data, notes)
-               + synthetic_cases(notes))
+               + synthetic_cases(notes) + synthetic_lidar_cases(notes))
     return [(src, fam, "AB"[i % 2], rows) for i, (src, fam, rows) in enumerate(sources)]
 
 
