@@ -342,7 +342,7 @@ class LidarPoints:
     objects : dict
         Counts and sizes: ``trees``, ``shrubs``, ``buildings`` (number of buildings),
         ``largest_building_m`` (the longest side of any building), ``max_slope_deg`` (of
-        the steep hillside, 0 for ``urban``), ``bank`` / ``cutting`` (height / depth, m).
+        the steep hillside, 0 without one), ``bank`` / ``cutting`` (height / depth, m).
     epsg : int
         32632.
     """
@@ -373,7 +373,7 @@ class LidarPoints:
 
 
 def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0, crown_density=1.0,
-                      noise_rate=1e-5):
+                      noise_rate=1e-5, steep=True):
     """Simulate an airborne lidar survey of a landscape with known ground.
 
     The landscape is continuous (every surface a function of map x, y) and the scanner
@@ -431,6 +431,9 @@ def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0
         crowns, fewer pulses through).
     noise_rate : float
         Share of the pulses with a low-noise point and with a high-noise point (0-0.01).
+    steep : bool
+        False: no hillside, bank or cutting (``forest`` and ``mixed`` on the smooth field
+        alone, slopes of a few degrees).
 
     Returns
     -------
@@ -461,7 +464,7 @@ def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0
     ss = np.random.SeedSequence([int(seed), 100 + LIDAR_KINDS.index(kind)])
     r_ter, r_zone, r_bld, r_tree, r_shrub, r_scan, r_ret, r_noise = (np.random.default_rng(s) for s in ss.spawn(8))
     objects = {}
-    terrain, zone = _lidar_terrain(r_ter, r_zone, kind, e, objects)
+    terrain, zone = _lidar_terrain(r_ter, r_zone, kind, e, objects, bool(steep))
     bld = _Blocks(r_bld, kind, e, terrain, zone) if kind != "forest" else None
     objects["buildings"] = 0 if bld is None else bld.count
     objects["largest_building_m"] = 0.0 if bld is None else bld.largest_m
@@ -485,7 +488,7 @@ def _rotated(x, y, angle, cx, cy):
     return (x - cx) * ca + (y - cy) * sa, -(x - cx) * sa + (y - cy) * ca
 
 
-def _lidar_terrain(rng, r_zone, kind, e, objects):
+def _lidar_terrain(rng, r_zone, kind, e, objects, steep=True):
     """``terrain(x, y)`` and ``zone(x, y)`` (a smooth field, std about 1) in local metres
     (origin at the square's south-west corner, y north)."""
     g, pad = 1.0, 8
@@ -494,7 +497,7 @@ def _lidar_terrain(rng, r_zone, kind, e, objects):
     field0 = _terrain(rng, (n, n), (g, g), ((800.0, 1.0), (250.0, 0.5), (80.0, 0.15)), base_deg)
     zfield = _smooth_field(r_zone, (n, n), (g, g), ((60.0, 1.0), (25.0, 0.3)))
     feats = []
-    if kind != "urban":
+    if kind != "urban" and steep:
         # a hillside: a logistic step of height A whose steepest slope is A / (4 w)
         a = rng.uniform(35.0, 55.0) if kind == "forest" else rng.uniform(20.0, 35.0)
         smax = np.radians(rng.uniform(34.0, 40.0))

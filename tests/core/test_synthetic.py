@@ -354,3 +354,11 @@ def test_lidar_points_errors():
         make_lidar_points("forest", density_per_m2=0.0)
     with pytest.raises(ValueError, match="crown_density"):
         make_lidar_points("forest", crown_density=-1.0)
+
+
+def test_lidar_gentle_terrain_without_hillside():
+    p = make_lidar_points("forest", extent_m=150.0, density_per_m2=1.0, seed=3, steep=False)
+    assert "bank" not in p.objects and p.objects["max_slope_deg"] == 0.0
+    xx, yy = np.meshgrid(p.extent[0] + np.arange(0, 150, 1.0), p.extent[1] + np.arange(0, 150, 1.0))
+    gy, gx = np.gradient(p.terrain(xx, yy), 1.0)
+    assert np.percentile(np.degrees(np.arctan(np.hypot(gx, gy))), 99) < 15.0
