@@ -373,7 +373,7 @@ class LidarPoints:
 
 
 def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0, crown_density=1.0,
-                      noise_rate=1e-5, steep=True):
+                      noise_rate=1e-5, steep=True, understory=1.0):
     """Simulate an airborne lidar survey of a landscape with known ground.
 
     The landscape is continuous (every surface a function of map x, y) and the scanner
@@ -434,6 +434,9 @@ def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0
     steep : bool
         False: no hillside, bank or cutting (``forest`` and ``mixed`` on the smooth field
         alone, slopes of a few degrees).
+    understory : float
+        Factor on the shrubs' stem density (1: 0.03 per m2 before the zones thin them;
+        0-100).
 
     Returns
     -------
@@ -459,6 +462,8 @@ def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0
         raise ValueError(f"density_per_m2 must be 0.1-100 pulses per m2; got {density_per_m2!r}.")
     if not np.isfinite(crown_density) or not 0.0 <= crown_density <= 100.0:
         raise ValueError(f"crown_density must be 0-100; got {crown_density!r}.")
+    if not np.isfinite(understory) or not 0.0 <= understory <= 100.0:
+        raise ValueError(f"understory must be 0-100; got {understory!r}.")
     if not np.isfinite(noise_rate) or not 0.0 <= noise_rate <= 0.01:
         raise ValueError(f"noise_rate must be 0-0.01; got {noise_rate!r}.")
     ss = np.random.SeedSequence([int(seed), 100 + LIDAR_KINDS.index(kind)])
@@ -469,7 +474,7 @@ def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0
     objects["buildings"] = 0 if bld is None else bld.count
     objects["largest_building_m"] = 0.0 if bld is None else bld.largest_m
     trees = _lidar_trees(r_tree, kind, e, terrain, zone, bld, crown_density)
-    shrubs = _lidar_shrubs(r_shrub, kind, e, zone, bld)
+    shrubs = _lidar_shrubs(r_shrub, kind, e, zone, bld, float(understory))
     objects["trees"], objects["shrubs"] = int(trees["R"].size), int(shrubs["R"].size)
     px, py, angle, strip = _scan(r_scan, e, float(density_per_m2))
     pts = _returns(r_ret, r_noise, px, py, angle, strip, terrain, bld, trees, shrubs, e, float(noise_rate))
@@ -676,9 +681,9 @@ def _lidar_trees(rng, kind, e, terrain, zone, bld, crown_density):
     return dict(x=x, y=y, z0=terrain(x, y), H=hgt, R=rad, base=base, conifer=conifer, k=k)
 
 
-def _lidar_shrubs(rng, kind, e, zone, bld):
+def _lidar_shrubs(rng, kind, e, zone, bld, understory=1.0):
     lo, hi = -2.0, e + 2.0
-    x, y = _poisson_xy(rng, 0.03, lo, hi)
+    x, y = _poisson_xy(rng, 0.03 * understory, lo, hi)
     if kind == "forest":
         keep = rng.random(x.size) < np.where(zone(x, y) > -1.04, 1.0, 0.3)
     elif kind == "mixed":

@@ -362,3 +362,19 @@ def test_lidar_gentle_terrain_without_hillside():
     xx, yy = np.meshgrid(p.extent[0] + np.arange(0, 150, 1.0), p.extent[1] + np.arange(0, 150, 1.0))
     gy, gx = np.gradient(p.terrain(xx, yy), 1.0)
     assert np.percentile(np.degrees(np.arctan(np.hypot(gx, gy))), 99) < 15.0
+
+
+def test_lidar_understory_hides_the_ground():
+    """More shrubs: more low-vegetation points and more 2 m cells without a ground return."""
+    out = {}
+    for us in (0.0, 10.0):
+        p = make_lidar_points("forest", extent_m=100.0, density_per_m2=5.0, seed=2, understory=us, noise_rate=0.0,
+                              steep=False)
+        g = p.classification == 2
+        has = np.zeros((50, 50), bool)
+        has[((p.y[g] - p.extent[1]) // 2).astype(int), ((p.x[g] - p.extent[0]) // 2).astype(int)] = True
+        out[us] = (np.mean(p.classification == 3), 1.0 - has.mean(), p.objects["shrubs"])
+    assert out[0.0][2] == 0 and out[10.0][2] > 1000
+    assert out[10.0][0] > 3 * out[0.0][0] and out[10.0][1] > out[0.0][1] + 0.05
+    with pytest.raises(ValueError, match="understory"):
+        make_lidar_points("forest", understory=-1.0)
