@@ -145,9 +145,10 @@ filter with its defaults, type I split into "ground point above the DTM" and "be
   1.82 -> 1.94; dtm within 0.09 on every row (mean 7.14, ISPRS 1 m lowest 3.66, opengeos
   0.66 m, unchanged; commit 7e8ad5a). Runs up to ``sqrt(2) S`` on one wall (2.76 / 1.66 on urban / mixed
   1 m) label samp71's plateau beyond the river bank, which falls gently on its other side
-  (samp71 1 m 8.99 -> 10.88; ISPRS 1 m lowest 5.27 -> 5.55); so does a 100 m or 128 m
-  ``max_object_size_m`` through the extent limit (samp41/1m/min 5.27 -> 14.58: its raised
-  walled ground, a region of 112 x 168 m, passes 2 x 100 m at the 32 m step); an extent
+  (samp71 1 m 8.99 -> 10.88; ISPRS 1 m lowest 5.27 -> 5.55). A ``max_object_size_m`` of
+  100 or 128 m (urban / mixed 1 m 2.73 / 1.28) costs samp41/1m/min 5.27 -> 14.58 through
+  the extent limit (its raised walled ground, a region of 112 x 168 m, passes 2 x 100 m at
+  the 32 m step); an extent
   limit of 2 x each step's window instead costs samp41/1m/min 5.27 -> 15.20 (its buildings'
   regions at the 16 m step exceed 32 m). Analysing the coarse steps' regions on the fine grid (urban/1m
   9.83 -> 2.95, mixed/1m 8.78 -> 2.12; the same figures when only the regions the extent
@@ -157,7 +158,11 @@ filter with its defaults, type I split into "ground point above the DTM" and "be
   5.27 -> 8.41: not adopted. The width of the objects standing above the ground level
   (``estimate.object_widths`` on ``ground_level_cells``) does not tell towns from hills:
   with 65 m blocks 101 m on urban/1m but 78-85 m on samp31, samp71 and Topography, 65-70 m
-  on samp51 and samp61; ``max_object_size_m`` stays 64 m.
+  on samp51 and samp61 (128 m blocks: 105-149 m on samp11, 41, 61, 71 and hexbin; keeping
+  the components whose rim is mostly walls changes none of these); ``max_object_size_m``
+  stays 64 m. What geodesic leaves on these rows: the centre of the hall (64-97 m, rows
+  crossing it over more than 90 m) and buildings cut by the raster's edge (no fall closes
+  their runs); on mixed the hall (standing across the hillside) and parts of two more.
   Morphological's ``urban`` rows (7.60 / 6.27 / 3.70 at 1 / 2 / 4 m) are flat 8 m roofs of
   45-95 m that stand under SMRF's elevation threshold ``slope x window radius`` (the
   derived slope 0.051 raised to its floor 0.3: 9.6 m at the 64 m window); a floor of 0.15
