@@ -153,6 +153,10 @@ class DSMInfo:
     notes : list of str, facts for the log that are no warning (scale and offset applied)
     far_cells : cells seen by :meth:`read` with heights beyond ``common.MAX_ABS_HEIGHT_M``
         (or infinite), read as nodata
+    masked : 0 when only the nodata value marks missing cells; else where the cells that are
+        nodata too come from (0 in it, drawn transparent by QGIS): the index of the raster's
+        alpha band (whatever its data type: ``gdalwarp -dstalpha`` writes a Float32 one, which
+        GDAL's own mask ignores), or -1 for GDAL's mask band (an internal or ``.msk`` mask)
     """
     path: str
     band_index: int
@@ -170,6 +174,7 @@ class DSMInfo:
     offset: float = 0.0
     notes: List[str] = field(default_factory=list)
     far_cells: int = 0
+    masked: int = 0
 
     @property
     def cells(self):
@@ -198,6 +203,31 @@ class DSMInfo:
                              f"{gdal.GetLastErrorMsg() or 'GDAL gave no reason'}. Check the file.")
         return a
 
+    def mask_valid(self, window=None, step=1):
+        """Where the band's mask or alpha band says a cell is valid over ``window`` (read as
+        :meth:`read_stored` reads the band), or None when the band has no such mask."""
+        if not self.masked:
+            return None
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        with _reading(self.path):
+            ds = self.dataset()
+            mb = ds.GetRasterBand(self.band_index).GetMaskBand() if self.masked < 0 else ds.GetRasterBand(self.masked)
+            if step > 1:
+                m = mb.ReadAsArray(c0, r0, c1 - c0, r1 - r0, buf_xsize=max(1, (c1 - c0) // step),
+                                   buf_ysize=max(1, (r1 - r0) // step), resample_alg=gdal.GRIORA_NearestNeighbour)
+            else:
+                m = mb.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
+        return m != 0
+
+    def surface(self, stored, window=None, step=1, z_to_m=None):
+        """Stored values read over ``window`` (every ``step``-th cell) -> float32 heights with NaN
+        for nodata: the declared nodata and the cells the band's mask or alpha band masks."""
+        z = to_surface(stored, self.nodata, self.z_to_m if z_to_m is None else z_to_m, self.scale, self.offset)
+        valid = self.mask_valid(window, step)
+        if valid is not None:
+            z[~valid] = np.nan
+        return z
+
     def read_heights(self, window=None):
         """Heights over ``window`` in the raster's own unit (scale and offset applied, float32;
         nodata cells hold whatever is stored there): the values an output DTM copies."""
@@ -212,7 +242,7 @@ class DSMInfo:
         """
         a = self.read_stored(window, step)
         self.note_nan(a)
-        z, n_far = without_far_heights(to_surface(a, self.nodata, self.z_to_m, self.scale, self.offset), far_in)
+        z, n_far = without_far_heights(self.surface(a, window, step), far_in)
         self.far_cells += n_far
         return z
 
@@ -319,6 +349,9 @@ def open_dsm(path, band=None):
     nb = ds.RasterCount
     if nb == 0:
         raise ValueError(f"the raster {path!r} has no band: pass a single-band DSM.")
+    alpha = [k for k in range(1, nb + 1) if ds.GetRasterBand(k).GetColorInterpretation() == gdal.GCI_AlphaBand]
+    if band in (None, 0) and nb > 1 and nb - len(alpha) == 1:
+        band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
             raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
@@ -357,6 +390,13 @@ def open_dsm(path, band=None):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
                    dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    own_alpha = [k for k in alpha if k != int(band)]
+    if own_alpha:
+        info.masked = own_alpha[0]
+        info.notes.append(f"Cells where the alpha band (band {own_alpha[0]}) is 0 (drawn transparent) are nodata.")
+    elif not b.GetMaskFlags() & (gdal.GMF_ALL_VALID | gdal.GMF_NODATA):
+        info.masked = -1
+        info.notes.append("Cells masked by the raster's mask band (drawn transparent) are nodata.")
     if scale != 1.0 or offset != 0.0:
         info.notes.append(f"Heights are the band's stored values x {scale:g} + {offset:g} (its scale and "
                           "offset); the DTM and nDSM are written as those heights.")
@@ -375,16 +415,17 @@ def check_has_data(info, max_cells=4_000_000):
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
 
-    def heights(a):
-        return without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
+    def heights(a, window=None, step=1):
+        return without_far_heights(info.surface(a, window, step, z_to_m=1.0))
 
     a = info.read_stored(step=step)
-    z, n_far = heights(a)
+    z, n_far = heights(a, step=step)
     valid = np.isfinite(z)
     if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
         strip = max(1, max_cells // cols)
         for r in range(0, rows, strip):
-            zs, n = heights(info.read_stored((r, min(rows, r + strip), 0, cols)))
+            w = (r, min(rows, r + strip), 0, cols)
+            zs, n = heights(info.read_stored(w), w)
             n_far += n
             valid = np.isfinite(zs)
             if valid.any():

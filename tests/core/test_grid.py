@@ -427,3 +427,70 @@ def test_far_heights_read_as_nodata(tmp_path, far):
     assert np.isnan(z[2, 3]) and np.isnan(z[0, 0]) and np.isfinite(z).sum() == 28
     assert info.far_cells == (1 if np.isfinite(far) else 0)   # inf: nodata as every non-finite cell
     assert info.nan_undeclared       # the NaN cell, not the far one, makes this warning
+
+
+# ---- cells masked by an alpha band or a mask band are nodata ------------------------------
+
+def _with_alpha(tmp_path, z, alpha, alpha_type=gdal.GDT_Float32, name="alpha.tif"):
+    """A DSM band and an alpha band (as ``gdalwarp -dstalpha`` writes them: of the data's type)."""
+    path = str(tmp_path / name)
+    ds = gdal.GetDriverByName("GTiff").Create(path, z.shape[1], z.shape[0], 2, gdal.GDT_Float32)
+    ds.SetGeoTransform(GT)
+    ds.SetProjection(wkt(32633))
+    ds.GetRasterBand(1).WriteArray(z)
+    ds.GetRasterBand(2).SetColorInterpretation(gdal.GCI_AlphaBand)
+    ds.GetRasterBand(2).WriteArray(alpha)
+    ds = None
+    if alpha_type != gdal.GDT_Float32:
+        out = str(tmp_path / ("t_" + name))
+        gdal.Translate(out, path, outputType=alpha_type)
+        return out
+    return path
+
+
+@pytest.mark.parametrize("alpha_type", [gdal.GDT_Float32, gdal.GDT_Byte])
+def test_alpha_band_zero_is_nodata_and_the_heights_band_chosen(tmp_path, alpha_type):
+    """A DSM warped with an alpha band (0 outside the data, the heights band 0 there too) is a
+    DSM with nodata: the heights band is the DSM (no BAND needed) and alpha 0 cells are NaN.
+    They were read as heights of 0 (GDAL's own mask ignores a Float32 alpha band)."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    alpha = np.full(z.shape, 255, np.float32)
+    alpha[:2, :3] = 0
+    z[:2, :3] = 0
+    p = _with_alpha(tmp_path, z, alpha, alpha_type)
+    info = grid.open_dsm(p)
+    assert info.band_index == 1
+    expect = z.copy()
+    expect[:2, :3] = np.nan
+    np.testing.assert_array_equal(info.read(), expect)
+    np.testing.assert_array_equal(info.read((1, 4, 2, 5)), expect[1:4, 2:5])
+    assert any("alpha band (band 2)" in n for n in info.notes)
+    assert grid.check_has_data(info) == pytest.approx(1 - 6 / 30)
+
+
+def test_alpha_band_all_transparent_has_no_data(tmp_path):
+    z = np.full((4, 5), 7.0, np.float32)
+    info = grid.open_dsm(_with_alpha(tmp_path, z, np.zeros(z.shape, np.float32)))
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(info)
+    with pytest.raises(ValueError, match="no valid cell"):   # decimated, then strip by strip
+        grid.check_has_data(info, max_cells=4)
+
+
+def test_internal_mask_band_is_nodata(tmp_path):
+    """A GeoTIFF whose validity is an internal mask (no nodata value): masked cells are NaN."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    src = _with_alpha(tmp_path, z, np.where(np.arange(30).reshape(5, 6) % 7 == 0, 0, 255).astype(np.float32),
+                      gdal.GDT_Byte)
+    out = str(tmp_path / "masked.tif")
+    gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", "YES")
+    try:
+        gdal.Translate(out, src, bandList=[1], maskBand=2)
+    finally:
+        gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", None)
+    info = grid.open_dsm(out)
+    assert gdal.Open(out).RasterCount == 1 and info.nodata is None
+    expect = z.copy()
+    expect[np.arange(30).reshape(5, 6) % 7 == 0] = np.nan
+    np.testing.assert_array_equal(info.read(), expect)
+    assert any("mask band" in n for n in info.notes)

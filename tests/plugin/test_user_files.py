@@ -1,0 +1,40 @@
+"""Files a QGIS user brings, through processing.run: rasters whose nodata is an alpha or mask
+band, compound CRSs with a vertical unit, creation options, outputs that cannot be replaced."""
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+gdal = pytest.importorskip("osgeo.gdal")
+
+
+def _read(path):
+    ds = gdal.Open(str(path))
+    b = ds.GetRasterBand(1)
+    return b.ReadAsArray(), b.GetNoDataValue()
+
+
+def _scene():
+    from bare_earth.core.synthetic import make_scene
+    return make_scene("city", shape=(60, 70), seed=3)
+
+
+def test_dsm_warped_with_an_alpha_band_keeps_its_outside_as_nodata(processing_run, tmp_path):
+    """``gdalwarp -dstalpha`` writes heights 0 and a (Float32) alpha 0 outside the data: those
+    cells are nodata in every output, and the heights band is taken without BAND. They were
+    ground at height 0 in the DTM (and the two bands refused without BAND)."""
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "src.tif", sc.dsm, sc.geotransform, sc.epsg)
+    warped = str(tmp_path / "warped.tif")
+    gdal.Warp(warped, src, dstSRS="EPSG:32633", dstAlpha=True)
+    ds = gdal.Open(warped)
+    outside = ds.GetRasterBand(2).ReadAsArray() == 0
+    assert ds.RasterCount == 2 and outside.any() and (~outside).any()
+    ds = None
+    r = processing_run("bareearth:morphological", {"INPUT": warped, "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                                   "OUTPUT_MASK": str(tmp_path / "mask.tif")})
+    dtm, _ = _read(r["OUTPUT_DTM"])
+    mask, _ = _read(r["OUTPUT_MASK"])
+    assert np.isnan(dtm[outside]).all() and np.isfinite(dtm[~outside]).all()
+    assert (mask[outside] == 255).all() and (mask[~outside] != 255).all()
+    assert np.nanmin(dtm) > 200          # no DTM cell pulled down to the 0 outside
