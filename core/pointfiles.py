@@ -491,14 +491,10 @@ def _las_crs(header):
 
 def _srs_units(srs):
     """(metres per horizontal unit, metres per vertical unit or None) of an osr CRS."""
+    from .grid import vertical_unit_factor
     h = float(srs.GetLinearUnits()) if srs.IsProjected() else 1.0
-    v = None
-    if srs.IsCompound() or srs.IsVertical():
-        try:
-            v = float(srs.GetTargetLinearUnits("VERT_CS"))
-        except Exception:
-            v = None
-    return h, v
+    v = vertical_unit_factor(srs)
+    return h, (v[0] if v else None)
 
 
 def _crs_units(crs):

@@ -286,18 +286,40 @@ def _linear_unit_factor(srs):
     return float(f) if f and f > 0 else 1.0
 
 
+def vertical_unit_factor(srs):
+    """Metres per unit of the vertical axis of a compound (or vertical) CRS, with its name, e.g.
+    ``(0.3048006, 'US survey foot')`` for ``EPSG:26917+6360`` (UTM in metres, NAVD88 heights
+    in US survey feet); None when the CRS has no vertical part (heights then in its linear
+    unit, or metres)."""
+    if srs is None or not (srs.IsCompound() or srs.IsVertical()):
+        return None
+    try:
+        f = float(srs.GetTargetLinearUnits("VERT_CS"))
+    except (RuntimeError, TypeError, ValueError):
+        return None
+    if not (math.isfinite(f) and f > 0):
+        return None
+    return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
+
+
 def cell_size_metres(geotransform, shape, srs=None):
-    """Cell size ``(dx, dy)`` in metres and warnings, from a geotransform and a CRS.
+    """Cell size ``(dx, dy)`` in metres, warnings, and metres per height unit, from a
+    geotransform and a CRS.
 
     Geographic CRSs (degrees) are converted at the latitude of the raster's centre with
-    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`).
+    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`). Heights are in the
+    unit of the CRS's vertical part when it has one (a compound CRS,
+    :func:`vertical_unit_factor`), else in a projected CRS's linear unit, else metres.
     """
     gt = geotransform
     dx, dy = abs(gt[1]), abs(gt[5])
     warns = []
-    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and not srs.ExportToWkt()):
+    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and srs.IsVertical() == 0
+                       and not srs.ExportToWkt()):
         warns.append("The raster has no CRS: its cell size and heights are taken to be in metres.")
         return (dx, dy), warns, 1.0
+    vertical = vertical_unit_factor(srs)
+    zf = vertical[0] if vertical else None
     if srs.IsGeographic():
         lat = gt[3] + gt[5] * shape[0] / 2.0
         if not -90 <= lat <= 90:
@@ -305,16 +327,30 @@ def cell_size_metres(geotransform, shape, srs=None):
                              "not a latitude: check the georeference.")
         m_per_deg_lon, m_per_deg_lat = metres_per_degree(lat)
         cell = (dx * m_per_deg_lon, dy * m_per_deg_lat)
+        heights = ("are taken to be in metres" if zf is None or abs(zf - 1.0) <= 1e-9 else
+                   f"are in its vertical unit '{vertical[1]}' ({zf:.6g} m), converted to metres for the "
+                   "thresholds (outputs are written back in that unit)")
         warns.append(f"The raster's CRS is geographic (degrees): its cell size {dx:.3g} x {dy:.3g} deg "
                      f"was converted to {cell[0]:.4g} x {cell[1]:.4g} m at latitude {lat:.4f}; heights "
-                     "are taken to be in metres. Reproject to a projected CRS for exact distances.")
-        return cell, warns, 1.0
-    f = _linear_unit_factor(srs)
-    if abs(f - 1.0) > 1e-9:
-        unit = srs.GetLinearUnitsName()
-        warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
-                     "converted to metres for the thresholds; outputs are written back in the raster's unit.")
-    return (dx * f, dy * f), warns, f
+                     f"{heights}. Reproject to a projected CRS for exact distances.")
+        return cell, warns, 1.0 if zf is None else zf
+    if srs.IsProjected():
+        f = float(srs.GetTargetLinearUnits("PROJCS")) if srs.IsCompound() else _linear_unit_factor(srs)
+        f = f if math.isfinite(f) and f > 0 else 1.0
+    else:                                   # a vertical CRS alone: no horizontal unit known
+        f = 1.0
+    if zf is None:
+        zf = f
+        if abs(f - 1.0) > 1e-9:
+            unit = srs.GetLinearUnitsName()
+            warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
+                         "converted to metres for the thresholds; outputs are written back in the raster's unit.")
+    elif abs(f - 1.0) > 1e-9 or abs(zf - 1.0) > 1e-9:
+        unit = srs.GetAttrValue("PROJCS|UNIT") or f"{f:.6g} m"
+        warns.append(f"The CRS's horizontal unit is '{unit}' ({f:.6g} m) and its vertical unit '{vertical[1]}' "
+                     f"({zf:.6g} m): cell size and heights were converted to metres for the thresholds; outputs "
+                     "are written back in the raster's units.")
+    return (dx * f, dy * f), warns, zf
 
 
 def open_dsm(path, band=None):

@@ -494,3 +494,34 @@ def test_internal_mask_band_is_nodata(tmp_path):
     expect[np.arange(30).reshape(5, 6) % 7 == 0] = np.nan
     np.testing.assert_array_equal(info.read(), expect)
     assert any("mask band" in n for n in info.notes)
+
+
+# ---- compound CRSs: heights in the unit of the vertical part -------------------------------
+
+@pytest.mark.parametrize("crs,cell_to_m,z_to_m", [
+    ("EPSG:26917+6360", 1.0, FT_US),          # UTM metres, NAVD88 heights in US survey feet
+    ("EPSG:2264+5703", FT_US, 1.0),           # North Carolina ftUS, NAVD88 heights in metres
+    ("EPSG:4326+6360", None, FT_US),          # degrees, heights in US survey feet
+])
+def test_compound_crs_heights_in_the_vertical_unit(tmp_path, crs, cell_to_m, z_to_m):
+    """The heights of a raster in a compound CRS are in its vertical part's unit, whatever the
+    horizontal unit: they were taken in the horizontal unit (metres for degrees)."""
+    s = osr.SpatialReference()
+    s.SetFromUserInput(crs)
+    gt = (10.0, 0.0001, 0.0, 50.0, 0.0, -0.0001) if cell_to_m is None else GT
+    a = np.array([[10, 20, 30], [40, 50, 60], [70, 80, 90]], np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, gt=gt, crs=s.ExportToWkt()))
+    assert info.z_to_m == pytest.approx(z_to_m, rel=1e-9)
+    if cell_to_m is not None:
+        assert info.cell_size_m == pytest.approx((2.0 * cell_to_m, 2.0 * cell_to_m), rel=1e-9)
+    np.testing.assert_allclose(info.read(), a * np.float32(z_to_m), rtol=1e-6)
+    if z_to_m != 1.0:
+        assert any("US survey foot" in w for w in info.warnings)
+
+
+def test_vertical_unit_factor():
+    s = osr.SpatialReference()
+    s.SetFromUserInput("EPSG:26917+6360")
+    assert grid.vertical_unit_factor(s) == (pytest.approx(FT_US), "US survey foot")
+    assert grid.vertical_unit_factor(osr.SpatialReference(wkt(2264))) is None
+    assert grid.vertical_unit_factor(None) is None

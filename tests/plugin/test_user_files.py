@@ -38,3 +38,27 @@ def test_dsm_warped_with_an_alpha_band_keeps_its_outside_as_nodata(processing_ru
     assert np.isnan(dtm[outside]).all() and np.isfinite(dtm[~outside]).all()
     assert (mask[outside] == 255).all() and (mask[~outside] != 255).all()
     assert np.nanmin(dtm) > 200          # no DTM cell pulled down to the 0 outside
+
+
+@pytest.mark.parametrize("compound,cell_unit,z_unit", [("EPSG:26917+6360", 1.0, 1200 / 3937),
+                                                       ("EPSG:2264+5703", 1200 / 3937, 1.0)])
+def test_compound_crs_with_its_own_height_unit_equals_the_metric_run(processing_run, tmp_path, compound,
+                                                                      cell_unit, z_unit):
+    """One scene in metres and in a compound CRS whose horizontal and vertical units differ: the
+    same mask, and the DTM in the vertical unit. The heights were taken in the horizontal unit
+    (mask agreement 98-99 %, DTM off by up to 8 m)."""
+    from osgeo import osr
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    runs = {}
+    for name, crs, cell, zu in (("m", "EPSG:26917", 1.0, 1.0), ("c", compound, cell_unit, z_unit)):
+        s = osr.SpatialReference()
+        s.SetFromUserInput(crs)
+        gt = (500000.0 / cell, 1.0 / cell, 0.0, 4000000.0 / cell, 0.0, -1.0 / cell)
+        p = write_array(tmp_path / f"{name}.tif", sc.dsm / np.float32(zu), gt, s.ExportToWkt())
+        r = processing_run("bareearth:morphological", {"INPUT": p, "OUTPUT_DTM": str(tmp_path / f"{name}_dtm.tif"),
+                                                       "OUTPUT_MASK": str(tmp_path / f"{name}_mask.tif")})
+        runs[name] = (_read(r["OUTPUT_MASK"])[0], _read(r["OUTPUT_DTM"])[0] * np.float32(zu))
+    np.testing.assert_array_equal(runs["c"][0], runs["m"][0])
+    np.testing.assert_allclose(runs["c"][1], runs["m"][1], atol=1e-3)
