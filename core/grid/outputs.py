@@ -171,7 +171,76 @@ def parse_creation_options(text, cog=False):
         allowed = specs.get(key.upper())
         if allowed and value.upper() not in allowed:
             raise ValueError(f"creation option {key}={value}: allowed values are {', '.join(allowed)}.")
+    if opts:
+        _probe_creation_options(opts, cog)
     return opts
+
+
+#: What a creation option probe writes (64 x 64): every value of a UInt8 output (confidence
+#: 0-100, any code) and a mask's codes 0, 1, 2, 255 mixed as in a mask (a lossy coder such as
+#: LERC with MAX_Z_ERROR=1 keeps a ramp but not those), and heights for a Float32 output.
+_PROBE_BYTE = np.vstack([np.arange(256, dtype=np.uint8).reshape(4, 64),
+                         np.array([0, 1, 2, 255], np.uint8)[np.random.default_rng(0).choice(
+                             4, (60, 64), p=[0.7, 0.2, 0.05, 0.05])]])
+_PROBE_FLOAT = (np.arange(4096, dtype=np.float32).reshape(64, 64) * np.float32(0.037) + np.float32(312.5))
+
+
+def _probe_creation_options(opts, cog=False):
+    """Write a small Float32 and UInt8 raster in memory with the creation options the outputs
+    will use (:func:`_gtiff_options`, :func:`_cog_options`), so that options GDAL refuses only
+    when it creates a file (a tile width that is no multiple of 16, JPEG on Float32) are refused
+    before any work, and so are options that change a UInt8 output's values (NBITS=1,
+    PIXELTYPE=SIGNEDBYTE, DISCARD_LSB, JPEG): a mask's codes must be read back as written.
+    ValueError naming the options and GDAL's reason."""
+    base = f"/vsimem/bare-earth-probe-{uuid.uuid4().hex}"
+    given = "|".join(opts)
+    for dtype, data in (("Float32", _PROBE_FLOAT), ("Byte", _PROBE_BYTE)):
+        work, out = f"{base}-{dtype}.tif", f"{base}-{dtype}-cog.tif"
+        gdal.ErrorReset()
+        messages = []
+        try:
+            with _quiet_gdal(messages):
+                ds = gdal.GetDriverByName("GTiff").Create(work, 64, 64, 1, gdal.GetDataTypeByName(dtype),
+                                                          options=_gtiff_options(dtype, () if cog else opts))
+                ds.GetRasterBand(1).WriteArray(data)
+                ds = None
+                path = work
+                if cog:
+                    gdal.GetDriverByName("COG").CreateCopy(out, gdal.Open(work), options=_cog_options(dtype, opts))
+                    path = out
+                back = gdal.Open(path)
+                read = back.GetRasterBand(1).ReadAsArray()
+                kind = gdal.GetDataTypeName(back.GetRasterBand(1).DataType)
+                pixeltype = back.GetRasterBand(1).GetMetadataItem("PIXELTYPE", "IMAGE_STRUCTURE")
+                back = None
+        except RuntimeError as exc:
+            why = str(exc).strip() or "; ".join(messages) or "GDAL gave no reason"
+            why = why.replace(work, "the output").replace(out, "the output")
+            raise ValueError(f"GDAL cannot write a {dtype} output with the creation options {given!r}: "
+                             f"{why}. Change or leave out the options.") from None
+        finally:
+            for f in (work, out):
+                if gdal.VSIStatL(f) is not None:
+                    gdal.Unlink(f)
+        if dtype == "Byte" and (kind != "Byte" or pixeltype or not np.array_equal(read, data)):
+            raise ValueError(f"the creation options {given!r} change the values of a UInt8 output (the object "
+                             "mask's codes 0, 1, 2, 255 would not be read back as written: NBITS, PIXELTYPE, "
+                             "DISCARD_LSB and lossy compression such as JPEG, WEBP or LERC with a MAX_Z_ERROR of 1 "
+                             "or more change them). Leave those options out.")
+
+
+@contextlib.contextmanager
+def _quiet_gdal(messages):
+    """GDAL's warnings collected in the list ``messages`` instead of printed (a probe's warnings
+    are not the user's run's)."""
+    def handler(level, _number, text):
+        if level >= gdal.CE_Warning:
+            messages.append(str(text).strip())
+    gdal.PushErrorHandler(handler)
+    try:
+        yield messages
+    finally:
+        gdal.PopErrorHandler()
 
 
 @contextlib.contextmanager
@@ -297,6 +366,34 @@ _GTIFF_OPTIONS = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT
 _COG_OPTIONS = ["COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
 
 
+def _integer_predictor(dtype, given):
+    """The user's options for an output of ``dtype``: the floating-point predictor asked for the
+    Float32 outputs (PREDICTOR=3 or FLOATING_POINT) becomes horizontal differencing on an
+    integer output (a mask), which GDAL refuses it for."""
+    if dtype.startswith("Float"):
+        return list(given)
+    out = []
+    for o in given:
+        key, _, value = o.partition("=")
+        if key.upper() == "PREDICTOR" and value.upper() in ("3", "FLOATING_POINT"):
+            o = f"{key}={'2' if value == '3' else 'STANDARD'}"
+        out.append(o)
+    return out
+
+
+def _gtiff_options(dtype, given=()):
+    """Creation options of a work file of ``dtype`` (:data:`_GTIFF_OPTIONS`, the floating-point
+    predictor for Float32) with the user's ``given`` options over them."""
+    opts = list(_GTIFF_OPTIONS) + (["PREDICTOR=3"] if dtype == "Float32" else [])
+    return _merge_options(opts, _integer_predictor(dtype, given))
+
+
+def _cog_options(dtype, given=()):
+    """Creation options of a cloud-optimised GeoTIFF output of ``dtype``."""
+    opts = _COG_OPTIONS + (["PREDICTOR=FLOATING_POINT"] if dtype == "Float32" else [])
+    return _merge_options(opts, _integer_predictor(dtype, given))
+
+
 class OutputSet:
     """Output rasters on a DSM's grid, written to hidden work files until :meth:`commit`.
 
@@ -335,11 +432,7 @@ class OutputSet:
         check_output_cells(path, self.info.geotransform)
         remove_stale_partials(path)
         work = _work_path(path)
-        opts = list(_GTIFF_OPTIONS)
-        if dtype == "Float32":
-            opts.append("PREDICTOR=3")
-        if drv == "GTiff" and not self._cog:
-            opts = _merge_options(opts, self._options)
+        opts = _gtiff_options(dtype, self._options if drv == "GTiff" and not self._cog else ())
         rows, cols = self.info.shape
         try:
             ds = gdal.GetDriverByName("GTiff").Create(work, cols, rows, bands, gdal.GetDataTypeByName(dtype),
@@ -431,11 +524,7 @@ class OutputSet:
         cog = drv == "GTiff" and self._cog
         ext = os.path.splitext(path)[1] or ".tif"
         tmp_main = work + ext
-        if cog:
-            opts = _COG_OPTIONS + (["PREDICTOR=FLOATING_POINT"] if item["dtype"] == "Float32" else [])
-            opts = _merge_options(opts, self._options)
-        else:
-            opts = []
+        opts = _cog_options(item["dtype"], self._options) if cog else []
         stopped = []
 
         def callback(fraction, _message, _data):

@@ -254,3 +254,36 @@ def test_saga_output_of_non_square_cells_is_refused_before_any_work(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
     grid.check_output_cells(tmp_path / "dtm.sdat", (0.0, 2.0, 0.0, 80.0, 0.0, -2.0))   # square: accepted
     grid.check_output_cells(tmp_path / "dtm.asc", (0.0, 2.0, 0.0, 80.0, 0.0, -1.0))    # ASCII holds dx, dy
+
+
+@pytest.mark.parametrize("text,cog,message", [
+    ("NBITS=1", False, r"change the values of a UInt8 output"),                 # the mask's 255 read back as 1
+    ("PIXELTYPE=SIGNEDBYTE", False, r"change the values of a UInt8 output"),    # 255 read as -1
+    ("DISCARD_LSB=1", False, r"change the values of a UInt8 output"),
+    ("COMPRESS=LERC|MAX_Z_ERROR=1", False, r"change the values of a UInt8 output"),
+    ("COMPRESS=LERC|MAX_Z_ERROR=1", True, r"change the values of a UInt8 output"),
+    ("BLOCKXSIZE=100", False, r"cannot write a Float32 output .*'BLOCKXSIZE=100'.*TileWidth"),
+    ("BLOCKSIZE=100", True, r"cannot write a Float32 output .*'BLOCKSIZE=100'"),
+    ("COMPRESS=JPEG", False, r"cannot write a Float32 output .*'COMPRESS=JPEG'.*JPEG"),
+])
+def test_creation_options_refused_when_gdal_fails_or_changes_the_codes(text, cog, message):
+    """Options GDAL accepts by name but refuses when it creates the file (the run failed after its
+    work), or that silently change a UInt8 output's codes (the mask written with NBITS=1 held 0
+    and 1 only), are refused when parsed, before any work."""
+    with pytest.raises(ValueError, match=message):
+        grid.parse_creation_options(text, cog=cog)
+    assert gdal.ReadDir("/vsimem/") in (None, []) or not any("probe" in f for f in gdal.ReadDir("/vsimem/"))
+
+
+@pytest.mark.parametrize("text,cog", [("COMPRESS=ZSTD|PREDICTOR=3|ZLEVEL=9", False),
+                                      ("COMPRESS=LERC|MAX_Z_ERROR=0.01", False),
+                                      ("COMPRESS=DEFLATE|PREDICTOR=FLOATING_POINT", True)])
+def test_float_predictor_and_lossless_options_write_the_mask_exactly(tmp_path, text, cog):
+    """The floating-point predictor asked for the DTM is horizontal differencing on the UInt8
+    mask (GDAL refuses PREDICTOR=3 there: the run failed after its work); the codes are exact."""
+    info = _info(tmp_path)
+    with grid.write_options(grid.parse_creation_options(text, cog=cog), cog):
+        d, m = _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+    got_m, got_d = _read(tmp_path / "m.tif"), _read(tmp_path / "d.tif")
+    np.testing.assert_array_equal(got_m, m)
+    np.testing.assert_allclose(got_d, d, atol=0.011)

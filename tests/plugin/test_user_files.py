@@ -62,3 +62,27 @@ def test_compound_crs_with_its_own_height_unit_equals_the_metric_run(processing_
         runs[name] = (_read(r["OUTPUT_MASK"])[0], _read(r["OUTPUT_DTM"])[0] * np.float32(zu))
     np.testing.assert_array_equal(runs["c"][0], runs["m"][0])
     np.testing.assert_allclose(runs["c"][1], runs["m"][1], atol=1e-3)
+
+
+def test_creation_options_that_break_the_mask_refused_and_float_predictor_runs(processing_run, tmp_path):
+    """CREATE_OPTIONS=NBITS=1 wrote a mask of 0s and 1s (nodata 255 read as 1) without a word;
+    PREDICTOR=3 (the floating-point predictor a DTM is compressed with) failed on the UInt8 mask
+    after the whole run. Now the first is refused before any work and the second runs, its mask
+    equal to the default run's."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    dsm = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+
+    def params(name, options):
+        return {"INPUT": dsm, "OUTPUT_DTM": str(tmp_path / f"{name}_dtm.tif"),
+                "OUTPUT_MASK": str(tmp_path / f"{name}_mask.tif"), "CREATE_OPTIONS": options}
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(QgsProcessingException, match=r"CREATE_OPTIONS.*change the values of a UInt8 output"):
+        processing_run("bareearth:morphological", params("nbits", "NBITS=1"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    ref = processing_run("bareearth:morphological", params("ref", ""))
+    r = processing_run("bareearth:morphological", params("p3", "COMPRESS=ZSTD|PREDICTOR=3"))
+    np.testing.assert_array_equal(_read(r["OUTPUT_MASK"])[0], _read(ref["OUTPUT_MASK"])[0])
+    np.testing.assert_array_equal(_read(r["OUTPUT_DTM"])[0], _read(ref["OUTPUT_DTM"])[0])
