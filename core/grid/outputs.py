@@ -140,6 +140,15 @@ def check_output_folder(path):
     if len(base.encode()) > limit:
         raise ValueError(f"the output file name is {len(base.encode())} bytes long; the file system of "
                          f"{folder!r} allows {limit}: choose a shorter name.")
+    check_replaceable(path)
+
+
+def check_replaceable(path):
+    """ValueError when ``path`` exists and may not be written (read-only, or locked as an
+    immutable file): the run would end, after its work, unable to replace it."""
+    if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
+        raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
+                         "choose another file name.")
 
 
 def _creation_option_specs(driver):
@@ -507,9 +516,15 @@ class OutputSet:
                 moves.append(self._copy(item, sub_progress(progress, 0.5 + 0.5 * i / n,
                                                            0.5 + 0.5 * (i + 1) / n)))
         report(progress, 1.0)             # the last point a cancel stops at: the outputs move now
+        for item in items:                # one output that cannot be replaced: none is (a matching set)
+            check_replaceable(item["path"])
         for item, (files, tmp_main) in zip(items, moves):
             work, path = item["tmp"], item["path"]
-            _move_dataset(files, tmp_main, work, path)
+            try:
+                _move_dataset(files, tmp_main, work, path)
+            except OSError as exc:
+                raise ValueError(f"cannot put the output {path!r} in place: {exc.strerror or exc}. Check the "
+                                 "file and its folder.") from None
             if tmp_main != work:
                 _remove_work(work)
             _LIVE.discard(work)

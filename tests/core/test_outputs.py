@@ -287,3 +287,21 @@ def test_float_predictor_and_lossless_options_write_the_mask_exactly(tmp_path, t
     got_m, got_d = _read(tmp_path / "m.tif"), _read(tmp_path / "d.tif")
     np.testing.assert_array_equal(got_m, m)
     np.testing.assert_allclose(got_d, d, atol=0.011)
+
+
+def test_a_read_only_output_is_refused_and_no_output_replaced(tmp_path, read_only):
+    """An existing output that cannot be replaced: refused by the output checks (before any work)
+    and, should it become so during the run, at commit before any output moves (a DTM from
+    this run beside a mask from the last was left, with a PermissionError traceback)."""
+    info = _info(tmp_path)
+    for name in ("d.tif", "m.tif"):
+        (tmp_path / name).write_bytes(b"old")
+    with read_only(tmp_path / "m.tif"):
+        with pytest.raises(ValueError, match=r"'.*m\.tif' exists and is read-only"):
+            grid.check_output_path(tmp_path / "m.tif")
+        grid.check_output_path(tmp_path / "d.tif")
+        with pytest.raises(ValueError, match=r"'.*m\.tif' exists and is read-only"):
+            _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+        assert (tmp_path / "d.tif").read_bytes() == b"old"
+        assert (tmp_path / "m.tif").read_bytes() == b"old"
+        assert _partials(tmp_path) == []

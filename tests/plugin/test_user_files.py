@@ -86,3 +86,20 @@ def test_creation_options_that_break_the_mask_refused_and_float_predictor_runs(p
     r = processing_run("bareearth:morphological", params("p3", "COMPRESS=ZSTD|PREDICTOR=3"))
     np.testing.assert_array_equal(_read(r["OUTPUT_MASK"])[0], _read(ref["OUTPUT_MASK"])[0])
     np.testing.assert_array_equal(_read(r["OUTPUT_DTM"])[0], _read(ref["OUTPUT_DTM"])[0])
+
+
+def test_an_existing_read_only_output_refused_before_any_work(processing_run, tmp_path, read_only):
+    """Re-running into outputs of which one is read-only: refused naming it, before any work, the
+    old outputs as they were (the run failed at its end with a PermissionError traceback)."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    dsm = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+    params = {"INPUT": dsm, "OUTPUT_DTM": str(tmp_path / "dtm.tif"), "OUTPUT_MASK": str(tmp_path / "mask.tif")}
+    processing_run("bareearth:morphological", params)
+    old = {k: (tmp_path / k).read_bytes() for k in ("dtm.tif", "mask.tif")}
+    with read_only(tmp_path / "mask.tif"):
+        with pytest.raises(QgsProcessingException, match=r"'Object mask' \(OUTPUT_MASK\).*exists and is read-only"):
+            processing_run("bareearth:slopeprofile", params)
+        assert {k: (tmp_path / k).read_bytes() for k in old} == old
