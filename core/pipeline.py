@@ -438,6 +438,10 @@ def _derive_params(info, run):
         zr = info.read()
     for w in info.warnings:
         run.log("Warning: " + w)
+    suspect = grid.undeclared_nodata_warning(info, zr)
+    if suspect:
+        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the central window the parameters "
+                                          "come from)"))
     for note in info.notes:
         run.log(note)
     params = _resolve(run.meth, zr, info.cell_size_m, run.params,

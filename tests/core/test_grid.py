@@ -525,3 +525,52 @@ def test_vertical_unit_factor():
     assert grid.vertical_unit_factor(s) == (pytest.approx(FT_US), "US survey foot")
     assert grid.vertical_unit_factor(osr.SpatialReference(wkt(2264))) is None
     assert grid.vertical_unit_factor(None) is None
+
+
+# ---- an undeclared common nodata value far below the heights: a warning --------------------
+
+@pytest.mark.parametrize("value,dtype,declared,warned", [
+    (-9999.0, np.float32, None, True),
+    (-32768.0, np.int16, None, True),
+    (-9999.0, np.float32, -9999.0, False),       # declared: nodata, nothing to say
+    (-9999.0, np.float32, -32768.0, True),       # another value declared
+])
+def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, declared, warned):
+    a = np.full((6, 8), 300.0)
+    a[2, 3] = 310.0
+    a[:, :2] = value
+    info = grid.open_dsm(tif(tmp_path, a.astype(dtype), nodata=declared))
+    text = grid.undeclared_nodata_warning(info, info.read())
+    if warned:
+        assert f"12 cell(s) hold {value:g}, a common nodata value" in text and f"-a_nodata {value:g}" in text
+    else:
+        assert text is None
+
+
+@pytest.mark.parametrize("name,cells", [
+    ("within the terrain's relief", {(0, 0): -9999.0, (1, 1): -9000.0}),   # -9999 less far below than the span
+    ("no such value", {(0, 0): -500.0}),
+    ("every cell", None),
+])
+def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells):
+    a = np.full((6, 8), 300.0, np.float32)
+    if cells is None:
+        a[:] = -9999.0
+    else:
+        for rc, v in cells.items():
+            a[rc] = v
+    info = grid.open_dsm(tif(tmp_path, a))
+    assert grid.undeclared_nodata_warning(info, info.read()) is None
+
+
+def test_undeclared_nodata_in_feet_and_scaled(tmp_path):
+    """The stored -9999 is found whatever the unit and the scale the heights are read with."""
+    a = np.full((6, 8), 1000.0, np.float32)
+    a[0, :] = -9999.0
+    info = grid.open_dsm(tif(tmp_path, a, crs=2263))
+    assert "8 cell(s) hold -9999" in grid.undeclared_nodata_warning(info, info.read())
+    ds = gdal.Open(tif(tmp_path, np.where(a < 0, -9999.0, a * 10).astype(np.float32), name="s.tif"), gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.1)
+    ds = None
+    info = grid.open_dsm(tmp_path / "s.tif")
+    assert "8 cell(s) hold -9999" in grid.undeclared_nodata_warning(info, info.read())

@@ -103,3 +103,31 @@ def test_an_existing_read_only_output_refused_before_any_work(processing_run, tm
         with pytest.raises(QgsProcessingException, match=r"'Object mask' \(OUTPUT_MASK\).*exists and is read-only"):
             processing_run("bareearth:slopeprofile", params)
         assert {k: (tmp_path / k).read_bytes() for k in old} == old
+
+
+def test_undeclared_minus_9999_border_warned_in_the_log(processing_run, tmp_path):
+    """A DSM exported with a -9999 border but no declared nodata: the log says so and how to
+    declare it (the run went on silently, its DTM pulled down by kilometres beside the border);
+    declared, no warning."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    z = sc.dsm.copy()
+    z[:, :12] = -9999.0
+    class Log(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    for nodata, expect in ((None, True), (-9999.0, False)):
+        src = write_array(tmp_path / f"dsm{nodata}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
+        log = Log()
+        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata}.tif"),
+                                         "OUTPUT_MASK": str(tmp_path / f"m{nodata}.tif")}, feedback=log)
+        said = [w for w in log.warnings if "a common nodata value" in w]
+        assert bool(said) == expect, log.warnings
+        if expect:
+            assert "720 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999" in said[0]
