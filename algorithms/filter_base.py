@@ -25,6 +25,7 @@ from qgis.core import (
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
+    QgsRasterRange,
 )
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
@@ -97,10 +98,32 @@ def raster_path(layer):
     return layer.source()
 
 
+def layer_nodata_ranges(layer, band):
+    """The additional no-data values a raster layer was given in QGIS (Properties > Transparency)
+    for ``band`` (None: the band :func:`grid.open_dsm` chooses, 1 for a single band), as
+    ``(low, high, include_low, include_high)`` ranges of heights: QGIS draws those cells
+    transparent, so they are nodata for the filters too."""
+    if layer is None or layer.dataProvider() is None:
+        return ()
+    prov = layer.dataProvider()
+    b = band or 1
+    if not band and prov.bandCount() > 1:
+        try:
+            b = grid.open_dsm(raster_path(layer)).band_index
+        except (ValueError, QgsProcessingException):
+            return ()
+    out = []
+    for r in prov.userNoDataValues(b):
+        bounds = r.bounds()
+        out.append((r.min(), r.max(), bounds in (QgsRasterRange.IncludeMinAndMax, QgsRasterRange.IncludeMin),
+                    bounds in (QgsRasterRange.IncludeMinAndMax, QgsRasterRange.IncludeMax)))
+    return tuple(out)
+
+
 def check_dsm(layer, band):
     """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None)."""
     try:
-        info = grid.open_dsm(raster_path(layer), band or None)
+        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band))
         grid.check_has_data(info)
     except (ValueError, QgsProcessingException) as exc:
         return False, str(exc), None
@@ -673,8 +696,9 @@ class FilterAlgorithm(BaseAlgorithm):
         from ..core.pipeline import run_file
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
         band = self.parameterAsInt(parameters, self.BAND, context) if parameters.get(self.BAND) else None
+        ranges = layer_nodata_ranges(layer, band)
         try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
-            info = grid.open_dsm(raster_path(layer), band or None)
+            info = grid.open_dsm(raster_path(layer), band or None, ranges)
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
@@ -697,7 +721,7 @@ class FilterAlgorithm(BaseAlgorithm):
             with output_options(self, parameters, context):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,
-                                  progress=progress_callback(feedback), log=log)
+                                  progress=progress_callback(feedback), log=log, nodata_ranges=ranges)
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}

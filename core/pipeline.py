@@ -17,7 +17,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -348,7 +348,8 @@ class FileRun:
 def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, band: Optional[int] = None,
              params: Optional[Dict[str, Any]] = None, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
              block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, processes: int = 1,
-             progress: Progress = None, log: Optional[Callable[[str], None]] = None) -> Dict[str, Any]:
+             progress: Progress = None, log: Optional[Callable[[str], None]] = None,
+             nodata_ranges: Sequence[Tuple[float, float, bool, bool]] = ()) -> Dict[str, Any]:
     """Filter a DSM file into output files, block by block, with bounded memory.
 
     Parameters
@@ -384,13 +385,16 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
         progress call).
     log : callable, optional
         ``log(str)`` for warnings and the values used.
+    nodata_ranges : sequence of (low, high, include_low, include_high), optional
+        Heights that are nodata besides the DSM's own (a QGIS layer's additional no-data
+        values; :func:`grid.open_dsm`).
 
     Returns
     -------
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     meth = as_method(method)
-    info = grid.open_dsm(path, band)
+    info = grid.open_dsm(path, band, nodata_ranges)
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
@@ -530,7 +534,7 @@ def _run_file(info, run, pool):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
         want_dtm = "dtm" in out or "ndsm" in out
         job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out,
-                        workers=run.workers if len(windows) == 1 else 1)
+                        workers=run.workers if len(windows) == 1 else 1, nodata_ranges=info.nodata_ranges)
         writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
         if run.processes > 1 and len(windows) > 1:
             blocks.run_processes(job, [(core, outer, _aux_window(run.aux, outer)) for core, outer in windows],
@@ -567,8 +571,8 @@ def _run_file(info, run, pool):
 class _BlockJob:
     """The per-block work of :func:`run_file`, picklable for worker processes."""
 
-    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1):
-        self.meth, self.path, self.band = meth, path, band
+    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1, nodata_ranges=()):
+        self.meth, self.path, self.band, self.nodata_ranges = meth, path, band, tuple(nodata_ranges)
         self.cell, self.params, self.want_dtm = cell, params, want_dtm
         self.workers = workers  # threads inside a block (Method.threads), when blocks do not run side by side
         self.want_z = want_z  # the input block is sent back only when an nDSM is written
@@ -586,7 +590,7 @@ class _BlockJob:
     def read(self, core, outer):
         """The block over ``outer`` (float32 metres) and its core's count of far heights."""
         if self._info is None:
-            self._info = grid.open_dsm(self.path, self.band)
+            self._info = grid.open_dsm(self.path, self.band, self.nodata_ranges)
         before = self._info.far_cells
         z = self._info.read(outer, far_in=blocks.crop(outer, core))
         return z, self._info.far_cells - before

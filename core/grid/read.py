@@ -157,6 +157,9 @@ class DSMInfo:
         nodata too come from (0 in it, drawn transparent by QGIS): the index of the raster's
         alpha band (whatever its data type: ``gdalwarp -dstalpha`` writes a Float32 one, which
         GDAL's own mask ignores), or -1 for GDAL's mask band (an internal or ``.msk`` mask)
+    nodata_ranges : ``(low, high, include_low, include_high)`` ranges of heights (the raster's
+        unit, scale and offset applied) that are nodata too: the additional no-data values a
+        QGIS layer of the raster was given (Properties > Transparency)
     """
     path: str
     band_index: int
@@ -175,6 +178,7 @@ class DSMInfo:
     notes: List[str] = field(default_factory=list)
     far_cells: int = 0
     masked: int = 0
+    nodata_ranges: tuple = ()
 
     @property
     def cells(self):
@@ -226,6 +230,8 @@ class DSMInfo:
         valid = self.mask_valid(window, step)
         if valid is not None:
             z[~valid] = np.nan
+        if self.nodata_ranges:
+            z[in_ranges(_apply_scale(stored, self.scale, self.offset), self.nodata_ranges)] = np.nan
         return z
 
     def read_heights(self, window=None):
@@ -252,6 +258,17 @@ class DSMInfo:
                 and np.isnan(stored).any()):
             self.nan_undeclared = True
             self.warnings.append(NAN_UNDECLARED_WARNING)
+
+
+def in_ranges(a, ranges):
+    """Where ``a`` lies in any of ``ranges``, ``(low, high, include_low, include_high)`` each."""
+    out = np.zeros(np.shape(a), bool)
+    with np.errstate(invalid="ignore"):
+        for lo, hi, inc_lo, inc_hi in ranges:
+            above = a >= lo if inc_lo else a > lo
+            below = a <= hi if inc_hi else a < hi
+            out |= above & below
+    return out
 
 
 def _apply_scale(a, scale=1.0, offset=0.0):
@@ -353,7 +370,7 @@ def cell_size_metres(geotransform, shape, srs=None):
     return (dx * f, dy * f), warns, zf
 
 
-def open_dsm(path, band=None):
+def open_dsm(path, band=None, nodata_ranges=()):
     """Open and check a single-band DSM before any work starts.
 
     Parameters
@@ -362,6 +379,9 @@ def open_dsm(path, band=None):
         Anything GDAL opens (VRTs with raw bands refused).
     band : int, optional
         1-based band index; required when the raster has several bands.
+    nodata_ranges : sequence of (low, high, include_low, include_high), optional
+        Heights (the raster's unit) that are nodata besides its own nodata: the additional
+        no-data values of the QGIS layer the raster was given as (:attr:`DSMInfo.nodata_ranges`).
 
     Returns
     -------
@@ -426,6 +446,10 @@ def open_dsm(path, band=None):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
                    dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    if nodata_ranges:
+        info.nodata_ranges = tuple((float(lo), float(hi), bool(a), bool(b)) for lo, hi, a, b in nodata_ranges)
+        info.notes.append("Cells of the layer's additional no-data values ({}) are nodata.".format(", ".join(
+            f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}" for lo, hi, _, _ in info.nodata_ranges)))
     own_alpha = [k for k in alpha if k != int(band)]
     if own_alpha:
         info.masked = own_alpha[0]
@@ -511,8 +535,8 @@ def undeclared_nodata_warning(info, z):
             return (f"{n} cell(s) hold {v:g}, a common nodata value, {lo - float(h):.0f} m below every other "
                     f"height (those span {lo:.1f} to {hi:.1f} m), but the raster does not declare {v:g} as its "
                     "nodata: they were filtered as heights, which pulls the DTM beside them down. If they are "
-                    f"missing cells, declare it (gdal_edit.py -a_nodata {v:g} <file>, or Raster > Conversion > "
-                    "Translate with 'Assign a specified nodata value') and run again.")
+                    f"missing cells, declare it (gdal_edit.py -a_nodata {v:g} <file>; in QGIS, give the layer "
+                    f"{v:g} as an additional no-data value in its Properties > Transparency) and run again.")
     return None
 
 

@@ -131,3 +131,30 @@ def test_undeclared_minus_9999_border_warned_in_the_log(processing_run, tmp_path
         assert bool(said) == expect, log.warnings
         if expect:
             assert "720 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999" in said[0]
+
+
+def test_a_layers_additional_no_data_value_is_nodata(processing_run, tmp_path):
+    """A DSM with an undeclared -9999 border, loaded in QGIS and given -9999 as an additional no-data
+    value (Properties > Transparency, which draws those cells transparent): the filters take them
+    as nodata, whether the layer or its path is given. They were filtered as heights (the DTM
+    pulled down by kilometres)."""
+    from qgis.core import QgsProject, QgsRasterLayer, QgsRasterRange
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    z = sc.dsm.copy()
+    z[:, :12] = -9999.0
+    src = write_array(tmp_path / "dsm.tif", z, sc.geotransform, sc.epsg)
+    layer = QgsRasterLayer(src, "dsm", "gdal")
+    layer.dataProvider().setUserNoDataValue(1, [QgsRasterRange(-9999.0, -9999.0)])
+    QgsProject.instance().addMapLayer(layer)
+    try:
+        for name, given in (("layer", layer), ("path", src)):
+            r = processing_run("bareearth:morphological", {
+                "INPUT": given, "OUTPUT_DTM": str(tmp_path / f"{name}_d.tif"),
+                "OUTPUT_MASK": str(tmp_path / f"{name}_m.tif")})
+            mask, dtm = _read(r["OUTPUT_MASK"])[0], _read(r["OUTPUT_DTM"])[0]
+            assert (mask[:, :12] == 255).all() and (mask[:, 12:] != 255).all(), name
+            assert np.isnan(dtm[:, :12]).all() and np.nanmin(dtm) > 200, name
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
