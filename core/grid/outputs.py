@@ -451,7 +451,10 @@ class OutputSet:
             raise ValueError(f"cannot create the output {path!r}: {exc}. Check the folder and the "
                              "creation options.") from None
         _LIVE.add(work)
-        ds.SetGeoTransform(self.info.geotransform)
+        if self.info.georeferenced:
+            ds.SetGeoTransform(self.info.geotransform)
+        elif self.info.gcps:   # the input's control points: drawn where the input is
+            ds.SetGCPs([gdal.GCP(*g) for g in self.info.gcps], self.info.gcp_wkt)
         if self.info.crs_wkt:
             ds.SetProjection(self.info.crs_wkt)
         for k in range(1, bands + 1):

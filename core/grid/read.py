@@ -157,6 +157,10 @@ class DSMInfo:
         nodata too come from (0 in it, drawn transparent by QGIS): the index of the raster's
         alpha band (whatever its data type: ``gdalwarp -dstalpha`` writes a Float32 one, which
         GDAL's own mask ignores), or -1 for GDAL's mask band (an internal or ``.msk`` mask)
+    georeferenced : False when the raster has no geotransform (``geotransform`` is then 1 m
+        cells from the top left corner, for the cell size only; outputs are written without one,
+        as the input, so that QGIS draws them over it), with its ground control points ``gcps``
+        (``(x, y, z, pixel, line)`` each, in ``gcp_wkt``) when it has some
     nodata_ranges : ``(low, high, include_low, include_high)`` ranges of heights (the raster's
         unit, scale and offset applied) that are nodata too: the additional no-data values a
         QGIS layer of the raster was given (Properties > Transparency)
@@ -179,6 +183,9 @@ class DSMInfo:
     far_cells: int = 0
     masked: int = 0
     nodata_ranges: tuple = ()
+    georeferenced: bool = True
+    gcps: tuple = ()
+    gcp_wkt: str = ""
 
     @property
     def cells(self):
@@ -446,6 +453,10 @@ def open_dsm(path, band=None, nodata_ranges=()):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
                    dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    if ds.GetGeoTransform(can_return_null=True) is None:
+        info.georeferenced = False
+        info.gcps = tuple((g.GCPX, g.GCPY, g.GCPZ, g.GCPPixel, g.GCPLine) for g in (ds.GetGCPs() or ()))
+        info.gcp_wkt = ds.GetGCPProjection() or ""
     if nodata_ranges:
         info.nodata_ranges = tuple((float(lo), float(hi), bool(a), bool(b)) for lo, hi, a, b in nodata_ranges)
         info.notes.append("Cells of the layer's additional no-data values ({}) are nodata.".format(", ".join(

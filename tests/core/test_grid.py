@@ -574,3 +574,30 @@ def test_undeclared_nodata_in_feet_and_scaled(tmp_path):
     ds = None
     info = grid.open_dsm(tmp_path / "s.tif")
     assert "8 cell(s) hold -9999" in grid.undeclared_nodata_warning(info, info.read())
+
+
+# ---- a raster without geotransform: outputs without one (and with its control points) --------
+
+@pytest.mark.parametrize("with_gcps", [False, True])
+def test_outputs_of_a_raster_without_geotransform_have_none(tmp_path, with_gcps):
+    """Outputs of a raster without a geotransform were given 1 m cells from (0, rows), which GIS
+    draws elsewhere than the input (QGIS: input 0..-rows, outputs 0..+rows); they now carry no
+    geotransform, as the input, and its ground control points when it has some."""
+    path = str(tmp_path / "nogeo.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 6, 5, 1, gdal.GDT_Float32)
+    ds.GetRasterBand(1).WriteArray(np.arange(30, dtype=np.float32).reshape(5, 6))
+    if with_gcps:
+        gcps = [gdal.GCP(500000.0 + 2 * p, 4000000.0 - 2 * q, 0.0, p, q) for p, q in ((0, 0), (6, 0), (0, 5))]
+        ds.SetGCPs(gcps, wkt(32633))
+    ds = None
+    info = grid.open_dsm(path)
+    assert not info.georeferenced and any("no georeference" in w for w in info.warnings)
+    with grid.OutputSet(info) as out:
+        out.add("dtm", tmp_path / "d.tif", "Float32")
+        out.write("dtm", np.zeros((5, 6), np.float32))
+        out.commit()
+    src, res = gdal.Open(path), gdal.Open(str(tmp_path / "d.tif"))
+    assert res.GetGeoTransform(can_return_null=True) is None
+    assert [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in res.GetGCPs()] == \
+        [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in src.GetGCPs()]
+    assert len(res.GetGCPs()) == (3 if with_gcps else 0)

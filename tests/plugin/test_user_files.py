@@ -158,3 +158,19 @@ def test_a_layers_additional_no_data_value_is_nodata(processing_run, tmp_path):
             assert np.isnan(dtm[:, :12]).all() and np.nanmin(dtm) > 200, name
     finally:
         QgsProject.instance().removeMapLayer(layer.id())
+
+
+def test_outputs_of_an_ungeoreferenced_dsm_lie_on_it_in_qgis(processing_run, tmp_path):
+    """A DSM without georeference (a scan, a photogrammetry export): QGIS draws its outputs over it
+    (they lay at 0..+rows, the input at 0..-rows)."""
+    from qgis.core import QgsRasterLayer
+    sc = _scene()
+    src = str(tmp_path / "nogeo.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(src, sc.dsm.shape[1], sc.dsm.shape[0], 1, gdal.GDT_Float32)
+    ds.GetRasterBand(1).WriteArray(sc.dsm)
+    ds = None
+    r = processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                   "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    extent = QgsRasterLayer(src, "in", "gdal").extent()
+    for key in ("OUTPUT_DTM", "OUTPUT_MASK"):
+        assert QgsRasterLayer(r[key], key, "gdal").extent() == extent, key
