@@ -228,7 +228,8 @@ class DSMInfo:
                                    buf_ysize=max(1, (r1 - r0) // step), resample_alg=gdal.GRIORA_NearestNeighbour)
             else:
                 m = mb.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
-        return m != 0
+        with np.errstate(invalid="ignore"):
+            return m > 0                  # 0 transparent; NaN (an alpha band read through a VRT) too
 
     def surface(self, stored, window=None, step=1, z_to_m=None):
         """Stored values read over ``window`` (every ``step``-th cell) -> float32 heights with NaN

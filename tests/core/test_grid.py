@@ -601,3 +601,21 @@ def test_outputs_of_a_raster_without_geotransform_have_none(tmp_path, with_gcps)
     assert [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in res.GetGCPs()] == \
         [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in src.GetGCPs()]
     assert len(res.GetGCPs()) == (3 if with_gcps else 0)
+
+
+def test_alpha_band_read_through_a_vrt_mosaic(tmp_path):
+    """A VRT over tiles with a Float32 alpha band (a survey's mosaic) reads their transparent
+    cells as NaN in its alpha band: nodata too (they were valid heights of 0)."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    alpha = np.full(z.shape, 255, np.float32)
+    alpha[:, :2] = 0
+    z[:, :2] = 0
+    p = _with_alpha(tmp_path, z, alpha)
+    vrt = str(tmp_path / "mosaic.vrt")
+    gdal.BuildVRT(vrt, [p], VRTNodata="nan")
+    ds = gdal.Open(vrt)
+    assert np.isnan(ds.GetRasterBand(2).ReadAsArray()[:, :2]).all()
+    ds = None
+    expect = z.copy()
+    expect[:, :2] = np.nan
+    np.testing.assert_array_equal(grid.open_dsm(vrt).read(), expect)

@@ -427,3 +427,33 @@ def test_cli_refuses_mixed_crs_naming_the_tile(tmp_path):
                           "--output-dir", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "t01.tif (EPSG:32633)" in res.stderr
     assert len(paths) == 4 and not (tmp_path / "out").exists()
+
+
+def test_tiles_with_an_alpha_band_keep_their_transparent_cells_as_nodata(tmp_path):
+    """Tiles warped with an alpha band (heights 0 where it is 0): nodata in the tiles' outputs, as
+    in a single tile's run (the survey read them as heights of 0 through its mosaic VRT)."""
+    from osgeo import gdal, osr
+    sc = make_scene("city", shape=(64, 128), seed=2)
+    gt, srs = sc.geotransform, osr.SpatialReference()
+    srs.ImportFromEPSG(sc.epsg)
+    paths = []
+    for k in range(2):
+        z = sc.dsm[:, 64 * k:64 * (k + 1)].copy()
+        alpha = np.full(z.shape, 255, np.float32)
+        if k == 0:
+            alpha[:, :8] = 0
+            z[:, :8] = 0.0
+        p = str(tmp_path / f"t{k}.tif")
+        ds = gdal.GetDriverByName("GTiff").Create(p, 64, 64, 2, gdal.GDT_Float32)
+        ds.SetGeoTransform((gt[0] + 64 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]))
+        ds.SetProjection(srs.ExportToWkt())
+        ds.GetRasterBand(1).WriteArray(z)
+        ds.GetRasterBand(2).SetColorInterpretation(gdal.GCI_AlphaBand)
+        ds.GetRasterBand(2).WriteArray(alpha)
+        ds = None
+        paths.append(p)
+    run_survey("morphological", paths, tmp_path / "out", {"max_object_size_m": 16.0}, workers=1)
+    mask = grid.open_dsm(tmp_path / "out" / output_names("t0")[1]).read_stored()
+    dtm = grid.open_dsm(tmp_path / "out" / output_names("t0")[0]).read()
+    assert (mask[:, :8] == 255).all() and (mask[:, 8:] != 255).all()
+    assert np.isnan(dtm[:, :8]).all() and np.nanmin(dtm) > 100
