@@ -120,10 +120,20 @@ def layer_nodata_ranges(layer, band):
     return tuple(out)
 
 
+def layer_crs_wkt(layer):
+    """The CRS a raster layer was given in QGIS (WKT), or None: used for a file without a CRS of
+    its own (an .asc without .prj), which QGIS draws in the layer's CRS."""
+    if layer is None or not layer.crs().isValid():
+        return None
+    from qgis.core import QgsCoordinateReferenceSystem
+    return layer.crs().toWkt(QgsCoordinateReferenceSystem.WKT_PREFERRED_GDAL) or None
+
+
 def check_dsm(layer, band):
     """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None)."""
     try:
-        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band))
+        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
+                             layer_crs_wkt(layer))
         grid.check_has_data(info)
     except (ValueError, QgsProcessingException) as exc:
         return False, str(exc), None
@@ -698,7 +708,7 @@ class FilterAlgorithm(BaseAlgorithm):
         band = self.parameterAsInt(parameters, self.BAND, context) if parameters.get(self.BAND) else None
         ranges = layer_nodata_ranges(layer, band)
         try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
-            info = grid.open_dsm(raster_path(layer), band or None, ranges)
+            info = grid.open_dsm(raster_path(layer), band or None, ranges, layer_crs_wkt(layer))
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
@@ -721,7 +731,8 @@ class FilterAlgorithm(BaseAlgorithm):
             with output_options(self, parameters, context):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,
-                                  progress=progress_callback(feedback), log=log, nodata_ranges=ranges)
+                                  progress=progress_callback(feedback), log=log, nodata_ranges=ranges,
+                                  crs_wkt=layer_crs_wkt(layer))
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}

@@ -349,7 +349,8 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
              params: Optional[Dict[str, Any]] = None, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
              block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, processes: int = 1,
              progress: Progress = None, log: Optional[Callable[[str], None]] = None,
-             nodata_ranges: Sequence[Tuple[float, float, bool, bool]] = ()) -> Dict[str, Any]:
+             nodata_ranges: Sequence[Tuple[float, float, bool, bool]] = (),
+             crs_wkt: Optional[str] = None) -> Dict[str, Any]:
     """Filter a DSM file into output files, block by block, with bounded memory.
 
     Parameters
@@ -388,13 +389,15 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     nodata_ranges : sequence of (low, high, include_low, include_high), optional
         Heights that are nodata besides the DSM's own (a QGIS layer's additional no-data
         values; :func:`grid.open_dsm`).
+    crs_wkt : str, optional
+        The CRS of a DSM whose file has none (its QGIS layer's; :func:`grid.open_dsm`).
 
     Returns
     -------
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     meth = as_method(method)
-    info = grid.open_dsm(path, band, nodata_ranges)
+    info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
@@ -534,7 +537,8 @@ def _run_file(info, run, pool):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
         want_dtm = "dtm" in out or "ndsm" in out
         job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out,
-                        workers=run.workers if len(windows) == 1 else 1, nodata_ranges=info.nodata_ranges)
+                        workers=run.workers if len(windows) == 1 else 1, nodata_ranges=info.nodata_ranges,
+                        crs_wkt=info.crs_wkt or None)
         writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
         if run.processes > 1 and len(windows) > 1:
             blocks.run_processes(job, [(core, outer, _aux_window(run.aux, outer)) for core, outer in windows],
@@ -571,8 +575,10 @@ def _run_file(info, run, pool):
 class _BlockJob:
     """The per-block work of :func:`run_file`, picklable for worker processes."""
 
-    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1, nodata_ranges=()):
+    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1, nodata_ranges=(),
+                 crs_wkt=None):
         self.meth, self.path, self.band, self.nodata_ranges = meth, path, band, tuple(nodata_ranges)
+        self.crs_wkt = crs_wkt  # the CRS a file without one reads in (its height unit)
         self.cell, self.params, self.want_dtm = cell, params, want_dtm
         self.workers = workers  # threads inside a block (Method.threads), when blocks do not run side by side
         self.want_z = want_z  # the input block is sent back only when an nDSM is written
@@ -590,7 +596,7 @@ class _BlockJob:
     def read(self, core, outer):
         """The block over ``outer`` (float32 metres) and its core's count of far heights."""
         if self._info is None:
-            self._info = grid.open_dsm(self.path, self.band, self.nodata_ranges)
+            self._info = grid.open_dsm(self.path, self.band, self.nodata_ranges, self.crs_wkt)
         before = self._info.far_cells
         z = self._info.read(outer, far_in=blocks.crop(outer, core))
         return z, self._info.far_cells - before

@@ -378,7 +378,7 @@ def cell_size_metres(geotransform, shape, srs=None):
     return (dx * f, dy * f), warns, zf
 
 
-def open_dsm(path, band=None, nodata_ranges=()):
+def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     """Open and check a single-band DSM before any work starts.
 
     Parameters
@@ -390,6 +390,9 @@ def open_dsm(path, band=None, nodata_ranges=()):
     nodata_ranges : sequence of (low, high, include_low, include_high), optional
         Heights (the raster's unit) that are nodata besides its own nodata: the additional
         no-data values of the QGIS layer the raster was given as (:attr:`DSMInfo.nodata_ranges`).
+    crs_wkt : str, optional
+        The CRS of a raster whose file has none (the CRS its QGIS layer was given): its cell
+        size, heights and outputs are in that CRS. Ignored when the file has a CRS.
 
     Returns
     -------
@@ -438,6 +441,10 @@ def open_dsm(path, band=None, nodata_ranges=()):
         raise ValueError(f"the raster {path!r} is rotated (geotransform terms {gt[2]}, {gt[4]}): "
                          "warp it to a north-up grid first (gdalwarp).")
     wkt = ds.GetProjection() or ""
+    if not wkt and crs_wkt:
+        wkt = str(crs_wkt)
+        warns.append("The raster has no CRS of its own: the CRS its layer was given in QGIS is used (its cell "
+                     "size, heights and outputs are in it).")
     srs = None
     if wkt:
         srs = osr.SpatialReference()

@@ -619,3 +619,15 @@ def test_alpha_band_read_through_a_vrt_mosaic(tmp_path):
     expect = z.copy()
     expect[:, :2] = np.nan
     np.testing.assert_array_equal(grid.open_dsm(vrt).read(), expect)
+
+
+def test_crs_given_for_a_file_without_one(tmp_path):
+    """``crs_wkt`` (the CRS a QGIS layer was given) is used for a file without a CRS of its own,
+    its feet converted; a file's own CRS wins."""
+    a = np.full((4, 4), 10.0, np.float32)
+    gt = (300000.0, 3.0, 0.0, 60000.0, 0.0, -3.0)
+    info = grid.open_dsm(tif(tmp_path, a, gt=gt, crs=""), crs_wkt=wkt(2263))
+    assert info.z_to_m == pytest.approx(FT_US) and info.cell_size_m == pytest.approx((3 * FT_US, 3 * FT_US))
+    assert info.crs_wkt == wkt(2263) and any("CRS its layer was given" in w for w in info.warnings)
+    info = grid.open_dsm(tif(tmp_path, a, name="own.tif", gt=gt, crs=32633), crs_wkt=wkt(2263))
+    assert info.z_to_m == 1.0 and "2263" not in info.crs_wkt

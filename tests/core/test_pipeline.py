@@ -583,3 +583,16 @@ def test_run_file_nodata_ranges_are_nodata_in_every_block_and_worker(tmp_path, b
                              nodata_ranges=ranges)
     zb, _ = pickle.loads(pickle.dumps(job)).read((0, 150, 0, 20), (0, 150, 0, 20))
     np.testing.assert_array_equal(np.isnan(zb), nod[:, :20])
+
+
+def test_block_job_sent_to_a_worker_reads_in_the_crs_given(tmp_path):
+    """A file without a CRS run in the CRS its layer was given: a block job pickled for a worker
+    process reopens it in that CRS (heights in US survey feet read as metres)."""
+    import pickle
+    z = np.full((20, 20), 100.0, np.float32)
+    src = write(tmp_path, z, crs="")
+    s = osr.SpatialReference()
+    s.ImportFromEPSG(2264)
+    job = pipeline._BlockJob(None, src, 1, (1.0, 1.0), {}, True, crs_wkt=s.ExportToWkt())
+    zb, _ = pickle.loads(pickle.dumps(job)).read((0, 20, 0, 20), (0, 20, 0, 20))
+    np.testing.assert_allclose(zb, 100.0 * 1200 / 3937, rtol=1e-6)

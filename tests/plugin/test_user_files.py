@@ -174,3 +174,32 @@ def test_outputs_of_an_ungeoreferenced_dsm_lie_on_it_in_qgis(processing_run, tmp
     extent = QgsRasterLayer(src, "in", "gdal").extent()
     for key in ("OUTPUT_DTM", "OUTPUT_MASK"):
         assert QgsRasterLayer(r[key], key, "gdal").extent() == extent, key
+
+
+def test_a_file_without_crs_takes_the_crs_its_layer_was_given(processing_run, tmp_path):
+    """An .asc or .tif without a CRS, loaded in QGIS and given one (Set Layer CRS): the filters
+    work in it (feet converted) and the outputs carry it, as a run on the file with that CRS
+    does. Heights in feet were taken as metres and the outputs had no CRS."""
+    from osgeo import osr
+    from qgis.core import QgsCoordinateReferenceSystem, QgsProject, QgsRasterLayer
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    ft = 1200 / 3937
+    gt = (500000.0 / ft, 1 / ft, 0.0, 4000000.0 / ft, 0.0, -1 / ft)
+    bare = write_array(tmp_path / "bare.tif", sc.dsm / np.float32(ft), gt, "")
+    own = write_array(tmp_path / "own.tif", sc.dsm / np.float32(ft), gt, 2264)
+    layer = QgsRasterLayer(bare, "bare", "gdal")
+    layer.setCrs(QgsCoordinateReferenceSystem("EPSG:2264"))
+    QgsProject.instance().addMapLayer(layer)
+    try:
+        outs = {}
+        for name, given in (("layer", layer), ("own", own)):
+            outs[name] = processing_run("bareearth:dtm", {"INPUT": given, "OUTPUT_DTM": str(tmp_path / f"{name}_d.tif"),
+                                                          "OUTPUT_MASK": str(tmp_path / f"{name}_m.tif")})
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
+    np.testing.assert_array_equal(_read(outs["layer"]["OUTPUT_MASK"])[0], _read(outs["own"]["OUTPUT_MASK"])[0])
+    np.testing.assert_array_equal(_read(outs["layer"]["OUTPUT_DTM"])[0], _read(outs["own"]["OUTPUT_DTM"])[0])
+    ds = gdal.Open(outs["layer"]["OUTPUT_DTM"])
+    assert osr.SpatialReference(ds.GetProjection()).GetAuthorityCode(None) == "2264"
