@@ -12,6 +12,7 @@ import os
 import re
 
 import numpy as np
+from osgeo import gdal
 from qgis.core import (
     QgsProcessing,
     QgsProcessingAlgorithm,
@@ -268,6 +269,21 @@ def check_processes(alg, parameters, context):
     return True, ""
 
 
+def input_file_list(path):
+    """The files of a raster input: GDAL's list (the file and its sidecars: ``.prj``, ``.aux.xml``,
+    a SAGA grid's ``.sgrd``) and the ``.qml`` style QGIS loads with it (whether or not there is
+    one yet: a mask's style written there would restyle the input)."""
+    files = [path]
+    try:
+        with grid.without_side_files():
+            ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY)
+            files += (ds.GetFileList() or []) if ds is not None else []
+            ds = None
+    except RuntimeError:
+        pass
+    return files + [os.path.splitext(path)[0] + ".qml"]
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -421,6 +437,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         exists and takes files; each raster output's extension names a format offered (and
         holds its bands). Runs before any work."""
         inputs = [(d, os.path.realpath(p)) for d, p in self.inputPaths(parameters, context)]
+        input_files = {}     # every file of a raster input (sidecars, its QGIS style) -> (definition, input)
+        for di, p in inputs:
+            if di.type() in ("raster", "multilayer"):
+                for f in input_file_list(p):
+                    input_files.setdefault(os.path.realpath(f), (di, p))
         seen = {}
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())
@@ -434,6 +455,14 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if real in seen:
                 return False, tr("The outputs {} and {} are one file ({}): give each output its own "
                                  "file.").format(label_of(seen[real]), label_of(d), path)
+            if d.type() == "rasterDestination":
+                for f in grid.output_files(path, styled=d.name().endswith("MASK")):
+                    hit = input_files.get(os.path.realpath(f))
+                    if hit is not None and os.path.realpath(f) != real:
+                        return False, tr("The output {} ({}) would write {}, a file of the input {} ({}): its "
+                                         "sidecar, or the style QGIS loads with it. Choose another name for the "
+                                         "output.").format(
+                            label_of(d), path, f, label_of(hit[0]), hit[1])
             seen[real] = d
             try:
                 if d.type() == "rasterDestination":

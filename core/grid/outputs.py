@@ -72,6 +72,24 @@ def _name_max(folder):
         return 255
 
 
+#: Files a format writes beside its main file, named after its root (``x.asc`` -> ``x.prj``).
+_SIDECARS = {"AAIGrid": (".prj",), "SAGA": (".sgrd", ".prj")}
+
+
+def output_files(path, styled=False):
+    """Every file writing the raster output ``path`` creates or replaces: the file, its
+    ``.aux.xml``, the sidecars of its format (an ASCII grid's ``.prj``, a SAGA grid's ``.sgrd``
+    and ``.prj``) and, for a ``styled`` output (a mask), the ``.qml`` style QGIS loads with it."""
+    path = os.path.abspath(str(path))
+    root = os.path.splitext(path)[0]
+    try:
+        drv, _ = _output_format(path)
+    except ValueError:
+        drv = None
+    files = [path, path + ".aux.xml"] + [root + ext for ext in _SIDECARS.get(drv, ())]
+    return files + ([root + ".qml"] if styled else [])
+
+
 def _output_format(path, bands=1):
     """(driver name, format name) of an output path, or ValueError naming the formats offered."""
     ext = os.path.splitext(str(path))[1].lower()

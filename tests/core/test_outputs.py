@@ -305,3 +305,20 @@ def test_a_read_only_output_is_refused_and_no_output_replaced(tmp_path, read_onl
         assert (tmp_path / "d.tif").read_bytes() == b"old"
         assert (tmp_path / "m.tif").read_bytes() == b"old"
         assert _partials(tmp_path) == []
+
+
+def test_output_files_name_every_file_an_output_writes(tmp_path):
+    """What writing an output creates: its sidecars by format and a mask's style (the checks
+    compare them with the inputs' files)."""
+    p = str(tmp_path / "x")
+    assert grid.output_files(p + ".asc") == [p + ".asc", p + ".asc.aux.xml", p + ".prj"]
+    assert grid.output_files(p + ".sdat", styled=True) == [p + ".sdat", p + ".sdat.aux.xml", p + ".sgrd", p + ".prj",
+                                                           p + ".qml"]
+    assert grid.output_files(p + ".tif") == [p + ".tif", p + ".tif.aux.xml"]
+    # every file a real write makes is listed
+    info = _info(tmp_path)
+    for ext in (".asc", ".sdat", ".img", ".tif"):
+        sub = tmp_path / ext[1:]
+        sub.mkdir()
+        _write(info, {"mask": sub / f"m{ext}"})
+        assert {str(f) for f in sub.iterdir()} <= set(grid.output_files(sub / f"m{ext}", styled=True)), ext

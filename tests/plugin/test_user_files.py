@@ -203,3 +203,26 @@ def test_a_file_without_crs_takes_the_crs_its_layer_was_given(processing_run, tm
     np.testing.assert_array_equal(_read(outs["layer"]["OUTPUT_DTM"])[0], _read(outs["own"]["OUTPUT_DTM"])[0])
     ds = gdal.Open(outs["layer"]["OUTPUT_DTM"])
     assert osr.SpatialReference(ds.GetProjection()).GetAuthorityCode(None) == "2264"
+
+
+@pytest.mark.parametrize("outputs,written", [
+    ({"OUTPUT_DTM": "x.sdat", "OUTPUT_MASK": "m.tif"}, "x.prj"),       # SAGA's .prj over the grid's own
+    ({"OUTPUT_DTM": "d.tif", "OUTPUT_MASK": "x.img"}, "x.qml"),        # the mask's style: the input's style
+])
+def test_outputs_never_write_the_inputs_sidecars(processing_run, tmp_path, outputs, written):
+    """An ASCII grid input x.asc with its x.prj: an output x.sdat rewrote x.prj (the input's CRS),
+    and a mask x.img wrote x.qml, which QGIS then loads as x.asc's style. Refused before any work,
+    naming the file; the input's files as they were."""
+    import hashlib
+
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "src.tif", sc.dsm, sc.geotransform, 2264)
+    gdal.Translate(str(tmp_path / "x.asc"), src, format="AAIGrid")
+    before = {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()}
+    with pytest.raises(QgsProcessingException, match=rf"would write .*{written}, a file of the input"):
+        processing_run("bareearth:morphological", {"INPUT": str(tmp_path / "x.asc"),
+                                                   **{k: str(tmp_path / v) for k, v in outputs.items()}})
+    assert {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()} == before
