@@ -442,7 +442,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if di.type() in ("raster", "multilayer"):
                 for f in input_file_list(p):
                     input_files.setdefault(os.path.realpath(f), (di, p))
-        seen = {}
+        seen, styles = {}, {}
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())
             if path is None:
@@ -464,6 +464,14 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                                          "output.").format(
                             label_of(d), path, f, label_of(hit[0]), hit[1])
             seen[real] = d
+            if d.type() == "rasterDestination":   # a mask's style is another output's style too
+                style = os.path.realpath(os.path.splitext(path)[0] + ".qml")
+                other = styles.get(style)
+                if other is not None and (d.name().endswith("MASK") or other[1]):
+                    return False, tr("The outputs {} and {} share the name {} (another extension): QGIS would "
+                                     "draw both with the mask's style ({}). Give them different names.").format(
+                        label_of(other[0]), label_of(d), os.path.splitext(os.path.basename(path))[0], style)
+                styles[style] = (d, d.name().endswith("MASK"))
             try:
                 if d.type() == "rasterDestination":
                     grid.check_output_path(path, self.outputBands(d.name()))

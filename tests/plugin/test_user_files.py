@@ -226,3 +226,22 @@ def test_outputs_never_write_the_inputs_sidecars(processing_run, tmp_path, outpu
         processing_run("bareearth:morphological", {"INPUT": str(tmp_path / "x.asc"),
                                                    **{k: str(tmp_path / v) for k, v in outputs.items()}})
     assert {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()} == before
+
+
+def test_a_mask_and_another_output_of_one_name_refused(processing_run, tmp_path):
+    """OUTPUT_DTM x.tif and OUTPUT_MASK x.img: the mask's x.qml made QGIS draw the DTM with the
+    mask's four classes. Refused before any work; other extensions of one name (x.asc and x.sdat,
+    no mask) still run."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+    with pytest.raises(QgsProcessingException, match=r"'DTM' \(OUTPUT_DTM\) and 'Object mask' \(OUTPUT_MASK\) "
+                                                     r"share the name x"):
+        processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "x.tif"),
+                                                   "OUTPUT_MASK": str(tmp_path / "x.img")})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dsm.tif"]
+    processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "y.asc"),
+                                               "OUTPUT_NDSM": str(tmp_path / "y.sdat"),
+                                               "OUTPUT_MASK": str(tmp_path / "m.tif")})
