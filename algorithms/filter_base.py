@@ -26,7 +26,6 @@ from qgis.core import (
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
-    QgsRasterRange,
 )
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
@@ -35,7 +34,16 @@ from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE, ICON
-from .compat import NUMBER_DOUBLE, NUMBER_INTEGER, is_optional, mark_advanced
+from .compat import (
+    NUMBER_DOUBLE,
+    NUMBER_INTEGER,
+    RANGE_INCLUDE_MAX,
+    RANGE_INCLUDE_MIN,
+    RANGE_INCLUDE_MIN_AND_MAX,
+    WKT_PREFERRED_GDAL,
+    is_optional,
+    mark_advanced,
+)
 from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
@@ -116,8 +124,8 @@ def layer_nodata_ranges(layer, band):
     out = []
     for r in prov.userNoDataValues(b):
         bounds = r.bounds()
-        out.append((r.min(), r.max(), bounds in (QgsRasterRange.IncludeMinAndMax, QgsRasterRange.IncludeMin),
-                    bounds in (QgsRasterRange.IncludeMinAndMax, QgsRasterRange.IncludeMax)))
+        out.append((r.min(), r.max(), bounds in (RANGE_INCLUDE_MIN_AND_MAX, RANGE_INCLUDE_MIN),
+                    bounds in (RANGE_INCLUDE_MIN_AND_MAX, RANGE_INCLUDE_MAX)))
     return tuple(out)
 
 
@@ -126,8 +134,7 @@ def layer_crs_wkt(layer):
     its own (an .asc without .prj), which QGIS draws in the layer's CRS."""
     if layer is None or not layer.crs().isValid():
         return None
-    from qgis.core import QgsCoordinateReferenceSystem
-    return layer.crs().toWkt(QgsCoordinateReferenceSystem.WKT_PREFERRED_GDAL) or None
+    return layer.crs().toWkt(WKT_PREFERRED_GDAL) or None
 
 
 def check_dsm(layer, band):
