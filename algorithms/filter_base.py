@@ -366,8 +366,34 @@ def reading_inputs_only(param):
     return param
 
 
+def gdal_mode_kept(func):
+    """Run ``func`` inside :func:`grid.gdal_mode_kept`: QGIS's session keeps GDAL's exception
+    mode as it was, whatever the core turned on."""
+    @functools.wraps(func)
+    def kept(*args, **kwargs):
+        with grid.gdal_mode_kept():
+            return func(*args, **kwargs)
+    kept.gdal_mode_kept = True
+    return kept
+
+
+#: The methods QGIS calls on an algorithm that may reach GDAL's Python bindings.
+GDAL_ENTRY_POINTS = ("checkParameterValues", "prepareAlgorithm", "processAlgorithm", "postProcessAlgorithm",
+                     "shortHelpString")
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
-    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
+    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance).
+
+    Each entry point of :data:`GDAL_ENTRY_POINTS` a class defines runs with GDAL's exception
+    mode restored afterwards (:func:`gdal_mode_kept`)."""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in GDAL_ENTRY_POINTS:
+            f = cls.__dict__.get(name)
+            if f is not None and not getattr(f, "gdal_mode_kept", False):
+                setattr(cls, name, gdal_mode_kept(f))
 
     GROUP = "filters"
     GROUP_NAME = "DSM filters"
@@ -557,6 +583,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         from .styles import style_loaded_outputs
         style_loaded_outputs(self, context)
         return {}
+
+
+for _name in GDAL_ENTRY_POINTS:   # BaseAlgorithm's own entry points too
+    if _name in BaseAlgorithm.__dict__:
+        setattr(BaseAlgorithm, _name, gdal_mode_kept(BaseAlgorithm.__dict__[_name]))
 
 
 class FilterAlgorithm(BaseAlgorithm):

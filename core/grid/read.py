@@ -133,6 +133,27 @@ def need_gdal():
     gdal.UseExceptions()
 
 
+@contextlib.contextmanager
+def gdal_mode_kept():
+    """GDAL's Python exceptions on inside the block (as :func:`need_gdal` turns them on) and
+    the mode back as it was when it ends. GDAL's bindings hold one mode for the whole process:
+    inside QGIS, every other plugin's ``if gdal.Open(p) is None`` would raise instead once a
+    Bare Earth algorithm had run. The plugin's entry points run inside this block."""
+    if gdal is None:
+        yield
+        return
+    old = gdal.GetUseExceptions()
+    gdal.UseExceptions()
+    try:
+        yield
+    finally:
+        if gdal.GetUseExceptions() != old:
+            if old:
+                gdal.UseExceptions()
+            else:
+                gdal.DontUseExceptions()
+
+
 @dataclass
 class DSMInfo:
     """An opened, checked DSM band and everything known about its grid.

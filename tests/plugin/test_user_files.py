@@ -245,3 +245,27 @@ def test_a_mask_and_another_output_of_one_name_refused(processing_run, tmp_path)
     processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "y.asc"),
                                                "OUTPUT_NDSM": str(tmp_path / "y.sdat"),
                                                "OUTPUT_MASK": str(tmp_path / "m.tif")})
+
+
+def test_the_session_keeps_gdals_exception_mode(processing_run, tmp_path):
+    """A run (and the help, the provider's formats) left GDAL's Python exceptions on for the
+    whole QGIS session, so another plugin's ``if gdal.Open(p) is None`` raised. The mode is as
+    the session had it after every entry point, whichever it was."""
+    from qgis.core import QgsApplication
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+    provider = QgsApplication.processingRegistry().providerById("bareearth")
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    for mode in (False, True):
+        (gdal.UseExceptions if mode else gdal.DontUseExceptions)()
+        try:
+            processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                       "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+            assert bool(gdal.GetUseExceptions()) == mode
+            alg.shortHelpString()
+            provider.supportedOutputRasterLayerExtensions()
+            assert bool(gdal.GetUseExceptions()) == mode
+        finally:
+            gdal.UseExceptions()
