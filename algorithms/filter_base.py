@@ -471,10 +471,12 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         holds its bands). Runs before any work."""
         inputs = [(d, os.path.realpath(p)) for d, p in self.inputPaths(parameters, context)]
         input_files = {}     # every file of a raster input (sidecars, its QGIS style) -> (definition, input)
-        for di, p in inputs:
-            if di.type() in ("raster", "multilayer"):
-                for f in input_file_list(p):
-                    input_files.setdefault(os.path.realpath(f), (di, p))
+        if any(d.type() == "rasterDestination" and destination_path(parameters, d.name())
+               for d in self.destinationParameterDefinitions()):
+            for di, p in inputs:
+                if di.type() in ("raster", "multilayer"):
+                    for f in input_file_list(p):
+                        input_files.setdefault(os.path.realpath(f), (di, p))
         seen, styles = {}, {}
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())
