@@ -432,6 +432,23 @@ def _read_reporting(info, window, progress):
     return z
 
 
+def _window_on_data(info, max_cells=4_000_000):
+    """The window of :func:`_resolve_window`'s size centred on the valid cell nearest the raster's
+    centre, for a raster whose centre holds no data (an L-shaped survey, a corridor): found on a
+    decimated read of at most ``max_cells`` as :func:`grid.check_has_data` scans. The whole
+    raster when that read misses the data (it sits between the samples)."""
+    rows, cols = info.shape
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    rr, cc = np.nonzero(np.isfinite(info.surface(info.read_stored(step=step), None, step)))
+    if rr.size == 0:
+        return (0, rows, 0, cols)
+    k = int(np.argmin((rr * step - rows / 2.0) ** 2 + (cc * step - cols / 2.0) ** 2))
+    h, w = min(rows, RESOLVE_SIDE), min(cols, RESOLVE_SIDE)
+    r0 = int(min(max(rr[k] * step - h // 2, 0), rows - h))
+    c0 = int(min(max(cc[k] * step - w // 2, 0), cols - w))
+    return (r0, r0 + h, c0, c0 + w)
+
+
 def _derive_params(info, run):
     """The complete parameters (from a central window, or the whole raster when it fits in
     one) and the raster itself when it was read whole (else None); logs what it did.
@@ -439,15 +456,18 @@ def _derive_params(info, run):
     # The window the parameters come from also proves the raster has data (a full scan only
     # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
+    where = "the central"
     zr = _read_reporting(info, rw, sub_progress(run.progress, 0.0, READ_SHARE * RESOLVED))
     if not np.isfinite(zr).any():
         grid.check_has_data(info)  # raises ValueError when no cell is valid
-        zr = info.read()
+        rw = _window_on_data(info)
+        where = f"the {'whole raster' if rw == (0, info.shape[0], 0, info.shape[1]) else 'data'}'s"
+        zr = _read_reporting(info, rw, None)
     for w in info.warnings:
         run.log("Warning: " + w)
     suspect = grid.undeclared_nodata_warning(info, zr)
     if suspect:
-        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the central window the parameters "
+        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the window the parameters "
                                           "come from)"))
     for note in info.notes:
         run.log(note)
@@ -455,7 +475,8 @@ def _derive_params(info, run):
                       sub_progress(run.progress, READ_SHARE * RESOLVED, RESOLVED))
     whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
     if whole is None:
-        run.log(f"Parameters derived from the central {rw[1] - rw[0]} x {rw[3] - rw[2]} cells.")
+        run.log(f"Parameters derived from {where} {rw[1] - rw[0]} x {rw[3] - rw[2]} cells (rows {rw[0]}-{rw[1]}, "
+                f"columns {rw[2]}-{rw[3]}).")
         if info.far_cells:
             run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
     return params, whole

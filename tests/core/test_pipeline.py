@@ -596,3 +596,27 @@ def test_block_job_sent_to_a_worker_reads_in_the_crs_given(tmp_path):
     job = pipeline._BlockJob(None, src, 1, (1.0, 1.0), {}, True, crs_wkt=s.ExportToWkt())
     zb, _ = pickle.loads(pickle.dumps(job)).read((0, 20, 0, 20), (0, 20, 0, 20))
     np.testing.assert_allclose(zb, 100.0 * 1200 / 3937, rtol=1e-6)
+
+
+def test_run_file_parameters_from_the_data_when_the_centre_is_empty(tmp_path, monkeypatch):
+    """A raster larger than the parameter window whose centre holds no data (an L-shaped survey):
+    the parameters come from a window of that size on the data, not from the whole raster read
+    at once (gigabytes for a large survey)."""
+    monkeypatch.setattr(pipeline, "RESOLVE_SIDE", 64)
+    z = np.full((200, 300), np.nan, np.float32)
+    z[120:190, 10:90] = np.linspace(0.0, 2.0, 80, dtype=np.float32)[None, :]
+    z[150, 50] = 60.0
+    src = write(tmp_path, z)
+    reads = []
+    original = grid.DSMInfo.read
+
+    def spy(self, window=None, step=1, far_in=None):
+        reads.append(window)
+        return original(self, window, step, far_in)
+    monkeypatch.setattr(grid.DSMInfo, "read", spy)
+    logs = []
+    pipeline.run_file(ABOVE, src, outputs(tmp_path, "mask"), block=64, log=logs.append)
+    assert None not in reads and (0, 200, 0, 300) not in reads        # never the whole raster
+    said = [s for s in logs if s.startswith("Parameters derived from")]
+    assert said == ["Parameters derived from the data's 64 x 64 cells (rows 88-152, columns 57-121)."]
+    assert read(outputs(tmp_path, "mask")["mask"])[0][150, 50] == OBJECT
