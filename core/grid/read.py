@@ -544,26 +544,28 @@ def check_has_data(info, max_cells=4_000_000):
 
 
 #: Values software writes for missing cells (ESRI and most GIS -9999, Int16 rasters -32767 and
-#: -32768, older exports -99999): when a raster does not declare one, its cells read as heights.
-COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0)
+#: -32768, older exports -99999; above the heights: 9999, the largest Int16 and UInt16): when a
+#: raster does not declare one, its cells read as heights.
+COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, 9999.0, 32767.0, 65535.0)
 
 
 def undeclared_nodata_warning(info, z):
     """The log line when heights ``z`` (float32 metres, NaN nodata, read from ``info``) hold a
-    value of :data:`COMMON_NODATA` that the band does not declare, standing further below every
-    other height than those heights span (a cliff no terrain has: -9999 beside ground at +300 m),
-    else None. Such cells are filtered as heights: the DTM beside them is pulled down.
+    value of :data:`COMMON_NODATA` that the band does not declare, standing further below (or
+    above) every other height than those heights span (a cliff no terrain has: -9999 beside
+    ground at +300 m), else None. Such cells are filtered as heights: below, the DTM beside them
+    is pulled down; above, they are objects with a DTM interpolated under them.
 
-    Such a value is the lowest height, so only a value read as ``min(z)`` is looked at (one
-    pass over the raster for the minimum, two more when it is one of them)."""
+    Such a value is the lowest (highest) height, so only a value read as ``min(z)`` (``max(z)``)
+    is looked at (two passes over the raster, two more when it is one of them)."""
     if not np.isfinite(z).any():
         return None
-    zmin = np.nanmin(z)
+    ends = (np.nanmin(z), np.nanmax(z))
     for v in COMMON_NODATA:
         if info.nodata is not None and float(info.nodata) == v:
             continue
         h = to_surface(np.array([v]), None, info.z_to_m, info.scale, info.offset)[0]   # as read
-        if h != zmin:
+        if h not in ends:
             continue
         hit = z == h
         n = int(np.count_nonzero(hit))
@@ -571,12 +573,16 @@ def undeclared_nodata_warning(info, z):
         if not np.isfinite(rest).any():
             return None
         lo, hi = float(np.nanmin(rest)), float(np.nanmax(rest))
-        if lo - float(h) > hi - lo:
-            return (f"{n} cell(s) hold {v:g}, a common nodata value, {lo - float(h):.0f} m below every other "
-                    f"height (those span {lo:.1f} to {hi:.1f} m), but the raster does not declare {v:g} as its "
-                    "nodata: they were filtered as heights, which pulls the DTM beside them down. If they are "
-                    f"missing cells, declare it (gdal_edit.py -a_nodata {v:g} <file>; in QGIS, give the layer "
-                    f"{v:g} as an additional no-data value in its Properties > Transparency) and run again.")
+        below = float(h) < lo
+        gap = lo - float(h) if below else float(h) - hi
+        if gap > hi - lo:
+            effect = ("which pulls the DTM beside them down" if below else
+                      "so the mask calls them objects and the DTM is interpolated under them")
+            return (f"{n} cell(s) hold {v:g}, a common nodata value, {gap:.0f} m {'below' if below else 'above'} "
+                    f"every other height (those span {lo:.1f} to {hi:.1f} m), but the raster does not declare "
+                    f"{v:g} as its nodata: they were filtered as heights, {effect}. If they are missing cells, "
+                    f"declare it (gdal_edit.py -a_nodata {v:g} <file>; in QGIS, give the layer {v:g} as an "
+                    "additional no-data value in its Properties > Transparency) and run again.")
     return None
 
 

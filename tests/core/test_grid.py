@@ -534,6 +534,8 @@ def test_vertical_unit_factor():
     (-32768.0, np.int16, None, True),
     (-9999.0, np.float32, -9999.0, False),       # declared: nodata, nothing to say
     (-9999.0, np.float32, -32768.0, True),       # another value declared
+    (65535.0, np.uint16, None, True),            # above the heights: UInt16's largest
+    (32767.0, np.int16, None, True),
 ])
 def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, declared, warned):
     a = np.full((6, 8), 300.0)
