@@ -463,6 +463,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             elif d.type() == "multilayer":
                 out += [(d, p) for p in self.parameterAsFileList(parameters, d.name(), context)]
                 out += [(d, lay.source()) for lay in self.parameterAsLayerList(parameters, d.name(), context)]
+            elif d.type() in ("source", "vector"):
+                lay = self.parameterAsVectorLayer(parameters, d.name(), context)
+                if lay is not None and lay.providerType() == "ogr":   # a file: its path before '|layername='
+                    out.append((d, lay.source().split("|")[0]))
         return [(d, p) for d, p in out if p]
 
     def checkOutputs(self, parameters, context):  # noqa: N802
@@ -475,8 +479,13 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                for d in self.destinationParameterDefinitions()):
             for di, p in inputs:
                 if di.type() in ("raster", "multilayer"):
-                    for f in input_file_list(p):
-                        input_files.setdefault(os.path.realpath(f), (di, p))
+                    files = input_file_list(p)
+                elif di.type() in ("source", "vector"):   # a vector layer's file and its QGIS style
+                    files = [p, os.path.splitext(p)[0] + ".qml"]
+                else:
+                    continue
+                for f in files:
+                    input_files.setdefault(os.path.realpath(f), (di, p))
         seen, styles = {}, {}
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())

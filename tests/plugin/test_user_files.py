@@ -269,3 +269,38 @@ def test_the_session_keeps_gdals_exception_mode(processing_run, tmp_path):
             assert bool(gdal.GetUseExceptions()) == mode
         finally:
             gdal.UseExceptions()
+
+
+def test_a_mask_named_as_a_vector_input_keeps_the_layers_style(processing_run, tmp_path):
+    """OBJECT_AREAS buildings.shp with its style buildings.qml, OUTPUT_MASK buildings.tif: the
+    mask's palette replaced the footprints' style. Refused before any work, the style as it was;
+    a memory layer (no file) still runs."""
+    from osgeo import ogr, osr
+    from qgis.core import QgsFeature, QgsGeometry, QgsProcessingException, QgsVectorLayer
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    dsm = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+    x0, y0 = sc.geotransform[0], sc.geotransform[3]          # 1 m cells: rows 5-14, columns 10-19
+    wkt = "POLYGON(({a} {c}, {b} {c}, {b} {d}, {a} {d}, {a} {c}))".format(a=x0 + 10, b=x0 + 20, c=y0 - 15, d=y0 - 5)
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(sc.epsg)
+    ds = ogr.GetDriverByName("ESRI Shapefile").CreateDataSource(str(tmp_path / "buildings.shp"))
+    lyr = ds.CreateLayer("buildings", srs, ogr.wkbPolygon)
+    f = ogr.Feature(lyr.GetLayerDefn())
+    f.SetGeometry(ogr.CreateGeometryFromWkt(wkt))
+    lyr.CreateFeature(f)
+    ds = lyr = f = None
+    (tmp_path / "buildings.qml").write_text("<qgis>the footprints' style</qgis>")
+    with pytest.raises(QgsProcessingException, match=r"would write .*buildings\.qml, a file of the input 'Object"):
+        processing_run("bareearth:dtm", {"INPUT": dsm, "OBJECT_AREAS": str(tmp_path / "buildings.shp"),
+                                         "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                         "OUTPUT_MASK": str(tmp_path / "buildings.tif")})
+    assert (tmp_path / "buildings.qml").read_text() == "<qgis>the footprints' style</qgis>"
+    memory = QgsVectorLayer(f"Polygon?crs=EPSG:{sc.epsg}", "m", "memory")
+    feat = QgsFeature()
+    feat.setGeometry(QgsGeometry.fromWkt(wkt))
+    memory.dataProvider().addFeatures([feat])
+    r = processing_run("bareearth:dtm", {"INPUT": dsm, "OBJECT_AREAS": memory, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                         "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert (_read(r["OUTPUT_MASK"])[0][5:15, 10:20] == 1).all()
