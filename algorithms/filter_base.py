@@ -390,8 +390,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
-        for name in GDAL_ENTRY_POINTS:
-            f = cls.__dict__.get(name)
+        for name in GDAL_ENTRY_POINTS:   # its own, and a mixin's before BaseAlgorithm in the MRO
+            f = getattr(cls, name, None)
             if f is not None and not getattr(f, "gdal_mode_kept", False):
                 setattr(cls, name, gdal_mode_kept(f))
 

@@ -258,6 +258,9 @@ def test_the_session_keeps_gdals_exception_mode(processing_run, tmp_path):
     src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
     provider = QgsApplication.processingRegistry().providerById("bareearth")
     alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    for a in provider.algorithms():          # every entry point, a mixin's too (the points input)
+        for name in ("checkParameterValues", "processAlgorithm", "postProcessAlgorithm", "shortHelpString"):
+            assert getattr(getattr(type(a), name), "gdal_mode_kept", False), (a.id(), name)
     for mode in (False, True):
         (gdal.UseExceptions if mode else gdal.DontUseExceptions)()
         try:
