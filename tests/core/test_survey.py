@@ -457,3 +457,20 @@ def test_tiles_with_an_alpha_band_keep_their_transparent_cells_as_nodata(tmp_pat
     dtm = grid.open_dsm(tmp_path / "out" / output_names("t0")[0]).read()
     assert (mask[:, :8] == 255).all() and (mask[:, 8:] != 255).all()
     assert np.isnan(dtm[:, :8]).all() and np.nanmin(dtm) > 100
+
+
+def test_a_read_only_tile_output_refused_before_any_work(tmp_path, read_only):
+    """A tile output left from an earlier run (run.json gone) that cannot be replaced: refused
+    naming it before any task runs. The task failed and the survey stopped with a PermissionError
+    traceback while removing it."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    out = tmp_path / "out"
+    run_survey("slopeprofile", paths, out, {"max_object_size_m": 8.0}, workers=1)
+    os.remove(out / "run.json")
+    locked = out / output_names("t00")[0]
+    before = locked.read_bytes()
+    with read_only(locked):
+        with pytest.raises(ValueError, match=r"t00_dtm\.tif' exists and is read-only"):
+            run_survey("slopeprofile", paths, out, {"max_object_size_m": 8.0}, workers=1)
+        assert locked.read_bytes() == before
