@@ -182,11 +182,45 @@ def _creation_option_specs(driver):
     return specs
 
 
+#: GeoTIFF creation options in the COG driver's words (QGIS's compression profiles are GeoTIFF
+#: options: "COMPRESS=DEFLATE|PREDICTOR=2|ZLEVEL=9"): key -> (COG key, {GeoTIFF value: COG value}).
+_COG_SPELLING = {"PREDICTOR": ("PREDICTOR", {"1": "NO", "2": "STANDARD", "3": "FLOATING_POINT"}),
+                 "ZLEVEL": ("LEVEL", {}), "ZSTD_LEVEL": ("LEVEL", {}), "LZMA_PRESET": ("LEVEL", {}),
+                 "JPEG_QUALITY": ("QUALITY", {}), "WEBP_LEVEL": ("QUALITY", {})}
+
+
+def _as_cog_options(opts):
+    """GeoTIFF spellings of ``opts`` as the COG driver takes them: PREDICTOR=2 is STANDARD, ZLEVEL
+    is LEVEL, ..., TILED=YES goes (a COG is tiled), square BLOCKXSIZE/BLOCKYSIZE are BLOCKSIZE."""
+    out, block = [], {}
+    for o in opts:
+        key, _, value = o.partition("=")
+        k = key.upper()
+        if k == "TILED" and value.upper() in ("YES", "TRUE", "ON", "1"):
+            continue
+        if k in ("BLOCKXSIZE", "BLOCKYSIZE"):
+            block[k] = value
+            continue
+        if k in _COG_SPELLING:
+            name, values = _COG_SPELLING[k]
+            o = f"{name}={values.get(value.upper(), value)}"
+        out.append(o)
+    if block:
+        if len(set(block.values())) == 1:
+            out.append(f"BLOCKSIZE={next(iter(block.values()))}")
+        else:
+            out += [f"{k}={v}" for k, v in block.items()]     # refused below: a COG's blocks are square
+    return out
+
+
 def parse_creation_options(text, cog=False):
     """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces too) -> list of 'KEY=VALUE',
-    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value."""
+    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
+    With ``cog``, GeoTIFF spellings (QGIS's profiles) are given in the COG driver's words first."""
     need_gdal()
     opts = [t for t in re.split(r"[|\s]+", str(text or "").strip()) if t]
+    if cog:
+        opts = _as_cog_options(opts)
     specs = _creation_option_specs("COG" if cog else "GTiff")
     for o in opts:
         key, sep, value = o.partition("=")

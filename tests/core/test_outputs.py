@@ -322,3 +322,24 @@ def test_output_files_name_every_file_an_output_writes(tmp_path):
         sub.mkdir()
         _write(info, {"mask": sub / f"m{ext}"})
         assert {str(f) for f in sub.iterdir()} <= set(grid.output_files(sub / f"m{ext}", styled=True)), ext
+
+
+@pytest.mark.parametrize("profile,compression", [("COMPRESS=DEFLATE|PREDICTOR=2|ZLEVEL=9", "DEFLATE"),
+                                                 ("COMPRESS=LZW|PREDICTOR=2", "LZW"),
+                                                 ("COMPRESS=ZSTD|ZSTD_LEVEL=9|PREDICTOR=3|TILED=YES", "ZSTD")])
+def test_qgis_compression_profiles_with_cloud_optimised_geotiffs(tmp_path, profile, compression):
+    """QGIS's compression profiles (the dialog offers them) are GeoTIFF options: with COG they were
+    refused ("PREDICTOR=2: allowed values are YES, NO, STANDARD, FLOATING_POINT"); they are now
+    given in the COG driver's words and written."""
+    opts = grid.parse_creation_options(profile, cog=True)
+    assert not any(o.startswith(("ZLEVEL", "ZSTD_LEVEL", "TILED", "PREDICTOR=2", "PREDICTOR=3")) for o in opts)
+    info = _info(tmp_path)
+    with grid.write_options(opts, cog=True):
+        d, m = _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+    for name in ("d.tif", "m.tif"):
+        ds = gdal.Open(str(tmp_path / name))
+        meta = ds.GetMetadata("IMAGE_STRUCTURE")
+        assert meta.get("LAYOUT") == "COG" and meta.get("COMPRESSION") == compression, (name, meta)
+        ds = None
+    np.testing.assert_array_equal(_read(tmp_path / "m.tif"), m)
+    np.testing.assert_array_equal(_read(tmp_path / "d.tif"), d)
