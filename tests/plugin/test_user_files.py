@@ -307,3 +307,27 @@ def test_a_mask_named_as_a_vector_input_keeps_the_layers_style(processing_run, t
     r = processing_run("bareearth:dtm", {"INPUT": dsm, "OBJECT_AREAS": memory, "OUTPUT_DTM": str(tmp_path / "d.tif"),
                                          "OUTPUT_MASK": str(tmp_path / "m.tif")})
     assert (_read(r["OUTPUT_MASK"])[0][5:15, 10:20] == 1).all()
+
+
+def test_evaluate_reads_a_dtm_layer_as_it_stands_in_qgis(processing_run, tmp_path):
+    """A DTM file without a CRS (heights in US survey feet) given EPSG:2264 in QGIS, against a
+    reference DTM with that CRS, one foot lower: an RMSE of one foot in metres (0.3048). The DTM
+    was read as metres and the reference as feet converted: an RMSE of hundreds of metres."""
+    from qgis.core import QgsCoordinateReferenceSystem, QgsProject, QgsRasterLayer
+
+    from bare_earth.core.grid import write_array
+    ft = 1200 / 3937
+    gt = (500000.0 / ft, 1 / ft, 0.0, 4000000.0 / ft, 0.0, -1 / ft)
+    z = np.full((30, 40), 1000.0, np.float32)
+    dtm = write_array(tmp_path / "dtm.tif", z + 1.0, gt, "")
+    ref = write_array(tmp_path / "ref.tif", z, gt, 2264)
+    layer = QgsRasterLayer(dtm, "dtm", "gdal")
+    layer.setCrs(QgsCoordinateReferenceSystem("EPSG:2264"))
+    QgsProject.instance().addMapLayer(layer)
+    try:
+        r = processing_run("bareearth:evaluate", {"DTM": layer, "REFERENCE_DTM": ref,
+                                                  "OUTPUT_JSON": str(tmp_path / "e.json"),
+                                                  "OUTPUT_HTML": str(tmp_path / "e.html")})
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
+    assert r["RMSE"] == pytest.approx(ft, rel=1e-4)
