@@ -474,3 +474,22 @@ def test_a_read_only_tile_output_refused_before_any_work(tmp_path, read_only):
         with pytest.raises(ValueError, match=r"t00_dtm\.tif' exists and is read-only"):
             run_survey("slopeprofile", paths, out, {"max_object_size_m": 8.0}, workers=1)
         assert locked.read_bytes() == before
+
+
+def test_tiles_with_an_undeclared_minus_9999_border_warned(tmp_path):
+    """Tiles exported with -9999 in their empty corners and no declared nodata: the survey's log
+    names the value and how to declare it, as a single raster's run does."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    z = sc.dsm.copy()
+    z[:, :6] = -9999.0
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, z[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg)
+        paths.append(str(p))
+    logs = []
+    run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1, log=logs.append)
+    said = [s for s in logs if "a common nodata value" in s]
+    assert said and "384 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999 <tile>" in said[0]
