@@ -65,6 +65,7 @@ MARK_BEGIN, MARK_END = "<!-- anchors:begin -->", "<!-- anchors:end -->"
 TOOLS = ("saga", "csf", "dsm2dtm")
 #: issue 13: on each lidar tile, dtm within this many points of the best peer
 MARGIN = 0.5
+fmt = generalise.fmt
 
 
 class _Result:
@@ -204,7 +205,7 @@ def run_rows(data, tools, only=None, progress=print):
             rows.append(row)
             if progress:
                 progress(f"  {name:<34} " + " ".join(
-                    f"{generalise._fmt(row['tools'][t].get('total')):>8}" for t in tools))
+                    f"{fmt(row['tools'][t].get('total')):>8}" for t in tools))
     return rows, notes
 
 
@@ -256,10 +257,6 @@ def summarise(rows, tools, ours):
     return out
 
 
-def _fmt(v):
-    return generalise._fmt(v)
-
-
 def markdown(record):
     tools, rows, summ = record["tools"], record["rows"], record["summary"]
     ours = record.get("ours", {})
@@ -272,11 +269,11 @@ def markdown(record):
            "|---|---|---|---|---|---|---|"]
     for t in tools:
         s = summ[t]
-        out.append(f"| {t} | {_fmt(s.get('mean_all'))} | {_fmt(s.get('mean_A'))} | {_fmt(s.get('mean_B'))} | "
-                   f"{_fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | {_fmt(s.get('opengeos_rmse_m'))} |")
+        out.append(f"| {t} | {fmt(s.get('mean_all'))} | {fmt(s.get('mean_A'))} | {fmt(s.get('mean_B'))} | "
+                   f"{fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | {fmt(s.get('opengeos_rmse_m'))} |")
     s = summ["best"]
-    out.append(f"| best peer per row | {_fmt(s.get('mean_all'))} | {_fmt(s.get('mean_A'))} | "
-               f"{_fmt(s.get('mean_B'))} | {_fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | - |")
+    out.append(f"| best peer per row | {fmt(s.get('mean_all'))} | {fmt(s.get('mean_A'))} | "
+               f"{fmt(s.get('mean_B'))} | {fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | - |")
     out += ["", f"dtm against the best peer on the lidar rows (issue 13: within {MARGIN} points on each "
             f"tile): {len(lidar) - len(over)} of {len(lidar)} rows within; "
             + ("beyond: " + ", ".join(f"`{g['row']}` {g['dtm']:.2f} vs {g['best_tool']} {g['best']:.2f}"
@@ -287,8 +284,8 @@ def markdown(record):
     gap = {g["row"]: g["gap"] for g in summ["dtm_gap"]}
     for r in rows:
         out.append(f"| `{r['row']}` | {r['half']} | " + " | ".join(
-            _fmt(r["tools"].get(t, {}).get("total")) for t in tools)
-            + f" | {_fmt(ours.get(r['row'], {}).get('dtm'))} | {_fmt(gap.get(r['row']))} |")
+            fmt(r["tools"].get(t, {}).get("total")) for t in tools)
+            + f" | {fmt(ours.get(r['row'], {}).get('dtm'))} | {fmt(gap.get(r['row']))} |")
     out += ["", "</details>"]
     for n in record.get("notes", []):
         out.append(f"\n- note: {n}")

@@ -552,12 +552,12 @@ def run_matrix(data, methods, only=None, progress=print):
             rows.append(row)
             if progress:
                 progress(f"  {name:<34} {z.shape[1]:>5} x {z.shape[0]:<5} " + " ".join(
-                    f"{_fmt(row['filters'][m].get('total')):>7}" for m in methods) + f"  {row['seconds']:.1f} s")
+                    f"{fmt(row['filters'][m].get('total')):>7}" for m in methods) + f"  {row['seconds']:.1f} s")
     return rows, notes
 
 
 # --------------------------------------------------------------------------- summary
-def _fmt(v, d=2):
+def fmt(v, d=2):
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{d}f}"
 
 
@@ -593,14 +593,14 @@ def format_summary(summary, methods):
     lines.append("-" * len(lines[0]))
     for m in methods:
         s = summary[m]
-        lines.append(f"{m:<14} {_fmt(s.get('mean_all')):>6} {_fmt(s.get('mean_A')):>7} {_fmt(s.get('mean_B')):>7} "
-                     f"{_fmt(s.get('worst')):>7}  {s.get('worst_row', '-'):<32} "
-                     f"{_fmt(s.get('opengeos_rmse_m')):>13} {_fmt(s.get('opengeos_mean_m')):>6}")
+        lines.append(f"{m:<14} {fmt(s.get('mean_all')):>6} {fmt(s.get('mean_A')):>7} {fmt(s.get('mean_B')):>7} "
+                     f"{fmt(s.get('worst')):>7}  {s.get('worst_row', '-'):<32} "
+                     f"{fmt(s.get('opengeos_rmse_m')):>13} {fmt(s.get('opengeos_mean_m')):>6}")
     fams = sorted({f for m in methods for f in summary[m]["families"]})
     lines.append("")
     lines.append(f"{'mean by family':<22}" + "".join(f"{m[:12]:>13}" for m in methods))
     for f in fams:
-        lines.append(f"{f:<22}" + "".join(f"{_fmt(summary[m]['families'].get(f)):>13}" for m in methods))
+        lines.append(f"{f:<22}" + "".join(f"{fmt(summary[m]['families'].get(f)):>13}" for m in methods))
     return "\n".join(lines)
 
 
@@ -609,9 +609,9 @@ def format_matrix(rows, methods):
             + "".join(f"{m[:12]:>13}" for m in methods))
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['row']:<36} {r['half']:<4} {_fmt(r.get('floor')):>6} {_fmt(r.get('grid')):>6} "
-                     f"{_fmt(r.get('raw')):>6}" + "".join(
-            f"{_fmt(r['filters'].get(m, {}).get('total')):>13}" for m in methods))
+        lines.append(f"{r['row']:<36} {r['half']:<4} {fmt(r.get('floor')):>6} {fmt(r.get('grid')):>6} "
+                     f"{fmt(r.get('raw')):>6}" + "".join(
+            f"{fmt(r['filters'].get(m, {}).get('total')):>13}" for m in methods))
     return "\n".join(lines)
 
 
@@ -624,15 +624,15 @@ def markdown(record):
            "|---|---|---|---|---|---|---|"]
     for m in methods:
         s = summary[m]
-        out.append(f"| {m} | {_fmt(s.get('mean_all'))} | {_fmt(s.get('mean_A'))} | {_fmt(s.get('mean_B'))} | "
-                   f"{_fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | {_fmt(s.get('opengeos_rmse_m'))} |")
+        out.append(f"| {m} | {fmt(s.get('mean_all'))} | {fmt(s.get('mean_A'))} | {fmt(s.get('mean_B'))} | "
+                   f"{fmt(s.get('worst'))} | `{s.get('worst_row', '-')}` | {fmt(s.get('opengeos_rmse_m'))} |")
     out += ["", "<details><summary>The whole matrix</summary>", "",
             "| input | half | floor | grid | raw | " + " | ".join(methods) + " |",
             "|---|---|---|---|---|" + "---|" * len(methods)]
     for r in rows:
-        out.append(f"| `{r['row']}` | {r['half']} | {_fmt(r.get('floor'))} | {_fmt(r.get('grid'))} | "
-                   f"{_fmt(r.get('raw'))} | " + " | ".join(
-            _fmt(r["filters"].get(m, {}).get("total")) for m in methods) + " |")
+        out.append(f"| `{r['row']}` | {r['half']} | {fmt(r.get('floor'))} | {fmt(r.get('grid'))} | "
+                   f"{fmt(r.get('raw'))} | " + " | ".join(
+            fmt(r["filters"].get(m, {}).get("total")) for m in methods) + " |")
     out += ["", "</details>", "", "```", ANCHORS, "```"]
     return "\n".join(out) + "\n"
 
