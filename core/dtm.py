@@ -556,21 +556,38 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                   reach_m=refine_reach_m)
     info.update(refined)
-    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around
-    raised, decisions = find_raised_regions(z, mask, cell, tolerance_m=tolerance_m, min_width_m=region_width_m,
-                                            max_cells=region_max_cells)
-    if dissent is not None:
+    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around;
+    # with workers > 1 found in a second thread while the detached levels below (which read the same mask,
+    # neither changing it) are looked for
+    region_args = (z, mask, cell)
+    region_kw = dict(tolerance_m=tolerance_m, min_width_m=region_width_m, max_cells=region_max_cells)
+    regions = None
+    if workers > 1 and dissent is not None:
+        regions = ThreadPoolExecutor(max_workers=1)
+        raised = regions.submit(find_raised_regions, *region_args, **region_kw)
+    else:
+        raised = find_raised_regions(*region_args, **region_kw)
+    try:
         # raised levels only the level member rejects, cut by level changes from the undisputed ground
-        jump = float(members[LEVEL_MEMBER]["jump_m"])
-        detached = find_detached_levels(z, mask == GROUND, dissent, ground_votes == n, cell, jump_m=jump,
-                                        slope=refine_slope(members), max_cells=region_max_cells)
+        jump = float(members[LEVEL_MEMBER]["jump_m"]) if dissent is not None else None
+        detached = None if dissent is None else find_detached_levels(
+            z, mask == GROUND, dissent, ground_votes == n, cell, jump_m=jump, slope=refine_slope(members),
+            max_cells=region_max_cells)
+        if regions is not None:
+            raised = raised.result()
+    finally:
+        if regions is not None:
+            regions.shutdown()
+    raised, decisions = raised
+    dissent = None                                  # freed
+    if detached is not None:
         mask[detached] = OBJECT
         info["detached_level_share"] = float(np.count_nonzero(detached)) / nvalid
         info["detached_level_rule"] = (
             "{} cells: voted ground the {} member rejects, in levels (cut where a cell stands more than {:g} m "
             "plus the slope allowance above a neighbour) holding no ground every member agrees on, are "
             "objects").format(int(np.count_nonzero(detached)), LEVEL_MEMBER, jump)
-        del detached, dissent
+        del detached
     mask[raised & valid] = OBJECT
     info["raised_region_cells"] = int(np.count_nonzero(raised & valid))
     info["raised_regions"] = [describe_region(d) for d in decisions]
