@@ -384,20 +384,10 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     v = np.arange(top, dtype=np.float32)
     half = n / 2.0
     table = np.clip((np.concatenate([n - v, v]) - half) / (n - half), 0.0, 1.0)   # [object: n - v, ground: v]
-    key = ground.astype(np.uint16)
-    key *= top
-    key += votes
-    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
-    del key
     all_valid = bool(valid.all())
-    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
-    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
-    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
-    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    # the two box means are the only terms that need whole arrays; the rest runs in bands of rows whose
+    # temporaries stay in the cache (raster-sized ones cost the kernel zeroing their pages)
     share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.subtract(1.0, share)
-    _select(pick, share, s, out=s)                               # the share of the cell's own class
-    del share
     if isinstance(dtm, Future):
         dtm = dtm.result()
     report(progress, 0.35)
@@ -406,30 +396,50 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.6)
+    out = np.empty(mask.shape, np.uint8)
+    rows = max(1, _CONFIDENCE_BAND_CELLS // max(1, mask.shape[1]))
+    for r0 in range(0, mask.shape[0], rows):
+        report(progress, 0.6 + 0.4 * r0 / mask.shape[0])
+        b = slice(r0, min(mask.shape[0], r0 + rows))
+        _confidence_band(ground[b], votes[b], table, top, share[b], zz[b], dd[b], m[b], t, out[b])
+    out[~valid] = NODATA
+    return out
+
+
+#: Cells per band of :func:`_confidence_band`.
+_CONFIDENCE_BAND_CELLS = 1 << 16
+
+
+def _confidence_band(ground, votes, table, top, share, zz, dd, m, t, out):
+    """``100 (a + m + s) / 3`` on a band of rows (the formulas of :func:`confidence_map`), into ``out``;
+    ``share`` and ``m`` (the box means) are overwritten."""
+    key = ground.astype(np.uint16)
+    key *= top
+    key += votes
+    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
+    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
+    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
+    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
+    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
     _select(pick, m, dd, out=m)                                  # object: the DTM under it
-    del pick
     np.subtract(zz, m, out=m)
     np.abs(m, out=m)
     np.divide(m, t, out=m)
     np.subtract(m, 1.0, out=m)                                   # object: |z - DTM| / t - 1
     np.left_shift(one, 31, out=one)
     np.bitwise_xor(m.view(np.uint32), one, out=m.view(np.uint32))   # ground: 1 - |z - mean| / t (exact negation)
-    del one
     np.maximum(m, 0.0, out=m)
     np.minimum(m, 1.0, out=m)
-    report(progress, 0.8)
     np.add(a, m, out=a)
-    del m
     np.add(a, s, out=a)
-    del s
     np.multiply(a, 100.0, out=a)
     np.divide(a, 3.0, out=a)
     np.rint(a, out=a)
     np.maximum(a, 0, out=a)
     np.minimum(a, 100, out=a)
-    out = a.astype(np.uint8)
-    out[~valid] = NODATA
-    return out
+    out[...] = a.astype(np.uint8)
 
 
 def _fill_dtm(z, holes, valid, progress):
