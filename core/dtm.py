@@ -120,6 +120,9 @@ LEVEL_MEMBER = "rascor"
 #: Radius of the ground support of the confidence, metres (a car or a bush is smaller; a cell
 #: among ground cells a few metres around it is better supported than a lone one).
 SUPPORT_M = 3.0
+#: Cells per band of the elementwise work done in bands of rows (:func:`characterise`,
+#: :func:`confidence_map`): its temporaries stay in the cache.
+_BAND_CELLS = 1 << 16
 #: Each member's parameters giving the widest object its window removes, metres.
 MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
@@ -187,8 +190,13 @@ def characterise(z, cell_size):
     vals = z[valid]
     step = max(1, vals.size // 1_000_000)
     lo, hi = np.percentile(vals[::step], [2.0, 98.0]) if vals.size else (0.0, 0.0)
-    dz = np.abs(np.diff(z, axis=1))
-    rough = float(np.count_nonzero(dz > 1.0)) / max(1, int(np.count_nonzero(np.isfinite(dz))))
+    steep = finite = 0
+    rows = max(1, _BAND_CELLS // max(1, z.shape[1]))
+    for r0 in range(0, z.shape[0], rows):            # in bands of rows: no raster-sized temporaries
+        dz = np.abs(np.diff(z[r0:r0 + rows], axis=1))
+        steep += int(np.count_nonzero(dz > 1.0))
+        finite += int(np.count_nonzero(np.isfinite(dz)))
+    rough = float(steep) / max(1, finite)
     return {"cell_m": float(max(cell_size)), "valid_share": float(valid.mean()),
             "relief_m": float(hi - lo), "rough_share": rough}
 
@@ -397,17 +405,13 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.6)
     out = np.empty(mask.shape, np.uint8)
-    rows = max(1, _CONFIDENCE_BAND_CELLS // max(1, mask.shape[1]))
+    rows = max(1, _BAND_CELLS // max(1, mask.shape[1]))
     for r0 in range(0, mask.shape[0], rows):
         report(progress, 0.6 + 0.4 * r0 / mask.shape[0])
         b = slice(r0, min(mask.shape[0], r0 + rows))
         _confidence_band(ground[b], votes[b], table, top, share[b], zz[b], dd[b], m[b], t, out[b])
     out[~valid] = NODATA
     return out
-
-
-#: Cells per band of :func:`_confidence_band`.
-_CONFIDENCE_BAND_CELLS = 1 << 16
 
 
 def _confidence_band(ground, votes, table, top, share, zz, dd, m, t, out):
