@@ -286,6 +286,581 @@ def make_canopy(extent_m=512.0, cell_size=1.0, cover=0.85, seed=0, noise_m=0.05)
 
 
 # ---------------------------------------------------------------------------------------
+# airborne lidar point clouds
+
+#: Landscapes of :func:`make_lidar_points`.
+LIDAR_KINDS = ("forest", "mixed", "urban")
+#: ASPRS classes the simulated points carry (LAS 1.4): ground, low / medium / high
+#: vegetation, building, low noise, high noise.
+ASPRS_GROUND, ASPRS_LOW_VEG, ASPRS_MEDIUM_VEG, ASPRS_HIGH_VEG, ASPRS_BUILDING = 2, 3, 4, 5, 6
+ASPRS_LOW_NOISE, ASPRS_HIGH_NOISE = 7, 18
+#: Heights above the ground (m) at which vegetation passes from low (3) to medium (4) and
+#: from medium to high (5).
+VEG_CLASS_LIMITS_M = (2.0, 5.0)
+
+# Sensor and survey (a small-footprint discrete-return scanner flown low, as for dense
+# surveys): flying height, half field of view, side overlap of the strips, ground speed,
+# share of the mirror's sinusoid in its sweep (the rest linear: density rises towards the
+# swath's edges, 1.7 x the centre's), detection threshold as a share of the pulse's energy,
+# dead zone (the smallest distance at which two returns of one pulse are told apart),
+# concentration of the intercepted share (footprint-scale gaps: a low value makes a pulse
+# mostly either pass a gap or be stopped), range noise.
+_ALT_M, _HALF_FOV_DEG, _OVERLAP, _SPEED_MS = 600.0, 20.0, 0.3, 50.0
+_SINE_SHARE, _TAU, _DEAD_ZONE_M, _GAP_CONCENTRATION, _RANGE_NOISE_M = 0.3, 0.05, 1.0, 1.5, 0.03
+#: Raster step (m) on which crown and shrub footprints are indexed (the geometry of the
+#: crown found there is then evaluated exactly at each pulse).
+_INDEX_STEP_M = 0.5
+
+
+@dataclass
+class LidarPoints:
+    """A simulated airborne lidar point cloud with its truth.
+
+    Attributes
+    ----------
+    x, y, z : ndarray of float64
+        Map coordinates, metres (UTM 32N, x east, y north), in the order of acquisition
+        (flight strip, then pulse, then return).
+    classification : ndarray of uint8
+        ASPRS class: 2 ground, 3 / 4 / 5 low / medium / high vegetation (height above the
+        ground below :data:`VEG_CLASS_LIMITS_M`), 6 building, 7 low noise, 18 high noise.
+    return_number, number_of_returns : ndarray of uint8
+        1-based index of the return within its pulse, and the pulse's number of returns.
+    scan_angle_deg : ndarray of float32
+        Angle of the pulse from nadir, positive to the right of the flight line.
+    point_source_id : ndarray of uint16
+        The flight strip (1, 2, ...).
+    kind : str
+        One of :data:`LIDAR_KINDS`.
+    extent : tuple of float
+        ``(x0, y0, x1, y1)`` of the simulated square, map metres.
+    density_per_m2 : float
+        The requested pulse density (first returns per square metre, over the square).
+    terrain : callable
+        ``terrain(x, y) -> z``: the true bare earth at map coordinates (the surface the
+        ground points lie on, before the range noise).
+    objects : dict
+        Counts and sizes: ``trees``, ``shrubs``, ``buildings`` (number of buildings),
+        ``largest_building_m`` (the longest side of any building), ``max_slope_deg`` (of
+        the steep hillside, 0 without one), ``bank`` / ``cutting`` (height / depth, m).
+    epsg : int
+        32632.
+    """
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    classification: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    scan_angle_deg: np.ndarray
+    point_source_id: np.ndarray
+    kind: str
+    extent: tuple
+    density_per_m2: float
+    terrain: object = field(repr=False)
+    objects: dict = field(default_factory=dict)
+    epsg: int = _EPSG
+
+    def __len__(self):
+        return int(self.x.size)
+
+    def to_cloud(self):
+        """The points as a :class:`~bare_earth.core.pointfiles.PointCloud` (metres, no CRS
+        record: the unit is the metre), for :mod:`~bare_earth.core.pointflow`."""
+        from .pointfiles import PointCloud
+        return PointCloud(self.x, self.y, self.z, self.classification.astype(np.int32),
+                          units_to_metre=1.0, z_units_to_metre=1.0)
+
+
+def make_lidar_points(kind="forest", extent_m=400.0, density_per_m2=10.0, seed=0, crown_density=1.0,
+                      noise_rate=1e-5, steep=True, understory=1.0):
+    """Simulate an airborne lidar survey of a landscape with known ground.
+
+    The landscape is continuous (every surface a function of map x, y) and the scanner
+    samples it pulse by pulse, so the same cloud can be gridded at any cell size.
+
+    * **Terrain**: a smooth random field (slopes of a few degrees) plus, for ``forest`` and
+      ``mixed``, a hillside whose slope reaches 34-40 degrees (a logistic step 20-55 m high;
+      slopes above 20 degrees over a band about 3.7 step-widths wide), and a bank (``forest``:
+      a 2.5-5 m step at 45-60 degrees) or a road cutting (``mixed``: 3-6 m deep, 8-14 m
+      floor, 35-45 degree sides) across the scene.
+    * **Trees**: stems of a Poisson process in the forested zones (``forest``: 85 % of the
+      area, 0.02 stems per m2; ``mixed``: a third of it; ``urban``: street trees, gardens and
+      a park), heights 5-35 m (70 % dominant 15-35 m, 30 % suppressed 5-15 m), half conifers
+      (cone crowns, radius 0.12-0.2 of the height, base at 0.2-0.5 of it, foliage extinction
+      0.4-1.2 per metre of path) and half broadleaves (ellipsoid crowns, radius 0.18-0.3,
+      base 0.35-0.6, extinction 0.15-0.6 per metre), radii at most 8 m. **Shrubs**
+      0.3-3 m high (half-ellipsoids on the ground, radius 0.5-2 m, extinction 0.8-2.5 per
+      metre) under the trees and in open land.
+    * **Buildings** (``urban``, ``mixed``): a street grid rotated by up to 35 degrees, blocks
+      76-100 m wide between 12-20 m streets, each block cut into 1-3 x 1-3 parcels holding a
+      building (set back 1.5-5 m; 15 % of the parcels gardens) with a flat or gable roof
+      (pitch 25-45 degrees), eaves 4-30 m above the highest ground under it; the block at the
+      centre holds one hall of 64-97 m with a flat roof 8-14 m high.
+    * **Pulses**: vertical rays (the tilt of a scan angle of at most 20 degrees is ignored) on
+      parallel flight strips (flying height 600 m, half field of view 20 degrees: a 437 m swath;
+      30 % side overlap) swept by an oscillating mirror (the pattern's density rises 1.7 x
+      from the swath's centre to its edges; overlaps get the two strips' pulses). A pulse
+      entering a crown along a path ``L`` loses a random share ``f`` of its energy, drawn
+      from a Beta law of mean ``1 - exp(-k L)`` (Beer-Lambert; ``k`` the crown's extinction)
+      and concentration 1.5 (the footprint meets a gap or foliage); a return is recorded
+      where the intercepted energy is at least 5 % of the pulse's, at a depth drawn from the
+      exponential law of the extinction; a second return from the same crown deeper by at
+      least the receiver's dead zone (1 m) with probability ``f / 2``; the same for a shrub;
+      the remaining energy, if at least 5 %, returns from the roof or the ground. Returns
+      closer than 1 m to the previous one of the same pulse are lost (dead zone); range
+      noise 3 cm (truncated at 4.5 sigma). So under dense crowns few or no pulses reach the
+      ground, and a 4 m cell of a lowest-point grid may hold no ground return at all.
+    * **Noise**: a share ``noise_rate`` of the pulses gives a further point 3-30 m below the
+      ground (multipath; class 7) and as many 50-300 m above the surface (birds, haze;
+      class 18).
+
+    Parameters
+    ----------
+    kind : str
+        ``"forest"``, ``"mixed"`` (town, forest and open land) or ``"urban"``.
+    extent_m : float
+        Side of the simulated square, metres (at least 50; at least 150 for ``urban`` and
+        ``mixed``, whose central block holds the large hall).
+    density_per_m2 : float
+        Pulses (first returns) per square metre over the square (0.1-100).
+    seed : int
+        Random seed; the same arguments give the same points.
+    crown_density : float
+        Factor on every crown's foliage extinction (1: the ranges above; larger: denser
+        crowns, fewer pulses through).
+    noise_rate : float
+        Share of the pulses with a low-noise point and with a high-noise point (0-0.01).
+    steep : bool
+        False: no hillside, bank or cutting (``forest`` and ``mixed`` on the smooth field
+        alone, slopes of a few degrees).
+    understory : float
+        Factor on the shrubs' stem density (1: 0.03 per m2 before the zones thin them;
+        0-100).
+
+    Returns
+    -------
+    LidarPoints
+
+    Raises
+    ------
+    ValueError
+        For an unknown kind or a parameter out of range.
+
+    Examples
+    --------
+    >>> p = make_lidar_points("forest", extent_m=100.0, density_per_m2=4.0, seed=1)
+    >>> bool((p.classification == 2).any()), p.x.dtype
+    (True, dtype('float64'))
+    """
+    if kind not in LIDAR_KINDS:
+        raise ValueError(f"unknown lidar kind {kind!r}; choose one of {', '.join(LIDAR_KINDS)}.")
+    e = float(extent_m)
+    if not np.isfinite(e) or e < (150.0 if kind != "forest" else 50.0) or e > 5000.0:
+        raise ValueError(f"extent_m must be 50-5000 m (150 for urban and mixed); got {extent_m!r}.")
+    if not np.isfinite(density_per_m2) or not 0.1 <= density_per_m2 <= 100.0:
+        raise ValueError(f"density_per_m2 must be 0.1-100 pulses per m2; got {density_per_m2!r}.")
+    if not np.isfinite(crown_density) or not 0.0 <= crown_density <= 100.0:
+        raise ValueError(f"crown_density must be 0-100; got {crown_density!r}.")
+    if not np.isfinite(understory) or not 0.0 <= understory <= 100.0:
+        raise ValueError(f"understory must be 0-100; got {understory!r}.")
+    if not np.isfinite(noise_rate) or not 0.0 <= noise_rate <= 0.01:
+        raise ValueError(f"noise_rate must be 0-0.01; got {noise_rate!r}.")
+    ss = np.random.SeedSequence([int(seed), 100 + LIDAR_KINDS.index(kind)])
+    r_ter, r_zone, r_bld, r_tree, r_shrub, r_scan, r_ret, r_noise = (np.random.default_rng(s) for s in ss.spawn(8))
+    objects = {}
+    terrain, zone = _lidar_terrain(r_ter, r_zone, kind, e, objects, bool(steep))
+    bld = _Blocks(r_bld, kind, e, terrain, zone) if kind != "forest" else None
+    objects["buildings"] = 0 if bld is None else bld.count
+    objects["largest_building_m"] = 0.0 if bld is None else bld.largest_m
+    trees = _lidar_trees(r_tree, kind, e, terrain, zone, bld, crown_density)
+    shrubs = _lidar_shrubs(r_shrub, kind, e, zone, bld, float(understory))
+    objects["trees"], objects["shrubs"] = int(trees["R"].size), int(shrubs["R"].size)
+    px, py, angle, strip = _scan(r_scan, e, float(density_per_m2))
+    pts = _returns(r_ret, r_noise, px, py, angle, strip, terrain, bld, trees, shrubs, e, float(noise_rate))
+    x, y, z, cls, rn, nr, ang, src = pts
+    return LidarPoints(x=x + _ORIGIN[0], y=y + _ORIGIN[1], z=z, classification=cls, return_number=rn,
+                       number_of_returns=nr, scan_angle_deg=ang, point_source_id=src, kind=kind,
+                       extent=(_ORIGIN[0], _ORIGIN[1], _ORIGIN[0] + e, _ORIGIN[1] + e),
+                       density_per_m2=float(density_per_m2),
+                       terrain=lambda mx, my: terrain(np.asarray(mx, float) - _ORIGIN[0],
+                                                      np.asarray(my, float) - _ORIGIN[1]),
+                       objects=objects)
+
+
+def _rotated(x, y, angle, cx, cy):
+    ca, sa = np.cos(angle), np.sin(angle)
+    return (x - cx) * ca + (y - cy) * sa, -(x - cx) * sa + (y - cy) * ca
+
+
+def _lidar_terrain(rng, r_zone, kind, e, objects, steep=True):
+    """``terrain(x, y)`` and ``zone(x, y)`` (a smooth field, std about 1) in local metres
+    (origin at the square's south-west corner, y north)."""
+    g, pad = 1.0, 8
+    n = int(np.ceil(e / g)) + 2 * pad + 1
+    base_deg = {"forest": 12.0, "mixed": 8.0, "urban": 4.0}[kind]
+    field0 = _terrain(rng, (n, n), (g, g), ((800.0, 1.0), (250.0, 0.5), (80.0, 0.15)), base_deg)
+    zfield = _smooth_field(r_zone, (n, n), (g, g), ((60.0, 1.0), (25.0, 0.3)))
+    feats = []
+    if kind != "urban" and steep:
+        # a hillside: a logistic step of height A whose steepest slope is A / (4 w)
+        a = rng.uniform(35.0, 55.0) if kind == "forest" else rng.uniform(20.0, 35.0)
+        smax = np.radians(rng.uniform(34.0, 40.0))
+        w = a / (4.0 * np.tan(smax))
+        phi, cx, cy = rng.uniform(0, 2 * np.pi), e * rng.uniform(0.35, 0.65), e * rng.uniform(0.35, 0.65)
+        feats.append(("hill", a, w, phi, cx, cy))
+        objects["max_slope_deg"] = float(np.degrees(smax))
+        phi2 = phi + rng.uniform(np.pi / 4, 3 * np.pi / 4)      # across the hillside
+        cx2, cy2 = e * rng.uniform(0.3, 0.7), e * rng.uniform(0.3, 0.7)
+        if kind == "forest":
+            hb, sb = rng.uniform(2.5, 5.0), np.radians(rng.uniform(45.0, 60.0))
+            feats.append(("bank", hb, hb / np.tan(sb), phi2, cx2, cy2))
+            objects["bank"] = float(hb)
+        else:
+            dc, fw, sc = rng.uniform(3.0, 6.0), rng.uniform(8.0, 14.0), np.radians(rng.uniform(35.0, 45.0))
+            feats.append(("cut", dc, fw, np.tan(sc), phi2, cx2, cy2))
+            objects["cutting"] = float(dc)
+    else:
+        objects["max_slope_deg"] = 0.0
+
+    def sample(grid, x, y):
+        return ndimage.map_coordinates(grid, [np.asarray(y, float) / g + pad, np.asarray(x, float) / g + pad],
+                                       order=1, mode="nearest")
+
+    def terrain(x, y):
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        z = sample(field0, x, y).astype(np.float64)
+        for f in feats:
+            if f[0] == "hill":
+                _, a, w, phi, cx, cy = f
+                u, _v = _rotated(x, y, phi, cx, cy)
+                z += a * 0.5 * (1.0 + np.tanh(u / (2.0 * w)))
+            elif f[0] == "bank":
+                _, hb, wb, phi, cx, cy = f
+                u, _v = _rotated(x, y, phi, cx, cy)
+                z += hb * np.clip(u / wb + 0.5, 0.0, 1.0)
+            else:
+                _, dc, fw, tan_s, phi, cx, cy = f
+                u, _v = _rotated(x, y, phi, cx, cy)
+                z -= np.clip(dc - (np.abs(u) - fw / 2) * tan_s, 0.0, dc)
+        return z
+
+    def zone(x, y):
+        return sample(zfield, x, y)
+    return terrain, zone
+
+
+class _Blocks:
+    """Buildings on a rotated street grid: blocks cut into parcels, one building per parcel;
+    ``lookup(x, y) -> (inside, roof z)`` exact at any point (local metres)."""
+
+    def __init__(self, rng, kind, e, terrain, zone):
+        self.theta = np.radians(rng.uniform(-35.0, 35.0))
+        self.b = rng.uniform(76.0, 100.0)                  # block side
+        self.pitch = self.b + rng.uniform(12.0, 20.0)      # + street
+        # block (0, 0) centred on the square: its hall is inside whatever the rotation
+        self.c = (e / 2 - self.b / 2 * (np.cos(self.theta) - np.sin(self.theta)),
+                  e / 2 - self.b / 2 * (np.sin(self.theta) + np.cos(self.theta)))
+        k = int(np.ceil(e * 1.5 / self.pitch)) + 1
+        self.k = k
+        nb = 2 * k + 1
+        nu, nv = rng.integers(1, 4, (nb, nb)), rng.integers(1, 4, (nb, nb))
+        nu[k, k] = nv[k, k] = 1
+        self.nu, self.nv = nu, nv
+        shp = (nb, nb, 3, 3)
+        su, sv = self.b / nu[:, :, None, None], self.b / nv[:, :, None, None]
+        iu, iv = np.arange(3)[None, None, :, None], np.arange(3)[None, None, None, :]
+        set_back = rng.uniform(1.5, 5.0, (4,) + shp)
+        u0, u1 = iu * su + set_back[0], (iu + 1) * su - set_back[1]
+        v0, v1 = iv * sv + set_back[2], (iv + 1) * sv - set_back[3]
+        exists = (iu < nu[:, :, None, None]) & (iv < nv[:, :, None, None]) & (rng.random(shp) >= 0.15)
+        eave = np.clip(rng.uniform(4.0, 10.0, shp) + rng.exponential(4.0, shp), 4.0, 30.0)
+        gable = rng.random(shp) < 0.5
+        pitch = np.tan(np.radians(rng.uniform(25.0, 45.0, shp)))
+        # the central hall
+        sb = rng.uniform(2.0, 6.0, 4)
+        u0[k, k, 0, 0], u1[k, k, 0, 0], v0[k, k, 0, 0], v1[k, k, 0, 0] = sb[0], self.b - sb[1], sb[2], self.b - sb[3]
+        exists[k, k, 0, 0], gable[k, k, 0, 0] = True, False
+        eave[k, k, 0, 0] = rng.uniform(8.0, 14.0)
+        # blocks of a mixed scene stand in its town zone only (the centre's block always)
+        bi = (np.arange(nb) - k)[:, None]
+        bj = (np.arange(nb) - k)[None, :]
+        mu, mv = bi * self.pitch + self.b / 2, bj * self.pitch + self.b / 2
+        mx, my = self._to_local(mu, mv)
+        town = (zone(mx, my) < -0.35) if kind == "mixed" else np.ones((nb, nb), bool)
+        town[k, k] = True
+        park = np.zeros((nb, nb), bool)
+        if kind == "urban":                                # one park block next to the hall's
+            park[k + 1, k] = True
+        self.town, self.park = town, park
+        exists &= (town & ~park)[:, :, None, None]
+        # eaves above the highest ground under the building (corners and centre)
+        cu = np.stack([u0, u1, u0, u1, 0.5 * (u0 + u1)]) + bi[..., None, None] * self.pitch
+        cv = np.stack([v0, v0, v1, v1, 0.5 * (v0 + v1)]) + bj[..., None, None] * self.pitch
+        gx, gy = self._to_local(cu, cv)
+        inside = (gx >= 0) & (gx <= e) & (gy >= 0) & (gy <= e)
+        self.base = terrain(gx, gy).max(axis=0)
+        self.u0, self.u1, self.v0, self.v1 = u0, u1, v0, v1
+        self.exists, self.eave, self.gable, self.pitch_tan = exists, eave, gable, pitch
+        seen = exists & inside.any(axis=0)
+        self.count = int(seen.sum())
+        self.largest_m = float(np.max(np.maximum(u1 - u0, v1 - v0)[seen])) if self.count else 0.0
+
+    def _to_local(self, u, v):
+        ca, sa = np.cos(self.theta), np.sin(self.theta)
+        return self.c[0] + u * ca - v * sa, self.c[1] + u * sa + v * ca
+
+    def _frame(self, x, y):
+        ca, sa = np.cos(self.theta), np.sin(self.theta)
+        u = (x - self.c[0]) * ca + (y - self.c[1]) * sa
+        v = -(x - self.c[0]) * sa + (y - self.c[1]) * ca
+        bu, bv = np.floor(u / self.pitch).astype(np.intp), np.floor(v / self.pitch).astype(np.intp)
+        lu, lv = u - bu * self.pitch, v - bv * self.pitch
+        iu, iv = np.clip(bu + self.k, 0, 2 * self.k), np.clip(bv + self.k, 0, 2 * self.k)
+        return lu, lv, iu, iv
+
+    def street(self, x, y):
+        """True in the streets (outside every block)."""
+        lu, lv, _, _ = self._frame(x, y)
+        return (lu >= self.b) | (lv >= self.b)
+
+    def in_park(self, x, y):
+        lu, lv, iu, iv = self._frame(x, y)
+        return self.park[iu, iv] & (lu < self.b) & (lv < self.b)
+
+    def in_town(self, x, y):
+        _, _, iu, iv = self._frame(x, y)
+        return self.town[iu, iv]
+
+    def lookup(self, x, y, margin=0.0):
+        """``(inside, roof z)`` at local points; ``margin`` grows the footprints."""
+        lu, lv, iu, iv = self._frame(x, y)
+        pu = np.minimum((lu / (self.b / self.nu[iu, iv])).astype(np.intp), 2)
+        pv = np.minimum((lv / (self.b / self.nv[iu, iv])).astype(np.intp), 2)
+        idx = (iu, iv, np.clip(pu, 0, 2), np.clip(pv, 0, 2))
+        u0, u1, v0, v1 = self.u0[idx], self.u1[idx], self.v0[idx], self.v1[idx]
+        inside = (self.exists[idx] & (lu < self.b) & (lv < self.b) & (lu >= u0 - margin) & (lu <= u1 + margin)
+                  & (lv >= v0 - margin) & (lv <= v1 + margin))
+        # gable: the ridge along the longer side, the roof rising from the eaves to it
+        along_u = (u1 - u0) >= (v1 - v0)
+        half = np.where(along_u, v1 - v0, u1 - u0) / 2
+        off = np.where(along_u, np.abs(lv - (v0 + v1) / 2), np.abs(lu - (u0 + u1) / 2))
+        rise = np.where(self.gable[idx], np.clip(half - off, 0.0, None) * self.pitch_tan[idx], 0.0)
+        return inside, self.base[idx] + self.eave[idx] + rise
+
+
+def _poisson_xy(rng, lam, lo, hi):
+    n = rng.poisson(lam * (hi - lo) ** 2)
+    return rng.uniform(lo, hi, n), rng.uniform(lo, hi, n)
+
+
+def _lidar_trees(rng, kind, e, terrain, zone, bld, crown_density):
+    """Stems (local metres), heights, crown shapes and foliage extinctions."""
+    lo, hi = -8.0, e + 8.0
+    if kind == "forest":
+        x, y = _poisson_xy(rng, 0.02, lo, hi)
+        keep = zone(x, y) > -1.04                          # 85 % forest, clearings between
+    else:
+        x, y = _poisson_xy(rng, 0.02, lo, hi)
+        if kind == "mixed":
+            forest = zone(x, y) > 0.35
+            open_land = ~forest & ~bld.in_town(x, y)
+            keep = forest | (open_land & (rng.random(x.size) < 0.05))
+            keep |= bld.in_town(x, y) & (rng.random(x.size) < 0.1)
+        else:                                             # streets, gardens, the park
+            keep = (bld.in_park(x, y) & (rng.random(x.size) < 0.6)) | (rng.random(x.size) < 0.12)
+        keep &= ~bld.lookup(x, y, margin=2.0)[0]
+    x, y = x[keep], y[keep]
+    n = x.size
+    dominant = rng.random(n) < 0.7
+    hgt = np.where(dominant, rng.uniform(15.0, 35.0, n), rng.uniform(5.0, 15.0, n))
+    conifer = rng.random(n) < 0.5
+    rad = np.minimum(hgt * np.where(conifer, rng.uniform(0.12, 0.2, n), rng.uniform(0.18, 0.3, n)) + 0.5, 8.0)
+    base = hgt * np.where(conifer, rng.uniform(0.2, 0.5, n), rng.uniform(0.35, 0.6, n))
+    k = crown_density * np.where(conifer, rng.uniform(0.4, 1.2, n), rng.uniform(0.15, 0.6, n))
+    return dict(x=x, y=y, z0=terrain(x, y), H=hgt, R=rad, base=base, conifer=conifer, k=k)
+
+
+def _lidar_shrubs(rng, kind, e, zone, bld, understory=1.0):
+    lo, hi = -2.0, e + 2.0
+    x, y = _poisson_xy(rng, 0.03 * understory, lo, hi)
+    if kind == "forest":
+        keep = rng.random(x.size) < np.where(zone(x, y) > -1.04, 1.0, 0.3)
+    elif kind == "mixed":
+        keep = rng.random(x.size) < np.where(zone(x, y) > 0.35, 1.0, 0.15) * ~bld.in_town(x, y)
+    else:
+        keep = rng.random(x.size) < np.where(bld.in_park(x, y), 0.5, 0.05)
+    if bld is not None:
+        keep &= ~bld.lookup(x, y, margin=1.0)[0]
+    x, y = x[keep], y[keep]
+    n = x.size
+    return dict(x=x, y=y, H=rng.uniform(0.3, 3.0, n), R=rng.uniform(0.5, 2.0, n), k=rng.uniform(0.8, 2.5, n))
+
+
+def _crown_top(t, idx, d2):
+    """Crown top and bottom above the stem's ground at squared relative distance ``d2``."""
+    if "conifer" not in t:                                 # shrub: half-ellipsoid on the ground
+        top = t["H"][idx] * np.sqrt(np.clip(1.0 - d2, 0.0, None))
+        return top, np.zeros_like(top)
+    h, b = t["H"][idx], t["base"][idx]
+    cone_top = b + (h - b) * (1.0 - np.sqrt(np.clip(d2, 0.0, 1.0)))
+    c, a = 0.5 * (h + b), 0.5 * (h - b)
+    s = np.sqrt(np.clip(1.0 - d2, 0.0, None))
+    con = t["conifer"][idx]
+    return np.where(con, cone_top, c + a * s), np.where(con, b, c - a * s)
+
+
+def _index_crowns(t, e, step):
+    """Per cell of a ``step`` raster over the square: the crown whose top is highest at the
+    cell's centre (-1: none). A loop over stamp offsets, vectorised over the crowns."""
+    n = int(np.ceil(e / step))
+    best = np.full((n, n), -np.inf)
+    ids = np.full((n, n), -1, np.int32)
+    if t["R"].size == 0:
+        return ids
+    z0 = t.get("z0", np.zeros(t["R"].size))
+    ci, cj = np.floor(t["y"] / step).astype(np.intp), np.floor(t["x"] / step).astype(np.intp)
+    reach = int(np.ceil(t["R"].max() / step)) + 1
+    all_idx = np.arange(t["R"].size)
+    for di in range(-reach, reach + 1):
+        for dj in range(-reach, reach + 1):
+            near = t["R"] >= step * (max(abs(di), abs(dj)) - 1)
+            idx = all_idx[near]
+            i, j = ci[idx] + di, cj[idx] + dj
+            ok = (i >= 0) & (i < n) & (j >= 0) & (j < n)
+            idx, i, j = idx[ok], i[ok], j[ok]
+            d2 = (((j + 0.5) * step - t["x"][idx]) ** 2 + ((i + 0.5) * step - t["y"][idx]) ** 2) / t["R"][idx] ** 2
+            inside = d2 < 1.0
+            idx, i, j, d2 = idx[inside], i[inside], j[inside], d2[inside]
+            top = _crown_top(t, idx, d2)[0] + z0[idx]
+            up = top > best[i, j]
+            best[i[up], j[up]] = top[up]
+            ids[i[up], j[up]] = idx[up]
+    return ids
+
+
+def _scan(rng, e, density):
+    """Pulse positions (local metres) of parallel strips swept by an oscillating mirror."""
+    swath = 2.0 * _ALT_M * np.tan(np.radians(_HALF_FOV_DEG))
+    spacing = swath * (1.0 - _OVERLAP)
+    first = rng.uniform(-spacing / 2, spacing / 2)
+    centres = first + spacing * np.arange(-int(np.ceil(e / spacing)) - 2, int(np.ceil(e / spacing)) + 3)
+    centres = centres[np.abs(centres - e / 2) < e / 2 + swath / 2]
+    # the share of each strip's sweep that falls on the square, so that the square gets
+    # `density` pulses per m2 on average (overlaps more, single coverage less)
+    ph = np.linspace(0.0, 2.0 * np.pi, 4096, endpoint=False)
+    sweep = (1.0 - _SINE_SHARE) * (2.0 / np.pi) * np.arcsin(np.sin(ph)) + _SINE_SHARE * np.sin(ph)
+    on = [np.mean((c + 0.5 * swath * sweep >= 0) & (c + 0.5 * swath * sweep < e)) for c in centres]
+    rho = density * e / (swath * sum(on))                 # pulses per m2 of one strip's swath
+    length = e + 20.0
+    prf = rho * swath * _SPEED_MS                          # pulses per second
+    f_scan = np.sqrt(_SPEED_MS * prf / (4.0 * swath))     # scan lines as far apart as the pulses on them
+    xs, ys, angs, src = [], [], [], []
+    for s, c in enumerate(centres):                       # a handful of strips
+        npulse = int(round(prf * length / _SPEED_MS))
+        t = np.arange(npulse) / prf
+        ph = 2.0 * np.pi * f_scan * t + rng.uniform(0, 2 * np.pi)
+        sweep = (1.0 - _SINE_SHARE) * (2.0 / np.pi) * np.arcsin(np.sin(ph)) + _SINE_SHARE * np.sin(ph)
+        x = c + 0.5 * swath * sweep + rng.normal(0.0, 0.02, npulse)
+        y = -10.0 + _SPEED_MS * t + rng.normal(0.0, 0.02, npulse)
+        if s % 2:
+            y = e - y                                      # flown back and forth
+        ok = (x >= 0) & (x < e) & (y >= 0) & (y < e)
+        xs.append(x[ok])
+        ys.append(y[ok])
+        angs.append(np.degrees(np.arctan((x[ok] - c) / _ALT_M)).astype(np.float32))
+        src.append(np.full(int(ok.sum()), s + 1, np.uint16))
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(angs), np.concatenate(src)
+
+
+def _trunc_exp(rng, k, length):
+    """Depths of first interception along a path ``length`` of extinction ``k`` (Beer-Lambert,
+    truncated to the path)."""
+    u = rng.random(k.size)
+    return -np.log1p(-u * -np.expm1(-k * length)) / np.maximum(k, 1e-9)
+
+
+def _intercept(rng, k, length):
+    """Share of a pulse's energy a path through foliage intercepts: Beta, mean 1 - exp(-k L)."""
+    m = np.clip(-np.expm1(-k * length), 1e-6, 1.0 - 1e-6)
+    return rng.beta(m * _GAP_CONCENTRATION, (1.0 - m) * _GAP_CONCENTRATION)
+
+
+def _returns(rng, r_noise, x, y, ang, strip, terrain, bld, trees, shrubs, e, noise_rate):
+    n = x.size
+    zg = terrain(x, y)
+    if bld is not None:
+        in_bld, zroof = bld.lookup(x, y)
+    else:
+        in_bld, zroof = np.zeros(n, bool), zg
+    zsolid = np.where(in_bld, zroof, zg)
+    energy = np.ones(n)
+    cand = np.full((n, 4), np.nan)                         # crown, crown deeper, shrub, solid
+    ccls = np.zeros((n, 4), np.uint8)
+    i_cell = np.minimum((y / _INDEX_STEP_M).astype(np.intp), int(np.ceil(e / _INDEX_STEP_M)) - 1)
+    j_cell = np.minimum((x / _INDEX_STEP_M).astype(np.intp), int(np.ceil(e / _INDEX_STEP_M)) - 1)
+    for col, t in ((0, trees), (2, shrubs)):
+        tid = _index_crowns(t, e, _INDEX_STEP_M)[i_cell, j_cell]
+        p = np.nonzero(tid >= 0)[0]
+        idx = tid[p]
+        d2 = ((x[p] - t["x"][idx]) ** 2 + (y[p] - t["y"][idx]) ** 2) / t["R"][idx] ** 2
+        inside = d2 < 1.0
+        p, idx, d2 = p[inside], idx[inside], d2[inside]
+        top, bot = _crown_top(t, idx, d2)
+        g0 = t["z0"][idx] if "z0" in t else zg[p]
+        top, bot = top + g0, np.maximum(bot + g0, zsolid[p])
+        length = top - bot
+        ok = (length > 0) & ~(in_bld[p] & (col == 2))
+        p, idx, top, length = p[ok], idx[ok], top[ok], length[ok]
+        k = t["k"][idx]
+        f = _intercept(rng, k, length)
+        hit = f * energy[p] >= _TAU
+        d1 = _trunc_exp(rng, k, length)
+        cand[p[hit], col] = top[hit] - d1[hit]
+        if col == 0:                                      # a second return deeper in the crown
+            rest = length - d1 - _DEAD_ZONE_M
+            second = hit & (rest > 0) & (rng.random(p.size) < 0.5 * f)
+            d2nd = d1 + _DEAD_ZONE_M + _trunc_exp(rng, k, np.maximum(rest, 0.0))
+            cand[p[second], 1] = top[second] - d2nd[second]
+        energy[p] *= 1.0 - f
+    solid = energy >= _TAU
+    cand[solid, 3] = zsolid[solid]
+    # the receiver's dead zone: a return closer than it to the previous one is lost
+    prev = np.full(n, np.inf)
+    for col in range(4):
+        c = cand[:, col]
+        lost = np.isfinite(c) & (prev - c < _DEAD_ZONE_M)
+        c[lost] = np.nan
+        prev = np.where(np.isfinite(c), c, prev)
+    valid = np.isfinite(cand)
+    nret = valid.sum(axis=1).astype(np.uint8)
+    rnum = np.cumsum(valid, axis=1).astype(np.uint8)
+    noise = np.clip(rng.normal(0.0, 1.0, cand.shape), -4.5, 4.5) * _RANGE_NOISE_M
+    hag = cand - zg[:, None]
+    veg = np.where(hag < VEG_CLASS_LIMITS_M[0], ASPRS_LOW_VEG,
+                   np.where(hag < VEG_CLASS_LIMITS_M[1], ASPRS_MEDIUM_VEG, ASPRS_HIGH_VEG))
+    ccls[:, :3] = veg[:, :3]
+    ccls[:, 3] = np.where(in_bld, ASPRS_BUILDING, ASPRS_GROUND)
+    pulse, col = np.nonzero(valid)                         # row-major: pulse by pulse, top down
+    xo, yo = x[pulse], y[pulse]
+    zo = cand[pulse, col] + noise[pulse, col]
+    co, rn, nr = ccls[pulse, col], rnum[pulse, col], nret[pulse]
+    ao, so = ang[pulse], strip[pulse]
+    # noise points: multipath below the ground, birds and haze above
+    m = r_noise.binomial(n, noise_rate) if noise_rate > 0 else 0
+    if m:
+        lo, hi = r_noise.integers(0, n, m), r_noise.integers(0, n, m)
+        xo = np.concatenate([xo, x[lo], x[hi]])
+        yo = np.concatenate([yo, y[lo], y[hi]])
+        zo = np.concatenate([zo, zg[lo] - r_noise.uniform(3.0, 30.0, m), zsolid[hi] + r_noise.uniform(50.0, 300.0, m)])
+        co = np.concatenate([co, np.full(m, ASPRS_LOW_NOISE, np.uint8), np.full(m, ASPRS_HIGH_NOISE, np.uint8)])
+        one = np.ones(2 * m, np.uint8)
+        rn, nr = np.concatenate([rn, one]), np.concatenate([nr, one])
+        ao, so = np.concatenate([ao, ang[lo], ang[hi]]), np.concatenate([so, strip[lo], strip[hi]])
+    return xo, yo, zo, co.astype(np.uint8), rn, nr, ao, so
+
+
+# ---------------------------------------------------------------------------------------
 # terrain
 
 

@@ -55,7 +55,11 @@ algorithm's help.
    height difference between neighbouring cells is labelled a *rise* when it exceeds the
    terrain's own rise over one cell by more than ``dh0`` (``dz > dh0 + tan(slope) *
    cell``), a *fall* symmetrically. A run of cells that opens with a rise, closes with a
-   fall, is shorter than ``max_object_size_m`` and stands more than ``dh0`` above the
+   fall, is shorter than ``max_object_size_m`` (or than :data:`OBLIQUE_REACH` ``= sqrt(2)``
+   times it, the diagonal along which a row or a column crosses an object of that width
+   rotated in the grid, when both its rise and its fall are walls in the sense below:
+   raised terrain beyond one bank falls gently on its other side; issue 12) and stands
+   more than ``dh0`` above the
    straight line joining the cells before the rise and after the fall is non-ground when
    one of its two edges, beyond the terrain's rise over the cell, carries at least half
    of that height (:data:`~.scan.WALL_SHARE`: an object stands on a wall, while a ridge
@@ -103,9 +107,9 @@ from .filter import STEP_EDGE, STEP_ISLAND, STEP_NODATA, STEP_OUTLIER, STEP_SCAN
 from .grey import reconstruct_by_dilation
 from .outliers import OUTLIER_MAX_CELLS
 from .params import NOISE_K, PARAMS, SLOPE_CLIP_DEG, SLOPE_PERCENTILE, geodesic_halo, resolve_geodesic_params
-from .scan import SCAN_PASSES, scan_label
+from .scan import OBLIQUE_REACH, SCAN_PASSES, scan_label
 
-__all__ = ["BUMP_FRACTION", "COARSE_WINDOW", "EXTENT_FACTOR", "METHOD", "NOISE_K", "NOISE_SNAP",
+__all__ = ["BUMP_FRACTION", "COARSE_WINDOW", "EXTENT_FACTOR", "METHOD", "NOISE_K", "NOISE_SNAP", "OBLIQUE_REACH",
            "OUTLIER_MAX_CELLS", "PARAMS", "RECON_REACH", "SCAN_PASSES", "SLOPE_CLIP_DEG", "SLOPE_PERCENTILE",
            "STEP_EDGE", "STEP_ISLAND", "STEP_NODATA", "STEP_OUTLIER", "STEP_SCAN", "WALL_BASE_M", "filter_geodesic",
            "geodesic_halo", "reconstruct_by_dilation", "resolve_geodesic_params", "scan_label"]
@@ -141,7 +145,9 @@ METHOD = Method(
         "columns removes runs that open with a rise, close with a fall, stand above "
         "their neighbours and stand on a wall (the rise or the fall carries at least half the run's "
         "height beyond the terrain's rise over the cell: the flanks of a hill or an embankment, "
-        "which exceed the per-cell tolerance at coarse cells, rise over many cells); "
+        "which exceed the per-cell tolerance at coarse cells, rise over many cells); runs up to "
+        "the maximum object size, or up to sqrt(2) times it (a row crossing a building rotated "
+        "in the grid) when both the rise and the fall are walls; "
         "then the border cells of removed regions that stand above a "
         "neighbour by more than dh0 plus the terrain's rise (wall feet, crown edges) are "
         "removed, and so are small islands of kept cells enclosed by removed ones that stand "

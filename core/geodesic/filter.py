@@ -12,7 +12,7 @@ from .dilation import BUMP_FRACTION, gradual_dilation, terrain_at
 from .grey import S8, fill_nodata, rect_filter, window_cells
 from .outliers import remove_outliers
 from .params import check_params, step_sizes
-from .scan import SCAN_PASSES, scan_label
+from .scan import OBLIQUE_REACH, SCAN_PASSES, scan_label
 
 #: ``extras["step"]`` code of a cell removed by scan labelling.
 STEP_SCAN = 250
@@ -34,6 +34,7 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None):
     """
     lab = scan_label(cleaned, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
                      max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
+                     oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"],
                      passes=SCAN_PASSES, progress=progress)
     new = lab & ~removed & (step == 0)
     step[new] = STEP_SCAN

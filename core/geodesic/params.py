@@ -10,6 +10,7 @@ from ..methods import Param, check_values
 from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
 from .outliers import OUTLIER_MAX_CELLS
+from .scan import OBLIQUE_REACH
 
 #: The user parameters (dialog order); their bounds are the limits the core enforces.
 PARAMS = (
@@ -17,7 +18,9 @@ PARAMS = (
           "metres; the following steps double it up to the maximum object size.",
           minimum=0.1, maximum=1000.0),
     Param("max_object_size_m", "float", 64.0, "Largest object to remove (side of the "
-          "last structuring element) in metres: the widest building.",
+          "last structuring element) in metres: the widest building. Scan labelling takes "
+          "runs up to this length, or up to sqrt(2) times it between two walls (a building "
+          "rotated in the grid).",
           minimum=0.5, maximum=5000.0),
     Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
           "reconstructed terrain in metres; empty: max(0.5, 3 x the noise of the DSM's ground-level cells).",
@@ -150,8 +153,9 @@ def geodesic_halo(params, cell_size):
     A cell's residual at the largest step (side ``S = max_object_size_m``) reads ``z``
     within its opening (two half-windows: ``S``) and its geodesic reconstruction (reach
     ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
-    within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to ``S``
-    (``2 S``); the preprocessing two outlier windows and a cluster; the islands (stage
+    within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to
+    ``OBLIQUE_REACH * S`` (an object crossed obliquely: ``2 sqrt(2) S``); the preprocessing
+    two outlier windows and a cluster; the islands (stage
     5) at most the first window's cells and their ring. The halo is rounded
     up to a multiple of the largest coarsening factor, so that blocks whose edge is a
     multiple of it (the default 2048 is) see the same coarse grids as one pass.
@@ -162,7 +166,7 @@ def geodesic_halo(params, cell_size):
     width = float(params.get("outlier_width_m", DEFAULTS["outlier_width_m"]))
     params = dict(DEFAULTS, **{k: v for k, v in params.items() if v is not None})
     island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
-    reach = (int(np.ceil(((4 + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
+    reach = (int(np.ceil(((2 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
              + OUTLIER_MAX_CELLS + 8 + island)
     # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     f = max(coarse_factor(window_cells(s, dx, dy))

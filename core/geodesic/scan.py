@@ -16,6 +16,14 @@ SCAN_PASSES = 2
 #: coarser cell) while each edge carries only a fraction of its height (issue 12).
 WALL_SHARE = 0.5
 
+#: Longest scan run, in widths of the largest object: a row or a column crosses an object
+#: of width ``S`` (one holding an ``S`` x ``S`` square, whatever its orientation) over up
+#: to its diagonal, ``sqrt(2) S`` (a building rotated by 45 degrees). A run longer than ``S``
+#: is an object only when both its rise and its fall are walls (each carries
+#: :data:`WALL_SHARE` of its height): raised terrain wider than ``S`` beyond one steep bank
+#: falls gently on its other side (issue 12).
+OBLIQUE_REACH = float(np.sqrt(2.0))
+
 #: Edges per chunk of the event pass (the chunk's differences stay in the cache).
 _CHUNK = 1 << 16
 
@@ -57,7 +65,7 @@ def _events(a, axis, t_jump, has_nan):
     return np.divmod(np.flatnonzero(transpose(ev.reshape(H - 1, W))), H - 1)
 
 
-def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0):
+def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0, one_wall_cells=None):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`): flat indices of the
     labelled cells.
 
@@ -65,7 +73,8 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     same profile, at most ``max_cells`` apart, bounds a run, whose cells are then
     generated and tested against the run's base line, all vectorised. A run is kept when
     its rise or its fall exceeds the terrain's rise over one cell (``t_terrain``) by at
-    least :data:`WALL_SHARE` of the run's greatest height above its base line.
+    least :data:`WALL_SHARE` of the run's greatest height above its base line; a run of
+    more than ``one_wall_cells`` cells (None: no limit) when both do.
     """
     none = np.zeros(0, np.intp)
     H, W = a.shape
@@ -101,13 +110,15 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     # beyond the terrain's rise over a cell (the rise and the fall carry the object)
     top = np.maximum.reduceat(np.where(np.isfinite(above), above, -np.inf), start)
     wall = np.maximum(d[k], -d[k + 1]) - t_terrain
+    if one_wall_cells is not None and one_wall_cells < max_cells:
+        wall = np.where(n_run > one_wall_cells, np.minimum(d[k], -d[k + 1]) - t_terrain, wall)
     on_walls = np.repeat(wall >= WALL_SHARE * top, n_run)
     keep = (above > height_m) & on_walls
     return flat[keep]
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
-               passes=2, reference=None, progress=None):
+               passes=2, reference=None, oblique_length_m=None, progress=None):
     """Scan labelling: non-ground runs along rows and columns.
 
     Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
@@ -120,7 +131,11 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     least :data:`WALL_SHARE` of the run's greatest height above that line beyond the
     terrain's rise over the cell (an object stands on a wall; a ridge or an embankment
     steeper than the tolerated slope rises over many cells: each of its edges carries a
-    fraction of its height). Rows and columns are combined with OR.
+    fraction of its height). A run longer than ``max_length_m`` and at most
+    ``oblique_length_m`` (an object crossed obliquely: the filter passes
+    :data:`OBLIQUE_REACH` ``* max_length_m``) is labelled when both its rise and its fall
+    carry that share (an object stands on walls on both sides; raised terrain beyond a
+    bank falls gently on its other side). Rows and columns are combined with OR.
     ``passes`` > 1 repeats the labelling on the surface with the labelled cells lowered
     to their base line, so stepped roofs (a rise, a rise, a fall, a fall) are peeled
     level by level. NaN cells break runs.
@@ -136,7 +151,9 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     height_m : float
         Minimal height of a labelled cell above the run's base line.
     max_length_m : float
-        Longest labelled run (the largest object).
+        Longest run labelled when one of its edges is a wall (the largest object).
+    oblique_length_m : float, optional
+        Longest run labelled when both its edges are walls (None: ``max_length_m``).
     terrain_slope_deg : float
         Steepest terrain slope (degrees); its rise over one cell is tolerated.
     passes : int
@@ -156,6 +173,7 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
+    long_m = max_length_m if oblique_length_m is None else max(max_length_m, oblique_length_m)
     if jump_m < 0 or height_m < 0 or max_length_m <= 0:
         raise ValueError(f"scan_label needs jump_m >= 0, height_m >= 0, max_length_m > 0; "
                          f"got {jump_m}, {height_m}, {max_length_m}.")
@@ -178,9 +196,11 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     has_nan = bool(np.isnan(a).any())
     n = int(passes)
     for i in range(n):
-        lr = _scan_runs(a, 1, tx, height_m, max(2, int(max_length_m / dx)), has_nan, s * dx)
+        lr = _scan_runs(a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
+                        max(2, int(max_length_m / dx)))
         report(progress, (i + 0.35) / n)
-        lc = _scan_runs(a, 0, ty, height_m, max(2, int(max_length_m / dy)), has_nan, s * dy)
+        lc = _scan_runs(a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
+                        max(2, int(max_length_m / dy)))
         report(progress, (i + 0.7) / n)
         new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
         del lr, lc

@@ -107,9 +107,10 @@ from .parameters import DEFAULTS, PROFILE_LENGTHS_M, SURFACE_SIZES_M, rascor_hal
 from .regions import break_regions
 from .sequence import STEP_NAMES, filter_rascor
 from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
-from .terrain import TERRAIN_CLASSES, characterise_terrain, estimate_sigma, model_degree
+from .terrain import SIGMA_FLOOR, TERRAIN_CLASSES, characterise_terrain, estimate_sigma, model_degree
 
-__all__ = ["DEFAULTS", "METHOD", "PROFILE_LENGTHS_M", "STEP_NAMES", "SURFACE_SIZES_M", "TERRAIN_CLASSES",
+__all__ = ["DEFAULTS", "METHOD", "PROFILE_LENGTHS_M", "SIGMA_FLOOR", "STEP_NAMES", "SURFACE_SIZES_M",
+           "TERRAIN_CLASSES",
            "break_regions", "characterise_terrain", "estimate_sigma", "filter_rascor", "model_degree",
            "rascor_halo", "remove_height_outliers", "remove_level_changes", "remove_neighbour_differences",
            "remove_prediction_outliers", "remove_profile_outliers", "remove_surface_outliers",

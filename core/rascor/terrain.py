@@ -20,7 +20,7 @@ _FLAT_MAX_SLOPE, _ROLLING_MAX_SLOPE = 0.05, 0.20
 #: Homogeneous: at least this share of the fine tiles has the area's class.
 _HOMOGENEOUS_SHARE = 0.9
 #: Floor of the estimated random error (m): rasterised laser/matching DSMs are never exact.
-_SIGMA_FLOOR = 0.10
+SIGMA_FLOOR = 0.10
 
 
 def model_degree(terrain_class: str, homogeneous: bool = True) -> int:
@@ -106,8 +106,8 @@ def estimate_sigma(z: np.ndarray) -> float:
     spread over a large raster), floored at 0.1 m (the floor also when fewer than 10
     residuals exist).
     """
-    return float(max(_SIGMA_FLOOR, noise_plane_residual(z, dtype=np.float64, min_count=10,
-                                                        default=_SIGMA_FLOOR)))
+    return float(max(SIGMA_FLOOR, noise_plane_residual(z, dtype=np.float64, min_count=10,
+                                                        default=SIGMA_FLOOR)))
 
 
 def _tile_slopes(low, sx, sy):

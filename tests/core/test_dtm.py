@@ -34,11 +34,12 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     """The members' parameters derived in threads are each member's own derivation."""
     s = make_scene("mixed", (120, 140), seed=2)
     p = dtm_method.resolve_dtm_params(s.dsm, 1.0)
-    assert p["members"] == {n: pipeline.resolve_params(n, s.dsm, 1.0, dtm_method.MEMBER_SETTINGS.get(n))
-                            for n in dtm_method.MEMBERS}
+    given = {n: dtm_method.member_settings(n, s.dsm, (1.0, 1.0))[0] for n in dtm_method.MEMBERS}
+    assert p["members"] == {n: pipeline.resolve_params(n, s.dsm, 1.0, given[n]) for n in dtm_method.MEMBERS}
     # the vote asks RASCOR for its surface size by the model-selection rule alone
     assert p["members"]["rascor"]["surface_rule"] == "residuals"
-    assert p["input_description"] == dtm_method.characterise(s.dsm, (1.0, 1.0))
+    noise = dtm_method.member_settings("rascor", s.dsm, (1.0, 1.0))[1]
+    assert p["input_description"] == dict(dtm_method.characterise(s.dsm, (1.0, 1.0)), ground_noise_m=noise)
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
 
 
@@ -261,3 +262,60 @@ def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found
     assert res.info["continued_ground_share"] > 0.1
     logged = int(res.info["continued_ground_rule"].split(" cells")[0])
     assert logged >= np.count_nonzero((res.mask == GROUND) & (votes < 2)) > 0
+
+
+def test_member_settings_rascor_noise_from_the_ground_level_cells():
+    """RASCOR's sigma is the noise of the ground-level cells (floored at RASCOR's own floor); the other
+    members get only MEMBER_SETTINGS; where the noise is not measurable RASCOR derives its own."""
+    from bare_earth.core.estimate import noise_ground_level
+    from bare_earth.core.rascor import SIGMA_FLOOR
+    s = make_scene("forest", (96, 96), seed=1, noise_m=0.3)
+    given, noise = dtm_method.member_settings("rascor", s.dsm, (1.0, 1.0))
+    assert noise == noise_ground_level(s.dsm, (1.0, 1.0))["sigma"] and noise > SIGMA_FLOOR
+    assert given == {"surface_rule": "residuals", "sigma_m": round(noise, 3)}
+    y, x = grid(64)
+    flat = noisy(0.02 * x, seed=0, sd=0.01)                        # ground noise under RASCOR's floor
+    assert dtm_method.member_settings("rascor", flat, (1.0, 1.0))[0]["sigma_m"] == SIGMA_FLOOR
+    tiny = np.zeros((4, 4), np.float32)                            # too few cells: not measurable
+    given, noise = dtm_method.member_settings("rascor", tiny, (1.0, 1.0))
+    assert not np.isfinite(noise) and given == {"surface_rule": "residuals"}
+    for n in ("morphological", "geodesic"):
+        assert dtm_method.member_settings(n, s.dsm, (1.0, 1.0)) == (dtm_method.MEMBER_SETTINGS.get(n), None)
+
+
+def _canopy_with_bushes(seed=0):
+    """A closed canopy (85 % crowns) with bushes 0.8-1.2 m high, 2-3 m wide, in its gaps: the truth
+    mask marks crowns and bushes."""
+    from bare_earth.core.synthetic import make_canopy
+    s = make_canopy(160.0, 1.0, seed=seed, noise_m=0.05)
+    z, mask = s.dsm.copy(), s.mask.copy()
+    rng = np.random.default_rng(seed + 1)
+    n = z.shape[0]
+    yy, xx = np.mgrid[0:n, 0:n]
+    for _ in range(n * n // 60):
+        r, c = rng.integers(0, n, 2)
+        if mask[r, c]:
+            continue
+        bush = ((yy - r) ** 2 + (xx - c) ** 2 <= rng.uniform(1.0, 1.6) ** 2) & (mask == 0)
+        z[bush] = s.dtm[bush] + rng.uniform(0.8, 1.2) + rng.normal(0.0, 0.05, int(bush.sum()))
+        mask[bush] = 1
+    return z, mask, s.dtm
+
+
+def test_low_vegetation_under_a_closed_canopy_is_removed():
+    """Where crowns cover most of the DSM, RASCOR's own sigma (the lower quartile of the whole DSM's
+    Laplacian residuals) is the canopy's roughness (1.1 m here, with 0.05 m noise), and every height
+    test of its steps passed the bushes; measured on the ground-level cells it is its floor, and the
+    vote removes them (before: 60 object cells kept, DTM RMSE 1.23 m; now 15, 0.27 m)."""
+    from bare_earth.core.rascor import estimate_sigma
+    z, mask, truth = _canopy_with_bushes()
+    assert estimate_sigma(z) > 0.8                                  # what RASCOR alone measures here
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    assert p["members"]["rascor"]["sigma_m"] < 0.15
+    assert 0.02 < p["input_description"]["ground_noise_m"] < 0.08
+    p.pop("input_description")
+    res = dtm_method.filter_dtm(z, 1.0, **p)
+    kept = np.count_nonzero((res.mask == GROUND) & (mask == 1))
+    assert kept < 30
+    assert float(np.sqrt(np.mean((res.dtm - truth) ** 2))) < 0.6
+

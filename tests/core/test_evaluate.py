@@ -328,3 +328,26 @@ def test_anchor_saga_removes_a_building_when_installed():
     assert (res.mask[20:29, 25:34] == 1).all()                  # the roof is removed
     assert (res.mask[45:, :] == 0).mean() > 0.95                 # open ground kept
     assert np.nanmax(np.abs(res.dtm[20:29, 25:34] - 100.0)) < 0.5  # the DTM under it is the ground
+
+
+def test_generalise_simulated_lidar_rows_are_scored_per_point(tmp_path, monkeypatch):
+    """The simulated lidar sources come after every other source (the others keep their
+    halves) and their rows score the cloud's points as the lidar files' rows do: the
+    reference's own DTM near 0, the raw lowest-point grid well above it."""
+    gen = _load_benchmark("generalise")
+    monkeypatch.setattr(gen, "SYNTHETIC_LIDAR", (("forest", 100.0, 4.0), ("urban", 150.0, 2.0),
+                                                 ("dense", "forest", 100.0, 4.0, {"crown_density": 10.0})))
+    notes = []
+    cases = gen.all_cases(tmp_path, notes)
+    names = [src for src, _, _, _ in cases]
+    assert names[-3:] == ["synthetic-lidar/forest", "synthetic-lidar/urban", "synthetic-lidar/dense"]
+    assert [h for _, _, h, _ in cases[-3:]] == ["AB"[(len(cases) + k) % 2] for k in (-3, -2, -1)]
+    assert [n for n, _ in cases[-1][3]] == ["synthetic-lidar/dense/1m", "synthetic-lidar/dense/2m",
+                                            "synthetic-lidar/dense/4m"]
+    rows = dict(cases[-2][3])
+    assert list(rows) == ["synthetic-lidar/urban/1m", "synthetic-lidar/urban/2m", "synthetic-lidar/urban/4m"]
+    z, cell, score = rows["synthetic-lidar/urban/2m"]()
+    assert z.shape == (75, 75) and cell == (2.0, 2.0)
+    assert score.floor()["total"] < 1.0
+    assert score(SimpleNamespace(dtm=z))["total"] > 10.0           # roofs kept as ground
+    assert any(n.startswith("synthetic-lidar/urban") for n in notes)

@@ -225,3 +225,156 @@ def test_truth_over_seeds_shapes_and_cell_sizes(seed):
         assert np.abs(s.dsm[g] - s.dtm[g]).max() <= 5 * noise, kind
         assert (s.dsm[o] > s.dtm[o] + 1.0 - 5 * noise).all(), kind
         assert (s.dsm[low] < s.dtm[low]).all(), kind
+
+
+# --------------------------------------------------------------------------- lidar points
+from bare_earth.core.synthetic import LIDAR_KINDS, make_lidar_points  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def clouds():
+    """Each kind once: 200 m square, 6 pulses per m2, no noise points."""
+    return {k: make_lidar_points(k, extent_m=200.0, density_per_m2=6.0, seed=3, noise_rate=0.0)
+            for k in LIDAR_KINDS}
+
+
+def _pulses(p):
+    """Pulse index of every point (points are stored pulse by pulse, top down)."""
+    return np.cumsum(p.return_number == 1) - 1
+
+
+def test_lidar_points_arrays_classes_and_density(clouds):
+    for p in clouds.values():
+        n = len(p)
+        for a in (p.x, p.y, p.z):
+            assert a.dtype == np.float64 and a.shape == (n,) and np.isfinite(a).all()
+        x0, y0, x1, y1 = p.extent
+        assert x1 - x0 == y1 - y0 == 200.0
+        assert (p.x >= x0).all() and (p.x < x1).all() and (p.y >= y0).all() and (p.y < y1).all()
+        assert set(np.unique(p.classification)) <= {2, 3, 4, 5, 6}
+        # first returns: the requested pulse density; later returns add points
+        first = np.count_nonzero(p.return_number == 1) / 200.0 ** 2
+        assert first == pytest.approx(6.0, rel=0.03)
+        assert n / 200.0 ** 2 > first
+        # returns of a pulse numbered 1..n, top down
+        assert (p.return_number >= 1).all() and (p.return_number <= p.number_of_returns).all()
+        pid = _pulses(p)
+        last = np.r_[pid[1:] != pid[:-1], True]
+        np.testing.assert_array_equal(p.return_number[last], p.number_of_returns[last])
+        later = p.return_number > 1
+        assert (p.z[later] < p.z[np.nonzero(later)[0] - 1]).all()
+        # strips: overlapping flight lines make the density vary
+        assert np.unique(p.point_source_id).size >= 2
+        cell = ((p.y - y0) // 10).astype(int) * 20 + ((p.x - x0) // 10).astype(int)
+        fr = np.bincount(cell[p.return_number == 1], minlength=400)
+        assert fr.std() / fr.mean() > 0.05
+    share = {k: {c: np.mean(p.classification == c) for c in (2, 3, 4, 5, 6)} for k, p in clouds.items()}
+    assert share["forest"][6] == 0 and share["forest"][5] > 0.4 and 0.15 < share["forest"][2] < 0.5
+    assert share["urban"][6] > 0.2 and share["urban"][2] > 0.3
+    assert share["mixed"][6] > 0.05 and share["mixed"][5] > 0.1 and share["mixed"][2] > 0.2
+    for k in LIDAR_KINDS:
+        assert share[k][3] > 0                              # shrubs and low crowns
+
+
+def test_lidar_points_lie_on_their_surfaces(clouds):
+    for p in clouds.values():
+        hag = p.z - p.terrain(p.x, p.y)
+        g = p.classification == 2
+        assert np.abs(hag[g]).max() <= 4.5 * 0.03 + 1e-9       # range noise only
+        assert 0.02 < hag[g].std() < 0.04
+        assert (hag[p.classification == 6] > 4.0 - 0.2).all()  # eaves at least 4 m above the ground
+        v = np.isin(p.classification, (3, 4, 5))
+        assert (hag[p.classification == 5] >= 5.0 - 0.14).all()
+        assert (hag[p.classification == 4] >= 2.0 - 0.14).all() and (hag[p.classification == 4] < 5.0 + 0.14).all()
+        assert (hag[p.classification == 3] < 2.0 + 0.14).all()
+        assert hag[v].max() <= 35.0 + 8.0 * np.tan(np.radians(40.0))   # a crown's edge over lower ground
+
+
+def test_lidar_terrain_steep_bank_and_large_building(clouds):
+    f = clouds["forest"]
+    x0, y0, _, _ = f.extent
+    xx, yy = np.meshgrid(x0 + np.arange(0, 200, 1.0), y0 + np.arange(0, 200, 1.0))
+    z = f.terrain(xx, yy)
+    gy, gx = np.gradient(z, 1.0)
+    slope = np.degrees(np.arctan(np.hypot(gx, gy)))
+    assert np.mean(slope > 20.0) > 0.05 and np.percentile(slope, 99) > 30.0
+    assert 34.0 <= f.objects["max_slope_deg"] <= 40.0 and 2.5 <= f.objects["bank"] <= 5.0
+    assert clouds["mixed"].objects["cutting"] >= 3.0
+    for k in ("urban", "mixed"):
+        assert clouds[k].objects["largest_building_m"] > 60.0 and clouds[k].objects["buildings"] >= 5
+
+
+def test_lidar_penetration_depends_on_crown_density():
+    """Pulses whose first return is a crown reach the ground less often than pulses in the
+    open, and less often still under denser crowns; at 4 m some cells of a dense forest hold
+    no ground return at all."""
+    share, empty = {}, {}
+    for cd in (1.0, 3.0):
+        p = make_lidar_points("forest", extent_m=150.0, density_per_m2=8.0, seed=5, crown_density=cd,
+                              noise_rate=0.0)
+        pid = _pulses(p)
+        first_cls = p.classification[p.return_number == 1][pid]
+        last = np.r_[pid[1:] != pid[:-1], True]
+        crown = first_cls[last] == 5
+        ground = p.classification[last] == 2
+        share[cd] = (ground[crown].mean(), ground[~crown & (first_cls[last] == 2)].mean())
+        g = p.classification == 2
+        ix = ((p.x[g] - p.extent[0]) // 4).astype(int)
+        iy = ((p.y[g] - p.extent[1]) // 4).astype(int)
+        has = np.zeros((38, 38), bool)
+        has[iy, ix] = True
+        empty[cd] = 1.0 - has[:37, :37].mean()
+    assert share[1.0][1] == 1.0                                  # open ground: every pulse
+    assert 0.05 < share[1.0][0] < 0.7
+    assert share[3.0][0] < 0.7 * share[1.0][0]
+    assert 0.0 < empty[1.0] < empty[3.0] < 0.5
+
+
+def test_lidar_points_deterministic_and_noise():
+    a = make_lidar_points("urban", extent_m=150.0, density_per_m2=2.0, seed=7, noise_rate=1e-3)
+    b = make_lidar_points("urban", extent_m=150.0, density_per_m2=2.0, seed=7, noise_rate=1e-3)
+    c = make_lidar_points("urban", extent_m=150.0, density_per_m2=2.0, seed=8, noise_rate=1e-3)
+    for f in ("x", "y", "z", "classification", "return_number", "number_of_returns", "point_source_id"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    assert len(a) != len(c) or not np.array_equal(a.z, c.z)
+    hag = a.z - a.terrain(a.x, a.y)
+    assert (hag[a.classification == 7] < -2.9).all() and (a.classification == 7).sum() > 0
+    assert (hag[a.classification == 18] > 49.0).all() and (a.classification == 18).sum() > 0
+    cloud = a.to_cloud()
+    assert len(cloud) == len(a) and cloud.units_to_metre == 1.0
+    np.testing.assert_array_equal(cloud.classification, a.classification)
+
+
+def test_lidar_points_errors():
+    with pytest.raises(ValueError, match="kind"):
+        make_lidar_points("desert")
+    with pytest.raises(ValueError, match="extent_m"):
+        make_lidar_points("urban", extent_m=100.0)
+    with pytest.raises(ValueError, match="density"):
+        make_lidar_points("forest", density_per_m2=0.0)
+    with pytest.raises(ValueError, match="crown_density"):
+        make_lidar_points("forest", crown_density=-1.0)
+
+
+def test_lidar_gentle_terrain_without_hillside():
+    p = make_lidar_points("forest", extent_m=150.0, density_per_m2=1.0, seed=3, steep=False)
+    assert "bank" not in p.objects and p.objects["max_slope_deg"] == 0.0
+    xx, yy = np.meshgrid(p.extent[0] + np.arange(0, 150, 1.0), p.extent[1] + np.arange(0, 150, 1.0))
+    gy, gx = np.gradient(p.terrain(xx, yy), 1.0)
+    assert np.percentile(np.degrees(np.arctan(np.hypot(gx, gy))), 99) < 15.0
+
+
+def test_lidar_understory_hides_the_ground():
+    """More shrubs: more low-vegetation points and more 2 m cells without a ground return."""
+    out = {}
+    for us in (0.0, 10.0):
+        p = make_lidar_points("forest", extent_m=100.0, density_per_m2=5.0, seed=2, understory=us, noise_rate=0.0,
+                              steep=False)
+        g = p.classification == 2
+        has = np.zeros((50, 50), bool)
+        has[((p.y[g] - p.extent[1]) // 2).astype(int), ((p.x[g] - p.extent[0]) // 2).astype(int)] = True
+        out[us] = (np.mean(p.classification == 3), 1.0 - has.mean(), p.objects["shrubs"])
+    assert out[0.0][2] == 0 and out[10.0][2] > 1000
+    assert out[10.0][0] > 3 * out[0.0][0] and out[10.0][1] > out[0.0][1] + 0.05
+    with pytest.raises(ValueError, match="understory"):
+        make_lidar_points("forest", understory=-1.0)
