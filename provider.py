@@ -25,15 +25,19 @@ class BareEarthProvider(QgsProcessingProvider):
 
     def supportedOutputRasterLayerExtensions(self):  # noqa: N802
         """The raster formats the outputs are written in (others are refused by name)."""
-        from .core.grid import output_extensions
-        return output_extensions()
+        from .core.grid import gdal_mode_kept, output_extensions
+        with gdal_mode_kept():
+            return output_extensions()
 
     def defaultRasterFileExtension(self):  # noqa: N802
         return "tif"
 
     def loadAlgorithms(self):  # noqa: N802
         from .algorithms import all_algorithms
-        for alg in all_algorithms():
+        from .core.grid import gdal_mode_kept
+        with gdal_mode_kept():
+            algs = list(all_algorithms())
+        for alg in algs:
             self.addAlgorithm(alg)
         from .algorithms.tiles import TilesAlgorithm  # a whole survey on Dask (imported lazily inside)
         self.addAlgorithm(TilesAlgorithm())

@@ -14,12 +14,14 @@ and PyQt6 both accept; they need no entry here.
 from qgis.core import (
     Qgis,
     QgsColorRampShader,
+    QgsCoordinateReferenceSystem,
     QgsFeatureRequest,
     QgsProcessing,
     QgsProcessingFeatureSource,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterFile,
     QgsProcessingParameterNumber,
+    QgsRasterRange,
     QgsWkbTypes,
 )
 
@@ -86,6 +88,12 @@ ENUMS = {
     "SOURCE_SKIP_GEOMETRY_CHECKS": ((Qgis, "ProcessingFeatureSourceFlag.SkipGeometryValidityChecks"),
                                     (QgsProcessingFeatureSource, "Flag.FlagSkipGeometryValidityChecks")),
     "SHADER_LINEAR": ((Qgis, "ShaderInterpolationMethod.Linear"), (QgsColorRampShader, "Type.Interpolated")),
+    "RANGE_INCLUDE_MIN_AND_MAX": ((Qgis, "RasterRangeLimit.IncludeMinAndMax"),
+                                  (QgsRasterRange, "BoundsType.IncludeMinAndMax")),
+    "RANGE_INCLUDE_MIN": ((Qgis, "RasterRangeLimit.IncludeMin"), (QgsRasterRange, "BoundsType.IncludeMin")),
+    "RANGE_INCLUDE_MAX": ((Qgis, "RasterRangeLimit.IncludeMax"), (QgsRasterRange, "BoundsType.IncludeMax")),
+    "WKT_PREFERRED_GDAL": ((Qgis, "CrsWktVariant.PreferredGdal"),
+                           (QgsCoordinateReferenceSystem, "WktVariant.WKT_PREFERRED_GDAL")),
 }
 
 SOURCE_FILE = resolve(*ENUMS["SOURCE_FILE"])
@@ -107,6 +115,10 @@ INVALID_GEOMETRY_SKIP = resolve(*ENUMS["INVALID_GEOMETRY_SKIP"])
 INVALID_GEOMETRY_ABORT = resolve(*ENUMS["INVALID_GEOMETRY_ABORT"])
 SOURCE_SKIP_GEOMETRY_CHECKS = resolve(*ENUMS["SOURCE_SKIP_GEOMETRY_CHECKS"])
 SHADER_LINEAR = resolve(*ENUMS["SHADER_LINEAR"])
+RANGE_INCLUDE_MIN_AND_MAX = resolve(*ENUMS["RANGE_INCLUDE_MIN_AND_MAX"])
+RANGE_INCLUDE_MIN = resolve(*ENUMS["RANGE_INCLUDE_MIN"])
+RANGE_INCLUDE_MAX = resolve(*ENUMS["RANGE_INCLUDE_MAX"])
+WKT_PREFERRED_GDAL = resolve(*ENUMS["WKT_PREFERRED_GDAL"])
 
 
 def mark_advanced(param):

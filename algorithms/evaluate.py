@@ -18,7 +18,7 @@ from ..core.pointflow import classify_cloud
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
-from .filter_base import BaseAlgorithm, explained, raster_path, tr, with_help
+from .filter_base import BaseAlgorithm, explained, layer_crs_wkt, layer_nodata_ranges, raster_path, tr, with_help
 
 #: what each figure of a comparison is, for the log (Sithole & Vosselman 2004's cross matrix:
 #: rows the truth, columns the result)
@@ -144,8 +144,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
 
     def _layer(self, parameters, key, context):
+        """The raster of ``key`` as its QGIS layer stands: its additional no-data values and, for a
+        file without a CRS, the CRS it was given (a DTM in feet is compared in metres)."""
         lay = self.parameterAsRasterLayer(parameters, key, context)
-        return None if lay is None else grid.open_dsm(raster_path(lay), 1)
+        if lay is None:
+            return None
+        return grid.open_dsm(raster_path(lay), 1, layer_nodata_ranges(lay, 1), layer_crs_wkt(lay))
 
     def _inputs(self, parameters, context):
         mask = self._layer(parameters, self.MASK, context)

@@ -12,6 +12,7 @@ import os
 import re
 
 import numpy as np
+from osgeo import gdal
 from qgis.core import (
     QgsProcessing,
     QgsProcessingAlgorithm,
@@ -33,7 +34,16 @@ from ..core import Cancelled, grid
 from ..core.codes import MASK_CODES
 from ..core.methods import get_method
 from ..meta import HOMEPAGE, ICON
-from .compat import NUMBER_DOUBLE, NUMBER_INTEGER, is_optional, mark_advanced
+from .compat import (
+    NUMBER_DOUBLE,
+    NUMBER_INTEGER,
+    RANGE_INCLUDE_MAX,
+    RANGE_INCLUDE_MIN,
+    RANGE_INCLUDE_MIN_AND_MAX,
+    WKT_PREFERRED_GDAL,
+    is_optional,
+    mark_advanced,
+)
 from .labels import extra_label, is_advanced, param_label
 
 MASK_HELP = ("UInt8 mask: " + ", ".join(f"{k} {v}" for k, v in MASK_CODES.items())
@@ -97,10 +107,41 @@ def raster_path(layer):
     return layer.source()
 
 
+def layer_nodata_ranges(layer, band):
+    """The additional no-data values a raster layer was given in QGIS (Properties > Transparency)
+    for ``band`` (None: the band :func:`grid.open_dsm` chooses, 1 for a single band), as
+    ``(low, high, include_low, include_high)`` ranges of heights: QGIS draws those cells
+    transparent, so they are nodata for the filters too."""
+    if layer is None or layer.dataProvider() is None:
+        return ()
+    prov = layer.dataProvider()
+    b = band or 1
+    if not band and prov.bandCount() > 1:
+        try:
+            b = grid.open_dsm(raster_path(layer)).band_index
+        except (ValueError, QgsProcessingException):
+            return ()
+    out = []
+    for r in prov.userNoDataValues(b):
+        bounds = r.bounds()
+        out.append((r.min(), r.max(), bounds in (RANGE_INCLUDE_MIN_AND_MAX, RANGE_INCLUDE_MIN),
+                    bounds in (RANGE_INCLUDE_MIN_AND_MAX, RANGE_INCLUDE_MAX)))
+    return tuple(out)
+
+
+def layer_crs_wkt(layer):
+    """The CRS a raster layer was given in QGIS (WKT), or None: used for a file without a CRS of
+    its own (an .asc without .prj), which QGIS draws in the layer's CRS."""
+    if layer is None or not layer.crs().isValid():
+        return None
+    return layer.crs().toWkt(WKT_PREFERRED_GDAL) or None
+
+
 def check_dsm(layer, band):
     """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None)."""
     try:
-        info = grid.open_dsm(raster_path(layer), band or None)
+        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
+                             layer_crs_wkt(layer))
         grid.check_has_data(info)
     except (ValueError, QgsProcessingException) as exc:
         return False, str(exc), None
@@ -235,6 +276,21 @@ def check_processes(alg, parameters, context):
     return True, ""
 
 
+def input_file_list(path):
+    """The files of a raster input: GDAL's list (the file and its sidecars: ``.prj``, ``.aux.xml``,
+    a SAGA grid's ``.sgrd``) and the ``.qml`` style QGIS loads with it (whether or not there is
+    one yet: a mask's style written there would restyle the input)."""
+    files = [path]
+    try:
+        with grid.without_side_files():
+            ds = gdal.OpenEx(path, gdal.OF_RASTER | gdal.OF_READONLY)
+            files += (ds.GetFileList() or []) if ds is not None else []
+            ds = None
+    except RuntimeError:
+        pass
+    return files + [os.path.splitext(path)[0] + ".qml"]
+
+
 def destination_path(parameters, key):
     """The file a destination parameter names, or None for a temporary output (or none)."""
     v = parameters.get(key)
@@ -310,8 +366,34 @@ def reading_inputs_only(param):
     return param
 
 
+def gdal_mode_kept(func):
+    """Run ``func`` inside :func:`grid.gdal_mode_kept`: QGIS's session keeps GDAL's exception
+    mode as it was, whatever the core turned on."""
+    @functools.wraps(func)
+    def kept(*args, **kwargs):
+        with grid.gdal_mode_kept():
+            return func(*args, **kwargs)
+    kept.gdal_mode_kept = True
+    return kept
+
+
+#: The methods QGIS calls on an algorithm that may reach GDAL's Python bindings.
+GDAL_ENTRY_POINTS = ("checkParameterValues", "prepareAlgorithm", "processAlgorithm", "postProcessAlgorithm",
+                     "shortHelpString")
+
+
 class BaseAlgorithm(QgsProcessingAlgorithm):
-    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance)."""
+    """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance).
+
+    Each entry point of :data:`GDAL_ENTRY_POINTS` a class defines runs with GDAL's exception
+    mode restored afterwards (:func:`gdal_mode_kept`)."""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in GDAL_ENTRY_POINTS:   # its own, and a mixin's before BaseAlgorithm in the MRO
+            f = getattr(cls, name, None)
+            if f is not None and not getattr(f, "gdal_mode_kept", False):
+                setattr(cls, name, gdal_mode_kept(f))
 
     GROUP = "filters"
     GROUP_NAME = "DSM filters"
@@ -381,6 +463,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             elif d.type() == "multilayer":
                 out += [(d, p) for p in self.parameterAsFileList(parameters, d.name(), context)]
                 out += [(d, lay.source()) for lay in self.parameterAsLayerList(parameters, d.name(), context)]
+            elif d.type() in ("source", "vector"):
+                lay = self.parameterAsVectorLayer(parameters, d.name(), context)
+                if lay is not None and lay.providerType() == "ogr":   # a file: its path before '|layername='
+                    out.append((d, lay.source().split("|")[0]))
         return [(d, p) for d, p in out if p]
 
     def checkOutputs(self, parameters, context):  # noqa: N802
@@ -388,7 +474,19 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         exists and takes files; each raster output's extension names a format offered (and
         holds its bands). Runs before any work."""
         inputs = [(d, os.path.realpath(p)) for d, p in self.inputPaths(parameters, context)]
-        seen = {}
+        input_files = {}     # every file of a raster input (sidecars, its QGIS style) -> (definition, input)
+        if any(d.type() == "rasterDestination" and destination_path(parameters, d.name())
+               for d in self.destinationParameterDefinitions()):
+            for di, p in inputs:
+                if di.type() in ("raster", "multilayer"):
+                    files = input_file_list(p)
+                elif di.type() in ("source", "vector"):   # a vector layer's file and its QGIS style
+                    files = [p, os.path.splitext(p)[0] + ".qml"]
+                else:
+                    continue
+                for f in files:
+                    input_files.setdefault(os.path.realpath(f), (di, p))
+        seen, styles = {}, {}
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())
             if path is None:
@@ -401,7 +499,23 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if real in seen:
                 return False, tr("The outputs {} and {} are one file ({}): give each output its own "
                                  "file.").format(label_of(seen[real]), label_of(d), path)
+            if d.type() == "rasterDestination":
+                for f in grid.output_files(path, styled=d.name().endswith("MASK")):
+                    hit = input_files.get(os.path.realpath(f))
+                    if hit is not None and os.path.realpath(f) != real:
+                        return False, tr("The output {} ({}) would write {}, a file of the input {} ({}): its "
+                                         "sidecar, or the style QGIS loads with it. Choose another name for the "
+                                         "output.").format(
+                            label_of(d), path, f, label_of(hit[0]), hit[1])
             seen[real] = d
+            if d.type() == "rasterDestination":   # a mask's style is another output's style too
+                style = os.path.realpath(os.path.splitext(path)[0] + ".qml")
+                other = styles.get(style)
+                if other is not None and (d.name().endswith("MASK") or other[1]):
+                    return False, tr("The outputs {} and {} share the name {} (another extension): QGIS would "
+                                     "draw both with the mask's style ({}). Give them different names.").format(
+                        label_of(other[0]), label_of(d), os.path.splitext(os.path.basename(path))[0], style)
+                styles[style] = (d, d.name().endswith("MASK"))
             try:
                 if d.type() == "rasterDestination":
                     grid.check_output_path(path, self.outputBands(d.name()))
@@ -480,6 +594,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         from .styles import style_loaded_outputs
         style_loaded_outputs(self, context)
         return {}
+
+
+for _name in GDAL_ENTRY_POINTS:   # BaseAlgorithm's own entry points too
+    if _name in BaseAlgorithm.__dict__:
+        setattr(BaseAlgorithm, _name, gdal_mode_kept(BaseAlgorithm.__dict__[_name]))
 
 
 class FilterAlgorithm(BaseAlgorithm):
@@ -673,8 +792,9 @@ class FilterAlgorithm(BaseAlgorithm):
         from ..core.pipeline import run_file
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
         band = self.parameterAsInt(parameters, self.BAND, context) if parameters.get(self.BAND) else None
+        ranges = layer_nodata_ranges(layer, band)
         try:  # checkParameterValues scanned the data; run_file re-checks it from its own first read
-            info = grid.open_dsm(raster_path(layer), band or None)
+            info = grid.open_dsm(raster_path(layer), band or None, ranges, layer_crs_wkt(layer))
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         outputs = {"dtm": self.parameterAsOutputLayer(parameters, self.OUTPUT_DTM, context),
@@ -697,7 +817,8 @@ class FilterAlgorithm(BaseAlgorithm):
             with output_options(self, parameters, context):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,
-                                  progress=progress_callback(feedback), log=log)
+                                  progress=progress_callback(feedback), log=log, nodata_ranges=ranges,
+                                  crs_wkt=layer_crs_wkt(layer))
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}

@@ -116,9 +116,11 @@ def _check_metric(info, what):
             raise ValueError(f"{what} ({info.path}) is in a geographic CRS (degrees): the orthophoto "
                              "refinement needs a projected CRS in metres, the same as the camera "
                              "coordinates. Reproject it first (gdalwarp -t_srs EPSG:<UTM zone>).")
-    if info.z_to_m != 1.0:
-        raise ValueError(f"{what} ({info.path}) is in a CRS whose unit is not the metre (factor "
-                         f"{info.z_to_m:.6g}); reproject it to a metric CRS first.")
+    xy_to_m = info.cell_size_m[0] / abs(info.geotransform[1])   # a compound CRS: its own height unit
+    for factor in (info.z_to_m, xy_to_m):
+        if abs(factor - 1.0) > 1e-9:
+            raise ValueError(f"{what} ({info.path}) is in a CRS whose unit is not the metre (factor "
+                             f"{factor:.6g}); reproject it to a metric CRS first.")
 
 
 def _open_grid(path, what):

@@ -89,6 +89,9 @@ LOW_OUTLIER_WINDOW_M = 1.0
 #: Bounds of the derived parameters.
 _MIN_DH, _MAX_DH = 0.5, 5.0
 _MIN_SLOPE, _MAX_SLOPE = 0.3, 1.5
+#: Steepest outline slope (rise/run): 100 = 89.4 degrees, a wall. A cliff of undeclared nodata
+#: (-9999 beside terrain at +300 m) gives block-minimum slopes of hundreds; no ground is steeper.
+_MAX_OUTLINE_SLOPE = 100.0
 #: dh = _DH_NOISE x the DSM's noise (at least _MIN_DH, SMRF's e_t).
 _DH_NOISE = 3.0
 #: Block size of the coarse minimum surface the terrain slope is measured on, metres.
@@ -848,9 +851,9 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         out["slope_source"] = "given"
     if outline_slope is None:
         if np.isfinite(s90):
-            out["outline_slope"] = float(s90)
+            out["outline_slope"] = float(min(_MAX_OUTLINE_SLOPE, s90))
             out["outline_slope_source"] = (f"derived: 90th-percentile slope {s90:.3f} of the {_SLOPE_SCALE_M:g} m "
-                                           "block-minimum surface")
+                                           f"block-minimum surface, at most {_MAX_OUTLINE_SLOPE:g} (a wall)")
         else:
             out["outline_slope"] = out["slope"]
             out["outline_slope_source"] = (f"raster under 3 x 3 blocks of {_SLOPE_SCALE_M:g} m: the terrain slope "
@@ -936,8 +939,8 @@ PARAMS = (
           "Terrain slope (rise/run) the ground beside an object may show over one cell: a cell next to an "
           "object standing more than dh plus this rise over a cell diagonal above its lowest ground neighbour "
           "is a mixed cell of the object's outline, classified against the ground under the object. Empty: "
-          "the 90th-percentile slope of the 40 m block-minimum surface. Progressive form only.",
-          minimum=0.0, maximum=100.0, advanced=True),
+          "the 90th-percentile slope of the 40 m block-minimum surface (at most 100). Progressive form only.",
+          minimum=0.0, maximum=_MAX_OUTLINE_SLOPE, advanced=True),
     Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
           "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
           "this x its radius is a low outlier. 5 = 500 % (SMRF).",

@@ -17,7 +17,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -348,7 +348,9 @@ class FileRun:
 def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, band: Optional[int] = None,
              params: Optional[Dict[str, Any]] = None, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
              block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, processes: int = 1,
-             progress: Progress = None, log: Optional[Callable[[str], None]] = None) -> Dict[str, Any]:
+             progress: Progress = None, log: Optional[Callable[[str], None]] = None,
+             nodata_ranges: Sequence[Tuple[float, float, bool, bool]] = (),
+             crs_wkt: Optional[str] = None) -> Dict[str, Any]:
     """Filter a DSM file into output files, block by block, with bounded memory.
 
     Parameters
@@ -384,13 +386,18 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
         progress call).
     log : callable, optional
         ``log(str)`` for warnings and the values used.
+    nodata_ranges : sequence of (low, high, include_low, include_high), optional
+        Heights that are nodata besides the DSM's own (a QGIS layer's additional no-data
+        values; :func:`grid.open_dsm`).
+    crs_wkt : str, optional
+        The CRS of a DSM whose file has none (its QGIS layer's; :func:`grid.open_dsm`).
 
     Returns
     -------
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     meth = as_method(method)
-    info = grid.open_dsm(path, band)
+    info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
@@ -425,6 +432,23 @@ def _read_reporting(info, window, progress):
     return z
 
 
+def _window_on_data(info, max_cells=4_000_000):
+    """The window of :func:`_resolve_window`'s size centred on the valid cell nearest the raster's
+    centre, for a raster whose centre holds no data (an L-shaped survey, a corridor): found on a
+    decimated read of at most ``max_cells`` as :func:`grid.check_has_data` scans. The whole
+    raster when that read misses the data (it sits between the samples)."""
+    rows, cols = info.shape
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    rr, cc = np.nonzero(np.isfinite(info.surface(info.read_stored(step=step), None, step)))
+    if rr.size == 0:
+        return (0, rows, 0, cols)
+    k = int(np.argmin((rr * step - rows / 2.0) ** 2 + (cc * step - cols / 2.0) ** 2))
+    h, w = min(rows, RESOLVE_SIDE), min(cols, RESOLVE_SIDE)
+    r0 = int(min(max(rr[k] * step - h // 2, 0), rows - h))
+    c0 = int(min(max(cc[k] * step - w // 2, 0), cols - w))
+    return (r0, r0 + h, c0, c0 + w)
+
+
 def _derive_params(info, run):
     """The complete parameters (from a central window, or the whole raster when it fits in
     one) and the raster itself when it was read whole (else None); logs what it did.
@@ -432,19 +456,27 @@ def _derive_params(info, run):
     # The window the parameters come from also proves the raster has data (a full scan only
     # when it is empty), so a valid raster is not decompressed twice before the work.
     rw = _resolve_window(info.shape)
+    where = "the central"
     zr = _read_reporting(info, rw, sub_progress(run.progress, 0.0, READ_SHARE * RESOLVED))
     if not np.isfinite(zr).any():
         grid.check_has_data(info)  # raises ValueError when no cell is valid
-        zr = info.read()
+        rw = _window_on_data(info)
+        where = f"the {'whole raster' if rw == (0, info.shape[0], 0, info.shape[1]) else 'data'}'s"
+        zr = _read_reporting(info, rw, None)
     for w in info.warnings:
         run.log("Warning: " + w)
+    suspect = grid.undeclared_nodata_warning(info, zr)
+    if suspect:
+        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the window the parameters "
+                                          "come from)"))
     for note in info.notes:
         run.log(note)
     params = _resolve(run.meth, zr, info.cell_size_m, run.params,
                       sub_progress(run.progress, READ_SHARE * RESOLVED, RESOLVED))
     whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
     if whole is None:
-        run.log(f"Parameters derived from the central {rw[1] - rw[0]} x {rw[3] - rw[2]} cells.")
+        run.log(f"Parameters derived from {where} {rw[1] - rw[0]} x {rw[3] - rw[2]} cells (rows {rw[0]}-{rw[1]}, "
+                f"columns {rw[2]}-{rw[3]}).")
         if info.far_cells:
             run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
     return params, whole
@@ -526,7 +558,8 @@ def _run_file(info, run, pool):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
         want_dtm = "dtm" in out or "ndsm" in out
         job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out,
-                        workers=run.workers if len(windows) == 1 else 1)
+                        workers=run.workers if len(windows) == 1 else 1, nodata_ranges=info.nodata_ranges,
+                        crs_wkt=info.crs_wkt or None)
         writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
         if run.processes > 1 and len(windows) > 1:
             blocks.run_processes(job, [(core, outer, _aux_window(run.aux, outer)) for core, outer in windows],
@@ -563,8 +596,10 @@ def _run_file(info, run, pool):
 class _BlockJob:
     """The per-block work of :func:`run_file`, picklable for worker processes."""
 
-    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1):
-        self.meth, self.path, self.band = meth, path, band
+    def __init__(self, meth, path, band, cell, params, want_dtm, want_z=True, workers=1, nodata_ranges=(),
+                 crs_wkt=None):
+        self.meth, self.path, self.band, self.nodata_ranges = meth, path, band, tuple(nodata_ranges)
+        self.crs_wkt = crs_wkt  # the CRS a file without one reads in (its height unit)
         self.cell, self.params, self.want_dtm = cell, params, want_dtm
         self.workers = workers  # threads inside a block (Method.threads), when blocks do not run side by side
         self.want_z = want_z  # the input block is sent back only when an nDSM is written
@@ -582,7 +617,7 @@ class _BlockJob:
     def read(self, core, outer):
         """The block over ``outer`` (float32 metres) and its core's count of far heights."""
         if self._info is None:
-            self._info = grid.open_dsm(self.path, self.band)
+            self._info = grid.open_dsm(self.path, self.band, self.nodata_ranges, self.crs_wkt)
         before = self._info.far_cells
         z = self._info.read(outer, far_in=blocks.crop(outer, core))
         return z, self._info.far_cells - before

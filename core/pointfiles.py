@@ -261,8 +261,16 @@ def _read_text(path):
 def _refuse_binary(path, head):
     """ValueError when the first bytes of a "text" point file hold a NUL byte (never in text)."""
     if b"\x00" in head:
+        if os.path.splitext(str(path))[1].lower() in VECTOR_EXTENSIONS:
+            raise ValueError(f"{path!r} is a vector layer, not a point file: export its points with their "
+                             "heights as text first (Export > Save Features As: CSV with the layer option "
+                             "GEOMETRY=AS_XYZ gives x, y, z columns) and give that file.")
         raise ValueError(f"{path!r} is not a text point file (it holds binary data): a raster DSM goes to "
                          "INPUT, not to the points; a LAS/LAZ file needs its .las or .laz extension.")
+
+
+#: Vector formats a point layer is often kept in (binary: refused with how to export them).
+VECTOR_EXTENSIONS = (".shp", ".gpkg", ".fgb", ".sqlite", ".gdb", ".dbf", ".shx")
 
 
 def read_crs(path, crs=None):
@@ -491,14 +499,10 @@ def _las_crs(header):
 
 def _srs_units(srs):
     """(metres per horizontal unit, metres per vertical unit or None) of an osr CRS."""
+    from .grid import vertical_unit_factor
     h = float(srs.GetLinearUnits()) if srs.IsProjected() else 1.0
-    v = None
-    if srs.IsCompound() or srs.IsVertical():
-        try:
-            v = float(srs.GetTargetLinearUnits("VERT_CS"))
-        except Exception:
-            v = None
-    return h, v
+    v = vertical_unit_factor(srs)
+    return h, (v[0] if v else None)
 
 
 def _crs_units(crs):

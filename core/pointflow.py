@@ -36,7 +36,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
-from .grid import metres_per_degree
+from .grid import metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
@@ -200,7 +200,8 @@ def rasterize_cloud(cloud, cell_size_m=None, *, reducer="min", fill_empty=True, 
                          f"{cell_m[0]:.3g} m: the filters need at least 3 x 3; use a smaller cell "
                          "size or more points.")
     srs = _srs(cloud.crs)
-    raster_z = scales[0] if srs is not None and srs.IsProjected() else 1.0
+    vertical = vertical_unit_factor(srs)   # the raster's heights in the unit open_dsm reads them in
+    raster_z = vertical[0] if vertical else (scales[0] if srs is not None and srs.IsProjected() else 1.0)
     return CloudGrid(z=z, geotransform=tuple(gt), cell_size_m=cell_m, z_to_m=scales[2],
                      crs_wkt=cloud.crs or "", info=info, raster_z_to_m=raster_z)
 

@@ -72,6 +72,24 @@ def _name_max(folder):
         return 255
 
 
+#: Files a format writes beside its main file, named after its root (``x.asc`` -> ``x.prj``).
+_SIDECARS = {"AAIGrid": (".prj",), "SAGA": (".sgrd", ".prj")}
+
+
+def output_files(path, styled=False):
+    """Every file writing the raster output ``path`` creates or replaces: the file, its
+    ``.aux.xml``, the sidecars of its format (an ASCII grid's ``.prj``, a SAGA grid's ``.sgrd``
+    and ``.prj``) and, for a ``styled`` output (a mask), the ``.qml`` style QGIS loads with it."""
+    path = os.path.abspath(str(path))
+    root = os.path.splitext(path)[0]
+    try:
+        drv, _ = _output_format(path)
+    except ValueError:
+        drv = None
+    files = [path, path + ".aux.xml"] + [root + ext for ext in _SIDECARS.get(drv, ())]
+    return files + ([root + ".qml"] if styled else [])
+
+
 def _output_format(path, bands=1):
     """(driver name, format name) of an output path, or ValueError naming the formats offered."""
     ext = os.path.splitext(str(path))[1].lower()
@@ -140,6 +158,15 @@ def check_output_folder(path):
     if len(base.encode()) > limit:
         raise ValueError(f"the output file name is {len(base.encode())} bytes long; the file system of "
                          f"{folder!r} allows {limit}: choose a shorter name.")
+    check_replaceable(path)
+
+
+def check_replaceable(path):
+    """ValueError when ``path`` exists and may not be written (read-only, or locked as an
+    immutable file): the run would end, after its work, unable to replace it."""
+    if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
+        raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
+                         "choose another file name.")
 
 
 def _creation_option_specs(driver):
@@ -155,11 +182,45 @@ def _creation_option_specs(driver):
     return specs
 
 
+#: GeoTIFF creation options in the COG driver's words (QGIS's compression profiles are GeoTIFF
+#: options: "COMPRESS=DEFLATE|PREDICTOR=2|ZLEVEL=9"): key -> (COG key, {GeoTIFF value: COG value}).
+_COG_SPELLING = {"PREDICTOR": ("PREDICTOR", {"1": "NO", "2": "STANDARD", "3": "FLOATING_POINT"}),
+                 "ZLEVEL": ("LEVEL", {}), "ZSTD_LEVEL": ("LEVEL", {}), "LZMA_PRESET": ("LEVEL", {}),
+                 "JPEG_QUALITY": ("QUALITY", {}), "WEBP_LEVEL": ("QUALITY", {})}
+
+
+def _as_cog_options(opts):
+    """GeoTIFF spellings of ``opts`` as the COG driver takes them: PREDICTOR=2 is STANDARD, ZLEVEL
+    is LEVEL, ..., TILED=YES goes (a COG is tiled), square BLOCKXSIZE/BLOCKYSIZE are BLOCKSIZE."""
+    out, block = [], {}
+    for o in opts:
+        key, _, value = o.partition("=")
+        k = key.upper()
+        if k == "TILED" and value.upper() in ("YES", "TRUE", "ON", "1"):
+            continue
+        if k in ("BLOCKXSIZE", "BLOCKYSIZE"):
+            block[k] = value
+            continue
+        if k in _COG_SPELLING:
+            name, values = _COG_SPELLING[k]
+            o = f"{name}={values.get(value.upper(), value)}"
+        out.append(o)
+    if block:
+        if len(set(block.values())) == 1:
+            out.append(f"BLOCKSIZE={next(iter(block.values()))}")
+        else:
+            out += [f"{k}={v}" for k, v in block.items()]     # refused below: a COG's blocks are square
+    return out
+
+
 def parse_creation_options(text, cog=False):
     """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces too) -> list of 'KEY=VALUE',
-    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value."""
+    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
+    With ``cog``, GeoTIFF spellings (QGIS's profiles) are given in the COG driver's words first."""
     need_gdal()
     opts = [t for t in re.split(r"[|\s]+", str(text or "").strip()) if t]
+    if cog:
+        opts = _as_cog_options(opts)
     specs = _creation_option_specs("COG" if cog else "GTiff")
     for o in opts:
         key, sep, value = o.partition("=")
@@ -171,7 +232,76 @@ def parse_creation_options(text, cog=False):
         allowed = specs.get(key.upper())
         if allowed and value.upper() not in allowed:
             raise ValueError(f"creation option {key}={value}: allowed values are {', '.join(allowed)}.")
+    if opts:
+        _probe_creation_options(opts, cog)
     return opts
+
+
+#: What a creation option probe writes (64 x 64): every value of a UInt8 output (confidence
+#: 0-100, any code) and a mask's codes 0, 1, 2, 255 mixed as in a mask (a lossy coder such as
+#: LERC with MAX_Z_ERROR=1 keeps a ramp but not those), and heights for a Float32 output.
+_PROBE_BYTE = np.vstack([np.arange(256, dtype=np.uint8).reshape(4, 64),
+                         np.array([0, 1, 2, 255], np.uint8)[np.random.default_rng(0).choice(
+                             4, (60, 64), p=[0.7, 0.2, 0.05, 0.05])]])
+_PROBE_FLOAT = (np.arange(4096, dtype=np.float32).reshape(64, 64) * np.float32(0.037) + np.float32(312.5))
+
+
+def _probe_creation_options(opts, cog=False):
+    """Write a small Float32 and UInt8 raster in memory with the creation options the outputs
+    will use (:func:`_gtiff_options`, :func:`_cog_options`), so that options GDAL refuses only
+    when it creates a file (a tile width that is no multiple of 16, JPEG on Float32) are refused
+    before any work, and so are options that change a UInt8 output's values (NBITS=1,
+    PIXELTYPE=SIGNEDBYTE, DISCARD_LSB, JPEG): a mask's codes must be read back as written.
+    ValueError naming the options and GDAL's reason."""
+    base = f"/vsimem/bare-earth-probe-{uuid.uuid4().hex}"
+    given = "|".join(opts)
+    for dtype, data in (("Float32", _PROBE_FLOAT), ("Byte", _PROBE_BYTE)):
+        work, out = f"{base}-{dtype}.tif", f"{base}-{dtype}-cog.tif"
+        gdal.ErrorReset()
+        messages = []
+        try:
+            with _quiet_gdal(messages):
+                ds = gdal.GetDriverByName("GTiff").Create(work, 64, 64, 1, gdal.GetDataTypeByName(dtype),
+                                                          options=_gtiff_options(dtype, () if cog else opts))
+                ds.GetRasterBand(1).WriteArray(data)
+                ds = None
+                path = work
+                if cog:
+                    gdal.GetDriverByName("COG").CreateCopy(out, gdal.Open(work), options=_cog_options(dtype, opts))
+                    path = out
+                back = gdal.Open(path)
+                read = back.GetRasterBand(1).ReadAsArray()
+                kind = gdal.GetDataTypeName(back.GetRasterBand(1).DataType)
+                pixeltype = back.GetRasterBand(1).GetMetadataItem("PIXELTYPE", "IMAGE_STRUCTURE")
+                back = None
+        except RuntimeError as exc:
+            why = str(exc).strip() or "; ".join(messages) or "GDAL gave no reason"
+            why = why.replace(work, "the output").replace(out, "the output")
+            raise ValueError(f"GDAL cannot write a {dtype} output with the creation options {given!r}: "
+                             f"{why}. Change or leave out the options.") from None
+        finally:
+            for f in (work, out):
+                if gdal.VSIStatL(f) is not None:
+                    gdal.Unlink(f)
+        if dtype == "Byte" and (kind != "Byte" or pixeltype or not np.array_equal(read, data)):
+            raise ValueError(f"the creation options {given!r} change the values of a UInt8 output (the object "
+                             "mask's codes 0, 1, 2, 255 would not be read back as written: NBITS, PIXELTYPE, "
+                             "DISCARD_LSB and lossy compression such as JPEG, WEBP or LERC with a MAX_Z_ERROR of 1 "
+                             "or more change them). Leave those options out.")
+
+
+@contextlib.contextmanager
+def _quiet_gdal(messages):
+    """GDAL's warnings collected in the list ``messages`` instead of printed (a probe's warnings
+    are not the user's run's)."""
+    def handler(level, _number, text):
+        if level >= gdal.CE_Warning:
+            messages.append(str(text).strip())
+    gdal.PushErrorHandler(handler)
+    try:
+        yield messages
+    finally:
+        gdal.PopErrorHandler()
 
 
 @contextlib.contextmanager
@@ -297,6 +427,34 @@ _GTIFF_OPTIONS = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT
 _COG_OPTIONS = ["COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
 
 
+def _integer_predictor(dtype, given):
+    """The user's options for an output of ``dtype``: the floating-point predictor asked for the
+    Float32 outputs (PREDICTOR=3 or FLOATING_POINT) becomes horizontal differencing on an
+    integer output (a mask), which GDAL refuses it for."""
+    if dtype.startswith("Float"):
+        return list(given)
+    out = []
+    for o in given:
+        key, _, value = o.partition("=")
+        if key.upper() == "PREDICTOR" and value.upper() in ("3", "FLOATING_POINT"):
+            o = f"{key}={'2' if value == '3' else 'STANDARD'}"
+        out.append(o)
+    return out
+
+
+def _gtiff_options(dtype, given=()):
+    """Creation options of a work file of ``dtype`` (:data:`_GTIFF_OPTIONS`, the floating-point
+    predictor for Float32) with the user's ``given`` options over them."""
+    opts = list(_GTIFF_OPTIONS) + (["PREDICTOR=3"] if dtype == "Float32" else [])
+    return _merge_options(opts, _integer_predictor(dtype, given))
+
+
+def _cog_options(dtype, given=()):
+    """Creation options of a cloud-optimised GeoTIFF output of ``dtype``."""
+    opts = _COG_OPTIONS + (["PREDICTOR=FLOATING_POINT"] if dtype == "Float32" else [])
+    return _merge_options(opts, _integer_predictor(dtype, given))
+
+
 class OutputSet:
     """Output rasters on a DSM's grid, written to hidden work files until :meth:`commit`.
 
@@ -335,11 +493,7 @@ class OutputSet:
         check_output_cells(path, self.info.geotransform)
         remove_stale_partials(path)
         work = _work_path(path)
-        opts = list(_GTIFF_OPTIONS)
-        if dtype == "Float32":
-            opts.append("PREDICTOR=3")
-        if drv == "GTiff" and not self._cog:
-            opts = _merge_options(opts, self._options)
+        opts = _gtiff_options(dtype, self._options if drv == "GTiff" and not self._cog else ())
         rows, cols = self.info.shape
         try:
             ds = gdal.GetDriverByName("GTiff").Create(work, cols, rows, bands, gdal.GetDataTypeByName(dtype),
@@ -349,7 +503,10 @@ class OutputSet:
             raise ValueError(f"cannot create the output {path!r}: {exc}. Check the folder and the "
                              "creation options.") from None
         _LIVE.add(work)
-        ds.SetGeoTransform(self.info.geotransform)
+        if self.info.georeferenced:
+            ds.SetGeoTransform(self.info.geotransform)
+        elif self.info.gcps:   # the input's control points: drawn where the input is
+            ds.SetGCPs([gdal.GCP(*g) for g in self.info.gcps], self.info.gcp_wkt)
         if self.info.crs_wkt:
             ds.SetProjection(self.info.crs_wkt)
         for k in range(1, bands + 1):
@@ -414,9 +571,15 @@ class OutputSet:
                 moves.append(self._copy(item, sub_progress(progress, 0.5 + 0.5 * i / n,
                                                            0.5 + 0.5 * (i + 1) / n)))
         report(progress, 1.0)             # the last point a cancel stops at: the outputs move now
+        for item in items:                # one output that cannot be replaced: none is (a matching set)
+            check_replaceable(item["path"])
         for item, (files, tmp_main) in zip(items, moves):
             work, path = item["tmp"], item["path"]
-            _move_dataset(files, tmp_main, work, path)
+            try:
+                _move_dataset(files, tmp_main, work, path)
+            except OSError as exc:
+                raise ValueError(f"cannot put the output {path!r} in place: {exc.strerror or exc}. Check the "
+                                 "file and its folder.") from None
             if tmp_main != work:
                 _remove_work(work)
             _LIVE.discard(work)
@@ -431,11 +594,7 @@ class OutputSet:
         cog = drv == "GTiff" and self._cog
         ext = os.path.splitext(path)[1] or ".tif"
         tmp_main = work + ext
-        if cog:
-            opts = _COG_OPTIONS + (["PREDICTOR=FLOATING_POINT"] if item["dtype"] == "Float32" else [])
-            opts = _merge_options(opts, self._options)
-        else:
-            opts = []
+        opts = _cog_options(item["dtype"], self._options) if cog else []
         stopped = []
 
         def callback(fraction, _message, _data):

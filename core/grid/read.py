@@ -133,6 +133,27 @@ def need_gdal():
     gdal.UseExceptions()
 
 
+@contextlib.contextmanager
+def gdal_mode_kept():
+    """GDAL's Python exceptions on inside the block (as :func:`need_gdal` turns them on) and
+    the mode back as it was when it ends. GDAL's bindings hold one mode for the whole process:
+    inside QGIS, every other plugin's ``if gdal.Open(p) is None`` would raise instead once a
+    Bare Earth algorithm had run. The plugin's entry points run inside this block."""
+    if gdal is None:
+        yield
+        return
+    old = gdal.GetUseExceptions()
+    gdal.UseExceptions()
+    try:
+        yield
+    finally:
+        if gdal.GetUseExceptions() != old:
+            if old:
+                gdal.UseExceptions()
+            else:
+                gdal.DontUseExceptions()
+
+
 @dataclass
 class DSMInfo:
     """An opened, checked DSM band and everything known about its grid.
@@ -153,6 +174,17 @@ class DSMInfo:
     notes : list of str, facts for the log that are no warning (scale and offset applied)
     far_cells : cells seen by :meth:`read` with heights beyond ``common.MAX_ABS_HEIGHT_M``
         (or infinite), read as nodata
+    masked : 0 when only the nodata value marks missing cells; else where the cells that are
+        nodata too come from (0 in it, drawn transparent by QGIS): the index of the raster's
+        alpha band (whatever its data type: ``gdalwarp -dstalpha`` writes a Float32 one, which
+        GDAL's own mask ignores), or -1 for GDAL's mask band (an internal or ``.msk`` mask)
+    georeferenced : False when the raster has no geotransform (``geotransform`` is then 1 m
+        cells from the top left corner, for the cell size only; outputs are written without one,
+        as the input, so that QGIS draws them over it), with its ground control points ``gcps``
+        (``(x, y, z, pixel, line)`` each, in ``gcp_wkt``) when it has some
+    nodata_ranges : ``(low, high, include_low, include_high)`` ranges of heights (the raster's
+        unit, scale and offset applied) that are nodata too: the additional no-data values a
+        QGIS layer of the raster was given (Properties > Transparency)
     """
     path: str
     band_index: int
@@ -170,6 +202,11 @@ class DSMInfo:
     offset: float = 0.0
     notes: List[str] = field(default_factory=list)
     far_cells: int = 0
+    masked: int = 0
+    nodata_ranges: tuple = ()
+    georeferenced: bool = True
+    gcps: tuple = ()
+    gcp_wkt: str = ""
 
     @property
     def cells(self):
@@ -198,6 +235,34 @@ class DSMInfo:
                              f"{gdal.GetLastErrorMsg() or 'GDAL gave no reason'}. Check the file.")
         return a
 
+    def mask_valid(self, window=None, step=1):
+        """Where the band's mask or alpha band says a cell is valid over ``window`` (read as
+        :meth:`read_stored` reads the band), or None when the band has no such mask."""
+        if not self.masked:
+            return None
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        with _reading(self.path):
+            ds = self.dataset()
+            mb = ds.GetRasterBand(self.band_index).GetMaskBand() if self.masked < 0 else ds.GetRasterBand(self.masked)
+            if step > 1:
+                m = mb.ReadAsArray(c0, r0, c1 - c0, r1 - r0, buf_xsize=max(1, (c1 - c0) // step),
+                                   buf_ysize=max(1, (r1 - r0) // step), resample_alg=gdal.GRIORA_NearestNeighbour)
+            else:
+                m = mb.ReadAsArray(c0, r0, c1 - c0, r1 - r0)
+        with np.errstate(invalid="ignore"):
+            return m > 0                  # 0 transparent; NaN (an alpha band read through a VRT) too
+
+    def surface(self, stored, window=None, step=1, z_to_m=None):
+        """Stored values read over ``window`` (every ``step``-th cell) -> float32 heights with NaN
+        for nodata: the declared nodata and the cells the band's mask or alpha band masks."""
+        z = to_surface(stored, self.nodata, self.z_to_m if z_to_m is None else z_to_m, self.scale, self.offset)
+        valid = self.mask_valid(window, step)
+        if valid is not None:
+            z[~valid] = np.nan
+        if self.nodata_ranges:
+            z[in_ranges(_apply_scale(stored, self.scale, self.offset), self.nodata_ranges)] = np.nan
+        return z
+
     def read_heights(self, window=None):
         """Heights over ``window`` in the raster's own unit (scale and offset applied, float32;
         nodata cells hold whatever is stored there): the values an output DTM copies."""
@@ -212,7 +277,7 @@ class DSMInfo:
         """
         a = self.read_stored(window, step)
         self.note_nan(a)
-        z, n_far = without_far_heights(to_surface(a, self.nodata, self.z_to_m, self.scale, self.offset), far_in)
+        z, n_far = without_far_heights(self.surface(a, window, step), far_in)
         self.far_cells += n_far
         return z
 
@@ -222,6 +287,17 @@ class DSMInfo:
                 and np.isnan(stored).any()):
             self.nan_undeclared = True
             self.warnings.append(NAN_UNDECLARED_WARNING)
+
+
+def in_ranges(a, ranges):
+    """Where ``a`` lies in any of ``ranges``, ``(low, high, include_low, include_high)`` each."""
+    out = np.zeros(np.shape(a), bool)
+    with np.errstate(invalid="ignore"):
+        for lo, hi, inc_lo, inc_hi in ranges:
+            above = a >= lo if inc_lo else a > lo
+            below = a <= hi if inc_hi else a < hi
+            out |= above & below
+    return out
 
 
 def _apply_scale(a, scale=1.0, offset=0.0):
@@ -256,18 +332,40 @@ def _linear_unit_factor(srs):
     return float(f) if f and f > 0 else 1.0
 
 
+def vertical_unit_factor(srs):
+    """Metres per unit of the vertical axis of a compound (or vertical) CRS, with its name, e.g.
+    ``(0.3048006, 'US survey foot')`` for ``EPSG:26917+6360`` (UTM in metres, NAVD88 heights
+    in US survey feet); None when the CRS has no vertical part (heights then in its linear
+    unit, or metres)."""
+    if srs is None or not (srs.IsCompound() or srs.IsVertical()):
+        return None
+    try:
+        f = float(srs.GetTargetLinearUnits("VERT_CS"))
+    except (RuntimeError, TypeError, ValueError):
+        return None
+    if not (math.isfinite(f) and f > 0):
+        return None
+    return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
+
+
 def cell_size_metres(geotransform, shape, srs=None):
-    """Cell size ``(dx, dy)`` in metres and warnings, from a geotransform and a CRS.
+    """Cell size ``(dx, dy)`` in metres, warnings, and metres per height unit, from a
+    geotransform and a CRS.
 
     Geographic CRSs (degrees) are converted at the latitude of the raster's centre with
-    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`).
+    the WGS84 ellipsoid's radii of curvature (:func:`metres_per_degree`). Heights are in the
+    unit of the CRS's vertical part when it has one (a compound CRS,
+    :func:`vertical_unit_factor`), else in a projected CRS's linear unit, else metres.
     """
     gt = geotransform
     dx, dy = abs(gt[1]), abs(gt[5])
     warns = []
-    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and not srs.ExportToWkt()):
+    if srs is None or (srs.IsGeographic() == 0 and srs.IsProjected() == 0 and srs.IsVertical() == 0
+                       and not srs.ExportToWkt()):
         warns.append("The raster has no CRS: its cell size and heights are taken to be in metres.")
         return (dx, dy), warns, 1.0
+    vertical = vertical_unit_factor(srs)
+    zf = vertical[0] if vertical else None
     if srs.IsGeographic():
         lat = gt[3] + gt[5] * shape[0] / 2.0
         if not -90 <= lat <= 90:
@@ -275,19 +373,33 @@ def cell_size_metres(geotransform, shape, srs=None):
                              "not a latitude: check the georeference.")
         m_per_deg_lon, m_per_deg_lat = metres_per_degree(lat)
         cell = (dx * m_per_deg_lon, dy * m_per_deg_lat)
+        heights = ("are taken to be in metres" if zf is None or abs(zf - 1.0) <= 1e-9 else
+                   f"are in its vertical unit '{vertical[1]}' ({zf:.6g} m), converted to metres for the "
+                   "thresholds (outputs are written back in that unit)")
         warns.append(f"The raster's CRS is geographic (degrees): its cell size {dx:.3g} x {dy:.3g} deg "
                      f"was converted to {cell[0]:.4g} x {cell[1]:.4g} m at latitude {lat:.4f}; heights "
-                     "are taken to be in metres. Reproject to a projected CRS for exact distances.")
-        return cell, warns, 1.0
-    f = _linear_unit_factor(srs)
-    if abs(f - 1.0) > 1e-9:
-        unit = srs.GetLinearUnitsName()
-        warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
-                     "converted to metres for the thresholds; outputs are written back in the raster's unit.")
-    return (dx * f, dy * f), warns, f
+                     f"{heights}. Reproject to a projected CRS for exact distances.")
+        return cell, warns, 1.0 if zf is None else zf
+    if srs.IsProjected():
+        f = float(srs.GetTargetLinearUnits("PROJCS")) if srs.IsCompound() else _linear_unit_factor(srs)
+        f = f if math.isfinite(f) and f > 0 else 1.0
+    else:                                   # a vertical CRS alone: no horizontal unit known
+        f = 1.0
+    if zf is None:
+        zf = f
+        if abs(f - 1.0) > 1e-9:
+            unit = srs.GetLinearUnitsName()
+            warns.append(f"The CRS's linear unit is '{unit}' ({f:.6g} m): cell size and heights were "
+                         "converted to metres for the thresholds; outputs are written back in the raster's unit.")
+    elif abs(f - 1.0) > 1e-9 or abs(zf - 1.0) > 1e-9:
+        unit = srs.GetAttrValue("PROJCS|UNIT") or f"{f:.6g} m"
+        warns.append(f"The CRS's horizontal unit is '{unit}' ({f:.6g} m) and its vertical unit '{vertical[1]}' "
+                     f"({zf:.6g} m): cell size and heights were converted to metres for the thresholds; outputs "
+                     "are written back in the raster's units.")
+    return (dx * f, dy * f), warns, zf
 
 
-def open_dsm(path, band=None):
+def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     """Open and check a single-band DSM before any work starts.
 
     Parameters
@@ -296,6 +408,12 @@ def open_dsm(path, band=None):
         Anything GDAL opens (VRTs with raw bands refused).
     band : int, optional
         1-based band index; required when the raster has several bands.
+    nodata_ranges : sequence of (low, high, include_low, include_high), optional
+        Heights (the raster's unit) that are nodata besides its own nodata: the additional
+        no-data values of the QGIS layer the raster was given as (:attr:`DSMInfo.nodata_ranges`).
+    crs_wkt : str, optional
+        The CRS of a raster whose file has none (the CRS its QGIS layer was given): its cell
+        size, heights and outputs are in that CRS. Ignored when the file has a CRS.
 
     Returns
     -------
@@ -319,6 +437,9 @@ def open_dsm(path, band=None):
     nb = ds.RasterCount
     if nb == 0:
         raise ValueError(f"the raster {path!r} has no band: pass a single-band DSM.")
+    alpha = [k for k in range(1, nb + 1) if ds.GetRasterBand(k).GetColorInterpretation() == gdal.GCI_AlphaBand]
+    if band in (None, 0) and nb > 1 and nb - len(alpha) == 1:
+        band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
             raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
@@ -341,6 +462,10 @@ def open_dsm(path, band=None):
         raise ValueError(f"the raster {path!r} is rotated (geotransform terms {gt[2]}, {gt[4]}): "
                          "warp it to a north-up grid first (gdalwarp).")
     wkt = ds.GetProjection() or ""
+    if not wkt and crs_wkt:
+        wkt = str(crs_wkt)
+        warns.append("The raster has no CRS of its own: the CRS its layer was given in QGIS is used (its cell "
+                     "size, heights and outputs are in it).")
     srs = None
     if wkt:
         srs = osr.SpatialReference()
@@ -357,6 +482,21 @@ def open_dsm(path, band=None):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
                    dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+    if ds.GetGeoTransform(can_return_null=True) is None:
+        info.georeferenced = False
+        info.gcps = tuple((g.GCPX, g.GCPY, g.GCPZ, g.GCPPixel, g.GCPLine) for g in (ds.GetGCPs() or ()))
+        info.gcp_wkt = ds.GetGCPProjection() or ""
+    if nodata_ranges:
+        info.nodata_ranges = tuple((float(lo), float(hi), bool(a), bool(b)) for lo, hi, a, b in nodata_ranges)
+        info.notes.append("Cells of the layer's additional no-data values ({}) are nodata.".format(", ".join(
+            f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}" for lo, hi, _, _ in info.nodata_ranges)))
+    own_alpha = [k for k in alpha if k != int(band)]
+    if own_alpha:
+        info.masked = own_alpha[0]
+        info.notes.append(f"Cells where the alpha band (band {own_alpha[0]}) is 0 (drawn transparent) are nodata.")
+    elif not b.GetMaskFlags() & (gdal.GMF_ALL_VALID | gdal.GMF_NODATA):
+        info.masked = -1
+        info.notes.append("Cells masked by the raster's mask band (drawn transparent) are nodata.")
     if scale != 1.0 or offset != 0.0:
         info.notes.append(f"Heights are the band's stored values x {scale:g} + {offset:g} (its scale and "
                           "offset); the DTM and nDSM are written as those heights.")
@@ -375,16 +515,17 @@ def check_has_data(info, max_cells=4_000_000):
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
 
-    def heights(a):
-        return without_far_heights(to_surface(a, info.nodata, 1.0, info.scale, info.offset))
+    def heights(a, window=None, step=1):
+        return without_far_heights(info.surface(a, window, step, z_to_m=1.0))
 
     a = info.read_stored(step=step)
-    z, n_far = heights(a)
+    z, n_far = heights(a, step=step)
     valid = np.isfinite(z)
     if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
         strip = max(1, max_cells // cols)
         for r in range(0, rows, strip):
-            zs, n = heights(info.read_stored((r, min(rows, r + strip), 0, cols)))
+            w = (r, min(rows, r + strip), 0, cols)
+            zs, n = heights(info.read_stored(w), w)
             n_far += n
             valid = np.isfinite(zs)
             if valid.any():
@@ -400,6 +541,49 @@ def check_has_data(info, max_cells=4_000_000):
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
     info.note_nan(a)
     return float(valid.mean())
+
+
+#: Values software writes for missing cells (ESRI and most GIS -9999, Int16 rasters -32767 and
+#: -32768, older exports -99999; above the heights: 9999, the largest Int16 and UInt16): when a
+#: raster does not declare one, its cells read as heights.
+COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, 9999.0, 32767.0, 65535.0)
+
+
+def undeclared_nodata_warning(info, z):
+    """The log line when heights ``z`` (float32 metres, NaN nodata, read from ``info``) hold a
+    value of :data:`COMMON_NODATA` that the band does not declare, standing further below (or
+    above) every other height than those heights span (a cliff no terrain has: -9999 beside
+    ground at +300 m), else None. Such cells are filtered as heights: below, the DTM beside them
+    is pulled down; above, they are objects with a DTM interpolated under them.
+
+    Such a value is the lowest (highest) height, so only a value read as ``min(z)`` (``max(z)``)
+    is looked at (two passes over the raster, two more when it is one of them)."""
+    if not np.isfinite(z).any():
+        return None
+    ends = (np.nanmin(z), np.nanmax(z))
+    for v in COMMON_NODATA:
+        if info.nodata is not None and float(info.nodata) == v:
+            continue
+        h = to_surface(np.array([v]), None, info.z_to_m, info.scale, info.offset)[0]   # as read
+        if h not in ends:
+            continue
+        hit = z == h
+        n = int(np.count_nonzero(hit))
+        rest = np.where(hit, np.float32(np.nan), z)
+        if not np.isfinite(rest).any():
+            return None
+        lo, hi = float(np.nanmin(rest)), float(np.nanmax(rest))
+        below = float(h) < lo
+        gap = lo - float(h) if below else float(h) - hi
+        if gap > hi - lo:
+            effect = ("which pulls the DTM beside them down" if below else
+                      "so the mask calls them objects and the DTM is interpolated under them")
+            return (f"{n} cell(s) hold {v:g}, a common nodata value, {gap:.0f} m {'below' if below else 'above'} "
+                    f"every other height (those span {lo:.1f} to {hi:.1f} m), but the raster does not declare "
+                    f"{v:g} as its nodata: they were filtered as heights, {effect}. If they are missing cells, "
+                    f"declare it (gdal_edit.py -a_nodata {v:g} <file>; in QGIS, give the layer {v:g} as an "
+                    "additional no-data value in its Properties > Transparency) and run again.")
+    return None
 
 
 def read_mask(info, what="the mask"):

@@ -179,6 +179,10 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                          + (f" and {len(changed) - 5} more" if len(changed) > 5 else "") + ". Their outputs, their "
                          "neighbours' (the halo) and the parameters derived from the survey may be stale: choose "
                          "another output folder, or delete its run.json to start again there.")
+    kept = record.done_tiles(rec, out_dir)
+    for t in index.tiles:   # an output a task could not replace: refused now, not as a failed tile at the end
+        for name in output_names(t.name) if t.name not in kept else ():
+            grid.check_replaceable(os.path.join(out_dir, name))
     created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
@@ -198,6 +202,9 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
             raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
                              "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
                              "the tiles that hold data.")
+        suspect = grid.undeclared_nodata_warning(info, zs)
+        if suspect:
+            log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,
@@ -332,7 +339,10 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
             for name in output_names(tile.name):     # one file of the pair may be in place: never half a tile
                 path = os.path.join(out_dir, name)
                 if os.path.isfile(path):
-                    os.remove(path)
+                    try:
+                        os.remove(path)
+                    except OSError as exc:
+                        log(f"Warning: {tile.name}: cannot remove {name} ({exc.strerror}): delete it before a rerun.")
             log(f"{tile.name}: FAILED ({type(exc).__name__}: {exc}); a rerun retries it.")
 
         engine.run_tasks(client, run_tile, job, todo, done, failed, progress)

@@ -428,3 +428,16 @@ def test_blocked_and_threaded_equal_one_pass_on_pleiades(shared_data, tmp_path_f
     pipeline.run_file(method, src, {"mask": out}, block=block, workers=workers)
     diff = int(np.count_nonzero(_read_mask(out) != one))
     assert diff == 0, f"{diff} cells differ (block {block}, {workers} thread(s))"
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_run_ends_on_an_undeclared_nodata_cliff(method):
+    """A DSM whose nodata (-9999) is not declared: a 10 km cliff beside the terrain. Every
+    method's run ends (morphological and dtm stopped with "outline_slope = 257.4 is out of range
+    [0.0, 100.0]": a value derived from the data refused by its own limits, named as if the
+    user had set it)."""
+    z, cell = _scene("mixed")
+    z = z.copy()
+    z[:, :24] = -9999.0
+    res = pipeline.run_array(method, z, cell)
+    assert res.mask.shape == z.shape and (res.mask != NODATA).all()

@@ -427,3 +427,209 @@ def test_far_heights_read_as_nodata(tmp_path, far):
     assert np.isnan(z[2, 3]) and np.isnan(z[0, 0]) and np.isfinite(z).sum() == 28
     assert info.far_cells == (1 if np.isfinite(far) else 0)   # inf: nodata as every non-finite cell
     assert info.nan_undeclared       # the NaN cell, not the far one, makes this warning
+
+
+# ---- cells masked by an alpha band or a mask band are nodata ------------------------------
+
+def _with_alpha(tmp_path, z, alpha, alpha_type=gdal.GDT_Float32, name="alpha.tif"):
+    """A DSM band and an alpha band (as ``gdalwarp -dstalpha`` writes them: of the data's type)."""
+    path = str(tmp_path / name)
+    ds = gdal.GetDriverByName("GTiff").Create(path, z.shape[1], z.shape[0], 2, gdal.GDT_Float32)
+    ds.SetGeoTransform(GT)
+    ds.SetProjection(wkt(32633))
+    ds.GetRasterBand(1).WriteArray(z)
+    ds.GetRasterBand(2).SetColorInterpretation(gdal.GCI_AlphaBand)
+    ds.GetRasterBand(2).WriteArray(alpha)
+    ds = None
+    if alpha_type != gdal.GDT_Float32:
+        out = str(tmp_path / ("t_" + name))
+        gdal.Translate(out, path, outputType=alpha_type)
+        return out
+    return path
+
+
+@pytest.mark.parametrize("alpha_type", [gdal.GDT_Float32, gdal.GDT_Byte])
+def test_alpha_band_zero_is_nodata_and_the_heights_band_chosen(tmp_path, alpha_type):
+    """A DSM warped with an alpha band (0 outside the data, the heights band 0 there too) is a
+    DSM with nodata: the heights band is the DSM (no BAND needed) and alpha 0 cells are NaN.
+    They were read as heights of 0 (GDAL's own mask ignores a Float32 alpha band)."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    alpha = np.full(z.shape, 255, np.float32)
+    alpha[:2, :3] = 0
+    z[:2, :3] = 0
+    p = _with_alpha(tmp_path, z, alpha, alpha_type)
+    info = grid.open_dsm(p)
+    assert info.band_index == 1
+    expect = z.copy()
+    expect[:2, :3] = np.nan
+    np.testing.assert_array_equal(info.read(), expect)
+    np.testing.assert_array_equal(info.read((1, 4, 2, 5)), expect[1:4, 2:5])
+    assert any("alpha band (band 2)" in n for n in info.notes)
+    assert grid.check_has_data(info) == pytest.approx(1 - 6 / 30)
+
+
+def test_alpha_band_all_transparent_has_no_data(tmp_path):
+    z = np.full((4, 5), 7.0, np.float32)
+    info = grid.open_dsm(_with_alpha(tmp_path, z, np.zeros(z.shape, np.float32)))
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(info)
+    with pytest.raises(ValueError, match="no valid cell"):   # decimated, then strip by strip
+        grid.check_has_data(info, max_cells=4)
+
+
+def test_internal_mask_band_is_nodata(tmp_path):
+    """A GeoTIFF whose validity is an internal mask (no nodata value): masked cells are NaN."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    src = _with_alpha(tmp_path, z, np.where(np.arange(30).reshape(5, 6) % 7 == 0, 0, 255).astype(np.float32),
+                      gdal.GDT_Byte)
+    out = str(tmp_path / "masked.tif")
+    gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", "YES")
+    try:
+        gdal.Translate(out, src, bandList=[1], maskBand=2)
+    finally:
+        gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", None)
+    info = grid.open_dsm(out)
+    assert gdal.Open(out).RasterCount == 1 and info.nodata is None
+    expect = z.copy()
+    expect[np.arange(30).reshape(5, 6) % 7 == 0] = np.nan
+    np.testing.assert_array_equal(info.read(), expect)
+    assert any("mask band" in n for n in info.notes)
+
+
+# ---- compound CRSs: heights in the unit of the vertical part -------------------------------
+
+@pytest.mark.parametrize("crs,cell_to_m,z_to_m", [
+    ("EPSG:26917+6360", 1.0, FT_US),          # UTM metres, NAVD88 heights in US survey feet
+    ("EPSG:2264+5703", FT_US, 1.0),           # North Carolina ftUS, NAVD88 heights in metres
+    ("EPSG:4326+6360", None, FT_US),          # degrees, heights in US survey feet
+])
+def test_compound_crs_heights_in_the_vertical_unit(tmp_path, crs, cell_to_m, z_to_m):
+    """The heights of a raster in a compound CRS are in its vertical part's unit, whatever the
+    horizontal unit: they were taken in the horizontal unit (metres for degrees)."""
+    s = osr.SpatialReference()
+    s.SetFromUserInput(crs)
+    gt = (10.0, 0.0001, 0.0, 50.0, 0.0, -0.0001) if cell_to_m is None else GT
+    a = np.array([[10, 20, 30], [40, 50, 60], [70, 80, 90]], np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, gt=gt, crs=s.ExportToWkt()))
+    assert info.z_to_m == pytest.approx(z_to_m, rel=1e-9)
+    if cell_to_m is not None:
+        assert info.cell_size_m == pytest.approx((2.0 * cell_to_m, 2.0 * cell_to_m), rel=1e-9)
+    np.testing.assert_allclose(info.read(), a * np.float32(z_to_m), rtol=1e-6)
+    if z_to_m != 1.0:
+        assert any("US survey foot" in w for w in info.warnings)
+
+
+def test_vertical_unit_factor():
+    s = osr.SpatialReference()
+    s.SetFromUserInput("EPSG:26917+6360")
+    assert grid.vertical_unit_factor(s) == (pytest.approx(FT_US), "US survey foot")
+    assert grid.vertical_unit_factor(osr.SpatialReference(wkt(2264))) is None
+    assert grid.vertical_unit_factor(None) is None
+
+
+# ---- an undeclared common nodata value far below the heights: a warning --------------------
+
+@pytest.mark.parametrize("value,dtype,declared,warned", [
+    (-9999.0, np.float32, None, True),
+    (-32768.0, np.int16, None, True),
+    (-9999.0, np.float32, -9999.0, False),       # declared: nodata, nothing to say
+    (-9999.0, np.float32, -32768.0, True),       # another value declared
+    (65535.0, np.uint16, None, True),            # above the heights: UInt16's largest
+    (32767.0, np.int16, None, True),
+])
+def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, declared, warned):
+    a = np.full((6, 8), 300.0)
+    a[2, 3] = 310.0
+    a[:, :2] = value
+    info = grid.open_dsm(tif(tmp_path, a.astype(dtype), nodata=declared))
+    text = grid.undeclared_nodata_warning(info, info.read())
+    if warned:
+        assert f"12 cell(s) hold {value:g}, a common nodata value" in text and f"-a_nodata {value:g}" in text
+    else:
+        assert text is None
+
+
+@pytest.mark.parametrize("name,cells", [
+    ("within the terrain's relief", {(0, 0): -9999.0, (1, 1): -9000.0}),   # -9999 less far below than the span
+    ("no such value", {(0, 0): -500.0}),
+    ("every cell", None),
+])
+def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells):
+    a = np.full((6, 8), 300.0, np.float32)
+    if cells is None:
+        a[:] = -9999.0
+    else:
+        for rc, v in cells.items():
+            a[rc] = v
+    info = grid.open_dsm(tif(tmp_path, a))
+    assert grid.undeclared_nodata_warning(info, info.read()) is None
+
+
+def test_undeclared_nodata_in_feet_and_scaled(tmp_path):
+    """The stored -9999 is found whatever the unit and the scale the heights are read with."""
+    a = np.full((6, 8), 1000.0, np.float32)
+    a[0, :] = -9999.0
+    info = grid.open_dsm(tif(tmp_path, a, crs=2263))
+    assert "8 cell(s) hold -9999" in grid.undeclared_nodata_warning(info, info.read())
+    ds = gdal.Open(tif(tmp_path, np.where(a < 0, -9999.0, a * 10).astype(np.float32), name="s.tif"), gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.1)
+    ds = None
+    info = grid.open_dsm(tmp_path / "s.tif")
+    assert "8 cell(s) hold -9999" in grid.undeclared_nodata_warning(info, info.read())
+
+
+# ---- a raster without geotransform: outputs without one (and with its control points) --------
+
+@pytest.mark.parametrize("with_gcps", [False, True])
+def test_outputs_of_a_raster_without_geotransform_have_none(tmp_path, with_gcps):
+    """Outputs of a raster without a geotransform were given 1 m cells from (0, rows), which GIS
+    draws elsewhere than the input (QGIS: input 0..-rows, outputs 0..+rows); they now carry no
+    geotransform, as the input, and its ground control points when it has some."""
+    path = str(tmp_path / "nogeo.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 6, 5, 1, gdal.GDT_Float32)
+    ds.GetRasterBand(1).WriteArray(np.arange(30, dtype=np.float32).reshape(5, 6))
+    if with_gcps:
+        gcps = [gdal.GCP(500000.0 + 2 * p, 4000000.0 - 2 * q, 0.0, p, q) for p, q in ((0, 0), (6, 0), (0, 5))]
+        ds.SetGCPs(gcps, wkt(32633))
+    ds = None
+    info = grid.open_dsm(path)
+    assert not info.georeferenced and any("no georeference" in w for w in info.warnings)
+    with grid.OutputSet(info) as out:
+        out.add("dtm", tmp_path / "d.tif", "Float32")
+        out.write("dtm", np.zeros((5, 6), np.float32))
+        out.commit()
+    src, res = gdal.Open(path), gdal.Open(str(tmp_path / "d.tif"))
+    assert res.GetGeoTransform(can_return_null=True) is None
+    assert [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in res.GetGCPs()] == \
+        [(g.GCPX, g.GCPY, g.GCPPixel, g.GCPLine) for g in src.GetGCPs()]
+    assert len(res.GetGCPs()) == (3 if with_gcps else 0)
+
+
+def test_alpha_band_read_through_a_vrt_mosaic(tmp_path):
+    """A VRT over tiles with a Float32 alpha band (a survey's mosaic) reads their transparent
+    cells as NaN in its alpha band: nodata too (they were valid heights of 0)."""
+    z = np.arange(30, dtype=np.float32).reshape(5, 6) + 100
+    alpha = np.full(z.shape, 255, np.float32)
+    alpha[:, :2] = 0
+    z[:, :2] = 0
+    p = _with_alpha(tmp_path, z, alpha)
+    vrt = str(tmp_path / "mosaic.vrt")
+    gdal.BuildVRT(vrt, [p], VRTNodata="nan")
+    ds = gdal.Open(vrt)
+    assert np.isnan(ds.GetRasterBand(2).ReadAsArray()[:, :2]).all()
+    ds = None
+    expect = z.copy()
+    expect[:, :2] = np.nan
+    np.testing.assert_array_equal(grid.open_dsm(vrt).read(), expect)
+
+
+def test_crs_given_for_a_file_without_one(tmp_path):
+    """``crs_wkt`` (the CRS a QGIS layer was given) is used for a file without a CRS of its own,
+    its feet converted; a file's own CRS wins."""
+    a = np.full((4, 4), 10.0, np.float32)
+    gt = (300000.0, 3.0, 0.0, 60000.0, 0.0, -3.0)
+    info = grid.open_dsm(tif(tmp_path, a, gt=gt, crs=""), crs_wkt=wkt(2263))
+    assert info.z_to_m == pytest.approx(FT_US) and info.cell_size_m == pytest.approx((3 * FT_US, 3 * FT_US))
+    assert info.crs_wkt == wkt(2263) and any("CRS its layer was given" in w for w in info.warnings)
+    info = grid.open_dsm(tif(tmp_path, a, name="own.tif", gt=gt, crs=32633), crs_wkt=wkt(2263))
+    assert info.z_to_m == 1.0 and "2263" not in info.crs_wkt

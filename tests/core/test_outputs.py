@@ -254,3 +254,92 @@ def test_saga_output_of_non_square_cells_is_refused_before_any_work(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
     grid.check_output_cells(tmp_path / "dtm.sdat", (0.0, 2.0, 0.0, 80.0, 0.0, -2.0))   # square: accepted
     grid.check_output_cells(tmp_path / "dtm.asc", (0.0, 2.0, 0.0, 80.0, 0.0, -1.0))    # ASCII holds dx, dy
+
+
+@pytest.mark.parametrize("text,cog,message", [
+    ("NBITS=1", False, r"change the values of a UInt8 output"),                 # the mask's 255 read back as 1
+    ("PIXELTYPE=SIGNEDBYTE", False, r"change the values of a UInt8 output"),    # 255 read as -1
+    ("DISCARD_LSB=1", False, r"change the values of a UInt8 output"),
+    ("COMPRESS=LERC|MAX_Z_ERROR=1", False, r"change the values of a UInt8 output"),
+    ("COMPRESS=LERC|MAX_Z_ERROR=1", True, r"change the values of a UInt8 output"),
+    ("BLOCKXSIZE=100", False, r"cannot write a Float32 output .*'BLOCKXSIZE=100'.*TileWidth"),
+    ("BLOCKSIZE=100", True, r"cannot write a Float32 output .*'BLOCKSIZE=100'"),
+    ("COMPRESS=JPEG", False, r"cannot write a Float32 output .*'COMPRESS=JPEG'.*JPEG"),
+])
+def test_creation_options_refused_when_gdal_fails_or_changes_the_codes(text, cog, message):
+    """Options GDAL accepts by name but refuses when it creates the file (the run failed after its
+    work), or that silently change a UInt8 output's codes (the mask written with NBITS=1 held 0
+    and 1 only), are refused when parsed, before any work."""
+    with pytest.raises(ValueError, match=message):
+        grid.parse_creation_options(text, cog=cog)
+    assert gdal.ReadDir("/vsimem/") in (None, []) or not any("probe" in f for f in gdal.ReadDir("/vsimem/"))
+
+
+@pytest.mark.parametrize("text,cog", [("COMPRESS=ZSTD|PREDICTOR=3|ZLEVEL=9", False),
+                                      ("COMPRESS=LERC|MAX_Z_ERROR=0.01", False),
+                                      ("COMPRESS=DEFLATE|PREDICTOR=FLOATING_POINT", True)])
+def test_float_predictor_and_lossless_options_write_the_mask_exactly(tmp_path, text, cog):
+    """The floating-point predictor asked for the DTM is horizontal differencing on the UInt8
+    mask (GDAL refuses PREDICTOR=3 there: the run failed after its work); the codes are exact."""
+    info = _info(tmp_path)
+    with grid.write_options(grid.parse_creation_options(text, cog=cog), cog):
+        d, m = _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+    got_m, got_d = _read(tmp_path / "m.tif"), _read(tmp_path / "d.tif")
+    np.testing.assert_array_equal(got_m, m)
+    np.testing.assert_allclose(got_d, d, atol=0.011)
+
+
+def test_a_read_only_output_is_refused_and_no_output_replaced(tmp_path, read_only):
+    """An existing output that cannot be replaced: refused by the output checks (before any work)
+    and, should it become so during the run, at commit before any output moves (a DTM from
+    this run beside a mask from the last was left, with a PermissionError traceback)."""
+    info = _info(tmp_path)
+    for name in ("d.tif", "m.tif"):
+        (tmp_path / name).write_bytes(b"old")
+    with read_only(tmp_path / "m.tif"):
+        with pytest.raises(ValueError, match=r"'.*m\.tif' exists and is read-only"):
+            grid.check_output_path(tmp_path / "m.tif")
+        grid.check_output_path(tmp_path / "d.tif")
+        with pytest.raises(ValueError, match=r"'.*m\.tif' exists and is read-only"):
+            _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+        assert (tmp_path / "d.tif").read_bytes() == b"old"
+        assert (tmp_path / "m.tif").read_bytes() == b"old"
+        assert _partials(tmp_path) == []
+
+
+def test_output_files_name_every_file_an_output_writes(tmp_path):
+    """What writing an output creates: its sidecars by format and a mask's style (the checks
+    compare them with the inputs' files)."""
+    p = str(tmp_path / "x")
+    assert grid.output_files(p + ".asc") == [p + ".asc", p + ".asc.aux.xml", p + ".prj"]
+    assert grid.output_files(p + ".sdat", styled=True) == [p + ".sdat", p + ".sdat.aux.xml", p + ".sgrd", p + ".prj",
+                                                           p + ".qml"]
+    assert grid.output_files(p + ".tif") == [p + ".tif", p + ".tif.aux.xml"]
+    # every file a real write makes is listed
+    info = _info(tmp_path)
+    for ext in (".asc", ".sdat", ".img", ".tif"):
+        sub = tmp_path / ext[1:]
+        sub.mkdir()
+        _write(info, {"mask": sub / f"m{ext}"})
+        assert {str(f) for f in sub.iterdir()} <= set(grid.output_files(sub / f"m{ext}", styled=True)), ext
+
+
+@pytest.mark.parametrize("profile,compression", [("COMPRESS=DEFLATE|PREDICTOR=2|ZLEVEL=9", "DEFLATE"),
+                                                 ("COMPRESS=LZW|PREDICTOR=2", "LZW"),
+                                                 ("COMPRESS=ZSTD|ZSTD_LEVEL=9|PREDICTOR=3|TILED=YES", "ZSTD")])
+def test_qgis_compression_profiles_with_cloud_optimised_geotiffs(tmp_path, profile, compression):
+    """QGIS's compression profiles (the dialog offers them) are GeoTIFF options: with COG they were
+    refused ("PREDICTOR=2: allowed values are YES, NO, STANDARD, FLOATING_POINT"); they are now
+    given in the COG driver's words and written."""
+    opts = grid.parse_creation_options(profile, cog=True)
+    assert not any(o.startswith(("ZLEVEL", "ZSTD_LEVEL", "TILED", "PREDICTOR=2", "PREDICTOR=3")) for o in opts)
+    info = _info(tmp_path)
+    with grid.write_options(opts, cog=True):
+        d, m = _write(info, {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif"})
+    for name in ("d.tif", "m.tif"):
+        ds = gdal.Open(str(tmp_path / name))
+        meta = ds.GetMetadata("IMAGE_STRUCTURE")
+        assert meta.get("LAYOUT") == "COG" and meta.get("COMPRESSION") == compression, (name, meta)
+        ds = None
+    np.testing.assert_array_equal(_read(tmp_path / "m.tif"), m)
+    np.testing.assert_array_equal(_read(tmp_path / "d.tif"), d)

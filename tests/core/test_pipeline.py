@@ -553,3 +553,70 @@ def test_run_file_threads_method_one_window_with_its_threads(tmp_path):
     assert info["blocks"] > 1 and {w for _, w in seen} == {1}
     res = pipeline.run_array(threaded, z, 1.0, workers=2)
     assert res.info["blocks"] == 1 and seen[-1] == ((200, 30), 2)
+
+
+@pytest.mark.parametrize("block", [None, 64])
+def test_run_file_nodata_ranges_are_nodata_in_every_block_and_worker(tmp_path, block):
+    """The additional no-data values of a QGIS layer (``nodata_ranges``) are nodata as a declared
+    nodata is: the same mask, in one pass, in blocks, and in a block job sent to a worker
+    process (pickled: it reopens the file with the ranges)."""
+    import pickle
+    rng = np.random.default_rng(1)
+    z = rng.uniform(0.0, 2.0, (150, 140)).astype(np.float32)
+    z[:, :9] = -9999.0
+    z[70:80, 60:66] = 60.0                       # an object
+    z[100:104, 100:130] = -32768.0               # a second value, in an exclusive-bounds range
+    src = write(tmp_path, z)
+    ranges = [(-9999.0, -9999.0, True, True), (-40000.0, -30000.0, False, False)]
+    logs = []
+    outs = outputs(tmp_path, "dtm", "mask")
+    pipeline.run_file(ABOVE, src, outs, block=block, nodata_ranges=ranges, log=logs.append)
+    nod = (z == -9999.0) | (z == -32768.0)
+    mask, _, _, _ = read(outs["mask"])
+    dtm, nd, _, _ = read(outs["dtm"])
+    np.testing.assert_array_equal(mask == NODATA, nod)
+    assert math.isnan(nd) and np.isnan(dtm[nod]).all() and np.isfinite(dtm[~nod]).all()
+    assert any("additional no-data values (-9999, -40000 to -30000)" in s for s in logs)
+    ref = pipeline.run_array(ABOVE, np.where(nod, np.nan, z), 1.0)
+    np.testing.assert_array_equal(mask, ref.mask)
+    job = pipeline._BlockJob(None, src, 1, (1.0, 1.0), {"threshold_m": 5.0, "low_m": -5.0}, True,
+                             nodata_ranges=ranges)
+    zb, _ = pickle.loads(pickle.dumps(job)).read((0, 150, 0, 20), (0, 150, 0, 20))
+    np.testing.assert_array_equal(np.isnan(zb), nod[:, :20])
+
+
+def test_block_job_sent_to_a_worker_reads_in_the_crs_given(tmp_path):
+    """A file without a CRS run in the CRS its layer was given: a block job pickled for a worker
+    process reopens it in that CRS (heights in US survey feet read as metres)."""
+    import pickle
+    z = np.full((20, 20), 100.0, np.float32)
+    src = write(tmp_path, z, crs="")
+    s = osr.SpatialReference()
+    s.ImportFromEPSG(2264)
+    job = pipeline._BlockJob(None, src, 1, (1.0, 1.0), {}, True, crs_wkt=s.ExportToWkt())
+    zb, _ = pickle.loads(pickle.dumps(job)).read((0, 20, 0, 20), (0, 20, 0, 20))
+    np.testing.assert_allclose(zb, 100.0 * 1200 / 3937, rtol=1e-6)
+
+
+def test_run_file_parameters_from_the_data_when_the_centre_is_empty(tmp_path, monkeypatch):
+    """A raster larger than the parameter window whose centre holds no data (an L-shaped survey):
+    the parameters come from a window of that size on the data, not from the whole raster read
+    at once (gigabytes for a large survey)."""
+    monkeypatch.setattr(pipeline, "RESOLVE_SIDE", 64)
+    z = np.full((200, 300), np.nan, np.float32)
+    z[120:190, 10:90] = np.linspace(0.0, 2.0, 80, dtype=np.float32)[None, :]
+    z[150, 50] = 60.0
+    src = write(tmp_path, z)
+    reads = []
+    original = grid.DSMInfo.read
+
+    def spy(self, window=None, step=1, far_in=None):
+        reads.append(window)
+        return original(self, window, step, far_in)
+    monkeypatch.setattr(grid.DSMInfo, "read", spy)
+    logs = []
+    pipeline.run_file(ABOVE, src, outputs(tmp_path, "mask"), block=64, log=logs.append)
+    assert None not in reads and (0, 200, 0, 300) not in reads        # never the whole raster
+    said = [s for s in logs if s.startswith("Parameters derived from")]
+    assert said == ["Parameters derived from the data's 64 x 64 cells (rows 88-152, columns 57-121)."]
+    assert read(outputs(tmp_path, "mask")["mask"])[0][150, 50] == OBJECT

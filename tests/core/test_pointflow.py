@@ -302,3 +302,30 @@ def test_tile_lattice_windows_pure():
     lat.margin = 1
     assert lat.trusted((0, 4, 2, 10)) == (0, 3, 3, 10)                    # block edges stay trusted
     assert lat.grow((1, 4, 2, 8), (2, 0, 0, 5)) == (0, 4, 2, 10)
+
+
+def test_write_rasters_compound_crs_heights_in_its_vertical_unit(tmp_path, cloud):
+    """Points in UTM metres with NAVD88 heights in US survey feet (EPSG:26917+6360): the DSM and
+    DTM written carry that CRS and heights in feet, so they read back (open_dsm takes the
+    vertical unit of a compound CRS) as the metres the filter saw. They were written in metres."""
+    from osgeo import osr
+
+    from bare_earth.core import grid
+    srs = osr.SpatialReference()
+    srs.SetFromUserInput("EPSG:26917+6360")
+    ft = 1200.0 / 3937.0
+    c = PointCloud(cloud.x - 5e4, cloud.y - 1.4e6, cloud.z / ft, crs=srs.ExportToWkt(), units_to_metre=1.0,
+                   z_units_to_metre=ft)
+    r = pf.filter_cloud(c, cell_size_m=1.0)
+    pf.write_rasters(r.grid, r.result, {"dtm": str(tmp_path / "dtm.tif"), "dsm": str(tmp_path / "dsm.tif")})
+    d = grid.open_dsm(tmp_path / "dtm.tif")
+    assert d.z_to_m == pytest.approx(ft) and d.cell_size_m == pytest.approx((1.0, 1.0))
+    np.testing.assert_allclose(d.read(), r.result.dtm, atol=1e-3)
+    np.testing.assert_allclose(grid.open_dsm(tmp_path / "dsm.tif").read(), r.grid.z_metres(), atol=1e-3)
+    np.testing.assert_allclose(np.nanmax(gdal_read(tmp_path / "dsm.tif")), np.nanmax(c.z), rtol=1e-5)
+
+
+def gdal_read(path):
+    from osgeo import gdal
+    ds = gdal.Open(str(path))      # kept while its band is read
+    return ds.GetRasterBand(1).ReadAsArray()

@@ -438,3 +438,15 @@ def test_fourth_column_not_a_class_names_the_header_fix(tmp_path):
         read_points(p)
     c = read_points(_write(tmp_path, "x y z intensity\n1 2 3 12.5\n4 5 6 13.25\n", name="named.txt"))
     assert c.classification is None and c.z.tolist() == [3.0, 6.0]
+
+
+@pytest.mark.parametrize("ext", [".shp", ".gpkg"])
+def test_a_vector_layer_given_as_points_says_how_to_export_it(tmp_path, ext):
+    """A point shapefile or GeoPackage (how QGIS users keep survey points) was refused as "binary:
+    a raster DSM goes to INPUT"; the message now says to export the points as x y z text."""
+    p = tmp_path / f"pts{ext}"
+    p.write_bytes(b"\x00\x00\x27\x0a" + bytes(100))
+    with pytest.raises(ValueError, match=r"is a vector layer.*GEOMETRY=AS_XYZ"):
+        read_points(p)
+    with pytest.raises(ValueError, match=r"is a vector layer"):
+        pointfiles.read_crs(p)

@@ -427,3 +427,69 @@ def test_cli_refuses_mixed_crs_naming_the_tile(tmp_path):
                           "--output-dir", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "t01.tif (EPSG:32633)" in res.stderr
     assert len(paths) == 4 and not (tmp_path / "out").exists()
+
+
+def test_tiles_with_an_alpha_band_keep_their_transparent_cells_as_nodata(tmp_path):
+    """Tiles warped with an alpha band (heights 0 where it is 0): nodata in the tiles' outputs, as
+    in a single tile's run (the survey read them as heights of 0 through its mosaic VRT)."""
+    from osgeo import gdal, osr
+    sc = make_scene("city", shape=(64, 128), seed=2)
+    gt, srs = sc.geotransform, osr.SpatialReference()
+    srs.ImportFromEPSG(sc.epsg)
+    paths = []
+    for k in range(2):
+        z = sc.dsm[:, 64 * k:64 * (k + 1)].copy()
+        alpha = np.full(z.shape, 255, np.float32)
+        if k == 0:
+            alpha[:, :8] = 0
+            z[:, :8] = 0.0
+        p = str(tmp_path / f"t{k}.tif")
+        ds = gdal.GetDriverByName("GTiff").Create(p, 64, 64, 2, gdal.GDT_Float32)
+        ds.SetGeoTransform((gt[0] + 64 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]))
+        ds.SetProjection(srs.ExportToWkt())
+        ds.GetRasterBand(1).WriteArray(z)
+        ds.GetRasterBand(2).SetColorInterpretation(gdal.GCI_AlphaBand)
+        ds.GetRasterBand(2).WriteArray(alpha)
+        ds = None
+        paths.append(p)
+    run_survey("morphological", paths, tmp_path / "out", {"max_object_size_m": 16.0}, workers=1)
+    mask = grid.open_dsm(tmp_path / "out" / output_names("t0")[1]).read_stored()
+    dtm = grid.open_dsm(tmp_path / "out" / output_names("t0")[0]).read()
+    assert (mask[:, :8] == 255).all() and (mask[:, 8:] != 255).all()
+    assert np.isnan(dtm[:, :8]).all() and np.nanmin(dtm) > 100
+
+
+def test_a_read_only_tile_output_refused_before_any_work(tmp_path, read_only):
+    """A tile output left from an earlier run (run.json gone) that cannot be replaced: refused
+    naming it before any task runs. The task failed and the survey stopped with a PermissionError
+    traceback while removing it."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    out = tmp_path / "out"
+    run_survey("slopeprofile", paths, out, {"max_object_size_m": 8.0}, workers=1)
+    os.remove(out / "run.json")
+    locked = out / output_names("t00")[0]
+    before = locked.read_bytes()
+    with read_only(locked):
+        with pytest.raises(ValueError, match=r"t00_dtm\.tif' exists and is read-only"):
+            run_survey("slopeprofile", paths, out, {"max_object_size_m": 8.0}, workers=1)
+        assert locked.read_bytes() == before
+
+
+def test_tiles_with_an_undeclared_minus_9999_border_warned(tmp_path):
+    """Tiles exported with -9999 in their empty corners and no declared nodata: the survey's log
+    names the value and how to declare it, as a single raster's run does."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    z = sc.dsm.copy()
+    z[:, :6] = -9999.0
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, z[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg)
+        paths.append(str(p))
+    logs = []
+    run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1, log=logs.append)
+    said = [s for s in logs if "a common nodata value" in s]
+    assert said and "384 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999 <tile>" in said[0]

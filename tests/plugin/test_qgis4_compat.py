@@ -40,6 +40,10 @@ LEGACY = {
     "INVALID_GEOMETRY_ABORT": ("QgsFeatureRequest", "GeometryAbortOnInvalid"),
     "SOURCE_SKIP_GEOMETRY_CHECKS": ("QgsProcessingFeatureSource", "FlagSkipGeometryValidityChecks"),
     "SHADER_LINEAR": ("QgsColorRampShader", "Interpolated"),
+    "RANGE_INCLUDE_MIN_AND_MAX": ("QgsRasterRange", "IncludeMinAndMax"),
+    "RANGE_INCLUDE_MIN": ("QgsRasterRange", "IncludeMin"),
+    "RANGE_INCLUDE_MAX": ("QgsRasterRange", "IncludeMax"),
+    "WKT_PREFERRED_GDAL": ("QgsCoordinateReferenceSystem", "WKT_PREFERRED_GDAL"),
 }
 
 #: Names PyQt6 / Qt6 no longer has (or has elsewhere), and what to write instead.
