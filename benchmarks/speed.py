@@ -25,6 +25,9 @@ Mcells has only edge blocks; from 36 Mcells on, interior blocks carry a halo on 
 A GDAL read + write of the same file gives the I/O-only speed for scale. "CPU s" is the
 process's CPU time over the same span (all its threads, GDAL's included; the fastest of the
 runs): on a machine shared with other work it moves far less than the wall time.
+``--reuse-memory`` runs each case with the allocator of the plugin's worker processes
+(``core/memory.py``: one malloc arena keeping what is freed, so the kernel does not zero the
+pages of every raster-sized temporary again); the default is the allocator as inside QGIS.
 """
 import argparse
 import datetime
@@ -131,13 +134,18 @@ print(json.dumps({{"seconds": dt, "cpu_seconds": cpu, "peak_mb": peak / 1024, "e
 """
 
 
-def run_child(method, src, tmp, block=None, workers=1, stage="file", mcells=0, params=None, threads=1):
+def run_child(method, src, tmp, block=None, workers=1, stage="file", mcells=0, params=None, threads=1,
+              reuse_memory=False):
     code = CHILD.format(plugins=str(ROOT / ".build" / "plugins"), method=method, src=str(src),
                         dtm=str(Path(tmp) / "dtm.tif"), mask=str(Path(tmp) / "mask.tif"),
                         block=repr(block), workers=int(workers), threads=int(threads), stage=stage,
                         mcells=mcells,
                         params=dict(params or {}))
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    env = None
+    if reuse_memory:                     # the allocator of a process that only filters (core.memory)
+        from bare_earth.core.memory import allocator_environment
+        env = allocator_environment()
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     if res.returncode != 0:
         return {"error": (res.stderr.strip().splitlines() or ["failed"])[-1]}
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -159,6 +167,9 @@ def main(argv=None):
                     help="comma-separated: file (read, filter, fill the DTM, write: the default), "
                          "filter (the filter alone on an array), dtm (filter and DTM fill on an array)")
     ap.add_argument("--params", default="{}", help="method parameters as JSON, e.g. '{\"mode\": \"progressive\"}'")
+    ap.add_argument("--reuse-memory", action="store_true",
+                    help="run each case with the allocator settings of the plugin's worker processes (one malloc "
+                         "arena keeping freed memory: core/memory.py); the default is the allocator as in QGIS")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "speed.jsonl"))
     ap.add_argument("--no-log", action="store_true")
     args = ap.parse_args(argv)
@@ -189,7 +200,8 @@ def main(argv=None):
                     if stage != "file" and block is not None:
                         continue
                     runs = [run_child(m, p, tmp, block=block, workers=args.workers, stage=stage, mcells=size,
-                                      params=params, threads=threads) for _ in range(max(1, args.repeat))]
+                                      params=params, threads=threads, reuse_memory=args.reuse_memory)
+                            for _ in range(max(1, args.repeat))]
                     ok = [x for x in runs if "error" not in x]
                     r = runs[0] if not ok else dict(min(ok, key=lambda x: x["seconds"]),
                                                     cpu_seconds=min(x["cpu_seconds"] for x in ok),
@@ -203,7 +215,7 @@ def main(argv=None):
                         print(f"{m:>14} {n / 1e6:7.1f} {mode:>12}  ERROR {r['error']}")
                         continue
                     row = dict(method=m, mcells=n / 1e6, mode=mode, workers=args.workers, threads=threads,
-                               params=params, **r,
+                               params=params, reuse_memory=args.reuse_memory, **r,
                                mcells_per_s=n / 1e6 / r["seconds"], input_mb=n * 4 / 2 ** 20)
                     rows.append(row)
                     print(f"{m:>14} {n / 1e6:7.1f} {mode:>12} {r['seconds']:8.2f} {row['mcells_per_s']:9.2f} "

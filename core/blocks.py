@@ -15,6 +15,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolE
 import numpy as np
 
 from .common import Cancelled, report
+from .memory import reuse_freed_memory
 
 #: Default block edge in cells (about 16 MB of float32 per block with its halo).
 DEFAULT_BLOCK = 2048
@@ -260,6 +261,8 @@ _worker_channel = {}
 
 
 def _init_worker(queue, cancelled):
+    # a worker only filters: its freed temporaries are kept for reuse (memory.reuse_freed_memory)
+    reuse_freed_memory()
     _worker_channel.update(queue=queue, cancelled=cancelled, last=0.0)
 
 

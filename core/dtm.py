@@ -136,6 +136,9 @@ LEVEL_MEMBER = "rascor"
 #: Radius of the ground support of the confidence, metres (a car or a bush is smaller; a cell
 #: among ground cells a few metres around it is better supported than a lone one).
 SUPPORT_M = 3.0
+#: Cells per band of the elementwise work done in bands of rows (:func:`characterise`,
+#: :func:`confidence_map`): its temporaries stay in the cache.
+_BAND_CELLS = 1 << 16
 #: Each member's parameters giving the widest object its window removes, metres.
 MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
@@ -234,8 +237,13 @@ def characterise(z, cell_size):
     vals = z[valid]
     step = max(1, vals.size // 1_000_000)
     lo, hi = np.percentile(vals[::step], [2.0, 98.0]) if vals.size else (0.0, 0.0)
-    dz = np.abs(np.diff(z, axis=1))
-    rough = float(np.count_nonzero(dz > 1.0)) / max(1, int(np.count_nonzero(np.isfinite(dz))))
+    steep = finite = 0
+    rows = max(1, _BAND_CELLS // max(1, z.shape[1]))
+    for r0 in range(0, z.shape[0], rows):            # in bands of rows: no raster-sized temporaries
+        dz = np.abs(np.diff(z[r0:r0 + rows], axis=1))
+        steep += int(np.count_nonzero(dz > 1.0))
+        finite += int(np.count_nonzero(np.isfinite(dz)))
+    rough = float(steep) / max(1, finite)
     return {"cell_m": float(max(cell_size)), "valid_share": float(valid.mean()),
             "relief_m": float(hi - lo), "rough_share": rough}
 
@@ -443,20 +451,10 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     v = np.arange(top, dtype=np.float32)
     half = n / 2.0
     table = np.clip((np.concatenate([n - v, v]) - half) / (n - half), 0.0, 1.0)   # [object: n - v, ground: v]
-    key = ground.astype(np.uint16)
-    key *= top
-    key += votes
-    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
-    del key
     all_valid = bool(valid.all())
-    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
-    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
-    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
-    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    # the two box means are the only terms that need whole arrays; the rest runs in bands of rows whose
+    # temporaries stay in the cache (raster-sized ones cost the kernel zeroing their pages)
     share = _box_mean(ground.astype(np.float32), int(support_cells), valid, all_valid)
-    s = np.subtract(1.0, share)
-    _select(pick, share, s, out=s)                               # the share of the cell's own class
-    del share
     if isinstance(dtm, Future):
         dtm = dtm.result()
     report(progress, 0.35)
@@ -465,30 +463,46 @@ def confidence_map(z, mask, dtm, ground_votes, n_members, tolerance_m, support_c
     dd = np.asarray(dtm, np.float32) if all_valid else np.where(valid, dtm, 0.0).astype(np.float32)
     m = _box_mean(dd, 1, valid, all_valid)                       # ground: the local mean of the DTM
     report(progress, 0.6)
+    out = np.empty(mask.shape, np.uint8)
+    rows = max(1, _BAND_CELLS // max(1, mask.shape[1]))
+    for r0 in range(0, mask.shape[0], rows):
+        report(progress, 0.6 + 0.4 * r0 / mask.shape[0])
+        b = slice(r0, min(mask.shape[0], r0 + rows))
+        _confidence_band(ground[b], votes[b], table, top, share[b], zz[b], dd[b], m[b], t, out[b])
+    out[~valid] = NODATA
+    return out
+
+
+def _confidence_band(ground, votes, table, top, share, zz, dd, m, t, out):
+    """``100 (a + m + s) / 3`` on a band of rows (the formulas of :func:`confidence_map`), into ``out``;
+    ``share`` and ``m`` (the box means) are overwritten."""
+    key = ground.astype(np.uint16)
+    key *= top
+    key += votes
+    a = table.take(key)                                          # n agreeing: 1, bare majority of 3: 1/3
+    # the class's choices by bit masks (a boolean ``where`` costs 5-10 elementwise operations),
+    # clips by maximum / minimum (the same values, NaN kept, 4x faster than np.clip)
+    one = ground.view(np.uint8).astype(np.uint32)                # 1 at ground
+    pick = np.negative(one)                                      # all bits at ground, none elsewhere
+    s = np.subtract(1.0, share)
+    _select(pick, share, s, out=s)                               # the share of the cell's own class
     _select(pick, m, dd, out=m)                                  # object: the DTM under it
-    del pick
     np.subtract(zz, m, out=m)
     np.abs(m, out=m)
     np.divide(m, t, out=m)
     np.subtract(m, 1.0, out=m)                                   # object: |z - DTM| / t - 1
     np.left_shift(one, 31, out=one)
     np.bitwise_xor(m.view(np.uint32), one, out=m.view(np.uint32))   # ground: 1 - |z - mean| / t (exact negation)
-    del one
     np.maximum(m, 0.0, out=m)
     np.minimum(m, 1.0, out=m)
-    report(progress, 0.8)
     np.add(a, m, out=a)
-    del m
     np.add(a, s, out=a)
-    del s
     np.multiply(a, 100.0, out=a)
     np.divide(a, 3.0, out=a)
     np.rint(a, out=a)
     np.maximum(a, 0, out=a)
     np.minimum(a, 100, out=a)
-    out = a.astype(np.uint8)
-    out[~valid] = NODATA
-    return out
+    out[...] = a.astype(np.uint8)
 
 
 def _fill_dtm(z, holes, valid, progress):
@@ -615,21 +629,38 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                   reach_m=refine_reach_m)
     info.update(refined)
-    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around
-    raised, decisions = find_raised_regions(z, mask, cell, tolerance_m=tolerance_m, min_width_m=region_width_m,
-                                            max_cells=region_max_cells)
-    if dissent is not None:
+    # raised regions wider than the vote's windows: voted ground standing on steps above the ground around;
+    # with workers > 1 found in a second thread while the detached levels below (which read the same mask,
+    # neither changing it) are looked for
+    region_args = (z, mask, cell)
+    region_kw = dict(tolerance_m=tolerance_m, min_width_m=region_width_m, max_cells=region_max_cells)
+    regions = None
+    if workers > 1 and dissent is not None:
+        regions = ThreadPoolExecutor(max_workers=1)
+        raised = regions.submit(find_raised_regions, *region_args, **region_kw)
+    else:
+        raised = find_raised_regions(*region_args, **region_kw)
+    try:
         # raised levels only the level member rejects, cut by level changes from the undisputed ground
-        jump = float(members[LEVEL_MEMBER]["jump_m"])
-        detached = find_detached_levels(z, mask == GROUND, dissent, ground_votes == n, cell, jump_m=jump,
-                                        slope=refine_slope(members), max_cells=region_max_cells)
+        jump = float(members[LEVEL_MEMBER]["jump_m"]) if dissent is not None else None
+        detached = None if dissent is None else find_detached_levels(
+            z, mask == GROUND, dissent, ground_votes == n, cell, jump_m=jump, slope=refine_slope(members),
+            max_cells=region_max_cells)
+        if regions is not None:
+            raised = raised.result()
+    finally:
+        if regions is not None:
+            regions.shutdown()
+    raised, decisions = raised
+    dissent = None                                  # freed
+    if detached is not None:
         mask[detached] = OBJECT
         info["detached_level_share"] = float(np.count_nonzero(detached)) / nvalid
         info["detached_level_rule"] = (
             "{} cells: voted ground the {} member rejects, in levels (cut where a cell stands more than {:g} m "
             "plus the slope allowance above a neighbour) holding no ground every member agrees on, are "
             "objects").format(int(np.count_nonzero(detached)), LEVEL_MEMBER, jump)
-        del detached, dissent
+        del detached
     mask[raised & valid] = OBJECT
     info["raised_region_cells"] = int(np.count_nonzero(raised & valid))
     info["raised_regions"] = [describe_region(d) for d in decisions]

@@ -300,27 +300,35 @@ def _running_rows_flat(a, r, op, work, out):
     op(src[:m], src[w - k:w - k + m], out=out.reshape(-1)[r:r + m])
 
 
-def _erode(a, ry, rx, work=None, progress=None):
+def _erode(a, ry, rx, work=None, progress=None, out=None):
     """Grey erosion (running minimum) over a (2ry+1) x (2rx+1) window; +inf = nodata.
-    ``progress(0.5)`` between the two separable passes."""
+    ``progress(0.5)`` between the two separable passes. ``out`` (optional, not ``a``) receives the
+    result when both passes run (else a new array, or ``a`` itself for a window of one cell)."""
     tmp = work.get(2, a.shape) if work is not None and rx > 0 and ry > 0 else None
     down = _running(a, ry, 0, np.minimum, work, tmp)
     report(progress, 0.5)
-    return _running_banded(down, rx, 1, np.minimum, work)
+    return _running_banded(down, rx, 1, np.minimum, work, out=out if rx > 0 and ry > 0 else None)
 
 
-def _dilate(e, ry, rx, has_nodata, work=None, progress=None):
+def _dilate(e, ry, rx, has_nodata, work=None, progress=None, out=None):
     """Grey dilation (running maximum) of an eroded surface ``e`` (+inf = no valid cell).
 
     Returns the dilated surface with NaN where no valid cell is within reach;
-    ``progress(0.5)`` between the two separable passes.
+    ``progress(0.5)`` between the two separable passes. ``out`` (optional, not ``e``) receives
+    the result when both passes run (else a new array, or ``e`` itself for a window of one cell).
     """
+    both = work is not None and rx > 0 and ry > 0
     if has_nodata:
-        e = np.where(np.isposinf(e), np.float32(-np.inf), e)
-    tmp = work.get(2, e.shape) if work is not None and rx > 0 and ry > 0 else None
+        if both and out is not None:            # the column pass reads it before out is written
+            np.copyto(out, e)
+            e = out
+            np.copyto(e, np.float32(-np.inf), where=np.isposinf(e))
+        else:
+            e = np.where(np.isposinf(e), np.float32(-np.inf), e)
+    tmp = work.get(2, e.shape) if both else None
     down = _running(e, ry, 0, np.maximum, work, tmp)
     report(progress, 0.5)
-    d = _running_banded(down, rx, 1, np.maximum, work)
+    d = _running_banded(down, rx, 1, np.maximum, work, out=out if both else None)
     if has_nodata:
         d[np.isneginf(d)] = np.nan
     return d
@@ -405,12 +413,25 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None):
     eroded = a
     pry = prx = 0
     n = len(radii)
+    # the steps' erosions and openings rotate through a few raster buffers: a new raster-sized array
+    # per step costs the kernel zeroing its pages on first touch (a third of the opening's CPU)
+    pool = []
+
+    def spare(*busy):
+        for b in pool:
+            if not any(b is x for x in busy):
+                return b
+        pool.append(np.empty(a.shape, a.dtype))
+        return pool[-1]
+
     for k, (ry, rx, rad_m) in enumerate(radii):
         # Square windows compose: eroding the previous erosion by the increment gives the
         # erosion by the full window (cheaper than starting from the surface).
-        eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n))
+        eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n),
+                        out=spare(eroded, prev))
         report(progress, (k + 0.5) / n)
-        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n))
+        opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n),
+                         out=spare(eroded, prev))
         report(progress, (k + 0.9) / n)
         t_k = np.float32(slope * rad_m)                                # SMRF: t_k = s * r_k * c
         with np.errstate(invalid="ignore"):

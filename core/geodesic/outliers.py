@@ -8,6 +8,8 @@ from .grey import S8, grey_closing, grey_opening, window_cells
 
 #: Largest cluster (cells) the preprocessing treats as an isolated outlier.
 OUTLIER_MAX_CELLS = 16
+#: Cells per band of the outlier tests.
+_BAND_CELLS = 1 << 16
 
 
 def _small_clusters(cand):
@@ -52,9 +54,14 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     report(progress, 0.3)
     ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
+    # in bands of rows: no raster-sized float temporaries (the kernel zeroes each new one)
+    low_c, high_c = np.empty(z.shape, bool), np.empty(z.shape, bool)
+    rows = max(1, _BAND_CELLS // max(1, z.shape[1]))
     with np.errstate(invalid="ignore"):
-        low_c = clo - z > threshold_m             # NaN (nodata) compares False
-        high_c = z - ope > threshold_m
+        for r0 in range(0, z.shape[0], rows):
+            b = slice(r0, r0 + rows)
+            low_c[b] = clo[b] - z[b] > threshold_m     # NaN (nodata) compares False
+            high_c[b] = z[b] - ope[b] > threshold_m
     if vnone is not None:
         low_c &= valid
         high_c &= valid

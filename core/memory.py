@@ -1,0 +1,61 @@
+"""How a process that only filters rasters allocates memory: freed memory kept for reuse.
+
+The filters' numpy work allocates and frees raster-sized temporaries by the hundred (a 16
+Mcells float32 raster is 64 MB). glibc's ``malloc`` serves each of them with a fresh ``mmap``
+and returns it to the system when it is freed, so the kernel zeroes every page of every
+temporary again on first touch: on the project's 2-core machine ``bareearth:dtm`` on 16 Mcells
+spent 1.8-3.3 s of its 10-13 s CPU in the kernel (about 225,000 page faults). Served from one heap
+that keeps what is freed (one malloc arena, no ``mmap``, no trimming), the same run takes 0.3-0.8 s
+of kernel time (about 50,000 faults) with the same peak memory (1.10-1.20 GB); the results are the
+same bit for bit (only where the bytes live changes).
+
+The settings are process-wide and the arena limit stays for the process's life (threads started
+before it keep their arenas), so they are applied only in processes that do nothing but filter:
+the plugin's block worker processes (:func:`.blocks.start_pool`), the command line's survey workers
+(:data:`ALLOCATOR_ENV` in their environment) and the benchmarks that ask for them. Inside QGIS the
+plugin leaves the application's allocator alone (one arena for QGIS's rendering threads would make
+them wait on one another).
+"""
+import ctypes
+import ctypes.util
+import os
+
+#: glibc ``mallopt`` parameters (``malloc.h``).
+_M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
+#: Largest ``int`` (``mallopt`` takes an int): free memory at the heap's top is never trimmed.
+_NEVER_TRIM = (1 << 31) - 1
+#: The same settings as glibc environment variables, read when a process starts: for processes
+#: this one starts (they inherit them with the environment).
+ALLOCATOR_ENV = {"MALLOC_ARENA_MAX": "1", "MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(_NEVER_TRIM)}
+
+_applied = None
+
+
+def reuse_freed_memory():
+    """Keep freed memory in this process for reuse (glibc: one arena, no ``mmap``, no trim).
+
+    Call it early, before the process starts threads of its own. Idempotent; does nothing where
+    the C library is not glibc. Returns True when the settings are in force.
+    """
+    global _applied
+    if _applied is None:
+        _applied = False
+        name = ctypes.util.find_library("c")
+        try:
+            libc = ctypes.CDLL(name) if name else None
+            mallopt = getattr(libc, "mallopt", None)
+            if mallopt is not None and hasattr(libc, "gnu_get_libc_version"):
+                mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+                _applied = all(mallopt(k, v) == 1 for k, v in ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0),
+                                                               (_M_TRIM_THRESHOLD, _NEVER_TRIM)))
+        except OSError:
+            pass
+    return _applied
+
+
+def allocator_environment(env=None):
+    """``env`` (default: this process's environment) with :data:`ALLOCATOR_ENV` added, for a
+    process that will do nothing but filter."""
+    out = dict(os.environ if env is None else env)
+    out.update(ALLOCATOR_ENV)
+    return out
