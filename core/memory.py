@@ -11,10 +11,11 @@ same bit for bit (only where the bytes live changes).
 
 The settings are process-wide and the arena limit stays for the process's life (threads started
 before it keep their arenas), so they are applied only in processes that do nothing but filter:
-the plugin's block worker processes (:func:`.blocks.start_pool`), the command line's survey workers
-(:data:`ALLOCATOR_ENV` in their environment) and the benchmarks that ask for them. Inside QGIS the
-plugin leaves the application's allocator alone (one arena for QGIS's rendering threads would make
-them wait on one another).
+the plugin's block worker processes (:func:`.blocks.start_pool`) and the benchmarks that ask for
+them (``benchmarks/speed.py --reuse-memory``: :data:`ALLOCATOR_ENV` in the environment of the process
+it starts). Inside QGIS the plugin leaves the application's allocator alone (one arena for QGIS's
+rendering threads would make them wait on one another), and so do the survey's Dask workers (Dask
+sets its own trimming for them and restarts a worker whose memory grows).
 """
 import ctypes
 import ctypes.util
