@@ -725,7 +725,8 @@ METHOD = Method(
     description=(
         "<p>The filter to start with: no parameter to choose. Three filters built on different principles "
         "(the progressive morphological opening, RASCOR's sequence of local tests, the gradual geodesic "
-        "dilation), each with the defaults it derives from the data, vote on every cell; a cell is ground "
+        "dilation), each with the defaults it derives from the data (RASCOR's random error measured on the "
+        "DSM's ground-level cells, not on a canopy's crowns), vote on every cell; a cell is ground "
         "where most of them say so, or where the opening (whose threshold follows the slope) alone says so on "
         "smooth ground joined to ground every member agrees on (a terrace's edge, an embankment, a ramp: an "
         "object's edge is a step and stops it); voted ground standing above lower ground on both sides of a line "
