@@ -159,8 +159,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
             raise ValueError("Give the truth once: TRUTH_POINTS or TRUTH_COLUMN, not both.")
         if truth and not os.path.isfile(truth):
             raise ValueError(f"The truth points file {truth!r} does not exist.")
-        if (mask is None) != (ref_mask is None) and dtm is None:
+        if (mask is None) != (ref_mask is None) and ref_dtm is None:
             raise ValueError("MASK and REFERENCE_MASK go together: give both, or neither.")
+        if mask is not None and ref_mask is None:
+            raise ValueError("MASK is compared with REFERENCE_MASK: give REFERENCE_MASK too, or leave MASK out "
+                             "(it would not be used).")
         if ref_dtm is not None and dtm is None:
             raise ValueError("REFERENCE_DTM needs a DTM to compare with.")
         if points and dtm is None and not (truth or column):
@@ -170,7 +173,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             raise ValueError("Nothing to compare: give MASK and REFERENCE_MASK, DTM and REFERENCE_DTM, "
                              "or POINTS and DTM.")
         if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
-            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask"))
+            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask", of="the mask"))
         for d, name in ((dtm, "DTM"), (ref_dtm, "REFERENCE_DTM")):
             if d is not None and (ref_dtm is not None or points):
                 try:
@@ -181,7 +184,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if m is not None:
                 grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
-            raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM"))
+            raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
+        if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):
+            # its ground cells select the DTM's cells of the ground errors: another grid picks others
+            raise ValueError(grid_mismatch_message(dtm, ref_mask, "The reference mask (REFERENCE_MASK), whose "
+                                                   "ground cells the DTM's errors are measured on,", of="the DTM"))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
         return mask, ref_mask, dtm, ref_dtm, points
@@ -221,7 +228,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
         if ref_dtm is not None:
             d = ev.compare_dtm(dtm.read(), ref_dtm.read(),
-                               ground=None if ref_m is None or ref_m.shape != dtm.shape else (ref_m == 0))
+                               ground=None if ref_m is None else (ref_m == 0))
             results["DTM vs reference DTM"] = d
             out["RMSE"] = d["rmse"]
         truth, column = self._truth(parameters, context)

@@ -33,6 +33,7 @@ from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
+from .fill_dtm import grid_mismatch_message, other_crs, same_grid
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
@@ -98,13 +99,6 @@ def _positive_or_none(alg, parameters, key, context):
 def _grid_text(info):
     return (f"{info.shape[1]} x {info.shape[0]} cells, geotransform "
             f"{tuple(round(v, 6) for v in info.geotransform)}")
-
-
-def _same_grid(a, b):
-    if a.shape != b.shape:
-        return False
-    tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
-    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
 
 
 def _check_metric(info, what):
@@ -529,7 +523,9 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError(f"{key}: no orthophoto was given.")
             path = raster_path(layer)
             oi = _open_grid(path, key)
-            if not _same_grid(info, oi):
+            if other_crs(info, oi) is not None:
+                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})"))
+            if not same_grid(info, oi):
                 raise ValueError(f"{key} ({path}) is not on the DEM's grid: {key} has {_grid_text(oi)}, the "
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")

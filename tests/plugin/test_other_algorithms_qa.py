@@ -1,0 +1,66 @@
+"""The provider's other algorithms (evaluate, filldtm, points, orthophotos, survey) with edge
+inputs (the second adversarial QA round): each test failed before the fix it names."""
+import json
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+
+
+def _write(path, arr, gt=GT, epsg=32632, nodata=None, **kw):
+    from bare_earth.core.grid import write_array
+    return write_array(path, arr, gt, epsg, nodata=nodata, **kw)
+
+
+def _mask(shape=(40, 40)):
+    m = np.zeros(shape, np.uint8)
+    m[10:20, 10:20] = 1
+    return m
+
+
+def _ramp(shape=(40, 40)):
+    return np.zeros(shape, np.float32) + np.linspace(0.0, 3.0, shape[1], dtype=np.float32)[None, :]
+
+
+def test_rasters_in_another_crs_are_not_on_the_grid(processing_run, tmp_path):
+    """The same cell numbers in two CRS are two places: a reference mask, reference DTM or a mask
+    to fill by in another CRS was compared cell by cell without a word (kappa 100 %)."""
+    from qgis.core import QgsProcessingException
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    m_bng = _write(tmp_path / "m_bng.tif", _mask(), epsg=27700, nodata=255)
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    z_bng = _write(tmp_path / "z_bng.tif", _ramp() + 1.0, epsg=27700, nodata=-9999.0)
+    for params, what in (
+            (dict(MASK=m, REFERENCE_MASK=m_bng), "The reference mask"),
+            (dict(DTM=z, REFERENCE_DTM=z_bng), "The reference DTM")):
+        with pytest.raises(QgsProcessingException, match=what + r" is in another CRS \(OSGB36.*\) than the"):
+            processing_run("bareearth:evaluate", dict(params, OUTPUT_JSON=str(tmp_path / "e.json"),
+                                                      OUTPUT_HTML=str(tmp_path / "e.html")))
+    out = tmp_path / "filled.tif"
+    with pytest.raises(QgsProcessingException, match=r"The mask is in another CRS \(OSGB36"):
+        processing_run("bareearth:filldtm", {"INPUT": z, "MASK": m_bng, "OUTPUT": str(out)})
+    assert not out.exists() and not (tmp_path / "e.json").exists()
+
+
+def test_evaluate_reference_mask_of_a_dtm_comparison_on_its_grid(processing_run, tmp_path):
+    """REFERENCE_MASK picks the ground cells of the DTM errors: on a shifted grid it picked other
+    cells (ground RMSE of the wrong cells), on another shape it was dropped, both without a word;
+    a MASK without REFERENCE_MASK was not used, without a word."""
+    from qgis.core import QgsProcessingException
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    shifted = _write(tmp_path / "shifted.tif", _mask(), gt=(500010.0,) + GT[1:], nodata=255)
+    small = _write(tmp_path / "small.tif", _mask((30, 30)), nodata=255)
+    mask = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    for ref in (shifted, small):
+        with pytest.raises(QgsProcessingException, match=r"The reference mask \(REFERENCE_MASK\), whose ground "
+                                                         r"cells .* is not on the DTM's grid"):
+            processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, REFERENCE_MASK=ref, **outs))
+    with pytest.raises(QgsProcessingException, match=r"MASK is compared .* or leave MASK out"):
+        processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, MASK=mask, **outs))
+    res = processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, REFERENCE_MASK=mask, **outs))
+    with open(res["OUTPUT_JSON"]) as fh:
+        figures = json.load(fh)["results"]["DTM vs reference DTM"]
+    assert figures["ground_n"] == 1500 and figures["n"] == 1600
