@@ -14,7 +14,7 @@ from qgis.core import (
 
 from ..core import evaluate as ev
 from ..core import grid
-from ..core.pointflow import classify_cloud
+from ..core.pointflow import classify_cloud, truth_ground
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
@@ -255,8 +255,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if cloud.classification is None:
                 raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
                                                 "truth.").format(points))
-            true_ground = cloud.classification == (2 if cloud.source_format == "las" else 0)
             try:
+                true_ground = truth_ground(cloud.classification, cloud.source_format, "The points (POINTS)")
                 # in metres whatever the units (feet: the tolerance stays 0.5 m)
                 cls = classify_cloud(cloud, dtm.read(), dtm.geotransform,
                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),

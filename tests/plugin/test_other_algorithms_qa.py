@@ -64,3 +64,51 @@ def test_evaluate_reference_mask_of_a_dtm_comparison_on_its_grid(processing_run,
     with open(res["OUTPUT_JSON"]) as fh:
         figures = json.load(fh)["results"]["DTM vs reference DTM"]
     assert figures["ground_n"] == 1500 and figures["n"] == 1600
+
+
+def _points(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    x = GT[0] + rng.uniform(0.5, 39.5, n)
+    y = GT[3] - rng.uniform(0.5, 39.5, n)
+    obj = rng.uniform(size=n) < 0.2
+    z = (x - GT[0]) * 3.0 / 40.0 + 5.0 * obj
+    return x, y, z, obj
+
+
+def _text(path, *cols):
+    np.savetxt(path, np.column_stack(cols), fmt="%.3f")
+    return str(path)
+
+
+def test_evaluate_truth_without_a_ground_class_refused(processing_run, tmp_path):
+    """A truth in the other convention (ASPRS codes 2/6 in a text file, ISPRS 0/1 in a LAS file)
+    or not classified (LAS all class 1) has no ground point: every point was an object, Type I
+    'not defined' and a total error of the object share, without a word."""
+    laspy = pytest.importorskip("laspy")
+    from qgis.core import QgsProcessingException
+    x, y, z, obj = _points()
+    dtm = _write(tmp_path / "dtm.tif", _ramp(), nodata=-9999.0)
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    asprs = _text(tmp_path / "asprs.txt", x, y, z, np.where(obj, 6, 2))
+    with pytest.raises(QgsProcessingException, match=r"hold no ground point: ground is class 0 in a text file.*"
+                                                     r"classes are 2, 6; class 2 looks like ASPRS LAS codes"):
+        processing_run("bareearth:evaluate", dict(POINTS=asprs, DTM=dtm, **outs))
+
+    def las(name, cls):
+        h = laspy.LasHeader(point_format=3, version="1.2")
+        h.scales, h.offsets = [0.001] * 3, [GT[0], GT[3], 0.0]
+        data = laspy.LasData(h)
+        data.x, data.y, data.z, data.classification = x, y, z, cls.astype(np.uint8)
+        data.write(str(tmp_path / name))
+        return str(tmp_path / name)
+    for name, cls, classes in (("unclassified.las", np.ones(x.size), "1"), ("isprs.las", obj, "0, 1")):
+        with pytest.raises(QgsProcessingException, match=r"hold no ground point: ground is class 2 in a LAS/LAZ "
+                                                         rf"file .*classes are {classes}; it is not classified"):
+            processing_run("bareearth:evaluate", dict(POINTS=las(name, cls), DTM=dtm, **outs))
+    pred = _text(tmp_path / "pred.txt", x, y, z, obj.astype(int))
+    with pytest.raises(QgsProcessingException, match=r"truth points hold no ground point.*classes are 2, 6"):
+        processing_run("bareearth:evaluate", dict(POINTS=pred, TRUTH_POINTS=asprs, **outs))
+    assert not (tmp_path / "e.json").exists() and not (tmp_path / "e.html").exists()
+    truth = _text(tmp_path / "truth.txt", x, y, z, obj.astype(int))
+    res = processing_run("bareearth:evaluate", dict(POINTS=pred, TRUTH_POINTS=truth, **outs))
+    assert res["TOTAL"] == 0.0 and res["KAPPA"] == 100.0
