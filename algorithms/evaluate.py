@@ -255,6 +255,10 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if cloud.classification is None:
                 raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
                                                 "truth.").format(points))
+            from .points import crs_warning
+            w = crs_warning(cloud, dtm)
+            if w:
+                feedback.pushWarning(w)
             try:
                 true_ground = truth_ground(cloud.classification, cloud.source_format, "The points (POINTS)")
                 # in metres whatever the units (feet: the tolerance stays 0.5 m)

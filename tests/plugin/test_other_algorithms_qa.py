@@ -112,3 +112,37 @@ def test_evaluate_truth_without_a_ground_class_refused(processing_run, tmp_path)
     truth = _text(tmp_path / "truth.txt", x, y, z, obj.astype(int))
     res = processing_run("bareearth:evaluate", dict(POINTS=pred, TRUTH_POINTS=truth, **outs))
     assert res["TOTAL"] == 0.0 and res["KAPPA"] == 100.0
+
+
+def test_evaluate_points_in_another_crs_than_the_dtm_warn(processing_run, tmp_path):
+    """LAS points whose header declares another CRS than the DTM's were classified by it without a
+    word (classifypoints warns): the figures are of other places if the numbers differ."""
+    laspy = pytest.importorskip("laspy")
+    pyproj = pytest.importorskip("pyproj")
+    from qgis.core import QgsProcessingFeedback
+    x, y, z, obj = _points()
+    h = laspy.LasHeader(point_format=3, version="1.2")
+    h.scales, h.offsets = [0.001] * 3, [GT[0], GT[3], 0.0]
+    try:
+        h.add_crs(pyproj.CRS.from_wkt(_bng_wkt()))
+    except Exception as exc:  # pragma: no cover - a pyproj without its data
+        pytest.skip(f"pyproj cannot write a CRS here: {exc}")
+    data = laspy.LasData(h)
+    data.x, data.y, data.z, data.classification = x, y, z, np.where(obj, 6, 2).astype(np.uint8)
+    data.write(str(tmp_path / "bng.las"))
+    dtm = _write(tmp_path / "dtm.tif", _ramp(), nodata=-9999.0)
+    warnings = []
+    fb = QgsProcessingFeedback()
+    fb.pushWarning = lambda s: warnings.append(s)
+    res = processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "bng.las"), DTM=dtm,
+                                                    OUTPUT_JSON=str(tmp_path / "e.json"),
+                                                    OUTPUT_HTML=str(tmp_path / "e.html")), feedback=fb)
+    assert res["TOTAL"] == 0.0
+    assert any("differs from the DTM's" in w and "British National Grid" in w for w in warnings), warnings
+
+
+def _bng_wkt():
+    from osgeo import osr
+    srs = osr.SpatialReference()
+    srs.ImportFromEPSG(27700)
+    return srs.ExportToWkt()
