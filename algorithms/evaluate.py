@@ -279,7 +279,10 @@ class EvaluateAlgorithm(BaseAlgorithm):
             log_figures(feedback, name, r)
         json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)
         html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context)
-        ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
-                        geotransform=gts or None, title="Bare Earth evaluation")
+        try:
+            ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
+                            geotransform=gts or None, title="Bare Earth evaluation")
+        except ValueError as exc:
+            raise QgsProcessingException(self.explain(str(exc))) from None
         out.update({self.OUTPUT_JSON: json_path, self.OUTPUT_HTML: html_path})
         return out

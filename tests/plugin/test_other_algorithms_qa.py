@@ -1,6 +1,7 @@
 """The provider's other algorithms (evaluate, filldtm, points, orthophotos, survey) with edge
 inputs (the second adversarial QA round): each test failed before the fix it names."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -146,3 +147,18 @@ def _bng_wkt():
     srs = osr.SpatialReference()
     srs.ImportFromEPSG(27700)
     return srs.ExportToWkt()
+
+
+def test_evaluate_report_to_a_folder_refused_and_leaves_no_json(processing_run, tmp_path):
+    """OUTPUT_HTML naming a folder ended in a Python traceback (IsADirectoryError), after the JSON
+    had been written: a figures file of a failed run, looking valid."""
+    from qgis.core import QgsProcessingException
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    folder = tmp_path / "reports"
+    folder.mkdir()
+    with pytest.raises(QgsProcessingException, match=r"the report output '.*reports' is a folder: give a file "
+                                                     r"name in it \(e.g. '.*reports/report.html'\)") as err:
+        processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, OUTPUT_JSON=str(tmp_path / "e.json"),
+                                                  OUTPUT_HTML=str(folder)))
+    assert "Traceback" not in str(err.value)
+    assert sorted(os.listdir(tmp_path)) == ["m.tif", "reports"] and os.listdir(folder) == []
