@@ -128,10 +128,17 @@ def read_grey(path):
 
     Single band: as is (a paletted band through its colour table). Three or more colour
     bands: luminance 0.299 R + 0.587 G + 0.114 B of the first three; alpha bands are masks.
+    ValueError naming the file when it cannot be read (a truncated file opens, then fails).
     """
-    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
-    if ds is None:
-        raise ValueError(f"cannot open the raster {path!r}.")
+    try:
+        return _read_grey(path)
+    except RuntimeError as exc:
+        raise ValueError(f"the image {str(path)!r} is not a raster that can be read ({str(exc).strip()}): "
+                         "replace it (a partly copied file?) or leave it out.") from None
+
+
+def _read_grey(path):
+    ds = _open_image(path)
     bands = [ds.GetRasterBand(k + 1) for k in range(ds.RasterCount)]
     colour = [b for b in bands if b.GetColorInterpretation() != gdal.GCI_AlphaBand]
     if not colour:
@@ -161,10 +168,23 @@ def read_grey(path):
     return np.where(valid, grey, np.nan).astype(np.float32)
 
 
-def _image_size(path):
-    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+def _open_image(path):
+    """The GDAL dataset of an image, or ValueError naming the file (GDAL raises RuntimeError on a
+    file that is not a raster, such as a partly copied frame)."""
+    try:
+        ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+    except RuntimeError as exc:
+        ds, why = None, str(exc).strip()
+    else:
+        why = "GDAL cannot open it"
     if ds is None:
-        raise ValueError(f"cannot open the image {path!r}.")
+        raise ValueError(f"the image {path!r} is not a raster that can be read ({why}): replace it (a partly "
+                         "copied file?) or leave it out.")
+    return ds
+
+
+def _image_size(path):
+    ds = _open_image(path)
     return ds.RasterXSize, ds.RasterYSize
 
 
@@ -830,6 +850,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         if bh is None:
             raise ValueError("TIE_POINTS mode needs BASE_M (B between consecutive images) and HEIGHT_M (H).")
         check_parallax_range(info, bh[0], bh[1], opts["max_dh_m"])
+        for p in paths:
+            _image_size(p)          # every image readable, before any work
         tie = read_tie_points(ties, names)
         return info, paths, names, dict(cameras=None, tie_points=tie, base_m=bh[0], height_m=bh[1],
                                         base_direction=bh[2], isolated=[], skipped=[]), opts
