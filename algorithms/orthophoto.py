@@ -259,14 +259,8 @@ def read_tie_points(path, names):
     ``x, y``: ground coordinates in the DEM's CRS; ``col, row``: pixel of the same point in the
     image (the centre of the top-left pixel at 0, 0). Extensions of image names are dropped.
     """
-    text = Path(path).read_text(encoding="utf-8-sig")
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise ValueError(f"{path}: empty tie-point file; expected a header 'image,x,y,col,row' and "
-                         "one row per ground point and image.")
-    delim = "," if "," in lines[0] else ("\t" if "\t" in lines[0] else None)
-    rows = ([[c.strip().strip("'\"") for c in r] for r in csv.reader(lines, delimiter=delim)]
-            if delim else [ln.split() for ln in lines])
+    from ..core.orthophoto import read_table_rows
+    rows = read_table_rows(path, "a header 'image,x,y,col,row' and one row per ground point and image")
     header = [h.lower() for h in rows[0]]
     name_col = next((c for c in ("image", "filename", "file", "name", "id") if c in header), None)
     missing = [c for c in ("x", "y", "col", "row") if c not in header]
