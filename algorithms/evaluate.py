@@ -14,7 +14,7 @@ from qgis.core import (
 
 from ..core import evaluate as ev
 from ..core import grid
-from ..core.pointflow import classify_cloud, truth_ground
+from ..core.pointflow import class_counts, classify_cloud, truth_ground
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
@@ -255,7 +255,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if cloud.classification is None:
                 raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
                                                 "truth.").format(points))
-            from .points import crs_warning
+            from .points import crs_warning, height_mismatch_warning
             w = crs_warning(cloud, dtm)
             if w:
                 feedback.pushWarning(w)
@@ -268,6 +268,9 @@ class EvaluateAlgorithm(BaseAlgorithm):
             except ValueError as exc:
                 raise QgsProcessingException(self.explain(str(exc))) from None
             inside = cls != 255
+            w = height_mismatch_warning(class_counts(cls))
+            if w:
+                feedback.pushWarning(w)
             r = ev.confusion(cls == 0, true_ground, valid=inside)
             r["points_outside_dtm"] = int((~inside).sum())
             results["points classified by the DTM"] = r

@@ -196,6 +196,24 @@ def crs_warning(cloud, info):
             "to be in the DTM's coordinates. Reproject one of them if that is wrong.")
 
 
+def height_mismatch_warning(counts):
+    """A warning when the points' heights do not fit the DTM, else '': most classified points
+    below it (never so for a DTM of these points: it is the ground beneath them), or almost none
+    on it. Points in ellipsoidal heights against a DTM in geoid heights (tens of metres apart), or
+    heights in another unit, get every point 'below' or 'above' without a word otherwise."""
+    n = counts["ground"] + counts["above"] + counts["below"]
+    if n < 10:
+        return ""
+    share = {k: counts[k] / n for k in ("ground", "above", "below")}
+    if share["below"] <= 0.5 and share["ground"] >= 0.01:
+        return ""
+    side = "below" if share["below"] > share["above"] else "above"
+    return (f"{counts[side]} of the {n} points on the DTM ({100 * share[side]:.0f} %) are {side} it beyond the "
+            f"tolerance and {counts['ground']} on it: the heights of the points and of the DTM do not fit (another "
+            "vertical datum, such as ellipsoidal against geoid heights, another unit, or a DTM of another "
+            "survey). Bring both to one height reference first.")
+
+
 def log_counts(feedback, counts, header="Points per class:"):
     total = max(1, sum(counts.values()))
     feedback.pushInfo(tr(header))
@@ -450,6 +468,9 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             release_points()
         counts = pf.class_counts(classes)
         log_counts(feedback, counts)
+        w = height_mismatch_warning(counts)
+        if w:
+            warn(feedback, w)
         feedback.pushInfo(tr("Classified in {:.3f} s ({:.2f} million points/s); written to {}.").format(
             dt, len(cloud) / max(dt, 1e-9) / 1e6, out))
         return {self.OUTPUT: out, "GROUND": counts["ground"], "ABOVE": counts["above"],

@@ -162,3 +162,25 @@ def test_evaluate_report_to_a_folder_refused_and_leaves_no_json(processing_run, 
                                                   OUTPUT_HTML=str(folder)))
     assert "Traceback" not in str(err.value)
     assert sorted(os.listdir(tmp_path)) == ["m.tif", "reports"] and os.listdir(folder) == []
+
+
+@pytest.mark.parametrize("shift, side", [(0.0, None), (-47.0, "below"), (47.0, "above")])
+def test_classifypoints_heights_that_do_not_fit_the_dtm_warn(processing_run, tmp_path, shift, side):
+    """Points in ellipsoidal heights against a DTM in geoid heights (47 m apart in Europe) were
+    all 'below' (or all 'above') the DTM, reported as counts without a word."""
+    from qgis.core import QgsProcessingFeedback
+    x, y, z, obj = _points()
+    pts = _text(tmp_path / "pts.txt", x, y, z + shift)
+    dtm = _write(tmp_path / "dtm.tif", _ramp(), nodata=-9999.0)
+    warnings = []
+    fb = QgsProcessingFeedback()
+    fb.pushWarning = lambda s: warnings.append(s)
+    res = processing_run("bareearth:classifypoints", {"INPUT": pts, "DTM": dtm, "OUTPUT": str(tmp_path / "c.txt")},
+                         feedback=fb)
+    found = [w for w in warnings if "do not fit" in w]
+    if side is None:
+        assert not found and res["GROUND"] == int((~obj).sum()) and res["ABOVE"] == int(obj.sum())
+    else:
+        assert res[side.upper()] == x.size
+        assert len(found) == 1 and f"400 of the 400 points on the DTM (100 %) are {side} it" in found[0]
+        assert "ellipsoidal against geoid heights" in found[0]
