@@ -24,6 +24,7 @@ from qgis.core import (
 
 from ..core import Cancelled
 from ..core import pointflow as pf
+from ..core.pointfiles import check_points_writable
 from ..core.points import LAS_INSTALL_HINT, read_points
 from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_advanced
 from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
@@ -150,7 +151,9 @@ def points_output(alg, parameters, key, context, input_path):
         os.path.dirname(os.path.abspath(path)).startswith(QgsProcessingUtils.tempFolder())
     if not path:
         path = QgsProcessingUtils.generateTempFilename("classified_points.txt")
-    return pf.point_output_path(path, input_path, temporary=temporary and not _explicit_ext(value))
+    path = pf.point_output_path(path, input_path, temporary=temporary and not _explicit_ext(value))
+    check_points_writable(path)
+    return path
 
 
 def _explicit_ext(value):

@@ -14,6 +14,7 @@ import io
 import os
 import re
 import struct
+import uuid
 import warnings
 from dataclasses import dataclass
 
@@ -542,10 +543,36 @@ def write_points(path, cloud, classes, decimals=None):
         raise ValueError(f"classes has {classes.size} values but the cloud {len(cloud)} points; "
                          "pass one class per point.")
     ext = os.path.splitext(path)[1].lower()
-    if ext in (".las", ".laz"):
-        _write_las(path, cloud, classes)
-    else:
-        _write_text(path, cloud, classes, decimals)
+    # a hidden file beside the output, with its extension (laspy compresses by it), moved into
+    # place once written: a failed or interrupted write leaves no file that looks valid
+    folder, base = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{os.path.splitext(base)[0]}.{uuid.uuid4().hex[:8]}.part{ext}")
+    try:
+        if ext in (".las", ".laz"):
+            _write_las(tmp, cloud, classes)
+        else:
+            _write_text(tmp, cloud, classes, decimals)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def check_points_writable(path):
+    """ValueError, before any work, when the points output ``path`` cannot be written here: a
+    LAS/LAZ file without laspy, or a LAZ file without a LAZ backend (lazrs or laszip), which
+    laspy only finds when it writes, after the work (a .las file needs no backend)."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in LAS_EXTENSIONS:
+        return
+    try:
+        laspy = import_laspy()
+    except ImportError as exc:
+        raise ValueError(f"the points output {os.fspath(path)!r} is a LAS/LAZ file. {exc}") from None
+    if ext == ".laz" and not laspy.LazBackend.detect_available():
+        raise ValueError(f"the points output {os.fspath(path)!r} is a compressed LAZ file, but no LAZ backend "
+                         "is installed: write a .las file, or install lazrs (`pip install lazrs` with the "
+                         "Python that QGIS uses; OSGeo4W Shell on Windows: `python -m pip install lazrs`).")
 
 
 def _asprs_codes(classes, original):

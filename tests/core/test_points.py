@@ -438,3 +438,30 @@ def test_fourth_column_not_a_class_names_the_header_fix(tmp_path):
         read_points(p)
     c = read_points(_write(tmp_path, "x y z intensity\n1 2 3 12.5\n4 5 6 13.25\n", name="named.txt"))
     assert c.classification is None and c.z.tolist() == [3.0, 6.0]
+
+
+def test_write_points_failing_leaves_no_file(tmp_path, monkeypatch):
+    """A write that fails half way (disk full, a LAZ without backend) left the part written under
+    the output's name: a file that looks valid. It goes to a hidden file moved into place."""
+    cloud = read_points(_points_file(tmp_path))
+    out = tmp_path / "cls.txt"
+    real = pointfiles._write_text
+
+    def half(path, *args):
+        with open(path, "w") as fh:
+            fh.write("1 2 3 0\n")
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(pointfiles, "_write_text", half)
+    with pytest.raises(OSError, match="No space left"):
+        write_points(out, cloud, np.zeros(len(cloud), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.txt"]
+    monkeypatch.setattr(pointfiles, "_write_text", real)
+    write_points(out, cloud, np.zeros(len(cloud), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cls.txt", "p.txt"]
+    assert len(out.read_text().splitlines()) == len(cloud)
+
+
+def _points_file(tmp_path):
+    p = tmp_path / "p.txt"
+    p.write_text("0 0 1\n1 0 2\n0 1 3\n1 1 4\n")
+    return p

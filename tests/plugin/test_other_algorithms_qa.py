@@ -184,3 +184,24 @@ def test_classifypoints_heights_that_do_not_fit_the_dtm_warn(processing_run, tmp
         assert res[side.upper()] == x.size
         assert len(found) == 1 and f"400 of the 400 points on the DTM (100 %) are {side} it" in found[0]
         assert "ellipsoidal against geoid heights" in found[0]
+
+
+def test_laz_output_without_a_laz_backend_refused_before_work(processing_run, tmp_path, monkeypatch):
+    """Without lazrs/laszip, laspy fails only when it writes the .laz, after the work: the run
+    failed then, leaving an empty .laz (classifypoints) or the filter's DTM and mask in place."""
+    laspy = pytest.importorskip("laspy")
+    from qgis.core import QgsProcessingException
+    monkeypatch.setattr(laspy.LazBackend, "detect_available", staticmethod(lambda: ()))
+    x, y, z, _ = _points(2000)
+    pts = _text(tmp_path / "pts.txt", x, y, z)
+    dtm = _write(tmp_path / "dtm.tif", _ramp(), nodata=-9999.0)
+    message = r"'.*\.laz' is a compressed LAZ file, but no LAZ backend is installed: write a .las file, or install"
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:classifypoints", {"INPUT": pts, "DTM": dtm, "OUTPUT": str(tmp_path / "c.laz")})
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:morphological", {"INPUT_POINTS": pts, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                   "OUTPUT_MASK": str(tmp_path / "m.tif"),
+                                                   "OUTPUT_POINTS": str(tmp_path / "c2.laz")})
+    assert sorted(os.listdir(tmp_path)) == ["dtm.tif", "pts.txt"]
+    res = processing_run("bareearth:classifypoints", {"INPUT": pts, "DTM": dtm, "OUTPUT": str(tmp_path / "c.las")})
+    assert res["GROUND"] + res["ABOVE"] == 2000 and laspy.read(res["OUTPUT"]).header.point_count == 2000
