@@ -253,7 +253,7 @@ def _read_text(path):
                                 "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
     head = data[body_start:body_start + 4096]
-    delim = "\t" if b"\t" in head else ("," if b"," in head else " ")
+    delim = "\t" if b"\t" in head else (";" if b";" in head else ("," if b"," in head else " "))
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
                       source_format="text")

@@ -465,3 +465,15 @@ def _points_file(tmp_path):
     p = tmp_path / "p.txt"
     p.write_text("0 0 1\n1 0 2\n0 1 3\n1 1 4\n")
     return p
+
+
+@pytest.mark.parametrize("sep", [" ", ",", "\t", ";"])
+def test_classified_text_keeps_the_input_separator(tmp_path, sep):
+    """Classified points go out with the input's separator (';' input came out space-separated,
+    which the spreadsheet the ';' file came from reads as one column)."""
+    src = tmp_path / "p.txt"
+    src.write_text("x{0}y{0}z\n0{0}0{0}1\n1{0}0{0}2\n0{0}1{0}3\n".format(sep))
+    cloud = read_points(src)
+    write_points(tmp_path / "c.txt", cloud, np.zeros(len(cloud), np.uint8))
+    lines = (tmp_path / "c.txt").read_text().splitlines()
+    assert lines[0] == sep.join(["x", "y", "z", "class"]) and lines[1] == sep.join(["0.000", "0.000", "1.000", "0"])
