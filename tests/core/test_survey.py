@@ -201,6 +201,12 @@ def test_parse_params_converts_to_the_params_kinds():
         "max_object_size_m": 30.0, "refine": True, "tolerance_m": None}
     with pytest.raises(ValueError, match="method 'slopeprofile' takes"):
         parse_params(meth, ["size=3"])
+    # out of its range or not a number: refused here, before the survey starts its cluster and
+    # creates the output folder (the range was checked only once the tiles were running)
+    with pytest.raises(ValueError, match=r"max_object_size_m = -5.0 is out of range \[.*\] for method 'slopeprofile'"):
+        parse_params(meth, "max_object_size_m=-5")
+    with pytest.raises(ValueError, match="max_object_size_m takes a number; got 'abc'"):
+        parse_params(meth, "max_object_size_m=abc")
 
 
 # -- seamless ------------------------------------------------------------------------------------

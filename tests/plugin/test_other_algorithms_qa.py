@@ -205,3 +205,19 @@ def test_laz_output_without_a_laz_backend_refused_before_work(processing_run, tm
     assert sorted(os.listdir(tmp_path)) == ["dtm.tif", "pts.txt"]
     res = processing_run("bareearth:classifypoints", {"INPUT": pts, "DTM": dtm, "OUTPUT": str(tmp_path / "c.las")})
     assert res["GROUND"] + res["ABOVE"] == 2000 and laspy.read(res["OUTPUT"]).header.point_count == 2000
+
+
+def test_tiles_parameter_out_of_range_refused_before_any_work(processing_run, tmp_path):
+    """PARAMETERS 'max_object_size_m=-5' passed the check, started the run (and created the
+    output folder) and failed there."""
+    pytest.importorskip("distributed")
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.methods import available_methods
+    tile = _write(tmp_path / "t.tif", _ramp((64, 64)), nodata=-9999.0)
+    out = tmp_path / "out"
+    with pytest.raises(QgsProcessingException, match=r"max_object_size_m = -5.0 is out of range"):
+        processing_run("bareearth:tiles", {"INPUT_LAYERS": [tile], "WORKERS": 1, "OUTPUT_FOLDER": str(out),
+                                           "METHOD": sorted(available_methods()).index("morphological"),
+                                           "PARAMETERS": "max_object_size_m=-5"})
+    assert not out.exists()
