@@ -426,6 +426,25 @@ def test_cli_killed_run_resumes_only_unrecorded_tiles(survey, tmp_path):
     assert np.array_equal(read_mosaic(out, "mask"), one_pass("rascor", survey["scene"], rec).mask)
 
 
+def test_cli_ctrl_c_gives_one_message_not_the_workers_tracebacks(survey, tmp_path):
+    """Ctrl-C reaches every process of the command (the terminal's process group): each Dask
+    worker printed a traceback (CancelledError, KeyboardInterrupt) around the command's
+    message. The workers now ignore it; the command stops them and says how to finish."""
+    out = tmp_path / "out"
+    cmd = [str(ROOT / "bin" / "bare-earth"), "tiles", "rascor", "--input", *survey["tiles"], "--output-dir",
+           str(out), "--workers", "2"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    for line in p.stdout:                          # the first tile done: the run is under way
+        if ": done in " in line:
+            os.killpg(p.pid, signal.SIGINT)          # what Ctrl-C in a terminal does
+            break
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == 130, stderr
+    assert "interrupted; the finished tiles are recorded, rerun to finish" in stderr
+    assert "Traceback" not in stderr + stdout, stderr
+    assert (out / "run.json").exists() and not (out / "mask.vrt").exists()
+
+
 def test_cli_refuses_mixed_crs_naming_the_tile(tmp_path):
     sc = make_scene("flat", shape=(64, 64), seed=1)
     paths = write_survey(tmp_path, sc, tile=32, epsg={"t01": 32633})
