@@ -14,6 +14,7 @@ from qgis.core import (
 
 from ..core import evaluate as ev
 from ..core import grid
+from ..core.pointfiles import is_class_column
 from ..core.pointflow import class_counts, classify_cloud, truth_ground
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
@@ -191,6 +192,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                                    "ground cells the DTM's errors are measured on,", of="the DTM"))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
+        if points and column and is_class_column(points, column):
+            raise ValueError(f"TRUTH_COLUMN '{column}' is the column the classes of POINTS are read from: they "
+                             "would be compared with themselves (no error at all). Give the column that holds the "
+                             "true classes, or the original file as TRUTH_POINTS (classifypoints and the filters "
+                             "overwrite a LAS file's classification).")
         return mask, ref_mask, dtm, ref_dtm, points
 
     def _truth(self, parameters, context):

@@ -630,6 +630,30 @@ def _write_text(path, cloud, classes, decimals):
             fh.write((row * part.shape[0]) % tuple(part.ravel().tolist()))
 
 
+def _header_tokens(path):
+    """(first non-empty line as bytes, its tokens lower-cased) of a text point file."""
+    with open(path, "rb") as fh:
+        first = b""
+        for line in fh:
+            if line.strip():
+                first = line
+                break
+    tokens = [t.strip().strip('"\'').lower() for t in
+              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
+              .replace(";", " ").split()]
+    return first, tokens
+
+
+def is_class_column(path, name):
+    """Whether ``name`` is the column a point file's classes are read from (LAS:
+    ``classification``; text: the header's class column, :data:`_CLASS_NAMES`)."""
+    path = os.fspath(path)
+    if os.path.splitext(path)[1].lower() in LAS_EXTENSIONS:
+        return name.strip().lower() == "classification"
+    _, tokens = _header_tokens(path)
+    return next((c for c in _CLASS_NAMES if c in tokens), None) == name.strip().lower()
+
+
 def read_column(path, name):
     """One named column of a text point file with a header line, or one LAS dimension.
 
@@ -645,15 +669,7 @@ def read_column(path, name):
         if not match:
             raise ValueError(f"{path!r} has no dimension {name!r}; it has {dims}.")
         return np.asarray(las[match[0]]).astype(np.int64)
-    with open(path, "rb") as fh:
-        first = b""
-        for line in fh:
-            if line.strip():
-                first = line
-                break
-    tokens = [t.strip().strip('"\'').lower() for t in
-              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
-              .replace(";", " ").split()]
+    first, tokens = _header_tokens(path)
     if not tokens or all(_is_number(t) for t in tokens):
         raise ValueError(f"{path!r} has no header line naming its columns, so it has no column "
                          f"{name!r}; use a truth points file instead.")

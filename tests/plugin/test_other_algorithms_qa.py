@@ -221,3 +221,28 @@ def test_tiles_parameter_out_of_range_refused_before_any_work(processing_run, tm
                                            "METHOD": sorted(available_methods()).index("morphological"),
                                            "PARAMETERS": "max_object_size_m=-5"})
     assert not out.exists()
+
+
+def test_evaluate_truth_column_that_is_the_prediction_refused(processing_run, tmp_path):
+    """TRUTH_COLUMN naming the column the classes of POINTS are read from (a classified LAS's
+    'classification', which classifypoints overwrote; a text file's 'class') compared the
+    classes with themselves: kappa 100 %, no error, without a word."""
+    from qgis.core import QgsProcessingException
+    x, y, z, obj = _points()
+    np.savetxt(tmp_path / "cls.txt", np.column_stack([x, y, z, obj, ~obj]), fmt="%.3f", header="x y z class truth",
+               comments="")
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    with pytest.raises(QgsProcessingException, match=r"\(TRUTH_COLUMN\) 'Class' is the column the classes of "
+                                                     r"POINTS are read from: they would be compared with themselves"):
+        processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.txt"), TRUTH_COLUMN="Class", **outs))
+    res = processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.txt"), TRUTH_COLUMN="truth", **outs))
+    assert res["TOTAL"] == 100.0                   # 'truth' holds the opposite classes: every point wrong
+    laspy = pytest.importorskip("laspy")
+    h = laspy.LasHeader(point_format=3, version="1.2")
+    h.scales, h.offsets = [0.001] * 3, [GT[0], GT[3], 0.0]
+    data = laspy.LasData(h)
+    data.x, data.y, data.z, data.classification = x, y, z, np.where(obj, 1, 2).astype(np.uint8)
+    data.write(str(tmp_path / "cls.las"))
+    with pytest.raises(QgsProcessingException, match=r"\(TRUTH_COLUMN\) 'classification' is the column"):
+        processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.las"), TRUTH_COLUMN="classification",
+                                                  **outs))
