@@ -192,6 +192,10 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                                    "ground cells the DTM's errors are measured on,", of="the DTM"))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
+        if points and truth and os.path.realpath(points) == os.path.realpath(truth):
+            raise ValueError(f"TRUTH_POINTS and POINTS are one file ({points}): the classes would be compared with "
+                             "themselves (no error at all). Give the classified points as POINTS and the file with "
+                             "the true classes as TRUTH_POINTS.")
         if points and column and is_class_column(points, column):
             raise ValueError(f"TRUTH_COLUMN '{column}' is the column the classes of POINTS are read from: they "
                              "would be compared with themselves (no error at all). Give the column that holds the "

@@ -225,8 +225,9 @@ def test_tiles_parameter_out_of_range_refused_before_any_work(processing_run, tm
 
 def test_evaluate_truth_column_that_is_the_prediction_refused(processing_run, tmp_path):
     """TRUTH_COLUMN naming the column the classes of POINTS are read from (a classified LAS's
-    'classification', which classifypoints overwrote; a text file's 'class') compared the
-    classes with themselves: kappa 100 %, no error, without a word."""
+    'classification', which classifypoints overwrote; a text file's 'class'), or TRUTH_POINTS
+    the POINTS file itself, compared the classes with themselves: kappa 100 %, no error,
+    without a word."""
     from qgis.core import QgsProcessingException
     x, y, z, obj = _points()
     np.savetxt(tmp_path / "cls.txt", np.column_stack([x, y, z, obj, ~obj]), fmt="%.3f", header="x y z class truth",
@@ -235,6 +236,10 @@ def test_evaluate_truth_column_that_is_the_prediction_refused(processing_run, tm
     with pytest.raises(QgsProcessingException, match=r"\(TRUTH_COLUMN\) 'Class' is the column the classes of "
                                                      r"POINTS are read from: they would be compared with themselves"):
         processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.txt"), TRUTH_COLUMN="Class", **outs))
+    with pytest.raises(QgsProcessingException, match=r"\(TRUTH_POINTS\) and POINTS are one file .*cls.txt\): the "
+                                                     r"classes would be compared with themselves"):
+        processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.txt"),
+                                                  TRUTH_POINTS=str(tmp_path / "cls.txt"), **outs))
     res = processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.txt"), TRUTH_COLUMN="truth", **outs))
     assert res["TOTAL"] == 100.0                   # 'truth' holds the opposite classes: every point wrong
     laspy = pytest.importorskip("laspy")
