@@ -164,7 +164,14 @@ class FillDtmAlgorithm(BaseAlgorithm):
         z = info.read()
         fill = ~np.isfinite(z) if fill_nodata else np.zeros(z.shape, bool)
         if minfo is not None:
-            fill |= np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
+            m = grid.read_mask(minfo, "The mask (MASK)")
+            coded = np.isin(m, codes)
+            if not coded.any():
+                present = ", ".join(str(int(c)) for c in np.unique(m))
+                w = tr("The mask holds none of FILL_CODES ({}); its codes are {}: it fills no cell. Check "
+                       "FILL_CODES.").format(", ".join(map(str, codes)), present)
+                feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)
+            fill |= coded
         feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)

@@ -251,3 +251,21 @@ def test_evaluate_truth_column_that_is_the_prediction_refused(processing_run, tm
     with pytest.raises(QgsProcessingException, match=r"\(TRUTH_COLUMN\) 'classification' is the column"):
         processing_run("bareearth:evaluate", dict(POINTS=str(tmp_path / "cls.las"), TRUTH_COLUMN="classification",
                                                   **outs))
+
+
+def test_filldtm_codes_the_mask_does_not_hold_warn(processing_run, tmp_path):
+    """FILL_CODES naming no code of the mask (7 for a 0/1 mask) filled nothing, the output a copy of
+    the input, with only 'Filling 0 of ... cells' in the log."""
+    from qgis.core import QgsProcessingFeedback
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    found = {}
+    for codes in ("7", "1"):
+        warnings = []
+        fb = QgsProcessingFeedback()
+        fb.pushWarning = lambda s, seen=warnings: seen.append(s)
+        processing_run("bareearth:filldtm", {"INPUT": z, "MASK": m, "FILL_CODES": codes, "FILL_NODATA": False,
+                                             "OUTPUT": str(tmp_path / f"f{codes}.tif")}, feedback=fb)
+        found[codes] = [w for w in warnings if "holds none of FILL_CODES" in w]
+    assert not found["1"]
+    assert len(found["7"]) == 1 and "FILL_CODES (7); its codes are 0, 1: it fills no cell" in found["7"][0]
