@@ -14,7 +14,8 @@ from qgis.core import (
 
 from ..core import evaluate as ev
 from ..core import grid
-from ..core.pointflow import classify_cloud
+from ..core.pointfiles import is_class_column
+from ..core.pointflow import class_counts, classify_cloud, truth_ground
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
@@ -163,8 +164,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
             raise ValueError("Give the truth once: TRUTH_POINTS or TRUTH_COLUMN, not both.")
         if truth and not os.path.isfile(truth):
             raise ValueError(f"The truth points file {truth!r} does not exist.")
-        if (mask is None) != (ref_mask is None) and dtm is None:
+        if (mask is None) != (ref_mask is None) and ref_dtm is None:
             raise ValueError("MASK and REFERENCE_MASK go together: give both, or neither.")
+        if mask is not None and ref_mask is None:
+            raise ValueError("MASK is compared with REFERENCE_MASK: give REFERENCE_MASK too, or leave MASK out "
+                             "(it would not be used).")
         if ref_dtm is not None and dtm is None:
             raise ValueError("REFERENCE_DTM needs a DTM to compare with.")
         if points and dtm is None and not (truth or column):
@@ -174,7 +178,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             raise ValueError("Nothing to compare: give MASK and REFERENCE_MASK, DTM and REFERENCE_DTM, "
                              "or POINTS and DTM.")
         if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
-            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask"))
+            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask", of="the mask"))
         for d, name in ((dtm, "DTM"), (ref_dtm, "REFERENCE_DTM")):
             if d is not None and (ref_dtm is not None or points):
                 try:
@@ -185,9 +189,22 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if m is not None:
                 grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
-            raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM"))
+            raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
+        if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):
+            # its ground cells select the DTM's cells of the ground errors: another grid picks others
+            raise ValueError(grid_mismatch_message(dtm, ref_mask, "The reference mask (REFERENCE_MASK), whose "
+                                                   "ground cells the DTM's errors are measured on,", of="the DTM"))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
+        if points and truth and os.path.realpath(points) == os.path.realpath(truth):
+            raise ValueError(f"TRUTH_POINTS and POINTS are one file ({points}): the classes would be compared with "
+                             "themselves (no error at all). Give the classified points as POINTS and the file with "
+                             "the true classes as TRUTH_POINTS.")
+        if points and column and is_class_column(points, column):
+            raise ValueError(f"TRUTH_COLUMN '{column}' is the column the classes of POINTS are read from: they "
+                             "would be compared with themselves (no error at all). Give the column that holds the "
+                             "true classes, or the original file as TRUTH_POINTS (classifypoints and the filters "
+                             "overwrite a LAS file's classification).")
         return mask, ref_mask, dtm, ref_dtm, points
 
     def _truth(self, parameters, context):
@@ -225,7 +242,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
         if ref_dtm is not None:
             d = ev.compare_dtm(dtm.read(), ref_dtm.read(),
-                               ground=None if ref_m is None or ref_m.shape != dtm.shape else (ref_m == 0))
+                               ground=None if ref_m is None else (ref_m == 0))
             results["DTM vs reference DTM"] = d
             out["RMSE"] = d["rmse"]
         truth, column = self._truth(parameters, context)
@@ -252,8 +269,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
             if cloud.classification is None:
                 raise QgsProcessingException(tr("The points file '{}' has no class column: it cannot serve as "
                                                 "truth.").format(points))
-            true_ground = cloud.classification == (2 if cloud.source_format == "las" else 0)
+            from .points import crs_warning, height_mismatch_warning
+            w = crs_warning(cloud, dtm)
+            if w:
+                feedback.pushWarning(w)
             try:
+                true_ground = truth_ground(cloud.classification, cloud.source_format, "The points (POINTS)")
                 # in metres whatever the units (feet: the tolerance stays 0.5 m)
                 cls = classify_cloud(cloud, dtm.read(), dtm.geotransform,
                                      threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
@@ -261,6 +282,9 @@ class EvaluateAlgorithm(BaseAlgorithm):
             except ValueError as exc:
                 raise QgsProcessingException(self.explain(str(exc))) from None
             inside = cls != 255
+            w = height_mismatch_warning(class_counts(cls))
+            if w:
+                feedback.pushWarning(w)
             r = ev.confusion(cls == 0, true_ground, valid=inside)
             r["points_outside_dtm"] = int((~inside).sum())
             results["points classified by the DTM"] = r
@@ -272,7 +296,10 @@ class EvaluateAlgorithm(BaseAlgorithm):
             log_figures(feedback, name, r)
         json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)
         html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context)
-        ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
-                        geotransform=gts or None, title="Bare Earth evaluation")
+        try:
+            ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
+                            geotransform=gts or None, title="Bare Earth evaluation")
+        except ValueError as exc:
+            raise QgsProcessingException(self.explain(str(exc))) from None
         out.update({self.OUTPUT_JSON: json_path, self.OUTPUT_HTML: html_path})
         return out

@@ -24,18 +24,41 @@ from .filter_base import (
 )
 
 
+def other_crs(a, b):
+    """The names of two DSMInfo's CRS when both are known and differ, else None."""
+    if not a.crs_wkt or not b.crs_wkt:
+        return None
+    from osgeo import osr
+    sa, sb = osr.SpatialReference(), osr.SpatialReference()
+    try:
+        if sa.ImportFromWkt(a.crs_wkt) != 0 or sb.ImportFromWkt(b.crs_wkt) != 0:
+            return None
+    except RuntimeError:
+        return None
+    return None if sa.IsSame(sb) else (sa.GetName(), sb.GetName())
+
+
 def same_grid(a, b):
-    """True when two DSMInfo share shape and geotransform (to a tolerance of 1e-6 cell)."""
+    """True when two DSMInfo share shape and geotransform (to a tolerance of 1e-6 cell) and their
+    CRS (when both declare one: the same numbers in two CRS are two places)."""
     if a.shape != b.shape:
         return False
     tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
-    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
+    if not all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform)):
+        return False
+    return other_crs(a, b) is None
 
 
-def grid_mismatch_message(a, b, what):
-    return (f"{what} is not on the DSM's grid: {b.shape[1]} x {b.shape[0]} cells, geotransform "
-            f"{tuple(round(v, 6) for v in b.geotransform)}, but the DSM has {a.shape[1]} x {a.shape[0]} "
-            f"cells, {tuple(round(v, 6) for v in a.geotransform)}. Resample it onto the DSM's grid "
+def grid_mismatch_message(a, b, what, of="the DSM"):
+    """Why raster ``b`` (``what``) is not on the grid of ``a`` (``of``), and how to fix it."""
+    crs = other_crs(a, b)
+    if a.shape == b.shape and crs is not None:
+        return (f"{what} is in another CRS ({crs[1]}) than {of} ({crs[0]}): the same cell numbers are another "
+                "place. Reproject it onto the grid of {} (gdalwarp -t_srs -te -tr, or Raster > Align "
+                "rasters).".format(of))
+    return (f"{what} is not on {of}'s grid: {b.shape[1]} x {b.shape[0]} cells, geotransform "
+            f"{tuple(round(v, 6) for v in b.geotransform)}, but {of} has {a.shape[1]} x {a.shape[0]} "
+            f"cells, {tuple(round(v, 6) for v in a.geotransform)}. Resample it onto {of}'s grid "
             "(gdalwarp -te/-tr, or Raster > Align rasters).")
 
 
@@ -141,7 +164,14 @@ class FillDtmAlgorithm(BaseAlgorithm):
         z = info.read()
         fill = ~np.isfinite(z) if fill_nodata else np.zeros(z.shape, bool)
         if minfo is not None:
-            fill |= np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
+            m = grid.read_mask(minfo, "The mask (MASK)")
+            coded = np.isin(m, codes)
+            if not coded.any():
+                present = ", ".join(str(int(c)) for c in np.unique(m))
+                w = tr("The mask holds none of FILL_CODES ({}); its codes are {}: it fills no cell. Check "
+                       "FILL_CODES.").format(", ".join(map(str, codes)), present)
+                feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)
+            fill |= coded
         feedback.pushInfo(tr("Filling {} of {} cells ({:.2f} %).").format(int(fill.sum()), z.size, 100.0 * fill.mean()))
         for w in info.warnings:
             feedback.pushWarning(w) if hasattr(feedback, "pushWarning") else feedback.pushInfo(w)

@@ -33,6 +33,7 @@ from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
+from .fill_dtm import grid_mismatch_message, other_crs, same_grid
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
@@ -100,13 +101,6 @@ def _grid_text(info):
             f"{tuple(round(v, 6) for v in info.geotransform)}")
 
 
-def _same_grid(a, b):
-    if a.shape != b.shape:
-        return False
-    tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
-    return all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform))
-
-
 def _check_metric(info, what):
     """The core works in the CRS's units, which must be metres (heights and distances)."""
     if info.crs_wkt:
@@ -136,10 +130,17 @@ def read_grey(path):
 
     Single band: as is (a paletted band through its colour table). Three or more colour
     bands: luminance 0.299 R + 0.587 G + 0.114 B of the first three; alpha bands are masks.
+    ValueError naming the file when it cannot be read (a truncated file opens, then fails).
     """
-    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
-    if ds is None:
-        raise ValueError(f"cannot open the raster {path!r}.")
+    try:
+        return _read_grey(path)
+    except RuntimeError as exc:
+        raise ValueError(f"the image {str(path)!r} is not a raster that can be read ({str(exc).strip()}): "
+                         "replace it (a partly copied file?) or leave it out.") from None
+
+
+def _read_grey(path):
+    ds = _open_image(path)
     bands = [ds.GetRasterBand(k + 1) for k in range(ds.RasterCount)]
     colour = [b for b in bands if b.GetColorInterpretation() != gdal.GCI_AlphaBand]
     if not colour:
@@ -169,10 +170,23 @@ def read_grey(path):
     return np.where(valid, grey, np.nan).astype(np.float32)
 
 
-def _image_size(path):
-    ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+def _open_image(path):
+    """The GDAL dataset of an image, or ValueError naming the file (GDAL raises RuntimeError on a
+    file that is not a raster, such as a partly copied frame)."""
+    try:
+        ds = gdal.Open(str(path), gdal.GA_ReadOnly)
+    except RuntimeError as exc:
+        ds, why = None, str(exc).strip()
+    else:
+        why = "GDAL cannot open it"
     if ds is None:
-        raise ValueError(f"cannot open the image {path!r}.")
+        raise ValueError(f"the image {path!r} is not a raster that can be read ({why}): replace it (a partly "
+                         "copied file?) or leave it out.")
+    return ds
+
+
+def _image_size(path):
+    ds = _open_image(path)
     return ds.RasterXSize, ds.RasterYSize
 
 
@@ -247,14 +261,8 @@ def read_tie_points(path, names):
     ``x, y``: ground coordinates in the DEM's CRS; ``col, row``: pixel of the same point in the
     image (the centre of the top-left pixel at 0, 0). Extensions of image names are dropped.
     """
-    text = Path(path).read_text(encoding="utf-8-sig")
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise ValueError(f"{path}: empty tie-point file; expected a header 'image,x,y,col,row' and "
-                         "one row per ground point and image.")
-    delim = "," if "," in lines[0] else ("\t" if "\t" in lines[0] else None)
-    rows = ([[c.strip().strip("'\"") for c in r] for r in csv.reader(lines, delimiter=delim)]
-            if delim else [ln.split() for ln in lines])
+    from ..core.orthophoto import read_table_rows
+    rows = read_table_rows(path, "a header 'image,x,y,col,row' and one row per ground point and image")
     header = [h.lower() for h in rows[0]]
     name_col = next((c for c in ("image", "filename", "file", "name", "id") if c in header), None)
     missing = [c for c in ("x", "y", "col", "row") if c not in header]
@@ -531,7 +539,9 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError(f"{key}: no orthophoto was given.")
             path = raster_path(layer)
             oi = _open_grid(path, key)
-            if not _same_grid(info, oi):
+            if other_crs(info, oi) is not None:
+                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})"))
+            if not same_grid(info, oi):
                 raise ValueError(f"{key} ({path}) is not on the DEM's grid: {key} has {_grid_text(oi)}, the "
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")
@@ -836,6 +846,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         if bh is None:
             raise ValueError("TIE_POINTS mode needs BASE_M (B between consecutive images) and HEIGHT_M (H).")
         check_parallax_range(info, bh[0], bh[1], opts["max_dh_m"])
+        for p in paths:
+            _image_size(p)          # every image readable, before any work
         tie = read_tie_points(ties, names)
         return info, paths, names, dict(cameras=None, tie_points=tie, base_m=bh[0], height_m=bh[1],
                                         base_direction=bh[2], isolated=[], skipped=[]), opts

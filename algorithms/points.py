@@ -24,6 +24,7 @@ from qgis.core import (
 
 from ..core import Cancelled
 from ..core import pointflow as pf
+from ..core.pointfiles import check_points_writable
 from ..core.points import LAS_INSTALL_HINT, read_points
 from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_advanced
 from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
@@ -150,7 +151,9 @@ def points_output(alg, parameters, key, context, input_path):
         os.path.dirname(os.path.abspath(path)).startswith(QgsProcessingUtils.tempFolder())
     if not path:
         path = QgsProcessingUtils.generateTempFilename("classified_points.txt")
-    return pf.point_output_path(path, input_path, temporary=temporary and not _explicit_ext(value))
+    path = pf.point_output_path(path, input_path, temporary=temporary and not _explicit_ext(value))
+    check_points_writable(path)
+    return path
 
 
 def _explicit_ext(value):
@@ -194,6 +197,24 @@ def crs_warning(cloud, info):
         return ""
     return (f"The points' CRS ({a.GetName()}) differs from the DTM's ({b.GetName()}): the points are taken "
             "to be in the DTM's coordinates. Reproject one of them if that is wrong.")
+
+
+def height_mismatch_warning(counts):
+    """A warning when the points' heights do not fit the DTM, else '': most classified points
+    below it (never so for a DTM of these points: it is the ground beneath them), or almost none
+    on it. Points in ellipsoidal heights against a DTM in geoid heights (tens of metres apart), or
+    heights in another unit, get every point 'below' or 'above' without a word otherwise."""
+    n = counts["ground"] + counts["above"] + counts["below"]
+    if n < 10:
+        return ""
+    share = {k: counts[k] / n for k in ("ground", "above", "below")}
+    if share["below"] <= 0.5 and share["ground"] >= 0.01:
+        return ""
+    side = "below" if share["below"] > share["above"] else "above"
+    return (f"{counts[side]} of the {n} points on the DTM ({100 * share[side]:.0f} %) are {side} it beyond the "
+            f"tolerance and {counts['ground']} on it: the heights of the points and of the DTM do not fit (another "
+            "vertical datum, such as ellipsoidal against geoid heights, another unit, or a DTM of another "
+            "survey). Bring both to one height reference first.")
 
 
 def log_counts(feedback, counts, header="Points per class:"):
@@ -450,6 +471,9 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
             release_points()
         counts = pf.class_counts(classes)
         log_counts(feedback, counts)
+        w = height_mismatch_warning(counts)
+        if w:
+            warn(feedback, w)
         feedback.pushInfo(tr("Classified in {:.3f} s ({:.2f} million points/s); written to {}.").format(
             dt, len(cloud) / max(dt, 1e-9) / 1e6, out))
         return {self.OUTPUT: out, "GROUND": counts["ground"], "ABOVE": counts["above"],

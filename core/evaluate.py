@@ -386,6 +386,35 @@ def _map_html(codes, geotransform, legend, caption, max_side):
     return "\n".join(out)
 
 
+def _write_all(pages):
+    """Write ``{path: (example name, text)}`` all or nothing: each to a hidden temporary file beside it, moved into
+    place once every one is written, so that a failed report leaves no file that looks valid (a
+    JSON beside a missing HTML). ValueError naming the path that cannot be written."""
+    done = []
+    try:
+        for path, (name, text) in pages.items():
+            path = os.path.abspath(os.fspath(path))
+            folder, base = os.path.split(path)
+            if os.path.isdir(path):
+                raise ValueError(f"the report output {path!r} is a folder: give a file name in it "
+                                 f"(e.g. {os.path.join(path, name)!r}).")
+            tmp = os.path.join(folder, f".{base}.{uuid.uuid4().hex[:8]}.part")
+            done.append((tmp, path))
+            try:
+                with open(tmp, "w", encoding="utf-8") as fh:
+                    fh.write(text)
+            except OSError as exc:
+                raise ValueError(f"the report {path!r} cannot be written ({exc.strerror}): choose a folder "
+                                 "you can write to.") from None
+        for tmp, path in done:
+            os.replace(tmp, path)
+        done = []
+    finally:
+        for tmp, _ in done:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+
+
 def write_report(results, json_path=None, html_path=None, error_map=None, geotransform=None,
                  title="Bare Earth accuracy report", legend=None, max_map_side=2000):
     """Write accuracy figures as JSON and/or a self-contained HTML page.
@@ -418,10 +447,10 @@ def write_report(results, json_path=None, html_path=None, error_map=None, geotra
     if not isinstance(results, dict):
         raise ValueError(f"results must be a dict of figures; got {type(results).__name__}.")
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    pages = {}
     if json_path is not None:
-        with open(json_path, "w", encoding="utf-8") as fh:
-            json.dump({"title": title, "created": stamp, "results": _jsonable(results)}, fh,
-                      indent=2, allow_nan=False)
+        pages[json_path] = "report.json", json.dumps({"title": title, "created": stamp, "results": _jsonable(results)},
+                                      indent=2, allow_nan=False)
     if html_path is not None:
         legend = dict(ERROR_LEGEND if legend is None else legend)
         body = [f"<h1>{html.escape(title)}</h1>", f"<p>Created {stamp}. Measures as in "
@@ -439,7 +468,7 @@ def write_report(results, json_path=None, html_path=None, error_map=None, geotra
         page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
                 f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n<body>\n"
                 + "\n".join(body) + "\n</body></html>\n")
-        with open(html_path, "w", encoding="utf-8") as fh:
-            fh.write(page)
+        pages[html_path] = "report.html", page
+    _write_all(pages)
     return {"json": None if json_path is None else os.fspath(json_path),
             "html": None if html_path is None else os.fspath(html_path)}

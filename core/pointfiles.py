@@ -14,6 +14,7 @@ import io
 import os
 import re
 import struct
+import uuid
 import warnings
 from dataclasses import dataclass
 
@@ -252,7 +253,7 @@ def _read_text(path):
                                 "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
     head = data[body_start:body_start + 4096]
-    delim = "\t" if b"\t" in head else ("," if b"," in head else " ")
+    delim = "\t" if b"\t" in head else (";" if b";" in head else ("," if b"," in head else " "))
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
                       source_format="text")
@@ -546,10 +547,36 @@ def write_points(path, cloud, classes, decimals=None):
         raise ValueError(f"classes has {classes.size} values but the cloud {len(cloud)} points; "
                          "pass one class per point.")
     ext = os.path.splitext(path)[1].lower()
-    if ext in (".las", ".laz"):
-        _write_las(path, cloud, classes)
-    else:
-        _write_text(path, cloud, classes, decimals)
+    # a hidden file beside the output, with its extension (laspy compresses by it), moved into
+    # place once written: a failed or interrupted write leaves no file that looks valid
+    folder, base = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{os.path.splitext(base)[0]}.{uuid.uuid4().hex[:8]}.part{ext}")
+    try:
+        if ext in (".las", ".laz"):
+            _write_las(tmp, cloud, classes)
+        else:
+            _write_text(tmp, cloud, classes, decimals)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def check_points_writable(path):
+    """ValueError, before any work, when the points output ``path`` cannot be written here: a
+    LAS/LAZ file without laspy, or a LAZ file without a LAZ backend (lazrs or laszip), which
+    laspy only finds when it writes, after the work (a .las file needs no backend)."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in LAS_EXTENSIONS:
+        return
+    try:
+        laspy = import_laspy()
+    except ImportError as exc:
+        raise ValueError(f"the points output {os.fspath(path)!r} is a LAS/LAZ file. {exc}") from None
+    if ext == ".laz" and not laspy.LazBackend.detect_available():
+        raise ValueError(f"the points output {os.fspath(path)!r} is a compressed LAZ file, but no LAZ backend "
+                         "is installed: write a .las file, or install lazrs (`pip install lazrs` with the "
+                         "Python that QGIS uses; OSGeo4W Shell on Windows: `python -m pip install lazrs`).")
 
 
 def _asprs_codes(classes, original):
@@ -607,6 +634,30 @@ def _write_text(path, cloud, classes, decimals):
             fh.write((row * part.shape[0]) % tuple(part.ravel().tolist()))
 
 
+def _header_tokens(path):
+    """(first non-empty line as bytes, its tokens lower-cased) of a text point file."""
+    with open(path, "rb") as fh:
+        first = b""
+        for line in fh:
+            if line.strip():
+                first = line
+                break
+    tokens = [t.strip().strip('"\'').lower() for t in
+              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
+              .replace(";", " ").split()]
+    return first, tokens
+
+
+def is_class_column(path, name):
+    """Whether ``name`` is the column a point file's classes are read from (LAS:
+    ``classification``; text: the header's class column, :data:`_CLASS_NAMES`)."""
+    path = os.fspath(path)
+    if os.path.splitext(path)[1].lower() in LAS_EXTENSIONS:
+        return name.strip().lower() == "classification"
+    _, tokens = _header_tokens(path)
+    return next((c for c in _CLASS_NAMES if c in tokens), None) == name.strip().lower()
+
+
 def read_column(path, name):
     """One named column of a text point file with a header line, or one LAS dimension.
 
@@ -622,15 +673,7 @@ def read_column(path, name):
         if not match:
             raise ValueError(f"{path!r} has no dimension {name!r}; it has {dims}.")
         return np.asarray(las[match[0]]).astype(np.int64)
-    with open(path, "rb") as fh:
-        first = b""
-        for line in fh:
-            if line.strip():
-                first = line
-                break
-    tokens = [t.strip().strip('"\'').lower() for t in
-              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
-              .replace(";", " ").split()]
+    first, tokens = _header_tokens(path)
     if not tokens or all(_is_number(t) for t in tokens):
         raise ValueError(f"{path!r} has no header line naming its columns, so it has no column "
                          f"{name!r}; use a truth points file instead.")

@@ -747,6 +747,30 @@ def _ground_code(cloud_or_format, codes=None):
     return (2,) if fmt == "las" else (0,)
 
 
+def truth_ground(classes, fmt, what="the truth points", codes=None):
+    """Boolean ground of per-point true classes (``codes``, else by ``fmt``: ISPRS text 0,
+    LAS ASPRS 2). ValueError when no point holds a ground code: a truth without ground is a
+    file in the other convention (LAS codes in a text file, ISPRS codes in a LAS file) or not
+    classified, and would give a Type I error of nothing and every point an object."""
+    classes = np.asarray(classes).ravel()
+    codes = _ground_code(fmt, codes)
+    ground = np.isin(classes, codes)
+    if classes.size and not ground.any():
+        found = np.unique(classes)
+        shown = ", ".join(str(int(c)) for c in found[:12]) + (", ..." if found.size > 12 else "")
+        kind = "LAS/LAZ file (ASPRS classes)" if fmt == "las" else "text file (ISPRS classes)"
+        if fmt == "las":
+            hint = ("it is not classified into ground: classify it first (ASPRS class 2 = ground), or give "
+                    "truth that is" + (" (class 0 = ground is the text convention: write it as text)"
+                                       if 0 in found else ""))
+        else:
+            hint = ("class 2 looks like ASPRS LAS codes: recode them to 0 = ground, 1 = object"
+                    if 2 in found else "recode the ground points to 0 and the others to 1")
+        raise ValueError(f"{what} hold no ground point: ground is class {', '.join(map(str, codes))} in a {kind}, "
+                         f"and their classes are {shown}; {hint}.")
+    return ground
+
+
 def compare_classified(pred, truth=None, truth_column=None, *, truth_ground_codes=None,
                        tolerance=None):
     """Errors of a classified cloud against per-point truth.
@@ -796,13 +820,14 @@ def compare_classified(pred, truth=None, truth_column=None, *, truth_ground_code
                              "the classified points came from).")
         codes = _ground_code(truth, truth_ground_codes)
         true_ground = np.zeros(len(pred), bool)
-        true_ground[ok] = np.isin(truth.classification[idx[ok]], codes)
+        true_ground[ok] = truth_ground(truth.classification[idx[ok]], truth.source_format, codes=codes)
         valid &= ok
     else:
         tc = np.asarray(truth_column).ravel()
         if tc.size != len(pred):
             raise ValueError(f"the truth column has {tc.size} values for {len(pred)} points.")
-        true_ground = np.isin(tc, _ground_code(pred, truth_ground_codes))
+        true_ground = truth_ground(tc, pred.source_format, "the truth column",
+                                   codes=_ground_code(pred, truth_ground_codes))
     r = confusion(pred_ground, true_ground, valid=valid)
     r["points_not_classified"] = n_not
     r["points_unmatched"] = unmatched

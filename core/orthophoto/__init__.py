@@ -19,6 +19,7 @@ from .camera import (
                      read_interior_yaml,
                      read_opensfm_reconstruction,
                      read_opk_csv,
+                     read_table_rows,
                      rotation_to_opk,
 )
 from .iterate import RefineResult, cross_check_families, orthorefine, overlapping_pairs, pair_families
@@ -31,7 +32,7 @@ from .render import OrthoScene, make_ortho_scene, render_frame, render_frames, v
 __all__ = ["Bilinear8", "fit_bilinear8", "register_orthophoto",
            "Camera", "Interior", "cameras_from_opk", "opk_to_rotation", "read_cameras",
            "read_interior_yaml",
-           "read_opensfm_reconstruction", "read_opk_csv", "rotation_to_opk",
+           "read_opensfm_reconstruction", "read_opk_csv", "read_table_rows", "rotation_to_opk",
            "MatchResult", "match_along", "match_rectified", "ncc_volume",
            "grid_xy", "orthorectify", "visibility",
            "ParallaxResult", "RefineResult", "fill_holes", "orthoparallax", "orthorefine",

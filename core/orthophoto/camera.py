@@ -44,7 +44,7 @@ import numpy as np
 
 __all__ = ["Interior", "Camera", "opk_to_rotation", "rotation_to_opk", "read_opk_csv",
            "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk", "read_cameras",
-           "parse_tiny_yaml"]
+           "parse_tiny_yaml", "read_table_rows"]
 
 
 # --------------------------------------------------------------------------- rotation
@@ -337,16 +337,23 @@ class Camera:
 
 
 # --------------------------------------------------------------------------- readers
-def _sniff_rows(path):
-    """Rows of a CSV / whitespace table with a header, quotes ``'`` or ``"`` allowed."""
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+
+
+def read_table_rows(path, expected="a header and one row per image"):
+    """Rows of a CSV / whitespace table with a header, quotes ``'`` or ``"`` allowed: comma-,
+    semicolon- (a spreadsheet's CSV in a locale with decimal commas: ``1,5`` reads as 1.5),
+    tab- or space-separated, as the header line is."""
     text = Path(path).read_text(encoding="utf-8-sig")
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
-        raise ValueError(f"{path}: empty file; expected a header and one row per image.")
-    if "," in lines[0] or "\t" in lines[0]:
-        delim = "," if "," in lines[0] else "\t"
+        raise ValueError(f"{path}: empty file; expected {expected}.")
+    delim = next((d for d in (";", ",", "\t") if d in lines[0]), None)
+    if delim:
         reader = csv.reader(lines, delimiter=delim, skipinitialspace=True)
         rows = [[c.strip().strip("'\"") for c in r] for r in reader]
+        if delim == ";":
+            rows = [[c.replace(",", ".") if _DECIMAL_COMMA.match(c) else c for c in r] for r in rows]
     else:
         token = re.compile(r"'[^']*'|\"[^\"]*\"|\S+")
         rows = [[t.strip("'\"") for t in token.findall(ln)] for ln in lines]
@@ -356,7 +363,7 @@ def _sniff_rows(path):
 def read_opk_csv(path):
     """Read exterior orientation: one row per image, ``filename, x, y, z, omega, phi, kappa``.
 
-    Comma-, tab- or space-separated, with a header naming the columns (orthority's
+    Comma-, semicolon-, tab- or space-separated, with a header naming the columns (orthority's
     ``xyz_opk`` format; extra columns such as ``camera`` are kept). Angles in degrees in the
     omega-phi-kappa convention of :func:`opk_to_rotation`. File extensions in ``filename``
     are dropped.
@@ -372,7 +379,7 @@ def read_opk_csv(path):
         Missing columns, non-numeric or non-finite values, angles outside [-360, 360] deg
         (radians or garbage), duplicate image names.
     """
-    rows = _sniff_rows(path)
+    rows = read_table_rows(path)
     header = [h.strip().lower() for h in rows[0]]
     need = ["x", "y", "z", "omega", "phi", "kappa"]
     name_col = next((c for c in ("filename", "file", "image", "name", "id") if c in header), None)

@@ -11,10 +11,13 @@ and the output folder at the same paths.
 Dask is imported lazily, so the rest of the plugin works without it; :func:`require_dask`
 names what to install.
 """
+import contextlib
 import logging
 import multiprocessing
 import os
+import signal
 import sys
+import threading
 
 from .. import blocks
 from ..common import Cancelled, report
@@ -149,6 +152,24 @@ def check_scheduler_address(scheduler):
                          "computer.") from None
 
 
+@contextlib.contextmanager
+def _interrupts_to_this_process_only():
+    """Start worker processes that ignore Ctrl-C (SIGINT, inherited as ignored): a terminal
+    sends it to every process of the command, and each worker printed its own traceback
+    before the command's one-line message. Only when Ctrl-C raises KeyboardInterrupt here
+    (Python's handler), whose handling stops the cluster: a process that Ctrl-C ends at once
+    (its default action) must not leave workers behind."""
+    if threading.current_thread() is not threading.main_thread() or \
+            not callable(signal.getsignal(signal.SIGINT)):
+        yield          # QGIS runs algorithms in a task thread: no terminal, and no signals here
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def start_client(workers=0, scheduler=None, log=None):
     """A Dask client: connected to ``scheduler`` (an address such as
     ``tcp://host:8786``), else to a new LocalCluster of ``workers`` processes (0: one per
@@ -171,8 +192,9 @@ def start_client(workers=0, scheduler=None, log=None):
     exe = python_executable()
     if exe != sys.executable:
         multiprocessing.get_context("spawn").set_executable(exe)
-    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=logging.ERROR)
+    with _interrupts_to_this_process_only():
+        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=logging.ERROR)
     client = distributed.Client(cluster)
     log(f"Local Dask cluster: {n} worker process(es) of 1 thread ({exe}).")
     return client, cluster

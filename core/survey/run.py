@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import grid, pipeline
 from ..common import Cancelled
-from ..methods import get_method
+from ..methods import check_values, get_method
 from . import engine, io, plan, record
 from .index import index_tiles
 from .task import TileJob, output_names, run_tile
@@ -38,10 +38,12 @@ PARTIAL = re.compile(r"\.partial-[0-9a-f]+(\.[A-Za-z]+)*$")
 
 def _param_value(param, text):
     """A parameter's text as its Param kind (float, int, bool, enum)."""
-    if param.kind == "float":
-        return float(text)
-    if param.kind == "int":
-        return int(text)
+    if param.kind in ("float", "int"):
+        try:
+            return float(text) if param.kind == "float" else int(text)
+        except ValueError:
+            raise ValueError(f"{param.name} takes {'a number' if param.kind == 'float' else 'a whole number'}; "
+                             f"got {text!r}.") from None
     if param.kind == "bool":
         if text.lower() in ("1", "true", "yes", "on"):
             return True
@@ -75,6 +77,7 @@ def parse_params(method, items):
             out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
         except ValueError as exc:
             raise ValueError(f"parameter {item!r}: {exc}") from None
+    check_values(method.name, method.params, out)   # out of range: refused now, not once the cluster runs
     return out
 
 

@@ -351,3 +351,15 @@ def test_generalise_simulated_lidar_rows_are_scored_per_point(tmp_path, monkeypa
     assert score.floor()["total"] < 1.0
     assert score(SimpleNamespace(dtm=z))["total"] > 10.0           # roofs kept as ground
     assert any(n.startswith("synthetic-lidar/urban") for n in notes)
+
+
+def test_write_report_all_or_nothing(tmp_path):
+    """A report that cannot be written (its HTML path a folder) leaves no JSON and no temporary
+    file, and says which path and why (it raised IsADirectoryError after writing the JSON)."""
+    (tmp_path / "r.html").mkdir()
+    with pytest.raises(ValueError, match=r"r.html' is a folder: give a file name in it"):
+        write_report({"total": 1.0}, json_path=tmp_path / "r.json", html_path=tmp_path / "r.html")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.html"]
+    assert list((tmp_path / "r.html").iterdir()) == []
+    write_report({"total": 1.0}, json_path=tmp_path / "r.json", html_path=tmp_path / "page.html")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["page.html", "r.html", "r.json"]

@@ -128,6 +128,23 @@ def test_read_opk_csv_errors(tmp_path):
         read_opk_csv(p)
 
 
+def test_read_opk_csv_of_a_spreadsheet_with_semicolons(tmp_path):
+    """A spreadsheet's CSV in a locale with decimal commas ('a;1,5;...') reads as the comma CSV
+    (it was refused with a header 'lacking' every column); a tie-point file too."""
+    from bare_earth.algorithms.orthophoto import read_tie_points
+    comma, semi = tmp_path / "comma.csv", tmp_path / "semi.csv"
+    comma.write_text("filename,x,y,z,omega,phi,kappa\na.tif,500001.25,5400002.5,300,0.5,-0.25,90\n")
+    semi.write_text("filename;x;y;z;omega;phi;kappa\na.tif;500001,25;5400002,5;300;0,5;-0,25;90\n")
+    assert read_opk_csv(semi) == read_opk_csv(comma)
+    rows = [(n, 500001.5 + k, 5400002.0 - k, 10.25 + k, 20.5 + 2 * k) for n in "ab" for k in range(4)]
+    (tmp_path / "ties.csv").write_text("image,x,y,col,row\n" + "".join(",".join(map(str, r)) + "\n" for r in rows))
+    (tmp_path / "ties_semi.csv").write_text("image;x;y;col;row\n" + "".join(
+        ";".join(str(v).replace(".", ",") for v in r) + "\n" for r in rows))
+    want, got = (read_tie_points(tmp_path / f, ["a", "b"]) for f in ("ties.csv", "ties_semi.csv"))
+    assert all(np.array_equal(w[0], g[0]) and np.array_equal(w[1], g[1]) for w, g in zip(want, got))
+    assert got[1][1][0].tolist() == [10.25, 20.5]
+
+
 def test_orthority_files(shared_data):
     d = shared_data / "stereo" / "orthority"
     ios = read_interior_yaml(d / "io" / "ngi_int_param.yaml")

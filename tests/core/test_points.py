@@ -450,3 +450,42 @@ def test_a_vector_layer_given_as_points_says_how_to_export_it(tmp_path, ext):
         read_points(p)
     with pytest.raises(ValueError, match=r"is a vector layer"):
         pointfiles.read_crs(p)
+
+
+def test_write_points_failing_leaves_no_file(tmp_path, monkeypatch):
+    """A write that fails half way (disk full, a LAZ without backend) left the part written under
+    the output's name: a file that looks valid. It goes to a hidden file moved into place."""
+    cloud = read_points(_points_file(tmp_path))
+    out = tmp_path / "cls.txt"
+    real = pointfiles._write_text
+
+    def half(path, *args):
+        with open(path, "w") as fh:
+            fh.write("1 2 3 0\n")
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(pointfiles, "_write_text", half)
+    with pytest.raises(OSError, match="No space left"):
+        write_points(out, cloud, np.zeros(len(cloud), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.txt"]
+    monkeypatch.setattr(pointfiles, "_write_text", real)
+    write_points(out, cloud, np.zeros(len(cloud), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cls.txt", "p.txt"]
+    assert len(out.read_text().splitlines()) == len(cloud)
+
+
+def _points_file(tmp_path):
+    p = tmp_path / "p.txt"
+    p.write_text("0 0 1\n1 0 2\n0 1 3\n1 1 4\n")
+    return p
+
+
+@pytest.mark.parametrize("sep", [" ", ",", "\t", ";"])
+def test_classified_text_keeps_the_input_separator(tmp_path, sep):
+    """Classified points go out with the input's separator (';' input came out space-separated,
+    which the spreadsheet the ';' file came from reads as one column)."""
+    src = tmp_path / "p.txt"
+    src.write_text("x{0}y{0}z\n0{0}0{0}1\n1{0}0{0}2\n0{0}1{0}3\n".format(sep))
+    cloud = read_points(src)
+    write_points(tmp_path / "c.txt", cloud, np.zeros(len(cloud), np.uint8))
+    lines = (tmp_path / "c.txt").read_text().splitlines()
+    assert lines[0] == sep.join(["x", "y", "z", "class"]) and lines[1] == sep.join(["0.000", "0.000", "1.000", "0"])

@@ -201,6 +201,12 @@ def test_parse_params_converts_to_the_params_kinds():
         "max_object_size_m": 30.0, "refine": True, "tolerance_m": None}
     with pytest.raises(ValueError, match="method 'slopeprofile' takes"):
         parse_params(meth, ["size=3"])
+    # out of its range or not a number: refused here, before the survey starts its cluster and
+    # creates the output folder (the range was checked only once the tiles were running)
+    with pytest.raises(ValueError, match=r"max_object_size_m = -5.0 is out of range \[.*\] for method 'slopeprofile'"):
+        parse_params(meth, "max_object_size_m=-5")
+    with pytest.raises(ValueError, match="max_object_size_m takes a number; got 'abc'"):
+        parse_params(meth, "max_object_size_m=abc")
 
 
 # -- seamless ------------------------------------------------------------------------------------
@@ -418,6 +424,25 @@ def test_cli_killed_run_resumes_only_unrecorded_tiles(survey, tmp_path):
     assert {k: rec["tiles"][k]["start"] for k in recorded} == {k: v["start"] for k, v in recorded.items()}
     assert not any(".partial-" in f for f in os.listdir(out))          # a killed write's leftovers removed
     assert np.array_equal(read_mosaic(out, "mask"), one_pass("rascor", survey["scene"], rec).mask)
+
+
+def test_cli_ctrl_c_gives_one_message_not_the_workers_tracebacks(survey, tmp_path):
+    """Ctrl-C reaches every process of the command (the terminal's process group): each Dask
+    worker printed a traceback (CancelledError, KeyboardInterrupt) around the command's
+    message. The workers now ignore it; the command stops them and says how to finish."""
+    out = tmp_path / "out"
+    cmd = [str(ROOT / "bin" / "bare-earth"), "tiles", "rascor", "--input", *survey["tiles"], "--output-dir",
+           str(out), "--workers", "2"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    for line in p.stdout:                          # the first tile done: the run is under way
+        if ": done in " in line:
+            os.killpg(p.pid, signal.SIGINT)          # what Ctrl-C in a terminal does
+            break
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == 130, stderr
+    assert "interrupted; the finished tiles are recorded, rerun to finish" in stderr
+    assert "Traceback" not in stderr + stdout, stderr
+    assert (out / "run.json").exists() and not (out / "mask.vrt").exists()
 
 
 def test_cli_refuses_mixed_crs_naming_the_tile(tmp_path):

@@ -334,7 +334,21 @@ def _refine_bad(frames, tmp):
              Camera.vertical(io, X0 + 170, Y0 - 80, cams[0].centre[2], name="e")]
     small = [_write_frame(small_dir / f"{c.name}.tif", np.zeros((40, 40), np.float32)) for c in apart]
     far = [type(c)(c.interior, c.centre + np.array([10000.0, 0, 0]), c.R, c.name, c.opk_deg) for c in cams]
+    # folders holding a partly copied frame (it opens, its pixels cannot be read) or a file that is
+    # no raster at all: each was a Python traceback (RuntimeError) before
+    cut, junk = tmp / "cut", tmp / "junk"
+    for folder in (cut, junk):
+        folder.mkdir()
+        for p in frames["images"]:
+            with open(p, "rb") as fh:
+                (folder / os.path.basename(p)).write_bytes(fh.read())
+    (cut / "frame1.tif").write_bytes((cut / "frame1.tif").read_bytes()[:400])
+    (junk / "frame2.tif").write_text("not an image")
     return [
+        ("cut_frame", dict(IMAGES=None, IMAGE_FOLDER=str(cut)),
+         r"the image '.*cut/frame1.tif' is not a raster that can be read .*: replace it"),
+        ("junk_frame", dict(IMAGES=None, IMAGE_FOLDER=str(junk)),
+         r"the image '.*junk/frame2.tif' is not a raster that can be read .*: replace it"),
         ("missing", dict(EXTERIOR=ext("missing", names=["frame0", "frame1", "other"])),
          r"no exterior orientation for image\(s\) \['frame2'\]"),
         ("angle_text", dict(EXTERIOR=ext("angle_text", override={"frame1": ["500040", "5400080", "250",
