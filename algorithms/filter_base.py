@@ -519,8 +519,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             try:
                 if d.type() == "rasterDestination":
                     grid.check_output_path(path, self.outputBands(d.name()))
-                else:
+                elif d.type() == "folderDestination":
                     grid.check_output_folder(path)
+                else:                              # a report, a table, a point or vector file
+                    grid.check_output_file(path, "output." + (d.defaultFileExtension() or "txt"))
             except ValueError as exc:
                 return False, "{}: {}".format(label_of(d), exc)
         if self.parameterDefinition(CREATE_OPTIONS) is not None:

@@ -118,10 +118,29 @@ def check_output_path(path, bands=1):
     """
     need_gdal()
     path = os.path.abspath(str(path))
-    if os.path.isdir(path):
-        raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. dtm.tif).")
+    _refuse_folder(path, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
     check_output_folder(path)
+
+
+def check_output_file(path, example="output.txt"):
+    """Check an output file of any kind (a report, a table, a point file) before any work: not
+    a folder (the message suggests ``example`` inside it), its folder exists and takes files, its
+    name fits (:func:`check_output_folder`).
+
+    Raises
+    ------
+    ValueError
+        Naming the folder given as the file, or the folder's problem.
+    """
+    path = os.path.abspath(str(path))
+    _refuse_folder(path, os.path.join(path, example))
+    check_output_folder(path)
+
+
+def _refuse_folder(path, example):
+    if os.path.isdir(path):
+        raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. {example!r}).")
 
 
 def check_output_cells(path, geotransform):

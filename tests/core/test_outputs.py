@@ -343,3 +343,14 @@ def test_qgis_compression_profiles_with_cloud_optimised_geotiffs(tmp_path, profi
         ds = None
     np.testing.assert_array_equal(_read(tmp_path / "m.tif"), m)
     np.testing.assert_array_equal(_read(tmp_path / "d.tif"), d)
+
+
+def test_check_output_file_refuses_a_folder_and_takes_a_file(tmp_path):
+    """A report, table or point output naming a folder was accepted up front and failed after the
+    work (IsADirectoryError); a file in a writable folder passes."""
+    (tmp_path / "reports").mkdir()
+    with pytest.raises(ValueError, match=r"reports' is a folder: give a file name in it \(e.g. '.*/output.csv'\)"):
+        grid.check_output_file(tmp_path / "reports", "output.csv")
+    grid.check_output_file(tmp_path / "table.csv")
+    with pytest.raises(ValueError, match="does not exist"):
+        grid.check_output_file(tmp_path / "missing" / "table.csv")

@@ -156,8 +156,8 @@ def test_evaluate_report_to_a_folder_refused_and_leaves_no_json(processing_run, 
     m = _write(tmp_path / "m.tif", _mask(), nodata=255)
     folder = tmp_path / "reports"
     folder.mkdir()
-    with pytest.raises(QgsProcessingException, match=r"the report output '.*reports' is a folder: give a file "
-                                                     r"name in it \(e.g. '.*reports/report.html'\)") as err:
+    with pytest.raises(QgsProcessingException, match=r"OUTPUT_HTML\): the output '.*reports' is a folder: give "
+                                                     r"a file name in it \(e.g. '.*reports/output.html'\)") as err:
         processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, OUTPUT_JSON=str(tmp_path / "e.json"),
                                                   OUTPUT_HTML=str(folder)))
     assert "Traceback" not in str(err.value)
