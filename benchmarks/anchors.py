@@ -260,7 +260,7 @@ def summarise(rows, tools, ours):
 def markdown(record):
     tools, rows, summ = record["tools"], record["rows"], record["summary"]
     ours = record.get("ours", {})
-    lidar = [g for g in summ["dtm_gap"] if g["row"].startswith("lidar/")]
+    lidar = [g for g in summ["dtm_gap"] if g["row"].startswith(("lidar/", "synthetic-lidar/"))]
     over = [g for g in lidar if g["gap"] > MARGIN]
     out = [f"Peer tools with their defaults on the same matrix (`benchmarks/anchors.py`, "
            f"{record['date'][:10]}; dtm from `generalise.py` at commit {str(record.get('ours_commit'))[:8]}): "
