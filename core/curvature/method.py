@@ -30,6 +30,10 @@ from .derivatives import (
 from .ground import find_ground, ground_reach
 from .profiles import enclosed_reach, find_enclosed_objects, find_profile_objects, profile_reach, wall_rise
 
+#: Percentile of the terrain's slopes that is "steep" (:func:`steep_terrain_slope`): the
+#: upper quartile, the slopes a hillside reaches, robust to a quarter of the blocks on
+#: roofs wider than a block (ISPRS samp31 at 2 m: its upper decile is 1.38 from its roofs).
+_STEEP_PERCENTILE = 75.0
 #: Break threshold in robust standard deviations of the profile bends (K_g default).
 _K_SIGMAS = 1.5
 #: Smallest height deviation (m) across a half window that counts as a break on
@@ -46,7 +50,7 @@ _SMOOTH_QUANTILE = 0.25
 def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, window_cells: int = 5,
                      model: str = "quadratic", min_object_height_m: float = 1.0,
                      wall_slope_deg: float = 45.0, max_object_size_m: float = 100.0,
-                     tolerance_m: float = 0.3,
+                     tolerance_m: float = 0.3, terrain_slope: float = 0.0,
                      progress: Optional[Progress] = None) -> FilterResult:
     """Separate objects from the ground by the Gaussian curvature of local trends.
 
@@ -79,6 +83,10 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     wall_slope_deg : float
         That rise must be steeper than this, and three times steeper than the profile
         before it (object walls are steep; dams, embankments and terrace edges are not).
+    terrain_slope : float
+        Rise/run of the terrain's steep slopes: the rise of a wall over two cells must also
+        exceed what this slope rises over them (:func:`.profiles.wall_rise`; it matters at
+        coarse cells, where the wall slope judged over 3 m is a few metres).
     max_object_size_m : float
         Longest object (profile runs and enclosed regions larger than this are ground);
         also bounds the method's reach (halo).
@@ -105,7 +113,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     z = bounded_heights(as_surface(z))          # +-1e30 and the like: spikes, not overflow
     cell = as_cell_size(cell_size)
     s = _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
-                          max_object_size_m, tolerance_m)
+                          max_object_size_m, tolerance_m, terrain_slope)
     valid = np.isfinite(z)
     n_valid = int(np.count_nonzero(valid))
     some_valid = None if n_valid == valid.size else valid     # None: every cell is valid
@@ -116,7 +124,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     # 3. along X and Y profiles: from a break going up to the break coming down
     objects, n_obj_x, n_obj_y = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
-        tol=s.tol, max_size=s.max_size, progress=sub_progress(progress, 0.35, 0.55))
+        tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, progress=sub_progress(progress, 0.35, 0.55))
     # 4. regions enclosed by breaks and made mostly of such runs -> whole objects
     objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size,
                                      progress=sub_progress(progress, 0.55, 0.65))
@@ -140,10 +148,11 @@ class _Settings:
     tan_wall: float
     max_size: float
     tol: float
+    terrain_slope: float
 
 
 def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
-                      max_object_size_m, tolerance_m):
+                      max_object_size_m, tolerance_m, terrain_slope=0.0):
     """The parameters of :func:`filter_curvature`, checked (ValueError naming the fix)."""
     window = check_window(window_cells)
     model = check_model(model)
@@ -156,7 +165,11 @@ def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall
         raise ValueError(f"wall_slope_deg must be between 0 and 90 degrees; got {wall_slope_deg}. "
                          "Use e.g. 45.")
     tan_wall = float(np.tan(np.radians(float(wall_slope_deg))))
-    return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol)
+    terrain_slope = float(terrain_slope)
+    if not (0.0 <= terrain_slope < np.inf):
+        raise ValueError(f"terrain_slope must be a rise/run >= 0; got {terrain_slope}. "
+                         "Leave it empty to derive it from the data, or use 0 for no terrain term.")
+    return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol, terrain_slope)
 
 
 def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
@@ -165,8 +178,11 @@ def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
     objects."""
     return {"k_g_per_m2": float(s.k_g), "window_cells": s.window, "model": s.model,
             "min_object_height_m": s.h_min, "wall_slope_deg": s.wall_slope_deg,
-            "wall_rise_x_m": round(wall_rise(cell[0], h_min=s.h_min, tan_wall=s.tan_wall), 4),
-            "wall_rise_y_m": round(wall_rise(cell[1], h_min=s.h_min, tan_wall=s.tan_wall), 4),
+            "terrain_slope": s.terrain_slope,
+            "wall_rise_x_m": round(wall_rise(cell[0], h_min=s.h_min, tan_wall=s.tan_wall,
+                                             terrain_slope=s.terrain_slope), 4),
+            "wall_rise_y_m": round(wall_rise(cell[1], h_min=s.h_min, tan_wall=s.tan_wall,
+                                             terrain_slope=s.terrain_slope), 4),
             "max_object_size_m": s.max_size, "tolerance_m": s.tol,
             "share_marked_x": breaks.n_x / n_valid,
             "share_marked_y": breaks.n_y / n_valid,
@@ -301,18 +317,33 @@ def _place_bend(z, cell_size, window):
     return bend_noise_gain((dx, dy), window) * s * d / np.sqrt(12.0)
 
 
+def steep_terrain_slope(z, cell_size) -> float:
+    """The terrain's steep slopes (rise/run): the upper quartile of the slopes of the 20 m
+    block minima (:func:`~bare_earth.core.estimate.terrain_slopes`: the surface objects
+    narrower than a block do not reach), 0 where they cannot be measured. The upper
+    quartile, not a higher percentile: roofs wider than a block and low blunders tilt
+    some blocks' slopes, and the quartile holds while they are under a quarter of them.
+    A wall must rise more over two cells than this slope does (:func:`.profiles.wall_rise`)."""
+    dx, dy = cell_size
+    d = max(dx, dy)
+    s = terrain_slopes(as_surface(z), (dx, dy), max(2, int(round(GROUND_BLOCK_M / d))))
+    return float(np.percentile(s, _STEEP_PERCENTILE)) if s.size else 0.0
+
+
 def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: Optional[float] = None,
                              window_cells: int = 5, model: str = "quadratic",
                              min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
                              max_object_size_m: float = 100.0,
-                             tolerance_m: Optional[float] = None, progress=None) -> dict:
+                             tolerance_m: Optional[float] = None, terrain_slope: Optional[float] = None,
+                             progress=None) -> dict:
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
     ground, squared; its floor at least 5 cm over 2 m, at most the bend of a
     ``min_object_height_m`` object over half a window). ``tolerance_m``: three times the
     noise of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
-    [0.3, 1.0] m; 0.5 m when too few ground cells are seen. The others have
+    [0.3, 1.0] m; 0.5 m when too few ground cells are seen. ``terrain_slope``:
+    :func:`steep_terrain_slope`. The others have
     fixed defaults (see :data:`METHOD`). ``progress(fraction)`` (optional, may raise
     ``Cancelled``) from inside the estimates.
     """
@@ -326,10 +357,13 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     if tolerance_m is None:
         sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 1.0))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
+    if terrain_slope is None:
+        terrain_slope = steep_terrain_slope(z, (dx, dy))
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),
-            "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m)}
+            "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m),
+            "terrain_slope": float(terrain_slope)}
 
 
 def curvature_halo(params: dict, cell_size: CellSize) -> int:
@@ -392,6 +426,11 @@ METHOD = Method(
               "cell may stand (plus one cell of the surface's slope) and still be ground "
               "(final pass). Empty: 3 x the noise of the DSM's ground-level cells, within [0.3, 1] m.",
               minimum=0.01, maximum=10.0, advanced=True),
+        Param("terrain_slope", "float", None,
+              "Rise/run of the terrain's steep slopes: a wall must also rise more within two "
+              "cells than this slope does, so the foot of a hillside is no wall at coarse "
+              "cells. Empty: the upper quartile of the slopes of 20 m block minima (the log "
+              "gives it and the rise used).", minimum=0.0, maximum=100.0, advanced=True),
     ),
     title="Curvature filter (Luong Chinh Ke 2002)",
     description=(
@@ -436,7 +475,12 @@ METHOD = Method(
         "A wall's slope is judged over two cells, but over 3 m at most: "
         "a vertical wall is smeared over two cells, and at 4 m cells a 45&deg; slope over "
         "two cells would demand 8 m of rise, so shrubs, hedges and houses would never be "
-        "walls (the log gives the rise used along X and Y). The CURVATURE output (band 1 "
+        "walls. Nor is a rise the terrain itself makes over two cells: the rise of its steep "
+        "slopes (the upper quartile of the slopes of 20 m block minima) over two cells is "
+        "the least a wall must rise; at 20-30 m cells (SRTM, Copernicus) the foot of every "
+        "hillside rising from a valley floor was a wall and its run an object (15 % of a "
+        "24 m terrain model of hills), and objects lower than that rise are not seen there "
+        "(the log gives the rise used along X and Y). The CURVATURE output (band 1 "
         "K in 1/m<sup>2</sup>, band 2 H in "
         "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
         "cells marked by X and by Y profiles. The curvature is attenuated within "

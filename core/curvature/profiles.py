@@ -21,21 +21,27 @@ _WALL_CONTRAST = 3.0
 _WALL_SPAN_M = 3.0
 
 
-def wall_rise(cell: float, *, h_min: float, tan_wall: float) -> float:
+def wall_rise(cell: float, *, h_min: float, tan_wall: float, terrain_slope: float = 0.0) -> float:
     """Metres a profile must rise (or fall) within ``_WALL_CELLS`` cells of ``cell``
-    metres to be an object's wall: the minimum object height ``h_min``, and the rise of the
-    wall slope over those cells, but over :data:`_WALL_SPAN_M` at most.
+    metres to be an object's wall: the minimum object height ``h_min``, the rise of the
+    wall slope over those cells, but over :data:`_WALL_SPAN_M` at most, and the rise of
+    the terrain's steep slopes (``terrain_slope``, rise/run) over those cells.
 
     A vertical wall is smeared over two cells (one of them mixed), so over two cells the
     slope test demands ``2 cell tan(wall)``: 2 m at 1 m cells, but 8 m at 4 m cells,
     where no shrub, hedge or house would be a wall. Judged over at most
     :data:`_WALL_SPAN_M`, the demand stops growing where the raster no longer resolves
-    the slope (it is unchanged up to 1.5 m cells).
+    the slope (it is unchanged up to 1.5 m cells). A rise the terrain itself makes over two
+    cells is no wall either: at 24 m cells a 3 m rise over 48 m is a 3.6 degree slope, and
+    every foot of a hillside rising from a valley floor passed the test (15 % of a
+    bare-earth DEM of hills taken for objects). Where the cells are fine the wall slope
+    sets the demand; where they are coarse, the terrain's own slopes do.
     """
-    return max(float(h_min), float(tan_wall) * min(_WALL_CELLS * float(cell), _WALL_SPAN_M))
+    return max(float(h_min), float(tan_wall) * min(_WALL_CELLS * float(cell), _WALL_SPAN_M),
+               float(terrain_slope) * _WALL_CELLS * float(cell))
 
 
-def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
+def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol, terrain_slope=0.0):
     """Where the profiles through the flat cells ``idx`` (the marked cells, breaks), read in
     steps of ``sd`` flat cells, have just risen as a wall, and where they have just come
     down one.
@@ -46,7 +52,8 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
 
     * ``z_j - foot >= h_min`` (high enough) and steeper than the wall slope: ``z_j - foot
       >= _WALL_CELLS cell tan(wall slope)``, the slope judged over at most
-      :data:`_WALL_SPAN_M` (:func:`wall_rise`), and
+      :data:`_WALL_SPAN_M`, and higher than the terrain's steep slopes ``terrain_slope``
+      rise over those cells (:func:`wall_rise`), and
     * it is much steeper (``_WALL_CONTRAST`` times) than the profile's own rise over
       the ``reach`` positions before the foot (where that position is nodata or before
       the profile's start: from the farthest valid position within the reach; flat when
@@ -84,7 +91,7 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol):
         rise = zc - best
         fall = np.subtract(top, zc, out=top)
         # cheap tests first, on all marked cells; the rest only on what passes
-        need = np.float32(wall_rise(cell, h_min=h_min, tan_wall=tan_wall))
+        need = np.float32(wall_rise(cell, h_min=h_min, tan_wall=tan_wall, terrain_slope=terrain_slope))
         down = fall >= need
         cand = np.flatnonzero(rise >= need)
         rate = rise.take(cand)
@@ -198,7 +205,7 @@ def _heights_and_drops(zp, frame):
 
 
 def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None,
-               zover=None):
+               zover=None, terrain_slope=0.0):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
     profiles, the rows) of the framed heights ``zp`` and breaks ``bp`` (:func:`_framed`),
     shaped as the frame's inside ``shape``: the runs of :func:`_runs` read forwards and
@@ -225,7 +232,8 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
             r1 = min(frame + h, r0 + rows)
             idx = np.flatnonzero(bf[r0 * W:r1 * W])
             idx += r0 * W
-            wl, dn = _walls(zf, idx, d * s, cell, reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol)
+            wl, dn = _walls(zf, idx, d * s, cell, reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol,
+                            terrain_slope=terrain_slope)
             walls.append(wl)
             downs.append(dn)
             report(progress, (i + (r1 - frame) / h) / 4)
@@ -250,13 +258,14 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
     return both.reshape(zp.shape)[frame:frame + h, frame:frame + w].copy()
 
 
-def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None):
+def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None,
+                  terrain_slope=0.0):
     """:func:`_axis_runs` of the raster ``z`` (NaN at nodata) and its breaks ``marked``,
     ``& valid`` (None: every cell valid)."""
     frame = _WALL_CELLS + reach
     res = _axis_runs(_framed(z, frame, np.nan), _framed(marked, frame, False), frame, z.shape, cell, axis,
                      reach=reach, h_min=h_min, tan_wall=tan_wall, tol=tol, max_cells=max_cells,
-                     progress=progress)
+                     progress=progress, terrain_slope=terrain_slope)
     if valid is not None:
         res &= valid
     return res
@@ -335,19 +344,22 @@ def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
 
 def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
                          window: int, h_min: float, tan_wall: float, tol: float, max_size: float,
+                         terrain_slope: float = 0.0,
                          progress: Optional[Progress] = None) -> Tuple[np.ndarray, int, int]:
     """Step 3: along the X and Y profiles, the cells from a break going up a wall to the
     break coming down (:func:`_axis_objects`, both scan directions agreeing).
 
     ``valid`` is None when every cell is valid. The foot search reaches ``2 window + 1``
-    positions before a wall; a run longer than ``max_size`` metres is not an object.
+    positions before a wall; a run longer than ``max_size`` metres is not an object;
+    ``terrain_slope`` (rise/run) the terrain's steep slopes (:func:`wall_rise`).
     Returns the union of the X and Y objects and the cells found by each.
     """
     dx, dy = cell_size
     reach = 2 * window + 1
     frame = _WALL_CELLS + reach
     zp, bp = _framed(z, frame, np.nan), _framed(marked, frame, False)
-    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame))
+    kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame),
+              terrain_slope=terrain_slope)
     obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx),
                        progress=sub_progress(progress, 0.0, 0.5), **kw)
     obj_y = _axis_runs(zp, bp, frame, z.shape, dy, 0, max_cells=int(max_size / dy),
