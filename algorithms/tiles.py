@@ -21,8 +21,39 @@ from qgis.core import (
 from ..core import Cancelled
 from ..core.methods import available_methods
 from .compat import FILE_FOLDER, NUMBER_INTEGER, SOURCE_RASTER
-from .filter_base import BaseAlgorithm, progress_callback, raster_path, tr, with_help
+from .filter_base import (
+    BaseAlgorithm,
+    layer_crs_wkt,
+    layer_nodata_ranges,
+    progress_callback,
+    raster_path,
+    tr,
+    with_help,
+)
 
+
+def check_layer_settings_in_file(layer):
+    """QgsProcessingException when a tile layer carries settings its file does not: additional
+    no-data values (Properties > Transparency) or a CRS given in QGIS to a file without one. The
+    survey's workers read the tiles' files, where those settings are not, so the tiles would be
+    filtered otherwise than QGIS draws them (a -9999 border taken as heights, feet as metres)."""
+    path = raster_path(layer)
+    if layer_nodata_ranges(layer, None):
+        raise QgsProcessingException(tr(
+            "The tile layer '{}' has additional no-data values set in QGIS (Properties > Transparency), "
+            "which the survey's workers, reading {}, do not see: declare the no-data value in the file "
+            "(gdal_edit -a_nodata VALUE) or give the tiles as a folder.").format(layer.name(), path))
+    from osgeo import gdal
+    try:
+        ds = gdal.OpenEx(path, gdal.OF_RASTER)
+    except RuntimeError:                  # unreadable: index_tiles names it
+        ds = None
+    if ds is not None and not ds.GetProjection() and layer_crs_wkt(layer):
+        raise QgsProcessingException(tr(
+            "The tile layer '{}' was given a CRS in QGIS ({}) that its file {} does not hold; the survey's "
+            "workers read the file: write the CRS into it (gdal_edit -a_srs {}).").format(
+            layer.name(), layer.crs().authid() or layer.crs().description(), path,
+            layer.crs().authid() or "EPSG:XXXX"))
 
 class TilesAlgorithm(BaseAlgorithm):
     """Filter a survey of tiles seamlessly into one DTM and one mask per tile plus mosaics."""
@@ -117,6 +148,8 @@ class TilesAlgorithm(BaseAlgorithm):
             return folder
         if not layers:
             raise QgsProcessingException(tr("No tiles: choose raster layers, a VRT or a folder."))
+        for lyr in layers:
+            check_layer_settings_in_file(lyr)
         return [raster_path(lyr) for lyr in layers]
 
     def _method(self, parameters, context):

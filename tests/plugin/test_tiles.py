@@ -231,3 +231,36 @@ def test_more_workers_than_cores_refused_before_any_work(processing_run, tiles, 
         processing_run("bareearth:tiles", {"INPUT_FOLDER": tiles["dir"], "METHOD": method_index("slopeprofile"),
                                            "WORKERS": 256, "OUTPUT_FOLDER": str(out)})
     assert not out.exists()
+
+
+def test_tile_layers_with_settings_their_files_lack_are_refused(processing_run, tiles, tmp_path):
+    """A tile layer given additional no-data values or a CRS in QGIS: the survey's workers read the
+    files, which do not hold them, so a -9999 border was filtered as heights and a CRS-less tile in
+    feet as metres, without a word. Refused, naming the layer and the gdal_edit that fixes the file."""
+    from qgis.core import (
+        QgsCoordinateReferenceSystem,
+        QgsProcessingException,
+        QgsProject,
+        QgsRasterLayer,
+        QgsRasterRange,
+    )
+    nodata_layer = QgsRasterLayer(tiles["paths"][0], "tile_nodata", "gdal")
+    nodata_layer.dataProvider().setUserNoDataValue(1, [QgsRasterRange(-5.0, -5.0)])
+    bare = tmp_path / "bare.tif"
+    a = np.full((TILE, TILE), 10.0, np.float32)
+    grid.write_array(bare, a, (0.0, 1.0, 0.0, float(TILE), 0.0, -1.0), None)
+    crs_layer = QgsRasterLayer(str(bare), "tile_crs", "gdal")
+    crs_layer.setCrs(QgsCoordinateReferenceSystem("EPSG:2263"))
+    for lyr in (nodata_layer, crs_layer):
+        QgsProject.instance().addMapLayer(lyr)
+    try:
+        for lyr, what in ((nodata_layer, r"tile_nodata' has additional no-data values.*gdal_edit -a_nodata"),
+                          (crs_layer, r"tile_crs' was given a CRS in QGIS \(EPSG:2263\).*gdal_edit -a_srs EPSG:2263")):
+            out = tmp_path / f"out_{lyr.name()}"
+            with pytest.raises(QgsProcessingException, match=what):
+                processing_run("bareearth:tiles", {"INPUT_LAYERS": [lyr.id()], "METHOD": method_index("slopeprofile"),
+                                                   "OUTPUT_FOLDER": str(out)})
+            assert not out.exists()
+    finally:
+        for lyr in (nodata_layer, crs_layer):
+            QgsProject.instance().removeMapLayer(lyr.id())
