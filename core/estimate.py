@@ -661,7 +661,13 @@ def _below_at(a, rows, mid, idx, reach, depth_m):
     return out
 
 
-def object_widths(objects, cell_size, area_share=0.98):
+#: Nodata gaps at most this many cells from a valid cell (missing scan lines, a checkerboard of
+#: dropouts: gaps up to two cells across) are part of the surface around them for
+#: :func:`object_widths`: an object continues under them.
+GAP_CELLS = 1.0
+
+
+def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outside=True):
     """Width of the widest objects of a mask, metres: the width below which ``area_share``
     of the objects' area lies.
 
@@ -682,6 +688,15 @@ def object_widths(objects, cell_size, area_share=0.98):
         ``(dx, dy)`` metres.
     area_share : float
         Share of the object area at or below the returned width (0 < share <= 1).
+    nodata : array_like of bool, 2-D, optional
+        Nodata cells. Those in narrow gaps (within :data:`GAP_CELLS` of a valid cell:
+        missing scan lines, scattered dropouts) are not outside an object: the distance is
+        measured to the nearest valid cell outside it (a roof crossed by missing scan lines
+        every 7 rows read 7 m wide, and a filter's window sized from it left the roof
+        standing). Wider nodata areas stay outside.
+    border_outside : bool
+        Whether the raster's border is outside every object (True) or an object cut by it
+        continues beyond it (False: its width is measured to its outline inside the raster).
     """
     obj = np.asarray(objects, bool)
     if not 0 < area_share <= 1:
@@ -692,7 +707,15 @@ def object_widths(objects, cell_size, area_share=0.98):
     lab, n = ndimage.label(obj)
     # distance from each object cell to the nearest non-object cell, counted to the cell's
     # far edge (a one-cell object: half a cell to its edge, so one cell wide)
-    dist = ndimage.distance_transform_edt(np.pad(obj, 1), sampling=(dy, dx))[1:-1, 1:-1]
+    inside = obj
+    if nodata is not None:
+        gaps = np.asarray(nodata, bool)
+        if gaps.any():
+            gaps = gaps & (ndimage.distance_transform_edt(gaps) <= GAP_CELLS)
+            inside = obj | gaps
+    pad = 1 if border_outside else 0
+    dist = ndimage.distance_transform_edt(np.pad(inside, pad), sampling=(dy, dx))
+    dist = dist[pad:dist.shape[0] - pad, pad:dist.shape[1] - pad]
     lab_obj = lab[obj]
     inner = ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))
     width = 2.0 * np.asarray(inner, np.float64) - min(dx, dy)

@@ -75,11 +75,10 @@ import math
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
-from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
-from .estimate import block_minima, noise_ground_level, terrain_slopes
+from .estimate import block_minima, noise_ground_level, object_widths, terrain_slopes
 from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
@@ -761,14 +760,9 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     obj = res.mask == OBJECT
     if not obj.any():
         return float("nan")
-    lab, n = ndimage.label(obj)
-    dist = ndimage.distance_transform_edt(obj, sampling=(cell[1], cell[0]))
-    lab_obj = lab[obj]                         # per object, over its own cells only (no sort of the
-    width = 2.0 * ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))   # whole grid)
-    area = np.bincount(lab_obj, minlength=n + 1)[1:].astype(np.float64)
-    order = np.argsort(width)
-    cum = np.cumsum(area[order]) / area.sum()
-    w = float(width[order][np.searchsorted(cum, 0.98)])
+    # twice the distance from the inside to the outline, counted to the cell's centre (the
+    # estimate's width counts to its far edge); nodata gaps do not cut an object
+    w = object_widths(obj, cell, 0.98, nodata=~np.isfinite(z), border_outside=False) + min(cell)
     return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 

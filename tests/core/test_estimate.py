@@ -360,3 +360,22 @@ def test_object_widths_exact_on_tiny_masks():
     assert est.object_widths(bridge, (1.0, 1.0)) == 3.0
     with pytest.raises(ValueError, match="area_share"):
         est.object_widths(m, (1.0, 1.0), area_share=0.0)
+
+
+def test_object_widths_across_nodata_gaps():
+    """Missing scan lines do not cut an object: a 9 x 9 roof crossed by NaN rows every
+    3 rows is 9 cells wide; a wide nodata area stays outside but for its rim (issue: a roof crossed by
+    missing scan lines read a few metres wide and the opening left it standing)."""
+    m = np.zeros((20, 20), bool)
+    m[4:13, 5:14] = True
+    gaps = np.zeros_like(m)
+    gaps[::3] = True
+    cut = m & ~gaps
+    assert est.object_widths(cut, (1.0, 1.0)) == 1.0              # cut into strips
+    assert est.object_widths(cut, (1.0, 1.0), nodata=gaps) == 9.0
+    wide = ~m                                                    # nodata all around it: only
+    assert est.object_widths(m, (1.0, 1.0), nodata=wide) == 9.0 + 2.0   # its one-cell rim joins
+    edge = np.zeros((9, 9), bool)
+    edge[:, :3] = True                                           # cut by the raster's border
+    assert est.object_widths(edge, (1.0, 1.0)) == 3.0
+    assert est.object_widths(edge, (1.0, 1.0), border_outside=False) == 5.0

@@ -355,3 +355,20 @@ def test_ground_beside_trees_on_a_slope_stays_ground():
     z[trees] += 8.0
     res = morph.filter_morphological(z, 4.0, mode="progressive", max_object_size_m=20.0, dh_m=0.5, slope=0.3)
     np.testing.assert_array_equal(res.mask == OBJECT, trees)
+
+
+def test_missing_scan_lines_do_not_shrink_the_window():
+    """A 30 m roof crossed by missing scan lines (NaN every 7th row): the object size is
+    measured across the gaps, so the opening removes the roof (it stood in the DTM when
+    the lines cut it into 6 m strips and the window was sized 10 m)."""
+    y, x = np.mgrid[0:120, 0:120]
+    z = (100.0 + 0.02 * x).astype(np.float32)
+    roof = (abs(y - 60) < 15) & (abs(x - 60) < 15)
+    z[roof] += 10.0
+    z[::7] = np.nan
+    p = morph.resolve_morphological_params(z, (1.0, 1.0))
+    assert p["max_object_size_m"] >= 30.0
+    r = run_array("morphological", z, 1.0)
+    valid = np.isfinite(z)
+    assert np.all(r.mask[roof & valid] == OBJECT)
+    assert np.nanmax(r.dtm) < 103.0
