@@ -744,7 +744,8 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     The progressive filter with windows up to ``search_m`` flags the cells standing more
     than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; the width of each
     object is twice the largest distance from its inside to its outline (the largest
-    square window it holds). The object size is the width below which 98 % of the object
+    square window it holds; :func:`~bare_earth.core.estimate.object_widths`, across nodata gaps
+    and the low outliers on a roof). The object size is the width below which 98 % of the object
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
     ``outline_slope`` (default ``slope``) is the filter's, so the objects include their
@@ -761,8 +762,10 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     if not obj.any():
         return float("nan")
     # twice the distance from the inside to the outline, counted to the cell's centre (the
-    # estimate's width counts to its far edge); nodata gaps do not cut an object
-    w = object_widths(obj, cell, 0.98, nodata=~np.isfinite(z), border_outside=False) + min(cell)
+    # estimate's width counts to its far edge); nodata gaps and low outliers (blunders on a
+    # roof, one cell or a 2 x 2 cluster) do not cut an object
+    holes = (res.mask == LOW) | ~np.isfinite(z)
+    w = object_widths(obj, cell, 0.98, nodata=holes, border_outside=False) + min(cell)
     return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 
