@@ -763,7 +763,9 @@ def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outsi
         missing scan lines, scattered dropouts) are not outside an object: the distance is
         measured to the nearest valid cell outside it (a roof crossed by missing scan lines
         every 7 rows read 7 m wide, and a filter's window sized from it left the roof
-        standing). Wider nodata areas stay outside.
+        standing). Wider nodata areas stay outside. With such gaps, an object's cells that
+        touch at a corner are one object (8-connected: a checkerboard of dropouts leaves a
+        roof's cells touching only at corners).
     border_outside : bool
         Whether the raster's border is outside every object (True) or an object cut by it
         continues beyond it (False: its width is measured to its outline inside the raster).
@@ -774,15 +776,18 @@ def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outsi
     if obj.ndim != 2 or not obj.any():
         return 0.0
     dx, dy = float(cell_size[0]), float(cell_size[1])
-    lab, n = ndimage.label(obj)
-    # distance from each object cell to the nearest non-object cell, counted to the cell's
-    # far edge (a one-cell object: half a cell to its edge, so one cell wide)
     inside = obj
+    structure = None
     if nodata is not None:
         gaps = np.asarray(nodata, bool)
         if gaps.any():
             gaps = gaps & (ndimage.distance_transform_edt(gaps) <= GAP_CELLS)
             inside = obj | gaps
+            if gaps.any():              # cells of an object touching corners across a gap (a
+                structure = np.ones((3, 3), bool)   # checkerboard of dropouts) are one object
+    lab, n = ndimage.label(obj, structure)
+    # distance from each object cell to the nearest non-object cell, counted to the cell's
+    # far edge (a one-cell object: half a cell to its edge, so one cell wide)
     pad = 1 if border_outside else 0
     dist = ndimage.distance_transform_edt(np.pad(inside, pad), sampling=(dy, dx))
     dist = dist[pad:dist.shape[0] - pad, pad:dist.shape[1] - pad]

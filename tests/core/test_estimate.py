@@ -401,3 +401,17 @@ def test_height_quantum_and_the_noise_floor_of_rounded_heights(dtype):
     assert est.height_quantum(np.full((8, 8), 5.0)) == 0.0   # one height: unknown
     assert est.noise_floor(0.4, 1.0) == 0.4                  # above the floor: unchanged
     assert np.isnan(est.noise_floor(float("nan"), 1.0))
+
+
+def test_object_widths_across_a_checkerboard_of_dropouts():
+    """Half the cells missing in a checkerboard: the roof's cells touch only at corners,
+    yet they are one object as wide as the roof (each cell was its own one-cell object)."""
+    m = np.zeros((21, 21), bool)
+    m[4:17, 4:17] = True                                         # 13 x 13
+    yy, xx = np.mgrid[0:21, 0:21]
+    holes = (yy + xx) % 2 == 0
+    # 11: the outermost ring alternates holes and cells outside; one object, so its width
+    # whatever the share of the area asked (cells alone: half of them within 2 cells of it)
+    assert est.object_widths(m & ~holes, (1.0, 1.0), nodata=holes) == 11.0
+    assert est.object_widths(m & ~holes, (1.0, 1.0), area_share=0.5, nodata=holes) == 11.0
+    assert est.object_widths(m & ~holes, (1.0, 1.0)) == 1.0
