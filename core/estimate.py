@@ -22,7 +22,10 @@ says so:
   - :func:`noise_plane_residual`: lower quartile of the residual to the mean of the
     four neighbours (the plane through them), the same quantity on a 5-cell stencil;
   - :func:`noise_second_difference_tiles`: the second differences' spread on the smooth
-    parts of the surface (:func:`smooth_spread`: a low quantile of per-tile MADs).
+    parts of the surface (:func:`smooth_spread`: a low quantile of per-tile MADs);
+  - :func:`height_quantum` and :func:`noise_floor`: the step heights are rounded to (a DSM
+    in whole metres) and its rounding error, below which the noise plane residual and the
+    ground-level noise never read.
 * The ground level under canopy and roofs (issue 12: estimates made on the right surface):
 
   - :func:`ground_level_reference`: interpolated 20 m block minima, the level objects
@@ -168,6 +171,70 @@ def terrain_slopes(z, cell_size, k, min_blocks=2):
     return s[np.isfinite(s)]
 
 
+#: Distinct heights :func:`height_quantum` looks at (the lowest of the sample).
+QUANTUM_VALUES = 100_000
+#: A height lies on the quantum's grid when within this fraction of the quantum of it.
+QUANTUM_TOLERANCE = 0.01
+
+
+def height_quantum(z):
+    """The step the DSM's heights are rounded to, metres (0 when they are not rounded).
+
+    Heights stored in whole metres (an Int16 SRTM or Copernicus DEM) or in decimetres lie on
+    a grid of multiples of a step ``q``: every difference between two distinct heights is a
+    multiple of the smallest one. Rounding adds to each height a uniform error of standard
+    deviation ``q / sqrt(12)`` (0.29 m for whole metres), which the noise statistics below
+    do not see: on such a DSM most second differences and neighbour residuals are exactly
+    0, their lower quartile reads 0 and every threshold set from it is passed by a single
+    step of ``q`` on a gentle slope (see :func:`noise_floor`).
+
+    Measured on the distinct heights of :func:`sample_windows` (at most
+    :data:`QUANTUM_VALUES` of them): ``q`` is the smallest difference between two
+    consecutive distinct heights (refined as the mean step over the differences of up to 10
+    steps) when every difference lies within :data:`QUANTUM_TOLERANCE` ``q`` of a multiple
+    of it; 0 with fewer than 3 distinct heights, when they are not on such a grid (float
+    heights with noise), or when the step is within 16 float32 spacings of the heights (the
+    storage's own grid).
+
+    Examples
+    --------
+    >>> height_quantum(np.array([[1.0, 2.0, 4.0], [7.0, 2.0, 1.0]]))
+    1.0
+    >>> height_quantum(np.array([[1.0, 2.5, 4.0], [7.5, 2.0, 1.0]]))
+    0.5
+    >>> height_quantum(np.array([[1.0, 2.013, 4.3], [7.77, 2.0, 1.0]]))
+    0.0
+    """
+    v = [w[np.isfinite(w)].astype(np.float64).ravel() for w in sample_windows(np.asarray(z))]
+    v = np.unique(np.concatenate(v)) if v else np.empty(0)
+    if v.size > QUANTUM_VALUES:
+        v = v[:QUANTUM_VALUES]
+    if v.size < 3:
+        return 0.0
+    d = np.diff(v)
+    q = float(d.min())
+    # float32 storage is itself a grid (its spacing at these heights) and moves each height
+    # by up to that spacing: steps within a few spacings are no rounding of the heights
+    ulp = float(np.spacing(np.float32(np.abs(v).max())))
+    if not q > 16 * ulp:
+        return 0.0
+    small = d <= 10.5 * q                     # the step refined on the small differences
+    q = float(d[small].sum() / np.round(d[small] / q).sum())
+    n = np.round(d / q)
+    if np.any(np.abs(d - n * q) > QUANTUM_TOLERANCE * q + 4 * ulp):
+        return 0.0
+    return q
+
+
+def noise_floor(sigma, quantum):
+    """A noise estimate ``sigma`` raised to the rounding error of heights stored in steps of
+    ``quantum`` (:func:`height_quantum`): ``max(sigma, quantum / sqrt(12))``, the standard
+    deviation of a uniform error over one step (NaN stays NaN)."""
+    if not np.isfinite(sigma):
+        return sigma
+    return max(float(sigma), float(quantum) / math.sqrt(12.0))
+
+
 def _second_differences(windows):
     """Second differences ``z[i-1] - 2 z[i] + z[i+1]`` along the rows then the columns of
     every window, finite ones only (1-D, the windows' dtype)."""
@@ -239,8 +306,9 @@ def noise_plane_residual(z, dtype=np.float32, min_count=1, default=0.0):
     Returns
     -------
     float
-        ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``; ``default`` when fewer than
-        ``min_count`` residuals exist.
+        ``quantile_25(|r|) / 0.3186 / sqrt(1.25)``, at least the rounding error of the
+        heights (:func:`noise_floor`); ``default`` when fewer than ``min_count`` residuals
+        exist.
     """
     r = []
     for w in sample_windows(np.asarray(z, dtype)):
@@ -252,7 +320,7 @@ def noise_plane_residual(z, dtype=np.float32, min_count=1, default=0.0):
     r = np.concatenate(r) if r else np.empty(0, dtype)
     if r.size < max(1, min_count):
         return default
-    return float(np.percentile(r, 25.0)) / _ABS_NORMAL_QUARTILE / math.sqrt(1.25)
+    return noise_floor(float(np.percentile(r, 25.0)) / _ABS_NORMAL_QUARTILE / math.sqrt(1.25), height_quantum(z))
 
 
 def smooth_spread(stacks, tile=16, quantile=0.25):
@@ -407,7 +475,9 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
        directions: twice the samples of rows and columns where the ground shows only in
        small gaps), ``/ 0.3186 / sqrt(6)`` (white
        noise of ``sigma`` gives second differences of variance ``6 sigma^2``; the lower
-       quartile ignores the edges and low vegetation left among them).
+       quartile ignores the edges and low vegetation left among them);
+    4. at least the rounding error of heights stored in steps (:func:`noise_floor`: on a
+       DSM in whole metres most second differences are exactly 0).
 
     Measured at full resolution on a central window of at most 1024 x 1024 cells.
 
@@ -471,7 +541,7 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
             sigma = new
             break
         sigma = new
-    out["sigma"] = sigma
+    out["sigma"] = noise_floor(sigma, height_quantum(z))
     report(progress, 1.0)
     return out
 
@@ -661,7 +731,13 @@ def _below_at(a, rows, mid, idx, reach, depth_m):
     return out
 
 
-def object_widths(objects, cell_size, area_share=0.98):
+#: Nodata gaps at most this many cells from a valid cell (missing scan lines, a checkerboard of
+#: dropouts: gaps up to two cells across) are part of the surface around them for
+#: :func:`object_widths`: an object continues under them.
+GAP_CELLS = 1.0
+
+
+def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outside=True):
     """Width of the widest objects of a mask, metres: the width below which ``area_share``
     of the objects' area lies.
 
@@ -682,6 +758,17 @@ def object_widths(objects, cell_size, area_share=0.98):
         ``(dx, dy)`` metres.
     area_share : float
         Share of the object area at or below the returned width (0 < share <= 1).
+    nodata : array_like of bool, 2-D, optional
+        Nodata cells. Those in narrow gaps (within :data:`GAP_CELLS` of a valid cell:
+        missing scan lines, scattered dropouts) are not outside an object: the distance is
+        measured to the nearest valid cell outside it (a roof crossed by missing scan lines
+        every 7 rows read 7 m wide, and a filter's window sized from it left the roof
+        standing). Wider nodata areas stay outside. With such gaps, an object's cells that
+        touch at a corner are one object (8-connected: a checkerboard of dropouts leaves a
+        roof's cells touching only at corners).
+    border_outside : bool
+        Whether the raster's border is outside every object (True) or an object cut by it
+        continues beyond it (False: its width is measured to its outline inside the raster).
     """
     obj = np.asarray(objects, bool)
     if not 0 < area_share <= 1:
@@ -689,10 +776,21 @@ def object_widths(objects, cell_size, area_share=0.98):
     if obj.ndim != 2 or not obj.any():
         return 0.0
     dx, dy = float(cell_size[0]), float(cell_size[1])
-    lab, n = ndimage.label(obj)
+    inside = obj
+    structure = None
+    if nodata is not None:
+        gaps = np.asarray(nodata, bool)
+        if gaps.any():
+            gaps = gaps & (ndimage.distance_transform_edt(gaps) <= GAP_CELLS)
+            inside = obj | gaps
+            if gaps.any():              # cells of an object touching corners across a gap (a
+                structure = np.ones((3, 3), bool)   # checkerboard of dropouts) are one object
+    lab, n = ndimage.label(obj, structure)
     # distance from each object cell to the nearest non-object cell, counted to the cell's
     # far edge (a one-cell object: half a cell to its edge, so one cell wide)
-    dist = ndimage.distance_transform_edt(np.pad(obj, 1), sampling=(dy, dx))[1:-1, 1:-1]
+    pad = 1 if border_outside else 0
+    dist = ndimage.distance_transform_edt(np.pad(inside, pad), sampling=(dy, dx))
+    dist = dist[pad:dist.shape[0] - pad, pad:dist.shape[1] - pad]
     lab_obj = lab[obj]
     inner = ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))
     width = 2.0 * np.asarray(inner, np.float64) - min(dx, dy)

@@ -75,11 +75,10 @@ import math
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
-from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
-from .estimate import block_minima, noise_ground_level, terrain_slopes
+from .estimate import block_minima, noise_ground_level, object_widths, terrain_slopes
 from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
@@ -745,7 +744,8 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     The progressive filter with windows up to ``search_m`` flags the cells standing more
     than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; the width of each
     object is twice the largest distance from its inside to its outline (the largest
-    square window it holds). The object size is the width below which 98 % of the object
+    square window it holds; :func:`~bare_earth.core.estimate.object_widths`, across nodata gaps
+    and the low outliers on a roof). The object size is the width below which 98 % of the object
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
     ``outline_slope`` (default ``slope``) is the filter's, so the objects include their
@@ -761,14 +761,11 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     obj = res.mask == OBJECT
     if not obj.any():
         return float("nan")
-    lab, n = ndimage.label(obj)
-    dist = ndimage.distance_transform_edt(obj, sampling=(cell[1], cell[0]))
-    lab_obj = lab[obj]                         # per object, over its own cells only (no sort of the
-    width = 2.0 * ndimage.maximum(dist[obj], lab_obj, index=np.arange(1, n + 1))   # whole grid)
-    area = np.bincount(lab_obj, minlength=n + 1)[1:].astype(np.float64)
-    order = np.argsort(width)
-    cum = np.cumsum(area[order]) / area.sum()
-    w = float(width[order][np.searchsorted(cum, 0.98)])
+    # twice the distance from the inside to the outline, counted to the cell's centre (the
+    # estimate's width counts to its far edge); nodata gaps and low outliers (blunders on a
+    # roof, one cell or a 2 x 2 cluster) do not cut an object
+    holes = (res.mask == LOW) | ~np.isfinite(z)
+    w = object_widths(obj, cell, 0.98, nodata=holes, border_outside=False) + min(cell)
     return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 

@@ -103,7 +103,9 @@ def test_noise_plane_residual_exact():
     z[1, 1] = 1.25                                  # one residual: 1.25 - 0
     assert est.noise_plane_residual(z) == pytest.approx(1.25 / 0.3186 / math.sqrt(1.25), rel=1e-7)
     yy, xx = np.mgrid[0:6, 0:7].astype(np.float32)
-    assert est.noise_plane_residual(xx - 0.5 * yy) == 0.0
+    # a plane (slopes off any grid of heights: on one, e.g. xx - 0.5 yy, its heights read as
+    # rounded to 0.5 m and the noise as their rounding error, height_quantum)
+    assert est.noise_plane_residual(np.sqrt(2) * xx - np.pi * yy) == pytest.approx(0.0, abs=1e-6)
     assert est.noise_plane_residual(np.ones((2, 9), np.float32)) == 0.0
 
 
@@ -360,3 +362,56 @@ def test_object_widths_exact_on_tiny_masks():
     assert est.object_widths(bridge, (1.0, 1.0)) == 3.0
     with pytest.raises(ValueError, match="area_share"):
         est.object_widths(m, (1.0, 1.0), area_share=0.0)
+
+
+def test_object_widths_across_nodata_gaps():
+    """Missing scan lines do not cut an object: a 9 x 9 roof crossed by NaN rows every
+    3 rows is 9 cells wide; a wide nodata area stays outside but for its rim (issue: a roof crossed by
+    missing scan lines read a few metres wide and the opening left it standing)."""
+    m = np.zeros((20, 20), bool)
+    m[4:13, 5:14] = True
+    gaps = np.zeros_like(m)
+    gaps[::3] = True
+    cut = m & ~gaps
+    assert est.object_widths(cut, (1.0, 1.0)) == 1.0              # cut into strips
+    assert est.object_widths(cut, (1.0, 1.0), nodata=gaps) == 9.0
+    wide = ~m                                                    # nodata all around it: only
+    assert est.object_widths(m, (1.0, 1.0), nodata=wide) == 9.0 + 2.0   # its one-cell rim joins
+    edge = np.zeros((9, 9), bool)
+    edge[:, :3] = True                                           # cut by the raster's border
+    assert est.object_widths(edge, (1.0, 1.0)) == 3.0
+    assert est.object_widths(edge, (1.0, 1.0), border_outside=False) == 5.0
+
+
+# ----------------------------------------------------------------- height_quantum
+@pytest.mark.parametrize("dtype", [np.int16, np.float32, np.float64])
+def test_height_quantum_and_the_noise_floor_of_rounded_heights(dtype):
+    """Heights in whole metres: the step is 1 m and the noise statistics read at least its
+    rounding error 1 / sqrt(12) (they read 0: most differences of a rounded slope are 0)."""
+    y, x = np.mgrid[0:64, 0:64]
+    z = np.round(300.0 + 0.15 * x + 0.05 * y).astype(dtype)
+    assert est.height_quantum(z) == pytest.approx(1.0)
+    floor = 1.0 / np.sqrt(12.0)
+    assert est.noise_plane_residual(z) == pytest.approx(floor)
+    assert est.noise_ground_level(z, (1.0, 1.0))["sigma"] == pytest.approx(floor)
+    decimetres = np.round(z.astype(np.float64) * 0.1, 1).astype(np.float32)
+    assert est.height_quantum(decimetres) == pytest.approx(0.1, rel=1e-4)
+    noisy = (300.0 + 0.15 * x + np.random.default_rng(0).normal(0, 0.05, x.shape)).astype(np.float32)
+    assert est.height_quantum(noisy) == 0.0                  # float heights: no step
+    assert est.height_quantum(np.full((8, 8), 5.0)) == 0.0   # one height: unknown
+    assert est.noise_floor(0.4, 1.0) == 0.4                  # above the floor: unchanged
+    assert np.isnan(est.noise_floor(float("nan"), 1.0))
+
+
+def test_object_widths_across_a_checkerboard_of_dropouts():
+    """Half the cells missing in a checkerboard: the roof's cells touch only at corners,
+    yet they are one object as wide as the roof (each cell was its own one-cell object)."""
+    m = np.zeros((21, 21), bool)
+    m[4:17, 4:17] = True                                         # 13 x 13
+    yy, xx = np.mgrid[0:21, 0:21]
+    holes = (yy + xx) % 2 == 0
+    # 11: the outermost ring alternates holes and cells outside; one object, so its width
+    # whatever the share of the area asked (cells alone: half of them within 2 cells of it)
+    assert est.object_widths(m & ~holes, (1.0, 1.0), nodata=holes) == 11.0
+    assert est.object_widths(m & ~holes, (1.0, 1.0), area_share=0.5, nodata=holes) == 11.0
+    assert est.object_widths(m & ~holes, (1.0, 1.0)) == 1.0

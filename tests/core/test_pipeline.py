@@ -620,3 +620,15 @@ def test_run_file_parameters_from_the_data_when_the_centre_is_empty(tmp_path, mo
     said = [s for s in logs if s.startswith("Parameters derived from")]
     assert said == ["Parameters derived from the data's 64 x 64 cells (rows 88-152, columns 57-121)."]
     assert read(outputs(tmp_path, "mask")["mask"])[0][150, 50] == OBJECT
+
+
+@pytest.mark.parametrize("method", ["dtm", "rascor", "geodesic"])
+def test_heights_in_whole_metres_stay_ground(method):
+    """An Int16 DSM in whole metres (SRTM / Copernicus style) of bare rolling terrain: its
+    1 m steps are rounding, not walls (RASCOR took 14 %, geodesic 11 % and dtm 7 % of the
+    cells for objects when the noise read 0 on the rounded heights)."""
+    from bare_earth.core.synthetic import make_scene
+    s = make_scene("rolling", (200, 200), seed=2)
+    z = np.round(s.dsm).astype(np.int16)
+    r = pipeline.run_array(method, z, 1.0)
+    assert np.count_nonzero(r.mask == 0) / r.mask.size > 0.98
