@@ -172,7 +172,7 @@ def member_settings(name, z, cell_size, progress=None):
     if name != NOISE_MEMBER:
         return settings or None, None
     from .rascor import SIGMA_FLOOR
-    noise = float(noise_ground_level(z, cell_size, progress=progress)["sigma"])
+    noise = float(noise_ground_level(without_far_heights(z)[0], cell_size, progress=progress)["sigma"])
     if np.isfinite(noise):
         settings["sigma_m"] = round(max(SIGMA_FLOOR, noise), 3)
     return settings or None, noise
@@ -289,7 +289,7 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         # a member's given settings first (RASCOR's: its noise, on the surface its derivation reads)
         share = shares.of_block(i)
         split = 0.1 if n == NOISE_MEMBER else 0.0
-        given, noise = member_settings(n, without_far_heights(z)[0], cell, progress=sub_progress(share, 0.0, split))
+        given, noise = member_settings(n, z, cell, progress=sub_progress(share, 0.0, split))
         return resolve_params(n, z, cell, given, progress=sub_progress(share, split, 1.0)), noise
 
     with ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
