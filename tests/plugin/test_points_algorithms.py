@@ -521,3 +521,25 @@ def test_other_tiles_of_another_crs_or_not_points_refused_in_the_check(qgis_app,
                                         "OUTPUT_POINTS": str(tmp_path / "o.las")}, QgsProcessingContext())
     assert not ok
     assert re.search(message, msg), msg
+
+
+@pytest.mark.parametrize("fails", ["rasters", "points"])
+def test_points_and_rasters_all_or_nothing(processing_run, cloud_files, tmp_path, monkeypatch, fails):
+    """Before: a filter with INPUT_POINTS wrote its rasters, then the points; a points write that
+    failed left the rasters, which looked like a finished run. Now a failure of either leaves none."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core import pointflow, points
+
+    def broken(*args, **kwargs):
+        raise ValueError("disk full (simulated)")
+
+    monkeypatch.setattr(pointflow if fails == "rasters" else points,
+                        "write_rasters" if fails == "rasters" else "write_points", broken)
+    outs = {"OUTPUT_DTM": tmp_path / "dtm.tif", "OUTPUT_MASK": tmp_path / "mask.tif",
+            "OUTPUT_POINTS": tmp_path / "classified.txt"}
+    with pytest.raises(QgsProcessingException, match="disk full"):
+        processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"],
+                                                   **{k: str(v) for k, v in outs.items()}})
+    assert [p.name for p in outs.values() if p.exists()] == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
