@@ -165,18 +165,28 @@ def _process(meth, z, cell, params, aux, want_dtm=True, progress=None, workers=1
 
 
 def _merge_info(infos, weights):
-    """Block infos -> one: numbers weighted by block cells, the rest from the first block."""
+    """Block infos -> one: numbers weighted by block cells; lists that differ between blocks
+    (decisions, notes) joined, each entry once, in block order; the rest from the first block
+    that has the key."""
     if not infos:
         return {}
     if len(infos) == 1:
         return dict(infos[0])
-    out = dict(infos[0])
+    out = {}
+    for inf in infos:
+        for k, v in inf.items():
+            out.setdefault(k, v)
     tot = float(sum(weights))
-    for k, v in infos[0].items():
+    for k, v in out.items():
+        vals = [inf.get(k) for inf in infos]
         if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
-            vals = [inf.get(k) for inf in infos]
             if all(isinstance(x, (int, float, np.floating, np.integer)) for x in vals):
                 out[k] = float(sum(float(x) * w for x, w in zip(vals, weights)) / tot)
+        elif isinstance(v, list) and any(x != v for x in vals):
+            joined = []
+            for x in vals:
+                joined.extend(e for e in (x if isinstance(x, list) else []) if e not in joined)
+            out[k] = joined
     return out
 
 
