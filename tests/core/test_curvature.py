@@ -1072,3 +1072,21 @@ def test_smooth_knoll_on_a_coarse_dem_is_ground():
     res, P = run(z.astype(np.float32), cell)
     assert res.info["share_marked_k"] > 0.1           # the knoll's top is marked ...
     assert not (res.mask == OBJECT).any()             # ... but is no object
+
+
+def test_runs_cut_by_a_block_edge_give_the_one_pass_mask():
+    """A run meeting a block's edge (not the raster's) counts for both directions there,
+    but only within half the largest object of that edge, inside the halo: blocks still
+    give the one-pass mask, with roofs cut by the raster's edges and by block seams."""
+    from bare_earth.core import pipeline
+    z, _, _ = terrain(n=150, m=140)
+    z[133:, 125:] += 7.0                              # a roof in the corner, 17 x 15 m
+    z[:20, 30:60] += 5.0                              # one cut by the top edge
+    z[60:85, 55:90] += 9.0                            # one across the seams
+    params = {"max_object_size_m": 40.0}
+    one = pipeline.run_array("curvature", z, 1.0, params=params).mask
+    assert (one[133:, 125:] == OBJECT).mean() > 0.95
+    for block in (48, 51):
+        res = pipeline.run_array("curvature", z, 1.0, params=params, block=block, workers=1)
+        assert res.info["blocks"] > 1
+        np.testing.assert_array_equal(res.mask, one)
