@@ -2,7 +2,8 @@
 
 Luong Chinh Ke (2002, sec. 2.2) reads the breaks along the X and Y profiles: the points
 between a break going up and the matching break coming down belong to an object
-(:func:`find_profile_objects`). Regions enclosed by breaks and made mostly of such points
+(:func:`find_profile_objects`); where the raster's edge cuts an object, the profile is
+taken as mirrored there (:func:`_cut_runs`). Regions enclosed by breaks and made mostly of such points
 become whole objects (:func:`find_enclosed_objects`).
 """
 from typing import Optional, Tuple
@@ -129,7 +130,7 @@ def _nearer_before(back, ci, before, base, reach):
     before[miss] = base.take(miss)
 
 
-def _runs(zover, walls, sd, tol, max_cells, out):
+def _runs(zover, walls, sd, tol, max_cells, out, edge=False):
     """The paper's reading of a profile, every wall at once: the points from a break going
     up (a wall, :func:`_walls`) to the matching break coming down belong to an object.
 
@@ -141,7 +142,9 @@ def _runs(zover, walls, sd, tol, max_cells, out):
     positions (the largest object), or at the profile's end. ``zover`` (flat int64,
     :func:`_heights_and_drops`) holds each cell's height and, beside it, the drop beyond
     the tolerance where the profile has just come down a wall (0 elsewhere): one gather
-    reads both. ``out`` (flat bool) receives the runs' cells.
+    reads both. ``out`` (flat bool) receives the runs' cells. With ``edge``, returns
+    ``(wall indices, k)`` of the runs that met the profile's end ``k + 1`` positions after
+    their wall (a wall may appear more than once), else None.
 
     A run depends on its wall and the positions it covers only (every wall starts one,
     also inside another run), so a cell's result depends on the profile within the
@@ -152,6 +155,8 @@ def _runs(zover, walls, sd, tol, max_cells, out):
     f, g, gs = walls
     out[f] = True
     f = f + sd
+    ids = np.arange(f.size)                           # the wall each run started from
+    ended = []                                        # walls whose run met the profile's end
     fg = np.empty((f.size, 2), np.float32)            # foot and slope side by side: one gather
     fg[:, 0], fg[:, 1] = g, gs
     tol = np.float32(tol)
@@ -161,14 +166,39 @@ def _runs(zover, walls, sd, tol, max_cells, out):
                 break
             zo = zover.take(f).view(np.float32)       # height and drop at f
             rise = np.subtract(zo[0::2], fg[:, 0])
+            if edge:                                  # -inf: the frame beyond the profile's end
+                e = np.flatnonzero(rise == -np.inf)
+                ended.append((ids.take(e), np.full(e.size, k - 1)))
             lim = np.multiply(fg[:, 1], np.float32(k))
             lim += zo[1::2]
             lim += tol
             go = np.flatnonzero(rise > lim)           # +inf (nodata): the run goes on
             f = f.take(go)
+            ids = ids.take(go)
             fg = fg.view(np.int64).take(go).view(np.float32).reshape(-1, 2)
             out[f] = True
             f += sd
+    if not edge:
+        return None
+    if not ended:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    return tuple(np.concatenate(a) for a in zip(*ended))
+
+
+#: Largest share of the largest object a run may cover from its wall to the profile's end
+#: and still count for the scan from the other side (:func:`_cut_runs`).
+_CUT_SHARE = 0.5
+
+
+def _cut_runs(ended, max_cells):
+    """The walls (indices into the walls of :func:`_runs`) whose run met the profile's end
+    within half the largest object: an object cut by the raster's edge, taken as mirrored
+    there (as the slope-profile filter's scans take a profile's start), is at most the
+    largest object with its mirror image, so the scan coming from the edge would have met
+    its mirrored wall. A terrace's upper level reaching the edge farther away stays
+    rejected by that scan."""
+    ids, k = ended
+    return np.unique(ids[k + 1 <= _CUT_SHARE * max_cells])
 
 
 def _framed(a, frame, fill):
@@ -213,7 +243,9 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
 
     A step up of the terrain (terrace edge) is an object to the scan climbing it, but the
     scan coming down the other way meets no break going up: only objects, which have a
-    break going up from both sides, are kept. The walls are found by blocks of rows (no
+    break going up from both sides, are kept; a run that meets the profile's end within
+    half the largest object counts for both directions (:func:`_cut_runs`: the object cut
+    by the raster's edge, taken as mirrored there). The walls are found by blocks of rows (no
     index array of the raster's size at once); every direction's runs go at once.
     ``zover``: :func:`_heights_and_drops` of ``zp`` when the caller has it (its drops are
     0 again on return).
@@ -223,7 +255,6 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
     zf, bf = zp.ravel(), bp.ravel()
     s = 1 if axis == 1 else W
     out = np.empty(zf.size, bool)
-    both = None
     rows = max(1, (16 * CHUNK_CELLS) // W)
     found = []
     for i, d in enumerate((1, -1)):   # the walls of both directions, on the NaN frame
@@ -238,23 +269,28 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
             downs.append(dn)
             report(progress, (i + (r1 - frame) / h) / 4)
         found.append((tuple(np.concatenate(a) for a in zip(*walls)), downs))
-    both = None
     if zover is None:
         zover = _heights_and_drops(zp, frame)
     zi = zover.view(np.int64).ravel()
+    runs, cuts = [], []
     for i, d in enumerate((1, -1)):
         wl, downs = found[i]
         for di, drop in downs:
             zover[di, 1] = drop
         out.fill(False)
-        _runs(zi, wl, d * s, tol, max_cells, out)
+        ended = _runs(zi, wl, d * s, tol, max_cells, out, edge=True)
+        runs.append(out.copy())
+        # the runs that met the profile's end: the other direction's scan starts on them
+        cut = np.zeros(zf.size, bool)
+        sel = _cut_runs(ended, max_cells)
+        if sel.size:
+            _runs(zi, tuple(a.take(sel) for a in wl), d * s, tol, max_cells, cut)
+        cuts.append(cut)
         for di, _ in downs:
             zover[di, 1] = 0
-        if both is None:
-            both = out.copy()
-        else:
-            both &= out
         report(progress, 0.5 + (i + 1) / 4)
+    both = runs[0] | cuts[1]
+    both &= runs[1] | cuts[0]
     return both.reshape(zp.shape)[frame:frame + h, frame:frame + w].copy()
 
 
