@@ -8,6 +8,7 @@ and heights in metres.
 import contextlib
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
@@ -133,25 +134,41 @@ def need_gdal():
     gdal.UseExceptions()
 
 
+#: Runs inside :func:`gdal_mode_kept` (all threads) and the mode before the first of them: GDAL's
+#: bindings hold one mode for the whole process, so overlapping runs share it.
+_MODE_LOCK = threading.Lock()
+_MODE_STATE = {"depth": 0, "before": None}
+
+
 @contextlib.contextmanager
 def gdal_mode_kept():
     """GDAL's Python exceptions on inside the block (as :func:`need_gdal` turns them on) and
     the mode back as it was when it ends. GDAL's bindings hold one mode for the whole process:
     inside QGIS, every other plugin's ``if gdal.Open(p) is None`` would raise instead once a
-    Bare Earth algorithm had run. The plugin's entry points run inside this block."""
+    Bare Earth algorithm had run. The plugin's entry points run inside this block.
+
+    Blocks that overlap (runs in QGIS's background threads, nested calls) share the mode: it is
+    on from the first block's start to the last block's end, then back to what it was before
+    the first (a block ending while another runs must not turn it off under that one, nor the
+    other restore the "on" it found)."""
     if gdal is None:
         yield
         return
-    old = gdal.GetUseExceptions()
-    gdal.UseExceptions()
+    with _MODE_LOCK:
+        if _MODE_STATE["depth"] == 0:
+            _MODE_STATE["before"] = gdal.GetUseExceptions()
+        _MODE_STATE["depth"] += 1
+        gdal.UseExceptions()
     try:
         yield
     finally:
-        if gdal.GetUseExceptions() != old:
-            if old:
-                gdal.UseExceptions()
-            else:
-                gdal.DontUseExceptions()
+        with _MODE_LOCK:
+            _MODE_STATE["depth"] -= 1
+            if _MODE_STATE["depth"] == 0 and gdal.GetUseExceptions() != _MODE_STATE["before"]:
+                if _MODE_STATE["before"]:
+                    gdal.UseExceptions()
+                else:
+                    gdal.DontUseExceptions()
 
 
 @dataclass
