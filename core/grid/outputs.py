@@ -9,6 +9,7 @@ import contextvars
 import math
 import os
 import re
+import shutil
 import tempfile
 import uuid
 
@@ -474,6 +475,40 @@ def _cog_options(dtype, given=()):
     return _merge_options(opts, _integer_predictor(dtype, given))
 
 
+def write_failed(path, exc):
+    """The ValueError of a GDAL error writing the output ``path`` (a full disk, a file larger than
+    its file system takes, a removed drive): it names the output and the free space of its folder."""
+    msg = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason"
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    try:
+        free = f"{shutil.disk_usage(folder).free / 1e6:.0f} MB free there now"
+    except OSError:
+        free = "its free space unknown"
+    return ValueError(f"cannot write the output {str(path)!r}: {msg}. The disk of {folder!r} may be full ({free}) "
+                      "or the file larger than its file system takes: free some space or choose another folder.")
+
+
+@contextlib.contextmanager
+def _writing(path):
+    """GDAL calls writing the output ``path``: a GDAL error (a RuntimeError) becomes :func:`write_failed`'s
+    ValueError, so the algorithms report it and the output set discards its work files."""
+    try:
+        yield
+    except RuntimeError as exc:
+        raise write_failed(path, exc) from None
+
+
+def _close_written(item):
+    """Flush and close an output's work file; an error while closing (the last blocks and the TIFF
+    directory are written then, and GDAL reports it only as its last error) raises as a write error."""
+    with _writing(item["path"]):
+        item["ds"].FlushCache()
+        gdal.ErrorReset()
+        item["ds"] = None
+        if gdal.GetLastErrorType() >= gdal.CE_Failure:
+            raise RuntimeError(gdal.GetLastErrorMsg())
+
+
 class OutputSet:
     """Output rasters on a DSM's grid, written to hidden work files until :meth:`commit`.
 
@@ -550,8 +585,9 @@ class OutputSet:
         a = np.asarray(array)
         if a.ndim == 2:
             a = a[None]
-        for k in range(a.shape[0]):
-            item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
+        with _writing(item["path"]):
+            for k in range(a.shape[0]):
+                item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
 
     def flush(self, progress=None):
         """Compress and write every block written so far (GDAL's threads do the work).
@@ -563,7 +599,8 @@ class OutputSet:
         ``Cancelled``) after each output.
         """
         for i, item in enumerate(self._items.values()):
-            item["ds"].FlushCache()
+            with _writing(item["path"]):
+                item["ds"].FlushCache()
             report(progress, (i + 1) / len(self._items))
 
     def commit(self, progress=None):
@@ -577,8 +614,7 @@ class OutputSet:
         items = list(self._items.values())
         n = max(1, len(items))
         for i, item in enumerate(items):
-            item["ds"].FlushCache()
-            item["ds"] = None
+            _close_written(item)
             report(progress, 0.5 * (i + 1) / n)
         moves = []
         for i, item in enumerate(items):

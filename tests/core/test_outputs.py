@@ -354,3 +354,37 @@ def test_check_output_file_refuses_a_folder_and_takes_a_file(tmp_path):
     grid.check_output_file(tmp_path / "table.csv")
     with pytest.raises(ValueError, match="does not exist"):
         grid.check_output_file(tmp_path / "missing" / "table.csv")
+
+
+FULL_DISK_RUN = textwrap.dedent("""
+    import os, resource, signal, sys
+    sys.path.insert(0, {plugins!r})
+    import numpy as np
+    from bare_earth.core import grid
+    from bare_earth.core.pipeline import run_file
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # the write fails (EFBIG), as on a full disk
+    resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, resource.RLIM_INFINITY))
+    try:
+        run_file("morphological", {dsm!r}, {{"dtm": {dtm!r}, "mask": {mask!r}}}, workers={workers})
+        print("WROTE")
+    except ValueError as exc:
+        print("VALUEERROR", exc)
+""")
+
+
+@pytest.mark.parametrize("limit, workers", [(60_000, 1), (60_000, 2), (200_000, 1)])
+def test_a_full_disk_is_a_message_naming_the_output_and_leaves_nothing(tmp_path, limit, workers):
+    """A write that fails part way (the disk full: here a file-size limit) is a ValueError naming the output
+    and the disk (not GDAL's traceback from a writer thread, nor an output closed half-written and moved in
+    place); nothing is left in the folder."""
+    rng = np.random.default_rng(0)
+    dsm = grid.write_array(tmp_path / "dsm.tif", (100 + rng.normal(0, 1, (512, 512))).astype(np.float32), GT, 32632)
+    out = tmp_path / "out"
+    out.mkdir()
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__))))
+    code = FULL_DISK_RUN.format(plugins=plugins, dsm=dsm, dtm=str(out / "dtm.tif"), mask=str(out / "mask.tif"),
+                                limit=limit, workers=workers)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-2000:]
+    assert "dtm.tif" in res.stdout and "disk" in res.stdout
+    assert os.listdir(out) == []
