@@ -134,10 +134,45 @@ def need_gdal():
     gdal.UseExceptions()
 
 
-#: Runs inside :func:`gdal_mode_kept` (all threads) and the mode before the first of them: GDAL's
-#: bindings hold one mode for the whole process, so overlapping runs share it.
-_MODE_LOCK = threading.Lock()
-_MODE_STATE = {"depth": 0, "before": None}
+class SessionSetting:
+    """A process-wide GDAL setting changed while work runs, in any thread: the value before the
+    first change is kept and put back when the last ends. Runs in QGIS's background threads
+    overlap; restoring each run's own "before" would let the first to end undo the change under
+    the other, and the other then put back the changed value for the rest of the session."""
+
+    def __init__(self, get, put):
+        self._get, self._put = get, put
+        self._lock = threading.Lock()
+        self._depth = 0
+        self._before = None
+
+    @contextlib.contextmanager
+    def changed(self, value):
+        """The setting is ``value(before)`` inside the block (``before``: the value the first
+        of the overlapping blocks found)."""
+        with self._lock:
+            if self._depth == 0:
+                self._before = self._get()
+            self._depth += 1
+            self._put(value(self._before))
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._depth -= 1
+                if self._depth == 0 and self._get() != self._before:
+                    self._put(self._before)
+
+
+def _put_exceptions(on):
+    if on:
+        gdal.UseExceptions()
+    else:
+        gdal.DontUseExceptions()
+
+
+_EXCEPTIONS = SessionSetting(lambda: gdal.GetUseExceptions(), _put_exceptions)
+_CACHE = SessionSetting(lambda: gdal.GetCacheMax(), lambda size: gdal.SetCacheMax(size))
 
 
 @contextlib.contextmanager
@@ -145,30 +180,13 @@ def gdal_mode_kept():
     """GDAL's Python exceptions on inside the block (as :func:`need_gdal` turns them on) and
     the mode back as it was when it ends. GDAL's bindings hold one mode for the whole process:
     inside QGIS, every other plugin's ``if gdal.Open(p) is None`` would raise instead once a
-    Bare Earth algorithm had run. The plugin's entry points run inside this block.
-
-    Blocks that overlap (runs in QGIS's background threads, nested calls) share the mode: it is
-    on from the first block's start to the last block's end, then back to what it was before
-    the first (a block ending while another runs must not turn it off under that one, nor the
-    other restore the "on" it found)."""
+    Bare Earth algorithm had run. The plugin's entry points run inside this block; overlapping
+    blocks (runs in threads) share the mode (:class:`SessionSetting`)."""
     if gdal is None:
         yield
         return
-    with _MODE_LOCK:
-        if _MODE_STATE["depth"] == 0:
-            _MODE_STATE["before"] = gdal.GetUseExceptions()
-        _MODE_STATE["depth"] += 1
-        gdal.UseExceptions()
-    try:
+    with _EXCEPTIONS.changed(lambda before: 1):
         yield
-    finally:
-        with _MODE_LOCK:
-            _MODE_STATE["depth"] -= 1
-            if _MODE_STATE["depth"] == 0 and gdal.GetUseExceptions() != _MODE_STATE["before"]:
-                if _MODE_STATE["before"]:
-                    gdal.UseExceptions()
-                else:
-                    gdal.DontUseExceptions()
 
 
 @dataclass
@@ -641,14 +659,11 @@ def bounded_cache(active=True, size=BLOCK_MODE_CACHE):
     """Cap GDAL's block cache while a raster is processed block by block.
 
     GDAL keeps written tiles in its cache (by default 5 % of the RAM); in block mode that
-    cache, not the blocks, would grow with the raster. The previous size is restored.
+    cache, not the blocks, would grow with the raster. The previous size is restored when the
+    last of overlapping runs ends (:class:`SessionSetting`).
     """
     if not active or gdal is None:
         yield
         return
-    old = gdal.GetCacheMax()
-    gdal.SetCacheMax(min(old, size))
-    try:
+    with _CACHE.changed(lambda before: min(before, size)):
         yield
-    finally:
-        gdal.SetCacheMax(old)
