@@ -9,14 +9,13 @@ import contextvars
 import math
 import os
 import re
-import shutil
 import tempfile
 import uuid
 
 import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
-from ..common import Cancelled, report, sub_progress
+from ..common import Cancelled, report, sub_progress, write_failed
 from .read import OUTPUT_TILE, gdal, need_gdal, osr
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
@@ -475,27 +474,16 @@ def _cog_options(dtype, given=()):
     return _merge_options(opts, _integer_predictor(dtype, given))
 
 
-def write_failed(path, exc):
-    """The ValueError of a GDAL error writing the output ``path`` (a full disk, a file larger than
-    its file system takes, a removed drive): it names the output and the free space of its folder."""
-    msg = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason"
-    folder = os.path.dirname(os.path.abspath(str(path)))
-    try:
-        free = f"{shutil.disk_usage(folder).free / 1e6:.0f} MB free there now"
-    except OSError:
-        free = "its free space unknown"
-    return ValueError(f"cannot write the output {str(path)!r}: {msg}. The disk of {folder!r} may be full ({free}) "
-                      "or the file larger than its file system takes: free some space or choose another folder.")
-
-
 @contextlib.contextmanager
 def _writing(path):
-    """GDAL calls writing the output ``path``: a GDAL error (a RuntimeError) becomes :func:`write_failed`'s
-    ValueError, so the algorithms report it and the output set discards its work files."""
+    """GDAL calls writing the output ``path``: a GDAL error (a RuntimeError) becomes
+    :func:`~bare_earth.core.common.write_failed`'s ValueError, so the algorithms report it and the
+    output set discards its work files."""
     try:
         yield
     except RuntimeError as exc:
-        raise write_failed(path, exc) from None
+        raise write_failed(path, str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason") \
+            from None
 
 
 def _close_written(item):
