@@ -16,7 +16,7 @@ import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
 from ..common import Cancelled, report, sub_progress, write_failed
-from .read import OUTPUT_TILE, gdal, need_gdal, osr
+from .read import OUTPUT_TILE, gdal, need_gdal, osr, without_side_files
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
 #: None, name for messages). A run writes a tiled GeoTIFF work file; the other formats (and the
@@ -27,13 +27,13 @@ OUTPUT_FORMATS = {
     ".sdat": ("SAGA", 1, "SAGA grid"),
     ".asc": ("AAIGrid", 1, "Arc/Info ASCII grid"),
     ".nc": ("netCDF", 1, "netCDF"),
+    ".gpkg": ("GPKG", 1, "GeoPackage"),
 }
 
 #: Extensions GDAL could name but the outputs refuse, with the reason.
 REFUSED_FORMATS = {
     ".vrt": "a VRT only points at other rasters; write a GeoTIFF and build the VRT from it (gdalbuildvrt)",
     ".xyz": "XYZ text loses the nodata cells (GDAL reads them back as 0)",
-    ".gpkg": "GDAL cannot copy a Float32 or palette raster into a GeoPackage tile set",
     ".sgrd": "a .sgrd file is the header of a SAGA grid: name its .sdat file (the .sgrd is written beside it)",
 }
 
@@ -121,6 +121,35 @@ def check_output_path(path, bands=1):
     _refuse_folder(path, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
     check_output_folder(path)
+    check_geopackage_replaceable(path)
+
+
+def check_geopackage_replaceable(path):
+    """ValueError when ``path`` is an existing GeoPackage holding anything but the raster table
+    the output writes (named after the file): writing the output replaces the whole file, so
+    its other layers would be lost (QGIS projects keep many layers in one GeoPackage)."""
+    if os.path.splitext(str(path))[1].lower() != ".gpkg" or not os.path.isfile(path):
+        return
+    table = os.path.splitext(os.path.basename(str(path)))[0]
+    names = []
+    try:
+        with without_side_files():
+            ds = gdal.OpenEx(str(path), gdal.OF_READONLY | gdal.OF_RASTER | gdal.OF_VECTOR)
+            if ds is not None:
+                names = [ds.GetLayer(i).GetName() for i in range(ds.GetLayerCount())]
+                subs = ds.GetSubDatasets() or []
+                names += [sub.rsplit(":", 1)[-1] for sub, _ in subs]
+                if not subs and ds.RasterCount:
+                    names.append(ds.GetMetadataItem("IDENTIFIER") or table)
+            ds = None
+    except RuntimeError:
+        names = ["unreadable"]
+    others = sorted(set(n for n in names if n != table))
+    if others:
+        raise ValueError(f"the output {str(path)!r} is an existing GeoPackage that holds other layers "
+                         f"({', '.join(others)}); writing the output replaces the whole file: choose another file "
+                         "(to add a raster to a GeoPackage, write a GeoTIFF and run gdal_translate -of GPKG -co "
+                         "APPEND_SUBDATASET=YES -co RASTER_TABLE=<name> on it).")
 
 
 def check_output_file(path, example="output.txt"):
@@ -533,6 +562,7 @@ class OutputSet:
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
         check_output_cells(path, self.info.geotransform)
+        check_geopackage_replaceable(path)
         remove_stale_partials(path)
         work = _work_path(path)
         opts = _gtiff_options(dtype, self._options if drv == "GTiff" and not self._cog else ())
@@ -638,6 +668,9 @@ class OutputSet:
         ext = os.path.splitext(path)[1] or ".tif"
         tmp_main = work + ext
         opts = _cog_options(item["dtype"], self._options) if cog else []
+        if drv == "GPKG":   # the raster table named after the output, lossless tiles (PNG for bytes)
+            opts = [f"RASTER_TABLE={os.path.splitext(os.path.basename(path))[0]}"] + \
+                (["TILE_FORMAT=PNG"] if item["dtype"] == "Byte" else [])
         stopped = []
 
         def callback(fraction, _message, _data):
@@ -651,7 +684,7 @@ class OutputSet:
         vrt = None
         try:
             src = gdal.Open(work)
-            if drv in _TEXT_NODATA_DRIVERS and item["nodata"] is not None and math.isnan(float(item["nodata"])):
+            if drv in _FINITE_NODATA_DRIVERS and item["nodata"] is not None and math.isnan(float(item["nodata"])):
                 vrt = f"/vsimem/{os.path.basename(work)}.vrt"
                 x0, dx, _, y0, _, dy = src.GetGeoTransform()
                 src = gdal.Warp(vrt, src, format="VRT", srcNodata="nan", dstNodata=finite_text_nodata(src),
@@ -742,14 +775,15 @@ def write_mask_qml(path):
 
 #: Formats whose header carries the nodata value as text read by other software (ESRI's ASCII
 #: grid, SAGA): a NaN nodata is written there as a finite value (:func:`finite_text_nodata`).
-_TEXT_NODATA_DRIVERS = ("AAIGrid", "SAGA")
+_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG")   # GeoPackage: its coverage table takes no NaN
 #: The finite nodata of those formats when the raster declares NaN (ESRI's convention).
 TEXT_NODATA = -9999.0
 
 
 def finite_text_nodata(ds):
-    """The finite nodata an Arc/Info ASCII or SAGA copy of the Float32 raster ``ds`` (NaN
-    nodata) declares instead of NaN, which other software cannot read from the header:
+    """The finite nodata an Arc/Info ASCII, SAGA or GeoPackage copy of the Float32 raster ``ds`` (NaN
+    nodata) declares instead of NaN, which other software cannot read from the header (a GeoPackage
+    cannot record it):
     :data:`TEXT_NODATA` (-9999), or, when the heights reach it, the next power of ten below
     the lowest height (-99999, ...), so no height is taken for nodata."""
     try:

@@ -53,7 +53,7 @@ def _write(info, outputs, **kw):
 
 
 @pytest.mark.parametrize("ext,driver", [(".tif", "GTiff"), (".img", "HFA"), (".sdat", "SAGA"),
-                                        (".asc", "AAIGrid"), (".nc", "netCDF")])
+                                        (".asc", "AAIGrid"), (".nc", "netCDF"), (".gpkg", "GPKG")])
 def test_each_offered_format_is_written_in_that_format(tmp_path, ext, driver):
     if gdal.GetDriverByName(driver) is None:
         pytest.skip(f"GDAL has no {driver} driver")
@@ -79,7 +79,7 @@ def test_saga_grid_readable_and_nothing_left_behind(tmp_path):
     assert not [p for p in os.listdir(tmp_path) if "partial" in p]
 
 
-@pytest.mark.parametrize("ext", [".vrt", ".xyz", ".gpkg", ".png", ".jpg"])
+@pytest.mark.parametrize("ext", [".vrt", ".xyz", ".png", ".jpg"])
 def test_formats_not_offered_are_refused_naming_the_offered_ones(tmp_path, ext):
     with pytest.raises(ValueError, match=r"Formats offered: GeoTIFF \(\.tif, \.tiff\)"):
         grid.check_output_path(tmp_path / f"dtm{ext}")
@@ -388,3 +388,48 @@ def test_a_full_disk_is_a_message_naming_the_output_and_leaves_nothing(tmp_path,
     assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-2000:]
     assert "dtm.tif" in res.stdout and "disk" in res.stdout
     assert os.listdir(out) == []
+
+
+def test_geopackage_outputs_are_exact_and_named_after_their_file(tmp_path):
+    """A GeoPackage raster output (refused before, saying GDAL could not copy Float32 or a palette into
+    one, which it can): the DTM's heights (its NaN nodata as -9999) and the mask's codes, 255 nodata and
+    palette read back exactly, in a raster table named after the file (not after the hidden work file)."""
+    info = _info(tmp_path)
+    d, m = _write(info, {"dtm": tmp_path / "my dtm.gpkg", "mask": tmp_path / "mask.gpkg"})
+    for name, want in (("my dtm", d), ("mask", m)):
+        ds = gdal.Open(str(tmp_path / f"{name}.gpkg"))
+        assert ds.GetDriver().ShortName == "GPKG" and ds.RasterCount == 1
+        assert ds.GetMetadataItem("IDENTIFIER") == name
+        b = ds.GetRasterBand(1)
+        nd = b.GetNoDataValue()    # a GeoPackage records no NaN nodata: the DTM's is -9999, as in text grids
+        assert nd == (NODATA if name == "mask" else -9999.0) and b.DataType == (gdal.GDT_Byte if name == "mask"
+                                                                                 else gdal.GDT_Float32)
+        np.testing.assert_array_equal(b.ReadAsArray(), np.where(np.isnan(want), nd, want))
+        assert np.allclose(ds.GetGeoTransform(), GT)
+        ds = None
+    ds = gdal.Open(str(tmp_path / "mask.gpkg"))
+    ct = ds.GetRasterBand(1).GetColorTable()
+    assert ct is not None and ct.GetCount() >= 4
+    ct = ds = None
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif", "mask.gpkg", "mask.qml", "my dtm.gpkg"]
+
+
+def test_a_geopackage_holding_other_layers_is_refused_and_kept(tmp_path):
+    """Writing an output replaces its file: an existing GeoPackage holding anything else (a vector layer,
+    another raster table) would lose it, so it is refused before any work and left as it was; a
+    GeoPackage from an earlier run of the same output is replaced."""
+    ogr = pytest.importorskip("osgeo.ogr")
+    store = tmp_path / "project.gpkg"
+    ds = ogr.GetDriverByName("GPKG").CreateDataSource(str(store))
+    ds.CreateLayer("roads")
+    ds = None
+    before = store.read_bytes()
+    with pytest.raises(ValueError, match=r"project\.gpkg.*holds other layers \(roads\).*another file"):
+        grid.check_output_path(store)
+    with pytest.raises(ValueError, match="holds other layers"):
+        _write(_info(tmp_path), {"dtm": store})
+    assert store.read_bytes() == before and _partials(tmp_path) == []
+    _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
+    grid.check_output_path(tmp_path / "dtm.gpkg")          # its own earlier output: replaced
+    _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
+    assert gdal.Open(str(tmp_path / "dtm.gpkg")).GetMetadataItem("IDENTIFIER") == "dtm"
