@@ -366,6 +366,34 @@ def reading_inputs_only(param):
     return param
 
 
+def default_text(param):
+    """A parameter's default as the dialog shows it ('64', 'yes', 'auto', '1,2'), or None when it
+    has none (or it is a layer, a file or an output)."""
+    v = param.defaultValue()
+    if param.isDestination() or v is None or v == "" or isinstance(v, (list, tuple)) or param.type() not in (
+            "number", "boolean", "enum", "string"):
+        return None
+    if param.type() == "boolean":
+        return "yes" if v in (True, 1, "1", "true", "True") else "no"
+    if param.type() == "enum":
+        try:
+            return param.options()[int(v)]
+        except (ValueError, IndexError):
+            return str(v)
+    if param.type() == "number" and isinstance(v, float):
+        return f"{v:g}"
+    return str(v)
+
+
+def default_stated(param):
+    """``param`` with its default at the end of its help when the help does not state it:
+    ``qgis_process help`` of QGIS 3.22 prints the help but not the default (the dialog shows it)."""
+    text = default_text(param)
+    if text is not None and not re.search(r"\bdefault\b", param.help(), re.IGNORECASE):
+        param.setHelp((param.help().rstrip() + " " if param.help().strip() else "") + tr("Default: {}.").format(text))
+    return param
+
+
 def gdal_mode_kept(func):
     """Run ``func`` inside :func:`grid.gdal_mode_kept`: QGIS's session keeps GDAL's exception
     mode as it was, whatever the core turned on."""
@@ -535,7 +563,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     # -- inputs loaded as layers without writing beside them ----------------------------------
     def addParameter(self, param, createOutput=True):  # noqa: N802,N803
-        return super().addParameter(reading_inputs_only(param), createOutput)
+        return super().addParameter(default_stated(reading_inputs_only(param)), createOutput)
 
     def parameterAsRasterLayer(self, parameters, name, context):  # noqa: N802
         """The layer of a raster input; one Processing loads from a path is opened without GDAL's
