@@ -117,8 +117,8 @@ def check_output_path(path, bands=1):
         a file name longer than the file system allows.
     """
     need_gdal()
-    path = os.path.abspath(str(path))
-    _refuse_folder(path, os.path.join(path, "dtm.tif"))
+    raw, path = str(path), os.path.abspath(str(path))
+    _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
     check_output_folder(path)
     check_geopackage_replaceable(path)
@@ -162,13 +162,15 @@ def check_output_file(path, example="output.txt"):
     ValueError
         Naming the folder given as the file, or the folder's problem.
     """
-    path = os.path.abspath(str(path))
-    _refuse_folder(path, os.path.join(path, example))
+    raw, path = str(path), os.path.abspath(str(path))
+    _refuse_folder(raw, os.path.join(path, example))
     check_output_folder(path)
 
 
 def _refuse_folder(path, example):
-    if os.path.isdir(path):
+    """A folder given as an output file: one that exists, or a path ending in a separator (typed as
+    the folder to write in, which would be written as a file of the folder's name)."""
+    if os.path.isdir(path) or path.endswith(("/", os.sep)):
         raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. {example!r}).")
 
 
@@ -554,6 +556,7 @@ class OutputSet:
 
     def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
         """Create output ``key`` at ``path`` (written to a hidden work file beside it)."""
+        _refuse_folder(str(path), os.path.join(os.path.abspath(str(path)), f"{key}.tif"))
         path = os.path.abspath(str(path))
         if self.info.path and os.path.abspath(str(self.info.path)) == path:
             raise ValueError(f"the output {path!r} is the input raster: choose another file name.")

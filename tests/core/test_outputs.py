@@ -356,6 +356,16 @@ def test_check_output_file_refuses_a_folder_and_takes_a_file(tmp_path):
         grid.check_output_file(tmp_path / "missing" / "table.csv")
 
 
+
+@pytest.mark.parametrize("check", ["check_output_path", "check_output_file"])
+def test_an_output_path_ending_in_a_separator_names_a_folder(tmp_path, check):
+    """'out/' (typed as the folder to write in) was written as a file named 'out' while the run returned
+    'out/', a path nothing can open; it is refused as a folder, whether or not the folder exists."""
+    for folder in (tmp_path / "new", tmp_path):
+        with pytest.raises(ValueError, match=r"is a folder: give a file name in it"):
+            getattr(grid, check)(str(folder) + os.sep)
+    assert sorted(os.listdir(tmp_path)) == []
+
 FULL_DISK_RUN = textwrap.dedent("""
     import os, resource, signal, sys
     sys.path.insert(0, {plugins!r})
@@ -433,3 +443,9 @@ def test_a_geopackage_holding_other_layers_is_refused_and_kept(tmp_path):
     grid.check_output_path(tmp_path / "dtm.gpkg")          # its own earlier output: replaced
     _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
     assert gdal.Open(str(tmp_path / "dtm.gpkg")).GetMetadataItem("IDENTIFIER") == "dtm"
+
+
+def test_an_output_set_refuses_a_path_ending_in_a_separator(tmp_path):
+    with pytest.raises(ValueError, match=r"is a folder: give a file name in it \(e\.g\. '.*/new/dtm\.tif'\)"):
+        _write(_info(tmp_path), {"dtm": str(tmp_path / "new") + os.sep})
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
