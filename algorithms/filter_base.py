@@ -26,6 +26,7 @@ from qgis.core import (
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
+    QgsProperty,
 )
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
@@ -564,6 +565,22 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
     # -- inputs loaded as layers without writing beside them ----------------------------------
     def addParameter(self, param, createOutput=True):  # noqa: N802,N803
         return super().addParameter(default_stated(reading_inputs_only(param)), createOutput)
+
+    def parameterAsOutputLayer(self, parameters, name, context):  # noqa: N802
+        """The file of an output; a raster output given as ``memory:`` (QGIS's memory layers, which
+        rasters do not have) is a temporary output as ``TEMPORARY_OUTPUT`` is (it was written as a
+        file named 'memory:' in the working folder, and two such outputs were one file)."""
+        d = self.parameterDefinition(name)
+        v = parameters.get(name)
+        sink = v.sink.staticValue() if isinstance(v, QgsProcessingOutputLayerDefinition) else v
+        if d is not None and d.type() == "rasterDestination" and isinstance(sink, str) and sink.startswith("memory:"):
+            if isinstance(v, QgsProcessingOutputLayerDefinition):
+                v = QgsProcessingOutputLayerDefinition(v)
+                v.sink = QgsProperty.fromValue(QgsProcessing.TEMPORARY_OUTPUT)
+            else:
+                v = QgsProcessing.TEMPORARY_OUTPUT
+            parameters = dict(parameters, **{name: v})
+        return super().parameterAsOutputLayer(parameters, name, context)
 
     def parameterAsRasterLayer(self, parameters, name, context):  # noqa: N802
         """The layer of a raster input; one Processing loads from a path is opened without GDAL's

@@ -398,3 +398,20 @@ def test_confidence_outputs_ramp_red_to_green(qgis_app, tmp_path):
     items = r.shader().rasterShaderFunction().colorRampItemList()
     low, high = items[0].color, items[-1].color
     assert low.red() > 200 > low.green() and high.green() > 100 > high.red()
+
+
+def test_memory_raster_outputs_are_temporary_files(qgis_app, tmp_path, monkeypatch):
+    """'memory:' (QGIS's memory layer, which rasters do not have) as a raster output wrote a file named
+    'memory:' in the working folder, and two such outputs were refused as one file: each is a temporary
+    output, as TEMPORARY_OUTPUT."""
+    import processing
+    from osgeo import gdal
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    res = processing.run("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), "OUTPUT_DTM": "memory:",
+                                                    "OUTPUT_MASK": "memory:mask"})
+    assert os.listdir(work) == []
+    assert res["OUTPUT_DTM"] != res["OUTPUT_MASK"]
+    assert gdal.Open(res["OUTPUT_DTM"]).GetRasterBand(1).DataType == gdal.GDT_Float32
+    assert gdal.Open(res["OUTPUT_MASK"]).GetRasterBand(1).DataType == gdal.GDT_Byte
