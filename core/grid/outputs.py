@@ -9,6 +9,7 @@ import contextvars
 import math
 import os
 import re
+import stat
 import tempfile
 import uuid
 
@@ -213,7 +214,17 @@ def check_output_folder(path):
 
 def check_replaceable(path):
     """ValueError when ``path`` exists and may not be written (read-only, or locked as an
-    immutable file): the run would end, after its work, unable to replace it."""
+    immutable file): the run would end, after its work, unable to replace it; or when it is no
+    regular file (a device such as ``/dev/null``, a named pipe, a socket), which writing the
+    output would delete and replace by a file."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise ValueError(f"the output {str(path)!r} exists and is not a regular file (a device, a pipe or a socket): "
+                         "writing the output would replace it. Choose a file name (an output you do not want can "
+                         "be left out or written as a temporary output).")
     if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
         raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
                          "choose another file name.")
@@ -565,6 +576,7 @@ class OutputSet:
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
         check_output_cells(path, self.info.geotransform)
+        check_replaceable(path)
         check_geopackage_replaceable(path)
         remove_stale_partials(path)
         work = _work_path(path)

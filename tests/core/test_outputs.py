@@ -1,6 +1,7 @@
 """The write side of core.grid: formats by extension, work files, stale leftovers, long names,
 creation options and the cloud-optimised GeoTIFF."""
 import os
+import stat
 import subprocess
 import sys
 import textwrap
@@ -449,3 +450,17 @@ def test_an_output_set_refuses_a_path_ending_in_a_separator(tmp_path):
     with pytest.raises(ValueError, match=r"is a folder: give a file name in it \(e\.g\. '.*/new/dtm\.tif'\)"):
         _write(_info(tmp_path), {"dtm": str(tmp_path / "new") + os.sep})
     assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
+
+
+@pytest.mark.parametrize("check", ["check_output_path", "check_output_file"])
+def test_an_output_that_is_a_device_or_pipe_is_refused_and_kept(tmp_path, check):
+    """An existing output that is no regular file (``/dev/null`` given to discard an output, a named pipe)
+    was deleted and replaced by a regular file: as root, OUTPUT_NDSM=/dev/null destroyed the system's
+    /dev/null. It is refused before any work, by the output set too, and left as it was."""
+    pipe = tmp_path / "out.tif"
+    os.mkfifo(pipe)
+    with pytest.raises(ValueError, match=r"out\.tif' exists and is not a regular file"):
+        getattr(grid, check)(pipe)
+    with pytest.raises(ValueError, match="is not a regular file"):
+        _write(_info(tmp_path), {"dtm": pipe})
+    assert stat.S_ISFIFO(os.lstat(pipe).st_mode) and _partials(tmp_path) == []
