@@ -144,7 +144,8 @@ def check_geopackage_replaceable(path):
                     names.append(ds.GetMetadataItem("IDENTIFIER") or table)
             ds = None
     except RuntimeError:
-        names = ["unreadable"]
+        raise ValueError(f"the output {str(path)!r} exists and is no GeoPackage GDAL can read: writing the output "
+                         "would replace it; choose another file.") from None
     others = sorted(set(n for n in names if n != table))
     if others:
         raise ValueError(f"the output {str(path)!r} is an existing GeoPackage that holds other layers "

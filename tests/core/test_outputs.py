@@ -440,6 +440,10 @@ def test_a_geopackage_holding_other_layers_is_refused_and_kept(tmp_path):
     with pytest.raises(ValueError, match="holds other layers"):
         _write(_info(tmp_path), {"dtm": store})
     assert store.read_bytes() == before and _partials(tmp_path) == []
+    (tmp_path / "notes.gpkg").write_text("not a GeoPackage")
+    with pytest.raises(ValueError, match=r"notes\.gpkg' exists and is no GeoPackage GDAL can read"):
+        grid.check_output_path(tmp_path / "notes.gpkg")
+    assert (tmp_path / "notes.gpkg").read_text() == "not a GeoPackage"
     _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
     grid.check_output_path(tmp_path / "dtm.gpkg")          # its own earlier output: replaced
     _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
