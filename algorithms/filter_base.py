@@ -26,6 +26,7 @@ from qgis.core import (
     QgsProcessingParameterRasterDestination,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
+    QgsProperty,
 )
 from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
@@ -366,6 +367,34 @@ def reading_inputs_only(param):
     return param
 
 
+def default_text(param):
+    """A parameter's default as the dialog shows it ('64', 'yes', 'auto', '1,2'), or None when it
+    has none (or it is a layer, a file or an output)."""
+    v = param.defaultValue()
+    if param.isDestination() or v is None or v == "" or isinstance(v, (list, tuple)) or param.type() not in (
+            "number", "boolean", "enum", "string"):
+        return None
+    if param.type() == "boolean":
+        return "yes" if v in (True, 1, "1", "true", "True") else "no"
+    if param.type() == "enum":
+        try:
+            return param.options()[int(v)]
+        except (ValueError, IndexError):
+            return str(v)
+    if param.type() == "number" and isinstance(v, float):
+        return f"{v:g}"
+    return str(v)
+
+
+def default_stated(param):
+    """``param`` with its default at the end of its help when the help does not state it:
+    ``qgis_process help`` of QGIS 3.22 prints the help but not the default (the dialog shows it)."""
+    text = default_text(param)
+    if text is not None and not re.search(r"\bdefault\b", param.help(), re.IGNORECASE):
+        param.setHelp((param.help().rstrip() + " " if param.help().strip() else "") + tr("Default: {}.").format(text))
+    return param
+
+
 def gdal_mode_kept(func):
     """Run ``func`` inside :func:`grid.gdal_mode_kept`: QGIS's session keeps GDAL's exception
     mode as it was, whatever the core turned on."""
@@ -535,7 +564,23 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     # -- inputs loaded as layers without writing beside them ----------------------------------
     def addParameter(self, param, createOutput=True):  # noqa: N802,N803
-        return super().addParameter(reading_inputs_only(param), createOutput)
+        return super().addParameter(default_stated(reading_inputs_only(param)), createOutput)
+
+    def parameterAsOutputLayer(self, parameters, name, context):  # noqa: N802
+        """The file of an output; a raster output given as ``memory:`` (QGIS's memory layers, which
+        rasters do not have) is a temporary output as ``TEMPORARY_OUTPUT`` is (it was written as a
+        file named 'memory:' in the working folder, and two such outputs were one file)."""
+        d = self.parameterDefinition(name)
+        v = parameters.get(name)
+        sink = v.sink.staticValue() if isinstance(v, QgsProcessingOutputLayerDefinition) else v
+        if d is not None and d.type() == "rasterDestination" and isinstance(sink, str) and sink.startswith("memory:"):
+            if isinstance(v, QgsProcessingOutputLayerDefinition):
+                v = QgsProcessingOutputLayerDefinition(v)
+                v.sink = QgsProperty.fromValue(QgsProcessing.TEMPORARY_OUTPUT)
+            else:
+                v = QgsProcessing.TEMPORARY_OUTPUT
+            parameters = dict(parameters, **{name: v})
+        return super().parameterAsOutputLayer(parameters, name, context)
 
     def parameterAsRasterLayer(self, parameters, name, context):  # noqa: N802
         """The layer of a raster input; one Processing loads from a path is opened without GDAL's

@@ -1,4 +1,7 @@
 """Small shared pieces: the dtype rule, cell sizes, progress, results."""
+import errno
+import os
+import shutil
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Optional
 
@@ -167,3 +170,29 @@ def transpose(a, rows=256):
         band[...] = a[i:i + n]
         out[:, i:i + n] = band.T
     return out
+
+
+#: errno values of a write that ran out of room (full disk, file-size limit, quota)
+_NO_ROOM = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
+
+
+def write_failed(path, reason, code=None):
+    """The ValueError of an output that failed while it was written (the checks before the work
+    passed): it names the output and why, and for a write that ran out of room (``code`` an errno
+    of :data:`_NO_ROOM`, or None: GDAL's errors carry none) the free space of its folder.
+
+    Raise it ``from None`` in place of the OSError (or GDAL's RuntimeError), so that QGIS shows a
+    message instead of a traceback."""
+    folder = os.path.dirname(os.path.abspath(os.fspath(path)))
+    if code is None or code in _NO_ROOM:
+        try:
+            free = f"{shutil.disk_usage(folder).free / 1e6:.0f} MB free there now"
+        except OSError:
+            free = "its free space unknown"
+        hint = (f"The disk of {folder!r} may be full ({free}) or the file larger than its file system takes: "
+                "free some space or choose another folder.")
+    else:
+        hint = f"Check the folder {folder!r} and choose one you can write to."
+    return ValueError(f"cannot write the output {os.fspath(path)!r}: {str(reason).strip() or 'no reason given'}. "
+                      f"{hint}")
+

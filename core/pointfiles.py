@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
+from .common import write_failed
 
 __all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
            "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS"]
@@ -557,6 +558,8 @@ def write_points(path, cloud, classes, decimals=None):
         else:
             _write_text(tmp, cloud, classes, decimals)
         os.replace(tmp, path)
+    except OSError as exc:
+        raise write_failed(path, exc.strerror or exc, exc.errno) from None
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)

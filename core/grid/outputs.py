@@ -9,14 +9,15 @@ import contextvars
 import math
 import os
 import re
+import stat
 import tempfile
 import uuid
 
 import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
-from ..common import Cancelled, report, sub_progress
-from .read import OUTPUT_TILE, gdal, need_gdal, osr
+from ..common import Cancelled, report, sub_progress, write_failed
+from .read import OUTPUT_TILE, gdal, need_gdal, osr, without_side_files
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
 #: None, name for messages). A run writes a tiled GeoTIFF work file; the other formats (and the
@@ -27,13 +28,13 @@ OUTPUT_FORMATS = {
     ".sdat": ("SAGA", 1, "SAGA grid"),
     ".asc": ("AAIGrid", 1, "Arc/Info ASCII grid"),
     ".nc": ("netCDF", 1, "netCDF"),
+    ".gpkg": ("GPKG", 1, "GeoPackage"),
 }
 
 #: Extensions GDAL could name but the outputs refuse, with the reason.
 REFUSED_FORMATS = {
     ".vrt": "a VRT only points at other rasters; write a GeoTIFF and build the VRT from it (gdalbuildvrt)",
     ".xyz": "XYZ text loses the nodata cells (GDAL reads them back as 0)",
-    ".gpkg": "GDAL cannot copy a Float32 or palette raster into a GeoPackage tile set",
     ".sgrd": "a .sgrd file is the header of a SAGA grid: name its .sdat file (the .sgrd is written beside it)",
 }
 
@@ -117,10 +118,40 @@ def check_output_path(path, bands=1):
         a file name longer than the file system allows.
     """
     need_gdal()
-    path = os.path.abspath(str(path))
-    _refuse_folder(path, os.path.join(path, "dtm.tif"))
+    raw, path = str(path), os.path.abspath(str(path))
+    _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
     check_output_folder(path)
+    check_geopackage_replaceable(path)
+
+
+def check_geopackage_replaceable(path):
+    """ValueError when ``path`` is an existing GeoPackage holding anything but the raster table
+    the output writes (named after the file): writing the output replaces the whole file, so
+    its other layers would be lost (QGIS projects keep many layers in one GeoPackage)."""
+    if os.path.splitext(str(path))[1].lower() != ".gpkg" or not os.path.isfile(path):
+        return
+    table = os.path.splitext(os.path.basename(str(path)))[0]
+    names = []
+    try:
+        with without_side_files():
+            ds = gdal.OpenEx(str(path), gdal.OF_READONLY | gdal.OF_RASTER | gdal.OF_VECTOR)
+            if ds is not None:
+                names = [ds.GetLayer(i).GetName() for i in range(ds.GetLayerCount())]
+                subs = ds.GetSubDatasets() or []
+                names += [sub.rsplit(":", 1)[-1] for sub, _ in subs]
+                if not subs and ds.RasterCount:
+                    names.append(ds.GetMetadataItem("IDENTIFIER") or table)
+            ds = None
+    except RuntimeError:
+        raise ValueError(f"the output {str(path)!r} exists and is no GeoPackage GDAL can read: writing the output "
+                         "would replace it; choose another file.") from None
+    others = sorted(set(n for n in names if n != table))
+    if others:
+        raise ValueError(f"the output {str(path)!r} is an existing GeoPackage that holds other layers "
+                         f"({', '.join(others)}); writing the output replaces the whole file: choose another file "
+                         "(to add a raster to a GeoPackage, write a GeoTIFF and run gdal_translate -of GPKG -co "
+                         "APPEND_SUBDATASET=YES -co RASTER_TABLE=<name> on it).")
 
 
 def check_output_file(path, example="output.txt"):
@@ -133,13 +164,15 @@ def check_output_file(path, example="output.txt"):
     ValueError
         Naming the folder given as the file, or the folder's problem.
     """
-    path = os.path.abspath(str(path))
-    _refuse_folder(path, os.path.join(path, example))
+    raw, path = str(path), os.path.abspath(str(path))
+    _refuse_folder(raw, os.path.join(path, example))
     check_output_folder(path)
 
 
 def _refuse_folder(path, example):
-    if os.path.isdir(path):
+    """A folder given as an output file: one that exists, or a path ending in a separator (typed as
+    the folder to write in, which would be written as a file of the folder's name)."""
+    if os.path.isdir(path) or path.endswith(("/", os.sep)):
         raise ValueError(f"the output {path!r} is a folder: give a file name in it (e.g. {example!r}).")
 
 
@@ -182,7 +215,17 @@ def check_output_folder(path):
 
 def check_replaceable(path):
     """ValueError when ``path`` exists and may not be written (read-only, or locked as an
-    immutable file): the run would end, after its work, unable to replace it."""
+    immutable file): the run would end, after its work, unable to replace it; or when it is no
+    regular file (a device such as ``/dev/null``, a named pipe, a socket), which writing the
+    output would delete and replace by a file."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise ValueError(f"the output {str(path)!r} exists and is not a regular file (a device, a pipe or a socket): "
+                         "writing the output would replace it. Choose a file name (an output you do not want can "
+                         "be left out or written as a temporary output).")
     if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
         raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
                          "choose another file name.")
@@ -474,6 +517,29 @@ def _cog_options(dtype, given=()):
     return _merge_options(opts, _integer_predictor(dtype, given))
 
 
+@contextlib.contextmanager
+def _writing(path):
+    """GDAL calls writing the output ``path``: a GDAL error (a RuntimeError) becomes
+    :func:`~bare_earth.core.common.write_failed`'s ValueError, so the algorithms report it and the
+    output set discards its work files."""
+    try:
+        yield
+    except RuntimeError as exc:
+        raise write_failed(path, str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason") \
+            from None
+
+
+def _close_written(item):
+    """Flush and close an output's work file; an error while closing (the last blocks and the TIFF
+    directory are written then, and GDAL reports it only as its last error) raises as a write error."""
+    with _writing(item["path"]):
+        item["ds"].FlushCache()
+        gdal.ErrorReset()
+        item["ds"] = None
+        if gdal.GetLastErrorType() >= gdal.CE_Failure:
+            raise RuntimeError(gdal.GetLastErrorMsg())
+
+
 class OutputSet:
     """Output rasters on a DSM's grid, written to hidden work files until :meth:`commit`.
 
@@ -502,6 +568,7 @@ class OutputSet:
 
     def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
         """Create output ``key`` at ``path`` (written to a hidden work file beside it)."""
+        _refuse_folder(str(path), os.path.join(os.path.abspath(str(path)), f"{key}.tif"))
         path = os.path.abspath(str(path))
         if self.info.path and os.path.abspath(str(self.info.path)) == path:
             raise ValueError(f"the output {path!r} is the input raster: choose another file name.")
@@ -510,6 +577,8 @@ class OutputSet:
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
         check_output_cells(path, self.info.geotransform)
+        check_replaceable(path)
+        check_geopackage_replaceable(path)
         remove_stale_partials(path)
         work = _work_path(path)
         opts = _gtiff_options(dtype, self._options if drv == "GTiff" and not self._cog else ())
@@ -550,8 +619,9 @@ class OutputSet:
         a = np.asarray(array)
         if a.ndim == 2:
             a = a[None]
-        for k in range(a.shape[0]):
-            item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
+        with _writing(item["path"]):
+            for k in range(a.shape[0]):
+                item["ds"].GetRasterBand(k + 1).WriteArray(a[k], c0, r0)
 
     def flush(self, progress=None):
         """Compress and write every block written so far (GDAL's threads do the work).
@@ -563,7 +633,8 @@ class OutputSet:
         ``Cancelled``) after each output.
         """
         for i, item in enumerate(self._items.values()):
-            item["ds"].FlushCache()
+            with _writing(item["path"]):
+                item["ds"].FlushCache()
             report(progress, (i + 1) / len(self._items))
 
     def commit(self, progress=None):
@@ -577,8 +648,7 @@ class OutputSet:
         items = list(self._items.values())
         n = max(1, len(items))
         for i, item in enumerate(items):
-            item["ds"].FlushCache()
-            item["ds"] = None
+            _close_written(item)
             report(progress, 0.5 * (i + 1) / n)
         moves = []
         for i, item in enumerate(items):
@@ -614,6 +684,9 @@ class OutputSet:
         ext = os.path.splitext(path)[1] or ".tif"
         tmp_main = work + ext
         opts = _cog_options(item["dtype"], self._options) if cog else []
+        if drv == "GPKG":   # the raster table named after the output, lossless tiles (PNG for bytes)
+            opts = [f"RASTER_TABLE={os.path.splitext(os.path.basename(path))[0]}"] + \
+                (["TILE_FORMAT=PNG"] if item["dtype"] == "Byte" else [])
         stopped = []
 
         def callback(fraction, _message, _data):
@@ -627,7 +700,7 @@ class OutputSet:
         vrt = None
         try:
             src = gdal.Open(work)
-            if drv in _TEXT_NODATA_DRIVERS and item["nodata"] is not None and math.isnan(float(item["nodata"])):
+            if drv in _FINITE_NODATA_DRIVERS and item["nodata"] is not None and math.isnan(float(item["nodata"])):
                 vrt = f"/vsimem/{os.path.basename(work)}.vrt"
                 x0, dx, _, y0, _, dy = src.GetGeoTransform()
                 src = gdal.Warp(vrt, src, format="VRT", srcNodata="nan", dstNodata=finite_text_nodata(src),
@@ -718,14 +791,15 @@ def write_mask_qml(path):
 
 #: Formats whose header carries the nodata value as text read by other software (ESRI's ASCII
 #: grid, SAGA): a NaN nodata is written there as a finite value (:func:`finite_text_nodata`).
-_TEXT_NODATA_DRIVERS = ("AAIGrid", "SAGA")
+_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG")   # GeoPackage: its coverage table takes no NaN
 #: The finite nodata of those formats when the raster declares NaN (ESRI's convention).
 TEXT_NODATA = -9999.0
 
 
 def finite_text_nodata(ds):
-    """The finite nodata an Arc/Info ASCII or SAGA copy of the Float32 raster ``ds`` (NaN
-    nodata) declares instead of NaN, which other software cannot read from the header:
+    """The finite nodata an Arc/Info ASCII, SAGA or GeoPackage copy of the Float32 raster ``ds`` (NaN
+    nodata) declares instead of NaN, which other software cannot read from the header (a GeoPackage
+    cannot record it):
     :data:`TEXT_NODATA` (-9999), or, when the heights reach it, the next power of ten below
     the lowest height (-99999, ...), so no height is taken for nodata."""
     try:

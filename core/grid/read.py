@@ -8,6 +8,7 @@ and heights in metres.
 import contextlib
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
@@ -133,25 +134,59 @@ def need_gdal():
     gdal.UseExceptions()
 
 
+class SessionSetting:
+    """A process-wide GDAL setting changed while work runs, in any thread: the value before the
+    first change is kept and put back when the last ends. Runs in QGIS's background threads
+    overlap; restoring each run's own "before" would let the first to end undo the change under
+    the other, and the other then put back the changed value for the rest of the session."""
+
+    def __init__(self, get, put):
+        self._get, self._put = get, put
+        self._lock = threading.Lock()
+        self._depth = 0
+        self._before = None
+
+    @contextlib.contextmanager
+    def changed(self, value):
+        """The setting is ``value(before)`` inside the block (``before``: the value the first
+        of the overlapping blocks found)."""
+        with self._lock:
+            if self._depth == 0:
+                self._before = self._get()
+            self._depth += 1
+            self._put(value(self._before))
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._depth -= 1
+                if self._depth == 0 and self._get() != self._before:
+                    self._put(self._before)
+
+
+def _put_exceptions(on):
+    if on:
+        gdal.UseExceptions()
+    else:
+        gdal.DontUseExceptions()
+
+
+_EXCEPTIONS = SessionSetting(lambda: gdal.GetUseExceptions(), _put_exceptions)
+_CACHE = SessionSetting(lambda: gdal.GetCacheMax(), lambda size: gdal.SetCacheMax(size))
+
+
 @contextlib.contextmanager
 def gdal_mode_kept():
     """GDAL's Python exceptions on inside the block (as :func:`need_gdal` turns them on) and
     the mode back as it was when it ends. GDAL's bindings hold one mode for the whole process:
     inside QGIS, every other plugin's ``if gdal.Open(p) is None`` would raise instead once a
-    Bare Earth algorithm had run. The plugin's entry points run inside this block."""
+    Bare Earth algorithm had run. The plugin's entry points run inside this block; overlapping
+    blocks (runs in threads) share the mode (:class:`SessionSetting`)."""
     if gdal is None:
         yield
         return
-    old = gdal.GetUseExceptions()
-    gdal.UseExceptions()
-    try:
+    with _EXCEPTIONS.changed(lambda before: 1):
         yield
-    finally:
-        if gdal.GetUseExceptions() != old:
-            if old:
-                gdal.UseExceptions()
-            else:
-                gdal.DontUseExceptions()
 
 
 @dataclass
@@ -624,14 +659,11 @@ def bounded_cache(active=True, size=BLOCK_MODE_CACHE):
     """Cap GDAL's block cache while a raster is processed block by block.
 
     GDAL keeps written tiles in its cache (by default 5 % of the RAM); in block mode that
-    cache, not the blocks, would grow with the raster. The previous size is restored.
+    cache, not the blocks, would grow with the raster. The previous size is restored when the
+    last of overlapping runs ends (:class:`SessionSetting`).
     """
     if not active or gdal is None:
         yield
         return
-    old = gdal.GetCacheMax()
-    gdal.SetCacheMax(min(old, size))
-    try:
+    with _CACHE.changed(lambda before: min(before, size)):
         yield
-    finally:
-        gdal.SetCacheMax(old)

@@ -19,6 +19,7 @@ except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
 from ..codes import MASK_CODES, MASK_COLOURS
+from ..common import write_failed
 
 #: Tile edge of the COG outputs, cells.
 COG_BLOCK = 256
@@ -145,10 +146,17 @@ def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=Fal
     root, ext = os.path.splitext(path)
     tmp = f"{root}.partial-{uuid.uuid4().hex[:8]}{ext or '.tif'}"
     try:
-        out = gdal.Translate(tmp, mem, options=gdal.TranslateOptions(format="COG", creationOptions=opts))
-        if out is None:
-            raise ValueError(f"GDAL could not write the COG {path!r}.")
-        out = None
+        try:
+            out = gdal.Translate(tmp, mem, options=gdal.TranslateOptions(format="COG", creationOptions=opts))
+            if out is None:
+                raise ValueError(f"GDAL could not write the COG {path!r}.")
+            gdal.ErrorReset()
+            out = None                          # closing writes the rest: GDAL only records its errors
+            if gdal.GetLastErrorType() >= gdal.CE_Failure:
+                raise RuntimeError(gdal.GetLastErrorMsg())
+        except RuntimeError as exc:             # a full disk: the message every output gives
+            raise write_failed(path, str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason") \
+                from None
         if os.path.exists(tmp + ".aux.xml"):    # the category names (GDAL's side file)
             os.replace(tmp + ".aux.xml", path + ".aux.xml")
         os.replace(tmp, path)

@@ -633,3 +633,72 @@ def test_crs_given_for_a_file_without_one(tmp_path):
     assert info.crs_wkt == wkt(2263) and any("CRS its layer was given" in w for w in info.warnings)
     info = grid.open_dsm(tif(tmp_path, a, name="own.tif", gt=gt, crs=32633), crs_wkt=wkt(2263))
     assert info.z_to_m == 1.0 and "2263" not in info.crs_wkt
+
+
+def test_gdal_mode_kept_across_threads():
+    """Two runs in threads overlapping (QGIS's background tasks): GDAL's one process-wide mode stays on
+    until the last run ends, then goes back to the session's (the first run leaving must not turn it
+    off under the other, and the other must not restore the mode the first had set)."""
+    import threading
+
+    from osgeo import gdal
+    old = gdal.GetUseExceptions()
+    gdal.DontUseExceptions()
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def run_a():
+        with grid.gdal_mode_kept():
+            a_in.set()
+            b_in.wait(5)
+        a_out.set()
+
+    def run_b():
+        a_in.wait(5)
+        with grid.gdal_mode_kept():
+            b_in.set()
+            a_out.wait(5)
+            seen["b after a left"] = gdal.GetUseExceptions()
+
+    try:
+        threads = [threading.Thread(target=f) for f in (run_a, run_b)]
+        [t.start() for t in threads]
+        [t.join(10) for t in threads]
+        seen["after both"] = gdal.GetUseExceptions()
+    finally:
+        (gdal.UseExceptions if old else gdal.DontUseExceptions)()
+    assert seen == {"b after a left": 1, "after both": 0}
+
+
+def test_bounded_cache_across_threads():
+    """Two block-mode runs overlapping in threads: GDAL's one cache size stays capped until the last ends,
+    then is the session's again (the second run must not put back the cap it found)."""
+    import threading
+
+    from osgeo import gdal
+    old = gdal.GetCacheMax()
+    gdal.SetCacheMax(512 * 2 ** 20)
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def run_a():
+        with grid.bounded_cache(size=64 * 2 ** 20):
+            a_in.set()
+            b_in.wait(5)
+        a_out.set()
+
+    def run_b():
+        a_in.wait(5)
+        with grid.bounded_cache(size=64 * 2 ** 20):
+            b_in.set()
+            a_out.wait(5)
+            seen["b after a left"] = gdal.GetCacheMax() // 2 ** 20
+
+    try:
+        threads = [threading.Thread(target=f) for f in (run_a, run_b)]
+        [t.start() for t in threads]
+        [t.join(10) for t in threads]
+        seen["after both"] = gdal.GetCacheMax() // 2 ** 20
+    finally:
+        gdal.SetCacheMax(old)
+    assert seen == {"b after a left": 64, "after both": 512}

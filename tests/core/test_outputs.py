@@ -1,6 +1,7 @@
 """The write side of core.grid: formats by extension, work files, stale leftovers, long names,
 creation options and the cloud-optimised GeoTIFF."""
 import os
+import stat
 import subprocess
 import sys
 import textwrap
@@ -53,7 +54,7 @@ def _write(info, outputs, **kw):
 
 
 @pytest.mark.parametrize("ext,driver", [(".tif", "GTiff"), (".img", "HFA"), (".sdat", "SAGA"),
-                                        (".asc", "AAIGrid"), (".nc", "netCDF")])
+                                        (".asc", "AAIGrid"), (".nc", "netCDF"), (".gpkg", "GPKG")])
 def test_each_offered_format_is_written_in_that_format(tmp_path, ext, driver):
     if gdal.GetDriverByName(driver) is None:
         pytest.skip(f"GDAL has no {driver} driver")
@@ -79,7 +80,7 @@ def test_saga_grid_readable_and_nothing_left_behind(tmp_path):
     assert not [p for p in os.listdir(tmp_path) if "partial" in p]
 
 
-@pytest.mark.parametrize("ext", [".vrt", ".xyz", ".gpkg", ".png", ".jpg"])
+@pytest.mark.parametrize("ext", [".vrt", ".xyz", ".png", ".jpg"])
 def test_formats_not_offered_are_refused_naming_the_offered_ones(tmp_path, ext):
     with pytest.raises(ValueError, match=r"Formats offered: GeoTIFF \(\.tif, \.tiff\)"):
         grid.check_output_path(tmp_path / f"dtm{ext}")
@@ -354,3 +355,116 @@ def test_check_output_file_refuses_a_folder_and_takes_a_file(tmp_path):
     grid.check_output_file(tmp_path / "table.csv")
     with pytest.raises(ValueError, match="does not exist"):
         grid.check_output_file(tmp_path / "missing" / "table.csv")
+
+
+
+@pytest.mark.parametrize("check", ["check_output_path", "check_output_file"])
+def test_an_output_path_ending_in_a_separator_names_a_folder(tmp_path, check):
+    """'out/' (typed as the folder to write in) was written as a file named 'out' while the run returned
+    'out/', a path nothing can open; it is refused as a folder, whether or not the folder exists."""
+    for folder in (tmp_path / "new", tmp_path):
+        with pytest.raises(ValueError, match=r"is a folder: give a file name in it"):
+            getattr(grid, check)(str(folder) + os.sep)
+    assert sorted(os.listdir(tmp_path)) == []
+
+FULL_DISK_RUN = textwrap.dedent("""
+    import os, resource, signal, sys
+    sys.path.insert(0, {plugins!r})
+    import numpy as np
+    from bare_earth.core import grid
+    from bare_earth.core.pipeline import run_file
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # the write fails (EFBIG), as on a full disk
+    resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, resource.RLIM_INFINITY))
+    try:
+        run_file("morphological", {dsm!r}, {{"dtm": {dtm!r}, "mask": {mask!r}}}, workers={workers})
+        print("WROTE")
+    except ValueError as exc:
+        print("VALUEERROR", exc)
+""")
+
+
+@pytest.mark.parametrize("limit, workers", [(60_000, 1), (60_000, 2), (200_000, 1)])
+def test_a_full_disk_is_a_message_naming_the_output_and_leaves_nothing(tmp_path, limit, workers):
+    """A write that fails part way (the disk full: here a file-size limit) is a ValueError naming the output
+    and the disk (not GDAL's traceback from a writer thread, nor an output closed half-written and moved in
+    place); nothing is left in the folder."""
+    rng = np.random.default_rng(0)
+    dsm = grid.write_array(tmp_path / "dsm.tif", (100 + rng.normal(0, 1, (512, 512))).astype(np.float32), GT, 32632)
+    out = tmp_path / "out"
+    out.mkdir()
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__))))
+    code = FULL_DISK_RUN.format(plugins=plugins, dsm=dsm, dtm=str(out / "dtm.tif"), mask=str(out / "mask.tif"),
+                                limit=limit, workers=workers)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-2000:]
+    assert "dtm.tif" in res.stdout and "disk" in res.stdout
+    assert os.listdir(out) == []
+
+
+def test_geopackage_outputs_are_exact_and_named_after_their_file(tmp_path):
+    """A GeoPackage raster output (refused before, saying GDAL could not copy Float32 or a palette into
+    one, which it can): the DTM's heights (its NaN nodata as -9999) and the mask's codes, 255 nodata and
+    palette read back exactly, in a raster table named after the file (not after the hidden work file)."""
+    info = _info(tmp_path)
+    d, m = _write(info, {"dtm": tmp_path / "my dtm.gpkg", "mask": tmp_path / "mask.gpkg"})
+    for name, want in (("my dtm", d), ("mask", m)):
+        ds = gdal.Open(str(tmp_path / f"{name}.gpkg"))
+        assert ds.GetDriver().ShortName == "GPKG" and ds.RasterCount == 1
+        assert ds.GetMetadataItem("IDENTIFIER") == name
+        b = ds.GetRasterBand(1)
+        nd = b.GetNoDataValue()    # a GeoPackage records no NaN nodata: the DTM's is -9999, as in text grids
+        assert nd == (NODATA if name == "mask" else -9999.0) and b.DataType == (gdal.GDT_Byte if name == "mask"
+                                                                                 else gdal.GDT_Float32)
+        np.testing.assert_array_equal(b.ReadAsArray(), np.where(np.isnan(want), nd, want))
+        assert np.allclose(ds.GetGeoTransform(), GT)
+        ds = None
+    ds = gdal.Open(str(tmp_path / "mask.gpkg"))
+    ct = ds.GetRasterBand(1).GetColorTable()
+    assert ct is not None and ct.GetCount() >= 4
+    ct = ds = None
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif", "mask.gpkg", "mask.qml", "my dtm.gpkg"]
+
+
+def test_a_geopackage_holding_other_layers_is_refused_and_kept(tmp_path):
+    """Writing an output replaces its file: an existing GeoPackage holding anything else (a vector layer,
+    another raster table) would lose it, so it is refused before any work and left as it was; a
+    GeoPackage from an earlier run of the same output is replaced."""
+    ogr = pytest.importorskip("osgeo.ogr")
+    store = tmp_path / "project.gpkg"
+    ds = ogr.GetDriverByName("GPKG").CreateDataSource(str(store))
+    ds.CreateLayer("roads")
+    ds = None
+    before = store.read_bytes()
+    with pytest.raises(ValueError, match=r"project\.gpkg.*holds other layers \(roads\).*another file"):
+        grid.check_output_path(store)
+    with pytest.raises(ValueError, match="holds other layers"):
+        _write(_info(tmp_path), {"dtm": store})
+    assert store.read_bytes() == before and _partials(tmp_path) == []
+    (tmp_path / "notes.gpkg").write_text("not a GeoPackage")
+    with pytest.raises(ValueError, match=r"notes\.gpkg' exists and is no GeoPackage GDAL can read"):
+        grid.check_output_path(tmp_path / "notes.gpkg")
+    assert (tmp_path / "notes.gpkg").read_text() == "not a GeoPackage"
+    _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
+    grid.check_output_path(tmp_path / "dtm.gpkg")          # its own earlier output: replaced
+    _write(_info(tmp_path), {"dtm": tmp_path / "dtm.gpkg"})
+    assert gdal.Open(str(tmp_path / "dtm.gpkg")).GetMetadataItem("IDENTIFIER") == "dtm"
+
+
+def test_an_output_set_refuses_a_path_ending_in_a_separator(tmp_path):
+    with pytest.raises(ValueError, match=r"is a folder: give a file name in it \(e\.g\. '.*/new/dtm\.tif'\)"):
+        _write(_info(tmp_path), {"dtm": str(tmp_path / "new") + os.sep})
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif"]
+
+
+@pytest.mark.parametrize("check", ["check_output_path", "check_output_file"])
+def test_an_output_that_is_a_device_or_pipe_is_refused_and_kept(tmp_path, check):
+    """An existing output that is no regular file (``/dev/null`` given to discard an output, a named pipe)
+    was deleted and replaced by a regular file: as root, OUTPUT_NDSM=/dev/null destroyed the system's
+    /dev/null. It is refused before any work, by the output set too, and left as it was."""
+    pipe = tmp_path / "out.tif"
+    os.mkfifo(pipe)
+    with pytest.raises(ValueError, match=r"out\.tif' exists and is not a regular file"):
+        getattr(grid, check)(pipe)
+    with pytest.raises(ValueError, match="is not a regular file"):
+        _write(_info(tmp_path), {"dtm": pipe})
+    assert stat.S_ISFIFO(os.lstat(pipe).st_mode) and _partials(tmp_path) == []

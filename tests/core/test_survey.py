@@ -518,3 +518,29 @@ def test_tiles_with_an_undeclared_minus_9999_border_warned(tmp_path):
     run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1, log=logs.append)
     said = [s for s in logs if "a common nodata value" in s]
     assert said and "384 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999 <tile>" in said[0]
+
+
+def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):
+    """A tile's COG that cannot be written (the disk full: here a file-size limit) fails with the message
+    naming the output and the disk, as the other outputs do (the survey's log gave GDAL's bare
+    "RuntimeError: TIFFAppendToStrip:Seek error"), and leaves no file."""
+    import textwrap
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(survey_io.__file__))))
+    code = textwrap.dedent(f"""
+        import resource, signal, sys
+        sys.path.insert(0, {plugins!r})
+        import numpy as np
+        from bare_earth.core.survey.io import write_cog
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, resource.RLIM_INFINITY))
+        a = np.random.default_rng(0).normal(100, 1, (400, 400)).astype(np.float32)
+        try:
+            write_cog({str(tmp_path / "t_dtm.tif")!r}, a, (0, 1, 0, 400, 0, -1))
+            print("WROTE")
+        except ValueError as exc:
+            print("VALUEERROR", exc)
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-1500:]
+    assert "t_dtm.tif" in res.stdout and "disk" in res.stdout
+    assert os.listdir(tmp_path) == []

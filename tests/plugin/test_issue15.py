@@ -159,7 +159,7 @@ BAD = [
     *[pytest.param(f"format-{ext}", "slopeprofile", lambda t, ext=ext: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / f"o{ext}"), "OUTPUT_MASK": str(t / "m.tif")},
         r"\(OUTPUT_DTM\).*Formats offered: GeoTIFF \(\.tif, \.tiff\)", id=f"format-{ext}")
-      for ext in (".vrt", ".xyz", ".gpkg", ".png")],
+      for ext in (".vrt", ".xyz", ".png")],
     pytest.param("format-2-bands-in-ascii", "curvature", lambda t: {
         "INPUT": _dsm(t), "OUTPUT_DTM": str(t / "o.tif"), "OUTPUT_MASK": str(t / "m.tif"),
         "OUTPUT_CURVATURE": str(t / "k.asc")}, r"'Curvature \(K, H\)' \(OUTPUT_CURVATURE\).*2 bands",
@@ -344,7 +344,7 @@ def test_orthorefine_writes_with_creation_options(processing_run, tmp_path):
 def test_provider_offers_the_formats_written(qgis_app):
     from qgis.core import QgsApplication
     exts = QgsApplication.processingRegistry().providerById("bareearth").supportedOutputRasterLayerExtensions()
-    assert {"tif", "sdat", "asc", "img"} <= set(exts) and not {"vrt", "xyz", "gpkg"} & set(exts)
+    assert {"tif", "sdat", "asc", "img", "gpkg"} <= set(exts) and not {"vrt", "xyz"} & set(exts)
 
 
 # ---- styles of the layers Processing loads -----------------------------------------------------
@@ -398,3 +398,20 @@ def test_confidence_outputs_ramp_red_to_green(qgis_app, tmp_path):
     items = r.shader().rasterShaderFunction().colorRampItemList()
     low, high = items[0].color, items[-1].color
     assert low.red() > 200 > low.green() and high.green() > 100 > high.red()
+
+
+def test_memory_raster_outputs_are_temporary_files(qgis_app, tmp_path, monkeypatch):
+    """'memory:' (QGIS's memory layer, which rasters do not have) as a raster output wrote a file named
+    'memory:' in the working folder, and two such outputs were refused as one file: each is a temporary
+    output, as TEMPORARY_OUTPUT."""
+    import processing
+    from osgeo import gdal
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    res = processing.run("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), "OUTPUT_DTM": "memory:",
+                                                    "OUTPUT_MASK": "memory:mask"})
+    assert os.listdir(work) == []
+    assert res["OUTPUT_DTM"] != res["OUTPUT_MASK"]
+    assert gdal.Open(res["OUTPUT_DTM"]).GetRasterBand(1).DataType == gdal.GDT_Float32
+    assert gdal.Open(res["OUTPUT_MASK"]).GetRasterBand(1).DataType == gdal.GDT_Byte

@@ -90,3 +90,29 @@ def test_metadata_about_and_changelog_name_every_algorithm(qgis_app):
     for a in _algorithms(qgis_app):
         assert re.search(rf"\b{a.name()}\b", about), f"metadata about does not name {a.id()}"
         assert re.search(rf"\b{a.name()}\b", changelog), f"metadata changelog does not name {a.id()}"
+
+
+def test_every_default_is_stated_in_the_parameter_help(qgis_app):
+    """``qgis_process help`` (QGIS 3.22, Debian 12's) prints each parameter's help but not its default, so a
+    command-line user could not see a default such as geodesic's widest building (64 m) or curvature's
+    window: each parameter with a default says it in its help."""
+    missing = []
+    for alg in _algorithms(qgis_app):
+        for d in alg.parameterDefinitions():
+            v = d.defaultValue()
+            if d.isDestination() or v is None or v == "" or d.type() in ("raster", "source", "vector", "file",
+                                                                        "multilayer", "band", "folder"):
+                continue
+            if not re.search(r"\bdefault\b", d.help(), re.IGNORECASE):
+                missing.append(f"{alg.id()} {d.name()} = {v!r}")
+    assert not missing, "parameters whose help does not state their default:\n" + "\n".join(missing)
+
+
+def test_stated_default_reads_as_the_dialog_shows_it(qgis_app):
+    from qgis.core import QgsApplication
+    reg = QgsApplication.processingRegistry()
+    helps = {d.name(): d.help() for d in reg.algorithmById("bareearth:geodesic").parameterDefinitions()}
+    assert helps["MAX_OBJECT_SIZE_M"].endswith(" Default: 64.")
+    assert helps["SCAN_LABELLING"].endswith(" Default: yes.")
+    helps = {d.name(): d.help() for d in reg.algorithmById("bareearth:morphological").parameterDefinitions()}
+    assert helps["MODE"].endswith(" Default: auto.")
