@@ -112,6 +112,11 @@ _MIN_OBJECT_M, _MAX_OBJECT_M = 10.0, 80.0
 _DEFAULT_OBJECT_M = 40.0
 #: Largest object looked for when deriving max_object_size_m, metres.
 _OBJECT_SEARCH_M = 100.0
+#: Window growth of the object-size search: doubling windows (Zhang et al. 2003). The size is the
+#: widest flagged area's, so a terrain patch flagged by mistake widens the window of the whole
+#: raster; the finer sqrt 2 steps flag more of them (lidar hexbin-crop at 2 m: 24 -> 39 m, total
+#: error 2.6 -> 4.9 %; with the doubling search 4.0 %, the rest of the matrix within 0.1).
+_OBJECT_SEARCH_GROWTH = 2.0
 #: Safety factor on the width of the largest objects (roof shapes, sloped ground).
 _OBJECT_MARGIN = 1.25
 #: Minimum height of an object when deriving its size, metres.
@@ -786,7 +791,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
 
 
 def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None, outline_slope=None,
-                         window_growth=WINDOW_GROWTH):
+                         window_growth=_OBJECT_SEARCH_GROWTH):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
@@ -797,8 +802,9 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     area lies, times 1.25 (stepped roofs and sloped ground need a larger window than the
     footprint's inscribed square) plus two cells, or NaN when there are no objects.
     ``outline_slope`` (default ``slope``) is the filter's, so the objects include their
-    outline cells; ``window_growth`` is the filter's too. ``progress(fraction)`` (optional, may
-    raise ``Cancelled``) from inside the filter.
+    outline cells. ``window_growth`` (default :data:`_OBJECT_SEARCH_GROWTH`, Zhang's doubling
+    windows) is the search's own. ``progress(fraction)`` (optional, may raise ``Cancelled``)
+    from inside the filter.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -835,7 +841,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       pass the terrain's own relief and the median of a coarse surface underestimates
       it; 0.3 is the best single value on the ISPRS samples.
     * ``max_object_size_m``: the width of the largest objects the progressive filter
-      finds with windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
+      finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
       (40 m when there are no objects).
     * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
       over one cell the ground beside an object may show before a cell on the object's
@@ -907,7 +913,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         out["outline_slope_source"] = "given"
     if max_object_size_m is None:
         w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0),
-                                 outline_slope=out["outline_slope"], window_growth=window_growth)
+                                 outline_slope=out["outline_slope"])
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
             out["max_object_size_source"] = (

@@ -163,6 +163,21 @@ def test_flat_roof_36_m_wide_and_8_m_high_is_an_object(cell):
     assert np.all(old.mask[truth == OBJECT] == 0)      # the doubling windows miss it
 
 
+def test_the_object_size_search_keeps_doubling_windows():
+    """The size estimate runs its own search with doubling windows whatever the filter's growth,
+    so the filter's sqrt 2 steps do not widen the window from terrain patches they flag."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("mixed", (128, 128), seed=4).dsm
+    sizes = {g: morph.resolve_morphological_params(z, 1.0, window_growth=g)["max_object_size_m"]
+             for g in (2.0, morph.WINDOW_GROWTH)}
+    assert sizes[2.0] == sizes[morph.WINDOW_GROWTH]
+    p = morph.resolve_morphological_params(z, 1.0)
+    finer = morph.estimate_object_size(z, 1.0, p["slope"], p["dh_m"], outline_slope=p["outline_slope"],
+                                       window_growth=morph.WINDOW_GROWTH)
+    assert finer != sizes[2.0]                   # the search's growth matters on this scene
+    assert morph._OBJECT_SEARCH_GROWTH == 2.0
+
+
 # --------------------------------------------------------------------------- the filter
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("mode", ["single", "progressive"])
