@@ -67,12 +67,18 @@ algorithm's help.
    cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
    cell``, falls and such flanks would open runs; our design, issue 12).
    Two passes catch stepped roofs. This removes what the dilation left (objects on
-   steep slopes, thin walls, leftovers of merged regions).
+   steep slopes, thin walls, leftovers of merged regions). Nodata ends a run, except a
+   one-cell dropout between two valid cells of a row or a column, which the scan bridges
+   with the lowest valid cell around it (:func:`~.filter.bridge_dropouts`: on a DSM with every
+   other cell empty no run survived; issue 12).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed
    cell and stands above one of its 8 neighbours by more than ``dh0 + tan(terrain_slope)
    * cell_diagonal`` is the foot of a wall or the edge of a crown (a cell mixing object
    and ground): it is removed too, so the interpolated DTM is not pulled up along the
-   objects' borders.
+   objects' borders. Where the terrain level of the largest step (its reconstruction, which
+   no object reaches) is steeper than the tolerated slope, its own slope there sets the
+   rise (our design, issue 12: on a forested slope steeper than the 22-degree clip the ground
+   beside every crown was removed).
 5. **Islands** (step code :data:`STEP_ISLAND`). A set of kept cells (8-connected) no
    larger than the first structuring element's window, enclosed by removed cells (and
    outliers), is a gap no step could see as terrain (every window is wider). When even
@@ -149,7 +155,8 @@ METHOD = Method(
         "the maximum object size, or up to sqrt(2) times it (a row crossing a building rotated "
         "in the grid) when both the rise and the fall are walls; "
         "then the border cells of removed regions that stand above a "
-        "neighbour by more than dh0 plus the terrain's rise (wall feet, crown edges) are "
+        "neighbour by more than dh0 plus the terrain's rise (wall feet, crown edges; the rise from the "
+        "steeper of the tolerated slope and the slope of the terrain level there) are "
         "removed, and so are small islands of kept cells enclosed by removed ones that stand "
         "above the terrain level of the largest step (gaps in a canopy or a roof). The DTM is the "
         "DSM with the removed cells filled by "

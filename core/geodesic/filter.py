@@ -26,23 +26,94 @@ STEP_ISLAND = 253
 STEP_NODATA = 255
 
 
+def bridge_dropouts(z):
+    """``z`` with its one-cell dropouts bridged, and the cells that were valid (None: no nodata).
+
+    A nodata cell between two valid cells along its row or its column (a dropout: a missed
+    scan line, a checkerboard of empty cells) takes the lowest valid cell of its 3 x 3
+    neighbourhood, so that a profile crossing it is not cut; a wider gap keeps its nodata and
+    still ends the runs (nothing is seen across it). On a DSM with every other cell empty no
+    profile held a run, and scan labelling removed nothing: 30 % of a city's object cells
+    stayed ground (issue 12).
+
+    Examples
+    --------
+    >>> z = np.array([[1, np.nan, 3], [4, 5, 6]], np.float32)
+    >>> bridged, valid = bridge_dropouts(z)
+    >>> bridged.tolist(), valid.tolist()
+    ([[1.0, 1.0, 3.0], [4.0, 5.0, 6.0]], [[True, False, True], [True, True, True]])
+    """
+    bad = np.isnan(z)
+    if not bad.any():
+        return z, None
+    valid = ~bad
+    one = np.zeros(z.shape, bool)
+    one[:, 1:-1] = valid[:, :-2] & valid[:, 2:]
+    one[1:-1, :] |= valid[:-2, :] & valid[2:, :]
+    one &= bad
+    low = rect_filter(np.where(bad, np.inf, z), (3, 3), np.minimum, np.inf)
+    out = z.copy()
+    np.copyto(out, low, where=one)
+    return out, valid
+
+
 def label_scans(cleaned, cell_size, p, removed, step, progress=None):
     """Stage 3: scan labelling of the cleaned surface (:func:`~.scan.scan_label`).
 
     Runs of cells that open with a rise and close with a fall are removed (``removed``
-    updated in place); cells not coded yet get :data:`STEP_SCAN`. Returns their count.
+    updated in place); cells not coded yet get :data:`STEP_SCAN`. One-cell dropouts are
+    bridged for the scan (:func:`bridge_dropouts`); only valid cells are labelled. Returns
+    their count.
     """
-    lab = scan_label(cleaned, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
+    surface, valid = bridge_dropouts(cleaned)
+    lab = scan_label(surface, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
                      max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
                      oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"],
                      passes=SCAN_PASSES, progress=progress)
+    if valid is not None:
+        lab &= valid
     new = lab & ~removed & (step == 0)
     step[new] = STEP_SCAN
     removed |= lab
     return int(new.sum())
 
 
-def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step):
+#: Baseline of the terrain level's local slope (stage 4), metres: the ~4 m grid the tolerated
+#: slope is measured on (:func:`~.params.resolve_geodesic_params`), so that the mixed cells at
+#: an object's foot, which the reconstruction reaches, do not read as a slope.
+SLOPE_BASE_M = 4.0
+
+
+def terrain_slope_at(terrain, cells, shape, cell_size):
+    """The slope (rise/run) of the terrain level of :func:`~.dilation.gradual_dilation` (its
+    largest step's reconstruction ``(Rc, f)``, which no object reaches) at the flat ``cells`` of
+    a raster of ``shape``: differences on its grid of ``f`` x ``f`` blocks across
+    ``k = ceil(SLOPE_BASE_M / (f cell))`` blocks each side (clipped at the grid's edge); 0 where
+    it is not finite (nodata, no marker within reach)."""
+    Rc, f = terrain
+    dx, dy = cell_size
+    h, w = Rc.shape
+    r, c = np.divmod(np.asarray(cells, np.intp), shape[1])
+    r, c = r // f, c // f
+    g2 = np.zeros(r.size, np.float64)
+    for axis, step in ((1, dx * f), (0, dy * f)):
+        n = Rc.shape[axis]
+        k = max(1, int(np.ceil(SLOPE_BASE_M / step - 1e-9)))
+        pos = c if axis == 1 else r
+        lo, hi = np.maximum(pos - k, 0), np.minimum(pos + k, n - 1)
+        a, b = (Rc[r, lo], Rc[r, hi]) if axis == 1 else (Rc[lo, c], Rc[hi, c])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = (np.asarray(b, np.float64) - a) / ((hi - lo) * step)
+        g2 += np.where(np.isfinite(g), g, 0.0) ** 2
+    out = np.sqrt(g2)
+    bad = ~np.isfinite(Rc[r, c])
+    out[bad] = 0.0
+    if h * w == 0:
+        return np.zeros(r.size)
+    return out
+
+
+def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step, terrain=None):
     """Stage 4: the borders of the removed objects.
 
     A kept cell that touches a removed one and stands above one of its 8 neighbours by
@@ -50,6 +121,14 @@ def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step):
     or the edge of a crown (a cell mixing object and ground): it is removed too
     (``removed`` and ``step`` updated in place, code :data:`STEP_EDGE`), so the
     interpolated DTM is not pulled up along the objects' borders. Returns the count.
+
+    The terrain's rise is the diagonal times the larger of ``tan_s`` (the tolerated slope,
+    clipped to :data:`~.params.SLOPE_CLIP_DEG`) and, when ``terrain`` (the largest step's
+    reconstruction, which no object reaches) is given, that terrain's own slope at the cell
+    (:func:`terrain_slope_at`): on a forested slope steeper than the clip the ground beside
+    every crown stood above its downhill neighbour by more than the clipped rise and was
+    removed (a 38-degree forest at 2 m: 967 ground cells, type I 7.3 %; with the local slope
+    323, 4.2 %).
     """
     if not removed.any():
         return 0
@@ -58,6 +137,14 @@ def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step):
     with np.errstate(invalid="ignore"):
         edge = valid & (cleaned - lowc > dh0 + tan_s * np.hypot(dx, dy))
     edge &= rect_filter(removed, (3, 3), np.maximum, False) & ~removed & (step == 0)
+    idx = np.flatnonzero(edge) if terrain is not None else np.zeros(0, np.intp)
+    if idx.size:
+        # on terrain steeper than the tolerance, the lowest neighbour lies lower by the terrain's
+        # own rise over the diagonal: the larger of the two slopes sets the rise allowed
+        s_loc = np.maximum(terrain_slope_at(terrain, idx, cleaned.shape, cell_size), tan_s)
+        with np.errstate(invalid="ignore"):
+            keep = (cleaned.ravel()[idx] - lowc.ravel()[idx]) > dh0 + s_loc * np.hypot(dx, dy)
+        edge.ravel()[idx[~keep]] = False
     step[edge] = STEP_EDGE
     removed |= edge
     return int(edge.sum())
@@ -193,7 +280,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     _lap(stages, "scan", t0)
     report(progress, 0.95)
     # 4. object borders (wall feet, crown edges)
-    n_edge = remove_borders(cleaned, valid, vnone, removed, cell, dh0, tan_s, step)
+    n_edge = remove_borders(cleaned, valid, vnone, removed, cell, dh0, tan_s, step, terrain)
     # 5. islands inside the objects that stand above the terrain (canopy gaps)
     n_island = remove_islands(w, vnone, removed, mask, terrain, cell, sizes[0],
                               dh0 + tan_s * sizes[0] * BUMP_FRACTION, step)

@@ -104,12 +104,78 @@ def test_running_in_bands_equals_one_pass(band):
 
 
 def test_window_radii():
-    assert [r[1] for r in morph.window_radii(41.0, 1.0)] == [1, 2, 4, 8, 16, 20]
+    assert [r[1] for r in morph.window_radii(41.0, 1.0, growth=2.0)] == [1, 2, 4, 8, 16, 20]
     assert [r[1] for r in morph.window_radii(11.0, 1.0, growth=1.0)] == [1, 2, 3, 4, 5]
     radii = morph.window_radii(20.0, (0.5, 1.0))
     assert radii[-1][:2] == (10, 20)           # same metres along both axes
     with pytest.raises(ValueError, match="window_growth"):
         morph.window_radii(20.0, 1.0, growth=0.5)
+
+
+def test_drop_references_measure_the_drop_over_a_doubling_of_the_window():
+    """Each step's drop is measured from the window that doubles into it (-1: the surface): the
+    previous step for doubling windows and SMRF's one-cell steps, two steps back for sqrt 2."""
+    radii = morph.window_radii(41.0, 1.0, growth=2.0)
+    assert morph.drop_references(radii, 2.0) == [-1, 0, 1, 2, 3, 4]      # as before: unchanged
+    radii = morph.window_radii(81.0, 1.0)      # the default growth, sqrt 2
+    assert [r[1] for r in radii] == [1, 2, 3, 5, 8, 12, 17, 25, 36, 40]
+    assert morph.drop_references(radii, morph.WINDOW_GROWTH) == [-1, -1, 0, 1, 2, 3, 4, 5, 6, 7]
+    assert morph.drop_references(morph.window_radii(5.0, 1.0, growth=1.0), 1.0) == [-1, 0]
+    assert morph.drop_references(radii, 1.2) == [-1, -1, -1, -1, 0, 1, 2, 3, 4, 5]
+
+
+def test_doubling_windows_give_the_previous_filter():
+    """window_growth 2 (the dtm member's) measures each drop since the previous step, as before."""
+    rng = np.random.default_rng(3)
+    z = rng.normal(10, 0.05, (60, 70)).astype(np.float32)
+    z[10:30, 10:25] += 6.0
+    z[40:44, 50:53] += 9.0
+    a, has_nodata = morph._as_inf(z)
+    radii = morph.window_radii(41.0, 1.0, growth=2.0)
+    flags, last = morph._progressive(a, radii, 0.3, has_nodata, growth=2.0)
+    want = np.zeros(z.shape, bool)
+    prev = z
+    for _ry, rx, rad in radii:
+        o = morph.open_surface(z, 1.0, 2 * rx + 1.0)
+        want |= (prev - o) > np.float32(0.3 * rad)
+        prev = o
+    np.testing.assert_array_equal(flags, want)
+    np.testing.assert_array_equal(last, prev)
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0])
+def test_flat_roof_36_m_wide_and_8_m_high_is_an_object(cell):
+    """The failure of the simulated urban rows: with doubling windows a flat roof vanishing just
+    past a power of two faces SMRF's threshold at up to twice its half-width (36 m wide, 8 m
+    high: 0.3 x 32 m = 9.6 m > 8 m, kept as ground). With radii growing by sqrt(2) it is tested
+    at 25 m or less (7.5 m < 8 m): the whole roof is an object, and nothing else."""
+    n = int(160 / cell)
+    rng = np.random.default_rng(0)
+    z = (10 + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    w = int(round(36 / cell))
+    i0 = (n - w) // 2
+    z[i0:i0 + w, i0:i0 + w] += 8.0
+    truth = np.zeros(z.shape, np.uint8)
+    truth[i0:i0 + w, i0:i0 + w] = OBJECT
+    args = dict(mode="progressive", max_object_size_m=80.0, dh_m=0.5, slope=0.3)
+    np.testing.assert_array_equal(morph.filter_morphological(z, cell, **args).mask, truth)
+    old = morph.filter_morphological(z, cell, window_growth=2.0, **args)
+    assert np.all(old.mask[truth == OBJECT] == 0)      # the doubling windows miss it
+
+
+def test_the_object_size_search_keeps_doubling_windows():
+    """The size estimate runs its own search with doubling windows whatever the filter's growth,
+    so the filter's sqrt 2 steps do not widen the window from terrain patches they flag."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("mixed", (128, 128), seed=4).dsm
+    sizes = {g: morph.resolve_morphological_params(z, 1.0, window_growth=g)["max_object_size_m"]
+             for g in (2.0, morph.WINDOW_GROWTH)}
+    assert sizes[2.0] == sizes[morph.WINDOW_GROWTH]
+    p = morph.resolve_morphological_params(z, 1.0)
+    finer = morph.estimate_object_size(z, 1.0, p["slope"], p["dh_m"], outline_slope=p["outline_slope"],
+                                       window_growth=morph.WINDOW_GROWTH)
+    assert finer != sizes[2.0]                   # the search's growth matters on this scene
+    assert morph._OBJECT_SEARCH_GROWTH == 2.0
 
 
 # --------------------------------------------------------------------------- the filter
