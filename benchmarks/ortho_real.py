@@ -10,8 +10,10 @@
 2. NGI (four vertical DMC frames in two strips, GSD about 5.7 m, H about 4,750 m): the 24 m
    DEM as it is and resampled (bilinear) to a 12 m grid; RMS residual parallax of the
    pairs' trusted matches on the start DEM and on the final DEM (orthorefine's checking
-   measurement), the roughness (Laplacian sd) before and after, and how far cells moved
-   against the bound ``--ngi-max-dh``; ``--held-out``: refined with the pairs of one base
+   measurement), the roughness (Laplacian sd) before and after, on all the cells seen by two
+   and without the confirmed detail (regions two pairs agree on, their taper and the
+   Laplacian's stencil), and how far cells moved against the data-supported bound
+   (``RefineResult.supported``) and ``--ngi-max-dh``; ``--held-out``: refined with the pairs of one base
    direction and checked by the others (is the roughness it adds in the images?);
    ``--cross-check``: orthorefine(cross_check=True), a correction kept only where the pair
    families agree; with ``--held-out`` each family is held out in turn, the others refine
@@ -155,12 +157,25 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
     lap_0 = ndimage.laplace(np.nan_to_num(dem).astype(np.float64))[inner]
     print(f"   the correction's Laplacian: sd {lap_c.std():.3f} m, correlation with the start's "
           f"{np.corrcoef(lap_c, lap_0)[0, 1]:+.3f}")
+    # the roughness where no confirmed detail was applied: without the regions of detail two
+    # pairs agree on, their taper (half the window plus one cell) and the Laplacian's stencil
+    near = ndimage.binary_dilation(r.detail, iterations=r.info["window"] // 2 + 2) if r.detail.any() else r.detail
+    rest = ev & ~near
+    s0, s1 = _roughness(dem, rest), _roughness(r.dem, rest)
+    over = np.abs(r.dem - dem) - r.supported
+    print(f"   confirmed detail: {int(r.detail.sum())} cells; roughness without them and {r.info['window'] // 2 + 2} "
+          f"cells around ({100 * rest.sum() / ev.sum():.1f} % of the cells) {s0:.5f} -> {s1:.5f} m "
+          f"({100 * (s1 / s0 - 1):+.3f} %); whole {100 * (l1 / l0 - 1):+.3f} %")
+    print(f"   data-supported bound of a cell's move (per update the certainty-weighted mean magnitude of the "
+          f"trusted corrections around it plus the largest kept detail within the fill's reach; summed over "
+          f"the kept updates): largest {r.info['supported_max_m']:.1f} m, median "
+          f"{np.nanmedian(r.supported[ev]):.1f} m; cells beyond it {int(np.nansum(over > 1e-3))}")
     print(f"   cross-check of the pair families: {r.info['cross_check']}")
     _rise_where_agreement(r, dem, ev)
     _table(r.table)
     if held_out:
         _held_out(dem, gt, imgs, cams, r.info["pairs"], iterations, max_dh_m, ev, cross_check)
-    return p1 < p0 and l1 <= l0 and moved_max <= max_dh_m + 1e-3
+    return p1 < p0 and l1 <= l0 and moved_max <= max_dh_m + 1e-3 and not np.nansum(over > 1e-3)
 
 
 def _held_out(dem, gt, imgs, cams, pairs, iterations, max_dh_m, ev, cross_check=False):

@@ -77,6 +77,15 @@ class RefineResult:
         Per cell, the RMS residual parallax of the pairs' trusted matches (ground units, NaN
         where no pair matched) measured on the starting DEM and on the returned one: where
         the pairs agree better after the refinement (oriented frames; None in tie-point mode).
+    detail : ndarray of bool or None
+        Cells where a kept update applied confirmed significant detail (a resolved object or
+        step two pairs agree on; oriented frames).
+    supported : ndarray float32 or None
+        Per cell, the move the data support: for each kept update, the certainty-weighted
+        Gaussian mean of the trusted corrections' magnitudes (what the smooth part can carry
+        there) plus the largest kept detail within the fill's reach, summed over the kept
+        updates and never above ``max_dh_m``; no cell moves farther (a clip that the update,
+        bounded so by construction, does not reach; oriented frames).
     """
     dem: np.ndarray
     orthos: list
@@ -87,6 +96,8 @@ class RefineResult:
     info: dict = field(default_factory=dict)
     parallax_start: np.ndarray = None
     parallax: np.ndarray = None
+    detail: np.ndarray = None
+    supported: np.ndarray = None
 
 
 def overlapping_pairs(seen, min_overlap=0.05, min_cells=100):
@@ -206,8 +217,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     per-cell decision and the neighbour test of :func:`~.refine.match_pair`), merges the
     pairs' corrections weighted by correlation, keeps their smooth part (a field, applied as
     such) and their detail where it stands out of the noise (:func:`~.quality.split_significant`)
-    and two pairs agree on it (one pair cannot tell a detail from its own blunder), fills gaps
-    of a few cells and adds ``relaxation`` x the correction to the DEM.
+    and two pairs agree on it (one pair cannot tell a detail from its own blunder), tapered
+    to 0 over half the window plus one cell around it (no step the measurements lack), fills
+    gaps of a few cells and adds ``relaxation`` x the correction to the DEM. No cell moves by
+    more than the trusted corrections around it support (``RefineResult.supported``).
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
@@ -361,6 +374,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     cur, prev_dem, prev = dem0.copy(), None, None
     table, info, stop, last = [], {}, "", ""
     families, ever_confirmed = None, np.zeros(dem0.shape, bool)
+    bound, detail_cells = np.zeros(dem0.shape), np.zeros(dem0.shape, bool)
+    prev_bound, prev_detail = bound, detail_cells
     for it in range(total):
         meas = _measure(cur, setup, sub_progress(progress, it / total, (it + 1) / total))
         setup["pairs"] = meas["pairs"]
@@ -389,6 +404,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
             row["agreement"] = after / before if before > 0 else float("nan")
             if not (after <= before) or share < (1.0 - MAX_LOST) * prev["share"]:
                 cur, meas = prev_dem, prev           # the update made the pairs agree worse: undo it
+                bound, detail_cells = prev_bound, prev_detail
                 table[-2]["status"] = "undone"
                 _reference(table[-2], reference, reference_cells, cur, meas["multi"], valid_dem)
                 stop = (f"the last update made the pairs agree worse (RMS parallax {before:.3g} -> "
@@ -433,8 +449,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 matched = np.isfinite(dh_it) & meas["multi"]
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-        smooth, detail, n_single = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
-                                                     info["sigma_expected_m"], window)
+        trusted = dh_it
+        smooth, detail, n_single, keep = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
+                                                           info["sigma_expected_m"], window)
         row["detail_single_pair"] = n_single
         # the smooth part is a field, applied as such (fading out with its certainty); the
         # detail reaches unmatched cells within the fill distance, fading out; farther cells
@@ -442,9 +459,14 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         dh_it = np.where(matched, smooth + detail, np.nan)
         corr_full = smooth + spread_corrections(detail, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
+        prev_bound, prev_detail = bound, detail_cells
+        # the data-supported bound of a cell's move: what the trusted corrections around it
+        # support (_supported_move), summed over the kept updates; never more than MAX_DH_M
+        bound = bound + float(relaxation) * _supported_move(trusted, detail, window, fill_sigma_cells)
+        detail_cells = detail_cells | keep
         cur = cur + float(relaxation) * corr_full
-        # no cell moves by more than the range the first measurement searched
-        cur = np.where(valid_dem, np.clip(cur, dem0 - max_dh_m, dem0 + max_dh_m), np.nan).astype(np.float32)
+        lim = np.minimum(bound, max_dh_m)
+        cur = np.where(valid_dem, np.clip(cur, dem0 - lim, dem0 + lim), np.nan).astype(np.float32)
         # what is left after an update is at most what was just measured: the next search
         # range is the 99th percentile of |correction| (at least 6 x the expected precision)
         big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
@@ -467,6 +489,10 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 max_dh_m=float(max_dh_m), height_threshold_m=float(thr), sigma_data_m=sig,
                 # how far the cells moved, against the bound max_dh_m (README, iteration rule)
                 moved_max_m=float(np.nanmax(np.abs(cur - dem0))) if np.isfinite(cur - dem0).any() else 0.0,
+                # the data-supported bound of a cell's move (largest over the cells) and the
+                # cells of confirmed detail it applied
+                supported_max_m=float(min(bound[valid_dem].max(), max_dh_m)),
+                detail_cells=int(np.count_nonzero(detail_cells)),
                 window=window, shiftable=shiftable, min_corr=min_corr,
                 cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
                 rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
@@ -488,7 +514,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     report(progress, 1.0)
     return RefineResult(cur, meas["orthos"], dh_total,
                         np.where(multi, meas["quality"], np.nan).astype(np.float32), mask, table, info,
-                        parallax_start=parallax_start, parallax=meas["parallax"])
+                        parallax_start=parallax_start, parallax=meas["parallax"], detail=detail_cells,
+                        supported=np.where(valid_dem, np.minimum(bound, max_dh_m), np.nan).astype(np.float32))
 
 
 def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
@@ -517,27 +544,80 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
     smooth : ndarray float64
         The smooth part at every cell.
     detail : ndarray float32
-        The kept detail at the cells of ``dh`` (0 elsewhere on them; NaN where ``dh`` is NaN).
+        The kept detail at the cells of ``dh``, tapered to 0 within half the window plus one
+        cell around each kept region (:func:`_taper_detail`; 0 elsewhere on them, NaN where
+        ``dh`` is NaN).
     single : int
         Cells of detail dropped because only one pair measured them.
+    keep : ndarray of bool
+        The cells of kept (confirmed) significant detail.
     """
     dh = np.asarray(dh, np.float32)
     num, den, sig = split_significant(dh, sigma_m, window)
+    side = max(1, int(window) // 2 + 1)
+    smooth = _certainty_mean(num, den, window)
+    keep, n_single = sig, 0
+    if len(dhs) >= 2 and sig.any():
+        support = np.zeros(dh.shape, np.int16)
+        with np.errstate(invalid="ignore"):
+            for d in dhs:
+                support += np.abs(d - merged) <= outlier_m
+        labels, n = ndimage.label(sig, structure=np.ones((3, 3), bool))
+        confirmed = ndimage.mean(support >= 2, labels, np.arange(1, n + 1)) >= 0.5
+        keep = sig & np.concatenate(([False], confirmed))[labels]
+        n_single = int(np.count_nonzero(sig & ~keep))
+    return smooth, _taper_detail(dh - smooth, keep, sig & ~keep, side), n_single, keep
+
+
+def _certainty_mean(num, den, window):
+    """The certainty-weighted Gaussian mean ``num / den``: in full where the Gaussian (sigma the
+    window) holds the weight of a square of half the window plus one cell, in proportion below."""
     s = max(0.5, float(window))
     side = max(1, int(window) // 2 + 1)
-    smooth = num / np.maximum(den, side * side / (2.0 * np.pi * s * s))
-    detail = np.where(sig, dh - smooth, np.where(np.isfinite(dh), 0.0, np.nan))
-    if len(dhs) < 2 or not sig.any():
-        return smooth, detail.astype(np.float32), 0
-    support = np.zeros(dh.shape, np.int16)
-    with np.errstate(invalid="ignore"):
-        for d in dhs:
-            support += np.abs(d - merged) <= outlier_m
-    labels, n = ndimage.label(sig, structure=np.ones((3, 3), bool))
-    confirmed = ndimage.mean(support >= 2, labels, np.arange(1, n + 1)) >= 0.5
-    keep = sig & np.concatenate(([False], confirmed))[labels]
-    detail = np.where(keep | np.isnan(detail), detail, 0.0)
-    return smooth, detail.astype(np.float32), int(np.count_nonzero(sig & ~keep))
+    return num / np.maximum(den, side * side / (2.0 * np.pi * s * s))
+
+
+def _supported_move(trusted, detail, window, fill_sigma_cells):
+    """Per cell, the largest update the trusted corrections support (the bound of one update).
+
+    The update is the smooth part plus the detail spread into unmatched cells. The smooth
+    part is a certainty-weighted Gaussian mean of the trusted corrections, so by the triangle
+    inequality it is at most the same mean of their magnitudes; the spread detail is a
+    normalised Gaussian mean of the kept detail (sigma ``fill_sigma_cells``, truncated at 4
+    sigma), so at most the largest kept detail within that reach.
+    """
+    ok = np.isfinite(trusted)
+    num = ndimage.gaussian_filter(np.where(ok, np.abs(trusted), 0.0).astype(np.float64), max(0.5, float(window)),
+                                  mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), max(0.5, float(window)), mode="nearest")
+    reach = int(math.ceil(4.0 * float(fill_sigma_cells)))
+    near = ndimage.maximum_filter(np.abs(np.nan_to_num(detail)).astype(np.float64), size=2 * reach + 1,
+                                  mode="constant", cval=0.0)
+    return _certainty_mean(num, den, window) + near
+
+
+def _taper_detail(detail, keep, dropped, reach):
+    """The kept detail, continuous: in full on ``keep``, fading linearly to 0 at ``reach`` cells from it.
+
+    The detail is significant where it exceeds k x its noise; cut there, the applied
+    correction would step by at least that much at every region's edge, where the
+    measurements themselves are continuous: a window centred within half its side of the
+    region sees part of it, and its detail has the region's sign. So the detail within
+    ``reach`` cells of a kept region (half the window plus one: the first cell no
+    overlapping window reaches) that has the sign of the nearest kept cell is applied with
+    the weight ``1 - distance / reach``. Detail of the other sign there is not a share of
+    the region (the surface beyond its edge, or noise) and, below the significance
+    threshold, stays out like any insignificant detail; dropped detail (``dropped``: one
+    pair alone) stays out. NaN where ``detail`` is NaN.
+    """
+    detail = np.asarray(detail, np.float64)
+    if not keep.any():
+        return np.where(np.isfinite(detail), 0.0, np.nan).astype(np.float32)
+    dist, (ri, ci) = ndimage.distance_transform_edt(~keep, return_indices=True)
+    sign = np.sign(np.nan_to_num(detail))
+    w = np.where(sign == sign[ri, ci], np.clip(1.0 - dist / float(reach), 0.0, 1.0), 0.0)
+    w[dropped] = 0.0
+    return np.where(np.isfinite(detail), w * np.nan_to_num(detail), np.nan).astype(np.float32)
 
 
 def _cross_check(dh, meas, families, outlier, precision_cells):
@@ -662,7 +742,7 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
     refused = share < MIN_MATCHED_SHARE
     if smooth_cells and smooth_cells > 1:
         dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-    smooth, detail, n_single = _confirmed_detail(dh_it, merged, dhs, outlier, sigma, window)
+    smooth, detail, n_single, keep = _confirmed_detail(dh_it, merged, dhs, outlier, sigma, window)
     dh_it = np.where(matched, smooth + detail, np.nan)
     full = (np.zeros(dem0.shape, np.float32) if refused
             else (smooth + spread_corrections(detail, matched, fill_sigma_cells)).astype(np.float32))

@@ -192,3 +192,80 @@ def test_cross_check_with_one_base_direction_changes_nothing_and_says_so(noisy_t
     checked = orthorefine(start, sc.transform, imgs, cams, max_iterations=1, cross_check=True)
     np.testing.assert_array_equal(checked.dem, plain.dem)
     assert checked.info["cross_check"].startswith("not possible: all pairs have one base direction")
+
+
+def _inject(monkeypatch, sc, target, cells):
+    """Every pair measures ``target`` (the true surface's offset on ``cells``), high correlation."""
+    real = iterate_module.match_pair
+
+    def injected(*args, **kwargs):
+        dh, corr, par, info = real(*args, **kwargs)
+        left = target - (args[2] - sc.surface)
+        dh = np.where(cells, left, dh)
+        corr = np.where(cells, 0.99, corr)
+        par = np.where(cells, np.abs(left) * 0.3, par)
+        return dh, corr, par, info
+
+    monkeypatch.setattr(iterate_module, "match_pair", injected)
+
+
+def _open_ground_centre(sc, need):
+    far = ndimage.distance_transform_edt(sc.labels == 0)
+    rows, cols = far.shape
+    far[:rows // 4], far[-rows // 4:], far[:, :cols // 4], far[:, -cols // 4:] = 0, 0, 0, 0
+    r0, c0 = np.unravel_index(np.argmax(far), far.shape)
+    assert far[r0, c0] >= need
+    return r0, c0
+
+
+def test_confirmed_detail_is_applied_without_a_step_the_measurements_lack(noisy_three, monkeypatch):
+    """A smooth hill (Gaussian, 12 x the expected precision high, sigma 4 cells) that every pair
+    measures: its top stands out as confirmed detail. Cut at the significance threshold, the
+    detail put a step of at least 3 x the precision around the top where the measurements are
+    continuous (measured: the largest jump between neighbour cells 1.60 m against 0.59 m in
+    the measurements, precision 0.33 m); tapered over half the window plus one cell, the
+    applied correction follows the measurements (0.83 m: a kink of the taper, no step). The
+    confirmed cells are returned; no cell moves beyond the data-supported bound."""
+    sc, cams, imgs = noisy_three
+    r0, c0 = _open_ground_centre(sc, 14)
+    rr, cc = np.indices(sc.surface.shape)
+    d2 = (rr - r0) ** 2 + (cc - c0) ** 2
+    sigma = 0.2 * 0.5 / 0.3                                # 0.2 cell of parallax in height, B/H 0.3
+    hill = np.where(d2 <= 12 ** 2, 12 * sigma * np.exp(-d2 / (2 * 4.0 ** 2)), 0.0)
+    disc = d2 <= 12 ** 2
+    _inject(monkeypatch, sc, hill, disc)
+    r = orthorefine(sc.surface, sc.transform, imgs, cams, max_iterations=1)
+    assert r.info["sigma_expected_m"] == pytest.approx(sigma, rel=0.2)
+    applied = (r.dem - sc.surface).astype(np.float64)
+    inner = d2 <= 10 ** 2
+
+    def largest_jump(z):
+        jr = np.abs(np.diff(z, axis=0))[inner[1:] & inner[:-1]]
+        jc = np.abs(np.diff(z, axis=1))[inner[:, 1:] & inner[:, :-1]]
+        return max(jr.max(), jc.max())
+
+    # the taper spreads the detail at the region's edge (about 3 x the precision) over 4 cells
+    assert largest_jump(applied) <= largest_jump(hill) + 1.5 * r.info["sigma_expected_m"]
+    assert applied[r0, c0] > 0.85 * hill[r0, c0]     # the top (3.5 of 4.0 m after the 5 x 5 median; smooth part 1 m)
+    assert r.detail[r0, c0] and r.info["detail_cells"] == int(r.detail.sum()) > 0
+    assert not r.detail[~disc].any()
+    assert np.all(np.abs(applied) <= r.supported + 1e-4)
+    assert r.info["supported_max_m"] == pytest.approx(float(np.nanmax(r.supported)))
+
+
+def test_no_cell_moves_beyond_what_the_data_support(noisy_three):
+    """Every cell's move is within the data-supported bound (the trusted corrections around it,
+    summed over the kept updates); from the true surface that bound is of the order of the
+    matching noise, far below the search range MAX_DH_M (0.2 H), and it is logged."""
+    sc, cams, imgs = noisy_three
+    start = sc.surface + 2.0 * np.exp(-((np.indices(sc.surface.shape)[1] - 100) / 40.0) ** 2)
+    r = orthorefine(start, sc.transform, imgs, cams, max_iterations=2)
+    move = np.abs(r.dem - start)
+    assert np.all(move <= r.supported + 1e-4)
+    assert r.info["supported_max_m"] < 0.25 * r.info["max_dh_m"]
+    assert r.info["moved_max_m"] <= r.info["supported_max_m"] + 1e-4
+    seen = r.mask != NODATA
+    # where nothing needed a correction (far from the error band) the bound stays small
+    calm = seen & (np.abs(np.indices(sc.surface.shape)[1] - 100) > 120)
+    if calm.any():
+        assert np.median(r.supported[calm]) < 3 * r.info["sigma_expected_m"]
