@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special
 
 from ..codes import GROUND, NODATA, OBJECT
 from ..common import report
@@ -365,7 +365,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
                   base_direction=(1.0, 0.0), window=7, shiftable=5, min_corr=0.6,
                   max_dh_m=None, height_threshold_m=None, precision_cells=0.2,
                   lsm_iterations=3, relocate=True, object_size_m=40.0, settle=True, fine=True,
-                  progress=None):
+                  sweep=True, progress=None):
     """Measure the DEM error from the residual parallax of two orthophotos (one pass).
 
     Luong Chinh Ke (2002, section 2.3): two orthophotos of overlapping frames made with
@@ -414,6 +414,11 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
         Match a finer window (half the window plus one cell, made odd) where the window's own
         matching fails, and keep its matches where the orthophotos agree at their height
         (:func:`_fine_matches`): objects narrower than the window.
+    sweep : bool
+        Test the unmatched cells not hidden by measured objects at constant heights and keep the
+        height at which the orthophotos alone agree, uniquely and within their noise
+        (:func:`_sweep_unmatched`): roofs narrower than the window on which every window fails
+        the left-right check.
     settle : bool
         Decide the cells along the object outlines on the orthophotos
         (:func:`~.quality.settle_boundary`: the object's or the ground's height, whichever
@@ -464,6 +469,10 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
             a, b, dh, corr, dem, transform, both, info, cam, window=window, min_corr=min_corr,
             max_dh_m=float(max_dh_m), lsm_iterations=lsm_iterations, relocate=relocate,
             precision_cells=precision_cells)
+    info["swept"] = 0
+    if sweep:
+        dh, info["swept"] = _sweep_unmatched(a, b, dh, dem, transform, both, info, cam, window=window,
+                                             max_dh_m=float(max_dh_m), precision_cells=precision_cells)
     report(progress, 0.8)
     sigma_exp = precision_cells * info["dh_per_cell_m"]
     matched = np.isfinite(dh)
@@ -513,6 +522,121 @@ def _crop_displacement(dem, transform, crop, cam):
         return (h * (mx - 0.5 * dvx) / dx, -h * (my - 0.5 * dvy) / dy,
                 h * (mx + 0.5 * dvx) / dx, -h * (my + 0.5 * dvy) / dy)
     return sl, displacement
+
+
+def _shadowed(dh, displacement, min_dh):
+    """The objects (``dh > min_dh``) and the cells they hide in either orthophoto: a column of
+    height ``h`` at ``Q`` appears along the segment from ``Q`` to ``Q + h v`` in an orthophoto made
+    on the DEM, and hides the ground there."""
+    obj = np.isfinite(dh) & (dh > min_dh)
+    out = np.zeros(dh.shape, bool)
+    if not obj.any():
+        return out
+    rr, cc = np.nonzero(obj)
+    h = np.where(obj, dh, 0.0)
+    disp = displacement(h)
+    for dc, dr in ((disp[0], disp[1]), (disp[2], disp[3])):
+        dc, dr = np.asarray(dc)[rr, cc], np.asarray(dr)[rr, cc]
+        n = int(np.ceil(np.nanmax(np.hypot(dc, dr)))) + 1
+        for t in np.linspace(0.0, 1.0, n + 1)[1:]:
+            r = np.rint(rr + t * dr).astype(np.int64)
+            c = np.rint(cc + t * dc).astype(np.int64)
+            ok = (r >= 0) & (r < dh.shape[0]) & (c >= 0) & (c < dh.shape[1])
+            out[r[ok], c[ok]] = True
+    return out | obj
+
+
+def _sweep_unmatched(a, b, dh, dem, transform, both, info, cam, *, window, max_dh_m, precision_cells, half=2,
+                     tail=1.35e-3):
+    """Heights at the unmatched cells by a plane sweep, kept where the images confirm them alone.
+
+    Where every window through a cell fails the matcher's left-right check (a roof narrower than
+    the window beside its walls' occlusions, seen by neither window size), nothing is measured and
+    the whole roof can be missed. Each unmatched cell farther than half the window plus one cell
+    from a measured object (nearer, the outline test decides), where the corrections filled over a
+    few cells show no object and no object hides it in either orthophoto (:func:`_shadowed`), is
+    tested at constant heights (a plane sweep; Collins 1996) over the range
+    of the pair's trusted corrections (0.1 to 99.9 %, with 0), in steps of half a cell of parallax:
+    the orthophotos are sampled where each height puts the cell and its neighbours, and the best
+    window of side ``2 half + 1`` containing the cell gives the offset-free mean square of
+    ``a - b`` (as :func:`~.quality.agree_at_height`). The best height is kept where (1) that mean
+    square is within the chi-square bound of the pair's noise (:func:`~.quality.agreement_bound`),
+    (2) the cell's own pixels agree within the same tail (chi-square, one degree of freedom): the
+    cell itself is a surface point at that height, not only its window, and (3) no height a cell of
+    parallax or more away passes (1) and (2): the height is unique, so weak texture, where many
+    heights agree, gives nothing; and (4) the height exceeds 3 x the expected precision (the sweep
+    looks for objects; ground keeps the fill).
+
+    Returns
+    -------
+    dh : ndarray float32
+    swept : int
+        Cells whose correction comes from the sweep.
+    """
+    noise_var = 2.0 * info["noise_grey"] ** 2
+    hole = both & ~np.isfinite(dh)
+    fin = dh[np.isfinite(dh)]
+    if not hole.any() or not np.isfinite(noise_var) or not noise_var > 0 or not fin.size:
+        return dh, 0
+    sl, displacement = _crop_displacement(dem, transform, info["crop"], cam)
+    min_dh = 3.0 * precision_cells * info["dh_per_cell_m"]           # the blunder tolerance of the pair
+    # near a measured object (within half the window plus one cell, as close_mask) the outline test
+    # decides; the sweep looks for the objects the matcher missed, on ground no object hides
+    measured = np.isfinite(dh[sl]) & (dh[sl] > min_dh)
+    reach = int(window) // 2 + 1
+    near = ndimage.maximum_filter(measured.view(np.uint8), 2 * reach + 1, mode="constant", cval=0).view(bool)
+    # the objects and their occlusions, their unmatched parts included (the corrections filled over
+    # a few cells, as for the object mask): the sweep looks where the fill shows ground, and a cell
+    # hidden in one orthophoto has no height to find
+    filled = fill_holes(dh[sl], np.isfinite(dh[sl]), max_sigma=4.0)
+    sub = hole[sl] & ~near & ~_shadowed(filled, displacement, min_dh)
+    if not sub.any():
+        return dh, 0
+    w = 2 * half + 1
+    m = 2 * w                                   # the windows through a cell reach 2 * half cells
+    rows, cols = np.nonzero(sub.any(axis=1))[0], np.nonzero(sub.any(axis=0))[0]
+    r0, r1 = max(0, rows[0] - m), min(sub.shape[0], rows[-1] + m + 1)
+    c0, c1 = max(0, cols[0] - m), min(sub.shape[1], cols[-1] + m + 1)
+    box = (slice(r0, r1), slice(c0, c1))
+    A = np.asarray(a[sl], np.float32)
+    B = np.asarray(b[sl], np.float32)
+    rr, cc = np.indices((r1 - r0, c1 - c0), dtype=np.float32)
+    rr += r0
+    cc += c0
+    step = 0.5 * info["dh_per_cell_m"]
+    lo, hi = np.percentile(fin, [0.1, 99.9])
+    heights = np.arange(max(min(0.0, float(lo)), -max_dh_m), min(max(0.0, float(hi)), max_dh_m) + step / 2, step)
+    own_bound = noise_var * 2.0 * float(special.gammainccinv(0.5, tail))     # chi2.isf(tail, 1) x var
+    bound = agreement_bound(noise_var, half, tail)
+    best = np.full(rr.shape, np.inf, np.float32)
+    kbest = np.zeros(rr.shape, np.int64)
+    kmin = np.full(rr.shape, heights.size, np.int64)       # the lowest and highest passing heights
+    kmax = np.full(rr.shape, -1, np.int64)
+    for k, h in enumerate(heights):
+        dca, dra, dcb, drb = (np.asarray(x)[box] for x in displacement(np.full(sub.shape, h)))
+        va = ndimage.map_coordinates(A, [rr + dra, cc + dca], order=1, mode="constant", cval=np.nan)
+        vb = ndimage.map_coordinates(B, [rr + drb, cc + dcb], order=1, mode="constant", cval=np.nan)
+        d = va - vb
+        ok = np.isfinite(d)
+        d0 = np.where(ok, d, np.float32(0))
+        full = ndimage.uniform_filter(ok.astype(np.float32), w, mode="constant") > 1 - 1e-4
+        m1 = ndimage.uniform_filter(d0, w, mode="constant")
+        m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
+        var = np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
+        bw = np.where(ok & (d0 * d0 <= own_bound), ndimage.minimum_filter(var, w, mode="constant", cval=np.inf),
+                      np.inf)
+        better = bw < best
+        best[better] = bw[better]
+        kbest[better] = k
+        passing = bw <= bound
+        kmin = np.where(passing & (kmin > k), k, kmin)
+        kmax = np.where(passing, k, kmax)
+    # unique: every passing height within a cell of parallax (two steps) of the best
+    hk = heights[kbest]
+    keep = (sub[box] & (best <= bound) & (kmax - kbest <= 1) & (kbest - kmin <= 1) & (hk > min_dh))
+    out = dh.copy()
+    out[sl][box][keep] = hk[keep]
+    return out, int(np.count_nonzero(keep))
 
 
 def _fine_matches(a, b, dh, corr, dem, transform, both, info, cam, *, window, min_corr, max_dh_m,

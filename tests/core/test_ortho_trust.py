@@ -448,7 +448,8 @@ def test_noise_6dn_buildings_narrower_than_the_window_are_found_by_a_finer_windo
             narrow[sl] |= sc.labels[sl] == k
     out = {}
     for fine in (0, 1):
-        r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre), fine=fine)
+        r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre), fine=fine,
+                          sweep=False)      # the finer window alone (the plane sweep finds these roofs too)
         seen = r.mask != NODATA
         out[fine] = (float((r.mask[narrow & seen] == OBJECT).mean()),
                      float((r.mask[(sc.labels > 0) & seen] == OBJECT).mean()),
@@ -457,3 +458,46 @@ def test_noise_6dn_buildings_narrower_than_the_window_are_found_by_a_finer_windo
     # window 47 %, 88 %, 0.8 %; with it 96 %, 94 %, 0.8 %
     assert out[0][3] == 0 and out[0][0] < 0.6
     assert out[1][3] > 0 and out[1][0] >= 0.9 and out[1][1] >= 0.93 and out[1][2] <= 0.03, out
+
+
+def test_noise_6dn_a_roof_every_window_misses_is_found_by_the_plane_sweep():
+    """Buildings 3-10 m wide at B/H 0.6 and 6 grey levels of noise (seed 22): a roof 3 m wide and
+    4.5 m high (building 12) lies beside its walls' occlusions, 5.4 cells of parallax on a roof 6
+    cells wide; every 7 x 7 and 5 x 5 window on it fails the left-right check or matches the
+    ground, no object is measured near it and the whole roof is missed. The unmatched cells away
+    from measured objects and their occlusions are tested at constant heights (plane sweep): the
+    height at which the orthophotos agree within their noise, over the best 5 x 5 window and at the
+    cell's own pixels, and at no height a cell of parallax away, is kept."""
+    sc = make_ortho_scene(shape=(160, 200), cell_size=0.5, n_buildings=19, seed=22,
+                          building_width_cells=(6, 20), building_height_m=(3.0, 14.0))
+    cams = vertical_cameras(sc, 2, base_over_height=0.6)
+    imgs = render_frames(sc, cams, noise=6.0, seed=22, dz_m=0.5)
+    oa, ob = (orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams))
+    both = imaged_in_both(sc, cams, (oa, ob))
+    out = {}
+    for sweep in (False, True):
+        r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre), sweep=sweep)
+        seen = r.mask != NODATA
+        out[sweep] = (float((r.mask[(sc.labels == 12) & seen] == OBJECT).mean()),
+                      float((r.mask[(sc.labels > 0) & seen & both] == OBJECT).mean()),
+                      float((r.mask[_far_ground(sc, seen)] == OBJECT).mean()), r.info["swept"])
+    # measured (building 12, all roofs imaged in both, far-ground false alarms, swept cells):
+    # without the sweep 4 %, 94.3 %, 1.1 %, 0; with it 70 %, 95.9 %, 1.2 %, 16
+    assert out[False][3] == 0 and out[False][0] < 0.1
+    assert out[True][3] > 0 and out[True][0] >= 0.5 and out[True][1] >= 0.95 and out[True][2] <= 0.03, out
+
+
+def test_plane_sweep_keeps_only_unique_heights_on_weak_texture():
+    """Texture contrast 0.03 under 6 grey levels of noise: many heights explain the images
+    equally, so the sweep keeps almost nothing (a height is kept only where no other height a cell
+    of parallax away agrees) and adds no false alarms."""
+    sc = _scene(21, contrast=0.03)
+    cams = vertical_cameras(sc, 2, base_over_height=0.45)
+    imgs = render_frames(sc, cams, noise=6.0, seed=21, dz_m=0.5)
+    oa, ob = (orthorectify(im, c, sc.terrain, sc.transform)[0] for im, c in zip(imgs, cams))
+    r = orthoparallax(oa, ob, sc.terrain, sc.transform, centres=(cams[0].centre, cams[1].centre))
+    seen = r.mask != NODATA
+    # measured: 7 cells swept of 29 000 seen, far-ground false alarms 0.0 % (13 % without the sweep:
+    # 0.2 % of the cells matched, the trend of so few is not the ground's)
+    assert r.info["swept"] <= 0.001 * np.count_nonzero(np.isfinite(oa) & np.isfinite(ob))
+    assert float((r.mask[_far_ground(sc, seen)] == OBJECT).mean()) <= 0.03
