@@ -34,9 +34,15 @@ flat wooded ground): :func:`.dtm_refine.refine_ground` then turns into objects t
 cells that stand above lower voted ground on both sides of a row, column or diagonal (a
 slope-based test in the manner of Vosselman 2000, with the terrain's 90th-percentile slope and
 the threshold ``t`` below; see that module for why both sides, and what it measured), and the
-ground at the objects' edges standing more than ``t`` above every straight continuation of the
-ground beside it (:func:`.fill.find_edge_spikes`: wall feet, crown skirts), on which the DTM
-under the objects would otherwise rest.
+ground at the objects' edges standing more than the edge tolerance above every straight continuation
+of the ground beside it (:func:`.fill.find_edge_spikes`: wall feet, crown skirts), on which the DTM
+under the objects would otherwise rest. The edge tolerance is three standard deviations of that
+continuation on ground (:func:`.dtm_refine.edge_tolerance`: ``sqrt(6)`` times the spread of the
+ground's heights, :func:`~.estimate.lowest_point_spread`, from the noise of the ground-level cells and
+the spacing of independent heights, :func:`~.estimate.repeated_height_share`, on the terrain's steep
+slope), at most ``t``; a bracketed cell is kept as smooth ground when its own neighbourhood is smooth or
+when the second differences reading ground only, at least half of them, are (an object's step beside
+a dike's crest is not the ground's roughness). ``info["edge_tolerance_rule"]`` gives the tolerance.
 
 A flat roof wider than the windows of a majority of the members (a warehouse, a mall) comes out
 of the vote as ground: :func:`.dtm_regions.find_raised_regions` turns into objects the voted
@@ -100,12 +106,13 @@ from .dtm_refine import (
     SMOOTH_RATIO,
     continuation_cells,
     continue_ground,
+    edge_tolerance,
     refine_ground,
     refine_halo,
     refine_reach,
 )
 from .dtm_regions import find_detached_levels, find_raised_regions, regions_halo
-from .estimate import noise_ground_level
+from .estimate import lowest_point_spread, noise_ground_level, repeated_height_share
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -272,9 +279,12 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         ``t`` of the confidence's margin: the morphological member's dh, 3 x the robust noise
         of the ground), ``support_cells`` (radius of the ground support), ``refine_reach_m``
         (the refinement's reach, :func:`.dtm_refine.refine_reach` with the terrain slope of
-        :func:`refine_slope`, at most the farthest a member looks) and the description of the
+        :func:`refine_slope`, at most the farthest a member looks), ``edge_tolerance_m`` (the
+        tolerance of the refinement's edge test, :func:`.dtm_refine.edge_tolerance` of the spread of
+        the ground's heights, :func:`~.estimate.lowest_point_spread`) and the description of the
         input (:func:`characterise`, with ``ground_noise_m``: the noise of the ground-level cells
-        that :func:`member_settings` gave RASCOR, None where not measurable).
+        that :func:`member_settings` gave RASCOR, None where not measurable; ``repeated_height_share``,
+        :func:`~.estimate.repeated_height_share`; ``ground_spread_m``, that spread).
     """
     if params:
         raise ValueError(f"the dtm method takes no parameters (got {sorted(params)}): every choice is "
@@ -309,9 +319,16 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(int(m.halo(members[m.name], cell)) for m in _members(MEMBERS)) * min(cell)
     reach = refine_reach(tol, refine_slope(members), limit)
+    # the edge test's tolerance: three standard deviations of its statistic on ground (dtm_refine.edge_tolerance)
+    repeated = repeated_height_share(z)
+    spread = lowest_point_spread(noise if noise is not None else float("nan"), refine_slope(members),
+                                 max(cell), repeated)
+    description["repeated_height_share"] = repeated
+    description["ground_spread_m"] = spread if np.isfinite(spread) else None
     width, span = region_scales(members, cell)
     return {"members": members, "tolerance_m": tol, "support_cells": support, "refine_reach_m": reach,
-            "region_width_m": width, "region_max_cells": span, "input_description": description}
+            "edge_tolerance_m": edge_tolerance(tol, spread), "region_width_m": width, "region_max_cells": span,
+            "input_description": description}
 
 
 def dtm_halo(params, cell_size):
@@ -515,9 +532,9 @@ def _fill_dtm(z, holes, valid, progress):
     return dtm
 
 
-def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, region_width_m=0.0,
-               region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None, workers=1,
-               progress=None):
+def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, edge_tolerance_m=None,
+               region_width_m=0.0, region_max_cells=0, object_areas=None, ground_areas=None, breaklines=None,
+               workers=1, progress=None):
     """Ground / object mask, DTM and confidence by the majority of independent filters.
 
     Parameters
@@ -534,6 +551,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         Radius of the confidence's support window, cells.
     refine_reach_m : float
         Length of the refinement's floors, metres.
+    edge_tolerance_m : float, optional
+        Tolerance of the refinement's edge test, metres (at most ``tolerance_m``; None: ``tolerance_m``).
     region_width_m, region_max_cells : float, int
         Voted ground regions wider than ``region_width_m`` and spanning at most
         ``region_max_cells`` cells, standing on steps above the ground around, become objects
@@ -630,8 +649,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         del continued, slope_ground
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
-                                  reach_m=refine_reach_m)
+                                  reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m)
     info.update(refined)
+    info["edge_tolerance_rule"] = (
+        "voted ground at an object's edge standing more than {:.3f} m above every straight continuation of the "
+        "ground beside it is an object: three standard deviations of that continuation on ground (sqrt(6) times "
+        "the spread of ground heights from the ground's noise and the spacing of independent heights on the "
+        "terrain's slope), at most the decision threshold {:g} m").format(refined["refine_edge_tolerance_m"],
+                                                                          tolerance_m)
     # raised regions wider than the vote's windows: voted ground standing on steps above the ground around;
     # with workers > 1 found in a second thread while the detached levels below (which read the same mask,
     # neither changing it) are looked for
@@ -735,17 +760,19 @@ METHOD = Method(
         "object's edge is a step and stops it); voted ground standing above lower ground on both sides of a line "
         "(bushes, "
         "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "
-        "terrain, and smooth ground such as a rounded crest is kept) is then taken as an object, as is voted "
-        "ground at an object's edge standing above every straight continuation of the ground beside it (wall "
-        "feet, crown skirts); so is a region wider than the members' windows (a warehouse's flat roof) whose "
+        "terrain, and smooth ground such as a rounded crest, or a dike's crest beside a tree, is kept) is then "
+        "taken as an object, as is voted ground at an object's edge standing above every straight continuation "
+        "of the ground beside it by more than three standard deviations of that continuation on ground (from the "
+        "ground's noise and the spacing of its heights on the terrain's slope; wall feet, crown skirts, low "
+        "vegetation at a crown's edge); so is a region wider than the members' windows (a warehouse's flat roof) whose "
         "outline stands on walls down to the ground over more than half its length and which stands above the "
         "ground around it (a terrace, a plateau or a dam, with banks or one steep edge, stays ground; a roof "
         "running off the raster on most sides is left to the vote); so is voted ground that RASCOR alone rejects "
         "on a level cut off by level changes (RASCOR's jump beyond the terrain's slope allowance) from every cell "
         "all members call ground (a low annex or a lower roof level, which the allowances of the opening and the "
         "reconstruction keep); the DTM is interpolated under the rest. The log gives each member's parameters, "
-        "the refinement's reach, each raised region's decision, the cells of detached levels and how often the "
-        "members agreed.</p>"
+        "the refinement's reach and edge tolerance, each raised region's decision, the cells of detached levels "
+        "and how often the members agreed.</p>"
         "<p>The confidence map (0-100) combines the members' agreement, the cell's distance from the "
         "height threshold, and the share of cells around it with the same class: low values mark where "
         "to look first.</p>"

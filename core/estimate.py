@@ -25,7 +25,10 @@ says so:
     parts of the surface (:func:`smooth_spread`: a low quantile of per-tile MADs);
   - :func:`height_quantum` and :func:`noise_floor`: the step heights are rounded to (a DSM
     in whole metres) and its rounding error, below which the noise plane residual and the
-    ground-level noise never read.
+    ground-level noise never read;
+  - :func:`repeated_height_share` and :func:`lowest_point_spread`: how far apart the
+    independent heights of a gridded point cloud lie, and the spread of a ground cell's
+    height about the surface that this spacing on sloping ground and the noise make.
 * The ground level under canopy and roofs (issue 12: estimates made on the right surface):
 
   - :func:`ground_level_reference`: interpolated 20 m block minima, the level objects
@@ -233,6 +236,50 @@ def noise_floor(sigma, quantum):
     if not np.isfinite(sigma):
         return sigma
     return max(float(sigma), float(quantum) / math.sqrt(12.0))
+
+
+def repeated_height_share(z):
+    """Share of the pairs of row and column neighbours (both heights finite) whose heights are exactly equal.
+
+    A raster made from points with fewer points than cells repeats a point's height over the
+    empty cells around it (nearest-neighbour fill, several cells per return): the independent
+    heights then lie ``1 / (1 - share)`` cells apart on average (runs of equal cells), which
+    :func:`lowest_point_spread` takes as their spacing. A DSM with a height per cell reads
+    near 0; whole-metre heights on flat land read high as well, and their rounding is the
+    spread of such a step. Measured on :func:`sample_windows` of a large raster; 0 when no pair
+    is finite.
+    """
+    same = pairs = 0
+    for w in sample_windows(np.asarray(z)):
+        for a, b in ((w[:, 1:], w[:, :-1]), (w[1:], w[:-1])):
+            ok = np.isfinite(a) & np.isfinite(b)
+            pairs += int(np.count_nonzero(ok))
+            same += int(np.count_nonzero(ok & (a == b)))
+    return float(same) / pairs if pairs else 0.0
+
+
+def lowest_point_spread(sigma, slope, cell_m, repeated_share=0.0):
+    """Standard deviation of a gridded ground's heights about the smooth surface under them, metres.
+
+    ``sqrt(sigma^2 + (slope c)^2 / 12)`` with ``c = cell_m / (1 - repeated_share)``: the random
+    error ``sigma`` of a height, and where the height was taken: a return anywhere within a
+    spacing ``c`` of independent heights (the cell, or the run of cells one return fills,
+    :func:`repeated_height_share`) on ground of rise ``slope`` per metre lies up to
+    ``slope c`` higher or lower, a uniform error of standard deviation ``slope c / sqrt(12)``.
+    ``sigma`` NaN: NaN (not measurable).
+
+    Examples
+    --------
+    >>> round(lowest_point_spread(0.03, 0.12, 1.0), 4)      # sqrt(0.03^2 + 0.12^2 / 12)
+    0.0458
+    >>> round(lowest_point_spread(0.0, 0.1, 1.0, 0.5), 4)   # two cells per return: 0.2 / sqrt(12)
+    0.0577
+    """
+    if not np.isfinite(sigma):
+        return float("nan")
+    s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
+    c = float(cell_m) / max(1e-6, 1.0 - min(max(float(repeated_share), 0.0), 1.0))
+    return math.sqrt(float(sigma) ** 2 + (s * c) ** 2 / 12.0)
 
 
 def _second_differences(windows):

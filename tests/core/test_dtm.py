@@ -6,6 +6,8 @@ from surfaces import grid, noisy
 from bare_earth.core import dtm as dtm_method
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, NODATA, OBJECT
+from bare_earth.core.dtm_refine import edge_tolerance
+from bare_earth.core.estimate import lowest_point_spread, repeated_height_share
 from bare_earth.core.methods import available_methods
 from bare_earth.core.synthetic import make_scene
 
@@ -39,8 +41,13 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     # the vote asks RASCOR for its surface size by the model-selection rule alone
     assert p["members"]["rascor"]["surface_rule"] == "residuals"
     noise = dtm_method.member_settings("rascor", s.dsm, (1.0, 1.0))[1]
-    assert p["input_description"] == dict(dtm_method.characterise(s.dsm, (1.0, 1.0)), ground_noise_m=noise)
+    repeated = repeated_height_share(s.dsm)
+    spread = lowest_point_spread(noise, dtm_method.refine_slope(p["members"]), 1.0, repeated)
+    assert p["input_description"] == dict(dtm_method.characterise(s.dsm, (1.0, 1.0)), ground_noise_m=noise,
+                                          repeated_height_share=repeated, ground_spread_m=spread)
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
+    # the edge test's tolerance: three standard deviations of a continuation on ground, at most t
+    assert p["edge_tolerance_m"] == edge_tolerance(p["tolerance_m"], spread) <= p["tolerance_m"]
 
 
 def test_members_run_side_by_side_as_one_after_the_other():

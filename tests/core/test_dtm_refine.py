@@ -309,3 +309,109 @@ def test_continuation_cells():
     assert dr.continuation_cells((1.0, 1.0)) == 12
     assert dr.continuation_cells((2.0, 4.0), 30.0) == 15
     assert dr.continuation_cells((50.0, 50.0)) == 1
+
+
+def test_find_smooth_judged_on_the_ground_beside_an_object():
+    # a dike's crest along the rows (0.45 m a cell down on both sides: second differences 0.9 m) with a
+    # 5 m tree beside it on the crest line: the tree's step makes the whole neighbourhood rough; the
+    # ground's own second differences (13 of 18 read ground only) are smooth
+    prof = np.array([0.0, 0.0, 0.45, 0.9, 0.45, 0.0, 0.0], np.float32)
+    z = np.repeat(prof[:, None], 7, axis=1)
+    z[3, 4] = 5.0
+    ground = z < 2.0
+    cell = np.zeros(z.shape, bool)
+    cell[3, 3] = True
+    assert not dr.find_smooth(z, cell, 1.0).any()
+    np.testing.assert_array_equal(dr.find_smooth(z, cell, 1.0, ground=ground), cell)
+    assert not dr.find_smooth(z, cell, 0.8, ground=ground).any()            # the crest bends by 0.9 m
+    # a cell among objects: fewer than half its second differences read ground only, judged with them
+    z2 = z.copy()
+    z2[2:5, 2:5] = 5.0
+    z2[3, 3] = 0.9
+    g2 = z2 < 2.0
+    assert not dr.find_smooth(z2, cell, 1.0, ground=g2).any()
+    assert dr.SMOOTH_DIFFERENCES == 18
+
+
+def test_edge_tolerance_exact():
+    assert dr.edge_tolerance(0.5, 0.02) == pytest.approx(3.0 * math.sqrt(6.0) * 0.02)
+    assert dr.edge_tolerance(0.5, 0.1) == 0.5                               # never above t
+    assert dr.edge_tolerance(0.5, float("nan")) == 0.5                      # noise not measurable: t
+
+
+def test_refine_ground_edge_tolerance():
+    # a bush (2 m) on flat ground with a 0.3 m skirt cell at its edge: above the continuation of the
+    # ground by 0.3 m, less than dh 0.5 m, more than an edge tolerance of 0.15 m
+    z = np.zeros((9, 11), np.float32)
+    z[3:6, 5:8] = 2.0
+    z[4, 4] = 0.3
+    vote = np.where(z > 1.0, OBJECT, GROUND).astype(np.uint8)
+    kept, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0)
+    assert kept[4, 4] == GROUND and info["refine_edge_tolerance_m"] == 0.5
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0,
+                                  edge_tolerance_m=0.15)
+    expect = vote.copy()
+    expect[4, 4] = OBJECT
+    np.testing.assert_array_equal(mask, expect)
+    assert info["refine_edge_tolerance_m"] == 0.15
+    same, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0,
+                                  edge_tolerance_m=2.0)                     # never above dh
+    np.testing.assert_array_equal(same, kept)
+    assert info["refine_edge_tolerance_m"] == 0.5
+
+
+def test_dike_with_trees_stays_ground_while_bushes_on_flat_land_go():
+    # flat land (noise-free) with a smooth dike 1.2 m high along the rows, trees (6 m) on its crest every
+    # 6 cells, and bushes (1.2 m, 3 x 3) on the flat land, all but the trees voted ground: the crest is
+    # bracketed by the lower land on both sides; beside a tree the tree's step made its neighbourhood rough
+    # and cut the crest there; judged on the ground, it is smooth and stays; the bushes are still found
+    n = 41
+    i = np.arange(n, dtype=np.float32)
+    across = np.clip(1.2 - 0.3 * np.abs(i - 20.0), 0.0, None)             # 8 m wide, 0.3 m a cell
+    z = np.repeat(across[:, None], 60, axis=1).astype(np.float32)
+    trees = np.zeros(z.shape, bool)
+    trees[20, 3::6] = True
+    z[trees] = 6.0
+    bushes = np.zeros(z.shape, bool)
+    for c in (10, 30, 50):
+        bushes[5:8, c:c + 3] = True
+        bushes[33:36, c:c + 3] = True
+    z[bushes] = 1.2
+    vote = np.where(trees, OBJECT, GROUND).astype(np.uint8)
+    beside = np.zeros(z.shape, bool)
+    beside[20, 2::6] = beside[20, 4::6] = True
+    beside &= ~trees
+    old = dr.find_smooth(z, beside, 1.0)
+    assert not old.any()                                                    # with the trees' steps: rough
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=12.0)
+    assert (mask[beside] == GROUND).all()                                   # the crest beside the trees stays
+    assert (mask[19:22][~trees[19:22]] == GROUND).all()
+    assert (mask[bushes] == OBJECT).all()                                   # the bushes are found
+    assert (mask[trees] == OBJECT).all()
+
+
+def test_skirts_of_bushes_found_by_the_edge_tolerance_of_the_grounds_spread():
+    # lidar-like ground (noise 0.02 m) with bushes (1.5 m, 3 x 3), each with a skirt cell 0.3 m high in the
+    # middle of each side (low vegetation the vote kept): the skirt stands less than t = 0.5 m above the
+    # ground's continuation, more than three standard deviations of it (sqrt(6) x the spread); the noisy
+    # ground stays ground
+    from bare_earth.core.estimate import lowest_point_spread, repeated_height_share
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 0.02, (60, 60)).astype(np.float32)
+    bush = np.zeros(z.shape, bool)
+    skirt = np.zeros(z.shape, bool)
+    for r in (10, 30, 48):
+        for c in (8, 27, 46):
+            skirt[r - 1, c + 1] = skirt[r + 3, c + 1] = skirt[r + 1, c - 1] = skirt[r + 1, c + 3] = True
+            bush[r:r + 3, c:c + 3] = True
+    z[skirt] += 0.3
+    z[bush] += 1.5
+    vote = np.where(bush, OBJECT, GROUND).astype(np.uint8)
+    spread = lowest_point_spread(0.02, 0.0, 1.0, repeated_height_share(z))
+    tol = dr.edge_tolerance(0.5, spread)
+    assert tol == pytest.approx(3 * math.sqrt(6) * 0.02)
+    kept, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0)
+    assert (kept[skirt] == GROUND).all()                                    # t: the skirts stay
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0,
+                                  edge_tolerance_m=tol)
+    np.testing.assert_array_equal(mask == OBJECT, bush | skirt)

@@ -415,3 +415,41 @@ def test_object_widths_across_a_checkerboard_of_dropouts():
     assert est.object_widths(m & ~holes, (1.0, 1.0), nodata=holes) == 11.0
     assert est.object_widths(m & ~holes, (1.0, 1.0), area_share=0.5, nodata=holes) == 11.0
     assert est.object_widths(m & ~holes, (1.0, 1.0)) == 1.0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_repeated_height_share_exact(dtype):
+    z = np.array([[1, 1, 2],
+                  [3, 3, 3]], dtype)
+    # row pairs: (1, 1) (1, 2) (3, 3) (3, 3): 3 equal; column pairs (1, 3) (1, 3) (2, 3): none
+    assert est.repeated_height_share(z) == pytest.approx(3 / 7)
+    if np.issubdtype(dtype, np.floating):
+        z = z.astype(dtype)
+        z[1, 1] = np.nan                          # pairs touching nodata are not counted
+        assert est.repeated_height_share(z) == pytest.approx(1 / 4)
+        assert est.repeated_height_share(np.full((2, 2), np.nan, dtype)) == 0.0
+
+
+def test_repeated_height_share_of_a_sparse_cloud_filled_by_its_nearest_return():
+    # one return per 2 x 2 cells, nearest fill: every height repeated over its block
+    z = np.kron(np.arange(36.0).reshape(6, 6) * 0.37, np.ones((2, 2))).astype(np.float32)
+    share = est.repeated_height_share(z)
+    assert share == pytest.approx(6 / 11)         # 6 of the 11 pairs of a row (or a column) inside a block
+    assert 1.0 / (1.0 - share) == pytest.approx(2.0, rel=0.1)             # about two cells per return
+
+
+def test_lowest_point_spread_exact():
+    assert est.lowest_point_spread(0.03, 0.12, 1.0) == pytest.approx(math.sqrt(0.03 ** 2 + 0.12 ** 2 / 12))
+    assert est.lowest_point_spread(0.0, 0.1, 1.0, 0.5) == pytest.approx(0.2 / math.sqrt(12))
+    assert est.lowest_point_spread(0.05, float("nan"), 2.0) == pytest.approx(0.05)   # slope unknown: the noise
+    assert math.isnan(est.lowest_point_spread(float("nan"), 0.1, 1.0))
+    assert math.isfinite(est.lowest_point_spread(0.0, 0.1, 1.0, 1.0))                # every pair equal: bounded
+
+
+def test_lowest_point_spread_is_the_spread_of_lowest_returns_on_a_slope():
+    # one return per cell, anywhere in it, on a plane rising 0.2 m per metre, noise 0.03 m: the cells'
+    # heights scatter about the plane by sqrt(0.03^2 + 0.2^2 / 12)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.0, 1.0, 200_000)
+    h = 0.2 * x + rng.normal(0.0, 0.03, x.size)
+    assert np.std(h) == pytest.approx(est.lowest_point_spread(0.03, 0.2, 1.0), rel=0.02)
