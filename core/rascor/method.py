@@ -54,6 +54,12 @@ METHOD = Method(
               "slope its position adds sqrt(1/12) of that rise to its error (coarse cells on "
               "slopes). Empty: the median slope of step 1; 0: the paper's tolerance alone.",
               minimum=0.0, maximum=10.0, advanced=True),
+        Param("terrain_bend_m", "float", None, "Steps 3 and 4: the terrain's own second "
+              "difference over one cell (m, a Gaussian scale): on cells coarse against the "
+              "relief (10-30 m DEMs of hills) the ground bends by metres from one cell to the "
+              "next; step 3's tolerance and step 4's jump and smoothness limits widen by k times "
+              "it. Empty: the bends of the 20 m block minima scaled to one cell (90th percentile "
+              "/ 1.645); 0: the paper's tolerances.", minimum=0.0, maximum=100.0, advanced=True),
         Param("jump_m", "float", 2.0, "Step 4 minimum sudden change of level in metres.",
               minimum=0.1, maximum=100.0, advanced=True),
         Param("max_building_m", "float", 120.0, "Step 4 longest raised level removed "

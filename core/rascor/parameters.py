@@ -11,7 +11,14 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import GROUND_BLOCK_M, ground_level_cells, ground_level_reference, object_widths, sample_windows
+from ..estimate import (
+    GROUND_BLOCK_M,
+    ground_level_cells,
+    ground_level_reference,
+    object_widths,
+    sample_windows,
+    terrain_bends,
+)
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
 from .sequence import SURFACE_RULES, cell_rise, ring_reach
@@ -28,7 +35,8 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, height_min_m=None,
-                height_max_m=None, neighbour_k=3.0, terrain_slope=None, jump_m=2.0, max_building_m=120.0,
+                height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
+                max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
                 prediction_radius_m=None, prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
@@ -152,10 +160,12 @@ def _analysis_sample(z, cell_size, sigma, p):
             continue
         hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
                                               low_weight=p["low_weight"],
-                                              cell_rise_m=cell_rise(p["terrain_slope"], cell_size))
+                                              cell_rise_m=cell_rise(p["terrain_slope"], cell_size),
+                                              bend_m=p["terrain_bend_m"])
         keep &= ~(hi | lo)
         keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
-                                      max_building_m=p["max_building_m"], sigma_m=sigma)
+                                      max_building_m=p["max_building_m"], sigma_m=sigma,
+                                      k=p["neighbour_k"], bend_m=p["terrain_bend_m"])
         crops.append(crop)
         sample.append((finite_float64(crop), keep.astype(np.float64), keep))
     return crops, sample
@@ -209,6 +219,22 @@ def _sample_scale(sample, sizes, degree, kernels=None):
     fit of ``sizes`` cells and ``degree`` on the analysis sample."""
     v = [(c - fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
     return _robust_scale(np.concatenate(v) if v else np.zeros(0))
+
+
+def terrain_bend(z, cell_size, sigma):
+    """Steps 3 and 4: the Gaussian scale (m) of the terrain's own second difference over
+    one cell: the 90th percentile of ``|d|`` / 1.645 (the tail the tolerances must cover,
+    as :func:`_about_model`), ``d`` the second differences of the minima of
+    :data:`~bare_earth.core.estimate.GROUND_BLOCK_M` blocks scaled to one cell
+    (:func:`~bare_earth.core.estimate.terrain_bends`). 0 when it does not exceed the random
+    error ``sigma`` (the paper's tolerances, which hold ``sigma``, cover such bends, and
+    the block minima's own noise and the residue of wide objects in them are of that
+    order: at 1-2 m cells the bends read millimetres to centimetres) and with fewer than 3
+    blocks."""
+    dx, dy = as_cell_size(cell_size)
+    d = terrain_bends(z, max(2, int(round(GROUND_BLOCK_M / max(dx, dy)))))
+    b = float(np.percentile(np.abs(d), 90)) / 1.645 if d.size else 0.0
+    return round(b, 3) if b > sigma else 0.0
 
 
 def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
@@ -314,6 +340,8 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         # step 3's tolerance: the rise of the typical ground over one cell (a height's
         # position inside its cell); the median slope of step 1's lower envelope
         p["terrain_slope"] = round(float(ch["slope_median"]), 4)
+    if p["terrain_bend_m"] is None:
+        p["terrain_bend_m"] = terrain_bend(z, (dx, dy), sigma)
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",

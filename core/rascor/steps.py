@@ -45,6 +45,7 @@ _DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: float, k: float = 3.0,
                                  low_weight: float = 0.02, labels: Optional[np.ndarray] = None,
                                  cell_rise_m: Union[float, Tuple[float, float]] = 0.0,
+                                 bend_m: float = 0.0,
                                  progress: Optional[Callable[[float], None]] = None
                                  ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
@@ -100,7 +101,7 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     -------
     high, low : ndarray of bool
     """
-    tol = k * sigma_m * np.sqrt(2.0)
+    tol = float(np.hypot(k * sigma_m * np.sqrt(2.0), k * max(0.0, float(bend_m))))
     rx, ry = (cell_rise_m, cell_rise_m) if np.isscalar(cell_rise_m) else cell_rise_m
     rx, ry = max(0.0, float(rx)), max(0.0, float(ry))
     pairs = _pairs if rx == ry == 0.0 else partial(_pairs, k=float(k), rise=(rx, ry))
@@ -335,7 +336,7 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
 
 def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                          jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
-                         labels: Optional[np.ndarray] = None, passes: int = 2,
+                         bend_m: float = 0.0, labels: Optional[np.ndarray] = None, passes: int = 2,
                          progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4: sudden change of level along X and Y profiles (buildings).
 
@@ -356,7 +357,9 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     high : ndarray of bool
     """
     dx, dy = as_cell_size(cell_size)
-    veg_tol = 2.0 * k * sigma_m
+    bend = k * max(0.0, float(bend_m))
+    jump_m = float(np.hypot(jump_m, bend))
+    veg_tol = float(np.hypot(2.0 * k * sigma_m, bend))
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays; bands of whole rows
