@@ -150,10 +150,11 @@ def _about_model(sigma, error):
 
 def _analysis_sample(z, cell_size, sigma, p):
     """The analysis crops (the whole surface when small, else windows centred on its
-    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample)``, with
-    ``sample`` the ``[(heights, weights, cells kept)]`` of each crop cleaned by steps 3 and
-    4."""
-    crops, sample = [], []
+    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample, holes)``,
+    with ``sample`` the ``[(heights, weights, cells kept)]`` of each crop cleaned by steps 3
+    and 4, and ``holes`` each crop's nodata cells and the low blunders step 3 found (holes
+    in an object, not its outline: :func:`_objects_width`)."""
+    crops, sample, holes = [], [], []
     for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
         keep = np.isfinite(crop)
         if keep.sum() < 100:
@@ -168,17 +169,23 @@ def _analysis_sample(z, cell_size, sigma, p):
                                       k=p["neighbour_k"], bend_m=p["terrain_bend_m"])
         crops.append(crop)
         sample.append((finite_float64(crop), keep.astype(np.float64), keep))
-    return crops, sample
+        holes.append(lo | ~np.isfinite(crop))
+    return crops, sample, holes
 
 
-def _objects_width(crops, cell_size):
+def _objects_width(crops, cell_size, holes=None):
     """Width (m) of the objects of the analysis crops (:func:`~bare_earth.core.estimate.object_widths`,
     98 % of their area): the cells standing above the ground level
     (:func:`~bare_earth.core.estimate.ground_level_cells` with blocks of the longest surface
     of the sequence: more than 2 m and the terrain's rise over a block above the
-    interpolated block minima); 0 without crops."""
+    interpolated block minima); 0 without crops. ``holes`` (each crop's nodata cells and low
+    blunders, :func:`_analysis_sample`) do not cut an object: its width is measured across
+    missing scan lines, dropouts and pits on a roof (``nodata`` of ``object_widths``)."""
     objects = [np.isfinite(c) & ~ground_level_cells(c, cell_size, block_m=SURFACE_SIZES_M[-1]) for c in crops]
-    return round(object_widths(_side_by_side(objects), cell_size), 1) if objects else 0.0
+    if not objects:
+        return 0.0
+    gaps = None if holes is None else _side_by_side([h & ~o for h, o in zip(holes, objects)])
+    return round(object_widths(_side_by_side(objects), cell_size, nodata=gaps), 1)
 
 
 def _ground_sample(crops, cell_size, block_m):
@@ -347,7 +354,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
                         "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
-        crops, sample = _analysis_sample(z, (dx, dy), sigma, p)
+        crops, sample, holes = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
         # the terrain's own bends: the minima of 20 m blocks (wider blocks hide the shoulders
         # of cuts and embankments, whose ground then fails the snooping)
@@ -382,7 +389,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 else:
                     # how wide the objects are: a surface window holds at least as much
                     # ground as object when it is sqrt(2) x as wide
-                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy)))
+                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy), holes))
                     block = max(GROUND_BLOCK_M, SURFACE_SIZES_M[i_o])
                     bound = ss if block == GROUND_BLOCK_M else _model_errors(
                         _ground_sample(crops, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1),
