@@ -17,7 +17,7 @@ from ..common import FilterResult, as_cell_size, as_surface, report, sub_progres
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
-from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
+from .steps import find_terrain_steps, remove_height_outliers, remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, model_degree
 
 #: Step numbers and names (the values of the ``step`` extra).
@@ -28,8 +28,9 @@ STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
 _REPEATED = (3, 5, 6, 7)
 #: Relative run time of each step, the share of the progress bar it gets (seconds measured
 #: on the 16 Mcells city of ``synthetic.make_dsm`` at 1 m, in the sequence: 0.05, 1.0-1.4,
-#: 1.2, 3.1, 1.8; step 7 alone 3.0).
-_COST = {2: 0.05, 3: 1.0, 4: 1.2, 5: 3.0, 6: 2.0, 7: 3.0}
+#: 1.2, 3.1, 1.8; step 7 alone 3.0; step 4's terrain steps add 0.63 x its level changes,
+#: measured on a 4 Mcells city).
+_COST = {2: 0.05, 3: 1.0, 4: 2.0, 5: 3.0, 6: 2.0, 7: 3.0}
 
 
 @dataclass
@@ -69,11 +70,13 @@ class _State:
     special: Optional[np.ndarray]
     labels: Optional[np.ndarray]
     n_regions: int
+    breaklines: Optional[np.ndarray]      # the user's break lines (rasterised)
     mask: np.ndarray
     step: np.ndarray
     removed: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
+    step_lines: int = 0                   # cells of the terrain's level changes (step 4)
 
 
 def cell_rise(terrain_slope: float, cell_size: Union[float, Sequence[float]]) -> tuple:
@@ -185,7 +188,7 @@ def _start(z, breaklines, special_areas):
     valid = np.isfinite(z)
     return _State(z=z, valid=valid, keep=valid.copy(),
                   global_ok=valid if sp is None else valid & ~sp, special=sp, labels=labels,
-                  n_regions=n_regions, mask=np.zeros(z.shape, np.uint8),
+                  n_regions=n_regions, breaklines=bl, mask=np.zeros(z.shape, np.uint8),
                   step=np.zeros(z.shape, np.uint8))
 
 
@@ -238,12 +241,22 @@ def _step3_neighbour_differences(st, cfg, progress):
 
 
 def _step4_level_change(st, cfg, progress):
-    """Step 4: raised levels between a jump up and a jump down (buildings)."""
+    """Step 4: raised levels between a jump up and a jump down (buildings); the level changes
+    no jump answers over more than the longest building are the terrain's (a quarry bench, a
+    river bank): break lines for the steps after (:func:`~.steps.find_terrain_steps`)."""
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
-                              progress=progress)
+                              progress=sub_progress(progress, 0.0, 0.6))
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
+    # the level changes longer than the longest building are the terrain's: break lines for
+    # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)
+    steps = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m, max_building_m=cfg.max_building_m,
+                               sigma_m=cfg.sigma_m, k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m,
+                               labels=st.labels, progress=sub_progress(progress, 0.6, 1.0))
+    st.step_lines = int(np.count_nonzero(steps))
+    if st.step_lines:
+        st.labels, st.n_regions = break_regions(steps if st.breaklines is None else steps | st.breaklines)
 
 
 def _step5_profiles(st, cfg, progress):
@@ -297,6 +310,7 @@ def _result(st, cfg):
             "removed_share": float(sum(st.removed.values()) / n_valid),
             "low_share": float(np.mean(st.mask[valid] == LOW)),
             "breakline_regions": st.n_regions,
+            "terrain_step_share": st.step_lines / n_valid,
             "special_area_share": float(st.special[valid].mean()) if st.special is not None else 0.0,
             "second_iteration": cfg.second_iteration, "notes": st.notes}
     return FilterResult(mask=st.mask, extras={"step": st.step}, info=info)
