@@ -39,6 +39,7 @@ LABELS = {
     "height_max_m": "Highest valid height (m)",
     "neighbour_k": "Neighbour test: critical value (x sigma)",
     "terrain_slope": "Neighbour test: terrain slope for a height's place in its cell (rise/run)",
+    "terrain_bend_m": "Neighbour and level tests: the terrain's bend over one cell (m)",
     "jump_m": "Smallest jump of level (m)",
     "max_building_m": "Longest building (m)",
     "short_profile_m": "Short profile length (m)",

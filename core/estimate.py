@@ -11,6 +11,8 @@ says so:
 * :func:`block_minima`: the minimum surface of ``k x k`` blocks (objects smaller than a
   block vanish from it: an approximation of the terrain under them).
 * :func:`terrain_slopes`: slopes (rise/run) of that block-minimum surface.
+* :func:`terrain_bends`: its second differences scaled to one cell (how much the ground
+  bends from one cell to the next: metres on coarse DEMs of hills, nothing at 1 m).
 * Noise of the DSM (the standard deviation ``sigma`` of its random height error), three
   robust statistics for three needs:
 
@@ -172,6 +174,45 @@ def terrain_slopes(z, cell_size, k, min_blocks=2):
     gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
     s = np.hypot(gx, gy).ravel()
     return s[np.isfinite(s)]
+
+
+
+def terrain_bends(z, k):
+    """Second differences of the terrain under the objects over one cell, metres: those of
+    the block-minimum surface, scaled from the block spacing to the cell.
+
+    The surface is reduced to the minimum of ``k x k`` blocks (:func:`block_minima`:
+    objects smaller than a block vanish) and its second differences ``m[i-1] - 2 m[i] +
+    m[i+1]`` along the rows and the columns (block spacing ``k`` cells) are divided by
+    ``k^2``: a smooth surface of curvature ``c`` has second difference ``c s^2`` over the
+    spacing ``s``, so the one over ``k`` cells is ``k^2`` times the one over a cell. Noise and objects do not scale
+    that way, and the block minima hold neither: this is the terrain's own change of
+    rise from one cell to the next, which grows with the square of the cell (metres on a
+    24 m DEM of hills, millimetres on 1 m lidar).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata.
+    k : int
+        Block side, cells (>= 1): larger than the objects to be ignored.
+
+    Returns
+    -------
+    ndarray of float64, 1-D
+        The finite second differences (signed, metres over one cell), along the rows then
+        the columns (empty with fewer than 3 blocks along both axes). Summarise them with
+        the statistic the method needs.
+    """
+    k = int(k)
+    m = block_minima(z, k).astype(np.float64)
+    d = []
+    if m.shape[1] >= 3:
+        d.append((m[:, :-2] - 2.0 * m[:, 1:-1] + m[:, 2:]).ravel())
+    if m.shape[0] >= 3:
+        d.append((m[:-2] - 2.0 * m[1:-1] + m[2:]).ravel())
+    d = np.concatenate(d) if d else np.empty(0)
+    return d[np.isfinite(d)] / float(k * k)
 
 
 #: Distinct heights :func:`height_quantum` looks at (the lowest of the sample).

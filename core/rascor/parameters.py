@@ -11,7 +11,14 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import GROUND_BLOCK_M, ground_level_cells, ground_level_reference, object_widths, sample_windows
+from ..estimate import (
+    GROUND_BLOCK_M,
+    ground_level_cells,
+    ground_level_reference,
+    object_widths,
+    sample_windows,
+    terrain_bends,
+)
 from .fits import fit_at_centre
 from .kernels import finite_float64, gauss_weights, odd_window
 from .sequence import SURFACE_RULES, cell_rise, ring_reach
@@ -28,7 +35,8 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, height_min_m=None,
-                height_max_m=None, neighbour_k=3.0, terrain_slope=None, jump_m=2.0, max_building_m=120.0,
+                height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
+                max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
                 prediction_radius_m=None, prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
@@ -142,33 +150,42 @@ def _about_model(sigma, error):
 
 def _analysis_sample(z, cell_size, sigma, p):
     """The analysis crops (the whole surface when small, else windows centred on its
-    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample)``, with
-    ``sample`` the ``[(heights, weights, cells kept)]`` of each crop cleaned by steps 3 and
-    4."""
-    crops, sample = [], []
+    quadrants: :func:`~bare_earth.core.estimate.sample_windows`): ``(crops, sample, holes)``,
+    with ``sample`` the ``[(heights, weights, cells kept)]`` of each crop cleaned by steps 3
+    and 4, and ``holes`` each crop's nodata cells and the low blunders step 3 found (holes
+    in an object, not its outline: :func:`_objects_width`)."""
+    crops, sample, holes = [], [], []
     for crop in sample_windows(z, cells=_CROP_CELLS, side=_CROP_EDGE):
         keep = np.isfinite(crop)
         if keep.sum() < 100:
             continue
         hi, lo = remove_neighbour_differences(crop, keep, sigma_m=sigma, k=p["neighbour_k"],
                                               low_weight=p["low_weight"],
-                                              cell_rise_m=cell_rise(p["terrain_slope"], cell_size))
+                                              cell_rise_m=cell_rise(p["terrain_slope"], cell_size),
+                                              bend_m=p["terrain_bend_m"])
         keep &= ~(hi | lo)
         keep &= ~remove_level_changes(crop, cell_size, keep, jump_m=p["jump_m"],
-                                      max_building_m=p["max_building_m"], sigma_m=sigma)
+                                      max_building_m=p["max_building_m"], sigma_m=sigma,
+                                      k=p["neighbour_k"], bend_m=p["terrain_bend_m"])
         crops.append(crop)
         sample.append((finite_float64(crop), keep.astype(np.float64), keep))
-    return crops, sample
+        holes.append(lo | ~np.isfinite(crop))
+    return crops, sample, holes
 
 
-def _objects_width(crops, cell_size):
+def _objects_width(crops, cell_size, holes=None):
     """Width (m) of the objects of the analysis crops (:func:`~bare_earth.core.estimate.object_widths`,
     98 % of their area): the cells standing above the ground level
     (:func:`~bare_earth.core.estimate.ground_level_cells` with blocks of the longest surface
     of the sequence: more than 2 m and the terrain's rise over a block above the
-    interpolated block minima); 0 without crops."""
+    interpolated block minima); 0 without crops. ``holes`` (each crop's nodata cells and low
+    blunders, :func:`_analysis_sample`) do not cut an object: its width is measured across
+    missing scan lines, dropouts and pits on a roof (``nodata`` of ``object_widths``)."""
     objects = [np.isfinite(c) & ~ground_level_cells(c, cell_size, block_m=SURFACE_SIZES_M[-1]) for c in crops]
-    return round(object_widths(_side_by_side(objects), cell_size), 1) if objects else 0.0
+    if not objects:
+        return 0.0
+    gaps = None if holes is None else _side_by_side([h & ~o for h, o in zip(holes, objects)])
+    return round(object_widths(_side_by_side(objects), cell_size, nodata=gaps), 1)
 
 
 def _ground_sample(crops, cell_size, block_m):
@@ -209,6 +226,22 @@ def _sample_scale(sample, sizes, degree, kernels=None):
     fit of ``sizes`` cells and ``degree`` on the analysis sample."""
     v = [(c - fit_at_centre(c, w, sizes, degree, kernels=kernels)[0])[kk] for c, w, kk in sample]
     return _robust_scale(np.concatenate(v) if v else np.zeros(0))
+
+
+def terrain_bend(z, cell_size, sigma):
+    """Steps 3 and 4: the Gaussian scale (m) of the terrain's own second difference over
+    one cell: the 90th percentile of ``|d|`` / 1.645 (the tail the tolerances must cover,
+    as :func:`_about_model`), ``d`` the second differences of the minima of
+    :data:`~bare_earth.core.estimate.GROUND_BLOCK_M` blocks scaled to one cell
+    (:func:`~bare_earth.core.estimate.terrain_bends`). 0 when it does not exceed the random
+    error ``sigma`` (the paper's tolerances, which hold ``sigma``, cover such bends, and
+    the block minima's own noise and the residue of wide objects in them are of that
+    order: at 1-2 m cells the bends read millimetres to centimetres) and with fewer than 3
+    blocks."""
+    dx, dy = as_cell_size(cell_size)
+    d = terrain_bends(z, max(2, int(round(GROUND_BLOCK_M / max(dx, dy)))))
+    b = float(np.percentile(np.abs(d), 90)) / 1.645 if d.size else 0.0
+    return round(b, 3) if b > sigma else 0.0
 
 
 def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
@@ -314,12 +347,14 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         # step 3's tolerance: the rise of the typical ground over one cell (a height's
         # position inside its cell); the median slope of step 1's lower envelope
         p["terrain_slope"] = round(float(ch["slope_median"]), 4)
+    if p["terrain_bend_m"] is None:
+        p["terrain_bend_m"] = terrain_bend(z, (dx, dy), sigma)
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
                         "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
-        crops, sample = _analysis_sample(z, (dx, dy), sigma, p)
+        crops, sample, holes = _analysis_sample(z, (dx, dy), sigma, p)
         report(progress, 0.6)
         # the terrain's own bends: the minima of 20 m blocks (wider blocks hide the shoulders
         # of cuts and embankments, whose ground then fails the snooping)
@@ -354,7 +389,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 else:
                     # how wide the objects are: a surface window holds at least as much
                     # ground as object when it is sqrt(2) x as wide
-                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy)))
+                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy), holes))
                     block = max(GROUND_BLOCK_M, SURFACE_SIZES_M[i_o])
                     bound = ss if block == GROUND_BLOCK_M else _model_errors(
                         _ground_sample(crops, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1),

@@ -17,7 +17,7 @@ from ..common import FilterResult, as_cell_size, as_surface, report, sub_progres
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
-from .steps import remove_height_outliers, remove_level_changes, remove_neighbour_differences
+from .steps import find_terrain_steps, remove_height_outliers, remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, model_degree
 
 #: Step numbers and names (the values of the ``step`` extra).
@@ -28,8 +28,9 @@ STEP_NAMES = {1: "terrain characterisation", 2: "height distribution",
 _REPEATED = (3, 5, 6, 7)
 #: Relative run time of each step, the share of the progress bar it gets (seconds measured
 #: on the 16 Mcells city of ``synthetic.make_dsm`` at 1 m, in the sequence: 0.05, 1.0-1.4,
-#: 1.2, 3.1, 1.8; step 7 alone 3.0).
-_COST = {2: 0.05, 3: 1.0, 4: 1.2, 5: 3.0, 6: 2.0, 7: 3.0}
+#: 1.2, 3.1, 1.8; step 7 alone 3.0; step 4's terrain steps add 0.63 x its level changes,
+#: measured on a 4 Mcells city).
+_COST = {2: 0.05, 3: 1.0, 4: 2.0, 5: 3.0, 6: 2.0, 7: 3.0}
 
 
 @dataclass
@@ -45,6 +46,7 @@ class _Settings:
     height_max_m: Optional[float]
     neighbour_k: float
     terrain_slope: float
+    terrain_bend_m: float
     jump_m: float
     max_building_m: float
     lengths: list
@@ -68,11 +70,13 @@ class _State:
     special: Optional[np.ndarray]
     labels: Optional[np.ndarray]
     n_regions: int
+    breaklines: Optional[np.ndarray]      # the user's break lines (rasterised)
     mask: np.ndarray
     step: np.ndarray
     removed: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
+    step_lines: int = 0                   # cells of the terrain's level changes (step 4)
 
 
 def cell_rise(terrain_slope: float, cell_size: Union[float, Sequence[float]]) -> tuple:
@@ -121,8 +125,8 @@ class _Pits:
 
 
 def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,
-                    second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, jump_m,
-                    max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
+                    second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, terrain_bend_m,
+                    jump_m, max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
                     snooping_k, snooping_iterations, low_weight):
     """Check the parameters (ValueError naming the fix) and return the :class:`_Settings`."""
@@ -142,6 +146,10 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         raise ValueError(f"terrain_slope must be a number >= 0 (rise/run); got {terrain_slope!r}. "
                          "Pass 0 for the paper's step 3 tolerance alone, or call resolve_rascor_params "
                          "to derive it (step 1's median slope).")
+    if terrain_bend_m is None or not np.isfinite(terrain_bend_m) or terrain_bend_m < 0:
+        raise ValueError(f"terrain_bend_m must be a number >= 0 (metres); got {terrain_bend_m!r}. "
+                         "Pass 0 for the paper's tolerances of steps 3 and 4, or call "
+                         "resolve_rascor_params to derive it (the bends of the block minima).")
     if not 0 < low_weight <= 1:
         raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
                          "factor of points below the reference (0.02: tolerance x 7).")
@@ -162,7 +170,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         cell=(dx, dy), terrain_class=terrain_class, homogeneous=homogeneous, sigma_m=sigma_m,
         on=on, second_iteration=bool(second_iteration), height_min_m=height_min_m,
         height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=float(terrain_slope),
-        jump_m=jump_m, max_building_m=max_building_m, lengths=lengths, surface_size_m=surface_size_m,
+        terrain_bend_m=float(terrain_bend_m), jump_m=jump_m, max_building_m=max_building_m, lengths=lengths,
+        surface_size_m=surface_size_m,
         prediction_radius_m=prediction_radius_m,
         profile_sigma_m=max(sigma_m, profile_sigma_m or sigma_m),
         surface_sigma_m=max(sigma_m, surface_sigma_m or sigma_m),
@@ -179,7 +188,7 @@ def _start(z, breaklines, special_areas):
     valid = np.isfinite(z)
     return _State(z=z, valid=valid, keep=valid.copy(),
                   global_ok=valid if sp is None else valid & ~sp, special=sp, labels=labels,
-                  n_regions=n_regions, mask=np.zeros(z.shape, np.uint8),
+                  n_regions=n_regions, breaklines=bl, mask=np.zeros(z.shape, np.uint8),
                   step=np.zeros(z.shape, np.uint8))
 
 
@@ -227,16 +236,27 @@ def _step3_neighbour_differences(st, cfg, progress):
     hi, lo = remove_neighbour_differences(st.z, st.keep, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                           low_weight=cfg.low_weight, labels=st.labels,
                                           cell_rise_m=cell_rise(cfg.terrain_slope, cfg.cell),
-                                          progress=progress)
+                                          bend_m=cfg.terrain_bend_m, progress=progress)
     _record(st, 3, hi, lo)
 
 
 def _step4_level_change(st, cfg, progress):
-    """Step 4: raised levels between a jump up and a jump down (buildings)."""
+    """Step 4: raised levels between a jump up and a jump down (buildings); the level changes
+    no jump answers over more than the longest building are the terrain's (a quarry bench, a
+    river bank): break lines for the steps after (:func:`~.steps.find_terrain_steps`)."""
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
-                              k=cfg.neighbour_k, labels=st.labels, progress=progress)
+                              k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
+                              progress=sub_progress(progress, 0.0, 0.6))
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
+    # the level changes longer than the longest building are the terrain's: break lines for
+    # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)
+    steps = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m, max_building_m=cfg.max_building_m,
+                               sigma_m=cfg.sigma_m, k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m,
+                               labels=st.labels, progress=sub_progress(progress, 0.6, 1.0))
+    st.step_lines = int(np.count_nonzero(steps))
+    if st.step_lines:
+        st.labels, st.n_regions = break_regions(steps if st.breaklines is None else steps | st.breaklines)
 
 
 def _step5_profiles(st, cfg, progress):
@@ -290,6 +310,7 @@ def _result(st, cfg):
             "removed_share": float(sum(st.removed.values()) / n_valid),
             "low_share": float(np.mean(st.mask[valid] == LOW)),
             "breakline_regions": st.n_regions,
+            "terrain_step_share": st.step_lines / n_valid,
             "special_area_share": float(st.special[valid].mean()) if st.special is not None else 0.0,
             "second_iteration": cfg.second_iteration, "notes": st.notes}
     return FilterResult(mask=st.mask, extras={"step": st.step}, info=info)
@@ -307,7 +328,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   step6_surfaces: bool = True, step7_prediction: bool = False,
                   second_iteration: bool = False, height_min_m: Optional[float] = None,
                   height_max_m: Optional[float] = None, neighbour_k: float = 3.0,
-                  terrain_slope: float = 0.0, jump_m: float = 2.0, max_building_m: float = 120.0,
+                  terrain_slope: float = 0.0, terrain_bend_m: float = 0.0, jump_m: float = 2.0,
+                  max_building_m: float = 120.0,
                   short_profile_m: float = 9.0, long_profile_m: float = 25.0,
                   profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
                   surface_rule: str = "objects",
@@ -348,6 +370,12 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         Step 3: the terrain's slope (rise/run) whose rise over one cell widens the
         tolerance (:func:`remove_neighbour_differences`; 0: the paper's ``k sigma sqrt(2)``
         alone; :func:`resolve_rascor_params` derives it, step 1's median slope).
+    terrain_bend_m : float
+        Steps 3 and 4: the Gaussian scale of the terrain's own second difference over one
+        cell (m); the tolerance of step 3 and the jump and smoothness limits of step 4
+        widen by ``k`` times it in quadrature (0: the paper's tolerances;
+        :func:`resolve_rascor_params` derives it from the block minima, metres on coarse
+        DEMs of hills, millimetres on 1 m lidar).
     jump_m, max_building_m : float
         Step 4: minimum level change and maximum building length, metres.
     short_profile_m, long_profile_m : float
@@ -391,7 +419,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         switches=(step1_characterise, step2_height_distribution, step3_neighbour_differences,
                   step4_level_change, step5_profiles, step6_surfaces, step7_prediction),
         steps=steps, second_iteration=second_iteration, height_min_m=height_min_m,
-        height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=terrain_slope, jump_m=jump_m,
+        height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=terrain_slope,
+        terrain_bend_m=terrain_bend_m, jump_m=jump_m,
         max_building_m=max_building_m, short_profile_m=short_profile_m,
         long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,

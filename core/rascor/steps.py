@@ -8,6 +8,7 @@ from functools import partial
 from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from scipy import ndimage
 
 from ..common import as_cell_size, report, sub_progress, transpose
 from .kernels import BAND_CELLS, row_bands
@@ -45,6 +46,7 @@ _DIRS8 = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: float, k: float = 3.0,
                                  low_weight: float = 0.02, labels: Optional[np.ndarray] = None,
                                  cell_rise_m: Union[float, Tuple[float, float]] = 0.0,
+                                 bend_m: float = 0.0,
                                  progress: Optional[Callable[[float], None]] = None
                                  ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 3: remove the upper point of neighbouring pairs differing beyond a tolerance.
@@ -100,7 +102,7 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     -------
     high, low : ndarray of bool
     """
-    tol = k * sigma_m * np.sqrt(2.0)
+    tol = float(np.hypot(k * sigma_m * np.sqrt(2.0), k * max(0.0, float(bend_m))))
     rx, ry = (cell_rise_m, cell_rise_m) if np.isscalar(cell_rise_m) else cell_rise_m
     rx, ry = max(0.0, float(rx)), max(0.0, float(ry))
     pairs = _pairs if rx == ry == 0.0 else partial(_pairs, k=float(k), rise=(rx, ry))
@@ -255,8 +257,10 @@ def _pairs(nb, kb, tol, k=0.0, rise=None):
 
 
 # ------------------------------------------------------------------- step 4
-def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
-    """Cells between a jump up and a later jump down along the rows (axis 1).
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
+    """Cells between a jump up and a later jump down along the rows (axis 1); with
+    ``lone``, instead, the cells on both sides of the jumps that no other jump answers
+    (no jump up followed within ``lmax`` by a jump down).
 
     Works on the remaining points of all rows concatenated in row order (a 1-D array), so
     "the previous point of the profile" is simply the previous element: profile starts
@@ -316,6 +320,14 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
     a, b = ev[k], ev[k + 1]
     pos = flat
     ok = (pos[b] - pos[a]) <= lmax
+    if lone:
+        paired = np.zeros(ev.size, bool)
+        paired[k[ok]] = True
+        paired[k[ok] + 1] = True
+        alone = ev[(typ > 0) & ~paired]          # a jump is never a profile's first point
+        out.ravel()[flat[alone]] = True
+        out.ravel()[flat[alone - 1]] = True
+        return out
     a, b = a[ok], b[ok]
     lens = b - a
     if not lens.size:
@@ -333,9 +345,61 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol):
     return out
 
 
+def _jump_limits(jump_m, sigma_m, k, bend_m):
+    """Step 4's ``(jump, smoothness limit)``: ``jump_m`` and ``2 k sigma`` (the ground beside a
+    jump lies on a smooth line), each widened in quadrature by ``k`` times the terrain's own
+    bend over one cell (``bend_m``)."""
+    bend = k * max(0.0, float(bend_m))
+    return float(np.hypot(jump_m, bend)), float(np.hypot(2.0 * k * sigma_m, bend))
+
+
+def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
+                       jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
+                       bend_m: float = 0.0, labels: Optional[np.ndarray] = None,
+                       progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
+    """Step 4's level changes that belong to the terrain: break lines derived from the DSM.
+
+    Step 4's jumps (:func:`remove_level_changes`, on the points it left) that no other jump
+    answers (a jump up not followed within ``max_building_m`` by a jump down, a jump down
+    not preceded by one), along X and Y; the cells on both sides of each, joined
+    8-connected into lines, are kept where a line spans more than ``max_building_m``
+    (along X or Y): a level change longer than the longest building is the terrain's own (a
+    quarry bench, a river bank, a terrace wall). Jacobsen (2004) protects such edges with
+    break lines, which no comparison crosses; without them, the moving profiles and surfaces
+    of steps 5 and 6, pulled down by the lower level, eat into the upper one.
+    ``progress(fraction)`` is called every band of rows (it may raise ``Cancelled``).
+
+    Returns
+    -------
+    steps : ndarray of bool
+        Cells on those lines (empty where none).
+    """
+    dx, dy = as_cell_size(cell_size)
+    jump, veg_tol = _jump_limits(jump_m, sigma_m, k, bend_m)
+    cells = np.zeros(z.shape, bool)
+    # Y profiles run along the rows of the transposed arrays; bands of whole rows
+    views = [(z, keep, labels, int(max_building_m / dx), lambda a: a),
+             (transpose(z), transpose(keep), None if labels is None else transpose(labels),
+              int(max_building_m / dy), transpose)]
+    for d, (zz, kk, lab, lmax, fwd) in enumerate(views):
+        found = np.zeros(zz.shape, bool)
+        bands = row_bands(*zz.shape, 16 * BAND_CELLS)
+        for i, b in enumerate(bands):
+            report(progress, (d + i / len(bands)) / 2)
+            found[b] = _raised_rows(zz[b], kk[b], None if lab is None else lab[b], jump, lmax, veg_tol,
+                                    lone=True)
+        cells |= fwd(found)
+    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+    if not n:
+        return cells
+    span = np.array([0.0] + [max((r.stop - r.start) * dy, (c.stop - c.start) * dx)
+                             for r, c in ndimage.find_objects(lab)])
+    return (span > max_building_m)[lab]
+
+
 def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                          jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
-                         labels: Optional[np.ndarray] = None, passes: int = 2,
+                         bend_m: float = 0.0, labels: Optional[np.ndarray] = None, passes: int = 2,
                          progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4: sudden change of level along X and Y profiles (buildings).
 
@@ -356,7 +420,7 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     high : ndarray of bool
     """
     dx, dy = as_cell_size(cell_size)
-    veg_tol = 2.0 * k * sigma_m
+    jump_m, veg_tol = _jump_limits(jump_m, sigma_m, k, bend_m)
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays; bands of whole rows

@@ -78,6 +78,34 @@ def test_terrain_slopes_too_few_blocks_and_nodata():
     assert s.size == 1 and s[0] == 0.0    # NaN gradients dropped: only the block far from it
 
 
+# --------------------------------------------------------------------------- terrain bends
+def test_terrain_bends_of_a_paraboloid_under_objects_exact():
+    """z = c x^2 + e y^2 (x, y >= 0): each block's minimum is its first cell, so the block
+    minima are the surface at the block corners and their second differences over ``k``
+    cells, divided by ``k^2``, are exactly the surface's over one cell: 2c along the rows,
+    2e along the columns, whatever the block; an object on a block's other cells is not
+    seen."""
+    yy, xx = np.mgrid[0:12, 0:16].astype(np.float64)
+    z = 0.25 * xx ** 2 + 0.5 * yy ** 2
+    for k in (1, 2, 4):
+        d = est.terrain_bends(z if k == 1 else z + 40.0 * ((yy == 5) & (xx == 6)), k)  # not a minimum
+        nr, nc = -(-12 // k), -(-16 // k)
+        assert d.size == nr * (nc - 2) + (nr - 2) * nc
+        np.testing.assert_allclose(d[:nr * (nc - 2)], 0.5)          # along the rows: 2c
+        np.testing.assert_allclose(d[nr * (nc - 2):], 1.0)          # along the columns: 2e
+
+
+def test_terrain_bends_of_a_plane_vanish_too_few_blocks_and_nodata():
+    yy, xx = np.mgrid[0:12, 0:16].astype(np.float32)
+    np.testing.assert_allclose(est.terrain_bends(3.0 * xx - 2.0 * yy, 4), 0.0, atol=1e-5)
+    assert est.terrain_bends(np.zeros((8, 8), np.float32), 4).size == 0        # 2 x 2 blocks
+    assert est.terrain_bends(np.zeros((8, 12), np.float32), 4).size == 2       # 3 blocks along x
+    z = np.zeros((12, 12), np.float32)
+    z[:4, :4] = np.nan                                    # a block without data: its bends dropped
+    assert est.terrain_bends(z, 4).size == 2 * 3 * 1 - 2
+
+
+
 # --------------------------------------------------------------------------- noise
 def test_noise_second_difference_exact():
     # one row: second differences 0 - 2*1 + 0 = -2 and 1 - 0 + 1 = 2: median |d| = 2
