@@ -40,7 +40,9 @@ says so:
     canopy's or the roofs' roughness);
   - :func:`ground_spread`: :func:`smooth_spread` on chosen cells only;
   - :func:`below_surroundings`: a pit lies below every cell of the ring around it (a
-    low blunder, not a gap between crowns).
+    low blunder, not a gap between crowns);
+  - :func:`below_level_rim`: a pit lies below the level rim just around it (a blunder in
+    open ground, even with another blunder within that ring).
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
   fit needs to reach ground beyond them).
 """
@@ -816,6 +818,52 @@ def _below_at(a, rows, mid, idx, reach, depth_m):
     with np.errstate(invalid="ignore"):
         hit = np.isfinite(ring) & (a.ravel().take(idx) < ring - np.float32(depth_m))
     out.ravel()[idx[hit]] = True
+    return out
+
+
+def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUSTER_M):
+    """Cells of ``candidates`` lying more than ``depth_m`` below every cell of a level rim.
+
+    The rim is the square of cells just outside the tested cell's cluster (half-widths
+    ``iy + 1``, ``ix + 1`` of :func:`surroundings_reach`); it is *level* when its highest
+    and lowest cells differ by at most ``2 depth_m`` (noise on both) plus the rise of the
+    terrain slope ``slope`` (rise/run) across it. A pit in open ground has such a rim,
+    whatever lies further out; a gap between crowns or roofs is rimmed by their sides,
+    metres apart. :func:`below_surroundings` asks for every cell of the wider ring, so two
+    blunders within that ring of each other hid each other (issue 12: two 2 x 2 pits 18 m
+    deep, 10 m apart, on open ground); this test does not look that far. A rim cell outside
+    the array is left out; a nodata rim cell, or fewer than half the rim inside, is no
+    evidence (False). Candidates are few: their rims are gathered directly.
+    """
+    iy, ix, _, _ = surroundings_reach(cell_size, cluster_m=cluster_m)
+    z = np.asarray(z)
+    h, w = z.shape
+    out = np.zeros(z.shape, bool)
+    idx = np.flatnonzero(candidates)
+    if idx.size == 0:
+        return out
+    ry, rx = iy + 1, ix + 1
+    dr, dc = np.meshgrid(np.arange(-ry, ry + 1), np.arange(-rx, rx + 1), indexing="ij")
+    rim = (np.abs(dr) == ry) | (np.abs(dc) == rx)
+    dr, dc = dr[rim], dc[rim]
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    rise = float(slope) * float(np.hypot(2 * ry * dy, 2 * rx * dx))
+    flat = z.ravel()
+    for i in range(0, idx.size, _RING_CHUNK):
+        q = idx[i:i + _RING_CHUNK]
+        r, c = np.divmod(q, w)
+        rr = r[:, None] + dr[None, :]
+        cc = c[:, None] + dc[None, :]
+        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        v = flat.take(np.clip(rr, 0, h - 1) * w + np.clip(cc, 0, w - 1)).astype(np.float32)
+        lo = np.where(inside, v, np.inf).min(axis=1)
+        hi = np.where(inside, v, -np.inf).max(axis=1)
+        with np.errstate(invalid="ignore"):
+            known = (inside & np.isfinite(v)).sum(axis=1)
+            ok = (known == inside.sum(axis=1)) & (2 * known >= dr.size)
+            own = flat.take(q).astype(np.float32)
+            hit = ok & (hi - lo <= 2 * depth_m + rise) & (own < lo - np.float32(depth_m))
+        out.ravel()[q[hit]] = True
     return out
 
 

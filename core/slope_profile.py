@@ -37,8 +37,11 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   half the largest object, so the rule's reach is bounded (blocks give the one-pass mask).
 * **Low blunders** (a drop then a rise, typical of image matching and laser multipath) are
   found first: pits a 3 x 3 grey closing fills that also lie below the lower third of
-  their 7 x 7 neighbourhood (so ground hits between tree crowns stay ground). They get
-  class 2 and the scans skip them.
+  their 7 x 7 neighbourhood (so ground hits between tree crowns stay ground), and below
+  every cell of the ring within 10 m or of a level rim just around them
+  (:func:`~.estimate.below_surroundings`, :func:`~.estimate.below_level_rim`: two blunders
+  within 10 m of each other hid each other from the ring; issue 12). They get class 2 and
+  the scans skip them.
 * **Refinement** (optional, off by default). Rejected cells lying within the tolerance of
   the surface interpolated from the accepted ones are given back to the ground (as SMRF's
   final step does).
@@ -57,7 +60,7 @@ from scipy import ndimage
 
 from .codes import LOW, NODATA
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
-from .estimate import below_surroundings, noise_ground_level, sample_windows, terrain_slopes
+from .estimate import below_level_rim, below_surroundings, noise_ground_level, sample_windows, terrain_slopes
 from .methods import Method, Param, check_values
 
 #: Bounds of the derived slope threshold alpha_g, degrees. The lower one is the slope of the
@@ -590,9 +593,10 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     tan_t = float(np.tan(np.radians(terrain_slope_deg)))
     valid = np.isfinite(z)
     # 1. low blunders (a drop then a rise): class 2, left out of the scans
-    low = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
-    low = below_surroundings(z, cell, tolerance_m, candidates=low,  # below all the ground around: not a gap
+    pits = find_low_blunders(z, tolerance_m + max(cell) * tan_g, sub_progress(progress, 0.0, 0.05))
+    low = below_surroundings(z, cell, tolerance_m, candidates=pits,  # below all the ground around: not a gap
                              progress=sub_progress(progress, 0.05, 0.07))
+    low |= below_level_rim(z, cell, tolerance_m, tan_t, pits & ~low)   # or below the level ground just around
     zs = np.where(low, np.float32(np.nan), z)
     # 2. the slope test along X and Y profiles, forwards and backwards (Ke 2002, sec. 2.1)
     init, edge, dh_eff = _scan_geometry(cell, tan_g, tolerance_m, max_object_size_m, edge_length_m,
@@ -766,7 +770,9 @@ METHOD = Method(
         "caught in the other; a connected object is kept only where both axes reject part of it, so "
         "road embankments and dams that a profile runs along stay ground. Small pits below the "
         "ground around them are low blunders (class 2), provided they also lie below every cell "
-        "within 10 m: a gap between crowns is at the level of the other gaps around it.</p>"
+        "within 10 m (a gap between crowns is at the level of the other gaps around it) or below a "
+        "level rim just around them (a blunder in open ground, even with another blunder within "
+        "10 m; the crowns around a gap are metres apart).</p>"
         "<p>Defaults are derived from the DSM: alpha_g and the terrain slope from slopes between 20 m "
         "block minima, the tolerance from the noise of the DSM's ground-level cells (not the "
         "canopy's roughness). The log lists the values used.</p>"

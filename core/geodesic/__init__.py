@@ -39,9 +39,14 @@ algorithm's help.
      of 2 ``f`` (marker: opening of the block minima; mask: block maxima; a border block
      is abrupt when it holds a wall and its residual exceeds ``2 dh0`` plus the terrain's
      rise over the block; a fine cell is removed when its block's region is an object
-     and its own residual exceeds ``dh0``). This keeps every step's cost near one pass
-     over the raster whatever the window; the coarse grids are aligned on the raster's
-     origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
+     and its own residual exceeds ``dh0``; those cells are then split into their own
+     8-connected parts, and a part stays an object only when at least ``edge_ratio`` of
+     its outline cells inside the raster stand above a neighbour by more than ``dh0``
+     plus the terrain's rise over a cell diagonal: a coarse block holding a wall anywhere
+     counts as a wall, and on a small clip the terrain raised at the high corner of
+     gentle ground, holding a building, passed as an object; issue 12). This keeps every
+     step's cost near one pass over the raster whatever the window; the coarse grids are
+     aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
      than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
      terrain within the noise; this moves ``R_k`` by at most that much and spares the
      reconstruction from chasing noise over the whole raster).

@@ -481,3 +481,37 @@ def test_lowest_point_spread_is_the_spread_of_lowest_returns_on_a_slope():
     x = rng.uniform(0.0, 1.0, 200_000)
     h = 0.2 * x + rng.normal(0.0, 0.03, x.size)
     assert np.std(h) == pytest.approx(est.lowest_point_spread(0.03, 0.2, 1.0), rel=0.02)
+
+
+def test_below_level_rim_finds_two_blunders_within_each_others_ring():
+    """Two 2 x 2 pits 18 m deep, 10 cells apart, in open ground (issue 12): each is in the
+    other's ring, so below_surroundings finds neither; the level rim just around each
+    finds both, and no ground cell."""
+    from bare_earth.core.estimate import below_level_rim, below_surroundings
+    z = np.zeros((30, 30), np.float32)
+    z += np.float32(0.05) * np.arange(30, dtype=np.float32)[None, :]      # a gentle slope
+    z[10:12, 10:12] = -18.0
+    z[10:12, 20:22] = -18.0
+    cand = z < -10.0
+    assert not below_surroundings(z, (1.0, 1.0), 0.2, candidates=cand).any()
+    got = below_level_rim(z, (1.0, 1.0), 0.2, np.tan(np.radians(8.0)), cand)
+    assert (got == cand).all()
+    # the slope's rise across the 7-cell rim (0.3 m) needs the terrain allowance
+    assert not below_level_rim(z, (1.0, 1.0), 0.1, 0.0, cand).any()
+
+
+def test_below_level_rim_leaves_gaps_between_crowns_and_unknown_rims():
+    from bare_earth.core.estimate import below_level_rim
+    z = np.random.default_rng(0).uniform(8.0, 25.0, (30, 30)).astype(np.float32)   # crowns
+    z[::6, ::6] = 0.0                                  # gaps down to the ground
+    z[14:17, 14] = 0.0                                 # a gap
+    cand = z < 1.0
+    assert not below_level_rim(z, (1.0, 1.0), 0.2, 0.1, cand).any()
+    g = np.zeros((20, 20), np.float32)
+    g[5, 5] = g[10, 10] = g[0, 18] = g[2, 16] = -5.0
+    g[13, 10] = np.nan                                 # a nodata cell on (10, 10)'s rim
+    got = below_level_rim(g, (1.0, 1.0), 0.2, 0.1, g < -1.0)
+    assert got[5, 5] and not got[10, 10]
+    assert got[2, 16]                                  # near the corner: 17 of 24 rim cells inside
+    assert not got[0, 18]                              # 8 of 24 inside: no evidence
+    assert got.sum() == 2
