@@ -415,3 +415,53 @@ def test_object_widths_across_a_checkerboard_of_dropouts():
     assert est.object_widths(m & ~holes, (1.0, 1.0), nodata=holes) == 11.0
     assert est.object_widths(m & ~holes, (1.0, 1.0), area_share=0.5, nodata=holes) == 11.0
     assert est.object_widths(m & ~holes, (1.0, 1.0)) == 1.0
+
+
+def test_noise_ground_level_is_measured_once_per_window_content(monkeypatch):
+    """The dtm filter's members each ask for the noise of the same DSM, side by side: the window is
+    measured once (the others wait for it); a changed window, another cell size or another band is
+    measured again; the results equal a fresh measurement."""
+    import threading
+    rng = np.random.default_rng(3)
+    z = (rng.normal(0, 0.05, (120, 130)) + np.arange(130) * 0.1).astype(np.float32)
+    z[40:60, 40:70] += 8.0
+    est._NOISE_MEMO.clear()
+    fresh = est._noise_ground_level(z, (1.0, 1.0), est.GROUND_BLOCK_M, est.GROUND_BAND_M, 3, None)
+    calls = []
+    real = est._noise_ground_level
+
+    def counted(*a):
+        calls.append(1)
+        return real(*a)
+
+    monkeypatch.setattr(est, "_noise_ground_level", counted)
+    out = [None] * 3
+    threads = [threading.Thread(target=lambda i=i: out.__setitem__(i, noise_ground_level(z.copy(), (1.0, 1.0))))
+               for i in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(calls) == 1 and all(o == fresh for o in out)
+    z2 = z.copy()
+    z2[5, 5] += 0.5
+    assert noise_ground_level(z2, (1.0, 1.0)) == real(z2, (1.0, 1.0), est.GROUND_BLOCK_M, est.GROUND_BAND_M, 3, None)
+    noise_ground_level(z, (2.0, 2.0))
+    noise_ground_level(z, (1.0, 1.0), band_m=1.0)
+    assert len(calls) == 4
+    out[0]["sigma"] = -1.0                       # a caller's copy: the memo keeps its own
+    assert noise_ground_level(z, (1.0, 1.0)) == fresh and len(calls) == 4
+
+
+def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
+    from bare_earth.core.common import Cancelled
+    z = (np.random.default_rng(4).normal(0, 0.05, (80, 80))).astype(np.float32)
+    est._NOISE_MEMO.clear()
+
+    def cancel(f):
+        raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        noise_ground_level(z, (1.0, 1.0), progress=cancel)
+    assert not est._NOISE_MEMO
+    assert np.isfinite(noise_ground_level(z, (1.0, 1.0))["sigma"])
