@@ -607,6 +607,10 @@ def block_residuals(model, z, w, r0, r1, row0=None):
     return r.reshape(R * qy, C * qx)[:rows, :cols], g.reshape(R * qy, C * qx)[:rows, :cols]
 
 
+#: Cells per slab of rows whose profile moments :func:`snoop_block_fits` computes at once.
+_PROFILE_SLAB_CELLS = 1 << 20
+
+
 def snoop_block_fits(z, keep, test, below, sizes, degree, s, k, low_weight, progress=None):
     """:func:`fit_and_snoop` with the fits computed once per block of cells (:func:`block_fit_model`,
     :func:`block_fits`): a cell is tested against the leave-one-out fit of the window centred on
@@ -632,25 +636,26 @@ def snoop_block_fits(z, keep, test, below, sizes, degree, s, k, low_weight, prog
         return zb, wb
 
     two_d = sizes[0] > 1
-    # a window's model: of the whole raster (surfaces), or of each band of rows (profiles: a band
-    # holds its whole windows, and its moments stay in the cache)
+    # a window's model: of the whole raster (surfaces), or of each slab of rows (profiles: a slab
+    # holds its whole windows; the model's moments are 1 / q of the slab)
     model = block_fit_model(band, z.shape, sizes, degree) if two_d else None
     qy = model["blocks"][0] if two_d else 1
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
     under = np.zeros(z.shape, bool)
     ks2 = np.float32((k * s) ** 2)
-    step = qy * max(1, (BAND_CELLS if two_d else 2 * BAND_CELLS) // max(1, cols * qy))
+    step = qy * max(1, BAND_CELLS // max(1, cols * qy))
+    slab = step * max(1, _PROFILE_SLAB_CELLS // max(1, cols * step))
     with np.errstate(invalid="ignore"):            # NaN fits are not tested
         for r0 in range(0, rows, step):
             report(progress, r0 / rows)
             r1 = min(rows, r0 + step)
+            if not two_d and r0 % slab == 0:
+                s1 = min(rows, r0 + slab)
+                model = block_fit_model(lambda a, b, s0=r0: band(s0 + a, s0 + b), (s1 - r0, cols), sizes, degree)
+                s0 = r0
             zb, wb = band(r0, r1, np.float32)
-            if two_d:
-                v, h = block_residuals(model, zb, wb, 0, r1 - r0, row0=r0)
-            else:
-                here = block_fit_model(lambda a, b, r0=r0: band(r0 + a, r0 + b), (r1 - r0, cols), sizes, degree)
-                v, h = block_residuals(here, zb, wb, 0, r1 - r0)
+            v, h = block_residuals(model, zb, wb, 0, r1 - r0, row0=r0 if two_d else r0 - s0)
             tb = test[r0:r1]
             bl = v < 0.0
             bl &= tb

@@ -1046,3 +1046,20 @@ def test_fits_per_block_tests_nearly_as_the_exact_surfaces_and_blocks_match_one_
     blk = pipeline.run_array("rascor", z, 1.0, params=params, block=64, want_dtm=False)
     assert blk.info["blocks"] > 1
     np.testing.assert_array_equal(one.mask, blk.mask)
+
+
+@pytest.mark.parametrize("sizes", [(1, 9), (9, 11)])
+def test_snoop_block_fits_of_one_cell_blocks_equal_fit_and_snoop(sizes):
+    """Windows under 32 cells (blocks of one cell): the exact leave-one-out tests of fit_and_snoop
+    (float32 on centred heights: the same flags on a city)."""
+    z, keep = _city(8)
+    below = keep & (np.random.default_rng(1).random(z.shape) < 0.1)
+
+    def fit(zz, ww, out):
+        return fits.fit_rows(zz, ww, sizes[1], 1) if sizes[0] == 1 else fits.fit_box_2d(zz, ww, sizes, 1, out)
+
+    ref = fits.fit_and_snoop(z, keep, keep, below, fit, 0.1, 4.0, 0.02, halo=sizes[0] // 2)
+    got = fits.snoop_block_fits(z, keep, keep, below, sizes, 1, 0.1, 4.0, 0.02)
+    assert ref[0].any() and ref[1].any()
+    for a, b in zip(ref, got):
+        np.testing.assert_array_equal(a, b)
