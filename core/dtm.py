@@ -105,7 +105,7 @@ from .dtm_refine import (
     refine_reach,
 )
 from .dtm_regions import find_detached_levels, find_raised_regions, regions_halo
-from .estimate import noise_ground_level
+from .estimate import noise_ground_level, noise_shared
 from .fill import fill_gaps
 from .methods import Method, get_method
 
@@ -296,7 +296,8 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         given, noise = member_settings(n, z, cell, progress=sub_progress(share, 0.0, split))
         return resolve_params(n, z, cell, given, progress=sub_progress(share, split, 1.0)), noise
 
-    with ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
+    # the members measure the noise of the same ground-level cells: once (estimate.noise_shared)
+    with noise_shared(), ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
         derived = {n: pool.submit(derive, i, n) for i, n in enumerate(MEMBERS)}
         description = pool.submit(characterise, z, cell)
         results = {n: f.result() for n, f in derived.items()}

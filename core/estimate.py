@@ -39,6 +39,7 @@ says so:
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
   fit needs to reach ground beyond them).
 """
+import contextlib
 import hashlib
 import math
 import threading
@@ -505,6 +506,8 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     h, w = min(rows, _GROUND_WINDOW), min(cols, _GROUND_WINDOW)
     r0, c0 = (rows - h) // 2, (cols - w) // 2
     z = z[r0:r0 + h, c0:c0 + w]
+    if not _NOISE_SHARING:
+        return _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress)
     key = (z.shape, hashlib.blake2b(np.ascontiguousarray(z).data, digest_size=16).digest(),
            float(cell_size[0]), float(cell_size[1]), float(block_m), float(band_m), int(iterations))
     with _NOISE_LOCK:
@@ -532,11 +535,30 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     return dict(entry[1])
 
 
-#: :func:`noise_ground_level`'s memo: the last results, by the measured window's content (the dtm
-#: filter's members each derive their defaults from the same DSM, side by side).
+#: :func:`noise_ground_level`'s memo inside :func:`noise_shared`: the results by the measured
+#: window's content (the dtm filter's members each derive their defaults from the same DSM, side by side).
 _NOISE_MEMO = {}
 _NOISE_MEMO_SIZE = 8
 _NOISE_LOCK = threading.Lock()
+_NOISE_SHARING = 0
+
+
+@contextlib.contextmanager
+def noise_shared():
+    """Within this context (in any thread) :func:`noise_ground_level` measures each window once: a
+    second call on the same content (another member's derivation, side by side) takes the first's
+    result, waiting for it if it is still being measured (its progress then reports 1 at once).
+    Outside, every call measures. The results are forgotten when the last context ends."""
+    global _NOISE_SHARING
+    with _NOISE_LOCK:
+        _NOISE_SHARING += 1
+    try:
+        yield
+    finally:
+        with _NOISE_LOCK:
+            _NOISE_SHARING -= 1
+            if not _NOISE_SHARING:
+                _NOISE_MEMO.clear()
 
 
 def _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress):

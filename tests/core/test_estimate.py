@@ -418,9 +418,9 @@ def test_object_widths_across_a_checkerboard_of_dropouts():
 
 
 def test_noise_ground_level_is_measured_once_per_window_content(monkeypatch):
-    """The dtm filter's members each ask for the noise of the same DSM, side by side: the window is
-    measured once (the others wait for it); a changed window, another cell size or another band is
-    measured again; the results equal a fresh measurement."""
+    """The dtm filter's members each ask for the noise of the same DSM, side by side: inside
+    noise_shared the window is measured once (the others wait for it); a changed window, another
+    cell size or another band is measured again; the results equal a fresh measurement."""
     import threading
     rng = np.random.default_rng(3)
     z = (rng.normal(0, 0.05, (120, 130)) + np.arange(130) * 0.1).astype(np.float32)
@@ -435,6 +435,12 @@ def test_noise_ground_level_is_measured_once_per_window_content(monkeypatch):
         return real(*a)
 
     monkeypatch.setattr(est, "_noise_ground_level", counted)
+    noise_ground_level(z, (1.0, 1.0))
+    noise_ground_level(z, (1.0, 1.0))
+    assert len(calls) == 2 and not est._NOISE_MEMO           # outside noise_shared: measured every time
+    calls.clear()
+    shared = est.noise_shared()
+    shared.__enter__()
     out = [None] * 3
     threads = [threading.Thread(target=lambda i=i: out.__setitem__(i, noise_ground_level(z.copy(), (1.0, 1.0))))
                for i in range(3)]
@@ -451,6 +457,8 @@ def test_noise_ground_level_is_measured_once_per_window_content(monkeypatch):
     assert len(calls) == 4
     out[0]["sigma"] = -1.0                       # a caller's copy: the memo keeps its own
     assert noise_ground_level(z, (1.0, 1.0)) == fresh and len(calls) == 4
+    shared.__exit__(None, None, None)
+    assert not est._NOISE_MEMO                   # forgotten when the context ends
 
 
 def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
@@ -461,7 +469,9 @@ def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
     def cancel(f):
         raise Cancelled()
 
-    with pytest.raises(Cancelled):
-        noise_ground_level(z, (1.0, 1.0), progress=cancel)
-    assert not est._NOISE_MEMO
-    assert np.isfinite(noise_ground_level(z, (1.0, 1.0))["sigma"])
+    with est.noise_shared():
+        with pytest.raises(Cancelled):
+            noise_ground_level(z, (1.0, 1.0), progress=cancel)
+        assert not est._NOISE_MEMO
+        assert np.isfinite(noise_ground_level(z, (1.0, 1.0))["sigma"])
+        assert len(est._NOISE_MEMO) == 1
