@@ -53,6 +53,7 @@ LABELS = {
     "snooping_k": "Outlier test: critical value (data snooping)",
     "snooping_iterations": "Fits per profile and surface",
     "low_weight": "Weight of points below the terrain",
+    "fits_per_block": "Step 6: fit the surfaces once per block of cells (faster)",
     # geodesic dilation
     "min_window_m": "Smallest window (m)",
     "height_threshold_m": "Lowest object height (m)",

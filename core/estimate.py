@@ -46,7 +46,10 @@ says so:
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
   fit needs to reach ground beyond them).
 """
+import contextlib
+import hashlib
 import math
+import threading
 
 import numpy as np
 from scipy import ndimage
@@ -593,6 +596,63 @@ def noise_ground_level(z, cell_size, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BA
     h, w = min(rows, _GROUND_WINDOW), min(cols, _GROUND_WINDOW)
     r0, c0 = (rows - h) // 2, (cols - w) // 2
     z = z[r0:r0 + h, c0:c0 + w]
+    if not _NOISE_SHARING:
+        return _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress)
+    key = (z.shape, hashlib.blake2b(np.ascontiguousarray(z).data, digest_size=16).digest(),
+           float(cell_size[0]), float(cell_size[1]), float(block_m), float(band_m), int(iterations))
+    with _NOISE_LOCK:
+        entry = _NOISE_MEMO.get(key)
+        mine = entry is None
+        if mine:
+            entry = _NOISE_MEMO[key] = [threading.Event(), None]
+            while len(_NOISE_MEMO) > _NOISE_MEMO_SIZE:
+                _NOISE_MEMO.pop(next(iter(_NOISE_MEMO)))
+    if not mine:
+        entry[0].wait()             # the same window measured in another thread (the dtm's members)
+        if entry[1] is not None:
+            report(progress, 1.0)
+            return dict(entry[1])
+        return noise_ground_level(z, cell_size, block_m=block_m, band_m=band_m, iterations=iterations,
+                                  progress=progress)
+    try:
+        entry[1] = _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress)
+    finally:
+        if entry[1] is None:        # failed or cancelled: forgotten, waiters measure it themselves
+            with _NOISE_LOCK:
+                if _NOISE_MEMO.get(key) is entry:
+                    del _NOISE_MEMO[key]
+        entry[0].set()
+    return dict(entry[1])
+
+
+#: :func:`noise_ground_level`'s memo inside :func:`noise_shared`: the results by the measured
+#: window's content (the dtm filter's members each derive their defaults from the same DSM, side by side).
+_NOISE_MEMO = {}
+_NOISE_MEMO_SIZE = 8
+_NOISE_LOCK = threading.Lock()
+_NOISE_SHARING = 0
+
+
+@contextlib.contextmanager
+def noise_shared():
+    """Within this context (in any thread) :func:`noise_ground_level` measures each window once: a
+    second call on the same content (another member's derivation, side by side) takes the first's
+    result, waiting for it if it is still being measured (its progress then reports 1 at once).
+    Outside, every call measures. The results are forgotten when the last context ends."""
+    global _NOISE_SHARING
+    with _NOISE_LOCK:
+        _NOISE_SHARING += 1
+    try:
+        yield
+    finally:
+        with _NOISE_LOCK:
+            _NOISE_SHARING -= 1
+            if not _NOISE_SHARING:
+                _NOISE_MEMO.clear()
+
+
+def _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress):
+    """:func:`noise_ground_level` on its window ``z`` (float32)."""
     out = {"sigma": float("nan"), "samples": 0, "ground_share": 0.0, "block_cells": 0}
     if min(z.shape) < 3 or not np.isfinite(z).any():
         return out

@@ -12,7 +12,9 @@ from scipy import ndimage
 
 from ..common import report, sub_progress
 from .kernels import (
+    BAND_CELLS,
     HALO_BAND_CELLS,
+    block_window,
     centred_moments,
     power_sums,
     row_bands,
@@ -398,3 +400,274 @@ def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_c
     return high, low, under
 
 
+
+
+def _block_sums(a, q, powers, axis):
+    """Sums over blocks of ``q`` cells along ``axis`` (0 or 1 of a 2-D array whose length there is
+    a multiple of ``q``) of ``a k^p`` for each ``p`` of ``powers``, ``k`` the cell's offset from its
+    block's centre: ``{p: sums}``. Along the rows one matrix product gives every power (a sum over
+    a short last axis costs five times as much); down the columns, weighted sums of whole rows."""
+    k = np.arange(q, dtype=np.float64) - (q - 1) / 2.0
+    powers = list(powers)
+    if axis == 1:
+        rows, cols = a.shape
+        res = a.reshape(-1, q) @ np.stack([k ** p for p in powers], 1)
+        res = np.ascontiguousarray(res.T)
+        return {p: res[i].reshape(rows, cols // q) for i, p in enumerate(powers)}
+    v = a.reshape(a.shape[0] // q, q, a.shape[1])
+    out = {}
+    for p in powers:
+        t = v[:, 0] * k[0] ** p
+        for j in range(1, q):
+            t += v[:, j] * k[j] ** p if p else v[:, j]
+        out[p] = t
+    return out
+
+
+def _absolute_window_sums(sums, pos, n, axis):
+    """Window sums of ``n`` blocks along ``axis`` of the block moments ``sums`` ({p: sum w k^p},
+    ``k`` about each block's centre ``pos``), about the window's centre block (p <= 2).
+
+    Each block's moments are moved to absolute positions (``sum w (pos + k)^p``), summed over the
+    window as a running mean times ``n`` (0 beyond the raster) and recentred on the centre block's
+    position (:func:`~.kernels.centred_moments`)."""
+    b0 = sums[0]
+    out = {0: running_mean(b0, n, axis) * n}
+    if 1 in sums:
+        a1 = sums[1] + pos * b0
+        out[1] = running_mean(a1, n, axis) * n
+        if 2 in sums:
+            a2 = sums[2] + pos * (2.0 * sums[1] + pos * b0)
+            out[2] = running_mean(a2, n, axis) * n
+            centred_moments(pos, out[0], out[1], out[2])
+        else:
+            centred_moments(pos, out[0], out[1])
+    return out
+
+
+def block_fit_model(band, shape, sizes, degree):
+    """The weighted least-squares fits of moving windows computed once per block of cells.
+
+    The raster is cut into blocks of ``qy x qx`` cells from its upper-left corner
+    (:func:`~.kernels.block_window` of each window side; ``sizes[0] == 1``: profiles along the
+    rows, 1-D). The window of a block spans ``ny x nx`` blocks centred on it; its fit (all its
+    points, the block's own included) is solved from the blocks' moment sums: the model's
+    coefficients about the block's centre and the inverse normal matrix, for :func:`block_fits`
+    to evaluate at each cell.
+
+    Parameters
+    ----------
+    band : callable
+        ``band(r0, r1) -> (z, w)``: heights (finite where ``w > 0``) and weights of rows
+        ``r0:r1``, float64 (read in bands: no full-size temporary).
+    shape : (int, int)
+    sizes : (int, int)
+        Window in cells (rows, columns).
+    degree : int
+        0 mean / horizontal plane, 1 linear / inclined plane.
+
+    Returns
+    -------
+    dict
+        ``blocks`` (qy, qx), ``coef`` (the model's coefficients: mean; or height, x-slope[, y-slope]
+        at the block's centre, per cell of x and y), ``ginv`` (the entries of ``N^-1`` weighting
+        ``1, dx, dy`` and their products: ``g = v^T N^-1 v``), each a coarse array (NaN where the
+        window's points do not determine the model).
+    """
+    sy, sx = sizes
+    two_d = sy > 1
+    qy, ny = block_window(sy) if two_d else (1, 1)
+    qx, nx = block_window(sx)
+    rows, cols = shape
+    R, C = -(-rows // qy), -(-cols // qx)
+    top_w, top_z = (2, 1) if degree else (0, 0)
+    keys_w = [(p, q) for p in range(top_w + 1) for q in range(top_w + 1 - p) if two_d or q == 0]
+    keys_z = [(p, q) for p in range(top_z + 1) for q in range(top_z + 1 - p) if two_d or q == 0]
+    m = {key: np.empty((R, C)) for key in keys_w}
+    zz = {key: np.empty((R, C)) for key in keys_z}
+    step = qy * max(1, (HALO_BAND_CELLS // 4) // max(1, cols * qy))
+    wp = np.zeros((step, C * qx))
+    zp = np.zeros((step, C * qx))
+    for r0 in range(0, R * qy, step):             # block moments in bands of whole blocks
+        r1 = min(rows, r0 + step)
+        hb = -(-(r1 - r0) // qy) * qy
+        zb, wb = band(r0, r1)
+        if hb == r1 - r0 and cols == C * qx:          # whole blocks: no padding
+            wv, zv = wb, np.multiply(wb, zb, out=zp[:hb])
+        else:
+            wp[:hb] = 0.0
+            wp[:r1 - r0, :cols] = wb
+            zp[:hb] = 0.0
+            np.multiply(wb, zb, out=zp[:r1 - r0, :cols])
+            wv, zv = wp[:hb], zp[:hb]
+        for v, keys, out in ((wv, keys_w, m), (zv, keys_z, zz)):
+            xs = _block_sums(v, qx, sorted({p for p, _ in keys}), 1)       # along x, then y
+            for p, s in xs.items():
+                ys = _block_sums(s, qy, sorted({q for pp, q in keys if pp == p}), 0)
+                for q, t in ys.items():
+                    out[p, q][r0 // qy:r0 // qy + hb // qy] = t
+    X = (np.arange(C) * qx + (qx - 1) / 2.0 - cols // 2)[None, :]
+    Y = (np.arange(R) * qy + (qy - 1) / 2.0 - rows // 2)[:, None]
+    for src in (m, zz):
+        if two_d:                                   # along y: each x-moment's y-moments over the window
+            for p in sorted({p for p, _ in src}):
+                for q, v in _absolute_window_sums({q: src[p, q] for pp, q in src if pp == p}, Y, ny, 0).items():
+                    src[p, q] = v
+        for q in sorted({q for _, q in src}):       # then along x
+            for p, v in _absolute_window_sums({p: src[p, q] for p, qq in src if qq == q}, X, nx, 1).items():
+                src[p, q] = v
+    with np.errstate(all="ignore"):
+        if degree == 0:
+            m00 = m[0, 0]
+            ok = m00 > 1e-9
+            inv = np.where(ok, 1.0 / m00, np.nan)
+            return {"blocks": (qy, qx), "coef": (zz[0, 0] * inv,), "ginv": (inv,), "two_d": two_d}
+        if not two_d:
+            m0, m1, m2, z0, z1 = m[0, 0], m[1, 0], m[2, 0], zz[0, 0], zz[1, 0]
+            det = m0 * m2 - m1 * m1
+            det = np.where(det > 1e-9 * m0 * m2, det, np.nan)
+            a = (z0 * m2 - z1 * m1) / det
+            b = (m0 * z1 - m1 * z0) / det
+            return {"blocks": (qy, qx), "coef": (a, b), "ginv": (m2 / det, -2.0 * m1 / det, m0 / det),
+                    "two_d": False}
+        m00, m10, m01, m20, m11, m02 = m[0, 0], m[1, 0], m[0, 1], m[2, 0], m[1, 1], m[0, 2]
+        z00, z10, z01 = zz[0, 0], zz[1, 0], zz[0, 1]
+        c00 = m20 * m02 - m11 * m11
+        c01 = m11 * m01 - m10 * m02
+        c02 = m10 * m11 - m20 * m01
+        c11 = m00 * m02 - m01 * m01
+        c12 = m10 * m01 - m00 * m11
+        c22 = m00 * m20 - m10 * m10
+        det = m00 * c00 + m10 * c01 + m01 * c02
+        det = np.where(det > 1e-9 * np.abs(m00 * c00), det, np.nan)
+        a = (c00 * z00 + c01 * z10 + c02 * z01) / det
+        bxs = (c01 * z00 + c11 * z10 + c12 * z01) / det
+        bys = (c02 * z00 + c12 * z10 + c22 * z01) / det
+        # g = v^T N^-1 v, v = (1, dx, dy): c00 + 2 dx c01 + 2 dy c02 + dx^2 c11 + 2 dx dy c12 + dy^2 c22, / det
+        return {"blocks": (qy, qx), "coef": (a, bxs, bys),
+                "ginv": tuple(c / det for c in (c00, 2.0 * c01, 2.0 * c02, c11, 2.0 * c12, c22)), "two_d": True}
+
+
+def block_fits(model, z, w, r0, r1, row0=None):
+    """Leave-one-out fit ``zhat`` and variance factor ``h`` at the cells of rows ``r0:r1`` of ``z``
+    and ``w`` (the raster's rows ``row0 + r0 ...``, ``row0`` default 0; the raster's row a multiple
+    of the block's rows) from the block fits of :func:`block_fit_model`, float32.
+
+    A cell at ``(dx, dy)`` from its block's centre takes the model of its block's window there,
+    ``z_f = a + b_x dx + b_y dy``, with ``g = v^T N^-1 v``; leaving the cell (weight ``w``) out of
+    that fit gives (Sherman-Morrison) the residual ``(z - z_f) / (1 - w g)`` and the prediction
+    variance factor ``g / (1 - w g)``: the leave-one-out fit of :func:`fit_box_2d` /
+    :func:`fit_rows` for the window centred on the cell's block. Heights are those given (the
+    caller centres them so float32 keeps them to a tenth of a millimetre). NaN where undetermined.
+    """
+    r, h = block_residuals(model, z, w, r0, r1, row0)
+    return np.subtract(z[r0:r1], r, out=r), h
+
+
+def block_residuals(model, z, w, r0, r1, row0=None):
+    """:func:`block_fits` as the leave-one-out residuals ``z - zhat`` and ``h`` (float32)."""
+    qy, qx = model["blocks"]
+    rows, cols = r1 - r0, z.shape[1]
+    R, C = -(-rows // qy), -(-cols // qx)
+    b0 = (r0 + (row0 or 0)) // qy
+    whole = rows == R * qy and cols == C * qx
+
+    def coarse(a):                                 # the band's blocks, broadcast over their cells
+        return a[b0:b0 + R].astype(np.float32)[:, None, :, None]
+
+    def fine(a):                                   # the band's cells as (blocks, qy, blocks, qx)
+        if whole:
+            return np.asarray(a[r0:r1], np.float32).reshape(R, qy, C, qx)
+        out = np.zeros((R * qy, C * qx), np.float32)
+        out[:rows, :cols] = a[r0:r1]
+        return out.reshape(R, qy, C, qx)
+
+    dx = (np.arange(qx, dtype=np.float32) - (qx - 1) / 2.0)[None, None, None, :]
+    dy = (np.arange(qy, dtype=np.float32) - (qy - 1) / 2.0)[None, :, None, None]
+    coef = [coarse(c) for c in model["coef"]]
+    gi = [coarse(c) for c in model["ginv"]]
+    full = (R, qy, C, qx)
+    r = np.subtract(fine(z), coef[0])              # z - z_f, z_f = a + b_x dx + b_y dy
+    if len(coef) == 1:                             # the mean: g = 1 / M0 wherever the cell lies
+        g = np.broadcast_to(gi[0], full).copy()
+    else:
+        r -= coef[1] * dx
+        g = gi[0] + dx * (gi[1] + dx * gi[2 if len(coef) == 2 else 3])
+        if len(coef) == 3:
+            r -= coef[2] * dy
+            g = g + dy * (gi[2] + dx * gi[4] + dy * gi[5])
+        else:
+            g = np.broadcast_to(g, full).copy()
+    den = np.multiply(fine(w), g)
+    np.subtract(1.0, den, out=den)
+    with np.errstate(all="ignore"):
+        np.copyto(den, np.nan, where=den <= 1e-6)  # the cell alone determines its window: no fit
+        r /= den
+        g /= den
+    return r.reshape(R * qy, C * qx)[:rows, :cols], g.reshape(R * qy, C * qx)[:rows, :cols]
+
+
+#: Cells per slab of rows whose profile moments :func:`snoop_block_fits` computes at once.
+_PROFILE_SLAB_CELLS = 1 << 20
+
+
+def snoop_block_fits(z, keep, test, below, sizes, degree, s, k, low_weight, progress=None):
+    """:func:`fit_and_snoop` with the fits computed once per block of cells (:func:`block_fit_model`,
+    :func:`block_fits`): a cell is tested against the leave-one-out fit of the window centred on
+    its block (at most half a block, ``1 / 32`` of the window, from its own), in float32 on heights
+    centred on the raster's median (their spread, not their magnitude, sets the precision).
+
+    ``sizes`` ``(rows, cols)`` of the window (``(1, cols)``: profiles along the rows), ``degree``
+    0 or 1. The cells' weights as in :func:`fit_and_snoop` (1 where ``keep``, ``low_weight``
+    where also ``below``). Returns ``high, low, below`` like :func:`fit_and_snoop`.
+    """
+    rows, cols = z.shape
+    sample = z.reshape(-1)[::max(1, z.size // 100_000)]
+    sample = sample[np.isfinite(sample)]
+    ref = float(np.median(sample)) if sample.size else 0.0
+
+    def band(r0, r1, dtype=np.float64):
+        kb = keep[r0:r1]
+        zb = np.subtract(z[r0:r1], ref, dtype=dtype)
+        np.copyto(zb, 0.0, where=~kb)             # weight 0 there (NaN must not reach the sums)
+        wb = kb.astype(dtype)
+        if below is not None:
+            np.copyto(wb, low_weight, where=below[r0:r1] & kb)
+        return zb, wb
+
+    two_d = sizes[0] > 1
+    # a window's model: of the whole raster (surfaces), or of each slab of rows (profiles: a slab
+    # holds its whole windows; the model's moments are 1 / q of the slab)
+    model = block_fit_model(band, z.shape, sizes, degree) if two_d else None
+    qy = model["blocks"][0] if two_d else 1
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    under = np.zeros(z.shape, bool)
+    ks2 = np.float32((k * s) ** 2)
+    step = qy * max(1, BAND_CELLS // max(1, cols * qy))
+    slab = step * max(1, _PROFILE_SLAB_CELLS // max(1, cols * step))
+    with np.errstate(invalid="ignore"):            # NaN fits are not tested
+        for r0 in range(0, rows, step):
+            report(progress, r0 / rows)
+            r1 = min(rows, r0 + step)
+            if not two_d and r0 % slab == 0:
+                s1 = min(rows, r0 + slab)
+                model = block_fit_model(lambda a, b, s0=r0: band(s0 + a, s0 + b), (s1 - r0, cols), sizes, degree)
+                s0 = r0
+            zb, wb = band(r0, r1, np.float32)
+            v, h = block_residuals(model, zb, wb, 0, r1 - r0, row0=r0 if two_d else r0 - s0)
+            tb = test[r0:r1]
+            bl = v < 0.0
+            bl &= tb
+            v *= v
+            np.maximum(h, 0.0, out=h)
+            h *= ks2
+            h += ks2
+            hi = v > h
+            hi &= tb
+            hi &= ~bl
+            h += ks2 / np.float32(low_weight) - ks2
+            lo = v > h
+            lo &= bl
+            high[r0:r1], low[r0:r1], under[r0:r1] = hi, lo, bl
+    return high, low, under

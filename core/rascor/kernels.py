@@ -166,3 +166,40 @@ def gauss_weights(radius_cells):
     r = max(1, int(np.ceil(radius_cells)))
     x = np.arange(-r, r + 1.0)
     return np.exp(-0.5 * (x / max(radius_cells / 2.0, 0.5)) ** 2)
+
+
+#: Blocks across a window of the block fits (:func:`block_window`): the window a cell is
+#: tested against is centred on its block, at most ``1 / (2 x 16)`` of the window from the
+#: cell (1 m of a 65 m window at 2 m blocks).
+BLOCKS_PER_WINDOW = 16
+#: Largest block of the block fits, cells: a power of two dividing every window corner of a
+#: blocked run (:data:`~bare_earth.core.blocks.MIN_ALIGN`), so blocks see the single pass's grid.
+MAX_FIT_BLOCK = 64
+
+
+def block_window(size, ratio=BLOCKS_PER_WINDOW):
+    """Block and window of a moving fit of ``size`` cells computed once per block.
+
+    Returns ``(q, n)``: blocks of ``q`` cells, the largest power of two (at most
+    :data:`MAX_FIT_BLOCK`) with ``q <= size / ratio``, and the odd number ``n`` of blocks whose
+    span ``n q`` is nearest ``size`` (``(1, size)``: windows too short, one cell per block).
+
+    Examples
+    --------
+    >>> block_window(65), block_window(25), block_window(129)
+    ((4, 17), (1, 25), (8, 17))
+    """
+    size = int(size)
+    q = 1
+    while 2 * q <= size / ratio and 2 * q <= MAX_FIT_BLOCK:
+        q *= 2
+    if q == 1:
+        return 1, size
+    return q, 2 * int(round((size / q - 1) / 2)) + 1
+
+
+def block_reach(size, ratio=BLOCKS_PER_WINDOW):
+    """Farthest a block fit of a ``size``-cell window (:func:`block_window`) reaches from a
+    cell, cells: half the window from the block's centre, plus half a block."""
+    q, n = block_window(size, ratio)
+    return (n * q) // 2 + q // 2

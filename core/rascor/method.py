@@ -103,6 +103,10 @@ METHOD = Method(
         Param("low_weight", "float", 0.02, "Weight factor of points below the reference: "
               "their tolerance is 1/sqrt(weight) wider, so ditches stay while deep low "
               "blunders go (class 2).", minimum=0.001, maximum=1.0, advanced=True),
+        Param("fits_per_block", "bool", False, "Step 6: fit surface windows of at least 32 cells "
+              "a side once per block of cells (at most 1/16 of the window) and test each cell against the "
+              "leave-one-out fit of the window centred on its block: faster, nearly the same tests (what "
+              "the dtm filter asks of its RASCOR member).", advanced=True),
     ),
     title="RASCOR sequential filter (Jacobsen 2004)",
     description=(

@@ -10,8 +10,8 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, sub_progress, transpose
-from .fits import fit_and_snoop, fit_at_centre, fit_box_2d, fit_rows
-from .kernels import gauss_weights, odd_window
+from .fits import fit_and_snoop, fit_at_centre, fit_box_2d, fit_rows, snoop_block_fits
+from .kernels import block_window, gauss_weights, odd_window
 from .terrain import model_degree
 
 #: Cells per tile (halo included) of the polynomial surface: 65 m windows took 0.8-0.9 s a
@@ -108,7 +108,8 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
                             size_m: float, terrain_class: str, scale_m: float, k: float = 4.0,
                             low_weight: float = 0.02, iterations: int = 1,
                             test: Optional[np.ndarray] = None, labels: Optional[np.ndarray] = None,
-                            homogeneous: bool = True, progress: Optional[Callable[[float], None]] = None
+                            homogeneous: bool = True, per_block: bool = False,
+                            progress: Optional[Callable[[float], None]] = None
                             ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 6: moving surfaces: horizontal plane, inclined plane or polynomial.
 
@@ -118,6 +119,9 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     factor as :func:`remove_profile_outliers`. Windows never reach across a break line.
     A flat but inhomogeneous area gets the inclined plane (:func:`model_degree`). In
     mountainous terrain (the polynomial) the windows run in tiles of bounded work.
+    ``per_block``: windows of at least 32 cells a side (horizontal or inclined plane, no break
+    lines) fitted once per block of cells, each cell tested against the leave-one-out fit of the
+    window centred on its block (:func:`~.fits.snoop_block_fits`, float32 on centred heights).
     ``progress(fraction)`` is called every band or tile (it may raise ``Cancelled``).
 
     Returns
@@ -127,6 +131,8 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     dx, dy = as_cell_size(cell_size)
     degree = model_degree(terrain_class, homogeneous)
     sizes = (odd_window(size_m / dy, 3), odd_window(size_m / dx, 3))
+    blocks = (per_block and degree <= 1 and labels is None
+              and max(block_window(sizes[0])[0], block_window(sizes[1])[0]) > 1)
     test = keep if test is None else test & keep
     cur = keep.copy()
     high = np.zeros(z.shape, bool)
@@ -141,10 +147,13 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     # the polynomial's centred sums cost O(window) per cell: tiles of bounded work
     tiles = {} if degree <= 1 else dict(halo_cols=sizes[1] // 2, tile_cells=_POLY_TILE_CELLS)
     for i in range(iterations):
-        hi, lo, below = fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
-                                       halo=sizes[0] // 2, labels=labels, work=work, **tiles,
-                                       progress=sub_progress(progress, i / iterations,
-                                                             (i + 1) / iterations))
+        part = sub_progress(progress, i / iterations, (i + 1) / iterations)
+        if blocks:
+            hi, lo, below = snoop_block_fits(z, cur, test & cur, below, sizes, degree, scale_m, k, low_weight,
+                                             progress=part)
+        else:
+            hi, lo, below = fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
+                                           halo=sizes[0] // 2, labels=labels, work=work, **tiles, progress=part)
         high |= hi
         low |= lo
         cur &= ~(hi | lo)

@@ -20,7 +20,7 @@ from ..estimate import (
     terrain_bends,
 )
 from .fits import fit_at_centre
-from .kernels import finite_float64, gauss_weights, odd_window
+from .kernels import block_reach, finite_float64, gauss_weights, odd_window
 from .sequence import SURFACE_RULES, cell_rise, ring_reach
 from .steps import remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope, model_degree
@@ -40,7 +40,7 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
                 prediction_radius_m=None, prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
-                low_weight=0.02)
+                low_weight=0.02, fits_per_block=False)
 #: A length is accepted while its residual scale stays below this factor of the shortest's.
 _SCALE_GROWTH = 2.0
 
@@ -438,7 +438,9 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     r5 = iters * sum(max(cells(L) // 2 + 1, ring) for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
                                                             p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
         if on[5] else 0
-    r6 = iters * max(cells(p["surface_size_m"] or max(SURFACE_SIZES_M)) // 2 + 1, ring) if on[6] else 0
+    size6 = p["surface_size_m"] or max(SURFACE_SIZES_M)
+    half6 = max(cells(size6) // 2, block_reach(odd_window(size6 / cs)) if p.get("fits_per_block") else 0)
+    r6 = iters * max(half6 + 1, ring) if on[6] else 0   # a block fit reaches half a block further
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
     once = r3 + r5 + r6 + r7
     return int(r4 + once * (2 if p["second_iteration"] else 1))

@@ -58,6 +58,7 @@ class _Settings:
     snooping_k: float
     snooping_iterations: int
     low_weight: float
+    fits_per_block: bool = False
 
 
 @dataclass
@@ -128,7 +129,7 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
                     second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, terrain_bend_m,
                     jump_m, max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
-                    snooping_k, snooping_iterations, low_weight):
+                    snooping_k, snooping_iterations, low_weight, fits_per_block=False):
     """Check the parameters (ValueError naming the fix) and return the :class:`_Settings`."""
     dx, dy = as_cell_size(cell_size)
     if terrain_class not in TERRAIN_CLASSES:
@@ -177,7 +178,7 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         surface_sigma_m=max(sigma_m, surface_sigma_m or sigma_m),
         prediction_sigma_m=max(sigma_m, prediction_sigma_m or sigma_m),
         snooping_k=snooping_k, snooping_iterations=int(snooping_iterations),
-        low_weight=low_weight)
+        low_weight=low_weight, fits_per_block=bool(fits_per_block))
 
 
 def _start(z, breaklines, special_areas):
@@ -275,7 +276,7 @@ def _step6_surfaces(st, cfg, progress):
         st.z, cfg.cell, st.keep, size_m=cfg.surface_size_m, scale_m=cfg.surface_sigma_m,
         terrain_class=cfg.terrain_class, homogeneous=cfg.homogeneous,
         iterations=cfg.snooping_iterations, test=st.global_ok, k=cfg.snooping_k,
-        low_weight=cfg.low_weight, labels=st.labels, progress=progress)
+        low_weight=cfg.low_weight, labels=st.labels, per_block=cfg.fits_per_block, progress=progress)
     _record(st, 6, hi, lo)
 
 
@@ -335,7 +336,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   surface_rule: str = "objects",
                   surface_sigma_m: Optional[float] = None, prediction_radius_m: float = 3.0,
                   prediction_sigma_m: Optional[float] = None, snooping_k: float = 4.0,
-                  snooping_iterations: int = 1, low_weight: float = 0.02,
+                  snooping_iterations: int = 1, low_weight: float = 0.02, fits_per_block: bool = False,
                   steps: Optional[Iterable[int]] = None, breaklines: Optional[np.ndarray] = None,
                   special_areas: Optional[np.ndarray] = None,
                   progress: Optional[Callable[[float], None]] = None) -> FilterResult:
@@ -395,6 +396,13 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         Fits per length / direction (step 5) and per surface (step 6).
     low_weight : float
         Weight factor of points below the reference (0 < p <= 1).
+    fits_per_block : bool
+        Step 6: surfaces of at least 32 cells a side (horizontal or inclined plane, no break
+        lines) fitted once per block of cells and evaluated at each cell, leave-one-out
+        (:func:`~.fits.snoop_block_fits`): a cell is tested against the window centred on its
+        block instead of on itself (at most 1/32 of the window away, the window's side rounded
+        to whole blocks). Faster; what the dtm filter asks of its RASCOR member. (Step 5's profiles
+        gain nothing from it: one axis of blocks saves less than the blocks cost.)
     steps : iterable of int, optional
         If given, overrides the switches: the step numbers (1-7) to run.
     breaklines : array_like of bool, optional
@@ -425,7 +433,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,
         prediction_radius_m=prediction_radius_m, prediction_sigma_m=prediction_sigma_m,
-        snooping_k=snooping_k, snooping_iterations=snooping_iterations, low_weight=low_weight)
+        snooping_k=snooping_k, snooping_iterations=snooping_iterations, low_weight=low_weight,
+        fits_per_block=fits_per_block)
     report(progress, 0.0)
     st = _start(z, breaklines, special_areas)
     # a gap between crowns or roofs is at the level of the other low cells around it and is

@@ -279,13 +279,15 @@ def test_member_settings_rascor_noise_from_the_ground_level_cells():
     s = make_scene("forest", (96, 96), seed=1, noise_m=0.3)
     given, noise = dtm_method.member_settings("rascor", s.dsm, (1.0, 1.0))
     assert noise == noise_ground_level(s.dsm, (1.0, 1.0))["sigma"] and noise > SIGMA_FLOOR
-    assert given == {"surface_rule": "residuals", "terrain_bend_m": 0.0, "sigma_m": round(noise, 3)}
+    asked = dtm_method.MEMBER_SETTINGS["rascor"]
+    assert asked == {"surface_rule": "residuals", "terrain_bend_m": 0.0, "fits_per_block": True}
+    assert given == {**asked, "sigma_m": round(noise, 3)}
     y, x = grid(64)
     flat = noisy(0.02 * x, seed=0, sd=0.01)                        # ground noise under RASCOR's floor
     assert dtm_method.member_settings("rascor", flat, (1.0, 1.0))[0]["sigma_m"] == SIGMA_FLOOR
     tiny = np.zeros((4, 4), np.float32)                            # too few cells: not measurable
     given, noise = dtm_method.member_settings("rascor", tiny, (1.0, 1.0))
-    assert not np.isfinite(noise) and given == {"surface_rule": "residuals", "terrain_bend_m": 0.0}
+    assert not np.isfinite(noise) and given == asked
     for n in ("morphological", "geodesic"):
         assert dtm_method.member_settings(n, s.dsm, (1.0, 1.0)) == (dtm_method.MEMBER_SETTINGS.get(n), None)
 

@@ -515,3 +515,63 @@ def test_below_level_rim_leaves_gaps_between_crowns_and_unknown_rims():
     assert got[2, 16]                                  # near the corner: 17 of 24 rim cells inside
     assert not got[0, 18]                              # 8 of 24 inside: no evidence
     assert got.sum() == 2
+
+
+def test_noise_ground_level_is_measured_once_per_window_content(monkeypatch):
+    """The dtm filter's members each ask for the noise of the same DSM, side by side: inside
+    noise_shared the window is measured once (the others wait for it); a changed window, another
+    cell size or another band is measured again; the results equal a fresh measurement."""
+    import threading
+    rng = np.random.default_rng(3)
+    z = (rng.normal(0, 0.05, (120, 130)) + np.arange(130) * 0.1).astype(np.float32)
+    z[40:60, 40:70] += 8.0
+    est._NOISE_MEMO.clear()
+    fresh = est._noise_ground_level(z, (1.0, 1.0), est.GROUND_BLOCK_M, est.GROUND_BAND_M, 3, None)
+    calls = []
+    real = est._noise_ground_level
+
+    def counted(*a):
+        calls.append(1)
+        return real(*a)
+
+    monkeypatch.setattr(est, "_noise_ground_level", counted)
+    noise_ground_level(z, (1.0, 1.0))
+    noise_ground_level(z, (1.0, 1.0))
+    assert len(calls) == 2 and not est._NOISE_MEMO           # outside noise_shared: measured every time
+    calls.clear()
+    shared = est.noise_shared()
+    shared.__enter__()
+    out = [None] * 3
+    threads = [threading.Thread(target=lambda i=i: out.__setitem__(i, noise_ground_level(z.copy(), (1.0, 1.0))))
+               for i in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(calls) == 1 and all(o == fresh for o in out)
+    z2 = z.copy()
+    z2[5, 5] += 0.5
+    assert noise_ground_level(z2, (1.0, 1.0)) == real(z2, (1.0, 1.0), est.GROUND_BLOCK_M, est.GROUND_BAND_M, 3, None)
+    noise_ground_level(z, (2.0, 2.0))
+    noise_ground_level(z, (1.0, 1.0), band_m=1.0)
+    assert len(calls) == 4
+    out[0]["sigma"] = -1.0                       # a caller's copy: the memo keeps its own
+    assert noise_ground_level(z, (1.0, 1.0)) == fresh and len(calls) == 4
+    shared.__exit__(None, None, None)
+    assert not est._NOISE_MEMO                   # forgotten when the context ends
+
+
+def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
+    from bare_earth.core.common import Cancelled
+    z = (np.random.default_rng(4).normal(0, 0.05, (80, 80))).astype(np.float32)
+    est._NOISE_MEMO.clear()
+
+    def cancel(f):
+        raise Cancelled()
+
+    with est.noise_shared():
+        with pytest.raises(Cancelled):
+            noise_ground_level(z, (1.0, 1.0), progress=cancel)
+        assert not est._NOISE_MEMO
+        assert np.isfinite(noise_ground_level(z, (1.0, 1.0))["sigma"])
+        assert len(est._NOISE_MEMO) == 1
