@@ -72,10 +72,7 @@ algorithm's help.
    cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
    cell``, falls and such flanks would open runs; our design, issue 12).
    Two passes catch stepped roofs. This removes what the dilation left (objects on
-   steep slopes, thin walls, leftovers of merged regions). Nodata ends a run, except a
-   one-cell dropout between two valid cells of a row or a column, which the scan bridges
-   with the lowest valid cell around it (:func:`~.filter.bridge_dropouts`: on a DSM with every
-   other cell empty no run survived; issue 12).
+   steep slopes, thin walls, leftovers of merged regions).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed
    cell and stands above one of its 8 neighbours by more than ``dh0 + tan(terrain_slope)
    * cell_diagonal`` is the foot of a wall or the edge of a crown (a cell mixing object

@@ -26,52 +26,16 @@ STEP_ISLAND = 253
 STEP_NODATA = 255
 
 
-def bridge_dropouts(z):
-    """``z`` with its one-cell dropouts bridged, and the cells that were valid (None: no nodata).
-
-    A nodata cell between two valid cells along its row or its column (a dropout: a missed
-    scan line, a checkerboard of empty cells) takes the lowest valid cell of its 3 x 3
-    neighbourhood, so that a profile crossing it is not cut; a wider gap keeps its nodata and
-    still ends the runs (nothing is seen across it). On a DSM with every other cell empty no
-    profile held a run, and scan labelling removed nothing: 30 % of a city's object cells
-    stayed ground (issue 12).
-
-    Examples
-    --------
-    >>> z = np.array([[1, np.nan, 3], [4, 5, 6]], np.float32)
-    >>> bridged, valid = bridge_dropouts(z)
-    >>> bridged.tolist(), valid.tolist()
-    ([[1.0, 1.0, 3.0], [4.0, 5.0, 6.0]], [[True, False, True], [True, True, True]])
-    """
-    bad = np.isnan(z)
-    if not bad.any():
-        return z, None
-    valid = ~bad
-    one = np.zeros(z.shape, bool)
-    one[:, 1:-1] = valid[:, :-2] & valid[:, 2:]
-    one[1:-1, :] |= valid[:-2, :] & valid[2:, :]
-    one &= bad
-    low = rect_filter(np.where(bad, np.inf, z), (3, 3), np.minimum, np.inf)
-    out = z.copy()
-    np.copyto(out, low, where=one)
-    return out, valid
-
-
 def label_scans(cleaned, cell_size, p, removed, step, progress=None):
     """Stage 3: scan labelling of the cleaned surface (:func:`~.scan.scan_label`).
 
     Runs of cells that open with a rise and close with a fall are removed (``removed``
-    updated in place); cells not coded yet get :data:`STEP_SCAN`. One-cell dropouts are
-    bridged for the scan (:func:`bridge_dropouts`); only valid cells are labelled. Returns
-    their count.
+    updated in place); cells not coded yet get :data:`STEP_SCAN`. Returns their count.
     """
-    surface, valid = bridge_dropouts(cleaned)
-    lab = scan_label(surface, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
+    lab = scan_label(cleaned, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
                      max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
                      oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"],
                      passes=SCAN_PASSES, progress=progress)
-    if valid is not None:
-        lab &= valid
     new = lab & ~removed & (step == 0)
     step[new] = STEP_SCAN
     removed |= lab

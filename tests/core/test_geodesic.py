@@ -567,36 +567,6 @@ def test_forested_slope_keeps_the_ground_beside_the_crowns():
     assert np.mean(res.mask[~crowns] == OBJECT) < 0.06
 
 
-def test_bridge_dropouts_fills_one_cell_gaps_only():
-    from bare_earth.core.geodesic.filter import bridge_dropouts
-    z = np.array([[5, np.nan, 7, 8, np.nan, np.nan, 2],
-                  [1, 9, 9, 9, 9, 9, 9],
-                  [3, np.nan, 4, 4, 4, 4, 4]], np.float32)
-    out, valid = bridge_dropouts(z)
-    assert out[0, 1] == 1.0 and out[2, 1] == 1.0  # between two valid cells: the lowest around
-    assert np.isnan(out[0, 4]) and np.isnan(out[0, 5])   # a two-cell gap stays a gap
-    np.testing.assert_array_equal(valid, np.isfinite(z))
-    full = np.ones((3, 3), np.float32)
-    assert bridge_dropouts(full)[0] is full and bridge_dropouts(full)[1] is None
-
-
-def test_a_checkerboard_of_dropouts_keeps_the_objects_out():
-    """Every other cell of a city missing: no row or column held a run, scan labelling removed
-    nothing and 30 % of the object cells stayed ground; with one-cell dropouts bridged none."""
-    from bare_earth.core.synthetic import make_scene
-    s = make_scene("city", (256, 256), seed=5)
-    z = s.dsm.copy()
-    y, x = np.mgrid[0:256, 0:256]
-    z[(y + x) % 2 == 0] = np.nan
-    res = geo.filter_geodesic(z, 1.0, **geo.resolve_geodesic_params(z, 1.0))
-    obj = (s.mask == OBJECT) & np.isfinite(z)
-    ground = (s.mask != OBJECT) & np.isfinite(z)
-    assert np.count_nonzero(obj & (res.mask == GROUND)) < 0.01 * np.count_nonzero(obj)
-    assert np.count_nonzero(ground & (res.mask == OBJECT)) < 0.01 * np.count_nonzero(ground)
-    assert (res.mask[np.isnan(z)] == NODATA).all()
-    assert res.info["removed_scan"] > 0
-
-
 def test_core_enforces_the_param_limits():
     """The dialog's bounds (PARAMS) are the core's: just outside fails, the bounds pass."""
     z = flat_scene(40)
