@@ -9,7 +9,7 @@ from scipy import ndimage
 from bare_earth.core import rascor, synthetic
 from bare_earth.core.codes import GROUND, LOW, OBJECT
 from bare_earth.core.common import Cancelled
-from bare_earth.core.estimate import PIT_RADIUS_M, below_surroundings
+from bare_earth.core.estimate import PIT_RADIUS_M, below_level_rim, below_surroundings
 from bare_earth.core.rascor import fits, kernels, moving, sequence, steps, terrain
 
 N = 64
@@ -454,10 +454,13 @@ def test_halo_covers_the_ring_test_of_low_blunders():
     """Step 3 alone (and step 7's reach) is 3-4 cells, but a low blunder it finds is
     removed only when it lies below the whole ring around it (10 m): a pit 10 rows from a
     deeper-lying cell (its witness, so no blunder) near a block's edge is a blunder to a
-    block whose halo stops short of the witness."""
+    block whose halo stops short of the witness. (A post on each pit's rim: no level
+    ground, so the ring alone decides; on open ground both pits are blunders, issue 12.)"""
     z = plane(120, 0.002, 0.001)[:, :60]
     z[46, 30] -= 5.0                                  # in the first block's core (rows 0-47)
+    z[43, 30] += 3.0                                  # a post on its rim (3 rows up)
     z[56, 30] -= 4.8                                  # 10 rows below: the ring's witness
+    z[59, 30] += 3.0                                  # ... with a post on its rim
     p = rascor.resolve_rascor_params(z, 1.0, sigma_m=0.1)
     p.update(step2_height_distribution=False, step4_level_change=False, step5_profiles=False,
              step6_surfaces=False)
@@ -679,12 +682,13 @@ def _pitted_surface(shape, cell, seed):
 @pytest.mark.parametrize("share", [0.0, 0.001, 1.0])
 def test_ring_test_at_the_candidates_equals_the_whole_map(monkeypatch, cell, shape, share):
     """sequence._Pits (the low blunders' ring test asked at the candidates only, few or
-    many) answers as the full map of estimate.below_surroundings, at the array's edges and
-    corners too, for non-square cells; each cell is tested once."""
+    many) answers as the full map of estimate.below_surroundings or below_level_rim, at the
+    array's edges and corners too, for non-square cells; each cell is tested once."""
     z = _pitted_surface(shape, cell, 7)
     depth = 0.42
     full = below_surroundings(z, cell, depth)
     assert full.any() and not full.all()
+    full |= below_level_rim(z, cell, depth, 0.0, ~full)
     rng = np.random.default_rng(3)
     pits = sequence._Pits(z, cell, depth)
     cand = np.flatnonzero((rng.random(z.size) < share) | (z.ravel() < 99.5))
@@ -1250,3 +1254,44 @@ def test_snoop_block_fits_of_one_cell_blocks_equal_fit_and_snoop(sizes):
     assert ref[0].any() and ref[1].any()
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(a, b)
+
+
+def test_two_low_blunders_within_each_others_ring_are_both_found():
+    """Issue 12: on a 100 x 120 city clip (seed 3) two 2 x 2 pits 18-19 m deep lie 10 m
+    apart in open ground; each lay below every cell of the other's ring but the other
+    pit, so step 3 found them and the ring test gave them back: 1 of the 9 low cells was
+    found and the DTM kept a pit 19 m deep. The level rim just around each pit
+    (:func:`~bare_earth.core.estimate.below_level_rim`, RASCOR's ``3 sqrt(2) sigma``)
+    finds them all."""
+    from bare_earth.core.pipeline import run_array
+    s = synthetic.make_scene("city", (100, 120), 1.0, seed=3)
+    truth = s.mask == LOW
+    assert truth.sum() == 9
+    r = run_array("rascor", s.dsm, 1.0)
+    assert (r.mask[truth] == LOW).all()
+    assert not ((r.mask == LOW) & ~truth).any()
+    assert np.abs(r.dtm - s.dtm)[truth].max() < 0.5
+
+
+def test_pits_within_each_others_ring_exact_and_gaps_between_crowns_stay():
+    """Two 2 x 2 pits 18 m deep, 10 m apart on a plane: both low blunders, every other
+    cell ground. Gaps down to the ground between crowns of unequal heights are below the
+    crowns around them, but their rim is no level ground: no gap is a low blunder (a few
+    go with the crowns around them as objects, as before the level rim)."""
+    z = plane()
+    z[20:22, 20:22] -= 18.0
+    z[28:30, 26:28] -= 18.0                           # 10 m from the first (8 rows, 6 columns)
+    res = run(z)
+    want = np.zeros(z.shape, bool)
+    want[20:22, 20:22] = want[28:30, 26:28] = True
+    np.testing.assert_array_equal(res.mask == LOW, want)
+    assert (res.mask[~want] == GROUND).all()
+    rng = np.random.default_rng(0)
+    c = plane(48) + rng.uniform(8.0, 25.0, (48, 48))  # crowns
+    gaps = np.zeros(c.shape, bool)
+    gaps[3::6, 3::6] = True                           # gaps down to the ground
+    gaps[20:22, 26:28] = True                         # a 2 x 2 gap
+    c[gaps] = plane(48)[gaps]
+    res = run(c)
+    assert not (res.mask == LOW).any()
+    assert (res.mask[gaps] == GROUND).mean() > 0.9
