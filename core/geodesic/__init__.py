@@ -8,7 +8,8 @@ algorithm's help.
 
 1. **Preprocessing** (step code :data:`STEP_OUTLIER`). A cell cluster narrower than
    ``outlier_width_m`` that lies more than ``outlier_threshold_m`` below the grey closing
-   (a pit) is a *low outlier* (mask class 2: image-matching blunders, laser multipath);
+   and is a pit (its cells lower than every cell around them, :func:`.outliers._pits`)
+   is a *low outlier* (mask class 2: image-matching blunders, laser multipath);
    one that stands more than ``outlier_threshold_m`` above the grey opening is a *high
    outlier* (mask class 1: birds, clouds, blunders). Clusters larger than
    :data:`OUTLIER_MAX_CELLS` cells are left to the later steps (ditches and walls are

@@ -354,27 +354,58 @@ def fill_nodata(z, valid, value):
     return z if valid is None or valid.all() else np.where(valid, z, value)
 
 
+def _hang(a, size, fill):
+    """``a`` padded with ``fill`` by the window's half-widths: the centres of the windows
+    that hang over the border, each keeping its cells inside the raster."""
+    rh, rw = size[0] // 2, size[1] // 2
+    p = np.full((a.shape[0] + 2 * rh, a.shape[1] + 2 * rw), fill, a.dtype)
+    p[rh:rh + a.shape[0], rw:rw + a.shape[1]] = a
+    return p
+
+
+def _open_close(z, valid, size, first, second, progress, hanging):
+    """``second(first(z))`` by a flat rectangle, nodata ignored (``first`` = np.minimum:
+    the opening; np.maximum: the closing). ``hanging``: the windows centred outside the
+    raster within their half-width take part too, each with its cells inside the raster
+    (all but the four that hold a corner cell alone: one cell is compared with nothing)."""
+    out = np.inf if first is np.minimum else -np.inf          # neutral value of ``first``
+    a = fill_nodata(z, valid, out)
+    if hanging:
+        a = _hang(a, size, out)
+    e = rect_filter(a, size, first, out)
+    if hanging:
+        e[0, 0] = e[0, -1] = e[-1, 0] = e[-1, -1] = -out
+    if valid is not None and not valid.all():
+        e[e == out] = -out
+    report(progress, 0.5)
+    r = rect_filter(e, size, second, -out)
+    if hanging:
+        rh, rw = size[0] // 2, size[1] // 2
+        r = r[rh:rh + z.shape[0], rw:rw + z.shape[1]]
+    return r
+
+
 def grey_opening(z, valid, size, progress=None):
     """Grey opening by a flat rectangle ``size`` (rows, cols); nodata ignored.
 
     Returns ``-inf`` where the whole window is nodata; ``progress(0.5)`` between the
     erosion and the dilation.
     """
-    e = rect_filter(fill_nodata(z, valid, np.inf), size, np.minimum, np.inf)
-    if valid is not None and not valid.all():
-        e[np.isposinf(e)] = -np.inf
-    report(progress, 0.5)
-    return rect_filter(e, size, np.maximum, -np.inf)
+    return _open_close(z, valid, size, np.minimum, np.maximum, progress, False)
 
 
-def grey_closing(z, valid, size, progress=None):
+def grey_closing(z, valid, size, progress=None, hanging=False):
     """Grey closing by a flat rectangle ``size`` (rows, cols); nodata ignored;
-    ``progress(0.5)`` between the dilation and the erosion."""
-    d = rect_filter(fill_nodata(z, valid, -np.inf), size, np.maximum, -np.inf)
-    if valid is not None and not valid.all():
-        d[np.isneginf(d)] = np.inf
-    report(progress, 0.5)
-    return rect_filter(d, size, np.minimum, np.inf)
+    ``progress(0.5)`` between the dilation and the erosion.
+
+    By default only windows centred in the raster count, so a cell on the border is seen
+    by fewer windows than one inside: a ground cell on the last column between two roofs
+    is then under the closing by the roofs' height although the ground runs on beyond the
+    border. ``hanging=True`` also places the window where it hangs over the border (its
+    centre up to half a window outside, its cells inside the raster only): every placement
+    of the window that meets the raster in two cells or more.
+    """
+    return _open_close(z, valid, size, np.maximum, np.minimum, progress, hanging)
 
 
 def inner_cells(cand):

@@ -21,14 +21,56 @@ def _small_clusters(cand):
     return idx[np.bincount(lab_c, minlength=n + 1)[lab_c] <= OUTLIER_MAX_CELLS]
 
 
+def _pits(z, valid, sel):
+    """The cells of ``sel`` (flat indices) that lie in pits: a set whose every cell is lower
+    than each of its 8 neighbours outside the set (nodata and the outside count as nothing).
+
+    Cells that fail leave the set and count as its neighbours; the test repeats until every
+    cell left passes (sparse: only the few candidates are read). A gap between two roofs
+    one cell wide, or a dip on a crown's edge, lies under the closing but opens onto lower
+    cells; a blunder does not."""
+    H, W = z.shape
+    zp = np.full((H + 2, W + 2), np.inf, np.float64)
+    zp[1:-1, 1:-1] = np.where(valid, z, np.inf)
+    ip = (sel // W + 1) * (W + 2) + sel % W + 1
+    zf = zp.ravel()
+    zc = zf[ip].copy()
+    zf[ip] = np.inf                               # the set: not its own neighbour
+    offs = np.array([-W - 3, -W - 2, -W - 1, -1, 1, W + 1, W + 2, W + 3], np.intp)
+    keep = np.ones(sel.size, bool)
+    while True:
+        k = np.flatnonzero(keep)
+        fail = k[zc[k] >= zf[ip[k, None] + offs].min(axis=1)]
+        if fail.size == 0:
+            return sel[keep]
+        keep[fail] = False
+        zf[ip[fail]] = zc[fail]
+
+
 def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):
     """Isolated low and high outliers, replaced by the closing / opening.
 
     A cluster of at most :data:`OUTLIER_MAX_CELLS` cells lying more than ``threshold_m``
-    below the grey closing by a window of ``width_m`` (a pit) is a low outlier (mask
-    class 2); one standing more than ``threshold_m`` above the grey opening is a high
-    outlier (class 1). Larger clusters are left to the later stages (ditches and walls
-    are long, blunders are not).
+    below the grey closing by a window of ``width_m`` and forming a pit (:func:`_pits`:
+    lower than every cell around it) is a low outlier (mask class 2); one standing more
+    than ``threshold_m`` above the grey opening is a high outlier (class 1). Larger
+    clusters are left to the later stages (ditches and walls are long, blunders are not).
+
+    The closing also places its window where it hangs over the raster's border (its cells
+    inside the raster only, :func:`~.grey.grey_closing` ``hanging``): with only the
+    windows centred in the raster, a border cell was seen by fewer windows than an inner
+    one, and ground at the foot of a roof on the last column, or a roof edge there, lay
+    metres under the closing and was a low outlier (issue 12: 6 false low cells on the
+    last column of a 100 x 120 city clip). The opening keeps the windows centred in the
+    raster: hanging windows there moved the matrix mean by 0.01 and ISPRS-7 and the
+    opengeos RMSE the wrong way (5.27 -> 5.29 %, 0.93 -> 0.95 m).
+
+    The closing fills any gap narrower than its window, so a cell under it is not yet a
+    blunder: on the same clip a gap one cell wide between two roofs (4 cells) and dips on
+    roof and crown edges (4 cells) lay 2-5 m under it but open onto the ground beside
+    them. Only the cells of a pit stay (:func:`_pits`): on 6 synthetic scenes of each
+    kind (seeds 0-5, 200 x 200, 1 m) the false low cells fell from 427 to 93 (city), 4183 to 775 (mixed),
+    7606 to 1520 (forest), 574 to 75 (breakline), with the true ones found unchanged.
 
     Parameters
     ----------
@@ -50,7 +92,7 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     """
     win = window_cells(width_m, cell_size[0], cell_size[1])
     w = z.copy() if vnone is None else np.where(valid, z, np.float32(np.nan))
-    clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3))
+    clo = grey_closing(z, vnone, win, sub_progress(progress, 0.0, 0.3), hanging=True)
     report(progress, 0.3)
     ope = grey_opening(z, vnone, win, sub_progress(progress, 0.3, 0.6))
     report(progress, 0.6)
@@ -69,6 +111,8 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     counts = []
     for cand, code, repl in ((low_c, LOW, clo), (high_c, OBJECT, ope)):
         sel = _small_clusters(cand) if cand.any() else np.zeros(0, np.intp)
+        if code == LOW and sel.size:
+            sel = _pits(z, valid, sel)
         counts.append(int(sel.size))
         mask.ravel()[sel] = code
         outlier.ravel()[sel] = True
