@@ -73,7 +73,10 @@ algorithm's help.
    cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
    cell``, falls and such flanks would open runs; our design, issue 12).
    Two passes catch stepped roofs. This removes what the dilation left (objects on
-   steep slopes, thin walls, leftovers of merged regions).
+   steep slopes, thin walls, leftovers of merged regions). Nodata ends a run; on a DSM with
+   scattered nodata the scan is repeated with one-cell dropouts bridged by the lower straight
+   line across them, keeping what it adds where a 3 x 3 core is labelled by both the row and
+   the column scans (:func:`~.filter.label_scans`; issue 12).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed
    cell and stands above one of its 8 neighbours by more than ``dh0 + tan(terrain_slope)
    * cell_diagonal`` is the foot of a wall or the edge of a crown (a cell mixing object

@@ -26,16 +26,57 @@ STEP_ISLAND = 253
 STEP_NODATA = 255
 
 
+def bridge_dropouts(z):
+    """``z`` with its one-cell dropouts bridged, and the cells that were valid (None: no nodata).
+
+    A nodata cell between two valid cells along its row or its column (a dropout) takes the
+    lower of the straight lines across it (the mean of its row pair, of its column pair), so
+    that a profile crossing it is not cut; a wider gap keeps its nodata and still ends runs.
+    A straight line, not the lowest neighbour: on a steep slope the lowest neighbour is a pit
+    that opens runs (issue 12).
+
+    Examples
+    --------
+    >>> z = np.array([[1, 2, 3], [4, np.nan, 8], [7, 9, 9]], np.float32)
+    >>> bridged, valid = bridge_dropouts(z)
+    >>> float(bridged[1, 1]), valid.tolist()
+    (5.5, [[True, True, True], [True, False, True], [True, True, True]])
+    """
+    bad = np.isnan(z)
+    if not bad.any():
+        return z, None
+    line = np.full((2,) + z.shape, np.nan, z.dtype)
+    line[0, :, 1:-1] = (z[:, :-2] + z[:, 2:]) / 2
+    line[1, 1:-1, :] = (z[:-2, :] + z[2:, :]) / 2
+    low = np.fmin(line[0], line[1])
+    out = z.copy()
+    np.copyto(out, low, where=bad & np.isfinite(low))
+    return out, ~bad
+
+
 def label_scans(cleaned, cell_size, p, removed, step, progress=None):
     """Stage 3: scan labelling of the cleaned surface (:func:`~.scan.scan_label`).
 
     Runs of cells that open with a rise and close with a fall are removed (``removed``
     updated in place); cells not coded yet get :data:`STEP_SCAN`. Returns their count.
+
+    Nodata ends a run, so scattered nodata (an image-matching DSM) leaves no run across an
+    object. The scan is repeated on the surface with one-cell dropouts bridged
+    (:func:`bridge_dropouts`); a run it adds is kept when its region holds a core labelled
+    by both the row and the column scans that is at least 3 x 3 cells (an object is a 2-D
+    region; a run of matching noise along one profile is not); only valid cells are labelled
+    (issue 12).
     """
-    lab = scan_label(cleaned, cell_size, jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
-                     max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
-                     oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"],
-                     passes=SCAN_PASSES, progress=progress)
+    kw = dict(jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
+              max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
+              oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"], passes=SCAN_PASSES)
+    surface, valid = bridge_dropouts(cleaned)
+    lab = scan_label(cleaned, cell_size, progress=progress, **kw)
+    if valid is not None and np.isfinite(surface).sum() > valid.sum():
+        bridged = scan_label(surface, cell_size, **kw)
+        both = scan_label(surface, cell_size, axes=(1,), **kw) & scan_label(surface, cell_size, axes=(0,), **kw)
+        core = ndimage.binary_opening(both, S8)
+        lab |= ndimage.binary_propagation(core, S8, mask=bridged) & valid
     new = lab & ~removed & (step == 0)
     step[new] = STEP_SCAN
     removed |= lab

@@ -118,7 +118,7 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
-               passes=2, reference=None, oblique_length_m=None, progress=None):
+               passes=2, reference=None, oblique_length_m=None, axes=(1, 0), progress=None):
     """Scan labelling: non-ground runs along rows and columns.
 
     Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
@@ -162,6 +162,8 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
         A terrain approximation (the filter passes its lowest geodesic reconstruction):
         a labelled cell must also stand more than ``height_m`` above it, so terrain
         ridges, which the reconstruction follows, are never labelled.
+    axes : tuple of int
+        The profiles scanned: 1 rows, 0 columns (default both).
     progress : callable, optional
         ``progress(fraction)`` after each axis of each pass; it may raise
         :class:`~bare_earth.core.common.Cancelled`.
@@ -179,6 +181,8 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
                          f"got {jump_m}, {height_m}, {max_length_m}.")
     if not 0 <= terrain_slope_deg < 90:
         raise ValueError(f"terrain_slope_deg must be in [0, 90); got {terrain_slope_deg}.")
+    if not axes or not set(axes) <= {0, 1}:
+        raise ValueError(f"axes must hold 1 (rows) and/or 0 (columns); got {axes}.")
     if int(passes) < 1:
         raise ValueError(f"passes must be at least 1; got {passes}.")
     s = np.tan(np.radians(terrain_slope_deg))
@@ -196,11 +200,12 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     has_nan = bool(np.isnan(a).any())
     n = int(passes)
     for i in range(n):
+        none = np.zeros(0, np.intp)
         lr = _scan_runs(a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
-                        max(2, int(max_length_m / dx)))
+                        max(2, int(max_length_m / dx))) if 1 in axes else none
         report(progress, (i + 0.35) / n)
         lc = _scan_runs(a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
-                        max(2, int(max_length_m / dy)))
+                        max(2, int(max_length_m / dy))) if 0 in axes else none
         report(progress, (i + 0.7) / n)
         new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
         del lr, lc
