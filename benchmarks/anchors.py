@@ -312,10 +312,19 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=RESULTS, help=f"JSON-lines log (default {RESULTS})")
     ap.add_argument("--no-log", action="store_true", help="do not append to the log")
     ap.add_argument("--readme", action="store_true", help="replace the anchors block of README.md")
-    ap.add_argument("--from-log", action="store_true", help="render the log's last record instead of running")
+    ap.add_argument("--from-log", action="store_true",
+                    help="render the log's last record (dtm's figures from generalise.py's last record) "
+                         "instead of running")
     args = ap.parse_args(argv)
     if args.from_log:
+        # the peers' figures do not depend on our code: their last record, beside dtm's figures
+        # from generalise.py's last record (the peers need not be re-run after a change of ours)
         record = json.loads([ln for ln in args.out.read_text(encoding="utf-8").splitlines() if ln.strip()][-1])
+        commit, ours = ours_by_row()
+        if ours:
+            record["ours_commit"] = commit
+            record["ours"] = {r["row"]: ours.get(r["row"], {}) for r in record["rows"]}
+            record["summary"] = summarise(record["rows"], record["tools"], ours)
     else:
         data = args.data if args.data is not None else isprs.default_data_dir()
         if not data.is_dir():
