@@ -822,6 +822,26 @@ def below_surroundings(z, cell_size, depth_m, radius_m=PIT_RADIUS_M, cluster_m=P
     return out
 
 
+def _gather_offsets(flat, shape, idx, dr, dc):
+    """Candidates in chunks of :data:`_RING_CHUNK` with the cells at the offsets ``(dr, dc)``
+    around each: yields ``(q, v, inside)``, the chunk's flat indices, the cells' values
+    (float32, positions clipped to the array: a new array the caller may change) and whether
+    each offset lies inside the array."""
+    h, w = shape
+    for i in range(0, idx.size, _RING_CHUNK):
+        q = idx[i:i + _RING_CHUNK]
+        r, c = np.divmod(q, w)
+        rr = r[:, None] + dr[None, :]
+        cc = c[:, None] + dc[None, :]
+        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        np.clip(rr, 0, h - 1, out=rr)
+        np.clip(cc, 0, w - 1, out=cc)
+        rr *= w
+        rr += cc
+        v = flat.take(rr)
+        yield q, (v if v.dtype == np.float32 else v.astype(np.float32)), inside
+
+
 def _below_gathered(z, idx, reach, depth_m):
     """:func:`below_surroundings` at the flat indices ``idx`` only, each ring's cells
     gathered from ``z`` itself (NaN and cells outside the array count as +inf), in
@@ -836,17 +856,7 @@ def _below_gathered(z, idx, reach, depth_m):
     ring = (np.abs(dr) > iy) | (np.abs(dc) > ix)
     dr, dc = dr[ring], dc[ring]
     flat = z.ravel()
-    for i in range(0, idx.size, _RING_CHUNK):
-        q = idx[i:i + _RING_CHUNK]
-        r, c = np.divmod(q, w)
-        rr = r[:, None] + dr[None, :]
-        cc = c[:, None] + dc[None, :]
-        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        np.clip(rr, 0, h - 1, out=rr)
-        np.clip(cc, 0, w - 1, out=cc)
-        rr *= w
-        rr += cc
-        v = flat.take(rr).astype(np.float32, copy=False)
+    for q, v, inside in _gather_offsets(flat, (h, w), idx, dr, dc):
         v[~(inside & np.isfinite(v))] = np.inf
         lo = v.min(axis=1)
         with np.errstate(invalid="ignore"):
@@ -909,13 +919,7 @@ def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUS
     dx, dy = float(cell_size[0]), float(cell_size[1])
     rise = float(slope) * float(np.hypot(2 * ry * dy, 2 * rx * dx))
     flat = z.ravel()
-    for i in range(0, idx.size, _RING_CHUNK):
-        q = idx[i:i + _RING_CHUNK]
-        r, c = np.divmod(q, w)
-        rr = r[:, None] + dr[None, :]
-        cc = c[:, None] + dc[None, :]
-        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        v = flat.take(np.clip(rr, 0, h - 1) * w + np.clip(cc, 0, w - 1)).astype(np.float32)
+    for q, v, inside in _gather_offsets(flat, (h, w), idx, dr, dc):
         lo = np.where(inside, v, np.inf).min(axis=1)
         hi = np.where(inside, v, -np.inf).max(axis=1)
         with np.errstate(invalid="ignore"):

@@ -34,7 +34,8 @@ from ..codes import GROUND, LOW, NODATA, OBJECT
 
 __all__ = ["fill_holes", "spread_corrections", "nan_median_filter", "nan_median_at", "remove_blunders", "merge_pairs",
            "split_significant",
-           "ground_trend", "object_mask", "settle_boundary", "agree_at_height", "close_mask"]
+           "ground_trend", "object_mask", "settle_boundary", "window_variance", "agree_at_height",
+           "close_mask"]
 
 #: Rows per band of the stacked neighbourhoods (bounded memory).
 _BAND_ROWS = 128
@@ -635,6 +636,26 @@ def agreement_bound(noise_var, half, tail=1.35e-3):
     return float(noise_var) * 2.0 * float(special.gammainccinv((n - 1) / 2.0, tail)) / n   # chi2.isf(tail, n - 1) / n
 
 
+def window_variance(d, w):
+    """Variance of the differences ``d`` of two orthophotos in the ``w`` x ``w`` window centred
+    on each cell (float32), +inf where the window is not whole (a NaN difference in it, or the
+    array's edge): the spread :func:`agree_at_height` bounds.
+
+    Examples
+    --------
+    >>> d = np.zeros((5, 5), np.float32); d[2, 2] = 3.0
+    >>> v = window_variance(d, 3)
+    >>> round(float(v[2, 2]), 4), bool(np.isinf(v[0, 0]))
+    (0.8889, True)
+    """
+    fin = np.isfinite(d)
+    d0 = np.where(fin, d, np.float32(0))
+    full = ndimage.uniform_filter(fin.astype(np.float32), w, mode="constant") > 1 - 1e-4
+    m1 = ndimage.uniform_filter(d0, w, mode="constant")
+    m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
+    return np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
+
+
 def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, where=None):
     """Where the orthophotos agree, within their noise, at the heights ``h``.
 
@@ -695,13 +716,7 @@ def agree_at_height(a, b, h, displacement, noise_var, half=2, tail=1.35e-3, wher
     va = ndimage.map_coordinates(np.asarray(a, np.float32), [rr + dra, cc + dca], order=1, mode="constant", cval=np.nan)
     vb = ndimage.map_coordinates(np.asarray(b, np.float32), [rr + drb, cc + dcb], order=1, mode="constant", cval=np.nan)
     d = np.where(ok[box], va - vb, np.nan).astype(np.float32)
-    fin = np.isfinite(d)
-    d0 = np.where(fin, d, np.float32(0))
-    full = ndimage.uniform_filter(fin.astype(np.float32), w, mode="constant") > 1 - 1e-4
-    m1 = ndimage.uniform_filter(d0, w, mode="constant")
-    m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
-    var = np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
-    best = ndimage.minimum_filter(var, w, mode="constant", cval=np.inf)
+    best = ndimage.minimum_filter(window_variance(d, w), w, mode="constant", cval=np.inf)
     agree[box] = (best <= bound) & where[box]
     tested[box] = np.isfinite(best) & where[box]
     return agree, tested

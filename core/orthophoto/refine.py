@@ -37,6 +37,7 @@ from .quality import (
     object_mask,
     remove_blunders,
     settle_boundary,
+    window_variance,
 )
 
 __all__ = ["view_vectors", "parallax_to_dh", "parallax_to_dh_vertical", "orthoparallax",
@@ -619,10 +620,7 @@ def _sweep_unmatched(a, b, dh, dem, transform, both, info, cam, *, window, max_d
         d = va - vb
         ok = np.isfinite(d)
         d0 = np.where(ok, d, np.float32(0))
-        full = ndimage.uniform_filter(ok.astype(np.float32), w, mode="constant") > 1 - 1e-4
-        m1 = ndimage.uniform_filter(d0, w, mode="constant")
-        m2 = ndimage.uniform_filter(d0 * d0, w, mode="constant")
-        var = np.where(full, m2 - m1 * m1, np.inf).astype(np.float32)
+        var = window_variance(d, w)
         bw = np.where(ok & (d0 * d0 <= own_bound), ndimage.minimum_filter(var, w, mode="constant", cval=np.inf),
                       np.inf)
         better = bw < best
