@@ -34,7 +34,7 @@ _FAR_M = 20.0
 DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_characterise=True,
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
-                step7_prediction=False, second_iteration=False, height_min_m=None,
+                step7_prediction=False, second_iteration=False, step3_repeat=True, height_min_m=None,
                 height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
                 max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
@@ -413,10 +413,11 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
 
     Steps are chained, so a cell's fate depends on what earlier steps did within their
     reach around every cell of the later windows: the reaches add up (x 2 with the second
-    iteration). A step removing low blunders (3, 5, 6, 7) reaches at least as far as the
-    ring test that confirms them (:func:`~.sequence.ring_reach`, 10 m). A ``steps`` entry
-    (the override :func:`filter_rascor` takes) chooses the steps instead of the switches;
-    step 7's reach always counts (it runs inside special areas).
+    iteration; step 3's once more without it, ``step3_repeat``). A step removing low
+    blunders (3, 5, 6, 7) reaches at least as far as the ring test that confirms them
+    (:func:`~.sequence.ring_reach`, 10 m). A ``steps`` entry (the override
+    :func:`filter_rascor` takes) chooses the steps instead of the switches; step 7's reach
+    always counts (it runs inside special areas).
     """
     dx, dy = as_cell_size(cell_size)
     cs = min(dx, dy)
@@ -443,4 +444,8 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     r6 = iters * max(half6 + 1, ring) if on[6] else 0   # a block fit reaches half a block further
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
     once = r3 + r5 + r6 + r7
-    return int(r4 + once * (2 if p["second_iteration"] else 1))
+    if p["second_iteration"]:
+        return int(r4 + 2 * once)
+    # step 3 once more after the last step (:func:`~.sequence.filter_rascor`'s step3_repeat)
+    again = r3 if p.get("step3_repeat", True) else 0
+    return int(r4 + once + again)

@@ -34,7 +34,7 @@ def test_dialogs_show_the_written_labels_uniquely(qgis_app):
             assert d.description() == param_label(alg.name(), p)      # the written label, not the name
     rascor = QgsApplication.processingRegistry().algorithmById("bareearth:rascor")
     steps = [d for d in rascor.parameterDefinitions() if d.name().startswith("STEP") or d.name() == "SECOND_ITERATION"]
-    assert len(steps) == 8
+    assert len(steps) == 9                  # the 7 switches, SECOND_ITERATION and STEP3_REPEAT
     assert all(d.flags() & FLAG_ADVANCED for d in steps)
 
 
