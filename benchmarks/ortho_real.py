@@ -172,6 +172,7 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
           f"{np.nanmedian(r.supported[ev]):.1f} m; cells beyond it {int(np.nansum(over > 1e-3))}")
     print(f"   cross-check of the pair families: {r.info['cross_check']}")
     _rise_where_agreement(r, dem, ev)
+    _speckle_and_local_proof(r, dem, ev)
     _table(r.table)
     if held_out:
         _held_out(dem, gt, imgs, cams, r.info["pairs"], iterations, max_dh_m, ev, cross_check)
@@ -228,6 +229,50 @@ def _held_out(dem, gt, imgs, cams, pairs, iterations, max_dh_m, ev, cross_check=
                   f"roughness {_roughness(dem, ev):.4f} -> {_roughness(t.dem, ev):.4f} m, the 1 % of cells moved "
                   f"most by {np.mean(np.abs(move[top])):.1f} m (mean |move|); the pairs {held} measure "
                   + "; ".join(words))
+
+
+def _speckle_and_local_proof(r, dem, ev):
+    """Is the added roughness speckle, and does the pairs' agreement prove it cell by cell?
+
+    Speckle: the move's departure from the median of its 3 x 3 neighbours, against 3 x the
+    expected precision in height (a cell moved alone beyond the matching noise). Local proof:
+    the fall of the squared residual parallax ``p0**2 - p1**2`` over the cells matched on the
+    start and on the final DEM, averaged with the smooth part's Gaussian (sigma the window),
+    against its standard error (the local sd of the fall, the Gaussian's effective count of
+    cells and the matcher's window as the area over which cells share their pixels, W^2
+    cells); the same over all those cells (the iteration rule's evidence). The rise of the
+    summed squared Laplacian is split by the sign of the local fall.
+    """
+    move = np.where(np.isfinite(r.dem - dem), r.dem - dem, 0.0).astype(np.float64)
+    dep = np.abs(move - ndimage.median_filter(move, 3))[ev]
+    sig = r.info["sigma_expected_m"]
+    p0, p1 = r.parallax_start.astype(np.float64), r.parallax.astype(np.float64)
+    both = np.isfinite(p0) & np.isfinite(p1)
+    g = np.where(both, p0 ** 2 - p1 ** 2, 0.0)
+    w = float(r.info["window"])
+    den = ndimage.gaussian_filter(both.astype(np.float64), w, mode="constant")
+    ok = ev & (den > 1e-3)
+    mean = ndimage.gaussian_filter(g, w, mode="constant") / np.maximum(den, 1e-12)
+    var = np.maximum(ndimage.gaussian_filter(g * g, w, mode="constant") / np.maximum(den, 1e-12) - mean ** 2, 0.0)
+    # effective count of a normalised Gaussian: (sum w)^2 / sum w^2, with sum w^2 the Gaussian of
+    # sigma / sqrt(2) over 4 pi sigma^2
+    w2 = ndimage.gaussian_filter(both.astype(np.float64), w / np.sqrt(2.0), mode="constant") / (4 * np.pi * w * w)
+    z = mean / np.sqrt(np.maximum(var * w * w / np.maximum(den ** 2 / np.maximum(w2, 1e-12), 1e-12), 1e-12))
+    gb = g[both & ev]
+    z_all = gb.mean() / (gb.std() * np.sqrt(w * w / gb.size))
+    def lap(s):
+        return ndimage.laplace(np.where(np.isfinite(s), s, np.nanmedian(s)).astype(np.float64))
+    rise = ndimage.uniform_filter(lap(r.dem) ** 2 - lap(dem) ** 2, 3)    # as _rise_where_agreement
+    inner = ev & ndimage.binary_erosion(ev, iterations=2)
+    z = np.where(ok, z, 0.0)
+    print(f"   speckle: the move departs from its 3 x 3 median by {np.percentile(dep, 99):.2f} m (99 %), "
+          f"{dep.max():.2f} m at most; {int(np.sum(dep > 3 * sig))} cells beyond 3 x the expected precision "
+          f"({3 * sig:.2f} m)")
+    print("   local proof (fall of the squared parallax over the smooth part's scale / its standard error): "
+          + ", ".join(f"z > {k}: {100 * np.mean(z[ok] > k):.1f} %" for k in (0, 1, 2, 3))
+          + f" of the cells; over all the cells matched both times z = {z_all:.1f}; rise of the summed squared "
+          f"Laplacian where z > 0 {rise[inner & (z > 0)].sum():+.0f} m^2, elsewhere "
+          f"{rise[inner & ~(z > 0)].sum():+.0f} m^2")
 
 
 def _rise_where_agreement(r, dem, ev):
