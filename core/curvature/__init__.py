@@ -57,8 +57,9 @@ From curvature to objects
    between the nearest ground on either side, within half the largest object; averaged
    over 3 x 3 cells), so that it depends on the data near a cell only; a cell
    is an object when it stands above that surface by more than the tolerance plus one
-   cell of the surface's slope (breaks outside objects: half the minimum object height
-   more, as the interpolated surface sags a little under convex terrain edges). Straight
+   cell of the surface's slope (convex breaks outside objects: half the minimum object
+   height more, as the interpolated surface sags a little under convex terrain edges; not
+   under concave ones, such as the smeared foot of a wall). Straight
    breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
    surface, so terrain edges stay ground. Nodata takes the height of the nearest ground
    seed rather than being spanned by the surface (the surface then depends on the ground
