@@ -531,7 +531,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if d.type() == "rasterDestination":
                 for f in grid.output_files(path, styled=d.name().endswith("MASK")):
                     hit = input_files.get(os.path.realpath(f))
-                    if hit is not None and os.path.realpath(f) != real:
+                    if hit is not None and os.path.realpath(f) == real:   # a file a VRT input reads
+                        return False, tr("The output {} ({}) would write {}, a file the input {} ({}) reads: "
+                                         "the input would change. Choose another file for the output.").format(
+                            label_of(d), path, f, label_of(hit[0]), hit[1])
+                    if hit is not None:
                         return False, tr("The output {} ({}) would write {}, a file of the input {} ({}): its "
                                          "sidecar, or the style QGIS loads with it. Choose another name for the "
                                          "output.").format(
