@@ -633,12 +633,25 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
-            return ok, msg
+            return ok, self.out_of_range(parameters, context) or msg
         for check in (check_block_size, check_processes):
             ok, msg = check(self, parameters, context)
             if not ok:
                 return ok, msg
         return self.checkOutputs(parameters, context)
+
+    def out_of_range(self, parameters, context):
+        """The refusal of the first number given outside its limits, naming its label, id and
+        range (QGIS's own says "Incorrect parameter value for THREADS"), or None."""
+        for d in self.parameterDefinitions():
+            if d.type() != "number" or parameters.get(d.name()) in (None, "") or d.checkValueIsAcceptable(
+                    parameters[d.name()], context):
+                continue
+            value, lo, hi = self.parameterAsDouble(parameters, d.name(), context), d.minimum(), d.maximum()
+            limits = (tr("at least {:g}").format(lo) if hi > 1e300 else tr("at most {:g}").format(hi)
+                      if lo < -1e300 else tr("within [{:g}, {:g}]").format(lo, hi))
+            return tr("{} = {:g} is out of range: give a value {}.").format(label_of(d), value, limits)
+        return None
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802
         """Style the outputs Processing loads (the mask's classes, side products' renderers)."""
