@@ -32,6 +32,7 @@ from qgis.core import (
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
+from ..core.orthophoto.quality import order_reversed
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .fill_dtm import grid_mismatch_message, other_crs, same_grid
 from .filter_base import (
@@ -606,6 +607,12 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
         dem_out = np.where(np.isfinite(dem), r.dem, np.nan)
         outputs = self._write(info, parameters, context, dem_out, r.dh, r.quality, r.mask)
         self._log_info(r.info, feedback, skip=("crop",))
+        reversed_, low, obj = order_reversed(r.mask, opts["window"])
+        if reversed_:
+            _warn(feedback, tr("{} cells lie below the DEM (low) and only {} above it (objects): objects stand "
+                               "above the ground, so the pair may be given in the wrong order. Check that "
+                               "CAMERA_A is the centre of ORTHO_A's frame and CAMERA_B of ORTHO_B's (with BASE_M "
+                               "and HEIGHT_M: that BASE_DIRECTION_DEG points from A to B).").format(low, obj))
         feedback.setProgress(100)
         return outputs
 
