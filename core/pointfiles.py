@@ -155,7 +155,7 @@ def read_points(path, crs=None):
     return cloud
 
 
-_SEPARATORS = bytes.maketrans(b"\t,;\r\v\f", b"      ")   # newlines stay
+_SEPARATORS = bytes.maketrans(b"\t,;\r\v\f\"", b"       ")   # newlines stay; a quoted field is its value
 _NUMBER_BYTES = np.zeros(256, dtype=bool)
 _NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE \n", dtype=np.uint8)] = True
 _CLASS_NAMES = ("class", "classification", "label", "cls", "c")
@@ -216,9 +216,14 @@ def _read_text(path):
     if table is None:
         table = _parse_careful(path, data, flat, body_start)
     ncols = table.shape[1]
+    head = data[body_start:body_start + 4096]
+    comma = (b";" in head and re.search(rb"\d,\d", head) is not None
+             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 8)))
+    comma_hint = (" The values seem to be written with decimal commas and separated by ';': write them "
+                  "with decimal points." if comma else "")
     if names is not None and len(names) != ncols:
         raise ValueError(f"{path}: the header line names {len(names)} columns but the points "
-                         f"have {ncols}; fix the header or remove it.")
+                         f"have {ncols}; fix the header or remove it." + comma_hint)
 
     # Pick the columns.
     if names is not None and {"x", "y", "z"} <= set(names):
@@ -226,12 +231,8 @@ def _read_text(path):
         cls_col = next((names.index(c) for c in _CLASS_NAMES if c in names), None)
     else:
         if ncols not in (3, 4):
-            head = data[body_start:body_start + 4096]
-            comma = (b";" in head and re.search(rb"\d,\d", head) is not None and ncols in (6, 8))
             raise ValueError(f"{path}: {ncols} values per line; expected 3 (x y z) or 4 "
-                             "(x y z class), or a header line naming the x, y, z columns."
-                             + (" The values seem to be written with decimal commas and separated by ';': "
-                                "write them with decimal points." if comma else ""))
+                             "(x y z class), or a header line naming the x, y, z columns." + comma_hint)
         cols, cls_col = [0, 1, 2], (3 if ncols == 4 else None)
 
     x = np.ascontiguousarray(table[:, cols[0]])
@@ -253,7 +254,6 @@ def _read_text(path):
                                 "the class: to keep another value there, add a header line naming the columns "
                                 "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
-    head = data[body_start:body_start + 4096]
     delim = "\t" if b"\t" in head else (";" if b";" in head else ("," if b"," in head else " "))
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
@@ -388,7 +388,7 @@ def _first_bad_line(data, nl, filled):
     letters (``nan``, ``inf``) and the last line.
     """
     for ln in filled:
-        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").split():
+        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").replace('"', " ").split():
             try:
                 float(t)
             except ValueError:
@@ -397,7 +397,7 @@ def _first_bad_line(data, nl, filled):
                 return int(ln)
     # float() accepted everything (e.g. "1.5.3" splits into two numbers for numpy)
     for ln in filled:
-        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").split():
+        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").replace('"', " ").split():
             if t.count(".") > 1 or "_" in t:
                 return int(ln)
     return None
