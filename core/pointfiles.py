@@ -197,8 +197,7 @@ def _read_text(path):
     header, names, body_start = None, None, 0
     if not all(_is_number(t) for t in first_tokens):
         header = data[a:b].decode("utf-8", errors="replace").strip()
-        names = [t.decode("utf-8", errors="replace").strip().strip('"\'').lower()
-                 for t in first_tokens]
+        names = _column_names(first_tokens)
         body_start = b
     body = flat[body_start:]
     if not body.strip():
@@ -645,10 +644,16 @@ def _header_tokens(path):
             if line.strip():
                 first = line
                 break
-    tokens = [t.strip().strip('"\'').lower() for t in
-              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
-              .replace(";", " ").split()]
-    return first, tokens
+    return first, _column_names(first.translate(_SEPARATORS).split())
+
+
+def _column_names(tokens):
+    """The column names of a header line's tokens (bytes): lower case, quotes stripped, and a
+    header written as a comment read as one ('//X,Y,Z,R,G,B' from CloudCompare, '# x y z')."""
+    names = [t.decode("utf-8", errors="replace").lstrip("\ufeff").strip().strip('"\'').lower() for t in tokens]
+    if names:
+        names[0] = names[0].lstrip("#/").strip('"\'')
+    return [n for n in names if n]
 
 
 def is_class_column(path, name):
@@ -686,7 +691,7 @@ def read_column(path, name):
     with open(path, "rb") as fh:
         text = fh.read()
     start = text.find(first) + len(first)
-    body = text[start:].translate(bytes.maketrans(b"\t,;\r", b"    "))
+    body = text[start:].translate(_SEPARATORS)
     try:
         col = np.loadtxt(body.splitlines(), usecols=(k,), dtype=np.float64, ndmin=1)
     except ValueError as exc:

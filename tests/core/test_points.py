@@ -499,3 +499,15 @@ def test_decimal_commas_under_a_header_are_named(tmp_path, parser):
     with pytest.raises(ValueError, match=r"names 3 columns but the points have 6.*decimal commas and separated "
                                          r"by ';'"):
         read_points(_write(tmp_path, "x;y;z\n1,5;2,5;3,5\n4,5;5,5;6,5\n", "c.csv"))
+
+
+@pytest.mark.parametrize("text", ["//X,Y,Z,R,G,B\n1,2,3,10,20,30\n4,5,6,10,20,30\n",   # CloudCompare ASCII
+                                  "# X Y Z intensity\n1 2 3 7\n4 5 6 8\n",            # a commented header
+                                  "#x,y,z\n1,2,3\n4,5,6\n"])
+def test_a_header_written_as_a_comment_names_the_columns(tmp_path, text, parser):
+    """CloudCompare's '//X,Y,Z,R,G,B' was refused (6 values per line) and '# X Y Z intensity'
+    read as five names for four columns."""
+    c = read_points(_write(tmp_path, text))
+    np.testing.assert_array_equal(c.x, [1, 4])
+    np.testing.assert_array_equal(c.z, [3, 6])
+    assert c.classification is None
