@@ -187,7 +187,9 @@ class EvaluateAlgorithm(BaseAlgorithm):
                     raise ValueError(f"{name}: {exc}") from None
         for m, name in ((mask, "The mask (MASK)"), (ref_mask, "The reference mask (REFERENCE_MASK)")):
             if m is not None:
-                grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
+                codes = grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
+                if m is ref_mask:
+                    ev.check_reference_mask(codes, f"{name} {m.path!r}")
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
             raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
         if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):
