@@ -275,6 +275,14 @@ class PointAlgorithmBase(BaseAlgorithm):
 
 
 # --------------------------------------------------------------------------- rasterize
+def stage_done(feedback, percent):
+    """A stage of a tool that has no progress of its own is done: the bar moves to ``percent``,
+    and a cancel asked meanwhile stops the run here (Cancelled), before anything is written."""
+    feedback.setProgress(percent)
+    if feedback.isCanceled():
+        raise Cancelled()
+
+
 class RasterizePointsAlgorithm(PointAlgorithmBase):
     """``bareearth:rasterizepoints``: points to a DSM raster (lowest / highest / mean z per cell)."""
 
@@ -359,10 +367,14 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
-            feedback.setProgress(70)
+            stage_done(feedback, 70)
             with output_options(self, parameters, context):
                 pf.write_rasters(g, None, {"dsm": out})
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
@@ -456,15 +468,18 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
                 warn(feedback, w)
             feedback.pushInfo(tr("Read {} points from {}.").format(len(cloud), path))
             dtm = info.read()
-            feedback.setProgress(30)
+            stage_done(feedback, 30)
             t0 = time.perf_counter()
             classes = pf.classify_cloud(cloud, dtm, info.geotransform,
                                         threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
                                         slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
             dt = time.perf_counter() - t0
-            feedback.setProgress(60)
+            stage_done(feedback, 60)
             from ..core.points import write_points
             write_points(out, cloud, classes)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
