@@ -87,6 +87,14 @@ def progress_callback(feedback):
     return progress
 
 
+def stage_done(feedback, percent):
+    """A stage of a tool that has no progress of its own is done: the bar moves to ``percent``,
+    and a cancel asked meanwhile stops the run here (Cancelled), before anything is written."""
+    feedback.setProgress(percent)
+    if feedback.isCanceled():
+        raise Cancelled()
+
+
 def auto_threads():
     """Threads for THREADS = 0: one per core (core ``blocks.default_workers``), within
     QGIS's "Max cores to use" setting when one is set."""

@@ -27,7 +27,16 @@ from ..core import pointflow as pf
 from ..core.pointfiles import check_points_writable
 from ..core.points import LAS_INSTALL_HINT, read_points
 from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_advanced
-from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
+from .filter_base import (
+    BaseAlgorithm,
+    check_dsm,
+    explained,
+    format_params,
+    output_options,
+    progress_callback,
+    stage_done,
+    tr,
+)
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
@@ -275,14 +284,6 @@ class PointAlgorithmBase(BaseAlgorithm):
 
 
 # --------------------------------------------------------------------------- rasterize
-def stage_done(feedback, percent):
-    """A stage of a tool that has no progress of its own is done: the bar moves to ``percent``,
-    and a cancel asked meanwhile stops the run here (Cancelled), before anything is written."""
-    feedback.setProgress(percent)
-    if feedback.isCanceled():
-        raise Cancelled()
-
-
 class RasterizePointsAlgorithm(PointAlgorithmBase):
     """``bareearth:rasterizepoints``: points to a DSM raster (lowest / highest / mean z per cell)."""
 

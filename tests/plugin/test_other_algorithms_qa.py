@@ -288,3 +288,22 @@ def test_evaluate_reference_mask_without_ground_refused_naming_its_codes(process
     assert not os.path.exists(outs["OUTPUT_JSON"])
     r = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, **outs))
     assert r["TOTAL"] == 0.0
+
+
+@pytest.mark.parametrize("percent", [1, 40])
+def test_evaluate_cancelled_writes_no_report(processing_run, tmp_path, percent):
+    """evaluate had no progress and ignored a cancel: it compared and wrote both reports."""
+    from qgis.core import QgsProcessingFeedback
+
+    class CancelAt(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            super().setProgress(p)
+            if p >= percent:
+                self.cancel()
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    res = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, DTM=z, REFERENCE_DTM=z, **outs),
+                         feedback=CancelAt())
+    assert not res or not res.get("OUTPUT_JSON")
+    assert not os.path.exists(outs["OUTPUT_JSON"]) and not os.path.exists(outs["OUTPUT_HTML"])
