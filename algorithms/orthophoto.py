@@ -39,7 +39,9 @@ from .filter_base import (
     BaseAlgorithm,
     check_dsm,
     check_window_sizes,
+    destination_path,
     format_params,
+    label_of,
     output_options,
     progress_callback,
     raster_path,
@@ -766,6 +768,32 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.addParameter(p)
         for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
+
+    def checkOutputs(self, parameters, context):  # noqa: N802
+        """The checks of every algorithm, and: no orthophoto written into OUTPUT_ORTHO_FOLDER
+        (``<image>_ortho.tif``) replaces an input (the DEM, a frame) or another output."""
+        ok, msg = super().checkOutputs(parameters, context)
+        folder = destination_path(parameters, self.OUTPUT_ORTHO_FOLDER)
+        if not ok or folder is None:
+            return ok, msg
+        try:
+            paths, names = self._images(parameters, context)
+        except (ValueError, QgsProcessingException):
+            return True, ""                # refused with its reason by the checks of the inputs
+        taken = {os.path.realpath(p): label_of(d) for d, p in self.inputPaths(parameters, context)}
+        taken.update({os.path.realpath(p): label_of(self.parameterDefinition(self.IMAGES)) for p in paths})
+        for d in self.destinationParameterDefinitions():
+            out = destination_path(parameters, d.name())
+            if out is not None and d.name() != self.OUTPUT_ORTHO_FOLDER:
+                taken.setdefault(os.path.realpath(out), label_of(d))
+        for n in names:
+            target = os.path.join(folder, f"{n}_ortho.tif")
+            hit = taken.get(os.path.realpath(target))
+            if hit is not None:
+                return False, tr("{}: the orthophoto of {} would be written as {}, a file of {}: choose another "
+                                 "folder.").format(label_of(self.parameterDefinition(self.OUTPUT_ORTHO_FOLDER)),
+                                                   n, target, hit)
+        return True, ""
 
     # -- inputs -------------------------------------------------------------------------
     def _images(self, parameters, context):

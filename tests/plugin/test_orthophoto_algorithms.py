@@ -518,3 +518,23 @@ def test_orthoparallax_pair_given_in_the_wrong_order_warns(processing_run, pair,
         assert bool(said) == (k == 1), warnings
     assert re.search(r"\d+ cells lie below the DEM \(low\) and only \d+ above it", said[0])
     assert "CAMERA_A is the centre of ORTHO_A's frame" in said[0]
+
+
+def test_orthorefine_orthophotos_that_would_replace_an_input_refused_before_work(processing_run, frames, tmp_path):
+    """OUTPUT_ORTHO_FOLDER holding the DEM as frame0_ortho.tif (or OUTPUT_DEM so named): the run did
+    all its work, then stopped on a Python traceback while writing the orthophotos. Refused before
+    any work, naming the file and the input."""
+    import shutil
+
+    from qgis.core import QgsProcessingException
+    dem = tmp_path / "frame0_ortho.tif"
+    shutil.copy(frames["dem"], dem)
+    base = {"IMAGES": frames["images"], "EXTERIOR": frames["exterior"], "INTERIOR": frames["interior"],
+            "MAX_ITERATIONS": 1, "OUTPUT_ORTHO_FOLDER": str(tmp_path)}
+    for extra, what in (({"DEM": str(dem), "OUTPUT_DEM": str(tmp_path / "refined.tif")}, r"'Starting DEM' \(DEM\)"),
+                        ({"DEM": frames["dem"], "OUTPUT_DEM": str(tmp_path / "frame1_ortho.tif")},
+                         r"'Refined DEM' \(OUTPUT_DEM\)")):
+        with pytest.raises(QgsProcessingException, match=r"\(OUTPUT_ORTHO_FOLDER\): the orthophoto of frame\d would "
+                                                         r"be written as .*frame\d_ortho.tif, a file of " + what):
+            processing_run("bareearth:orthorefine", {**base, **extra, "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame0_ortho.tif"]
