@@ -432,20 +432,23 @@ class OrthoAlgorithm(BaseAlgorithm):
         nd = info.nodata
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         dem_out = np.where(np.isfinite(dem), dem, np.float32(nodata)).astype(np.float32)
-        with output_options(self, parameters, context), grid.OutputSet(info) as out:
-            out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
-            out.write("dem", dem_out)
-            if "dh" in paths:
-                out.add("dh", paths["dh"], "Float32", nodata=float("nan"), descriptions=["dh (m)"])
-                out.write("dh", dh.astype(np.float32))
-            if "quality" in paths:
-                out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
-                        descriptions=["peak NCC"])
-                out.write("quality", quality.astype(np.float32))
-            if "mask" in paths:
-                out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
-                out.write("mask", mask.astype(np.uint8))
-            out.commit()
+        try:   # a write that fails (a full disk): GDAL's reason naming the output, not a traceback
+            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
+                out.write("dem", dem_out)
+                if "dh" in paths:
+                    out.add("dh", paths["dh"], "Float32", nodata=float("nan"), descriptions=["dh (m)"])
+                    out.write("dh", dh.astype(np.float32))
+                if "quality" in paths:
+                    out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
+                            descriptions=["peak NCC"])
+                    out.write("quality", quality.astype(np.float32))
+                if "mask" in paths:
+                    out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
+                    out.write("mask", mask.astype(np.uint8))
+                out.commit()
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
         return {f"OUTPUT_{k.upper()}": v for k, v in paths.items()}
 
     def _log_info(self, info, feedback, skip=()):
@@ -965,12 +968,15 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         if parameters.get(self.OUTPUT_ORTHO_FOLDER):
             folder = self.parameterAsFileOutput(parameters, self.OUTPUT_ORTHO_FOLDER, context)
             os.makedirs(folder, exist_ok=True)
-            with output_options(self, parameters, context), grid.OutputSet(info) as out:
-                for n, o in zip(names, r.orthos):
-                    out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
-                            descriptions=[f"orthophoto of {n} (grey)"])
-                    out.write(n, np.asarray(o, np.float32))
-                out.commit()
+            try:
+                with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                    for n, o in zip(names, r.orthos):
+                        out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
+                                descriptions=[f"orthophoto of {n} (grey)"])
+                        out.write(n, np.asarray(o, np.float32))
+                    out.commit()
+            except ValueError as exc:
+                raise QgsProcessingException(str(exc)) from None
             outputs[self.OUTPUT_ORTHO_FOLDER] = folder
         feedback.pushInfo(tr("Iterations:"))
         feedback.pushInfo("  " + "  ".join(f"{c:>16}" for c in self.TABLE_COLUMNS))

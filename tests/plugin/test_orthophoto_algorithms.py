@@ -538,3 +538,21 @@ def test_orthorefine_orthophotos_that_would_replace_an_input_refused_before_work
                                                          r"be written as .*frame\d_ortho.tif, a file of " + what):
             processing_run("bareearth:orthorefine", {**base, **extra, "OUTPUT_MASK": str(tmp_path / "m.tif")})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frame0_ortho.tif"]
+
+
+def test_orthoparallax_output_that_cannot_be_written_is_a_message(processing_run, pair, tmp_path, monkeypatch):
+    """A write that fails (a full disk: grid raises a ValueError naming the output) ended the run
+    on a Python traceback; it is the message."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core import grid
+
+    def full(self, *a, **k):
+        raise ValueError("cannot write the output 'dem.tif': No space left on device (the disk may be full)")
+    monkeypatch.setattr(grid.OutputSet, "write", full)
+    cams = pair["cams"]
+    with pytest.raises(QgsProcessingException) as err:
+        processing_run("bareearth:orthoparallax", {
+            "ORTHO_A": pair["a"], "ORTHO_B": pair["b"], "DEM": pair["dem"], "CAMERA_A": _xyz(cams[0]),
+            "CAMERA_B": _xyz(cams[1]), "OUTPUT_DEM": str(tmp_path / "dem.tif")})
+    assert "No space left on device" in str(err.value) and "Traceback" not in str(err.value)
