@@ -383,6 +383,40 @@ def vertical_unit_factor(srs):
     return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
 
 
+#: A projected CRS made for measuring (UTM, national and state grids: transverse Mercator, Lambert
+#: conformal conic...) keeps its scale within about 0.1 % of 1 over its zone; beyond 1 % the CRS
+#: does not keep distances (Web Mercator: 1 / cos(latitude), 1.62 at 52 deg) and its units are not
+#: metres on the ground.
+PROJECTION_SCALE_TOLERANCE = 0.01
+
+
+def projection_scale(geotransform, shape, srs, f=1.0):
+    """Metres on the ground per metre of a projected CRS at the raster's centre, along x and along
+    y: one cell east and one cell north of the centre taken to the CRS's geographic CRS
+    (:func:`metres_per_degree`). ``f``: metres per CRS unit. ``(1.0, 1.0)`` when the points
+    cannot be transformed."""
+    gt = geotransform
+    cx = gt[0] + gt[1] * shape[1] / 2.0 + gt[2] * shape[0] / 2.0
+    cy = gt[3] + gt[4] * shape[1] / 2.0 + gt[5] * shape[0] / 2.0
+    try:
+        geo = srs.CloneGeogCS()
+        for ref in (srs, geo):
+            ref.SetAxisMappingStrategy(osr.OAMS_TRADITIONAL_GIS_ORDER)
+        tr = osr.CoordinateTransformation(srs, geo)
+        (lon0, lat0, _), (lon1, lat1, _), (lon2, lat2, _) = tr.TransformPoints(
+            [(cx, cy), (cx + abs(gt[1]), cy), (cx, cy + abs(gt[5]))])
+    except (RuntimeError, TypeError, ValueError, AttributeError):
+        return 1.0, 1.0
+    if not all(map(math.isfinite, (lon0, lat0, lon1, lat1, lon2, lat2))) or abs(lat0) > 90:
+        return 1.0, 1.0
+    mx, my = metres_per_degree(lat0)
+    ground_x = math.hypot((lon1 - lon0) * mx, (lat1 - lat0) * my)
+    ground_y = math.hypot((lon2 - lon0) * mx, (lat2 - lat0) * my)
+    if not (ground_x > 0 and ground_y > 0):
+        return 1.0, 1.0
+    return ground_x / (abs(gt[1]) * f), ground_y / (abs(gt[5]) * f)
+
+
 def cell_size_metres(geotransform, shape, srs=None):
     """Cell size ``(dx, dy)`` in metres, warnings, and metres per height unit, from a
     geotransform and a CRS.
@@ -431,7 +465,18 @@ def cell_size_metres(geotransform, shape, srs=None):
         warns.append(f"The CRS's horizontal unit is '{unit}' ({f:.6g} m) and its vertical unit '{vertical[1]}' "
                      f"({zf:.6g} m): cell size and heights were converted to metres for the thresholds; outputs "
                      "are written back in the raster's units.")
-    return (dx * f, dy * f), warns, zf
+    cell = (dx * f, dy * f)
+    if srs.IsProjected():
+        kx, ky = projection_scale(gt, shape, srs, f)
+        if max(abs(kx - 1.0), abs(ky - 1.0)) > PROJECTION_SCALE_TOLERANCE:
+            if abs(kx / ky - 1.0) <= PROJECTION_SCALE_TOLERANCE:   # conformal (Web Mercator's sphere on the
+                kx = ky = math.sqrt(kx * ky)                          # ellipsoid: 0.3 %): one scale
+            cell = (cell[0] * kx, cell[1] * ky)
+            warns.append(f"The CRS does not keep distances here: one of its metres is {kx:.4g} m on the ground at "
+                         f"the raster's centre (e.g. Web Mercator), so its cell size {dx:.4g} x {dy:.4g} was "
+                         f"converted to {cell[0]:.4g} x {cell[1]:.4g} m on the ground. Reproject to a projected "
+                         "CRS made for measuring (UTM, a national grid) for exact distances.")
+    return cell, warns, zf
 
 
 def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
