@@ -12,14 +12,23 @@ from qgis.core import (
     QgsProcessingParameterString,
 )
 
+from ..core import Cancelled, grid
 from ..core import evaluate as ev
-from ..core import grid
 from ..core.pointfiles import is_class_column
 from ..core.pointflow import class_counts, classify_cloud, truth_ground
 from ..core.points import read_points
 from .compat import NUMBER_DOUBLE, mark_advanced
 from .fill_dtm import grid_mismatch_message, same_grid
-from .filter_base import BaseAlgorithm, explained, layer_crs_wkt, layer_nodata_ranges, raster_path, tr, with_help
+from .filter_base import (
+    BaseAlgorithm,
+    explained,
+    layer_crs_wkt,
+    layer_nodata_ranges,
+    raster_path,
+    stage_done,
+    tr,
+    with_help,
+)
 
 #: what each figure of a comparison is, for the log (Sithole & Vosselman 2004's cross matrix:
 #: rows the truth, columns the result)
@@ -187,7 +196,9 @@ class EvaluateAlgorithm(BaseAlgorithm):
                     raise ValueError(f"{name}: {exc}") from None
         for m, name in ((mask, "The mask (MASK)"), (ref_mask, "The reference mask (REFERENCE_MASK)")):
             if m is not None:
-                grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
+                codes = grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
+                if m is ref_mask:
+                    ev.check_reference_mask(codes, f"{name} {m.path!r}")
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
             raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
         if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):
@@ -225,9 +236,17 @@ class EvaluateAlgorithm(BaseAlgorithm):
 
     def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
         try:
+            return self._evaluate(parameters, context, feedback)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
+
+    def _evaluate(self, parameters, context, feedback):
+        try:
             mask, ref_mask, dtm, ref_dtm, points = self._inputs(parameters, context)
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
+        stage_done(feedback, 5)
         results, maps, gts = {}, {}, {}
         out = {}
         ref_m = None
@@ -240,11 +259,13 @@ class EvaluateAlgorithm(BaseAlgorithm):
             maps["mask errors"], _ = ev.error_map_from_masks(m, ref_m)
             gts["mask errors"] = mask.geotransform
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
+            stage_done(feedback, 30)
         if ref_dtm is not None:
             d = ev.compare_dtm(dtm.read(), ref_dtm.read(),
                                ground=None if ref_m is None else (ref_m == 0))
             results["DTM vs reference DTM"] = d
             out["RMSE"] = d["rmse"]
+            stage_done(feedback, 50)
         truth, column = self._truth(parameters, context)
         if points and (truth or column):
             from .points import evaluate_classified
@@ -292,6 +313,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                                               dtm.geotransform, dtm.shape, valid=inside)
             gts["point errors"] = dtm.geotransform
             out.update(TYPE1=r["type1"], TYPE2=r["type2"], TOTAL=r["total"], KAPPA=r["kappa"])
+        stage_done(feedback, 90)
         for name, r in results.items():
             log_figures(feedback, name, r)
         json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)

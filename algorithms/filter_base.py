@@ -87,6 +87,14 @@ def progress_callback(feedback):
     return progress
 
 
+def stage_done(feedback, percent):
+    """A stage of a tool that has no progress of its own is done: the bar moves to ``percent``,
+    and a cancel asked meanwhile stops the run here (Cancelled), before anything is written."""
+    feedback.setProgress(percent)
+    if feedback.isCanceled():
+        raise Cancelled()
+
+
 def auto_threads():
     """Threads for THREADS = 0: one per core (core ``blocks.default_workers``), within
     QGIS's "Max cores to use" setting when one is set."""
@@ -531,7 +539,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if d.type() == "rasterDestination":
                 for f in grid.output_files(path, styled=d.name().endswith("MASK")):
                     hit = input_files.get(os.path.realpath(f))
-                    if hit is not None and os.path.realpath(f) != real:
+                    if hit is not None and os.path.realpath(f) == real:   # a file a VRT input reads
+                        return False, tr("The output {} ({}) would write {}, a file the input {} ({}) reads: "
+                                         "the input would change. Choose another file for the output.").format(
+                            label_of(d), path, f, label_of(hit[0]), hit[1])
+                    if hit is not None:
                         return False, tr("The output {} ({}) would write {}, a file of the input {} ({}): its "
                                          "sidecar, or the style QGIS loads with it. Choose another name for the "
                                          "output.").format(
@@ -629,12 +641,25 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
-            return ok, msg
+            return ok, self.out_of_range(parameters, context) or msg
         for check in (check_block_size, check_processes):
             ok, msg = check(self, parameters, context)
             if not ok:
                 return ok, msg
         return self.checkOutputs(parameters, context)
+
+    def out_of_range(self, parameters, context):
+        """The refusal of the first number given outside its limits, naming its label, id and
+        range (QGIS's own says "Incorrect parameter value for THREADS"), or None."""
+        for d in self.parameterDefinitions():
+            if d.type() != "number" or parameters.get(d.name()) in (None, "") or d.checkValueIsAcceptable(
+                    parameters[d.name()], context):
+                continue
+            value, lo, hi = self.parameterAsDouble(parameters, d.name(), context), d.minimum(), d.maximum()
+            limits = (tr("at least {:g}").format(lo) if hi > 1e300 else tr("at most {:g}").format(hi)
+                      if lo < -1e300 else tr("within [{:g}, {:g}]").format(lo, hi))
+            return tr("{} = {:g} is out of range: give a value {}.").format(label_of(d), value, limits)
+        return None
 
     def postProcessAlgorithm(self, context, feedback):  # noqa: N802
         """Style the outputs Processing loads (the mask's classes, side products' renderers)."""

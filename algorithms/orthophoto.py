@@ -32,13 +32,16 @@ from qgis.core import (
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
+from ..core.orthophoto.quality import order_reversed
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .fill_dtm import grid_mismatch_message, other_crs, same_grid
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
     check_window_sizes,
+    destination_path,
     format_params,
+    label_of,
     output_options,
     progress_callback,
     raster_path,
@@ -429,20 +432,23 @@ class OrthoAlgorithm(BaseAlgorithm):
         nd = info.nodata
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         dem_out = np.where(np.isfinite(dem), dem, np.float32(nodata)).astype(np.float32)
-        with output_options(self, parameters, context), grid.OutputSet(info) as out:
-            out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
-            out.write("dem", dem_out)
-            if "dh" in paths:
-                out.add("dh", paths["dh"], "Float32", nodata=float("nan"), descriptions=["dh (m)"])
-                out.write("dh", dh.astype(np.float32))
-            if "quality" in paths:
-                out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
-                        descriptions=["peak NCC"])
-                out.write("quality", quality.astype(np.float32))
-            if "mask" in paths:
-                out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
-                out.write("mask", mask.astype(np.uint8))
-            out.commit()
+        try:   # a write that fails (a full disk): GDAL's reason naming the output, not a traceback
+            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
+                out.write("dem", dem_out)
+                if "dh" in paths:
+                    out.add("dh", paths["dh"], "Float32", nodata=float("nan"), descriptions=["dh (m)"])
+                    out.write("dh", dh.astype(np.float32))
+                if "quality" in paths:
+                    out.add("quality", paths["quality"], "Float32", nodata=float("nan"),
+                            descriptions=["peak NCC"])
+                    out.write("quality", quality.astype(np.float32))
+                if "mask" in paths:
+                    out.add("mask", paths["mask"], "Byte", nodata=NODATA, mask_style=True, descriptions=["mask"])
+                    out.write("mask", mask.astype(np.uint8))
+                out.commit()
+        except ValueError as exc:
+            raise QgsProcessingException(str(exc)) from None
         return {f"OUTPUT_{k.upper()}": v for k, v in paths.items()}
 
     def _log_info(self, info, feedback, skip=()):
@@ -606,6 +612,12 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
         dem_out = np.where(np.isfinite(dem), r.dem, np.nan)
         outputs = self._write(info, parameters, context, dem_out, r.dh, r.quality, r.mask)
         self._log_info(r.info, feedback, skip=("crop",))
+        reversed_, low, obj = order_reversed(r.mask, opts["window"])
+        if reversed_:
+            _warn(feedback, tr("{} cells lie below the DEM (low) and only {} above it (objects): objects stand "
+                               "above the ground, so the pair may be given in the wrong order. Check that "
+                               "CAMERA_A is the centre of ORTHO_A's frame and CAMERA_B of ORTHO_B's (with BASE_M "
+                               "and HEIGHT_M: that BASE_DIRECTION_DEG points from A to B).").format(low, obj))
         feedback.setProgress(100)
         return outputs
 
@@ -759,6 +771,32 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.addParameter(p)
         for key, label in (("ITERATIONS", "Updates applied"), ("RMS_CORRECTION_M", "Last RMS correction (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
+
+    def checkOutputs(self, parameters, context):  # noqa: N802
+        """The checks of every algorithm, and: no orthophoto written into OUTPUT_ORTHO_FOLDER
+        (``<image>_ortho.tif``) replaces an input (the DEM, a frame) or another output."""
+        ok, msg = super().checkOutputs(parameters, context)
+        folder = destination_path(parameters, self.OUTPUT_ORTHO_FOLDER)
+        if not ok or folder is None:
+            return ok, msg
+        try:
+            paths, names = self._images(parameters, context)
+        except (ValueError, QgsProcessingException):
+            return True, ""                # refused with its reason by the checks of the inputs
+        taken = {os.path.realpath(p): label_of(d) for d, p in self.inputPaths(parameters, context)}
+        taken.update({os.path.realpath(p): label_of(self.parameterDefinition(self.IMAGES)) for p in paths})
+        for d in self.destinationParameterDefinitions():
+            out = destination_path(parameters, d.name())
+            if out is not None and d.name() != self.OUTPUT_ORTHO_FOLDER:
+                taken.setdefault(os.path.realpath(out), label_of(d))
+        for n in names:
+            target = os.path.join(folder, f"{n}_ortho.tif")
+            hit = taken.get(os.path.realpath(target))
+            if hit is not None:
+                return False, tr("{}: the orthophoto of {} would be written as {}, a file of {}: choose another "
+                                 "folder.").format(label_of(self.parameterDefinition(self.OUTPUT_ORTHO_FOLDER)),
+                                                   n, target, hit)
+        return True, ""
 
     # -- inputs -------------------------------------------------------------------------
     def _images(self, parameters, context):
@@ -930,12 +968,15 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         if parameters.get(self.OUTPUT_ORTHO_FOLDER):
             folder = self.parameterAsFileOutput(parameters, self.OUTPUT_ORTHO_FOLDER, context)
             os.makedirs(folder, exist_ok=True)
-            with output_options(self, parameters, context), grid.OutputSet(info) as out:
-                for n, o in zip(names, r.orthos):
-                    out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
-                            descriptions=[f"orthophoto of {n} (grey)"])
-                    out.write(n, np.asarray(o, np.float32))
-                out.commit()
+            try:
+                with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                    for n, o in zip(names, r.orthos):
+                        out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
+                                descriptions=[f"orthophoto of {n} (grey)"])
+                        out.write(n, np.asarray(o, np.float32))
+                    out.commit()
+            except ValueError as exc:
+                raise QgsProcessingException(str(exc)) from None
             outputs[self.OUTPUT_ORTHO_FOLDER] = folder
         feedback.pushInfo(tr("Iterations:"))
         feedback.pushInfo("  " + "  ".join(f"{c:>16}" for c in self.TABLE_COLUMNS))

@@ -27,7 +27,16 @@ from ..core import pointflow as pf
 from ..core.pointfiles import check_points_writable
 from ..core.points import LAS_INSTALL_HINT, read_points
 from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_advanced
-from .filter_base import BaseAlgorithm, check_dsm, explained, format_params, output_options, progress_callback, tr
+from .filter_base import (
+    BaseAlgorithm,
+    check_dsm,
+    explained,
+    format_params,
+    output_options,
+    progress_callback,
+    stage_done,
+    tr,
+)
 
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
@@ -359,10 +368,14 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
-            feedback.setProgress(70)
+            stage_done(feedback, 70)
             with output_options(self, parameters, context):
                 pf.write_rasters(g, None, {"dsm": out})
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         finally:
@@ -456,15 +469,18 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
                 warn(feedback, w)
             feedback.pushInfo(tr("Read {} points from {}.").format(len(cloud), path))
             dtm = info.read()
-            feedback.setProgress(30)
+            stage_done(feedback, 30)
             t0 = time.perf_counter()
             classes = pf.classify_cloud(cloud, dtm, info.geotransform,
                                         threshold_m=self.parameterAsDouble(parameters, self.THRESHOLD_M, context),
                                         slope_factor=self.parameterAsDouble(parameters, self.SLOPE_FACTOR, context))
             dt = time.perf_counter() - t0
-            feedback.setProgress(60)
+            stage_done(feedback, 60)
             from ..core.points import write_points
             write_points(out, cloud, classes)
+        except Cancelled:
+            feedback.reportError(tr("Cancelled: no output was written."))
+            return {}
         except (ValueError, ImportError) as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
         finally:

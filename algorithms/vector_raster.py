@@ -4,6 +4,7 @@ from osgeo import gdal, ogr, osr
 from qgis.core import (
     QgsCoordinateReferenceSystem,
     QgsFeatureRequest,
+    QgsGeometry,
     QgsProcessingFeatureSource,
 )
 
@@ -79,7 +80,8 @@ def source_geometries(source, info, context, label="the layer", types=None):
 def rasterize_source(source, info, context, all_touched=True, label="the layer", types=None):
     """Burn the features of a Processing feature source onto ``info``'s grid.
 
-    Features are reprojected to the DSM's CRS and checked (:func:`source_geometries`).
+    Features are reprojected to the DSM's CRS and checked (:func:`source_geometries`); curved
+    ones are burned as their segmented shape (QGIS's default segmentation).
     Returns ``(bool array, feature count)``; an empty or missing source gives an all-False
     array.
     """
@@ -96,6 +98,8 @@ def rasterize_source(source, info, context, all_touched=True, label="the layer",
     layer = vds.CreateLayer("burn", srs if info.crs_wkt else None)
     n = 0
     for g in geometries:
+        if g.constGet().hasCurvedSegments():   # arcs (CurvePolygon, CompoundCurve...): GDAL burns none
+            g = QgsGeometry(g.constGet().segmentize())
         og = ogr.CreateGeometryFromWkb(bytes(g.asWkb()))
         if og is None:
             continue

@@ -111,6 +111,27 @@ def _masks(mask, truth_mask):
     return m, t
 
 
+def check_reference_mask(codes, what="the reference mask"):
+    """ValueError when a reference mask (uint8 codes, 255 nodata) holds no ground cell (code 0).
+
+    Every cell would then be an object: Type I 'not defined' and a total error equal to the
+    share of cells the other mask calls ground, without a word. The usual cause is another
+    convention (ASPRS classes: 2 ground, 6 building; or 1 ground, 2 object), named with the
+    codes found and the fix.
+    """
+    found = np.unique(np.asarray(codes)[np.asarray(codes) != NODATA])
+    if found.size == 0 or (found == GROUND).any():
+        return
+    shown = ", ".join(str(int(c)) for c in found[:12]) + (", ..." if found.size > 12 else "")
+    asprs = bool((found == 2).any() and (found > 2).any())
+    hint = (" Code 2 looks like ASPRS classes (2 ground, 6 building)" if asprs
+            else " Its ground may have another code")
+    raise ValueError(f"{what} holds no ground cell (code 0): its codes are {shown}. Masks are compared with the "
+                     f"codes 0 ground, 1 object, 2 low outlier, 255 nodata.{hint}: reclassify it first, 0 where "
+                     "ground and 1 elsewhere (Raster calculator: \"reference@1\" != "
+                     + ("2" if asprs else "its ground code") + ").")
+
+
 def compare_masks(mask, truth_mask, valid=None):
     """:func:`confusion` of two masks with the codes 0 ground, 1/2 object, 255 ignored.
 

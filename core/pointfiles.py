@@ -155,7 +155,7 @@ def read_points(path, crs=None):
     return cloud
 
 
-_SEPARATORS = bytes.maketrans(b"\t,;\r\v\f", b"      ")   # newlines stay
+_SEPARATORS = bytes.maketrans(b"\t,;\r\v\f\"", b"       ")   # newlines stay; a quoted field is its value
 _NUMBER_BYTES = np.zeros(256, dtype=bool)
 _NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE \n", dtype=np.uint8)] = True
 _CLASS_NAMES = ("class", "classification", "label", "cls", "c")
@@ -197,8 +197,7 @@ def _read_text(path):
     header, names, body_start = None, None, 0
     if not all(_is_number(t) for t in first_tokens):
         header = data[a:b].decode("utf-8", errors="replace").strip()
-        names = [t.decode("utf-8", errors="replace").strip().strip('"\'').lower()
-                 for t in first_tokens]
+        names = _column_names(first_tokens)
         body_start = b
     body = flat[body_start:]
     if not body.strip():
@@ -216,9 +215,14 @@ def _read_text(path):
     if table is None:
         table = _parse_careful(path, data, flat, body_start)
     ncols = table.shape[1]
+    head = data[body_start:body_start + 4096]
+    comma = (b";" in head and re.search(rb"\d,\d", head) is not None
+             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 8)))
+    comma_hint = (" The values seem to be written with decimal commas and separated by ';': write them "
+                  "with decimal points." if comma else "")
     if names is not None and len(names) != ncols:
         raise ValueError(f"{path}: the header line names {len(names)} columns but the points "
-                         f"have {ncols}; fix the header or remove it.")
+                         f"have {ncols}; fix the header or remove it." + comma_hint)
 
     # Pick the columns.
     if names is not None and {"x", "y", "z"} <= set(names):
@@ -226,12 +230,8 @@ def _read_text(path):
         cls_col = next((names.index(c) for c in _CLASS_NAMES if c in names), None)
     else:
         if ncols not in (3, 4):
-            head = data[body_start:body_start + 4096]
-            comma = (b";" in head and re.search(rb"\d,\d", head) is not None and ncols in (6, 8))
             raise ValueError(f"{path}: {ncols} values per line; expected 3 (x y z) or 4 "
-                             "(x y z class), or a header line naming the x, y, z columns."
-                             + (" The values seem to be written with decimal commas and separated by ';': "
-                                "write them with decimal points." if comma else ""))
+                             "(x y z class), or a header line naming the x, y, z columns." + comma_hint)
         cols, cls_col = [0, 1, 2], (3 if ncols == 4 else None)
 
     x = np.ascontiguousarray(table[:, cols[0]])
@@ -253,7 +253,6 @@ def _read_text(path):
                                 "the class: to keep another value there, add a header line naming the columns "
                                 "(e.g. x y z intensity)."))
         classification = c.astype(np.int32)
-    head = data[body_start:body_start + 4096]
     delim = "\t" if b"\t" in head else (";" if b";" in head else ("," if b"," in head else " "))
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
@@ -388,7 +387,7 @@ def _first_bad_line(data, nl, filled):
     letters (``nan``, ``inf``) and the last line.
     """
     for ln in filled:
-        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").split():
+        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").replace('"', " ").split():
             try:
                 float(t)
             except ValueError:
@@ -397,7 +396,7 @@ def _first_bad_line(data, nl, filled):
                 return int(ln)
     # float() accepted everything (e.g. "1.5.3" splits into two numbers for numpy)
     for ln in filled:
-        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").split():
+        for t in _line(data, nl, int(ln)).replace(",", " ").replace(";", " ").replace('"', " ").split():
             if t.count(".") > 1 or "_" in t:
                 return int(ln)
     return None
@@ -645,10 +644,16 @@ def _header_tokens(path):
             if line.strip():
                 first = line
                 break
-    tokens = [t.strip().strip('"\'').lower() for t in
-              first.decode("utf-8", errors="replace").replace("\t", " ").replace(",", " ")
-              .replace(";", " ").split()]
-    return first, tokens
+    return first, _column_names(first.translate(_SEPARATORS).split())
+
+
+def _column_names(tokens):
+    """The column names of a header line's tokens (bytes): lower case, quotes stripped, and a
+    header written as a comment read as one ('//X,Y,Z,R,G,B' from CloudCompare, '# x y z')."""
+    names = [t.decode("utf-8", errors="replace").lstrip("\ufeff").strip().strip('"\'').lower() for t in tokens]
+    if names:
+        names[0] = names[0].lstrip("#/").strip('"\'')
+    return [n for n in names if n]
 
 
 def is_class_column(path, name):
@@ -686,7 +691,7 @@ def read_column(path, name):
     with open(path, "rb") as fh:
         text = fh.read()
     start = text.find(first) + len(first)
-    body = text[start:].translate(bytes.maketrans(b"\t,;\r", b"    "))
+    body = text[start:].translate(_SEPARATORS)
     try:
         col = np.loadtxt(body.splitlines(), usecols=(k,), dtype=np.float64, ndmin=1)
     except ValueError as exc:

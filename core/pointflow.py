@@ -36,7 +36,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
-from .grid import metres_per_degree, vertical_unit_factor
+from .grid import ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
@@ -70,22 +70,29 @@ def _srs(crs):
     return srs
 
 
-def axis_scales(cloud, lat=None):
-    """Metres per unit of x, y and z of a cloud: ``(sx, sy, sz)``.
+def axis_scales(cloud, at=None):
+    """Metres per unit of x, y and z of a cloud: ``(sx, sy, sz)``, at the point ``at`` ``(x, y)``
+    (default: the middle of the cloud's extent; a block of tiles passes its own middle).
 
-    Projected or unknown CRS: ``units_to_metre`` for x and y. Geographic CRS (degrees):
-    :func:`.grid.metres_per_degree` at latitude ``lat`` (default: the cloud's mid latitude).
+    Projected or unknown CRS: ``units_to_metre`` for x and y, times the CRS's scale there when
+    it does not keep distances (Web Mercator, as USGS 3DEP's point tiles: :func:`.grid.ground_scale`).
+    Geographic CRS (degrees): :func:`.grid.metres_per_degree` at the latitude ``at[1]``.
     """
     sz = float(cloud.z_units_to_metre or 1.0)
     srs = _srs(cloud.crs)
+    if at is None and len(cloud.x):
+        at = (0.5 * (float(np.min(cloud.x)) + float(np.max(cloud.x))),
+              0.5 * (float(np.min(cloud.y)) + float(np.max(cloud.y))))
     if srs is not None and srs.IsGeographic():
-        if lat is None:
-            lat = 0.5 * (float(np.min(cloud.y)) + float(np.max(cloud.y)))
+        lat = at[1]
         if not -90.0 <= lat <= 90.0:
             raise ValueError(f"the points' CRS is geographic but their mid y {lat:.3f} is not a "
                              "latitude: check the CRS.")
         return metres_per_degree(lat) + (sz,)
     h = float(cloud.units_to_metre or 1.0)
+    scale = ground_scale(srs, at[0], at[1], f=h) if srs is not None and srs.IsProjected() and at else None
+    if scale is not None:
+        return h * scale[0], h * scale[1], sz
     return h, h, sz
 
 
@@ -606,7 +613,8 @@ def _block_lattice(clouds, cell_size_m):
     """The block's lattice (cell: ``cell_size_m``, default about one point per cell over the
     tiles' own areas) and the metres per x, y, z unit at the block's mid latitude."""
     merged_ext = _merged_extent(clouds)
-    scales = axis_scales(clouds[0], lat=0.5 * (merged_ext[1] + merged_ext[3]))
+    scales = axis_scales(clouds[0], at=(0.5 * (merged_ext[0] + merged_ext[2]),
+                                        0.5 * (merged_ext[1] + merged_ext[3])))
     if cell_size_m is None:
         area = 0.0
         for c in clouds:

@@ -198,6 +198,9 @@ def check_output_folder(path):
     file's name fits the file system; ValueError naming the folder otherwise."""
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise ValueError(f"the output's folder {folder!r} is a file, not a folder: choose a file name in a "
+                         "folder.")
     if not os.path.isdir(folder):
         raise ValueError(f"the output folder {folder!r} does not exist: create it or choose another folder.")
     try:  # a real file: os.access says yes to root on a read-only or virtual file system

@@ -383,6 +383,49 @@ def vertical_unit_factor(srs):
     return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
 
 
+#: A projected CRS made for measuring (UTM, national and state grids: transverse Mercator, Lambert
+#: conformal conic...) keeps its scale within about 0.1 % of 1 over its zone; beyond 1 % the CRS
+#: does not keep distances (Web Mercator: 1 / cos(latitude), 1.62 at 52 deg) and its units are not
+#: metres on the ground.
+PROJECTION_SCALE_TOLERANCE = 0.01
+
+
+def projection_scale(srs, x, y, step_x=1.0, step_y=1.0, f=1.0):
+    """Metres on the ground per metre of a projected CRS at the point ``(x, y)``, along x and
+    along y: ``step_x`` east and ``step_y`` north of it (CRS units) taken to the CRS's
+    geographic CRS (:func:`metres_per_degree`). ``f``: metres per CRS unit. ``(1.0, 1.0)``
+    when the points cannot be transformed."""
+    try:
+        geo = srs.CloneGeogCS()
+        for ref in (srs, geo):
+            ref.SetAxisMappingStrategy(osr.OAMS_TRADITIONAL_GIS_ORDER)
+        tr = osr.CoordinateTransformation(srs, geo)
+        (lon0, lat0, _), (lon1, lat1, _), (lon2, lat2, _) = tr.TransformPoints(
+            [(x, y), (x + step_x, y), (x, y + step_y)])
+    except (RuntimeError, TypeError, ValueError, AttributeError):
+        return 1.0, 1.0
+    if not all(map(math.isfinite, (lon0, lat0, lon1, lat1, lon2, lat2))) or abs(lat0) > 90:
+        return 1.0, 1.0
+    mx, my = metres_per_degree(lat0)
+    ground_x = math.hypot((lon1 - lon0) * mx, (lat1 - lat0) * my)
+    ground_y = math.hypot((lon2 - lon0) * mx, (lat2 - lat0) * my)
+    if not (ground_x > 0 and ground_y > 0):
+        return 1.0, 1.0
+    return ground_x / (step_x * f), ground_y / (step_y * f)
+
+
+def ground_scale(srs, x, y, step_x=1.0, step_y=1.0, f=1.0):
+    """The scale :func:`projection_scale` finds when it is beyond :data:`PROJECTION_SCALE_TOLERANCE`
+    (one value for both axes when they agree within it: a conformal CRS such as Web Mercator,
+    whose sphere on the WGS84 ellipsoid differs by 0.3 %), else None: the CRS keeps distances."""
+    kx, ky = projection_scale(srs, x, y, step_x, step_y, f)
+    if max(abs(kx - 1.0), abs(ky - 1.0)) <= PROJECTION_SCALE_TOLERANCE:
+        return None
+    if abs(kx / ky - 1.0) <= PROJECTION_SCALE_TOLERANCE:
+        kx = ky = math.sqrt(kx * ky)
+    return kx, ky
+
+
 def cell_size_metres(geotransform, shape, srs=None):
     """Cell size ``(dx, dy)`` in metres, warnings, and metres per height unit, from a
     geotransform and a CRS.
@@ -431,7 +474,19 @@ def cell_size_metres(geotransform, shape, srs=None):
         warns.append(f"The CRS's horizontal unit is '{unit}' ({f:.6g} m) and its vertical unit '{vertical[1]}' "
                      f"({zf:.6g} m): cell size and heights were converted to metres for the thresholds; outputs "
                      "are written back in the raster's units.")
-    return (dx * f, dy * f), warns, zf
+    cell = (dx * f, dy * f)
+    scale = None
+    if srs.IsProjected():
+        scale = ground_scale(srs, gt[0] + gt[1] * shape[1] / 2.0 + gt[2] * shape[0] / 2.0,
+                             gt[3] + gt[4] * shape[1] / 2.0 + gt[5] * shape[0] / 2.0, dx, dy, f)
+    if scale is not None:
+        kx, ky = scale
+        cell = (cell[0] * kx, cell[1] * ky)
+        warns.append(f"The CRS does not keep distances here: one of its metres is {kx:.4g} m on the ground at "
+                     f"the raster's centre (e.g. Web Mercator), so its cell size {dx:.4g} x {dy:.4g} was "
+                     f"converted to {cell[0]:.4g} x {cell[1]:.4g} m on the ground. Reproject to a projected "
+                     "CRS made for measuring (UTM, a national grid) for exact distances.")
+    return cell, warns, zf
 
 
 def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):

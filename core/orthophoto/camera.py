@@ -461,6 +461,24 @@ def _yaml_scalar(val):
             return v
 
 
+def _numbers(where, key, value, counts=(1,)):
+    """``value`` of ``key`` as a float (``counts`` ``(1,)``) or a list of floats whose length is
+    one of ``counts``; ValueError naming ``where`` (file and camera), the key and the form
+    expected (a text such as '8.8mm', a missing value, a list of the wrong length)."""
+    if isinstance(value, (list, tuple)):
+        vals = list(value) if len(value) in counts and counts != (1,) else None
+    else:
+        vals = [value] if 1 in counts else None
+    try:
+        out = [float(v) for v in vals if not isinstance(v, bool)] if vals is not None else None
+    except (TypeError, ValueError):
+        out = None
+    if out is None or len(out) != len(vals) or not all(math.isfinite(v) for v in out):
+        form = " or ".join("a number" if n == 1 else f"[{', '.join(['number'] * n)}]" for n in counts)
+        raise ValueError(f"{where}: {key} is {value!r}; give {form} (numbers without units).")
+    return out[0] if counts == (1,) else out
+
+
 def read_interior_yaml(path):
     """Read orthority-style interior orientation YAML: ``{camera id: {type, im_size, ...}}``.
 
@@ -472,12 +490,17 @@ def read_interior_yaml(path):
     -------
     dict of str -> Interior
     """
-    text = Path(path).read_text(encoding="utf-8")
+    text = Path(path).read_text(encoding="utf-8-sig")
     try:
         import yaml  # optional; the tiny parser below covers these files
-        data = yaml.safe_load(text)
     except ImportError:
         data = parse_tiny_yaml(text)
+    else:
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{path}: not valid YAML ({' '.join(str(exc).split())}); expected a mapping of "
+                             "camera id -> parameters (type, im_size [w, h], focal_len, ...).") from None
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: expected a mapping of camera id -> parameters.")
     if "im_size" in data:                        # a single camera without an id
@@ -493,9 +516,16 @@ def read_interior_yaml(path):
         miss = [k for k in ("im_size", "focal_len") if p.get(k) is None]
         if miss:
             raise ValueError(f"{path}: camera {cam_id!r} lacks {miss}; give im_size [w, h] and focal_len.")
+        where = f"{path}: camera {cam_id!r}"
+        size = _numbers(where, "im_size", p["im_size"], (2,))
+        if any(v != int(v) or v < 1 for v in size):
+            raise ValueError(f"{where}: im_size is {p['im_size']!r}; give [width, height] in whole pixels.")
+        sensor = p.get("sensor_size")
         out[str(cam_id)] = Interior.from_params(
-            p["im_size"], p["focal_len"], p.get("sensor_size"), p.get("cx", 0.0) or 0.0,
-            p.get("cy", 0.0) or 0.0, *(float(p.get(k, 0.0) or 0.0) for k in ("k1", "k2", "k3", "p1", "p2")),
+            size, _numbers(where, "focal_len", p["focal_len"], (1, 2)),
+            None if sensor is None else _numbers(where, "sensor_size", sensor, (2,)),
+            *(_numbers(where, k, p.get(k) if p.get(k) is not None else 0.0)
+              for k in ("cx", "cy", "k1", "k2", "k3", "p1", "p2")),
             name=str(cam_id))
     return out
 
@@ -516,25 +546,44 @@ def read_opensfm_reconstruction(path):
         By shot name (extension dropped), in the topocentric frame.
     reference_lla : dict or None
     """
-    data = json.loads(Path(path).read_text(encoding="utf-8"))
-    rec = data[0] if isinstance(data, list) else data
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8-sig"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc}); expected an OpenSfM reconstruction.json.") from None
+    rec = data[0] if isinstance(data, list) and data else data
+    if not (isinstance(rec, dict) and isinstance(rec.get("cameras", {}), dict)
+            and isinstance(rec.get("shots", {}), dict)):
+        raise ValueError(f"{path}: not an OpenSfM reconstruction (a list of reconstructions, each a mapping "
+                         "with 'cameras' and 'shots' mappings).")
     interiors = {}
     for cid, p in rec.get("cameras", {}).items():
+        where = f"{path}: camera {cid!r}"
+        if not isinstance(p, dict):
+            raise ValueError(f"{where} must be a mapping of parameters.")
         typ = p.get("projection_type", "perspective")
         if typ not in ("brown", "perspective", "simple_radial", "radial"):
             raise ValueError(f"{path}: camera {cid!r} has projection {typ!r}; supported: brown, perspective.")
-        fx = p.get("focal_x", p.get("focal"))
-        fy = p.get("focal_y", fx)
-        io = Interior.from_params((p["width"], p["height"]), (fx, fy), None, p.get("c_x", 0.0),
-                                  p.get("c_y", 0.0), p.get("k1", 0.0), p.get("k2", 0.0),
-                                  p.get("k3", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), name=cid)
+        miss = [k for k in ("width", "height") if p.get(k) is None] + (
+            [] if p.get("focal_x", p.get("focal")) is not None else ["focal (or focal_x)"])
+        if miss:
+            raise ValueError(f"{where} lacks {', '.join(miss)}.")
+        fx = _numbers(where, "focal_x", p.get("focal_x", p.get("focal")))
+        fy = _numbers(where, "focal_y", p.get("focal_y", fx))
+        size = _numbers(where, "width, height", [p["width"], p["height"]], (2,))
+        io = Interior.from_params(size, (fx, fy), None,
+                                  *(_numbers(where, k, p.get(k) if p.get(k) is not None else 0.0)
+                                    for k in ("c_x", "c_y", "k1", "k2", "k3", "p1", "p2")), name=cid)
         interiors[cid] = io
         if cid.startswith("v2 "):
             interiors[cid[3:]] = io
     cameras = {}
     for sname, s in rec.get("shots", {}).items():
-        Rwc = _rodrigues(s["rotation"])                # world -> cv camera
-        C = -Rwc.T @ np.asarray(s["translation"], dtype=float)
+        where = f"{path}: shot {sname!r}"
+        if not isinstance(s, dict) or s.get("camera") not in interiors:
+            raise ValueError(f"{where}: its camera {s.get('camera') if isinstance(s, dict) else None!r} is not "
+                             f"among the reconstruction's cameras {sorted(rec.get('cameras', {}))}.")
+        Rwc = _rodrigues(_numbers(where, "rotation", s.get("rotation"), (3,)))    # world -> cv camera
+        C = -Rwc.T @ np.asarray(_numbers(where, "translation", s.get("translation"), (3,)), dtype=float)
         R = Rwc.T @ _FLIP                              # camera (x right, y up, z back) -> world
         name = Path(sname).stem
         cameras[name] = Camera(interiors[s["camera"]], C, R, name, rotation_to_opk(R))

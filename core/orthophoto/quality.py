@@ -736,3 +736,23 @@ def close_mask(mask, window):
     out = mask.copy()
     out[new] = OBJECT
     return out
+
+
+def order_reversed(mask, window):
+    """Whether a pair's mask reads as if its two orthophotos were given in the wrong order.
+
+    Giving A's camera to B and B's to A (or the base direction turned by 180 deg) turns
+    the sign of every parallax, so every dh: objects come out as low cells below the DEM
+    and the DEM corrected is pulled down into the ground. Objects stand above the ground
+    and low cells are blunders, so a mask holding more low cells than object cells, and
+    at least one matching window's area of them (the smallest patch the matcher resolves,
+    :func:`close_mask`), says the order is reversed.
+
+    Returns
+    -------
+    (bool, int, int)
+        The verdict, the low cells and the object cells.
+    """
+    low = int(np.count_nonzero(mask == LOW))
+    obj = int(np.count_nonzero(mask == OBJECT))
+    return low > obj and low >= int(window) ** 2, low, obj

@@ -146,8 +146,11 @@ def index_tiles(inputs):
     paths = list_inputs(inputs)
     missing = [p for p in paths if not os.path.exists(p)]
     if missing:
-        raise ValueError(f"{len(missing)} tile(s) are missing: {_short(missing)}. Restore them or rebuild the "
-                         "VRT without them.")
+        one = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
+        from_vrt = len(one) == 1 and str(one[0]).lower().endswith(".vrt")
+        raise ValueError(f"{len(missing)} tile(s) are missing: {_short(missing)}. " + (
+            "Restore them or rebuild the VRT without them." if from_vrt else
+            f"No such file ({missing[0]}): check the path{'s' if len(missing) > 1 else ''}."))
     infos, bad = [], []
     for p in paths:
         try:

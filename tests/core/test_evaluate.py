@@ -363,3 +363,13 @@ def test_write_report_all_or_nothing(tmp_path):
     assert list((tmp_path / "r.html").iterdir()) == []
     write_report({"total": 1.0}, json_path=tmp_path / "r.json", html_path=tmp_path / "page.html")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["page.html", "r.html", "r.json"]
+
+
+def test_check_reference_mask_needs_a_ground_cell():
+    from bare_earth.core.evaluate import check_reference_mask
+    check_reference_mask(np.array([[0, 1], [2, 255]], np.uint8))        # ground present
+    check_reference_mask(np.full((2, 2), 255, np.uint8))                 # nothing to say: all nodata
+    with pytest.raises(ValueError, match=r"its codes are 2, 6\. .*ASPRS.*!= 2\)"):
+        check_reference_mask(np.array([[2, 6], [255, 2]], np.uint8))
+    with pytest.raises(ValueError, match=r"its codes are 1\. .*another code.*!= its ground code\)"):
+        check_reference_mask(np.array([[1, 1]], np.uint8))

@@ -143,6 +143,30 @@ def test_geographic_cell_size_at_equator(tmp_path):
     assert info.cell_size_m[1] == pytest.approx(110.574, rel=1e-3)
 
 
+@pytest.mark.parametrize("lat", [0.0, 52.0, 70.0])
+def test_web_mercator_cell_size_is_the_ground_size(tmp_path, lat):
+    """EPSG:3857 cells of 1 unit at latitude 52 are 0.62 m on the ground (1 / cos(lat) units per
+    metre): they were taken as 1 m, so slopes read 1.6 x too gentle and windows 1.6 x too wide.
+    The cell size is the ground's (Web Mercator's sphere on the WGS84 ellipsoid: within 0.5 %),
+    with a warning; at the equator (scale 1) nothing changes."""
+    import math
+    y = 6378137.0 * math.log(math.tan(math.pi / 4 + math.radians(lat) / 2))
+    info = grid.open_dsm(tif(tmp_path, np.zeros((10, 10), np.float32), gt=(1e6, 2.0, 0.0, y + 10.0, 0.0, -2.0),
+                             crs=3857))
+    want = 2.0 * math.cos(math.radians(lat))
+    assert info.cell_size_m[0] == info.cell_size_m[1]
+    assert info.cell_size_m[0] == pytest.approx(want, rel=5e-3)
+    said = [w for w in info.warnings if "does not keep distances" in w]
+    assert bool(said) == (lat > 0), info.warnings
+
+
+def test_utm_cell_size_is_left_as_it_is(tmp_path):
+    """A CRS made for measuring (UTM: scale 0.9996 at its central meridian) keeps its cell size."""
+    gt = (500000.0, 0.5, 0.0, 5400000.0, 0.0, -0.5)
+    info = grid.open_dsm(tif(tmp_path, np.zeros((10, 10), np.float32), gt=gt, crs=32632))
+    assert info.cell_size_m == (0.5, 0.5) and info.warnings == []
+
+
 def test_us_survey_feet(tmp_path):
     gt = (300000.0, 3.0, 0.0, 60000.0, 0.0, -3.0)
     info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt, crs=2263))
@@ -509,6 +533,8 @@ def test_compound_crs_heights_in_the_vertical_unit(tmp_path, crs, cell_to_m, z_t
     s = osr.SpatialReference()
     s.SetFromUserInput(crs)
     gt = (10.0, 0.0001, 0.0, 50.0, 0.0, -0.0001) if cell_to_m is None else GT
+    if crs.startswith("EPSG:2264"):   # in North Carolina (GT lies 1400 km north of it, where the grid's
+        gt = (2100000.0, 2.0, 0.0, 740000.0, 0.0, -2.0)   # scale is 1.018: no longer metres on the ground)
     a = np.array([[10, 20, 30], [40, 50, 60], [70, 80, 90]], np.float32)
     info = grid.open_dsm(tif(tmp_path, a, gt=gt, crs=s.ExportToWkt()))
     assert info.z_to_m == pytest.approx(z_to_m, rel=1e-9)

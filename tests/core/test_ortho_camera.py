@@ -216,3 +216,52 @@ def test_read_cameras(shared_data, tmp_path):
     assert len(odm) == 4 and odm[0].interior.has_distortion
     with pytest.raises(ValueError, match="unknown interior"):
         read_cameras(d / "io" / "ngi_xyz_opk.csv", tmp_path / "x.txt")
+
+
+YAML_HEAD = "cam:\n  type: brown\n"
+SIZE = YAML_HEAD + "  im_size: [640, 480]\n"
+BAD_INTERIOR = [
+    ("int.yaml", "cam:\n  im_size: [640, 480\n  focal_len: 0.5\n", r"not valid YAML"),
+    ("int.yaml", YAML_HEAD + "  im_size: [640]\n  focal_len: 0.5\n",
+     r"camera 'cam': im_size is \[640\]; give \[number, number\]"),
+    ("int.yaml", YAML_HEAD + "  im_size: 640x480\n  focal_len: 0.5\n", r"im_size is '640x480'"),
+    ("int.yaml", YAML_HEAD + "  im_size: [640.5, 480]\n  focal_len: 0.5\n",
+     r"im_size is \[640.5, 480\]; give \[width, height\] in whole"),
+    ("int.yaml", SIZE + "  focal_len: 8.8mm\n", r"focal_len is '8.8mm'; give a number or \[number, number\]"),
+    ("int.yaml", SIZE + "  focal_len: [0.5, 0.5, 0.5]\n", r"focal_len is \[0.5, 0.5, 0.5\]"),
+    ("int.yaml", SIZE + "  focal_len: 0.5\n  cx: abc\n", r"cx is 'abc'; give a number"),
+    ("int.yaml", SIZE + "  focal_len: 8\n  sensor_size: 13.2\n", r"sensor_size is 13.2"),
+    ("int.yaml", SIZE + "  focal_len: 0.5\n  k1: .nan\n", r"k1 is nan"),
+    ("rec.json", "", r"rec.json: not valid JSON"),
+    ("rec.json", "[]", r"not an OpenSfM reconstruction"),
+    ("rec.json", '"text"', r"not an OpenSfM reconstruction"),
+    ("rec.json", '{"cameras": {"c": {"focal": 0.5}}}', r"camera 'c' lacks width, height"),
+    ("rec.json", '{"cameras": {"c": {"focal": 0.5, "width": 640, "height": 480}}, "shots": {"a.jpg": '
+                 '{"camera": "other", "rotation": [0, 0, 0], "translation": [0, 0, 0]}}}',
+     r"shot 'a.jpg': its camera 'other' is not among the reconstruction's cameras \['c'\]"),
+    ("rec.json", '{"cameras": {"c": {"focal": 0.5, "width": 640, "height": 480}}, "shots": {"a.jpg": '
+                 '{"camera": "c", "rotation": [0, 0], "translation": [0, 0, 0]}}}', r"rotation is \[0, 0\]"),
+]
+
+
+@pytest.mark.parametrize("name,text,message", BAD_INTERIOR)
+def test_malformed_interior_orientation_is_a_value_error_naming_the_key(tmp_path, name, text, message):
+    """Interior files with a YAML syntax error, units in a number ('8.8mm'), lists of the wrong
+    length, a missing key or a shot of an unknown camera: each raised a bare Python error
+    (yaml.ParserError, TypeError, KeyError, IndexError, AttributeError; a traceback in QGIS) or
+    'not enough values to unpack'; now a ValueError naming the file, the camera and the key."""
+    from bare_earth.core.orthophoto.camera import read_cameras
+    p = tmp_path / name
+    p.write_text(text)
+    ext = tmp_path / "ext.csv"
+    ext.write_text("filename,x,y,z,omega,phi,kappa,camera\na.jpg,0,0,100,0,0,0,c\n")
+    with pytest.raises(ValueError, match=message):
+        read_cameras(ext, p)
+
+
+def test_interior_yaml_with_a_byte_order_mark_and_quoted_numbers_reads(tmp_path):
+    p = tmp_path / "int.yaml"
+    p.write_text("\ufeffcam:\n  im_size: [640, 480]\n  focal_len: '0.5'\n  cx: 0.01\n", encoding="utf-8")
+    io = read_interior_yaml(p)["cam"]
+    assert (io.width, io.height) == (640, 480) and io.fx == pytest.approx(320.0)
+    assert io.c0 == pytest.approx(319.5 + 6.4)

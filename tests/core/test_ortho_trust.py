@@ -501,3 +501,18 @@ def test_plane_sweep_keeps_only_unique_heights_on_weak_texture():
     # 0.2 % of the cells matched, the trend of so few is not the ground's)
     assert r.info["swept"] <= 0.001 * np.count_nonzero(np.isfinite(oa) & np.isfinite(ob))
     assert float((r.mask[_far_ground(sc, seen)] == OBJECT).mean()) <= 0.03
+
+
+def test_order_reversed_when_low_cells_outnumber_objects_by_a_window():
+    from bare_earth.core.codes import LOW
+    from bare_earth.core.orthophoto.quality import order_reversed
+    m = np.zeros((20, 20), np.uint8)
+    m[2:5, 2:5] = OBJECT                       # 9 object cells
+    m[10:13, 10:14] = LOW                      # 12 low cells: more, but fewer than a 5 x 5 window
+    m[0, :] = NODATA
+    assert order_reversed(m, 5) == (False, 12, 9)
+    assert order_reversed(m, 3) == (True, 12, 9)
+    m[10:16, 10:16] = LOW                      # 36 >= 25
+    assert order_reversed(m, 5) == (True, 36, 9)
+    m[2:10, 2:10] = OBJECT                     # 64 objects > 36 low
+    assert order_reversed(m, 5) == (False, 36, 64)

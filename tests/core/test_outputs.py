@@ -355,6 +355,9 @@ def test_check_output_file_refuses_a_folder_and_takes_a_file(tmp_path):
     grid.check_output_file(tmp_path / "table.csv")
     with pytest.raises(ValueError, match="does not exist"):
         grid.check_output_file(tmp_path / "missing" / "table.csv")
+    (tmp_path / "notes").write_text("x")          # a file where the folder should be: it was "does not exist"
+    with pytest.raises(ValueError, match=r"folder '.*notes' is a file, not a folder"):
+        grid.check_output_file(tmp_path / "notes" / "table.csv")
 
 
 

@@ -1,4 +1,6 @@
 """Tests of core/pointflow.py: units, one cloud, tiled blocks (seams), classified-point evaluation."""
+import math
+
 import numpy as np
 import pytest
 
@@ -42,6 +44,23 @@ def test_axis_scales_and_cell_sizes():
     bad = PointCloud(np.array([0.0]), np.array([500000.0]), np.array([0.0]), crs="EPSG:4326")
     with pytest.raises(ValueError, match="not a latitude"):
         pf.axis_scales(bad)
+
+
+def test_web_mercator_points_are_measured_in_ground_metres():
+    """Points in EPSG:3857 (USGS 3DEP's point tiles) at latitude 52: a unit is 0.62 m on the
+    ground; it was taken as 1 m, so a 1 m cell covered 0.62 m and the filters' slopes read 1.6 x
+    too gentle. UTM points keep their unit."""
+    lat = 52.0
+    y = 6378137.0 * math.log(math.tan(math.pi / 4 + math.radians(lat) / 2))
+    merc = PointCloud(np.array([1e6, 1e6 + 100.0]), np.array([y, y + 100.0]), np.array([0.0, 1.0]),
+                      crs="EPSG:3857")
+    sx, sy, sz = pf.axis_scales(merc)
+    assert sx == sy == pytest.approx(math.cos(math.radians(lat)), rel=5e-3) and sz == 1.0
+    g = pf.rasterize_cloud(merc, 1.0)
+    assert g.geotransform[1] == pytest.approx(1.0 / math.cos(math.radians(lat)), rel=5e-3)
+    utm = PointCloud(np.array([500000.0, 500100.0]), np.array([5.4e6, 5.4e6 + 100]), np.array([0.0, 1.0]),
+                     crs="EPSG:32632")
+    assert pf.axis_scales(utm) == (1.0, 1.0, 1.0)
 
 
 def test_rasterize_cloud_in_feet_uses_metres(cloud):

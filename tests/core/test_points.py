@@ -41,6 +41,8 @@ def _write(tmp_path, text, name="pts.txt"):
     "x y z class\n1 2 3 0\n\n   \n4   5 6 1",          # header, blank lines, no final newline
     "X, Y, Z, Classification\r\n1, 2, 3, 0\r\n4, 5, 6, 1\r\n",
     "\ufeffx\ty\tz\tc\n1\t2\t3\t0\n4\t5\t6\t1\n",        # byte-order mark
+    '"X","Y","Z","Classification"\n1,2,3,0\n4,5,6,1\n',  # PDAL writers.text: a quoted header
+    '"x","y","z","class"\n"1","2","3","0"\n"4","5","6","1"\n',   # every field quoted (refused before)
 ])
 def test_read_text_variants(tmp_path, text, parser):
     c = read_points(_write(tmp_path, text))
@@ -489,3 +491,23 @@ def test_classified_text_keeps_the_input_separator(tmp_path, sep):
     write_points(tmp_path / "c.txt", cloud, np.zeros(len(cloud), np.uint8))
     lines = (tmp_path / "c.txt").read_text().splitlines()
     assert lines[0] == sep.join(["x", "y", "z", "class"]) and lines[1] == sep.join(["0.000", "0.000", "1.000", "0"])
+
+
+def test_decimal_commas_under_a_header_are_named(tmp_path, parser):
+    """'x;y;z' then '1,5;2,5;3,5': the refusal said "the header line names 3 columns but the
+    points have 6"; it names the decimal commas now."""
+    with pytest.raises(ValueError, match=r"names 3 columns but the points have 6.*decimal commas and separated "
+                                         r"by ';'"):
+        read_points(_write(tmp_path, "x;y;z\n1,5;2,5;3,5\n4,5;5,5;6,5\n", "c.csv"))
+
+
+@pytest.mark.parametrize("text", ["//X,Y,Z,R,G,B\n1,2,3,10,20,30\n4,5,6,10,20,30\n",   # CloudCompare ASCII
+                                  "# X Y Z intensity\n1 2 3 7\n4 5 6 8\n",            # a commented header
+                                  "#x,y,z\n1,2,3\n4,5,6\n"])
+def test_a_header_written_as_a_comment_names_the_columns(tmp_path, text, parser):
+    """CloudCompare's '//X,Y,Z,R,G,B' was refused (6 values per line) and '# X Y Z intensity'
+    read as five names for four columns."""
+    c = read_points(_write(tmp_path, text))
+    np.testing.assert_array_equal(c.x, [1, 4])
+    np.testing.assert_array_equal(c.z, [3, 6])
+    assert c.classification is None

@@ -171,9 +171,11 @@ def test_missing_vrt_source_refused_naming_the_tile(tmp_path):
     paths = write_survey(tmp_path, sc, tile=32)
     gdal.BuildVRT(str(tmp_path / "mosaic.vrt"), paths)
     os.remove(paths[2])
-    with pytest.raises(ValueError, match=r"1 tile\(s\) are missing: t10\.tif"):
+    with pytest.raises(ValueError, match=r"1 tile\(s\) are missing: t10\.tif\. Restore them or rebuild the VRT"):
         index_tiles(str(tmp_path / "mosaic.vrt"))
-    with pytest.raises(ValueError, match=r"2 tile\(s\) are missing: t10\.tif, gone\.tif"):
+    # tiles named one by one (no VRT): the message spoke of rebuilding a VRT
+    with pytest.raises(ValueError, match=r"2 tile\(s\) are missing: t10\.tif, gone\.tif\. No such file "
+                                         r"\(.*t10\.tif\): check the paths\.$"):
         index_tiles([paths[0], paths[2], str(tmp_path / "gone.tif")])
 
 

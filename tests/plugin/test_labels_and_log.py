@@ -152,3 +152,18 @@ def test_names_in_paths_are_left_alone(qgis_app):
     msg = alg.explain("cannot write /tmp/x/OUTPUT_DTM.tif: OUTPUT_MASK and 'DTM' (OUTPUT_DTM) and tolerance_m")
     assert msg == ("cannot write /tmp/x/OUTPUT_DTM.tif: 'Object mask' (OUTPUT_MASK) and 'DTM' (OUTPUT_DTM) and "
                    "'Height tolerance (m)' (TOLERANCE_M)")
+
+
+@pytest.mark.parametrize("key,value,message", [
+    ("THREADS", 1000, r"'Threads \(0 = one per core\)' \(THREADS\) = 1000 is out of range: give a value within "
+                      r"\[0, 64\]"),
+    ("PROCESSES", 0, r"'Worker processes' \(PROCESSES\) = 0 is out of range: give a value within \[1, 64\]"),
+    ("EDGE_LENGTH_M", -1, r"'Object edge length \(m\)' \(EDGE_LENGTH_M\) = -1 is out of range: give a value"),
+])
+def test_a_number_out_of_range_is_refused_naming_its_label_and_range(processing_run, tmp_path, key, value, message):
+    """QGIS's refusal of a number beyond its limits said "Incorrect parameter value for THREADS":
+    neither the label nor the range. It names both now."""
+    from qgis.core import QgsProcessingException
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), key: value, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                                  "OUTPUT_MASK": "TEMPORARY_OUTPUT"})

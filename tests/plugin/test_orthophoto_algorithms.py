@@ -6,6 +6,7 @@ GeoTIFFs in a temporary folder, on a UTM-like grid (coordinates offset to 500 km
 import csv
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -469,15 +470,21 @@ def test_orthoparallax_drone_orthophotos_line_up(processing_run, shared_data, tm
         im = gdal.Open(str(root / "odm" / "images" / f"{n}.tif")).ReadAsArray().astype(np.float32)
         o = orthorectify(ndimage.gaussian_filter(im, (0, 2.0, 2.0)), c, dsm, gt)[0]
         paths.append(_write(tmp_path / f"{n}_ortho.tif", o, gt, nodata=float("nan"), epsg=ds.GetProjection()))
+    from qgis.core import QgsProcessingFeedback
+    warnings = []
+    fb = QgsProcessingFeedback()
+    fb.pushWarning = warnings.append
     res = processing_run("bareearth:orthoparallax", {
         "ORTHO_A": paths[0], "ORTHO_B": paths[1], "DEM": dsm_path,
         "CAMERA_A": ",".join(repr(float(v)) for v in cams[0].centre),
         "CAMERA_B": ",".join(repr(float(v)) for v in cams[1].centre), "MAX_DH_M": 8.0,
-        "OUTPUT_DEM": "TEMPORARY_OUTPUT", "OUTPUT_DH": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+        "OUTPUT_DEM": "TEMPORARY_OUTPUT", "OUTPUT_DH": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"},
+        feedback=fb)
     dh = _read(res["OUTPUT_DH"])[0]
     mask = _read(res["OUTPUT_MASK"])[0]
     assert np.isfinite(dh).sum() > 0.5 * (mask != 255).sum()
     assert abs(np.nanmedian(dh)) < 0.3 and np.nanmedian(np.abs(dh)) < 0.8
+    assert not [w for w in warnings if "wrong order" in w]      # orthophotos on their DSM: no false alarm
 
 
 def test_orthorefine_with_orientation_absurd_max_dh_refused(processing_run, frames, tmp_path):
@@ -491,3 +498,61 @@ def test_orthorefine_with_orientation_absurd_max_dh_refused(processing_run, fram
             "DEM": frames["dem"], "IMAGES": frames["images"], "EXTERIOR": frames["exterior"],
             "INTERIOR": frames["interior"], "MAX_DH_M": 1e6, "OUTPUT_DEM": str(out)})
     assert not out.exists()
+
+
+def test_orthoparallax_pair_given_in_the_wrong_order_warns(processing_run, pair, tmp_path):
+    """CAMERA_A and CAMERA_B swapped: every building came out as low cells below the DEM (object
+    recall 0.97 -> 0.00) and the run said nothing. It warns now, naming the check; the right order
+    does not warn."""
+    from qgis.core import QgsProcessingFeedback
+    cams = pair["cams"]
+    for k, (ca, cb) in enumerate(((cams[0], cams[1]), (cams[1], cams[0]))):
+        warnings = []
+        fb = QgsProcessingFeedback()
+        fb.pushWarning = warnings.append
+        processing_run("bareearth:orthoparallax", {
+            "ORTHO_A": pair["a"], "ORTHO_B": pair["b"], "DEM": pair["dem"], "CAMERA_A": _xyz(ca),
+            "CAMERA_B": _xyz(cb), "OUTPUT_DEM": str(tmp_path / f"dem{k}.tif"),
+            "OUTPUT_MASK": str(tmp_path / f"mask{k}.tif")}, feedback=fb)
+        said = [w for w in warnings if "wrong order" in w]
+        assert bool(said) == (k == 1), warnings
+    assert re.search(r"\d+ cells lie below the DEM \(low\) and only \d+ above it", said[0])
+    assert "CAMERA_A is the centre of ORTHO_A's frame" in said[0]
+
+
+def test_orthorefine_orthophotos_that_would_replace_an_input_refused_before_work(processing_run, frames, tmp_path):
+    """OUTPUT_ORTHO_FOLDER holding the DEM as frame0_ortho.tif (or OUTPUT_DEM so named): the run did
+    all its work, then stopped on a Python traceback while writing the orthophotos. Refused before
+    any work, naming the file and the input."""
+    import shutil
+
+    from qgis.core import QgsProcessingException
+    dem = tmp_path / "frame0_ortho.tif"
+    shutil.copy(frames["dem"], dem)
+    base = {"IMAGES": frames["images"], "EXTERIOR": frames["exterior"], "INTERIOR": frames["interior"],
+            "MAX_ITERATIONS": 1, "OUTPUT_ORTHO_FOLDER": str(tmp_path)}
+    for extra, what in (({"DEM": str(dem), "OUTPUT_DEM": str(tmp_path / "refined.tif")}, r"'Starting DEM' \(DEM\)"),
+                        ({"DEM": frames["dem"], "OUTPUT_DEM": str(tmp_path / "frame1_ortho.tif")},
+                         r"'Refined DEM' \(OUTPUT_DEM\)")):
+        with pytest.raises(QgsProcessingException, match=r"\(OUTPUT_ORTHO_FOLDER\): the orthophoto of frame\d would "
+                                                         r"be written as .*frame\d_ortho.tif, a file of " + what):
+            processing_run("bareearth:orthorefine", {**base, **extra, "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame0_ortho.tif"]
+
+
+def test_orthoparallax_output_that_cannot_be_written_is_a_message(processing_run, pair, tmp_path, monkeypatch):
+    """A write that fails (a full disk: grid raises a ValueError naming the output) ended the run
+    on a Python traceback; it is the message."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core import grid
+
+    def full(self, *a, **k):
+        raise ValueError("cannot write the output 'dem.tif': No space left on device (the disk may be full)")
+    monkeypatch.setattr(grid.OutputSet, "write", full)
+    cams = pair["cams"]
+    with pytest.raises(QgsProcessingException) as err:
+        processing_run("bareearth:orthoparallax", {
+            "ORTHO_A": pair["a"], "ORTHO_B": pair["b"], "DEM": pair["dem"], "CAMERA_A": _xyz(cams[0]),
+            "CAMERA_B": _xyz(cams[1]), "OUTPUT_DEM": str(tmp_path / "dem.tif")})
+    assert "No space left on device" in str(err.value) and "Traceback" not in str(err.value)

@@ -269,3 +269,41 @@ def test_filldtm_codes_the_mask_does_not_hold_warn(processing_run, tmp_path):
         found[codes] = [w for w in warnings if "holds none of FILL_CODES" in w]
     assert not found["1"]
     assert len(found["7"]) == 1 and "FILL_CODES (7); its codes are 0, 1: it fills no cell" in found["7"][0]
+
+
+@pytest.mark.parametrize("ground,obj,codes,hint", [(2, 6, "2, 6", "ASPRS"), (1, 2, "1, 2", "another code")])
+def test_evaluate_reference_mask_without_ground_refused_naming_its_codes(processing_run, tmp_path, ground, obj,
+                                                                         codes, hint):
+    """A reference mask in another convention (ASPRS 2 ground / 6 building, or 1 ground / 2
+    object) has no cell of code 0: every cell was an object, Type I 'not defined' and a total
+    error of 94.6 % without a word. Refused before any work, naming the codes and the fix; a
+    reference with ground cells still runs."""
+    from qgis.core import QgsProcessingException
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    ref = _write(tmp_path / "ref.tif", np.where(_mask() == 1, obj, ground).astype(np.uint8), nodata=255)
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    with pytest.raises(QgsProcessingException, match=rf"reference mask \(REFERENCE_MASK\) .*ref.tif' holds no ground "
+                                                     rf"cell \(code 0\): its codes are {codes}\..*{hint}"):
+        processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=ref, **outs))
+    assert not os.path.exists(outs["OUTPUT_JSON"])
+    r = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, **outs))
+    assert r["TOTAL"] == 0.0
+
+
+@pytest.mark.parametrize("percent", [1, 40])
+def test_evaluate_cancelled_writes_no_report(processing_run, tmp_path, percent):
+    """evaluate had no progress and ignored a cancel: it compared and wrote both reports."""
+    from qgis.core import QgsProcessingFeedback
+
+    class CancelAt(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            super().setProgress(p)
+            if p >= percent:
+                self.cancel()
+    m = _write(tmp_path / "m.tif", _mask(), nodata=255)
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
+    res = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, DTM=z, REFERENCE_DTM=z, **outs),
+                         feedback=CancelAt())
+    assert not res or not res.get("OUTPUT_JSON")
+    assert not os.path.exists(outs["OUTPUT_JSON"]) and not os.path.exists(outs["OUTPUT_HTML"])

@@ -543,3 +543,25 @@ def test_points_and_rasters_all_or_nothing(processing_run, cloud_files, tmp_path
                                                    **{k: str(v) for k, v in outs.items()}})
     assert [p.name for p in outs.values() if p.exists()] == []
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("percent", [1, 50])
+@pytest.mark.parametrize("alg", ["rasterizepoints", "classifypoints"])
+def test_point_tools_cancelled_write_nothing(processing_run, cloud_files, scene_files, tmp_path, alg, percent):
+    """A cancel asked while rasterizepoints or classifypoints ran was ignored: the run went on and
+    wrote its whole output. It stops at the end of the stage and writes nothing."""
+    from qgis.core import QgsProcessingFeedback
+
+    class CancelAt(QgsProcessingFeedback):
+        def setProgress(self, p):  # noqa: N802
+            super().setProgress(p)
+            if p >= percent:
+                self.cancel()
+    out = tmp_path / ("o.tif" if alg == "rasterizepoints" else "o.txt")
+    params = {"INPUT": cloud_files["txt"], "OUTPUT": str(out)}
+    if alg == "classifypoints":
+        params["DTM"] = processing_run("bareearth:rasterizepoints", {"INPUT": cloud_files["txt"],
+                                                                     "OUTPUT": str(tmp_path / "dsm.tif")})["OUTPUT"]
+    res = processing_run(f"bareearth:{alg}", params, feedback=CancelAt())
+    assert not res or not res.get("OUTPUT")
+    assert not out.exists()

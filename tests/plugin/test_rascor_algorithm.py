@@ -107,3 +107,36 @@ def test_special_area_polygon_accepted(processing_run, dam_scene, tmp_path):
                                               "OUTPUT_MASK": str(tmp_path / "m.tif"),
                                               "SPECIAL_AREAS": line_layer(poly, sc.epsg, polygons=True)})
     assert _mask(res).shape == sc.mask.shape
+
+
+@pytest.mark.parametrize("kind,wkt,linear", [
+    ("CurvePolygon", "CURVEPOLYGON(CIRCULARSTRING(45 -45, 65 -45, 45 -45))", "Polygon"),
+    ("MultiSurface", "MULTISURFACE(CURVEPOLYGON(CIRCULARSTRING(45 -45, 65 -45, 45 -45)))", "Polygon"),
+    ("CompoundCurve", "COMPOUNDCURVE(CIRCULARSTRING(20 -20, 50 -60, 80 -20))", "LineString"),
+    ("MultiCurve", "MULTICURVE(CIRCULARSTRING(20 -20, 50 -60, 80 -20))", "LineString"),
+])
+def test_curved_geometries_are_burned_as_their_segmented_shape(qgis_app, dam_scene, kind, wkt, linear):
+    """Curved features (a GeoPackage or PostGIS layer digitised with arcs): a circle of object
+    area or an arc of break line burned no cell, and the log blamed the layer's CRS. They burn
+    the cells of their segmented shape."""
+    from qgis.core import QgsFeature, QgsGeometry, QgsProcessingContext, QgsProcessingFeatureSource, QgsVectorLayer
+
+    from bare_earth.algorithms.vector_raster import rasterize_source
+    from bare_earth.core.grid import open_dsm
+    sc, path = dam_scene
+    info = open_dsm(path)
+    x0, y0 = sc.geotransform[0], sc.geotransform[3]
+    ctx = QgsProcessingContext()
+    burned = []
+    for k, w in ((kind, wkt), (linear, None)):
+        geom = QgsGeometry.fromWkt(wkt)
+        geom.translate(x0, y0)
+        if w is None:
+            geom = QgsGeometry(geom.constGet().segmentize())
+        lay = QgsVectorLayer(f"{k}?crs=EPSG:{sc.epsg}", "curves", "memory")
+        f = QgsFeature()
+        f.setGeometry(geom)
+        lay.dataProvider().addFeatures([f])
+        burned.append(rasterize_source(QgsProcessingFeatureSource(lay, ctx), info, ctx)[0])
+    assert burned[1].sum() > 40
+    assert (burned[0] == burned[1]).all()

@@ -353,3 +353,27 @@ def test_orthophoto_dem_in_feet_refused_whatever_its_height_unit(processing_run,
         processing_run("bareearth:orthoparallax", {"DEM": dem, "ORTHO_A": a, "ORTHO_B": b, "BASE_M": 300.0,
                                                    "HEIGHT_M": 1000.0, "OUTPUT_DEM": str(tmp_path / "o.tif"),
                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
+
+
+@pytest.mark.parametrize("key", ["OUTPUT_DTM", "OUTPUT_MASK"])
+def test_an_output_onto_a_file_a_vrt_input_reads_refused(processing_run, tmp_path, key):
+    """A VRT input over tiles: an output named as one of its tiles replaced the user's tile with
+    the DTM (or the mask), so the VRT read the result from then on. Refused before any work,
+    naming the tile and the VRT; every file as it was."""
+    import hashlib
+
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    tile = write_array(tmp_path / "tile.tif", sc.dsm, sc.geotransform, sc.epsg)
+    vrt = str(tmp_path / "mosaic.vrt")
+    gdal.BuildVRT(vrt, [tile])
+    before = hashlib.sha1((tmp_path / "tile.tif").read_bytes()).hexdigest()
+    outputs = {"OUTPUT_DTM": str(tmp_path / "dtm.tif"), "OUTPUT_MASK": str(tmp_path / "mask.tif"), key: tile}
+    with pytest.raises(QgsProcessingException, match=r"would write .*tile\.tif, a file the input 'Input DSM' "
+                                                     r"\(INPUT\) \(.*mosaic\.vrt\) reads"):
+        processing_run("bareearth:morphological", {"INPUT": vrt, **outputs})
+    # (QGIS's layer of the VRT saves its statistics into mosaic.vrt itself, as loading it in QGIS does)
+    assert hashlib.sha1((tmp_path / "tile.tif").read_bytes()).hexdigest() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mosaic.vrt", "tile.tif"]
