@@ -294,7 +294,7 @@ def test_dtm_keeps_raised_ground(kind):
 def test_dtm_takes_a_tile_nearly_all_roof_as_an_object(cell):
     # as lidar/sample_c: a roof 25 m high over 90 % of an 80 m tile, cut by the tile's edges on every side
     # but one wall along a diagonal, with a ground wedge in the corner beyond it; by the wall a lower level
-    # 15 m wide, 2 m below a gabled roof (every member takes it as ground: no window sees ground beyond it)
+    # 15 m wide, 1-2 m below a gabled roof (every member takes it as ground: no window sees ground beyond it)
     n = int(80 / cell)
     y, x = grid(n)
     x, y = x * cell, y * cell
