@@ -12,30 +12,40 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
 *steps* - a height jump over one or two cells - down to ground that continues beyond the step.
 :func:`find_raised_regions` tests that, region by region:
 
-1. **Regions.** The voted ground cells with no 8-neighbour more than ``t`` lower (``t``: the
-   vote's object height threshold) are labelled into 8-connected regions: a roof's rim (cells
-   above a wall) and every cell of a slope steeper than ``t`` per cell separate the region
-   on top from the ground around. Candidates are the regions whose footprint (holes filled)
-   is wider (twice the largest distance from a cell to its edge, less a cell) than
-   ``min_width_m``, the window of the vote's majority: narrower ones the members' windows
-   reach, and their vote stands.
+1. **Regions.** The voted ground cells with no 8-neighbour more than ``s`` lower are labelled
+   into 8-connected regions: a roof's rim (cells above a wall) and every cell of a slope steeper
+   than ``s`` per cell separate the region on top from the ground around. ``s`` takes the
+   scales ``t, 2 t, 4 t, ...`` (``t``: the vote's object height threshold) up to the highest
+   such drop: a roof of several levels (a lower level by its wall, a parapet, a roof step: steps
+   lower than its walls between them) is cut into levels at the small scales, some narrower than
+   the windows, and is one region at the scales above its inner steps; each scale's regions are
+   tested as below, and the objects of every scale are kept (a scale cutting the same cells as
+   the one before has the same regions with fewer steps: it is skipped). Candidates are the
+   regions whose footprint (holes filled) is wider (twice the largest distance from a cell to a
+   cell seen outside it, less a cell) than ``min_width_m``, the window of the vote's majority:
+   narrower ones the members' windows reach, and their vote stands. Beyond the raster's edge
+   nothing is seen: a region cut by it may continue there, and its width is that of the region
+   mirrored at the edge (as the slope-profile and curvature filters take a profile cut by the
+   edge); a region wider than the stage reaches (``max_cells`` cells) is left alone.
 2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
-   outside its footprint, or on the raster's edge; the edges of its holes - objects on a roof,
-   a courtyard - say nothing of what bounds it) stands on a *step* when, along some direction ``d`` leaving
-   the region, the ground beyond a wall of one or two cells (cells ``a = p + j d``, ``j`` = 2
-   or 3, and ``b = a + 2 d``, both voted ground, outside the region and not rims themselves)
-   continues below it: ``z(p) - (z(a) + j (z(a) - z(b)) / 2) > t``, the straight continuation of
-   the ground beyond the wall extended to ``p``. A slope wider than the wall (a bank, a
-   hillside, an embankment's side) carries its own continuation up to ``p`` and is no step;
-   the raster's edge is no step (nothing is known beyond it). The region is *bounded by
-   steps* when more than half of its outer outline cells stand on steps (a majority, as in
-   the vote).
+   seen outside its footprint; the edges of its holes - objects on a roof, a courtyard - say
+   nothing of what bounds it, nor does the raster's edge) stands on a *step* when, along some
+   direction ``d`` leaving the region, the ground beyond a wall of one or two cells (cells
+   ``a = p + j d``, ``j`` = 2 or 3, and ``b = a + 2 d``, both voted ground, outside the region
+   and not rims themselves) continues below it: ``z(p) - (z(a) + j (z(a) - z(b)) / 2) > s``, the
+   straight continuation of the ground beyond the wall extended to ``p``. A slope wider than the
+   wall (a bank, a hillside, an embankment's side) carries its own continuation up to ``p`` and
+   is no step. The region is *bounded by steps* when more than half of its outer outline cells
+   stand on steps (a majority, as in the vote).
 3. **Above the ground around.** A plane is fitted (least squares) to the ground cells ``a``
    beyond the outer outline; the region is an object when more than half of its cells stand
-   more than ``t`` above that plane. A terrace's upper level (one steep edge, the rest of its
-   outline at the raster's edge or on slopes), a plateau, a hilltop or a dam with banks of
-   more than two cells fails the outline test; a region that sinks below the ground around
-   behind its walls fails the plane.
+   more than ``t`` above that plane. A terrace's upper level joined to the lower ground by a
+   bank or a ramp over more than half of its seen outline, a plateau, a hilltop or a dam with
+   banks of more than two cells fails the outline test; a region that sinks below the ground
+   around behind its walls fails the plane. An upper level whose whole seen edge is a wall
+   and which runs off the raster elsewhere looks, within the raster, like a roof running off it
+   (lidar ``sample_c``: a roof over 80-90 % of its tile); within the stage's reach it is taken
+   as one.
 
 The decided regions and their rims (voted ground cells next to the region standing more than
 ``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
@@ -45,7 +55,8 @@ interpolated under them from the ground around, as under every object.
 Regions spanning more than ``max_cells`` cells (rows or columns) are never candidates, so the
 decision about any cell depends on cells within ``max_cells`` + :data:`REACH_CELLS` of it
 (:func:`regions_halo`): a region reaching a block's window edge spans more than that and is
-left alone there as in the single pass. ``bareearth:dtm`` takes ``max_cells`` as twice the
+left alone there as in the single pass (the mirror at the edge is only ever used on regions
+cut by the raster's own edge). ``bareearth:dtm`` takes ``max_cells`` as twice the
 widest window of its members (:func:`.dtm.region_scales`): one more doubling of the windows;
 wider regions (a roof running off the raster, a mall wider than that) are left to the
 vote and, where known, to the user's object areas.
@@ -89,19 +100,21 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     cell_size : (float, float)
         Metres.
     tolerance_m : float
-        ``t``: the object height threshold (a step, and a region above the ground around, by more).
+        ``t``: the object height threshold (a region above the ground around, by more) and the first scale
+        ``s`` of the walls cutting the regions (a step, by more).
     min_width_m : float
         Regions narrower than this are left to the vote (the window of the vote's majority).
     max_cells : int
-        Regions spanning more cells (rows or columns) are left alone (the stage's reach, see
-        :func:`regions_halo`); 0 turns the stage off.
+        Regions spanning more cells (rows or columns), or wider (mirrored at the raster's edge), are left
+        alone (the stage's reach, see :func:`regions_halo`); 0 turns the stage off.
 
     Returns
     -------
     objects : ndarray of bool
         The cells of the decided regions and their rims.
     decisions : list of dict
-        One per candidate region: its bounding box (cells), size, width (m), share of outline
+        One per candidate region (once, at the first scale it is an object at, else the first it is a
+        candidate at): its bounding box (cells), the scale ``s`` (m), size, width (m), share of outline
         cells on steps, share of cells above the plane of the ground around, and the decision.
     """
     z = np.asarray(z, np.float32)
@@ -117,7 +130,33 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     zi = np.where(valid, z, np.float32(np.inf))                # float32, as z (no second copy)
     # the 3 x 3 minimum (cells beyond the raster ignored: ndimage's mode "nearest", the same values) by banded
     # shifted minima, ~10x faster than SciPy's generic filter
-    rim = ground & (z - filter3x3(zi, np.minimum, np.inf) > t)
+    drop = z - filter3x3(zi, np.minimum, np.inf)
+    highest = float(np.max(drop, where=ground, initial=0.0))      # the highest drop: no scale cuts more above it
+    decided = {}                                        # each region once: its first object decision, else its first
+    step_m, cut = t, -1
+    while True:
+        # the walls higher than step_m cut the ground into regions; a scale cutting the same cells as the one
+        # before repeats its regions with fewer steps (a subset of its objects): skipped
+        rims = int(np.count_nonzero(ground & (drop > step_m)))
+        if rims != cut:
+            found, made = _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_cells)
+            objects |= found
+            for d in made:
+                key = (tuple(d["bbox"]), d["cells"])
+                if key not in decided or (d["object"] and not decided[key]["object"]):
+                    decided[key] = d
+        cut = rims
+        if step_m >= highest:
+            break
+        step_m *= 2.0
+    return objects, list(decided.values())
+
+
+def _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_cells):
+    """The raised regions of :func:`find_raised_regions` cut at walls higher than ``step_m``."""
+    shape = z.shape
+    objects = np.zeros(shape, bool)
+    rim = ground & (drop > step_m)
     free = ground & ~rim
     labels, n = ndimage.label(free, structure=np.ones((3, 3), bool))
     if n == 0:
@@ -125,7 +164,10 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     boxes = ndimage.find_objects(labels)
     cell = float(min(cell_size))
     spans = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
-    idx = np.flatnonzero((spans * cell >= min_width_m) & (spans <= max_cells)) + 1
+    # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide
+    cut = np.array([b[0].start == 0 or b[1].start == 0 or b[0].stop == shape[0] or b[1].stop == shape[1]
+                    for b in boxes], bool)
+    idx = np.flatnonzero((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)) + 1
     if idx.size == 0:
         return objects, []
     keep = np.zeros(n + 1, bool)
@@ -149,7 +191,7 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
             za = _shifted(zp, pad, dr, dc, j)[rows, cols]
             zb = _shifted(zp, pad, dr, dc, j + 2)[rows, cols]
             cont = za + j * (za - zb) / 2.0             # the ground beyond the wall continued to p
-            on = ok & (zo - cont > t)
+            on = ok & (zo - cont > step_m)
             step[rows[on], cols[on]] = True
             samples.append((lo[ok], rows[ok], cols[ok], rows[ok] + j * dr, cols[ok] + j * dc, za[ok]))
     s_lab, s_pr, s_pc, s_r, s_c = (np.concatenate([s[q] for s in samples]) for q in range(5))
@@ -170,16 +212,27 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         # twice the largest distance from a cell's centre to the nearest cell outside it (the
         # raster's edge included: only what is seen), less one cell (a row of cells is one wide)
         filled = ndimage.binary_fill_holes(np.pad(reg, 1))
-        width = 2.0 * float(ndimage.distance_transform_edt(filled, sampling=(cell_size[1], cell_size[0])).max()) - cell
-        if width < min_width_m:
+        # beyond the raster's edge nothing is seen: the region may continue there (the cells beyond
+        # count as its own, as a profile cut by the edge is mirrored there)
+        beyond = np.zeros(filled.shape, bool)
+        beyond[0] |= r0 == 0
+        beyond[-1] |= box[0].stop == shape[0]
+        beyond[:, 0] |= c0 == 0
+        beyond[:, -1] |= box[1].stop == shape[1]
+        seen = ~filled & ~beyond                         # the cells seen outside its footprint
+        if not seen.any():
             continue
-        # its outer outline: cells next to the outside (beyond the raster included), not to its holes,
-        # which say nothing of what bounds it
-        outer = reg & ndimage.binary_dilation(~filled, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
+        dist = ndimage.distance_transform_edt(~seen, sampling=(cell_size[1], cell_size[0]))[1:-1, 1:-1]
+        width = 2.0 * float(dist[reg].max()) - cell
+        if width < min_width_m or width > max_cells * cell:
+            continue
+        # its outer outline: cells next to the outside seen, not to its holes (which say nothing of what
+        # bounds it) nor to the raster's edge (nothing is known beyond it)
+        outer = reg & ndimage.binary_dilation(seen, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
         n_outer = int(np.count_nonzero(outer))
         step_share = float(np.count_nonzero(outer & step[sub])) / max(1, n_outer)
         d = {"bbox": [int(r0), int(c0), int(box[0].stop), int(box[1].stop)],
-             "cells": int(np.count_nonzero(reg)), "width_m": round(width, 1),
+             "step_m": round(step_m, 3), "cells": int(np.count_nonzero(reg)), "width_m": round(width, 1),
              "outline_cells": n_outer, "step_share": round(step_share, 3), "above_share": None, "object": False}
         a, b = starts[k], stops[k]
         use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline

@@ -49,15 +49,49 @@ def test_what_the_vote_reaches_or_the_stage_cannot_see_whole_is_left_alone():
     assert regions_halo(17) == 17 + REACH_CELLS
 
 
-def test_a_level_running_off_the_raster_is_no_object():
-    # a raised level with one wall and three sides at the raster's edge (a terrace's upper level,
-    # or a roof over most of a tile as in lidar/sample_c): not bounded by steps, left to the vote
+def test_a_level_running_off_the_raster_on_walls_is_an_object_within_the_reach():
+    # a raised level with one wall and three sides at the raster's edge (a roof over most of a tile, as in
+    # lidar/sample_c): beyond the edge nothing is seen, so its outline is the wall, and it stands on steps;
+    # its width is that of the level mirrored at the edge
     z = np.zeros((40, 40), np.float32)
     z[:, 15:] = 4.0
     objects, decisions = _find(z)
+    level = np.zeros(z.shape, bool)
+    level[:, 15:] = True
+    assert np.array_equal(objects, level)
+    upper = [d for d in decisions if d["object"]]
+    # the region (columns 16-39: the wall's top, column 15, is its rim) mirrored: twice 24 cells less one
+    assert len(upper) == 1 and upper[0]["step_share"] == 1.0 and upper[0]["width_m"] == 47.0
+    assert upper[0]["outline_cells"] == 40                   # next to the wall's top only, not the raster's edge
+    # mirrored, wider than the stage reaches (47 m > 45 cells), though spanning fewer cells: left alone
+    assert not _find(z, max_cells=45)[0].any()
+
+
+def test_a_level_joined_to_the_ground_by_a_bank_is_no_object():
+    # a terrace's upper level: a wall over a third of its seen outline, a bank (4 cells, 45 degrees) over the
+    # rest, the raster's edge on three sides: not bounded by steps
+    y, x = grid(40)
+    z = np.where(x >= 15, 4.0, 0.0).astype(np.float32)
+    bank = y >= 14
+    z[bank] = np.clip(x[bank] - 11.0, 0.0, 4.0)
+    objects, decisions = _find(z)
     assert not objects.any()
     upper = [d for d in decisions if d["bbox"][1] > 0]
-    assert len(upper) == 1 and 0 < upper[0]["step_share"] <= 0.5
+    assert len(upper) >= 1 and all(0 < d["step_share"] <= 0.5 for d in upper)
+
+
+def test_a_roof_of_two_levels_is_one_object():
+    # a building cut by the raster's edge (ground on the left): a lower level 6 cells wide (narrower than the
+    # vote's window) beside an upper one 2 m higher. Cut at walls higher than the threshold the lower level is a
+    # region of its own, too narrow to judge (the upper one stands on steps down to it); cut at walls higher
+    # than 2 m (the second doubling) both are one region standing on its wall
+    z = np.zeros((40, 40), np.float32)
+    z[:, 10:] = 10.0
+    z[:, 17:] = 12.0
+    objects, decisions = _find(z)
+    assert objects[:, 10:].all() and not objects[:, :10].any()
+    roofs = {d["step_m"]: d["bbox"] for d in decisions if d["object"]}
+    assert roofs == {0.5: [0, 18, 40, 40], 2.0: [0, 11, 40, 40]}     # at 0.5 m alone: the upper level only
 
 
 def test_a_raised_level_on_banks_wider_than_a_wall_is_no_object():
@@ -92,9 +126,11 @@ def test_blocked_equals_one_pass():
     z = (10 + 0.02 * x + 0.01 * y + rng.normal(0, 0.03, (n, n))).astype(np.float32)
     mask = np.zeros((n, n), np.uint8)
     for r0, c0, h, w, top in ((5, 5, 30, 40, 6.0), (60, 20, 50, 70, 9.0), (20, 100, 70, 60, 4.0),
-                              (130, 110, 40, 25, 7.0), (120, 10, 55, 55, 3.0)):
+                              (130, 110, 40, 25, 7.0), (120, 10, 55, 55, 3.0), (0, 165, 45, 15, 5.0)):
         z[r0:r0 + h, c0:c0 + w] += top
         mask[r0 + h // 2, c0 + w // 2] = OBJECT
+    z[12:28, 25:45] += 2.0                          # a roof of two levels
+    z[168:, 60:100] += 8.0                          # a roof cut by the raster's edge
     kw = {"tolerance_m": 0.5, "min_width_m": 20.0, "max_cells": 60}
     whole, _ = find_raised_regions(z, mask, (1.0, 1.0), **kw)
     assert whole.any() and not whole.all()
@@ -219,11 +255,12 @@ def test_dtm_takes_a_low_annex_only_rascor_rejects_as_an_object(monkeypatch):
 
 # ----------------------------------------------------------------------------- through bareearth:dtm
 
-def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object():
+@pytest.mark.parametrize("slope", [0.0, 0.02, 0.08])
+def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object(slope):
     y, x = grid(300)
-    ground = 50 + 0.02 * x + 0.01 * y
-    wh = (np.abs(x - 150) < 75) & (np.abs(y - 150) < 75)          # 150 m x 150 m flat roof, 9 m high
-    z = noisy(ground + np.where(wh, 9.0, 0.0), sd=0.05)
+    ground = 50 + slope * x + slope / 2 * y                           # flat, gentle, sloping (5.1 degrees)
+    wh = (np.abs(x - 150) < 75) & (np.abs(y - 150) < 75)          # 150 m x 150 m flat roof, walls 9 m high uphill
+    z = noisy(np.where(wh, 50 + 1.5 * slope * 225 + 9.0, ground), sd=0.05)
     res = pipeline.run_array("dtm", z, 1.0)
     p = res.info["params"]
     assert p["region_width_m"] < 150 and p["region_max_cells"] >= 150
@@ -234,7 +271,7 @@ def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object():
     assert any(s.endswith(": object") for s in res.info["raised_regions"])
 
 
-@pytest.mark.parametrize("kind", ["terrace", "plateau", "embankment", "hilltop"])
+@pytest.mark.parametrize("kind", ["terrace", "plateau", "embankment", "hilltop", "hilltop30", "steep plateau"])
 def test_dtm_keeps_raised_ground(kind):
     y, x = grid(300)
     base = 50 + 0.02 * x + 0.01 * y
@@ -244,11 +281,32 @@ def test_dtm_keeps_raised_ground(kind):
         "plateau": np.clip((100 - r) * 1.73, 0, 20),                 # 60 degree sides, 20 m high, 160 m top
         "embankment": np.clip((30 - np.abs(y - 150)) / 1.5, 0, 6),    # a dam, 1:1.5 banks, 6 m high
         "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
+        "hilltop30": np.clip((35 - r) * 1.0, 0, 20),                 # 45 degree sides to a top 30 m wide
+        "steep plateau": np.clip((100 - r) * 3.73, 0, 20),           # 75 degree sides, 20 m high, 5 m wide
     }[kind]
     z = noisy(base + raised, sd=0.05)
     res = pipeline.run_array("dtm", z, 1.0)
     assert res.info["raised_region_cells"] == 0
     assert all(s.endswith(": ground") for s in res.info["raised_regions"])
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0])
+def test_dtm_takes_a_tile_nearly_all_roof_as_an_object(cell):
+    # as lidar/sample_c: a roof 25 m high over 90 % of an 80 m tile, cut by the tile's edges on every side
+    # but one wall along a diagonal, with a ground wedge in the corner beyond it; by the wall a lower level
+    # 15 m wide, 1-2 m below a gabled roof (every member takes it as ground: no window sees ground beyond it)
+    n = int(80 / cell)
+    y, x = grid(n)
+    x, y = x * cell, y * cell
+    ground = 30 + 0.01 * x
+    d = (x + y) / np.sqrt(2)
+    roof = d > 25
+    z = noisy(np.where(roof, 55 + np.where(d < 40, 0.0, 2.0 - 0.05 * np.abs(d - 60)), ground), sd=0.05)
+    res = pipeline.run_array("dtm", z, cell)
+    assert (res.mask[roof] == OBJECT).all()
+    assert (res.mask[~roof] == GROUND).all()
+    assert np.sqrt(np.mean((res.dtm - ground)[roof] ** 2)) < 0.5         # the ground under it interpolated
+    assert any(s.endswith(": object") for s in res.info["raised_regions"])
 
 
 def test_dtm_halo_adds_the_stage_reach_to_the_members():
