@@ -640,6 +640,20 @@ def derive_terrain_slope(est):
     return float(min(max(med, min(upper, _MAX_QUARTILE_ALPHA_T)), _MAX_ALPHA_T))
 
 
+def derive_slope_threshold(terrain_slope_deg):
+    """alpha_g, degrees: twice the terrain's slope as the scans compare it, rise over run
+    (``tan alpha_g = 2 tan alpha_t``, the paper's ``dZ / dX``), bounded to
+    [:data:`_MIN_ALPHA_G`, :data:`_MAX_ALPHA_G`].
+
+    Twice the angle instead lets a step pass that is more than twice the terrain's rise
+    per cell on steep ground (21 deg terrain: 0.92 m per metre instead of 0.78 m), so
+    shrubs 1-2 m high on a slope were accepted by the scan coming down the slope (ISPRS
+    sample 11, issue 12); on gentle ground the two agree.
+    """
+    tan_g = 2.0 * np.tan(np.radians(float(terrain_slope_deg)))
+    return float(np.clip(np.degrees(np.arctan(tan_g)), _MIN_ALPHA_G, _MAX_ALPHA_G))
+
+
 def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
                                  slope_threshold_deg: Optional[float] = None,
                                  terrain_slope_deg: Optional[float] = None, tolerance_m: Optional[float] = None,
@@ -656,8 +670,9 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       roofs and crowns wider than a block); at most its Param's maximum. No floor: the
       former 8 degree floor let the ground rise 0.28 m per 2 m cell under an object, so
       shrubs and trees 1-5 m high on flat ground were taken back as ground (opengeos).
-    * ``slope_threshold_deg`` (alpha_g): twice alpha_t (steeper than the terrain's usual
-      slope, far gentler than a wall), bounded to [5, 60] degrees: 5 degrees is the slope
+    * ``slope_threshold_deg`` (alpha_g): twice alpha_t as rise over run
+      (:func:`derive_slope_threshold`; steeper than the terrain's usual slope, far gentler
+      than a wall), bounded to [5, 60] degrees: 5 degrees is the slope
       of the ground's micro-relief that 20 m block minima do not see (a kerb or a furrow,
       0.1-0.2 m over 1-2 m). The former floor of 25 degrees let every object rise 0.93 m
       per 2 m cell (1.9 m per 4 m cell) and stay ground.
@@ -680,7 +695,7 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         terrain_slope_deg = derive_terrain_slope(estimate_terrain_slope(z, cell, scale_m=20.0))
     report(progress, 0.3)
     if slope_threshold_deg is None:
-        slope_threshold_deg = float(np.clip(2.0 * terrain_slope_deg, _MIN_ALPHA_G, _MAX_ALPHA_G))
+        slope_threshold_deg = derive_slope_threshold(terrain_slope_deg)
     if tolerance_m is None:
         sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
@@ -710,7 +725,7 @@ PARAMS = (
     Param("slope_threshold_deg", "float", None,
           "Terrain slope threshold alpha_g, degrees (Ke 2002, sec. 2.1): a step steeper than this "
           "from the ground before it starts an object. Empty: twice the terrain slope "
-          "alpha_t, bounded to 5-60 deg.",
+          "alpha_t as rise over run (tan alpha_g = 2 tan alpha_t), bounded to 5-60 deg.",
           minimum=0.5, maximum=89.0),
     Param("terrain_slope_deg", "float", None,
           "Average terrain slope alpha_t, degrees: how fast the ground may rise under an object "

@@ -94,7 +94,7 @@ def test_resolve_derives_from_data():
     steep = (0.5 * xx).astype(np.float32)                    # 26.6 deg slope
     p = sp.resolve_slope_profile_params(steep, 1.0)
     assert p["terrain_slope_deg"] == pytest.approx(26.57, abs=0.5)
-    assert p["slope_threshold_deg"] == pytest.approx(53.1, abs=1.0)
+    assert p["slope_threshold_deg"] == pytest.approx(45.0, abs=1.0)   # tan alpha_g = 2 x 0.5
     p = sp.resolve_slope_profile_params(steep, 1.0, slope_threshold_deg=40.0)
     assert p["slope_threshold_deg"] == 40.0                  # a user value wins
 
@@ -244,6 +244,33 @@ def test_scan_start_minimum_is_the_reference_mirrored_before_the_first_cell():
 def test_derive_terrain_slope_exact(median, p75, expected):
     got = sp.derive_terrain_slope({"median": median, "p75": p75, "p90": p75, "block_cells": 20})
     assert got == pytest.approx(expected, abs=1e-9)
+
+
+@pytest.mark.parametrize("alpha_t, expected", [
+    (0.0, sp._MIN_ALPHA_G), (2.0, 5.0), (5.0, np.degrees(np.arctan(2 * np.tan(np.radians(5.0))))),
+    (21.8014, 38.6598), (45.0, 60.0)])
+def test_derive_slope_threshold_doubles_rise_over_run(alpha_t, expected):
+    assert sp.derive_slope_threshold(alpha_t) == pytest.approx(expected, abs=1e-3)
+
+
+def test_shrub_on_steep_slope_is_an_object_with_the_derived_threshold():
+    """Issue 12, ISPRS sample 11: ground rising 0.4 m per metre (21.8 deg) across the X
+    profiles with a shrub 1.5 m high, one cell by three along the contour. Coming down the
+    slope, the shrub stands 1.5 - 0.4 = 1.1 m above the ground before it: rejected with
+    tan alpha_g = 2 x 0.4 (1.0 m with dh0 0.2 m), accepted with alpha_g = twice the angle
+    (43.6 deg, 1.15 m), so the X profiles kept it and, rejected by one axis only, the
+    connected object went back to the ground."""
+    yy, xx = np.mgrid[0:40, 0:40]
+    ground = (0.4 * xx).astype(np.float32)
+    z = ground.copy()
+    z[19:22, 20] += 1.5
+    alpha_t = float(np.degrees(np.arctan(0.4)))
+    kw = dict(terrain_slope_deg=alpha_t, tolerance_m=0.2, max_object_size_m=20.0)
+    new = sp.filter_slope_profile(z, 1.0, slope_threshold_deg=sp.derive_slope_threshold(alpha_t), **kw)
+    assert np.all(new.mask[19:22, 20] == OBJECT)
+    assert np.count_nonzero(new.mask == OBJECT) == 3
+    old = sp.filter_slope_profile(z, 1.0, slope_threshold_deg=2 * alpha_t, **kw)
+    assert np.count_nonzero(old.mask == OBJECT) == 0             # the failure reproduced
 
 
 def shrub_scene(extent_m, cell, seed=0, noise_m=0.05):
