@@ -60,7 +60,14 @@ from scipy import ndimage
 
 from .codes import LOW, NODATA
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
-from .estimate import below_level_rim, below_surroundings, noise_ground_level, sample_windows, terrain_slopes
+from .estimate import (
+    below_level_rim,
+    below_surroundings,
+    noise_ground_level,
+    noise_without_sampling,
+    sample_windows,
+    terrain_slopes,
+)
 from .methods import Method, Param, check_values
 
 #: Bounds of the derived slope threshold alpha_g, degrees. The lower one is the slope of the
@@ -677,8 +684,12 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       0.1-0.2 m over 1-2 m). The former floor of 25 degrees let every object rise 0.93 m
       per 2 m cell (1.9 m per 4 m cell) and stay ground.
     * ``tolerance_m`` (dh0): 3 x the noise of the DSM's ground-level cells
-      (:func:`~bare_earth.core.estimate.noise_ground_level`, not the canopy's roughness),
-      bounded to [0.15, 0.5] m; 0.5 m when too few ground cells are seen.
+      (:func:`~bare_earth.core.estimate.noise_ground_level`, not the canopy's roughness)
+      without the spread of where the heights lie on the ground's median slope over the
+      sample spacing (:func:`~bare_earth.core.estimate.noise_without_sampling`: the scans'
+      slope allowance covers it; taken as noise it raised dh0 on steep ground, 0.46 m on
+      ISPRS sample 11, and low objects on slopes passed), bounded to [0.15, 0.5] m; 0.5 m
+      when too few ground cells are seen.
     * ``sample_spacing_cells``: the mean run of identical neighbouring values
       (:func:`estimate_sample_spacing`); the edge test spans it.
 
@@ -691,17 +702,23 @@ def resolve_slope_profile_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         slope_threshold_deg=slope_threshold_deg, terrain_slope_deg=terrain_slope_deg, tolerance_m=tolerance_m,
         max_object_size_m=max_object_size_m, edge_length_m=edge_length_m,
         sample_spacing_cells=sample_spacing_cells, slope_factor=slope_factor))
+    est = None
+    if terrain_slope_deg is None or tolerance_m is None:
+        est = estimate_terrain_slope(z, cell, scale_m=20.0)
     if terrain_slope_deg is None:
-        terrain_slope_deg = derive_terrain_slope(estimate_terrain_slope(z, cell, scale_m=20.0))
+        terrain_slope_deg = derive_terrain_slope(est)
     report(progress, 0.3)
     if slope_threshold_deg is None:
         slope_threshold_deg = derive_slope_threshold(terrain_slope_deg)
-    if tolerance_m is None:
-        sigma = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
-        tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
-    report(progress, 0.8)
     if sample_spacing_cells is None:
         sample_spacing_cells = estimate_sample_spacing(z)
+    if tolerance_m is None:
+        spread = noise_ground_level(z, cell, progress=sub_progress(progress, 0.3, 0.8))["sigma"]
+        # where the heights were taken on the ground's median slope spreads them too: the
+        # scans' slope allowance covers that part, dh0 only the noise
+        sigma = noise_without_sampling(spread, est["median"], min(cell) * float(sample_spacing_cells))
+        tolerance_m = float(np.clip(3.0 * sigma, 0.15, 0.5)) if np.isfinite(sigma) else 0.5
+    report(progress, 0.8)
     out = {"slope_threshold_deg": float(slope_threshold_deg), "terrain_slope_deg": float(terrain_slope_deg),
            "tolerance_m": float(tolerance_m), "max_object_size_m": float(max_object_size_m),
            "edge_length_m": float(edge_length_m), "sample_spacing_cells": float(sample_spacing_cells),
@@ -734,7 +751,8 @@ PARAMS = (
           minimum=0.0, maximum=80.0, advanced=True),
     Param("tolerance_m", "float", None,
           "Height tolerance dh0, metres, added to every test for the DSM's noise. Empty: 3 x the "
-          "noise of the DSM's ground-level cells (never the canopy's), bounded to 0.15-0.5 m.",
+          "noise of the DSM's ground-level cells (never the canopy's; without the spread of where "
+          "the heights lie on sloping ground, which the slope test allows for), bounded to 0.15-0.5 m.",
           minimum=0.0, maximum=50.0, advanced=True),
     Param("max_object_size_m", "float", 100.0,
           "Largest object, metres: a profile's reference starts at its lowest point within this "
