@@ -328,6 +328,30 @@ def lowest_point_spread(sigma, slope, cell_m, repeated_share=0.0):
     return math.sqrt(float(sigma) ** 2 + (s * c) ** 2 / 12.0)
 
 
+def noise_without_sampling(spread, slope, spacing_m):
+    """The random height error left in a ground spread once the spread of where the heights
+    were taken on sloping ground is removed, metres: the inverse of
+    :func:`lowest_point_spread`, ``sqrt(max(spread^2 - (slope spacing_m)^2 / 12, 0))``.
+
+    A gridded ground's heights about the smooth surface scatter by the noise and by the
+    position of each height within the spacing ``spacing_m`` of independent heights on
+    ground of rise ``slope`` per metre; a test that allows for that rise between its
+    samples already covers the second part, and takes only the first as its noise.
+    ``spread`` NaN: NaN; slope unknown (NaN) or 0: ``spread``.
+
+    Examples
+    --------
+    >>> round(noise_without_sampling(lowest_point_spread(0.03, 0.12, 1.0), 0.12, 1.0), 6)
+    0.03
+    >>> noise_without_sampling(0.05, 0.5, 2.0)     # all of it is the sampling's
+    0.0
+    """
+    if not np.isfinite(spread):
+        return float("nan")
+    s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
+    return math.sqrt(max(float(spread) ** 2 - (s * float(spacing_m)) ** 2 / 12.0, 0.0))
+
+
 def _second_differences(windows):
     """Second differences ``z[i-1] - 2 z[i] + z[i+1]`` along the rows then the columns of
     every window, finite ones only (1-D, the windows' dtype)."""

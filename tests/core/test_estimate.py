@@ -466,6 +466,15 @@ def test_repeated_height_share_of_a_sparse_cloud_filled_by_its_nearest_return():
     assert 1.0 / (1.0 - share) == pytest.approx(2.0, rel=0.1)             # about two cells per return
 
 
+def test_noise_without_sampling_inverts_lowest_point_spread():
+    spread = est.lowest_point_spread(0.03, 0.12, 1.0, 0.2)                   # spacing 1.25 m
+    assert est.noise_without_sampling(spread, 0.12, 1.25) == pytest.approx(0.03, abs=1e-12)
+    assert est.noise_without_sampling(0.05, 0.5, 2.0) == 0.0                 # all the sampling's
+    assert est.noise_without_sampling(0.05, float("nan"), 2.0) == pytest.approx(0.05)
+    assert est.noise_without_sampling(0.05, 0.0, 2.0) == pytest.approx(0.05)
+    assert math.isnan(est.noise_without_sampling(float("nan"), 0.1, 1.0))
+
+
 def test_lowest_point_spread_exact():
     assert est.lowest_point_spread(0.03, 0.12, 1.0) == pytest.approx(math.sqrt(0.03 ** 2 + 0.12 ** 2 / 12))
     assert est.lowest_point_spread(0.0, 0.1, 1.0, 0.5) == pytest.approx(0.2 / math.sqrt(12))
