@@ -306,7 +306,18 @@ def _point_score(truth, valid, classify, floor_dtm=None):
         dtm = fill_dtm(np.asarray(z, np.float32), mask.astype(np.uint8))
         return score(type("R", (), {"dtm": dtm})) if dtm is not None else None
     score.floor, score.grid = floor, grid
+    score.classify, score.truth, score.valid = classify, truth, valid   # for benchmarks/dtm_errors.py
     return score
+
+
+def _point_cells(x, y, gt, shape):
+    """Row and column of each point's cell on a grid (-1 off the grid)."""
+    col = np.floor((np.asarray(x, np.float64) - gt[0]) / gt[1]).astype(np.int64)
+    row = np.floor((np.asarray(y, np.float64) - gt[3]) / gt[5]).astype(np.int64)
+    off = (row < 0) | (row >= shape[0]) | (col < 0) | (col >= shape[1])
+    row[off] = -1
+    col[off] = -1
+    return row, col
 
 
 def isprs_cases(data, notes):
@@ -328,9 +339,12 @@ def isprs_cases(data, notes):
                     def classify(dtm, gt=gt):
                         return classify_points(cloud.x, cloud.y, cloud.z, dtm, gt, threshold_m=isprs.THRESHOLD_M,
                                                slope_factor=isprs.SLOPE_FACTOR)
-                    return z, (cell, cell), _point_score(
-                        truth, valid, classify,
-                        lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape))
+                    score = _point_score(truth, valid, classify,
+                                         lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape))
+                    score.floor_dtm = lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape)
+                    score.point_cells = lambda: _point_cells(cloud.x, cloud.y, gt, z.shape)
+                    score.point_heights = lambda: np.asarray(cloud.z, np.float64)
+                    return z, (cell, cell), score
                 rows.append((f"isprs/{sname}/{cell:g}m/{red}", build))
         out.append((f"isprs/{sname}", "isprs", rows))
     return out
@@ -374,7 +388,11 @@ def point_cloud_rows(cloud, cells, notes, label, name):
 
             def floor(g=g, cloud=cloud):
                 return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)
-            return g.z_metres(), g.cell_size_m, _point_score(truth, valid, classify, floor)
+            score = _point_score(truth, valid, classify, floor)
+            score.floor_dtm = floor
+            score.point_cells = lambda g=g, cloud=cloud: _point_cells(cloud.x, cloud.y, g.geotransform, g.shape)
+            score.point_heights = lambda g=g, cloud=cloud: np.asarray(cloud.z, np.float64) * float(g.z_to_m)
+            return g.z_metres(), g.cell_size_m, score
         rows.append((name(cell), build))
     return rows
 

@@ -195,8 +195,9 @@ def fill_gaps(z, fill=None, *, progress=None):
     return out
 
 
-#: The eight directions of :func:`find_edge_spikes` (row step, column step).
-EDGE_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
+#: The four lines of :func:`find_edge_spikes` (row step, column step of one direction; the other is
+#: its opposite): the eight directions of its continuations.
+EDGE_LINES = ((0, 1), (1, 0), (1, 1), (1, -1))
 #: Passes of :func:`find_edge_spikes`: each pass peels at most one cell off the sloping skirt of an
 #: object (a crown's edge in a top-surface DSM spans a few cells); measured on the generalisation
 #: matrix, a fourth pass and more found nothing the third had not.
@@ -209,7 +210,7 @@ def edge_spikes_reach(passes=EDGE_PASSES):
     return 2 * int(passes) + 1
 
 
-def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
+def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES):
     """Known cells at the edge of the cells to fill that stand above every straight continuation of their neighbours.
 
     A cell bordering the cells to fill (one of its eight neighbours is in ``fill``) is a *spike*
@@ -222,6 +223,14 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
     around it; the foot of a wall, low vegetation at a crown's edge, or the mixed cell of a
     crown's skirt in a top-surface DSM stands above it from every side. Such cells carry the
     object's height into the surface interpolated under it, which rests on its boundary.
+
+    With ``line_tolerance_m``, a cell is also a spike when along one of the four lines (rows, columns,
+    diagonals) through it the ground continues to it from neither side: it stands more than
+    ``line_tolerance_m`` above the continuation from one side, and the other side does not continue
+    within that tolerance either (it stands above that continuation too, or that side has no two known
+    cells: the object). Low vegetation along a crown's edge, a skirt cell among other skirt cells,
+    is continued by its neighbours along the edge, never by the ground across it; a bank, a plane or a
+    terrace's upper edge is continued from one side of every line.
 
     Cells with no direction of two known cells (thin strips, lone cells) are never spikes. Each
     of ``passes`` passes treats the spikes found so far as cells to fill, so the next pass tests
@@ -237,6 +246,10 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
         How far above every continuation a spike stands (metres, > 0): a height the ground's
         noise and curvature do not reach (``bareearth:dtm`` passes its decision threshold,
         3 x the noise of the ground).
+    line_tolerance_m : float, optional
+        How far above the continuation from one side of a line, not continued from the other, a spike
+        stands (metres, > 0; ``bareearth:dtm``: three standard deviations of a continuation on ground,
+        :func:`.dtm_refine.continuation_tolerance`, at least ``tolerance_m``); None: not looked for.
     passes : int
         Passes (>= 1); the result depends on cells within :func:`edge_spikes_reach` cells.
 
@@ -260,6 +273,8 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
         raise ValueError(f"z must be 2-D and fill of its shape; got z {z.shape}, fill {fill.shape}.")
     if not (np.isfinite(tolerance_m) and tolerance_m > 0):
         raise ValueError(f"tolerance_m must be a positive height in metres; got {tolerance_m}.")
+    if line_tolerance_m is not None and not (np.isfinite(line_tolerance_m) and line_tolerance_m > 0):
+        raise ValueError(f"line_tolerance_m must be a positive height in metres or None; got {line_tolerance_m}.")
     if int(passes) < 1:
         raise ValueError(f"passes must be at least 1; got {passes}.")
     h, w = z.shape
@@ -273,6 +288,7 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
     found = np.zeros((h, w), bool)
     test = fill
     tol = np.float32(tolerance_m)
+    line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
     flat = zp.ravel()
     for _ in range(int(passes)):
         # the known cells with a cell to fill (or a spike found by the last pass) among their neighbours
@@ -284,22 +300,25 @@ def find_edge_spikes(z, fill, tolerance_m, *, passes=EDGE_PASSES):
         r, c = np.divmod(cand, w)
         idx = (r + pad) * wp + (c + pad)
         zc = flat.take(idx)
+        new = np.zeros(idx.size, bool)
+        every = np.ones(idx.size, bool)
         seen = np.zeros(idx.size, bool)
-        # a spike stands above the continuation along every direction that has one: a cell leaves
-        # the candidates at its first continuation within the tolerance (most cells at the first)
-        for di, dj in EDGE_DIRECTIONS:
-            off = di * wp + dj
-            z1 = flat.take(idx + off)
-            cont = 2 * z1 - flat.take(idx + 2 * off)                  # NaN where a source is unknown
-            np.maximum(cont, z1, out=cont)                             # and never below the neighbour
-            res = zc - cont
-            keep = ~(res <= tol)                                       # NaN (no continuation) keeps it
-            seen |= np.isfinite(res)
-            if not keep.all():
-                idx, zc, seen, r, c = idx[keep], zc[keep], seen[keep], r[keep], c[keep]
-            if idx.size == 0:
-                break
-        new = seen
+        # a spike stands above the continuation from one side of a line, and the other side does not
+        # continue the ground to it (it stands above that continuation too, or the side is unknown)
+        for di, dj in EDGE_LINES:
+            res = []
+            for sgn in (1, -1):
+                off = sgn * (di * wp + dj)
+                z1 = flat.take(idx + off)
+                cont = 2 * z1 - flat.take(idx + 2 * off)              # NaN where a source is unknown
+                np.maximum(cont, z1, out=cont)                         # and never below the neighbour
+                res.append(zc - cont)
+            a, b = res
+            seen |= np.isfinite(a) | np.isfinite(b)
+            np.logical_and(every, ~(a <= tol) & ~(b <= tol), out=every)     # NaN (no continuation) keeps it
+            if line_tol is not None:
+                new |= ~(a <= line_tol) & ~(b <= line_tol) & ((a > line_tol) | (b > line_tol))
+        new |= every & seen
         if not new.any():
             break
         test = np.zeros((h, w), bool)

@@ -48,6 +48,8 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
     # the edge test's tolerance: three standard deviations of a continuation on ground, at most t
     assert p["edge_tolerance_m"] == edge_tolerance(p["tolerance_m"], spread) <= p["tolerance_m"]
+    # along one line: the same three standard deviations, unbounded
+    assert p["line_tolerance_m"] == pytest.approx(3.0 * 6 ** 0.5 * spread) and p["line_tolerance_m"] > 0
 
 
 def test_members_run_side_by_side_as_one_after_the_other():

@@ -415,3 +415,40 @@ def test_skirts_of_bushes_found_by_the_edge_tolerance_of_the_grounds_spread():
     mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0,
                                   edge_tolerance_m=tol)
     np.testing.assert_array_equal(mask == OBJECT, bush | skirt)
+
+
+def test_low_vegetation_along_crown_edges_found_along_one_line():
+    # lidar-like ground (noise 0.02 m) with crowns (8 m, 5 x 5), each with low vegetation 0.4 m high along
+    # one side (a strip of 3 cells the vote kept as ground): each strip cell is continued by its neighbours
+    # along the edge, so none stands above every continuation; across the edge the ground continues to it
+    # from neither side (the crown on one side, the ground 0.4 m lower on the other)
+    from bare_earth.core.estimate import lowest_point_spread, repeated_height_share
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 0.02, (60, 60)).astype(np.float32)
+    crown = np.zeros(z.shape, bool)
+    strip = np.zeros(z.shape, bool)
+    for r in (8, 27, 46):
+        for c in (8, 27, 46):
+            crown[r:r + 5, c:c + 5] = True
+            strip[r + 1:r + 4, c - 1] = True
+    z[strip] += 0.4
+    z[crown] += 8.0
+    vote = np.where(crown, OBJECT, GROUND).astype(np.uint8)
+    spread = lowest_point_spread(0.02, 0.0, 1.0, repeated_height_share(z))
+    et, lt = dr.edge_tolerance(0.5, spread), dr.continuation_tolerance(spread)
+    assert et == lt == pytest.approx(3 * math.sqrt(6) * 0.02)
+    kept, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0, edge_tolerance_m=et)
+    assert (kept[strip] == GROUND).all()                                    # every line: the strips stay
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.05, reach_m=3.0, edge_tolerance_m=et,
+                               line_tolerance_m=lt)
+    np.testing.assert_array_equal(mask == OBJECT, crown | strip)            # the noisy ground stays
+    # the DTM under the crowns no longer rests on the strips
+    dtm_kept = fill_gaps(z, fill=kept != GROUND)
+    dtm = fill_gaps(z, fill=mask != GROUND)
+    assert np.abs(dtm[crown]).max() < 0.1 < np.abs(dtm_kept[crown]).max()
+
+
+def test_continuation_tolerance_exact():
+    assert dr.continuation_tolerance(0.1) == pytest.approx(3.0 * math.sqrt(6.0) * 0.1)
+    assert dr.edge_tolerance(0.5, 0.1) == 0.5 < dr.continuation_tolerance(0.1)   # unbounded by t
+    assert math.isnan(dr.continuation_tolerance(float("nan")))

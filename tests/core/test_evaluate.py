@@ -373,3 +373,45 @@ def test_check_reference_mask_needs_a_ground_cell():
         check_reference_mask(np.array([[2, 6], [255, 2]], np.uint8))
     with pytest.raises(ValueError, match=r"its codes are 1\. .*another code.*!= its ground code\)"):
         check_reference_mask(np.array([[1, 1]], np.uint8))
+
+
+def test_dtm_errors_breakdown_exact():
+    """benchmarks/dtm_errors.py: each point counted once, by kind, cell state and members' vote."""
+    bench = _load_benchmark("dtm_errors")
+    codes = np.array([0, 0, 1, 2, 0, 0, 255, 1], np.uint8)
+    truth = np.array([True, False, True, True, False, False, False, True])
+    valid = np.array([True, True, True, True, True, False, True, True])
+    rows = np.array([0, 0, 1, 1, 0, 1, 0, -1])
+    cols = np.array([0, 1, 0, 1, 1, 1, 0, -1])
+    mask = np.array([[0, 0], [1, 1]], np.uint8)
+    members = {"morphological": np.array([[True, True], [True, False]]),
+               "rascor": np.array([[True, False], [False, False]]),
+               "geodesic": np.array([[True, True], [False, True]])}
+    heights = np.array([0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0])
+    ref = np.zeros((2, 2))
+    dtm = np.array([[0.0, 0.5], [-1.0, 0.0]])
+    b = bench.breakdown(codes, truth, valid, rows, cols, mask, members, heights=heights, dtm=dtm, reference=ref)
+    assert (b["ground_points"], b["object_points"]) == (3, 2)         # off the grid, invalid, outside: not scored
+    assert (b["type1_above"], b["type1_below"], b["type2"]) == (1, 1, 2)
+    assert b["groups"] == {("type2", "ground", "M-G"): {"points": 2, "point_above_ref_m": 1.5, "dtm_above_ref_m": 0.5},
+                           ("type1_above", "filled", "M--"): {"points": 1, "point_above_ref_m": 0.0,
+                                                              "dtm_above_ref_m": -1.0}}
+    maps = bench.error_maps(codes, truth, valid, rows, cols, (2, 2))
+    assert maps["type2"].tolist() == [[0, 2], [0, 0]]
+    assert maps["type1_above"].tolist() == [[0, 0], [1, 0]] and maps["type1_below"].tolist() == [[0, 0], [0, 1]]
+    assert "type II 2" in bench.format_breakdown("row", b)
+
+
+def test_dtm_errors_counts_what_the_matrix_scores(tmp_path):
+    """The breakdown of a row adds up to the generalisation matrix's total error for the dtm on it."""
+    bench = _load_benchmark("dtm_errors")
+    (tmp_path / "isprs").mkdir()
+    _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 1)
+    out = bench.run(tmp_path, r"isprs/samp11/2m/min", maps=tmp_path / "maps", progress=None)
+    b = out["isprs/samp11/2m/min"]
+    rows, _ = bench.generalise.run_matrix(tmp_path, ["dtm"], only=r"isprs/samp11/2m/min", progress=None)
+    total = 100.0 * (b["type1_above"] + b["type1_below"] + b["type2"]) / (b["ground_points"] + b["object_points"])
+    assert total == pytest.approx(rows[0]["filters"]["dtm"]["total"], abs=1e-9)
+    assert sum(g["points"] for (k, _, _), g in b["groups"].items() if k == "type2") == b["type2"]
+    with np.load(tmp_path / "maps" / "isprs_samp11_2m_min.npz") as m:
+        assert int(m["type2"].sum()) == b["type2"] and m["dsm"].shape == m["mask"].shape

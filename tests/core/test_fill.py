@@ -347,3 +347,40 @@ def test_edge_spikes_ignore_nodata_and_refuse_bad_input():
     with pytest.raises(ValueError, match="shape"):
         find_edge_spikes(z, np.zeros((2, 2), bool), 0.5)
     assert edge_spikes_reach(3) == 7
+
+
+def test_edge_spikes_along_one_line_find_a_skirt_its_neighbours_continue():
+    z = np.zeros((7, 9), np.float32)
+    z[:, 6:] = 5.0                                  # the object
+    z[1:6, 5] = 0.6                                 # low vegetation along its edge: 0.6 m, five cells long
+    hole = z > 4.0
+    assert _spikes(z, hole) == []                   # each cell is continued by its neighbours along the edge
+    got = find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5)
+    assert [tuple(map(int, p)) for p in np.argwhere(got)] == [(r, 5) for r in range(1, 6)]
+    assert not find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.7).any()     # within that tolerance
+
+
+def test_edge_spikes_along_one_line_keep_a_terrace_edge_beside_an_object():
+    z = np.zeros((8, 9), np.float32)
+    z[:, 4:] = 2.0                                  # a terrace: lower level columns 0-3, upper 4-8
+    z[0:3, 4] = 9.0                                 # an object on the upper edge
+    hole = z > 4.0
+    # (3, 4), beside the object on the upper edge, stands 2 m above the lower level's continuation;
+    # the upper level continues it along every line
+    assert not find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5).any()
+    i, j = np.mgrid[0:12, 0:12]
+    plane = (0.7 * i - 0.9 * j).astype(np.float32)
+    box = (i >= 4) & (i < 8) & (j >= 3) & (j < 9)
+    plane[box] += 5.0
+    assert not find_edge_spikes(plane, box, 0.5, line_tolerance_m=0.5).any()  # never on a plane
+
+
+def test_edge_spikes_along_one_line_include_the_spikes_of_every_line():
+    rng = np.random.default_rng(5)
+    z = rng.normal(0.0, 0.4, (40, 50)).astype(np.float32)
+    hole = rng.random(z.shape) < 0.15
+    old = find_edge_spikes(z, hole, 0.5, passes=1)
+    new = find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5, passes=1)
+    assert old.any() and (new & old).sum() == old.sum() and new.sum() > old.sum()
+    with pytest.raises(ValueError, match="line_tolerance_m"):
+        find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.0)

@@ -1,0 +1,165 @@
+#!/usr/bin/env python3
+"""Where ``bareearth:dtm``'s errors are, on the point rows of the generalisation matrix (issue 13).
+
+Usage::
+
+    .venv/bin/python benchmarks/dtm_errors.py --only 'Topography/1m|autzen_trim/1m' [--maps DIR]
+
+For each row of :mod:`generalise` scored by points (ISPRS and classified lidar) whose name matches
+``--only``, runs ``bareearth:dtm`` with its defaults and each of its members with the parameters the
+dtm derived, classifies the points against the DTM as the matrix does, and prints
+
+* the type I errors split into ground points above the DTM (the DTM cut the ground) and below it
+  (the DTM rests on objects), and the type II errors (object points within the tolerance of the DTM);
+* the type II and type I-above points by the state of their cell (``ground``: the dtm kept the cell,
+  its height is the DTM's; ``filled``: the dtm removed it, the DTM is interpolated there) and by the
+  members' vote in that cell (``MRG``: morphological, rascor, geodesic called it ground, ``-`` object),
+  with the median height of those points and of the DTM above the reference's own DTM (the truth's
+  ground points, mean per cell);
+* with ``--maps DIR``, ``DIR/<row>.npz``: per cell the counts of type I-above, type I-below and type
+  II points, the DSM, the reference DTM, the dtm's DTM and mask, and each member's ground.
+
+It writes no log: it says where to look, the matrix says how good a change is.
+"""
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import bare_earth`` work)
+
+#: Ground (0) and the two type I codes of :func:`bare_earth.core.points.classify_points`.
+GROUND, ABOVE, BELOW, OUTSIDE = 0, 1, 2, 255
+
+
+def vote_patterns(members, rows, cols):
+    """Per point, the members' vote in its cell as letters (``'MRG'``, ``'M-G'``, ...).
+
+    ``members``: ``{name: bool ground grid}`` in the dtm's order; a letter is the name's first,
+    upper-cased, where that member called the cell ground, ``-`` elsewhere.
+    """
+    letters = [np.where(g[rows, cols], n[0].upper(), "-") for n, g in members.items()]
+    return np.array(["".join(t) for t in zip(*letters)]) if letters else np.array([], str)
+
+
+def breakdown(codes, truth, valid, rows, cols, mask, members, heights=None, dtm=None, reference=None):
+    """Counts of the point errors by kind, by the state of their cell and by the members' vote.
+
+    Parameters
+    ----------
+    codes : ndarray of uint8
+        Per point: 0 ground, 1 above the DTM, 2 below it, 255 outside (not scored).
+    truth, valid : ndarray of bool
+        Per point: a ground point; a point scored.
+    rows, cols : ndarray of int
+        Per point, its cell (-1: off the grid, not scored).
+    mask : ndarray of uint8
+        The dtm's mask (0 ground).
+    members : dict
+        ``{name: bool ground grid}`` of the members, in the dtm's order.
+    heights, dtm, reference : optional
+        Per point heights, the DTM and the reference DTM (metres): the medians of the heights of
+        the points and of the DTM above the reference, per group.
+
+    Returns
+    -------
+    dict
+        ``ground_points``, ``object_points``, ``type1_above``, ``type1_below``, ``type2`` (counts),
+        and ``groups``: ``{(kind, state, pattern): {"points": n, "point_above_ref_m": median,
+        "dtm_above_ref_m": median}}`` for kind ``type2`` and ``type1_above``, state ``ground`` or
+        ``filled``.
+    """
+    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    r, c = np.where(rows >= 0, rows, 0), np.where(cols >= 0, cols, 0)
+    kinds = {"type2": scored & ~truth & (codes == GROUND), "type1_above": scored & truth & (codes == ABOVE),
+             "type1_below": scored & truth & (codes == BELOW)}
+    out = {"ground_points": int(np.count_nonzero(scored & truth)),
+           "object_points": int(np.count_nonzero(scored & ~truth)),
+           **{k: int(np.count_nonzero(v)) for k, v in kinds.items()}, "groups": {}}
+    state = np.where(mask[r, c] == 0, "ground", "filled")
+    pattern = vote_patterns(members, r, c)
+    above = None if heights is None or reference is None else heights - reference[r, c]
+    lift = None if dtm is None or reference is None else (dtm - reference)[r, c]
+    for kind in ("type2", "type1_above"):
+        sel = kinds[kind]
+        for st, pat in sorted(set(zip(state[sel].tolist(), pattern[sel].tolist()))):
+            s = sel & (state == st) & (pattern == pat)
+            g = {"points": int(np.count_nonzero(s))}
+            if above is not None:
+                g["point_above_ref_m"] = float(np.median(above[s]))
+            if lift is not None:
+                g["dtm_above_ref_m"] = float(np.median(lift[s]))
+            out["groups"][(kind, st, pat)] = g
+    return out
+
+
+def error_maps(codes, truth, valid, rows, cols, shape):
+    """Per cell, the counts of type I-above, type I-below and type II points (int32 grids)."""
+    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    out = {}
+    for name, sel in (("type1_above", scored & truth & (codes == ABOVE)),
+                      ("type1_below", scored & truth & (codes == BELOW)),
+                      ("type2", scored & ~truth & (codes == GROUND))):
+        grid = np.zeros(shape, np.int32)
+        np.add.at(grid, (rows[sel], cols[sel]), 1)
+        out[name] = grid
+    return out
+
+
+def format_breakdown(name, b):
+    n = max(1, b["ground_points"] + b["object_points"])
+    lines = [f"{name}: {b['ground_points']} ground and {b['object_points']} object points; total error "
+             f"{100.0 * (b['type1_above'] + b['type1_below'] + b['type2']) / n:.2f} %: type I above the DTM "
+             f"{b['type1_above']}, below it {b['type1_below']}, type II {b['type2']}"]
+    for (kind, st, pat), g in sorted(b["groups"].items(), key=lambda kv: (kv[0][0], -kv[1]["points"])):
+        extra = "".join(f"  {k} {g[k]:+.2f}" for k in ("point_above_ref_m", "dtm_above_ref_m") if k in g)
+        lines.append(f"  {kind:<12} {st:<7} {pat}  {g['points']:>7}{extra}")
+    return "\n".join(lines)
+
+
+def run(data, only, maps=None, progress=print):
+    from bare_earth.core.dtm import MEMBERS
+    from bare_earth.core.methods import get_method
+    from bare_earth.core.pipeline import resolve_params, run_array
+    results = {}
+    for _src, _fam, _half, builds in generalise.all_cases(data, []):
+        for name, build in builds:
+            if not re.search(only, name):
+                continue
+            z, cell, score = build()
+            if not hasattr(score, "point_cells"):
+                continue                                   # scored by cells, not points
+            res = run_array("dtm", z, cell, {})
+            params = resolve_params("dtm", z, cell, {})
+            members = {n: np.asarray(get_method(n).run(z, cell, **params["members"][n]).mask) == 0 for n in MEMBERS}
+            codes = score.classify(np.asarray(res.dtm, np.float32))
+            rows, cols = score.point_cells()
+            ref = np.asarray(score.floor_dtm(), np.float64)
+            b = breakdown(codes, score.truth, score.valid, rows, cols, res.mask, members,
+                          heights=score.point_heights(), dtm=np.asarray(res.dtm, np.float64), reference=ref)
+            results[name] = b
+            if progress:
+                progress(format_breakdown(name, b))
+            if maps:
+                Path(maps).mkdir(parents=True, exist_ok=True)
+                grids = error_maps(codes, score.truth, score.valid, rows, cols, z.shape)
+                np.savez_compressed(Path(maps) / (re.sub(r"[^\w.-]+", "_", name) + ".npz"), dsm=z, reference=ref,
+                                    dtm=res.dtm, mask=res.mask, **grids,
+                                    **{f"{n}_ground": g for n, g in members.items()})
+    return results
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
+    ap.add_argument("--only", required=True, help="regular expression: the rows to look at")
+    ap.add_argument("--maps", default=None, help="folder for the per-cell error maps (npz)")
+    a = ap.parse_args(argv)
+    run(Path(a.data if a.data is not None else generalise.isprs.default_data_dir()), a.only, a.maps)
+
+
+if __name__ == "__main__":
+    main()
