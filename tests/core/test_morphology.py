@@ -502,7 +502,7 @@ def test_annex_of_a_building_is_an_object():
     # not attached to an object, wider than the largest window, or bounded by no wall: not a tier
     assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, np.zeros_like(obj), (1.0, 1.0), 0.5, 1.25,
                                          0.3, (15, 15)).any()
-    assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 0.3, (4, 4)).any()
+    assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 0.3, (3, 3)).any()
     assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 2.0, (15, 15)).any()
 
 
@@ -531,3 +531,33 @@ def test_hill_top_beside_a_tree_is_not_a_tier(monkeypatch):
     np.testing.assert_array_equal(res.mask == OBJECT, tree)
     monkeypatch.setattr(morph, "TIER_WALL_SHARE", -1.0)      # any attached region narrower than the window
     assert (morph.filter_morphological(z, 1.0, **params).mask == OBJECT).sum() > 300
+
+
+def test_tier_on_the_raster_border_needs_walls_on_most_of_its_known_edge():
+    """A raised strip along the raster's border, attached to a flagged block: its cells on the border
+    are edge cells whose outline is unknown, never walls, so with walls on the ground side only
+    (under half its edge) it is not a tier; the same strip one cell inside the border is one."""
+    z = np.zeros((60, 60), np.float32)
+    obj = np.zeros(z.shape, bool)
+    obj[25:35, 50:58] = True
+    z[obj] = 10.0
+    z[10:50, 58:60] = 2.0                       # a 2 m strip two cells wide on the right border
+    z[obj] = 10.0
+    args = ((1.0, 1.0), 0.5, 1.25, 0.3, (15, 15))
+    opened = np.zeros_like(z)
+    assert not morph.find_attached_tiers(z, opened, obj, obj, *args).any()
+    inner = np.zeros((60, 61), np.float32)      # one more column of ground: the strip's right side is a wall
+    inner[:, :60] = z
+    obj2 = np.zeros(inner.shape, bool)
+    obj2[:, :60] = obj
+    tiers = morph.find_attached_tiers(inner, np.zeros_like(inner), obj2, obj2, *args)
+    np.testing.assert_array_equal(tiers, (inner == 2.0))
+
+
+def test_tier_box_holds_a_window_wide_square_in_any_orientation():
+    """A square as wide as the largest window (2 r + 1 cells) turned by 45 degrees spans sqrt 2 times
+    that along rows and columns: it fits the tier's box, and the halo covers the box."""
+    assert morph._tier_box((10, 10)) == (30, 30)                 # ceil(1.414 x 21)
+    assert morph._tier_box((3, 5)) == (10, 16)
+    p = {"max_object_size_m": 21.0}
+    assert morph.morphological_halo(p, 1.0) >= 2 * 10 + 30
