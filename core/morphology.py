@@ -681,7 +681,7 @@ def _tier_box(r_max):
 TIER_WALL_SHARE = 0.5
 
 
-def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r_max, work=None):
+def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r_max, work=None, progress=None):
     """Lower tiers of the objects: unflagged raised regions attached to an object and bounded by walls.
 
     A building's annex, a lower roof or the lower part of a crown stands on the object, not on
@@ -724,6 +724,8 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
         The terrain's slope (rise/run) the ground may show over one cell (``outline_slope``).
     r_max : (int, int)
         Half-widths (rows, columns) of the largest window, cells.
+    progress : callable, optional
+        ``progress(fraction)`` between the steps; may raise ``Cancelled``.
 
     Returns
     -------
@@ -737,7 +739,9 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
         raised = ~left_out & (np.subtract(clean, opened) > thr)
     if not raised.any():
         return raised
+    report(progress, 0.2)
     lab, n = ndimage.label(raised, np.ones((3, 3), bool))
+    report(progress, 0.5)
     ground = ~raised & ~left_out
     low = np.array(clean, np.float32)
     low[~ground] = np.inf
@@ -753,6 +757,7 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
     rim &= raised
     edge |= rim
     wall &= ~rim
+    report(progress, 0.8)
     n_edge = np.bincount(lab[edge], minlength=n + 1)
     n_wall = np.bincount(lab[wall], minlength=n + 1)
     attached = np.bincount(lab[raised & touching(objects)], minlength=n + 1) > 0
@@ -798,9 +803,10 @@ def open_progressive(z, cell, p, work, progress=None):
     left_out = obj | low | nodata
     outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], p["outline_slope"], work)
     left_out |= outline
+    report(progress, 0.86)
     #    and the lower tiers attached to the objects (find_attached_tiers)
     tiers = find_attached_tiers(clean, opened, left_out, obj | outline, cell, p["dh_m"], p["slope_scale_m"],
-                                p["outline_slope"], radii[-1][:2], work)
+                                p["outline_slope"], radii[-1][:2], work, sub_progress(progress, 0.86, 0.9))
     left_out |= tiers
     zpro = clean
     np.copyto(zpro, opened, where=left_out)
