@@ -41,6 +41,21 @@ there, whichever is steeper); it leaves ``ZIpro`` like the flagged cells. On the
 opengeos top-surface DSM these cells were three quarters of the cells kept as ground more
 than 1 m above the reference DTM (DTM RMSE 1.91 -> 1.13 m).
 
+Attached tiers (the same gap of the paper, one level up). A building's annex or lower roof, or
+the lower part of a crown, stands on the object: when the window outgrows the object it drops
+by only its own height, below ``s r_k`` for a wide object, and SMRF keeps it in ``ZIpro`` at
+its own height. A connected region of unflagged cells standing above the last opening by more
+than the final test's tolerance, touching a flagged object, fitting in a box sqrt 2 times the
+largest window (a square as wide as the window in any orientation), and bounded mostly by walls
+(its edge on the ground more than ``dh`` plus the terrain's rise over a cell diagonal above the
+lowest ground beside it, the outline test; the raster's border is no wall) is a tier of the
+object and leaves ``ZIpro`` too (:func:`find_attached_tiers`); terrain the opening cut falls
+to the ground at the terrain's slope and stays. On the generalisation matrix: simulated mixed
+lidar 2.2 -> 0.1 %, simulated urban lidar 3.4 -> 0.3 %, opengeos DSM 8.4 -> 7.3 % (DTM RMSE
+0.97 -> 0.92 m), mean 7.71 -> 7.53 %. Counting the raster's border as a wall (the outline beyond
+it unknown) took a region cut by the border on most sides for a tier (ISPRS sample 41 at 2 m:
+10 -> 30 %).
+
 The provisional surface differs from SMRF's in one respect: SMRF inpaints the flagged
 cells from the unflagged ones, whose reach is unbounded; here they take the last opened
 surface, which reconstructs planes and ramps under objects exactly and keeps the
@@ -85,6 +100,7 @@ import math
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
+from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
@@ -653,6 +669,117 @@ def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
     return near
 
 
+def _tier_box(r_max):
+    """Rows and columns of the box a tier fits in: a square as wide as the largest window
+    (``2 r + 1`` cells), in any orientation, fits in ``sqrt 2`` times that."""
+    return tuple(int(math.ceil(math.sqrt(2.0) * (2 * r + 1))) for r in r_max)
+
+
+#: Share of a raised region's edge on the ground that must be a wall for the region to be part of the
+#: object it is attached to (:func:`find_attached_tiers`): most of it, so a region is a tier of the
+#: object when walls, not terrain, bound it.
+TIER_WALL_SHARE = 0.5
+
+
+def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r_max, work=None, progress=None):
+    """Lower tiers of the objects: unflagged raised regions attached to an object and bounded by walls.
+
+    A building's annex, a lower roof or the lower part of a crown stands on the object, not on
+    the ground: when the window outgrows the object it drops by only its own height, which is
+    below SMRF's ``s r_k`` for a wide object (a 2.5 m annex of a building 40 m across faces
+    0.3 x 20 m = 6 m), so it is not flagged, and SMRF keeps it in ``ZIpro`` at its own height,
+    where the final test calls it ground. The paper leaves such regions open; here they are
+    told from terrain by what bounds them. A raised region is a connected set (8-neighbours) of
+    unflagged cells standing above the last opened surface by more than the final test's
+    tolerance ``dh + e_s slope(O)``; it is a tier when
+
+    * it touches a flagged object (or an outline cell),
+    * it fits in a box ``sqrt 2`` times the largest window along rows and columns
+      (:func:`_tier_box`: a square as wide as the window, in any orientation; the opening
+      removed it, so the region is no wider than the window, and the box bounds the reach), and
+    * most (:data:`TIER_WALL_SHARE`) of its edge cells are walls: its cells next to the
+      unflagged ground below it that stand more than ``dh`` plus the terrain's rise over one
+      cell diagonal (``slope``, the outline slope) above the lowest ground cell around, the test
+      of :func:`find_outline_cells`; its cells on the raster's border are edge cells, never walls
+      (the outline beyond is unknown). Terrain the opening cut (a crest, a hill top with trees)
+      descends to the ground around at the terrain's own slope, and stays ground.
+
+    Its cells leave ``ZIpro`` like the flagged ones and are classified against the ground
+    under the object. The reach is bounded: a region outside the box is never a tier
+    (:func:`morphological_halo` adds the box's width).
+
+    Parameters
+    ----------
+    clean, opened : ndarray, float32
+        The surface the opening ran on and the last opened surface (NaN = nodata).
+    left_out : ndarray of bool
+        Cells already left out of ``ZIpro`` (flags, low outliers, outline cells, nodata).
+    objects : ndarray of bool
+        The flagged objects and their outline cells.
+    cell : (dx, dy)
+        Metres.
+    dh, es : float
+        SMRF's ``e_t`` (metres) and ``e_s`` (metres per unit slope).
+    slope : float
+        The terrain's slope (rise/run) the ground may show over one cell (``outline_slope``).
+    r_max : (int, int)
+        Half-widths (rows, columns) of the largest window, cells.
+    progress : callable, optional
+        ``progress(fraction)`` between the steps; may raise ``Cancelled``.
+
+    Returns
+    -------
+    ndarray of bool
+        The tier cells (never already left out).
+    """
+    thr = _surface_slope(opened, cell)
+    thr *= np.float32(es)
+    thr += np.float32(dh)
+    with np.errstate(invalid="ignore"):
+        raised = ~left_out & (np.subtract(clean, opened) > thr)
+    if not raised.any():
+        return raised
+    report(progress, 0.2)
+    lab, n = ndimage.label(raised, np.ones((3, 3), bool))
+    report(progress, 0.5)
+    ground = ~raised & ~left_out
+    low = np.array(clean, np.float32)
+    low[~ground] = np.inf
+    lowest = _erode(low, 1, 1, work)                  # the lowest ground cell around
+    edge = raised & touching(ground)                  # the region's cells next to the ground
+    rise = np.float32(dh + slope * math.hypot(*cell))
+    with np.errstate(invalid="ignore"):
+        wall = edge & (np.subtract(clean, lowest) > rise)
+    # at the raster's border the region's outline is unknown: its cells there count as edge, never wall
+    rim = np.zeros(raised.shape, bool)
+    rim[[0, -1], :] = True
+    rim[:, [0, -1]] = True
+    rim &= raised
+    edge |= rim
+    wall &= ~rim
+    report(progress, 0.8)
+    n_edge = np.bincount(lab[edge], minlength=n + 1)
+    n_wall = np.bincount(lab[wall], minlength=n + 1)
+    attached = np.bincount(lab[raised & touching(objects)], minlength=n + 1) > 0
+    tier = attached & (n_wall > TIER_WALL_SHARE * n_edge)
+    tier[0] = False
+    # the box, on the candidates' cells only (a few per cent of the raised cells)
+    cand = tier[lab]
+    if not cand.any():
+        return cand
+    rows, cols = np.nonzero(cand)
+    lab_c = lab[cand]
+    lo_r, hi_r = np.full(n + 1, rows.max(), np.int64), np.zeros(n + 1, np.int64)
+    lo_c, hi_c = np.full(n + 1, cols.max(), np.int64), np.zeros(n + 1, np.int64)
+    np.minimum.at(lo_r, lab_c, rows)
+    np.maximum.at(hi_r, lab_c, rows)
+    np.minimum.at(lo_c, lab_c, cols)
+    np.maximum.at(hi_c, lab_c, cols)
+    box_r, box_c = _tier_box(r_max)
+    tier &= (hi_r - lo_r < box_r) & (hi_c - lo_c < box_c)
+    return tier[lab]
+
+
 def open_progressive(z, cell, p, work, progress=None):
     """The progressive form (Zhang et al. 2003; Pingel et al. 2013, SMRF), in SMRF's four
     steps. Returns the mask, the provisional surface ``ZIpro`` (NaN at nodata) and the
@@ -676,6 +803,11 @@ def open_progressive(z, cell, p, work, progress=None):
     left_out = obj | low | nodata
     outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], p["outline_slope"], work)
     left_out |= outline
+    report(progress, 0.86)
+    #    and the lower tiers attached to the objects (find_attached_tiers)
+    tiers = find_attached_tiers(clean, opened, left_out, obj | outline, cell, p["dh_m"], p["slope_scale_m"],
+                                p["outline_slope"], radii[-1][:2], work, sub_progress(progress, 0.86, 0.9))
+    left_out |= tiers
     zpro = clean
     np.copyto(zpro, opened, where=left_out)
     report(progress, 0.9)
@@ -687,7 +819,8 @@ def open_progressive(z, cell, p, work, progress=None):
             "thresholds_m": [round(s * r, 4) for _, _, r in radii], "slope_scale_m": p["slope_scale_m"],
             "window_growth": growth, "low_outlier_cells_prestep": int(low.sum()), "outline_slope": p["outline_slope"],
             "flagged_by_opening_percent": 100.0 * float(obj.sum()) / max(1, int(valid.sum())),
-            "outline_percent": 100.0 * float(outline.sum()) / max(1, int(valid.sum()))}
+            "outline_percent": 100.0 * float(outline.sum()) / max(1, int(valid.sum())),
+            "attached_tier_percent": 100.0 * float(tiers.sum()) / max(1, int(valid.sum()))}
     return mask, zpro, info
 
 
@@ -947,12 +1080,14 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
 def morphological_halo(params, cell_size):
     """Reach of the filter in cells: two largest half-windows (erosion then dilation),
     the 3 x 3 closing or low-outlier step, the outline cells (their neighbours and the
-    opened surface's slope there) and the slope's central difference."""
+    opened surface's slope there) and the slope's central difference; then the attached
+    tiers (:func:`find_attached_tiers`): a region up to the largest window wide, its edge's
+    neighbours and their lowest neighbour."""
     cell = as_cell_size(cell_size)
     size = params.get("max_object_size_m") or _MAX_OBJECT_M
     ry, rx = _half_widths(size, cell)
     low = _low_radii(cell, 1.0)[-1]
-    return int(2 * max(ry, rx) + 2 * max(low[0], low[1]) + 4)
+    return int(2 * max(ry, rx) + 2 * max(low[0], low[1]) + 4 + max(_tier_box((ry, rx))) + 3)
 
 
 #: Keys of the resolved parameters that are statistics for the log, not arguments.

@@ -234,16 +234,19 @@ def test_dtm_takes_a_low_annex_only_rascor_rejects_as_an_object(monkeypatch):
     annex = (np.abs(x - 64) < 25) & (y >= 40) & (y < 54)
     z = noisy(ground + np.where(tall, 12.0, 0.0) + np.where(annex, 3.0, 0.0), sd=0.05)
     p = dtm_method.resolve_dtm_params(z, 1.0)
-    real = get_method("geodesic")
-
-    def accepting(z_, cell, progress=None, **kw):          # the reconstruction accepting the annex
-        res = real.run(z_, cell, progress=progress, **kw)
-        res.mask[(res.mask == OBJECT) & (np.abs(z_ - ground.astype(np.float32)) < 3.5)] = GROUND
-        return res
-
     import dataclasses
-    fake = dataclasses.replace(real, run=accepting)
-    monkeypatch.setattr(dtm_method, "get_method", lambda name: fake if name == "geodesic" else get_method(name))
+
+    def accepting(real):                                   # a member accepting the annex
+        def run(z_, cell, progress=None, **kw):
+            res = real.run(z_, cell, progress=progress, **kw)
+            res.mask[(res.mask == OBJECT) & (np.abs(z_ - ground.astype(np.float32)) < 3.5)] = GROUND
+            return res
+        return dataclasses.replace(real, run=run)
+
+    # the reconstruction, and the opening (whose attached-tier rule now takes this annex itself,
+    # morphology.find_attached_tiers), accept it
+    fakes = {name: accepting(get_method(name)) for name in ("geodesic", "morphological")}
+    monkeypatch.setattr(dtm_method, "get_method", lambda name: fakes.get(name) or get_method(name))
     res = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
     assert (res.mask[annex] == OBJECT).mean() > 0.95
     assert (res.mask[~annex & ~tall] == GROUND).mean() > 0.99

@@ -469,3 +469,95 @@ def test_a_checkerboard_of_dropouts_keeps_the_roofs_out():
     r = run_array("morphological", z, 1.0)
     obj = (s.mask == OBJECT) & np.isfinite(z)
     assert np.count_nonzero(obj & (r.mask == 0)) / np.count_nonzero(obj) < 0.01
+
+
+# --------------------------------------------------------------------------- attached tiers (issue 12)
+def _annexed_building():
+    """Flat ground at 0 (80 x 80, 1 m cells) with a building: a 12 x 12 block 10 m high and, attached
+    to it, a 12 x 10 annex 2 m high. Returns (dsm, truth mask)."""
+    z = np.zeros((80, 80), np.float32)
+    z[30:42, 30:42] = 10.0
+    z[30:42, 42:52] = 2.0
+    truth = np.zeros(z.shape, np.uint8)
+    truth[30:42, 30:52] = OBJECT
+    return z, truth
+
+
+def test_annex_of_a_building_is_an_object():
+    """SMRF's flags miss a low annex of a wide building: when the window outgrows the building
+    (radius 8, 17 cells > 12) the annex drops by its 2 m, under s r_k = 0.3 x 8 = 2.4 m, and
+    SMRF keeps it in ZIpro at its own height (ground). It is attached to the flagged block and
+    walls bound it (2 m above the ground beside it, over dh + 0.3 sqrt 2): a tier, an object."""
+    z, truth = _annexed_building()
+    params = dict(mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3, outline_slope=0.3,
+                  window_growth=morph.WINDOW_GROWTH)
+    res = morph.filter_morphological(z, 1.0, **params)
+    np.testing.assert_array_equal(res.mask, truth)
+    assert res.info["attached_tier_percent"] > 100.0 * 100 / z.size      # most of the annex's 120 cells
+    # the tier rule alone: the annex's cells, nothing else
+    obj = np.zeros(z.shape, bool)
+    obj[30:42, 30:42] = True
+    tiers = morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 0.3, (15, 15))
+    np.testing.assert_array_equal(tiers, truth.astype(bool) & ~obj)
+    # not attached to an object, wider than the largest window, or bounded by no wall: not a tier
+    assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, np.zeros_like(obj), (1.0, 1.0), 0.5, 1.25,
+                                         0.3, (15, 15)).any()
+    assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 0.3, (3, 3)).any()
+    assert not morph.find_attached_tiers(z, np.zeros_like(z), obj, obj, (1.0, 1.0), 0.5, 1.25, 2.0, (15, 15)).any()
+
+
+def test_annex_is_ground_without_the_tier_rule(monkeypatch):
+    """The failure the rule fixes: SMRF's steps alone keep the annex as ground."""
+    z, truth = _annexed_building()
+    monkeypatch.setattr(morph, "find_attached_tiers", lambda clean, *a, **k: np.zeros(clean.shape, bool))
+    res = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3,
+                                     outline_slope=0.3)
+    assert (res.mask[30:42, 43:52] == 0).all()
+
+
+def test_hill_top_beside_a_tree_is_not_a_tier(monkeypatch):
+    """A tree on a round hill top (4 m high, slopes up to 0.4) that the largest window cut: the top,
+    about 20 m across, stands above the opened surface by more than dh and touches the tree, but
+    it falls to the ground around at the terrain's slope, with no wall: it stays ground (without
+    the wall test its 400 cells would be removed)."""
+    i, j = np.mgrid[0:81, 0:81].astype(np.float32)
+    z = (4.0 * np.exp(-((i - 40) ** 2 + (j - 40) ** 2) / (2 * 6.0 ** 2))).astype(np.float32)
+    z[39:42, 39:42] += 8.0                                    # the tree
+    tree = np.zeros(z.shape, bool)
+    tree[39:42, 39:42] = True
+    params = dict(mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.5, outline_slope=0.4)
+    res = morph.filter_morphological(z, 1.0, **params)
+    assert res.info["attached_tier_percent"] == 0.0
+    np.testing.assert_array_equal(res.mask == OBJECT, tree)
+    monkeypatch.setattr(morph, "TIER_WALL_SHARE", -1.0)      # any attached region narrower than the window
+    assert (morph.filter_morphological(z, 1.0, **params).mask == OBJECT).sum() > 300
+
+
+def test_tier_on_the_raster_border_needs_walls_on_most_of_its_known_edge():
+    """A raised strip along the raster's border, attached to a flagged block: its cells on the border
+    are edge cells whose outline is unknown, never walls, so with walls on the ground side only
+    (under half its edge) it is not a tier; the same strip one cell inside the border is one."""
+    z = np.zeros((60, 60), np.float32)
+    obj = np.zeros(z.shape, bool)
+    obj[25:35, 50:58] = True
+    z[obj] = 10.0
+    z[10:50, 58:60] = 2.0                       # a 2 m strip two cells wide on the right border
+    z[obj] = 10.0
+    args = ((1.0, 1.0), 0.5, 1.25, 0.3, (15, 15))
+    opened = np.zeros_like(z)
+    assert not morph.find_attached_tiers(z, opened, obj, obj, *args).any()
+    inner = np.zeros((60, 61), np.float32)      # one more column of ground: the strip's right side is a wall
+    inner[:, :60] = z
+    obj2 = np.zeros(inner.shape, bool)
+    obj2[:, :60] = obj
+    tiers = morph.find_attached_tiers(inner, np.zeros_like(inner), obj2, obj2, *args)
+    np.testing.assert_array_equal(tiers, (inner == 2.0))
+
+
+def test_tier_box_holds_a_window_wide_square_in_any_orientation():
+    """A square as wide as the largest window (2 r + 1 cells) turned by 45 degrees spans sqrt 2 times
+    that along rows and columns: it fits the tier's box, and the halo covers the box."""
+    assert morph._tier_box((10, 10)) == (30, 30)                 # ceil(1.414 x 21)
+    assert morph._tier_box((3, 5)) == (10, 16)
+    p = {"max_object_size_m": 21.0}
+    assert morph.morphological_halo(p, 1.0) >= 2 * 10 + 30
