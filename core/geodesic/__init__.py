@@ -45,7 +45,11 @@ algorithm's help.
      its outline cells inside the raster stand above a neighbour by more than ``dh0``
      plus the terrain's rise over a cell diagonal: a coarse block holding a wall anywhere
      counts as a wall, and on a small clip the terrain raised at the high corner of
-     gentle ground, holding a building, passed as an object; issue 12). This keeps every
+     gentle ground, holding a building, passed as an object; issue 12); the same test runs
+     on the parts' smooth pieces (neighbours joined where their heights differ by at most
+     that rise: a wall separates a roof from raised ground at its foot) and a cell must pass
+     both (a yard or a street raised above the terrain level of a coarse step, walled by
+     buildings, went with them through their walls; issue 12). This keeps every
      step's cost near one pass over the raster whatever the window; the coarse grids are
      aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
      than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
