@@ -392,6 +392,27 @@ def test_scan_label_keeps_a_hill_whose_flanks_exceed_the_tolerance_at_coarse_cel
     assert not lab[:, x > 114].any()
 
 
+def test_scan_label_one_wall_runs_must_outgrow_a_terrain_bump_of_their_length():
+    """Issue 12 (ISPRS samp71): returns sparser than the cells give an embankment's flank
+    a 2.2 m step between two returns on one side and steps of at most 1.6 m on the other;
+    3.4 m above its 29-cell base line, with one wall, it is no higher than a terrain bump
+    of 30 m may rise at 12 degrees (0.5 + tan 12 * 30 / 2 = 3.69 m) and stays terrain.
+    The same profile 5 m higher is an object, and so is a 1.5 m high run of 30 cells on
+    walls on both sides."""
+    ramp = [301.6, 301.6, 303.8, 303.8, 303.8, 304.4, 304.4, 304.4] + [305.0] * 15 + [
+        304.8, 304.7, 304.6, 304.6, 304.0, 304.0, 302.4, 302.4, 301.1, 301.1, 301.1]
+    z = np.array([ramp], np.float32)
+    kw = dict(jump_m=0.5, height_m=0.5, max_length_m=64.0, terrain_slope_deg=12.0)
+    assert not geo.scan_label(z, 1.0, **kw).any()
+    high = z.copy()
+    high[0, 2:29] += 5.0
+    assert geo.scan_label(high, 1.0, **kw)[0, 2:29].all()
+    low = np.zeros((1, 36), np.float32)
+    low[0, 3:33] = 1.5
+    lab = geo.scan_label(low, 1.0, **kw)
+    assert lab[0, 3:33].all() and lab.sum() == 30
+
+
 def test_scan_label_nodata_breaks_runs_and_reference():
     prof = np.zeros(40)
     prof[10:20] = 5.0
