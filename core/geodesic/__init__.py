@@ -76,7 +76,8 @@ algorithm's help.
    or an embankment whose flanks are steeper than the tolerated slope rises over many
    cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
    cell``, falls and such flanks would open runs; our design, issue 12). A run on one
-   wall only must also stand above its base line by more than a terrain bump of its length
+   wall only (its other edge carries less than that share over one cell, and over two: one
+   mixed cell) must also stand above its base line by more than a terrain bump of its length
    may rise (``dh0 + tan(slope) * length *`` :data:`BUMP_FRACTION`, the dilation's height
    test): where returns are sparser than the cells an embankment's flank rises in one step
    between two returns (issue 12: the ramps of ISPRS samp71).

@@ -398,7 +398,7 @@ def test_scan_label_one_wall_runs_must_outgrow_a_terrain_bump_of_their_length():
     3.4 m above its 29-cell base line, with one wall, it is no higher than a terrain bump
     of 30 m may rise at 12 degrees (0.5 + tan 12 * 30 / 2 = 3.69 m) and stays terrain.
     The same profile 5 m higher is an object, and so is a 1.5 m high run of 30 cells on
-    walls on both sides."""
+    walls on both sides, also when one wall's foot is a mixed cell (a wall over two cells)."""
     ramp = [301.6, 301.6, 303.8, 303.8, 303.8, 304.4, 304.4, 304.4] + [305.0] * 15 + [
         304.8, 304.7, 304.6, 304.6, 304.0, 304.0, 302.4, 302.4, 301.1, 301.1, 301.1]
     z = np.array([ramp], np.float32)
@@ -411,6 +411,9 @@ def test_scan_label_one_wall_runs_must_outgrow_a_terrain_bump_of_their_length():
     low[0, 3:33] = 1.5
     lab = geo.scan_label(low, 1.0, **kw)
     assert lab[0, 3:33].all() and lab.sum() == 30
+    low[0, 32] = 0.75                                  # a mixed cell at its fall: still a wall
+    lab = geo.scan_label(low, 1.0, **kw)
+    assert lab[0, 3:32].all() and lab.sum() == 29
 
 
 def test_scan_label_nodata_breaks_runs_and_reference():
