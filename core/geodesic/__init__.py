@@ -45,7 +45,11 @@ algorithm's help.
      its outline cells inside the raster stand above a neighbour by more than ``dh0``
      plus the terrain's rise over a cell diagonal: a coarse block holding a wall anywhere
      counts as a wall, and on a small clip the terrain raised at the high corner of
-     gentle ground, holding a building, passed as an object; issue 12). This keeps every
+     gentle ground, holding a building, passed as an object; issue 12); the same test runs
+     on the parts' smooth pieces (neighbours joined where their heights differ by at most
+     that rise: a wall separates a roof from raised ground at its foot) and a cell must pass
+     both (a yard or a street raised above the terrain level of a coarse step, walled by
+     buildings, went with them through their walls; issue 12). This keeps every
      step's cost near one pass over the raster whatever the window; the coarse grids are
      aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
      than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
@@ -71,7 +75,12 @@ algorithm's help.
    of that height (:data:`~.scan.WALL_SHARE`: an object stands on a wall, while a ridge
    or an embankment whose flanks are steeper than the tolerated slope rises over many
    cells; at coarser cells the per-cell tolerance, a slope of ``tan(slope) + dh0 /
-   cell``, falls and such flanks would open runs; our design, issue 12).
+   cell``, falls and such flanks would open runs; our design, issue 12). A run on one
+   wall only (its other edge carries less than that share over one cell, and over two: one
+   mixed cell) must also stand above its base line by more than a terrain bump of its length
+   may rise (``dh0 + tan(slope) * length *`` :data:`BUMP_FRACTION`, the dilation's height
+   test): where returns are sparser than the cells an embankment's flank rises in one step
+   between two returns (issue 12: the ramps of ISPRS samp71).
    Two passes catch stepped roofs. This removes what the dilation left (objects on
    steep slopes, thin walls, leftovers of merged regions). Nodata ends a run; on a DSM with
    scattered nodata the scan is repeated with one-cell dropouts bridged by the lower straight
@@ -157,7 +166,8 @@ METHOD = Method(
         "columns removes runs that open with a rise, close with a fall, stand above "
         "their neighbours and stand on a wall (the rise or the fall carries at least half the run's "
         "height beyond the terrain's rise over the cell: the flanks of a hill or an embankment, "
-        "which exceed the per-cell tolerance at coarse cells, rise over many cells); runs up to "
+        "which exceed the per-cell tolerance at coarse cells, rise over many cells; a run on one wall "
+        "only must also be higher than a terrain bump of its length may rise); runs up to "
         "the maximum object size, or up to sqrt(2) times it (a row crossing a building rotated "
         "in the grid) when both the rise and the fall are walls; "
         "then the border cells of removed regions that stand above a "

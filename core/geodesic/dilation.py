@@ -7,6 +7,8 @@ abrupt (see the package docstring). Wide windows run on grids coarsened by a pow
 """
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..common import report, sub_progress
 from .grey import (
@@ -204,11 +206,21 @@ def _fine_outline(w, cells, step_m, edge_ratio):
     of 100 x 120 m, and a result changing with the clip's orientation). The removed cells
     (``cells``: flat indices of the cells whose own residual exceeds dh0) are therefore
     split into their 8-connected parts, and a part stays an object when at least
-    ``edge_ratio`` of its outline cells (a neighbour outside the part; the raster's edge
-    ends the data and is no outline) stand above one of their 8 neighbours by more than
-    ``step_m`` (dh0 plus the terrain's rise over a cell diagonal: the border stage's test
-    of a wall's foot or a crown's edge). A part with no outline inside the raster keeps
-    its region's decision. Returns a boolean per cell.
+    ``edge_ratio`` of its outline cells (a kept neighbour; the raster's edge ends the data
+    and is no outline) stand above one of their 8 neighbours by more than ``step_m`` (dh0
+    plus the terrain's rise over a cell diagonal: the border stage's test of a wall's foot
+    or a crown's edge). A part with no outline inside the raster keeps its region's
+    decision.
+
+    The same test then runs on the smooth pieces of the parts (:func:`smooth_parts`:
+    8-neighbours joined where their heights differ by at most ``step_m``, so a wall
+    separates a roof from raised ground at its foot; the wall to another piece is no
+    outline) and a cell stays an object when both its part and its piece pass: ground
+    raised above the terrain level of a coarse step and walled by the buildings around it
+    joined them in one 8-connected part and went with them through their walls (a
+    courtyard or a street at a raster's corner, 2-3 m above the ground a 32 m window
+    reaches; issue 12: ISPRS samp41 at 2 m, 576 of 1043 wrongly removed ground points,
+    total 11.42 -> 6.53 %). Returns a boolean per cell.
     """
     if cells.size == 0:
         return np.zeros(0, bool)
@@ -224,9 +236,45 @@ def _fine_outline(w, cells, step_m, edge_ratio):
     low = rect_filter(np.where(np.isfinite(w), w, np.inf), (3, 3), np.minimum, np.inf).ravel()[cells]
     with np.errstate(invalid="ignore"):
         abrupt = rim & (w.ravel()[cells] - low > step_m)
-    rim_n = np.bincount(part, weights=rim, minlength=n + 1)
-    rim_s = np.bincount(part, weights=abrupt, minlength=n + 1)
-    return (rim_s >= edge_ratio * rim_n)[part]
+    keep = np.ones(cells.size, bool)
+    for n_p, parts in ((n, part), smooth_parts(w, cells, step_m)):
+        rim_n = np.bincount(parts, weights=rim, minlength=n_p + 1)
+        rim_s = np.bincount(parts, weights=abrupt, minlength=n_p + 1)
+        keep &= (rim_s >= edge_ratio * rim_n)[parts]
+    return keep
+
+
+def smooth_parts(w, cells, step_m):
+    """The parts of the cells ``cells`` (flat indices into ``w``) joined across 8-neighbour
+    edges whose heights differ by at most ``step_m`` (a wall, a NaN, a cell outside ``cells``
+    separates them): ``(n, part)``, ``part[i]`` in ``0 .. n - 1`` the part of ``cells[i]``.
+
+    Examples
+    --------
+    >>> w = np.array([[0, 0, 5, 5], [0, 0, 5, 9]], np.float32)
+    >>> smooth_parts(w, np.arange(8), 1.0)
+    (3, array([0, 0, 1, 1, 0, 0, 1, 2], dtype=int32))
+    """
+    H, W = w.shape
+    n_c = cells.size
+    order = np.argsort(cells, kind="stable")
+    srt = cells[order]
+    wf = w.ravel()
+    r, c = np.divmod(cells, W)
+    heads, tails = [], []
+    for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
+        i = np.flatnonzero((r + dr < H) & (c + dc >= 0) & (c + dc < W))
+        b = cells[i] + dr * W + dc
+        j = np.minimum(np.searchsorted(srt, b), n_c - 1)
+        found = srt[j] == b
+        i, b, j = i[found], b[found], order[j[found]]
+        with np.errstate(invalid="ignore"):
+            smooth = np.abs(wf[cells[i]] - wf[b]) <= step_m
+        heads.append(i[smooth])
+        tails.append(j[smooth])
+    a, b = np.concatenate(heads), np.concatenate(tails)
+    graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_c, n_c))
+    return connected_components(graph, directed=False)
 
 
 def _component_stats(lab, n, sel, values, inner, flag, flag_min):

@@ -2,6 +2,7 @@
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, transpose
+from .dilation import BUMP_FRACTION
 from .grey import rect_filter
 
 #: Scan labelling passes run by the filter.
@@ -74,7 +75,12 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     generated and tested against the run's base line, all vectorised. A run is kept when
     its rise or its fall exceeds the terrain's rise over one cell (``t_terrain``) by at
     least :data:`WALL_SHARE` of the run's greatest height above its base line; a run of
-    more than ``one_wall_cells`` cells (None: no limit) when both do.
+    more than ``one_wall_cells`` cells (None: no limit) when both do. A run whose other edge
+    carries less than that share, over one cell or over two (one mixed cell), beyond the
+    terrain's rise over two cells, stands on one wall only and must also stand higher above
+    its base line than a terrain bump of its length may rise, ``height_m + t_terrain *
+    (cells + 1) *`` :data:`~.dilation.BUMP_FRACTION` (the dilation's height test ``dh_k``
+    for a window of the run's length).
     """
     none = np.zeros(0, np.intp)
     H, W = a.shape
@@ -110,9 +116,22 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     # beyond the terrain's rise over a cell (the rise and the fall carry the object)
     top = np.maximum.reduceat(np.where(np.isfinite(above), above, -np.inf), start)
     wall = np.maximum(d[k], -d[k + 1]) - t_terrain
+    # both edges walls, each over one cell or over two (one mixed cell: a wall's foot or a
+    # crown's edge, as in the border stage), beyond the terrain's rise over two cells
+    n_prof = a.shape[axis]
+
+    def at(q):
+        return af[first + np.clip(q, 0, n_prof - 1) * fp]
+    rise2 = np.fmax(np.fmax(at(jl + 2) - at(jl), at(jl + 1) - at(jl - 1)), d[k])
+    fall2 = np.fmax(np.fmax(at(jr) - at(jr + 2), at(jr - 1) - at(jr + 1)), -d[k + 1])
+    both = np.minimum(rise2, fall2) - 2 * t_terrain >= WALL_SHARE * top
+    del rise2, fall2
     if one_wall_cells is not None and one_wall_cells < max_cells:
         wall = np.where(n_run > one_wall_cells, np.minimum(d[k], -d[k + 1]) - t_terrain, wall)
-    on_walls = np.repeat(wall >= WALL_SHARE * top, n_run)
+    # a run on one wall only must stand above its base line by more than a terrain bump
+    # as long as the run may rise (the dilation's height test dh_k with the run's length)
+    bump = top > height_m + t_terrain * (n_run + 1) * BUMP_FRACTION
+    on_walls = np.repeat((wall >= WALL_SHARE * top) & (both | bump), n_run)
     keep = (above > height_m) & on_walls
     return flat[keep]
 
@@ -131,7 +150,14 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     least :data:`WALL_SHARE` of the run's greatest height above that line beyond the
     terrain's rise over the cell (an object stands on a wall; a ridge or an embankment
     steeper than the tolerated slope rises over many cells: each of its edges carries a
-    fraction of its height). A run longer than ``max_length_m`` and at most
+    fraction of its height). A run on one wall only (its other edge carries less than that
+    share, over one cell or, with one mixed cell, over two) must also stand above that line
+    by more than a terrain bump of its length ``L``
+    may rise, ``height_m + tan(terrain_slope) * L *`` :data:`~.dilation.BUMP_FRACTION` (the
+    dilation's height test ``dh_k`` for a window of the run's length): where the returns are
+    sparser than the cells, an embankment's flank rises in one step between two returns on
+    one side and over several cells on the other (issue 12: the ramps of ISPRS samp71, 3.4 m
+    over 29 cells, went as objects). A run longer than ``max_length_m`` and at most
     ``oblique_length_m`` (an object crossed obliquely: the filter passes
     :data:`OBLIQUE_REACH` ``* max_length_m``) is labelled when both its rise and its fall
     carry that share (an object stands on walls on both sides; raised terrain beyond a
