@@ -513,13 +513,31 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
     return flags, opened
 
 
-def _surface_slope(s, cell):
-    """Slope (rise/run) of a surface by central differences; NaN -> 0."""
+def _surface_slope(s, cell, rows=None):
+    """Slope (rise/run) of a surface by central differences (``np.gradient``: one-sided at the
+    edges); NaN -> 0. ``rows`` (a slice of whole rows, default all) limits the result to those
+    rows: the same values as the whole array's, read from them and the row beside each end."""
     dx, dy = cell
-    if min(s.shape) < 2:
-        return np.zeros(s.shape, np.float32)
-    gy, gx = np.gradient(s, dy, dx)
-    g = np.hypot(gx, gy)
+    H, W = s.shape
+    r0, r1, _ = (rows or slice(0, H)).indices(H)
+    if min(s.shape) < 2 or r1 <= r0:
+        return np.zeros((max(0, r1 - r0), W), np.float32)
+    if not np.issubdtype(s.dtype, np.floating):
+        s = s.astype(np.float64)
+    gx = np.empty((r1 - r0, W), s.dtype)
+    gy = np.empty((r1 - r0, W), s.dtype)
+    f = s[r0:r1]
+    gx[:, 1:-1] = (f[:, 2:] - f[:, :-2]) / (2. * dx)
+    gx[:, 0] = (f[:, 1] - f[:, 0]) / dx
+    gx[:, -1] = (f[:, -1] - f[:, -2]) / dx
+    i0, i1 = max(r0, 1), min(r1, H - 1)            # rows with a row on both sides
+    if i0 < i1:
+        gy[i0 - r0:i1 - r0] = (s[i0 + 1:i1 + 1] - s[i0 - 1:i1 - 1]) / (2. * dy)
+    if r0 == 0:
+        gy[0] = (s[1] - s[0]) / dy
+    if r1 == H:
+        gy[-1] = (s[H - 1] - s[H - 2]) / dy
+    g = np.hypot(gx, gy, out=gx)
     g[~np.isfinite(g)] = 0.0
     return g.astype(np.float32, copy=False)
 
@@ -580,18 +598,22 @@ def classify_provisional(z, zpro, cell, dh, es, progress=None):
     """SMRF's final test: ground when ``|z - ZIpro| <= e_t + e_s * slope(ZIpro)``, object
     above, low outlier below (a pit of the pre-step is class 2 only when it lies below the
     ground reconstructed around it: a gap between tree crowns does not)."""
-    thr = _surface_slope(zpro, cell)
-    report(progress, 0.5)
-    thr *= np.float32(es)
-    thr += np.float32(dh)
+    mask = np.zeros(z.shape, np.uint8)
+    rows = zpro.shape[0]
+    # in bands of rows whose temporaries stay in the cache (no raster-sized ones)
+    band = max(1, _BAND_BYTES // max(1, zpro.shape[1] * 8))
     with np.errstate(invalid="ignore"):
-        d = np.subtract(z, zpro)
-        mask = np.zeros(z.shape, np.uint8)
-        mask[d > thr] = OBJECT
-        report(progress, 0.75)
-        np.negative(thr, out=thr)
-        mask[d < thr] = LOW
-    report(progress, 1.0)
+        for r0 in range(0, rows, band):
+            b = slice(r0, min(rows, r0 + band))
+            thr = _surface_slope(zpro, cell, b)
+            thr *= np.float32(es)
+            thr += np.float32(dh)
+            d = np.subtract(z[b], zpro[b])
+            m = mask[b]
+            m[d > thr] = OBJECT
+            np.negative(thr, out=thr)
+            m[d < thr] = LOW
+            report(progress, b.stop / rows)
     return mask
 
 

@@ -95,7 +95,7 @@ def _fine_cells(blocks, f, coarse_width, shape):
 
 
 def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, progress=None,
-                  grids=None, reconstruction=None):
+                  grids=None, reconstruction=None, shared=None):
     """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
@@ -117,6 +117,9 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         :func:`coarse_grids` of ``w`` (computed here when a coarse step needs one).
     reconstruction : list, optional
         Receives ``(Rc, f)``: the step's reconstruction on its grid and the grid's factor.
+    shared : dict, optional
+        Estimates of ``w`` the steps share (:func:`_fine_outline`'s 3 x 3 minimum), kept from
+        one step to the next.
 
     Returns
     -------
@@ -191,11 +194,11 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     with np.errstate(invalid="ignore"):
         sel = (w.ravel()[cells] - Rk) > dh0
     cells, Rk = cells[sel], Rk[sel]
-    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio)
+    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared)
     return cells[sel], Rk[sel]
 
 
-def _fine_outline(w, cells, step_m, edge_ratio):
+def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     """Which ``cells`` of a coarse step's objects lie in a part with an abrupt outline.
 
     A coarse block holding a wall anywhere counts as a wall, so one coarse region can
@@ -220,7 +223,8 @@ def _fine_outline(w, cells, step_m, edge_ratio):
     joined them in one 8-connected part and went with them through their walls (a
     courtyard or a street at a raster's corner, 2-3 m above the ground a 32 m window
     reaches; issue 12: ISPRS samp41 at 2 m, 576 of 1043 wrongly removed ground points,
-    total 11.42 -> 6.53 %). Returns a boolean per cell.
+    total 11.42 -> 6.53 %). Returns a boolean per cell. ``shared`` (a dict) keeps the 3 x 3
+    minimum of ``w`` for the next coarse step (the same ``w``).
     """
     if cells.size == 0:
         return np.zeros(0, bool)
@@ -233,7 +237,12 @@ def _fine_outline(w, cells, step_m, edge_ratio):
     lab, n = ndimage.label(fine, S8)
     part = lab.ravel()[cells]
     del fine, lab
-    low = rect_filter(np.where(np.isfinite(w), w, np.inf), (3, 3), np.minimum, np.inf).ravel()[cells]
+    low3 = None if shared is None else shared.get("low3")
+    if low3 is None:
+        low3 = rect_filter(np.where(np.isfinite(w), w, np.inf), (3, 3), np.minimum, np.inf).ravel()
+        if shared is not None:
+            shared["low3"] = low3
+    low = low3[cells]
     with np.errstate(invalid="ignore"):
         abrupt = rim & (w.ravel()[cells] - low > step_m)
     keep = np.ones(cells.size, bool)
@@ -357,13 +366,13 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
                for c in (window_cells(s, dx, dy) for s in sizes)]
     grids = coarse_grids(w, valid, jump, factors)
     report(progress, 0.02)
-    counts, recon = [], []
+    counts, recon, shared = [], [], {}
     rf, sf, cf = removed.ravel(), step.ravel(), cleaned.ravel()
     for k, s in enumerate(sizes, start=1):
         part = sub_progress(progress, 0.02 + 0.98 * (k - 1) / len(sizes), 0.02 + 0.98 * k / len(sizes))
         keep = recon if k == len(sizes) else None
         cells, R = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part, grids,
-                                 reconstruction=keep)
+                                 reconstruction=keep, shared=shared)
         new = ~rf[cells] & (sf[cells] == 0)       # outliers keep their own code
         rf[cells] = True
         sf[cells[new]] = k

@@ -298,4 +298,4 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
                 object_fraction=float((mask == OBJECT).sum() / max(valid.sum(), 1)),
                 seconds=round(time.perf_counter() - t0, 3), stage_seconds=stages)
     report(progress, 1.0)
-    return FilterResult(mask=mask, extras={"step": step}, info=info, surface=cleaned.astype(np.float32))
+    return FilterResult(mask=mask, extras={"step": step}, info=info, surface=cleaned.astype(np.float32, copy=False))

@@ -10,6 +10,9 @@ from .grey import S8, grey_closing, grey_opening, window_cells
 OUTLIER_MAX_CELLS = 16
 #: Cells per band of the outlier tests.
 _BAND_CELLS = 1 << 16
+#: Row and column offsets of the 8 neighbours.
+_DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
+_DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
 
 
 def _small_clusters(cand):
@@ -22,29 +25,34 @@ def _small_clusters(cand):
 
 
 def _pits(z, valid, sel):
-    """The cells of ``sel`` (flat indices) that lie in pits: a set whose every cell is lower
-    than each of its 8 neighbours outside the set (nodata and the outside count as nothing).
+    """The cells of ``sel`` (flat indices, increasing) that lie in pits: a set whose every cell is
+    lower than each of its 8 neighbours outside the set (nodata and the outside count as nothing).
 
     Cells that fail leave the set and count as its neighbours; the test repeats until every
-    cell left passes (sparse: only the few candidates are read). A gap between two roofs
-    one cell wide, or a dip on a crown's edge, lies under the closing but opens onto lower
-    cells; a blunder does not."""
+    cell left passes. Sparse: only the candidates and their 8 neighbours are read (no padded
+    copy of the raster). A gap between two roofs one cell wide, or a dip on a crown's edge,
+    lies under the closing but opens onto lower cells; a blunder does not."""
     H, W = z.shape
-    zp = np.full((H + 2, W + 2), np.inf, np.float64)
-    zp[1:-1, 1:-1] = np.where(valid, z, np.inf)
-    ip = (sel // W + 1) * (W + 2) + sel % W + 1
-    zf = zp.ravel()
-    zc = zf[ip].copy()
-    zf[ip] = np.inf                               # the set: not its own neighbour
-    offs = np.array([-W - 3, -W - 2, -W - 1, -1, 1, W + 1, W + 2, W + 3], np.intp)
+    if sel.size == 0:
+        return sel
+    r, c = np.divmod(sel, W)
+    rr, cc = r[:, None] + _DR, c[:, None] + _DC
+    inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+    nb = np.where(inside, rr * W + cc, 0)
+    zf, vf = z.ravel(), valid.ravel()
+    around = np.where(inside & vf[nb], zf[nb], np.inf)     # nodata and the outside: nothing
+    zc = np.where(vf[sel], zf[sel], np.inf)
+    pos = np.minimum(np.searchsorted(sel, nb), sel.size - 1)
+    member = inside & (sel[pos] == nb)                       # a neighbour in the set
     keep = np.ones(sel.size, bool)
     while True:
         k = np.flatnonzero(keep)
-        fail = k[zc[k] >= zf[ip[k, None] + offs].min(axis=1)]
+        # the set is not its own neighbour; a cell that left it counts with its height
+        nbk = np.where(member[k] & keep[pos[k]], np.inf, around[k])
+        fail = k[zc[k] >= nbk.min(axis=1)]
         if fail.size == 0:
             return sel[keep]
         keep[fail] = False
-        zf[ip[fail]] = zc[fail]
 
 
 def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):

@@ -23,7 +23,8 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
                             lengths_m: Sequence[float], terrain_class: str, scale_m: float,
                             k: float = 4.0, low_weight: float = 0.02, iterations: int = 1,
                             test: Optional[np.ndarray] = None, labels: Optional[np.ndarray] = None,
-                            homogeneous: bool = True, progress: Optional[Callable[[float], None]] = None
+                            homogeneous: bool = True, z_t: Optional[np.ndarray] = None,
+                            progress: Optional[Callable[[float], None]] = None
                             ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
@@ -47,6 +48,8 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
         error), from the analysis of the sequence of lengths.
     test : ndarray of bool, optional
         Cells that may be removed (default ``keep``); others only support the fits.
+    z_t : ndarray, optional
+        ``transpose(z)`` when the caller has it (made here otherwise).
     progress : callable, optional
         ``progress(fraction)``, called every band of rows; it may raise ``Cancelled``.
 
@@ -61,7 +64,7 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays
-    views = [(z, labels, dx, None), (transpose(z), None if labels is None else
+    views = [(z, labels, dx, None), (transpose(z) if z_t is None else z_t, None if labels is None else
                                      transpose(labels), dy, transpose)]
     n_fits = len(lengths_m) * len(views) * iterations
     i_fit = 0

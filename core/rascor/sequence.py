@@ -14,7 +14,7 @@ from typing import Callable, Iterable, Optional, Sequence, Union
 import numpy as np
 
 from ..codes import LOW, NODATA, OBJECT
-from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
+from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
@@ -80,6 +80,13 @@ class _State:
     notes: list = field(default_factory=list)
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
     step_lines: int = 0                   # cells of the terrain's level changes (step 4)
+    z_t: Optional[np.ndarray] = None      # z transposed (the Y profiles of steps 4 and 5), made once
+
+    def transposed(self):
+        """``z`` transposed (C-contiguous), made on first use and kept for the later steps."""
+        if self.z_t is None:
+            self.z_t = transpose(self.z)
+        return self.z_t
 
 
 def cell_rise(terrain_slope: float, cell_size: Union[float, Sequence[float]]) -> tuple:
@@ -267,13 +274,13 @@ def _step4_level_change(st, cfg, progress):
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
-                              progress=sub_progress(progress, 0.0, 0.6))
+                              z_t=st.transposed(), progress=sub_progress(progress, 0.0, 0.6))
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
     # the level changes longer than the longest building are the terrain's: break lines for
     # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)
     steps = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m, max_building_m=cfg.max_building_m,
                                sigma_m=cfg.sigma_m, k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m,
-                               labels=st.labels, progress=sub_progress(progress, 0.6, 1.0))
+                               labels=st.labels, z_t=st.transposed(), progress=sub_progress(progress, 0.6, 1.0))
     st.step_lines = int(np.count_nonzero(steps))
     if st.step_lines:
         st.labels, st.n_regions = break_regions(steps if st.breaklines is None else steps | st.breaklines)
@@ -285,7 +292,8 @@ def _step5_profiles(st, cfg, progress):
         st.z, cfg.cell, st.keep, lengths_m=cfg.lengths, scale_m=cfg.profile_sigma_m,
         terrain_class=cfg.terrain_class, homogeneous=cfg.homogeneous,
         iterations=cfg.snooping_iterations, test=st.global_ok, k=cfg.snooping_k,
-        low_weight=cfg.low_weight, labels=st.labels, progress=progress)
+        low_weight=cfg.low_weight, labels=st.labels, z_t=st.transposed(), progress=progress)
+    st.z_t = None                         # its last reader: freed (made again by a second iteration)
     _record(st, 5, hi, lo)
 
 

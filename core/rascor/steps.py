@@ -356,6 +356,7 @@ def _jump_limits(jump_m, sigma_m, k, bend_m):
 def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                        jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
                        bend_m: float = 0.0, labels: Optional[np.ndarray] = None,
+                       z_t: Optional[np.ndarray] = None,
                        progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4's level changes that belong to the terrain: break lines derived from the DSM.
 
@@ -367,7 +368,8 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
     quarry bench, a river bank, a terrace wall). Jacobsen (2004) protects such edges with
     break lines, which no comparison crosses; without them, the moving profiles and surfaces
     of steps 5 and 6, pulled down by the lower level, eat into the upper one.
-    ``progress(fraction)`` is called every band of rows (it may raise ``Cancelled``).
+    ``progress(fraction)`` is called every band of rows (it may raise ``Cancelled``); ``z_t``
+    is ``transpose(z)`` when the caller has it (made here otherwise).
 
     Returns
     -------
@@ -379,7 +381,7 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
     cells = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays; bands of whole rows
     views = [(z, keep, labels, int(max_building_m / dx), lambda a: a),
-             (transpose(z), transpose(keep), None if labels is None else transpose(labels),
+             (transpose(z) if z_t is None else z_t, transpose(keep), None if labels is None else transpose(labels),
               int(max_building_m / dy), transpose)]
     for d, (zz, kk, lab, lmax, fwd) in enumerate(views):
         found = np.zeros(zz.shape, bool)
@@ -400,6 +402,7 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
 def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                          jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
                          bend_m: float = 0.0, labels: Optional[np.ndarray] = None, passes: int = 2,
+                         z_t: Optional[np.ndarray] = None,
                          progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4: sudden change of level along X and Y profiles (buildings).
 
@@ -413,7 +416,8 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     line: second difference below ``2 k sigma``; ground is smooth, crowns and bushes are
     not). X and Y profiles are combined by union; ``passes``
     repetitions peel nested levels (roof superstructures). ``progress(fraction)`` is
-    called every band of rows (it may raise ``Cancelled``).
+    called every band of rows (it may raise ``Cancelled``); ``z_t`` is ``transpose(z)`` when
+    the caller has it (made here otherwise).
 
     Returns
     -------
@@ -425,7 +429,7 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     high = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays; bands of whole rows
     views = [(z, labels, int(max_building_m / dx), lambda a: a),
-             (transpose(z), None if labels is None else transpose(labels),
+             (transpose(z) if z_t is None else z_t, None if labels is None else transpose(labels),
               int(max_building_m / dy), transpose)]
     redo = [None, None]
     for p in range(passes):
