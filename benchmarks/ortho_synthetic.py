@@ -211,12 +211,13 @@ def main(argv=None):
                 ok &= red >= 0.8
     names = list(NOISY_WIDTHS) if a.widths is None else [n for n in NOISY_WIDTHS if a.widths in n]
     seeds = list(range(21, 21 + a.noisy_seeds))
-    print(f"3. orthoparallax, 6 grey levels of noise, 0.5 m cells, 19 buildings 3-14 m high, B/H "
-          f"{', '.join(str(x) for x in a.noisy_bh)}, held-out seeds {seeds[0]}-{seeds[-1]}; recall of building "
-          f"cells, false alarms on ground more than 3 m from any object")
-    kw = {k: v for k, v in (("window", a.window), ("shiftable", a.shiftable)) if v is not None}
-    r, f = noisy_section(a.noisy_bh, names, seeds, plain=a.plain, **kw)
-    ok &= r >= 95 and f <= 3
+    if seeds:                                   # --noisy-seeds 0: sections 1 and 2 only
+        print(f"3. orthoparallax, 6 grey levels of noise, 0.5 m cells, 19 buildings 3-14 m high, B/H "
+              f"{', '.join(str(x) for x in a.noisy_bh)}, held-out seeds {seeds[0]}-{seeds[-1]}; recall of "
+              f"building cells, false alarms on ground more than 3 m from any object")
+        kw = {k: v for k, v in (("window", a.window), ("shiftable", a.shiftable)) if v is not None}
+        r, f = noisy_section(a.noisy_bh, names, seeds, plain=a.plain, **kw)
+        ok &= r >= 95 and f <= 3
     print("ALL TARGETS MET" if ok else "SOME TARGET MISSED")
     return 0 if ok else 1
 
