@@ -65,9 +65,11 @@ and which stand more than ``t`` above the plane of the ground beyond those steps
 half their area; the regions are cut at walls higher than ``s = t, 2 t, 4 t, ...``, so that a roof
 of several levels is one region above its inner steps. A terrace's upper level joined to the
 ground by a bank or a ramp, a plateau, a hilltop or a dam (banks wider than a wall) stays ground
-(lidar ``sample_c``, one roof over 80-90 % of its tile: 88.3 / 88.1 / 88.1 -> 0.21 / 0.01 / 0.27 %
-at 0.5 / 2 / 4 m; no other row of the generalisation matrix changed). Every candidate's decision
-is in ``info["raised_regions"]``.
+(lidar ``sample_c``, one roof over 80-90 % of its tile, at 2 m: 88.1 -> 0.01 %). A level cut by the
+raster's edge on two opposite sides (a terrain step running across the raster) is mirrored at both
+and spans three times what is seen: beyond the stage's reach unless short, it is left to the vote
+(``sample_c`` at 0.5 and 4 m stays 88 %: inside one tile such a roof and a terrain step are alike).
+Every candidate's decision is in ``info["raised_regions"]``.
 
 A low roof narrower than those windows (an annex, the lower level of a building, 2-4 m high) is kept
 by the opening and the reconstruction, whose allowances grow with the window and the terrain slope,
@@ -802,7 +804,8 @@ METHOD = Method(
         "ground's noise and the spacing of its heights on the terrain's slope; wall feet, crown skirts, low "
         "vegetation at a crown's edge), or which the ground continues to from neither side of a line through "
         "it (low vegetation along a crown's edge); so is a region wider than the members' windows (a warehouse's "
-        "flat roof, or a roof running off the raster, taken as continuing beyond its edge) whose outline seen "
+        "flat roof, or a roof running off the raster, taken as mirrored at its edge; a level cut on two opposite "
+        "sides, a terrain step across the raster, reaches too far and is left to the vote) whose outline seen "
         "inside the raster stands on walls down to the ground over more than half its length and which stands "
         "above the ground around it, the regions cut at walls of doubling heights so that a roof of several levels "
         "is one region (a terrace joined to the ground by a bank or a ramp, a plateau or a dam, with banks, stays "

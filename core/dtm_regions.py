@@ -26,7 +26,9 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    narrower ones the members' windows reach, and their vote stands. Beyond the raster's edge
    nothing is seen: a region cut by it may continue there, and its width is that of the region
    mirrored at the edge (as the slope-profile and curvature filters take a profile cut by the
-   edge); a region wider than the stage reaches (``max_cells`` cells) is left alone.
+   edge); a region wider than the stage reaches (``max_cells`` cells) is left alone, its span along
+   each axis mirrored at every side the edge cuts (a level cut on two opposite sides spans three
+   times what is seen).
 2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
    seen outside its footprint; the edges of its holes - objects on a roof, a courtyard - say
    nothing of what bounds it, nor does the raster's edge) stands on a *step* when, along some
@@ -45,7 +47,10 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    around behind its walls fails the plane. An upper level whose whole seen edge is a wall
    and which runs off the raster elsewhere looks, within the raster, like a roof running off it
    (lidar ``sample_c``: a roof over 80-90 % of its tile); within the stage's reach it is taken
-   as one.
+   as one. A terrain step running across the raster (a retaining wall, a river's walls, quarry
+   benches) is such a level cut on two opposite sides: mirrored at both, it is beyond the
+   stage's reach unless shorter than a third of it (a 5 m step across a 200 m tile at 1 m cells
+   came out half objects before).
 
 The decided regions and their rims (voted ground cells next to the region standing more than
 ``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
@@ -167,7 +172,13 @@ def _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_ce
     # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide
     cut = np.array([b[0].start == 0 or b[1].start == 0 or b[0].stop == shape[0] or b[1].stop == shape[1]
                     for b in boxes], bool)
-    idx = np.flatnonzero((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)) + 1
+    # its span along each axis mirrored at every side the edge cuts (a level cut on two opposite
+    # sides, a terrain step running across the raster, is mirrored at both): the stage reaches it
+    # only if it reaches that span
+    reach = np.array([max((b[0].stop - b[0].start) * (1 + (b[0].start == 0) + (b[0].stop == shape[0])),
+                          (b[1].stop - b[1].start) * (1 + (b[1].start == 0) + (b[1].stop == shape[1])))
+                      for b in boxes])
+    idx = np.flatnonzero((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (reach <= max_cells)) + 1
     if idx.size == 0:
         return objects, []
     keep = np.zeros(n + 1, bool)

@@ -50,30 +50,56 @@ def test_what_the_vote_reaches_or_the_stage_cannot_see_whole_is_left_alone():
 
 
 def test_a_level_running_off_the_raster_on_walls_is_an_object_within_the_reach():
-    # a raised level with one wall and three sides at the raster's edge (a roof over most of a tile, as in
-    # lidar/sample_c): beyond the edge nothing is seen, so its outline is the wall, and it stands on steps;
-    # its width is that of the level mirrored at the edge
+    # a raised level with walls on two sides and the raster's edge on the other two (a roof running off a
+    # corner of the tile): beyond the edge nothing is seen, so its outline is its walls, and it stands on
+    # steps; its width and its span are those of the level mirrored at the edge
     z = np.zeros((40, 40), np.float32)
-    z[:, 15:] = 4.0
+    z[15:, 15:] = 4.0
     objects, decisions = _find(z)
     level = np.zeros(z.shape, bool)
-    level[:, 15:] = True
+    level[15:, 15:] = True
     assert np.array_equal(objects, level)
     upper = [d for d in decisions if d["object"]]
-    # the region (columns 16-39: the wall's top, column 15, is its rim) mirrored: twice 24 cells less one
+    # the region (rows and columns 16-39: the wall's top is its rim) mirrored: twice 24 cells less one
     assert len(upper) == 1 and upper[0]["step_share"] == 1.0 and upper[0]["width_m"] == 47.0
-    assert upper[0]["outline_cells"] == 40                   # next to the wall's top only, not the raster's edge
-    # mirrored, wider than the stage reaches (47 m > 45 cells), though spanning fewer cells: left alone
+    assert upper[0]["outline_cells"] == 47                   # next to the walls' top only, not the raster's edge
+    # mirrored, wider than the stage reaches (2 x 25 = 50 cells > 45), though spanning fewer cells: left alone
     assert not _find(z, max_cells=45)[0].any()
 
 
+def test_a_level_cut_by_two_opposite_edges_is_left_alone():
+    # a terrain step running across the raster (a retaining wall, a river bank, a quarry bench): its upper
+    # level is cut by the raster's edge on two opposite sides, so it continues beyond both; mirrored at each,
+    # it spans three times what is seen (3 x 40 = 120 cells), more than the stage reaches (100): left alone,
+    # though within the raster it looks like a roof running off it on three sides
+    z = np.zeros((40, 40), np.float32)
+    z[:, 15:] = 4.0
+    objects, decisions = _find(z)
+    assert not objects.any() and not any(d["object"] for d in decisions)
+    # a stage reaching that far takes it for a roof: the terrain step and the roof are alike within the raster
+    assert np.array_equal(_find(z, max_cells=120)[0], z > 0)
+
+
+@pytest.mark.parametrize("n", [200, 400])
+def test_dtm_keeps_terrain_steps_across_the_raster(n):
+    # vertical drops of bare ground across the raster at 1 m cells: a 5 m step, a river 30 m wide between
+    # walls 4 m high, a terrace 60 m wide on a 3 m wall: no cell is an object
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+    for g in (100.0 - 5.0 * (x > n // 2), 100.0 - 4.0 * (np.abs(x - n // 2) < 15), 100.0 - 3.0 * (x > 60)):
+        z = (g + rng.normal(0, 0.05, g.shape)).astype(np.float32)
+        r = pipeline.run_array("dtm", z, 1.0)
+        assert np.count_nonzero(r.mask == OBJECT) == 0
+
+
 def test_a_level_joined_to_the_ground_by_a_bank_is_no_object():
-    # a terrace's upper level: a wall over a third of its seen outline, a bank (4 cells, 45 degrees) over the
-    # rest, the raster's edge on three sides: not bounded by steps
+    # a terrace's upper level running off a corner of the raster: a wall over a quarter of its seen outline
+    # (rows 25-39 of its west side), a bank (4 cells, 45 degrees) over the rest: not bounded by steps
     y, x = grid(40)
-    z = np.where(x >= 15, 4.0, 0.0).astype(np.float32)
-    bank = y >= 14
-    z[bank] = np.clip(x[bank] - 11.0, 0.0, 4.0)
+    z = np.zeros((40, 40), np.float32)
+    bank = (x >= 11) & (y >= 6) & ~((y >= 25) & (x < 15))
+    z[bank] = np.clip(np.minimum(x[bank] - 11.0, y[bank] - 6.0), 0.0, 4.0)
+    assert (z[10:, 15:] == 4.0).all()
     objects, decisions = _find(z)
     assert not objects.any()
     upper = [d for d in decisions if d["bbox"][1] > 0]
@@ -81,17 +107,17 @@ def test_a_level_joined_to_the_ground_by_a_bank_is_no_object():
 
 
 def test_a_roof_of_two_levels_is_one_object():
-    # a building cut by the raster's edge (ground on the left): a lower level 6 cells wide (narrower than the
-    # vote's window) beside an upper one 2 m higher. Cut at walls higher than the threshold the lower level is a
-    # region of its own, too narrow to judge (the upper one stands on steps down to it); cut at walls higher
-    # than 2 m (the second doubling) both are one region standing on its wall
+    # a building cut by the raster's edge on two sides (ground on the left and at the top): a lower level 6
+    # cells wide (narrower than the vote's window) beside an upper one 2 m higher. Cut at walls higher than the
+    # threshold the lower level is a region of its own, too narrow to judge (the upper one stands on steps
+    # down to it); cut at walls higher than 2 m (the second doubling) both are one region standing on its walls
     z = np.zeros((40, 40), np.float32)
-    z[:, 10:] = 10.0
-    z[:, 17:] = 12.0
+    z[8:, 10:] = 10.0
+    z[8:, 17:] = 12.0
     objects, decisions = _find(z)
-    assert objects[:, 10:].all() and not objects[:, :10].any()
+    assert objects[8:, 10:].all() and not objects[:8].any() and not objects[:, :10].any()
     roofs = {d["step_m"]: d["bbox"] for d in decisions if d["object"]}
-    assert roofs == {0.5: [0, 18, 40, 40], 2.0: [0, 11, 40, 40]}     # at 0.5 m alone: the upper level only
+    assert roofs == {0.5: [9, 18, 40, 40], 2.0: [9, 11, 40, 40]}     # at 0.5 m alone: the upper level only
 
 
 def test_a_raised_level_on_banks_wider_than_a_wall_is_no_object():
