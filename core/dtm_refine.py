@@ -108,7 +108,10 @@ own DSM heights (a bank's plane, not a crown): 61 -0.02, 71 -0.05, ISPRS seven 3
 ground's second differences in the 7 x 7 (or 15 x 15) cells around (its local micro-relief, mean
 absolute value): ISPRS seven 3.65, 21 2 m 1.85-2.01, but ``autzen_trim`` 1 m 3.26-3.27, opengeos
 total 5.42-5.50 (the low vegetation, voted ground, inflates the estimate); the same on ground one
-to three cells from any object: ``autzen_trim`` 2.69-3.11, and ISPRS 21 unchanged (1.44-1.50).
+to three cells from any object: ``autzen_trim`` 2.69-3.11, and ISPRS 21 unchanged (1.44-1.50); a
+repeated pair read as flat ground when a third cell repeats it too: ISPRS seven 3.66 (21 1.46), or
+continued from the next height beyond it: ISPRS seven 3.66 (21 1.44, opengeos total 5.10), both reading
+a third cell (a wider halo) for no gain.
 
 Why not SMRF's re-inclusion (what the previous session tried: every cell within
 ``0.5 m + 1.25 slope`` of the provisional DTM taken as ground): its test only adds ground,
