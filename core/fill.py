@@ -230,7 +230,12 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
     within that tolerance either (it stands above that continuation too, or that side has no two known
     cells: the object). Low vegetation along a crown's edge, a skirt cell among other skirt cells,
     is continued by its neighbours along the edge, never by the ground across it; a bank, a plane or a
-    terrace's upper edge is continued from one side of every line.
+    terrace's upper edge is continued from one side of every line. The side it stands above must read
+    two different heights: the tolerance bounds the error of a continuation from two independent
+    heights, while a repeated height (a cell filled from its neighbour's point on a sparse raster, as
+    ISPRS 21 at 1 m, where ground 0.4-0.75 m above such a continuation was taken) is one height, the
+    slope from it unknown. (Exactly flat ground reads repeated heights too: there only the test of
+    every line applies.)
 
     Cells with no direction of two known cells (thin strips, lone cells) are never spikes. Each
     of ``passes`` passes treats the spikes found so far as cells to fill, so the next pass tests
@@ -306,18 +311,21 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
         # a spike stands above the continuation from one side of a line, and the other side does not
         # continue the ground to it (it stands above that continuation too, or the side is unknown)
         for di, dj in EDGE_LINES:
-            res = []
+            res, slope_known = [], []
             for sgn in (1, -1):
                 off = sgn * (di * wp + dj)
                 z1 = flat.take(idx + off)
-                cont = 2 * z1 - flat.take(idx + 2 * off)              # NaN where a source is unknown
+                z2 = flat.take(idx + 2 * off)
+                cont = 2 * z1 - z2                                     # NaN where a source is unknown
                 np.maximum(cont, z1, out=cont)                         # and never below the neighbour
                 res.append(zc - cont)
+                slope_known.append(z1 != z2)                           # two heights, not one repeated
             a, b = res
             seen |= np.isfinite(a) | np.isfinite(b)
             np.logical_and(every, ~(a <= tol) & ~(b <= tol), out=every)     # NaN (no continuation) keeps it
             if line_tol is not None:
-                new |= ~(a <= line_tol) & ~(b <= line_tol) & ((a > line_tol) | (b > line_tol))
+                above = ((a > line_tol) & slope_known[0]) | ((b > line_tol) & slope_known[1])
+                new |= ~(a <= line_tol) & ~(b <= line_tol) & above
         new |= every & seen
         if not new.any():
             break

@@ -350,14 +350,29 @@ def test_edge_spikes_ignore_nodata_and_refuse_bad_input():
 
 
 def test_edge_spikes_along_one_line_find_a_skirt_its_neighbours_continue():
-    z = np.zeros((7, 9), np.float32)
+    z = np.tile(0.05 * np.arange(9, dtype=np.float32), (7, 1))   # ground rising 5 cm a cell
     z[:, 6:] = 5.0                                  # the object
-    z[1:6, 5] = 0.6                                 # low vegetation along its edge: 0.6 m, five cells long
+    z[1:6, 5] += 0.6                                # low vegetation along its edge: 0.6 m, five cells long
     hole = z > 4.0
     assert _spikes(z, hole) == []                   # each cell is continued by its neighbours along the edge
     got = find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5)
     assert [tuple(map(int, p)) for p in np.argwhere(got)] == [(r, 5) for r in range(1, 6)]
     assert not find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.7).any()     # within that tolerance
+
+
+def test_edge_spikes_along_one_line_need_two_heights_on_the_side_below():
+    # ISPRS 21 at 1 m: ground cells 0.4-0.75 m above the continuation of a side whose two cells hold one
+    # point's height (a cell without a point filled from its neighbour's): that continuation's slope is
+    # unknown, its error not bounded by the tolerance of a continuation from two heights
+    z = np.zeros((7, 9), np.float32)
+    z[:, 0:3] = -0.3                                # points every two cells: columns 3-4 one height
+    z[:, 6:] = 5.0                                  # the object
+    z[1:6, 5] = 0.6                                 # the ground bending up along the object's edge
+    hole = z > 4.0
+    assert not find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5).any()
+    z[:, 3] = -0.05                                 # two heights, 5 cm a cell: 0.55 m above their continuation
+    got = find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5)
+    assert [tuple(map(int, p)) for p in np.argwhere(got)] == [(r, 5) for r in range(1, 6)]
 
 
 def test_edge_spikes_along_one_line_keep_a_terrace_edge_beside_an_object():
