@@ -104,8 +104,14 @@ from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
-from .dtm_regions import find_raised_regions
-from .estimate import block_minima, noise_ground_level, object_widths, terrain_slopes
+from .estimate import (
+    RAISED_REGION_MAX_M,
+    block_minima,
+    noise_ground_level,
+    object_widths,
+    raised_region_width,
+    terrain_slopes,
+)
 from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
@@ -136,9 +142,6 @@ _OBJECT_SEARCH_M = 100.0
 _OBJECT_SEARCH_GROWTH = 2.0
 #: Safety factor on the width of the largest objects (roof shapes, sloped ground).
 _OBJECT_MARGIN = 1.25
-#: Widest raised region (a roof bounded by walls) the derived window is widened to, metres: one
-#: doubling of the object-size search's largest window (as ``bareearth:dtm``'s raised regions).
-_MAX_RAISED_M = 2.0 * _OBJECT_SEARCH_M
 #: Minimum height of an object when deriving its size, metres.
 _OBJECT_HEIGHT_M = 2.0
 #: Parameters are derived on a grid of at most this many cells (block minima).
@@ -982,27 +985,6 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     return _OBJECT_MARGIN * w + 2.0 * max(cell)
 
 
-def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=None):
-    """Width, metres, of the widest raised region standing on walls that is wider than ``min_width_m``.
-
-    A flat roof wider than the object-size search's largest window (a roof over most of a tile,
-    running off the raster: lidar ``sample_c``) is never flagged by the search (the opening
-    keeps it, the tile's edge mirrors it) and comes out as ground. Its outline says what it is:
-    steps down of more than ``height_m`` to ground continuing beyond them
-    (:func:`~bare_earth.core.dtm_regions.find_raised_regions`, every cell taken as ground),
-    over most of its seen outline. The window SMRF needs is that region's width (mirrored at the
-    raster's edge, as the region may continue there), at most ``max_width_m`` (default
-    :data:`_MAX_RAISED_M`: one doubling of the search's largest window). 0 when there is none.
-    """
-    cap = _MAX_RAISED_M if max_width_m is None else float(max_width_m)
-    cell = as_cell_size(cell_size)
-    max_cells = int(math.ceil(cap / min(cell)))
-    _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), cell, tolerance_m=height_m,
-                                       min_width_m=min_width_m, max_cells=max_cells)
-    widths = [d["width_m"] for d in decisions if d["object"] and d["width_m"] <= cap]
-    return float(max(widths, default=0.0))
-
-
 def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
                                  mode: str = "auto", max_object_size_m: Optional[float] = None,
                                  dh_m: Optional[float] = None, slope: Optional[float] = None,
@@ -1024,7 +1006,8 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
       (40 m when there are no objects); with ``raised_regions``, widened to the width of the
       widest raised region standing on walls that this window does not reach across
-      (:func:`raised_region_width`, at most 200 m: a roof over most of a tile, running off it).
+      (:func:`~bare_earth.core.estimate.raised_region_width`, at most 200 m: a roof over most of
+      a tile, running off it).
     * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
       over one cell the ground beside an object may show before a cell on the object's
       outline is taken for a mixed cell (:func:`find_outline_cells`); SMRF's ``slope``
@@ -1110,7 +1093,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
             out["max_object_size_m"] = wide
             out["max_object_size_source"] += (
                 f"; widened to {wide:.1f} m, the width of a raised region bounded by walls that the search's "
-                f"windows do not reach across (at most {_MAX_RAISED_M:g} m)")
+                f"windows do not reach across (at most {RAISED_REGION_MAX_M:g} m)")
     else:
         out["max_object_size_source"] = "given"
     if mode == "auto":

@@ -608,20 +608,11 @@ def test_a_tile_nearly_all_roof_widens_the_window_and_is_an_object(cell):
     z, roof = _tile_nearly_all_roof(cell)
     p = morph.resolve_morphological_params(z, cell)
     # the roof mirrored at the tile's edges is wider than the search's 100 m windows
-    assert morph._OBJECT_SEARCH_M < p["max_object_size_m"] <= morph._MAX_RAISED_M
+    assert morph._OBJECT_SEARCH_M < p["max_object_size_m"] <= morph.RAISED_REGION_MAX_M
     assert "widened" in p["max_object_size_source"]
     res = run_array("morphological", z, cell, {})
     assert (res.mask[roof] == OBJECT).mean() > 0.99
     assert (res.mask[~roof] == 0).mean() > 0.99
-
-
-def test_the_window_is_not_widened_without_walls_or_to_regions_it_reaches():
-    # a region wider than the cap, or one the derived window already reaches across, widens nothing
-    z, roof = _tile_nearly_all_roof(2.0)
-    assert morph.raised_region_width(z, 2.0, 2.0, 40.0, max_width_m=100.0) == 0.0    # wider than the cap
-    assert morph.raised_region_width(z, 2.0, 2.0, 200.0) == 0.0                      # the window reaches it
-    box, _ = _box_scene()
-    assert morph.raised_region_width(box, 1.0, 2.0, 10.0) == 0.0                     # a small building
 
 
 @pytest.mark.parametrize("kind", ["terrace", "plateau", "hilltop", "steep plateau"])
