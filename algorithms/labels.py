@@ -70,6 +70,7 @@ LABELS = {
     "window_growth": "Window growth between steps",
     "low_outlier_slope": "Low-outlier test slope (rise/run)",
     "outline_slope": "Terrain slope beside objects (rise/run)",
+    "raised_regions": "Widen the derived window to roofs standing on walls",
 }
 
 #: a method's own wording of a shared name: {(method, name): label}

@@ -1023,3 +1023,42 @@ def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outsi
     cum = np.cumsum(area[order]) / area.sum()
     i = min(int(np.searchsorted(cum, area_share - 1e-12)), n - 1)
     return float(width[order][i])
+
+
+#: Widest raised region :func:`raised_region_width` reports, metres: one doubling of the widest window a
+#: filter derives by default (the morphological object-size search's and the curvature filter's 100 m), as
+#: ``bareearth:dtm``'s raised-region stage looks one doubling beyond its members' windows.
+RAISED_REGION_MAX_M = 200.0
+
+
+def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M):
+    """Width, metres, of the widest raised region standing on walls that is wider than ``min_width_m``.
+
+    A flat roof wider than a filter's largest window (a roof over most of a tile, running off the
+    raster: lidar ``sample_c``) is kept as ground by the window (the tile's edge mirrors it). Its
+    outline says what it is: steps down of more than ``height_m`` to ground continuing beyond them,
+    over most of its seen outline, and its cells above the plane of that ground
+    (:func:`~bare_earth.core.dtm_regions.find_raised_regions` with every cell taken as ground). The
+    width is the region's footprint's (twice the largest distance from a cell to a cell outside it,
+    less a cell), mirrored at the raster's edge where the region may continue; regions wider than
+    ``max_width_m`` are not looked at. 0 when there is none.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D float32
+        The DSM (NaN nodata).
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    height_m : float
+        The object height threshold: the first scale of the walls and the height above the ground around.
+    min_width_m : float
+        Regions at most this wide are not reported (the window the filter already has).
+    max_width_m : float
+        The widest region looked at, metres.
+    """
+    from .dtm_regions import find_raised_regions  # dtm_regions reads the geodesic package: no cycle
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    cap = float(max_width_m)
+    _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), (dx, dy), tolerance_m=height_m,
+                                       min_width_m=min_width_m, max_cells=int(math.ceil(cap / min(dx, dy))))
+    return float(max((d["width_m"] for d in decisions if d["object"] and d["width_m"] <= cap), default=0.0))

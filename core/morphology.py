@@ -104,7 +104,14 @@ from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
-from .estimate import block_minima, noise_ground_level, object_widths, terrain_slopes
+from .estimate import (
+    RAISED_REGION_MAX_M,
+    block_minima,
+    noise_ground_level,
+    object_widths,
+    raised_region_width,
+    terrain_slopes,
+)
 from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
@@ -983,7 +990,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                  dh_m: Optional[float] = None, slope: Optional[float] = None,
                                  slope_scale_m: float = 1.25, window_growth: float = WINDOW_GROWTH,
                                  low_outlier_slope: float = LOW_OUTLIER_SLOPE, outline_slope: Optional[float] = None,
-                                 progress=None, **_ignored) -> dict:
+                                 raised_regions: bool = True, progress=None, **_ignored) -> dict:
     """Complete the parameters of :func:`filter_morphological` from the data.
 
     * ``dh_m``: ``3 sigma``, ``sigma`` the noise of the DSM's ground-level cells
@@ -997,7 +1004,10 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       it; 0.3 is the best single value on the ISPRS samples.
     * ``max_object_size_m``: the width of the largest objects the progressive filter
       finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
-      (40 m when there are no objects).
+      (40 m when there are no objects); with ``raised_regions``, widened to the width of the
+      widest raised region standing on walls that this window does not reach across
+      (:func:`~bare_earth.core.estimate.raised_region_width`, at most 200 m: a roof over most of
+      a tile, running off it).
     * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
       over one cell the ground beside an object may show before a cell on the object's
       outline is taken for a mixed cell (:func:`find_outline_cells`); SMRF's ``slope``
@@ -1025,7 +1035,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     cs = (cell[0] * k, cell[1] * k)
     out = dict(mode=mode, max_object_size_m=max_object_size_m, dh_m=dh_m, slope=slope,
                slope_scale_m=slope_scale_m, window_growth=window_growth,
-               low_outlier_slope=low_outlier_slope, outline_slope=outline_slope)
+               low_outlier_slope=low_outlier_slope, outline_slope=outline_slope, raised_regions=bool(raised_regions))
     gn = noise_ground_level(z, cell, progress=sub_progress(progress, 0.1, 0.4))  # full resolution, ground level
     noise = gn["sigma"]
     out["noise_m"] = noise
@@ -1077,6 +1087,13 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         else:
             out["max_object_size_m"] = _DEFAULT_OBJECT_M
             out["max_object_size_source"] = f"no object found: default {_DEFAULT_OBJECT_M:g} m"
+        wide = raised_region_width(zs, cs, max(out["dh_m"], _OBJECT_HEIGHT_M),
+                                   out["max_object_size_m"]) if raised_regions else 0.0
+        if wide > out["max_object_size_m"]:
+            out["max_object_size_m"] = wide
+            out["max_object_size_source"] += (
+                f"; widened to {wide:.1f} m, the width of a raised region bounded by walls that the search's "
+                f"windows do not reach across (at most {RAISED_REGION_MAX_M:g} m)")
     else:
         out["max_object_size_source"] = "given"
     if mode == "auto":
@@ -1114,7 +1131,7 @@ def morphological_halo(params, cell_size):
 
 #: Keys of the resolved parameters that are statistics for the log, not arguments.
 _DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", "dh_source", "outline_slope_source",
-            "slope_source", "max_object_size_source")
+            "slope_source", "max_object_size_source", "raised_regions")
 
 
 #: The user parameters (dialog order); their bounds are the limits the core enforces.
@@ -1126,7 +1143,8 @@ PARAMS = (
           options=MODES),
     Param("max_object_size_m", "float", None,
           "Largest object to remove, metres (side of the largest window). Empty: the width of the "
-          "largest objects found by the progressive filter with windows up to 100 m, 10-80 m.",
+          "largest objects found by the progressive filter with windows up to 100 m, 10-80 m (see "
+          "raised_regions).",
           minimum=0.1, maximum=10000.0),
     Param("dh_m", "float", None,
           "Height threshold dh, metres: cells more than dh above the opened / provisional surface are "
@@ -1151,6 +1169,11 @@ PARAMS = (
           "is a mixed cell of the object's outline, classified against the ground under the object. Empty: "
           "the 90th-percentile slope of the 40 m block-minimum surface (at most 100). Progressive form only.",
           minimum=0.0, maximum=_MAX_OUTLINE_SLOPE, advanced=True),
+    Param("raised_regions", "bool", True,
+          "When the largest object size is derived: widen it to the width of the widest raised region "
+          "standing on walls (steps down to ground continuing beyond them over most of its outline) that "
+          "the derived window does not reach across, at most 200 m (a roof over most of a tile, running "
+          "off its edges, which the object-size search's windows keep as ground).", advanced=True),
     Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
           "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
           "this x its radius is a low outlier. 5 = 500 % (SMRF).",

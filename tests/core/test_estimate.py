@@ -584,3 +584,20 @@ def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
         assert not est._NOISE_MEMO
         assert np.isfinite(noise_ground_level(z, (1.0, 1.0))["sigma"])
         assert len(est._NOISE_MEMO) == 1
+
+
+def test_raised_region_width_of_a_level_running_off_the_raster():
+    # a raised level 4 m high on one wall, running off the raster on three sides: the region (columns 16-39,
+    # the wall's top a rim) mirrored at the edge is twice 24 cells less one wide
+    z = np.zeros((40, 40), np.float32)
+    z[:, 15:] = 4.0
+    assert est.raised_region_width(z, (1.0, 1.0), 0.5, 10.0) == 47.0
+    assert est.raised_region_width(z, (2.0, 2.0), 0.5, 10.0) == 94.0
+    assert est.raised_region_width(z, (1.0, 1.0), 0.5, 48.0) == 0.0          # the window reaches across
+    assert est.raised_region_width(z, (1.0, 1.0), 0.5, 10.0, max_width_m=45.0) == 0.0   # wider than looked at
+    assert est.raised_region_width(z, (1.0, 1.0), 5.0, 10.0) == 0.0          # lower than the height
+    bank = np.clip(np.arange(40, dtype=np.float32) - 11.0, 0.0, 4.0) * np.ones((40, 1), np.float32)
+    assert est.raised_region_width(bank, (1.0, 1.0), 0.5, 10.0) == 0.0       # a bank, no wall
+    box = np.zeros((40, 40), np.float32)
+    box[10:15, 10:16] = 6.0
+    assert est.raised_region_width(box, (1.0, 1.0), 0.5, 10.0) == 0.0        # a small building

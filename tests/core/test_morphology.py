@@ -586,3 +586,48 @@ def test_surface_slope_rows_equal_np_gradient():
         with np.errstate(invalid="ignore"):
             assert np.array_equal(_surface_slope(s, cell), ref)
             assert np.array_equal(_surface_slope(s, cell, slice(a, b)), ref[a:b])
+
+
+# --------------------------------------------------------------------------- roofs wider than the search
+def _tile_nearly_all_roof(cell):
+    """As lidar/sample_c: a roof 25 m high over ~90 % of an 80 m tile, cut by the tile's edges on
+    every side but one wall along a diagonal, a ground wedge in the corner beyond it."""
+    from surfaces import grid, noisy
+    n = int(80 / cell)
+    y, x = grid(n)
+    x, y = x * cell, y * cell
+    ground = 30 + 0.01 * x
+    d = (x + y) / np.sqrt(2)
+    roof = d > 25
+    z = noisy(np.where(roof, 55 + np.where(d < 40, 0.0, 2.0 - 0.05 * np.abs(d - 60)), ground), sd=0.05)
+    return z, roof
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0])
+def test_a_tile_nearly_all_roof_widens_the_window_and_is_an_object(cell):
+    z, roof = _tile_nearly_all_roof(cell)
+    p = morph.resolve_morphological_params(z, cell)
+    # the roof mirrored at the tile's edges is wider than the search's 100 m windows
+    assert morph._OBJECT_SEARCH_M < p["max_object_size_m"] <= morph.RAISED_REGION_MAX_M
+    assert "widened" in p["max_object_size_source"]
+    res = run_array("morphological", z, cell, {})
+    assert (res.mask[roof] == OBJECT).mean() > 0.99
+    assert (res.mask[~roof] == 0).mean() > 0.99
+
+
+@pytest.mark.parametrize("kind", ["terrace", "plateau", "hilltop", "steep plateau"])
+def test_wide_raised_ground_does_not_widen_the_window(kind):
+    from surfaces import grid, noisy
+    y, x = grid(300)
+    base = 50 + 0.02 * x + 0.01 * y
+    r = np.hypot(x - 150, y - 150)
+    raised = {
+        "terrace": np.where(x > 150, 4.0, 0.0),                      # a 4 m wall across the raster
+        "plateau": np.clip((100 - r) * 1.73, 0, 20),                 # 60 degree sides, 20 m high, 160 m top
+        "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
+        "steep plateau": np.clip((100 - r) * 3.73, 0, 20),           # 75 degree sides, 20 m high, 5 m wide
+    }[kind]
+    z = noisy(base + raised, sd=0.05)
+    p = morph.resolve_morphological_params(z, 1.0)
+    assert "widened" not in p["max_object_size_source"]
+    assert p["max_object_size_m"] <= morph._MAX_OBJECT_M
