@@ -1089,11 +1089,14 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
             out["max_object_size_source"] = f"no object found: default {_DEFAULT_OBJECT_M:g} m"
         wide = raised_region_width(zs, cs, max(out["dh_m"], _OBJECT_HEIGHT_M),
                                    out["max_object_size_m"]) if raised_regions else 0.0
-        if wide > out["max_object_size_m"]:
-            out["max_object_size_m"] = wide
+        # the margin of the objects found (1.25 x their width + 2 cells): the region's width leaves out the
+        # rims on top of its walls, and a window just as wide still fits inside it
+        window = min(RAISED_REGION_MAX_M, 1.25 * wide + 2.0 * max(cs)) if wide > 0 else 0.0
+        if window > out["max_object_size_m"]:
+            out["max_object_size_m"] = window
             out["max_object_size_source"] += (
-                f"; widened to {wide:.1f} m, the width of a raised region bounded by walls that the search's "
-                f"windows do not reach across (at most {RAISED_REGION_MAX_M:g} m)")
+                f"; widened to {window:.1f} m, 1.25 x the width {wide:.1f} m of a raised region bounded by walls "
+                f"that the search's windows do not reach across + 2 cells (at most {RAISED_REGION_MAX_M:g} m)")
     else:
         out["max_object_size_source"] = "given"
     if mode == "auto":

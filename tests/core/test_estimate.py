@@ -587,15 +587,20 @@ def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
 
 
 def test_raised_region_width_of_a_level_running_off_the_raster():
-    # a raised level 4 m high on one wall, running off the raster on three sides: the region (columns 16-39,
-    # the wall's top a rim) mirrored at the edge is twice 24 cells less one wide
+    # a raised level 4 m high on two walls, running off a corner of the raster: the region (rows and columns
+    # 16-39, the walls' top a rim) mirrored at the edge is twice 24 cells less one wide
     z = np.zeros((40, 40), np.float32)
-    z[:, 15:] = 4.0
+    z[15:, 15:] = 4.0
     assert est.raised_region_width(z, (1.0, 1.0), 0.5, 10.0) == 47.0
     assert est.raised_region_width(z, (2.0, 2.0), 0.5, 10.0) == 94.0
     assert est.raised_region_width(z, (1.0, 1.0), 0.5, 48.0) == 0.0          # the window reaches across
     assert est.raised_region_width(z, (1.0, 1.0), 0.5, 10.0, max_width_m=45.0) == 0.0   # wider than looked at
     assert est.raised_region_width(z, (1.0, 1.0), 5.0, 10.0) == 0.0          # lower than the height
+    step = np.zeros((40, 40), np.float32)
+    step[:, 15:] = 4.0
+    # cut on two opposite sides: mirrored at both, 3 x 40 cells, beyond a reach of 100 m (not of 200 m)
+    assert est.raised_region_width(step, (1.0, 1.0), 0.5, 10.0, max_width_m=100.0) == 0.0
+    assert est.raised_region_width(step, (1.0, 1.0), 0.5, 10.0) == 47.0
     bank = np.clip(np.arange(40, dtype=np.float32) - 11.0, 0.0, 4.0) * np.ones((40, 1), np.float32)
     assert est.raised_region_width(bank, (1.0, 1.0), 0.5, 10.0) == 0.0       # a bank, no wall
     box = np.zeros((40, 40), np.float32)

@@ -598,7 +598,7 @@ def _tile_nearly_all_roof(cell):
     x, y = x * cell, y * cell
     ground = 30 + 0.01 * x
     d = (x + y) / np.sqrt(2)
-    roof = d > 25
+    roof = (x > 20) & (y > 15)                  # walls on two sides, the tile's edges on the other two
     z = noisy(np.where(roof, 55 + np.where(d < 40, 0.0, 2.0 - 0.05 * np.abs(d - 60)), ground), sd=0.05)
     return z, roof
 
