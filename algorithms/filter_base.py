@@ -793,7 +793,8 @@ class FilterAlgorithm(BaseAlgorithm):
             q = QgsProcessingParameterNumber(p.name.upper(), tr(label), typ, p.default,
                                              optional=p.default is None, **kw)
         elif p.kind == "bool":
-            q = QgsProcessingParameterBoolean(p.name.upper(), tr(label), bool(p.default))
+            # optional, with its default: a model saved before the switch existed stays valid
+            q = QgsProcessingParameterBoolean(p.name.upper(), tr(label), bool(p.default), optional=True)
         elif p.kind == "enum":
             q = QgsProcessingParameterEnum(p.name.upper(), tr(label), list(p.options), False,
                                            list(p.options).index(p.default) if p.default in p.options else 0)
