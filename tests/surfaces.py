@@ -32,3 +32,23 @@ def in_blocks(fn, shape, block, halo):
                 out = np.zeros(shape, part.dtype)
             out[r:r + block, c:c + block] = part[r - wr.start:r - wr.start + block, c - wc.start:c - wc.start + block]
     return out
+
+
+def raised_ground(kind, n=300):
+    """Bare ground raised above a gentle plane (1 m cells, ``n`` x ``n``, no noise) that no filter may
+    take for a roof: ``terrace`` (a 4 m wall across the raster), ``plateau`` (60 degree sides, 20 m high,
+    160 m top), ``embankment`` (a dam, 1:1.5 banks, 6 m high), ``hilltop`` (45 degree sides to a flat
+    top), ``hilltop30`` (the same, top 30 m wide), ``steep plateau`` (75 degree sides, 20 m high, 5 m
+    wide)."""
+    y, x = grid(n)
+    c = n / 2
+    r = np.hypot(x - c, y - c)
+    raised = {
+        "terrace": np.where(x > c, 4.0, 0.0),
+        "plateau": np.clip((100 - r) * 1.73, 0, 20),
+        "embankment": np.clip((30 - np.abs(y - c)) / 1.5, 0, 6),
+        "hilltop": np.clip((100 - r) * 1.0, 0, 20),
+        "hilltop30": np.clip((35 - r) * 1.0, 0, 20),
+        "steep plateau": np.clip((100 - r) * 3.73, 0, 20),
+    }[kind]
+    return 50 + 0.02 * x + 0.01 * y + raised

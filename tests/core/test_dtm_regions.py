@@ -1,7 +1,7 @@
 """bareearth:dtm's raised regions: voted ground wider than the vote's windows standing on steps above the ground."""
 import numpy as np
 import pytest
-from surfaces import grid, in_blocks, noisy
+from surfaces import grid, in_blocks, noisy, raised_ground
 
 from bare_earth.core import dtm_refine as dr
 from bare_earth.core import pipeline
@@ -302,18 +302,7 @@ def test_dtm_takes_a_warehouse_wider_than_every_window_as_an_object(slope):
 
 @pytest.mark.parametrize("kind", ["terrace", "plateau", "embankment", "hilltop", "hilltop30", "steep plateau"])
 def test_dtm_keeps_raised_ground(kind):
-    y, x = grid(300)
-    base = 50 + 0.02 * x + 0.01 * y
-    r = np.hypot(x - 150, y - 150)
-    raised = {
-        "terrace": np.where(x > 150, 4.0, 0.0),                      # a 4 m wall across the raster
-        "plateau": np.clip((100 - r) * 1.73, 0, 20),                 # 60 degree sides, 20 m high, 160 m top
-        "embankment": np.clip((30 - np.abs(y - 150)) / 1.5, 0, 6),    # a dam, 1:1.5 banks, 6 m high
-        "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
-        "hilltop30": np.clip((35 - r) * 1.0, 0, 20),                 # 45 degree sides to a top 30 m wide
-        "steep plateau": np.clip((100 - r) * 3.73, 0, 20),           # 75 degree sides, 20 m high, 5 m wide
-    }[kind]
-    z = noisy(base + raised, sd=0.05)
+    z = noisy(raised_ground(kind), sd=0.05)
     res = pipeline.run_array("dtm", z, 1.0)
     assert res.info["raised_region_cells"] == 0
     assert all(s.endswith(": ground") for s in res.info["raised_regions"])

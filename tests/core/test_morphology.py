@@ -617,17 +617,8 @@ def test_a_tile_nearly_all_roof_widens_the_window_and_is_an_object(cell):
 
 @pytest.mark.parametrize("kind", ["terrace", "plateau", "hilltop", "steep plateau"])
 def test_wide_raised_ground_does_not_widen_the_window(kind):
-    from surfaces import grid, noisy
-    y, x = grid(300)
-    base = 50 + 0.02 * x + 0.01 * y
-    r = np.hypot(x - 150, y - 150)
-    raised = {
-        "terrace": np.where(x > 150, 4.0, 0.0),                      # a 4 m wall across the raster
-        "plateau": np.clip((100 - r) * 1.73, 0, 20),                 # 60 degree sides, 20 m high, 160 m top
-        "hilltop": np.clip((100 - r) * 1.0, 0, 20),                  # 45 degree sides to a flat top
-        "steep plateau": np.clip((100 - r) * 3.73, 0, 20),           # 75 degree sides, 20 m high, 5 m wide
-    }[kind]
-    z = noisy(base + raised, sd=0.05)
+    from surfaces import noisy, raised_ground
+    z = noisy(raised_ground(kind), sd=0.05)
     p = morph.resolve_morphological_params(z, 1.0)
     assert "widened" not in p["max_object_size_source"]
     assert p["max_object_size_m"] <= morph._MAX_OBJECT_M
