@@ -251,6 +251,42 @@ def test_scan_tolerance_is_the_larger_of_edge_and_terrain_rise_not_their_sum():
     assert _scan1([0.0, 0.0, 0.7, 1.5], 0.5, 0.1, 0.2) == [False, False, False, True]
 
 
+def test_scan_coming_down_off_an_object_reaches_the_ground_at_the_bottom_of_the_descent():
+    # tan_g 0.5, tan_t 0.1, dh0 0: after 12 cells of roof the terrain's rise allows 1.2 m,
+    # so the wall's foot 1.0 m high (a mixed cell) was taken as the ground; it lies 1.0 m
+    # above the next cell, a step steeper than alpha_g: still on the way down, rejected
+    roof = [0.0, 0.0] + [3.0] * 12
+    assert _scan1(roof + [1.0, 0.0, 0.0], 0.5, 0.1, 0.0) == [False, False] + [True] * 13 + [False, False]
+    # ground going on down at a slope below alpha_g (0.4 per cell) is the ground: accepted
+    assert _scan1(roof + [1.0, 0.6, 0.2], 0.5, 0.1, 0.0) == [False, False] + [True] * 12 + [False] * 3
+    # only a re-entry is held: ground at the top of a terrain step stays ground
+    assert _scan1([0.0, 0.0, 0.0, 2.0 - 1.5, -1.5, -1.5], 0.5, 0.1, 0.0) == [False] * 6
+    # a profile's last cell has no next one: the foot is accepted as before
+    assert _scan1(roof + [1.0], 0.5, 0.1, 0.0) == [False, False] + [True] * 12 + [False]
+
+
+def test_wall_foot_of_mixed_cells_is_part_of_the_building():
+    """opengeos (issue 12): the cells at a wall's foot, half on the wall (0.6-1.5 m above the
+    ground), were ground: the scan coming off the roof accepted them by the terrain's rise
+    over the roof's length, the scan along the wall's foot by its rise over the foot's.
+    A building 20 m square and 6 m high ringed by foot cells 1.0 m high: all of it is an
+    object but for the ring's four corners (profiles along the foot take it as ground by
+    the terrain's rise, and at a corner none comes off the roof), the ground around stays
+    ground."""
+    z = np.zeros((60, 60), np.float32)
+    z[19:41, 19:41] = 1.0                  # the ring of foot cells
+    z[20:40, 20:40] = 6.0                  # the roof
+    p = dict(PARAMS, max_object_size_m=30.0)
+    r = sp.filter_slope_profile(z, 1.0, **p)
+    building = r.mask[19:41, 19:41] == OBJECT
+    assert not building[::21, ::21].any()
+    building[::21, ::21] = True
+    assert building.all()
+    ground = np.ones(z.shape, bool)
+    ground[19:41, 19:41] = False
+    assert (r.mask[ground] == GROUND).all()
+
+
 def test_scan_start_minimum_is_the_reference_mirrored_before_the_first_cell():
     # ground sloping down into the profile, 0.3 m per cell (tan_t 0.3): the start window's
     # minimum lies m = 3 cells in, taken as 3 cells before the first cell: 0.8 m there is
