@@ -332,7 +332,15 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     stands within the surface's reach (:func:`_drop_unwalled`); deep concave spikes are
     low blunders.
 
-    The second pass's surface also rests on the breaks the first found to be ground.
+    The second pass's surface also rests on the breaks the first found to be ground, the
+    concave ones with ``|K| >= K_g`` among them (H < 0, as at the bottom of a bowl: a gap
+    in a canopy, where the ground shows between crowns, is curved up both ways by the
+    crowns around it). The first pass's surface leaves every ``|K| >= K_g`` point out; the convex
+    ones (crowns, corners, spikes) stay out of the second too. In a closed canopy at
+    2-4 m cells nearly every ground cell is such a gap: without them the surface had
+    almost no seed, the crowns far from a profile's wall were lost to it and kept their
+    own height as ground (a closed canopy at 4 m: a tenth of the crowns). A low blunder
+    (class 2 in the first pass) is no ground and stays out.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
     :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
     ground seed within the reach a cell keeps its own height, and the profiles' objects
@@ -379,7 +387,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         np.logical_and(lost, objects, out=tmp)
         np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
-        holes |= breaks.by_k
+        holes |= breaks.by_k & ~concave     # the bowls found ground seed the next pass
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
