@@ -361,6 +361,10 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     concave &= marked
     edge = marked & ~objects
     edge &= ~concave    # the surface sags under convex breaks only (_allowance)
+    bowls = np.greater(breaks.curvature[0], 0)    # K > 0 and H < 0, |K| >= K_g: may seed pass 2
+    bowls &= concave
+    bowls &= breaks.by_k
+    never = breaks.by_k & ~bowls                  # the other |K| >= K_g points never seed
     mask = np.zeros(z.shape, np.uint8)
     surface = allow = None
     d = np.empty(z.shape, np.float32)
@@ -390,16 +394,15 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         np.logical_and(lost, objects, out=tmp)
         np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
-        # the bowls (K > 0, H < 0) found ground and not below the surface seed the next pass
+        # the bowls found ground and not below the surface seed the next pass
         np.less(d, np.float32(-tol), out=tmp)
-        np.logical_or(tmp, ~concave, out=tmp)
-        tmp |= breaks.curvature[0] <= 0
-        tmp &= breaks.by_k
+        tmp &= bowls
+        tmp |= never
         holes |= tmp
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
-    del d, tmp, lost
+    del d, tmp, lost, bowls, never
     _drop_unwalled(mask, objects, reach)
     if invalid is not None:
         mask[invalid] = NODATA
