@@ -332,7 +332,18 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     stands within the surface's reach (:func:`_drop_unwalled`); deep concave spikes are
     low blunders.
 
-    The second pass's surface also rests on the breaks the first found to be ground.
+    The second pass's surface also rests on the breaks the first found to be ground, and
+    on the bowls among the points with ``|K| >= K_g`` (K > 0 and H < 0: curved up both
+    ways, as a gap in a canopy where the ground shows between the crowns around it) that
+    the first found to be ground and not more than the tolerance below its surface. The
+    first pass's surface leaves every ``|K| >= K_g`` point out; the others (crowns,
+    corners, spikes: convex; saddles: K < 0) stay out of the second too. In a closed canopy
+    at 2-4 m cells nearly every ground cell is such a bowl: without them the surface had
+    almost no seed, and the crowns far from a profile's wall were lost to it and kept
+    their own height as ground (a tenth of the crowns of a closed canopy at 4 m). A bowl
+    below the first surface by more than the tolerance is a low point (ISPRS samp41's
+    multipath points: the surface dipped to them and the ground around became objects),
+    and a low blunder (class 2) is no ground; both stay out.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
     :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
     ground seed within the reach a cell keeps its own height, and the profiles' objects
@@ -350,6 +361,10 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     concave &= marked
     edge = marked & ~objects
     edge &= ~concave    # the surface sags under convex breaks only (_allowance)
+    bowls = np.greater(breaks.curvature[0], 0)    # K > 0 and H < 0, |K| >= K_g: may seed pass 2
+    bowls &= concave
+    bowls &= breaks.by_k
+    never = breaks.by_k & ~bowls                  # the other |K| >= K_g points never seed
     mask = np.zeros(z.shape, np.uint8)
     surface = allow = None
     d = np.empty(z.shape, np.float32)
@@ -379,11 +394,15 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         np.logical_and(lost, objects, out=tmp)
         np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
-        holes |= breaks.by_k
+        # the bowls found ground and not below the surface seed the next pass
+        np.less(d, np.float32(-tol), out=tmp)
+        tmp &= bowls
+        tmp |= never
+        holes |= tmp
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
-    del d, tmp, lost
+    del d, tmp, lost, bowls, never
     _drop_unwalled(mask, objects, reach)
     if invalid is not None:
         mask[invalid] = NODATA

@@ -1109,3 +1109,54 @@ def test_smeared_walls_foot_is_object_not_a_terrain_edge():
     assert foot.sum() > 100
     assert (res.mask[foot] == OBJECT).all()
     assert (res.mask[z < 0.3] == GROUND).all()        # the ground around stays ground
+
+
+# --------------------------------------------------------------------------- canopy gaps
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closed_canopy_gaps_seed_the_ground_surface_at_4_m(seed):
+    """In a closed canopy at 4 m cells the ground shows in gaps curved up both ways by the
+    crowns (|K| >= K_g, K > 0, H < 0). The first surface leaves them out; without them as
+    seeds of the second, the crowns far from a profile's wall kept their own height as
+    ground (a tenth of the crowns: 0.103 / 0.104 with seeds 0 / 1; 0.030 / 0.029 with them)."""
+    from bare_earth.core.synthetic import make_canopy
+    sc = make_canopy(256.0, 4.0, seed=seed, noise_m=0.05)
+    res, _ = run(sc.dsm, sc.cell_size)
+    crowns = sc.mask != GROUND
+    assert (res.mask[crowns] == GROUND).mean() <= 0.05
+    assert (res.mask[~crowns] != GROUND).mean() <= 0.015
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_forest_at_4_m_crowns_objects_and_gaps_ground(seed):
+    """The forest scene at 4 m cells: with the gaps seeding the second surface the crowns
+    are objects (crowns left ground 0.063 / 0.059 without them, 0.017 / 0.017 with them)
+    and the ground between them stays ground (0.028 / 0.077 of it became objects without
+    them, 0.010 / 0.027 with them)."""
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("forest", (192, 192), cell_size=4.0, seed=seed, noise_m=0.05)
+    res, _ = run(sc.dsm, sc.cell_size)
+    assert (res.mask[sc.mask == OBJECT] == GROUND).mean() <= 0.04
+    assert (res.mask[sc.mask == GROUND] != GROUND).mean() <= 0.035
+
+
+def test_second_pass_rests_on_the_bowls_found_ground():
+    """find_ground, exact: a bowl with |K| >= K_g (K > 0, H < 0) that the first pass finds
+    ground, within the tolerance of its surface, seeds the second surface (its height there
+    is its own); a convex point, a saddle and a bowl below the surface by more than the
+    tolerance (a low point, not deep enough to be a blunder) do not."""
+    z = np.zeros((9, 31), np.float32)
+    pts = {"bowl": ((4, 10), -0.2, 1.0, -1.0), "bump": ((4, 4), 0.2, 1.0, 1.0),
+           "saddle": ((4, 16), -0.2, -1.0, -1.0), "low": ((4, 24), -0.6, 1.0, -1.0)}
+    by_k = np.zeros(z.shape, bool)
+    curv = np.zeros((2,) + z.shape, np.float32)
+    for (r, c), h, k, hm in pts.values():
+        z[r, c], by_k[r, c] = h, True
+        curv[0, r, c], curv[1, r, c] = k, hm
+    br = derivatives.Breaks(curv, by_k.copy(), by_k, 0, 0)
+    mask, surface = ground.find_ground(z, np.zeros(z.shape, bool), br, None, (1.0, 1.0), window=5, h_min=1.0,
+                                       tol=0.3, max_size=20.0)
+    assert (mask == GROUND).all()
+    assert surface[4, 10] == np.float32(-0.2)    # a seed of the second surface: its own height
+    for name in ("bump", "saddle", "low"):
+        (r, c), h, _, _ = pts[name]
+        assert surface[r, c] != np.float32(h), name   # interpolated under it
