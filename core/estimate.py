@@ -1062,3 +1062,26 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
     _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), (dx, dy), tolerance_m=height_m,
                                        min_width_m=min_width_m, max_cells=int(math.ceil(cap / min(dx, dy))))
     return float(max((d["width_m"] for d in decisions if d["object"] and d["width_m"] <= cap), default=0.0))
+
+
+#: Margin of a window on the width of the widest raised region (roof shapes, the rims on top of its walls
+#: that the region's width leaves out: a window just as wide still fits inside it).
+RAISED_REGION_MARGIN = 1.25
+
+
+def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M):
+    """The window, metres, that reaches across the widest raised region standing on walls wider than
+    ``min_window_m`` (:func:`raised_region_width`): :data:`RAISED_REGION_MARGIN` x its width + 2 cells,
+    at most ``max_width_m``; 0 when there is none.
+
+    Examples
+    --------
+    >>> z = np.zeros((200, 200), np.float32)
+    >>> z[40:160, 40:160] = 10.0
+    >>> raised_region_window(z, (1.0, 1.0), 2.0, 64.0)
+    148.25
+    """
+    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m)
+    if wide <= 0:
+        return 0.0
+    return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))

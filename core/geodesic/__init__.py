@@ -105,6 +105,13 @@ algorithm's help.
    open).
 6. Gap filling into the DTM is done by the pipeline (``fill.fill_gaps``).
 
+The largest object ``max_object_size_m`` is derived (:func:`~.params.resolve_geodesic_params`):
+64 m, widened to the window of a raised region standing on walls that a 64 m window does not reach
+across (a hall, a roof cut by the raster's edge, which a window truncated at the edge fits into:
+its opening keeps the roof and the reconstruction calls it terrain; issue 12). A box-shaped plateau
+with vertical cliffs on every side is such a region too: the ambiguity the morphological filter's
+widened window has.
+
 Speed: openings are separable running min/max filters (log2(size) vectorised passes;
 3 x 3 and 5 x 5 windows banded on the flat arrays); the reconstruction is iterated 3x3
 geodesic dilation, band by band on the rows that may change, switching to a vectorised
@@ -181,7 +188,9 @@ METHOD = Method(
         "at coarse cells); a residual region's rim on the raster's edge is no evidence of "
         "a wall (the edge ends the data); terrain "
         "slope = 90th percentile slope of the heavily opened DSM, clipped to 12-22 "
-        "degrees; outlier threshold = max(2 m, 4 dh0). Output STEP: 0 kept, "
+        "degrees; outlier threshold = max(2 m, 4 dh0); largest object = 64 m, widened to 1.25 x the width "
+        "of a raised region standing on walls that a 64 m window does not reach across, + 2 cells "
+        "(a hall, a roof cut by the raster's edge; at most 200 m; raised regions switch). Output STEP: 0 kept, "
         "k removed at dilation step k, 250 scan labelling, 251 preprocessing outlier, "
         "252 object border, 253 island above the terrain.</p>"
         "<p>After: gradual geodesic dilation and scan labelling for DSM filtering "

@@ -205,6 +205,7 @@ def _complete(p):
                              "call resolve_geodesic_params first (or use the pipeline).")
     check_params(p)
     p["scan_labelling"] = bool(p["scan_labelling"])
+    p["raised_regions"] = bool(p["raised_regions"])
     return p
 
 
@@ -216,7 +217,7 @@ def _lap(stages, name, t0):
 def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *, min_window_m: float = 2.0,
                     max_object_size_m: float = 64.0, height_threshold_m: float = 0.5,
                     terrain_slope_deg: float = 20.0, edge_ratio: float = 0.55, outlier_threshold_m: float = 2.0,
-                    outlier_width_m: float = 2.0, scan_labelling: bool = True,
+                    outlier_width_m: float = 2.0, scan_labelling: bool = True, raised_regions: bool = True,
                     progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
 
@@ -244,6 +245,9 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
         (high) outlier, and the width of their window, metres.
     scan_labelling : bool
         Run scan labelling after the dilation steps.
+    raised_regions : bool
+        Used by :func:`~.params.resolve_geodesic_params` only (whether the derived largest object
+        widens to a raised region); recorded in ``info``.
     progress : callable, optional
         ``progress(fraction)`` within every stage; may raise
         :class:`~bare_earth.core.common.Cancelled`.
@@ -263,7 +267,8 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     p = _complete(dict(min_window_m=min_window_m, max_object_size_m=max_object_size_m,
                        height_threshold_m=height_threshold_m, terrain_slope_deg=terrain_slope_deg,
                        edge_ratio=edge_ratio, outlier_threshold_m=outlier_threshold_m,
-                       outlier_width_m=outlier_width_m, scan_labelling=scan_labelling))
+                       outlier_width_m=outlier_width_m, scan_labelling=scan_labelling,
+                       raised_regions=raised_regions))
     valid = np.isfinite(z)
     vnone = None if valid.all() else valid        # fast paths when there is no nodata
     dh0, tan_s = float(height_threshold_m), float(np.tan(np.radians(terrain_slope_deg)))

@@ -5,7 +5,7 @@ from typing import Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import block_minima, noise_ground_level
+from ..estimate import RAISED_REGION_MAX_M, block_minima, noise_ground_level, raised_region_window
 from ..methods import Param, check_values
 from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
@@ -17,10 +17,12 @@ PARAMS = (
     Param("min_window_m", "float", 2.0, "Side of the first structuring element in "
           "metres; the following steps double it up to the maximum object size.",
           minimum=0.1, maximum=1000.0),
-    Param("max_object_size_m", "float", 64.0, "Largest object to remove (side of the "
+    Param("max_object_size_m", "float", None, "Largest object to remove (side of the "
           "last structuring element) in metres: the widest building. Scan labelling takes "
           "runs up to this length, or up to sqrt(2) times it between two walls (a building "
-          "rotated in the grid).",
+          "rotated in the grid). Empty: 64 m, widened (with raised regions on) to 1.25 x the "
+          "width of a raised region standing on walls that a 64 m window does not reach "
+          "across + 2 cells (a hall, a roof cut by the raster's edge), at most 200 m.",
           minimum=0.5, maximum=5000.0),
     Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
           "reconstructed terrain in metres; empty: max(0.5, 3 x the noise of the DSM's ground-level cells).",
@@ -43,6 +45,9 @@ PARAMS = (
           advanced=True),
     Param("scan_labelling", "bool", True, "Run scan labelling along rows and columns "
           "after the dilation steps (removes what the dilation left).", advanced=True),
+    Param("raised_regions", "bool", True, "When the largest object is derived: widen it to "
+          "a raised region standing on walls wider than 64 m (a hall, a roof cut by the "
+          "raster's edge), so its last step removes it.", advanced=True),
 )
 #: Default of every parameter (None: derived from the data by :func:`resolve_geodesic_params`).
 DEFAULTS = {p.name: p.default for p in PARAMS}
@@ -54,6 +59,11 @@ SLOPE_PERCENTILE = 90
 SLOPE_CLIP_DEG = (12.0, 22.0)
 #: Default dh0 = max(0.5 m, NOISE_K x robust noise of the DSM).
 NOISE_K = 3.0
+#: Largest object (side of the last structuring element), metres, unless a wider raised region
+#: standing on walls widens it (:func:`resolve_geodesic_params`).
+OBJECT_SIZE_M = 64.0
+#: The raised regions are looked for on a grid of at most this many cells (block minima).
+RESOLVE_CELLS = 1_000_000
 
 
 def _terrain_slope_deg(z, dx, dy, max_size_m):
@@ -82,6 +92,18 @@ def _terrain_slope_deg(z, dx, dy, max_size_m):
                          *SLOPE_CLIP_DEG))
 
 
+def _object_size_m(z, dx, dy, dh0, raised_regions):
+    """The derived largest object: :data:`OBJECT_SIZE_M`, widened to the window of a wider raised
+    region standing on walls of ``2 dh0`` (``raised_regions``), on block minima of at most
+    :data:`RESOLVE_CELLS` cells."""
+    if not raised_regions:
+        return OBJECT_SIZE_M
+    k = max(1, int(np.ceil(np.sqrt(z.size / RESOLVE_CELLS))))
+    zs = block_minima(z, k) if k > 1 else z
+    window = raised_region_window(zs, (dx * k, dy * k), 2.0 * dh0, OBJECT_SIZE_M)
+    return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
+
+
 def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], progress=None,
                             **params) -> dict:
     """Complete the parameters of :func:`filter_geodesic`, deriving ``None`` from the data.
@@ -91,6 +113,15 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
       sigma: edges and objects fill the upper tail and barely move it;
       :func:`~bare_earth.core.estimate.noise_second_difference_quartile`).
     * ``outlier_threshold_m``: ``max(2.0, 4 dh0)``.
+    * ``max_object_size_m``: :data:`OBJECT_SIZE_M` (64 m); with ``raised_regions``, widened to
+      the window of the widest raised region standing on walls that is wider than it
+      (:func:`~bare_earth.core.estimate.raised_region_window`: 1.25 x its width + 2 cells, at
+      most 200 m; walls of ``2 dh0``, the dilation's wall height, on the block minima of a grid of
+      at most :data:`RESOLVE_CELLS`). Such a region (a hall, a roof cut by the raster's edge,
+      which the window truncated at the edge fits into) is what the 64 m step cannot reach
+      across: its opening keeps the roof, and the reconstruction then calls it terrain (issue
+      12: synthetic-lidar/mixed at 1 m, a hall of 82 m and a roof cut by the tile's edge kept,
+      total 5.94 %).
     * ``terrain_slope_deg``: 90th percentile slope of the surface opened by the largest
       window on a ~4 m grid (objects gone), clipped to [12, 22] degrees: it is the slope
       *tolerated* by the wall and rise tests, and on the ISPRS samples a tolerance above
@@ -119,6 +150,9 @@ def resolve_geodesic_params(z: np.ndarray, cell_size: Union[float, Tuple[float, 
     if p["outlier_threshold_m"] is None:
         p["outlier_threshold_m"] = round(max(2.0, 4 * p["height_threshold_m"]), 3)
     report(progress, 0.6)
+    if p["max_object_size_m"] is None:
+        p["max_object_size_m"] = _object_size_m(z, dx, dy, p["height_threshold_m"], p["raised_regions"])
+    report(progress, 0.8)
     if p["terrain_slope_deg"] is None:
         p["terrain_slope_deg"] = round(_terrain_slope_deg(z, dx, dy, p["max_object_size_m"]), 2)
     check_params(p)
@@ -162,9 +196,10 @@ def geodesic_halo(params, cell_size):
     """
     dx, dy = as_cell_size(cell_size)
     c = min(dx, dy)
-    size = float(params.get("max_object_size_m", DEFAULTS["max_object_size_m"]))
+    size = float(params.get("max_object_size_m") or OBJECT_SIZE_M)
     width = float(params.get("outlier_width_m", DEFAULTS["outlier_width_m"]))
     params = dict(DEFAULTS, **{k: v for k, v in params.items() if v is not None})
+    params["max_object_size_m"] = size
     island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
     reach = (int(np.ceil(((2 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
              + OUTLIER_MAX_CELLS + 8 + island)

@@ -586,6 +586,17 @@ def test_noise_ground_level_forgets_a_cancelled_measurement(monkeypatch):
         assert len(est._NOISE_MEMO) == 1
 
 
+def test_raised_region_window_reaches_across_the_widest_raised_region():
+    # the level of the test below (47 m wide mirrored at the edge): a window of 1.25 x 47 + 2 cells, capped
+    z = np.zeros((40, 40), np.float32)
+    z[15:, 15:] = 4.0
+    assert est.raised_region_window(z, (1.0, 1.0), 0.5, 10.0) == 1.25 * 47.0 + 2.0
+    assert est.raised_region_window(z, (2.0, 2.0), 0.5, 10.0) == 1.25 * 94.0 + 4.0
+    assert est.raised_region_window(z, (1.0, 1.0), 0.5, 10.0, max_width_m=50.0) == 50.0
+    assert est.raised_region_window(z, (1.0, 1.0), 0.5, 48.0) == 0.0           # the window reaches across
+    assert est.raised_region_window(np.zeros((40, 40), np.float32), (1.0, 1.0), 0.5, 10.0) == 0.0
+
+
 def test_raised_region_width_of_a_level_running_off_the_raster():
     # a raised level 4 m high on two walls, running off a corner of the raster: the region (rows and columns
     # 16-39, the walls' top a rim) mirrored at the edge is twice 24 cells less one wide

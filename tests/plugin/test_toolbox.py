@@ -112,7 +112,7 @@ def test_stated_default_reads_as_the_dialog_shows_it(qgis_app):
     from qgis.core import QgsApplication
     reg = QgsApplication.processingRegistry()
     helps = {d.name(): d.help() for d in reg.algorithmById("bareearth:geodesic").parameterDefinitions()}
-    assert helps["MAX_OBJECT_SIZE_M"].endswith(" Default: 64.")
+    assert helps["MIN_WINDOW_M"].endswith(" Default: 2.")
     assert helps["SCAN_LABELLING"].endswith(" Default: yes.")
     helps = {d.name(): d.help() for d in reg.algorithmById("bareearth:morphological").parameterDefinitions()}
     assert helps["MODE"].endswith(" Default: auto.")
