@@ -216,6 +216,41 @@ def test_low_outlier_is_class_2(mode):
     np.testing.assert_array_equal(res.mask, expect)
 
 
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
+@pytest.mark.parametrize("given", [False, True])
+def test_a_deep_pit_is_a_low_outlier_at_every_cell_size(cell, given):
+    """A pit 8 m below all the ground around it is a low outlier at every cell size. Before, SMRF's
+    one-cell pre-step window at 2 and 4 m cells made the threshold 10 and 20 m: the pit stayed in the
+    opening, which carried it over the terrace, and the terrace around it became an object."""
+    n = int(round(80 / cell))
+    z = np.full((n, n), 100.0, np.float32)
+    w = int(round(12 / cell))
+    z[:, :w] = 102.0                    # a terrace 12 m wide on the raster's edge, 2 m above the ground
+    z[n // 2, w // 2] = 94.0            # a pit 8 m below it
+    p = dict(dh_m=0.5, slope=0.3, max_object_size_m=40.0, mode="progressive") if given else {}
+    res = morph.filter_morphological(z, cell, **p)
+    expect = np.zeros(z.shape, np.uint8)
+    expect[n // 2, w // 2] = LOW
+    np.testing.assert_array_equal(res.mask, expect)
+
+
+def test_coarse_cells_take_pits_below_their_surroundings_not_gaps_between_crowns():
+    """At 2 m cells a pit is a candidate of the pre-step when it lies 5 m (500 % of the paper's 1 m
+    window) below its neighbours and below every cell of the ring around it; 4 m is not enough, and
+    gaps between crowns at the level of the other gaps around stay out."""
+    def low(z):
+        return morph.find_low_outliers(z, ~np.isfinite(z), (2.0, 2.0), morph.WINDOW_GROWTH,
+                                       morph.LOW_OUTLIER_SLOPE, morph._Work())[0]
+    z = np.full((20, 20), 100.0, np.float32)
+    z[10, 10] = 96.0
+    assert not low(z).any()
+    z[10, 10] = 94.9
+    assert np.argwhere(low(z)).tolist() == [[10, 10]]
+    crowns = np.full((30, 30), 109.0, np.float32)     # crowns 9 m high (under the 10 m of s x 2 m)
+    crowns[2::4, 2::4] = 100.0                         # a gap every 8 m at the ground
+    assert not low(crowns).any()
+
+
 def test_nodata_cells_are_255_and_do_not_disturb():
     z, truth = _box_scene()
     z[0:3, 20:24] = np.nan
