@@ -106,6 +106,7 @@ from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
 from .estimate import (
     RAISED_REGION_MAX_M,
+    below_level_neighbours,
     below_surroundings,
     block_minima,
     noise_ground_level,
@@ -589,7 +590,7 @@ def open_single(z, cell, size_m, dh, work, progress=None):
                           "window_cells": [(2 * ry + 1, 2 * rx + 1)]}
 
 
-def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
+def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, level_m=0.0):
     """SMRF's low-outlier pre-step: the progressive filter on ``-z`` (1 m window, slope
     ``low_slope``). Returns the candidate pits and the surface with them replaced by the
     closing.
@@ -603,7 +604,14 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
     pit deeper than the paper's threshold over its 1 m window (``s x 1 m``, 5 m) is a candidate when
     it also lies that far below every cell of the ring around it
     (:func:`~bare_earth.core.estimate.below_surroundings`: a gap between crowns is at the level of the
-    other gaps around it, a blunder below all the ground): simulated urban lidar at 4 m 2.27 -> 0.06 %.
+    other gaps around it, a blunder below all the ground): simulated urban lidar at 4 m 2.27 -> 0.06 %;
+    or when it lies that far below its neighbours that are no such pits themselves and are level within
+    ``level_m`` (:func:`~bare_earth.core.estimate.below_level_neighbours`: a blunder in a paved or
+    roofed level surface, however many lie around it; a gap between crowns is rimmed by their sides,
+    metres apart). A line of blunders 9.5 m deep on a terrace beside a building (ISPRS sample 41,
+    lowest point per 2 m cell; candidates at 1 m, where the threshold is 5 m) hid each other from the
+    ring, stayed in the opening, spread over the terrace and took it for an object: 9.85 % total error
+    at 2 m against 2.99 % at 1 m, 4.52 % with the level neighbours.
     """
     neg, has_nodata = _as_inf(z, -1.0, nodata)
     report(progress, 0.05)
@@ -616,7 +624,9 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
         with np.errstate(invalid="ignore"):
             deep = ~low & (np.negative(neg_open) - z > depth)     # closing - z: depth below the neighbours
         if deep.any():
-            low |= below_surroundings(z, cell, float(depth), candidates=deep)
+            pit = below_surroundings(z, cell, float(depth), candidates=deep)
+            pit |= below_level_neighbours(z, float(depth), level_m, deep)
+            low |= pit
     clean = z.copy()
     clean[low] = -neg_open[low]             # pits replaced by the closing
     return low, clean
@@ -838,8 +848,11 @@ def open_progressive(z, cell, p, work, progress=None):
     nodata = ~valid
     s, growth = p["slope"], p["window_growth"]
     # 1. low-outlier pre-step on the inverted surface
+    #    (level neighbours of a coarse cell's pit: within twice dh, noise on both, and the terrain's rise
+    #    over two cell diagonals at the outline slope)
+    level = 2.0 * p["dh_m"] + p["outline_slope"] * 2.0 * math.hypot(*cell)
     low, clean = find_low_outliers(z, nodata, cell, growth, p["low_outlier_slope"], work,
-                                   sub_progress(progress, 0.0, 0.1))
+                                   sub_progress(progress, 0.0, 0.1), level_m=level)
     # 2. progressive opening of the cleaned surface: flags where the opening drops by > s r_k
     radii = window_radii(p["max_object_size_m"], cell, growth)
     a, has_nodata = _as_inf(clean, 1.0, nodata)
