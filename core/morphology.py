@@ -620,7 +620,7 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     del neg
     low &= ~nodata
     depth = np.float32(low_slope * LOW_OUTLIER_WINDOW_M)
-    if radii[-1][2] * low_slope > depth:     # the last window's threshold above s x 1 m: cells over 1 m
+    if low_slope > 0 and radii[-1][2] > LOW_OUTLIER_WINDOW_M + 1e-9:     # its last threshold above s x 1 m
         with np.errstate(invalid="ignore"):
             deep = ~low & (np.negative(neg_open) - z > depth)     # closing - z: depth below the neighbours
         if deep.any():
@@ -1163,7 +1163,8 @@ def morphological_halo(params, cell_size):
     size = params.get("max_object_size_m") or _MAX_OBJECT_M
     ry, rx = _half_widths(size, cell)
     low = _low_radii(cell, 1.0)[-1]
-    pit = max(surroundings_reach(cell)[2:])         # the low-outlier pits' ring (find_low_outliers)
+    # the ring of the pits deeper than s x 1 m where the pre-step's window reaches beyond 1 m (find_low_outliers)
+    pit = max(surroundings_reach(cell)[2:]) if low[2] > LOW_OUTLIER_WINDOW_M + 1e-9 else 0
     return int(2 * max(ry, rx) + 2 * max(low[0], low[1], pit) + 4 + max(_tier_box((ry, rx))) + 3)
 
 

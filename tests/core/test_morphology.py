@@ -278,6 +278,23 @@ def test_a_line_of_blunders_on_a_terrace_at_2_m_cells_is_low(given):
     np.testing.assert_array_equal(res.mask, expect)
 
 
+def test_blocks_equal_one_pass_with_deep_pits_at_2_m_cells():
+    """The pits of coarse cells are judged on their ring (10 m) and level neighbours: the halo covers
+    the ring, so blocks give the one-pass mask."""
+    from bare_earth.core import synthetic
+    sc = synthetic.make_scene("city", shape=(150, 170), cell_size=2.0, seed=3)
+    z = np.array(sc.dsm, np.float32)
+    rng = np.random.default_rng(3)
+    r, c = rng.integers(0, 150, 60), rng.integers(0, 170, 60)
+    z[r, c] -= 8.0                                     # blunders below the ground and the roofs
+    z[r, np.minimum(c + 1, 169)] -= 8.0                # ... some in pairs
+    one = run_array("morphological", z, 2.0)
+    assert np.count_nonzero(one.mask == LOW) >= 60
+    blk = run_array("morphological", z, 2.0, block=48)
+    assert blk.info["blocks"] > 4
+    np.testing.assert_array_equal(blk.mask, one.mask)
+
+
 def test_nodata_cells_are_255_and_do_not_disturb():
     z, truth = _box_scene()
     z[0:3, 20:24] = np.nan
