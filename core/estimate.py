@@ -42,7 +42,9 @@ says so:
   - :func:`below_surroundings`: a pit lies below every cell of the ring around it (a
     low blunder, not a gap between crowns);
   - :func:`below_level_rim`: a pit lies below the level rim just around it (a blunder in
-    open ground, even with another blunder within that ring).
+    open ground, even with another blunder within that ring);
+  - :func:`below_level_neighbours`: a pit lies below its level neighbours (a blunder in a
+    level surface, however many blunders lie around it).
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
   fit needs to reach ground beyond them).
 """
@@ -951,6 +953,50 @@ def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUS
             ok = (known == inside.sum(axis=1)) & (2 * known >= dr.size)
             own = flat.take(q).astype(np.float32)
             hit = ok & (hi - lo <= 2 * depth_m + rise) & (own < lo - np.float32(depth_m))
+        out.ravel()[q[hit]] = True
+    return out
+
+
+def below_level_neighbours(z, depth_m, level_m, candidates, min_neighbours=3):
+    """Cells of ``candidates`` lying more than ``depth_m`` below each of their level neighbours.
+
+    The neighbours are the 8 cells around the tested one that are valid and not candidates
+    themselves (a line or a cluster of blunders does not hide its members, as it hides them from
+    :func:`below_surroundings` and :func:`below_level_rim`, whose rings it reaches); they are *level*
+    when their highest and lowest differ by at most ``level_m`` (the caller's noise and the terrain's
+    rise across them). A blunder in a paved surface or a flat roof has level neighbours; a gap
+    between tree crowns is rimmed by their sides, metres apart. Fewer than ``min_neighbours``
+    neighbours is no evidence (False). Candidates are few: their neighbours are gathered directly.
+
+    Examples
+    --------
+    >>> z = np.full((5, 5), 10.0, np.float32); z[2, 2] = z[2, 3] = 3.0
+    >>> below_level_neighbours(z, 5.0, 0.5, z < 5).sum()
+    2
+    >>> z[1, 1] = 14.0
+    >>> np.argwhere(below_level_neighbours(z, 5.0, 0.5, z < 5)).tolist()
+    [[2, 3]]
+    """
+    z = np.asarray(z)
+    cand = np.asarray(candidates, bool)
+    out = np.zeros(z.shape, bool)
+    idx = np.flatnonzero(cand)
+    if idx.size == 0:
+        return out
+    h, w = z.shape
+    dr = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
+    dc = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
+    flat, cflat = z.ravel(), cand.ravel()
+    for q, v, inside in _gather_offsets(flat, (h, w), idx, dr, dc):
+        r, c = np.divmod(q, w)
+        at = np.clip(r[:, None] + dr, 0, h - 1) * w + np.clip(c[:, None] + dc, 0, w - 1)
+        ok = inside & np.isfinite(v) & ~cflat.take(at)
+        lo = np.where(ok, v, np.inf).min(axis=1)
+        hi = np.where(ok, v, -np.inf).max(axis=1)
+        with np.errstate(invalid="ignore"):
+            own = flat.take(q).astype(np.float32)
+            hit = ok.sum(axis=1) >= min_neighbours
+            hit &= (hi - lo <= np.float32(level_m)) & (own < lo - np.float32(depth_m))
         out.ravel()[q[hit]] = True
     return out
 

@@ -106,10 +106,13 @@ from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
 from .estimate import (
     RAISED_REGION_MAX_M,
+    below_level_neighbours,
+    below_surroundings,
     block_minima,
     noise_ground_level,
     object_widths,
     raised_region_width,
+    surroundings_reach,
     terrain_slopes,
 )
 from .methods import Method, Param, check_values
@@ -587,15 +590,43 @@ def open_single(z, cell, size_m, dh, work, progress=None):
                           "window_cells": [(2 * ry + 1, 2 * rx + 1)]}
 
 
-def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None):
+def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, level_m=0.0):
     """SMRF's low-outlier pre-step: the progressive filter on ``-z`` (1 m window, slope
     ``low_slope``). Returns the candidate pits and the surface with them replaced by the
-    closing."""
+    closing.
+
+    On cells coarser than the 1 m window the pre-step's one window is one cell, and its threshold
+    ``s c`` grows with the cell (10 m at 2 m cells, 20 m at 4 m). That keeps the gaps between tree
+    crowns (single cells metres below the crowns) out of the candidates: capped at ``s x 1 m`` at
+    every cell size, they became candidates, the opening lost the ground they show and the canopy
+    stayed ground (closed canopy at 4 m: 0.09 -> 35.6 % total error; forest at 4 m 1.0 -> 20.7 %).
+    But it keeps blunders in the opening too, where they spread over the ground around them. There a
+    pit deeper than the paper's threshold over its 1 m window (``s x 1 m``, 5 m) is a candidate when
+    it also lies that far below every cell of the ring around it
+    (:func:`~bare_earth.core.estimate.below_surroundings`: a gap between crowns is at the level of the
+    other gaps around it, a blunder below all the ground): simulated urban lidar at 4 m 2.27 -> 0.06 %;
+    or when it lies that far below its neighbours that are no such pits themselves and are level within
+    ``level_m`` (:func:`~bare_earth.core.estimate.below_level_neighbours`: a blunder in a paved or
+    roofed level surface, however many lie around it; a gap between crowns is rimmed by their sides,
+    metres apart). A line of blunders 9.5 m deep on a terrace beside a building (ISPRS sample 41,
+    lowest point per 2 m cell; candidates at 1 m, where the threshold is 5 m) hid each other from the
+    ring, stayed in the opening, spread over the terrace and took it for an object: 9.85 % total error
+    at 2 m against 2.99 % at 1 m, 4.52 % with the level neighbours.
+    """
     neg, has_nodata = _as_inf(z, -1.0, nodata)
     report(progress, 0.05)
-    low, neg_open = _progressive(neg, _low_radii(cell, growth), low_slope, has_nodata, progress, work, growth)
+    radii = _low_radii(cell, growth)
+    low, neg_open = _progressive(neg, radii, low_slope, has_nodata, progress, work, growth)
     del neg
     low &= ~nodata
+    depth = np.float32(low_slope * LOW_OUTLIER_WINDOW_M)
+    if low_slope > 0 and radii[-1][2] > LOW_OUTLIER_WINDOW_M + 1e-9:     # its last threshold above s x 1 m
+        with np.errstate(invalid="ignore"):
+            deep = ~low & (np.negative(neg_open) - z > depth)     # closing - z: depth below the neighbours
+        if deep.any():
+            pit = below_surroundings(z, cell, float(depth), candidates=deep)
+            pit |= below_level_neighbours(z, float(depth), level_m, deep)
+            low |= pit
     clean = z.copy()
     clean[low] = -neg_open[low]             # pits replaced by the closing
     return low, clean
@@ -817,8 +848,11 @@ def open_progressive(z, cell, p, work, progress=None):
     nodata = ~valid
     s, growth = p["slope"], p["window_growth"]
     # 1. low-outlier pre-step on the inverted surface
+    #    (level neighbours of a coarse cell's pit: within twice dh, noise on both, and the terrain's rise
+    #    over two cell diagonals at the outline slope)
+    level = 2.0 * p["dh_m"] + p["outline_slope"] * 2.0 * math.hypot(*cell)
     low, clean = find_low_outliers(z, nodata, cell, growth, p["low_outlier_slope"], work,
-                                   sub_progress(progress, 0.0, 0.1))
+                                   sub_progress(progress, 0.0, 0.1), level_m=level)
     # 2. progressive opening of the cleaned surface: flags where the opening drops by > s r_k
     radii = window_radii(p["max_object_size_m"], cell, growth)
     a, has_nodata = _as_inf(clean, 1.0, nodata)
@@ -1121,7 +1155,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
 
 def morphological_halo(params, cell_size):
     """Reach of the filter in cells: two largest half-windows (erosion then dilation),
-    the 3 x 3 closing or low-outlier step, the outline cells (their neighbours and the
+    the 3 x 3 closing or low-outlier step (or the ring of its pits), the outline cells (their neighbours and the
     opened surface's slope there) and the slope's central difference; then the attached
     tiers (:func:`find_attached_tiers`): a region up to the largest window wide, its edge's
     neighbours and their lowest neighbour."""
@@ -1129,7 +1163,9 @@ def morphological_halo(params, cell_size):
     size = params.get("max_object_size_m") or _MAX_OBJECT_M
     ry, rx = _half_widths(size, cell)
     low = _low_radii(cell, 1.0)[-1]
-    return int(2 * max(ry, rx) + 2 * max(low[0], low[1]) + 4 + max(_tier_box((ry, rx))) + 3)
+    # the ring of the pits deeper than s x 1 m where the pre-step's window reaches beyond 1 m (find_low_outliers)
+    pit = max(surroundings_reach(cell)[2:]) if low[2] > LOW_OUTLIER_WINDOW_M + 1e-9 else 0
+    return int(2 * max(ry, rx) + 2 * max(low[0], low[1], pit) + 4 + max(_tier_box((ry, rx))) + 3)
 
 
 #: Keys of the resolved parameters that are statistics for the log, not arguments.

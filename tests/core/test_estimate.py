@@ -509,6 +509,30 @@ def test_below_level_rim_finds_two_blunders_within_each_others_ring():
     assert not below_level_rim(z, (1.0, 1.0), 0.1, 0.0, cand).any()
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_below_level_neighbours_exact(dtype):
+    """A line of blunders on a level terrace (ISPRS sample 41 at 2 m): each lies below its level
+    neighbours that are not candidates themselves; a gap among crown flanks metres apart does not, nor a
+    pit too shallow, nor one with fewer than three neighbours known."""
+    from bare_earth.core.estimate import below_level_neighbours, below_surroundings
+    z = np.full((12, 12), 304.0, dtype)
+    z[:, 8:] = 320.0                                   # a building beside the terrace
+    line = [(1, 3), (2, 3), (4, 3), (6, 2), (7, 2)]
+    for r, c in line:
+        z[r, c] = 294.5
+    z[9, 5] = 300.0                                    # 4 m deep: not deep enough
+    z[10, 1] = 294.5
+    z[9:12, 0:3][[0, 0, 0, 1, 2], [0, 1, 2, 0, 0]] = [304.0, 310.0, 304.0, 306.0, 304.0]   # crowns' flanks
+    cand = z < 303.0
+    assert not below_surroundings(z, (2.0, 2.0), 5.0, candidates=cand).any()
+    got = below_level_neighbours(z, 5.0, 0.5, cand)
+    assert sorted(map(tuple, np.argwhere(got).tolist())) == line
+    z[0, :] = np.nan
+    z[1, 2] = z[1, 4] = z[0, 3] = np.nan               # (1, 3): two neighbours left besides (2, 3)
+    got = below_level_neighbours(z, 5.0, 0.5, cand & np.isfinite(z))
+    assert not got[1, 3] and got[2, 3]
+
+
 def test_below_level_rim_leaves_gaps_between_crowns_and_unknown_rims():
     from bare_earth.core.estimate import below_level_rim
     z = np.random.default_rng(0).uniform(8.0, 25.0, (30, 30)).astype(np.float32)   # crowns
