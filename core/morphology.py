@@ -105,13 +105,14 @@ from scipy import ndimage
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress, touching
 from .estimate import (
+    RAISED_REGION_MARGIN,
     RAISED_REGION_MAX_M,
     below_level_neighbours,
     below_surroundings,
     block_minima,
     noise_ground_level,
     object_widths,
-    raised_region_width,
+    raised_region_window,
     surroundings_reach,
     terrain_slopes,
 )
@@ -1040,7 +1041,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
       (40 m when there are no objects); with ``raised_regions``, widened to the width of the
       widest raised region standing on walls that this window does not reach across
-      (:func:`~bare_earth.core.estimate.raised_region_width`, at most 200 m: a roof over most of
+      (:func:`~bare_earth.core.estimate.raised_region_window`, at most 200 m: a roof over most of
       a tile, running off it).
     * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
       over one cell the ground beside an object may show before a cell on the object's
@@ -1121,16 +1122,15 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
         else:
             out["max_object_size_m"] = _DEFAULT_OBJECT_M
             out["max_object_size_source"] = f"no object found: default {_DEFAULT_OBJECT_M:g} m"
-        wide = raised_region_width(zs, cs, max(out["dh_m"], _OBJECT_HEIGHT_M),
-                                   out["max_object_size_m"]) if raised_regions else 0.0
         # the margin of the objects found (1.25 x their width + 2 cells): the region's width leaves out the
         # rims on top of its walls, and a window just as wide still fits inside it
-        window = min(RAISED_REGION_MAX_M, 1.25 * wide + 2.0 * max(cs)) if wide > 0 else 0.0
+        window = raised_region_window(zs, cs, max(out["dh_m"], _OBJECT_HEIGHT_M),
+                                      out["max_object_size_m"]) if raised_regions else 0.0
         if window > out["max_object_size_m"]:
             out["max_object_size_m"] = window
             out["max_object_size_source"] += (
-                f"; widened to {window:.1f} m, 1.25 x the width {wide:.1f} m of a raised region bounded by walls "
-                f"that the search's windows do not reach across + 2 cells (at most {RAISED_REGION_MAX_M:g} m)")
+                f"; widened to {window:.1f} m, {RAISED_REGION_MARGIN:g} x the width of a raised region bounded by "
+                f"walls that the search's windows do not reach across + 2 cells (at most {RAISED_REGION_MAX_M:g} m)")
     else:
         out["max_object_size_source"] = "given"
     if mode == "auto":
