@@ -149,6 +149,26 @@ def touching(a):
     return out
 
 
+def edge_mirrored_extents(boxes, shape):
+    """The extents (rows, columns) of the regions whose bounding boxes are ``boxes`` (slice
+    pairs, as ``ndimage.find_objects`` gives) in a raster of ``shape``, each mirrored at every
+    side the raster's edge cuts: beyond the edge nothing is seen and a region cut there may
+    continue, at least as far again; a region cut on two opposite sides of an axis (a level
+    running across the raster, a terrain step) spans three times what is seen along it.
+    Returns an int array of shape ``(len(boxes), 2)``.
+
+    Examples
+    --------
+    >>> edge_mirrored_extents([(slice(0, 4), slice(2, 5)), (slice(1, 3), slice(0, 10))], (10, 10)).tolist()
+    [[8, 3], [2, 30]]
+    """
+    out = np.zeros((len(boxes), 2), np.intp)
+    for i, b in enumerate(boxes):
+        for a in (0, 1):
+            out[i, a] = (b[a].stop - b[a].start) * (1 + (b[a].start == 0) + (b[a].stop == shape[a]))
+    return out
+
+
 def transpose(a, rows=256):
     """C-contiguous transpose of a 2-D array, a band of ``rows`` rows at a time.
 

@@ -72,6 +72,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND
+from .common import edge_mirrored_extents
 from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
@@ -175,9 +176,7 @@ def _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_ce
     # its span along each axis mirrored at every side the edge cuts (a level cut on two opposite
     # sides, a terrain step running across the raster, is mirrored at both): the stage reaches it
     # only if it reaches that span
-    reach = np.array([max((b[0].stop - b[0].start) * (1 + (b[0].start == 0) + (b[0].stop == shape[0])),
-                          (b[1].stop - b[1].start) * (1 + (b[1].start == 0) + (b[1].stop == shape[1])))
-                      for b in boxes])
+    reach = edge_mirrored_extents(boxes, shape).max(axis=1)
     idx = np.flatnonzero((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (reach <= max_cells)) + 1
     if idx.size == 0:
         return objects, []

@@ -3,7 +3,9 @@
 Luong Chinh Ke (2002, sec. 2.2) reads the breaks along the X and Y profiles: the points
 between a break going up and the matching break coming down belong to an object
 (:func:`find_profile_objects`); where the raster's edge cuts an object, the profile is
-taken as mirrored there (:func:`_cut_runs`). Regions enclosed by breaks and made mostly of such points
+taken as mirrored there (:func:`_cut_runs`), unless the region of such runs, mirrored at
+the edges across the profiles too, is longer than the largest object (a terrain step running
+across the raster, :func:`_drop_running_off`). Regions enclosed by breaks and made mostly of such points
 become whole objects (:func:`find_enclosed_objects`).
 """
 from typing import Optional, Tuple
@@ -11,7 +13,7 @@ from typing import Optional, Tuple
 import numpy as np
 from scipy import ndimage
 
-from ..common import report, sub_progress
+from ..common import edge_mirrored_extents, report, sub_progress
 from .derivatives import CHUNK_CELLS, CellSize, Progress
 
 #: Width (cells) within which an object's wall rises, and how much steeper than the
@@ -201,6 +203,38 @@ def _cut_runs(ended, max_cells):
     return np.unique(ids[k + 1 <= _CUT_SHARE * max_cells])
 
 
+def _drop_running_off(cut, axis, max_cells, cross_cells):
+    """Drops, of the cells ``cut`` (bool, the raster's shape) of the runs that met the
+    profile's end (:func:`_cut_runs`), the regions (4-connected) too long across the
+    profiles to be an object cut by the raster's edge; in place.
+
+    Along the profiles such a run is at most half the largest object (the object mirrored
+    at the edge). Across them (along the wall the runs come from), the region is judged as
+    ``bareearth:dtm``'s raised regions are: mirrored at every side the raster's edge cuts
+    (:func:`~bare_earth.core.common.edge_mirrored_extents`), it must stay within the largest
+    object (``cross_cells`` cells). A level cut on the two opposite sides across the profiles
+    (a terrace, a quarry bench or a valley side running across the raster) continues beyond
+    both and spans three times what is seen; one running obliquely to an edge comes within
+    half the largest object of it along a stretch longer than the largest object. The scan
+    from the edge then keeps it as ground; a roof in a corner of the tile, cut on one side
+    across, stays an object while twice its seen length is within the largest object. Only
+    the bands of ``max_cells // 2 + 2`` cells along the profiles' ends hold such runs: they
+    alone are labelled."""
+    n = cut.shape[axis]
+    band = min(n, max_cells // 2 + 2)
+    for part in ((slice(None), slice(0, band)), (slice(None), slice(n - band, n))):
+        sub = cut[part if axis == 1 else part[::-1]]
+        if not sub.any():
+            continue
+        lab, k = ndimage.label(sub)
+        # the band spans the raster across the profiles: its regions' extents there are the raster's
+        span = edge_mirrored_extents(ndimage.find_objects(lab), sub.shape)[:, 1 - axis]
+        far = np.zeros(k + 1, bool)
+        far[1:] = span > cross_cells
+        if far.any():
+            sub[far[lab]] = False
+
+
 def _framed(a, frame, fill):
     """``a`` inside a frame of ``frame`` cells of ``fill`` (a flat index then reaches
     ``frame`` positions beyond any profile's ends)."""
@@ -235,7 +269,7 @@ def _heights_and_drops(zp, frame):
 
 
 def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol, max_cells, progress=None,
-               zover=None, terrain_slope=0.0):
+               zover=None, terrain_slope=0.0, cross_cells=None):
     """Object cells of the profiles along ``axis`` (0: Y profiles, the columns; 1: X
     profiles, the rows) of the framed heights ``zp`` and breaks ``bp`` (:func:`_framed`),
     shaped as the frame's inside ``shape``: the runs of :func:`_runs` read forwards and
@@ -245,8 +279,11 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
     scan coming down the other way meets no break going up: only objects, which have a
     break going up from both sides, are kept; a run that meets the profile's end within
     half the largest object counts for both directions (:func:`_cut_runs`: the object cut
-    by the raster's edge, taken as mirrored there). The walls are found by blocks of rows (no
-    index array of the raster's size at once); every direction's runs go at once.
+    by the raster's edge, taken as mirrored there), unless its region, mirrored at the edges
+    across the profiles too, is longer than the largest object (``cross_cells``, default
+    ``max_cells``: :func:`_drop_running_off`, a terrain step running across the raster).
+    The walls are found by blocks of rows (no index array of the raster's size at once);
+    every direction's runs go at once.
     ``zover``: :func:`_heights_and_drops` of ``zp`` when the caller has it (its drops are
     0 again on return).
     """
@@ -285,6 +322,8 @@ def _axis_runs(zp, bp, frame, shape, cell, axis, *, reach, h_min, tan_wall, tol,
         sel = _cut_runs(ended, max_cells)
         if sel.size:
             _runs(zi, tuple(a.take(sel) for a in wl), d * s, tol, max_cells, cut)
+            _drop_running_off(cut.reshape(zp.shape)[frame:frame + h, frame:frame + w], axis, max_cells,
+                              max_cells if cross_cells is None else cross_cells)
         cuts.append(cut)
         for di, _ in downs:
             zover[di, 1] = 0
@@ -396,9 +435,9 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     zp, bp = _framed(z, frame, np.nan), _framed(marked, frame, False)
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame),
               terrain_slope=terrain_slope)
-    obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx),
+    obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx), cross_cells=int(max_size / dy),
                        progress=sub_progress(progress, 0.0, 0.5), **kw)
-    obj_y = _axis_runs(zp, bp, frame, z.shape, dy, 0, max_cells=int(max_size / dy),
+    obj_y = _axis_runs(zp, bp, frame, z.shape, dy, 0, max_cells=int(max_size / dy), cross_cells=int(max_size / dx),
                        progress=sub_progress(progress, 0.5, 1.0), **kw)
     del zp, bp
     if valid is not None:

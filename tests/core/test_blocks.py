@@ -199,3 +199,15 @@ def test_touching_is_the_3x3_binary_dilation():
     expect[0:2, 3:5] = True
     assert np.array_equal(touching(a), expect)
     assert touching(np.zeros((0, 3), bool)).shape == (0, 3)
+
+
+def test_edge_mirrored_extents_exact():
+    """common.edge_mirrored_extents (dtm's raised regions and the curvature filter's runs cut
+    by the edge): each box's extent along rows and columns, doubled for each side of that axis
+    the raster's edge cuts (tripled when cut on both)."""
+    from bare_earth.core.common import edge_mirrored_extents
+    boxes = [(slice(0, 4), slice(2, 5)), (slice(1, 3), slice(0, 10)), (slice(3, 10), slice(9, 10)),
+             (slice(2, 5), slice(3, 4))]
+    got = edge_mirrored_extents(boxes, (10, 10))
+    np.testing.assert_array_equal(got, [[8, 3], [2, 30], [14, 2], [3, 1]])
+    assert got.shape == (4, 2) and edge_mirrored_extents([], (5, 5)).shape == (0, 2)
