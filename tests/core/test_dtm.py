@@ -284,15 +284,52 @@ def test_member_settings_rascor_noise_from_the_ground_level_cells():
     assert noise == noise_ground_level(s.dsm, (1.0, 1.0))["sigma"] and noise > SIGMA_FLOOR
     asked = dtm_method.MEMBER_SETTINGS["rascor"]
     assert asked == {"surface_rule": "residuals", "terrain_bend_m": 0.0, "fits_per_block": True}
-    assert given == {**asked, "sigma_m": round(noise, 3)}
+    measured, sigma = dtm_method.ground_noise(s.dsm, (1.0, 1.0))
+    assert measured == noise and sigma < noise                    # the spread of the heights on the slope out
+    assert given == {**asked, "sigma_m": round(sigma, 3)}
     y, x = grid(64)
     flat = noisy(0.02 * x, seed=0, sd=0.01)                        # ground noise under RASCOR's floor
     assert dtm_method.member_settings("rascor", flat, (1.0, 1.0))[0]["sigma_m"] == SIGMA_FLOOR
     tiny = np.zeros((4, 4), np.float32)                            # too few cells: not measurable
     given, noise = dtm_method.member_settings("rascor", tiny, (1.0, 1.0))
     assert not np.isfinite(noise) and given == asked
-    for n in ("morphological", "geodesic"):
-        assert dtm_method.member_settings(n, s.dsm, (1.0, 1.0)) == (dtm_method.MEMBER_SETTINGS.get(n), None)
+    assert dtm_method.member_settings("geodesic", s.dsm, (1.0, 1.0)) == (
+        dtm_method.MEMBER_SETTINGS.get("geodesic"), None)
+    dh = dtm_method.noise_threshold(s.dsm, (1.0, 1.0))
+    forest = noise_ground_level(s.dsm, (1.0, 1.0))["sigma"]
+    assert dh is not None and dtm_method.MIN_TOLERANCE_M < dh < 3.0 * forest    # the slope's share taken out
+    assert dtm_method.member_settings("morphological", s.dsm, (1.0, 1.0)) == (
+        {**dtm_method.MEMBER_SETTINGS["morphological"], "dh_m": dh}, None)
+    assert dtm_method.member_settings("morphological", flat, (1.0, 1.0)) == (
+        dtm_method.MEMBER_SETTINGS["morphological"], None)                # 3 x its noise under the floor
+
+
+def _hillside_one_return_per_cell(n=120, cell=2.0, slope=0.6, seed=0, noise_m=0.05):
+    """A plane rising 0.6 m per metre (31 degrees), one return per 2 m cell at a random place in it:
+    the heights scatter by ``slope cell / sqrt(12)`` = 0.35 m about the cells' centres, 7 times the noise."""
+    rng = np.random.default_rng(seed)
+    y, x = grid(n)
+    ox, oy = rng.uniform(-0.5, 0.5, (2, n, n))
+    return (slope * cell * ((x + ox) + 0.2 * (y + oy)) + rng.normal(0.0, noise_m, (n, n))).astype(np.float32)
+
+
+def test_threshold_is_the_noise_not_where_the_heights_lie_on_a_hillside():
+    """On a hillside gridded from one return per 2 m cell the ground-level cells' second differences read
+    0.4 m of "noise" (0.05 m of it the lidar's): taken as noise, the opening's dh_0 and the vote's threshold
+    were 1.2 m. Without the spread of where the heights lie on the slope (which the opening's slope term
+    covers) it is 3 x the noise left: near the 0.5 m floor; on flat ground nothing changes. RASCOR's sigma
+    too (its tests add that spread from the rise beside each pair)."""
+    from bare_earth.core.estimate import noise_ground_level, noise_without_sampling
+    z = _hillside_one_return_per_cell()
+    measured = noise_ground_level(z, (2.0, 2.0))["sigma"]
+    assert 3.0 * measured > 1.0                                          # what the member alone derives
+    params = pipeline.resolve_params("dtm", z, (2.0, 2.0), {})
+    assert params["members"]["morphological"]["dh_m"] == params["tolerance_m"] < 0.65
+    assert params["tolerance_m"] == dtm_method.noise_threshold(z, (2.0, 2.0))
+    assert params["members"]["rascor"]["sigma_m"] < 0.6 * measured
+    assert noise_without_sampling(measured, 0.0, 2.0) == measured        # no slope: nothing taken out
+    flat = noisy(np.zeros((120, 120)), seed=0, sd=0.05)
+    assert dtm_method.noise_threshold(flat, (2.0, 2.0)) is None
 
 
 def _canopy_with_bushes(seed=0):
