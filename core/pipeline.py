@@ -475,10 +475,10 @@ def _derive_params(info, run):
         zr = _read_reporting(info, rw, None)
     for w in info.warnings:
         run.log("Warning: " + w)
-    suspect = grid.undeclared_nodata_warning(info, zr)
-    if suspect:
-        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the window the parameters "
-                                          "come from)"))
+    in_window = "" if zr.shape == info.shape else " (in the window the parameters come from)"
+    for suspect in (grid.undeclared_nodata_warning(info, zr), grid.nodata_among_heights_warning(info, zr)):
+        if suspect:
+            run.log("Warning: " + suspect + in_window)
     for note in info.notes:
         run.log(note)
     params = _resolve(run.meth, zr, info.cell_size_m, run.params,

@@ -205,9 +205,9 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
             raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
                              "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
                              "the tiles that hold data.")
-        suspect = grid.undeclared_nodata_warning(info, zs)
-        if suspect:
-            log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
+        for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs)):
+            if suspect:
+                log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,

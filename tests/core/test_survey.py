@@ -522,6 +522,25 @@ def test_tiles_with_an_undeclared_minus_9999_border_warned(tmp_path):
     assert said and "384 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999 <tile>" in said[0]
 
 
+def test_tiles_declaring_a_nodata_value_among_their_heights_warned(tmp_path):
+    """Tiles of heights rounded to whole metres declaring one of those heights as their nodata: the
+    survey's log says every cell holding it is read as missing, as a single raster's run does."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    z = np.round(sc.dsm).astype(np.float32)
+    nd = float(np.median(z))
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, z[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg, nodata=nd)
+        paths.append(str(p))
+    logs = []
+    run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1, log=logs.append)
+    said = [s for s in logs if "lies among its heights" in s]
+    assert said and f"declares {nd:g} as its nodata value" in said[0], logs
+
+
 def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):
     """A tile's COG that cannot be written (the disk full: here a file-size limit) fails with the message
     naming the output and the disk, as the other outputs do (the survey's log gave GDAL's bare

@@ -377,3 +377,33 @@ def test_an_output_onto_a_file_a_vrt_input_reads_refused(processing_run, tmp_pat
     # (QGIS's layer of the VRT saves its statistics into mosaic.vrt itself, as loading it in QGIS does)
     assert hashlib.sha1((tmp_path / "tile.tif").read_bytes()).hexdigest() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mosaic.vrt", "tile.tif"]
+
+
+def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tmp_path):
+    """A DSM of heights rounded to whole metres declaring one of those heights (the median) as its
+    nodata: every cell holding it was read as missing without a word (a seventh of the cells, holes
+    along a contour in the DTM); the log now says so and how to export it. Nodata -9999: no warning."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    z = np.round(sc.dsm).astype(np.float32)
+    median = float(np.median(z))
+
+    class Log(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    for nodata, expect in ((median, True), (-9999.0, False)):
+        src = write_array(tmp_path / f"dsm{nodata:g}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
+        log = Log()
+        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata:g}.tif"),
+                                         "OUTPUT_MASK": str(tmp_path / f"m{nodata:g}.tif")}, feedback=log)
+        said = [w for w in log.warnings if "lies among its heights" in w]
+        assert bool(said) == expect, log.warnings
+        if expect:
+            n = int(np.count_nonzero(z == median))
+            assert f"declares {median:g} as its nodata value" in said[0] and f"({n} cell(s) read as nodata)" in said[0]
