@@ -368,6 +368,8 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            for w in pf.crs_warnings(cloud):
+                warn(feedback, w)
             stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             stage_done(feedback, 70)
@@ -634,6 +636,8 @@ class PointsInputMixin:
             progress = progress_callback(feedback)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            for w in pf.crs_warnings(cloud):
+                warn(feedback, w)
             if tiles:
                 feedback.pushInfo(tr("Filtering as one block with {} neighbouring tile(s).").format(len(tiles)))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,
