@@ -557,9 +557,10 @@ def _run_file(info, run, pool):
         info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                                threads=run.meth.threads), halo))
     report(run.progress, RESOLVED)
-    float_nodata = grid.float_output_nodata(info.nodata)
-    if grid.nodata_not_kept(info.nodata):
-        run.log(grid.nodata_not_kept(info.nodata))
+    stored = (info.nodata, info.scale, info.offset, info.dtype)
+    float_nodata = grid.float_output_nodata(*stored)
+    if grid.nodata_not_kept(*stored):
+        run.log(grid.nodata_not_kept(*stored))
     if run.outputs.get("ndsm") and float_nodata == 0:
         run.log("The DSM's nodata is 0, the height of every ground cell in an nDSM: the nDSM declares NaN "
                 "as nodata instead.")

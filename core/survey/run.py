@@ -221,7 +221,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                            "cell_size_m": list(cell), "vrt": SURVEY_VRT}})
     log(f"Survey: {len(index.tiles)} tiles, {index.cells / 1e6:.1f} Mcells on a {index.shape[1]} x "
         f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
-    for note in sorted({grid.nodata_not_kept(t.nodata) for t in index.tiles} - {None}):
+    for note in sorted({grid.nodata_not_kept(t.nodata, t.scale, t.offset, t.dtype) for t in index.tiles} - {None}):
         log(note)
     undeclared = [t.name for t in index.tiles if t.nodata is None]
     if undeclared and index.vrt_nodata not in (None, "nan"):

@@ -1,4 +1,5 @@
 """Raster I/O: open_dsm's checks and messages, units, nodata, and all-or-nothing outputs."""
+import math
 import os
 
 import numpy as np
@@ -763,3 +764,21 @@ def test_declared_nodata_among_the_heights_named(tmp_path, nodata, scale, offset
         assert n > 0 and f"({n} cell(s) read as nodata)" in said
         assert "lies among its heights" in said and "(e.g. -9999)" in said
         assert ("a height of 300 m" in said) == (scale is not None)
+
+
+@pytest.mark.parametrize("nodata, scale, offset, dtype, out", [
+    (0.0, 0.01, -100.0, "UInt16", -100.0),      # stored 0 is also a height (the stored 10000 is 0 m)
+    (-32768.0, 0.1, 100.0, "Int16", -32768.0),  # no height of the band: kept
+    (0.0, 1.0, 0.0, "UInt16", 0.0),             # no scale: kept
+    (0.0, 0.5, 10.0, "Float32", 10.0),          # a float band holds any height
+    (float("nan"), 0.5, 10.0, "Float32", float("nan")),
+])
+def test_float_outputs_of_a_scaled_band_declare_a_nodata_no_height_has(nodata, scale, offset, dtype, out):
+    """The DTM and nDSM hold heights (stored x scale + offset): a band's stored nodata that is
+    also one of its heights gives way to the height of the nodata cells, and the log says so."""
+    got = grid.float_output_nodata(nodata, scale, offset, dtype)
+    assert (math.isnan(got) and math.isnan(out)) or got == out
+    note = grid.nodata_not_kept(nodata, scale, offset, dtype)
+    changed = not math.isnan(out) and out != nodata
+    assert (note is not None and f"declare the height of the nodata cells, {out:g}" in note) if changed else \
+        note is None

@@ -407,3 +407,31 @@ def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tm
         if expect:
             n = int(np.count_nonzero(z == median))
             assert f"declares {median:g} as its nodata value" in said[0] and f"({n} cell(s) read as nodata)" in said[0]
+
+
+def test_a_scaled_band_whose_nodata_is_also_a_height_keeps_its_sea_level(processing_run, tmp_path):
+    """UInt16 heights with nodata 0, scale 0.01 and offset -100 (a coast from -100 m): the DTM and
+    the filled surface, written as heights, declared the stored 0 as their nodata, so the ground at
+    0 m read as nodata in QGIS; they declare -100, the height of the nodata cells."""
+    from osgeo import gdal
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    counts = np.round((sc.dsm - np.median(sc.dsm) + 100.0) * 100).astype(np.uint16)   # the median at 0 m
+    counts[0, 1:4] = 0       # nodata
+    src = write_array(tmp_path / "coast.tif", counts, sc.geotransform, sc.epsg, nodata=0, dtype="UInt16")
+    ds = gdal.Open(src, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.01)
+    ds.GetRasterBand(1).SetOffset(-100.0)
+    ds = None
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                           "OUTPUT_MASK": str(tmp_path / "mask.tif")})
+    filled = processing_run("bareearth:filldtm", {"INPUT": src, "MASK": res["OUTPUT_MASK"], "FILL_NODATA": False,
+                                                  "OUTPUT": str(tmp_path / "filled.tif")})
+    for path in (res["OUTPUT_DTM"], filled["OUTPUT"]):
+        ds = gdal.Open(path)
+        band = ds.GetRasterBand(1)
+        a = band.ReadAsArray()
+        assert band.GetNoDataValue() == -100.0, path
+        assert np.count_nonzero(a == -100.0) == 3, path
+        assert np.count_nonzero(a == 0.0) >= np.count_nonzero(counts == 10000) // 2 > 0, path   # sea level kept
