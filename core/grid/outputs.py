@@ -279,11 +279,13 @@ def _as_cog_options(opts):
 
 
 def parse_creation_options(text, cog=False):
-    """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces too) -> list of 'KEY=VALUE',
-    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
+    """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces and ';' too, as the tiles'
+    PARAMETERS take them; spaces around '=' allowed) -> list of 'KEY=VALUE', checked against
+    GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
     With ``cog``, GeoTIFF spellings (QGIS's profiles) are given in the COG driver's words first."""
     need_gdal()
-    opts = [t for t in re.split(r"[|\s]+", str(text or "").strip()) if t]
+    text = re.sub(r"\s*=\s*", "=", str(text or "").strip())
+    opts = [t for t in re.split(r"[|;\s]+", text) if t]
     if cog:
         opts = _as_cog_options(opts)
     specs = _creation_option_specs("COG" if cog else "GTiff")
