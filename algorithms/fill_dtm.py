@@ -190,7 +190,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         if np.isfinite(nodata):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
         try:
-            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+            with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
                 out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
                 out.write("out", filled)
                 out.commit()

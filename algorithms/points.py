@@ -373,7 +373,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             stage_done(feedback, 70)
-            with output_options(self, parameters, context):
+            with output_options(self, parameters, context, feedback):
                 pf.write_rasters(g, None, {"dsm": out})
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
@@ -654,7 +654,7 @@ class PointsInputMixin:
             from ..core.points import write_points
             write_points(out_points, cloud, res.classes)
             try:
-                with output_options(self, parameters, context):
+                with output_options(self, parameters, context, feedback):
                     pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
             except BaseException:
                 if os.path.exists(out_points):

@@ -435,3 +435,35 @@ def test_a_scaled_band_whose_nodata_is_also_a_height_keeps_its_sea_level(process
         assert band.GetNoDataValue() == -100.0, path
         assert np.count_nonzero(a == -100.0) == 3, path
         assert np.count_nonzero(a == 0.0) >= np.count_nonzero(counts == 10000) // 2 > 0, path   # sea level kept
+
+
+def test_creation_options_for_an_output_of_another_format_warned(processing_run, tmp_path):
+    """Creation options or COG with an output in another format than GeoTIFF (.asc, .img): they
+    are GeoTIFF's and were left out without a word; the log names each such output. GeoTIFF
+    outputs, and no options: no warning."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+
+    class Log(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    cases = [({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".asc", ".tif", ["'DTM' (OUTPUT_DTM) is written as Arc/Info ASCII "
+                                                                  "grid (.asc): the creation options apply"]),
+             ({"COG": True}, ".img", ".img", ["'DTM' (OUTPUT_DTM) is written as ERDAS Imagine (.img): the COG",
+                                              "'Object mask' (OUTPUT_MASK) is written as ERDAS Imagine (.img)"]),
+             ({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".tif", ".tif", []),
+             ({}, ".asc", ".asc", [])]
+    for k, (extra, dtm_ext, mask_ext, said) in enumerate(cases):
+        log = Log()
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{k}{dtm_ext}"),
+                                                  "OUTPUT_MASK": str(tmp_path / f"m{k}{mask_ext}"), **extra},
+                       feedback=log)
+        hits = [w for w in log.warnings if "apply to GeoTIFF outputs" in w]
+        assert len(hits) == len(said) and all(s in h for s, h in zip(said, hits)), log.warnings
