@@ -598,3 +598,24 @@ def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):
     assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-1500:]
     assert "t_dtm.tif" in res.stdout and "disk" in res.stdout
     assert os.listdir(tmp_path) == []
+
+
+def test_survey_workers_do_not_run_an_unguarded_script_again(tmp_path):
+    """A script running a survey at its top level (no __main__ guard): each Dask worker ran the
+    script again, whose survey started workers of its own, which ran it again (96 runs in 5 min,
+    no end). Now the script runs once and the survey completes."""
+    from tests.core.test_blocks import run_unguarded_script
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, sc.dsm[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg)
+        paths.append(str(p))
+    body = (f"from bare_earth.core.survey.run import run_survey\n"
+            f"rec = run_survey('slopeprofile', {paths!r}, {str(tmp_path / 'out')!r}, {{'max_object_size_m': 8.0}},\n"
+            f"                 workers=2)\n"
+            f"assert rec['complete']")
+    code, out, runs = run_unguarded_script(tmp_path, body)
+    assert code == 0 and "finished" in out and runs == 1, (runs, out[-2000:])
