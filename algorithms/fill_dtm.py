@@ -182,15 +182,15 @@ class FillDtmAlgorithm(BaseAlgorithm):
             return {}
         except ValueError as exc:
             raise QgsProcessingException(self.explain(str(exc))) from None
-        nd = info.nodata
-        nodata = grid.float_output_nodata(nd)
-        if grid.nodata_not_kept(nd):
-            feedback.pushInfo(grid.nodata_not_kept(nd))
+        stored = (info.nodata, info.scale, info.offset, info.dtype)
+        nodata = grid.float_output_nodata(*stored)
+        if grid.nodata_not_kept(*stored):
+            feedback.pushInfo(grid.nodata_not_kept(*stored))
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
         if np.isfinite(nodata):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
         try:
-            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+            with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
                 out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
                 out.write("out", filled)
                 out.commit()

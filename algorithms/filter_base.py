@@ -214,8 +214,10 @@ def format_params():
 
 
 @contextlib.contextmanager
-def output_options(alg, parameters, context):
-    """``grid.write_options`` from an algorithm's CREATE_OPTIONS and COG (if it has them)."""
+def output_options(alg, parameters, context, feedback=None):
+    """``grid.write_options`` from an algorithm's CREATE_OPTIONS and COG (if it has them); with
+    ``feedback``, a warning for each raster output given in another format than GeoTIFF, which
+    they do not apply to (:func:`options_not_used`)."""
     cog = bool(alg.parameterDefinition(COG)) and alg.parameterAsBool(parameters, COG, context)
     text = alg.parameterAsString(parameters, CREATE_OPTIONS, context) if alg.parameterDefinition(CREATE_OPTIONS) \
         else ""
@@ -223,8 +225,34 @@ def output_options(alg, parameters, context):
         opts = grid.parse_creation_options(text, cog=cog)
     except ValueError as exc:
         raise QgsProcessingException(alg.explain(str(exc))) from None
+    if feedback is not None and (opts or cog):
+        for line in options_not_used(alg, parameters, cog):
+            warning_logger(feedback)(line)
     with grid.write_options(opts, cog):
         yield
+
+
+def options_not_used(alg, parameters, cog):
+    """Lines for the log naming each raster output given as a file of another format than
+    GeoTIFF (.asc, .img, .sdat, .nc, .gpkg): the creation options and COG are GeoTIFF's and
+    are not used for it (written in the format's own way without a word before)."""
+    lines = []
+    for d in alg.destinationParameterDefinitions():
+        if d.type() != "rasterDestination":
+            continue
+        value = parameters.get(d.name())
+        if isinstance(value, QgsProcessingOutputLayerDefinition):
+            value = value.sink.staticValue()
+        path = value if isinstance(value, str) else ""
+        ext = os.path.splitext(path)[1].lower()
+        if not path or path == QgsProcessing.TEMPORARY_OUTPUT or path.startswith("memory:") \
+                or ext in (".tif", ".tiff") or ext not in grid.OUTPUT_FORMATS:
+            continue
+        what = "creation options and COG" if cog and parameters.get(CREATE_OPTIONS) else \
+            ("COG" if cog else "creation options")
+        lines.append(tr("{} is written as {} ({}): the {} apply to GeoTIFF outputs (.tif) only and are not "
+                        "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what))
+    return lines
 
 
 def check_window_sizes(alg, values, defaults, info):
@@ -887,7 +915,7 @@ class FilterAlgorithm(BaseAlgorithm):
             info.path, info.band_index, info.shape[1], info.shape[0], info.cell_size_m[0], info.cell_size_m[1]))
         try:
             log = warning_logger(feedback)
-            with output_options(self, parameters, context):
+            with output_options(self, parameters, context, feedback):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,
                                   progress=progress_callback(feedback), log=log, nodata_ranges=ranges,

@@ -423,7 +423,7 @@ class OrthoAlgorithm(BaseAlgorithm):
             raise ValueError(msg)
         return info
 
-    def _write(self, info, parameters, context, dem, dh, quality, mask):
+    def _write(self, info, parameters, context, dem, dh, quality, mask, feedback=None):
         """Write the four rasters on the DEM's grid; returns the outputs dict."""
         paths = {"dem": self.parameterAsOutputLayer(parameters, self.OUTPUT_DEM, context)}
         for key, pk in (("dh", self.OUTPUT_DH), ("quality", self.OUTPUT_QUALITY), ("mask", self.OUTPUT_MASK)):
@@ -433,7 +433,7 @@ class OrthoAlgorithm(BaseAlgorithm):
         nodata = float("nan") if nd is None or not np.isfinite(np.float32(nd)) else float(np.float32(nd))
         dem_out = np.where(np.isfinite(dem), dem, np.float32(nodata)).astype(np.float32)
         try:   # a write that fails (a full disk): GDAL's reason naming the output, not a traceback
-            with output_options(self, parameters, context), grid.OutputSet(info) as out:
+            with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
                 out.add("dem", paths["dem"], "Float32", nodata=nodata, descriptions=["refined DEM"])
                 out.write("dem", dem_out)
                 if "dh" in paths:
@@ -610,7 +610,7 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
         except ValueError as exc:
             raise QgsProcessingException(str(exc)) from None
         dem_out = np.where(np.isfinite(dem), r.dem, np.nan)
-        outputs = self._write(info, parameters, context, dem_out, r.dh, r.quality, r.mask)
+        outputs = self._write(info, parameters, context, dem_out, r.dh, r.quality, r.mask, feedback)
         self._log_info(r.info, feedback, skip=("crop",))
         reversed_, low, obj = order_reversed(r.mask, opts["window"])
         if reversed_:
@@ -964,12 +964,12 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         except ValueError as exc:
             raise QgsProcessingException(str(exc)) from None
         outputs = self._write(info, parameters, context, np.where(np.isfinite(dem), r.dem, np.nan), r.dh,
-                              r.quality, r.mask)
+                              r.quality, r.mask, feedback)
         if parameters.get(self.OUTPUT_ORTHO_FOLDER):
             folder = self.parameterAsFileOutput(parameters, self.OUTPUT_ORTHO_FOLDER, context)
             os.makedirs(folder, exist_ok=True)
             try:
-                with output_options(self, parameters, context), grid.OutputSet(info) as out:
+                with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
                     for n, o in zip(names, r.orthos):
                         out.add(n, os.path.join(folder, f"{n}_ortho.tif"), "Float32", nodata=float("nan"),
                                 descriptions=[f"orthophoto of {n} (grey)"])

@@ -368,10 +368,12 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            for w in pf.crs_warnings(cloud):
+                warn(feedback, w)
             stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             stage_done(feedback, 70)
-            with output_options(self, parameters, context):
+            with output_options(self, parameters, context, feedback):
                 pf.write_rasters(g, None, {"dsm": out})
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
@@ -634,6 +636,8 @@ class PointsInputMixin:
             progress = progress_callback(feedback)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
+            for w in pf.crs_warnings(cloud):
+                warn(feedback, w)
             if tiles:
                 feedback.pushInfo(tr("Filtering as one block with {} neighbouring tile(s).").format(len(tiles)))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,
@@ -650,7 +654,7 @@ class PointsInputMixin:
             from ..core.points import write_points
             write_points(out_points, cloud, res.classes)
             try:
-                with output_options(self, parameters, context):
+                with output_options(self, parameters, context, feedback):
                     pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
             except BaseException:
                 if os.path.exists(out_points):

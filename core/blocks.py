@@ -4,6 +4,7 @@ The one place tiling lives. A block is read with ``halo`` extra cells on every s
 (clipped at the raster's edge), processed, and only its core is kept, so a method whose
 reach is at most ``halo`` cells gives the same result blocked as in one pass.
 """
+import contextlib
 import functools
 import multiprocessing
 import os
@@ -255,6 +256,31 @@ def _process_context():
     return ctx
 
 
+@contextlib.contextmanager
+def main_not_rerun():
+    """Worker processes spawned inside this block do not run this program's main script again.
+
+    A spawned child imports the parent's ``__main__`` (from its file or module name) before it
+    runs anything: a PyQGIS or Python script calling the filters with PROCESSES > 1 and no
+    ``if __name__ == "__main__":`` guard was run again from its first line in every worker,
+    which rewrote the script's files (its input DSM among them) and died on multiprocessing's
+    "bootstrapping phase" error (BrokenProcessPool). The workers need nothing of ``__main__``
+    (their jobs are this package's functions), so it is hidden from the spawn: no file, no spec."""
+    main = sys.modules.get("__main__")
+    if main is None:
+        yield
+        return
+    saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if k in main.__dict__}
+    main.__dict__.pop("__file__", None)
+    main.__spec__ = None
+    try:
+        yield
+    finally:
+        main.__dict__.pop("__file__", None)
+        main.__dict__.pop("__spec__", None)
+        main.__dict__.update(saved)
+
+
 #: Set in a worker process by :func:`_init_worker`: the queue its progress goes to and the
 #: event that says the run was cancelled.
 _worker_channel = {}
@@ -296,8 +322,9 @@ class WorkerPool:
         self.executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
                                             initargs=(self.queue, self.cancelled))
         if warm_up is not None:
-            for _ in range(workers):
-                self.executor.submit(warm_up)
+            with main_not_rerun():      # submit spawns the workers
+                for _ in range(workers):
+                    self.executor.submit(warm_up)
 
     def messages(self):
         """The ``(block, fraction)`` reports that arrived so far."""
@@ -355,7 +382,8 @@ def run_processes(job, items, on_result, *, workers=2, progress=None, pool=None)
 
     try:
         for k, item in enumerate(items):
-            pending[pool.executor.submit(_run_job, job, k, *item)] = (k, item)
+            with main_not_rerun():      # submit spawns the workers not started yet
+                pending[pool.executor.submit(_run_job, job, k, *item)] = (k, item)
             drain(2 * workers - 1)
         drain(0)
     except BaseException:

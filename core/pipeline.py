@@ -475,10 +475,10 @@ def _derive_params(info, run):
         zr = _read_reporting(info, rw, None)
     for w in info.warnings:
         run.log("Warning: " + w)
-    suspect = grid.undeclared_nodata_warning(info, zr)
-    if suspect:
-        run.log("Warning: " + suspect + ("" if zr.shape == info.shape else " (in the window the parameters "
-                                          "come from)"))
+    in_window = "" if zr.shape == info.shape else " (in the window the parameters come from)"
+    for suspect in (grid.undeclared_nodata_warning(info, zr), grid.nodata_among_heights_warning(info, zr)):
+        if suspect:
+            run.log("Warning: " + suspect + in_window)
     for note in info.notes:
         run.log(note)
     params = _resolve(run.meth, zr, info.cell_size_m, run.params,
@@ -557,9 +557,10 @@ def _run_file(info, run, pool):
         info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                                threads=run.meth.threads), halo))
     report(run.progress, RESOLVED)
-    float_nodata = grid.float_output_nodata(info.nodata)
-    if grid.nodata_not_kept(info.nodata):
-        run.log(grid.nodata_not_kept(info.nodata))
+    stored = (info.nodata, info.scale, info.offset, info.dtype)
+    float_nodata = grid.float_output_nodata(*stored)
+    if grid.nodata_not_kept(*stored):
+        run.log(grid.nodata_not_kept(*stored))
     if run.outputs.get("ndsm") and float_nodata == 0:
         run.log("The DSM's nodata is 0, the height of every ground cell in an nDSM: the nDSM declares NaN "
                 "as nodata instead.")

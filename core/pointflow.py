@@ -44,7 +44,7 @@ from .points import PointCloud, classify_points, nice_cell_size, rasterize_point
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
            "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "class_counts",
            "compare_classified", "match_points", "read_column", "point_output_path",
-           "axis_scales", "DEFAULT_THRESHOLD_M", "DEFAULT_SLOPE_FACTOR", "REDUCERS",
+           "axis_scales", "crs_warnings", "DEFAULT_THRESHOLD_M", "DEFAULT_SLOPE_FACTOR", "REDUCERS",
            "POINT_EXTENSIONS"]
 
 #: SMRF's point rule (Pingel et al. 2013): elevation threshold and slope scale.
@@ -94,6 +94,32 @@ def axis_scales(cloud, at=None):
     if scale is not None:
         return h * scale[0], h * scale[1], sz
     return h, h, sz
+
+
+def crs_warnings(cloud):
+    """Warnings for the log on how a cloud's coordinates were measured, as a raster's reading
+    gives them (:func:`.grid.cell_size_metres`): no CRS (metres assumed, outputs without a CRS),
+    a geographic CRS (degrees converted at the cloud's latitude), a projected CRS that does not
+    keep distances (its units converted to ground metres, :func:`axis_scales`)."""
+    srs = _srs(cloud.crs)
+    if srs is None:
+        return ["The points have no CRS (none in the LAS header, no .prj beside a text file): their coordinates "
+                "and heights are taken to be in metres, and the outputs have no CRS. Give the points' CRS "
+                "(the algorithm's CRS parameter) if they are in another unit or to have the outputs georeferenced."]
+    if not len(cloud.x):
+        return []
+    sx, sy, _ = axis_scales(cloud)
+    mid_y = 0.5 * (float(np.min(cloud.y)) + float(np.max(cloud.y)))
+    if srs.IsGeographic():
+        return [f"The points' CRS is geographic (degrees): distances were converted to metres at latitude "
+                f"{mid_y:.4f} ({sx:.6g} x {sy:.6g} m per degree). Reproject to a projected CRS for exact distances."]
+    h = float(cloud.units_to_metre or 1.0)
+    if srs.IsProjected() and (abs(sx / h - 1.0) > 1e-12 or abs(sy / h - 1.0) > 1e-12):
+        return [f"The points' CRS does not keep distances here: one of its units is {sx:.4g} m on the ground at "
+                "the points' middle (e.g. Web Mercator), so cell sizes and thresholds in metres were converted to "
+                "its units. Reproject to a projected CRS made for measuring (UTM, a national grid) for exact "
+                "distances."]
+    return []
 
 
 def unit_name(cloud):

@@ -279,11 +279,13 @@ def _as_cog_options(opts):
 
 
 def parse_creation_options(text, cog=False):
-    """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces too) -> list of 'KEY=VALUE',
-    checked against GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
+    """``'COMPRESS=ZSTD|PREDICTOR=2'`` (QGIS's separator '|'; spaces and ';' too, as the tiles'
+    PARAMETERS take them; spaces around '=' allowed) -> list of 'KEY=VALUE', checked against
+    GDAL's GeoTIFF (or COG) driver; ValueError naming an unknown key or value.
     With ``cog``, GeoTIFF spellings (QGIS's profiles) are given in the COG driver's words first."""
     need_gdal()
-    opts = [t for t in re.split(r"[|\s]+", str(text or "").strip()) if t]
+    text = re.sub(r"\s*=\s*", "=", str(text or "").strip())
+    opts = [t for t in re.split(r"[|;\s]+", text) if t]
     if cog:
         opts = _as_cog_options(opts)
     specs = _creation_option_specs("COG" if cog else "GTiff")
@@ -815,29 +817,66 @@ def finite_text_nodata(ds):
     return value
 
 
-def float_output_nodata(nodata):
+#: numpy types of GDAL's integer band types (the others hold fractions: any height).
+_INTEGER_TYPES = {"Byte": np.uint8, "Int8": np.int8, "UInt16": np.uint16, "Int16": np.int16,
+                  "UInt32": np.uint32, "Int32": np.int32, "UInt64": np.uint64, "Int64": np.int64}
+
+
+def _stored_heights_range(dtype, scale, offset):
+    """The heights ``stored * scale + offset`` a band of GDAL type ``dtype`` can hold (low, high):
+    every value for a type that is no integer."""
+    kind = _INTEGER_TYPES.get(str(dtype))
+    if kind is None:
+        return -math.inf, math.inf
+    lim = np.iinfo(kind)
+    ends = sorted((float(lim.min) * scale + offset, float(lim.max) * scale + offset))
+    return ends[0], ends[1]
+
+
+def float_output_nodata(nodata, scale=1.0, offset=0.0, dtype="Float32"):
     """The nodata of the Float32 outputs (DTM, nDSM, filled surface) of an input declaring
     ``nodata``: the same value when float32 holds it as a finite number, else NaN (the
     convention of an input without a declared nodata). An input's nodata of +-inf (or one
     beyond float32, such as -1e300) is read as nodata like any other (:func:`to_surface`),
     but is no value to write: an output cell of +-inf is read as a height by tools that do
     not check the declared nodata, and float32 turns -1e300 into -inf. See
-    :func:`nodata_not_kept`."""
+    :func:`nodata_not_kept`.
+
+    The outputs hold heights, the input's stored values x ``scale`` + ``offset`` (its band's
+    scale and offset), while its nodata is a stored value: when that value is also a height
+    the band can hold (UInt16 with nodata 0, scale 0.01 and offset -100: 0 is the height of
+    the stored 10000, sea level), the outputs declare the height of the nodata cells instead
+    (0 x 0.01 - 100 = -100 m), which no valid cell has; they kept 0 and every cell at 0 m
+    was read as nodata. A value no height can take (Int16 -32768 with scale 0.1 and offset
+    100: heights -3176.8 to 3376.7) is kept."""
     if nodata is None or math.isnan(float(nodata)):
         return float("nan")
+    v = float(nodata)
+    if scale != 1.0 or offset != 0.0:
+        lo, hi = _stored_heights_range(dtype, scale, offset)
+        if lo <= v <= hi:
+            v = v * scale + offset
     with np.errstate(over="ignore"):
-        v = np.float32(nodata)
+        v = np.float32(v)
     return float(v) if np.isfinite(v) else float("nan")
 
 
-def nodata_not_kept(nodata):
-    """The log line saying the float outputs declare NaN instead of the input's ``nodata``
-    (:func:`float_output_nodata`), or None when they keep it (or the input declares none)."""
-    if nodata is None or math.isnan(float(nodata)) or not math.isnan(float_output_nodata(nodata)):
+def nodata_not_kept(nodata, scale=1.0, offset=0.0, dtype="Float32"):
+    """The log line saying the float outputs declare another nodata than the input's ``nodata``
+    (:func:`float_output_nodata`: NaN, or the height of the nodata cells of a scaled band), or
+    None when they keep it (or the input declares none)."""
+    if nodata is None or math.isnan(float(nodata)):
         return None
-    return (f"The input's nodata value is {float(nodata):g}, which a Float32 output cannot carry as a finite value: "
-            "the DTM and nDSM declare NaN as nodata instead (their nodata cells are NaN), as for an input without "
-            "a declared nodata.")
+    out = float_output_nodata(nodata, scale, offset, dtype)
+    if math.isnan(out):
+        return (f"The input's nodata value is {float(nodata):g}, which a Float32 output cannot carry as a finite "
+                "value: the DTM and nDSM declare NaN as nodata instead (their nodata cells are NaN), as for an "
+                "input without a declared nodata.")
+    if out != float(np.float32(float(nodata))):
+        return (f"The input's nodata value is the stored value {float(nodata):g}, which is also a height the band "
+                f"can hold through its scale and offset: the DTM and nDSM, written as heights, declare the height "
+                f"of the nodata cells, {out:g}, as their nodata instead.")
+    return None
 
 
 def write_array(path, array, geotransform, crs_wkt="", nodata=None, dtype=None, mask_style=False):

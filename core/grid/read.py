@@ -676,6 +676,41 @@ def undeclared_nodata_warning(info, z):
     return None
 
 
+def nodata_among_heights_warning(info, z, max_cells=250_000):
+    """The log line when the band's declared nodata value, read as a height, lies among the
+    heights ``z`` (float32 metres, NaN nodata, read from ``info``): strictly between their 1st
+    and 99th percentiles (a DSM of heights rounded to whole metres declaring 300 as nodata on a
+    hill at 290-310 m, or 0 on a polder below and above sea level), else None. Every cell that
+    holds it is read as missing, so where it is also a real height, those heights are lost
+    without a word: their cells are left out of the filtering, and nodata in the DTM and mask.
+
+    A nodata value below (or above) the heights, as software writes them (-9999, 0 under
+    ground above sea level), is never named. The percentiles come from at most ``max_cells``
+    cells of ``z`` (every ``step``-th row and column)."""
+    nd = info.nodata
+    if nd is None or not math.isfinite(float(nd)):
+        return None
+    h = float(to_surface(np.array([nd], np.float64), None, info.z_to_m, info.scale, info.offset)[0])
+    if not math.isfinite(h):
+        return None
+    step = max(1, int(math.ceil(math.sqrt(z.size / max_cells))))
+    sample = z[::step, ::step]
+    heights = sample[np.isfinite(sample)]
+    if heights.size < 2:
+        return None
+    lo, hi = (float(v) for v in np.percentile(heights, [1.0, 99.0]))
+    if not lo < h < hi:
+        return None
+    n = int(z.size - np.count_nonzero(np.isfinite(z)))
+    value = f"{float(nd):g}" + ("" if h == float(nd) else f" (a height of {h:g} m)")
+    return (f"The raster declares {float(nd):g} as its nodata value, but {value} lies among its heights "
+            f"(98 % of them span {lo:.1f} to {hi:.1f} m): every cell holding exactly {float(nd):g} is read as "
+            f"missing ({n} cell(s) read as nodata), left out of the filtering and nodata in the DTM and mask. "
+            f"If {float(nd):g} is also a real height there (heights rounded to whole units, ground at sea "
+            "level), those heights are lost: export the DSM again with a nodata value outside its heights "
+            "(e.g. -9999).")
+
+
 def read_mask(info, what="the mask"):
     """The codes of a mask band as uint8; NaN cells and those of a declared nodata outside
     0-255 (e.g. -9999) are 255 (a nodata within 0-255 is itself a code and stays as stored).

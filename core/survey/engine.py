@@ -192,7 +192,7 @@ def start_client(workers=0, scheduler=None, log=None):
     exe = python_executable()
     if exe != sys.executable:
         multiprocessing.get_context("spawn").set_executable(exe)
-    with _interrupts_to_this_process_only():
+    with _interrupts_to_this_process_only(), blocks.main_not_rerun():    # workers spawn without the script
         cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                            dashboard_address=None, silence_logs=logging.ERROR)
     client = distributed.Client(cluster)

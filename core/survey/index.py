@@ -40,6 +40,8 @@ class Tile:
         The tile's own GDAL geotransform (its outputs get it).
     z_to_m : float
         Metres per height unit of the tile's CRS.
+    scale, offset, dtype : the band's scale and offset (heights = stored value x scale + offset)
+        and GDAL data type, which set the nodata of the tile's DTM (:func:`.grid.float_output_nodata`)
     """
     name: str
     path: str
@@ -47,6 +49,9 @@ class Tile:
     nodata: object
     geotransform: tuple
     z_to_m: float = 1.0
+    scale: float = 1.0
+    offset: float = 0.0
+    dtype: str = "Float32"
 
     @property
     def shape(self):
@@ -203,7 +208,8 @@ def index_tiles(inputs):
                          "(or build the VRT from tiles that only touch).")
     order = np.lexsort((c0, r0))
     tiles = [Tile(names[k], paths[k], (int(r0[k]), int(r1[k]), int(c0[k]), int(c1[k])), infos[k].nodata,
-                  tuple(infos[k].geotransform), infos[k].z_to_m) for k in order]
+                  tuple(infos[k].geotransform), infos[k].z_to_m, infos[k].scale, infos[k].offset,
+                  infos[k].dtype) for k in order]
     gt = (float(x0), float(dx), 0.0, float(y0), 0.0, float(dy))
     return TileIndex(tiles, (int(r1.max()), int(c1.max())), gt, ref.crs_wkt, _vrt_nodata(infos))
 

@@ -205,9 +205,9 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
             raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
                              "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
                              "the tiles that hold data.")
-        suspect = grid.undeclared_nodata_warning(info, zs)
-        if suspect:
-            log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
+        for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs)):
+            if suspect:
+                log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,
@@ -221,7 +221,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                            "cell_size_m": list(cell), "vrt": SURVEY_VRT}})
     log(f"Survey: {len(index.tiles)} tiles, {index.cells / 1e6:.1f} Mcells on a {index.shape[1]} x "
         f"{index.shape[0]} grid of {cell[0]:.4g} x {cell[1]:.4g} m ({rec['survey']['crs']}).")
-    for note in sorted({grid.nodata_not_kept(t.nodata) for t in index.tiles} - {None}):
+    for note in sorted({grid.nodata_not_kept(t.nodata, t.scale, t.offset, t.dtype) for t in index.tiles} - {None}):
         log(note)
     undeclared = [t.name for t in index.tiles if t.nodata is None]
     if undeclared and index.vrt_nodata not in (None, "nan"):

@@ -143,9 +143,11 @@ def run_tile(job, tile):
     if tile.z_to_m != 1.0:
         dtm = dtm / np.float32(tile.z_to_m)
         raw = io.read_raw(tile.path, (0, tile.shape[0], 0, tile.shape[1]))
+        if tile.scale != 1.0 or tile.offset != 0.0:    # stored values -> heights (the band's scale and offset)
+            raw = (raw.astype(np.float64) * tile.scale + tile.offset).astype(np.float32)
         ground = mask == GROUND
         dtm[ground] = raw[ground]
-    nodata = grid.float_output_nodata(tile.nodata)
+    nodata = grid.float_output_nodata(tile.nodata, tile.scale, tile.offset, tile.dtype)
     if not math.isnan(nodata):
         np.copyto(dtm, np.float32(nodata), where=~np.isfinite(dtm))
     dtm_name, mask_name = output_names(tile.name)

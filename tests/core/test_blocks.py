@@ -211,3 +211,48 @@ def test_edge_mirrored_extents_exact():
     got = edge_mirrored_extents(boxes, (10, 10))
     np.testing.assert_array_equal(got, [[8, 3], [2, 30], [14, 2], [3, 1]])
     assert got.shape == (4, 2) and edge_mirrored_extents([], (5, 5)).shape == (0, 2)
+
+
+_UNGUARDED_SCRIPT = """
+import sys
+sys.path.insert(0, {plugins!r})
+from bare_earth.core import grid, pipeline
+from bare_earth.core.synthetic import make_scene
+with open({ran!r}, "a") as fh:
+    fh.write("ran\\n")
+{body}
+print("finished")
+"""
+
+
+def run_unguarded_script(tmp_path, body):
+    """Run ``body`` as a script's top-level code, without an ``if __name__ == "__main__":`` guard;
+    returns (returncode, output, times the script ran)."""
+    import os
+    import subprocess
+    import sys
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(blocks.__file__))))
+    ran = tmp_path / "ran.txt"
+    script = tmp_path / "script.py"
+    script.write_text(_UNGUARDED_SCRIPT.format(plugins=plugins, ran=str(ran), body=body))
+    try:
+        res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=240,
+                             cwd=str(tmp_path))
+        code, out = res.returncode, res.stdout + res.stderr
+    except subprocess.TimeoutExpired as exc:     # before the fix the survey's workers ran it in a loop
+        code, out = None, f"no end after {exc.timeout} s"
+    return code, out, ran.read_text().count("ran") if ran.exists() else 0
+
+
+def test_worker_processes_do_not_run_an_unguarded_script_again(tmp_path):
+    """A script calling the filters with processes > 1 at its top level (PyQGIS scripts often have
+    no __main__ guard): every spawned worker ran it again from its first line (rewriting its input
+    DSM) and died on multiprocessing's bootstrapping error, a BrokenProcessPool traceback. Now
+    the script runs once and the run finishes."""
+    body = (f"sc = make_scene('flat', shape=(200, 200), seed=1)\n"
+            f"p = grid.write_array({str(tmp_path / 'dsm.tif')!r}, sc.dsm, sc.geotransform, sc.epsg)\n"
+            f"pipeline.run_file('slopeprofile', p, {{'mask': {str(tmp_path / 'm.tif')!r}}}, block=64, processes=2,\n"
+            f"                  params={{'max_object_size_m': 8.0}})")
+    code, out, runs = run_unguarded_script(tmp_path, body)
+    assert code == 0 and "finished" in out and runs == 1, (runs, out[-2000:])
+    assert (tmp_path / "m.tif").exists()

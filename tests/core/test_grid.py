@@ -1,4 +1,5 @@
 """Raster I/O: open_dsm's checks and messages, units, nodata, and all-or-nothing outputs."""
+import math
 import os
 
 import numpy as np
@@ -728,3 +729,56 @@ def test_bounded_cache_across_threads():
     finally:
         gdal.SetCacheMax(old)
     assert seen == {"b after a left": 64, "after both": 512}
+
+
+# ---- a declared nodata value that is also a height ------------------------------------------
+
+@pytest.mark.parametrize("nodata, scale, offset, named", [
+    (300.0, None, None, True),       # whole-metre heights 296-305 m: 300 is one of them
+    (-9999.0, None, None, False),    # below every height, as software writes it
+    (290.0, None, None, False),      # below the 1st percentile
+    (306.0, None, None, False),      # above the 99th
+    (float("nan"), None, None, False),
+    (0.0, 0.5, 300.0, True),         # stored 0 read as 300 m through the band's scale and offset
+])
+def test_declared_nodata_among_the_heights_named(tmp_path, nodata, scale, offset, named):
+    """A declared nodata value lying among the heights (between their 1st and 99th percentiles)
+    is named with the count of cells read as nodata and what to do; one below or above them,
+    or NaN, is not."""
+    rng = np.random.default_rng(3)
+    heights = np.round(rng.uniform(296.0, 305.0, (40, 50))).astype(np.float32)
+    stored = heights if scale is None else (heights - offset) / scale
+    src = tif(tmp_path, stored, nodata=nodata)
+    if scale is not None:
+        from osgeo import gdal
+        ds = gdal.Open(src, gdal.GA_Update)
+        ds.GetRasterBand(1).SetScale(scale)
+        ds.GetRasterBand(1).SetOffset(offset)
+        ds = None
+    info = grid.open_dsm(src)
+    z = info.read()
+    said = grid.nodata_among_heights_warning(info, z)
+    assert (said is not None) == named, said
+    if named:
+        n = int(np.count_nonzero(heights == 300.0))
+        assert n > 0 and f"({n} cell(s) read as nodata)" in said
+        assert "lies among its heights" in said and "(e.g. -9999)" in said
+        assert ("a height of 300 m" in said) == (scale is not None)
+
+
+@pytest.mark.parametrize("nodata, scale, offset, dtype, out", [
+    (0.0, 0.01, -100.0, "UInt16", -100.0),      # stored 0 is also a height (the stored 10000 is 0 m)
+    (-32768.0, 0.1, 100.0, "Int16", -32768.0),  # no height of the band: kept
+    (0.0, 1.0, 0.0, "UInt16", 0.0),             # no scale: kept
+    (0.0, 0.5, 10.0, "Float32", 10.0),          # a float band holds any height
+    (float("nan"), 0.5, 10.0, "Float32", float("nan")),
+])
+def test_float_outputs_of_a_scaled_band_declare_a_nodata_no_height_has(nodata, scale, offset, dtype, out):
+    """The DTM and nDSM hold heights (stored x scale + offset): a band's stored nodata that is
+    also one of its heights gives way to the height of the nodata cells, and the log says so."""
+    got = grid.float_output_nodata(nodata, scale, offset, dtype)
+    assert (math.isnan(got) and math.isnan(out)) or got == out
+    note = grid.nodata_not_kept(nodata, scale, offset, dtype)
+    changed = not math.isnan(out) and out != nodata
+    assert (note is not None and f"declare the height of the nodata cells, {out:g}" in note) if changed else \
+        note is None

@@ -196,6 +196,15 @@ def test_creation_options_and_cloud_optimised_geotiff(tmp_path):
         grid.parse_creation_options("COMPRESS")
 
 
+@pytest.mark.parametrize("text", ["COMPRESS=ZSTD;PREDICTOR=3", " COMPRESS = ZSTD | PREDICTOR = 3 ",
+                                  "COMPRESS=ZSTD PREDICTOR=3", "COMPRESS=ZSTD|PREDICTOR=3|"])
+def test_creation_options_separated_as_users_type_them(text):
+    """';' (as the tiles' PARAMETERS take) and spaces around '=' read as the options they are;
+    they were refused as 'COMPRESS=ZSTD;PREDICTOR=3: allowed values are NONE, LZW, ...' and
+    "'COMPRESS' is not KEY=VALUE"."""
+    assert grid.parse_creation_options(text) == ["COMPRESS=ZSTD", "PREDICTOR=3"]
+
+
 def test_mask_palette_names_only_the_mask_codes(tmp_path):
     from bare_earth.core.codes import MASK_CODES, MASK_COLOURS
     _write(_info(tmp_path), {"mask": tmp_path / "mask.tif"})

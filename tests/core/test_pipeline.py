@@ -483,6 +483,33 @@ def test_run_file_applies_scale_and_offset_and_says_so(tmp_path):
     assert valid.sum() == dtm.size - 2 and -1 < dtm[valid].min() and dtm[valid].max() < 3
 
 
+def test_run_file_scaled_band_whose_nodata_is_also_a_height(tmp_path):
+    """UInt16 counts with nodata 0, scale 0.01 and offset -100 (heights from -100 m): the DTM and
+    nDSM, written as heights, declared the stored 0 as their nodata, so every ground cell at 0 m
+    (sea level, the count 10000) read as nodata; they now declare -100, the height of the nodata
+    cells, and the log says so."""
+    z, objs = scene()
+    counts = np.round((np.nan_to_num(z, nan=-100.0) + 100.0) * 100).astype(np.uint16)  # heights = z
+    counts[:, 0] = 10000                                                                # ground at 0 m
+    p = grid.write_array(tmp_path / "scaled.tif", counts, GT, 32633, nodata=0, dtype="UInt16")
+    ds = gdal.Open(p, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.01)
+    ds.GetRasterBand(1).SetOffset(-100.0)
+    ds = None
+    lines = []
+    pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif", "ndsm": tmp_path / "n.tif"},
+                      log=lines.append)
+    assert any("declare the height of the nodata cells, -100" in s for s in lines), lines
+    for name in ("d.tif", "n.tif"):
+        ds = gdal.Open(str(tmp_path / name))
+        band = ds.GetRasterBand(1)
+        a = band.ReadAsArray()
+        assert band.GetNoDataValue() == -100.0
+        assert np.count_nonzero(a == -100.0) == np.count_nonzero(counts == 0) > 0, name
+    dtm = gdal.Open(str(tmp_path / "d.tif")).ReadAsArray()
+    assert (dtm[:, 0] == 0.0).all()
+
+
 def test_run_file_corrupt_input_is_a_value_error(tmp_path):
     z = np.random.default_rng(1).random((600, 600), dtype=np.float32)
     p = grid.write_array(tmp_path / "ok.tif", z, GT, 32633)

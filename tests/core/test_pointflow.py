@@ -348,3 +348,18 @@ def gdal_read(path):
     from osgeo import gdal
     ds = gdal.Open(str(path))      # kept while its band is read
     return ds.GetRasterBand(1).ReadAsArray()
+
+
+@pytest.mark.parametrize("crs, x0, y0, said", [
+    (None, 0.0, 0.0, "The points have no CRS"),
+    ("EPSG:4326", 7.0, 52.0, "geographic (degrees): distances were converted to metres at latitude 52.0"),
+    ("EPSG:3857", 0.0, 6800000.0, "one of its units is 0.6"),
+    ("EPSG:32632", 500000.0, 5400000.0, None),
+])
+def test_crs_warnings_name_how_the_points_were_measured(crs, x0, y0, said):
+    """The log's warnings on a cloud's CRS, as a raster's reading gives them: none, degrees, a
+    CRS that does not keep distances (Web Mercator at 52 deg N: a unit is cos(52 deg) m); UTM: none."""
+    x = x0 + np.array([0.0, 0.001, 0.002]) * (1 if crs == "EPSG:4326" else 1000)
+    cloud = PointCloud(x=x, y=y0 + x * 0, z=np.zeros(3), crs=crs)
+    w = pf.crs_warnings(cloud)
+    assert (w == []) if said is None else (len(w) == 1 and said in w[0]), w

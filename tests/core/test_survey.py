@@ -522,6 +522,58 @@ def test_tiles_with_an_undeclared_minus_9999_border_warned(tmp_path):
     assert said and "384 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999 <tile>" in said[0]
 
 
+def test_tiles_declaring_a_nodata_value_among_their_heights_warned(tmp_path):
+    """Tiles of heights rounded to whole metres declaring one of those heights as their nodata: the
+    survey's log says every cell holding it is read as missing, as a single raster's run does."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    z = np.round(sc.dsm).astype(np.float32)
+    nd = float(np.median(z))
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, z[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg, nodata=nd)
+        paths.append(str(p))
+    logs = []
+    run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1, log=logs.append)
+    said = [s for s in logs if "lies among its heights" in s]
+    assert said and f"declares {nd:g} as its nodata value" in said[0], logs
+
+
+@pytest.mark.parametrize("crs", [32633, 2264])   # metres; NC State Plane, US feet (heights too)
+def test_scaled_tiles_write_heights_with_a_nodata_no_height_has(tmp_path, crs):
+    """UInt16 tiles with nodata 0, scale 0.01 and offset -100 (heights from -100): each tile's DTM
+    declared the stored 0 as its nodata, so its ground at 0 (sea level) read as nodata; it now
+    declares -100, the height of the nodata cells. In a CRS in feet the ground cells of the DTM
+    got the stored counts (10000) instead of their heights."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    counts = np.round((sc.dsm - np.median(sc.dsm) + 100.0) * 100).astype(np.uint16)
+    counts[:, 3] = 10000      # ground at 0
+    counts[0, :2] = 0         # nodata
+    gt = (500000.0, 1.0, 0.0, 4000000.0, 0.0, -1.0) if crs == 32633 else (2000000.0, 1.0, 0.0, 700000.0, 0.0, -1.0)
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, counts[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k, 1.0, 0.0, gt[3], 0.0, -1.0), crs,
+                         nodata=0, dtype="UInt16")
+        ds = gdal.Open(str(p), gdal.GA_Update)
+        ds.GetRasterBand(1).SetScale(0.01)
+        ds.GetRasterBand(1).SetOffset(-100.0)
+        ds = None
+        paths.append(str(p))
+    run_survey("slopeprofile", paths, tmp_path / "out", {"max_object_size_m": 8.0}, workers=1)
+    ds = gdal.Open(str(tmp_path / "out" / "t0_dtm.tif"))
+    band = ds.GetRasterBand(1)
+    dtm = band.ReadAsArray()
+    assert band.GetNoDataValue() == -100.0
+    assert np.count_nonzero(dtm == -100.0) == 2 and (dtm[:, 3] == 0.0).all()
+    heights = (counts[:, :32] * 0.01 - 100.0).astype(np.float32)
+    ok = counts[:, :32] != 0
+    assert np.abs(dtm[ok] - heights[ok]).max() < 1.0
+
+
 def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):
     """A tile's COG that cannot be written (the disk full: here a file-size limit) fails with the message
     naming the output and the disk, as the other outputs do (the survey's log gave GDAL's bare
@@ -546,3 +598,24 @@ def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):
     assert res.stdout.startswith("VALUEERROR cannot write the output"), res.stdout + res.stderr[-1500:]
     assert "t_dtm.tif" in res.stdout and "disk" in res.stdout
     assert os.listdir(tmp_path) == []
+
+
+def test_survey_workers_do_not_run_an_unguarded_script_again(tmp_path):
+    """A script running a survey at its top level (no __main__ guard): each Dask worker ran the
+    script again, whose survey started workers of its own, which ran it again (96 runs in 5 min,
+    no end). Now the script runs once and the survey completes."""
+    from tests.core.test_blocks import run_unguarded_script
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    gt = sc.geotransform
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"t{k}.tif"
+        grid.write_array(p, sc.dsm[:, 32 * k:32 * (k + 1)], (gt[0] + 32 * k * gt[1], gt[1], 0.0, gt[3], 0.0, gt[5]),
+                         sc.epsg)
+        paths.append(str(p))
+    body = (f"from bare_earth.core.survey.run import run_survey\n"
+            f"rec = run_survey('slopeprofile', {paths!r}, {str(tmp_path / 'out')!r}, {{'max_object_size_m': 8.0}},\n"
+            f"                 workers=2)\n"
+            f"assert rec['complete']")
+    code, out, runs = run_unguarded_script(tmp_path, body)
+    assert code == 0 and "finished" in out and runs == 1, (runs, out[-2000:])

@@ -565,3 +565,47 @@ def test_point_tools_cancelled_write_nothing(processing_run, cloud_files, scene_
     res = processing_run(f"bareearth:{alg}", params, feedback=CancelAt())
     assert not res or not res.get("OUTPUT")
     assert not out.exists()
+
+
+class _Warnings:
+    """A feedback keeping the warnings it is given."""
+
+    def __new__(cls):
+        from qgis.core import QgsProcessingFeedback
+
+        class Log(QgsProcessingFeedback):
+            def __init__(self):
+                super().__init__()
+                self.warnings = []
+
+            def pushWarning(self, text):  # noqa: N802
+                self.warnings.append(text)
+        return Log()
+
+
+@pytest.mark.parametrize("crs, said", [
+    ("", "The points have no CRS"),
+    ("EPSG:32632", None),
+    ("EPSG:3857", "does not keep distances here"),
+])
+@pytest.mark.parametrize("alg", ["bareearth:rasterizepoints", "bareearth:morphological"])
+def test_points_without_a_crs_or_in_one_without_distances_warned(processing_run, tmp_path, crs, said, alg):
+    """Points without a CRS were taken as metres and gave outputs without a CRS, and points in Web
+    Mercator (USGS 3DEP's tiles) were converted to ground metres, with an info line only (a raster
+    in either case gets a warning); both now warn, as a raster's run does. A UTM cloud: no warning."""
+    x, y, z, _ = _scene_points(shape=(60, 70))
+    if crs == "EPSG:3857":   # the same cloud placed at 52 deg N in Web Mercator (scale 1.62)
+        x, y = x - 500000.0, y - 5400000.0 + 6800000.0
+    src = _write_text(tmp_path / "pts.txt", x, y, z)
+    log = _Warnings()
+    if alg == "bareearth:rasterizepoints":
+        params = {"INPUT": src, "CRS": crs, "OUTPUT": str(tmp_path / "dsm.tif")}
+    else:
+        params = {"INPUT_POINTS": src, "POINTS_CRS": crs, "OUTPUT_POINTS": str(tmp_path / "out.txt"),
+                  "OUTPUT_DTM": str(tmp_path / "dtm.tif"), "OUTPUT_MASK": str(tmp_path / "mask.tif")}
+    processing_run(alg, {k: v for k, v in params.items() if v != ""}, feedback=log)
+    hits = [w for w in log.warnings if "CRS" in w]
+    if said is None:
+        assert not hits, log.warnings
+    else:
+        assert len(hits) == 1 and said in hits[0], log.warnings

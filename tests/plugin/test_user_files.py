@@ -377,3 +377,93 @@ def test_an_output_onto_a_file_a_vrt_input_reads_refused(processing_run, tmp_pat
     # (QGIS's layer of the VRT saves its statistics into mosaic.vrt itself, as loading it in QGIS does)
     assert hashlib.sha1((tmp_path / "tile.tif").read_bytes()).hexdigest() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mosaic.vrt", "tile.tif"]
+
+
+def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tmp_path):
+    """A DSM of heights rounded to whole metres declaring one of those heights (the median) as its
+    nodata: every cell holding it was read as missing without a word (a seventh of the cells, holes
+    along a contour in the DTM); the log now says so and how to export it. Nodata -9999: no warning."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    z = np.round(sc.dsm).astype(np.float32)
+    median = float(np.median(z))
+
+    class Log(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    for nodata, expect in ((median, True), (-9999.0, False)):
+        src = write_array(tmp_path / f"dsm{nodata:g}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
+        log = Log()
+        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata:g}.tif"),
+                                         "OUTPUT_MASK": str(tmp_path / f"m{nodata:g}.tif")}, feedback=log)
+        said = [w for w in log.warnings if "lies among its heights" in w]
+        assert bool(said) == expect, log.warnings
+        if expect:
+            n = int(np.count_nonzero(z == median))
+            assert f"declares {median:g} as its nodata value" in said[0] and f"({n} cell(s) read as nodata)" in said[0]
+
+
+def test_a_scaled_band_whose_nodata_is_also_a_height_keeps_its_sea_level(processing_run, tmp_path):
+    """UInt16 heights with nodata 0, scale 0.01 and offset -100 (a coast from -100 m): the DTM and
+    the filled surface, written as heights, declared the stored 0 as their nodata, so the ground at
+    0 m read as nodata in QGIS; they declare -100, the height of the nodata cells."""
+    from osgeo import gdal
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    counts = np.round((sc.dsm - np.median(sc.dsm) + 100.0) * 100).astype(np.uint16)   # the median at 0 m
+    counts[0, 1:4] = 0       # nodata
+    src = write_array(tmp_path / "coast.tif", counts, sc.geotransform, sc.epsg, nodata=0, dtype="UInt16")
+    ds = gdal.Open(src, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(0.01)
+    ds.GetRasterBand(1).SetOffset(-100.0)
+    ds = None
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                           "OUTPUT_MASK": str(tmp_path / "mask.tif")})
+    filled = processing_run("bareearth:filldtm", {"INPUT": src, "MASK": res["OUTPUT_MASK"], "FILL_NODATA": False,
+                                                  "OUTPUT": str(tmp_path / "filled.tif")})
+    for path in (res["OUTPUT_DTM"], filled["OUTPUT"]):
+        ds = gdal.Open(path)
+        band = ds.GetRasterBand(1)
+        a = band.ReadAsArray()
+        assert band.GetNoDataValue() == -100.0, path
+        assert np.count_nonzero(a == -100.0) == 3, path
+        assert np.count_nonzero(a == 0.0) >= np.count_nonzero(counts == 10000) // 2 > 0, path   # sea level kept
+
+
+def test_creation_options_for_an_output_of_another_format_warned(processing_run, tmp_path):
+    """Creation options or COG with an output in another format than GeoTIFF (.asc, .img): they
+    are GeoTIFF's and were left out without a word; the log names each such output. GeoTIFF
+    outputs, and no options: no warning."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core.grid import write_array
+    sc = _scene()
+    src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
+
+    class Log(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    cases = [({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".asc", ".tif", ["'DTM' (OUTPUT_DTM) is written as Arc/Info ASCII "
+                                                                  "grid (.asc): the creation options apply"]),
+             ({"COG": True}, ".img", ".img", ["'DTM' (OUTPUT_DTM) is written as ERDAS Imagine (.img): the COG",
+                                              "'Object mask' (OUTPUT_MASK) is written as ERDAS Imagine (.img)"]),
+             ({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".tif", ".tif", []),
+             ({}, ".asc", ".asc", [])]
+    for k, (extra, dtm_ext, mask_ext, said) in enumerate(cases):
+        log = Log()
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{k}{dtm_ext}"),
+                                                  "OUTPUT_MASK": str(tmp_path / f"m{k}{mask_ext}"), **extra},
+                       feedback=log)
+        hits = [w for w in log.warnings if "apply to GeoTIFF outputs" in w]
+        assert len(hits) == len(said) and all(s in h for s, h in zip(said, hits)), log.warnings
