@@ -137,7 +137,9 @@ from .dtm_refine import (
 )
 from .dtm_regions import find_detached_levels, find_raised_regions, regions_halo
 from .estimate import (
+    height_quantum,
     lowest_point_spread,
+    noise_floor,
     noise_ground_level,
     noise_shared,
     noise_without_sampling,
@@ -267,7 +269,8 @@ def ground_noise(z, cell_size, progress=None):
     on the morphological member's median terrain slope, :func:`~.morphology.estimate_terrain_slope`, over the
     spacing of independent heights, :func:`~.estimate.repeated_height_share`, as
     :func:`~.estimate.lowest_point_spread` models it), metres: ``(measured, noise)``, NaN where not
-    measurable; ``noise`` is ``measured`` where the slope is not measurable."""
+    measurable; ``noise`` is ``measured`` where the slope is not measurable, and never below the rounding error of
+    heights stored in steps (:func:`~.estimate.noise_floor`)."""
     from .morphology import estimate_terrain_slope
     cell = as_cell_size(cell_size)
     zz = without_far_heights(z)[0]
@@ -278,7 +281,9 @@ def ground_noise(z, cell_size, progress=None):
     if not (np.isfinite(slope) and slope > 0):
         return measured, measured
     spacing = max(cell) / max(1e-6, 1.0 - repeated_height_share(zz))
-    return measured, float(noise_without_sampling(measured, slope, spacing))
+    # heights rounded to whole metres repeat along the contours (read as a wide spacing) and their
+    # rounding error is noise no sampling explains: never below it (:func:`~.estimate.noise_floor`)
+    return measured, float(noise_floor(noise_without_sampling(measured, slope, spacing), height_quantum(zz)))
 
 
 def noise_threshold(z, cell_size, progress=None):
