@@ -48,6 +48,12 @@ METHOD = Method(
               "the later steps removed that inner neighbour. A test of one cell against its "
               "neighbours at the random error, no moving fit: it does not generalise the terrain (the "
               "foot of a bank whose slope the later steps removed goes too)."),
+        Param("spare_continuing_ground", "bool", True, "Give back as ground the objects of steps 5 "
+              "and 6 that are smooth ground continuing the ground kept: in an object region longer "
+              "than step 6's window, no second difference of their 3 x 3 neighbourhood above twice "
+              "step 3's tolerance, joined to the kept ground within 12 m. Road embankments, ramps "
+              "and raised banks that the moving fits take while no jump bounds them (the paper "
+              "leaves these to break lines)."),
         Param("height_min_m", "float", None, "Step 2 lower height limit in metres; empty: "
               "far fence of the height distribution (flat terrain).", advanced=True),
         Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
@@ -170,6 +176,15 @@ METHOD = Method(
         "(step3_repeat): the edge of a crown or a roof passes step 3 as the toe of a slope while "
         "the object above it stands, and is tested again once steps 4-6 removed the object "
         "(the opengeos 2 m city: 16.9 -> 11.1 % total error, DTM RMSE 1.20 -> 0.95 m).</p>"
+        "<p><b>Embankments and ramps</b> (spare_continuing_ground): the paper leaves terrain "
+        "discontinuities to break lines; without them its moving profiles and surfaces take a "
+        "road embankment or a ramp, which no jump bounds, for an object (its highway example: "
+        "21.6 % of the points removed without break lines, 10.4 % with). The objects of steps 5 "
+        "and 6 that lie on smooth ground continuing the ground kept (no second difference of a "
+        "3 x 3 neighbourhood above twice step 3's tolerance, within 12 m of it), in an object "
+        "region longer than step 6's window, are given back as ground; a wall or a crown's edge "
+        "is a step whose second difference is its height, and a mound or a crown narrower than "
+        "the window stays an object.</p>"
         "<p><b>Break lines</b> (optional line layer, rasterised to the cells it crosses): "
         "no comparison crosses a break line, so dams, embankments and cuts keep their "
         "shoulders. <b>Special areas</b> (optional polygons): inside them only the local "

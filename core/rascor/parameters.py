@@ -11,6 +11,7 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
+from ..dtm_refine import REACH_M, continuation_cells
 from ..estimate import (
     GROUND_BLOCK_M,
     ground_level_cells,
@@ -34,7 +35,8 @@ _FAR_M = 20.0
 DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_characterise=True,
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
-                step7_prediction=False, second_iteration=False, step3_repeat=True, height_min_m=None,
+                step7_prediction=False, second_iteration=False, step3_repeat=True,
+                spare_continuing_ground=True, height_min_m=None,
                 height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
                 max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
@@ -443,7 +445,11 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     half6 = max(cells(size6) // 2, block_reach(odd_window(size6 / cs)) if p.get("fits_per_block") else 0)
     r6 = iters * max(half6 + 1, ring) if on[6] else 0   # a block fit reaches half a block further
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
-    once = r3 + r5 + r6 + r7
+    # steps 5-6's objects given back as ground continuing the kept ground: the path and its 3 x 3 test,
+    # and the object regions' span compared with step 6's window (a region the block cuts spans the halo)
+    r_cont = cells(size6) + continuation_cells((dx, dy), REACH_M) + 2 if (on[5] or on[6]) and \
+        p.get("spare_continuing_ground", True) else 0
+    once = r3 + r5 + r6 + r_cont + r7
     if p["second_iteration"]:
         return int(r4 + 2 * once)
     # step 3 once more after the last step (:func:`~.sequence.filter_rascor`'s step3_repeat)
