@@ -360,8 +360,10 @@ def _spare_continuing_ground(st, cfg):
     cells) runs further than step 6's window (:func:`longer_than`: the window is sized to hold
     the objects; a mound, a crown or a dome narrower than it is one of them), no second
     difference of its 3 x 3 neighbourhood exceeds ``SMOOTH_RATIO`` (2) times step 3's tolerance
-    (``k sqrt(2) sigma``, widened by the terrain's bend) and it is joined to the kept ground
-    through such cells within ``REACH_M`` (12 m).
+    (``k sqrt(2) sigma``, widened by the terrain's bend), read on the kept and the disputed cells
+    (a bush or a tree on the bank that another step removed does not cut it), and it is joined
+    within ``REACH_M`` (12 m) through such cells to kept ground that itself runs further than
+    the window (not a piece of a crown or a roof the steps left, cut off by the objects around).
     """
     if not cfg.spare_continuing_ground:
         return
@@ -372,9 +374,12 @@ def _spare_continuing_ground(st, cfg):
     taken &= longer_than(objects, cfg.cell, cfg.surface_size_m)
     if not taken.any():
         return
-    back = continue_ground(st.z, taken, st.keep, st.keep,
+    # the paths start on kept ground running further than the window, not on a piece of a crown or a
+    # roof the steps left (ground cut off by objects around it)
+    anchors = st.keep & longer_than(st.keep, cfg.cell, cfg.surface_size_m)
+    back = continue_ground(st.z, taken, st.keep, anchors,
                            height_m=_spare_height(cfg),
-                           reach_cells=continuation_cells(cfg.cell, REACH_M))
+                           reach_cells=continuation_cells(cfg.cell, REACH_M), judge_on_ground=True)
     idx = np.flatnonzero(back)
     if not idx.size:
         return

@@ -1414,3 +1414,16 @@ def test_resolve_of_a_scene_with_scattered_low_blunders_is_that_of_the_scene_wit
     assert got[True]["surface_size_m"] == got[False]["surface_size_m"]
     for key in ("surface_sigma_m", "profile_sigma_m"):
         assert got[True][key] == pytest.approx(got[False][key], rel=0.05), key
+
+
+def test_continuing_ground_starts_on_kept_ground_not_on_pieces_of_a_canopy():
+    """A closed canopy of smooth crowns (85 % crowns, one object region longer than the window): the
+    pieces of crowns the steps kept are cut off by the crowns' removed cells around them and shorter
+    than the window, so no path of continuing ground starts there (from them 3.8 % of the crowns'
+    cells came back as ground, against 1.3 % with the paper's sequence)."""
+    s = synthetic.make_canopy(256.0, 1.0, seed=0, noise_m=0.05)
+    p = rascor.resolve_rascor_params(s.dsm, 1.0)
+    crowns = s.mask == OBJECT
+    paper = rascor.filter_rascor(s.dsm, 1.0, **dict(p, spare_continuing_ground=False))
+    res = rascor.filter_rascor(s.dsm, 1.0, **p)
+    assert np.mean(res.mask[crowns] == GROUND) <= np.mean(paper.mask[crowns] == GROUND) + 0.003
