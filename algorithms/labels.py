@@ -36,6 +36,7 @@ LABELS = {
     "step7_prediction": "Step 7: final least-squares prediction",
     "second_iteration": "Repeat steps 3 and 5-7 once",
     "step3_repeat": "Repeat step 3 after steps 4-7",
+    "spare_continuing_ground": "Keep smooth ground continuing the ground (embankments, ramps)",
     "height_min_m": "Lowest valid height (m)",
     "height_max_m": "Highest valid height (m)",
     "neighbour_k": "Neighbour test: critical value (x sigma)",
@@ -87,7 +88,7 @@ METHOD_LABELS = {
 ADVANCED = {("rascor", n) for n in ("step1_characterise", "step2_height_distribution",
                                     "step3_neighbour_differences", "step4_level_change", "step5_profiles",
                                     "step6_surfaces", "step7_prediction", "second_iteration",
-                                    "step3_repeat")}
+                                    "step3_repeat", "spare_continuing_ground")}
 
 
 #: short names of the filters' side products (dialog labels and layer names), by the core's extras key

@@ -303,7 +303,7 @@ def continuation_cells(cell_size, reach_m=REACH_M):
     return max(1, int(round(float(reach_m) / min(float(cell_size[0]), float(cell_size[1])))))
 
 
-def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells):
+def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells, judge_on_ground=False):
     """The disputed cells on smooth ground that continues the undisputed ground: ground after all.
 
     On terrain a member's window or slope allowance does not fit (the upper edge of a terrace,
@@ -343,6 +343,11 @@ def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells):
         ``SMOOTH_RATIO`` times its decision threshold).
     reach_cells : int
         Longest path in cells (>= 0; 0: nothing is continued).
+    judge_on_ground : bool
+        Read a disputed cell's smoothness on the ``ground`` and ``disputed`` cells only
+        (:func:`find_smooth` with them as its ground): an object the caller neither disputes nor
+        calls ground (a bush on a bank) does not cut the bank around it. False (``bareearth:dtm``):
+        on every cell.
 
     Returns
     -------
@@ -373,7 +378,7 @@ def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells):
     disputed = disputed & np.isfinite(z)
     if int(reach_cells) < 1 or not disputed.any() or not anchors.any():
         return np.zeros(z.shape, bool)
-    smooth = find_smooth(z, disputed, height_m)
+    smooth = find_smooth(z, disputed, height_m, ground | disputed if judge_on_ground else None)
     if not smooth.any():
         return smooth
     grown = ndimage.binary_dilation(anchors, np.ones((3, 3), bool), iterations=int(reach_cells),

@@ -34,7 +34,8 @@ says so:
 * The ground level under canopy and roofs (issue 12: estimates made on the right surface):
 
   - :func:`ground_level_reference`: interpolated 20 m block minima, the level objects
-    do not reach;
+    do not reach (optionally without the blocks a low blunder pulled down,
+    :func:`lift_low_blocks`);
   - :func:`ground_level_cells`: the cells within a height band of it;
   - :func:`noise_ground_level`: the noise measured on those cells only (never the
     canopy's or the roofs' roughness);
@@ -513,13 +514,71 @@ GROUND_MIN_SAMPLES = 100
 _GROUND_WINDOW = 1024
 
 
-def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M):
+def _median_slope(m, step_y, step_x):
+    """Median gradient magnitude (rise/run) of the block minima ``m`` (0 with fewer than
+    2 x 2 blocks)."""
+    if min(m.shape) < 2:
+        return 0.0
+    gy, gx = np.gradient(m.astype(np.float64), step_y, step_x)
+    return float(np.median(np.hypot(gx, gy)))
+
+
+#: Largest share of a block's cells a low blunder holds (:func:`lift_low_blocks`).
+LOW_BLUNDER_SHARE = 0.1
+
+
+def lift_low_blocks(z, m, k, depth_m, share=LOW_BLUNDER_SHARE):
+    """Block minima ``m`` (blocks of ``k`` cells of ``z``) without the low blunders:
+    ``(minima, number of blocks lifted)``.
+
+    A low blunder pulls its block's minimum down by its whole depth: multipath pits along
+    a wall, metres to tens of metres below the ground (ISPRS samp41: two lines of 21 and
+    30 cells 24 m deep lowered 6 of its 54 blocks of 20 m, four of them a 2 x 2 group),
+    drop a 20 m square of the interpolated surface with them. The cells lying more than
+    ``depth_m`` below the median of the 3 x 3 block minima around their block (edges
+    repeated; a hollow at least 3 blocks wide holds most of each neighbourhood and stays)
+    are low; a block whose low cells are fewer than ``share`` of its valid cells takes the
+    minimum of its other cells. The floor of a cut, a ditch or a channel crossing a block
+    covers more of it and stays (a cut 10 m wide is half a 20 m block).
+
+    Examples
+    --------
+    >>> z = np.zeros((4, 6), np.float32); z[1, 1] = -24.0
+    >>> lift_low_blocks(z, block_minima(z, 2), 2, 2.0, share=0.3)
+    (array([[0., 0., 0.],
+           [0., 0., 0.]], dtype=float32), 1)
+    """
+    z = np.asarray(z, np.float32)
+    m = np.asarray(m, np.float32)
+    med = ndimage.median_filter(m, size=3, mode="nearest")
+    blocks = m < med - np.float32(depth_m)
+    if not blocks.any():
+        return m, 0
+    br, bc = np.arange(z.shape[0]) // k, np.arange(z.shape[1]) // k
+    with np.errstate(invalid="ignore"):
+        low = z < (med - np.float32(depth_m))[np.ix_(br, bc)]
+    valid = np.isfinite(z)
+
+    def per_block(a):
+        rows = np.add.reduceat(a.astype(np.int64), np.arange(0, z.shape[0], k), axis=0)
+        return np.add.reduceat(rows, np.arange(0, z.shape[1], k), axis=1)
+    lift = blocks & (per_block(low) < share * per_block(valid))
+    rest = block_minima(np.where(low, np.float32(np.nan), z), k)
+    lift &= np.isfinite(rest)
+    return np.where(lift, rest, m), int(np.count_nonzero(lift))
+
+
+def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M, lift_low=False):
     """The ground-level reference surface of a DSM and the terrain's median slope under it.
 
     The minimum of every block of ``block_m`` metres (at least 2 cells; blocks without a
     valid cell take the nearest block's value), interpolated bilinearly between the block
     centres back to the cells. Objects narrower than a block vanish from it; where a block
     holds no ground it stands on the object, which the caller's height band then admits.
+    With ``lift_low``, a block minimum lying more than :data:`GROUND_BAND_M` and the
+    terrain's rise over one block (the median slope of the minima) below the median of its
+    3 x 3 blocks is a low blunder and takes that median (:func:`lift_low_blocks`; the
+    slope returned is then that of the lifted minima).
 
     Returns
     -------
@@ -541,10 +600,11 @@ def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M):
     if bad.any():
         idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
         m = m[tuple(idx)]
-    slope = 0.0
-    if min(m.shape) >= 2:
-        gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
-        slope = float(np.median(np.hypot(gx, gy)))
+    slope = _median_slope(m, k * dy, k * dx)
+    if lift_low and min(m.shape) >= 2:
+        m, lifted = lift_low_blocks(z, m, k, GROUND_BAND_M + slope * k * max(dx, dy))
+        if lifted:
+            slope = _median_slope(m, k * dy, k * dx)
     u = (np.arange(z.shape[0]) + 0.5) / k - 0.5
     v = (np.arange(z.shape[1]) + 0.5) / k - 0.5
     # separable bilinear interpolation between block centres (edges held)
@@ -555,17 +615,20 @@ def ground_level_reference(z, cell_size, block_m=GROUND_BLOCK_M):
     return surf.astype(np.float32), slope, k
 
 
-def ground_level_cells(z, cell_size, sigma=None, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M):
+def ground_level_cells(z, cell_size, sigma=None, *, block_m=GROUND_BLOCK_M, band_m=GROUND_BAND_M,
+                       lift_low=False):
     """Cells of a DSM standing at ground level (bool, same shape).
 
     A cell is at ground level when it stands less than ``max(band_m, 6 sigma)`` plus the
     median terrain slope times the block side above the ground-level reference surface
-    (:func:`ground_level_reference`); ``sigma`` is the DSM's noise when known (None:
-    ``band_m`` alone). Crowns and roofs, which stand metres above it, are left out; the
-    ground between them, gaps in a canopy and low vegetation are in.
+    (:func:`ground_level_reference`, ``lift_low`` passed on: without the blocks a low
+    blunder pulled down, under which every cell stands metres above); ``sigma`` is the
+    DSM's noise when known (None: ``band_m`` alone). Crowns and roofs, which stand metres
+    above it, are left out; the ground between them, gaps in a canopy and low vegetation
+    are in.
     """
     z = np.asarray(z, np.float32)
-    ref, slope, k = ground_level_reference(z, cell_size, block_m)
+    ref, slope, k = ground_level_reference(z, cell_size, block_m, lift_low=lift_low)
     band = (band_m if sigma is None or not np.isfinite(sigma) else max(band_m, 6.0 * sigma))
     band += slope * k * max(float(cell_size[0]), float(cell_size[1]))
     with np.errstate(invalid="ignore"):

@@ -33,6 +33,10 @@ step 3 alone runs once more at the end (``step3_repeat``, on by default): the ed
 crown or a roof passes step 3 as the toe of a slope while the object above it stands, and
 is tested again once steps 4-6 removed that object; a test of one cell against its
 neighbours, no moving fit (the foot of a bank whose slope the later steps removed goes too).
+Before it, the objects of steps 5 and 6 lying on smooth ground that continues the ground kept
+(a road embankment, a ramp: raised ground no jump bounds, which the paper leaves to break
+lines), in object regions longer than step 6's window, are given back as ground
+(``spare_continuing_ground``, on by default; :func:`.dtm_refine.continue_ground`).
 
 Break lines and special areas (boolean rasters ``breaklines`` and ``special_areas``,
 rasterised by the plugin layer and passed by the pipeline as keyword arrays, not Params):

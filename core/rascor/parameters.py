@@ -11,6 +11,7 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
+from ..dtm_refine import REACH_M, continuation_cells
 from ..estimate import (
     GROUND_BLOCK_M,
     ground_level_cells,
@@ -34,7 +35,8 @@ _FAR_M = 20.0
 DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_characterise=True,
                 step2_height_distribution=True, step3_neighbour_differences=True,
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
-                step7_prediction=False, second_iteration=False, step3_repeat=True, height_min_m=None,
+                step7_prediction=False, second_iteration=False, step3_repeat=True,
+                spare_continuing_ground=True, height_min_m=None,
                 height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
                 max_building_m=120.0,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
@@ -181,7 +183,8 @@ def _objects_width(crops, cell_size, holes=None):
     interpolated block minima); 0 without crops. ``holes`` (each crop's nodata cells and low
     blunders, :func:`_analysis_sample`) do not cut an object: its width is measured across
     missing scan lines, dropouts and pits on a roof (``nodata`` of ``object_widths``)."""
-    objects = [np.isfinite(c) & ~ground_level_cells(c, cell_size, block_m=SURFACE_SIZES_M[-1]) for c in crops]
+    objects = [np.isfinite(c) & ~ground_level_cells(c, cell_size, block_m=SURFACE_SIZES_M[-1], lift_low=True)
+               for c in crops]
     if not objects:
         return 0.0
     gaps = None if holes is None else _side_by_side([h & ~o for h, o in zip(holes, objects)])
@@ -191,10 +194,13 @@ def _objects_width(crops, cell_size, holes=None):
 def _ground_sample(crops, cell_size, block_m):
     """``[(heights, weights, cells kept)]`` of the ground-level reference surface of each
     crop (:func:`~bare_earth.core.estimate.ground_level_reference`: the minima of
-    ``block_m`` blocks interpolated, which objects narrower than a block do not reach)."""
+    ``block_m`` blocks interpolated, which objects narrower than a block do not reach),
+    without the blocks a low blunder pulled down (``lift_low``: multipath pits 24 m deep
+    lowered 6 of the 54 blocks of ISPRS samp41 at 1 m and made its step-6 scale 1.76 m
+    instead of 0.74 m)."""
     out = []
     for crop in crops:
-        ref = ground_level_reference(crop, cell_size, block_m=block_m)[0]
+        ref = ground_level_reference(crop, cell_size, block_m=block_m, lift_low=True)[0]
         ok = np.isfinite(ref)
         out.append((finite_float64(ref), ok.astype(np.float64), ok))
     return out
@@ -271,12 +277,13 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
       ground height about the model, ``sqrt(sigma^2 + e^2)`` with ``e`` the model's error
       at the chosen length or size measured where objects are not, on the ground-level
       reference surface of the crops (:func:`~bare_earth.core.estimate.ground_level_reference`:
-      20 m block minima interpolated), as the 90th percentile of its leave-one-out
-      residuals / 1.645 (the tail a Gaussian scale must cover, so that ground at the
-      terrain's bends, the shoulders of cuts and embankments, passes the snooping; the
-      robust MAD scale instead cut them: ISPRS samp71 4.1 -> 9.7 %). The residuals of the
-      DSM itself, which the objects left by steps 3 and 4 widen, gave 0.56 m and a 15 m
-      surface on the opengeos 2 m city (DTM 2.87 m RMSE);
+      20 m block minima interpolated, the blocks a low blunder pulled down lifted), as the
+      90th percentile of its leave-one-out residuals / 1.645 (the tail a Gaussian scale
+      must cover, so that ground at the terrain's bends, the shoulders of cuts and
+      embankments, passes the snooping; the robust MAD scale instead cut them: ISPRS
+      samp71 4.1 -> 9.7 %). The residuals of the DSM itself, which the objects left by
+      steps 3 and 4 widen, gave 0.56 m and a 15 m surface on the opengeos 2 m city (DTM
+      2.87 m RMSE);
     * the surface size ``surface_size_m``: the shortest of :data:`SURFACE_SIZES_M`
       covering ``sqrt(2)`` times the width of the objects
       (:func:`~bare_earth.core.estimate.object_widths`, 98 % of their area; the cells
@@ -355,10 +362,13 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                         "surface_sigma_m", "prediction_sigma_m") if p[k] is None]
     if need:
         crops, sample, holes = _analysis_sample(z, (dx, dy), sigma, p)
+        # the crops without the low blunders step 3 found: scattered ones pull most wide
+        # blocks' minima down (the objects' width and the model errors then measure them)
+        clean = [np.where(h, np.float32(np.nan), c) for c, h in zip(crops, holes)]
         report(progress, 0.6)
         # the terrain's own bends: the minima of 20 m blocks (wider blocks hide the shoulders
         # of cuts and embankments, whose ground then fails the snooping)
-        ground = _ground_sample(crops, (dx, dy), GROUND_BLOCK_M)
+        ground = _ground_sample(clean, (dx, dy), GROUND_BLOCK_M)
         deg = model_degree(tc, p["homogeneous"])
         if any(p[k] is None for k in ("short_profile_m", "long_profile_m", "profile_sigma_m")):
             ps = _scan([odd_window(L / dx) for L in PROFILE_LENGTHS_M], sample, deg, sigma, at_least=2,
@@ -389,10 +399,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                 else:
                     # how wide the objects are: a surface window holds at least as much
                     # ground as object when it is sqrt(2) x as wide
-                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(crops, (dx, dy), holes))
+                    i_o = _shortest_covering(SURFACE_SIZES_M, np.sqrt(2.0) * _objects_width(clean, (dx, dy), holes))
                     block = max(GROUND_BLOCK_M, SURFACE_SIZES_M[i_o])
                     bound = ss if block == GROUND_BLOCK_M else _model_errors(
-                        _ground_sample(crops, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1),
+                        _ground_sample(clean, (dx, dy), block), [win(S) for S in SURFACE_SIZES_M], min(deg, 1),
                         sigma)
                     p["surface_size_m"] = SURFACE_SIZES_M[min(_longest_following(bound, sigma), i_o)]
             e_s = _error_at(ss, SURFACE_SIZES_M, p["surface_size_m"],
@@ -443,7 +453,11 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     half6 = max(cells(size6) // 2, block_reach(odd_window(size6 / cs)) if p.get("fits_per_block") else 0)
     r6 = iters * max(half6 + 1, ring) if on[6] else 0   # a block fit reaches half a block further
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
-    once = r3 + r5 + r6 + r7
+    # steps 5-6's objects given back as ground continuing the kept ground: the path and its 3 x 3 test,
+    # and the object regions' span compared with step 6's window (a region the block cuts spans the halo)
+    r_cont = cells(size6) + continuation_cells((dx, dy), REACH_M) + 2 if (on[5] or on[6]) and \
+        p.get("spare_continuing_ground", True) else 0
+    once = r3 + r5 + r6 + r_cont + r7
     if p["second_iteration"]:
         return int(r4 + 2 * once)
     # step 3 once more after the last step (:func:`~.sequence.filter_rascor`'s step3_repeat)

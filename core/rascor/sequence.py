@@ -12,9 +12,11 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Optional, Sequence, Union
 
 import numpy as np
+from scipy import ndimage
 
 from ..codes import LOW, NODATA, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
+from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_ground
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions
@@ -61,6 +63,7 @@ class _Settings:
     snooping_iterations: int
     low_weight: float
     fits_per_block: bool = False
+    spare_continuing_ground: bool = True
 
 
 @dataclass
@@ -80,6 +83,7 @@ class _State:
     notes: list = field(default_factory=list)
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
     step_lines: int = 0                   # cells of the terrain's level changes (step 4)
+    spared: int = 0                       # objects of steps 5-6 given back as continuing ground
     z_t: Optional[np.ndarray] = None      # z transposed (the Y profiles of steps 4 and 5), made once
 
     def transposed(self):
@@ -143,7 +147,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
                     second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, terrain_bend_m,
                     jump_m, max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
-                    snooping_k, snooping_iterations, low_weight, fits_per_block=False, step3_repeat=True):
+                    snooping_k, snooping_iterations, low_weight, fits_per_block=False, step3_repeat=True,
+                    spare_continuing_ground=True):
     """Check the parameters (ValueError naming the fix) and return the :class:`_Settings`."""
     dx, dy = as_cell_size(cell_size)
     if terrain_class not in TERRAIN_CLASSES:
@@ -193,7 +198,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         surface_sigma_m=max(sigma_m, surface_sigma_m or sigma_m),
         prediction_sigma_m=max(sigma_m, prediction_sigma_m or sigma_m),
         snooping_k=snooping_k, snooping_iterations=int(snooping_iterations),
-        low_weight=low_weight, fits_per_block=bool(fits_per_block))
+        low_weight=low_weight, fits_per_block=bool(fits_per_block),
+        spare_continuing_ground=bool(spare_continuing_ground))
 
 
 def _start(z, breaklines, special_areas):
@@ -316,6 +322,75 @@ def _step7_prediction(st, cfg, progress):
     _record(st, 7, hi, lo)
 
 
+def _spare_height(cfg):
+    """The largest second difference of smooth ground (:func:`_spare_continuing_ground`), metres."""
+    return SMOOTH_RATIO * float(np.hypot(cfg.neighbour_k * cfg.sigma_m * np.sqrt(2.0),
+                                         cfg.neighbour_k * cfg.terrain_bend_m))
+
+
+def longer_than(objects, cell_size, length_m):
+    """The cells of the regions of ``objects`` (8-connected) that run further than ``length_m``
+    metres along the rows or the columns (``cell_size`` (dx, dy) metres)."""
+    lab, n = ndimage.label(objects, np.ones((3, 3), bool))
+    if not n:
+        return np.zeros(np.shape(objects), bool)
+    dx, dy = as_cell_size(cell_size)
+    idx = np.arange(1, n + 1)
+    span = np.zeros(n + 1)
+    for axis, d in ((0, dy), (1, dx)):
+        pos = np.broadcast_to(np.arange(lab.shape[axis]).reshape((-1, 1) if axis == 0 else (1, -1)), lab.shape)
+        ext = (ndimage.maximum(pos, lab, idx) - ndimage.minimum(pos, lab, idx) + 1) * d
+        span[1:] = np.maximum(span[1:], ext)
+    return (span > length_m)[lab]
+
+
+def _spare_continuing_ground(st, cfg):
+    """Give back the objects of steps 5 and 6 that are smooth ground continuing the ground kept.
+
+    The moving profiles and surfaces compare a height with a fit of its window only: a road
+    embankment, a ramp or a raised bank that stands above that fit over more of its width than
+    the window's own slope explains is taken as an object, although nothing bounds it by the
+    jumps steps 3 and 4 find at an object's edge. Jacobsen (2004) leaves such terrain
+    discontinuities to break lines (his highway example: 21.6 % of the points removed without,
+    10.4 % with them). Without break lines, what tells them apart is what
+    ``bareearth:dtm`` already uses between its members (:func:`~..dtm_refine.continue_ground`):
+    ground continues, without a step, from the ground kept; an object stands on a step (a wall,
+    a crown's edge) whose second difference is its height. A cell steps 5 or 6 removed as an
+    object is ground again when its object region (8-connected, whatever step removed its
+    cells) runs further than step 6's window (:func:`longer_than`: the window is sized to hold
+    the objects; a mound, a crown or a dome narrower than it is one of them), no second
+    difference of its 3 x 3 neighbourhood exceeds ``SMOOTH_RATIO`` (2) times step 3's tolerance
+    (``k sqrt(2) sigma``, widened by the terrain's bend), read on the kept and the disputed cells
+    (a bush or a tree on the bank that another step removed does not cut it), and it is joined
+    within ``REACH_M`` (12 m) through such cells to kept ground that itself runs further than
+    the window (not a piece of a crown or a roof the steps left, cut off by the objects around).
+    """
+    if not cfg.spare_continuing_ground:
+        return
+    objects = st.mask == OBJECT
+    taken = objects & ((st.step == 5) | (st.step == 6))
+    if not taken.any():
+        return
+    taken &= longer_than(objects, cfg.cell, cfg.surface_size_m)
+    if not taken.any():
+        return
+    # the paths start on kept ground running further than the window, not on a piece of a crown or a
+    # roof the steps left (ground cut off by objects around it)
+    anchors = st.keep & longer_than(st.keep, cfg.cell, cfg.surface_size_m)
+    back = continue_ground(st.z, taken, st.keep, anchors,
+                           height_m=_spare_height(cfg),
+                           reach_cells=continuation_cells(cfg.cell, REACH_M), judge_on_ground=True)
+    idx = np.flatnonzero(back)
+    if not idx.size:
+        return
+    for k in (5, 6):
+        st.removed[k] = st.removed.get(k, 0) - int(np.count_nonzero(st.step.reshape(-1)[idx] == k))
+    st.mask.reshape(-1)[idx] = 0
+    st.step.reshape(-1)[idx] = 0
+    st.keep.reshape(-1)[idx] = True
+    st.spared = int(idx.size)
+
+
 #: The steps of the sequence, by number.
 _STEPS = {2: _step2_height_distribution, 3: _step3_neighbour_differences,
           4: _step4_level_change, 5: _step5_profiles, 6: _step6_surfaces, 7: _step7_prediction}
@@ -339,6 +414,7 @@ def _result(st, cfg):
             "low_share": float(np.mean(st.mask[valid] == LOW)),
             "breakline_regions": st.n_regions,
             "terrain_step_share": st.step_lines / n_valid,
+            "continuing_ground_share": st.spared / n_valid,
             "special_area_share": float(st.special[valid].mean()) if st.special is not None else 0.0,
             "second_iteration": cfg.second_iteration,
             "step3_repeated": bool(not cfg.second_iteration and _plan(cfg, st).count(3) > 1),
@@ -367,7 +443,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   surface_sigma_m: Optional[float] = None, prediction_radius_m: float = 3.0,
                   prediction_sigma_m: Optional[float] = None, snooping_k: float = 4.0,
                   snooping_iterations: int = 1, low_weight: float = 0.02, fits_per_block: bool = False,
-                  steps: Optional[Iterable[int]] = None, breaklines: Optional[np.ndarray] = None,
+                  spare_continuing_ground: bool = True, steps: Optional[Iterable[int]] = None,
+                  breaklines: Optional[np.ndarray] = None,
                   special_areas: Optional[np.ndarray] = None,
                   progress: Optional[Callable[[float], None]] = None) -> FilterResult:
     """RASCOR sequential filter of a raster DSM (Jacobsen 2004).
@@ -469,7 +546,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,
         prediction_radius_m=prediction_radius_m, prediction_sigma_m=prediction_sigma_m,
         snooping_k=snooping_k, snooping_iterations=snooping_iterations, low_weight=low_weight,
-        fits_per_block=fits_per_block)
+        fits_per_block=fits_per_block, spare_continuing_ground=spare_continuing_ground)
     report(progress, 0.0)
     st = _start(z, breaklines, special_areas)
     # a gap between crowns or roofs is at the level of the other low cells around it and is
@@ -478,8 +555,11 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
     st.pit = _Pits(z, cfg.cell, 3.0 * cfg.sigma_m * np.sqrt(2.0), cfg.terrain_slope)
     plan = _plan(cfg, st)
     ends = np.cumsum([_COST[k] for k in plan]) / max(1e-9, sum(_COST[k] for k in plan))
-    for k, a, b in zip(plan, np.concatenate([[0.0], ends[:-1]]), ends):
+    last_fit = max((i for i, k in enumerate(plan) if k in (5, 6)), default=None)
+    for i, (k, a, b) in enumerate(zip(plan, np.concatenate([[0.0], ends[:-1]]), ends)):
         _STEPS[k](st, cfg, sub_progress(progress, a, b))
+        if i == last_fit:
+            _spare_continuing_ground(st, cfg)
         report(progress, b)
     result = _result(st, cfg)
     report(progress, 1.0)

@@ -271,6 +271,29 @@ def test_continue_ground_exact():
     assert not dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=0).any()
 
 
+def test_continue_ground_judged_on_ground_passes_objects_standing_on_the_bank():
+    """judge_on_ground: the smoothness of a disputed cell is read on the ground and disputed cells
+    (find_smooth's ground), so an object standing on a bank (a bush the caller does not dispute)
+    does not cut the bank around it; a wall still does."""
+    z = np.zeros((7, 14), np.float32)
+    z[:, 4:] = 0.5 * np.arange(1, 11)                 # a bank rising at 0.5 m per cell from column 4
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4:] = True
+    bush = np.zeros(z.shape, bool)
+    bush[2:5, 7] = True                               # a 3-cell bush, 3 m high, across the bank
+    z[bush] += 3.0
+    disputed &= ~bush
+    anchors = ~disputed & ~bush
+    plain = dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=20)
+    judged = dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=20, judge_on_ground=True)
+    assert not plain[2:5, 6].any() and not plain[2:5, 8].any()   # its 3 x 3 neighbours read its step
+    np.testing.assert_array_equal(judged, disputed)
+    wall = z.copy()
+    wall[:, 4:] = 2.0
+    assert not dr.continue_ground(wall, disputed, anchors, anchors, height_m=1.0, reach_cells=20,
+                                  judge_on_ground=True).any()
+
+
 @pytest.mark.parametrize("kw", [{"height_m": 0.0}, {"height_m": float("nan")}])
 def test_continue_ground_bad_parameters(kw):
     z = np.zeros((4, 4), np.float32)

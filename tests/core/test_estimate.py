@@ -210,6 +210,50 @@ def test_ground_level_reference_of_a_plane_is_the_plane_minus_the_block_drop():
     assert np.allclose(z[:, 10:70] - inner, 0.95, atol=1e-4)
 
 
+def test_lift_low_blocks_lifts_a_blunder_and_keeps_a_ditch_floor_exactly():
+    # 3 x 4 blocks of 4 x 4 cells on level ground: a pit of one cell (1/16 of its block)
+    # is a blunder, the block takes the minimum of its other cells; a ditch crossing the
+    # next block (4/16 of its cells) is its ground and stays
+    z = np.zeros((12, 16), np.float32)
+    z[5, 5] = -24.0
+    z[6, 8:12] = -24.0
+    m = est.block_minima(z, 4)
+    got, n = est.lift_low_blocks(z, m, 4, 2.0, share=0.1)
+    want = np.zeros((3, 4), np.float32)
+    want[1, 2] = -24.0
+    assert n == 1
+    np.testing.assert_array_equal(got, want)
+
+
+def test_lift_low_blocks_keeps_a_hollow_wider_than_a_block():
+    # a hollow 3 x 3 blocks wide, 10 m deep: its blocks hold nothing else (its corners,
+    # 4 of their neighbourhood's 9, are below the median but wholly low)
+    z = np.zeros((28, 28), np.float32)
+    z[8:20, 8:20] = -10.0
+    m = est.block_minima(z, 4)
+    got, n = est.lift_low_blocks(z, m, 4, 2.0)
+    assert n == 0
+    np.testing.assert_array_equal(got, m)
+
+
+def test_ground_level_reference_without_the_blocks_a_multipath_line_pulled_down():
+    # a plane with a line of pits 24 m deep along a wall (ISPRS samp41): the plain
+    # reference drops by the pits' depth over their blocks; lifted, it is the plane's
+    x = np.arange(100, dtype=np.float32)
+    z = np.tile(0.05 * x, (100, 1))
+    pits = z.copy()
+    for i in range(30):                 # a diagonal line of 30 cells
+        pits[35 + i // 2, 30 + i] -= 24.0
+    clean = ground_level_reference(z, (1.0, 1.0), block_m=20.0)
+    plain = ground_level_reference(pits, (1.0, 1.0), block_m=20.0)
+    lifted = ground_level_reference(pits, (1.0, 1.0), block_m=20.0, lift_low=True)
+    assert np.nanmax(clean[0] - plain[0]) > 20.0
+    np.testing.assert_allclose(lifted[0], clean[0], atol=1e-5)
+    assert lifted[1] == pytest.approx(clean[1], rel=1e-6)
+    # on the plane alone the option changes nothing
+    np.testing.assert_array_equal(ground_level_reference(z, (1.0, 1.0), 20.0, lift_low=True)[0], clean[0])
+
+
 @pytest.mark.parametrize("noise", [0.05, 0.3])
 def test_noise_on_ground_level_cells_ignores_a_closed_canopy_at_every_cell_size(noise):
     # 85 % crowns over gentle ground: measured on the whole surface the "noise" of the
