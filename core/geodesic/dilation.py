@@ -266,21 +266,26 @@ def smooth_parts(w, cells, step_m):
     """
     H, W = w.shape
     n_c = cells.size
-    order = np.argsort(cells, kind="stable")
-    srt = cells[order]
     wf = w.ravel()
+    # each cell's position in ``cells``, looked up by flat index over the span the cells and their
+    # neighbours cover (a gather where a sorted search took 3/4 of the time)
+    lo = int(cells.min()) if n_c else 0
+    hi = int(cells.max()) + 1 if n_c else 0
+    pos = np.full(hi - lo, -1, np.int32 if n_c < 2 ** 31 else np.int64)
+    pos[cells - lo] = np.arange(n_c, dtype=pos.dtype)
     r, c = np.divmod(cells, W)
     heads, tails = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
-        i = np.flatnonzero((r + dr < H) & (c + dc >= 0) & (c + dc < W))
-        b = cells[i] + dr * W + dc
-        j = np.minimum(np.searchsorted(srt, b), n_c - 1)
-        found = srt[j] == b
-        i, b, j = i[found], b[found], order[j[found]]
+        i = np.flatnonzero((r + dr < H) & (c + dc >= 0) & (c + dc < W) & (cells + (dr * W + dc) < hi))
+        b = cells[i] + dr * W + dc                        # at least lo: dr * W + dc > 0
+        j = pos[b - lo].astype(np.intp)
+        found = j >= 0
+        i, b, j = i[found], b[found], j[found]
         with np.errstate(invalid="ignore"):
             smooth = np.abs(wf[cells[i]] - wf[b]) <= step_m
         heads.append(i[smooth])
         tails.append(j[smooth])
+    del pos
     a, b = np.concatenate(heads), np.concatenate(tails)
     graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_c, n_c))
     return connected_components(graph, directed=False)
