@@ -245,11 +245,17 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     low = low3[cells]
     with np.errstate(invalid="ignore"):
         abrupt = rim & (w.ravel()[cells] - low > step_m)
-    keep = np.ones(cells.size, bool)
-    for n_p, parts in ((n, part), smooth_parts(w, cells, step_m)):
+    rim_n = np.bincount(part, weights=rim, minlength=n + 1)
+    rim_s = np.bincount(part, weights=abrupt, minlength=n + 1)
+    keep = (rim_s >= edge_ratio * rim_n)[part]
+    # a smooth piece lies inside one part: only the pieces of the parts that passed are tested
+    sub = np.flatnonzero(keep)
+    if sub.size:
+        n_p, parts = smooth_parts(w, cells[sub], step_m)
+        rim, abrupt = rim[sub], abrupt[sub]
         rim_n = np.bincount(parts, weights=rim, minlength=n_p + 1)
         rim_s = np.bincount(parts, weights=abrupt, minlength=n_p + 1)
-        keep &= (rim_s >= edge_ratio * rim_n)[parts]
+        keep[sub] = (rim_s >= edge_ratio * rim_n)[parts]
     return keep
 
 
