@@ -272,23 +272,26 @@ def smooth_parts(w, cells, step_m):
     """
     H, W = w.shape
     n_c = cells.size
-    wf = w.ravel()
-    # each cell's position in ``cells``, looked up by flat index over the span the cells and their
-    # neighbours cover (a gather where a sorted search took 3/4 of the time)
-    lo = int(cells.min()) if n_c else 0
-    hi = int(cells.max()) + 1 if n_c else 0
-    pos = np.full(hi - lo, -1, np.int32 if n_c < 2 ** 31 else np.int64)
-    pos[cells - lo] = np.arange(n_c, dtype=pos.dtype)
-    r, c = np.divmod(cells, W)
+    if n_c == 0:
+        return 0, np.zeros(0, np.int32)
+    # the cells in a layout one column wider (a padding column after each row, never a cell): a neighbour
+    # beyond the row's end lands there, so no bounds test is needed; each cell's position in ``cells`` is
+    # looked up by that index over the span the cells and their neighbours cover (a gather where a sorted
+    # search took 3/4 of the time), and the heights are read once, at the cells
+    W1 = W + 1
+    cp = cells + cells // W
+    lo = int(cp.min())
+    pos = np.full(int(cp.max()) + W1 + 2 - lo, -1, np.int32 if n_c < 2 ** 31 else np.int64)
+    pos[cp - lo] = np.arange(n_c, dtype=pos.dtype)
+    cp -= lo
+    wc = w.ravel()[cells]
     heads, tails = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
-        i = np.flatnonzero((r + dr < H) & (c + dc >= 0) & (c + dc < W) & (cells + (dr * W + dc) < hi))
-        b = cells[i] + dr * W + dc                        # at least lo: dr * W + dc > 0
-        j = pos[b - lo].astype(np.intp)
-        found = j >= 0
-        i, b, j = i[found], b[found], j[found]
+        j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
+        i = np.flatnonzero(j >= 0)
+        j = j[i].astype(np.intp)
         with np.errstate(invalid="ignore"):
-            smooth = np.abs(wf[cells[i]] - wf[b]) <= step_m
+            smooth = np.abs(wc[i] - wc[j]) <= step_m
         heads.append(i[smooth])
         tails.append(j[smooth])
     del pos
