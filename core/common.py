@@ -162,11 +162,23 @@ def edge_mirrored_extents(boxes, shape):
     >>> edge_mirrored_extents([(slice(0, 4), slice(2, 5)), (slice(1, 3), slice(0, 10))], (10, 10)).tolist()
     [[8, 3], [2, 30]]
     """
-    out = np.zeros((len(boxes), 2), np.intp)
-    for i, b in enumerate(boxes):
-        for a in (0, 1):
-            out[i, a] = (b[a].stop - b[a].start) * (1 + (b[a].start == 0) + (b[a].stop == shape[a]))
-    return out
+    b = np.array([[s.start, s.stop] for box in boxes for s in box], np.intp).reshape(-1, 2, 2)
+    return np.stack(edge_mirrored_spans(b[:, 0, 0], b[:, 0, 1], b[:, 1, 0], b[:, 1, 1], shape), axis=1)
+
+
+def edge_mirrored_spans(r0, r1, c0, c1, shape):
+    """:func:`edge_mirrored_extents` of boxes given as arrays of their first and past-the-last
+    rows ``r0, r1`` and columns ``c0, c1``: ``(rows, columns)``, two int arrays.
+
+    Examples
+    --------
+    >>> [a.tolist() for a in edge_mirrored_spans(np.array([0, 1]), np.array([4, 3]), np.array([2, 0]),
+    ...                                           np.array([5, 10]), (10, 10))]
+    [[8, 2], [3, 30]]
+    """
+    r0, r1, c0, c1 = (np.asarray(a, np.intp) for a in (r0, r1, c0, c1))
+    return ((r1 - r0) * (1 + (r0 == 0) + (r1 == shape[0])),
+            (c1 - c0) * (1 + (c0 == 0) + (c1 == shape[1])))
 
 
 def transpose(a, rows=256):

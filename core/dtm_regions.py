@@ -70,9 +70,11 @@ import math
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .codes import GROUND
-from .common import edge_mirrored_extents
+from .common import edge_mirrored_spans
 from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
@@ -137,15 +139,19 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     # the 3 x 3 minimum (cells beyond the raster ignored: ndimage's mode "nearest", the same values) by banded
     # shifted minima, ~10x faster than SciPy's generic filter
     drop = z - filter3x3(zi, np.minimum, np.inf)
+    del zi
     highest = float(np.max(drop, where=ground, initial=0.0))      # the highest drop: no scale cuts more above it
+    # the regions of the first scale, labelled once; a higher scale frees some of their rims (the cells its
+    # walls no longer cut), which join them: its regions are found by merging (:class:`_Scales`)
+    scales = _Scales(ground, drop, t)
     decided = {}                                        # each region once: its first object decision, else its first
     step_m, cut = t, -1
     while True:
         # the walls higher than step_m cut the ground into regions; a scale cutting the same cells as the one
         # before repeats its regions with fewer steps (a subset of its objects): skipped
-        rims = int(np.count_nonzero(ground & (drop > step_m)))
+        rims = scales.rims(step_m)
         if rims != cut:
-            found, made = _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_cells)
+            found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells)
             objects |= found
             for d in made:
                 key = (tuple(d["bbox"]), d["cells"])
@@ -158,31 +164,123 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     return objects, list(decided.values())
 
 
-def _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_cells):
+class _Scales:
+    """The regions of :func:`find_raised_regions` at each scale ``s``: the voted ground cells with no
+    8-neighbour more than ``s`` lower, 8-connected.
+
+    The first scale's regions are labelled once (``ndimage.label``); the cells of a higher scale's regions
+    are those and the first scale's rims whose drop is at most ``s`` (a few per cent of the cells), so a
+    higher scale's regions are the first scale's joined through those rims: a graph of the first regions
+    and the freed rims, joined where 8-neighbours, and its connected components. Only the regions the
+    cheap tests (span, reach) keep are written into a raster, numbered in the order of their first cell
+    in raster order, as ``ndimage.label`` numbers them: the same regions, boxes and numbers.
+    """
+
+    def __init__(self, ground, drop, t):
+        self.shape = ground.shape
+        self.drop = drop
+        self.ground = ground
+        rim = ground & (drop > t)
+        self.rim = np.flatnonzero(rim)                  # the first scale's rims, in raster order
+        self.rim_drop = drop.ravel()[self.rim]
+        self.labels, self.n = ndimage.label(ground & ~rim, structure=np.ones((3, 3), bool))
+        del rim
+        boxes = ndimage.find_objects(self.labels)
+        self.r0 = np.array([b[0].start for b in boxes], np.int64)
+        self.r1 = np.array([b[0].stop for b in boxes], np.int64)
+        self.c0 = np.array([b[1].start for b in boxes], np.int64)
+        self.c1 = np.array([b[1].stop for b in boxes], np.int64)
+
+    def rims(self, step_m):
+        """Cells the walls higher than ``step_m`` cut (voted ground with a neighbour more than that lower)."""
+        return int(np.count_nonzero(self.rim_drop > step_m))
+
+    def free(self, step_m):
+        """The cells of the regions at scale ``step_m`` (bool raster)."""
+        return self.ground & ~(self.drop > step_m)
+
+    def regions(self, step_m, keep):
+        """The regions at scale ``step_m`` passing ``keep(r0, r1, c0, c1)`` (arrays of their boxes' rows and
+        columns, stop exclusive, one per region: a boolean per region): ``(lab, boxes)``, ``lab`` the raster
+        of those regions numbered 1, 2, ... in the order of their first cell (0 elsewhere), ``boxes`` their
+        bounding boxes (slices) in that order; ``(None, [])`` when none passes."""
+        H, W = self.shape
+        n = self.n
+        new = self.rim[~(self.rim_drop > step_m)]           # the rims this scale frees, in raster order
+        m = new.size
+        heads, tails = [], []
+        if m:
+            nr, nc = np.divmod(new, W)
+            lab_flat = self.labels.ravel()
+            for dr, dc in _DIRECTIONS:                      # each freed cell and its 8 neighbours
+                i = np.flatnonzero((nr + dr >= 0) & (nr + dr < H) & (nc + dc >= 0) & (nc + dc < W))
+                q = new[i] + dr * W + dc
+                node = lab_flat[q].astype(np.int64)         # a first region's cell: its label
+                k = np.minimum(np.searchsorted(new, q), m - 1)
+                freed = (node == 0) & (new[k] == q)          # a freed rim: its node after the labels
+                node[freed] = n + 1 + k[freed]
+                on = node > 0
+                heads.append(n + 1 + i[on])
+                tails.append(node[on])
+        a = np.concatenate(heads) if heads else np.zeros(0, np.int64)
+        b = np.concatenate(tails) if tails else np.zeros(0, np.int64)
+        size = n + 1 + m
+        graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(size, size))
+        k_n, comp = connected_components(graph, directed=False)
+        # each component's box: the first regions' boxes and the freed cells'
+        nr, nc = np.divmod(new, W)
+        r0 = np.full(k_n, H, np.int64)
+        r1 = np.zeros(k_n, np.int64)
+        c0 = np.full(k_n, W, np.int64)
+        c1 = np.zeros(k_n, np.int64)
+        for lo_hi, first, rest, ufunc in ((r0, self.r0, nr, np.minimum), (r1, self.r1, nr + 1, np.maximum),
+                                           (c0, self.c0, nc, np.minimum), (c1, self.c1, nc + 1, np.maximum)):
+            ufunc.at(lo_hi, comp[1:], np.concatenate([first, rest]))
+        real = np.zeros(k_n, bool)
+        real[comp[1:]] = True                               # components holding a cell (not the background)
+        sel = np.flatnonzero(real & keep(r0, r1, c0, c1))
+        if sel.size == 0:
+            return None, []
+        # the kept components written into a raster (numbers in component order first)
+        num = np.zeros(k_n, np.int32)
+        num[sel] = np.arange(1, sel.size + 1, dtype=np.int32)
+        node_num = num[comp]
+        lab = node_num[:n + 1].take(self.labels)
+        lab.ravel()[new] = node_num[n + 1:]
+        # renumbered in the order of their first cell (the first row of the box holds it)
+        first = np.array([r0[j] * W + c0[j] + int(np.argmax(lab[r0[j], c0[j]:c1[j]] == q + 1))
+                          for q, j in enumerate(sel)], np.int64)
+        order = np.argsort(first, kind="stable")
+        renum = np.zeros(sel.size + 1, np.int32)
+        renum[order + 1] = np.arange(1, sel.size + 1, dtype=np.int32)
+        lab = renum.take(lab)
+        sel = sel[order]
+        boxes = [(slice(int(r0[j]), int(r1[j])), slice(int(c0[j]), int(c1[j]))) for j in sel]
+        return lab, boxes
+
+
+def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells):
     """The raised regions of :func:`find_raised_regions` cut at walls higher than ``step_m``."""
     shape = z.shape
     objects = np.zeros(shape, bool)
-    rim = ground & (drop > step_m)
-    free = ground & ~rim
-    labels, n = ndimage.label(free, structure=np.ones((3, 3), bool))
-    if n == 0:
-        return objects, []
-    boxes = ndimage.find_objects(labels)
     cell = float(min(cell_size))
-    spans = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
-    # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide
-    cut = np.array([b[0].start == 0 or b[1].start == 0 or b[0].stop == shape[0] or b[1].stop == shape[1]
-                    for b in boxes], bool)
-    # its span along each axis mirrored at every side the edge cuts (a level cut on two opposite
-    # sides, a terrain step running across the raster, is mirrored at both): the stage reaches it
-    # only if it reaches that span
-    reach = edge_mirrored_extents(boxes, shape).max(axis=1)
-    idx = np.flatnonzero((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (reach <= max_cells)) + 1
-    if idx.size == 0:
+
+    def keep(r0, r1, c0, c1):
+        # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide
+        spans = np.maximum(r1 - r0, c1 - c0)
+        cut = (r0 == 0) | (c0 == 0) | (r1 == shape[0]) | (c1 == shape[1])
+        # its span along each axis mirrored at every side the edge cuts (a level cut on two opposite
+        # sides, a terrain step running across the raster, is mirrored at both): the stage reaches it
+        # only if it reaches that span
+        reach = np.maximum(*edge_mirrored_spans(r0, r1, c0, c1, shape))
+        return (np.where(cut, 2, 1) * spans * cell >= min_width_m) & (reach <= max_cells)
+
+    lab, boxes = scales.regions(step_m, keep)
+    if lab is None:
         return objects, []
-    keep = np.zeros(n + 1, bool)
-    keep[idx] = True
-    lab = np.where(keep[labels], labels, 0)
+    idx = np.arange(1, len(boxes) + 1)
+    free = scales.free(step_m)
+    rim = ground & (drop > step_m)
     pad = 6
     lp = np.pad(lab, pad, constant_values=-1)              # -1: beyond the raster
     fp = np.pad(free, pad, constant_values=False)
@@ -212,7 +310,7 @@ def _raised_at(z, valid, ground, drop, cell_size, t, step_m, min_width_m, max_ce
     stops = np.searchsorted(s_lab, idx, side="right")
     decisions = []
     for k, i in enumerate(idx):
-        box = boxes[i - 1]
+        box = boxes[k]
         r0, c0 = box[0].start, box[1].start
         # the region and its rim (one cell around it), in coordinates relative to its box's corner
         g0, g1 = max(r0 - 1, 0), max(c0 - 1, 0)

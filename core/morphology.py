@@ -742,6 +742,28 @@ def _tier_box(r_max):
 TIER_WALL_SHARE = 0.5
 
 
+def _walls(clean, ground, edge, rise):
+    """The cells of ``edge`` standing more than ``rise`` above the lowest ``ground`` cell of their 3 x 3
+    neighbourhood (cells beyond the raster ignored): the 3 x 3 minimum read at the edge cells only (a
+    few per cent of the raster), the values of a grey erosion of the ground's heights there."""
+    H, W = clean.shape
+    cells = np.flatnonzero(edge)
+    rows, cols = np.divmod(cells, W)
+    cf, gf = clean.ravel(), ground.ravel()
+    lowest = np.full(cells.size, np.inf, np.float32)
+    inf = np.float32(np.inf)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            r, c = rows + dr, cols + dc
+            q = np.clip(r, 0, H - 1) * W + np.clip(c, 0, W - 1)
+            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W) & gf[q]
+            np.minimum(lowest, np.where(ok, cf[q], inf), out=lowest)
+    wall = np.zeros(edge.shape, bool)
+    with np.errstate(invalid="ignore"):
+        wall.ravel()[cells[np.subtract(cf[cells], lowest) > rise]] = True
+    return wall
+
+
 def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r_max, work=None, progress=None):
     """Lower tiers of the objects: unflagged raised regions attached to an object and bounded by walls.
 
@@ -793,24 +815,27 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
     ndarray of bool
         The tier cells (never already left out).
     """
-    thr = _surface_slope(opened, cell)
-    thr *= np.float32(es)
-    thr += np.float32(dh)
+    raised = np.empty(clean.shape, bool)
+    rows = clean.shape[0]
+    # in bands of rows whose temporaries stay in the cache (the tolerance by rows: the same values)
+    band = max(1, _BAND_BYTES // max(1, clean.shape[1] * 8))
     with np.errstate(invalid="ignore"):
-        raised = ~left_out & (np.subtract(clean, opened) > thr)
+        for r0 in range(0, rows, band):
+            b = slice(r0, min(rows, r0 + band))
+            thr = _surface_slope(opened, cell, b)
+            thr *= np.float32(es)
+            thr += np.float32(dh)
+            np.greater(np.subtract(clean[b], opened[b]), thr, out=raised[b])
+            raised[b] &= ~left_out[b]
     if not raised.any():
         return raised
     report(progress, 0.2)
     lab, n = ndimage.label(raised, np.ones((3, 3), bool))
     report(progress, 0.5)
     ground = ~raised & ~left_out
-    low = np.array(clean, np.float32)
-    low[~ground] = np.inf
-    lowest = _erode(low, 1, 1, work)                  # the lowest ground cell around
     edge = raised & touching(ground)                  # the region's cells next to the ground
     rise = np.float32(dh + slope * math.hypot(*cell))
-    with np.errstate(invalid="ignore"):
-        wall = edge & (np.subtract(clean, lowest) > rise)
+    wall = _walls(clean, ground, edge, rise)
     # at the raster's border the region's outline is unknown: its cells there count as edge, never wall
     rim = np.zeros(raised.shape, bool)
     rim[[0, -1], :] = True

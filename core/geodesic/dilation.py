@@ -245,11 +245,17 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     low = low3[cells]
     with np.errstate(invalid="ignore"):
         abrupt = rim & (w.ravel()[cells] - low > step_m)
-    keep = np.ones(cells.size, bool)
-    for n_p, parts in ((n, part), smooth_parts(w, cells, step_m)):
+    rim_n = np.bincount(part, weights=rim, minlength=n + 1)
+    rim_s = np.bincount(part, weights=abrupt, minlength=n + 1)
+    keep = (rim_s >= edge_ratio * rim_n)[part]
+    # a smooth piece lies inside one part: only the pieces of the parts that passed are tested
+    sub = np.flatnonzero(keep)
+    if sub.size:
+        n_p, parts = smooth_parts(w, cells[sub], step_m)
+        rim, abrupt = rim[sub], abrupt[sub]
         rim_n = np.bincount(parts, weights=rim, minlength=n_p + 1)
         rim_s = np.bincount(parts, weights=abrupt, minlength=n_p + 1)
-        keep &= (rim_s >= edge_ratio * rim_n)[parts]
+        keep[sub] = (rim_s >= edge_ratio * rim_n)[parts]
     return keep
 
 
@@ -266,21 +272,29 @@ def smooth_parts(w, cells, step_m):
     """
     H, W = w.shape
     n_c = cells.size
-    order = np.argsort(cells, kind="stable")
-    srt = cells[order]
-    wf = w.ravel()
-    r, c = np.divmod(cells, W)
+    if n_c == 0:
+        return 0, np.zeros(0, np.int32)
+    # the cells in a layout one column wider (a padding column after each row, never a cell): a neighbour
+    # beyond the row's end lands there, so no bounds test is needed; each cell's position in ``cells`` is
+    # looked up by that index over the span the cells and their neighbours cover (a gather where a sorted
+    # search took 3/4 of the time), and the heights are read once, at the cells
+    W1 = W + 1
+    cp = cells + cells // W
+    lo = int(cp.min())
+    pos = np.full(int(cp.max()) + W1 + 2 - lo, -1, np.int32 if n_c < 2 ** 31 else np.int64)
+    pos[cp - lo] = np.arange(n_c, dtype=pos.dtype)
+    cp -= lo
+    wc = w.ravel()[cells]
     heads, tails = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
-        i = np.flatnonzero((r + dr < H) & (c + dc >= 0) & (c + dc < W))
-        b = cells[i] + dr * W + dc
-        j = np.minimum(np.searchsorted(srt, b), n_c - 1)
-        found = srt[j] == b
-        i, b, j = i[found], b[found], order[j[found]]
+        j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
+        i = np.flatnonzero(j >= 0)
+        j = j[i].astype(np.intp)
         with np.errstate(invalid="ignore"):
-            smooth = np.abs(wf[cells[i]] - wf[b]) <= step_m
+            smooth = np.abs(wc[i] - wc[j]) <= step_m
         heads.append(i[smooth])
         tails.append(j[smooth])
+    del pos
     a, b = np.concatenate(heads), np.concatenate(tails)
     graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_c, n_c))
     return connected_components(graph, directed=False)

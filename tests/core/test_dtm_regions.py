@@ -345,3 +345,33 @@ def test_dtm_halo_adds_the_stage_reach_to_the_members():
               + 2 * p["support_cells"] + 2)
     assert dtm_method.dtm_halo(p, 1.0) >= members + stages + regions_halo(span)
     assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + stages + regions_halo(span)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_scales_regions_merged_from_one_labelling_are_those_of_a_labelling_per_scale(seed):
+    """The regions of every scale come from the first scale's labelling joined through the rims a higher
+    scale frees (:class:`~bare_earth.core.dtm_regions._Scales`): the same cells, the same numbers (by
+    first cell, as ``ndimage.label`` numbers them) and the same boxes as labelling each scale anew."""
+    from scipy import ndimage
+
+    from bare_earth.core.dtm_regions import _Scales
+    rng = np.random.default_rng(seed)
+    z = np.round(rng.random((60, 70)) * 3, 0).astype(np.float32) + ndimage.uniform_filter(
+        rng.random((60, 70)).astype(np.float32) * 40, 9)
+    ground = rng.random(z.shape) > 0.1
+    drop = z - ndimage.minimum_filter(z, 3, mode="nearest")
+    scales = _Scales(ground, drop, 0.5)
+    seen = 0
+    for s in (0.5, 1.0, 2.0, 4.0, 8.0):
+        lab, boxes = scales.regions(s, lambda r0, r1, c0, c1: np.ones(r0.shape, bool))   # every region
+        want, n = ndimage.label(ground & ~(drop > s), structure=np.ones((3, 3), bool))
+        assert np.array_equal(lab, want) and boxes == ndimage.find_objects(want)
+        assert scales.rims(s) == np.count_nonzero(ground & (drop > s))
+        # a test on the boxes keeps some: those, renumbered 1, 2, ... in the same order, the others 0
+        wide = np.array([b[1].stop - b[1].start >= 3 for b in boxes])
+        lab, kept = scales.regions(s, lambda r0, r1, c0, c1: c1 - c0 >= 3)
+        assert kept == [b for b, k in zip(boxes, wide) if k]
+        renum = np.r_[0, np.cumsum(wide) * wide].astype(np.int32)
+        assert np.array_equal(lab, renum[want])
+        seen += n
+    assert seen > 50

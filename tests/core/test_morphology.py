@@ -701,3 +701,21 @@ def test_wide_raised_ground_does_not_widen_the_window(kind):
     p = morph.resolve_morphological_params(z, 1.0)
     assert "widened" not in p["max_object_size_source"]
     assert p["max_object_size_m"] <= morph._MAX_OBJECT_M
+
+
+def test_tier_walls_read_at_the_edge_cells_equal_a_grey_erosion_of_the_ground():
+    """find_attached_tiers' walls: an edge cell more than ``rise`` above the lowest ground cell of its
+    3 x 3 neighbourhood (cells beyond the raster ignored), read at the edge cells only; the same cells as
+    with ndimage's grey erosion of the ground's heights (+inf elsewhere) over the raster."""
+    from scipy import ndimage
+
+    from bare_earth.core.morphology import _walls
+    rng = np.random.default_rng(3)
+    clean = (rng.random((41, 37)) * 4).astype(np.float32)
+    ground = rng.random(clean.shape) > 0.5
+    edge = ~ground & (rng.random(clean.shape) > 0.3)
+    edge[0, :] = edge[:, -1] = True                       # the raster's border too
+    lowest = ndimage.grey_erosion(np.where(ground, clean, np.float32(np.inf)), size=3, mode="nearest")
+    want = edge & (clean - lowest > np.float32(0.7))
+    got = _walls(clean, ground, edge, np.float32(0.7))
+    assert np.array_equal(got, want) and 0 < np.count_nonzero(got) < np.count_nonzero(edge)
