@@ -617,8 +617,19 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     neg, has_nodata = _as_inf(z, -1.0, nodata)
     report(progress, 0.05)
     radii = _low_radii(cell, growth)
-    low, neg_open = _progressive(neg, radii, low_slope, has_nodata, progress, work, growth)
+    # beyond the raster's edge is nodata, as in a gap inside it: windows hang over the edge. Cut at
+    # it, every window of a cell next to the edge held the object beside it, which the opening of
+    # -z then spread over that cell (one 8 m spike filled a 3 x 3 raster's closing: 8 low cells).
+    # No window reaches past a corner (-inf there: no placement), so a corner cell is still judged
+    # against the cells beside it along the edge, not against itself alone
+    py, px = radii[-1][0], radii[-1][1]
+    neg = np.pad(neg, ((py, py), (px, px)), constant_values=np.inf)
+    if py and px:
+        for rows in (slice(0, py), slice(-py, None)):
+            neg[rows, :px] = neg[rows, -px:] = -np.inf
+    low, neg_open = _progressive(neg, radii, low_slope, True, progress, work, growth)
     del neg
+    low, neg_open = low[py:py + z.shape[0], px:px + z.shape[1]], neg_open[py:py + z.shape[0], px:px + z.shape[1]]
     low &= ~nodata
     depth = np.float32(low_slope * LOW_OUTLIER_WINDOW_M)
     if low_slope > 0 and radii[-1][2] > LOW_OUTLIER_WINDOW_M + 1e-9:     # its last threshold above s x 1 m

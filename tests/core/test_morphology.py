@@ -234,6 +234,22 @@ def test_a_deep_pit_is_a_low_outlier_at_every_cell_size(cell, given):
     np.testing.assert_array_equal(res.mask, expect)
 
 
+@pytest.mark.parametrize("shape, spike", [((3, 3), (1, 1)), ((20, 20), (1, 1)), ((20, 20), (1, 10)), ((3, 8), (1, 4))])
+def test_a_spike_next_to_the_edge_is_an_object_not_low_ground(shape, spike):
+    """The low-outlier pre-step treats the outside of the raster as nodata: its windows hang over
+    the edge. Cut at the edge, every window of a cell beside a spike one cell in from the edge
+    held the spike, and the opening of ``-z`` took that cell for a pit (a 3 x 3 raster with one
+    8 m spike: the 8 ground cells low, the spike ground)."""
+    z = np.zeros(shape, np.float32)
+    z[spike] = 8.0
+    res = morph.filter_morphological(z, 1.0, mode="progressive", dh_m=0.5, slope=0.3, max_object_size_m=10.0)
+    expect = np.zeros(shape, np.uint8)
+    expect[spike] = OBJECT
+    np.testing.assert_array_equal(res.mask, expect)
+    assert res.info["low_outlier_cells_prestep"] == 0
+    np.testing.assert_array_equal(morph.filter_morphological(z, 1.0).mask, expect)     # derived defaults
+
+
 def test_coarse_cells_take_pits_below_their_surroundings_not_gaps_between_crowns():
     """At 2 m cells a pit is a candidate of the pre-step when it lies 5 m (500 % of the paper's 1 m
     window) below its neighbours and below every cell of the ring around it; 4 m is not enough, and
