@@ -149,6 +149,28 @@ def block_minima(z, k):
     return out
 
 
+def held_block_side(shape, k, min_blocks=3, min_side=2):
+    """Block side (cells) for the block-minimum estimates on a raster of ``shape``: ``k`` when
+    the raster holds ``min_blocks`` blocks of it along its shorter axis (the last may be
+    partial, as on any raster), else scaled down to ``min(shape) // min_blocks`` (whole
+    blocks), but never below ``min_side`` cells nor above ``k``.
+
+    A small raster (a drone DSM crop tens of metres wide) still holds enough ground to
+    measure the terrain under its objects; blocks as large as a large raster's would leave
+    it fewer blocks than a gradient needs. Rasters that hold ``min_blocks`` blocks keep
+    ``k``. Under ``min_blocks`` blocks of ``min_side`` cells the estimate has too few blocks
+    (not measurable).
+
+    Examples: ``held_block_side((800, 800), 400)`` -> 266 (3 blocks of 266 cells);
+    ``held_block_side((116, 200), 40)`` -> 40 (3 blocks, the last of 36 cells);
+    ``held_block_side((3, 3), 40)`` -> 2 (2 blocks: not measurable).
+    """
+    k, n = int(k), min(shape)
+    if -(-n // k) >= int(min_blocks):
+        return k
+    return min(k, max(int(min_side), n // int(min_blocks)))
+
+
 def terrain_slopes(z, cell_size, k, min_blocks=2):
     """Slopes (rise/run) of the terrain under the objects: the gradient magnitude of the
     block-minimum surface.
@@ -183,6 +205,25 @@ def terrain_slopes(z, cell_size, k, min_blocks=2):
     s = np.hypot(gx, gy).ravel()
     return s[np.isfinite(s)]
 
+
+
+def block_minima_plane_residual(z, cell_size, k):
+    """Largest distance (metres, vertical) of the ``k x k`` block minima (:func:`block_minima`)
+    from their least-squares plane: 0 on a tilted plane however steep, the height of an object
+    wider than the blocks that stands in some of them. NaN with fewer than 3 finite blocks.
+
+    Block ``(i, j)`` sits at ``(j k dx, i k dy)``; the plane ``a + b x + c y`` is fitted to
+    the finite minima (``numpy.linalg.lstsq``).
+    """
+    dx, dy = cell_size
+    m = block_minima(z, k).astype(np.float64)
+    i, j = np.nonzero(np.isfinite(m))
+    if i.size < 3:
+        return float("nan")
+    a = np.column_stack([np.ones(i.size), j * (k * dx), i * (k * dy)])
+    h = m[i, j]
+    coef = np.linalg.lstsq(a, h, rcond=None)[0]
+    return float(np.abs(h - a @ coef).max())
 
 
 def terrain_bends(z, k):

@@ -110,6 +110,8 @@ from .estimate import (
     below_level_neighbours,
     below_surroundings,
     block_minima,
+    block_minima_plane_residual,
+    held_block_side,
     noise_ground_level,
     object_widths,
     raised_region_window,
@@ -617,8 +619,19 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     neg, has_nodata = _as_inf(z, -1.0, nodata)
     report(progress, 0.05)
     radii = _low_radii(cell, growth)
-    low, neg_open = _progressive(neg, radii, low_slope, has_nodata, progress, work, growth)
+    # beyond the raster's edge is nodata, as in a gap inside it: windows hang over the edge. Cut at
+    # it, every window of a cell next to the edge held the object beside it, which the opening of
+    # -z then spread over that cell (one 8 m spike filled a 3 x 3 raster's closing: 8 low cells).
+    # No window reaches past a corner (-inf there: no placement), so a corner cell is still judged
+    # against the cells beside it along the edge, not against itself alone
+    py, px = radii[-1][0], radii[-1][1]
+    neg = np.pad(neg, ((py, py), (px, px)), constant_values=np.inf)
+    if py and px:
+        for rows in (slice(0, py), slice(-py, None)):
+            neg[rows, :px] = neg[rows, -px:] = -np.inf
+    low, neg_open = _progressive(neg, radii, low_slope, True, progress, work, growth)
     del neg
+    low, neg_open = low[py:py + z.shape[0], px:px + z.shape[1]], neg_open[py:py + z.shape[0], px:px + z.shape[1]]
     low &= ~nodata
     depth = np.float32(low_slope * LOW_OUTLIER_WINDOW_M)
     if low_slope > 0 and radii[-1][2] > LOW_OUTLIER_WINDOW_M + 1e-9:     # its last threshold above s x 1 m
@@ -996,18 +1009,30 @@ _NUMBERS = ("max_object_size_m", "dh_m", "slope", "slope_scale_m", "window_growt
 
 
 # --------------------------------------------------------------------------- defaults
-def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0):
+def slope_block_cells(shape, cell_size, scale_m, scale_down=True):
+    """Block side (cells) of :func:`estimate_terrain_slope` on a raster of ``shape``: ``scale_m``
+    over the coarser axis's cell, scaled down to a third of the raster's shorter side when the
+    raster holds fewer than 3 x 3 such blocks, the last may be partial
+    (:func:`~bare_earth.core.estimate.held_block_side`), at least 2 cells (unless ``scale_m`` is under 1.5 cells)."""
+    dx, dy = as_cell_size(cell_size)
+    k = max(1, int(round(scale_m / max(dx, dy))))
+    return held_block_side(shape, k, min_blocks=3) if scale_down else k
+
+
+def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0, scale_down=False):
     """Robust terrain slope (rise/run): a high percentile of a coarse minimum surface's slope.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it; the block side in cells from the coarser axis) and the slope of
-    that coarse surface is taken by central differences
-    (:func:`~bare_earth.core.estimate.terrain_slopes`, at least 3 x 3 blocks); the
-    ``percentile`` of it is returned, NaN when not measurable.
+    block vanish from it; the block side in cells from the coarser axis, scaled down to a
+    third of the raster's shorter side on a raster under three blocks wide,
+    :func:`slope_block_cells`) and the slope of that coarse surface is taken by central
+    differences (:func:`~bare_earth.core.estimate.terrain_slopes`, at least 3 x 3 blocks);
+    the ``percentile`` of it is returned, NaN when not measurable (under 3 x 3 blocks of 2
+    cells).
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
-    k = max(1, int(round(scale_m / max(dx, dy))))
+    k = slope_block_cells(z.shape, (dx, dy), scale_m, scale_down)
     g = terrain_slopes(z, (dx, dy), k, min_blocks=3)
     return float(np.percentile(g, percentile)) if g.size else float("nan")
 
@@ -1059,9 +1084,13 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       form on), bounded to 0.5-5 m (0.5 m is SMRF's ``e_t``; LiDAR noise is far below it,
       image-matching noise often above); 0.5 m when too few ground cells are seen.
     * ``slope``: the median slope of the 40 m block-minimum surface
-      (:func:`estimate_terrain_slope`), bounded to 0.3-1.5: the threshold ``s r`` must
-      pass the terrain's own relief and the median of a coarse surface underestimates
-      it; 0.3 is the best single value on the ISPRS samples.
+      (:func:`estimate_terrain_slope`; on a raster that holds fewer than 3 such blocks, up to
+      80 m, blocks of a third of its shorter side when their minima lie within ``dh`` of a plane,
+      :func:`~bare_earth.core.estimate.block_minima_plane_residual`: a drone crop of a hillside
+      still shows its slope, a roof over most of a tile does not), bounded to 0.3-1.5:
+      the threshold ``s r`` must pass the terrain's own relief and the median of a coarse
+      surface underestimates it; 0.3 is the best single value on the ISPRS samples, and the
+      value used when the raster holds under 3 x 3 blocks of 2 cells (not measurable).
     * ``max_object_size_m``: the width of the largest objects the progressive filter
       finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
       (40 m when there are no objects); with ``raised_regions``, widened to the width of the
@@ -1071,7 +1100,8 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     * ``outline_slope``: the terrain's 90th-percentile slope ``s90`` (below), the rise
       over one cell the ground beside an object may show before a cell on the object's
       outline is taken for a mixed cell (:func:`find_outline_cells`); SMRF's ``slope``
-      when the raster holds fewer than 3 x 3 blocks of 40 m (not measurable).
+      when the raster holds fewer than 3 x 3 blocks of 40 m (the 90th percentile of a few smaller
+      blocks is the slope of a wall between two of them).
     * ``mode``: ``"auto"`` becomes ``"progressive"`` when ``s90 * max_object_size_m / 2 >
       dh_m``, ``s90`` the 90th-percentile slope of the coarse minimum surface (a single
       opening would cut the terrain by more than ``dh``), else ``"single"``;
@@ -1111,24 +1141,41 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                 f"samples): {_MIN_DH:g} m (SMRF's elevation threshold)")
     else:
         out["dh_source"] = "given"
-    s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0)
-    s90 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 90.0)
+    s50 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 50.0, scale_down=True)
+    s90 = estimate_terrain_slope(zs, cs, _SLOPE_SCALE_M, 90.0, scale_down=True)
+    kb = slope_block_cells(zs.shape, cs, _SLOPE_SCALE_M)
+    block_m = kb * max(cs)
+    blocks = f"{_SLOPE_SCALE_M:g} m"                   # the blocks the slopes are read from
+    unmeasured = f"3 x 3 blocks of {block_m:.3g} m"     # what the raster holds too few of
+    if kb < slope_block_cells(zs.shape, cs, _SLOPE_SCALE_M, scale_down=False):
+        # a raster under 3 blocks of 40 m: its slope from blocks of a third of its side, only where their
+        # minima lie on a plane within dh (else an object wider than them stands in some: a roof over most
+        # of the tile); the 90th percentile of so few blocks is their largest slope or two (a wall), so
+        # the outline slope and the mode take the median
+        res = block_minima_plane_residual(zs, cs, kb)
+        s90 = float("nan")
+        if res <= out["dh_m"]:
+            blocks = (f"{block_m:.3g} m ({_SLOPE_SCALE_M:g} m scaled down to a third of the raster's shorter "
+                      f"side; their minima within {res:.2f} m <= dh of a plane)")
+        elif np.isfinite(res):
+            s50 = float("nan")
+            unmeasured = (f"3 x 3 blocks of {_SLOPE_SCALE_M:g} m, and on blocks of {block_m:.3g} m the minima lie "
+                          f"up to {res:.2f} m > dh from a plane (objects wider than the blocks)")
     report(progress, 0.45)
     out["terrain_slope_p50"], out["terrain_slope_p90"] = s50, s90
     if slope is None:
         out["slope"] = float(min(_MAX_SLOPE, max(_MIN_SLOPE, s50 if np.isfinite(s50) else 0.0)))
         if np.isfinite(s50):
-            out["slope_source"] = (f"derived: median slope {s50:.3f} of the {_SLOPE_SCALE_M:g} m "
+            out["slope_source"] = (f"derived: median slope {s50:.3f} of the {blocks} "
                                    f"block-minimum surface, bounded to {_MIN_SLOPE:g}-{_MAX_SLOPE:g}")
         else:
-            out["slope_source"] = (f"raster under 3 x 3 blocks of {_SLOPE_SCALE_M:g} m: slope not "
-                                   f"measurable, {_MIN_SLOPE:g} used")
+            out["slope_source"] = f"raster under {unmeasured}: slope not measurable, {_MIN_SLOPE:g} used"
     else:
         out["slope_source"] = "given"
     if outline_slope is None:
         if np.isfinite(s90):
             out["outline_slope"] = float(min(_MAX_OUTLINE_SLOPE, s90))
-            out["outline_slope_source"] = (f"derived: 90th-percentile slope {s90:.3f} of the {_SLOPE_SCALE_M:g} m "
+            out["outline_slope_source"] = (f"derived: 90th-percentile slope {s90:.3f} of the {blocks} "
                                            f"block-minimum surface, at most {_MAX_OUTLINE_SLOPE:g} (a wall)")
         else:
             out["outline_slope"] = out["slope"]

@@ -72,6 +72,7 @@ from .common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from .estimate import (
     below_level_rim,
     below_surroundings,
+    held_block_side,
     noise_ground_level,
     noise_without_sampling,
     sample_windows,
@@ -108,8 +109,9 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     """Robust slopes of the terrain under the objects.
 
     The surface is reduced to the minimum of ``scale_m`` blocks (objects smaller than a
-    block vanish from it; the block side in cells from the finer axis, at most a third
-    of the raster's shorter side), and the slopes (rise/run) between neighbouring block
+    block vanish from it; the block side in cells from the finer axis, a third of the
+    raster's shorter side on a raster under three blocks wide:
+    :func:`~bare_earth.core.estimate.held_block_side`), and the slopes (rise/run) between neighbouring block
     minima are summarised (:func:`~bare_earth.core.estimate.terrain_slopes`).
 
     Returns
@@ -119,8 +121,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0):
     """
     z = as_surface(z)
     dx, dy = as_cell_size(cell_size)
-    k = int(max(2, round(scale_m / min(dx, dy))))
-    k = min(k, max(2, min(z.shape) // 3))
+    k = held_block_side(z.shape, max(2, round(scale_m / min(dx, dy))), min_blocks=3)
     s = terrain_slopes(z, (dx, dy), k)
     if s.size == 0:
         return {"median": 0.0, "p75": 0.0, "p90": 0.0, "block_cells": k}

@@ -78,6 +78,32 @@ def test_terrain_slopes_too_few_blocks_and_nodata():
     assert s.size == 1 and s[0] == 0.0    # NaN gradients dropped: only the block far from it
 
 
+@pytest.mark.parametrize("shape, k, side", [((800, 800), 400, 266), ((3000, 2000), 400, 400), ((120, 500), 40, 40),
+                                           ((116, 200), 40, 40), ((80, 200), 40, 26), ((3, 3), 40, 2), ((9, 9), 1, 1)])
+def test_held_block_side_exact(shape, k, side):
+    """``k`` while the shorter axis holds 3 blocks (the last may be partial), else a third of it,
+    at least 2 cells."""
+    assert est.held_block_side(shape, k) == side
+    assert est.held_block_side((80, 200), 40, min_blocks=2) == 40
+    assert est.held_block_side((40, 200), 40, min_blocks=2) == 20
+    assert est.held_block_side((12, 12), 40, min_side=5) == 5
+
+
+def test_block_minima_plane_residual_exact():
+    yy, xx = np.mgrid[0:12, 0:12].astype(np.float32)
+    z = 0.7 * xx - 0.2 * yy + 5.0                      # a steep tilted plane: the minima lie on a plane
+    z[1, 1] += 10.0                                     # an object smaller than a block: not a minimum
+    assert est.block_minima_plane_residual(z, (1.0, 1.0), 4) == pytest.approx(0.0, abs=1e-5)
+    z[4:, 4:] += 9.0                                    # a roof over 4 of the 9 blocks
+    m = est.block_minima(z, 4).astype(np.float64)
+    i, j = np.nonzero(np.isfinite(m))
+    a = np.column_stack([np.ones(i.size), 4 * j, 4 * i])
+    r = m[i, j] - a @ np.linalg.lstsq(a, m[i, j], rcond=None)[0]
+    assert est.block_minima_plane_residual(z, (1.0, 1.0), 4) == pytest.approx(np.abs(r).max())
+    assert est.block_minima_plane_residual(z, (1.0, 1.0), 4) > 2.0
+    assert np.isnan(est.block_minima_plane_residual(z[:4, :8], (1.0, 1.0), 4))     # 2 blocks
+
+
 # --------------------------------------------------------------------------- terrain bends
 def test_terrain_bends_of_a_paraboloid_under_objects_exact():
     """z = c x^2 + e y^2 (x, y >= 0): each block's minimum is its first cell, so the block

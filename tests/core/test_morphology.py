@@ -234,6 +234,59 @@ def test_a_deep_pit_is_a_low_outlier_at_every_cell_size(cell, given):
     np.testing.assert_array_equal(res.mask, expect)
 
 
+@pytest.mark.parametrize("shape, spike", [((3, 3), (1, 1)), ((20, 20), (1, 1)), ((20, 20), (1, 10)), ((3, 8), (1, 4))])
+def test_a_spike_next_to_the_edge_is_an_object_not_low_ground(shape, spike):
+    """The low-outlier pre-step treats the outside of the raster as nodata: its windows hang over
+    the edge. Cut at the edge, every window of a cell beside a spike one cell in from the edge
+    held the spike, and the opening of ``-z`` took that cell for a pit (a 3 x 3 raster with one
+    8 m spike: the 8 ground cells low, the spike ground)."""
+    z = np.zeros(shape, np.float32)
+    z[spike] = 8.0
+    res = morph.filter_morphological(z, 1.0, mode="progressive", dh_m=0.5, slope=0.3, max_object_size_m=10.0)
+    expect = np.zeros(shape, np.uint8)
+    expect[spike] = OBJECT
+    np.testing.assert_array_equal(res.mask, expect)
+    assert res.info["low_outlier_cells_prestep"] == 0
+    np.testing.assert_array_equal(morph.filter_morphological(z, 1.0).mask, expect)     # derived defaults
+
+
+@pytest.mark.parametrize("side_m, cell, slope", [(80.0, 0.1, 0.45), (30.0, 0.1, 0.5), (30.0, 1.0, 0.5)])
+def test_the_slope_of_a_small_hillside_is_measured(side_m, cell, slope):
+    """A drone DSM crop of a hillside, under 3 x 3 blocks of 40 m: the slope is measured on blocks of a
+    third of the raster's side (the same median of the block-minimum slopes; their minima lie on a
+    plane), and the log says so; the outline slope takes it too (the 90th percentile of 9 blocks is
+    not read). Before, it was not measurable, SMRF's floor 0.3 was used and the threshold ``0.3 r``
+    cut the uphill edge of the plane (800 cells of 80 x 80 m at 0.1 m, 900 of 30 x 30 m at 0.1 m)."""
+    n = int(round(side_m / cell))
+    x = np.arange(n) * cell
+    z = np.tile((slope * x).astype(np.float32), (n, 1))
+    p = morph.resolve_morphological_params(z, cell)
+    assert p["slope"] == pytest.approx(slope, abs=0.01)
+    assert p["outline_slope"] == p["slope"] and np.isnan(p["terrain_slope_p90"])
+    block = (n // 3) * cell
+    assert f"of the {block:.3g} m (40 m scaled down to a third of the raster's shorter side" in p["slope_source"]
+    res = morph.filter_morphological(z, cell)
+    assert np.count_nonzero(res.mask) == 0
+
+
+def test_small_raster_slope_is_not_read_from_blocks_off_a_plane():
+    """A roof over most of an 80 m tile stands in most of its 3 x 3 blocks of 26 m: their minima lie
+    metres from a plane, their median slope (0.47, the walls) is not the terrain's, and 0.3 is used."""
+    z, _ = _tile_nearly_all_roof(1.0)
+    p = morph.resolve_morphological_params(z, 1.0)
+    assert p["slope"] == 0.3 and np.isnan(p["terrain_slope_p50"])
+    assert "> dh from a plane" in p["slope_source"]
+
+
+def test_slope_on_large_rasters_keeps_the_40_m_blocks():
+    x = np.arange(130, dtype=np.float32)
+    z = np.tile(0.2 * x, (130, 1))                        # 130 m at 1 m: 3 whole blocks of 40 m
+    p = morph.resolve_morphological_params(z, 1.0, max_object_size_m=10.0)
+    assert p["terrain_slope_p50"] == pytest.approx(0.2)
+    assert "of the 40 m block-minimum surface" in p["slope_source"]
+    assert morph.slope_block_cells(z.shape, 1.0, 40.0) == 40
+
+
 def test_coarse_cells_take_pits_below_their_surroundings_not_gaps_between_crowns():
     """At 2 m cells a pit is a candidate of the pre-step when it lies 5 m (500 % of the paper's 1 m
     window) below its neighbours and below every cell of the ring around it; 4 m is not enough, and
@@ -466,7 +519,7 @@ def test_outline_slope_is_derived_and_logged():
     assert p["outline_slope"] == pytest.approx(p["terrain_slope_p90"])
     assert p["outline_slope"] == pytest.approx(0.05, abs=0.02)          # the ground's slope
     assert "90th-percentile" in p["outline_slope_source"]
-    small = morph.resolve_morphological_params(z[:20, :20], 2.0)       # under 3 x 3 blocks of 40 m
+    small = morph.resolve_morphological_params(z[:4, :4], 2.0)         # under 3 x 3 blocks of 2 cells
     assert small["outline_slope"] == small["slope"] and "3 x 3 blocks" in small["outline_slope_source"]
     assert morph.resolve_morphological_params(z, 2.0, outline_slope=0.2)["outline_slope"] == 0.2
     res = run_array("morphological", z, 2.0)
