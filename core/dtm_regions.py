@@ -331,7 +331,9 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     neighbour at distance ``d`` (a level change of RASCOR's size, beyond the terrain's slope
     allowance ``s d``; a bank's slope stays inside its level). A level holding no ``anchors``
     cell (ground every member agrees on) is a raised level the vote kept only by the members'
-    allowances, and its ``dissent`` cells (ground by the vote, object by RASCOR) are objects.
+    allowances, and its ``dissent`` cells (ground by the vote, object by a member: RASCOR on a low
+    roof, the opening on a tower cut by the raster's edge, which the others see no ground beyond)
+    are objects.
     Levels spanning more than ``max_cells`` cells (rows or columns) are left alone, so a cell's
     decision depends on cells within :func:`regions_halo` of it, the raised regions' reach.
 
@@ -342,7 +344,7 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     ground : ndarray of bool
         The voted ground (the levels are cut from it).
     dissent : ndarray of bool
-        The cells that may become objects (``bareearth:dtm``: ground of the opening, object of RASCOR).
+        The cells that may become objects (``bareearth:dtm``: voted ground a member calls an object).
     anchors : ndarray of bool
         Ground every member agrees on: a level holding one is joined to the undisputed ground.
     cell_size : (float, float)

@@ -282,6 +282,46 @@ def test_dtm_takes_a_low_annex_only_rascor_rejects_as_an_object(monkeypatch):
     assert (without.mask[annex] == GROUND).mean() > 0.5          # the vote alone keeps it
 
 
+def test_dtm_takes_a_roof_only_the_opening_rejects_as_an_object(monkeypatch):
+    """A roof 12 m high cut by the raster's edge (as on ISPRS sample 41 at 1 m, a tower running off the
+    tile), which RASCOR and the reconstruction both accept: the vote keeps it; the opening's dissent on a
+    level cut by walls from all undisputed ground makes it an object, as RASCOR's does for a low annex."""
+    from bare_earth.core import dtm as dtm_method
+    from bare_earth.core.methods import get_method
+    y, x = grid(128)
+    ground = 50 + 0.01 * x + 0.005 * y
+    roof = (x >= 116) & (np.abs(y - 64) < 10)
+    z = noisy(ground + np.where(roof, 12.0, 0.0), sd=0.05)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    import dataclasses
+
+    def accepting(real):                                   # a member accepting the roof
+        def run(z_, cell, progress=None, **kw):
+            res = real.run(z_, cell, progress=progress, **kw)
+            res.mask[roof & (res.mask == OBJECT)] = GROUND
+            return res
+        return dataclasses.replace(real, run=run)
+
+    fakes = {name: accepting(get_method(name)) for name in ("geodesic", "rascor")}
+    monkeypatch.setattr(dtm_method, "get_method", lambda name: fakes.get(name) or get_method(name))
+    assert (get_method("morphological").run(z, 1.0, **p["members"]["morphological"]).mask[roof] == OBJECT).mean() > 0.9
+    res = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
+    assert (res.mask[roof] == OBJECT).mean() > 0.95
+    assert (res.mask[~roof] == GROUND).mean() > 0.99
+    assert res.info["detached_level_share"] > 0.5 * roof.sum() / z.size
+
+
+def test_dtm_keeps_a_trench_a_member_calls_a_low_outlier():
+    """A quarry's floor one cell wide, 6 m below its benches: the opening calls it a low outlier, the others
+    ground; a member's low outlier is no raised object, so its level (cut by the benches' walls from all
+    undisputed ground) stays ground."""
+    y, x = grid(200)
+    r = np.abs(x - 100)
+    z = noisy(100.0 - 6.0 * np.clip(np.floor((80 - r) / 20), 0, None), sd=0.05)
+    res = pipeline.run_array("dtm", z, 1.0)
+    assert (res.mask == GROUND).mean() > 0.995
+
+
 # ----------------------------------------------------------------------------- through bareearth:dtm
 
 @pytest.mark.parametrize("slope", [0.0, 0.02, 0.08])
