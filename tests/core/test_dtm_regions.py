@@ -204,6 +204,20 @@ def test_a_level_joined_to_the_undisputed_ground_or_not_dissented_stays_ground()
     assert not _detached(z, ground, dissent, anchors, max_cells=0).any()
 
 
+def test_another_members_dissent_counts_on_levels_with_a_top_only():
+    z, ground, dissent, anchors = _annex()
+    none = np.zeros_like(dissent)
+    # another member's objects: the annex (a level with a top: cells whose 8 neighbours all lie on it)
+    assert np.array_equal(_detached(z, ground, none, anchors, top_dissent=dissent), dissent)
+    # a patch two cells wide between level changes (a step of a steep slope) has no top: only the level
+    # member's own dissent takes it
+    z2 = np.zeros((30, 30), np.float32)
+    z2[10:20, 14:16] = -3.0
+    patch = z2 < 0
+    assert not _detached(z2, np.ones(z2.shape, bool), np.zeros_like(patch), z2 == 0, top_dissent=patch).any()
+    assert np.array_equal(_detached(z2, np.ones(z2.shape, bool), patch, z2 == 0, top_dissent=patch), patch)
+
+
 def test_a_bank_rising_within_the_slope_allowance_is_one_level_with_the_ground():
     # the same 3 m reached over a bank of 1 m per cell (< jump_m + s d): no level change, joined to the ground
     z, ground, dissent, anchors = _annex()
