@@ -427,10 +427,12 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
         sel = [boxes[i - 1][0] for i in np.unique(lab[hit]).tolist()]
         b0, b1 = min(b.start for b in sel), max(b.stop for b in sel)
         e0, e1 = max(0, b0 - 1), min(h, b1 + 1)
-        lab_e = labels[e0:e1]
-        foot = np.ones((3, 3), bool)
-        inner = ((ndimage.minimum_filter(lab_e, footprint=foot, mode="nearest") == lab_e)
-                 & (ndimage.maximum_filter(lab_e, footprint=foot, mode="nearest") == lab_e))[b0 - e0:b1 - e0]
+        # 8-connected levels: a level cell's neighbours on levels are on its own (beyond the raster: the same)
+        on = levels[e0:e1]
+        inner = on.copy()
+        for dst, src in (_slices2(dr, dc, e1 - e0, w) for dr, dc in _DIRECTIONS):
+            inner[dst] &= on[src]
+        inner = inner[b0 - e0:b1 - e0]
         lab_b = labels[b0:b1]
         has_top = np.bincount(lab_b[inner & (lab_b > 0)], minlength=n + 1) > 0
         hit &= dissent.ravel()[at] | has_top[lab]
