@@ -407,7 +407,7 @@ def _level_edges(z, valid, jump_m, s, dx, dy):
     return edge
 
 
-def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slope, max_cells):
+def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slope, max_cells, top_dissent=None):
     """The dissented ground of regions cut from every undisputed ground cell by level changes.
 
     ``bareearth:dtm``'s vote keeps a low roof (a flat annex or a lower level of a building, 3-4 m
@@ -428,7 +428,11 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     neighbour at distance ``d`` (a level change of RASCOR's size, beyond the terrain's slope
     allowance ``s d``; a bank's slope stays inside its level). A level holding no ``anchors``
     cell (ground every member agrees on) is a raised level the vote kept only by the members'
-    allowances, and its ``dissent`` cells (ground by the vote, object by RASCOR) are objects.
+    allowances, and its ``dissent`` cells (ground by the vote, object by RASCOR: a low roof) are
+    objects, and its ``top_dissent`` cells (object by another member: the opening on a tower cut by
+    the raster's edge, beyond which the others see no ground) where the level has a *top*, a cell
+    whose 8 neighbours all lie on it (a patch one or two cells wide between level changes is a step of
+    a steep slope, which the opening rejects on steep banks; RASCOR's own dissent is a level change).
     Levels spanning more than ``max_cells`` cells (rows or columns) are left alone, so a cell's
     decision depends on cells within :func:`regions_halo` of it, the raised regions' reach.
 
@@ -439,7 +443,7 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     ground : ndarray of bool
         The voted ground (the levels are cut from it).
     dissent : ndarray of bool
-        The cells that may become objects (``bareearth:dtm``: ground of the opening, object of RASCOR).
+        The cells that may become objects (``bareearth:dtm``: voted ground RASCOR rejects).
     anchors : ndarray of bool
         Ground every member agrees on: a level holding one is joined to the undisputed ground.
     cell_size : (float, float)
@@ -450,6 +454,8 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
         ``s``, the terrain's steep slope (rise/run, >= 0; NaN: 0).
     max_cells : int
         Levels spanning more cells are left alone (0: nothing is looked for).
+    top_dissent : ndarray of bool, optional
+        Cells that may become objects on levels with a top only.
 
     Returns
     -------
@@ -483,7 +489,8 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     valid = np.isfinite(z)
     ground = ground & valid
     out = np.zeros(z.shape, bool)
-    cand = dissent & ground
+    top_dissent = None if top_dissent is None else np.asarray(top_dissent, bool) & ~dissent
+    cand = dissent & ground if top_dissent is None else (dissent | top_dissent) & ground
     if max_cells <= 0 or not cand.any():
         return out
     dx, dy = float(cell_size[0]), float(cell_size[1])
@@ -511,6 +518,21 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     judged = np.zeros(n + 1, bool)
     judged[ids] = span <= max_cells
     hit = judged[lab]
+    if top_dissent is not None and hit.any():
+        # a level has a top: a cell whose 8 neighbours all lie on it; ``top_dissent`` counts only there
+        # (a patch one or two cells wide between level changes is a step of a steep slope, not a level)
+        sel = [boxes[i - 1][0] for i in np.unique(lab[hit]).tolist()]
+        b0, b1 = min(b.start for b in sel), max(b.stop for b in sel)
+        e0, e1 = max(0, b0 - 1), min(h, b1 + 1)
+        # 8-connected levels: a level cell's neighbours on levels are on its own (beyond the raster: the same)
+        on = levels[e0:e1]
+        inner = on.copy()
+        for dst, src in (_slices2(dr, dc, e1 - e0, w) for dr, dc in _DIRECTIONS):
+            inner[dst] &= on[src]
+        inner = inner[b0 - e0:b1 - e0]
+        lab_b = labels[b0:b1]
+        has_top = np.bincount(lab_b[inner & (lab_b > 0)], minlength=n + 1) > 0
+        hit &= dissent.ravel()[at] | has_top[lab]
     if not hit.any():
         return out
     out.ravel()[at] = hit

@@ -204,6 +204,20 @@ def test_a_level_joined_to_the_undisputed_ground_or_not_dissented_stays_ground()
     assert not _detached(z, ground, dissent, anchors, max_cells=0).any()
 
 
+def test_another_members_dissent_counts_on_levels_with_a_top_only():
+    z, ground, dissent, anchors = _annex()
+    none = np.zeros_like(dissent)
+    # another member's objects: the annex (a level with a top: cells whose 8 neighbours all lie on it)
+    assert np.array_equal(_detached(z, ground, none, anchors, top_dissent=dissent), dissent)
+    # a patch two cells wide between level changes (a step of a steep slope) has no top: only the level
+    # member's own dissent takes it
+    z2 = np.zeros((30, 30), np.float32)
+    z2[10:20, 14:16] = -3.0
+    patch = z2 < 0
+    assert not _detached(z2, np.ones(z2.shape, bool), np.zeros_like(patch), z2 == 0, top_dissent=patch).any()
+    assert np.array_equal(_detached(z2, np.ones(z2.shape, bool), patch, z2 == 0, top_dissent=patch), patch)
+
+
 def test_a_bank_rising_within_the_slope_allowance_is_one_level_with_the_ground():
     # the same 3 m reached over a bank of 1 m per cell (< jump_m + s d): no level change, joined to the ground
     z, ground, dissent, anchors = _annex()
@@ -280,6 +294,46 @@ def test_dtm_takes_a_low_annex_only_rascor_rejects_as_an_object(monkeypatch):
     monkeypatch.setattr(dtm_method, "find_detached_levels", lambda z_, *a, **k: np.zeros(z_.shape, bool))
     without = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
     assert (without.mask[annex] == GROUND).mean() > 0.5          # the vote alone keeps it
+
+
+def test_dtm_takes_a_roof_only_the_opening_rejects_as_an_object(monkeypatch):
+    """A roof 12 m high cut by the raster's edge (as on ISPRS sample 41 at 1 m, a tower running off the
+    tile), which RASCOR and the reconstruction both accept: the vote keeps it; the opening's dissent on a
+    level cut by walls from all undisputed ground makes it an object, as RASCOR's does for a low annex."""
+    from bare_earth.core import dtm as dtm_method
+    from bare_earth.core.methods import get_method
+    y, x = grid(128)
+    ground = 50 + 0.01 * x + 0.005 * y
+    roof = (x >= 116) & (np.abs(y - 64) < 10)
+    z = noisy(ground + np.where(roof, 12.0, 0.0), sd=0.05)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    import dataclasses
+
+    def accepting(real):                                   # a member accepting the roof
+        def run(z_, cell, progress=None, **kw):
+            res = real.run(z_, cell, progress=progress, **kw)
+            res.mask[roof & (res.mask == OBJECT)] = GROUND
+            return res
+        return dataclasses.replace(real, run=run)
+
+    fakes = {name: accepting(get_method(name)) for name in ("geodesic", "rascor")}
+    monkeypatch.setattr(dtm_method, "get_method", lambda name: fakes.get(name) or get_method(name))
+    assert (get_method("morphological").run(z, 1.0, **p["members"]["morphological"]).mask[roof] == OBJECT).mean() > 0.9
+    res = dtm_method.filter_dtm(z, 1.0, **{k: v for k, v in p.items() if k != "input_description"})
+    assert (res.mask[roof] == OBJECT).mean() > 0.95
+    assert (res.mask[~roof] == GROUND).mean() > 0.99
+    assert res.info["detached_level_share"] > 0.5 * roof.sum() / z.size
+
+
+def test_dtm_keeps_a_trench_a_member_calls_a_low_outlier():
+    """A quarry's floor one cell wide, 6 m below its benches: the opening calls it a low outlier, the others
+    ground; a member's low outlier is no raised object, so its level (cut by the benches' walls from all
+    undisputed ground) stays ground."""
+    y, x = grid(200)
+    r = np.abs(x - 100)
+    z = noisy(100.0 - 6.0 * np.clip(np.floor((80 - r) / 20), 0, None), sd=0.05)
+    res = pipeline.run_array("dtm", z, 1.0)
+    assert (res.mask == GROUND).mean() > 0.995
 
 
 # ----------------------------------------------------------------------------- through bareearth:dtm
