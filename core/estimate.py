@@ -43,7 +43,9 @@ says so:
   - :func:`below_surroundings`: a pit lies below every cell of the ring around it (a
     low blunder, not a gap between crowns);
   - :func:`below_level_rim`: a pit lies below the level rim just around it (a blunder in
-    open ground, even with another blunder within that ring);
+    open ground, even with another blunder within that ring), and the candidates it leaves
+    :func:`below_narrow_gap` (a line or cluster of blunders along a wall: far below the
+    level ground on one side of a gap narrower than a cluster);
   - :func:`below_level_neighbours`: a pit lies below its level neighbours (a blunder in a
     level surface, however many blunders lie around it).
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
@@ -53,6 +55,7 @@ import contextlib
 import hashlib
 import math
 import threading
+import warnings
 
 import numpy as np
 from scipy import ndimage
@@ -1033,7 +1036,9 @@ def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUS
     blunders within that ring of each other hid each other (issue 12: two 2 x 2 pits 18 m
     deep, 10 m apart, on open ground); this test does not look that far. A rim cell outside
     the array is left out; a nodata rim cell, or fewer than half the rim inside, is no
-    evidence (False). Candidates are few: their rims are gathered directly.
+    evidence (False). Candidates are few: their rims are gathered directly. The candidates
+    this test leaves are asked :func:`below_narrow_gap` (a line of blunders along a wall,
+    whose rim is wall and ground), so the filters asking the shared pit tests get both.
     """
     iy, ix, _, _ = surroundings_reach(cell_size, cluster_m=cluster_m)
     z = np.asarray(z)
@@ -1058,6 +1063,10 @@ def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUS
             own = flat.take(q).astype(np.float32)
             hit = ok & (hi - lo <= 2 * depth_m + rise) & (own < lo - np.float32(depth_m))
         out.ravel()[q[hit]] = True
+    rest = np.zeros(z.shape, bool)
+    rest.ravel()[idx] = True
+    rest &= ~out
+    out |= below_narrow_gap(z, cell_size, depth_m, slope, rest, cluster_m=cluster_m)
     return out
 
 
@@ -1103,6 +1112,127 @@ def below_level_neighbours(z, depth_m, level_m, candidates, min_neighbours=3):
             hit &= (hi - lo <= np.float32(level_m)) & (own < lo - np.float32(depth_m))
         out.ravel()[q[hit]] = True
     return out
+
+
+#: The steepest banks (rise/run) a narrow gap in the terrain has on both sides: a gap deeper
+#: than the distance between its banks (twice the depth of 45 degree banks meeting in a V)
+#: is no ditch (:func:`below_narrow_gap`).
+GAP_BANK_SLOPE = 1.0
+#: The four directions (row, column steps) across which :func:`below_narrow_gap` looks.
+#: A line or a cluster is narrow across at least two of them (a line: across it and both
+#: diagonals); a courtyard's corner, an underpass's mouth, only along one diagonal.
+_GAP_DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
+_GAP_MIN_DIRECTIONS = 2
+#: The share of the ring of :func:`below_surroundings` below which its ground lies for
+#: :func:`below_narrow_gap`: a line of blunders fills less than a quarter of it (a line of
+#: 21 cells across a ring of 416 at 1 m: 5 %), the ground beside the buildings more.
+GAP_GROUND_QUANTILE = 0.25
+
+
+def below_narrow_gap(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUSTER_M):
+    """Cells of ``candidates`` at the bottom of a gap narrower than a blunder cluster and
+    deeper than any terrain explains, below level ground on its lower side.
+
+    Multipath blunders lie in lines and clusters along walls (issue 12: ISPRS samp41, 44
+    points 24-35 m below the ground in lines of 21 and 30 cells): each has others of its
+    line within the ring of :func:`below_surroundings` and a rim of wall and ground, not
+    level (:func:`below_level_rim`). Across the line they are found: along at least two of
+    four directions (rows, columns, diagonals) the cell rises, on both sides, more than
+    ``depth_m`` above itself within a gap at most the cluster's width wide (``n = 2 i + 1``
+    cells, ``i`` the cluster's half-width of :func:`surroundings_reach`, and at most half
+    the ring's radius there, so the test reaches no further than that ring); one bank is
+    level from there to the ring's radius (within ``2 depth_m`` and the rise of the terrain
+    slope ``slope``: ground or a roof, not the crowns around a gap in a canopy); and the
+    cell lies below the lower bank by more than ``depth_m`` plus the rise of
+    the steeper of ``slope`` and :data:`GAP_BANK_SLOPE` from bank to bank (a ditch, a sunken
+    lane: banks no steeper than 45 degrees on both sides, or wider than a cluster; a
+    river or a quarry floor: wider than a cluster, one bank only within reach; a courtyard
+    among buildings: wider, or level roofs on both sides rise above a gap wider than its
+    depth; a courtyard's corner: narrow along one diagonal only). Last, the bank is on the
+    ground side: the cell lies below the ground of the ring of :func:`below_surroundings`
+    (its lower quartile, :data:`GAP_GROUND_QUANTILE`) and no cell of that ring bridges the
+    cell and its lower bank (ground at the cell's level in a gap between buildings or
+    crowns, or terrain rising from it, is ground), each beyond ``depth_m`` and the rise of
+    ``slope`` across the ring. A cell outside the array or nodata is no bank. Candidates
+    are few: their rays and rings are gathered directly.
+    """
+    iy, ix, ry, rx = surroundings_reach(cell_size, cluster_m=cluster_m)
+    z = np.asarray(z)
+    h, w = z.shape
+    out = np.zeros(z.shape, bool)
+    idx = np.flatnonzero(candidates)
+    if idx.size == 0:
+        return out
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    bank = max(float(slope), GAP_BANK_SLOPE)
+    flat = z.ravel()
+    votes = np.zeros(idx.size, np.uint8)               # directions across which each is found
+    bank_lo = np.full(idx.size, np.inf, np.float32)    # the lowest bank of those directions
+    for sr, sc in _GAP_DIRECTIONS:
+        # the ray: as far as the ring of below_surroundings reaches (a filter's halo covers
+        # it); the banks within the cluster's width (cells), at most half the ray, and the
+        # level ground from the bank on to the ray's end
+        ray = min(ry if sr else rx, rx if sc else ry)
+        n = min(2 * min(iy if sr else ix, ix if sc else iy) + 1, ray // 2)
+        m = ray - n + 1
+        step = float(np.hypot(sr * dy, sc * dx))
+        k = np.arange(1, ray + 1)
+        dr = np.concatenate([k * sr, -k * sr])
+        dc = np.concatenate([k * sc, -k * sc])
+        level = np.float32(2 * depth_m + float(slope) * (m - 1) * step)
+        for i, (q, v, inside) in enumerate(_gather_offsets(flat, (h, w), idx, dr, dc)):
+            v[~inside] = np.nan
+            own = flat.take(q).astype(np.float32)
+            banks, exits = [], []
+            for side in (v[:, :ray], v[:, ray:]):
+                with np.errstate(invalid="ignore"):
+                    up = side[:, :n] > own[:, None] + np.float32(depth_m)
+                e = np.where(up.any(axis=1), up.argmax(axis=1), n)       # first cell above, or none
+                run = np.take_along_axis(side, np.minimum(e, n - 1)[:, None] + np.arange(m)[None, :], axis=1)
+                with np.errstate(invalid="ignore"):                    # NaN: no level bank
+                    flat_bank = run.max(axis=1) - run.min(axis=1) <= level
+                banks.append((run[:, 0], flat_bank))
+                exits.append(e)
+            gap = exits[0] + exits[1] + 1                                     # cells between the banks
+            (h0, l0), (h1, l1) = banks
+            low = np.fmin(h0, h1)                      # the lower bank, with one level bank
+            with np.errstate(invalid="ignore"):
+                hit = (exits[0] < n) & (exits[1] < n) & (gap <= n) & (l0 | l1) & \
+                    (own < low - np.float32(depth_m) - np.float32(bank * step) * (gap + 1))
+            part = slice(i * _RING_CHUNK, i * _RING_CHUNK + q.size)
+            votes[part] += hit
+            np.minimum(bank_lo[part], np.where(hit, low, np.inf), out=bank_lo[part])
+    found = votes >= _GAP_MIN_DIRECTIONS
+    idx = idx[found]
+    found = _below_ground_side(z, idx, bank_lo[found], (iy, ix, ry, rx), depth_m, slope, cell_size)
+    out.ravel()[idx[found]] = True
+    return out
+
+
+def _below_ground_side(z, idx, bank, reach, depth_m, slope, cell_size):
+    """Whether each cell of ``idx`` (flat) lies below the ground of the ring of
+    :func:`below_surroundings` around it, its lower bank ``bank`` on the ground side:
+    more than ``depth_m`` plus the terrain's rise across the ring (``slope`` times the
+    ring's radius) below the ring's lower quartile (:data:`GAP_GROUND_QUANTILE`), and with
+    no ring cell between ``depth_m`` above it and that allowance below the bank (nothing
+    bridges the cell and the ground; ground at the cell's level, or rising from it, does)."""
+    iy, ix, ry, rx = reach
+    dr, dc = np.meshgrid(np.arange(-ry, ry + 1), np.arange(-rx, rx + 1), indexing="ij")
+    ring = (np.abs(dr) > iy) | (np.abs(dc) > ix)
+    dr, dc = dr[ring], dc[ring]
+    ok = np.zeros(idx.size, bool)
+    allow = np.float32(depth_m + float(slope) * float(np.hypot(ry * cell_size[1], rx * cell_size[0])))
+    flat = z.ravel()
+    for i, (q, v, inside) in enumerate(_gather_offsets(flat, z.shape, idx, dr, dc)):
+        part = slice(i * _RING_CHUNK, i * _RING_CHUNK + q.size)
+        own = flat.take(q).astype(np.float32)
+        v[~inside] = np.nan
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)              # a ring of nodata
+            ground = np.nanquantile(v, GAP_GROUND_QUANTILE, axis=1).astype(np.float32)
+            v[~(v > own[:, None] + np.float32(depth_m))] = np.inf         # NaN too
+            ok[part] = (own < ground - allow) & (v.min(axis=1) >= bank[part] - allow)
+    return ok
 
 
 #: Nodata gaps at most this many cells from a valid cell (missing scan lines, a checkerboard of

@@ -557,13 +557,15 @@ def test_halo_covers_the_ring_test_of_low_blunders():
     """Step 3 alone (and step 7's reach) is 3-4 cells, but a low blunder it finds is
     removed only when it lies below the whole ring around it (10 m): a pit 10 rows from a
     deeper-lying cell (its witness, so no blunder) near a block's edge is a blunder to a
-    block whose halo stops short of the witness. (A post on each pit's rim: no level
-    ground, so the ring alone decides; on open ground both pits are blunders, issue 12.)"""
+    block whose halo stops short of the witness. (A dip 2.5 m deep on each pit's rim: no
+    level ground, and a height between the pit and the ground, so neither the level rim
+    nor the narrow gap's ground side decides, the ring alone does; on open ground both pits
+    are blunders, issue 12.)"""
     z = plane(120, 0.002, 0.001)[:, :60]
     z[46, 30] -= 5.0                                  # in the first block's core (rows 0-47)
-    z[43, 30] += 3.0                                  # a post on its rim (3 rows up)
+    z[43, 30] -= 2.5                                  # a dip on its rim (3 rows up)
     z[56, 30] -= 4.8                                  # 10 rows below: the ring's witness
-    z[59, 30] += 3.0                                  # ... with a post on its rim
+    z[59, 30] -= 2.5                                  # ... with a dip on its rim
     p = rascor.resolve_rascor_params(z, 1.0, sigma_m=0.1)
     p.update(step2_height_distribution=False, step4_level_change=False, step5_profiles=False,
              step6_surfaces=False)
