@@ -335,12 +335,11 @@ def longer_than(objects, cell_size, length_m):
     if not n:
         return np.zeros(np.shape(objects), bool)
     dx, dy = as_cell_size(cell_size)
-    idx = np.arange(1, n + 1)
+    # the regions' extents from their bounding boxes (one pass; labelled minima and maxima sort the raster)
+    box = np.array([(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in ndimage.find_objects(lab)],
+                   np.intp).reshape(-1, 4)
     span = np.zeros(n + 1)
-    for axis, d in ((0, dy), (1, dx)):
-        pos = np.broadcast_to(np.arange(lab.shape[axis]).reshape((-1, 1) if axis == 0 else (1, -1)), lab.shape)
-        ext = (ndimage.maximum(pos, lab, idx) - ndimage.minimum(pos, lab, idx) + 1) * d
-        span[1:] = np.maximum(span[1:], ext)
+    span[1:] = np.maximum((box[:, 1] - box[:, 0]) * dy, (box[:, 3] - box[:, 2]) * dx)
     return (span > length_m)[lab]
 
 
