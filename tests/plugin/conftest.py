@@ -55,6 +55,21 @@ def processing_run(qgis_app):
     return processing.run
 
 
+@pytest.fixture(scope="session")
+def warning_log(qgis_app):
+    """A class of processing feedbacks that keep the warnings they are given (``.warnings``)."""
+    from qgis.core import QgsProcessingFeedback
+
+    class WarningLog(QgsProcessingFeedback):
+        def __init__(self):
+            super().__init__()
+            self.warnings = []
+
+        def pushWarning(self, text):  # noqa: N802
+            self.warnings.append(text)
+    return WarningLog
+
+
 def _qgis_process_bin():
     exe = shutil.which("qgis_process.bin") or "/usr/bin/qgis_process.bin"
     if not os.path.exists(exe):

@@ -567,29 +567,13 @@ def test_point_tools_cancelled_write_nothing(processing_run, cloud_files, scene_
     assert not out.exists()
 
 
-class _Warnings:
-    """A feedback keeping the warnings it is given."""
-
-    def __new__(cls):
-        from qgis.core import QgsProcessingFeedback
-
-        class Log(QgsProcessingFeedback):
-            def __init__(self):
-                super().__init__()
-                self.warnings = []
-
-            def pushWarning(self, text):  # noqa: N802
-                self.warnings.append(text)
-        return Log()
-
-
 @pytest.mark.parametrize("crs, said", [
     ("", "The points have no CRS"),
     ("EPSG:32632", None),
     ("EPSG:3857", "does not keep distances here"),
 ])
 @pytest.mark.parametrize("alg", ["bareearth:rasterizepoints", "bareearth:morphological"])
-def test_points_without_a_crs_or_in_one_without_distances_warned(processing_run, tmp_path, crs, said, alg):
+def test_points_without_a_crs_or_in_one_without_distances_warned(processing_run, warning_log, tmp_path, crs, said, alg):
     """Points without a CRS were taken as metres and gave outputs without a CRS, and points in Web
     Mercator (USGS 3DEP's tiles) were converted to ground metres, with an info line only (a raster
     in either case gets a warning); both now warn, as a raster's run does. A UTM cloud: no warning."""
@@ -597,7 +581,7 @@ def test_points_without_a_crs_or_in_one_without_distances_warned(processing_run,
     if crs == "EPSG:3857":   # the same cloud placed at 52 deg N in Web Mercator (scale 1.62)
         x, y = x - 500000.0, y - 5400000.0 + 6800000.0
     src = _write_text(tmp_path / "pts.txt", x, y, z)
-    log = _Warnings()
+    log = warning_log()
     if alg == "bareearth:rasterizepoints":
         params = {"INPUT": src, "CRS": crs, "OUTPUT": str(tmp_path / "dsm.tif")}
     else:

@@ -105,26 +105,17 @@ def test_an_existing_read_only_output_refused_before_any_work(processing_run, tm
         assert {k: (tmp_path / k).read_bytes() for k in old} == old
 
 
-def test_undeclared_minus_9999_border_warned_in_the_log(processing_run, tmp_path):
+def test_undeclared_minus_9999_border_warned_in_the_log(processing_run, tmp_path, warning_log):
     """A DSM exported with a -9999 border but no declared nodata: the log says so and how to
     declare it (the run went on silently, its DTM pulled down by kilometres beside the border);
     declared, no warning."""
-    from qgis.core import QgsProcessingFeedback
-
     from bare_earth.core.grid import write_array
     sc = _scene()
     z = sc.dsm.copy()
     z[:, :12] = -9999.0
-    class Log(QgsProcessingFeedback):
-        def __init__(self):
-            super().__init__()
-            self.warnings = []
-
-        def pushWarning(self, text):  # noqa: N802
-            self.warnings.append(text)
     for nodata, expect in ((None, True), (-9999.0, False)):
         src = write_array(tmp_path / f"dsm{nodata}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
-        log = Log()
+        log = warning_log()
         processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata}.tif"),
                                          "OUTPUT_MASK": str(tmp_path / f"m{nodata}.tif")}, feedback=log)
         said = [w for w in log.warnings if "a common nodata value" in w]
@@ -379,27 +370,18 @@ def test_an_output_onto_a_file_a_vrt_input_reads_refused(processing_run, tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mosaic.vrt", "tile.tif"]
 
 
-def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tmp_path):
+def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tmp_path, warning_log):
     """A DSM of heights rounded to whole metres declaring one of those heights (the median) as its
     nodata: every cell holding it was read as missing without a word (a seventh of the cells, holes
     along a contour in the DTM); the log now says so and how to export it. Nodata -9999: no warning."""
-    from qgis.core import QgsProcessingFeedback
-
     from bare_earth.core.grid import write_array
     sc = _scene()
     z = np.round(sc.dsm).astype(np.float32)
     median = float(np.median(z))
 
-    class Log(QgsProcessingFeedback):
-        def __init__(self):
-            super().__init__()
-            self.warnings = []
-
-        def pushWarning(self, text):  # noqa: N802
-            self.warnings.append(text)
     for nodata, expect in ((median, True), (-9999.0, False)):
         src = write_array(tmp_path / f"dsm{nodata:g}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
-        log = Log()
+        log = warning_log()
         processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata:g}.tif"),
                                          "OUTPUT_MASK": str(tmp_path / f"m{nodata:g}.tif")}, feedback=log)
         said = [w for w in log.warnings if "lies among its heights" in w]
@@ -437,23 +419,14 @@ def test_a_scaled_band_whose_nodata_is_also_a_height_keeps_its_sea_level(process
         assert np.count_nonzero(a == 0.0) >= np.count_nonzero(counts == 10000) // 2 > 0, path   # sea level kept
 
 
-def test_creation_options_for_an_output_of_another_format_warned(processing_run, tmp_path):
+def test_creation_options_for_an_output_of_another_format_warned(processing_run, tmp_path, warning_log):
     """Creation options or COG with an output in another format than GeoTIFF (.asc, .img): they
     are GeoTIFF's and were left out without a word; the log names each such output. GeoTIFF
     outputs, and no options: no warning."""
-    from qgis.core import QgsProcessingFeedback
-
     from bare_earth.core.grid import write_array
     sc = _scene()
     src = write_array(tmp_path / "dsm.tif", sc.dsm, sc.geotransform, sc.epsg)
 
-    class Log(QgsProcessingFeedback):
-        def __init__(self):
-            super().__init__()
-            self.warnings = []
-
-        def pushWarning(self, text):  # noqa: N802
-            self.warnings.append(text)
     cases = [({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".asc", ".tif", ["'DTM' (OUTPUT_DTM) is written as Arc/Info ASCII "
                                                                   "grid (.asc): the creation options apply"]),
              ({"COG": True}, ".img", ".img", ["'DTM' (OUTPUT_DTM) is written as ERDAS Imagine (.img): the COG",
@@ -461,7 +434,7 @@ def test_creation_options_for_an_output_of_another_format_warned(processing_run,
              ({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".tif", ".tif", []),
              ({}, ".asc", ".asc", [])]
     for k, (extra, dtm_ext, mask_ext, said) in enumerate(cases):
-        log = Log()
+        log = warning_log()
         processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{k}{dtm_ext}"),
                                                   "OUTPUT_MASK": str(tmp_path / f"m{k}{mask_ext}"), **extra},
                        feedback=log)
