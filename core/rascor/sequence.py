@@ -363,6 +363,15 @@ def _spare_continuing_ground(st, cfg):
     (a bush or a tree on the bank that another step removed does not cut it), and it is joined
     within ``REACH_M`` (12 m) through such cells to kept ground that itself runs further than
     the window (not a piece of a crown or a roof the steps left, cut off by the objects around).
+
+    Its measured cost: ``lidar/autzen_trim/1m`` 2.20 -> 2.85 % total error (``bareearth:dtm``
+    2.80 -> 3.26). 224 of the 948 cells given back there lie 0.3-1.5 m above the reference ground
+    (putting them back as objects alone gives 2.15 %): understorey under tree canopy, no ground
+    return in the cell and returns spread up to 16 m above it, whose lowest returns rise from the
+    kept ground by 0.25-0.4 m a cell, as an embankment's side does (the synthetic embankments:
+    0.5 m a cell), and stay within the 0.85 m allowance. Their regions' span, their outlines'
+    share of kept ground, their height above the kept ground around them, the objects of steps 3
+    and 4 around them and their roughness were measured; none tells them from the embankments.
     """
     if not cfg.spare_continuing_ground:
         return
