@@ -12,6 +12,8 @@ from .grey import grey_opening, window_cells
 from .outliers import OUTLIER_MAX_CELLS
 from .scan import OBLIQUE_REACH
 
+#: The default largest object before it was derived (models saved then store it: no refusal on small rasters).
+OBJECT_SIZE_M_BEFORE = 64.0
 #: The user parameters (dialog order); their bounds are the limits the core enforces.
 PARAMS = (
     Param("min_window_m", "float", 2.0, "Side of the first structuring element in "
@@ -23,7 +25,7 @@ PARAMS = (
           "rotated in the grid). Empty: 64 m, widened (with raised regions on) to 1.25 x the "
           "width of a raised region standing on walls that a 64 m window does not reach "
           "across + 2 cells (a hall, a roof cut by the raster's edge), at most 200 m.",
-          minimum=0.5, maximum=5000.0),
+          minimum=0.5, maximum=5000.0, former_defaults=(OBJECT_SIZE_M_BEFORE,)),
     Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
           "reconstructed terrain in metres; empty: max(0.5, 3 x the noise of the DSM's ground-level cells).",
           minimum=0.01, maximum=100.0),
