@@ -847,7 +847,8 @@ class FilterAlgorithm(BaseAlgorithm):
         return out
 
     def _user_params(self, parameters, context):
-        """The core's keyword arguments; an empty optional number means "from the data" (None)."""
+        """The core's keyword arguments; an empty optional number means "from the data" (None), an
+        empty yes/no its default (QGIS reads an empty string as false)."""
         out = {}
         for p in self.method.params:
             key = p.name.upper()
@@ -860,8 +861,9 @@ class FilterAlgorithm(BaseAlgorithm):
                     v = read(parameters, key, context)
                     if p.default is None and isinstance(v, float) and math.isnan(v):
                         v = None
-            elif p.kind == "bool":
-                v = self.parameterAsBool(parameters, key, context)
+            elif p.kind == "bool":   # empty (qgis_process KEY=, processing.run ''): its default, as a number's
+                v = (bool(p.default) if parameters.get(key) in (None, "")
+                     else self.parameterAsBool(parameters, key, context))
             else:
                 v = p.options[self.parameterAsEnum(parameters, key, context)]
             out[p.name] = v
