@@ -47,9 +47,10 @@ PARAMS = (
           advanced=True),
     Param("scan_labelling", "bool", True, "Run scan labelling along rows and columns "
           "after the dilation steps (removes what the dilation left).", advanced=True),
-    Param("raised_regions", "bool", True, "When the largest object is derived: widen it to "
-          "a raised region standing on walls wider than 64 m (a hall, a roof cut by the "
-          "raster's edge), so its last step removes it.", advanced=True),
+    Param("raised_regions", "bool", True, "When the largest object is derived: widen it from "
+          "64 m to 1.25 x the width + 2 cells of the widest raised region wider than 64 m standing on "
+          "walls of 2 dh0 (a hall, a roof cut by the raster's edge), at most 200 m, so its last step "
+          "removes it. A given largest object is used as given.", advanced=True),
 )
 #: Default of every parameter (None: derived from the data by :func:`resolve_geodesic_params`).
 DEFAULTS = {p.name: p.default for p in PARAMS}
