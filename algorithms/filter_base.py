@@ -262,12 +262,16 @@ def check_window_sizes(alg, values, defaults, info):
     window (``..._CELLS`` in cells against the raster's shorter side, ``..._M`` in metres
     against its extent) or a size in metres (``..._SIZE_M``) is compared with ``info``'s
     raster (a :class:`~bare_earth.core.grid.DSMInfo`). Defaults pass: the cores clamp a
-    default larger than a small raster, only a value the user chose is refused.
+    default larger than a small raster, only a value the user chose is refused. A default may be
+    a tuple: the default and its former values (:attr:`~bare_earth.core.methods.Param.former_defaults`,
+    stored by models and scripts saved before it changed).
     """
     extent_m = max(info.shape[0] * info.cell_size_m[1], info.shape[1] * info.cell_size_m[0])
     for key, v in values.items():
         name = key.lower()
-        if (v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or v == defaults.get(key)
+        known = defaults.get(key)
+        if (v is None or isinstance(v, bool) or not isinstance(v, (int, float))
+                or v in (known if isinstance(known, tuple) else (known,))
                 or ("window" not in name and "size_m" not in name)):
             continue
         label = label_of(alg.parameterDefinition(key))
@@ -843,7 +847,8 @@ class FilterAlgorithm(BaseAlgorithm):
         return out
 
     def _user_params(self, parameters, context):
-        """The core's keyword arguments; an empty optional number means "from the data" (None)."""
+        """The core's keyword arguments; an empty optional number means "from the data" (None), an
+        empty yes/no its default (QGIS reads an empty string as false)."""
         out = {}
         for p in self.method.params:
             key = p.name.upper()
@@ -856,8 +861,9 @@ class FilterAlgorithm(BaseAlgorithm):
                     v = read(parameters, key, context)
                     if p.default is None and isinstance(v, float) and math.isnan(v):
                         v = None
-            elif p.kind == "bool":
-                v = self.parameterAsBool(parameters, key, context)
+            elif p.kind == "bool":   # empty (qgis_process KEY=, processing.run ''): its default, as a number's
+                v = (bool(p.default) if parameters.get(key) in (None, "")
+                     else self.parameterAsBool(parameters, key, context))
             else:
                 v = p.options[self.parameterAsEnum(parameters, key, context)]
             out[p.name] = v
@@ -875,7 +881,8 @@ class FilterAlgorithm(BaseAlgorithm):
         if not ok:
             return False, msg
         user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
-        ok, msg = check_window_sizes(self, user, {p.name.upper(): p.default for p in self.method.params}, info)
+        ok, msg = check_window_sizes(self, user, {p.name.upper(): (p.default, *p.former_defaults)
+                                                  for p in self.method.params}, info)
         if not ok:
             return False, msg
         return self.checkExtraInputs(parameters, context, info)

@@ -31,6 +31,10 @@ class Param:
         Allowed values of an enum (the value passed to the core is the string).
     advanced : bool
         Shown under "Advanced parameters" in the dialog.
+    former_defaults : tuple
+        Defaults of earlier versions. Models and scripts saved then store them as given values;
+        the plugin's checks treat them as a default (a default window larger than a small raster
+        is clamped by the core, not refused).
     """
     name: str
     kind: str
@@ -40,6 +44,7 @@ class Param:
     maximum: Optional[float] = None
     options: Tuple[str, ...] = ()
     advanced: bool = False
+    former_defaults: Tuple[Any, ...] = ()
 
 
 def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, Any]) -> None:

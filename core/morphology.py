@@ -1281,10 +1281,11 @@ PARAMS = (
           "the 90th-percentile slope of the 40 m block-minimum surface (at most 100). Progressive form only.",
           minimum=0.0, maximum=_MAX_OUTLINE_SLOPE, advanced=True),
     Param("raised_regions", "bool", True,
-          "When the largest object size is derived: widen it to the width of the widest raised region "
-          "standing on walls (steps down to ground continuing beyond them over most of its outline) that "
-          "the derived window does not reach across, at most 200 m (a roof over most of a tile, running "
-          "off its edges, which the object-size search's windows keep as ground).", advanced=True),
+          "When the largest object size is derived: widen it to 1.25 x the width + 2 cells of the widest "
+          "raised region standing on walls (steps down to ground continuing beyond them over most of its "
+          "outline) that the derived window does not reach across, at most 200 m (a roof over most of a tile, "
+          "running off its edges, which the object-size search's windows keep as ground). A given largest "
+          "object is used as given.", advanced=True),
     Param("low_outlier_slope", "float", LOW_OUTLIER_SLOPE,
           "Slope of SMRF's low-outlier pre-step (inverted surface, 1 m window): a pit deeper than "
           "this x its radius is a low outlier. 5 = 500 % (SMRF).",

@@ -343,7 +343,11 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     their own height as ground (a tenth of the crowns of a closed canopy at 4 m). A bowl
     below the first surface by more than the tolerance is a low point (ISPRS samp41's
     multipath points: the surface dipped to them and the ground around became objects),
-    and a low blunder (class 2) is no ground; both stay out.
+    and a low blunder (class 2) is no ground; both stay out, and so does a pit (below every cell of
+    the ring at ``m + 2`` cells by ``h_min``, as :func:`_classify`'s low blunders) that the first
+    surface did not reach (no known cell on its profiles, which the scan took for walls: it kept
+    its own height and was "found ground" against itself; seeding the second surface, it stayed
+    ground and the cells around it became objects).
     ``valid`` is None when every cell is valid. Returns the mask (codes of
     :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
     ground seed within the reach a cell keeps its own height, and the profiles' objects
@@ -365,6 +369,8 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     bowls &= concave
     bowls &= breaks.by_k
     never = breaks.by_k & ~bowls                  # the other |K| >= K_g points never seed
+    sunk = np.zeros(z.shape, bool)                # bowls below every cell of their ring by h_min: pits
+    sunk.ravel()[_pits(z, bowls, m + 2, h_min)] = True
     mask = np.zeros(z.shape, np.uint8)
     surface = allow = None
     d = np.empty(z.shape, np.float32)
@@ -394,15 +400,18 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         np.logical_and(lost, objects, out=tmp)
         np.copyto(mask, np.uint8(OBJECT), where=tmp)
         np.not_equal(mask, GROUND, out=holes)
-        # the bowls found ground and not below the surface seed the next pass
+        # the bowls found ground and not below the surface seed the next pass; not the pits among them
+        # that the surface did not reach (lost: no known cell on their profiles, they kept their own
+        # height: a pit whose profiles the scan took for walls is "found ground" against itself)
         np.less(d, np.float32(-tol), out=tmp)
+        tmp |= lost & sunk
         tmp &= bowls
         tmp |= never
         holes |= tmp
         if invalid is not None:
             holes |= invalid
         report(progress, (it + 1) / _PASSES)
-    del d, tmp, lost, bowls, never
+    del d, tmp, lost, bowls, never, sunk
     _drop_unwalled(mask, objects, reach)
     if invalid is not None:
         mask[invalid] = NODATA

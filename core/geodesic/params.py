@@ -12,6 +12,8 @@ from .grey import grey_opening, window_cells
 from .outliers import OUTLIER_MAX_CELLS
 from .scan import OBLIQUE_REACH
 
+#: The default largest object before it was derived (models saved then store it: no refusal on small rasters).
+OBJECT_SIZE_M_BEFORE = 64.0
 #: The user parameters (dialog order); their bounds are the limits the core enforces.
 PARAMS = (
     Param("min_window_m", "float", 2.0, "Side of the first structuring element in "
@@ -23,7 +25,7 @@ PARAMS = (
           "rotated in the grid). Empty: 64 m, widened (with raised regions on) to 1.25 x the "
           "width of a raised region standing on walls that a 64 m window does not reach "
           "across + 2 cells (a hall, a roof cut by the raster's edge), at most 200 m.",
-          minimum=0.5, maximum=5000.0),
+          minimum=0.5, maximum=5000.0, former_defaults=(OBJECT_SIZE_M_BEFORE,)),
     Param("height_threshold_m", "float", None, "Minimal object height dh0 above the "
           "reconstructed terrain in metres; empty: max(0.5, 3 x the noise of the DSM's ground-level cells).",
           minimum=0.01, maximum=100.0),
@@ -45,9 +47,10 @@ PARAMS = (
           advanced=True),
     Param("scan_labelling", "bool", True, "Run scan labelling along rows and columns "
           "after the dilation steps (removes what the dilation left).", advanced=True),
-    Param("raised_regions", "bool", True, "When the largest object is derived: widen it to "
-          "a raised region standing on walls wider than 64 m (a hall, a roof cut by the "
-          "raster's edge), so its last step removes it.", advanced=True),
+    Param("raised_regions", "bool", True, "When the largest object is derived: widen it from "
+          "64 m to 1.25 x the width + 2 cells of the widest raised region wider than 64 m standing on "
+          "walls of 2 dh0 (a hall, a roof cut by the raster's edge), at most 200 m, so its last step "
+          "removes it. A given largest object is used as given.", advanced=True),
 )
 #: Default of every parameter (None: derived from the data by :func:`resolve_geodesic_params`).
 DEFAULTS = {p.name: p.default for p in PARAMS}

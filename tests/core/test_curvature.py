@@ -1235,3 +1235,18 @@ def test_second_pass_rests_on_the_bowls_found_ground():
     for name in ("bump", "saddle", "low"):
         (r, c), h, _, _ = pts[name]
         assert surface[r, c] != np.float32(h), name   # interpolated under it
+
+
+@pytest.mark.parametrize("cell", [0.25, 1.0])
+@pytest.mark.parametrize("n", [6, 9, 40])
+def test_a_deep_pit_is_low_not_ground_and_its_ring_stays_ground(n, cell):
+    """One cell 20 m below flat ground: the profiles take its row and column for walls, so the first
+    surface has no known cell on its profiles and keeps the pit's own height (lost). Such a bowl is not
+    'found ground' and does not seed the second surface: the pit is a low blunder and the cells around
+    it ground (with it as a seed the pit stayed ground and 8-20 cells around it became objects)."""
+    rng = np.random.default_rng(1)
+    z = (100 + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    z[n // 2, n // 2] -= 20
+    res, _ = run(z, cell)
+    assert res.mask[n // 2, n // 2] == LOW
+    assert (res.mask == OBJECT).sum() == 0

@@ -318,3 +318,75 @@ def test_threads_default_is_one_per_core(qgis_app):
         assert auto_threads() == default_workers()
     finally:
         QgsApplication.setMaxThreads(old)
+
+
+def _model_saved_before(alg, new, former):
+    """A model holding ``alg`` with the static values its dialog stored before the parameters ``new``
+    were added: every other input parameter at its default, ``former`` (former defaults) given."""
+    from qgis.core import (
+        QgsApplication,
+        QgsProcessingDestinationParameter,
+        QgsProcessingModelAlgorithm,
+        QgsProcessingModelChildAlgorithm,
+        QgsProcessingModelChildParameterSource,
+        QgsProcessingModelOutput,
+        QgsProcessingModelParameter,
+        QgsProcessingParameterRasterLayer,
+    )
+    model = QgsProcessingModelAlgorithm("old", "tests")
+    model.addModelParameter(QgsProcessingParameterRasterLayer("dsm", "DSM"), QgsProcessingModelParameter("dsm"))
+    child = QgsProcessingModelChildAlgorithm(alg)
+    child.setChildId("filter")
+    child.addParameterSources("INPUT", [QgsProcessingModelChildParameterSource.fromModelParameter("dsm")])
+    for d in QgsApplication.processingRegistry().algorithmById(alg).parameterDefinitions():
+        name = d.name()
+        if name in ("INPUT", *new) or isinstance(d, QgsProcessingDestinationParameter) or d.defaultValue() is None:
+            continue
+        value = former.get(name, d.defaultValue())
+        child.addParameterSources(name, [QgsProcessingModelChildParameterSource.fromStaticValue(value)])
+    outputs = {}
+    for key in ("OUTPUT_DTM", "OUTPUT_MASK"):
+        out = QgsProcessingModelOutput(key.lower())
+        out.setChildOutputName(key)
+        outputs[key.lower()] = out
+    child.setModelOutputs(outputs)
+    model.addChildAlgorithm(child)
+    return model
+
+
+@pytest.mark.parametrize("alg,new,former", [
+    ("bareearth:geodesic", ("RAISED_REGIONS",), {"MAX_OBJECT_SIZE_M": 64.0}),
+    ("bareearth:rascor", ("SPARE_CONTINUING_GROUND",), {}),
+], ids=["geodesic", "rascor"])
+def test_model_saved_before_new_parameters_runs_on_a_small_raster(processing_run, tmp_path, alg, new, former):
+    """A model saved before RASCOR's spare_continuing_ground or geodesic's raised_regions existed (and,
+    for geodesic, storing its former default largest object, 64 m) validates and runs on a raster 50 m
+    across: the new parameters take their defaults."""
+    from qgis.core import QgsProcessingModelAlgorithm
+    z = np.full((50, 50), 100.0, np.float32)
+    z[10:20, 10:20] += 8.0
+    src = _write(tmp_path / "small.tif", z)
+    path = tmp_path / "old.model3"
+    assert _model_saved_before(alg, new, former).toFile(str(path))
+    model = QgsProcessingModelAlgorithm()
+    assert model.fromFile(str(path))
+    ok, errors = model.validate()
+    assert ok, errors
+    r = processing_run(model, {"dsm": src, "filter:output_dtm": str(tmp_path / "dtm.tif"),
+                               "filter:output_mask": str(tmp_path / "mask.tif")})
+    mask = _read(r["filter:output_mask"])[0]
+    assert (mask[10:20, 10:20] == 1).all() and (mask == 1).sum() == 100
+
+
+def test_former_default_window_runs_on_a_small_raster(processing_run, tmp_path):
+    """MAX_OBJECT_SIZE_M = 64 (geodesic's default before it was derived, stored by older scripts) on a
+    raster 50 m across runs with the window clamped; a larger chosen window is still refused."""
+    from qgis.core import QgsProcessingException
+    z = np.full((50, 50), 100.0, np.float32)
+    z[10:20, 10:20] += 8.0
+    src = _write(tmp_path / "small.tif", z)
+    params = {"INPUT": src, "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    r = processing_run("bareearth:geodesic", {**params, "MAX_OBJECT_SIZE_M": 64.0})
+    assert (_read(r["OUTPUT_MASK"])[0] == 1).sum() == 100
+    with pytest.raises(QgsProcessingException, match="larger than the raster"):
+        processing_run("bareearth:geodesic", {**params, "MAX_OBJECT_SIZE_M": 65.0})

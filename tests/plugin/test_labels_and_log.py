@@ -167,3 +167,21 @@ def test_a_number_out_of_range_is_refused_naming_its_label_and_range(processing_
     with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), key: value, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
                                                   "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+
+
+def _switches_on_by_default():
+    from bare_earth.core.methods import available_methods, get_method
+    return [(m, p.name.upper()) for m in available_methods() for p in get_method(m).params
+            if p.kind == "bool" and p.default]
+
+
+@pytest.mark.parametrize("alg,key", _switches_on_by_default(), ids=lambda v: str(v))
+def test_an_empty_switch_keeps_its_default(processing_run, tmp_path, alg, key):
+    """An empty yes/no (qgis_process ``KEY=``, processing.run ``''``) is its default, as an empty number is
+    derived: QGIS reads '' as false, which turned off RASCOR's continuing ground, geodesic's raised regions
+    and the like without a word."""
+    log = _Log()
+    processing_run(f"bareearth:{alg}", {"INPUT": _dsm(tmp_path), "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                        "OUTPUT_MASK": "TEMPORARY_OUTPUT", key: ""}, feedback=log.feedback)
+    used = [s for s in log.section("Parameters used:", "Result:") if f"({key}) = " in s]
+    assert len(used) == 1 and used[0].endswith(f"({key}) = True"), used
