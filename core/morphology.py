@@ -651,22 +651,28 @@ def classify_provisional(z, zpro, cell, dh, es, progress=None):
     above, low outlier below (a pit of the pre-step is class 2 only when it lies below the
     ground reconstructed around it: a gap between tree crowns does not)."""
     mask = np.zeros(z.shape, np.uint8)
-    rows = zpro.shape[0]
-    # in bands of rows whose temporaries stay in the cache (no raster-sized ones)
-    band = max(1, _BAND_BYTES // max(1, zpro.shape[1] * 8))
     with np.errstate(invalid="ignore"):
-        for r0 in range(0, rows, band):
-            b = slice(r0, min(rows, r0 + band))
-            thr = _surface_slope(zpro, cell, b)
-            thr *= np.float32(es)
-            thr += np.float32(dh)
+        for b, thr in _tolerance_bands(zpro, cell, es, dh):
             d = np.subtract(z[b], zpro[b])
             m = mask[b]
             m[d > thr] = OBJECT
             np.negative(thr, out=thr)
             m[d < thr] = LOW
-            report(progress, b.stop / rows)
+            report(progress, b.stop / zpro.shape[0])
     return mask
+
+
+def _tolerance_bands(surface, cell, es, dh):
+    """The final test's tolerance ``e_t + e_s slope(surface)`` in bands of rows whose temporaries
+    stay in the cache (no raster-sized ones): yields ``(rows, tolerance)``, the rows a slice."""
+    rows = surface.shape[0]
+    band = max(1, _BAND_BYTES // max(1, surface.shape[1] * 8))
+    for r0 in range(0, rows, band):
+        b = slice(r0, min(rows, r0 + band))
+        thr = _surface_slope(surface, cell, b)
+        thr *= np.float32(es)
+        thr += np.float32(dh)
+        yield b, thr
 
 
 def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
@@ -829,15 +835,8 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
         The tier cells (never already left out).
     """
     raised = np.empty(clean.shape, bool)
-    rows = clean.shape[0]
-    # in bands of rows whose temporaries stay in the cache (the tolerance by rows: the same values)
-    band = max(1, _BAND_BYTES // max(1, clean.shape[1] * 8))
     with np.errstate(invalid="ignore"):
-        for r0 in range(0, rows, band):
-            b = slice(r0, min(rows, r0 + band))
-            thr = _surface_slope(opened, cell, b)
-            thr *= np.float32(es)
-            thr += np.float32(dh)
+        for b, thr in _tolerance_bands(opened, cell, es, dh):    # by rows: the same values
             np.greater(np.subtract(clean[b], opened[b]), thr, out=raised[b])
             raised[b] &= ~left_out[b]
     if not raised.any():
