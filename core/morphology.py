@@ -953,22 +953,33 @@ def find_cut_terrain(clean, flagged, ground, cell, dh, slope, r_max):
     >>> bool(cut[:, :20].sum() == flags[:, :20].sum()), bool(cut[:, 20:].any())
     (True, False)
     """
+    none = np.zeros(flagged.shape, bool)
     lab, n = ndimage.label(flagged, np.ones((3, 3), bool))
     if n == 0:
-        return np.zeros(flagged.shape, bool)
+        return none
     edge = flagged & touching(ground)
-    wall = _walls(clean, ground, edge, np.float32(dh + slope * math.hypot(*cell)))
-    n_cells = np.bincount(lab.ravel(), minlength=n + 1)
-    n_edge = np.bincount(lab[edge], minlength=n + 1)
-    n_wall = np.bincount(lab[wall], minlength=n + 1)
-    cut = (n_edge > 0) & (n_wall == 0) & (n_cells > n_edge)
-    border = np.zeros(flagged.shape, bool)
-    border[[0, -1], :] = True
-    border[:, [0, -1]] = True
-    cut[np.unique(lab[border & flagged])] = False
+    flat = lab.ravel()
+    e_idx = np.flatnonzero(edge)
+    e_lab = flat[e_idx]
+    # the cheap tests first, on label tables: an edge, a cell inside it, not on the raster's border
+    cut = np.bincount(e_lab, minlength=n + 1) > 0
+    inside = np.zeros(n + 1, bool)
+    inside[lab[flagged & ~edge]] = True
+    cut &= inside
+    cut[lab[[0, -1], :]] = False
+    cut[lab[:, [0, -1]]] = False
     cut[0] = False
     if not cut.any():
-        return np.zeros(flagged.shape, bool)
+        return none
+    # then the walls, on the edge cells of the regions left (wall cells found anywhere keep a region)
+    sel = cut[e_lab]
+    edge_left = np.zeros(flagged.shape, bool)
+    edge_left.ravel()[e_idx[sel]] = True
+    wall = _walls(clean, ground, edge_left, np.float32(dh + slope * math.hypot(*cell)))
+    cut[flat[np.flatnonzero(wall)]] = False
+    cut[0] = False
+    if not cut.any():
+        return none
     span_r, span_c = _region_boxes(lab, n, cut[lab])
     box_r, box_c = _tier_box(r_max)
     cut &= (span_r <= box_r) & (span_c <= box_c)
