@@ -834,3 +834,51 @@ def test_halo_covers_the_cut_terrain_and_the_tiers():
     the halo, beyond the two half-windows of the opening."""
     p = {"max_object_size_m": 21.0}
     assert morph.morphological_halo(p, 1.0) >= 2 * 10 + 2 * (30 + 3)
+
+
+# --------------------------------------------------------------------------- the final test's low cells (issue 12)
+def test_gaps_between_crowns_are_ground_not_low_outliers(monkeypatch):
+    """Under a closed canopy (simulated, 96 m at 1 m cells) the largest window finds little ground,
+    ZIpro is the opened canopy, and SMRF's final test puts the gaps between the crowns (the ground
+    seen) below it: 150 of the 1464 ground cells class 2 without the rule. A gap lies at the level of
+    the other gaps within 10 m, not below all of them: ground (46 left, deeper than the pre-step's
+    5 m below ZIpro or below the ground seen around them)."""
+    from bare_earth.core.synthetic import make_canopy
+    s = make_canopy(96.0, 1.0, seed=0, noise_m=0.05)
+    ground = s.mask == 0
+    res = morph.filter_morphological(s.dsm, s.cell_size)
+    with_rule = np.count_nonzero((res.mask == LOW) & ground)
+    assert res.info["low_cells_ground_percent"] > 0.5
+    monkeypatch.setattr(morph, "confirm_low_cells", lambda z, low, *a, **k: low)
+    res = morph.filter_morphological(s.dsm, s.cell_size)
+    without = np.count_nonzero((res.mask == LOW) & ground)
+    assert without > 100 and with_rule < without / 2
+
+
+@pytest.mark.parametrize("depth", [6.0, 8.0, 30.0])
+def test_blunder_below_level_ground_stays_low(depth):
+    """A single blunder deeper than the pre-step's 5 m below flat ground stays a low outlier (deeper than
+    that below ZIpro, and below every cell of its ring), and nothing else is one."""
+    z = np.zeros((60, 60), np.float32)
+    z[30, 30] = -depth
+    res = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=20.0, dh_m=0.5, slope=0.3,
+                                     outline_slope=0.3)
+    expected = np.zeros(z.shape, np.uint8)
+    expected[30, 30] = LOW
+    np.testing.assert_array_equal(res.mask, expected)
+
+
+def test_confirm_low_cells_rules():
+    """Exact: deep below ZIpro, below the ring, or below level neighbours -> low; a gap beside gaps -> not."""
+    i, j = np.mgrid[0:25, 0:25]
+    z = (10.0 + 2.0 * ((i + j) % 2)).astype(np.float32)        # crowns 10-12 m: no level neighbours
+    zpro = np.full_like(z, 10.0)
+    z[12, 4] = z[12, 12] = 0.0
+    z[4, 20] = -2.0
+    low = z < 5.0
+    np.testing.assert_array_equal(np.argwhere(morph.confirm_low_cells(z, low, zpro, (1.0, 1.0), 0.5, 12.0, 1.0)),
+                                  [[4, 20]])
+    assert morph.confirm_low_cells(z, low, zpro, (1.0, 1.0), 0.5, 5.0, 1.0).sum() == 3      # all deeper than 5 m
+    flat = np.full_like(z, 10.0)
+    flat[12, 4] = flat[12, 12] = 0.0                                # level neighbours (a paved surface)
+    assert morph.confirm_low_cells(flat, flat < 5.0, zpro, (1.0, 1.0), 0.5, 12.0, 1.0).sum() == 2
