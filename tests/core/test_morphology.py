@@ -772,3 +772,113 @@ def test_tier_walls_read_at_the_edge_cells_equal_a_grey_erosion_of_the_ground():
     want = edge & (clean - lowest > np.float32(0.7))
     got = _walls(clean, ground, edge, np.float32(0.7))
     assert np.array_equal(got, want) and 0 < np.count_nonzero(got) < np.count_nonzero(edge)
+
+
+# --------------------------------------------------------------------------- cut terrain (issue 12)
+def _knoll_and_building():
+    """Flat ground at 0 (61 x 101, 1 m cells) with a round knoll 6 m high (Gaussian, sigma 5 m: slopes
+    up to 0.73) and a 10 x 10 building 8 m high on walls. Returns the DSM, the building's cells and the
+    parameters: SMRF's slope 0.3 (the floor), the outline slope 0.8 (the knoll's steepest)."""
+    i, j = np.mgrid[0:61, 0:101].astype(np.float32)
+    z = (6.0 * np.exp(-((i - 30) ** 2 + (j - 30) ** 2) / (2 * 5.0 ** 2))).astype(np.float32)
+    building = np.zeros(z.shape, bool)
+    building[25:35, 70:80] = True
+    z[building] = 8.0
+    params = dict(mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3, outline_slope=0.8)
+    return z, building, params
+
+
+def test_knoll_steeper_than_the_slope_threshold_is_ground():
+    """A knoll steeper than SMRF's slope s: the opening cuts its top by more than s r_k and flags it
+    (109 cells without the rule), but the flagged top falls to the ground around at the terrain's slope,
+    with no wall: terrain, ground. The building beside it stands on walls and stays an object."""
+    z, building, params = _knoll_and_building()
+    res = morph.filter_morphological(z, 1.0, **params)
+    np.testing.assert_array_equal(res.mask == OBJECT, building)
+    assert res.info["cut_terrain_percent"] > 100.0 * 100 / z.size
+
+
+def test_knoll_is_an_object_without_the_cut_terrain_rule(monkeypatch):
+    """The failure the rule fixes: SMRF's flags alone take the knoll's top for an object."""
+    z, building, params = _knoll_and_building()
+    monkeypatch.setattr(morph, "find_cut_terrain", lambda clean, flagged, *a, **k: np.zeros(flagged.shape, bool))
+    res = morph.filter_morphological(z, 1.0, **params)
+    assert np.count_nonzero((res.mask == OBJECT) & ~building) > 100
+
+
+def test_cut_terrain_needs_no_wall_an_inside_no_border_and_the_box():
+    """The rule on exact arrays: a flat-topped mound with 0.5 slopes (flags on its top) is cut terrain;
+    the same mound with one wall cell on its edge, a region one cell wide (every cell on its edge), a
+    region touching the raster's border, or one wider than the box of the largest window is not."""
+    i, j = np.mgrid[0:31, 0:31].astype(np.float32)
+    z = np.clip(5.0 - 0.5 * np.maximum(np.abs(i - 15), np.abs(j - 15)), 0.0, 3.0).astype(np.float32)
+    flags = z > 2.0                                     # the 9 x 9 top and the ring below it
+    args = ((1.0, 1.0), 0.5, 0.5, (10, 10))
+    cut = morph.find_cut_terrain(z, flags, ~flags, *args)
+    np.testing.assert_array_equal(cut, flags)
+    walled = z.copy()
+    walled[15, 10] = 6.0                                # one edge cell 3.5 m above the ground beside it
+    assert not morph.find_cut_terrain(walled, flags | (walled > 2.0), ~(flags | (walled > 2.0)), *args).any()
+    line = np.zeros_like(flags)
+    line[15, 5:25] = True                               # one cell wide: no cell inside its edge
+    assert not morph.find_cut_terrain(np.where(line, 1.0, 0.0).astype(np.float32), line, ~line, *args).any()
+    shifted = np.zeros_like(flags)
+    shifted[:9, 11:20] = True                           # on the border
+    zs = np.where(shifted, 2.5, 2.0).astype(np.float32)
+    assert not morph.find_cut_terrain(zs, shifted, ~shifted, *args).any()
+    assert morph.find_cut_terrain(z, flags, ~flags, (1.0, 1.0), 0.5, 0.5, (3, 3)).sum() == 0   # box 10 < 11
+
+
+def test_halo_covers_the_cut_terrain_and_the_tiers():
+    """The cut terrain's region (up to the tier box) and then the tiers' (another box) both lie within
+    the halo, beyond the two half-windows of the opening."""
+    p = {"max_object_size_m": 21.0}
+    assert morph.morphological_halo(p, 1.0) >= 2 * 10 + 2 * (30 + 3)
+
+
+# --------------------------------------------------------------------------- the final test's low cells (issue 12)
+def test_gaps_between_crowns_are_ground_not_low_outliers(monkeypatch):
+    """Under a closed canopy (simulated, 96 m at 1 m cells) the largest window finds little ground,
+    ZIpro is the opened canopy, and SMRF's final test puts the gaps between the crowns (the ground
+    seen) below it: 150 of the 1464 ground cells class 2 without the rule. A gap lies at the level of
+    the other gaps within 10 m, not below all of them: ground (46 left, deeper than the pre-step's
+    5 m below ZIpro or below the ground seen around them)."""
+    from bare_earth.core.synthetic import make_canopy
+    s = make_canopy(96.0, 1.0, seed=0, noise_m=0.05)
+    ground = s.mask == 0
+    res = morph.filter_morphological(s.dsm, s.cell_size)
+    with_rule = np.count_nonzero((res.mask == LOW) & ground)
+    assert res.info["low_cells_ground_percent"] > 0.5
+    monkeypatch.setattr(morph, "confirm_low_cells", lambda z, low, *a, **k: low)
+    res = morph.filter_morphological(s.dsm, s.cell_size)
+    without = np.count_nonzero((res.mask == LOW) & ground)
+    assert without > 100 and with_rule < without / 2
+
+
+@pytest.mark.parametrize("depth", [6.0, 8.0, 30.0])
+def test_blunder_below_level_ground_stays_low(depth):
+    """A single blunder deeper than the pre-step's 5 m below flat ground stays a low outlier (deeper than
+    that below ZIpro, and below every cell of its ring), and nothing else is one."""
+    z = np.zeros((60, 60), np.float32)
+    z[30, 30] = -depth
+    res = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=20.0, dh_m=0.5, slope=0.3,
+                                     outline_slope=0.3)
+    expected = np.zeros(z.shape, np.uint8)
+    expected[30, 30] = LOW
+    np.testing.assert_array_equal(res.mask, expected)
+
+
+def test_confirm_low_cells_rules():
+    """Exact: deep below ZIpro, below the ring, or below level neighbours -> low; a gap beside gaps -> not."""
+    i, j = np.mgrid[0:25, 0:25]
+    z = (10.0 + 2.0 * ((i + j) % 2)).astype(np.float32)        # crowns 10-12 m: no level neighbours
+    zpro = np.full_like(z, 10.0)
+    z[12, 4] = z[12, 12] = 0.0
+    z[4, 20] = -2.0
+    low = z < 5.0
+    np.testing.assert_array_equal(np.argwhere(morph.confirm_low_cells(z, low, zpro, (1.0, 1.0), 0.5, 12.0, 1.0)),
+                                  [[4, 20]])
+    assert morph.confirm_low_cells(z, low, zpro, (1.0, 1.0), 0.5, 5.0, 1.0).sum() == 3      # all deeper than 5 m
+    flat = np.full_like(z, 10.0)
+    flat[12, 4] = flat[12, 12] = 0.0                                # level neighbours (a paved surface)
+    assert morph.confirm_low_cells(flat, flat < 5.0, zpro, (1.0, 1.0), 0.5, 12.0, 1.0).sum() == 2
