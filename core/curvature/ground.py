@@ -34,11 +34,17 @@ _SMOOTH = 1
 def _pits(z, cand, ring, depth):
     """Flat indices of the candidates lower by ``depth`` than every valid cell on the
     square ring at distance ``ring`` around them: spikes down (low blunders), not valleys,
-    ditches or cuts, whose bottom continues through the ring. One gather per ring offset,
-    over all candidates."""
+    ditches or cuts, whose bottom continues through the ring (:func:`_ring_low`)."""
     idx = np.flatnonzero(cand)
     if idx.size == 0:
         return idx
+    return idx[z.ravel().take(idx) < _ring_low(z, idx, ring) - np.float32(depth)]
+
+
+def _ring_low(z, idx, ring):
+    """The lowest valid height (float32; inf where none) on the square ring at distance
+    ``ring`` around each of the flat cells ``idx``. One gather per ring offset, over all
+    the cells."""
     rows, cols = z.shape
     rr, cc = np.divmod(idx, cols)
     zf = z.ravel()
@@ -56,7 +62,7 @@ def _pits(z, cand, ring, depth):
             v = zf.take(np.where(ok, r, 0))
             ok &= np.isfinite(v)             # nodata and cells outside: not on the ring
             np.minimum(low, np.where(ok, v, np.float32(np.inf)), out=low)
-        return idx[zf.take(idx) < low - np.float32(depth)]
+    return low
 
 
 def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, lost=None, progress=None):
@@ -369,9 +375,9 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     bowls &= concave
     bowls &= breaks.by_k
     never = breaks.by_k & ~bowls                  # the other |K| >= K_g points never seed
-    sunk = np.zeros(z.shape, bool)                # bowls below every cell of their ring by h_min: pits
-    sunk.ravel()[_pits(z, bowls, m + 2, h_min)] = True
-    holes = _first_holes(objects, breaks, invalid, m, never, _low_bowls(z, bowls, sunk, m + 2, tol))
+    sunk, low = _low_bowls(z, bowls, m + 2, h_min, tol)   # pits (by h_min) and low points (by tol)
+    holes = _first_holes(objects, breaks, invalid, m, never, low)
+    del low
     mask = np.zeros(z.shape, np.uint8)
     surface = allow = None
     d = np.empty(z.shape, np.float32)
@@ -504,13 +510,22 @@ def _first_holes(objects, breaks, invalid, m, never, low):
     return holes
 
 
-def _low_bowls(z, bowls, sunk, ring, tol):
-    """The bowls that are low points, not ground showing between crowns: below every cell of
-    the square ring at ``ring`` cells by more than the tolerance ``tol`` (:func:`_pits`; ISPRS
-    samp41's multipath points), or pits (``sunk``: by the minimum object height)."""
-    low = sunk.copy()
-    low.ravel()[_pits(z, bowls & ~sunk, ring, tol)] = True
-    return low
+def _low_bowls(z, bowls, ring, h_min, tol):
+    """The bowls below every valid cell of the square ring at ``ring`` cells around them
+    (:func:`_ring_low`): by the minimum object height ``h_min`` (``sunk``: pits, as
+    :func:`_classify`'s low blunders), and by more than the tolerance ``tol`` or ``h_min``
+    (``low``: low points, not ground showing between crowns; ISPRS samp41's multipath
+    points). Two boolean arrays of ``z``'s shape; one ring scan for both."""
+    sunk = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    idx = np.flatnonzero(bowls)
+    if idx.size:
+        ring_low = _ring_low(z, idx, ring)
+        zi = z.ravel().take(idx)
+        sunk.ravel()[idx[zi < ring_low - np.float32(h_min)]] = True
+        low.ravel()[idx[zi < ring_low - np.float32(tol)]] = True
+        low |= sunk
+    return sunk, low
 
 
 def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):
