@@ -61,9 +61,11 @@ From curvature to objects
    height more, as the interpolated surface sags a little under convex terrain edges; not
    under concave ones, such as the smeared foot of a wall). Straight
    breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
-   surface, so terrain edges stay ground. The second pass also rests on the bowls with
-   ``|K| >= K_g`` (K > 0, H < 0: gaps between crowns) that the first found to be ground
-   and not below its surface by more than the tolerance. Nodata takes the height of the nearest ground
+   surface, so terrain edges stay ground, and so are the bowls with ``|K| >= K_g``
+   (K > 0, H < 0: gaps between crowns) farther than half a window from the objects and not
+   below every cell of the ring around them by more than the tolerance (low points). The
+   second pass also rests on the bowls that the first found to be ground and not below its
+   surface by more than the tolerance. Nodata takes the height of the nearest ground
    seed rather than being spanned by the surface (the surface then depends on the ground
    near a cell, not on the far side of a nodata area). A concave break deeper than the minimum object
    height below the surface and below every cell of the ring around it is a low blunder

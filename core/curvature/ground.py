@@ -34,11 +34,17 @@ _SMOOTH = 1
 def _pits(z, cand, ring, depth):
     """Flat indices of the candidates lower by ``depth`` than every valid cell on the
     square ring at distance ``ring`` around them: spikes down (low blunders), not valleys,
-    ditches or cuts, whose bottom continues through the ring. One gather per ring offset,
-    over all candidates."""
+    ditches or cuts, whose bottom continues through the ring (:func:`_ring_low`)."""
     idx = np.flatnonzero(cand)
     if idx.size == 0:
         return idx
+    return idx[z.ravel().take(idx) < _ring_low(z, idx, ring) - np.float32(depth)]
+
+
+def _ring_low(z, idx, ring):
+    """The lowest valid height (float32; inf where none) on the square ring at distance
+    ``ring`` around each of the flat cells ``idx``. One gather per ring offset, over all
+    the cells."""
     rows, cols = z.shape
     rr, cc = np.divmod(idx, cols)
     zf = z.ravel()
@@ -56,7 +62,7 @@ def _pits(z, cand, ring, depth):
             v = zf.take(np.where(ok, r, 0))
             ok &= np.isfinite(v)             # nodata and cells outside: not on the ring
             np.minimum(low, np.where(ok, v, np.float32(np.inf)), out=low)
-        return idx[zf.take(idx) < low - np.float32(depth)]
+    return low
 
 
 def _ground_surface(z, holes, cell_size, reach, smooth=0, out=None, lost=None, progress=None):
@@ -332,12 +338,13 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     stands within the surface's reach (:func:`_drop_unwalled`); deep concave spikes are
     low blunders.
 
-    The second pass's surface also rests on the breaks the first found to be ground, and
-    on the bowls among the points with ``|K| >= K_g`` (K > 0 and H < 0: curved up both
-    ways, as a gap in a canopy where the ground shows between the crowns around it) that
-    the first found to be ground and not more than the tolerance below its surface. The
-    first pass's surface leaves every ``|K| >= K_g`` point out; the others (crowns,
-    corners, spikes: convex; saddles: K < 0) stay out of the second too. In a closed canopy
+    The first pass's surface rests on the bowls among the points with ``|K| >= K_g`` (K > 0
+    and H < 0: curved up both ways, as a gap in a canopy where the ground shows between the
+    crowns around it) away from the objects and not below their surroundings
+    (:func:`_first_holes`); it leaves the other ``|K| >= K_g`` points out (crowns, corners,
+    spikes: convex; saddles: K < 0), and they stay out of the second too. The second pass's
+    surface also rests on the breaks the first found to be ground, and on the bowls the
+    first found to be ground and not more than the tolerance below its surface. In a closed canopy
     at 2-4 m cells nearly every ground cell is such a bowl: without them the surface had
     almost no seed, and the crowns far from a profile's wall were lost to it and kept
     their own height as ground (a tenth of the crowns of a closed canopy at 4 m). A bowl
@@ -359,18 +366,18 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     reach = surface_reach(cell_size, window=window, max_size=max_size)
     invalid = None if valid is None else ~valid
     marked = breaks.marked
-    holes = _first_holes(objects, breaks, invalid, m)
     report(progress, 0.0)
     concave = np.less(breaks.curvature[1], 0)     # H < 0
     concave &= marked
     edge = marked & ~objects
     edge &= ~concave    # the surface sags under convex breaks only (_allowance)
-    bowls = np.greater(breaks.curvature[0], 0)    # K > 0 and H < 0, |K| >= K_g: may seed pass 2
+    bowls = np.greater(breaks.curvature[0], 0)    # K > 0 and H < 0, |K| >= K_g: may seed the surfaces
     bowls &= concave
     bowls &= breaks.by_k
     never = breaks.by_k & ~bowls                  # the other |K| >= K_g points never seed
-    sunk = np.zeros(z.shape, bool)                # bowls below every cell of their ring by h_min: pits
-    sunk.ravel()[_pits(z, bowls, m + 2, h_min)] = True
+    sunk, low = _low_bowls(z, bowls, m + 2, h_min, tol)   # pits (by h_min) and low points (by tol)
+    holes = _first_holes(objects, breaks, invalid, m, never, low)
+    del low
     mask = np.zeros(z.shape, np.uint8)
     surface = allow = None
     d = np.empty(z.shape, np.float32)
@@ -449,8 +456,8 @@ def ground_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
     allowance averages the first surface over ``m`` cells and takes its slope (1 cell): the
     first pass's class at a cell depends on the objects within ``G1 = R + window + 2 m +
     2``. The second pass's holes are the first pass's classes, read by its surface within
-    ``R + window + 1``: ``G1 + R + window + 1`` in all (the low blunders' ring reads the
-    heights only)."""
+    ``R + window + 1``: ``G1 + R + window + 1`` in all (the rings of the low blunders and of
+    the low bowls, :func:`_low_bowls`, read the heights only)."""
     m = window // 2
     r = max(surface_reach(cell_size, window=window, max_size=max_size))
     g1 = r + window + 2 * m + 2
@@ -480,19 +487,45 @@ def _surface_input(z, holes, invalid, reach, progress=None):
     return zs, holes & ~bridged
 
 
-def _first_holes(objects, breaks, invalid, m):
+def _first_holes(objects, breaks, invalid, m, never, low):
     """Cells that do not seed the first ground surface: the objects, the breaks within
     ``m`` cells of them (their feet and walls), the points the paper's test marks,
-    ``|K| >= K_g`` (curved both ways: crowns, corners, spikes, pits), and nodata. Straight
-    breaks away from objects (dams, embankments, terrace edges: K ~ 0 because one
-    principal curvature is zero) stay seeds."""
+    ``|K| >= K_g``, that are not bowls (``never``: crowns, corners, spikes: convex; saddles:
+    K < 0), the bowls below their surroundings (``low``, :func:`_low_bowls`), and nodata.
+    Straight breaks away from objects (dams, embankments, terrace edges: K ~ 0 because one
+    principal curvature is zero) stay seeds, and so do the bowls away from objects (K > 0,
+    H < 0: curved up both ways, where the ground shows between crowns; a foot of a wall is
+    within ``m`` of its object): the straight line between the ground on either side passes
+    above a bowl's bottom, so leaving it out lifts the surface into the crowns, and where
+    every cell of a wood is a break (a forest at 1 m cells: 80 % of the cells with
+    ``|K| >= K_g``) the first surface came from the ground beyond the wood alone, metres
+    off on a hillside."""
     holes = dilate(objects, m)           # near objects ...
     holes &= breaks.marked                # ... the breaks
     holes |= objects
-    holes |= breaks.by_k
+    holes |= never
+    holes |= low
     if invalid is not None:
         holes |= invalid
     return holes
+
+
+def _low_bowls(z, bowls, ring, h_min, tol):
+    """The bowls below every valid cell of the square ring at ``ring`` cells around them
+    (:func:`_ring_low`): by the minimum object height ``h_min`` (``sunk``: pits, as
+    :func:`_classify`'s low blunders), and by more than the tolerance ``tol`` or ``h_min``
+    (``low``: low points, not ground showing between crowns; ISPRS samp41's multipath
+    points). Two boolean arrays of ``z``'s shape; one ring scan for both."""
+    sunk = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    idx = np.flatnonzero(bowls)
+    if idx.size:
+        ring_low = _ring_low(z, idx, ring)
+        zi = z.ravel().take(idx)
+        sunk.ravel()[idx[zi < ring_low - np.float32(h_min)]] = True
+        low.ravel()[idx[zi < ring_low - np.float32(tol)]] = True
+        low |= sunk
+    return sunk, low
 
 
 def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):

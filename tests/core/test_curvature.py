@@ -1237,6 +1237,46 @@ def test_second_pass_rests_on_the_bowls_found_ground():
         assert surface[r, c] != np.float32(h), name   # interpolated under it
 
 
+def test_bowls_away_from_objects_seed_the_first_surface_on_a_wooded_hillside():
+    """find_ground, exact: a convex hillside rising 15 m from a meadow, its slope easing from
+    51 degrees, wooded beyond column 8: every cell of the wood has |K| >= K_g, the crowns (8 m
+    up, convex) and the ground showing between them every third column (bowls: K > 0, H < 0, no
+    object within m). The bowls seed the first surface, which follows the hillside: they stay
+    ground and the crowns are objects. With the bowls left out (every |K| >= K_g point, as
+    before) the first surface came from the meadow and the far wood alone, a straight line up
+    to 2.9 m below the convex hillside, and 30 % of the ground of the wood became objects."""
+    n_rows, n_cols, meadow = 9, 61, 8
+    cols = np.arange(n_cols)
+    hill = (15.0 * (1 - np.exp(-np.maximum(cols - meadow + 1, 0) / 12.0))).astype(np.float32)
+    z = np.broadcast_to(hill, (n_rows, n_cols)).astype(np.float32).copy()
+    wood = np.zeros(z.shape, bool)
+    wood[:, meadow:] = True
+    gaps = wood & (cols % 3 == 0)[None, :]
+    crowns = wood & ~gaps
+    crowns[0] = True                                  # row 0: crowns the profiles found (objects)
+    gaps[0] = False
+    z[crowns] += 8.0
+    curv = np.zeros((2,) + z.shape, np.float32)
+    curv[0][wood] = 1.0                               # K > 0: curved both ways
+    curv[1][crowns] = 1.0                             # H > 0: convex crowns
+    curv[1][gaps] = -1.0                              # H < 0: the bowls between them
+    objects = np.zeros(z.shape, bool)
+    objects[0] = True
+    br = derivatives.Breaks(curv, wood.copy(), wood, 0, 0)
+    mask, surface = ground.find_ground(z, objects, br, None, (1.0, 1.0), window=5, h_min=1.0,
+                                       tol=0.3, max_size=40.0)
+    away = np.zeros(z.shape, bool)
+    away[3:] = True                                   # farther than m = 2 cells from the objects
+    assert (mask[gaps & away] == GROUND).all()
+    assert (mask[crowns & away] == OBJECT).all()
+    assert (mask[1:, :meadow] == GROUND).all()
+    ground_z = np.broadcast_to(hill, z.shape)
+    assert (surface[gaps & away] == ground_z[gaps & away]).all()     # seeds: their own height
+    inner = crowns & away
+    inner[3] = False                                  # the surface's 3 x 3 mean reads row 2 there
+    assert np.abs(surface[inner] - ground_z[inner]).max() < 0.1
+
+
 @pytest.mark.parametrize("cell", [0.25, 1.0])
 @pytest.mark.parametrize("n", [6, 9, 40])
 def test_a_deep_pit_is_low_not_ground_and_its_ring_stays_ground(n, cell):
