@@ -145,8 +145,8 @@ def index_tiles(inputs):
     ------
     ValueError
         Before any work, naming the tiles: missing or unreadable tiles, tiles of another
-        CRS or cell size, tiles off the survey's grid, overlapping tiles, two tiles of the
-        same name (their outputs would collide).
+        CRS, cell size, data type or scale and offset (one VRT holds them all), tiles off the
+        survey's grid, overlapping tiles, two tiles of the same name (their outputs would collide).
     """
     paths = list_inputs(inputs)
     missing = [p for p in paths if not os.path.exists(p)]
@@ -186,6 +186,19 @@ def index_tiles(inputs):
                          f"({abs(grid.open_dsm(g).geotransform[1]):.6g} x {abs(grid.open_dsm(g).geotransform[5]):.6g}) "
                          f"differ from {os.path.basename(ref.path)} ({abs(dx):.6g} x {abs(dy):.6g}). Resample them "
                          "to one cell size (gdalwarp -tr) first.")
+    # a VRT holds one data type and one scale and offset: gdalbuildvrt leaves other tiles out
+    other_type = [i.path for i in infos[1:] if i.dtype != ref.dtype]
+    if other_type:
+        raise ValueError(f"the tiles have different data types: {_short(other_type)} "
+                         f"({grid.open_dsm(other_type[0]).dtype}) differ from {os.path.basename(ref.path)} "
+                         f"({ref.dtype}). Convert them to one type (gdal_translate -ot Float32 -unscale) first.")
+    other_scale = [i.path for i in infos[1:] if (i.scale, i.offset) != (ref.scale, ref.offset)]
+    if other_scale:
+        o = grid.open_dsm(other_scale[0])
+        raise ValueError(f"the tiles have different scales or offsets: {_short(other_scale)} "
+                         f"(x {o.scale:.6g} + {o.offset:.6g}) differ from {os.path.basename(ref.path)} "
+                         f"(x {ref.scale:.6g} + {ref.offset:.6g}). Store them alike (gdal_translate -ot Float32 "
+                         "-unscale) first.")
     x0 = gts[:, 0].min() if dx > 0 else gts[:, 0].max()
     y0 = gts[:, 3].max() if dy < 0 else gts[:, 3].min()
     cols_f = (gts[:, 0] - x0) / dx

@@ -90,10 +90,18 @@ def build_vrt(path, sources, nodata=None):
     path = str(path)
     tmp = f"{path}.partial-{uuid.uuid4().hex[:8]}.vrt"
     opts = gdal.BuildVRTOptions(VRTNodata=nodata) if nodata is not None else gdal.BuildVRTOptions()
+    gdal.ErrorReset()
     ds = gdal.BuildVRT(tmp, [str(s) for s in sources], options=opts)
     if ds is None:
         raise ValueError(f"GDAL could not build a VRT of the {len(sources)} tiles.")
+    held = {os.path.realpath(f) for f in (ds.GetFileList() or [])}
     ds = None
+    left_out = [s for s in sources if os.path.realpath(str(s)) not in held]
+    if left_out:               # gdalbuildvrt skips, with a warning only, sources it cannot mix
+        os.remove(tmp)
+        names = ", ".join(os.path.basename(str(s)) for s in left_out[:8]) + (" ..." if len(left_out) > 8 else "")
+        raise ValueError(f"GDAL left {len(left_out)} of the {len(sources)} tiles out of the VRT: {names} "
+                         f"({gdal.GetLastErrorMsg().strip() or 'their bands differ from the others'}).")
     # the VRT names its sources relative to its own folder; the temporary has the same one
     os.replace(tmp, path)
     return path

@@ -197,6 +197,49 @@ def test_other_cell_size_and_overlap_refused_naming_the_tiles(tmp_path):
         index_tiles(paths + [str(shifted)])
 
 
+@pytest.mark.parametrize("kind", ["dtype", "scale"])
+def test_tiles_of_another_data_type_or_scale_refused_naming_them(tmp_path, kind):
+    """Tiles that GDAL's VRT cannot hold together (another data type, another scale) are refused
+    before any work, naming them. Before: gdalbuildvrt left them out of survey.vrt with a warning
+    only, the parameters were derived from the rest, and every task failed on 'Access window out
+    of range' after the work had started."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    odd = paths[3]
+    a, gt = grid.open_dsm(odd).read(), grid.open_dsm(odd).geotransform
+    if kind == "dtype":
+        grid.write_array(odd, np.rint(a * 100), gt, sc.epsg, nodata=-9999, dtype="Int32")
+        ds = gdal.Open(odd, gdal.GA_Update)
+        ds.GetRasterBand(1).SetScale(0.01)
+        ds = None
+        message = r"different data types: t11\.tif \(Int32\) differ from t00\.tif \(Float32\)"
+    else:
+        ds = gdal.Open(odd, gdal.GA_Update)
+        ds.GetRasterBand(1).WriteArray(a * 10)
+        ds.GetRasterBand(1).SetScale(0.1)
+        ds = None
+        message = r"different scales or offsets: t11\.tif \(x 0\.1 \+ 0\) differ from t00\.tif \(x 1 \+ 0\)"
+    assert np.allclose(grid.open_dsm(odd).read(), a, atol=0.01)      # the same heights, stored otherwise
+    with pytest.raises(ValueError, match=message):
+        index_tiles(paths)
+    with pytest.raises(ValueError, match=message):
+        run_survey("morphological", paths, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()                # refused before any work
+
+
+def test_survey_vrt_missing_a_tile_is_an_error_naming_it(tmp_path):
+    """A VRT that GDAL built without one of its sources (gdalbuildvrt skips what it cannot mix)
+    is an error naming the tile, never a smaller mosaic."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    other = tmp_path / "other.tif"
+    grid.write_array(other, np.zeros((32, 32), np.uint8), grid.open_dsm(paths[3]).geotransform, sc.epsg)
+    with pytest.raises(ValueError, match=r"GDAL left 1 of the 4 tiles out of the VRT: other\.tif"):
+        survey_io.build_vrt(tmp_path / "m.vrt", paths[:3] + [str(other)])
+    assert not list(tmp_path.glob("m.vrt*"))
+
+
 def test_parse_params_converts_to_the_params_kinds():
     meth = get_method("slopeprofile")
     assert parse_params(meth, "max_object_size_m=30; refine=true tolerance_m=") == {
