@@ -115,6 +115,14 @@ def _vrt_problems(ds, depth=0):
     return None
 
 
+class SeveralBands(ValueError):
+    """A raster of several height-like bands opened without a band chosen (``bands``: how many)."""
+
+    def __init__(self, message, bands):
+        super().__init__(message)
+        self.bands = bands
+
+
 def _open_read(path):
     """Open a raster read-only; GeoTIFFs decompress their tiles on every core."""
     with _reading(path, "open"):
@@ -532,8 +540,9 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
-            raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
-                             "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)))
+            raise SeveralBands(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
+                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)),
+                               nb)
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")

@@ -160,6 +160,9 @@ def index_tiles(inputs):
     for p in paths:
         try:
             infos.append(grid.open_dsm(p))
+        except grid.SeveralBands as exc:          # a survey has no BAND parameter
+            bad.append(f"{os.path.basename(p)} (it has {exc.bands} bands: a tile holds one, its heights; extract "
+                       "the height band (gdal_translate -b) first)")
         except ValueError as exc:
             bad.append(f"{os.path.basename(p)} ({exc})")
     if bad:
@@ -177,6 +180,10 @@ def index_tiles(inputs):
                          f"{os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). Reproject them to one "
                          "CRS (gdalwarp -t_srs) first.")
     gts = np.array([i.geotransform for i in infos], float)
+    flipped = [i.path for i, g in zip(infos, gts) if g[1] < 0 or g[5] > 0]
+    if flipped:                # gdalbuildvrt takes north-up grids only (it skips the others)
+        raise ValueError(f"tiles {_short(flipped)} are stored south-up (rows from south to north) or east to "
+                         "west: a survey's mosaic takes north-up tiles. Write them north-up (gdalwarp) first.")
     dx, dy = gts[0, 1], gts[0, 5]
     other_cell = [i.path for i, g in zip(infos, gts)
                   if abs(g[1] - dx) > GRID_TOLERANCE * abs(dx) or abs(g[5] - dy) > GRID_TOLERANCE * abs(dy)]

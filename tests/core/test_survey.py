@@ -240,6 +240,36 @@ def test_survey_vrt_missing_a_tile_is_an_error_naming_it(tmp_path):
     assert not list(tmp_path.glob("m.vrt*"))
 
 
+def test_south_up_and_multiband_tiles_refused_with_what_to_do(tmp_path):
+    """A south-up tile (positive row step) was refused as of 'different cell sizes: flip.tif (1 x 1)
+    differ from t00.tif (1 x 1)', and a survey of south-up tiles only failed after creating its
+    output folder ('GDAL could not build a VRT'); a multi-band tile was told to use a BAND
+    parameter the survey does not have."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    flipped = []
+    for p in paths[2:]:
+        g = grid.open_dsm(p).geotransform
+        a = grid.open_dsm(p).read()
+        q = tmp_path / ("s_" + os.path.basename(p))
+        grid.write_array(q, a[::-1], (g[0], g[1], 0, g[3] + 32 * g[5], 0, -g[5]), sc.epsg)
+        flipped.append(str(q))
+    for tiles in (paths[:2] + flipped, flipped):
+        with pytest.raises(ValueError, match=r"s_t10\.tif.* south-up \(rows from south to north\).*gdalwarp"):
+            index_tiles(tiles)
+    with pytest.raises(ValueError, match="south-up"):
+        run_survey("morphological", flipped, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()                # refused before any work
+    two = tmp_path / "two.tif"
+    g = grid.open_dsm(paths[3]).geotransform
+    ds = gdal.GetDriverByName("GTiff").Create(str(two), 32, 32, 2, gdal.GDT_Float32)
+    ds.SetGeoTransform(g)
+    ds = None
+    with pytest.raises(ValueError, match=r"two\.tif .*has 2 bands.*extract the height band \(gdal_translate -b\)"):
+        index_tiles(paths[:3] + [str(two)])
+
+
 def test_parse_params_converts_to_the_params_kinds():
     meth = get_method("slopeprofile")
     assert parse_params(meth, "max_object_size_m=30; refine=true tolerance_m=") == {
