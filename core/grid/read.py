@@ -521,7 +521,8 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     ------
     ValueError
         For an unreadable (missing, corrupt, truncated at its first cell), empty, too small,
-        rotated or multi-band raster without ``band``, a band out of range, or a refused VRT.
+        rotated, complex-valued or multi-band raster without ``band``, a band out of range, or a
+        refused VRT.
     """
     need_gdal()
     try:
@@ -546,6 +547,10 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    kind = ds.GetRasterBand(int(band)).DataType
+    if gdal.DataTypeIsComplex(kind):          # numpy would drop the imaginary parts with a warning only
+        raise ValueError(f"the raster {path!r} holds complex numbers ({gdal.GetDataTypeName(kind)}): heights are "
+                         "real numbers. Write the heights as a real type first (gdal_translate -ot Float32).")
     rows, cols = ds.RasterYSize, ds.RasterXSize
     if rows == 0 or cols == 0:
         raise ValueError(f"the raster {path!r} is empty ({cols} x {rows} cells).")

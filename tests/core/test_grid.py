@@ -44,6 +44,15 @@ def test_multiband_needs_band(tmp_path):
     assert info.band_index == 2
 
 
+@pytest.mark.parametrize("dtype", ["CFloat32", "CInt16"])
+def test_complex_raster_refused(tmp_path, dtype):
+    """A complex-valued raster is no DSM: before, its real parts were read as heights and the
+    imaginary parts dropped with a numpy ComplexWarning on stderr only."""
+    tif(tmp_path, np.full((5, 5), 7.0, np.float32), dtype=dtype)
+    with pytest.raises(ValueError, match=rf"holds complex numbers \({dtype}\).*gdal_translate -ot Float32"):
+        grid.open_dsm(tmp_path / "dsm.tif")
+
+
 @pytest.mark.parametrize("band", [3, -1])
 def test_band_out_of_range(tmp_path, band):
     p = tif(tmp_path, np.zeros((2, 5, 5), np.float32))
