@@ -175,10 +175,11 @@ def index_tiles(inputs):
     ref = infos[0]
     other_crs = [i.path for i in infos[1:] if not io.same_crs(i.crs_wkt, ref.crs_wkt)]
     if other_crs:
-        raise ValueError(f"the tiles are in different CRSs: {_short(other_crs)} "
-                         f"({io.crs_label(grid.open_dsm(other_crs[0]).crs_wkt)}) differ from "
-                         f"{os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). Reproject them to one "
-                         "CRS (gdalwarp -t_srs) first.")
+        other = grid.open_dsm(other_crs[0]).crs_wkt
+        fix = ("Give the tiles without one their CRS (gdal_edit.py -a_srs) first." if not (other and ref.crs_wkt)
+               else "Reproject them to one CRS (gdalwarp -t_srs) first.")
+        raise ValueError(f"the tiles are in different CRSs: {_short(other_crs)} ({io.crs_label(other)}) differ "
+                         f"from {os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). {fix}")
     gts = np.array([i.geotransform for i in infos], float)
     flipped = [i.path for i, g in zip(infos, gts) if g[1] < 0 or g[5] > 0]
     if flipped:                # gdalbuildvrt takes north-up grids only (it skips the others)

@@ -163,6 +163,12 @@ def test_mixed_crs_refused_naming_the_tile(tmp_path):
     with pytest.raises(ValueError, match="t11.tif"):
         run_survey("slopeprofile", paths, tmp_path / "out", workers=1)
     assert not (tmp_path / "out").exists()                # refused before any work
+    # a tile without a CRS is given one, not reprojected (before: 'Reproject them to one CRS')
+    g = grid.open_dsm(paths[3]).geotransform
+    bare = tmp_path / "bare.tif"
+    grid.write_array(bare, grid.open_dsm(paths[3]).read(), g, "")
+    with pytest.raises(ValueError, match=r"bare\.tif \(no CRS\) differ .* their CRS \(gdal_edit\.py -a_srs\)"):
+        index_tiles(paths[:3] + [str(bare)])
 
 
 def test_missing_vrt_source_refused_naming_the_tile(tmp_path):
