@@ -36,7 +36,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
-from .grid import ground_scale, metres_per_degree, vertical_unit_factor
+from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
@@ -183,6 +183,16 @@ def default_cell_size_m(cloud, scales=None):
     return nice_cell_size(math.sqrt(area / max(1, len(cloud))))
 
 
+def _check_cell_m(c, crs):
+    """Refuse a grid of cells under :data:`.grid.MIN_CELL_M` (what ``open_dsm`` refuses): the
+    filters' windows (metres) would span millions of cells."""
+    if c < MIN_CELL_M:
+        why = ("the points have no CRS, so their coordinates were read as metres: they are probably in degrees. "
+               "Give their CRS (the CRS or POINTS_CRS parameter, e.g. EPSG:4326)" if not crs else
+               "give a larger cell size (CELL_SIZE_M)")
+        raise ValueError(f"the points would give cells of {c:.3g} m, and no DSM has cells under 1 mm: {why}.")
+
+
 def _cell_units(cloud, cell_size_m, scales):
     sx, sy, _ = scales
     if cell_size_m is None:
@@ -190,6 +200,7 @@ def _cell_units(cloud, cell_size_m, scales):
     c = float(cell_size_m)
     if not (np.isfinite(c) and c > 0):
         raise ValueError(f"the cell size must be a positive number of metres; got {cell_size_m!r}.")
+    _check_cell_m(c, cloud.crs)
     return c / sx, c / sy
 
 
@@ -647,6 +658,7 @@ def _block_lattice(clouds, cell_size_m):
             e = c.extent
             area += max(e[2] - e[0], 0.0) * scales[0] * max(e[3] - e[1], 0.0) * scales[1]
         cell_size_m = nice_cell_size(math.sqrt(max(area, 1.0) / sum(len(c) for c in clouds)))
+    _check_cell_m(float(cell_size_m), clouds[0].crs)
     dx, dy = float(cell_size_m) / scales[0], float(cell_size_m) / scales[1]
     return TileLattice.around(merged_ext, dx, dy), scales
 

@@ -23,6 +23,12 @@ from ..common import MAX_ABS_HEIGHT_M, without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
+#: Smallest cell a DSM can have, metres: the finest DSMs (close-range and drone photogrammetry)
+#: have cells of a centimetre or more, ten times this. A smaller cell is a cell size in degrees
+#: read as metres (a raster without a CRS, or given a projected one by mistake), or a geographic
+#: raster's east-west width collapsing near a pole; the filters' windows (metres) would then span
+#: millions of cells: hours of work or arrays of hundreds of GB.
+MIN_CELL_M = 1e-3
 
 #: Tile edge of the GeoTIFF outputs, cells.
 OUTPUT_TILE = 256
@@ -113,6 +119,14 @@ def _vrt_problems(ds, depth=0):
                 if problem:
                     return problem
     return None
+
+
+class SeveralBands(ValueError):
+    """A raster of several height-like bands opened without a band chosen (``bands``: how many)."""
+
+    def __init__(self, message, bands):
+        super().__init__(message)
+        self.bands = bands
 
 
 def _open_read(path):
@@ -513,7 +527,8 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     ------
     ValueError
         For an unreadable (missing, corrupt, truncated at its first cell), empty, too small,
-        rotated or multi-band raster without ``band``, a band out of range, or a refused VRT.
+        rotated, complex-valued or multi-band raster without ``band``, cells under
+        :data:`MIN_CELL_M`, a band out of range, or a refused VRT.
     """
     need_gdal()
     try:
@@ -532,11 +547,16 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
-            raise ValueError(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
-                             "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)))
+            raise SeveralBands(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
+                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)),
+                               nb)
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    kind = ds.GetRasterBand(int(band)).DataType
+    if gdal.DataTypeIsComplex(kind):          # numpy would drop the imaginary parts with a warning only
+        raise ValueError(f"the raster {path!r} holds complex numbers ({gdal.GetDataTypeName(kind)}): heights are "
+                         "real numbers. Write the heights as a real type first (gdal_translate -ot Float32).")
     rows, cols = ds.RasterYSize, ds.RasterXSize
     if rows == 0 or cols == 0:
         raise ValueError(f"the raster {path!r} is empty ({cols} x {rows} cells).")
@@ -561,6 +581,17 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         srs = osr.SpatialReference()
         srs.ImportFromWkt(wkt)
     cell, w2, z_to_m = cell_size_metres(gt, (rows, cols), srs)
+    if min(cell) < MIN_CELL_M:
+        size = f"{cell[0]:.3g} x {cell[1]:.3g} m"
+        if srs is not None and srs.IsGeographic():
+            raise ValueError(f"the raster {path!r} has cells of {size} on the ground at its latitude: degrees of "
+                             "longitude shrink to nothing near a pole, and no DSM has cells under 1 mm. Reproject "
+                             "it to a projected CRS (near a pole a polar stereographic one, e.g. EPSG:3413 or "
+                             "EPSG:3031) first.")
+        raise ValueError(f"the raster {path!r} has cells of {size} ({abs(gt[1]):.3g} x {abs(gt[5]):.3g} in "
+                         f"{'its CRS' if srs is not None else 'metres, having no CRS'}): no DSM has cells under "
+                         "1 mm, so its cell size is probably in degrees. Give it its real CRS (e.g. gdal_edit.py "
+                         "-a_srs EPSG:4326) first.")
     warns += w2
     b = ds.GetRasterBand(int(band))
     nodata = b.GetNoDataValue()

@@ -145,8 +145,8 @@ def index_tiles(inputs):
     ------
     ValueError
         Before any work, naming the tiles: missing or unreadable tiles, tiles of another
-        CRS or cell size, tiles off the survey's grid, overlapping tiles, two tiles of the
-        same name (their outputs would collide).
+        CRS, cell size, data type or scale and offset (one VRT holds them all), tiles off the
+        survey's grid, overlapping tiles, two tiles of the same name (their outputs would collide).
     """
     paths = list_inputs(inputs)
     missing = [p for p in paths if not os.path.exists(p)]
@@ -160,6 +160,9 @@ def index_tiles(inputs):
     for p in paths:
         try:
             infos.append(grid.open_dsm(p))
+        except grid.SeveralBands as exc:          # a survey has no BAND parameter
+            bad.append(f"{os.path.basename(p)} (it has {exc.bands} bands: a tile holds one, its heights; extract "
+                       "the height band (gdal_translate -b) first)")
         except ValueError as exc:
             bad.append(f"{os.path.basename(p)} ({exc})")
     if bad:
@@ -172,11 +175,16 @@ def index_tiles(inputs):
     ref = infos[0]
     other_crs = [i.path for i in infos[1:] if not io.same_crs(i.crs_wkt, ref.crs_wkt)]
     if other_crs:
-        raise ValueError(f"the tiles are in different CRSs: {_short(other_crs)} "
-                         f"({io.crs_label(grid.open_dsm(other_crs[0]).crs_wkt)}) differ from "
-                         f"{os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). Reproject them to one "
-                         "CRS (gdalwarp -t_srs) first.")
+        other = grid.open_dsm(other_crs[0]).crs_wkt
+        fix = ("Give the tiles without one their CRS (gdal_edit.py -a_srs) first." if not (other and ref.crs_wkt)
+               else "Reproject them to one CRS (gdalwarp -t_srs) first.")
+        raise ValueError(f"the tiles are in different CRSs: {_short(other_crs)} ({io.crs_label(other)}) differ "
+                         f"from {os.path.basename(ref.path)} ({io.crs_label(ref.crs_wkt)}). {fix}")
     gts = np.array([i.geotransform for i in infos], float)
+    flipped = [i.path for i, g in zip(infos, gts) if g[1] < 0 or g[5] > 0]
+    if flipped:                # gdalbuildvrt takes north-up grids only (it skips the others)
+        raise ValueError(f"tiles {_short(flipped)} are stored south-up (rows from south to north) or east to "
+                         "west: a survey's mosaic takes north-up tiles. Write them north-up (gdalwarp) first.")
     dx, dy = gts[0, 1], gts[0, 5]
     other_cell = [i.path for i, g in zip(infos, gts)
                   if abs(g[1] - dx) > GRID_TOLERANCE * abs(dx) or abs(g[5] - dy) > GRID_TOLERANCE * abs(dy)]
@@ -186,6 +194,19 @@ def index_tiles(inputs):
                          f"({abs(grid.open_dsm(g).geotransform[1]):.6g} x {abs(grid.open_dsm(g).geotransform[5]):.6g}) "
                          f"differ from {os.path.basename(ref.path)} ({abs(dx):.6g} x {abs(dy):.6g}). Resample them "
                          "to one cell size (gdalwarp -tr) first.")
+    # a VRT holds one data type and one scale and offset: gdalbuildvrt leaves other tiles out
+    other_type = [i.path for i in infos[1:] if i.dtype != ref.dtype]
+    if other_type:
+        raise ValueError(f"the tiles have different data types: {_short(other_type)} "
+                         f"({grid.open_dsm(other_type[0]).dtype}) differ from {os.path.basename(ref.path)} "
+                         f"({ref.dtype}). Convert them to one type (gdal_translate -ot Float32 -unscale) first.")
+    other_scale = [i.path for i in infos[1:] if (i.scale, i.offset) != (ref.scale, ref.offset)]
+    if other_scale:
+        o = grid.open_dsm(other_scale[0])
+        raise ValueError(f"the tiles have different scales or offsets: {_short(other_scale)} "
+                         f"(x {o.scale:.6g} + {o.offset:.6g}) differ from {os.path.basename(ref.path)} "
+                         f"(x {ref.scale:.6g} + {ref.offset:.6g}). Store them alike (gdal_translate -ot Float32 "
+                         "-unscale) first.")
     x0 = gts[:, 0].min() if dx > 0 else gts[:, 0].max()
     y0 = gts[:, 3].max() if dy < 0 else gts[:, 3].min()
     cols_f = (gts[:, 0] - x0) / dx

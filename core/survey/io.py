@@ -90,10 +90,20 @@ def build_vrt(path, sources, nodata=None):
     path = str(path)
     tmp = f"{path}.partial-{uuid.uuid4().hex[:8]}.vrt"
     opts = gdal.BuildVRTOptions(VRTNodata=nodata) if nodata is not None else gdal.BuildVRTOptions()
+    gdal.ErrorReset()
     ds = gdal.BuildVRT(tmp, [str(s) for s in sources], options=opts)
     if ds is None:
         raise ValueError(f"GDAL could not build a VRT of the {len(sources)} tiles.")
+    xml = (ds.GetMetadata("xml:VRT") or [""])[0]
     ds = None
+    held = [e.text or "" for e in ElementTree.fromstring(xml).iter("SourceFilename")] if xml else []
+    if len(held) < len(sources):   # gdalbuildvrt skips, with a warning only, sources it cannot mix
+        names = {os.path.basename(h) for h in held}
+        left_out = [s for s in sources if os.path.basename(str(s)) not in names] or list(sources)
+        os.remove(tmp)
+        names = ", ".join(os.path.basename(str(s)) for s in left_out[:8]) + (" ..." if len(left_out) > 8 else "")
+        raise ValueError(f"GDAL left {len(sources) - len(held)} of the {len(sources)} tiles out of the VRT: {names} "
+                         f"({gdal.GetLastErrorMsg().strip() or 'their bands differ from the others'}).")
     # the VRT names its sources relative to its own folder; the temporary has the same one
     os.replace(tmp, path)
     return path

@@ -44,6 +44,15 @@ def test_multiband_needs_band(tmp_path):
     assert info.band_index == 2
 
 
+@pytest.mark.parametrize("dtype", ["CFloat32", "CInt16"])
+def test_complex_raster_refused(tmp_path, dtype):
+    """A complex-valued raster is no DSM: before, its real parts were read as heights and the
+    imaginary parts dropped with a numpy ComplexWarning on stderr only."""
+    tif(tmp_path, np.full((5, 5), 7.0, np.float32), dtype=dtype)
+    with pytest.raises(ValueError, match=rf"holds complex numbers \({dtype}\).*gdal_translate -ot Float32"):
+        grid.open_dsm(tmp_path / "dsm.tif")
+
+
 @pytest.mark.parametrize("band", [3, -1])
 def test_band_out_of_range(tmp_path, band):
     p = tif(tmp_path, np.zeros((2, 5, 5), np.float32))
@@ -135,6 +144,24 @@ def test_geographic_cell_size_at_centre_latitude(tmp_path):
     assert dy == pytest.approx(11113.2, rel=1e-3)     # 1 deg lat at 45 deg ~ 111.13 km
     assert info.z_to_m == 1.0
     assert any("geographic" in w and "45.0000" in w for w in info.warnings)
+
+
+@pytest.mark.parametrize("gt,crs,message", [
+    ((10.0, 1e-5, 0.0, 50.0, 0.0, -1e-5), None, r"1e-05 x 1e-05 m \(1e-05 x 1e-05 in metres, having no CRS\).*"
+                                              r"probably in degrees.*gdal_edit\.py -a_srs EPSG:4326"),
+    ((500000.0, 1e-5, 0.0, 5e6, 0.0, -1e-5), 32633, r"\(1e-05 x 1e-05 in its CRS\).*probably in degrees"),
+    ((10.0, 1e-5, 0.0, 89.9999, 0.0, -1e-5), 4326, r"\de-0\d x 1\.1\d m on the ground.*EPSG:3413"),
+], ids=["no_crs", "utm", "near_pole"])
+def test_cells_under_a_millimetre_refused(tmp_path, gt, crs, message):
+    """Cells under 1 mm are a cell size in degrees read as metres, or longitudes near a pole: before,
+    a 10 x 10 raster of them made the filters' windows (metres) millions of cells wide (dtm, rascor
+    and slopeprofile ran for hours; morphological and geodesic asked for 149 GB)."""
+    p = tmp_path / "dsm.tif"
+    grid.write_array(p, np.zeros((10, 10), np.float32), gt, wkt(crs) if crs else "")
+    with pytest.raises(ValueError, match=message):
+        grid.open_dsm(p)
+    grid.write_array(p, np.zeros((10, 10), np.float32), (500000.0, 0.01, 0.0, 5e6, 0.0, -0.01), wkt(32633))
+    assert grid.open_dsm(p).cell_size_m == pytest.approx((0.01, 0.01))     # a centimetre: a drone DSM
 
 
 def test_geographic_cell_size_at_equator(tmp_path):

@@ -680,3 +680,27 @@ def test_blocked_run_logs_the_decisions_of_every_block():
     assert sorted(blocked.info["decisions"]) == ["object of 20 m", "object of 30 m"]
     assert blocked.info["scales"] == [2, 2, 4]
     np.testing.assert_array_equal(blocked.mask, one.mask)
+
+
+@pytest.mark.parametrize("kind", ["tif", "vrt", "asc"])
+def test_run_file_leaves_the_input_folder_byte_for_byte(tmp_path, kind):
+    """The plugin's own reads write nothing into an input: no statistics into a ``.vrt`` (GDAL
+    rewrites a VRT whose statistics were computed when it closes) and no ``.aux.xml`` beside it
+    or its sources. (QGIS's layer loading still writes its statistics into a ``.vrt``: README.)"""
+    src_dir, out = tmp_path / "in", tmp_path / "out"
+    src_dir.mkdir()
+    out.mkdir()
+    z, _ = scene(np.float32, nodata=False)
+    src = write(src_dir, z, nodata=-9999)
+    if kind == "vrt":
+        gdal.BuildVRT(str(src_dir / "dsm.vrt"), [src]).FlushCache()
+        src = str(src_dir / "dsm.vrt")
+    elif kind == "asc":
+        gdal.Translate(str(src_dir / "dsm.asc"), src, format="AAIGrid")
+        src = str(src_dir / "dsm.asc")
+    for p in src_dir.glob("*.aux.xml"):
+        p.unlink()
+    before = {p.name: p.read_bytes() for p in src_dir.iterdir()}
+    pipeline.run_file(ABOVE, src, outputs(out, "dtm", "ndsm", "mask"))
+    grid.open_dsm(src).read()
+    assert {p.name: p.read_bytes() for p in src_dir.iterdir()} == before

@@ -363,3 +363,16 @@ def test_crs_warnings_name_how_the_points_were_measured(crs, x0, y0, said):
     cloud = PointCloud(x=x, y=y0 + x * 0, z=np.zeros(3), crs=crs)
     w = pf.crs_warnings(cloud)
     assert (w == []) if said is None else (len(w) == 1 and said in w[0]), w
+
+
+def test_cells_under_a_millimetre_refused_naming_the_crs():
+    """Points in degrees without a CRS (read as metres) gave cells of 1e-05 m: the filters' windows
+    (metres) spanned millions of cells (morphological asked for 149 GB, others ran for hours)."""
+    rng = np.random.default_rng(1)
+    x, y, z = 10.0 + rng.uniform(0, 0.0009, 4000), 50.0 + rng.uniform(0, 0.0008, 4000), rng.uniform(0, 0.2, 4000)
+    with pytest.raises(ValueError, match=r"cells of 1e-05 m.*under 1 mm.*probably in degrees.*CRS"):
+        pf.filter_cloud(PointCloud(x, y, z), "morphological")
+    geo = PointCloud(x, y, z, crs="EPSG:4326")               # the same points with their CRS: ~1 m cells
+    assert pf.rasterize_cloud(geo).cell_size_m[0] > 0.5
+    with pytest.raises(ValueError, match=r"cells of 0\.0005 m.*under 1 mm.*larger cell size"):
+        pf.rasterize_cloud(geo, 0.0005)

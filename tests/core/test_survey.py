@@ -163,6 +163,12 @@ def test_mixed_crs_refused_naming_the_tile(tmp_path):
     with pytest.raises(ValueError, match="t11.tif"):
         run_survey("slopeprofile", paths, tmp_path / "out", workers=1)
     assert not (tmp_path / "out").exists()                # refused before any work
+    # a tile without a CRS is given one, not reprojected (before: 'Reproject them to one CRS')
+    g = grid.open_dsm(paths[3]).geotransform
+    bare = tmp_path / "bare.tif"
+    grid.write_array(bare, grid.open_dsm(paths[3]).read(), g, "")
+    with pytest.raises(ValueError, match=r"bare\.tif \(no CRS\) differ .* their CRS \(gdal_edit\.py -a_srs\)"):
+        index_tiles(paths[:3] + [str(bare)])
 
 
 def test_missing_vrt_source_refused_naming_the_tile(tmp_path):
@@ -195,6 +201,79 @@ def test_other_cell_size_and_overlap_refused_naming_the_tiles(tmp_path):
     grid.write_array(shifted, np.zeros((32, 32), np.float32), (gt[0] + 64.5, gt[1], 0, gt[3], 0, gt[5]), sc.epsg)
     with pytest.raises(ValueError, match=r"shifted\.tif are not on the grid"):
         index_tiles(paths + [str(shifted)])
+
+
+@pytest.mark.parametrize("kind", ["dtype", "scale"])
+def test_tiles_of_another_data_type_or_scale_refused_naming_them(tmp_path, kind):
+    """Tiles that GDAL's VRT cannot hold together (another data type, another scale) are refused
+    before any work, naming them. Before: gdalbuildvrt left them out of survey.vrt with a warning
+    only, the parameters were derived from the rest, and every task failed on 'Access window out
+    of range' after the work had started."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    odd = paths[3]
+    a, gt = grid.open_dsm(odd).read(), grid.open_dsm(odd).geotransform
+    if kind == "dtype":
+        grid.write_array(odd, np.rint(a * 100), gt, sc.epsg, nodata=-9999, dtype="Int32")
+        ds = gdal.Open(odd, gdal.GA_Update)
+        ds.GetRasterBand(1).SetScale(0.01)
+        ds = None
+        message = r"different data types: t11\.tif \(Int32\) differ from t00\.tif \(Float32\)"
+    else:
+        ds = gdal.Open(odd, gdal.GA_Update)
+        ds.GetRasterBand(1).WriteArray(a * 10)
+        ds.GetRasterBand(1).SetScale(0.1)
+        ds = None
+        message = r"different scales or offsets: t11\.tif \(x 0\.1 \+ 0\) differ from t00\.tif \(x 1 \+ 0\)"
+    assert np.allclose(grid.open_dsm(odd).read(), a, atol=0.01)      # the same heights, stored otherwise
+    with pytest.raises(ValueError, match=message):
+        index_tiles(paths)
+    with pytest.raises(ValueError, match=message):
+        run_survey("morphological", paths, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()                # refused before any work
+
+
+def test_survey_vrt_missing_a_tile_is_an_error_naming_it(tmp_path):
+    """A VRT that GDAL built without one of its sources (gdalbuildvrt skips what it cannot mix)
+    is an error naming the tile, never a smaller mosaic."""
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    other = tmp_path / "other.tif"
+    grid.write_array(other, np.zeros((32, 32), np.uint8), grid.open_dsm(paths[3]).geotransform, sc.epsg)
+    with pytest.raises(ValueError, match=r"GDAL left 1 of the 4 tiles out of the VRT: other\.tif"):
+        survey_io.build_vrt(tmp_path / "m.vrt", paths[:3] + [str(other)])
+    assert not list(tmp_path.glob("m.vrt*"))
+
+
+def test_south_up_and_multiband_tiles_refused_with_what_to_do(tmp_path):
+    """A south-up tile (positive row step) was refused as of 'different cell sizes: flip.tif (1 x 1)
+    differ from t00.tif (1 x 1)', and a survey of south-up tiles only failed after creating its
+    output folder ('GDAL could not build a VRT'); a multi-band tile was told to use a BAND
+    parameter the survey does not have."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path / "tiles", sc, tile=32)
+    flipped = []
+    for p in paths[2:]:
+        g = grid.open_dsm(p).geotransform
+        a = grid.open_dsm(p).read()
+        q = tmp_path / ("s_" + os.path.basename(p))
+        grid.write_array(q, a[::-1], (g[0], g[1], 0, g[3] + 32 * g[5], 0, -g[5]), sc.epsg)
+        flipped.append(str(q))
+    for tiles in (paths[:2] + flipped, flipped):
+        with pytest.raises(ValueError, match=r"s_t10\.tif.* south-up \(rows from south to north\).*gdalwarp"):
+            index_tiles(tiles)
+    with pytest.raises(ValueError, match="south-up"):
+        run_survey("morphological", flipped, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()                # refused before any work
+    two = tmp_path / "two.tif"
+    g = grid.open_dsm(paths[3]).geotransform
+    ds = gdal.GetDriverByName("GTiff").Create(str(two), 32, 32, 2, gdal.GDT_Float32)
+    ds.SetGeoTransform(g)
+    ds = None
+    with pytest.raises(ValueError, match=r"two\.tif .*has 2 bands.*extract the height band \(gdal_translate -b\)"):
+        index_tiles(paths[:3] + [str(two)])
 
 
 def test_parse_params_converts_to_the_params_kinds():
