@@ -450,7 +450,8 @@ def test_filters_asking_the_shared_pit_tests_find_lines_of_blunders_along_walls(
     ring and a rim of wall and ground: the filters asking the shared pit tests kept all 46
     as ground and the DTM dipped 25 m along the walls (estimate.below_narrow_gap). Nearly
     all low now (a line's end may stay: it has ground at its own level on one side), no
-    other low cell, no ground lost, no dip in the DTM but at such an end."""
+    other low cell, no ground lost, no dip in the DTM but at such an end and the low cells
+    beside it (filled from it once the building is an object: slopeprofile's raised runs)."""
     rng = np.random.default_rng(0)
     z = (100 + rng.normal(0, 0.05, (80, 80))).astype(np.float32)
     z[20:40, 20:50] += 15.0
@@ -461,7 +462,12 @@ def test_filters_asking_the_shared_pit_tests_find_lines_of_blunders_along_walls(
     assert (r.mask[line] == LOW).sum() >= line.sum() - 2
     assert not ((r.mask == LOW) & ~line).any()
     assert (r.mask[~line & (z < 105.0)] == 0).all()
-    assert (r.dtm[line] < 95.0).sum() <= 2                         # no dip along the walls
+    ends = line & (r.mask != LOW)
+    assert ends.sum() <= 2
+    beside = np.zeros(z.shape, bool)                               # an end and its neighbours
+    for dr, dc in np.argwhere(np.ones((3, 3), bool)) - 1:
+        beside |= np.roll(ends, (dr, dc), axis=(0, 1))
+    assert not (line & ~beside & (r.dtm < 95.0)).any()             # no dip along the walls
 
 
 @pytest.mark.parametrize("method", METHODS)

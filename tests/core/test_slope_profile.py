@@ -393,3 +393,51 @@ def test_shrub_defaults_agree_from_0_5_to_4_m():
     for key in ("terrain_slope_deg", "slope_threshold_deg"):
         v = np.array([p[key] for p in got])
         assert v.max() / v.min() <= 1.2, (key, v)
+
+
+def _runs1(values, tan_g, tan_t, dh0, init_cells):
+    """One profile scanned forwards alone: the cells of its raised runs closed on the ground."""
+    a = np.asarray(values, np.float32)[:, None]
+    return sp._scan([(a, False)], 1.0, tan_g, tan_t, dh0, init_cells, 1, None, True)[1][0][:, 0].tolist()
+
+
+def test_scan_raised_run_between_walls_down_to_the_ground_before_it():
+    # tan_g 0.5, tan_t 0.1, dh0 0: after a wall 3 m up the terrain's rise accepts the roof
+    # from d = 30 (3.0 <= 0.1 x 30) to its end: a raised run. A wall 3 m down (steeper than
+    # any bank: more than max(tan_g, 1) per cell) closes it: the run is an object.
+    roof = [0.0, 0.0] + [3.0] * 40
+    plain = _scan1(roof + [0.0, 0.0], 0.5, 0.1, 0.0, init_cells=60)
+    assert plain == [False, False] + [True] * 29 + [False] * 13       # the paper's rule alone
+    runs = _runs1(roof + [0.0, 0.0], 0.5, 0.1, 0.0, 60)
+    assert runs == [False] * 31 + [True] * 11 + [False, False]
+    # the same level but no wall down: a terrace, no run closed
+    assert not any(_runs1(roof, 0.5, 0.1, 0.0, 60))
+    # a bank 0.75 m per cell (37 deg) down to the same level: terrain, no wall
+    assert not any(_runs1(roof + [2.25, 1.5, 0.75, 0.0, 0.0], 0.5, 0.1, 0.0, 60))
+    # a bank 0.75 m per cell up to the same roof: no wall up, no run
+    assert not any(_runs1([0.0, 0.0, 0.75, 1.5, 2.25] + [3.0] * 40 + [0.0, 0.0], 0.5, 0.1, 0.0, 60))
+    # a run longer than the largest object (init_cells 20): the ground rose, no object
+    assert not any(_runs1(roof + [0.0, 0.0], 0.5, 0.1, 0.0, 20))
+
+
+def test_wide_flat_roof_on_sloping_ground_is_an_object_plateau_larger_than_objects_ground():
+    """synthetic-lidar/urban (2 m cells, issue 12): a flat roof 90 m wide, 6-9 m above ground
+    falling 1.7 degrees under it, was ground in its middle: the terrain's rise of alpha_t = 8
+    deg (0.28 m per cell) reached the roof from both sides. Closed by walls down to the ground it
+    rose from, it is an object; a plateau between walls wider than the largest object stays
+    ground, and so does the ground around."""
+    n, cell = 120, 2.0
+    x = np.arange(n, dtype=np.float32) * cell
+    z = np.tile(100.0 - 0.03 * x, (n, 1)).astype(np.float32)          # 1.7 deg down along X
+    z[30:75, 30:75] = 104.2                                           # the roof, 90 m square
+    p = dict(PARAMS, slope_threshold_deg=15.7, terrain_slope_deg=8.0, tolerance_m=0.15,
+             max_object_size_m=100.0)
+    r = sp.filter_slope_profile(z, cell, **p)
+    assert (r.mask[30:75, 30:75] == OBJECT).all()
+    ground = np.ones(z.shape, bool)
+    ground[29:76, 29:76] = False
+    assert (r.mask[ground] == GROUND).all()
+    wide = np.tile(100.0 - 0.03 * x, (n, 1)).astype(np.float32)
+    wide[:, 20:100] += 6.0                                            # 160 m between walls
+    r = sp.filter_slope_profile(wide, cell, **dict(p, max_object_size_m=60.0))
+    assert (r.mask[:, 20:100] == GROUND).mean() > 0.95
