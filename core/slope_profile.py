@@ -986,6 +986,10 @@ METHOD = Method(
         "within 10 m (a gap between crowns is at the level of the other gaps around it) or below a "
         "level rim just around them (a blunder in open ground, even with another blunder within "
         "10 m; the crowns around a gap are metres apart).</p>"
+        "<p>Where a profile climbs a wall, crosses a raised run and comes down an equally steep "
+        "wall within the largest object's length, the run is an object even where the terrain's "
+        "allowed rise had accepted its middle (a wide flat roof); regions longer than the largest "
+        "object (embankments, terraces between walls) stay ground.</p>"
         "<p>Defaults are derived from the DSM: alpha_g and the terrain slope from slopes between 20 m "
         "block minima, the tolerance from the noise of the DSM's ground-level cells (not the "
         "canopy's roughness). The log lists the values used.</p>"
@@ -993,5 +997,5 @@ METHOD = Method(
         "whole raster. Where gentle ground is cut by a few steep banks (a cutting, a river bank), a "
         "plateau that profiles reach only by climbing a bank may stay rejected: the measured slope "
         "of the gentle ground lets its level rise too slowly under the profile (ISPRS sample 71: "
-        "6.1 % total error).</p>"),
+        "6.8 % total error at 1 m lowest point).</p>"),
 )
