@@ -33,6 +33,12 @@ NOISE_SNAP = 0.2
 RECON_REACH = 1.0
 #: A terrain bump as wide as the window may rise tan(slope) * window * this fraction.
 BUMP_FRACTION = 0.5
+#: Rings of border cells the border stage (:func:`~.filter.remove_borders`) peels off a removed
+#: object, one after the other, and the radius in cells of the ground whose own drops measure the
+#: terrain's rise there: a wall that the DSM smears over a few cells (interpolated, smoothed or
+#: matched surfaces: a ramp of mixed cells 0.5-2 m above the ground round every roof at 2 m cells)
+#: leaves a skirt the first ring alone does not take (issue 12).
+BORDER_RINGS = 3
 #: A residual region wider or taller than this many ``max_object_size_m`` is never an
 #: object (large raised terrain); it also bounds the method's reach (see the halo).
 EXTENT_FACTOR = 2.0

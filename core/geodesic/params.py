@@ -7,7 +7,7 @@ import numpy as np
 from ..common import as_cell_size, as_surface, report, sub_progress
 from ..estimate import RAISED_REGION_MAX_M, block_minima, noise_ground_level, raised_region_window
 from ..methods import Param, check_values
-from .dilation import EXTENT_FACTOR, WALL_BASE_M, coarse_factor
+from .dilation import BORDER_RINGS, EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
 from .outliers import OUTLIER_MAX_CELLS
 from .scan import OBLIQUE_REACH
@@ -192,7 +192,8 @@ def geodesic_halo(params, cell_size):
     ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
     within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to
     ``OBLIQUE_REACH * S`` (an object crossed obliquely: ``2 sqrt(2) S``); the preprocessing
-    two outlier windows and a cluster; the islands (stage
+    two outlier windows and a cluster; the borders (stage 4) :data:`~.dilation.BORDER_RINGS`
+    rings and the ground within as many cells of the last; the islands (stage
     5) at most the first window's cells and their ring. The halo is rounded
     up to a multiple of the largest coarsening factor, so that blocks whose edge is a
     multiple of it (the default 2048 is) see the same coarse grids as one pass.
@@ -205,7 +206,7 @@ def geodesic_halo(params, cell_size):
     params["max_object_size_m"] = size
     island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
     reach = (int(np.ceil(((2 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
-             + OUTLIER_MAX_CELLS + 8 + island)
+             + OUTLIER_MAX_CELLS + 8 + island + 2 * BORDER_RINGS)
     # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     f = max(coarse_factor(window_cells(s, dx, dy))
             for s in step_sizes(params["min_window_m"], params["max_object_size_m"]))

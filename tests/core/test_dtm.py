@@ -249,7 +249,7 @@ def test_window_without_ground_leaves_its_dtm_empty():
 def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found():
     """A 6 m embankment (30 m crown, 1:1 banks) across flat land with 8 m buildings beside it and one on its
     crown. RASCOR and the geodesic member take the embankment as an object, the slope-following opening
-    keeps it: the majority rejects four fifths of it and the DTM would cut it. Its smooth ground continues
+    keeps it: the majority rejects most of it and the DTM would cut it. Its smooth ground continues
     the undisputed ground (dtm_refine.continue_ground): it stays ground and the DTM follows it, while every
     building, walls standing on steps, is found."""
     n = 160
@@ -266,7 +266,9 @@ def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found
                                                        if k in {q.name for q in available_methods()[m].params}})
                  .mask == GROUND).astype(int) for m in dtm_method.MEMBERS)
     on_dam = (dam > 0) & ~buildings
-    assert np.count_nonzero((votes < 2) & on_dam) > 0.7 * np.count_nonzero(on_dam)      # the vote rejects it
+    # the vote rejects most of it (69.8 %: the geodesic member's border stage reads the rise the 1:1 banks allow
+    # from the drops of the ground on them and keeps the cells beside the parts it removes, which it took before)
+    assert np.count_nonzero((votes < 2) & on_dam) > 0.65 * np.count_nonzero(on_dam)
     assert np.count_nonzero((res.mask != GROUND) & on_dam) < 0.25 * np.count_nonzero(on_dam)
     assert (res.mask[buildings] == OBJECT).all()
     assert np.abs(res.dtm - ground)[~buildings].max() < 1.5

@@ -538,8 +538,10 @@ def test_terrain_slope_at_reads_the_coarse_terrain_level():
 def test_borders_on_terrain_steeper_than_the_tolerance_stay_ground():
     """Stage 4 on a 0.8 slope (39 degrees) at 2 m cells, the tolerance tan(22 deg) = 0.40: a
     kept cell beside a removed one stands 2.26 m above its downhill diagonal neighbour, more
-    than dh0 + 0.40 x 2.83 = 1.63 m; the terrain level's own slope allows 0.5 + 0.8 x 2.83
-    = 2.76 m, and a wall foot 1 m higher still goes."""
+    than dh0 + 0.40 x 2.83 = 1.63 m; the terrain's own rise allows 0.5 + 2.26 = 2.76 m, read
+    from the terrain level's slope or from the drops of the ground around (the same 2.26 m), and
+    a wall foot 1 m higher still goes. With neither (no terrain level, no ground near: every
+    other cell removed) the tolerance sets the rise and the 8 cells go."""
     from bare_earth.core.geodesic.filter import remove_borders
     cell = (2.0, 2.0)
     n = 12
@@ -549,15 +551,80 @@ def test_borders_on_terrain_steeper_than_the_tolerance_stay_ground():
     removed[5, 5] = True
     terrain = (z.copy(), 1)
     tan_s = float(np.tan(np.radians(22.0)))
-    for given, count in ((None, 8), (terrain, 0)):
+    for given in (None, terrain):
         rem, step = removed.copy(), np.zeros(z.shape, np.uint8)
-        assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, given) == count
-        assert rem.sum() == 1 + count
+        assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, given) == 0
+        assert rem.sum() == 1
+    alone = np.ones(z.shape, bool)
+    alone[4:7, 4:7] = False                       # the removed cell and its ring, nothing else kept
+    alone[5, 5] = True
+    rem, step = alone.copy(), np.zeros(z.shape, np.uint8)
+    assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, None) == 8
+    assert remove_borders(z, np.ones(z.shape, bool), None, alone, cell, 0.5, tan_s, step, terrain) == 0
     z2 = z.copy()
     z2[5, 6] += 1.0                               # a wall foot beside the removed cell
     rem, step = removed.copy(), np.zeros(z.shape, np.uint8)
     assert remove_borders(z2, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, terrain) == 1
     assert step[5, 6] == geo.STEP_EDGE
+
+
+def test_border_below_the_tolerated_rise_must_stand_above_the_terrain_level():
+    """Stage 4 beside an object on a terrace 0.8 m above flat ground (2 m cells, tolerance
+    12 degrees: 0.5 + 0.21 x 2.83 = 1.1 m): the terrace's edge cells stand 0.8 m above their
+    lowest neighbour, more than dh0 over the flat ground's drops. Where the terrain level holds
+    the terrace (the reconstruction reaches it) they are terrain and stay; where it lies at the
+    flat ground they are a skirt: the ring and two more along the edge go (3 + 2 + 2 cells)."""
+    from bare_earth.core.geodesic.filter import remove_borders
+    cell = (2.0, 2.0)
+    z = np.full((12, 12), 100.0, np.float32)
+    z[:, 6:] = 100.8
+    removed = np.zeros(z.shape, bool)
+    removed[5, 7] = True                          # an object on the terrace
+    tan_s = float(np.tan(np.radians(12.0)))
+    for level, count in ((z.copy(), 0), (np.full(z.shape, 100.0, np.float32), 7)):
+        rem, step = removed.copy(), np.zeros(z.shape, np.uint8)
+        assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, (level, 1)) == count
+        assert rem[:, 7:].sum() == 1              # the terrace itself never: no drop there
+        if count:
+            assert rem[2:9, 6].all() and rem[:, :6].sum() == 0
+
+
+def test_ground_drop_median_of_the_ground_around():
+    from bare_earth.core.geodesic.filter import ground_drop
+    drop = np.arange(25, dtype=np.float32).reshape(5, 5)
+    ground = np.ones((5, 5), bool)
+    ground[2, 2] = False
+    ground[0, 1] = False
+    drop[4, 4] = np.inf                           # not a number of the ground: left out
+    got = ground_drop(drop, ground, np.array([12, 0, 24, 6]), 1)
+    # 12: its 8 neighbours 6 7 8 11 13 16 17 18; 0: 0 5 6; 24: 18 19 23 (24 not finite);
+    # 6: 0 2 5 6 7 10 11 (1 and 12 not ground)
+    np.testing.assert_allclose(got, [12.0, 5.0, 19.0, 6.0])
+    assert np.isnan(ground_drop(drop, np.zeros((5, 5), bool), np.array([12]), 2)).all()
+
+
+def test_smeared_wall_skirt_is_removed_ring_by_ring():
+    """A roof whose walls the DSM smears over three cells (interpolated or matched surfaces at
+    2 m): mixed cells 3, 1.6 and 0.8 m above flat ground, each above the next outward by 1.4,
+    0.8, 0.8 m. The tolerated slope (12 degrees) allowed 0.5 + 0.21 x 2.83 = 1.1 m and only
+    the first ring went; the ground around is flat (its drops are the noise), so the skirt is
+    removed down to the ground, which stays (issue 12: opengeos 13.52 -> 8.28 %)."""
+    rng = np.random.default_rng(0)
+    n = 60
+    z = (100.0 + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    z[24:36, 24:36] = 110.0                       # the roof
+    for k, h in enumerate((103.0, 101.6, 100.8), start=1):
+        ring = np.zeros((n, n), bool)
+        ring[24 - k:36 + k, 24 - k:36 + k] = True
+        ring[24 - k + 1:36 + k - 1, 24 - k + 1:36 + k - 1] = False
+        z[ring] = h
+    skirt = np.zeros((n, n), bool)
+    skirt[21:39, 21:39] = True
+    p = geo.resolve_geodesic_params(z, 2.0)
+    assert p["terrain_slope_deg"] == 12.0 and p["height_threshold_m"] == 0.5
+    res = geo.filter_geodesic(z, 2.0, **p)
+    assert (res.mask[skirt] == OBJECT).all()
+    assert (res.mask[~skirt] == GROUND).all()
 
 
 def _forested_slope(cell, seed=1):
