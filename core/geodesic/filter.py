@@ -218,7 +218,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
                     max_object_size_m: float = 64.0, height_threshold_m: float = 0.5,
                     terrain_slope_deg: float = 20.0, edge_ratio: float = 0.55, outlier_threshold_m: float = 2.0,
                     outlier_width_m: float = 2.0, scan_labelling: bool = True, raised_regions: bool = True,
-                    progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+                    progress: Optional[Callable[[float], None]] = None, pool=None) -> FilterResult:
     """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
 
     See the package docstring for the method. Parameters are complete values (use
@@ -251,6 +251,10 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     progress : callable, optional
         ``progress(fraction)`` within every stage; may raise
         :class:`~bare_earth.core.common.Cancelled`.
+    pool : concurrent.futures.Executor, optional
+        Threads that may run some of the independent dilation steps when idle
+        (:func:`~bare_earth.core.blocks.run_sharing`: ``bareearth:dtm`` lends the thread another
+        member has left); the same result.
 
     Returns
     -------
@@ -283,7 +287,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     # 2. gradual geodesic dilation
     sizes = step_sizes(min_window_m, max_object_size_m)
     removed, cleaned, counts, terrain = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
-                                                         sub_progress(progress, 0.05, 0.85))
+                                                         sub_progress(progress, 0.05, 0.85), pool=pool)
     _lap(stages, "dilation", t0)
     # 3. scan labelling on the cleaned surface
     n_scan = label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95)) if scan_labelling else 0
