@@ -1044,3 +1044,18 @@ def test_dilation_steps_shared_with_a_pool_give_the_same_result():
     assert np.array_equal(one.extras["step"], shared.extras["step"])
     assert np.array_equal(one.surface, shared.surface, equal_nan=True)
     assert one.info["removed_per_step"] == shared.info["removed_per_step"]
+
+
+def test_scan_label_rows_shared_with_a_pool_give_the_same_cells():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core.synthetic import make_scene
+    s = make_scene("city", (128, 160), seed=4, nodata_holes=True)
+    kw = dict(jump_m=0.5, height_m=0.5, max_length_m=40.0, terrain_slope_deg=10.0, oblique_length_m=60.0)
+    one = geo.scan_label(s.dsm, 1.0, **kw)
+    assert one.any()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for axes in ((1, 0), (1,), (0,)):
+            assert np.array_equal(geo.scan_label(s.dsm, 1.0, axes=axes, pool=pool, **kw),
+                                  geo.scan_label(s.dsm, 1.0, axes=axes, **kw))
+        assert np.array_equal(geo.scan_label(s.dsm, 1.0, pool=pool, **kw), one)
