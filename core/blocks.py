@@ -197,6 +197,39 @@ def run_windows(func, windows, *, workers=1, progress=None):
             raise
 
 
+def run_sharing(tasks, pool=None):
+    """Run independent ``tasks`` (callables without arguments) and return their results in order; with
+    ``pool`` (an executor whose threads may be busy with other work), the threads that fall idle take
+    some of them.
+
+    Every task is queued on ``pool``; the calling thread then runs the queued tasks itself from the last
+    one back (cancelling each one no thread has taken yet), while the pool's threads take them from the
+    first one on as they fall idle, and it waits only for the tasks another thread is running. Without
+    ``pool``: one after the other. The calling thread may itself be one of ``pool``'s threads (it never
+    waits for a task that no thread runs), so a member of ``bareearth:dtm`` running on the vote's
+    threads lends its independent parts to the thread another member has left. The results are those of
+    one after the other whoever ran the tasks; an exception of a task is raised (the queued tasks are
+    cancelled first).
+    """
+    tasks = list(tasks)
+    if pool is None or len(tasks) < 2:
+        return [t() for t in tasks]
+    futures = [pool.submit(t) for t in tasks]
+    results = [None] * len(tasks)
+    try:
+        for i in range(len(tasks) - 1, -1, -1):
+            if futures[i].cancel():
+                results[i] = tasks[i]()
+        for i, f in enumerate(futures):
+            if not f.cancelled():
+                results[i] = f.result()
+    except BaseException:
+        for f in futures:
+            f.cancel()
+        raise
+    return results
+
+
 def _is_this_process(exe):
     """False when ``exe`` is known not to be the program running us (Linux: /proc/self/exe)."""
     try:

@@ -381,9 +381,37 @@ def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells, judg
     smooth = find_smooth(z, disputed, height_m, ground | disputed if judge_on_ground else None)
     if not smooth.any():
         return smooth
-    grown = ndimage.binary_dilation(anchors, np.ones((3, 3), bool), iterations=int(reach_cells),
-                                    mask=smooth | ground | anchors)
-    return grown & smooth
+    return _reached(anchors, smooth | ground | anchors, smooth, int(reach_cells))
+
+
+#: Smallest tile side of :func:`_reached`, cells (with the reach around each tile, at most 4 x a tile's cells).
+_REACH_TILE = 64
+
+
+def _reached(sources, allowed, targets, reach):
+    """The ``targets`` cells joined to a ``sources`` cell by a path of at most ``reach`` 8-connected steps
+    through ``allowed`` cells: the geodesic dilation ``binary_dilation(sources, 3 x 3, iterations=reach,
+    mask=allowed) & targets`` (the sources allowed), run only on the tiles holding a target, each grown by
+    ``reach`` cells (such a path never leaves that window: the same cells). The targets are the few cells
+    disputed between the members (16 Mcells benchmark DSM: 22 572 cells in 46 of 3969 tiles of 64 x 64, the
+    dilation of the whole raster 0.15-0.19 s of CPU)."""
+    rows, cols = targets.shape
+    t = max(_REACH_TILE, 4 * reach)
+    r, c = np.divmod(np.flatnonzero(targets), cols)
+    tiles = np.unique((r // t) * (-(-cols // t)) + c // t)
+    out = np.zeros(targets.shape, bool)
+    if tiles.size * (t + 2 * reach) ** 2 >= targets.size:     # most of the raster: one pass
+        out[...] = ndimage.binary_dilation(sources, np.ones((3, 3), bool), iterations=reach, mask=allowed)
+        return out & targets
+    per_row = -(-cols // t)
+    for i in tiles:
+        r0, c0 = (i // per_row) * t, (i % per_row) * t
+        r1, c1 = min(rows, r0 + t), min(cols, c0 + t)
+        wr, wc = slice(max(0, r0 - reach), min(rows, r1 + reach)), slice(max(0, c0 - reach), min(cols, c1 + reach))
+        grown = ndimage.binary_dilation(sources[wr, wc], np.ones((3, 3), bool), iterations=reach, mask=allowed[wr, wc])
+        core = (slice(r0 - wr.start, r1 - wr.start), slice(c0 - wc.start, c1 - wc.start))
+        out[r0:r1, c0:c1] = grown[core] & targets[r0:r1, c0:c1]
+    return out
 
 
 def _slices(shift, size):

@@ -151,8 +151,8 @@ __all__ = ["BORDER_RINGS", "BUMP_FRACTION", "COARSE_WINDOW", "EXTENT_FACTOR", "M
            "filter_geodesic", "geodesic_halo", "reconstruct_by_dilation", "resolve_geodesic_params", "scan_label"]
 
 
-def _run(z, cell_size, progress=None, **params):
-    return filter_geodesic(z, cell_size, progress=progress, **params)
+def _run(z, cell_size, progress=None, pool=None, **params):
+    return filter_geodesic(z, cell_size, progress=progress, pool=pool, **params)
 
 
 METHOD = Method(

@@ -5,11 +5,14 @@ is reconstructed by geodesic dilation under the surface; the residual regions th
 reconstruction cannot reach are objects when they are high enough and their border is
 abrupt (see the package docstring). Wide windows run on grids coarsened by a power of 2.
 """
+import functools
+
 import numpy as np
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ..blocks import run_sharing
 from ..common import report, sub_progress
 from .grey import (
     S8,
@@ -356,7 +359,7 @@ def wall_cells(w, valid, cell_size, dh0, tan_s):
         return valid & (w - low > 2.0 * dh0 + tan_s * np.hypot(wr[0] * dy, wr[1] * dx))
 
 
-def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, progress=None):
+def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, progress=None, pool=None):
     """Stage 2: the dilation steps of ``sizes`` metres, their regions removed together.
 
     Each step works on the preprocessed surface ``w`` (:func:`dilation_step`), so the
@@ -375,6 +378,9 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     terrain : (ndarray, int)
         The last (largest) step's reconstruction on its grid and the grid's factor: the
         terrain level that no object reaches (see :func:`terrain_at`).
+
+    ``pool`` (optional, an executor): its idle threads may run some of the steps
+    (:func:`~bare_earth.core.blocks.run_sharing`); the same result.
     """
     dx, dy = cell_size
     cleaned = w.copy()
@@ -388,11 +394,20 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     report(progress, 0.02)
     counts, recon, shared = [], [], {}
     rf, sf, cf = removed.ravel(), step.ravel(), cleaned.ravel()
-    for k, s in enumerate(sizes, start=1):
-        part = sub_progress(progress, 0.02 + 0.98 * (k - 1) / len(sizes), 0.02 + 0.98 * k / len(sizes))
+    parts = [sub_progress(progress, 0.02 + 0.98 * (k - 1) / len(sizes), 0.02 + 0.98 * k / len(sizes))
+             for k in range(1, len(sizes) + 1)]
+
+    def one(k, s):
         keep = recon if k == len(sizes) else None
-        cells, R = dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, part, grids,
-                                 reconstruction=keep, shared=shared)
+        return dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, parts[k - 1], grids,
+                             reconstruction=keep, shared=shared)
+
+    # the steps are independent: with ``pool``, the threads it has idle take some (blocks.run_sharing; their
+    # results kept until all are done), else each is applied as it ends
+    tasks = [functools.partial(one, k, s) for k, s in enumerate(sizes, start=1)]
+    steps = run_sharing(tasks, pool) if pool is not None else (t() for t in tasks)
+    for k, (cells, R) in enumerate(steps, start=1):
+        part = parts[k - 1]
         new = ~rf[cells] & (sf[cells] == 0)       # outliers keep their own code
         rf[cells] = True
         sf[cells[new]] = k

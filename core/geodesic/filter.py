@@ -54,7 +54,7 @@ def bridge_dropouts(z):
     return out, ~bad
 
 
-def label_scans(cleaned, cell_size, p, removed, step, progress=None):
+def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
     """Stage 3: scan labelling of the cleaned surface (:func:`~.scan.scan_label`).
 
     Runs of cells that open with a rise and close with a fall are removed (``removed``
@@ -65,11 +65,11 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None):
     (:func:`bridge_dropouts`); a run it adds is kept when its region holds a core labelled
     by both the row and the column scans that is at least 3 x 3 cells (an object is a 2-D
     region; a run of matching noise along one profile is not); only valid cells are labelled
-    (issue 12).
+    (issue 12). ``pool``: threads that may scan the rows when idle (:func:`~.scan.scan_label`).
     """
     kw = dict(jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
               max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
-              oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"], passes=SCAN_PASSES)
+              oblique_length_m=OBLIQUE_REACH * p["max_object_size_m"], passes=SCAN_PASSES, pool=pool)
     surface, valid = bridge_dropouts(cleaned)
     lab = scan_label(cleaned, cell_size, progress=progress, **kw)
     if valid is not None and np.isfinite(surface).sum() > valid.sum():
@@ -287,7 +287,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
                     max_object_size_m: float = 64.0, height_threshold_m: float = 0.5,
                     terrain_slope_deg: float = 20.0, edge_ratio: float = 0.55, outlier_threshold_m: float = 2.0,
                     outlier_width_m: float = 2.0, scan_labelling: bool = True, raised_regions: bool = True,
-                    progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+                    progress: Optional[Callable[[float], None]] = None, pool=None) -> FilterResult:
     """Gradual geodesic dilation with scan labelling (2018; ISPRS filter test).
 
     See the package docstring for the method. Parameters are complete values (use
@@ -320,6 +320,10 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     progress : callable, optional
         ``progress(fraction)`` within every stage; may raise
         :class:`~bare_earth.core.common.Cancelled`.
+    pool : concurrent.futures.Executor, optional
+        Threads that may run some of the independent dilation steps, and the row scans of the scan
+        labelling, when idle (:func:`~bare_earth.core.blocks.run_sharing`: ``bareearth:dtm`` lends the
+        thread another member has left); the same result.
 
     Returns
     -------
@@ -352,10 +356,11 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     # 2. gradual geodesic dilation
     sizes = step_sizes(min_window_m, max_object_size_m)
     removed, cleaned, counts, terrain = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
-                                                         sub_progress(progress, 0.05, 0.85))
+                                                         sub_progress(progress, 0.05, 0.85), pool=pool)
     _lap(stages, "dilation", t0)
     # 3. scan labelling on the cleaned surface
-    n_scan = label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95)) if scan_labelling else 0
+    n_scan = (label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95), pool=pool)
+              if scan_labelling else 0)
     _lap(stages, "scan", t0)
     report(progress, 0.95)
     # 4. object borders (wall feet, crown edges)

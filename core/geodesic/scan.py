@@ -1,6 +1,9 @@
 """Stage 3 of the geodesic filter: scan labelling along rows and columns."""
+import functools
+
 import numpy as np
 
+from ..blocks import run_sharing
 from ..common import as_cell_size, as_surface, report, transpose
 from .dilation import BUMP_FRACTION
 from .grey import rect_filter
@@ -137,7 +140,7 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
 
 
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
-               passes=2, reference=None, oblique_length_m=None, axes=(1, 0), progress=None):
+               passes=2, reference=None, oblique_length_m=None, axes=(1, 0), progress=None, pool=None):
     """Scan labelling: non-ground runs along rows and columns.
 
     Along each row and each column, the edge between neighbouring cells ``i, i+1`` is a
@@ -193,6 +196,9 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     progress : callable, optional
         ``progress(fraction)`` after each axis of each pass; it may raise
         :class:`~bare_earth.core.common.Cancelled`.
+    pool : concurrent.futures.Executor, optional
+        Threads that may scan the rows while this one scans the columns, when idle
+        (:func:`~bare_earth.core.blocks.run_sharing`; both read the surface only); the same result.
 
     Returns
     -------
@@ -226,12 +232,18 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     has_nan = bool(np.isnan(a).any())
     n = int(passes)
     for i in range(n):
-        none = np.zeros(0, np.intp)
-        lr = _scan_runs(a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
-                        max(2, int(max_length_m / dx))) if 1 in axes else none
-        report(progress, (i + 0.35) / n)
-        lc = _scan_runs(a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
-                        max(2, int(max_length_m / dy))) if 0 in axes else none
+        none = functools.partial(np.zeros, 0, np.intp)
+        rows = functools.partial(_scan_runs, a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
+                                 max(2, int(max_length_m / dx))) if 1 in axes else none
+        cols = functools.partial(_scan_runs, a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
+                                 max(2, int(max_length_m / dy))) if 0 in axes else none
+        if pool is None:
+            lr = rows()
+            report(progress, (i + 0.35) / n)
+            lc = cols()
+        else:                                     # both read ``a`` only: an idle thread may take the rows
+            lr, lc = run_sharing([rows, cols], pool)
+            report(progress, (i + 0.35) / n)
         report(progress, (i + 0.7) / n)
         new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
         del lr, lc

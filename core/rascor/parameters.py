@@ -324,7 +324,8 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                          f"by step 1); got {tc!r}.")
     if p["surface_rule"] not in SURFACE_RULES:
         raise ValueError(f"surface_rule must be one of {SURFACE_RULES}; got {p['surface_rule']!r}.")
-    ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5))
+    ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5),
+                                             with_sigma=p["sigma_m"] is None)
     if tc is None:
         tc = ch["terrain_class"] if p["step1_characterise"] else "rolling"
     p["terrain_class"] = tc

@@ -183,6 +183,60 @@ def test_block_progress_repeats_the_callbacks_error():
     assert calls == [0.25]                                  # the callback is not asked again
 
 
+def test_run_sharing_results_in_order_each_task_once():
+    from concurrent.futures import ThreadPoolExecutor
+    calls = []
+
+    def task(i):
+        calls.append(i)
+        return i * i
+    tasks = [lambda i=i: task(i) for i in range(7)]
+    assert blocks.run_sharing(tasks) == [i * i for i in range(7)]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        calls.clear()
+        assert blocks.run_sharing(tasks, pool) == [i * i for i in range(7)]
+        assert sorted(calls) == list(range(7))
+        with pytest.raises(ZeroDivisionError):
+            blocks.run_sharing([lambda: 1, lambda: 1 / 0, lambda: 2], pool)
+
+
+def test_run_sharing_an_idle_thread_takes_the_first_tasks():
+    """The caller runs the tasks from the last one back; a pool thread left idle takes the first: the last
+    task can only end once the first has begun on another thread."""
+    from concurrent.futures import ThreadPoolExecutor
+    first_began = threading.Event()
+    where = {}
+
+    def first():
+        where["first"] = threading.get_ident()
+        first_began.set()
+        return "first"
+
+    def last():
+        where["last"] = threading.get_ident()
+        return first_began.wait(30)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        assert blocks.run_sharing([first, lambda: "middle", last], pool) == ["first", "middle", True]
+    assert where["first"] != where["last"] == threading.get_ident()
+
+
+def test_run_sharing_from_a_pool_thread_while_the_other_is_busy_never_waits_for_a_queued_task():
+    """A member running on one of the vote's threads shares its steps with the pool while the other thread
+    is busy until it returns: it runs them all itself (no deadlock)."""
+    from concurrent.futures import ThreadPoolExecutor
+    done = threading.Event()
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        busy = pool.submit(done.wait, 30)
+
+        def member():
+            out = blocks.run_sharing([lambda i=i: (i, threading.get_ident()) for i in range(4)], pool)
+            done.set()
+            return out
+        out = pool.submit(member).result(timeout=30)
+        assert busy.result() is True
+    assert [i for i, _ in out] == [0, 1, 2, 3] and len({t for _, t in out}) == 1
+
+
 def test_touching_is_the_3x3_binary_dilation():
     """common.touching (fill's edge test and morphology's outline cells use it) equals the
     3 x 3 binary dilation exactly, edges and empty arrays included."""

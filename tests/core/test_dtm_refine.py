@@ -328,6 +328,48 @@ def test_continue_ground_blocked_equals_one_pass():
         assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
 
 
+@pytest.mark.parametrize("tile", [4, 8, 64])
+def test_reached_on_tiles_equals_the_dilation_of_the_whole_raster(monkeypatch, tile):
+    """continue_ground's bounded dilation run only on the tiles holding a target (each grown by the reach):
+    the cells of the dilation of the whole raster, on random sources and paths, the targets in a few patches
+    or anywhere (tiles of 4 and 8 cells cut the paths; 64 or targets anywhere: one pass over the raster)."""
+    from scipy import ndimage
+    monkeypatch.setattr(dr, "_REACH_TILE", tile)
+    rng = np.random.default_rng(tile)
+    tiled = 0
+    for k in range(40):
+        rows, cols = (int(v) for v in rng.integers(20, 200, 2))
+        allowed = rng.random((rows, cols)) < rng.uniform(0.3, 0.9)
+        sources = rng.random((rows, cols)) < rng.uniform(0.001, 0.05)
+        reach = int(rng.integers(1, 8 if k % 2 else 20))
+        if k % 4:                                               # a few patches
+            targets = np.zeros((rows, cols), bool)
+            for _ in range(int(rng.integers(1, 4))):
+                r0, c0 = rng.integers(0, rows - 3), rng.integers(0, cols - 3)
+                targets[r0:r0 + 3, c0:c0 + 3] = True
+        else:
+            targets = rng.random((rows, cols)) < rng.uniform(0.0005, 0.3)
+        targets &= allowed
+        want = ndimage.binary_dilation(sources, np.ones((3, 3), bool), iterations=reach,
+                                       mask=allowed | sources) & targets
+        assert np.array_equal(dr._reached(sources, allowed | sources, targets, reach), want)
+        t = max(tile, 4 * reach)
+        r, c = np.divmod(np.flatnonzero(targets), cols)
+        tiled += np.unique(r // t * cols + c // t).size * (t + 2 * reach) ** 2 < targets.size
+    assert tiled >= (10 if tile < 64 else 0)          # the tiles ran (not only the one pass)
+    # a lone source exactly the reach away in each of the 8 directions from a cell at a tile's first or last
+    # row and column is reached, one cell farther not
+    reach = 6
+    t = max(tile, 4 * reach)
+    for at in (2 * t, 2 * t - 1):
+        for dr_, dc_ in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+            for far, want in ((reach, True), (reach + 1, False)):
+                sources, targets = np.zeros((4 * t, 4 * t), bool), np.zeros((4 * t, 4 * t), bool)
+                targets[at, at] = True
+                sources[at + dr_ * far, at + dc_ * far] = True
+                assert dr._reached(sources, np.ones(sources.shape, bool), targets, reach)[at, at] == want
+
+
 def test_continuation_cells():
     assert dr.continuation_cells((1.0, 1.0)) == 12
     assert dr.continuation_cells((2.0, 4.0), 30.0) == 15

@@ -1093,3 +1093,36 @@ def test_geodesic_roof_cut_by_the_raster_edge_is_removed():
     assert (r.mask[196:, 60:190] == OBJECT).all()
     assert not (r.mask[:190] == OBJECT).any() and not (r.mask[:, :55] == OBJECT).any()
     assert not (r.mask[:, 195:] == OBJECT).any()
+
+
+def test_dilation_steps_shared_with_a_pool_give_the_same_result():
+    """The dilation steps run partly on a pool's idle thread (``pool=``, as ``bareearth:dtm`` lends its
+    threads): mask, step codes, cleaned surface and counts of one after the other."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core.synthetic import make_scene
+    s = make_scene("city", (160, 192), seed=3, nodata_holes=True)
+    p = geo.resolve_geodesic_params(s.dsm, 1.0)
+    one = geo.filter_geodesic(s.dsm, 1.0, **p)
+    assert len(one.info["step_sizes_m"]) >= 3 and sum(one.info["removed_per_step"]) > 0
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        shared = geo.filter_geodesic(s.dsm, 1.0, pool=pool, **p)
+    assert np.array_equal(one.mask, shared.mask)
+    assert np.array_equal(one.extras["step"], shared.extras["step"])
+    assert np.array_equal(one.surface, shared.surface, equal_nan=True)
+    assert one.info["removed_per_step"] == shared.info["removed_per_step"]
+
+
+def test_scan_label_rows_shared_with_a_pool_give_the_same_cells():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core.synthetic import make_scene
+    s = make_scene("city", (128, 160), seed=4, nodata_holes=True)
+    kw = dict(jump_m=0.5, height_m=0.5, max_length_m=40.0, terrain_slope_deg=10.0, oblique_length_m=60.0)
+    one = geo.scan_label(s.dsm, 1.0, **kw)
+    assert one.any()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for axes in ((1, 0), (1,), (0,)):
+            assert np.array_equal(geo.scan_label(s.dsm, 1.0, axes=axes, pool=pool, **kw),
+                                  geo.scan_label(s.dsm, 1.0, axes=axes, **kw))
+        assert np.array_equal(geo.scan_label(s.dsm, 1.0, pool=pool, **kw), one)

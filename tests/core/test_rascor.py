@@ -61,6 +61,29 @@ def test_characterise_classes_and_sigma():
     assert rascor.model_degree("mountainous", False) == 2
 
 
+def test_given_sigma_is_not_estimated_again(monkeypatch):
+    """A given random error (``bareearth:dtm`` gives RASCOR the noise of the ground-level cells) is not
+    estimated by step 1 as well; every other derived parameter is the same as when it is."""
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:120, 0:120].astype(np.float64)
+    z = 50 + 0.05 * x + rng.normal(0, 0.1, x.shape)
+    z[40:60, 40:70] += 6.0
+    low = terrain.characterise_with_envelope(z, (1.0, 1.0))
+    without = terrain.characterise_with_envelope(z, (1.0, 1.0), with_sigma=False)
+    assert without[0]["sigma_m"] is None and low[0]["sigma_m"] > 0
+    assert {k: v for k, v in low[0].items() if k != "sigma_m"} == {k: v for k, v in without[0].items()
+                                                                    if k != "sigma_m"}
+    assert np.array_equal(low[1], without[1], equal_nan=True)
+    want = rascor.resolve_rascor_params(z, 1.0, sigma_m=0.2)
+
+    def no_estimate(*a, **k):
+        raise AssertionError("sigma estimated although given")
+    monkeypatch.setattr(terrain, "estimate_sigma", no_estimate)
+    assert rascor.resolve_rascor_params(z, 1.0, sigma_m=0.2) == want
+    with pytest.raises(AssertionError, match="although given"):
+        rascor.resolve_rascor_params(z, 1.0)
+
+
 def test_class_chooses_defaults_and_is_reported():
     z = plane(80, 0.45, 0.1)
     p = rascor.resolve_rascor_params(z, 1.0)
