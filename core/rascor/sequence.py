@@ -303,12 +303,18 @@ def _retest_step3_at_terrain_steps(st, cfg, steps):
     upper point of the pair (the wall tops: 4 % of a quarry of 6 m benches, 1 % of a river
     between walls). Jacobsen (2004) protects such edges with break lines, which no comparison
     crosses; had they been drawn, step 3 would have compared those cells with their own level
-    only. The object cells step 3 removed within one cell of a line are tested again, with the
+    only. The object cells step 3 removed within one cell of a line, in groups running further
+    than a building as the lines do (a wall top runs along its wall), are tested again, with the
     lines' regions (:func:`~.regions.break_regions`), against the points kept, and given back
     where that test keeps them.
     """
     near = ndimage.binary_dilation(steps, np.ones((3, 3), bool))
     cand = near & (st.step == 3) & (st.mask == OBJECT)
+    if not cand.any():
+        return
+    # a wall top runs along its wall, longer than a building as the terrain's lines do (the edge
+    # of a box on a steep hill, whose one wall no jump answers, is as short as the box)
+    cand &= longer_than(cand, cfg.cell, cfg.max_building_m)
     if not cand.any():
         return
     rows, cols = np.nonzero(cand)
