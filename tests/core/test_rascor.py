@@ -1242,6 +1242,24 @@ def test_wall_tops_beside_terrain_steps_are_given_back_exact():
     assert (off.mask[:, 79] == OBJECT).all() and (off.mask[:, 80] == 0).all()
 
 
+def test_wall_top_retest_in_tiles_equals_one_window(monkeypatch):
+    """The wall tops are tested again in tiles holding candidates (each read with the 3 cells
+    step 3 reaches around it): tiles of 16 cells give the result of one window over the
+    raster, on a quarry whose walls cross many tiles and a diagonal drop."""
+    from bare_earth.core.rascor import sequence
+    y, x = np.mgrid[0:150, 0:150]
+    diagonal = np.where(x + y > 150, 95.0, 100.0).astype(np.float32) + np.float32(0.01) * (x % 3)
+    for z in (_drops("quarry", n=150), diagonal):
+        params = rascor.resolve_rascor_params(z, 1.0)
+        monkeypatch.setattr(sequence, "_RETEST_TILE", 4096)
+        one = rascor.filter_rascor(z, 1.0, **params)
+        monkeypatch.setattr(sequence, "_RETEST_TILE", 16)
+        tiles = rascor.filter_rascor(z, 1.0, **params)
+        assert one.info["terrain_step_restored_share"] > 0
+        assert np.array_equal(one.mask, tiles.mask)
+        assert np.array_equal(one.extras["step"], tiles.extras["step"])
+
+
 def test_terrain_steps_blocks_match_one_pass():
     """The terrain's level changes cross blocks: within the halo (step 4's reach, twice the
     longest building) a line longer than a building is seen longer than one in every block
