@@ -20,6 +20,12 @@ is filled from the ground around it, and a later step that removes that ground (
 a raised road) lowers the fill of every removed cell near it. Compare two runs
 (``--params``) to see which step's change moves the counts. It prints figures; it never
 appends to a log. Cite the data's sources (``isprs/provenance``) with any figure.
+
+``--rows REGEX`` instead runs the rows of ``benchmarks/generalise.py`` whose name matches (any
+family: ISPRS, classified lidar, opengeos, synthetic) and prints, per row, the share of cells each
+step removed and the total / Type I / Type II error with that step's removals given back (the
+mask's cells of step k set to ground, the DTM filled again): the step whose undoing lowers the
+Type I error most is the one deciding the row's lost ground.
 """
 import argparse
 import json
@@ -66,6 +72,36 @@ def by_step(cloud, cell, reducer, params):
             "type2_by_step": [int(np.count_nonzero(t2 & (step == k))) for k in STEPS]}
 
 
+def undo_steps(data, pattern, params):
+    """Per matching row of the generalisation matrix: each step's share of the cells and the
+    errors with that step's removals given back (see the module docstring)."""
+    import re
+
+    import generalise
+
+    from bare_earth.core.pipeline import fill_dtm
+    for _src, _fam, _half, rows in generalise.all_cases(data, []):
+        for name, build in rows:
+            if not re.search(pattern, name):
+                continue
+            z, cell, score = build()
+            res = run_array("rascor", z, cell, dict(params))
+            base = score(res)
+            step = res.extras["step"]
+            shares = res.info["removed_share_by_step"]
+            print(f"{name}: total {base['total']:.2f} T1 {base['type1']:.2f} T2 {base['type2']:.2f}; removed % "
+                  + " ".join(f"{k.split()[0]}:{100 * v:.2f}" for k, v in shares.items() if v), flush=True)
+            for k in range(2, 8):
+                sel = (step == k) & (res.mask != 255)
+                if not sel.any():
+                    continue
+                mask = res.mask.copy()
+                mask[sel] = 0
+                r = score(type("R", (), {"dtm": fill_dtm(np.asarray(z, np.float32), mask), "mask": mask}))
+                print(f"  step {k} given back: total {r['total']:.2f} T1 {r['type1']:.2f} T2 {r['type2']:.2f}",
+                      flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
@@ -73,7 +109,11 @@ def main(argv=None):
     ap.add_argument("--cells", default="1,2", help="cell sizes in metres (default 1,2)")
     ap.add_argument("--reducers", default="min,max", help="min, max or both (default min,max)")
     ap.add_argument("--params", default="{}", help="RASCOR parameters as JSON (default: defaults)")
+    ap.add_argument("--rows", help="regular expression: rows of benchmarks/generalise.py, each step given back")
     a = ap.parse_args(argv)
+    if a.rows:
+        undo_steps(data_dir(a.data), a.rows, json.loads(a.params))
+        return 0
     folder = data_dir(a.data) / "isprs"
     if not folder.is_dir():
         print(f"no ISPRS samples under {folder}; nothing to do")

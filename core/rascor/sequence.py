@@ -84,6 +84,7 @@ class _State:
     pit: Optional["_Pits"] = None         # cells below every cell of the ring around them
     step_lines: int = 0                   # cells of the terrain's level changes (step 4)
     spared: int = 0                       # objects of steps 5-6 given back as continuing ground
+    step_restored: int = 0                # step 3's wall tops given back at the terrain's level changes
     z_t: Optional[np.ndarray] = None      # z transposed (the Y profiles of steps 4 and 5), made once
 
     def transposed(self):
@@ -290,6 +291,63 @@ def _step4_level_change(st, cfg, progress):
     st.step_lines = int(np.count_nonzero(steps))
     if st.step_lines:
         st.labels, st.n_regions = break_regions(steps if st.breaklines is None else steps | st.breaklines)
+        _retest_step3_at_terrain_steps(st, cfg, steps)
+
+
+#: Tile edge (cells) of :func:`_retest_step3_at_terrain_steps` (a diagonal terrain step across 4 Mcells:
+#: 0.30 s with tiles of 64 cells, 0.35 s of 128, 0.71 s of 256, at load 10 on 2 cores).
+_RETEST_TILE = 64
+
+
+def _retest_step3_at_terrain_steps(st, cfg, steps):
+    """Step 3 again, with the terrain's level changes as break lines, on the cells it removed
+    beside them.
+
+    Step 3 runs before step 4 finds the terrain's level changes, so it compares the top of a
+    quarry bench, a river bank or a terrace wall with the foot of the wall and removes the
+    upper point of the pair (the wall tops: 4 % of a quarry of 6 m benches, 1 % of a river
+    between walls). Jacobsen (2004) protects such edges with break lines, which no comparison
+    crosses; had they been drawn, step 3 would have compared those cells with their own level
+    only. The object cells step 3 removed within one cell of a line, in groups running further
+    than a building as the lines do (a wall top runs along its wall), are tested again, with the
+    lines' regions (:func:`~.regions.break_regions`), against the points kept, and given back
+    where that test keeps them.
+    """
+    near = ndimage.binary_dilation(steps, np.ones((3, 3), bool))
+    cand = near & (st.step == 3) & (st.mask == OBJECT)
+    if not cand.any():
+        return
+    # a wall top runs along its wall, longer than a building as the terrain's lines do (the edge
+    # of a box on a steep hill, whose one wall no jump answers, is as short as the box)
+    cand &= longer_than(cand, cfg.cell, cfg.max_building_m)
+    if not cand.any():
+        return
+    # tested in tiles holding candidates, each with the 3 cells step 3 reads around it (the tiles'
+    # results are those of one pass; a line crossing a large raster touches few of its tiles)
+    back = np.zeros(st.z.shape, bool)
+    rise = cell_rise(cfg.terrain_slope, cfg.cell)
+    rows, cols = st.z.shape
+    t, h = _RETEST_TILE, 3
+    has = np.zeros((-(-rows // t), -(-cols // t)), bool)
+    r, c = np.nonzero(cand)
+    has[r // t, c // t] = True
+    for tr, tc in zip(*np.nonzero(has)):
+        a0, a1, b0, b1 = tr * t, min(rows, tr * t + t), tc * t, min(cols, tc * t + t)
+        w0, w1, v0, v1 = max(0, a0 - h), min(rows, a1 + h), max(0, b0 - h), min(cols, b1 + h)
+        win = (slice(w0, w1), slice(v0, v1))
+        hi, lo = remove_neighbour_differences(st.z[win], st.keep[win] | cand[win], sigma_m=cfg.sigma_m,
+                                              k=cfg.neighbour_k, low_weight=cfg.low_weight,
+                                              labels=st.labels[win], cell_rise_m=rise, bend_m=cfg.terrain_bend_m)
+        core = (slice(a0 - w0, a1 - w0), slice(b0 - v0, b1 - v0))
+        back[a0:a1, b0:b1] = cand[a0:a1, b0:b1] & ~hi[core] & ~lo[core]
+    idx = np.flatnonzero(back)
+    if not idx.size:
+        return
+    st.removed[3] -= int(idx.size)
+    st.mask.reshape(-1)[idx] = 0
+    st.step.reshape(-1)[idx] = 0
+    st.keep.reshape(-1)[idx] = True
+    st.step_restored = int(idx.size)
 
 
 def _step5_profiles(st, cfg, progress):
@@ -423,6 +481,7 @@ def _result(st, cfg):
             "breakline_regions": st.n_regions,
             "terrain_step_share": st.step_lines / n_valid,
             "continuing_ground_share": st.spared / n_valid,
+            "terrain_step_restored_share": st.step_restored / n_valid,
             "special_area_share": float(st.special[valid].mean()) if st.special is not None else 0.0,
             "second_iteration": cfg.second_iteration,
             "step3_repeated": bool(not cfg.second_iteration and _plan(cfg, st).count(3) > 1),

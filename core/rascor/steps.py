@@ -260,7 +260,10 @@ def _pairs(nb, kb, tol, k=0.0, rise=None):
 def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
     """Cells between a jump up and a later jump down along the rows (axis 1); with
     ``lone``, instead, the cells on both sides of the jumps that no other jump answers
-    (no jump up followed within ``lmax`` by a jump down).
+    (no jump up followed within ``lmax`` by a jump down), jumps whatever lies beside them:
+    the vegetation test tells a building's walls (Jacobsen: no vegetation beside) from
+    crowns, and says nothing of a level change of the terrain (bushes at a bank's foot, the
+    far wall of a trench one cell wide, which made its near bank's ground "rough").
 
     Works on the remaining points of all rows concatenated in row order (a 1-D array), so
     "the previous point of the profile" is simply the previous element: profile starts
@@ -306,8 +309,9 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
         # no vegetation beside the jump: the 3 ground points outside it lie on a smooth
         # line; crowns and bushes are rough (the roof side is not tested: mixed wall /
         # roof cells make it rough)
-        up &= np.where(s3, np.abs(z1 - 2 * z2 + z3) <= veg_tol, s2)
-        down &= np.where(n2, np.abs(z0 - 2 * zn + znn) <= veg_tol, n1)
+        if not lone:
+            up &= np.where(s3, np.abs(z1 - 2 * z2 + z3) <= veg_tol, s2)
+            down &= np.where(n2, np.abs(z0 - 2 * zn + znn) <= veg_tol, n1)
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
     starts = np.flatnonzero(~same)
@@ -360,11 +364,11 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
                        progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4's level changes that belong to the terrain: break lines derived from the DSM.
 
-    Step 4's jumps (:func:`remove_level_changes`, on the points it left) that no other jump
-    answers (a jump up not followed within ``max_building_m`` by a jump down, a jump down
-    not preceded by one), along X and Y; the cells on both sides of each, joined
-    8-connected into lines, are kept where a line spans more than ``max_building_m``
-    (along X or Y): a level change longer than the longest building is the terrain's own (a
+    Step 4's jumps (:func:`remove_level_changes`, on the points it left, without its test of
+    vegetation beside a building's walls) that no other jump answers (a jump up not followed
+    within ``max_building_m`` by a jump down, a jump down not preceded by one), along X and Y;
+    the cells on both sides of each, joined 8-connected into lines, are kept where a line spans
+    more than ``max_building_m`` (along X or Y): a level change longer than the longest building is the terrain's own (a
     quarry bench, a river bank, a terrace wall). Jacobsen (2004) protects such edges with
     break lines, which no comparison crosses; without them, the moving profiles and surfaces
     of steps 5 and 6, pulled down by the lower level, eat into the upper one.
