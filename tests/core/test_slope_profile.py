@@ -441,3 +441,47 @@ def test_wide_flat_roof_on_sloping_ground_is_an_object_plateau_larger_than_objec
     wide[:, 20:100] += 6.0                                            # 160 m between walls
     r = sp.filter_slope_profile(wide, cell, **dict(p, max_object_size_m=60.0))
     assert (r.mask[:, 20:100] == GROUND).mean() > 0.95
+
+
+def test_walled_regions_need_walls_on_half_their_ground_edges():
+    # a raised 2 x 2 region at 3 m: walled all round (8 edges drop 3 m) is kept
+    z = np.zeros((6, 6), np.float32)
+    z[2:4, 2:4] = 3.0
+    raised = z > 1.0
+    none = np.zeros(z.shape, bool)
+    assert (sp._walled_regions(raised, none, z, (1.0, 1.0)) == raised).all()
+    # the same level as the ground on its right (the two edges there are level, 2 of 8): kept
+    z[2:4, 4:] = 3.0
+    assert (sp._walled_regions(raised, none, z, (1.0, 1.0)) == raised).all()
+    # level on its right and below (4 of 8 edges level, 4 walls): kept; below and beside too: not
+    z[4:, 2:] = 3.0
+    assert (sp._walled_regions(raised, none, z, (1.0, 1.0)) == raised).all()
+    z[2:, :2] = 3.0
+    assert not sp._walled_regions(raised, none, z, (1.0, 1.0)).any()
+    # edges to objects do not count: a roof's middle among its rims is kept
+    assert (sp._walled_regions(raised, ~raised, z, (1.0, 1.0)) == raised).all()
+    # a drop of 1 m is no wall of 1 m, nor is a nodata neighbour ground
+    z = np.zeros((6, 6), np.float32)
+    z[2:4, 2:4] = 1.0
+    z[4, 2:4] = np.nan
+    assert not sp._walled_regions(z > 0.5, none, z, (1.0, 1.0)).any()
+
+
+def test_level_ground_between_pits_and_a_roof_stays_ground():
+    """ISPRS samp41 (1 m lowest, issue 12): profiles climbed out of multipath pits far below
+    the ground (too wide for class 2), crossed level ground the terrain's rise accepted and
+    dropped into another pit or came down off a roof: level ground read as a raised run
+    between two walls. The level ground beside the pits goes on level into the ground: it
+    stays ground, and the roof between the pits is still an object."""
+    z = np.zeros((80, 80), np.float32)
+    z[38:42, 20:24] = -2.5                          # two pits of 4 x 4 cells, 2.5 m deep
+    z[38:42, 54:58] = -2.5
+    z[30:50, 30:50] = 3.0                           # a roof between them
+    p = dict(PARAMS, slope_threshold_deg=15.7, terrain_slope_deg=8.0, tolerance_m=0.15,
+             max_object_size_m=40.0)
+    r = sp.filter_slope_profile(z, 1.0, **p)
+    assert (r.mask[30:50, 30:50] == OBJECT).all()
+    ground = np.ones(z.shape, bool)
+    ground[29:51, 29:51] = False                    # the roof and its wall's foot
+    ground[37:43, 19:25] = ground[37:43, 53:59] = False   # the pits and their sides
+    assert (r.mask[ground] == GROUND).all()
