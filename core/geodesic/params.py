@@ -191,7 +191,9 @@ def geodesic_halo(params, cell_size):
     within its opening (two half-windows: ``S``) and its geodesic reconstruction (reach
     ``S``); a region spans at most ``EXTENT_FACTOR * S``, so a decision reads ``z``
     within ``(2 + EXTENT_FACTOR) S``. Scan labelling adds two passes of runs up to
-    ``OBLIQUE_REACH * S`` (an object crossed obliquely: ``2 sqrt(2) S``); the preprocessing
+    ``OBLIQUE_REACH * S`` (an object crossed obliquely: ``2 sqrt(2) S``), each read with the
+    climbs to its edges, no wider than a one-wall run (:func:`~.scan.climb_feet`: ``2 S``
+    more); the preprocessing
     two outlier windows and a cluster; the borders (stage 4) :data:`~.dilation.BORDER_RINGS`
     rings and the ground within as many cells of the last; the islands (stage
     5) at most the first window's cells and their ring. The halo is rounded
@@ -205,7 +207,7 @@ def geodesic_halo(params, cell_size):
     params = dict(DEFAULTS, **{k: v for k, v in params.items() if v is not None})
     params["max_object_size_m"] = size
     island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
-    reach = (int(np.ceil(((2 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
+    reach = (int(np.ceil(((4 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
              + OUTLIER_MAX_CELLS + 8 + island + 2 * BORDER_RINGS)
     # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     f = max(coarse_factor(window_cells(s, dx, dy))

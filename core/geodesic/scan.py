@@ -69,6 +69,39 @@ def _events(a, axis, t_jump, has_nan):
     return np.divmod(np.flatnonzero(transpose(ev.reshape(H - 1, W))), H - 1)
 
 
+def climb_feet(at, lo, hi, n, rise_m, jump_m, reach):
+    """The feet of the climb before a run's rise and of the descent after its fall.
+
+    ``at(q)``: the heights at positions ``q`` of each run's profile (of ``n`` cells); ``lo``
+    the cell before the rise, ``hi`` the cell after the fall. Each foot moves outward while
+    the next step towards the run rises more than the terrain's rise over a cell
+    (``rise_m``) and at most ``jump_m`` (a larger step is an edge of its own), by at most
+    ``reach`` cells (per run): the cells before a wall stand on level ground, while a flank
+    steeper than the tolerated slope climbs to the rise over several cells, and where the
+    returns are sparser than the cells part of its height falls into one step (issue 12).
+
+    Examples
+    --------
+    >>> p = np.array([0.0, 0.0, 0.8, 1.5, 3.5, 3.6, 3.5, 0.0, 0.0])
+    >>> lo, hi = climb_feet(lambda q: p[q], np.array([3]), np.array([7]), 9, 0.4, 1.0,
+    ...                     np.array([3]))
+    >>> int(lo[0]), int(hi[0])
+    (1, 7)
+    """
+    lo, hi = np.array(lo, copy=True), np.array(hi, copy=True)
+    up, down = np.ones(lo.size, bool), np.ones(hi.size, bool)
+    with np.errstate(invalid="ignore"):
+        for k in range(int(np.max(reach, initial=0))):
+            du, dd = at(lo) - at(lo - 1), at(hi) - at(hi + 1)
+            up &= (lo > 0) & (du > rise_m) & (du <= jump_m) & (k < reach)
+            down &= (hi < n - 1) & (dd > rise_m) & (dd <= jump_m) & (k < reach)
+            if not (up.any() or down.any()):
+                break
+            lo -= up
+            hi += down
+    return lo, hi
+
+
 def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0, one_wall_cells=None):
     """Scan labelling along ``axis`` of ``a`` (see :func:`scan_label`): flat indices of the
     labelled cells.
@@ -108,12 +141,19 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     jl, jr, ln = pos[k], pos[k + 1], line[k]     # rise edge, fall edge, profile
     n_run = jr - jl                               # cells jl+1 .. jr
     first = ln * fl
-    base_l = af[first + jl * fp]                  # the cell before the rise
-    slope = (af[first + (jr + 1) * fp] - base_l) / (n_run + 1).astype(np.float32)
+    n_prof = a.shape[axis]
+
+    def at(q):
+        return af[first + np.clip(q, 0, n_prof - 1) * fp]
+    # the base line joins the feet of the climb to the rise and of the descent after the fall
+    reach = n_run if one_wall_cells is None else np.minimum(n_run, one_wall_cells)
+    foot_l, foot_r = climb_feet(at, jl, jr + 1, n_prof, t_terrain, t_jump, reach)
+    base_l = at(foot_l)
+    slope = (at(foot_r) - base_l) / (foot_r - foot_l).astype(np.float32)
     start = np.cumsum(n_run) - n_run
     off = np.arange(int(n_run.sum()), dtype=n_run.dtype) - np.repeat(start, n_run) + 1
     flat = np.repeat(first + jl * fp, n_run) + off * fp
-    base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * off
+    base = np.repeat(base_l, n_run) + np.repeat(slope, n_run) * (off + np.repeat(jl - foot_l, n_run))
     above = af[flat] - base
     # the run's greatest height above its base line, and the larger of its two walls
     # beyond the terrain's rise over a cell (the rise and the fall carry the object)
@@ -121,10 +161,6 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     wall = np.maximum(d[k], -d[k + 1]) - t_terrain
     # both edges walls, each over one cell or over two (one mixed cell: a wall's foot or a
     # crown's edge, as in the border stage), beyond the terrain's rise over two cells
-    n_prof = a.shape[axis]
-
-    def at(q):
-        return af[first + np.clip(q, 0, n_prof - 1) * fp]
     rise2 = np.fmax(np.fmax(at(jl + 2) - at(jl), at(jl + 1) - at(jl - 1)), d[k])
     fall2 = np.fmax(np.fmax(at(jr) - at(jr + 2), at(jr - 1) - at(jr + 1)), -d[k + 1])
     both = np.minimum(rise2, fall2) - 2 * t_terrain >= WALL_SHARE * top
@@ -148,8 +184,10 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     differential: steeper than the terrain may be by more than ``jump_m`` over one
     cell), a *fall* when ``z[i+1] - z[i] < -(...)``. A run of cells that opens with a
     rise, closes with the next event being a fall, spans at most ``max_length_m`` and
-    stands more than ``height_m`` above the straight line from the cell before the rise to
-    the cell after the fall is labelled non-ground, when its rise or its fall carries at
+    stands more than ``height_m`` above the straight line from the foot of the climb to the
+    rise to the foot of the descent after the fall (:func:`climb_feet`: the cells before a wall
+    are level; a flank steeper than the terrain climbs to its largest step over several cells,
+    issue 12) is labelled non-ground, when its rise or its fall carries at
     least :data:`WALL_SHARE` of the run's greatest height above that line beyond the
     terrain's rise over the cell (an object stands on a wall; a ridge or an embankment
     steeper than the tolerated slope rises over many cells: each of its edges carries a

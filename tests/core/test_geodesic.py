@@ -416,6 +416,25 @@ def test_scan_label_one_wall_runs_must_outgrow_a_terrain_bump_of_their_length():
     assert lab[0, 3:32].all() and lab.sum() == 29
 
 
+def test_scan_label_measures_a_run_from_the_foot_of_the_climb_to_its_rise():
+    """Issue 12 (ISPRS samp71 at 2 m, a column across the road embankment): where the returns
+    are sparser than the cells, the flanks climb 0.7-0.9 m a cell (steeper than the terrain's
+    0.43 m over a 2 m cell at 12 degrees, below the 0.93 m jump) and then 2.0 m in one step.
+    Measured from the cell before that step, the road stood 2.3 m above the run's base line and
+    the step carried most of it: a wall; the flanks then seeded the object borders. Measured
+    from the foot of the climb (4.6 m), neither edge carries half the height: terrain. A house
+    as high, on walls, and one whose wall has a 0.6 m skirt cell, stay objects."""
+    up = [300.6, 300.6, 301.4, 302.2, 302.9, 304.9]
+    down = [304.0, 303.1, 302.3, 301.5, 300.7, 300.6, 300.6]
+    kw = dict(jump_m=0.5, height_m=0.5, max_length_m=64.0, terrain_slope_deg=12.0)
+    bank = np.array([up + [305.2] * 14 + down], np.float32)
+    assert not geo.scan_label(bank, 2.0, **kw).any()
+    house = np.array([[300.6] * 6 + [305.2] * 14 + [300.6] * 7], np.float32)
+    assert np.array_equal(np.flatnonzero(geo.scan_label(house, 2.0, **kw)[0]), np.arange(6, 20))
+    house[0, 5] = 301.2                                # a skirt cell at the wall's foot
+    assert geo.scan_label(house, 2.0, **kw)[0, 6:20].all()
+
+
 def test_scan_label_nodata_breaks_runs_and_reference():
     prof = np.zeros(40)
     prof[10:20] = 5.0
