@@ -36,7 +36,10 @@ neighbours, no moving fit (the foot of a bank whose slope the later steps remove
 Before it, the objects of steps 5 and 6 lying on smooth ground that continues the ground kept
 (a road embankment, a ramp: raised ground no jump bounds, which the paper leaves to break
 lines), in object regions longer than step 6's window, are given back as ground
-(``spare_continuing_ground``, on by default; :func:`.dtm_refine.continue_ground`).
+(``spare_continuing_ground``, on by default; :func:`.dtm_refine.continue_ground`), and so
+are shorter object regions of steps 5 and 6 that are ramps between two levels of the kept
+ground (an inclined plane whose both ends meet the ground at its own height, no wall along
+its sides: :func:`.regions.find_ramps`; a rule of ours, not the paper's).
 
 Break lines and special areas (boolean rasters ``breaklines`` and ``special_areas``,
 rasterised by the plugin layer and passed by the pipeline as keyword arrays, not Params):

@@ -54,7 +54,9 @@ METHOD = Method(
               "step 3's tolerance (read on ground), joined within 12 m to kept ground running further than "
               "the window. Road embankments, ramps "
               "and raised banks that the moving fits take while no jump bounds them (the paper "
-              "leaves these to break lines)."),
+              "leaves these to break lines). Also shorter regions of steps 5 and 6 that are ramps: an "
+              "inclined plane whose both ends meet the kept ground at its own height, no wall along "
+              "its sides."),
         Param("height_min_m", "float", None, "Step 2 lower height limit in metres; empty: "
               "far fence of the height distribution (flat terrain).", advanced=True),
         Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
@@ -194,7 +196,12 @@ METHOD = Method(
         "is a step whose second difference is its height, and a mound or a crown narrower than "
         "the window stays an object. Its cost: understorey under tree canopy with no ground "
         "return rises from the kept ground as gently as an embankment's side at 1 m cells "
-        "(lidar/autzen_trim/1m: 2.20 -> 2.85 % total error).</p>"
+        "(lidar/autzen_trim/1m: 2.20 -> 2.85 % total error). A shorter object region of steps 5 and 6 "
+        "(at most step 6's window + 12 m) is given back when it is a ramp between two levels: its heights "
+        "lie on an inclined plane (root mean square within step 3's tolerance, rising by more than it), "
+        "the kept ground beside both of its ends lies at the plane's own height, and no ground beside it "
+        "lies more than step 4's jump below it; a roof is level, or, sloped, stands on walls at its "
+        "eaves, and stays an object. This rule is not the paper's (it leaves ramps to break lines).</p>"
         "<p><b>Break lines</b> (optional line layer, rasterised to the cells it crosses): "
         "no comparison crosses a break line, so dams, embankments and cuts keep their "
         "shoulders. <b>Special areas</b> (optional polygons): inside them only the local "

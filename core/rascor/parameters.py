@@ -456,6 +456,7 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     r7 = max(cells(p["prediction_radius_m"] or 3 * cs) + 1, ring)
     # steps 5-6's objects given back as ground continuing the kept ground: the path and its 3 x 3 test,
     # and the object regions' span compared with step 6's window (a region the block cuts spans the halo)
+    # (the ramps of find_ramps: regions of at most step 6's window + REACH_M, and the ground touching them)
     r_cont = cells(size6) + continuation_cells((dx, dy), REACH_M) + 2 if (on[5] or on[6]) and \
         p.get("spare_continuing_ground", True) else 0
     once = r3 + r5 + r6 + r_cont + r7

@@ -9,6 +9,8 @@ from typing import Tuple
 import numpy as np
 from scipy import ndimage
 
+from ..common import as_cell_size
+
 
 def as_bool_raster(a, shape, name):
     """``a`` as a boolean raster of ``shape`` (None when absent or empty)."""
@@ -56,3 +58,98 @@ def region_slices(labels):
     return [(i + 1, s) for i, s in enumerate(ndimage.find_objects(labels)) if s is not None]
 
 
+
+
+def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, *, tolerance_m: float,
+               wall_m: float, max_span_m: float, both_ends: bool = True) -> np.ndarray:
+    """The regions of ``taken`` that are ramps between two levels of ``ground``.
+
+    A ramp (or a road's approach) is an inclined plane: the heights of its region
+    (8-connected) lie within ``tolerance_m`` (root mean square) of the region's least-squares
+    plane, the plane rises by more than ``tolerance_m`` over the region, and the ground beside
+    both of its ends (the cells of ``ground`` touching the region within one cell's rise of its
+    lowest and of its highest point along the plane) lies at the plane's own height (within
+    ``tolerance_m``); no ground beside it lies more than ``wall_m`` below the plane (its sides
+    stand at most a wall above the ground beside them). A roof is level, or, sloped, stands on
+    walls at its eaves: no ground meets it at its own height at both ends. Regions running
+    further than ``max_span_m`` along the rows or the columns are not tested (their extent
+    bounds the reach of the test).
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM (NaN = nodata).
+    cell_size : float or (float, float)
+        (dx, dy) metres.
+    taken, ground : ndarray of bool
+        The candidate object cells and the ground kept.
+    tolerance_m, wall_m, max_span_m : float
+
+    Returns
+    -------
+    ndarray of bool
+        The cells of the ramp regions.
+    """
+    dx, dy = as_cell_size(cell_size)
+    eight = np.ones((3, 3), bool)
+    lab, n = ndimage.label(taken, eight)
+    out = np.zeros(taken.shape, bool)
+    if not n:
+        return out
+    box = np.array([(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in ndimage.find_objects(lab)],
+                   np.intp).reshape(-1, 4)
+    span = np.maximum((box[:, 1] - box[:, 0]) * dy, (box[:, 3] - box[:, 2]) * dx)
+    ok = np.zeros(n + 1, bool)
+    ok[1:] = span <= max_span_m
+    # the region's cells: least-squares plane on coordinates centred on the region's mean
+    r, c = np.nonzero(taken)
+    li = lab[r, c]
+    zz = z[r, c].astype(np.float64)
+    x, y = c * dx, r * dy
+    m = n + 1
+    cnt = np.bincount(li, minlength=m).astype(np.float64)
+    safe = np.maximum(cnt, 1.0)
+    mx, my, mz = (np.bincount(li, v, m) / safe for v in (x, y, zz))
+    xc, yc, zc = x - mx[li], y - my[li], zz - mz[li]
+    sxx, syy, sxy = (np.bincount(li, v, m) for v in (xc * xc, yc * yc, xc * yc))
+    sxz, syz = np.bincount(li, xc * zc, m), np.bincount(li, yc * zc, m)
+    det = sxx * syy - sxy * sxy
+    good = det > 1e-9 * np.maximum(sxx * syy, 1e-30)
+    dets = np.where(good, det, 1.0)
+    bx = np.where(good, (sxz * syy - syz * sxy) / dets, 0.0)
+    by = np.where(good, (syz * sxx - sxz * sxy) / dets, 0.0)
+    res = zc - bx[li] * xc - by[li] * yc
+    rms = np.sqrt(np.bincount(li, res * res, m) / safe)
+    plane = zz - res                                      # the plane's height at each cell
+    lo = np.full(m, np.inf)
+    hi = np.full(m, -np.inf)
+    np.minimum.at(lo, li, plane)
+    np.maximum.at(hi, li, plane)
+    ok &= good & (rms <= tolerance_m) & (hi - lo > tolerance_m)
+    if not ok.any():
+        return out
+    # the ground touching each region (a ground cell touching two regions is read for each)
+    rise = np.hypot(bx * dx, by * dy)                     # the plane's rise over one cell (either axis)
+    low_end = np.zeros(m, bool)
+    high_end = np.zeros(m, bool)
+    walled = np.zeros(m, bool)
+    pad = np.pad(lab, 1)
+    gr, gc = np.nonzero(ground & np.isfinite(z))
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di == 0 and dj == 0:
+                continue
+            lj = pad[gr + 1 + di, gc + 1 + dj]
+            sel = (lj > 0) & ok[lj]
+            if not sel.any():
+                continue
+            lj, rr, cc = lj[sel], gr[sel], gc[sel]
+            p = mz[lj] + bx[lj] * (cc * dx - mx[lj]) + by[lj] * (rr * dy - my[lj])
+            d = z[rr, cc] - p
+            at = np.abs(d) <= tolerance_m
+            reach = 1.5 * rise[lj]
+            np.logical_or.at(low_end, lj[at & (p <= lo[lj] + reach)], True)
+            np.logical_or.at(high_end, lj[at & (p >= hi[lj] - reach)], True)
+            np.logical_or.at(walled, lj[d < -wall_m], True)
+    ok &= low_end & (high_end | (not both_ends)) & ~walled
+    return ok[lab] & taken

@@ -19,7 +19,7 @@ from ..common import FilterResult, as_cell_size, as_surface, report, sub_progres
 from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_ground
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
-from .regions import as_bool_raster, break_regions
+from .regions import as_bool_raster, break_regions, find_ramps
 from .steps import find_terrain_steps, remove_height_outliers, remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, model_degree
 
@@ -457,6 +457,27 @@ def _spare_continuing_ground(st, cfg):
     st.spared = int(idx.size)
 
 
+def _spare_ramps(st, cfg):
+    """Give back the object regions of steps 5 and 6 that are ramps between two levels of kept ground
+    (:func:`~.regions.find_ramps`, tolerance step 3's, a wall step 4's jump)."""
+    if not cfg.spare_continuing_ground:
+        return
+    taken = (st.mask == OBJECT) & ((st.step == 5) | (st.step == 6))
+    if not taken.any():
+        return
+    back = find_ramps(st.z, cfg.cell, taken, st.keep, tolerance_m=_spare_height(cfg) / SMOOTH_RATIO,
+                      wall_m=cfg.jump_m, max_span_m=cfg.surface_size_m + REACH_M)
+    idx = np.flatnonzero(back)
+    if not idx.size:
+        return
+    for k in (5, 6):
+        st.removed[k] = st.removed.get(k, 0) - int(np.count_nonzero(st.step.reshape(-1)[idx] == k))
+    st.mask.reshape(-1)[idx] = 0
+    st.step.reshape(-1)[idx] = 0
+    st.keep.reshape(-1)[idx] = True
+    st.spared += int(idx.size)
+
+
 #: The steps of the sequence, by number.
 _STEPS = {2: _step2_height_distribution, 3: _step3_neighbour_differences,
           4: _step4_level_change, 5: _step5_profiles, 6: _step6_surfaces, 7: _step7_prediction}
@@ -627,6 +648,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         _STEPS[k](st, cfg, sub_progress(progress, a, b))
         if i == last_fit:
             _spare_continuing_ground(st, cfg)
+            _spare_ramps(st, cfg)
         report(progress, b)
     result = _result(st, cfg)
     report(progress, 1.0)

@@ -10,7 +10,7 @@ from bare_earth.core import rascor, synthetic
 from bare_earth.core.codes import GROUND, LOW, OBJECT
 from bare_earth.core.common import Cancelled
 from bare_earth.core.estimate import PIT_RADIUS_M, below_level_rim, below_surroundings
-from bare_earth.core.rascor import fits, kernels, moving, sequence, steps, terrain
+from bare_earth.core.rascor import fits, kernels, moving, regions, sequence, steps, terrain
 
 N = 64
 
@@ -485,6 +485,57 @@ def test_continuing_ground_needs_an_object_region_longer_than_the_window():
     assert not sequence.longer_than(objects, (1.0, 1.0), 55.0)[10:20].any()    # no further than 55 m
     assert sequence.longer_than(objects, (2.0, 0.5), 25.0)[10:20, 5:60].all()   # 110 m at 2 m cells along x
     assert not sequence.longer_than(objects, (0.5, 0.5), 25.0)[25:60, 30].any()   # 17.5 m at 0.5 m
+
+
+def _ramp_and_roofs():
+    """A ramp cut into an upper level down to a lower one, a lean-to roof and a level roof
+    on level ground; the regions steps 5-6 would take, and the kept ground."""
+    z = np.zeros((60, 100))
+    z[:, 20:] = 3.0                                   # the upper level, a 3 m terrace
+    ramp = np.zeros(z.shape, bool)
+    ramp[20:28, 20:40] = True
+    z[20:28, 20:40] = 3.0 * (np.arange(20, 40) - 19.5) / 20.5     # rising 0 -> 3 m along 20 m
+    ground = ~ramp
+    lean = np.zeros(z.shape, bool)
+    lean[40:50, 55:65] = True                          # eaves at 3 m rising to the flat roof at 6 m
+    z[30:58, 50:90] = 3.0                              # the building's ground: the upper level
+    z[40:50, 55:65] = 3.0 + 3.0 + 3.0 * (np.arange(55, 65) - 54.5) / 10.5
+    z[40:50, 65:80] = 9.0                              # its flat roof
+    level = np.zeros(z.shape, bool)
+    level[5:12, 60:80] = True
+    z[5:12, 60:80] = 9.0                               # a level roof 6 m above the upper level
+    ground &= ~lean & ~level
+    ground[40:50, 65:80] = False                       # the flat roof: another step's object
+    return z, ramp, lean, level, ground
+
+
+def test_a_ramp_between_two_levels_is_given_back_a_roof_is_not():
+    """Steps 5-6 take a ramp, an inclined plane no jump bounds, for an object (the paper leaves
+    ramps to break lines). find_ramps gives back an inclined plane whose ends both meet the kept
+    ground at its own height and whose sides stand at most a wall above the ground beside it; a
+    lean-to roof (its eaves on walls, its top on the flat roof) and a level roof stay objects."""
+    z, ramp, lean, level, ground = _ramp_and_roofs()
+    taken = ramp | lean | level
+    kw = dict(tolerance_m=0.42, wall_m=2.0, max_span_m=1000.0)
+    back = regions.find_ramps(z, (1.0, 1.0), taken, ground, **kw)
+    assert back[ramp].all() and not back[lean].any() and not back[level].any()
+    # without the wall limit, the lean-to's eaves still meet no ground at their own height
+    assert not regions.find_ramps(z, (1.0, 1.0), taken, ground, **dict(kw, wall_m=1e9))[lean | level].any()
+    # a ramp whose top ends 2.5 m below the upper level (a loading dock) meets no ground at its top
+    dock = z.copy()
+    dock[20:28, 20:40] -= 2.5 * (np.arange(20, 40) - 19.5) / 20.5
+    assert not regions.find_ramps(dock, (1.0, 1.0), taken, ground, **kw)[ramp].any()
+    # the same ramp standing 3 m above lower ground on one side is walled: an object
+    walled = z.copy()
+    walled[28:31, 20:40] = 0.0
+    assert not regions.find_ramps(walled, (1.0, 1.0), taken, ground, **kw)[ramp].any()
+    # rough (a crown's heights scatter about any plane) or longer than max_span_m: not tested
+    rough = z.copy()
+    rough[20:28:2, 20:40:2] += 1.5
+    assert not regions.find_ramps(rough, (1.0, 1.0), taken, ground, **kw)[ramp].any()
+    assert not regions.find_ramps(z, (1.0, 1.0), taken, ground, **dict(kw, max_span_m=19.0))[ramp].any()
+    # 2 m cells along x: the same region, 40 m long
+    assert regions.find_ramps(z, (2.0, 1.0), taken, ground, **kw)[ramp].all()
 
 
 # ----------------------------------------------------- contract, dtypes, errors
