@@ -61,7 +61,7 @@ def region_slices(labels):
 
 
 def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, *, tolerance_m: float,
-               wall_m: float, max_span_m: float, both_ends: bool = True) -> np.ndarray:
+               wall_m: float, max_span_m: float) -> np.ndarray:
     """The regions of ``taken`` that are ramps between two levels of ``ground``.
 
     A ramp (or a road's approach) is an inclined plane: the heights of its region
@@ -73,7 +73,8 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
     stand at most a wall above the ground beside them). A roof is level, or, sloped, stands on
     walls at its eaves: no ground meets it at its own height at both ends. Regions running
     further than ``max_span_m`` along the rows or the columns are not tested (their extent
-    bounds the reach of the test).
+    bounds the reach of the test), nor regions holding no whole 3 x 3 neighbourhood of their
+    cells (a few cells or a line fit some plane within any tolerance).
 
     Parameters
     ----------
@@ -101,6 +102,11 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
     span = np.maximum((box[:, 1] - box[:, 0]) * dy, (box[:, 3] - box[:, 2]) * dx)
     ok = np.zeros(n + 1, bool)
     ok[1:] = span <= max_span_m
+    # a plane needs a region holding at least one whole 3 x 3 neighbourhood: a thinner region (a few
+    # cells, a line along a crown's edge) fits some plane within any tolerance
+    held = np.zeros(n + 1, bool)
+    held[lab[ndimage.binary_erosion(taken, eight)]] = True
+    ok &= held
     # the region's cells: least-squares plane on coordinates centred on the region's mean
     r, c = np.nonzero(taken)
     li = lab[r, c]
@@ -151,5 +157,5 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
             np.logical_or.at(low_end, lj[at & (p <= lo[lj] + reach)], True)
             np.logical_or.at(high_end, lj[at & (p >= hi[lj] - reach)], True)
             np.logical_or.at(walled, lj[d < -wall_m], True)
-    ok &= low_end & (high_end | (not both_ends)) & ~walled
+    ok &= low_end & high_end & ~walled
     return ok[lab] & taken

@@ -534,6 +534,10 @@ def test_a_ramp_between_two_levels_is_given_back_a_roof_is_not():
     rough[20:28:2, 20:40:2] += 1.5
     assert not regions.find_ramps(rough, (1.0, 1.0), taken, ground, **kw)[ramp].any()
     assert not regions.find_ramps(z, (1.0, 1.0), taken, ground, **dict(kw, max_span_m=19.0))[ramp].any()
+    # a region holding no whole 3 x 3 neighbourhood (two rows of the ramp) fits a plane whatever it is
+    thin = ramp.copy()
+    thin[22:28] = False
+    assert not regions.find_ramps(z, (1.0, 1.0), thin, ground | (ramp & ~thin), **kw).any()
     # 2 m cells along x: the same region, 40 m long
     assert regions.find_ramps(z, (2.0, 1.0), taken, ground, **kw)[ramp].all()
 
