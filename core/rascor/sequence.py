@@ -446,15 +446,23 @@ def _spare_continuing_ground(st, cfg):
     back = continue_ground(st.z, taken, st.keep, anchors,
                            height_m=_spare_height(cfg),
                            reach_cells=continuation_cells(cfg.cell, REACH_M), judge_on_ground=True)
+    n = _give_back(st, back)
+    if n:
+        st.spared = n
+
+
+def _give_back(st, back):
+    """Make the cells ``back`` (objects of steps 5 and 6) kept ground again, their steps' counts
+    lowered; the number of cells."""
     idx = np.flatnonzero(back)
     if not idx.size:
-        return
+        return 0
     for k in (5, 6):
         st.removed[k] = st.removed.get(k, 0) - int(np.count_nonzero(st.step.reshape(-1)[idx] == k))
     st.mask.reshape(-1)[idx] = 0
     st.step.reshape(-1)[idx] = 0
     st.keep.reshape(-1)[idx] = True
-    st.spared = int(idx.size)
+    return int(idx.size)
 
 
 def _spare_ramps(st, cfg):
@@ -467,15 +475,7 @@ def _spare_ramps(st, cfg):
         return
     back = find_ramps(st.z, cfg.cell, taken, st.keep, tolerance_m=_spare_height(cfg) / SMOOTH_RATIO,
                       wall_m=cfg.jump_m, max_span_m=cfg.surface_size_m + REACH_M)
-    idx = np.flatnonzero(back)
-    if not idx.size:
-        return
-    for k in (5, 6):
-        st.removed[k] = st.removed.get(k, 0) - int(np.count_nonzero(st.step.reshape(-1)[idx] == k))
-    st.mask.reshape(-1)[idx] = 0
-    st.step.reshape(-1)[idx] = 0
-    st.keep.reshape(-1)[idx] = True
-    st.spared += int(idx.size)
+    st.spared += _give_back(st, back)
 
 
 #: The steps of the sequence, by number.
