@@ -975,6 +975,13 @@ def _gather_offsets(flat, shape, idx, dr, dc):
         yield q, (v if v.dtype == np.float32 else v.astype(np.float32)), inside
 
 
+def _candidate_cells(z, candidates):
+    """``z`` as an array, an all-False mask of its shape and the flat indices of ``candidates``
+    (the start of every test that gathers its candidates' neighbourhoods directly)."""
+    z = np.asarray(z)
+    return z, np.zeros(z.shape, bool), np.flatnonzero(candidates)
+
+
 def _below_gathered(z, idx, reach, depth_m):
     """:func:`below_surroundings` at the flat indices ``idx`` only, each ring's cells
     gathered from ``z`` itself (NaN and cells outside the array count as +inf), in
@@ -1041,12 +1048,10 @@ def below_level_rim(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLUS
     whose rim is wall and ground), so the filters asking the shared pit tests get both.
     """
     iy, ix, _, _ = surroundings_reach(cell_size, cluster_m=cluster_m)
-    z = np.asarray(z)
-    h, w = z.shape
-    out = np.zeros(z.shape, bool)
-    idx = np.flatnonzero(candidates)
+    z, out, idx = _candidate_cells(z, candidates)
     if idx.size == 0:
         return out
+    h, w = z.shape
     ry, rx = iy + 1, ix + 1
     dr, dc = np.meshgrid(np.arange(-ry, ry + 1), np.arange(-rx, rx + 1), indexing="ij")
     rim = (np.abs(dr) == ry) | (np.abs(dc) == rx)
@@ -1090,10 +1095,8 @@ def below_level_neighbours(z, depth_m, level_m, candidates, min_neighbours=3):
     >>> np.argwhere(below_level_neighbours(z, 5.0, 0.5, z < 5)).tolist()
     [[2, 3]]
     """
-    z = np.asarray(z)
     cand = np.asarray(candidates, bool)
-    out = np.zeros(z.shape, bool)
-    idx = np.flatnonzero(cand)
+    z, out, idx = _candidate_cells(z, cand)
     if idx.size == 0:
         return out
     h, w = z.shape
@@ -1157,12 +1160,10 @@ def below_narrow_gap(z, cell_size, depth_m, slope, candidates, cluster_m=PIT_CLU
     are few: their rays and rings are gathered directly.
     """
     iy, ix, ry, rx = surroundings_reach(cell_size, cluster_m=cluster_m)
-    z = np.asarray(z)
-    h, w = z.shape
-    out = np.zeros(z.shape, bool)
-    idx = np.flatnonzero(candidates)
+    z, out, idx = _candidate_cells(z, candidates)
     if idx.size == 0:
         return out
+    h, w = z.shape
     dx, dy = float(cell_size[0]), float(cell_size[1])
     bank = max(float(slope), GAP_BANK_SLOPE)
     flat = z.ravel()

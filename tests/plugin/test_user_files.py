@@ -105,21 +105,28 @@ def test_an_existing_read_only_output_refused_before_any_work(processing_run, tm
         assert {k: (tmp_path / k).read_bytes() for k in old} == old
 
 
+def _dtm_warnings(processing_run, warning_log, tmp_path, z, sc, nodata, phrase):
+    """Run bareearth:dtm on ``z`` written with ``nodata`` declared (None: none); the log's
+    warnings holding ``phrase``, and all its warnings."""
+    from bare_earth.core.grid import write_array
+    tag = "none" if nodata is None else f"{nodata:g}"
+    src = write_array(tmp_path / f"dsm{tag}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
+    log = warning_log()
+    processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{tag}.tif"),
+                                     "OUTPUT_MASK": str(tmp_path / f"m{tag}.tif")}, feedback=log)
+    return [w for w in log.warnings if phrase in w], log.warnings
+
+
 def test_undeclared_minus_9999_border_warned_in_the_log(processing_run, tmp_path, warning_log):
     """A DSM exported with a -9999 border but no declared nodata: the log says so and how to
     declare it (the run went on silently, its DTM pulled down by kilometres beside the border);
     declared, no warning."""
-    from bare_earth.core.grid import write_array
     sc = _scene()
     z = sc.dsm.copy()
     z[:, :12] = -9999.0
     for nodata, expect in ((None, True), (-9999.0, False)):
-        src = write_array(tmp_path / f"dsm{nodata}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
-        log = warning_log()
-        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata}.tif"),
-                                         "OUTPUT_MASK": str(tmp_path / f"m{nodata}.tif")}, feedback=log)
-        said = [w for w in log.warnings if "a common nodata value" in w]
-        assert bool(said) == expect, log.warnings
+        said, warnings = _dtm_warnings(processing_run, warning_log, tmp_path, z, sc, nodata, "a common nodata value")
+        assert bool(said) == expect, warnings
         if expect:
             assert "720 cell(s) hold -9999" in said[0] and "gdal_edit.py -a_nodata -9999" in said[0]
 
@@ -374,18 +381,13 @@ def test_a_declared_nodata_value_that_is_also_a_height_warned(processing_run, tm
     """A DSM of heights rounded to whole metres declaring one of those heights (the median) as its
     nodata: every cell holding it was read as missing without a word (a seventh of the cells, holes
     along a contour in the DTM); the log now says so and how to export it. Nodata -9999: no warning."""
-    from bare_earth.core.grid import write_array
     sc = _scene()
     z = np.round(sc.dsm).astype(np.float32)
     median = float(np.median(z))
 
     for nodata, expect in ((median, True), (-9999.0, False)):
-        src = write_array(tmp_path / f"dsm{nodata:g}.tif", z, sc.geotransform, sc.epsg, nodata=nodata)
-        log = warning_log()
-        processing_run("bareearth:dtm", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{nodata:g}.tif"),
-                                         "OUTPUT_MASK": str(tmp_path / f"m{nodata:g}.tif")}, feedback=log)
-        said = [w for w in log.warnings if "lies among its heights" in w]
-        assert bool(said) == expect, log.warnings
+        said, warnings = _dtm_warnings(processing_run, warning_log, tmp_path, z, sc, nodata, "lies among its heights")
+        assert bool(said) == expect, warnings
         if expect:
             n = int(np.count_nonzero(z == median))
             assert f"declares {median:g} as its nodata value" in said[0] and f"({n} cell(s) read as nodata)" in said[0]
