@@ -3,7 +3,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/dtm_errors.py --only 'Topography/1m|autzen_trim/1m' [--maps DIR]
+    .venv/bin/python benchmarks/dtm_errors.py --only 'Topography/1m|autzen_trim/1m' [--maps DIR] [--peer saga]
 
 For each row of :mod:`generalise` scored by points (ISPRS and classified lidar) whose name matches
 ``--only``, runs ``bareearth:dtm`` with its defaults and each of its members with the parameters the
@@ -17,7 +17,14 @@ dtm derived, classifies the points against the DTM as the matrix does, and print
   with the median height of those points and of the DTM above the reference's own DTM (the truth's
   ground points, mean per cell);
 * with ``--maps DIR``, ``DIR/<row>.npz``: per cell the counts of type I-above, type I-below and type
-  II points, the DSM, the reference DTM, the dtm's DTM and mask, and each member's ground.
+  II points, the DSM, the reference DTM, the dtm's DTM and mask, and each member's ground (and with
+  ``--peer``, the peer's DTM and mask);
+* with ``--peer saga`` (or ``csf``, ``dsm2dtm``: a tool of :mod:`anchors`, run with its defaults on the
+  same DSM), the points by the two decisions of their cell (both ground, dtm ground and the peer object,
+  the reverse, both object) with each filter's type I and type II points there, and the median of the
+  dtm's DTM and of the peer's above the reference in the cells both removed and at the dtm's type II
+  points: where the peer does better, whether by removing cells the dtm keeps or by a lower DTM under
+  the objects both removed.
 
 It writes no log: it says where to look, the matrix says how good a change is.
 """
@@ -109,6 +116,75 @@ def error_maps(codes, truth, valid, rows, cols, shape):
     return out
 
 
+#: The cells' decisions of :func:`peer_crosstab`: (dtm keeps the cell, the peer keeps it).
+CELL_STATES = (("both ground", True, True), ("dtm ground, peer object", True, False),
+               ("dtm object, peer ground", False, True), ("both object", False, False))
+
+
+def peer_crosstab(ours, peer, truth, valid, rows, cols, mask, peer_mask, dtm=None, peer_dtm=None, reference=None):
+    """The points by the dtm's and a peer's decision on their cell, with each one's errors there.
+
+    Parameters
+    ----------
+    ours, peer : ndarray of uint8
+        Per point, the codes of :func:`bare_earth.core.points.classify_points` against the dtm's and the
+        peer's DTM (0 ground, 1 above, 2 below, 255 outside).
+    truth, valid, rows, cols :
+        As for :func:`breakdown`.
+    mask, peer_mask : ndarray of uint8
+        The dtm's and the peer's masks (0 ground).
+    dtm, peer_dtm, reference : ndarray, optional
+        The two DTMs and the reference DTM (metres): the medians of each DTM above the reference in the
+        cells both removed and at the dtm's type II points.
+
+    Returns
+    -------
+    dict
+        ``{state: {"points", "ground_points", "dtm_type1", "dtm_type2", "peer_type1", "peer_type2"}}`` for
+        each state of :data:`CELL_STATES`, a point scored when both codes are (neither 255), and with the
+        DTMs ``"offsets"``: ``{"both_object_dtm_m", "both_object_peer_m", "dtm_type2_dtm_m",
+        "dtm_type2_peer_m"}`` (NaN where no cell or point).
+    """
+    r, c = np.where(rows >= 0, rows, 0), np.where(cols >= 0, cols, 0)
+    scored = valid & (rows >= 0) & (ours != OUTSIDE) & (peer != OUTSIDE)
+    errors = {}
+    for who, codes in (("dtm", ours), ("peer", peer)):
+        errors[f"{who}_type1"] = scored & truth & (codes != GROUND)
+        errors[f"{who}_type2"] = scored & ~truth & (codes == GROUND)
+    keep, peer_keep = np.asarray(mask)[r, c] == 0, np.asarray(peer_mask)[r, c] == 0
+    out = {}
+    for state, k, pk in CELL_STATES:
+        s = scored & (keep == k) & (peer_keep == pk)
+        out[state] = {"points": int(np.count_nonzero(s)), "ground_points": int(np.count_nonzero(s & truth)),
+                      **{name: int(np.count_nonzero(s & e)) for name, e in errors.items()}}
+    if dtm is not None and peer_dtm is not None and reference is not None:
+        both = (np.asarray(mask) != 0) & (np.asarray(peer_mask) != 0) & np.isfinite(reference)
+
+        def med(a):
+            a = a[np.isfinite(a)]
+            return float(np.median(a)) if a.size else float("nan")
+        lift, peer_lift = np.asarray(dtm) - reference, np.asarray(peer_dtm) - reference
+        t2 = errors["dtm_type2"]
+        out["offsets"] = {"both_object_dtm_m": med(lift[both]), "both_object_peer_m": med(peer_lift[both]),
+                          "dtm_type2_dtm_m": med(lift[r[t2], c[t2]]), "dtm_type2_peer_m": med(peer_lift[r[t2], c[t2]])}
+    return out
+
+
+def format_crosstab(peer_name, x):
+    lines = [f"  against {peer_name}: points by the cell's decisions (dtm type I / II | {peer_name} type I / II)"]
+    for state, _, _ in CELL_STATES:
+        g = x[state]
+        lines.append(f"    {state:<24} {g['points']:>7} points, {g['ground_points']:>6} ground: dtm "
+                     f"{g['dtm_type1']:>5} / {g['dtm_type2']:>5} | {peer_name} "
+                     f"{g['peer_type1']:>5} / {g['peer_type2']:>5}")
+    if "offsets" in x:
+        o = x["offsets"]
+        lines.append(f"    DTM above the reference (median): cells both removed dtm {o['both_object_dtm_m']:+.2f} m, "
+                     f"{peer_name} {o['both_object_peer_m']:+.2f} m; at dtm's type II points dtm "
+                     f"{o['dtm_type2_dtm_m']:+.2f} m, {peer_name} {o['dtm_type2_peer_m']:+.2f} m")
+    return "\n".join(lines)
+
+
 def format_breakdown(name, b):
     n = max(1, b["ground_points"] + b["object_points"])
     lines = [f"{name}: {b['ground_points']} ground and {b['object_points']} object points; total error "
@@ -120,7 +196,7 @@ def format_breakdown(name, b):
     return "\n".join(lines)
 
 
-def run(data, only, maps=None, progress=print):
+def run(data, only, maps=None, progress=print, peer=None):
     from bare_earth.core.dtm import MEMBERS
     from bare_earth.core.methods import get_method
     from bare_earth.core.pipeline import resolve_params, run_array
@@ -143,12 +219,22 @@ def run(data, only, maps=None, progress=print):
             results[name] = b
             if progress:
                 progress(format_breakdown(name, b))
+            extra = {}
+            if peer:
+                import anchors
+                p = getattr(anchors, f"run_{peer}")(z, cell)
+                x = peer_crosstab(codes, score.classify(np.asarray(p.dtm, np.float32)), score.truth, score.valid,
+                                  rows, cols, res.mask, p.mask, dtm=res.dtm, peer_dtm=p.dtm, reference=ref)
+                b["peer"] = {"name": peer, **x}
+                extra = {"peer_dtm": p.dtm, "peer_mask": p.mask}
+                if progress:
+                    progress(format_crosstab(peer, x))
             if maps:
                 Path(maps).mkdir(parents=True, exist_ok=True)
                 grids = error_maps(codes, score.truth, score.valid, rows, cols, z.shape)
                 np.savez_compressed(Path(maps) / (re.sub(r"[^\w.-]+", "_", name) + ".npz"), dsm=z, reference=ref,
                                     dtm=res.dtm, mask=res.mask, **grids,
-                                    **{f"{n}_ground": g for n, g in members.items()})
+                                    **{f"{n}_ground": g for n, g in members.items()}, **extra)
     return results
 
 
@@ -157,8 +243,10 @@ def main(argv=None):
     ap.add_argument("--data", default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
     ap.add_argument("--only", required=True, help="regular expression: the rows to look at")
     ap.add_argument("--maps", default=None, help="folder for the per-cell error maps (npz)")
+    ap.add_argument("--peer", default=None, choices=("saga", "csf", "dsm2dtm"),
+                    help="a tool of anchors.py to compare with, cell by cell")
     a = ap.parse_args(argv)
-    run(Path(a.data if a.data is not None else generalise.isprs.default_data_dir()), a.only, a.maps)
+    run(Path(a.data if a.data is not None else generalise.isprs.default_data_dir()), a.only, a.maps, peer=a.peer)
 
 
 if __name__ == "__main__":

@@ -402,6 +402,33 @@ def test_dtm_errors_breakdown_exact():
     assert "type II 2" in bench.format_breakdown("row", b)
 
 
+def test_dtm_errors_peer_crosstab_exact():
+    """benchmarks/dtm_errors.py --peer: each point scored by both counted once, by the two decisions on its cell."""
+    bench = _load_benchmark("dtm_errors")
+    ours = np.array([0, 0, 1, 0, 0, 255, 0], np.uint8)
+    peer = np.array([0, 1, 1, 1, 0, 0, 0], np.uint8)
+    truth = np.array([True, True, False, False, False, True, True])
+    valid = np.ones(7, bool)
+    rows = np.array([0, 0, 1, 1, 1, 0, -1])
+    cols = np.array([0, 1, 0, 1, 1, 0, -1])
+    mask = np.array([[0, 0], [1, 0]], np.uint8)
+    peer_mask = np.array([[0, 1], [1, 1]], np.uint8)
+    ref = np.zeros((2, 2))
+    dtm = np.array([[0.0, 0.0], [0.4, 0.8]])
+    peer_dtm = np.array([[0.0, -0.2], [-0.1, -0.3]])
+    x = bench.peer_crosstab(ours, peer, truth, valid, rows, cols, mask, peer_mask, dtm=dtm, peer_dtm=peer_dtm,
+                            reference=ref)
+    zero = {"dtm_type1": 0, "dtm_type2": 0, "peer_type1": 0, "peer_type2": 0}
+    assert x["both ground"] == {"points": 1, "ground_points": 1, **zero}      # the 255 and off-grid points: unscored
+    assert x["dtm ground, peer object"] == {"points": 3, "ground_points": 1, **zero, "peer_type1": 1,
+                                            "dtm_type2": 2, "peer_type2": 1}
+    assert x["dtm object, peer ground"] == {"points": 0, "ground_points": 0, **zero}
+    assert x["both object"] == {"points": 1, "ground_points": 0, **zero}
+    assert x["offsets"] == {"both_object_dtm_m": pytest.approx(0.4), "both_object_peer_m": pytest.approx(-0.1),
+                            "dtm_type2_dtm_m": pytest.approx(0.8), "dtm_type2_peer_m": pytest.approx(-0.3)}
+    assert "both object" in bench.format_crosstab("saga", x)
+
+
 def test_dtm_errors_counts_what_the_matrix_scores(tmp_path):
     """The breakdown of a row adds up to the generalisation matrix's total error for the dtm on it."""
     bench = _load_benchmark("dtm_errors")
