@@ -1366,6 +1366,21 @@ def test_bank_one_coarse_cell_wide_is_a_terrain_step():
     assert big.info["terrain_step_jump_m"] == pytest.approx(0.424) and not (big.mask[:, 40:56] == OBJECT).any()
 
 
+def test_terrain_steps_need_the_slope_beside_the_jump_exact():
+    """A level change is a rise beyond the slope before it: at a profile's first step that slope
+    is unknown, and a hillside rising 0.5 m per cell, more than a 0.42 m jump, read as a lone jump
+    up along the raster's whole left edge (a terrain step of 128 cells). A 1 m drop on the same
+    hillside is one (its foot too: the slope resuming after the drop rises beyond the fall before
+    it, a lone jump up)."""
+    z = plane(sx=0.5, sy=0.0)
+    keep = np.ones(z.shape, bool)
+    kw = dict(jump_m=0.42, max_building_m=60.0, sigma_m=0.1)
+    assert not steps.find_terrain_steps(z, 1.0, keep, **kw).any()
+    z[:, 33:] -= 1.0
+    st = steps.find_terrain_steps(z, 1.0, keep, **kw)
+    assert st[:, 32:35].all() and np.count_nonzero(st) == 3 * N
+
+
 def test_wall_top_retest_in_tiles_equals_one_window(monkeypatch):
     """The wall tops are tested again in tiles holding candidates (each read with the 3 cells
     step 3 reaches around it): tiles of 16 cells give the result of one window over the
