@@ -312,6 +312,12 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
         if not lone:
             up &= np.where(s3, np.abs(z1 - 2 * z2 + z3) <= veg_tol, s2)
             down &= np.where(n2, np.abs(z0 - 2 * zn + znn) <= veg_tol, n1)
+        else:
+            # a level change is a rise beyond the slope before it (a fall beyond the slope after
+            # it): at a profile's first (last) step that slope is unknown, and a hillside rising
+            # more than the jump per cell would read as a level change along the raster's edge
+            up &= s2
+            down &= n1
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
     starts = np.flatnonzero(~same)

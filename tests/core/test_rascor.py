@@ -1342,6 +1342,45 @@ def test_banks_of_a_narrow_trench_are_ground():
     assert lines[:, 79:82].all()
 
 
+def test_bank_one_coarse_cell_wide_is_a_terrain_step():
+    """At 4 m cells a 1 m bank drops within one cell: beyond step 3's tolerance (``k sqrt(2)
+    sigma`` = 0.42 m), which took its upper edge for an object's (96 cells along the raster),
+    and under step 4's 2 m jump, so no terrain step protected it. A level change beyond step 3's
+    tolerance that no other answers over more than a building is the terrain's: the bank's edge
+    is ground, while a house and a hedge 1 m high and 320 m long (its jumps answer each other
+    within a cell) stay objects."""
+    rng = np.random.default_rng(0)
+    z = (100.0 + rng.normal(0, 0.03, (96, 96))).astype(np.float32)
+    z[:, 48:] -= 1.0                                   # the bank
+    z[20:26, 10:16] += 6.0                             # a 24 m house on the upper level
+    z[8:88, 70] += 1.0                                 # a hedge on the lower level
+    p = rascor.resolve_rascor_params(z, 4.0)
+    assert p["sigma_m"] == pytest.approx(0.1) and p["terrain_bend_m"] == 0.0
+    res = rascor.filter_rascor(z, 4.0, **p)
+    assert res.info["terrain_step_jump_m"] == pytest.approx(0.424)
+    assert res.info["terrain_step_share"] > 0
+    assert not (res.mask[:, 40:56] == OBJECT).any()
+    assert (res.mask[20:26, 10:16] == OBJECT).all()
+    assert (res.mask[8:88, 70] == OBJECT).all()
+    big = rascor.filter_rascor(z + 2.0 * (np.arange(96) < 48), 4.0, **p)   # a 3 m bank: step 4's own jump
+    assert big.info["terrain_step_jump_m"] == pytest.approx(0.424) and not (big.mask[:, 40:56] == OBJECT).any()
+
+
+def test_terrain_steps_need_the_slope_beside_the_jump_exact():
+    """A level change is a rise beyond the slope before it: at a profile's first step that slope
+    is unknown, and a hillside rising 0.5 m per cell, more than a 0.42 m jump, read as a lone jump
+    up along the raster's whole left edge (a terrain step of 128 cells). A 1 m drop on the same
+    hillside is one (its foot too: the slope resuming after the drop rises beyond the fall before
+    it, a lone jump up)."""
+    z = plane(sx=0.5, sy=0.0)
+    keep = np.ones(z.shape, bool)
+    kw = dict(jump_m=0.42, max_building_m=60.0, sigma_m=0.1)
+    assert not steps.find_terrain_steps(z, 1.0, keep, **kw).any()
+    z[:, 33:] -= 1.0
+    st = steps.find_terrain_steps(z, 1.0, keep, **kw)
+    assert st[:, 32:35].all() and np.count_nonzero(st) == 3 * N
+
+
 def test_wall_top_retest_in_tiles_equals_one_window(monkeypatch):
     """The wall tops are tested again in tiles holding candidates (each read with the 3 cells
     step 3 reaches around it): tiles of 16 cells give the result of one window over the
