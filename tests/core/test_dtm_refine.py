@@ -139,7 +139,7 @@ def test_canopy_gaps_the_vote_keeps_are_removed():
     truth = s.mask == 0
     kept_before = np.count_nonzero(vote_ground & ~truth)
     kept_after = np.count_nonzero(ground & ~truth)
-    assert kept_before > 10                                         # the failure is there (17 cells)
+    assert kept_before > 5       # the failure is there (10 cells; 17 before the morphological enclosed tiers)
     assert kept_after < 0.7 * kept_before
     assert np.count_nonzero(vote_ground & truth & ~ground) < 0.01 * np.count_nonzero(truth)
     rmse = lambda d: float(np.sqrt(np.mean((d - s.dtm) ** 2)))     # noqa: E731
