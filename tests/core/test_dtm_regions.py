@@ -183,6 +183,29 @@ def test_a_building_cut_into_a_hillside_is_an_object_and_a_terrace_without_walls
     assert not _find(z, mask, min_width_m=64.0, max_cells=160)[0].any()
 
 
+def test_levels_cut_into_a_hillside_in_blocks_equal_one_pass():
+    """The levels cut into a hillside are looked for in windows around their ground parts: blocks read with
+    regions_halo cells around them give the one-pass decision, on three buildings side by side (the middle
+    one a terrace with banks) whose windows overlap and one whose level runs off the raster."""
+    parts = [_cut_into_hillside(walls=w) for w in (True, False, True)]
+    z = np.concatenate([p[0] for p in parts], axis=1)
+    mask = np.concatenate([p[1] for p in parts], axis=1)
+    level = np.concatenate([p[2] & w for p, w in zip(parts, (True, False, True))], axis=1)
+    kw = {"tolerance_m": 0.5, "min_width_m": 40.0, "max_cells": 60}
+    whole, _ = find_raised_regions(z, mask, (1.0, 1.0), **kw)
+    assert whole[level & (mask == GROUND)].all() and not whole[:, 70:140].any()
+    halo = regions_halo(kw["max_cells"])
+
+    def part(wr, wc):
+        return find_raised_regions(z[wr, wc], mask[wr, wc], (1.0, 1.0), **kw)[0]
+
+    for b in (37, 50):
+        assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
+    # cut by the raster's edge (not seen whole): left to the vote
+    cut, _ = find_raised_regions(z[:, 30:], mask[:, 30:], (1.0, 1.0), **kw)
+    assert not cut[:, :40].any() and np.array_equal(cut[:, 110:], whole[:, 140:])
+
+
 def test_blocked_equals_one_pass():
     """The stage on windows of a block plus regions_halo cells gives the one-pass decision in the block."""
     rng = np.random.default_rng(4)
