@@ -32,18 +32,22 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    **Cut into a hillside.** On a steep hillside the members' thresholds, which grow with the terrain slope
    and their windows, pass the part of a roof nearest the slope: the vote splits the roof's level into
    objects (its part standing high above the hillside) and ground (its part against it). Such a *level* - an
-   8-connected region of the voted ground with no neighbour more than ``s`` lower and of the voted objects
-   with none more than ``min(s, 2 t)`` lower (a roof's unevenness; crowns and walls stay cuts) - is a
+   8-connected region of the cells, voted ground or objects, with no neighbour more than ``s`` lower (a
+   roof's unevenness at the scales below; crowns and walls stay cuts) - is a
    candidate too when it is narrower than ``min_width_m``, holds voted ground and more voted objects, is
    seen whole (not cut by the raster's edge) and is cut into a hillside: its outer outline cells below the
    ground beyond them (the mirror of a step: the continuation of that ground more than ``s`` above ``p``) and
-   on no step are at least ``CUT_IN_MIN_CELLS`` and at least as many as the level is wide. Its walls are
+   on no step are at least ``CUT_IN_MIN_CELLS`` and at least as many as the level is wide, and some of them
+   are voted ground (the part the slope allowances kept is the part against the hillside). Its walls are
    measured as for any region on its other outline cells (the cut-in side says nothing of walls), the plane
    of step 3 on the ground beyond them; a decided level turns only its voted ground (and the rims on top of
    its walls) into objects. A terrace cut into the hillside and joined to the ground below by banks has no
-   steps and stays ground. Only the stage's ground regions narrower than ``min_width_m``, away from the
-   raster's edge and next to a level object cell can be such a level's ground part: the levels are labelled
-   in windows around those alone (:func:`_cut_in_at`), not on the raster.
+   steps and stays ground. The levels are looked for at the scales of a roof's unevenness, ``s = t`` and
+   ``2 t`` (their object part is cut as their ground part there; above, the walls of the cut itself no
+   longer cut the level from the hillside). Only the stage's ground regions narrower than ``min_width_m``,
+   away from the raster's edge, next to a level object cell and holding a voted ground cell below the
+   ground beyond it (the cut-in test on each such cell of their box) can be such a level's ground part: the
+   levels are labelled in windows around those alone (:func:`_cut_in_at`), not on the raster.
 2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
    seen outside its footprint; the edges of its holes - objects on a roof, a courtyard - say
    nothing of what bounds it, nor does the raster's edge) stands on a *step* when, along some
@@ -165,7 +169,7 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     # split meets its ground part, the only places a level cut into a hillside (below) can hold voted ground
     seeds = _split_level_seeds(valid, ground, drop, 2.0 * t)
     decided = {}                                        # each region once: its first object decision, else its first
-    step_m, cut, cut_in = t, -1, None
+    step_m, cut = t, -1
 
     def record(made):
         for d in made:
@@ -181,14 +185,14 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
             found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells)
             objects |= found
             record(made)
-        # the levels cut into a hillside: their object part is cut at walls higher than min(s, 2 t) too
-        key = (rims, min(step_m, 2.0 * t))
-        if seeds.size and key != cut_in:
+        # the levels cut into a hillside, at the scales of a roof's unevenness (t, 2 t): their object part is cut
+        # at walls higher than s too
+        if seeds.size and step_m <= 2.0 * t:
             for sl, found, made in _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m,
                                               min_width_m):
                 objects[sl] |= found
                 record(made)
-        cut, cut_in = rims, key
+        cut = rims
         if step_m >= highest:
             break
         step_m *= 2.0
@@ -352,8 +356,8 @@ def _split_level_seeds(valid, ground, drop, level_m):
 def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_width_m):
     """The levels cut into a hillside of :func:`find_raised_regions` at scale ``step_m``.
 
-    A level here is an 8-connected region of the voted ground with no neighbour more than ``s`` lower and
-    the voted objects with none more than ``min(s, 2 t)`` lower; a candidate holds voted ground and more
+    A level here is an 8-connected region of the cells (voted ground or objects) with no neighbour more than
+    ``s`` lower (``s`` is ``t`` or ``2 t``); a candidate holds voted ground and more
     voted objects, and is narrower than ``min_width_m``. Its ground part is a region of the raised-region
     stage at this scale (:class:`_Scales`) narrower than that and away from the raster's edge, next to a level
     object cell (a ``seeds`` cell): only those are looked at, each in a window reaching ``min_width_m``
@@ -362,7 +366,6 @@ def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_
     """
     H, W = z.shape
     cell = float(min(cell_size))
-    level_m = min(step_m, 2.0 * t)
     dflat, gflat, vflat = drop.ravel(), ground.ravel(), valid.ravel()
     at = seeds[~(dflat[seeds] > step_m)]                # the seeds on this scale's ground regions
     r, c = np.divmod(at, W)
@@ -370,7 +373,7 @@ def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_
     for dr, dc in _DIRECTIONS:                          # next to a level object cell at this scale
         i = np.flatnonzero((r + dr >= 0) & (r + dr < H) & (c + dc >= 0) & (c + dc < W))
         q = at[i] + dr * W + dc
-        touch[i[vflat[q] & ~gflat[q] & ~(dflat[q] > level_m)]] = True
+        touch[i[vflat[q] & ~gflat[q] & ~(dflat[q] > step_m)]] = True
     at = at[touch]
     if at.size == 0:
         return
@@ -381,10 +384,17 @@ def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_
     at, comp = at[narrow], comp[narrow]
     if at.size == 0:
         return
+    # the cut: a voted ground cell of the ground part below the continuation of the ground 2-3 cells beyond it
+    # (the outline test of _decide on every such cell of the part's box): only the parts holding one
+    ids = np.unique(comp)
+    ids = ids[_below_ground_beyond(z, ground, drop, r0[ids], r1[ids], c0[ids], c1[ids], step_m)]
+    if ids.size == 0:
+        return
+    keep = np.isin(comp, ids)
+    at, comp = at[keep], comp[keep]
     # windows: the ground parts' boxes widened by the widest candidate (and one cell), joined where they
     # overlap through a coarse grid of blocks that wide
     reach = int(math.ceil(min_width_m / cell)) + 1
-    ids = np.unique(comp)
     blocks = np.zeros(((H + reach - 1) // reach, (W + reach - 1) // reach), bool)
     for j in ids.tolist():
         blocks[max(0, r0[j] - reach) // reach:(min(H, r1[j] + reach) - 1) // reach + 1,
@@ -399,7 +409,7 @@ def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_
         f0, f1 = max(0, b0 - REACH_CELLS), min(W, b1 + REACH_CELLS)
         sl = (slice(e0, e1), slice(f0, f1))
         zw, vw, gw, dw = z[sl], valid[sl], ground[sl], drop[sl]
-        cells = (gw & ~(dw > step_m)) | (vw & ~gw & ~(dw > level_m))
+        cells = vw & ~(dw > step_m)
         inner = np.zeros(cells.shape, bool)
         inner[a0 - e0:a1 - e0, b0 - f0:b1 - f0] = True
         cells &= inner
@@ -428,6 +438,35 @@ def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_
         found, made = _decide(zw, vw, gw, dw, num[lab], [boxes[i - 1] for i in cand], cell_size, t, step_m,
                               min_width_m, 0, cut_in=True, origin=(e0, f0))
         yield sl, found, made
+
+
+def _below_ground_beyond(z, ground, drop, r0, r1, c0, c1, step_m):
+    """Per box (rows ``r0:r1``, columns ``c0:c1``), whether one of its voted ground cells ``p`` with no neighbour
+    more than ``step_m`` lower stands more than ``step_m`` below the straight continuation of such ground beyond
+    it along some direction ``d`` (cells ``a = p + j d``, ``j`` = 2 or 3, and ``b = a + 2 d``: :func:`_decide`'s
+    cut-in test, whatever the region); the boxes' cells enumerated and tested all at once."""
+    H, W = z.shape
+    h, w = r1 - r0, c1 - c0
+    size = h * w
+    own = np.repeat(np.arange(size.size), size)
+    local = np.arange(own.size) - np.repeat(np.cumsum(size) - size, size)
+    p = (r0[own] + local // w[own]) * W + c0[own] + local % w[own]
+    zf, gf, df = z.ravel(), ground.ravel(), drop.ravel()
+    on = gf[p] & ~(df[p] > step_m)
+    p, own = p[on], own[on]
+    r, c = np.divmod(p, W)
+    zp = zf[p].astype(np.float64)
+    hit = np.zeros(p.size, bool)
+    for dr, dc in _DIRECTIONS:
+        for j in (2, 3):
+            k = j + 2
+            i = np.flatnonzero((r + k * dr >= 0) & (r + k * dr < H) & (c + k * dc >= 0) & (c + k * dc < W) & ~hit)
+            a = p[i] + j * (dr * W + dc)
+            b = p[i] + k * (dr * W + dc)
+            ok = gf[a] & gf[b] & ~(df[a] > step_m) & ~(df[b] > step_m)
+            za, zb = zf[a].astype(np.float64), zf[b].astype(np.float64)
+            hit[i[ok & (za + j * (za - zb) / 2.0 - zp[i] > step_m)]] = True
+    return np.bincount(own[hit], minlength=size.size) > 0
 
 
 def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_m, max_cells, cut_in=False,
@@ -518,7 +557,8 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
             # outline cells, and only its voted ground (and the rims on top of its walls) turns into objects
             cut = outer & uphill[sub] & ~step[sub]
             n_cut = int(np.count_nonzero(cut))
-            if width >= min_width_m or n_cut * cell < width or width < CUT_IN_MIN_CELLS * cell:
+            if (width >= min_width_m or n_cut * cell < width or width < CUT_IN_MIN_CELLS * cell
+                    or not (cut & ground[sub]).any()):
                 continue
             outer = outer & ~cut
             walls = reg & ~cut
