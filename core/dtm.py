@@ -69,7 +69,11 @@ ground by a bank or a ramp, a plateau, a hilltop or a dam (banks wider than a wa
 raster's edge on two opposite sides (a terrain step running across the raster) is mirrored at both
 and spans three times what is seen: beyond the stage's reach unless short, it is left to the vote
 (``sample_c`` at 0.5 and 4 m stays 88 %: inside one tile such a roof and a terrain step are alike).
-Every candidate's decision is in ``info["raised_regions"]``.
+Every candidate's decision is in ``info["raised_regions"]``. On a steep hillside the members' thresholds,
+which grow with the slope, keep the part of a roof nearest the slope: a level narrower than the windows
+that the vote calls mostly an object, cut into the hillside on one side (its outline below the ground
+beyond) and on steps elsewhere, is tested the same way and its voted ground turned into objects (ISPRS
+sample 11 at 1 m: lowest point 9.33 -> 9.11 %, highest 10.11 -> 9.86; no other row of the matrix moves).
 
 A low roof narrower than those windows (an annex, the lower level of a building, 2-4 m high) is kept
 by the opening and the reconstruction, whose allowances grow with the window and the terrain slope,

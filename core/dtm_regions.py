@@ -29,6 +29,25 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    edge); a region wider than the stage reaches (``max_cells`` cells) is left alone, its span along
    each axis mirrored at every side the edge cuts (a level cut on two opposite sides spans three
    times what is seen).
+   **Cut into a hillside.** On a steep hillside the members' thresholds, which grow with the terrain slope
+   and their windows, pass the part of a roof nearest the slope: the vote splits the roof's level into
+   objects (its part standing high above the hillside) and ground (its part against it). Such a *level* - an
+   8-connected region of the cells, voted ground or objects, with no neighbour more than ``s`` lower (a
+   roof's unevenness at the scales below; crowns and walls stay cuts) - is a
+   candidate too when it is narrower than ``min_width_m``, holds voted ground and more voted objects, is
+   seen whole (not cut by the raster's edge) and is cut into a hillside: its outer outline cells below the
+   ground beyond them (the mirror of a step: the continuation of that ground more than ``s`` above ``p``) and
+   on no step are at least ``CUT_IN_MIN_CELLS`` and at least as many as the level is wide, and some of them
+   are voted ground (the part the slope allowances kept is the part against the hillside). Its walls are
+   measured as for any region on its other outline cells (the cut-in side says nothing of walls), the plane
+   of step 3 on the ground beyond them; a decided level turns only its voted ground (and the rims on top of
+   its walls) into objects. A terrace cut into the hillside and joined to the ground below by banks has no
+   steps and stays ground. The levels are looked for at the scales of a roof's unevenness, ``s = t`` and
+   ``2 t`` (their object part is cut as their ground part there; above, the walls of the cut itself no
+   longer cut the level from the hillside). Only the stage's ground regions narrower than ``min_width_m``,
+   away from the raster's edge, next to a level object cell and holding a voted ground cell below the
+   ground beyond it (the cut-in test on each such cell of their box) can be such a level's ground part: the
+   levels are labelled in windows around those alone (:func:`_cut_in_at`), not on the raster.
 2. **Outline of steps.** An outer outline cell ``p`` of the region (a cell next to the cells
    seen outside its footprint; the edges of its holes - objects on a roof, a courtyard - say
    nothing of what bounds it, nor does the raster's edge) stands on a *step* when, along some
@@ -80,6 +99,8 @@ from .geodesic.grey import filter3x3
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
 #: it (``a`` at 2-3 cells, ``b`` 2 cells further) and the rim test's neighbours.
 REACH_CELLS = 8
+#: The narrowest level cut into a hillside the stage looks at, in cells: an outline around one cell inside.
+CUT_IN_MIN_CELLS = 3
 #: The eight directions (row, column) leaving a cell.
 _DIRECTIONS = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc)
 
@@ -144,8 +165,18 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     # the regions of the first scale, labelled once; a higher scale frees some of their rims (the cells its
     # walls no longer cut), which join them: its regions are found by merging (:class:`_Scales`)
     scales = _Scales(ground, drop, t)
+    # the voted ground cells next to a level object cell (no neighbour more than 2 t lower): where a level the vote
+    # split meets its ground part, the only places a level cut into a hillside (below) can hold voted ground
+    seeds = _split_level_seeds(valid, ground, drop, 2.0 * t)
     decided = {}                                        # each region once: its first object decision, else its first
     step_m, cut = t, -1
+
+    def record(made):
+        for d in made:
+            key = (tuple(d["bbox"]), d["cells"])
+            if key not in decided or (d["object"] and not decided[key]["object"]):
+                decided[key] = d
+
     while True:
         # the walls higher than step_m cut the ground into regions; a scale cutting the same cells as the one
         # before repeats its regions with fewer steps (a subset of its objects): skipped
@@ -153,10 +184,14 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         if rims != cut:
             found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells)
             objects |= found
-            for d in made:
-                key = (tuple(d["bbox"]), d["cells"])
-                if key not in decided or (d["object"] and not decided[key]["object"]):
-                    decided[key] = d
+            record(made)
+        # the levels cut into a hillside, at the scales of a roof's unevenness (t, 2 t): their object part is cut
+        # at walls higher than s too
+        if seeds.size and step_m <= 2.0 * t:
+            for sl, found, made in _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m,
+                                              min_width_m):
+                objects[sl] |= found
+                record(made)
         cut = rims
         if step_m >= highest:
             break
@@ -190,6 +225,7 @@ class _Scales:
         self.r1 = np.array([b[0].stop for b in boxes], np.int64)
         self.c0 = np.array([b[1].start for b in boxes], np.int64)
         self.c1 = np.array([b[1].stop for b in boxes], np.int64)
+        self._components = None
 
     def rims(self, step_m):
         """Cells the walls higher than ``step_m`` cut (voted ground with a neighbour more than that lower)."""
@@ -199,11 +235,14 @@ class _Scales:
         """The cells of the regions at scale ``step_m`` (bool raster)."""
         return self.ground & ~(self.drop > step_m)
 
-    def regions(self, step_m, keep):
-        """The regions at scale ``step_m`` passing ``keep(r0, r1, c0, c1)`` (arrays of their boxes' rows and
-        columns, stop exclusive, one per region: a boolean per region): ``(lab, boxes)``, ``lab`` the raster
-        of those regions numbered 1, 2, ... in the order of their first cell (0 elsewhere), ``boxes`` their
-        bounding boxes (slices) in that order; ``(None, [])`` when none passes."""
+    def components(self, step_m):
+        """The regions at scale ``step_m`` as components of the graph: ``(new, comp, r0, r1, c0, c1)``, ``new``
+        the rims this scale frees (flat indices, raster order), ``comp`` each node's component (node 0 the
+        background, ``1..n`` the first scale's regions, ``n + 1 + k`` the freed rim ``new[k]``) and the
+        components' boxes (rows and columns, stop exclusive; a component holding no cell has an empty box).
+        The last scale's are kept: the raised regions and the levels cut into a hillside read the same."""
+        if self._components is not None and self._components[0] == step_m:
+            return self._components[1]
         H, W = self.shape
         n = self.n
         new = self.rim[~(self.rim_drop > step_m)]           # the rims this scale frees, in raster order
@@ -236,6 +275,28 @@ class _Scales:
         for lo_hi, first, rest, ufunc in ((r0, self.r0, nr, np.minimum), (r1, self.r1, nr + 1, np.maximum),
                                            (c0, self.c0, nc, np.minimum), (c1, self.c1, nc + 1, np.maximum)):
             ufunc.at(lo_hi, comp[1:], np.concatenate([first, rest]))
+        self._components = (step_m, (new, comp, r0, r1, c0, c1))
+        return self._components[1]
+
+    def component_of(self, cells, step_m):
+        """The component (:meth:`components`) of each of ``cells`` (flat indices of cells of the regions at
+        scale ``step_m``: voted ground with no neighbour more than ``step_m`` lower)."""
+        new, comp = self.components(step_m)[:2]
+        node = self.labels.ravel()[cells].astype(np.int64)
+        rest = node == 0                                    # a freed rim: its node after the labels
+        if rest.any():
+            node[rest] = self.n + 1 + np.searchsorted(new, cells[rest])
+        return comp[node]
+
+    def regions(self, step_m, keep):
+        """The regions at scale ``step_m`` passing ``keep(r0, r1, c0, c1)`` (arrays of their boxes' rows and
+        columns, stop exclusive, one per region: a boolean per region): ``(lab, boxes)``, ``lab`` the raster
+        of those regions numbered 1, 2, ... in the order of their first cell (0 elsewhere), ``boxes`` their
+        bounding boxes (slices) in that order; ``(None, [])`` when none passes."""
+        H, W = self.shape
+        n = self.n
+        new, comp, r0, r1, c0, c1 = self.components(step_m)
+        k_n = r0.size
         real = np.zeros(k_n, bool)
         real[comp[1:]] = True                               # components holding a cell (not the background)
         sel = np.flatnonzero(real & keep(r0, r1, c0, c1))
@@ -262,7 +323,6 @@ class _Scales:
 def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells):
     """The raised regions of :func:`find_raised_regions` cut at walls higher than ``step_m``."""
     shape = z.shape
-    objects = np.zeros(shape, bool)
     cell = float(min(cell_size))
 
     def keep(r0, r1, c0, c1):
@@ -277,9 +337,149 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
 
     lab, boxes = scales.regions(step_m, keep)
     if lab is None:
-        return objects, []
+        return np.zeros(shape, bool), []
+    return _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_m, max_cells)
+
+
+def _split_level_seeds(valid, ground, drop, level_m):
+    """The voted ground cells next to a voted object cell with no neighbour more than ``level_m`` lower (a level
+    the vote split between ground and objects meets its ground part there), flat indices in raster order."""
+    flat = valid & ~ground & ~(drop > level_m)
+    if not flat.any():
+        return np.zeros(0, np.int64)
+    near = filter3x3(flat.view(np.uint8), np.maximum, 0).view(bool)
+    del flat
+    near &= ground
+    return np.flatnonzero(near)
+
+
+def _cut_in_at(z, valid, ground, drop, scales, seeds, cell_size, t, step_m, min_width_m):
+    """The levels cut into a hillside of :func:`find_raised_regions` at scale ``step_m``.
+
+    A level here is an 8-connected region of the cells (voted ground or objects) with no neighbour more than
+    ``s`` lower (``s`` is ``t`` or ``2 t``); a candidate holds voted ground and more
+    voted objects, and is narrower than ``min_width_m``. Its ground part is a region of the raised-region
+    stage at this scale (:class:`_Scales`) narrower than that and away from the raster's edge, next to a level
+    object cell (a ``seeds`` cell): only those are looked at, each in a window reaching ``min_width_m``
+    beyond it (a level spanning more is no candidate), so the levels are labelled on a few windows, not on
+    the raster. Yields ``(slices, objects, decisions)`` per window.
+    """
+    H, W = z.shape
+    cell = float(min(cell_size))
+    dflat, gflat, vflat = drop.ravel(), ground.ravel(), valid.ravel()
+    at = seeds[~(dflat[seeds] > step_m)]                # the seeds on this scale's ground regions
+    r, c = np.divmod(at, W)
+    touch = np.zeros(at.size, bool)
+    for dr, dc in _DIRECTIONS:                          # next to a level object cell at this scale
+        i = np.flatnonzero((r + dr >= 0) & (r + dr < H) & (c + dc >= 0) & (c + dc < W))
+        q = at[i] + dr * W + dc
+        touch[i[vflat[q] & ~gflat[q] & ~(dflat[q] > step_m)]] = True
+    at = at[touch]
+    if at.size == 0:
+        return
+    _, _, r0, r1, c0, c1 = scales.components(step_m)
+    comp = scales.component_of(at, step_m)
+    narrow = ((np.maximum(r1 - r0, c1 - c0)[comp] * cell < min_width_m) & (r0[comp] > 0) & (c0[comp] > 0)
+              & (r1[comp] < H) & (c1[comp] < W))
+    at, comp = at[narrow], comp[narrow]
+    if at.size == 0:
+        return
+    # the cut: a voted ground cell of the ground part below the continuation of the ground 2-3 cells beyond it
+    # (the outline test of _decide on every such cell of the part's box): only the parts holding one
+    ids = np.unique(comp)
+    ids = ids[_below_ground_beyond(z, ground, drop, r0[ids], r1[ids], c0[ids], c1[ids], step_m)]
+    if ids.size == 0:
+        return
+    keep = np.isin(comp, ids)
+    at, comp = at[keep], comp[keep]
+    # windows: the ground parts' boxes widened by the widest candidate (and one cell), joined where they
+    # overlap through a coarse grid of blocks that wide
+    reach = int(math.ceil(min_width_m / cell)) + 1
+    blocks = np.zeros(((H + reach - 1) // reach, (W + reach - 1) // reach), bool)
+    for j in ids.tolist():
+        blocks[max(0, r0[j] - reach) // reach:(min(H, r1[j] + reach) - 1) // reach + 1,
+               max(0, c0[j] - reach) // reach:(min(W, c1[j] + reach) - 1) // reach + 1] = True
+    groups, _ = ndimage.label(blocks)
+    ar, ac = np.divmod(at, W)
+    for box in ndimage.find_objects(groups):
+        a0, a1 = box[0].start * reach, min(H, box[0].stop * reach)
+        b0, b1 = box[1].start * reach, min(W, box[1].stop * reach)
+        # the window decided on: the labelled one and the cells a decision reads beyond it
+        e0, e1 = max(0, a0 - REACH_CELLS), min(H, a1 + REACH_CELLS)
+        f0, f1 = max(0, b0 - REACH_CELLS), min(W, b1 + REACH_CELLS)
+        sl = (slice(e0, e1), slice(f0, f1))
+        zw, vw, gw, dw = z[sl], valid[sl], ground[sl], drop[sl]
+        cells = vw & ~(dw > step_m)
+        inner = np.zeros(cells.shape, bool)
+        inner[a0 - e0:a1 - e0, b0 - f0:b1 - f0] = True
+        cells &= inner
+        lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+        mine = (ar >= a0) & (ar < a1) & (ac >= b0) & (ac < b1)
+        hit = np.zeros(n + 1, bool)
+        hit[lab[ar[mine] - e0, ac[mine] - f0]] = True
+        hit[0] = False
+        n_cells = np.bincount(lab.ravel(), minlength=n + 1)
+        n_voted = np.bincount(lab[gw], minlength=n + 1)
+        # candidates: more voted objects than ground, narrower than the vote's windows, not reaching the
+        # labelled window's edge (a level reaching it spans more than the widest candidate, or is cut by the
+        # raster's edge and not seen whole)
+        boxes = ndimage.find_objects(lab)
+        cand = []
+        for i in np.flatnonzero(hit & (n_voted > 0) & (2 * n_voted < n_cells)).tolist():
+            b = boxes[i - 1]
+            span = max(b[0].stop - b[0].start, b[1].stop - b[1].start)
+            if (CUT_IN_MIN_CELLS <= span and span * cell < min_width_m and b[0].start > a0 - e0
+                    and b[1].start > b0 - f0 and b[0].stop < a1 - e0 and b[1].stop < b1 - f0):
+                cand.append(i)
+        if not cand:
+            continue
+        num = np.zeros(n + 1, np.int32)
+        num[cand] = np.arange(1, len(cand) + 1, dtype=np.int32)
+        found, made = _decide(zw, vw, gw, dw, num[lab], [boxes[i - 1] for i in cand], cell_size, t, step_m,
+                              min_width_m, 0, cut_in=True, origin=(e0, f0))
+        yield sl, found, made
+
+
+def _below_ground_beyond(z, ground, drop, r0, r1, c0, c1, step_m):
+    """Per box (rows ``r0:r1``, columns ``c0:c1``), whether one of its voted ground cells ``p`` with no neighbour
+    more than ``step_m`` lower stands more than ``step_m`` below the straight continuation of such ground beyond
+    it along some direction ``d`` (cells ``a = p + j d``, ``j`` = 2 or 3, and ``b = a + 2 d``: :func:`_decide`'s
+    cut-in test, whatever the region); the boxes' cells enumerated and tested all at once."""
+    H, W = z.shape
+    h, w = r1 - r0, c1 - c0
+    size = h * w
+    own = np.repeat(np.arange(size.size), size)
+    local = np.arange(own.size) - np.repeat(np.cumsum(size) - size, size)
+    p = (r0[own] + local // w[own]) * W + c0[own] + local % w[own]
+    zf, gf, df = z.ravel(), ground.ravel(), drop.ravel()
+    on = gf[p] & ~(df[p] > step_m)
+    p, own = p[on], own[on]
+    r, c = np.divmod(p, W)
+    zp = zf[p].astype(np.float64)
+    hit = np.zeros(p.size, bool)
+    for dr, dc in _DIRECTIONS:
+        for j in (2, 3):
+            k = j + 2
+            i = np.flatnonzero((r + k * dr >= 0) & (r + k * dr < H) & (c + k * dc >= 0) & (c + k * dc < W) & ~hit)
+            a = p[i] + j * (dr * W + dc)
+            b = p[i] + k * (dr * W + dc)
+            ok = gf[a] & gf[b] & ~(df[a] > step_m) & ~(df[b] > step_m)
+            za, zb = zf[a].astype(np.float64), zf[b].astype(np.float64)
+            hit[i[ok & (za + j * (za - zb) / 2.0 - zp[i] > step_m)]] = True
+    return np.bincount(own[hit], minlength=size.size) > 0
+
+
+def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_m, max_cells, cut_in=False,
+            origin=(0, 0)):
+    """The decisions on the regions ``lab`` (numbered 1, 2, ... in the order of their first cell, ``boxes``
+    their boxes) at scale ``step_m``: the raised regions wider than ``min_width_m`` (and spanning at most
+    ``max_cells``), or with ``cut_in`` the narrower levels cut into a hillside; the arrays are a window of the
+    raster at ``origin`` (row, column) holding the cells each decision reads (:data:`REACH_CELLS`)."""
+    shape = z.shape
+    objects = np.zeros(shape, bool)
+    cell = float(min(cell_size))
     idx = np.arange(1, len(boxes) + 1)
-    free = scales.free(step_m)
+    free = ground & ~(drop > step_m)
     rim = ground & (drop > step_m)
     pad = 6
     lp = np.pad(lab, pad, constant_values=-1)              # -1: beyond the raster
@@ -287,6 +487,7 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
     zp = np.pad(np.where(valid, z, np.nan), pad, constant_values=np.nan)
     outline = (lab > 0) & np.any([_shifted(lp, pad, dr, dc, 1) != lab for dr, dc in _DIRECTIONS], axis=0)
     step = np.zeros(shape, bool)
+    uphill = np.zeros(shape, bool) if cut_in else None  # outline cells below the ground beyond (cut into it)
     samples = []                                        # (region, row, col, z) of the ground beyond the outline
     rows, cols = np.nonzero(outline)
     zo, lo = z[rows, cols], lab[rows, cols]
@@ -301,6 +502,9 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
             cont = za + j * (za - zb) / 2.0             # the ground beyond the wall continued to p
             on = ok & (zo - cont > step_m)
             step[rows[on], cols[on]] = True
+            if cut_in:
+                up = ok & (cont - zo > step_m)
+                uphill[rows[up], cols[up]] = True
             samples.append((lo[ok], rows[ok], cols[ok], rows[ok] + j * dr, cols[ok] + j * dc, za[ok]))
     s_lab, s_pr, s_pc, s_r, s_c = (np.concatenate([s[q] for s in samples]) for q in range(5))
     s_z = np.concatenate([s[5] for s in samples]).astype(np.float64)
@@ -308,10 +512,15 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
     s_lab, s_pr, s_pc, s_r, s_c, s_z = (v[order] for v in (s_lab, s_pr, s_pc, s_r, s_c, s_z))
     starts = np.searchsorted(s_lab, idx, side="left")
     stops = np.searchsorted(s_lab, idx, side="right")
+    if cut_in:
+        # per level: its outline cells below the ground beyond them and on no step (its cut-in side)
+        n_up = np.bincount(lab[uphill & ~step], minlength=len(boxes) + 1)
     decisions = []
     for k, i in enumerate(idx):
         box = boxes[k]
         r0, c0 = box[0].start, box[1].start
+        if cut_in and n_up[i] < CUT_IN_MIN_CELLS:
+            continue                                    # not cut into a hillside
         # the region and its rim (one cell around it), in coordinates relative to its box's corner
         g0, g1 = max(r0 - 1, 0), max(c0 - 1, 0)
         sub = (slice(g0, min(box[0].stop + 1, shape[0])), slice(g1, min(box[1].stop + 1, shape[1])))
@@ -332,16 +541,31 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
             continue
         dist = ndimage.distance_transform_edt(~seen, sampling=(cell_size[1], cell_size[0]))[1:-1, 1:-1]
         width = 2.0 * float(dist[reg].max()) - cell
-        if width < min_width_m or width > max_cells * cell:
+        if not cut_in and (width < min_width_m or width > max_cells * cell):
             continue
         # its outer outline: cells next to the outside seen, not to its holes (which say nothing of what
         # bounds it) nor to the raster's edge (nothing is known beyond it)
         outer = reg & ndimage.binary_dilation(seen, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
+        cells = int(np.count_nonzero(reg))
+        d = {"bbox": [int(r0) + origin[0], int(c0) + origin[1], int(box[0].stop) + origin[0],
+                      int(box[1].stop) + origin[1]], "step_m": round(step_m, 3), "cells": cells,
+             "width_m": round(width, 1)}
+        walls = reg
+        if cut_in:
+            # cut into a hillside: its outline cells below the ground beyond them and on no step, at least as
+            # many as the level is wide (and it at least CUT_IN_MIN_CELLS wide); its walls are its other
+            # outline cells, and only its voted ground (and the rims on top of its walls) turns into objects
+            cut = outer & uphill[sub] & ~step[sub]
+            n_cut = int(np.count_nonzero(cut))
+            if (width >= min_width_m or n_cut * cell < width or width < CUT_IN_MIN_CELLS * cell
+                    or not (cut & ground[sub]).any()):
+                continue
+            outer = outer & ~cut
+            walls = reg & ~cut
+            d.update(cut_in_cells=n_cut, voted_ground_cells=int(np.count_nonzero(reg & ground[sub])))
         n_outer = int(np.count_nonzero(outer))
         step_share = float(np.count_nonzero(outer & step[sub])) / max(1, n_outer)
-        d = {"bbox": [int(r0), int(c0), int(box[0].stop), int(box[1].stop)],
-             "step_m": round(step_m, 3), "cells": int(np.count_nonzero(reg)), "width_m": round(width, 1),
-             "outline_cells": n_outer, "step_share": round(step_share, 3), "above_share": None, "object": False}
+        d.update(outline_cells=n_outer, step_share=round(step_share, 3), above_share=None, object=False)
         a, b = starts[k], stops[k]
         use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
         if step_share > 0.5 and np.count_nonzero(use) >= 3:
@@ -354,12 +578,13 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
             rr, cc = np.mgrid[sub[0], sub[1]]
             plane = zm + coef[0] * ((cc - c0) * cell_size[0] - xm) + coef[1] * ((rr - r0) * cell_size[1] - ym)
             above = z[sub] - plane > t
-            share = float(np.count_nonzero(above & reg)) / max(1, d["cells"])
+            share = float(np.count_nonzero(above & reg)) / max(1, cells)
             d["above_share"] = round(share, 3)
             if share > 0.5:
                 d["object"] = True
-                near = ndimage.binary_dilation(reg, structure=np.ones((3, 3), bool))
-                objects[sub] |= reg | (near & rim[sub] & above)
+                # its rims: on top of its walls
+                near = ndimage.binary_dilation(walls, structure=np.ones((3, 3), bool))
+                objects[sub] |= (reg & ground[sub]) | (near & rim[sub] & above)
         decisions.append(d)
     return objects, decisions
 
