@@ -28,7 +28,14 @@ from .derivatives import (
     mark_breaks,
 )
 from .ground import find_ground, ground_reach
-from .profiles import enclosed_reach, find_enclosed_objects, find_profile_objects, profile_reach, wall_rise
+from .profiles import (
+    enclosed_reach,
+    find_enclosed_objects,
+    find_profile_objects,
+    height_spacing,
+    profile_reach,
+    wall_rise,
+)
 
 #: Percentile of the terrain's slopes that is "steep" (:func:`steep_terrain_slope`): the
 #: upper quartile, the slopes a hillside reaches, robust to a quarter of the blocks on
@@ -50,7 +57,7 @@ _SMOOTH_QUANTILE = 0.25
 def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, window_cells: int = 5,
                      model: str = "quadratic", min_object_height_m: float = 1.0,
                      wall_slope_deg: float = 45.0, max_object_size_m: float = 100.0,
-                     tolerance_m: float = 0.3, terrain_slope: float = 0.0,
+                     tolerance_m: float = 0.3, terrain_slope: float = 0.0, spacing_m: float = 0.0,
                      progress: Optional[Progress] = None) -> FilterResult:
     """Separate objects from the ground by the Gaussian curvature of local trends.
 
@@ -87,6 +94,10 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
         Rise/run of the terrain's steep slopes: the rise of a wall over two cells must also
         exceed what this slope rises over them (:func:`.profiles.wall_rise`; it matters at
         coarse cells, where the wall slope judged over 3 m is a few metres).
+    spacing_m : float
+        Metres between independent heights (0: the cell): the wall's slope is judged over
+        this span (within 3 m) where it is longer than two cells (:func:`.profiles.wall_rise`:
+        a raster filled from sparser points climbs slopes in risers of one point each).
     max_object_size_m : float
         Longest object (profile runs and enclosed regions larger than this are ground);
         also bounds the method's reach (halo).
@@ -113,7 +124,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     z = bounded_heights(as_surface(z))          # +-1e30 and the like: spikes, not overflow
     cell = as_cell_size(cell_size)
     s = _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
-                          max_object_size_m, tolerance_m, terrain_slope)
+                          max_object_size_m, tolerance_m, terrain_slope, spacing_m)
     valid = np.isfinite(z)
     n_valid = int(np.count_nonzero(valid))
     some_valid = None if n_valid == valid.size else valid     # None: every cell is valid
@@ -124,7 +135,8 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     # 3. along X and Y profiles: from a break going up to the break coming down
     objects, n_obj_x, n_obj_y = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
-        tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, progress=sub_progress(progress, 0.35, 0.55))
+        tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing,
+        progress=sub_progress(progress, 0.35, 0.55))
     # 4. regions enclosed by breaks and made mostly of such runs -> whole objects
     objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size,
                                      progress=sub_progress(progress, 0.55, 0.65))
@@ -149,10 +161,11 @@ class _Settings:
     max_size: float
     tol: float
     terrain_slope: float
+    spacing: float
 
 
 def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall_slope_deg,
-                      max_object_size_m, tolerance_m, terrain_slope=0.0):
+                      max_object_size_m, tolerance_m, terrain_slope=0.0, spacing_m=0.0):
     """The parameters of :func:`filter_curvature`, checked (ValueError naming the fix)."""
     window = check_window(window_cells)
     model = check_model(model)
@@ -169,7 +182,12 @@ def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall
     if not (0.0 <= terrain_slope < np.inf):
         raise ValueError(f"terrain_slope must be a rise/run >= 0; got {terrain_slope}. "
                          "Leave it empty to derive it from the data, or use 0 for no terrain term.")
-    return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol, terrain_slope)
+    spacing = float(spacing_m)
+    if not (0.0 <= spacing < np.inf):
+        raise ValueError(f"spacing_m must be a distance >= 0 in metres; got {spacing_m}. "
+                         "Leave it empty to derive it from the data, or use 0 for the cell.")
+    return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol, terrain_slope,
+                     spacing)
 
 
 def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
@@ -178,11 +196,11 @@ def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
     objects."""
     return {"k_g_per_m2": float(s.k_g), "window_cells": s.window, "model": s.model,
             "min_object_height_m": s.h_min, "wall_slope_deg": s.wall_slope_deg,
-            "terrain_slope": s.terrain_slope,
+            "terrain_slope": s.terrain_slope, "spacing_m": s.spacing,
             "wall_rise_x_m": round(wall_rise(cell[0], h_min=s.h_min, tan_wall=s.tan_wall,
-                                             terrain_slope=s.terrain_slope), 4),
+                                             terrain_slope=s.terrain_slope, spacing=s.spacing), 4),
             "wall_rise_y_m": round(wall_rise(cell[1], h_min=s.h_min, tan_wall=s.tan_wall,
-                                             terrain_slope=s.terrain_slope), 4),
+                                             terrain_slope=s.terrain_slope, spacing=s.spacing), 4),
             "max_object_size_m": s.max_size, "tolerance_m": s.tol,
             "share_marked_x": breaks.n_x / n_valid,
             "share_marked_y": breaks.n_y / n_valid,
@@ -335,7 +353,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                              min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
                              max_object_size_m: float = 100.0,
                              tolerance_m: Optional[float] = None, terrain_slope: Optional[float] = None,
-                             progress=None) -> dict:
+                             spacing_m: Optional[float] = None, progress=None) -> dict:
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
@@ -343,7 +361,7 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     ``min_object_height_m`` object over half a window). ``tolerance_m``: three times the
     noise of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
     [0.3, 1.0] m; 0.5 m when too few ground cells are seen. ``terrain_slope``:
-    :func:`steep_terrain_slope`. The others have
+    :func:`steep_terrain_slope`. ``spacing_m``: :func:`.profiles.height_spacing`. The others have
     fixed defaults (see :data:`METHOD`). ``progress(fraction)`` (optional, may raise
     ``Cancelled``) from inside the estimates.
     """
@@ -359,11 +377,13 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     if terrain_slope is None:
         terrain_slope = steep_terrain_slope(z, (dx, dy))
+    if spacing_m is None:
+        spacing_m = height_spacing(z, (dx, dy))
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),
             "max_object_size_m": float(max_object_size_m), "tolerance_m": float(tolerance_m),
-            "terrain_slope": float(terrain_slope)}
+            "terrain_slope": float(terrain_slope), "spacing_m": float(spacing_m)}
 
 
 def curvature_halo(params: dict, cell_size: CellSize) -> int:
@@ -431,6 +451,12 @@ METHOD = Method(
               "cells than this slope does, so the foot of a hillside is no wall at coarse "
               "cells. Empty: the upper quartile of the slopes of 20 m block minima (the log "
               "gives it and the rise used).", minimum=0.0, maximum=100.0, advanced=True),
+        Param("spacing_m", "float", None,
+              "Metres between independent heights: where longer than two cells, a wall's "
+              "slope is judged over it (within 3 m), since a raster filled from sparser "
+              "points climbs a slope in risers of one point each. Empty: the cell over 1 - "
+              "the share of neighbours with equal heights, level areas left out (0: the cell).",
+              minimum=0.0, maximum=1000.0, advanced=True),
     ),
     title="Curvature filter (Luong Chinh Ke 2002)",
     description=(
