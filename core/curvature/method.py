@@ -429,7 +429,8 @@ METHOD = Method(
               "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "
               "cell with |K| >= K_g, or whose X or Y profile bends by sqrt(K_g) 1/m or more, "
               "is a break. Empty: (1.5 robust sigmas of the data's profile bends, with the "
-              "bend a height's place inside its cell gives on the median slope)^2, at least "
+              "bend a height's place inside its cell (or the spacing of the heights) gives "
+              "on the median slope)^2, at least "
               "the bend of 5 cm over 2 m (at most that of a minimum-height object over half "
               "a window); see "
               "the CURVATURE output to choose it.", minimum=1e-9, maximum=1e6),
@@ -467,8 +468,9 @@ METHOD = Method(
         Param("spacing_m", "float", None,
               "Metres between independent heights: where longer than two cells, a wall's "
               "slope is judged over it (within 3 m), since a raster filled from sparser "
-              "points climbs a slope in risers of one point each. Empty: the cell over 1 - "
-              "the share of neighbours with equal heights, level areas left out (0: the cell).",
+              "points climbs a slope in risers of one point each; the derived K_g allows "
+              "for a height's place within it. Empty: the cell over 1 - the share of "
+              "neighbours with equal heights, level areas left out (0: the cell).",
               minimum=0.0, maximum=1000.0, advanced=True),
     ),
     title="Curvature filter (Luong Chinh Ke 2002)",
