@@ -331,7 +331,7 @@ def noise_floor(sigma, quantum):
     return max(float(sigma), float(quantum) / math.sqrt(12.0))
 
 
-def repeated_height_share(z):
+def repeated_height_share(z, level_cells=0):
     """Share of the pairs of row and column neighbours (both heights finite) whose heights are exactly equal.
 
     A raster made from points with fewer points than cells repeats a point's height over the
@@ -340,12 +340,28 @@ def repeated_height_share(z):
     :func:`lowest_point_spread` takes as their spacing. A DSM with a height per cell reads
     near 0; whole-metre heights on flat land read high as well, and their rounding is the
     spread of such a step. Measured on :func:`sample_windows` of a large raster; 0 when no pair
-    is finite.
+    is finite. With ``level_cells`` > 1 (odd), the pairs touching a ``level_cells`` x ``level_cells``
+    square of one height (a level area: water, a constant fill of a gap, a noise-free plane)
+    are left out: one return's cells are no wider than the returns' spacing, while a level area
+    would count as one return repeated over all its cells.
     """
+    if level_cells > 1 and level_cells % 2 == 0:
+        raise ValueError(f"level_cells must be odd (a square centred on a cell); got {level_cells}")
     same = pairs = 0
     for w in sample_windows(np.asarray(z)):
-        for a, b in ((w[:, 1:], w[:, :-1]), (w[1:], w[:-1])):
+        level = None
+        if level_cells > 1:       # centres of level squares inside the window, then their cells
+            with np.errstate(invalid="ignore"):
+                v = np.where(np.isfinite(w), w, np.inf)
+                flat = ndimage.maximum_filter(v, level_cells, mode="constant", cval=np.inf) == \
+                    ndimage.minimum_filter(v, level_cells, mode="constant", cval=-np.inf)
+            flat &= np.isfinite(w)
+            level = ndimage.maximum_filter(flat, level_cells, mode="constant")
+        for sa, sb in ((np.s_[:, 1:], np.s_[:, :-1]), (np.s_[1:], np.s_[:-1])):
+            a, b = w[sa], w[sb]
             ok = np.isfinite(a) & np.isfinite(b)
+            if level is not None:
+                ok &= ~(level[sa] | level[sb])
             pairs += int(np.count_nonzero(ok))
             same += int(np.count_nonzero(ok & (a == b)))
     return float(same) / pairs if pairs else 0.0

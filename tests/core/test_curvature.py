@@ -287,6 +287,31 @@ def test_k_g_allows_the_place_of_heights_inside_coarse_cells(cell, monkeypatch):
     assert new.marked.mean() < 0.1 and new.by_k.mean() < 0.015
 
 
+def test_k_g_allows_the_place_of_heights_within_their_spacing():
+    """#12: a plane sloping 0.3 sampled by points 2.5 m apart, filled from the nearest
+    point at 1 m (as ISPRS samp51-71 at 1 m): each height was taken anywhere within the
+    points' spacing, not within its cell, and the staircase bends the fit accordingly. With
+    the place's bend over the cell, 31 % of the plane were breaks (1.1 % by |K| >= K_g);
+    over the spacing (:func:`.profiles.height_spacing`, derived) half as many."""
+    from bare_earth.core.points import rasterize_points
+    rng = np.random.default_rng(3)
+    g = np.arange(0, 160, 2.5)
+    x, y = np.meshgrid(g, g)
+    x = (x + rng.uniform(-0.2, 0.2, x.shape)).ravel()
+    y = (y + rng.uniform(-0.2, 0.2, y.shape)).ravel()
+    z, _ = rasterize_points(x, y, 100 + 0.3 * x + rng.normal(0, 0.03, x.shape), 1.0, reducer="min",
+                            fill_empty="nearest")
+    z = z[5:-5, 5:-5]
+    assert 2.2 < profiles.height_spacing(z, 1.0) < 2.6
+    k = curvature.derive_k_g(z, 1.0, min_object_height_m=1.0)
+    k_cell = curvature.derive_k_g(z, 1.0, min_object_height_m=1.0, spacing_m=0.0)
+    assert k == curvature.resolve_curvature_params(z, 1.0)["k_g_per_m2"]
+    new = derivatives.mark_breaks(z, (1.0, 1.0), k, window=5, model="quadratic")
+    old = derivatives.mark_breaks(z, (1.0, 1.0), k_cell, window=5, model="quadratic")
+    assert old.marked.mean() > 0.25 and old.by_k.mean() > 0.008
+    assert new.marked.mean() < 0.2 and new.by_k.mean() < 0.003
+
+
 def test_k_g_floor_governs_a_plane_at_1_m():
     z = _lowest_point_plane(1.0)
     assert curvature.derive_k_g(z, 1.0) == pytest.approx((2 * 0.05 / 2.0 ** 2) ** 2)
@@ -1003,6 +1028,73 @@ def test_hillsides_are_no_walls_at_coarse_cells(cell):
     res_old = curvature.filter_curvature(z, cell, **{**p, "terrain_slope": 0.0})
     assert (res.mask == OBJECT).mean() < (res_old.mask == OBJECT).mean()
     assert res.info["wall_rise_x_m"] == pytest.approx(2 * cell * p["terrain_slope"], rel=1e-4)
+
+
+def test_wall_rise_over_the_spacing_of_the_heights_exact():
+    """#12: where the independent heights lie farther apart than two cells, the wall slope
+    is judged over their spacing (within 3 m); the terrain's rise over two cells still."""
+    wall_rise = profiles.wall_rise
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=1.0) == 2.0        # a height per cell
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=2.0) == 2.0
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=2.5) == 2.5        # ISPRS samp61 at 1 m
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=5.0) == 3.0        # within 3 m
+    assert wall_rise(1.0, h_min=1.0, tan_wall=0.5, spacing=2.5) == 1.25
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=8.0) == 3.0   # terrain: two cells
+    assert wall_rise(4.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=12.0) == 4.0
+    assert wall_rise(2.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=2.5) == 3.0   # two cells: 4 m
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_height_spacing_exact(dtype):
+    """Every height repeated over 3 x 3 cells (points 3 cells apart filled from the nearest):
+    16 of the 23 neighbour pairs of each row and column are equal, 23 / 7 cells apart; a
+    height per cell: the cell; the coarser cell of the two."""
+    rng = np.random.default_rng(0)
+    z = np.repeat(np.repeat(rng.uniform(0, 100, (8, 8)), 3, axis=0), 3, axis=1).astype(dtype)
+    assert profiles.height_spacing(z, 1.0) == pytest.approx(23 / 7)
+    assert profiles.height_spacing(z, (0.5, 2.0)) == pytest.approx(2 * 23 / 7)
+    assert profiles.height_spacing(rng.uniform(0, 100, (24, 24)).astype(dtype), 2.0) == 2.0
+    assert curvature.resolve_curvature_params(z, 1.0)["spacing_m"] == pytest.approx(23 / 7)
+    assert curvature.resolve_curvature_params(z, 1.0, spacing_m=0.0)["spacing_m"] == 0.0
+    with pytest.raises(ValueError, match="spacing_m"):
+        curvature.filter_curvature(z, 1.0, k_g_per_m2=0.01, spacing_m=-1.0)
+
+
+def _sparse_dam(spacing=2.5, tan=0.85, seed=5):
+    """Points ``spacing`` m apart (jittered by 0.2 m) on ground sloping 2 % with an 8 m
+    dam of flanks ``tan`` rise/run (40 degrees) and a 6 m house 14 m wide, rasterised at
+    1 m by the lowest point with empty cells filled from the nearest (as ISPRS samp61 at
+    1 m). Returns the raster, the dam's and the house's cells."""
+    from bare_earth.core.points import rasterize_points
+    rng = np.random.default_rng(seed)
+    g = np.arange(0, 120, spacing)
+    x, y = np.meshgrid(g, g)
+    x = (x + rng.uniform(-0.2, 0.2, x.shape)).ravel()
+    y = (y + rng.uniform(-0.2, 0.2, y.shape)).ravel()
+    z = 100 + 0.02 * y + np.clip((16 - np.abs(x - 60)) * tan, 0, 8) + rng.normal(0, 0.03, x.shape)
+    z[(np.abs(x - 25) < 7) & (np.abs(y - 60) < 7)] += 6
+    r, gt = rasterize_points(x, y, z, 1.0, reducer="min", fill_empty="nearest")
+    xc = gt[0] + (np.arange(r.shape[1]) + 0.5) * gt[1]
+    yc = gt[3] + (np.arange(r.shape[0]) + 0.5) * gt[5]
+    xx, yy = np.meshgrid(xc, yc)
+    return r, np.abs(xx - 60) < 16, (np.abs(xx - 25) < 6) & (np.abs(yy - 60) < 6)
+
+
+def test_sparse_points_embankment_is_no_wall():
+    """#12, ISPRS samp61 at 1 m (points 2.25 m apart): filled from the nearest point, a
+    40 degree dam climbs in risers of about 2 m in one cell, each a wall over two cells
+    (86 % of the dam objects); judged over the points' spacing (2.4 m here) the risers are
+    no walls, and the house, a 6 m rise between two points, still is."""
+    z, dam, house = _sparse_dam()
+    p = curvature.resolve_curvature_params(z, 1.0)
+    assert 2.2 < p["spacing_m"] < 2.6
+    res = curvature.filter_curvature(z, 1.0, **p)
+    old = curvature.filter_curvature(z, 1.0, **{**p, "spacing_m": 0.0})
+    assert (old.mask[dam] == OBJECT).mean() > 0.6
+    assert (res.mask[dam] == OBJECT).mean() < 0.2
+    for r in (res, old):
+        assert (r.mask[house] == OBJECT).mean() > 0.95
+    assert res.info["wall_rise_x_m"] == pytest.approx(p["spacing_m"], abs=1e-4)
 
 
 def test_runs_cut_by_the_raster_edge_exact():

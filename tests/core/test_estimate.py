@@ -536,6 +536,21 @@ def test_repeated_height_share_of_a_sparse_cloud_filled_by_its_nearest_return():
     assert 1.0 / (1.0 - share) == pytest.approx(2.0, rel=0.1)             # about two cells per return
 
 
+def test_repeated_height_share_leaves_level_squares_out_exact():
+    """A level area is no return repeated over its cells: with ``level_cells`` the pairs
+    touching a square of that side of one height are left out (here the 4 x 4 level block
+    and the pairs reaching into it), the other pairs counted as before."""
+    z = np.kron(np.arange(16.0).reshape(4, 4) * 0.37, np.ones((2, 2))).astype(np.float32)   # 8 x 8, 2 x 2 returns
+    z[:4, :4] = 50.0                                   # a level square of 4 x 4 cells
+    assert est.repeated_height_share(z) == pytest.approx(72 / 112)
+    # left out: the 32 pairs touching the square (the 3 x 3 squares inside it cover it); of the
+    # 80 left, 48 are equal (24 row and 24 column pairs inside the other 2 x 2 returns)
+    assert est.repeated_height_share(z, level_cells=3) == pytest.approx(48 / 80)
+    assert est.repeated_height_share(z, level_cells=5) == pytest.approx(72 / 112)     # no 5 x 5 level square
+    with pytest.raises(ValueError, match="odd"):
+        est.repeated_height_share(z, level_cells=4)
+
+
 def test_noise_without_sampling_inverts_lowest_point_spread():
     spread = est.lowest_point_spread(0.03, 0.12, 1.0, 0.2)                   # spacing 1.25 m
     assert est.noise_without_sampling(spread, 0.12, 1.25) == pytest.approx(0.03, abs=1e-12)
