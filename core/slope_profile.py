@@ -732,14 +732,21 @@ def _joined_to_terrain(z, walled, objects, ground_ok, step_m):
     (eight times its box's area around it: a region joined to the terrain has a majority of
     ground there), so the work follows the regions' size and stays within the halo.
     """
-    lab, n = ndimage.label(walled, structure=np.ones((3, 3), bool))
-    if n == 0:
+    idx = np.flatnonzero(walled)
+    if idx.size == 0:
         return walled
-    near = np.zeros(walled.shape, bool)
     H, W = walled.shape
-    for r, c in ndimage.find_objects(lab):
-        h, w = r.stop - r.start, c.stop - c.start
-        near[max(0, r.start - h):min(H, r.stop + h), max(0, c.start - w):min(W, c.stop + w)] = True
+    n, comp = smooth_parts(z, idx, np.inf)          # the regions (8-connected), at their cells only
+    r, c = np.divmod(idx, W)
+    box = [np.full(n, H), np.zeros(n, np.intp), np.full(n, W), np.zeros(n, np.intp)]
+    np.minimum.at(box[0], comp, r)
+    np.maximum.at(box[1], comp, r + 1)
+    np.minimum.at(box[2], comp, c)
+    np.maximum.at(box[3], comp, c + 1)
+    near = np.zeros(walled.shape, bool)
+    for r0, r1, c0, c1 in zip(*(b.tolist() for b in box)):
+        h, w = r1 - r0, c1 - c0
+        near[max(0, r0 - h):min(H, r1 + h), max(0, c0 - w):min(W, c1 + w)] = True
     cells = np.flatnonzero(near & ground_ok)
     n_p, part = smooth_parts(z, cells, step_m)
     on_obj = objects.ravel()[cells]
@@ -756,21 +763,27 @@ def _ramps(z, one, ground, step_m, axis):
     them and off them onto the ground at the terrain's slope (a ramp or an embankment's
     crest, joined to ground at both ends; its flanks are walls across it). A roof on a
     hillside joins the uphill ground on one side only."""
-    lab, n = ndimage.label(one, structure=np.ones((3, 3), bool))
-    if n == 0:
+    cells = np.flatnonzero(one)
+    if cells.size == 0:
         return one
-    keep = np.ones(n + 1, bool)
-    for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
-                 ((slice(None), slice(1, None)), (slice(None), slice(0, -1)))):
-        if axis == 0:
-            a, b = a[::-1], b[::-1]
+    n, comp = smooth_parts(z, cells, np.inf)        # the regions (8-connected), at their cells only
+    H, W = one.shape
+    pos = cells // W if axis == 0 else cells % W
+    size = H if axis == 0 else W
+    stride = W if axis == 0 else 1
+    zf, gf = z.ravel(), ground.ravel()
+    keep = np.ones(n, bool)
+    for d in (1, -1):
+        i = np.flatnonzero((pos + d >= 0) & (pos + d < size))
+        q = cells[i] + d * stride
         with np.errstate(invalid="ignore"):
-            e = ground[a] & one[b] & (np.abs(z[a] - z[b]) <= np.float32(step_m))
-        side = np.zeros(n + 1, bool)
-        side[lab[b][e]] = True
+            e = gf[q] & (np.abs(zf[q] - zf[cells[i]]) <= np.float32(step_m))
+        side = np.zeros(n, bool)
+        side[comp[i[e]]] = True
         keep &= side
-    keep[0] = False
-    return keep[lab]
+    out = np.zeros(one.size, bool)
+    out[cells] = keep[comp]
+    return out.reshape(one.shape)
 
 
 def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
@@ -899,10 +912,10 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     # ... and runs of one axis on a ramp: joined to the ground on both sides along the other
     ok = valid & ~low
     one = obj & (obj_x ^ obj_y)
-    one &= _joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
     ground = ok & ~obj
-    obj &= ~(_ramps(zs, one & obj_y, ground, dh_eff + cell[0] * tan_t, 1)
-             | _ramps(zs, one & obj_x, ground, dh_eff + cell[1] * tan_t, 0))
+    one = (_ramps(zs, one & obj_y, ground, dh_eff + cell[0] * tan_t, 1)
+           | _ramps(zs, one & obj_x, ground, dh_eff + cell[1] * tan_t, 0))
+    obj &= ~_joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
     del raised_x, raised_y, zs
     report(progress, 0.8)
     # 4. optional refinement against the interpolated ground
