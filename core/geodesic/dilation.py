@@ -9,11 +9,10 @@ import functools
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..blocks import run_sharing
 from ..common import report, sub_progress
+from ..estimate import smooth_parts
 from .grey import (
     S8,
     block_reduce,
@@ -266,47 +265,6 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
         rim_s = np.bincount(parts, weights=abrupt, minlength=n_p + 1)
         keep[sub] = (rim_s >= edge_ratio * rim_n)[parts]
     return keep
-
-
-def smooth_parts(w, cells, step_m):
-    """The parts of the cells ``cells`` (flat indices into ``w``) joined across 8-neighbour
-    edges whose heights differ by at most ``step_m`` (a wall, a NaN, a cell outside ``cells``
-    separates them): ``(n, part)``, ``part[i]`` in ``0 .. n - 1`` the part of ``cells[i]``.
-
-    Examples
-    --------
-    >>> w = np.array([[0, 0, 5, 5], [0, 0, 5, 9]], np.float32)
-    >>> smooth_parts(w, np.arange(8), 1.0)
-    (3, array([0, 0, 1, 1, 0, 0, 1, 2], dtype=int32))
-    """
-    H, W = w.shape
-    n_c = cells.size
-    if n_c == 0:
-        return 0, np.zeros(0, np.int32)
-    # the cells in a layout one column wider (a padding column after each row, never a cell): a neighbour
-    # beyond the row's end lands there, so no bounds test is needed; each cell's position in ``cells`` is
-    # looked up by that index over the span the cells and their neighbours cover (a gather where a sorted
-    # search took 3/4 of the time), and the heights are read once, at the cells
-    W1 = W + 1
-    cp = cells + cells // W
-    lo = int(cp.min())
-    pos = np.full(int(cp.max()) + W1 + 2 - lo, -1, np.int32 if n_c < 2 ** 31 else np.int64)
-    pos[cp - lo] = np.arange(n_c, dtype=pos.dtype)
-    cp -= lo
-    wc = w.ravel()[cells]
-    heads, tails = [], []
-    for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
-        j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
-        i = np.flatnonzero(j >= 0)
-        j = j[i].astype(np.intp)
-        with np.errstate(invalid="ignore"):
-            smooth = np.abs(wc[i] - wc[j]) <= step_m
-        heads.append(i[smooth])
-        tails.append(j[smooth])
-    del pos
-    a, b = np.concatenate(heads), np.concatenate(tails)
-    graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_c, n_c))
-    return connected_components(graph, directed=False)
 
 
 def _component_stats(lab, n, sel, values, inner, flag, flag_min):

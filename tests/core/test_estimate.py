@@ -806,3 +806,12 @@ def test_raised_region_width_of_a_level_running_off_the_raster():
     box = np.zeros((40, 40), np.float32)
     box[10:15, 10:16] = 6.0
     assert est.raised_region_width(box, (1.0, 1.0), 0.5, 10.0) == 0.0        # a small building
+
+
+def test_smooth_parts_joined_across_steps_up_to_step_m():
+    from bare_earth.core.estimate import smooth_parts
+    w = np.array([[0, 0.5, 5, 5], [0, 0, 5, 9]], np.float32)
+    n, part = smooth_parts(w, np.arange(8), 1.0)
+    assert n == 3 and part.tolist() == [0, 0, 1, 1, 0, 0, 1, 2]
+    n, part = smooth_parts(w, np.arange(8), 0.4)    # the 0.5 step splits the left part too
+    assert n == 4 and part.tolist() == [0, 1, 2, 2, 0, 0, 2, 3]
