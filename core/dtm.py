@@ -65,10 +65,11 @@ and which stand more than ``t`` above the plane of the ground beyond those steps
 half their area; the regions are cut at walls higher than ``s = t, 2 t, 4 t, ...``, so that a roof
 of several levels is one region above its inner steps. A terrace's upper level joined to the
 ground by a bank or a ramp, a plateau, a hilltop or a dam (banks wider than a wall) stays ground
-(lidar ``sample_c``, one roof over 80-90 % of its tile, at 2 m: 88.1 -> 0.01 %). A level cut by the
-raster's edge on two opposite sides (a terrain step running across the raster) is mirrored at both
-and spans three times what is seen: beyond the stage's reach unless short, it is left to the vote
-(``sample_c`` at 0.5 and 4 m stays 88 %: inside one tile such a roof and a terrain step are alike).
+(lidar ``sample_c``, one roof over 75-80 % of its tile: 88 -> 0.2 / 0.01 / 0.3 % at 0.5 / 2 / 4 m). A
+level whose wall runs across the raster (meeting two opposite sides: a terrain step, a river's walls)
+continues beyond both: the wall's run mirrored at both spans three times what is seen, beyond the
+stage's reach unless short, and the level is left to the vote (inside one tile such a wall and a roof's
+wall are alike; a wall cutting off a corner of the raster, meeting two adjacent sides, is a roof's).
 Every candidate's decision is in ``info["raised_regions"]``.
 
 A low roof narrower than those windows (an annex, the lower level of a building, 2-4 m high) is kept
@@ -346,10 +347,13 @@ def describe_region(d):
     """One decision of :func:`.dtm_regions.find_raised_regions` as a sentence for the log."""
     r0, c0, r1, c1 = d["bbox"]
     above = "not tested" if d["above_share"] is None else "{:.0f} %".format(100 * d["above_share"])
-    return ("rows {}-{}, columns {}-{} (cut at walls over {:g} m): {} cells, {:g} m wide, {:.0f} % of its outline on "
-            "steps, {} above the ground around: {}").format(r0, r1, c0, c1, d.get("step_m", 0.0), d["cells"],
-                                                          d["width_m"], 100 * d["step_share"], above,
-                                                          "object" if d["object"] else "ground")
+    head = "rows {}-{}, columns {}-{} (cut at walls over {:g} m): {} cells, {:g} m wide, ".format(
+        r0, r1, c0, c1, d.get("step_m", 0.0), d["cells"], d["width_m"])
+    if not d.get("reached", True):
+        return head + ("its walls run {:g} m mirrored at the raster's edge (a wall across the raster continues "
+                       "beyond both sides), beyond the stage's reach: left to the vote").format(d["walls_m"])
+    return head + "{:.0f} % of its outline on steps, {} above the ground around: {}".format(
+        100 * d["step_share"], above, "object" if d["object"] else "ground")
 
 
 def characterise(z, cell_size):
