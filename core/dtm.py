@@ -69,7 +69,8 @@ ground by a bank or a ramp, a plateau, a hilltop or a dam (banks wider than a wa
 level whose wall runs across the raster (meeting two opposite sides: a terrain step, a river's walls)
 continues beyond both: the wall's run mirrored at both spans three times what is seen, beyond the
 stage's reach unless short, and the level is left to the vote (inside one tile such a wall and a roof's
-wall are alike; a wall cutting off a corner of the raster, meeting two adjacent sides, is a roof's).
+wall are alike; a wall cutting off a corner of the raster, meeting two adjacent sides, is a roof's,
+unless the ground beyond it steps down again: quarry benches, terraces around a pit stay ground).
 Every candidate's decision is in ``info["raised_regions"]``.
 
 A low roof narrower than those windows (an annex, the lower level of a building, 2-4 m high) is kept
@@ -352,6 +353,10 @@ def describe_region(d):
     if not d.get("reached", True):
         return head + ("its walls run {:g} m mirrored at the raster's edge (a wall across the raster continues "
                        "beyond both sides), beyond the stage's reach: left to the vote").format(d["walls_m"])
+    if d.get("steps_beyond", 0) > d["outline_cells"] / 2:
+        return head + ("cut by the raster's edge on two opposite sides, the ground beyond its walls stepping down "
+                       "again over {} cells (its outline {}): one of a sequence of levels, left to the vote").format(
+                           d["steps_beyond"], d["outline_cells"])
     return head + "{:.0f} % of its outline on steps, {} above the ground around: {}".format(
         100 * d["step_share"], above, "object" if d["object"] else "ground")
 

@@ -56,7 +56,11 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    own box: ``sample_c``'s roof meets all four sides of its tile (a corner of it at one side, by
    a few cells or none depending on the cell size) while its one wall cuts off the opposite
    corner, and the level's box mirrored at both pairs of sides left it to the vote at 0.5 and
-   4 m and took it at 2 m.
+   4 m and took it at 2 m. A roof stands on the ground: a level the raster cuts on two opposite
+   sides is judged only while the ground seen beyond its walls steps down no further (rims of
+   the scale beyond its own, over at most half as many cells as its outer outline); quarry
+   benches or terraces around a pit in a corner of the raster are a sequence of such levels,
+   each stepping down to the next, and are left to the vote.
 
 The decided regions and their rims (voted ground cells next to the region standing more than
 ``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
@@ -130,8 +134,9 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         One per candidate region (once, at the first scale it is an object at, else the first it is a
         candidate at): its bounding box (cells), the scale ``s`` (m), size, width (m), the run of its walls
         mirrored at the raster's edge (``walls_m``) and whether the stage reaches it (``reached``; if not, it
-        is left to the vote), share of outline cells on steps, share of cells above the plane of the ground
-        around, and the decision.
+        is left to the vote), for a region the raster cuts on two opposite sides the rims beyond its own
+        (``steps_beyond``; more than half its outline cells leave it to the vote), share of outline cells on
+        steps, share of cells above the plane of the ground around, and the decision.
     """
     z = np.asarray(z, np.float32)
     shape = z.shape
@@ -356,6 +361,17 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
         if not d["reached"]:
             decisions.append(d)                         # beyond the stage's reach: left to the vote
             continue
+        if (r0 == 0 and box[0].stop == shape[0]) or (c0 == 0 and box[1].stop == shape[1]):
+            # a level the raster cuts on two opposite sides, its walls within the reach (cutting off a corner):
+            # a roof stands on the ground, and the ground seen beyond its walls steps down no further; ground
+            # there stepping down again (walls of the scale beyond the region's own, the rims not within 3 cells
+            # of it) along more than half as many cells as the region's outline makes it one of a sequence of
+            # levels (quarry benches, terraces) the raster cuts: left to the vote
+            own = ndimage.binary_dilation(reg, structure=np.ones((3, 3), bool), iterations=3)
+            d["steps_beyond"] = int(np.count_nonzero(rim[sub] & ~own))
+            if d["steps_beyond"] > n_outer / 2:
+                decisions.append(d)
+                continue
         a, b = starts[k], stops[k]
         use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
         if step_share > 0.5 and np.count_nonzero(use) >= 3:
