@@ -65,12 +65,14 @@ and which stand more than ``t`` above the plane of the ground beyond those steps
 half their area; the regions are cut at walls higher than ``s = t, 2 t, 4 t, ...``, so that a roof
 of several levels is one region above its inner steps. A terrace's upper level joined to the
 ground by a bank or a ramp, a plateau, a hilltop or a dam (banks wider than a wall) stays ground
-(lidar ``sample_c``, one roof over 80-90 % of its tile, at 2 m: 88.1 -> 0.01 %). A level cut by the
-raster's edge on two opposite sides (a terrain step running across the raster) is mirrored at both
-and spans three times what is seen: beyond the stage's reach unless short, it is left to the vote
-(``sample_c`` at 0.5 and 4 m stays 88 %: inside one tile such a roof and a terrain step are alike).
-Every candidate's decision is in ``info["raised_regions"]``. On a steep hillside the members' thresholds,
-which grow with the slope, keep the part of a roof nearest the slope: a level narrower than the windows
+(lidar ``sample_c``, one roof over 75-80 % of its tile: 88 -> 0.2 / 0.01 / 0.3 % at 0.5 / 2 / 4 m). A
+level whose wall runs across the raster (meeting two opposite sides: a terrain step, a river's walls)
+continues beyond both: the wall's run mirrored at both spans three times what is seen, beyond the
+stage's reach unless short, and the level is left to the vote (inside one tile such a wall and a roof's
+wall are alike; a wall cutting off a corner of the raster, meeting two adjacent sides, is a roof's,
+unless the ground beyond it steps down again: quarry benches, terraces around a pit stay ground).
+Every candidate's decision is in ``info["raised_regions"]``. On a steep hillside the members'
+thresholds, which grow with the slope, keep the part of a roof nearest the slope: a level narrower than the windows
 that the vote calls mostly an object, cut into the hillside on one side (its outline below the ground
 beyond) and on steps elsewhere, is tested the same way and its voted ground turned into objects (ISPRS
 sample 11 at 1 m: lowest point 9.33 -> 9.11 %, highest 10.11 -> 9.86; no other row of the matrix moves).
@@ -361,10 +363,17 @@ def describe_region(d):
     """One decision of :func:`.dtm_regions.find_raised_regions` as a sentence for the log."""
     r0, c0, r1, c1 = d["bbox"]
     above = "not tested" if d["above_share"] is None else "{:.0f} %".format(100 * d["above_share"])
-    return ("rows {}-{}, columns {}-{} (cut at walls over {:g} m): {} cells, {:g} m wide, {:.0f} % of its outline on "
-            "steps, {} above the ground around: {}").format(r0, r1, c0, c1, d.get("step_m", 0.0), d["cells"],
-                                                          d["width_m"], 100 * d["step_share"], above,
-                                                          "object" if d["object"] else "ground")
+    head = "rows {}-{}, columns {}-{} (cut at walls over {:g} m): {} cells, {:g} m wide, ".format(
+        r0, r1, c0, c1, d.get("step_m", 0.0), d["cells"], d["width_m"])
+    if not d.get("reached", True):
+        return head + ("its walls run {:g} m mirrored at the raster's edge (a wall across the raster continues "
+                       "beyond both sides), beyond the stage's reach: left to the vote").format(d["walls_m"])
+    if d.get("steps_beyond", 0) > d["outline_cells"] / 2:
+        return head + ("cut by the raster's edge on two opposite sides, the ground beyond its walls stepping down "
+                       "again over {} cells (its outline {}): one of a sequence of levels, left to the vote").format(
+                           d["steps_beyond"], d["outline_cells"])
+    return head + "{:.0f} % of its outline on steps, {} above the ground around: {}".format(
+        100 * d["step_share"], above, "object" if d["object"] else "ground")
 
 
 def characterise(z, cell_size):

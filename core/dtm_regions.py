@@ -26,9 +26,11 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    narrower ones the members' windows reach, and their vote stands. Beyond the raster's edge
    nothing is seen: a region cut by it may continue there, and its width is that of the region
    mirrored at the edge (as the slope-profile and curvature filters take a profile cut by the
-   edge); a region wider than the stage reaches (``max_cells`` cells) is left alone, its span along
-   each axis mirrored at every side the edge cuts (a level cut on two opposite sides spans three
-   times what is seen).
+   edge); a region spanning more cells than the stage reaches (``max_cells``), or wider, is left
+   alone, and so is a region whose *walls* run farther: the box of its outer outline (below) along
+   each axis, mirrored at every side of the raster the outline meets (a wall running across the
+   raster, from one side to the opposite one, continues beyond both and spans three times what is
+   seen; a wall cutting off a corner meets two adjacent sides and spans twice what is seen).
    **Cut into a hillside.** On a steep hillside the members' thresholds, which grow with the terrain slope
    and their windows, pass the part of a roof nearest the slope: the vote splits the roof's level into
    objects (its part standing high above the hillside) and ground (its part against it). Such a *level* - an
@@ -65,11 +67,19 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    banks of more than two cells fails the outline test; a region that sinks below the ground
    around behind its walls fails the plane. An upper level whose whole seen edge is a wall
    and which runs off the raster elsewhere looks, within the raster, like a roof running off it
-   (lidar ``sample_c``: a roof over 80-90 % of its tile); within the stage's reach it is taken
+   (lidar ``sample_c``: a roof over 75-80 % of its tile); within the stage's reach it is taken
    as one. A terrain step running across the raster (a retaining wall, a river's walls, quarry
-   benches) is such a level cut on two opposite sides: mirrored at both, it is beyond the
-   stage's reach unless shorter than a third of it (a 5 m step across a 200 m tile at 1 m cells
-   came out half objects before).
+   benches) is such a level whose wall meets two opposite sides: mirrored at both, the wall is
+   beyond the stage's reach unless shorter than a third of it (a 5 m step across a 200 m tile at
+   1 m cells came out half objects before). The reach is that of the walls, not of the level's
+   own box: ``sample_c``'s roof meets all four sides of its tile (a corner of it at one side, by
+   a few cells or none depending on the cell size) while its one wall cuts off the opposite
+   corner, and the level's box mirrored at both pairs of sides left it to the vote at 0.5 and
+   4 m and took it at 2 m. A roof stands on the ground: a level the raster cuts on two opposite
+   sides is judged only while the ground seen beyond its walls steps down no further (rims of
+   the scale beyond its own, over at most half as many cells as its outer outline); quarry
+   benches or terraces around a pit in a corner of the raster are a sequence of such levels,
+   each stepping down to the next, and are left to the vote.
 
 The decided regions and their rims (voted ground cells next to the region standing more than
 ``t`` above the plane: the cells on top of the walls) become objects; the DTM is then
@@ -143,8 +153,11 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         The cells of the decided regions and their rims.
     decisions : list of dict
         One per candidate region (once, at the first scale it is an object at, else the first it is a
-        candidate at): its bounding box (cells), the scale ``s`` (m), size, width (m), share of outline
-        cells on steps, share of cells above the plane of the ground around, and the decision.
+        candidate at): its bounding box (cells), the scale ``s`` (m), size, width (m), the run of its walls
+        mirrored at the raster's edge (``walls_m``) and whether the stage reaches it (``reached``; if not, it
+        is left to the vote), for a region the raster cuts on two opposite sides the rims beyond its own
+        (``steps_beyond``; more than half its outline cells leave it to the vote), share of outline cells on
+        steps, share of cells above the plane of the ground around, and the decision.
     """
     z = np.asarray(z, np.float32)
     shape = z.shape
@@ -326,14 +339,11 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
     cell = float(min(cell_size))
 
     def keep(r0, r1, c0, c1):
-        # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide
+        # a region cut by the raster's edge may continue beyond it: seen mirrored there, twice as wide;
+        # the stage reaches the regions spanning at most max_cells (its walls' run is tested below)
         spans = np.maximum(r1 - r0, c1 - c0)
         cut = (r0 == 0) | (c0 == 0) | (r1 == shape[0]) | (c1 == shape[1])
-        # its span along each axis mirrored at every side the edge cuts (a level cut on two opposite
-        # sides, a terrain step running across the raster, is mirrored at both): the stage reaches it
-        # only if it reaches that span
-        reach = np.maximum(*edge_mirrored_spans(r0, r1, c0, c1, shape))
-        return (np.where(cut, 2, 1) * spans * cell >= min_width_m) & (reach <= max_cells)
+        return (np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)
 
     lab, boxes = scales.regions(step_m, keep)
     if lab is None:
@@ -566,6 +576,28 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
         n_outer = int(np.count_nonzero(outer))
         step_share = float(np.count_nonzero(outer & step[sub])) / max(1, n_outer)
         d.update(outline_cells=n_outer, step_share=round(step_share, 3), above_share=None, object=False)
+        if not cut_in:
+            # the run of its walls (the outer outline's box) mirrored at every side of the raster it meets: a
+            # wall running across the raster (meeting two opposite sides: a terrain step, a river's wall, quarry
+            # benches) continues beyond both and spans three times what is seen; the stage reaches the region
+            # only if it reaches that run (a wall cutting off a corner of the raster meets two adjacent sides).
+            # A level cut into a hillside is seen whole: none of this applies to it.
+            run = _walls_reach(outer, g0, g1, shape)
+            d.update(walls_m=round(run * cell, 1), reached=run <= max_cells)
+            if not d["reached"]:
+                decisions.append(d)                     # beyond the stage's reach: left to the vote
+                continue
+            if (r0 == 0 and box[0].stop == shape[0]) or (c0 == 0 and box[1].stop == shape[1]):
+                # a level the raster cuts on two opposite sides, its walls within the reach (cutting off a
+                # corner): a roof stands on the ground, and the ground seen beyond its walls steps down no
+                # further; ground there stepping down again (walls of the scale beyond the region's own, the rims
+                # not within 3 cells of it) along more than half as many cells as the region's outline makes it
+                # one of a sequence of levels (quarry benches, terraces) the raster cuts: left to the vote
+                own = ndimage.binary_dilation(reg, structure=np.ones((3, 3), bool), iterations=3)
+                d["steps_beyond"] = int(np.count_nonzero(rim[sub] & ~own))
+                if d["steps_beyond"] > n_outer / 2:
+                    decisions.append(d)
+                    continue
         a, b = starts[k], stops[k]
         use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
         if step_share > 0.5 and np.count_nonzero(use) >= 3:
@@ -587,6 +619,17 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
                 objects[sub] |= (reg & ground[sub]) | (near & rim[sub] & above)
         decisions.append(d)
     return objects, decisions
+
+
+def _walls_reach(outer, r0, c0, shape):
+    """The span (cells) of the outer outline ``outer`` (a region's box grown by a cell, corner ``(r0, c0)`` in
+    the raster of ``shape``) along each axis, mirrored at every side of the raster it meets; the larger."""
+    rows = np.flatnonzero(outer.any(axis=1))
+    if rows.size == 0:
+        return 0
+    cols = np.flatnonzero(outer.any(axis=0))
+    spans = edge_mirrored_spans(r0 + rows[0], r0 + rows[-1] + 1, c0 + cols[0], c0 + cols[-1] + 1, shape)
+    return int(max(spans[0], spans[1]))
 
 
 def _slices2(dr, dc, h, w):

@@ -1,11 +1,13 @@
 """bareearth:dtm's raised regions: voted ground wider than the vote's windows standing on steps above the ground."""
 import numpy as np
 import pytest
+from scipy import ndimage
 from surfaces import grid, in_blocks, noisy, raised_ground
 
 from bare_earth.core import dtm_refine as dr
 from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, OBJECT
+from bare_earth.core.dtm import describe_region
 from bare_earth.core.dtm_regions import REACH_CELLS, find_detached_levels, find_raised_regions, regions_halo
 
 
@@ -76,8 +78,35 @@ def test_a_level_cut_by_two_opposite_edges_is_left_alone():
     z[:, 15:] = 4.0
     objects, decisions = _find(z)
     assert not objects.any() and not any(d["object"] for d in decisions)
+    # the decision says why: its wall runs across the raster, 3 x 40 cells mirrored at both ends
+    left = [d for d in decisions if d["bbox"] == [0, 16, 40, 40]]      # the upper level (its wall's top: rims)
+    assert len(left) == 1 and not left[0]["reached"] and left[0]["walls_m"] == 120.0
+    assert describe_region(left[0]).endswith("beyond the stage's reach: left to the vote")
     # a stage reaching that far takes it for a roof: the terrain step and the roof are alike within the raster
     assert np.array_equal(_find(z, max_cells=120)[0], z > 0)
+
+
+def test_a_level_whose_wall_cuts_off_a_corner_is_judged_by_its_walls_run():
+    # a level over most of the raster meeting all four sides (two opposite pairs), its one wall cutting off a
+    # corner (meeting two adjacent sides, a roof running off the raster beyond three sides): its wall's run,
+    # mirrored at the two sides it meets, spans 2 x 23 cells, within the stage's reach, though the level's own
+    # box mirrored at its four sides spans 3 x 40 (a terrain step's wall meets two opposite sides)
+    y, x = grid(40)
+    z = np.where(x + y > 20, 4.0, 0.0).astype(np.float32)
+    objects, decisions = _find(z)
+    assert np.array_equal(objects, z > 0)
+    upper = [d for d in decisions if d["object"]]
+    assert len(upper) == 1 and upper[0]["reached"] and upper[0]["walls_m"] == 46.0
+    assert upper[0]["step_share"] > 0.9 and upper[0]["above_share"] == 1.0     # (the wall's ends: no ground beyond)
+    assert not _find(z, max_cells=39)[0].any()              # the level spans more cells than the stage reaches
+    # quarry benches: beyond that wall the ground steps down again (a second wall, 4 m, cutting off the corner):
+    # the level is one of a sequence of levels the raster cuts, left to the vote, and the log says why
+    z = np.where(x + y > 20, 4.0, np.where(x + y > 10, 0.0, -4.0)).astype(np.float32)
+    objects, decisions = _find(z)
+    assert not objects.any()
+    upper = [d for d in decisions if d["bbox"] == [0, 0, 40, 40]]
+    assert upper and all(d["steps_beyond"] > d["outline_cells"] / 2 for d in upper)
+    assert describe_region(upper[0]).endswith("one of a sequence of levels, left to the vote")
 
 
 @pytest.mark.parametrize("n", [200, 400])
@@ -496,3 +525,63 @@ def test_the_scales_regions_merged_from_one_labelling_are_those_of_a_labelling_p
         assert np.array_equal(lab, renum[want])
         seen += n
     assert seen > 50
+
+
+def _tile(cell, width_m=84.0, height_m=75.0):
+    """Cell-centre coordinates (metres) of a ``width_m`` x ``height_m`` tile at ``cell`` metres."""
+    y, x = np.mgrid[0:int(round(height_m / cell)), 0:int(round(width_m / cell))].astype(np.float32)
+    return (y + 0.5) * cell, (x + 0.5) * cell
+
+
+def _corner_cut(y, x):
+    """Distance (metres, positive beyond it) from the line cutting off the tile's top left corner from
+    (50, 0) to (0, 72): the far side covers 71 % of an 84 m x 75 m tile and meets all four of its sides."""
+    return (x * 72.0 + y * 50.0 - 3600.0) / np.hypot(72.0, 50.0)
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+@pytest.mark.parametrize("shape", ["corner", "diagonal"])
+def test_dtm_takes_a_roof_over_most_of_a_tile_as_an_object_at_every_cell_size(cell, shape):
+    # as lidar/sample_c (84 m x 75 m, a roof 25 m high over three quarters of it): a flat roof over about
+    # 70 % of the tile, cut by its edges; ``corner``: walls on two sides, the tile's edges on the other two;
+    # ``diagonal``: one straight wall cutting off the tile's top left corner, so the roof meets all four
+    # sides (two opposite pairs) though its wall meets two adjacent ones. Before the wall's run decided the
+    # reach (the region's own box mirrored at every side it meets: 3 x 84 m, beyond the stage's 240 m), the
+    # diagonal roof was left to the vote at every cell size
+    y, x = _tile(cell)
+    ground = 30 + 0.01 * x
+    roof = (x > 15) & (y > 12) if shape == "corner" else _corner_cut(y, x) > 0
+    assert 0.65 < roof.mean() < 0.75
+    z = noisy(np.where(roof, 50.0, ground), sd=0.05)
+    res = pipeline.run_array("dtm", z, cell)
+    inner = roof & ~ndimage.binary_dilation(~roof, iterations=1)          # the roof less its edge cells
+    assert (res.mask[inner] == OBJECT).all()
+    assert (res.mask[~roof] == GROUND).mean() > 0.99
+    assert any(s.endswith(": object") for s in res.info["raised_regions"])
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+def test_dtm_keeps_a_terrace_over_most_of_a_tile_joined_by_a_bank(cell):
+    # the same level as the diagonal roof, 6 m high, joined to the lower ground by a bank of slope 1:2 (12 m
+    # wide) along its whole edge: ground at every cell size
+    y, x = _tile(cell)
+    d = _corner_cut(y, x)
+    z = noisy(30 + 0.01 * x + np.clip(d / 2.0, 0.0, 6.0), sd=0.05)
+    res = pipeline.run_array("dtm", z, cell)
+    assert np.count_nonzero(res.mask == OBJECT) == 0
+    assert res.info["raised_region_cells"] == 0
+
+
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0])
+@pytest.mark.parametrize("shape", ["straight", "round"])
+def test_dtm_keeps_quarry_benches_cutting_off_a_corner(cell, shape):
+    # a quarry in a corner of the raster (200 x 200 cells): benches 30 cells wide, 6 m apart, the floor in
+    # the corner; the level around the pit meets all four sides and its wall cuts off the corner, as the
+    # roof above, but the ground beyond that wall steps down again: ground at every cell size (with the
+    # walls' run alone, 79 % (straight) and 71 % (round) of the cells were objects at 0.5 m)
+    y, x = grid(200)
+    r = (x + y) / np.sqrt(2) if shape == "straight" else np.hypot(x, y)
+    top = 120 if shape == "straight" else 150
+    z = noisy(100 - 6.0 * np.clip(np.floor((top - r) / 30), 0, None), sd=0.05)
+    res = pipeline.run_array("dtm", z, cell)
+    assert np.count_nonzero(res.mask == OBJECT) == 0
