@@ -592,7 +592,7 @@ def _run_file(info, run, pool):
         out.commit(progress=sub_progress(run.progress, 0.97, 1.0))
     far = info.far_cells if whole is not None else writer.far_cells
     warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
-    if far and whole is None:
+    if far:                 # whole or in blocks, the log (QGIS's warnings) says it
         run.log("Warning: " + far_heights_message(far))
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}

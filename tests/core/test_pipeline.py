@@ -534,8 +534,11 @@ def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
         p = grid.write_array(tmp_path / "far.tif", z, GT, 32633)
         lines = []
         for block in (None, 5):
+            lines.clear()
             info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif"}, block=block, log=lines.append)
             assert any("1 cell" in w for w in info["warnings"]), block
+            # the log (QGIS's warnings) says it too, whether the raster was read whole or in blocks
+            assert any("1 cell" in w and "nodata" in w for w in lines), (block, lines)
             assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
 
 
