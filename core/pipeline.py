@@ -511,7 +511,8 @@ def _add_outputs(out, meth, outputs, float_nodata):
         if outputs.get(name):
             gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
                    np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
-            out.add(name, outputs[name], gdt, bands=bands, nodata=nod)
+            out.add(name, outputs[name], gdt, bands=bands, nodata=nod,
+                    descriptions=list(meth.extra_bands.get(name, ())) or None)
 
 
 def _aux_window(aux, outer):
