@@ -6,6 +6,7 @@ from qgis.core import (
     QgsFeatureRequest,
     QgsGeometry,
     QgsProcessingFeatureSource,
+    QgsWkbTypes,
 )
 
 from .compat import (
@@ -62,7 +63,8 @@ def source_geometries(source, info, context, label="the layer", types=None):
         if g is None or g.isNull() or g.isEmpty():
             continue
         if allowed and g.type() not in allowed:
-            raise ValueError(f"{label} holds {names.get(g.type(), 'geometries')} (feature {f.id()}) but takes "
+            kind = names.get(g.type()) or f"{QgsWkbTypes.displayString(g.wkbType())} geometries"  # a collection
+            raise ValueError(f"{label} holds {kind} (feature {f.id()}) but takes "
                              f"{' or '.join(allowed.values())}: give a layer of {' or '.join(allowed.values())}.")
         if check != INVALID_GEOMETRY_NO_CHECK and not g.isGeosValid():
             if check == INVALID_GEOMETRY_SKIP:

@@ -94,14 +94,33 @@ def far_heights_message(n):
             "cells. Declare the raster's nodata value to silence this.")
 
 
-def as_cell_size(cell_size):
-    """Return ``(dx, dy)`` in metres as floats; a scalar means square cells."""
+#: Significant digits of a cell size in metres kept (:func:`as_cell_size`). A cell size
+#: computed from an extent (``(xmax - xmin) / n``: 0.8000000000000287) or converted from feet
+#: (1 m cells in US survey feet: 1.0000000000000002 m; a lidar grid of 4 m in international
+#: feet: 3.9999999999999996 m) carries float noise of about 1e-13 of its value; the filters
+#: turn sizes in metres into cells by rounding ``size / cell``, where 30 /
+#: 1.0000000000000002 = 29.99... cells is a cell less than 30 / 1. Ten digits is more than
+#: any cell size needs (over a row of 1e5 cells, 1e-5 of a cell).
+CELL_DIGITS = 10
+
+
+def as_cell_pair(cell_size):
+    """Return ``(dx, dy)`` as floats, exactly as given (in any unit); a scalar means square
+    cells. ValueError unless one or two positive finite numbers."""
     c = np.atleast_1d(np.asarray(cell_size, dtype=float)).ravel()
     if c.size == 1:
         c = np.array([c[0], c[0]])
     if c.size != 2 or not np.all(np.isfinite(c)) or np.any(c <= 0):
-        raise ValueError(f"cell_size must be one or two positive numbers in metres; got {cell_size!r}.")
+        raise ValueError(f"cell_size must be one or two positive numbers; got {cell_size!r}.")
     return float(c[0]), float(c[1])
+
+
+def as_cell_size(cell_size):
+    """Return ``(dx, dy)`` in metres as floats; a scalar means square cells. Each is kept to
+    :data:`CELL_DIGITS` significant digits, so the float noise of its computation does not
+    move a window given in metres by a cell (a cell size in a CRS's own unit, e.g. feet,
+    is :func:`as_cell_pair`'s: rounding it would put noise into its size in metres)."""
+    return tuple(float(f"{v:.{CELL_DIGITS}g}") for v in as_cell_pair(cell_size))
 
 
 def nodata_mask(z):

@@ -943,6 +943,7 @@ METHOD = Method(
     resolve=resolve_dtm_params,
     halo=dtm_halo,
     extras={"confidence": (np.uint8, 1, NODATA)},
+    extra_bands={"confidence": ("confidence (%)",)},
     params=(),
     threads=True,
     title="DTM from DSM (recommended)",

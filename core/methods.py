@@ -116,6 +116,9 @@ class Method:
     extras : dict
         Per-cell side products the method returns in ``FilterResult.extras``:
         ``{name: (numpy dtype, bands, nodata)}``.
+    extra_bands : dict
+        What each band of a side product holds, ``{name: (description, ...)}``: the band
+        descriptions of its output file (what QGIS shows instead of "Band 1").
     params : tuple of Param
         The user parameters, in dialog order.
     title : str
@@ -132,6 +135,7 @@ class Method:
     resolve: Callable[..., Dict[str, Any]]      # (z, cell_size, **params) -> complete params
     halo: Callable[[Dict[str, Any], Tuple[float, float]], int]
     extras: Dict[str, Tuple[Any, int, Optional[float]]] = field(default_factory=dict)
+    extra_bands: Dict[str, Tuple[str, ...]] = field(default_factory=dict)
     params: Tuple[Param, ...] = ()
     title: str = ""
     description: str = ""

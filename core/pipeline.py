@@ -511,7 +511,8 @@ def _add_outputs(out, meth, outputs, float_nodata):
         if outputs.get(name):
             gdt = {np.uint8: "Byte", np.float32: "Float32", np.int16: "Int16",
                    np.uint16: "UInt16", np.int32: "Int32"}[np.dtype(dt).type]
-            out.add(name, outputs[name], gdt, bands=bands, nodata=nod)
+            out.add(name, outputs[name], gdt, bands=bands, nodata=nod,
+                    descriptions=list(meth.extra_bands.get(name, ())) or None)
 
 
 def _aux_window(aux, outer):
@@ -592,7 +593,7 @@ def _run_file(info, run, pool):
         out.commit(progress=sub_progress(run.progress, 0.97, 1.0))
     far = info.far_cells if whole is not None else writer.far_cells
     warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
-    if far and whole is None:
+    if far:                 # whole or in blocks, the log (QGIS's warnings) says it
         run.log("Warning: " + far_heights_message(far))
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}

@@ -18,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import as_cell_size
+from .common import as_cell_pair
 from .pointfiles import ASPRS_FROM_CLASS, LAS_INSTALL_HINT, PointCloud, import_laspy, read_points, write_points
 
 __all__ = ["PointCloud", "read_points", "rasterize_points", "sample_bilinear", "sample_bilinear_many",
@@ -106,7 +106,7 @@ def rasterize_points(x, y, z, cell_size=None, *, reducer="min", extent=None,
             area = max(xmax - xmin, ymax - ymin, 1.0) ** 2
         dx = dy = nice_cell_size(np.sqrt(area / x.size))
     else:
-        dx, dy = as_cell_size(cell_size)
+        dx, dy = as_cell_pair(cell_size)     # in the points' unit: as given
 
     if extent is None:
         x0 = np.floor(xmin / dx) * dx

@@ -424,6 +424,7 @@ METHOD = Method(
     resolve=resolve_curvature_params,
     halo=curvature_halo,
     extras={"curvature": (np.float32, 2, float("nan"))},
+    extra_bands={"curvature": ("Gaussian curvature K (1/m^2)", "mean curvature H (1/m)")},
     params=(
         Param("k_g_per_m2", "float", None,
               "Gaussian-curvature threshold K_g in 1/m^2 (Luong Chinh Ke 2002, sec. 2.2): a "

@@ -166,6 +166,7 @@ METHOD = Method(
     resolve=resolve_geodesic_params,
     halo=geodesic_halo,
     extras={"step": (np.uint8, 1, STEP_NODATA)},
+    extra_bands={"step": ("dilation step or stage that removed the cell (0 kept)",)},
     params=PARAMS,
     title="Gradual geodesic dilation with scan labelling (2018)",
     description=(

@@ -19,7 +19,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from ..common import MAX_ABS_HEIGHT_M, without_far_heights
+from ..common import MAX_ABS_HEIGHT_M, as_cell_size, without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
@@ -581,6 +581,7 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         srs = osr.SpatialReference()
         srs.ImportFromWkt(wkt)
     cell, w2, z_to_m = cell_size_metres(gt, (rows, cols), srs)
+    cell = as_cell_size(cell)               # without the float noise of its computation
     if min(cell) < MIN_CELL_M:
         size = f"{cell[0]:.3g} x {cell[1]:.3g} m"
         if srs is not None and srs.IsGeographic():

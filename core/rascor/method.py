@@ -15,6 +15,7 @@ def _run(z, cell_size, progress=None, breaklines=None, special_areas=None, **par
 METHOD = Method(
     name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo,
     extras={"step": (np.uint8, 1, 255)},
+    extra_bands={"step": ("RASCOR step that removed the cell (0 kept)",)},
     params=(
         Param("terrain_class", "enum", "auto", "Terrain type choosing the models (mean / "
               "linear / polynomial) and defaults; auto: classed from the DSM (step 1).",

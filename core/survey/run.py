@@ -40,8 +40,13 @@ def _param_value(param, text):
     """A parameter's text as its Param kind (float, int, bool, enum)."""
     if param.kind in ("float", "int"):
         try:
-            return float(text) if param.kind == "float" else int(text)
-        except ValueError:
+            value = float(text)
+            if param.kind == "int":          # 2 or 2.0, as the dialog's whole numbers take them
+                if not value.is_integer():
+                    raise ValueError
+                value = int(value)
+            return value
+        except (ValueError, OverflowError):
             raise ValueError(f"{param.name} takes {'a number' if param.kind == 'float' else 'a whole number'}; "
                              f"got {text!r}.") from None
     if param.kind == "bool":
@@ -50,8 +55,11 @@ def _param_value(param, text):
         if text.lower() in ("0", "false", "no", "off"):
             return False
         raise ValueError(f"{param.name} takes true or false; got {text!r}.")
-    if param.options and text not in param.options:
-        raise ValueError(f"{param.name} takes one of {', '.join(param.options)}; got {text!r}.")
+    if param.options:
+        match = [o for o in param.options if o.lower() == text.lower()]   # 'Flat' as the dialog shows it
+        if not match:
+            raise ValueError(f"{param.name} takes one of {', '.join(param.options)}; got {text!r}.")
+        return match[0]
     return text
 
 
@@ -66,11 +74,16 @@ def parse_params(method, items):
         items = [s for s in re.split(r"[\s,;]+", items) if s]
     known = {p.name: p for p in method.params}
     out = {}
+    previous = None
     for item in items or ():
         key, sep, text = item.partition("=")
         key = key.strip().lower()
         if not sep or not key:
+            if previous is not None and re.fullmatch(r"[^=]+=-?\d+", previous) and item.isdigit():  # 0,1
+                raise ValueError(f"parameter '{previous},{item}': write numbers with a decimal point "
+                                 f"({previous.partition('=')[2]}.{item}); commas separate parameters.")
             raise ValueError(f"parameter {item!r}: write KEY=VALUE.")
+        previous = item
         if key not in known:
             raise ValueError(f"parameter {key}: method {method.name!r} takes {', '.join(sorted(known))}.")
         try:

@@ -203,6 +203,19 @@ def test_us_survey_feet(tmp_path):
     assert any("linear unit" in w for w in info.warnings)
 
 
+@pytest.mark.parametrize("gt,crs,want", [
+    # 1 m cells given in US survey feet: 3.2808333333333337 ft x 0.30480060960121924 m/ft = 1.0000000000000002
+    ((6000000.0, 1 / (1200 / 3937), 0.0, 2000000.0, 0.0, -1 / (1200 / 3937)), 2227, (1.0, 1.0)),
+    # a cell size computed from an extent (OpenDroneMap's dsm.tif in the shared data)
+    ((500000.0, 0.8000000000000287, 0.0, 5400000.0, 0.0, -0.8000000000001306), 32632, (0.8, 0.8)),
+])
+def test_cell_size_without_the_float_noise_of_its_computation(tmp_path, gt, crs, want):
+    """A cell size's last digits of float noise are not kept: windows given in metres become
+    cells by rounding sizes / cell, and 30 m / 1.0000000000000002 m is 29.99... cells."""
+    info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), gt=gt, crs=crs))
+    assert info.cell_size_m == want
+
+
 def test_no_crs_warns(tmp_path):
     info = grid.open_dsm(tif(tmp_path, np.zeros((4, 4), np.float32), crs=""))
     assert info.crs_wkt == ""

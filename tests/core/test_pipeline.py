@@ -534,8 +534,11 @@ def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
         p = grid.write_array(tmp_path / "far.tif", z, GT, 32633)
         lines = []
         for block in (None, 5):
+            lines.clear()
             info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif"}, block=block, log=lines.append)
             assert any("1 cell" in w for w in info["warnings"]), block
+            # the log (QGIS's warnings) says it too, whether the raster was read whole or in blocks
+            assert any("1 cell" in w and "nodata" in w for w in lines), (block, lines)
             assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
 
 
@@ -704,3 +707,21 @@ def test_run_file_leaves_the_input_folder_byte_for_byte(tmp_path, kind):
     pipeline.run_file(ABOVE, src, outputs(out, "dtm", "ndsm", "mask"))
     grid.open_dsm(src).read()
     assert {p.name: p.read_bytes() for p in src_dir.iterdir()} == before
+
+
+@pytest.mark.parametrize("method,extra,names", [
+    ("curvature", "curvature", ["Gaussian curvature K (1/m^2)", "mean curvature H (1/m)"]),
+    ("rascor", "step", ["RASCOR step that removed the cell (0 kept)"]),
+    ("geodesic", "step", ["dilation step or stage that removed the cell (0 kept)"]),
+    ("dtm", "confidence", ["confidence (%)"]),
+])
+def test_side_products_name_their_bands(tmp_path, method, extra, names):
+    """A side product's bands say what they hold, as the DTM's and the mask's do: before, the
+    curvature output's two bands read 'Band 1' and 'Band 2' in QGIS, K and H unnamed."""
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(64, 72), seed=2)
+    p = grid.write_array(tmp_path / "dsm.tif", sc.dsm, GT, 32633)
+    out = tmp_path / f"{extra}.tif"
+    pipeline.run_file(method, p, {"mask": tmp_path / "m.tif", extra: out})
+    ds = gdal.Open(str(out))
+    assert [ds.GetRasterBand(k + 1).GetDescription() for k in range(ds.RasterCount)] == names

@@ -290,6 +290,22 @@ def test_parse_params_converts_to_the_params_kinds():
         parse_params(meth, "max_object_size_m=abc")
 
 
+def test_parse_params_reads_values_as_users_type_them():
+    """What the dialog and qgis_process take elsewhere: a whole number written as 2.0, an option
+    in any case (the key already was), and a decimal comma said to be one (before: 'sigma_m=0,1'
+    was refused as "parameter '1': write KEY=VALUE", 'snooping_iterations=2.0' and
+    'terrain_class=Flat' refused)."""
+    meth = get_method("rascor")
+    assert parse_params(meth, "SNOOPING_ITERATIONS=2.0 terrain_class=Flat surface_rule=RESIDUALS") == {
+        "snooping_iterations": 2, "terrain_class": "flat", "surface_rule": "residuals"}
+    with pytest.raises(ValueError, match="snooping_iterations takes a whole number; got '2.5'"):
+        parse_params(meth, "snooping_iterations=2.5")
+    with pytest.raises(ValueError, match=r"'sigma_m=0,1'.*decimal point \(0\.1\)"):
+        parse_params(meth, "sigma_m=0,1 jump_m=2")
+    with pytest.raises(ValueError, match=r"parameter '7': write KEY=VALUE"):
+        parse_params(meth, "sigma_m=0.1 7")
+
+
 # -- seamless ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("method", sorted(available_methods()))
 def test_tiled_mask_equals_the_one_pass_mask(survey, method):

@@ -415,7 +415,10 @@ BOWTIE = "POLYGON((500010 5399990, 500020 5399980, 500020 5399990, 500010 539998
     ("BREAKLINES", "Polygon", SQUARE, r"\(BREAKLINES\) holds polygons \(feature 1\) but takes lines"),
     ("OBJECT_AREAS", "Polygon", BOWTIE, r"\(OBJECT_AREAS\): feature 1 has an invalid geometry \(.*intersect.*\): "
                                         r"repair the layer"),
-], ids=["points_as_objects", "lines_as_objects", "polygons_as_breaklines", "invalid_polygon"])
+    # a collection of mixed kinds (a DXF's or a GeoJSON's): named as such (before: "holds geometries")
+    ("OBJECT_AREAS", "GeometryCollection", f"GEOMETRYCOLLECTION({SQUARE}, LINESTRING(500010 5399990, 500030 5399970))",
+     r"\(OBJECT_AREAS\) holds GeometryCollection geometries \(feature 1\) but takes polygons"),
+], ids=["points_as_objects", "lines_as_objects", "polygons_as_breaklines", "invalid_polygon", "collection_as_objects"])
 def test_dtm_layers_of_the_wrong_kind_or_invalid_refused_before_work(processing_run, tmp_path, key, kind, wkt,
                                                                      message):
     """Points or lines as OBJECT_AREAS, polygons as BREAKLINES: refused naming the layer (before: burnt as
