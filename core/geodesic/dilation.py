@@ -244,28 +244,38 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     3.95 -> 5.85 %; kept at their height 3.17 %).
     """
     H, W = w.shape
-    cells, owner = _fine_cells(blocks, f, Rc.shape[1], w.shape)
-    Rk = Rc.ravel()[blocks][owner]
-    del owner
+    # each block's reconstruction over its cells (inf outside the blocks): raster-sized arrays, where a
+    # list of the blocks' cells and their owners took twice the memory
+    lvl = np.full(Rc.size, np.inf, Rc.dtype)
+    lvl[blocks] = Rc.ravel()[blocks]
+    lvl = np.repeat(np.repeat(lvl.reshape(Rc.shape), f, axis=0)[:H], f, axis=1)[:, :W]
     with np.errstate(invalid="ignore"):
-        res = w.ravel()[cells] - Rk
-    sel = res > dh0
-    cells, res = cells[sel], res[sel]
-    del Rk
+        np.subtract(w, lvl, out=lvl)              # the residual (NaN at nodata, -inf off the blocks)
+    cand = lvl > dh0
+    cells = np.flatnonzero(cand)
     if cells.size == 0:
         return cells
-    cand = np.zeros(H * W, bool)
-    cand[cells] = True
-    cand = cand.reshape(H, W)
-    values = np.zeros(H * W, np.float32)
-    values[cells] = res
+    res = lvl.ravel()[cells]
+    del lvl
     lab, n = ndimage.label(cand, S8)
-    idx, lab_c, vmax, rim_frac, ext_r, ext_c = _component_stats(lab, n, cand, values.reshape(H, W),
-                                                                inner_cells(cand), jump, flag_min)
-    del lab, values, cand
-    keep = (vmax > dh_k) & (rim_frac >= edge_ratio) & (ext_r * dy <= ext_limit) & (ext_c * dx <= ext_limit)
+    lab_c = lab.ravel()[cells]
+    # the tests of _component_stats, without its sort: counts per label and the labels' boxes
+    high = np.bincount(lab_c, weights=res > dh_k, minlength=n + 1) > 0
+    edge = inner_cells(cand)                      # a rim cell has a neighbour outside; the raster's edge is none
+    del cand
+    edge[0] = edge[-1] = True
+    edge[:, 0] = edge[:, -1] = True
+    rim = ~edge.ravel()[cells]
+    del edge
+    rim_n = np.bincount(lab_c, weights=rim, minlength=n + 1)
+    rim_s = np.bincount(lab_c, weights=rim & jump.ravel()[cells] & (res >= flag_min), minlength=n + 1)
+    keep = high & (rim_s >= edge_ratio * rim_n) & (rim_n > 0)
+    box = ndimage.find_objects(lab)
+    del lab
+    ext = np.array([(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in box], np.float64).reshape(-1, 2)
+    keep[1:] &= (ext[:, 0] * dy <= ext_limit) & (ext[:, 1] * dx <= ext_limit)
     keep[0] = False
-    return idx[keep[lab_c]]
+    return cells[keep[lab_c]]
 
 
 def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
@@ -358,8 +368,8 @@ def smooth_parts(w, cells, step_m):
     heads, tails = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
         j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
-        i = np.flatnonzero(j >= 0)
-        j = j[i].astype(np.intp)
+        i = np.flatnonzero(j >= 0).astype(pos.dtype, copy=False)   # int32 indices: half the graph's memory
+        j = j[i]
         with np.errstate(invalid="ignore"):
             smooth = np.abs(wc[i] - wc[j]) <= step_m
         heads.append(i[smooth])
