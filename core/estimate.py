@@ -1415,8 +1415,8 @@ def smooth_parts(w, cells, step_m):
     heads, tails = [], []
     for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
         j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
-        i = np.flatnonzero(j >= 0)
-        j = j[i].astype(np.intp)
+        i = np.flatnonzero(j >= 0).astype(pos.dtype, copy=False)   # int32 indices: half the graph's memory
+        j = j[i]
         with np.errstate(invalid="ignore"):
             smooth = np.abs(wc[i] - wc[j]) <= step_m
         heads.append(i[smooth])

@@ -49,7 +49,12 @@ algorithm's help.
      on the parts' smooth pieces (neighbours joined where their heights differ by at most
      that rise: a wall separates a roof from raised ground at its foot) and a cell must pass
      both (a yard or a street raised above the terrain level of a coarse step, walled by
-     buildings, went with them through their walls; issue 12). This keeps every
+     buildings, went with them through their walls; issue 12). A coarse region too wide
+     to be an object is analysed again at the raster's cells (its cells whose own residual
+     exceeds ``dh0``, 8-connected, with the same tests): blocks holding a street and a
+     roof's corner join a dense town into one region on the coarse grid, while the
+     street's cells part the roofs (issue 12; those cells keep their height in the
+     surface scan labelling reads). This keeps every
      step's cost near one pass over the raster whatever the window; the coarse grids are
      aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
      than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
