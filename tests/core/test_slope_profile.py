@@ -536,12 +536,58 @@ def test_ramps_join_the_ground_on_both_sides_along_the_accepting_axis():
     z[1:4, 2:6] = [0.1, 0.2, 0.2, 0.1]              # a ramp's crest along the rows
     one = z > 0.05
     ground = ~one
-    assert (sp._ramps(z, one, ground, 0.15, 1) == one).all()
-    assert not sp._ramps(z, one, ground, 0.05, 1).any()   # steps above step_m: no join
-    assert (sp._ramps(z.T, one.T, ground.T, 0.15, 0) == one.T).all()   # along the columns
+    assert (sp._ramps(z, one, one, ground, 0.15, 1) == one).all()
+    assert not sp._ramps(z, one, one, ground, 0.05, 1).any()   # steps above step_m: no join
+    assert (sp._ramps(z.T, one.T, one.T, ground.T, 0.15, 0) == one.T).all()   # along the columns
     z[1:4, 6] = 3.0                                  # a wall on its right: joined on one side only
-    assert not sp._ramps(z, one, ground, 0.15, 1).any()
-    assert not sp._ramps(z.T, one.T, ground.T, 0.15, 0).any()
+    assert not sp._ramps(z, one, one, ground, 0.15, 1).any()
+    assert not sp._ramps(z.T, one.T, one.T, ground.T, 0.15, 0).any()
+
+
+def test_ramps_need_one_profile_from_the_ground_across_them_to_the_ground():
+    """A region joined to the ground on its left along one row and on its right along
+    another, walls at the other ends, is crossed by no profile from the ground to the
+    ground (ISPRS samp11: crowns and roofs on a 20 degree hillside, where a step of the
+    terrain's slope is up to 1.2 m at 2 m cells): no ramp. Objects inside a row's run
+    (trees on the ramp) do not break it."""
+    z = np.zeros((4, 8), np.float32)
+    one = np.zeros(z.shape, bool)
+    one[1, 2:4] = one[2, 4:6] = True                 # 8-connected through (1, 3) - (2, 4)
+    z[one] = 0.1
+    z[1, 4] = z[2, 3] = 3.0                          # walls: row 1 joins on the left only, row 2 on the right
+    rejected = one | (z > 1.0)
+    ground = ~rejected
+    assert not sp._ramps(z, one, rejected, ground, 0.15, 1).any()
+    assert not sp._ramps(z.T, one.T, rejected.T, ground.T, 0.15, 0).any()
+    z[1, 4] = 0.1                                    # row 1 now runs from the ground across it to the ground
+    one[1, 4] = True
+    rejected = one | (z > 1.0)
+    ground = ~rejected
+    assert (sp._ramps(z, one, rejected, ground, 0.15, 1) == one).all()
+    assert (sp._ramps(z.T, one.T, rejected.T, ground.T, 0.15, 0) == one.T).all()
+    one[1, 3] = False                                # a tree on row 1's run, rejected by both axes
+    z[1, 3] = 5.0
+    assert sp._ramps(z, one, one | (z > 1.0), ~(one | (z > 1.0)), 0.15, 1)[1, 2]
+
+
+def test_roof_on_a_20_degree_hillside_is_an_object_a_ramp_on_it_ground():
+    """A ramp along the contour of a 20 degree hillside (up 2 m over 30 m and down, its
+    flanks steps of 2 m) is ground; a flat L-shaped roof 4 m above the hillside's top under
+    it stays an object, as the hillside stays ground."""
+    t = np.float32(np.tan(np.radians(20.0)))
+    y, x = np.mgrid[0:160, 0:160].astype(np.float32)
+    z = t * x
+    z[:, 30:40] += np.clip(2.0 - np.abs(y[:, 30:40] - 80.0) / 15.0, 0, None)
+    roof = np.zeros(z.shape, bool)
+    roof[20:50, 90:110] = True
+    roof[50:65, 90:100] = True
+    z[roof] = t * 110 + 4.0
+    p = dict(PARAMS, slope_threshold_deg=float(sp.derive_slope_threshold(20.0)), terrain_slope_deg=20.0,
+             tolerance_m=0.15, max_object_size_m=40.0)
+    m = sp.filter_slope_profile(z, 1.0, **p).mask
+    assert (m[:, 30:40] == GROUND).all()
+    assert (m[roof] == OBJECT).all()
+    assert (m[~roof] == GROUND).all()
 
 
 def test_ramp_beside_a_building_is_ground_the_buildings_objects():
