@@ -570,24 +570,34 @@ def test_ramps_need_one_profile_from_the_ground_across_them_to_the_ground():
     assert sp._ramps(z, one, one | (z > 1.0), ~(one | (z > 1.0)), 0.15, 1)[1, 2]
 
 
-def test_roof_on_a_20_degree_hillside_is_an_object_a_ramp_on_it_ground():
-    """A ramp along the contour of a 20 degree hillside (up 2 m over 30 m and down, its
-    flanks steps of 2 m) is ground; a flat L-shaped roof 4 m above the hillside's top under
-    it stays an object, as the hillside stays ground."""
+def test_roofs_on_a_20_degree_hillside_are_objects_a_ramp_on_it_ground():
+    """ISPRS samp11 (a steep urban hillside): a step of the terrain's slope is up to 1.2 m
+    at 2 m cells there, and roofs joined the hillside through such steps. A ramp along the
+    contour of a 20 degree hillside (up 2 m over 30 m and down, its flanks steps of 2 m) is
+    ground; a flat L-shaped roof 4 m above the hillside's top under it and an L-shaped roof
+    cut into the hillside (0.5 m above it at its uphill edge, walls down to it elsewhere)
+    stay objects, but for the cut roof's uphill edge (within the tolerance of the hill);
+    the hillside stays ground. A walled region is the terrain's only when it goes on level
+    into the ground (steps within the tolerance), as between pits in level ground."""
     t = np.float32(np.tan(np.radians(20.0)))
     y, x = np.mgrid[0:160, 0:160].astype(np.float32)
     z = t * x
     z[:, 30:40] += np.clip(2.0 - np.abs(y[:, 30:40] - 80.0) / 15.0, 0, None)
     roof = np.zeros(z.shape, bool)
-    roof[20:50, 90:110] = True
-    roof[50:65, 90:100] = True
-    z[roof] = t * 110 + 4.0
+    roof[110:140, 60:80] = True
+    roof[140:150, 60:70] = True
+    z[roof] = t * 80 + 4.0
+    cut = np.zeros(z.shape, bool)
+    cut[20:50, 90:120] = True
+    cut[50:70, 90:105] = True
+    z[cut] = t * 120 + 0.5
     p = dict(PARAMS, slope_threshold_deg=float(sp.derive_slope_threshold(20.0)), terrain_slope_deg=20.0,
-             tolerance_m=0.15, max_object_size_m=40.0)
+             tolerance_m=0.15, max_object_size_m=60.0)
     m = sp.filter_slope_profile(z, 1.0, **p).mask
     assert (m[:, 30:40] == GROUND).all()
     assert (m[roof] == OBJECT).all()
-    assert (m[~roof] == GROUND).all()
+    assert (m[cut & (x < 119)] == OBJECT).all()
+    assert (m[~roof & ~cut] == GROUND).all()
 
 
 def test_ramp_beside_a_building_is_ground_the_buildings_objects():
