@@ -59,7 +59,7 @@ import warnings
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .common import report
@@ -1412,16 +1412,18 @@ def smooth_parts(w, cells, step_m):
     pos[cp - lo] = np.arange(n_c, dtype=pos.dtype)
     cp -= lo
     wc = w.ravel()[cells]
-    heads, tails = [], []
-    for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):      # each 8-neighbour edge once
-        j = pos[cp + (dr * W1 + dc)]                      # at least 0: dr * W1 + dc > 0
-        i = np.flatnonzero(j >= 0).astype(pos.dtype, copy=False)   # int32 indices: half the graph's memory
-        j = j[i]
-        with np.errstate(invalid="ignore"):
-            smooth = np.abs(wc[i] - wc[j]) <= step_m
-        heads.append(i[smooth])
-        tails.append(j[smooth])
+    # each cell's 4 forward neighbours (each 8-neighbour edge once), a row per cell: the smooth ones, row
+    # by row, are the graph's CSR rows as they stand (no coordinate list to sort and sum into rows: half
+    # the time on a town of 2 million cells), its indices int32 (half the graph's memory)
+    nb = np.empty((n_c, 4), pos.dtype)
+    for k, (dr, dc) in enumerate(((0, 1), (1, -1), (1, 0), (1, 1))):
+        nb[:, k] = pos[cp + (dr * W1 + dc)]              # at least 0: dr * W1 + dc > 0
     del pos
-    a, b = np.concatenate(heads), np.concatenate(tails)
-    graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_c, n_c))
+    smooth = nb >= 0
+    with np.errstate(invalid="ignore"):
+        smooth &= np.abs(wc[np.maximum(nb, 0)] - wc[:, None]) <= step_m
+    indptr = np.zeros(n_c + 1, np.int32 if 4 * n_c < 2 ** 31 else np.int64)
+    np.cumsum(np.count_nonzero(smooth, axis=1), out=indptr[1:])
+    nb = nb[smooth]
+    graph = csr_matrix((np.ones(nb.size, np.int8), nb, indptr), shape=(n_c, n_c))
     return connected_components(graph, directed=False)

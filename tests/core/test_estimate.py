@@ -815,3 +815,34 @@ def test_smooth_parts_joined_across_steps_up_to_step_m():
     assert n == 3 and part.tolist() == [0, 0, 1, 1, 0, 0, 1, 2]
     n, part = smooth_parts(w, np.arange(8), 0.4)    # the 0.5 step splits the left part too
     assert n == 4 and part.tolist() == [0, 1, 2, 2, 0, 0, 2, 3]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_smooth_parts_are_the_components_of_the_smooth_neighbour_edges(seed):
+    """On a random raster (heights in 0.5 m steps, NaNs) and a random subset of its cells in random
+    order: the parts are those of a union-find over every pair of 8-neighbours among the cells whose
+    heights differ by at most step_m, numbered in the order of their first cell in ``cells``."""
+    from bare_earth.core.estimate import smooth_parts
+    rng = np.random.default_rng(seed)
+    w = (rng.integers(0, 6, (17, 23)) * 0.5).astype(np.float32)
+    w[rng.random(w.shape) < 0.05] = np.nan
+    cells = rng.permutation(np.flatnonzero(rng.random(w.shape) < 0.7))
+    H, W = w.shape
+    at = {int(c): i for i, c in enumerate(cells)}
+    root = list(range(cells.size))
+
+    def find(i):
+        while root[i] != i:
+            i = root[i]
+        return i
+    for i, c in enumerate(cells):
+        r, q = divmod(int(c), W)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                j = at.get((r + dr) * W + q + dc) if 0 <= r + dr < H and 0 <= q + dc < W else None
+                if j is not None and abs(float(w[r, q]) - float(w[r + dr, q + dc])) <= 0.5:
+                    root[find(i)] = find(j)
+    first = {}
+    want = [first.setdefault(find(i), len(first)) for i in range(cells.size)]
+    n, part = smooth_parts(w, cells, 0.5)
+    assert n == len(first) and part.tolist() == want
