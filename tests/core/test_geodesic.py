@@ -1020,6 +1020,42 @@ def test_fine_outline_drops_raised_ground_walled_by_a_building():
     assert (keep == (w == 10.0)).all()
 
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+@pytest.mark.parametrize("edge_ratio", [0.3, 0.55, 1.0])
+def test_fine_outline_tests_every_part_and_every_piece(seed, edge_ratio):
+    """_fine_outline's definition on random blocks of roofs, terraces and ramps (some walled all
+    round, some not, some on the raster's edge): a cell stays when its 8-connected part and its
+    smooth piece (:func:`smooth_parts`) each have at least ``edge_ratio`` of their outline cells
+    (a neighbour outside the cells, not on the raster's edge) above a neighbour by more than
+    ``step_m``. The pieces are computed on every cell here, where the filter looks only at the
+    parts that can fail."""
+    from bare_earth.core.geodesic.dilation import _fine_outline, smooth_parts
+    rng = np.random.default_rng(seed)
+    w = rng.normal(0, 0.05, (40, 48)).astype(np.float32)
+    for _ in range(14):
+        r, c = rng.integers(0, 36), rng.integers(0, 44)
+        block = w[r:r + rng.integers(3, 12), c:c + rng.integers(3, 12)]
+        block += rng.choice([0.6, 1.0, 3.0, 8.0]) + rng.choice([0.0, 0.3]) * np.arange(block.shape[1])
+    cells = np.flatnonzero(w > 0.4)
+    step_m = 0.5 + np.tan(np.radians(20.0)) * 2 ** 0.5
+    H, W = w.shape
+    sel = np.zeros(w.shape, bool)
+    sel.ravel()[cells] = True
+    lab, _ = ndimage.label(sel, np.ones((3, 3), bool))
+    border = np.ones(w.shape, bool)
+    border[1:-1, 1:-1] = False
+    outline = (sel & ~ndimage.binary_erosion(sel, np.ones((3, 3), bool), border_value=1) & ~border).ravel()[cells]
+    low = ndimage.minimum_filter(w, 3, mode="nearest").ravel()[cells]
+    wall = outline & (w.ravel()[cells] - low > step_m)
+
+    def passes(label):
+        n = label.max() + 1
+        return (np.bincount(label, wall, n) >= edge_ratio * np.bincount(label, outline, n))[label]
+    want = passes(lab.ravel()[cells]) & passes(smooth_parts(w, cells, step_m)[1])
+    assert 0 < want.sum() < cells.size
+    assert (_fine_outline(w, cells, step_m, edge_ratio) == want).all()
+
 def _failure_scene(kind):
     """256 m square scenes of the failure types of issue 12's held-out samples (a gentle
     tilt, 5 cm noise): a 15 m vertical break across the scene, a 100 m quarry 15 m deep, a
