@@ -32,7 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .estimate import block_minima
+from .estimate import block_expand, block_minima
 
 #: The largest coarse cell the members run on, metres: the finest cell they were built and measured for.
 COARSE_CELL_M = 1.0
@@ -65,11 +65,6 @@ def coarsen_flags(a, f, shape):
     p = np.zeros((nr * f, nc * f), bool)
     p[:rows, :cols] = a
     return p.reshape(nr, f, nc, f).any(axis=(1, 3))
-
-
-def upsample(a, f, shape):
-    """Each coarse cell repeated over its ``f x f`` block, cut to ``shape``."""
-    return np.repeat(np.repeat(a, f, axis=0), f, axis=1)[:shape[0], :shape[1]]
 
 
 def block_allowance(tolerance_m, slope, cell_size, f, blocks=1):
@@ -110,7 +105,7 @@ class CoarseGrid:
         self.above = self.lowest = None
         if self.f > 1:                       # once, before the members' threads read them
             with np.errstate(invalid="ignore"):
-                h = self.z - upsample(self.zc, self.f, self.shape)
+                h = self.z - block_expand(self.zc, self.f, self.shape)
                 self.above = h > self.allow
                 self.lowest = h <= 0
 
@@ -118,11 +113,11 @@ class CoarseGrid:
         """A member's coarse mask (uint8 codes) at full resolution (the rules of :mod:`.dtm_coarse`)."""
         if self.f <= 1:
             return mc
-        out = upsample(mc, self.f, self.shape).copy()
+        out = block_expand(mc, self.f, self.shape)          # a new array: written in place
         ground_c = np.where(mc == GROUND, self.zc, -np.inf).astype(np.float32)
-        high = upsample(ndimage.maximum_filter(ground_c, size=3, mode="nearest"), self.f, self.shape)
+        high = block_expand(ndimage.maximum_filter(ground_c, size=3, mode="nearest"), self.f, self.shape)
         np.copyto(ground_c, np.where(mc == GROUND, self.zc, np.inf))
-        near = upsample(ndimage.minimum_filter(ground_c, size=3, mode="nearest"), self.f, self.shape)
+        near = block_expand(ndimage.minimum_filter(ground_c, size=3, mode="nearest"), self.f, self.shape)
         with np.errstate(invalid="ignore"):
             above_high = self.z - high
             d = self.z - near

@@ -212,6 +212,19 @@ def terrain_slopes(z, cell_size, k, min_blocks=2):
 
 
 
+def block_expand(a, k, shape):
+    """Each cell of a block raster ``a`` (as :func:`block_minima` gives it) repeated over its ``k x k``
+    block, cut to the full raster's ``shape`` (the rows are cut before the columns are repeated).
+
+    >>> block_expand(np.array([[1, 2], [3, 4]]), 2, (3, 3))
+    array([[1, 1, 2],
+           [1, 1, 2],
+           [3, 3, 4]])
+    """
+    k = int(k)
+    return np.repeat(np.repeat(a, k, axis=0)[:shape[0]], k, axis=1)[:, :shape[1]]
+
+
 def block_minima_plane_residual(z, cell_size, k):
     """Largest distance (metres, vertical) of the ``k x k`` block minima (:func:`block_minima`)
     from their least-squares plane: 0 on a tilted plane however steep, the height of an object

@@ -12,7 +12,7 @@ from scipy import ndimage
 
 from ..blocks import run_sharing
 from ..common import report, sub_progress
-from ..estimate import smooth_parts
+from ..estimate import block_expand, smooth_parts
 from .grey import (
     S8,
     block_reduce,
@@ -247,7 +247,7 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     # list of the blocks' cells and their owners took twice the memory
     lvl = np.full(Rc.size, np.inf, Rc.dtype)
     lvl[blocks] = Rc.ravel()[blocks]
-    lvl = np.repeat(np.repeat(lvl.reshape(Rc.shape), f, axis=0)[:H], f, axis=1)[:, :W]
+    lvl = block_expand(lvl.reshape(Rc.shape), f, (H, W))
     with np.errstate(invalid="ignore"):
         np.subtract(w, lvl, out=lvl)              # the residual (NaN at nodata, -inf off the blocks)
     cand = lvl > dh0
