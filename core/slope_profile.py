@@ -32,9 +32,12 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   ground before the run, the run was the top of an object between two walls: a flat roof
   wide enough for the terrain's rise to reach its height, whose middle was accepted from
   both sides (synthetic-lidar urban, 2.6 % total error at 1-4 m cells; issue 12).
-  Those cells join the objects where they belong to a connected region within the largest
-  object turned in the grid; a longer region is an embankment or a terrace between walls
-  (ISPRS samp61's road embankments), and its runs stay ground. A region also needs walls
+  Those cells join the objects where they belong to a connected region of such cells (the
+  objects they touch left out) within the largest object turned in the grid; a longer region
+  is an embankment or a terrace between walls (ISPRS samp61's road embankments), and its runs
+  stay ground. Measured with the objects they touch, a roof's runs beside trees or hedges
+  running on across the raster made a region longer than any object, and stayed ground
+  (ISPRS samp31 1 m lowest, 3.37 -> 1.99 % total error; matrix 3.60 -> 3.54). A region also needs walls
   where it meets the ground: at least half its edges to ground cells drop as steeply as the
   walls. A profile that climbs out of a pit or a line of low blunders (samp41's multipath
   pits far below the ground, not all class 2), crosses level ground and drops into another
@@ -642,7 +645,9 @@ def _raised_objects(obj, reach):
     """The connected regions of ``obj`` whose bounding box fits the largest object turned
     in the grid (:func:`_oblique_reach` of ``reach = (rows, cols)``). A raised run ends on
     a wall down to the ground before it: a roof, or a stretch of an embankment, a dam or a
-    terrace between walls; a region that exceeds the largest object is terrain."""
+    terrace between walls; a region that exceeds the largest object is terrain. ``obj`` holds
+    the raised runs' cells only, not the objects they touch (a roof beside a row of trees
+    crossing the raster is no longer region)."""
     lab, n = ndimage.label(obj, structure=np.ones((3, 3), bool))
     if n == 0:
         return obj
@@ -924,8 +929,9 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     # are walled where they meet the ground
     reach = (init[1], init[0])
     obj = _combine_axes(obj_x, obj_y, valid & ~low, reach, sub_progress(progress, 0.7, 0.75))
+    # (the raised runs' own extent, without the objects they touch)
     raised = _raised_objects(_combine_axes(raised_x, raised_y, valid & ~low, reach,
-                                           sub_progress(progress, 0.75, 0.8)), reach) & ~obj
+                                           sub_progress(progress, 0.75, 0.8)) & ~obj, reach)
     walled = _walled_regions(raised, obj, zs, tuple(dh_eff + c * max(tan_g, GAP_BANK_SLOPE) for c in cell))
     # ... and not going on level into the terrain (steps within the tolerance)
     walled &= ~_joined_to_terrain(zs, walled, obj | walled, valid & ~low, dh_eff)
