@@ -384,7 +384,7 @@ def point_cloud_rows(cloud, cells, notes, label, name):
             g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=True)
 
             def classify(dtm, g=g, cloud=cloud):
-                return pf.classify_cloud(cloud, dtm, g.geotransform)
+                return pf.classify_cloud(cloud, dtm, g.geotransform, lowest_cell_m=g.cell_size_m)
 
             def floor(g=g, cloud=cloud):
                 return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)
