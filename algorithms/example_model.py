@@ -55,7 +55,7 @@ def build(filter_name="morphological"):
                      f"(bareearth:rasterizepoints) -> bareearth:{filter_name} -> every point classified ground / "
                      "above / below the DTM (bareearth:classifypoints, SMRF rule)."),
         "points": "Point file: text/CSV x y z [class] or LAS/LAZ (laspy needed for LAS).",
-        "cell_size_m": "Cell size in metres; empty: about one point per cell.",
+        "cell_size_m": "Cell size in metres; empty: about one point per cell, at most 1 m.",
         "threshold_m": "Ground tolerance in metres (SMRF 0.5).",
         "slope_factor": "Extra tolerance per unit of DTM slope, metres (SMRF 1.25).",
     })

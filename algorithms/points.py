@@ -255,7 +255,9 @@ def _cell_param(key):
                                      NUMBER_DOUBLE, None, optional=True,
                                      minValue=0.0, maxValue=100000.0)
     p.setHelp(tr("Cell size of the grid in metres (converted to the CRS's unit: feet, degrees). Empty or 0: "
-                 "about one point per cell, sqrt(area / points) rounded to 1, 2, 2.5 or 5 x 10^k m."))
+                 "about one point per cell, sqrt(area / points) rounded to 1, 2, 2.5 or 5 x 10^k m, but at most "
+                 "1 m (SMRF's cell) while 1 m keeps a point per 16 cells (sparser: a quarter of the spacing, "
+                 "rounded up)."))
     return p
 
 
@@ -301,7 +303,8 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
         return tr("<p>Grids a point cloud: the lowest (default, the surface the filters expect), highest or mean "
                   "z of the points in each cell. Vectorised (several million points per second).</p><ul>"
                   "<li><b>INPUT</b>: {}</li><li><b>CRS</b>: {}</li>"
-                  "<li><b>CELL_SIZE_M</b>: metres; empty: about one point per cell.</li>"
+                  "<li><b>CELL_SIZE_M</b>: metres; empty: about one point per cell, at most 1 m while 1 m keeps a "
+                  "point per 16 cells.</li>"
                   "<li><b>REDUCER</b>: lowest, highest or mean z per cell.</li>"
                   "<li><b>FILL_EMPTY</b>: cells without a point take the nearest cell's value (default); "
                   "otherwise they are nodata.</li>"
@@ -503,7 +506,8 @@ class PointsInputMixin:
     """Gives a filter algorithm an ``INPUT_POINTS`` alternative to its DSM ``INPUT``.
 
     With points, the algorithm rasterizes them (lowest point per cell, ``CELL_SIZE_M`` or
-    about one point per cell, empty cells from the nearest), runs the filter on that grid,
+    the default cell of :func:`.pointflow.default_cell_size_m`, empty cells from the nearest),
+    runs the filter on that grid,
     writes the usual rasters on it (in the points' CRS) and classifies the points against
     the DTM into ``OUTPUT_POINTS``. ``OTHER_TILES``: the neighbouring tiles of a block;
     the input tile is then filtered with an overlap of their points and one parameter set
@@ -522,8 +526,10 @@ class PointsInputMixin:
         return super().shortHelpString() + tr(
             "<h3>On points</h3><p>Give <b>INPUT_POINTS</b> instead of INPUT (exactly one of them): "
             "{} The points are rasterized (lowest point per cell, <b>CELL_SIZE_M</b> or about one "
-            "point per cell, empty cells from the nearest), filtered, and classified against the DTM "
-            "(ground when |z - DTM| &lt;= THRESHOLD_M + SLOPE_FACTOR x slope, SMRF) into "
+            "point per cell but at most 1 m while 1 m keeps a point per 16 cells, empty cells from the "
+            "nearest), filtered, and classified against the DTM (ground when |z - DTM| &lt;= THRESHOLD_M + "
+            "SLOPE_FACTOR x slope, SMRF; on cells coarser than SMRF's 1 m the factor grows by "
+            "(cell - 1 m) / sqrt(12): each cell's lowest point lies anywhere inside it) into "
             "<b>OUTPUT_POINTS</b>: {} The rasters are written on the points' grid and CRS. "
             "<b>OTHER_TILES</b>: the neighbouring tiles of a block; the input tile is filtered with their "
             "points around it (an overlap of the filter's reach) and one parameter set for the block, so "

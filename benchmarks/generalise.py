@@ -25,8 +25,10 @@ The rows (each with its figure of merit, total error in percent unless said othe
   ``|z - DTM| <= 0.5 m + 1.25 slope``; total error over all points. The ``1m/min`` rows
   are the protocol of ``benchmarks/isprs.py`` and give the same figures.
 * ``lidar/<file>/<cell>m``: every classified file in ``<data>/lidar`` (LAS/LAZ) at its
-  own density (``pointflow.default_cell_size_m``: about one point per cell) and at 2 m and
-  4 m, lowest point per cell, through :mod:`bare_earth.core.pointflow` (x, y, z converted
+  default cell (``pointflow.default_cell_size_m``: about one point per cell, at most 1 m while
+  1 m keeps a point per 16 cells) and at 2 m and
+  4 m, lowest point per cell, through :mod:`bare_earth.core.pointflow` (classified as the point
+  path does: SMRF's slope factor grown on cells coarser than 1 m; x, y, z converted
   to metres from the CRS's unit; ``autzen-thin.las`` has no CRS record and is declared in
   international feet from its provenance, like ``autzen_trim.laz``). A cell size finer
   than a quarter of the native spacing (fewer than one point per 16 cells: the grid would
@@ -384,7 +386,7 @@ def point_cloud_rows(cloud, cells, notes, label, name):
             g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=True)
 
             def classify(dtm, g=g, cloud=cloud):
-                return pf.classify_cloud(cloud, dtm, g.geotransform)
+                return pf.classify_cloud(cloud, dtm, g.geotransform, lowest_cell_m=g.cell_size_m)
 
             def floor(g=g, cloud=cloud):
                 return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)

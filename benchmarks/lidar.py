@@ -14,12 +14,14 @@ Protocol, for each ``<data>/lidar/*.las|*.laz`` with ASPRS classes:
 1. read the points (``core.points.read_points``); the CRS comes from the LAS header, and its
    units (feet, US survey feet) are converted: the cell size, thresholds and slopes are in
    metres (``core.pointflow``);
-2. rasterize the lowest point per cell, cell size from the point density (about one point
-   per cell, rounded to 1, 2, 2.5 or 5 x 10^k m) unless ``--cell-size``; empty cells from
-   the nearest;
+2. rasterize the lowest point per cell, cell size from the point density
+   (``pointflow.default_cell_size_m``: about one point per cell, rounded to 1, 2, 2.5 or
+   5 x 10^k m, at most 1 m while 1 m keeps a point per 16 cells) unless ``--cell-size``;
+   empty cells from the nearest;
 3. run the filter with its defaults (``pipeline.run_array``, parameters derived from the
    data);
-4. classify every point against the DTM (|z - DTM| <= 0.5 m + 1.25 x slope: ground);
+4. classify every point against the DTM (|z - DTM| <= 0.5 m + 1.25 x slope: ground; on
+   cells coarser than 1 m the factor grows by (cell - 1 m) / sqrt(12), ``pointflow.cell_slope_factor``);
 5. compare with the file's classes: truth ground = ASPRS class 2; truth object = every
    other class except those with no surface meaning here, which are left out and counted:
    0 (never classified), 7 (low noise), 12 (overlap), 18 (high noise). Type I, Type II,

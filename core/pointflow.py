@@ -5,11 +5,13 @@ chains the finished pieces of :mod:`.points` and :mod:`.pipeline` for one cloud 
 block of adjoining tiles, in any unit:
 
 * :func:`rasterize_cloud`: the lowest (or highest, mean) point per cell, the cell size in
-  metres (default: about one point per cell), whatever the CRS's unit (metres, feet,
+  metres (default: about one point per cell, at most SMRF's 1 m while 1 m keeps a point
+  per 16 cells, :func:`cell_size_for_spacing`), whatever the CRS's unit (metres, feet,
   degrees),
 * :func:`classify_cloud`: every point ground / above / below a DTM in metres with the
   SMRF rule ``|z - DTM| <= threshold_m + slope_factor * slope`` (Pingel et al. 2013),
-  evaluated in metres,
+  evaluated in metres; against the lowest points of cells coarser than SMRF's 1 m the slope
+  factor grows by where in its cell the lowest point lies (:func:`cell_slope_factor`),
 * :func:`filter_cloud`: both around :func:`.pipeline.run_array`,
 * :func:`filter_tiles`: several tile files filtered as one block. Each tile is filtered
   in a *unit*: the tile's extent plus an overlap (points of the neighbouring tiles) at
@@ -36,6 +38,7 @@ import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import report, sub_progress
+from .estimate import lowest_point_spread
 from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
@@ -44,12 +47,18 @@ from .points import PointCloud, classify_points, nice_cell_size, rasterize_point
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
            "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "class_counts",
            "compare_classified", "match_points", "read_column", "point_output_path",
-           "axis_scales", "crs_warnings", "DEFAULT_THRESHOLD_M", "DEFAULT_SLOPE_FACTOR", "REDUCERS",
-           "POINT_EXTENSIONS"]
+           "axis_scales", "crs_warnings", "cell_size_for_spacing", "default_cell_size_m", "DEFAULT_THRESHOLD_M",
+           "DEFAULT_SLOPE_FACTOR", "SMRF_CELL_M", "cell_slope_factor", "REDUCERS", "POINT_EXTENSIONS"]
 
 #: SMRF's point rule (Pingel et al. 2013): elevation threshold and slope scale.
 DEFAULT_THRESHOLD_M = 0.5
 DEFAULT_SLOPE_FACTOR = 1.25
+#: SMRF's cell: Pingel et al. (2013) filter every ISPRS sample on 1 m cells (PDAL's
+#: filters.smrf and filters.pmf default to 1 m too). The default grid is no coarser while
+#: the points allow it (:func:`cell_size_for_spacing`).
+SMRF_CELL_M = 1.0
+#: The finest default cell, in point spacings: a quarter (one point per 16 cells).
+FINEST_CELL_SPACING = 0.25
 #: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
 REDUCERS = ("min", "max", "mean")
 #: Class names of :func:`classify_points` codes, for logs.
@@ -173,14 +182,32 @@ class CloudGrid:
         return self.z if self.z_to_m == 1.0 else self.z * np.float32(self.z_to_m)
 
 
+def cell_size_for_spacing(spacing_m):
+    """The default cell (metres) of points ``spacing_m`` apart (``sqrt(area / n)``).
+
+    About one point per cell (the spacing rounded to 1, 2, 2.5 or 5 times a power of ten,
+    :func:`.points.nice_cell_size`) where that is at most :data:`SMRF_CELL_M`; sparser points
+    are gridded on SMRF's 1 m cells, or where 1 m would leave fewer than one point per 16 cells
+    (the lowest-point surface then nearest-neighbour fill between points), on the finest cell
+    that keeps one (a quarter of the spacing, rounded up). A coarser cell places each cell's
+    lowest point at its centre: on a slope the ground points of the cell stand above it by up
+    to the slope times the cell, and the filters decide on a coarser surface (ISPRS samples
+    5-7, 0.16-0.18 points/m2, dtm through the point path: 2.5 m cells 4.60 %, 1 m 3.33 %)."""
+    spacing_m = float(spacing_m)
+    cell = nice_cell_size(spacing_m)
+    if cell <= SMRF_CELL_M:
+        return cell
+    return min(cell, max(SMRF_CELL_M, nice_cell_size(FINEST_CELL_SPACING * spacing_m, at_least=True)))
+
+
 def default_cell_size_m(cloud, scales=None):
-    """About one point per cell: ``sqrt(area / n)`` in metres over the bounding box, rounded
-    to 1, 2, 2.5 or 5 times a power of ten (:func:`.points.nice_cell_size`)."""
+    """The default cell in metres of a cloud (:func:`cell_size_for_spacing` of ``sqrt(area / n)``
+    over its bounding box)."""
     sx, sy, _ = scales or axis_scales(cloud)
     x0, y0, x1, y1 = cloud.extent
     w, h = (x1 - x0) * sx, (y1 - y0) * sy
     area = w * h if w > 0 and h > 0 else max(w, h, 1.0) ** 2
-    return nice_cell_size(math.sqrt(area / max(1, len(cloud))))
+    return cell_size_for_spacing(math.sqrt(area / max(1, len(cloud))))
 
 
 def _check_cell_m(c, crs):
@@ -213,7 +240,7 @@ def rasterize_cloud(cloud, cell_size_m=None, *, reducer="min", fill_empty=True, 
     cloud : PointCloud
     cell_size_m : float, optional
         Cell size in metres (converted to the CRS's unit: feet, degrees at the cloud's
-        latitude). Default :func:`default_cell_size_m` (about one point per cell).
+        latitude). Default :func:`default_cell_size_m`.
     reducer : {"min", "max", "mean"}
     fill_empty : bool
         Empty cells take the nearest cell's value (True) or stay NaN.
@@ -252,16 +279,21 @@ def rasterize_cloud(cloud, cell_size_m=None, *, reducer="min", fill_empty=True, 
 
 # --------------------------------------------------------------------------- classify
 def classify_cloud(cloud, dtm_m, geotransform, *, threshold_m=DEFAULT_THRESHOLD_M,
-                   slope_factor=DEFAULT_SLOPE_FACTOR, select=None):
+                   slope_factor=DEFAULT_SLOPE_FACTOR, select=None, lowest_cell_m=None):
     """Classify a cloud's points against a DTM in metres, in metres.
 
     ``dtm_m`` is on ``geotransform`` (the cloud's CRS units) with heights in metres; the
     points' x, y, z are mapped to metres (feet, degrees) so that the slope term and the
     threshold keep their meaning. ``select``: an index or boolean array of the points to
-    classify (default all). Returns uint8 codes 0 ground, 1 above, 2 below, 255 outside
-    the DTM (or over a DTM hole). ValueError when most points are outside the DTM.
+    classify (default all). ``lowest_cell_m``: the cell in metres when the DTM's ground
+    heights are the cells' lowest points (the point path's grid): the slope factor then grows
+    with the cell beyond SMRF's 1 m (:func:`cell_slope_factor`). Returns uint8 codes 0
+    ground, 1 above, 2 below, 255 outside the DTM (or over a DTM hole). ValueError when most
+    points are outside the DTM.
     """
     sx, sy, sz = axis_scales(cloud)
+    if lowest_cell_m is not None:
+        slope_factor = cell_slope_factor(slope_factor, lowest_cell_m)
     x, y, z = cloud.x, cloud.y, cloud.z
     if select is not None:
         x, y, z = x[select], y[select], z[select]
@@ -275,6 +307,27 @@ def classify_cloud(cloud, dtm_m, geotransform, *, threshold_m=DEFAULT_THRESHOLD_
     ox, oy = gt[0], gt[3]            # local metres around the grid's corner
     gtm = (0.0, gt[1] * sx, 0.0, 0.0, 0.0, gt[5] * sy)
     return _classify((x - ox) * sx, (y - oy) * sy, z * sz, dtm_m, gtm, threshold_m, slope_factor)
+
+
+def cell_slope_factor(slope_factor, cell_m):
+    """The slope factor of the point rule against a DTM of lowest points per ``cell_m`` cell.
+
+    SMRF's factor (Pingel et al. 2013) holds on its 1 m cells (:data:`SMRF_CELL_M`). A DTM
+    made of each cell's lowest point holds a height taken anywhere inside the cell: on a
+    slope ``s`` that position adds ``s c / sqrt(12)`` to its error (its standard deviation,
+    :func:`.estimate.lowest_point_spread`), and the points of the cell stand above or below
+    it by that much more. On cells coarser than SMRF's the factor grows by the difference,
+    ``(c - 1 m) / sqrt(12)`` per unit slope; finer cells keep it. ``cell_m``: metres, a number
+    or ``(dx, dy)`` (the larger is taken).
+
+    >>> round(cell_slope_factor(1.25, 4.0), 4)   # 1.25 + 3 / sqrt(12)
+    2.116
+    >>> cell_slope_factor(1.25, (0.5, 0.5))
+    1.25
+    """
+    c = max(float(v) for v in np.ravel(cell_m))
+    grow = lowest_point_spread(0.0, 1.0, c) - lowest_point_spread(0.0, 1.0, SMRF_CELL_M)
+    return float(slope_factor) + max(0.0, grow)
 
 
 #: Points per chunk of :func:`_classify` (temporaries stay in the CPU caches: 3-4x faster
@@ -348,9 +401,12 @@ def filter_cloud(cloud, method="morphological", params=None, *, cell_size_m=None
     params : dict, optional
         The method's parameters (missing ones derived from the data).
     cell_size_m : float, optional
-        Metres; default about one point per cell.
+        Metres; default :func:`default_cell_size_m` (about one point per cell, at most 1 m
+        while that keeps a point per 16 cells).
     threshold_m, slope_factor : float
-        The point rule (SMRF defaults 0.5 m and 1.25).
+        The point rule (SMRF defaults 0.5 m and 1.25); on cells coarser than SMRF's 1 m the
+        slope factor grows by ``(cell - 1 m) / sqrt(12)`` (:func:`cell_slope_factor`: the DTM
+        holds each cell's lowest point, taken anywhere inside the cell).
     block, workers : passed to :func:`.pipeline.run_array`.
     progress : callable, optional
     extent, cell_size_units : optional
@@ -371,7 +427,7 @@ def filter_cloud(cloud, method="morphological", params=None, *, cell_size_m=None
                     progress=sub_progress(progress, 0.05, 0.95))
     t0 = time.perf_counter()
     classes = classify_cloud(cloud, res.dtm, g.geotransform, threshold_m=threshold_m,
-                             slope_factor=slope_factor, select=select)
+                             slope_factor=slope_factor, select=select, lowest_cell_m=g.cell_size_m)
     t_cls = time.perf_counter() - t0
     info = {"method": res.info.get("method"), "params": res.info.get("params"),
             "cell_size_m": g.cell_size_m, "grid_shape": g.shape, "points": len(cloud),
@@ -647,8 +703,8 @@ class TileLattice:
 
 
 def _block_lattice(clouds, cell_size_m):
-    """The block's lattice (cell: ``cell_size_m``, default about one point per cell over the
-    tiles' own areas) and the metres per x, y, z unit at the block's mid latitude."""
+    """The block's lattice (cell: ``cell_size_m``, default :func:`cell_size_for_spacing` of the
+    points' spacing over the tiles' own areas) and the metres per x, y, z unit at the block's mid latitude."""
     merged_ext = _merged_extent(clouds)
     scales = axis_scales(clouds[0], at=(0.5 * (merged_ext[0] + merged_ext[2]),
                                         0.5 * (merged_ext[1] + merged_ext[3])))
@@ -657,7 +713,7 @@ def _block_lattice(clouds, cell_size_m):
         for c in clouds:
             e = c.extent
             area += max(e[2] - e[0], 0.0) * scales[0] * max(e[3] - e[1], 0.0) * scales[1]
-        cell_size_m = nice_cell_size(math.sqrt(max(area, 1.0) / sum(len(c) for c in clouds)))
+        cell_size_m = cell_size_for_spacing(math.sqrt(max(area, 1.0) / sum(len(c) for c in clouds)))
     _check_cell_m(float(cell_size_m), clouds[0].crs)
     dx, dy = float(cell_size_m) / scales[0], float(cell_size_m) / scales[1]
     return TileLattice.around(merged_ext, dx, dy), scales

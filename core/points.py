@@ -27,13 +27,16 @@ __all__ = ["PointCloud", "read_points", "rasterize_points", "sample_bilinear", "
 
 
 # --------------------------------------------------------------------------- rasterizing
-def nice_cell_size(size):
-    """Round a cell size to 1, 2, 2.5 or 5 times a power of ten (the nearest in ratio)."""
+def nice_cell_size(size, *, at_least=False):
+    """Round a cell size to 1, 2, 2.5 or 5 times a power of ten: the nearest in ratio, or with
+    ``at_least`` the smallest of them not under ``size``."""
     size = float(size)
     if not np.isfinite(size) or size <= 0:
         raise ValueError(f"cannot round the cell size {size!r}; it must be positive.")
     p = 10.0 ** np.floor(np.log10(size))
     steps = np.array([1.0, 2.0, 2.5, 5.0, 10.0]) * p
+    if at_least:
+        return float(steps[np.argmax(steps >= size * (1 - 1e-9))])
     return float(steps[np.argmin(np.abs(np.log(steps / size)))])
 
 

@@ -36,14 +36,73 @@ def test_axis_scales_and_cell_sizes():
     c = PointCloud(np.array([0.0, 3280.84, 0, 3280.84]), np.array([0.0, 3280.84, 3280.84, 0]),
                    np.array([0.0, 1.0, 2.0, 3.0]), units_to_metre=FEET)
     assert pf.axis_scales(c) == (FEET, FEET, FEET)
-    # 1000 m x 1000 m, 4 points -> sqrt(2.5e5) m = 500 m
-    assert pf.default_cell_size_m(c) == 500.0
+    # 1000 m x 1000 m, 4 points 500 m apart: the finest cell keeping a point per 16 cells,
+    # 125 m rounded up (:func:`pf.cell_size_for_spacing`)
+    assert pf.default_cell_size_m(c) == 200.0
     geo = PointCloud(np.array([10.0, 10.01]), np.array([60.0, 60.01]), np.array([0.0, 1.0]), crs="EPSG:4326")
     sx, sy, sz = pf.axis_scales(geo)
     assert sx == pytest.approx(55800, rel=0.01) and sy == pytest.approx(111420, rel=0.01) and sz == 1.0
     bad = PointCloud(np.array([0.0]), np.array([500000.0]), np.array([0.0]), crs="EPSG:4326")
     with pytest.raises(ValueError, match="not a latitude"):
         pf.axis_scales(bad)
+
+
+def test_default_cell_is_the_finest_lowest_point_surface_up_to_smrf_cell():
+    """About one point per cell where that is at most SMRF's 1 m; sparser points on 1 m cells
+    (ISPRS samples 5-7, 0.16-0.18 points/m2: 1 m, no longer 2.5 m), or, where 1 m would leave
+    fewer than one point per 16 cells, on a quarter of the spacing rounded up."""
+    spacings = (0.3, 0.39, 0.75, 1.03, 1.5, 2.37, 2.53, 3.9, 4.1, 11.8, 19.2, 100.0)
+    cells = [pf.cell_size_for_spacing(s) for s in spacings]
+    assert cells == [0.25, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 5.0, 5.0, 25.0]
+    assert all(c >= s / 4 - 1e-12 for s, c in zip(spacings, cells) if s > 1.5)
+    # a 200 m square at 0.16 points/m2 (ISPRS rural): 1 m
+    rng = np.random.default_rng(3)
+    n = int(200 * 200 * 0.16)
+    c = PointCloud(rng.uniform(0, 200, n) + 500000, rng.uniform(0, 200, n) + 5e6, np.zeros(n))
+    assert pf.default_cell_size_m(c) == 1.0
+    assert pf.rasterize_cloud(c).cell_size_m == (1.0, 1.0)
+    # a block of tiles takes the same default over the tiles' areas
+    half = c.x < 500100
+    tiles = [PointCloud(c.x[k], c.y[k], c.z[k]) for k in (half, ~half)]
+    r = pf.filter_tiles(tiles, method="morphological")
+    assert r.cell_size_units == (1.0, 1.0)
+
+
+def _slope_cloud(density, degrees=20.0, side=160.0, seed=0):
+    """All-ground points on a plane of ``degrees``, gradient at 0.5 rad from x, noise 5 cm."""
+    rng = np.random.default_rng(seed)
+    n = int(side * side * density)
+    x, y = rng.uniform(0, side, n), rng.uniform(0, side, n)
+    s = math.tan(math.radians(degrees))
+    z = 100 + s * (math.cos(0.5) * x + math.sin(0.5) * y) + rng.normal(0, 0.05, n)
+    return PointCloud(x + 500000.0, y + 5000000.0, z)
+
+
+def test_cell_slope_factor_grows_beyond_smrf_cell():
+    assert pf.cell_slope_factor(1.25, 1.0) == 1.25
+    assert pf.cell_slope_factor(1.25, (0.5, 0.5)) == 1.25
+    assert pf.cell_slope_factor(1.25, (4.0, 2.0)) == pytest.approx(1.25 + 3 / math.sqrt(12), abs=1e-12)
+    assert pf.cell_slope_factor(0.0, 13.0) == pytest.approx(12 / math.sqrt(12), abs=1e-12)
+
+
+def test_ground_on_a_slope_kept_on_coarse_cells():
+    """20 degrees, 0.3 points/m2, every point ground, 5 m cells: each cell's lowest point lies
+    anywhere inside it, so SMRF's 1 m factor rejects a tenth of the ground against the
+    lowest-point surface itself; the factor grown with the cell keeps it. Through the filter,
+    the same DTM classified with SMRF's factor alone loses the same ground."""
+    c = _slope_cloud(0.3)
+    assert pf.default_cell_size_m(c) == 1.0             # the default: 1 m, not 2 m
+    g = pf.rasterize_cloud(c, 5.0)
+    smrf = pf.classify_cloud(c, g.z_metres(), g.geotransform)
+    grown = pf.classify_cloud(c, g.z_metres(), g.geotransform, lowest_cell_m=g.cell_size_m)
+    assert np.mean(smrf == 0) < 0.92 and np.mean(grown == 0) > 0.99
+    r = pf.filter_cloud(c, "morphological", cell_size_m=5.0)
+    before = pf.classify_cloud(c, r.result.dtm, r.grid.geotransform)
+    assert np.mean(before == 0) < 0.92 and np.mean(r.classes == 0) > 0.975
+    # on SMRF's own 1 m cells the rule is SMRF's
+    g1 = pf.rasterize_cloud(c, 1.0)
+    np.testing.assert_array_equal(pf.classify_cloud(c, g1.z_metres(), g1.geotransform),
+                                  pf.classify_cloud(c, g1.z_metres(), g1.geotransform, lowest_cell_m=(1.0, 1.0)))
 
 
 def test_web_mercator_points_are_measured_in_ground_metres():

@@ -162,6 +162,8 @@ def test_rasterize_default_cell_size():
     assert gt[1] == 2.5
     sizes = (2.43, 1.1, 0.7, 0.34, 6.5, 7.2, 40)
     assert [nice_cell_size(v) for v in sizes] == [2.5, 1, 0.5, 0.25, 5, 10, 50]
+    assert [nice_cell_size(v, at_least=True) for v in sizes] == [2.5, 2, 1, 0.5, 10, 10, 50]
+    assert nice_cell_size(2.0, at_least=True) == 2.0 and nice_cell_size(0.59, at_least=True) == 1.0
 
 
 def test_rasterize_bad_input():

@@ -468,7 +468,7 @@ def _bad_point_file(kind, d):
     ("z_all_nan", r"no point of .* has a finite height"),
     ("diagonal_line", r"the points lie along a line, .* m wide across it.*less than the 3 cells"),
     ("decimal_commas", r"6 values per line.*decimal commas and separated by ';'"),
-    ("one_stray_point", r"99 % of the points span only 59.* x 59.* m: with cells of 50000 m.*A few points lie far "
+    ("one_stray_point", r"99 % of the points span only 59.* x 59.* m: with cells of 10000 m.*A few points lie far "
                         r"from the others \(the whole extent is 5.001e\+05 x 5.4e\+06 m\): remove those stray points"),
 ])
 def test_degenerate_point_files_refused_before_work(qgis_app, processing_run, tmp_path, kind, message):
