@@ -269,6 +269,19 @@ def test_step4_crown_the_ground_continues_onto_is_no_roof(w):
     top = crown & (np.arange(200) >= 80)
     assert np.mean(run(walled, steps=[3, 4], max_building_m=120.0).extras["step"][top] == 4) > 0.75
 
+
+def test_step4_crown_given_back_in_blocks_as_in_one_pass():
+    """The parts joined_levels reads reach no further than step 4's halo decides: blocks of 64
+    cells give the crown back (and keep the roofs) as one pass does."""
+    pipeline = pytest.importorskip("bare_earth.core.pipeline")
+    z, crown, _ = _crown_on_walls(8)
+    params = dict(BASE, max_building_m=30.0, step5_profiles=False, step6_surfaces=False)
+    one = pipeline.run_array("rascor", z, 1.0, params=params)
+    blk = pipeline.run_array("rascor", z, 1.0, params=params, block=64)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.extras["step"], blk.extras["step"])
+    assert np.mean(one.extras["step"][crown] == 4) < 0.01
+
 def _parts_reference(z, kept, step):
     """The 4-connected parts of ``kept`` joined across edges within ``step`` (scipy's graph)."""
     from scipy.sparse import coo_matrix
