@@ -20,7 +20,13 @@ from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_gro
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions, find_ramps
-from .steps import find_terrain_steps, remove_height_outliers, remove_level_changes, remove_neighbour_differences
+from .steps import (
+    find_terrain_steps,
+    joined_levels,
+    remove_height_outliers,
+    remove_level_changes,
+    remove_neighbour_differences,
+)
 from .terrain import TERRAIN_CLASSES, as_homogeneous, model_degree
 
 #: Step numbers and names (the values of the ``step`` extra).
@@ -299,11 +305,23 @@ def _step4_level_change(st, cfg, progress):
     """Step 4: raised levels between a jump up and a jump down (buildings); the level changes
     beyond step 3's tolerance (:func:`_terrain_step_jump`) no jump answers over more than the
     longest building are the terrain's (a quarry bench, a river bank): break lines for the
-    steps after (:func:`~.steps.find_terrain_steps`)."""
+    steps after (:func:`~.steps.find_terrain_steps`).
+
+    A raised level the ground continues onto is no building (:func:`~.steps.joined_levels`):
+    the kept cells joined across neighbouring heights that differ by no more than step 3's
+    tolerance (``k sqrt(2) sigma``: no level change to step 3) and less than half the jump (the
+    height step 4 asks of a raised point above the ground's line) into a part running further
+    than the longest building. An embankment's crown between walls (its banks, made walls by
+    sparse points, or steep) joined to the ground by a ramp or a gentler side is kept, a roof
+    cut off by its walls is not (ISPRS 71, its bridge's ramps, 1 m lowest 5.75 -> 3.41 % total
+    error, 2 m 8.26 -> 4.95; 61, its dike, 5.17 -> 4.31, 7.32 -> 7.08)."""
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
                               z_t=st.transposed(), progress=sub_progress(progress, 0.0, 0.6))
+    # an embankment's crown the ground continues onto (a ramp, a gentler side) is no roof
+    hi &= ~joined_levels(st.z, cfg.cell, hi, st.keep, step_m=min(_step3_tolerance(cfg), 0.5 * float(cfg.jump_m)),
+                         max_building_m=cfg.max_building_m)
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
     # the level changes longer than the longest building are the terrain's: break lines for
     # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)

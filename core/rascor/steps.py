@@ -465,3 +465,93 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     return high
 
 
+
+
+
+def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raised: np.ndarray,
+                  kept: np.ndarray, *, step_m: float, max_building_m: float) -> np.ndarray:
+    """The cells of step 4's raised levels that the ground continues onto: no building's.
+
+    Step 4 reads one profile at a time: a road embankment or a dike crossing a profile rises
+    by a jump and falls by another within the longest building, as a building does, and its
+    crown is taken for a roof (ISPRS samples 61 and 71, whose banks sparse points make walls
+    of). In plan the two differ: a roof is a level cut off by its walls and no longer than the
+    longest building, while the crown of an embankment runs on and joins the ground without a
+    level change (a ramp down to the road it carries, a dike's end or its gentler side). The
+    ``kept`` cells (which hold ``raised``) are joined across the 4-neighbour edges whose heights
+    differ by at most ``step_m``; the ``raised`` cells of a part running further than
+    ``max_building_m`` along the rows or the columns (the ground around, or a level longer than
+    any building) are returned.
+
+    The parts are the 4-connected components of a grid of twice the resolution holding the
+    cells and, between them, their joined edges (``ndimage.label``), on the cells within
+    ``max_building_m`` and one cell of a raised cell only: a part leaving that window runs
+    further than ``max_building_m`` from the raised cell inside it, so the window decides as
+    the whole raster would.
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM (NaN nodata).
+    cell_size : float or (float, float)
+        (dx, dy) metres.
+    raised, kept : ndarray of bool
+        Step 4's raised cells and the points the steps before it kept (``raised`` among them).
+    step_m : float
+        Largest difference of neighbouring heights on continuing ground, metres.
+    max_building_m : float
+        Step 4's longest building, metres.
+
+    Returns
+    -------
+    ndarray of bool
+        The cells of ``raised`` joined to a part longer than the longest building.
+
+    Examples
+    --------
+    >>> z = np.zeros((5, 9), np.float32)
+    >>> z[1:4, 3:6] = 3.0                          # a roof on walls
+    >>> raised = z > 0
+    >>> kept = np.ones(z.shape, bool)
+    >>> joined_levels(z, 10.0, raised, kept, step_m=0.5, max_building_m=50.0).any()
+    False
+    >>> z[2, 6:] = [2.0, 1.0, 0.0]                 # ... a ramp down to the ground on its side
+    >>> int(joined_levels(z, 10.0, raised, kept, step_m=1.0, max_building_m=50.0).sum())
+    9
+    """
+    dx, dy = as_cell_size(cell_size)
+    raised = np.asarray(raised, bool)
+    out = np.zeros(raised.shape, bool)
+    rows = np.flatnonzero(raised.any(axis=1))
+    if not rows.size:
+        return out
+    cols = np.flatnonzero(raised.any(axis=0))
+    mr, mc = int(max_building_m / dy) + 2, int(max_building_m / dx) + 2
+    win = (slice(max(0, rows[0] - mr), rows[-1] + 1 + mr), slice(max(0, cols[0] - mc), cols[-1] + 1 + mc))
+    zw = np.asarray(z[win], np.float32)
+    kw = np.asarray(kept[win], bool) & np.isfinite(zw)
+    h, w = zw.shape
+    grid = np.zeros((2 * h - 1, 2 * w - 1), bool)
+    grid[::2, ::2] = kw
+    with np.errstate(invalid="ignore"):
+        # the edges along the rows (between columns j, j + 1) and down the columns
+        for edge, a, b in ((grid[::2, 1::2], np.s_[:, 1:], np.s_[:, :-1]), (grid[1::2, ::2], np.s_[1:], np.s_[:-1])):
+            e = np.abs(zw[a] - zw[b]) <= step_m
+            e &= kw[a]
+            e &= kw[b]
+            edge[...] = e
+    lab = ndimage.label(grid)[0][::2, ::2]
+    del grid
+    lab = np.ascontiguousarray(lab)
+    need = np.unique(lab[raised[win]])
+    need = need[need > 0]
+    if not need.size:
+        return out
+    # the extents of the parts holding raised cells (labels renumbered so find_objects sees those only)
+    sub = np.zeros(int(lab.max()) + 1, np.int32)
+    sub[need] = np.arange(1, need.size + 1)
+    box = ndimage.find_objects(sub[lab])
+    long = np.zeros(need.size + 1, bool)
+    long[1:] = [max((b[0].stop - b[0].start) * dy, (b[1].stop - b[1].start) * dx) > max_building_m for b in box]
+    out[win] = long[sub[lab]] & raised[win]
+    return out

@@ -230,6 +230,99 @@ def test_step4_vegetation_beside_is_not_a_building():
     assert not hi.any()
 
 
+
+def _crown_on_walls(w=8, seed=1):
+    """A gentle plane (1 m cells) with an embankment whose crown (2 w m wide) rises from the
+    ground at 1:10 to 6 m and runs 120 m on, its banks one cell wide (walls, as sparse points
+    make them: ISPRS 61 and 71), and four 6 m buildings, one as wide as the crown and 50 m long:
+    DSM, crown, buildings."""
+    n = 200
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    crown = (np.abs(y - 65.5) <= w) & (x >= 20)
+    z = 50 + 0.02 * x + 0.01 * y + np.where(crown, np.clip((x - 20) / 10.0, 0, 6), 0.0)
+    bld = np.zeros(z.shape, bool)
+    for r0, c0, h, wd in ((110, 30, 16, 18), (150, 120, 16, 18), (20, 100, 16, 18), (120, 90, 2 * w, 50)):
+        bld[r0:r0 + h, c0:c0 + wd] = True
+    z[bld] += 6.0
+    z += np.random.default_rng(seed).normal(0, 0.05, z.shape)
+    return z.astype(np.float32), crown, bld
+
+
+@pytest.mark.parametrize("w", [5, 8, 12])
+def test_step4_crown_the_ground_continues_onto_is_no_roof(w):
+    """#12 (ISPRS 61 / 71's Type I at every variant): step 4 took an embankment's crown between
+    its walls for a roof (90 % of it); the ground continues onto it along its ramp without a
+    level change, so it is no building, while the buildings, one as wide as the crown, are cut
+    off by their walls and stay step 4's."""
+    z, crown, bld = _crown_on_walls(w)
+    res = run(z, steps=[3, 4])
+    st = res.extras["step"]
+    assert np.mean(st[crown] == 4) < 0.01
+    assert np.mean(res.mask[crown] == OBJECT) < 0.25          # the edges step 3 takes
+    assert (res.mask[bld] == OBJECT).all() and np.mean(st[bld] == 4) > 0.75
+    assert not (res.mask[~crown & ~bld] == OBJECT).any()
+    # walled at its ends too, the crown is still a level longer than the longest building (60 m)
+    walled = z.copy()
+    walled[crown & (np.arange(200) < 80)] = z[0, 0]
+    assert np.mean(run(walled, steps=[3, 4]).extras["step"][crown] == 4) < 0.01
+    # ... and no longer so with a longest building of 120 m: a roof between its walls
+    top = crown & (np.arange(200) >= 80)
+    assert np.mean(run(walled, steps=[3, 4], max_building_m=120.0).extras["step"][top] == 4) > 0.75
+
+
+def test_step4_crown_given_back_in_blocks_as_in_one_pass():
+    """The parts joined_levels reads reach no further than step 4's halo decides: blocks of 64
+    cells give the crown back (and keep the roofs) as one pass does."""
+    pipeline = pytest.importorskip("bare_earth.core.pipeline")
+    z, crown, _ = _crown_on_walls(8)
+    params = dict(BASE, max_building_m=30.0, step5_profiles=False, step6_surfaces=False)
+    one = pipeline.run_array("rascor", z, 1.0, params=params)
+    blk = pipeline.run_array("rascor", z, 1.0, params=params, block=64)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.extras["step"], blk.extras["step"])
+    assert np.mean(one.extras["step"][crown] == 4) < 0.01
+
+def _parts_reference(z, kept, step):
+    """The 4-connected parts of ``kept`` joined across edges within ``step`` (scipy's graph)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    h, w = z.shape
+    idx = np.arange(h * w).reshape(h, w)
+    a, b = [], []
+    for s0, s1 in ((np.s_[:, 1:], np.s_[:, :-1]), (np.s_[1:], np.s_[:-1])):
+        e = kept[s0] & kept[s1] & (np.abs(z[s0] - z[s1]) <= step)
+        a.append(idx[s0][e])
+        b.append(idx[s1][e])
+    a, b = np.concatenate(a), np.concatenate(b)
+    g = coo_matrix((np.ones(a.size), (a, b)), shape=(h * w, h * w))
+    return connected_components(g, directed=False)[1].reshape(h, w)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_joined_levels_equal_the_parts_of_the_whole_raster(seed):
+    """joined_levels against its definition on the whole raster: the raised cells whose part
+    (kept cells joined across 4-neighbour edges within step_m) runs further than max_building_m
+    along the rows or the columns; its window around the raised cells changes nothing."""
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0, 0.3, (60, 90)).astype(np.float32)
+    kept = rng.random(z.shape) < 0.85
+    raised = kept & (rng.random(z.shape) < 0.01)
+    raised[:, :20] = False
+    cell = (0.5, 1.5)
+    seen = []
+    for step, length in ((0.3, 10.0), (0.5, 20.0), (0.8, 40.0)):
+        lab = _parts_reference(z, kept, step)
+        want = np.zeros(z.shape, bool)
+        for v in np.unique(lab[raised]):
+            r, c = np.nonzero((lab == v) & kept)
+            if max((r.max() - r.min() + 1) * cell[1], (c.max() - c.min() + 1) * cell[0]) > length:
+                want |= (lab == v) & raised
+        got = steps.joined_levels(z, cell, raised, kept, step_m=step, max_building_m=length)
+        assert np.array_equal(got, want)
+        seen += [got.any(), (raised & ~got).any()]
+    assert any(seen[::2]) and any(seen[1::2])
+
+
 # ------------------------------------------------------------------ step 5
 def _bump(z, r0, c0, h, s):
     y, x = np.mgrid[0:z.shape[0], 0:z.shape[1]]
