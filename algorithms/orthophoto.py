@@ -32,6 +32,7 @@ from qgis.core import (
 from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
+from ..core.orthophoto.iterate import NOT_ROUGHER as NOT_ROUGHER_DEFAULT
 from ..core.orthophoto.quality import order_reversed
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .fill_dtm import grid_mismatch_message, other_crs, same_grid
@@ -630,9 +631,10 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                                                             "TIE_POINTS")
     MAX_ITERATIONS, TOLERANCE_M, RELAXATION = "MAX_ITERATIONS", "TOLERANCE_M", "RELAXATION"
     CROSS_CHECK = "CROSS_CHECK"
+    NOT_ROUGHER = "NOT_ROUGHER"
     OUTPUT_ORTHO_FOLDER, OUTPUT_TABLE = "OUTPUT_ORTHO_FOLDER", "OUTPUT_TABLE"
     TABLE_COLUMNS = ("iteration", "rms_correction_m", "matched_share", "pairs", "rms_parallax_m", "agreement",
-                     "status", "mean_corr", "detail_single_pair")
+                     "status", "mean_corr", "detail_single_pair", "smoothness_mu", "roughness_m")
 
     def name(self):
         return "orthorefine"
@@ -651,7 +653,11 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "and adds RELAXATION x the correction to the DEM: its smooth part (a Gaussian mean over about "
             "the window), and its detail where it stands out of the noise and two pairs agree on it (one "
             "pair cannot tell a detail from its own blunder), fading out over half the window plus one cell "
-            "around it. No cell moves by more than MAX_DH_M in total, nor by more than the trusted "
+            "around it. With NOT_ROUGHER (default) the smooth part may not make the DEM rougher (the "
+            "Laplacian's spread over the cells seen by two frames): where it would, it is replaced by the "
+            "nearest smooth part that does not (smoothness_mu in the table; 0: unchanged); confirmed detail "
+            "may. No cell moves by more than "
+            "MAX_DH_M in total, nor by more than the trusted "
             "corrections around it support (supported_max_m in the log). Each update is checked by the next "
             "measurement: an update that makes the pairs agree worse is undone and the iteration stops; it "
             "also stops when the agreement improves by less than 5 %, one checked update after the pairs' "
@@ -685,7 +691,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "(advanced, default off: with pairs of two or more base directions, keep a correction only where "
             "the pairs of different directions agree within 3 x their combined precision, their shared part "
             "where they disagree, nothing one direction alone measured; the log gives the largest move they "
-            "confirm), <b>WINDOW_CELLS</b>, "
+            "confirm), <b>NOT_ROUGHER</b> (advanced, default on: the smooth part may not roughen the DEM; off "
+            "for a start smoother than the terrain), <b>WINDOW_CELLS</b>, "
             "<b>MIN_CORRELATION</b>, <b>HEIGHT_THRESHOLD_M</b>, <b>MAX_DH_M</b> (advanced, empty: 0.2 H; "
             "also the largest total move of a cell), <b>OBJECT_SIZE_M</b> (advanced, 40): as in "
             "orthoparallax.</li></ul>"
@@ -698,7 +705,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             "by two frames with a trusted match, pairs, RMS residual parallax (m), agreement (RMS parallax on "
             "the cells matched now and before, over its value before: below 1 the last update helped), status "
             "(applied, undone, measured), mean correlation, cells of detail left out for lack of a second "
-            "pair; also in the log.</li></ul>").format(
+            "pair, the smoothness multiplier and the roughness after the update (Laplacian sd, m); also in "
+            "the log.</li></ul>").format(
                 tr(OPK_HELP), tr(QUALITY_HELP), tr(ORTHO_MASK_HELP))
 
     def initAlgorithm(self, config=None):  # noqa: N802
@@ -754,6 +762,14 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
                    "not taken (the cell keeps its height). Off by default: only the cells seen by two "
                    "directions (the strips' side lap) are refined then. With one base direction nothing can "
                    "be cross-checked and the log says so.", advanced=True))
+        smooth = QgsProcessingParameterBoolean(self.NOT_ROUGHER, tr("The smooth correction may not roughen the DEM"),
+                                               defaultValue=NOT_ROUGHER_DEFAULT)
+        self.addParameter(with_help(
+            smooth, "On by default: where an update's smooth part (the part no two pairs confirm as detail) "
+                    "would make the DEM rougher (the spread of its Laplacian over the cells seen by two "
+                    "frames), it is replaced by the nearest smooth part that does not (a smoothness prior); "
+                    "confirmed detail is applied as measured. Off: a start smoother than the terrain (a blurred "
+                    "DSM) gains the relief the pairs measure at the smooth part's scale too.", advanced=True))
         for p in self._matching_params():
             self.addParameter(p)
         self._raster_outputs("Refined DEM")
@@ -834,6 +850,7 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
         opts["tolerance_m"] = _positive_or_none(self, parameters, self.TOLERANCE_M, context)
         opts["relaxation"] = self.parameterAsDouble(parameters, self.RELAXATION, context)
         opts["cross_check"] = self.parameterAsBool(parameters, self.CROSS_CHECK, context)
+        opts["not_rougher"] = self.parameterAsBool(parameters, self.NOT_ROUGHER, context)
         if not 0 < opts["relaxation"] <= 1:
             raise ValueError(f"RELAXATION must be in (0, 1] (the share of each correction applied); got "
                              f"{opts['relaxation']:g}.")

@@ -44,6 +44,10 @@ from bare_earth.core.orthophoto import (  # noqa: E402
     read_opensfm_reconstruction,
     read_opk_csv,
 )
+from bare_earth.core.orthophoto.smoothness import roughness_cells, roughness_sd  # noqa: E402
+
+#: orthorefine's not_rougher in this run (``--rougher``: False)
+NOT_ROUGHER = True
 
 
 def _read(path):
@@ -60,7 +64,9 @@ def _table(table):
         print(f"      measurement {t['iteration']} ({t.get('status', '')}): RMS correction "
               f"{t['rms_correction_m']:.2f} m, trusted {100 * t['matched_share']:.0f} % of cells seen by two, "
               f"{t['pairs']} pairs, RMS parallax {t['rms_parallax_m']:.2f} m, agreement "
-              f"{t.get('agreement', float('nan')):.3f}, mean NCC {t['mean_corr']:.3f}{extra}")
+              f"{t.get('agreement', float('nan')):.3f}, mean NCC {t['mean_corr']:.3f}{extra}"
+              + (f", smoothness mu {t['smoothness_mu']:.3g}, roughness after {t['roughness_m']:.5f} m"
+                 if t.get("status") == "applied" else ""))
 
 
 def drone(root, iterations):
@@ -80,7 +86,8 @@ def drone(root, iterations):
     seen = [orthorectify(im, c, dsm, gt)[1] for im, c in zip(imgs, cams)]
     ev = (np.sum(seen, axis=0) >= 2) & ok
     t = time.perf_counter()
-    r = orthorefine(start, gt, imgs, cams, max_iterations=iterations, reference=dsm, reference_cells=ev)
+    r = orthorefine(start, gt, imgs, cams, max_iterations=iterations, reference=dsm, reference_cells=ev,
+                    not_rougher=NOT_ROUGHER)
     dt = time.perf_counter() - t
     e0 = float(np.sqrt(np.mean((start - dsm)[ev] ** 2)))
     e1 = float(np.sqrt(np.mean((r.dem - dsm)[ev] ** 2)))
@@ -96,7 +103,7 @@ def drone(root, iterations):
     # a DSM made from these frames is already right: refinement started from it should barely
     # move it (the issue measured 1.05 m RMS) and must not roughen it
     t = time.perf_counter()
-    r2 = orthorefine(dsm, gt, imgs, cams, max_iterations=iterations)
+    r2 = orthorefine(dsm, gt, imgs, cams, max_iterations=iterations, not_rougher=NOT_ROUGHER)
     dt = time.perf_counter() - t
     mv = (r2.dem - dsm)[ev]
     sig = r2.info["sigma_expected_m"]
@@ -111,10 +118,9 @@ def drone(root, iterations):
 
 
 def _roughness(z, ev):
-    """Laplacian sd of a surface on the cells ``ev`` (m per cell^2): speckle raises it."""
-    lap = ndimage.laplace(np.where(np.isfinite(z), z, np.nanmedian(z)).astype(np.float64))
-    inner = ev & ndimage.binary_erosion(ev, iterations=2)
-    return float(np.std(lap[inner]))
+    """Laplacian sd of a surface on the cells ``ev`` eroded by two (m per cell^2): speckle raises it
+    (the measure orthorefine's smoothness step keeps from rising, :mod:`.smoothness`)."""
+    return roughness_sd(z, roughness_cells(ev))
 
 
 def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
@@ -134,7 +140,8 @@ def ngi(root, iterations, cell, max_dh_m, held_out=False, cross_check=False):
     cams = cameras_from_opk(ext, ios, names)
     imgs = [_read(root / "ngi" / f"{n}.tif")[0] for n in names]
     t = time.perf_counter()
-    r = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, cross_check=cross_check)
+    r = orthorefine(dem, gt, imgs, cams, max_iterations=iterations, max_dh_m=max_dh_m, cross_check=cross_check,
+                    not_rougher=NOT_ROUGHER)
     dt = time.perf_counter() - t
     # the cells seen by two frames on the start DEM: the same cells for every build
     ev = (np.sum([orthorectify(im, c, dem, gt)[1] for im, c in zip(imgs, cams)], axis=0) >= 2) & np.isfinite(dem)
@@ -314,7 +321,11 @@ def main(argv=None):
     ap.add_argument("--cross-check", action="store_true",
                     help="NGI: orthorefine(cross_check=True), a correction kept only where the pair families agree")
     ap.add_argument("--skip-drone", action="store_true", help="NGI only")
+    ap.add_argument("--rougher", action="store_true",
+                    help="orthorefine(not_rougher=False): the unconfirmed smooth part applied as measured")
     a = ap.parse_args(argv)
+    global NOT_ROUGHER
+    NOT_ROUGHER = not a.rougher
     root = data_dir(a.data) / "stereo" / "orthority"
     if not root.is_dir():
         print(f"SKIP: {root} is absent (set BARE_EARTH_DATA)")

@@ -6,6 +6,7 @@ match         normalised cross-correlation along a direction (+ LSM, left-right 
 refine        parallax -> height (eq. 18 and general geometry), one pair, orthoparallax
 quality       trusted corrections: blunders, merging pairs, ground trend, object mask
 iterate       orthorefine: the iteration over all pairs (Norvelle 1995)
+smoothness    roughness (Laplacian sd) and the smooth correction that does not raise it
 render        synthetic textured scenes and frames with known truth
 affine8       eq. 17: 8-parameter bilinear DEM <-> orthophoto transformation (no orientation)
 """

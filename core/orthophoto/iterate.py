@@ -22,9 +22,10 @@ from .quality import (
     spread_corrections,
 )
 from .refine import MIN_MATCHED_SHARE, as_grey, match_pair, object_cells, parallax_to_dh_vertical, plain_warning
+from .smoothness import project_smooth, roughness, roughness_cells, roughness_sd
 
 __all__ = ["orthorefine", "RefineResult", "overlapping_pairs", "pair_families", "cross_check_families",
-           "RELAXATION", "MIN_GAIN", "CROSS_CHECK", "FAMILY_TAIL"]
+           "RELAXATION", "MIN_GAIN", "CROSS_CHECK", "FAMILY_TAIL", "NOT_ROUGHER"]
 
 #: Default share of each measured correction applied to the DEM (the whole correction).
 RELAXATION = 1.0
@@ -36,6 +37,10 @@ MAX_LOST = 0.5
 #: Default of ``cross_check``: keep a correction only where pair families of different base
 #: directions agree (see :func:`cross_check_families`).
 CROSS_CHECK = False
+#: Default of ``not_rougher``: an update's unconfirmed smooth part may not make the DEM rougher
+#: (:func:`_smooth_update`, a smoothness prior). A start smoother than the terrain (a blurred DSM)
+#: then gains only the relief two pairs confirm as detail (README).
+NOT_ROUGHER = True
 #: One-sided tail of the families' agreement test: the 3 sigma tail of
 #: :func:`~.quality.agreement_bound`, so k = 3.
 FAMILY_TAIL = 1.35e-3
@@ -68,7 +73,11 @@ class RefineResult:
         next measurement showed it made the pairs agree worse, so it was taken back;
         ``measured``: not applied, see ``info['stop']``), ``mean_corr``,
         ``detail_single_pair`` (cells of significant detail not applied because only one
-        pair measured them) and, with
+        pair measured them), ``smoothness_mu`` (the multiplier of the smoothness step,
+        :func:`_smooth_update`: 0 when the update's unconfirmed smooth part did not make the DEM
+        rougher and was applied as measured, ``inf`` when it was shrunk as a whole),
+        ``roughness_m`` (the Laplacian sd after the update over the cells seen by two frames
+        at the start, eroded by two: :func:`~.smoothness.roughness_sd`) and, with
         ``reference``, ``rmse_reference_m`` of the DEM after that row.
     info : dict
         Parameters used, ``stop`` (why the iteration ended, in words) and ``warning``
@@ -207,7 +216,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 precision_cells=0.2, antialias=True, object_size_m=40.0, fill_sigma_cells=3.0,
                 relaxation=RELAXATION, min_gain=MIN_GAIN, outlier_m=None, reference=None,
                 reference_cells=None, tie_points=None, base_m=None,
-                height_m=None, base_direction=(1.0, 0.0), cross_check=CROSS_CHECK, progress=None):
+                height_m=None, base_direction=(1.0, 0.0), cross_check=CROSS_CHECK,
+                not_rougher=NOT_ROUGHER, progress=None):
     """Iterative orthophoto refinement of a DEM (Norvelle 1995; Luong Chinh Ke 2002, 2.3).
 
     Each iteration orthorectifies every frame onto the current DEM (collinearity equations,
@@ -219,8 +229,13 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     such) and their detail where it stands out of the noise (:func:`~.quality.split_significant`)
     and two pairs agree on it (one pair cannot tell a detail from its own blunder), tapered
     to 0 over half the window plus one cell around it (no step the measurements lack), fills
-    gaps of a few cells and adds ``relaxation`` x the correction to the DEM. No cell moves by
-    more than the trusted corrections around it support (``RefineResult.supported``).
+    gaps of a few cells and adds ``relaxation`` x the correction to the DEM. The smooth part
+    the confirmed detail's measurements do not make may not make the DEM rougher (the
+    Laplacian's variance over the cells seen by two frames): where it would, it is replaced by
+    the nearest field, weighted by its certainty, that does not (:func:`_smooth_update`, a
+    Tikhonov-regularised projection; ``info['roughness_start_m']``, ``info['roughness_m']``).
+    No cell moves by more than the trusted corrections around it support
+    (``RefineResult.supported``).
 
     The iteration rule: each update is checked by the next measurement, which compares
     the pairs' agreement (RMS residual parallax on the cells matched both times) with the
@@ -314,6 +329,11 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         or the part they share, was accepted in some iteration: the bound the independent
         pairs support; ``moved_max_m`` is larger where the smooth part and the fill carry
         it past those cells). Oriented frames only.
+    not_rougher : bool
+        Default :data:`NOT_ROUGHER` (on): the smooth part of an update that the confirmed detail's
+        measurements do not make may not raise the DEM's roughness (:func:`_smooth_update`, a
+        smoothness prior); False applies it as measured (a start smoother than the terrain,
+        e.g. a blurred DSM, then gains the relief the pairs measure).
     progress : callable, optional
         ``progress(fraction)``; may raise Cancelled.
 
@@ -346,7 +366,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                                   height_threshold_m=height_threshold_m,
                                   precision_cells=precision_cells, object_size_m=object_size_m,
                                   fill_sigma_cells=fill_sigma_cells, outlier_m=outlier_m,
-                                  reference=reference, progress=progress)
+                                  reference=reference, not_rougher=not_rougher, progress=progress)
         # every registered frame lies along one base_direction: no independent pair
         res.info["cross_check"] = ("not possible: all pairs have one base direction (tie_points mode)"
                                    if cross_check else "off")
@@ -381,6 +401,8 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         setup["pairs"] = meas["pairs"]
         if it == 0:
             parallax_start = meas["parallax"]
+            # the roughness is measured where the start is seen by two frames (README: Laplacian sd)
+            rough_cells = roughness_cells(meas["multi"])
             if reference_cells is None:
                 reference_cells = meas["multi"]
             info["sigma_expected_m"] = precision_cells * meas["dh_per_cell_m"]
@@ -394,7 +416,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         meas["share"] = share = float(matched.sum() / max(1, meas["multi"].sum()))
         row = dict(iteration=it + 1, rms_correction_m=rms, matched_share=share, pairs=len(meas["pinfo"]),
                    rms_parallax_m=meas["rms_parallax_m"], agreement=float("nan"), status="measured",
-                   detail_single_pair=0,
+                   detail_single_pair=0, smoothness_mu=0.0, roughness_m=float("nan"),
                    mean_corr=float(np.nanmean(meas["quality"][matched])) if matched.any() else float("nan"))
         table.append(row)
         if prev is not None:
@@ -450,23 +472,31 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
         if smooth_cells and smooth_cells > 1:
             dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
         trusted = dh_it
-        smooth, detail, n_single, keep = _confirmed_detail(dh_it, merged, meas["dhs"], outlier,
-                                                           info["sigma_expected_m"], window)
+        smooth, detail, n_single, keep, certainty, smooth_conf = _confirmed_detail(
+            dh_it, merged, meas["dhs"], outlier, info["sigma_expected_m"], window)
         row["detail_single_pair"] = n_single
         # the smooth part is a field, applied as such (fading out with its certainty); the
         # detail reaches unmatched cells within the fill distance, fading out; farther cells
         # keep their height (nothing was measured there)
         dh_it = np.where(matched, smooth + detail, np.nan)
-        corr_full = smooth + spread_corrections(detail, matched, fill_sigma_cells)
+        spread = spread_corrections(detail, matched, fill_sigma_cells)
         prev_dem, prev = cur, meas
         prev_bound, prev_detail = bound, detail_cells
         # the data-supported bound of a cell's move: what the trusted corrections around it
         # support (_supported_move), summed over the kept updates; never more than MAX_DH_M
         bound = bound + float(relaxation) * _supported_move(trusted, detail, window, fill_sigma_cells)
         detail_cells = detail_cells | keep
-        cur = cur + float(relaxation) * corr_full
         lim = np.minimum(bound, max_dh_m)
-        cur = np.where(valid_dem, np.clip(cur, dem0 - lim, dem0 + lim), np.nan).astype(np.float32)
+        # the smooth part may not make the DEM rougher than the update's confirmed detail does
+        def finish(z, lo=dem0 - lim, hi=dem0 + lim):
+            return np.where(valid_dem, np.clip(z, lo, hi), np.nan).astype(np.float32)
+        rel = float(relaxation)
+        first = finish(cur + rel * (smooth + spread))
+        if not_rougher:
+            cur, row["smoothness_mu"], row["roughness_m"] = _smooth_update(
+                cur, first, rel * (smooth - smooth_conf), rel * (spread + smooth_conf), certainty, rough_cells, finish)
+        else:
+            cur, row["roughness_m"] = first, roughness_sd(first, rough_cells)
         # what is left after an update is at most what was just measured: the next search
         # range is the 99th percentile of |correction| (at least 6 x the expected precision)
         big = float(np.percentile(np.abs(dh_it[matched]), 99)) if matched.any() else max_dh_m
@@ -485,7 +515,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
     info.setdefault("warning", _refusal(1.0, meas["pinfo"], sig, info["sigma_expected_m"]))
     info.update(pairs=[tuple(p) for p in setup["pairs"]],
                 iterations=sum(r["status"] == "applied" for r in table), measurements=len(table),
-                stop=stop, relaxation=float(relaxation), tolerance_m=float(tolerance_m),
+                stop=stop, relaxation=float(relaxation), tolerance_m=float(tolerance_m), not_rougher=bool(not_rougher),
                 max_dh_m=float(max_dh_m), height_threshold_m=float(thr), sigma_data_m=sig,
                 # how far the cells moved, against the bound max_dh_m (README, iteration rule)
                 moved_max_m=float(np.nanmax(np.abs(cur - dem0))) if np.isfinite(cur - dem0).any() else 0.0,
@@ -495,7 +525,9 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                 detail_cells=int(np.count_nonzero(detail_cells)),
                 window=window, shiftable=shiftable, min_corr=min_corr,
                 cells_seen_by_two=int(multi.sum()), noise_grey=meas["noise_grey"],
-                rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"])
+                rms_parallax_m=meas["rms_parallax_m"], rms_parallax_start_m=table[0]["rms_parallax_m"],
+                # the roughness the smoothness step keeps from rising (Laplacian sd, cells seen by two)
+                roughness_start_m=roughness_sd(dem0, rough_cells), roughness_m=roughness_sd(cur, rough_cells))
     moved = np.abs(cur - dem0)
     if not cross_check:
         info["cross_check"] = "off"
@@ -551,11 +583,16 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
         Cells of detail dropped because only one pair measured them.
     keep : ndarray of bool
         The cells of kept (confirmed) significant detail.
+    certainty : ndarray float64
+        The smooth part's certainty (:func:`_certainty`, >= 1).
+    smooth_conf : ndarray float64
+        The share of the smooth part made by the measurements on ``keep`` (confirmed too).
     """
     dh = np.asarray(dh, np.float32)
     num, den, sig = split_significant(dh, sigma_m, window)
     side = max(1, int(window) // 2 + 1)
     smooth = _certainty_mean(num, den, window)
+    certainty = _certainty(den, window)
     keep, n_single = sig, 0
     if len(dhs) >= 2 and sig.any():
         support = np.zeros(dh.shape, np.int16)
@@ -566,15 +603,62 @@ def _confirmed_detail(dh, merged, dhs, outlier_m, sigma_m, window):
         confirmed = ndimage.mean(support >= 2, labels, np.arange(1, n + 1)) >= 0.5
         keep = sig & np.concatenate(([False], confirmed))[labels]
         n_single = int(np.count_nonzero(sig & ~keep))
-    return smooth, _taper_detail(dh - smooth, keep, sig & ~keep, side), n_single, keep
+    # the share of the smooth part the confirmed detail's own measurements make (confirmed too)
+    smooth_conf = (_certainty_mean(ndimage.gaussian_filter(np.where(keep, np.nan_to_num(dh), 0.0).astype(np.float64),
+                                                           max(0.5, float(window)), mode="nearest"), den, window)
+                   if keep.any() else np.zeros(dh.shape))
+    return smooth, _taper_detail(dh - smooth, keep, sig & ~keep, side), n_single, keep, certainty, smooth_conf
+
+
+def _full_weight(window):
+    """The Gaussian weight (sigma the window) of a square of half the window plus one cell of
+    measurements: the smooth part is in full above it."""
+    s = max(0.5, float(window))
+    side = max(1, int(window) // 2 + 1)
+    return side * side / (2.0 * np.pi * s * s)
 
 
 def _certainty_mean(num, den, window):
     """The certainty-weighted Gaussian mean ``num / den``: in full where the Gaussian (sigma the
     window) holds the weight of a square of half the window plus one cell, in proportion below."""
-    s = max(0.5, float(window))
-    side = max(1, int(window) // 2 + 1)
-    return num / np.maximum(den, side * side / (2.0 * np.pi * s * s))
+    return num / np.maximum(den, _full_weight(window))
+
+
+def _certainty(den, window):
+    """The certainty of the smooth part, in units of the full weight: ``max(den, full) / full``.
+
+    Below the full weight the smooth part is the measurements' mean (certainty ``den / full``)
+    shrunk towards no change (the prior, certainty ``1 - den / full``): 1 together; above it,
+    the measurements alone, ``den / full`` (Knutsson & Westin 1993: the output certainty of a
+    normalised convolution is its denominator).
+    """
+    full = _full_weight(window)
+    return np.maximum(den, full) / full
+
+
+def _smooth_update(cur, first, smooth, confirmed, certainty, cells, finish):
+    """The updated DEM whose unconfirmed smooth part does not raise the roughness.
+
+    ``first`` is the update as measured (``finish(cur + smooth + confirmed)``); ``confirmed``
+    the confirmed detail spread into the unmatched cells plus the share of the smooth part
+    its own measurements make, ``smooth`` the rest of the smooth part (measured by pairs that
+    do not confirm it as detail). The budget is the roughness
+    (:func:`~.smoothness.roughness`, the Laplacian's variance over ``cells``) of the DEM
+    before the update or with the confirmed part alone, the larger: what two pairs confirm
+    may add the curvature the DEM lacked, the unconfirmed smooth part may not. Where
+    ``first`` meets it, it is returned as it is; else the unconfirmed smooth part is replaced
+    by the field nearest to it, weighted by its certainty, that meets it
+    (:func:`~.smoothness.project_smooth`; only cells the smooth part reaches move).
+
+    Returns the DEM, the multiplier ``mu`` (0: unchanged) and its Laplacian sd over ``cells``.
+    """
+    base = cur.astype(np.float64) + confirmed
+    budget = max(roughness(cur, cells), roughness(finish(base), cells))
+    if roughness(first, cells) <= budget:
+        return first, 0.0, roughness_sd(first, cells)
+    free = np.isfinite(cur) & (smooth != 0)
+    dem, pinfo = project_smooth(base, smooth, certainty, free, cells, budget, finish)
+    return dem, float(pinfo["mu"]), roughness_sd(dem, cells)
 
 
 def _supported_move(trusted, detail, window, fill_sigma_cells):
@@ -696,7 +780,7 @@ def _refusal(share, pinfo, sigma_data, sigma_expected):
 def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, base_direction,
                        *, window, shiftable, min_corr, max_dh_m, pairs, min_overlap,
                        smooth_cells, height_threshold_m, precision_cells, object_size_m,
-                       fill_sigma_cells, outlier_m, reference, progress):
+                       fill_sigma_cells, outlier_m, reference, not_rougher, progress):
     """One refinement pass on orthophotos registered by eq. 17 (no orientation known)."""
     from .affine8 import Bilinear8, fit_bilinear8, register_orthophoto
     if tie_points is None or len(tie_points) != len(images):
@@ -742,15 +826,27 @@ def _refine_registered(dem0, transform, images, tie_points, base_m, height_m, ba
     refused = share < MIN_MATCHED_SHARE
     if smooth_cells and smooth_cells > 1:
         dh_it = np.where(matched, nan_median_filter(dh_it, int(smooth_cells) | 1)[0], np.nan)
-    smooth, detail, n_single, keep = _confirmed_detail(dh_it, merged, dhs, outlier, sigma, window)
+    smooth, detail, n_single, keep, certainty, smooth_conf = _confirmed_detail(dh_it, merged, dhs, outlier,
+                                                                              sigma, window)
     dh_it = np.where(matched, smooth + detail, np.nan)
-    full = (np.zeros(dem0.shape, np.float32) if refused
-            else (smooth + spread_corrections(detail, matched, fill_sigma_cells)).astype(np.float32))
-    cur = np.where(np.isfinite(dem0), dem0 + full, np.nan).astype(np.float32)
+    mu, rough = 0.0, roughness_sd(dem0, roughness_cells(multi & np.isfinite(dem0)))
+    if refused:
+        cur = dem0.copy()
+    elif not not_rougher:
+        cur = np.where(np.isfinite(dem0), dem0 + (smooth + spread_corrections(detail, matched, fill_sigma_cells))
+                       .astype(np.float32), np.nan).astype(np.float32)
+        rough = roughness_sd(cur, roughness_cells(multi & np.isfinite(dem0)))
+    else:
+        spread = spread_corrections(detail, matched, fill_sigma_cells)
+        first = np.where(np.isfinite(dem0), dem0 + (smooth + spread).astype(np.float32), np.nan).astype(np.float32)
+        cur, mu, rough = _smooth_update(dem0, first, smooth - smooth_conf, spread + smooth_conf, certainty,
+                                        roughness_cells(multi & np.isfinite(dem0)),
+                                        lambda z: np.where(np.isfinite(dem0), z, np.nan).astype(np.float32))
     rms = float(np.sqrt(np.mean(dh_it[matched] ** 2))) if matched.any() else float("nan")
     row = dict(iteration=1, rms_correction_m=rms, matched_share=share, pairs=len(pinfo),
                rms_parallax_m=float(np.sqrt(np.nanmean([p["rms_parallax_m"] ** 2 for p in pinfo]))),
                agreement=float("nan"), status="measured" if refused else "applied", detail_single_pair=n_single,
+               smoothness_mu=mu, roughness_m=rough,
                mean_corr=float(np.nanmean(quality[matched])) if matched.any() else float("nan"))
     _reference(row, reference, None, cur, multi, np.isfinite(dem0))
     dh_total = np.where(multi, cur - dem0, np.nan).astype(np.float32)
