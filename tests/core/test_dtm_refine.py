@@ -271,6 +271,59 @@ def test_continue_ground_exact():
     assert not dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=0).any()
 
 
+def test_continue_lines_exact():
+    """A disputed cell on the straight continuation of three anchors in a line, with the ground dropping beyond it
+    (a step's top), becomes ground in every direction; a bump, a hedge, a roof without anchors, nodata, or
+    a too short reach do not."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -3.0                                  # a 3 m wall down to the left of column 4
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4] = True
+    anchors = ~disputed
+    got = dr.continue_lines(z, disputed, anchors, tolerance_m=0.5, reach_cells=3)
+    np.testing.assert_array_equal(got, disputed)     # the upper edge of the wall: ground
+    for k in range(4):                               # every orientation: the same on the rotated arrays
+        zr, dr_, ar = np.rot90(z, k), np.rot90(disputed, k), np.rot90(anchors, k)
+        np.testing.assert_array_equal(dr.continue_lines(zr, dr_, ar, tolerance_m=0.5, reach_cells=3), dr_)
+    # a diagonal wall: the edge continues the anchors along the diagonals and rows
+    i, j = np.mgrid[0:9, 0:9]
+    zd = np.where(i + j < 8, -3.0, 0.1 * (i + j)).astype(np.float32)
+    dd = (i + j == 8)
+    got = dr.continue_lines(zd, dd, ~dd, tolerance_m=0.5, reach_cells=3)
+    assert got[dd & (i >= 2) & (j >= 2)].all() and not got[~dd].any()   # near the corners: too few cells
+    # the cell above (a hedge) or below (a ditch) the continuation by more than the tolerance: kept
+    for h in (0.6, -0.6):
+        zz = z.copy()
+        zz[:, 4] = h
+        assert not dr.continue_lines(zz, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    # a low bump on level ground: the ground beyond continues the line (no drop), not a step's top
+    bump = np.zeros(z.shape, np.float32)
+    bump[:, 4] = 0.4
+    assert not dr.continue_lines(bump, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    # the drop beyond must exceed the tolerance of the line continued two cells (0.5 sqrt(14/6) = 0.764 m)
+    small = z.copy()
+    small[:, :4] = -0.7
+    assert not dr.continue_lines(small, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    small[:, :4] = -0.8
+    assert dr.continue_lines(small, disputed, anchors, tolerance_m=0.5, reach_cells=3)[:, 4].all()
+    # no anchors on the upper side (a roof's edge: the vote's ground there is not undisputed)
+    roof = anchors.copy()
+    roof[:, 5:] = False
+    assert not dr.continue_lines(z, disputed, roof, tolerance_m=0.5, reach_cells=3).any()
+    # nodata, no reach, bad tolerance
+    holes = z.copy()
+    holes[3, 4] = np.nan
+    got = dr.continue_lines(holes, disputed, anchors, tolerance_m=0.5, reach_cells=3)
+    assert not got[3, 4] and got[0, 4]
+    assert not dr.continue_lines(z, disputed, anchors, tolerance_m=0.5, reach_cells=2).any()
+    # the side must be straight over three cells: a kink in it (rough ground, low vegetation kept by all)
+    kink = z.copy()
+    kink[:, 7] = 0.6
+    assert not dr.continue_lines(kink, disputed, anchors, tolerance_m=0.5, reach_cells=3)[:, 4].any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.continue_lines(z, disputed, anchors, tolerance_m=0.0, reach_cells=3)
+
+
 def test_continue_ground_judged_on_ground_passes_objects_standing_on_the_bank():
     """judge_on_ground: the smoothness of a disputed cell is read on the ground and disputed cells
     (find_smooth's ground), so an object standing on a bank (a bush the caller does not dispute)
