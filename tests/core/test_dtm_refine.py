@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 from surfaces import in_blocks
 
 from bare_earth.core import dtm_refine as dr
@@ -322,6 +323,23 @@ def test_continue_lines_exact():
     assert not dr.continue_lines(kink, disputed, anchors, tolerance_m=0.5, reach_cells=3)[:, 4].any()
     with pytest.raises(ValueError, match="tolerance_m"):
         dr.continue_lines(z, disputed, anchors, tolerance_m=0.0, reach_cells=3)
+
+
+def test_continue_lines_in_blocks_equals_one_pass():
+    """A cell's decision depends on cells at most ``reach_cells`` away (``reach_cells // 3`` passes of three
+    cells): blocks read with that halo give the one pass, on a quarry whose benches' tops it gives back."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("quarry", 2.0, "lowest")
+    steps = ndimage.maximum_filter(s.dtm, 3) - ndimage.minimum_filter(s.dtm, 3) > 3.0
+    disputed = steps & (s.mask == GROUND)                 # the benches' faces and edges
+    anchors = ~steps & (s.mask == GROUND)
+    reach = 9
+    whole = dr.continue_lines(s.dsm, disputed, anchors, tolerance_m=0.5, reach_cells=reach)
+    assert whole.sum() > 100
+    got = in_blocks(lambda wr, wc: dr.continue_lines(s.dsm[wr, wc], disputed[wr, wc], anchors[wr, wc],
+                                                     tolerance_m=0.5, reach_cells=reach),
+                    s.dsm.shape, 40, reach)
+    np.testing.assert_array_equal(got, whole)
 
 
 def test_continue_ground_judged_on_ground_passes_objects_standing_on_the_bank():
