@@ -444,7 +444,11 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
     member kept makes three cells in a line less often than two (``synthetic_sites`` at 1 m, lowest
     point: ``shrubs`` 741 shrub cells given back with two cells, 289 with three; ``hillside`` 383 of its
     384 cells given back and ``quarry`` 1139 of 1146 are true ground). A cell so given
-    back continues the line for the next one: ``reach_cells // 3`` passes, each reading three cells
+    back continues the line for the next one, and a cell of the step's face (not vertical: a quarry's
+    bench, a cliff) between two ground cells along a line (anchors or cells given back), below the
+    higher and above the lower by more than ``tolerance_m`` times ``sqrt(14 / 6)``, is ground too (on
+    a slope steeper than the ground's noise explains; an object on a slope stands above its uphill
+    neighbour or near it): ``reach_cells // 3`` passes, each reading at most three cells
     further, so a cell's decision depends on cells at most ``reach_cells`` away (the reach of
     :func:`continue_ground`, which reads the same vote). A roof's edge meets no anchors on its upper
     side (the vote's ground on a roof is not undisputed), a crown's or a hedge's edge stands above
@@ -520,11 +524,26 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
         ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol) & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol)
               & (zf[i0] < 3 * zf[i1] - 2 * zf[i2] - tol_beyond))
         pairs.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+    # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below the
+    # higher and above the lower by more than the tolerance of a continuation beyond (a cell on a slope steeper
+    # than the ground's noise explains; an object on a slope stands above its uphill neighbour or near it)
+    faces = []
+    for dr, dc in _LINE_STEPS[::2]:
+        ra, ca, rb, cb = r + dr, c + dc, r - dr, c - dc
+        inside = ((ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
+                  & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols))
+        ia = np.where(inside, ra * cols + ca, 0)
+        ib = np.where(inside, rb * cols + cb, 0)
+        hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
+        ok = inside & (hi - zc > tol_beyond) & (zc - lo > tol_beyond)
+        faces.append((ia[ok], ib[ok], np.flatnonzero(ok)))
     done = np.zeros(r.size, bool)
     for _ in range(int(reach_cells) // 3):
         new = np.zeros(r.size, bool)
         for i1, i2, i3, k in pairs:
             new[k] |= known[i1] & known[i2] & known[i3]
+        for ia, ib, k in faces:
+            new[k] |= known[ia] & known[ib]
         new &= ~done
         if not new.any():
             break

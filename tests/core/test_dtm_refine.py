@@ -325,6 +325,30 @@ def test_continue_lines_exact():
         dr.continue_lines(z, disputed, anchors, tolerance_m=0.0, reach_cells=3)
 
 
+def test_continue_lines_gives_back_a_face_between_ground():
+    """A cell of a step's face (not vertical) between ground cells along a line, more than the continuation's
+    tolerance below the higher and above the lower, is ground; an object on a slope (near its uphill neighbour)
+    is not; a face two cells wide with no ground next to either cell is not (the passes need known ground)."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -4.0
+    z[:, 4] = -2.0                                    # the face between the levels -4 and 0
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4] = True
+    np.testing.assert_array_equal(dr.continue_lines(z, disputed, ~disputed, tolerance_m=0.5, reach_cells=3),
+                                  disputed)
+    z[:, 4] = -0.7                                    # 0.7 m below the upper level: within 0.764 m, kept
+    assert not dr.continue_lines(z, disputed, ~disputed, tolerance_m=0.5, reach_cells=3).any()
+    slope = np.tile(-0.7 * np.arange(9, dtype=np.float32)[::-1], (7, 1))
+    slope[:, 4] += 0.5                                # a bush 0.5 m high on a 35 degree slope
+    assert not dr.continue_lines(slope, disputed, ~disputed, tolerance_m=0.5, reach_cells=3).any()
+    wide = np.zeros(z.shape, np.float32)
+    wide[:, :3] = -4.0
+    wide[:, 3], wide[:, 4] = -2.6, -1.3
+    d2 = np.zeros(z.shape, bool)
+    d2[:, 3:5] = True
+    assert not dr.continue_lines(wide, d2, ~d2, tolerance_m=0.5, reach_cells=3).any()
+
+
 def test_continue_lines_in_blocks_equals_one_pass():
     """A cell's decision depends on cells at most ``reach_cells`` away (``reach_cells // 3`` passes of three
     cells): blocks read with that halo give the one pass, on a quarry whose benches' tops it gives back."""
