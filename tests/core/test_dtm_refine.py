@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 from surfaces import in_blocks
 
 from bare_earth.core import dtm_refine as dr
@@ -269,6 +270,100 @@ def test_continue_ground_exact():
     assert not got[2, 8] and got[0, 8]
     assert not dr.continue_ground(z, disputed, anchors, np.zeros_like(anchors), height_m=1.0, reach_cells=20).any()
     assert not dr.continue_ground(z, disputed, anchors, anchors, height_m=1.0, reach_cells=0).any()
+
+
+def test_continue_lines_exact():
+    """A disputed cell on the straight continuation of three anchors in a line, with the ground dropping beyond it
+    (a step's top), becomes ground in every direction; a bump, a hedge, a roof without anchors, nodata, or
+    a too short reach do not."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -3.0                                  # a 3 m wall down to the left of column 4
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4] = True
+    anchors = ~disputed
+    got = dr.continue_lines(z, disputed, anchors, tolerance_m=0.5, reach_cells=3)
+    np.testing.assert_array_equal(got, disputed)     # the upper edge of the wall: ground
+    for k in range(4):                               # every orientation: the same on the rotated arrays
+        zr, dr_, ar = np.rot90(z, k), np.rot90(disputed, k), np.rot90(anchors, k)
+        np.testing.assert_array_equal(dr.continue_lines(zr, dr_, ar, tolerance_m=0.5, reach_cells=3), dr_)
+    # a diagonal wall: the edge continues the anchors along the diagonals and rows
+    i, j = np.mgrid[0:9, 0:9]
+    zd = np.where(i + j < 8, -3.0, 0.1 * (i + j)).astype(np.float32)
+    dd = (i + j == 8)
+    got = dr.continue_lines(zd, dd, ~dd, tolerance_m=0.5, reach_cells=3)
+    assert got[dd & (i >= 2) & (j >= 2)].all() and not got[~dd].any()   # near the corners: too few cells
+    # the cell above (a hedge) or below (a ditch) the continuation by more than the tolerance: kept
+    for h in (0.6, -0.6):
+        zz = z.copy()
+        zz[:, 4] = h
+        assert not dr.continue_lines(zz, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    # a low bump on level ground: the ground beyond continues the line (no drop), not a step's top
+    bump = np.zeros(z.shape, np.float32)
+    bump[:, 4] = 0.4
+    assert not dr.continue_lines(bump, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    # the drop beyond must exceed the tolerance of the line continued two cells (0.5 sqrt(14/6) = 0.764 m)
+    small = z.copy()
+    small[:, :4] = -0.7
+    assert not dr.continue_lines(small, disputed, anchors, tolerance_m=0.5, reach_cells=3).any()
+    small[:, :4] = -0.8
+    assert dr.continue_lines(small, disputed, anchors, tolerance_m=0.5, reach_cells=3)[:, 4].all()
+    # no anchors on the upper side (a roof's edge: the vote's ground there is not undisputed)
+    roof = anchors.copy()
+    roof[:, 5:] = False
+    assert not dr.continue_lines(z, disputed, roof, tolerance_m=0.5, reach_cells=3).any()
+    # nodata, no reach, bad tolerance
+    holes = z.copy()
+    holes[3, 4] = np.nan
+    got = dr.continue_lines(holes, disputed, anchors, tolerance_m=0.5, reach_cells=3)
+    assert not got[3, 4] and got[0, 4]
+    assert not dr.continue_lines(z, disputed, anchors, tolerance_m=0.5, reach_cells=2).any()
+    # the side must be straight over three cells: a kink in it (rough ground, low vegetation kept by all)
+    kink = z.copy()
+    kink[:, 7] = 0.6
+    assert not dr.continue_lines(kink, disputed, anchors, tolerance_m=0.5, reach_cells=3)[:, 4].any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.continue_lines(z, disputed, anchors, tolerance_m=0.0, reach_cells=3)
+
+
+def test_continue_lines_gives_back_a_face_between_ground():
+    """A cell of a step's face (not vertical) between ground cells along a line, more than the continuation's
+    tolerance below the higher and above the lower, is ground; an object on a slope (near its uphill neighbour)
+    is not; a face two cells wide with no ground next to either cell is not (the passes need known ground)."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -4.0
+    z[:, 4] = -2.0                                    # the face between the levels -4 and 0
+    disputed = np.zeros(z.shape, bool)
+    disputed[:, 4] = True
+    np.testing.assert_array_equal(dr.continue_lines(z, disputed, ~disputed, tolerance_m=0.5, reach_cells=3),
+                                  disputed)
+    z[:, 4] = -0.7                                    # 0.7 m below the upper level: within 0.764 m, kept
+    assert not dr.continue_lines(z, disputed, ~disputed, tolerance_m=0.5, reach_cells=3).any()
+    slope = np.tile(-0.7 * np.arange(9, dtype=np.float32)[::-1], (7, 1))
+    slope[:, 4] += 0.5                                # a bush 0.5 m high on a 35 degree slope
+    assert not dr.continue_lines(slope, disputed, ~disputed, tolerance_m=0.5, reach_cells=3).any()
+    wide = np.zeros(z.shape, np.float32)
+    wide[:, :3] = -4.0
+    wide[:, 3], wide[:, 4] = -2.6, -1.3
+    d2 = np.zeros(z.shape, bool)
+    d2[:, 3:5] = True
+    assert not dr.continue_lines(wide, d2, ~d2, tolerance_m=0.5, reach_cells=3).any()
+
+
+def test_continue_lines_in_blocks_equals_one_pass():
+    """A cell's decision depends on cells at most ``reach_cells`` away (``reach_cells // 3`` passes of three
+    cells): blocks read with that halo give the one pass, on a quarry whose benches' tops it gives back."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("quarry", 2.0, "lowest")
+    steps = ndimage.maximum_filter(s.dtm, 3) - ndimage.minimum_filter(s.dtm, 3) > 3.0
+    disputed = steps & (s.mask == GROUND)                 # the benches' faces and edges
+    anchors = ~steps & (s.mask == GROUND)
+    reach = 9
+    whole = dr.continue_lines(s.dsm, disputed, anchors, tolerance_m=0.5, reach_cells=reach)
+    assert whole.sum() > 100
+    got = in_blocks(lambda wr, wc: dr.continue_lines(s.dsm[wr, wc], disputed[wr, wc], anchors[wr, wc],
+                                                     tolerance_m=0.5, reach_cells=reach),
+                    s.dsm.shape, 40, reach)
+    np.testing.assert_array_equal(got, whole)
 
 
 def test_continue_ground_judged_on_ground_passes_objects_standing_on_the_bank():

@@ -1,0 +1,493 @@
+"""Synthetic sites like the held-out ISPRS samples (issue 13), sampled as point rasters.
+
+:mod:`.synthetic` builds scenes on the output grid. The held-out ISPRS samples differ from
+them in their sites (a steep town hillside with retaining walls, a railway station full of
+trains, a quarry with benches and cliffs, steep slopes under dense low vegetation, a bridge with
+ramps among large buildings and data gaps) and in how a point raster is made: points, about one
+per square metre, the lowest (a lidar DSM) or the highest (an image-matching DSM, the top of every
+object) point kept per cell, empty cells taken from the nearest cell, as ``benchmarks/generalise.py``
+rasterises the ISPRS samples. :func:`make_site` builds each site on a fine grid (:data:`FINE_M`),
+draws the points (seeded), and keeps per cell the chosen point's truth:
+
+* ``mask``: object where the chosen point is an object return (an object surface at least
+  :data:`MIN_OBJECT_M` above the ground under it), else ground; the cells without a point take the
+  nearest cell's point as their value and truth. Retaining walls, platforms with their ramps, quarry
+  benches and cliffs, gravel piles, embankments and road cuts are ground; buildings, trains,
+  platform roofs, bridge decks, trees, shrubs, hedges, sheds and trucks are objects.
+* ``dtm``: the mean of the fine ground over the cell (finite everywhere).
+* ``dsm``: the chosen point's height with Gaussian noise (``noise_m``, truncated at 4.5 sigma).
+
+``surface="lowest"``: a pulse passes a tree crown to the ground with probability
+:data:`PASS_TREE`, a shrub with :data:`PASS_SHRUB` (the last return), and the lowest point of a cell
+is kept, so the ground shows between crowns. ``surface="highest"``: no pulse passes vegetation
+(the first return) and the highest point is kept, so objects cover every cell they touch.
+"""
+import numpy as np
+from scipy import ndimage
+
+from .codes import GROUND, OBJECT
+from .synthetic import Scene
+
+#: The sites :func:`make_site` builds.
+SITES = ("hillside", "railway", "quarry", "shrubs", "bridge")
+#: Fine grid of the site's surfaces, metres (points take the value of their fine cell).
+FINE_M = 0.5
+#: Object surfaces lower than this above the ground under them are ground returns, metres.
+MIN_OBJECT_M = 0.5
+#: Probability that a pulse through a tree crown / a shrub reaches the ground (lowest surface).
+PASS_TREE = 0.35
+PASS_SHRUB = 0.15
+_ORIGIN_XY = (510000.0, 5410000.0)
+_EPSG = 32632
+
+
+def make_site(kind, cell_size=1.0, surface="lowest", extent_m=320.0, seed=0, noise_m=0.05,
+              density_per_m2=1.2):
+    """Build a site with known truth rasterised from points like the ISPRS samples.
+
+    Parameters
+    ----------
+    kind : str
+        ``"hillside"`` (a 25-35 degree slope cut into terraces by 2-4.5 m retaining walls, rows
+        of houses on the terraces, hedges along the walls, trees on the slopes: ISPRS 11 and 12),
+        ``"railway"`` (8-14 parallel tracks 4.5-7 m apart with trains 3.6-4.2 m high, 3 m wide,
+        50-200 m long, coupler gaps; platforms 1 m high with ramps at their ends under roofs;
+        a station hall: ISPRS 42), ``"quarry"`` (a pit of 3-5 benches 5-15 m high and 8-20 m
+        wide, merged into one cliff on a sector, gravel piles on the floor, sheds, trucks, trees
+        on the rim: ISPRS 53), ``"shrubs"`` (a 28-38 degree slope with a gully and a road cut
+        into it, shrubs 0.6-2 m high covering about half of it, scattered trees: ISPRS 52) or
+        ``"bridge"`` (a road bridge with a 6-8 m deck over a road, one ramp between retaining
+        walls and one on banks, a garage ramp cut 3 m down, large L-shaped buildings with roof
+        structures, data gaps, trees and cars: ISPRS 21-24).
+    cell_size : float
+        Output cell size in metres, a multiple of :data:`FINE_M` dividing ``extent_m``.
+    surface : str
+        ``"lowest"`` (lidar: lowest point per cell, pulses through vegetation) or ``"highest"``
+        (the highest point per cell, vegetation opaque).
+    extent_m : float
+        Side of the square site, metres.
+    seed : int
+        Random seed; the same arguments give the same site (the fine site does not depend on
+        ``cell_size`` or ``surface``).
+    noise_m : float
+        Standard deviation of the points' height noise, metres.
+    density_per_m2 : float
+        Points per square metre (ISPRS urban samples: about 1).
+
+    Returns
+    -------
+    Scene
+        With ``kind`` the site's name and ``objects`` empty.
+
+    Raises
+    ------
+    ValueError
+        For an unknown kind or surface, or a cell size that does not tile the site.
+    """
+    if kind not in SITES:
+        raise ValueError(f"unknown site {kind!r}; choose one of {', '.join(SITES)}.")
+    if surface not in ("lowest", "highest"):
+        raise ValueError(f"surface must be 'lowest' or 'highest'; got {surface!r}.")
+    k = float(cell_size) / FINE_M
+    n = float(extent_m) / FINE_M
+    if k < 1 or abs(k - round(k)) > 1e-9 or abs(n - round(n)) > 1e-9 or round(n) % round(k):
+        raise ValueError(f"cell_size {cell_size!r} must be a multiple of {FINE_M} m dividing "
+                         f"extent_m {extent_m!r}.")
+    if not np.isfinite(noise_m) or noise_m < 0 or not density_per_m2 > 0:
+        raise ValueError("noise_m must be >= 0 and density_per_m2 > 0.")
+    k, n = int(round(k)), int(round(n))
+    ss = np.random.SeedSequence([int(seed), SITES.index(kind)])
+    r_site, r_points = (np.random.default_rng(s) for s in ss.spawn(2))
+    site = _Site(n, float(extent_m))
+    _BUILD[kind](site, r_site)
+    return site.rasterise(r_points, k, surface, noise_m, density_per_m2, kind)
+
+
+# ----------------------------------------------------------------------------------- the site
+class _Site:
+    """Fine-grid ground, object tops, pass probabilities and data gaps of one site."""
+
+    def __init__(self, n, extent):
+        self.n, self.e = n, extent
+        self.x = ((np.arange(n) + 0.5) * FINE_M).astype(np.float32)
+        self.X, self.Y = self.x[None, :], self.x[:, None]
+        self.ground = None
+        self.top = np.full((n, n), -np.inf, np.float32)
+        self.passing = np.zeros((n, n), np.float32)
+        self.gap = np.zeros((n, n), bool)
+
+    def window(self, cx, cy, reach):
+        """Slices of the fine cells within ``reach`` metres of ``(cx, cy)``, and their x, y."""
+        c0, c1 = max(int((cx - reach) / FINE_M), 0), min(int((cx + reach) / FINE_M) + 1, self.n)
+        r0, r1 = max(int((cy - reach) / FINE_M), 0), min(int((cy + reach) / FINE_M) + 1, self.n)
+        if c0 >= c1 or r0 >= r1:
+            return None
+        return (slice(r0, r1), slice(c0, c1)), self.x[c0:c1][None, :], self.x[r0:r1][:, None]
+
+    def put(self, sl, where, z, passing=0.0):
+        """Raise the object tops to ``z`` where ``where`` and ``z`` stands high enough."""
+        where = where & (z >= self.ground[sl] + np.float32(MIN_OBJECT_M))
+        t = self.top[sl]
+        up = where & (z > t)
+        t[up] = np.broadcast_to(z, up.shape)[up]
+        self.passing[sl][up] = passing
+
+    def box(self, cx, cy, ang, length, width, height, base=None, passing=0.0, roof=None):
+        """A rotated box (``length`` along ``ang``); ``base`` None: on the ground under each cell.
+        ``roof(u, v)`` adds a roof shape (metres) to the flat top."""
+        w = self.window(cx, cy, 0.5 * np.hypot(length, width) + 1.0)
+        if w is None:
+            return
+        sl, x, y = w
+        ca, sa = np.float32(np.cos(ang)), np.float32(np.sin(ang))
+        u = (x - cx) * ca + (y - cy) * sa
+        v = (y - cy) * ca - (x - cx) * sa
+        foot = (np.abs(u) <= length / 2) & (np.abs(v) <= width / 2)
+        z = (self.ground[sl] if base is None else np.float32(base)) + np.float32(height)
+        if roof is not None:
+            z = z + roof(u, v).astype(np.float32)
+        self.put(sl, foot, np.broadcast_to(z, foot.shape), passing)
+
+    def plant(self, rng, cx, cy, heights, radii, passing, follow=False):
+        """Crowns (paraboloids with rough tops) at ``(cx, cy)``; ``follow``: shrubs whose
+        height is above the ground under each cell, else crowns level from their stem's foot."""
+        for x0, y0, h, r in zip(cx, cy, heights, radii):
+            w = self.window(x0, y0, r)
+            if w is None:
+                continue
+            sl, x, y = w
+            q = ((x - x0) ** 2 + (y - y0) ** 2) / np.float32(r * r)
+            b = rng.uniform(0.3, 0.6)
+            g = self.ground[sl]
+            foot = g if follow else self.ground[min(int(y0 / FINE_M), self.n - 1),
+                                                 min(int(x0 / FINE_M), self.n - 1)]
+            z = foot + np.float32(h) * (1 - np.float32(1 - b) * q)
+            z = z + np.float32(0.05 * h) * rng.standard_normal(q.shape).astype(np.float32)
+            self.put(sl, q <= 1, z, passing)
+
+    def scatter(self, rng, density, keep=None):
+        """Poisson points (x, y) over the site, ``keep(x, y)`` selecting where."""
+        m = rng.poisson(density * self.e * self.e)
+        x, y = rng.uniform(0, self.e, m), rng.uniform(0, self.e, m)
+        if keep is not None:
+            ok = keep(x, y)
+            x, y = x[ok], y[ok]
+        return x, y
+
+    def at(self, a, x, y):
+        """Values of fine array ``a`` at points (x, y)."""
+        i = np.clip((np.asarray(y) / FINE_M).astype(int), 0, self.n - 1)
+        j = np.clip((np.asarray(x) / FINE_M).astype(int), 0, self.n - 1)
+        return a[i, j]
+
+    def rasterise(self, rng, k, surface, noise_m, density, kind):
+        """Points drawn on the fine cells, the lowest / highest kept per ``k`` x ``k`` block."""
+        n, m = self.n, self.n // k
+        hit = (rng.random((n, n)) < density * FINE_M * FINE_M) & ~self.gap
+        through = rng.random((n, n)) < self.passing
+        obj = np.isfinite(self.top)
+        if surface == "lowest":
+            obj &= ~through
+        z = np.where(obj, self.top, self.ground)
+        e = rng.standard_normal((n, n)).astype(np.float32)
+        np.clip(e, -4.5, 4.5, out=e)
+        z += np.float32(noise_m) * e
+
+        def blocks(a):
+            return a.reshape(m, k, m, k).transpose(0, 2, 1, 3).reshape(m, m, k * k)
+        zb = blocks(np.where(hit, z, np.inf if surface == "lowest" else -np.inf))
+        pick = (np.argmin if surface == "lowest" else np.argmax)(zb, axis=2)[..., None]
+        val = np.take_along_axis(zb, pick, 2)[..., 0]
+        lab = np.take_along_axis(blocks(obj), pick, 2)[..., 0]
+        empty = ~blocks(hit).any(axis=2)
+        if empty.any():
+            ii, jj = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
+            val, lab = val[ii, jj], lab[ii, jj]
+        dtm = self.ground.reshape(m, k, m, k).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
+        cell = k * FINE_M
+        gt = (_ORIGIN_XY[0], cell, 0.0, _ORIGIN_XY[1], 0.0, -cell)
+        return Scene(dsm=val.astype(np.float32), dtm=dtm,
+                     mask=np.where(lab, np.uint8(OBJECT), np.uint8(GROUND)),
+                     cell_size=(cell, cell), kind=kind, geotransform=gt, epsg=_EPSG)
+
+
+def _waves(rng, scale, amp, count=6):
+    """A smooth random field f(x, y) (a sum of plane waves about ``scale`` metres long, standard
+    deviation about ``amp``), evaluable anywhere."""
+    th = rng.uniform(0, np.pi, count)
+    lam = scale * rng.uniform(0.6, 1.6, count)
+    ph = rng.uniform(0, 2 * np.pi, count)
+    a = np.float32(amp * np.sqrt(2.0 / count))
+
+    def f(x, y):
+        out = 0
+        for t, la, p in zip(th, lam, ph):
+            out = out + np.sin((x * np.cos(t) + y * np.sin(t)) * (2 * np.pi / la) + p).astype(np.float32)
+        return a * out
+    return f
+
+
+def _trees(site, rng, density, h_range, keep=None, shrub=False):
+    x, y = site.scatter(rng, density, keep)
+    h = rng.uniform(*h_range, x.size)
+    if shrub:
+        r = np.maximum(h * rng.uniform(0.6, 1.2, x.size), 0.8)
+        site.plant(rng, x, y, h, r, PASS_SHRUB, follow=True)
+    else:
+        r = np.clip(h * rng.uniform(0.2, 0.35, x.size), 1.5, 6.0)
+        site.plant(rng, x, y, h, r, PASS_TREE)
+
+
+def _gable(pitch, width):
+    return lambda u, v: np.clip(width / 2 - np.abs(v), 0, None) * pitch
+
+
+# ----------------------------------------------------------------------------------- sites
+def _hillside(s, rng):
+    e = s.e
+    a = rng.uniform(-0.25, 0.25)
+    ts = np.tan(np.radians(rng.uniform(25.0, 35.0)))
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    u = (s.X - e / 2) * sa + (e - s.Y) * ca          # uphill
+    v = (s.X - e / 2) * ca + (s.Y - e) * sa          # along the contours
+    starts, ls, ws, ps, z0 = [], [], [], [], []
+    pos, z = float(u.min()) - 5.0, 0.0
+    while pos < float(u.max()):
+        lb, wb, pb = rng.uniform(8.0, 16.0), rng.uniform(2.0, 4.5), rng.uniform(9.0, 14.0)
+        starts.append(pos), ls.append(lb), ws.append(wb), ps.append(pb), z0.append(z)
+        pos, z = pos + lb + pb, z + ts * lb + wb
+    starts, ls, ws, ps, z0 = (np.asarray(t, np.float32) for t in (starts, ls, ws, ps, z0))
+    b = np.searchsorted(starts, u, side="right") - 1
+    t = u - starts[b]
+    g = z0[b] + np.float32(ts) * np.minimum(t, ls[b]) + np.where(t > ls[b], ws[b], 0)
+    s.ground = (200 + g + _waves(rng, 60.0, 0.8)(s.X, s.Y)).astype(np.float32)
+    # houses against the back of each terrace (ridges along the contours), gaps 0-8 m
+    vmin, vmax = float(v.min()), float(v.max())
+    for i in range(starts.size):
+        level = 200 + z0[i] + ts * ls[i] + ws[i]
+        depth_max = min(9.0, ps[i] - 2.0)
+        vc = vmin + rng.uniform(0, 8)
+        while vc < vmax:
+            width, depth = rng.uniform(7.0, 14.0), rng.uniform(6.0, depth_max)
+            if rng.random() > 0.2:
+                uc = starts[i] + ls[i] + ps[i] - depth / 2 - rng.uniform(0.0, 1.0)
+                vm = vc + width / 2
+                cx, cy = e / 2 + uc * sa + vm * ca, e - uc * ca + vm * sa
+                roof = None if rng.random() < 0.3 else _gable(np.tan(np.radians(rng.uniform(25, 40))), depth)
+                s.box(cx, cy, a, width, depth, rng.uniform(5.0, 8.0), base=level, roof=roof)
+            vc += width + (0.0 if rng.random() < 0.3 else rng.uniform(2.0, 8.0))
+        if rng.random() < 0.5:   # a hedge along the top of the wall
+            for _ in range(3):
+                vm, ln = rng.uniform(vmin, vmax), rng.uniform(10.0, 30.0)
+                uc = starts[i] + ls[i] + 0.8
+                cx, cy = e / 2 + uc * sa + vm * ca, e - uc * ca + vm * sa
+                s.box(cx, cy, a, ln, 1.2, rng.uniform(1.2, 2.0), passing=PASS_SHRUB)
+
+    def on_slope(x, y):
+        ub = (x - e / 2) * sa + (e - y) * ca
+        bb = np.searchsorted(starts, ub, side="right") - 1
+        tb = ub - starts[bb]
+        return (tb < ls[bb] - 1.0) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.006, (5.0, 15.0), on_slope)
+
+
+def _railway(s, rng):
+    e = s.e
+    s.ground = (100 + 0.005 * s.X + _waves(rng, 150.0, 0.5)(s.X, s.Y)).astype(np.float32)
+    a = rng.uniform(-0.15, 0.15)
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    al = (s.X - e / 2) * ca + (s.Y - e / 2) * sa
+    ac = (s.Y - e / 2) * ca - (s.X - e / 2) * sa
+
+    def xy(along, across):
+        return e / 2 + along * ca - across * sa, e / 2 + along * sa + across * ca
+    pos, tracks, platforms = -0.3 * e, [], []
+    for i in range(int(rng.integers(8, 15))):
+        tracks.append(pos)
+        pos += rng.uniform(4.5, 7.0)
+        if i % 3 == 1 and rng.random() < 0.8:       # a platform between two tracks
+            w = rng.uniform(6.0, 10.0)
+            platforms.append((pos - 1.5 + w / 2, w))
+            pos += w
+    for pc, w in platforms:                         # 1 m high, ramps of 10 m at both ends
+        ln = rng.uniform(150.0, 250.0)
+        lift = np.float32(rng.uniform(0.9, 1.1)) * np.clip((ln / 2 + 10 - np.abs(al)) / 10, 0, 1)
+        s.ground = s.ground + np.where(np.abs(ac - pc) <= w / 2, lift, 0).astype(np.float32)
+    for pc, w in platforms:                         # roofs 4.5-5.5 m over the platforms
+        cx, cy = xy(rng.uniform(-30, 30), pc)
+        s.box(cx, cy, a, rng.uniform(60.0, 150.0), w - 1.5, rng.uniform(4.5, 5.5))
+    for tc in tracks:                               # trains of coaches with coupler gaps
+        along = -0.7 * e + rng.uniform(0, 40)
+        while along < 0.7 * e:
+            ln = rng.uniform(50.0, 200.0)
+            if rng.random() < 0.75:
+                h = rng.uniform(3.6, 4.2)
+                coach = rng.uniform(20.0, 26.0)
+                nc = max(1, int(ln // coach))
+                for c in range(nc):
+                    cx, cy = xy(along + (c + 0.5) * coach, tc)
+                    s.box(cx, cy, a, coach - 1.0, 3.0, h)
+                    gx, gy = xy(along + (c + 1) * coach - 0.5, tc)
+                    s.box(gx, gy, a, 1.0, 2.0, 1.2)
+                ln = nc * coach
+            along += ln + rng.uniform(5.0, 60.0)
+    side = pos + rng.uniform(15.0, 25.0)           # the station hall beyond the last track
+    dh = rng.uniform(20.0, 30.0)
+    cx, cy = xy(rng.uniform(-40, 40), side + dh / 2)
+    s.box(cx, cy, a, rng.uniform(100.0, 160.0), dh, rng.uniform(12.0, 16.0),
+          base=float(s.at(s.ground, cx, cy)) + 0.5)
+    top0 = tracks[0]
+
+    def outside(x, y):
+        acx = (y - e / 2) * ca - (x - e / 2) * sa
+        return (acx < top0 - 6) | (acx > side + dh + 5)
+    _trees(s, rng, 0.004, (6.0, 16.0), outside)
+
+
+def _quarry(s, rng):
+    e = s.e
+    g0 = 100 + 0.03 * s.X + _waves(rng, 120.0, 1.5)(s.X, s.Y)
+    cx, cy = e / 2 + rng.uniform(-20, 20), e / 2 + rng.uniform(-20, 20)
+    th = np.arctan2(s.Y - cy, s.X - cx)
+    p1, p2, tc = rng.uniform(0, 2 * np.pi, 3)
+    rho = np.hypot(s.X - cx, s.Y - cy) / (1 + 0.12 * np.sin(2 * th + p1) + 0.08 * np.sin(3 * th + p2))
+    r0 = rng.uniform(0.33, 0.4) * e
+    off = np.abs(np.angle(np.exp(1j * (th - tc))))          # angle from the cliff's centre
+    wid = np.clip((np.degrees(off) - 25.0) / 20.0, 0.08, 1.0).astype(np.float32)
+    depth = np.zeros_like(rho, dtype=np.float32)
+    edge, total = np.float32(r0), 0.0
+    for _ in range(int(rng.integers(3, 6))):
+        d, bw = rng.uniform(5.0, 15.0), rng.uniform(8.0, 20.0)
+        face = d / np.tan(np.radians(rng.uniform(75.0, 85.0)))
+        depth += np.float32(d) * np.clip((edge - rho) / face, 0, 1)
+        edge = edge - wid * np.float32(bw)
+        total += d
+    rim = float(np.median(g0[np.abs(rho - r0) < 2]))
+    floor = rim - total
+    pit = rim - depth + 0.2 * _waves(rng, 40.0, 1.0)(s.X, s.Y)
+    g = np.where(depth > 0, np.minimum(g0, pit), g0)
+    floor_cells = np.flatnonzero((depth >= total - 0.01).ravel()[::97])
+    for _ in range(3):                                     # gravel piles (ground), 35 degree sides
+        if floor_cells.size == 0:
+            break
+        i = floor_cells[rng.integers(floor_cells.size)] * 97
+        px, py = s.x[i % s.n], s.x[i // s.n]
+        h = rng.uniform(4.0, 8.0)
+        g = np.maximum(g, floor + h - np.hypot(s.X - px, s.Y - py) * np.tan(np.radians(35)))
+    s.ground = g.astype(np.float32)
+    for _ in range(4):                                     # trucks on the floor
+        if floor_cells.size == 0:
+            break
+        i = floor_cells[rng.integers(floor_cells.size)] * 97
+        s.box(s.x[i % s.n], s.x[i // s.n], rng.uniform(0, np.pi), 9.0, 3.0, 3.5)
+    for _ in range(3):                                     # sheds on the rim
+        t = rng.uniform(0, 2 * np.pi)
+        rr = r0 * 1.25 + 15
+        bx, by = cx + rr * np.cos(t), cy + rr * np.sin(t)
+        s.box(bx, by, rng.uniform(0, np.pi), rng.uniform(12, 25), rng.uniform(8, 14), rng.uniform(5, 8),
+              base=float(s.at(s.ground, bx, by)))
+    dep = depth
+
+    def rim_band(x, y):
+        d = s.at(dep, x, y)
+        return (d == 0) & ~np.isfinite(s.at(s.top, x, y))
+
+    def benches(x, y):
+        return (s.at(dep, x, y) > 0) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.008, (6.0, 18.0), rim_band)
+    _trees(s, rng, 0.01, (0.6, 1.8), benches, shrub=True)
+
+
+def _shrubs(s, rng):
+    e = s.e
+    a = rng.uniform(0, 2 * np.pi)
+    ts = np.float32(np.tan(np.radians(rng.uniform(28.0, 38.0))))
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    wv = _waves(rng, 80.0, 2.0)
+    v0 = rng.uniform(-60, 60)
+
+    def natural(u, v):
+        return ts * u + wv(u, v) - 6.0 * np.exp(-((v - v0) / 15.0) ** 2)
+    u = (s.X - e / 2) * ca + (s.Y - e / 2) * sa
+    v = (s.Y - e / 2) * ca - (s.X - e / 2) * sa
+    ur = rng.uniform(-60, 60)
+    d = np.maximum(np.abs(u - ur) - 3.0, 0)
+    road = natural(np.float32(ur), v)
+    g = np.clip(natural(u, v), road - d * np.float32(np.tan(np.radians(35))),
+                road + d * np.float32(np.tan(np.radians(60))))
+    s.ground = (300 + g).astype(np.float32)
+    patch = _waves(rng, 40.0, 1.0)
+
+    def in_patch(x, y):
+        ux = (x - e / 2) * ca + (y - e / 2) * sa
+        return (patch(x, y) > -0.1) & (np.abs(ux - ur) > 4.5)
+
+    def off_road(x, y):
+        return np.abs((x - e / 2) * ca + (y - e / 2) * sa - ur) > 4.5
+    _trees(s, rng, 0.08, (0.6, 2.0), in_patch, shrub=True)
+    _trees(s, rng, 0.002, (6.0, 20.0), off_road)
+
+
+def _bridge(s, rng):
+    e = s.e
+    g = 100 + _waves(rng, 150.0, 1.0)(s.X, s.Y)
+    occ = np.zeros((s.n, s.n), bool)
+    yr = e / 2 + rng.uniform(-30, 30)                       # the road below, along x
+    occ |= np.abs(s.Y - yr) < 12
+    xb = e / 2 + rng.uniform(-60, 60)                        # the bridge road, along y
+    w, hd, span = rng.uniform(10.0, 14.0), rng.uniform(6.0, 8.0), rng.uniform(30.0, 50.0)
+    ramp = hd / rng.uniform(0.06, 0.09)
+    dy_ = np.abs(s.Y - yr)
+    base = float(np.median(g[np.broadcast_to(np.abs(s.Y - yr) < 3, g.shape)]))
+    level = base + hd * np.clip(1 - (dy_ - span / 2) / ramp, 0, 1)
+    on_ramp = (dy_ > span / 2) & (dy_ < span / 2 + ramp)
+    walls = (s.Y < yr) & on_ramp & (np.abs(s.X - xb) <= w / 2)
+    banks = (s.Y > yr) & on_ramp
+    g = np.where(walls, np.maximum(g, level), g)
+    g = np.where(banks, np.maximum(g, level - np.maximum(np.abs(s.X - xb) - w / 2, 0) / 1.5), g)
+    occ |= (np.abs(s.X - xb) < w / 2 + 10) & (dy_ < span / 2 + ramp + 5)
+    s.ground = g.astype(np.float32)
+    s.box(xb, yr, 0.0, w, span, hd + 0.8, base=base)      # deck with parapets 0.8 m
+    # large buildings: L shapes, flat roofs, some with a roof structure
+    placed = 0
+    for _ in range(60):
+        if placed >= 5:
+            break
+        ln, wd = rng.uniform(40.0, 110.0), rng.uniform(20.0, 45.0)
+        bx, by = rng.uniform(ln / 2, e - ln / 2), rng.uniform(ln / 2, e - ln / 2)
+        ang = rng.choice([0.0, np.pi / 2])
+        win = s.window(bx, by, ln / 2 + 6)
+        if occ[win[0]].any():
+            continue
+        r = 0.5 * ln + 6
+        occ[win[0]] |= np.hypot(win[1] - bx, win[2] - by) < r
+        h = rng.uniform(8.0, 25.0)
+        bz = float(s.at(s.ground, bx, by)) + 0.3
+        s.box(bx, by, ang, ln, wd, h, base=bz)
+        ox = ln / 2 - wd / 2
+        lx, ly = (bx + ox, by + wd / 2) if ang == 0 else (bx + wd / 2, by + ox)
+        s.box(lx, ly, ang + np.pi / 2, wd * 1.5, wd, h * rng.uniform(0.6, 1.0), base=bz)
+        if rng.random() < 0.6:
+            s.box(bx + rng.uniform(-10, 10), by + rng.uniform(-5, 5), ang, 10.0, 8.0, h + 3.0, base=bz)
+        if placed == 0:                                     # a garage ramp down to it, 3 m, walls
+            rx0, rl = bx - ln / 2 if ang == 0 else bx - wd / 2, 25.0
+            strip = (np.abs(s.Y - (by + wd / 4)) < 3) & (s.X < rx0) & (s.X > rx0 - rl)
+            s.ground = np.where(strip & ~np.isfinite(s.top),
+                                s.ground - 3.0 * np.clip((s.X - (rx0 - rl)) / rl, 0, 1),
+                                s.ground).astype(np.float32)
+        placed += 1
+    for _ in range(3):                                      # data gaps (dark roofs, water)
+        gx, gy, gr = rng.uniform(0, e), rng.uniform(0, e), rng.uniform(6.0, 15.0)
+        s.gap |= np.hypot(s.X - gx, s.Y - gy) < gr
+    free = ~occ
+
+    def open_ground(x, y):
+        return s.at(free, x, y) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.001, (5.0, 16.0), open_ground)
+    x, y = s.scatter(rng, 0.0015, open_ground)
+    for cx, cy in zip(x, y):
+        s.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
+
+
+_BUILD = {"hillside": _hillside, "railway": _railway, "quarry": _quarry, "shrubs": _shrubs,
+          "bridge": _bridge}

@@ -1,0 +1,76 @@
+"""The held-out-like sites (core/synthetic_sites.py): seeded, truth consistent with the rasterisation, and
+bareearth:dtm's accuracy on each (issue 13: the kinds of the held-out ISPRS samples)."""
+import numpy as np
+import pytest
+
+from bare_earth.core.codes import GROUND, OBJECT
+from bare_earth.core.evaluate import compare_masks
+from bare_earth.core.pipeline import run_array
+from bare_earth.core.synthetic_sites import SITES, make_site
+
+
+@pytest.mark.parametrize("kind", SITES)
+def test_site_is_seeded_and_consistent(kind):
+    """Same arguments, same site; another seed, another; 1 and 2 m grids of the same fine site; truth
+    codes ground / object only; the highest point per cell shows more objects than the lowest."""
+    a = make_site(kind, 2.0, "lowest", seed=3)
+    b = make_site(kind, 2.0, "lowest", seed=3)
+    for x, y in ((a.dsm, b.dsm), (a.dtm, b.dtm), (a.mask, b.mask)):
+        np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(make_site(kind, 2.0, "lowest", seed=4).dsm, a.dsm)
+    assert a.dsm.shape == a.dtm.shape == a.mask.shape == (160, 160)
+    assert a.dsm.dtype == np.float32 and a.mask.dtype == np.uint8 and a.cell_size == (2.0, 2.0)
+    assert np.isfinite(a.dsm).all() and np.isfinite(a.dtm).all()
+    assert set(np.unique(a.mask)) <= {GROUND, OBJECT}
+    fine = make_site(kind, 1.0, "lowest", seed=3)
+    assert fine.dsm.shape == (320, 320)
+    # the true DTM is the mean of the same fine ground: the 2 m cells average the 1 m ones
+    np.testing.assert_allclose(fine.dtm.reshape(160, 2, 160, 2).mean(axis=(1, 3)), a.dtm, atol=1e-3)
+    top = make_site(kind, 2.0, "highest", seed=3)
+    np.testing.assert_array_equal(top.dtm, a.dtm)
+    assert np.mean(top.mask == OBJECT) > np.mean(a.mask == OBJECT)
+    # a ground cell's height is a ground point's: within the cell's relief and the noise of the true DTM
+    g = a.mask == GROUND
+    assert np.median(np.abs(a.dsm - a.dtm)[g]) < 1.0
+
+
+def test_site_arguments_checked():
+    with pytest.raises(ValueError, match="unknown site"):
+        make_site("harbour")
+    with pytest.raises(ValueError, match="surface"):
+        make_site("quarry", surface="mean")
+    for cell in (0.75, 3.0, 0.25):                       # not a multiple of 0.5 m dividing 320 m
+        with pytest.raises(ValueError, match="cell_size"):
+            make_site("quarry", cell)
+
+
+def test_terrain_steps_are_ground_in_the_truth():
+    """The quarry's benches and cliffs, the hillside's retaining walls and the bridge's ramps are ground:
+    the true ground has steps of several metres between neighbouring cells."""
+    for kind, least in (("quarry", 5.0), ("hillside", 2.0), ("bridge", 1.0)):
+        s = make_site(kind, 1.0, "lowest")
+        step = max(float(np.abs(np.diff(s.dtm, axis=0)).max()), float(np.abs(np.diff(s.dtm, axis=1)).max()))
+        assert step > least, (kind, step)
+
+
+#: dtm's total error (per cent of cells) on each site, measured on 2026-11-29 (seed 0): hillside 1 m lowest
+#: 3.7-4.0, 2 m highest 6.8-7.3; railway 2.2, 2.6; quarry 4.9-6.4, 5.6-6.3; shrubs 6.9-7.1, 22.3-22.5; bridge
+#: 2.0, 2.9 (the ranges: before and after the step-top continuation of dtm_refine.continue_lines). The
+#: bounds add about a quarter, so that a change elsewhere may move them a little but a broken stage does
+#: not pass. Steep slopes under dense shrubs at 2 m highest point are a known limit: every filter fails
+#: there (18.7-25.5 %), the shrubs' tops are continuous surfaces 0.5-2 m above the ground.
+DTM_BOUNDS = {
+    ("hillside", 1.0, "lowest"): 5.0, ("hillside", 2.0, "highest"): 9.0,
+    ("railway", 1.0, "lowest"): 3.0, ("railway", 2.0, "highest"): 3.5,
+    ("quarry", 1.0, "lowest"): 8.0, ("quarry", 2.0, "highest"): 8.0,
+    ("shrubs", 1.0, "lowest"): 9.5, ("shrubs", 2.0, "highest"): 27.0,
+    ("bridge", 1.0, "lowest"): 3.0, ("bridge", 2.0, "highest"): 3.8,
+}
+
+
+@pytest.mark.parametrize("kind,cell,surface", sorted(DTM_BOUNDS))
+def test_dtm_accuracy_on_sites(kind, cell, surface):
+    s = make_site(kind, cell, surface)
+    res = run_array("dtm", s.dsm, s.cell_size, {})
+    total = compare_masks(res.mask, s.mask)["total"]
+    assert total <= DTM_BOUNDS[(kind, cell, surface)], total
