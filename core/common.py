@@ -200,6 +200,44 @@ def edge_mirrored_spans(r0, r1, c0, c1, shape):
             (c1 - c0) * (1 + (c0 == 0) + (c1 == shape[1])))
 
 
+def walls_reach(outline_rows, outline_cols, foot_rows, foot_cols, shape):
+    """The run (cells) of a region's walls in a raster of ``shape``, mirrored at the raster's edge where
+    they meet it: the box of its outer outline (cells ``outline_rows, outline_cols``) along each axis, the
+    larger of the two, mirrored at every side of the raster the *wall* meets: a side both its top (the
+    outline) and the ground at its foot (cells ``foot_rows, foot_cols``: the ground seen beyond the wall)
+    reach. 0 without outline.
+
+    Beyond the raster's edge nothing is seen and a wall cut there may continue, at least as far again: a
+    wall running across the raster (cut on two opposite sides: a terrain step, a river's walls) spans
+    three times what is seen, a wall cutting off a corner (two adjacent sides: a roof running off the
+    raster) twice. Where such a wall ends in a corner, the roof beside its end reaches the third side too,
+    but the ground beyond the wall does not: the wall is not cut there.
+
+    Examples
+    --------
+    >>> roof = np.ones((6, 6), bool)
+    >>> roof[:5, :2] = False                 # ground in a corner; the roof's own corner reaches the last row
+    >>> run = lambda: walls_reach(*np.nonzero(touching(~roof) & roof), *np.nonzero(touching(roof) & ~roof),
+    ...                           roof.shape)
+    >>> run()                                # 6 rows, mirrored at the top only; 3 columns at the left
+    12
+    >>> roof[:, :2] = False                  # a step running across, top to bottom
+    >>> run()
+    18
+    """
+    spans = []
+    for lines, ends, size in ((outline_rows, foot_rows, shape[0]), (outline_cols, foot_cols, shape[1])):
+        lines, ends = np.asarray(lines), np.asarray(ends)
+        if lines.size == 0:
+            return 0
+        lo, hi = int(lines.min()), int(lines.max()) + 1
+        met = 0
+        if ends.size:
+            met = int(lo == 0 and ends.min() == 0) + int(hi == size and ends.max() + 1 == size)
+        spans.append((hi - lo) * (1 + met))
+    return int(max(spans))
+
+
 def transpose(a, rows=256):
     """C-contiguous transpose of a 2-D array, a band of ``rows`` rows at a time.
 

@@ -28,9 +28,12 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    mirrored at the edge (as the slope-profile and curvature filters take a profile cut by the
    edge); a region spanning more cells than the stage reaches (``max_cells``), or wider, is left
    alone, and so is a region whose *walls* run farther: the box of its outer outline (below) along
-   each axis, mirrored at every side of the raster the outline meets (a wall running across the
-   raster, from one side to the opposite one, continues beyond both and spans three times what is
-   seen; a wall cutting off a corner meets two adjacent sides and spans twice what is seen).
+   each axis, mirrored at every side of the raster the wall meets, a side both the outline and the
+   ground at the wall's foot (the cells ``a`` of step 2) reach (:func:`~.common.walls_reach`: a wall
+   running across the raster, from one side to the opposite one, continues beyond both and spans
+   three times what is seen; a wall cutting off a corner meets two adjacent sides and spans twice
+   what is seen; where such a wall ends in the corner, the roof beside its end reaches the third
+   side but the ground beyond the wall does not).
    **Cut into a hillside.** On a steep hillside the members' thresholds, which grow with the terrain slope
    and their windows, pass the part of a roof nearest the slope: the vote splits the roof's level into
    objects (its part standing high above the hillside) and ground (its part against it). Such a *level* - an
@@ -75,9 +78,14 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    own box: ``sample_c``'s roof meets all four sides of its tile (a corner of it at one side, by
    a few cells or none depending on the cell size) while its one wall cuts off the opposite
    corner, and the level's box mirrored at both pairs of sides left it to the vote at 0.5 and
-   4 m and took it at 2 m. A roof stands on the ground: a level the raster cuts on two opposite
-   sides is judged only while the ground seen beyond its walls steps down no further (rims of
-   the scale beyond its own, over at most half as many cells as its outer outline); quarry
+   4 m and took it at 2 m. Its wall ends on the left side next to the bottom corner, so at 1-4 m
+   the roof's own corner beside the wall's end reaches the bottom side too: the outline's box
+   mirrored there ran 225-228 m, beyond the 200 m of the geodesic and morphological filters'
+   raised regions (which kept the roof at 1, 2 and 4 m); the ground at the wall's foot does not
+   reach the bottom, and the wall is mirrored at the top and left sides only (150-152 m). A roof
+   stands on the ground: a level the raster cuts on two opposite sides is judged only while the
+   ground seen beyond its walls steps down no further (rims of the scale beyond its own, over at
+   most half as many cells as its outer outline); quarry
    benches or terraces around a pit in a corner of the raster are a sequence of such levels,
    each stepping down to the next, and are left to the vote.
 
@@ -103,7 +111,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .codes import GROUND
-from .common import edge_mirrored_spans
+from .common import walls_reach
 from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
@@ -576,13 +584,17 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
         n_outer = int(np.count_nonzero(outer))
         step_share = float(np.count_nonzero(outer & step[sub])) / max(1, n_outer)
         d.update(outline_cells=n_outer, step_share=round(step_share, 3), above_share=None, object=False)
+        a, b = starts[k], stops[k]
+        use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
         if not cut_in:
-            # the run of its walls (the outer outline's box) mirrored at every side of the raster it meets: a
-            # wall running across the raster (meeting two opposite sides: a terrain step, a river's wall, quarry
-            # benches) continues beyond both and spans three times what is seen; the stage reaches the region
-            # only if it reaches that run (a wall cutting off a corner of the raster meets two adjacent sides).
-            # A level cut into a hillside is seen whole: none of this applies to it.
-            run = _walls_reach(outer, g0, g1, shape)
+            # the run of its walls (the outer outline's box) mirrored at every side of the raster they meet, a
+            # side both their top (the outer outline) and the ground at their foot (the cells a the step test
+            # reads beyond them) reach: a wall running across the raster (meeting two opposite sides: a terrain
+            # step, a river's wall, quarry benches) continues beyond both and spans three times what is seen;
+            # the stage reaches the region only if it reaches that run (a wall cutting off a corner of the
+            # raster meets two adjacent sides). A level cut into a hillside is seen whole: none of this applies.
+            o_r, o_c = np.nonzero(outer)
+            run = walls_reach(o_r + g0, o_c + g1, s_r[a:b][use], s_c[a:b][use], shape)
             d.update(walls_m=round(run * cell, 1), reached=run <= max_cells)
             if not d["reached"]:
                 decisions.append(d)                     # beyond the stage's reach: left to the vote
@@ -598,8 +610,6 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
                 if d["steps_beyond"] > n_outer / 2:
                     decisions.append(d)
                     continue
-        a, b = starts[k], stops[k]
-        use = outer[s_pr[a:b] - g0, s_pc[a:b] - g1]      # the ground beyond the outer outline
         if step_share > 0.5 and np.count_nonzero(use) >= 3:
             # the plane of the ground beyond the outline, in coordinates centred on its samples
             x = (s_c[a:b][use] - c0).astype(np.float64) * cell_size[0]
@@ -619,17 +629,6 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
                 objects[sub] |= (reg & ground[sub]) | (near & rim[sub] & above)
         decisions.append(d)
     return objects, decisions
-
-
-def _walls_reach(outer, r0, c0, shape):
-    """The span (cells) of the outer outline ``outer`` (a region's box grown by a cell, corner ``(r0, c0)`` in
-    the raster of ``shape``) along each axis, mirrored at every side of the raster it meets; the larger."""
-    rows = np.flatnonzero(outer.any(axis=1))
-    if rows.size == 0:
-        return 0
-    cols = np.flatnonzero(outer.any(axis=0))
-    spans = edge_mirrored_spans(r0 + rows[0], r0 + rows[-1] + 1, c0 + cols[0], c0 + cols[-1] + 1, shape)
-    return int(max(spans[0], spans[1]))
 
 
 def _slices2(dr, dc, h, w):

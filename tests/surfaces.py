@@ -52,3 +52,26 @@ def raised_ground(kind, n=300):
         "steep plateau": np.clip((100 - r) * 3.73, 0, 20),
     }[kind]
     return 50 + 0.02 * x + 0.01 * y + raised
+
+
+def level_off_a_corner(cell, kind="roof"):
+    """As lidar/sample_c: an 88 x 76 m tile at ``cell`` metres whose upper level covers about 74 % of it,
+    cut by the tile's edges on three sides, its one edge a diagonal from the top side (48 m from the
+    left) to the left side 2 m above the bottom (next to the corner at coarse cells), a wedge of gentle
+    ground (rising 2.6 m across the tile) in the top-left corner beyond it. ``kind``: ``roof`` (a flat
+    roof 25 m high on a vertical wall) or ``terrace`` (bare ground 6 m higher, joined to the wedge by a
+    bank 12 m wide: 27 degrees). Returns ``(z, upper)``: the surface (5 cm noise) and the upper level's
+    cells (for the terrace: its top, beyond the bank)."""
+    rows, cols = int(round(76 / cell)), int(round(88 / cell))
+    y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    x, y = (x + 0.5) * cell, (y + 0.5) * cell
+    ground = 30 + 0.02 * x + 0.01 * y
+    # distance beyond the diagonal edge, metres (positive on the upper level)
+    d = (x / 48 + y / 74 - 1) / np.hypot(1 / 48, 1 / 74)
+    if kind == "roof":
+        upper = d > 0
+        z = np.where(upper, 55.0, ground)
+    else:
+        z = ground + 6.0 * np.clip(d / 12.0, 0.0, 1.0)
+        upper = d > 12
+    return noisy(z, sd=0.05), upper

@@ -54,7 +54,18 @@ algorithm's help.
      exceeds ``dh0``, 8-connected, with the same tests): blocks holding a street and a
      roof's corner join a dense town into one region on the coarse grid, while the
      street's cells part the roofs (issue 12; those cells keep their height in the
-     surface scan labelling reads). This keeps every
+     surface scan labelling reads). A step wider than the default largest object (64 m:
+     widened to a raised region standing on walls, below) splits its regions that are high
+     enough but fail the rim test at their walls: their cells whose own residual exceeds
+     ``dh0``, cut into smooth pieces (neighbours joined where their heights differ by at most
+     ``dh0`` plus the terrain's rise over a cell diagonal), each piece tested as a region
+     (higher than ``dh_k``, at least ``edge_ratio`` of its outline cells inside the raster
+     above a neighbour by more than that rise). Such a window is wider than the ground seen
+     beyond the region's walls (a roof over most of a tile): its opening falls to the lowest
+     ground, the ground rising beyond the walls joins the roof in one residual region whose
+     rim lies on that ground, and the walls part them (issue 12: lidar ``sample_c``, a roof
+     over 75 % of the tile, kept at every cell size; those cells keep their height too).
+     This keeps every
      step's cost near one pass over the raster whatever the window; the coarse grids are
      aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
      than :data:`NOISE_SNAP` ``* dh0`` under the surface are snapped to it (they are
@@ -128,7 +139,13 @@ The largest object ``max_object_size_m`` is derived (:func:`~.params.resolve_geo
 across (a hall, a roof cut by the raster's edge, which a window truncated at the edge fits into:
 its opening keeps the roof and the reconstruction calls it terrain; issue 12). A box-shaped plateau
 with vertical cliffs on every side is such a region too: the ambiguity the morphological filter's
-widened window has.
+widened window has. The region's walls must be within the 200 m looked at, mirrored at the sides of
+the raster they meet (:func:`~bare_earth.core.common.walls_reach`, dtm's raised regions' one copy):
+lidar ``sample_c``'s wall, cutting off a corner and ending next to the opposite one, was mirrored at
+three sides at 1-4 m (225-228 m: not widened, 64 m) and at two at 0.5 m (146 m, widened to 183 m);
+the wall now meets a side where its top and the ground at its foot both reach it, and the window
+widens at every cell size (174-183 m). The widened step then removes the roof (see its split at
+the walls above): ``sample_c`` 88.31 / 88.16 / 88.13 -> 0.18 / 0.04 / 0.31 % at 0.5 / 2 / 4 m.
 
 Speed: openings are separable running min/max filters (log2(size) vectorised passes;
 3 x 3 and 5 x 5 windows banded on the flat arrays); the reconstruction is iterated 3x3

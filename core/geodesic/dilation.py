@@ -103,7 +103,7 @@ def _fine_cells(blocks, f, coarse_width, shape):
 
 
 def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, progress=None,
-                  grids=None, reconstruction=None, shared=None):
+                  grids=None, reconstruction=None, shared=None, split=False):
     """One gradual step of ``s`` metres: reconstruction ``R_k`` and the object cells.
 
     Windows wider than :data:`COARSE_WINDOW` cells run on a grid coarsened ``f`` times
@@ -128,6 +128,10 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     shared : dict, optional
         Estimates of ``w`` the steps share (:func:`_fine_outline`'s 3 x 3 minimum), kept from
         one step to the next.
+    split : bool
+        A step wider than the default largest object (the window widened to a raised region
+        standing on walls): the regions high enough but failing the rim test are split at their
+        walls and each piece is tested as a region (:func:`_walled_pieces`).
 
     Returns
     -------
@@ -193,11 +197,21 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     wide = (dmax > dh_k) & ~small
     wide[0] = False
     wide_c = idx[wide[lab_c]]                     # the coarse cells of regions too wide on the grid
+    walled_c = none
+    if split:
+        walled = (dmax > dh_k) & small & ~(rim_frac >= edge_ratio)
+        walled[0] = False
+        walled_c = idx[walled[lab_c]]             # the coarse cells of high regions failing the rim test
     del idx, lab_c
     report(progress, 0.9)
     Rcf = Rc.ravel()
+    pieces = none
+    if walled_c.size:
+        # their cells keep their height in the cleaned surface (R_k = w there), as _fine_regions' do
+        pieces = _walled_pieces(w, walled_c, Rc, f, dh0 + tan_s * np.hypot(dx, dy), dh0, dh_k, edge_ratio,
+                                ext_limit, dx, dy)
     if f == 1:
-        return obj_c, Rcf[obj_c]
+        return np.concatenate([obj_c, pieces]), np.concatenate([Rcf[obj_c], w.ravel()[pieces]])
     # a fine cell of an object block is removed when its own residual exceeds dh0; there
     # R_k = min(w, Rc) = Rc of its block
     cells, owner = _fine_cells(obj_c, f, Rc.shape[1], w.shape)
@@ -211,6 +225,8 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
                              edge_ratio, ext_limit, dx, dy)
         # their cells keep their height in the cleaned surface (R_k = w there): see _fine_regions
         cells, Rk = np.concatenate([cells, more]), np.concatenate([Rk, w.ravel()[more]])
+    if pieces.size:
+        cells, Rk = np.concatenate([cells, pieces]), np.concatenate([Rk, w.ravel()[pieces]])
     sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared)
     return cells[sel], Rk[sel]
 
@@ -275,6 +291,68 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     keep[1:] &= (ext[:, 0] * dy <= ext_limit) & (ext[:, 1] * dx <= ext_limit)
     keep[0] = False
     return cells[keep[lab_c]]
+
+
+def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, dx, dy):
+    """The objects among the regions of a widened step that are high enough but fail the rim test
+    (``blocks``: their cells on the step's grid of factor ``f``, flat on the grid of ``Rc``): their
+    cells whose own residual above their block's reconstruction exceeds ``dh0``, split at their walls
+    into smooth pieces (:func:`~bare_earth.core.estimate.smooth_parts`: 8-neighbours joined where their
+    heights differ by at most ``step_m``), each tested as a region: an object when higher than ``dh_k``,
+    no wider than ``ext_limit`` metres, and at least ``edge_ratio`` of its outline cells (a neighbour
+    outside the piece; the raster's edge is none) stand above one of their 8 neighbours by more than
+    ``step_m`` (:func:`_fine_outline`'s wall test). Returns the flat indices of their cells (sorted).
+
+    A step is widened to the window of a raised region standing on walls (a hall, a roof cut by the
+    raster's edge: :func:`~bare_earth.core.estimate.raised_region_window`), and such a window is wider
+    than the ground seen beyond those walls: its opening falls to the lowest ground, so the ground
+    beyond the walls that rises more than ``dh0`` above it joins the roof in one residual region, whose
+    rim (on that ground, not on the walls) fails the test (issue 12: lidar ``sample_c``, a roof over
+    75 % of the tile, kept at every cell size with the window widened to 174-183 m). Its walls part
+    the roof from that ground, as the smooth pieces of :func:`_fine_outline` part a roof from raised
+    ground at its foot.
+    """
+    H, W = w.shape
+    cells, owner = _fine_cells(blocks, f, Rc.shape[1], (H, W))
+    wf = w.ravel()
+    with np.errstate(invalid="ignore"):
+        res = wf[cells] - Rc.ravel()[blocks][owner]
+        on = res > dh0
+    cells, res = cells[on], res[on]
+    order = np.argsort(cells, kind="stable")
+    cells, res = cells[order], res[order]
+    if cells.size == 0:
+        return cells
+    n, piece = smooth_parts(w, cells, step_m)
+    lab = np.full(H * W, -1, np.int32)
+    lab[cells] = piece
+    r, c = np.divmod(cells, W)
+    inside = np.flatnonzero((r > 0) & (r < H - 1) & (c > 0) & (c < W - 1))
+    q0, own = cells[inside], piece[inside]
+    outline = np.zeros(cells.size, bool)
+    low = np.full(inside.size, np.inf, np.float64)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                q = q0 + dr * W + dc
+                outline[inside] |= lab[q] != own
+                low = np.fmin(low, wf[q])
+    del lab
+    abrupt = np.zeros(cells.size, bool)
+    with np.errstate(invalid="ignore"):
+        abrupt[inside] = outline[inside] & (wf[q0] - low > step_m)
+    n_out = np.bincount(piece, weights=outline, minlength=n)
+    n_abr = np.bincount(piece, weights=abrupt, minlength=n)
+    high = np.bincount(piece, weights=res > dh_k, minlength=n) > 0
+    r0, c0 = np.full(n, H), np.full(n, W)
+    r1, c1 = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    np.minimum.at(r0, piece, r)
+    np.maximum.at(r1, piece, r + 1)
+    np.minimum.at(c0, piece, c)
+    np.maximum.at(c1, piece, c + 1)
+    keep = (high & (n_out > 0) & (n_abr >= edge_ratio * n_out) & ((r1 - r0) * dy <= ext_limit)
+            & ((c1 - c0) * dx <= ext_limit))
+    return cells[keep[piece]]
 
 
 def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
@@ -391,7 +469,8 @@ def wall_cells(w, valid, cell_size, dh0, tan_s):
         return valid & (w - low > 2.0 * dh0 + tan_s * np.hypot(wr[0] * dy, wr[1] * dx))
 
 
-def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, progress=None, pool=None):
+def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, progress=None, pool=None,
+                     split_beyond_m=None):
     """Stage 2: the dilation steps of ``sizes`` metres, their regions removed together.
 
     Each step works on the preprocessed surface ``w`` (:func:`dilation_step`), so the
@@ -413,7 +492,9 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
         terrain level that no object reaches (see :func:`terrain_at`).
 
     ``pool`` (optional, an executor): its idle threads may run some of the steps
-    (:func:`~bare_earth.core.blocks.run_sharing`); the same result.
+    (:func:`~bare_earth.core.blocks.run_sharing`); the same result. The steps wider than
+    ``split_beyond_m`` (the default largest object: steps widened to a raised region) split their
+    high regions that fail the rim test at their walls (:func:`dilation_step`'s ``split``).
     """
     dx, dy = cell_size
     cleaned = w.copy()
@@ -433,7 +514,8 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     def one(k, s):
         keep = recon if k == len(sizes) else None
         return dilation_step(w, valid, w, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_limit, parts[k - 1], grids,
-                             reconstruction=keep, shared=shared)
+                             reconstruction=keep, shared=shared,
+                             split=split_beyond_m is not None and s > split_beyond_m * 1.001)
 
     # the steps are independent: with ``pool``, the threads it has idle take some (blocks.run_sharing; their
     # results kept until all are done), else each is applied as it ends

@@ -11,7 +11,7 @@ from ..common import FilterResult, as_cell_size, as_surface, finish_mask, report
 from .dilation import BORDER_RINGS, BUMP_FRACTION, gradual_dilation, terrain_at
 from .grey import S8, fill_nodata, rect_filter, window_cells
 from .outliers import remove_outliers
-from .params import check_params, step_sizes
+from .params import OBJECT_SIZE_M, check_params, step_sizes
 from .scan import OBLIQUE_REACH, SCAN_PASSES, scan_label
 
 #: ``extras["step"]`` code of a cell removed by scan labelling.
@@ -356,7 +356,8 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     # 2. gradual geodesic dilation
     sizes = step_sizes(min_window_m, max_object_size_m)
     removed, cleaned, counts, terrain = gradual_dilation(w, valid, cell, sizes, dh0, tan_s, edge_ratio, step,
-                                                         sub_progress(progress, 0.05, 0.85), pool=pool)
+                                                         sub_progress(progress, 0.05, 0.85), pool=pool,
+                                                         split_beyond_m=OBJECT_SIZE_M)
     _lap(stages, "dilation", t0)
     # 3. scan labelling on the cleaned surface
     n_scan = (label_scans(cleaned, cell, p, removed, step, sub_progress(progress, 0.85, 0.95), pool=pool)

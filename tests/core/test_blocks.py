@@ -267,6 +267,28 @@ def test_edge_mirrored_extents_exact():
     assert got.shape == (4, 2) and edge_mirrored_extents([], (5, 5)).shape == (0, 2)
 
 
+
+def test_walls_reach_mirrors_a_wall_only_at_the_sides_it_is_cut_by():
+    """common.walls_reach (the raised regions of dtm, and through estimate.raised_region_width those of
+    the geodesic and morphological filters): the outline's box along each axis, mirrored at a side only
+    when both the outline and the ground at the wall's foot reach it; the larger span."""
+    from bare_earth.core.common import walls_reach
+
+    def run(outline, foot, shape=(10, 12)):
+        o, f = np.array(outline, np.intp).reshape(-1, 2), np.array(foot, np.intp).reshape(-1, 2)
+        return walls_reach(o[:, 0], o[:, 1], f[:, 0], f[:, 1], shape)
+
+    # a wall cutting off the top-left corner: rows 0-5 mirrored at the top, columns 0-4 at the left
+    assert run([(0, 4), (3, 2), (5, 0)], [(0, 2), (4, 0)]) == 12
+    # the same wall ending in the corner: the roof's own corner reaches the last row, its foot does not
+    assert run([(0, 4), (5, 2), (9, 0)], [(0, 2), (8, 0)]) == 20           # not 30
+    # its foot in the last row too: a wall running across the raster, top to bottom
+    assert run([(0, 4), (5, 2), (9, 0)], [(0, 2), (9, 0)]) == 30
+    assert run([(2, 3), (6, 8)], [(1, 2), (7, 9)]) == 6                      # inside: not mirrored
+    assert run([(0, 3), (6, 8)], []) == 7                                    # no ground seen beyond
+    assert run([], [(0, 0)]) == 0
+    assert run([(3, 0), (3, 11)], [(2, 0), (2, 11)]) == 36                  # across, left to right
+
 _UNGUARDED_SCRIPT = """
 import sys
 sys.path.insert(0, {plugins!r})

@@ -808,6 +808,20 @@ def test_raised_region_width_of_a_level_running_off_the_raster():
     assert est.raised_region_width(box, (1.0, 1.0), 0.5, 10.0) == 0.0        # a small building
 
 
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+def test_raised_region_width_of_a_roof_whose_wall_ends_in_a_corner(cell):
+    """As lidar/sample_c: a roof over 73 % of an 88 x 76 m tile, its one wall cutting off the top-left
+    corner and ending on the left side 2 m above the bottom, is a raised region wider than 64 m at every
+    cell size: the roof's corner beside the wall's end reaches the bottom side, but the ground at the
+    wall's foot does not, so the wall is not mirrored there (it was at 2 and 4 m: walls of 228 m, beyond
+    the 200 m looked at, and the filters kept the roof). The terrace of the same shape on a bank is none."""
+    from surfaces import level_off_a_corner
+    z, roof = level_off_a_corner(cell)
+    assert 64.0 < est.raised_region_width(z, (cell, cell), 2.0, 64.0) <= 200.0
+    z, _ = level_off_a_corner(cell, "terrace")
+    assert est.raised_region_width(z, (cell, cell), 2.0, 64.0) == 0.0
+
+
 def test_smooth_parts_joined_across_steps_up_to_step_m():
     from bare_earth.core.estimate import smooth_parts
     w = np.array([[0, 0.5, 5, 5], [0, 0, 5, 9]], np.float32)

@@ -1136,6 +1136,26 @@ def test_geodesic_hall_wider_than_the_largest_object_is_removed_by_default():
     assert given.info["max_object_size_m"] == 64.0
 
 
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+def test_geodesic_roof_whose_wall_ends_in_a_corner_is_removed_at_every_cell_size(cell):
+    """As lidar/sample_c (88.31 / 88.16 / 88.13 % at 0.5 / 2 / 4 m): a roof over 73 % of an 88 x 76 m tile,
+    its one wall ending next to a corner. The largest object widens to it at every cell size (the wall is
+    not mirrored at the side only the roof's corner reaches), and the widened step, whose opening falls to
+    the lowest ground, splits the residual region joining the roof with the ground rising beyond its wall
+    at the wall: the roof is an object, the ground stays. The terrace of the same shape on a bank stays
+    ground."""
+    from surfaces import level_off_a_corner
+
+    from bare_earth.core.pipeline import run_array
+    z, roof = level_off_a_corner(cell)
+    r = run_array("geodesic", z, cell)
+    assert 64.0 < r.info["max_object_size_m"] <= 200.0
+    assert (r.mask[roof] == OBJECT).all()
+    assert (r.mask[~roof] == GROUND).mean() > 0.98
+    z, _ = level_off_a_corner(cell, "terrace")
+    assert (run_array("geodesic", z, cell).mask == GROUND).mean() > 0.995
+
+
 def test_geodesic_roof_cut_by_the_raster_edge_is_removed():
     """A 130 m roof running off the raster's bottom edge (60 m of it inside): a 64 m window truncated
     at the edge fits into it, so the opening kept it as terrain (issue 12: synthetic-lidar/mixed at

@@ -779,6 +779,22 @@ def test_a_tile_nearly_all_roof_widens_the_window_and_is_an_object(cell):
     assert (res.mask[~roof] == 0).mean() > 0.99
 
 
+@pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
+def test_a_roof_whose_wall_ends_in_a_corner_is_an_object_at_every_cell_size(cell):
+    """As lidar/sample_c (0.26 / 88.13 / 88.13 % at 0.5 / 2 / 4 m): a roof over 73 % of an 88 x 76 m tile,
+    its one wall ending next to a corner, widens the window at every cell size and is an object; the
+    terrace of the same shape joined to the ground by a bank stays ground."""
+    from surfaces import level_off_a_corner
+    z, roof = level_off_a_corner(cell)
+    p = morph.resolve_morphological_params(z, cell)
+    assert "widened" in p["max_object_size_source"]
+    res = run_array("morphological", z, cell, {})
+    assert (res.mask[roof] == OBJECT).all()
+    assert (res.mask[~roof] == 0).mean() > 0.98
+    z, _ = level_off_a_corner(cell, "terrace")
+    assert (run_array("morphological", z, cell, {}).mask == 0).mean() > 0.995
+
+
 @pytest.mark.parametrize("kind", ["terrace", "plateau", "hilltop", "steep plateau"])
 def test_wide_raised_ground_does_not_widen_the_window(kind):
     from surfaces import noisy, raised_ground
