@@ -487,9 +487,30 @@ def _derive_params(info, run):
     if whole is None:
         run.log(f"Parameters derived from {where} {rw[1] - rw[0]} x {rw[3] - rw[2]} cells (rows {rw[0]}-{rw[1]}, "
                 f"columns {rw[2]}-{rw[3]}).")
+        params = widen_params(run.meth, info, params, run.params, run.log)
         if info.far_cells:
             run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
     return params, whole
+
+
+def widen_params(method, info, params, given=None, log=None, max_cells=4_000_000):
+    """``Method.widen`` of ``method`` (the parameters that are heights of the whole raster, which
+    the window or sample the others came from does not hold) on the raster of ``info`` read
+    every ``step``-th cell (at most ``max_cells``, as :func:`grid.check_has_data` reads it);
+    ``params`` as they are for a method without it. ``given``: the user's values."""
+    meth = as_method(method)
+    if meth.widen is None:
+        return params
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    far = info.far_cells
+    overview = info.read(step=step)
+    info.far_cells = far                        # counted where the blocks read them
+    cell = (info.cell_size_m[0] * step, info.cell_size_m[1] * step)
+    wider = meth.widen(params, dict(given or {}), overview, cell)
+    if wider != params and log is not None:
+        log(f"Parameters that are heights of the whole raster widened to its heights read every {step}-th cell "
+            "(RASCOR's step 2 limits).")
+    return wider
 
 
 def _ndsm_nodata(float_nodata):
