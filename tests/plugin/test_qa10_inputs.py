@@ -70,3 +70,22 @@ def test_evaluate_reads_the_height_band_beside_an_alpha_band(processing_run, tmp
     assert res["RMSE"] == pytest.approx(0.5, abs=1e-6)
     report = json.loads((tmp_path / "e.json").read_text())
     assert "1200" in json.dumps(report)                 # 30 x 40 cells compared
+
+
+def test_orthophoto_tools_refuse_a_bottom_up_dem_before_work_saying_how(processing_run, tmp_path):
+    """A DEM stored bottom-up (gt[5] > 0, as some exports write it; the filters take it) failed in
+    orthoparallax with "geotransform must be north-up with positive cell size (dx > 0, dy < 0)",
+    naming neither the input nor the fix; now refused before work naming the DEM and gdalwarp."""
+    from qgis.core import QgsProcessingException
+    rng = np.random.default_rng(0)
+    up = (500000.0, 1.0, 0.0, 5399960.0, 0.0, 1.0)
+    dem = _write(tmp_path / "dem_up.tif", np.full((40, 40), 100.0, np.float32), up)
+    a = _write(tmp_path / "a.tif", rng.uniform(0, 255, (40, 40)).astype(np.float32), up)
+    b = _write(tmp_path / "b.tif", rng.uniform(0, 255, (40, 40)).astype(np.float32), up)
+    out = tmp_path / "out_dem.tif"
+    for alg, params in (("orthoparallax", {"ORTHO_A": a, "ORTHO_B": b, "BASE_M": 100.0, "HEIGHT_M": 400.0}),
+                        ("orthorefine", {"IMAGES": [a, b], "BASE_M": 100.0, "HEIGHT_M": 400.0})):
+        with pytest.raises(QgsProcessingException, match=r"DEM: the raster .*dem_up.tif' is stored bottom-up .*"
+                                                         r"gdalwarp"):
+            processing_run(f"bareearth:{alg}", dict(params, DEM=dem, OUTPUT_DEM=str(out)))
+        assert not out.exists()
