@@ -777,3 +777,28 @@ def test_widen_rascor_params_takes_the_widest_limits():
         {}, over, (10.0, 10.0))
     assert d["members"]["rascor"] == w and d["members"]["geodesic"] == {"max_object_size_m": 64.0}
     assert d["tolerance_m"] == 0.5
+
+
+def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp_path, monkeypatch):
+    """A raster above IN_MEMORY_CELLS whose method reaches across it from any block (dtm's 2 km
+    reach at 2 cm cells: 100000 cells) was cut into blocks that each read and filtered the whole
+    raster (40000 x 40000 at 2 cm: 6 GB after 90 s in the first of 400 blocks). It now runs in
+    one pass, said in the log; a halo shorter than that keeps the blocks."""
+    plan = pipeline.plan_block
+    big = pipeline.blocks.DEFAULT_BLOCK
+    assert plan((6000, 6000), 6000 - big) == 6000 and plan((6000, 3000), 5000) == 6000
+    assert plan((6000, 6000), 6000 - big - 1) == big
+    monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
+    monkeypatch.setattr(pipeline.blocks, "DEFAULT_BLOCK", 64)
+    z = (np.arange(200 * 150, dtype=np.float32).reshape(200, 150) % 13).astype(np.float32)
+    src = write(tmp_path, z)
+    reach = Method(name="reach", run=_run, resolve=_resolve, halo=lambda p, c: 150, params=ABOVE.params)
+    logs = []
+    res = pipeline.run_file(reach, src, outputs(tmp_path, "mask"), log=logs.append)
+    assert res["blocks"] == 1 and any("spans the raster from any block" in s for s in logs)
+    one = pipeline.run_array(reach, z, (1.0, 1.0)).mask
+    np.testing.assert_array_equal(read(outputs(tmp_path, "mask")["mask"])[0], one)
+    short = Method(name="short", run=_run, resolve=_resolve, halo=lambda p, c: 20, params=ABOVE.params)
+    logs = []
+    assert pipeline.run_file(short, src, outputs(tmp_path, "mask", prefix="s_"), log=logs.append)["blocks"] > 1
+    assert not any("spans the raster" in s for s in logs)
