@@ -22,9 +22,7 @@ from .fill_dtm import grid_mismatch_message, same_grid
 from .filter_base import (
     BaseAlgorithm,
     explained,
-    layer_crs_wkt,
-    layer_nodata_ranges,
-    raster_path,
+    open_one_band,
     stage_done,
     tr,
     with_help,
@@ -159,7 +157,7 @@ class EvaluateAlgorithm(BaseAlgorithm):
         lay = self.parameterAsRasterLayer(parameters, key, context)
         if lay is None:
             return None
-        return grid.open_dsm(raster_path(lay), 1, layer_nodata_ranges(lay, 1), layer_crs_wkt(lay))
+        return open_one_band(lay, key)
 
     def _inputs(self, parameters, context):
         mask = self._layer(parameters, self.MASK, context)

@@ -16,9 +16,9 @@ from .filter_base import (
     check_dsm,
     explained,
     format_params,
+    open_one_band,
     output_options,
     progress_callback,
-    raster_path,
     tr,
     with_help,
 )
@@ -127,7 +127,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         mlayer = self.parameterAsRasterLayer(parameters, self.MASK, context)
         minfo = None
         if mlayer is not None:
-            minfo = grid.open_dsm(raster_path(mlayer), 1)
+            minfo = open_one_band(mlayer, self.MASK)
             if not same_grid(info, minfo):
                 raise ValueError(grid_mismatch_message(info, minfo, "The mask"))
             grid.read_mask(minfo, "The mask (MASK)")   # codes, not heights: refused now, not read as codes

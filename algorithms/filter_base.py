@@ -138,6 +138,23 @@ def layer_nodata_ranges(layer, band):
     return tuple(out)
 
 
+def open_one_band(layer, key):
+    """The DSMInfo of a raster input that has no BAND parameter (a mask, a DTM to compare) as its
+    layer stands (:func:`layer_nodata_ranges`, :func:`layer_crs_wkt`): its one band, beside an
+    alpha band that masks it. ValueError naming ``key`` for a raster of several bands: reading its
+    band 1 would compare or fill with whatever it holds (the red of a mask exported as a rendered
+    RGB image, the first of a stack) without a word."""
+    path = raster_path(layer)
+    try:
+        return grid.open_dsm(path, None, layer_nodata_ranges(layer, None), layer_crs_wkt(layer))
+    except grid.SeveralBands as exc:
+        raise ValueError(f"{key}: the raster {path!r} has {exc.bands} bands but this input is read from a "
+                         "single band (it has no band choice): extract the band it should use first (gdal_translate -b "
+                         "<band> in out.tif, or Raster > Conversion > Translate)." + (
+                             " A mask saved as a rendered image (RGB colours) holds no codes: give the mask file a "
+                             "filter wrote." if "MASK" in key else "")) from None
+
+
 def layer_crs_wkt(layer):
     """The CRS a raster layer was given in QGIS (WKT), or None: used for a file without a CRS of
     its own (an .asc without .prj), which QGIS draws in the layer's CRS."""

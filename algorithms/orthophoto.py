@@ -411,6 +411,12 @@ class OrthoAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, None)
         if not ok:
             raise ValueError(f"DEM: {msg}")
+        gt = info.geotransform
+        if not (gt[1] > 0 and gt[5] < 0):      # the frames' geometry is worked on north-up grids
+            raise ValueError(f"DEM: the raster {info.path!r} is stored {'bottom-up' if gt[5] > 0 else 'right to left'} "
+                             f"(geotransform cell {gt[1]:g} x {gt[5]:g}): the orthophoto tools work on north-up "
+                             "grids. Warp it (and the orthophotos) to north-up first: gdalwarp in.tif out.tif "
+                             "writes a north-up raster.")
         _check_metric(info, "The DEM")
         chosen, defaults = {}, {}
         for k in (self.WINDOW_CELLS, self.OBJECT_SIZE_M):

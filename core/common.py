@@ -285,3 +285,21 @@ def write_failed(path, reason, code=None):
     return ValueError(f"cannot write the output {os.fspath(path)!r}: {str(reason).strip() or 'no reason given'}. "
                       f"{hint}")
 
+
+
+#: Byte-order marks of UTF-16 text (little- and big-endian): what Excel's "Unicode Text" and
+#: Windows PowerShell 5's ``>`` / ``Out-File`` write.
+UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+
+
+def text_of(data, path):
+    """The text of a text file's bytes ``data``: UTF-8 (with or without its byte-order mark) or
+    UTF-16 with its byte-order mark. ValueError naming ``path`` and the fix for anything else
+    (a file in a legacy code page holding a non-ASCII character), instead of a decoding error
+    that names neither the file nor the byte."""
+    try:
+        return data.decode("utf-16") if data.startswith(UTF16_BOMS) else data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{str(path)!r} is not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}): "
+                         "save it as UTF-8 (or UTF-16 with its byte-order mark) text, e.g. 'CSV UTF-8' in a "
+                         "spreadsheet.") from None

@@ -968,11 +968,22 @@ def _run(z, cell_size, progress=None, input_description=None, **params):
     return filter_dtm(z, cell_size, progress=progress, **params)
 
 
+def widen_dtm_params(params, given, overview, cell_size):
+    """``Method.widen`` of the vote: each member's own, on its parameters (the user gives the
+    members nothing, so each member's derived heights are widened)."""
+    members = dict(params["members"])
+    for meth in _members(MEMBERS):
+        if meth.widen is not None and meth.name in members:
+            members[meth.name] = meth.widen(members[meth.name], {}, overview, cell_size)
+    return dict(params, members=members)
+
+
 METHOD = Method(
     name="dtm",
     run=_run,
     resolve=resolve_dtm_params,
     halo=dtm_halo,
+    widen=widen_dtm_params,
     extras={"confidence": (np.uint8, 1, NODATA)},
     extra_bands={"confidence": ("confidence (%)",)},
     params=(),

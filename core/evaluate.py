@@ -91,12 +91,11 @@ def confusion(pred_ground, true_ground, valid=None):
     c = int(np.count_nonzero(p & ~t))
     d = int(p.size - a - b - c)
     n = a + b + c + d
-    if n:
-        po = (a + d) / n
-        pe = ((a + b) * (a + c) + (c + d) * (b + d)) / (n * n)
-        kappa = 100.0 * (po - pe) / (1.0 - pe) if pe < 1.0 else float("nan")
-    else:
-        kappa = float("nan")
+    # (p_o - p_e) / (1 - p_e) in whole numbers, one division: 2 (ad - bc) / ((a+b)(b+d) + (a+c)(c+d))
+    # (a perfect classification is 100 exactly, not 100.00000000000001); p_e = 1 (one class only):
+    # the denominator is 0 and kappa undefined
+    den = (a + b) * (b + d) + (a + c) * (c + d)
+    kappa = 200.0 * (a * d - b * c) / den if n and den else float("nan")
     return {"a": a, "b": b, "c": c, "d": d, "n": n, "n_ground": a + b, "n_object": c + d,
             "type1": _pct(b, a + b), "type2": _pct(c, c + d), "total": _pct(b + c, n),
             "kappa": float(kappa)}
@@ -175,7 +174,7 @@ def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, v
     x, y : array_like
         Point coordinates.
     geotransform : sequence of 6 floats
-        Of the grid to fill (north-up).
+        Of the grid to fill (north-up or south-up: the map is in the grid's row order).
     shape : (rows, cols)
         Of the grid.
     valid : array_like of bool, optional
@@ -206,11 +205,14 @@ def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, v
         x, y, code = x[v], y[v], code[v]
     rows, cols = (int(v) for v in shape)
     gt = [float(v) for v in geotransform]
-    dx, dy = gt[1], abs(gt[5])
+    dx, dy = abs(gt[1]), abs(gt[5])
     out = np.full((rows, cols), ERROR_INVALID, dtype=np.uint8)
     if code.size == 0:
         return out, dict(ERROR_LEGEND)
-    extent = (gt[0], gt[3] - rows * dy, gt[0] + cols * dx, gt[3])
+    # the grid's extent whatever its orientation (a south-up raster, gt[5] > 0, has its origin at
+    # the south edge); the points are gridded north-up, then put in the grid's row order
+    xs, ys = sorted((gt[0], gt[0] + gt[1] * cols)), sorted((gt[3], gt[3] + gt[5] * rows))
+    extent = (xs[0], ys[0], xs[1], ys[1])
     inside = (x >= extent[0]) & (x <= extent[2]) & (y >= extent[1]) & (y <= extent[3])
     if not inside.any():
         return out, dict(ERROR_LEGEND)
@@ -220,7 +222,17 @@ def error_map_from_points(pred_ground, true_ground, x, y, geotransform, shape, v
     r, c = min(rows, grid.shape[0]), min(cols, grid.shape[1])
     g = grid[:r, :c]
     out[:r, :c] = np.where(np.isnan(g), ERROR_INVALID, np.nan_to_num(g)).astype(np.uint8)
-    return out, dict(ERROR_LEGEND)
+    return _in_grid_order(out, gt), dict(ERROR_LEGEND)
+
+
+def _in_grid_order(a, gt):
+    """A north-up array (row 0 north, column 0 west) in the row and column order of the grid
+    ``gt`` (and back: the flips are their own inverse)."""
+    if gt[5] > 0:
+        a = a[::-1]
+    if gt[1] < 0:
+        a = a[:, ::-1]
+    return np.ascontiguousarray(a)
 
 
 def _stats(diff):
@@ -386,6 +398,8 @@ def _map_html(codes, geotransform, legend, caption, max_side):
         raise ValueError(f"error map {caption!r} must be a non-empty 2-D array; "
                          f"got shape {codes.shape}.")
     codes = codes.astype(np.uint8, copy=False)
+    if geotransform is not None:           # drawn north-up whatever the grid's row order
+        codes = _in_grid_order(codes, [float(v) for v in geotransform])
     small = _shrink(codes, max_side)
     b64 = _png_base64(_error_map_rgb(small, legend))
     zoom = max(1, 300 // max(small.shape))          # tiny maps shown at >= 300 px

@@ -129,6 +129,12 @@ class Method:
         ``run`` takes ``workers=`` (threads it may use inside one window, the same result
         with any count): :func:`.pipeline.run_file` then runs a raster that fits in memory
         in one window with its threads rather than in strips that each recompute a halo.
+    widen : callable, optional
+        ``widen(params, given, overview, cell_size) -> dict``: for parameters that are heights
+        of the whole raster rather than statistics a window estimates (RASCOR's step 2 limits).
+        :func:`.pipeline.run_file` resolves a raster larger than its window on the window, then
+        calls it with the user's ``given`` values and the whole raster read every ``step``-th
+        cell (``cell_size`` its cells).
     """
     name: str
     run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
@@ -140,6 +146,7 @@ class Method:
     title: str = ""
     description: str = ""
     threads: bool = False
+    widen: Optional[Callable[..., Dict[str, Any]]] = None
 
     def __post_init__(self):
         if not isinstance(self.resolve, _CheckedResolve):

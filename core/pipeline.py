@@ -309,7 +309,10 @@ def _resolve_window(shape):
 def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False):
     """The block shape :func:`run_file` cuts a raster of ``shape`` into (a pure function).
 
-    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`
+    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`, and
+    above when the halo reaches across the raster from any block (each block would read all of
+    it: the memory of one pass, times the blocks in time; the method's reach in metres at very
+    fine cells, 1-2 cm)
     (also with several threads when the method uses them inside a window, ``threads``:
     strips would each recompute a halo),
     blocks of :data:`blocks.DEFAULT_BLOCK` above; with several threads or processes, strips
@@ -327,6 +330,8 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     rows_all = shape[0]
     small = shape[0] * shape[1] <= IN_MEMORY_CELLS
     block = max(shape) if small else blocks.DEFAULT_BLOCK
+    if not small and halo >= max(shape) - block:
+        return max(shape)       # every block would read (and filter) the whole raster: one pass instead
     n = max(int(processes), int(workers))
     if n <= 1 or (small and threads and int(processes) <= 1):
         return block
@@ -487,9 +492,30 @@ def _derive_params(info, run):
     if whole is None:
         run.log(f"Parameters derived from {where} {rw[1] - rw[0]} x {rw[3] - rw[2]} cells (rows {rw[0]}-{rw[1]}, "
                 f"columns {rw[2]}-{rw[3]}).")
+        params = widen_params(run.meth, info, params, run.params, run.log)
         if info.far_cells:
             run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
     return params, whole
+
+
+def widen_params(method, info, params, given=None, log=None, max_cells=4_000_000):
+    """``Method.widen`` of ``method`` (the parameters that are heights of the whole raster, which
+    the window or sample the others came from does not hold) on the raster of ``info`` read
+    every ``step``-th cell (at most ``max_cells``, as :func:`grid.check_has_data` reads it);
+    ``params`` as they are for a method without it. ``given``: the user's values."""
+    meth = as_method(method)
+    if meth.widen is None:
+        return params
+    step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
+    far = info.far_cells
+    overview = info.read(step=step)
+    info.far_cells = far                        # counted where the blocks read them
+    cell = (info.cell_size_m[0] * step, info.cell_size_m[1] * step)
+    wider = meth.widen(params, dict(given or {}), overview, cell)
+    if wider != params and log is not None:
+        log(f"Parameters that are heights of the whole raster widened to its heights read every {step}-th cell "
+            "(RASCOR's step 2 limits).")
+    return wider
 
 
 def _ndsm_nodata(float_nodata):
@@ -557,6 +583,11 @@ def _run_file(info, run, pool):
     windows = list(blocks.iter_windows(
         info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                                threads=run.meth.threads), halo))
+    if len(windows) == 1 and info.cells > IN_MEMORY_CELLS and run.block is None:
+        run.log(f"Warning: the method's reach, {halo} cells ({halo * max(cell):.0f} m at cells of "
+                f"{max(cell):.3g} m), spans the raster from any block: it is filtered in one pass over its "
+                f"{info.shape[1]} x {info.shape[0]} cells, with the memory that takes. A coarser cell (gdalwarp -tr) "
+                "makes the reach fewer cells.")
     report(run.progress, RESOLVED)
     stored = (info.nodata, info.scale, info.offset, info.dtype)
     float_nodata = grid.float_output_nodata(*stored)

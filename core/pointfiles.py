@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
-from .common import write_failed
+from .common import UTF16_BOMS, text_of, write_failed
 
 __all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
            "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS"]
@@ -178,8 +178,7 @@ def _read_text(path):
     space; when it fails (or with older numpy), :func:`_parse_careful` parses with
     ``np.fromstring`` and finds the line at fault.
     """
-    with open(path, "rb") as fh:
-        data = fh.read()
+    data = _utf8_bytes(path)
     if data.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
         data = b"   " + data[3:]
     _refuse_binary(path, data[:4096])
@@ -259,6 +258,19 @@ def _read_text(path):
                       source_format="text")
 
 
+def _utf8_bytes(path, size=-1):
+    """The bytes of a text file (the first ``size`` of them, all when -1), UTF-16 text (with its
+    byte-order mark: Excel's "Unicode Text", Windows PowerShell's ``>``) recoded to UTF-8, so
+    that its NUL bytes are not taken for binary data."""
+    with open(path, "rb") as fh:
+        data = fh.read(size)
+    if not data.startswith(UTF16_BOMS):
+        return data
+    if size >= 0:                          # a head, maybe cut inside a character
+        return data.decode("utf-16", errors="replace").encode("utf-8")[:size]
+    return text_of(data, path).encode("utf-8")
+
+
 def _refuse_binary(path, head):
     """ValueError when the first bytes of a "text" point file hold a NUL byte (never in text)."""
     if b"\x00" in head:
@@ -305,8 +317,7 @@ def read_crs(path, crs=None):
                 return _las_crs(fh.header)
         except (laspy.errors.LaspyException, ValueError, OSError, EOFError, struct.error) as exc:
             raise ValueError(f"{path!r} is not a readable LAS/LAZ file: {exc}") from exc
-    with open(path, "rb") as fh:
-        _refuse_binary(path, fh.read(4096))
+    _refuse_binary(path, _utf8_bytes(path, 4096))
     for prj in (path + ".prj", os.path.splitext(path)[0] + ".prj"):
         if os.path.isfile(prj):
             with open(prj, encoding="utf-8", errors="replace") as fh:
@@ -638,9 +649,11 @@ def _write_text(path, cloud, classes, decimals):
 
 def _header_tokens(path):
     """(first non-empty line as bytes, its tokens lower-cased) of a text point file."""
+    first = b""
     with open(path, "rb") as fh:
-        first = b""
-        for line in fh:
+        utf16 = fh.read(2).startswith(UTF16_BOMS)
+        fh.seek(0)
+        for line in (_utf8_bytes(path).splitlines(keepends=True) if utf16 else fh):
             if line.strip():
                 first = line
                 break
@@ -688,8 +701,7 @@ def read_column(path, name):
     if name.lower() not in tokens:
         raise ValueError(f"{path!r} has no column {name!r}; its columns are {tokens}.")
     k = tokens.index(name.lower())
-    with open(path, "rb") as fh:
-        text = fh.read()
+    text = _utf8_bytes(path)
     start = text.find(first) + len(first)
     body = text[start:].translate(_SEPARATORS)
     try:

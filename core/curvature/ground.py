@@ -217,11 +217,13 @@ def _box_sum(v, h, w, i0, i1, lo, k):
     vs = np.zeros(v.shape, np.float32)        # sums along the rows
     for d in range(-k, k + 1):
         t0, t1 = max(0, -d), min(w, w - d)
-        vs[:, t0:t1] += v[:, t0 + d:t1 + d]
+        if t1 > t0:                           # a shift beyond the array adds nothing
+            vs[:, t0:t1] += v[:, t0 + d:t1 + d]
     vb = np.zeros((i1 - i0, w), np.float32)   # then along the columns
     for d in range(-k, k + 1):
         r0, r1 = max(i0, -d), min(i1, h - d)
-        vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
+        if r1 > r0:                           # no row of the block has row i + d (a negative end would wrap)
+            vb[r0 - i0:r1 - i0] += vs[r0 + d - lo:r1 + d - lo]
     return vb
 
 

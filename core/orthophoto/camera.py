@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common import text_of
+
 __all__ = ["Interior", "Camera", "opk_to_rotation", "rotation_to_opk", "read_opk_csv",
            "read_interior_yaml", "read_opensfm_reconstruction", "cameras_from_opk", "read_cameras",
            "parse_tiny_yaml", "read_table_rows"]
@@ -343,8 +345,10 @@ _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
 def read_table_rows(path, expected="a header and one row per image"):
     """Rows of a CSV / whitespace table with a header, quotes ``'`` or ``"`` allowed: comma-,
     semicolon- (a spreadsheet's CSV in a locale with decimal commas: ``1,5`` reads as 1.5),
-    tab- or space-separated, as the header line is."""
-    text = Path(path).read_text(encoding="utf-8-sig")
+    tab- or space-separated, as the header line is (decimal commas read in all but the
+    comma-separated, as a spreadsheet's "Unicode Text" writes them: tabs, UTF-16). UTF-8 or
+    UTF-16 text (:func:`~bare_earth.core.common.text_of`)."""
+    text = text_of(Path(path).read_bytes(), path)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise ValueError(f"{path}: empty file; expected {expected}.")
@@ -352,11 +356,11 @@ def read_table_rows(path, expected="a header and one row per image"):
     if delim:
         reader = csv.reader(lines, delimiter=delim, skipinitialspace=True)
         rows = [[c.strip().strip("'\"") for c in r] for r in reader]
-        if delim == ";":
-            rows = [[c.replace(",", ".") if _DECIMAL_COMMA.match(c) else c for c in r] for r in rows]
     else:
         token = re.compile(r"'[^']*'|\"[^\"]*\"|\S+")
         rows = [[t.strip("'\"") for t in token.findall(ln)] for ln in lines]
+    if delim != ",":                    # a comma separates nothing there: it is a decimal comma
+        rows = [[c.replace(",", ".") if _DECIMAL_COMMA.match(c) else c for c in r] for r in rows]
     return rows
 
 
@@ -490,7 +494,7 @@ def read_interior_yaml(path):
     -------
     dict of str -> Interior
     """
-    text = Path(path).read_text(encoding="utf-8-sig")
+    text = text_of(Path(path).read_bytes(), path)
     try:
         import yaml  # optional; the tiny parser below covers these files
     except ImportError:
@@ -547,7 +551,7 @@ def read_opensfm_reconstruction(path):
     reference_lla : dict or None
     """
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8-sig"))
+        data = json.loads(text_of(Path(path).read_bytes(), path))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc}); expected an OpenSfM reconstruction.json.") from None
     rec = data[0] if isinstance(data, list) and data else data

@@ -250,6 +250,51 @@ def terrain_bend(z, cell_size, sigma):
     return round(b, 3) if b > sigma else 0.0
 
 
+def _height_limits(z, low_env, sigma):
+    """Step 2's limits ``(height_min_m, height_max_m)`` of the heights ``z``, whose lower envelope
+    (step 1's tile minima) is ``low_env``: far outside the distribution, beyond Tukey's far
+    fences and at least ``_FAR_M`` beyond the terrain's lower envelope (a dam or an embankment
+    in a flat area is not far outside)."""
+    v = z.ravel()
+    if v.size > 2_000_000:                   # a regular sample of about 1 M cells
+        v = v[:: v.size // 1_000_000]
+    v = v[np.isfinite(v)]
+    q1, q3 = np.percentile(v, [25, 75])
+    iqr = max(q3 - q1, 10 * sigma)
+    lv = low_env[np.isfinite(low_env)]
+    gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
+    return round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2), round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
+
+
+def widen_rascor_params(params, given, overview, cell_size):
+    """Step 2's derived limits widened to the heights of a whole raster larger than the window
+    the parameters came from (``Method.widen``).
+
+    The limits are heights, not a statistic a window estimates: taken from the raster's central
+    window alone, the terrain beyond it that rises (or falls) further than the window's terrain
+    plus ``_FAR_M`` (a valley side, a hill at the survey's end, a corridor climbing 1000 m along
+    its 100 km) was removed whole by step 2. ``overview``: the whole raster read every
+    ``step``-th cell (``cell_size`` its cells); the limits become the widest of the window's and
+    the overview's (:func:`_height_limits` on it, with its own lower envelope). Limits the user
+    gave (``given``) are kept."""
+    p = dict(params)
+    if p.get("terrain_class") != "flat" or not np.isfinite(overview).any():
+        return p
+    todo = [k for k in ("height_min_m", "height_max_m") if given.get(k) is None and p.get(k) is not None]
+    if not todo:
+        return p
+    z = as_surface(overview)
+    if min(z.shape) < 3:
+        return p
+    _ch, low_env = characterise_with_envelope(z, as_cell_size(cell_size), with_sigma=False)
+    lo, hi = _height_limits(z, low_env, float(p["sigma_m"]))
+    if "height_min_m" in todo:
+        p["height_min_m"] = min(p["height_min_m"], lo)
+    if "height_max_m" in todo:
+        p["height_max_m"] = max(p["height_max_m"], hi)
+    return p
+
+
 def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                           progress: Optional[Callable[[float], None]] = None, **params) -> dict:
     """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
@@ -337,20 +382,11 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         p["sigma_m"] = round(ch["sigma_m"], 3)
     sigma = float(p["sigma_m"])
     if tc == "flat" and (p["height_min_m"] is None or p["height_max_m"] is None):
-        v = z.ravel()
-        if v.size > 2_000_000:                   # a regular sample of about 1 M cells
-            v = v[:: v.size // 1_000_000]
-        v = v[np.isfinite(v)]
-        q1, q3 = np.percentile(v, [25, 75])
-        iqr = max(q3 - q1, 10 * sigma)
-        lv = low_env[np.isfinite(low_env)]
-        gmin, gmax = (float(lv.min()), float(lv.max())) if lv.size else (q1, q3)
-        # far outside: beyond Tukey's far fences and at least _FAR_M beyond the terrain's
-        # lower envelope (a dam or an embankment in a flat area is not far outside)
+        lo, hi = _height_limits(z, low_env, sigma)
         if p["height_min_m"] is None:
-            p["height_min_m"] = round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2)
+            p["height_min_m"] = lo
         if p["height_max_m"] is None:
-            p["height_max_m"] = round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
+            p["height_max_m"] = hi
     if p["terrain_slope"] is None:
         # step 3's tolerance: the rise of the typical ground over one cell (a height's
         # position inside its cell); the median slope of step 1's lower envelope

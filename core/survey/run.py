@@ -222,6 +222,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
             if suspect:
                 log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
         resolved = pipeline.resolve_params(meth, zs, cell, user)
+        if zs.shape != tuple(index.shape):      # a sample: heights of the whole survey beyond it
+            resolved = pipeline.widen_params(meth, info, resolved, user, log)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,
                     "resolve_seconds": round(time.perf_counter() - t0, 3)})

@@ -1382,3 +1382,37 @@ def test_a_deep_pit_is_low_not_ground_and_its_ring_stays_ground(n, cell):
     res, _ = run(z, cell)
     assert res.mask[n // 2, n // 2] == LOW
     assert (res.mask == OBJECT).sum() == 0
+
+
+@pytest.mark.parametrize("chunk", [16, 64, derivatives.CHUNK_CELLS])
+@pytest.mark.parametrize("k", [1, 3, 9])
+def test_window_mean_is_the_mean_of_the_window_whatever_the_chunk(monkeypatch, chunk, k):
+    """The window means of the first surface, against their definition, with blocks of rows
+    narrower than the window (a raster wider than CHUNK_CELLS / m: 32768 columns at the default
+    window, 6554 at WINDOW_CELLS 21) and windows wider than the raster: a shift beyond the
+    array adds nothing (it raised a broadcast error)."""
+    small_chunks(monkeypatch, chunk)
+    a = np.random.default_rng(k).normal(0, 2, (6, 23)).astype(np.float32)
+    a[2, 5] = a[0, 0] = np.nan
+    cells = np.flatnonzero(np.ones(a.shape, bool))
+    got = ground._window_mean(a, cells, k)
+    pad = np.pad(a.astype(np.float64), k, constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(pad, (2 * k + 1, 2 * k + 1))
+    want = np.nanmean(win, axis=(2, 3)).ravel()
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+def test_curvature_on_a_strip_wider_than_its_chunks_of_rows():
+    """A corridor survey (a road or river strip) 33000 columns wide held in one window: the
+    first surface's window means ran on one row at a time, fewer than the half window (it
+    raised "operands could not be broadcast together"); the buildings are found."""
+    rng = np.random.default_rng(3)
+    z = (100 + rng.normal(0, 0.05, (8, 33000))).astype(np.float32)
+    for c in range(100, 33000 - 100, 500):
+        z[:, c:c + 15] += 8.0                       # buildings across the strip
+    res = get_method("curvature").run(z, (1.0, 1.0), **curvature.resolve_curvature_params(z, (1.0, 1.0)))
+    obj = res.mask == OBJECT
+    want = np.zeros(z.shape, bool)
+    for c in range(100, 33000 - 100, 500):
+        want[:, c:c + 15] = True
+    assert (obj == want).mean() > 0.99

@@ -2,6 +2,7 @@
 import base64
 import importlib.util
 import json
+import math
 import re
 import uuid
 from pathlib import Path
@@ -442,3 +443,37 @@ def test_dtm_errors_counts_what_the_matrix_scores(tmp_path):
     assert sum(g["points"] for (k, _, _), g in b["groups"].items() if k == "type2") == b["type2"]
     with np.load(tmp_path / "maps" / "isprs_samp11_2m_min.npz") as m:
         assert int(m["type2"].sum()) == b["type2"] and m["dsm"].shape == m["mask"].shape
+
+
+def test_error_map_from_points_on_south_up_and_east_to_west_grids(tmp_path):
+    """The map of a point evaluation on a DTM stored bottom-up (gt[5] > 0, origin at the south
+    edge) or right to left: its extent was taken north-up from the origin, so every point fell
+    outside ("correct: 0 cells", all "not evaluated"). The map is now in the grid's row and
+    column order, and the HTML draws every map north-up (the same picture for both storages)."""
+    from bare_earth.core.evaluate import error_map_from_points
+    gt = (0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
+    x = np.array([0.2, 0.8, 1.5, 0.5, 0.6])
+    y = np.array([1.5, 1.5, 1.5, 0.5, 0.4])
+    pred = np.array([True, True, False, True, True])
+    truth = np.array([True, False, True, True, True])
+    north, _ = error_map_from_points(pred, truth, x, y, gt, (2, 3))
+    south, _ = error_map_from_points(pred, truth, x, y, (0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (2, 3))
+    west, _ = error_map_from_points(pred, truth, x, y, (3.0, -1.0, 0.0, 2.0, 0.0, -1.0), (2, 3))
+    np.testing.assert_array_equal(south, north[::-1])
+    np.testing.assert_array_equal(west, north[:, ::-1])
+    pages = []
+    for name, codes, g in (("n", north, gt), ("s", south, (0.0, 1.0, 0.0, 0.0, 0.0, 1.0))):
+        write_report({"s": {"total": 1.0}}, html_path=tmp_path / f"{name}.html", error_map=codes, geotransform=g)
+        pages.append(re.search(r'src="data:image/png;base64,([^"]+)"', (tmp_path / f"{name}.html").read_text())[1])
+    assert pages[0] == pages[1]
+
+
+def test_kappa_of_a_perfect_classification_is_100_exactly():
+    """Cohen's kappa in whole numbers: a perfect classification gave 100.00000000000001 %
+    (KAPPA above its range in the log and the outputs)."""
+    pred = np.array([True] * 272 + [False] * 28)
+    assert confusion(pred, pred)["kappa"] == 100.0
+    r = confusion(np.array([True] * 50 + [False] * 10 + [True] * 5 + [False] * 35),
+                  np.array([True] * 60 + [False] * 40))
+    assert r["kappa"] == pytest.approx(100 * 0.34 / 0.49)
+    assert math.isnan(confusion(np.ones(5, bool), np.ones(5, bool))["kappa"])

@@ -265,3 +265,19 @@ def test_interior_yaml_with_a_byte_order_mark_and_quoted_numbers_reads(tmp_path)
     io = read_interior_yaml(p)["cam"]
     assert (io.width, io.height) == (640, 480) and io.fx == pytest.approx(320.0)
     assert io.c0 == pytest.approx(319.5 + 6.4)
+
+
+def test_exterior_from_a_spreadsheets_unicode_text_and_a_legacy_code_page(tmp_path):
+    """Excel's "Unicode Text" export: UTF-16 with its byte-order mark, tab-separated, decimal
+    commas in a European locale. It raised a bare UnicodeDecodeError naming no file (and the
+    tabs' decimal commas were "not a number"). A file in a legacy code page with a non-ASCII
+    name is a ValueError naming the file and the fix."""
+    p = tmp_path / "ext.txt"
+    p.write_bytes("filename\tx\ty\tz\tomega\tphi\tkappa\nÅs_1.jpg\t500000,5\t5400000,25\t300\t0,1\t-0,2\t90\n"
+                  .encode("utf-16"))
+    e = read_opk_csv(str(p))
+    assert e["Ås_1"] == {"x": 500000.5, "y": 5400000.25, "z": 300.0, "omega": 0.1, "phi": -0.2, "kappa": 90.0}
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes("filename,x,y,z,omega,phi,kappa\nÅs_1.jpg,1,2,3,0,0,0\n".encode("latin-1"))
+    with pytest.raises(ValueError, match=r"latin.csv' is not UTF-8 text .*save it as UTF-8"):
+        read_opk_csv(str(latin))

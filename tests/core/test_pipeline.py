@@ -725,3 +725,80 @@ def test_side_products_name_their_bands(tmp_path, method, extra, names):
     pipeline.run_file(method, p, {"mask": tmp_path / "m.tif", extra: out})
     ds = gdal.Open(str(out))
     assert [ds.GetRasterBand(k + 1).GetDescription() for k in range(ds.RasterCount)] == names
+
+
+def test_rascor_height_limits_hold_the_whole_raster_beyond_its_window(tmp_path, monkeypatch):
+    """RASCOR's step 2 limits are heights, derived on the central window of a large raster: the
+    flat plain there, the ground beyond rising 60 m (a valley side, a corridor climbing along
+    its length) was removed whole as far outside the heights (45 % of a 3 x 100000 corridor
+    rising 1000 m). The limits now hold the whole raster's heights, read every step-th cell;
+    limits the user gives stay as given."""
+    monkeypatch.setattr(pipeline, "RESOLVE_SIDE", 256)
+    rng = np.random.default_rng(7)
+    cols = 1200
+    ground = np.full(cols, 100.0)
+    ground[900:] += np.linspace(0.0, 60.0, 300)                # 60 m up over the last 300 m
+    z = (ground[None, :] + rng.normal(0.0, 0.05, (64, cols))).astype(np.float32)
+    objects = np.zeros(z.shape, bool)
+    for c in (150, 600, 1000, 1150):
+        objects[20:40, c:c + 20] = True
+    z[objects] += 8.0
+    src = write(tmp_path, z)
+    logs = []
+    res = pipeline.run_file("rascor", src, outputs(tmp_path, "mask"), block=256, log=logs.append)
+    mask = read(outputs(tmp_path, "mask")["mask"])[0]
+    assert res["params"]["terrain_class"] == "flat" and res["params"]["height_max_m"] > 168.0
+    assert any("widened" in s for s in logs)
+    assert res["removed_share_by_step"]["2 height distribution"] == 0.0
+    slope = np.zeros(z.shape, bool)
+    slope[:, 900:1100] = True         # the rest of the slope, steeper than the window's plain, is not step 2's
+    assert np.mean(mask[slope & ~objects] == GROUND) > 0.99              # the rising ground stays ground
+    assert np.mean(mask[objects] == OBJECT) > 0.9
+    given = pipeline.run_file("rascor", src, outputs(tmp_path, "mask", prefix="given_"), block=256,
+                              params={"height_max_m": 130.0})
+    assert given["params"]["height_max_m"] == 130.0
+
+
+def test_widen_rascor_params_takes_the_widest_limits():
+    """The window's limits and the overview's (same rule on each), the widest of each kept; a
+    terrain other than flat (step 2 skipped) and limits the user gave are left alone."""
+    from bare_earth.core.rascor.parameters import widen_rascor_params
+    over = np.full((30, 30), 100.0, np.float32)
+    over[:, 25:] = 300.0                                   # ground up to 300 m beyond the window
+    p = {"terrain_class": "flat", "sigma_m": 0.1, "height_min_m": 80.0, "height_max_m": 120.0}
+    w = widen_rascor_params(p, {}, over, (10.0, 10.0))
+    assert w["height_min_m"] == 80.0 and w["height_max_m"] >= 320.0
+    assert widen_rascor_params(p, {"height_max_m": 120.0}, over, (10.0, 10.0))["height_max_m"] == 120.0
+    assert widen_rascor_params(dict(p, terrain_class="rolling"), {}, over, (10.0, 10.0)) == dict(
+        p, terrain_class="rolling")
+    from bare_earth.core.dtm import widen_dtm_params
+    d = widen_dtm_params(                                  # the vote widens its RASCOR member's
+        {"members": {"rascor": p, "geodesic": {"max_object_size_m": 64.0}}, "tolerance_m": 0.5},
+        {}, over, (10.0, 10.0))
+    assert d["members"]["rascor"] == w and d["members"]["geodesic"] == {"max_object_size_m": 64.0}
+    assert d["tolerance_m"] == 0.5
+
+
+def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp_path, monkeypatch):
+    """A raster above IN_MEMORY_CELLS whose method reaches across it from any block (dtm's 2 km
+    reach at 2 cm cells: 100000 cells) was cut into blocks that each read and filtered the whole
+    raster (40000 x 40000 at 2 cm: 6 GB after 90 s in the first of 400 blocks). It now runs in
+    one pass, said in the log; a halo shorter than that keeps the blocks."""
+    plan = pipeline.plan_block
+    big = pipeline.blocks.DEFAULT_BLOCK
+    assert plan((6000, 6000), 6000 - big) == 6000 and plan((6000, 3000), 5000) == 6000
+    assert plan((6000, 6000), 6000 - big - 1) == big
+    monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
+    monkeypatch.setattr(pipeline.blocks, "DEFAULT_BLOCK", 64)
+    z = (np.arange(200 * 150, dtype=np.float32).reshape(200, 150) % 13).astype(np.float32)
+    src = write(tmp_path, z)
+    reach = Method(name="reach", run=_run, resolve=_resolve, halo=lambda p, c: 150, params=ABOVE.params)
+    logs = []
+    res = pipeline.run_file(reach, src, outputs(tmp_path, "mask"), log=logs.append)
+    assert res["blocks"] == 1 and any("spans the raster from any block" in s for s in logs)
+    one = pipeline.run_array(reach, z, (1.0, 1.0)).mask
+    np.testing.assert_array_equal(read(outputs(tmp_path, "mask")["mask"])[0], one)
+    short = Method(name="short", run=_run, resolve=_resolve, halo=lambda p, c: 20, params=ABOVE.params)
+    logs = []
+    assert pipeline.run_file(short, src, outputs(tmp_path, "mask", prefix="s_"), log=logs.append)["blocks"] > 1
+    assert not any("spans the raster" in s for s in logs)

@@ -513,3 +513,23 @@ def test_a_header_written_as_a_comment_names_the_columns(tmp_path, text, parser)
     np.testing.assert_array_equal(c.x, [1, 4])
     np.testing.assert_array_equal(c.z, [3, 6])
     assert c.classification is None
+
+
+def test_utf16_text_points_read_as_text(tmp_path):
+    """Points saved as UTF-16 text (Excel's "Unicode Text", Windows PowerShell 5's ``>`` and
+    Out-File): their NUL bytes were taken for binary data and the file refused as "a raster DSM
+    goes to INPUT". Now read like the UTF-8 file, header, columns and CRS check included."""
+    text = "x\ty\tz\tclass\n1.5\t2.5\t3.5\t2\n2.5\t3.5\t4.5\t6\n"
+    for enc in ("utf-16", "utf-16-be"):
+        p = tmp_path / f"pts_{enc}.txt"
+        data = text.encode(enc)
+        p.write_bytes(data if enc == "utf-16" else b"\xfe\xff" + data)
+        cloud = pointfiles.read_points(str(p))
+        np.testing.assert_array_equal(cloud.x, [1.5, 2.5])
+        np.testing.assert_array_equal(cloud.z, [3.5, 4.5])
+        assert pointfiles.read_crs(str(p))[0] is None
+        np.testing.assert_array_equal(pointfiles.read_column(str(p), "class"), [2, 6])
+    bad = tmp_path / "bad.txt"
+    bad.write_bytes(b"\xff\xfe" + "x y z\n1 2 3\n".encode("utf-16-le") + b"\x00\xd8")   # a cut surrogate
+    with pytest.raises(ValueError, match=r"bad.txt' is not UTF-8 text .*save it as UTF-8"):
+        pointfiles.read_points(str(bad))

@@ -714,3 +714,24 @@ def test_survey_workers_do_not_run_an_unguarded_script_again(tmp_path):
             f"assert rec['complete']")
     code, out, runs = run_unguarded_script(tmp_path, body)
     assert code == 0 and "finished" in out and runs == 1, (runs, out[-2000:])
+
+
+def test_rascor_height_limits_of_a_sampled_survey_hold_all_its_heights(tmp_path, monkeypatch):
+    """RASCOR's step 2 limits are heights: from a sample of the tiles' central crops on a flat
+    plain (terrain class flat), a hill 40 m high where four tiles meet (between the crops) lost its
+    top as far outside the heights. The limits now hold the whole survey's heights (read every step-th cell)."""
+    monkeypatch.setattr(plan, "SAMPLE_CELLS", 2 * 40 * 40)          # crops of 20 x 20 at the tiles' centres
+    rng = np.random.default_rng(2)
+    y, x = np.mgrid[0:192, 0:192]
+    hill = 40.0 * np.exp(-((y - 96.0) ** 2 + (x - 96.0) ** 2) / (2 * 30.0 ** 2))
+    z = (100.0 + hill + rng.normal(0.0, 0.05, hill.shape)).astype(np.float32)
+    gt = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+    tiles = []
+    for i in range(0, 192, 96):
+        for j in range(0, 192, 96):
+            g = (gt[0] + j, 1.0, 0.0, gt[3] - i, 0.0, -1.0)
+            tiles.append(grid.write_array(tmp_path / f"t{i // 96}{j // 96}.tif", z[i:i + 96, j:j + 96], g, 32632))
+    logs = []
+    rec = run_survey("rascor", tiles, tmp_path / "out", {"terrain_class": "flat"}, workers=1, log=logs.append)
+    assert rec["sample"].startswith("central crops") and any("widened" in s for s in logs)
+    assert rec["params"]["height_max_m"] > float(z.max())       # step 2 removes none of the hill
