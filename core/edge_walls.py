@@ -1,0 +1,62 @@
+"""The run of a raised region's walls, mirrored at the raster's edge: how far a stage must reach.
+
+A raised region cut by the raster's edge may continue beyond it: nothing is seen there. Its
+*walls* (the steps down from it to the ground) say how far it runs: mirrored at every side of
+the raster they meet (:func:`~bare_earth.core.common.edge_mirrored_spans`), a wall cutting off
+a corner of the raster (meeting two adjacent sides: a roof over most of a tile, lidar
+``sample_c``) spans twice what is seen along each axis, and a wall running across the raster
+(meeting two opposite sides: a terrain step, a river's wall, a quarry bench) continues beyond
+both and spans three times what is seen. A stage that decides such regions takes those whose
+walls run within its reach; ``bareearth:dtm``'s raised regions (:mod:`.dtm_regions`), the
+curvature filter's region stage and RASCOR's level changes read the same run.
+
+A wall ending in a corner of the raster meets both of its sides there, within its own width:
+only the wall cells farther than ``corner`` cells from one of the two sides of a corner say
+which sides the wall meets (a wall with no other cell keeps its corner cells). Otherwise the
+diagonal wall of ``sample_c``'s roof, from the top side to the left one, met the bottom side
+too wherever its last cell fell on the corner cell (at 1 and 2 m cells, not at 0.5 and 4 m),
+and its run jumped from twice to three times the 72 m seen.
+"""
+import numpy as np
+
+from .common import edge_mirrored_spans
+
+#: Cells from the sides of a raster corner within which a wall meets both sides (a wall's width).
+CORNER_CELLS = 2
+
+
+def walls_runs(rows, cols, ids, n, shape, corner=CORNER_CELLS):
+    """The runs (cells) of the walls of the regions ``1 .. n`` of a raster of ``shape``.
+
+    ``rows, cols`` are the wall cells and ``ids`` their regions (ints in ``1 .. n``). A region's
+    run is the larger span (rows or columns) of the box of its wall cells, mirrored at every side
+    of the raster the walls meet (:func:`~bare_earth.core.common.edge_mirrored_spans`), the cells
+    within ``corner`` cells of both sides of a raster corner left out where the region has other
+    wall cells. Returns an int array of ``n + 1`` runs (0: a region without wall cells, and the
+    unused index 0).
+
+    Examples
+    --------
+    >>> walls_runs([0, 1, 2, 3, 4, 5, 5], [3, 3, 2, 1, 0, 0, 3], [1, 1, 1, 1, 1, 1, 2], 2, (6, 6)).tolist()
+    [0, 8, 2]
+    """
+    rows, cols, ids = (np.asarray(a, np.intp).ravel() for a in (rows, cols, ids))
+    h, w = shape
+    runs = np.zeros(n + 1, np.intp)
+    if ids.size == 0:
+        return runs
+    in_corner = (((rows < corner) | (rows >= h - corner)) & ((cols < corner) | (cols >= w - corner)))
+    other = np.bincount(ids[~in_corner], minlength=n + 1) > 0
+    use = ~in_corner | ~other[ids]
+    rows, cols, ids = rows[use], cols[use], ids[use]
+    big = np.iinfo(np.intp).max
+    r0, c0 = np.full(n + 1, big, np.intp), np.full(n + 1, big, np.intp)
+    r1, c1 = np.full(n + 1, -1, np.intp), np.full(n + 1, -1, np.intp)
+    np.minimum.at(r0, ids, rows)
+    np.minimum.at(c0, ids, cols)
+    np.maximum.at(r1, ids, rows)
+    np.maximum.at(c1, ids, cols)
+    has = r1 >= 0
+    span_r, span_c = edge_mirrored_spans(r0[has], r1[has] + 1, c0[has], c1[has] + 1, shape)
+    runs[has] = np.maximum(span_r, span_c)
+    return runs
