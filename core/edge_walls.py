@@ -18,8 +18,9 @@ too wherever its last cell fell on the corner cell (at 1 and 2 m cells, not at 0
 and its run jumped from twice to three times the 72 m seen.
 """
 import numpy as np
+from scipy import ndimage
 
-from .common import edge_mirrored_spans
+from .common import edge_mirrored_spans, touching
 
 #: Cells from the sides of a raster corner within which a wall meets both sides (a wall's width).
 CORNER_CELLS = 2
@@ -60,3 +61,46 @@ def walls_runs(rows, cols, ids, n, shape, corner=CORNER_CELLS):
     span_r, span_c = edge_mirrored_spans(r0[has], r1[has] + 1, c0[has], c1[has] + 1, shape)
     runs[has] = np.maximum(span_r, span_c)
     return runs
+
+
+def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=None):
+    """Which of the regions ``1 .. n`` of ``lab`` (levels cut by the raster's edge, 4-connected;
+    ``walls``: the cells of their walls, a bool array of ``lab``'s shape) a stage of reach
+    ``seen_cells = (rows, columns)`` takes as objects: a bool table over ``0 .. n``.
+
+    A level is taken when what is seen of it (its box) lies within ``seen_cells``, more than
+    half of its seen outline (its cells next to a cell of the raster outside it; nothing is seen
+    beyond the raster's edge) lies on its walls (within a cell of one: the rest of it is where
+    the level comes down to the ground gradually, a hillside's or a terrace's upper level), and
+    its walls run within ``reach_cells`` (:func:`walls_runs`). ``lab`` may be a window of the
+    raster (``shape``, default ``lab``'s) at ``origin`` (row, column): the walls are mirrored at
+    the raster's sides, and the window's own edges hold no outline.
+
+    Examples
+    --------
+    >>> lab = np.zeros((6, 6), int); lab[:4, :4] = 1
+    >>> walls = np.zeros((6, 6), bool); walls[:4, 3] = walls[3, :4] = True
+    >>> walled_levels(lab, 1, walls, (5, 5), 8).tolist(), walled_levels(lab, 1, walls, (5, 5), 7).tolist()
+    ([False, True], [False, False])
+    """
+    keep = np.zeros(n + 1, bool)
+    if n == 0:
+        return keep
+    boxes = ndimage.find_objects(lab, max_label=n)
+    seen = np.array([[b[0].stop - b[0].start, b[1].stop - b[1].start] if b is not None else [0, 0]
+                     for b in boxes], np.intp).reshape(-1, 2)
+    inside = lab > 0
+    rows, cols = np.nonzero(walls & inside)
+    runs = walls_runs(rows + origin[0], cols + origin[1], lab[rows, cols], n, lab.shape if shape is None else shape)
+    outline = np.zeros(lab.shape, bool)
+    outline[1:] |= lab[1:] != lab[:-1]
+    outline[:-1] |= lab[:-1] != lab[1:]
+    outline[:, 1:] |= lab[:, 1:] != lab[:, :-1]
+    outline[:, :-1] |= lab[:, :-1] != lab[:, 1:]
+    outline &= inside
+    on_wall = outline & touching(walls & inside)
+    n_out = np.bincount(lab[outline], minlength=n + 1)
+    n_wall = np.bincount(lab[on_wall], minlength=n + 1)
+    keep[1:] = ((seen[:, 0] <= seen_cells[0]) & (seen[:, 1] <= seen_cells[1]) & (runs[1:] > 0)
+                & (runs[1:] <= reach_cells) & (2 * n_wall[1:] > n_out[1:]))
+    return keep

@@ -13,8 +13,8 @@ from typing import Optional
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, as_surface, edge_mirrored_extents, report, sub_progress, touching
-from ..edge_walls import walls_runs
+from ..common import as_cell_size, as_surface, edge_mirrored_extents, report, sub_progress
+from ..edge_walls import walled_levels
 from ..estimate import repeated_height_share
 from .derivatives import CHUNK_CELLS, CellSize, Progress
 
@@ -514,8 +514,13 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
 
 def _edge_regions(cells, walls, max_cells, near=0):
     """The regions (4-connected) of ``cells``, the runs that met the raster's edge (whatever
-    their length), that are objects cut by the raster's edge: seen within the largest object
-    (``max_cells`` on each side) and walled within twice that, mirrored at the edge.
+    their length), that are objects cut by the raster's edge
+    (:func:`~bare_earth.core.edge_walls.walled_levels`): seen within the largest object
+    (``max_cells`` on each side), standing on its walls over more than half its seen outline
+    (a hillside's or a terrace's upper level, which the runs climb onto where the ground rises
+    beyond the wall's foot line, comes down gradually elsewhere: ``isprs/samp11`` 1 m lowest
+    11.3 -> 15.0 % and ``hexbin-crop`` 4 m 34.9 -> 44.4 % without this test) and walled within
+    twice that, mirrored at the edge.
 
     The walls of a region are the tops ``walls`` its runs start from; mirrored at every side
     of the raster they meet (:func:`~bare_earth.core.edge_walls.walls_runs`) they run twice what
@@ -533,32 +538,10 @@ def _edge_regions(cells, walls, max_cells, near=0):
     out = np.zeros(cells.shape, bool)
     if n == 0:
         return out
-    boxes = ndimage.find_objects(lab)
-    seen = np.array([[b[0].stop - b[0].start, b[1].stop - b[1].start] for b in boxes], np.intp).reshape(-1, 2)
-    rows, cols = np.nonzero(walls & cells)
-    runs = walls_runs(rows, cols, lab[rows, cols], n, cells.shape)
-    # its seen outline (cells next to a cell of the raster outside it) on its walls: more than half
-    outline = _outline(lab)
-    on_wall = outline & touching(walls & cells)
-    n_out = np.bincount(lab[outline], minlength=n + 1)
-    n_wall = np.bincount(lab[on_wall], minlength=n + 1)
-    keep = np.zeros(n + 1, bool)
-    keep[1:] = ((seen.max(axis=1) <= max_cells) & (runs[1:] > 0) & (runs[1:] <= 2 * max_cells)
-                & (2 * n_wall[1:] > n_out[1:]))
+    keep = walled_levels(lab, n, walls, (max_cells, max_cells), 2 * max_cells)
     if keep.any():
         out = keep[lab]
         _to_edge(out, near)
-    return out
-
-
-def _outline(lab):
-    """The labelled cells (``lab > 0``) with a 4-neighbour in the array of another label."""
-    out = np.zeros(lab.shape, bool)
-    out[1:] |= lab[1:] != lab[:-1]
-    out[:-1] |= lab[:-1] != lab[1:]
-    out[:, 1:] |= lab[:, 1:] != lab[:, :-1]
-    out[:, :-1] |= lab[:, :-1] != lab[:, 1:]
-    out &= lab > 0
     return out
 
 

@@ -303,7 +303,7 @@ def _step4_level_change(st, cfg, progress):
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
-                              z_t=st.transposed(), progress=sub_progress(progress, 0.0, 0.6))
+                              z_t=st.transposed(), cut_at_edge=True, progress=sub_progress(progress, 0.0, 0.6))
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
     # the level changes longer than the longest building are the terrain's: break lines for
     # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)

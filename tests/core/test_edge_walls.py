@@ -50,7 +50,7 @@ def _tile(cell, kind, side_m=80.0, seed=0):
     return (z + rng.normal(0.0, 0.03, z.shape)).astype(np.float32), level
 
 
-@pytest.mark.parametrize("method", ["curvature"])
+@pytest.mark.parametrize("method", ["curvature", "rascor"])
 @pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
 def test_roof_over_most_of_the_tile_cut_by_two_edges_is_an_object(method, cell):
     """A flat roof over 70 % of an 80 m tile, cut by its top and left edges (lidar ``sample_c``: a roof
@@ -64,7 +64,7 @@ def test_roof_over_most_of_the_tile_cut_by_two_edges_is_an_object(method, cell):
     assert (res.mask[~roof] == GROUND).mean() > 0.9
 
 
-@pytest.mark.parametrize("method", ["curvature"])
+@pytest.mark.parametrize("method", ["curvature", "rascor"])
 @pytest.mark.parametrize("cell", [0.5, 1.0, 2.0, 4.0])
 def test_terrace_over_most_of_the_tile_joined_by_a_bank_stays_ground(method, cell):
     """The same level 3 m high joined to the lower ground by a 15 degree bank: no wall, no jump, it
@@ -77,7 +77,7 @@ def test_terrace_over_most_of_the_tile_joined_by_a_bank_stays_ground(method, cel
     assert (res.mask == OBJECT).mean() < 0.03
 
 
-@pytest.mark.parametrize("method", ["curvature"])
+@pytest.mark.parametrize("method", ["curvature", "rascor"])
 def test_terrace_wall_across_the_tile_stays_ground(method):
     """A 4 m retaining wall across a 90 m tile (from its top side to its bottom side), the upper level
     over 70 % of it: the wall, mirrored at both sides, runs 270 m, beyond twice the largest object and
@@ -91,3 +91,24 @@ def test_terrace_wall_across_the_tile_stays_ground(method):
     res = m.run(z, cell, **m.resolve(z, cell))
     # at most the cells on top of the wall (RASCOR's step 3 takes them, as before)
     assert not (res.mask == OBJECT)[:, np.abs(np.arange(n) - 62) > 2].any()
+
+
+@pytest.mark.parametrize("method,reach", [("curvature", "max_object_size_m"), ("rascor", "max_building_m")])
+def test_roof_cut_by_the_edge_blocks_match_one_pass(method, reach):
+    """A roof 35 x 32 m cut by the bottom and right edges, the reach 40 m (seen within it, its walls
+    mirrored 70 m within twice it): an object, and blocks whose windows cut other levels give the mask
+    of one pass (a level cut by a block's window spans more than the reach from it: in the halo)."""
+    from bare_earth.core import pipeline
+    n = 150
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 100.0 + 0.01 * x + 0.02 * y + np.random.default_rng(2).normal(0.0, 0.03, (n, n))
+    z[115:, 118:] += 8.0                              # the roof cut by two edges
+    z[60:85, 55:90] += 9.0                            # one across the seams
+    z = z.astype(np.float32)
+    params = {reach: 40.0}
+    one = pipeline.run_array(method, z, 1.0, params=params).mask
+    assert (one[115:, 118:] == OBJECT).mean() > 0.97
+    for block in (48, 51):
+        res = pipeline.run_array(method, z, 1.0, params=params, block=block, workers=1)
+        assert res.info["blocks"] > 1
+        np.testing.assert_array_equal(res.mask, one)
