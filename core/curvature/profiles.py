@@ -545,6 +545,36 @@ def _edge_regions(cells, walls, max_cells, near=0):
     return out
 
 
+def _close_level(whole, z, m, tol):
+    """``whole`` (bool, an object) closed by a square of ``2 m + 1`` cells, the raster's edge
+    counting as the object (beyond it, it continues), where the cells added stand no lower than
+    the object's lowest cell within that square by more than ``tol`` (heights ``z``); in place.
+    On the box of the object grown by the square and a cell (the same result: nothing beyond
+    it changes)."""
+    rows, cols = np.flatnonzero(whole.any(axis=1)), np.flatnonzero(whole.any(axis=0))
+    k = 2 * m + 1
+    g = k + 1
+    box = (slice(max(rows[0] - g, 0), rows[-1] + 1 + g), slice(max(cols[0] - g, 0), cols[-1] + 1 + g))
+    wb, zb = whole[box], z[box]
+    add = ndimage.maximum_filter(wb.view(np.uint8), size=k, mode="constant", cval=0)   # separable passes
+    add = ndimage.minimum_filter(add, size=k, mode="constant", cval=1).view(bool)
+    add &= ~wb
+    r, c = np.nonzero(add)
+    if r.size == 0:
+        return
+    # the object's lowest cell within the square around each added cell, gathered at those cells
+    low = np.full(r.size, np.inf, np.float32)
+    h, w = wb.shape
+    for dr in range(-m, m + 1):
+        rr = np.clip(r + dr, 0, h - 1)
+        for dc in range(-m, m + 1):
+            cc = np.clip(c + dc, 0, w - 1)
+            on = wb[rr, cc]
+            np.minimum(low, np.where(on, zb[rr, cc], np.inf), out=low, where=on & np.isfinite(zb[rr, cc]))
+    high = zb[r, c] >= low - np.float32(tol)
+    wb[r[high], c[high]] = True
+
+
 def _to_edge(a, k):
     """The cells between a True cell of ``a`` within ``k`` cells of the array's edge and that
     edge (along the rows and the columns) set True, in place. Along the raster's edge the
@@ -592,15 +622,8 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
         # own where they stand as high as it (not below its lowest cell within the window by
         # more than the tolerance; gaps between crowns do)
         whole |= cut
-        square = np.ones((2 * m + 1, 2 * m + 1), bool)
-        add = ndimage.binary_erosion(ndimage.binary_dilation(whole, square), square, border_value=1)
-        add &= ~whole
-        r, c = np.nonzero(add)
-        if r.size and z is not None:
-            low = ndimage.minimum_filter(np.where(whole & np.isfinite(z), z, np.inf), size=2 * m + 1,
-                                         mode="nearest")
-            high = z[r, c] >= low[r, c] - np.float32(tol)
-            whole[r[high], c[high]] = True
+        if z is not None:
+            _close_level(whole, z, m, tol)
         regions |= whole
     report(progress, 1.0)
     return regions
