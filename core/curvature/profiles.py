@@ -399,7 +399,8 @@ def _enclosed_regions(flag, free, max_cells, progress=None, cut=None):
     lab, n = ndimage.label(free)
     report(progress, 0.4)
     if n == 0:
-        return np.zeros(flag.shape, bool)
+        none = np.zeros(flag.shape, bool)
+        return none if cut is None else (none, none.copy())
     # cells per label, by blocks of rows (bincount casts its input to intp: a raster-sized
     # int64 copy at once otherwise); flagged cells outside ``free`` count for label 0
     hit = np.zeros(n + 1, np.intp)

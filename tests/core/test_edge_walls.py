@@ -112,3 +112,14 @@ def test_roof_cut_by_the_edge_blocks_match_one_pass(method, reach):
         res = pipeline.run_array(method, z, 1.0, params=params, block=block, workers=1)
         assert res.info["blocks"] > 1
         np.testing.assert_array_equal(res.mask, one)
+
+
+def test_curvature_edge_regions_where_every_cell_is_a_break():
+    """No unmarked cell at all (every cell a break): the region stage with the runs cut by the edge
+    finds no region and says so (it failed to unpack before)."""
+    from bare_earth.core.curvature import profiles
+    marked = np.ones((12, 12), bool)
+    cells = np.zeros((12, 12), bool)
+    got = profiles.find_enclosed_objects(np.zeros((12, 12), bool), marked, None, (1.0, 1.0), 100.0,
+                                         edge_runs=(cells, cells.copy()), z=np.zeros((12, 12), np.float32))
+    assert not got.any()
