@@ -63,7 +63,8 @@ def walls_runs(rows, cols, ids, n, shape, corner=CORNER_CELLS):
     return runs
 
 
-def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=None):
+def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=None, drops=None, step=0.0,
+                  wall_heights=None):
     """Which of the regions ``1 .. n`` of ``lab`` (levels cut by the raster's edge, 4-connected;
     ``walls``: the cells of their walls, a bool array of ``lab``'s shape) a stage of reach
     ``seen_cells = (rows, columns)`` takes as objects: a bool table over ``0 .. n``.
@@ -75,6 +76,17 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
     its walls run within ``reach_cells`` (:func:`walls_runs`). ``lab`` may be a window of the
     raster (``shape``, default ``lab``'s) at ``origin`` (row, column): the walls are mirrored at
     the raster's sides, and the window's own edges hold no outline.
+
+    With ``drops`` (each cell's height above its lowest 8-neighbour, in the window), a level the
+    raster cuts on two opposite sides is taken only while the ground seen beyond its walls steps
+    down no further at the level's own scale, as ``bareearth:dtm``'s raised regions
+    (:mod:`.dtm_regions`): the cells within its box, farther than 3 cells from it, that drop by
+    more than half its walls' median drop (``wall_heights`` at its wall cells when given, else
+    their ``drops``; and than ``step``) are at most half as many as its outline cells. Quarry
+    benches or terraces around a pit in a corner of the raster are a sequence of such levels,
+    each stepping down to the next by as much, and are left alone; the crowns beside a roof's
+    walls are far lower than the roof (lidar ``sample_c`` at 0.5 m: 210 cells of its corner's
+    trees drop by more than 2 m against 145 outline cells; none by half its 22 m walls).
 
     Examples
     --------
@@ -103,4 +115,19 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
     n_wall = np.bincount(lab[on_wall], minlength=n + 1)
     keep[1:] = ((seen[:, 0] <= seen_cells[0]) & (seen[:, 1] <= seen_cells[1]) & (runs[1:] > 0)
                 & (runs[1:] <= reach_cells) & (2 * n_wall[1:] > n_out[1:]))
+    if drops is not None:
+        h, w = lab.shape if shape is None else shape
+        square = np.ones((3, 3), bool)
+        for i in np.flatnonzero(keep[1:]) + 1:
+            b = boxes[i - 1]
+            r0, r1 = b[0].start + origin[0], b[0].stop + origin[0]
+            c0, c1 = b[1].start + origin[1], b[1].stop + origin[1]
+            if not ((r0 == 0 and r1 == h) or (c0 == 0 and c1 == w)):
+                continue
+            reg = lab[b] == i
+            own_drop = (drops if wall_heights is None else wall_heights)[b][reg & walls[b]]
+            scale = max(float(step), 0.5 * float(np.median(own_drop)))
+            own = ndimage.binary_dilation(reg, structure=square, iterations=3)
+            if 2 * np.count_nonzero((drops[b] > scale) & ~own) > n_out[i]:
+                keep[i] = False
     return keep
