@@ -51,7 +51,18 @@ From curvature to objects
    objects are kept where both agree.
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
-   whole objects.
+   whole objects. A region the raster's edge cuts is judged by its walls, as
+   ``bareearth:dtm``'s raised regions are (:mod:`..edge_walls`): the runs that met the
+   raster's edge, whatever their length (4-connected), form a region that is an object when
+   what is seen of it lies within the largest object, more than half of its seen outline
+   lies on the walls its runs start from, and those walls, mirrored at every side of the
+   raster they meet, run within twice the largest object (a wall cutting off a corner of the
+   tile runs twice what is seen: a roof over most of a tile, lidar ``sample_c``; a wall
+   running across the tile, three times: a terrace's or a quarry bench's, ground unless
+   shorter than two thirds of the largest object). The unmarked regions touching the edge
+   made mostly of such an object, and the cells between it and the raster's edge or between
+   its parts within the window that stand no lower than it by more than the tolerance (the
+   breaks along the edge, where no profile meets a wall), join it.
 4. **Final pass** (twice). The ground is interpolated under the objects, the breaks next
    to them and the points with ``|K| >= K_g`` along the X and Y profiles (the straight line
    between the nearest ground on either side, within half the largest object; averaged

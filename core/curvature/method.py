@@ -133,13 +133,16 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     breaks = mark_breaks(z, cell, s.k_g, window=s.window, model=s.model,
                          progress=sub_progress(progress, 0.0, 0.35))
     # 3. along X and Y profiles: from a break going up to the break coming down
-    objects, n_obj_x, n_obj_y = find_profile_objects(
+    objects, n_obj_x, n_obj_y, edge_runs = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
-        tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing,
+        tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing, edge_runs=True,
         progress=sub_progress(progress, 0.35, 0.55))
-    # 4. regions enclosed by breaks and made mostly of such runs -> whole objects
+    # 4. regions enclosed by breaks and made mostly of such runs, and regions of the runs cut by
+    # the raster's edge whose walls run within the reach -> whole objects
     objects |= find_enclosed_objects(objects, breaks.marked, some_valid, cell, s.max_size,
-                                     progress=sub_progress(progress, 0.55, 0.65))
+                                     progress=sub_progress(progress, 0.55, 0.65), edge_runs=edge_runs,
+                                     window=s.window, z=z, tol=s.tol)
+    del edge_runs
     # 5. final pass against the ground interpolated under objects and breaks (twice)
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
                                 h_min=s.h_min, tol=s.tol, max_size=s.max_size,
@@ -490,12 +493,15 @@ METHOD = Method(
         "down belong to an object; regions enclosed by breaks and made mostly of such "
         "points become whole objects. Where the raster's edge cuts an object, the profile "
         "is taken as mirrored there: a run from a wall that meets the edge within half the "
-        "largest object counts for both directions (a roof in a corner of the tile; a "
-        "terrace's upper level reaching the edge farther away stays ground, and so does a "
-        "roof cut farther from its wall: raise the largest object size for it), unless the "
+        "largest object counts for both directions (a roof in a corner of the tile), unless the "
         "region of such runs, mirrored at every side the edge cuts across the profiles too, "
         "is longer than the largest object (a terrace or quarry bench running across the "
-        "tile stays ground). A final "
+        "tile stays ground). A roof cut farther from its wall (a hall over most of the tile) is "
+        "judged by its walls: the region of the runs that met the edge is an object when what is "
+        "seen of it lies within the largest object, its seen outline stands on their walls over "
+        "more than half its length, and those walls, mirrored at the sides of the raster they "
+        "meet, run within twice the largest object (a wall cutting off a corner runs twice what "
+        "is seen; one across the tile, three times: a terrain step's, ground). A final "
         "pass compares every cell with the ground "
         "interpolated under the objects and their breaks (objects only where a wall stands "
         "within half the largest object: the terrain's own crests, curved both ways, are "

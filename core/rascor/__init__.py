@@ -14,7 +14,14 @@ what the others miss, its parameters derived from an analysis of the DSM itself:
    the random error of the DSM and the local slope.
 4. **Sudden change of level** (:func:`remove_level_changes`): along X and Y profiles a
    jump up to a higher level, a corresponding jump down later and no vegetation beside
-   marks a building; the points between are removed.
+   marks a building; the points between are removed. Where the raster's edge cuts the level
+   (a jump up and the profile's end with no jump down between), the level - the part joined
+   to those runs by steps within the jump, mostly made of them - is a building when what is
+   seen of it lies within the longest building, it stands on its jumps over more than half of
+   its seen outline and its walls, mirrored at the sides of the raster they meet, run within
+   twice the longest building (:mod:`..edge_walls`, as ``bareearth:dtm``'s raised regions: a
+   wall cutting off a corner of the tile runs twice what is seen, a hall over most of a tile
+   such as lidar ``sample_c``; one running across the tile three times, a terrain step's).
 5. **Moving local profiles** (:func:`remove_profile_outliers`), first short then long,
    the lengths chosen by analysing a sequence of lengths: each height is checked against
    the profile's mean (flat), linear regression (rolling) or polynomial (mountainous),

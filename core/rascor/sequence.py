@@ -318,7 +318,7 @@ def _step4_level_change(st, cfg, progress):
     hi = remove_level_changes(st.z, cfg.cell, st.keep, jump_m=cfg.jump_m,
                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m,
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
-                              z_t=st.transposed(), progress=sub_progress(progress, 0.0, 0.6))
+                              z_t=st.transposed(), cut_at_edge=True, progress=sub_progress(progress, 0.0, 0.6))
     # an embankment's crown the ground continues onto (a ramp, a gentler side) is no roof
     hi &= ~joined_levels(st.z, cfg.cell, hi, st.keep, step_m=min(_step3_tolerance(cfg), 0.5 * float(cfg.jump_m)),
                          max_building_m=cfg.max_building_m)

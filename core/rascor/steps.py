@@ -11,6 +11,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..common import as_cell_size, report, sub_progress, transpose
+from ..edge_walls import walled_levels
+from ..estimate import smooth_parts
 from .kernels import BAND_CELLS, row_bands
 
 
@@ -257,13 +259,20 @@ def _pairs(nb, kb, tol, k=0.0, rise=None):
 
 
 # ------------------------------------------------------------------- step 4
-def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None):
     """Cells between a jump up and a later jump down along the rows (axis 1); with
     ``lone``, instead, the cells on both sides of the jumps that no other jump answers
     (no jump up followed within ``lmax`` by a jump down), jumps whatever lies beside them:
     the vegetation test tells a building's walls (Jacobsen: no vegetation beside) from
     crowns, and says nothing of a level change of the terrain (bushes at a bank's foot, the
     far wall of a trench one cell wide, which made its near bank's ground "rough").
+
+    ``cut``, optional: two boolean arrays of ``z``'s shape that receive the levels the raster's
+    edge cuts, the cells from a jump up to the row's end (no jump after it) or from the row's
+    start to a jump down (none before it), at most ``lmax`` apart and at least ``jump / 2``
+    above the ground beyond the jump (taken as level: the level mirrored at the edge), and
+    their walls (the level's cell at the jump) and the jump's height there: :func:`_cut_levels`
+    decides them.
 
     Works on the remaining points of all rows concatenated in row order (a 1-D array), so
     "the previous point of the profile" is simply the previous element: profile starts
@@ -338,6 +347,8 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
         out.ravel()[flat[alone]] = True
         out.ravel()[flat[alone - 1]] = True
         return out
+    if cut is not None:
+        _cut_runs(out, cut, zc, flat, pos, ev, typ, starts, cnt, lmax, jump)
     a, b = a[ok], b[ok]
     lens = b - a
     if not lens.size:
@@ -352,6 +363,113 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False):
     with np.errstate(invalid="ignore"):
         hit = zc[c] - ground > 0.5 * jump
     out.ravel()[flat[c[hit]]] = True
+    return out
+
+
+def _cut_runs(out, cut, zc, flat, pos, ev, typ, starts, cnt, lmax, jump):
+    """The levels cut by the raster's edge of :func:`_raised_rows` (its events ``ev, typ``
+    along the concatenated rows of the points ``flat``, heights ``zc``, positions ``pos``; the
+    first point of each row among ``starts``, ``cnt`` points per row) into ``cut = (cells,
+    walls)``. A row's start or end is the raster's edge (a break line's restarts are not)."""
+    n = flat.size
+    w = out.shape[1]
+    rows_first = (np.cumsum(cnt) - cnt)[cnt > 0]          # the first point of each row
+    row_end = np.zeros(n, bool)
+    row_end[np.cumsum(cnt)[cnt > 0] - 1] = True           # the last point of each row
+    is_start = np.zeros(n, bool)
+    is_start[rows_first] = True
+    # a jump up whose next event is a row's start (or none): the level runs to the row's end
+    nxt = np.append(ev[1:], n)
+    ntyp = np.append(typ[1:], 0)
+    up = np.flatnonzero((typ == 1) & (ntyp == 0) & ((nxt == n) | is_start[np.minimum(nxt, n - 1)]))
+    a_up, b_up = ev[up], nxt[up]                          # cells a .. b - 1 (b: the next row's first)
+    # a jump down whose previous event is a row's start: the level runs from the row's start
+    prev_i = np.flatnonzero((typ[1:] == 2) & (typ[:-1] == 0)) + 1
+    prev_i = prev_i[is_start[ev[prev_i - 1]]]
+    a_dn, b_dn = ev[prev_i - 1], ev[prev_i]               # cells a .. b - 1, wall b - 1
+    a_all = np.concatenate([a_up, a_dn])
+    b_all = np.concatenate([b_up, b_dn])
+    ok = (pos[b_all - 1] - pos[a_all]) < lmax
+    if a_up.size:                                          # the row ends at the raster's edge
+        ok[:a_up.size] &= pos[b_up - 1] % w == w - 1
+    if a_dn.size:
+        ok[a_up.size:] &= pos[a_dn] % w == 0
+    # the ground beyond the jump: before the jump up, after the jump down
+    g = np.concatenate([a_up - 1, b_dn])
+    wall = np.concatenate([a_up, b_dn - 1])
+    a_all, b_all, g, wall = a_all[ok], b_all[ok], g[ok], wall[ok]
+    lens = b_all - a_all
+    if not lens.size:
+        return
+    first = np.repeat(a_all, lens)
+    c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
+    with np.errstate(invalid="ignore"):
+        hit = zc[c] - np.repeat(zc[g], lens) > 0.5 * jump
+    cut[0].ravel()[flat[c[hit]]] = True
+    cut[1].ravel()[flat[wall]] = True
+    cut[2].ravel()[flat[wall]] = zc[wall] - zc[g]          # the jump's height
+
+
+def _cut_levels(z, cells, walls, lmax, jump, heights):
+    """The levels cut by the raster's edge that are buildings, from the cells ``cells`` of
+    :func:`_raised_rows`' cut runs along X and Y and their walls ``walls`` (``lmax = (columns,
+    rows)``: the longest building in cells).
+
+    A level is the part of the raster joined by steps of at most the ``jump``
+    (:func:`~bare_earth.core.estimate.smooth_parts`) holding such runs, mostly made of them; it
+    is a building when :func:`~bare_earth.core.edge_walls.walled_levels` takes it: seen within the
+    longest building, standing on those walls over more than half its seen outline, and its walls
+    running within twice the longest building, mirrored at the raster's edge, and, cut by the
+    raster on two opposite sides, the ground beyond its walls stepping down no further at its own
+    scale (quarry benches around a pit in a corner of the raster, 80 % objects at 0.5 m without
+    this).
+
+    Beyond the raster's edge nothing is seen: a level from a jump up to the edge may be a roof
+    running off the raster (a hall over most of a tile: lidar ``sample_c``) or the upper level of
+    a terrain step. Its walls tell: mirrored at every side of the raster they meet, a wall cutting
+    off a corner runs twice what is seen, within twice the longest building whenever what is
+    seen lies within it; a wall running across the raster, from one side to the opposite one (a
+    terrace's, a river's or a quarry bench's wall), continues beyond both and runs three times
+    what is seen: the terrain's unless shorter than two thirds of the longest building. A level
+    that comes down to the ground gradually (a hillside, a terrace's bank, a ramp) stands on no
+    wall there. The level, not the runs alone, is the building: a profile with no jump of its own
+    across the wall (one along the raster's edge, or one whose ground beside the wall is rough)
+    runs on the level from edge to edge and finds nothing. The levels are looked for in the bands
+    along the raster's sides that hold cut runs, one longest building (and a cell) deep: one
+    reaching farther is longer than that, and so is, in a block, one cut by the block's window."""
+    h, w = z.shape
+    out = np.zeros(z.shape, bool)
+    dr, dc = min(h, lmax[1] + 1), min(w, lmax[0] + 1)
+    bands = ((slice(0, dr), slice(0, w)), (slice(h - dr, h), slice(0, w)),
+             (slice(0, h), slice(0, dc)), (slice(0, h), slice(w - dc, w)))
+    for band in bands:
+        cb = cells[band]
+        if not cb.any():
+            continue
+        zb = z[band]
+        idx = np.flatnonzero(np.isfinite(zb))
+        n_parts, part = smooth_parts(zb, idx, jump)
+        lab = np.zeros(zb.shape, np.int32)
+        lab.ravel()[idx] = part + 1
+        tot = np.bincount(lab.ravel(), minlength=n_parts + 1)
+        hit = np.bincount(lab[cb], minlength=n_parts + 1)
+        cand = (hit > 0) & (2 * hit >= tot)
+        cand[0] = False
+        if not cand.any():
+            continue
+        lab[~cand[lab]] = 0
+        # each cell's drop to its lowest 8-neighbour; a level's own scale: its jumps' heights
+        zp = np.pad(np.where(np.isfinite(zb), zb, np.inf), 1, constant_values=np.inf)
+        low = np.full(zb.shape, np.inf, np.float32)
+        for ddr in (0, 1, 2):
+            for ddc in (0, 1, 2):
+                np.minimum(low, zp[ddr:ddr + zb.shape[0], ddc:ddc + zb.shape[1]], out=low)
+        with np.errstate(invalid="ignore"):
+            drops = np.where(np.isfinite(zb), zb - low, 0.0)
+        keep = walled_levels(lab, n_parts, walls[band], (lmax[1], lmax[0]), 2 * max(lmax),
+                             origin=(band[0].start, band[1].start), shape=(h, w), drops=drops, step=jump,
+                             wall_heights=heights[band])
+        out[band] |= keep[lab]
     return out
 
 
@@ -412,7 +530,7 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
 def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                          jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
                          bend_m: float = 0.0, labels: Optional[np.ndarray] = None, passes: int = 2,
-                         z_t: Optional[np.ndarray] = None,
+                         z_t: Optional[np.ndarray] = None, cut_at_edge: bool = False,
                          progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4: sudden change of level along X and Y profiles (buildings).
 
@@ -429,6 +547,15 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     called every band of rows (it may raise ``Cancelled``); ``z_t`` is ``transpose(z)`` when
     the caller has it (made here otherwise).
 
+    With ``cut_at_edge``, a level the raster's edge cuts (a jump up and the profile's end at
+    the raster's edge with no jump down between, or the reverse), as the first pass finds
+    it along X and Y, is a building when its cells seen lie within ``max_building_m`` and its
+    walls run within twice that, mirrored at the edge (:func:`_cut_levels`: a roof over most
+    of a tile, whose wall cuts off a corner of it, is one; the upper level of a terrain step
+    running across the raster is not). Without it (the parameters' sample windows, whose
+    edges are not the raster's), such a level is never a building, as Jacobsen's pairs of
+    jumps have it.
+
     Returns
     -------
     high : ndarray of bool
@@ -444,9 +571,13 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
     redo = [None, None]
     for p in range(passes):
         new = np.zeros(z.shape, bool)
+        cuts = ((np.zeros(z.shape, bool), np.zeros(z.shape, bool), np.zeros(z.shape, np.float32))
+                if cut_at_edge and p == 0 else None)
         for d, ((zz, lab, lmax, fwd), todo) in enumerate(zip(views, redo)):
             c = fwd(cur)
             found = np.zeros(zz.shape, bool)
+            cut = ((np.zeros(zz.shape, bool), np.zeros(zz.shape, bool), np.zeros(zz.shape, np.float32))
+                   if cuts is not None else None)
             bands = row_bands(*zz.shape, 16 * BAND_CELLS)
             for i, b in enumerate(bands):
                 report(progress, (2 * p + d + i / len(bands)) / (2 * passes))
@@ -454,8 +585,15 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
                 # only the bands of rows / columns where something was removed
                 if todo is None or todo[b].any():
                     found[b] = _raised_rows(zz[b], c[b], None if lab is None else lab[b],
-                                            jump_m, lmax, veg_tol)
+                                            jump_m, lmax, veg_tol,
+                                            cut=None if cut is None else (cut[0][b], cut[1][b], cut[2][b]))
             new |= fwd(found)
+            if cut is not None:
+                cuts[0][...] |= fwd(cut[0])
+                cuts[1][...] |= fwd(cut[1])
+                np.maximum(cuts[2], fwd(cut[2]), out=cuts[2])
+        if cuts is not None and cuts[0].any():
+            new |= _cut_levels(z, cuts[0], cuts[1], (views[0][2], views[1][2]), jump_m, cuts[2])
         new &= cur
         if not new.any():
             break
