@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Optional
 
 import numpy as np
+from scipy import ndimage
 
 from .codes import NODATA
 
@@ -200,42 +201,69 @@ def edge_mirrored_spans(r0, r1, c0, c1, shape):
             (c1 - c0) * (1 + (c0 == 0) + (c1 == shape[1])))
 
 
-def walls_reach(outline_rows, outline_cols, foot_rows, foot_cols, shape):
-    """The run (cells) of a region's walls in a raster of ``shape``, mirrored at the raster's edge where
-    they meet it: the box of its outer outline (cells ``outline_rows, outline_cols``) along each axis, the
-    larger of the two, mirrored at every side of the raster the *wall* meets: a side both its top (the
-    outline) and the ground at its foot (cells ``foot_rows, foot_cols``: the ground seen beyond the wall)
-    reach. 0 without outline.
+def walls_runs(rows, cols, ids, n, shape, foot_rows=(), foot_cols=(), foot_ids=()):
+    """The runs (cells) of the walls of the regions ``1 .. n`` in a raster of ``shape``, mirrored at the
+    raster's edge where they meet it: for each region the box of its wall cells (``rows, cols``, region
+    ``ids`` in ``1 .. n``: the cells on top of its walls) along each axis, the larger of the two, mirrored
+    at every side of the raster the *wall* meets: a side both its top and the ground at its foot (cells
+    ``foot_rows, foot_cols`` of regions ``foot_ids``: the ground seen beyond the wall) reach. Returns an int
+    array of ``n + 1`` runs (0: a region without wall cells, and the unused index 0).
 
     Beyond the raster's edge nothing is seen and a wall cut there may continue, at least as far again: a
     wall running across the raster (cut on two opposite sides: a terrain step, a river's walls) spans
     three times what is seen, a wall cutting off a corner (two adjacent sides: a roof running off the
-    raster) twice. Where such a wall ends in a corner, the roof beside its end reaches the third side too,
-    but the ground beyond the wall does not: the wall is not cut there.
+    raster, lidar ``sample_c``) twice. Where such a wall ends in a corner, the roof beside its end reaches
+    the third side too, but the ground beyond the wall does not: the wall is not cut there. One copy for
+    ``bareearth:dtm``'s raised regions (:mod:`.dtm_regions`, and through
+    :func:`.estimate.raised_region_width` those of the geodesic and morphological filters), the curvature
+    filter's region stage and RASCOR's level changes (:func:`.edge_walls.walled_levels`).
 
     Examples
     --------
     >>> roof = np.ones((6, 6), bool)
     >>> roof[:5, :2] = False                 # ground in a corner; the roof's own corner reaches the last row
-    >>> run = lambda: walls_reach(*np.nonzero(touching(~roof) & roof), *np.nonzero(touching(roof) & ~roof),
-    ...                           roof.shape)
+    >>> run = lambda: int(walls_runs(*np.nonzero(touching(~roof) & roof), 1, roof.shape,
+    ...                              *np.nonzero(touching(roof) & ~roof), 1)[1])
     >>> run()                                # 6 rows, mirrored at the top only; 3 columns at the left
     12
     >>> roof[:, :2] = False                  # a step running across, top to bottom
     >>> run()
     18
     """
-    spans = []
-    for lines, ends, size in ((outline_rows, foot_rows, shape[0]), (outline_cols, foot_cols, shape[1])):
-        lines, ends = np.asarray(lines), np.asarray(ends)
-        if lines.size == 0:
-            return 0
-        lo, hi = int(lines.min()), int(lines.max()) + 1
-        met = 0
-        if ends.size:
-            met = int(lo == 0 and ends.min() == 0) + int(hi == size and ends.max() + 1 == size)
-        spans.append((hi - lo) * (1 + met))
-    return int(max(spans))
+    runs = np.zeros(n + 1, np.intp)
+    rows, cols = np.asarray(rows, np.intp).ravel(), np.asarray(cols, np.intp).ravel()
+    ids = np.broadcast_to(np.asarray(ids, np.intp), rows.shape)
+    f_r, f_c = np.asarray(foot_rows, np.intp).ravel(), np.asarray(foot_cols, np.intp).ravel()
+    f_id = np.broadcast_to(np.asarray(foot_ids, np.intp), f_r.shape)
+    if rows.size == 0:
+        return runs
+    big = np.iinfo(np.intp).max
+
+    def boxes(i, r, c):
+        lo = np.full((2, n + 1), big, np.intp)
+        hi = np.full((2, n + 1), -1, np.intp)
+        for axis, v in enumerate((r, c)):
+            np.minimum.at(lo[axis], i, v)
+            np.maximum.at(hi[axis], i, v)
+        return lo, hi + 1
+
+    lo, hi = boxes(ids, rows, cols)
+    f_lo, f_hi = boxes(f_id, f_r, f_c)
+    size = np.array(shape, np.intp)[:, None]
+    met = ((lo == 0) & (f_lo == 0)).astype(np.intp) + ((hi == size) & (f_hi == size))
+    has = hi[0] > 0
+    runs[has] = ((hi - lo) * (1 + met)).max(axis=0)[has]
+    return runs
+
+
+def steps_beyond(region, stepping, cells=3):
+    """Cells of ``stepping`` (bool, the box of a region) farther than ``cells`` cells (8-connected) from
+    ``region`` (bool, same box): the ground beyond a level's walls that steps down again. A level the raster
+    cuts on two opposite sides with more such cells than half its outline is one of a sequence of levels
+    the raster cuts (quarry benches, terraces), not a roof: ``bareearth:dtm``'s raised regions
+    (:mod:`.dtm_regions`) and :func:`.edge_walls.walled_levels` ask it alike."""
+    own = ndimage.binary_dilation(region, structure=np.ones((3, 3), bool), iterations=cells)
+    return int(np.count_nonzero(stepping & ~own))
 
 
 def transpose(a, rows=256):

@@ -29,7 +29,7 @@ the geodesic reconstruction's scan labelling recognise a building's edge: it sta
    edge); a region spanning more cells than the stage reaches (``max_cells``), or wider, is left
    alone, and so is a region whose *walls* run farther: the box of its outer outline (below) along
    each axis, mirrored at every side of the raster the wall meets, a side both the outline and the
-   ground at the wall's foot (the cells ``a`` of step 2) reach (:func:`~.common.walls_reach`: a wall
+   ground at the wall's foot (the cells ``a`` of step 2) reach (:func:`~.common.walls_runs`: a wall
    running across the raster, from one side to the opposite one, continues beyond both and spans
    three times what is seen; a wall cutting off a corner meets two adjacent sides and spans twice
    what is seen; where such a wall ends in the corner, the roof beside its end reaches the third
@@ -111,7 +111,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .codes import GROUND
-from .common import walls_reach
+from .common import steps_beyond, walls_runs
 from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
@@ -594,7 +594,7 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
             # the stage reaches the region only if it reaches that run (a wall cutting off a corner of the
             # raster meets two adjacent sides). A level cut into a hillside is seen whole: none of this applies.
             o_r, o_c = np.nonzero(outer)
-            run = walls_reach(o_r + g0, o_c + g1, s_r[a:b][use], s_c[a:b][use], shape)
+            run = int(walls_runs(o_r + g0, o_c + g1, 1, 1, shape, s_r[a:b][use], s_c[a:b][use], 1)[1])
             d.update(walls_m=round(run * cell, 1), reached=run <= max_cells)
             if not d["reached"]:
                 decisions.append(d)                     # beyond the stage's reach: left to the vote
@@ -605,8 +605,7 @@ def _decide(z, valid, ground, drop, lab, boxes, cell_size, t, step_m, min_width_
                 # further; ground there stepping down again (walls of the scale beyond the region's own, the rims
                 # not within 3 cells of it) along more than half as many cells as the region's outline makes it
                 # one of a sequence of levels (quarry benches, terraces) the raster cuts: left to the vote
-                own = ndimage.binary_dilation(reg, structure=np.ones((3, 3), bool), iterations=3)
-                d["steps_beyond"] = int(np.count_nonzero(rim[sub] & ~own))
+                d["steps_beyond"] = steps_beyond(reg, rim[sub])
                 if d["steps_beyond"] > n_outer / 2:
                     decisions.append(d)
                     continue

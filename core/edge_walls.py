@@ -10,57 +10,17 @@ both and spans three times what is seen. A stage that decides such regions takes
 walls run within its reach; ``bareearth:dtm``'s raised regions (:mod:`.dtm_regions`), the
 curvature filter's region stage and RASCOR's level changes read the same run.
 
-A wall ending in a corner of the raster meets both of its sides there, within its own width:
-only the wall cells farther than ``corner`` cells from one of the two sides of a corner say
-which sides the wall meets (a wall with no other cell keeps its corner cells). Otherwise the
-diagonal wall of ``sample_c``'s roof, from the top side to the left one, met the bottom side
-too wherever its last cell fell on the corner cell (at 1 and 2 m cells, not at 0.5 and 4 m),
-and its run jumped from twice to three times the 72 m seen.
+A wall ending in a corner of the raster meets the third side there only with the roof beside its
+end, not with the ground at its foot: a side counts as met where both reach it
+(:func:`~bare_earth.core.common.walls_runs`, the one copy). Otherwise the diagonal wall of
+``sample_c``'s roof, from the top side to the left one, met the bottom side too wherever its last
+cell fell on the corner cell (at 1 and 2 m cells, not at 0.5 and 4 m), and its run jumped from
+twice to three times the 72 m seen.
 """
 import numpy as np
 from scipy import ndimage
 
-from .common import edge_mirrored_spans, touching
-
-#: Cells from the sides of a raster corner within which a wall meets both sides (a wall's width).
-CORNER_CELLS = 2
-
-
-def walls_runs(rows, cols, ids, n, shape, corner=CORNER_CELLS):
-    """The runs (cells) of the walls of the regions ``1 .. n`` of a raster of ``shape``.
-
-    ``rows, cols`` are the wall cells and ``ids`` their regions (ints in ``1 .. n``). A region's
-    run is the larger span (rows or columns) of the box of its wall cells, mirrored at every side
-    of the raster the walls meet (:func:`~bare_earth.core.common.edge_mirrored_spans`), the cells
-    within ``corner`` cells of both sides of a raster corner left out where the region has other
-    wall cells. Returns an int array of ``n + 1`` runs (0: a region without wall cells, and the
-    unused index 0).
-
-    Examples
-    --------
-    >>> walls_runs([0, 1, 2, 3, 4, 5, 5], [3, 3, 2, 1, 0, 0, 3], [1, 1, 1, 1, 1, 1, 2], 2, (6, 6)).tolist()
-    [0, 8, 2]
-    """
-    rows, cols, ids = (np.asarray(a, np.intp).ravel() for a in (rows, cols, ids))
-    h, w = shape
-    runs = np.zeros(n + 1, np.intp)
-    if ids.size == 0:
-        return runs
-    in_corner = (((rows < corner) | (rows >= h - corner)) & ((cols < corner) | (cols >= w - corner)))
-    other = np.bincount(ids[~in_corner], minlength=n + 1) > 0
-    use = ~in_corner | ~other[ids]
-    rows, cols, ids = rows[use], cols[use], ids[use]
-    big = np.iinfo(np.intp).max
-    r0, c0 = np.full(n + 1, big, np.intp), np.full(n + 1, big, np.intp)
-    r1, c1 = np.full(n + 1, -1, np.intp), np.full(n + 1, -1, np.intp)
-    np.minimum.at(r0, ids, rows)
-    np.minimum.at(c0, ids, cols)
-    np.maximum.at(r1, ids, rows)
-    np.maximum.at(c1, ids, cols)
-    has = r1 >= 0
-    span_r, span_c = edge_mirrored_spans(r0[has], r1[has] + 1, c0[has], c1[has] + 1, shape)
-    runs[has] = np.maximum(span_r, span_c)
-    return runs
+from .common import steps_beyond, touching, walls_runs
 
 
 def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=None, drops=None, step=0.0,
@@ -73,7 +33,7 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
     half of its seen outline (its cells next to a cell of the raster outside it; nothing is seen
     beyond the raster's edge) lies on its walls (within a cell of one: the rest of it is where
     the level comes down to the ground gradually, a hillside's or a terrace's upper level), and
-    its walls run within ``reach_cells`` (:func:`walls_runs`). ``lab`` may be a window of the
+    its walls run within ``reach_cells`` (:func:`~bare_earth.core.common.walls_runs`). ``lab`` may be a window of the
     raster (``shape``, default ``lab``'s) at ``origin`` (row, column): the walls are mirrored at
     the raster's sides, and the window's own edges hold no outline.
 
@@ -102,8 +62,14 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
     seen = np.array([[b[0].stop - b[0].start, b[1].stop - b[1].start] if b is not None else [0, 0]
                      for b in boxes], np.intp).reshape(-1, 2)
     inside = lab > 0
-    rows, cols = np.nonzero(walls & inside)
-    runs = walls_runs(rows + origin[0], cols + origin[1], lab[rows, cols], n, lab.shape if shape is None else shape)
+    on = walls & inside
+    rows, cols = np.nonzero(on)
+    # the ground at the walls' foot: the cells outside a level within two cells of its wall cells (a wall
+    # cell lies within a cell of the outline)
+    foot_of = ndimage.grey_dilation(np.where(on, lab, 0), size=(5, 5))
+    f_r, f_c = np.nonzero((foot_of > 0) & (lab != foot_of))
+    runs = walls_runs(rows + origin[0], cols + origin[1], lab[rows, cols], n, lab.shape if shape is None else shape,
+                      f_r + origin[0], f_c + origin[1], foot_of[f_r, f_c])
     outline = np.zeros(lab.shape, bool)
     outline[1:] |= lab[1:] != lab[:-1]
     outline[:-1] |= lab[:-1] != lab[1:]
@@ -117,7 +83,6 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
                 & (runs[1:] <= reach_cells) & (2 * n_wall[1:] > n_out[1:]))
     if drops is not None:
         h, w = lab.shape if shape is None else shape
-        square = np.ones((3, 3), bool)
         for i in np.flatnonzero(keep[1:]) + 1:
             b = boxes[i - 1]
             r0, r1 = b[0].start + origin[0], b[0].stop + origin[0]
@@ -127,7 +92,6 @@ def walled_levels(lab, n, walls, seen_cells, reach_cells, origin=(0, 0), shape=N
             reg = lab[b] == i
             own_drop = (drops if wall_heights is None else wall_heights)[b][reg & walls[b]]
             scale = max(float(step), 0.5 * float(np.median(own_drop)))
-            own = ndimage.binary_dilation(reg, structure=square, iterations=3)
-            if 2 * np.count_nonzero((drops[b] > scale) & ~own) > n_out[i]:
+            if 2 * steps_beyond(reg, drops[b] > scale) > n_out[i]:
                 keep[i] = False
     return keep

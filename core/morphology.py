@@ -1322,7 +1322,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       widest raised region standing on walls that this window does not reach across
       (:func:`~bare_earth.core.estimate.raised_region_window`, at most 200 m: a roof over most of
       a tile, running off it). Its walls must run within those 200 m, mirrored at the sides of the
-      raster they meet (:func:`~bare_earth.core.common.walls_reach`, dtm's raised regions' copy): a
+      raster they meet (:func:`~bare_earth.core.common.walls_runs`, dtm's raised regions' copy): a
       side both the wall's top and the ground at its foot reach. Lidar ``sample_c``'s wall cuts off a
       corner and ends next to the opposite one, where the roof's own corner reaches the third side:
       mirrored there too its walls ran 225-228 m at 1-4 m, the window stayed 30-44 m and the roof

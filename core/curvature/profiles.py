@@ -524,7 +524,7 @@ def _edge_regions(cells, walls, max_cells, near=0):
     twice that, mirrored at the edge.
 
     The walls of a region are the tops ``walls`` its runs start from; mirrored at every side
-    of the raster they meet (:func:`~bare_earth.core.edge_walls.walls_runs`) they run twice what
+    of the raster they meet (:func:`~bare_earth.core.common.walls_runs`) they run twice what
     is seen where they cut off a corner of the raster (a roof over most of a tile, lidar
     ``sample_c``: 136-148 m at 0.5-4 m cells), within twice the largest object whenever what is
     seen lies within it; a wall running across the raster, from one side to the opposite one (a

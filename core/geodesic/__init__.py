@@ -140,7 +140,7 @@ across (a hall, a roof cut by the raster's edge, which a window truncated at the
 its opening keeps the roof and the reconstruction calls it terrain; issue 12). A box-shaped plateau
 with vertical cliffs on every side is such a region too: the ambiguity the morphological filter's
 widened window has. The region's walls must be within the 200 m looked at, mirrored at the sides of
-the raster they meet (:func:`~bare_earth.core.common.walls_reach`, dtm's raised regions' one copy):
+the raster they meet (:func:`~bare_earth.core.common.walls_runs`, dtm's raised regions' one copy):
 lidar ``sample_c``'s wall, cutting off a corner and ending next to the opposite one, was mirrored at
 three sides at 1-4 m (225-228 m: not widened, 64 m) and at two at 0.5 m (146 m, widened to 183 m);
 the wall now meets a side where its top and the ground at its foot both reach it, and the window

@@ -268,15 +268,15 @@ def test_edge_mirrored_extents_exact():
 
 
 
-def test_walls_reach_mirrors_a_wall_only_at_the_sides_it_is_cut_by():
-    """common.walls_reach (the raised regions of dtm, and through estimate.raised_region_width those of
+def test_walls_runs_mirrors_a_wall_only_at_the_sides_it_is_cut_by():
+    """common.walls_runs (the raised regions of dtm, and through estimate.raised_region_width those of
     the geodesic and morphological filters): the outline's box along each axis, mirrored at a side only
     when both the outline and the ground at the wall's foot reach it; the larger span."""
-    from bare_earth.core.common import walls_reach
+    from bare_earth.core.common import walls_runs
 
     def run(outline, foot, shape=(10, 12)):
         o, f = np.array(outline, np.intp).reshape(-1, 2), np.array(foot, np.intp).reshape(-1, 2)
-        return walls_reach(o[:, 0], o[:, 1], f[:, 0], f[:, 1], shape)
+        return int(walls_runs(o[:, 0], o[:, 1], 1, 1, shape, f[:, 0], f[:, 1], 1)[1])
 
     # a wall cutting off the top-left corner: rows 0-5 mirrored at the top, columns 0-4 at the left
     assert run([(0, 4), (3, 2), (5, 0)], [(0, 2), (4, 0)]) == 12

@@ -4,28 +4,34 @@ import numpy as np
 import pytest
 
 from bare_earth.core.codes import GROUND, OBJECT
-from bare_earth.core.edge_walls import walls_runs
+from bare_earth.core.common import walls_runs
 from bare_earth.core.methods import get_method
 
 
 def test_walls_runs_exact():
-    """The box of a region's wall cells mirrored at every side of the raster it meets: a wall cutting
+    """Several regions at once (common.walls_runs, the one copy): the box of a region's wall cells
+    mirrored at every side of the raster both they and the ground at their foot meet: a wall cutting
     off a corner runs twice what is seen along each axis, one across the raster three times, a wall
-    inside the raster what is seen; the cells within two cells of both sides of a corner say nothing
-    of which sides it meets (unless they are all it has)."""
+    inside the raster what is seen; a wall ending in a corner whose foot does not reach the third side
+    is not cut there."""
     shape = (10, 12)
-    # 1: a diagonal from the top side (column 4) to the left side (row 4): rows 0-4 x 2, columns 0-4 x 2
-    # 2: a straight wall down column 6 from the top side to the bottom side: 10 rows x 3
-    # 3: a wall inside the raster, rows 5-7 of column 9: 3 cells
-    # 4: a diagonal from the top side to the bottom-left corner: the corner cells (8, 1) and (9, 0) left
-    #    out, it meets the top and left sides only (rows 0-7 x 2 = 16; with the corner, 3 x 10 = 30)
-    # 5: a wall of corner cells alone keeps them: (0, 0) and (1, 1), rows 0-1 x 2 = 4
+    # 1: a diagonal from the top side (column 4) to the left side (row 4), its foot beyond it (above-left)
+    # 2: a straight wall down column 6 from the top side to the bottom side, its foot in column 5
+    # 3: a wall inside the raster, rows 5-7 of column 9, foot in column 10
+    # 4: a diagonal from the top side to the bottom-left corner, its foot reaching row 8 only: top and left
+    #    (rows 0-9 x 2 = 20; with the bottom side too, 3 x 10 = 30)
+    # 5: no ground seen beyond: not mirrored (rows 0-1: 2)
     cells = [(1, r, 4 - r) for r in range(5)] + [(2, r, 6) for r in range(10)] + [(3, r, 9) for r in (5, 6, 7)]
     cells += [(4, r, (9 - r) // 2) for r in range(10)] + [(5, 0, 0), (5, 1, 1)]
+    foot = [(1, r, 3 - r) for r in range(4)] + [(2, r, 5) for r in range(10)] + [(3, r, 10) for r in (5, 6, 7)]
+    foot += [(4, r, (9 - r) // 2 - 1) for r in range(8)]
     ids, rows, cols = (np.array(a) for a in zip(*cells))
-    got = walls_runs(rows, cols, ids, 6, shape)
-    assert got.tolist() == [0, 10, 30, 3, 16, 4, 0]
-    assert walls_runs(rows[ids == 4], cols[ids == 4], ids[ids == 4], 4, shape, corner=0)[4] == 30
+    f_ids, f_rows, f_cols = (np.array(a) for a in zip(*foot))
+    got = walls_runs(rows, cols, ids, 6, shape, f_rows, f_cols, f_ids)
+    assert got.tolist() == [0, 10, 30, 3, 20, 2, 0]
+    full = [(4, 9, 0)]
+    f4 = np.array(foot + full)
+    assert walls_runs(rows, cols, ids, 6, shape, f4[:, 1], f4[:, 2], f4[:, 0])[4] == 30
     assert walls_runs([], [], [], 2, shape).tolist() == [0, 0, 0]
 
 
