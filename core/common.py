@@ -222,7 +222,7 @@ def walls_runs(rows, cols, ids, n, shape, foot_rows=(), foot_cols=(), foot_ids=(
     --------
     >>> roof = np.ones((6, 6), bool)
     >>> roof[:5, :2] = False                 # ground in a corner; the roof's own corner reaches the last row
-    >>> run = lambda: int(walls_runs(*np.nonzero(touching(~roof) & roof), 1, roof.shape,
+    >>> run = lambda: int(walls_runs(*np.nonzero(touching(~roof) & roof), 1, 1, roof.shape,
     ...                              *np.nonzero(touching(roof) & ~roof), 1)[1])
     >>> run()                                # 6 rows, mirrored at the top only; 3 columns at the left
     12
