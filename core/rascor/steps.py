@@ -9,6 +9,8 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..common import as_cell_size, report, sub_progress, transpose
 from ..edge_walls import walled_levels
@@ -621,10 +623,11 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     ``max_building_m`` along the rows or the columns (the ground around, or a level longer than
     any building) are returned.
 
-    The parts are the 4-connected components of a grid of twice the resolution holding the
-    cells and, between them, their joined edges (``ndimage.label``), on the cells within
-    ``max_building_m`` and one cell of a raised cell only: a part leaving that window runs
-    further than ``max_building_m`` from the raised cell inside it, so the window decides as
+    The parts are the runs of cells joined along the rows, joined down the columns
+    (:func:`_joined_runs`: the 4-connected components the labelling of a grid of twice the
+    resolution holding the cells and their joined edges gave, in a quarter of its time), on the
+    cells within ``max_building_m`` and one cell of a raised cell only: a part leaving that window
+    runs further than ``max_building_m`` from the raised cell inside it, so the window decides as
     the whole raster would.
 
     Parameters
@@ -668,28 +671,57 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     win = (slice(max(0, rows[0] - mr), rows[-1] + 1 + mr), slice(max(0, cols[0] - mc), cols[-1] + 1 + mc))
     zw = np.asarray(z[win], np.float32)
     kw = np.asarray(kept[win], bool) & np.isfinite(zw)
-    h, w = zw.shape
-    grid = np.zeros((2 * h - 1, 2 * w - 1), bool)
-    grid[::2, ::2] = kw
-    with np.errstate(invalid="ignore"):
-        # the edges along the rows (between columns j, j + 1) and down the columns
-        for edge, a, b in ((grid[::2, 1::2], np.s_[:, 1:], np.s_[:, :-1]), (grid[1::2, ::2], np.s_[1:], np.s_[:-1])):
-            e = np.abs(zw[a] - zw[b]) <= step_m
-            e &= kw[a]
-            e &= kw[b]
-            edge[...] = e
-    lab = ndimage.label(grid)[0][::2, ::2]
-    del grid
-    lab = np.ascontiguousarray(lab)
-    need = np.unique(lab[raised[win]])
-    need = need[need > 0]
-    if not need.size:
+    at = np.flatnonzero(raised[win] & kw)              # the raised cells that are nodes of the graph
+    if not at.size:
         return out
-    # the extents of the parts holding raised cells (labels renumbered so find_objects sees those only)
-    sub = np.zeros(int(lab.max()) + 1, np.int32)
-    sub[need] = np.arange(1, need.size + 1)
-    box = ndimage.find_objects(sub[lab])
-    long = np.zeros(need.size + 1, bool)
-    long[1:] = [max((b[0].stop - b[0].start) * dy, (b[1].stop - b[1].start) * dx) > max_building_m for b in box]
-    out[win] = long[sub[lab]] & raised[win]
+    run, comp, row, c0, c1 = _joined_runs(zw, kw, step_m)
+    need = np.zeros(int(comp.max()) + 1, bool)
+    need[comp[run[at]]] = True
+    # the extents of the parts holding raised cells, from their runs
+    sel = np.flatnonzero(need[comp])
+    order = sel[np.argsort(comp[sel], kind="stable")]
+    cs = comp[order]
+    first = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+    n_rows = np.maximum.reduceat(row[order], first) - np.minimum.reduceat(row[order], first) + 1
+    n_cols = np.maximum.reduceat(c1[order], first) - np.minimum.reduceat(c0[order], first) + 1
+    long = np.zeros(need.size, bool)
+    long[cs[first]] = np.maximum(n_rows * dy, n_cols * dx) > max_building_m
+    ow = np.zeros(zw.shape, bool)
+    ow.ravel()[at] = long[comp[run[at]]]
+    out[win] = ow
     return out
+
+
+def _joined_runs(z, nodes, step_m):
+    """The 4-connected parts of the cells ``nodes`` joined across the 4-neighbour edges whose heights
+    ``z`` differ by at most ``step_m`` (:func:`joined_levels`), by runs: the cells joined along a row
+    make a run, and the runs joined down the columns make the parts (``connected_components`` on
+    one edge per pair of runs that touch along a stretch of columns, not one per cell).
+
+    Returns ``(run, comp, row, c0, c1)``: ``run`` the run of each cell (flat, row-major), ``comp``
+    the part of each run, and each run's row and first and last column (a cell outside ``nodes`` is
+    a run of its own, joined to nothing)."""
+    h, w = z.shape
+    with np.errstate(invalid="ignore"):
+        hj = np.abs(z[:, 1:] - z[:, :-1]) <= step_m
+        hj &= nodes[:, 1:]
+        hj &= nodes[:, :-1]
+        vj = np.abs(z[1:] - z[:-1]) <= step_m
+        vj &= nodes[1:]
+        vj &= nodes[:-1]
+    start = np.ones((h, w), bool)
+    np.logical_not(hj, out=start[:, 1:])
+    s = np.flatnonzero(start)                          # each run's first cell (every row's first among them)
+    del start
+    idx = np.int32 if h * w < 2 ** 31 else np.int64
+    run = np.zeros(h * w, idx)
+    run[s[1:]] = 1
+    np.cumsum(run, out=run)
+    # a down edge joins the same two runs as the one left of it when both its cells are joined leftwards
+    vj[:, 1:] &= ~(vj[:, :-1] & hj[:-1] & hj[1:])
+    e = np.flatnonzero(vj)                             # the upper cell's flat index (rows of w cells)
+    del vj, hj
+    graph = csr_matrix((np.ones(e.size, np.int8), (run[e], run[e + w])), shape=(s.size, s.size))
+    comp = connected_components(graph, directed=False)[1]
+    end = np.r_[s[1:], h * w] - 1
+    return run, comp, (s // w).astype(idx), (s % w).astype(idx), (end % w).astype(idx)

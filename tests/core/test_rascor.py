@@ -323,6 +323,64 @@ def test_joined_levels_equal_the_parts_of_the_whole_raster(seed):
     assert any(seen[::2]) and any(seen[1::2])
 
 
+def _joined_levels_grid(z, cell_size, raised, kept, *, step_m, max_building_m):
+    """joined_levels as first written (the oracle of its runs): the 4-connected components of a
+    grid of twice the resolution holding the cells and their joined edges (``ndimage.label``)."""
+    dy, dx = (cell_size, cell_size) if np.isscalar(cell_size) else (cell_size[1], cell_size[0])
+    out = np.zeros(raised.shape, bool)
+    rows = np.flatnonzero(raised.any(axis=1))
+    if not rows.size:
+        return out
+    cols = np.flatnonzero(raised.any(axis=0))
+    mr, mc = int(max_building_m / dy) + 2, int(max_building_m / dx) + 2
+    win = (slice(max(0, rows[0] - mr), rows[-1] + 1 + mr), slice(max(0, cols[0] - mc), cols[-1] + 1 + mc))
+    zw = np.asarray(z[win], np.float32)
+    kw = np.asarray(kept[win], bool) & np.isfinite(zw)
+    h, w = zw.shape
+    grid = np.zeros((2 * h - 1, 2 * w - 1), bool)
+    grid[::2, ::2] = kw
+    with np.errstate(invalid="ignore"):
+        for edge, a, b in ((grid[::2, 1::2], np.s_[:, 1:], np.s_[:, :-1]), (grid[1::2, ::2], np.s_[1:], np.s_[:-1])):
+            edge[...] = (np.abs(zw[a] - zw[b]) <= step_m) & kw[a] & kw[b]
+    lab = np.ascontiguousarray(ndimage.label(grid)[0][::2, ::2])
+    need = np.unique(lab[raised[win]])
+    need = need[need > 0]
+    if not need.size:
+        return out
+    sub = np.zeros(int(lab.max()) + 1, np.int32)
+    sub[need] = np.arange(1, need.size + 1)
+    long = np.zeros(need.size + 1, bool)
+    long[1:] = [max((b[0].stop - b[0].start) * dy, (b[1].stop - b[1].start) * dx) > max_building_m
+                for b in ndimage.find_objects(sub[lab])]
+    out[win] = long[sub[lab]] & raised[win]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_joined_levels_runs_equal_the_grid_labelling(seed):
+    """joined_levels' parts from runs joined down the columns equal the labelling of the grid
+    of twice the resolution it replaced, bit for bit: terraced random rasters (levels joined
+    over long runs, walls between them), NaN cells, raised cells outside ``kept``, square and
+    oblong cells, windows touching the raster's sides or not."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(20, 90, 2)
+    z = (np.round(rng.normal(0, 1.0, (h, w)).cumsum(axis=int(seed % 2)) / 3) * 0.7
+         + rng.normal(0, 0.05, (h, w))).astype(np.float32)
+    z[rng.random(z.shape) < 0.03] = np.nan
+    kept = rng.random(z.shape) < 0.9
+    raised = rng.random(z.shape) < (0.002, 0.02, 0.3)[seed % 3]
+    if seed >= 3:
+        raised[:, : w // 2] = False
+    seen = []
+    for cell, step, length in ((1.0, 0.3, 5.0), ((0.5, 1.5), 0.5, 12.0), ((2.0, 1.0), 0.8, 30.0), (1.0, 0.4, 0.5)):
+        want = _joined_levels_grid(z, cell, raised, kept, step_m=step, max_building_m=length)
+        got = steps.joined_levels(z, cell, raised, kept, step_m=step, max_building_m=length)
+        assert np.array_equal(got, want)
+        seen += [got.any(), (raised & kept & ~got).any()]
+    assert any(seen[::2]) and any(seen[1::2])
+    assert not steps.joined_levels(z, 1.0, np.zeros(z.shape, bool), kept, step_m=0.5, max_building_m=5.0).any()
+
+
 # ------------------------------------------------------------------ step 5
 def _bump(z, r0, c0, h, s):
     y, x = np.mgrid[0:z.shape[0], 0:z.shape[1]]
