@@ -269,12 +269,12 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None):
     crowns, and says nothing of a level change of the terrain (bushes at a bank's foot, the
     far wall of a trench one cell wide, which made its near bank's ground "rough").
 
-    ``cut``, optional: two boolean arrays of ``z``'s shape that receive the levels the raster's
-    edge cuts, the cells from a jump up to the row's end (no jump after it) or from the row's
-    start to a jump down (none before it), at most ``lmax`` apart and at least ``jump / 2``
-    above the ground beyond the jump (taken as level: the level mirrored at the edge), and
-    their walls (the level's cell at the jump) and the jump's height there: :func:`_cut_levels`
-    decides them.
+    ``cut``, optional: a list that receives ``(cells, walls, heights)``, the flat indices into
+    ``z`` of the levels the raster's edge cuts, the cells from a jump up to the row's end (no
+    jump after it) or from the row's start to a jump down (none before it), at most ``lmax``
+    apart and at least ``jump / 2`` above the ground beyond the jump (taken as level: the level
+    mirrored at the edge), of their walls (the level's cell at the jump) and the jump's height
+    there: :func:`_cut_levels` decides them.
 
     Works on the remaining points of all rows concatenated in row order (a 1-D array), so
     "the previous point of the profile" is simply the previous element: profile starts
@@ -371,8 +371,9 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None):
 def _cut_runs(out, cut, zc, flat, pos, ev, typ, starts, cnt, lmax, jump):
     """The levels cut by the raster's edge of :func:`_raised_rows` (its events ``ev, typ``
     along the concatenated rows of the points ``flat``, heights ``zc``, positions ``pos``; the
-    first point of each row among ``starts``, ``cnt`` points per row) into ``cut = (cells,
-    walls)``. A row's start or end is the raster's edge (a break line's restarts are not)."""
+    first point of each row among ``starts``, ``cnt`` points per row) appended to the list
+    ``cut``: ``(cells, walls, heights)`` (flat indices, the jumps' heights at the walls). A row's
+    start or end is the raster's edge (a break line's restarts are not)."""
     n = flat.size
     w = out.shape[1]
     rows_first = (np.cumsum(cnt) - cnt)[cnt > 0]          # the first point of each row
@@ -407,9 +408,7 @@ def _cut_runs(out, cut, zc, flat, pos, ev, typ, starts, cnt, lmax, jump):
     c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
     with np.errstate(invalid="ignore"):
         hit = zc[c] - np.repeat(zc[g], lens) > 0.5 * jump
-    cut[0].ravel()[flat[c[hit]]] = True
-    cut[1].ravel()[flat[wall]] = True
-    cut[2].ravel()[flat[wall]] = zc[wall] - zc[g]          # the jump's height
+    cut.append((flat[c[hit]], flat[wall], zc[wall] - zc[g]))          # the jump's height
 
 
 def _cut_levels(z, cells, walls, lmax, jump, heights):
@@ -578,22 +577,28 @@ def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]]
         for d, ((zz, lab, lmax, fwd), todo) in enumerate(zip(views, redo)):
             c = fwd(cur)
             found = np.zeros(zz.shape, bool)
-            cut = ((np.zeros(zz.shape, bool), np.zeros(zz.shape, bool), np.zeros(zz.shape, np.float32))
-                   if cuts is not None else None)
+            cut = [] if cuts is not None else None
             bands = row_bands(*zz.shape, 16 * BAND_CELLS)
             for i, b in enumerate(bands):
                 report(progress, (2 * p + d + i / len(bands)) / (2 * passes))
                 # a profile's result depends on that profile alone: later passes redo
                 # only the bands of rows / columns where something was removed
                 if todo is None or todo[b].any():
+                    seen = 0 if cut is None else len(cut)
                     found[b] = _raised_rows(zz[b], c[b], None if lab is None else lab[b],
-                                            jump_m, lmax, veg_tol,
-                                            cut=None if cut is None else (cut[0][b], cut[1][b], cut[2][b]))
+                                            jump_m, lmax, veg_tol, cut=cut)
+                    if cut is not None and len(cut) > seen:       # the band's flat indices in the view's
+                        cut[-1] = tuple(a + b.start * zz.shape[1] for a in cut[-1][:2]) + cut[-1][2:]
             new |= fwd(found)
-            if cut is not None:
-                cuts[0][...] |= fwd(cut[0])
-                cuts[1][...] |= fwd(cut[1])
-                np.maximum(cuts[2], fwd(cut[2]), out=cuts[2])
+            if cut:
+                # the cut runs lie along the raster's sides: their indices in the raster, not whole
+                # arrays of the view transposed (the heights at a wall: the largest of X's and Y's)
+                cells, walls, heights = (np.concatenate(a) for a in zip(*cut))
+                if d:
+                    cells, walls = ((a % zz.shape[1]) * zz.shape[0] + a // zz.shape[1] for a in (cells, walls))
+                cuts[0].ravel()[cells] = True
+                cuts[1].ravel()[walls] = True
+                cuts[2].ravel()[walls] = np.maximum(cuts[2].ravel()[walls], heights)
         if cuts is not None and cuts[0].any():
             new |= _cut_levels(z, cuts[0], cuts[1], (views[0][2], views[1][2]), jump_m, cuts[2])
         new &= cur

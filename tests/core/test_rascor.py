@@ -215,6 +215,73 @@ def test_step4_level_change_building():
     assert not hi.any()
 
 
+def _remove_level_changes_full_cuts(z, cell, keep, *, jump_m, max_building_m, sigma_m, k=3.0, labels=None):
+    """remove_level_changes(cut_at_edge=True) as first written (the oracle of its cut runs kept as
+    indices): each view's cut runs, walls and heights painted on whole arrays of the view,
+    transposed and combined (or, or, largest height) before :func:`steps._cut_levels`."""
+    dx, dy = (cell, cell) if np.isscalar(cell) else cell
+    jump, veg = steps._jump_limits(jump_m, sigma_m, k, 0.0)
+    cur, high = keep.copy(), np.zeros(z.shape, bool)
+    views = [(z, labels, int(max_building_m / dx), lambda a: a),
+             (z.T.copy(), None if labels is None else labels.T.copy(), int(max_building_m / dy), lambda a: a.T.copy())]
+    for p in range(2):
+        new = np.zeros(z.shape, bool)
+        cuts = [np.zeros(z.shape, bool), np.zeros(z.shape, bool), np.zeros(z.shape, np.float32)]
+        for zz, lab, lmax, fwd in views:
+            c = fwd(cur)
+            found = np.zeros(zz.shape, bool)
+            arrs = [np.zeros(zz.shape, bool), np.zeros(zz.shape, bool), np.zeros(zz.shape, np.float32)]
+            for b in kernels.row_bands(*zz.shape, 7 * zz.shape[1]):
+                got = []
+                found[b] = steps._raised_rows(zz[b], c[b], None if lab is None else lab[b], jump, lmax, veg,
+                                              cut=got if p == 0 else None)
+                for cells, walls, heights in got:
+                    arrs[0][b].ravel()[cells] = True
+                    arrs[1][b].ravel()[walls] = True
+                    arrs[2][b].ravel()[walls] = heights
+            new |= fwd(found)
+            cuts[0] |= fwd(arrs[0])
+            cuts[1] |= fwd(arrs[1])
+            cuts[2] = np.maximum(cuts[2], fwd(arrs[2]))
+        if cuts[0].any():
+            new |= steps._cut_levels(z, cuts[0], cuts[1], (views[0][2], views[1][2]), jump, cuts[2])
+        new &= cur
+        if not new.any():
+            break
+        high |= new
+        cur &= ~new
+    return high
+
+
+@pytest.mark.parametrize("band_cells", [None, 20])
+def test_step4_cut_runs_as_indices_equal_whole_arrays(band_cells, monkeypatch):
+    """Step 4's levels cut by the raster's edge, gathered as indices along the raster's sides,
+    equal those painted on whole arrays of each view and transposed, bit for bit: random roofs
+    over the raster's sides and corners (some beside a wall along a whole side), oblong cells,
+    break-line regions, in one band of rows or in many (``BAND_CELLS`` shrunk)."""
+    if band_cells:
+        monkeypatch.setattr(steps, "BAND_CELLS", band_cells)
+    decided = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        h, w = rng.integers(40, 110, 2)
+        z = (plane(max(h, w))[:h, :w] + rng.normal(0, 0.05, (h, w))).astype(np.float32)
+        for _ in range(8):
+            r0, c0 = rng.integers(-10, h - 5), rng.integers(-10, w - 5)
+            lr, lc = rng.integers(5, 40, 2)
+            z[max(r0, 0):r0 + lr, max(c0, 0):c0 + lc] += rng.uniform(3.0, 9.0)
+        z[:, : rng.integers(3, 12)] += 4.0 * (seed % 2)          # a wall along a whole side
+        keep = rng.random(z.shape) < 0.95
+        labels = (np.arange(w)[None, :] >= w // 2).astype(np.int32).repeat(h, 0) if seed % 4 >= 2 else None
+        cell = (1.0, 1.0) if seed % 3 else (0.75, 1.25)
+        kw = dict(jump_m=2.0, max_building_m=rng.uniform(15.0, 35.0), sigma_m=0.1)
+        want = _remove_level_changes_full_cuts(z, cell, keep, labels=labels, **kw)
+        got = rascor.remove_level_changes(z, cell, keep, labels=labels, cut_at_edge=True, **kw)
+        assert np.array_equal(got, want), seed
+        decided.append((got & ~rascor.remove_level_changes(z, cell, keep, labels=labels, **kw)).any())
+    assert sum(decided) >= 4                                  # the cut runs decided something
+
+
 def test_step4_vegetation_beside_is_not_a_building():
     # a long raised level across the whole area (no jumps along Y)
     z = plane(sy=0.0)
