@@ -1399,10 +1399,69 @@ def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISE
     return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))
 
 
+def joined_runs(z, nodes, step_m, diagonal=False):
+    """The parts of the cells ``nodes`` (a boolean array of ``z``'s shape) joined across the
+    4-neighbour edges (with ``diagonal``, the 8-neighbour edges) whose heights ``z`` differ by at
+    most ``step_m``, by runs: the cells joined along a row make a run, and the runs joined to the
+    next row make the parts (``connected_components`` on one edge per pair of runs that touch
+    along a stretch of columns in each direction, not one per cell).
+
+    Returns ``(run, comp, first)``: ``run`` the run of each cell (flat, row-major), ``comp`` the
+    part of each run (numbered in the order of the parts' first cells), ``first`` each run's first
+    cell (flat); a cell outside ``nodes`` is a run and a part of its own.
+
+    Examples
+    --------
+    >>> z = np.array([[0, 0, 5], [0, 9, 5]], np.float32)
+    >>> run, comp, first = joined_runs(z, np.ones(z.shape, bool), 1.0)
+    >>> run.tolist(), comp.tolist(), first.tolist()
+    ([0, 0, 1, 2, 3, 4], [0, 1, 0, 2, 1], [0, 2, 3, 4, 5])
+    """
+    h, w = z.shape
+    with np.errstate(invalid="ignore"):
+        def joined(a, b, na, nb):
+            e = np.abs(a - b) <= step_m
+            e &= na
+            e &= nb
+            return e
+        hj = joined(z[:, 1:], z[:, :-1], nodes[:, 1:], nodes[:, :-1])
+        # down the columns: (i, j) - (i + 1, j); with the diagonals (i, j) - (i + 1, j + 1) and
+        # (i, j + 1) - (i + 1, j), at column j of arrays one column narrower
+        down = [(joined(z[1:], z[:-1], nodes[1:], nodes[:-1]), 0, 0)]
+        if diagonal:
+            down += [(joined(z[1:, 1:], z[:-1, :-1], nodes[1:, 1:], nodes[:-1, :-1]), 0, 1),
+                     (joined(z[1:, :-1], z[:-1, 1:], nodes[1:, :-1], nodes[:-1, 1:]), 1, -1)]
+    start = np.ones((h, w), bool)
+    np.logical_not(hj, out=start[:, 1:])
+    first = np.flatnonzero(start)                      # each run's first cell (every row's first among them)
+    del start
+    run = np.zeros(h * w, np.int32 if h * w < 2 ** 31 else np.int64)
+    run[first[1:]] = 1
+    np.cumsum(run, out=run)
+    a, b = [], []
+    for e, top, dc in down:
+        # an edge joins the same two runs as the one left of it when both its cells are joined leftwards
+        n = e.shape[1]
+        e[:, 1:] &= ~(e[:, :-1] & hj[:-1, top:top + n - 1] & hj[1:, top + dc:top + dc + n - 1])
+        i = np.flatnonzero(e)
+        i = i // n * w + i % n + top                   # the upper cell, in the rows of w cells
+        a.append(run[i])
+        b.append(run[i + w + dc])
+    del hj, down
+    a, b = np.concatenate(a), np.concatenate(b)
+    graph = csr_matrix((np.ones(a.size, np.int8), (a, b)), shape=(first.size, first.size))
+    return run, connected_components(graph, directed=False)[1], first
+
+
 def smooth_parts(w, cells, step_m):
     """The parts of the cells ``cells`` (flat indices into ``w``) joined across 8-neighbour
     edges whose heights differ by at most ``step_m`` (a wall, a NaN, a cell outside ``cells``
-    separates them): ``(n, part)``, ``part[i]`` in ``0 .. n - 1`` the part of ``cells[i]``.
+    separates them): ``(n, part)``, ``part[i]`` in ``0 .. n - 1`` the part of ``cells[i]``,
+    numbered in the order of the parts' first cells in ``cells``.
+
+    Cells sorted and filling at least a quarter of the rows they span are joined by runs
+    (:func:`joined_runs`: 3 to 6 times faster there); others by a graph of their own edges (much
+    faster on a few cells scattered over many rows). Both give the same parts, numbered alike.
 
     Examples
     --------
@@ -1414,6 +1473,25 @@ def smooth_parts(w, cells, step_m):
     n_c = cells.size
     if n_c == 0:
         return 0, np.zeros(0, np.int32)
+    r0, r1 = int(cells[0]) // W, int(cells[-1]) // W + 1
+    if 4 * n_c >= (r1 - r0) * W and n_c < 2 ** 31 and bool(np.all(cells[1:] > cells[:-1])):
+        loc = cells - r0 * W
+        nodes = np.zeros((r1 - r0) * W, bool)
+        nodes[loc] = True
+        run, comp, _ = joined_runs(w[r0:r1], nodes.reshape(r1 - r0, W), step_m, diagonal=True)
+        part = comp[run[loc]]
+        # the parts of cells outside ``cells`` (runs of their own) dropped from the numbering
+        used = np.zeros(comp.size + 1, np.int32)
+        used[part] = 1
+        np.cumsum(used, out=used)
+        return int(used[-1]), (used[part] - 1).astype(np.int32)
+    return _smooth_parts_graph(w, cells, step_m)
+
+
+def _smooth_parts_graph(w, cells, step_m):
+    """:func:`smooth_parts` by a graph of the cells' own forward 8-neighbour edges."""
+    H, W = w.shape
+    n_c = cells.size
     # the cells in a layout one column wider (a padding column after each row, never a cell): a neighbour
     # beyond the row's end lands there, so no bounds test is needed; each cell's position in ``cells`` is
     # looked up by that index over the span the cells and their neighbours cover (a gather where a sorted

@@ -9,12 +9,10 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..common import as_cell_size, report, sub_progress, transpose
 from ..edge_walls import walled_levels
-from ..estimate import smooth_parts
+from ..estimate import joined_runs, smooth_parts
 from .kernels import BAND_CELLS, row_bands
 
 
@@ -629,11 +627,11 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     any building) are returned.
 
     The parts are the runs of cells joined along the rows, joined down the columns
-    (:func:`_joined_runs`: the 4-connected components the labelling of a grid of twice the
-    resolution holding the cells and their joined edges gave, in a quarter of its time), on the
-    cells within ``max_building_m`` and one cell of a raised cell only: a part leaving that window
-    runs further than ``max_building_m`` from the raised cell inside it, so the window decides as
-    the whole raster would.
+    (:func:`~bare_earth.core.estimate.joined_runs`: the 4-connected components the labelling
+    of a grid of twice the resolution holding the cells and their joined edges gave, in a
+    quarter of its time), on the cells within ``max_building_m`` and one cell of a raised cell
+    only: a part leaving that window runs further than ``max_building_m`` from the raised cell
+    inside it, so the window decides as the whole raster would.
 
     Parameters
     ----------
@@ -679,7 +677,9 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     at = np.flatnonzero(raised[win] & kw)              # the raised cells that are nodes of the graph
     if not at.size:
         return out
-    run, comp, row, c0, c1 = _joined_runs(zw, kw, step_m)
+    run, comp, first = joined_runs(zw, kw, step_m)
+    w = zw.shape[1]
+    row, c0, c1 = first // w, first % w, (np.r_[first[1:], zw.size] - 1) % w
     need = np.zeros(int(comp.max()) + 1, bool)
     need[comp[run[at]]] = True
     # the extents of the parts holding raised cells, from their runs
@@ -695,38 +695,3 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     ow.ravel()[at] = long[comp[run[at]]]
     out[win] = ow
     return out
-
-
-def _joined_runs(z, nodes, step_m):
-    """The 4-connected parts of the cells ``nodes`` joined across the 4-neighbour edges whose heights
-    ``z`` differ by at most ``step_m`` (:func:`joined_levels`), by runs: the cells joined along a row
-    make a run, and the runs joined down the columns make the parts (``connected_components`` on
-    one edge per pair of runs that touch along a stretch of columns, not one per cell).
-
-    Returns ``(run, comp, row, c0, c1)``: ``run`` the run of each cell (flat, row-major), ``comp``
-    the part of each run, and each run's row and first and last column (a cell outside ``nodes`` is
-    a run of its own, joined to nothing)."""
-    h, w = z.shape
-    with np.errstate(invalid="ignore"):
-        hj = np.abs(z[:, 1:] - z[:, :-1]) <= step_m
-        hj &= nodes[:, 1:]
-        hj &= nodes[:, :-1]
-        vj = np.abs(z[1:] - z[:-1]) <= step_m
-        vj &= nodes[1:]
-        vj &= nodes[:-1]
-    start = np.ones((h, w), bool)
-    np.logical_not(hj, out=start[:, 1:])
-    s = np.flatnonzero(start)                          # each run's first cell (every row's first among them)
-    del start
-    idx = np.int32 if h * w < 2 ** 31 else np.int64
-    run = np.zeros(h * w, idx)
-    run[s[1:]] = 1
-    np.cumsum(run, out=run)
-    # a down edge joins the same two runs as the one left of it when both its cells are joined leftwards
-    vj[:, 1:] &= ~(vj[:, :-1] & hj[:-1] & hj[1:])
-    e = np.flatnonzero(vj)                             # the upper cell's flat index (rows of w cells)
-    del vj, hj
-    graph = csr_matrix((np.ones(e.size, np.int8), (run[e], run[e + w])), shape=(s.size, s.size))
-    comp = connected_components(graph, directed=False)[1]
-    end = np.r_[s[1:], h * w] - 1
-    return run, comp, (s // w).astype(idx), (s % w).astype(idx), (end % w).astype(idx)

@@ -832,15 +832,19 @@ def test_smooth_parts_joined_across_steps_up_to_step_m():
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_smooth_parts_are_the_components_of_the_smooth_neighbour_edges(seed):
+@pytest.mark.parametrize("order", ["random", "sorted"])
+def test_smooth_parts_are_the_components_of_the_smooth_neighbour_edges(seed, order):
     """On a random raster (heights in 0.5 m steps, NaNs) and a random subset of its cells in random
-    order: the parts are those of a union-find over every pair of 8-neighbours among the cells whose
-    heights differ by at most step_m, numbered in the order of their first cell in ``cells``."""
+    order (joined by a graph of their edges) or sorted (joined by runs): the parts are those of a
+    union-find over every pair of 8-neighbours among the cells whose heights differ by at most
+    step_m, numbered in the order of their first cell in ``cells``."""
     from bare_earth.core.estimate import smooth_parts
     rng = np.random.default_rng(seed)
     w = (rng.integers(0, 6, (17, 23)) * 0.5).astype(np.float32)
     w[rng.random(w.shape) < 0.05] = np.nan
     cells = rng.permutation(np.flatnonzero(rng.random(w.shape) < 0.7))
+    if order == "sorted":
+        cells = np.sort(cells)
     H, W = w.shape
     at = {int(c): i for i, c in enumerate(cells)}
     root = list(range(cells.size))
@@ -860,3 +864,28 @@ def test_smooth_parts_are_the_components_of_the_smooth_neighbour_edges(seed):
     want = [first.setdefault(find(i), len(first)) for i in range(cells.size)]
     n, part = smooth_parts(w, cells, 0.5)
     assert n == len(first) and part.tolist() == want
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_smooth_parts_by_runs_equal_the_graph_of_the_cells_edges(seed):
+    """smooth_parts' runs (sorted cells filling a quarter of their rows or more) give the parts and
+    the numbering of the graph of the cells' own 8-neighbour edges, bit for bit: terraced and
+    rough random rasters, NaNs, dense and sparse cells over a band of rows, steps from none to
+    any."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(3, 70, 2)
+    z = (np.round(rng.normal(0, 1.0, (h, w)).cumsum(axis=seed % 2) / 2) * 0.5
+         + rng.normal(0, 0.05, (h, w))).astype(np.float32)
+    if seed >= 3:                       # rough: a cell joined to two that are not joined to each other
+        z = rng.uniform(0.0, 1.0, (h, w)).astype(np.float32)
+    z[rng.random(z.shape) < 0.03] = np.nan
+    runs = 0
+    for frac in (0.3, 0.6, 0.95, 1.0):
+        cells = np.flatnonzero(rng.random(z.shape) < frac)
+        cells = cells[(cells >= w * (h // 5)) & (cells < w * (h - h // 5))]      # a band of rows
+        for step in (0.0, 0.3, 0.6, np.inf):
+            got = est.smooth_parts(z, cells, step)
+            want = est._smooth_parts_graph(z, cells, step)
+            assert got[0] == want[0] and np.array_equal(got[1], want[1]) and got[1].dtype == want[1].dtype
+            runs += cells.size > 0 and 4 * cells.size >= (cells[-1] // w - cells[0] // w + 1) * w
+    assert runs >= 8
