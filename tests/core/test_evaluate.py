@@ -208,13 +208,16 @@ def test_harness_with_inline_methods(tmp_path):
     assert "samp11" in table and "mean" in table and "oracle" in table and "all ground" in table
 
 
+def _five_points():
+    """A 2 x 3 grid of 1 m cells (north-up, origin (0, 2)) and five points with predicted and true
+    ground: ``(gt, x, y, pred, truth)``."""
+    return ((0.0, 1.0, 0.0, 2.0, 0.0, -1.0), np.array([0.2, 0.8, 1.5, 0.5, 0.6]), np.array([1.5, 1.5, 1.5, 0.5, 0.4]),
+            np.array([True, True, False, True, True]), np.array([True, False, True, True, True]))
+
+
 def test_error_map_from_points_and_several_maps(tmp_path):
     from bare_earth.core.evaluate import error_map_from_points
-    gt = (0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
-    x = np.array([0.2, 0.8, 1.5, 0.5, 0.6])
-    y = np.array([1.5, 1.5, 1.5, 0.5, 0.4])
-    pred = np.array([True, True, False, True, True])
-    truth = np.array([True, False, True, True, True])
+    gt, x, y, pred, truth = _five_points()
     codes, legend = error_map_from_points(pred, truth, x, y, gt, (2, 3))
     # cell (0,0): correct + Type II -> 2; (0,1): Type I; (1,0): correct; rest: no point
     np.testing.assert_array_equal(codes, [[2, 1, 255], [0, 255, 255]])
@@ -451,11 +454,7 @@ def test_error_map_from_points_on_south_up_and_east_to_west_grids(tmp_path):
     outside ("correct: 0 cells", all "not evaluated"). The map is now in the grid's row and
     column order, and the HTML draws every map north-up (the same picture for both storages)."""
     from bare_earth.core.evaluate import error_map_from_points
-    gt = (0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
-    x = np.array([0.2, 0.8, 1.5, 0.5, 0.6])
-    y = np.array([1.5, 1.5, 1.5, 0.5, 0.4])
-    pred = np.array([True, True, False, True, True])
-    truth = np.array([True, False, True, True, True])
+    gt, x, y, pred, truth = _five_points()
     north, _ = error_map_from_points(pred, truth, x, y, gt, (2, 3))
     south, _ = error_map_from_points(pred, truth, x, y, (0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (2, 3))
     west, _ = error_map_from_points(pred, truth, x, y, (3.0, -1.0, 0.0, 2.0, 0.0, -1.0), (2, 3))
