@@ -603,6 +603,9 @@ def test_vertical_unit_factor():
     (-9999.0, np.float32, -32768.0, True),       # another value declared
     (65535.0, np.uint16, None, True),            # above the heights: UInt16's largest
     (32767.0, np.int16, None, True),
+    (0.0, np.uint16, None, True),                # an unsigned DSM's background 0, 300 m below its hill
+    (0.0, np.float32, None, True),
+    (0.0, np.uint16, 0.0, False),
 ])
 def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, declared, warned):
     a = np.full((6, 8), 300.0)
@@ -619,6 +622,7 @@ def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, decla
 @pytest.mark.parametrize("name,cells", [
     ("within the terrain's relief", {(0, 0): -9999.0, (1, 1): -9000.0}),   # -9999 less far below than the span
     ("no such value", {(0, 0): -500.0}),
+    ("sea level beside a shore rising from 0.5 m", {(0, 0): 0.0, (0, 1): 0.0, (1, 1): 0.5}),   # 0 is also a height
     ("every cell", None),
 ])
 def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells):
