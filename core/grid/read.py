@@ -637,8 +637,8 @@ def check_has_data(info, max_cells=4_000_000):
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
 
-    def heights(a, window=None, step=1):
-        return without_far_heights(info.surface(a, window, step, z_to_m=1.0))
+    def heights(a, window=None, step=1):   # metres, as the filters read them
+        return without_far_heights(info.surface(a, window, step))
 
     a = info.read_stored(step=step)
     z, n_far = heights(a, step=step)
@@ -653,11 +653,15 @@ def check_has_data(info, max_cells=4_000_000):
             if valid.any():
                 break
     if not valid.any() and n_far:
+        unit = ""
+        if info.z_to_m != 1.0:
+            unit = (f" Its heights are read in its CRS's unit ({info.z_to_m:g} m): if they are in metres, give "
+                    "it a compound CRS whose vertical axis is in metres, or reproject it to a CRS in metres.")
         raise ValueError(f"the raster {info.path!r} has no valid cell: its cells are nodata or hold heights "
-                         f"beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite), which no terrain has. If the heights "
-                         "are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py -scale "
-                         "0.001 for millimetres); if that value marks missing cells, declare it as the nodata "
-                         "value.")
+                         f"beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite), which no terrain has.{unit} If the "
+                         "heights are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py "
+                         "-scale 0.001 for millimetres); if that value marks missing cells, declare it as the "
+                         "nodata value.")
     if not valid.any():
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")

@@ -85,6 +85,26 @@ def test_all_nodata(tmp_path, dtype, nodata):
         grid.check_has_data(info)
 
 
+KM_CRS = ('PROJCS["UTM 32N in km",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+          'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+          'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],'
+          'PARAMETER["false_easting",500],PARAMETER["false_northing",0],UNIT["kilometre",1000]]')
+
+
+def test_heights_beyond_the_range_in_the_crs_unit_refused_naming_it(tmp_path):
+    """A DSM in a CRS in kilometres storing its heights in metres (300): read in the CRS's unit they
+    are 300 km, beyond any terrain. Refused before work naming the unit (before: the check read the
+    stored values as metres and passed, then the filter found no cell: 'z has no valid cell (all
+    nodata/NaN)')."""
+    a = np.full((5, 5), 300.0, np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, gt=(500.0, 0.001, 0.0, 5400.0, 0.0, -0.001), crs=KM_CRS))
+    with pytest.raises(ValueError, match=r"no valid cell.*read in its CRS's unit \(1000 m\).*compound CRS"):
+        grid.check_has_data(info)
+    info = grid.open_dsm(tif(tmp_path, a / 1000.0, name="km.tif", gt=(500.0, 0.001, 0.0, 5400.0, 0.0, -0.001),
+                             crs=KM_CRS))
+    assert grid.check_has_data(info) == 1.0                # 0.3 km: 300 m
+
+
 @pytest.mark.parametrize("max_cells", [4, 9, 30])
 def test_check_has_data_decimated(tmp_path, max_cells):
     # large rasters are sampled (max_cells small makes a 10 x 10 raster 'large')
