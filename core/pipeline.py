@@ -416,6 +416,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
+            grid.check_output_crs(target, info.crs_wkt, info.geotransform)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != info.shape:

@@ -71,6 +71,54 @@ def test_each_offered_format_is_written_in_that_format(tmp_path, ext, driver):
     assert (tmp_path / "mask.qml").exists()
 
 
+KM_CRS = ('PROJCS["UTM 32N in km",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+          'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+          'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],'
+          'PARAMETER["false_easting",500],PARAMETER["false_northing",0],UNIT["kilometre",1000]]')
+
+
+def _run_into(tmp_path, crs, gt, out, seen):
+    """pipeline.run_file of a small ramp in ``crs`` into the output ``out``, its progress put in ``seen``."""
+    from bare_earth.core import pipeline
+    z = (np.add.outer(np.arange(40.0), np.arange(40.0)) * 1e-4 + 0.3).astype(np.float32)
+    src = grid.write_array(tmp_path / "dsm.tif", z, gt, crs)
+    try:
+        pipeline.run_file("morphological", src, {"dtm": str(tmp_path / out)}, progress=seen.append)
+    finally:
+        assert _partials(tmp_path) == []
+
+
+def test_a_geopackage_that_would_write_the_crs_in_other_units_refused_before_work(tmp_path):
+    """A DSM in a transverse Mercator in kilometres on a UTM zone's parameters: GDAL's GeoPackage copy
+    wrote it as EPSG:32632, in metres, so the output lay 1000 x too close to the origin (the .tif kept
+    its CRS). Refused before any work, naming both CRSs; a GeoTIFF output runs."""
+    gt = (500.0, 0.001, 0.0, 5400.0, 0.0, -0.001)
+    with pytest.raises(ValueError, match=r"dtm\.gpkg' is a GeoPackage, but GDAL writes its CRS \(UTM 32N in km, "
+                                         r"in kilomet.*as WGS 84 / UTM zone 32N \(in metre\).*GeoTIFF"):
+        _run_into(tmp_path, KM_CRS, gt, "dtm.gpkg", [])
+    assert not (tmp_path / "dtm.gpkg").exists()
+    _run_into(tmp_path, KM_CRS, gt, "dtm.tif", [])
+    ds = gdal.Open(str(tmp_path / "dtm.tif"))
+    assert "kilomet" in ds.GetProjection()
+    ds = None
+
+
+def test_a_format_gdal_cannot_write_the_crs_in_refused_before_work(tmp_path):
+    """Swiss LV95 (EPSG:2056, an oblique Mercator) as netCDF: GDAL's copy failed after the whole run
+    with an empty message ('cannot write the output ... as netCDF: '). Refused before the filter
+    starts, with GDAL's reason; the other formats keep the CRS."""
+    if gdal.GetDriverByName("netCDF") is None:
+        pytest.skip("GDAL has no netCDF driver")
+    gt = (2600000.0, 1.0, 0.0, 1200000.0, 0.0, -1.0)
+    seen = []
+    with pytest.raises(ValueError, match=r"dtm\.nc' is a netCDF, but GDAL cannot write its CRS in that format "
+                                         r"\(.+\)\. Write it as a GeoTIFF"):
+        _run_into(tmp_path, 2056, gt, "dtm.nc", seen)
+    assert seen == [] and not (tmp_path / "dtm.nc").exists()
+    for ext in (".gpkg", ".img", ".asc"):
+        grid.check_output_crs(tmp_path / f"dtm{ext}", grid.open_dsm(tmp_path / "dsm.tif").crs_wkt, gt)
+
+
 def test_saga_grid_readable_and_nothing_left_behind(tmp_path):
     info = _info(tmp_path)
     _write(info, {"dtm": tmp_path / "dtm.sdat"})
