@@ -88,11 +88,17 @@ def without_far_heights(z, count_in=None):
     return z, 0
 
 
-def far_heights_message(n):
-    """The log line for :func:`without_far_heights`'s count (one wording for arrays and files)."""
-    return (f"{n} cell(s) with heights beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite) were treated as "
+def far_heights_message(n, declared=None):
+    """The log line for :func:`without_far_heights`'s count (one wording for arrays and files);
+    ``declared``: the raster's own nodata value, which those cells then do not hold."""
+    text = (f"{n} cell(s) with heights beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite) were treated as "
             "nodata: no terrain is that high or deep, so they are an undeclared nodata value or corrupt "
-            "cells. Declare the raster's nodata value to silence this.")
+            "cells.")
+    if declared is None or declared != declared:       # none, or NaN: a value beyond is another one
+        return text + " Declare the raster's nodata value to silence this."
+    return text + (f" The raster declares {float(declared):g} as its nodata, which they do not hold exactly (a "
+                   "nodata value written with fewer digits than the cells hold, -3.40282e+38 for -3.4028235e+38, "
+                   "reads so): declare the value its missing cells hold to silence this.")
 
 
 #: Significant digits of a cell size in metres kept (:func:`as_cell_size`). A cell size

@@ -495,7 +495,7 @@ def _derive_params(info, run):
                 f"columns {rw[2]}-{rw[3]}).")
         params = widen_params(run.meth, info, params, run.params, run.log)
         if info.far_cells:
-            run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
+            run.log("Warning: " + far_heights_message(info.far_cells, info.nodata) + " (in that window)")
     return params, whole
 
 
@@ -624,9 +624,9 @@ def _run_file(info, run, pool):
             blocks.run_windows(work, windows, workers=run.workers, progress=progress)
         out.commit(progress=sub_progress(run.progress, 0.97, 1.0))
     far = info.far_cells if whole is not None else writer.far_cells
-    warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
+    warnings = list(info.warnings) + ([far_heights_message(far, info.nodata)] if far else [])
     if far:                 # whole or in blocks, the log (QGIS's warnings) says it
-        run.log("Warning: " + far_heights_message(far))
+        run.log("Warning: " + far_heights_message(far, info.nodata))
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}
     result.update(_merge_info(writer.infos, writer.weights))

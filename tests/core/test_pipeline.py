@@ -542,6 +542,28 @@ def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
             assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
 
 
+def test_far_heights_beside_a_declared_nodata_written_with_fewer_digits_say_so(tmp_path):
+    """Missing cells holding Float32's lowest value while the raster declares -3.40282e+38 (the
+    same value with fewer digits, as some exports write it): they are nodata (far beyond any
+    height), and the log says the declared value is not the one they hold, instead of asking to
+    declare a nodata value the raster already declares."""
+    z, _ = scene()
+    z[3, 3] = np.finfo(np.float32).min
+    p = grid.write_array(tmp_path / "far.tif", z, GT, 32633, nodata=-3.40282e38)
+    lines = []
+    info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif"}, log=lines.append)
+    said = [w for w in lines if "1 cell(s) with heights beyond" in w]
+    assert said and "declares -3.40282e+38 as its nodata, which they do not hold exactly" in said[0]
+    assert "Declare the raster's nodata value" not in said[0] and said[0][9:] in info["warnings"]
+    ds = gdal.Open(str(tmp_path / "m.tif"))
+    assert ds.ReadAsArray()[3, 3] == NODATA
+    ds = None
+    p = grid.write_array(tmp_path / "undeclared.tif", z, GT, 32633)
+    lines.clear()
+    pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m2.tif"}, log=lines.append)
+    assert any("Declare the raster's nodata value to silence this" in w for w in lines)
+
+
 def test_plan_block_pure():
     plan = pipeline.plan_block
     assert plan((500, 400), 3, block=77) == 77                        # given: as is
