@@ -211,6 +211,20 @@ def class_shares(counts):
     return shares
 
 
+def no_ground_message(counts, outputs):
+    """The log line when a run's mask (``counts`` per code) holds valid cells but no ground and a
+    DTM or nDSM is written: with no ground to interpolate from they are nodata everywhere (a
+    window inside one roof, a raster of a few cells a filter reads as a step), else None."""
+    valid = sum(v for k, v in counts.items() if k != NODATA)
+    if not valid or counts.get(GROUND) or not (outputs.get("dtm") or outputs.get("ndsm")):
+        return None
+    written = " and ".join(n for k, n in (("dtm", "DTM"), ("ndsm", "nDSM")) if outputs.get(k))
+    return (f"The filter called none of the {valid} valid cell(s) ground (objects "
+            f"{100.0 * counts.get(OBJECT, 0) / valid:.0f} %, low outliers {100.0 * counts.get(LOW, 0) / valid:.0f} %): "
+            f"with no ground to interpolate from, the {written} {'are' if ' and ' in written else 'is'} nodata "
+            "everywhere. Give a raster that reaches the ground around its objects, or try another method.")
+
+
 def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
               params: Optional[Dict[str, Any]] = None, *, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
               block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, progress: Progress = None,
@@ -627,6 +641,10 @@ def _run_file(info, run, pool):
     warnings = list(info.warnings) + ([far_heights_message(far, info.nodata)] if far else [])
     if far:                 # whole or in blocks, the log (QGIS's warnings) says it
         run.log("Warning: " + far_heights_message(far, info.nodata))
+    empty = no_ground_message(writer.counts, run.outputs)
+    if empty:
+        warnings.append(empty)
+        run.log("Warning: " + empty)
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}
     result.update(_merge_info(writer.infos, writer.weights))

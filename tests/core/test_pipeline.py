@@ -564,6 +564,32 @@ def test_far_heights_beside_a_declared_nodata_written_with_fewer_digits_say_so(t
     assert any("Declare the raster's nodata value to silence this" in w for w in lines)
 
 
+@pytest.mark.parametrize("block", [None, 5])
+def test_a_mask_without_ground_says_the_dtm_is_empty(tmp_path, block):
+    """A filter calling every valid cell an object (curvature on a 4 x 4 raster of a 5 m step at
+    0.5 m cells did): the DTM and nDSM are nodata everywhere, which the log now says (they were
+    written so without a word)."""
+    z, _ = scene()
+    z = z + 1.0                                  # every height above 0 m, the threshold given below
+    p = grid.write_array(tmp_path / "dsm.tif", np.where(np.isfinite(z), z, -9999.0), GT, 32633, nodata=-9999.0)
+    outs = {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif", "ndsm": tmp_path / "n.tif"}
+    lines = []
+    info = pipeline.run_file(ABOVE, p, outs, params={"threshold_m": 0.0}, block=block, log=lines.append)
+    valid = int(np.count_nonzero(np.isfinite(z)))
+    said = [w for w in lines if "called none of the" in w]
+    assert said == [f"Warning: The filter called none of the {valid} valid cell(s) ground (objects 99 %, low "
+                    "outliers 1 %): with no ground to interpolate from, the DTM and nDSM are nodata everywhere. "
+                    "Give a raster that reaches the ground around its objects, or try another method."]
+    assert said[0][9:] in info["warnings"]
+    ds = gdal.Open(str(tmp_path / "d.tif"))
+    assert (ds.ReadAsArray() == -9999.0).all()
+    ds = None
+    lines.clear()
+    info = pipeline.run_file(ABOVE, p, outs, block=block, log=lines.append)
+    assert not any("called none of the" in w for w in lines + info["warnings"])
+    assert pipeline.no_ground_message({OBJECT: 5}, {"mask": "m.tif"}) is None      # no DTM written
+
+
 def test_plan_block_pure():
     plan = pipeline.plan_block
     assert plan((500, 400), 3, block=77) == 77                        # given: as is
