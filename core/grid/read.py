@@ -397,6 +397,33 @@ def vertical_unit_factor(srs):
     return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
 
 
+#: Metres per unit of a band's stated unit (GDAL's unit type, ``gdal_edit.py -units`` or
+#: ``gdal_translate -a_unittype``: "m" or "ft" for heights), by its lower-case name.
+_US_FOOT = 1200.0 / 3937.0
+BAND_HEIGHT_UNITS = {
+    "m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0,
+    "ft": 0.3048, "foot": 0.3048, "feet": 0.3048, "international foot": 0.3048, "foot_international": 0.3048,
+    "us-ft": _US_FOOT, "ftus": _US_FOOT, "us survey foot": _US_FOOT, "us_survey_foot": _US_FOOT,
+    "foot_us": _US_FOOT, "us foot": _US_FOOT,
+    "cm": 0.01, "centimetre": 0.01, "centimeter": 0.01, "mm": 0.001, "millimetre": 0.001, "millimeter": 0.001,
+}
+
+
+def band_height_unit(band, z_to_m):
+    """``(metres per height unit, warning or None)``: the unit the band states for its values
+    (GDAL's unit type) when it names a length of :data:`BAND_HEIGHT_UNITS`, else ``z_to_m``
+    (the unit the CRS gives, :func:`cell_size_metres`). The band's own statement of its values
+    wins over the CRS's unit: a grid in US feet with heights in metres, or in metres with heights
+    in feet, is read as its band says."""
+    unit = (band.GetUnitType() or "").strip()
+    f = BAND_HEIGHT_UNITS.get(unit.lower())
+    if f is None or math.isclose(f, z_to_m, rel_tol=1e-9):
+        return z_to_m, None
+    return f, (f"The band states its heights are in '{unit}' ({f:.6g} m; its CRS would give {z_to_m:.6g} m): "
+               "they were converted to metres for the thresholds with the band's unit; outputs are written "
+               "back in it.")
+
+
 #: A projected CRS made for measuring (UTM, national and state grids: transverse Mercator, Lambert
 #: conformal conic...) keeps its scale within about 0.1 % of 1 over its zone; beyond 1 % the CRS
 #: does not keep distances (Web Mercator: 1 / cos(latitude), 1.62 at 52 deg) and its units are not
@@ -595,6 +622,9 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
                          "-a_srs EPSG:4326) first.")
     warns += w2
     b = ds.GetRasterBand(int(band))
+    z_to_m, unit_warning = band_height_unit(b, z_to_m)
+    if unit_warning:
+        warns.append(unit_warning)
     nodata = b.GetNoDataValue()
     dtype = gdal.GetDataTypeName(b.DataType)
     scale, offset = b.GetScale(), b.GetOffset()

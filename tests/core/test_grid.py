@@ -656,6 +656,54 @@ def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells
     assert grid.undeclared_nodata_warning(info, info.read()) is None
 
 
+def _with_unit(path, unit):
+    ds = gdal.Open(str(path), gdal.GA_Update)
+    ds.GetRasterBand(1).SetUnitType(unit)
+    ds = None
+    return path
+
+
+@pytest.mark.parametrize("crs,unit,z_to_m,warned", [
+    (32633, "ft", 0.3048, True),              # a UTM grid whose band says its heights are in feet
+    (32633, "US survey foot", 1200.0 / 3937.0, True),
+    (2263, "m", 1.0, True),                   # a state plane grid in US feet with heights in metres
+    (2263, "", 1200.0 / 3937.0, False),       # no unit stated: the CRS's
+    (32633, "metre", 1.0, False),
+    (32633, "furlong", 1.0, False),           # not a unit heights come in: the CRS's
+])
+def test_the_bands_stated_height_unit_wins_over_the_crs(tmp_path, crs, unit, z_to_m, warned):
+    """GDAL's unit type of the band (gdal_edit.py -units ft) says what its values are in: a UTM DSM
+    whose heights are in feet was read as metres (objects 6 ft high read as 6 m), a grid in US feet
+    with heights in metres as feet."""
+    a = np.full((6, 8), 1000.0, np.float32)
+    info = grid.open_dsm(_with_unit(tif(tmp_path, a, crs=crs), unit))
+    assert info.z_to_m == pytest.approx(z_to_m, rel=1e-12)
+    np.testing.assert_allclose(info.read(), 1000.0 * z_to_m, rtol=1e-6)
+    said = [w for w in info.warnings if "The band states its heights are in" in w]
+    assert bool(said) == warned and (not warned or f"'{unit}'" in said[0])
+
+
+def test_outputs_of_a_dsm_in_stated_feet_are_in_feet(tmp_path):
+    """The mask of a DSM whose band says feet is the mask of the same DSM in metres, its DTM is
+    written back in feet."""
+    from bare_earth.core import pipeline
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(90, 100), seed=3)
+    metres = tif(tmp_path, sc.dsm.astype(np.float32), gt=sc.geotransform, crs=sc.epsg, name="m.tif")
+    feet = _with_unit(tif(tmp_path, (sc.dsm / 0.3048).astype(np.float32), gt=sc.geotransform, crs=sc.epsg,
+                          name="ft.tif"), "ft")
+    for src, name in ((metres, "m"), (feet, "ft")):
+        pipeline.run_file("slopeprofile", src, {"mask": tmp_path / f"mask_{name}.tif",
+                                                "dtm": tmp_path / f"dtm_{name}.tif"})
+    read = {}
+    for name in ("mask_m", "mask_ft", "dtm_m", "dtm_ft"):
+        ds = gdal.Open(str(tmp_path / f"{name}.tif"))
+        read[name] = ds.ReadAsArray()
+        ds = None
+    np.testing.assert_array_equal(read["mask_ft"], read["mask_m"])
+    np.testing.assert_allclose(read["dtm_ft"] * 0.3048, read["dtm_m"], atol=2e-3)
+
+
 def test_undeclared_nodata_in_feet_and_scaled(tmp_path):
     """The stored -9999 is found whatever the unit and the scale the heights are read with."""
     a = np.full((6, 8), 1000.0, np.float32)
