@@ -542,9 +542,10 @@ def _ndsm_nodata(float_nodata):
 def _add_outputs(out, meth, outputs, float_nodata):
     """Create the requested outputs in ``out`` (a :class:`grid.OutputSet`)."""
     if outputs.get("dtm"):
-        out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
+        out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"], heights=True)
     if outputs.get("ndsm"):
-        out.add("ndsm", outputs["ndsm"], "Float32", nodata=_ndsm_nodata(float_nodata), descriptions=["nDSM"])
+        out.add("ndsm", outputs["ndsm"], "Float32", nodata=_ndsm_nodata(float_nodata), descriptions=["nDSM"],
+                heights=True)
     if outputs.get("mask"):
         out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
                 descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])

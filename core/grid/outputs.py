@@ -639,8 +639,10 @@ class OutputSet:
         self._committed = False
         self._options, self._cog = _WRITE_OPTIONS.get()
 
-    def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
-        """Create output ``key`` at ``path`` (written to a hidden work file beside it)."""
+    def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None,
+            heights=False):
+        """Create output ``key`` at ``path`` (written to a hidden work file beside it); an output of
+        ``heights`` (a DTM, an nDSM) states the height unit the input's band states."""
         _refuse_folder(str(path), os.path.join(os.path.abspath(str(path)), f"{key}.tif"))
         path = os.path.abspath(str(path))
         if self.info.path and os.path.abspath(str(self.info.path)) == path:
@@ -677,6 +679,8 @@ class OutputSet:
                 b.SetNoDataValue(float(nodata))
             if descriptions:
                 b.SetDescription(descriptions[k - 1])
+            if heights and self.info.unit_type:
+                b.SetUnitType(self.info.unit_type)
         if mask_style:
             style_mask_band(ds.GetRasterBand(1))
         self._items[key] = dict(path=path, tmp=work, ds=ds, driver=drv, dtype=dtype, mask_style=mask_style,

@@ -234,6 +234,8 @@ class DSMInfo:
     nodata_ranges : ``(low, high, include_low, include_high)`` ranges of heights (the raster's
         unit, scale and offset applied) that are nodata too: the additional no-data values a
         QGIS layer of the raster was given (Properties > Transparency)
+    unit_type : the height unit the band states (GDAL's unit type) when it names one of
+        :data:`BAND_HEIGHT_UNITS` (``z_to_m`` is then its), else ""; the DTM and nDSM outputs state it too
     """
     path: str
     band_index: int
@@ -256,6 +258,7 @@ class DSMInfo:
     georeferenced: bool = True
     gcps: tuple = ()
     gcp_wkt: str = ""
+    unit_type: str = ""
 
     @property
     def cells(self):
@@ -410,18 +413,20 @@ BAND_HEIGHT_UNITS = {
 
 
 def band_height_unit(band, z_to_m):
-    """``(metres per height unit, warning or None)``: the unit the band states for its values
+    """``(metres per height unit, warning or None, the unit's name or "")``: the unit the band states for its values
     (GDAL's unit type) when it names a length of :data:`BAND_HEIGHT_UNITS`, else ``z_to_m``
     (the unit the CRS gives, :func:`cell_size_metres`). The band's own statement of its values
     wins over the CRS's unit: a grid in US feet with heights in metres, or in metres with heights
     in feet, is read as its band says."""
     unit = (band.GetUnitType() or "").strip()
     f = BAND_HEIGHT_UNITS.get(unit.lower())
-    if f is None or math.isclose(f, z_to_m, rel_tol=1e-9):
-        return z_to_m, None
+    if f is None:
+        return z_to_m, None, ""
+    if math.isclose(f, z_to_m, rel_tol=1e-9):
+        return z_to_m, None, unit
     return f, (f"The band states its heights are in '{unit}' ({f:.6g} m; its CRS would give {z_to_m:.6g} m): "
                "they were converted to metres for the thresholds with the band's unit; outputs are written "
-               "back in it.")
+               "back in it."), unit
 
 
 #: A projected CRS made for measuring (UTM, national and state grids: transverse Mercator, Lambert
@@ -622,7 +627,7 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
                          "-a_srs EPSG:4326) first.")
     warns += w2
     b = ds.GetRasterBand(int(band))
-    z_to_m, unit_warning = band_height_unit(b, z_to_m)
+    z_to_m, unit_warning, unit_type = band_height_unit(b, z_to_m)
     if unit_warning:
         warns.append(unit_warning)
     nodata = b.GetNoDataValue()
@@ -633,7 +638,7 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
-                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset, unit_type=unit_type)
     if ds.GetGeoTransform(can_return_null=True) is None:
         info.georeferenced = False
         info.gcps = tuple((g.GCPX, g.GCPY, g.GCPZ, g.GCPPixel, g.GCPLine) for g in (ds.GetGCPs() or ()))

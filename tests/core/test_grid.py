@@ -702,6 +702,9 @@ def test_outputs_of_a_dsm_in_stated_feet_are_in_feet(tmp_path):
         ds = None
     np.testing.assert_array_equal(read["mask_ft"], read["mask_m"])
     np.testing.assert_allclose(read["dtm_ft"] * 0.3048, read["dtm_m"], atol=2e-3)
+    ds = gdal.Open(str(tmp_path / "dtm_ft.tif"))
+    assert ds.GetRasterBand(1).GetUnitType() == "ft"            # the DTM states it is in feet too
+    ds = None
 
 
 def test_undeclared_nodata_in_feet_and_scaled(tmp_path):
