@@ -676,8 +676,14 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 except ValueError:
                     number = float("nan")
                 if not math.isfinite(number):
-                    return False, tr("{} = '{}' is not a number: give a number{}.").format(
-                        label_of(d), text, tr(", or leave it out") if is_optional(d) else "")
+                    point = text.replace(",", ".", 1) if text.count(",") == 1 and "." not in text else ""
+                    try:
+                        comma = point != "" and math.isfinite(float(point))
+                    except ValueError:
+                        comma = False
+                    return False, tr("{} = '{}' is not a number: give a number{}{}.").format(
+                        label_of(d), text, tr(", or leave it out") if is_optional(d) else "",
+                        tr(" (with a decimal point: {})").format(point) if comma else "")
             elif d.type() == "boolean" and text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
                 return False, tr("{} = '{}' is not a yes/no value: give true or false.").format(label_of(d), text)
         return True, ""

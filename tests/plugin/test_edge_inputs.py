@@ -464,9 +464,12 @@ def test_dtm_layer_outside_the_dsm_warns_and_other_crs_is_reprojected(processing
     ({"BAND": "abc"}, r"\(BAND\) = 'abc' is not a number"),
     ({"SLOPE_THRESHOLD_DEG": "nan"}, r"\(SLOPE_THRESHOLD_DEG\) = 'nan' is not a number: give a number, or leave it"),
     ({"COG": "maybe"}, r"\(COG\) = 'maybe' is not a yes/no value"),
+    # a decimal comma (German, French... keyboards): the same value with a point is named
+    ({"SLOPE_THRESHOLD_DEG": "30,5"}, r"\(SLOPE_THRESHOLD_DEG\) = '30,5' is not a number: give a number, or "
+                                      r"leave it out \(with a decimal point: 30\.5\)"),
     ({"SLOPE_TRESHOLD_DEG": "30"}, r"SLOPE_TRESHOLD_DEG is no parameter of bareearth:slopeprofile"),
     ({"PROCESSES": "64"}, r"\(PROCESSES\) = 64, but this computer has [0-9]+ core\(s\)"),
-], ids=["threads_text", "band_text", "nan_text", "bool_text", "misspelt", "processes_beyond_cores"])
+], ids=["threads_text", "band_text", "nan_text", "bool_text", "decimal_comma", "misspelt", "processes_beyond_cores"])
 def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, message):
     """Values qgis_process passes as text that QGIS read as 0, false or "not given" (a run with other
     values than asked), a misspelt parameter name (silently left out) and more worker processes than
