@@ -212,7 +212,7 @@ def _crs_copy_problem(drv, crs_wkt, geotransform):
     ext = next(e for e, (d, _, _) in OUTPUT_FORMATS.items() if d == drv)
     messages = []
     try:
-        with _quiet_gdal(messages), without_side_files():
+        with _quiet_gdal(messages):        # side files on, as for the outputs (a CRS may live in .aux.xml)
             work = os.path.join(folder, "probe.tif")
             ds = gdal.GetDriverByName("GTiff").Create(work, 2, 2, 1, gdal.GDT_Float32)
             ds.SetGeoTransform(geotransform)
