@@ -579,9 +579,12 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
+            names = [(ds.GetRasterBand(k).GetDescription() or "").strip() for k in range(1, nb + 1)]
+            named = (" Its bands: " + ", ".join(f"{k} {n}" for k, n in enumerate(names, 1) if n) + "."
+                     if any(names) else "")       # PDAL's writers.gdal: min, max, mean, idw, count, stdev
             raise SeveralBands(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
-                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)),
-                               nb)
+                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb))
+                               + named, nb)
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")

@@ -44,6 +44,20 @@ def test_multiband_needs_band(tmp_path):
     assert info.band_index == 2
 
 
+def test_several_bands_named_when_they_have_descriptions(tmp_path):
+    """PDAL's writers.gdal writes six bands (min, max, mean, idw, count, stdev): the refusal names
+    them, so the lowest-point band is found without opening the file elsewhere."""
+    names = ["min", "max", "mean", "idw", "count", "stdev"]
+    p = tif(tmp_path, np.zeros((6, 5, 5), np.float32))
+    ds = gdal.Open(str(p), gdal.GA_Update)
+    for k, n in enumerate(names, 1):
+        ds.GetRasterBand(k).SetDescription(n)
+    ds = None
+    with pytest.raises(ValueError, match=r"6 bands.*BAND parameter \(1\.\.6\) or extract it first\. Its bands: "
+                                         r"1 min, 2 max, 3 mean, 4 idw, 5 count, 6 stdev\.$"):
+        grid.open_dsm(p)
+
+
 @pytest.mark.parametrize("dtype", ["CFloat32", "CInt16"])
 def test_complex_raster_refused(tmp_path, dtype):
     """A complex-valued raster is no DSM: before, its real parts were read as heights and the
