@@ -846,7 +846,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     info : dict
         ``refine_removed_share`` (bracketed, of the ground cells), ``refine_edge_removed_share``
         (edge spikes, of the ground cells), ``refine_slope``, ``refine_height_m``,
-        ``refine_edge_tolerance_m``, ``refine_reach_m``.
+        ``refine_edge_tolerance_m``, ``refine_reach_m``, and ``step_tops`` (the cells
+        :func:`find_step_tops` spared, among those the tests read: an array, for the caller to pop).
     """
     s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
     dh = max(float(tolerance_m), 1e-3)
@@ -877,5 +878,6 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground,
             "refine_smooth_kept_share": float(np.count_nonzero(smooth)) / n_ground,
             "refine_edge_removed_share": float(np.count_nonzero(spikes)) / n_ground, "refine_slope": s,
-            "refine_height_m": dh, "refine_edge_tolerance_m": et, "refine_reach_m": float(reach_m)}
+            "refine_height_m": dh, "refine_edge_tolerance_m": et, "refine_reach_m": float(reach_m),
+            "step_tops": tops}
     return new, info
