@@ -78,7 +78,7 @@ edge test found a retaining wall's top continued from neither side of a diagonal
 bracketed test took a platform's uneven edges (``benchmarks/sites.py``: the refinement's removals on the
 ``hillside`` and ``railway`` at 2 m were all true ground). A roof's edge has the same shape: such cells within
 :data:`ROOF_EDGE_CELLS` of a raised region or a detached level are the roof's (``info["roof_edge_cells"]``).
-Sites 5.17 -> 5.09 %, generalisation matrix 2.605 % either way, opengeos DTM RMSE 0.590 -> 0.595 m; largest row
+Sites 5.17 -> 5.08 %, generalisation matrix 2.605 % either way, opengeos DTM RMSE 0.590 -> 0.595 m; largest row
 regression ``autzen_trim`` 2 m +0.11.
 
 A flat roof wider than the windows of a majority of the members (a warehouse, a mall), or cut by
