@@ -210,7 +210,7 @@ def edge_spikes_reach(passes=EDGE_PASSES):
     return 2 * int(passes) + 1
 
 
-def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES):
+def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES, spared=None):
     """Known cells at the edge of the cells to fill that stand above every straight continuation of their neighbours.
 
     A cell bordering the cells to fill (one of its eight neighbours is in ``fill``) is a *spike*
@@ -257,6 +257,9 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
         :func:`.dtm_refine.continuation_tolerance`, at least ``tolerance_m``); None: not looked for.
     passes : int
         Passes (>= 1); the result depends on cells within :func:`edge_spikes_reach` cells.
+    spared : array_like of bool, optional
+        Cells never taken as spikes (``bareearth:dtm``: the upper edges of steps in the ground,
+        :func:`.dtm_refine.find_step_tops`); they stay sources of the continuations.
 
     Returns
     -------
@@ -291,6 +294,10 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
     np.copyto(core, z)
     np.copyto(core, np.float32(np.nan), where=fill)
     found = np.zeros((h, w), bool)
+    if spared is not None:
+        spared = np.asarray(spared, bool)
+        if spared.shape != z.shape:
+            raise ValueError(f"spared must have z's shape {z.shape}; got {spared.shape}.")
     test = fill
     tol = np.float32(tolerance_m)
     line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
@@ -299,6 +306,8 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
         # the known cells with a cell to fill (or a spike found by the last pass) among their neighbours
         edge = touching(test)
         edge &= np.isfinite(core)
+        if spared is not None:
+            edge &= ~spared
         cand = np.flatnonzero(edge)
         if cand.size == 0:
             break

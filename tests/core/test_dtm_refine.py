@@ -44,6 +44,8 @@ def test_steps_and_halo():
     # the floors' reach plus one, the smoothness test's 2 cells and the edge test's (fill.edge_spikes_reach: 7)
     assert dr.refine_halo((1.0, 1.0), 12.0) == 13 + 2 + 7
     assert dr.refine_halo((4.0, 4.0), 12.0) == 4 + 2 + 7
+    # floors shorter than the step-top test's reach (find_step_tops: 3 cells and the smoothness test's 2)
+    assert dr.refine_halo((20.0, 20.0), 12.0) == dr.STEP_TOP_REACH + 7 == 5 + 7
 
 
 def test_single_bump_on_flat_ground():
@@ -612,3 +614,103 @@ def test_continuation_tolerance_exact():
     assert dr.continuation_tolerance(0.1) == pytest.approx(3.0 * math.sqrt(6.0) * 0.1)
     assert dr.edge_tolerance(0.5, 0.1) == 0.5 < dr.continuation_tolerance(0.1)   # unbounded by t
     assert math.isnan(dr.continuation_tolerance(float("nan")))
+
+
+def test_find_step_tops_exact():
+    """A step's top: three ground cells in a line continue to it and the ground beyond drops; a hedge on the
+    edge, a wall's foot, a low drop or rough vegetation whose cells happen to line up is none."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -3.0                                  # a 3 m wall: the terrace's edge at column 4
+    ground = np.ones(z.shape, bool)
+    tops = dr.find_step_tops(z, ground, ground, tolerance_m=0.5)
+    np.testing.assert_array_equal(tops.any(axis=0), np.arange(9) == 4)     # not the foot (column 3)
+    assert tops[:, 4].all()
+    hedge = z.copy()
+    hedge[:, 4] = 1.5                                # a hedge on the edge stands above the line
+    assert not dr.find_step_tops(hedge, ground, ground, tolerance_m=0.5).any()
+    only_ground = ground.copy()
+    only_ground[:, 6] = False                        # the line's cells must be ground
+    assert not dr.find_step_tops(z, ground, only_ground, tolerance_m=0.5)[:, 4].any()
+    assert dr.find_step_tops(z, ground & (np.arange(9) == 4), ground, tolerance_m=0.5).sum() == 7   # cells
+    # a drop smaller than step_m is no step
+    low = np.where(z < 0, np.float32(-0.8), z)
+    assert dr.find_step_tops(low, ground, ground, tolerance_m=0.3)[:, 4].all()
+    assert not dr.find_step_tops(low, ground, ground, tolerance_m=0.3, step_m=1.0).any()
+    # rough shrubs (1.5 / 3 m alternating) line up along a diagonal: tops unless the line lies on smooth ground
+    rough = np.zeros((12, 12), np.float32)
+    i, j = np.mgrid[0:12, 6:12]
+    rough[:, 6:] = 1.5 + 1.5 * ((i + j) % 2)
+    g = np.ones(rough.shape, bool)
+    assert dr.find_step_tops(rough, g, g, tolerance_m=0.5).any()
+    assert not dr.find_step_tops(rough, g, g, tolerance_m=0.5, smooth_m=1.0).any()
+    assert dr.find_step_tops(z, ground, ground, tolerance_m=0.5, smooth_m=1.0)[:, 4].all()   # the terrace is smooth
+    nan = z.copy()
+    nan[:, 5] = np.nan                               # nodata never makes a line
+    assert not dr.find_step_tops(nan, ground, ground, tolerance_m=0.5).any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.find_step_tops(z, ground, ground, tolerance_m=0.0)
+    with pytest.raises(ValueError, match="shape"):
+        dr.find_step_tops(z, ground[:3], ground, tolerance_m=0.5)
+
+
+def _terrace_with_house():
+    """A terrace 3 m above lower ground falling away, its edge row 5; a house at its back whose corner comes
+    within two cells of the edge; the vote took a stretch of the edge (columns 6-8) for an object."""
+    z = np.zeros((12, 14), np.float32)
+    z[:6] = 3.0
+    z[6:] = -0.2 * np.arange(1, 7, dtype=np.float32)[:, None]
+    z[0:4, 6:11] = 9.0
+    vote = np.where(z > 5, OBJECT, GROUND).astype(np.uint8)
+    vote[5, 6:9] = OBJECT
+    return z, vote
+
+
+def test_refine_ground_keeps_a_terrace_edge_beside_a_house():
+    """issue 13 (core.synthetic_sites hillside and railway): the upper edge of a step in the ground beside an
+    object the edge test took, since along a diagonal the object hides one side and the lower ground does not
+    continue to it; as a step's top (find_step_tops) it stays ground."""
+    from bare_earth.core.fill import find_edge_spikes
+    z, vote = _terrace_with_house()
+    fill = vote == OBJECT
+    spikes = find_edge_spikes(z, fill, 0.5, line_tolerance_m=0.5)
+    assert spikes[5, 4] and spikes[5, 5]                     # the edge test alone takes the edge
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1, reach_m=12.0,
+                                  edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    np.testing.assert_array_equal(mask, vote)                # every ground cell stays ground
+    assert info["refine_edge_removed_share"] == 0.0
+    # a bush on the same edge stands above the terrace's line: still taken
+    z[5, 4] = 4.5
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert mask[5, 4] == OBJECT
+
+
+def test_refine_ground_keeps_a_platform_edge_between_tracks():
+    """A platform 1.2 m high and 6 cells wide between lower ground on both sides (a railway station): its
+    edges, bracketed by the tracks within the reach and not smooth, were taken as a low object's; they are
+    steps' tops of its smooth top and stay ground (the rows beside them, no step's top and not smooth, are
+    still the bracketed test's), while a hedge as high is taken whole."""
+    z = np.zeros((20, 30), np.float32)
+    z += np.float32(0.02) * np.arange(30, dtype=np.float32)        # a gentle fall along the tracks
+    z[7:13] += 1.2
+    vote = np.full(z.shape, GROUND, np.uint8)
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert (mask[[7, 12]] == GROUND).all() and (mask[9:11] == GROUND).all()
+    hedge = z.copy()
+    hedge[7:13] += ((np.arange(30) % 2) * 1.0)[None, :]            # rough: 1.2 and 2.2 m alternating
+    mask, _ = dr.refine_ground(hedge, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert (mask[7:13] == OBJECT).mean() > 0.9
+
+
+def test_refine_ground_with_step_tops_in_blocks_equals_one_pass():
+    """Blocks read with refine_halo cells around give the one pass on a quarry (steps' tops spared)."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("quarry", 2.0, "lowest")
+    vote = s.mask.astype(np.uint8)
+    kw = dict(tolerance_m=0.5, slope=0.5, reach_m=12.0, edge_tolerance_m=0.5, line_tolerance_m=1.0)
+    whole, _ = dr.refine_ground(s.dsm, vote, s.cell_size, **kw)
+    got = in_blocks(lambda wr, wc: dr.refine_ground(s.dsm[wr, wc], vote[wr, wc], s.cell_size, **kw)[0],
+                    s.dsm.shape, 48, dr.refine_halo(s.cell_size, 12.0))
+    np.testing.assert_array_equal(got, whole)

@@ -399,3 +399,16 @@ def test_edge_spikes_along_one_line_include_the_spikes_of_every_line():
     assert old.any() and (new & old).sum() == old.sum() and new.sum() > old.sum()
     with pytest.raises(ValueError, match="line_tolerance_m"):
         find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.0)
+
+
+def test_edge_spikes_spared_cells_are_never_spikes_and_stay_sources():
+    z = np.zeros((5, 7), np.float32)
+    z[:, 4:] = 3.0
+    z[2, 3] = 1.0                                    # a raised cell at the object's edge
+    fill = z > 2.0
+    assert find_edge_spikes(z, fill, 0.5)[2, 3]
+    spared = np.zeros(z.shape, bool)
+    spared[2, 3] = True
+    assert not find_edge_spikes(z, fill, 0.5, spared=spared).any()
+    with pytest.raises(ValueError, match="spared"):
+        find_edge_spikes(z, fill, 0.5, spared=spared[:2])
