@@ -94,9 +94,10 @@ class _CheckedResolve:
 
 #: Memory a window of a method takes at its peak in :func:`.pipeline.run_file`, bytes per cell of
 #: the window (its heights, the method's temporaries, the outputs' arrays, GDAL's cache): for a
-#: method that states none, the largest measured (``benchmarks/speed.py --sizes 16``, stage ``file``,
-#: two threads: "extra MB" x 2^20 over the cells, 81.5 for dtm; 37.6-61.1 for the others), rounded up.
-DEFAULT_BYTES_PER_CELL = 84.0
+#: method that states none, the largest measured, rounded up (``benchmarks/speed.py --sizes 16``,
+#: stage ``file``, two threads: "extra MB" x 2^20 over the cells, 81.5 for dtm, 37.6-61.1 for the
+#: others; dtm in the 7040 x 7040 windows of a blocked 12000 x 12000 run: 91.4, its peak less the imports).
+DEFAULT_BYTES_PER_CELL = 92.0
 
 
 @dataclass(frozen=True)

@@ -591,18 +591,18 @@ def test_run_file_threads_method_one_window_with_its_threads(tmp_path):
 def test_plan_block_large_rasters_read_little_within_the_memory_budget():
     """Above IN_MEMORY_CELLS the blocks come from the halo and the memory budget, not a fixed 2048:
     dtm's 40000 x 40000 cells at 1 m with a halo of 2176 cells read 9.2 x the raster in blocks of 2048
-    (each window 41 Mcells for 4.2 of output); within 11 GB at 84 bytes a cell they read < 2.5 x, and
+    (each window 41 Mcells for 4.2 of output); within 11 GB at 92 bytes a cell (dtm's) they read 2.56 x, and
     every window held at once fits the budget."""
     plan, amp, largest = pipeline.plan_block, pipeline.read_amplification, pipeline.largest_window
     big, gb = (40000, 40000), 1 << 30
     assert amp(big, 2048, 2176) > 9
-    b = plan(big, 2176, workers=2, threads=True, budget=11 * gb, bytes_per_cell=84)
-    assert amp(big, b, 2176) < 2.5 and largest(big, b, 2176) * 84 <= 11 * gb
+    b = plan(big, 2176, workers=2, threads=True, budget=11 * gb, bytes_per_cell=92)
+    assert amp(big, b, 2176) < 2.6 and largest(big, b, 2176) * 92 <= 11 * gb
     # the same budget shared by two windows side by side (a method without threads inside a window)
-    b2 = plan(big, 2176, workers=2, budget=11 * gb, bytes_per_cell=84)
-    assert 2 * largest(big, b2, 2176) * 84 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
-    assert plan(big, 2176, processes=3, threads=True, budget=11 * gb, bytes_per_cell=84) == \
-        plan(big, 2176, workers=3, budget=11 * gb, bytes_per_cell=84)          # processes: a window each
+    b2 = plan(big, 2176, workers=2, budget=11 * gb, bytes_per_cell=92)
+    assert 2 * largest(big, b2, 2176) * 92 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
+    assert plan(big, 2176, processes=3, threads=True, budget=11 * gb, bytes_per_cell=92) == \
+        plan(big, 2176, workers=3, budget=11 * gb, bytes_per_cell=92)          # processes: a window each
     rng = np.random.default_rng(0)
     for _ in range(40):
         shape = tuple(int(v) for v in rng.integers(5001, 60000, 2))
@@ -655,11 +655,11 @@ def test_run_file_above_in_memory_cells_blocked_equals_one_pass(tmp_path, monkey
     vrt = str(tmp_path / "big.vrt")
     gdal.Translate(vrt, src, format="VRT", width=5000, height=5008, resampleAlg="nearest")
     assert 5008 * 5000 > pipeline.IN_MEMORY_CELLS
-    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", "300")       # 300 MB at 84 bytes a cell: windows of 3.7 Mcells
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", "300")       # 300 MB at 92 bytes a cell: windows of 3.4 Mcells
     logs = []
     info = pipeline.run_file(meth, vrt, outputs(tmp_path, "mask", "dtm"), workers=2, log=logs.append)
     assert info["blocks"] > 4 and {w for _, w in seen} == {2}
-    assert max(a * b for (a, b), _ in seen) * 84 <= 300 * 2 ** 20
+    assert max(a * b for (a, b), _ in seen) * pipeline.DEFAULT_BYTES_PER_CELL <= 300 * 2 ** 20
     assert any(s.startswith("Blocks of ") and "reading 1.0" in s for s in logs), logs
     seen.clear()
     one = pipeline.run_file(meth, vrt, outputs(tmp_path, "mask", "dtm", prefix="one_"), block=5008)
