@@ -486,8 +486,11 @@ def _pid_alive(pid):
 
 def remove_stale_partials(path):
     """Remove the work files of earlier runs of the output ``path`` that were killed (their
-    process is gone, or it is this process and the file is not being written); returns their
-    names. Also removes the ``<name>.partial-<id><ext>`` files of older versions."""
+    process is gone, or it is this process and the file is not being written), and the work
+    files of any other output in its folder whose process is gone (a run killed by SIGTERM or
+    a crash while writing another name there); returns their names. Only names of the writer's
+    exact pattern (``.<stem>.<pid of 10 digits>-<8 hex>.partial`` and its sidecars) are
+    touched. Also removes the ``<name>.partial-<id><ext>`` files of older versions."""
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
     root, ext = os.path.splitext(base)
@@ -501,11 +504,12 @@ def remove_stale_partials(path):
     for name in names:
         full = os.path.join(folder, name)
         m = _PARTIAL_RE.fullmatch(name)
-        if m and m.group("stem") == stem:
+        if m:
             pid = int(m.group("pid"))
             work = full[:len(full) - len(m.group("rest") or "")]
-            if (pid != os.getpid() and _pid_alive(pid)) or work in _LIVE:
-                continue
+            if work in _LIVE or (pid == os.getpid() and m.group("stem") != stem) or (
+                    pid != os.getpid() and _pid_alive(pid)):
+                continue     # being written, this process's for another output, or its process runs
         elif not old.fullmatch(name):
             continue
         try:

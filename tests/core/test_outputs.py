@@ -204,6 +204,27 @@ def test_killed_run_leftovers_removed_by_the_next_run_of_that_output(tmp_path):
     assert _read(tmp_path / "dtm.tif")[1, 1] == 100.25 + 0.25 * 7
 
 
+def test_killed_runs_leftovers_of_other_outputs_removed_when_their_process_is_gone(tmp_path):
+    """A run killed (SIGTERM, a crash) while writing ``b.tif`` leaves ``.b.<pid>-<hex>.partial`` and its
+    sidecar; the next run writing anything into that folder removes them once that pid is gone. Work
+    files of running processes, this process's own and any name off the writer's exact pattern stay."""
+    info = _info(tmp_path)
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__))))
+    code = KILLED_RUN.format(plugins=plugins, dsm=info.path, dtm=str(tmp_path / "b.tif"))
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 9
+    (left,) = _partials(tmp_path)
+    (tmp_path / (left + ".aux.xml")).write_text("<PAMDataset/>")        # its sidecar
+    alive = f".c.{os.getppid():010d}-0123abcd.partial"                  # another run's, still running
+    mine = f".d.{os.getpid():010d}-0123abcd.partial"                    # this process's, another output
+    kept = [alive, mine, ".e.12345-0123abcd.partial", ".e.0000012345-0123abcd.partials",
+            "e.0000012345-0123abcd.partial", ".e.0000012345-0123ABCD.partial", "f.partial", "g.partial.tif"]
+    for name in kept:
+        (tmp_path / name).write_bytes(b"x")
+    _write(info, {"dtm": tmp_path / "a.tif"})
+    assert _partials(tmp_path) == sorted(kept)
+    assert _read(tmp_path / "a.tif")[1, 1] == 100.25 + 0.25 * 7
+
+
 def test_a_running_output_is_not_taken_for_a_leftover(tmp_path):
     info = _info(tmp_path)
     with grid.OutputSet(info) as first:
