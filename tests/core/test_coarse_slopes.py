@@ -48,11 +48,16 @@ def hillside():
     return terraced_hillside()
 
 
-@pytest.mark.parametrize("method", ["curvature"])
+#: Share of the hillside's ground each filter keeps at least (before this issue's changes:
+#: curvature 93.0 %, rascor 76.6 %; its terrace edges are taken for walls' tops).
+KEPT = {"curvature": 0.99, "rascor": 0.82}
+
+
+@pytest.mark.parametrize("method", sorted(KEPT))
 def test_terraced_hillside_at_4m_stays_ground_and_its_trees_objects(hillside, method):
     z, trees = hillside
     assert 20 < trees.sum() < 0.1 * trees.size
     res = run_array(method, z, (4.0, 4.0), {})
     removed = res.mask != 0
-    assert np.mean(~removed[~trees]) >= 0.99, method      # curvature before: 93.0 % of the ground kept
+    assert np.mean(~removed[~trees]) >= KEPT[method], method
     assert np.mean(removed[trees]) >= 0.9, method
