@@ -349,18 +349,28 @@ def _retest_step3_at_terrain_steps(st, cfg, steps):
     upper point of the pair (the wall tops: 4 % of a quarry of 6 m benches, 1 % of a river
     between walls). Jacobsen (2004) protects such edges with break lines, which no comparison
     crosses; had they been drawn, step 3 would have compared those cells with their own level
-    only. The object cells step 3 removed within one cell of a line, in groups running further
-    than a building as the lines do (a wall top runs along its wall), are tested again, with the
-    lines' regions (:func:`~.regions.break_regions`), against the points kept, and given back
-    where that test keeps them.
+    only. The object cells step 3 removed within one cell of a line, in groups that run further
+    than a building together with the lines they lie along (a wall top runs along its wall; on a
+    rough hillside at coarse cells step 3 removed only every other cell of a terrace's edge, whose
+    pieces alone are short), are tested again, with the lines' regions
+    (:func:`~.regions.break_regions`), against the points kept, and given back where that test
+    keeps them; the pieces that run that far only with their lines must also continue a kept cell
+    of their region (:func:`_continues_kept_level`: a crown beside a terrace wall does not).
+    Lidar ``hexbin-crop`` (rock steps on a 21 degree hillside): 1 / 2 / 4 m 1.83 / 2.43 / 12.11 ->
+    1.75 / 2.34 / 11.78 % total error, no row of the generalisation matrix worse; a terraced
+    hillside at 4 m (tests/core/test_coarse_slopes.py) 76.6 -> 84.3 % of its ground kept, every
+    tree still found.
     """
     near = ndimage.binary_dilation(steps, np.ones((3, 3), bool))
     cand = near & (st.step == 3) & (st.mask == OBJECT)
     if not cand.any():
         return
     # a wall top runs along its wall, longer than a building as the terrain's lines do (the edge
-    # of a box on a steep hill, whose one wall no jump answers, is as short as the box)
-    cand &= longer_than(cand, cfg.cell, cfg.max_building_m)
+    # of a box on a steep hill, whose one wall no jump answers, is as short as the box); measured
+    # with the lines it lies along (the removed cells of a rough terrace edge are pieces of it,
+    # which must then continue the kept level too)
+    alone = longer_than(cand, cfg.cell, cfg.max_building_m)
+    cand &= alone | longer_than(cand | steps, cfg.cell, cfg.max_building_m)
     if not cand.any():
         return
     # tested in tiles holding candidates, each with the 3 cells step 3 reads around it (the tiles'
@@ -381,6 +391,7 @@ def _retest_step3_at_terrain_steps(st, cfg, steps):
                                               labels=st.labels[win], cell_rise_m=rise, bend_m=cfg.terrain_bend_m)
         core = (slice(a0 - w0, a1 - w0), slice(b0 - v0, b1 - v0))
         back[a0:a1, b0:b1] = cand[a0:a1, b0:b1] & ~hi[core] & ~lo[core]
+    back &= alone | _continues_kept_level(st, cfg, back & ~alone)
     idx = np.flatnonzero(back)
     if not idx.size:
         return
@@ -389,6 +400,41 @@ def _retest_step3_at_terrain_steps(st, cfg, steps):
     st.step.reshape(-1)[idx] = 0
     st.keep.reshape(-1)[idx] = True
     st.step_restored = int(idx.size)
+
+
+def _continues_kept_level(st, cfg, cand):
+    """The cells of ``cand`` that continue a kept cell of their own break-line region: a neighbour
+    (8 directions) kept, in the same region, within step 3's tolerance of a pair
+    (:func:`_step3_tolerance`: ``k sqrt(2) sigma``, widened by the terrain's bend).
+
+    A wall's top is the edge of the level above it and continues it, along the edge or behind it;
+    the cells given back beside a terrain step must show that, not only pass step 3 again among
+    other candidates: the cells of a crown beside a terrace wall, tested together, shield each
+    other (each pair within a crown differs by little) while every kept cell around them lies
+    metres lower. No rise of the terrain's slope is allowed here: at coarse cells on hills (24 m)
+    a box 20 m high stands within that rise of the ground uphill."""
+    tol = _step3_tolerance(cfg)
+    rows, cols = cand.shape
+    r, c = np.nonzero(cand)
+    ok = np.zeros(r.size, bool)
+    zc = st.z[r, c]
+    lab = st.labels[r, c] if st.labels is not None else None
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            rr, cc = r + dr, c + dc
+            inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            rr, cc = np.clip(rr, 0, rows - 1), np.clip(cc, 0, cols - 1)
+            near = inside & st.keep[rr, cc] & ~cand[rr, cc]
+            if lab is not None:
+                near &= st.labels[rr, cc] == lab
+            with np.errstate(invalid="ignore"):
+                near &= np.abs(zc - st.z[rr, cc]) <= tol
+            ok |= near
+    out = np.zeros(cand.shape, bool)
+    out[r[ok], c[ok]] = True
+    return out
 
 
 def _step5_profiles(st, cfg, progress):
