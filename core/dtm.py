@@ -59,7 +59,11 @@ ground's heights, :func:`~.estimate.lowest_point_spread`, from the noise of the 
 the spacing of independent heights, :func:`~.estimate.repeated_height_share`, on the terrain's steep
 slope), at most ``t``; a bracketed cell is kept as smooth ground when its own neighbourhood is smooth or
 when the second differences reading ground only, at least half of them, are (an object's step beside
-a dike's crest is not the ground's roughness). ``info["edge_tolerance_rule"]`` gives the tolerance.
+a dike's crest is not the ground's roughness). ``info["edge_tolerance_rule"]`` gives the tolerance. The band
+of ground along the objects' edges standing more than the edge tolerance (and at most ``t``) above the plane of
+the ground beyond it, with no ground within two cells as high, is an object too
+(:func:`.dtm_refine.find_raised_band`: low vegetation whose cells continue each other along a crown's edge);
+``info["raised_band_rule"]`` says how much it took.
 The edge test also looks along each line through such a cell (rows, columns, diagonals): where the
 ground continues to it from neither side of a line (above the continuation of one side by more than three
 standard deviations of a continuation on ground, :func:`.dtm_refine.continuation_tolerance`, unbounded,
@@ -178,6 +182,7 @@ from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, without_far_heights
 from .dtm_coarse import CoarseGrid, coarse_factor, coarsen, coarsen_flags
 from .dtm_refine import (
+    BAND_PLANE_HALF_M,
     REACH_M,
     SMOOTH_RATIO,
     continuation_cells,
@@ -889,7 +894,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
     mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                   reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
-                                  line_tolerance_m=line_tolerance_m)
+                                  line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m)
     tops = refined.pop("step_tops")
     info.update(refined)
     info["edge_tolerance_rule"] = (
@@ -898,6 +903,13 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         "the spread of ground heights from the ground's noise and the spacing of independent heights on the "
         "terrain's slope), at most the decision threshold {:g} m").format(refined["refine_edge_tolerance_m"],
                                                                           tolerance_m)
+    if refined["refine_band_removed_share"] > 0:
+        info["raised_band_rule"] = (
+            "{:.2%} of the voted ground: cells of the band of ground along the objects' edges standing more than "
+            "{:.3f} m (the edge tolerance) and at most {:g} m (the decision threshold) above the plane of the "
+            "ground beyond the band within {:g} m are objects (low vegetation along a crown's or a hedge's "
+            "edge)").format(refined["refine_band_removed_share"], refined["refine_band_tolerance_m"], tolerance_m,
+                            BAND_PLANE_HALF_M)
     # raised regions wider than the vote's windows: voted ground standing on steps above the ground around;
     # with workers > 1 found in a second thread while the detached levels below (which read the same mask,
     # neither changing it) are looked for
