@@ -612,3 +612,46 @@ def test_continuation_tolerance_exact():
     assert dr.continuation_tolerance(0.1) == pytest.approx(3.0 * math.sqrt(6.0) * 0.1)
     assert dr.edge_tolerance(0.5, 0.1) == 0.5 < dr.continuation_tolerance(0.1)   # unbounded by t
     assert math.isnan(dr.continuation_tolerance(float("nan")))
+
+
+def _worst_second_difference_reference(z, r, c):
+    """_worst_second_difference as first written: gathers from a copy of the raster in a frame of NaN."""
+    h, w = z.shape
+    pad = 2
+    wp = w + 2 * pad
+    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
+    zp[pad:-pad, pad:-pad] = z
+    flat = zp.ravel()
+    idx = (r + pad) * wp + (c + pad)
+    worst = np.zeros(idx.size, np.float32)
+    count = np.zeros(idx.size, np.int32)
+    for a in (-1, 0, 1):
+        for b in (-1, 0, 1):
+            p = idx + (a * wp + b)
+            mid = 2 * flat[p]
+            for step in (1, wp):
+                d = np.abs(flat[p - step] - mid + flat[p + step])
+                count += np.isfinite(d)
+                np.fmax(worst, d, out=worst)
+    return worst, count
+
+
+@pytest.mark.parametrize("chunk", [5, 1 << 14])
+@pytest.mark.parametrize("seed", range(3))
+def test_worst_second_difference_gathered_equals_framed_copy(monkeypatch, chunk, seed):
+    """The heights gathered per chunk of cells (NaN beyond the raster; ``keep``: NaN outside it) give the
+    framed copy's differences and counts exactly, at the raster's edges and corners and beside nodata."""
+    monkeypatch.setattr(dr, "SMOOTH_CHUNK", chunk)
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0.0, 2.0, (23, 31)).astype(np.float32)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    keep = rng.random(z.shape) < 0.7
+    cells = rng.random(z.shape) < 0.4
+    cells[0, 0] = cells[-1, -1] = cells[0, -1] = cells[-1, 0] = True
+    r, c = np.nonzero(cells)
+    for k, zz in ((None, z), (keep, np.where(keep, z, np.float32(np.nan)))):
+        worst, count = dr._worst_second_difference(z, r, c, keep=k)
+        ref_w, ref_c = _worst_second_difference_reference(zz, r, c)
+        np.testing.assert_array_equal(worst, ref_w)
+        np.testing.assert_array_equal(count, ref_c)
+        assert worst.dtype == np.float32 and count.min() < 18 and (k is not None or count.max() == 18)
