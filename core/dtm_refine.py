@@ -159,10 +159,12 @@ Cost: per line two floors by min-plus doubling (``log2 n`` passes each), no fill
 bounded, so blocks equal one pass with :func:`refine_halo` cells more.
 """
 import math
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
 
+from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
 from .fill import edge_spikes_reach, find_edge_spikes
 
@@ -669,7 +671,7 @@ def _floor_flat(zg, n, di, dj, inc, pad):
     return rp[:, :cols]
 
 
-def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
+def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, pool=None):
     """Ground cells standing above lower ground on both sides of a line (bool, same shape).
 
     Parameters
@@ -686,6 +688,9 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
         ``dh``: how far above both floors a cell must stand (> 0).
     reach_m : float
         Length of each floor, metres.
+    pool : Executor, optional
+        Threads that may take some of the bands of rows (:func:`~.blocks.run_sharing`); the same result
+        without.
 
     Returns
     -------
@@ -707,31 +712,37 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
     halo = max(abs(di) * n for (di, dj), n in steps.items())
     rows = z.shape[0]
     out = np.zeros(z.shape, bool)
-    # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact)
-    for a in range(0, rows, _BAND_ROWS):
-        b = min(rows, a + _BAND_ROWS)
-        lo, hi = max(0, a - halo), min(rows, b + halo)
-        zb = z[lo:hi]
-        zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
-        zt = z[a:b]
-        top = zt - np.float32(height_m)               # above a floor: floor < z - dh
-        hit = np.zeros(zt.shape, bool)
-        for (di, dj), n in steps.items():
-            inc = float(slope) * math.hypot(di * dy, dj * dx)
-            both = None
-            for sdi, sdj in ((di, dj), (-di, -dj)):
-                # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
-                # along a row none: the floors of the band's rows only, from the same terms
-                r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
-                below = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0] < top
-                both = below if both is None else np.logical_and(both, below, out=both)
-            hit |= both
-        out[a:b] = hit & ground[a:b] & np.isfinite(zt)
+    # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact); each band
+    # writes its own rows of ``out``, so the bands may run in any order, on any thread
+    run_sharing([partial(_bracketed_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps, float(slope),
+                         float(height_m), dx, dy, out) for a in range(0, rows, _BAND_ROWS)], pool)
     return out
 
 
+def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out):
+    """:func:`find_bracketed` on the rows ``a:b`` (read with ``halo`` rows around them) into ``out[a:b]``."""
+    rows = z.shape[0]
+    lo, hi = max(0, a - halo), min(rows, b + halo)
+    zb = z[lo:hi]
+    zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
+    zt = z[a:b]
+    top = zt - np.float32(height_m)               # above a floor: floor < z - dh
+    hit = np.zeros(zt.shape, bool)
+    for (di, dj), n in steps.items():
+        inc = slope * math.hypot(di * dy, dj * dx)
+        both = None
+        for sdi, sdj in ((di, dj), (-di, -dj)):
+            # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
+            # along a row none: the floors of the band's rows only, from the same terms
+            r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
+            below = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0] < top
+            both = below if both is None else np.logical_and(both, below, out=both)
+        hit |= both
+    out[a:b] = hit & ground[a:b] & np.isfinite(zt)
+
+
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None):
+                  line_tolerance_m=None, pool=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -755,6 +766,9 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
         Tolerance of the edge test along one line (:func:`~.fill.find_edge_spikes`'s
         ``line_tolerance_m``), metres, at least the edge tolerance (``bareearth:dtm``:
         :func:`continuation_tolerance`); None or NaN: not looked for.
+    pool : Executor, optional
+        Threads that may take some of the bands and chunks of cells of :func:`find_bracketed` and
+        :func:`~.fill.find_edge_spikes`; the same result without.
 
     Returns
     -------
@@ -772,7 +786,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
     dh = max(float(tolerance_m), 1e-3)
     ground = mask == GROUND
-    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m)
+    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, pool=pool)
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness
     smooth = find_smooth(z, out, SMOOTH_RATIO * dh, ground=ground)
     out &= ~smooth
@@ -782,7 +796,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     # around it by more than the edge tolerance (fill.find_edge_spikes)
     et = dh if edge_tolerance_m is None else min(dh, max(float(edge_tolerance_m), 1e-3))
     lt = None if line_tolerance_m is None or not np.isfinite(line_tolerance_m) else max(et, float(line_tolerance_m))
-    spikes = find_edge_spikes(z, ((new == OBJECT) | (new == LOW)) & np.isfinite(z), et, line_tolerance_m=lt)
+    spikes = find_edge_spikes(z, ((new == OBJECT) | (new == LOW)) & np.isfinite(z), et, line_tolerance_m=lt,
+                              pool=pool)
     new[spikes] = OBJECT
     n_ground = max(1, int(np.count_nonzero(ground)))
     info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground,

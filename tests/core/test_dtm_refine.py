@@ -655,3 +655,27 @@ def test_worst_second_difference_gathered_equals_framed_copy(monkeypatch, chunk,
         np.testing.assert_array_equal(worst, ref_w)
         np.testing.assert_array_equal(count, ref_c)
         assert worst.dtype == np.float32 and count.min() < 18 and (k is not None or count.max() == 18)
+
+
+@pytest.mark.parametrize("band_rows", [3, 64])
+def test_refine_ground_with_a_pool_equals_one_thread(monkeypatch, band_rows):
+    """The bands of find_bracketed and the chunks of the edge test taken by a second thread give the
+    mask and the info of one thread exactly (bands of a few rows: many bands, each with its halo)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core import fill
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    monkeypatch.setattr(fill, "EDGE_CHUNK", 11)
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 0.2, (41, 47)).astype(np.float32)
+    z[rng.random(z.shape) < 0.04] += 1.5                          # low objects bracketed by ground
+    z[20:28, 10:30] += 4.0
+    z[rng.random(z.shape) < 0.02] = np.nan
+    mask = np.where(z > 3.0, OBJECT, GROUND).astype(np.uint8)
+    mask[np.isnan(z)] = NODATA
+    kw = dict(tolerance_m=0.5, slope=0.2, reach_m=6.0, edge_tolerance_m=0.4, line_tolerance_m=0.6)
+    ref, ref_info = dr.refine_ground(z, mask, (1.0, 1.0), **kw)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got, info = dr.refine_ground(z, mask, (1.0, 1.0), **kw, pool=pool)
+    np.testing.assert_array_equal(got, ref)
+    assert info == ref_info and info["refine_removed_share"] > 0 and info["refine_edge_removed_share"] > 0
