@@ -11,7 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..blocks import run_sharing
-from ..common import report, sub_progress
+from ..common import label8, report, sub_progress
 from ..estimate import block_expand, smooth_parts
 from .grey import (
     S8,
@@ -180,7 +180,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     if not cand.any():
         report(progress, 0.9)
         return none, Rc.ravel()[none]
-    lab, n = ndimage.label(cand, S8)
+    lab, n = label8(cand)                         # sparse at the fine steps: by runs
     report(progress, 0.75)
     # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
     # than the terrain can rise over one (diagonal) cell, plus 2 dh0
