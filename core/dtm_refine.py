@@ -166,6 +166,7 @@ from scipy import ndimage
 
 from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
+from .common import cells_of
 from .fill import edge_spikes_reach, find_edge_spikes
 
 #: Shortest reach of the floors, metres (steep terrain): a kept object is bracketed by ground
@@ -342,7 +343,7 @@ def find_smooth(z, cells, height_m, ground=None):
         every one reading ground only, when they are at least half of those it has).
     """
     z = np.asarray(z, np.float32)
-    r, c = np.nonzero(cells)
+    r, c = cells_of(cells)
     worst, count = _worst_second_difference(z, r, c)
     ok = worst <= height_m
     if ground is not None:
@@ -523,7 +524,7 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
         raise ValueError(f"tolerance_m must be a positive height in metres; got {tolerance_m}.")
     rows, cols = z.shape
     valid = np.isfinite(z)
-    r, c = np.nonzero(disputed & valid)
+    r, c = cells_of(disputed & valid)
     out = np.zeros(z.shape, bool)
     if r.size == 0 or int(reach_cells) < 3:
         return out

@@ -983,8 +983,9 @@ def find_attached_tiers(clean, opened, left_out, objects, cell, dh, es, slope, r
 def _region_boxes(lab, n, cells):
     """Rows and columns spanned by each label ``1..n`` of ``lab`` over the boolean ``cells`` (index 0 and
     labels without such cells span 0): ``(rows, cols)``, int arrays of ``n + 1``."""
-    rows, cols = np.nonzero(cells)
-    lab_c = lab[cells]
+    at = np.flatnonzero(cells)
+    rows, cols = np.divmod(at, cells.shape[1])
+    lab_c = lab.ravel()[at]
     big = max(lab.shape)
     lo_r, hi_r = np.full(n + 1, big, np.int64), np.full(n + 1, -1, np.int64)
     lo_c, hi_c = np.full(n + 1, big, np.int64), np.full(n + 1, -1, np.int64)

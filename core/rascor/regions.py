@@ -9,7 +9,7 @@ from typing import Tuple
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, label8
+from ..common import as_cell_size, cells_of, label8
 
 
 def as_bool_raster(a, shape, name):
@@ -107,7 +107,7 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
     held[lab[ndimage.binary_erosion(taken, np.ones((3, 3), bool))]] = True
     ok &= held
     # the region's cells: least-squares plane on coordinates centred on the region's mean
-    r, c = np.nonzero(taken)
+    r, c = cells_of(taken)
     li = lab[r, c]
     zz = z[r, c].astype(np.float64)
     x, y = c * dx, r * dy

@@ -282,6 +282,17 @@ def test_label8_by_runs_equals_ndimage_label(monkeypatch, share):
     assert common.label8(wrap)[1] == 2 and common.label8(diag)[1] == 1 and common.label8(u)[1] == 2
 
 
+def test_cells_of_is_nonzero():
+    """common.cells_of (dtm_refine's smoothness and line tests, morphology's region boxes, RASCOR's ramps)
+    gives np.nonzero's rows and columns exactly, in the same order and dtype."""
+    from bare_earth.core.common import cells_of
+    rng = np.random.default_rng(5)
+    for shape, p in (((1, 1), 1.0), ((1, 9), 0.5), ((7, 1), 0.5), ((33, 47), 0.1), ((20, 20), 0.0)):
+        m = rng.random(shape) < p
+        for got, ref in zip(cells_of(m), np.nonzero(m)):
+            assert got.dtype == ref.dtype and np.array_equal(got, ref)
+
+
 def test_edge_mirrored_extents_exact():
     """common.edge_mirrored_extents (dtm's raised regions and the curvature filter's runs cut
     by the edge): each box's extent along rows and columns, doubled for each side of that axis
