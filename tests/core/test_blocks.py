@@ -255,16 +255,17 @@ def test_touching_is_the_3x3_binary_dilation():
     assert touching(np.zeros((0, 3), bool)).shape == (0, 3)
 
 
-@pytest.mark.parametrize("share", [0.02, 1.0])
-def test_label8_by_runs_equals_ndimage_label(monkeypatch, share):
+@pytest.mark.parametrize("share, runs", [(1.0, 1.0), (0.25, 0.01), (0.02, 0.5)])
+def test_label8_by_runs_equals_ndimage_label(monkeypatch, share, runs):
     """common.label8 (the sparse labellings of geodesic's outliers and fine steps, RASCOR's ramps and
     terrain steps) gives ndimage.label's 8-connected array, numbering and count exactly: masks of every
     density (runs wrapping from a row's end to the next row's start, diagonal joins, single rows and
-    columns, empty), by runs up to the share and by ndimage.label above it."""
+    columns, empty), by runs up to the shares of cells and runs and by ndimage.label above them."""
     from scipy import ndimage
 
     from bare_earth.core import common
     monkeypatch.setattr(common, "LABEL_RUNS_SHARE", share)
+    monkeypatch.setattr(common, "LABEL_RUNS_RUNS", runs)
     s8 = np.ones((3, 3), bool)
     rng = np.random.default_rng(7)
     masks = [rng.random((h, w)) < p for h, w in ((1, 1), (1, 9), (8, 1), (13, 17), (40, 31), (64, 64))
@@ -275,7 +276,7 @@ def test_label8_by_runs_equals_ndimage_label(monkeypatch, share):
     u = np.zeros((6, 7), bool)
     u[1:5, 1] = u[1:5, 5] = u[4, 1:6] = True              # a U: joined below, first seen as two runs
     u[0, 3] = True                                        # a later part first seen before the U's join
-    for m in masks + [wrap, diag, u, np.zeros((0, 4), bool)]:
+    for m in masks + [wrap, diag, u, np.zeros((0, 4), bool), np.zeros((3, 0), bool)]:
         lab, n = common.label8(m)
         ref, ref_n = ndimage.label(m, s8)
         assert n == ref_n and lab.dtype == ref.dtype and np.array_equal(lab, ref)
