@@ -891,10 +891,17 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
             "above {:g} m) joined within {} cells to ground every member agrees on, are ground").format(
                 int(np.count_nonzero(continued)), SLOPE_MEMBER, SMOOTH_RATIO * tolerance_m, reach_cells)
         del continued, slope_ground
-    # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine)
-    mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
-                                  reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
-                                  line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m)
+    # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine); with
+    # workers > 1 a second thread takes some of its bands of rows and chunks of cells (the same result)
+    helper = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
+    try:
+        mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
+                                      reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
+                                      line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m,
+                                      pool=helper)
+    finally:
+        if helper is not None:
+            helper.shutdown()
     tops = refined.pop("step_tops")
     info.update(refined)
     info["edge_tolerance_rule"] = (

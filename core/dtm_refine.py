@@ -211,12 +211,14 @@ Cost: per line two floors by min-plus doubling (``log2 n`` passes each), no fill
 bounded, so blocks equal one pass with :func:`refine_halo` cells more.
 """
 import math
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
 
+from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
-from .common import touching
+from .common import cells_of, touching
 from .fill import EDGE_PASSES, edge_spikes_reach, find_edge_spikes
 
 #: Shortest reach of the floors, metres (steep terrain): a kept object is bracketed by ground
@@ -410,27 +412,52 @@ def refine_reach(tolerance_m, slope, limit_m):
     return float(min(limit, max(REACH_M, ALLOWANCE_RATIO * dh / s))) if s > 0 else limit
 
 
-def _worst_second_difference(z, r, c):
+def _worst_second_difference(z, r, c, keep=None):
     """Per cell ``(r, c)``: the largest ``|z(i-1) - 2 z(i) + z(i+1)|`` along the rows or the columns centred
-    on any cell of its 3 x 3 neighbourhood (NaN never counts), and how many of those 18 were finite."""
+    on any cell of its 3 x 3 neighbourhood (NaN never counts), and how many of those 18 were finite.
+
+    With ``keep`` (bool, ``z``'s shape) the heights of the cells outside it count as NaN. The 21 heights
+    each cell's differences read (its 5 x 5 neighbourhood without the corners; NaN beyond the raster) are
+    gathered once per chunk of :data:`SMOOTH_CHUNK` cells, never a copy of the raster: a few cells cost
+    little (``bareearth:dtm``'s refinement tests a handful)."""
+    z = np.ascontiguousarray(z, np.float32)
     h, w = z.shape
-    pad = 2
-    wp = w + 2 * pad
-    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
-    zp[pad:-pad, pad:-pad] = z
-    flat = zp.ravel()
-    idx = (r + pad) * wp + (c + pad)
-    worst = np.zeros(idx.size, np.float32)
-    count = np.zeros(idx.size, np.int32)
-    for a in (-1, 0, 1):
-        for b in (-1, 0, 1):
-            p = idx + (a * wp + b)
-            mid = 2 * flat.take(p)
-            for step in (1, wp):
-                d = np.abs(flat.take(p - step) - mid + flat.take(p + step))
-                count += np.isfinite(d)
-                np.fmax(worst, d, out=worst)                     # NaN (nodata) ignored
+    zf = z.ravel()
+    kf = None if keep is None else np.ascontiguousarray(keep, bool).ravel()
+    worst = np.zeros(r.size, np.float32)
+    count = np.zeros(r.size, np.int32)
+    for k0 in range(0, r.size, SMOOTH_CHUNK):
+        rk, ck = r[k0:k0 + SMOOTH_CHUNK], c[k0:k0 + SMOOTH_CHUNK]
+        wk, nk = worst[k0:k0 + SMOOTH_CHUNK], count[k0:k0 + SMOOTH_CHUNK]
+        v = {(dr, dc): _height_at(zf, kf, rk + dr, ck + dc, h, w) for dr, dc in _SMOOTH_READS}
+        for a in (-1, 0, 1):
+            for b in (-1, 0, 1):
+                mid = 2 * v[a, b]
+                for up, down in (((a, b - 1), (a, b + 1)), ((a - 1, b), (a + 1, b))):
+                    d = np.abs(v[up] - mid + v[down])
+                    nk += np.isfinite(d)
+                    np.fmax(wk, d, out=wk)                       # NaN (nodata) ignored
     return worst, count
+
+
+#: Cells per chunk of :func:`_worst_second_difference` (its 21 gathered heights stay in the cache).
+SMOOTH_CHUNK = 1 << 14
+#: The cells whose heights :func:`_worst_second_difference` reads around a cell (its 5 x 5 neighbourhood
+#: without the corners).
+_SMOOTH_READS = sorted({(a + da, b + db) for a in (-1, 0, 1) for b in (-1, 0, 1)
+                        for da, db in ((0, 0), (0, -1), (0, 1), (-1, 0), (1, 0))})
+
+
+def _height_at(zf, kf, rr, cc, h, w):
+    """The heights (flat ``zf``, ``h`` x ``w``) at cells ``(rr, cc)``; NaN beyond the raster and, with ``kf``
+    (flat bool), outside it."""
+    inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+    i = np.where(inside, rr * w + cc, 0)
+    v = zf.take(i)
+    if kf is not None:
+        inside &= kf.take(i)
+    v[~inside] = np.nan
+    return v
 
 
 #: Second differences in a cell's 3 x 3 neighbourhood (:func:`find_smooth`): 9 centres x 2 directions.
@@ -502,12 +529,11 @@ def find_smooth(z, cells, height_m, ground=None):
         every one reading ground only, when they are at least half of those it has).
     """
     z = np.asarray(z, np.float32)
-    r, c = np.nonzero(cells)
+    r, c = cells_of(cells)
     worst, count = _worst_second_difference(z, r, c)
     ok = worst <= height_m
     if ground is not None:
-        zg = np.where(np.asarray(ground, bool), z, np.float32(np.nan))
-        gw, on_ground = _worst_second_difference(zg, r, c)
+        gw, on_ground = _worst_second_difference(z, r, c, keep=ground)
         ok |= (gw <= height_m) & (2 * on_ground >= count)
     out = np.zeros(z.shape, bool)
     out[r[ok], c[ok]] = True
@@ -684,7 +710,7 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
         raise ValueError(f"tolerance_m must be a positive height in metres; got {tolerance_m}.")
     rows, cols = z.shape
     valid = np.isfinite(z)
-    r, c = np.nonzero(disputed & valid)
+    r, c = cells_of(disputed & valid)
     out = np.zeros(z.shape, bool)
     if r.size == 0 or int(reach_cells) < 3:
         return out
@@ -923,7 +949,7 @@ def _floor_flat(zg, n, di, dj, inc, pad):
     return rp[:, :cols]
 
 
-def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
+def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, pool=None):
     """Ground cells standing above lower ground on both sides of a line (bool, same shape).
 
     Parameters
@@ -940,6 +966,9 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
         ``dh``: how far above both floors a cell must stand (> 0).
     reach_m : float
         Length of each floor, metres.
+    pool : Executor, optional
+        Threads that may take some of the bands of rows (:func:`~.blocks.run_sharing`); the same result
+        without.
 
     Returns
     -------
@@ -961,31 +990,37 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M):
     halo = max(abs(di) * n for (di, dj), n in steps.items())
     rows = z.shape[0]
     out = np.zeros(z.shape, bool)
-    # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact)
-    for a in range(0, rows, _BAND_ROWS):
-        b = min(rows, a + _BAND_ROWS)
-        lo, hi = max(0, a - halo), min(rows, b + halo)
-        zb = z[lo:hi]
-        zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
-        zt = z[a:b]
-        top = zt - np.float32(height_m)               # above a floor: floor < z - dh
-        hit = np.zeros(zt.shape, bool)
-        for (di, dj), n in steps.items():
-            inc = float(slope) * math.hypot(di * dy, dj * dx)
-            both = None
-            for sdi, sdj in ((di, dj), (-di, -dj)):
-                # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
-                # along a row none: the floors of the band's rows only, from the same terms
-                r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
-                below = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0] < top
-                both = below if both is None else np.logical_and(both, below, out=both)
-            hit |= both
-        out[a:b] = hit & ground[a:b] & np.isfinite(zt)
+    # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact); each band
+    # writes its own rows of ``out``, so the bands may run in any order, on any thread
+    run_sharing([partial(_bracketed_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps, float(slope),
+                         float(height_m), dx, dy, out) for a in range(0, rows, _BAND_ROWS)], pool)
     return out
 
 
+def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out):
+    """:func:`find_bracketed` on the rows ``a:b`` (read with ``halo`` rows around them) into ``out[a:b]``."""
+    rows = z.shape[0]
+    lo, hi = max(0, a - halo), min(rows, b + halo)
+    zb = z[lo:hi]
+    zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
+    zt = z[a:b]
+    top = zt - np.float32(height_m)               # above a floor: floor < z - dh
+    hit = np.zeros(zt.shape, bool)
+    for (di, dj), n in steps.items():
+        inc = slope * math.hypot(di * dy, dj * dx)
+        both = None
+        for sdi, sdj in ((di, dj), (-di, -dj)):
+            # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
+            # along a row none: the floors of the band's rows only, from the same terms
+            r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
+            below = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0] < top
+            both = below if both is None else np.logical_and(both, below, out=both)
+        hit |= both
+    out[a:b] = hit & ground[a:b] & np.isfinite(zt)
+
+
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None, band_tolerance_m=None):
+                  line_tolerance_m=None, band_tolerance_m=None, pool=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -1013,6 +1048,9 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
         Tolerance of the raised band (:func:`find_raised_band`: the ground along the objects' edges above the
         plane of the ground beyond it), metres, at most ``dh`` (``bareearth:dtm``: the edge tolerance);
         None or NaN, or not below ``dh``: not looked for.
+    pool : Executor, optional
+        Threads that may take some of the bands and chunks of cells of :func:`find_bracketed` and
+        :func:`~.fill.find_edge_spikes`; the same result without.
 
     Returns
     -------
@@ -1035,7 +1073,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     dh = max(float(tolerance_m), 1e-3)
     et = dh if edge_tolerance_m is None else min(dh, max(float(edge_tolerance_m), 1e-3))
     ground = mask == GROUND
-    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m)
+    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, pool=pool)
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness
     smooth = find_smooth(z, out, SMOOTH_RATIO * dh, ground=ground)
     out &= ~smooth
@@ -1052,11 +1090,11 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     # are spared and the test run again (the cells behind them stay covered)
     lt = None if line_tolerance_m is None or not np.isfinite(line_tolerance_m) else max(et, float(line_tolerance_m))
     fill = ((new == OBJECT) | (new == LOW)) & np.isfinite(z)
-    spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops)
+    spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
     more = find_step_tops(z, spikes, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh)
     if more.any():
         tops |= more
-        spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops)
+        spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
     new[spikes] = OBJECT
     # 3. the band of ground along the objects' edges standing above the plane of the ground beyond it
     # (find_raised_band): low vegetation whose cells continue each other along the edge

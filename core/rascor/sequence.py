@@ -15,7 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import LOW, NODATA, OBJECT
-from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress, transpose
+from ..common import FilterResult, as_cell_size, as_surface, label8, report, sub_progress, transpose
 from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_ground
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
@@ -504,7 +504,7 @@ def _spare_height(cfg):
 def longer_than(objects, cell_size, length_m):
     """The cells of the regions of ``objects`` (8-connected) that run further than ``length_m``
     metres along the rows or the columns (``cell_size`` (dx, dy) metres)."""
-    lab, n = ndimage.label(objects, np.ones((3, 3), bool))
+    lab, n = label8(objects)
     if not n:
         return np.zeros(np.shape(objects), bool)
     dx, dy = as_cell_size(cell_size)

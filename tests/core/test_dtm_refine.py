@@ -830,3 +830,72 @@ def test_raised_band_in_blocks_equals_one_pass():
         got = in_blocks(lambda wr, wc: dr.find_raised_band(z[wr, wc], objects[wr, wc], (1.0, 1.0), tolerance_m=0.25,
                                                            height_m=0.5), z.shape, b, halo)
         np.testing.assert_array_equal(got, whole)
+
+
+def _worst_second_difference_reference(z, r, c):
+    """_worst_second_difference as first written: gathers from a copy of the raster in a frame of NaN."""
+    h, w = z.shape
+    pad = 2
+    wp = w + 2 * pad
+    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
+    zp[pad:-pad, pad:-pad] = z
+    flat = zp.ravel()
+    idx = (r + pad) * wp + (c + pad)
+    worst = np.zeros(idx.size, np.float32)
+    count = np.zeros(idx.size, np.int32)
+    for a in (-1, 0, 1):
+        for b in (-1, 0, 1):
+            p = idx + (a * wp + b)
+            mid = 2 * flat[p]
+            for step in (1, wp):
+                d = np.abs(flat[p - step] - mid + flat[p + step])
+                count += np.isfinite(d)
+                np.fmax(worst, d, out=worst)
+    return worst, count
+
+
+@pytest.mark.parametrize("chunk", [5, 1 << 14])
+@pytest.mark.parametrize("seed", range(3))
+def test_worst_second_difference_gathered_equals_framed_copy(monkeypatch, chunk, seed):
+    """The heights gathered per chunk of cells (NaN beyond the raster; ``keep``: NaN outside it) give the
+    framed copy's differences and counts exactly, at the raster's edges and corners and beside nodata."""
+    monkeypatch.setattr(dr, "SMOOTH_CHUNK", chunk)
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0.0, 2.0, (23, 31)).astype(np.float32)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    keep = rng.random(z.shape) < 0.7
+    cells = rng.random(z.shape) < 0.4
+    cells[0, 0] = cells[-1, -1] = cells[0, -1] = cells[-1, 0] = True
+    r, c = np.nonzero(cells)
+    for k, zz in ((None, z), (keep, np.where(keep, z, np.float32(np.nan)))):
+        worst, count = dr._worst_second_difference(z, r, c, keep=k)
+        ref_w, ref_c = _worst_second_difference_reference(zz, r, c)
+        np.testing.assert_array_equal(worst, ref_w)
+        np.testing.assert_array_equal(count, ref_c)
+        assert worst.dtype == np.float32 and count.min() < 18 and (k is not None or count.max() == 18)
+
+
+@pytest.mark.parametrize("band_rows", [3, 64])
+def test_refine_ground_with_a_pool_equals_one_thread(monkeypatch, band_rows):
+    """The bands of find_bracketed and the chunks of the edge test taken by a second thread give the
+    mask and the info of one thread exactly (bands of a few rows: many bands, each with its halo)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core import fill
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    monkeypatch.setattr(fill, "EDGE_CHUNK", 11)
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 0.2, (41, 47)).astype(np.float32)
+    z[rng.random(z.shape) < 0.04] += 1.5                          # low objects bracketed by ground
+    z[20:28, 10:30] += 4.0
+    z[rng.random(z.shape) < 0.02] = np.nan
+    mask = np.where(z > 3.0, OBJECT, GROUND).astype(np.uint8)
+    mask[np.isnan(z)] = NODATA
+    kw = dict(tolerance_m=0.5, slope=0.2, reach_m=6.0, edge_tolerance_m=0.4, line_tolerance_m=0.6,
+              band_tolerance_m=0.3)
+    ref, ref_info = dr.refine_ground(z, mask, (1.0, 1.0), **kw)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got, info = dr.refine_ground(z, mask, (1.0, 1.0), **kw, pool=pool)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(info.pop("step_tops"), ref_info.pop("step_tops"))
+    assert info == ref_info and info["refine_removed_share"] > 0 and info["refine_edge_removed_share"] > 0
