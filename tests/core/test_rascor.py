@@ -1520,16 +1520,25 @@ def test_vertical_drops_keep_their_upper_levels(kind, before, after):
     assert np.mean(res.mask[house] == OBJECT) > 0.95
 
 
+def _drop_with_a_box(gaps=False):
+    """A 4 m drop across a 160 x 160 raster at 1 m (the wall's top at column 79; with ``gaps``, a data
+    gap every 20 rows on it), a 10 m box on the upper level, and RASCOR's parameters for it."""
+    z = np.full((160, 160), 100.0, np.float32)
+    z[:, 80:] = 96.0
+    if gaps:
+        z[10::20, 79] = np.nan
+    z[60:70, 20:30] += 6.0
+    kw = dict(terrain_class="flat", sigma_m=0.1, short_profile_m=5.0, long_profile_m=9.0,
+              surface_size_m=25.0, max_building_m=60.0)
+    return z, kw
+
+
 def test_wall_tops_beside_terrain_steps_are_given_back_exact():
     """Step 3 runs before step 4 finds the terrain's level changes and takes the top of each
     wall (the upper point of a pair 4 m apart): tested again with the level changes as break
     lines, those cells are compared with their own level only and are ground. A 6 m box on the
     upper level keeps its step 3 edge: its own walls are answered jumps, no terrain step."""
-    z = np.full((160, 160), 100.0, np.float32)
-    z[:, 80:] = 96.0                                   # a 4 m drop across the raster
-    z[60:70, 20:30] += 6.0                             # a 10 m box on the upper level
-    kw = dict(terrain_class="flat", sigma_m=0.1, short_profile_m=5.0, long_profile_m=9.0,
-              surface_size_m=25.0, max_building_m=60.0)
+    z, kw = _drop_with_a_box()
     res = rascor.filter_rascor(z, 1.0, **kw)
     assert res.info["terrain_step_share"] > 0
     assert not (res.mask[:, 70:90] == OBJECT).any()
@@ -1546,12 +1555,7 @@ def test_wall_tops_cut_by_data_gaps_are_given_back():
     joined across the gaps they run along the wall and are ground. The box on the upper level
     stays an object (and the 3-cell edges of boxes 20 cells apart on a coarse DEM of hills,
     ``test_coarse_bare_hilly_dem_stays_ground``, are not joined)."""
-    z = np.full((160, 160), 100.0, np.float32)
-    z[:, 80:] = 96.0                                   # a 4 m drop across the raster
-    z[10::20, 79] = np.nan                             # gaps on the wall's top
-    z[60:70, 20:30] += 6.0                             # a 10 m box on the upper level
-    kw = dict(terrain_class="flat", sigma_m=0.1, short_profile_m=5.0, long_profile_m=9.0,
-              surface_size_m=25.0, max_building_m=60.0)
+    z, kw = _drop_with_a_box(gaps=True)
     res = rascor.filter_rascor(z, 1.0, **kw)
     assert res.info["terrain_step_share"] > 0
     assert not (res.mask[:, 70:90] == OBJECT).any()
