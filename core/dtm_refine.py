@@ -229,7 +229,7 @@ EDGE_SIGMAS = 3.0
 LINES = ((0, 1), (1, 0), (1, 1), (1, -1))
 #: Standard deviations of the difference of two ground heights placed anywhere within their cells on the seen
 #: ground's slope that the bracketed test's height spans beside ``dh`` (:func:`find_bracketed` with
-#: ``seen_slopes``): the three of the decision threshold ``t = 3 sigma``.
+#: ``seen_gradient``): the three of the decision threshold ``t = 3 sigma``.
 SPREAD_SIGMAS = 3.0
 #: Rows per band of :func:`find_bracketed` (a band and its floors stay in the cache).
 _BAND_ROWS = 64
@@ -257,7 +257,29 @@ def line_slope_radius(cell_size, reach_m=REACH_M):
     return max(1, int(math.ceil(float(reach_m) / min(float(cell_size[0]), float(cell_size[1])))))
 
 
-def line_slopes(z, ground, cell_size, reach_m=REACH_M):
+def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M):
+    """``(gx, gy)``: the gradient of the least-squares plane through the ground cells of the square of half-side the
+    floors' reach around each cell (:func:`~.estimate.ground_plane_gradient`, :func:`line_slope_radius`)."""
+    return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m))
+
+
+def _line_maximum(gx, gy, cell_size, di, dj, k):
+    """The largest ``|g . u|`` along the line ``(di, dj)`` within ``k`` steps either side (NaN: none known)."""
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    length = math.hypot(di * dy, dj * dx)
+    a = np.abs(gx * np.float32(dj * dx / length) + gy * np.float32(di * dy / length))
+    a[~np.isfinite(a)] = -np.inf
+    span = 2 * int(k) + 1
+    if di == 0 or dj == 0:
+        m = ndimage.maximum_filter1d(a, span, axis=1 if di == 0 else 0, mode="constant", cval=-np.inf)
+    else:
+        foot = np.eye(span, dtype=bool)
+        m = ndimage.maximum_filter(a, footprint=foot if di == dj else foot[:, ::-1], mode="constant", cval=-np.inf)
+    m[~np.isfinite(m)] = np.nan
+    return m
+
+
+def line_slopes(gradient, cell_size, reach_m=REACH_M):
     """The seen ground's own slope along each line, for :func:`find_bracketed`.
 
     Vosselman's admissible height difference grows with the distance as the terrain's slope; on a hillside
@@ -270,6 +292,15 @@ def line_slopes(z, ground, cell_size, reach_m=REACH_M):
     side: the drop of any surface along a segment is at most its length times the largest slope on it (a ridge
     or a spur that the planes see keeps its allowance).
 
+    Parameters
+    ----------
+    gradient : (ndarray, ndarray)
+        ``(gx, gy)`` of the planes (:func:`seen_ground_gradient`), or rows of them.
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    reach_m : float
+        The floors' reach, metres.
+
     Returns
     -------
     along : dict
@@ -278,24 +309,10 @@ def line_slopes(z, ground, cell_size, reach_m=REACH_M):
     magnitude : ndarray of float32
         ``|g|`` of each cell's own plane (NaN where none).
     """
-    gx, gy = ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m))
-    dx, dy = float(cell_size[0]), float(cell_size[1])
-    along = {}
-    for (di, dj), k in refine_steps(cell_size, reach_m).items():
-        length = math.hypot(di * dy, dj * dx)
-        a = np.abs(gx * np.float32(dj * dx / length) + gy * np.float32(di * dy / length))
-        a[~np.isfinite(a)] = -np.inf
-        span = 2 * int(k) + 1
-        if di == 0 or dj == 0:
-            m = ndimage.maximum_filter1d(a, span, axis=1 if di == 0 else 0, mode="constant", cval=-np.inf)
-        else:
-            foot = np.eye(span, dtype=bool)
-            m = ndimage.maximum_filter(a, footprint=foot if di == dj else foot[:, ::-1], mode="constant",
-                                       cval=-np.inf)
-        m[~np.isfinite(m)] = np.nan
-        along[(di, dj)] = m
-    magnitude = np.hypot(gx, gy)
-    return along, magnitude
+    gx, gy = gradient
+    along = {(di, dj): _line_maximum(gx, gy, cell_size, di, dj, k)
+             for (di, dj), k in refine_steps(cell_size, reach_m).items()}
+    return along, np.hypot(gx, gy)
 
 
 def refine_reach(tolerance_m, slope, limit_m):
@@ -756,7 +773,7 @@ def _floor_scaled(zg, a, b, inc, n, di, dj):
     return r
 
 
-def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_slopes=None):
+def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_gradient=None):
     """Ground cells standing above lower ground on both sides of a line (bool, same shape).
 
     Parameters
@@ -773,10 +790,11 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
         ``dh``: how far above both floors a cell must stand (> 0).
     reach_m : float
         Length of each floor, metres.
-    seen_slopes : tuple, optional
-        ``(along, magnitude)`` of :func:`line_slopes` (the seen ground's slope along each line, and its
-        gradient's magnitude): each cell's floors along a line rise at ``s_u = min(s, along)`` instead of
-        ``s``, and its height must exceed them by ``sqrt(dh^2 + (SPREAD_SIGMAS sqrt(2 / 12) min(s, |g|) c)^2)``
+    seen_gradient : tuple, optional
+        ``(gx, gy)`` of :func:`seen_ground_gradient`, read as :func:`line_slopes` does, band by band (the seen
+        ground's slope ``along`` each line, and its gradient's magnitude ``|g|``): each cell's floors along a
+        line rise at ``s_u = min(s, along)`` instead of ``s``, and its height must exceed them by
+        ``sqrt(dh^2 + (SPREAD_SIGMAS sqrt(2 / 12) min(s, |g|) c)^2)``
         (``c`` the larger cell side): where within its cell each of the two heights lies on a slope ``|g|``
         (uniform: standard deviation ``|g| c / sqrt(12)``), which the isotropic ``s |d|`` covered.
 
@@ -808,21 +826,23 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
         zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
         zt = z[a:b]
         top = zt - np.float32(height_m)               # above a floor: floor < z - dh
-        if seen_slopes is not None:
+        if seen_gradient is not None:
             # where within its cell each height lies on the seen ground's slope |g| (uniform over the cell:
             # standard deviation |g| c / sqrt 12), for the cell and its floor's source: three standard deviations
             # of their difference beside dh
-            gm = seen_slopes[1][a:b]
+            gm = np.hypot(seen_gradient[0][a:b], seen_gradient[1][a:b])
             gm = np.where(gm < slope, gm, np.float32(slope)) * np.float32(max(dx, dy))
             top = zt - np.sqrt(np.float32(height_m) ** 2 + np.float32(SPREAD_SIGMAS ** 2 * 2.0 / 12.0) * gm * gm)
         hit = np.zeros(zt.shape, bool)
         for (di, dj), n in steps.items():
             step = math.hypot(di * dy, dj * dx)
             slopes = None
-            if seen_slopes is not None:
+            if seen_gradient is not None:
                 # per cell the slope its floors allow along the line: the seen ground's own along it (the largest
                 # within the reach), at most s (NaN, not known: s)
-                slopes = seen_slopes[0][(di, dj)][a:b]
+                # (the band's rows and the floors' rows around it: the line's largest within its reach exact)
+                slopes = _line_maximum(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di, dj,
+                                       n)[a - lo:b - lo]
                 slopes = np.where(slopes < slope, slopes, np.float32(slope)).astype(np.float32, copy=False)
             both = None
             for sdi, sdj in ((di, dj), (-di, -dj)):
@@ -885,8 +905,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     s = float(slope) if slope is not None and np.isfinite(slope) and slope > 0 else 0.0
     dh = max(float(tolerance_m), 1e-3)
     ground = mask == GROUND
-    seen = line_slopes(z, ground, cell_size, reach_m) if along_ground and s > 0 else None
-    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_slopes=seen)
+    seen = seen_ground_gradient(z, ground, cell_size, reach_m) if along_ground and s > 0 else None
+    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_gradient=seen)
     seen = None
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness
     smooth = find_smooth(z, out, SMOOTH_RATIO * dh, ground=ground)

@@ -647,14 +647,16 @@ def test_line_slopes_of_a_plane_and_a_ridge():
     """On a plane the slope along each line is the plane's along it (nil along the contour); across a ridge
     each cell takes the largest slope of the planes along the line within the reach (its crest the flanks')."""
     y, x = np.mgrid[0:40, 0:40].astype(np.float32)
-    along, magnitude = dr.line_slopes(0.6 * x, np.ones(x.shape, bool), (1.0, 1.0), reach_m=4.0)
+    plane = dr.seen_ground_gradient(0.6 * x, np.ones(x.shape, bool), (1.0, 1.0), reach_m=4.0)
+    along, magnitude = dr.line_slopes(plane, (1.0, 1.0), reach_m=4.0)
     np.testing.assert_allclose(along[(0, 1)], 0.6, atol=1e-4)
     np.testing.assert_allclose(along[(1, 0)], 0.0, atol=1e-4)
     np.testing.assert_allclose(along[(1, 1)], 0.6 / math.sqrt(2), atol=1e-4)
     np.testing.assert_allclose(along[(1, -1)], 0.6 / math.sqrt(2), atol=1e-4)
     np.testing.assert_allclose(magnitude, 0.6, atol=1e-4)
     ridge = -0.02 * (x - 20) ** 2                      # crest on column 20, slope 0.04 per metre from it
-    along, _ = dr.line_slopes(ridge, np.ones(x.shape, bool), (1.0, 1.0), reach_m=4.0)
+    along, _ = dr.line_slopes(dr.seen_ground_gradient(ridge, np.ones(x.shape, bool), (1.0, 1.0), 4.0), (1.0, 1.0),
+                              reach_m=4.0)
     inner = along[(0, 1)][:, 8:32]                      # planes whole (4 cells) over their reach (4 cells)
     want = np.broadcast_to(0.04 * (np.abs(np.arange(8, 32) - 20) + 4), inner.shape)
     np.testing.assert_allclose(inner, want, atol=1e-4)
@@ -672,8 +674,8 @@ def test_a_bush_on_a_steep_hillside_is_bracketed_along_the_contour():
     ground = np.ones(z.shape, bool)
     kw = dict(slope=0.6, height_m=0.5, reach_m=12.0)
     assert not dr.find_bracketed(z, ground, (1.0, 1.0), **kw).any()
-    seen = dr.line_slopes(z, ground, (1.0, 1.0), 12.0)
-    out = dr.find_bracketed(z, ground, (1.0, 1.0), seen_slopes=seen, **kw)
+    seen = dr.seen_ground_gradient(z, ground, (1.0, 1.0), 12.0)
+    out = dr.find_bracketed(z, ground, (1.0, 1.0), seen_gradient=seen, **kw)
     expect = np.zeros(z.shape, bool)
     expect[20, 20] = True
     np.testing.assert_array_equal(out, expect)
@@ -685,9 +687,9 @@ def test_a_smooth_ridge_within_the_steep_slope_is_not_bracketed_along_the_seen_g
     y, x = np.mgrid[0:60, 0:61].astype(np.float32)
     z = (-0.02 * (x - 30) ** 2 + 0.1 * y).astype(np.float32)
     ground = np.ones(z.shape, bool)
-    seen = dr.line_slopes(z, ground, (1.0, 1.0), 12.0)
+    seen = dr.seen_ground_gradient(z, ground, (1.0, 1.0), 12.0)
     assert not dr.find_bracketed(z, ground, (1.0, 1.0), slope=1.2, height_m=0.5, reach_m=12.0,
-                                 seen_slopes=seen).any()
+                                 seen_gradient=seen).any()
 
 
 def _hillside_with_bushes(seed=0, n=120, deg=30.0):
