@@ -191,7 +191,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
             filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
         try:
             with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
-                out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"])
+                out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"],
+                        heights=True)
                 out.write("out", filled)
                 out.commit()
         except ValueError as exc:

@@ -676,8 +676,14 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 except ValueError:
                     number = float("nan")
                 if not math.isfinite(number):
-                    return False, tr("{} = '{}' is not a number: give a number{}.").format(
-                        label_of(d), text, tr(", or leave it out") if is_optional(d) else "")
+                    point = text.replace(",", ".", 1) if text.count(",") == 1 and "." not in text else ""
+                    try:
+                        comma = point != "" and math.isfinite(float(point))
+                    except ValueError:
+                        comma = False
+                    return False, tr("{} = '{}' is not a number: give a number{}{}.").format(
+                        label_of(d), text, tr(", or leave it out") if is_optional(d) else "",
+                        tr(" (with a decimal point: {})").format(point) if comma else "")
             elif d.type() == "boolean" and text.lower() not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
                 return False, tr("{} = '{}' is not a yes/no value: give true or false.").format(label_of(d), text)
         return True, ""
@@ -800,8 +806,9 @@ class FilterAlgorithm(BaseAlgorithm):
         for key, label, default, lo, hi, text in (
                 (self.BLOCK_SIZE, "Block size (cells, 0 = automatic)", 0, 0, 65536,
                  "Edge of the blocks the raster is processed in, in cells: 0 or at least 64. 0: one "
-                 "block up to 25 million cells, else 2048. Blocks overlap by the method's reach, so the result "
-                 "does not depend on it; memory does."),
+                 "block up to 25 million cells, else the largest blocks whose windows (block and reach) fit "
+                 "half the memory available (or BARE_EARTH_MEMORY_MB megabytes). Blocks overlap by the "
+                 "method's reach, so the result does not depend on it; memory does."),
                 (self.THREADS, "Threads (0 = one per core)", 0, 0, 64,
                  "Blocks filtered at once in threads. 0 (the default): one per core, at most 8, "
                  "within QGIS's own limit (Settings > Options > Rendering > Max cores). The raster "

@@ -115,6 +115,10 @@ def _check_metric(info, what):
                              "refinement needs a projected CRS in metres, the same as the camera "
                              "coordinates. Reproject it first (gdalwarp -t_srs EPSG:<UTM zone>).")
     xy_to_m = info.cell_size_m[0] / abs(info.geotransform[1])   # a compound CRS: its own height unit
+    if info.unit_type and abs(info.z_to_m - 1.0) > 1e-9 and abs(xy_to_m - 1.0) <= 1e-9:
+        raise ValueError(f"{what} ({info.path}) states its heights are in '{info.unit_type}' ({info.z_to_m:.6g} m): "
+                         "the orthophoto tools work in metres. Write the heights in metres first (gdal_calc.py "
+                         f"--calc=\"A*{info.z_to_m:.10g}\", then gdal_edit.py -units m).")
     for factor in (info.z_to_m, xy_to_m):
         if abs(factor - 1.0) > 1e-9:
             raise ValueError(f"{what} ({info.path}) is in a CRS whose unit is not the metre (factor "

@@ -1,4 +1,6 @@
 """Vector layers -> boolean rasters on a DSM's grid (break lines, special areas)."""
+import math
+
 import numpy as np
 from osgeo import gdal, ogr, osr
 from qgis.core import (
@@ -28,6 +30,29 @@ from .compat import (
 KINDS = {as_int(SOURCE_VECTOR_POINT): (GEOMETRY_POINT, "points"),
          as_int(SOURCE_VECTOR_LINE): (GEOMETRY_LINE, "lines"),
          as_int(SOURCE_VECTOR_POLYGON): (GEOMETRY_POLYGON, "polygons")}
+
+
+def _has_geometry(source, fid):
+    """Whether feature ``fid`` of ``source`` has a geometry in the layer's own CRS (a point QGIS
+    cannot reproject comes back without one)."""
+    g = next(iter(source.getFeatures(QgsFeatureRequest(fid))), None)
+    g = None if g is None else g.geometry()
+    return g is not None and not g.isNull() and not g.isEmpty()
+
+
+def _not_in_crs_message(source, fid, label, dest):
+    """The refusal of a feature whose coordinates the layer's CRS cannot take to the DSM's (the
+    transform gave infinite coordinates): projected metres in a layer said to be in degrees."""
+    crs = source.sourceCrs()
+    name = crs.authid() or crs.description() or "unknown"
+    where = ""
+    for f in source.getFeatures(QgsFeatureRequest(fid)):
+        box = f.geometry().boundingBox()
+        where = f" ({box.xMinimum():.10g}, {box.yMinimum():.10g})"
+    return (f"{label}: the coordinates of feature {fid}{where} are not coordinates of the layer's CRS "
+            f"({name}): they cannot be taken to the DSM's ({dest.authid() or dest.description()}). Give the layer "
+            "the CRS its coordinates are in (Layer Properties > Source > Assigned Coordinate Reference System, "
+            "or Vector > Data Management Tools > Assign Projection).")
 
 
 def source_geometries(source, info, context, label="the layer", types=None):
@@ -61,7 +86,13 @@ def source_geometries(source, info, context, label="the layer", types=None):
     for f in features:
         g = f.geometry()
         if g is None or g.isNull() or g.isEmpty():
+            if req.destinationCrs().isValid() and _has_geometry(source, f.id()):   # lost in the reprojection
+                raise ValueError(_not_in_crs_message(source, f.id(), label, dest))
             continue
+        if req.destinationCrs().isValid():
+            box = g.boundingBox()
+            if not all(math.isfinite(v) for v in (box.xMinimum(), box.yMinimum(), box.xMaximum(), box.yMaximum())):
+                raise ValueError(_not_in_crs_message(source, f.id(), label, dest))
         if allowed and g.type() not in allowed:
             kind = names.get(g.type()) or f"{QgsWkbTypes.displayString(g.wkbType())} geometries"  # a collection
             raise ValueError(f"{label} holds {kind} (feature {f.id()}) but takes "

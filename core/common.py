@@ -7,6 +7,8 @@ from typing import Any, Callable, Dict, Optional
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .codes import NODATA
 
@@ -88,11 +90,17 @@ def without_far_heights(z, count_in=None):
     return z, 0
 
 
-def far_heights_message(n):
-    """The log line for :func:`without_far_heights`'s count (one wording for arrays and files)."""
-    return (f"{n} cell(s) with heights beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite) were treated as "
+def far_heights_message(n, declared=None):
+    """The log line for :func:`without_far_heights`'s count (one wording for arrays and files);
+    ``declared``: the raster's own nodata value, which those cells then do not hold."""
+    text = (f"{n} cell(s) with heights beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite) were treated as "
             "nodata: no terrain is that high or deep, so they are an undeclared nodata value or corrupt "
-            "cells. Declare the raster's nodata value to silence this.")
+            "cells.")
+    if declared is None or declared != declared:       # none, or NaN: a value beyond is another one
+        return text + " Declare the raster's nodata value to silence this."
+    return text + (f" The raster declares {float(declared):g} as its nodata, which they do not hold exactly (a "
+                   "nodata value written with fewer digits than the cells hold, -3.40282e+38 for -3.4028235e+38, "
+                   "reads so): declare the value its missing cells hold to silence this.")
 
 
 #: Significant digits of a cell size in metres kept (:func:`as_cell_size`). A cell size
@@ -147,6 +155,20 @@ def sub_progress(progress, start, stop):
     if progress is None:
         return None
     return lambda f: progress(start + (stop - start) * min(max(f, 0.0), 1.0))
+
+
+def cells_of(mask):
+    """``np.nonzero(mask)`` of a 2-D boolean array (rows, columns; row-major order) by ``np.flatnonzero``:
+    the same arrays, without numpy's 2-D nonzero pass (measured 35 ms on a 4000 x 4000 mask of a few cells,
+    2 ms this way).
+
+    Examples
+    --------
+    >>> [a.tolist() for a in cells_of(np.array([[0, 1], [1, 1]], bool))]
+    [[0, 1, 1], [1, 0, 1]]
+    """
+    mask = np.asarray(mask)
+    return np.divmod(np.flatnonzero(mask), mask.shape[1])
 
 
 def touching(a):
@@ -331,3 +353,92 @@ def text_of(data, path):
         raise ValueError(f"{str(path)!r} is not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}): "
                          "save it as UTF-8 (or UTF-16 with its byte-order mark) text, e.g. 'CSV UTF-8' in a "
                          "spreadsheet.") from None
+
+
+#: :func:`label8` labels by runs a mask with at most this share of its cells set and at most
+#: :data:`LABEL_RUNS_RUNS` runs a cell (estimated on every :data:`LABEL_SAMPLE_STEP`-th row); else
+#: ``ndimage.label``. Its cost follows the runs (about 0.17 us a run
+#: and 0.025 s for 16 Mcells), ``ndimage.label``'s the raster (0.055-0.11 s for 16 Mcells, more with more
+#: cells set): measured on 4000 x 4000 masks of smoothed random blobs of 1-30 % of the cells, the two cost the
+#: same at 0.010-0.012 runs a cell; on the masks of the 16 Mcells DSM the runs took 0.05-0.9 of its time
+#: below 0.009 runs a cell and 1.0-1.6 times it at 0.011-0.012.
+LABEL_RUNS_SHARE = 0.25
+#: See :data:`LABEL_RUNS_SHARE`.
+LABEL_RUNS_RUNS = 0.01
+#: :func:`label8` estimates the shares of cells and runs on every this many rows (counting them on the whole
+#: mask cost as much as labelling a sparse mask's runs).
+LABEL_SAMPLE_STEP = 8
+
+
+def label8(mask):
+    """``ndimage.label(mask, np.ones((3, 3)))`` (8-connected parts, labels 1..n in the order of each part's
+    first cell, int32), for a sparse 2-D ``mask`` by its runs: the cells joined along the rows, and the
+    runs of consecutive rows that touch (their column spans, widened by one cell for the diagonals,
+    overlap) joined by ``connected_components``. The same array and count; a mask with more than
+    :data:`LABEL_RUNS_SHARE` of its cells set or :data:`LABEL_RUNS_RUNS` runs a cell goes to ``ndimage.label``.
+
+    Examples
+    --------
+    >>> m = np.array([[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 0, 0], [1, 1, 0, 0]], bool)
+    >>> lab, n = label8(m)
+    >>> n, lab.tolist()
+    (3, [[1, 0, 0, 2], [0, 1, 0, 2], [0, 0, 0, 0], [3, 3, 0, 0]])
+    """
+    mask = np.asarray(mask, bool)
+    if mask.ndim != 2 or mask.size == 0 or mask.size >= 2 ** 31:
+        return ndimage.label(mask, np.ones((3,) * mask.ndim, bool))
+    h, w = mask.shape
+    # the shares of cells and runs estimated on a sample of rows (the choice of method only: both give the same)
+    sample = mask[::LABEL_SAMPLE_STEP]
+    n_s = max(1, sample.size)
+    if (np.count_nonzero(sample) > LABEL_RUNS_SHARE * n_s or np.count_nonzero(sample[:, 0])
+            + np.count_nonzero(sample[:, 1:] & ~sample[:, :-1]) > LABEL_RUNS_RUNS * n_s):
+        return ndimage.label(mask, np.ones((3, 3), bool))
+    idx = np.flatnonzero(mask)
+    out = np.zeros((h, w), np.int32)
+    if idx.size == 0:
+        return out, 0
+    # runs: cells consecutive along a row
+    brk = np.empty(idx.size, bool)
+    brk[0] = True
+    np.not_equal(idx[1:] - idx[:-1], 1, out=brk[1:])
+    # a row's first cell following the last of the row above: consecutive, yet a new run
+    wrap = (np.flatnonzero(mask[1:, 0] & mask[:-1, -1]) + 1) * w
+    brk[np.searchsorted(idx, wrap)] = True
+    first = np.flatnonzero(brk)                      # each run's first cell, in idx
+    if first.size > 2 * LABEL_RUNS_RUNS * mask.size:       # the rows sampled were not like the others
+        return ndimage.label(mask, np.ones((3, 3), bool))
+    run = np.cumsum(brk, dtype=np.int32) - 1         # each cell's run
+    del brk
+    start = idx[first]
+    end = idx[np.append(first[1:] - 1, idx.size - 1)]
+    # keys on rows two cells longer: a run's span widened by one cell never reaches another row
+    w2 = w + 2
+    row = start // w
+    k_start = row * w2 + start % w
+    k_end = row * w2 + end % w
+    # the runs of the row above touching each run: a range of runs (a row's runs are disjoint and sorted)
+    above = (row - 1) * w2
+    lo = np.searchsorted(k_end, above + (start % w) - 1, "left")
+    hi = np.searchsorted(k_start, above + (end % w) + 1, "right")
+    cnt = np.maximum(hi - lo, 0)
+    total = int(cnt.sum())
+    nr = start.size
+    if total:
+        a = np.repeat(np.arange(nr, dtype=np.int32), cnt)
+        b = (np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)).astype(np.int32)
+        graph = csr_matrix((np.ones(total, np.int8), (a, b)), shape=(nr, nr))
+        n, comp = connected_components(graph, directed=False)
+    else:
+        n, comp = nr, np.arange(nr)
+    # numbered in the order of each part's first run (the runs are in raster order): connected_components
+    # numbers them so (each new part's number one above the largest so far); else renumbered
+    seen = np.maximum.accumulate(comp)
+    if comp[0] == 0 and not np.any(seen[1:] - seen[:-1] > 1):
+        rank = np.arange(1, n + 1, dtype=np.int32)
+    else:
+        _, first_run = np.unique(comp, return_index=True)
+        rank = np.empty(n, np.int32)
+        rank[np.argsort(first_run, kind="stable")] = np.arange(1, n + 1, dtype=np.int32)
+    out.ravel()[idx] = rank[comp][run]
+    return out, int(n)

@@ -44,8 +44,11 @@ elliptic problems, Numerische Mathematik 75(2):135-152.
 All work on a level is vectorised over the unknown cells of that level (gathers of the four
 neighbours of flat indices), so the cost is O(number of cells) with a small constant.
 """
+from functools import partial
+
 import numpy as np
 
+from .blocks import run_sharing
 from .common import report, touching
 
 #: Largest number of cells of the coarsest level (solved directly).
@@ -210,7 +213,8 @@ def edge_spikes_reach(passes=EDGE_PASSES):
     return 2 * int(passes) + 1
 
 
-def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES):
+def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES, spared=None,
+                     pool=None):
     """Known cells at the edge of the cells to fill that stand above every straight continuation of their neighbours.
 
     A cell bordering the cells to fill (one of its eight neighbours is in ``fill``) is a *spike*
@@ -257,6 +261,12 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
         :func:`.dtm_refine.continuation_tolerance`, at least ``tolerance_m``); None: not looked for.
     passes : int
         Passes (>= 1); the result depends on cells within :func:`edge_spikes_reach` cells.
+    spared : array_like of bool, optional
+        Cells never taken as spikes (``bareearth:dtm``: the upper edges of steps in the ground,
+        :func:`.dtm_refine.find_step_tops`); they stay sources of the continuations.
+    pool : Executor, optional
+        Threads that may take some of a pass's chunks of cells (:func:`~.blocks.run_sharing`); the
+        same result without.
 
     Returns
     -------
@@ -291,49 +301,83 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
     np.copyto(core, z)
     np.copyto(core, np.float32(np.nan), where=fill)
     found = np.zeros((h, w), bool)
-    test = fill
+    if spared is not None:
+        spared = np.asarray(spared, bool)
+        if spared.shape != z.shape:
+            raise ValueError(f"spared must have z's shape {z.shape}; got {spared.shape}.")
+        spared_p = np.zeros(zp.shape, bool)
+        spared_p[pad:-pad, pad:-pad] = spared
+        spared_flat = spared_p.ravel()
     tol = np.float32(tolerance_m)
     line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
     flat = zp.ravel()
+    # the known cells with a cell to fill among their neighbours, as indices into the frame
+    edge = touching(fill)
+    edge &= np.isfinite(core)
+    if spared is not None:
+        edge &= ~spared
+    cand = np.flatnonzero(edge)
+    del edge
+    r, c = np.divmod(cand, w)
+    idx = (r + pad) * wp + (c + pad)
+    del cand, r, c
+    around = np.array([dr * wp + dc for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc])
     for _ in range(int(passes)):
-        # the known cells with a cell to fill (or a spike found by the last pass) among their neighbours
-        edge = touching(test)
-        edge &= np.isfinite(core)
-        cand = np.flatnonzero(edge)
-        if cand.size == 0:
+        if idx.size == 0:
             break
-        r, c = np.divmod(cand, w)
-        idx = (r + pad) * wp + (c + pad)
-        zc = flat.take(idx)
-        new = np.zeros(idx.size, bool)
-        every = np.ones(idx.size, bool)
-        seen = np.zeros(idx.size, bool)
-        # a spike stands above the continuation from one side of a line, and the other side does not
-        # continue the ground to it (it stands above that continuation too, or the side is unknown)
-        for di, dj in EDGE_LINES:
-            res, slope_known = [], []
-            for sgn in (1, -1):
-                off = sgn * (di * wp + dj)
-                z1 = flat.take(idx + off)
-                z2 = flat.take(idx + 2 * off)
-                cont = 2 * z1 - z2                                     # NaN where a source is unknown
-                np.maximum(cont, z1, out=cont)                         # and never below the neighbour
-                res.append(zc - cont)
-                slope_known.append(z1 != z2)                           # two heights, not one repeated
-            a, b = res
-            seen |= np.isfinite(a) | np.isfinite(b)
-            np.logical_and(every, ~(a <= tol) & ~(b <= tol), out=every)     # NaN (no continuation) keeps it
-            if line_tol is not None:
-                above = ((a > line_tol) & slope_known[0]) | ((b > line_tol) & slope_known[1])
-                new |= ~(a <= line_tol) & ~(b <= line_tol) & above
-        new |= every & seen
+        new = np.empty(idx.size, bool)
+        chunks = [slice(i, min(idx.size, i + EDGE_CHUNK)) for i in range(0, idx.size, EDGE_CHUNK)]
+        run_sharing([partial(_edge_spikes_at, flat, idx, s, wp, tol, line_tol, new) for s in chunks], pool)
         if not new.any():
             break
-        test = np.zeros((h, w), bool)
-        test[r[new], c[new]] = True
-        found |= test
-        flat[idx[new]] = np.nan                      # no longer a source of the next pass
+        spikes = idx[new]
+        rs, cs = np.divmod(spikes, wp)
+        found[rs - pad, cs - pad] = True
+        flat[spikes] = np.nan                        # no longer a source of the next pass
+        # the next pass's cells: the known cells beside these spikes (the frame's cells around them that
+        # hold a height; a spike no longer does, the frame's border never), as touching() of the spikes
+        # gives them, read at a few cells instead of over the raster
+        idx = np.unique((spikes[:, None] + around).ravel())
+        keep = np.isfinite(flat.take(idx))
+        if spared is not None:
+            keep &= ~spared_flat.take(idx)
+        idx = idx[keep]
     return found
+
+
+#: Candidates per chunk of :func:`find_edge_spikes` (a chunk's temporaries stay in the cache; the
+#: chunks of a pass may run in parallel).
+EDGE_CHUNK = 1 << 16
+
+
+def _edge_spikes_at(flat, idx, sl, wp, tol, line_tol, new):
+    """:func:`find_edge_spikes`' test of the cells ``idx[sl]`` (indices into the frame ``flat``, ``wp``
+    cells a row) into ``new[sl]``."""
+    idx = idx[sl]
+    zc = flat.take(idx)
+    out = np.zeros(idx.size, bool)
+    every = np.ones(idx.size, bool)
+    seen = np.zeros(idx.size, bool)
+    # a spike stands above the continuation from one side of a line, and the other side does not
+    # continue the ground to it (it stands above that continuation too, or the side is unknown)
+    for di, dj in EDGE_LINES:
+        res, slope_known = [], []
+        for sgn in (1, -1):
+            off = sgn * (di * wp + dj)
+            z1 = flat.take(idx + off)
+            z2 = flat.take(idx + 2 * off)
+            cont = 2 * z1 - z2                                     # NaN where a source is unknown
+            np.maximum(cont, z1, out=cont)                         # and never below the neighbour
+            res.append(zc - cont)
+            slope_known.append(z1 != z2)                           # two heights, not one repeated
+        a, b = res
+        seen |= np.isfinite(a) | np.isfinite(b)
+        np.logical_and(every, ~(a <= tol) & ~(b <= tol), out=every)     # NaN (no continuation) keeps it
+        if line_tol is not None:
+            above = ((a > line_tol) & slope_known[0]) | ((b > line_tol) & slope_known[1])
+            out |= ~(a <= line_tol) & ~(b <= line_tol) & above
+    out |= every & seen
+    new[sl] = out
 
 
 def _near_known(known, reach):

@@ -60,3 +60,47 @@ def allocator_environment(env=None):
     out = dict(os.environ if env is None else env)
     out.update(ALLOCATOR_ENV)
     return out
+
+
+#: Environment variable giving the memory a run's windows may take together, megabytes
+#: (:func:`window_budget`); unset: a share of the memory available when the run starts.
+BUDGET_ENV = "BARE_EARTH_MEMORY_MB"
+#: Share of the memory available when a run starts that its windows may take together: the rest
+#: stays for the other programs (QGIS, other runs), GDAL's block cache and the outputs' compression.
+BUDGET_SHARE = 0.5
+#: The budget when the available memory cannot be read (bytes): 2 GB.
+FALLBACK_BUDGET = 2 << 30
+
+
+def available_memory():
+    """Bytes of memory available for new work: ``MemAvailable`` of ``/proc/meminfo`` (Linux: free
+    memory plus the page cache the kernel can drop), else the free physical pages; None when unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def window_budget(env=None):
+    """Bytes the windows of one run may take together: ``BARE_EARTH_MEMORY_MB`` megabytes when set
+    (in ``env``, default this process's environment), else :data:`BUDGET_SHARE` of
+    :func:`available_memory` (:data:`FALLBACK_BUDGET` when that is unknown)."""
+    env = os.environ if env is None else env
+    given = env.get(BUDGET_ENV, "").strip()
+    if given:
+        try:
+            mb = float(given)
+        except ValueError:
+            raise ValueError(f"{BUDGET_ENV}={given!r} is not a number of megabytes.") from None
+        if not mb > 0:
+            raise ValueError(f"{BUDGET_ENV}={given!r}: give a positive number of megabytes.")
+        return int(mb * (1 << 20))
+    avail = available_memory()
+    return int(BUDGET_SHARE * avail) if avail else FALLBACK_BUDGET

@@ -92,6 +92,14 @@ class _CheckedResolve:
         return self.resolve(z, cell_size, **values)
 
 
+#: Memory a window of a method takes at its peak in :func:`.pipeline.run_file`, bytes per cell of
+#: the window (its heights, the method's temporaries, the outputs' arrays, GDAL's cache): for a
+#: method that states none, the largest measured, rounded up (``benchmarks/speed.py --sizes 16``,
+#: stage ``file``, two threads: "extra MB" x 2^20 over the cells, 81.5 for dtm, 37.6-61.1 for the
+#: others; dtm in the 7040 x 7040 windows of a blocked 12000 x 12000 run: 91.4, its peak less the imports).
+DEFAULT_BYTES_PER_CELL = 92.0
+
+
 @dataclass(frozen=True)
 class Method:
     """A filter method.
@@ -135,6 +143,9 @@ class Method:
         :func:`.pipeline.run_file` resolves a raster larger than its window on the window, then
         calls it with the user's ``given`` values and the whole raster read every ``step``-th
         cell (``cell_size`` its cells).
+    bytes_per_cell : float
+        Memory a window takes at its peak in :func:`.pipeline.run_file`, bytes per window cell
+        (measured); :func:`.pipeline.plan_block` sizes the blocks of a large raster by it.
     """
     name: str
     run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
@@ -147,6 +158,7 @@ class Method:
     description: str = ""
     threads: bool = False
     widen: Optional[Callable[..., Dict[str, Any]]] = None
+    bytes_per_cell: float = DEFAULT_BYTES_PER_CELL
 
     def __post_init__(self):
         if not isinstance(self.resolve, _CheckedResolve):

@@ -21,7 +21,7 @@ from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from . import blocks, grid
+from . import blocks, grid, memory
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import (
     Cancelled,
@@ -33,11 +33,14 @@ from .common import (
     sub_progress,
     without_far_heights,
 )
-from .methods import Method, available_methods, check_values, get_method
+from .methods import DEFAULT_BYTES_PER_CELL, Method, available_methods, check_values, get_method
 
 #: Rasters up to this many cells are processed in one block by run_file (unless a block
-#: size is given); larger ones stream in blocks of blocks.DEFAULT_BLOCK cells.
+#: size is given); larger ones stream in blocks sized by the memory budget (plan_block).
 IN_MEMORY_CELLS = 25_000_000
+#: Smallest block plan_block cuts a large raster into from the memory budget, cells (two output
+#: tiles): a smaller budget is exceeded rather than the windows made mostly halo.
+MIN_BLOCK = 512
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
 #: Strips of rows per worker process when a raster is processed in parallel (one when the
@@ -211,6 +214,20 @@ def class_shares(counts):
     return shares
 
 
+def no_ground_message(counts, outputs):
+    """The log line when a run's mask (``counts`` per code) holds valid cells but no ground and a
+    DTM or nDSM is written: with no ground to interpolate from they are nodata everywhere (a
+    window inside one roof, a raster of a few cells a filter reads as a step), else None."""
+    valid = sum(v for k, v in counts.items() if k != NODATA)
+    if not valid or counts.get(GROUND) or not (outputs.get("dtm") or outputs.get("ndsm")):
+        return None
+    written = " and ".join(n for k, n in (("dtm", "DTM"), ("ndsm", "nDSM")) if outputs.get(k))
+    return (f"The filter called none of the {valid} valid cell(s) ground (objects "
+            f"{100.0 * counts.get(OBJECT, 0) / valid:.0f} %, low outliers {100.0 * counts.get(LOW, 0) / valid:.0f} %): "
+            f"with no ground to interpolate from, the {written} {'are' if ' and ' in written else 'is'} nodata "
+            "everywhere. Give a raster that reaches the ground around its objects, or try another method.")
+
+
 def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
               params: Optional[Dict[str, Any]] = None, *, aux: Optional[Dict[str, Optional[np.ndarray]]] = None,
               block: Optional[Union[int, Tuple[int, int]]] = None, workers: int = 1, progress: Progress = None,
@@ -306,20 +323,78 @@ def _resolve_window(shape):
     return (r0, r0 + h, c0, c0 + w)
 
 
-def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False):
-    """The block shape :func:`run_file` cuts a raster of ``shape`` into (a pure function).
+def concurrent_windows(workers=1, processes=1, threads=False):
+    """Windows :func:`run_file` holds in memory at once in block mode: one for a method that uses
+    threads inside a window (``Method.threads``) without worker processes (its windows run one
+    after the other, each with the run's threads), else one per thread or process."""
+    if threads and int(processes) <= 1:
+        return 1
+    return max(1, int(processes), int(workers))
 
-    A given ``block`` is used as is. Otherwise: one block up to :data:`IN_MEMORY_CELLS`, and
-    above when the halo reaches across the raster from any block (each block would read all of
-    it: the memory of one pass, times the blocks in time; the method's reach in metres at very
-    fine cells, 1-2 cm)
-    (also with several threads when the method uses them inside a window, ``threads``:
-    strips would each recompute a halo),
-    blocks of :data:`blocks.DEFAULT_BLOCK` above; with several threads or processes, strips
-    of whole rows, :data:`STRIPS_PER_PROCESS` per worker (one per worker when the halo would
-    add more than a quarter), their height a multiple of 64 cells (coarsened grids align as
-    in one pass) or of the output tile for long strips (each strip's tiles are whole when
-    it is flushed), at least ``2 * halo`` and 64 rows.
+
+def read_amplification(shape, block, halo):
+    """Cells the windows of :func:`blocks.iter_windows` read (and filter) over the raster's cells:
+    1 for one pass; ``(b + 2 halo)^2 / b^2`` for square blocks ``b`` inside a large raster."""
+    total = sum((o[1] - o[0]) * (o[3] - o[2]) for _, o in blocks.iter_windows(shape, block, halo))
+    return total / float(shape[0] * shape[1])
+
+
+def largest_window(shape, block, halo):
+    """Cells of the largest window :func:`blocks.iter_windows` reads."""
+    return max((o[1] - o[0]) * (o[3] - o[2]) for _, o in blocks.iter_windows(shape, block, halo))
+
+
+def _balanced(n, most, unit):
+    """The smallest multiple of ``unit`` cutting ``n`` cells into as few blocks as blocks of ``most``
+    (itself when none is smaller): no thin last block reading a whole halo for a few rows (not
+    always fewer cells read: the raster's edges clip the halos of the first and last blocks)."""
+    k = -(-n // most)
+    even = -(-n // k)
+    b = -(-even // unit) * unit
+    return b if b <= most else most
+
+
+def _budget_block(shape, halo, cells):
+    """The block whose windows read the fewest cells among the largest square blocks and strips of
+    whole rows, as they are and balanced over the raster (:func:`_balanced`), whose window holds at
+    most ``cells`` cells (a side: the block, a halo on each side and up to ``alignment - 1`` cells
+    the window's corner moves out to; at least :data:`MIN_BLOCK`); sides multiples of the output
+    tile and of the windows' alignment."""
+    rows, cols = shape
+    a = blocks.alignment(halo)
+    unit, grow = max(grid.OUTPUT_TILE, a), 2 * halo + a - 1
+    side = math.isqrt(max(0, int(cells)))
+    most = max(MIN_BLOCK, (side - grow) // unit * unit)
+    candidates = [(most, most), (_balanced(rows, most, unit), _balanced(cols, most, unit))]
+    strip = (int(cells) // cols - grow) // unit * unit        # whole rows: no halo at the sides
+    if strip >= MIN_BLOCK:
+        candidates += [(strip, cols), (_balanced(rows, strip, unit), cols)]
+    return min(candidates, key=lambda b: read_amplification(shape, b, halo))
+
+
+def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False,
+               bytes_per_cell=DEFAULT_BYTES_PER_CELL, budget=None):
+    """The block shape :func:`run_file` cuts a raster of ``shape`` into (a pure function given
+    ``budget``).
+
+    A given ``block`` is used as is. A raster of up to :data:`IN_MEMORY_CELLS` is one block
+    (with several threads or processes: strips of whole rows, :data:`STRIPS_PER_PROCESS` per
+    worker, one per worker when the halo would add more than a quarter; also one block with
+    several threads when the method uses them inside a window, ``threads``: strips would each
+    recompute a halo), their height a multiple of 64 cells (coarsened grids align as in one
+    pass) or of the output tile for long strips (each strip's tiles are whole when it is
+    flushed), at least ``2 * halo`` and 64 rows.
+
+    A larger raster is cut into the blocks that read the fewest cells (:func:`read_amplification`)
+    while the windows held at once (:func:`concurrent_windows`) fit ``budget`` bytes
+    (default :func:`.memory.window_budget`: half the memory available) at ``bytes_per_cell`` bytes
+    per window cell (the method's ``Method.bytes_per_cell``): each window (block + 2 halo) at most
+    ``budget / concurrent / bytes_per_cell`` cells; square blocks, or strips of whole rows when a
+    window can span the raster's width, balanced over the raster, at least :data:`MIN_BLOCK`
+    (a budget smaller than such a window is exceeded rather than the blocks shrunk further).
+    The whole raster is one block when it fits the budget, and when the halo reaches across it
+    from any block (each block would read all of it: the memory of one pass, times the blocks in
+    time; the method's reach in metres at very fine cells, 1-2 cm).
 
     Returns
     -------
@@ -328,20 +403,27 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     if block is not None:
         return block
     rows_all = shape[0]
-    small = shape[0] * shape[1] <= IN_MEMORY_CELLS
-    block = max(shape) if small else blocks.DEFAULT_BLOCK
-    if not small and halo >= max(shape) - block:
-        return max(shape)       # every block would read (and filter) the whole raster: one pass instead
+    if shape[0] * shape[1] > IN_MEMORY_CELLS:
+        if budget is None:
+            budget = memory.window_budget()
+        cells = budget / concurrent_windows(workers, processes, threads) / float(bytes_per_cell)
+        if shape[0] * shape[1] <= cells:
+            return max(shape)       # the whole raster fits the budget: one pass
+        bshape = _budget_block(shape, halo, cells)
+        if all(halo >= n - b for n, b in zip(shape, bshape)):
+            return max(shape)       # every block would read (and filter) the whole raster: one pass instead
+        return bshape
+    block = max(shape)
     n = max(int(processes), int(workers))
-    if n <= 1 or (small and threads and int(processes) <= 1):
+    if n <= 1 or (threads and int(processes) <= 1):
         return block
     strips = n * STRIPS_PER_PROCESS
     if 2 * halo * strips > rows_all // 4:
         strips = n
-    rows = -(-rows_all // strips) if small else block
+    rows = -(-rows_all // strips)
     align = grid.OUTPUT_TILE if rows >= 4 * grid.OUTPUT_TILE else 64
     rows = -(-rows // align) * align
-    return (max(rows, 2 * halo, 64), shape[1] if small else block)
+    return (max(rows, 2 * halo, 64), shape[1])
 
 
 @dataclass
@@ -416,6 +498,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
+            grid.check_output_crs(target, info.crs_wkt, info.geotransform)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != info.shape:
@@ -494,7 +577,7 @@ def _derive_params(info, run):
                 f"columns {rw[2]}-{rw[3]}).")
         params = widen_params(run.meth, info, params, run.params, run.log)
         if info.far_cells:
-            run.log("Warning: " + far_heights_message(info.far_cells) + " (in that window)")
+            run.log("Warning: " + far_heights_message(info.far_cells, info.nodata) + " (in that window)")
     return params, whole
 
 
@@ -527,9 +610,10 @@ def _ndsm_nodata(float_nodata):
 def _add_outputs(out, meth, outputs, float_nodata):
     """Create the requested outputs in ``out`` (a :class:`grid.OutputSet`)."""
     if outputs.get("dtm"):
-        out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"])
+        out.add("dtm", outputs["dtm"], "Float32", nodata=float_nodata, descriptions=["DTM"], heights=True)
     if outputs.get("ndsm"):
-        out.add("ndsm", outputs["ndsm"], "Float32", nodata=_ndsm_nodata(float_nodata), descriptions=["nDSM"])
+        out.add("ndsm", outputs["ndsm"], "Float32", nodata=_ndsm_nodata(float_nodata), descriptions=["nDSM"],
+                heights=True)
     if outputs.get("mask"):
         out.add("mask", outputs["mask"], "Byte", nodata=NODATA, mask_style=True,
                 descriptions=["mask: 0 ground, 1 object, 2 low outlier, 255 nodata"])
@@ -580,14 +664,16 @@ def _run_file(info, run, pool):
     cell = info.cell_size_m
     params, whole = _derive_params(info, run)
     halo = int(run.meth.halo(params, cell))
-    windows = list(blocks.iter_windows(
-        info.shape, plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
-                               threads=run.meth.threads), halo))
-    if len(windows) == 1 and info.cells > IN_MEMORY_CELLS and run.block is None:
-        run.log(f"Warning: the method's reach, {halo} cells ({halo * max(cell):.0f} m at cells of "
-                f"{max(cell):.3g} m), spans the raster from any block: it is filtered in one pass over its "
-                f"{info.shape[1]} x {info.shape[0]} cells, with the memory that takes. A coarser cell (gdalwarp -tr) "
-                "makes the reach fewer cells.")
+    budget = memory.window_budget() if info.cells > IN_MEMORY_CELLS and run.block is None else None
+    bshape = plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
+                        threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, budget=budget)
+    windows = list(blocks.iter_windows(info.shape, bshape, halo))
+    # the planned windows of a method using threads inside a window: one at a time, with the threads
+    # (the budget is for one window); given blocks run side by side, one thread each
+    sequential = (len(windows) > 1 and budget is not None
+                  and concurrent_windows(run.workers, run.processes, run.meth.threads) == 1)
+    if budget is not None:
+        _log_plan(run, info, bshape, halo, windows, budget)
     report(run.progress, RESOLVED)
     stored = (info.nodata, info.scale, info.offset, info.dtype)
     float_nodata = grid.float_output_nodata(*stored)
@@ -601,7 +687,8 @@ def _run_file(info, run, pool):
         _add_outputs(out, run.meth, run.outputs, float_nodata)
         want_dtm = "dtm" in out or "ndsm" in out
         job = _BlockJob(run.meth, info.path, info.band_index, cell, params, want_dtm, want_z="ndsm" in out,
-                        workers=run.workers if len(windows) == 1 else 1, nodata_ranges=info.nodata_ranges,
+                        workers=run.workers if len(windows) == 1 or sequential else 1,
+                        nodata_ranges=info.nodata_ranges,
                         crs_wkt=info.crs_wkt or None)
         writer = _BlockWriter(out, run.meth, info, float_nodata, flush=len(windows) > 1)
         if run.processes > 1 and len(windows) > 1:
@@ -620,12 +707,16 @@ def _run_file(info, run, pool):
                                                 sub_progress(block_progress, 0.0, COMPUTE_SHARE)),
                        progress=sub_progress(block_progress, COMPUTE_SHARE, 1.0))
 
-            blocks.run_windows(work, windows, workers=run.workers, progress=progress)
+            blocks.run_windows(work, windows, workers=1 if sequential else run.workers, progress=progress)
         out.commit(progress=sub_progress(run.progress, 0.97, 1.0))
     far = info.far_cells if whole is not None else writer.far_cells
-    warnings = list(info.warnings) + ([far_heights_message(far)] if far else [])
+    warnings = list(info.warnings) + ([far_heights_message(far, info.nodata)] if far else [])
     if far:                 # whole or in blocks, the log (QGIS's warnings) says it
-        run.log("Warning: " + far_heights_message(far))
+        run.log("Warning: " + far_heights_message(far, info.nodata))
+    empty = no_ground_message(writer.counts, run.outputs)
+    if empty:
+        warnings.append(empty)
+        run.log("Warning: " + empty)
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}
     result.update(_merge_info(writer.infos, writer.weights))
@@ -634,6 +725,35 @@ def _run_file(info, run, pool):
     with contextlib.suppress(Cancelled):   # the outputs are in place: a cancel now comes too late
         report(run.progress, 1.0)
     return result
+
+
+def _log_plan(run, info, bshape, halo, windows, budget):
+    """Log the blocks :func:`plan_block` chose for a raster above :data:`IN_MEMORY_CELLS`: their size,
+    the read amplification, the largest window's memory against the budget (a warning when the
+    halo spans the raster or the smallest block exceeds the budget)."""
+    n = concurrent_windows(run.workers, run.processes, run.meth.threads) if len(windows) > 1 else 1
+    bpc = run.meth.bytes_per_cell
+    window_mb = largest_window(info.shape, bshape, halo) * bpc / 2 ** 20
+    budget_mb = budget / 2 ** 20
+    if len(windows) == 1:
+        if window_mb <= budget_mb:
+            run.log(f"Filtered in one pass over its {info.shape[1]} x {info.shape[0]} cells: about {window_mb:.0f} MB "
+                    f"at {bpc:.0f} bytes a cell, within the memory budget of {budget_mb:.0f} MB "
+                    f"({memory.BUDGET_ENV} or half the memory available).")
+        else:
+            run.log(f"Warning: the method's reach, {halo} cells ({halo * max(info.cell_size_m):.0f} m at cells of "
+                    f"{max(info.cell_size_m):.3g} m), spans the raster from any block: it is filtered in one pass over "
+                    f"its {info.shape[1]} x {info.shape[0]} cells, with the memory that takes "
+                    f"(about {window_mb:.0f} MB). A coarser cell (gdalwarp -tr) makes the reach fewer cells.")
+        return
+    rows, cols = (bshape, bshape) if isinstance(bshape, (int, np.integer)) else bshape
+    amp = read_amplification(info.shape, bshape, halo)
+    over = window_mb * n > budget_mb
+    run.log(f"{'Warning: ' if over else ''}Blocks of {cols} x {rows} cells with a halo of {halo} cells: "
+            f"{len(windows)} windows reading {amp:.2f} x the raster's cells; the largest about {window_mb:.0f} MB "
+            f"at {bpc:.0f} bytes a cell, {n} at a time, against a memory budget of {budget_mb:.0f} MB "
+            f"({memory.BUDGET_ENV} or half the memory available)"
+            + (": the smallest block exceeds it." if over else "."))
 
 
 class _BlockJob:

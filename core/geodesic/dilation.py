@@ -11,10 +11,9 @@ import numpy as np
 from scipy import ndimage
 
 from ..blocks import run_sharing
-from ..common import report, sub_progress
+from ..common import label8, report, sub_progress
 from ..estimate import block_expand, smooth_parts
 from .grey import (
-    S8,
     block_reduce,
     fill_nodata,
     grey_opening,
@@ -180,7 +179,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     if not cand.any():
         report(progress, 0.9)
         return none, Rc.ravel()[none]
-    lab, n = ndimage.label(cand, S8)
+    lab, n = label8(cand)                         # sparse at the fine steps: by runs
     report(progress, 0.75)
     # a rim cell is abrupt when it holds a wall: a cell above a neighbour by more
     # than the terrain can rise over one (diagonal) cell, plus 2 dh0
@@ -272,7 +271,7 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
         return cells
     res = lvl.ravel()[cells]
     del lvl
-    lab, n = ndimage.label(cand, S8)
+    lab, n = label8(cand)
     lab_c = lab.ravel()[cells]
     # the tests of _component_stats, without its sort: counts per label and the labels' boxes
     high = np.bincount(lab_c, weights=res > dh_k, minlength=n + 1) > 0
@@ -391,7 +390,7 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     fine = fine.reshape(H, W)
     rows, cols = np.divmod(cells, W)
     rim = ~inner_cells(fine).ravel()[cells] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
-    lab, n = ndimage.label(fine, S8)
+    lab, n = label8(fine)
     part = lab.ravel()[cells]
     del fine, lab
     low3 = None if shared is None else shared.get("low3")

@@ -1,10 +1,9 @@
 """Stage 1 of the geodesic filter: the noise-removal preprocessing (isolated outliers)."""
 import numpy as np
-from scipy import ndimage
 
 from ..codes import LOW, OBJECT
-from ..common import report, sub_progress
-from .grey import S8, grey_closing, grey_opening, window_cells
+from ..common import label8, report, sub_progress
+from .grey import grey_closing, grey_opening, window_cells
 
 #: Largest cluster (cells) the preprocessing treats as an isolated outlier.
 OUTLIER_MAX_CELLS = 16
@@ -18,7 +17,7 @@ _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
 def _small_clusters(cand):
     """Flat indices of the cells of ``cand`` in 8-connected clusters of at most
     :data:`OUTLIER_MAX_CELLS` (sizes counted on the candidates only: they are few)."""
-    lab, n = ndimage.label(cand, S8)
+    lab, n = label8(cand)
     idx = np.flatnonzero(cand)
     lab_c = lab.ravel()[idx]
     return idx[np.bincount(lab_c, minlength=n + 1)[lab_c] <= OUTLIER_MAX_CELLS]

@@ -6,6 +6,7 @@ removed; the mask gets its 4-code colour table and a QGIS style.
 """
 import contextlib
 import contextvars
+import functools
 import math
 import os
 import re
@@ -191,6 +192,73 @@ def check_output_cells(path, geotransform):
     if drv == "SAGA" and not math.isclose(dx, dy, rel_tol=1e-9):
         raise ValueError(f"the output {str(path)!r} is a {name}, which holds square cells only, but the input's "
                          f"cells are {dx:g} x {dy:g}: write it as a GeoTIFF (.tif) or ERDAS Imagine (.img) file.")
+
+
+def _linear_unit(srs):
+    """(metres per unit, unit name) of a CRS's horizontal axes; (None, 'degree') when geographic."""
+    if srs.IsGeographic():
+        return None, "degree"
+    return float(srs.GetLinearUnits()), srs.GetLinearUnitsName()
+
+
+@functools.lru_cache(maxsize=32)
+def _crs_copy_problem(drv, crs_wkt, geotransform):
+    """None, or why a raster in ``crs_wkt`` copied from a GeoTIFF work file into driver ``drv``
+    (as :meth:`OutputSet.commit` writes every format but GeoTIFF) is not where the input is:
+    GDAL fails to write its CRS (netCDF on an oblique Mercator CRS, EPSG:2056), leaves it out,
+    or writes another unit (a GeoPackage names a transverse Mercator in kilometres on the
+    parameters of a UTM zone EPSG:326xx, in metres). Tried on a 2 x 2 raster in a temporary folder."""
+    folder = tempfile.mkdtemp(prefix="bare-earth-crs-")
+    ext = next(e for e, (d, _, _) in OUTPUT_FORMATS.items() if d == drv)
+    messages = []
+    try:
+        with _quiet_gdal(messages):        # side files on, as for the outputs (a CRS may live in .aux.xml)
+            work = os.path.join(folder, "probe.tif")
+            ds = gdal.GetDriverByName("GTiff").Create(work, 2, 2, 1, gdal.GDT_Float32)
+            ds.SetGeoTransform(geotransform)
+            ds.SetProjection(crs_wkt)
+            ds.GetRasterBand(1).Fill(1.0)
+            ds = None
+            gdal.ErrorReset()
+            try:
+                out = gdal.GetDriverByName(drv).CreateCopy(os.path.join(folder, "probe" + ext), gdal.Open(work))
+                if out is None:
+                    raise RuntimeError("")
+                out = None
+                back = gdal.Open(os.path.join(folder, "probe" + ext))
+                written = back.GetProjection() or ""
+                back = None
+            except RuntimeError as exc:
+                why = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "\n".join(messages).strip()
+                return f"GDAL cannot write its CRS in that format ({(why or 'GDAL gave no reason').splitlines()[0]})"
+    finally:
+        for name in os.listdir(folder):
+            os.remove(os.path.join(folder, name))
+        os.rmdir(folder)
+    if not written:
+        return "GDAL writes it in that format without its CRS"
+    given, got = osr.SpatialReference(), osr.SpatialReference()
+    given.ImportFromWkt(crs_wkt)
+    got.ImportFromWkt(written)
+    (f0, u0), (f1, u1) = _linear_unit(given), _linear_unit(got)
+    if (f0 is None) != (f1 is None) or (f0 is not None and not math.isclose(f0, f1, rel_tol=1e-9)):
+        return (f"GDAL writes its CRS ({given.GetName()}, in {u0}) in that format as {got.GetName()} "
+                f"(in {u1}): the output would not lie where the input does")
+    return None
+
+
+def check_output_crs(path, crs_wkt, geotransform=(0.0, 1.0, 0.0, 2.0, 0.0, -1.0)):
+    """Check before any work that an output written as ``path``'s format keeps the input's CRS
+    ``crs_wkt`` (a GeoTIFF always does: its work file is written with it). ValueError naming the
+    CRS, what GDAL does with it, and the formats to write instead."""
+    need_gdal()
+    drv, name = _output_format(path)
+    if not crs_wkt or drv == "GTiff":
+        return
+    why = _crs_copy_problem(drv, str(crs_wkt), tuple(float(v) for v in geotransform))
+    if why:
+        raise ValueError(f"the output {str(path)!r} is a {name}, but {why}. Write it as a GeoTIFF (.tif), "
+                         "which keeps the CRS.")
 
 
 def check_output_folder(path):
@@ -418,8 +486,11 @@ def _pid_alive(pid):
 
 def remove_stale_partials(path):
     """Remove the work files of earlier runs of the output ``path`` that were killed (their
-    process is gone, or it is this process and the file is not being written); returns their
-    names. Also removes the ``<name>.partial-<id><ext>`` files of older versions."""
+    process is gone, or it is this process and the file is not being written), and the work
+    files of any other output in its folder whose process is gone (a run killed by SIGTERM or
+    a crash while writing another name there); returns their names. Only names of the writer's
+    exact pattern (``.<stem>.<pid of 10 digits>-<8 hex>.partial`` and its sidecars) are
+    touched. Also removes the ``<name>.partial-<id><ext>`` files of older versions."""
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
     root, ext = os.path.splitext(base)
@@ -433,11 +504,12 @@ def remove_stale_partials(path):
     for name in names:
         full = os.path.join(folder, name)
         m = _PARTIAL_RE.fullmatch(name)
-        if m and m.group("stem") == stem:
+        if m:
             pid = int(m.group("pid"))
             work = full[:len(full) - len(m.group("rest") or "")]
-            if (pid != os.getpid() and _pid_alive(pid)) or work in _LIVE:
-                continue
+            if work in _LIVE or (pid == os.getpid() and m.group("stem") != stem) or (
+                    pid != os.getpid() and _pid_alive(pid)):
+                continue     # being written, this process's for another output, or its process runs
         elif not old.fullmatch(name):
             continue
         try:
@@ -571,8 +643,10 @@ class OutputSet:
         self._committed = False
         self._options, self._cog = _WRITE_OPTIONS.get()
 
-    def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None):
-        """Create output ``key`` at ``path`` (written to a hidden work file beside it)."""
+    def add(self, key, path, dtype="Float32", bands=1, nodata=None, mask_style=False, descriptions=None,
+            heights=False):
+        """Create output ``key`` at ``path`` (written to a hidden work file beside it); an output of
+        ``heights`` (a DTM, an nDSM) states the height unit the input's band states."""
         _refuse_folder(str(path), os.path.join(os.path.abspath(str(path)), f"{key}.tif"))
         path = os.path.abspath(str(path))
         if self.info.path and os.path.abspath(str(self.info.path)) == path:
@@ -582,6 +656,7 @@ class OutputSet:
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
         check_output_cells(path, self.info.geotransform)
+        check_output_crs(path, self.info.crs_wkt, self.info.geotransform)
         check_replaceable(path)
         check_geopackage_replaceable(path)
         remove_stale_partials(path)
@@ -608,6 +683,8 @@ class OutputSet:
                 b.SetNoDataValue(float(nodata))
             if descriptions:
                 b.SetDescription(descriptions[k - 1])
+            if heights and self.info.unit_type:
+                b.SetUnitType(self.info.unit_type)
         if mask_style:
             style_mask_band(ds.GetRasterBand(1))
         self._items[key] = dict(path=path, tmp=work, ds=ds, driver=drv, dtype=dtype, mask_style=mask_style,

@@ -234,6 +234,8 @@ class DSMInfo:
     nodata_ranges : ``(low, high, include_low, include_high)`` ranges of heights (the raster's
         unit, scale and offset applied) that are nodata too: the additional no-data values a
         QGIS layer of the raster was given (Properties > Transparency)
+    unit_type : the height unit the band states (GDAL's unit type) when it names one of
+        :data:`BAND_HEIGHT_UNITS` (``z_to_m`` is then its), else ""; the DTM and nDSM outputs state it too
     """
     path: str
     band_index: int
@@ -256,6 +258,7 @@ class DSMInfo:
     georeferenced: bool = True
     gcps: tuple = ()
     gcp_wkt: str = ""
+    unit_type: str = ""
 
     @property
     def cells(self):
@@ -395,6 +398,35 @@ def vertical_unit_factor(srs):
     if not (math.isfinite(f) and f > 0):
         return None
     return f, srs.GetAttrValue("VERT_CS|UNIT") or f"{f:.6g} m"
+
+
+#: Metres per unit of a band's stated unit (GDAL's unit type, ``gdal_edit.py -units`` or
+#: ``gdal_translate -a_unittype``: "m" or "ft" for heights), by its lower-case name.
+_US_FOOT = 1200.0 / 3937.0
+BAND_HEIGHT_UNITS = {
+    "m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0,
+    "ft": 0.3048, "foot": 0.3048, "feet": 0.3048, "international foot": 0.3048, "foot_international": 0.3048,
+    "us-ft": _US_FOOT, "ftus": _US_FOOT, "us survey foot": _US_FOOT, "us_survey_foot": _US_FOOT,
+    "foot_us": _US_FOOT, "us foot": _US_FOOT,
+    "cm": 0.01, "centimetre": 0.01, "centimeter": 0.01, "mm": 0.001, "millimetre": 0.001, "millimeter": 0.001,
+}
+
+
+def band_height_unit(band, z_to_m):
+    """``(metres per height unit, warning or None, the unit's name or "")``: the unit the band states for its values
+    (GDAL's unit type) when it names a length of :data:`BAND_HEIGHT_UNITS`, else ``z_to_m``
+    (the unit the CRS gives, :func:`cell_size_metres`). The band's own statement of its values
+    wins over the CRS's unit: a grid in US feet with heights in metres, or in metres with heights
+    in feet, is read as its band says."""
+    unit = (band.GetUnitType() or "").strip()
+    f = BAND_HEIGHT_UNITS.get(unit.lower())
+    if f is None:
+        return z_to_m, None, ""
+    if math.isclose(f, z_to_m, rel_tol=1e-9):
+        return z_to_m, None, unit
+    return f, (f"The band states its heights are in '{unit}' ({f:.6g} m; its CRS would give {z_to_m:.6g} m): "
+               "they were converted to metres for the thresholds with the band's unit; outputs are written "
+               "back in it."), unit
 
 
 #: A projected CRS made for measuring (UTM, national and state grids: transverse Mercator, Lambert
@@ -547,9 +579,12 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = next(k for k in range(1, nb + 1) if k not in alpha)   # heights + alpha: the heights
     if band in (None, 0):
         if nb > 1:
+            names = [(ds.GetRasterBand(k).GetDescription() or "").strip() for k in range(1, nb + 1)]
+            named = (" Its bands: " + ", ".join(f"{k} {n}" for k, n in enumerate(names, 1) if n) + "."
+                     if any(names) else "")       # PDAL's writers.gdal: min, max, mean, idw, count, stdev
             raise SeveralBands(f"the raster {path!r} has {nb} bands: a DSM has one. Choose the height band "
-                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb)),
-                               nb)
+                               "with the BAND parameter (1..{nb}) or extract it first.".replace("{nb}", str(nb))
+                               + named, nb)
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
@@ -595,6 +630,9 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
                          "-a_srs EPSG:4326) first.")
     warns += w2
     b = ds.GetRasterBand(int(band))
+    z_to_m, unit_warning, unit_type = band_height_unit(b, z_to_m)
+    if unit_warning:
+        warns.append(unit_warning)
     nodata = b.GetNoDataValue()
     dtype = gdal.GetDataTypeName(b.DataType)
     scale, offset = b.GetScale(), b.GetOffset()
@@ -603,7 +641,7 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
-                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset)
+                   dtype=dtype, warnings=warns, _ds=ds, scale=scale, offset=offset, unit_type=unit_type)
     if ds.GetGeoTransform(can_return_null=True) is None:
         info.georeferenced = False
         info.gcps = tuple((g.GCPX, g.GCPY, g.GCPZ, g.GCPPixel, g.GCPLine) for g in (ds.GetGCPs() or ()))
@@ -637,8 +675,8 @@ def check_has_data(info, max_cells=4_000_000):
     rows, cols = info.shape
     step = max(1, int(math.ceil(math.sqrt(info.cells / max_cells))))
 
-    def heights(a, window=None, step=1):
-        return without_far_heights(info.surface(a, window, step, z_to_m=1.0))
+    def heights(a, window=None, step=1):   # metres, as the filters read them
+        return without_far_heights(info.surface(a, window, step))
 
     a = info.read_stored(step=step)
     z, n_far = heights(a, step=step)
@@ -653,11 +691,15 @@ def check_has_data(info, max_cells=4_000_000):
             if valid.any():
                 break
     if not valid.any() and n_far:
+        unit = ""
+        if info.z_to_m != 1.0:
+            unit = (f" Its heights are read in its CRS's unit ({info.z_to_m:g} m): if they are in metres, give "
+                    "it a compound CRS whose vertical axis is in metres, or reproject it to a CRS in metres.")
         raise ValueError(f"the raster {info.path!r} has no valid cell: its cells are nodata or hold heights "
-                         f"beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite), which no terrain has. If the heights "
-                         "are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py -scale "
-                         "0.001 for millimetres); if that value marks missing cells, declare it as the nodata "
-                         "value.")
+                         f"beyond +-{MAX_ABS_HEIGHT_M:g} m (or infinite), which no terrain has.{unit} If the "
+                         "heights are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py "
+                         "-scale 0.001 for millimetres); if that value marks missing cells, declare it as the "
+                         "nodata value.")
     if not valid.any():
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
@@ -666,9 +708,11 @@ def check_has_data(info, max_cells=4_000_000):
 
 
 #: Values software writes for missing cells (ESRI and most GIS -9999, Int16 rasters -32767 and
-#: -32768, older exports -99999; above the heights: 9999, the largest Int16 and UInt16): when a
-#: raster does not declare one, its cells read as heights.
-COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, 9999.0, 32767.0, 65535.0)
+#: -32768, older exports -99999, unsigned rasters and many exports' background 0; above the
+#: heights: 9999, the largest Int16 and UInt16): when a raster does not declare one, its cells
+#: read as heights. 0 is also sea level: only a 0 standing further below the other heights than
+#: they span is named (a coast's sea beside its land is not).
+COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, 0.0, 9999.0, 32767.0, 65535.0)
 
 
 def undeclared_nodata_warning(info, z):

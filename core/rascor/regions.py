@@ -9,7 +9,7 @@ from typing import Tuple
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size
+from ..common import as_cell_size, cells_of, label8
 
 
 def as_bool_raster(a, shape, name):
@@ -92,8 +92,7 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
         The cells of the ramp regions.
     """
     dx, dy = as_cell_size(cell_size)
-    eight = np.ones((3, 3), bool)
-    lab, n = ndimage.label(taken, eight)
+    lab, n = label8(taken)
     out = np.zeros(taken.shape, bool)
     if not n:
         return out
@@ -105,10 +104,10 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
     # a plane needs a region holding at least one whole 3 x 3 neighbourhood: a thinner region (a few
     # cells, a line along a crown's edge) fits some plane within any tolerance
     held = np.zeros(n + 1, bool)
-    held[lab[ndimage.binary_erosion(taken, eight)]] = True
+    held[lab[ndimage.binary_erosion(taken, np.ones((3, 3), bool))]] = True
     ok &= held
     # the region's cells: least-squares plane on coordinates centred on the region's mean
-    r, c = np.nonzero(taken)
+    r, c = cells_of(taken)
     li = lab[r, c]
     zz = z[r, c].astype(np.float64)
     x, y = c * dx, r * dy

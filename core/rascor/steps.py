@@ -10,7 +10,7 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, report, sub_progress, transpose
+from ..common import as_cell_size, label8, report, sub_progress, transpose
 from ..edge_walls import walled_levels
 from ..estimate import joined_runs, smooth_parts
 from .kernels import BAND_CELLS, row_bands
@@ -518,7 +518,7 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
             found[b] = _raised_rows(zz[b], kk[b], None if lab is None else lab[b], jump, lmax, veg_tol,
                                     lone=True)
         cells |= fwd(found)
-    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+    lab, n = label8(cells)
     if not n:
         return cells
     span = np.array([0.0] + [max((r.stop - r.start) * dy, (c.stop - c.start) * dx)

@@ -42,6 +42,7 @@ class Tile:
         Metres per height unit of the tile's CRS.
     scale, offset, dtype : the band's scale and offset (heights = stored value x scale + offset)
         and GDAL data type, which set the nodata of the tile's DTM (:func:`.grid.float_output_nodata`)
+    unit_type : the height unit the tile's band states (:attr:`.grid.DSMInfo.unit_type`), or ""
     """
     name: str
     path: str
@@ -52,6 +53,7 @@ class Tile:
     scale: float = 1.0
     offset: float = 0.0
     dtype: str = "Float32"
+    unit_type: str = ""
 
     @property
     def shape(self):
@@ -207,6 +209,13 @@ def index_tiles(inputs):
                          f"(x {o.scale:.6g} + {o.offset:.6g}) differ from {os.path.basename(ref.path)} "
                          f"(x {ref.scale:.6g} + {ref.offset:.6g}). Store them alike (gdal_translate -ot Float32 "
                          "-unscale) first.")
+    other_unit = [i.path for i in infos[1:] if not math.isclose(i.z_to_m, ref.z_to_m, rel_tol=1e-9)]
+    if other_unit:       # one CRS, but bands stating different height units (GDAL's unit type)
+        o = grid.open_dsm(other_unit[0])
+        raise ValueError(f"the tiles' heights are in different units: {_short(other_unit)} "
+                         f"('{o.unit_type or 'the CRS unit'}', {o.z_to_m:.6g} m) differ from "
+                         f"{os.path.basename(ref.path)} ('{ref.unit_type or 'the CRS unit'}', {ref.z_to_m:.6g} m). "
+                         "Store them in one unit (gdal_edit.py -units, gdal_translate -scale) first.")
     x0 = gts[:, 0].min() if dx > 0 else gts[:, 0].max()
     y0 = gts[:, 3].max() if dy < 0 else gts[:, 3].min()
     cols_f = (gts[:, 0] - x0) / dx
@@ -230,7 +239,7 @@ def index_tiles(inputs):
     order = np.lexsort((c0, r0))
     tiles = [Tile(names[k], paths[k], (int(r0[k]), int(r1[k]), int(c0[k]), int(c1[k])), infos[k].nodata,
                   tuple(infos[k].geotransform), infos[k].z_to_m, infos[k].scale, infos[k].offset,
-                  infos[k].dtype) for k in order]
+                  infos[k].dtype, infos[k].unit_type) for k in order]
     gt = (float(x0), float(dx), 0.0, float(y0), 0.0, float(dy))
     return TileIndex(tiles, (int(r1.max()), int(c1.max())), gt, ref.crs_wkt, _vrt_nodata(infos))
 

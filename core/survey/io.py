@@ -80,11 +80,12 @@ def crs_label(wkt):
     return f"EPSG:{code}" if code else (s.GetName() or "unnamed CRS")
 
 
-def build_vrt(path, sources, nodata=None):
+def build_vrt(path, sources, nodata=None, unit_type=""):
     """Write a VRT mosaic of ``sources`` at ``path`` (atomically) and return ``path``.
 
     Each source keeps its own nodata value; ``nodata`` is the VRT's, the value of the
-    cells no source covers (``"nan"`` for float tiles without a declared nodata).
+    cells no source covers (``"nan"`` for float tiles without a declared nodata). ``unit_type``:
+    the height unit the sources' bands state, stated by the VRT's band too (gdalbuildvrt drops it).
     """
     _need_gdal()
     path = str(path)
@@ -94,6 +95,8 @@ def build_vrt(path, sources, nodata=None):
     ds = gdal.BuildVRT(tmp, [str(s) for s in sources], options=opts)
     if ds is None:
         raise ValueError(f"GDAL could not build a VRT of the {len(sources)} tiles.")
+    if unit_type:
+        ds.GetRasterBand(1).SetUnitType(unit_type)
     xml = (ds.GetMetadata("xml:VRT") or [""])[0]
     ds = None
     held = [e.text or "" for e in ElementTree.fromstring(xml).iter("SourceFilename")] if xml else []
@@ -118,14 +121,15 @@ def read_raw(path, window):
     return ds.GetRasterBand(1).ReadAsArray(c0, r0, c1 - c0, r1 - r0)
 
 
-def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=False):
+def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=False, unit_type=""):
     """Write a 2-D array as a cloud-optimised GeoTIFF, atomically.
 
     The COG is written under a temporary name in the same folder and renamed to ``path``
     only when complete, so a file at ``path`` is always whole. Float32 arrays get
     DEFLATE with the floating-point predictor and averaged overviews; UInt8 masks
     (``mask_style``) a colour table with the mask codes and nearest-neighbour overviews.
-    One thread per task (the workers already use every core).
+    One thread per task (the workers already use every core). ``unit_type``: the height unit
+    the band states (a DTM's, as its tile's band states it).
     """
     _need_gdal()
     a = np.asarray(array)
@@ -137,6 +141,8 @@ def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=Fal
     band = mem.GetRasterBand(1)
     if nodata is not None:
         band.SetNoDataValue(float(nodata))
+    if unit_type:
+        band.SetUnitType(unit_type)
     if mask_style:
         ct = gdal.ColorTable()
         for code, rgba in MASK_COLOURS.items():

@@ -202,7 +202,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
-    vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata)
+    vrt = io.build_vrt(os.path.join(out_dir, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata,
+                       index.tiles[0].unit_type)
     info = grid.open_dsm(vrt)
     cell = tuple(float(v) for v in info.cell_size_m)
     if rec is None:
@@ -400,7 +401,7 @@ def _write_mosaics(index, rec, out_dir, log):
     for kind, k in (("dtm", 0), ("mask", 1)):
         files = [os.path.join(out_dir, output_names(t.name)[k]) for t in index.tiles]
         nod = 255 if kind == "mask" else None
-        io.build_vrt(os.path.join(out_dir, f"{kind}.vrt"), files, nod)
+        io.build_vrt(os.path.join(out_dir, f"{kind}.vrt"), files, nod, index.tiles[0].unit_type if k == 0 else "")
     grid.write_mask_qml(os.path.join(out_dir, "mask.qml"))
     rec.pop("missing_tiles", None)
     rec["complete"] = True

@@ -152,7 +152,7 @@ def run_tile(job, tile):
         np.copyto(dtm, np.float32(nodata), where=~np.isfinite(dtm))
     dtm_name, mask_name = output_names(tile.name)
     io.write_cog(os.path.join(job.out_dir, dtm_name), dtm.astype(np.float32, copy=False), tile.geotransform,
-                 job.crs_wkt, nodata)
+                 job.crs_wkt, nodata, unit_type=tile.unit_type)
     io.write_cog(os.path.join(job.out_dir, mask_name), mask, tile.geotransform, job.crs_wkt, NODATA,
                  mask_style=True)
     t_write = time.perf_counter() - t1

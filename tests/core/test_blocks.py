@@ -255,6 +255,45 @@ def test_touching_is_the_3x3_binary_dilation():
     assert touching(np.zeros((0, 3), bool)).shape == (0, 3)
 
 
+@pytest.mark.parametrize("share, runs", [(1.0, 1.0), (0.25, 0.01), (0.02, 0.5)])
+def test_label8_by_runs_equals_ndimage_label(monkeypatch, share, runs):
+    """common.label8 (the sparse labellings of geodesic's outliers and fine steps, RASCOR's ramps and
+    terrain steps) gives ndimage.label's 8-connected array, numbering and count exactly: masks of every
+    density (runs wrapping from a row's end to the next row's start, diagonal joins, single rows and
+    columns, empty), by runs up to the shares of cells and runs and by ndimage.label above them."""
+    from scipy import ndimage
+
+    from bare_earth.core import common
+    monkeypatch.setattr(common, "LABEL_RUNS_SHARE", share)
+    monkeypatch.setattr(common, "LABEL_RUNS_RUNS", runs)
+    s8 = np.ones((3, 3), bool)
+    rng = np.random.default_rng(7)
+    masks = [rng.random((h, w)) < p for h, w in ((1, 1), (1, 9), (8, 1), (13, 17), (40, 31), (64, 64))
+             for p in (0.0, 0.01, 0.1, 0.3, 0.6, 0.95)]
+    wrap = np.zeros((5, 6), bool)
+    wrap[1, 5] = wrap[2, 0] = True                        # consecutive in memory, not neighbours
+    diag = np.eye(6, dtype=bool)[::-1] | np.eye(6, dtype=bool)   # an X: one part through its diagonals
+    u = np.zeros((6, 7), bool)
+    u[1:5, 1] = u[1:5, 5] = u[4, 1:6] = True              # a U: joined below, first seen as two runs
+    u[0, 3] = True                                        # a later part first seen before the U's join
+    for m in masks + [wrap, diag, u, np.zeros((0, 4), bool), np.zeros((3, 0), bool)]:
+        lab, n = common.label8(m)
+        ref, ref_n = ndimage.label(m, s8)
+        assert n == ref_n and lab.dtype == ref.dtype and np.array_equal(lab, ref)
+    assert common.label8(wrap)[1] == 2 and common.label8(diag)[1] == 1 and common.label8(u)[1] == 2
+
+
+def test_cells_of_is_nonzero():
+    """common.cells_of (dtm_refine's smoothness and line tests, morphology's region boxes, RASCOR's ramps)
+    gives np.nonzero's rows and columns exactly, in the same order and dtype."""
+    from bare_earth.core.common import cells_of
+    rng = np.random.default_rng(5)
+    for shape, p in (((1, 1), 1.0), ((1, 9), 0.5), ((7, 1), 0.5), ((33, 47), 0.1), ((20, 20), 0.0)):
+        m = rng.random(shape) < p
+        for got, ref in zip(cells_of(m), np.nonzero(m)):
+            assert got.dtype == ref.dtype and np.array_equal(got, ref)
+
+
 def test_edge_mirrored_extents_exact():
     """common.edge_mirrored_extents (dtm's raised regions and the curvature filter's runs cut
     by the edge): each box's extent along rows and columns, doubled for each side of that axis

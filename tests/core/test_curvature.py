@@ -987,11 +987,26 @@ def _hills(cell, tan=0.6, n=160):
 
 
 def test_wall_rise_is_at_least_the_terrains_rise_over_two_cells():
+    """The terrain's rise over two cells plus 3 sqrt(2) times the scatter of where the two
+    heights lie in their cells on that slope (``s c / sqrt(12)``, the spacing where longer)."""
     wall_rise = profiles.wall_rise
+    spread = 3.0 * np.sqrt(2.0) / np.sqrt(12.0)          # per unit slope and metre of cell
     assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.3) == 2.0     # fine cells: the wall slope
-    assert wall_rise(4.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.3) == pytest.approx(3.0)
-    assert wall_rise(24.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5) == pytest.approx(24.0)
+    assert wall_rise(4.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.3) == pytest.approx(0.3 * (8.0 + 4.0 * spread))
+    assert wall_rise(24.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5) == pytest.approx(0.5 * (48.0 + 24.0 * spread))
     assert wall_rise(24.0, h_min=1.0, tan_wall=1.0) == 3.0                       # no terrain term
+    # heights 6 m apart (points sparser than the 2 m cells): the scatter over their spacing
+    assert wall_rise(2.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.8, spacing=6.0) == pytest.approx(
+        0.8 * (4.0 + 6.0 * spread))
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
+def test_wall_rise_terrain_term_is_the_same_in_metres_at_every_cell(cell):
+    """The terrain's part of the demand is the slope's rise over two cells and the scatter of the
+    heights' places: per metre of cell the same at 1, 2 and 4 m (no jump at a cell size)."""
+    s = 0.45
+    need = profiles.wall_rise(cell, h_min=0.0, tan_wall=0.0, terrain_slope=s)
+    assert need / cell == pytest.approx(s * (2.0 + 3.0 * np.sqrt(2.0) / np.sqrt(12.0)))
 
 
 def test_steep_terrain_slope_is_the_upper_quartile_of_the_ground_not_the_roofs():
@@ -1027,21 +1042,28 @@ def test_hillsides_are_no_walls_at_coarse_cells(cell):
     res = curvature.filter_curvature(z, cell, **p)
     res_old = curvature.filter_curvature(z, cell, **{**p, "terrain_slope": 0.0})
     assert (res.mask == OBJECT).mean() < (res_old.mask == OBJECT).mean()
-    assert res.info["wall_rise_x_m"] == pytest.approx(2 * cell * p["terrain_slope"], rel=1e-4)
+    spread = 3.0 * np.sqrt(2.0) / np.sqrt(12.0) * max(cell, p["spacing_m"])   # the heights' places
+    assert res.info["wall_rise_x_m"] == pytest.approx(p["terrain_slope"] * (2 * cell + spread), rel=1e-4)
 
 
 def test_wall_rise_over_the_spacing_of_the_heights_exact():
     """#12: where the independent heights lie farther apart than two cells, the wall slope
-    is judged over their spacing (within 3 m); the terrain's rise over two cells still."""
+    is judged over their spacing (within 3 m); the terrain's rise over two cells still, and the
+    scatter of the heights' places over their spacing."""
     wall_rise = profiles.wall_rise
+    spread = 3.0 * np.sqrt(2.0) / np.sqrt(12.0)
     assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=1.0) == 2.0        # a height per cell
     assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=2.0) == 2.0
     assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=2.5) == 2.5        # ISPRS samp61 at 1 m
     assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, spacing=5.0) == 3.0        # within 3 m
     assert wall_rise(1.0, h_min=1.0, tan_wall=0.5, spacing=2.5) == 1.25
-    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=8.0) == 3.0   # terrain: two cells
-    assert wall_rise(4.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=12.0) == 4.0
-    assert wall_rise(2.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=2.5) == 3.0   # two cells: 4 m
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.1, spacing=8.0) == 3.0   # terrain: under 3 m
+    assert wall_rise(1.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=8.0) == pytest.approx(
+        0.5 * (2.0 + 8.0 * spread))
+    assert wall_rise(4.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=12.0) == pytest.approx(
+        0.5 * (8.0 + 12.0 * spread))
+    assert wall_rise(2.0, h_min=1.0, tan_wall=1.0, terrain_slope=0.5, spacing=2.5) == pytest.approx(
+        0.5 * (4.0 + 2.5 * spread))
 
 
 @pytest.mark.parametrize("dtype", DTYPES)

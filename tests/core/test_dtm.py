@@ -274,7 +274,10 @@ def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found
     assert np.abs(res.dtm - ground)[~buildings].max() < 1.5
     assert res.info["continued_ground_share"] > 0.1
     logged = int(res.info["continued_ground_rule"].split(" cells")[0])
-    assert logged >= np.count_nonzero((res.mask == GROUND) & (votes < 2)) > 0
+    # every cell of the vote's objects left as ground was given back by the continuations (their logs): the
+    # banks' tops the line continuation gives back stay ground (dtm_refine.find_step_tops)
+    lined = int(res.info["continued_line_rule"].split(" cells")[0])
+    assert logged + lined >= np.count_nonzero((res.mask == GROUND) & (votes < 2)) > 0
 
 
 def test_member_settings_rascor_noise_from_the_ground_level_cells():

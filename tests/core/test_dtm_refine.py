@@ -41,9 +41,14 @@ def test_steps_and_halo():
     assert dr.refine_steps((1.0, 1.0), 12.0) == {(0, 1): 12, (1, 0): 12, (1, 1): 8, (1, -1): 8}
     assert dr.refine_steps((2.0, 4.0), 12.0) == {(0, 1): 6, (1, 0): 3, (1, 1): 3, (1, -1): 3}
     assert dr.refine_steps((20.0, 20.0), 12.0) == {(0, 1): 1, (1, 0): 1, (1, 1): 1, (1, -1): 1}
-    # the floors' reach plus one, the smoothness test's 2 cells and the edge test's (fill.edge_spikes_reach: 7)
-    assert dr.refine_halo((1.0, 1.0), 12.0) == 13 + 2 + 7
-    assert dr.refine_halo((4.0, 4.0), 12.0) == 4 + 2 + 7
+    # the floors' reach plus one, the smoothness test's 2 cells, the edge test's (fill.edge_spikes_reach: 7)
+    # and the raised band's (three passes of the plane's half window plus the band's cell: 3 x 7 at 1 m)
+    assert dr.band_plane_cells((1.0, 1.0)) == (6, 6) and dr.band_plane_cells((4.0, 4.0)) == (2, 2)
+    assert dr.raised_band_reach((1.0, 1.0)) == 21 and dr.raised_band_reach((4.0, 4.0)) == 9
+    assert dr.refine_halo((1.0, 1.0), 12.0) == 13 + 2 + 7 + 21
+    assert dr.refine_halo((4.0, 4.0), 12.0) == 4 + 2 + 7 + 9
+    # floors shorter than the step-top test's reach (find_step_tops: 3 cells and the smoothness test's 2)
+    assert dr.refine_halo((20.0, 20.0), 12.0) == dr.STEP_TOP_REACH + 7 + dr.raised_band_reach((20.0, 20.0)) == 5 + 7 + 9
 
 
 def test_single_bump_on_flat_ground():
@@ -637,10 +642,10 @@ def test_floor_scaled_equals_brute_force(n, di, dj):
 
 
 def test_halo_with_the_planes_of_the_seen_ground():
-    # the floors' reach plus one, the planes' squares (half-side the reach), the smoothness test's 2 cells and
-    # the edge test's 7
-    assert dr.refine_halo((1.0, 1.0), 12.0, along_ground=True) == 13 + 12 + 2 + 7
-    assert dr.refine_halo((4.0, 4.0), 12.0, along_ground=True) == 4 + 3 + 2 + 7
+    # the floors' reach plus one, the planes' squares (half-side the reach), the smoothness test's 2 cells (at
+    # least the step tops' 5), the edge test's 7 and the raised band's (3 x 7 at 1 m, 3 x 3 at 4 m)
+    assert dr.refine_halo((1.0, 1.0), 12.0, along_ground=True) == 13 + 12 + 2 + 7 + 21
+    assert dr.refine_halo((4.0, 4.0), 12.0, along_ground=True) == 4 + 3 + 2 + 7 + 9
 
 
 def test_line_slopes_of_a_plane_and_a_ridge():
@@ -748,3 +753,291 @@ def test_dtm_takes_more_shrubs_on_a_steep_slope_along_the_seen_ground(monkeypatc
     assert got[True]["type2"] < got[False]["type2"] - 4.0
     assert got[True]["total"] < got[False]["total"] - 0.5
     assert got[True]["type1"] < got[False]["type1"] + 0.2
+
+
+def test_find_step_tops_exact():
+    """A step's top: three ground cells in a line continue to it and the ground beyond drops; a hedge on the
+    edge, a wall's foot, a low drop or rough vegetation whose cells happen to line up is none."""
+    z = np.zeros((7, 9), np.float32)
+    z[:, :4] = -3.0                                  # a 3 m wall: the terrace's edge at column 4
+    ground = np.ones(z.shape, bool)
+    tops = dr.find_step_tops(z, ground, ground, tolerance_m=0.5)
+    np.testing.assert_array_equal(tops.any(axis=0), np.arange(9) == 4)     # not the foot (column 3)
+    assert tops[:, 4].all()
+    hedge = z.copy()
+    hedge[:, 4] = 1.5                                # a hedge on the edge stands above the line
+    assert not dr.find_step_tops(hedge, ground, ground, tolerance_m=0.5).any()
+    only_ground = ground.copy()
+    only_ground[:, 6] = False                        # the line's cells must be ground
+    assert not dr.find_step_tops(z, ground, only_ground, tolerance_m=0.5)[:, 4].any()
+    assert dr.find_step_tops(z, ground & (np.arange(9) == 4), ground, tolerance_m=0.5).sum() == 7   # cells
+    # a drop smaller than step_m is no step
+    low = np.where(z < 0, np.float32(-0.8), z)
+    assert dr.find_step_tops(low, ground, ground, tolerance_m=0.3)[:, 4].all()
+    assert not dr.find_step_tops(low, ground, ground, tolerance_m=0.3, step_m=1.0).any()
+    # rough shrubs (1.5 / 3 m alternating) line up along a diagonal: tops unless the line lies on smooth ground
+    rough = np.zeros((12, 12), np.float32)
+    i, j = np.mgrid[0:12, 6:12]
+    rough[:, 6:] = 1.5 + 1.5 * ((i + j) % 2)
+    g = np.ones(rough.shape, bool)
+    assert dr.find_step_tops(rough, g, g, tolerance_m=0.5).any()
+    assert not dr.find_step_tops(rough, g, g, tolerance_m=0.5, smooth_m=1.0).any()
+    assert dr.find_step_tops(z, ground, ground, tolerance_m=0.5, smooth_m=1.0)[:, 4].all()   # the terrace is smooth
+    nan = z.copy()
+    nan[:, 5] = np.nan                               # nodata never makes a line
+    assert not dr.find_step_tops(nan, ground, ground, tolerance_m=0.5).any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.find_step_tops(z, ground, ground, tolerance_m=0.0)
+    with pytest.raises(ValueError, match="shape"):
+        dr.find_step_tops(z, ground[:3], ground, tolerance_m=0.5)
+
+
+def _terrace_with_house():
+    """A terrace 3 m above lower ground falling away, its edge row 5; a house at its back whose corner comes
+    within two cells of the edge; the vote took a stretch of the edge (columns 6-8) for an object."""
+    z = np.zeros((12, 14), np.float32)
+    z[:6] = 3.0
+    z[6:] = -0.2 * np.arange(1, 7, dtype=np.float32)[:, None]
+    z[0:4, 6:11] = 9.0
+    vote = np.where(z > 5, OBJECT, GROUND).astype(np.uint8)
+    vote[5, 6:9] = OBJECT
+    return z, vote
+
+
+def test_refine_ground_keeps_a_terrace_edge_beside_a_house():
+    """issue 13 (core.synthetic_sites hillside and railway): the upper edge of a step in the ground beside an
+    object the edge test took, since along a diagonal the object hides one side and the lower ground does not
+    continue to it; as a step's top (find_step_tops) it stays ground."""
+    from bare_earth.core.fill import find_edge_spikes
+    z, vote = _terrace_with_house()
+    fill = vote == OBJECT
+    spikes = find_edge_spikes(z, fill, 0.5, line_tolerance_m=0.5)
+    assert spikes[5, 4] and spikes[5, 5]                     # the edge test alone takes the edge
+    mask, info = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1, reach_m=12.0,
+                                  edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    np.testing.assert_array_equal(mask, vote)                # every ground cell stays ground
+    assert info["refine_edge_removed_share"] == 0.0
+    # a bush on the same edge stands above the terrace's line: still taken
+    z[5, 4] = 4.5
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.1, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert mask[5, 4] == OBJECT
+
+
+def test_refine_ground_keeps_a_platform_edge_between_tracks():
+    """A platform 1.2 m high and 6 cells wide between lower ground on both sides (a railway station): its
+    edges, bracketed by the tracks within the reach and not smooth, were taken as a low object's; they are
+    steps' tops of its smooth top and stay ground (the rows beside them, no step's top and not smooth, are
+    still the bracketed test's), while a hedge as high is taken whole."""
+    z = np.zeros((20, 30), np.float32)
+    z += np.float32(0.02) * np.arange(30, dtype=np.float32)        # a gentle fall along the tracks
+    z[7:13] += 1.2
+    vote = np.full(z.shape, GROUND, np.uint8)
+    mask, _ = dr.refine_ground(z, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert (mask[[7, 12]] == GROUND).all() and (mask[9:11] == GROUND).all()
+    hedge = z.copy()
+    hedge[7:13] += ((np.arange(30) % 2) * 1.0)[None, :]            # rough: 1.2 and 2.2 m alternating
+    mask, _ = dr.refine_ground(hedge, vote, (1.0, 1.0), tolerance_m=0.5, slope=0.03, reach_m=12.0,
+                               edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    assert (mask[7:13] == OBJECT).mean() > 0.9
+
+
+def test_refine_ground_with_step_tops_in_blocks_equals_one_pass():
+    """Blocks read with refine_halo cells around give the one pass on a quarry (steps' tops spared)."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("quarry", 2.0, "lowest")
+    vote = s.mask.astype(np.uint8)
+    kw = dict(tolerance_m=0.5, slope=0.5, reach_m=12.0, edge_tolerance_m=0.5, line_tolerance_m=1.0)
+    whole, _ = dr.refine_ground(s.dsm, vote, s.cell_size, **kw)
+    got = in_blocks(lambda wr, wc: dr.refine_ground(s.dsm[wr, wc], vote[wr, wc], s.cell_size, **kw)[0],
+                    s.dsm.shape, 48, dr.refine_halo(s.cell_size, 12.0))
+    np.testing.assert_array_equal(got, whole)
+
+
+def _band_scene():
+    """A tilted plane (0.05 rise a cell along the rows, 0.02 along the columns), an object on columns 10-13, and
+    the ground cells beside it (column 9) raised by known heights."""
+    rows, cols = 15, 24
+    r, c = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    z = 0.02 * c + 0.05 * r
+    objects = np.zeros(z.shape, bool)
+    objects[:, 10:14] = True
+    z[objects] += 5.0
+    return z.astype(np.float32), objects
+
+
+def test_raised_band_exact_on_a_tilted_plane():
+    """Band cells above the plane of the ground beyond them by more than the tolerance and at most the height
+    are found, exactly; the rest of the ground (on the plane) and a cell above the height are not."""
+    z, objects = _band_scene()
+    raise_m = {2: 0.3, 4: 0.1, 6: 0.3, 8: 0.8, 10: 0.45}    # row: height above the plane at column 9
+    for row, h in raise_m.items():
+        z[row, 9] += h
+    out = dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.2, height_m=0.5, passes=1)
+    assert sorted(map(tuple, np.argwhere(out).tolist())) == [(2, 9), (6, 9), (10, 9)]
+    # a plane needs its cells: a window of fewer than BAND_PLANE_MIN_CELLS known cells decides nothing
+    lone = np.zeros((5, 5), np.float32)
+    lone[2, 2] = 0.3
+    obj = np.ones((5, 5), bool)
+    obj[2, 2] = obj[2, 1] = obj[1, 2] = False
+    assert not dr.find_raised_band(lone, obj, (1.0, 1.0), tolerance_m=0.2, height_m=0.5).any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.0, height_m=0.5)
+    with pytest.raises(ValueError, match="shape"):
+        dr.find_raised_band(z, objects[:, :5], (1.0, 1.0), tolerance_m=0.2, height_m=0.5)
+
+
+def test_raised_band_peels_a_skirt_sloping_away_from_the_object_one_cell_a_pass():
+    z, objects = _band_scene()
+    z[3:12, 9] += 0.45                              # low vegetation along the object's edge, lower further out
+    z[3:12, 8] += 0.25
+    one = dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.2, height_m=0.5, passes=1)
+    two = dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.2, height_m=0.5, passes=2)
+    assert set(map(tuple, np.argwhere(one).tolist())) == {(r, 9) for r in range(3, 12)}
+    assert set(map(tuple, np.argwhere(two).tolist())) == {(r, c) for r in range(3, 12) for c in (8, 9)}
+
+
+def test_raised_band_keeps_a_platform_edge_beside_a_train():
+    """A platform (ground 1 m above the track bed) beside a train: the plane of the window, mostly the lower track
+    bed, passes below the platform's edge, but the platform beside it stands as high: ground."""
+    z = np.zeros((20, 30), np.float32)
+    z[:, 12:] = 1.0                                 # the platform, from column 12
+    objects = np.zeros(z.shape, bool)
+    objects[:, 8:11] = True                         # a train on the track bed beside it (column 11: a gap)
+    z[objects] = 4.0
+    z[:, 11] = 1.0                                  # the platform's edge beside the train
+    plane = dr._plane_residuals(z, ~objects & (np.arange(30) != 11)[None, :], ~objects & (np.arange(30) == 11)[None, :],
+                                (6, 6))
+    assert np.nanmax(plane[:, 11]) > 0.2            # above the window's plane ...
+    assert not dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.2, height_m=0.5).any()   # ... yet ground
+
+
+def _skirted_crowns(seed=0, n=128):
+    """Crowns 6 m high on a gentle slope (noise 0.03 m), each ringed by low vegetation 0.15-0.45 m high two to
+    three cells wide with gaps (80 % of the ring's cells): the rough band along a crown's edge whose cells continue
+    each other. Returns the DSM, the true ground surface, the objects and the ring."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    ground = 0.02 * x + 0.01 * y
+    z = ground + rng.normal(0.0, 0.03, (n, n))
+    truth = np.zeros((n, n), bool)
+    ring = np.zeros((n, n), bool)
+    for cy in range(16, n - 8, 24):
+        for cx in range(16, n - 8, 24):
+            d = np.hypot(y - cy, x - cx)
+            crown = d <= 5
+            z[crown] = ground[crown] + 6.0 - 0.1 * d[crown]
+            veg = (d > 5) & (d <= 7.5) & (rng.random((n, n)) < 0.8)
+            z[veg] = ground[veg] + rng.uniform(0.15, 0.45, int(veg.sum()))
+            truth |= crown | veg
+            ring |= veg
+    return z.astype(np.float32), ground, truth, ring
+
+
+def test_low_vegetation_along_crowns_is_removed_and_the_dtm_under_them_is_lower():
+    """The sparse lidar rows where dtm trailed SAGA (``autzen_trim`` 1 m): a rough band of low vegetation along
+    the crowns' edges that the members keep and the edge test's continuations read as ground (its cells continue
+    each other), the DTM under the crowns resting on it. Against the plane of the ground beyond the band, the
+    cells standing more than the edge tolerance above it (and within the threshold) with no ground beside them as
+    high are objects; no true ground is lost. (Without the band test: 270 of the 762 ring cells more than 0.33 m
+    high kept, DTM under the objects +0.172 m.)"""
+    z, ground, truth, ring = _skirted_crowns()
+    params = resolve_dtm_params(z, (1.0, 1.0))
+    res = filter_dtm(z, (1.0, 1.0), **{k: v for k, v in params.items() if k != "input_description"})
+    kept = res.mask == GROUND
+    et = res.info["refine_edge_tolerance_m"]
+    assert 0.2 < et < 0.3 and res.info["refine_height_m"] == 0.5
+    high = ring & (z - ground > 0.33)               # above the edge tolerance by two standard deviations of the noise
+    assert np.count_nonzero(high) > 700
+    assert np.count_nonzero(kept & high) < 0.25 * np.count_nonzero(high)        # 147 (270 without the band test)
+    assert res.info["refine_band_removed_share"] > 0.005
+    assert np.count_nonzero(~kept & ~truth) == 0    # every true ground cell kept
+    assert float(np.mean((res.dtm - ground)[truth])) < 0.16                      # 0.144 m (0.172)
+
+
+def test_raised_band_in_blocks_equals_one_pass():
+    z, ground, truth, ring = _skirted_crowns(seed=1, n=96)
+    objects = truth & ~ring                         # the crowns; the ring is ground to be tested
+    whole = dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.25, height_m=0.5)
+    assert whole.sum() > 50
+    halo = dr.raised_band_reach((1.0, 1.0))
+    for b in (23, 40):
+        got = in_blocks(lambda wr, wc: dr.find_raised_band(z[wr, wc], objects[wr, wc], (1.0, 1.0), tolerance_m=0.25,
+                                                           height_m=0.5), z.shape, b, halo)
+        np.testing.assert_array_equal(got, whole)
+
+
+def _worst_second_difference_reference(z, r, c):
+    """_worst_second_difference as first written: gathers from a copy of the raster in a frame of NaN."""
+    h, w = z.shape
+    pad = 2
+    wp = w + 2 * pad
+    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
+    zp[pad:-pad, pad:-pad] = z
+    flat = zp.ravel()
+    idx = (r + pad) * wp + (c + pad)
+    worst = np.zeros(idx.size, np.float32)
+    count = np.zeros(idx.size, np.int32)
+    for a in (-1, 0, 1):
+        for b in (-1, 0, 1):
+            p = idx + (a * wp + b)
+            mid = 2 * flat[p]
+            for step in (1, wp):
+                d = np.abs(flat[p - step] - mid + flat[p + step])
+                count += np.isfinite(d)
+                np.fmax(worst, d, out=worst)
+    return worst, count
+
+
+@pytest.mark.parametrize("chunk", [5, 1 << 14])
+@pytest.mark.parametrize("seed", range(3))
+def test_worst_second_difference_gathered_equals_framed_copy(monkeypatch, chunk, seed):
+    """The heights gathered per chunk of cells (NaN beyond the raster; ``keep``: NaN outside it) give the
+    framed copy's differences and counts exactly, at the raster's edges and corners and beside nodata."""
+    monkeypatch.setattr(dr, "SMOOTH_CHUNK", chunk)
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0.0, 2.0, (23, 31)).astype(np.float32)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    keep = rng.random(z.shape) < 0.7
+    cells = rng.random(z.shape) < 0.4
+    cells[0, 0] = cells[-1, -1] = cells[0, -1] = cells[-1, 0] = True
+    r, c = np.nonzero(cells)
+    for k, zz in ((None, z), (keep, np.where(keep, z, np.float32(np.nan)))):
+        worst, count = dr._worst_second_difference(z, r, c, keep=k)
+        ref_w, ref_c = _worst_second_difference_reference(zz, r, c)
+        np.testing.assert_array_equal(worst, ref_w)
+        np.testing.assert_array_equal(count, ref_c)
+        assert worst.dtype == np.float32 and count.min() < 18 and (k is not None or count.max() == 18)
+
+
+@pytest.mark.parametrize("along_ground", [False, True])
+@pytest.mark.parametrize("band_rows", [3, 64])
+def test_refine_ground_with_a_pool_equals_one_thread(monkeypatch, band_rows, along_ground):
+    """The bands of find_bracketed and the chunks of the edge test taken by a second thread give the
+    mask and the info of one thread exactly (bands of a few rows: many bands, each with its halo; along the
+    seen ground, each band's slopes along the lines read from the planes' rows around it)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core import fill
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    monkeypatch.setattr(fill, "EDGE_CHUNK", 11)
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 0.2, (41, 47)).astype(np.float32)
+    z[rng.random(z.shape) < 0.04] += 1.5                          # low objects bracketed by ground
+    z[20:28, 10:30] += 4.0
+    z[rng.random(z.shape) < 0.02] = np.nan
+    mask = np.where(z > 3.0, OBJECT, GROUND).astype(np.uint8)
+    mask[np.isnan(z)] = NODATA
+    z += np.float32(0.1) * np.arange(z.shape[1], dtype=np.float32)   # a hillside: the planes' slopes differ by line
+    kw = dict(tolerance_m=0.5, slope=0.2, reach_m=6.0, edge_tolerance_m=0.4, line_tolerance_m=0.6,
+              band_tolerance_m=0.3, along_ground=along_ground)
+    if along_ground:
+        flat, _ = dr.refine_ground(z, mask, (1.0, 1.0), **dict(kw, along_ground=False))
+    ref, ref_info = dr.refine_ground(z, mask, (1.0, 1.0), **kw)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got, info = dr.refine_ground(z, mask, (1.0, 1.0), **kw, pool=pool)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(info.pop("step_tops"), ref_info.pop("step_tops"))
+    assert info == ref_info and info["refine_removed_share"] > 0 and info["refine_edge_removed_share"] > 0
+    assert not along_ground or not np.array_equal(ref, flat)

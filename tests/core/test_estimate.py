@@ -931,3 +931,18 @@ def test_ground_plane_gradient_in_bands_equals_one_band(monkeypatch):
     whole = est.ground_plane_gradient(z, ground, (1.0, 1.0), 6)
     for a, b in zip(banded, whole):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, bool, np.uint8])
+def test_block_expand_equals_two_repeats(dtype):
+    """estimate.block_expand (geodesic's fine re-analysis, dtm's coarse grid) gives the two repeats' raster
+    exactly: every factor, rasters cut inside the last block row and column or not, 1-row and 1-column."""
+    from bare_earth.core.estimate import block_expand
+    rng = np.random.default_rng(2)
+    for k, shape in ((1, (5, 7)), (2, (6, 8)), (2, (5, 7)), (3, (7, 10)), (4, (1, 9)), (4, (9, 1)), (8, (17, 23))):
+        a = (rng.random((-(-shape[0] // k), -(-shape[1] // k))) * 9).astype(dtype)
+        ref = np.repeat(np.repeat(a, k, axis=0)[:shape[0]], k, axis=1)[:, :shape[1]]
+        got = block_expand(a, k, shape)
+        assert got.shape == shape and got.dtype == ref.dtype and np.array_equal(got, ref)
+        got[...] = 0                                        # a new array the callers may write
+        assert a.any()

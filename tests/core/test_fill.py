@@ -399,3 +399,99 @@ def test_edge_spikes_along_one_line_include_the_spikes_of_every_line():
     assert old.any() and (new & old).sum() == old.sum() and new.sum() > old.sum()
     with pytest.raises(ValueError, match="line_tolerance_m"):
         find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.0)
+
+
+def test_edge_spikes_spared_cells_are_never_spikes_and_stay_sources():
+    z = np.zeros((5, 7), np.float32)
+    z[:, 4:] = 3.0
+    z[2, 3] = 1.0                                    # a raised cell at the object's edge
+    fill = z > 2.0
+    assert find_edge_spikes(z, fill, 0.5)[2, 3]
+    spared = np.zeros(z.shape, bool)
+    spared[2, 3] = True
+    assert not find_edge_spikes(z, fill, 0.5, spared=spared).any()
+    with pytest.raises(ValueError, match="spared"):
+        find_edge_spikes(z, fill, 0.5, spared=spared[:2])
+
+
+def _edge_spikes_reference(z, fill, tolerance_m, line_tolerance_m=None, passes=3):
+    """find_edge_spikes as first written: every pass looks for its cells over the whole raster
+    (touching() of the cells to fill, then of the last pass's spikes) and tests them all at once."""
+    from bare_earth.core.common import touching
+    from bare_earth.core.fill import EDGE_LINES
+    h, w = z.shape
+    pad = 2
+    wp = w + 2 * pad
+    zp = np.full((h + 2 * pad, wp), np.nan, np.float32)
+    core = zp[pad:-pad, pad:-pad]
+    np.copyto(core, z)
+    np.copyto(core, np.float32(np.nan), where=fill)
+    found = np.zeros((h, w), bool)
+    test = fill
+    tol = np.float32(tolerance_m)
+    line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
+    flat = zp.ravel()
+    for _ in range(passes):
+        edge = touching(test) & np.isfinite(core)
+        cand = np.flatnonzero(edge)
+        if cand.size == 0:
+            break
+        r, c = np.divmod(cand, w)
+        idx = (r + pad) * wp + (c + pad)
+        zc = flat[idx]
+        new = np.zeros(idx.size, bool)
+        every = np.ones(idx.size, bool)
+        seen = np.zeros(idx.size, bool)
+        for di, dj in EDGE_LINES:
+            res, slope_known = [], []
+            for sgn in (1, -1):
+                off = sgn * (di * wp + dj)
+                z1, z2 = flat[idx + off], flat[idx + 2 * off]
+                cont = np.maximum(2 * z1 - z2, z1)
+                res.append(zc - cont)
+                slope_known.append(z1 != z2)
+            a, b = res
+            seen |= np.isfinite(a) | np.isfinite(b)
+            every &= ~(a <= tol) & ~(b <= tol)
+            if line_tol is not None:
+                above = ((a > line_tol) & slope_known[0]) | ((b > line_tol) & slope_known[1])
+                new |= ~(a <= line_tol) & ~(b <= line_tol) & above
+        new |= every & seen
+        if not new.any():
+            break
+        test = np.zeros((h, w), bool)
+        test[r[new], c[new]] = True
+        found |= test
+        flat[idx[new]] = np.nan
+    return found
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("chunk", [7, 1 << 16])
+@pytest.mark.parametrize("threads", [False, True])
+def test_edge_spikes_chunks_and_local_passes_equal_whole_raster_passes(monkeypatch, seed, chunk, threads):
+    """The chunked test (in parallel or not) and the later passes' cells gathered around the last spikes
+    give the whole-raster passes' spikes exactly, with and without the test along one line, on rough
+    skirts whose spikes are peeled over several passes and at the raster's edges and nodata."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core import fill
+    monkeypatch.setattr(fill, "EDGE_CHUNK", chunk)
+    rng = np.random.default_rng(seed)
+    h, w = 37, 53
+    z = rng.normal(0.0, 0.3, (h, w)).astype(np.float32)
+    hole = rng.random(z.shape) < 0.08
+    hole[10:20, 15:35] = True
+    z[9:21, 14:36] += rng.random((12, 22)).astype(np.float32) * 2.0      # a skirt around the object
+    z[rng.random(z.shape) < 0.03] = np.nan
+    pool = ThreadPoolExecutor(max_workers=1) if threads else None
+    try:
+        for line in (None, 0.6):
+            for passes in (1, 2, 3, 5):
+                ref = _edge_spikes_reference(z, hole, 0.4, line, passes)
+                got = find_edge_spikes(z, hole, 0.4, line_tolerance_m=line, passes=passes, pool=pool)
+                np.testing.assert_array_equal(got, ref)
+            assert ref.any() and not np.array_equal(ref, _edge_spikes_reference(z, hole, 0.4, line, 1))
+    finally:
+        if pool is not None:
+            pool.shutdown()

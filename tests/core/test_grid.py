@@ -44,6 +44,20 @@ def test_multiband_needs_band(tmp_path):
     assert info.band_index == 2
 
 
+def test_several_bands_named_when_they_have_descriptions(tmp_path):
+    """PDAL's writers.gdal writes six bands (min, max, mean, idw, count, stdev): the refusal names
+    them, so the lowest-point band is found without opening the file elsewhere."""
+    names = ["min", "max", "mean", "idw", "count", "stdev"]
+    p = tif(tmp_path, np.zeros((6, 5, 5), np.float32))
+    ds = gdal.Open(str(p), gdal.GA_Update)
+    for k, n in enumerate(names, 1):
+        ds.GetRasterBand(k).SetDescription(n)
+    ds = None
+    with pytest.raises(ValueError, match=r"6 bands.*BAND parameter \(1\.\.6\) or extract it first\. Its bands: "
+                                         r"1 min, 2 max, 3 mean, 4 idw, 5 count, 6 stdev\.$"):
+        grid.open_dsm(p)
+
+
 @pytest.mark.parametrize("dtype", ["CFloat32", "CInt16"])
 def test_complex_raster_refused(tmp_path, dtype):
     """A complex-valued raster is no DSM: before, its real parts were read as heights and the
@@ -83,6 +97,26 @@ def test_all_nodata(tmp_path, dtype, nodata):
     info = grid.open_dsm(tif(tmp_path, a, nodata=nodata))
     with pytest.raises(ValueError, match="no valid cell"):
         grid.check_has_data(info)
+
+
+KM_CRS = ('PROJCS["UTM 32N in km",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+          'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+          'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],'
+          'PARAMETER["false_easting",500],PARAMETER["false_northing",0],UNIT["kilometre",1000]]')
+
+
+def test_heights_beyond_the_range_in_the_crs_unit_refused_naming_it(tmp_path):
+    """A DSM in a CRS in kilometres storing its heights in metres (300): read in the CRS's unit they
+    are 300 km, beyond any terrain. Refused before work naming the unit (before: the check read the
+    stored values as metres and passed, then the filter found no cell: 'z has no valid cell (all
+    nodata/NaN)')."""
+    a = np.full((5, 5), 300.0, np.float32)
+    info = grid.open_dsm(tif(tmp_path, a, gt=(500.0, 0.001, 0.0, 5400.0, 0.0, -0.001), crs=KM_CRS))
+    with pytest.raises(ValueError, match=r"no valid cell.*read in its CRS's unit \(1000 m\).*compound CRS"):
+        grid.check_has_data(info)
+    info = grid.open_dsm(tif(tmp_path, a / 1000.0, name="km.tif", gt=(500.0, 0.001, 0.0, 5400.0, 0.0, -0.001),
+                             crs=KM_CRS))
+    assert grid.check_has_data(info) == 1.0                # 0.3 km: 300 m
 
 
 @pytest.mark.parametrize("max_cells", [4, 9, 30])
@@ -603,6 +637,9 @@ def test_vertical_unit_factor():
     (-9999.0, np.float32, -32768.0, True),       # another value declared
     (65535.0, np.uint16, None, True),            # above the heights: UInt16's largest
     (32767.0, np.int16, None, True),
+    (0.0, np.uint16, None, True),                # an unsigned DSM's background 0, 300 m below its hill
+    (0.0, np.float32, None, True),
+    (0.0, np.uint16, 0.0, False),
 ])
 def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, declared, warned):
     a = np.full((6, 8), 300.0)
@@ -619,6 +656,7 @@ def test_undeclared_common_nodata_far_below_warned(tmp_path, value, dtype, decla
 @pytest.mark.parametrize("name,cells", [
     ("within the terrain's relief", {(0, 0): -9999.0, (1, 1): -9000.0}),   # -9999 less far below than the span
     ("no such value", {(0, 0): -500.0}),
+    ("sea level beside a shore rising from 0.5 m", {(0, 0): 0.0, (0, 1): 0.0, (1, 1): 0.5}),   # 0 is also a height
     ("every cell", None),
 ])
 def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells):
@@ -630,6 +668,57 @@ def test_common_nodata_value_within_the_heights_not_warned(tmp_path, name, cells
             a[rc] = v
     info = grid.open_dsm(tif(tmp_path, a))
     assert grid.undeclared_nodata_warning(info, info.read()) is None
+
+
+def _with_unit(path, unit):
+    ds = gdal.Open(str(path), gdal.GA_Update)
+    ds.GetRasterBand(1).SetUnitType(unit)
+    ds = None
+    return path
+
+
+@pytest.mark.parametrize("crs,unit,z_to_m,warned", [
+    (32633, "ft", 0.3048, True),              # a UTM grid whose band says its heights are in feet
+    (32633, "US survey foot", 1200.0 / 3937.0, True),
+    (2263, "m", 1.0, True),                   # a state plane grid in US feet with heights in metres
+    (2263, "", 1200.0 / 3937.0, False),       # no unit stated: the CRS's
+    (32633, "metre", 1.0, False),
+    (32633, "furlong", 1.0, False),           # not a unit heights come in: the CRS's
+])
+def test_the_bands_stated_height_unit_wins_over_the_crs(tmp_path, crs, unit, z_to_m, warned):
+    """GDAL's unit type of the band (gdal_edit.py -units ft) says what its values are in: a UTM DSM
+    whose heights are in feet was read as metres (objects 6 ft high read as 6 m), a grid in US feet
+    with heights in metres as feet."""
+    a = np.full((6, 8), 1000.0, np.float32)
+    info = grid.open_dsm(_with_unit(tif(tmp_path, a, crs=crs), unit))
+    assert info.z_to_m == pytest.approx(z_to_m, rel=1e-12)
+    np.testing.assert_allclose(info.read(), 1000.0 * z_to_m, rtol=1e-6)
+    said = [w for w in info.warnings if "The band states its heights are in" in w]
+    assert bool(said) == warned and (not warned or f"'{unit}'" in said[0])
+
+
+def test_outputs_of_a_dsm_in_stated_feet_are_in_feet(tmp_path):
+    """The mask of a DSM whose band says feet is the mask of the same DSM in metres, its DTM is
+    written back in feet."""
+    from bare_earth.core import pipeline
+    from bare_earth.core.synthetic import make_scene
+    sc = make_scene("city", shape=(90, 100), seed=3)
+    metres = tif(tmp_path, sc.dsm.astype(np.float32), gt=sc.geotransform, crs=sc.epsg, name="m.tif")
+    feet = _with_unit(tif(tmp_path, (sc.dsm / 0.3048).astype(np.float32), gt=sc.geotransform, crs=sc.epsg,
+                          name="ft.tif"), "ft")
+    for src, name in ((metres, "m"), (feet, "ft")):
+        pipeline.run_file("slopeprofile", src, {"mask": tmp_path / f"mask_{name}.tif",
+                                                "dtm": tmp_path / f"dtm_{name}.tif"})
+    read = {}
+    for name in ("mask_m", "mask_ft", "dtm_m", "dtm_ft"):
+        ds = gdal.Open(str(tmp_path / f"{name}.tif"))
+        read[name] = ds.ReadAsArray()
+        ds = None
+    np.testing.assert_array_equal(read["mask_ft"], read["mask_m"])
+    np.testing.assert_allclose(read["dtm_ft"] * 0.3048, read["dtm_m"], atol=2e-3)
+    ds = gdal.Open(str(tmp_path / "dtm_ft.tif"))
+    assert ds.GetRasterBand(1).GetUnitType() == "ft"            # the DTM states it is in feet too
+    ds = None
 
 
 def test_undeclared_nodata_in_feet_and_scaled(tmp_path):

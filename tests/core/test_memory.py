@@ -4,6 +4,8 @@ import platform
 import subprocess
 import sys
 
+import pytest
+
 from bare_earth.core import blocks, memory
 
 PLUGINS = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(memory.__file__))))
@@ -42,3 +44,21 @@ def test_block_workers_reuse_freed_memory():
 
 def _applied():
     return memory._applied
+
+
+def test_window_budget_from_the_environment_or_half_the_memory_available(monkeypatch):
+    """The budget of a run's windows: BARE_EARTH_MEMORY_MB when set (refused when not a positive
+    number), else half of MemAvailable, else 2 GB when the memory available is unknown."""
+    assert memory.window_budget({"BARE_EARTH_MEMORY_MB": "300"}) == 300 * 2 ** 20
+    for bad in ("lots", "0", "-5"):
+        with pytest.raises(ValueError, match="BARE_EARTH_MEMORY_MB"):
+            memory.window_budget({"BARE_EARTH_MEMORY_MB": bad})
+    monkeypatch.setattr(memory, "available_memory", lambda: 8 << 30)
+    assert memory.window_budget({}) == memory.window_budget({"BARE_EARTH_MEMORY_MB": " "}) == 4 << 30
+    monkeypatch.setattr(memory, "available_memory", lambda: None)
+    assert memory.window_budget({}) == memory.FALLBACK_BUDGET == 2 << 30
+
+
+def test_available_memory_is_the_kernels_estimate():
+    avail = memory.available_memory()
+    assert avail is None or 0 < avail <= os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")

@@ -71,6 +71,54 @@ def test_each_offered_format_is_written_in_that_format(tmp_path, ext, driver):
     assert (tmp_path / "mask.qml").exists()
 
 
+KM_CRS = ('PROJCS["UTM 32N in km",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+          'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+          'PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],'
+          'PARAMETER["false_easting",500],PARAMETER["false_northing",0],UNIT["kilometre",1000]]')
+
+
+def _run_into(tmp_path, crs, gt, out, seen):
+    """pipeline.run_file of a small ramp in ``crs`` into the output ``out``, its progress put in ``seen``."""
+    from bare_earth.core import pipeline
+    z = (np.add.outer(np.arange(40.0), np.arange(40.0)) * 1e-4 + 0.3).astype(np.float32)
+    src = grid.write_array(tmp_path / "dsm.tif", z, gt, crs)
+    try:
+        pipeline.run_file("morphological", src, {"dtm": str(tmp_path / out)}, progress=seen.append)
+    finally:
+        assert _partials(tmp_path) == []
+
+
+def test_a_geopackage_that_would_write_the_crs_in_other_units_refused_before_work(tmp_path):
+    """A DSM in a transverse Mercator in kilometres on a UTM zone's parameters: GDAL's GeoPackage copy
+    wrote it as EPSG:32632, in metres, so the output lay 1000 x too close to the origin (the .tif kept
+    its CRS). Refused before any work, naming both CRSs; a GeoTIFF output runs."""
+    gt = (500.0, 0.001, 0.0, 5400.0, 0.0, -0.001)
+    with pytest.raises(ValueError, match=r"dtm\.gpkg' is a GeoPackage, but GDAL writes its CRS \(UTM 32N in km, "
+                                         r"in kilomet.*as WGS 84 / UTM zone 32N \(in metre\).*GeoTIFF"):
+        _run_into(tmp_path, KM_CRS, gt, "dtm.gpkg", [])
+    assert not (tmp_path / "dtm.gpkg").exists()
+    _run_into(tmp_path, KM_CRS, gt, "dtm.tif", [])
+    ds = gdal.Open(str(tmp_path / "dtm.tif"))
+    assert "kilomet" in ds.GetProjection()
+    ds = None
+
+
+def test_a_format_gdal_cannot_write_the_crs_in_refused_before_work(tmp_path):
+    """Swiss LV95 (EPSG:2056, an oblique Mercator) as netCDF: GDAL's copy failed after the whole run
+    with an empty message ('cannot write the output ... as netCDF: '). Refused before the filter
+    starts, with GDAL's reason; the other formats keep the CRS."""
+    if gdal.GetDriverByName("netCDF") is None:
+        pytest.skip("GDAL has no netCDF driver")
+    gt = (2600000.0, 1.0, 0.0, 1200000.0, 0.0, -1.0)
+    seen = []
+    with pytest.raises(ValueError, match=r"dtm\.nc' is a netCDF, but GDAL cannot write its CRS in that format "
+                                         r"\(.+\)\. Write it as a GeoTIFF"):
+        _run_into(tmp_path, 2056, gt, "dtm.nc", seen)
+    assert seen == [] and not (tmp_path / "dtm.nc").exists()
+    for ext in (".gpkg", ".img", ".asc"):
+        grid.check_output_crs(tmp_path / f"dtm{ext}", grid.open_dsm(tmp_path / "dsm.tif").crs_wkt, gt)
+
+
 def test_saga_grid_readable_and_nothing_left_behind(tmp_path):
     info = _info(tmp_path)
     _write(info, {"dtm": tmp_path / "dtm.sdat"})
@@ -154,6 +202,27 @@ def test_killed_run_leftovers_removed_by_the_next_run_of_that_output(tmp_path):
     _write(info, {"dtm": tmp_path / "dtm.tif"})
     assert _partials(tmp_path) == [other.name]
     assert _read(tmp_path / "dtm.tif")[1, 1] == 100.25 + 0.25 * 7
+
+
+def test_killed_runs_leftovers_of_other_outputs_removed_when_their_process_is_gone(tmp_path):
+    """A run killed (SIGTERM, a crash) while writing ``b.tif`` leaves ``.b.<pid>-<hex>.partial`` and its
+    sidecar; the next run writing anything into that folder removes them once that pid is gone. Work
+    files of running processes, this process's own and any name off the writer's exact pattern stay."""
+    info = _info(tmp_path)
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(grid.__file__))))
+    code = KILLED_RUN.format(plugins=plugins, dsm=info.path, dtm=str(tmp_path / "b.tif"))
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 9
+    (left,) = _partials(tmp_path)
+    (tmp_path / (left + ".aux.xml")).write_text("<PAMDataset/>")        # its sidecar
+    alive = f".c.{os.getppid():010d}-0123abcd.partial"                  # another run's, still running
+    mine = f".d.{os.getpid():010d}-0123abcd.partial"                    # this process's, another output
+    kept = [alive, mine, ".e.12345-0123abcd.partial", ".e.0000012345-0123abcd.partials",
+            "e.0000012345-0123abcd.partial", ".e.0000012345-0123ABCD.partial", "f.partial", "g.partial.tif"]
+    for name in kept:
+        (tmp_path / name).write_bytes(b"x")
+    _write(info, {"dtm": tmp_path / "a.tif"})
+    assert _partials(tmp_path) == sorted(kept)
+    assert _read(tmp_path / "a.tif")[1, 1] == 100.25 + 0.25 * 7
 
 
 def test_a_running_output_is_not_taken_for_a_leftover(tmp_path):

@@ -542,23 +542,74 @@ def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
             assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
 
 
+def test_far_heights_beside_a_declared_nodata_written_with_fewer_digits_say_so(tmp_path):
+    """Missing cells holding Float32's lowest value while the raster declares -3.40282e+38 (the
+    same value with fewer digits, as some exports write it): they are nodata (far beyond any
+    height), and the log says the declared value is not the one they hold, instead of asking to
+    declare a nodata value the raster already declares."""
+    z, _ = scene()
+    z[3, 3] = np.finfo(np.float32).min
+    p = grid.write_array(tmp_path / "far.tif", z, GT, 32633, nodata=-3.40282e38)
+    lines = []
+    info = pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m.tif"}, log=lines.append)
+    said = [w for w in lines if "1 cell(s) with heights beyond" in w]
+    assert said and "declares -3.40282e+38 as its nodata, which they do not hold exactly" in said[0]
+    assert "Declare the raster's nodata value" not in said[0] and said[0][9:] in info["warnings"]
+    ds = gdal.Open(str(tmp_path / "m.tif"))
+    assert ds.ReadAsArray()[3, 3] == NODATA
+    ds = None
+    p = grid.write_array(tmp_path / "undeclared.tif", z, GT, 32633)
+    lines.clear()
+    pipeline.run_file(ABOVE, p, {"mask": tmp_path / "m2.tif"}, log=lines.append)
+    assert any("Declare the raster's nodata value to silence this" in w for w in lines)
+
+
+@pytest.mark.parametrize("block", [None, 5])
+def test_a_mask_without_ground_says_the_dtm_is_empty(tmp_path, block):
+    """A filter calling every valid cell an object (curvature on a 4 x 4 raster of a 5 m step at
+    0.5 m cells did): the DTM and nDSM are nodata everywhere, which the log now says (they were
+    written so without a word)."""
+    z, _ = scene()
+    z = z + 1.0                                  # every height above 0 m, the threshold given below
+    p = grid.write_array(tmp_path / "dsm.tif", np.where(np.isfinite(z), z, -9999.0), GT, 32633, nodata=-9999.0)
+    outs = {"dtm": tmp_path / "d.tif", "mask": tmp_path / "m.tif", "ndsm": tmp_path / "n.tif"}
+    lines = []
+    info = pipeline.run_file(ABOVE, p, outs, params={"threshold_m": 0.0}, block=block, log=lines.append)
+    valid = int(np.count_nonzero(np.isfinite(z)))
+    said = [w for w in lines if "called none of the" in w]
+    assert said == [f"Warning: The filter called none of the {valid} valid cell(s) ground (objects 99 %, low "
+                    "outliers 1 %): with no ground to interpolate from, the DTM and nDSM are nodata everywhere. "
+                    "Give a raster that reaches the ground around its objects, or try another method."]
+    assert said[0][9:] in info["warnings"]
+    ds = gdal.Open(str(tmp_path / "d.tif"))
+    assert (ds.ReadAsArray() == -9999.0).all()
+    ds = None
+    lines.clear()
+    info = pipeline.run_file(ABOVE, p, outs, block=block, log=lines.append)
+    assert not any("called none of the" in w for w in lines + info["warnings"])
+    assert pipeline.no_ground_message({OBJECT: 5}, {"mask": "m.tif"}) is None      # no DTM written
+
+
 def test_plan_block_pure():
     plan = pipeline.plan_block
     assert plan((500, 400), 3, block=77) == 77                        # given: as is
     assert plan((500, 400), 3) == 500                                  # one block in memory
-    assert plan((6000, 6000), 3) == pipeline.blocks.DEFAULT_BLOCK       # large: default blocks
+    # large: the blocks the budget allows (a window of 2048 + 2 x 3 cells, its corner aligned out by up to 63)
+    budget = (2048 + 6 + 63) ** 2 * pipeline.DEFAULT_BYTES_PER_CELL
+    assert plan((6000, 6000), 3, budget=budget) == (2048, 2048)
     # two threads, small halo: 4 strips of whole rows, multiples of 64
     assert plan((500, 400), 3, workers=2) == (128, 400)
     # long strips align to the output tile
     assert plan((4096, 300), 3, workers=2) == (1024, 300)
     # a halo that would add more than a quarter: one strip per worker, at least 2 * halo rows
     assert plan((500, 400), 40, processes=2) == (256, 400)
-    # large raster with workers: default blocks, rows aligned
-    assert plan((6000, 6000), 3, workers=2) == (2048, 2048)
+    # large raster with workers: the budget shared by the windows held at once
+    assert plan((6000, 6000), 3, workers=2, budget=2 * budget) == (2048, 2048)
     # a method using threads inside a window: one window in memory (no halo recomputed), blocks above
     assert plan((500, 400), 40, workers=2, threads=True) == 500
     assert plan((500, 400), 40, processes=2, threads=True) == (256, 400)
-    assert plan((6000, 6000), 3, workers=2, threads=True) == (2048, 2048)
+    # ... and above IN_MEMORY_CELLS, its windows one at a time with the threads: the whole budget for one
+    assert plan((6000, 6000), 3, workers=2, threads=True, budget=budget) == (2048, 2048)
 
 
 def test_run_file_threads_method_one_window_with_its_threads(tmp_path):
@@ -583,6 +634,91 @@ def test_run_file_threads_method_one_window_with_its_threads(tmp_path):
     assert info["blocks"] > 1 and {w for _, w in seen} == {1}
     res = pipeline.run_array(threaded, z, 1.0, workers=2)
     assert res.info["blocks"] == 1 and seen[-1] == ((200, 30), 2)
+
+
+def test_plan_block_large_rasters_read_little_within_the_memory_budget():
+    """Above IN_MEMORY_CELLS the blocks come from the halo and the memory budget, not a fixed 2048:
+    dtm's 40000 x 40000 cells at 1 m with a halo of 2176 cells read 9.2 x the raster in blocks of 2048
+    (each window 41 Mcells for 4.2 of output); within 11 GB at 92 bytes a cell (dtm's) they read 2.56 x, and
+    every window held at once fits the budget."""
+    plan, amp, largest = pipeline.plan_block, pipeline.read_amplification, pipeline.largest_window
+    big, gb = (40000, 40000), 1 << 30
+    assert amp(big, 2048, 2176) > 9
+    b = plan(big, 2176, workers=2, threads=True, budget=11 * gb, bytes_per_cell=92)
+    assert amp(big, b, 2176) < 2.6 and largest(big, b, 2176) * 92 <= 11 * gb
+    # the same budget shared by two windows side by side (a method without threads inside a window)
+    b2 = plan(big, 2176, workers=2, budget=11 * gb, bytes_per_cell=92)
+    assert 2 * largest(big, b2, 2176) * 92 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
+    assert plan(big, 2176, processes=3, threads=True, budget=11 * gb, bytes_per_cell=92) == \
+        plan(big, 2176, workers=3, budget=11 * gb, bytes_per_cell=92)          # processes: a window each
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        shape = tuple(int(v) for v in rng.integers(5001, 60000, 2))
+        halo, budget = int(rng.integers(0, 3000)), float(rng.uniform(0.5, 16)) * gb
+        n = int(rng.integers(1, 4))
+        b = plan(shape, halo, workers=n, budget=budget, bytes_per_cell=60)
+        cells = budget / n / 60
+        if b == max(shape):                          # one pass: it fits, or every block reads it all
+            assert shape[0] * shape[1] <= cells or largest(shape, pipeline.MIN_BLOCK, halo) == shape[0] * shape[1]
+            continue
+        assert all(v % 256 == 0 or v == w for v, w in zip(b, shape))        # whole output tiles
+        if largest(shape, pipeline.MIN_BLOCK, halo) <= cells:                # the budget holds
+            assert largest(shape, b, halo) <= cells
+        else:                                        # a budget below the smallest block's window
+            assert min(b) == pipeline.MIN_BLOCK
+        # no worse than square blocks of the largest side fitting the budget (its corner aligned out by a - 1)
+        a = pipeline.blocks.alignment(halo)
+        unit = max(256, a)
+        side = max(pipeline.MIN_BLOCK, (math.isqrt(int(cells)) - 2 * halo - a + 1) // unit * unit)
+        assert amp(shape, b, halo) <= amp(shape, side, halo) + 1e-9
+    # strips of whole rows when a window spans the raster's width: (4352 + 2 x 3 + 63) x 6000 cells <= 2 GB / 80
+    assert plan((6000, 6000), 3, budget=2 * gb, bytes_per_cell=80) == (4352, 6000)
+    assert plan((6000, 6000), 3, budget=6000 ** 2 * 80, bytes_per_cell=80) == 6000   # fits: one pass
+
+
+def _opening_run(z, cell_size, progress=None, workers=1, seen=None, **p):
+    """Objects: cells 1 m above the grey opening of 9 x 9 cells (reach 8 cells), for blocks above
+    IN_MEMORY_CELLS; ``seen`` records the windows and threads."""
+    from scipy import ndimage
+    if seen is not None:
+        seen.append((z.shape, workers))
+    filled = np.where(np.isfinite(z), z, np.float32(-1e4)).astype(np.float32)
+    mask = (filled - ndimage.grey_opening(filled, size=(9, 9)) > 1.0).astype(np.uint8)
+    report(progress, 1.0)
+    return FilterResult(finish_mask(mask, z), info={})
+
+
+def test_run_file_above_in_memory_cells_blocked_equals_one_pass(tmp_path, monkeypatch):
+    """A raster just above IN_MEMORY_CELLS (a synthetic city drawn 8 times larger as a VRT, 5008 x 5000
+    cells) is cut into the blocks the memory budget allows, logged with their read amplification; a
+    method using threads inside a window runs them one at a time with the run's threads; the mask
+    equals one pass and the DTM's ground cells too (its filled cells nearly: 290 of 25 M differ by more
+    than 5 cm, the fill of a hole crossing a block's edge seeing the halo only)."""
+    from bare_earth.core.synthetic import make_scene
+    seen = []
+    meth = Method(name="opening", run=lambda z, c, **k: _opening_run(z, c, seen=seen, **k), resolve=_resolve,
+                  halo=lambda p, c: 8, threads=True)
+    small = make_scene("city", (626, 625), seed=3).dsm
+    src = grid.write_array(tmp_path / "small.tif", small, (500000.0, 8.0, 0.0, 5405008.0, 0.0, -8.0), 32633)
+    vrt = str(tmp_path / "big.vrt")
+    gdal.Translate(vrt, src, format="VRT", width=5000, height=5008, resampleAlg="nearest")
+    assert 5008 * 5000 > pipeline.IN_MEMORY_CELLS
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", "300")       # 300 MB at 92 bytes a cell: windows of 3.4 Mcells
+    logs = []
+    info = pipeline.run_file(meth, vrt, outputs(tmp_path, "mask", "dtm"), workers=2, log=logs.append)
+    assert info["blocks"] > 4 and {w for _, w in seen} == {2}
+    assert max(a * b for (a, b), _ in seen) * pipeline.DEFAULT_BYTES_PER_CELL <= 300 * 2 ** 20
+    assert any(s.startswith("Blocks of ") and "reading 1.0" in s for s in logs), logs
+    seen.clear()
+    one = pipeline.run_file(meth, vrt, outputs(tmp_path, "mask", "dtm", prefix="one_"), block=5008)
+    assert one["blocks"] == 1 and seen == [((5008, 5000), 1)]
+    m, m1 = read(tmp_path / "mask.tif")[0], read(tmp_path / "one_mask.tif")[0]
+    np.testing.assert_array_equal(m, m1)
+    assert (m1 == OBJECT).sum() > 100_000 and (m1 == GROUND).mean() > 0.9
+    d, d1 = read(tmp_path / "dtm.tif")[0], read(tmp_path / "one_dtm.tif")[0]
+    np.testing.assert_array_equal(d[m1 == GROUND], d1[m1 == GROUND])
+    # filled cells: the interpolation sees the block and its halo (the method's reach, not the fill's)
+    assert np.count_nonzero(np.abs(d - d1) > 0.05) < 1e-4 * d.size
 
 
 @pytest.mark.parametrize("block", [None, 64])
@@ -784,12 +920,17 @@ def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp
     reach at 2 cm cells: 100000 cells) was cut into blocks that each read and filtered the whole
     raster (40000 x 40000 at 2 cm: 6 GB after 90 s in the first of 400 blocks). It now runs in
     one pass, said in the log; a halo shorter than that keeps the blocks."""
-    plan = pipeline.plan_block
-    big = pipeline.blocks.DEFAULT_BLOCK
-    assert plan((6000, 6000), 6000 - big) == 6000 and plan((6000, 3000), 5000) == 6000
-    assert plan((6000, 6000), 6000 - big - 1) == big
+    plan, least = pipeline.plan_block, pipeline.MIN_BLOCK
+    budget = 4000 ** 2 * 80                   # windows of at most 4000 x 4000 cells: less than the raster
+    assert plan((6000, 6000), 6000 - least, budget=budget) == 6000
+    assert plan((6000, 3000), 6000 - least, budget=budget) == 6000
+    b = plan((6000, 6000), 6000 - least - 1, budget=budget)     # the corner blocks read less than all
+    assert b != 6000 and max(b) == least
+    b = plan((6000, 6000), 1000, budget=budget)
+    assert b != 6000 and pipeline.largest_window((6000, 6000), b, 1000) <= 4000 ** 2
     monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
-    monkeypatch.setattr(pipeline.blocks, "DEFAULT_BLOCK", 64)
+    monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", "1")       # 1 MB: windows of 13107 cells at 80 bytes
     z = (np.arange(200 * 150, dtype=np.float32).reshape(200, 150) % 13).astype(np.float32)
     src = write(tmp_path, z)
     reach = Method(name="reach", run=_run, resolve=_resolve, halo=lambda p, c: 150, params=ABOVE.params)

@@ -1539,6 +1539,26 @@ def test_wall_tops_beside_terrain_steps_are_given_back_exact():
     assert (off.mask[:, 79] == OBJECT).all() and (off.mask[:, 80] == 0).all()
 
 
+def test_wall_tops_cut_by_data_gaps_are_given_back():
+    """The wall tops step 3 took are given back beside a terrain step longer than a building where
+    gaps of a cell cut their own groups shorter: a data gap every 20 rows on the wall's top cuts them into
+    pieces of 19 cells (the longest building 60 m), and each was kept an object (152 cells);
+    joined across the gaps they run along the wall and are ground. The box on the upper level
+    stays an object (and the 3-cell edges of boxes 20 cells apart on a coarse DEM of hills,
+    ``test_coarse_bare_hilly_dem_stays_ground``, are not joined)."""
+    z = np.full((160, 160), 100.0, np.float32)
+    z[:, 80:] = 96.0                                   # a 4 m drop across the raster
+    z[10::20, 79] = np.nan                             # gaps on the wall's top
+    z[60:70, 20:30] += 6.0                             # a 10 m box on the upper level
+    kw = dict(terrain_class="flat", sigma_m=0.1, short_profile_m=5.0, long_profile_m=9.0,
+              surface_size_m=25.0, max_building_m=60.0)
+    res = rascor.filter_rascor(z, 1.0, **kw)
+    assert res.info["terrain_step_share"] > 0
+    assert not (res.mask[:, 70:90] == OBJECT).any()
+    assert res.info["terrain_step_restored_share"] * np.count_nonzero(np.isfinite(z)) == pytest.approx(152)
+    assert (res.mask[60:70, 20:30] == OBJECT).all()
+
+
 def test_banks_of_a_narrow_trench_are_ground():
     """A trench one cell wide and 6 m deep along the raster: step 3 takes both its banks (the
     upper point of each pair); its walls are level changes of the terrain that no jump answers

@@ -4,6 +4,7 @@ The survey is a 288 x 288 synthetic city cut into 3 x 3 tiles of 96 x 96 cells; 
 single pass over the mosaic (``pipeline.run_array`` with the survey's resolved parameters)
 is the reference.
 """
+import dataclasses
 import json
 import os
 import signal
@@ -670,6 +671,44 @@ def test_scaled_tiles_write_heights_with_a_nodata_no_height_has(tmp_path, crs):
     heights = (counts[:, :32] * 0.01 - 100.0).astype(np.float32)
     ok = counts[:, :32] != 0
     assert np.abs(dtm[ok] - heights[ok]).max() < 1.0
+
+
+def _state_unit(paths, unit):
+    from osgeo import gdal
+    for p in paths:
+        ds = gdal.Open(str(p), gdal.GA_Update)
+        ds.GetRasterBand(1).SetUnitType(unit)
+        ds = None
+
+
+def test_tiles_stating_their_heights_in_feet_give_the_one_pass_dtm_in_feet(tmp_path):
+    """Tiles in a UTM CRS whose bands state feet (GDAL's unit type): the survey reads them through
+    its VRT, which gdalbuildvrt writes without the unit, so the heights were read as metres there
+    and written back in feet (x 3.28): the VRTs state the tiles' unit now, the tiles' DTMs too, and
+    the mosaic is the one-pass DTM; tiles stating different units are refused before any work."""
+    from osgeo import gdal
+    sc = make_scene("city", shape=(64, 64), seed=2)
+    feet = sc.dsm / 0.3048
+    paths = write_survey(tmp_path / "tiles", dataclasses.replace(sc, dsm=feet), tile=32)
+    _state_unit(paths, "ft")
+    src = grid.write_array(tmp_path / "whole.tif", feet.astype(np.float32), sc.geotransform, sc.epsg)
+    _state_unit([src], "ft")
+    params = {"max_object_size_m": 8.0}
+    pipeline.run_file("slopeprofile", src, {"dtm": tmp_path / "one.tif"}, params=params)
+    run_survey("slopeprofile", paths, tmp_path / "out", params, workers=1)
+    ds = gdal.Open(str(tmp_path / "one.tif"))
+    one = ds.ReadAsArray()
+    ds = gdal.Open(str(tmp_path / "out" / "dtm.vrt"))
+    mosaic, unit = ds.ReadAsArray(), ds.GetRasterBand(1).GetUnitType()
+    np.testing.assert_allclose(mosaic, one, atol=1e-3)
+    ds = gdal.Open(str(tmp_path / "out" / "t00_dtm.tif"))
+    assert unit == "ft" and ds.GetRasterBand(1).GetUnitType() == "ft"
+    ds = None
+    _state_unit(paths[1:2], "m")
+    with pytest.raises(ValueError, match=r"heights are in different units: t01\.tif \('m', 1 m\) differ from "
+                                         r"t00\.tif \('ft', 0\.3048 m\)"):
+        run_survey("slopeprofile", paths, tmp_path / "out2", params, workers=1)
+    assert not (tmp_path / "out2").exists()
 
 
 def test_a_tile_written_on_a_full_disk_fails_naming_its_output(tmp_path):

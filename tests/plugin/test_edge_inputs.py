@@ -459,14 +459,37 @@ def test_dtm_layer_outside_the_dsm_warns_and_other_crs_is_reprojected(processing
     assert (_read(res["OUTPUT_MASK"])[0][32:38, 32:38] == 1).all()
 
 
+@pytest.mark.parametrize("key,kind,wkt", [
+    ("OBJECT_AREAS", "Polygon", SQUARE),
+    ("BREAKLINES", "LineString", "LINESTRING(500010 5399990, 500030 5399970)"),
+    ("GROUND_AREAS", "Point", "POINT(500015 5399985)"),
+], ids=["objects", "breaklines", "ground_points"])
+def test_dtm_layer_whose_coordinates_are_not_in_its_crs_refused_saying_so(processing_run, tmp_path, key, kind, wkt):
+    """UTM metres in a layer said to be in degrees (EPSG:4326), the commonest wrong layer CRS: the
+    reprojection gave infinite coordinates and the refusal blamed an invalid geometry ('ring 0 not
+    closed: repair the layer (Fix Geometries)'), or the points were dropped without a word. It now
+    names the layer's CRS, the feature's coordinates and how to assign the right CRS."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((60, 60)), nodata=-9999.0)
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    with pytest.raises(QgsProcessingException, match=r"the coordinates of feature 1 \(5000[0-9]+, 5399[0-9]+\) are "
+                                                     r"not coordinates of the layer's CRS \(EPSG:4326\).*EPSG:32632.*"
+                                                     r"Assign Projection"):
+        processing_run("bareearth:dtm", {"INPUT": src, key: _memory_layer(kind, [wkt], "EPSG:4326"), **outs})
+    assert not (tmp_path / "d.tif").exists()
+
+
 @pytest.mark.parametrize("extra,message", [
     ({"THREADS": "abc"}, r"\(THREADS\) = 'abc' is not a number"),
     ({"BAND": "abc"}, r"\(BAND\) = 'abc' is not a number"),
     ({"SLOPE_THRESHOLD_DEG": "nan"}, r"\(SLOPE_THRESHOLD_DEG\) = 'nan' is not a number: give a number, or leave it"),
     ({"COG": "maybe"}, r"\(COG\) = 'maybe' is not a yes/no value"),
+    # a decimal comma (German, French... keyboards): the same value with a point is named
+    ({"SLOPE_THRESHOLD_DEG": "30,5"}, r"\(SLOPE_THRESHOLD_DEG\) = '30,5' is not a number: give a number, or "
+                                      r"leave it out \(with a decimal point: 30\.5\)"),
     ({"SLOPE_TRESHOLD_DEG": "30"}, r"SLOPE_TRESHOLD_DEG is no parameter of bareearth:slopeprofile"),
     ({"PROCESSES": "64"}, r"\(PROCESSES\) = 64, but this computer has [0-9]+ core\(s\)"),
-], ids=["threads_text", "band_text", "nan_text", "bool_text", "misspelt", "processes_beyond_cores"])
+], ids=["threads_text", "band_text", "nan_text", "bool_text", "decimal_comma", "misspelt", "processes_beyond_cores"])
 def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, message):
     """Values qgis_process passes as text that QGIS read as 0, false or "not given" (a run with other
     values than asked), a misspelt parameter name (silently left out) and more worker processes than

@@ -331,23 +331,30 @@ def test_evaluate_reads_a_dtm_layer_as_it_stands_in_qgis(processing_run, tmp_pat
     assert r["RMSE"] == pytest.approx(ft, rel=1e-4)
 
 
-@pytest.mark.parametrize("crs", ["EPSG:2264", "EPSG:2264+5703"])
+@pytest.mark.parametrize("crs", ["EPSG:2264", "EPSG:2264+5703", "EPSG:32617 ft"])
 def test_orthophoto_dem_in_feet_refused_whatever_its_height_unit(processing_run, tmp_path, crs):
     """The orthophoto tools work in metres: a DEM on a grid in feet is refused, also in a compound
-    CRS whose heights are in metres (its height unit no longer stood for its grid's)."""
-    from osgeo import osr
+    CRS whose heights are in metres (its height unit no longer stood for its grid's), and a DEM
+    whose band states feet on a grid in metres, told how to write its heights in metres."""
+    from osgeo import gdal, osr
     from qgis.core import QgsProcessingException
     from scipy import ndimage
 
     from bare_earth.core.grid import write_array
+    crs, _, unit = crs.partition(" ")
     s = osr.SpatialReference()
     s.SetFromUserInput(crs)
     gt = (1000000.0, 3.0, 0.0, 500000.0, 0.0, -3.0)
     tex = (255.0 * ndimage.gaussian_filter(np.random.default_rng(7).random((80, 80)), 1.5)).astype(np.float32)
     dem = write_array(tmp_path / "dem.tif", np.full((80, 80), 100.0, np.float32), gt, s.ExportToWkt())
+    if unit:
+        ds = gdal.Open(dem, gdal.GA_Update)
+        ds.GetRasterBand(1).SetUnitType(unit)
+        ds = None
     a = write_array(tmp_path / "a.tif", tex, gt, s.ExportToWkt())
     b = write_array(tmp_path / "b.tif", tex, gt, s.ExportToWkt())
-    with pytest.raises(QgsProcessingException, match="unit is not the metre"):
+    message = r"states its heights are in 'ft' \(0\.3048 m\).*gdal_calc" if unit else "unit is not the metre"
+    with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:orthoparallax", {"DEM": dem, "ORTHO_A": a, "ORTHO_B": b, "BASE_M": 300.0,
                                                    "HEIGHT_M": 1000.0, "OUTPUT_DEM": str(tmp_path / "o.tif"),
                                                    "OUTPUT_MASK": str(tmp_path / "m.tif")})
