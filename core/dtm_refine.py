@@ -330,20 +330,24 @@ def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M):
     return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m))
 
 
-def _line_maximum(gx, gy, cell_size, di, dj, k):
-    """The largest ``|g . u|`` along the line ``(di, dj)`` within ``k`` steps either side (NaN: none known)."""
+def _line_along(gx, gy, cell_size, di, dj):
+    """``|g . u|`` of ``(gx, gy)`` along the line ``(di, dj)`` (float32; ``-inf`` where not known)."""
     dx, dy = float(cell_size[0]), float(cell_size[1])
     length = math.hypot(di * dy, dj * dx)
     a = np.abs(gx * np.float32(dj * dx / length) + gy * np.float32(di * dy / length))
     a[~np.isfinite(a)] = -np.inf
-    span = 2 * int(k) + 1
-    if di == 0 or dj == 0:
-        m = ndimage.maximum_filter1d(a, span, axis=1 if di == 0 else 0, mode="constant", cval=-np.inf)
-    else:
-        foot = np.eye(span, dtype=bool)
-        m = ndimage.maximum_filter(a, footprint=foot if di == dj else foot[:, ::-1], mode="constant", cval=-np.inf)
-    m[~np.isfinite(m)] = np.nan
-    return m
+    return a
+
+
+def _line_maximum_at(ap, x, k, shift):
+    """At the flat indices ``x`` of ``ap`` (:func:`_line_along`, padded with ``-inf`` so that every term lies in
+    it): the largest value along the line of flat step ``shift`` within ``k`` steps either side (NaN: none)."""
+    best = ap[x]
+    for t in range(1, int(k) + 1):
+        np.maximum(best, ap[x + t * shift], out=best)
+        np.maximum(best, ap[x - t * shift], out=best)
+    best[~np.isfinite(best)] = np.nan
+    return best
 
 
 def line_slopes(gradient, cell_size, reach_m=REACH_M):
@@ -377,8 +381,11 @@ def line_slopes(gradient, cell_size, reach_m=REACH_M):
         ``|g|`` of each cell's own plane (NaN where none).
     """
     gx, gy = gradient
-    along = {(di, dj): _line_maximum(gx, gy, cell_size, di, dj, k)
-             for (di, dj), k in refine_steps(cell_size, reach_m).items()}
+    along = {}
+    for (di, dj), k in refine_steps(cell_size, reach_m).items():
+        ap = _padded(_line_along(gx, gy, cell_size, di, dj), k, k, -np.inf)
+        x = np.arange(ap.size).reshape(ap.shape)[k:-k, k:-k]
+        along[(di, dj)] = _line_maximum_at(ap.ravel(), x, k, di * ap.shape[1] + dj)
     return along, np.hypot(gx, gy)
 
 
@@ -1057,24 +1064,24 @@ def _floor_flat(zg, n, di, dj, inc, pad):
     return rp[:, :cols]
 
 
-def _floor_scaled(zg, a, b, inc, n, di, dj):
-    """``min_{k = 0..n} zg[x - k d] + k inc[x]`` for the rows ``a .. b - 1`` of ``zg`` (inf outside), ``d = (di, dj)``:
-    the floor of each cell with its own rise per step ``inc`` (rows ``a .. b - 1``); ``n`` passes."""
-    rows, cols = zg.shape
-    r = zg[a:b].copy()
-    cand = np.empty_like(r)
+def _floor_at(zp, x, inc, n, shift):
+    """``min_{k = 0..n} zp[x - k shift] + k inc`` at the flat indices ``x`` of ``zp`` (a raster padded with ``inf``
+    so that every term lies in it; ``shift`` the flat step of the line): the floor of each cell with its own rise
+    per step ``inc`` (float32, one per cell); ``n`` gathers."""
+    r = zp[x]
+    c = np.empty_like(r)
     for k in range(1, n + 1):
-        # rows a..b-1 read rows a - k di .. b - k di
-        s0, s1 = a - k * di, b - k * di
-        t0, t1 = max(0, -s0), (b - a) - max(0, s1 - rows)
-        (dc, sc) = _slices(k * dj, cols)
-        if t0 >= t1 or dc.start >= dc.stop:
-            continue
-        c = cand[t0:t1, dc]
-        np.multiply(inc[t0:t1, dc], np.float32(k), out=c)
-        np.add(c, zg[s0 + t0:s0 + t1, sc], out=c)
-        np.minimum(r[t0:t1, dc], c, out=r[t0:t1, dc])
+        np.multiply(inc, np.float32(k), out=c)
+        c += zp[x - k * shift]
+        np.minimum(r, c, out=r)
     return r
+
+
+def _padded(a, rows, cols, fill):
+    """``a`` with ``rows`` rows and ``cols`` columns of ``fill`` on each side (C order, for flat gathers)."""
+    out = np.full((a.shape[0] + 2 * rows, a.shape[1] + 2 * cols), fill, a.dtype)
+    out[rows:rows + a.shape[0], cols:cols + a.shape[1]] = a
+    return out
 
 
 def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_gradient=None, pool=None):
@@ -1150,25 +1157,42 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
         gm = np.where(gm < slope, gm, np.float32(slope)) * np.float32(max(dx, dy))
         top = zt - np.sqrt(np.float32(height_m) ** 2 + np.float32(SPREAD_SIGMAS ** 2 * 2.0 / 12.0) * gm * gm)
     hit = np.zeros(zt.shape, bool)
+    open_ = ground[a:b] & np.isfinite(zt)             # the cells the band may still take
+    if seen_gradient is not None:
+        # the band's ground and gradient padded (inf, no ground; -inf, no plane) by the floors' reach: each cell's
+        # terms are flat gathers; rows and columns beyond the raster are the padding, as beyond zg's rows
+        pad = max(steps.values())
+        zp = _padded(zg, halo, pad, np.float32(np.inf))
+        width = zp.shape[1]
+        base = (a - lo + halo) * width + pad                  # flat index of the band's cell (0, 0)
     for (di, dj), n in steps.items():
         step = math.hypot(di * dy, dj * dx)
-        slopes = None
-        if seen_gradient is not None:
-            # per cell the slope its floors allow along the line: the seen ground's own along it (the largest
-            # within the reach), at most s (NaN, not known: s)
-            slopes = _line_maximum(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di, dj,
-                                   n)[a - lo:b - lo]
-            slopes = np.where(slopes < slope, slopes, np.float32(slope)).astype(np.float32, copy=False)
         both = None
+        ap = None
         for sdi, sdj in ((di, dj), (-di, -dj)):
             # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
             # along a row none: the floors of the band's rows only, from the same terms
             r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
-            if slopes is None:
-                floor = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, slope * step)[a - r0:b - r0]
-            else:
-                floor = _floor_scaled(zg[r0 - lo:r1 - lo], a - r0, b - r0, slopes * np.float32(step), n, sdi, sdj)
-            below = floor < top
+            zs = zg[r0 - lo:r1 - lo]
+            below = _floor(zs, n, sdi, sdj, slope * step)[a - r0:b - r0] < top
+            if seen_gradient is not None:
+                # each cell's floor rises at its own slope along the line, at most s: below the floor at s, below
+                # its own; not below the lowest ground within the reach (slope 0), not below its own; between,
+                # the cell's own floor, at those cells only
+                need = open_ & ~hit & ~below if both is None else both & ~below
+                if need.any():
+                    need &= _floor(zs, n, sdi, sdj, 0.0)[a - r0:b - r0] < top
+                i, j = np.nonzero(need)
+                if i.size:
+                    x = base + i * width + j
+                    if ap is None:
+                        # the seen ground's own slope along the line (the largest within the reach), at most s
+                        # (NaN, not known: s), read on the band's rows and the floors' rows around it (exact)
+                        ap = _padded(_line_along(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di,
+                                                 dj), halo, pad, -np.inf).ravel()
+                    sl = _line_maximum_at(ap, x, n, di * width + dj)
+                    sl = np.where(sl < slope, sl, np.float32(slope)).astype(np.float32, copy=False)
+                    below[i, j] = _floor_at(zp.ravel(), x, sl * np.float32(step), n, sdi * width + sdj) < top[i, j]
             both = below if both is None else np.logical_and(both, below, out=both)
         hit |= both
     out[a:b] = hit & ground[a:b] & np.isfinite(zt)

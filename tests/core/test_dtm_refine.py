@@ -622,14 +622,18 @@ def test_continuation_tolerance_exact():
 # ---- the seen ground's slope along each line (dtm_refine.line_slopes, issues 12 and 13)
 @pytest.mark.parametrize("n", [1, 3, 6])
 @pytest.mark.parametrize("di,dj", [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)])
-def test_floor_scaled_equals_brute_force(n, di, dj):
-    """Each cell's floor with its own rise per step: ``min_k zg[x - k d] + k inc[x]``."""
+def test_floor_at_equals_brute_force(n, di, dj):
+    """Each cell's floor with its own rise per step: ``min_k zg[x - k d] + k inc[x]`` (at the cells asked)."""
     rng = np.random.default_rng(n)
     zg = rng.normal(0, 2, (14, 11)).astype(np.float32)
     zg[rng.random(zg.shape) < 0.3] = np.inf
     inc = rng.uniform(0, 0.5, zg.shape).astype(np.float32)
     a, b = 3, 10
-    got = dr._floor_scaled(zg, a, b, inc[a:b], n, di, dj)
+    i, j = np.indices((b - a, zg.shape[1]))
+    zp = dr._padded(zg, n, n, np.float32(np.inf))          # every term within the padding
+    w = zp.shape[1]
+    x = ((i + a + n) * w + j + n).ravel()
+    got = dr._floor_at(zp.ravel(), x, inc[a:b].ravel(), n, di * w + dj).reshape(i.shape)
     rows, cols = zg.shape
     want = np.full((b - a, cols), np.inf)
     for i in range(a, b):
@@ -684,6 +688,44 @@ def test_a_bush_on_a_steep_hillside_is_bracketed_along_the_contour():
     expect = np.zeros(z.shape, bool)
     expect[20, 20] = True
     np.testing.assert_array_equal(out, expect)
+
+
+@pytest.mark.parametrize("band_rows", [4, 64])
+def test_bracketed_along_the_seen_ground_equals_brute_force(monkeypatch, band_rows):
+    """find_bracketed with the seen ground's gradient (each cell's floors at its own slope along the line, found
+    only where the floors at ``s`` and at 0 disagree) equals every cell's floors written out: ``min_k zg(x - k d)
+    + k |d| min(s, along)`` from both sides of a line, below ``z - sqrt(dh^2 + (3 sqrt(2/12) min(s, |g|) c)^2)``."""
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    rng = np.random.default_rng(5)
+    y, x = np.mgrid[0:30, 0:33].astype(np.float32)
+    z = (0.4 * x + 0.01 * (y - 15) ** 2 + rng.normal(0, 0.1, x.shape)).astype(np.float32)
+    z[rng.random(z.shape) < 0.08] += 1.2                          # bushes
+    z[rng.random(z.shape) < 0.02] = np.nan
+    ground = rng.random(z.shape) > 0.15
+    cell, s, dh, reach = (1.0, 1.0), 0.5, 0.5, 5.0
+    seen = dr.seen_ground_gradient(z, ground, cell, reach)
+    got = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach, seen_gradient=seen)
+    along, magnitude = dr.line_slopes(seen, cell, reach)
+    zg = np.where(ground & np.isfinite(z), z, np.inf)
+    gm = np.where(magnitude < s, magnitude, s)
+    top = z - np.sqrt(np.float32(dh) ** 2 + np.float32(9 * 2 / 12) * gm * gm)
+    rows, cols = z.shape
+    want = np.zeros(z.shape, bool)
+    for (di, dj), n in dr.refine_steps(cell, reach).items():
+        inc = np.where(along[(di, dj)] < s, along[(di, dj)], s) * math.hypot(di, dj)
+        for i in range(rows):
+            for j in range(cols):
+                floors = []
+                for sd in (1, -1):
+                    f = np.inf
+                    for k in range(n + 1):
+                        r, c = i - sd * k * di, j - sd * k * dj
+                        if 0 <= r < rows and 0 <= c < cols:
+                            f = min(f, zg[r, c] + k * inc[i, j])
+                    floors.append(f)
+                want[i, j] |= max(floors) < top[i, j]
+    want &= ground & np.isfinite(z)
+    assert want.sum() > 10 and np.array_equal(got, want)
 
 
 def test_a_smooth_ridge_within_the_steep_slope_is_not_bracketed_along_the_seen_ground():
