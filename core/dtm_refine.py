@@ -1167,33 +1167,36 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
         base = (a - lo + halo) * width + pad                  # flat index of the band's cell (0, 0)
     for (di, dj), n in steps.items():
         step = math.hypot(di * dy, dj * dx)
-        both = None
-        ap = None
+        sides = []
         for sdi, sdj in ((di, dj), (-di, -dj)):
             # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
             # along a row none: the floors of the band's rows only, from the same terms
             r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
             zs = zg[r0 - lo:r1 - lo]
             below = _floor(zs, n, sdi, sdj, slope * step)[a - r0:b - r0] < top
-            if seen_gradient is not None:
-                # each cell's floor rises at its own slope along the line, at most s: below the floor at s, below
-                # its own; not below the lowest ground within the reach (slope 0), not below its own; between,
-                # the cell's own floor, at those cells only
-                need = open_ & ~hit & ~below if both is None else both & ~below
-                if need.any():
-                    need &= _floor(zs, n, sdi, sdj, 0.0)[a - r0:b - r0] < top
-                i, j = np.nonzero(need)
-                if i.size:
-                    x = base + i * width + j
-                    if ap is None:
-                        # the seen ground's own slope along the line (the largest within the reach), at most s
-                        # (NaN, not known: s), read on the band's rows and the floors' rows around it (exact)
-                        ap = _padded(_line_along(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di,
-                                                 dj), halo, pad, -np.inf).ravel()
-                    sl = _line_maximum_at(ap, x, n, di * width + dj)
-                    sl = np.where(sl < slope, sl, np.float32(slope)).astype(np.float32, copy=False)
-                    below[i, j] = _floor_at(zp.ravel(), x, sl * np.float32(step), n, sdi * width + sdj) < top[i, j]
-            both = below if both is None else np.logical_and(both, below, out=both)
+            lowest = None if seen_gradient is None else _floor(zs, n, sdi, sdj, 0.0)[a - r0:b - r0] < top
+            sides.append((sdi, sdj, below, lowest))
+        both = np.logical_and(sides[0][2], sides[1][2])
+        if seen_gradient is not None:
+            # each cell's floor rises at its own slope along the line, at most s: below the floor at s, below
+            # its own; not below the lowest ground within the reach (slope 0), not below its own. The cells
+            # below the lowest ground on both sides and not below both floors at s: their own floors, at those
+            # cells only, side by side (the second side where the first is below)
+            need = open_ & ~hit & ~both & sides[0][3] & sides[1][3]
+            i, j = np.nonzero(need)
+            if i.size:
+                x = base + i * width + j
+                # the seen ground's own slope along the line (the largest within the reach), at most s (NaN,
+                # not known: s), read on the band's rows and the floors' rows around it (exact)
+                ap = _padded(_line_along(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di, dj), halo,
+                             pad, -np.inf).ravel()
+                sl = _line_maximum_at(ap, x, n, di * width + dj)
+                inc = np.where(sl < slope, sl, np.float32(slope)).astype(np.float32, copy=False) * np.float32(step)
+                ok = np.ones(i.shape, bool)
+                for sdi, sdj, below, _ in sides:
+                    on = ok & ~below[i, j]
+                    ok[on] = _floor_at(zp.ravel(), x[on], inc[on], n, sdi * width + sdj) < top[i[on], j[on]]
+                hit[i[ok], j[ok]] = True
         hit |= both
     out[a:b] = hit & ground[a:b] & np.isfinite(zt)
 
