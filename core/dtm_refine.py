@@ -244,8 +244,11 @@ tenths of the terrain is rare; the reach from ``dh`` and ``s`` (:func:`refine_re
 least ``REACH_M``, at most the farthest a member looks.
 Cost: per line two floors by min-plus doubling (``log2 n`` passes each), no fill; reach
 bounded, so blocks equal one pass with :func:`refine_halo` cells more. Along the seen ground's slope the floors
-take ``n`` passes each (each cell's own slope) and the planes eleven box means of the raster: the refinement
-0.5 -> 1.4 s of CPU on 4 Mcells (the planes 0.5 s of it).
+at ``s`` and at slope 0 bound each cell's own (two doublings each), which is gathered (``n`` terms) only at the
+cells below the lowest ground on both sides of a line and not below both floors at ``s`` (3.2 M of 128 M cell
+sides on the 16 Mcells ``benchmarks/speed.py`` DSM before asking both sides, fewer now), and the planes take nine
+box means of the raster: the refinement 0.55-0.67 s (main, 76a9f89) -> 2.8-3.0 s on that DSM, of which the
+planes 1.5-1.7 s and find_bracketed 0.7-0.8 s (every cell side's own floor in ``n`` passes: 4.7-4.8 s).
 """
 import math
 from functools import partial
