@@ -1524,3 +1524,68 @@ def _smooth_parts_graph(w, cells, step_m):
     nb = nb[smooth]
     graph = csr_matrix((np.ones(nb.size, np.int8), nb, indptr), shape=(n_c, n_c))
     return connected_components(graph, directed=False)
+
+
+
+
+#: Rows per band of :func:`ground_plane_gradient` (its float64 moments stay a few MB a band).
+_PLANE_BAND_ROWS = 256
+
+
+def ground_plane_gradient(z, ground, cell_size, radius_cells):
+    """The gradient of the least-squares plane through the ``ground`` cells of the square of half-side
+    ``radius_cells`` around each cell: ``(gx, gy)``, rise per metre along the columns and the rows (float32;
+    NaN where the square holds fewer than three ground cells not on one line).
+
+    The ground's own slope where it is seen: the plane through a quadratic surface's cells of a centred
+    square has the surface's gradient at the centre, whatever the square's size, and cells above the ground
+    (low vegetation the ground cells still hold) tilt it by their height times their offset over the
+    square's second moment, little when they are few.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D
+        Heights (NaN nodata).
+    ground : ndarray of bool
+        The cells the planes are fitted to.
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    radius_cells : int
+        Half-side of the squares, cells (>= 1).
+    """
+    z = np.asarray(z)
+    ground = np.asarray(ground, bool)
+    r = max(1, int(radius_cells))
+    size = 2 * r + 1
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    rows, cols = z.shape
+    gx = np.full(z.shape, np.nan, np.float32)
+    gy = np.full(z.shape, np.nan, np.float32)
+    x = np.arange(cols, dtype=np.float64)[None, :] * dx
+
+    def mean(a):
+        return ndimage.uniform_filter(a, size, mode="constant", cval=0.0)
+
+    for a in range(0, rows, _PLANE_BAND_ROWS):
+        b = min(rows, a + _PLANE_BAND_ROWS)
+        lo, hi = max(0, a - r), min(rows, b + r)          # the squares of rows a..b-1, whole (exact in bands)
+        zb = np.asarray(z[lo:hi], np.float64)
+        g = ground[lo:hi] & np.isfinite(zb)
+        w = g.astype(np.float64)
+        y = np.arange(lo, hi, dtype=np.float64)[:, None] * dy - a * dy    # the band's own origin: small moments
+        zw = np.where(g, zb, 0.0)
+        n = mean(w)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(n > 0, 1.0 / n, np.nan)
+            mx, my, mz = mean(w * x) * inv, mean(w * y) * inv, mean(zw) * inv
+            sxx = mean(w * x * x) * inv - mx * mx
+            syy = mean(w * y * y) * inv - my * my
+            sxy = mean(w * x * y) * inv - mx * my
+            sxz = mean(zw * x) * inv - mx * mz
+            syz = mean(zw * y) * inv - my * mz
+            det = sxx * syy - sxy * sxy
+            ok = (np.rint(n * size * size) >= 3) & (det > 1e-9 * (sxx + syy) ** 2)
+            band = slice(a - lo, b - lo)
+            gx[a:b] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)[band]
+            gy[a:b] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)[band]
+    return gx, gy

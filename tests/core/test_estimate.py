@@ -891,6 +891,48 @@ def test_smooth_parts_by_runs_equal_the_graph_of_the_cells_edges(seed):
     assert runs >= 8
 
 
+@pytest.mark.parametrize("cell", [(1.0, 1.0), (1.0, 2.0)])
+def test_ground_plane_gradient_of_a_plane_under_objects_exact(cell):
+    """The plane through the ground cells of each square is the ground's plane, whatever stands on the other
+    cells; NaN where a square holds fewer than three ground cells."""
+    rows, cols = 40, 30
+    y, x = np.mgrid[0:rows, 0:cols]
+    z = (5.0 + 0.6 * x * cell[0] - 0.25 * y * cell[1]).astype(np.float32)
+    rng = np.random.default_rng(1)
+    ground = rng.random(z.shape) > 0.4
+    z[~ground] += 3.0                                   # objects: not read
+    gx, gy = est.ground_plane_gradient(z, ground, cell, 3)
+    np.testing.assert_allclose(gx, 0.6, atol=1e-4)
+    np.testing.assert_allclose(gy, -0.25, atol=1e-4)
+    lone = np.zeros(z.shape, bool)
+    lone[20, 15] = lone[20, 16] = True                  # two cells: no plane
+    gx, gy = est.ground_plane_gradient(z, lone, cell, 2)
+    assert np.isnan(gx).all() and np.isnan(gy).all()
+
+
+def test_ground_plane_gradient_of_a_quadratic_is_its_gradient_at_the_centre():
+    """A centred square's plane through a quadratic surface has the surface's gradient at its centre (the
+    quadratic terms are even about the centre): a ridge's crest reads level, its flanks their slope."""
+    y, x = np.mgrid[0:30, 0:40].astype(np.float64)
+    z = 0.02 * (x - 17.3) ** 2 - 0.01 * (y - 11) ** 2 + 0.005 * x * y + 0.3 * x
+    gx, gy = est.ground_plane_gradient(z, np.ones(z.shape, bool), (1.0, 1.0), 4)
+    inner = np.s_[4:-4, 4:-4]
+    np.testing.assert_allclose(gx[inner], (0.04 * (x - 17.3) + 0.005 * y + 0.3)[inner], atol=1e-4)
+    np.testing.assert_allclose(gy[inner], (-0.02 * (y - 11) + 0.005 * x)[inner], atol=1e-4)
+
+
+def test_ground_plane_gradient_in_bands_equals_one_band(monkeypatch):
+    rng = np.random.default_rng(3)
+    z = np.cumsum(rng.normal(0, 0.3, (300, 50)), axis=0).astype(np.float32)
+    z[rng.random(z.shape) < 0.05] = np.nan
+    ground = rng.random(z.shape) > 0.3
+    banded = est.ground_plane_gradient(z, ground, (1.0, 1.0), 6)
+    monkeypatch.setattr(est, "_PLANE_BAND_ROWS", 1000)
+    whole = est.ground_plane_gradient(z, ground, (1.0, 1.0), 6)
+    for a, b in zip(banded, whole):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, bool, np.uint8])
 def test_block_expand_equals_two_repeats(dtype):
     """estimate.block_expand (geodesic's fine re-analysis, dtm's coarse grid) gives the two repeats' raster
