@@ -162,7 +162,11 @@ the least-squares plane through the ground cells of the square of half-side the 
 (:func:`~.estimate.ground_plane_gradient`: a quadratic surface's gradient at the square's centre, little moved by
 a few bushes among its cells), and per cell the largest slope of those planes along the line within the reach
 (a surface drops along a segment by at most its length times its largest slope there: the planes of a ridge's
-flanks keep its crest's allowance), at most ``s``; ``s`` where no plane is known. The rise along a line no longer
+flanks keep its crest's allowance), at most ``s``; ``s`` where no plane is known; at least ``sqrt(2) dh`` over
+the reach (:data:`NOISE_SLOPE_SIGMAS`: the floor is the lowest of many noisy heights, and on level ground it
+lies below the ground by their noise: an Int16 DSM of whole metres on rolling terrain lost 2.9 % of its cells
+along the contours without it, 1.4 % with it; ISPRS 21 2 m highest 2.73 -> 2.27, ISPRS 11 2 m highest
+21.65 -> 21.83, ``autzen-thin`` +0.14, matrix 2.56 -> 2.57). The rise along a line no longer
 covers where each of the two heights lies within its cell on the slope, which ``s |d|`` did over the first
 step: the test's height is ``sqrt(dh^2 + (3 sqrt(2 / 12) min(s, |g|) c)^2)``, three standard deviations of the
 difference of two heights placed uniformly within their cells of side ``c`` on the plane's slope ``|g|``
@@ -300,6 +304,9 @@ SPREAD_SIGMAS = 3.0
 #: Reach of :func:`find_step_tops` in cells: the line's three cells, and the smoothness test's two cells
 #: (:func:`find_smooth`) around the farthest.
 STEP_TOP_REACH = 5
+#: The least slope of the floors along the seen ground (:func:`find_bracketed`'s ``seen_gradient``), in
+#: decision thresholds per reach: the difference of two heights a reach apart, each within ``dh``.
+NOISE_SLOPE_SIGMAS = 2 ** 0.5
 #: Rows per band of :func:`find_bracketed` (a band and its floors stay in the cache).
 _BAND_ROWS = 64
 
@@ -1194,6 +1201,9 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
                 ap = _padded(_line_along(seen_gradient[0][lo:hi], seen_gradient[1][lo:hi], (dx, dy), di, dj), halo,
                              pad, -np.inf).ravel()
                 sl = _line_maximum_at(ap, x, n, di * width + dj)
+                # at least the slope the heights' noise alone shows between two cells a reach apart (the floor
+                # is the lowest of n noisy heights: on level ground it lies below the ground by that noise)
+                sl = np.maximum(sl, np.float32(NOISE_SLOPE_SIGMAS * height_m / (n * step)))      # NaN stays: s
                 inc = np.where(sl < slope, sl, np.float32(slope)).astype(np.float32, copy=False) * np.float32(step)
                 ok = np.ones(i.shape, bool)
                 for sdi, sdj, below, _ in sides:
