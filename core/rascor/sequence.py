@@ -343,17 +343,10 @@ def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
     dx, dy = as_cell_size(cell_size)
     gap = WALL_TOP_GAP_M if gap_m is None else float(gap_m)
     ry, rx = int(gap // (2 * dy)), int(gap // (2 * dx))
-    grown = ndimage.binary_dilation(cells, np.ones((2 * ry + 1, 2 * rx + 1), bool)) if ry or rx else cells
-    eight = np.ones((3, 3), bool)
-    lab, n = ndimage.label(grown, eight)
-    if not n:
-        return np.zeros(np.shape(cells), bool)
-    lab[~cells] = 0
-    span = np.zeros(n + 1)
-    for i, b in enumerate(ndimage.find_objects(lab, n)):
-        if b is not None:
-            span[i + 1] = max((b[0].stop - b[0].start) * dy, (b[1].stop - b[1].start) * dx)
-    return (span > length_m)[lab]
+    if not (ry or rx):
+        return longer_than(cells, cell_size, length_m)
+    grown = ndimage.binary_dilation(cells, np.ones((2 * ry + 1, 2 * rx + 1), bool))
+    return longer_than(cells, cell_size, length_m, joined=grown)
 
 
 #: Widest gap (metres) across which :func:`_retest_step3_at_terrain_steps` joins the pieces of a wall
@@ -501,16 +494,20 @@ def _spare_height(cfg):
     return SMOOTH_RATIO * _step3_tolerance(cfg)
 
 
-def longer_than(objects, cell_size, length_m):
+def longer_than(objects, cell_size, length_m, joined=None):
     """The cells of the regions of ``objects`` (8-connected) that run further than ``length_m``
-    metres along the rows or the columns (``cell_size`` (dx, dy) metres)."""
-    lab, n = label8(objects)
+    metres along the rows or the columns (``cell_size`` (dx, dy) metres); with ``joined`` (a mask
+    holding ``objects``, e.g. grown across gaps), the regions are those of ``joined`` and each
+    runs as far as its ``objects`` cells do."""
+    lab, n = label8(objects if joined is None else joined)
     if not n:
         return np.zeros(np.shape(objects), bool)
+    if joined is not None:
+        lab[~np.asarray(objects, bool)] = 0
     dx, dy = as_cell_size(cell_size)
     # the regions' extents from their bounding boxes (one pass; labelled minima and maxima sort the raster)
-    box = np.array([(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in ndimage.find_objects(lab)],
-                   np.intp).reshape(-1, 4)
+    box = np.array([(0, 0, 0, 0) if b is None else (b[0].start, b[0].stop, b[1].start, b[1].stop)
+                    for b in ndimage.find_objects(lab, n)], np.intp).reshape(-1, 4)
     span = np.zeros(n + 1)
     span[1:] = np.maximum((box[:, 1] - box[:, 0]) * dy, (box[:, 3] - box[:, 2]) * dx)
     return (span > length_m)[lab]
