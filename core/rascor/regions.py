@@ -4,7 +4,7 @@ Jacobsen (2004): no comparison crosses a break line, so a dam or an embankment k
 shoulders. The plugin layer rasterises the lines and areas; the core receives boolean
 rasters on the DSM's grid.
 """
-from typing import Tuple
+from typing import Optional, Tuple
 
 import numpy as np
 from scipy import ndimage
@@ -24,17 +24,22 @@ def as_bool_raster(a, shape, name):
     return a if a.any() else None
 
 
-def break_regions(breaklines: np.ndarray) -> Tuple[np.ndarray, int]:
+def break_regions(breaklines: np.ndarray, upper: Optional[np.ndarray] = None) -> Tuple[np.ndarray, int]:
     """Label the regions no comparison may leave.
 
     Non-break cells are labelled by 4-connected components (a diagonal step between two
     break cells does not leak); break-line cells by 8-connected components of their own,
-    so a cell on a line is compared only with cells on the same line.
+    so a cell on a line is compared only with cells on the same line. With ``upper``, the line
+    cells in it and the others are two sets of lines (a terrain step's upper and lower side,
+    :func:`~.steps.find_terrain_steps`): a wall's top is compared along the top only, its foot
+    along the foot.
 
     Parameters
     ----------
     breaklines : ndarray of bool
         Cells crossed by a break line.
+    upper : ndarray of bool, optional
+        The line cells on the upper side of their level change.
 
     Returns
     -------
@@ -45,10 +50,18 @@ def break_regions(breaklines: np.ndarray) -> Tuple[np.ndarray, int]:
     """
     bl = np.asarray(breaklines, dtype=bool)
     lab, n1 = ndimage.label(~bl)
-    lab2, n2 = ndimage.label(bl, structure=np.ones((3, 3), bool))
     lab = lab.astype(np.int32)
-    lab[bl] = lab2[bl] + n1
-    return lab, n1 + n2
+    if upper is None:
+        lab2, n2 = ndimage.label(bl, structure=np.ones((3, 3), bool))
+        lab[bl] = lab2[bl] + n1
+        return lab, n1 + n2
+    up = bl & np.asarray(upper, dtype=bool)
+    lo = bl & ~up
+    lab2, n2 = ndimage.label(lo, structure=np.ones((3, 3), bool))
+    lab3, n3 = ndimage.label(up, structure=np.ones((3, 3), bool))
+    lab[lo] = lab2[lo] + n1
+    lab[up] = lab3[up] + n1 + n2
+    return lab, n1 + n2 + n3
 
 
 def region_slices(labels):

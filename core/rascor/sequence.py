@@ -324,14 +324,16 @@ def _step4_level_change(st, cfg, progress):
                          max_building_m=cfg.max_building_m)
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
     # the level changes longer than the longest building are the terrain's: break lines for
-    # the steps after (Jacobsen's break lines along cuts, banks and terrace walls)
-    steps = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=_terrain_step_jump(cfg),
-                               max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
-                               bend_m=cfg.terrain_bend_m, labels=st.labels, z_t=st.transposed(),
-                               progress=sub_progress(progress, 0.6, 1.0))
+    # the steps after (Jacobsen's break lines along cuts, banks and terrace walls), each side of a
+    # line a line of its own: a wall's top is compared along the top, never with its foot
+    steps, upper = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=_terrain_step_jump(cfg),
+                                      max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
+                                      bend_m=cfg.terrain_bend_m, labels=st.labels, z_t=st.transposed(),
+                                      sides=True, progress=sub_progress(progress, 0.6, 1.0))
     st.step_lines = int(np.count_nonzero(steps))
     if st.step_lines:
-        st.labels, st.n_regions = break_regions(steps if st.breaklines is None else steps | st.breaklines)
+        lines = steps if st.breaklines is None else steps | st.breaklines
+        st.labels, st.n_regions = break_regions(lines, upper if st.breaklines is None else upper & ~st.breaklines)
         _retest_step3_at_terrain_steps(st, cfg, steps)
 
 

@@ -259,13 +259,16 @@ def _pairs(nb, kb, tol, k=0.0, rise=None):
 
 
 # ------------------------------------------------------------------- step 4
-def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None):
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upper=None, lower=None):
     """Cells between a jump up and a later jump down along the rows (axis 1); with
     ``lone``, instead, the cells on both sides of the jumps that no other jump answers
     (no jump up followed within ``lmax`` by a jump down), jumps whatever lies beside them:
     the vegetation test tells a building's walls (Jacobsen: no vegetation beside) from
     crowns, and says nothing of a level change of the terrain (bushes at a bank's foot, the
     far wall of a trench one cell wide, which made its near bank's ground "rough").
+
+    ``upper``, ``lower``, optional (with ``lone``; boolean arrays shaped as ``z``): receive the cells
+    on the upper side of each lone jump (after a jump up, before a jump down) and on its lower side.
 
     ``cut``, optional: a list that receives ``(cells, walls, heights)``, the flat indices into
     ``z`` of the levels the raster's edge cuts, the cells from a jump up to the row's end (no
@@ -343,7 +346,11 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None):
         paired = np.zeros(ev.size, bool)
         paired[k[ok]] = True
         paired[k[ok] + 1] = True
-        alone = ev[(typ > 0) & ~paired]          # a jump is never a profile's first point
+        lone_ev = (typ > 0) & ~paired
+        alone, up_at = ev[lone_ev], typ[lone_ev] == 1     # a jump is never a profile's first point
+        if upper is not None:                   # the upper side: after a jump up, before a jump down
+            upper.ravel()[flat[np.where(up_at, alone, alone - 1)]] = True
+            lower.ravel()[flat[np.where(up_at, alone - 1, alone)]] = True
         out.ravel()[flat[alone]] = True
         out.ravel()[flat[alone - 1]] = True
         return out
@@ -483,7 +490,7 @@ def _jump_limits(jump_m, sigma_m, k, bend_m):
 def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,
                        jump_m: float, max_building_m: float, sigma_m: float, k: float = 3.0,
                        bend_m: float = 0.0, labels: Optional[np.ndarray] = None,
-                       z_t: Optional[np.ndarray] = None,
+                       z_t: Optional[np.ndarray] = None, sides: bool = False,
                        progress: Optional[Callable[[float], None]] = None) -> np.ndarray:
     """Step 4's level changes that belong to the terrain: break lines derived from the DSM.
 
@@ -498,32 +505,50 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
     ``progress(fraction)`` is called every band of rows (it may raise ``Cancelled``); ``z_t``
     is ``transpose(z)`` when the caller has it (made here otherwise).
 
+    With ``sides``, also the upper side of the lines: their cells above their jump along a profile
+    (after a jump up, before a jump down) and below none. :func:`~.regions.break_regions` makes
+    each side a line of its own: a wall's top is then compared with the cells along the top, never
+    with the wall's foot (with one line of both sides, the top and foot cells of a wall running
+    across the rows at a slant are neighbours along a row, and step 3 took the top again).
+
     Returns
     -------
     steps : ndarray of bool
         Cells on those lines (empty where none).
+    upper : ndarray of bool
+        With ``sides`` only: the cells of ``steps`` on the upper side of their jumps.
     """
     dx, dy = as_cell_size(cell_size)
     jump, veg_tol = _jump_limits(jump_m, sigma_m, k, bend_m)
     cells = np.zeros(z.shape, bool)
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
     # Y profiles run along the rows of the transposed arrays; bands of whole rows
     views = [(z, keep, labels, int(max_building_m / dx), lambda a: a),
              (transpose(z) if z_t is None else z_t, transpose(keep), None if labels is None else transpose(labels),
               int(max_building_m / dy), transpose)]
     for d, (zz, kk, lab, lmax, fwd) in enumerate(views):
         found = np.zeros(zz.shape, bool)
+        up = np.zeros(zz.shape, bool)
+        dn = np.zeros(zz.shape, bool)
         bands = row_bands(*zz.shape, 16 * BAND_CELLS)
         for i, b in enumerate(bands):
             report(progress, (d + i / len(bands)) / 2)
             found[b] = _raised_rows(zz[b], kk[b], None if lab is None else lab[b], jump, lmax, veg_tol,
-                                    lone=True)
+                                    lone=True, upper=up[b], lower=dn[b])
         cells |= fwd(found)
+        high |= fwd(up)
+        low |= fwd(dn)
     lab, n = label8(cells)
     if not n:
-        return cells
+        return (cells, cells) if sides else cells
     span = np.array([0.0] + [max((r.stop - r.start) * dy, (c.stop - c.start) * dx)
                              for r, c in ndimage.find_objects(lab)])
-    return (span > max_building_m)[lab]
+    steps = (span > max_building_m)[lab]
+    if not sides:
+        return steps
+    # the upper side of the lines: cells above their jump along a profile and below none
+    return steps, steps & high & ~low
 
 
 def remove_level_changes(z: np.ndarray, cell_size: Union[float, Sequence[float]], keep: np.ndarray, *,

@@ -406,6 +406,17 @@ def test_dtm_errors_breakdown_exact():
     assert "type II 2" in bench.format_breakdown("row", b)
 
 
+def test_sites_rascor_errors_by_step_exact():
+    """benchmarks/sites.py --steps: RASCOR's Type I / II cells by the step that removed (0 kept)
+    each, in per cent of the valid cells (nodata not counted)."""
+    bench = _load_benchmark("sites")
+    mask = np.array([1, 1, 2, 0, 0, 0, 255, 0], np.uint8)
+    truth = np.array([0, 0, 0, 1, 1, 0, 1, 0], np.uint8)
+    step = np.array([3, 5, 3, 0, 0, 0, 0, 0], np.uint8)
+    # 7 valid cells: Type I at steps 3 (two: one object, one low) and 5; Type II kept (two)
+    assert bench.errors_by_step(mask, truth, step) == "T1 {3: 28.57, 5: 14.29} T2 {0: 28.57}"
+
+
 def test_dtm_errors_peer_crosstab_exact():
     """benchmarks/dtm_errors.py --peer: each point scored by both counted once, by the two decisions on its cell."""
     bench = _load_benchmark("dtm_errors")

@@ -1623,6 +1623,25 @@ def test_terrain_steps_need_the_slope_beside_the_jump_exact():
     assert st[:, 32:35].all() and np.count_nonzero(st) == 3 * N
 
 
+def test_terrain_step_sides_are_lines_of_their_own_exact():
+    """A 3 m wall on flat ground: its lower side (the foot, column 32) and its upper side (the top,
+    column 33) are the terrain step's cells; the upper side is a line of its own, so the wall's top
+    is compared with the cells along the top only, never with the foot (with both sides one line,
+    step 3 took every top cell beside a foot cell along a slanted wall again)."""
+    z = np.zeros((N, N), np.float32)
+    z[:, 33:] += 3.0
+    keep = np.ones(z.shape, bool)
+    kw = dict(jump_m=0.42, max_building_m=60.0, sigma_m=0.1)
+    lines, upper = steps.find_terrain_steps(z, 1.0, keep, sides=True, **kw)
+    assert np.array_equal(lines, steps.find_terrain_steps(z, 1.0, keep, **kw))
+    assert lines[:, 32:34].all() and np.count_nonzero(lines) == 2 * N
+    assert upper[:, 33].all() and np.count_nonzero(upper) == N
+    lab, n = rascor.break_regions(lines, upper)
+    assert n == 4 and len({lab[0, 0], lab[0, 32], lab[0, 33], lab[0, 40]}) == 4
+    assert len(set(lab[:, 32].tolist())) == 1 and len(set(lab[:, 33].tolist())) == 1
+    assert rascor.break_regions(lines)[1] == 3
+
+
 def test_wall_top_retest_in_tiles_equals_one_window(monkeypatch):
     """The wall tops are tested again in tiles holding candidates (each read with the 3 cells
     step 3 reaches around it): tiles of 16 cells give the result of one window over the
