@@ -334,10 +334,11 @@ def line_slope_radius(cell_size, reach_m=REACH_M):
     return max(1, int(math.ceil(float(reach_m) / min(float(cell_size[0]), float(cell_size[1])))))
 
 
-def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M):
+def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M, pool=None):
     """``(gx, gy)``: the gradient of the least-squares plane through the ground cells of the square of half-side the
-    floors' reach around each cell (:func:`~.estimate.ground_plane_gradient`, :func:`line_slope_radius`)."""
-    return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m))
+    floors' reach around each cell (:func:`~.estimate.ground_plane_gradient`, :func:`line_slope_radius`; ``pool``:
+    threads that may take some of its bands, the same result)."""
+    return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m), pool=pool)
 
 
 def _line_along(gx, gy, cell_size, di, dj):
@@ -1247,8 +1248,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
         The floors along each line rise at the seen ground's own slope along it (:func:`line_slopes`), at most
         ``s``, instead of ``s`` (``bareearth:dtm``: on).
     pool : Executor, optional
-        Threads that may take some of the bands and chunks of cells of :func:`find_bracketed` and
-        :func:`~.fill.find_edge_spikes`; the same result without.
+        Threads that may take some of the bands and chunks of cells of :func:`seen_ground_gradient`,
+        :func:`find_bracketed` and :func:`~.fill.find_edge_spikes`; the same result without.
 
     Returns
     -------
@@ -1271,7 +1272,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     dh = max(float(tolerance_m), 1e-3)
     et = dh if edge_tolerance_m is None else min(dh, max(float(edge_tolerance_m), 1e-3))
     ground = mask == GROUND
-    seen = seen_ground_gradient(z, ground, cell_size, reach_m) if along_ground and s > 0 else None
+    seen = seen_ground_gradient(z, ground, cell_size, reach_m, pool=pool) if along_ground and s > 0 else None
     out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_gradient=seen, pool=pool)
     seen = None
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness

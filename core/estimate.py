@@ -56,12 +56,14 @@ import hashlib
 import math
 import threading
 import warnings
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
+from .blocks import run_sharing
 from .common import report
 
 #: Cells a parameter estimate looks at on a large raster (:func:`sample_windows`):
@@ -1532,7 +1534,7 @@ def _smooth_parts_graph(w, cells, step_m):
 _PLANE_BAND_ROWS = 256
 
 
-def ground_plane_gradient(z, ground, cell_size, radius_cells):
+def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None):
     """The gradient of the least-squares plane through the ``ground`` cells of the square of half-side
     ``radius_cells`` around each cell: ``(gx, gy)``, rise per metre along the columns and the rows (float32;
     NaN where the square holds fewer than three ground cells not on one line).
@@ -1552,40 +1554,50 @@ def ground_plane_gradient(z, ground, cell_size, radius_cells):
         ``(dx, dy)`` metres.
     radius_cells : int
         Half-side of the squares, cells (>= 1).
+    pool : Executor, optional
+        Threads that may take some of the bands of rows (:func:`~.blocks.run_sharing`); the same result
+        without.
     """
     z = np.asarray(z)
     ground = np.asarray(ground, bool)
     r = max(1, int(radius_cells))
-    size = 2 * r + 1
     dx, dy = float(cell_size[0]), float(cell_size[1])
     rows, cols = z.shape
     gx = np.full(z.shape, np.nan, np.float32)
     gy = np.full(z.shape, np.nan, np.float32)
     x = np.arange(cols, dtype=np.float64)[None, :] * dx
-
-    def mean(a):
-        return ndimage.uniform_filter(a, size, mode="constant", cval=0.0)
-
-    for a in range(0, rows, _PLANE_BAND_ROWS):
-        b = min(rows, a + _PLANE_BAND_ROWS)
-        lo, hi = max(0, a - r), min(rows, b + r)          # the squares of rows a..b-1, whole (exact in bands)
-        zb = np.asarray(z[lo:hi], np.float64)
-        g = ground[lo:hi] & np.isfinite(zb)
-        w = g.astype(np.float64)
-        y = np.arange(lo, hi, dtype=np.float64)[:, None] * dy - a * dy    # the band's own origin: small moments
-        zw = np.where(g, zb, 0.0)
-        n = mean(w)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.where(n > 0, 1.0 / n, np.nan)
-            mx, my, mz = mean(w * x) * inv, mean(w * y) * inv, mean(zw) * inv
-            sxx = mean(w * x * x) * inv - mx * mx
-            syy = mean(w * y * y) * inv - my * my
-            sxy = mean(w * x * y) * inv - mx * my
-            sxz = mean(zw * x) * inv - mx * mz
-            syz = mean(zw * y) * inv - my * mz
-            det = sxx * syy - sxy * sxy
-            ok = (np.rint(n * size * size) >= 3) & (det > 1e-9 * (sxx + syy) ** 2)
-            band = slice(a - lo, b - lo)
-            gx[a:b] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)[band]
-            gy[a:b] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)[band]
+    # each band writes its own rows of gx, gy: the bands may run in any order, on any thread
+    run_sharing([partial(_plane_band, z, ground, a, min(rows, a + _PLANE_BAND_ROWS), r, x, dy, gx, gy)
+                 for a in range(0, rows, _PLANE_BAND_ROWS)], pool)
     return gx, gy
+
+
+def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
+    """:func:`ground_plane_gradient` on the rows ``a:b``, read with the squares' ``r`` rows around them (exact),
+    into ``gx[a:b]``, ``gy[a:b]``."""
+    rows = z.shape[0]
+    size = 2 * r + 1
+    lo, hi = max(0, a - r), min(rows, b + r)
+    zb = np.asarray(z[lo:hi], np.float64)
+    g = ground[lo:hi] & np.isfinite(zb)
+    w = g.astype(np.float64)
+    y = np.arange(lo, hi, dtype=np.float64)[:, None] * dy - a * dy    # the band's own origin: small moments
+    zw = np.where(g, zb, 0.0)
+
+    def mean(v):
+        return ndimage.uniform_filter(v, size, mode="constant", cval=0.0)
+
+    n = mean(w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.where(n > 0, 1.0 / n, np.nan)
+        mx, my, mz = mean(w * x) * inv, mean(w * y) * inv, mean(zw) * inv
+        sxx = mean(w * x * x) * inv - mx * mx
+        syy = mean(w * y * y) * inv - my * my
+        sxy = mean(w * x * y) * inv - mx * my
+        sxz = mean(zw * x) * inv - mx * mz
+        syz = mean(zw * y) * inv - my * mz
+        det = sxx * syy - sxy * sxy
+        ok = (np.rint(n * size * size) >= 3) & (det > 1e-9 * (sxx + syy) ** 2)
+        band = slice(a - lo, b - lo)
+        gx[a:b] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)[band]
+        gy[a:b] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)[band]

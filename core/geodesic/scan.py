@@ -175,6 +175,31 @@ def _scan_runs(a, axis, t_jump, height_m, max_cells, has_nan=True, t_terrain=0.0
     return flat[keep]
 
 
+#: Strips of rows (and of columns) :func:`scan_label` scans side by side when given threads.
+SCAN_STRIPS = 2
+
+
+def _strips(n):
+    """``(start, stop)`` of :data:`SCAN_STRIPS` strips of ``n`` profiles (fewer when ``n`` is smaller)."""
+    k = max(1, min(SCAN_STRIPS, n))
+    edges = [n * j // k for j in range(k + 1)]
+    return [(edges[j], edges[j + 1]) for j in range(k)]
+
+
+def _scan_strip(a, axis, *args, part=None):
+    """:func:`_scan_runs` of ``a`` along ``axis`` on the profiles ``part = (start, stop)`` only (rows for
+    ``axis=1``, columns for ``axis=0``; None: all): flat indices of ``a``. Each profile is scanned on its own,
+    so a strip's profiles give the cells they give in the whole array."""
+    if part is None:
+        return _scan_runs(a, axis, *args)
+    lo, hi = part
+    H, W = a.shape
+    if axis == 1:
+        return _scan_runs(a[lo:hi], 1, *args) + lo * W
+    r, c = np.divmod(_scan_runs(np.ascontiguousarray(a[:, lo:hi]), 0, *args), hi - lo)
+    return r * W + c + lo
+
+
 def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_deg=0.0,
                passes=2, reference=None, oblique_length_m=None, axes=(1, 0), progress=None, pool=None):
     """Scan labelling: non-ground runs along rows and columns.
@@ -235,8 +260,9 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
         ``progress(fraction)`` after each axis of each pass; it may raise
         :class:`~bare_earth.core.common.Cancelled`.
     pool : concurrent.futures.Executor, optional
-        Threads that may scan the rows while this one scans the columns, when idle
-        (:func:`~bare_earth.core.blocks.run_sharing`; both read the surface only); the same result.
+        Threads that may scan some of the strips of rows and of columns (:data:`SCAN_STRIPS` each) while this
+        one scans the others, when idle (:func:`~bare_earth.core.blocks.run_sharing`; all read the surface
+        only); the same result.
 
     Returns
     -------
@@ -271,20 +297,24 @@ def scan_label(z, cell_size, *, jump_m, height_m, max_length_m, terrain_slope_de
     n = int(passes)
     for i in range(n):
         none = functools.partial(np.zeros, 0, np.intp)
-        rows = functools.partial(_scan_runs, a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
+        rows = functools.partial(_scan_strip, a, 1, tx, height_m, max(2, int(long_m / dx)), has_nan, s * dx,
                                  max(2, int(max_length_m / dx))) if 1 in axes else none
-        cols = functools.partial(_scan_runs, a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
+        cols = functools.partial(_scan_strip, a, 0, ty, height_m, max(2, int(long_m / dy)), has_nan, s * dy,
                                  max(2, int(max_length_m / dy))) if 0 in axes else none
         if pool is None:
             lr = rows()
             report(progress, (i + 0.35) / n)
             lc = cols()
-        else:                                     # both read ``a`` only: an idle thread may take the rows
-            lr, lc = run_sharing([rows, cols], pool)
+            found = [lr, lc]
+        else:
+            # every profile is scanned alone: strips of rows (of columns) scan their rows (columns), all reading
+            # ``a`` only, so an idle thread may take some (the same cells, listed in another order)
+            found = run_sharing([functools.partial(f, part=k) for f in (rows, cols) if f is not none
+                                 for k in _strips(a.shape[0 if f is rows else 1])], pool)
             report(progress, (i + 0.35) / n)
         report(progress, (i + 0.7) / n)
-        new = np.concatenate([lr, lc])            # a cell may be in both: set twice below
-        del lr, lc
+        new = np.concatenate(found)               # a cell may be in two: set twice below (the same value)
+        del found
         new = new[~labelled.ravel()[new] & allowed.ravel()[new]]
         if new.size == 0:
             break

@@ -1235,3 +1235,31 @@ def test_dilation_removes_a_dense_town_whose_coarse_blocks_join_its_roofs():
     assert np.allclose(res.surface[bld], z[bld])
     with_scan = geo.filter_geodesic(z, 1.0, **PARAMS)
     assert (with_scan.mask[streets] == GROUND).all() and (with_scan.mask[bld] == OBJECT).all()
+
+
+@pytest.mark.parametrize("strips", [2, 3, 7])
+def test_scan_label_in_strips_equals_one_scan(monkeypatch, strips):
+    """With a pool the rows and the columns are scanned in strips of profiles (geodesic.scan.SCAN_STRIPS), side by
+    side: the cells of one scan of the whole raster, every pass (random boxes, sloped ground, nodata; strips of
+    one profile, rasters narrower than the strips)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core.geodesic import scan
+    monkeypatch.setattr(scan, "SCAN_STRIPS", strips)
+    rng = np.random.default_rng(strips)
+    labelled = 0
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for trial in range(10):
+            h, w = rng.integers(2, 40, 2) if trial else (1, 30)
+            y, x = np.mgrid[0:h, 0:w]
+            z = (rng.normal(0, 0.1, (h, w)) + 0.05 * x + 0.02 * y).astype(np.float32)
+            for _ in range(5):
+                r0, c0 = rng.integers(0, max(1, h - 1)), rng.integers(0, max(1, w - 1))
+                z[r0:r0 + rng.integers(1, 8), c0:c0 + rng.integers(1, 10)] += rng.uniform(-3, 4)
+            z[rng.random((h, w)) < 0.03] = np.nan
+            for axes in ((1, 0), (1,), (0,)):
+                kw = dict(jump_m=0.5, height_m=0.5, max_length_m=12.0, terrain_slope_deg=5.0, passes=2, axes=axes)
+                one = geo.scan_label(z, 1.0, **kw)
+                assert np.array_equal(geo.scan_label(z, 1.0, pool=pool, **kw), one), (trial, axes)
+                labelled += int(one.sum())
+    assert labelled > 100
