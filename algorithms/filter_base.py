@@ -518,16 +518,27 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def explain(self, message):
         """A message with each parameter it names by id (or by the core's name) given as the
-        dialog's label and the id for qgis_process; names already so given are kept."""
+        dialog's label and the id for qgis_process; names already so given are kept, whole (a label
+        may hold a name: morphological's 'Terrain slope (rise/run)' (SLOPE) holds ``slope``). A
+        single word (``slope``, ``mode``: also ordinary words) is a name only as the core writes
+        one, ``slope = ...`` or ``slope must ...``."""
         names = self.messageNames()
         if not names or not message:
             return message
-        pattern = re.compile(r"(?<![\w'/\\.-])(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        labels = sorted({label_of(d) for d in names.values()}, key=len, reverse=True)
+        words = "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        pattern = re.compile("(" + "|".join(map(re.escape, labels)) + r")|(?<![\w'/\\.-])(" + words
                              + r")(?![\w'.])")
 
         def named(m):
+            if m.group(1) is not None:                       # a label already given
+                return m.group(0)
             before, after = message[m.start() - 1:m.start()], message[m.end():m.end() + 1]
-            return m.group(0) if before == "(" and after == ")" else label_of(names[m.group(1)])
+            if before == "(" and after == ")":               # an id already given
+                return m.group(0)
+            if "_" not in m.group(2) and not re.match(r" (=|must )", message[m.end():m.end() + 6]):
+                return m.group(0)                            # an ordinary word
+            return label_of(names[m.group(2)])
         return pattern.sub(named, message)
 
     # -- outputs ---------------------------------------------------------------------------

@@ -154,6 +154,25 @@ def test_names_in_paths_are_left_alone(qgis_app):
                    "'Height tolerance (m)' (TOLERANCE_M)")
 
 
+def test_a_label_holding_a_parameter_name_is_given_once(processing_run, tmp_path):
+    """morphological's SLOPE (the core's ``slope``) is labelled 'Terrain slope (rise/run)': each of the
+    nested checks named the word in the label again, 'Terrain 'Terrain 'Terrain 'Terrain slope
+    (rise/run)' (SLOPE) (rise/run)' (SLOPE) (rise/run)' (SLOPE) (rise/run)' (SLOPE) = -1'. Labels
+    already given are kept, and single-word names (slope, mode, model) are named only as the
+    core writes them, ``slope = ...`` / ``slope must ...``."""
+    from qgis.core import QgsApplication, QgsProcessingException
+    with pytest.raises(QgsProcessingException) as err:
+        processing_run("bareearth:morphological", {"INPUT": _dsm(tmp_path), "SLOPE_FACTOR": -1,
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+    assert str(err.value).endswith("'Slope factor (m per unit slope)' (SLOPE_FACTOR) = -1 is out of range: give a "
+                                   "value within [0, 1000].")
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    once = alg.explain("slope = -1 is out of range; mode must be one of ...; on a steep slope the mode of")
+    assert once == ("'Terrain slope (rise/run)' (SLOPE) = -1 is out of range; 'Single or progressive windows' "
+                    "(MODE) must be one of ...; on a steep slope the mode of")
+    assert alg.explain(once) == once
+
+
 @pytest.mark.parametrize("key,value,message", [
     ("THREADS", 1000, r"'Threads \(0 = one per core\)' \(THREADS\) = 1000 is out of range: give a value within "
                       r"\[0, 64\]"),
