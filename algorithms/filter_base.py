@@ -110,6 +110,13 @@ def raster_path(layer):
     """The GDAL path of a raster layer (``layer.source()``), refusing non-GDAL providers."""
     if layer is None:
         raise QgsProcessingException(tr("No input raster was given."))
+    if not layer.isValid():
+        src = layer.source()
+        hint = tr(" A GeoPackage's raster table is opened as GPKG:file.gpkg:table ('|layername=' names a "
+                  "vector layer).") if "|layername=" in src else ""
+        raise QgsProcessingException(tr("The layer '{}' is not valid: QGIS could not open its source '{}'. Check "
+                                        "the path, or remove the layer and add it again.{}").format(
+            layer.name(), src, hint))
     if layer.providerType() != "gdal":
         raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
                                         "first.").format(layer.name(), layer.providerType()))
