@@ -506,7 +506,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         return self.GROUP
 
     def tags(self):
-        return [tr(t) for t in self.TAGS]
+        """The words the toolbox search finds it by, each once (a filter on points adds the point
+        tools' words, some of which every filter has: 'ground', 'DTM', 'DSM', 'classification')."""
+        return list(dict.fromkeys(tr(t) for t in self.TAGS))
 
     def helpUrl(self):  # noqa: N802
         return "{}#{}".format(HOMEPAGE, help_anchor("bareearth:" + self.name())) if HOMEPAGE else ""
