@@ -204,3 +204,20 @@ def test_an_empty_switch_keeps_its_default(processing_run, tmp_path, alg, key):
                                         "OUTPUT_MASK": "TEMPORARY_OUTPUT", key: ""}, feedback=log.feedback)
     used = [s for s in log.section("Parameters used:", "Result:") if f"({key}) = " in s]
     assert len(used) == 1 and used[0].endswith(f"({key}) = True"), used
+
+
+def test_help_names_outputs_and_parameters_by_their_ids(qgis_app):
+    """Help that names an output names it by its id (curvature's said 'The CURVATURE output' and
+    geodesic's 'Output STEP:' for OUTPUT_CURVATURE and OUTPUT_STEP, ids no one can type), and the
+    ids with an underscore it names are parameters of a Bare Earth algorithm (a filter's
+    INPUT_POINTS in evaluate's) or the memory variable."""
+    from qgis.core import QgsApplication
+    algs = [a for a in QgsApplication.processingRegistry().algorithms() if a.provider().id() == "bareearth"]
+    every = {d.name() for a in algs for d in a.parameterDefinitions()} | {"BARE_EARTH_MEMORY_MB"}
+    for a in algs:
+        text = a.shortHelpString() + " ".join(d.help() or "" for d in a.parameterDefinitions())
+        outputs = {d.name() for d in a.destinationParameterDefinitions()}
+        named = set(re.findall(r"\b(?:The|Output) ([A-Z][A-Z0-9_]{2,})(?= output|:)", text))
+        assert named <= outputs, (a.id(), named - outputs)
+        ids = set(re.findall(r"\b[A-Z][A-Z0-9]*_[A-Z0-9_]+\b", text))
+        assert ids <= every, (a.id(), ids - every)
