@@ -725,8 +725,19 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def out_of_range(self, parameters, context):
         """The refusal of the first number given outside its limits, naming its label, id and
-        range (QGIS's own says "Incorrect parameter value for THREADS"), or None."""
+        range (QGIS's own says "Incorrect parameter value for THREADS"), or of the first choice
+        given neither as one of its options' numbers, naming them (MODE=progressive: QGIS takes
+        the number, 1), or None."""
         for d in self.parameterDefinitions():
+            if d.type() == "enum" and parameters.get(d.name()) not in (None, "") and not d.checkValueIsAcceptable(
+                    parameters[d.name()], context):
+                given = parameters[d.name()]
+                options = list(d.options())
+                named = [i for i, o in enumerate(options) if str(o).lower() == str(given).strip().lower()]
+                listed = ", ".join("{} = {}".format(i, o) for i, o in enumerate(options))
+                return (tr("{} = '{}' is not one of its options' numbers: give {} ({}).").format(
+                    label_of(d), given, named[0], listed) if named else
+                    tr("{} = '{}' is not one of its options' numbers ({}).").format(label_of(d), given, listed))
             if d.type() != "number" or parameters.get(d.name()) in (None, "") or d.checkValueIsAcceptable(
                     parameters[d.name()], context):
                 continue

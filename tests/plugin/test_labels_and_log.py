@@ -221,3 +221,17 @@ def test_help_names_outputs_and_parameters_by_their_ids(qgis_app):
         assert named <= outputs, (a.id(), named - outputs)
         ids = set(re.findall(r"\b[A-Z][A-Z0-9]*_[A-Z0-9_]+\b", text))
         assert ids <= every, (a.id(), ids - every)
+
+
+@pytest.mark.parametrize("value,message", [
+    ("progressive", r"'Single or progressive windows' \(MODE\) = 'progressive' is not one of its options' numbers: "
+                    r"give 1 \(0 = auto, 1 = progressive, 2 = single\)"),
+    (7, r"'Single or progressive windows' \(MODE\) = '7' is not one of its options' numbers \(0 = auto, 1 = "),
+])
+def test_a_choice_given_by_name_is_refused_naming_its_number(processing_run, tmp_path, value, message):
+    """MODE=progressive (the option as the help and the log write it) was refused with QGIS's 'Incorrect
+    parameter value for MODE': neither the label nor the options. QGIS takes a choice by its number."""
+    from qgis.core import QgsProcessingException
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:morphological", {"INPUT": _dsm(tmp_path), "MODE": value,
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
