@@ -110,6 +110,13 @@ def raster_path(layer):
     """The GDAL path of a raster layer (``layer.source()``), refusing non-GDAL providers."""
     if layer is None:
         raise QgsProcessingException(tr("No input raster was given."))
+    if not layer.isValid():
+        src = layer.source()
+        hint = tr(" A GeoPackage's raster table is opened as GPKG:file.gpkg:table ('|layername=' names a "
+                  "vector layer).") if "|layername=" in src else ""
+        raise QgsProcessingException(tr("The layer '{}' is not valid: QGIS could not open its source '{}'. Check "
+                                        "the path, or remove the layer and add it again.{}").format(
+            layer.name(), src, hint))
     if layer.providerType() != "gdal":
         raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
                                         "first.").format(layer.name(), layer.providerType()))
@@ -499,7 +506,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         return self.GROUP
 
     def tags(self):
-        return [tr(t) for t in self.TAGS]
+        """The words the toolbox search finds it by, each once (a filter on points adds the point
+        tools' words, some of which every filter has: 'ground', 'DTM', 'DSM', 'classification')."""
+        return list(dict.fromkeys(tr(t) for t in self.TAGS))
 
     def helpUrl(self):  # noqa: N802
         return "{}#{}".format(HOMEPAGE, help_anchor("bareearth:" + self.name())) if HOMEPAGE else ""
@@ -518,16 +527,27 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def explain(self, message):
         """A message with each parameter it names by id (or by the core's name) given as the
-        dialog's label and the id for qgis_process; names already so given are kept."""
+        dialog's label and the id for qgis_process; names already so given are kept, whole (a label
+        may hold a name: morphological's 'Terrain slope (rise/run)' (SLOPE) holds ``slope``). A
+        single word (``slope``, ``mode``: also ordinary words) is a name only as the core writes
+        one, ``slope = ...`` or ``slope must ...``."""
         names = self.messageNames()
         if not names or not message:
             return message
-        pattern = re.compile(r"(?<![\w'/\\.-])(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        labels = sorted({label_of(d) for d in names.values()}, key=len, reverse=True)
+        words = "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        pattern = re.compile("(" + "|".join(map(re.escape, labels)) + r")|(?<![\w'/\\.-])(" + words
                              + r")(?![\w'.])")
 
         def named(m):
+            if m.group(1) is not None:                       # a label already given
+                return m.group(0)
             before, after = message[m.start() - 1:m.start()], message[m.end():m.end() + 1]
-            return m.group(0) if before == "(" and after == ")" else label_of(names[m.group(1)])
+            if before == "(" and after == ")":               # an id already given
+                return m.group(0)
+            if "_" not in m.group(2) and not re.match(r" (=|must )", message[m.end():m.end() + 6]):
+                return m.group(0)                            # an ordinary word
+            return label_of(names[m.group(2)])
         return pattern.sub(named, message)
 
     # -- outputs ---------------------------------------------------------------------------
@@ -705,8 +725,19 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def out_of_range(self, parameters, context):
         """The refusal of the first number given outside its limits, naming its label, id and
-        range (QGIS's own says "Incorrect parameter value for THREADS"), or None."""
+        range (QGIS's own says "Incorrect parameter value for THREADS"), or of the first choice
+        given neither as one of its options' numbers, naming them (MODE=progressive: QGIS takes
+        the number, 1), or None."""
         for d in self.parameterDefinitions():
+            if d.type() == "enum" and parameters.get(d.name()) not in (None, "") and not d.checkValueIsAcceptable(
+                    parameters[d.name()], context):
+                given = parameters[d.name()]
+                options = list(d.options())
+                named = [i for i, o in enumerate(options) if str(o).lower() == str(given).strip().lower()]
+                listed = ", ".join("{} = {}".format(i, o) for i, o in enumerate(options))
+                return (tr("{} = '{}' is not one of its options' numbers: give {} ({}).").format(
+                    label_of(d), given, named[0], listed) if named else
+                    tr("{} = '{}' is not one of its options' numbers ({}).").format(label_of(d), given, listed))
             if d.type() != "number" or parameters.get(d.name()) in (None, "") or d.checkValueIsAcceptable(
                     parameters[d.name()], context):
                 continue

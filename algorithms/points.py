@@ -350,6 +350,9 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             raise ValueError(f"INPUT: the points span only {w:.3g} x {h:.3g} m: with cells of {c:g} m that is less "
                              "than the 3 x 3 cells of a DSM the filters can use; use a smaller CELL_SIZE_M or more "
                              "points.")
+        if cell:
+            pf.check_grid_cells(len(cloud), w, h, c, fill_empty=self.parameterAsBool(parameters, self.FILL_EMPTY,
+                                                                                      context))
         return path, cloud, cell
 
     @explained
@@ -610,6 +613,8 @@ class PointsInputMixin:
         if (w / c) * (h / c) > 1e9:
             raise ValueError(f"CELL_SIZE_M = {c:g} m gives about {(w / c) * (h / c):.3g} cells: use a larger "
                              "cell size.")
+        if cell:
+            pf.check_grid_cells(len(cloud), w, h, c, whole=False)
         check_width(cloud, c, (sx, sy), self.INPUT_POINTS)
         user = self._user_params(parameters, context)
         defaults = {p.name: p.default for p in self.method.params}

@@ -208,6 +208,7 @@ from .dtm_refine import (
 from .dtm_regions import find_detached_levels, find_raised_regions, regions_halo
 from .estimate import (
     height_quantum,
+    height_resolution,
     lowest_point_spread,
     noise_floor,
     noise_ground_level,
@@ -532,6 +533,8 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     repeated = repeated_height_share(z)
     spread = lowest_point_spread(noise if noise is not None else float("nan"), refine_slope(members),
                                  max(cell), repeated)
+    if spread == 0.0:       # exact heights, flat (no noise, no slope): their float32 resolution, not 0 m
+        spread = height_resolution(z)
     description["repeated_height_share"] = repeated
     description["ground_spread_m"] = spread if np.isfinite(spread) else None
     width, span = region_scales(members, cell)

@@ -390,6 +390,19 @@ def repeated_height_share(z, level_cells=0):
     return float(same) / pairs if pairs else 0.0
 
 
+def height_resolution(z):
+    """The smallest height difference float32 heights ``z`` can hold at their largest magnitude
+    (``np.spacing``), metres: heights known exactly (a synthetic DSM, a hydro-flattened lake, no noise
+    and no slope) still scatter by that much, so the tolerances built on a measured spread stay
+    positive. NaN when ``z`` has no finite height.
+
+    >>> height_resolution(np.array([[50.0, -430.0]], np.float32)) == float(np.spacing(np.float32(430.0)))
+    True
+    """
+    top = np.nanmax(np.abs(np.asarray(z, np.float32))) if np.isfinite(z).any() else np.nan
+    return float(np.spacing(np.float32(top))) if np.isfinite(top) else float("nan")
+
+
 def lowest_point_spread(sigma, slope, cell_m, repeated_share=0.0):
     """Standard deviation of a gridded ground's heights about the smooth surface under them, metres.
 

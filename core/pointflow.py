@@ -48,7 +48,8 @@ __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classif
            "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "class_counts",
            "compare_classified", "match_points", "read_column", "point_output_path",
            "axis_scales", "crs_warnings", "cell_size_for_spacing", "default_cell_size_m", "DEFAULT_THRESHOLD_M",
-           "DEFAULT_SLOPE_FACTOR", "SMRF_CELL_M", "cell_slope_factor", "REDUCERS", "POINT_EXTENSIONS"]
+           "DEFAULT_SLOPE_FACTOR", "SMRF_CELL_M", "cell_slope_factor", "REDUCERS", "POINT_EXTENSIONS",
+           "check_grid_cells"]
 
 #: SMRF's point rule (Pingel et al. 2013): elevation threshold and slope scale.
 DEFAULT_THRESHOLD_M = 0.5
@@ -59,6 +60,10 @@ DEFAULT_SLOPE_FACTOR = 1.25
 SMRF_CELL_M = 1.0
 #: The finest default cell, in point spacings: a quarter (one point per 16 cells).
 FINEST_CELL_SPACING = 0.25
+#: Peak memory of :func:`rasterize_cloud` per grid cell (bytes; VmHWM of a fresh process on 16 and
+#: 64 Mcells, 3 points): the float64 grid, its float32 copy and, filling the empty cells from the
+#: nearest, the distance transform's indices.
+RASTERIZE_BYTES_PER_CELL = {True: 17, False: 12}
 #: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
 REDUCERS = ("min", "max", "mean")
 #: Class names of :func:`classify_points` codes, for logs.
@@ -208,6 +213,43 @@ def default_cell_size_m(cloud, scales=None):
     w, h = (x1 - x0) * sx, (y1 - y0) * sy
     area = w * h if w > 0 and h > 0 else max(w, h, 1.0) ** 2
     return cell_size_for_spacing(math.sqrt(area / max(1, len(cloud))))
+
+
+def check_grid_cells(n_points, width_m, height_m, cell_m, *, what="CELL_SIZE_M", fill_empty=True,
+                     whole=True, available=None):
+    """ValueError, before any work, when a grid of ``cell_m`` over the points' ``width_m x height_m``
+    is one no run should make: larger than a raster held in one window
+    (:data:`~bare_earth.core.pipeline.IN_MEMORY_CELLS`) with fewer than one point per 16 cells (finer
+    than the finest default cell, :data:`FINEST_CELL_SPACING`: nearly every cell a copy of its
+    nearest point's; 3 points over 1 km at 0.05 m: 400 M cells), or needing more memory to
+    rasterize at once (``whole``; :data:`RASTERIZE_BYTES_PER_CELL`) than ``available`` bytes (default:
+    the memory available now). The message gives the cell count, the memory and the cells to use."""
+    from .memory import available_memory
+    from .pipeline import IN_MEMORY_CELLS
+    cols, rows = math.ceil(width_m / cell_m), math.ceil(height_m / cell_m)
+    cells = cols * rows
+    need = cells * RASTERIZE_BYTES_PER_CELL[bool(fill_empty)]
+    avail = (available_memory() if available is None else available) if whole else None
+    area = max(width_m, cell_m) * max(height_m, cell_m)
+    sparse = cells > IN_MEMORY_CELLS and cells > 16 * max(n_points, 1)
+    if not sparse and (not avail or need <= avail):
+        return
+    finest = nice_cell_size(math.sqrt(area / (16 * max(n_points, 1))), at_least=True)
+    fits = nice_cell_size(math.sqrt(area * RASTERIZE_BYTES_PER_CELL[bool(fill_empty)] / avail), at_least=True) \
+        if avail else finest
+    memory = f"rasterizing them takes about {need / 2**30:.3g} GB" + (
+        f" ({avail / 2**30:.3g} GB available)" if avail else "")
+    if sparse:
+        why = (f" for {n_points} point(s), one per {cells / max(n_points, 1):.3g} cells: nearly every cell would be "
+               "a copy of its nearest point's" + (f", and {memory}" if whole else ""))
+        use = max(finest, fits) if avail and need > avail else finest
+        fix = f"use cells of at least {use:g} m (a point per 16 cells or more)"
+    else:
+        why = f": {memory}"
+        fix = f"use cells of at least {fits:g} m, or split the points into tiles"
+    raise ValueError(f"{what} = {cell_m:g} m gives {cols} x {rows} = {cells:.3g} cells over the points' "
+                     f"{width_m:.4g} x {height_m:.4g} m{why}. Instead {fix}, or leave {what} empty (cells from "
+                     "the points' spacing).")
 
 
 def _check_cell_m(c, crs):

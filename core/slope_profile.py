@@ -553,8 +553,15 @@ def scan_profiles(zs, cell_size, tan_g, tan_t, dh0, init, edge, progress=None):
     sy = [(zs, False), (zs, True)]
     with _SCAN_LOCK:
         if abs(dx - dy) <= 1e-9 * max(dx, dy) and init[0] == init[1] and edge[0] == edge[1]:
-            (fx, bx, fy, by), (rfx, rbx, rfy, rby) = _scan(
-                sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0], sub_progress(progress, 0.05, 0.9), True)
+            # the longer profiles first: once the shorter have ended, each step works on the
+            # longer ones only (a 3 x 50000 strip's 100000 X profiles of 3 cells scanned
+            # along with its Y profiles at each of their 50000 steps: 134 s)
+            tall = zs.shape[0] > zs.shape[1]
+            (f1, b1, f2, b2), (r1, s1, r2, s2) = _scan(
+                sy + sx if tall else sx + sy, dx, tan_g, tan_t, dh0, init[0], edge[0],
+                sub_progress(progress, 0.05, 0.9), True)
+            (fx, bx, fy, by), (rfx, rbx, rfy, rby) = \
+                ((f2, b2, f1, b1), (r2, s2, r1, s1)) if tall else ((f1, b1, f2, b2), (r1, s1, r2, s2))
         else:
             (fx, bx), (rfx, rbx) = _scan(sx, dx, tan_g, tan_t, dh0, init[0], edge[0],
                                          sub_progress(progress, 0.05, 0.45), True)

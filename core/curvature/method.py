@@ -539,7 +539,7 @@ METHOD = Method(
         "the least a wall must rise; at 20-30 m cells (SRTM, Copernicus) the foot of every "
         "hillside rising from a valley floor was a wall and its run an object (15 % of a "
         "24 m terrain model of hills), and objects lower than that rise are not seen there "
-        "(the log gives the rise used along X and Y). The CURVATURE output (band 1 "
+        "(the log gives the rise used along X and Y). The OUTPUT_CURVATURE output (band 1 "
         "K in 1/m<sup>2</sup>, band 2 H in "
         "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
         "cells marked by X and by Y profiles. The curvature is attenuated within "

@@ -523,7 +523,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     return obj_x, n_x, n_y, (cells, walls)
 
 
-def _edge_regions(cells, walls, max_cells, near=0):
+def _edge_regions(cells, walls, max_cells, near=0, z=None, tol=0.0):
     """The regions (4-connected) of ``cells``, the runs that met the raster's edge (whatever
     their length), that are objects cut by the raster's edge
     (:func:`~bare_earth.core.edge_walls.walled_levels`): seen within the largest object
@@ -542,8 +542,8 @@ def _edge_regions(cells, walls, max_cells, near=0):
     what is seen: the terrain's, unless shorter than two thirds of the largest object. Such a
     region spans at most ``max_cells`` from the raster's edge: in a block, one cut by the
     block's window instead lies in the halo. The cells between such a region and the
-    raster's edge, within ``near`` cells (half the local fit's window), are added
-    (:func:`_to_edge`).
+    raster's edge, within ``near`` cells (half the local fit's window), are added where they
+    stand as high as it (heights ``z``, ``tol``: :func:`_to_edge`).
     """
     lab, n = ndimage.label(cells)
     out = np.zeros(cells.shape, bool)
@@ -552,7 +552,7 @@ def _edge_regions(cells, walls, max_cells, near=0):
     keep = walled_levels(lab, n, walls, (max_cells, max_cells), 2 * max_cells)
     if keep.any():
         out = keep[lab]
-        _to_edge(out, near)
+        _to_edge(out, near, z, tol)
     return out
 
 
@@ -586,21 +586,36 @@ def _close_level(whole, z, m, tol):
     wb[r[high], c[high]] = True
 
 
-def _to_edge(a, k):
+def _to_edge(a, k, z=None, tol=0.0):
     """The cells between a True cell of ``a`` within ``k`` cells of the array's edge and that
     edge (along the rows and the columns) set True, in place. Along the raster's edge the
     local fit is extrapolated and the profile running along the edge itself meets no wall
     where the object meets the edge: its breaks and cells there belong to no run; left out,
-    they seeded the final pass's ground surface at the object's height."""
+    they seeded the final pass's ground surface at the object's height. With heights ``z``,
+    only the cells standing as high as the object (not below the object's cell inward of them
+    by more than ``tol``), up to the first that does not: the ground at the foot of a wall
+    facing the edge stays ground (a raster of a few cells, 5 x 5 with a step across it, was
+    all objects: every wall lies within ``k`` cells of an edge there)."""
     h, w = a.shape
     k = min(int(k), h - 1, w - 1)
     if k <= 0:
         return
     src = a.copy()
-    a[k::-1] |= np.logical_or.accumulate(src[k::-1], axis=0)
-    a[h - 1 - k:] |= np.logical_or.accumulate(src[h - 1 - k:], axis=0)
-    a[:, k::-1] |= np.logical_or.accumulate(src[:, k::-1], axis=1)
-    a[:, w - 1 - k:] |= np.logical_or.accumulate(src[:, w - 1 - k:], axis=1)
+    sides = ((slice(None), slice(None)), (slice(None), slice(None, None, -1)))
+    for t in (False, True):                       # along the rows, then down the columns
+        for sl in sides:                          # from the left (top), from the right (bottom)
+            band, s_band = (a.T if t else a)[sl][:, :k + 1], (src.T if t else src)[sl][:, :k + 1]
+            zb = None if z is None else (z.T if t else z)[sl][:, :k + 1]
+            on = s_band[:, k].copy()
+            ref = None if zb is None else np.where(on, zb[:, k], np.nan)
+            for c in range(k - 1, -1, -1):
+                here = s_band[:, c]
+                add = on & ~here
+                if zb is not None:
+                    add &= ~(zb[:, c] < ref - np.float32(tol))        # NaN: no test
+                    np.copyto(ref, zb[:, c], where=here)
+                band[:, c] |= add
+                on = here | add
 
 
 def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray],
@@ -624,7 +639,7 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
         report(progress, 1.0)
         return regions
     m = window // 2
-    cut = _edge_regions(edge_runs[0], edge_runs[1], max_cells, m)
+    cut = _edge_regions(edge_runs[0], edge_runs[1], max_cells, m, z, tol)
     regions, whole = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9), cut=cut)
     if cut.any():
         # the object cut by the raster's edge with the regions mostly made of it, closed over

@@ -230,7 +230,7 @@ METHOD = Method(
         "slope = 90th percentile slope of the heavily opened DSM, clipped to 12-22 "
         "degrees; outlier threshold = max(2 m, 4 dh0); largest object = 64 m, widened to 1.25 x the width "
         "of a raised region standing on walls that a 64 m window does not reach across, + 2 cells "
-        "(a hall, a roof cut by the raster's edge; at most 200 m; raised regions switch). Output STEP: 0 kept, "
+        "(a hall, a roof cut by the raster's edge; at most 200 m; raised regions switch). OUTPUT_STEP: 0 kept, "
         "k removed at dilation step k, 250 scan labelling, 251 preprocessing outlier, "
         "252 object border, 253 island above the terrain.</p>"
         "<p>After: gradual geodesic dilation and scan labelling for DSM filtering "

@@ -63,7 +63,7 @@ def _reading(path, what="read"):
     try:
         yield
     except RuntimeError as exc:
-        msg = str(exc).strip() or gdal.GetLastErrorMsg().strip() or "GDAL gave no reason"
+        msg = str(exc).strip().rstrip(".") or gdal.GetLastErrorMsg().strip().rstrip(".") or "GDAL gave no reason"
         raise ValueError(f"cannot {what} the raster {str(path)!r}: {msg}. The file may be truncated or "
                          "corrupt, or a file it refers to is missing: check it (gdalinfo -checksum) or "
                          "export it again.") from None

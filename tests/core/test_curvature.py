@@ -1438,3 +1438,32 @@ def test_curvature_on_a_strip_wider_than_its_chunks_of_rows():
     for c in range(100, 33000 - 100, 500):
         want[:, c:c + 15] = True
     assert (obj == want).mean() > 0.99
+
+
+@pytest.mark.parametrize("shape,cell", [((4, 4), 0.5), ((5, 5), 1.0), ((5, 8), 1.0)])
+def test_a_step_across_a_raster_of_a_few_cells_keeps_its_lower_side(shape, cell):
+    """A 5 m step across a raster narrower than twice the local fit's window: every wall lies
+    within half the window of an edge, and the cells between the upper level (cut by the raster's
+    edges) and the edge beyond its wall's foot were added to it: every cell an object, the DTM
+    nodata everywhere. Only the cells standing as high as the object are added now."""
+    z = np.full(shape, 100.0, np.float32) + np.random.default_rng(0).normal(0, 0.02, shape).astype(np.float32)
+    z[:, shape[1] // 2:] += 5.0
+    r = curvature.filter_curvature(z, cell, **curvature.resolve_curvature_params(z, cell))
+    assert (r.mask[:, shape[1] // 2:] == OBJECT).all()
+    assert (r.mask[:, :shape[1] // 2] == GROUND).all()
+
+
+def test_edge_band_added_only_as_high_as_the_object():
+    """:func:`profiles._to_edge`: the cells between an object within ``k`` cells of an edge and that
+    edge, up to the first standing lower than the object's cell inward of it by more than ``tol``."""
+    a = np.zeros((3, 6), bool)
+    a[:, 2:4] = True
+    z = np.array([[5.0, 5.0, 5.0, 5.0, 0.0, 0.0],     # as high: both added
+                  [0.0, 5.0, 5.0, 5.0, 0.0, 0.0],     # the edge's cell below: not added
+                  [5.0, 0.0, 5.0, 5.0, 0.0, 0.0]], np.float32)   # a foot between: neither
+    plain = a.copy()
+    profiles._to_edge(plain, 2)
+    assert plain[:, :2].all()
+    profiles._to_edge(a, 2, z, 0.5)
+    assert a[:, :2].tolist() == [[True, True], [False, True], [False, False]]
+    assert not a[:, 4:].any()

@@ -374,3 +374,20 @@ def test_low_vegetation_under_a_closed_canopy_is_removed():
     assert kept < 30
     assert float(np.sqrt(np.mean((res.dtm - truth) ** 2))) < 0.6
 
+
+
+@pytest.mark.parametrize("box", [False, True])
+def test_exactly_flat_heights_are_filtered(box):
+    """A DSM of exact heights on level ground (synthetic, a hydro-flattened lake: no noise, no slope):
+    the measured spread of the ground is 0 m, and so were the refinement's edge and line tolerances,
+    which it refuses ('tolerance_m must be a positive height in metres; got 0.0'). They rest on the
+    heights' float32 resolution now: all ground, a 10 m box an object."""
+    z = np.full((100, 120), 50.0, np.float32)
+    if box:
+        z[40:60, 50:70] = 60.0
+    r = pipeline.run_array("dtm", z, 1.0)
+    want = np.full(z.shape, GROUND, np.uint8)
+    if box:
+        want[40:60, 50:70] = OBJECT
+    np.testing.assert_array_equal(r.mask, want)
+    assert r.info["params"]["edge_tolerance_m"] > 0

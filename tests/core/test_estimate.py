@@ -1013,3 +1013,12 @@ def test_block_expand_equals_two_repeats(dtype):
         assert got.shape == shape and got.dtype == ref.dtype and np.array_equal(got, ref)
         got[...] = 0                                        # a new array the callers may write
         assert a.any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_height_resolution_is_float32_spacing_at_the_largest_height(dtype):
+    z = np.array([[50, -430], [7, 0]], dtype)
+    assert est.height_resolution(z) == float(np.spacing(np.float32(430.0)))
+    f = np.array([[np.nan, 2.0]], np.float32)
+    assert est.height_resolution(f) == float(np.spacing(np.float32(2.0)))
+    assert math.isnan(est.height_resolution(np.full((2, 2), np.nan, np.float32)))

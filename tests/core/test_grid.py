@@ -435,7 +435,7 @@ def test_truncated_geotiff_gives_value_error_naming_the_file(tmp_path):
     with pytest.raises(ValueError, match=r"truncated\.tif.*(truncated or corrupt|TIFF)") as ei:
         info = grid.open_dsm(bad)
         info.read()
-    assert str(ei.value)
+    assert str(ei.value) and ".." not in str(ei.value)      # GDAL's "TIFFReadEncodedTile() failed." ended in ".."
 
 
 def test_vrt_with_missing_source_gives_value_error(tmp_path):

@@ -435,3 +435,21 @@ def test_cells_under_a_millimetre_refused_naming_the_crs():
     assert pf.rasterize_cloud(geo).cell_size_m[0] > 0.5
     with pytest.raises(ValueError, match=r"cells of 0\.0005 m.*under 1 mm.*larger cell size"):
         pf.rasterize_cloud(geo, 0.0005)
+
+
+def test_a_grid_mostly_copies_or_beyond_the_memory_is_refused_before_work():
+    """3 points over 1 km at 0.05 m made 20000 x 20000 = 400 M cells, 6 GB of nearest-cell copies,
+    without a word. A grid beyond a window of the filters (25 M cells) with fewer than one point per
+    16 cells, or needing more memory than is available, is refused naming the cells, the memory and
+    the cells to use; small sparse grids and dense ones pass."""
+    with pytest.raises(ValueError, match=r"CELL_SIZE_M = 0.05 m gives 20000 x 20000 = 4e\+08 cells over the "
+                                         r"points' 1000 x 1000 m for 3 point\(s\), one per 1.33e\+08 cells: .*"
+                                         r"about 6.33 GB \(8 GB available\)\. Instead use cells of at least 200 m"):
+        pf.check_grid_cells(3, 1000.0, 1000.0, 0.05, available=8 << 30)
+    with pytest.raises(ValueError, match=r"copy of its nearest point's\. Instead use cells of at least 200 m"):
+        pf.check_grid_cells(3, 1000.0, 1000.0, 0.05, whole=False)             # a filter's tiles: no memory
+    pf.check_grid_cells(3, 100.0, 100.0, 0.05, available=8 << 30)              # 4 M cells: small
+    pf.check_grid_cells(10 ** 7, 1000.0, 1000.0, 0.25, available=8 << 30)      # 16 M cells, dense
+    with pytest.raises(ValueError, match=r"about 0.396 GB \(0.25 GB available\)\. Instead use cells of at least "
+                                         r"0.5 m, or split the points into tiles"):
+        pf.check_grid_cells(10 ** 8, 1000.0, 1000.0, 0.2, available=1 << 28)   # 25 M cells, 17 B each

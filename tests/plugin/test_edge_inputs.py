@@ -503,3 +503,30 @@ def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, mess
                                                              "OUTPUT_MASK": tmp_path / "m.tif", **extra})
     assert rc != 0 and re.search(message, out), out
     assert not (tmp_path / "d.tif").exists()
+
+
+def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_run, tmp_path):
+    """A GeoPackage raster table added as 'file.gpkg|layername=table' (the vector form) is an invalid
+    layer: it was read as a file of that name ('No such file or directory. The file may be truncated
+    or corrupt'); it is refused as an invalid layer, with the raster form. A web service's layer (XYZ
+    tiles, WMS) is refused naming its provider. The same table as GPKG:file.gpkg:table runs."""
+    from osgeo import gdal
+    from qgis.core import QgsProcessingException, QgsProject, QgsRasterLayer
+    dsm = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    gpkg = str(tmp_path / "dsm.gpkg")
+    gdal.Translate(gpkg, str(dsm), format="GPKG", creationOptions=["RASTER_TABLE=heights"])
+    outs = {"OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"}
+    bad = QgsRasterLayer(gpkg + "|layername=heights", "heights")
+    xyz = QgsRasterLayer("type=xyz&url=http://127.0.0.1:9/{z}/{x}/{y}.png&zmax=19&zmin=0", "tiles", "wms")
+    good = QgsRasterLayer(f"GPKG:{gpkg}:heights", "table")
+    QgsProject.instance().addMapLayers([bad, xyz, good])
+    try:
+        with pytest.raises(QgsProcessingException, match=r"The layer 'heights' is not valid: QGIS could not open "
+                                                         r"its source .*GPKG:file.gpkg:table"):
+            processing_run("bareearth:slopeprofile", dict(outs, INPUT=bad))
+        with pytest.raises(QgsProcessingException, match=r"The layer 'tiles' is served by the 'wms' provider; save "
+                                                         r"it as a GeoTIFF first"):
+            processing_run("bareearth:slopeprofile", dict(outs, INPUT=xyz))
+        assert processing_run("bareearth:slopeprofile", dict(outs, INPUT=good))["OUTPUT_MASK"]
+    finally:
+        QgsProject.instance().removeMapLayers([bad.id(), xyz.id(), good.id()])

@@ -154,6 +154,25 @@ def test_names_in_paths_are_left_alone(qgis_app):
                    "'Height tolerance (m)' (TOLERANCE_M)")
 
 
+def test_a_label_holding_a_parameter_name_is_given_once(processing_run, tmp_path):
+    """morphological's SLOPE (the core's ``slope``) is labelled 'Terrain slope (rise/run)': each of the
+    nested checks named the word in the label again, 'Terrain 'Terrain 'Terrain 'Terrain slope
+    (rise/run)' (SLOPE) (rise/run)' (SLOPE) (rise/run)' (SLOPE) (rise/run)' (SLOPE) = -1'. Labels
+    already given are kept, and single-word names (slope, mode, model) are named only as the
+    core writes them, ``slope = ...`` / ``slope must ...``."""
+    from qgis.core import QgsApplication, QgsProcessingException
+    with pytest.raises(QgsProcessingException) as err:
+        processing_run("bareearth:morphological", {"INPUT": _dsm(tmp_path), "SLOPE_FACTOR": -1,
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+    assert str(err.value).endswith("'Slope factor (m per unit slope)' (SLOPE_FACTOR) = -1 is out of range: give a "
+                                   "value within [0, 1000].")
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    once = alg.explain("slope = -1 is out of range; mode must be one of ...; on a steep slope the mode of")
+    assert once == ("'Terrain slope (rise/run)' (SLOPE) = -1 is out of range; 'Single or progressive windows' "
+                    "(MODE) must be one of ...; on a steep slope the mode of")
+    assert alg.explain(once) == once
+
+
 @pytest.mark.parametrize("key,value,message", [
     ("THREADS", 1000, r"'Threads \(0 = one per core\)' \(THREADS\) = 1000 is out of range: give a value within "
                       r"\[0, 64\]"),
@@ -185,3 +204,34 @@ def test_an_empty_switch_keeps_its_default(processing_run, tmp_path, alg, key):
                                         "OUTPUT_MASK": "TEMPORARY_OUTPUT", key: ""}, feedback=log.feedback)
     used = [s for s in log.section("Parameters used:", "Result:") if f"({key}) = " in s]
     assert len(used) == 1 and used[0].endswith(f"({key}) = True"), used
+
+
+def test_help_names_outputs_and_parameters_by_their_ids(qgis_app):
+    """Help that names an output names it by its id (curvature's said 'The CURVATURE output' and
+    geodesic's 'Output STEP:' for OUTPUT_CURVATURE and OUTPUT_STEP, ids no one can type), and the
+    ids with an underscore it names are parameters of a Bare Earth algorithm (a filter's
+    INPUT_POINTS in evaluate's) or the memory variable."""
+    from qgis.core import QgsApplication
+    algs = [a for a in QgsApplication.processingRegistry().algorithms() if a.provider().id() == "bareearth"]
+    every = {d.name() for a in algs for d in a.parameterDefinitions()} | {"BARE_EARTH_MEMORY_MB"}
+    for a in algs:
+        text = a.shortHelpString() + " ".join(d.help() or "" for d in a.parameterDefinitions())
+        outputs = {d.name() for d in a.destinationParameterDefinitions()}
+        named = set(re.findall(r"\b(?:The|Output) ([A-Z][A-Z0-9_]{2,})(?= output|:)", text))
+        assert named <= outputs, (a.id(), named - outputs)
+        ids = set(re.findall(r"\b[A-Z][A-Z0-9]*_[A-Z0-9_]+\b", text))
+        assert ids <= every, (a.id(), ids - every)
+
+
+@pytest.mark.parametrize("value,message", [
+    ("progressive", r"'Single or progressive windows' \(MODE\) = 'progressive' is not one of its options' numbers: "
+                    r"give 1 \(0 = auto, 1 = progressive, 2 = single\)"),
+    (7, r"'Single or progressive windows' \(MODE\) = '7' is not one of its options' numbers \(0 = auto, 1 = "),
+])
+def test_a_choice_given_by_name_is_refused_naming_its_number(processing_run, tmp_path, value, message):
+    """MODE=progressive (the option as the help and the log write it) was refused with QGIS's 'Incorrect
+    parameter value for MODE': neither the label nor the options. QGIS takes a choice by its number."""
+    from qgis.core import QgsProcessingException
+    with pytest.raises(QgsProcessingException, match=message):
+        processing_run("bareearth:morphological", {"INPUT": _dsm(tmp_path), "MODE": value,
+                                                   "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})

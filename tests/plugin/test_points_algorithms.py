@@ -593,3 +593,21 @@ def test_points_without_a_crs_or_in_one_without_distances_warned(processing_run,
         assert not hits, log.warnings
     else:
         assert len(hits) == 1 and said in hits[0], log.warnings
+
+
+@pytest.mark.parametrize("alg,keys", [
+    ("bareearth:rasterizepoints", {"INPUT": None, "OUTPUT": "TEMPORARY_OUTPUT"}),
+    ("bareearth:morphological", {"INPUT_POINTS": None, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                 "OUTPUT_MASK": "TEMPORARY_OUTPUT"}),
+])
+def test_three_points_over_a_kilometre_at_5_cm_are_refused_before_work(processing_run, tmp_path, alg, keys):
+    """3 points over 1 km at CELL_SIZE_M 0.05: 20000 x 20000 = 400 M cells of copies of 3 heights
+    (6 GB to rasterize), made without a word; refused now, naming the cells and the cell to use."""
+    from qgis.core import QgsProcessingException
+    pts = _write_text(tmp_path / "three.txt", np.array([500000.0, 501000.0, 500300.0]),
+                      np.array([5400000.0, 5401000.0, 5400700.0]), np.array([100.0, 101.0, 102.0]))
+    (tmp_path / "three.prj").write_text("EPSG:32632")
+    params = {k: (pts if v is None else v) for k, v in keys.items()}
+    refused = r"CELL_SIZE_M\) = 0.05 m gives 20000 x 20000 = 4e\+08 cells over the points' 1000 x 1000 m for 3 point"
+    with pytest.raises(QgsProcessingException, match=refused + r"\(s\).* at least 200 m"):
+        processing_run(alg, dict(params, CELL_SIZE_M=0.05))

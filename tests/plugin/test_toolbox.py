@@ -45,6 +45,7 @@ def test_each_algorithm_found_by_the_words_users_type(qgis_app):
     for a in algs:
         assert a.id() in dtm | ground, f"{a.id()} is found neither by 'DTM' nor by 'ground'"
         assert a.tags(), a.id()
+        assert len(set(a.tags())) == len(a.tags()), a.tags()     # geodesic, morphological: four twice
         points = a.group() == "Point clouds" or a.parameterDefinition("INPUT_POINTS") is not None
         if points:
             assert a.id() in lidar, f"{a.id()} works on points but 'lidar' does not find it"
