@@ -1386,6 +1386,13 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
     return float(max((d["width_m"] for d in decisions if d["object"] and d["width_m"] <= cap), default=0.0))
 
 
+#: Longest raised region (rows or columns spanned) a filter's resolve looks at when widening its window,
+#: metres: one doubling of the widest (:data:`RAISED_REGION_MAX_M`), as the width's cap is one doubling of the
+#: widest window derived (a hall 115 m wide and 242 m long spans more than 200 m). A resolve runs once on the
+#: whole raster, so no block's halo depends on it.
+RAISED_REGION_SPAN_M = 2.0 * RAISED_REGION_MAX_M
+
+
 #: Margin of a window on the width of the widest raised region (roof shapes, the rims on top of its walls
 #: that the region's width leaves out: a window just as wide still fits inside it).
 RAISED_REGION_MARGIN = 1.25

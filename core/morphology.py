@@ -159,6 +159,7 @@ from .common import FilterResult, as_cell_size, as_surface, finish_mask, label8,
 from .estimate import (
     RAISED_REGION_MARGIN,
     RAISED_REGION_MAX_M,
+    RAISED_REGION_SPAN_M,
     below_level_neighbours,
     below_surroundings,
     block_minima,
@@ -202,10 +203,6 @@ _OBJECT_SEARCH_GROWTH = 2.0
 _OBJECT_MARGIN = 1.25
 #: Minimum height of an object when deriving its size, metres.
 _OBJECT_HEIGHT_M = 2.0
-#: Longest raised region (rows or columns spanned) the widened window looks at, metres: one doubling of the
-#: widest (:data:`~bare_earth.core.estimate.RAISED_REGION_MAX_M`), as the width's cap is one doubling of the
-#: widest window derived. The resolve runs once on the whole raster, so no block's halo depends on it.
-RAISED_REGION_SPAN_M = 2.0 * RAISED_REGION_MAX_M
 #: Parameters are derived on a grid of at most this many cells (block minima).
 _RESOLVE_CELLS = 1_000_000
 
@@ -1393,7 +1390,7 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       (40 m when there are no objects); with ``raised_regions``, widened to the width of the
       widest raised region standing on walls that this window does not reach across
       (:func:`~bare_earth.core.estimate.raised_region_window`, at most 200 m wide, spanning at most
-      :data:`RAISED_REGION_SPAN_M`: a roof over most of
+      :data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`: a roof over most of
       a tile, running off it). Its walls must run within those 200 m, mirrored at the sides of the
       raster they meet (:func:`~bare_earth.core.common.walls_runs`, dtm's raised regions' copy): a
       side both the wall's top and the ground at its foot reach. Lidar ``sample_c``'s wall cuts off a
