@@ -71,6 +71,8 @@ LABELS = {
     "window_growth": "Window growth between steps",
     "low_outlier_slope": "Low-outlier test slope (rise/run)",
     "outline_slope": "Terrain slope beside objects (rise/run)",
+    "wide_slope": "Terrain slope of the wide windows (rise/run)",
+    "wide_radius_m": "Radius where the wide windows begin (m)",
     "raised_regions": "Widen the derived window to roofs standing on walls",
 }
 

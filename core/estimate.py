@@ -1364,7 +1364,7 @@ def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outsi
 RAISED_REGION_MAX_M = 200.0
 
 
-def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M):
+def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None):
     """Width, metres, of the widest raised region standing on walls that is wider than ``min_width_m``.
 
     A flat roof wider than a filter's largest window (a roof over most of a tile, running off the
@@ -1388,13 +1388,24 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
         Regions at most this wide are not reported (the window the filter already has).
     max_width_m : float
         The widest region looked at, metres.
+    max_span_m : float, optional
+        The longest region looked at (rows or columns spanned, and its walls' run), metres; default
+        ``max_width_m``. A hall 115 m wide and 242 m long spans more than 200 m.
     """
     from .dtm_regions import find_raised_regions  # dtm_regions reads the geodesic package: no cycle
     dx, dy = float(cell_size[0]), float(cell_size[1])
     cap = float(max_width_m)
+    span = cap if max_span_m is None else max(cap, float(max_span_m))
     _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), (dx, dy), tolerance_m=height_m,
-                                       min_width_m=min_width_m, max_cells=int(math.ceil(cap / min(dx, dy))))
+                                       min_width_m=min_width_m, max_cells=int(math.ceil(span / min(dx, dy))))
     return float(max((d["width_m"] for d in decisions if d["object"] and d["width_m"] <= cap), default=0.0))
+
+
+#: Longest raised region (rows or columns spanned) a filter's resolve looks at when widening its window,
+#: metres: one doubling of the widest (:data:`RAISED_REGION_MAX_M`), as the width's cap is one doubling of the
+#: widest window derived (a hall 115 m wide and 242 m long spans more than 200 m). A resolve runs once on the
+#: whole raster, so no block's halo depends on it.
+RAISED_REGION_SPAN_M = 2.0 * RAISED_REGION_MAX_M
 
 
 #: Margin of a window on the width of the widest raised region (roof shapes, the rims on top of its walls
@@ -1402,10 +1413,11 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
 RAISED_REGION_MARGIN = 1.25
 
 
-def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M):
+def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None):
     """The window, metres, that reaches across the widest raised region standing on walls wider than
-    ``min_window_m`` (:func:`raised_region_width`): :data:`RAISED_REGION_MARGIN` x its width + 2 cells,
-    at most ``max_width_m``; 0 when there is none.
+    ``min_window_m`` (:func:`raised_region_width`, regions spanning up to ``max_span_m``, default
+    ``max_width_m``): :data:`RAISED_REGION_MARGIN` x its width + 2 cells, at most ``max_width_m``; 0 when
+    there is none.
 
     Examples
     --------
@@ -1414,7 +1426,7 @@ def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISE
     >>> raised_region_window(z, (1.0, 1.0), 2.0, 64.0)
     148.25
     """
-    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m)
+    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m, max_span_m)
     if wide <= 0:
         return 0.0
     return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))

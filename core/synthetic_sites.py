@@ -29,7 +29,11 @@ from .codes import GROUND, OBJECT
 from .synthetic import Scene
 
 #: The sites :func:`make_site` builds.
-SITES = ("hillside", "railway", "quarry", "shrubs", "bridge")
+SITES = ("hillside", "railway", "quarry", "shrubs", "bridge", "city")
+#: Side of each site's square, metres, when ``make_site`` is not given one (the city's halls are up to
+#: 250 m long: it needs room for them and the streets around).
+EXTENT_M = {"hillside": 320.0, "railway": 320.0, "quarry": 320.0, "shrubs": 320.0, "bridge": 320.0,
+            "city": 480.0}
 #: Fine grid of the site's surfaces, metres (points take the value of their fine cell).
 FINE_M = 0.5
 #: Object surfaces lower than this above the ground under them are ground returns, metres.
@@ -41,7 +45,7 @@ _ORIGIN_XY = (510000.0, 5410000.0)
 _EPSG = 32632
 
 
-def make_site(kind, cell_size=1.0, surface="lowest", extent_m=320.0, seed=0, noise_m=0.05,
+def make_site(kind, cell_size=1.0, surface="lowest", extent_m=None, seed=0, noise_m=0.05,
               density_per_m2=1.2):
     """Build a site with known truth rasterised from points like the ISPRS samples.
 
@@ -64,8 +68,8 @@ def make_site(kind, cell_size=1.0, surface="lowest", extent_m=320.0, seed=0, noi
     surface : str
         ``"lowest"`` (lidar: lowest point per cell, pulses through vegetation) or ``"highest"``
         (the highest point per cell, vegetation opaque).
-    extent_m : float
-        Side of the square site, metres.
+    extent_m : float, optional
+        Side of the square site, metres; default the site's :data:`EXTENT_M`.
     seed : int
         Random seed; the same arguments give the same site (the fine site does not depend on
         ``cell_size`` or ``surface``).
@@ -88,6 +92,8 @@ def make_site(kind, cell_size=1.0, surface="lowest", extent_m=320.0, seed=0, noi
         raise ValueError(f"unknown site {kind!r}; choose one of {', '.join(SITES)}.")
     if surface not in ("lowest", "highest"):
         raise ValueError(f"surface must be 'lowest' or 'highest'; got {surface!r}.")
+    if extent_m is None:
+        extent_m = EXTENT_M[kind]
     k = float(cell_size) / FINE_M
     n = float(extent_m) / FINE_M
     if k < 1 or abs(k - round(k)) > 1e-9 or abs(n - round(n)) > 1e-9 or round(n) % round(k):
@@ -489,5 +495,69 @@ def _bridge(s, rng):
         s.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
 
 
+def _city(s, rng):
+    """Large buildings on gentle terrain between streets (ISPRS 22-24, an urban lidar tile)."""
+    e = s.e
+    s.ground = (100 + rng.uniform(0.005, 0.02) * s.X + rng.uniform(-0.01, 0.01) * s.Y
+                + _waves(rng, 150.0, 1.0)(s.X, s.Y)).astype(np.float32)
+    occ = np.zeros((s.n, s.n), bool)
+
+    def building(x0, y0, lx, ly, h, roof_structure=False):
+        """A flat-roofed box over [x0, x0 + lx] x [y0, y0 + ly] on its highest ground point + 0.3 m."""
+        w = s.window(x0 + lx / 2, y0 + ly / 2, 0.5 * max(lx, ly) + 1.0)
+        foot = ((w[1] >= x0) & (w[1] <= x0 + lx) & (w[2] >= y0) & (w[2] <= y0 + ly))
+        bz = float(s.ground[w[0]][foot].max()) + 0.3
+        s.box(x0 + lx / 2, y0 + ly / 2, 0.0, lx, ly, h, base=bz)
+        occ[w[0]] |= foot
+        if roof_structure:                                  # a plant room on the roof
+            s.box(x0 + lx * rng.uniform(0.3, 0.7), y0 + ly * rng.uniform(0.3, 0.7), 0.0, rng.uniform(8, 20),
+                  rng.uniform(6, 12), h + rng.uniform(2.5, 4.0), base=bz)
+        return bz
+    # north: the large hall, the courtyard block beside it
+    lx, ly = rng.uniform(180.0, 250.0), rng.uniform(100.0, 160.0)
+    hx, hy = 15.0 + rng.uniform(0, 10), 15.0 + rng.uniform(0, 10)
+    hall_h = rng.uniform(8.0, 20.0)
+    building(hx, hy, lx, ly, hall_h, roof_structure=True)
+    bx0 = hx + lx + rng.uniform(20.0, 30.0)
+    b = min(rng.uniform(100.0, 150.0), e - 10.0 - bx0)
+    by0 = 15.0 + rng.uniform(0, 10)
+    c = rng.uniform(30.0, 60.0)
+    building(bx0, by0, b, b, rng.uniform(12.0, 20.0))
+    cw = s.window(bx0 + b / 2, by0 + b / 2, c / 2 + 1.0)    # the courtyard: ground
+    court = (np.abs(cw[1] - (bx0 + b / 2)) <= c / 2) & (np.abs(cw[2] - (by0 + b / 2)) <= c / 2)
+    s.top[cw[0]][court] = -np.inf
+    occ[cw[0]] &= ~court
+    # south of the street: a second hall, a long shed, then smaller buildings
+    y1 = max(hy + ly, by0 + b) + rng.uniform(20.0, 30.0)
+    l2, w2 = rng.uniform(60.0, 120.0), rng.uniform(60.0, 100.0)
+    building(15.0, y1, l2, w2, rng.uniform(5.0, 12.0))
+    x2 = 15.0 + l2 + rng.uniform(20.0, 30.0)
+    l3, w3 = min(rng.uniform(120.0, 200.0), e - 10.0 - x2), rng.uniform(25.0, 40.0)
+    building(x2, y1, l3, w3, rng.uniform(5.0, 7.0))
+    y2 = y1 + w3 + rng.uniform(20.0, 30.0)
+    for yb in np.arange(y2, e - 20.0, 45.0):                # blocks of 50 x 45 m between streets
+        for xb in np.arange(15.0, e - 30.0, 50.0):
+            if rng.random() < 0.8:
+                bl, bw = rng.uniform(15.0, 30.0), rng.uniform(12.0, min(30.0, e - 5.0 - yb))
+                building(xb, yb, bl, bw, rng.uniform(6.0, 15.0), roof_structure=rng.random() < 0.3)
+    # a ramp 6 m wide descending 3-4 m over 30-40 m to the car park's entrance in the hall's south wall
+    rx, rl, rd = hx + lx * rng.uniform(0.3, 0.7), rng.uniform(30.0, 40.0), rng.uniform(3.0, 4.0)
+    ramp = (np.abs(s.X - rx) <= 3.0) & (s.Y > hy + ly) & (s.Y < hy + ly + rl) & ~np.isfinite(s.top)
+    s.ground = np.where(ramp, s.ground - rd * np.clip((hy + ly + rl - s.Y) / rl, 0, 1), s.ground).astype(np.float32)
+    occ |= (np.abs(s.X - rx) <= 5.0) & (s.Y > hy + ly) & (s.Y < hy + ly + rl + 5)
+    # data gaps on two dark roofs
+    for gx, gy, gr in ((hx + lx * rng.uniform(0.2, 0.8), hy + ly * rng.uniform(0.2, 0.8), rng.uniform(6.0, 12.0)),
+                       (bx0 + rng.uniform(0.1, 0.25) * b, by0 + rng.uniform(0.1, 0.25) * b, rng.uniform(4.0, 8.0))):
+        s.gap |= np.hypot(s.X - gx, s.Y - gy) < gr
+    free = ~ndimage.binary_dilation(occ, iterations=6)
+
+    def street(x, y):
+        return s.at(free, x, y) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.002, (5.0, 16.0), street)
+    x, y = s.scatter(rng, 0.002, street)
+    for cx, cy in zip(x, y):
+        s.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
+
+
 _BUILD = {"hillside": _hillside, "railway": _railway, "quarry": _quarry, "shrubs": _shrubs,
-          "bridge": _bridge}
+          "bridge": _bridge, "city": _city}

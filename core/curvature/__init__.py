@@ -96,13 +96,16 @@ graph surface (e.g. Evans 1980; Zevenbergen & Thorne 1987).
 from .derivatives import MODELS, compute_curvature, curvatures_from_derivatives, local_derivatives
 from .method import (
     METHOD,
+    OBJECT_SIZE_M,
     bend_noise_gain,
     curvature_halo,
     derive_k_g,
     edge_bend,
     filter_curvature,
+    object_size,
     resolve_curvature_params,
 )
 
-__all__ = ["METHOD", "MODELS", "bend_noise_gain", "compute_curvature", "curvature_halo", "curvatures_from_derivatives",
-           "derive_k_g", "edge_bend", "filter_curvature", "local_derivatives", "resolve_curvature_params"]
+__all__ = ["METHOD", "MODELS", "OBJECT_SIZE_M", "bend_noise_gain", "compute_curvature", "curvature_halo",
+           "curvatures_from_derivatives", "derive_k_g", "edge_bend", "filter_curvature", "local_derivatives",
+           "object_size", "resolve_curvature_params"]

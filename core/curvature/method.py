@@ -10,9 +10,13 @@ from scipy import ndimage
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from ..estimate import (
     GROUND_BLOCK_M,
+    RAISED_REGION_MAX_M,
+    RAISED_REGION_SPAN_M,
+    block_minima,
     ground_level_cells,
     ground_spread,
     noise_ground_level,
+    raised_region_window,
     sample_windows,
     terrain_slopes,
 )
@@ -49,6 +53,10 @@ _MIN_BREAK_M = 0.05
 #: Half window (m) over which that deviation sets the cell-free floor of the bend: 5 cm over
 #: 2 m, a curvature radius of 40 m (the 5-cell window at 1 m cells, where the floor was set).
 _FLOOR_HALF_M = 2.0
+#: Longest object by default, metres (profile runs and enclosed regions longer are ground).
+OBJECT_SIZE_M = 100.0
+#: The object size is derived on block minima of at most this many cells.
+_RESOLVE_CELLS = 1_000_000
 #: Tile edge (cells) and quantile of the tile spreads used for the ground's bend noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
@@ -363,10 +371,23 @@ def steep_terrain_slope(z, cell_size) -> float:
     return float(np.percentile(s, _STEEP_PERCENTILE)) if s.size else 0.0
 
 
+def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
+    """The derived longest object, metres: :data:`OBJECT_SIZE_M`, widened to the window of a wider raised
+    region standing on walls higher than ``height_m`` (a hall: its profile runs and its enclosed region are
+    longer than 100 m, and were ground), :func:`~bare_earth.core.estimate.raised_region_window` (1.25 x its
+    width + 2 cells, regions up to 200 m wide spanning up to 400 m), at most 200 m; on block minima of at
+    most :data:`_RESOLVE_CELLS` cells."""
+    dx, dy = cell_size
+    k = max(1, int(np.ceil(np.sqrt(z.size / _RESOLVE_CELLS))))
+    zs = block_minima(z, k) if k > 1 else z
+    window = raised_region_window(zs, (dx * k, dy * k), height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M)
+    return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
+
+
 def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: Optional[float] = None,
                              window_cells: int = 5, model: str = "quadratic",
                              min_object_height_m: float = 1.0, wall_slope_deg: float = 45.0,
-                             max_object_size_m: float = 100.0,
+                             max_object_size_m: Optional[float] = None,
                              tolerance_m: Optional[float] = None, terrain_slope: Optional[float] = None,
                              spacing_m: Optional[float] = None, progress=None) -> dict:
     """Complete parameter set for :func:`filter_curvature`, ``None`` derived from the data.
@@ -376,7 +397,9 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     ``min_object_height_m`` object over half a window). ``tolerance_m``: three times the
     noise of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
     [0.3, 1.0] m; 0.5 m when too few ground cells are seen. ``terrain_slope``:
-    :func:`steep_terrain_slope`. ``spacing_m``: :func:`.profiles.height_spacing`. The others have
+    :func:`steep_terrain_slope`. ``spacing_m``: :func:`.profiles.height_spacing`.
+    ``max_object_size_m``: :func:`object_size` (100 m, or the window of a wider raised region standing on
+    walls higher than ``min_object_height_m``). The others have
     fixed defaults (see :data:`METHOD`). ``progress(fraction)`` (optional, may raise
     ``Cancelled``) from inside the estimates.
     """
@@ -395,6 +418,8 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     if terrain_slope is None:
         terrain_slope = steep_terrain_slope(z, (dx, dy))
+    if max_object_size_m is None:
+        max_object_size_m = object_size(z, (dx, dy), float(min_object_height_m))
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),
@@ -411,7 +436,7 @@ def curvature_halo(params: dict, cell_size: CellSize) -> int:
     halo give the mask of one pass."""
     dx, dy = as_cell_size(cell_size)
     w = check_window(params.get("window_cells", 5))
-    size = float(params.get("max_object_size_m", 100.0))
+    size = float(params.get("max_object_size_m") or OBJECT_SIZE_M)
     halo = (profile_reach((dx, dy), window=w, max_size=size) + enclosed_reach((dx, dy), max_size=size)
             + ground_reach((dx, dy), window=w, max_size=size))
     return halo + (halo & 1)
@@ -457,9 +482,10 @@ METHOD = Method(
               "gentler and stay ground. The slope is judged over two cells but over 3 m at "
               "most (coarser cells cannot show it; the log gives the rise used).",
               minimum=1.0, maximum=89.0, advanced=True),
-        Param("max_object_size_m", "float", 100.0,
+        Param("max_object_size_m", "float", None,
               "Metres: largest object; larger enclosed regions are ground. Also the method's "
-              "reach for block processing.", minimum=1.0, maximum=2000.0),
+              "reach for block processing. Empty: 100 m, widened to 1.25 x the width + 2 cells of a wider "
+              "raised region standing on walls (a hall), at most 200 m.", minimum=1.0, maximum=2000.0),
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
               "cell may stand (plus one cell of the surface's slope) and still be ground "

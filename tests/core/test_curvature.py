@@ -1467,3 +1467,27 @@ def test_edge_band_added_only_as_high_as_the_object():
     profiles._to_edge(a, 2, z, 0.5)
     assert a[:, :2].tolist() == [[True, True], [False, True], [False, False]]
     assert not a[:, 4:].any()
+
+
+@pytest.mark.parametrize("side_m", [120.0, 160.0])
+def test_a_hall_longer_than_100_m_is_an_object(side_m):
+    """A flat roof 10 m high, 120-160 m square, on gentle terrain (issues 12, 13): its profile runs and its
+    enclosed region are longer than the 100 m default, and the roof was ground (Type II 58 / 99 %). The
+    derived largest object is widened to the raised region standing on walls around it (1.25 x its width
+    + 2 cells): the whole roof is an object, no ground is."""
+    n = int(side_m + 200)
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    g = 100 + 0.02 * x + 3 * np.sin(y / 90.0) + np.random.default_rng(0).normal(0, 0.05, (n, n))
+    z = g.astype(np.float32)
+    b = slice(100, 100 + int(side_m))
+    z[b, b] = g[b, b].max() + 10.0
+    truth = np.zeros(z.shape, bool)
+    truth[b, b] = True
+    p = curvature.resolve_curvature_params(z, 1.0)
+    assert side_m < p["max_object_size_m"] <= 200.0
+    assert curvature.resolve_curvature_params(z[:90, :90], 1.0)["max_object_size_m"] == curvature.OBJECT_SIZE_M
+    from bare_earth.core import pipeline
+    res = pipeline.run_array("curvature", z, (1.0, 1.0), want_dtm=False)
+    assert res.info["max_object_size_m"] == p["max_object_size_m"]
+    assert np.count_nonzero((res.mask != OBJECT) & truth) <= 0.01 * truth.sum()
+    assert np.count_nonzero((res.mask == OBJECT) & ~truth) <= 0.001 * (~truth).sum()

@@ -786,6 +786,19 @@ def test_raised_region_window_reaches_across_the_widest_raised_region():
     assert est.raised_region_window(np.zeros((40, 40), np.float32), (1.0, 1.0), 0.5, 10.0) == 0.0
 
 
+def test_raised_region_longer_than_the_width_cap_needs_the_span():
+    # a hall 30 m wide and 70 m long inside the raster: looked at up to 50 m wide it spans 70 rows, beyond the
+    # 50 cells the stage reaches unless the span is given (morphology's resolve: twice the width's cap)
+    z = np.zeros((90, 60), np.float32)
+    z[10:80, 15:45] = 8.0
+    assert est.raised_region_width(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0) == 0.0
+    wide = est.raised_region_width(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=100.0)
+    assert 25.0 <= wide <= 30.0
+    assert est.raised_region_window(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=100.0) == 1.25 * wide + 2.0
+    # a span under the width is the width
+    assert est.raised_region_width(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=20.0) == 0.0
+
+
 def test_raised_region_width_of_a_level_running_off_the_raster():
     # a raised level 4 m high on two walls, running off a corner of the raster: the region (rows and columns
     # 16-39, the walls' top a rim) mirrored at the edge is twice 24 cells less one wide

@@ -954,3 +954,50 @@ def test_confirm_low_cells_rules():
     flat = np.full_like(z, 10.0)
     flat[12, 4] = flat[12, 12] = 0.0                                # level neighbours (a paved surface)
     assert morph.confirm_low_cells(flat, flat < 5.0, zpro, (1.0, 1.0), 0.5, 12.0, 1.0).sum() == 2
+
+
+# --------------------------------------------------------------------------- large buildings (issues 12, 13)
+def test_step_thresholds_grow_by_the_wide_slope_beyond_half_a_block():
+    radii = morph.window_radii(81.0, 1.0, growth=2.0)          # radii 1, 2, 4, 8, 16, 32, 40
+    assert morph.step_thresholds(radii, 0.3) == [0.3 * r for _, _, r in radii]       # SMRF's s r_k
+    t = morph.step_thresholds(radii, 0.3, 0.05, 20.0)
+    assert t == pytest.approx([0.3, 0.6, 1.2, 2.4, 4.8, 6.0 + 0.05 * 12, 6.0 + 0.05 * 20])
+    assert morph.step_thresholds(radii, 0.3, 0.3, 0.0) == morph.step_thresholds(radii, 0.3)
+
+
+def _large_building(side_m, cell=1.0, height=10.0):
+    """Gentle terrain (a 2 % tilt and 3 m waves 565 m long, slope at most 0.04) with one flat-roofed
+    building ``side_m`` square and ``height`` high, 100 m from the edges."""
+    n = int((side_m + 200) / cell)
+    y, x = np.mgrid[0:n, 0:n] * cell
+    rng = np.random.default_rng(0)
+    g = 100 + 0.02 * x + 3 * np.sin(y / 90.0) + rng.normal(0, 0.05, (n, n))
+    z = g.astype(np.float32)
+    b = slice(int(100 / cell), int((100 + side_m) / cell))
+    z[b, b] = g[b, b].max() + height
+    truth = np.zeros(z.shape, bool)
+    truth[b, b] = True
+    return z, truth
+
+
+@pytest.mark.parametrize("side_m", [80.0, 160.0])
+def test_a_large_building_on_gentle_terrain_is_an_object(side_m):
+    """SMRF's threshold ``s r_k`` with the slope's floor 0.3 on terrain of slope 0.04 reached 12 m at the
+    radius that removes an 80 m roof, and the 10 m high building stayed ground (Type II 100 %). Beyond half
+    the 40 m blocks the slope is measured on, the threshold grows by the measured median slope, and the
+    raised region's window reaches across the 160 m roof: the whole building is an object, no ground is."""
+    z, truth = _large_building(side_m)
+    res = run_array("morphological", z, (1.0, 1.0), {})
+    info = res.info
+    assert info["slope"] == 0.3 and info["wide_radius_m"] == 20.0
+    assert 0.02 < info["wide_slope"] < 0.05 and info["wide_slope"] == info["terrain_slope_p50"]
+    assert "median slope" in info["wide_slope_source"]
+    assert info["max_object_size_m"] >= side_m
+    assert max(info["thresholds_m"]) < 10.0
+    assert np.count_nonzero((res.mask != OBJECT) & truth) <= 0.01 * truth.sum()
+    assert np.count_nonzero((res.mask == OBJECT) & ~truth) <= 0.001 * (~truth).sum()
+    # SMRF's one slope at every radius (a slope given): the threshold outgrows the building
+    given = run_array("morphological", z, (1.0, 1.0), {"slope": 0.3, "max_object_size_m": info["max_object_size_m"]})
+    assert given.info["wide_slope"] == 0.3
+    assert given.info["wide_slope_source"] == "slope given: s at every radius (SMRF)"
+    assert np.count_nonzero((given.mask == OBJECT) & truth) < 0.01 * truth.sum()

@@ -6,7 +6,7 @@ import pytest
 from bare_earth.core.codes import GROUND, OBJECT
 from bare_earth.core.evaluate import compare_masks
 from bare_earth.core.pipeline import run_array
-from bare_earth.core.synthetic_sites import SITES, make_site
+from bare_earth.core.synthetic_sites import EXTENT_M, SITES, make_site
 
 
 @pytest.mark.parametrize("kind", SITES)
@@ -18,14 +18,15 @@ def test_site_is_seeded_and_consistent(kind):
     for x, y in ((a.dsm, b.dsm), (a.dtm, b.dtm), (a.mask, b.mask)):
         np.testing.assert_array_equal(x, y)
     assert not np.array_equal(make_site(kind, 2.0, "lowest", seed=4).dsm, a.dsm)
-    assert a.dsm.shape == a.dtm.shape == a.mask.shape == (160, 160)
+    n = int(EXTENT_M[kind])
+    assert a.dsm.shape == a.dtm.shape == a.mask.shape == (n // 2, n // 2)
     assert a.dsm.dtype == np.float32 and a.mask.dtype == np.uint8 and a.cell_size == (2.0, 2.0)
     assert np.isfinite(a.dsm).all() and np.isfinite(a.dtm).all()
     assert set(np.unique(a.mask)) <= {GROUND, OBJECT}
     fine = make_site(kind, 1.0, "lowest", seed=3)
-    assert fine.dsm.shape == (320, 320)
+    assert fine.dsm.shape == (n, n)
     # the true DTM is the mean of the same fine ground: the 2 m cells average the 1 m ones
-    np.testing.assert_allclose(fine.dtm.reshape(160, 2, 160, 2).mean(axis=(1, 3)), a.dtm, atol=1e-3)
+    np.testing.assert_allclose(fine.dtm.reshape(n // 2, 2, n // 2, 2).mean(axis=(1, 3)), a.dtm, atol=1e-3)
     top = make_site(kind, 2.0, "highest", seed=3)
     np.testing.assert_array_equal(top.dtm, a.dtm)
     assert np.mean(top.mask == OBJECT) > np.mean(a.mask == OBJECT)
