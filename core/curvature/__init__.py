@@ -76,11 +76,17 @@ From curvature to objects
    (K > 0, H < 0: gaps between crowns) farther than half a window from the objects and not
    below every cell of the ring around them by more than the tolerance (low points). The
    second pass also rests on the bowls that the first found to be ground and not below its
-   surface by more than the tolerance. Nodata takes the height of the nearest ground
-   seed rather than being spanned by the surface (the surface then depends on the ground
-   near a cell, not on the far side of a nodata area). A concave break deeper than the minimum object
-   height below the surface and below every cell of the ring around it is a low blunder
-   (code 2): a pit, not a valley or a cut.
+   surface by more than the tolerance. After each pass, a cell above the surface that no
+   profile found and that continues a stretch of ground along its X or Y profile (a window's
+   independent heights: a window of cells, or of the heights' spacing where longer), beginning
+   within two windows, at its own level (within the tolerance plus the rise
+   of the terrain's steep slopes over their distance) and joined to it by steps no higher than
+   the tolerance plus that rise over a cell, is ground: the surface spans a terrace's or a
+   quarry bench's wall with a straight line that sags metres under its top edge. Nodata takes
+   the height of the nearest ground seed rather than being spanned by the surface (the surface
+   then depends on the ground near a cell, not on the far side of a nodata area). A concave
+   break deeper than the minimum object height below the surface and below every cell of the
+   ring around it is a low blunder (code 2): a pit, not a valley or a cut.
 
 The package's files follow these steps: :mod:`.derivatives` (the local fit, K and H, the
 breaks: steps 1-2), :mod:`.profiles` (profile scans and enclosed regions: steps 3-4),

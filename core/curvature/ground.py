@@ -19,13 +19,16 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
-from ..common import report, sub_progress
+from ..common import report, sub_progress, transpose
 from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest, dilate
 
 #: Final passes against the interpolated ground surface.
 _PASSES = 2
 #: Reach of the ground surface (in largest objects) on either side of a hole.
 _REACH = 0.5
+#: Windows (of the local trends) within which the ground a cell continues begins
+#: (:func:`_continue_ground`): the band of breaks along a step's top that the surface spans.
+_CONTINUE_WINDOWS = 2
 #: Half width (cells) of the window over which the heights interpolated along the
 #: profiles are averaged (the creases where the X and Y profiles' weights change).
 _SMOOTH = 1
@@ -334,6 +337,7 @@ def _slope(a, dx, dy, progress=None):
 
 def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optional[np.ndarray],
                 cell_size: CellSize, *, window: int, h_min: float, tol: float, max_size: float,
+                rise: Optional[Tuple[float, float]] = None, stretch: Tuple[int, int] = (0, 0),
                 progress: Optional[Progress] = None) -> Tuple[np.ndarray, Optional[np.ndarray]]:
     """Step 5, the final pass (twice): the cells standing above the ground interpolated
     under the objects and the breaks next to them are objects, where a profile object
@@ -357,6 +361,11 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     surface did not reach (no known cell on its profiles, which the scan took for walls: it kept
     its own height and was "found ground" against itself; seeding the second surface, it stayed
     ground and the cells around it became objects).
+    After each pass, the objects above the surface that no profile found and that continue a
+    stretch of ``stretch = (along X, along Y)`` ground cells (at least ``window``;
+    :func:`ground_stretch`) at their own level without a step higher than ``rise = (along X,
+    along Y)`` metres go back to the ground (:func:`_continue_ground`; the top edge of a
+    terrace's wall, above the straight line that spans the wall); ``rise`` None: none do.
     ``valid`` is None when every cell is valid. Returns the mask (codes of
     :mod:`~bare_earth.core.codes`, 255 at nodata) and the last ground surface. Without any
     ground seed within the reach a cell keeps its own height, and the profiles' objects
@@ -408,6 +417,11 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         # cell a break) stay objects: nothing near them says otherwise
         np.logical_and(lost, objects, out=tmp)
         np.copyto(mask, np.uint8(OBJECT), where=tmp)
+        # the cells above the surface that the ground continues without a step (a terrace's edge
+        # above the surface spanning its wall) are ground, and seed the next pass's surface
+        if rise is not None:
+            _continue_ground(z, mask, objects, _CONTINUE_WINDOWS * window, rise, tol,
+                             (max(window, stretch[0]), max(window, stretch[1])))
         np.not_equal(mask, GROUND, out=holes)
         # the bowls found ground and not below the surface seed the next pass; not the pits among them
         # that the surface did not reach (lost: no known cell on their profiles, they kept their own
@@ -425,6 +439,72 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     if invalid is not None:
         mask[invalid] = NODATA
     return mask, surface
+
+
+def _continue_ground(z, mask, objects, reach, step, tol, run):
+    """The final pass's objects that no profile found (not in ``objects``) and that the ground
+    continues go back to the ground, in place: along the X or the Y profile through the cell,
+    the nearest ground cell on one side lies within ``reach`` cells and begins ``run = (along X,
+    along Y)`` ground cells in a row, all joined to the cell by steps of at most ``step = (sx, sy)`` metres
+    between neighbours (nodata is a step) and level with it: within the tolerance ``tol`` and the
+    rise of ``step - tol`` a cell over their distance.
+
+    Luong Chinh Ke (2002) puts the objects between a break going up a wall and the break coming
+    down; the final pass adds the cells above the ground interpolated under the objects and the
+    breaks. Where that surface spans a terrain step (a terrace on a retaining wall, a quarry bench
+    beside a hedge or a tree), the straight line from the foot of the step sags under its top
+    edge by metres, and the edge stood above it: a cell that continues a stretch of ground at its
+    own level without a wall is no object (a roof, a crown or a shrub rises from the ground at its
+    edge by more than a step, or above the ground beside it; a few cells of a hedge's level top
+    taken for ground are no stretch of ground).
+    """
+    cand = mask == OBJECT
+    cand &= ~objects
+    if not cand.any():
+        return
+    ground = mask == GROUND
+    back = _continued(z, ground, cand, reach, step[0], tol, run[0])
+    back |= transpose(_continued(transpose(z), transpose(ground), transpose(cand), reach, step[1], tol, run[1]))
+    mask[back] = GROUND
+
+
+def _continued(z, ground, cand, reach, step, tol, run):
+    """The cells of ``cand`` that a stretch of ``run`` cells of ``ground`` along their row
+    continues (:func:`_continue_ground`), the nearest ground within ``reach`` cells to the left
+    or to the right; a boolean array of ``z``'s shape."""
+    h, w = z.shape
+    wall = np.ones((h, w + 1), bool)           # wall[:, j]: a step between j - 1 and j (the ends too)
+    with np.errstate(invalid="ignore"):
+        np.greater(np.abs(z[:, 1:] - z[:, :-1]), np.float32(step), out=wall[:, 1:w])
+    wall[:, 1:w] |= np.isnan(z[:, 1:])
+    wall[:, 1:w] |= np.isnan(z[:, :-1])
+    part = np.cumsum(wall[:, :w], axis=1, dtype=np.int32)        # cells joined by small steps share it
+    cols = np.arange(w, dtype=np.int32)
+    far = np.int32(1 << 30)
+    left = np.where(ground, cols, -far)
+    np.maximum.accumulate(left, axis=1, out=left)
+    right = np.where(ground, cols, far)
+    right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
+    idx = np.flatnonzero(cand)               # flat cells, gathered from the flat arrays
+    c = (idx % w).astype(np.int32)
+    zf, pf, gf = z.ravel(), part.ravel(), ground.ravel()
+    zc, pc = zf.take(idx), pf.take(idx)
+    per = np.float32(step - tol)
+    out = np.zeros(h * w, bool)
+    for end, sign in ((left, -1), (right, 1)):
+        e = end.ravel().take(idx)
+        sel = np.flatnonzero(np.abs(e - c) <= reach)    # the candidates still in the running
+        for k in range(run):
+            jc = e[sel] + sign * k                        # the stretch's k-th cell, its column
+            sel = sel[(jc >= 0) & (jc < w)]
+            jc = e[sel] + sign * k
+            at = idx[sel] + (jc - c[sel])                 # flat, on the candidate's row
+            with np.errstate(invalid="ignore"):
+                ok = gf.take(at) & (pf.take(at) == pc[sel])
+                ok &= np.abs(zf.take(at) - zc[sel]) <= np.float32(tol) + per * np.abs(jc - c[sel])
+            sel = sel[ok]
+        out[idx[sel]] = True
+    return out.reshape(h, w)
 
 
 def _drop_unwalled(mask, objects, reach):
@@ -447,7 +527,16 @@ def _drop_unwalled(mask, objects, reach):
     mask[stray] = GROUND
 
 
-def ground_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
+def ground_stretch(cell_size: CellSize, window: int, spacing: float = 0.0) -> Tuple[int, int]:
+    """Cells ``(along X, along Y)`` of the stretch of ground a cell must continue in
+    :func:`_continue_ground`: ``window`` independent heights, the paper's least group of points
+    of a profile, ``window`` times the cell or ``spacing`` (metres between independent heights,
+    :func:`.profiles.height_spacing`) where longer: a raster filled from sparser points repeats a
+    point's height over the cells around it, and a few points of an object make a level stretch."""
+    return tuple(int(np.ceil(window * max(float(d), float(spacing)) / float(d) - 1e-9)) for d in cell_size)
+
+
+def ground_reach(cell_size: CellSize, *, window: int, max_size: float, stretch: int = 0) -> int:
     """Cells (in any direction) within which the objects and breaks decide a cell's class in
     :func:`find_ground`: ``2 R + 2 window + 2 m + 3`` with ``R`` the larger
     :func:`surface_reach` and ``m = window // 2``.
@@ -458,12 +547,16 @@ def ground_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
     allowance averages the first surface over ``m`` cells and takes its slope (1 cell): the
     first pass's class at a cell depends on the objects within ``G1 = R + window + 2 m +
     2``. The second pass's holes are the first pass's classes, read by its surface within
-    ``R + window + 1``: ``G1 + R + window + 1`` in all (the rings of the low blunders and of
-    the low bowls, :func:`_low_bowls`, read the heights only)."""
+    ``R + window + 1``: ``G1 + R + window + 1``; after each pass the continued ground
+    (:func:`_continue_ground`) reads that pass's classes and the heights within ``C + S`` along
+    the row and column (``C = _CONTINUE_WINDOWS window``, where the stretch may begin, and ``S``
+    its cells, ``stretch`` (:func:`ground_stretch`) but at least ``window``): ``C + S`` more per
+    pass (the rings of the low blunders and of the low bowls, :func:`_low_bowls`, read the
+    heights only)."""
     m = window // 2
     r = max(surface_reach(cell_size, window=window, max_size=max_size))
     g1 = r + window + 2 * m + 2
-    return g1 + (_PASSES - 1) * (r + window + 1)
+    return g1 + (_PASSES - 1) * (r + window + 1) + _PASSES * (_CONTINUE_WINDOWS * window + max(window, stretch))
 
 
 def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:

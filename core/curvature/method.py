@@ -31,7 +31,7 @@ from .derivatives import (
     derivative_blocks,
     mark_breaks,
 )
-from .ground import find_ground, ground_reach
+from .ground import find_ground, ground_reach, ground_stretch
 from .profiles import (
     enclosed_reach,
     find_enclosed_objects,
@@ -153,7 +153,8 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     del edge_runs
     # 5. final pass against the ground interpolated under objects and breaks (twice)
     mask, surface = find_ground(z, objects, breaks, some_valid, cell, window=s.window,
-                                h_min=s.h_min, tol=s.tol, max_size=s.max_size,
+                                h_min=s.h_min, tol=s.tol, max_size=s.max_size, rise=_ground_step(s, cell),
+                                stretch=ground_stretch(cell, s.window, s.spacing),
                                 progress=sub_progress(progress, 0.65, 1.0))
     info = _info(s, cell, breaks, n_obj_x, n_obj_y, max(n_valid, 1))
     report(progress, 1.0)
@@ -199,6 +200,14 @@ def _checked_settings(k_g_per_m2, window_cells, model, min_object_height_m, wall
                          "Leave it empty to derive it from the data, or use 0 for the cell.")
     return _Settings(k_g, window, model, h_min, float(wall_slope_deg), tan_wall, max_size, tol, terrain_slope,
                      spacing)
+
+
+def _ground_step(s, cell):
+    """Metres ``(along X, along Y)`` that the ground may step between neighbouring cells in the
+    final pass's continued ground (:func:`.ground.find_ground`): the tolerance plus the rise of
+    the terrain's steep slopes over a cell, or over the spacing of the heights where longer (a
+    raster filled from sparser points climbs a slope in risers of one point each)."""
+    return tuple(s.tol + s.terrain_slope * max(d, s.spacing) for d in cell)
 
 
 def _info(s, cell, breaks, n_obj_x, n_obj_y, n_valid):
@@ -432,13 +441,15 @@ def curvature_halo(params: dict, cell_size: CellSize) -> int:
     (:func:`.profiles.profile_reach`: the largest object plus the wall test), the enclosed
     regions (:func:`.profiles.enclosed_reach`: the largest object) and the final pass's two
     ground surfaces (:func:`.ground.ground_reach`: twice half the largest object, plus the
-    windows); even. Every rule of the filter is local within its reach, so blocks with this
-    halo give the mask of one pass."""
+    windows and the continued ground's stretches, :func:`.ground.ground_stretch`); even. Every
+    rule of the filter is local within its reach, so blocks with this halo give the mask of one
+    pass."""
     dx, dy = as_cell_size(cell_size)
     w = check_window(params.get("window_cells", 5))
     size = float(params.get("max_object_size_m") or OBJECT_SIZE_M)
+    stretch = max(ground_stretch((dx, dy), w, float(params.get("spacing_m", 0.0))))
     halo = (profile_reach((dx, dy), window=w, max_size=size) + enclosed_reach((dx, dy), max_size=size)
-            + ground_reach((dx, dy), window=w, max_size=size))
+            + ground_reach((dx, dy), window=w, max_size=size, stretch=stretch))
     return halo + (halo & 1)
 
 
