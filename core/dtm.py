@@ -889,7 +889,9 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
                                     height_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_cells)
         # the upper edges of steps in the ground: on the straight continuation of the undisputed ground
         lined = continue_lines(z, disputed & ~continued, ground_votes == n, reach_cells=reach_cells,
-                               tolerance_m=tolerance_m if edge_tolerance_m is None else edge_tolerance_m)
+                               tolerance_m=tolerance_m if edge_tolerance_m is None else edge_tolerance_m,
+                               step_m=SMOOTH_RATIO * tolerance_m, ground=(mask == GROUND) | continued,
+                               along_slope=refine_slope(members), cell_size=cell)
         mask[continued] = GROUND
         mask[lined] = GROUND
         info["continued_line_rule"] = (
@@ -913,7 +915,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                       reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
                                       line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m,
-                                      along_ground=ALONG_GROUND, pool=helper)
+                                      along_ground=ALONG_GROUND, along_steps=True, pool=helper)
     finally:
         if helper is not None:
             helper.shutdown()
