@@ -1103,7 +1103,7 @@ def _strip_beside_house():
 def test_continue_lines_along_a_step_beside_a_house():
     """issue 13 (core.synthetic_sites hillside): the top of a retaining wall between a house and the wall's edge
     is continued along the step from the terrace seen beyond the house (three ground cells in a line, the cell
-    and the line's first cell both above their neighbours across the line by a step): ground; a hedge on the
+    and the line's first cell both above a neighbour off the line by a step): ground; a hedge on the
     edge, a drop the terrain's slope explains, a roof's edge with no ground at its level, or without
     ``along_slope``: not."""
     z, house, strip = _strip_beside_house()
@@ -1181,3 +1181,21 @@ def test_along_steps_in_blocks_equal_one_pass():
     got = in_blocks(lambda wr, wc: dr.refine_ground(s.dsm[wr, wc], vote[wr, wc], s.cell_size, **kw)[0],
                     s.dsm.shape, 48, dr.refine_halo(s.cell_size, 12.0))
     np.testing.assert_array_equal(got, whole)
+
+
+def test_continue_lines_along_a_staircase_wall():
+    """A wall at an angle to the raster runs in a staircase: where its edge steps a row down, the drop beside the
+    line's first cell lies diagonally, not straight across, so the drop is looked for off the line in any
+    direction; the strip between the house and the wall's top is given back whole (the drop straight across
+    and on the same side for both cells gave back none of it)."""
+    i, j = np.mgrid[0:16, 0:24]
+    edge = 6 + j // 6                                  # the terrace's edge row steps down every 6 columns
+    z = np.where(i <= edge, np.float32(3.0), np.float32(-0.2) * (i - edge)).astype(np.float32)
+    house = (i >= 2) & (i < 7) & (j >= 8) & (j < 18)
+    z[house] = 9.0
+    strip = (i == edge) & (j >= 8) & (j < 18)
+    ground = ~house & ~strip
+    anchors = ground & ~((i <= edge) & (j >= 5) & (j < 21))
+    got = dr.continue_lines(z, strip, anchors, tolerance_m=0.5, reach_cells=18, step_m=1.0, ground=ground,
+                            along_slope=0.1)
+    np.testing.assert_array_equal(got, strip)
