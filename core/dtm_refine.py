@@ -757,7 +757,8 @@ def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells, judg
 _LINE_STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
 
 
-def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
+def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0, ground=None, along_slope=None,
+                   cell_size=(1.0, 1.0)):
     """The disputed cells on the straight continuation of the undisputed ground: ground after all.
 
     The upper edge of a step in the ground (a retaining wall, a quarry's bench, a cliff) stands above
@@ -793,6 +794,16 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
     side (the vote's ground on a roof is not undisputed), a crown's or a hedge's edge stands above
     the continuation by its height.
 
+    With ``along_slope``, the top of a step is also continued *along* the step (:func:`_along_step_lines`):
+    between a house and the edge of a narrow terrace (a retaining wall's top behind which a house stands, a
+    platform's edge beside a train) no line across the step finds three ground cells on its upper side, but
+    the step's top runs on beside the house to where the terrace is seen. A disputed cell is ground when three
+    ``ground`` cells (the voted ground, anchors or cells given back) continue to it in a straight line within
+    ``tolerance_m`` and both it and the line's first cell stand above a neighbour off the line by more than
+    ``step_m`` plus ``along_slope`` times the distance to it (a step, not the terrain's steepest slope): a step
+    running along the line. A shrub's or a hedge's edge stands above the
+    line by its height; a roof's edge is continued by no ground at its level.
+
     Parameters
     ----------
     z : ndarray, 2-D float32
@@ -806,6 +817,16 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
         Largest distance from the continuation, metres (> 0).
     reach_cells : int
         The passes' bound: ``reach_cells // 3`` passes (>= 0; below 3: nothing is continued).
+    step_m : float
+        Least drop below the line beyond the cell, metres, besides the continuation's own tolerance
+        (``bareearth:dtm``: ``SMOOTH_RATIO dh``, a step as :func:`find_smooth` and :func:`find_step_tops` have one).
+    ground : ndarray of bool, optional
+        The ground the lines along a step may run on besides the anchors (``bareearth:dtm``: the voted ground).
+    along_slope : float, optional
+        The terrain's steep slope (rise/run) whose drop over the distance a step along the line must exceed
+        besides ``step_m`` (``bareearth:dtm``: :func:`~.dtm.refine_slope`); None: no lines along a step.
+    cell_size : (float, float)
+        Metres (the distances across the line).
 
     Returns
     -------
@@ -846,7 +867,11 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
     tol_beyond = np.float32(tolerance_m * np.sqrt(14.0 / 6.0))
     flat = r * cols + c
     zc = zf[flat]
-    pairs = _step_top_lines(zf, rows, cols, r, c, tolerance_m)
+    pairs = _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m)
+    # the lines along a step, on the voted ground too (known2: grown with the cells given back)
+    along = [] if along_slope is None else _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m,
+                                                             along_slope, cell_size)
+    known2 = known if ground is None or not along else known | (np.asarray(ground, bool) & valid).ravel()
     # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below the
     # higher and above the lower by more than the tolerance of a continuation beyond (a cell on a slope steeper
     # than the ground's noise explains; an object on a slope stands above its uphill neighbour or near it)
@@ -865,6 +890,8 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
         new = np.zeros(r.size, bool)
         for i1, i2, i3, k in pairs:
             new[k] |= known[i1] & known[i2] & known[i3]
+        for i1, i2, i3, k in along:
+            new[k] |= known2[i1] & known2[i2] & known2[i3]
         for ia, ib, k in faces:
             new[k] |= known[ia] & known[ib]
         new &= ~done
@@ -872,8 +899,51 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells):
             break
         done |= new
         known[flat[new]] = True
+        known2[flat[new]] = True
     out.ravel()[flat[done]] = True
     return out
+
+
+def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_size):
+    """The lines along which the cells ``(r, c)`` lie on a step's top running along the line: per direction of
+    :data:`_LINE_STEPS`, ``(i1, i2, i3, k)``, the flat indices of the three cells on one side of candidate ``k``
+    that must be ground for it to be one (:func:`continue_lines`, :func:`find_step_tops`).
+
+    Along the direction, those three cells lie in a straight line (``|z(1) - 2 z(2) + z(3)|`` at most
+    ``tolerance_m``) and the cell within ``tolerance_m`` of their continuation ``2 z(1) - z(2)``, as in
+    :func:`_step_top_lines`; and the cell and the line's first cell each stand above one of their neighbours off
+    the line (any of the six not along it) by more than ``step_m`` plus ``slope`` times the distance to it: the
+    ground drops beside both by a step beyond what the terrain's steep slope gives. Any neighbour, not only the
+    one straight across: a wall at an angle to the raster runs in a staircase, so beside one cell the drop lies
+    across, beside the next diagonally (``benchmarks/sites.py``: with the drop straight across and on the same
+    side for both, the sites 4.87 %, hillside 3.16 / 2.83 / 3.44 / 5.39; with any, 4.78 %, 2.93 / 2.61 / 2.94 /
+    5.05, the matrix 2.568 -> 2.563 %)."""
+    tol = np.float32(tolerance_m)
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    zc = zf[r * cols + c]
+    lines = []
+    for dr, dc in _LINE_STEPS:
+        rr = [r + k * dr for k in (1, 2, 3)]
+        cc = [c + k * dc for k in (1, 2, 3)]
+        inside = (rr[2] >= 0) & (rr[2] < rows) & (cc[2] >= 0) & (cc[2] < cols)
+        i1, i2, i3 = (np.where(inside, a * cols + b, 0) for a, b in zip(rr, cc))
+        ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol)
+              & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol))
+        da = np.zeros(r.size, bool)
+        db = np.zeros(r.size, bool)
+        for er, ec in _LINE_STEPS:          # any direction not along the line
+            if (er, ec) in ((dr, dc), (-dr, -dc)):
+                continue
+            ra, ca, rb, cb = r + er, c + ec, r + dr + er, c + dc + ec
+            ina = ok & (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
+            inb = ok & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
+            ia, ib = np.where(ina, ra * cols + ca, 0), np.where(inb, rb * cols + cb, 0)
+            m = np.float32(step_m + slope * np.hypot(er * dy, ec * dx))
+            da |= ina & (zf[ia] < zc - m)
+            db |= inb & (zf[ib] < zf[i1] - m)
+        ok &= da & db
+        lines.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+    return lines
 
 
 def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
@@ -904,7 +974,8 @@ def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
     return pairs
 
 
-def find_step_tops(z, cells, ground, *, tolerance_m, step_m=0.0, smooth_m=None):
+def find_step_tops(z, cells, ground, *, tolerance_m, step_m=0.0, smooth_m=None, along_slope=None,
+                   cell_size=(1.0, 1.0)):
     """The ``cells`` on the upper edge of a step in the ``ground``: ground that the refinement keeps.
 
     The shape :func:`continue_lines` gives back (a retaining wall's or a quarry bench's top, a terrace's edge,
@@ -935,6 +1006,13 @@ def find_step_tops(z, cells, ground, *, tolerance_m, step_m=0.0, smooth_m=None):
         The line's two farther cells lie on smooth ground (:func:`find_smooth` at this height, judged on the
         ``ground``; ``bareearth:dtm``: ``SMOOTH_RATIO dh``, the bracketed test's): rough low vegetation whose
         heights happen to line up is not a terrace. None: not tested.
+    along_slope : float, optional
+        The top of a step running along the line is a step's top too (:func:`_along_step_lines`: the cell and
+        the line's first cell standing more than ``step_m`` plus this slope times the distance above a
+        neighbour off the line; the line's cells lie beside the step, so ``smooth_m`` does not apply:
+        the drop at two cells is the evidence). ``bareearth:dtm``: the terrain's steep slope. None: not looked for.
+    cell_size : (float, float)
+        Metres (the distances across the line).
 
     Returns
     -------
@@ -976,6 +1054,11 @@ def find_step_tops(z, cells, ground, *, tolerance_m, step_m=0.0, smooth_m=None):
             far[i3] = True
         known = find_smooth(z, far.reshape(z.shape), smooth_m, ground=ground).ravel()
         lines = [(i1, i2, i3, k[known[i2] & known[i3]]) for i1, i2, i3, k in lines]
+    if along_slope is not None:
+        known = (ground & np.isfinite(z)).ravel()
+        lines += [(i1[on], i2[on], i3[on], k[on]) for i1, i2, i3, k in
+                  _along_step_lines(z.ravel(), rows, cols, r, c, tolerance_m, step_m, along_slope, cell_size)
+                  for on in [known[i1] & known[i2] & known[i3]]]
     top = np.zeros(r.size, bool)
     for _, _, _, k in lines:
         top[k] = True
@@ -1216,7 +1299,7 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
 
 
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, pool=None):
+                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, pool=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -1247,6 +1330,9 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     along_ground : bool
         The floors along each line rise at the seen ground's own slope along it (:func:`line_slopes`), at most
         ``s``, instead of ``s`` (``bareearth:dtm``: on).
+    along_steps : bool
+        The step tops spared include the tops of steps running along a line of ground (:func:`find_step_tops`
+        with ``along_slope`` ``s``: beside a house at the back of a narrow terrace; ``bareearth:dtm``: on).
     pool : Executor, optional
         Threads that may take some of the bands and chunks of cells of :func:`seen_ground_gradient`,
         :func:`find_bracketed` and :func:`~.fill.find_edge_spikes`; the same result without.
@@ -1282,7 +1368,9 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     # continue_lines gives back, on the voted ground; a step, and the smoothness of the line's ground, as
     # find_smooth has them (a second difference above SMOOTH_RATIO dh is a step). Tested on the cells the tests
     # take (a few: a tested cell costs 0.4 us)
-    tops = find_step_tops(z, out, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh)
+    along = {"along_slope": s, "cell_size": cell_size} if along_steps else {}
+    tops = find_step_tops(z, out, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh,
+                          **along)
     out &= ~tops
     new = mask.copy()
     new[out] = OBJECT
@@ -1292,7 +1380,8 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     lt = None if line_tolerance_m is None or not np.isfinite(line_tolerance_m) else max(et, float(line_tolerance_m))
     fill = ((new == OBJECT) | (new == LOW)) & np.isfinite(z)
     spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
-    more = find_step_tops(z, spikes, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh)
+    more = find_step_tops(z, spikes, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh,
+                          **along)
     if more.any():
         tops |= more
         spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)

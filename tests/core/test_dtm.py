@@ -391,3 +391,21 @@ def test_exactly_flat_heights_are_filtered(box):
         want[40:60, 50:70] = OBJECT
     np.testing.assert_array_equal(r.mask, want)
     assert r.info["params"]["edge_tolerance_m"] > 0
+
+
+def test_hillside_keeps_the_wall_tops_beside_houses():
+    """issue 13 (core.synthetic_sites hillside, 2 m lowest point, 160 m): the true ground on a retaining wall's top
+    within two cells of a house (a step of more than 2 m down beside it), which RASCOR and the geodesic member
+    reject and the edge test took, is continued along the step: 67 % of it was ground before (type I 3.31 %),
+    85 % now (1.73 %)."""
+    from scipy import ndimage
+
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("hillside", 2.0, "lowest", extent_m=160)
+    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    g = s.mask == GROUND
+    drop = (s.dtm - ndimage.minimum_filter(s.dtm, 3)) > 2.0
+    strip = g & drop & ndimage.binary_dilation(~g, np.ones((5, 5), bool))
+    assert strip.sum() > 300
+    assert np.mean(res.mask[strip] == GROUND) > 0.78
+    assert np.mean((res.mask != GROUND) & g) < 0.025

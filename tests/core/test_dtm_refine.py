@@ -1083,3 +1083,119 @@ def test_refine_ground_with_a_pool_equals_one_thread(monkeypatch, band_rows, alo
     np.testing.assert_array_equal(info.pop("step_tops"), ref_info.pop("step_tops"))
     assert info == ref_info and info["refine_removed_share"] > 0 and info["refine_edge_removed_share"] > 0
     assert not along_ground or not np.array_equal(ref, flat)
+
+
+def _strip_beside_house():
+    """A terrace 3 m above ground falling away below its edge (row 5), a house (rows 1-4, columns 6-13) standing
+    one cell from the edge: the strip of the edge beside it (row 5, columns 6-13) has the house on its upper
+    side, so no line across the step finds ground there; the terrace is seen beyond both ends of the house."""
+    z = np.zeros((12, 20), np.float32)
+    z[:6] = 3.0
+    z[6:] = -0.2 * np.arange(1, 7, dtype=np.float32)[:, None]
+    house = np.zeros(z.shape, bool)
+    house[1:5, 6:14] = True
+    z[house] = 9.0
+    strip = np.zeros(z.shape, bool)
+    strip[5, 6:14] = True
+    return z, house, strip
+
+
+def test_continue_lines_along_a_step_beside_a_house():
+    """issue 13 (core.synthetic_sites hillside): the top of a retaining wall between a house and the wall's edge
+    is continued along the step from the terrace seen beyond the house (three ground cells in a line, the cell
+    and the line's first cell both above a neighbour off the line by a step): ground; a hedge on the
+    edge, a drop the terrain's slope explains, a roof's edge with no ground at its level, or without
+    ``along_slope``: not."""
+    z, house, strip = _strip_beside_house()
+    near = np.zeros(z.shape, bool)
+    near[:6, 3:17] = True                              # the terrace near the house: voted ground, not undisputed
+    anchors = ~house & ~strip & ~near
+    ground = ~house & ~strip
+    kw = dict(tolerance_m=0.5, reach_cells=12, step_m=1.0)
+    assert not dr.continue_lines(z, strip, anchors, **kw).any()            # across the step: the house hides it
+    assert not dr.continue_lines(z, strip, anchors, **kw, ground=ground).any()
+    got = dr.continue_lines(z, strip, anchors, **kw, ground=ground, along_slope=0.1)
+    np.testing.assert_array_equal(got, strip)                             # from both ends, 4 passes
+    for k in range(4):                                                    # every orientation
+        rot = [np.rot90(a, k) for a in (z, strip, anchors, ground)]
+        got = dr.continue_lines(rot[0], rot[1], rot[2], **kw, ground=rot[3], along_slope=0.1)
+        np.testing.assert_array_equal(got, rot[1])
+    short = dr.continue_lines(z, strip, anchors, **dict(kw, reach_cells=6), ground=ground, along_slope=0.1)
+    assert short.sum() == 4                                               # 2 passes: two cells from each end
+    # the ground must be given: the anchors alone stop three cells short of the house
+    assert not dr.continue_lines(z, strip, anchors, **kw, along_slope=0.1).any()
+    # a hedge on the strip stands above the line
+    hedge = z.copy()
+    hedge[5, 6:14] = 4.5
+    assert not dr.continue_lines(hedge, strip, anchors, **kw, ground=ground, along_slope=0.1).any()
+    # a drop within step_m plus the terrain's slope over the cell (1 + 2.5 x 1 m): no step
+    assert not dr.continue_lines(z, strip, anchors, **kw, ground=ground, along_slope=2.5).any()
+    # a roof's edge: the roof (3 m) stands on walls all round, its edge continued by no ground at its level
+    roof = np.zeros((12, 20), np.float32)
+    roof[1:6, 6:14] = 3.0
+    edge = np.zeros(roof.shape, bool)
+    edge[5, 6:14] = True
+    others = ~edge & (roof == 0)
+    assert not dr.continue_lines(roof, edge, others, **kw, ground=others, along_slope=0.1).any()
+
+
+def test_find_step_tops_along_a_step_beside_a_house():
+    """The same strip is a step's top along the step (find_step_tops with along_slope) and refine_ground with
+    along_steps keeps it, where the edge test along one line (the house hides the upper side, the lower ground
+    does not continue to it) took it; a bush on the strip is still taken."""
+    z, house, strip = _strip_beside_house()
+    ground = ~house
+    assert not dr.find_step_tops(z, strip, ground, tolerance_m=0.5, step_m=1.0, smooth_m=1.0)[5, 8:12].any()
+    tops = dr.find_step_tops(z, strip, ground, tolerance_m=0.5, step_m=1.0, smooth_m=1.0, along_slope=0.1)
+    np.testing.assert_array_equal(tops, strip)
+    vote = np.where(house, OBJECT, GROUND).astype(np.uint8)
+    kw = dict(tolerance_m=0.5, slope=0.1, reach_m=12.0, edge_tolerance_m=0.5, line_tolerance_m=0.5)
+    taken, _ = dr.refine_ground(z, vote, (1.0, 1.0), **kw)
+    assert (taken[strip] == OBJECT).sum() >= 4                           # the edge test takes the strip
+    kept, info = dr.refine_ground(z, vote, (1.0, 1.0), **kw, along_steps=True)
+    np.testing.assert_array_equal(kept, vote)
+    bush = z.copy()
+    bush[5, 9] = 4.5
+    mask, _ = dr.refine_ground(bush, vote, (1.0, 1.0), **kw, along_steps=True)
+    assert mask[5, 9] == OBJECT
+
+
+def test_along_steps_in_blocks_equal_one_pass():
+    """The lines along a step read at most one cell beside the line: continue_lines (with along_slope) and
+    refine_ground (with along_steps) in blocks equal the one pass on the hillside site."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("hillside", 2.0, "lowest", extent_m=160)
+    vote = s.mask.astype(np.uint8)
+    g = s.mask == GROUND
+    steps = ndimage.maximum_filter(s.dtm, 3) - ndimage.minimum_filter(s.dtm, 3) > 3.0
+    disputed, anchors = steps & g, ~steps & g
+    reach = 9
+    kw = dict(tolerance_m=0.5, reach_cells=reach, step_m=1.0, ground=g, along_slope=0.4, cell_size=s.cell_size)
+    whole = dr.continue_lines(s.dsm, disputed, anchors, **kw)
+    assert whole.sum() > 50
+    got = in_blocks(lambda wr, wc: dr.continue_lines(s.dsm[wr, wc], disputed[wr, wc], anchors[wr, wc],
+                                                     **dict(kw, ground=g[wr, wc])), s.dsm.shape, 40, reach)
+    np.testing.assert_array_equal(got, whole)
+    kw = dict(tolerance_m=0.5, slope=0.4, reach_m=12.0, edge_tolerance_m=0.5, line_tolerance_m=1.0, along_steps=True)
+    whole, _ = dr.refine_ground(s.dsm, vote, s.cell_size, **kw)
+    got = in_blocks(lambda wr, wc: dr.refine_ground(s.dsm[wr, wc], vote[wr, wc], s.cell_size, **kw)[0],
+                    s.dsm.shape, 48, dr.refine_halo(s.cell_size, 12.0))
+    np.testing.assert_array_equal(got, whole)
+
+
+def test_continue_lines_along_a_staircase_wall():
+    """A wall at an angle to the raster runs in a staircase: where its edge steps a row down, the drop beside the
+    line's first cell lies diagonally, not straight across, so the drop is looked for off the line in any
+    direction; the strip between the house and the wall's top is given back whole (the drop straight across
+    and on the same side for both cells gave back none of it)."""
+    i, j = np.mgrid[0:16, 0:24]
+    edge = 6 + j // 6                                  # the terrace's edge row steps down every 6 columns
+    z = np.where(i <= edge, np.float32(3.0), np.float32(-0.2) * (i - edge)).astype(np.float32)
+    house = (i >= 2) & (i < 7) & (j >= 8) & (j < 18)
+    z[house] = 9.0
+    strip = (i == edge) & (j >= 8) & (j < 18)
+    ground = ~house & ~strip
+    anchors = ground & ~((i <= edge) & (j >= 5) & (j < 21))
+    got = dr.continue_lines(z, strip, anchors, tolerance_m=0.5, reach_cells=18, step_m=1.0, ground=ground,
+                            along_slope=0.1)
+    np.testing.assert_array_equal(got, strip)
