@@ -135,7 +135,7 @@ def _shifted(a, pad, dr, dc, k):
     return a[r0:r0 + h, c0:c0 + w]
 
 
-def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells):
+def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells, min_cells=0):
     """Voted ground regions wider than the vote's windows that stand on steps above the ground around.
 
     Parameters
@@ -154,6 +154,10 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     max_cells : int
         Regions spanning more cells (rows or columns), or wider (mirrored at the raster's edge), are left
         alone (the stage's reach, see :func:`regions_halo`); 0 turns the stage off.
+    min_cells : int
+        Regions spanning at most this many cells (rows or columns; three times as many for a region the
+        raster's edge cuts, as far as its walls' run mirrored there reaches) are not candidates: for a caller
+        looking only for regions longer than a reach it already has (:func:`~.estimate.raised_region_span`).
 
     Returns
     -------
@@ -203,7 +207,8 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         # before repeats its regions with fewer steps (a subset of its objects): skipped
         rims = scales.rims(step_m)
         if rims != cut:
-            found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells)
+            found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells,
+                                     min_cells)
             objects |= found
             record(made)
         # the levels cut into a hillside, at the scales of a roof's unevenness (t, 2 t): their object part is cut
@@ -341,7 +346,7 @@ class _Scales:
         return lab, boxes
 
 
-def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells):
+def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells, min_cells=0):
     """The raised regions of :func:`find_raised_regions` cut at walls higher than ``step_m``."""
     shape = z.shape
     cell = float(min(cell_size))
@@ -351,7 +356,8 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
         # the stage reaches the regions spanning at most max_cells (its walls' run is tested below)
         spans = np.maximum(r1 - r0, c1 - c0)
         cut = (r0 == 0) | (c0 == 0) | (r1 == shape[0]) | (c1 == shape[1])
-        return (np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)
+        return ((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)
+                & (np.where(cut, 3, 1) * spans > min_cells))
 
     lab, boxes = scales.regions(step_m, keep)
     if lab is None:
