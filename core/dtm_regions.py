@@ -100,8 +100,10 @@ decision about any cell depends on cells within ``max_cells`` + :data:`REACH_CEL
 left alone there as in the single pass (the mirror at the edge is only ever used on regions
 cut by the raster's own edge). ``bareearth:dtm`` takes ``max_cells`` as twice the
 widest window of its members (:func:`.dtm.region_scales`): one more doubling of the windows;
-wider regions (a roof running off the raster, a mall wider than that) are left to the
-vote and, where known, to the user's object areas.
+or, where the data shows a longer raised region standing on walls (a hall of 180 x 260 m), that
+region's span (:func:`~.estimate.raised_region_span`, on the whole raster in the resolve, at most
+:data:`~.estimate.RAISED_REGION_SPAN_M`), the halo growing with it; longer regions (a roof running off
+the raster, a mall longer than that) are left to the vote and, where known, to the user's object areas.
 """
 import math
 
