@@ -231,6 +231,7 @@ from .dtm_refine import (
 )
 from .dtm_regions import find_detached_levels, find_raised_regions, regions_halo
 from .estimate import (
+    RAISED_REGION_SPAN_M,
     height_quantum,
     height_resolution,
     lowest_point_spread,
@@ -238,6 +239,8 @@ from .estimate import (
     noise_ground_level,
     noise_shared,
     noise_without_sampling,
+    raised_region_grid,
+    raised_region_span,
     repeated_height_share,
 )
 from .fill import fill_gaps
@@ -425,7 +428,10 @@ def region_scales(members, cell_size):
     taken one step further). The span is added to the filter's halo (:func:`dtm_halo`): the
     farthest a member looks (up to 7 times its window) would have doubled the halo and made a
     blocked run of a large raster 1.8 times as slow; twice the majority's window (64 m where
-    the morphological member measured 40 m) missed a 150 m warehouse.
+    the morphological member measured 40 m) missed a 150 m warehouse. :func:`resolve_dtm_params` widens
+    the span to the longest raised region standing on walls the raster shows
+    (:func:`~.estimate.raised_region_span`, at most :data:`~.estimate.RAISED_REGION_SPAN_M`): twice the
+    windows missed a 180 x 260 m hall (Type II 61 %).
     """
     cell = as_cell_size(cell_size)
     windows = sorted((float(members[n].get(k) or 0.0) for n, k in MEMBER_WINDOWS.items() if n in members),
@@ -562,6 +568,14 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     description["repeated_height_share"] = repeated
     description["ground_spread_m"] = spread if np.isfinite(spread) else None
     width, span = region_scales(members, cell)
+    # the stage reaches the longest raised region standing on walls the data shows (a hall longer than twice the
+    # members' widest window), at most RAISED_REGION_SPAN_M; the halo grows only when there is one
+    # (on block minima: a wall found there may stand one block further out at full resolution)
+    zs, cs, k = raised_region_grid(zm, cm)
+    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)))
+    found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
+    description["raised_region_span_m"] = round(found * min(cell), 1)
+    span = max(span, found)
     return {"members": members, "tolerance_m": tol, "support_cells": support, "refine_reach_m": reach,
             "edge_tolerance_m": edge_tolerance(tol, spread),
             "line_tolerance_m": continuation_tolerance(spread) if np.isfinite(spread) else tol,

@@ -100,8 +100,10 @@ decision about any cell depends on cells within ``max_cells`` + :data:`REACH_CEL
 left alone there as in the single pass (the mirror at the edge is only ever used on regions
 cut by the raster's own edge). ``bareearth:dtm`` takes ``max_cells`` as twice the
 widest window of its members (:func:`.dtm.region_scales`): one more doubling of the windows;
-wider regions (a roof running off the raster, a mall wider than that) are left to the
-vote and, where known, to the user's object areas.
+or, where the data shows a longer raised region standing on walls (a hall of 180 x 260 m), that
+region's span (:func:`~.estimate.raised_region_span`, on the whole raster in the resolve, at most
+:data:`~.estimate.RAISED_REGION_SPAN_M`), the halo growing with it; longer regions (a roof running off
+the raster, a mall longer than that) are left to the vote and, where known, to the user's object areas.
 """
 import math
 
@@ -135,7 +137,7 @@ def _shifted(a, pad, dr, dc, k):
     return a[r0:r0 + h, c0:c0 + w]
 
 
-def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells):
+def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells, min_cells=0):
     """Voted ground regions wider than the vote's windows that stand on steps above the ground around.
 
     Parameters
@@ -154,6 +156,10 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     max_cells : int
         Regions spanning more cells (rows or columns), or wider (mirrored at the raster's edge), are left
         alone (the stage's reach, see :func:`regions_halo`); 0 turns the stage off.
+    min_cells : int
+        Regions spanning at most this many cells (rows or columns; three times as many for a region the
+        raster's edge cuts, as far as its walls' run mirrored there reaches) are not candidates: for a caller
+        looking only for regions longer than a reach it already has (:func:`~.estimate.raised_region_span`).
 
     Returns
     -------
@@ -203,7 +209,8 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         # before repeats its regions with fewer steps (a subset of its objects): skipped
         rims = scales.rims(step_m)
         if rims != cut:
-            found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells)
+            found, made = _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells,
+                                     min_cells)
             objects |= found
             record(made)
         # the levels cut into a hillside, at the scales of a roof's unevenness (t, 2 t): their object part is cut
@@ -341,7 +348,7 @@ class _Scales:
         return lab, boxes
 
 
-def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells):
+def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m, max_cells, min_cells=0):
     """The raised regions of :func:`find_raised_regions` cut at walls higher than ``step_m``."""
     shape = z.shape
     cell = float(min(cell_size))
@@ -351,7 +358,8 @@ def _raised_at(z, valid, ground, drop, scales, cell_size, t, step_m, min_width_m
         # the stage reaches the regions spanning at most max_cells (its walls' run is tested below)
         spans = np.maximum(r1 - r0, c1 - c0)
         cut = (r0 == 0) | (c0 == 0) | (r1 == shape[0]) | (c1 == shape[1])
-        return (np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)
+        return ((np.where(cut, 2, 1) * spans * cell >= min_width_m) & (spans <= max_cells)
+                & (np.where(cut, 3, 1) * spans > min_cells))
 
     lab, boxes = scales.regions(step_m, keep)
     if lab is None:

@@ -12,10 +12,10 @@ from ..estimate import (
     GROUND_BLOCK_M,
     RAISED_REGION_MAX_M,
     RAISED_REGION_SPAN_M,
-    block_minima,
     ground_level_cells,
     ground_spread,
     noise_ground_level,
+    raised_region_grid,
     raised_region_window,
     sample_windows,
     terrain_slopes,
@@ -56,7 +56,6 @@ _FLOOR_HALF_M = 2.0
 #: Longest object by default, metres (profile runs and enclosed regions longer are ground).
 OBJECT_SIZE_M = 100.0
 #: The object size is derived on block minima of at most this many cells.
-_RESOLVE_CELLS = 1_000_000
 #: Tile edge (cells) and quantile of the tile spreads used for the ground's bend noise.
 _TILE = 16
 _SMOOTH_QUANTILE = 0.25
@@ -385,11 +384,10 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     region standing on walls higher than ``height_m`` (a hall: its profile runs and its enclosed region are
     longer than 100 m, and were ground), :func:`~bare_earth.core.estimate.raised_region_window` (1.25 x its
     width + 2 cells, regions up to 200 m wide spanning up to 400 m), at most 200 m; on block minima of at
-    most :data:`_RESOLVE_CELLS` cells."""
-    dx, dy = cell_size
-    k = max(1, int(np.ceil(np.sqrt(z.size / _RESOLVE_CELLS))))
-    zs = block_minima(z, k) if k > 1 else z
-    window = raised_region_window(zs, (dx * k, dy * k), height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M)
+    most :data:`~bare_earth.core.estimate.RAISED_REGION_CELLS` cells
+    (:func:`~bare_earth.core.estimate.raised_region_grid`)."""
+    zs, cs, _ = raised_region_grid(z, cell_size)
+    window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M)
     return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
 
 

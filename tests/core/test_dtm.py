@@ -44,7 +44,8 @@ def test_members_derived_side_by_side_as_one_after_the_other():
     repeated = repeated_height_share(s.dsm)
     spread = lowest_point_spread(noise, dtm_method.refine_slope(p["members"]), 1.0, repeated)
     assert p["input_description"] == dict(dtm_method.characterise(s.dsm, (1.0, 1.0)), ground_noise_m=noise,
-                                          repeated_height_share=repeated, ground_spread_m=spread)
+                                          repeated_height_share=repeated, ground_spread_m=spread,
+                                          raised_region_span_m=0.0)
     assert p["tolerance_m"] == float(p["members"]["morphological"]["dh_m"])
     # the edge test's tolerance: three standard deviations of a continuation on ground, at most t
     assert p["edge_tolerance_m"] == edge_tolerance(p["tolerance_m"], spread) <= p["tolerance_m"]
@@ -409,3 +410,28 @@ def test_hillside_keeps_the_wall_tops_beside_houses():
     assert strip.sum() > 300
     assert np.mean(res.mask[strip] == GROUND) > 0.78
     assert np.mean((res.mask != GROUND) & g) < 0.025
+
+
+def test_a_hall_longer_than_the_region_stage_reach_is_an_object_and_its_span_logged():
+    # a 160 x 250 m hall on gentle terrain at 1 m: longer than twice the members' widest window (the stage's
+    # reach by default), which left it to the vote as ground; the longest raised region the data shows widens
+    # the reach (and the halo) to it
+    y, x = grid(340)
+    ground = 100.0 + 0.02 * x + 2.0 * np.sin(y / 90.0)
+    hall = np.zeros(ground.shape, bool)
+    hall[45:295, 90:250] = True
+    z = noisy(np.where(hall, ground[hall].max() + 12.0, ground))
+    members = dtm_method.resolve_dtm_params(z, 1.0)["members"]
+    assert dtm_method.region_scales(members, (1.0, 1.0))[1] < 248          # the default reach: short of the hall
+    r = pipeline.run_array("dtm", z, 1.0)
+    p = r.info["params"] if "params" in r.info else r.info
+    assert 248 <= p["region_max_cells"] <= 400
+    assert 248 <= p["input_description"]["raised_region_span_m"] <= 252
+    assert (r.mask[hall] == OBJECT).mean() > 0.99
+    assert (r.mask[~hall] == OBJECT).mean() < 0.01
+    # gentle terrain without the hall: no raised region, the default reach and halo
+    flat = pipeline.run_array("dtm", noisy(ground), 1.0)
+    q = flat.info["params"] if "params" in flat.info else flat.info
+    assert q["input_description"]["raised_region_span_m"] == 0.0
+    assert q["region_max_cells"] == dtm_method.region_scales(q["members"], (1.0, 1.0))[1]
+    assert (flat.mask == OBJECT).mean() < 0.01

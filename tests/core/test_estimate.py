@@ -1035,3 +1035,28 @@ def test_height_resolution_is_float32_spacing_at_the_largest_height(dtype):
     f = np.array([[np.nan, 2.0]], np.float32)
     assert est.height_resolution(f) == float(np.spacing(np.float32(2.0)))
     assert math.isnan(est.height_resolution(np.full((2, 2), np.nan, np.float32)))
+
+
+def test_raised_region_span_counts_the_rows_or_columns_of_the_longest_raised_region():
+    # the hall of the test above (30 x 70 m) and a 20 x 20 m shed: the hall's 68 rows within its rims
+    z = np.zeros((90, 80), np.float32)
+    z[10:80, 15:45] = 8.0
+    z[30:50, 55:75] = 6.0
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=100.0) == 68
+    # only regions spanning more than min_cells are looked at: the hall's span, or none beyond it
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=100.0, min_cells=30) == 68
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=100.0, min_cells=68) == 0
+    # the hall beyond the span looked at: the shed's 18; none wider than min_width_m: none
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=60.0) == 18
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 40.0, max_width_m=50.0, max_span_m=100.0) == 0
+    assert est.raised_region_span(np.zeros((40, 40), np.float32), (1.0, 1.0), 2.0, 10.0) == 0
+
+
+def test_raised_region_grid_is_the_block_minima_of_at_most_the_cells_allowed(monkeypatch):
+    z = np.arange(36, dtype=np.float32).reshape(6, 6)
+    zs, cs, k = est.raised_region_grid(z, (1.0, 2.0))
+    assert zs is z and cs == (1.0, 2.0) and k == 1
+    monkeypatch.setattr(est, "RAISED_REGION_CELLS", 9)
+    zs, cs, k = est.raised_region_grid(z, (1.0, 2.0))
+    assert k == 2 and cs == (2.0, 4.0)
+    np.testing.assert_array_equal(zs, est.block_minima(z, 2))
