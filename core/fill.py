@@ -787,3 +787,114 @@ def _benchmark(n=4000, hole_fraction=0.2, seed=0):
 if __name__ == "__main__":
     import sys
     _benchmark(int(sys.argv[1]) if len(sys.argv) > 1 else 4000)
+
+
+#: The widest run of empty cells (metres, along a row or a column, bounded by data at both ends) that
+#: :func:`fill_empty` fills before a filter runs. Bounded so that the fill stays local (its reach joins
+#: every window's halo: blocks equal one pass) and a lake or a river wider than a building block stays
+#: nodata to the filters. Measured on the ISPRS samples with their empty cells left empty, mean total
+#: error of dtm / geodesic with runs of 16, 32, 64 m and unbounded: 1 m 3.72 / 4.41, 3.48 / 4.54,
+#: 3.35 / 4.31, 3.46 / 4.54; 2 m 4.83 / 5.15, 4.49 / 5.10, 4.39 / 4.90, 4.43 / 4.95 (samp41's gap of
+#: about 40 m needs more than 32 m; the whole raster's nearest fill gives 3.29 / 3.81 and 4.28 / 4.80).
+EMPTY_RUN_M = 64.0
+#: The eight neighbours a cell of :func:`fill_empty` takes its value from, first found first: the four
+#: sides, then the corners (a fixed order, so any window of a raster fills a cell the same way).
+_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+
+def empty_run_cells(cell_size):
+    """:data:`EMPTY_RUN_M` in cells of ``cell_size`` (metres, a number or ``(dx, dy)``; the larger side)."""
+    return max(1, int(EMPTY_RUN_M / float(np.max(cell_size)) + 1e-9))
+
+
+def fill_empty_reach(width):
+    """Cells beyond which the data do not change :func:`fill_empty`'s value at a cell, for runs of at
+    most ``width`` cells: a filled cell takes its value through at most ``(width + 1) // 2`` filled
+    neighbours, and whether each of them is filled depends on the data ``width`` cells along its row
+    and its column. A window read this much beyond the cells it must get right fills them exactly as
+    the whole raster would."""
+    return int(width) + (int(width) + 1) // 2 + 1
+
+
+def enclosed_empty(valid, width):
+    """Cells without data that lie in a run of at most ``width`` empty cells bounded by data at both
+    ends, along their row or their column.
+
+    The raster's outer nodata border (a run reaching the edge) and the inside of holes wider than
+    ``width`` both ways (a lake) are not enclosed.
+    """
+    valid = np.asarray(valid, bool)
+    out = np.zeros(valid.shape, bool)
+    for v, o in ((valid, out), (valid.T, out.T)):
+        n = v.shape[1]
+        idx = np.arange(n, dtype=np.int32)
+        last = np.where(v, idx, np.int32(-1))
+        np.maximum.accumulate(last, axis=1, out=last)
+        nxt = np.where(v, idx, np.int32(n))[:, ::-1]
+        nxt = np.minimum.accumulate(nxt, axis=1)[:, ::-1]
+        o |= ~v & (last >= 0) & (nxt < n) & (nxt - last <= int(width) + 1)
+    return out
+
+
+def fill_empty(z, width):
+    """The empty cells of a surface enclosed by data filled from their nearest data, before a filter runs.
+
+    A lidar DSM gridded as the lowest point per cell (PDAL ``writers.gdal output_type=min``, LAStools,
+    QGIS) leaves cells without a point empty: between the points where the cell is smaller than their
+    spacing, and on water, dark roofs and in occlusions. SMRF (Pingel et al. 2013) fills these cells of
+    its minimum surface before filtering; the filters here see the same: each empty cell in a run of at
+    most ``width`` cells bounded by data along its row or its column (:func:`enclosed_empty`) takes the
+    value of the nearest data cell (chessboard distance: the front grows one cell a round from the data,
+    each cell taking its first filled neighbour in the order of ``_NEIGHBOURS``), as the benchmarks'
+    nearest fill of the empty cells. The raster's outer nodata border and holes wider than ``width``
+    stay NaN. The result at a cell depends only on the data within :func:`fill_empty_reach` cells.
+
+    Measured on the ISPRS samples gridded at 1 m and 2 m, lowest point per cell, with the empty cells
+    left empty (32-85 % of the cells at 1 m): the nearest data's value keeps every filter's total error
+    within 0.1-0.5 points of the samples filled by the protocol (dtm 1 m 3.29 either way), the harmonic
+    fill of :func:`fill_gaps` costs 0.3-2.7 points at 1 m (dtm 4.29, geodesic 6.55), the lowest
+    neighbour 0.7-2.2 (dtm 4.02 at 1 m, 6.52 at 2 m: every filled cell a low blunder). The cells filled
+    stay nodata in every output (the pipeline keeps the input's nodata).
+
+    Parameters
+    ----------
+    z : ndarray of float32, 2-D
+        The surface, NaN = nodata. Not modified.
+    width : int
+        The widest run of empty cells filled (:func:`empty_run_cells`).
+
+    Returns
+    -------
+    filled : ndarray of float32
+        ``z`` itself when no cell is filled, else a copy with the enclosed empty cells filled.
+    count : int
+        The cells filled.
+    """
+    valid = np.isfinite(z)
+    todo = enclosed_empty(valid, width)
+    count = int(np.count_nonzero(todo))
+    if not count:
+        return z, 0
+    out = np.array(z, dtype=np.float32, copy=True)
+    known = valid
+    while todo.any():
+        rows = np.flatnonzero(todo.any(axis=1))
+        cols = np.flatnonzero(todo.any(axis=0))
+        r0, r1 = max(0, rows[0] - 1), min(z.shape[0], rows[-1] + 2)
+        c0, c1 = max(0, cols[0] - 1), min(z.shape[1], cols[-1] + 2)
+        t, k, o = todo[r0:r1, c0:c1], known[r0:r1, c0:c1], out[r0:r1, c0:c1]
+        h, w = t.shape
+        new = np.zeros_like(t)
+        val = np.zeros(t.shape, np.float32)
+        for dr, dc in _NEIGHBOURS:
+            dst = (slice(max(0, -dr), h - max(0, dr)), slice(max(0, -dc), w - max(0, dc)))
+            src = (slice(max(0, dr), h + min(0, dr)), slice(max(0, dc), w + min(0, dc)))
+            take = t[dst] & k[src] & ~new[dst]
+            val[dst][take] = o[src][take]
+            new[dst] |= take
+        if not new.any():           # cannot happen: every enclosed run has data at its ends
+            break
+        o[new] = val[new]
+        k[new] = True
+        t[new] = False
+    return out, count

@@ -229,7 +229,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         rec.update({"method": meth.name, "params": resolved, "sample": where,
                     "resolve_seconds": round(time.perf_counter() - t0, 3)})
     resolved = rec["params"]
-    halo = int(meth.halo(resolved, cell))
+    halo = pipeline.window_halo(meth, resolved, cell)   # the method's reach and the empty cells' fill
     align = plan.alignment(halo)
     rec.update({"halo_cells": halo, "align_cells": align,
                 "survey": {"tiles": len(index.tiles), "cells": index.cells, "shape": list(index.shape),
