@@ -797,14 +797,18 @@ if __name__ == "__main__":
 #: 3.35 / 4.31, 3.46 / 4.54; 2 m 4.83 / 5.15, 4.49 / 5.10, 4.39 / 4.90, 4.43 / 4.95 (samp41's gap of
 #: about 40 m needs more than 32 m; the whole raster's nearest fill gives 3.29 / 3.81 and 4.28 / 4.80).
 EMPTY_RUN_M = 64.0
+#: ... and at most this many cells: on finer grids (a drone DSM of 2.6 cm cells would make 64 m 2300
+#: cells) the fill's reach, added to every window's halo, stays within 193 cells (64 m at 0.5 m).
+EMPTY_RUN_MAX_CELLS = 128
 #: The eight neighbours a cell of :func:`fill_empty` takes its value from, first found first: the four
 #: sides, then the corners (a fixed order, so any window of a raster fills a cell the same way).
 _NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
 
 
 def empty_run_cells(cell_size):
-    """:data:`EMPTY_RUN_M` in cells of ``cell_size`` (metres, a number or ``(dx, dy)``; the larger side)."""
-    return max(1, int(EMPTY_RUN_M / float(np.max(cell_size)) + 1e-9))
+    """:data:`EMPTY_RUN_M` in cells of ``cell_size`` (metres, a number or ``(dx, dy)``; the larger side),
+    at most :data:`EMPTY_RUN_MAX_CELLS`."""
+    return max(1, min(EMPTY_RUN_MAX_CELLS, int(EMPTY_RUN_M / float(np.max(cell_size)) + 1e-9)))
 
 
 def fill_empty_reach(width):

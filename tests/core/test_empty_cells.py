@@ -75,6 +75,9 @@ def test_empty_run_cells_from_metres():
     assert empty_run_cells((1.0, 1.0)) == int(fill.EMPTY_RUN_M)
     assert empty_run_cells(2.0) == int(fill.EMPTY_RUN_M / 2)
     assert empty_run_cells(1000.0) == 1
+    assert empty_run_cells((0.5, 0.5)) == fill.EMPTY_RUN_MAX_CELLS == 128
+    assert empty_run_cells((0.0257, 0.0278)) == 128            # a drone DSM: the reach stays 193 cells
+    assert fill_empty_reach(128) == 193
 
 
 def _holey(dsm, seed=0, share=0.7):
