@@ -106,16 +106,22 @@ def warm_up_worker():
 
 
 def resolve_params(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
-                   params: Optional[Dict[str, Any]] = None, progress: Progress = None) -> Dict[str, Any]:
+                   params: Optional[Dict[str, Any]] = None, progress: Progress = None,
+                   fill_empty: bool = True) -> Dict[str, Any]:
     """All parameters of ``method`` for surface ``z``, data-derived ones filled in.
 
     ``progress(fraction)`` (optional) is fed by the method's estimates while they run; it
-    may raise :class:`~.common.Cancelled`, which stops the derivation there.
+    may raise :class:`~.common.Cancelled`, which stops the derivation there. ``fill_empty``:
+    derive them on ``z`` with its empty cells filled (:func:`fill_empty_cells`), as the filter
+    sees it; False for a surface whose nodata must stay (a survey's sample: crops filled one by
+    one, the nodata gutters between them kept).
     """
     meth = as_method(method)
     z, _ = without_far_heights(as_surface(z))
     cell = as_cell_size(cell_size)
-    return _resolve(meth, fill_empty_cells(z, cell)[0], cell, complete_params(meth, params), progress)
+    if fill_empty:
+        z = fill_empty_cells(z, cell)[0]
+    return _resolve(meth, z, cell, complete_params(meth, params), progress)
 
 
 def _resolve(meth, z, cell, params, progress):
