@@ -61,6 +61,13 @@ The rows (each with its figure of merit, total error in percent unless said othe
   scored exactly as the ``lidar/`` rows (:func:`point_cloud_rows`): the stand-in for the
   held-out dense tiles of issue 12 (urban at 1 m, mixed at 2 m, forest at 4 m), which the
   project does not have.
+* ``holes/isprs/<sample>/1m/min`` and ``holes/lidar/<file>/<cell>m*``: the DSM a user grids
+  with PDAL (``writers.gdal output_type=min``), LAStools or QGIS, whose cells without a point
+  stay nodata (issue 13; 32-85 % of the ISPRS 1 m cells, about 45 % of ``autzen_trim`` and
+  ``Topography`` at their default cell): the ISPRS samples at 1 m lowest point and two classified
+  files at their default cell, scored as the rows above with the DTM's nodata cells taken from
+  the nearest valid cell (every point lies in a cell with data; its bilinear sample and slope
+  read the cells around). The filters see what the pipeline makes of the empty cells.
 
 Floor, grid and raw. Each point row also shows ``floor``: the same scoring of the reference's
 own DTM (the truth's ground points, mean per cell on the row's grid, gaps filled
@@ -213,6 +220,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import isprs  # noqa: E402  (its bootstrap makes ``import bare_earth`` work)
 import numpy as np  # noqa: E402
+from scipy import ndimage  # noqa: E402
 
 from bare_earth.core.evaluate import compare_dtm, compare_masks, confusion  # noqa: E402
 from bare_earth.core.points import classify_points, rasterize_points, read_points  # noqa: E402
@@ -244,6 +252,12 @@ CANOPY_CELLS = (1.0, 4.0)
 SYNTHETIC_LIDAR = (("forest", 400.0, 10.0), ("mixed", 400.0, 10.0), ("urban", 400.0, 10.0),
                    ("forest-dense", "forest", 400.0, 10.0, {"crown_density": 10.0, "understory": 10.0}))
 SYNTHETIC_LIDAR_CELLS = (1.0, 2.0, 4.0)
+#: Rows with the cells that hold no point left empty (nodata), as PDAL (``writers.gdal
+#: output_type=min``), LAStools or QGIS grid a cloud (issue 13): the ISPRS samples at these (cell,
+#: reducer) (32-85 % of the 1 m cells empty) and these classified files at their default cell
+#: (about 45 % empty: a point per cell on average leaves many without one).
+HOLES_ISPRS = ((1.0, "min"),)
+HOLES_LIDAR = ("autzen_trim.laz", "Topography.laz")
 
 #: Published figures of other tools and of the held-out data (issue 12); notes, not rows.
 ANCHORS = """\
@@ -283,6 +297,18 @@ def truth_dtm(x, y, z, ground, gt, shape):
     if g.shape != tuple(shape):
         raise ValueError(f"truth grid {g.shape} differs from the row's {shape}")
     return np.asarray(fill_gaps(g), dtype=np.float32) if np.isnan(g).any() else g
+
+
+def _nearest_filled(dtm):
+    """A DTM whose nodata cells take the nearest valid cell's height: the DTM of a row whose empty
+    cells stay nodata, scored at its points (a point's bilinear sample and slope read the cells
+    around it, some of them empty)."""
+    dtm = np.asarray(dtm, np.float32)
+    bad = ~np.isfinite(dtm)
+    if not bad.any() or bad.all():
+        return dtm
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return dtm[tuple(idx)]
 
 
 def _point_score(truth, valid, classify, floor_dtm=None):
@@ -329,27 +355,32 @@ def isprs_cases(data, notes):
         return []
     out = []
     for sname, cloud in isprs.load_samples(folder).items():
-        truth = cloud.classification == 0
-        valid = np.ones(truth.shape, bool)
-        rows = []
-        for cell in ISPRS_CELLS:
-            for red in ISPRS_REDUCERS:
-                def build(cell=cell, red=red, cloud=cloud, truth=truth, valid=valid):
-                    z, gt = rasterize_points(cloud.x, cloud.y, cloud.z, cell, reducer=red,
-                                             fill_empty="nearest")
-
-                    def classify(dtm, gt=gt):
-                        return classify_points(cloud.x, cloud.y, cloud.z, dtm, gt, threshold_m=isprs.THRESHOLD_M,
-                                               slope_factor=isprs.SLOPE_FACTOR)
-                    score = _point_score(truth, valid, classify,
-                                         lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape))
-                    score.floor_dtm = lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape)
-                    score.point_cells = lambda: _point_cells(cloud.x, cloud.y, gt, z.shape)
-                    score.point_heights = lambda: np.asarray(cloud.z, np.float64)
-                    return z, (cell, cell), score
-                rows.append((f"isprs/{sname}/{cell:g}m/{red}", build))
+        rows = [(f"isprs/{sname}/{cell:g}m/{red}", _isprs_build(cloud, cell, red))
+                for cell in ISPRS_CELLS for red in ISPRS_REDUCERS]
         out.append((f"isprs/{sname}", "isprs", rows))
     return out
+
+
+def _isprs_build(cloud, cell, red, fill_empty=True):
+    """The build of an ISPRS row: the sample gridded at ``cell`` by ``red``, its empty cells from the
+    nearest (``fill_empty``) or left empty (nodata; the DTM's nodata cells nearest-filled for scoring)."""
+    truth = cloud.classification == 0
+    valid = np.ones(truth.shape, bool)
+
+    def build():
+        z, gt = rasterize_points(cloud.x, cloud.y, cloud.z, cell, reducer=red,
+                                 fill_empty="nearest" if fill_empty else None)
+
+        def classify(dtm, gt=gt):
+            return classify_points(cloud.x, cloud.y, cloud.z, dtm if fill_empty else _nearest_filled(dtm), gt,
+                                   threshold_m=isprs.THRESHOLD_M, slope_factor=isprs.SLOPE_FACTOR)
+        score = _point_score(truth, valid, classify,
+                             lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape))
+        score.floor_dtm = lambda: truth_dtm(cloud.x, cloud.y, cloud.z, truth, gt, z.shape)
+        score.point_cells = lambda: _point_cells(cloud.x, cloud.y, gt, z.shape)
+        score.point_heights = lambda: np.asarray(cloud.z, np.float64)
+        return z, (cell, cell), score
+    return build
 
 
 def _lidar_truth(cls):
@@ -357,11 +388,13 @@ def _lidar_truth(cls):
     return np.isin(cls, LIDAR_GROUND), ~excluded
 
 
-def point_cloud_rows(cloud, cells, notes, label, name):
+def point_cloud_rows(cloud, cells, notes, label, name, fill_empty=True):
     """The rows of one classified cloud at ``cells`` (metres): lowest point per cell through
     :mod:`bare_earth.core.pointflow`, every point scored against its ASPRS class
     (:func:`_lidar_truth`), the object points the point rule cannot tell from the reference's
-    own ground surface left out (counted in ``notes``); ``name(cell)`` names a row."""
+    own ground surface left out (counted in ``notes``); ``name(cell)`` names a row.
+    ``fill_empty`` False: the cells without a point stay nodata (the DTM's nodata cells
+    nearest-filled for scoring)."""
     from bare_earth.core import pointflow as pf
     truth, valid = _lidar_truth(cloud.classification)
     sx, sy, _ = pf.axis_scales(cloud)
@@ -373,8 +406,9 @@ def point_cloud_rows(cloud, cells, notes, label, name):
     ref = truth_dtm(cloud.x, cloud.y, cloud.z, truth, gref.geotransform, gref.shape) * np.float32(gref.z_to_m)
     near = (pf.classify_cloud(cloud, ref, gref.geotransform) == 0) & ~truth & valid
     valid = valid & ~near
-    notes.append(f"{label}: {int(near.sum())} of {int((~truth).sum())} object points lie within the point "
-                 "rule of the reference's own ground surface: left out")
+    if fill_empty:
+        notes.append(f"{label}: {int(near.sum())} of {int((~truth).sum())} object points lie within the point "
+                     "rule of the reference's own ground surface: left out")
     rows = []
     for cell in cells:
         if cell < LIDAR_FINEST * spacing:
@@ -383,10 +417,11 @@ def point_cloud_rows(cloud, cells, notes, label, name):
             continue
 
         def build(cell=cell, cloud=cloud, truth=truth, valid=valid):
-            g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=True)
+            g = pf.rasterize_cloud(cloud, cell, reducer="min", fill_empty=fill_empty)
 
             def classify(dtm, g=g, cloud=cloud):
-                return pf.classify_cloud(cloud, dtm, g.geotransform, lowest_cell_m=g.cell_size_m)
+                return pf.classify_cloud(cloud, dtm if fill_empty else _nearest_filled(dtm), g.geotransform,
+                                         lowest_cell_m=g.cell_size_m)
 
             def floor(g=g, cloud=cloud):
                 return truth_dtm(cloud.x, cloud.y, cloud.z, truth, g.geotransform, g.shape) * np.float32(g.z_to_m)
@@ -408,30 +443,65 @@ def lidar_cases(data, notes):
     from bare_earth.core import pointflow as pf
     out = []
     for p in files:
-        try:
-            cloud = read_points(p)
-        except (ValueError, ImportError) as exc:
-            notes.append(f"{p.name}: skipped, cannot be read ({exc})")
+        cloud = _lidar_cloud(p, notes)
+        if cloud is None:
             continue
-        if cloud.classification is None or not np.isin(cloud.classification, LIDAR_GROUND).any():
-            notes.append(f"{p.name}: skipped, no ground class (no truth)")
-            continue
-        if not cloud.crs and p.name in LIDAR_UNITS:
-            cloud.units_to_metre = cloud.z_units_to_metre = LIDAR_UNITS[p.name]
-            notes.append(f"{p.name}: no CRS in the header; unit {LIDAR_UNITS[p.name]:g} m from its provenance")
-        if len(cloud) > MAX_POINTS:
-            k = int(math.ceil(len(cloud) / MAX_POINTS))
-            from bare_earth.core.points import PointCloud
-            cloud = PointCloud(cloud.x[::k], cloud.y[::k], cloud.z[::k], cloud.classification[::k],
-                               crs=cloud.crs, units_to_metre=cloud.units_to_metre,
-                               z_units_to_metre=cloud.z_units_to_metre)
-            notes.append(f"{p.name}: thinned to every {k}-th point ({len(cloud)} points)")
         native = pf.default_cell_size_m(cloud)
         cells = [native] + [c for c in LIDAR_CELLS if abs(c - native) > 1e-9]
         rows = point_cloud_rows(cloud, cells, notes, p.name,
                                 lambda cell, native=native, stem=p.stem: f"lidar/{stem}/{cell:g}m"
                                 + ("*" if cell == native else ""))
         out.append((f"lidar/{p.stem}", "lidar", rows))
+    return out
+
+
+def _lidar_cloud(p, notes):
+    """The classified cloud of file ``p`` as its rows use it (its unit from the provenance when the
+    header has no CRS, thinned above :data:`MAX_POINTS`), or None (a note says why)."""
+    try:
+        cloud = read_points(p)
+    except (ValueError, ImportError) as exc:
+        notes.append(f"{p.name}: skipped, cannot be read ({exc})")
+        return None
+    if cloud.classification is None or not np.isin(cloud.classification, LIDAR_GROUND).any():
+        notes.append(f"{p.name}: skipped, no ground class (no truth)")
+        return None
+    if not cloud.crs and p.name in LIDAR_UNITS:
+        cloud.units_to_metre = cloud.z_units_to_metre = LIDAR_UNITS[p.name]
+        notes.append(f"{p.name}: no CRS in the header; unit {LIDAR_UNITS[p.name]:g} m from its provenance")
+    if len(cloud) > MAX_POINTS:
+        k = int(math.ceil(len(cloud) / MAX_POINTS))
+        from bare_earth.core.points import PointCloud
+        cloud = PointCloud(cloud.x[::k], cloud.y[::k], cloud.z[::k], cloud.classification[::k],
+                           crs=cloud.crs, units_to_metre=cloud.units_to_metre,
+                           z_units_to_metre=cloud.z_units_to_metre)
+        notes.append(f"{p.name}: thinned to every {k}-th point ({len(cloud)} points)")
+    return cloud
+
+
+def holes_cases(data, notes):
+    """Rows whose empty cells stay nodata (:data:`HOLES_ISPRS`, :data:`HOLES_LIDAR`): the filters see
+    the DSM a user grids without filling, the pipeline fills what it fills (issue 13). One source per
+    sample or file, so both halves hold some."""
+    out = []
+    folder = data / "isprs"
+    if folder.is_dir() and list(folder.glob("samp*.txt")):
+        for sname, cloud in isprs.load_samples(folder).items():
+            out.append((f"holes/{sname}", "holes",
+                        [(f"holes/isprs/{sname}/{cell:g}m/{red}", _isprs_build(cloud, cell, red, fill_empty=False))
+                         for cell, red in HOLES_ISPRS]))
+    from bare_earth.core import pointflow as pf
+    for fname in HOLES_LIDAR:
+        p = data / "lidar" / fname
+        if not p.is_file():
+            notes.append(f"holes/{p.stem} skipped: no {p}")
+            continue
+        cloud = _lidar_cloud(p, [])
+        if cloud is None:
+            continue
+        rows = point_cloud_rows(cloud, [pf.default_cell_size_m(cloud)], notes, f"holes/{p.stem}",
+                                lambda cell, stem=p.stem: f"holes/lidar/{stem}/{cell:g}m*", fill_empty=False)
+        out.append((f"holes/{p.stem}", "holes", rows))
     return out
 
 
@@ -521,9 +591,9 @@ def synthetic_lidar_cases(notes):
 
 def all_cases(data, notes):
     """``[(source, family, half, [(row name, build)])]`` in the fixed order of the halves (the
-    simulated lidar last, so the earlier sources keep their halves)."""
+    simulated lidar and the rows with empty cells last, so the earlier sources keep their halves)."""
     sources = (isprs_cases(data, notes) + lidar_cases(data, notes) + opengeos_cases(data, notes)
-               + synthetic_cases(notes) + synthetic_lidar_cases(notes))
+               + synthetic_cases(notes) + synthetic_lidar_cases(notes) + holes_cases(data, notes))
     return [(src, fam, "AB"[i % 2], rows) for i, (src, fam, rows) in enumerate(sources)]
 
 

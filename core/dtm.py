@@ -542,7 +542,8 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         split = 0.1 if n in (NOISE_MEMBER, SLOPE_MEMBER) else 0.0
         # the noise and dh_0 measured on the DSM itself: the vote's own thresholds at full resolution come from them
         given, noise = member_settings(n, z, cell, progress=sub_progress(share, 0.0, split))
-        return resolve_params(n, zm, cm, given, progress=sub_progress(share, split, 1.0)), noise
+        # (zm: the coarse grid of the surface the pipeline gave, its empty cells already filled)
+        return resolve_params(n, zm, cm, given, progress=sub_progress(share, split, 1.0), fill_empty=False), noise
 
     # the members measure the noise of the same ground-level cells: once (estimate.noise_shared)
     with noise_shared(), ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:

@@ -49,7 +49,7 @@ from functools import partial
 import numpy as np
 
 from .blocks import run_sharing
-from .common import report, touching
+from .common import report, touching, transpose
 
 #: Largest number of cells of the coarsest level (solved directly).
 _TOP_CELLS = 4096
@@ -787,3 +787,155 @@ def _benchmark(n=4000, hole_fraction=0.2, seed=0):
 if __name__ == "__main__":
     import sys
     _benchmark(int(sys.argv[1]) if len(sys.argv) > 1 else 4000)
+
+
+#: The widest run of empty cells (metres, along a row or a column, bounded by data at both ends) that
+#: :func:`fill_empty` fills before a filter runs. Bounded so that the fill stays local (its reach joins
+#: every window's halo: blocks equal one pass) and a lake or a river wider than a building block stays
+#: nodata to the filters. Measured on the ISPRS samples with their empty cells left empty, mean total
+#: error of dtm / geodesic with runs of 16, 32, 64 m and unbounded: 1 m 3.72 / 4.41, 3.48 / 4.54,
+#: 3.35 / 4.31, 3.46 / 4.54; 2 m 4.83 / 5.15, 4.49 / 5.10, 4.39 / 4.90, 4.43 / 4.95 (samp41's gap of
+#: about 40 m needs more than 32 m; the whole raster's nearest fill gives 3.29 / 3.81 and 4.28 / 4.80).
+EMPTY_RUN_M = 64.0
+#: ... and at most this many cells: on finer grids (a drone DSM of 2.6 cm cells would make 64 m 2300
+#: cells) the fill's reach, added to every window's halo, stays within 193 cells (64 m at 0.5 m).
+EMPTY_RUN_MAX_CELLS = 128
+#: The eight neighbours a cell of :func:`fill_empty` takes its value from, first found first: the four
+#: sides, then the corners (a fixed order, so any window of a raster fills a cell the same way).
+_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+
+def empty_run_cells(cell_size):
+    """:data:`EMPTY_RUN_M` in cells of ``cell_size`` (metres, a number or ``(dx, dy)``; the larger side),
+    at most :data:`EMPTY_RUN_MAX_CELLS`."""
+    return max(1, min(EMPTY_RUN_MAX_CELLS, int(EMPTY_RUN_M / float(np.max(cell_size)) + 1e-9)))
+
+
+def fill_empty_reach(width):
+    """Cells beyond which the data do not change :func:`fill_empty`'s value at a cell, for runs of at
+    most ``width`` cells: a filled cell takes its value through at most ``(width + 1) // 2`` filled
+    neighbours, and whether each of them is filled depends on the data ``width`` cells along its row
+    and its column. A window read this much beyond the cells it must get right fills them exactly as
+    the whole raster would."""
+    return int(width) + (int(width) + 1) // 2 + 1
+
+
+def enclosed_empty(valid, width):
+    """Cells without data that lie in a run of at most ``width`` empty cells bounded by data at both
+    ends, along their row or their column.
+
+    The raster's outer nodata border (a run reaching the edge) and the inside of holes wider than
+    ``width`` both ways (a lake) are not enclosed.
+    """
+    valid = np.ascontiguousarray(valid, dtype=bool)
+    return _enclosed_down(valid, width) | transpose(_enclosed_down(transpose(valid), width))
+
+
+def _enclosed_down(valid, width):
+    """:func:`enclosed_empty` down the columns only: two passes over the rows (each a vector across the
+    columns; numpy's accumulate along axis 0 walks the columns one by one)."""
+    n, m = valid.shape
+    last = np.empty((n, m), np.int32)                    # the row of the last data cell above (or at)
+    prev = np.full(m, -1, np.int32)
+    for i in range(n):
+        np.copyto(prev, np.int32(i), where=valid[i])
+        last[i] = prev
+    out = np.empty((n, m), bool)
+    nxt = np.full(m, n, np.int32)                        # the row of the next data cell below (or at)
+    run = np.empty(m, np.int32)
+    for i in range(n - 1, -1, -1):
+        np.copyto(nxt, np.int32(i), where=valid[i])
+        np.subtract(nxt, last[i], out=run)               # the run's length + 1 (ends included)
+        o = out[i]
+        np.less_equal(run, np.int32(int(width) + 1), out=o)
+        o &= last[i] >= 0
+        o &= nxt < n
+    out &= ~valid
+    return out
+
+
+def fill_empty(z, width):
+    """The empty cells of a surface enclosed by data filled from their nearest data, before a filter runs.
+
+    A lidar DSM gridded as the lowest point per cell (PDAL ``writers.gdal output_type=min``, LAStools,
+    QGIS) leaves cells without a point empty: between the points where the cell is smaller than their
+    spacing, and on water, dark roofs and in occlusions. SMRF (Pingel et al. 2013) fills these cells of
+    its minimum surface before filtering; the filters here see the same: each empty cell in a run of at
+    most ``width`` cells bounded by data along its row or its column (:func:`enclosed_empty`) takes the
+    value of the nearest data cell (chessboard distance: the front grows one cell a round from the data,
+    each cell taking its first filled neighbour in the order of ``_NEIGHBOURS``; the first round on
+    shifted slices of the whole raster, the next ones on the neighbours of the cells still empty), as
+    the benchmarks' nearest fill of the empty cells. The raster's outer nodata border and holes wider
+    than ``width`` stay NaN. The result at a cell depends only on the data within :func:`fill_empty_reach` cells.
+
+    Measured on the ISPRS samples gridded at 1 m and 2 m, lowest point per cell, with the empty cells
+    left empty (32-85 % of the cells at 1 m): the nearest data's value keeps every filter's total error
+    within 0.1-0.5 points of the samples filled by the protocol (dtm 1 m 3.29 either way), the harmonic
+    fill of :func:`fill_gaps` costs 0.3-2.7 points at 1 m (dtm 4.29, geodesic 6.55), the lowest
+    neighbour 0.7-2.2 (dtm 4.02 at 1 m, 6.52 at 2 m: every filled cell a low blunder). The cells filled
+    stay nodata in every output (the pipeline keeps the input's nodata).
+
+    Parameters
+    ----------
+    z : ndarray of float32, 2-D
+        The surface, NaN = nodata. Not modified.
+    width : int
+        The widest run of empty cells filled (:func:`empty_run_cells`).
+
+    Returns
+    -------
+    filled : ndarray of float32
+        ``z`` itself when no cell is filled, else a copy with the enclosed empty cells filled.
+    count : int
+        The cells filled.
+    """
+    valid = np.isfinite(z)
+    todo = enclosed_empty(valid, width)
+    count = int(np.count_nonzero(todo))
+    if not count:
+        return z, 0
+    h, w = z.shape
+    # padded by a cell of nothing known, so the neighbours of any cell are flat offsets
+    val = np.zeros((h + 2, w + 2), np.float32)
+    val[1:-1, 1:-1] = np.where(valid, z, np.float32(0))
+    known = np.zeros((h + 2, w + 2), bool)
+    known[1:-1, 1:-1] = valid
+    pending = np.zeros((h + 2, w + 2), bool)
+    pending[1:-1, 1:-1] = todo
+    del valid, todo
+    val, known, pending = val.ravel(), known.ravel(), pending.ravel()
+    offsets = [dr * (w + 2) + dc for dr, dc in _NEIGHBOURS]
+    # the first round on the whole raster (most empty cells of a lowest-point grid touch data):
+    # each neighbour a contiguous shifted slice of the padded arrays
+    a, b = w + 3, (h + 1) * (w + 2) - 1                   # the inner cells' flat range
+    got = np.zeros(b - a, bool)
+    take = np.zeros(b - a, np.float32)
+    for off in offsets:
+        k = known[a + off:b + off] & pending[a:b]
+        k &= ~got
+        np.copyto(take, val[a + off:b + off], where=k)
+        got |= k
+    np.copyto(val[a:b], take, where=got)
+    known[a:b] |= got
+    pending[a:b] &= ~got
+    del got, take
+    cells = np.flatnonzero(pending)                      # the rest: their neighbours gathered
+    del pending
+    while cells.size:
+        got = np.zeros(cells.size, bool)
+        take = np.empty(cells.size, np.float32)
+        for off in offsets:                              # the first known neighbour in that order
+            nb = cells + off
+            k = known[nb] & ~got
+            take[k] = val[nb[k]]
+            got |= k
+        if not got.any():                                # cannot happen: every run has data at its ends
+            break
+        done = cells[got]
+        val[done] = take[got]
+        known[done] = True
+        cells = cells[~got]
+    out = np.array(z, dtype=np.float32, copy=True)
+    filled = val.reshape(h + 2, w + 2)[1:-1, 1:-1]
+    np.copyto(out, filled, where=known.reshape(h + 2, w + 2)[1:-1, 1:-1] & ~np.isfinite(z))
+    return out, count

@@ -106,15 +106,21 @@ def warm_up_worker():
 
 
 def resolve_params(method: Union[str, Method], z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
-                   params: Optional[Dict[str, Any]] = None, progress: Progress = None) -> Dict[str, Any]:
+                   params: Optional[Dict[str, Any]] = None, progress: Progress = None,
+                   fill_empty: bool = True) -> Dict[str, Any]:
     """All parameters of ``method`` for surface ``z``, data-derived ones filled in.
 
     ``progress(fraction)`` (optional) is fed by the method's estimates while they run; it
-    may raise :class:`~.common.Cancelled`, which stops the derivation there.
+    may raise :class:`~.common.Cancelled`, which stops the derivation there. ``fill_empty``:
+    derive them on ``z`` with its empty cells filled (:func:`fill_empty_cells`), as the filter
+    sees it; False for a surface whose nodata must stay (a survey's sample: crops filled one by
+    one, the nodata gutters between them kept).
     """
     meth = as_method(method)
     z, _ = without_far_heights(as_surface(z))
     cell = as_cell_size(cell_size)
+    if fill_empty:
+        z = fill_empty_cells(z, cell)[0]
     return _resolve(meth, z, cell, complete_params(meth, params), progress)
 
 
@@ -142,17 +148,53 @@ def fill_dtm(z, mask, progress=None):
     return fill_gaps(z, fill=holes, progress=progress)
 
 
-def _process(meth, z, cell, params, aux, want_dtm=True, progress=None, workers=1):
+def fill_empty_cells(z, cell):
+    """``z`` with its empty cells enclosed by data filled from the nearest data (:func:`.fill.fill_empty`,
+    runs of at most :data:`.fill.EMPTY_RUN_M`), and the count filled: what every filter sees. The
+    outputs keep ``z``'s own nodata."""
+    from .fill import empty_run_cells, fill_empty
+    return fill_empty(z, empty_run_cells(cell))
+
+
+def window_halo(method, params, cell):
+    """The cells a window read from a file reaches beyond its core: the method's reach plus the
+    reach of :func:`fill_empty_cells` (its fill of the window's cells within the method's reach is
+    then the whole raster's)."""
+    from .fill import empty_run_cells, fill_empty_reach
+    return int(as_method(method).halo(params, cell)) + fill_empty_reach(empty_run_cells(cell))
+
+
+def filled_message(count):
+    """The log line of a run that filled ``count`` empty cells before filtering (None for none)."""
+    from .fill import EMPTY_RUN_M
+    if not count:
+        return None
+    return (f"{count} empty cell(s) enclosed by data (runs of at most {EMPTY_RUN_M:g} m along a row or a column) "
+            "filled from the nearest data before filtering; they stay nodata in every output.")
+
+
+def _process(meth, z, cell, params, aux, want_dtm=True, progress=None, workers=1, filled=None):
     """Filter one window and fill its DTM (``workers``: the threads a method with
-    ``Method.threads`` may use inside it)."""
+    ``Method.threads`` may use inside it). ``filled``: ``z`` with its empty cells filled
+    (:func:`fill_empty_cells`), when the caller has it; the method filters it, the outputs keep
+    ``z``'s nodata."""
+    if filled is None:
+        filled = fill_empty_cells(z, cell)[0]
     inner = {"workers": int(workers)} if meth.threads else {}
-    res = meth.run(z, cell, progress=sub_progress(progress, 0.0, FILTER_SHARE), **params, **aux, **inner)
+    res = meth.run(filled, cell, progress=sub_progress(progress, 0.0, FILTER_SHARE), **params, **aux, **inner)
     mask = np.asarray(res.mask, dtype=np.uint8)
     if mask.shape != z.shape:
         raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a "
                            f"surface of shape {z.shape}")
     valid = np.isfinite(z)
     mask[~valid] = NODATA
+    if filled is not z and np.count_nonzero(np.isfinite(filled)) > np.count_nonzero(valid):
+        # cells filled before filtering: nodata in the side products too
+        for name, (_, _, nod) in meth.extras.items():
+            if nod is not None and name in res.extras:
+                a = np.array(res.extras[name], copy=False)
+                a[..., ~valid] = nod
+                res.extras[name] = a
     dtm = None
     if want_dtm and res.dtm is not None:
         dtm = np.asarray(res.dtm, dtype=np.float32)
@@ -269,7 +311,8 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
             raise ValueError(f"aux input {k!r} has shape {np.shape(a)} but the DSM has {z.shape}: "
                              "rasterise it on the DSM's grid.")
     t0 = time.perf_counter()
-    params = _resolve(meth, z, cell, complete_params(meth, params), sub_progress(progress, 0.0, 0.02))
+    zf, n_filled = fill_empty_cells(z, cell)   # the whole raster's fill: its windows are cut from it
+    params = _resolve(meth, zf, cell, complete_params(meth, params), sub_progress(progress, 0.0, 0.02))
     halo = int(meth.halo(params, cell))
     mask = np.full(z.shape, NODATA, np.uint8)
     dtm = np.full(z.shape, np.nan, np.float32)
@@ -288,7 +331,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
             return
         ab = {k: (None if a is None else np.asarray(a)[sl]) for k, a in aux.items()}
         res, m, d = _process(meth, zb, cell, params, ab, want_dtm, block_progress,
-                             workers if len(windows) == 1 else 1)
+                             workers if len(windows) == 1 else 1, filled=zf[sl])
         c = blocks.crop(outer, core)
         dst = (slice(core[0], core[1]), slice(core[2], core[3]))
         mask[dst] = m[c]
@@ -310,6 +353,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
     info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
             "warnings": [far_heights_message(n_far)] if n_far else []}
     info.update(_merge_info(infos, weights))
+    info["empty_cells_filled"] = n_filled
     info["classes_percent"] = class_shares(_code_counts(mask))
     info["seconds"] = time.perf_counter() - t0
     report(progress, 1.0)
@@ -569,7 +613,7 @@ def _derive_params(info, run):
             run.log("Warning: " + suspect + in_window)
     for note in info.notes:
         run.log(note)
-    params = _resolve(run.meth, zr, info.cell_size_m, run.params,
+    params = _resolve(run.meth, fill_empty_cells(zr, info.cell_size_m)[0], info.cell_size_m, run.params,
                       sub_progress(run.progress, READ_SHARE * RESOLVED, RESOLVED))
     whole = zr if zr.shape == info.shape else None   # the raster itself: not read twice
     if whole is None:
@@ -640,9 +684,10 @@ class _BlockWriter:
         self.io_lock = threading.Lock()
         self.counts, self.infos, self.weights = {}, [], []
         self.far_cells = 0
+        self.filled = 0      # empty cells filled before filtering (fill_empty_cells), in the blocks' cores
 
     def __call__(self, core, outer, result, progress=None):
-        m, d, zc, res_extras, res_info, n_far = result
+        m, d, zc, res_extras, res_info, n_far, n_filled = result
         h, w = core[1] - core[0], core[3] - core[2]
         with self.io_lock:
             _write_block(self.out, self.meth, core, m, d, zc, self.scale, self.float_nodata, res_extras, h, w)
@@ -656,6 +701,7 @@ class _BlockWriter:
                 self.infos.append(res_info)
                 self.weights.append(h * w)
             self.far_cells += n_far
+            self.filled += n_filled
 
 
 def _run_file(info, run, pool):
@@ -663,7 +709,7 @@ def _run_file(info, run, pool):
     the windows, filter them into the outputs, summarise."""
     cell = info.cell_size_m
     params, whole = _derive_params(info, run)
-    halo = int(run.meth.halo(params, cell))
+    halo = window_halo(run.meth, params, cell)
     budget = memory.window_budget() if info.cells > IN_MEMORY_CELLS and run.block is None else None
     bshape = plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, budget=budget)
@@ -713,6 +759,8 @@ def _run_file(info, run, pool):
     warnings = list(info.warnings) + ([far_heights_message(far, info.nodata)] if far else [])
     if far:                 # whole or in blocks, the log (QGIS's warnings) says it
         run.log("Warning: " + far_heights_message(far, info.nodata))
+    if filled_message(writer.filled):
+        run.log(filled_message(writer.filled))
     empty = no_ground_message(writer.counts, run.outputs)
     if empty:
         warnings.append(empty)
@@ -720,6 +768,7 @@ def _run_file(info, run, pool):
     result = {"method": run.meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
               "cell_size_m": cell, "warnings": warnings, "notes": list(info.notes)}
     result.update(_merge_info(writer.infos, writer.weights))
+    result["empty_cells_filled"] = writer.filled
     result["classes_percent"] = class_shares(writer.counts)
     result["seconds"] = time.perf_counter() - run.t0
     with contextlib.suppress(Cancelled):   # the outputs are in place: a cancel now comes too late
@@ -798,12 +847,17 @@ class _BlockJob:
         h, w = core[1] - core[0], core[3] - core[2]
         if not np.isfinite(zb).any():
             return (np.full((h, w), NODATA, np.uint8), np.full((h, w), np.nan, np.float32),
-                    zb[c] if self.want_z else None, {}, None, n_far)
-        res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress, self.workers)
+                    zb[c] if self.want_z else None, {}, None, n_far, 0)
+        filled, n_filled = fill_empty_cells(zb, self.cell)
+        if n_filled:
+            n_filled = int(np.count_nonzero(np.isfinite(filled[c]))) - int(np.count_nonzero(np.isfinite(zb[c])))
+        res, m, d = _process(meth, zb, self.cell, self.params, aux, self.want_dtm, progress, self.workers,
+                             filled=filled)
+        del filled
         extras = {k: (np.asarray(a)[c] if np.ndim(a) == 2 else np.asarray(a)[(slice(None),) + c])
                   for k, a in res.extras.items()}
         d = d[c] if d is not None else np.full((h, w), np.nan, np.float32)
-        return (m[c], d, zb[c] if self.want_z else None, extras, res.info, n_far)
+        return (m[c], d, zb[c] if self.want_z else None, extras, res.info, n_far, n_filled)
 
 
 def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):

@@ -99,7 +99,8 @@ def read_sample(index, info, max_cells=None):
 
     The whole survey when small (``max_cells``, default :data:`plan.SAMPLE_CELLS`), else
     central crops of tiles spread over it, laid side by side with nodata between them
-    (:func:`plan.sample_layout`). Nodata cells are NaN (the estimates never see them), and a
+    (:func:`plan.sample_layout`; each crop's empty cells enclosed by data filled as the filters
+    see them, :func:`pipeline.fill_empty_cells`). Nodata cells are NaN (the estimates never see them), and a
     chosen tile whose crop holds no data at all (sea, a hole in the survey) gives way to the
     nearest tile whose crop does, so the sample holds the survey's data wherever it lies.
     """
@@ -117,7 +118,8 @@ def read_sample(index, info, max_cells=None):
             r0, r1, c0, c1 = plan.central_crop(cand, side)
             crop = info.read((r0, r1, c0, c1))
             if np.isfinite(crop).any():
-                z[r:r + r1 - r0, c:c + c1 - c0] = crop
+                # its empty cells filled as a filter sees them; the gutters between the crops stay nodata
+                z[r:r + r1 - r0, c:c + c1 - c0] = pipeline.fill_empty_cells(crop, info.cell_size_m)[0]
                 used.add(cand.name)
                 names.append(cand.name)
                 replaced += cand is not tile
@@ -222,14 +224,14 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs)):
             if suspect:
                 log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
-        resolved = pipeline.resolve_params(meth, zs, cell, user)
+        resolved = pipeline.resolve_params(meth, zs, cell, user, fill_empty=zs.shape == tuple(index.shape))
         if zs.shape != tuple(index.shape):      # a sample: heights of the whole survey beyond it
             resolved = pipeline.widen_params(meth, info, resolved, user, log)
         del zs
         rec.update({"method": meth.name, "params": resolved, "sample": where,
                     "resolve_seconds": round(time.perf_counter() - t0, 3)})
     resolved = rec["params"]
-    halo = int(meth.halo(resolved, cell))
+    halo = pipeline.window_halo(meth, resolved, cell)   # the method's reach and the empty cells' fill
     align = plan.alignment(halo)
     rec.update({"halo_cells": halo, "align_cells": align,
                 "survey": {"tiles": len(index.tiles), "cells": index.cells, "shape": list(index.shape),

@@ -80,8 +80,10 @@ def filter_array(method, z, cell_size, params):
 
     The per-window step of the pipeline's blocks: ``Method.run`` with the parameters
     resolved once for the whole survey (a resolve on each window would derive other values
-    per tile: seams), nodata cells coded 255, the method's own DTM when it returns a usable
-    one, else :func:`pipeline.fill_dtm`.
+    per tile: seams) on the window with its empty cells enclosed by data filled
+    (:func:`pipeline.fill_empty_cells`; the survey's halo covers that fill's reach), nodata
+    cells coded 255, the method's own DTM when it returns a usable one, else
+    :func:`pipeline.fill_dtm`.
 
     Returns
     -------
@@ -89,7 +91,8 @@ def filter_array(method, z, cell_size, params):
     """
     meth = pipeline.as_method(method)
     z = as_surface(z)
-    res = meth.run(z, as_cell_size(cell_size), progress=None, **params)
+    cell = as_cell_size(cell_size)
+    res = meth.run(pipeline.fill_empty_cells(z, cell)[0], cell, progress=None, **params)
     mask = np.array(res.mask, dtype=np.uint8)
     if mask.shape != z.shape:
         raise RuntimeError(f"method {meth.name!r} returned a mask of shape {mask.shape} for a window of "

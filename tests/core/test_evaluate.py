@@ -487,3 +487,32 @@ def test_kappa_of_a_perfect_classification_is_100_exactly():
                   np.array([True] * 60 + [False] * 40))
     assert r["kappa"] == pytest.approx(100 * 0.34 / 0.49)
     assert math.isnan(confusion(np.ones(5, bool), np.ones(5, bool))["kappa"])
+
+
+def test_generalise_rows_with_empty_cells_keep_them_and_come_last(tmp_path, monkeypatch):
+    """The rows whose empty cells stay nodata (issue 13) come after every other source (the others keep
+    their halves), hold NaN where no point fell and the filled row's heights elsewhere, and score a DTM
+    with nodata cells (taken from the nearest for scoring)."""
+    from bare_earth.core import pipeline
+    gen = _load_benchmark("generalise")
+    (tmp_path / "isprs").mkdir()
+    _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 3)
+    monkeypatch.setattr(gen, "SYNTHETIC_LIDAR", ())
+    notes = []
+    cases = gen.all_cases(tmp_path, notes)
+    monkeypatch.setattr(gen, "holes_cases", lambda data, notes: [])
+    before = gen.all_cases(tmp_path, [])
+    assert [c[:3] for c in cases[:len(before)]] == [c[:3] for c in before]
+    assert [(src, fam) for src, fam, _, _ in cases[len(before):]] == [("holes/samp11", "holes")]
+    assert any(n.startswith("holes/autzen_trim skipped") for n in notes)
+    (name, build), = cases[-1][3]
+    assert name == "holes/isprs/samp11/1m/min"
+    z, cell, score = build()
+    filled = _isprs_rows(gen, tmp_path)["isprs/samp11/1m/min"]()[0]
+    data = np.isfinite(z)
+    assert 0.1 < 1 - data.mean() < 0.5 and np.array_equal(z[data], filled[data])
+    res = pipeline.run_array("morphological", z, cell)
+    assert np.isnan(res.dtm).any()
+    total = score(res)["total"]
+    assert np.isfinite(total) and total < 5.0
+    assert score(SimpleNamespace(dtm=z))["total"] > 5.0       # the raw DSM: the building is no ground

@@ -292,7 +292,10 @@ def test_run_file_blocked_equals_one_pass(tmp_path, workers):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
 
 
-def test_run_file_block_all_nodata(tmp_path):
+def test_run_file_block_all_nodata(tmp_path, monkeypatch):
+    from bare_earth.core import fill
+    monkeypatch.setattr(fill, "EMPTY_RUN_M", 2.0)      # the fill of empty cells reaches 4 cells
+    assert pipeline.window_halo(ABOVE, {}, (1.0, 1.0)) == 1 + 4
     z = np.full((160, 160), -9999, np.float32)
     z[:8, :8] = 1.0
     z[2, 2] = 30.0
@@ -694,7 +697,9 @@ def test_run_file_above_in_memory_cells_blocked_equals_one_pass(tmp_path, monkey
     method using threads inside a window runs them one at a time with the run's threads; the mask
     equals one pass and the DTM's ground cells too (its filled cells nearly: 290 of 25 M differ by more
     than 5 cm, the fill of a hole crossing a block's edge seeing the halo only)."""
+    from bare_earth.core import fill
     from bare_earth.core.synthetic import make_scene
+    monkeypatch.setattr(fill, "EMPTY_RUN_M", 2.0)      # the fill of empty cells reaches 4 cells (none here)
     seen = []
     meth = Method(name="opening", run=lambda z, c, **k: _opening_run(z, c, seen=seen, **k), resolve=_resolve,
                   halo=lambda p, c: 8, threads=True)

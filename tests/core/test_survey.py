@@ -147,6 +147,32 @@ def test_sample_of_a_large_survey_takes_its_crops_where_the_data_is(tmp_path):
     assert "replaced by the nearest with data" in where and all(n in where for n in heights)
 
 
+
+def test_sample_crops_have_their_empty_cells_filled_and_the_gutters_stay_nodata(tmp_path):
+    """The crops of a large survey's sample hold their tiles' heights with the empty cells enclosed by data
+    filled, as the filters see them (a lowest-point grid's cells without a point); the nodata gutters
+    between the crops are no empty cells to fill (they would join two crops by a false edge)."""
+    from bare_earth.core.survey.run import read_sample
+    rng = np.random.default_rng(0)
+    tiles, gt = [], (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+    for i in range(5):
+        for j in range(5):
+            g = (gt[0] + 32 * j, 1.0, 0.0, gt[3] - 32 * i, 0.0, -1.0)
+            a = (100.0 + 0.1 * rng.random((32, 32))).astype(np.float32)
+            a[rng.random(a.shape) < 0.3] = -9999.0
+            tiles.append(str(grid.write_array(tmp_path / f"t{i}{j}.tif", a, g, 32632, nodata=-9999.0)))
+    index = index_tiles(tiles)
+    vrt = survey_io.build_vrt(tmp_path / "survey.vrt", [t.path for t in index.tiles], index.vrt_nodata)
+    z, where = read_sample(index, grid.open_dsm(vrt), max_cells=16 * 20 * 20)
+    side, gut = 20 - plan.SAMPLE_GUTTER, plan.SAMPLE_GUTTER
+    assert z.shape == (4 * side + 3 * gut,) * 2
+    crops = np.zeros(z.shape, bool)
+    for k in range(4):
+        crops[k * (side + gut):k * (side + gut) + side, :] = True
+    crops &= crops.T
+    assert np.isfinite(z[crops]).mean() > 0.95 and np.isnan(z[~crops]).all()   # 30 % empty in the tiles
+    assert ((z[crops & np.isfinite(z)] >= 100.0) & (z[crops & np.isfinite(z)] <= 100.1)).all()
+
 # -- checks before any work --------------------------------------------------------------------
 def test_index_places_tiles_on_the_survey_grid(survey):
     index = index_tiles(survey["tiles"][::-1])            # any order in, reading order out
