@@ -1606,7 +1606,7 @@ PARAMS = (
           minimum=0.0, maximum=_MAX_OUTLINE_SLOPE, advanced=True),
     Param("wide_slope", "float", None,
           "Terrain slope (rise/run) the progressive threshold grows by beyond wide_radius_m: t_k = s R + "
-          "wide_slope (r_k - R). Empty: the 90th-percentile slope of the 40 m block-minimum surface, at most "
+          "wide_slope (r_k - R). Empty: the median slope of the 40 m block-minimum surface, at most "
           "slope (slope itself when slope is given or the raster is too small to measure it). Progressive form only.",
           minimum=0.0, maximum=100.0, advanced=True),
     Param("wide_radius_m", "float", None,
