@@ -890,6 +890,8 @@ def fill_empty(z, width):
         The cells filled.
     """
     valid = np.isfinite(z)
+    if valid.all():                                       # nothing empty (most DSMs): no pass over the rows
+        return z, 0
     todo = enclosed_empty(valid, width)
     count = int(np.count_nonzero(todo))
     if not count:
