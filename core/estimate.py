@@ -1364,7 +1364,8 @@ def object_widths(objects, cell_size, area_share=0.98, nodata=None, border_outsi
 RAISED_REGION_MAX_M = 200.0
 
 
-def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None):
+def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
+                        across=True):
     """Width, metres, of the widest raised region standing on walls that is wider than ``min_width_m``.
 
     A flat roof wider than a filter's largest window (a roof over most of a tile, running off the
@@ -1391,12 +1392,16 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
     max_span_m : float, optional
         The longest region looked at (rows or columns spanned, and its walls' run), metres; default
         ``max_width_m``. A hall 115 m wide and 242 m long spans more than 200 m.
+    across : bool
+        False: a region meeting two opposite sides of the raster (running across it, continuing beyond
+        both: a terrace's upper level across a tile) is not reported.
     """
     return float(max((d["width_m"] for d in _raised_region_objects(z, cell_size, height_m, min_width_m,
-                                                                   max_width_m, max_span_m)), default=0.0))
+                                                                   max_width_m, max_span_m, across=across)),
+                     default=0.0))
 
 
-def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells=0):
+def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells=0, across=True):
     """The decisions of :func:`~bare_earth.core.dtm_regions.find_raised_regions` (every cell taken as ground)
     that found a raised region standing on walls, at most ``max_width_m`` wide, spanning at most
     ``max_span_m`` (default ``max_width_m``; with ``min_cells``, only those spanning more cells)."""
@@ -1407,7 +1412,11 @@ def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max
     _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), (dx, dy), tolerance_m=height_m,
                                        min_width_m=min_width_m, max_cells=int(math.ceil(span / min(dx, dy))),
                                        min_cells=int(min_cells))
-    return [d for d in decisions if d["object"] and d["width_m"] <= cap]
+    h, w = np.shape(z)
+
+    def runs_across(b):
+        return (b[0] <= 0 and b[2] >= h) or (b[1] <= 0 and b[3] >= w)
+    return [d for d in decisions if d["object"] and d["width_m"] <= cap and (across or not runs_across(d["bbox"]))]
 
 
 def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
@@ -1467,11 +1476,12 @@ def raised_region_grid(z, cell_size):
 RAISED_REGION_MARGIN = 1.25
 
 
-def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None):
+def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
+                         across=True):
     """The window, metres, that reaches across the widest raised region standing on walls wider than
     ``min_window_m`` (:func:`raised_region_width`, regions spanning up to ``max_span_m``, default
     ``max_width_m``): :data:`RAISED_REGION_MARGIN` x its width + 2 cells, at most ``max_width_m``; 0 when
-    there is none.
+    there is none. ``across``: as :func:`raised_region_width`'s.
 
     Examples
     --------
@@ -1480,7 +1490,7 @@ def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISE
     >>> raised_region_window(z, (1.0, 1.0), 2.0, 64.0)
     148.25
     """
-    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m, max_span_m)
+    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m, max_span_m, across=across)
     if wide <= 0:
         return 0.0
     return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))

@@ -385,9 +385,11 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     longer than 100 m, and were ground), :func:`~bare_earth.core.estimate.raised_region_window` (1.25 x its
     width + 2 cells, regions up to 200 m wide spanning up to 400 m), at most 200 m; on block minima of at
     most :data:`~bare_earth.core.estimate.RAISED_REGION_CELLS` cells
-    (:func:`~bare_earth.core.estimate.raised_region_grid`)."""
+    (:func:`~bare_earth.core.estimate.raised_region_grid`). A region running across the raster (meeting two
+    opposite sides) widens nothing: its extent is not seen, and the profiles, mirrored at both sides, would
+    then take a terrace's upper level across a tile for a roof."""
     zs, cs, _ = raised_region_grid(z, cell_size)
-    window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M)
+    window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False)
     return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
 
 
