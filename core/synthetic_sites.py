@@ -244,6 +244,16 @@ def _trees(site, rng, density, h_range, keep=None, shrub=False):
         site.plant(rng, x, y, h, r, PASS_TREE)
 
 
+def _trees_and_cars(site, rng, free, tree_density, car_density):
+    """Trees 5-16 m high and cars (4.5 x 1.8 m, 1.4-1.7 m high) on the cells ``free`` with no top yet."""
+    def open_ground(x, y):
+        return site.at(free, x, y) & ~np.isfinite(site.at(site.top, x, y))
+    _trees(site, rng, tree_density, (5.0, 16.0), open_ground)
+    x, y = site.scatter(rng, car_density, open_ground)
+    for cx, cy in zip(x, y):
+        site.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
+
+
 def _gable(pitch, width):
     return lambda u, v: np.clip(width / 2 - np.abs(v), 0, None) * pitch
 
@@ -485,14 +495,7 @@ def _bridge(s, rng):
     for _ in range(3):                                      # data gaps (dark roofs, water)
         gx, gy, gr = rng.uniform(0, e), rng.uniform(0, e), rng.uniform(6.0, 15.0)
         s.gap |= np.hypot(s.X - gx, s.Y - gy) < gr
-    free = ~occ
-
-    def open_ground(x, y):
-        return s.at(free, x, y) & ~np.isfinite(s.at(s.top, x, y))
-    _trees(s, rng, 0.001, (5.0, 16.0), open_ground)
-    x, y = s.scatter(rng, 0.0015, open_ground)
-    for cx, cy in zip(x, y):
-        s.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
+    _trees_and_cars(s, rng, ~occ, 0.001, 0.0015)
 
 
 def _city(s, rng):
@@ -549,14 +552,7 @@ def _city(s, rng):
     for gx, gy, gr in ((hx + lx * rng.uniform(0.2, 0.8), hy + ly * rng.uniform(0.2, 0.8), rng.uniform(6.0, 12.0)),
                        (bx0 + rng.uniform(0.1, 0.25) * b, by0 + rng.uniform(0.1, 0.25) * b, rng.uniform(4.0, 8.0))):
         s.gap |= np.hypot(s.X - gx, s.Y - gy) < gr
-    free = ~ndimage.binary_dilation(occ, iterations=6)
-
-    def street(x, y):
-        return s.at(free, x, y) & ~np.isfinite(s.at(s.top, x, y))
-    _trees(s, rng, 0.002, (5.0, 16.0), street)
-    x, y = s.scatter(rng, 0.002, street)
-    for cx, cy in zip(x, y):
-        s.box(cx, cy, rng.choice([0.0, np.pi / 2]), 4.5, 1.8, rng.uniform(1.4, 1.7))
+    _trees_and_cars(s, rng, ~ndimage.binary_dilation(occ, iterations=6), 0.002, 0.002)
 
 
 _BUILD = {"hillside": _hillside, "railway": _railway, "quarry": _quarry, "shrubs": _shrubs,
