@@ -44,6 +44,7 @@ LABELS = {
     "terrain_bend_m": "Neighbour and level tests: the terrain's bend over one cell (m)",
     "jump_m": "Smallest jump of level (m)",
     "max_building_m": "Longest building (m)",
+    "max_hall_m": "Longest hall closed by walls (m)",
     "short_profile_m": "Short profile length (m)",
     "long_profile_m": "Long profile length (m)",
     "profile_sigma_m": "Height spread about the profiles (m)",

@@ -22,6 +22,11 @@ what the others miss, its parameters derived from an analysis of the DSM itself:
    twice the longest building (:mod:`..edge_walls`, as ``bareearth:dtm``'s raised regions: a
    wall cutting off a corner of the tile runs twice what is seen, a hall over most of a tile
    such as lidar ``sample_c``; one running across the tile three times, a terrain step's).
+   A level longer than the longest building along both axes (a hall), which no profile pairs
+   jumps across, is a building when its walls close it on every side
+   (:func:`~.steps.enclosed_levels`: a part of the DSM joined across small steps, meeting no side
+   of the raster, stepping down by the jump on more than half of its outline), up to
+   ``max_hall_m`` (the longest such level of the DSM).
 5. **Moving local profiles** (:func:`remove_profile_outliers`), first short then long,
    the lengths chosen by analysing a sequence of lengths: each height is checked against
    the profile's mean (flat), linear regression (rolling) or polynomial (mountainous),

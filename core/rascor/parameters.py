@@ -9,21 +9,24 @@ agree); :func:`rascor_halo` gives the reach of the whole sequence for block proc
 from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
+from scipy import ndimage
 
-from ..common import as_cell_size, as_surface, report, sub_progress
+from ..common import as_cell_size, as_surface, label8, report, sub_progress
 from ..dtm_refine import REACH_M, continuation_cells
 from ..estimate import (
     GROUND_BLOCK_M,
+    RAISED_REGION_SPAN_M,
     ground_level_cells,
     ground_level_reference,
     object_widths,
+    raised_region_grid,
     sample_windows,
     terrain_bends,
 )
 from .fits import fit_at_centre
 from .kernels import block_reach, finite_float64, gauss_weights, odd_window
-from .sequence import SURFACE_RULES, cell_rise, ring_reach
-from .steps import remove_level_changes, remove_neighbour_differences
+from .sequence import SURFACE_RULES, cell_rise, level_step, ring_reach
+from .steps import enclosed_levels, remove_level_changes, remove_neighbour_differences
 from .terrain import TERRAIN_CLASSES, as_homogeneous, characterise_with_envelope, model_degree
 
 #: Sequences analysed for the profile lengths and the surface sizes (metres).
@@ -38,7 +41,7 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 step7_prediction=False, second_iteration=False, step3_repeat=True,
                 spare_continuing_ground=True, height_min_m=None,
                 height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
-                max_building_m=120.0,
+                max_building_m=120.0, max_hall_m=None,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
                 prediction_radius_m=None, prediction_sigma_m=None, snooping_k=4.0, snooping_iterations=1,
@@ -266,6 +269,42 @@ def _height_limits(z, low_env, sigma):
     return round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2), round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
 
 
+def longest_hall(z, cell_size, *, jump_m, max_building_m, sigma_m, neighbour_k=3.0, terrain_bend_m=0.0):
+    """Step 4's ``max_hall_m``: the span (m) of the longest raised level closed by walls on every side
+    that runs further than ``max_building_m`` (:func:`~.steps.enclosed_levels`, levels of
+    :func:`~.sequence.level_step`), at most :data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`; 0
+    when the DSM shows none.
+
+    Looked for on the block minima of :func:`~bare_earth.core.estimate.raised_region_grid` (at most 1 M
+    cells; ``k`` cells a block): a roof keeps its walls there and loses at most a block at each side,
+    so the levels longer than ``max_building_m`` less two blocks are looked at and the span found
+    grows by two blocks. The span decides the halo (:func:`rascor_halo`): a raster without such a
+    level keeps step 4's.
+
+    Examples
+    --------
+    >>> z = np.zeros((200, 300), np.float32)
+    >>> z[20:170, 30:230] = 10.0                           # a hall of 200 x 150 m
+    >>> longest_hall(z, 1.0, jump_m=2.0, max_building_m=120.0, sigma_m=0.05)
+    200.0
+    >>> z[90, 230:] = 10.0                                 # ... that the ground continues (a bridge)
+    >>> longest_hall(z, 1.0, jump_m=2.0, max_building_m=120.0, sigma_m=0.05)
+    0.0
+    """
+    zs, (dx, dy), k = raised_region_grid(as_surface(z), as_cell_size(cell_size))
+    margin = 2.0 * max(dx, dy) if k > 1 else 0.0
+    levels = enclosed_levels(zs, (dx, dy), jump_m=jump_m,
+                             step_m=level_step(neighbour_k, sigma_m, terrain_bend_m, jump_m),
+                             min_span_m=max_building_m - margin, max_span_m=RAISED_REGION_SPAN_M,
+                             k=neighbour_k, bend_m=terrain_bend_m)
+    lab, n = label8(levels)
+    if not n:
+        return 0.0
+    span = max(max((b[0].stop - b[0].start) * dy, (b[1].stop - b[1].start) * dx)
+               for b in ndimage.find_objects(lab))
+    return float(min(np.ceil(span + margin), RAISED_REGION_SPAN_M))
+
+
 def widen_rascor_params(params, given, overview, cell_size):
     """Step 2's derived limits widened to the heights of a whole raster larger than the window
     the parameters came from (``Method.widen``).
@@ -344,7 +383,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
       what :mod:`~bare_earth.core.dtm` asks of its RASCOR member, whose opening and
       reconstruction members remove the wide objects (in that vote the covering window
       made RASCOR's errors follow the opening's: ISPRS seven 3.95 -> 4.34 %);
-    * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells.
+    * ``prediction_sigma_m`` from the residuals of the local prediction; its radius 3 cells;
+    * ``max_hall_m``: the span of the longest raised level closed by walls on every side that runs
+      further than ``max_building_m`` (:func:`longest_hall`; 0: none), so that step 4 takes such a
+      hall (:func:`~.steps.enclosed_levels`) and the halo reaches across it only where there is one.
 
     ``progress(fraction)`` (optional) is called after each stage of the analysis; it may
     raise ``Cancelled``.
@@ -393,6 +435,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         p["terrain_slope"] = round(float(ch["slope_median"]), 4)
     if p["terrain_bend_m"] is None:
         p["terrain_bend_m"] = terrain_bend(z, (dx, dy), sigma)
+    if p["max_hall_m"] is None:
+        p["max_hall_m"] = longest_hall(z, (dx, dy), jump_m=p["jump_m"], max_building_m=p["max_building_m"],
+                                       sigma_m=sigma, neighbour_k=p["neighbour_k"],
+                                       terrain_bend_m=p["terrain_bend_m"])
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",
@@ -482,7 +528,9 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
         chosen = {int(k) for k in p["steps"]}
         on = {k: k in chosen for k in on}
     r3 = max(3, ring) if on[3] else 0
-    r4 = 2 * (cells(p["max_building_m"]) + 4) if on[4] else 0
+    # a closed level up to max_hall_m (steps.enclosed_levels): the whole level and a cell around it
+    hall = cells(p["max_hall_m"]) + 2 if (p.get("max_hall_m") or 0) > p["max_building_m"] else 0
+    r4 = max(2 * (cells(p["max_building_m"]) + 4), hall) if on[4] else 0
     r5 = iters * sum(max(cells(L) // 2 + 1, ring) for L in (p["short_profile_m"] or max(PROFILE_LENGTHS_M),
                                                             p["long_profile_m"] or max(PROFILE_LENGTHS_M))) \
         if on[5] else 0

@@ -15,12 +15,13 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import LOW, NODATA, OBJECT
-from ..common import FilterResult, as_cell_size, as_surface, label8, report, sub_progress, transpose
+from ..common import FilterResult, as_cell_size, as_surface, label8, report, sub_progress, touching, transpose
 from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_ground
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers
 from .regions import as_bool_raster, break_regions, find_ramps
 from .steps import (
+    enclosed_levels,
     find_terrain_steps,
     joined_levels,
     remove_height_outliers,
@@ -59,6 +60,7 @@ class _Settings:
     terrain_bend_m: float
     jump_m: float
     max_building_m: float
+    max_hall_m: float
     lengths: list
     surface_size_m: float
     prediction_radius_m: float
@@ -152,7 +154,7 @@ class _Pits:
 
 def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches, steps,
                     second_iteration, height_min_m, height_max_m, neighbour_k, terrain_slope, terrain_bend_m,
-                    jump_m, max_building_m, short_profile_m, long_profile_m, profile_sigma_m,
+                    jump_m, max_building_m, max_hall_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
                     snooping_k, snooping_iterations, low_weight, fits_per_block=False, step3_repeat=True,
                     spare_continuing_ground=True):
@@ -173,6 +175,10 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         raise ValueError(f"terrain_slope must be a number >= 0 (rise/run); got {terrain_slope!r}. "
                          "Pass 0 for the paper's step 3 tolerance alone, or call resolve_rascor_params "
                          "to derive it (step 1's median slope).")
+    if max_hall_m is None or not np.isfinite(max_hall_m) or max_hall_m < 0:
+        raise ValueError(f"max_hall_m must be a number >= 0 (metres); got {max_hall_m!r}. Pass 0 for "
+                         "step 4's pairs of jumps alone, or call resolve_rascor_params to derive it (the "
+                         "longest level closed by walls).")
     if terrain_bend_m is None or not np.isfinite(terrain_bend_m) or terrain_bend_m < 0:
         raise ValueError(f"terrain_bend_m must be a number >= 0 (metres); got {terrain_bend_m!r}. "
                          "Pass 0 for the paper's tolerances of steps 3 and 4, or call "
@@ -198,7 +204,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         on=on, second_iteration=bool(second_iteration), step3_repeat=bool(step3_repeat),
         height_min_m=height_min_m,
         height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=float(terrain_slope),
-        terrain_bend_m=float(terrain_bend_m), jump_m=jump_m, max_building_m=max_building_m, lengths=lengths,
+        terrain_bend_m=float(terrain_bend_m), jump_m=jump_m, max_building_m=max_building_m,
+        max_hall_m=float(max_hall_m), lengths=lengths,
         surface_size_m=surface_size_m,
         prediction_radius_m=prediction_radius_m,
         profile_sigma_m=max(sigma_m, profile_sigma_m or sigma_m),
@@ -287,6 +294,16 @@ def _step3_tolerance(cfg):
     return float(np.hypot(cfg.neighbour_k * cfg.sigma_m * np.sqrt(2.0), cfg.neighbour_k * cfg.terrain_bend_m))
 
 
+def level_step(neighbour_k: float, sigma_m: float, terrain_bend_m: float, jump_m: float) -> float:
+    """The largest difference (m) of neighbouring heights within one level of step 4
+    (:func:`~.steps.joined_levels`, :func:`~.steps.enclosed_levels`): step 3's tolerance of a pair,
+    ``k sqrt(2) sigma`` widened in quadrature by ``k`` times the terrain's bend (no level change to
+    step 3), and less than half the jump (the height step 4 asks of a raised point above the
+    ground's line)."""
+    tol = float(np.hypot(neighbour_k * sigma_m * np.sqrt(2.0), neighbour_k * terrain_bend_m))
+    return min(tol, 0.5 * float(jump_m))
+
+
 def _terrain_step_jump(cfg):
     """The smallest level change (m) :func:`~.steps.find_terrain_steps` looks at: step 3's
     ``k sqrt(2) sigma`` (widened by the bend there as step 3's is), at most step 4's jump.
@@ -320,8 +337,14 @@ def _step4_level_change(st, cfg, progress):
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
                               z_t=st.transposed(), cut_at_edge=True, progress=sub_progress(progress, 0.0, 0.6))
     # an embankment's crown the ground continues onto (a ramp, a gentler side) is no roof
-    hi &= ~joined_levels(st.z, cfg.cell, hi, st.keep, step_m=min(_step3_tolerance(cfg), 0.5 * float(cfg.jump_m)),
-                         max_building_m=cfg.max_building_m)
+    step_m = level_step(cfg.neighbour_k, cfg.sigma_m, cfg.terrain_bend_m, cfg.jump_m)
+    hi &= ~joined_levels(st.z, cfg.cell, hi, st.keep, step_m=step_m, max_building_m=cfg.max_building_m)
+    # a hall longer than the longest building along both axes: a level its walls close on every side
+    halls = None
+    if cfg.max_hall_m > cfg.max_building_m:
+        halls = enclosed_levels(st.z, cfg.cell, jump_m=cfg.jump_m, step_m=step_m, min_span_m=cfg.max_building_m,
+                                max_span_m=cfg.max_hall_m, k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m)
+        hi |= halls
     _record(st, 4, hi & st.global_ok, np.zeros_like(hi))
     # the level changes longer than the longest building are the terrain's: break lines for
     # the steps after (Jacobsen's break lines along cuts, banks and terrace walls), each side of a
@@ -330,6 +353,12 @@ def _step4_level_change(st, cfg, progress):
                                       max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                       bend_m=cfg.terrain_bend_m, labels=st.labels, z_t=st.transposed(),
                                       sides=True, progress=sub_progress(progress, 0.6, 1.0))
+    if halls is not None and halls.any():
+        # a hall's walls are a building's, not the terrain's: the profiles over the points kept
+        # cross its removed roof from ground to ground, a jump of the terrain's rise over its length
+        near = touching(halls)
+        steps &= ~near
+        upper &= ~near
     st.step_lines = int(np.count_nonzero(steps))
     if st.step_lines:
         lines = steps if st.breaklines is None else steps | st.breaklines
@@ -639,7 +668,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   height_min_m: Optional[float] = None,
                   height_max_m: Optional[float] = None, neighbour_k: float = 3.0,
                   terrain_slope: float = 0.0, terrain_bend_m: float = 0.0, jump_m: float = 2.0,
-                  max_building_m: float = 120.0,
+                  max_building_m: float = 120.0, max_hall_m: float = 0.0,
                   short_profile_m: float = 9.0, long_profile_m: float = 25.0,
                   profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
                   surface_rule: str = "objects",
@@ -693,6 +722,11 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         DEMs of hills, millimetres on 1 m lidar).
     jump_m, max_building_m : float
         Step 4: minimum level change and maximum building length, metres.
+    max_hall_m : float
+        Step 4: the longest hall, metres: a raised level its walls close on every side, running
+        further than ``max_building_m`` and at most this far, is a building
+        (:func:`~.steps.enclosed_levels`; :func:`resolve_rascor_params` derives it, the longest
+        such level of the DSM); at most ``max_building_m`` (0): none.
     short_profile_m, long_profile_m : float
         Step 5 profile lengths, metres.
     profile_sigma_m, surface_sigma_m, prediction_sigma_m : float or None
@@ -744,7 +778,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         height_min_m=height_min_m,
         height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=terrain_slope,
         terrain_bend_m=terrain_bend_m, jump_m=jump_m,
-        max_building_m=max_building_m, short_profile_m=short_profile_m,
+        max_building_m=max_building_m, max_hall_m=max_hall_m, short_profile_m=short_profile_m,
         long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,
         prediction_radius_m=prediction_radius_m, prediction_sigma_m=prediction_sigma_m,

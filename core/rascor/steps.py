@@ -720,3 +720,124 @@ def joined_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], raise
     ow.ravel()[at] = long[comp[run[at]]]
     out[win] = ow
     return out
+
+
+def enclosed_levels(z: np.ndarray, cell_size: Union[float, Sequence[float]], *, jump_m: float, step_m: float,
+                    min_span_m: float, max_span_m: float, k: float = 3.0, bend_m: float = 0.0) -> np.ndarray:
+    """Raised levels longer than step 4's profiles see, closed by walls down: roofs of large halls.
+
+    Step 4 pairs a jump up with a jump down at most ``max_building_m`` apart along X or Y: a hall
+    longer than that along both (a 200 x 130 m hall, a 120 m block round a courtyard) is no pair
+    of jumps on any profile, and :func:`joined_levels` takes its roof, a level running further
+    than the longest building, for the ground's. In plan the roof is a level its walls close on
+    every side, which a level of the terrain is not: a terrace's or a quarry bench's level rises
+    on its uphill side to the slope above, a plateau or a river bank runs on to the raster's edge,
+    an embankment's crown comes down to the ground by a ramp (and is then one part with it). The
+    cells are joined across the 4-neighbour edges whose heights differ by at most ``step_m``
+    (:func:`~bare_earth.core.estimate.joined_runs`, on the DSM itself); a part is a closed raised
+    level when it meets no side of the raster and no nodata cell (nothing is seen beyond either:
+    a terrace's level running into the raster's outer nodata may run on), runs further than ``min_span_m`` and at most
+    ``max_span_m`` along the rows or the columns, and more than half of its outline (its edges to
+    the cells of other parts) steps down by more than ``jump_m``, as :mod:`..edge_walls`
+    asks of a level cut by the raster's edge (the 24 sites of ``benchmarks/sites.py``: the halls'
+    outlines 93-100 % walls, terraces' and quarry benches' longer than 40 m 19-43 %, rising on
+    51-75 % of it).
+
+    The decision reads the DSM within ``max_span_m`` and a cell of each level: a window reaching
+    that far around a block sees the whole of every level it takes, and a level cut by the
+    window's edge meets a side of it (not taken), as in one pass a level longer than
+    ``max_span_m`` is not.
+
+    Parameters
+    ----------
+    z : ndarray
+        DSM (NaN nodata).
+    cell_size : float or (float, float)
+        (dx, dy) metres.
+    jump_m : float
+        Step 4's jump: the drop of a wall, metres.
+    step_m : float
+        Largest difference of neighbouring heights within a level, metres.
+    min_span_m, max_span_m : float
+        The levels taken run further than ``min_span_m`` (step 4's longest building: shorter
+        ones are step 4's profiles') and at most ``max_span_m``, metres.
+    k, bend_m : float
+        Step 4's critical value and the terrain's bend over one cell: the jump is widened by
+        ``k bend_m`` in quadrature, as :func:`remove_level_changes` widens it.
+
+    Returns
+    -------
+    ndarray of bool
+        The cells of the closed raised levels.
+
+    Examples
+    --------
+    >>> z = np.zeros((9, 12), np.float32)
+    >>> z[2:7, 2:10] = 6.0                           # a roof 8 cells long, walls all round
+    >>> int(enclosed_levels(z, 10.0, jump_m=2.0, step_m=0.5, min_span_m=50.0, max_span_m=100.0).sum())
+    40
+    >>> z[4, 10:] = 6.0                              # ... the level runs on to the raster's edge
+    >>> int(enclosed_levels(z, 10.0, jump_m=2.0, step_m=0.5, min_span_m=50.0, max_span_m=100.0).sum())
+    0
+    """
+    dx, dy = as_cell_size(cell_size)
+    jump_m = _jump_limits(jump_m, 0.0, k, bend_m)[0]
+    z = np.asarray(z, np.float32)
+    h, w = z.shape
+    out = np.zeros(z.shape, bool)
+    if h < 3 or w < 3:
+        return out
+    valid = np.isfinite(z)
+    run, comp, first = joined_runs(z, valid, step_m)
+    n = int(comp.max()) + 1
+    cand = np.ones(n, bool)
+    for side in (run[:w], run[-w:], run[::w], run[w - 1::w]):   # a level meeting the raster's side runs on
+        cand[comp[side]] = False
+    gap = np.flatnonzero(~valid)                         # ... or nodata: nothing is seen beyond either
+    if gap.size:
+        gr, gc = gap // w, gap % w
+        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            rr, cc = gr + dr, gc + dc
+            inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+            cand[comp[run[rr[inside] * w + cc[inside]]]] = False
+        cand[comp[run[gap]]] = False
+    if not cand.any():
+        return out
+    # the candidates' extents from their runs (a run: cells first .. last of one row)
+    last = np.r_[first[1:], h * w] - 1
+    sel = np.flatnonzero(cand[comp])
+    p = comp[sel]
+    order = np.argsort(p, kind="stable")
+    sel, p = sel[order], p[order]
+    starts = np.flatnonzero(np.r_[True, p[1:] != p[:-1]])
+    r = first[sel] // w
+    rows = np.maximum.reduceat(r, starts) - np.minimum.reduceat(r, starts) + 1
+    cols = np.maximum.reduceat(last[sel] % w, starts) - np.minimum.reduceat(first[sel] % w, starts) + 1
+    span = np.maximum(rows * dy, cols * dx)
+    ok = np.zeros(n, bool)
+    ok[p[starts]] = (span > min_span_m) & (span <= max_span_m)
+    if not ok.any():
+        return out
+    # the cells of the levels left, from their runs
+    keep_runs = sel[ok[p]]
+    lens = last[keep_runs] - first[keep_runs] + 1
+    cells = np.repeat(first[keep_runs], lens) + (np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens))
+    p = comp[run[cells]]
+    r, c = cells // w, cells % w
+    # the outline: edges to the cells of other parts with data; walls: those stepping down by the jump
+    zf = z.ravel()
+    vf = valid.ravel()
+    edges = np.zeros(n, np.int64)
+    walls = np.zeros(n, np.int64)
+    zc = zf[cells]
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        rr, cc = r + dr, c + dc
+        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        nb = np.where(inside, rr * w + cc, 0)
+        e = inside & (comp[run[nb]] != p) & vf[nb]
+        edges += np.bincount(p[e], minlength=n)
+        with np.errstate(invalid="ignore"):
+            walls += np.bincount(p[e & (zc - zf[nb] > jump_m)], minlength=n)
+    closed = 2 * walls > edges
+    out.ravel()[cells[closed[p]]] = True
+    return out

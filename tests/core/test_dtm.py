@@ -290,7 +290,7 @@ def test_member_settings_rascor_noise_from_the_ground_level_cells():
     given, noise = dtm_method.member_settings("rascor", s.dsm, (1.0, 1.0))
     assert noise == noise_ground_level(s.dsm, (1.0, 1.0))["sigma"] and noise > SIGMA_FLOOR
     asked = dtm_method.MEMBER_SETTINGS["rascor"]
-    assert asked == {"surface_rule": "residuals", "terrain_bend_m": 0.0, "fits_per_block": True}
+    assert asked == {"surface_rule": "residuals", "terrain_bend_m": 0.0, "fits_per_block": True, "max_hall_m": 0.0}
     measured, sigma = dtm_method.ground_noise(s.dsm, (1.0, 1.0))
     assert measured == noise and sigma < noise                    # the spread of the heights on the slope out
     assert given == {**asked, "sigma_m": round(sigma, 3)}

@@ -1867,3 +1867,84 @@ def test_continuing_ground_starts_on_kept_ground_not_on_pieces_of_a_canopy():
     paper = rascor.filter_rascor(s.dsm, 1.0, **dict(p, spare_continuing_ground=False))
     res = rascor.filter_rascor(s.dsm, 1.0, **p)
     assert np.mean(res.mask[crowns] == GROUND) <= np.mean(paper.mask[crowns] == GROUND) + 0.003
+
+
+# ------------------------------------------------------------ step 4: halls closed by walls
+def _hall_scene(n=160, hall=(slice(30, 130), slice(20, 140)), height=9.0):
+    """A gentle plane with a hall of 100 x 120 cells (a flat roof ``height`` above it)."""
+    z = plane(n, 0.01, 0.005).astype(np.float32)
+    roof = np.zeros(z.shape, bool)
+    roof[hall] = True
+    z[roof] = z[roof].max() + height
+    return z, roof
+
+
+def test_enclosed_levels_exact():
+    """A level closed by walls on every side, longer than the longest building: taken; the same
+    level running on to the raster's side, rising on its uphill side (a terrace), coming down by
+    a ramp, shorter than min_span_m or longer than max_span_m: not."""
+    kw = dict(jump_m=2.0, step_m=0.3, min_span_m=60.0, max_span_m=130.0)
+    z, roof = _hall_scene()
+    assert np.array_equal(steps.enclosed_levels(z, 1.0, **kw), roof)
+    # spans: 120 m > 60 and <= 130; not with a longer min or a shorter max
+    assert not steps.enclosed_levels(z, 1.0, **dict(kw, min_span_m=120.0)).any()
+    assert not steps.enclosed_levels(z, 1.0, **dict(kw, max_span_m=119.0)).any()
+    # the level running on to the raster's side along one row
+    open_ = z.copy()
+    open_[80, 140:] = open_[80, 139]
+    assert not steps.enclosed_levels(open_, 1.0, **kw).any()
+    # a terrace: the level meets the slope rising above it on one long side (3 of its 4 sides walls
+    # but the rise makes most of the outline no wall only where it is longer: here the rise is on
+    # both long sides, the level a bench between a wall down and a wall up)
+    bench = z.copy()
+    bench[:30, :] = bench[30, 20] + 5.0            # higher ground beyond the north side
+    bench[130:, :] = bench[30, 20] + 5.0           # ... and the south side
+    assert not steps.enclosed_levels(bench, 1.0, **kw).any()
+    # a ramp: the roof comes down to the ground over 40 cells (steps of 0.25 m): one part with it
+    ramp = z.copy()
+    ramp[75:85, 140:] = np.linspace(ramp[80, 139], ramp[80, 159], 20, dtype=np.float32)[None, :]
+    ramp[75:85, 140:] = ramp[80, 139] - 0.2 * np.arange(1, 21, dtype=np.float32)[None, :]
+    assert not steps.enclosed_levels(ramp, 1.0, **kw).any()
+    # the walls lower than the jump: no level stands on them
+    low = plane(160, 0.01, 0.005).astype(np.float32)
+    low[roof] += 1.5
+    assert not steps.enclosed_levels(low, 1.0, **kw).any()
+    # nodata is no wall: a level meeting it (a terrace running into the raster's outer nodata) may
+    # run on beyond, as beyond the raster's side; nodata in the ground around leaves the roof closed
+    gap = z.copy()
+    gap[:, 150:] = np.nan
+    assert np.array_equal(steps.enclosed_levels(gap, 1.0, **kw), roof)
+    gap[80, 139:] = np.nan
+    assert not steps.enclosed_levels(gap, 1.0, **kw).any()
+
+
+def test_step4_takes_a_hall_longer_than_the_longest_building():
+    """Step 4's pairs of jumps see no hall longer than max_building_m along both axes, and its
+    roof joins a level longer than a building (:func:`joined_levels`): kept as ground. With
+    max_hall_m, the level its walls close is a building (step 4); resolve derives max_hall_m."""
+    z, roof = _hall_scene()
+    off = run(z, steps=[3, 4], max_hall_m=0.0)
+    assert np.mean(off.extras["step"][roof] == 4) < 0.05
+    on = run(z, steps=[3, 4], max_hall_m=130.0)
+    assert np.mean(on.extras["step"][roof] > 0) > 0.99
+    assert not (on.mask[~roof] == OBJECT).any()
+    p = rascor.resolve_rascor_params(z, 1.0, max_building_m=60.0)
+    assert p["max_hall_m"] == 120.0
+    assert rascor.resolve_rascor_params(plane(160), 1.0, max_building_m=60.0)["max_hall_m"] == 0.0
+    with pytest.raises(ValueError, match="max_hall_m"):
+        run(z, max_hall_m=-1.0)
+
+
+def test_step4_halls_in_blocks_as_in_one_pass():
+    """max_hall_m widens the halo (the whole level and a cell around it): blocks of 64 cells, each
+    smaller than the hall, take it as one pass does."""
+    pipeline = pytest.importorskip("bare_earth.core.pipeline")
+    z, roof = _hall_scene()
+    params = dict(BASE, max_hall_m=130.0, step5_profiles=False, step6_surfaces=False)
+    assert rascor.rascor_halo(dict(params, max_hall_m=300.0), 1.0) > rascor.rascor_halo(params, 1.0) \
+        > rascor.rascor_halo(dict(params, max_hall_m=0.0), 1.0)
+    one = pipeline.run_array("rascor", z, 1.0, params=params)
+    blk = pipeline.run_array("rascor", z, 1.0, params=params, block=64)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.extras["step"], blk.extras["step"])
+    assert np.mean(one.extras["step"][roof] > 0) > 0.99
