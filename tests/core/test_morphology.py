@@ -1001,3 +1001,79 @@ def test_a_large_building_on_gentle_terrain_is_an_object(side_m):
     assert given.info["wide_slope"] == 0.3
     assert given.info["wide_slope_source"] == "slope given: s at every radius (SMRF)"
     assert np.count_nonzero((given.mask == OBJECT) & truth) < 0.01 * truth.sum()
+
+
+# --------------------------------------------------------------------------- the ground's slope
+def test_l1_slope_of_a_plane_is_the_sum_of_its_gradients():
+    i, j = np.mgrid[0:5, 0:6]
+    g = morph.l1_slope((0.5 * j - 0.25 * i).astype(np.float32), (2.0, 1.0))
+    np.testing.assert_allclose(g[1:-1, 1:-1], 0.25 + 0.25)     # 0.5 m over 2 m along the rows, 0.25 down
+    assert (g[[0, -1], :] == 0).all() and (g[:, [0, -1]] == 0).all()
+
+
+def test_ground_slope_map_reads_slopes_and_not_steps():
+    """A plane rising 0.2 / 0.1 per metre reads 0.3 (the square window's corner); a step 3 m high, which
+    spans one cell, reads 0 (no ground slope); the slope is at most 1.5, the bound of SMRF's slope."""
+    i, j = np.mgrid[0:20, 0:20]
+    plane = (0.2 * j + 0.1 * i).astype(np.float32)
+    g = morph.ground_slope_map(plane, (2, 2), (1.0, 1.0))
+    np.testing.assert_allclose(g[6:14, 6:14], 0.3, atol=1e-5)
+    step = np.where(j < 10, 0.0, 3.0).astype(np.float32)
+    assert float(morph.ground_slope_map(step, (2, 2), (1.0, 1.0)).max()) == 0.0
+    steep = (4.0 * j).astype(np.float32)
+    np.testing.assert_allclose(morph.ground_slope_map(steep, (1, 1), (1.0, 1.0))[5:15, 5:15], 1.5)
+    # nodata (+inf) windows read 0
+    hole = plane.copy()
+    hole[:, :] = np.inf
+    assert float(morph.ground_slope_map(hole, (2, 2), (1.0, 1.0)).max()) == 0.0
+
+
+def _rounded_ridge():
+    """A rounded ridge 30 m high (Gaussian profile, sigma 20 m: slopes up to 0.91) across a raster of 1 m
+    cells, running off both ends (no cut-terrain region), and a 12 x 12 m block 6 m high on the gentle
+    ground beside it: (z, roof)."""
+    i, j = np.mgrid[0:120, 0:170].astype(np.float32)
+    z = (30.0 * np.exp(-(j - 60.0) ** 2 / (2 * 20.0 ** 2)) + 0.02 * i).astype(np.float32)
+    roof = (i >= 50) & (i < 62) & (j >= 140) & (j < 152)
+    z[roof] += 6.0
+    return z, roof
+
+
+def test_a_rounded_ridge_steeper_than_the_slope_stays_ground_and_a_block_beside_it_is_an_object():
+    """SMRF's threshold s r_k with one slope s = 0.3 cut the ridge's crest (about 12 m at a 20 m radius)
+    and took 16 % of the raster for objects; with the ground's own slope where the cell lies on a slope
+    (ground_slope_map, l1_slope) the crest's level top is all that is left (6.5 %), and the block on the
+    gentle ground is still an object."""
+    z, roof = _rounded_ridge()
+    res = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=40.0, dh_m=0.5, slope=0.3,
+                                     outline_slope=1.0, wide_slope=0.3, wide_radius_m=20.0)
+    assert (res.mask[roof] == OBJECT).all()
+    lost = 100.0 * np.count_nonzero(res.mask[~roof] != 0) / np.count_nonzero(~roof)
+    assert lost < 8.0
+
+
+def test_a_level_roof_on_a_steep_hillside_stays_an_object_and_the_hillside_ground():
+    """The ground's slope around a roof on a hillside of slope 0.8 is steep, but the roof's own cells are
+    level: the threshold there stays s r_k and the roof is flagged. The hillside's cells lie on its slope:
+    the uphill edge, which windows cut at the raster's border by more than 0.3 r_k, stays ground (13 % of
+    the cells lost with one slope s = 0.3)."""
+    i, j = np.mgrid[0:100, 0:100].astype(np.float32)
+    z = (0.8 * j).astype(np.float32)
+    roof = (i >= 40) & (i < 56) & (j >= 40) & (j < 56)
+    z[roof] = 0.8 * 56 + 4.0                     # 4 m above the uphill side, 16.8 m above the downhill side
+    res = morph.filter_morphological(z, 1.0, mode="progressive", max_object_size_m=40.0, dh_m=0.5, slope=0.3,
+                                     outline_slope=0.8, wide_slope=0.3, wide_radius_m=20.0)
+    assert np.count_nonzero(res.mask[roof] == OBJECT) >= 0.95 * roof.sum()
+    assert np.count_nonzero(res.mask[~roof] != 0) <= 0.02 * (~roof).sum()
+
+
+def test_blocks_equal_one_pass_on_rough_steep_relief():
+    """The ground slope map's reach (the erosion, its difference, opening and running maximum) is in the
+    halo: blocks give the one-pass mask on the fBm mountain."""
+    from bare_earth.core.synthetic_bare import make_bare
+    s = make_bare("mountain", 2.0)
+    z = s.dsm[:150, :170]
+    one = run_array("morphological", z, 2.0)
+    blk = run_array("morphological", z, 2.0, block=40)
+    assert blk.info["blocks"] > 4
+    np.testing.assert_array_equal(blk.mask, one.mask)
