@@ -1060,3 +1060,57 @@ def test_raised_region_grid_is_the_block_minima_of_at_most_the_cells_allowed(mon
     zs, cs, k = est.raised_region_grid(z, (1.0, 2.0))
     assert k == 2 and cs == (2.0, 4.0)
     np.testing.assert_array_equal(zs, est.block_minima(z, 2))
+
+
+def _plane_with_low_vegetation(seed=0, n=192, noise=0.1, cover=0.6, clean_cols=64):
+    """A plane (noise ``noise`` m) whose cells left of the last ``clean_cols`` columns carry low vegetation
+    0.6-1.5 m high on ``cover`` of them, within the ground-level band: a highest-point DSM of shrubs on a
+    hillside. Returns ``(z, vegetation)``."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n]
+    z = 0.3 * x + 0.1 * y + rng.normal(0.0, noise, (n, n))
+    veg = (rng.random((n, n)) < cover) & (x < n - clean_cols)
+    z[veg] += rng.uniform(0.6, 1.5, np.count_nonzero(veg))
+    return z.astype(np.float32), veg
+
+
+def test_noise_of_the_cleanest_tiles_ignores_low_vegetation_on_most_of_the_ground():
+    """Low vegetation on most ground-level cells (60 % of two thirds of the raster) makes the lower quartile of
+    the second differences the vegetation's roughness; the noise, the same everywhere, is read on the cleanest
+    quarter of the 32-cell tiles (the third without vegetation): ``sigma_cleanest``. Without vegetation both
+    agree."""
+    z, _ = _plane_with_low_vegetation()
+    got = noise_ground_level(z, (1.0, 1.0))
+    assert got["sigma"] > 2.0 * 0.1                               # the whole window: the vegetation's
+    assert got["tiles"] == 36
+    assert got["sigma_cleanest"] == pytest.approx(0.1, rel=0.1)
+    clean, _ = _plane_with_low_vegetation(cover=0.0)
+    got = noise_ground_level(clean, (1.0, 1.0))
+    assert got["sigma"] == pytest.approx(0.1, rel=0.05)
+    assert got["sigma_cleanest"] == pytest.approx(got["sigma"], rel=0.1)
+    small = noise_ground_level(clean[:64, :64], (1.0, 1.0))      # 4 tiles: too few to rank
+    assert np.isfinite(small["sigma"]) and small["tiles"] == 4 and np.isnan(small["sigma_cleanest"])
+
+
+def test_tile_quartiles_are_each_tiles_lower_quartile():
+    d = np.arange(1.0, 9.0).reshape(2, 4)
+    on = np.ones(d.shape, bool)
+    on[0, 0] = False
+    # middle cells at rows 0-1, columns 1-4 of a 2 x 6 raster; tiles of 2 cells: columns 0-1, 2-3, 4-5
+    got, counts = est._tile_quartiles((2, 6), ((d, on, (0, 1)),), 2, 1)
+    # tile 0 (columns 0-1): |d| 5 -> 5; tile 1 (2-3): 2, 3, 6, 7 -> 2.75; tile 2 (4-5): 4, 8 -> 5
+    np.testing.assert_allclose(got, [5.0, 2.75, 5.0])
+    assert counts.tolist() == [1, 4, 2]
+    assert est._tile_quartiles((2, 6), ((d, on, (0, 1)),), 2, 3)[0].tolist() == [2.75]
+
+
+def test_cleanest_noise_needs_the_tiles_lower_beyond_their_sampling_and_rounding():
+    q = 0.3186 * math.sqrt(6.0)                       # a tile quartile of q reads 1 m
+    tiles, counts = np.full(12, 0.1 * q), np.full(12, 900)          # standard error 1.79 / 30 = 0.06
+    assert est.cleanest_noise(0.5, tiles, counts) == pytest.approx(0.1)
+    assert est.cleanest_noise(0.117, tiles, counts) == 0.117        # within 3 standard errors (0.1 x 1.179)
+    assert est.cleanest_noise(0.125, tiles, counts) == pytest.approx(0.1)
+    assert est.cleanest_noise(0.125, tiles, counts, quantum=0.03) == 0.125   # one step of 3 cm reads 0.038
+    assert est.cleanest_noise(0.05, tiles, counts) == 0.05          # never above sigma
+    assert np.isnan(est.cleanest_noise(float("nan"), tiles, counts))
+    assert est.cleanest_noise(0.5, np.full(12, 0.0), counts, quantum=0.01) == pytest.approx(0.01 / math.sqrt(12.0))
