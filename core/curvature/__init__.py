@@ -50,8 +50,8 @@ From curvature to objects
    a profile beyond the filter's reach). A terrace step is climbed by one scan only;
    objects are kept where both agree. An object is bounded across its profiles too: a run
    with a cell on a cross profile that meets no break, no step of the minimum object height
-   and no nodata within the largest object either way is the terrain's (the level between
-   two gullies running along Y; :func:`.profiles.bounded_stretches`).
+   and no nodata within twice the largest object is the terrain's (the level between two
+   gullies running along Y; :func:`.profiles.bounded_stretches`).
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
    whole objects. A region the raster's edge cuts is judged by its walls, as

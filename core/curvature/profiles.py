@@ -26,6 +26,11 @@ _WALL_CONTRAST = 3.0
 _WALL_SPAN_M = 3.0
 #: Critical value of the scatter of two heights' places inside their cells (:func:`wall_rise`).
 _SPREAD_K = 3.0
+#: Longest object, in largest objects (the runs' length along a profile): one doubling, as the
+#: longest raised region the resolves look at is one doubling of the widest
+#: (:data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`): a hall 115 m wide is 242 m long
+#: (:func:`bounded_stretches`).
+_LONGEST = 2.0
 
 
 def wall_rise(cell: float, *, h_min: float, tan_wall: float, terrain_slope: float = 0.0,
@@ -468,8 +473,9 @@ def profile_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
     (``int(max_size / cell)`` positions), and the wall test reads ``_WALL_CELLS + 2 window +
     1`` positions before it (more than the breaks' window, ``3 (window // 2)`` with the
     nodata bridge); both scan directions mirror it. A run is dropped by the cells of its own
-    run within the largest object along the profile whose cross profile meets no break within
-    it (:func:`bounded_runs`, :func:`bounded_stretches`): the largest object once more."""
+    run within the largest object along the profile (the largest object once more) whose cross
+    profile meets no break within twice it (:func:`bounded_runs`, :func:`bounded_stretches`:
+    as far across)."""
     dx, dy = cell_size
     return 2 * max(int(max_size / dx), int(max_size / dy)) + _WALL_CELLS + 2 * window + 1
 
@@ -494,8 +500,9 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     ``terrain_slope`` (rise/run) the terrain's steep slopes and ``spacing`` (metres) that of
     the independent heights (:func:`wall_rise`).
     A run with a cell whose cross profile meets no break, no step of ``h_min`` within two cells
-    (:func:`height_steps`) and no nodata within ``max_size`` metres (:func:`bounded_stretches`)
-    is dropped whole (:func:`bounded_runs`): an object is bounded across its profiles too.
+    (:func:`height_steps`) and no nodata within :data:`_LONGEST` ``max_size`` metres
+    (:func:`bounded_stretches`) loses its cells within ``max_size`` of it (:func:`bounded_runs`):
+    an object is bounded across its profiles too.
     Returns the union of the X and Y objects and the cells found by each; with ``edge_runs``,
     also ``(cells, walls)``: the cells of the runs of either axis and direction that met the
     raster's edge, whatever their length, and their walls' tops (:func:`find_enclosed_objects`).
@@ -516,13 +523,13 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
         obj_x &= valid
         obj_y &= valid
     # an object is bounded both ways: a run along X with a cell on a Y profile that meets no break, no
-    # step and no nodata within the largest object (a level between two gullies) is the terrain's
+    # step and no nodata within twice the largest object (a level between two gullies) is the terrain's
     free = ~height_steps(transpose(z), h_min)    # along Y: no step, no nodata (NaN is a step), no break
     free &= ~transpose(marked)
-    obj_x = bounded_runs(obj_x, transpose(bounded_stretches(free, int(max_size / dy))), int(max_size / dx))
+    obj_x = bounded_runs(obj_x, transpose(bounded_stretches(free, int(_LONGEST * max_size / dy))), int(max_size / dx))
     free = ~height_steps(z, h_min)
     free &= ~marked
-    obj_y = transpose(bounded_runs(transpose(obj_y), transpose(bounded_stretches(free, int(max_size / dx))),
+    obj_y = transpose(bounded_runs(transpose(obj_y), transpose(bounded_stretches(free, int(_LONGEST * max_size / dx))),
                                    int(max_size / dy)))
     del free
     n_x, n_y = int(np.count_nonzero(obj_x)), int(np.count_nonzero(obj_y))
@@ -542,17 +549,18 @@ def bounded_stretches(free: np.ndarray, max_cells: int) -> np.ndarray:
     """The cells (bool, ``free``'s shape) that no stretch of ``free`` cells longer than
     ``max_cells`` along their row holds: the cells not in ``free`` (steps, breaks, nodata), and
     those whose stretch (the consecutive ``free`` cells of their row around them) spans at most
-    ``max_cells``. A stretch cut by the raster's edge counts what is seen: mirrored there (twice
-    what is seen), a building 90 m long cut by the edge of a 400 m tile (synthetic lidar ``mixed``
-    at 1 and 2 m) lost the runs across it.
+    ``max_cells``. A stretch cut by the raster's edge counts what is seen.
 
     Luong Chinh Ke (2002) puts an object between a break going up and the break coming down of
-    a profile; an object is bounded so across its profiles too: a run of the X profiles whose
-    cells lie on a Y profile with no break within the largest object either way is no object's
-    (the level between two gullies or ditches running along Y, climbed from one and left down
-    into the next: bare terrain at 4 m cells lost a fifth of its ground so). A cell's answer
-    depends on its row within ``max_cells`` (a longer stretch cut by a block's window still
-    spans more than ``max_cells``), so blocks with that halo give the answer of one pass.
+    a profile, within the largest object; an object is bounded so across its profiles too, within
+    its longest (:data:`_LONGEST` largest objects: a hall 240 m long and 120 m wide is an object by
+    its Y profiles): a run of the X profiles whose cells lie on a Y profile with no break longer
+    than that is no object's (the level between two gullies or ditches running along Y, climbed
+    from one and left down into the next: bare terrain at 4 m cells lost a fifth of its ground
+    so). Where the raster's edge cuts a stretch, what is seen counts (mirrored, a building 90 m
+    long cut by the edge of a tile would span 180 m). A cell's answer depends on its row within
+    ``max_cells`` + 1 cells (a longer stretch cut by a block's window still spans more than
+    ``max_cells``), so blocks with that halo give the answer of one pass.
 
     Examples
     --------

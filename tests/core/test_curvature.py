@@ -1610,12 +1610,13 @@ def _trenches(cell, building=False):
     """A 2 degree slope 200 m across (X) and 300 m long (Y) cut by two trenches running along Y, 8 m
     deep with 4 m floors and 50 degree sides, 80 m apart: the level between them, 62 m wide, rises from
     one on a wall and comes down into the other (a gully's sides at 2-4 m cells). With ``building``,
-    the trenches' floor level is flat ground and a hall of 60 x 60 m, 8 m high stands on it."""
+    the trenches' floor level is flat ground and a hall 60 m wide (X) and 180 m long (Y), 8 m high,
+    stands on it: longer than the largest object, within twice it."""
     y, x = np.mgrid[0:int(300 / cell), 0:int(200 / cell)].astype(np.float64)
     x, y = (x + 0.5) * cell, (y + 0.5) * cell
     z = 100.0 - np.tan(np.radians(2.0)) * y
     if building:
-        z = z - 8.0 + 8.0 * ((np.abs(x - 100) < 30) & (np.abs(y - 150) < 30))
+        z = z - 8.0 + 8.0 * ((np.abs(x - 100) < 30) & (np.abs(y - 150) < 90))
         return z.astype(np.float32)
     run = 8.0 / np.tan(np.radians(50.0))
     for x0 in (60.0, 140.0):
@@ -1629,7 +1630,8 @@ def test_level_between_trenches_running_along_y_is_ground(cell):
     wall and comes down into the other within the largest object: along X it is the paper's object
     (a run from a break going up to the break coming down), but along Y it meets no step within the
     largest object either way, so it is no object (bare gullies at 4 m cells lost 21 % of their
-    ground so). A hall as wide and as high, bounded both ways, stays an object at every cell."""
+    ground so). A hall as wide and as high, bounded both ways within twice the largest object (180 m
+    long), stays an object at every cell."""
     z = _trenches(cell)
     res = get_method("curvature").run(z, (cell, cell), **curvature.resolve_curvature_params(z, cell))
     assert np.count_nonzero(res.mask != GROUND) / z.size < 0.005
