@@ -48,7 +48,10 @@ From curvature to objects
    size. Every wall starts its own run, also inside another one (a run depends on the
    profile within the largest object after its wall only: the objects do not chain along
    a profile beyond the filter's reach). A terrace step is climbed by one scan only;
-   objects are kept where both agree.
+   objects are kept where both agree. An object is bounded across its profiles too: a run
+   with a cell on a cross profile that meets no break, no step of the minimum object height
+   and no nodata within twice the largest object is the terrain's (the level between two
+   gullies running along Y; :func:`.profiles.bounded_stretches`).
 3. **Regions.** Regions enclosed by breaks (4-connected unmarked cells, no larger than
    the largest object, not touching the raster's edge) made mostly of such points become
    whole objects. A region the raster's edge cuts is judged by its walls, as

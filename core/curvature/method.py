@@ -139,7 +139,8 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     # 1. local trends and curvature (eqs. 9-16); 2. breaks: |K| >= K_g, |r| or |t| >= sqrt(K_g)
     breaks = mark_breaks(z, cell, s.k_g, window=s.window, model=s.model,
                          progress=sub_progress(progress, 0.0, 0.35))
-    # 3. along X and Y profiles: from a break going up to the break coming down
+    # 3. along X and Y profiles: from a break going up to the break coming down, the runs
+    # bounded across within the largest object
     objects, n_obj_x, n_obj_y, edge_runs = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
         tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing, edge_runs=True,
@@ -528,7 +529,13 @@ METHOD = Method(
         "<p>Along each X and Y profile, scanned both ways, the points between a break going "
         "up a wall (a rise of at least the minimum object height within two cells, steeper "
         "than the wall slope and than the profile before it) and the matching break coming "
-        "down belong to an object; regions enclosed by breaks and made mostly of such "
+        "down belong to an object, unless a cell of that run lies on a cross profile that meets no "
+        "break, no step of the minimum object height and no nodata within twice the largest object "
+        "(an object is bounded both ways, and at most one doubling of its width long: the level "
+        "between two gullies running along Y is climbed from one and left down into the next, but "
+        "continues along Y; bare gullies at 4 m cells lost a fifth of their ground so. A shorter "
+        "level is still an object, and a bridge is bounded only by the breaks along its deck); "
+        "regions enclosed by breaks and made mostly of such "
         "points become whole objects. Where the raster's edge cuts an object, the profile "
         "is taken as mirrored there: a run from a wall that meets the edge within half the "
         "largest object counts for both directions (a roof in a corner of the tile), unless the "

@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, as_surface, edge_mirrored_extents, report, sub_progress
+from ..common import as_cell_size, as_surface, edge_mirrored_extents, report, sub_progress, transpose
 from ..edge_walls import walled_levels
 from ..estimate import lowest_point_spread, repeated_height_share
 from .derivatives import CHUNK_CELLS, CellSize, Progress
@@ -26,6 +26,11 @@ _WALL_CONTRAST = 3.0
 _WALL_SPAN_M = 3.0
 #: Critical value of the scatter of two heights' places inside their cells (:func:`wall_rise`).
 _SPREAD_K = 3.0
+#: Longest object, in largest objects (the runs' length along a profile): one doubling, as the
+#: longest raised region the resolves look at is one doubling of the widest
+#: (:data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`): a hall 115 m wide is 242 m long
+#: (:func:`bounded_stretches`).
+_LONGEST = 2.0
 
 
 def wall_rise(cell: float, *, h_min: float, tan_wall: float, terrain_slope: float = 0.0,
@@ -467,9 +472,12 @@ def profile_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
     :func:`find_profile_objects`: a run covers at most the largest object after its wall
     (``int(max_size / cell)`` positions), and the wall test reads ``_WALL_CELLS + 2 window +
     1`` positions before it (more than the breaks' window, ``3 (window // 2)`` with the
-    nodata bridge); both scan directions mirror it."""
+    nodata bridge); both scan directions mirror it. A run is dropped by the cells of its own
+    run within the largest object along the profile (the largest object once more) whose cross
+    profile meets no break within twice it (:func:`bounded_runs`, :func:`bounded_stretches`:
+    as far across)."""
     dx, dy = cell_size
-    return max(int(max_size / dx), int(max_size / dy)) + _WALL_CELLS + 2 * window + 1
+    return 2 * max(int(max_size / dx), int(max_size / dy)) + _WALL_CELLS + 2 * window + 1
 
 
 def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
@@ -491,6 +499,10 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     positions before a wall; a run longer than ``max_size`` metres is not an object;
     ``terrain_slope`` (rise/run) the terrain's steep slopes and ``spacing`` (metres) that of
     the independent heights (:func:`wall_rise`).
+    A run with a cell whose cross profile meets no break, no step of ``h_min`` within two cells
+    (:func:`height_steps`) and no nodata within :data:`_LONGEST` ``max_size`` metres
+    (:func:`bounded_stretches`) loses its cells within ``max_size`` of it (:func:`bounded_runs`):
+    an object is bounded across its profiles too.
     Returns the union of the X and Y objects and the cells found by each; with ``edge_runs``,
     also ``(cells, walls)``: the cells of the runs of either axis and direction that met the
     raster's edge, whatever their length, and their walls' tops (:func:`find_enclosed_objects`).
@@ -510,6 +522,16 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     if valid is not None:
         obj_x &= valid
         obj_y &= valid
+    # an object is bounded both ways: a run along X with a cell on a Y profile that meets no break, no
+    # step and no nodata within twice the largest object (a level between two gullies) is the terrain's
+    free = ~height_steps(transpose(z), h_min)    # along Y: no step, no nodata (NaN is a step), no break
+    free &= ~transpose(marked)
+    obj_x = bounded_runs(obj_x, transpose(bounded_stretches(free, int(_LONGEST * max_size / dy))), int(max_size / dx))
+    free = ~height_steps(z, h_min)
+    free &= ~marked
+    obj_y = transpose(bounded_runs(transpose(obj_y), transpose(bounded_stretches(free, int(_LONGEST * max_size / dx))),
+                                   int(max_size / dy)))
+    del free
     n_x, n_y = int(np.count_nonzero(obj_x)), int(np.count_nonzero(obj_y))
     obj_x |= obj_y
     if not edge_runs:
@@ -521,6 +543,105 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
         cells &= valid
         walls &= valid
     return obj_x, n_x, n_y, (cells, walls)
+
+
+def bounded_stretches(free: np.ndarray, max_cells: int) -> np.ndarray:
+    """The cells (bool, ``free``'s shape) that no stretch of ``free`` cells longer than
+    ``max_cells`` along their row holds: the cells not in ``free`` (steps, breaks, nodata), and
+    those whose stretch (the consecutive ``free`` cells of their row around them) spans at most
+    ``max_cells``. A stretch cut by the raster's edge counts what is seen.
+
+    Luong Chinh Ke (2002) puts an object between a break going up and the break coming down of
+    a profile, within the largest object; an object is bounded so across its profiles too, within
+    its longest (:data:`_LONGEST` largest objects: a hall 240 m long and 120 m wide is an object by
+    its Y profiles): a run of the X profiles whose cells lie on a Y profile with no break longer
+    than that is no object's (the level between two gullies or ditches running along Y, climbed
+    from one and left down into the next: bare terrain at 4 m cells lost a fifth of its ground
+    so). Where the raster's edge cuts a stretch, what is seen counts (mirrored, a building 90 m
+    long cut by the edge of a tile would span 180 m). A cell's answer depends on its row within
+    ``max_cells`` + 1 cells (a longer stretch cut by a block's window still spans more than
+    ``max_cells``), so blocks with that halo give the answer of one pass.
+
+    Examples
+    --------
+    >>> bounded_stretches(np.array([[1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 1, 1]], bool), 4).astype(int).tolist()
+    [[1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0]]
+    """
+    free = np.asarray(free, bool)
+    h, w = free.shape
+    out = ~free
+    if not free.any():
+        return out
+    cols = np.arange(w, dtype=np.int32)
+    start = np.where(free, np.int32(-1), cols)                 # the last non-free column at or before
+    np.maximum.accumulate(start, axis=1, out=start)
+    start += 1                                                 # a stretch's first column
+    end = np.where(free, np.int32(w), cols)[:, ::-1]           # the first non-free column at or after
+    end = np.minimum.accumulate(end, axis=1)[:, ::-1]          # a stretch's past-the-last column
+    end -= start
+    out |= end <= max_cells
+    return out
+
+
+def height_steps(z: np.ndarray, height: float) -> np.ndarray:
+    """The cells (bool) where the profile along the rows has just risen or fallen by at least
+    ``height`` within ``_WALL_CELLS`` cells (the height difference to each of the cells before
+    it), and the nodata cells (NaN): where an object may end along the profile.
+
+    Examples
+    --------
+    >>> height_steps(np.array([[0, 0.2, 0.4, 1.5, 1.5, 1.5, 1.6, np.nan, 1]]), 1.0).astype(int).tolist()
+    [[0, 0, 0, 1, 1, 0, 0, 1, 0]]
+    """
+    z = np.asarray(z, np.float32)
+    out = np.isnan(z)
+    h = np.float32(height)
+    with np.errstate(invalid="ignore"):
+        for k in range(1, _WALL_CELLS + 1):
+            if z.shape[1] > k:
+                out[:, k:] |= np.abs(z[:, k:] - z[:, :-k]) >= h
+    return out
+
+
+def bounded_runs(runs: np.ndarray, bounded: np.ndarray, max_cells: int) -> np.ndarray:
+    """The cells of ``runs`` (bool; a run: consecutive True cells along a row) with no cell of
+    their run that is not ``bounded`` (:func:`bounded_stretches` across the rows) within
+    ``max_cells`` along the row; a new array.
+
+    A run along a profile is one object from its wall to the wall coming down: where a cell of
+    it lies on a cross profile with no break within the largest object, the run is the
+    terrain's (beside a meandering gully the cells near its sides meet the side's breaks across,
+    the level's middle does not). A run is at most the largest object long, but runs of
+    neighbouring objects touch: within ``max_cells`` only, so a cell's answer depends on the
+    cells within that many along the row (:func:`profile_reach` adds it).
+
+    Examples
+    --------
+    >>> r = np.array([[1, 1, 0, 1, 1, 1, 1, 1]], bool)
+    >>> bounded_runs(r, np.array([[1, 1, 1, 1, 0, 1, 1, 1]], bool), 2).astype(int).tolist()
+    [[1, 1, 0, 0, 0, 0, 0, 1]]
+    """
+    runs = np.asarray(runs, bool)
+    bad = runs & ~np.asarray(bounded, bool)
+    if not bad.any():
+        return runs.copy()
+    w = runs.shape[1]
+    cols = np.arange(w, dtype=np.int32)
+    far = np.int32(1 << 30)
+    # from the left: the run's first column and the last unbounded cell at or before
+    first = np.where(runs, np.int32(-1), cols)
+    np.maximum.accumulate(first, axis=1, out=first)
+    last = np.where(bad, cols, -far)
+    np.maximum.accumulate(last, axis=1, out=last)
+    drop = last > first
+    drop &= cols - last <= max_cells
+    # from the right: the run's past-the-last column and the next unbounded cell at or after
+    first = np.minimum.accumulate(np.where(runs, w, cols)[:, ::-1], axis=1)[:, ::-1]
+    last = np.minimum.accumulate(np.where(bad, cols, far)[:, ::-1], axis=1)[:, ::-1]
+    nxt = last < first
+    nxt &= last - cols <= max_cells
+    drop |= nxt
+    return runs & ~drop
 
 
 def _edge_regions(cells, walls, max_cells, near=0, z=None, tol=0.0):

@@ -694,7 +694,8 @@ def test_every_wall_starts_its_own_run():
 
 
 def test_halo_is_the_sum_of_the_stages_reaches():
-    """The halo holds the profile runs (largest object + wall test), the enclosed regions
+    """The halo holds the profile runs (largest object + wall test, and the largest object again
+    along the profile for the runs bounded across, :func:`.profiles.bounded_runs`), the enclosed regions
     (largest object) and both ground passes (twice half the largest object + windows), each
     with its continued ground (two windows to the stretch's start, then the stretch: a window's
     independent heights, longer than a window of cells where the heights lie farther apart)."""
@@ -703,7 +704,7 @@ def test_halo_is_the_sum_of_the_stages_reaches():
             P = {"window_cells": w, "max_object_size_m": size}
             cells = int(size / min(cell))
             r = int(np.ceil(0.5 * size / min(cell))) + w // 2
-            want = (cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w
+            want = (2 * cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w
             assert curvature.curvature_halo(P, cell) == want + (want & 1)
             # heights 3 m apart: stretches of w points of 3 m, longer than w cells
             stretch = int(np.ceil(w * 3.0 / min(cell)))
@@ -1569,3 +1570,94 @@ def test_ground_stretch_is_a_window_of_independent_heights():
     assert ground.ground_stretch((1.0, 1.0), 5, 1.25) == (7, 7)
     assert ground.ground_stretch((4.0, 4.0), 5, 9.14) == (12, 12)
     assert ground.ground_stretch((1.0, 2.0), 5, 1.5) == (8, 5)
+
+
+def test_bounded_stretches_exact():
+    """A stretch of free cells along a row spans its length, what is seen of it where the raster's
+    edge cuts it; cells not free are always bounded."""
+    free = np.array([[1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 1, 1],
+                     [0, 1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 0],
+                     [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]], bool)
+    assert profiles.bounded_stretches(free, 4).astype(int).tolist() == [
+        [1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0],
+        [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1],
+        [0] * 12]
+    assert profiles.bounded_stretches(free, 2)[0].astype(int).tolist() == [0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0]
+    assert profiles.bounded_stretches(free, 12)[2].all() and not profiles.bounded_stretches(free, 11)[2].any()
+    assert profiles.bounded_stretches(np.zeros((2, 3), bool), 0).all()
+
+
+def test_height_steps_exact():
+    """A step: a rise or a fall of at least the height from either of the two cells before; NaN is one."""
+    z = np.array([[0, 0.2, 0.4, 1.5, 1.5, 1.5, 1.6, np.nan, 1, 1, 0.1, 0.05]], np.float32)
+    assert profiles.height_steps(z, 1.0).astype(int).tolist() == [[0, 0, 0, 1, 1, 0, 0, 1, 0, 0, 0, 0]]
+    assert profiles.height_steps(z, 0.9).astype(int).tolist() == [[0, 0, 0, 1, 1, 0, 0, 1, 0, 0, 1, 1]]
+
+
+def test_bounded_runs_exact():
+    """A run (consecutive True cells along a row) loses its cells within ``max_cells`` of one of its
+    own cells that is not bounded; other runs keep theirs."""
+    runs = np.array([[1, 1, 0, 1, 1, 1, 1, 1, 1], [1, 1, 1, 0, 0, 1, 1, 0, 0], [0] * 9], bool)
+    bounded = np.array([[1, 1, 1, 1, 0, 1, 1, 1, 1], [1, 1, 1, 1, 1, 1, 0, 1, 1], [1] * 9], bool)
+    assert profiles.bounded_runs(runs, bounded, 2).astype(int).tolist() == [
+        [1, 1, 0, 0, 0, 0, 0, 1, 1], [1, 1, 1, 0, 0, 0, 0, 0, 0], [0] * 9]
+    assert profiles.bounded_runs(runs, bounded, 8).astype(int).tolist() == [
+        [1, 1, 0, 0, 0, 0, 0, 0, 0], [1, 1, 1, 0, 0, 0, 0, 0, 0], [0] * 9]
+    assert not profiles.bounded_runs(np.zeros((2, 3), bool), np.zeros((2, 3), bool), 1).any()
+
+
+def _trenches(cell, building=False):
+    """A 2 degree slope 200 m across (X) and 300 m long (Y) cut by two trenches running along Y, 8 m
+    deep with 4 m floors and 50 degree sides, 80 m apart: the level between them, 62 m wide, rises from
+    one on a wall and comes down into the other (a gully's sides at 2-4 m cells). With ``building``,
+    the trenches' floor level is flat ground and a hall 60 m wide (X) and 180 m long (Y), 8 m high,
+    stands on it: longer than the largest object, within twice it."""
+    y, x = np.mgrid[0:int(300 / cell), 0:int(200 / cell)].astype(np.float64)
+    x, y = (x + 0.5) * cell, (y + 0.5) * cell
+    z = 100.0 - np.tan(np.radians(2.0)) * y
+    if building:
+        z = z - 8.0 + 8.0 * ((np.abs(x - 100) < 30) & (np.abs(y - 150) < 90))
+        return z.astype(np.float32)
+    run = 8.0 / np.tan(np.radians(50.0))
+    for x0 in (60.0, 140.0):
+        z -= 8.0 * np.clip((2.0 + run - np.abs(x - x0)) / run, 0.0, 1.0)
+    return z.astype(np.float32)
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
+def test_level_between_trenches_running_along_y_is_ground(cell):
+    """#12: the level between two trenches (gullies, ditches) running along Y rises from one on a
+    wall and comes down into the other within the largest object: along X it is the paper's object
+    (a run from a break going up to the break coming down), but along Y it meets no step within the
+    largest object either way, so it is no object (bare gullies at 4 m cells lost 21 % of their
+    ground so). A hall as wide and as high, bounded both ways within twice the largest object (180 m
+    long), stays an object at every cell."""
+    z = _trenches(cell)
+    res = get_method("curvature").run(z, (cell, cell), **curvature.resolve_curvature_params(z, cell))
+    assert np.count_nonzero(res.mask != GROUND) / z.size < 0.005
+    zb = _trenches(cell, building=True)
+    res = get_method("curvature").run(zb, (cell, cell), **curvature.resolve_curvature_params(zb, cell))
+    hall = zb - (100.0 - 8.0 - np.tan(np.radians(2.0)) * (np.arange(zb.shape[0])[:, None] + 0.5) * cell) > 4.0
+    assert np.count_nonzero(res.mask[hall] == OBJECT) / np.count_nonzero(hall) > 0.95
+    assert np.count_nonzero(res.mask[~hall] == OBJECT) / np.count_nonzero(~hall) < 0.02
+
+
+@pytest.mark.parametrize("block", [40, 57])
+def test_runs_bounded_across_in_blocks_give_the_one_pass_mask(block):
+    """The runs bounded across (:func:`.profiles.bounded_runs`) read the cross profiles and the runs
+    within the largest object: blocks with the halo give the one-pass mask, with the level between the
+    trenches ground and a row of three houses touching each other (one run across them) objects."""
+    from bare_earth.core import pipeline
+    z = _trenches(2.0)
+    z[20:28, 2:20] += np.array([6.0, 8.0, 6.0]).repeat(6)[None, :]    # houses 12 x 16 m in a row
+    z[100:110, 85:95] += 7.0                                           # a house on the level
+    params = {"max_object_size_m": 40.0}
+    one = pipeline.run_array("curvature", z, 2.0, params=params).mask
+    assert (one[20:28, 2:20] == OBJECT).mean() > 0.95 and (one[100:110, 85:95] == OBJECT).mean() > 0.95
+    level = np.zeros(z.shape, bool)
+    level[:, 40:60] = True
+    level[95:115, 80:100] = False
+    assert (one[level] == GROUND).mean() > 0.99
+    res = pipeline.run_array("curvature", z, 2.0, params=params, block=block, workers=1)
+    assert res.info["blocks"] > 1
+    np.testing.assert_array_equal(res.mask, one)
