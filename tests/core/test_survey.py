@@ -339,6 +339,18 @@ def test_parse_params_converts_to_the_params_kinds():
         parse_params(meth, "max_object_size_m=abc")
 
 
+def test_parse_params_of_a_method_without_parameters_says_so():
+    """dtm, the recommended filter and the survey's default method, takes no parameter: a KEY=VALUE given to it
+    was refused as "method 'dtm' takes ." (an empty list), after the help's example gave two."""
+    with pytest.raises(ValueError, match=r"^parameter max_object_size_m: method 'dtm' takes no parameter \(it "
+                                         r"derives every value from the data\): give none, or choose a method that "
+                                         r"takes it\.$"):
+        parse_params("dtm", ["max_object_size_m=60"])
+    assert parse_params("dtm", []) == {} and parse_params("dtm", "") == {}
+    with pytest.raises(ValueError, match=r"method 'geodesic' takes edge_ratio, height_threshold_m, "):
+        parse_params("geodesic", ["foo=1"])
+
+
 def test_parse_params_reads_values_as_users_type_them():
     """What the dialog and qgis_process take elsewhere: a whole number written as 2.0, an option
     in any case (the key already was), and a decimal comma said to be one (before: 'sigma_m=0,1'
