@@ -715,7 +715,8 @@ def check_tiles_crs(paths, cloud, crs=None):
 
 def _load_tiles(tiles, outputs, crs):
     """The tiles as clouds (read when paths) with their names; ValueError for no tile, an
-    output list of another length, an empty tile or tiles of different CRSs / units."""
+    output list of another length, an empty tile, tiles of different CRSs / units or a tile with
+    stray points (:func:`check_stray_points`)."""
     tiles = list(tiles)
     if not tiles:
         raise ValueError("no tile given; pass the point files of the block.")
@@ -732,6 +733,7 @@ def _load_tiles(tiles, outputs, crs):
                 abs(c.z_units_to_metre - clouds[0].z_units_to_metre) > 1e-12:
             raise ValueError(f"{names[i]} is not in the CRS / units of {names[0]}: tiles of one block "
                              "must share them (reproject first, or pass the CRS).")
+        check_stray_points(c, names[i])     # the block's cell and lattice follow every tile's extent
     return clouds, names
 
 

@@ -54,6 +54,17 @@ def test_stray_points_far_from_the_others_refused_naming_the_farthest():
             pf.check_stray_points(stray)
 
 
+def test_a_neighbouring_tile_with_a_stray_point_refused_naming_it():
+    """The cell and lattice of a block of tiles follow every tile's extent: one stray point in a neighbouring
+    tile (OTHER_TILES; only the input tile was checked) coarsened the block's cell without a word."""
+    x, y, z = _tile(n=10000, side=100.0)
+    a = PointCloud(x, y, z)
+    b = PointCloud(np.append(x + 100.0, 502000.0), np.append(y, 5402000.0), np.append(z, 100.0))
+    with pytest.raises(ValueError, match=r"^tile 2: 1 of the 10001 points lie far from the others.*the farthest "
+                                         r"stray point is at x 502000, y 5402000\)"):
+        pf.filter_tiles([a, b], method="morphological")
+
+
 def test_stray_points_not_said_of_spread_or_lined_up_points():
     """Two dense blocks far apart, 1 % of the points beyond the bulk but near it, a few points
     (the quantiles of 5 points reach their extremes) and points along a line are no stray points."""
