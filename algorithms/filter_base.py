@@ -678,7 +678,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         """(ok, message): every key names a parameter of this algorithm (a misspelt one would be
         silently left out, its default used), and a number, band or yes/no given as text (as
         qgis_process gives every value) reads as one: QGIS reads 'abc' as 0 or false and runs,
-        and 'nan' as "not given"."""
+        and 'nan' as "not given"; a NaN given as a number (a script's, a model's expression) passes
+        QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended)."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -687,6 +688,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 ", ".join(unknown), self.id(), self.id())
         for key, v in parameters.items():
             d = defs[key]
+            if isinstance(v, float) and not math.isfinite(v) and d.type() in ("number", "band") \
+                    and d.checkValueIsAcceptable(v):       # NaN: within every range, read as -2147483648
+                return False, tr("{} = {} is not a number: give a number{}.").format(
+                    label_of(d), v, tr(", or leave it out") if is_optional(d) else "")
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()

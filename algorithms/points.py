@@ -105,26 +105,22 @@ def check_points(path, crs=None, what="INPUT"):
 
 def check_width(cloud, cell_m, scales, what="INPUT_POINTS"):
     """ValueError when the points cannot fill the 3 x 3 cells a filter needs although their
-    bounding box does: 99 % of them span less (a few stray points far away made the box, and
-    the default cell, huge), or they lie along a line (across their principal direction, the
-    minor axis of the x/y covariance, in metres, they span less than 3 cells; a diagonal line
-    of points has a square bounding box)."""
+    bounding box does: 99 % of them span less (a cell larger than their spread; a few stray points
+    far away are refused before, :func:`.pointflow.check_stray_points`), or they lie along a line
+    (across their principal direction, the minor axis of the x/y covariance, in metres, they span
+    less than 3 cells; a diagonal line of points has a square bounding box)."""
     ok = np.isfinite(cloud.x) & np.isfinite(cloud.y) & np.isfinite(cloud.z)
     x = (cloud.x[ok] - cloud.x[ok].mean()) * scales[0]
     y = (cloud.y[ok] - cloud.y[ok].mean()) * scales[1]
     if x.size < 3:
         raise ValueError(f"{what}: only {x.size} point(s) with finite x, y and z; a filter needs points "
                          "over at least 3 x 3 cells.")
-    qx, qy = np.quantile(x, [0.005, 0.995]), np.quantile(y, [0.005, 0.995])
+    qx, qy = np.quantile(x, pf.STRAY_QUANTILES), np.quantile(y, pf.STRAY_QUANTILES)
     bw, bh = float(qx[1] - qx[0]), float(qy[1] - qy[0])
-    if bw / cell_m < 3 or bh / cell_m < 3:
-        w, h = float(np.ptp(x)), float(np.ptp(y))
-        stray = w > 2 * bw and h > 2 * bh
+    if bw / cell_m < 3 or bh / cell_m < 3:     # stray points far from these: pointflow.check_stray_points
         raise ValueError(f"{what}: 99 % of the points span only {bw:.4g} x {bh:.4g} m: with cells of {cell_m:g} m "
-                         "that is less than the 3 x 3 cells a filter needs. "
-                         + (f"A few points lie far from the others (the whole extent is {w:.4g} x {h:.4g} m): remove "
-                            "those stray points (e.g. the LAS noise classes) or clip the file." if stray else
-                            "Give points covering an area (or a smaller CELL_SIZE_M)."))
+                         "that is less than the 3 x 3 cells a filter needs. Give points covering an area (or a "
+                         "smaller CELL_SIZE_M).")
     _, vecs = np.linalg.eigh(np.cov(np.vstack([x, y])))
     minor = vecs[:, 0]                                  # eigh: ascending eigenvalues
     width = float(np.ptp(x * minor[0] + y * minor[1]))
@@ -336,6 +332,7 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
         ok, msg, cloud = check_points(path, crs)
         if not ok:
             raise ValueError(msg)
+        pf.check_stray_points(cloud, self.INPUT)
         cell = cell_size_value(self, parameters, self.CELL_SIZE_M, context)
         c = cell or pf.default_cell_size_m(cloud)
         sx, sy, _ = pf.axis_scales(cloud)
@@ -592,6 +589,7 @@ class PointsInputMixin:
         ok, msg, cloud = check_points(path, crs, self.INPUT_POINTS)
         if not ok:
             raise ValueError(msg)
+        pf.check_stray_points(cloud, self.INPUT_POINTS)
         tiles = [t for t in (self.parameterAsFileList(parameters, self.OTHER_TILES, context)
                              if self._given(parameters, self.OTHER_TILES) else [])
                  if os.path.abspath(t) != os.path.abspath(path)]

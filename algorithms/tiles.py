@@ -121,8 +121,8 @@ class TilesAlgorithm(BaseAlgorithm):
             "The filter run on every tile (default: the recommended one)."))
         self.addParameter(with_help(QgsProcessingParameterString(
             self.PARAMETERS, tr("Method parameters (KEY=VALUE ...)"), "", multiLine=False, optional=True),
-            "For example: max_object_size_m=60 slope_threshold_deg=30. Empty: every parameter derived from "
-            "the data (once for the whole survey)."))
+            "For example, with slopeprofile: max_object_size_m=60 slope_threshold_deg=30 (dtm takes none). "
+            "Empty: every parameter derived from the data (once for the whole survey)."))
         self.addParameter(with_help(QgsProcessingParameterString(
             self.SCHEDULER, tr("Dask scheduler address (empty: this computer)"), "", optional=True),
             "tcp://host:8786 of a running dask-scheduler; empty starts worker processes on this computer."))

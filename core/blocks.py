@@ -12,6 +12,7 @@ import queue as queue_module
 import sys
 import threading
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 
@@ -375,6 +376,13 @@ class WorkerPool:
         self.executor.shutdown(wait=wait, cancel_futures=True)
 
 
+#: The refusal of a run whose worker process died (:func:`run_processes`).
+WORKER_DIED = ("a worker process ended abruptly while filtering the blocks (killed: most often by the system "
+               "when the memory ran out, or by a user), so the run stopped and nothing was written. Run again with "
+               "fewer worker processes (PROCESSES), smaller blocks (BLOCK_SIZE), or threads in one process "
+               "(THREADS) instead.")
+
+
 def start_pool(workers, warm_up=None):
     """A :class:`WorkerPool` whose workers start (spawn and import) right away, in the background.
 
@@ -395,7 +403,9 @@ def run_processes(job, items, on_result, *, workers=2, progress=None, pool=None)
     extra)`` tuples; at most ``2 * workers`` are in flight, so memory stays bounded.
     ``progress`` gets the whole's fraction, blocks' own progress included, and may raise
     ``Cancelled``: the pending blocks are then cancelled, and the running ones stop at their
-    next progress call.
+    next progress call. A worker that dies (the system's out-of-memory killer) raises ValueError
+    (:data:`WORKER_DIED`: what happened and the settings that use less memory) instead of the
+    pool's BrokenProcessPool traceback.
     """
     pool = pool or WorkerPool(workers)
     bp = BlockProgress(progress, len(items))
@@ -419,10 +429,12 @@ def run_processes(job, items, on_result, *, workers=2, progress=None, pool=None)
                 pending[pool.executor.submit(_run_job, job, k, *item)] = (k, item)
             drain(2 * workers - 1)
         drain(0)
-    except BaseException:
+    except BaseException as exc:
         pool.cancelled.set()                      # running blocks stop at their next progress call
         for fut in pending:
             fut.cancel()
         pool.shutdown(wait=True)
+        if isinstance(exc, BrokenProcessPool):
+            raise ValueError(WORKER_DIED) from None
         raise
     pool.shutdown(wait=True)

@@ -538,6 +538,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     meth = as_method(method)
+    check_run_counts(block, workers, processes)
     info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
     for target in outputs.values():
         if target:
@@ -557,6 +558,24 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     finally:
         if pool is not None:
             pool.shutdown(wait=False)
+
+
+def check_run_counts(block=None, workers=1, processes=1):
+    """ValueError, before any work, unless ``block`` is None or whole numbers of cells of at least
+    1 (one, or rows and columns), ``workers`` a whole number (0 or less: one per core) and
+    ``processes`` a whole number of at least 1. A block of -2147483648 cells (a NaN given as a
+    whole number, C's conversion) ran for ever, cutting the raster into windows of no extent."""
+    def whole(v):
+        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
+            and float(v).is_integer()
+    sizes = block if isinstance(block, (tuple, list)) else (block,)
+    if block is not None and not (len(sizes) in (1, 2) and all(whole(b) and b >= 1 for b in sizes)):
+        raise ValueError(f"the block size must be a whole number of cells of at least 1 (or rows and columns), "
+                         f"or None for automatic blocks; got {block!r}.")
+    if not whole(workers):
+        raise ValueError(f"workers must be a whole number of threads (0: one per core); got {workers!r}.")
+    if not (whole(processes) and processes >= 1):
+        raise ValueError(f"processes must be a whole number of worker processes, at least 1; got {processes!r}.")
 
 
 def _read_reporting(info, window, progress):

@@ -49,7 +49,7 @@ __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classif
            "compare_classified", "match_points", "read_column", "point_output_path",
            "axis_scales", "crs_warnings", "cell_size_for_spacing", "default_cell_size_m", "DEFAULT_THRESHOLD_M",
            "DEFAULT_SLOPE_FACTOR", "SMRF_CELL_M", "cell_slope_factor", "REDUCERS", "POINT_EXTENSIONS",
-           "check_grid_cells"]
+           "check_grid_cells", "check_stray_points"]
 
 #: SMRF's point rule (Pingel et al. 2013): elevation threshold and slope scale.
 DEFAULT_THRESHOLD_M = 0.5
@@ -64,6 +64,9 @@ FINEST_CELL_SPACING = 0.25
 #: 64 Mcells, 3 points): the float64 grid, its float32 copy and, filling the empty cells from the
 #: nearest, the distance transform's indices.
 RASTERIZE_BYTES_PER_CELL = {True: 17, False: 12}
+#: The bulk of a cloud along an axis: its points between these quantiles (99 % of them);
+#: points beyond it by more than half its span are stray (:func:`check_stray_points`).
+STRAY_QUANTILES = (0.005, 0.995)
 #: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
 REDUCERS = ("min", "max", "mean")
 #: Class names of :func:`classify_points` codes, for logs.
@@ -213,6 +216,47 @@ def default_cell_size_m(cloud, scales=None):
     w, h = (x1 - x0) * sx, (y1 - y0) * sy
     area = w * h if w > 0 and h > 0 else max(w, h, 1.0) ** 2
     return cell_size_for_spacing(math.sqrt(area / max(1, len(cloud))))
+
+
+def check_stray_points(cloud, what="INPUT"):
+    """ValueError, before any work, when a few points lie far from the others.
+
+    The grid of a cloud covers its bounding box, and its default cell follows the box's area
+    (:func:`default_cell_size_m`). Along each axis the *bulk* is the span of 99 % of the points
+    (:data:`STRAY_QUANTILES`); when the whole extent is more than twice the bulk's along x or y,
+    points beyond the bulk by more than half its span (fewer than 1 in 200: a bad GPS record at
+    (0, 0), LAS noise) would make most of the grid empty cells that copy their nearest point's
+    height, and coarsen the default cell by the empty space (one point 2 km from a 200 m tile:
+    2.5 m cells instead of 1 m). The message counts them and gives the farthest one. An axis
+    along which 99 % of the points share one coordinate is left to the checks of a line.
+    Coordinates are compared in the CRS's units (the ratios do not depend on them).
+    """
+    x, y = np.asarray(cloud.x, float), np.asarray(cloud.y, float)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(np.asarray(cloud.z, float))
+    x, y = x[ok], y[ok]
+    if x.size < 3:
+        return
+    far = np.zeros(x.size, bool)
+    spans = []
+    for v in (x, y):
+        lo, hi = (float(q) for q in np.quantile(v, STRAY_QUANTILES))
+        bulk, whole = hi - lo, float(v.max() - v.min())
+        spans.append((bulk, whole))
+        if bulk > 0 and whole > 2 * bulk:
+            far |= (v < lo - 0.5 * bulk) | (v > hi + 0.5 * bulk)
+    if not far.any():
+        return
+    (bw, w), (bh, h) = spans
+    cx, cy = 0.5 * (np.quantile(x, STRAY_QUANTILES).sum()), 0.5 * (np.quantile(y, STRAY_QUANTILES).sum())
+    k = int(np.flatnonzero(far)[np.argmax(np.hypot(x[far] - cx, y[far] - cy))])
+    unit = "units" if _srs(cloud.crs) is None else unit_name(cloud)
+    unit = {"metre": "m", "meter": "m", "foot": "ft", "degree": "deg"}.get(unit.lower(), unit)
+    raise ValueError(f"{what}: {int(far.sum())} of the {x.size} points lie far from the others: 99 % of them span "
+                     f"{bw:.4g} x {bh:.4g} {unit}, but the whole extent is {w:.4g} x {h:.4g} {unit} (the farthest "
+                     f"stray point is at x {x[k]:.10g}, y {y[k]:.10g}). The grid covers the whole extent, so most "
+                     "of it would be empty cells copying their nearest point's height, and the default cell size "
+                     "would follow the empty space. Remove those stray points (e.g. the LAS noise classes 7 and 18, "
+                     "or a bad record at 0, 0) or clip the file to the survey's area.")
 
 
 def check_grid_cells(n_points, width_m, height_m, cell_m, *, what="CELL_SIZE_M", fill_empty=True,
@@ -671,7 +715,8 @@ def check_tiles_crs(paths, cloud, crs=None):
 
 def _load_tiles(tiles, outputs, crs):
     """The tiles as clouds (read when paths) with their names; ValueError for no tile, an
-    output list of another length, an empty tile or tiles of different CRSs / units."""
+    output list of another length, an empty tile, tiles of different CRSs / units or a tile with
+    stray points (:func:`check_stray_points`)."""
     tiles = list(tiles)
     if not tiles:
         raise ValueError("no tile given; pass the point files of the block.")
@@ -688,6 +733,7 @@ def _load_tiles(tiles, outputs, crs):
                 abs(c.z_units_to_metre - clouds[0].z_units_to_metre) > 1e-12:
             raise ValueError(f"{names[i]} is not in the CRS / units of {names[0]}: tiles of one block "
                              "must share them (reproject first, or pass the CRS).")
+        check_stray_points(c, names[i])     # the block's cell and lattice follow every tile's extent
     return clouds, names
 
 

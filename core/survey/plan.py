@@ -100,7 +100,10 @@ def sample_layout(tiles, survey_cells, max_cells=SAMPLE_CELLS):
     A survey of at most ``max_cells`` is its own sample (the parameters are those of a
     single pass over the mosaic). A larger one is sampled by the central crops of
     :func:`sample_tiles`, each of the same side, at most ``max_cells`` in all, laid side
-    by side in a grid with :data:`SAMPLE_GUTTER` nodata cells between them.
+    by side in a grid with :data:`SAMPLE_GUTTER` nodata cells between them. The side is no
+    larger than the longest side of those tiles: crops of tiles smaller than their share of
+    ``max_cells`` lie side by side too (two 100 x 100 tiles 50 km apart were laid in slots of
+    2040 cells, a sample 99.8 % nodata where the noise was not measurable).
 
     Returns
     -------
@@ -111,7 +114,8 @@ def sample_layout(tiles, survey_cells, max_cells=SAMPLE_CELLS):
         return None
     chosen = sample_tiles(tiles)
     k = int(math.ceil(math.sqrt(len(chosen))))
-    side = int(math.sqrt(max_cells)) // k - SAMPLE_GUTTER
+    longest = max(max(t.window[1] - t.window[0], t.window[3] - t.window[2]) for t in chosen)
+    side = min(int(math.sqrt(max_cells)) // k - SAMPLE_GUTTER, longest)
     parts = []
     for j, t in enumerate(chosen):
         parts.append((t, central_crop(t, side), ((j // k) * (side + SAMPLE_GUTTER),

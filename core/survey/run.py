@@ -85,7 +85,9 @@ def parse_params(method, items):
             raise ValueError(f"parameter {item!r}: write KEY=VALUE.")
         previous = item
         if key not in known:
-            raise ValueError(f"parameter {key}: method {method.name!r} takes {', '.join(sorted(known))}.")
+            raise ValueError(f"parameter {key}: method {method.name!r} takes " + (
+                f"{', '.join(sorted(known))}." if known else "no parameter (it derives every value from the data): "
+                "give none, or choose a method that takes it."))
         try:
             out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
         except ValueError as exc:

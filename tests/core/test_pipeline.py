@@ -330,6 +330,31 @@ def test_run_file_cancel_leaves_nothing(tmp_path, block, workers):
     assert set(os.listdir(tmp_path)) == before
 
 
+@pytest.mark.parametrize("kw", [dict(block=-2147483648), dict(block=0), dict(block=(64, -1)), dict(block=64.5),
+                                dict(processes=0), dict(workers=float("nan")), dict(block="64")])
+def test_run_file_blocks_and_counts_that_are_no_whole_numbers_refused_before_work(tmp_path, kw):
+    """A block of -2147483648 cells (QGIS's whole number of a NaN) ran for ever (a 60 x 70 raster had not
+    finished in 10 min); zero or negative blocks and processes, fractions and NaN are refused before work."""
+    import subprocess
+    import sys
+    z, _ = scene()
+    src = write(tmp_path, z)
+    before = set(os.listdir(tmp_path))
+    with pytest.raises(ValueError, match=r"(block size|workers|processes) must be a whole number"):
+        pipeline.check_run_counts(**kw)
+    if kw.get("block") == -2147483648:   # in a child process: without the check it never ends
+        code = ("import sys; sys.path.insert(0, sys.argv[1]); from bare_earth.core import pipeline\n"
+                "try:\n    pipeline.run_file('morphological', sys.argv[2], {'mask': sys.argv[3]}, block=-2147483648)\n"
+                "except ValueError as exc:\n    print(exc)")
+        plugins = os.path.dirname(os.path.dirname(os.path.dirname(pipeline.__file__)))
+        res = subprocess.run([sys.executable, "-c", code, plugins, src, str(tmp_path / "m.tif")],
+                             capture_output=True, text=True, timeout=120)
+        assert "the block size must be a whole number of cells" in res.stdout
+    assert set(os.listdir(tmp_path)) == before
+    for ok in (dict(), dict(block=64), dict(block=(64, 128)), dict(workers=0, processes=2), dict(block=64.0)):
+        pipeline.check_run_counts(**ok)
+
+
 def test_run_file_cancel_keeps_previous_outputs(tmp_path):
     z, _ = scene()
     src = write(tmp_path, z)

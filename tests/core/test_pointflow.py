@@ -31,6 +31,52 @@ def cloud():
     return scene_cloud()
 
 
+# --------------------------------------------------------------------------- stray points
+def _tile(n=40000, side=200.0, seed=1):
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, side, n) + 500000.0, rng.uniform(0, side, n) + 5400000.0
+    return x, y, 100.0 + 0.05 * (x - 500000.0)
+
+
+def test_stray_points_far_from_the_others_refused_naming_the_farthest():
+    """One point 2 km from a 200 m tile of 40000 points made the default cell 2.5 m instead of 1 m
+    and a grid of 800 x 800 cells, 99 % of them copies of their nearest point, without a word;
+    a point off along x only (a bad easting) counts too."""
+    x, y, z = _tile()
+    clean = PointCloud(x, y, z)
+    pf.check_stray_points(clean)                             # a tile: nothing said
+    assert pf.default_cell_size_m(clean) == 1.0
+    for sx, sy in ((502000.0, 5402000.0), (0.0, 5400100.0)):
+        stray = PointCloud(np.append(x, sx), np.append(y, sy), np.append(z, 100.0))
+        with pytest.raises(ValueError, match=r"INPUT: 1 of the 40001 points lie far from the others: 99 % of them "
+                                             r"span 19\d(\.\d+)? x 19\d(\.\d+)? units, but the whole extent is .*"
+                                             rf"the farthest stray point is at x {sx:.10g}, y {sy:.10g}\)"):
+            pf.check_stray_points(stray)
+
+
+def test_a_neighbouring_tile_with_a_stray_point_refused_naming_it():
+    """The cell and lattice of a block of tiles follow every tile's extent: one stray point in a neighbouring
+    tile (OTHER_TILES; only the input tile was checked) coarsened the block's cell without a word."""
+    x, y, z = _tile(n=10000, side=100.0)
+    a = PointCloud(x, y, z)
+    b = PointCloud(np.append(x + 100.0, 502000.0), np.append(y, 5402000.0), np.append(z, 100.0))
+    with pytest.raises(ValueError, match=r"^tile 2: 1 of the 10001 points lie far from the others.*the farthest "
+                                         r"stray point is at x 502000, y 5402000\)"):
+        pf.filter_tiles([a, b], method="morphological")
+
+
+def test_stray_points_not_said_of_spread_or_lined_up_points():
+    """Two dense blocks far apart, 1 % of the points beyond the bulk but near it, a few points
+    (the quantiles of 5 points reach their extremes) and points along a line are no stray points."""
+    x, y, z = _tile()
+    half = x.size // 2
+    pf.check_stray_points(PointCloud(np.r_[x[:half], x[half:] + 5000.0], y, z))
+    k = x.size // 100                                        # 1 %, within half the bulk's span
+    pf.check_stray_points(PointCloud(np.r_[x[k:], x[:k] + 250.0], y, z))
+    pf.check_stray_points(PointCloud(np.array([0.0, 1, 2, 3, 1000]), np.array([0.0, 1, 2, 3, 1000]), np.zeros(5)))
+    pf.check_stray_points(PointCloud(np.full(x.size, 500000.0), y, z))
+
+
 # --------------------------------------------------------------------------- units
 def test_axis_scales_and_cell_sizes():
     c = PointCloud(np.array([0.0, 3280.84, 0, 3280.84]), np.array([0.0, 3280.84, 3280.84, 0]),

@@ -33,6 +33,31 @@ def test_processes_give_the_one_pass_mask(dsm, tmp_path):
     assert par["classes_percent"] == one["classes_percent"]
 
 
+def test_a_worker_killed_mid_run_refused_saying_what_to_change(dsm, tmp_path):
+    """A worker process killed while blocks run (the system's out-of-memory killer, PROCESSES > 1 on a large
+    raster) ended the run with the pool's traceback, "BrokenProcessPool: A child process terminated
+    abruptly"; now a ValueError says what happened and the settings that use less memory, and nothing is written."""
+    import multiprocessing
+    import os
+    import signal
+    killed = []
+
+    def progress(f):
+        children = multiprocessing.active_children()
+        if children and not killed:       # the pool's workers are running blocks
+            os.kill(children[0].pid, signal.SIGKILL)
+            killed.append(children[0].pid)
+
+    with pytest.raises(ValueError, match=r"a worker process ended abruptly while filtering the blocks .*nothing was "
+                                         r"written\. Run again with fewer worker processes \(PROCESSES\), smaller "
+                                         r"blocks \(BLOCK_SIZE\), or threads"):
+        run_file("slopeprofile", dsm, {"mask": tmp_path / "m.tif", "dtm": tmp_path / "d.tif"},
+                 processes=2, block=64, progress=progress)
+    assert killed
+    assert not (tmp_path / "m.tif").exists() and not (tmp_path / "d.tif").exists()
+    assert not list(tmp_path.glob("*.partial*"))
+
+
 def test_processes_cancel_leaves_nothing(dsm, tmp_path):
     calls = []
 

@@ -173,6 +173,28 @@ def test_sample_crops_have_their_empty_cells_filled_and_the_gutters_stay_nodata(
     assert np.isfinite(z[crops]).mean() > 0.95 and np.isnan(z[~crops]).all()   # 30 % empty in the tiles
     assert ((z[crops & np.isfinite(z)] >= 100.0) & (z[crops & np.isfinite(z)] <= 100.1)).all()
 
+def test_sample_of_small_tiles_far_apart_lays_their_crops_side_by_side(tmp_path):
+    """Two 100 x 100 tiles 50 km apart (a survey grid of 2.5e9 cells, so a sample of crops): each crop was
+    laid in a slot of 2040 cells, a sample of 2040 x 4088 cells 99.8 % nodata, where the noise was not
+    measurable (morphological's noise_m NaN, its DH_M the fallback) though each tile gives 0.05 m."""
+    from bare_earth.core.survey.run import read_sample
+    sc = make_scene("city", shape=(200, 200), seed=5)
+    z = sc.dsm.astype(np.float32)
+    paths = [grid.write_array(tmp_path / "a.tif", z[:100, :100], (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), 32632,
+                              nodata=-9999.0),
+             grid.write_array(tmp_path / "b.tif", z[100:, 100:], (550000.0, 1.0, 0.0, 5350000.0, 0.0, -1.0), 32632,
+                              nodata=-9999.0)]
+    index = index_tiles([str(p) for p in paths])
+    parts, shape = plan.sample_layout(index.tiles, index.shape[0] * index.shape[1])
+    assert shape == (100, 200 + plan.SAMPLE_GUTTER)
+    assert [w for _t, w, _p in parts] == [t.window for t in index.tiles]
+    vrt = survey_io.build_vrt(tmp_path / "survey.vrt", [t.path for t in index.tiles], index.vrt_nodata)
+    zs, _where = read_sample(index, grid.open_dsm(vrt))
+    assert np.array_equal(zs[:, :100], z[:100, :100]) and np.array_equal(zs[:, -100:], z[100:, 100:])
+    noise = pipeline.resolve_params(get_method("morphological"), zs, (1.0, 1.0), {})["noise_m"]
+    assert 0.04 < noise < 0.06
+
+
 # -- checks before any work --------------------------------------------------------------------
 def test_index_places_tiles_on_the_survey_grid(survey):
     index = index_tiles(survey["tiles"][::-1])            # any order in, reading order out
@@ -315,6 +337,18 @@ def test_parse_params_converts_to_the_params_kinds():
         parse_params(meth, "max_object_size_m=-5")
     with pytest.raises(ValueError, match="max_object_size_m takes a number; got 'abc'"):
         parse_params(meth, "max_object_size_m=abc")
+
+
+def test_parse_params_of_a_method_without_parameters_says_so():
+    """dtm, the recommended filter and the survey's default method, takes no parameter: a KEY=VALUE given to it
+    was refused as "method 'dtm' takes ." (an empty list), after the help's example gave two."""
+    with pytest.raises(ValueError, match=r"^parameter max_object_size_m: method 'dtm' takes no parameter \(it "
+                                         r"derives every value from the data\): give none, or choose a method that "
+                                         r"takes it\.$"):
+        parse_params("dtm", ["max_object_size_m=60"])
+    assert parse_params("dtm", []) == {} and parse_params("dtm", "") == {}
+    with pytest.raises(ValueError, match=r"method 'geodesic' takes edge_ratio, height_threshold_m, "):
+        parse_params("geodesic", ["foo=1"])
 
 
 def test_parse_params_reads_values_as_users_type_them():

@@ -124,6 +124,23 @@ def test_tiny_block_size_refused_before_work(processing_run, tmp_path, block):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("key", ["BLOCK_SIZE", "THREADS", "PROCESSES", "DH_M", "MAX_OBJECT_SIZE_M"])
+def test_a_nan_given_as_a_number_refused_before_work(qgis_app, processing_run, tmp_path, key):
+    """A NaN given as a number (a PyQGIS script's computed value, a model's expression) passed QGIS's
+    range check and was read as -2147483648: BLOCK_SIZE = NaN ran for ever (10 min on 60 x 70 cells),
+    MAX_OBJECT_SIZE_M = NaN silently took the derived value. 'nan' given as text was already refused."""
+    from qgis.core import QgsApplication, QgsProcessingContext, QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    params = {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+              key: float("nan")}
+    ok, msg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological").checkParameterValues(
+        params, QgsProcessingContext())
+    assert not ok and re.search(rf"\({key}\) = nan is not a number: give a number", msg)
+    with pytest.raises(QgsProcessingException, match=rf"\({key}\) = nan is not a number"):
+        processing_run("bareearth:morphological", params)
+    assert not (tmp_path / "d.tif").exists()
+
+
 def test_smallest_block_size_equals_one_pass(processing_run, tmp_path):
     """BLOCK_SIZE = 64 on a raster of 2 x 3 blocks gives the one-pass mask."""
     from bare_earth.core.synthetic import make_scene

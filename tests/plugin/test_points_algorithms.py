@@ -468,8 +468,9 @@ def _bad_point_file(kind, d):
     ("z_all_nan", r"no point of .* has a finite height"),
     ("diagonal_line", r"the points lie along a line, .* m wide across it.*less than the 3 cells"),
     ("decimal_commas", r"6 values per line.*decimal commas and separated by ';'"),
-    ("one_stray_point", r"99 % of the points span only 59.* x 59.* m: with cells of 10000 m.*A few points lie far "
-                        r"from the others \(the whole extent is 5.001e\+05 x 5.4e\+06 m\): remove those stray points"),
+    ("one_stray_point", r"\(INPUT_POINTS\): 1 of the 2001 points lie far from the others: 99 % of them span 59.* x "
+                        r"59.* units, but the whole extent is 5.001e\+05 x 5.4e\+06 units \(the farthest stray point "
+                        r"is at x 0, y 0\).*Remove those stray points"),
 ])
 def test_degenerate_point_files_refused_before_work(qgis_app, processing_run, tmp_path, kind, message):
     """Before: a raster given as INPUT_POINTS was "a header line but no points", z NaN on every line
@@ -485,6 +486,29 @@ def test_degenerate_point_files_refused_before_work(qgis_app, processing_run, tm
     with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:morphological", params)
     assert not any((tmp_path / f).exists() for f in ("dtm.tif", "mask.tif", "out.txt"))
+
+
+@pytest.mark.parametrize("alg,key", [("bareearth:rasterizepoints", "INPUT"),
+                                     ("bareearth:morphological", "INPUT_POINTS")])
+def test_a_stray_point_near_enough_to_keep_a_grid_refused_before_work(qgis_app, processing_run, tmp_path, alg, key):
+    """One point 2 km from a 200 m tile of 40000 points: the default cell became 2.5 m instead of 1 m,
+    on a grid of 800 x 800 cells 99 % empty (copies of their nearest point's height), and both
+    rasterizepoints and the filters on points ran without a word (only a stray point that left the
+    bulk under 3 x 3 cells was refused, by the filters, not by rasterizepoints)."""
+    from qgis.core import QgsApplication, QgsProcessingContext, QgsProcessingException
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(0, 200, 40000) + 500000.0, rng.uniform(0, 200, 40000) + 5400000.0
+    pts = _write_text(tmp_path / "stray.txt", np.append(x, 502000.0), np.append(y, 5402000.0),
+                      np.append(100.0 + 0.05 * (x - 500000.0), 100.0))
+    outs = ({"OUTPUT": str(tmp_path / "dsm.tif")} if key == "INPUT" else
+            {"OUTPUT_DTM": str(tmp_path / "dsm.tif"), "OUTPUT_MASK": str(tmp_path / "mask.tif")})
+    params = dict(outs, **{key: pts, "CRS" if key == "INPUT" else "POINTS_CRS": "EPSG:32632"})
+    ok, msg = QgsApplication.processingRegistry().algorithmById(alg).checkParameterValues(
+        params, QgsProcessingContext())
+    assert not ok and re.search(rf"\b{key}\)?: 1 of the 40001 points lie far from the others", msg)
+    with pytest.raises(QgsProcessingException, match=r"the farthest stray point is at x 502000, y 5402000\)"):
+        processing_run(alg, params)
+    assert not (tmp_path / "dsm.tif").exists()
 
 
 def test_rasterize_points_too_small_a_grid_refused_in_the_check(qgis_app, tmp_path):
