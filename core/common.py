@@ -311,6 +311,62 @@ def transpose(a, rows=256):
     return out
 
 
+#: Rows per band of :func:`running_mean_down` (a band's float64 sums stay in the cache).
+DOWN_BAND_ROWS = 64
+
+
+def running_mean_down(a, size, out, mode="reflect"):
+    """``ndimage.uniform_filter1d(a, size, axis=0, mode=mode, cval=0.0, output=out)`` of a 2-D float32 or
+    float64 ``a`` into ``out`` (float32 or float64), bit for bit, computed along whole rows.
+
+    SciPy filters each column as a line gathered with the raster's row stride (measured 28-33 ns
+    a cell on 2560 x 4000 cells, against 4-8 ns along the rows). Its arithmetic is reproduced
+    here in the same order on whole rows at once: the running sum ``S`` of each column starts
+    as the sum, in float64 from 0, of the first window (the rows ``-s1 .. s2``, reflected or 0 beyond
+    the raster), each next row adds ``a[i + s2] - a[i - s1 - 1]`` (float64), and the mean ``S / size`` is
+    rounded to ``out``'s type as SciPy writes it. ``mode``: ``"reflect"`` or ``"constant"`` (0 beyond the
+    raster); columns not longer than the window, other types or modes: SciPy itself.
+    """
+    n = a.shape[0]
+    s1 = size // 2
+    s2 = size - s1 - 1
+    if n <= size or a.ndim != 2 or a.dtype not in (np.float32, np.float64) or out.dtype not in (
+            np.float32, np.float64) or mode not in ("reflect", "constant"):
+        return ndimage.uniform_filter1d(a, size, axis=0, mode=mode, cval=0.0, output=out)
+    zero = np.zeros(a.shape[1], a.dtype) if mode == "constant" else None
+
+    def ext(i):                                   # row i beyond the raster (-s1 <= i < n + s2): reflected or 0
+        if 0 <= i < n:
+            return a[i]
+        if zero is not None:
+            return zero
+        return a[-i - 1] if i < 0 else a[2 * n - 1 - i]
+
+    band = np.empty((min(DOWN_BAND_ROWS, n), a.shape[1]), np.float64)
+    carry = None
+    for r0 in range(0, n, band.shape[0]):
+        r1 = min(n, r0 + band.shape[0])
+        d = band[:r1 - r0]
+        lo, hi = max(r0, s1 + 1), min(r1, n - s2)  # rows whose both terms lie inside the raster
+        if lo < hi:
+            np.subtract(a[lo + s2:hi + s2], a[lo - s1 - 1:hi - s1 - 1], out=d[lo - r0:hi - r0], dtype=np.float64)
+        for i in list(range(r0, min(lo, r1))) + list(range(max(hi, r0), r1)):
+            if i == 0:                            # the first window: a sum from 0, in order
+                t = np.zeros(a.shape[1], np.float64)
+                for j in range(-s1, s2 + 1):
+                    np.add(t, ext(j), out=t)
+                d[0] = t
+            else:
+                np.subtract(ext(i + s2), ext(i - s1 - 1), out=d[i - r0], dtype=np.float64)
+        if carry is not None:
+            np.add(carry, d[0], out=d[0])
+        for i in range(1, r1 - r0):               # the running sum, row after row
+            np.add(d[i - 1], d[i], out=d[i])
+        carry = d[r1 - r0 - 1].copy()
+        np.divide(d, float(size), out=out[r0:r1], casting="same_kind")
+    return out
+
+
 #: errno values of a write that ran out of room (full disk, file-size limit, quota)
 _NO_ROOM = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
 

@@ -222,7 +222,15 @@ from scipy import ndimage
 
 from .blocks import BlockProgress, alignment, default_workers
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, report, sub_progress, without_far_heights
+from .common import (
+    FilterResult,
+    as_cell_size,
+    as_surface,
+    report,
+    running_mean_down,
+    sub_progress,
+    without_far_heights,
+)
 from .dtm_coarse import CoarseGrid, coarse_factor, coarsen, coarsen_flags
 from .dtm_refine import (
     BAND_PLANE_HALF_M,
@@ -638,64 +646,15 @@ def _as_bool(a, shape, name):
     return a if a.any() else None
 
 
-#: Rows per band of :func:`_running_mean_down` (a band's float64 sums stay in the cache).
-_DOWN_BAND_ROWS = 64
-
-
-def _running_mean_down(a, size, out):
-    """``ndimage.uniform_filter1d(a, size, axis=0, mode="reflect", output=out)`` for a 2-D float32
-    ``a``, bit for bit, computed along whole rows.
-
-    SciPy filters each column as a line gathered with the raster's row stride (measured 28-33 ns
-    a cell on 2560 x 4000 cells, against 4-8 ns along the rows). Its arithmetic is reproduced
-    here in the same order on whole rows at once: the running sum ``S`` of each column starts
-    as the sum, in float64 from 0, of the first window (the reflected rows ``-s1 .. s2``), each
-    next row adds ``z[i + s2] - z[i - s1 - 1]`` (float64), and the mean ``S / size`` is rounded to
-    float32 as SciPy writes it. Columns shorter than the window: SciPy itself.
-    """
-    n = a.shape[0]
-    s1 = size // 2
-    s2 = size - s1 - 1
-    if n <= size or a.dtype != np.float32 or out.dtype != np.float32:
-        return ndimage.uniform_filter1d(a, size, axis=0, mode="reflect", output=out)
-
-    def ext(i):                                   # the reflected row i (-s1 <= i < n + s2)
-        return a[-i - 1] if i < 0 else a[2 * n - 1 - i] if i >= n else a[i]
-
-    band = np.empty((min(_DOWN_BAND_ROWS, n), a.shape[1]), np.float64)
-    carry = None
-    for r0 in range(0, n, band.shape[0]):
-        r1 = min(n, r0 + band.shape[0])
-        d = band[:r1 - r0]
-        lo, hi = max(r0, s1 + 1), min(r1, n - s2)  # rows whose both terms lie inside the raster
-        if lo < hi:
-            np.subtract(a[lo + s2:hi + s2], a[lo - s1 - 1:hi - s1 - 1], out=d[lo - r0:hi - r0], dtype=np.float64)
-        for i in list(range(r0, min(lo, r1))) + list(range(max(hi, r0), r1)):
-            if i == 0:                            # the first window: a sum from 0, in order
-                t = np.zeros(a.shape[1], np.float64)
-                for j in range(-s1, s2 + 1):
-                    np.add(t, ext(j), out=t)
-                d[0] = t
-            else:
-                np.subtract(ext(i + s2), ext(i - s1 - 1), out=d[i - r0], dtype=np.float64)
-        if carry is not None:
-            np.add(carry, d[0], out=d[0])
-        for i in range(1, r1 - r0):               # the running sum, row after row
-            np.add(d[i - 1], d[i], out=d[i])
-        carry = d[r1 - r0 - 1].copy()
-        np.divide(d, float(size), out=out[r0:r1], casting="same_kind")
-    return out
-
-
 def _uniform(a, size):
     """``ndimage.uniform_filter(a, size, mode="reflect")`` of a 2-D float32 array, bit for bit:
-    SciPy's pass down the columns (:func:`_running_mean_down`) then its pass along the rows, in
+    SciPy's pass down the columns (:func:`.common.running_mean_down`) then its pass along the rows, in
     place, as SciPy runs them."""
     out = np.empty(a.shape, np.float32)
     if size <= 1:
         out[...] = a
         return out
-    _running_mean_down(a, size, out)
+    running_mean_down(a, size, out)
     return ndimage.uniform_filter1d(out, size, axis=1, mode="reflect", output=out)
 
 

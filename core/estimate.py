@@ -64,7 +64,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .blocks import run_sharing
-from .common import report
+from .common import report, running_mean_down
 
 #: Cells a parameter estimate looks at on a large raster (:func:`sample_windows`):
 #: medians and quantiles are stable far below that.
@@ -1757,7 +1757,12 @@ def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None):
 
 def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
     """:func:`ground_plane_gradient` on the rows ``a:b``, read with the squares' ``r`` rows around them (exact),
-    into ``gx[a:b]``, ``gy[a:b]``."""
+    into ``gx[a:b]``, ``gy[a:b]``.
+
+    The nine box means of ``ndimage.uniform_filter`` bit for bit, cheaper: the pass down the columns along whole
+    rows (:func:`~.common.running_mean_down`; SciPy gathers each column with the row stride), the pass along the
+    rows on the band's own rows only, the products in one buffer, and the planes solved a few rows at a time
+    (:func:`_plane_solve`: the same arithmetic per cell, its temporaries in the cache)."""
     rows = z.shape[0]
     size = 2 * r + 1
     lo, hi = max(0, a - r), min(rows, b + r)
@@ -1767,20 +1772,49 @@ def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
     y = np.arange(lo, hi, dtype=np.float64)[:, None] * dy - a * dy    # the band's own origin: small moments
     zw = np.where(g, zb, 0.0)
 
-    def mean(v):
-        return ndimage.uniform_filter(v, size, mode="constant", cval=0.0)
+    band = slice(a - lo, b - lo)
+    t = np.empty_like(w)                          # the products: band-sized buffers, no temporaries
+    d = np.empty_like(w)
 
-    n = mean(w)
+    def mean(v):
+        # the box mean of ndimage.uniform_filter bit for bit: down the columns (along whole rows, SciPy's sums in
+        # its order), then along the rows on the band's own rows only (each row's pass is its own)
+        running_mean_down(v, size, d, mode="constant")
+        return ndimage.uniform_filter1d(d[band], size, axis=1, mode="constant", cval=0.0)
+
+    def moment(u, v, s=None):
+        """The box mean of ``u v`` (``u v s``); the products formed as ``u * v * s`` is."""
+        np.multiply(u, v, out=t)
+        if s is not None:
+            np.multiply(t, s, out=t)
+        return mean(t)
+
+    means = (mean(w), moment(w, x), moment(w, y), mean(zw), moment(w, x, x), moment(w, y, y), moment(w, x, y),
+             moment(zw, x), moment(zw, y))
+    del w, zw
+    # the planes solved a few rows at a time (the same arithmetic per cell; its temporaries stay in the cache)
+    step = max(1, _PLANE_SOLVE_CELLS // max(1, gx.shape[1]))
+    for i in range(0, b - a, step):
+        rows_ = slice(i, min(b - a, i + step))
+        _plane_solve(*(m[rows_] for m in means), size, gx[a + i:a + rows_.stop], gy[a + i:a + rows_.stop])
+
+
+#: Cells per chunk of :func:`_plane_solve` (its float64 temporaries a few hundred kB).
+_PLANE_SOLVE_CELLS = 1 << 15
+
+
+def _plane_solve(n, ax, ay, az, axx, ayy, axy, axz, ayz, size, gx, gy):
+    """The gradient ``(gx, gy)`` (written in place) of the least-squares planes from the squares' box means of
+    ``w``, ``w x``, ``w y``, ``w z``, ``w x^2``, ``w y^2``, ``w x y``, ``w z x``, ``w z y``."""
     with np.errstate(invalid="ignore", divide="ignore"):
         inv = np.where(n > 0, 1.0 / n, np.nan)
-        mx, my, mz = mean(w * x) * inv, mean(w * y) * inv, mean(zw) * inv
-        sxx = mean(w * x * x) * inv - mx * mx
-        syy = mean(w * y * y) * inv - my * my
-        sxy = mean(w * x * y) * inv - mx * my
-        sxz = mean(zw * x) * inv - mx * mz
-        syz = mean(zw * y) * inv - my * mz
+        mx, my, mz = ax * inv, ay * inv, az * inv
+        sxx = axx * inv - mx * mx
+        syy = ayy * inv - my * my
+        sxy = axy * inv - mx * my
+        sxz = axz * inv - mx * mz
+        syz = ayz * inv - my * mz
         det = sxx * syy - sxy * sxy
         ok = (np.rint(n * size * size) >= 3) & (det > 1e-9 * (sxx + syy) ** 2)
-        band = slice(a - lo, b - lo)
-        gx[a:b] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)[band]
-        gy[a:b] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)[band]
+        gx[...] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)
+        gy[...] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)

@@ -8,6 +8,8 @@ banded kernels work in so their temporaries stay in the cache.
 import numpy as np
 from scipy import ndimage
 
+from ..common import running_mean_down
+
 
 def odd_window(n, minimum=3):
     """``n`` rounded to an odd window length of at least ``minimum`` cells."""
@@ -133,9 +135,12 @@ def scratch_arrays(work, key, n, shape):
 
 def running_mean(v, size, axis, out=None):
     """Mean of ``v`` (float64) over a centred window of ``size`` (odd) cells along
-    ``axis``; 0 outside."""
+    ``axis``; 0 outside. Down the columns of a 2-D array, SciPy's sums along whole rows
+    (:func:`~..common.running_mean_down`, bit for bit)."""
     if out is None:
         out = np.empty(v.shape, np.float64)
+    if axis == 0 and np.ndim(v) == 2:
+        return running_mean_down(v, size, out, mode="constant")
     return ndimage.uniform_filter1d(v, size, axis=axis, mode="constant", cval=0.0, output=out)
 
 

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from surfaces import grid, noisy
 
+from bare_earth.core import common, pipeline
 from bare_earth.core import dtm as dtm_method
-from bare_earth.core import pipeline
 from bare_earth.core.codes import GROUND, NODATA, OBJECT
 from bare_earth.core.dtm_refine import edge_tolerance
 from bare_earth.core.estimate import lowest_point_spread, repeated_height_share
@@ -160,7 +160,7 @@ def test_box_mean_down_the_columns_is_scipys_bit_for_bit(band, monkeypatch):
     band of rows (the running sums carried across), reflected edges, columns as short as the
     window or shorter (SciPy itself), large offsets (rounding), NaN."""
     from scipy import ndimage
-    monkeypatch.setattr(dtm_method, "_DOWN_BAND_ROWS", band)
+    monkeypatch.setattr(common, "DOWN_BAND_ROWS", band)
     rng = np.random.default_rng(7)
     for rows, cols in ((1, 5), (3, 4), (7, 9), (8, 3), (61, 47)):
         for a in ((rng.normal(size=(rows, cols)) * 40 + 1500).astype(np.float32),

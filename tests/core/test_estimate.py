@@ -992,10 +992,14 @@ def _ground_plane_gradient_oracle(z, ground, cell_size, radius_cells, band_rows)
                                                ((5, 60), 4, (1.0, 1.0), 256), ((230, 37), 12, (1.0, 1.0), 64),
                                                ((130, 70), 1, (2.0, 1.0), 16), ((61, 45), 9, (1.0, 1.0), 7)])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_ground_plane_gradient_equals_its_straightforward_means(monkeypatch, shape, r, cell, band, threads):
-    """The bands side by side on a pool's threads (or one after the other): bit for bit the planes of the
-    bands one after the other in one loop (the implementation before, kept here). Heights with nodata, ground
-    with a part bare of ground (NaN planes), bands narrower than the squares, one band."""
+@pytest.mark.parametrize("solve_cells", [1 << 15, 100, 1])
+def test_ground_plane_gradient_equals_its_straightforward_means(monkeypatch, shape, r, cell, band, threads,
+                                                                 solve_cells):
+    """The bands side by side on a pool's threads (or one after the other), their sums down the columns along
+    whole rows and their planes solved a few rows at a time: bit for bit the planes of the bands one after the
+    other in one loop of ``ndimage.uniform_filter`` means (the implementation before, kept here). Heights with
+    nodata, ground with a part bare of ground (NaN planes), bands narrower than the squares, one band, bands
+    shorter than the squares (SciPy's own pass)."""
     from concurrent.futures import ThreadPoolExecutor
     rng = np.random.default_rng(sum(shape) + r)
     z = (np.cumsum(rng.normal(0, 0.3, shape), axis=0) + 40.0).astype(np.float32)
@@ -1003,6 +1007,7 @@ def test_ground_plane_gradient_equals_its_straightforward_means(monkeypatch, sha
     ground = rng.random(shape) > 0.35
     ground[: shape[0] // 3, : shape[1] // 2] = False
     monkeypatch.setattr(est, "_PLANE_BAND_ROWS", band)
+    monkeypatch.setattr(est, "_PLANE_SOLVE_CELLS", solve_cells)
     oracle = _ground_plane_gradient_oracle(z, ground, cell, r, band)
     assert np.isfinite(oracle[0]).mean() > 0.5
     assert np.isnan(oracle[0]).any() == (min(shape[0] // 3, shape[1] // 2) > r)
