@@ -113,6 +113,17 @@ def far_heights_message(n, declared=None):
 CELL_DIGITS = 10
 
 
+def is_rotated(geotransform, shape, tolerance=1e-3):
+    """Whether a GDAL geotransform's rotation terms matter on a grid of ``shape`` (rows, cols).
+
+    Terms that move no cell centre by more than ``tolerance`` of a cell across the whole grid
+    (the ``1e-13`` a reprojection's rounding leaves) are not a rotation: the grid is read as
+    north-up, its geotransform kept as given."""
+    gt = tuple(float(v) for v in geotransform)
+    rows, cols = (int(n) for n in shape)
+    return abs(gt[2]) * rows > tolerance * abs(gt[1]) or abs(gt[4]) * cols > tolerance * abs(gt[5])
+
+
 def as_cell_pair(cell_size):
     """Return ``(dx, dy)`` as floats, exactly as given (in any unit); a scalar means square
     cells. ValueError unless one or two positive finite numbers."""

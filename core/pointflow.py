@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import report, sub_progress
+from .common import is_rotated, report, sub_progress
 from .estimate import lowest_point_spread
 from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
@@ -435,7 +435,7 @@ def _classify(x, y, z, dtm, gt, threshold_m, slope_factor):
     gx0, gy0, gx1, gy1 = grid_extent(gt, dtm.shape)
     n_out = n - int(np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
     if n_out * 2 > n or not (np.isfinite(threshold_m) and threshold_m >= 0) or \
-            not (np.isfinite(slope_factor) and slope_factor >= 0) or gt[2] != 0 or gt[4] != 0 \
+            not (np.isfinite(slope_factor) and slope_factor >= 0) or is_rotated(gt, dtm.shape) \
             or gt[1] == 0 or gt[5] == 0:
         return classify_points(x, y, z, dtm, gt, threshold_m=threshold_m, slope_factor=slope_factor)
     slope = dtm_slope(dtm, gt)

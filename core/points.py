@@ -18,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import as_cell_pair
+from .common import as_cell_pair, is_rotated
 from .pointfiles import ASPRS_FROM_CLASS, LAS_INSTALL_HINT, PointCloud, import_laspy, read_points, write_points
 
 __all__ = ["PointCloud", "read_points", "rasterize_points", "sample_bilinear", "sample_bilinear_many",
@@ -169,7 +169,7 @@ def _check_geotransform(geotransform, shape):
     gt = tuple(float(v) for v in geotransform)
     if len(gt) != 6:
         raise ValueError(f"geotransform must have 6 numbers (GDAL order); got {geotransform!r}.")
-    if gt[2] != 0 or gt[4] != 0:
+    if is_rotated(gt, shape):
         raise ValueError("rotated grids (geotransform[2] or [4] not 0) are not supported; "
                          "warp the raster to a north-up grid first (gdalwarp).")
     if gt[1] == 0 or gt[5] == 0:

@@ -19,7 +19,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
-from ..common import MAX_ABS_HEIGHT_M, as_cell_size, without_far_heights
+from ..common import MAX_ABS_HEIGHT_M, as_cell_size, is_rotated, without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
 MIN_SIDE = 3
@@ -603,7 +603,7 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     if gt is None:
         gt = (0.0, 1.0, 0.0, float(rows), 0.0, -1.0)
         warns.append("The raster has no georeference: cells are taken as 1 m squares.")
-    if gt[2] != 0 or gt[4] != 0:
+    if is_rotated(gt, (rows, cols)):
         raise ValueError(f"the raster {path!r} is rotated (geotransform terms {gt[2]}, {gt[4]}): "
                          "warp it to a north-up grid first (gdalwarp).")
     wkt = ds.GetProjection() or ""

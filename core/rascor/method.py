@@ -60,9 +60,11 @@ METHOD = Method(
               "inclined plane whose both ends meet the kept ground at its own height, no wall along "
               "its sides."),
         Param("height_min_m", "float", None, "Step 2 lower height limit in metres; empty: "
-              "far fence of the height distribution (flat terrain).", advanced=True),
+              "far fence of the height distribution. Used on flat terrain only (the paper's step 2: on "
+              "rolling or mountainous terrain the step is skipped, given or not; the log says so).", advanced=True),
         Param("height_max_m", "float", None, "Step 2 upper height limit in metres; empty: "
-              "far fence of the height distribution (flat terrain).", advanced=True),
+              "far fence of the height distribution. Used on flat terrain only (the paper's step 2: on "
+              "rolling or mountainous terrain the step is skipped, given or not; the log says so).", advanced=True),
         Param("neighbour_k", "float", 3.0, "Step 3 critical value: tolerance = k sigma "
               "sqrt(2) (widened by the terrain slope's rise over one cell) + local slope.",
               minimum=0.5, maximum=20.0, advanced=True),

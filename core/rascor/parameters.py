@@ -411,6 +411,10 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                          f"by step 1); got {tc!r}.")
     if p["surface_rule"] not in SURFACE_RULES:
         raise ValueError(f"surface_rule must be one of {SURFACE_RULES}; got {p['surface_rule']!r}.")
+    lo_given, hi_given = p["height_min_m"], p["height_max_m"]
+    if lo_given is not None and hi_given is not None and not float(lo_given) < float(hi_given):
+        raise ValueError(f"height_min_m ({lo_given}) must be below height_max_m ({hi_given}): step 2 would "
+                         "remove every height; swap them or leave them empty (derived).")
     ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5),
                                              with_sigma=p["sigma_m"] is None)
     if tc is None:

@@ -911,3 +911,15 @@ def test_float_outputs_of_a_scaled_band_declare_a_nodata_no_height_has(nodata, s
     changed = not math.isnan(out) and out != nodata
     assert (note is not None and f"declare the height of the nodata cells, {out:g}" in note) if changed else \
         note is None
+
+
+def test_rounding_rotation_terms_read_as_north_up_a_real_rotation_refused(tmp_path):
+    """QA 13: rotation terms of 1e-13 (a reprojection's rounding) were refused as "rotated: warp
+    it", which resamples the DSM for nothing; terms moving a cell by a thousandth across the grid
+    are no rotation (common.is_rotated), and a real one is still refused before work."""
+    a = np.arange(20, dtype=np.float32).reshape(5, 4)
+    info = grid.open_dsm(tif(tmp_path, a, gt=(500000.0, 2.0, 1e-13, 5000000.0, -1e-13, -2.0)))
+    assert info.cell_size_m == (2.0, 2.0)
+    np.testing.assert_array_equal(info.read(), a)
+    with pytest.raises(ValueError, match="rotated"):
+        grid.open_dsm(tif(tmp_path, a, name="rot.tif", gt=(500000.0, 2.0, 0.01, 5000000.0, 0.0, -2.0)))

@@ -113,6 +113,12 @@ def test_step2_height_distribution_flat_only():
     assert res.info["removed_share_by_step"]["2 height distribution"] == 0.0
 
 
+@pytest.mark.parametrize("lo, hi", [(500.0, 100.0), (100.0, 100.0)])
+def test_step2_limits_crossed_refused_before_work(lo, hi):
+    with pytest.raises(ValueError, match=r"height_min_m \(.*\) must be below height_max_m"):
+        rascor.resolve_rascor_params(plane(sx=0.01, sy=0.0), 1.0, height_min_m=lo, height_max_m=hi)
+
+
 # ------------------------------------------------------------------ step 3
 def test_step3_neighbour_differences_small_object():
     z = plane()
