@@ -681,6 +681,42 @@ def _level_edges(z, valid, jump_m, s, dx, dy):
     return edge
 
 
+def _benched(z, levels, edge, labels, terrain, jump_m, s, dx, dy, ids, rows):
+    """Per level label, True where the level lies below the terrain's ground across a level change.
+
+    ``terrain[label]``: the levels that are ground whatever this test says (joined to the undisputed
+    ground, or too wide to judge). A level ``ids`` has a cell ``p`` with a neighbour ``q`` at distance
+    ``d`` standing more than ``jump_m + s d`` above it, where ``q`` is a terrain level's cell or an edge
+    cell on one (voted ground beside a terrain cell and not a level change above it; a wall's top
+    above the terrain is not): the level is a bench of the slope below that ground, not a raised
+    level. Looked at in ``rows`` (start, stop: the levels' rows) and two rows around them.
+    """
+    h, w = z.shape
+    out = np.zeros(terrain.shape, bool)
+    e0, e1 = max(0, int(rows[0]) - 2), min(h, int(rows[1]) + 2)
+    lab = labels[e0:e1]
+    zz = z[e0:e1]
+    on = levels[e0:e1] & terrain[lab]
+    near = on.copy()            # terrain levels and their edge cells on them (within a level change of one)
+    ed = edge[e0:e1]
+    mine = np.zeros(terrain.shape, bool)
+    mine[ids] = True
+    low = levels[e0:e1] & mine[lab]                      # the judged levels' cells
+    below = np.zeros(low.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for dr, dc in _DIRECTIONS:
+            dst, src = _slices2(dr, dc, e1 - e0, w)
+            thr = np.float32(jump_m + s * math.hypot(dr * dy, dc * dx))
+            near[dst] |= on[src] & ed[dst] & (zz[dst] - zz[src] <= thr)
+        for dr, dc in _DIRECTIONS:
+            dst, src = _slices2(dr, dc, e1 - e0, w)
+            thr = np.float32(jump_m + s * math.hypot(dr * dy, dc * dx))
+            below[dst] |= low[dst] & near[src] & (zz[src] - zz[dst] > thr)
+    out[np.unique(lab[below])] = True
+    out[0] = False
+    return out
+
+
 def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slope, max_cells, top_dissent=None):
     """The dissented ground of regions cut from every undisputed ground cell by level changes.
 
@@ -709,6 +745,10 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     a steep slope, which the opening rejects on steep banks; RASCOR's own dissent is a level change).
     Levels spanning more than ``max_cells`` cells (rows or columns) are left alone, so a cell's
     decision depends on cells within :func:`regions_halo` of it, the raised regions' reach.
+    A level lying below the ground across a level change (a cell of it with a neighbour more than
+    ``jump_m + s d`` above it on a level holding an anchor or too wide to judge, or on the edge of
+    one: :func:`_benched`) is a bench of a steep slope on a coarse grid, not a raised level: left
+    alone (``hexbin-crop`` at 4 m: a cliff's 15 cells holding 124 ground points).
 
     Parameters
     ----------
@@ -807,6 +847,14 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
         lab_b = labels[b0:b1]
         has_top = np.bincount(lab_b[inner & (lab_b > 0)], minlength=n + 1) > 0
         hit &= dissent.ravel()[at] | has_top[lab]
+    if hit.any():
+        terrain = joined.copy()                          # joined levels and those too wide to judge
+        terrain[ids[span > max_cells]] = True
+        terrain[0] = False
+        ids_hit = np.unique(lab[hit])
+        spans = [boxes[i - 1][0] for i in ids_hit.tolist()]
+        rows = (min(b.start for b in spans), max(b.stop for b in spans))
+        hit &= ~_benched(z, levels, edge & ground, labels, terrain, jump_m, s, dx, dy, ids_hit, rows)[lab]
     if not hit.any():
         return out
     out.ravel()[at] = hit

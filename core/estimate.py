@@ -11,6 +11,7 @@ says so:
 * :func:`block_minima`: the minimum surface of ``k x k`` blocks (objects smaller than a
   block vanish from it: an approximation of the terrain under them).
 * :func:`terrain_slopes`: slopes (rise/run) of that block-minimum surface.
+* :func:`cell_slopes`: the surface's own slope at a few cells (central differences, gathered there).
 * :func:`terrain_bends`: its second differences scaled to one cell (how much the ground
   bends from one cell to the next: metres on coarse DEMs of hills, nothing at 1 m).
 * Noise of the DSM (the standard deviation ``sigma`` of its random height error), three
@@ -211,6 +212,49 @@ def terrain_slopes(z, cell_size, k, min_blocks=2):
     gy, gx = np.gradient(m.astype(np.float64), k * dy, k * dx)
     s = np.hypot(gx, gy).ravel()
     return s[np.isfinite(s)]
+
+
+def cell_slopes(z, cell_size, candidates):
+    """The surface's own slope (rise/run) at a few cells: the gradient magnitude by central
+    differences of the four neighbours (one-sided at the raster's edges, as ``np.gradient``),
+    read at ``candidates`` only (no raster-sized gradient).
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata.
+    cell_size : (float, float)
+        ``(dx, dy)``, metres.
+    candidates : array_like of bool, z's shape
+        The cells whose slope is wanted.
+
+    Returns
+    -------
+    ndarray of float64, 1-D
+        One slope per candidate, in the order of ``np.flatnonzero(candidates)``; NaN where a
+        neighbour it reads is NaN; 0 along an axis of one cell.
+
+    Examples
+    --------
+    >>> z = np.array([[0.0, 1.0, 2.0], [0.0, 1.0, 2.0]], np.float32)
+    >>> cell_slopes(z, (2.0, 1.0), np.ones(z.shape, bool)).tolist()
+    [0.5, 0.5, 0.5, 0.5, 0.5, 0.5]
+    """
+    z = np.asarray(z)
+    h, w = z.shape
+    idx = np.flatnonzero(np.asarray(candidates, bool))
+    r, c = np.divmod(idx, w)
+    flat = z.ravel()
+    out = np.zeros(idx.size, np.float64)
+    for lo, hi, step, width in ((np.maximum(c - 1, 0), np.minimum(c + 1, w - 1), 1, float(cell_size[0])),
+                                (np.maximum(r - 1, 0), np.minimum(r + 1, h - 1), w, float(cell_size[1]))):
+        base = idx - (c if step == 1 else r * w)           # the row's (column's) first cell
+        span = (hi - lo).astype(np.float64)
+        d = flat[base + hi * step].astype(np.float64) - flat[base + lo * step]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = np.where(span > 0, d / (span * width), 0.0)
+        out += g * g
+    return np.sqrt(out)
 
 
 

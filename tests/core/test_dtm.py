@@ -463,3 +463,39 @@ def test_vote_reads_the_noise_where_low_vegetation_leaves_the_ground_clean(monke
     monkeypatch.setattr(est, "_noise_ground_level", lambda *a: {**real(*a), "sigma_cleanest": float("nan")})
     whole = pipeline.run_array("dtm", z, (1.0, 1.0), {})
     assert whole.info["params"]["tolerance_m"] > 0.6 and np.mean(whole.mask[veg] == GROUND) > 0.4
+
+
+def test_the_reconstructions_lone_ground_counts_where_the_dsm_is_steeper_than_the_openings_slope(monkeypatch):
+    """A smooth bank steeper than the opening's slope ``s`` joined to undisputed ground, which the opening and
+    RASCOR reject and the geodesic reconstruction keeps (a 4 m grid of a steep slope, matrix row hexbin-crop
+    4 m): ground. The same lone claim on a gentle smooth mound (no steeper than ``s``) stays an object."""
+    import dataclasses
+
+    from bare_earth.core.common import FilterResult
+    from bare_earth.core.methods import get_method
+    y, x = grid(120)
+    z = 50.0 + 0.8 * np.clip(x - 40, 0, 20)                  # a bank of 0.8 rise/run from x = 40 to 60
+    bank = (x > 40) & (x < 60)
+    mound = np.hypot(x - 90, y - 60) < 12
+    z = z + np.where(mound, 0.6 * np.cos(np.hypot(x - 90, y - 60) / 12 * np.pi / 2) ** 2, 0.0)
+    z = z.astype(np.float32)
+    p = dtm_method.resolve_dtm_params(z, 1.0)
+    p = {k: v for k, v in p.items() if k != "input_description"}
+    p["members"] = dict(p["members"], morphological=dict(p["members"]["morphological"], slope=0.3))
+
+    def member(real, objects):
+        def run(z_, cell, progress=None, **kw):
+            return FilterResult(mask=np.where(objects, OBJECT, GROUND).astype(np.uint8))
+        return dataclasses.replace(real, run=run)
+
+    rejected = bank | mound
+    fakes = {"morphological": member(get_method("morphological"), rejected),
+             "rascor": member(get_method("rascor"), rejected),
+             "geodesic": member(get_method("geodesic"), np.zeros(z.shape, bool))}
+    monkeypatch.setattr(dtm_method, "get_method", lambda name: fakes.get(name) or get_method(name))
+    res = dtm_method.filter_dtm(z, 1.0, **p)
+    assert (res.mask[bank] == GROUND).mean() > 0.95
+    assert (res.mask[mound] == OBJECT).mean() > 0.95
+    assert res.info["steep_disputed_cells"] >= 0.95 * bank.sum()
+    monkeypatch.setattr(dtm_method, "STEEP_MEMBER", None)      # without the rule the vote's objects stay
+    assert (dtm_method.filter_dtm(z, 1.0, **p).mask[bank] == OBJECT).mean() > 0.95

@@ -78,6 +78,26 @@ def test_terrain_slopes_too_few_blocks_and_nodata():
     assert s.size == 1 and s[0] == 0.0    # NaN gradients dropped: only the block far from it
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_cell_slopes_equal_the_gradient_at_the_candidates(dtype):
+    """Central differences inside, one-sided at the raster's edges (``np.gradient``), at the candidates only,
+    in their flat order; the cell's width and height in metres."""
+    rng = np.random.default_rng(3)
+    z = rng.integers(-50, 50, (7, 9)).astype(dtype)
+    cand = rng.random(z.shape) < 0.4
+    cand[0, 0] = cand[-1, -1] = cand[3, 4] = True
+    gy, gx = np.gradient(z.astype(np.float64), 0.5, 2.0)
+    np.testing.assert_allclose(est.cell_slopes(z, (2.0, 0.5), cand), np.hypot(gx, gy)[cand], rtol=1e-12)
+    assert est.cell_slopes(z, (1.0, 1.0), np.zeros(z.shape, bool)).shape == (0,)
+
+
+def test_cell_slopes_nodata_neighbours_and_single_rows():
+    z = np.array([[0.0, 2.0, np.nan, 6.0]], np.float32)        # one row: no slope down the columns
+    s = est.cell_slopes(z, (1.0, 1.0), np.ones(z.shape, bool))
+    assert s[0] == 2.0 and np.isnan(s[1]) and s[2] == 2.0 and np.isnan(s[3])
+    assert est.cell_slopes(z.T, (1.0, 4.0), np.array([[True], [False], [False], [False]])).tolist() == [0.5]
+
+
 @pytest.mark.parametrize("shape, k, side", [((800, 800), 400, 266), ((3000, 2000), 400, 400), ((120, 500), 40, 40),
                                            ((116, 200), 40, 40), ((80, 200), 40, 26), ((3, 3), 40, 2), ((9, 9), 1, 1)])
 def test_held_block_side_exact(shape, k, side):
