@@ -424,9 +424,10 @@ def _read_mask(path):
 
 @functools.lru_cache(maxsize=None)
 def _pleiades_one_pass(method, src, folder):
+    """The one pass's mask and halo (cells), once per method for the parameter sets."""
     out = Path(folder) / f"{method}-one.tif"
-    pipeline.run_file(method, src, {"mask": out}, workers=1)
-    return _read_mask(out)
+    info = pipeline.run_file(method, src, {"mask": out}, workers=1)
+    return _read_mask(out), int(info["halo_cells"])
 
 
 @pytest.mark.slow
@@ -438,7 +439,11 @@ def test_blocked_and_threaded_equal_one_pass_on_pleiades(shared_data, tmp_path_f
         pytest.skip(f"{src} is absent")
     folder = tmp_path_factory.getbasetemp() / "pleiades-one-pass"
     folder.mkdir(exist_ok=True)
-    one = _pleiades_one_pass(method, str(src), str(folder))
+    one, halo = _pleiades_one_pass(method, str(src), str(folder))
+    if block is not None and halo >= max(one.shape):
+        # every block's window is the whole raster: the blocked run is the one pass 16 times over
+        # (dtm: a halo of 1920 cells; 15 of the suite's 33 minutes), its equality only determinism
+        pytest.skip(f"{method}'s halo ({halo} cells) spans the {one.shape} raster: no block of its own")
     out = tmp_path_factory.mktemp("pleiades") / "mask.tif"
     pipeline.run_file(method, src, {"mask": out}, block=block, workers=workers)
     diff = int(np.count_nonzero(_read_mask(out) != one))
