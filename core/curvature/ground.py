@@ -438,7 +438,57 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     _drop_unwalled(mask, objects, reach)
     if invalid is not None:
         mask[invalid] = NODATA
+    if rise is not None:
+        _wall_cells(mask, z, rise)
     return mask, surface
+
+
+def _wall_cells(mask, z, step):
+    """The ground cells on an object's wall go to the objects, in place: a cell with an object
+    next to it on one side along X (Y) and ground on the other side lower by more than ``step =
+    (along X, along Y)`` metres, the most the ground steps between neighbours (the tolerance
+    plus the terrain's steep slopes over a cell, as in :func:`_continue_ground`), plus the
+    ground's own fall on beyond that cell (a slope steeper than the terrain's usual one going
+    on down is no wall).
+
+    Luong Chinh Ke (2002) puts an object between the break going up its wall and the break
+    coming down. At cells as wide as the wall's foot is from its top (2 m and coarser) the
+    cell between an object's cell and the ground holds both (a roof's eave, a crown's rim:
+    a highest or mixed height), above the ground beyond by more than the ground steps, and
+    no break marks it apart from the object's: the final pass's surface rested on it, so it
+    stayed ground (opengeos, 2 m lidar DSM: two thirds of the 7,166 cells called ground that
+    are objects, 0.6-2.4 m above the reference DTM, touch an object; walls fall over two
+    cells, 18.1, 15.6, 13.5 m over ground at 12.8 m). One cell only; a cell between two
+    objects, or beside nodata, is left as it is. Without the ground's fall, ground beside
+    trees on the banks of ISPRS samples 61 and 71 at 2 m went to the objects (+0.3-0.4 points
+    of total error there)."""
+    obj = mask == OBJECT
+    gr = mask == GROUND
+    add = np.zeros(mask.shape, bool)
+    for axis, st in ((1, step[0]), (0, step[1])):
+        s = np.float32(st)
+        o, g, zz, a = (x.T if axis == 0 else x for x in (obj, gr, z, add))   # views: a writes into add
+        n = zz.shape[1]
+        if n < 3:
+            continue
+        # the ground's own fall beyond the cell (>= 0; none past the raster's edge or at nodata)
+        fall = np.zeros(zz.shape, np.float32)
+        with np.errstate(invalid="ignore"):
+            np.subtract(zz[:, :-1], zz[:, 1:], out=fall[:, :-1])   # fall towards +X of each cell
+        fall[~np.isfinite(fall)] = 0.0
+        for d in (1, -1):
+            # object at c - d, cell c, ground at c + d falling on by fall[c + d] towards c + 2d
+            fd = np.maximum(fall if d == 1 else -np.roll(fall, 1, axis=1), 0)
+            if d == -1:
+                fd[:, 0] = 0.0
+            cs = slice(1, n - 1)
+            back = slice(0, n - 2) if d == 1 else slice(2, n)
+            fwd = slice(2, n) if d == 1 else slice(0, n - 2)
+            with np.errstate(invalid="ignore"):
+                e = o[:, back] & g[:, fwd] & (zz[:, cs] - zz[:, fwd] > s + fd[:, fwd])
+            e &= g[:, cs]
+            a[:, cs] |= e
+    mask[add] = OBJECT
 
 
 def _continue_ground(z, mask, objects, reach, step, tol, run):
@@ -552,11 +602,12 @@ def ground_reach(cell_size: CellSize, *, window: int, max_size: float, stretch: 
     the row and column (``C = _CONTINUE_WINDOWS window``, where the stretch may begin, and ``S``
     its cells, ``stretch`` (:func:`ground_stretch`) but at least ``window``): ``C + S`` more per
     pass (the rings of the low blunders and of the low bowls, :func:`_low_bowls`, read the
-    heights only)."""
+    heights only); the wall cells (:func:`_wall_cells`) read their neighbours' classes: 1 more."""
     m = window // 2
     r = max(surface_reach(cell_size, window=window, max_size=max_size))
     g1 = r + window + 2 * m + 2
-    return g1 + (_PASSES - 1) * (r + window + 1) + _PASSES * (_CONTINUE_WINDOWS * window + max(window, stretch))
+    return (g1 + (_PASSES - 1) * (r + window + 1) + _PASSES * (_CONTINUE_WINDOWS * window + max(window, stretch))
+            + 1)
 
 
 def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:

@@ -698,13 +698,14 @@ def test_halo_is_the_sum_of_the_stages_reaches():
     along the profile for the runs bounded across, :func:`.profiles.bounded_runs`), the enclosed regions
     (largest object) and both ground passes (twice half the largest object + windows), each
     with its continued ground (two windows to the stretch's start, then the stretch: a window's
-    independent heights, longer than a window of cells where the heights lie farther apart)."""
+    independent heights, longer than a window of cells where the heights lie farther apart),
+    and the wall cells' neighbours (one cell)."""
     for cell in ((1.0, 1.0), (0.5, 0.6), (2.0, 2.0)):
         for w, size in ((5, 100.0), (7, 30.0)):
             P = {"window_cells": w, "max_object_size_m": size}
             cells = int(size / min(cell))
             r = int(np.ceil(0.5 * size / min(cell))) + w // 2
-            want = (2 * cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w
+            want = (2 * cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w + 1
             assert curvature.curvature_halo(P, cell) == want + (want & 1)
             # heights 3 m apart: stretches of w points of 3 m, longer than w cells
             stretch = int(np.ceil(w * 3.0 / min(cell)))
@@ -1661,3 +1662,63 @@ def test_runs_bounded_across_in_blocks_give_the_one_pass_mask(block):
     res = pipeline.run_array("curvature", z, 2.0, params=params, block=block, workers=1)
     assert res.info["blocks"] > 1
     np.testing.assert_array_equal(res.mask, one)
+
+
+def test_wall_cells_exact():
+    """_wall_cells, exact: a ground cell with an object on one side along X or Y and ground on
+    the other side lower by more than the step plus the ground's own fall beyond it goes to the
+    objects; one cell only, not where the ground steps no more than that (a slope going on
+    down), is nodata, or is another object."""
+    OB, GR, NO = OBJECT, GROUND, 255
+    z = np.array([[5.0, 2.0, 0.0, 0.0, 0.0],       # a rim 2 m above the level ground beyond: wall
+                  [5.0, 0.3, 0.0, 0.0, 0.0],       # 0.3 m: the ground's own step
+                  [5.0, 3.0, 1.0, 0.6, 0.2],       # 2 m above ground falling 0.4 m a cell: wall
+                  [5.0, 2.0, 1.0, 0.0, -1.0],      # a slope going on down at 1 m a cell
+                  [5.0, 2.0, np.nan, 0.0, 0.0],    # nodata beyond
+                  [5.0, 2.0, 5.0, 0.0, 0.0]], np.float32)   # an object beyond
+    mask = np.array([[OB, GR, GR, GR, GR],
+                     [OB, GR, GR, GR, GR],
+                     [OB, GR, GR, GR, GR],
+                     [OB, GR, GR, GR, GR],
+                     [OB, GR, NO, GR, GR],
+                     [OB, GR, OB, GR, GR]], np.uint8)
+    m = mask.copy()
+    ground._wall_cells(m, z, (0.5, 0.5))
+    want = mask.copy()
+    want[0, 1] = want[2, 1] = OB
+    np.testing.assert_array_equal(m, want)
+    # the same along Y (the transposed raster), and mirrored (the object on the other side)
+    m = np.ascontiguousarray(mask.T)
+    ground._wall_cells(m, np.ascontiguousarray(z.T), (0.5, 0.5))
+    np.testing.assert_array_equal(m, want.T)
+    m = mask[:, ::-1].copy()
+    ground._wall_cells(m, z[:, ::-1].copy(), (0.5, 0.5))
+    np.testing.assert_array_equal(m, want[:, ::-1])
+    # the step is per axis: along X 2.5 m (no wall), along Y 0.5 m
+    m = mask.copy()
+    ground._wall_cells(m, z, (2.5, 0.5))
+    np.testing.assert_array_equal(m, mask)
+
+
+def test_rim_cells_of_objects_in_a_2_m_lidar_dsm_are_objects():
+    """Issue 12 (opengeos, 2 m lidar DSM: two thirds of the 7,166 cells called ground that are
+    objects touch an object): the DSM's walls fall over two cells (18.1, 15.6, 13.5 m over
+    ground at 12.8 m), and the cell next to the roof, 2.8 m up, stood on the final pass's
+    surface: a third of those rims were ground. They are objects now; the ground beyond, level
+    or rising at 5 %, stays ground (the next cell, 0.7 m up, is left as the filter finds it)."""
+    from scipy import ndimage
+    rng = np.random.default_rng(5)
+    n = 160
+    x = np.arange(n)[None, :].astype(np.float64)
+    ground_z = 0.05 * x + rng.normal(0, 0.03, (n, n))                   # ground rising 5 %
+    h = np.zeros((n, n))
+    roofs = np.zeros((n, n), bool)
+    roofs[40:50, 40:50] = roofs[100:106, 100:112] = roofs[30:34, 110:140] = True
+    ring1 = ndimage.binary_dilation(roofs) & ~roofs
+    ring2 = ndimage.binary_dilation(roofs, iterations=2) & ~roofs & ~ring1
+    h[roofs], h[ring1], h[ring2] = 6.0, 2.8, 0.7
+    z = (ground_z + h).astype(np.float32)
+    res = get_method("curvature").run(z, (2.0, 2.0), **curvature.resolve_curvature_params(z, (2.0, 2.0)))
+    assert (res.mask[roofs] == OBJECT).all()
+    assert (res.mask[ring1] == OBJECT).all()
+    assert (res.mask[h == 0] == GROUND).all()

@@ -734,3 +734,80 @@ def test_a_tall_strip_scans_its_short_profiles_once(monkeypatch):
     for a, b in zip(got, (across[1].T, across[0].T, across[3].T, across[2].T)):
         np.testing.assert_array_equal(a, b)
     assert got[1][1500:1520, 1].all()           # the block, along the strip
+
+
+def _band(shape, half_width, bank_m, crest_m=3.0):
+    """A level band ``|r - c| <= half_width`` at ``crest_m`` on flat ground 0, with banks
+    one cell wide at ``bank_m`` on both sides (the band's cells: ``|r - c| <= half_width + 1``)."""
+    r, c = np.indices(shape)
+    d = np.abs(r - c)
+    z = np.zeros(shape, np.float32)
+    z[d == half_width + 1] = bank_m
+    z[d <= half_width] = crest_m
+    return z, d <= half_width, d <= half_width + 1
+
+
+def test_long_levels_exact():
+    """A level longer than the largest object turned in the grid (reach 9 -> 13 cells) ending
+    on banks is released; ending on walls, shorter, or not level (steps above the tolerance),
+    it is not."""
+    z, crest, big = _band((24, 24), 1, 1.5)
+    args = (0.2, (2.0, 2.0))
+    # (the banks, one cell wide at one height along the band, are long levels too)
+    np.testing.assert_array_equal(sp._long_levels(big, z, *args, reach=(9, 9)), big)
+    np.testing.assert_array_equal(sp._long_levels(crest, z, *args, reach=(9, 9)), crest)
+    # the same crest on walls: drops of 3 m > 2 m
+    z, crest, big = _band((24, 24), 1, 0.0)
+    assert not sp._long_levels(big, z, *args, reach=(9, 9)).any()
+    # the crest with a bank on one side, walls on the other: half its steps down are walls,
+    # its middle and its side along the walls are kept (the windows along the bank's side
+    # hold more of that side: 14 walls of 32 steps down)
+    z, crest, big = _band((24, 24), 1, 1.5)
+    r, c = np.indices(z.shape)
+    z[(r - c == 2)] = 0.0
+    out = sp._long_levels(crest, z, *args, reach=(9, 9))
+    assert not out[(r - c >= 0)].any() and out[(r - c == -1)][5:-5].all()
+    # shorter than the turned object: bounding box 13 <= 13
+    z, crest, big = _band((24, 24), 1, 1.5)
+    short = np.zeros(z.shape, bool)
+    short[:13, :13] = True
+    assert not sp._long_levels(big & short, z, *args, reach=(9, 9)).any()
+    # not level: steps of 0.5 m between every other row split the crest into parts of one row
+    z, crest, big = _band((24, 24), 1, 1.5)
+    z[crest & (r % 2 == 1)] += 0.5
+    assert not sp._long_levels(crest, z, *args, reach=(9, 9)).any()
+
+
+def _oblique_distance(shape, c0, r0, angle_deg=34.0):
+    """Distance (cells) of every cell from the line through column ``c0``, row ``r0`` at
+    ``angle_deg`` to X."""
+    r, c = np.indices(shape).astype(np.float64)
+    a = np.radians(angle_deg)
+    return np.abs(-(c - c0) * np.sin(a) + (r - r0) * np.cos(a))
+
+
+def _oblique_embankment(shape=(160, 240)):
+    """Flat ground 0 crossed by a road embankment 4 m high at 34 degrees to X: a level crest
+    8 m wide and banks of 1:1 (4 m wide on each side; 0.56 m per cell along X, 0.83 m along
+    Y, steeper than the scans' 10 degrees and gentler than a wall)."""
+    d = _oblique_distance(shape, 20, 10)
+    z = np.clip(8.0 - d, 0.0, 4.0).astype(np.float32)
+    return z, d <= 3.0
+
+
+def test_oblique_embankment_crest_is_ground_roofs_and_a_long_hall_objects_blocked_or_not():
+    """Issue 12 (opengeos, 2 m: a highway embankment crossing the tile obliquely was an
+    object, both axes' profiles climbing its banks): its crest, a level longer than the
+    largest object turned in the grid ending on banks, is ground; a building and a hall as
+    long as the crest but walled stay objects, in one pass and in blocks."""
+    z, crest = _oblique_embankment()
+    z[120:136, 20:36] = 7.0                  # a building
+    hall = (_oblique_distance(z.shape, 120, 10) <= 6.0) & (np.indices(z.shape)[1] >= 110)
+    z[hall] = 6.0                            # a hall 12 m wide parallel to it, as long, walled
+    params = dict(PARAMS, slope_threshold_deg=10.0, terrain_slope_deg=3.0)   # flat ground's
+    one = run_array("slopeprofile", z, 1.0, params)
+    assert (one.mask[crest] == GROUND).mean() > 0.95
+    assert (one.mask[120:136, 20:36] == OBJECT).all()
+    assert (one.mask[hall] == OBJECT).mean() > 0.99
+    blocked = run_array("slopeprofile", z, 1.0, params, block=64)
+    np.testing.assert_array_equal(blocked.mask, one.mask)
