@@ -124,6 +124,7 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
     out = np.zeros(new.shape, bool)
     if not new.any():
         return out
+    cell_size = as_cell_size(cell_size)
     dx, dy = cell_size
     lab, n = ndimage.label(new, S8)
     # each region's bounding box (slices: no per-cell arrays), rows then columns
