@@ -6,8 +6,8 @@ Usage::
     .venv/bin/python benchmarks/sites.py [--methods a,b] [--only REGEX] [--seed N] [--maps DIR]
 
 Rows ``<site>/<cell>m/<min|max>``: each site of :data:`~bare_earth.core.synthetic_sites.SITES`
-(320 m square, the city 480 m; 1.2 points per m2, seed 0) at 1 and 2 m cells, lowest point per cell (lidar) and
-highest point per cell (image matching). Figures: total error per cell against the site's truth
+(320 m square, the city 480 m; 1.2 points per m2, ``sparse`` 0.16; seed 0) at 1 and 2 m cells, lowest point
+per cell (lidar) and highest point per cell (image matching). Figures: total error per cell against the site's truth
 mask (per cent), then the mean and the worst row of each filter, and the DTM RMSE of ``dtm``.
 ``--maps DIR`` writes each row's error codes of the first method as ``.npy`` (1 type I, 2 type II).
 ``--steps``: with ``rascor`` among the methods, each row's RASCOR Type I and Type II cells (per cent

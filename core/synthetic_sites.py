@@ -12,7 +12,7 @@ draws the points (seeded), and keeps per cell the chosen point's truth:
 * ``mask``: object where the chosen point is an object return (an object surface at least
   :data:`MIN_OBJECT_M` above the ground under it), else ground; the cells without a point take the
   nearest cell's point as their value and truth. Retaining walls, platforms with their ramps, quarry
-  benches and cliffs, gravel piles, embankments and road cuts are ground; buildings, trains,
+  benches and cliffs, gravel piles, embankments, dikes, road cuts and terrain steps are ground; buildings, trains,
   platform roofs, bridge decks, trees, shrubs, hedges, sheds and trucks are objects.
 * ``dtm``: the mean of the fine ground over the cell (finite everywhere).
 * ``dsm``: the chosen point's height with Gaussian noise (``noise_m``, truncated at 4.5 sigma).
@@ -29,11 +29,15 @@ from .codes import GROUND, OBJECT
 from .synthetic import Scene
 
 #: The sites :func:`make_site` builds.
-SITES = ("hillside", "railway", "quarry", "shrubs", "bridge", "city")
+SITES = ("hillside", "railway", "quarry", "shrubs", "bridge", "city", "embankment", "steps", "courtyard",
+         "sparse")
 #: Side of each site's square, metres, when ``make_site`` is not given one (the city's halls are up to
 #: 250 m long: it needs room for them and the streets around).
 EXTENT_M = {"hillside": 320.0, "railway": 320.0, "quarry": 320.0, "shrubs": 320.0, "bridge": 320.0,
-            "city": 480.0}
+            "city": 480.0, "embankment": 320.0, "steps": 320.0, "courtyard": 320.0, "sparse": 320.0}
+#: Points per square metre of the sites whose data are sparser than the urban samples' (about 1 per m2):
+#: ``sparse`` is ISPRS 54's low resolution, a point every 2-3 m (Sithole & Vosselman 2003, sites 5-8).
+DENSITY_PER_M2 = {"sparse": 0.16}
 #: Fine grid of the site's surfaces, metres (points take the value of their fine cell).
 FINE_M = 0.5
 #: Object surfaces lower than this above the ground under them are ground returns, metres.
@@ -46,7 +50,7 @@ _EPSG = 32632
 
 
 def make_site(kind, cell_size=1.0, surface="lowest", extent_m=None, seed=0, noise_m=0.05,
-              density_per_m2=1.2):
+              density_per_m2=None):
     """Build a site with known truth rasterised from points like the ISPRS samples.
 
     Parameters
@@ -62,7 +66,16 @@ def make_site(kind, cell_size=1.0, surface="lowest", extent_m=None, seed=0, nois
         into it, shrubs 0.6-2 m high covering about half of it, scattered trees: ISPRS 52) or
         ``"bridge"`` (a road bridge with a 6-8 m deck over a road, one ramp between retaining
         walls and one on banks, a garage ramp cut 3 m down, large L-shaped buildings with roof
-        structures, data gaps, trees and cars: ISPRS 21-24).
+        structures, data gaps, trees and cars: ISPRS 21-24), ``"city"`` (halls up to 250 m long, a
+        courtyard block, a ramp down to a car park, data gaps on dark roofs: ISPRS 22-24),
+        ``"embankment"`` (a road on an embankment 3-6 m high with 1:1.5-1:2 sides ramping down to the
+        ground, a dike, a road cut, shrubs and trees on their sides, houses and cars: ISPRS 24),
+        ``"steps"`` (terrain discontinuities: 4-6 steps of 2-10 m with 60-85 degree faces across a
+        gentle slope, one fading out along its length, trees and shrubs along their edges, few
+        buildings: ISPRS 53), ``"courtyard"`` (blocks of large buildings 10-25 m high enclosing
+        courtyards of 12-35 m, some closed, some opening to the street, trees in them, data gaps on
+        roofs and in a courtyard: ISPRS 23) or ``"sparse"`` (dense houses on a slope with trees and
+        data gaps, a point every 2.5 m: :data:`DENSITY_PER_M2`, ISPRS 54).
     cell_size : float
         Output cell size in metres, a multiple of :data:`FINE_M` dividing ``extent_m``.
     surface : str
@@ -75,8 +88,9 @@ def make_site(kind, cell_size=1.0, surface="lowest", extent_m=None, seed=0, nois
         ``cell_size`` or ``surface``).
     noise_m : float
         Standard deviation of the points' height noise, metres.
-    density_per_m2 : float
-        Points per square metre (ISPRS urban samples: about 1).
+    density_per_m2 : float, optional
+        Points per square metre; default the site's :data:`DENSITY_PER_M2`, else 1.2 (the ISPRS
+        urban samples: about 1).
 
     Returns
     -------
@@ -99,6 +113,8 @@ def make_site(kind, cell_size=1.0, surface="lowest", extent_m=None, seed=0, nois
     if k < 1 or abs(k - round(k)) > 1e-9 or abs(n - round(n)) > 1e-9 or round(n) % round(k):
         raise ValueError(f"cell_size {cell_size!r} must be a multiple of {FINE_M} m dividing "
                          f"extent_m {extent_m!r}.")
+    if density_per_m2 is None:
+        density_per_m2 = DENSITY_PER_M2.get(kind, 1.2)
     if not np.isfinite(noise_m) or noise_m < 0 or not density_per_m2 > 0:
         raise ValueError("noise_m must be >= 0 and density_per_m2 > 0.")
     k, n = int(round(k)), int(round(n))
@@ -555,5 +571,195 @@ def _city(s, rng):
     _trees_and_cars(s, rng, ~ndimage.binary_dilation(occ, iterations=6), 0.002, 0.002)
 
 
+def _embankment(s, rng):
+    """A road on an embankment with a ramp, a dike and a road cut among fields (ISPRS 24: ramps,
+    embankments, vegetation). Side slopes 1:1.5-1:2 (the usual road and dike batters, 27-34 degrees);
+    the ramp's grade 4-8 %. The embankments and the cut are ground; vegetation on their sides, houses,
+    cars on the roads are objects."""
+    e = s.e
+    g0 = 100 + rng.uniform(0.005, 0.015) * s.X + _waves(rng, 150.0, 1.0)(s.X, s.Y)
+    a = rng.uniform(-0.3, 0.3)
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    u = (s.X - e / 2) * ca + (s.Y - e / 2) * sa               # along the road
+    d1 = (s.Y - e / 2) * ca - (s.X - e / 2) * sa - rng.uniform(-50, -20)
+    hb, crest, k1 = rng.uniform(3.0, 6.0), rng.uniform(10.0, 14.0), rng.uniform(1.5, 2.0)
+    u_end = rng.uniform(0.0, 0.2 * e)                          # where the ramp reaches the ground
+    ramp = hb / rng.uniform(0.04, 0.08)
+    h_u = np.float32(hb) * np.clip((u_end - u) / ramp, 0, 1)
+    side1 = np.maximum(np.abs(d1) - crest / 2, 0)
+    lift1 = np.clip(h_u - side1 / np.float32(k1), 0, None)
+    # a dike 2-3 m high across the site beyond the road, a road cut 3-5 m deep near the other edge
+    d2 = (s.Y - e / 2) * ca - (s.X - e / 2) * sa - rng.uniform(40, 70)
+    hd, cd = rng.uniform(2.0, 3.0), rng.uniform(3.0, 5.0)
+    side2 = np.maximum(np.abs(d2) - cd / 2, 0)
+    lift2 = np.clip(np.float32(hd) - side2 / np.float32(rng.uniform(1.5, 2.5)), 0, None)
+    v3 = u - rng.uniform(0.25, 0.35) * e                       # the cut runs across, near the far end
+    dc, wc = rng.uniform(3.0, 5.0), rng.uniform(8.0, 11.0)
+    side3 = np.maximum(np.abs(v3) - wc / 2, 0)
+    cut = np.clip(np.float32(dc) - side3 / np.float32(1.5), 0, None) * (np.abs(d1) > crest / 2 + 3 * k1 + hb * k1)
+    s.ground = (g0 + np.maximum(lift1, lift2) - cut).astype(np.float32)
+    on_sides = ((lift1 > 0.3) & (side1 > 0)) | ((lift2 > 0.3) & (side2 > 0)) | ((cut > 0.3) & (side3 > 0))
+    on_sides_b = ndimage.binary_dilation(on_sides, iterations=4)   # and a few metres beyond their toes
+    on_top = ((lift1 > 0) & (side1 == 0)) | ((cut > 0) & (side3 == 0))
+
+    def sides(x, y):
+        return s.at(on_sides_b, x, y) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.05, (0.6, 2.0), sides, shrub=True)
+    _trees(s, rng, 0.01, (5.0, 14.0), sides)
+    free = ~ndimage.binary_dilation(on_sides | on_top, iterations=8)
+    for _ in range(10):                                        # houses on the fields
+        hx, hy = rng.uniform(15, e - 15), rng.uniform(15, e - 15)
+        w = s.window(hx, hy, 12.0)
+        if not free[w[0]].all():
+            continue
+        free[w[0]] = False
+        depth = rng.uniform(8.0, 12.0)
+        s.box(hx, hy, a + rng.choice([0.0, np.pi / 2]), rng.uniform(10.0, 16.0), depth, rng.uniform(4.0, 7.0),
+              base=float(s.at(s.ground, hx, hy)) + 0.3, roof=_gable(np.tan(np.radians(35)), depth))
+    x, y = s.scatter(rng, 0.004, lambda x, y: s.at(on_top, x, y))   # cars on the roads above and below
+    for cx, cy in zip(x, y):
+        s.box(cx, cy, a, 4.5, 1.8, rng.uniform(1.4, 1.7))
+    _trees_and_cars(s, rng, free, 0.001, 0.0)
+
+
+def _steps(s, rng):
+    """Terrain discontinuities (ISPRS 53): steps of 2-10 m with faces of 60-85 degrees winding across a
+    gentle slope (terrace and quarry edges, old embankments), one fading out along its length, trees and
+    shrubs along their edges where machines cannot mow, a few sheds. Mostly ground: Type I errors
+    dominate such a sample (Sithole & Vosselman 2003)."""
+    e = s.e
+    a = rng.uniform(0, 2 * np.pi)
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    u = (s.X - e / 2) * ca + (s.Y - e / 2) * sa
+    v = (s.Y - e / 2) * ca - (s.X - e / 2) * sa
+    g = 150 + np.float32(rng.uniform(0.02, 0.06)) * u + _waves(rng, 100.0, 0.8)(s.X, s.Y)
+    count = int(rng.integers(4, 7))
+    pos = np.sort(rng.uniform(-0.42 * e, 0.42 * e, count))
+    near = np.zeros((s.n, s.n), bool)
+    fade = int(rng.integers(count))
+    for i, p in enumerate(pos):
+        h = rng.uniform(2.0, 10.0) * (1 if rng.random() < 0.7 else -1)
+        face = abs(h) / np.tan(np.radians(rng.uniform(60.0, 85.0)))
+        wv = _waves(rng, 120.0, rng.uniform(3.0, 8.0), count=3)
+        du = u - np.float32(p) - wv(v, v)
+        hv = np.float32(h)
+        if i == fade:                                         # a step that ends: 0 to full over 40-80 m
+            v0, lv = rng.uniform(-0.3 * e, 0.1 * e), rng.uniform(40.0, 80.0)
+            hv = hv * np.clip((v - v0) / lv, 0, 1)
+        g = g + hv * np.clip(du / np.float32(face) + 0.5, 0, 1)
+        near |= np.abs(du) < face / 2 + 6.0
+    s.ground = g.astype(np.float32)
+    for _ in range(3):                                        # sheds away from the steps
+        bx, by = rng.uniform(20, e - 20), rng.uniform(20, e - 20)
+        w = s.window(bx, by, 10.0)
+        if near[w[0]].any():
+            continue
+        s.box(bx, by, a, rng.uniform(8.0, 15.0), rng.uniform(6.0, 10.0), rng.uniform(3.0, 6.0),
+              base=float(s.ground[w[0]].max()) + 0.2)
+
+    def edges(x, y):
+        return s.at(near, x, y) & ~np.isfinite(s.at(s.top, x, y))
+
+    def elsewhere(x, y):
+        return ~s.at(near, x, y) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.012, (5.0, 16.0), edges)
+    _trees(s, rng, 0.04, (0.6, 2.0), edges, shrub=True)
+    _trees(s, rng, 0.0015, (6.0, 16.0), elsewhere)
+
+
+def _courtyard(s, rng):
+    """Blocks of large buildings enclosing courtyards (ISPRS 23: large complex buildings, courtyards, data
+    gaps): 2 x 2 blocks of 110-140 m between streets, each a ring 10-25 m high around 1-3 courtyards of
+    12-35 m, some opening to the street by a passage 5-8 m wide; trees in the courtyards, data gaps on
+    dark roofs and over a courtyard, cars in the streets."""
+    e = s.e
+    s.ground = (100 + rng.uniform(0.005, 0.03) * s.X + rng.uniform(-0.01, 0.01) * s.Y
+                + _waves(rng, 150.0, 0.8)(s.X, s.Y)).astype(np.float32)
+    occ = np.zeros((s.n, s.n), bool)
+    courts = np.zeros((s.n, s.n), bool)
+    street = rng.uniform(15.0, 25.0)
+    size = (e - 3 * street) / 2
+    for bi in range(2):
+        for bj in range(2):
+            x0, y0 = street + bi * (size + street), street + bj * (size + street)
+            lx, ly = size * rng.uniform(0.85, 1.0), size * rng.uniform(0.85, 1.0)
+            w = s.window(x0 + lx / 2, y0 + ly / 2, 0.5 * max(lx, ly) + 1.0)
+            foot = (w[1] >= x0) & (w[1] <= x0 + lx) & (w[2] >= y0) & (w[2] <= y0 + ly)
+            h = rng.uniform(10.0, 25.0)
+            bz = float(s.ground[w[0]][foot].max()) + 0.3
+            # wings of different heights: the block's halves
+            s.box(x0 + lx / 4, y0 + ly / 2, 0.0, lx / 2, ly, h, base=bz)
+            s.box(x0 + 3 * lx / 4, y0 + ly / 2, 0.0, lx / 2, ly, h * rng.uniform(0.6, 1.0), base=bz)
+            occ[w[0]] |= foot
+            nc = int(rng.integers(1, 4))
+            for c in range(nc):                               # courtyards along the block's x axis
+                cw, ch = rng.uniform(12.0, 35.0), rng.uniform(12.0, 35.0)
+                cx = x0 + lx * (c + 0.5) / nc + rng.uniform(-3, 3)
+                cy = y0 + ly / 2 + rng.uniform(-0.2, 0.2) * (ly - ch - 20)
+                cw = min(cw, lx / nc - 12.0)
+                if cw < 10.0:
+                    continue
+                cwin = s.window(cx, cy, max(cw, ch) / 2 + 1.0)
+                court = (np.abs(cwin[1] - cx) <= cw / 2) & (np.abs(cwin[2] - cy) <= ch / 2)
+                if rng.random() < 0.4:                        # a passage to the street
+                    pw = rng.uniform(5.0, 8.0)
+                    pwin = s.window(cx, y0 - 1.0, (ly + 2.0))
+                    passage = ((np.abs(pwin[1] - cx) <= pw / 2) & (pwin[2] >= y0 - 1.0) & (pwin[2] <= cy))
+                    s.top[pwin[0]][passage] = -np.inf
+                    occ[pwin[0]] &= ~passage
+                s.top[cwin[0]][court] = -np.inf
+                occ[cwin[0]] &= ~court
+                courts[cwin[0]] |= court
+                if rng.random() < 0.6:                        # a roof structure beside it
+                    s.box(cx, cy + ch / 2 + 5.0, 0.0, min(cw, 12.0), 6.0, h + rng.uniform(2.5, 4.0), base=bz)
+    inner = courts & ~ndimage.binary_dilation(~courts, iterations=6)
+
+    def in_court(x, y):
+        return s.at(inner, x, y) & ~np.isfinite(s.at(s.top, x, y))
+    _trees(s, rng, 0.01, (5.0, 14.0), in_court)
+    for _ in range(4):                                        # data gaps on dark roofs
+        for _ in range(50):
+            gx, gy = rng.uniform(0, e), rng.uniform(0, e)
+            if s.at(occ, gx, gy):
+                break
+        s.gap |= np.hypot(s.X - gx, s.Y - gy) < rng.uniform(5.0, 12.0)
+    cy, cx = np.nonzero(courts)                               # and over part of one courtyard
+    if cx.size:
+        i = rng.integers(cx.size)
+        s.gap |= np.hypot(s.X - s.x[cx[i]], s.Y - s.x[cy[i]]) < rng.uniform(4.0, 8.0)
+    _trees_and_cars(s, rng, ~ndimage.binary_dilation(occ | courts, iterations=4), 0.001, 0.003)
+
+
+def _sparse(s, rng):
+    """Dense houses on a slope at low point density (ISPRS 54: low resolution, buildings, data gaps): rows
+    of houses 8-16 m x 8-12 m, 5-10 m high with gable roofs, 3-10 m apart along streets on a 3-8 degree
+    slope, gardens with trees, data gaps; :data:`DENSITY_PER_M2` draws a point every 2.5 m."""
+    e = s.e
+    a = rng.uniform(0, 2 * np.pi)
+    ts = np.float32(np.tan(np.radians(rng.uniform(3.0, 8.0))))
+    sa, ca = np.float32(np.sin(a)), np.float32(np.cos(a))
+    s.ground = (200 + ts * ((s.X - e / 2) * ca + (s.Y - e / 2) * sa)
+                + _waves(rng, 100.0, 1.0)(s.X, s.Y)).astype(np.float32)
+    occ = np.zeros((s.n, s.n), bool)
+    for ys in np.arange(10.0, e - 10.0, rng.uniform(32.0, 40.0)):   # a street, then a row each side
+        for side in (-1, 1):
+            xh = rng.uniform(0, 8)
+            while xh < e - 8:
+                ln, dp = rng.uniform(8.0, 16.0), rng.uniform(8.0, 12.0)
+                cy = ys + side * (4.0 + rng.uniform(2.0, 5.0) + dp / 2)
+                cx = xh + ln / 2
+                if rng.random() < 0.85 and 0 < cy < e:
+                    w = s.window(cx, cy, 0.5 * np.hypot(ln, dp))
+                    s.box(cx, cy, 0.0, ln, dp, rng.uniform(3.0, 6.0), base=float(s.ground[w[0]].max()) + 0.2,
+                          roof=_gable(np.tan(np.radians(rng.uniform(25, 45))), dp))
+                    occ[w[0]] = True
+                xh += ln + rng.uniform(3.0, 10.0)
+    for _ in range(3):
+        gx, gy = rng.uniform(0, e), rng.uniform(0, e)
+        s.gap |= np.hypot(s.X - gx, s.Y - gy) < rng.uniform(5.0, 10.0)
+    _trees_and_cars(s, rng, ~occ, 0.003, 0.002)
+
+
 _BUILD = {"hillside": _hillside, "railway": _railway, "quarry": _quarry, "shrubs": _shrubs,
-          "bridge": _bridge, "city": _city}
+          "bridge": _bridge, "city": _city,
+          "embankment": _embankment, "steps": _steps, "courtyard": _courtyard, "sparse": _sparse}

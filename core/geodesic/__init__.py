@@ -106,7 +106,13 @@ algorithm's help.
    steep slopes, thin walls, leftovers of merged regions). Nodata ends a run; on a DSM with
    scattered nodata the scan is repeated with one-cell dropouts bridged by the lower straight
    line across them, keeping what it adds where a 3 x 3 core is labelled by both the row and
-   the column scans (:func:`~.filter.label_scans`; issue 12).
+   the column scans (:func:`~.filter.label_scans`; issue 12). A region of labelled cells
+   longer than :data:`EXTENT_FACTOR` largest objects (which no dilation step removes) whose rim
+   is mostly not walls (fewer than ``edge_ratio`` of its rim cells, the dilation's test) is
+   raised terrain, each of its cells as the rim cell nearest it is a wall or not
+   (:func:`~.filter.raised_terrain_runs`: at 2 m cells of lowest points an embankment's 1:1.5
+   flank rises in steps the scans read as rises, not as walls; a bridge's deck joined to its
+   embankments stands on walls over the road below; our design, issue 12).
 4. **Object borders** (step code :data:`STEP_EDGE`). A kept cell that touches a removed
    cell and stands above its lowest 8-neighbour by more than ``dh0`` plus the terrain's rise
    over a cell diagonal is the foot of a wall or the edge of a crown (a cell mixing object
@@ -214,7 +220,10 @@ METHOD = Method(
         "which exceed the per-cell tolerance at coarse cells, rise over many cells; a run on one wall "
         "only must also be higher than a terrain bump of its length may rise); runs up to "
         "the maximum object size, or up to sqrt(2) times it (a row crossing a building rotated "
-        "in the grid) when both the rise and the fall are walls; "
+        "in the grid) when both the rise and the fall are walls; a region of such runs longer than "
+        "twice the maximum object size whose rim is mostly not walls (the dilation's test) is raised "
+        "terrain, an embankment or a dike, and kept, each cell as the rim cell nearest it (a bridge's "
+        "deck over a road stays an object); "
         "then the border cells of removed regions that stand above a "
         "neighbour by more than dh0 plus the terrain's rise (wall feet, crown edges; the rise from the "
         "steeper of the slope of the terrain level there and the median drop of the ground around, "

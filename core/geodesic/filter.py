@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from ..codes import LOW, OBJECT
 from ..common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
-from .dilation import BORDER_RINGS, BUMP_FRACTION, gradual_dilation, terrain_at
+from .dilation import BORDER_RINGS, BUMP_FRACTION, EXTENT_FACTOR, gradual_dilation, terrain_at, wall_cells
 from .grey import S8, fill_nodata, rect_filter, window_cells
 from .outliers import remove_outliers
 from .params import OBJECT_SIZE_M, check_params, step_sizes
@@ -66,6 +66,9 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
     by both the row and the column scans that is at least 3 x 3 cells (an object is a 2-D
     region; a run of matching noise along one profile is not); only valid cells are labelled
     (issue 12). ``pool``: threads that may scan the rows when idle (:func:`~.scan.scan_label`).
+
+    The runs of a region longer than :data:`~.dilation.EXTENT_FACTOR` largest objects whose rim
+    is mostly not walls are not labelled (:func:`raised_terrain_runs`): an embankment or a dike.
     """
     kw = dict(jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
               max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
@@ -77,10 +80,79 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
         both = scan_label(surface, cell_size, axes=(1,), **kw) & scan_label(surface, cell_size, axes=(0,), **kw)
         core = ndimage.binary_opening(both, S8)
         lab |= ndimage.binary_propagation(core, S8, mask=bridged) & valid
+    free = ~removed & (step == 0)                 # raised terrain longer than any object: kept
+    lab &= ~raised_terrain_runs(cleaned, lab & free, cell_size, p["max_object_size_m"], p["height_threshold_m"],
+                                np.tan(np.radians(p["terrain_slope_deg"])), p["edge_ratio"])
     new = lab & ~removed & (step == 0)
     step[new] = STEP_SCAN
     removed |= lab
     return int(new.sum())
+
+
+def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
+    """The cells of ``new`` (cells scan labelling took that no dilation step removed) in raised
+    terrain: an 8-connected region of them whose bounding box exceeds
+    :data:`~.dilation.EXTENT_FACTOR` ``* size_m`` (the largest object) along the rows or the
+    columns, and fewer than ``edge_ratio`` of whose rim cells (not on the raster's edge) hold a
+    wall (:func:`~.dilation.wall_cells`): the dilation's test of height heterogeneity, which
+    its steps do not apply to a region that long (never an object there).
+
+    Scan labelling reads profiles one at a time: an embankment, a dike or a road on a fill
+    crossed by rows or columns is a run bounded by two flanks, and at 2 m cells of lowest
+    points a 1:1.5 flank rises in one or two steps between sparse returns, as a wall with a
+    mixed cell does for the profile (synthetic site ``embankment`` at 2 m: its road embankment
+    and dike, 3-6 m high and 200-320 m long, went as objects, 7.7 % total error). Seen whole,
+    its rim is a flank's top, a little above the flank below it; a hall's or a row of roofs'
+    rim holds walls. Within such a region each cell follows the rim cell nearest it: a bridge's
+    deck, which the profiles take with the embankments it joins (ISPRS samp71 at 1 m: 2.60 ->
+    4.05 % when the whole region was given back), stands on walls over the road below it.
+
+    Examples
+    --------
+    >>> w = np.zeros((7, 14), np.float32)
+    >>> w[2:5, 1:13] = 1.2                   # a crest 12 cells long, 1.2 m above the ground
+    >>> new = w > 0
+    >>> raised_terrain_runs(w, new, (1.0, 1.0), 5.0, 0.5, 0.2, 0.55).sum()
+    36
+    >>> w[2:5, 1:13] = 3.0                   # walls all round: an object
+    >>> raised_terrain_runs(w, new, (1.0, 1.0), 5.0, 0.5, 0.2, 0.55).sum()
+    0
+    >>> w[2:5, 1:13] = 1.2                   # 12 m is not beyond 2 x 6 m
+    >>> raised_terrain_runs(w, new, (1.0, 1.0), 6.0, 0.5, 0.2, 0.55).sum()
+    0
+    """
+    out = np.zeros(new.shape, bool)
+    if not new.any():
+        return out
+    cell_size = as_cell_size(cell_size)
+    dx, dy = cell_size
+    lab, n = ndimage.label(new, S8)
+    # each region's bounding box (slices: no per-cell arrays), rows then columns
+    ext = np.array([(0, 0)] + [(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in ndimage.find_objects(lab)],
+                   np.float64).reshape(n + 1, 2) * (dy, dx)
+    wide = (ext > EXTENT_FACTOR * size_m).any(axis=1)
+    wide[0] = False
+    if not wide.any():
+        return out
+    body = wide[lab]
+    rim = body & ~ndimage.binary_erosion(body, S8, border_value=1)
+    rim[0], rim[-1], rim[:, 0], rim[:, -1] = False, False, False, False
+    walls = wall_cells(w, np.isfinite(w), cell_size, dh0, tan_s) & rim
+    n_rim = np.bincount(lab[rim], minlength=n + 1)
+    n_wall = np.bincount(lab[walls], minlength=n + 1)
+    terrain = wide & (n_rim > 0) & (n_wall < edge_ratio * n_rim)
+    if not terrain.any():
+        return out
+    # each cell of such a region follows the rim cell nearest it (within the regions' bounding box): a bridge's
+    # deck on its embankments stands on walls over the road below, the embankments on their flanks
+    r, c = np.nonzero(terrain[lab])
+    box = (slice(int(r.min()), int(r.max()) + 1), slice(int(c.min()), int(c.max()) + 1))
+    rim_b = rim[box] & terrain[lab[box]]
+    ii, jj = ndimage.distance_transform_edt(~rim_b, sampling=(dy, dx), return_distances=False, return_indices=True)
+    flank = ~walls[box][ii, jj]
+    del ii, jj
+    out[box] = new[box] & terrain[lab[box]] & flank
+    return out
 
 
 #: Baseline of the terrain level's local slope (stage 4), metres: the ~4 m grid the tolerated

@@ -1263,3 +1263,49 @@ def test_scan_label_in_strips_equals_one_scan(monkeypatch, strips):
                 assert np.array_equal(geo.scan_label(z, 1.0, pool=pool, **kw), one), (trial, axes)
                 labelled += int(one.sum())
     assert labelled > 100
+
+
+def test_raised_terrain_runs_are_long_without_walls():
+    """Scan-labelled regions longer than EXTENT_FACTOR largest objects whose rim is mostly not walls are
+    given back, each cell as the rim cell nearest it is a wall or not; shorter regions and regions on
+    walls are not."""
+    from bare_earth.core.geodesic.filter import raised_terrain_runs
+    w = np.zeros((7, 22), np.float32)
+    w[2:5, 1:21] = 1.2                           # a crest 20 cells long, 1.2 m high: no wall (1.28 m)
+    new = w > 0
+    args = (0.5, 0.2, 0.55)                      # dh0, tan(slope), edge ratio
+    np.testing.assert_array_equal(raised_terrain_runs(w, new, (1.0, 1.0), 5.0, *args), new)
+    assert not raised_terrain_runs(w, new, (1.0, 1.0), 10.0, *args).any()   # 20 m: not beyond 2 x 10 m
+    # along the columns with 2 m cells: 20 cells are 40 m, beyond 2 x 15 m
+    assert raised_terrain_runs(w.T, new.T, (1.0, 2.0), 15.0, *args).sum() == new.sum()
+    deck = w.copy()
+    deck[2:5, 9:13] = 4.0                        # a deck on walls over the ground, in the middle
+    want = new.copy()
+    want[2:5, 9:13] = False
+    np.testing.assert_array_equal(raised_terrain_runs(deck, new, (1.0, 1.0), 5.0, *args), want)
+    w[2:5, 1:21] = 3.0                           # walls all round: an object
+    assert not raised_terrain_runs(w, new, (1.0, 1.0), 5.0, *args).any()
+    assert not raised_terrain_runs(w, np.zeros_like(new), (1.0, 1.0), 5.0, *args).any()
+
+
+def test_an_embankment_whose_flanks_read_as_rises_stays_ground():
+    """An embankment 3 m high along a 2 m raster, 300 m long, its flanks rising 1.5 m a cell (at 2 m cells
+    of lowest points a 1:1.5 flank rises so between sparse returns: more than the scans' rise over a cell,
+    0.93 m, less than a wall, 1.6 m), ramping down to the ground over 60 m at its end; beside it a shed as
+    long and a building 40 m long on vertical walls: scan labelling took the embankment's crest as an
+    object (every column a run between two rises). It is longer than EXTENT_FACTOR largest objects (the
+    dilation keeps such regions) and its rim holds no wall: it stays ground; the shed and the building are
+    removed."""
+    from bare_earth.core.pipeline import run_array
+    z = np.tile(np.linspace(0, 2, 200, dtype=np.float32), (120, 1))
+    lift = 3.0 * np.clip((180 - np.arange(200, dtype=np.float32)) / 30, 0, 1)   # ramp: columns 150-180
+    z[30] += 0.5 * lift
+    z[31:34] += lift
+    z[34] += 0.5 * lift
+    z[60:65, 0:150] += 3.0
+    z[90:95, 40:60] += 3.0
+    res = run_array("geodesic", z, 2.0, {})
+    assert (res.mask[30:35] == GROUND).all()
+    assert (res.mask[60:65, 0:150] == OBJECT).all()
+    assert (res.mask[90:95, 40:60] == OBJECT).all()
+

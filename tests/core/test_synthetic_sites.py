@@ -2,6 +2,7 @@
 bareearth:dtm's accuracy on each (issue 13: the kinds of the held-out ISPRS samples)."""
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from bare_earth.core.codes import GROUND, OBJECT
 from bare_earth.core.evaluate import compare_masks
@@ -66,6 +67,10 @@ DTM_BOUNDS = {
     ("quarry", 1.0, "lowest"): 8.0, ("quarry", 2.0, "highest"): 8.0,
     ("shrubs", 1.0, "lowest"): 9.5, ("shrubs", 2.0, "highest"): 27.0,
     ("bridge", 1.0, "lowest"): 3.0, ("bridge", 2.0, "highest"): 3.8,
+    # the sites added for ISPRS 23, 24, 53 and 54 (2026-11-29, seed 0): embankment 2 m lowest 6.55, steps 1 m
+    # lowest 2.13, courtyard 1 m lowest 0.02, sparse 2 m highest 0.30
+    ("embankment", 2.0, "lowest"): 8.0, ("steps", 1.0, "lowest"): 3.0,
+    ("courtyard", 1.0, "lowest"): 0.5, ("sparse", 2.0, "highest"): 0.6,
 }
 
 
@@ -84,3 +89,53 @@ def test_rascor_keeps_the_quarry_benches_tops():
     s = make_site("quarry", 2.0, "lowest")
     res = run_array("rascor", s.dsm, s.cell_size, {})
     assert compare_masks(res.mask, s.mask)["total"] <= 8.0
+
+
+def test_courtyards_are_ground_enclosed_by_buildings():
+    """ISPRS 23's courtyards: ground regions of the truth that no ground path joins to the raster's edge (the
+    blocks close round them), at least one 100 m2 large; and the site's data gaps are filled from the
+    nearest point, so runs of equal heights stand where the gaps were."""
+    s = make_site("courtyard", 1.0, "lowest")
+    lab, n = ndimage.label(s.mask == GROUND)
+    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)
+    enclosed = np.setdiff1d(np.arange(1, n + 1), edge)
+    assert (sizes[enclosed] >= 100).sum() >= 2
+
+
+def test_steps_site_has_terrain_steps_with_vegetation_on_their_edges():
+    """ISPRS 53: the true ground rises by 2 m or more over at most 5 m across its steps, and the objects
+    crowd along them (object share within 6 m of a step at least twice that farther away)."""
+    s = make_site("steps", 1.0, "lowest")
+    rise = ndimage.maximum_filter(s.dtm, size=5) - ndimage.minimum_filter(s.dtm, size=5)
+    step = rise > 2.0
+    assert step.mean() > 0.01
+    near = ndimage.binary_dilation(step, iterations=6)
+    obj = s.mask == OBJECT
+    assert obj[near].mean() > 2 * obj[~near].mean()
+
+
+def test_embankment_site_is_ground_with_shrubs_on_its_sides():
+    """ISPRS 24: embankments and the cut are ground (the true DTM departs from the site's smooth base by
+    3 m or more over a long band), shrubs and trees on their sides are objects."""
+    s = make_site("embankment", 1.0, "lowest")
+    base = ndimage.median_filter(s.dtm, size=61)
+    raised = (s.dtm - base) > 2.0
+    assert raised.mean() > 0.01 and (s.mask[raised] == GROUND).mean() > 0.8
+    assert (s.mask == OBJECT).mean() > 0.02
+
+
+def test_sparse_site_has_a_point_every_2_to_3_m():
+    """ISPRS 54's low resolution: at 1 m most cells have no point and take the nearest cell's point, so most
+    cells equal a 4-neighbour exactly (0.997), on a dense site (1.2 points per m2: a quarter of the cells
+    empty) about half (0.47)."""
+    def copied(kind):
+        z = make_site(kind, 1.0, "lowest").dsm
+        same = np.zeros(z.shape, bool)
+        same[:, 1:] |= z[:, 1:] == z[:, :-1]
+        same[:, :-1] |= z[:, :-1] == z[:, 1:]
+        same[1:] |= z[1:] == z[:-1]
+        same[:-1] |= z[:-1] == z[1:]
+        return same.mean()
+    assert copied("sparse") > 0.9
+    assert copied("courtyard") < 0.6
