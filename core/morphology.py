@@ -128,6 +128,24 @@ themselves on a raster they fill (0.18 on terrain of 0.04: the 120 m roof stayed
 objects with windows up to 200 m instead of widening to raised regions standing on walls took terrain
 for objects (ISPRS sample 61 3.7 -> 11 %, matrix mean 3.65 %).
 
+The largest object (what the paper leaves to the user). The window is sized from the objects the
+progressive filter itself finds with windows up to 100 m (:func:`estimate_object_size`). On steep relief
+that search cuts crests and spurs too (touching the raster's border, so not the cut terrain above): on the
+fBm mountain of ``benchmarks/bare.py`` they read 60-88 m and the window, sized from them, cut more
+terrain. Only the search's regions standing mostly on walls (:func:`objects_on_walls`, the tiers' test),
+or too thin to judge by their walls, size the window; with none the window is 40 m or the width of the
+regions flagged if smaller, and ``auto`` uses the progressive form: the single window would be a guess,
+not a little larger than the largest object as the 1996 form has it, and cuts any terrain feature
+narrower than it by its full height (dikes on a floodplain, which 40 m block minima do not show).
+``benchmarks/bare.py``: mountain at 0.5 / 1 / 2 m 0.93 / 1.69 / 6.50 -> 0.04 / 0.11 / 0.83 %, levees at
+0.5 / 1 / 2 m 6.20 / 15.64 / 5.13 -> 0.09 / 1.90 / 2.35 %; the cost: the progressive form's flags at its
+smallest windows read the noise of a fine raster (``s r_1`` = 0.15-0.3 m against 0.15 m of noise), river
+at 0.5 / 1 m 0.06 / 0.05 -> 1.99 / 1.55 %, mounds 0.81 / 0.92 -> 1.37 / 1.29 %; bare mean 1.75 -> 1.12 %.
+Generalisation matrix mean 3.053 -> 3.049 % (ISPRS sample 61 -0.04 to -0.11; with its empty cells at
+1 m +0.36: its window 29.5 -> 25.6 m once a 4 m embankment is left out). Still open: the mountain
+at 4 m (10.6 %), whose cut crests stand on one-cell rises steeper than the 90th-percentile slope of 40 m
+blocks, so on walls.
+
 The provisional surface differs from SMRF's in one respect: SMRF inpaints the flagged
 cells from the unflagged ones, whose reach is unbounded; here they take the last opened
 surface, which reconstructs planes and ramps under objects exactly and keeps the
@@ -1458,11 +1476,16 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0, scale_do
 
 
 def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None, outline_slope=None,
-                         window_growth=_OBJECT_SEARCH_GROWTH, wide_slope=None, wide_radius_m=None):
+                         window_growth=_OBJECT_SEARCH_GROWTH, wide_slope=None, wide_radius_m=None, on_walls=True,
+                         details=False):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
-    than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; the width of each
+    than ``_OBJECT_HEIGHT_M`` (and ``dh``) above the provisional ground; with ``on_walls`` (default)
+    only its regions standing mostly on walls are objects (:func:`objects_on_walls`: terrain the
+    search's opening cut, a knoll or a crest steeper than its slope threshold, falls to the ground at
+    the terrain's slope; on the fBm mountain of ``benchmarks/bare.py`` such regions read 60-88 m and
+    the filter's window, sized from them, cut more terrain). The width of each
     object is twice the largest distance from its inside to its outline (the largest
     square window it holds; :func:`~bare_earth.core.estimate.object_widths`, across nodata gaps
     and the low outliers on a roof). The object size is the width below which 98 % of the object
@@ -1472,7 +1495,8 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     outline cells. ``window_growth`` (default :data:`_OBJECT_SEARCH_GROWTH`, Zhang's doubling
     windows) is the search's own. ``wide_slope`` and ``wide_radius_m`` are the filter's (default
     ``slope`` at every radius). ``progress(fraction)`` (optional, may raise ``Cancelled``)
-    from inside the filter.
+    from inside the filter. ``details``: return ``(size of the objects on walls, size of every region
+    flagged, whether a region wider than its outline was judged to stand on walls)`` from the one search.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -1482,15 +1506,64 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
                                wide_slope=slope if wide_slope is None else wide_slope,
                                wide_radius_m=0.0 if wide_radius_m is None else wide_radius_m,
                                window_growth=window_growth, progress=sub_progress(progress, 0.0, 0.9))
-    obj = res.mask == OBJECT
-    if not obj.any():
-        return float("nan")
+    flagged = res.mask == OBJECT
     # twice the distance from the inside to the outline, counted to the cell's centre (the
     # estimate's width counts to its far edge); nodata gaps and low outliers (blunders on a
     # roof, one cell or a 2 x 2 cluster) do not cut an object
     holes = (res.mask == LOW) | ~np.isfinite(z)
-    w = object_widths(obj, cell, 0.98, nodata=holes, border_outside=False) + min(cell)
-    return _OBJECT_MARGIN * w + 2.0 * max(cell)
+
+    def size(obj):
+        if not obj.any():
+            return float("nan")
+        w = object_widths(obj, cell, 0.98, nodata=holes, border_outside=False) + min(cell)
+        return _OBJECT_MARGIN * w + 2.0 * max(cell)
+
+    walled = flagged
+    args = (z, flagged, res.mask == GROUND, cell, res.info["dh_m"], res.info["outline_slope"])
+    if on_walls or details:
+        walled = objects_on_walls(*args, hidden=holes)
+    if details:
+        return size(walled), size(flagged), bool(objects_on_walls(*args, hidden=holes, keep_thin=False).any())
+    return size(walled if on_walls else flagged)
+
+
+def objects_on_walls(z, objects, ground, cell, dh, slope, hidden=None, keep_thin=True):
+    """The connected regions (8-neighbours) of ``objects`` standing mostly on walls: more than
+    :data:`TIER_WALL_SHARE` of their edge cells (those next to ``ground``) stand more than ``dh`` plus the
+    terrain's rise over a cell diagonal (``slope``) above the lowest ground cell around (the test of
+    :func:`find_outline_cells`), or no edge cell at all (a region filling the raster or enclosed by
+    nodata), or (``keep_thin``) no cell inside its outline (every cell next to a cell of another kind: a
+    region one or two cells wide is an outline itself, too thin to be judged by its walls,
+    :func:`find_cut_terrain`'s rule; ``keep_thin=False``: only the regions judged to stand on walls).
+    Terrain the opening cut falls to the ground around at the terrain's slope and is left out.
+    ``hidden`` (optional, bool): cells whose height hides what lies there (nodata, low outliers); those
+    next to an object join the regions on their sides (a roof crossed by lines of empty cells is one
+    region, not strips each with a few edge cells).
+
+    Examples
+    --------
+    >>> z = np.zeros((5, 9), np.float32); z[1:4, 1:4] = 5.0; z[1:4, 5:8] = 0.3; z[2, 6] = 0.6
+    >>> flags = z > 0
+    >>> objects_on_walls(z, flags, ~flags, (1.0, 1.0), 0.5, 0.0).sum(axis=0)
+    array([0, 3, 3, 3, 0, 0, 0, 0, 0])
+    """
+    regions = objects
+    if hidden is not None and hidden.any():
+        regions = objects | (hidden & touching(objects))
+    lab, n = label8(regions)
+    if n == 0:
+        return objects
+    edge = objects & touching(ground)
+    wall = _walls(z, ground, edge, np.float32(dh + slope * math.hypot(*cell)))
+    n_edge = np.bincount(lab[edge], minlength=n + 1)
+    n_wall = np.bincount(lab[wall], minlength=n + 1)
+    # a region with no cell inside its outline (every cell next to something else) is an outline itself,
+    # too thin to be judged by its walls (find_cut_terrain's rule): kept
+    judged = np.bincount(lab[objects & ~touching(~objects)], minlength=n + 1) > 0
+    keep = (n_wall > TIER_WALL_SHARE * n_edge) | (n_edge == 0)
+    keep = keep | ~judged if keep_thin else keep & judged
+    keep[0] = False
+    return keep[lab] & objects
 
 
 def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[float, float]], *,
@@ -1520,8 +1593,11 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       ``slope``: beyond that radius the threshold grows by it (:func:`step_thresholds`; features
       narrower than a block, which the floor is for, are cut in full by then).
     * ``max_object_size_m``: the width of the largest objects the progressive filter
-      finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m
-      (40 m when there are no objects); with ``raised_regions``, widened to the width of the
+      finds with doubling windows up to 100 m (:func:`estimate_object_size`), bounded to 10-80 m: its
+      regions standing mostly on walls or too thin to judge (:func:`objects_on_walls`; a region falling
+      to the ground at the terrain's slope is terrain the search cut: on the fBm mountain of
+      ``benchmarks/bare.py`` such crests made the window 60-80 m); without any, 40 m or the width of the
+      regions flagged if smaller (40 m when nothing is flagged); with ``raised_regions``, widened to the width of the
       widest raised region standing on walls that this window does not reach across
       (:func:`~bare_earth.core.estimate.raised_region_window`, at most 200 m wide, spanning at most
       :data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`: a roof over most of
@@ -1539,8 +1615,15 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       blocks is the slope of a wall between two of them).
     * ``mode``: ``"auto"`` becomes ``"progressive"`` when ``s90 * max_object_size_m / 2 >
       dh_m``, ``s90`` the 90th-percentile slope of the coarse minimum surface (a single
-      opening would cut the terrain by more than ``dh``), else ``"single"``;
-      ``mode_reason`` says why.
+      opening would cut the terrain by more than ``dh``), else ``"single"``, except when the
+      object-size search found no object standing on walls (:func:`objects_on_walls`): the single window
+      would then be a guess, not a width a little larger than the largest object (the 1996 form's rule),
+      and it removes every terrain feature narrower than it and higher than ``dh``, which the 40 m block
+      minima do not show (dikes on a floodplain: ``benchmarks/bare.py`` levees at 0.5 / 1 / 2 m 6.20 /
+      15.64 / 5.13 -> 0.09 / 1.90 / 2.35 % of the ground lost), so the progressive form is used;
+      ``mode_reason`` says why. Where objects on walls were found the slope rule stands: it still misses
+      terrain features narrower than the blocks (levees at 4 m, where the search's regions on the dikes
+      stand on one-cell rises of 2 m, lose 13.1 % in the single form).
 
     Large rasters are reduced to block minima of at most a million cells for the slope
     and the object size; the noise is measured at full resolution on windows spread over
@@ -1635,18 +1718,31 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                         f"raster under 3 x 3 blocks of {_SLOPE_SCALE_M:g} m: s at every radius (SMRF)")
     else:
         out["wide_slope_source"] = "given"
+    unfounded = False                                   # the window is a default, no object's width
     if max_object_size_m is None:
-        w = estimate_object_size(zs, cs, out["slope"], out["dh_m"], progress=sub_progress(progress, 0.45, 1.0),
-                                 outline_slope=out["outline_slope"], wide_slope=out["wide_slope"],
-                                 wide_radius_m=out["wide_radius_m"])
+        w, w_all, walls = estimate_object_size(zs, cs, out["slope"], out["dh_m"],
+                                               progress=sub_progress(progress, 0.45, 1.0),
+                                               outline_slope=out["outline_slope"], wide_slope=out["wide_slope"],
+                                               wide_radius_m=out["wide_radius_m"], details=True)
+        unfounded = not walls
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
             out["max_object_size_source"] = (
-                f"derived: widest objects found {w:.1f} m (1.25 x the 98 % area width + 2 cells), "
-                f"bounded to {_MIN_OBJECT_M:g}-{_MAX_OBJECT_M:g} m")
+                f"derived: widest objects found {w:.1f} m (1.25 x the 98 % area width + 2 cells; regions standing "
+                f"mostly on walls or too thin to judge), bounded to {_MIN_OBJECT_M:g}-{_MAX_OBJECT_M:g} m")
+        elif np.isfinite(w_all):
+            # every region the search flagged falls to the ground at the terrain's slope: terrain it cut; the
+            # window need not be wider than they are
+            out["max_object_size_m"] = float(min(_DEFAULT_OBJECT_M, max(_MIN_OBJECT_M, w_all)))
+            out["max_object_size_source"] = (
+                f"no object standing on walls found (the regions flagged, {w_all:.1f} m, fall to the ground at the "
+                f"terrain's slope): the default {_DEFAULT_OBJECT_M:g} m or their width if smaller, at least "
+                f"{_MIN_OBJECT_M:g} m")
+            unfounded = True
         else:
             out["max_object_size_m"] = _DEFAULT_OBJECT_M
             out["max_object_size_source"] = f"no object found: default {_DEFAULT_OBJECT_M:g} m"
+            unfounded = True
         # the margin of the objects found (1.25 x their width + 2 cells): the region's width leaves out the
         # rims on top of its walls, and a window just as wide still fits inside it
         window = raised_region_window(zs, cs, max(out["dh_m"], _OBJECT_HEIGHT_M), out["max_object_size_m"],
@@ -1661,7 +1757,18 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     if mode == "auto":
         s_t = s90 if np.isfinite(s90) else out["slope"]
         cut = s_t * out["max_object_size_m"] / 2.0
-        if cut > out["dh_m"]:
+        if unfounded:
+            # the 1996 form's window is a little larger than the largest object; with no object found it
+            # would be a guess (the default, or the width of terrain the search cut) that removes every
+            # terrain feature narrower than it and more than dh high (dikes on a floodplain, which 40 m
+            # block minima do not show: bare.py levees at 1 m lost 15.6 % of the ground), while the
+            # progressive form passes terrain at its slope
+            out["mode"] = "progressive"
+            out["mode_reason"] = (f"no object standing on walls found by the progressive search: a single "
+                                  f"opening would use a window of {out['max_object_size_m']:.1f} m, not the width "
+                                  "of an object, and cut any terrain feature narrower than it (a dike) by its "
+                                  "full height, so the progressive filter (SMRF) is used")
+        elif cut > out["dh_m"]:
             out["mode"] = "progressive"
             out["mode_reason"] = (f"terrain not flat: a single {out['max_object_size_m']:.1f} m "
                                   f"opening would cut the terrain's 90th-percentile slope {s_t:.3f} "
@@ -1711,12 +1818,14 @@ _DERIVED = ("mode_reason", "noise_m", "terrain_slope_p50", "terrain_slope_p90", 
 PARAMS = (
     Param("mode", "enum", "auto",
           "auto: progressive windows where the terrain is not flat (slope x half the largest window "
-          "> dh), else one window; progressive: growing windows with a slope-dependent threshold "
+          "> dh) or no object was found (the one window would be a guess that cuts dikes), else one window; "
+          "progressive: growing windows with a slope-dependent threshold "
           "(Zhang et al. 2003, SMRF); single: one opening and the two-sided dh test (1996 form).",
           options=MODES),
     Param("max_object_size_m", "float", None,
           "Largest object to remove, metres (side of the largest window). Empty: the width of the "
-          "largest objects found by the progressive filter with windows up to 100 m, 10-80 m (see "
+          "largest objects found by the progressive filter with windows up to 100 m, standing on walls (terrain "
+          "the search cut falls to the ground at the terrain's slope and is left out), 10-80 m (see "
           "raised_regions).",
           minimum=0.1, maximum=10000.0),
     Param("dh_m", "float", None,

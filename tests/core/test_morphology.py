@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from bare_earth.core import LOW, NODATA, OBJECT
+from bare_earth.core import GROUND, LOW, NODATA, OBJECT
 from bare_earth.core import morphology as morph
 from bare_earth.core.methods import get_method
 from bare_earth.core.pipeline import run_array
@@ -395,6 +395,67 @@ def test_resolve_derives_parameters_and_chooses_the_mode():
     p = morph.resolve_morphological_params(steep, 1.0, mode="single", dh_m=2.0, slope=0.1,
                                        max_object_size_m=30.0)
     assert (p["mode"], p["dh_m"], p["slope"], p["max_object_size_m"]) == ("single", 2.0, 0.1, 30.0)
+
+
+def test_auto_mode_is_progressive_when_no_object_is_found():
+    """A dike on a flat floodplain (3 m high, 1:3 sides, 22 m at its base) and no object: the 40 m block
+    minima do not show the dike, so the slope rule alone chose the single form with the default 40 m
+    window, which cut the whole dike (bare.py levees at 1 m: 15.6 % of the ground lost). With no object
+    found the single window would be a guess: auto uses the progressive form, which keeps the dike."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:160, 0:160].astype(np.float32)
+    dike = np.clip(3.0 - np.maximum(np.abs(xx - 80.0) - 2.0, 0.0) / 3.0, 0.0, None)
+    z = (100.0 + dike + rng.normal(0, 0.05, xx.shape)).astype(np.float32)
+    p = morph.resolve_morphological_params(z, 1.0)
+    assert p["max_object_size_source"].startswith("no object found")
+    assert p["mode"] == "progressive" and "no object standing on walls found" in p["mode_reason"]
+    run = {k: p[k] for k in ("mode", "max_object_size_m", "dh_m", "slope", "outline_slope", "wide_slope",
+                             "wide_radius_m")}
+    assert np.count_nonzero(morph.filter_morphological(z, 1.0, **run).mask != GROUND) == 0
+    single = morph.filter_morphological(z, 1.0, **dict(run, mode="single")).mask
+    assert np.all(single[dike > 0.5] == OBJECT)                  # what the single window would have done
+
+
+def test_objects_on_walls_keeps_regions_on_walls_only():
+    """A region whose edge stands on walls is kept; one falling to the ground at the terrain's slope is not;
+    one with no edge on the ground (filling the raster) is kept."""
+    z = np.zeros((9, 20), np.float32)
+    z[3:6, 2:5] = 5.0                                        # a block on walls
+    z[2:7, 11:18] = 0.4                                      # a terrace 0.4 m high: its edge rises 0.4 m
+    z[3:6, 12:17] = 0.8
+    z[4, 13:16] = 1.2
+    flagged = z > 0.0
+    kept = morph.objects_on_walls(z, flagged, ~flagged, (1.0, 1.0), 0.5, 0.0)
+    np.testing.assert_array_equal(kept, flagged & (z == 5.0))
+    thin = np.zeros_like(flagged)
+    thin[7, 2:10] = True                                         # one cell wide: too thin to judge, kept
+    kept = morph.objects_on_walls(z, flagged | thin, ~(flagged | thin), (1.0, 1.0), 0.5, 0.0)
+    np.testing.assert_array_equal(kept, thin | (z == 5.0))
+    kept = morph.objects_on_walls(z, flagged | thin, ~(flagged | thin), (1.0, 1.0), 0.5, 0.0, keep_thin=False)
+    np.testing.assert_array_equal(kept, z == 5.0)
+    every = np.ones((4, 4), bool)
+    assert morph.objects_on_walls(z[:4, :4], every, ~every, (1.0, 1.0), 0.5, 0.0).all()
+
+
+def test_object_size_leaves_out_terrain_the_search_cut():
+    """A crest with 0.8 sides across the raster, steeper than the search's slope 0.3: the search flags it
+    (52 m wide), but it falls to the ground at the terrain's slope; the object size is the building's
+    (12 m: 17 m with the margin), as on the fBm mountain of bare.py (59-80 m windows from cut crests
+    -> 40 m: 0.5 / 1 / 2 m 0.93 / 1.69 / 6.50 -> 0.60 / 0.94 / 2.21 % of the ground lost)."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:200, 0:200].astype(np.float32)
+    z = (100.0 + np.maximum(0.0, 25.0 - 0.8 * np.abs(xx - 60)) + rng.normal(0, 0.05, xx.shape)).astype(np.float32)
+    z[90:102, 150:162] += 8.0
+    walled, every, walls = morph.estimate_object_size(z, 1.0, 0.3, 0.5, outline_slope=0.3, details=True)
+    assert walled == pytest.approx(1.25 * 12 + 2, abs=1.5) and every > 40.0 and walls
+    assert morph.estimate_object_size(z, 1.0, 0.3, 0.5, outline_slope=0.3) == walled
+    assert morph.estimate_object_size(z, 1.0, 0.3, 0.5, outline_slope=0.3, on_walls=False) == every
+    z[90:102, 150:162] -= 8.0                                    # the crest alone: no object on walls
+    walled, every, walls = morph.estimate_object_size(z, 1.0, 0.3, 0.5, outline_slope=0.3, details=True)
+    assert np.isnan(walled) and every > 40.0 and not walls
+    p = morph.resolve_morphological_params(z, 1.0, slope=0.3)
+    assert p["mode"] == "progressive" and "no object standing on walls" in p["mode_reason"]
+    assert p["max_object_size_m"] == 40.0                        # the default, smaller than the crest's width
 
 
 def test_halo_covers_the_reach():
