@@ -249,10 +249,11 @@ def test_window_without_ground_leaves_its_dtm_empty():
 
 def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found():
     """A 6 m embankment (30 m crown, 1:1 banks) across flat land with 8 m buildings beside it and one on its
-    crown. RASCOR and the geodesic member take the embankment as an object, the slope-following opening
-    keeps it: the majority rejects most of it and the DTM would cut it. Its smooth ground continues
-    the undisputed ground (dtm_refine.continue_ground): it stays ground and the DTM follows it, while every
-    building, walls standing on steps, is found."""
+    crown: it stays ground and the DTM follows it, while every building, walls standing on steps, is found.
+    RASCOR and the geodesic member took the embankment as an object and the DTM kept it only through the
+    continuation of the undisputed ground (dtm_refine.continue_ground, tested on exact arrays in
+    test_dtm_refine); the geodesic member's scan-labelled regions longer than two largest objects without
+    walls are terrain now (geodesic.raised_terrain_runs), so the vote itself keeps most of it."""
     n = 160
     y, x = grid(n)
     dam = np.clip((15 + 6 - np.abs(y - 80)) / 6, 0, 1) * 6.0
@@ -267,18 +268,16 @@ def test_embankment_next_to_buildings_stays_ground_while_the_buildings_are_found
                                                        if k in {q.name for q in available_methods()[m].params}})
                  .mask == GROUND).astype(int) for m in dtm_method.MEMBERS)
     on_dam = (dam > 0) & ~buildings
-    # the vote rejects most of it (69.8 %: the geodesic member's border stage reads the rise the 1:1 banks allow
-    # from the drops of the ground on them and keeps the cells beside the parts it removes, which it took before)
-    assert np.count_nonzero((votes < 2) & on_dam) > 0.65 * np.count_nonzero(on_dam)
+    # the vote keeps most of it (the geodesic member's long regions without walls, with the opening)
+    assert np.count_nonzero((votes >= 2) & on_dam) > 0.75 * np.count_nonzero(on_dam)
     assert np.count_nonzero((res.mask != GROUND) & on_dam) < 0.25 * np.count_nonzero(on_dam)
     assert (res.mask[buildings] == OBJECT).all()
     assert np.abs(res.dtm - ground)[~buildings].max() < 1.5
-    assert res.info["continued_ground_share"] > 0.1
-    logged = int(res.info["continued_ground_rule"].split(" cells")[0])
-    # every cell of the vote's objects left as ground was given back by the continuations (their logs): the
+    # what the vote still rejects and the DTM keeps was given back by the continuations (their logs): the
     # banks' tops the line continuation gives back stay ground (dtm_refine.find_step_tops)
+    logged = int(res.info["continued_ground_rule"].split(" cells")[0])
     lined = int(res.info["continued_line_rule"].split(" cells")[0])
-    assert logged + lined >= np.count_nonzero((res.mask == GROUND) & (votes < 2)) > 0
+    assert logged + lined >= np.count_nonzero((res.mask == GROUND) & (votes < 2))
 
 
 def test_member_settings_rascor_noise_from_the_ground_level_cells():
