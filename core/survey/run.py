@@ -67,13 +67,13 @@ def parse_params(method, items):
     """``KEY=VALUE`` strings (or one string of them separated by spaces, commas, semicolons or
     new lines) -> the keyword arguments of ``method`` (a Method or its id), each converted
     to its Param kind; an empty value means "derived from the data". ValueError names a
-    bad one."""
+    bad one, or one given twice (in any case of its key)."""
     if isinstance(method, str):
         method = get_method(method)
     if isinstance(items, str):
         items = [s for s in re.split(r"[\s,;]+", items) if s]
     known = {p.name: p for p in method.params}
-    out = {}
+    out, given = {}, {}
     previous = None
     for item in items or ():
         key, sep, text = item.partition("=")
@@ -88,6 +88,9 @@ def parse_params(method, items):
             raise ValueError(f"parameter {key}: method {method.name!r} takes " + (
                 f"{', '.join(sorted(known))}." if known else "no parameter (it derives every value from the data): "
                 "give none, or choose a method that takes it."))
+        if key in given:    # the last would win without a word: which one was meant?
+            raise ValueError(f"parameter {key} is given twice ({given[key]!r} and {item!r}): give it once.")
+        given[key] = item
         try:
             out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
         except ValueError as exc:

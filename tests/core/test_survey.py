@@ -367,6 +367,17 @@ def test_parse_params_reads_values_as_users_type_them():
         parse_params(meth, "sigma_m=0.1 7")
 
 
+def test_parse_params_refuses_a_parameter_given_twice():
+    """QA14: 'dh_m=1 ... dh_m=2' (two --param, or PARAMETERS text) ran the survey with the last, 2, without a
+    word; a key given twice in another case (DH_M, as the algorithm names it) the same."""
+    meth = get_method("morphological")
+    with pytest.raises(ValueError, match=r"^parameter dh_m is given twice \('dh_m=1' and 'dh_m=2'\): give it once\.$"):
+        parse_params(meth, ["dh_m=1", "dh_m=2"])
+    with pytest.raises(ValueError, match=r"parameter dh_m is given twice \('dh_m=1' and 'DH_M='\)"):
+        parse_params(meth, "dh_m=1, max_object_size_m=40, DH_M=")
+    assert parse_params(meth, "dh_m=1, max_object_size_m=40") == {"dh_m": 1.0, "max_object_size_m": 40.0}
+
+
 # -- seamless ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("method", sorted(available_methods()))
 def test_tiled_mask_equals_the_one_pass_mask(survey, method):
