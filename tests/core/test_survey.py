@@ -478,6 +478,11 @@ def test_more_workers_than_cores_refused_before_any_work(survey, tmp_path):
                                          rf"{n - 1} core\(s\) and [0-9.]+ GB of memory.*Use at most {n - 1}"):
         run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=n)
     assert not (tmp_path / "out").exists()
+    # QA14: a negative count (bin/bare-earth --workers -1) ran one worker per core without a word
+    with pytest.raises(ValueError, match=r"^WORKERS = -1: give a number of local worker processes, or 0 for one "
+                                         r"per core\.$"):
+        run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=-1)
+    assert not (tmp_path / "out").exists()
 
 
 def test_memory_warning_names_the_workers_that_fit():
