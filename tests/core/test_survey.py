@@ -7,6 +7,7 @@ is the reference.
 import dataclasses
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -323,6 +324,20 @@ def test_south_up_and_multiband_tiles_refused_with_what_to_do(tmp_path):
     ds = None
     with pytest.raises(ValueError, match=r"two\.tif .*has 2 bands.*extract the height band \(gdal_translate -b\)"):
         index_tiles(paths[:3] + [str(two)])
+
+
+def test_a_tile_given_twice_refused_as_such(survey, tmp_path):
+    """QA14: one file given twice (tiles/t.tif and ./tiles/t.tif, or a link to it) was refused as 'several tiles
+    are named t: rename them' (the link as two overlapping tiles); it is one tile given twice."""
+    paths = [str(p) for p in survey["tiles"][:3]]
+    again = os.path.join(os.path.dirname(paths[0]), ".", os.path.basename(paths[0]))
+    with pytest.raises(ValueError, match=rf"^1 tile\(s\) are given twice: {re.escape(paths[0])}\. Give each tile "
+                                         r"once\.$"):
+        index_tiles(paths + [again])
+    link = tmp_path / "link.tif"
+    link.symlink_to(paths[1])
+    with pytest.raises(ValueError, match=rf"given twice: {re.escape(paths[1])} \(and as .*link\.tif, the same file\)"):
+        index_tiles(paths + [str(link)])
 
 
 def test_parse_params_converts_to_the_params_kinds():
