@@ -628,7 +628,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 styles[style] = (d, d.name().endswith("MASK"))
             try:
                 if d.type() == "rasterDestination":
-                    grid.check_output_path(path, self.outputBands(d.name()))
+                    grid.check_output_path(path, self.outputBands(d.name()), styled=d.name().endswith("MASK"))
                 elif d.type() == "folderDestination":
                     grid.check_output_folder(path)
                 else:                              # a report, a table, a point or vector file

@@ -124,6 +124,23 @@ def test_tiny_block_size_refused_before_work(processing_run, tmp_path, block):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("side", ["m.qml", "m.tif.aux.xml", "d.tif.aux.xml"])
+def test_a_folder_where_an_output_writes_beside_it_refused_before_work(processing_run, tmp_path, side):
+    """QA14: a folder named as the mask's style (m.qml) or an output's .aux.xml: the whole run was done, then
+    the style's write raised a bare IsADirectoryError traceback (the mask in place, not its style), the
+    .aux.xml's move 'cannot put the output in place'."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    (tmp_path / side).mkdir()
+    name = re.escape(side)
+    with pytest.raises(QgsProcessingException, match=rf"^Unable to execute algorithm\n'(Object mask|DTM)' \(OUTPUT_"
+                                                     rf"(MASK|DTM)\): the output '.*' writes '{name}' beside it, "
+                                                     rf"but '.*{name}' is a folder: move or rename"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not (tmp_path / "d.tif").exists() and not (tmp_path / "m.tif").exists()
+
+
 @pytest.mark.parametrize("key", ["BLOCK_SIZE", "THREADS", "PROCESSES", "DH_M", "MAX_OBJECT_SIZE_M"])
 def test_a_nan_given_as_a_number_refused_before_work(qgis_app, processing_run, tmp_path, key):
     """A NaN given as a number (a PyQGIS script's computed value, a model's expression) passed QGIS's
