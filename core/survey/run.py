@@ -298,11 +298,12 @@ def check_output_folder(index, out_dir, inputs=None):
     existing file, the folder of one of the tiles (the outputs would lie among the tiles,
     and the folder given again as the input would take them for tiles), or a folder where an
     output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
-    ``mask.vrt`` or ``survey.vrt``)."""
+    ``mask.vrt`` or ``survey.vrt``), or one holding a folder named as a file the survey writes
+    (``survey.vrt``, ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``)."""
     out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
     given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
-    names = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
-    names += [n for t in index.tiles for n in output_names(t.name)]
+    own = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
+    names = own + [n for t in index.tiles for n in output_names(t.name)]
     outputs = {os.path.realpath(os.path.join(out_dir, n)) for n in names}
     hit = [str(p) for p in given if os.path.realpath(os.path.abspath(str(p))) in outputs]
     if hit:
@@ -311,6 +312,10 @@ def check_output_folder(index, out_dir, inputs=None):
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
                          "(a new one is created).")
+    folders = [n for n in own if os.path.isdir(os.path.join(out_dir, n))]
+    if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
+        raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "
+                         "writes: move or rename that folder, or choose another output folder.")
     inside = [t.path for t in index.tiles if os.path.realpath(os.path.dirname(t.path)) == out_dir]
     if inside:
         raise ValueError(f"the output folder {out_dir!r} holds the tiles ({os.path.basename(inside[0])}"

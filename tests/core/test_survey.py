@@ -500,6 +500,18 @@ def test_more_workers_than_cores_refused_before_any_work(survey, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("name", ["mask.qml", "dtm.vrt", "survey.vrt"])
+def test_a_folder_named_as_a_survey_file_refused_before_any_work(survey, tmp_path, name):
+    """QA14: a folder named mask.qml or dtm.vrt in the output folder raised a bare IsADirectoryError once every
+    tile was done (survey.vrt's at the start)."""
+    out = tmp_path / "out"
+    (out / name).mkdir(parents=True)
+    with pytest.raises(ValueError, match=rf"^the output folder '{out}' holds a folder named {re.escape(name)}, a file "
+                                         r"the survey writes: move or rename that folder"):
+        run_survey("slopeprofile", survey["tiles"], out, workers=1)
+    assert sorted(os.listdir(out)) == [name]
+
+
 def test_memory_warning_names_the_workers_that_fit():
     from bare_earth.core.survey import engine
     gb = 2 ** 30
