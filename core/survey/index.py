@@ -108,6 +108,9 @@ def list_inputs(inputs):
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    if any(not str(p).strip() for p in inputs):    # an unset variable in a script: the current folder's rasters
+        raise ValueError(f"an input path is empty: give the tiles' rasters, a VRT or a folder (an empty path would "
+                         f"be the current folder, {os.getcwd()!r}).")
     inputs = [os.path.abspath(str(p)) for p in inputs]
     if not inputs:
         raise ValueError("no input tile was given: pass rasters, a VRT or a folder of rasters.")

@@ -185,8 +185,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     if not scheduler:
         engine.check_workers(workers)
     index = index_tiles(inputs)
-    out_dir = os.path.abspath(str(out_dir))
     check_output_folder(index, out_dir, inputs)
+    out_dir = os.path.abspath(str(out_dir))
     user = {k: v for k, v in (params or {}).items() if v is not None}
     arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
     rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
@@ -294,12 +294,15 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
 
 
 def check_output_folder(index, out_dir, inputs=None):
-    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: an
-    existing file, the folder of one of the tiles (the outputs would lie among the tiles,
+    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: empty
+    (the current folder), an existing file, the folder of one of the tiles (the outputs would lie among the tiles,
     and the folder given again as the input would take them for tiles), or a folder where an
     output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
     ``mask.vrt`` or ``survey.vrt``), or one holding a folder named as a file the survey writes
     (``survey.vrt``, ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``)."""
+    if not str(out_dir).strip():     # an unset variable in a script: the outputs went to the current folder
+        raise ValueError(f"the output folder is empty: give the folder the outputs go to (an empty one would be "
+                         f"the current folder, {os.getcwd()!r}).")
     out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
     given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
     own = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]

@@ -512,6 +512,20 @@ def test_a_folder_named_as_a_survey_file_refused_before_any_work(survey, tmp_pat
     assert sorted(os.listdir(out)) == [name]
 
 
+def test_an_empty_input_or_output_path_refused_before_any_work(survey, tmp_path, monkeypatch):
+    """QA14: bin/bare-earth tiles ... --output-dir "$OUT" with OUT unset wrote the survey's files into the current
+    folder; --input "" filtered the current folder's rasters."""
+    monkeypatch.chdir(os.path.dirname(survey["tiles"][0]))       # the tiles' folder: '' would be a survey
+    with pytest.raises(ValueError, match=r"^the output folder is empty: give the folder the outputs go to \(an "
+                                         r"empty one would be the current folder, '.*'\)\.$"):
+        run_survey("slopeprofile", survey["tiles"], "", workers=1)
+    with pytest.raises(ValueError, match=r"^an input path is empty: give the tiles' rasters, a VRT or a folder"):
+        run_survey("slopeprofile", "", tmp_path / "out", workers=1)
+    with pytest.raises(ValueError, match=r"^an input path is empty"):
+        run_survey("slopeprofile", survey["tiles"][:2] + [" "], tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists() and not [f for f in os.listdir(".") if not f.endswith(".tif")]
+
+
 def test_memory_warning_names_the_workers_that_fit():
     from bare_earth.core.survey import engine
     gb = 2 ** 30
