@@ -272,10 +272,11 @@ def options_not_used(alg, parameters, cog):
         if not path or path == QgsProcessing.TEMPORARY_OUTPUT or path.startswith("memory:") \
                 or ext in (".tif", ".tiff") or ext not in grid.OUTPUT_FORMATS:
             continue
-        what = "creation options and COG" if cog and parameters.get(CREATE_OPTIONS) else \
-            ("COG" if cog else "creation options")
-        lines.append(tr("{} is written as {} ({}): the {} apply to GeoTIFF outputs (.tif) only and are not "
-                        "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what))
+        what = "the creation options and COG apply" if cog and parameters.get(CREATE_OPTIONS) else \
+            ("COG (a cloud-optimised GeoTIFF) applies" if cog else "the creation options apply")
+        are = "is" if what.startswith("COG") else "are"
+        lines.append(tr("{} is written as {} ({}): {} to GeoTIFF outputs (.tif) only and {} not "
+                        "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what, are))
     return lines
 
 
