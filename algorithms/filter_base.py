@@ -376,6 +376,15 @@ def explained(check):
     return checked
 
 
+def takes_several(definition):
+    """Whether a parameter takes a list of values (layers, choices or fields of several, a
+    matrix, a range): given to any other, a list is a key given twice."""
+    kind = definition.type()
+    if kind in ("multilayer", "matrix", "range"):
+        return True
+    return kind in ("enum", "field") and bool(definition.allowMultiple())
+
+
 def label_of(definition):
     """How messages and the log name a parameter: its label (without a trailing note such as
     "[empty: from the data]"), and its id for qgis_process."""
@@ -680,7 +689,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         silently left out, its default used), and a number, band or yes/no given as text (as
         qgis_process gives every value) reads as one: QGIS reads 'abc' as 0 or false and runs,
         and 'nan' as "not given"; a NaN given as a number (a script's, a model's expression) passes
-        QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended)."""
+        QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended); a list
+        given to a parameter of one value (qgis_process makes one of a key given twice,
+        TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -689,6 +700,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 ", ".join(unknown), self.id(), self.id())
         for key, v in parameters.items():
             d = defs[key]
+            if isinstance(v, (list, tuple)) and not takes_several(d):    # qgis_process: KEY given twice
+                return False, tr("{} is given {} times ({}): give it once.").format(
+                    label_of(d), len(v), ", ".join(str(x) for x in v) or tr("an empty list"))
             if isinstance(v, float) and not math.isfinite(v) and d.type() in ("number", "band") \
                     and d.checkValueIsAcceptable(v):       # NaN: within every range, read as -2147483648
                 return False, tr("{} = {} is not a number: give a number{}.").format(

@@ -539,6 +539,24 @@ def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, mess
     assert not (tmp_path / "d.tif").exists()
 
 
+@pytest.mark.parametrize("key,values", [("TOLERANCE_M", [0.3, 0.3]), ("BLOCK_SIZE", ["64", "128"]),
+                                        ("REFINE", ["true", "false"]),
+                                        ("CREATE_OPTIONS", ["COMPRESS=LZW", "TILED=YES"])])
+def test_a_parameter_given_twice_refused_before_work(processing_run, tmp_path, key, values):
+    """QA14: qgis_process makes a list of a key given twice (TOLERANCE_M=0.3 TOLERANCE_M=0.3); QGIS reads an
+    optional number's list as 0 and passes it: slopeprofile ran with a height tolerance of 0 m, BLOCK_SIZE as 0
+    (automatic), a yes/no or the creation options as neither value given, exit code 0. QGIS's own algorithms
+    refuse it for a required number ('Incorrect parameter value for DISTANCE')."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    listed = ", ".join(str(v) for v in values)
+    with pytest.raises(QgsProcessingException, match=rf"\({key}\) is given 2 times \({re.escape(listed)}\): give "
+                                                     r"it once\.$"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif"), key: values})
+    assert not (tmp_path / "d.tif").exists()
+
+
 def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_run, tmp_path):
     """A GeoPackage raster table added as 'file.gpkg|layername=table' (the vector form) is an invalid
     layer: it was read as a file of that name ('No such file or directory. The file may be truncated
