@@ -701,8 +701,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         for key, v in parameters.items():
             d = defs[key]
             if isinstance(v, (list, tuple)) and not takes_several(d):    # qgis_process: KEY given twice
-                return False, tr("{} is given {} times ({}): give it once.").format(
-                    label_of(d), len(v), ", ".join(str(x) for x in v) or tr("an empty list"))
+                listed = ", ".join(str(x) for x in v)
+                return False, (tr("{} is given {} times ({}): give it once.").format(label_of(d), len(v), listed)
+                               if len(v) > 1 else tr("{} is given as a list ([{}]): give {}.").format(
+                                   label_of(d), listed, tr("the value alone") if v else tr("a value")))
             if isinstance(v, float) and not math.isfinite(v) and d.type() in ("number", "band") \
                     and d.checkValueIsAcceptable(v):       # NaN: within every range, read as -2147483648
                 return False, tr("{} = {} is not a number: give a number{}.").format(

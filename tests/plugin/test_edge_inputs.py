@@ -555,6 +555,11 @@ def test_a_parameter_given_twice_refused_before_work(processing_run, tmp_path, k
         processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
                                                   "OUTPUT_MASK": str(tmp_path / "m.tif"), key: values})
     assert not (tmp_path / "d.tif").exists()
+    first = re.escape(str(values[0]))
+    with pytest.raises(QgsProcessingException, match=rf"\({key}\) is given as a list \(\[{first}\]\): give the "
+                                                     r"value alone\.$"):     # a script's one-element list
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif"), key: values[:1]})
 
 
 def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_run, tmp_path):
