@@ -272,10 +272,11 @@ def options_not_used(alg, parameters, cog):
         if not path or path == QgsProcessing.TEMPORARY_OUTPUT or path.startswith("memory:") \
                 or ext in (".tif", ".tiff") or ext not in grid.OUTPUT_FORMATS:
             continue
-        what = "creation options and COG" if cog and parameters.get(CREATE_OPTIONS) else \
-            ("COG" if cog else "creation options")
-        lines.append(tr("{} is written as {} ({}): the {} apply to GeoTIFF outputs (.tif) only and are not "
-                        "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what))
+        what = "the creation options and COG apply" if cog and parameters.get(CREATE_OPTIONS) else \
+            ("COG (a cloud-optimised GeoTIFF) applies" if cog else "the creation options apply")
+        are = "is" if what.startswith("COG") else "are"
+        lines.append(tr("{} is written as {} ({}): {} to GeoTIFF outputs (.tif) only and {} not "
+                        "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what, are))
     return lines
 
 
@@ -373,6 +374,15 @@ def explained(check):
         ok, msg = check(self, parameters, context)
         return ok, (msg if ok else self.explain(msg))
     return checked
+
+
+def takes_several(definition):
+    """Whether a parameter takes a list of values (layers, choices or fields of several, a
+    matrix, a range): given to any other, a list is a key given twice."""
+    kind = definition.type()
+    if kind in ("multilayer", "matrix", "range"):
+        return True
+    return kind in ("enum", "field") and bool(definition.allowMultiple())
 
 
 def label_of(definition):
@@ -628,7 +638,7 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 styles[style] = (d, d.name().endswith("MASK"))
             try:
                 if d.type() == "rasterDestination":
-                    grid.check_output_path(path, self.outputBands(d.name()))
+                    grid.check_output_path(path, self.outputBands(d.name()), styled=d.name().endswith("MASK"))
                 elif d.type() == "folderDestination":
                     grid.check_output_folder(path)
                 else:                              # a report, a table, a point or vector file
@@ -679,7 +689,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         silently left out, its default used), and a number, band or yes/no given as text (as
         qgis_process gives every value) reads as one: QGIS reads 'abc' as 0 or false and runs,
         and 'nan' as "not given"; a NaN given as a number (a script's, a model's expression) passes
-        QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended)."""
+        QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended); a list
+        given to a parameter of one value (qgis_process makes one of a key given twice,
+        TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -688,6 +700,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 ", ".join(unknown), self.id(), self.id())
         for key, v in parameters.items():
             d = defs[key]
+            if isinstance(v, (list, tuple)) and not takes_several(d):    # qgis_process: KEY given twice
+                listed = ", ".join(str(x) for x in v)
+                return False, (tr("{} is given {} times ({}): give it once.").format(label_of(d), len(v), listed)
+                               if len(v) > 1 else tr("{} is given as a list ([{}]): give {}.").format(
+                                   label_of(d), listed, tr("the value alone") if v else tr("a value")))
             if isinstance(v, float) and not math.isfinite(v) and d.type() in ("number", "band") \
                     and d.checkValueIsAcceptable(v):       # NaN: within every range, read as -2147483648
                 return False, tr("{} = {} is not a number: give a number{}.").format(

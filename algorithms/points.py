@@ -30,8 +30,10 @@ from .compat import FILE_FILE, FLAG_OPTIONAL, NUMBER_DOUBLE, SOURCE_FILE, mark_a
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
+    destination_path,
     explained,
     format_params,
+    label_of,
     output_options,
     progress_callback,
     stage_done,
@@ -227,6 +229,14 @@ def log_counts(feedback, counts, header="Points per class:"):
     feedback.pushInfo(tr(header))
     for name, n in counts.items():
         feedback.pushInfo(f"  {name:>16}: {n:>10} ({100.0 * n / total:.2f} %)")
+
+
+def _number_or_none(value):
+    """A parameter's value as a float (text as qgis_process gives it), or None when it is not one."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
 
 
 def warn(feedback, text):
@@ -625,8 +635,23 @@ class PointsInputMixin:
         out = points_output(self, parameters, self.OUTPUT_POINTS, context, path)
         return path, crs, cloud, cell, tiles, out
 
+    def points_only_given(self, parameters):
+        """Labels of the parameters of INPUT_POINTS alone given a value of their own: a point
+        output file, neighbouring tiles, a CRS or cell size, a classification rule other than its
+        default (with a raster INPUT they are not used)."""
+        given = [k for k in (self.POINTS_CRS, self.CELL_SIZE_M, self.OTHER_TILES) if self._given(parameters, k)]
+        given += [k for k in (self.THRESHOLD_M, self.SLOPE_FACTOR) if self._given(parameters, k)
+                  and _number_or_none(parameters[k]) != self.parameterDefinition(k).defaultValue()]
+        given += [self.OUTPUT_POINTS] if destination_path(parameters, self.OUTPUT_POINTS) else []
+        return [label_of(self.parameterDefinition(k)) for k in given]
+
     def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
         if not self._use_points(parameters):
+            unused = self.points_only_given(parameters)
+            if unused:      # a point file asked for and not written without a word
+                none = tr(" No point file is written.") if destination_path(parameters, self.OUTPUT_POINTS) else ""
+                warn(feedback, tr("INPUT is a DSM raster, so what was given for INPUT_POINTS is not used: "
+                                  "{}.{}").format(", ".join(unused), none))
             return super().processAlgorithm(parameters, context, feedback)
         try:
             path, crs, cloud, cell, tiles, out_points = self._point_inputs(parameters, context)

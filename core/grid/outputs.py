@@ -108,20 +108,28 @@ def _output_format(path, bands=1):
     return drv, name
 
 
-def check_output_path(path, bands=1):
-    """Check an output path before any work: format, folder, name length.
+def check_output_path(path, bands=1, styled=False):
+    """Check an output path before any work: format, folder, name length, the files beside it.
+
+    ``styled``: the output is a mask, written with a ``.qml`` style (:func:`output_files`).
 
     Raises
     ------
     ValueError
         For a format not offered (naming the ones that are), a format holding fewer bands than
-        the output, a missing or unwritable folder (naming it), a folder given as the file, or
-        a file name longer than the file system allows.
+        the output, a missing or unwritable folder (naming it), a folder given as the file or
+        standing where a file written beside it goes (its ``.aux.xml``, its format's sidecars,
+        a mask's ``.qml``: found only once the work was done), or a file name longer than the
+        file system allows.
     """
     need_gdal()
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
+    for side in output_files(path, styled)[1:]:
+        if os.path.isdir(side):
+            raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} is a "
+                             "folder: move or rename that folder, or give the output another name.")
     check_output_folder(path)
     check_geopackage_replaceable(path)
 

@@ -58,8 +58,13 @@ def check_workers(workers):
     """ValueError, before any work, when more local worker processes are asked for than this
     computer has cores: one thread each, they only share the cores (no faster), each holds a
     tile's window, and Dask splits the memory between them (a worker beyond its share is
-    restarted and its tile fails). 0 or None (one per core) always passes."""
-    if workers is None or int(workers) <= 0:
+    restarted and its tile fails). 0 or None (one per core) always passes; a negative count
+    (``--workers -1``, which ran one per core without a word) is refused."""
+    if workers is None:
+        return
+    if int(workers) < 0:
+        raise ValueError(f"WORKERS = {int(workers)}: give a number of local worker processes, or 0 for one per core.")
+    if int(workers) == 0:
         return
     cores = blocks.available_cores()
     if int(workers) > cores:

@@ -108,6 +108,9 @@ def list_inputs(inputs):
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    if any(not str(p).strip() for p in inputs):    # an unset variable in a script: the current folder's rasters
+        raise ValueError(f"an input path is empty: give the tiles' rasters, a VRT or a folder (an empty path would "
+                         f"be the current folder, {os.getcwd()!r}).")
     inputs = [os.path.abspath(str(p)) for p in inputs]
     if not inputs:
         raise ValueError("no input tile was given: pass rasters, a VRT or a folder of rasters.")
@@ -148,7 +151,8 @@ def index_tiles(inputs):
     ValueError
         Before any work, naming the tiles: missing or unreadable tiles, tiles of another
         CRS, cell size, data type or scale and offset (one VRT holds them all), tiles off the
-        survey's grid, overlapping tiles, two tiles of the same name (their outputs would collide).
+        survey's grid, overlapping tiles, two tiles of the same name (their outputs would collide),
+        one file given twice.
     """
     paths = list_inputs(inputs)
     missing = [p for p in paths if not os.path.exists(p)]
@@ -158,6 +162,16 @@ def index_tiles(inputs):
         raise ValueError(f"{len(missing)} tile(s) are missing: {_short(missing)}. " + (
             "Restore them or rebuild the VRT without them." if from_vrt else
             f"No such file ({missing[0]}): check the path{'s' if len(missing) > 1 else ''}."))
+    first, twice = {}, []
+    for p in paths:             # one file named twice (./t.tif and t.tif, a link to it, two layers of it)
+        real = os.path.realpath(p)
+        if real in first:
+            twice.append((first[real], p))
+        first.setdefault(real, p)
+    if twice:
+        a, b = twice[0]
+        also = f" (and as {b}, the same file)" if b != a else ""
+        raise ValueError(f"{len(twice)} tile(s) are given twice: {a}{also}. Give each tile once.")
     infos, bad = [], []
     for p in paths:
         try:

@@ -67,13 +67,13 @@ def parse_params(method, items):
     """``KEY=VALUE`` strings (or one string of them separated by spaces, commas, semicolons or
     new lines) -> the keyword arguments of ``method`` (a Method or its id), each converted
     to its Param kind; an empty value means "derived from the data". ValueError names a
-    bad one."""
+    bad one, or one given twice (in any case of its key)."""
     if isinstance(method, str):
         method = get_method(method)
     if isinstance(items, str):
         items = [s for s in re.split(r"[\s,;]+", items) if s]
     known = {p.name: p for p in method.params}
-    out = {}
+    out, given = {}, {}
     previous = None
     for item in items or ():
         key, sep, text = item.partition("=")
@@ -88,6 +88,9 @@ def parse_params(method, items):
             raise ValueError(f"parameter {key}: method {method.name!r} takes " + (
                 f"{', '.join(sorted(known))}." if known else "no parameter (it derives every value from the data): "
                 "give none, or choose a method that takes it."))
+        if key in given:    # the last would win without a word: which one was meant?
+            raise ValueError(f"parameter {key} is given twice ({given[key]!r} and {item!r}): give it once.")
+        given[key] = item
         try:
             out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
         except ValueError as exc:
@@ -182,8 +185,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     if not scheduler:
         engine.check_workers(workers)
     index = index_tiles(inputs)
-    out_dir = os.path.abspath(str(out_dir))
     check_output_folder(index, out_dir, inputs)
+    out_dir = os.path.abspath(str(out_dir))
     user = {k: v for k, v in (params or {}).items() if v is not None}
     arguments = {"method": meth.name, "params": user, "tiles": [t.path for t in index.tiles]}
     rec = record.load_record(out_dir) if os.path.isdir(out_dir) else None
@@ -291,15 +294,19 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
 
 
 def check_output_folder(index, out_dir, inputs=None):
-    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: an
-    existing file, the folder of one of the tiles (the outputs would lie among the tiles,
+    """ValueError, before any work, when ``out_dir`` cannot receive the survey's outputs: empty
+    (the current folder), an existing file, the folder of one of the tiles (the outputs would lie among the tiles,
     and the folder given again as the input would take them for tiles), or a folder where an
     output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
-    ``mask.vrt`` or ``survey.vrt``)."""
+    ``mask.vrt`` or ``survey.vrt``), or one holding a folder named as a file the survey writes
+    (``survey.vrt``, ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``)."""
+    if not str(out_dir).strip():     # an unset variable in a script: the outputs went to the current folder
+        raise ValueError(f"the output folder is empty: give the folder the outputs go to (an empty one would be "
+                         f"the current folder, {os.getcwd()!r}).")
     out_dir = os.path.realpath(os.path.abspath(str(out_dir)))
     given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
-    names = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
-    names += [n for t in index.tiles for n in output_names(t.name)]
+    own = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
+    names = own + [n for t in index.tiles for n in output_names(t.name)]
     outputs = {os.path.realpath(os.path.join(out_dir, n)) for n in names}
     hit = [str(p) for p in given if os.path.realpath(os.path.abspath(str(p))) in outputs]
     if hit:
@@ -308,6 +315,10 @@ def check_output_folder(index, out_dir, inputs=None):
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
                          "(a new one is created).")
+    folders = [n for n in own if os.path.isdir(os.path.join(out_dir, n))]
+    if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
+        raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "
+                         "writes: move or rename that folder, or choose another output folder.")
     inside = [t.path for t in index.tiles if os.path.realpath(os.path.dirname(t.path)) == out_dir]
     if inside:
         raise ValueError(f"the output folder {out_dir!r} holds the tiles ({os.path.basename(inside[0])}"

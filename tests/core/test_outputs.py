@@ -143,6 +143,17 @@ def test_single_band_formats_refuse_two_bands(tmp_path):
     grid.check_output_path(tmp_path / "curv.tif", bands=2)
 
 
+def test_a_folder_where_a_side_file_goes_refused(tmp_path):
+    """QA14: a folder named as a file an output writes beside it (the .aux.xml, a SAGA grid's .sgrd, a mask's
+    .qml style) was found only once the work was done; the .qml only for a styled output (a mask)."""
+    for side, out, styled in (("dtm.tif.aux.xml", "dtm.tif", False), ("dtm.sgrd", "dtm.sdat", False),
+                              ("mask.qml", "mask.tif", True)):
+        (tmp_path / side).mkdir()
+        with pytest.raises(ValueError, match=rf"writes '{side}' beside it, but '{tmp_path / side}' is a folder"):
+            grid.check_output_path(tmp_path / out, styled=styled)
+    grid.check_output_path(tmp_path / "mask.tif")      # a DTM named mask.tif writes no style
+
+
 def test_missing_or_unwritable_folder_refused_naming_it(tmp_path):
     missing = tmp_path / "no" / "such"
     with pytest.raises(ValueError, match=f"output folder '{missing}' does not exist"):

@@ -7,6 +7,7 @@ is the reference.
 import dataclasses
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -325,6 +326,20 @@ def test_south_up_and_multiband_tiles_refused_with_what_to_do(tmp_path):
         index_tiles(paths[:3] + [str(two)])
 
 
+def test_a_tile_given_twice_refused_as_such(survey, tmp_path):
+    """QA14: one file given twice (tiles/t.tif and ./tiles/t.tif, or a link to it) was refused as 'several tiles
+    are named t: rename them' (the link as two overlapping tiles); it is one tile given twice."""
+    paths = [str(p) for p in survey["tiles"][:3]]
+    again = os.path.join(os.path.dirname(paths[0]), ".", os.path.basename(paths[0]))
+    with pytest.raises(ValueError, match=rf"^1 tile\(s\) are given twice: {re.escape(paths[0])}\. Give each tile "
+                                         r"once\.$"):
+        index_tiles(paths + [again])
+    link = tmp_path / "link.tif"
+    link.symlink_to(paths[1])
+    with pytest.raises(ValueError, match=rf"given twice: {re.escape(paths[1])} \(and as .*link\.tif, the same file\)"):
+        index_tiles(paths + [str(link)])
+
+
 def test_parse_params_converts_to_the_params_kinds():
     meth = get_method("slopeprofile")
     assert parse_params(meth, "max_object_size_m=30; refine=true tolerance_m=") == {
@@ -365,6 +380,17 @@ def test_parse_params_reads_values_as_users_type_them():
         parse_params(meth, "sigma_m=0,1 jump_m=2")
     with pytest.raises(ValueError, match=r"parameter '7': write KEY=VALUE"):
         parse_params(meth, "sigma_m=0.1 7")
+
+
+def test_parse_params_refuses_a_parameter_given_twice():
+    """QA14: 'dh_m=1 ... dh_m=2' (two --param, or PARAMETERS text) ran the survey with the last, 2, without a
+    word; a key given twice in another case (DH_M, as the algorithm names it) the same."""
+    meth = get_method("morphological")
+    with pytest.raises(ValueError, match=r"^parameter dh_m is given twice \('dh_m=1' and 'dh_m=2'\): give it once\.$"):
+        parse_params(meth, ["dh_m=1", "dh_m=2"])
+    with pytest.raises(ValueError, match=r"parameter dh_m is given twice \('dh_m=1' and 'DH_M='\)"):
+        parse_params(meth, "dh_m=1, max_object_size_m=40, DH_M=")
+    assert parse_params(meth, "dh_m=1, max_object_size_m=40") == {"dh_m": 1.0, "max_object_size_m": 40.0}
 
 
 # -- seamless ------------------------------------------------------------------------------------
@@ -467,6 +493,37 @@ def test_more_workers_than_cores_refused_before_any_work(survey, tmp_path):
                                          rf"{n - 1} core\(s\) and [0-9.]+ GB of memory.*Use at most {n - 1}"):
         run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=n)
     assert not (tmp_path / "out").exists()
+    # QA14: a negative count (bin/bare-earth --workers -1) ran one worker per core without a word
+    with pytest.raises(ValueError, match=r"^WORKERS = -1: give a number of local worker processes, or 0 for one "
+                                         r"per core\.$"):
+        run_survey("slopeprofile", survey["tiles"], tmp_path / "out", workers=-1)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", ["mask.qml", "dtm.vrt", "survey.vrt"])
+def test_a_folder_named_as_a_survey_file_refused_before_any_work(survey, tmp_path, name):
+    """QA14: a folder named mask.qml or dtm.vrt in the output folder raised a bare IsADirectoryError once every
+    tile was done (survey.vrt's at the start)."""
+    out = tmp_path / "out"
+    (out / name).mkdir(parents=True)
+    with pytest.raises(ValueError, match=rf"^the output folder '{out}' holds a folder named {re.escape(name)}, a file "
+                                         r"the survey writes: move or rename that folder"):
+        run_survey("slopeprofile", survey["tiles"], out, workers=1)
+    assert sorted(os.listdir(out)) == [name]
+
+
+def test_an_empty_input_or_output_path_refused_before_any_work(survey, tmp_path, monkeypatch):
+    """QA14: bin/bare-earth tiles ... --output-dir "$OUT" with OUT unset wrote the survey's files into the current
+    folder; --input "" filtered the current folder's rasters."""
+    monkeypatch.chdir(os.path.dirname(survey["tiles"][0]))       # the tiles' folder: '' would be a survey
+    with pytest.raises(ValueError, match=r"^the output folder is empty: give the folder the outputs go to \(an "
+                                         r"empty one would be the current folder, '.*'\)\.$"):
+        run_survey("slopeprofile", survey["tiles"], "", workers=1)
+    with pytest.raises(ValueError, match=r"^an input path is empty: give the tiles' rasters, a VRT or a folder"):
+        run_survey("slopeprofile", "", tmp_path / "out", workers=1)
+    with pytest.raises(ValueError, match=r"^an input path is empty"):
+        run_survey("slopeprofile", survey["tiles"][:2] + [" "], tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists() and not [f for f in os.listdir(".") if not f.endswith(".tif")]
 
 
 def test_memory_warning_names_the_workers_that_fit():

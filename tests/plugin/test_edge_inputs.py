@@ -124,6 +124,23 @@ def test_tiny_block_size_refused_before_work(processing_run, tmp_path, block):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("side", ["m.qml", "m.tif.aux.xml", "d.tif.aux.xml"])
+def test_a_folder_where_an_output_writes_beside_it_refused_before_work(processing_run, tmp_path, side):
+    """QA14: a folder named as the mask's style (m.qml) or an output's .aux.xml: the whole run was done, then
+    the style's write raised a bare IsADirectoryError traceback (the mask in place, not its style), the
+    .aux.xml's move 'cannot put the output in place'."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    (tmp_path / side).mkdir()
+    name = re.escape(side)
+    with pytest.raises(QgsProcessingException, match=rf"^Unable to execute algorithm\n'(Object mask|DTM)' \(OUTPUT_"
+                                                     rf"(MASK|DTM)\): the output '.*' writes '{name}' beside it, "
+                                                     rf"but '.*{name}' is a folder: move or rename"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not (tmp_path / "d.tif").exists() and not (tmp_path / "m.tif").exists()
+
+
 @pytest.mark.parametrize("key", ["BLOCK_SIZE", "THREADS", "PROCESSES", "DH_M", "MAX_OBJECT_SIZE_M"])
 def test_a_nan_given_as_a_number_refused_before_work(qgis_app, processing_run, tmp_path, key):
     """A NaN given as a number (a PyQGIS script's computed value, a model's expression) passed QGIS's
@@ -520,6 +537,29 @@ def test_qgis_process_bad_values_refused(run_qgis_process, tmp_path, extra, mess
                                                              "OUTPUT_MASK": tmp_path / "m.tif", **extra})
     assert rc != 0 and re.search(message, out), out
     assert not (tmp_path / "d.tif").exists()
+
+
+@pytest.mark.parametrize("key,values", [("TOLERANCE_M", [0.3, 0.3]), ("BLOCK_SIZE", ["64", "128"]),
+                                        ("REFINE", ["true", "false"]),
+                                        ("CREATE_OPTIONS", ["COMPRESS=LZW", "TILED=YES"])])
+def test_a_parameter_given_twice_refused_before_work(processing_run, tmp_path, key, values):
+    """QA14: qgis_process makes a list of a key given twice (TOLERANCE_M=0.3 TOLERANCE_M=0.3); QGIS reads an
+    optional number's list as 0 and passes it: slopeprofile ran with a height tolerance of 0 m, BLOCK_SIZE as 0
+    (automatic), a yes/no or the creation options as neither value given, exit code 0. QGIS's own algorithms
+    refuse it for a required number ('Incorrect parameter value for DISTANCE')."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box())
+    listed = ", ".join(str(v) for v in values)
+    with pytest.raises(QgsProcessingException, match=rf"\({key}\) is given 2 times \({re.escape(listed)}\): give "
+                                                     r"it once\.$"):
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif"), key: values})
+    assert not (tmp_path / "d.tif").exists()
+    first = re.escape(str(values[0]))
+    with pytest.raises(QgsProcessingException, match=rf"\({key}\) is given as a list \(\[{first}\]\): give the "
+                                                     r"value alone\.$"):     # a script's one-element list
+        processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                                  "OUTPUT_MASK": str(tmp_path / "m.tif"), key: values[:1]})
 
 
 def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_run, tmp_path):

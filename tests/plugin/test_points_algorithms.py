@@ -223,6 +223,30 @@ def test_raster_input_still_works(processing_run, scene_files):
     assert Path(r["OUTPUT_DTM"]).exists() and "OUTPUT_POINTS" not in r
 
 
+def test_raster_input_with_point_parameters_says_they_are_not_used(processing_run, scene_files, cloud_files,
+                                                                     warning_log):
+    """QA14: a DSM raster INPUT with OUTPUT_POINTS, OTHER_TILES or CELL_SIZE_M given (a point file asked for)
+    ran without a word, and no point file was written; the dialog's own values (a temporary point output,
+    the rule's defaults) say nothing."""
+    d = scene_files["dir"]
+    log = warning_log()
+    r = processing_run("bareearth:geodesic", {
+        "INPUT": scene_files["dsm"], "OUTPUT_DTM": str(d / "g_dtm.tif"), "OUTPUT_MASK": str(d / "g_mask.tif"),
+        "OUTPUT_POINTS": str(d / "g_points.txt"), "CELL_SIZE_M": 0.5, "THRESHOLD_M": "0.5"}, feedback=log)
+    assert "OUTPUT_POINTS" not in r and not (d / "g_points.txt").exists()
+    said = [w for w in log.warnings if w.startswith("INPUT is a DSM raster")]
+    assert said == ["INPUT is a DSM raster, so what was given for INPUT_POINTS is not used: 'Cell size (m)' "
+                    "(CELL_SIZE_M), 'Classified points' (OUTPUT_POINTS). No point file is written."], log.warnings
+    log = warning_log()
+    processing_run("bareearth:morphological", {
+        "INPUT": scene_files["dsm"], "OUTPUT_DTM": str(d / "m2_dtm.tif"), "OUTPUT_MASK": str(d / "m2_mask.tif"),
+        "OUTPUT_POINTS": "TEMPORARY_OUTPUT", "THRESHOLD_M": 0.5, "SLOPE_FACTOR": 0.2,
+        "OTHER_TILES": [cloud_files["txt"]]}, feedback=log)
+    said = [w for w in log.warnings if w.startswith("INPUT is a DSM raster")]
+    assert len(said) == 1 and said[0].endswith("not used: 'Neighbouring tiles of the points' (OTHER_TILES), "
+                                               "'Slope factor (m per unit slope)' (SLOPE_FACTOR)."), log.warnings
+
+
 # --------------------------------------------------------------------------- bad inputs
 def _bad_files(d):
     (d / "empty.txt").write_text("")

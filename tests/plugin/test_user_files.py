@@ -438,8 +438,13 @@ def test_creation_options_for_an_output_of_another_format_warned(processing_run,
 
     cases = [({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".asc", ".tif", ["'DTM' (OUTPUT_DTM) is written as Arc/Info ASCII "
                                                                   "grid (.asc): the creation options apply"]),
-             ({"COG": True}, ".img", ".img", ["'DTM' (OUTPUT_DTM) is written as ERDAS Imagine (.img): the COG",
+             ({"COG": True}, ".img", ".img", ["'DTM' (OUTPUT_DTM) is written as ERDAS Imagine (.img): COG (a cloud-"
+                                              "optimised GeoTIFF) applies to GeoTIFF outputs (.tif) only and is not "
+                                              "used for it.",   # QA14: 'the COG apply ... and are not used'
                                               "'Object mask' (OUTPUT_MASK) is written as ERDAS Imagine (.img)"]),
+             ({"COG": True, "CREATE_OPTIONS": "COMPRESS=LZW"}, ".asc", ".tif",
+              ["'DTM' (OUTPUT_DTM) is written as Arc/Info ASCII grid (.asc): the creation options and COG apply to "
+               "GeoTIFF outputs (.tif) only and are not used for it."]),
              ({"CREATE_OPTIONS": "COMPRESS=LZW"}, ".tif", ".tif", []),
              ({}, ".asc", ".asc", [])]
     for k, (extra, dtm_ext, mask_ext, said) in enumerate(cases):
@@ -447,5 +452,5 @@ def test_creation_options_for_an_output_of_another_format_warned(processing_run,
         processing_run("bareearth:slopeprofile", {"INPUT": src, "OUTPUT_DTM": str(tmp_path / f"d{k}{dtm_ext}"),
                                                   "OUTPUT_MASK": str(tmp_path / f"m{k}{mask_ext}"), **extra},
                        feedback=log)
-        hits = [w for w in log.warnings if "apply to GeoTIFF outputs" in w]
+        hits = [w for w in log.warnings if "to GeoTIFF outputs (.tif) only" in w]
         assert len(hits) == len(said) and all(s in h for s, h in zip(said, hits)), log.warnings
