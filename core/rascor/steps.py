@@ -282,14 +282,16 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
     P = 3
     zp = np.full(n + 2 * P, np.nan, np.float32)          # padded: i - 3 .. i + 2 exist
     zc = zp[P:P + n]
-    zc[:] = z[keep]
+    np.take(z.ravel(), flat, out=zc, mode="clip")         # z[keep]: a gather by index is faster
     sp = np.zeros(n + 2 * P, bool)
     same = sp[P:P + n]                                    # same profile as the previous point
     same[:] = True
-    cnt = np.count_nonzero(keep, axis=1)
-    same[(np.cumsum(cnt) - cnt)[cnt > 0]] = False         # the first point of each row
+    row_at = np.searchsorted(flat, np.arange(keep.shape[0] + 1) * keep.shape[1])   # each row's first point
+    cnt = np.diff(row_at)                                 # points per row
+    rows_first = row_at[:-1][cnt > 0]
+    same[rows_first] = False                              # the first point of each row
     if labels is not None:
-        lab = labels[keep]
+        lab = labels.ravel()[flat]
         same[1:] &= lab[1:] == lab[:-1]
     d = zc[1:] - zc[:-1]                                  # the step to the next point
     with np.errstate(invalid="ignore"):
@@ -324,7 +326,7 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
             down &= n1
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
-    starts = np.flatnonzero(~same)
+    starts = rows_first if labels is None else np.flatnonzero(~same)
     ev = np.concatenate([starts, i[up], i[down]])
     typ = np.concatenate([np.zeros(starts.size, np.int8), np.ones(int(up.sum()), np.int8),
                           np.full(int(down.sum()), 2, np.int8)])
@@ -352,13 +354,13 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
     lens = b - a
     if not lens.size:
         return out
-    first = np.repeat(a, lens)
-    c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
-    pa = first - 1                             # the ground point before the jump up
-    bb = np.repeat(b, lens)                    # the ground point after the jump down
-    z0, z1 = zc[pa], zc[bb]
-    t = (pos[c] - pos[pa]) / np.maximum(pos[bb] - pos[pa], 1)
-    ground = z0 + (z1 - z0) * t
+    c = np.arange(lens.sum()) + np.repeat(a - (np.cumsum(lens) - lens), lens)   # the runs' points
+    # the ground's line from the point before the jump up (a - 1) to the one after the jump down (b),
+    # each run's terms repeated over its points
+    p0 = pos[a - 1]
+    z0 = zc[a - 1]
+    t = (pos[c] - np.repeat(p0, lens)) / np.repeat(np.maximum(pos[b] - p0, 1), lens)
+    ground = np.repeat(z0, lens) + np.repeat(zc[b] - z0, lens) * t
     with np.errstate(invalid="ignore"):
         hit = zc[c] - ground > 0.5 * jump
     out.ravel()[flat[c[hit]]] = True
