@@ -93,9 +93,9 @@ Notes on the vectorised implementation
   window could still join two cells of one region around the end of a line that stops
   inside the window; in block mode, regions are labelled per block (the halo keeps the
   difference away from the block's core in practice).
-* Step 3 tests, without break lines, only the cells a removal is possible for (a
-  neighbour lower by more than the tolerance; higher by more than the low tolerance for
-  the pits), gathering their neighbours; the result is that of the test of every cell.
+* Step 3 tests only the cells a removal is possible for (a neighbour lower by more than
+  the tolerance; higher by more than the low tolerance for the pits), gathering their
+  neighbours (NaN across a break line); the result is that of the test of every cell.
 * Step 4 scans the profiles of a band of rows at once as one concatenated 1-D array of
   the remaining points; only the steps larger than the jump are examined further.
 

@@ -121,9 +121,9 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     low = np.zeros(z.shape, bool)
     high = np.zeros(z.shape, bool)
     with np.errstate(invalid="ignore"):
-        _test_bands(_pits, tol_low, zp, lp, labels, keep, 2, low, sub_progress(progress, 0.0, 0.4))
+        _test_bands(_pits, tol_low, zp, lp, keep, 2, low, sub_progress(progress, 0.0, 0.4))
         zp[inner][low] = np.nan
-        _test_bands(pairs, tol, zp, lp, labels, keep & ~low, 1, high,
+        _test_bands(pairs, tol, zp, lp, keep & ~low, 1, high,
                     sub_progress(progress, 0.4, 1.0))
     return high, low
 
@@ -134,50 +134,42 @@ _PAD = 2
 _AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
-class _RegionNeighbours:
-    """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of every cell of the rows ``r0:r1``,
-    NaN where it lies in another break-line region than the cell."""
-
-    def __init__(self, src, lp, labels, r0, r1):
-        self.src, self.lp, self.lab, self.r0, self.r1 = src, lp, labels[r0:r1], r0, r1
-        self.cols = labels.shape[1]
-
-    def __call__(self, dr, dc):
-        rows = slice(_PAD + self.r0 + dr, _PAD + self.r1 + dr)
-        cols = slice(_PAD + dc, _PAD + dc + self.cols)
-        return np.where(self.lp[rows, cols] == self.lab, self.src[rows, cols], np.nan)
-
-
 class _GatheredNeighbours:
     """``nb(dr, dc)``: the neighbour ``(dr, dc)`` of the candidate cells, whose flat indices
-    in the padded array of width ``width`` are ``base``."""
+    in the padded array of width ``width`` are ``base``; with the padded break-line regions
+    ``regions`` (flat), NaN where it lies in another region than the cell."""
 
-    def __init__(self, flat, base, width):
-        self.flat, self.base, self.width = flat, base, width
+    def __init__(self, flat, base, width, regions=None):
+        self.flat, self.base, self.width, self.regions = flat, base, width, regions
+        self.own = None if regions is None else regions[base]
 
     def __call__(self, dr, dc):
-        return self.flat[self.base + (dr * self.width + dc)]
+        at = self.base + (dr * self.width + dc)
+        v = self.flat[at]                        # a copy (gathered)
+        if self.regions is not None:
+            v[self.regions[at] != self.own] = np.nan
+        return v
 
 
-def _test_bands(test, tol_test, src, lp, labels, keep, reach, out, progress):
+def _test_bands(test, tol_test, src, lp, keep, reach, out, progress):
     """Run ``test(nb, keep, tol_test)`` (:func:`_pits` or :func:`_pairs`) on every cell of
     ``keep``, in bands of rows, into ``out``.
 
-    Bands of rows keep the few temporaries of each in the cache. Without break lines, only
-    the candidates are tested: cells with a neighbour (within ``reach`` cells along the 8
-    directions) lower (``reach`` 1) / higher (``reach`` 2) by more than ``tol_test``, which
-    every removal needs; their neighbours are gathered.
+    Bands of rows keep the few temporaries of each in the cache. Only the candidates are
+    tested: cells with a neighbour (within ``reach`` cells along the 8 directions, whatever its
+    break-line region) lower (``reach`` 1) / higher (``reach`` 2) by more than ``tol_test``,
+    which every removal needs (a neighbour in another region counts as missing, which removes
+    nothing); their neighbours are gathered, NaN where they lie in another region (``lp``, the
+    padded regions of ``labels``).
     """
     rows, cols = keep.shape
     width = cols + 2 * _PAD
     flat = src.ravel()
+    regions = None if lp is None else lp.ravel()
     bands = row_bands(rows, width, 4 * BAND_CELLS)
     for i, b in enumerate(bands):
         report(progress, i / len(bands))
         r0, r1 = b.start, b.stop
-        if lp is not None:
-            out[b] = test(_RegionNeighbours(src, lp, labels, r0, r1), keep[b], tol_test)
-            continue
         ext = None
         for dr, dc in _DIRS8:
             for m in range(1, reach + 1):
@@ -193,7 +185,7 @@ def _test_bands(test, tol_test, src, lp, labels, keep, reach, out, progress):
         if not idx.size:
             continue
         base = idx + (idx // cols) * (2 * _PAD) + (_PAD + r0) * width + _PAD
-        ob.ravel()[idx] = test(_GatheredNeighbours(flat, base, width), np.ones(idx.size, bool), tol_test)
+        ob.ravel()[idx] = test(_GatheredNeighbours(flat, base, width, regions), np.ones(idx.size, bool), tol_test)
 
 
 def _pits(nb, kb, tol_low):
@@ -290,14 +282,16 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
     P = 3
     zp = np.full(n + 2 * P, np.nan, np.float32)          # padded: i - 3 .. i + 2 exist
     zc = zp[P:P + n]
-    zc[:] = z[keep]
+    np.take(z.ravel(), flat, out=zc, mode="clip")         # z[keep]: a gather by index is faster
     sp = np.zeros(n + 2 * P, bool)
     same = sp[P:P + n]                                    # same profile as the previous point
     same[:] = True
-    cnt = np.count_nonzero(keep, axis=1)
-    same[(np.cumsum(cnt) - cnt)[cnt > 0]] = False         # the first point of each row
+    row_at = np.searchsorted(flat, np.arange(keep.shape[0] + 1) * keep.shape[1])   # each row's first point
+    cnt = np.diff(row_at)                                 # points per row
+    rows_first = row_at[:-1][cnt > 0]
+    same[rows_first] = False                              # the first point of each row
     if labels is not None:
-        lab = labels[keep]
+        lab = labels.ravel()[flat]
         same[1:] &= lab[1:] == lab[:-1]
     d = zc[1:] - zc[:-1]                                  # the step to the next point
     with np.errstate(invalid="ignore"):
@@ -332,7 +326,7 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
             down &= n1
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
-    starts = np.flatnonzero(~same)
+    starts = rows_first if labels is None else np.flatnonzero(~same)
     ev = np.concatenate([starts, i[up], i[down]])
     typ = np.concatenate([np.zeros(starts.size, np.int8), np.ones(int(up.sum()), np.int8),
                           np.full(int(down.sum()), 2, np.int8)])
@@ -360,13 +354,13 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
     lens = b - a
     if not lens.size:
         return out
-    first = np.repeat(a, lens)
-    c = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens) + first
-    pa = first - 1                             # the ground point before the jump up
-    bb = np.repeat(b, lens)                    # the ground point after the jump down
-    z0, z1 = zc[pa], zc[bb]
-    t = (pos[c] - pos[pa]) / np.maximum(pos[bb] - pos[pa], 1)
-    ground = z0 + (z1 - z0) * t
+    c = np.arange(lens.sum()) + np.repeat(a - (np.cumsum(lens) - lens), lens)   # the runs' points
+    # the ground's line from the point before the jump up (a - 1) to the one after the jump down (b),
+    # each run's terms repeated over its points
+    p0 = pos[a - 1]
+    z0 = zc[a - 1]
+    t = (pos[c] - np.repeat(p0, lens)) / np.repeat(np.maximum(pos[b] - p0, 1), lens)
+    ground = np.repeat(z0, lens) + np.repeat(zc[b] - z0, lens) * t
     with np.errstate(invalid="ignore"):
         hit = zc[c] - ground > 0.5 * jump
     out.ravel()[flat[c[hit]]] = True

@@ -1002,16 +1002,47 @@ def _city(seed=6, n=90):
     return z, keep
 
 
+def _step3_every_cell(z, keep, labels, sigma_m, k=3.0, low_weight=0.02):
+    """Step 3 testing every cell (no candidates), the neighbours in another break-line region
+    missing: the reference of the candidates' gathering."""
+    tol = k * sigma_m * np.sqrt(2.0)
+    rows, cols = z.shape
+    P = steps._PAD
+    inner = (slice(P, P + rows), slice(P, P + cols))
+    zp = np.full((rows + 2 * P, cols + 2 * P), np.nan, np.float32)
+    zp[inner] = np.where(keep, z, np.nan)
+    lp = np.full(zp.shape, -1, np.int64)
+    lp[inner] = labels
+
+    def nb(dr, dc):
+        at = (slice(P + dr, P + dr + rows), slice(P + dc, P + dc + cols))
+        return np.where(lp[at] == labels, zp[at], np.nan)
+    with np.errstate(invalid="ignore"):
+        lo = steps._pits(nb, keep, tol / np.sqrt(low_weight))
+        zp[inner][lo] = np.nan
+        hi = steps._pairs(nb, keep & ~lo, tol)
+    return hi, lo
+
+
 def test_step3_candidates_equal_testing_every_cell():
-    # without break lines only candidate cells are tested; one region of break-line
-    # labels takes the path testing every cell: the same removals
+    # only candidate cells are tested (their neighbours gathered, NaN across a break line): the
+    # removals of testing every cell, with and without break lines
     z, keep = _city()
-    fast = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1)
-    every = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1,
-                                           labels=np.ones(z.shape, np.int32))
-    assert fast[0].any() and fast[1].any()
-    np.testing.assert_array_equal(fast[0], every[0])
-    np.testing.assert_array_equal(fast[1], every[1])
+    n = z.shape[0]
+    r, c = np.indices(z.shape)
+    lines = ((r - c) % 17 == 0) | (r == n // 2)
+    lab, _ = ndimage.label(~lines)
+    labels = np.where(lines, lab.max() + 1 + (r == n // 2), lab).astype(np.int32)
+    for reg in (np.ones(z.shape, np.int32), labels):
+        fast = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1, labels=reg)
+        every = _step3_every_cell(z, keep, reg, 0.1)
+        assert fast[0].any() and fast[1].any()
+        np.testing.assert_array_equal(fast[0], every[0])
+        np.testing.assert_array_equal(fast[1], every[1])
+    # the regions matter: the pairs across the lines are not compared
+    none = rascor.remove_neighbour_differences(z, keep, sigma_m=0.1)
+    assert not np.array_equal(none[0], fast[0])
+    np.testing.assert_array_equal(none[0], _step3_every_cell(z, keep, np.ones(z.shape, np.int32), 0.1)[0])
 
 
 def test_banded_steps_equal_one_band(monkeypatch):
