@@ -1287,15 +1287,27 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
         base = (a - lo + halo) * width + pad                  # flat index of the band's cell (0, 0)
     for (di, dj), n in steps.items():
         step = math.hypot(di * dy, dj * dx)
-        sides = []
-        for sdi, sdj in ((di, dj), (-di, -dj)):
+
+        def floor_rows(sdi, sdj, inc, n=n):
             # a floor from above (sdi > 0) needs n sdi rows above the band, from below rows below it,
             # along a row none: the floors of the band's rows only, from the same terms
             r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
-            zs = zg[r0 - lo:r1 - lo]
-            below = _floor(zs, n, sdi, sdj, slope * step)[a - r0:b - r0] < top
-            lowest = None if seen_gradient is None else _floor(zs, n, sdi, sdj, 0.0)[a - r0:b - r0] < top
-            sides.append((sdi, sdj, below, lowest))
+            return _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, inc)[a - r0:b - r0]
+
+        lowest = [None, None]
+        if seen_gradient is not None:
+            # every floor lies at or above the lowest ground within the reach (slope 0): a cell not below that on
+            # both sides is taken by neither test along this line, and a line where no open cell is below it on
+            # both sides needs no floor at s (the same cells taken, the floors not computed)
+            cand = open_ & ~hit
+            for t, (sdi, sdj) in enumerate(((di, dj), (-di, -dj))):
+                if cand.any():
+                    lowest[t] = floor_rows(sdi, sdj, 0.0) < top
+                    cand &= lowest[t]
+            if not cand.any():
+                continue
+        sides = [(sdi, sdj, floor_rows(sdi, sdj, slope * step) < top, lowest[t])
+                 for t, (sdi, sdj) in enumerate(((di, dj), (-di, -dj)))]
         both = np.logical_and(sides[0][2], sides[1][2])
         if seen_gradient is not None:
             # each cell's floor rises at its own slope along the line, at most s: below the floor at s, below

@@ -936,13 +936,14 @@ def _noise_ground_level(z, cell_size, block_m, band_m, iterations, progress):
             sigma = new
             break
         sigma = new
-    out["sigma"] = noise_floor(sigma, height_quantum(z))
+    quantum = height_quantum(z)
+    out["sigma"] = noise_floor(sigma, quantum)
     # the same statistic tile by tile, on the last iteration's second differences (their middle cells' tiles)
     tiles, counts = _tile_quartiles(z.shape, ((d_row, on[0], (0, 1)), (d_col, on[1], (1, 0)), (d_dia, on[2], (1, 1)),
                                               (d_ant, on[3], (1, 1))), NOISE_TILE_CELLS, GROUND_MIN_SAMPLES)
     out["tiles"] = int(tiles.size)
     if tiles.size >= NOISE_MIN_TILES:
-        out["sigma_cleanest"] = cleanest_noise(out["sigma"], tiles, counts, height_quantum(z))
+        out["sigma_cleanest"] = cleanest_noise(out["sigma"], tiles, counts, quantum)
     report(progress, 1.0)
     return out
 
@@ -990,33 +991,51 @@ def cleanest_noise(sigma, tile_quartiles, tile_counts, quantum=0.0):
 def _tile_quartiles(shape, parts, tile, min_samples):
     """Lower quartile of the absolute second differences in each ``tile`` x ``tile`` square (by each
     difference's middle cell) holding at least ``min_samples`` of them, and their numbers (two 1-D arrays,
-    one value per such tile).
+    one value per such tile, the tiles in raster order).
 
     ``parts``: ``(d, on, (r0, c0))`` per direction: the differences, where they count, and the offset of
     their middle cell in the raster of ``shape``. The quartile is :func:`numpy.percentile`'s (linear).
+
+    A band of tile rows at a time, each tile's values (``+inf`` where none) in one row of a
+    ``(tiles, parts x tile x tile)`` array sorted along its rows: the same order statistics as one sort of all
+    the values by tile and value (``np.lexsort``, measured 12x slower on 4 million cells), in a buffer of about
+    :data:`_TILE_BAND_VALUES` values.
     """
-    ntc = -(-shape[1] // tile)
-    vals, ids = [], []
-    for d, on, (r0, c0) in parts:
-        ok = on & np.isfinite(d)
-        r, c = np.nonzero(ok)
-        vals.append(np.abs(d[r, c]))
-        ids.append(((r + r0) // tile) * ntc + (c + c0) // tile)
-    v = np.concatenate(vals).astype(np.float64) if vals else np.zeros(0)
-    t = np.concatenate(ids) if ids else np.zeros(0, np.int64)
-    if not v.size:
+    rows, cols = shape
+    ntr, ntc = -(-rows // tile), -(-cols // tile)
+    if not parts or not ntr or not ntc:
         return np.zeros(0), np.zeros(0, np.int64)
-    order = np.lexsort((v, t))
-    v, t = v[order], t[order]
-    starts = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
-    counts = np.diff(np.r_[starts, v.size])
-    keep = counts >= min_samples
-    starts, counts = starts[keep], counts[keep]
-    pos = 0.25 * (counts - 1)
-    lo = np.floor(pos).astype(np.int64)
-    hi = np.minimum(lo + 1, counts - 1)
-    frac = pos - lo
-    return v[starts + lo] * (1.0 - frac) + v[starts + hi] * frac, counts
+    dtype = np.result_type(*[d.dtype for d, _, _ in parts])
+    per_row = len(parts) * tile * ntc * tile                # values of one row of tiles
+    band = max(1, _TILE_BAND_VALUES // per_row)
+    buf = np.empty((len(parts), min(band, ntr) * tile, ntc * tile), dtype)
+    quartiles, numbers = [], []
+    for t0 in range(0, ntr, band):
+        t1 = min(ntr, t0 + band)
+        a, b = t0 * tile, t1 * tile                         # the band's raster rows
+        v = buf[:, :b - a]
+        v.fill(np.inf)
+        for k, (d, on, (r0, c0)) in enumerate(parts):
+            i0, i1 = max(0, a - r0), min(d.shape[0], b - r0)  # the rows of d whose middle cells lie in the band
+            if i0 < i1:
+                dd = d[i0:i1]
+                np.abs(dd, out=v[k, i0 + r0 - a:i1 + r0 - a, c0:c0 + d.shape[1]], where=on[i0:i1] & np.isfinite(dd))
+        n = t1 - t0
+        v = np.sort(v.reshape(len(parts), n, tile, ntc, tile).transpose(1, 3, 0, 2, 4).reshape(n * ntc, -1), axis=1)
+        counts = np.count_nonzero(v < np.inf, axis=1)
+        keep = np.flatnonzero(counts >= max(1, min_samples))
+        counts = counts[keep].astype(np.int64)
+        pos = 0.25 * (counts - 1)
+        lo = np.floor(pos).astype(np.int64)
+        hi = np.minimum(lo + 1, counts - 1)
+        frac = pos - lo
+        quartiles.append(v[keep, lo].astype(np.float64) * (1.0 - frac) + v[keep, hi].astype(np.float64) * frac)
+        numbers.append(counts)
+    return np.concatenate(quartiles), np.concatenate(numbers)
+
+
+#: Values (cells x directions) of one band of :func:`_tile_quartiles` (its buffer and sorted copy a few MB each).
+_TILE_BAND_VALUES = 1 << 21
 
 
 def ground_spread(stacks, tile=16, quantile=0.25, min_share=0.25, progress=None):

@@ -616,7 +616,7 @@ def l1_slope(s, cell):
     return g
 
 
-def ground_slope_map(a, r_max, cell, work=None):
+def ground_slope_map(a, r_max, cell, work=None, return_erosion=False):
     """The slope of the ground around each cell, read on the erosion by the largest window: SMRF's terrain
     slope ``s`` where the threshold ``s r_k`` is applied.
 
@@ -648,11 +648,16 @@ def ground_slope_map(a, r_max, cell, work=None):
         Metres.
     work : _Work, optional
         Scratch buffers.
+    return_erosion : bool
+        Return the erosion ``E`` too (the progressive opening's last step takes it: :func:`_progressive`'s
+        ``last_erosion``).
 
     Returns
     -------
     ndarray of float32
         The slope (rise/run), 0 where the erosion has no value (no valid cell in the window) or beside it.
+    ndarray of float32
+        With ``return_erosion``: ``E`` (+inf where no valid cell is in the window).
 
     Examples
     --------
@@ -667,18 +672,20 @@ def ground_slope_map(a, r_max, cell, work=None):
     >>> float(ground_slope_map(step, (1, 1), (1.0, 1.0)).max())
     0.0
     """
+    work = work or _Work()
     e = _erode(a, r_max[0], r_max[1], work)
     g = l1_slope(e, cell)
-    del e
+    if not return_erosion:
+        del e
     run = _SLOPE_RUN_CELLS
-    g = _running(_running(g, run, 0, np.minimum), run, 1, np.minimum)
-    g = _running(_running(g, run, 0, np.maximum), run, 1, np.maximum)
+    g = _running_box(g, run, run, np.minimum, work, g)
+    g = _running_box(g, run, run, np.maximum, work, g)
     np.minimum(g, np.float32(_MAX_SLOPE), out=g)
-    return g
+    return (g, e) if return_erosion else g
 
 
 def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=WINDOW_GROWTH, thresholds=None,
-                 ground_slope=None, own_slope=None):
+                 ground_slope=None, own_slope=None, last_erosion=None):
     """SMRF's progressive opening of ``a`` (+inf = nodata).
 
     Returns the boolean flags (a cell whose opened height dropped by more than
@@ -686,8 +693,10 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
     measured from the opening of the window that doubles into it: :func:`drop_references`) and the last
     opened surface. With ``ground_slope`` and ``own_slope`` (:func:`ground_slope_map`, :func:`l1_slope`) the
     threshold of step ``k`` at a cell is at least ``min(G_k, S) r_k``: ``G_k`` the steepest ground slope
-    within the step's window (a running maximum grown by each step's increment, as the erosions are), ``S``
-    the cell's own slope.
+    within the step's window (a running maximum grown by each step's increment, as the erosions are, in
+    ``ground_slope``'s own buffer: it is overwritten), ``S`` the cell's own slope. ``last_erosion``: the erosion
+    of ``a`` by the last window when the caller has it (:func:`ground_slope_map`), taken by the last step instead
+    of eroding the step before's erosion further (the same values: square windows' minima compose exactly).
     """
     if thresholds is None:
         thresholds = [slope * r for _, _, r in radii]
@@ -722,8 +731,11 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         busy = tuple(opens.values()) + (eroded, opened)
         # Square windows compose: eroding the previous erosion by the increment gives the
         # erosion by the full window (cheaper than starting from the surface).
-        eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n),
-                        out=spare(*busy))
+        if k == n - 1 and last_erosion is not None:
+            eroded = last_erosion
+        else:
+            eroded = _erode(eroded, ry - pry, rx - prx, work, sub_progress(progress, k / n, (k + 0.5) / n),
+                            out=spare(*busy))
         report(progress, (k + 0.5) / n)
         opened = _dilate(eroded, ry, rx, has_nodata, work, sub_progress(progress, (k + 0.5) / n, (k + 0.9) / n),
                          out=spare(eroded, *busy))
@@ -731,7 +743,7 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         ref = opens[refs[k]]
         t_k = np.float32(thresholds[k])                                # SMRF: t_k = s * r_k * c
         if steep is not None:                  # G_k: the steepest ground within the step's window
-            steep = _running(_running(steep, ry - gry, 0, np.maximum), rx - grx, 1, np.maximum)
+            steep = _running_box(steep, ry - gry, rx - grx, np.maximum, work, ground_slope)
             gry, grx = ry, rx
             r_k = np.float32(radii[k][2])
         with np.errstate(invalid="ignore"):
@@ -754,6 +766,37 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         pry, prx = ry, rx
         report(progress, (k + 1) / n)
     return flags, opened
+
+
+def _running_box(g, ry, rx, op, work, out):
+    """``op`` (np.minimum / np.maximum) of ``g`` over a (2ry+1) x (2rx+1) window into ``out`` (not one of the
+    scratch buffers of ``work``; ``g`` may be ``out``): the pass down the columns into ``work``'s third buffer,
+    the pass along the rows in bands (:func:`_running_banded`). The same values as two :func:`_running` passes
+    (a minimum or a maximum is exact in any order) without a new raster-sized array per pass (the kernel zeroes
+    a new array's pages on first touch). Returns the result: ``out`` (``g`` itself for a window of one cell, a
+    new array for a window longer than the raster).
+
+    Examples
+    --------
+    >>> g = np.zeros((5, 7), np.float32)
+    >>> g[2, 3] = 1.0
+    >>> out = np.empty_like(g)
+    >>> _running_box(g, 1, 2, np.maximum, _Work(), out).astype(int).tolist()[0:2]
+    [[0, 0, 0, 0, 0, 0, 0], [0, 1, 1, 1, 1, 1, 0]]
+    """
+    if ry <= 0 and rx <= 0:
+        return g
+    work = work or _Work()
+    down = g
+    if ry > 0:
+        down = _running(g, ry, 0, op, work, work.get(2, g.shape))
+    elif g is out:                             # the pass along the rows reads a copy of its input
+        down = work.get(2, g.shape)
+        np.copyto(down, g)
+    if rx <= 0:
+        np.copyto(out, down)
+        return out
+    return _running_banded(down, rx, 1, op, work, out=out)
 
 
 def _surface_slope(s, cell, rows=None):
@@ -1301,12 +1344,13 @@ def open_progressive(z, cell, p, work, progress=None):
     a, has_nodata = _as_inf(clean, 1.0, nodata)
     #    at each cell at least the slope of the ground around it where the cell itself lies on a slope
     #    (ground_slope_map, l1_slope)
-    steep = ground_slope_map(a, radii[-1][:2], cell, work)
+    #    (ground_slope_map, l1_slope); the erosion it reads is the opening's last (_progressive's last_erosion)
+    steep, widest = ground_slope_map(a, radii[-1][:2], cell, work, return_erosion=True)
     own = l1_slope(clean, cell)
     report(progress, 0.11)
     obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.11, 0.85), work, growth,
-                               thresholds, ground_slope=steep, own_slope=own)
-    del steep, own
+                               thresholds, ground_slope=steep, own_slope=own, last_erosion=widest)
+    del steep, own, widest
     del a
     obj &= valid
     #    flagged regions on no wall: terrain the opening cut (find_cut_terrain)

@@ -1129,6 +1129,36 @@ def test_tile_quartiles_are_each_tiles_lower_quartile():
     assert est._tile_quartiles((2, 6), ((d, on, (0, 1)),), 2, 3)[0].tolist() == [2.75]
 
 
+@pytest.mark.parametrize("band_values", [1 << 21, 600, 1])
+def test_tile_quartiles_equal_each_tiles_percentile_in_any_band(monkeypatch, band_values):
+    """Each tile's np.percentile(25) of its directions' |d| (by their middle cells, offsets included), the tiles
+    in raster order, with bands of one tile row or several (the band's rows read from each direction's own
+    rows), float32 and float64 differences, partial tiles at the raster's ends and tiles below min_samples left
+    out."""
+    monkeypatch.setattr(est, "_TILE_BAND_VALUES", band_values)
+    rng = np.random.default_rng(11)
+    H, W, tile = 23, 29, 4
+    z = rng.normal(0.0, 1.0, (H, W)).astype(np.float32)
+    z[5, 7] = np.nan
+    parts = ((z[:, :-2] - 2 * z[:, 1:-1] + z[:, 2:], (0, 1)),
+             ((z[:-2] - 2 * z[1:-1] + z[2:]).astype(np.float64), (1, 0)))
+    parts = tuple((d, rng.random(d.shape) < 0.7, off) for d, off in parts)
+    got, counts = est._tile_quartiles((H, W), parts, tile, 5)
+    want, n = [], []
+    for tr in range(-(-H // tile)):
+        for tc in range(-(-W // tile)):
+            v = []
+            for d, on, (r0, c0) in parts:
+                r, c = np.nonzero(on & np.isfinite(d))
+                at = ((r + r0) // tile == tr) & ((c + c0) // tile == tc)
+                v.extend(np.abs(d[r[at], c[at]]).astype(np.float64))
+            if len(v) >= 5:
+                want.append(np.percentile(v, 25.0))
+                n.append(len(v))
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert counts.tolist() == n and counts.dtype == np.int64
+
+
 def test_cleanest_noise_needs_the_tiles_lower_beyond_their_sampling_and_rounding():
     q = 0.3186 * math.sqrt(6.0)                       # a tile quartile of q reads 1 m
     tiles, counts = np.full(12, 0.1 * q), np.full(12, 900)          # standard error 1.79 / 30 = 0.06

@@ -1089,6 +1089,49 @@ def test_ground_slope_map_reads_slopes_and_not_steps():
     assert float(morph.ground_slope_map(hole, (2, 2), (1.0, 1.0)).max()) == 0.0
 
 
+@pytest.mark.parametrize("ry,rx", [(0, 0), (0, 3), (2, 0), (1, 2), (3, 5), (12, 1), (2, 40)])
+@pytest.mark.parametrize("op", [np.minimum, np.maximum])
+def test_running_box_equals_the_two_separable_passes(ry, rx, op):
+    """_running_box (the column pass into the scratch buffer, the row pass banded into ``out``, ``out`` may be the
+    input) gives two _running passes' values exactly, with +/-inf cells, windows longer than the raster and
+    windows of one cell."""
+    rng = np.random.default_rng(7)
+    g = rng.normal(0.0, 1.0, (19, 23)).astype(np.float32)
+    g[3, 4] = np.inf
+    g[10:12, 0:3] = -np.inf
+    want = morph._running(morph._running(g.copy(), ry, 0, op), rx, 1, op)
+    work = morph._Work()
+    out = np.empty_like(g)
+    np.testing.assert_array_equal(morph._running_box(g.copy(), ry, rx, op, work, out), want)
+    same = g.copy()
+    np.testing.assert_array_equal(morph._running_box(same, ry, rx, op, work, same), want)
+
+
+def test_progressive_takes_the_slope_maps_erosion_for_its_last_step():
+    """The erosion ground_slope_map returns is the one the last step would compute from the step before (square
+    windows' minima compose exactly): the flags and the last opening are the same with it as without, also with
+    nodata and unequal half-widths."""
+    rng = np.random.default_rng(5)
+    i, j = np.mgrid[0:70, 0:90].astype(np.float32)
+    z = (0.4 * j + 3.0 * np.sin(i / 9.0) + rng.normal(0, 0.05, i.shape)).astype(np.float32)
+    z[20:34, 30:41] += 12.0
+    z[50:53, 70:72] += 3.0
+    z[5:8, 60:66] = np.nan
+    a, has_nodata = morph._as_inf(z)
+    cell = (1.0, 1.5)
+    radii = [(1, 1, 1.0), (2, 1, 2.0), (4, 3, 4.0), (8, 5, 8.0), (12, 8, 12.0)]
+    slope, widest = morph.ground_slope_map(a, radii[-1][:2], cell, return_erosion=True)
+    np.testing.assert_array_equal(morph.ground_slope_map(a, radii[-1][:2], cell), slope)
+    own = morph.l1_slope(z, cell)
+    args = (a, radii, 0.3, has_nodata)
+    flags, last = morph._progressive(*args, growth=2.0, ground_slope=slope.copy(), own_slope=own)
+    with_e, last_e = morph._progressive(*args, growth=2.0, ground_slope=slope.copy(), own_slope=own,
+                                        last_erosion=widest)
+    np.testing.assert_array_equal(with_e, flags)
+    np.testing.assert_array_equal(last_e, last)
+    assert flags[25, 35] and not flags[60, 10]
+
+
 def _rounded_ridge():
     """A rounded ridge 30 m high (Gaussian profile, sigma 20 m: slopes up to 0.91) across a raster of 1 m
     cells, running off both ends (no cut-terrain region), and a 12 x 12 m block 6 m high on the gentle
