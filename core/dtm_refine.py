@@ -835,8 +835,8 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     z : ndarray, 2-D float32
         The DSM (NaN nodata: never continued, never continues).
     disputed : ndarray of bool
-        The cells that may become ground (``bareearth:dtm``: the vote's objects its slope-following
-        member takes as ground).
+        The cells that may become ground (``bareearth:dtm``: every object of the vote that
+        :func:`continue_ground` did not give back; at a step's top all three members may reject the ground).
     anchors : ndarray of bool
         Ground every member agrees on.
     tolerance_m : float
