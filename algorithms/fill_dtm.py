@@ -63,10 +63,19 @@ def grid_mismatch_message(a, b, what, of="the DSM"):
 
 
 def parse_codes(text):
+    """The mask codes of FILL_CODES: integers 0-255 separated by commas, semicolons or spaces
+    ('1,2', '1; 2', '1 2'). ValueError naming the text for anything else, and for an empty entry
+    between two separators ('1,,2': a code left out, or a typo), rather than a guess."""
+    text = str(text)
+    parts = [t.strip() for t in text.replace(";", ",").split(",")]
+    if len(parts) > 1 and "" in parts:
+        raise ValueError(f"FILL_CODES has an empty entry between two commas or semicolons in {text!r}: give the "
+                         "mask codes separated by one comma, semicolon or space (e.g. '1,2').")
     try:
-        codes = [int(t) for t in str(text).replace(";", ",").split(",") if t.strip()]
+        codes = [int(t) for part in parts for t in part.split()]
     except ValueError:
-        raise ValueError(f"FILL_CODES must be integers separated by commas (e.g. '1,2'); got {text!r}.") from None
+        raise ValueError(f"FILL_CODES must be integers separated by commas or spaces (e.g. '1,2'); got "
+                         f"{text!r}.") from None
     if not codes or any(not 0 <= c <= 255 for c in codes):
         raise ValueError(f"FILL_CODES must list mask codes 0-255 (e.g. '1,2'); got {text!r}.")
     return codes
@@ -93,9 +102,10 @@ class FillDtmAlgorithm(BaseAlgorithm):
                   "holes (multigrid, no loop per cell). Every Bare Earth filter uses it for its DTM.</p>"
                   "<ul><li><b>INPUT</b>: the surface (DSM or DTM).</li><li><b>MASK</b>: optional UInt8 "
                   "mask on the same grid (a Bare Earth object mask); cells whose code is in FILL_CODES "
-                  "are removed and filled.</li><li><b>FILL_CODES</b>: mask codes to fill, default "
-                  "'1,2' (objects and low outliers).</li><li><b>FILL_NODATA</b>: also fill the input's "
-                  "nodata cells (default yes); otherwise they stay nodata.</li><li><b>OUTPUT</b>: Float32 "
+                  "are removed and filled.</li><li><b>FILL_CODES</b>: mask codes to fill, separated by "
+                  "commas or spaces, default '1,2' (objects and low outliers).</li>"
+                  "<li><b>FILL_NODATA</b>: also fill the input's nodata cells (default yes); otherwise they stay "
+                  "nodata.</li><li><b>OUTPUT</b>: Float32 "
                   "surface on the input's grid, with its nodata.</li></ul>")
 
     def initAlgorithm(self, config=None):  # noqa: N802
@@ -108,7 +118,7 @@ class FillDtmAlgorithm(BaseAlgorithm):
         m.setHelp(tr("UInt8 mask on the same grid; cells whose code is in FILL_CODES are filled."))
         self.addParameter(m)
         c = QgsProcessingParameterString(self.FILL_CODES, tr("Mask codes to fill"), "1,2")
-        c.setHelp(tr("Comma-separated mask codes whose cells are filled (1 object, 2 low outlier)."))
+        c.setHelp(tr("Mask codes whose cells are filled (1 object, 2 low outlier), separated by commas or spaces."))
         self.addParameter(c)
         f = QgsProcessingParameterBoolean(self.FILL_NODATA, tr("Also fill nodata cells"), True)
         f.setHelp(tr("Fill the input's nodata cells too; otherwise they stay nodata."))

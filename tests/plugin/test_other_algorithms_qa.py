@@ -381,3 +381,28 @@ def test_orthophoto_tools_refuse_a_bottom_up_dem_before_work_saying_how(processi
                                                          r"gdalwarp"):
             processing_run(f"bareearth:{alg}", dict(params, DEM=dem, OUTPUT_DEM=str(out)))
         assert not out.exists()
+
+
+def test_filldtm_codes_separated_by_spaces_and_empty_entries(processing_run, tmp_path):
+    """QA15: FILL_CODES '1 2' (codes separated by a space, as bareearth:tiles' PARAMETERS takes them) was
+    refused as 'must be integers', and '1,,2' (a code left out) was read as '1,2' without a word. Spaces
+    separate codes as commas do; an empty entry between two commas is refused before any work."""
+    from osgeo import gdal
+    from qgis.core import QgsApplication, QgsProcessingContext
+    z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    m = _write(tmp_path / "m.tif", np.where(_mask() == 1, 2, 0).astype(np.uint8) + np.eye(40, dtype=np.uint8),
+               nodata=255)
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:filldtm")
+    out = {}
+    for codes in ("1,2", "1 2", " 1 ; 2 ", "1, 2"):
+        params = {"INPUT": z, "MASK": m, "FILL_CODES": codes, "FILL_NODATA": False,
+                  "OUTPUT": str(tmp_path / f"f{len(out)}.tif")}
+        ok, msg = alg.checkParameterValues(params, QgsProcessingContext())
+        assert ok, (codes, msg)
+        out[codes] = gdal.Open(processing_run("bareearth:filldtm", params)["OUTPUT"]).ReadAsArray()
+    for codes in ("1 2", " 1 ; 2 ", "1, 2"):
+        np.testing.assert_array_equal(out[codes], out["1,2"])
+    for codes in ("1,,2", "1;;2", "1, ,2"):
+        ok, msg = alg.checkParameterValues({"INPUT": z, "MASK": m, "FILL_CODES": codes,
+                                            "OUTPUT": str(tmp_path / "g.tif")}, QgsProcessingContext())
+        assert not ok and "(FILL_CODES) has an empty entry between two commas or semicolons" in msg, (codes, msg)
