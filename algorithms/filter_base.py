@@ -601,24 +601,27 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 else:
                     continue
                 for f in files:
-                    input_files.setdefault(os.path.realpath(f), (di, p))
+                    input_files.setdefault(grid.file_identity(f), (di, p))
         seen, styles = {}, {}
+        input_ids = [(di, grid.file_identity(p)) for di, p in inputs]
         for d in self.destinationParameterDefinitions():
             path = destination_path(parameters, d.name())
             if path is None:
                 continue
-            real = os.path.realpath(path)
-            for di, p in inputs:
+            real = grid.file_identity(path)    # one file under two names: a link, another case
+            for di, p in input_ids:
                 if p == real:
                     return False, tr("The output {} is the input {} ({}): the input would be overwritten. "
                                      "Choose another file for the output.").format(label_of(d), label_of(di), path)
             if real in seen:
-                return False, tr("The outputs {} and {} are one file ({}): give each output its own "
-                                 "file.").format(label_of(seen[real]), label_of(d), path)
+                other = seen[real][1]
+                return False, tr("The outputs {} and {} are one file ({}{}): give each output its own "
+                                 "file.").format(label_of(seen[real][0]), label_of(d), path,
+                                                 "" if other == path else tr(" and {}, two names of it").format(other))
             if d.type() == "rasterDestination":
                 for f in grid.output_files(path, styled=d.name().endswith("MASK")):
-                    hit = input_files.get(os.path.realpath(f))
-                    if hit is not None and os.path.realpath(f) == real:   # a file a VRT input reads
+                    hit = input_files.get(grid.file_identity(f))
+                    if hit is not None and grid.file_identity(f) == real:   # a file a VRT input reads
                         return False, tr("The output {} ({}) would write {}, a file the input {} ({}) reads: "
                                          "the input would change. Choose another file for the output.").format(
                             label_of(d), path, f, label_of(hit[0]), hit[1])
@@ -627,14 +630,15 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                                          "sidecar, or the style QGIS loads with it. Choose another name for the "
                                          "output.").format(
                             label_of(d), path, f, label_of(hit[0]), hit[1])
-            seen[real] = d
+            seen[real] = (d, path)
             if d.type() == "rasterDestination":   # a mask's style is another output's style too
-                style = os.path.realpath(os.path.splitext(path)[0] + ".qml")
+                style_path = os.path.realpath(os.path.splitext(path)[0] + ".qml")
+                style = grid.file_identity(style_path)
                 other = styles.get(style)
                 if other is not None and (d.name().endswith("MASK") or other[1]):
                     return False, tr("The outputs {} and {} share the name {} (another extension): QGIS would "
                                      "draw both with the mask's style ({}). Give them different names.").format(
-                        label_of(other[0]), label_of(d), os.path.splitext(os.path.basename(path))[0], style)
+                        label_of(other[0]), label_of(d), os.path.splitext(os.path.basename(path))[0], style_path)
                 styles[style] = (d, d.name().endswith("MASK"))
             try:
                 if d.type() == "rasterDestination":

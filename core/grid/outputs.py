@@ -292,6 +292,51 @@ def check_output_folder(path):
     check_replaceable(path)
 
 
+def folder_ignores_case(folder):
+    """True when the file system of ``folder`` (or of its nearest existing parent) takes two names
+    differing only in case for one file (Windows, macOS, a FAT or SMB share mounted on Linux): a file
+    created there is found under its name in swapped case. False when that cannot be told (a folder
+    that takes no file). POSIX leaves case to the file system: a probe file is the portable test.
+    """
+    folder = os.path.abspath(str(folder))
+    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)
+    return _ignores_case(os.path.realpath(folder))
+
+
+@functools.lru_cache(maxsize=64)
+def _ignores_case(folder):
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-case-") as probe:
+            name = os.path.basename(probe.name)
+            return os.path.exists(os.path.join(folder, name.swapcase()))
+    except OSError:
+        return False
+
+
+def file_identity(path):
+    """A key two paths of one file share, to refuse an output that is an input under another name.
+
+    An existing file: its device and inode, shared by every name of it (``./t.tif``, a symbolic or
+    hard link, and on a file system that ignores case ``T.TIF`` for ``t.tif``), which comparing
+    resolved paths misses. A file not yet written: its folder's device and inode and its name, case
+    folded where the folder ignores case (:func:`folder_ignores_case`: two outputs ``A.tif`` and
+    ``a.tif`` are one file there); its resolved path when the folder does not exist either.
+    """
+    path = os.path.abspath(str(path))
+    try:
+        st = os.stat(path)
+        return (st.st_dev, st.st_ino)
+    except OSError:
+        pass
+    folder, base = os.path.split(path)
+    try:
+        st = os.stat(folder)
+    except OSError:
+        return (os.path.realpath(path),)
+    return (st.st_dev, st.st_ino, base.casefold() if folder_ignores_case(folder) else base)
+
+
 def check_replaceable(path):
     """ValueError when ``path`` exists and may not be written (read-only, or locked as an
     immutable file): the run would end, after its work, unable to replace it; or when it is no

@@ -560,3 +560,26 @@ def test_an_output_that_is_a_device_or_pipe_is_refused_and_kept(tmp_path, check)
     with pytest.raises(ValueError, match="is not a regular file"):
         _write(_info(tmp_path), {"dtm": pipe})
     assert stat.S_ISFIFO(os.lstat(pipe).st_mode) and _partials(tmp_path) == []
+
+
+def test_file_identity_names_of_one_file(tmp_path, monkeypatch):
+    """QA15: two names of one file (a hard or symbolic link, './x', and where case is ignored 'X.TIF'
+    for 'x.tif') have one identity; resolved paths told a hard link apart, and another case too."""
+    from bare_earth.core.grid import outputs
+    a = tmp_path / "a.tif"
+    a.write_bytes(b"x")
+    os.link(a, tmp_path / "hard.tif")
+    os.symlink(a, tmp_path / "soft.tif")
+    (tmp_path / "b.tif").write_bytes(b"x")
+    key = outputs.file_identity(a)
+    assert outputs.file_identity(tmp_path / "hard.tif") == key == outputs.file_identity(tmp_path / "soft.tif")
+    assert outputs.file_identity(os.path.join(str(tmp_path), ".", "a.tif")) == key
+    assert outputs.file_identity(tmp_path / "b.tif") != key
+    # files not written yet: one name, one file; 'N.tif' and 'n.tif' are one only where case is ignored
+    assert outputs.file_identity(tmp_path / "n.tif") == outputs.file_identity(str(tmp_path / "n.tif"))
+    assert outputs.folder_ignores_case(tmp_path / "no" / "such") is False
+    assert outputs.file_identity(tmp_path / "N.tif") != outputs.file_identity(tmp_path / "n.tif")
+    monkeypatch.setattr(outputs, "folder_ignores_case", lambda folder: True)
+    assert outputs.file_identity(tmp_path / "N.tif") == outputs.file_identity(tmp_path / "n.tif")
+    assert outputs.file_identity(tmp_path / "no" / "n.tif") != outputs.file_identity(tmp_path / "n.tif")
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".bare-earth")]   # the probe is removed

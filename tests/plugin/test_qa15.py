@@ -1,0 +1,50 @@
+"""QA pass 15 through processing.run: one file under two names (a hard link; another case on a file
+system that ignores case), a neighbouring point tile given twice. Each test failed before its fix."""
+import os
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+
+
+def _dsm(path, shape=(40, 40)):
+    from bare_earth.core.grid import write_array
+    z = np.zeros(shape, np.float32) + np.linspace(0.0, 2.0, shape[1], dtype=np.float32)[None, :]
+    z[10:20, 10:20] += 6.0
+    return write_array(path, z, GT, 32632)
+
+
+def _check(alg, params):
+    from qgis.core import QgsApplication, QgsProcessingContext
+    return QgsApplication.processingRegistry().algorithmById(alg).checkParameterValues(params,
+                                                                                      QgsProcessingContext())
+
+
+@pytest.mark.parametrize("key", ["OUTPUT_DTM", "OUTPUT_MASK"])
+def test_output_that_is_the_input_under_another_name_refused(qgis_app, tmp_path, key):
+    """An output given as a hard link of the input (two names of one file, as 'DSM.TIF' is of 'dsm.tif' on a
+    file system that ignores case) passed the check, which compared resolved paths: the run replaced the
+    name, and on such a file system the input itself, by its DTM."""
+    dsm = _dsm(tmp_path / "dsm.tif")
+    os.link(dsm, tmp_path / "same.tif")
+    params = {"INPUT": str(dsm), "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+              key: str(tmp_path / "same.tif")}
+    ok, msg = _check("bareearth:slopeprofile", params)
+    assert not ok and f"({key}) is the input" in msg and "same.tif" in msg, msg
+
+
+def test_outputs_differing_only_in_case_where_case_is_ignored(qgis_app, tmp_path, monkeypatch):
+    """Two outputs 'A.tif' and 'a.tif' are one file where the folder ignores case (Windows, macOS, a
+    FAT or SMB share): the second replaced the first. Refused there, naming both; kept apart where
+    case counts."""
+    from bare_earth.core.grid import outputs
+    dsm = _dsm(tmp_path / "dsm.tif")
+    params = {"INPUT": str(dsm), "OUTPUT_DTM": str(tmp_path / "Out.tif"), "OUTPUT_MASK": str(tmp_path / "out.tif")}
+    assert outputs.folder_ignores_case(tmp_path) is False     # Linux's file systems count case
+    ok, msg = _check("bareearth:slopeprofile", params)
+    assert ok, msg
+    monkeypatch.setattr(outputs, "folder_ignores_case", lambda folder: True)
+    ok, msg = _check("bareearth:slopeprofile", params)
+    assert not ok and "(OUTPUT_DTM) and" in msg and "(OUTPUT_MASK) are one file" in msg and "two names of it" in msg
