@@ -164,7 +164,7 @@ def index_tiles(inputs):
             f"No such file ({missing[0]}): check the path{'s' if len(missing) > 1 else ''}."))
     first, twice = {}, []
     for p in paths:             # one file named twice (./t.tif and t.tif, a link to it, two layers of it)
-        real = os.path.realpath(p)
+        real = grid.file_identity(p)
         if real in first:
             twice.append((first[real], p))
         first.setdefault(real, p)

@@ -298,8 +298,10 @@ def check_output_folder(index, out_dir, inputs=None):
     (the current folder), an existing file, the folder of one of the tiles (the outputs would lie among the tiles,
     and the folder given again as the input would take them for tiles), or a folder where an
     output would replace one of ``inputs`` (a VRT over the tiles named ``dtm.vrt``,
-    ``mask.vrt`` or ``survey.vrt``), or one holding a folder named as a file the survey writes
-    (``survey.vrt``, ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``)."""
+    ``mask.vrt`` or ``survey.vrt``, or another name of one: a link, another case where the folder
+    ignores it), or one holding a folder named as a file the survey writes (``survey.vrt``,
+    ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``), or a folder that ignores case
+    (:func:`.grid.folder_ignores_case`) for tiles whose names differ only in case."""
     if not str(out_dir).strip():     # an unset variable in a script: the outputs went to the current folder
         raise ValueError(f"the output folder is empty: give the folder the outputs go to (an empty one would be "
                          f"the current folder, {os.getcwd()!r}).")
@@ -307,8 +309,8 @@ def check_output_folder(index, out_dir, inputs=None):
     given = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
     own = [SURVEY_VRT, "dtm.vrt", "mask.vrt", "mask.qml", record.NAME]
     names = own + [n for t in index.tiles for n in output_names(t.name)]
-    outputs = {os.path.realpath(os.path.join(out_dir, n)) for n in names}
-    hit = [str(p) for p in given if os.path.realpath(os.path.abspath(str(p))) in outputs]
+    outputs = {grid.file_identity(os.path.join(out_dir, n)) for n in names}
+    hit = [str(p) for p in given if grid.file_identity(p) in outputs]   # another name of it too (a link, a case)
     if hit:
         raise ValueError(f"an output in {out_dir!r} would replace the input {hit[0]!r}: choose another output "
                          "folder (or rename the input).")
@@ -319,7 +321,18 @@ def check_output_folder(index, out_dir, inputs=None):
     if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
         raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "
                          "writes: move or rename that folder, or choose another output folder.")
-    inside = [t.path for t in index.tiles if os.path.realpath(os.path.dirname(t.path)) == out_dir]
+    if grid.folder_ignores_case(out_dir):      # T1.tif and t1.tif: one T1_dtm.tif there
+        first, same = {}, []
+        for t in index.tiles:
+            other = first.setdefault(t.name.casefold(), t)
+            if other is not t:
+                same.append((other, t))
+        if same:
+            a, b = same[0]
+            raise ValueError(f"tiles {a.path!r} and {b.path!r} have names differing only in case ({a.name}, {b.name}), "
+                             f"but the output folder {out_dir!r} ignores case: their outputs would be one file. "
+                             "Rename one of them, or choose an output folder on a file system that counts case.")
+    inside = [t.path for t in index.tiles if grid.file_identity(os.path.dirname(t.path)) == grid.file_identity(out_dir)]
     if inside:
         raise ValueError(f"the output folder {out_dir!r} holds the tiles ({os.path.basename(inside[0])}"
                          + (f" and {len(inside) - 1} more" if len(inside) > 1 else "") + "): the outputs would be "

@@ -894,3 +894,36 @@ def test_rascor_height_limits_of_a_sampled_survey_hold_all_its_heights(tmp_path,
     rec = run_survey("rascor", tiles, tmp_path / "out", {"terrain_class": "flat"}, workers=1, log=logs.append)
     assert rec["sample"].startswith("central crops") and any("widened" in s for s in logs)
     assert rec["params"]["height_max_m"] > float(z.max())       # step 2 removes none of the hill
+
+
+def test_tiles_under_other_names_and_names_differing_in_case(survey, tmp_path, monkeypatch):
+    """QA15: a hard link of a tile (two names of one file, as 't00.TIF' is of 't00.tif' where case is ignored)
+    was taken for a second tile, refused as 'tiles overlap'; tiles 'x' and 'X' (two folders) wrote one
+    x_dtm.tif where the output folder ignores case, and an input VRT 'DTM.vrt' in the output folder was
+    replaced by the survey's dtm.vrt there. Each is refused before any work, naming the files."""
+    from bare_earth.core.grid import outputs
+    from bare_earth.core.survey import check_output_folder
+    paths = [str(p) for p in survey["tiles"][:3]]
+    hard = tmp_path / "hard.tif"
+    os.link(paths[1], hard)
+    with pytest.raises(ValueError, match=rf"given twice: {re.escape(paths[1])} \(and as .*hard\.tif, the same file\)"):
+        index_tiles(paths + [str(hard)])
+    for sub, name, src in (("a", "x.tif", paths[0]), ("b", "X.tif", paths[1])):
+        (tmp_path / sub).mkdir()
+        (tmp_path / sub / name).write_bytes(Path(src).read_bytes())
+    index = index_tiles([str(tmp_path / "a" / "x.tif"), str(tmp_path / "b" / "X.tif")])
+    out = tmp_path / "out"
+    out.mkdir()
+    vrt = out / "DTM.vrt"
+    vrt.write_text("<VRTDataset/>")
+    assert outputs.folder_ignores_case(out) is False          # Linux's file systems count case: no collision
+    check_output_folder(index, out, [str(vrt)])
+    # the same where the output folder ignores case (mimicked, and 'DTM.vrt' made the file 'dtm.vrt' names)
+    for module in (outputs, grid):
+        monkeypatch.setattr(module, "folder_ignores_case", lambda folder: True)
+    with pytest.raises(ValueError, match=r"have names differing only in case \(x, X\), but the output folder .*"
+                                         r"ignores case: their outputs would be one file"):
+        check_output_folder(index, out, [str(tmp_path / "a" / "x.tif"), str(tmp_path / "b" / "X.tif")])
+    os.link(vrt, out / "dtm.vrt")
+    with pytest.raises(ValueError, match=r"would replace the input '.*DTM\.vrt'"):
+        check_output_folder(index_tiles(paths), out, [str(vrt)])
