@@ -22,7 +22,7 @@ from qgis.core import (
     QgsProcessingUtils,
 )
 
-from ..core import Cancelled
+from ..core import Cancelled, grid
 from ..core import pointflow as pf
 from ..core.pointfiles import check_points_writable
 from ..core.points import LAS_INSTALL_HINT, read_points
@@ -559,8 +559,9 @@ class PointsInputMixin:
             self.addParameter(p)
         t = QgsProcessingParameterMultipleLayers(self.OTHER_TILES, tr("Neighbouring tiles of the points"),
                                                  SOURCE_FILE, None, optional=True)
-        t.setHelp(tr("Other point files of the same block (same CRS). Their points around INPUT_POINTS are "
-                     "filtered with it so that classes agree along tile seams; only INPUT_POINTS is classified."))
+        t.setHelp(tr("Other point files of the same block (same CRS), each once (the block's whole list, holding "
+                     "INPUT_POINTS too, is taken). Their points around INPUT_POINTS are filtered with it so that "
+                     "classes agree along tile seams; only INPUT_POINTS is classified."))
         mark_advanced(t)
         self.addParameter(t)
         o = QgsProcessingParameterFileDestination(self.OUTPUT_POINTS, tr("Classified points"), POINT_OUTPUT_FILTER,
@@ -600,12 +601,24 @@ class PointsInputMixin:
         if not ok:
             raise ValueError(msg)
         pf.check_stray_points(cloud, self.INPUT_POINTS)
-        tiles = [t for t in (self.parameterAsFileList(parameters, self.OTHER_TILES, context)
-                             if self._given(parameters, self.OTHER_TILES) else [])
-                 if os.path.abspath(t) != os.path.abspath(path)]
-        for t in tiles:
+        given = (self.parameterAsFileList(parameters, self.OTHER_TILES, context)
+                 if self._given(parameters, self.OTHER_TILES) else [])
+        for t in given:
             if not os.path.isfile(t):
                 raise ValueError(f"OTHER_TILES: the point file {t!r} does not exist.")
+        # the input among its neighbours (the block's whole list) is left out; a tile given twice (another
+        # name of one file: ./a.las, a link) counted its points twice in the block's cell size
+        seen, tiles = {grid.file_identity(path): None}, []       # None: the input itself
+        for t in given:
+            key = grid.file_identity(t)
+            if key not in seen:
+                seen[key] = t
+                tiles.append(t)
+            elif seen[key] is not None:
+                first = seen[key]
+                raise ValueError(f"OTHER_TILES: the point file {t!r} is given twice"
+                                 + (f" (also as {first!r}, the same file)" if first != t else "")
+                                 + ": give each neighbouring tile once.")
         try:
             pf.check_tiles_crs(tiles, cloud, crs)
         except ValueError as exc:

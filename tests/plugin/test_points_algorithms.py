@@ -216,6 +216,36 @@ def test_morphological_tiles_with_neighbours(processing_run, cloud_files, tmp_pa
     np.testing.assert_array_equal(read_points(r["OUTPUT_POINTS"]).classification, ref.classes[1])
 
 
+def test_other_tiles_given_twice_refused_and_the_input_under_another_name_left_out(processing_run, cloud_files,
+                                                                                   tmp_path):
+    """QA15: a neighbouring tile given twice in OTHER_TILES (a, a; or a and ./a or a link to it) was read twice
+    without a word (its points counted twice in the block's cell size); refused before any work, naming it.
+    The input among its neighbours is left out under any name of it (a link was read as a second tile)."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+
+    from bare_earth.core.points import read_points
+    x, y, z, t = cloud_files["x"], cloud_files["y"], cloud_files["z"], cloud_files["truth"]
+    west = x < np.median(x)
+    a = _write_text(tmp_path / "a.txt", x[west], y[west], z[west], t[west])
+    b = _write_text(tmp_path / "b.txt", x[~west], y[~west], z[~west], t[~west])
+    (tmp_path / "a_link.txt").symlink_to(a)
+    (tmp_path / "b_link.txt").symlink_to(b)
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:morphological")
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif"),
+            "OUTPUT_POINTS": str(tmp_path / "o.txt")}
+    for tiles, named in (([a, a], r"'.*a\.txt' is given twice: give"),
+                         ([a, str(tmp_path / "a_link.txt")], r"'.*a_link\.txt' is given twice \(also as '.*a\.txt', "
+                                                             r"the same file\): give each neighbouring tile once")):
+        ok, msg = alg.checkParameterValues({"INPUT_POINTS": b, "OTHER_TILES": tiles, **outs}, QgsProcessingContext())
+        assert not ok and re.search(r"\(OTHER_TILES\): the point file " + named, msg), msg
+    r = processing_run("bareearth:morphological", {"INPUT_POINTS": b, "OTHER_TILES": [a, str(tmp_path / "b_link.txt")],
+                                                   **outs})
+    ref = processing_run("bareearth:morphological", {"INPUT_POINTS": b, "OTHER_TILES": [a],
+                                                     **outs, "OUTPUT_POINTS": str(tmp_path / "ref.txt")})
+    np.testing.assert_array_equal(read_points(r["OUTPUT_POINTS"]).classification,
+                                  read_points(ref["OUTPUT_POINTS"]).classification)
+
+
 def test_raster_input_still_works(processing_run, scene_files):
     d = scene_files["dir"]
     r = processing_run("bareearth:morphological", {"INPUT": scene_files["dsm"], "OUTPUT_DTM": str(d / "m_dtm.tif"),
