@@ -311,6 +311,12 @@ def check_window_sizes(alg, values, defaults, info):
 
 #: Smallest block edge a user may ask for (cells): the windows' corners align on 64 cells, and
 #: a smaller block reads far more halo than block (1-cell blocks: one filter run per cell).
+def not_whole(d, value):
+    """(False, message) for a whole-number parameter (a count, a band, a window in cells) given a fraction,
+    which QGIS rounds or cuts without a word."""
+    return False, tr("{} = {} is not a whole number: give a whole number.").format(label_of(d), value)
+
+
 MIN_BLOCK_SIZE = 64
 
 
@@ -695,7 +701,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         and 'nan' as "not given"; a NaN given as a number (a script's, a model's expression) passes
         QGIS's range check and reads as -2147483648 (BLOCK_SIZE: a run that never ended); a list
         given to a parameter of one value (qgis_process makes one of a key given twice,
-        TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0."""
+        TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0; a
+        fraction given to a whole number (a count, a band, a window in cells) is refused: QGIS cut
+        THREADS=1.5 to 1 and rounded BAND=2.7 to band 3."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -713,6 +721,9 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                     and d.checkValueIsAcceptable(v):       # NaN: within every range, read as -2147483648
                 return False, tr("{} = {} is not a number: give a number{}.").format(
                     label_of(d), v, tr(", or leave it out") if is_optional(d) else "")
+            whole = d.type() == "band" or (d.type() == "number" and d.dataType() == NUMBER_INTEGER)
+            if whole and isinstance(v, float) and math.isfinite(v) and v != math.floor(v):
+                return not_whole(d, v)          # a script's 1.5: QGIS took 1 for THREADS, band 2 for BAND 1.5
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()
@@ -721,6 +732,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                     number = float(text)
                 except ValueError:
                     number = float("nan")
+                if whole and math.isfinite(number) and number != math.floor(number):
+                    return not_whole(d, text)     # qgis_process's BAND=2.7: QGIS read band 3, WINDOW_CELLS=7.5 7
                 if not math.isfinite(number):
                     point = text.replace(",", ".", 1) if text.count(",") == 1 and "." not in text else ""
                     try:

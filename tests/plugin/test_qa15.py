@@ -48,3 +48,27 @@ def test_outputs_differing_only_in_case_where_case_is_ignored(qgis_app, tmp_path
     monkeypatch.setattr(outputs, "folder_ignores_case", lambda folder: True)
     ok, msg = _check("bareearth:slopeprofile", params)
     assert not ok and "(OUTPUT_DTM) and" in msg and "(OUTPUT_MASK) are one file" in msg and "two names of it" in msg
+
+
+@pytest.mark.parametrize("alg,key,value", [
+    ("bareearth:morphological", "BAND", 1.5), ("bareearth:morphological", "BAND", "2.7"),
+    ("bareearth:morphological", "THREADS", 1.5), ("bareearth:morphological", "BLOCK_SIZE", "100.5"),
+    ("bareearth:curvature", "WINDOW_CELLS", 7.5), ("bareearth:curvature", "WINDOW_CELLS", "7.5"),
+])
+def test_a_fraction_given_to_a_whole_number_refused(qgis_app, tmp_path, alg, key, value):
+    """QA15: a fraction given to a whole-number parameter (qgis_process's BAND=2.7, a script's THREADS=1.5)
+    was cut or rounded by QGIS without a word: BAND 2.7 read band 3, 1.5 band 1, WINDOW_CELLS 7.5 ran with
+    7. Refused before work, naming the parameter; a whole number written 2.0 is still taken."""
+    from osgeo import gdal
+    path = str(tmp_path / "two.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 40, 40, 2, gdal.GDT_Float32)
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(np.linspace(0, 3, 1600, dtype=np.float32).reshape(40, 40))
+    ds.GetRasterBand(2).Fill(5.0)
+    ds = None
+    params = {"INPUT": path, "BAND": 1, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    ok, msg = _check(alg, {**params, key: value})
+    assert not ok and msg.endswith(f"({key}) = {value} is not a whole number: give a whole number."), msg
+    ok, msg = _check(alg, {**params, key: {"BAND": "2.0", "THREADS": 1.0, "BLOCK_SIZE": "128",
+                                           "WINDOW_CELLS": 7.0}[key]})
+    assert ok, msg
