@@ -205,7 +205,12 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                                    "ground cells the DTM's errors are measured on,", of="the DTM"))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
-        if points and truth and os.path.realpath(points) == os.path.realpath(truth):
+        for a, b, what in ((mask, ref_mask, "MASK and REFERENCE_MASK"), (dtm, ref_dtm, "DTM and REFERENCE_DTM")):
+            if a is not None and b is not None and grid.file_identity(a.path) == grid.file_identity(b.path):
+                raise ValueError(f"{what} are one file ({a.path}{'' if a.path == b.path else ' and ' + b.path}): it "
+                                 "would be compared with itself (no error at all). Give the result as the first and "
+                                 "the reference (the truth) as the second.")
+        if points and truth and grid.file_identity(points) == grid.file_identity(truth):
             raise ValueError(f"TRUTH_POINTS and POINTS are one file ({points}): the classes would be compared with "
                              "themselves (no error at all). Give the classified points as POINTS and the file with "
                              "the true classes as TRUTH_POINTS.")

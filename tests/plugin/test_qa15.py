@@ -72,3 +72,23 @@ def test_a_fraction_given_to_a_whole_number_refused(qgis_app, tmp_path, alg, key
     ok, msg = _check(alg, {**params, key: {"BAND": "2.0", "THREADS": 1.0, "BLOCK_SIZE": "128",
                                            "WINDOW_CELLS": 7.0}[key]})
     assert ok, msg
+
+
+@pytest.mark.parametrize("first,second", [("MASK", "REFERENCE_MASK"), ("DTM", "REFERENCE_DTM")])
+@pytest.mark.parametrize("name", ["same", "link"])
+def test_evaluate_a_raster_compared_with_itself_refused(qgis_app, tmp_path, first, second, name):
+    """QA15: MASK and REFERENCE_MASK (or DTM and REFERENCE_DTM) given one file (the same layer chosen twice,
+    or a model's one output wired to both) ran and reported kappa 100 %, no error at all; refused before
+    work as TRUTH_POINTS and POINTS are, under any name of the file (a link)."""
+    from bare_earth.core.grid import write_array
+    arr = np.zeros((40, 40), np.uint8 if "MASK" in first else np.float32)
+    arr[10:20, 10:20] = 1
+    path = write_array(tmp_path / "r.tif", arr, GT, 32632, nodata=255 if "MASK" in first else None)
+    other = path
+    if name == "link":
+        other = str(tmp_path / "r_link.tif")
+        os.link(path, other)
+    params = {first: str(path), second: str(other), "OUTPUT_JSON": str(tmp_path / "e.json"),
+              "OUTPUT_HTML": str(tmp_path / "e.html")}
+    ok, msg = _check("bareearth:evaluate", params)
+    assert not ok and f"({second}) are one file" in msg and "compared with itself" in msg, msg
