@@ -51,6 +51,7 @@ def test_evaluate_reference_mask_of_a_dtm_comparison_on_its_grid(processing_run,
     a MASK without REFERENCE_MASK was not used, without a word."""
     from qgis.core import QgsProcessingException
     z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    z_ref = _write(tmp_path / "z_ref.tif", _ramp(), nodata=-9999.0)   # one file is refused as compared with itself
     shifted = _write(tmp_path / "shifted.tif", _mask(), gt=(500010.0,) + GT[1:], nodata=255)
     small = _write(tmp_path / "small.tif", _mask((30, 30)), nodata=255)
     mask = _write(tmp_path / "m.tif", _mask(), nodata=255)
@@ -58,10 +59,10 @@ def test_evaluate_reference_mask_of_a_dtm_comparison_on_its_grid(processing_run,
     for ref in (shifted, small):
         with pytest.raises(QgsProcessingException, match=r"The reference mask \(REFERENCE_MASK\), whose ground "
                                                          r"cells .* is not on the DTM's grid"):
-            processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, REFERENCE_MASK=ref, **outs))
+            processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z_ref, REFERENCE_MASK=ref, **outs))
     with pytest.raises(QgsProcessingException, match=r"MASK is compared .* or leave MASK out"):
-        processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, MASK=mask, **outs))
-    res = processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z, REFERENCE_MASK=mask, **outs))
+        processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z_ref, MASK=mask, **outs))
+    res = processing_run("bareearth:evaluate", dict(DTM=z, REFERENCE_DTM=z_ref, REFERENCE_MASK=mask, **outs))
     with open(res["OUTPUT_JSON"]) as fh:
         figures = json.load(fh)["results"]["DTM vs reference DTM"]
     assert figures["ground_n"] == 1500 and figures["n"] == 1600
@@ -286,7 +287,8 @@ def test_evaluate_reference_mask_without_ground_refused_naming_its_codes(process
                                                      rf"cell \(code 0\): its codes are {codes}\..*{hint}"):
         processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=ref, **outs))
     assert not os.path.exists(outs["OUTPUT_JSON"])
-    r = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, **outs))
+    same = _write(tmp_path / "same.tif", _mask(), nodata=255)      # one file is refused as compared with itself
+    r = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=same, **outs))
     assert r["TOTAL"] == 0.0
 
 
@@ -302,8 +304,10 @@ def test_evaluate_cancelled_writes_no_report(processing_run, tmp_path, percent):
                 self.cancel()
     m = _write(tmp_path / "m.tif", _mask(), nodata=255)
     z = _write(tmp_path / "z.tif", _ramp(), nodata=-9999.0)
+    m_ref = _write(tmp_path / "m_ref.tif", _mask(), nodata=255)    # one file is refused as compared with itself
+    z_ref = _write(tmp_path / "z_ref.tif", _ramp(), nodata=-9999.0)
     outs = dict(OUTPUT_JSON=str(tmp_path / "e.json"), OUTPUT_HTML=str(tmp_path / "e.html"))
-    res = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m, DTM=z, REFERENCE_DTM=z, **outs),
+    res = processing_run("bareearth:evaluate", dict(MASK=m, REFERENCE_MASK=m_ref, DTM=z, REFERENCE_DTM=z_ref, **outs),
                          feedback=CancelAt())
     assert not res or not res.get("OUTPUT_JSON")
     assert not os.path.exists(outs["OUTPUT_JSON"]) and not os.path.exists(outs["OUTPUT_HTML"])
