@@ -974,6 +974,11 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
+        from ..core.pipeline import check_cell_size
+        try:
+            check_cell_size(info.cell_size_m)
+        except ValueError as exc:
+            return False, str(exc)
         user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
         ok, msg = check_window_sizes(self, user, {p.name.upper(): (p.default, *p.former_defaults)
                                                   for p in self.method.params}, info)

@@ -132,6 +132,29 @@ def _resolve(meth, z, cell, params, progress):
     return out
 
 
+def widest_window_m() -> float:
+    """The widest window, in metres, that any filter's parameters allow: the largest limit of
+    their lengths (the ``*_m`` parameters' :attr:`Param.maximum`; 10 km, the opening's largest
+    window and RASCOR's profiles)."""
+    from .methods import available_methods, get_method
+    return max(float(p.maximum) for name in available_methods() for p in get_method(name).params
+               if p.name.endswith("_m") and p.maximum is not None)
+
+
+def check_cell_size(cell_size) -> None:
+    """ValueError, before any work, for cells wider than :func:`widest_window_m`: no object a
+    filter removes (a building, a wood) is as wide as one such cell, and the windows a filter
+    derives from the cells would break its own limits (a DSM of 0.5 degree cells, 55 km, failed
+    in the opening's parameters: WIDE_RADIUS_M = 25000 m out of range, a parameter nobody gave)."""
+    cell = as_cell_size(cell_size)
+    widest = widest_window_m()
+    if max(cell) > widest:
+        raise ValueError(f"the raster's cells of {cell[0]:.6g} x {cell[1]:.6g} m are wider than the widest window "
+                         f"any filter takes ({widest:g} m): no building or wood a filter removes is as wide as one "
+                         "cell. Filter a DSM of finer cells (a cell size in degrees or feet read as another unit: "
+                         "check the raster's CRS).")
+
+
 def fill_dtm(z, mask, progress=None):
     """The DTM of a filtered surface: cells of class 1 and 2 filled from the ground cells.
 
@@ -305,6 +328,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
     if n_far and not np.isfinite(z).any():
         raise ValueError("z has no valid cell: " + far_heights_message(n_far))
     cell = as_cell_size(cell_size)
+    check_cell_size(cell)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != z.shape:
@@ -540,6 +564,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     meth = as_method(method)
     check_run_counts(block, workers, processes)
     info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
+    check_cell_size(info.cell_size_m)
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)

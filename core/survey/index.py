@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import grid
+from .. import grid, pipeline
 from . import io, record
 
 #: Extensions of the rasters a folder is scanned for.
@@ -189,6 +189,7 @@ def index_tiles(inputs):
         raise ValueError(f"several tiles are named {', '.join(dup)}: each tile's outputs are named after it; "
                          "rename them or filter the folders separately.")
     ref = infos[0]
+    pipeline.check_cell_size(ref.cell_size_m)       # the others share it (checked below)
     other_crs = [i.path for i in infos[1:] if not io.same_crs(i.crs_wkt, ref.crs_wkt)]
     if other_crs:
         other = grid.open_dsm(other_crs[0]).crs_wkt

@@ -973,3 +973,29 @@ def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp
     logs = []
     assert pipeline.run_file(short, src, outputs(tmp_path, "mask", prefix="s_"), log=logs.append)["blocks"] > 1
     assert not any("spans the raster" in s for s in logs)
+
+
+def test_cells_wider_than_any_filter_window_refused_before_work(tmp_path):
+    """QA15: a DSM of 0.5 degree cells (55 km; or 50 km cells) failed in the opening's derived parameters,
+    'WIDE_RADIUS_M = 25000 m is out of range', a parameter nobody gave, for morphological and dtm. Cells
+    wider than the widest window any filter's parameters allow (pipeline.widest_window_m, 10 km) are
+    refused before any work, naming the cell size; cells of 5 km still run."""
+    from bare_earth.core import grid, pipeline
+    from bare_earth.core.methods import available_methods, get_method
+    widest = pipeline.widest_window_m()
+    assert widest == max(p.maximum for m in available_methods() for p in get_method(m).params
+                         if p.name.endswith("_m") and p.maximum is not None) == 10000.0
+    z = np.zeros((40, 40), np.float32) + np.linspace(0.0, 30.0, 40, dtype=np.float32)[None, :]
+    z[10:20, 10:20] += 8.0
+    for method in ("morphological", "dtm"):
+        with pytest.raises(ValueError, match=r"cells of 50000 x 50000 m are wider than the widest window any filter "
+                                             r"takes \(10000 m\)"):
+            pipeline.run_array(method, z, 50000.0)
+    pipeline.check_cell_size((widest, widest))
+    with pytest.raises(ValueError, match="wider than the widest window"):
+        pipeline.check_cell_size((1.0, widest * 1.001))
+    assert pipeline.run_array("morphological", z, 5000.0).mask.shape == z.shape
+    path = grid.write_array(tmp_path / "deg.tif", z, (-180.0, 4.5, 0.0, 90.0, 0.0, -2.25), 4326)
+    with pytest.raises(ValueError, match=r"cells of 354811 x 250046 m are wider"):
+        pipeline.run_file("morphological", path, {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")})
+    assert sorted(os.listdir(tmp_path)) == ["deg.tif"]

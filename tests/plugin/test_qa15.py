@@ -92,3 +92,19 @@ def test_evaluate_a_raster_compared_with_itself_refused(qgis_app, tmp_path, firs
               "OUTPUT_HTML": str(tmp_path / "e.html")}
     ok, msg = _check("bareearth:evaluate", params)
     assert not ok and f"({second}) are one file" in msg and "compared with itself" in msg, msg
+
+
+@pytest.mark.parametrize("alg", ["bareearth:morphological", "bareearth:dtm", "bareearth:slopeprofile"])
+def test_cells_wider_than_any_filter_window_refused_in_the_check(qgis_app, tmp_path, alg):
+    """QA15: a DSM of 4.5 x 2.25 degree cells ran the checks, read the data and failed deriving the opening's
+    parameters ('WIDE_RADIUS_M = 250468 m is out of range', a parameter nobody gave). Refused by the check,
+    naming the cells; the survey's tiles too."""
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.survey import index_tiles
+    z = np.zeros((40, 40), np.float32) + np.linspace(0.0, 30.0, 40, dtype=np.float32)[None, :]
+    path = write_array(tmp_path / "deg.tif", z, (-180.0, 4.5, 0.0, 90.0, 0.0, -2.25), 4326)
+    ok, msg = _check(alg, {"INPUT": str(path), "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                           "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not ok and "cells of 354811 x 250046 m are wider than the widest window any filter takes" in msg, msg
+    with pytest.raises(ValueError, match="are wider than the widest window"):
+        index_tiles([str(path)])
