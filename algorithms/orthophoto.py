@@ -563,7 +563,7 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")
             orthos.append(path)
-        if os.path.realpath(orthos[0]) == os.path.realpath(orthos[1]):
+        if grid.file_identity(orthos[0]) == grid.file_identity(orthos[1]):      # under any name (a link)
             raise ValueError(f"ORTHO_A and ORTHO_B are one file ({orthos[0]}): an orthophoto matched with itself "
                              "has no parallax. Give the orthophotos of two different frames.")
         ca = (self.parameterAsString(parameters, self.CAMERA_A, context) or "").strip()
@@ -809,15 +809,15 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             paths, names = self._images(parameters, context)
         except (ValueError, QgsProcessingException):
             return True, ""                # refused with its reason by the checks of the inputs
-        taken = {os.path.realpath(p): label_of(d) for d, p in self.inputPaths(parameters, context)}
-        taken.update({os.path.realpath(p): label_of(self.parameterDefinition(self.IMAGES)) for p in paths})
+        taken = {grid.file_identity(p): label_of(d) for d, p in self.inputPaths(parameters, context)}
+        taken.update({grid.file_identity(p): label_of(self.parameterDefinition(self.IMAGES)) for p in paths})
         for d in self.destinationParameterDefinitions():
             out = destination_path(parameters, d.name())
             if out is not None and d.name() != self.OUTPUT_ORTHO_FOLDER:
-                taken.setdefault(os.path.realpath(out), label_of(d))
+                taken.setdefault(grid.file_identity(out), label_of(d))
         for n in names:
             target = os.path.join(folder, f"{n}_ortho.tif")
-            hit = taken.get(os.path.realpath(target))
+            hit = taken.get(grid.file_identity(target))
             if hit is not None:
                 return False, tr("{}: the orthophoto of {} would be written as {}, a file of {}: choose another "
                                  "folder.").format(label_of(self.parameterDefinition(self.OUTPUT_ORTHO_FOLDER)),

@@ -108,3 +108,18 @@ def test_cells_wider_than_any_filter_window_refused_in_the_check(qgis_app, tmp_p
     assert not ok and "cells of 354811 x 250046 m are wider than the widest window any filter takes" in msg, msg
     with pytest.raises(ValueError, match="are wider than the widest window"):
         index_tiles([str(path)])
+
+
+def test_orthoparallax_one_orthophoto_under_two_names_refused(qgis_app, tmp_path):
+    """QA15: ORTHO_B given as a hard link of ORTHO_A (one file, two names) passed the check, which compared
+    resolved paths, and matched the orthophoto with itself (no parallax at all)."""
+    from bare_earth.core.grid import write_array
+    rng = np.random.default_rng(7)
+    a = write_array(tmp_path / "a.tif", (255.0 * rng.random((100, 100))).astype(np.float32), GT, 32632)
+    os.link(a, tmp_path / "b.tif")
+    params = {"DEM": str(write_array(tmp_path / "dem.tif", np.full((100, 100), 100.0, np.float32), GT, 32632)),
+              "ORTHO_A": str(a), "ORTHO_B": str(tmp_path / "b.tif"), "BASE_M": 300.0, "HEIGHT_M": 1000.0,
+              "OUTPUT_DEM": str(tmp_path / "o.tif"), "OUTPUT_DH": str(tmp_path / "dh.tif"),
+              "OUTPUT_QUALITY": str(tmp_path / "q.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    ok, msg = _check("bareearth:orthoparallax", params)
+    assert not ok and "ORTHO_A and ORTHO_B are one file" in msg, msg
