@@ -196,6 +196,9 @@ class TilesAlgorithm(BaseAlgorithm):
             rec = run_survey(method, inputs, out_dir, params, workers=workers, scheduler=scheduler,
                              progress=progress_callback(feedback), log=feedback.pushInfo)
         except Cancelled:
+            if not os.path.isfile(os.path.join(out_dir, "run.json")):     # while the parameters were derived
+                feedback.reportError(tr("Cancelled while the parameters were derived: nothing was written."))
+                return {}
             feedback.reportError(tr("Cancelled: the finished tiles are recorded in run.json; run again to finish."))
             return {self.OUTPUT_FOLDER: out_dir}
         except (ValueError, ImportError) as exc:

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from .. import grid, pipeline
-from ..common import Cancelled
+from ..common import Cancelled, sub_progress
 from ..methods import check_values, get_method
 from . import engine, io, plan, record
 from .index import index_tiles
@@ -30,6 +30,9 @@ SURVEY_VRT = "survey.vrt"
 #: Seconds between two rewrites of run.json while tiles finish (it is rewritten at the
 #: end in any case; a tile finished in the last interval of a killed run is redone).
 RECORD_INTERVAL = 1.0
+#: The share of the progress bar the parameters' derivation takes (the method's estimates on
+#: a sample of at most 4096 x 4096 cells: up to a minute), before the tiles share the rest.
+DERIVE_SHARE = 0.1
 #: The mosaics written once every tile is done.
 MOSAICS = ("dtm.vrt", "mask.vrt")
 #: Names of the temporary files of io.write_cog, io.build_vrt and record.save_record.
@@ -158,9 +161,11 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     scheduler : str, optional
         Address of an existing Dask scheduler (``tcp://host:8786``).
     progress : callable, optional
-        ``progress(fraction of tiles finished)``; may raise :class:`Cancelled`: no new
-        tile is handed out, the pending ones are cancelled, the finished ones stay
-        recorded, and Cancelled propagates.
+        ``progress(fraction)``: the parameters' derivation its first :data:`DERIVE_SHARE`
+        (when they are derived), then the fraction of tiles finished; may raise
+        :class:`Cancelled`: during the derivation nothing is left (the output folder as it
+        was); later no new tile is handed out, the pending ones are cancelled, the finished
+        ones stay recorded, and Cancelled propagates.
     log : callable, optional
         ``log(str)`` for the parameters used, the sample and each finished tile.
 
@@ -216,6 +221,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     if rec is None:
         rec = record.new_record(arguments)
         rec["input_stamps"] = record.input_stamps(arguments["tiles"])
+    share = DERIVE_SHARE if "params" not in rec else 0.0
     if "params" not in rec:
         t0 = time.perf_counter()
         zs, where = read_sample(index, info)
@@ -229,7 +235,14 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
         for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs)):
             if suspect:
                 log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
-        resolved = pipeline.resolve_params(meth, zs, cell, user, fill_empty=zs.shape == tuple(index.shape))
+        try:      # the bar moves while they are derived (a minute on 16 Mcells), and a cancel stops it
+            resolved = pipeline.resolve_params(meth, zs, cell, user, progress=sub_progress(progress, 0.0, share),
+                                               fill_empty=zs.shape == tuple(index.shape))
+        except Cancelled:
+            os.remove(vrt)
+            if created:
+                os.rmdir(out_dir)
+            raise
         if zs.shape != tuple(index.shape):      # a sample: heights of the whole survey beyond it
             resolved = pipeline.widen_params(meth, info, resolved, user, log)
         del zs
@@ -279,7 +292,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     last_save = [time.perf_counter()]
     try:
         if todo:
-            _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log, last_save)
+            _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, sub_progress(progress, share, 1.0), log,
+                       last_save)
     except Cancelled:
         this["cancelled"] = True
         log("Cancelled: no new tile handed out; the finished tiles are recorded, a rerun does the rest.")

@@ -927,3 +927,23 @@ def test_tiles_under_other_names_and_names_differing_in_case(survey, tmp_path, m
     os.link(vrt, out / "dtm.vrt")
     with pytest.raises(ValueError, match=r"would replace the input '.*DTM\.vrt'"):
         check_output_folder(index_tiles(paths), out, [str(vrt)])
+
+
+@pytest.mark.parametrize("method", ["morphological", "dtm"])
+def test_progress_and_cancel_while_the_parameters_are_derived(survey, tmp_path, method):
+    """QA15: the survey derived its parameters (a minute for dtm on a sample of 4096 x 4096 cells) without
+    a progress report: the bar stood at 0 and a cancel waited for the first tile. The derivation takes the
+    first tenth of the bar; a cancel there leaves nothing (no output folder, no run.json, no survey.vrt)."""
+    from bare_earth.core.common import Cancelled
+    from bare_earth.core.survey import run as survey_run
+    seen = []
+
+    def cancel_at_first(fraction):
+        seen.append(fraction)
+        raise Cancelled()
+
+    out = tmp_path / "out"
+    with pytest.raises(Cancelled):
+        run_survey(method, survey["tiles"], out, workers=1, progress=cancel_at_first)
+    assert len(seen) == 1 and 0.0 <= seen[0] <= survey_run.DERIVE_SHARE == 0.1
+    assert not out.exists()
