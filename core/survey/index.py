@@ -99,7 +99,9 @@ def list_inputs(inputs):
     ----------
     inputs : str or list of str
         Several rasters; or one ``.vrt`` (its sources are the tiles); or one folder (every
-        raster of :data:`RASTER_EXTENSIONS` directly in it, sorted by name).
+        raster of :data:`RASTER_EXTENSIONS` directly in it, sorted by name, but hidden files:
+        work files, and the ``._t00.tif`` AppleDouble files macOS leaves beside each tile on a
+        shared drive, which are no rasters).
 
     Returns
     -------
@@ -119,8 +121,8 @@ def list_inputs(inputs):
         if os.path.isfile(record.record_path(folder)):
             raise ValueError(f"the folder {folder!r} holds the outputs of a survey run ({record.NAME}), not "
                              "tiles: give the folder of the input tiles (their paths are in its run.json).")
-        found = sorted(os.path.join(folder, f) for f in os.listdir(folder)
-                       if f.lower().endswith(RASTER_EXTENSIONS) and ".partial-" not in f)
+        found = sorted(os.path.join(folder, f) for f in os.listdir(folder)   # hidden: work files, macOS's ._t.tif
+                       if f.lower().endswith(RASTER_EXTENSIONS) and ".partial-" not in f and not f.startswith("."))
         if not found:
             raise ValueError(f"the folder {folder!r} holds no raster ({', '.join(RASTER_EXTENSIONS)}): "
                              "point --input at the folder of the tiles.")

@@ -947,3 +947,17 @@ def test_progress_and_cancel_while_the_parameters_are_derived(survey, tmp_path, 
         run_survey(method, survey["tiles"], out, workers=1, progress=cancel_at_first)
     assert len(seen) == 1 and 0.0 <= seen[0] <= survey_run.DERIVE_SHARE == 0.1
     assert not out.exists()
+
+
+def test_a_folder_of_tiles_with_hidden_files(survey, tmp_path):
+    """QA15: a folder of tiles copied from macOS onto a shared drive holds an AppleDouble file '._t00.tif'
+    beside each tile (no raster): the survey refused every such folder ('tile(s) cannot be used: ._t00.tif').
+    Hidden files are no tiles."""
+    import shutil
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    for p in survey["tiles"]:
+        shutil.copy(p, folder)
+        (folder / ("._" + os.path.basename(p))).write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X")
+    assert list_inputs(str(folder)) == sorted(str(folder / os.path.basename(p)) for p in survey["tiles"])
+    assert len(index_tiles(str(folder)).tiles) == len(survey["tiles"])
