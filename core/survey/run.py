@@ -74,6 +74,10 @@ def parse_params(method, items):
     if isinstance(method, str):
         method = get_method(method)
     if isinstance(items, str):
+        spaced = re.search(r"\S[ \t]+=|=[ \t]+[^\s=,;]+(?=[\s,;]|$)", items)    # 'dh_m = 1', 'dh_m= 1'
+        if spaced:
+            raise ValueError(f"parameters {items!r}: write each KEY=VALUE without spaces around '=' (spaces "
+                             "separate parameters).")
         items = [s for s in re.split(r"[\s,;]+", items) if s]
     known = {p.name: p for p in method.params}
     out, given = {}, {}

@@ -961,3 +961,15 @@ def test_a_folder_of_tiles_with_hidden_files(survey, tmp_path):
         (folder / ("._" + os.path.basename(p))).write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X")
     assert list_inputs(str(folder)) == sorted(str(folder / os.path.basename(p)) for p in survey["tiles"])
     assert len(index_tiles(str(folder)).tiles) == len(survey["tiles"])
+
+
+@pytest.mark.parametrize("text", ["dh_m = 1", "dh_m =1", "dh_m= 1 slope=0.3"])
+def test_parse_params_spaces_around_the_equals_sign(text):
+    """QA15: 'dh_m = 1' in bareearth:tiles' PARAMETERS was refused as "parameter 'dh_m': write KEY=VALUE",
+    which it was ('dh_m= 1': "parameter '1'"); the message says what is wrong. An empty value before the
+    next parameter ('dh_m= slope=0.3': dh_m derived) is still taken."""
+    meth = get_method("morphological")
+    with pytest.raises(ValueError, match=r"write each KEY=VALUE without spaces around '=' \(spaces separate "
+                                         r"parameters\)\.$"):
+        parse_params(meth, text)
+    assert parse_params(meth, "dh_m= slope=0.3") == {"dh_m": None, "slope": 0.3}
