@@ -702,10 +702,10 @@ class OutputSet:
         ``heights`` (a DTM, an nDSM) states the height unit the input's band states."""
         _refuse_folder(str(path), os.path.join(os.path.abspath(str(path)), f"{key}.tif"))
         path = os.path.abspath(str(path))
-        if self.info.path and os.path.abspath(str(self.info.path)) == path:
+        if self.info.path and file_identity(self.info.path) == file_identity(path):    # under any name of it
             raise ValueError(f"the output {path!r} is the input raster: choose another file name.")
         for other, item in self._items.items():
-            if item["path"] == path:
+            if file_identity(item["path"]) == file_identity(path):
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
         check_output_cells(path, self.info.geotransform)

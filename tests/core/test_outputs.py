@@ -583,3 +583,20 @@ def test_file_identity_names_of_one_file(tmp_path, monkeypatch):
     assert outputs.file_identity(tmp_path / "N.tif") == outputs.file_identity(tmp_path / "n.tif")
     assert outputs.file_identity(tmp_path / "no" / "n.tif") != outputs.file_identity(tmp_path / "n.tif")
     assert not [f for f in os.listdir(tmp_path) if f.startswith(".bare-earth")]   # the probe is removed
+
+
+def test_output_that_is_the_input_under_another_name_refused(tmp_path):
+    """QA15: an output given as a link to the input (two names of one file, as 'DSM.TIF' is of 'dsm.tif' where
+    the file system ignores case) passed OutputSet's check, which compared paths, and the run's commit replaced
+    the input's name (on such a file system the input) by its DTM; a run_file from Python too."""
+    from bare_earth.core import pipeline
+    info = _info(tmp_path)
+    os.link(info.path, tmp_path / "hard.tif")
+    (tmp_path / "soft.tif").symlink_to(info.path)
+    for name in ("hard.tif", "soft.tif"):
+        with grid.OutputSet(info) as out, pytest.raises(ValueError, match="is the input raster"):
+            out.add("dtm", tmp_path / name, "Float32")
+    with pytest.raises(ValueError, match="is the input raster"):
+        pipeline.run_file("morphological", info.path, {"dtm": str(tmp_path / "hard.tif"),
+                                                       "mask": str(tmp_path / "m.tif")})
+    assert _partials(tmp_path) == [] and not (tmp_path / "m.tif").exists()
