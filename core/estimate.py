@@ -51,6 +51,8 @@ says so:
     level surface, however many blunders lie around it).
 * :func:`object_widths`: how wide the widest objects of a mask are (the window a moving
   fit needs to reach ground beyond them).
+* :func:`raised_parts`: the parts of a DSM standing on walls (more of their rim steps down
+  than up: roofs, decks, crowns), which block minima wider than them no longer see.
 """
 import contextlib
 import hashlib
@@ -1772,6 +1774,81 @@ def _smooth_parts_graph(w, cells, step_m):
     nb = nb[smooth]
     graph = csr_matrix((np.ones(nb.size, np.int8), nb, indptr), shape=(n_c, n_c))
     return connected_components(graph, directed=False)
+
+
+def raised_parts(z, step_m, max_cells):
+    """Cells of a DSM on parts standing on walls: bool, ``z``'s shape.
+
+    The surface is cut into parts (:func:`smooth_parts`: cells joined by steps between
+    8-neighbours of at most ``step_m``; a wall, a NaN separates them). A part is raised when
+    more than half of its rim steps down: of the 4-neighbour edges from its cells to valid cells
+    of other parts, more lead down to a lower part than up to a higher one (nodata and the
+    raster's edge are no rim). A roof or a bridge's deck steps down its walls all round, a
+    crown down to the ground; the ground steps up to the objects on it, down into a pit or a
+    ditch only. A part whose bounding box exceeds ``max_cells = (rows, cols)`` (a plateau, a
+    terrace's upper level, the terrain around a pit) is never raised, nor one meeting two
+    opposite sides of the raster (running across it: its extent is not seen, a terrace's upper
+    level across a tile).
+
+    What it is for: the block minima of a DSM reach the ground only where the blocks are wider
+    than the objects (:func:`block_minima`); a hall or a block of buildings round courtyards
+    wider than the blocks puts its roof into them, and its walls into their slopes. Left out,
+    the block minima are the ground's again.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        DSM, NaN = nodata.
+    step_m : float
+        Highest step within a part, metres (a wall is higher): e.g. the noise tolerance plus a
+        cell's rise at :data:`GAP_BANK_SLOPE`, the steepest bank.
+    max_cells : (int, int)
+        Largest bounding box ``(rows, cols)`` of a raised part.
+
+    Examples
+    --------
+    >>> z = np.zeros((5, 7), np.float32); z[1:4, 1:4] = 9.0; z[2, 5] = -9.0
+    >>> raised_parts(z, 1.0, (4, 4)).astype(int)
+    array([[0, 0, 0, 0, 0, 0, 0],
+           [0, 1, 1, 1, 0, 0, 0],
+           [0, 1, 1, 1, 0, 0, 0],
+           [0, 1, 1, 1, 0, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0]])
+    >>> raised_parts(z, 1.0, (2, 4)).any()        # the roof larger than an object: terrain
+    False
+    """
+    z = np.asarray(z, np.float32)
+    valid = np.isfinite(z)
+    cells = np.flatnonzero(valid)
+    out = np.zeros(z.shape, bool)
+    if cells.size == 0:
+        return out
+    n, part = smooth_parts(z, cells, float(step_m))
+    lab = np.full(z.shape, -1, np.int32)
+    lab.ravel()[cells] = part
+    down = np.zeros(n, np.int64)
+    up = np.zeros(n, np.int64)
+    for a, b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                 ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        la, lb = lab[a], lab[b]
+        e = (la >= 0) & (lb >= 0) & (la != lb)
+        first_higher = z[a][e] > z[b][e]
+        la, lb = la[e], lb[e]
+        high = np.where(first_higher, la, lb)
+        down += np.bincount(high, minlength=n)
+        up += np.bincount(np.where(first_higher, lb, la), minlength=n)
+    raised = down > up
+    cand = np.flatnonzero(raised)
+    if cand.size:
+        sub = np.zeros(n, np.int32)
+        sub[cand] = np.arange(1, cand.size + 1, dtype=np.int32)
+        boxes = ndimage.find_objects(np.where(valid, sub[lab], 0), max_label=cand.size)
+        b = np.array([(s[0].start, s[0].stop, s[1].start, s[1].stop) for s in boxes]).reshape(-1, 4)
+        H, W = z.shape
+        across = ((b[:, 0] == 0) & (b[:, 1] == H)) | ((b[:, 2] == 0) & (b[:, 3] == W))
+        raised[cand] = (b[:, 1] - b[:, 0] <= max_cells[0]) & (b[:, 3] - b[:, 2] <= max_cells[1]) & ~across
+    out.ravel()[cells] = raised[part]
+    return out
 
 
 

@@ -1169,3 +1169,34 @@ def test_cleanest_noise_needs_the_tiles_lower_beyond_their_sampling_and_rounding
     assert est.cleanest_noise(0.05, tiles, counts) == 0.05          # never above sigma
     assert np.isnan(est.cleanest_noise(float("nan"), tiles, counts))
     assert est.cleanest_noise(0.5, np.full(12, 0.0), counts, quantum=0.01) == pytest.approx(0.01 / math.sqrt(12.0))
+
+
+def test_raised_parts_are_roofs_and_crowns_not_the_ground_pits_ramps_or_terraces():
+    z = np.zeros((40, 60), np.float32)
+    z[5:15, 5:20] = 10.0                                  # a roof: walls down all round
+    z[25:28, 40:43] = 6.0                                 # a crown
+    z[30, 30] = -5.0                                      # a pit: its rim steps up
+    z[32:38, 5:15] = 2.0                                  # a platform reached by a ramp: one part
+    z[32:38, 15:25] = np.linspace(1.8, 0.0, 10, dtype=np.float32)   # with the ground
+    z[:, 50:] += 3.0                                      # a terrace's upper level across the raster
+    want = np.zeros(z.shape, bool)
+    want[5:15, 5:20] = want[25:28, 40:43] = True
+    got = est.raised_parts(z, 1.0, (40, 40))         # the terrace fits, but runs across the raster
+    np.testing.assert_array_equal(got, want)
+    # a roof larger than the largest object is terrain (a plateau)
+    want[5:15, 5:20] = False
+    np.testing.assert_array_equal(est.raised_parts(z, 1.0, (20, 14)), want)
+    # a step lower than a wall joins the crown to the ground; nodata is no rim
+    np.testing.assert_array_equal(est.raised_parts(z, 6.5, (20, 14)), np.zeros(z.shape, bool))
+    z[:, :3] = np.nan
+    z[5:15, 3:5] = np.nan                                 # the roof's west wall is a gap: still raised
+    got = est.raised_parts(z, 1.0, (20, 20))
+    assert got[5:15, 5:20].all() and not got[:, :5].any()
+
+
+def test_raised_parts_on_a_tilted_plane_with_one_hall_in_float64():
+    yy, xx = np.mgrid[0:50, 0:50]
+    z = 0.3 * xx + 0.1 * yy                               # a bank-free slope: one part
+    z[10:30, 10:30] += 8.0                                # a hall
+    got = est.raised_parts(z.astype(np.float64), 1.3, (30, 30))
+    assert got.sum() == 400 and got[10:30, 10:30].all()

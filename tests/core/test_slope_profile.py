@@ -811,3 +811,57 @@ def test_oblique_embankment_crest_is_ground_roofs_and_a_long_hall_objects_blocke
     assert (one.mask[hall] == OBJECT).mean() > 0.99
     blocked = run_array("slopeprofile", z, 1.0, params, block=64)
     np.testing.assert_array_equal(blocked.mask, one.mask)
+
+
+def _plane_with_halls(wide):
+    """A plane rising 2 % along x, 200 m at 1 m cells, with four halls 12 m high: 60 m wide (wider than
+    the 20 m blocks of the terrain slope) or 8 m wide and 60 m long."""
+    yy, xx = np.mgrid[0:200, 0:200].astype(np.float32)
+    z = 100.0 + 0.02 * xx
+    for r in (20, 120):
+        for c in (20, 120):
+            if wide:
+                z[r:r + 60, c:c + 60] += 12.0
+            else:
+                z[r:r + 60, c + 26:c + 34] += 12.0
+    return z
+
+
+def test_terrain_slope_leaves_out_the_blocks_on_a_hall_wider_than_them():
+    z = _plane_with_halls(True)
+    whole = sp.estimate_terrain_slope(z, 1.0)
+    assert whole["median"] > 0.1 and whole["raised"] == 0.0          # the halls' walls read as slopes
+    got = sp.estimate_terrain_slope(z, 1.0, tolerance_m=0.15, spacing_cells=1.0, max_object_m=100.0)
+    assert got["median"] == pytest.approx(0.02, rel=1e-3) and got["p90"] == pytest.approx(0.02, rel=1e-3)
+    assert got["raised"] == pytest.approx(4 * 60.0 * 60.0 / z.size)  # the 3 x 3 blocks wholly on each
+    # halls narrower than the blocks leave the ground in each: the block minima as they were
+    z = _plane_with_halls(False)
+    got = sp.estimate_terrain_slope(z, 1.0, tolerance_m=0.15, spacing_cells=1.0, max_object_m=100.0)
+    assert got == sp.estimate_terrain_slope(z, 1.0)
+    # halls larger than the largest object turned in the grid are no objects: kept
+    z = _plane_with_halls(True)
+    got = sp.estimate_terrain_slope(z, 1.0, tolerance_m=0.15, spacing_cells=1.0, max_object_m=40.0)
+    assert got == sp.estimate_terrain_slope(z, 1.0)
+
+
+def test_resolve_terrain_slope_under_wide_halls_and_the_halls_are_objects():
+    z = _plane_with_halls(True)
+    p = sp.resolve_slope_profile_params(z, 1.0)
+    assert p["terrain_slope_deg"] == pytest.approx(np.degrees(np.arctan(0.02)), rel=1e-3)
+    res = run_array("slopeprofile", z, 1.0)
+    halls = z > 100.0 + 0.02 * np.arange(200, dtype=np.float32) + 1.0
+    np.testing.assert_array_equal(res.mask, halls.astype(np.uint8))
+    assert sp.resolve_slope_profile_params(z, 1.0, terrain_slope_deg=20.0)["terrain_slope_deg"] == 20.0
+
+
+@pytest.mark.parametrize("cell,surface", [(1.0, "lowest"), (2.0, "highest")])
+def test_courtyard_blocks_are_objects_with_the_defaults(cell, surface):
+    """Blocks of buildings 110-140 m round courtyards (like ISPRS samp23): their roofs filled the 20 m
+    blocks of the terrain slope, which read 19-20 degrees on level ground, and whole blocks stayed ground
+    (33.7 and 36.0 % total error)."""
+    from bare_earth.core.evaluate import compare_masks
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("courtyard", cell, surface)
+    res = run_array("slopeprofile", s.dsm, s.cell_size)
+    assert res.info["params"]["terrain_slope_deg"] < 2.0
+    assert compare_masks(res.mask, s.mask)["total"] < 0.5
