@@ -77,7 +77,13 @@ From curvature to objects
    breaks away from objects (K ~ 0: dams, embankments, terrace edges) are seeds of the
    surface, so terrain edges stay ground, and so are the bowls with ``|K| >= K_g``
    (K > 0, H < 0: gaps between crowns) farther than half a window from the objects and not
-   below every cell of the ring around them by more than the tolerance (low points). The
+   below every cell of the ring around them by more than the tolerance (low points); nearer,
+   the bowls between objects (one within half a window on either side along the row or the
+   column) at the ground's level (within the tolerance plus the steep slopes' rise over a
+   window's diagonal of the lowest cell within a window), below every object cell within half
+   a window by half the minimum object height, and not below the surface made without them by
+   more than the tolerance (the ground showing between shrubs and crowns, not a smeared foot,
+   a roof's hollow beside a higher part or the floor of a pit between its walls). The
    second pass also rests on the bowls that the first found to be ground and not below its
    surface by more than the tolerance. After each pass, a cell above the surface that no
    profile found and that continues a stretch of ground along its X or Y profile (a window's

@@ -699,13 +699,16 @@ def test_halo_is_the_sum_of_the_stages_reaches():
     (largest object) and both ground passes (twice half the largest object + windows), each
     with its continued ground (two windows to the stretch's start, then the stretch: a window's
     independent heights, longer than a window of cells where the heights lie farther apart),
-    and the wall cells' neighbours (one cell)."""
+    the wall cells' neighbours (one cell), and the bowls between objects that seed the first
+    surface (the heights within a window, and the surface made without them: half the largest
+    object + windows)."""
     for cell in ((1.0, 1.0), (0.5, 0.6), (2.0, 2.0)):
         for w, size in ((5, 100.0), (7, 30.0)):
             P = {"window_cells": w, "max_object_size_m": size}
             cells = int(size / min(cell))
             r = int(np.ceil(0.5 * size / min(cell))) + w // 2
-            want = (2 * cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w + 1
+            want = ((2 * cells + 2 + 2 * w + 1) + cells + (2 * r + 2 * w + 2 * (w // 2) + 3) + 2 * 3 * w + 1
+                    + (r + 2 * w + 1))
             assert curvature.curvature_halo(P, cell) == want + (want & 1)
             # heights 3 m apart: stretches of w points of 3 m, longer than w cells
             stretch = int(np.ceil(w * 3.0 / min(cell)))
@@ -1722,3 +1725,120 @@ def test_rim_cells_of_objects_in_a_2_m_lidar_dsm_are_objects():
     assert (res.mask[roofs] == OBJECT).all()
     assert (res.mask[ring1] == OBJECT).all()
     assert (res.mask[h == 0] == GROUND).all()
+
+
+def test_bowls_between_objects_at_the_ground_level_seed_the_first_surface():
+    """find_ground, exact: the wooded convex hillside of the test above, every crown an object
+    the profiles found (a wood whose lowest points hit a crown or shrub every few cells, lidar
+    ``Topography`` at 1 m), the ground showing between them every third column: every bowl lies
+    between objects within m. The bowls at the ground's level (no higher than the tolerance plus
+    the steep slope's rise over a window's diagonal above the lowest cell within a window) and
+    below every object within m seed the first surface: they stay ground and the surface passes
+    through them. Left out as the objects' feet (before), the surface came from the meadow
+    alone, a straight line metres below the convex hillside, and the ground of the wood became
+    objects. A bowl on an object's top (a hollow of a roof, level with the object beside it)
+    does not seed."""
+    n_rows, n_cols, meadow = 9, 61, 8
+    cols = np.arange(n_cols)
+    hill = (15.0 * (1 - np.exp(-np.maximum(cols - meadow + 1, 0) / 12.0))).astype(np.float32)
+    z = np.broadcast_to(hill, (n_rows, n_cols)).astype(np.float32).copy()
+    wood = np.zeros(z.shape, bool)
+    wood[:, meadow:] = True
+    gaps = wood & (cols % 3 == 0)[None, :]
+    crowns = wood & ~gaps
+    z[crowns] += 8.0
+    roof = np.zeros(z.shape, bool)
+    roof[4, 31] = True                                # a hollow on the tops, 0.2 m below the crowns
+    z[roof] = hill[31] + 7.8
+    curv = np.zeros((2,) + z.shape, np.float32)
+    curv[0][wood] = 1.0                               # K > 0: curved up both ways
+    curv[1][crowns] = 1.0                             # H > 0: convex crowns
+    curv[1][gaps | roof] = -1.0                       # H < 0: the bowls between them (and the hollow)
+    objects = crowns & ~roof
+    br = derivatives.Breaks(curv, wood.copy(), wood, 0, 0)
+    steep = float(np.max(np.diff(hill)))              # the terrain's steepest rise over a cell
+    mask, surface = ground.find_ground(z, objects, br, None, (1.0, 1.0), window=5, h_min=1.0, tol=0.3,
+                                       max_size=40.0, rise=(0.3 + steep, 0.3 + steep))
+    assert (mask[gaps] == GROUND).all()
+    assert (mask[objects] == OBJECT).all()
+    assert mask[4, 31] == OBJECT                      # the hollow on the tops stays out
+    ground_z = np.broadcast_to(hill, z.shape)
+    assert (surface[gaps] == ground_z[gaps]).all()    # seeds: their own height
+    assert np.abs(surface[objects] - ground_z[objects]).max() < 0.25
+
+
+def test_ground_bowls_exact():
+    """ground._ground_bowls on a tiny array: a bowl between objects (one within m on either side
+    along its row or column) is ground showing when it stands within ``level`` of the lowest cell
+    within ``near`` and ``depth`` below every object within m. Not: a bowl between objects above
+    the lowest cell by more (a smeared foot), one beside an object on one side only (a roof's
+    hollow beside a higher part), one between objects less than ``depth`` above it, one far
+    from any object (not this rule's). With ``near`` 2, the first sees a cell 0.4 m lower."""
+    z = np.zeros((5, 12), np.float32)
+    objects = np.zeros(z.shape, bool)
+    bowls = np.zeros(z.shape, bool)
+    objects[2, 2] = objects[2, 4] = True              # (2, 3) between them: ground showing
+    z[2, 2] = z[2, 4] = 3.0
+    bowls[2, 3] = True
+    objects[2, 7] = objects[2, 9] = True              # (2, 8) between them, 1.5 m up: a smeared foot
+    z[2, 7] = z[2, 9] = 3.0
+    bowls[2, 8] = True
+    z[2, 8] = 1.5
+    bowls[1, 2] = True                                # above (2, 2), nothing on its other side
+    objects[4, 5] = objects[4, 7] = True              # (4, 6) between objects 0.3 m up
+    z[4, 5] = z[4, 7] = 0.3
+    bowls[4, 6] = True
+    bowls[0, 11] = True                               # far from any object
+    want = np.zeros(z.shape, bool)
+    want[2, 3] = True
+    assert (ground._ground_bowls(z, objects, bowls, 1, 1, 0.3, 0.5) == want).all()
+    z[1, 3] = np.nan                                  # nodata within near is no lowest cell
+    assert (ground._ground_bowls(z, objects, bowls, 1, 1, 0.3, 0.5) == want).all()
+    z[0, 5] = -0.4                                    # 2 cells from (2, 3): seen with near = 2
+    assert (ground._ground_bowls(z, objects, bowls, 1, 1, 0.3, 0.5) == want).all()
+    assert not ground._ground_bowls(z, objects, bowls, 1, 2, 0.3, 0.5).any()
+
+
+def test_between_exact():
+    """ground._between: an object within m cells on either side along the row or the column;
+    the raster's edge is no object."""
+    a = np.zeros((5, 6), bool)
+    a[0, 0] = a[0, 2] = True                          # (0, 1) between along the row
+    a[2, 5] = a[4, 5] = True                          # (3, 5) between along the column
+    a[4, 1] = a[4, 4] = True                          # (4, 2) and (4, 3): 3 cells apart
+    want = np.zeros(a.shape, bool)
+    want[0, 1] = want[3, 5] = True
+    assert (ground._between(a, 1) == want).all()
+    want[4, 2] = want[4, 3] = True
+    assert (ground._between(a, 2) == want).all()
+
+
+def test_bowls_between_walls_below_the_surface_without_them_do_not_seed():
+    """find_ground, exact: a ditch 10 m deep in level ground, its floor 2 cells wide, its walls
+    (two cells each side, 2 and 4 m down) found as objects by the profiles, its rims three cells
+    of convex breaks (a straight edge: |K| < K_g), its floor bowls (K > 0, H < 0) between the
+    walls, at the lowest level around and below them. The surface made without them
+    spans the ditch at the rims' level, 10 m above its floor: they stay out of the first surface,
+    and the rims stay ground. Seeding it, the floor pulled the straight line from the ground
+    beyond the rims down across them, and the rims became objects (ISPRS samp41 at 2 m: a pit's
+    rim, +1.1 points of total error). No continued ground (``rise`` None), which would give
+    the rims back here."""
+    z = np.zeros((15, 32), np.float32)
+    z[:, 12], z[:, 13] = -2.0, -4.0                   # a wall down
+    z[:, 14:16] = -10.0                               # the floor
+    z[:, 16], z[:, 17] = -4.0, -2.0                   # a wall up
+    objects = np.zeros(z.shape, bool)
+    objects[:, 12:14] = objects[:, 16:18] = True
+    floor = np.zeros(z.shape, bool)
+    floor[:, 14:16] = True
+    rims = np.zeros(z.shape, bool)
+    rims[:, 9:12] = rims[:, 18:21] = True
+    curv = np.zeros((2,) + z.shape, np.float32)
+    curv[0][floor] = 1.0                              # K > 0, H < 0: bowls
+    curv[1][floor] = -1.0
+    curv[1][rims] = 1.0                               # H > 0, K = 0: convex straight edges
+    br = derivatives.Breaks(curv, floor | rims, floor, 0, 0)
+    mask, surface = ground.find_ground(z, objects, br, None, (1.0, 1.0), window=5, h_min=1.0, tol=0.3,
+                                       max_size=40.0, rise=None)
+    assert (mask[:, :12] == GROUND).all()
+    assert (mask[:, 18:] == GROUND).all()
