@@ -893,26 +893,48 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     tol_beyond = np.float32(tolerance_m * np.sqrt(14.0 / 6.0))
     flat = r * cols + c
     zc = zf[flat]
-    pairs = _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m)
-    # the lines along a step, on the voted ground too (known2: grown with the cells given back)
-    along = [] if along_slope is None else _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m,
-                                                             along_slope, cell_size)
-    known2 = known if ground is None or not along else known | (np.asarray(ground, bool) & valid).ravel()
-    # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below the
-    # higher and above the lower by more than the tolerance of a continuation beyond (a cell on a slope steeper
-    # than the ground's noise explains; an object on a slope stands above its uphill neighbour or near it)
-    faces = []
-    for dr, dc in _LINE_STEPS[::2]:
-        ra, ca, rb, cb = r + dr, c + dc, r - dr, c - dc
-        inside = ((ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
-                  & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols))
-        ia = np.where(inside, ra * cols + ca, 0)
-        ib = np.where(inside, rb * cols + cb, 0)
-        hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
-        ok = inside & (hi - zc > tol_beyond) & (zc - lo > tol_beyond)
-        faces.append((ia[ok], ib[ok], np.flatnonzero(ok)))
+    # the lines along a step run on the voted ground too (known2: grown with the cells given back)
+    known2 = known if ground is None or along_slope is None else known | (np.asarray(ground, bool) & valid).ravel()
+    # a line gives its cell back only once its first cell (a neighbour) is ground, a step's face once both its
+    # neighbours are: each line's shape is measured when that first happens (in the pass it first can fire), not
+    # for every candidate (most of the vote's objects lie inside roofs and crowns): the same cells, the same passes
+    # known and known2 with a border of cells never ground: a neighbour's flat index is the cell's plus an offset
+    known_pad = np.pad(known.reshape(rows, cols), 1).ravel()
+    known2_pad = known_pad if known2 is known else np.pad(known2.reshape(rows, cols), 1).ravel()
+    flat_pad = (r + 1) * (cols + 2) + (c + 1)
+    near = [flat_pad + (dr * (cols + 2) + dc) for dr, dc in _LINE_STEPS]
+    measured = np.zeros((3, len(_LINE_STEPS), r.size), bool)   # lines across, lines along, faces
+    pairs, along, faces = [], [], []
     done = np.zeros(r.size, bool)
     for _ in range(int(reach_cells) // 3):
+        for d, step in enumerate(_LINE_STEPS):
+            first = known_pad[near[d]]
+            k = np.flatnonzero(first & ~measured[0, d] & ~done)
+            if k.size:
+                measured[0, d, k] = True
+                i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
+                pairs.append((i1, i2, i3, k[on]))
+            if along_slope is not None:
+                first2 = first if known2 is known else known2_pad[near[d]]
+                k = np.flatnonzero(first2 & ~measured[1, d] & ~done)
+                if k.size:
+                    measured[1, d, k] = True
+                    i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
+                                                       cell_size, steps=(step,))[0]
+                    along.append((i1, i2, i3, k[on]))
+            if d % 2 == 0:
+                # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below
+                # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
+                # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
+                # neighbour or near it)
+                k = np.flatnonzero(first & known_pad[near[d + 1]] & ~measured[2, d] & ~done)
+                if k.size:
+                    measured[2, d, k] = True
+                    dr, dc = step
+                    ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
+                    hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
+                    ok = (hi - zc[k] > tol_beyond) & (zc[k] - lo > tol_beyond)
+                    faces.append((ia[ok], ib[ok], k[ok]))
         new = np.zeros(r.size, bool)
         for i1, i2, i3, k in pairs:
             new[k] |= known[i1] & known[i2] & known[i3]
@@ -926,11 +948,13 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
         done |= new
         known[flat[new]] = True
         known2[flat[new]] = True
+        known_pad[flat_pad[new]] = True
+        known2_pad[flat_pad[new]] = True
     out.ravel()[flat[done]] = True
     return out
 
 
-def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_size):
+def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_size, steps=_LINE_STEPS):
     """The lines along which the cells ``(r, c)`` lie on a step's top running along the line: per direction of
     :data:`_LINE_STEPS`, ``(i1, i2, i3, k)``, the flat indices of the three cells on one side of candidate ``k``
     that must be ground for it to be one (:func:`continue_lines`, :func:`find_step_tops`).
@@ -948,7 +972,7 @@ def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_siz
     dx, dy = float(cell_size[0]), float(cell_size[1])
     zc = zf[r * cols + c]
     lines = []
-    for dr, dc in _LINE_STEPS:
+    for dr, dc in steps:
         rr = [r + k * dr for k in (1, 2, 3)]
         cc = [c + k * dc for k in (1, 2, 3)]
         inside = (rr[2] >= 0) & (rr[2] < rows) & (cc[2] >= 0) & (cc[2] < cols)
@@ -972,7 +996,7 @@ def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_siz
     return lines
 
 
-def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
+def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0, steps=_LINE_STEPS):
     """The lines along which the cells ``(r, c)`` have the shape of a step's top: per direction of
     :data:`_LINE_STEPS`, ``(i1, i2, i3, k)``, the flat indices of the three cells on one side of candidate
     ``k`` that must be ground for it to be one (:func:`continue_lines`, :func:`find_step_tops`).
@@ -987,7 +1011,7 @@ def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
     tol_beyond = np.float32(max(tolerance_m * np.sqrt(14.0 / 6.0), step_m))
     zc = zf[r * cols + c]
     pairs = []
-    for dr, dc in _LINE_STEPS:
+    for dr, dc in steps:
         rr = [r + k * dr for k in (-1, 1, 2, 3)]
         cc = [c + k * dc for k in (-1, 1, 2, 3)]
         inside = np.ones(r.size, bool)
