@@ -979,20 +979,22 @@ def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_siz
         i1, i2, i3 = (np.where(inside, a * cols + b, 0) for a, b in zip(rr, cc))
         ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol)
               & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol))
-        da = np.zeros(r.size, bool)
-        db = np.zeros(r.size, bool)
+        s = np.flatnonzero(ok)              # the drops beside looked for at the straight lines only
+        rs, cs, zs, z1 = r[s], c[s], zc[s], zf[i1[s]]
+        da = np.zeros(s.size, bool)
+        db = np.zeros(s.size, bool)
         for er, ec in _LINE_STEPS:          # any direction not along the line
             if (er, ec) in ((dr, dc), (-dr, -dc)):
                 continue
-            ra, ca, rb, cb = r + er, c + ec, r + dr + er, c + dc + ec
-            ina = ok & (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
-            inb = ok & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
+            ra, ca, rb, cb = rs + er, cs + ec, rs + dr + er, cs + dc + ec
+            ina = (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
+            inb = (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
             ia, ib = np.where(ina, ra * cols + ca, 0), np.where(inb, rb * cols + cb, 0)
             m = np.float32(step_m + slope * np.hypot(er * dy, ec * dx))
-            da |= ina & (zf[ia] < zc - m)
-            db |= inb & (zf[ib] < zf[i1] - m)
-        ok &= da & db
-        lines.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+            da |= ina & (zf[ia] < zs - m)
+            db |= inb & (zf[ib] < z1 - m)
+        s = s[da & db]
+        lines.append((i1[s], i2[s], i3[s], s))
     return lines
 
 
