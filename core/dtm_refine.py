@@ -906,19 +906,33 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     measured = np.zeros((3, len(_LINE_STEPS), r.size), bool)   # lines across, lines along, faces
     pairs, along, faces = [], [], []
     done = np.zeros(r.size, bool)
+    # the candidates read in a pass: every one in the first, then those beside a cell given back in the last pass
+    # (only their lines can have come to start from ground); cand_at: each padded cell's candidate, -1 for none
+    act = None
+    cand_at = np.full(known_pad.size, -1, np.int64)
+    cand_at[flat_pad] = np.arange(r.size)
+    offsets = np.array([dr * (cols + 2) + dc for dr, dc in _LINE_STEPS])
+
+    def of(a, d=None):
+        a = a if d is None else a[d]
+        return a if act is None else a[act]
+
+    def ready(cond, kind, d):
+        k = np.flatnonzero(cond & ~of(measured[kind], d) & ~of(done))
+        k = k if act is None else act[k]
+        measured[kind, d, k] = True
+        return k
+
     for _ in range(int(reach_cells) // 3):
         for d, step in enumerate(_LINE_STEPS):
-            first = known_pad[near[d]]
-            k = np.flatnonzero(first & ~measured[0, d] & ~done)
+            first = known_pad[of(near, d)]
+            k = ready(first, 0, d)
             if k.size:
-                measured[0, d, k] = True
                 i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
                 pairs.append((i1, i2, i3, k[on]))
             if along_slope is not None:
-                first2 = first if known2 is known else known2_pad[near[d]]
-                k = np.flatnonzero(first2 & ~measured[1, d] & ~done)
+                k = ready(first if known2 is known else known2_pad[of(near, d)], 1, d)
                 if k.size:
-                    measured[1, d, k] = True
                     i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
                                                        cell_size, steps=(step,))[0]
                     along.append((i1, i2, i3, k[on]))
@@ -927,9 +941,8 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
                 # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
                 # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
                 # neighbour or near it)
-                k = np.flatnonzero(first & known_pad[near[d + 1]] & ~measured[2, d] & ~done)
+                k = ready(first & known_pad[of(near, d + 1)], 2, d)
                 if k.size:
-                    measured[2, d, k] = True
                     dr, dc = step
                     ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
                     hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
@@ -950,6 +963,8 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
         known2[flat[new]] = True
         known_pad[flat_pad[new]] = True
         known2_pad[flat_pad[new]] = True
+        act = cand_at[(flat_pad[new][:, None] + offsets).ravel()]
+        act = np.unique(act[act >= 0])
     out.ravel()[flat[done]] = True
     return out
 
@@ -1020,9 +1035,10 @@ def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0, steps=_LINE_S
         for a, b in ((rr[0], cc[0]), (rr[3], cc[3])):
             inside &= (a >= 0) & (a < rows) & (b >= 0) & (b < cols)
         i0, i1, i2, i3 = (np.where(inside, a * cols + b, 0) for a, b in zip(rr, cc))
-        ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol) & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol)
-              & (zf[i0] < 3 * zf[i1] - 2 * zf[i2] - tol_beyond))
-        pairs.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+        s = np.flatnonzero(inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol))   # the rest read there only
+        z0, z1, z2, z3 = zf[i0[s]], zf[i1[s]], zf[i2[s]], zf[i3[s]]
+        s = s[(np.abs(z1 - (2 * z2 - z3)) <= tol) & (z0 < 3 * z1 - 2 * z2 - tol_beyond)]
+        pairs.append((i1[s], i2[s], i3[s], s))
     return pairs
 
 
