@@ -902,36 +902,24 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     known_pad = np.pad(known.reshape(rows, cols), 1).ravel()
     known2_pad = known_pad if known2 is known else np.pad(known2.reshape(rows, cols), 1).ravel()
     flat_pad = (r + 1) * (cols + 2) + (c + 1)
-    near = [flat_pad + (dr * (cols + 2) + dc) for dr, dc in _LINE_STEPS]
-    measured = np.zeros((3, len(_LINE_STEPS), r.size), bool)   # lines across, lines along, faces
+    offsets = [dr * (cols + 2) + dc for dr, dc in _LINE_STEPS]
     pairs, along, faces = [], [], []
     done = np.zeros(r.size, bool)
-    # the candidates read in a pass: every one in the first, then those beside a cell given back in the last pass
-    # (only their lines can have come to start from ground); cand_at: each padded cell's candidate, -1 for none
-    act = None
-    cand_at = np.full(known_pad.size, -1, np.int64)
-    cand_at[flat_pad] = np.arange(r.size)
-    offsets = np.array([dr * (cols + 2) + dc for dr, dc in _LINE_STEPS])
-
-    def of(a, d=None):
-        a = a if d is None else a[d]
-        return a if act is None else a[act]
-
-    def ready(cond, kind, d):
-        k = np.flatnonzero(cond & ~of(measured[kind], d) & ~of(done))
-        k = k if act is None else act[k]
-        measured[kind, d, k] = True
-        return k
-
+    # the candidates read in a pass: every one in the first; in a later one those beside a cell given back in the
+    # pass before (fresh), whose lines from it are measured then: each line once, in the pass it can first fire
+    act = np.arange(r.size)
+    fresh_pad, last_fresh = None, flat_pad[:0]
     for _ in range(int(reach_cells) // 3):
+        at = flat_pad[act]
         for d, step in enumerate(_LINE_STEPS):
-            first = known_pad[of(near, d)]
-            k = ready(first, 0, d)
+            nd = at + offsets[d]
+            first = known_pad[nd]
+            k = act[first if fresh_pad is None else fresh_pad[nd]]
             if k.size:
                 i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
                 pairs.append((i1, i2, i3, k[on]))
             if along_slope is not None:
-                k = ready(first if known2 is known else known2_pad[of(near, d)], 1, d)
+                k = act[(known2_pad[nd] if known2 is not known else first) if fresh_pad is None else fresh_pad[nd]]
                 if k.size:
                     i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
                                                        cell_size, steps=(step,))[0]
@@ -941,7 +929,9 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
                 # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
                 # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
                 # neighbour or near it)
-                k = ready(first & known_pad[of(near, d + 1)], 2, d)
+                nb = at + offsets[d + 1]
+                both = first & known_pad[nb]
+                k = act[both if fresh_pad is None else both & (fresh_pad[nd] | fresh_pad[nb])]
                 if k.size:
                     dr, dc = step
                     ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
@@ -961,10 +951,19 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
         done |= new
         known[flat[new]] = True
         known2[flat[new]] = True
-        known_pad[flat_pad[new]] = True
-        known2_pad[flat_pad[new]] = True
-        act = cand_at[(flat_pad[new][:, None] + offsets).ravel()]
-        act = np.unique(act[act >= 0])
+        fresh = flat_pad[new]
+        known_pad[fresh] = True
+        known2_pad[fresh] = True
+        if fresh_pad is None:
+            fresh_pad = np.zeros(known_pad.size, bool)
+        fresh_pad[last_fresh] = False
+        fresh_pad[fresh] = True
+        last_fresh = fresh
+        # the candidates beside them (flat_pad is sorted: cells_of gives row-major order), not given back yet
+        near = np.unique((fresh[:, None] + np.array(offsets)).ravel())
+        j = np.minimum(np.searchsorted(flat_pad, near), r.size - 1)
+        act = j[flat_pad[j] == near]
+        act = act[~done[act]]
     out.ravel()[flat[done]] = True
     return out
 
