@@ -256,6 +256,7 @@ independent pieces of evidence, each 0-1:
 
 ``confidence = 100 (a + m + s) / 3``; cells the user forced are 100.
 """
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -397,7 +398,7 @@ def _members(names):
     return [get_method(n) for n in names]
 
 
-def member_settings(name, z, cell_size, progress=None):
+def member_settings(name, z, cell_size, progress=None, noise=None):
     """What the vote asks of member ``name`` beyond its own defaults: :data:`MEMBER_SETTINGS`, and for
     :data:`NOISE_MEMBER` its random error ``sigma_m`` measured on the DSM's ground-level cells.
 
@@ -429,6 +430,9 @@ def member_settings(name, z, cell_size, progress=None):
     least :data:`MIN_TOLERANCE_M`; given only where it is below the member's own (the noise measured
     with that spread). The same correction as the slope-profile filter's ``dh0``.
 
+    ``noise``, when given, is a callable ``noise(progress)`` returning :func:`ground_noise` of ``z``
+    (:func:`resolve_dtm_params`: measured once for both members that read it).
+
     Returns
     -------
     settings : dict
@@ -438,14 +442,14 @@ def member_settings(name, z, cell_size, progress=None):
     """
     settings = dict(MEMBER_SETTINGS.get(name) or {})
     if name == SLOPE_MEMBER:
-        dh = noise_threshold(z, cell_size, progress=progress)
+        dh = noise_threshold(z, cell_size, progress=progress, noise=noise)
         if dh is not None:
             settings["dh_m"] = dh
         return settings or None, None
     if name != NOISE_MEMBER:
         return settings or None, None
     from .rascor import SIGMA_FLOOR
-    noise, sigma = ground_noise(z, cell_size, progress=progress)
+    noise, sigma = ground_noise(z, cell_size, progress=progress) if noise is None else noise(progress)
     if np.isfinite(sigma):
         settings["sigma_m"] = round(max(SIGMA_FLOOR, sigma), 3)
     return settings or None, noise
@@ -479,13 +483,13 @@ def ground_noise(z, cell_size, progress=None):
     return measured, float(noise_floor(noise_without_sampling(measured, slope, spacing), height_quantum(zz)))
 
 
-def noise_threshold(z, cell_size, progress=None):
+def noise_threshold(z, cell_size, progress=None, noise=None):
     """``dh_0`` of :data:`SLOPE_MEMBER` from the noise of the DSM's ground-level cells without the spread of
     where the heights lie on sloping ground (:func:`ground_noise`, :func:`member_settings`), metres; None where
     not measurable, or where it is not below the member's own noise (the ground-level noise of the whole window:
     no slope to take out and no cleaner tiles), or 3 x that noise is under the floor (the member's own
-    derivation stands: the same value)."""
-    measured, noise = ground_noise(z, cell_size, progress=progress)
+    derivation stands: the same value). ``noise``: as in :func:`member_settings`."""
+    measured, noise = ground_noise(z, cell_size, progress=progress) if noise is None else noise(progress)
     # the member's own derivation reads the ground-level noise of the whole window (measured once per window
     # inside estimate.noise_shared)
     own = float(noise_ground_level(without_far_heights(z)[0], as_cell_size(cell_size))["sigma"])
@@ -626,9 +630,20 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         share = shares.of_block(i)
         split = 0.1 if n in (NOISE_MEMBER, SLOPE_MEMBER) else 0.0
         # the noise and dh_0 measured on the DSM itself: the vote's own thresholds at full resolution come from them
-        given, noise = member_settings(n, z, cell, progress=sub_progress(share, 0.0, split))
+        given, noise = member_settings(n, z, cell, progress=sub_progress(share, 0.0, split), noise=shared_noise)
         # (zm: the coarse grid of the surface the pipeline gave, its empty cells already filled)
         return resolve_params(n, zm, cm, given, progress=sub_progress(share, split, 1.0), fill_empty=False), noise
+
+    # the ground noise both members read (RASCOR's sigma, the opening's dh_0): measured by the first that asks, the
+    # other waiting for it (the same value; once, not side by side twice)
+    noise_lock, noise_memo = threading.Lock(), []
+
+    def shared_noise(progress):
+        with noise_lock:
+            if not noise_memo:
+                noise_memo.append(ground_noise(z, cell, progress=progress))
+        report(progress, 1.0)
+        return noise_memo[0]
 
     # the members measure the noise of the same ground-level cells: once (estimate.noise_shared)
     with noise_shared(), ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:

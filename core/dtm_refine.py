@@ -893,26 +893,51 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     tol_beyond = np.float32(tolerance_m * np.sqrt(14.0 / 6.0))
     flat = r * cols + c
     zc = zf[flat]
-    pairs = _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m)
-    # the lines along a step, on the voted ground too (known2: grown with the cells given back)
-    along = [] if along_slope is None else _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m,
-                                                             along_slope, cell_size)
-    known2 = known if ground is None or not along else known | (np.asarray(ground, bool) & valid).ravel()
-    # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below the
-    # higher and above the lower by more than the tolerance of a continuation beyond (a cell on a slope steeper
-    # than the ground's noise explains; an object on a slope stands above its uphill neighbour or near it)
-    faces = []
-    for dr, dc in _LINE_STEPS[::2]:
-        ra, ca, rb, cb = r + dr, c + dc, r - dr, c - dc
-        inside = ((ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
-                  & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols))
-        ia = np.where(inside, ra * cols + ca, 0)
-        ib = np.where(inside, rb * cols + cb, 0)
-        hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
-        ok = inside & (hi - zc > tol_beyond) & (zc - lo > tol_beyond)
-        faces.append((ia[ok], ib[ok], np.flatnonzero(ok)))
+    # the lines along a step run on the voted ground too (known2: grown with the cells given back)
+    known2 = known if ground is None or along_slope is None else known | (np.asarray(ground, bool) & valid).ravel()
+    # a line gives its cell back only once its first cell (a neighbour) is ground, a step's face once both its
+    # neighbours are: each line's shape is measured when that first happens (in the pass it first can fire), not
+    # for every candidate (most of the vote's objects lie inside roofs and crowns): the same cells, the same passes
+    # known and known2 with a border of cells never ground: a neighbour's flat index is the cell's plus an offset
+    known_pad = np.pad(known.reshape(rows, cols), 1).ravel()
+    known2_pad = known_pad if known2 is known else np.pad(known2.reshape(rows, cols), 1).ravel()
+    flat_pad = (r + 1) * (cols + 2) + (c + 1)
+    offsets = [dr * (cols + 2) + dc for dr, dc in _LINE_STEPS]
+    pairs, along, faces = [], [], []
     done = np.zeros(r.size, bool)
+    # the candidates read in a pass: every one in the first; in a later one those beside a cell given back in the
+    # pass before (fresh), whose lines from it are measured then: each line once, in the pass it can first fire
+    act = np.arange(r.size)
+    fresh_pad, last_fresh = None, flat_pad[:0]
     for _ in range(int(reach_cells) // 3):
+        at = flat_pad[act]
+        for d, step in enumerate(_LINE_STEPS):
+            nd = at + offsets[d]
+            first = known_pad[nd]
+            k = act[first if fresh_pad is None else fresh_pad[nd]]
+            if k.size:
+                i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
+                pairs.append((i1, i2, i3, k[on]))
+            if along_slope is not None:
+                k = act[(known2_pad[nd] if known2 is not known else first) if fresh_pad is None else fresh_pad[nd]]
+                if k.size:
+                    i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
+                                                       cell_size, steps=(step,))[0]
+                    along.append((i1, i2, i3, k[on]))
+            if d % 2 == 0:
+                # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below
+                # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
+                # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
+                # neighbour or near it)
+                nb = at + offsets[d + 1]
+                both = first & known_pad[nb]
+                k = act[both if fresh_pad is None else both & (fresh_pad[nd] | fresh_pad[nb])]
+                if k.size:
+                    dr, dc = step
+                    ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
+                    hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
+                    ok = (hi - zc[k] > tol_beyond) & (zc[k] - lo > tol_beyond)
+                    faces.append((ia[ok], ib[ok], k[ok]))
         new = np.zeros(r.size, bool)
         for i1, i2, i3, k in pairs:
             new[k] |= known[i1] & known[i2] & known[i3]
@@ -926,11 +951,24 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
         done |= new
         known[flat[new]] = True
         known2[flat[new]] = True
+        fresh = flat_pad[new]
+        known_pad[fresh] = True
+        known2_pad[fresh] = True
+        if fresh_pad is None:
+            fresh_pad = np.zeros(known_pad.size, bool)
+        fresh_pad[last_fresh] = False
+        fresh_pad[fresh] = True
+        last_fresh = fresh
+        # the candidates beside them (flat_pad is sorted: cells_of gives row-major order), not given back yet
+        near = np.unique((fresh[:, None] + np.array(offsets)).ravel())
+        j = np.minimum(np.searchsorted(flat_pad, near), r.size - 1)
+        act = j[flat_pad[j] == near]
+        act = act[~done[act]]
     out.ravel()[flat[done]] = True
     return out
 
 
-def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_size):
+def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_size, steps=_LINE_STEPS):
     """The lines along which the cells ``(r, c)`` lie on a step's top running along the line: per direction of
     :data:`_LINE_STEPS`, ``(i1, i2, i3, k)``, the flat indices of the three cells on one side of candidate ``k``
     that must be ground for it to be one (:func:`continue_lines`, :func:`find_step_tops`).
@@ -948,31 +986,33 @@ def _along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, slope, cell_siz
     dx, dy = float(cell_size[0]), float(cell_size[1])
     zc = zf[r * cols + c]
     lines = []
-    for dr, dc in _LINE_STEPS:
+    for dr, dc in steps:
         rr = [r + k * dr for k in (1, 2, 3)]
         cc = [c + k * dc for k in (1, 2, 3)]
         inside = (rr[2] >= 0) & (rr[2] < rows) & (cc[2] >= 0) & (cc[2] < cols)
         i1, i2, i3 = (np.where(inside, a * cols + b, 0) for a, b in zip(rr, cc))
         ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol)
               & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol))
-        da = np.zeros(r.size, bool)
-        db = np.zeros(r.size, bool)
+        s = np.flatnonzero(ok)              # the drops beside looked for at the straight lines only
+        rs, cs, zs, z1 = r[s], c[s], zc[s], zf[i1[s]]
+        da = np.zeros(s.size, bool)
+        db = np.zeros(s.size, bool)
         for er, ec in _LINE_STEPS:          # any direction not along the line
             if (er, ec) in ((dr, dc), (-dr, -dc)):
                 continue
-            ra, ca, rb, cb = r + er, c + ec, r + dr + er, c + dc + ec
-            ina = ok & (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
-            inb = ok & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
+            ra, ca, rb, cb = rs + er, cs + ec, rs + dr + er, cs + dc + ec
+            ina = (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols)
+            inb = (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
             ia, ib = np.where(ina, ra * cols + ca, 0), np.where(inb, rb * cols + cb, 0)
             m = np.float32(step_m + slope * np.hypot(er * dy, ec * dx))
-            da |= ina & (zf[ia] < zc - m)
-            db |= inb & (zf[ib] < zf[i1] - m)
-        ok &= da & db
-        lines.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+            da |= ina & (zf[ia] < zs - m)
+            db |= inb & (zf[ib] < z1 - m)
+        s = s[da & db]
+        lines.append((i1[s], i2[s], i3[s], s))
     return lines
 
 
-def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
+def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0, steps=_LINE_STEPS):
     """The lines along which the cells ``(r, c)`` have the shape of a step's top: per direction of
     :data:`_LINE_STEPS`, ``(i1, i2, i3, k)``, the flat indices of the three cells on one side of candidate
     ``k`` that must be ground for it to be one (:func:`continue_lines`, :func:`find_step_tops`).
@@ -987,16 +1027,17 @@ def _step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m=0.0):
     tol_beyond = np.float32(max(tolerance_m * np.sqrt(14.0 / 6.0), step_m))
     zc = zf[r * cols + c]
     pairs = []
-    for dr, dc in _LINE_STEPS:
+    for dr, dc in steps:
         rr = [r + k * dr for k in (-1, 1, 2, 3)]
         cc = [c + k * dc for k in (-1, 1, 2, 3)]
         inside = np.ones(r.size, bool)
         for a, b in ((rr[0], cc[0]), (rr[3], cc[3])):
             inside &= (a >= 0) & (a < rows) & (b >= 0) & (b < cols)
         i0, i1, i2, i3 = (np.where(inside, a * cols + b, 0) for a, b in zip(rr, cc))
-        ok = (inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol) & (np.abs(zf[i1] - (2 * zf[i2] - zf[i3])) <= tol)
-              & (zf[i0] < 3 * zf[i1] - 2 * zf[i2] - tol_beyond))
-        pairs.append((i1[ok], i2[ok], i3[ok], np.flatnonzero(ok)))
+        s = np.flatnonzero(inside & (np.abs(zc - (2 * zf[i1] - zf[i2])) <= tol))   # the rest read there only
+        z0, z1, z2, z3 = zf[i0[s]], zf[i1[s]], zf[i2[s]], zf[i3[s]]
+        s = s[(np.abs(z1 - (2 * z2 - z3)) <= tol) & (z0 < 3 * z1 - 2 * z2 - tol_beyond)]
+        pairs.append((i1[s], i2[s], i3[s], s))
     return pairs
 
 

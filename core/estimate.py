@@ -370,8 +370,9 @@ def height_quantum(z):
     >>> height_quantum(np.array([[1.0, 2.013, 4.3], [7.77, 2.0, 1.0]]))
     0.0
     """
-    v = [w[np.isfinite(w)].astype(np.float64).ravel() for w in sample_windows(np.asarray(z))]
-    v = np.unique(np.concatenate(v)) if v else np.empty(0)
+    # the distinct heights in the DSM's own dtype, then in float64 (the same values: sorting float32 is faster)
+    v = [w[np.isfinite(w)].ravel() for w in sample_windows(np.asarray(z))]
+    v = np.unique(np.concatenate(v)).astype(np.float64) if v else np.empty(0)
     if v.size > QUANTUM_VALUES:
         v = v[:QUANTUM_VALUES]
     if v.size < 3:

@@ -310,6 +310,21 @@ def test_member_settings_rascor_noise_from_the_ground_level_cells():
         dtm_method.MEMBER_SETTINGS["morphological"], None)                # 3 x its noise under the floor
 
 
+def test_resolve_measures_the_ground_noise_once_for_both_members(monkeypatch):
+    """RASCOR's sigma and the opening's dh_0 read the same ground noise (ground_noise): resolve_dtm_params measures it
+    once (the first member to ask; the other waits for it) and gives both what each member's settings alone give."""
+    z = _hillside_one_return_per_cell(n=96)
+    alone = {n: dtm_method.member_settings(n, z, (2.0, 2.0))[0] for n in ("rascor", "morphological")}
+    calls = []
+    real = dtm_method.ground_noise
+    monkeypatch.setattr(dtm_method, "ground_noise", lambda *a, **k: calls.append(1) or real(*a, **k))
+    params = dtm_method.resolve_dtm_params(z, (2.0, 2.0))
+    assert len(calls) == 1
+    assert params["members"]["rascor"]["sigma_m"] == alone["rascor"]["sigma_m"]
+    assert params["members"]["morphological"]["dh_m"] == alone["morphological"]["dh_m"]
+    assert params["input_description"]["ground_noise_m"] == real(z, (2.0, 2.0))[0]
+
+
 def _hillside_one_return_per_cell(n=120, cell=2.0, slope=0.6, seed=0, noise_m=0.05):
     """A plane rising 0.6 m per metre (31 degrees), one return per 2 m cell at a random place in it:
     the heights scatter by ``slope cell / sqrt(12)`` = 0.35 m about the cells' centres, 7 times the noise."""

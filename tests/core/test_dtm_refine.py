@@ -1199,3 +1199,64 @@ def test_continue_lines_along_a_staircase_wall():
     got = dr.continue_lines(z, strip, anchors, tolerance_m=0.5, reach_cells=18, step_m=1.0, ground=ground,
                             along_slope=0.1)
     np.testing.assert_array_equal(got, strip)
+
+
+def _continue_lines_measuring_every_line(z, disputed, anchors, *, tolerance_m, reach_cells, step_m, ground,
+                                         along_slope, cell_size):
+    """continue_lines' passes with every candidate's lines measured before the first pass (the rule as written)."""
+    rows, cols = z.shape
+    valid = np.isfinite(z)
+    r, c = np.nonzero(disputed & valid)
+    zf = z.ravel()
+    known = (anchors & valid).ravel().copy()
+    known2 = known | (ground & valid).ravel()
+    tol_beyond = np.float32(tolerance_m * np.sqrt(14.0 / 6.0))
+    pairs = dr._step_top_lines(zf, rows, cols, r, c, tolerance_m, step_m)
+    along = dr._along_step_lines(zf, rows, cols, r, c, tolerance_m, step_m, along_slope, cell_size)
+    faces = []
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        ra, ca, rb, cb = r + di, c + dj, r - di, c - dj
+        inside = (ra >= 0) & (ra < rows) & (ca >= 0) & (ca < cols) & (rb >= 0) & (rb < rows) & (cb >= 0) & (cb < cols)
+        ia, ib = np.where(inside, ra * cols + ca, 0), np.where(inside, rb * cols + cb, 0)
+        hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
+        ok = inside & (hi - zf[r * cols + c] > tol_beyond) & (zf[r * cols + c] - lo > tol_beyond)
+        faces.append((ia[ok], ib[ok], np.flatnonzero(ok)))
+    done = np.zeros(r.size, bool)
+    for _ in range(reach_cells // 3):
+        new = np.zeros(r.size, bool)
+        for i1, i2, i3, k in pairs:
+            new[k] |= known[i1] & known[i2] & known[i3]
+        for i1, i2, i3, k in along:
+            new[k] |= known2[i1] & known2[i2] & known2[i3]
+        for ia, ib, k in faces:
+            new[k] |= known[ia] & known[ib]
+        new &= ~done
+        done |= new
+        known[(r * cols + c)[new]] = True
+        known2[(r * cols + c)[new]] = True
+    out = np.zeros(z.shape, bool)
+    out[r[done], c[done]] = True
+    return out
+
+
+@pytest.mark.parametrize("kind", ["quarry", "hillside", "steps"])
+def test_continue_lines_measures_each_line_when_it_can_first_fire(kind):
+    """continue_lines measures a line's shape only once its first cell (a face's two neighbours) is ground, in the
+    pass it can first give its cell back: the cells given back equal those of every candidate's lines measured
+    up front, pass by pass, on sites whose step tops and faces are given back over several passes (lines across
+    a step, along it and faces starting from cells given back in an earlier pass), with the vote's objects all
+    candidates and noisy anchors."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site(kind, 1.0, "lowest")
+    z = s.dsm.astype(np.float32)
+    rng = np.random.default_rng(3)
+    steps = ndimage.maximum_filter(s.dtm, 3) - ndimage.minimum_filter(s.dtm, 3) > 1.5
+    disputed = (steps | (s.mask != GROUND) | (rng.random(z.shape) < 0.05)) & np.isfinite(z)
+    anchors = ~disputed & (rng.random(z.shape) < 0.7)
+    ground = ~disputed
+    kw = dict(tolerance_m=0.5, reach_cells=12, step_m=1.0, ground=ground, along_slope=0.1, cell_size=(1.0, 1.0))
+    got = dr.continue_lines(z, disputed, anchors, **kw)
+    want = _continue_lines_measuring_every_line(z, disputed, anchors, **kw)
+    one = _continue_lines_measuring_every_line(z, disputed, anchors, **dict(kw, reach_cells=3))
+    assert want.sum() > one.sum() > 0                 # cells given back in later passes too
+    np.testing.assert_array_equal(got, want)

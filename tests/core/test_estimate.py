@@ -521,6 +521,19 @@ def test_height_quantum_and_the_noise_floor_of_rounded_heights(dtype):
     assert np.isnan(est.noise_floor(float("nan"), 1.0))
 
 
+def test_height_quantum_reads_the_same_in_the_dsms_dtype():
+    """The distinct heights are sorted in the DSM's own dtype (float32: faster) and measured in float64: the step
+    is exactly the one of the same heights given in float64, -0.0 and 0.0 one height, NaN and inf never one."""
+    y, x = np.mgrid[0:80, 0:90]
+    z = (np.round((12.0 + 0.37 * x - 0.21 * y) * 20.0) / 20.0 - 12.0).astype(np.float32)   # 5 cm steps about 0
+    z[z == 0.0] = -0.0
+    z[3, :7] = np.nan
+    z[5, 2] = np.inf
+    q = est.height_quantum(z)
+    assert q == pytest.approx(0.05, rel=1e-4)
+    assert q == est.height_quantum(np.where(np.isfinite(z), z, np.nan).astype(np.float64))
+
+
 def test_object_widths_across_a_checkerboard_of_dropouts():
     """Half the cells missing in a checkerboard: the roof's cells touch only at corners,
     yet they are one object as wide as the roof (each cell was its own one-cell object)."""
