@@ -67,10 +67,19 @@ def remove_neighbour_differences(z: np.ndarray, keep: np.ndarray, *, sigma_m: fl
     nearest to its centre): on ground rising by ``g`` over one cell its position alone
     changes the height by ``g`` times a uniform offset of variance 1/12, so
     ``sigma_h^2 = sigma^2 + g^2 / 12`` and the tolerance is ``sqrt(tol^2 + k^2 g^2 / 6)``
-    with ``tol = k sqrt(2) sigma``. ``g`` is the local rise beyond the pair (the slope
-    the test already uses), at most the terrain's rise over one step of the pair
+    with ``tol = k sqrt(2) sigma``. ``g`` is the local gradient's magnitude: the rise beyond
+    the pair (the slope the test already uses) and the slope across the pair's axis (half the
+    difference of the two cells beside ``u`` across it), in quadrature (a height's place
+    inside its cell moves it across the axis too: along a hillside's contour two lowest points
+    differ by up to the rise of a cell, which the slope along the pair, 0 there, does not
+    allow), at most the terrain's rise over one step of the pair
     (``cell_rise_m`` along X and Y, their hypotenuse along the diagonals): steeper rises
-    are walls and crowns, not ground.
+    are walls and crowns, not ground. With that allowance (``cell_rise_m`` > 0, sloping
+    terrain) two equal heights measure no slope: on a slope they are one point copied into
+    an empty cell (a nearest-filled grid: 30 % of the cells of a 1 m grid of a point per
+    m2), and a copy beyond the pair read as level ground took the next point up the slope,
+    two cells' rise above the copy, for an object's edge; the slope above ``u`` stands for
+    it, and with neither known the pair is not tested.
     The rise of a slope over one cell grows with the cell, and so does this term; with
     ``cell_rise_m = 0`` the tolerance is the paper's ``k sqrt(2) sigma`` alone. A point that is
     a pit along all four axes (on both sides, within 2 cells, a point higher by more than
@@ -223,18 +232,35 @@ def _pairs(nb, kb, tol, k=0.0, rise=None):
         zf, zr = nb(dr, dc), nb(-dr, -dc)        # the next cell forward / backward
         d_f, d_r = zc - zf, zc - zr
         cap = None if rise is None else np.float32(np.hypot(dc * rise[0], dr * rise[1]))  # per step
+        across = None
+        if cap is not None:
+            # the slope across the pair's axis (a height's position inside its cell moves it
+            # across the axis too: the gradient's magnitude, not its component along the pair)
+            pa, pb = nb(dc, -dr), nb(-dc, dr)
+            across = np.abs(pa - pb)
+            across *= np.float32(0.5)
+            one = np.isnan(across)
+            across[one] = np.fmax(np.abs(pa[one] - zc[one]), np.abs(pb[one] - zc[one]))
         for dz, up_neg, zl, far in ((d_f, d_r, zf, (2 * dr, 2 * dc)),
                                     (d_r, d_f, zr, (-2 * dr, -2 * dc))):
             # pair (u = centre, l = next cell); b the cell beyond l; the far cell must
             # lie in the region of l too (nb checks the centre's region for both)
             beyond = zl - nb(*far)
             up = -up_neg                           # rise above u: z_{u-e} - z_u
+            if cap is not None:
+                # on sloping ground two equal heights are one point copied into an empty cell (a
+                # nearest-filled grid): no measure of the slope (a lidar grid at 1 m with a point
+                # per m2 has 30 % such cells)
+                beyond[beyond == 0] = np.nan
+                up = np.where(up == 0, np.float32(np.nan), up)
             # the local slope: beyond the pair, else above u; neither known: no test
             np.copyto(beyond, up, where=np.isnan(beyond))
             t_pair = tol
             if cap is not None:
                 # sigma_h^2 = sigma^2 + g^2 / 12 for both heights: tol^2 + k^2 g^2 / 6
-                g = np.minimum(np.abs(beyond), cap)
+                g = np.hypot(np.abs(beyond), np.nan_to_num(across))
+                np.copyto(g, across, where=np.isnan(beyond))
+                np.minimum(g, cap, out=g)
                 g *= g
                 g *= np.float32(k * k / 6.0)
                 g += np.float32(tol * tol)
