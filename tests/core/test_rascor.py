@@ -1987,27 +1987,6 @@ def test_step4_halls_in_blocks_as_in_one_pass():
     assert np.mean(one.extras["step"][roof] > 0) > 0.99
 
 
-def test_step3_position_term_uses_the_slope_across_the_pair_exact():
-    """A height's place inside its cell moves it along the slope whatever the pair's axis: along
-    the contour of a hillside rising g = 0.5 m per row, two lowest points differ by up to g. The
-    tolerance's position term takes the gradient's magnitude (the slope along the pair and across
-    it): a cell 0.45 m above its contour neighbours is kept (sqrt(tol^2 + k^2 g^2 / 6) = 0.65 m),
-    removed with the slope along the pair alone (0, the paper's 0.21 m); a 2 m box is still taken."""
-    k, sigma, g = 3.0, 0.05, 0.5
-    z = np.tile((g * np.arange(12)).astype(np.float32)[:, None], (1, 12))
-    z[6, 6] += 0.45
-    keep = np.ones(z.shape, bool)
-    hi, lo = rascor.remove_neighbour_differences(z, keep, sigma_m=sigma, k=k, cell_rise_m=(g, g))
-    assert not hi.any() and not lo.any()
-    box = z.copy()
-    box[4:8, 4:8] += 2.0
-    hi, _ = rascor.remove_neighbour_differences(box, keep, sigma_m=sigma, k=k, cell_rise_m=(g, g))
-    rim = np.zeros(z.shape, bool)
-    rim[4:8, 4:8] = True
-    rim &= ~ndimage.binary_erosion(rim)
-    assert hi[rim].all() and not hi[~rim].any()
-
-
 def test_step3_copied_heights_are_no_slope_exact():
     """An empty cell filled from its nearest point copies that point's height: along a profile rising
     0.5 m per cell, column 3 holds column 2's height, and column 4 stands 1.0 m above it with a
