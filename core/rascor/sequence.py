@@ -352,7 +352,8 @@ def _step4_level_change(st, cfg, progress):
     steps, upper = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=_terrain_step_jump(cfg),
                                       max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                       bend_m=cfg.terrain_bend_m, labels=st.labels, z_t=st.transposed(),
-                                      sides=True, progress=sub_progress(progress, 0.6, 1.0))
+                                      sides=True, join_gap_m=WALL_TOP_GAP_M,
+                                      progress=sub_progress(progress, 0.6, 1.0))
     if halls is not None and halls.any():
         # a hall's walls are a building's, not the terrain's: the profiles over the points kept
         # cross its removed roof from ground to ground, a jump of the terrain's rise over its length
@@ -381,7 +382,8 @@ def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
 
 
 #: Widest gap (metres) across which :func:`_retest_step3_at_terrain_steps` joins the pieces of a wall
-#: top step 3 took: a bush on the edge or a gap in the data, a few metres (2 cells at 2 m, 4 at 1 m;
+#: top step 3 took, and :func:`~.steps.find_terrain_steps` the pieces of the terrain's level changes
+#: (step 4): a bush on the edge or a gap in the data, a few metres (2 cells at 2 m, 4 at 1 m;
 #: none at 4 m and coarser, where a gap of a cell would join crowns standing beside a terrace's wall).
 WALL_TOP_GAP_M = 4.0
 #: Tile edge (cells) of :func:`_retest_step3_at_terrain_steps` (a diagonal terrain step across 4 Mcells:

@@ -1985,3 +1985,41 @@ def test_step4_halls_in_blocks_as_in_one_pass():
     assert blk.info["blocks"] > 1
     assert np.array_equal(one.extras["step"], blk.extras["step"])
     assert np.mean(one.extras["step"][roof] > 0) > 0.99
+
+
+def test_step3_copied_heights_are_no_slope_exact():
+    """An empty cell filled from its nearest point copies that point's height: along a profile rising
+    0.5 m per cell, column 3 holds column 2's height, and column 4 stands 1.0 m above it with a
+    'slope beyond the pair' of 0 (a copy): the paper's tolerance (0.21 m) removed column 4. A copy
+    measures no slope: the slope above the cell (0.5 m) stands for it, and column 4 is kept; a
+    2 m step on the same profile is still removed."""
+    k, sigma, g = 3.0, 0.05, 0.5
+    row = (g * np.arange(10)).astype(np.float32)
+    row[3] = row[2]
+    z = np.tile(row, (6, 1))
+    keep = np.ones(z.shape, bool)
+    hi, _ = rascor.remove_neighbour_differences(z, keep, sigma_m=sigma, k=k, cell_rise_m=(g, g))
+    assert not hi.any()
+    z[:, 4:] += 2.0
+    hi, _ = rascor.remove_neighbour_differences(z, keep, sigma_m=sigma, k=k, cell_rise_m=(g, g))
+    assert hi[:, 4].all() and not hi[:, :4].any() and not hi[:, 5:].any()
+
+
+def test_terrain_step_pieces_joined_across_gaps_exact():
+    """A terrace wall 3 m high across 200 columns, cut by a tree at its foot (3 columns without a
+    jump: the crown stands as high as the wall's top), is two pieces of 100 and 97 m, each shorter
+    than the longest building (120 m): no terrain step. Its pieces, each longer than the gap they
+    bridge, joined across gaps of up to 4 m (``join_gap_m``) run 200 m: the wall is the terrain's.
+    A row of single-cell jumps 3 m apart (noise, a hedge of posts) joins nothing."""
+    z = np.zeros((40, 200), np.float32)
+    z[20:, :] -= 3.0                                   # the wall between rows 19 and 20
+    z[18:23, 100:103] = 0.0                           # the crown at its foot: no jump there
+    keep = np.ones(z.shape, bool)
+    kw = dict(jump_m=0.42, max_building_m=120.0, sigma_m=0.1)
+    assert not steps.find_terrain_steps(z, 1.0, keep, **kw).any()
+    lines = steps.find_terrain_steps(z, 1.0, keep, join_gap_m=4.0, **kw)
+    assert lines[19:21, :100].all() and lines[19:21, 103:].all()
+    assert np.count_nonzero(lines[:, :100]) == 200 and np.count_nonzero(lines[:, 103:]) == 194
+    posts = np.zeros((40, 200), np.float32)
+    posts[20, ::3] = 3.0
+    assert not steps.find_terrain_steps(posts, 1.0, keep, join_gap_m=4.0, **kw).any()
