@@ -156,7 +156,7 @@ objects. Every step's threshold is at least ``dh_0`` = 4.5 ``sigma`` (:func:`noi
 percentile of those drops), ``sigma`` the sensor's noise (``noise_m``: the cleanest tiles' noise of the
 DSM's ground-level cells). ``benchmarks/bare.py``: river at 0.5 / 1 m 1.99 / 1.55 -> 0.08 / 0.10 %, mounds
 1.37 / 1.29 -> 0.13 / 0.52 %; synthetic scenes: mixed at 0.25 m 1.63 -> 0.24 %, city with 0.15 m of noise
-and holes at 1 m 3.29 -> 0.9 %, flat 1.39 -> 0.2 %. Zhang's additive ``dh_0 + s r_k`` raised every step's
+and holes at 1 m 3.29 -> 0.63 %, flat 1.39 -> 0.19 %. Zhang's additive ``dh_0 + s r_k`` raised every step's
 threshold and lost low objects: ISPRS sample 31 at 1 m (0.05 m of noise) Type II 6.3 -> 8.1 %; the whole
 window's noise instead of the cleanest tiles' read the low vegetation of a highest-point DSM (ISPRS sample
 11 at 2 m highest: 0.37 m against 0.23 m; total error 26.07 -> 27.66 %, with the cleanest tiles' 26.59 %).
