@@ -74,6 +74,7 @@ LABELS = {
     "outline_slope": "Terrain slope beside objects (rise/run)",
     "wide_slope": "Terrain slope of the wide windows (rise/run)",
     "wide_radius_m": "Radius where the wide windows begin (m)",
+    "noise_m": "Noise of the ground (sigma, m)",
     "raised_regions": "Widen the derived window to roofs standing on walls",
 }
 

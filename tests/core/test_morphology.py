@@ -1181,3 +1181,67 @@ def test_blocks_equal_one_pass_on_rough_steep_relief():
     blk = run_array("morphological", z, 2.0, block=40)
     assert blk.info["blocks"] > 4
     np.testing.assert_array_equal(blk.mask, one.mask)
+
+
+# --------------------------------------------------------------------------- noise allowance (Zhang's dh_0)
+def _noisy_plane_with_car(sigma=0.15, cell=0.5, n=240, seed=3):
+    """Level ground with white noise ``sigma`` at ``cell`` m and a car 4 x 2 m, 1.5 m high: (z, truth)."""
+    rng = np.random.default_rng(seed)
+    z = (50.0 + rng.normal(0.0, sigma, (n, n))).astype(np.float32)
+    truth = np.zeros(z.shape, np.uint8)
+    car = (slice(100, 100 + int(2 / cell)), slice(60, 60 + int(4 / cell)))
+    z[car] += 1.5
+    truth[car] = OBJECT
+    return z, truth
+
+
+def test_noise_allowance_keeps_noisy_ground_and_flags_a_car():
+    """On 0.5 m cells SMRF's first thresholds ``s r_k`` (0.15-0.3 m) are at the noise (0.15 m): the flags
+    took a third of the level ground, which left ZIpro for the opening 1-3 sigma below the noise's mean,
+    and the final test took the higher cells for objects (bare.py river at 0.5 m: 1.99 % of the ground
+    lost). With every threshold at least Zhang's dh_0 = 4.5 sigma the ground stays ground and the car is
+    still an object."""
+    z, truth = _noisy_plane_with_car()
+    run = dict(mode="progressive", max_object_size_m=10.0, dh_m=0.5, slope=0.3, outline_slope=0.3,
+               wide_slope=0.3, wide_radius_m=20.0)
+    with_dh0 = morph.filter_morphological(z, 0.5, noise_m=0.15, **run)
+    smrf = morph.filter_morphological(z, 0.5, noise_m=0.0, **run)
+    ground = truth == GROUND
+    lost = lambda m: np.count_nonzero(m[ground] != GROUND) / ground.sum()      # noqa: E731
+    assert lost(smrf.mask) > 0.005                            # the defect: SMRF's thresholds read the noise
+    assert lost(with_dh0.mask) < 0.001
+    assert np.all(with_dh0.mask[truth == OBJECT] == OBJECT)
+    assert with_dh0.info["noise_allowance_m"] == pytest.approx(0.675)
+    assert smrf.info["flagged_by_opening_percent"] > 10 * with_dh0.info["flagged_by_opening_percent"]
+
+
+def test_noise_is_measured_or_given():
+    """Left empty the noise is measured on the ground-level cells (dh = 3 sigma from it); given, it is used
+    as given and dh derives from it; the threshold's floor follows it."""
+    z, _ = _noisy_plane_with_car(sigma=0.2)
+    p = morph.resolve_morphological_params(z, 0.5)
+    assert p["noise_m"] == pytest.approx(0.2, rel=0.15) and p["noise_source"].startswith("measured")
+    assert p["dh_m"] == pytest.approx(3.0 * 0.2, rel=0.15)
+    q = morph.resolve_morphological_params(z, 0.5, noise_m=0.3)
+    assert q["noise_m"] == 0.3 and q["noise_source"] == "given" and q["dh_m"] == pytest.approx(0.9)
+    res = run_array("morphological", z, 0.5, {"noise_m": 0.3}, want_dtm=False)
+    assert res.info["params"]["noise_m"] == 0.3
+    with pytest.raises(ValueError, match="noise_m"):
+        morph.resolve_morphological_params(z, 0.5, noise_m=-0.1)
+
+
+def test_noise_floor_leaves_thresholds_above_it():
+    """The floor dh_0 = 4.5 sigma raises only the steps whose s r_k lies below it: a 0.4 m object 2 x 2 cells
+    on level ground without noise is flagged at 1 m cells with s = 0.3 whatever the floor below 0.3 m (lidar's
+    0.05 m: 0.225 m), and stays unflagged once the floor exceeds its height."""
+    z = np.zeros((30, 30), np.float32)
+    z[10:12, 10:12] = 0.4
+    run = dict(mode="progressive", max_object_size_m=9.0, dh_m=0.2, slope=0.3, outline_slope=0.3,
+               wide_slope=0.3, wide_radius_m=20.0)
+    lidar = morph.filter_morphological(z, 1.0, noise_m=0.05, **run)
+    assert np.all(lidar.mask[10:12, 10:12] == OBJECT) and lidar.info["flagged_by_opening_percent"] > 0
+    assert morph.filter_morphological(z, 1.0, noise_m=0.0, **run).info["flagged_by_opening_percent"] == \
+        lidar.info["flagged_by_opening_percent"]
+    high = morph.filter_morphological(z, 1.0, noise_m=0.1, **run)         # floor 0.45 m above the 0.4 m drop
+    assert high.info["flagged_by_opening_percent"] == 0
+    assert morph.noise_allowance(0.1) == pytest.approx(0.45) and morph.noise_allowance(None) == 0.0
