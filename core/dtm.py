@@ -1031,8 +1031,9 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     info["banked_ground_rule"] = (
         "{} cells: the vote's objects smooth along {} of their 4 lines (second difference at most {:g} m), joined "
         "to the voted ground within {} cells by steps rising at most {:g} times their length plus {:g} m (a bank of "
-        "earth, not a wall), and no nearer than {} cells to the top of a wall continuing such cells straight (a "
-        "deck's or a roof's edge), are ground").format(
+        "earth, not a wall), no nearer than {} cells to the top of a wall continuing such cells straight (a "
+        "deck's or a roof's edge) and filling the side of that square with such cells (a long bank, not a car), "
+        "are ground").format(
             int(np.count_nonzero(banked)), BANK_SMOOTH_LINES, SMOOTH_RATIO * tolerance_m, reach_b, BANK_SLOPE,
             tolerance_m, wall_b)
     del banked
@@ -1190,7 +1191,12 @@ METHOD = Method(
         "object's edge is a step and stops it; the reconstruction's lone ground too where the DSM is steeper than "
         "the opening's slope allowance, which cuts such ground by construction), or, whatever the members say, on "
         "the straight continuation of such ground with the ground "
-        "dropping beyond it (the upper edge of a retaining wall, a quarry's bench or a cliff); voted ground "
+        "dropping beyond it (the upper edge of a retaining wall, a quarry's bench or a cliff), or on banks: cells "
+        "smooth along three of their four lines joined to the voted ground by steps no steeper than earth stands "
+        "(1:1) plus the decision threshold, away from the top of a wall such cells lead to and long (an embankment, "
+        "a dike, a ramp or a cut's sides, which every member may reject; not a bridge's deck reached up its ramp "
+        "nor a car); voted "
+        "ground "
         "standing above lower ground on both sides of a line (bushes, "
         "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "
         "terrain, the lower ground's allowance rises along the line at the slope of the ground seen around it, "

@@ -1459,8 +1459,9 @@ _NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1,
 
 def banks_halo(reach_cells, wall_cells):
     """Cells :func:`continue_banks` reads beyond a cell it gives back: its paths, the wall tops' exclusion
-    around them and the two cells behind a wall's top (and the smoothness test's one cell)."""
-    return int(reach_cells) + int(wall_cells) + 3
+    around them, the square of cells given back it counts around the cell, the two cells beyond a path cell
+    before a wall's top (and the smoothness test's one cell)."""
+    return int(reach_cells) + 2 * int(wall_cells) + 3
 
 
 def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reach_cells, wall_cells,
@@ -1487,7 +1488,10 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
       line of the two path cells behind it straight (second difference within ``smooth_m``) and the next one
       lies lower by more than a step (a wall): the edge of a raised plane, a bridge's deck or a roof reached up a
       ramp. A crown on the bank drops to it too, but rises above the line of the cells before it: not a wall's
-      top.
+      top; and
+    * the cells given back so far within that square fill at least its side: a bank is long (an embankment
+      across the square), a car's roof or the top of a bush a step above the ground is not (on ISPRS sample 31
+      such small objects were given back, +0.3 points; the synthetic ``shrubs`` sites +0.2-0.6).
 
     Low objects that pass (a shrub on a bank) meet the refinement that follows (:func:`refine_ground`).
 
@@ -1506,8 +1510,8 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
     smooth_m : float
         Largest second difference of a smooth line, metres (> 0).
     reach_cells, wall_cells : int
-        Longest path in steps; half the side of the square around a wall top whose cells stay objects
-        (>= 0; :func:`banks_halo` is their reach).
+        Longest path in steps; half the side of the square around a wall top whose cells stay objects, and in
+        which the cells given back are counted (>= 0; :func:`banks_halo` is their reach).
     slope : float
         Steepest bank, rise over run (> 0).
 
@@ -1607,4 +1611,10 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
         out &= ~ndimage.maximum_filter(tops, size=2 * int(wall_cells) + 1, mode="constant")
     elif top.any():
         out[gr[top] - P, gc[top] - P] = False
+    # 4. a bank is long: the cells given back within the square fill at least its side (an embankment across it),
+    # not a car's roof or a bush's top a step above the ground
+    if int(wall_cells) > 0 and out.any():
+        side = 2 * int(wall_cells) + 1
+        near = ndimage.uniform_filter(out.astype(np.float32), size=side, mode="constant") * float(side * side)
+        out &= near >= side - 0.5
     return out
