@@ -1212,9 +1212,9 @@ BANKS = dict(tolerance_m=0.5, smooth_m=1.0, reach_cells=8, wall_cells=6)
 
 
 def test_continue_banks_gives_back_a_dike_with_trees_but_not_a_steeper_wall():
-    # a dike of 1 m a cell banks (45 degrees, the steepest bank) with a 3-cell crest, trees (8 m) on its crest:
-    # the dike is ground, the trees are not (rough along every line); the same dike at 2 m a cell (63
-    # degrees, a wall) is not
+    # a dike of 1 m a cell banks (within the bank's 0.7 m plus the tolerance 0.5 m) with a 3-cell crest, trees
+    # (8 m) on its crest: the dike is ground, the trees are not (rough along every line); the same dike at 2 m a
+    # cell (63 degrees, a wall) is not
     z = _dike(11, 40, [0, 0, 1, 2, 3, 3, 3, 2, 1, 0, 0])
     trees = np.zeros(z.shape, bool)
     trees[5, 5::10] = True
@@ -1224,9 +1224,9 @@ def test_continue_banks_gives_back_a_dike_with_trees_but_not_a_steeper_wall():
     np.testing.assert_array_equal(got, objects & ~trees)
     steep = _dike(11, 40, [0, 0, 0, 2, 4, 4, 4, 2, 0, 0, 0])
     assert not dr.continue_banks(steep, steep > 0, steep == 0, (1.0, 1.0), **BANKS).any()
-    # a bank rises 1 m over 1 m: at 2 m cells the steep dike's faces are banks (its crest, bending by 2 m, is
+    # at 3 m cells the steep dike's faces rise 2 m over 3 m (34 degrees): banks (its crest, bending by 2 m, is
     # not smooth)
-    got = dr.continue_banks(steep, steep > 0, steep == 0, (2.0, 2.0), **BANKS)
+    got = dr.continue_banks(steep, steep > 0, steep == 0, (3.0, 3.0), **BANKS)
     assert got[3].all() and got[7].all() and not got[4:7].any()
     # the reach: a path of at most reach_cells steps from the ground
     wide = _dike(41, 10, np.r_[np.zeros(2), np.ones(37), np.zeros(2)])
