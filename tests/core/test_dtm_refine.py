@@ -1235,7 +1235,7 @@ def test_continue_banks_gives_back_a_dike_with_trees_but_not_a_steeper_wall():
 
 
 def test_continue_banks_keeps_a_deck_reached_up_a_ramp_an_object():
-    # a ramp (0.5 m a cell, banks of 1 m a cell on its sides) up to a bridge's deck standing 5 m on walls: the
+    # a ramp (0.5 m a cell, banks of 0.5 m a cell on its sides) up to a bridge's deck standing 5 m on walls: the
     # deck's edges are wall tops continuing the deck straight, so the deck and the ramp within wall_cells of
     # them stay objects; the ramp farther away is ground
     z = np.zeros((30, 40), np.float32)
@@ -1243,7 +1243,7 @@ def test_continue_banks_keeps_a_deck_reached_up_a_ramp_an_object():
     ramp = np.clip(0.5 * (j - 4), 0, 5.0).astype(np.float32)
     ramp[:, 15:] = 0.0
     side = np.maximum(np.maximum(10 - i, i - 19), 0)
-    z = np.maximum(z, ramp - side).astype(np.float32)
+    z = np.maximum(z, ramp - 0.5 * side).astype(np.float32)
     deck = (i >= 10) & (i < 20) & (j >= 15) & (j < 30)
     z[deck] = 5.0
     objects = z > 0
