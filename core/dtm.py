@@ -276,10 +276,14 @@ from .common import (
 from .dtm_coarse import CoarseGrid, coarse_factor, coarsen, coarsen_flags
 from .dtm_refine import (
     BAND_PLANE_HALF_M,
+    BANK_SLOPE,
+    BANK_SMOOTH_LINES,
     REACH_M,
     SMOOTH_RATIO,
+    banks_halo,
     continuation_cells,
     continuation_tolerance,
+    continue_banks,
     continue_ground,
     continue_lines,
     edge_tolerance,
@@ -683,6 +687,21 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
             "region_width_m": width, "region_max_cells": span, "coarse_factor": f, "input_description": description}
 
 
+def bank_scales(members, region_width_m, cell_size):
+    """The scales of :func:`.dtm_refine.continue_banks`, in cells: ``(reach, wall)``.
+
+    The reach: half the widest object the vote's majority removes (``region_width_m``, :func:`region_scales`):
+    a raised region the members reject is at most that wide, so each of its cells lies within half of it of
+    its rim (at least the continuation's reach, :func:`.dtm_refine.continuation_cells`). The wall: half the
+    widest object the data shows (the morphological member's window, derived from the objects' widths): a
+    cell of a deck or a roof lies within half its width of its walls.
+    """
+    cell = min(as_cell_size(cell_size))
+    reach = max(continuation_cells((cell, cell)), int(np.ceil(0.5 * float(region_width_m or 0.0) / cell)))
+    widest = float(members.get(SLOPE_MEMBER, {}).get("max_object_size_m") or 0.0)
+    return reach, int(np.ceil(0.5 * widest / cell))
+
+
 def member_halo(meth, members, cell_size, f=1):
     """A member's reach in full-resolution cells when it runs on the grid coarsened by ``f``."""
     cell = as_cell_size(cell_size)
@@ -701,7 +720,7 @@ def dtm_halo(params, cell_size):
     reach_m = params.get("refine_reach_m", REACH_M)
     reach = (max(halos) + continuation_cells(cell, reach_m) + 2 + refine_halo(cell, reach_m, ALONG_GROUND)
              + regions_halo(int(params.get("region_max_cells", 0))) + ROOF_EDGE_CELLS + 2 * int(params["support_cells"])
-             + 2)
+             + banks_halo(*bank_scales(params["members"], params.get("region_width_m", 0.0), cell)) + 2)
     a = max(alignment(h // f) for h in halos) * f      # the members' alignment on the coarse grid, in cells
     return -(-reach // a) * a
 
@@ -1017,6 +1036,22 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
             "above {:g} m) joined within {} cells to ground every member agrees on, are ground").format(
                 int(np.count_nonzero(continued)), SLOPE_MEMBER, SMOOTH_RATIO * tolerance_m, reach_cells)
         del continued, slope_ground, steep_ground
+    # the vote's objects on banks rising from the voted ground, no steeper than earth stands, away from the top of
+    # a wall (an embankment, a dike, a ramp, a cut's sides; not a deck or a roof reached up a ramp): dtm_refine
+    reach_b, wall_b = bank_scales(members, region_width_m, cell)
+    banked = continue_banks(z, mask == OBJECT, mask == GROUND, cell, tolerance_m=tolerance_m,
+                            smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b)
+    mask[banked] = GROUND
+    info["banked_ground_share"] = float(np.count_nonzero(banked)) / nvalid
+    info["banked_ground_rule"] = (
+        "{} cells: the vote's objects smooth along {} of their 4 lines (second difference at most {:g} m), joined "
+        "to the voted ground within {} cells by steps rising at most {:g} times their length plus {:g} m (a bank of "
+        "earth, not a wall), no nearer than {} cells to the top of a wall continuing such cells straight (a "
+        "deck's or a roof's edge) and filling the side of that square with such cells (a long bank, not a car), "
+        "are ground").format(
+            int(np.count_nonzero(banked)), BANK_SMOOTH_LINES, SMOOTH_RATIO * tolerance_m, reach_b, BANK_SLOPE,
+            tolerance_m, wall_b)
+    del banked
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine); with
     # workers > 1 a second thread takes some of its bands of rows and chunks of cells (the same result)
     helper = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
@@ -1171,7 +1206,12 @@ METHOD = Method(
         "object's edge is a step and stops it; the reconstruction's lone ground too where the DSM is steeper than "
         "the opening's slope allowance, which cuts such ground by construction), or, whatever the members say, on "
         "the straight continuation of such ground with the ground "
-        "dropping beyond it (the upper edge of a retaining wall, a quarry's bench or a cliff); voted ground "
+        "dropping beyond it (the upper edge of a retaining wall, a quarry's bench or a cliff), or on banks: cells "
+        "smooth along three of their four lines joined to the voted ground by steps no steeper than earth stands "
+        "(35 degrees) plus the decision threshold, away from the top of a wall such cells lead to and long (an "
+        "embankment, a dike, a ramp or a cut's sides, which every member may reject; not a bridge's deck reached up "
+        "its ramp nor a car); voted "
+        "ground "
         "standing above lower ground on both sides of a line (bushes, "
         "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "
         "terrain, the lower ground's allowance rises along the line at the slope of the ground seen around it, "

@@ -1260,3 +1260,100 @@ def test_continue_lines_measures_each_line_when_it_can_first_fire(kind):
     one = _continue_lines_measuring_every_line(z, disputed, anchors, **dict(kw, reach_cells=3))
     assert want.sum() > one.sum() > 0                 # cells given back in later passes too
     np.testing.assert_array_equal(got, want)
+
+
+def _dike(rows, cols, profile):
+    """A dike along the rows: ``profile`` (heights down a column) on flat ground, 1 m cells."""
+    z = np.zeros((rows, cols), np.float32)
+    z[:len(profile)] = np.asarray(profile, np.float32)[:, None]
+    return z
+
+
+BANKS = dict(tolerance_m=0.5, smooth_m=1.0, reach_cells=8, wall_cells=6)
+
+
+def test_continue_banks_gives_back_a_dike_with_trees_but_not_a_steeper_wall():
+    # a dike of 1 m a cell banks (within the bank's 0.7 m plus the tolerance 0.5 m) with a 3-cell crest, trees
+    # (8 m) on its crest: the dike is ground, the trees are not (rough along every line); the same dike at 2 m a
+    # cell (63 degrees, a wall) is not
+    z = _dike(11, 40, [0, 0, 1, 2, 3, 3, 3, 2, 1, 0, 0])
+    trees = np.zeros(z.shape, bool)
+    trees[5, 5::10] = True
+    z[trees] = 8.0
+    objects = z > 0
+    got = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **BANKS)
+    np.testing.assert_array_equal(got, objects & ~trees)
+    steep = _dike(11, 40, [0, 0, 0, 2, 4, 4, 4, 2, 0, 0, 0])
+    assert not dr.continue_banks(steep, steep > 0, steep == 0, (1.0, 1.0), **BANKS).any()
+    # at 3 m cells the steep dike's faces rise 2 m over 3 m (34 degrees): banks (its crest, bending by 2 m, is
+    # not smooth)
+    got = dr.continue_banks(steep, steep > 0, steep == 0, (3.0, 3.0), **BANKS)
+    assert got[3].all() and got[7].all() and not got[4:7].any()
+    # the reach: a path of at most reach_cells steps from the ground
+    wide = _dike(41, 10, np.r_[np.zeros(2), np.ones(37), np.zeros(2)])
+    got = dr.continue_banks(wide, wide > 0, wide == 0, (1.0, 1.0), **{**BANKS, "reach_cells": 5})
+    assert got[2:7].all() and not got[7:34].any() and got[34:39].all()
+
+
+def test_continue_banks_keeps_a_deck_reached_up_a_ramp_an_object():
+    # a ramp (0.5 m a cell, banks of 0.5 m a cell on its sides) up to a bridge's deck standing 5 m on walls: the
+    # deck's edges are wall tops continuing the deck straight, so the deck and the ramp within wall_cells of
+    # them stay objects; the ramp farther away is ground
+    z = np.zeros((30, 40), np.float32)
+    i, j = np.mgrid[0:30, 0:40]
+    ramp = np.clip(0.5 * (j - 4), 0, 5.0).astype(np.float32)
+    ramp[:, 15:] = 0.0
+    side = np.maximum(np.maximum(10 - i, i - 19), 0)
+    z = np.maximum(z, ramp - 0.5 * side).astype(np.float32)
+    deck = (i >= 10) & (i < 20) & (j >= 15) & (j < 30)
+    z[deck] = 5.0
+    objects = z > 0
+    got = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **{**BANKS, "reach_cells": 20})
+    assert not got[deck].any()
+    assert not got[:, 9:].any()                              # within 6 cells of the deck's walls
+    assert got[10:20, 5:7].all()                              # the ramp's foot
+    # without the wall tops' exclusion the deck would be reached along the ramp
+    free = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **{**BANKS, "reach_cells": 20, "wall_cells": 0})
+    assert free[deck].sum() > deck.sum() // 2
+
+
+def test_continue_banks_roof_on_walls_and_nodata():
+    z = np.zeros((20, 20), np.float32)
+    z[5:15, 5:15] = 4.0                                       # a flat roof on walls
+    objects = z > 0
+    assert not dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **BANKS).any()
+    d = _dike(11, 12, [0, 0, 1, 2, 3, 3, 3, 2, 1, 0, 0])
+    d[:, 6] = np.nan                                          # a column of nodata: never given back
+    got = dr.continue_banks(d, d > 0, d == 0, (1.0, 1.0), **BANKS)
+    assert got[2:9, :5].all() and not got[:, 6].any()
+
+
+@pytest.mark.parametrize("kw, match", [({"tolerance_m": 0.0}, "tolerance_m"), ({"smooth_m": np.nan}, "smooth_m"),
+                                       ({"slope": -1.0}, "slope"), ({"reach_cells": -1}, "at least 0")])
+def test_continue_banks_bad_parameters(kw, match):
+    z = np.zeros((4, 4), np.float32)
+    with pytest.raises(ValueError, match=match):
+        dr.continue_banks(z, z > 0, z == 0, (1.0, 1.0), **{**BANKS, **kw})
+    with pytest.raises(ValueError, match="share the DSM's"):
+        dr.continue_banks(z, np.zeros((3, 4), bool), z == 0, (1.0, 1.0), **BANKS)
+
+
+def test_continue_banks_blocked_equals_one_pass():
+    """On windows of a block plus banks_halo cells, the one-pass result in the block."""
+    rng = np.random.default_rng(5)
+    n = 120
+    i, j = np.mgrid[0:n, 0:n].astype(np.float32)
+    z = (np.clip(4.0 - 0.8 * np.abs(i - 60), 0, None) + rng.normal(0, 0.05, (n, n))).astype(np.float32)  # a dike
+    z[20:35, 20:50] += 6.0                                                                            # a house
+    z += np.clip(0.4 * (j - 70), 0, 6.0) * ((i > 80) & (i < 95))                                       # a ramp
+    z[81:95, 86:110] = 6.5                                                                            # a deck
+    objects = z > 0.3
+    whole = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **BANKS)
+    assert whole.any() and not whole[20:35, 20:50].any()
+    halo = dr.banks_halo(BANKS["reach_cells"], BANKS["wall_cells"])
+
+    def part(wr, wc):
+        return dr.continue_banks(z[wr, wc], objects[wr, wc], ~objects[wr, wc], (1.0, 1.0), **BANKS)
+
+    for b in (17, 40):
+        assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)

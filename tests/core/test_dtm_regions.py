@@ -505,7 +505,7 @@ def test_dtm_takes_a_tile_nearly_all_roof_as_an_object(cell):
 
 def test_dtm_halo_adds_the_stage_reach_to_the_members():
     """dtm's halo covers the members' reach and, beyond it, the stages' (each reads the one before):
-    the continuation, the refinement, the raised regions and the confidence."""
+    the continuation, the banks, the refinement, the raised regions and the confidence."""
     from bare_earth.core import dtm as dtm_method
     from bare_earth.core.methods import get_method
     y, x = grid(128)
@@ -518,6 +518,7 @@ def test_dtm_halo_adds_the_stage_reach_to_the_members():
     members = max(int(get_method(n).halo(p["members"][n], (1.0, 1.0))) for n in dtm_method.MEMBERS)
     cell = (1.0, 1.0)
     stages = (dr.continuation_cells(cell, p["refine_reach_m"]) + 2 + dr.refine_halo(cell, p["refine_reach_m"])
+              + dr.banks_halo(*dtm_method.bank_scales(p["members"], p["region_width_m"], cell))
               + 2 * p["support_cells"] + 2)
     assert dtm_method.dtm_halo(p, 1.0) >= members + stages + regions_halo(span)
     assert dtm_method.dtm_halo(dict(p, region_max_cells=0), 1.0) < members + stages + regions_halo(span)
