@@ -457,12 +457,19 @@ def _component_stats(lab, n, sel, values, inner, flag, flag_min):
     return idx, lab_c, vmax, rim_mean, ext_r, ext_c
 
 
+def wall_reach(cell_size):
+    """The reach ``(rows, columns)`` in cells of :func:`wall_cells`' test: :data:`WALL_BASE_M`, at least one
+    cell."""
+    dx, dy = cell_size
+    return max(1, int(round(WALL_BASE_M / dy))), max(1, int(round(WALL_BASE_M / dx)))
+
+
 def wall_cells(w, valid, cell_size, dh0, tan_s):
     """Cells holding a wall: above a cell within :data:`WALL_BASE_M` (one cell at 1 m; two
     at 0.5 m, where matching smears walls) by more than ``2 dh0`` plus the terrain's rise
     over that distance."""
     dx, dy = cell_size
-    wr = (max(1, int(round(WALL_BASE_M / dy))), max(1, int(round(WALL_BASE_M / dx))))
+    wr = wall_reach(cell_size)
     low = rect_filter(fill_nodata(w, valid, np.inf), (2 * wr[0] + 1, 2 * wr[1] + 1), np.minimum, np.inf)
     with np.errstate(invalid="ignore"):
         return valid & (w - low > 2.0 * dh0 + tan_s * np.hypot(wr[0] * dy, wr[1] * dx))

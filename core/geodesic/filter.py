@@ -7,8 +7,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import LOW, OBJECT
-from ..common import FilterResult, as_cell_size, as_surface, finish_mask, report, sub_progress
-from .dilation import BORDER_RINGS, BUMP_FRACTION, EXTENT_FACTOR, gradual_dilation, terrain_at, wall_cells
+from ..common import FilterResult, as_cell_size, as_surface, finish_mask, label8, report, sub_progress
+from .dilation import BORDER_RINGS, BUMP_FRACTION, EXTENT_FACTOR, gradual_dilation, terrain_at, wall_cells, wall_reach
 from .grey import S8, fill_nodata, rect_filter, window_cells
 from .outliers import remove_outliers
 from .params import OBJECT_SIZE_M, check_params, step_sizes
@@ -83,7 +83,7 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
     free = ~removed & (step == 0)                 # raised terrain longer than any object: kept
     lab &= ~raised_terrain_runs(cleaned, lab & free, cell_size, p["max_object_size_m"], p["height_threshold_m"],
                                 np.tan(np.radians(p["terrain_slope_deg"])), p["edge_ratio"])
-    new = lab & ~removed & (step == 0)
+    new = lab & free                              # removed and step are those of ``free``
     step[new] = STEP_SCAN
     removed |= lab
     return int(new.sum())
@@ -122,36 +122,63 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
     0
     """
     out = np.zeros(new.shape, bool)
-    if not new.any():
+    cells = np.flatnonzero(new)                   # few: what scan labelling adds to the dilation's objects
+    if not cells.size:
         return out
     cell_size = as_cell_size(cell_size)
     dx, dy = cell_size
-    lab, n = ndimage.label(new, S8)
-    # each region's bounding box (slices: no per-cell arrays), rows then columns
-    ext = np.array([(0, 0)] + [(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in ndimage.find_objects(lab)],
-                   np.float64).reshape(n + 1, 2) * (dy, dx)
+    H, W = new.shape
+    lab, n = label8(new)
+    lab_c = lab.ravel()[cells]
+    # each region's bounding box from its cells (no pass over the raster), rows then columns
+    r, c = np.divmod(cells, W)
+    order = np.argsort(lab_c, kind="stable")
+    starts = np.r_[0, np.flatnonzero(np.diff(lab_c[order])) + 1]      # labels 1..n, each with cells
+    ro, co = r[order], c[order]
+    ext = np.zeros((n + 1, 2), np.float64)
+    ext[1:, 0] = np.maximum.reduceat(ro, starts) - np.minimum.reduceat(ro, starts) + 1
+    ext[1:, 1] = np.maximum.reduceat(co, starts) - np.minimum.reduceat(co, starts) + 1
+    ext *= (dy, dx)
     wide = (ext > EXTENT_FACTOR * size_m).any(axis=1)
     wide[0] = False
     if not wide.any():
         return out
-    body = wide[lab]
+    # the wide regions' rims and walls on their bounding box only: a margin of one cell for the rim (cells
+    # beyond it are no region's) and of the wall test's reach for the walls (the raster's edge stays its own)
+    at = wide[lab_c]
+    wr = wall_reach(cell_size)
+    m = (wr[0] + 1, wr[1] + 1)
+    r0, r1, c0, c1 = int(r[at].min()), int(r[at].max()) + 1, int(c[at].min()), int(c[at].max()) + 1
+    big = (slice(max(0, r0 - m[0]), min(H, r1 + m[0])), slice(max(0, c0 - m[1]), min(W, c1 + m[1])))
+    lab_b = lab[big]
+    body = wide[lab_b]
     rim = body & ~ndimage.binary_erosion(body, S8, border_value=1)
-    rim[0], rim[-1], rim[:, 0], rim[:, -1] = False, False, False, False
-    walls = wall_cells(w, np.isfinite(w), cell_size, dh0, tan_s) & rim
-    n_rim = np.bincount(lab[rim], minlength=n + 1)
-    n_wall = np.bincount(lab[walls], minlength=n + 1)
+    if big[0].start == 0:
+        rim[0] = False
+    if big[0].stop == H:
+        rim[-1] = False
+    if big[1].start == 0:
+        rim[:, 0] = False
+    if big[1].stop == W:
+        rim[:, -1] = False
+    wb = w[big]
+    walls = wall_cells(wb, np.isfinite(wb), cell_size, dh0, tan_s) & rim
+    n_rim = np.bincount(lab_b[rim], minlength=n + 1)
+    n_wall = np.bincount(lab_b[walls], minlength=n + 1)
     terrain = wide & (n_rim > 0) & (n_wall < edge_ratio * n_rim)
     if not terrain.any():
         return out
     # each cell of such a region follows the rim cell nearest it (within the regions' bounding box): a bridge's
     # deck on its embankments stands on walls over the road below, the embankments on their flanks
-    r, c = np.nonzero(terrain[lab])
-    box = (slice(int(r.min()), int(r.max()) + 1), slice(int(c.min()), int(c.max()) + 1))
-    rim_b = rim[box] & terrain[lab[box]]
+    on = terrain[lab_c]
+    rt, ct = r[on] - big[0].start, c[on] - big[1].start
+    box = (slice(int(rt.min()), int(rt.max()) + 1), slice(int(ct.min()), int(ct.max()) + 1))
+    inside = terrain[lab_b[box]]
+    rim_b = rim[box] & inside
     ii, jj = ndimage.distance_transform_edt(~rim_b, sampling=(dy, dx), return_distances=False, return_indices=True)
     flank = ~walls[box][ii, jj]
     del ii, jj
-    out[box] = new[box] & terrain[lab[box]] & flank
+    out[big][box] = new[big][box] & inside & flank
     return out
 
 
@@ -265,13 +292,13 @@ def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step, 
         drop = base - lowc                        # each cell above its lowest neighbour
         high = valid & (drop > dh0)               # the least any rise allows
     total = 0
-    for _ in range(BORDER_RINGS):
-        near = rect_filter(removed, (3, 3), np.maximum, False)
-        edge = high & near & ~removed & (step == 0)
-        idx = np.flatnonzero(edge)
+    H, W = removed.shape
+    near = rect_filter(removed, (3, 3), np.maximum, False)
+    idx = np.flatnonzero(high & near & ~removed & (step == 0))
+    ground = valid & ~near & (step == 0)
+    for ring in range(BORDER_RINGS):
         if idx.size == 0:
             break
-        ground = valid & ~near & (step == 0)
         d = drop.ravel()[idx]
         if terrain is None:                       # no terrain level: the tolerance, as steep as the ground's drops
             s_loc = np.fmax(ground_drop(drop, ground, idx, BORDER_RINGS) / diag, tan_s)
@@ -287,13 +314,41 @@ def remove_borders(cleaned, valid, vnone, removed, cell_size, dh0, tan_s, step, 
                 at = idx[strict]
                 with np.errstate(invalid="ignore"):
                     keep[strict] = cleaned.ravel()[at] - terrain_at(terrain, at, cleaned.shape) > dh0
-        idx = idx[keep]
-        if idx.size == 0:
+        found = idx[keep]
+        if found.size == 0:
             break
-        step.ravel()[idx] = STEP_EDGE
-        removed.ravel()[idx] = True
-        total += int(idx.size)
+        step.ravel()[found] = STEP_EDGE
+        removed.ravel()[found] = True
+        total += int(found.size)
+        if ring + 1 < BORDER_RINGS:
+            # the next ring around the cells just removed (few: a pass over the raster per ring cost more): the
+            # cells they bring near leave the ground and join the candidates that stayed, when high and not coded
+            more = neighbours8(found, (H, W))
+            more = more[~near.ravel()[more]]
+            near.ravel()[more] = True
+            ground.ravel()[more] = False
+            more = more[high.ravel()[more] & ~removed.ravel()[more] & (step.ravel()[more] == 0)]
+            idx = np.union1d(idx[~keep], more)
     return total
+
+
+def neighbours8(cells, shape):
+    """The flat indices (sorted, unique) of the 8-neighbours inside a raster of ``shape`` of the flat ``cells``.
+
+    Examples
+    --------
+    >>> neighbours8(np.array([0, 8]), (3, 3)).tolist()
+    [1, 3, 4, 5, 7]
+    """
+    H, W = shape
+    r, c = np.divmod(np.asarray(cells, np.intp), W)
+    out = []
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                ok = (r + dr >= 0) & (r + dr < H) & (c + dc >= 0) & (c + dc < W)
+                out.append((r[ok] + dr) * W + c[ok] + dc)
+    return np.unique(np.concatenate(out))
 
 
 def remove_islands(w, valid, removed, mask, terrain, cell_size, size_m, height_m, step):
@@ -309,24 +364,37 @@ def remove_islands(w, valid, removed, mask, terrain, cell_size, size_m, height_m
     ``height_m`` (the first step's height threshold: what a terrain bump of that width
     may rise). Such islands are removed (``removed`` and ``step`` updated in place, code
     :data:`STEP_ISLAND`), so the interpolated DTM does not rest on canopy gaps. Their
-    cells are few: the labelling and the test run on them only. Returns the count.
+    cells are few: the test runs on them only, and the labelling on the kept cells outside every kept
+    square larger than that window (a cell of one lies in a larger set; the other cells' parts touching none
+    are whole sets). Returns the count.
     """
     kept = ~removed
     kept &= mask == 0                     # outliers (low and high) are not kept
     if valid is not None:
         kept &= valid
-    lab, n = ndimage.label(kept, S8)
+    k = int(np.prod(window_cells(size_m, *cell_size)))
+    # a cell of a kept square of more than k cells lies in a set larger than k; a part of the other kept cells
+    # that touches no such cell is a whole set: only those cells are labelled (the ground's bulk is not)
+    s = 3
+    while s * s <= k:
+        s += 2
+    thick = rect_filter(rect_filter(kept, (s, s), np.minimum, False), (s, s), np.maximum, False)
+    thin = kept & ~thick
     del kept
+    lab, n = label8(thin)
     if n == 0:
         return 0
-    small = np.bincount(lab.ravel(), minlength=n + 1) <= int(np.prod(window_cells(size_m, *cell_size)))
+    idx = np.flatnonzero(thin)
+    lab_c = lab.ravel()[idx]
+    small = np.bincount(lab_c, minlength=n + 1) <= k
     small[0] = False
     small[lab[0]] = small[lab[-1]] = small[lab[:, 0]] = small[lab[:, -1]] = False
+    small[lab[rect_filter(thick, (3, 3), np.maximum, False) & thin]] = False
+    del lab, thick, thin
     if not small.any():
         return 0
-    idx = np.flatnonzero(small.take(lab))     # the few cells of small enclosed sets
-    lab_c = lab.ravel()[idx]
-    del lab
+    at = small[lab_c]                         # the few cells of small enclosed sets
+    idx, lab_c = idx[at], lab_c[at]
     with np.errstate(invalid="ignore"):
         above = w.ravel()[idx] - terrain_at(terrain, idx, w.shape)
     lowest = np.full(n + 1, np.inf)

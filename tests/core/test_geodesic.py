@@ -1309,3 +1309,196 @@ def test_an_embankment_whose_flanks_read_as_rises_stays_ground():
     assert (res.mask[60:65, 0:150] == OBJECT).all()
     assert (res.mask[90:95, 40:60] == OBJECT).all()
 
+
+
+# ------------------------------------------------- the last stages on the cells they touch (speed, same result)
+def _borders_by_passes(cleaned, valid, removed, cell_size, dh0, tan_s, step, terrain):
+    """remove_borders as the rings were first written: each ring recomputed over the whole raster."""
+    from bare_earth.core.geodesic.dilation import BORDER_RINGS, terrain_at
+    from bare_earth.core.geodesic.filter import STEP_EDGE, ground_drop, terrain_slope_at
+    diag = float(np.hypot(*cell_size))
+    base = np.where(valid, cleaned, np.inf)
+    with np.errstate(invalid="ignore"):
+        drop = base - ndimage.minimum_filter(base, 3, mode="constant", cval=np.inf)
+        high = valid & (drop > dh0)
+    total = 0
+    for _ in range(BORDER_RINGS):
+        near = ndimage.maximum_filter(removed, 3, mode="constant", cval=False)
+        idx = np.flatnonzero(high & near & ~removed & (step == 0))
+        if idx.size == 0:
+            break
+        ground = valid & ~near & (step == 0)
+        d = drop.ravel()[idx]
+        s_loc = ground_drop(drop, ground, idx, BORDER_RINGS) / diag
+        if terrain is None:
+            keep = d > dh0 + np.fmax(s_loc, tan_s) * diag
+        else:
+            s_loc[np.isnan(s_loc)] = tan_s
+            s_loc = np.maximum(s_loc, terrain_slope_at(terrain, idx, cleaned.shape, cell_size))
+            keep = d > dh0 + s_loc * diag
+            strict = keep & (d <= dh0 + np.maximum(s_loc, tan_s) * diag)
+            with np.errstate(invalid="ignore"):
+                keep[strict] = cleaned.ravel()[idx[strict]] - terrain_at(terrain, idx[strict], cleaned.shape) > dh0
+        idx = idx[keep]
+        if idx.size == 0:
+            break
+        step.ravel()[idx] = STEP_EDGE
+        removed.ravel()[idx] = True
+        total += idx.size
+    return total
+
+
+def _skirted_scene(rng):
+    """A sloping raster with rectangular objects whose walls the DSM smears over 0-3 cells (skirts: several
+    rings of border cells), some nodata and some cells already coded."""
+    H, W = rng.integers(5, 60, 2)
+    z = np.cumsum(rng.normal(0, 0.05, (H, W)), axis=1).astype(np.float32)
+    removed = np.zeros((H, W), bool)
+    for _ in range(rng.integers(1, 6)):
+        r0, c0, h, w = rng.integers(0, H), rng.integers(0, W), rng.integers(2, 15), rng.integers(2, 15)
+        removed[r0:r0 + h, c0:c0 + w] = True
+    zz = z + rng.choice([2.0, 5.0, 10.0]) * ndimage.uniform_filter(removed.astype(np.float32), rng.choice([1, 3, 5, 7]))
+    if rng.random() < 0.2:
+        zz[rng.random((H, W)) < 0.05] = np.nan
+    step = np.zeros((H, W), np.uint8)
+    step[rng.random((H, W)) < 0.03] = geo.STEP_OUTLIER
+    terrain = (z[::2, ::2].copy(), 2) if rng.random() < 0.7 else None
+    return zz, removed & np.isfinite(zz), step, terrain
+
+
+def test_remove_borders_rings_around_the_cells_removed_equal_whole_raster_passes():
+    """The rings after the first are found around the cells the ring before removed; the cells, codes and
+    count are those of rings recomputed over the whole raster, with and without the terrain level."""
+    from bare_earth.core.geodesic.filter import remove_borders
+    rng = np.random.default_rng(1)
+    several = 0
+    for _ in range(150):
+        z, removed, step, terrain = _skirted_scene(rng)
+        valid = np.isfinite(z)
+        cell = (1.0, 1.0) if rng.random() < 0.5 else (0.5, 0.5)
+        r1, s1, r2, s2 = removed.copy(), step.copy(), removed.copy(), step.copy()
+        n = remove_borders(z, valid, None if valid.all() else valid, r1, cell, 0.5, 0.2, s1, terrain)
+        assert n == _borders_by_passes(z, valid, r2, cell, 0.5, 0.2, s2, terrain)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(s1, s2)
+        several += (r1 & ~ndimage.maximum_filter(removed, 3, mode="constant", cval=False)).any()
+    assert several > 50                        # most scenes had cells removed beyond the first ring
+
+
+def test_neighbours8_inside_the_raster():
+    from bare_earth.core.geodesic.filter import neighbours8
+    assert neighbours8(np.array([0, 8]), (3, 3)).tolist() == [1, 3, 4, 5, 7]
+    assert neighbours8(np.array([0, 4]), (3, 3)).tolist() == list(range(9))      # each a neighbour of the other
+    assert neighbours8(np.array([5]), (2, 3)).tolist() == [1, 2, 4]
+    assert neighbours8(np.zeros(0, np.intp), (2, 3)).size == 0
+
+
+def _raised_by_whole_raster(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
+    """raised_terrain_runs as first written: labels, boxes, rims and walls over the whole raster."""
+    from bare_earth.core.geodesic.dilation import EXTENT_FACTOR, wall_cells
+    out = np.zeros(new.shape, bool)
+    dx, dy = cell_size
+    lab, n = ndimage.label(new, np.ones((3, 3), bool))
+    if not n:
+        return out
+    ext = np.array([(0, 0)] + [(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in ndimage.find_objects(lab)],
+                   np.float64).reshape(n + 1, 2) * (dy, dx)
+    wide = (ext > EXTENT_FACTOR * size_m).any(axis=1)
+    wide[0] = False
+    body = wide[lab]
+    rim = body & ~ndimage.binary_erosion(body, np.ones((3, 3), bool), border_value=1)
+    rim[0], rim[-1], rim[:, 0], rim[:, -1] = False, False, False, False
+    walls = wall_cells(w, np.isfinite(w), cell_size, dh0, tan_s) & rim
+    n_rim, n_wall = np.bincount(lab[rim], minlength=n + 1), np.bincount(lab[walls], minlength=n + 1)
+    terrain = wide & (n_rim > 0) & (n_wall < edge_ratio * n_rim)
+    if not terrain.any():
+        return out
+    r, c = np.nonzero(terrain[lab])
+    box = (slice(r.min(), r.max() + 1), slice(c.min(), c.max() + 1))
+    ii, jj = ndimage.distance_transform_edt(~(rim[box] & terrain[lab[box]]), sampling=(dy, dx),
+                                            return_distances=False, return_indices=True)
+    out[box] = new[box] & terrain[lab[box]] & ~walls[box][ii, jj]
+    return out
+
+
+def test_raised_terrain_runs_on_the_regions_box_equal_whole_raster():
+    """The regions' boxes from their cells and the rims and walls on the wide regions' box give the cells the
+    whole raster's labels, boxes, rims and walls give (crests with and without walls, at the raster's edge,
+    nodata, cells of 0.5 x 2 m)."""
+    from bare_earth.core.geodesic.filter import raised_terrain_runs
+    rng = np.random.default_rng(0)
+    found = 0
+    for _ in range(400):
+        H, W = rng.integers(3, 50, 2)
+        w = rng.normal(0, rng.choice([0.02, 0.3]), (H, W)).astype(np.float32)
+        new = rng.random((H, W)) < 0.02
+        for _ in range(rng.integers(1, 5)):
+            r0, c0, h, n = rng.integers(0, H), rng.integers(0, W), rng.integers(1, 4), rng.integers(1, 40)
+            if rng.random() < 0.5:
+                h, n = n, h
+            box = (slice(r0, r0 + h), slice(c0, c0 + n))
+            new[box] = True
+            w[box] += rng.choice([0.8, 1.2, 3.0])
+        if rng.random() < 0.2:
+            w[rng.random((H, W)) < 0.05] = np.nan
+        cell = (1.0, 1.0) if rng.random() < 0.5 else (0.5, 2.0)
+        got = raised_terrain_runs(w, new, cell, 5.0, 0.5, 0.2, 0.55)
+        np.testing.assert_array_equal(got, _raised_by_whole_raster(w, new, cell, 5.0, 0.5, 0.2, 0.55))
+        found += got.any()
+    assert found > 100
+
+
+def _islands_by_whole_raster(w, valid, removed, mask, terrain, cell_size, size_m, height_m):
+    """remove_islands' cells as first found: every kept set labelled over the whole raster."""
+    from bare_earth.core.geodesic.dilation import terrain_at
+    kept = ~removed & (mask == 0) & (True if valid is None else valid)
+    lab, n = ndimage.label(kept, np.ones((3, 3), bool))
+    small = np.bincount(lab.ravel(), minlength=n + 1) <= int(np.prod(grey.window_cells(size_m, *cell_size)))
+    small[0] = False
+    small[lab[0]] = small[lab[-1]] = small[lab[:, 0]] = small[lab[:, -1]] = False
+    idx = np.flatnonzero(small[lab])
+    with np.errstate(invalid="ignore"):
+        above = w.ravel()[idx] - terrain_at(terrain, idx, w.shape)
+    lowest = np.full(n + 1, np.inf)
+    np.minimum.at(lowest, lab.ravel()[idx], np.where(np.isfinite(above), above, -np.inf))
+    return idx[lowest[lab.ravel()[idx]] > height_m]
+
+
+def test_remove_islands_labelling_thin_parts_equals_whole_raster():
+    """Labelling only the kept cells outside kept squares larger than the first window finds the islands
+    labelling every kept set finds (random masks of 30-95 % removed cells, outliers, nodata, 1 and 0.5 m cells,
+    windows of 2 and 3 m)."""
+    from bare_earth.core.geodesic.filter import remove_islands
+    rng = np.random.default_rng(2)
+    found = 0
+    for _ in range(300):
+        H, W = rng.integers(2, 40, 2)
+        removed = rng.random((H, W)) < rng.choice([0.3, 0.6, 0.8, 0.95])
+        for _ in range(rng.integers(0, 3)):          # kept squares, with the random cells around as spurs
+            r0, c0, n = rng.integers(0, H), rng.integers(0, W), rng.integers(3, 9)
+            removed[r0:r0 + n, c0:c0 + n] = False
+        w = rng.normal(100, 3, (H, W)).astype(np.float32)
+        mask = np.where(rng.random((H, W)) < 0.05, LOW, 0).astype(np.uint8)
+        valid = None if rng.random() < 0.5 else rng.random((H, W)) > 0.05
+        f = int(rng.choice([1, 2, 4]))
+        terrain = (rng.normal(100, 1, (-(-H // f), -(-W // f))).astype(np.float32), f)
+        cell = (1.0, 1.0) if rng.random() < 0.5 else (0.5, 0.5)
+        size_m = float(rng.choice([2.0, 3.0]))
+        want = _islands_by_whole_raster(w, valid, removed, mask, terrain, cell, size_m, 0.7)
+        rem, step = removed.copy(), np.zeros((H, W), np.uint8)
+        assert remove_islands(w, valid, rem, mask, terrain, cell, size_m, 0.7, step) == want.size
+        np.testing.assert_array_equal(np.flatnonzero(rem & ~removed), want)
+        np.testing.assert_array_equal(np.flatnonzero(step == geo.STEP_ISLAND), want)
+        found += want.size > 0
+    assert found > 100
+    # a spur of 3 kept cells on a kept square of 6 x 6, all of it above the terrain: one set of 39 cells, kept
+    removed = np.ones((12, 12), bool)
+    removed[2:8, 2:8] = False
+    removed[8:11, 4] = False
+    w = np.full(removed.shape, 105.0, np.float32)
+    terrain = (np.full(removed.shape, 100.0, np.float32), 1)
+    assert remove_islands(w, None, removed, np.zeros(removed.shape, np.uint8), terrain, (1.0, 1.0), 2.0, 0.7,
+                          np.zeros(removed.shape, np.uint8)) == 0
+    removed[8, 4] = True                             # cut off, the spur's 2 cells are an island
+    assert remove_islands(w, None, removed, np.zeros(removed.shape, np.uint8), terrain, (1.0, 1.0), 2.0, 0.7,
+                          np.zeros(removed.shape, np.uint8)) == 2
