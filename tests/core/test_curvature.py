@@ -1362,6 +1362,20 @@ def test_second_pass_rests_on_the_bowls_found_ground():
         assert surface[r, c] != np.float32(h), name   # interpolated under it
 
 
+def _wooded_hillside(n_rows=9, n_cols=61, meadow=8):
+    """A meadow, then a wood on a convex hillside rising 15 m: ``(meadow, hill, z, wood, gaps,
+    crowns)``, the ground showing between the crowns every third column (``gaps``), the crowns not
+    yet raised (``z`` is the hillside)."""
+    cols = np.arange(n_cols)
+    hill = (15.0 * (1 - np.exp(-np.maximum(cols - meadow + 1, 0) / 12.0))).astype(np.float32)
+    z = np.broadcast_to(hill, (n_rows, n_cols)).astype(np.float32).copy()
+    wood = np.zeros(z.shape, bool)
+    wood[:, meadow:] = True
+    gaps = wood & (cols % 3 == 0)[None, :]
+    crowns = wood & ~gaps
+    return meadow, hill, z, wood, gaps, crowns
+
+
 def test_bowls_away_from_objects_seed_the_first_surface_on_a_wooded_hillside():
     """find_ground, exact: a convex hillside rising 15 m from a meadow, its slope easing from
     51 degrees, wooded beyond column 8: every cell of the wood has |K| >= K_g, the crowns (8 m
@@ -1370,14 +1384,7 @@ def test_bowls_away_from_objects_seed_the_first_surface_on_a_wooded_hillside():
     ground and the crowns are objects. With the bowls left out (every |K| >= K_g point, as
     before) the first surface came from the meadow and the far wood alone, a straight line up
     to 2.9 m below the convex hillside, and 30 % of the ground of the wood became objects."""
-    n_rows, n_cols, meadow = 9, 61, 8
-    cols = np.arange(n_cols)
-    hill = (15.0 * (1 - np.exp(-np.maximum(cols - meadow + 1, 0) / 12.0))).astype(np.float32)
-    z = np.broadcast_to(hill, (n_rows, n_cols)).astype(np.float32).copy()
-    wood = np.zeros(z.shape, bool)
-    wood[:, meadow:] = True
-    gaps = wood & (cols % 3 == 0)[None, :]
-    crowns = wood & ~gaps
+    meadow, hill, z, wood, gaps, crowns = _wooded_hillside()
     crowns[0] = True                                  # row 0: crowns the profiles found (objects)
     gaps[0] = False
     z[crowns] += 8.0
@@ -1738,14 +1745,7 @@ def test_bowls_between_objects_at_the_ground_level_seed_the_first_surface():
     alone, a straight line metres below the convex hillside, and the ground of the wood became
     objects. A bowl on an object's top (a hollow of a roof, level with the object beside it)
     does not seed."""
-    n_rows, n_cols, meadow = 9, 61, 8
-    cols = np.arange(n_cols)
-    hill = (15.0 * (1 - np.exp(-np.maximum(cols - meadow + 1, 0) / 12.0))).astype(np.float32)
-    z = np.broadcast_to(hill, (n_rows, n_cols)).astype(np.float32).copy()
-    wood = np.zeros(z.shape, bool)
-    wood[:, meadow:] = True
-    gaps = wood & (cols % 3 == 0)[None, :]
-    crowns = wood & ~gaps
+    meadow, hill, z, wood, gaps, crowns = _wooded_hillside()
     z[crowns] += 8.0
     roof = np.zeros(z.shape, bool)
     roof[4, 31] = True                                # a hollow on the tops, 0.2 m below the crowns
