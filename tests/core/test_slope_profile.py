@@ -842,6 +842,16 @@ def test_banks_below_exact():
     np.testing.assert_array_equal(got, [[0, 0, 0, 0, 0], [0, 1, 0, 1, 1], [1, 0, 1, 0, 1], [0, 1, 0, 1, 0]])
     cand[:, :2] = False
     assert not sp._banks_below(level, cand, z, 0.2, (1.0, 1.0), steps=10)[:, :2].any()
+    # a shrub on a plane bank (0.5 m above it, 0.3 m below the cell above it) stands above the
+    # line between its opposite neighbours in every direction: not reached, the bank round it is
+    z = (4.0 - 0.8 * np.arange(6, dtype=np.float32))[:, None] * np.ones((1, 5), np.float32)
+    z[3, 2] += 0.5
+    got = sp._banks_below(level[:1].repeat(6, 0) & (np.arange(6)[:, None] == 0), np.ones(z.shape, bool), z,
+                          0.2, (1.0, 1.0), steps=10)
+    expect = np.ones(z.shape, bool)
+    expect[0] = False
+    expect[3, 2] = False
+    np.testing.assert_array_equal(got, expect)
 
 
 def test_oblique_embankment_banks_are_ground_a_crown_on_them_an_object_blocked_or_not():
