@@ -1842,3 +1842,70 @@ def test_bowls_between_walls_below_the_surface_without_them_do_not_seed():
                                        max_size=40.0, rise=None)
     assert (mask[:, :12] == GROUND).all()
     assert (mask[:, 18:] == GROUND).all()
+
+
+def _winged_building(cell, low=3.0, width=80.0, ring=20.0, high=14.0, side=240.0, seed=0):
+    """A building ``width`` m square on a gentle slope with 5 cm noise: wings ``ring`` m wide and
+    ``high`` m above the ground around it (its highest corner) enclosing a lower roof ``low`` m
+    above it, or, ``low`` None, a courtyard at the ground's level. Returns heights, the building's
+    cells (the courtyard left out) and the lower part's."""
+    n = int(side / cell)
+    rng = np.random.default_rng(seed)
+    yy, xx = (np.mgrid[0:n, 0:n] + 0.5) * cell
+    z = 100 + 0.02 * xx + 0.01 * yy + 0.05 * rng.standard_normal((n, n))
+    x0 = (side - width) / 2
+    b = (xx >= x0) & (xx < x0 + width) & (yy >= x0) & (yy < x0 + width)
+    inner = b & (xx >= x0 + ring) & (xx < x0 + width - ring) & (yy >= x0 + ring) & (yy < x0 + width - ring)
+    base = float(z[b].max())
+    z = np.where(b & ~inner, base + high, z)
+    if low is None:
+        return z.astype(np.float32), b & ~inner, inner
+    z = np.where(inner, base + low, z)
+    return z.astype(np.float32), b, inner
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
+@pytest.mark.parametrize("low", [1.5, 3.0, 6.0])
+def test_lower_roof_between_higher_wings_is_an_object(cell, low):
+    """A lower roof enclosed by higher wings of one building (ISPRS samp22/23's large irregular
+    buildings) is an object: every profile across it comes down onto it from a wing, still
+    above the ground it rose from, and climbs the next wing. Before, the run ended on the lower
+    roof (nearer the foot than the top) and its cells seeded the final pass's surface at their
+    own height: the whole lower roof, a quarter of the building, stayed ground at 1-4 m cells."""
+    z, building, lower = _winged_building(cell, low=low)
+    p = curvature.resolve_curvature_params(z, cell)
+    res = curvature.filter_curvature(z, cell, **p)
+    assert (res.mask[lower] == OBJECT).mean() > 0.99
+    assert (res.mask[building] == OBJECT).mean() > 0.99
+    assert (res.mask[~building] == OBJECT).mean() < 0.002
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0])
+def test_courtyard_between_wings_stays_ground(cell):
+    """The same building with a courtyard at the ground's level: the runs come down from a wing
+    to the ground they rose from and end; the courtyard stays ground."""
+    z, building, court = _winged_building(cell, low=None)
+    p = curvature.resolve_curvature_params(z, cell)
+    res = curvature.filter_curvature(z, cell, **p)
+    assert (res.mask[court] == GROUND).mean() > 0.99
+    assert (res.mask[building] == OBJECT).mean() > 0.99
+
+
+def test_landed_runs_exact():
+    """Along a profile: ground 0, a wing 10 m high, a lower roof 3 m high, a wing, ground. From
+    either wall the run comes down onto the lower roof, more than h_min above the ground it rose
+    from: it has landed and goes on (``land``) until it comes down within h_min of that ground;
+    the scans of both directions landed on the lower roof only, which joins the objects. A level
+    at 0.5 m (within h_min) ends the runs as before."""
+    for low, want_low in ((3.0, True), (0.5, False)):
+        z = np.zeros((3, 30), np.float32)
+        z[:, 8:12] = 10.0
+        z[:, 12:18] = low
+        z[:, 18:22] = 10.0
+        marked = np.zeros(z.shape, bool)
+        marked[:, [7, 8, 11, 12, 17, 18, 21, 22]] = True
+        want = np.zeros(z.shape, bool)
+        want[:, 8:12] = want[:, 18:22] = True
+        want[:, 12:18] = want_low
+        kw = dict(reach=3, h_min=1.0, tan_wall=1.0, tol=0.3, max_cells=25)
+        np.testing.assert_array_equal(profiles._axis_objects(z, marked, None, 1.0, 1, **kw), want)
