@@ -107,7 +107,12 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol, terrain_slope=0.0,
     * it is much steeper (``_WALL_CONTRAST`` times) than the profile's own rise over
       the ``reach`` positions before the foot (where that position is nodata or before
       the profile's start: from the farthest valid position within the reach; flat when
-      there is none: the test never looks beyond the reach). This keeps terrain
+      there is none: the test never looks beyond the reach), and than its rise over the
+      ``_WALL_CELLS`` positions just before those of the wall (NaN there: no test): a wall is
+      a step across about a cell, a terrain side continues over several and already rises
+      there (bare gullies at 4 m cells, their sides crossed obliquely by the Y profiles
+      coming down the other side: the rise over the reach was nil, and 8.07 % of the ground
+      was lost, 4.05 % now; 1 m 2.53 -> 0.13 %). This keeps terrain
       rasterised in steps (sparse points filled from the nearest one: a staircase whose
       treads are as steep as its risers on average) and walls of a terrain cut from looking
       like object walls, while a wall standing on a hillside still stands out.
@@ -153,6 +158,11 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol, terrain_slope=0.0,
         _nearer_before(back, ci, before, base, reach)
         prior = np.maximum((base - before) / np.float32(reach * cell), 0)
         ok = rate >= np.float32(_WALL_CONTRAST) * prior
+        # nor than a side already rising just before the foot (NaN there: no test)
+        near = back(2 * _WALL_CELLS, ci)
+        near -= base
+        near *= np.float32(-_WALL_CONTRAST / (_WALL_CELLS * cell))
+        ok &= ~(rate < near)
     wsel = cand[ok]
     tol = np.float32(tol)
     drop = np.maximum(fall[down], tol)
