@@ -490,7 +490,8 @@ METHOD = Method(
               minimum=0.05, maximum=100.0),
         Param("wall_slope_deg", "float", 45.0,
               "Degrees: that rise must be steeper than this (and 3x steeper than the profile "
-              "before it) to be an object's wall; dams, embankments and terrace edges are "
+              "before it, and than the profile over the two cells before its foot) to be an "
+              "object's wall; dams, embankments and terrace edges are "
               "gentler and stay ground. The slope is judged over two cells but over 3 m at "
               "most (coarser cells cannot show it; the log gives the rise used).",
               minimum=1.0, maximum=89.0, advanced=True),
@@ -528,13 +529,22 @@ METHOD = Method(
         "edge has K = 0), are breaks at the feet and tops of objects.</p>"
         "<p>Along each X and Y profile, scanned both ways, the points between a break going "
         "up a wall (a rise of at least the minimum object height within two cells, steeper "
-        "than the wall slope and than the profile before it) and the matching break coming "
+        "than the wall slope and three times steeper than the profile before it, over the reach of "
+        "the test and over the two cells just before its foot: a wall is a step across about a cell, a "
+        "terrain side continues over several; a gully's side crossed obliquely at 4 m cells rose as "
+        "much within two cells as a wall, and bare gullies lost 8 % of their ground) and the matching "
+        "break coming "
         "down belong to an object, unless a cell of that run lies on a cross profile that meets no "
         "break, no step of the minimum object height and no nodata within twice the largest object "
         "(an object is bounded both ways, and at most one doubling of its width long: the level "
         "between two gullies running along Y is climbed from one and left down into the next, but "
         "continues along Y; bare gullies at 4 m cells lost a fifth of their ground so. A shorter "
         "level is still an object, and a bridge is bounded only by the breaks along its deck); "
+        "a lower level that the scans of both directions, along X and along Y, come down onto "
+        "from a higher part, still more than the minimum object height above the ground their wall "
+        "rose from, and leave down to that ground within the largest object, is the object's too (a "
+        "lower roof enclosed by higher wings kept its own height as ground: a quarter of such an "
+        "80 m building); "
         "regions enclosed by breaks and made mostly of such "
         "points become whole objects. Where the raster's edge cuts an object, the profile "
         "is taken as mirrored there: a run from a wall that meets the edge within half the "
