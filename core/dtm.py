@@ -281,6 +281,7 @@ from .dtm_refine import (
     REACH_M,
     SMOOTH_RATIO,
     banks_halo,
+    bump_tolerance,
     continuation_cells,
     continuation_tolerance,
     continue_banks,
@@ -394,6 +395,13 @@ ROOF_EDGE_CELLS = 2
 #: ground cells together (vote 0 of 3) and 456 with one member's ground, 717 of the 859 ground cells the dtm loses,
 #: most of them at the tops of banks and of the steps of the hillside's terraces (``benchmarks/dtm_errors.py``)
 STEP_TOPS_OF_ALL_OBJECTS = True
+#: The span of :func:`.dtm_refine.continue_banks`' bump test, metres: it looks for the ground up to half of it on
+#: each side of a cell given back as bank (at most the banks' reach): the refinement's reach (:data:`REACH_M`),
+#: the length over which the refinement's floors still tell a bush from the ground (Vosselman 2000's
+#: neighbourhood), wider than a shrub and narrower than a mound or a ramp's end (ISPRS sample 21 at 2 m: looking
+#: half the widest object, 28 m, each side, 36 of the 40 cells given back on a ramp's end stood above the ground
+#: on every line by 0.2 m; 6 m each side, 7).
+BUMP_SPAN_M = REACH_M
 #: Each member's parameters giving the widest object its window removes, metres.
 MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
@@ -1039,18 +1047,22 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     # the vote's objects on banks rising from the voted ground, no steeper than earth stands, away from the top of
     # a wall (an embankment, a dike, a ramp, a cut's sides; not a deck or a roof reached up a ramp): dtm_refine
     reach_b, wall_b = bank_scales(members, region_width_m, cell)
+    bump_m = bump_tolerance(line_tolerance_m, tolerance_m)
+    bump_b = min(reach_b, max(1, int(round(0.5 * BUMP_SPAN_M / min(cell)))))
     banked = continue_banks(z, mask == OBJECT, mask == GROUND, cell, tolerance_m=tolerance_m,
-                            smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b)
+                            smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b,
+                            bump_m=bump_m, bump_cells=bump_b)
     mask[banked] = GROUND
     info["banked_ground_share"] = float(np.count_nonzero(banked)) / nvalid
     info["banked_ground_rule"] = (
         "{} cells: the vote's objects smooth along {} of their 4 lines (second difference at most {:g} m), joined "
         "to the voted ground within {} cells by steps rising at most {:g} times their length plus {:g} m (a bank of "
         "earth, not a wall), no nearer than {} cells to the top of a wall continuing such cells straight (a "
-        "deck's or a roof's edge) and filling the side of that square with such cells (a long bank, not a car), "
-        "are ground").format(
+        "deck's or a roof's edge), filling the side of that square with such cells (a long bank, not a car) and "
+        "not standing more than {:.3f} m above the ground interpolated from both sides within {} cells along all "
+        "four lines (a shrub on the bank), are ground").format(
             int(np.count_nonzero(banked)), BANK_SMOOTH_LINES, SMOOTH_RATIO * tolerance_m, reach_b, BANK_SLOPE,
-            tolerance_m, wall_b)
+            tolerance_m, wall_b, bump_m, bump_b)
     del banked
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine); with
     # workers > 1 a second thread takes some of its bands of rows and chunks of cells (the same result)
@@ -1210,7 +1222,9 @@ METHOD = Method(
         "smooth along three of their four lines joined to the voted ground by steps no steeper than earth stands "
         "(35 degrees) plus the decision threshold, away from the top of a wall such cells lead to and long (an "
         "embankment, a dike, a ramp or a cut's sides, which every member may reject; not a bridge's deck reached up "
-        "its ramp nor a car); voted "
+        "its ramp nor a car), and not standing above the ground interpolated from both sides along all four lines "
+        "by more than three standard deviations of that interpolation on ground (a shrub on a bank: a bank's face "
+        "is straight along its contour, its crest level along its length); voted "
         "ground "
         "standing above lower ground on both sides of a line (bushes, "
         "hedges, the bottoms of gaps in a canopy, which every member may keep; the line's reach grows on gentle "

@@ -560,3 +560,26 @@ def test_embankment_with_trees_every_member_rejects_is_ground_on_its_banks(monke
     kept = (res.mask == GROUND) & (s.mask != GROUND)
     assert np.count_nonzero(kept) <= np.count_nonzero((before.mask == GROUND) & (s.mask != GROUND)) + 5
     assert int(res.info["banked_ground_rule"].split(" cells")[0]) > 0
+
+
+def test_banks_stage_keeps_shrubs_by_the_bump_test_of_the_grounds_spread(monkeypatch):
+    """dtm gives continue_banks its bump test: three standard deviations of the ground interpolated from both
+    sides (dtm_refine.bump_tolerance of the line tolerance, at most the decision threshold), looking half of
+    BUMP_SPAN_M each side (at most the banks' reach)."""
+    from bare_earth.core.dtm_refine import bump_tolerance
+    seen = {}
+    real = dtm_method.continue_banks
+
+    def spy(z, objects, ground, cell, **kw):
+        seen.update(kw)
+        return real(z, objects, ground, cell, **kw)
+
+    monkeypatch.setattr(dtm_method, "continue_banks", spy)
+    s = make_scene("breakline", (96, 96), cell_size=2.0, seed=1, noise_m=0.05)
+    p = dtm_method.resolve_dtm_params(s.dsm, 2.0)
+    p.pop("input_description")
+    res = dtm_method.filter_dtm(s.dsm, 2.0, **p)
+    want = bump_tolerance(p["line_tolerance_m"], p["tolerance_m"])
+    assert seen["bump_m"] == pytest.approx(want) and 0 < want <= p["tolerance_m"]
+    assert seen["bump_cells"] == min(seen["reach_cells"], round(0.5 * dtm_method.BUMP_SPAN_M / 2.0))
+    assert f"{want:.3f} m above the ground interpolated" in res.info["banked_ground_rule"]

@@ -1338,6 +1338,109 @@ def test_continue_banks_bad_parameters(kw, match):
         dr.continue_banks(z, np.zeros((3, 4), bool), z == 0, (1.0, 1.0), **BANKS)
 
 
+def _bank_with_shrubs():
+    """A river bank rising 0.5 m a cell (27 degrees) over 8 rows between level ground, with clumps of shrubs
+    (3 x 3 cells, their lowest points 0.5 m above the face) along it, two cells of the face between clumps."""
+    i = np.mgrid[0:30, 0:60][0]
+    z = np.clip(0.5 * (i - 10), 0.0, 4.0).astype(np.float32)
+    shrubs = np.zeros(z.shape, bool)
+    for c0 in range(4, 56, 5):
+        shrubs[13:16, c0:c0 + 3] = True
+    z[shrubs] += 0.5
+    return z, shrubs
+
+
+def test_stands_above_ground_bump_ridge_and_unjudged_lines():
+    z = np.zeros((9, 9), np.float32)
+    ground = np.ones(z.shape, bool)
+    z[4, 4] = 0.4
+    ground[4, 4] = False
+    cells = ~ground
+    assert dr.stands_above_ground(z, ground, cells, height_m=0.3, reach_cells=2)[4, 4]
+    assert not dr.stands_above_ground(z, ground, cells, height_m=0.4, reach_cells=2).any()   # not above 0.4
+    # on a plane rising 1 m a cell the same cell 0.4 m above the plane: excess measured from the interpolation
+    plane = (np.mgrid[0:9, 0:9][1] * 1.0).astype(np.float32)
+    zp = plane.copy()
+    zp[4, 4] += 0.4
+    assert dr.stands_above_ground(zp, ground, cells, height_m=0.3, reach_cells=2)[4, 4]
+    # a ridge along the row, level with the ground it continues: the row line is not above (spared)
+    zr = np.zeros((9, 9), np.float32)
+    zr[4, :] = 0.4
+    zr[4, 0] = 0.4
+    gr = np.ones(zr.shape, bool)
+    gr[4, 1:] = False
+    got = dr.stands_above_ground(zr, gr, ~gr, height_m=0.3, reach_cells=2)
+    assert not got.any()
+    # a line without ground within the reach on one side is not judged: the cell is spared
+    gl = ground.copy()
+    gl[4, 5:7] = False
+    assert not dr.stands_above_ground(z, gl, cells, height_m=0.3, reach_cells=2)[4, 4]
+    assert dr.stands_above_ground(z, gl, cells, height_m=0.3, reach_cells=3)[4, 4]    # ground at 3 cells
+    # the ground farther along a line counts by its distance: ground 0 at 1 cell, 3 at 3 cells -> line 0.75
+    z2 = np.zeros((9, 9), np.float32)
+    z2[4, 4] = 1.0
+    z2[4, 7] = 3.0
+    g2 = np.ones(z2.shape, bool)
+    g2[4, 4:7] = False
+    got = dr.stands_above_ground(z2, g2, g2 == 0, height_m=0.2, reach_cells=3)
+    assert got[4, 4]
+    assert not dr.stands_above_ground(z2, g2, g2 == 0, height_m=0.3, reach_cells=3)[4, 4]   # 1.0 - 0.75
+    # NaN heights are no ground and never above
+    zn = z.copy()
+    zn[4, 4] = np.nan
+    assert not dr.stands_above_ground(zn, ground, cells, height_m=0.3, reach_cells=2).any()
+    for kw, match in (({"height_m": -1.0}, "height_m"), ({"reach_cells": 0}, "reach_cells")):
+        with pytest.raises(ValueError, match=match):
+            dr.stands_above_ground(z, ground, cells, **{"height_m": 0.3, "reach_cells": 2, **kw})
+    with pytest.raises(ValueError, match="one 2-D shape"):
+        dr.stands_above_ground(z, ground[:3], cells, height_m=0.3, reach_cells=2)
+
+
+def test_bump_tolerance_three_sigmas_of_the_interpolation():
+    assert dr.bump_tolerance(dr.continuation_tolerance(0.05), 0.5) == pytest.approx(3.0 * np.sqrt(2.0) * 0.05)
+    assert dr.bump_tolerance(dr.continuation_tolerance(0.5), 0.5) == 0.5
+    assert dr.bump_tolerance(None, 0.4) == 0.4 and dr.bump_tolerance(float("nan"), 0.4) == 0.4
+
+
+def test_continue_banks_keeps_shrubs_on_a_bank_but_gives_back_a_dike():
+    # clumps of shrubs on a bank's face, ground between them, are smooth enough and long enough to be given back
+    # as bank (autzen_trim 1 m: riparian shrubs); standing above the face along every line, they stay objects
+    # with the bump test, and the dike (level along its length) is still given back
+    z, shrubs = _bank_with_shrubs()
+    ground = ~shrubs
+    kw = {**BANKS, "reach_cells": 8}
+    assert dr.continue_banks(z, shrubs, ground, (1.0, 1.0), **kw)[shrubs].mean() > 0.9   # given back without
+    got = dr.continue_banks(z, shrubs, ground, (1.0, 1.0), **kw, bump_m=0.17, bump_cells=6)
+    assert not got.any()
+    d = _dike(11, 40, [0, 0, 1, 2, 3, 3, 3, 2, 1, 0, 0])
+    objects = d > 0
+    np.testing.assert_array_equal(
+        dr.continue_banks(d, objects, ~objects, (1.0, 1.0), **BANKS, bump_m=0.17, bump_cells=6), objects)
+    for bad, match in (({"bump_m": 0.0, "bump_cells": 3}, "bump_m"), ({"bump_m": 0.2, "bump_cells": 0}, "bump_cells"),
+                       ({"bump_m": 0.2, "bump_cells": 9}, "bump_cells")):
+        with pytest.raises(ValueError, match=match):
+            dr.continue_banks(z, shrubs, ground, (1.0, 1.0), **kw, **bad)
+
+
+def test_continue_banks_bump_test_blocked_equals_one_pass():
+    # shrubs on a bank (kept objects by the bump test) above a dike (given back): windows of a block plus
+    # banks_halo cells give the one-pass result
+    z, shrubs = _bank_with_shrubs()
+    d = _dike(11, 60, [0, 0, 1, 2, 3, 3, 3, 2, 1, 0, 0])
+    z = np.vstack([z, d + z[-1:]]).astype(np.float32)
+    objects = np.vstack([shrubs, d > 0])
+    kw = dict(BANKS, bump_m=0.17, bump_cells=6)
+    whole = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **kw)
+    assert not whole[:30].any() and whole[30:].sum() == np.count_nonzero(d > 0)
+    halo = dr.banks_halo(BANKS["reach_cells"], BANKS["wall_cells"])
+
+    def part(wr, wc):
+        return dr.continue_banks(z[wr, wc], objects[wr, wc], ~objects[wr, wc], (1.0, 1.0), **kw)
+
+    for b in (9, 23):
+        assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
+
+
 def test_continue_banks_blocked_equals_one_pass():
     """On windows of a block plus banks_halo cells, the one-pass result in the block."""
     rng = np.random.default_rng(5)
