@@ -499,3 +499,30 @@ def test_a_grid_mostly_copies_or_beyond_the_memory_is_refused_before_work():
     with pytest.raises(ValueError, match=r"about 0.396 GB \(0.25 GB available\)\. Instead use cells of at least "
                                          r"0.5 m, or split the points into tiles"):
         pf.check_grid_cells(10 ** 8, 1000.0, 1000.0, 0.2, available=1 << 28)   # 25 M cells, 17 B each
+
+
+def test_tiles_parameters_derived_with_progress_and_cancel(cloud, monkeypatch):
+    """The block's parameters, derived on its central tile before any tile is filtered (seconds to
+    minutes on a dense tile), fed no progress and ignored a cancel: the bar stood still and a cancel
+    waited for the first tile. The bar now moves during the derivation, and a cancel raised there
+    stops the run before any tile is filtered."""
+    from bare_earth.core.common import Cancelled
+    half = cloud.x < np.median(cloud.x)
+    tiles = [PointCloud(cloud.x[k], cloud.y[k], cloud.z[k]) for k in (half, ~half)]
+    filtered = []
+    real = pf.filter_cloud
+    monkeypatch.setattr(pf, "filter_cloud", lambda *a, **k: filtered.append(1) or real(*a, **k))
+    seen = []
+    pf.filter_tiles(tiles, method="morphological", progress=seen.append)
+    before = [f for f in seen[:seen.index(pf.PARAMS_SHARE)]]
+    assert len(set(before)) >= 3 and 0 < max(before) <= pf.PARAMS_SHARE     # moved while deriving
+    assert seen == sorted(seen) and seen[-1] == 1.0
+    assert len(filtered) == 2
+    filtered.clear()
+
+    def cancel_at(f):
+        if 0 < f < pf.PARAMS_SHARE:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        pf.filter_tiles(tiles, method="morphological", progress=cancel_at)
+    assert filtered == []
