@@ -18,6 +18,7 @@ import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
 from ..common import Cancelled, report, sub_progress, write_failed
+from ..pointfiles import pid_alive
 from .read import OUTPUT_TILE, gdal, need_gdal, osr, without_side_files
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
@@ -527,16 +528,6 @@ def _work_path(path):
     return os.path.join(folder, f".{_work_stem(path)}{tag}")
 
 
-def _pid_alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):
-        return True
-    return True
-
-
 def remove_stale_partials(path):
     """Remove the work files of earlier runs of the output ``path`` that were killed (their
     process is gone, or it is this process and the file is not being written), and the work
@@ -561,7 +552,7 @@ def remove_stale_partials(path):
             pid = int(m.group("pid"))
             work = full[:len(full) - len(m.group("rest") or "")]
             if work in _LIVE or (pid == os.getpid() and m.group("stem") != stem) or (
-                    pid != os.getpid() and _pid_alive(pid)):
+                    pid != os.getpid() and pid_alive(pid)):
                 continue     # being written, this process's for another output, or its process runs
         elif not old.fullmatch(name):
             continue
