@@ -982,6 +982,33 @@ def float_output_nodata(nodata, scale=1.0, offset=0.0, dtype="Float32"):
     return float(v) if np.isfinite(v) else float("nan")
 
 
+def with_output_nodata(a, nodata):
+    """Float32 heights ``a`` (changed in place) made ready to write with the declared ``nodata``: its
+    NaN / inf cells set to ``nodata``, and its valid cells that hold exactly ``nodata`` (a DTM cell
+    interpolated to 300 m under a DSM declaring 300 as nodata: ground at 299 and 301 m around it)
+    moved one float32 step above it (3e-5 m at 300 m), so that no height is read back as nodata.
+    Returns the number of cells moved. ``nodata`` NaN: nothing to do, 0."""
+    if math.isnan(nodata):
+        return 0
+    nd = np.float32(nodata)
+    hit = a == nd
+    n = int(np.count_nonzero(hit))
+    if n:
+        a[hit] = np.nextafter(nd, np.float32(np.inf))
+    np.copyto(a, nd, where=~np.isfinite(a))
+    return n
+
+
+def moved_off_nodata_message(n, nodata, what="DTM"):
+    """The log line for :func:`with_output_nodata`'s ``n`` cells moved off ``nodata`` (None for none)."""
+    if not n:
+        return None
+    up = float(np.nextafter(np.float32(nodata), np.float32(np.inf)))
+    return (f"{n} cell(s) of the {what} hold exactly the declared nodata value {float(nodata):g} as a height: they "
+            f"are written as {up:.9g} (one float32 step above it) so that they are not read as nodata. The DSM's "
+            "nodata lies among its heights: export it again with a nodata outside them (e.g. -9999).")
+
+
 def nodata_not_kept(nodata, scale=1.0, offset=0.0, dtype="Float32"):
     """The log line saying the float outputs declare another nodata than the input's ``nodata``
     (:func:`float_output_nodata`: NaN, or the height of the nodata cells of a scaled band), or
