@@ -141,6 +141,19 @@ def crs_warnings(cloud):
     return []
 
 
+def height_warnings(cloud, classified=True):
+    """The warning for the log when some of a cloud's points have no finite height (NaN or +-inf z: a
+    failed export, a text file's ``nan``), or None. They are left out of the grid (rasterising) and classed
+    255, outside the DTM (classifying: a LAS output keeps their input class), without a word before.
+    ``classified``: the run writes classified points."""
+    bad = int(np.count_nonzero(~np.isfinite(cloud.z)))
+    if not bad:
+        return None
+    return (f"{bad} of the {len(cloud)} points have no finite height (z NaN or infinite): they are left out of "
+            "the grid" + (" and classed 255, outside the DTM (a LAS output keeps their input class)"
+                          if classified else "") + ". Check the z column of those points.")
+
+
 def unit_name(cloud):
     """Name of the x/y unit of a cloud's CRS, for logs (``"metre"``, ``"foot"``, ``"degree"``)."""
     srs = _srs(cloud.crs)

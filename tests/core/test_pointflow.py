@@ -526,3 +526,11 @@ def test_tiles_parameters_derived_with_progress_and_cancel(cloud, monkeypatch):
     with pytest.raises(Cancelled):
         pf.filter_tiles(tiles, method="morphological", progress=cancel_at)
     assert filtered == []
+
+
+def test_height_warnings_count_points_without_a_finite_height():
+    c = PointCloud(np.arange(5.0), np.arange(5.0), np.array([1.0, np.nan, np.inf, -np.inf, 2.0]))
+    assert pf.height_warnings(c).startswith("3 of the 5 points have no finite height (z NaN or infinite): they are "
+                                            "left out of the grid and classed 255")
+    assert pf.height_warnings(c, classified=False).endswith("left out of the grid. Check the z column of those points.")
+    assert pf.height_warnings(PointCloud(np.arange(3.0), np.arange(3.0), np.ones(3))) is None
