@@ -224,9 +224,13 @@ def _read_text(path):
         table = _parse_careful(path, data, flat, body_start)
     ncols = table.shape[1]
     head = data[body_start:body_start + 4096]
-    comma = (b";" in head and re.search(rb"\d,\d", head) is not None
-             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 8)))
-    comma_hint = (" The values seem to be written with decimal commas and separated by ';': write them "
+    # decimal commas: each value split in two at its comma (x y z: 6 columns; a whole class: 7), the
+    # values separated by ';', tabs or spaces (a spreadsheet's export in a locale with decimal commas)
+    between = re.search(rb"\d,\d+(;|\t|[ ]+)[-+]?\d", head)
+    comma = (between is not None
+             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 7, 8)))
+    sep_name = {b";": "';'", b"\t": "tabs"}.get(between.group(1), "spaces") if comma else ""
+    comma_hint = (f" The values seem to be written with decimal commas and separated by {sep_name}: write them "
                   "with decimal points." if comma else "")
     if names is not None and len(names) != ncols:
         raise ValueError(f"{path}: the header line names {len(names)} columns but the points "

@@ -598,3 +598,19 @@ def test_part_path_of_a_long_name_stays_within_the_name_limit(tmp_path):
     gone = 4194305                                   # above Linux's largest pid: no such process
     Path(part.replace(f".{os.getpid():010d}-", f".{gone:010d}-")).write_bytes(b"x")
     assert len(pointfiles.remove_stale_parts(out)) == 1 and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("text, sep", [("1,5 2,5 3,5\n4,5 5,5 6,5\n", "spaces"),
+                                       ("1,5\t2,5\t3,5\n4,5\t5,5\t6,5\n", "tabs"),
+                                       ("1,5 2,5 3,5 2\n4,5 5,5 6,5 2\n", "spaces"),
+                                       ("1,5;2,5;3,5\n4,5;5,5;6,5\n", "';'")])
+def test_decimal_commas_between_spaces_or_tabs_are_named(tmp_path, text, sep):
+    """A locale's export with decimal commas and tabs or spaces between the values ('1,5<TAB>2,5<TAB>3,5')
+    was refused as "6 values per line" without a word of the commas (only ';' was recognised), so the
+    README's "decimal commas ... refused with the fix" did not hold; a comma CSV of 6 values is not named."""
+    with pytest.raises(ValueError, match=rf"[67] values per line.*decimal commas and separated by {sep}: write them "
+                                         r"with decimal points\."):
+        read_points(_write(tmp_path, text, "p.txt"))
+    with pytest.raises(ValueError, match=r"6 values per line; expected 3 \(x y z\) or 4 \(x y z class\), or a header "
+                                         r"line naming the x, y, z columns\.$"):
+        read_points(_write(tmp_path, "1,2,3,4,5,6\n4,5,6,7,8,9\n", "six.csv"))
