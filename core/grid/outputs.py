@@ -982,19 +982,37 @@ def float_output_nodata(nodata, scale=1.0, offset=0.0, dtype="Float32"):
     return float(v) if np.isfinite(v) else float("nan")
 
 
+def above_nodata(nodata):
+    """The float32 value nearest above ``nodata`` that GDAL does not take for it. GDAL compares a float
+    band's values with its nodata within a few units in the last place (``ARE_REAL_EQUAL``: closer than
+    2 float32 epsilons of their sum; its mask bands and VRT mosaics do), so a value one float32 step above
+    300 was read as nodata in a VRT of the tiles; this one is beyond twice that tolerance (about 3e-4 m
+    at 300 m)."""
+    nd = np.float32(nodata)
+    eps = np.finfo(np.float32).eps
+    v = nd
+    for _ in range(64):
+        v = np.nextafter(v, np.float32(np.inf))
+        if abs(float(v) - float(nd)) >= 4.0 * eps * abs(float(v) + float(nd)):
+            break
+    return v
+
+
 def with_output_nodata(a, nodata):
     """Float32 heights ``a`` (changed in place) made ready to write with the declared ``nodata``: its
-    NaN / inf cells set to ``nodata``, and its valid cells that hold exactly ``nodata`` (a DTM cell
-    interpolated to 300 m under a DSM declaring 300 as nodata: ground at 299 and 301 m around it)
-    moved one float32 step above it (3e-5 m at 300 m), so that no height is read back as nodata.
+    NaN / inf cells set to ``nodata``, and its valid cells that hold ``nodata`` (a DTM cell interpolated
+    to 300 m under a DSM declaring 300 as nodata: ground at 299 and 301 m around it), or a value GDAL
+    takes for it, moved just above it (:func:`above_nodata`), so that no height is read back as nodata.
     Returns the number of cells moved. ``nodata`` NaN: nothing to do, 0."""
     if math.isnan(nodata):
         return 0
     nd = np.float32(nodata)
-    hit = a == nd
+    up = above_nodata(nd)
+    down = -above_nodata(-nd)
+    hit = (a > down) & (a < up)
     n = int(np.count_nonzero(hit))
     if n:
-        a[hit] = np.nextafter(nd, np.float32(np.inf))
+        a[hit] = up
     np.copyto(a, nd, where=~np.isfinite(a))
     return n
 
@@ -1003,10 +1021,9 @@ def moved_off_nodata_message(n, nodata, what="DTM"):
     """The log line for :func:`with_output_nodata`'s ``n`` cells moved off ``nodata`` (None for none)."""
     if not n:
         return None
-    up = float(np.nextafter(np.float32(nodata), np.float32(np.inf)))
-    return (f"{n} cell(s) of the {what} hold exactly the declared nodata value {float(nodata):g} as a height: they "
-            f"are written as {up:.9g} (one float32 step above it) so that they are not read as nodata. The DSM's "
-            "nodata lies among its heights: export it again with a nodata outside them (e.g. -9999).")
+    return (f"{n} cell(s) of the {what} hold the declared nodata value {float(nodata):g} as a height: they are "
+            f"written as {float(above_nodata(nodata)):.9g} (just above it) so that they are not read as nodata. "
+            "The DSM's nodata lies among its heights: export it again with a nodata outside them (e.g. -9999).")
 
 
 def nodata_not_kept(nodata, scale=1.0, offset=0.0, dtype="Float32"):
