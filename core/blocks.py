@@ -9,6 +9,7 @@ import functools
 import multiprocessing
 import os
 import queue as queue_module
+import signal
 import sys
 import threading
 import time
@@ -340,8 +341,8 @@ def exit_with_parent(parent=None, interval=PARENT_CHECK_S):
     def watch():
         while True:
             time.sleep(interval)
-            if os.getppid() != parent:
-                os._exit(1)
+            if os.getppid() != parent:      # ends the process at once, as a killed worker ends
+                os.kill(os.getpid(), getattr(signal, "SIGKILL", signal.SIGTERM))
     threading.Thread(target=watch, name="bare-earth-parent-watch", daemon=True).start()
 
 
