@@ -21,11 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
-from .common import UTF16_BOMS, text_of, write_failed
+from .common import UTF16_BOMS, pid_alive, text_of, write_failed
 
 __all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
-           "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS", "part_path", "remove_stale_parts",
-           "pid_alive"]
+           "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS", "part_path", "remove_stale_parts"]
 
 #: File extensions written as LAS / as text.
 LAS_EXTENSIONS = (".las", ".laz")
@@ -587,17 +586,6 @@ def write_points(path, cloud, classes, decimals=None):
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
-
-
-def pid_alive(pid):
-    """Whether process ``pid`` runs on this machine (one we may not signal counts as running)."""
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
-        return True
-    return True
 
 
 def _part_name(path):

@@ -17,8 +17,7 @@ import uuid
 import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
-from ..common import Cancelled, report, sub_progress, write_failed
-from ..pointfiles import pid_alive
+from ..common import Cancelled, pid_alive, report, sub_progress, write_failed
 from .read import OUTPUT_TILE, gdal, need_gdal, osr, without_side_files
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
