@@ -20,6 +20,7 @@ from .filter_base import (
     output_options,
     progress_callback,
     tr,
+    warning_logger,
     with_help,
 )
 
@@ -197,8 +198,10 @@ class FillDtmAlgorithm(BaseAlgorithm):
         if grid.nodata_not_kept(*stored):
             feedback.pushInfo(grid.nodata_not_kept(*stored))
         filled = filled / np.float32(info.z_to_m) if info.z_to_m != 1.0 else filled
-        if np.isfinite(nodata):
-            filled = np.where(np.isfinite(filled), filled, np.float32(nodata)).astype(np.float32)
+        filled = np.asarray(filled, np.float32).copy() if filled is z else np.asarray(filled, np.float32)
+        moved = grid.with_output_nodata(filled, nodata)     # no height written as the nodata value
+        if moved:
+            warning_logger(feedback)(grid.moved_off_nodata_message(moved, nodata, "filled surface"))
         try:
             with output_options(self, parameters, context, feedback), grid.OutputSet(info) as out:
                 out.add("out", out_path, "Float32", nodata=nodata, descriptions=["filled surface"],

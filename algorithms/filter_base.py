@@ -74,6 +74,19 @@ def warning_logger(feedback):
     return log
 
 
+def run_logger(feedback):
+    """The log callback of a filter run (``pipeline.run_file``'s ``log``): the core marks its warnings
+    with "Warning: " (dropped: QGIS's warning line already says it) and they go to the warnings;
+    its other lines (the window the parameters came from, the blocks, the empty cells filled, the
+    nodata declared) are information, shown as such (they were all shown as warnings)."""
+    warn = warning_logger(feedback)
+
+    def log(text):
+        text = str(text)
+        warn(text) if text.startswith("Warning: ") else feedback.pushInfo(text)
+    return log
+
+
 def progress_callback(feedback):
     """The core's plain progress callback for a QGIS feedback (raises Cancelled)."""
     def progress(fraction):
@@ -1020,7 +1033,7 @@ class FilterAlgorithm(BaseAlgorithm):
         feedback.pushInfo(tr("Input: {} band {}, {} x {} cells of {:.4g} x {:.4g} m").format(
             info.path, info.band_index, info.shape[1], info.shape[0], info.cell_size_m[0], info.cell_size_m[1]))
         try:
-            log = warning_logger(feedback)
+            log = run_logger(feedback)
             with output_options(self, parameters, context, feedback):
                 result = run_file(self.METHOD_NAME, info.path, outputs, band=info.band_index, params=user,
                                   aux=aux, block=block, workers=threads, processes=processes,

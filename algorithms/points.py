@@ -381,8 +381,9 @@ class RasterizePointsAlgorithm(PointAlgorithmBase):
             out = self.parameterAsOutputLayer(parameters, self.OUTPUT, context)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
-            for w in pf.crs_warnings(cloud):
-                warn(feedback, w)
+            for w in pf.crs_warnings(cloud) + [pf.height_warnings(cloud, classified=False)]:
+                if w:
+                    warn(feedback, w)
             stage_done(feedback, 30)
             g = pf.rasterize_cloud(cloud, cell, reducer=reducer, fill_empty=fill)
             stage_done(feedback, 70)
@@ -479,9 +480,9 @@ class ClassifyPointsAlgorithm(PointAlgorithmBase):
         try:
             path, cloud, info = self._inputs(parameters, context)
             out = points_output(self, parameters, self.OUTPUT, context, path)
-            w = crs_warning(cloud, info)
-            if w:
-                warn(feedback, w)
+            for w in (crs_warning(cloud, info), pf.height_warnings(cloud)):
+                if w:
+                    warn(feedback, w)
             feedback.pushInfo(tr("Read {} points from {}.").format(len(cloud), path))
             dtm = info.read()
             stage_done(feedback, 30)
@@ -683,8 +684,9 @@ class PointsInputMixin:
             progress = progress_callback(feedback)
             feedback.pushInfo(tr("Read {} points from {} (x/y unit: {}).").format(len(cloud), path,
                                                                                   pf.unit_name(cloud)))
-            for w in pf.crs_warnings(cloud):
-                warn(feedback, w)
+            for w in pf.crs_warnings(cloud) + [pf.height_warnings(cloud)]:
+                if w:
+                    warn(feedback, w)
             if tiles:
                 feedback.pushInfo(tr("Filtering as one block with {} neighbouring tile(s).").format(len(tiles)))
                 tr_ = pf.filter_tiles([cloud] + tiles, method=self.METHOD_NAME, params=user, cell_size_m=cell,

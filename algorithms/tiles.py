@@ -27,6 +27,7 @@ from .filter_base import (
     layer_nodata_ranges,
     progress_callback,
     raster_path,
+    run_logger,
     tr,
     with_help,
 )
@@ -194,7 +195,7 @@ class TilesAlgorithm(BaseAlgorithm):
         workers = self.parameterAsInt(parameters, self.WORKERS, context) if parameters.get(self.WORKERS) else 0
         try:
             rec = run_survey(method, inputs, out_dir, params, workers=workers, scheduler=scheduler,
-                             progress=progress_callback(feedback), log=feedback.pushInfo)
+                             progress=progress_callback(feedback), log=run_logger(feedback))
         except Cancelled:
             if not os.path.isfile(os.path.join(out_dir, "run.json")):     # while the parameters were derived
                 feedback.reportError(tr("Cancelled while the parameters were derived: nothing was written."))

@@ -9,8 +9,10 @@ import functools
 import multiprocessing
 import os
 import queue as queue_module
+import signal
 import sys
 import threading
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
@@ -320,9 +322,34 @@ def main_not_rerun():
 _worker_channel = {}
 
 
-def _init_worker(queue, cancelled):
+#: Seconds between a worker's checks that the process that started it still runs.
+PARENT_CHECK_S = 1.0
+
+
+def exit_with_parent(parent=None, interval=PARENT_CHECK_S):
+    """End this (worker) process once the process that started it is gone.
+
+    A run killed outright (``kill -9``, a crash of QGIS) cannot stop its workers: each holds both
+    ends of the pool's queues, so none sees them close, and they waited for blocks for ever, holding
+    their memory (two idle workers of 96 MB each, or a block's windows). A daemon thread checks every
+    ``interval`` seconds that the parent is still the one the worker started under (POSIX gives an
+    orphan a new parent) and ends the process at once otherwise. ``parent``: the pid of the process
+    that started this one (default the current parent; a pool passes its own, so that a worker whose
+    start outlived it, already an orphan when this runs, ends too)."""
+    parent = os.getppid() if parent is None else int(parent)
+
+    def watch():
+        while True:
+            time.sleep(interval)
+            if os.getppid() != parent:      # ends the process at once, as a killed worker ends
+                os.kill(os.getpid(), getattr(signal, "SIGKILL", signal.SIGTERM))
+    threading.Thread(target=watch, name="bare-earth-parent-watch", daemon=True).start()
+
+
+def _init_worker(queue, cancelled, parent=None):
     # a worker only filters: its freed temporaries are kept for reuse (memory.reuse_freed_memory)
     reuse_freed_memory()
+    exit_with_parent(parent)
     _worker_channel.update(queue=queue, cancelled=cancelled, last=0.0)
 
 
@@ -354,7 +381,7 @@ class WorkerPool:
         ctx = _process_context()
         self.queue, self.cancelled = ctx.Queue(), ctx.Event()
         self.executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                                            initargs=(self.queue, self.cancelled))
+                                            initargs=(self.queue, self.cancelled, os.getpid()))
         if warm_up is not None:
             with main_not_rerun():      # submit spawns the workers
                 for _ in range(workers):

@@ -382,6 +382,19 @@ def running_mean_down(a, size, out, mode="reflect"):
 _NO_ROOM = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
 
 
+def pid_alive(pid):
+    """Whether process ``pid`` runs on this machine (one we may not signal counts as running): the
+    test of whether a work file's writer is gone (:func:`.pointfiles.remove_stale_parts`,
+    :func:`.grid.remove_stale_partials`)."""
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True
+    return True
+
+
 def write_failed(path, reason, code=None):
     """The ValueError of an output that failed while it was written (the checks before the work
     passed): it names the output and why, and for a write that ran out of room (``code`` an errno

@@ -30,6 +30,7 @@ import uuid
 import numpy as np
 
 from .codes import GROUND, NODATA
+from .pointfiles import part_path, remove_stale_parts
 
 __all__ = ["confusion", "compare_masks", "compare_dtm", "error_map_from_masks",
            "error_map_from_points",
@@ -429,11 +430,11 @@ def _write_all(pages):
     try:
         for path, (name, text) in pages.items():
             path = os.path.abspath(os.fspath(path))
-            folder, base = os.path.split(path)
             if os.path.isdir(path):
                 raise ValueError(f"the report output {path!r} is a folder: give a file name in it "
                                  f"(e.g. {os.path.join(path, name)!r}).")
-            tmp = os.path.join(folder, f".{base}.{uuid.uuid4().hex[:8]}.part")
+            remove_stale_parts(path)         # a killed earlier write's work file
+            tmp = part_path(path)
             done.append((tmp, path))
             try:
                 with open(tmp, "w", encoding="utf-8") as fh:

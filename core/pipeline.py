@@ -729,12 +729,15 @@ class _BlockWriter:
         self.counts, self.infos, self.weights = {}, [], []
         self.far_cells = 0
         self.filled = 0      # empty cells filled before filtering (fill_empty_cells), in the blocks' cores
+        self.moved = {"dtm": 0, "ndsm": 0}   # valid cells that held the outputs' nodata (with_output_nodata)
 
     def __call__(self, core, outer, result, progress=None):
         m, d, zc, res_extras, res_info, n_far, n_filled = result
         h, w = core[1] - core[0], core[3] - core[2]
         with self.io_lock:
-            _write_block(self.out, self.meth, core, m, d, zc, self.scale, self.float_nodata, res_extras, h, w)
+            moved = _write_block(self.out, self.meth, core, m, d, zc, self.scale, self.float_nodata, res_extras, h, w)
+            for k, v in moved.items():
+                self.moved[k] += v
             report(progress, 0.3)
             if self.flush:
                 self.out.flush(sub_progress(progress, 0.3, 1.0))  # compress now, while others are filtered
@@ -805,6 +808,9 @@ def _run_file(info, run, pool):
         run.log("Warning: " + far_heights_message(far, info.nodata))
     if filled_message(writer.filled):
         run.log(filled_message(writer.filled))
+    for what, nod in (("dtm", float_nodata), ("ndsm", _ndsm_nodata(float_nodata))):
+        if grid.moved_off_nodata_message(writer.moved[what], nod, what.upper()):
+            run.log("Warning: " + grid.moved_off_nodata_message(writer.moved[what], nod, what.upper()))
     empty = no_ground_message(writer.counts, run.outputs)
     if empty:
         warnings.append(empty)
@@ -905,17 +911,22 @@ class _BlockJob:
 
 
 def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
-    """Write one block's core (already cropped arrays) into every requested output."""
+    """Write one block's core (already cropped arrays) into every requested output; returns the
+    cells of the DTM and of the nDSM moved off their nodata (:func:`grid.with_output_nodata`)."""
+    moved = {"dtm": 0, "ndsm": 0}
     if "mask" in out:
         out.write("mask", m, core)
     if "ndsm" in out:   # before the DTM, which may be converted in place
-        out.write("ndsm", _to_unit(zc - d, scale, _ndsm_nodata(float_nodata)), core)
+        ndsm = _to_unit(zc - d, scale)
+        moved["ndsm"] = grid.with_output_nodata(ndsm, _ndsm_nodata(float_nodata))
+        out.write("ndsm", ndsm, core)
     if "dtm" in out:
-        dtm = _to_unit(d, scale, float_nodata)   # this block's DTM is ours: converted in place
+        dtm = _to_unit(d, scale)   # this block's DTM is ours: converted in place
         if scale != 1.0:  # ground cells get the input's own heights, not a float32 round trip via metres
             own = out.info.read_heights(core)
             g = m == GROUND
             dtm[g] = own[g]
+        moved["dtm"] = grid.with_output_nodata(dtm, float_nodata)
         out.write("dtm", dtm, core)
     for name, (dt, bands, nod) in meth.extras.items():
         if name not in out:
@@ -925,14 +936,13 @@ def _write_block(out, meth, core, m, d, zc, scale, float_nodata, extras, h, w):
         else:
             shape = (h, w) if bands == 1 else (bands, h, w)
             out.write(name, np.full(shape, nod if nod is not None else 0, dtype=dt), core)
+    return moved
 
 
-def _to_unit(a, scale, nodata):
+def _to_unit(a, scale):
     """``a`` (owned by the caller, changed in place when float32) as float32 in the input's
-    height unit, with its nodata."""
+    height unit."""
     a = a.astype(np.float32, copy=False)
     if scale != 1.0:
         a *= np.float32(scale)
-    if not math.isnan(nodata):
-        np.copyto(a, np.float32(nodata), where=~np.isfinite(a))
     return a

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .codes import GROUND, LOW, OBJECT
-from .common import UTF16_BOMS, text_of, write_failed
+from .common import UTF16_BOMS, pid_alive, text_of, write_failed
 
 __all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
-           "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS"]
+           "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS", "part_path", "remove_stale_parts"]
 
 #: File extensions written as LAS / as text.
 LAS_EXTENSIONS = (".las", ".laz")
@@ -39,6 +39,14 @@ LAS_INSTALL_HINT = ("Reading and writing LAS/LAZ point clouds needs the Python p
 #: ASPRS LAS classification codes written for the classes of :func:`classify_points`
 #: (NODATA, points outside the DTM, keep the input's classification; 0 if it had none).
 ASPRS_FROM_CLASS = {GROUND: 2, OBJECT: 1, LOW: 7}
+
+#: The hidden work file of an output ``<name>`` (points, reports): ``.<name>.<pid of 10 digits>-<8 hex>.part``
+#: plus the output's extension when the writer needs it (laspy compresses by it); moved into place once
+#: written. The pid tells a later run whether the writer is gone (killed): :func:`remove_stale_parts`.
+_PART_RE = re.compile(r"\.(?P<name>.*)\.(?P<pid>\d{10})-[0-9a-f]{8}\.part(\.[^.]*)?")
+#: the same without a pid (versions before): ``.<name>.<8 hex>.part[.ext]``
+_OLD_PART_RE = re.compile(r"\.(?P<name>.*)\.[0-9a-f]{8}\.part(\.[^.]*)?")
+_PART_TAG_BYTES = len(".0000000000-00000000.part".encode())
 
 # EPSG unit-of-measure codes of GeoTIFF keys (ProjLinearUnitsGeoKey 3076,
 # VerticalUnitsGeoKey 4099) -> metres per unit.
@@ -215,9 +223,13 @@ def _read_text(path):
         table = _parse_careful(path, data, flat, body_start)
     ncols = table.shape[1]
     head = data[body_start:body_start + 4096]
-    comma = (b";" in head and re.search(rb"\d,\d", head) is not None
-             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 8)))
-    comma_hint = (" The values seem to be written with decimal commas and separated by ';': write them "
+    # decimal commas: each value split in two at its comma (x y z: 6 columns; a whole class: 7), the
+    # values separated by ';', tabs or spaces (a spreadsheet's export in a locale with decimal commas)
+    between = re.search(rb"\d,\d+(;|\t|[ ]+)[-+]?\d", head)
+    comma = (between is not None
+             and ncols in ((2 * len(names), 2 * len(names) - 1) if names is not None else (6, 7, 8)))
+    sep_name = {b";": "';'", b"\t": "tabs"}.get(between.group(1), "spaces") if comma else ""
+    comma_hint = (f" The values seem to be written with decimal commas and separated by {sep_name}: write them "
                   "with decimal points." if comma else "")
     if names is not None and len(names) != ncols:
         raise ValueError(f"{path}: the header line names {len(names)} columns but the points "
@@ -559,9 +571,10 @@ def write_points(path, cloud, classes, decimals=None):
                          "pass one class per point.")
     ext = os.path.splitext(path)[1].lower()
     # a hidden file beside the output, with its extension (laspy compresses by it), moved into
-    # place once written: a failed or interrupted write leaves no file that looks valid
-    folder, base = os.path.split(os.path.abspath(path))
-    tmp = os.path.join(folder, f".{os.path.splitext(base)[0]}.{uuid.uuid4().hex[:8]}.part{ext}")
+    # place once written: a failed or interrupted write leaves no file that looks valid, and the
+    # work files of a killed earlier write of this output are removed first
+    remove_stale_parts(path)
+    tmp = part_path(path, ext)
     try:
         if ext in (".las", ".laz"):
             _write_las(tmp, cloud, classes)
@@ -573,6 +586,50 @@ def write_points(path, cloud, classes, decimals=None):
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def _part_name(path):
+    """The output's name as its work files carry it: cut (UTF-8 bytes) so that the hidden work
+    file's name stays within 255 bytes with its tag and an extension of up to 8 bytes."""
+    base = os.path.basename(os.path.abspath(os.fspath(path)))
+    raw = base.encode("utf-8")[:max(1, 255 - 1 - _PART_TAG_BYTES - 8)]
+    return raw.decode("utf-8", "ignore")
+
+
+def part_path(path, ext=""):
+    """A hidden work file beside output ``path``: ``.<name>.<pid>-<8 hex>.part<ext>`` (``ext``: the
+    extension a writer needs, e.g. ``.laz`` for laspy). Written there, then moved onto ``path``
+    with :func:`os.replace`, so an interrupted write leaves nothing that looks like the output."""
+    folder = os.path.dirname(os.path.abspath(os.fspath(path)))
+    return os.path.join(folder, f".{_part_name(path)}.{os.getpid():010d}-{uuid.uuid4().hex[:8]}.part{ext}")
+
+
+def remove_stale_parts(path):
+    """Remove the work files of output ``path`` (:func:`part_path`) that a killed earlier write left:
+    those whose process is gone, and those of versions that named no process; returns their names.
+    A work file of a process still running (a write of the same output in progress) is kept."""
+    folder = os.path.dirname(os.path.abspath(os.fspath(path)))
+    name = _part_name(path)
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return []
+    removed = []
+    for f in names:
+        m = _PART_RE.fullmatch(f)
+        if m is not None:
+            if m.group("name") != name or pid_alive(int(m.group("pid"))):
+                continue
+        else:
+            m = _OLD_PART_RE.fullmatch(f)
+            if m is None or m.group("name") not in (name, os.path.splitext(name)[0]):
+                continue
+        try:
+            os.remove(os.path.join(folder, f))
+            removed.append(f)
+        except OSError:
+            pass
+    return removed
 
 
 def check_points_writable(path):

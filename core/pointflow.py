@@ -69,6 +69,8 @@ RASTERIZE_BYTES_PER_CELL = {True: 17, False: 12}
 STRAY_QUANTILES = (0.005, 0.995)
 #: Cell reducers of :func:`rasterize_cloud`, in the order the plugin lists them.
 REDUCERS = ("min", "max", "mean")
+#: share of :func:`filter_tiles`' progress bar for deriving the block's parameters on its central tile
+PARAMS_SHARE = 0.1
 #: Class names of :func:`classify_points` codes, for logs.
 CLASS_NAMES = {GROUND: "ground", OBJECT: "above", LOW: "below", NODATA: "outside the DTM"}
 
@@ -137,6 +139,19 @@ def crs_warnings(cloud):
                 "its units. Reproject to a projected CRS made for measuring (UTM, a national grid) for exact "
                 "distances."]
     return []
+
+
+def height_warnings(cloud, classified=True):
+    """The warning for the log when some of a cloud's points have no finite height (NaN or +-inf z: a
+    failed export, a text file's ``nan``), or None. They are left out of the grid (rasterising) and classed
+    255, outside the DTM (classifying: a LAS output keeps their input class), without a word before.
+    ``classified``: the run writes classified points."""
+    bad = int(np.count_nonzero(~np.isfinite(cloud.z)))
+    if not bad:
+        return None
+    return (f"{bad} of the {len(cloud)} points have no finite height (z NaN or infinite): they are left out of "
+            "the grid" + (" and classed 255, outside the DTM (a LAS output keeps their input class)"
+                          if classified else "") + ". Check the z column of those points.")
 
 
 def unit_name(cloud):
@@ -665,7 +680,8 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
     clouds, names = _load_tiles(tiles, outputs, crs)
     meth = as_method(method)
     lattice, scales = _block_lattice(clouds, cell_size_m)
-    full, fixed = _block_params(meth, clouds, names, params, lattice, log)
+    full, fixed = _block_params(meth, clouds, names, params, lattice, log,
+                                sub_progress(progress, 0.0, PARAMS_SHARE))
     cell_m = (lattice.dx * scales[0], lattice.dy * scales[1])
     halo = int(meth.halo(full, cell_m))
     lattice.margin = halo + 4                     # cells near a unit edge that may differ
@@ -678,14 +694,16 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
                          "seams. Give a larger overlap or leave it empty.")
     overlap = (int(math.ceil(overlap_m / scales[1] / lattice.dy - 1e-9)),
                int(math.ceil(overlap_m / scales[0] / lattice.dx - 1e-9)))
-    report(progress, 0.02)
+    report(progress, PARAMS_SHARE)
     run = _TileRun(meth, fixed, threshold_m, slope_factor)
     todo = list(range(len(clouds))) if only is None else sorted(set(int(k) for k in only))
     out_classes, units, per_tile = [None] * len(clouds), [None] * len(clouds), []
     results = [None] * len(clouds) if keep_results else None
     t_all = time.perf_counter()
     for step, i in enumerate(todo):
-        prog = sub_progress(progress, 0.02 + 0.96 * step / len(todo), 0.02 + 0.96 * (step + 1) / len(todo))
+        span = 0.98 - PARAMS_SHARE
+        prog = sub_progress(progress, PARAMS_SHARE + span * step / len(todo),
+                            PARAMS_SHARE + span * (step + 1) / len(todo))
         r, n_unit, win, grown = _filter_tile(run, clouds, i, lattice, overlap, prog)
         out_classes[i] = r.classes
         units[i] = lattice.extent_of(win)
@@ -807,9 +825,11 @@ def _block_lattice(clouds, cell_size_m):
     return TileLattice.around(merged_ext, dx, dy), scales
 
 
-def _block_params(meth, clouds, names, params, lattice, log):
+def _block_params(meth, clouds, names, params, lattice, log, progress=None):
     """One parameter set for the block: derived on the tile nearest the block's centre,
-    unless complete. Returns ``(full, fixed)``: every parameter, and the method's own."""
+    unless complete. Returns ``(full, fixed)``: every parameter, and the method's own.
+    ``progress`` (optional, may raise :class:`~.common.Cancelled`) is fed while the central
+    tile is gridded and the parameters derived (seconds to minutes on a dense tile)."""
     user = dict(params or {})
     names_p = [p.name for p in meth.params]
     if any(user.get(k) is None for k in names_p):
@@ -817,8 +837,10 @@ def _block_params(meth, clouds, names, params, lattice, log):
         cx, cy = 0.5 * (ext[0] + ext[2]), 0.5 * (ext[1] + ext[3])
         centre = int(np.argmin([math.hypot(0.5 * (c.extent[0] + c.extent[2]) - cx,
                                            0.5 * (c.extent[1] + c.extent[3]) - cy) for c in clouds]))
+        report(progress, 0.0)
         g = rasterize_cloud(clouds[centre], cell_size_units=(lattice.dx, lattice.dy))
-        full = resolve_params(meth, g.z_metres(), g.cell_size_m, user)
+        report(progress, 0.1)
+        full = resolve_params(meth, g.z_metres(), g.cell_size_m, user, progress=sub_progress(progress, 0.1, 1.0))
         log(f"Parameters derived from {names[centre]} (the tile nearest the block's centre).")
     else:
         full = user

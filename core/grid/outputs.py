@@ -17,7 +17,7 @@ import uuid
 import numpy as np
 
 from ..codes import MASK_CODES, MASK_COLOURS
-from ..common import Cancelled, report, sub_progress, write_failed
+from ..common import Cancelled, pid_alive, report, sub_progress, write_failed
 from .read import OUTPUT_TILE, gdal, need_gdal, osr, without_side_files
 
 #: Raster formats the outputs are written in, by file extension: (GDAL driver, most bands or
@@ -527,16 +527,6 @@ def _work_path(path):
     return os.path.join(folder, f".{_work_stem(path)}{tag}")
 
 
-def _pid_alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):
-        return True
-    return True
-
-
 def remove_stale_partials(path):
     """Remove the work files of earlier runs of the output ``path`` that were killed (their
     process is gone, or it is this process and the file is not being written), and the work
@@ -561,7 +551,7 @@ def remove_stale_partials(path):
             pid = int(m.group("pid"))
             work = full[:len(full) - len(m.group("rest") or "")]
             if work in _LIVE or (pid == os.getpid() and m.group("stem") != stem) or (
-                    pid != os.getpid() and _pid_alive(pid)):
+                    pid != os.getpid() and pid_alive(pid)):
                 continue     # being written, this process's for another output, or its process runs
         elif not old.fullmatch(name):
             continue
@@ -989,6 +979,50 @@ def float_output_nodata(nodata, scale=1.0, offset=0.0, dtype="Float32"):
     with np.errstate(over="ignore"):
         v = np.float32(v)
     return float(v) if np.isfinite(v) else float("nan")
+
+
+def above_nodata(nodata):
+    """The float32 value nearest above ``nodata`` that GDAL does not take for it. GDAL compares a float
+    band's values with its nodata within a few units in the last place (``ARE_REAL_EQUAL``: closer than
+    2 float32 epsilons of their sum; its mask bands and VRT mosaics do), so a value one float32 step above
+    300 was read as nodata in a VRT of the tiles; this one is beyond twice that tolerance (about 3e-4 m
+    at 300 m)."""
+    nd = np.float32(nodata)
+    eps = np.finfo(np.float32).eps
+    v = nd
+    for _ in range(64):
+        v = np.nextafter(v, np.float32(np.inf))
+        if abs(float(v) - float(nd)) >= 4.0 * eps * abs(float(v) + float(nd)):
+            break
+    return v
+
+
+def with_output_nodata(a, nodata):
+    """Float32 heights ``a`` (changed in place) made ready to write with the declared ``nodata``: its
+    NaN / inf cells set to ``nodata``, and its valid cells that hold ``nodata`` (a DTM cell interpolated
+    to 300 m under a DSM declaring 300 as nodata: ground at 299 and 301 m around it), or a value GDAL
+    takes for it, moved just above it (:func:`above_nodata`), so that no height is read back as nodata.
+    Returns the number of cells moved. ``nodata`` NaN: nothing to do, 0."""
+    if math.isnan(nodata):
+        return 0
+    nd = np.float32(nodata)
+    up = above_nodata(nd)
+    down = -above_nodata(-nd)
+    hit = (a > down) & (a < up)
+    n = int(np.count_nonzero(hit))
+    if n:
+        a[hit] = up
+    np.copyto(a, nd, where=~np.isfinite(a))
+    return n
+
+
+def moved_off_nodata_message(n, nodata, what="DTM"):
+    """The log line for :func:`with_output_nodata`'s ``n`` cells moved off ``nodata`` (None for none)."""
+    if not n:
+        return None
+    return (f"{n} cell(s) of the {what} hold the declared nodata value {float(nodata):g} as a height: they are "
+            f"written as {float(above_nodata(nodata)):.9g} (just above it) so that they are not read as nodata. "
+            "The DSM's nodata lies among its heights: export it again with a nodata outside them (e.g. -9999).")
 
 
 def nodata_not_kept(nodata, scale=1.0, offset=0.0, dtype="Float32"):

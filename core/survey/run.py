@@ -394,6 +394,9 @@ def _run_tiles(rec, this, job, todo, out_dir, workers, scheduler, progress, log,
             this["tiles_done"] += 1
             log(f"{tile.name}: done in {entry['seconds']:.2f} s on {entry['worker']} "
                 f"({entry['counts']['object']} object cells)")
+            if entry.get("moved_off_nodata"):
+                nodata = grid.float_output_nodata(tile.nodata, tile.scale, tile.offset, tile.dtype)
+                log(f"Warning: {tile.name}: " + grid.moved_off_nodata_message(entry["moved_off_nodata"], nodata))
             if time.perf_counter() - last_save[0] >= RECORD_INTERVAL:
                 record.save_record(out_dir, rec)
                 last_save[0] = time.perf_counter()

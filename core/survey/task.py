@@ -2,7 +2,6 @@
 VRT, filter and fill the window (``pipeline.run_array``), keep the tile, write its DTM and
 mask as COGs (each atomically), and return what the run record keeps about it.
 """
-import math
 import os
 import socket
 import time
@@ -151,10 +150,10 @@ def run_tile(job, tile):
         ground = mask == GROUND
         dtm[ground] = raw[ground]
     nodata = grid.float_output_nodata(tile.nodata, tile.scale, tile.offset, tile.dtype)
-    if not math.isnan(nodata):
-        np.copyto(dtm, np.float32(nodata), where=~np.isfinite(dtm))
+    dtm = dtm.astype(np.float32, copy=False)
+    moved = grid.with_output_nodata(dtm, nodata)     # no height written as the nodata value
     dtm_name, mask_name = output_names(tile.name)
-    io.write_cog(os.path.join(job.out_dir, dtm_name), dtm.astype(np.float32, copy=False), tile.geotransform,
+    io.write_cog(os.path.join(job.out_dir, dtm_name), dtm, tile.geotransform,
                  job.crs_wkt, nodata, unit_type=tile.unit_type)
     io.write_cog(os.path.join(job.out_dir, mask_name), mask, tile.geotransform, job.crs_wkt, NODATA,
                  mask_style=True)
@@ -164,5 +163,5 @@ def run_tile(job, tile):
     return {"status": "done", "files": [dtm_name, mask_name], "cells": int(mask.size), "counts": counts,
             "seconds": round(time.perf_counter() - t0, 4), "read_s": round(t_read, 4),
             "filter_s": round(t_filter, 4), "write_s": round(t_write, 4), "start": start, "end": time.time(),
-            "worker": f"{socket.gethostname()}:{os.getpid()}",
+            "worker": f"{socket.gethostname()}:{os.getpid()}", "moved_off_nodata": moved,
             "peak_rss_mb": peak_memory_mb()}

@@ -3,6 +3,7 @@ import base64
 import importlib.util
 import json
 import math
+import os
 import re
 import uuid
 from pathlib import Path
@@ -516,3 +517,17 @@ def test_generalise_rows_with_empty_cells_keep_them_and_come_last(tmp_path, monk
     total = score(res)["total"]
     assert np.isfinite(total) and total < 5.0
     assert score(SimpleNamespace(dtm=z))["total"] > 5.0       # the raw DSM: the building is no ground
+
+
+def test_write_report_removes_the_parts_of_a_killed_write(tmp_path):
+    """A report write killed with kill -9 left its hidden work file (``.r.json.<id>.part``) for ever.
+    The work file names its process; the next write of that report removes those of processes that
+    are gone (and of older versions, which named none), and keeps one whose process runs."""
+    gone = 4194305                                   # above Linux's largest pid: no such process
+    stale = [tmp_path / f".r.json.{gone:010d}-0123abcd.part", tmp_path / ".r.json.0123abcd.part",
+             tmp_path / f".r.html.{gone:010d}-89abcdef.part"]
+    live = tmp_path / f".r.json.{os.getppid():010d}-0123abcd.part"
+    for p in stale + [live]:
+        p.write_text("{")
+    write_report({"total": 1.0}, json_path=tmp_path / "r.json", html_path=tmp_path / "r.html")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.html", "r.json", live.name])

@@ -999,3 +999,48 @@ def test_cells_wider_than_any_filter_window_refused_before_work(tmp_path):
     with pytest.raises(ValueError, match=r"cells of 354811 x 250046 m are wider"):
         pipeline.run_file("morphological", path, {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")})
     assert sorted(os.listdir(tmp_path)) == ["deg.tif"]
+
+
+def test_dtm_cells_interpolated_to_the_declared_nodata_stay_heights(tmp_path):
+    """A DSM declaring 300 as nodata over ground alternating 299 / 301 m (heights rounded to whole
+    metres): the DTM under a building, interpolated from that ground, held exactly 300 in 186 cells,
+    which every reader then took as nodata (holes in the DTM where the mask says object). Such cells
+    are written just above, beyond GDAL's tolerance for a float nodata (300.0003), and the log says how
+    many and why."""
+    from osgeo import gdal
+    c = np.arange(80, dtype=np.float64)
+    z = np.tile(299.0 + 2.0 * (c % 2), (60, 1))
+    z[20:40, 30:50] += 12.0
+    src = str(tmp_path / "dsm.tif")
+    grid.write_array(src, z.astype(np.float32), (500000, 1, 0, 5400000, 0, -1), 32632, nodata=300.0)
+    logs = []
+    outs = {"dtm": str(tmp_path / "dtm.tif"), "mask": str(tmp_path / "mask.tif"), "ndsm": str(tmp_path / "ndsm.tif")}
+    pipeline.run_file("morphological", src, outs, log=logs.append)
+    ds = gdal.Open(outs["dtm"])
+    assert ds.GetRasterBand(1).GetNoDataValue() == 300.0                  # the input's nodata, kept
+    d = ds.ReadAsArray()
+    m = gdal.Open(outs["mask"]).ReadAsArray()
+    assert (m == 1).sum() == 400 and not (m == 255).any()
+    assert not (d == np.float32(300.0)).any()                             # no height reads as nodata
+    up = np.float32(300.00030517578125)
+    n = int((d == up).sum())
+    assert n > 50 and (m[d == up] == 1).all()                            # only interpolated cells moved
+    assert any(f"{n} cell(s) of the DTM hold the declared nodata value 300 as a height: they are written as "
+               "300.000305" in s for s in logs), logs
+    mask_band = ds.GetRasterBand(1).GetMaskBand().ReadAsArray()          # GDAL's own reading: all valid
+    assert (mask_band == 255).all()
+    nd = gdal.Open(outs["ndsm"])
+    assert not (nd.ReadAsArray() == nd.GetRasterBand(1).GetNoDataValue()).any()
+
+
+def test_with_output_nodata_exact():
+    """Values GDAL takes for a float nodata (within a few float32 steps: 300.00003, 299.99997) move
+    beyond its tolerance too; 299.999 stays."""
+    a = np.array([[1.0, np.nan, 300.0, 300.00003], [np.inf, 299.99997, -np.inf, 299.999]], np.float32)
+    assert grid.with_output_nodata(a, 300.0) == 3
+    up = np.float32(300.00030517578125)
+    assert grid.above_nodata(300.0) == up
+    np.testing.assert_array_equal(a, np.array([[1.0, 300.0, up, up], [300.0, up, 300.0, 299.999]], np.float32))
+    b = np.array([np.nan, 300.0], np.float32)
+    assert grid.with_output_nodata(b, float("nan")) == 0 and np.isnan(b[0]) and b[1] == 300.0
+    assert grid.moved_off_nodata_message(0, 300.0) is None

@@ -499,3 +499,38 @@ def test_a_grid_mostly_copies_or_beyond_the_memory_is_refused_before_work():
     with pytest.raises(ValueError, match=r"about 0.396 GB \(0.25 GB available\)\. Instead use cells of at least "
                                          r"0.5 m, or split the points into tiles"):
         pf.check_grid_cells(10 ** 8, 1000.0, 1000.0, 0.2, available=1 << 28)   # 25 M cells, 17 B each
+
+
+def test_tiles_parameters_derived_with_progress_and_cancel(cloud, monkeypatch):
+    """The block's parameters, derived on its central tile before any tile is filtered (seconds to
+    minutes on a dense tile), fed no progress and ignored a cancel: the bar stood still and a cancel
+    waited for the first tile. The bar now moves during the derivation, and a cancel raised there
+    stops the run before any tile is filtered."""
+    from bare_earth.core.common import Cancelled
+    half = cloud.x < np.median(cloud.x)
+    tiles = [PointCloud(cloud.x[k], cloud.y[k], cloud.z[k]) for k in (half, ~half)]
+    filtered = []
+    real = pf.filter_cloud
+    monkeypatch.setattr(pf, "filter_cloud", lambda *a, **k: filtered.append(1) or real(*a, **k))
+    seen = []
+    pf.filter_tiles(tiles, method="morphological", progress=seen.append)
+    before = [f for f in seen[:seen.index(pf.PARAMS_SHARE)]]
+    assert len(set(before)) >= 3 and 0 < max(before) <= pf.PARAMS_SHARE     # moved while deriving
+    assert seen == sorted(seen) and seen[-1] == 1.0
+    assert len(filtered) == 2
+    filtered.clear()
+
+    def cancel_at(f):
+        if 0 < f < pf.PARAMS_SHARE:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        pf.filter_tiles(tiles, method="morphological", progress=cancel_at)
+    assert filtered == []
+
+
+def test_height_warnings_count_points_without_a_finite_height():
+    c = PointCloud(np.arange(5.0), np.arange(5.0), np.array([1.0, np.nan, np.inf, -np.inf, 2.0]))
+    assert pf.height_warnings(c).startswith("3 of the 5 points have no finite height (z NaN or infinite): they are "
+                                            "left out of the grid and classed 255")
+    assert pf.height_warnings(c, classified=False).endswith("left out of the grid. Check the z column of those points.")
+    assert pf.height_warnings(PointCloud(np.arange(3.0), np.arange(3.0), np.ones(3))) is None

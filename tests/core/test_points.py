@@ -1,5 +1,7 @@
 """Tests of core/points.py: reading, rasterizing, sampling, classifying, writing points."""
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -533,3 +535,82 @@ def test_utf16_text_points_read_as_text(tmp_path):
     bad.write_bytes(b"\xff\xfe" + "x y z\n1 2 3\n".encode("utf-16-le") + b"\x00\xd8")   # a cut surrogate
     with pytest.raises(ValueError, match=r"bad.txt' is not UTF-8 text .*save it as UTF-8"):
         pointfiles.read_points(str(bad))
+
+
+_KILLED_WRITER = r"""
+import sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from bare_earth.core import pointfiles
+def slow(path, *args):
+    with open(path, "w") as fh:
+        fh.write("0 0 1 0\n")
+        fh.flush()
+        print("writing", flush=True)
+        time.sleep(600)
+pointfiles._write_text = slow
+pointfiles.write_points(sys.argv[3], pointfiles.read_points(sys.argv[2]), np.zeros(4, np.uint8))
+"""
+
+
+def _killed_mid_write(tmp_path, script, *args):
+    """Run ``script`` (it prints a line once its work file is open), then kill -9 it."""
+    import signal
+    import subprocess
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(pointfiles.__file__)))
+    p = subprocess.Popen([sys.executable, "-c", script, plugins, *map(str, args)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "writing"
+    finally:
+        os.kill(p.pid, signal.SIGKILL)
+        p.wait()
+    return p.pid
+
+
+def test_points_write_killed_leaves_a_hidden_part_a_rerun_removes(tmp_path):
+    """A point write killed with kill -9 left its hidden ``.part`` file for ever (the writer's cleanup
+    never ran, and nothing else knew the name). The work file names its process; a rerun of the same
+    output removes the work files of processes that are gone (and those of older versions, which named
+    none), and keeps one whose process still runs (a write in progress)."""
+    src = _points_file(tmp_path)
+    out = tmp_path / "cls.txt"
+    pid = _killed_mid_write(tmp_path, _KILLED_WRITER, src, out)
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name != "p.txt")
+    assert left == [f".cls.txt.{pid:010d}-" + left[0].split("-")[1]] and left[0].endswith(".part.txt")
+    assert not out.exists()                                   # nothing that looks valid
+    old = tmp_path / ".cls.0123abcd.part.txt"                 # a version before named no process
+    old.write_text("0 0 1 0\n")
+    live = tmp_path / f".cls.txt.{os.getppid():010d}-0123abcd.part.txt"
+    live.write_text("0 0 1 0\n")
+    other = tmp_path / f".other.txt.{pid:010d}-0123abcd.part.txt"  # another output's: not ours to judge
+    other.write_text("0 0 1 0\n")
+    write_points(out, read_points(src), np.zeros(4, np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["cls.txt", "p.txt", live.name, other.name])
+    assert len(out.read_text().splitlines()) == 4
+
+
+def test_part_path_of_a_long_name_stays_within_the_name_limit(tmp_path):
+    """The work file of an output whose name is near the 255-byte limit was longer than the limit:
+    the write failed with 'File name too long' after the work. Its name is cut, and found again."""
+    out = tmp_path / ("é" * 120 + ".las")
+    part = pointfiles.part_path(out, ".las")
+    assert len(os.path.basename(part).encode()) <= 255 and part.endswith(".part.las")
+    gone = 4194305                                   # above Linux's largest pid: no such process
+    Path(part.replace(f".{os.getpid():010d}-", f".{gone:010d}-")).write_bytes(b"x")
+    assert len(pointfiles.remove_stale_parts(out)) == 1 and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("text, sep", [("1,5 2,5 3,5\n4,5 5,5 6,5\n", "spaces"),
+                                       ("1,5\t2,5\t3,5\n4,5\t5,5\t6,5\n", "tabs"),
+                                       ("1,5 2,5 3,5 2\n4,5 5,5 6,5 2\n", "spaces"),
+                                       ("1,5;2,5;3,5\n4,5;5,5;6,5\n", "';'")])
+def test_decimal_commas_between_spaces_or_tabs_are_named(tmp_path, text, sep):
+    """A locale's export with decimal commas and tabs or spaces between the values ('1,5<TAB>2,5<TAB>3,5')
+    was refused as "6 values per line" without a word of the commas (only ';' was recognised), so the
+    README's "decimal commas ... refused with the fix" did not hold; a comma CSV of 6 values is not named."""
+    with pytest.raises(ValueError, match=rf"[67] values per line.*decimal commas and separated by {sep}: write them "
+                                         r"with decimal points\."):
+        read_points(_write(tmp_path, text, "p.txt"))
+    with pytest.raises(ValueError, match=r"6 values per line; expected 3 \(x y z\) or 4 \(x y z class\), or a header "
+                                         r"line naming the x, y, z columns\.$"):
+        read_points(_write(tmp_path, "1,2,3,4,5,6\n4,5,6,7,8,9\n", "six.csv"))

@@ -132,3 +132,51 @@ def test_processes_forward_the_blocks_own_progress(dsm, tmp_path):
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
     # more reports than blocks: the workers' progress (filter and fill) reaches the bar
     assert len(fractions) > par["blocks"] + 3
+
+
+_POOL_OWNER = r"""
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from bare_earth.core import blocks
+pool = blocks.start_pool(2)
+for f in [pool.executor.submit(abs, -1) for _ in range(2)]:
+    f.result()
+print(" ".join(str(p) for p in pool.executor._processes), flush=True)
+time.sleep(600)
+"""
+
+
+def test_workers_end_when_their_run_is_killed():
+    """A run with PROCESSES > 1 killed outright (kill -9, QGIS crashing) left its worker processes waiting
+    for blocks for ever (each holds both ends of the pool's queues, so none sees the parent go), 96 MB each
+    when idle, a block's windows when busy. They now end within seconds of their parent."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import bare_earth
+    plugins = os.path.dirname(os.path.dirname(os.path.abspath(bare_earth.__file__)))
+    owner = subprocess.Popen([sys.executable, "-c", _POOL_OWNER, plugins], stdout=subprocess.PIPE, text=True)
+    try:
+        workers = [int(p) for p in owner.stdout.readline().split()]
+    finally:
+        os.kill(owner.pid, signal.SIGKILL)
+        owner.wait()
+    assert len(workers) == 2
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        with open(f"/proc/{pid}/stat") as fh:              # an exited child of init not yet reaped
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    deadline = time.time() + 30
+    while any(alive(p) for p in workers) and time.time() < deadline:
+        time.sleep(0.2)
+    left = [p for p in workers if alive(p)]
+    for p in left:                                        # do not leave them behind when the test fails
+        os.kill(p, signal.SIGKILL)
+    assert left == []

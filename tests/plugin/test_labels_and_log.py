@@ -235,3 +235,23 @@ def test_a_choice_given_by_name_is_refused_naming_its_number(processing_run, tmp
     with pytest.raises(QgsProcessingException, match=message):
         processing_run("bareearth:morphological", {"INPUT": _dsm(tmp_path), "MODE": value,
                                                    "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"})
+
+
+def test_the_runs_information_is_not_shown_as_warnings(processing_run, tmp_path):
+    """Every line the core logged during a run went to QGIS's warnings (orange, "WARNING" in
+    qgis_process): the empty cells filled, the window the parameters came from, the blocks. The
+    core marks its warnings ("Warning: "); its other lines are information."""
+    from bare_earth.core.grid import write_array
+    z = np.zeros((40, 40), np.float32)
+    z[10:20, 10:20] = 6.0
+    z[30, 5] = np.nan                                   # an empty cell: filled, logged as information
+    z[5, 30] = 1e7                                      # a height no terrain has: a warning
+    src = write_array(tmp_path / "dsm.tif", z, (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), 32632)
+    log = _Log()
+    processing_run("bareearth:morphological", {"INPUT": src, "OUTPUT_DTM": "TEMPORARY_OUTPUT",
+                                               "OUTPUT_MASK": "TEMPORARY_OUTPUT"}, feedback=log.feedback)
+    infos = [s for kind, s in log.lines if kind == "info"]
+    warnings = [s for kind, s in log.lines if kind == "warning"]
+    assert any("empty cell(s) enclosed by data" in s for s in infos), log.lines
+    assert not any("empty cell(s) enclosed by data" in s for s in warnings), warnings
+    assert any(s.startswith("1 cell(s) with heights beyond +-100000 m") for s in warnings), warnings

@@ -410,3 +410,30 @@ def test_filldtm_codes_separated_by_spaces_and_empty_entries(processing_run, tmp
         ok, msg = alg.checkParameterValues({"INPUT": z, "MASK": m, "FILL_CODES": codes,
                                             "OUTPUT": str(tmp_path / "g.tif")}, QgsProcessingContext())
         assert not ok and "(FILL_CODES) has an empty entry between two commas or semicolons" in msg, (codes, msg)
+
+
+def test_filldtm_cells_filled_to_the_declared_nodata_stay_heights(processing_run, tmp_path):
+    """A DTM declaring 300 as nodata over ground alternating 299 / 301 m: the cells filled under a masked
+    object came to exactly 300 and were written as 300, read back as nodata (the gap 'filled' with holes).
+    They are written just above, and the log says how many."""
+    from osgeo import gdal
+    from qgis.core import QgsProcessingFeedback
+    c = np.arange(80, dtype=np.float64)
+    z = np.tile(299.0 + 2.0 * (c % 2), (60, 1)).astype(np.float32)
+    mask = np.zeros(z.shape, np.uint8)
+    mask[20:40, 30:50] = 1
+    src = _write(tmp_path / "z.tif", z, nodata=300.0)
+    m = _write(tmp_path / "m.tif", mask, nodata=255)
+    warnings = []
+    fb = QgsProcessingFeedback()
+    fb.pushWarning = lambda s: warnings.append(s)
+    out = tmp_path / "f.tif"
+    processing_run("bareearth:filldtm", {"INPUT": src, "MASK": m, "OUTPUT": str(out)}, feedback=fb)
+    ds = gdal.Open(str(out))
+    band = ds.GetRasterBand(1)
+    f = band.ReadAsArray()
+    assert band.GetNoDataValue() == 300.0 and not (f == np.float32(300.0)).any()
+    assert (band.GetMaskBand().ReadAsArray() == 255).all()                 # GDAL reads every cell as valid
+    n = int((f == np.float32(300.00030517578125)).sum())
+    assert n > 50 and any(w.startswith(f"{n} cell(s) of the filled surface hold the declared nodata value 300")
+                          for w in warnings), warnings

@@ -689,3 +689,31 @@ def test_three_points_over_a_kilometre_at_5_cm_are_refused_before_work(processin
     refused = r"CELL_SIZE_M\) = 0.05 m gives 20000 x 20000 = 4e\+08 cells over the points' 1000 x 1000 m for 3 point"
     with pytest.raises(QgsProcessingException, match=refused + r"\(s\).* at least 200 m"):
         processing_run(alg, dict(params, CELL_SIZE_M=0.05))
+
+
+def test_points_without_a_finite_height_are_named_in_the_log(processing_run, warning_log, cloud_files, tmp_path):
+    """Points whose z is NaN or infinite (a failed export, 'nan' in a text file) were left out of the grid
+    and classed 255 without a word: 1 point in 50 of a tile vanished from the ground silently. The log
+    now says how many, and what they became; the other points are classified as before."""
+    z = cloud_files["z"].copy()
+    z[::50] = np.inf
+    z[1::97] = np.nan
+    bad = int((~np.isfinite(z)).sum())
+    src = _write_text(tmp_path / "holes.txt", cloud_files["x"], cloud_files["y"], z)
+    (tmp_path / "holes.prj").write_text("EPSG:32632")
+    log = warning_log()
+    out = tmp_path / "cls.txt"
+    processing_run("bareearth:morphological", {"INPUT_POINTS": src, "OUTPUT_POINTS": str(out),
+                                               "OUTPUT_DTM": "TEMPORARY_OUTPUT", "OUTPUT_MASK": "TEMPORARY_OUTPUT"},
+                   feedback=log)
+    said = [w for w in log.warnings if "have no finite height" in w]
+    assert said == [f"{bad} of the {z.size} points have no finite height (z NaN or infinite): they are left out of "
+                    "the grid and classed 255, outside the DTM (a LAS output keeps their input class). Check the z "
+                    "column of those points."], log.warnings
+    classes = np.loadtxt(out, usecols=3)
+    assert (classes[~np.isfinite(z)] == 255).all() and (classes[np.isfinite(z)] != 255).all()
+    log = warning_log()
+    processing_run("bareearth:rasterizepoints", {"INPUT": src, "OUTPUT": str(tmp_path / "dsm.tif")}, feedback=log)
+    assert [w for w in log.warnings if "have no finite height" in w] == [
+        f"{bad} of the {z.size} points have no finite height (z NaN or infinite): they are left out of the grid. "
+        "Check the z column of those points."], log.warnings

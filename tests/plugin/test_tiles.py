@@ -266,3 +266,26 @@ def test_tile_layers_with_settings_their_files_lack_are_refused(processing_run, 
     finally:
         for lyr in (nodata_layer, crs_layer):
             QgsProject.instance().removeMapLayer(lyr.id())
+
+
+def test_the_surveys_warnings_are_warnings(processing_run, tiles, tmp_path, monkeypatch):
+    """The survey's log went to QGIS's information lines whole, its warnings ("Warning: tiles declare
+    no nodata value", a worker's memory) among them with the prefix: QGIS never showed them as
+    warnings. The core's warnings now go to the warnings, its other lines to the information."""
+    from qgis.core import QgsProcessingFeedback
+
+    from bare_earth.core import Cancelled, survey
+    lines = []
+    fb = QgsProcessingFeedback()
+    fb.pushInfo = lambda s: lines.append(("info", s))
+    fb.pushWarning = lambda s: lines.append(("warning", s))
+    fb.reportError = lambda s, fatal=False: lines.append(("error", s))
+
+    def fake(method, inputs, out_dir, params, workers=0, scheduler=None, progress=None, log=None):
+        log("Survey: 6 tiles")
+        log("Warning: 6 tile(s) declare no nodata value")
+        raise Cancelled()
+    monkeypatch.setattr(survey, "run_survey", fake)
+    processing_run("bareearth:tiles", {"INPUT_LAYERS": tiles["paths"], "METHOD": method_index("morphological"),
+                                       "OUTPUT_FOLDER": str(tmp_path / "out")}, feedback=fb)
+    assert ("info", "Survey: 6 tiles") in lines and ("warning", "6 tile(s) declare no nodata value") in lines, lines
