@@ -608,6 +608,29 @@ def test_border_below_the_tolerated_rise_must_stand_above_the_terrain_level():
             assert rem[2:9, 6].all() and rem[:, :6].sum() == 0
 
 
+def test_border_skirt_stands_above_the_ground_around_when_the_terrain_level_climbs():
+    """Stage 4 on flat ground at 2 m cells (tolerance 12 degrees: 0.5 + 0.21 x 2.83 = 1.1 m): a
+    roof removed, a skirt of mixed cells 0.8 m high round it (kept). The largest step's
+    reconstruction on its blocks reaches their highest cell on terrain, here 0.9 m (a block's
+    mixed cell): measured from it the skirt is at the terrain level and stayed. The ground around
+    (kept cells touching no removed one, at 100 m) is lower: the skirt's 20 cells stand 0.8 m
+    above it and go; the ground beyond them stays. Where the ground around is at the skirt's level
+    (a terrace), nothing goes (see the terrace test above)."""
+    from bare_earth.core.geodesic.filter import remove_borders
+    cell = (2.0, 2.0)
+    z = np.full((16, 16), 100.0, np.float32)
+    z[5:11, 5:11] = 100.8                         # the skirt
+    z[6:10, 6:10] = 110.0                         # the roof
+    removed = np.zeros(z.shape, bool)
+    removed[6:10, 6:10] = True
+    tan_s = float(np.tan(np.radians(12.0)))
+    level = np.full((8, 8), 100.9, np.float32)    # blocks of 2 x 2 cells, climbed to their mixed cells
+    rem, step = removed.copy(), np.zeros(z.shape, np.uint8)
+    assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, (level, 2)) == 20
+    assert rem[5:11, 5:11].all() and rem.sum() == 36
+    assert (step[rem & ~removed] == geo.STEP_EDGE).all()
+
+
 def test_ground_drop_median_of_the_ground_around():
     from bare_earth.core.geodesic.filter import ground_drop
     drop = np.arange(25, dtype=np.float32).reshape(5, 5)
@@ -1337,8 +1360,10 @@ def _borders_by_passes(cleaned, valid, removed, cell_size, dh0, tan_s, step, ter
             s_loc = np.maximum(s_loc, terrain_slope_at(terrain, idx, cleaned.shape, cell_size))
             keep = d > dh0 + s_loc * diag
             strict = keep & (d <= dh0 + np.maximum(s_loc, tan_s) * diag)
+            level = np.fmin(terrain_at(terrain, idx[strict], cleaned.shape),
+                            ground_drop(base, ground, idx[strict], BORDER_RINGS, 0.75) + s_loc[strict] * diag)
             with np.errstate(invalid="ignore"):
-                keep[strict] = cleaned.ravel()[idx[strict]] - terrain_at(terrain, idx[strict], cleaned.shape) > dh0
+                keep[strict] = cleaned.ravel()[idx[strict]] - level > dh0
         idx = idx[keep]
         if idx.size == 0:
             break
