@@ -553,25 +553,23 @@ def test_outline_cells_exact():
 
 def test_outline_slope_keeps_ground_beside_a_tree_on_a_cut_crest():
     """A tree on a crest (sides 0.6) whose top the largest window cut (the opened surface
-    flat): without the terrain's slope the eight crest cells around the tree, 0.6 m above
-    their lowest neighbour, are taken for outline cells; with outline_slope 0.6 (rise 0.5 +
-    0.6 sqrt 2 = 1.35 m over a diagonal) they stay ground; the tree's half-height ring
-    (3 m) is outline either way."""
+    flat): the eight crest cells around the tree stand 0.6 m above their lowest neighbour; with
+    outline_slope 0.6 (rise 0.5 + 0.6 sqrt 2 = 1.35 m over a diagonal) they stay ground, and
+    without it too, since the crest goes on descending 0.6 m a cell beyond their foot (a slope
+    continuing, no wall: continuing_rise); a cell as high as the tree's half-height (3 m) is
+    outline either way."""
     j = np.arange(9, dtype=np.float32)
     crest = np.tile(10.0 - 0.6 * np.abs(j - 4.0), (9, 1)).astype(np.float32)
     flagged = np.zeros(crest.shape, bool)
     flagged[4, 4] = True
     z = crest + np.where(flagged, 6.0, 0.0).astype(np.float32)
     opened = np.full(z.shape, 8.0, np.float32)
-    bare = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0)
-    expect = np.zeros(z.shape, bool)
-    expect[3:6, 3:6] = True
-    expect[4, 4] = False
-    np.testing.assert_array_equal(bare, expect)
+    assert not morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.0).any()
     assert not morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6).any()
     z[3, 4] += 3.0                                          # a mixed cell: half the tree's height
-    out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, 0.6)
-    np.testing.assert_array_equal(np.argwhere(out), [[3, 4]])
+    for outline_slope in (0.0, 0.6):
+        out = morph.find_outline_cells(z, opened, flagged, (1.0, 1.0), 0.5, outline_slope)
+        np.testing.assert_array_equal(np.argwhere(out), [[3, 4]])
 
 
 def test_outline_slope_is_derived_and_logged():
@@ -1245,3 +1243,61 @@ def test_noise_floor_leaves_thresholds_above_it():
     high = morph.filter_morphological(z, 1.0, noise_m=0.1, **run)         # floor 0.45 m above the 0.4 m drop
     assert high.info["flagged_by_opening_percent"] == 0
     assert morph.noise_allowance(0.1) == pytest.approx(0.45) and morph.noise_allowance(None) == 0.0
+
+
+# --------------------------------------------------------------------------- walls and continuing slopes (issue 12)
+def test_continuing_rise_exact():
+    """The ground's descent beyond a foot, the smaller of its next two steps down: a plane of slope 0.5 at 1 m
+    cells descends 0.5 a step; level ground 0; a mixed cell half a roof high beside level ground 0 (its second
+    step is level); a slope of 3 is capped."""
+    j = np.arange(12, dtype=np.float32)[None, :] + np.zeros((9, 1), np.float32)
+    ground = np.ones(j.shape, bool)
+    foot = np.array([4 * 12 + 6])
+    assert morph.continuing_rise(0.5 * j, ground, foot, 10.0).tolist() == [0.5]
+    assert morph.continuing_rise(np.zeros_like(j), ground, foot, 10.0).tolist() == [0.0]
+    mixed = np.zeros_like(j)
+    mixed[4, 6] = 3.0
+    assert morph.continuing_rise(mixed, ground, foot, 10.0).tolist() == [0.0]
+    assert morph.continuing_rise(3.0 * j, ground, foot, 2.0).tolist() == [2.0]
+    assert morph.continuing_rise(0.5 * j, ground, np.array([-1]), 10.0).tolist() == [0.0]
+
+
+def _flank_and_roof():
+    """A mound with 1:1 flanks 6 m high (flags on its top, z > 4.5) and a roof 6 m high ringed by one cell of
+    mixed cells at half its height, each on level ground, 1 m cells."""
+    i, j = np.mgrid[0:31, 0:31].astype(np.float32)
+    mound = np.clip(8.0 - np.maximum(np.abs(i - 15), np.abs(j - 15)), 0.0, 6.0).astype(np.float32)
+    roof = np.zeros_like(mound)
+    roof[11:20, 11:20] = 3.0
+    roof[12:19, 12:19] = 6.0
+    return mound, mound > 4.5, roof, roof == 6.0
+
+
+def test_a_flank_continuing_beyond_its_foot_is_no_wall():
+    """A wall is a step across about one cell; a dike's or a mountain's flank goes on descending beyond its foot.
+    The mound's top, flagged, stands 1 m above the flank cell beside it (a wall for dh 0.5 at the outline slope
+    0) but the flank descends 1 m a cell beyond: cut terrain, not an object on walls. The roof stands 3 m above
+    its ring of mixed cells, which stands 3 m above level ground (a continuing slope read over one step only):
+    a wall, still an object."""
+    mound, top, roof, flat = _flank_and_roof()
+    args = ((1.0, 1.0), 0.5, 0.0, (10, 10))
+    np.testing.assert_array_equal(morph.find_cut_terrain(mound, top, ~top, *args), top)
+    assert not morph.find_cut_terrain(roof, flat, ~flat, *args).any()
+    assert not morph.objects_on_walls(mound, top, ~top, (1.0, 1.0), 0.5, 0.0, keep_thin=False).any()
+    np.testing.assert_array_equal(morph.objects_on_walls(roof, flat, ~flat, (1.0, 1.0), 0.5, 0.0), flat)
+    # the flank's cells beside the flags are no outline cells; the roof's ring is
+    assert not morph.find_outline_cells(mound, np.zeros_like(mound), top, (1.0, 1.0), 0.5, 0.0).any()
+    ring = morph.find_outline_cells(roof, np.zeros_like(roof), flat, (1.0, 1.0), 0.5, 0.0)
+    np.testing.assert_array_equal(ring, roof == 3.0)
+
+
+def test_steep_mountain_at_4_m_keeps_its_ground():
+    """The fBm mountain of benchmarks/bare.py at 4 m cells (no object): its crests, cut by the object-size
+    search, stood on one-cell rises steeper than the 40 m blocks' 90th-percentile slope, so on 'walls', and
+    sized an 80 m window that cut more of them: 10.55 % of the ground lost; their flanks go on descending
+    beyond the foot, so they are no walls: 2.26 %."""
+    from bare_earth.core.synthetic_bare import make_bare
+    s = make_bare("mountain", 4.0, seed=0)
+    res = morph.filter_morphological(s.dsm, s.cell_size)
+    assert res.info["max_object_size_m"] < 40.0
+    assert np.count_nonzero(res.mask != GROUND) < 0.04 * res.mask.size
