@@ -42,6 +42,7 @@ LABELS = {
     "neighbour_k": "Neighbour test: critical value (x sigma)",
     "terrain_slope": "Neighbour test: terrain slope for a height's place in its cell (rise/run)",
     "terrain_bend_m": "Neighbour and level tests: the terrain's bend over one cell (m)",
+    "ground_sigma_m": "Neighbour test: random error of the ground's heights (m)",
     "jump_m": "Smallest jump of level (m)",
     "max_building_m": "Longest building (m)",
     "max_hall_m": "Longest hall closed by walls (m)",

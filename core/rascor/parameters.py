@@ -18,6 +18,7 @@ from ..estimate import (
     RAISED_REGION_SPAN_M,
     ground_level_cells,
     ground_level_reference,
+    noise_ground_level,
     object_widths,
     raised_region_grid,
     sample_windows,
@@ -40,7 +41,8 @@ DEFAULTS = dict(terrain_class="auto", homogeneous="auto", sigma_m=None, step1_ch
                 step4_level_change=True, step5_profiles=True, step6_surfaces=True,
                 step7_prediction=False, second_iteration=False, step3_repeat=True,
                 spare_continuing_ground=True, height_min_m=None,
-                height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, jump_m=2.0,
+                height_max_m=None, neighbour_k=3.0, terrain_slope=None, terrain_bend_m=None, ground_sigma_m=None,
+                jump_m=2.0,
                 max_building_m=120.0, max_hall_m=None,
                 short_profile_m=None, long_profile_m=None, profile_sigma_m=None,
                 surface_size_m=None, surface_rule="objects", surface_sigma_m=None,
@@ -253,6 +255,15 @@ def terrain_bend(z, cell_size, sigma):
     return round(b, 3) if b > sigma else 0.0
 
 
+def ground_sigma(z, cell_size, sigma):
+    """Step 3's ``ground_sigma_m``: the random error of the ground's heights (m), the standard deviation
+    of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), at most
+    ``sigma`` (the whole DSM's, which the crowns of a vegetated slope widen: 0.35 m on shrubs whose
+    lidar noise is 0.05 m) and at least 0.001 m; ``sigma`` when too few ground-level cells are seen."""
+    g = float(noise_ground_level(z, as_cell_size(cell_size))["sigma"])
+    return round(max(0.001, min(float(sigma), g)), 3) if np.isfinite(g) else float(sigma)
+
+
 def _height_limits(z, low_env, sigma):
     """Step 2's limits ``(height_min_m, height_max_m)`` of the heights ``z``, whose lower envelope
     (step 1's tile minima) is ``low_env``: far outside the distribution, beyond Tukey's far
@@ -439,6 +450,9 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
         p["terrain_slope"] = round(float(ch["slope_median"]), 4)
     if p["terrain_bend_m"] is None:
         p["terrain_bend_m"] = terrain_bend(z, (dx, dy), sigma)
+    if p["ground_sigma_m"] is None:
+        # step 3: the noise of the slope beyond a pair is the ground heights', not the crowns'
+        p["ground_sigma_m"] = ground_sigma(z, (dx, dy), sigma)
     if p["max_hall_m"] is None:
         p["max_hall_m"] = longest_hall(z, (dx, dy), jump_m=p["jump_m"], max_building_m=p["max_building_m"],
                                        sigma_m=sigma, neighbour_k=p["neighbour_k"],

@@ -58,6 +58,7 @@ class _Settings:
     neighbour_k: float
     terrain_slope: float
     terrain_bend_m: float
+    ground_sigma_m: float
     jump_m: float
     max_building_m: float
     max_hall_m: float
@@ -157,7 +158,7 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
                     jump_m, max_building_m, max_hall_m, short_profile_m, long_profile_m, profile_sigma_m,
                     surface_size_m, surface_sigma_m, prediction_radius_m, prediction_sigma_m,
                     snooping_k, snooping_iterations, low_weight, fits_per_block=False, step3_repeat=True,
-                    spare_continuing_ground=True):
+                    spare_continuing_ground=True, ground_sigma_m=None):
     """Check the parameters (ValueError naming the fix) and return the :class:`_Settings`."""
     dx, dy = as_cell_size(cell_size)
     if terrain_class not in TERRAIN_CLASSES:
@@ -183,6 +184,12 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         raise ValueError(f"terrain_bend_m must be a number >= 0 (metres); got {terrain_bend_m!r}. "
                          "Pass 0 for the paper's tolerances of steps 3 and 4, or call "
                          "resolve_rascor_params to derive it (the bends of the block minima).")
+    if ground_sigma_m is None:
+        ground_sigma_m = sigma_m
+    if not np.isfinite(ground_sigma_m) or ground_sigma_m <= 0:
+        raise ValueError(f"ground_sigma_m must be a positive number (metres); got {ground_sigma_m!r}. Leave it "
+                         "empty for sigma_m, or call resolve_rascor_params to derive it (the noise of the "
+                         "ground-level cells).")
     if not 0 < low_weight <= 1:
         raise ValueError(f"low_weight must be in (0, 1]; got {low_weight}. It is the weight "
                          "factor of points below the reference (0.02: tolerance x 7).")
@@ -204,7 +211,8 @@ def _check_settings(cell_size, *, terrain_class, homogeneous, sigma_m, switches,
         on=on, second_iteration=bool(second_iteration), step3_repeat=bool(step3_repeat),
         height_min_m=height_min_m,
         height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=float(terrain_slope),
-        terrain_bend_m=float(terrain_bend_m), jump_m=jump_m, max_building_m=max_building_m,
+        terrain_bend_m=float(terrain_bend_m), ground_sigma_m=float(ground_sigma_m), jump_m=jump_m,
+        max_building_m=max_building_m,
         max_hall_m=float(max_hall_m), lengths=lengths,
         surface_size_m=surface_size_m,
         prediction_radius_m=prediction_radius_m,
@@ -283,7 +291,8 @@ def _step3_neighbour_differences(st, cfg, progress):
     hi, lo = remove_neighbour_differences(st.z, st.keep, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                           low_weight=cfg.low_weight, labels=st.labels,
                                           cell_rise_m=cell_rise(cfg.terrain_slope, cfg.cell),
-                                          bend_m=cfg.terrain_bend_m, progress=progress)
+                                          bend_m=cfg.terrain_bend_m, ground_sigma_m=cfg.ground_sigma_m,
+                                          progress=progress)
     _record(st, 3, hi, lo)
 
 
@@ -443,7 +452,8 @@ def _retest_step3_at_terrain_steps(st, cfg, steps):
         win = (slice(w0, w1), slice(v0, v1))
         hi, lo = remove_neighbour_differences(st.z[win], st.keep[win] | cand[win], sigma_m=cfg.sigma_m,
                                               k=cfg.neighbour_k, low_weight=cfg.low_weight,
-                                              labels=st.labels[win], cell_rise_m=rise, bend_m=cfg.terrain_bend_m)
+                                              labels=st.labels[win], cell_rise_m=rise, bend_m=cfg.terrain_bend_m,
+                                              ground_sigma_m=cfg.ground_sigma_m)
         core = (slice(a0 - w0, a1 - w0), slice(b0 - v0, b1 - v0))
         back[a0:a1, b0:b1] = cand[a0:a1, b0:b1] & ~hi[core] & ~lo[core]
     back &= alone | _continues_kept_level(st, cfg, back & ~alone)
@@ -669,7 +679,8 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                   second_iteration: bool = False, step3_repeat: bool = True,
                   height_min_m: Optional[float] = None,
                   height_max_m: Optional[float] = None, neighbour_k: float = 3.0,
-                  terrain_slope: float = 0.0, terrain_bend_m: float = 0.0, jump_m: float = 2.0,
+                  terrain_slope: float = 0.0, terrain_bend_m: float = 0.0,
+                  ground_sigma_m: Optional[float] = None, jump_m: float = 2.0,
                   max_building_m: float = 120.0, max_hall_m: float = 0.0,
                   short_profile_m: float = 9.0, long_profile_m: float = 25.0,
                   profile_sigma_m: Optional[float] = None, surface_size_m: float = 25.0,
@@ -722,6 +733,11 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         widen by ``k`` times it in quadrature (0: the paper's tolerances;
         :func:`resolve_rascor_params` derives it from the block minima, metres on coarse
         DEMs of hills, millimetres on 1 m lidar).
+    ground_sigma_m : float, optional
+        Step 3: the random error of the ground's heights (m), the noise of the slope beyond a
+        pair on sloping ground (:func:`~.steps.slope_weight`); None: ``sigma_m``
+        (:func:`resolve_rascor_params` derives it: the noise of the ground-level cells,
+        :func:`~bare_earth.core.estimate.noise_ground_level`, at most ``sigma_m``).
     jump_m, max_building_m : float
         Step 4: minimum level change and maximum building length, metres.
     max_hall_m : float
@@ -779,7 +795,7 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
         steps=steps, second_iteration=second_iteration, step3_repeat=step3_repeat,
         height_min_m=height_min_m,
         height_max_m=height_max_m, neighbour_k=neighbour_k, terrain_slope=terrain_slope,
-        terrain_bend_m=terrain_bend_m, jump_m=jump_m,
+        terrain_bend_m=terrain_bend_m, ground_sigma_m=ground_sigma_m, jump_m=jump_m,
         max_building_m=max_building_m, max_hall_m=max_hall_m, short_profile_m=short_profile_m,
         long_profile_m=long_profile_m, profile_sigma_m=profile_sigma_m,
         surface_size_m=surface_size_m, surface_sigma_m=surface_sigma_m,
