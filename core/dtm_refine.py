@@ -288,7 +288,7 @@ from scipy import ndimage
 
 from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
-from .common import cells_of, touching
+from .common import cells_of, square_counts, touching
 from .estimate import ground_plane_gradient
 from .fill import EDGE_PASSES, edge_spikes_reach, find_edge_spikes
 
@@ -1646,17 +1646,22 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
                     & (np.abs(zf[a1] - 2 * zg + zf[b1]) <= float(smooth_m))
                     & (np.abs(zg - 2 * zf[b1] + zf[b2]) <= float(smooth_m)))
     gr, gc = np.divmod(got, W)
-    out[gr - P, gc - P] = True
+    gr -= P
+    gc -= P
+    keep = np.ones(got.size, bool)
+    # (the squares counted at the path cells only: square_counts, the filters' counts in integers)
     if top.any() and int(wall_cells) > 0:
         tops = np.zeros(z.shape, bool)
-        tops[gr[top] - P, gc[top] - P] = True
-        out &= ~ndimage.maximum_filter(tops, size=2 * int(wall_cells) + 1, mode="constant")
+        tops[gr[top], gc[top]] = True
+        keep = square_counts(tops, gr, gc, int(wall_cells)) == 0
     elif top.any():
-        out[gr[top] - P, gc[top] - P] = False
+        keep = ~top
+    gr, gc = gr[keep], gc[keep]
+    out[gr, gc] = True
     # 4. a bank is long: the cells given back within the square fill at least its side (an embankment across it),
     # not a car's roof or a bush's top a step above the ground
-    if int(wall_cells) > 0 and out.any():
+    if int(wall_cells) > 0 and gr.size:
         side = 2 * int(wall_cells) + 1
-        near = ndimage.uniform_filter(out.astype(np.float32), size=side, mode="constant") * float(side * side)
-        out &= near >= side - 0.5
+        short = square_counts(out, gr, gc, int(wall_cells)) < side
+        out[gr[short], gc[short]] = False
     return out
