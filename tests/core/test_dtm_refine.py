@@ -1433,3 +1433,58 @@ def test_continue_banks_clears_the_square_around_a_wall_top(wall):
     want = np.zeros(z.shape, bool)
     want[3:5, 2:30 - wall] = True             # the top at column 30; column 31 is rough (the drop beside it)
     np.testing.assert_array_equal(got, want)
+
+
+
+@pytest.mark.parametrize("band_rows, sparse", [(4, 1.0 / 16), (64, 1.0 / 16), (7, 0.0), (64, 1.0)])
+def test_bracketed_with_the_planes_asked_where_needed_equals_the_whole_planes(monkeypatch, band_rows, sparse):
+    """find_bracketed asking for the seen ground's planes only where they can change the result
+    (``seen_gradient_of``: the cells above the lowest ground on both sides of a line by nearly dh, and that line
+    within the reach) gives the cells of the planes computed everywhere, whether the first pass keeps its floors
+    (sparse) or the second computes them again (``LOWEST_SPARSE`` 0); the planes are asked at a few cells."""
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    monkeypatch.setattr(dr, "LOWEST_SPARSE", sparse)
+    rng = np.random.default_rng(8)
+    y, x = np.mgrid[0:90, 0:70].astype(np.float32)
+    z = (0.35 * x + 0.01 * (y - 45) ** 2 + rng.normal(0, 0.1, x.shape)).astype(np.float32)
+    z[rng.random(z.shape) < 0.03] += rng.uniform(0.4, 1.5)        # bushes, some near the threshold
+    z[rng.random(z.shape) < 0.02] = np.nan
+    ground = rng.random(z.shape) > 0.1
+    cell, s, dh, reach = (1.0, 1.0), 0.5, 0.5, 6.0
+    whole = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                              seen_gradient=dr.seen_ground_gradient(z, ground, cell, reach))
+    asked = []
+
+    def planes(at):
+        asked.append(at)
+        return dr.seen_ground_gradient(z, ground, cell, reach, at=at)
+
+    got = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach, seen_gradient_of=planes)
+    assert whole.sum() > 20
+    np.testing.assert_array_equal(got, whole)
+    assert len(asked) == 1 and asked[0][whole].all()
+    if sparse:
+        assert asked[0].mean() < 0.6
+    # refine_ground asks for them so: its mask as with the planes everywhere
+    mask = np.where(ground, GROUND, OBJECT).astype(np.uint8)
+    new, _ = dr.refine_ground(z, mask, cell, tolerance_m=dh, slope=s, reach_m=reach, along_ground=True)
+    assert (new[whole] == OBJECT).all()
+
+
+def test_bracketed_with_the_planes_asked_where_needed_keeps_the_bumps_just_above_dh():
+    """On nearly level ground (the planes raise the height to exceed by little, the noise's slope over a long
+    reach little) bumps 0.53-0.545 m high stand above floors 0.5 m below them: the first pass keeps every cell
+    standing ``LOWEST_MARGIN dh`` above the lowest ground on both sides, so none of them is lost."""
+    rng = np.random.default_rng(4)
+    y, x = np.mgrid[0:80, 0:80].astype(np.float32)
+    z = (14.0 + 0.005 * x + rng.normal(0, 0.002, x.shape)).astype(np.float32)
+    bumps = rng.random(z.shape) < 0.02
+    z[bumps] += rng.uniform(0.53, 0.545, bumps.sum()).astype(np.float32)
+    ground = np.ones(z.shape, bool)
+    cell, s, dh, reach = (1.0, 1.0), 0.5, 0.5, 30.0
+    whole = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                              seen_gradient=dr.seen_ground_gradient(z, ground, cell, reach))
+    got = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                            seen_gradient_of=lambda at: dr.seen_ground_gradient(z, ground, cell, reach, at=at))
+    assert whole.sum() > 0.5 * bumps.sum()
+    np.testing.assert_array_equal(got, whole)
