@@ -288,7 +288,7 @@ from scipy import ndimage
 
 from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
-from .common import cells_of, touching
+from .common import cells_of, square_counts, touching
 from .estimate import ground_plane_gradient
 from .fill import EDGE_PASSES, edge_spikes_reach, find_edge_spikes
 
@@ -360,11 +360,11 @@ def line_slope_radius(cell_size, reach_m=REACH_M):
     return max(1, int(math.ceil(float(reach_m) / min(float(cell_size[0]), float(cell_size[1])))))
 
 
-def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M, pool=None):
+def seen_ground_gradient(z, ground, cell_size, reach_m=REACH_M, pool=None, at=None):
     """``(gx, gy)``: the gradient of the least-squares plane through the ground cells of the square of half-side the
     floors' reach around each cell (:func:`~.estimate.ground_plane_gradient`, :func:`line_slope_radius`; ``pool``:
-    threads that may take some of its bands, the same result)."""
-    return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m), pool=pool)
+    threads that may take some of its bands, the same result; ``at``: at those cells only, NaN elsewhere)."""
+    return ground_plane_gradient(z, ground, cell_size, line_slope_radius(cell_size, reach_m), pool=pool, at=at)
 
 
 def _line_along(gx, gy, cell_size, di, dj):
@@ -1245,7 +1245,8 @@ def _padded(a, rows, cols, fill):
     return out
 
 
-def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_gradient=None, pool=None):
+def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_gradient=None, pool=None,
+                   seen_gradient_of=None):
     """Ground cells standing above lower ground on both sides of a line (bool, same shape).
 
     Parameters
@@ -1272,6 +1273,13 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
     pool : Executor, optional
         Threads that may take some of the bands of rows (:func:`~.blocks.run_sharing`); the same result
         without.
+    seen_gradient_of : callable, optional
+        In place of ``seen_gradient``: ``seen_gradient_of(at=cells)`` gives ``(gx, gy)`` at least at the bool
+        raster ``cells`` (NaN elsewhere; :func:`seen_ground_gradient` with ``at``), asked only where the planes
+        can change the result: the cells standing above the lowest ground within the reach on both sides of a
+        line by nearly ``height_m`` (:func:`_lowest_band`: no floor lies below that lowest ground, no height
+        to exceed below ``height_m``) and the cells along that line within the reach (the line's largest
+        slope). The same result as with the whole ``seen_gradient``.
 
     Returns
     -------
@@ -1293,17 +1301,87 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
     halo = max(abs(di) * n for (di, dj), n in steps.items())
     rows = z.shape[0]
     out = np.zeros(z.shape, bool)
+    starts = range(0, rows, _BAND_ROWS)
+    lows = [None] * len(starts)
+    if seen_gradient is None and seen_gradient_of is not None:
+        # first the lowest ground within the reach on both sides of each line (the floors at slope 0, kept at
+        # the cells above them on both sides: the bands' second pass reads them), then the planes at the cells
+        # whose result they can change only
+        lows = run_sharing([partial(_lowest_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps,
+                                    float(height_m)) for a in starts], pool)
+        seen_gradient = seen_gradient_of(at=_lowest_reach(lows, starts, steps, halo, z.shape))
     # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact); each band
     # writes its own rows of ``out``, so the bands may run in any order, on any thread
     run_sharing([partial(_bracketed_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps, float(slope),
-                         float(height_m), dx, dy, out, seen_gradient) for a in range(0, rows, _BAND_ROWS)], pool)
+                         float(height_m), dx, dy, out, seen_gradient, low) for a, low in zip(starts, lows)], pool)
     return out
 
 
-def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, seen_gradient=None):
+#: :func:`_lowest_band` keeps the cells standing more than this share of ``dh`` above the lowest ground on both
+#: sides: :func:`_bracketed_band`'s height to exceed, ``sqrt(dh^2 + ...)`` in float32, is never below it.
+LOWEST_MARGIN = 0.999
+#: :func:`_lowest_band` keeps a line's floors at its cells when they are at most this share of the band's cells
+#: (a few hundred kB a band); more: the band's second pass computes them again (the same values).
+LOWEST_SPARSE = 1.0 / 16
+
+
+def _lowest_band(z, ground, a, b, halo, steps, height_m):
+    """The first pass of :func:`find_bracketed` with ``seen_gradient_of`` on the rows ``a:b``: per line
+    ``{(di, dj): (cells, below_a, below_b)}``, the band's open ground cells (flat, band's own) standing more than
+    ``LOWEST_MARGIN height_m`` above the lowest ground within the reach on both sides of the line (its floors at
+    slope 0, as :func:`_bracketed_band` computes them) and those two floors there; None where they are more than
+    :data:`LOWEST_SPARSE` of the band (the second pass computes them again)."""
+    rows = z.shape[0]
+    lo, hi = max(0, a - halo), min(rows, b + halo)
+    zb = z[lo:hi]
+    zg = np.where(ground[lo:hi] & np.isfinite(zb), zb, np.float32(np.inf))
+    zt = z[a:b]
+    top = zt - np.float32(LOWEST_MARGIN * height_m)
+    open_ = ground[a:b] & np.isfinite(zt)
+    lows = {}
+    for (di, dj), n in steps.items():
+        cells = open_.copy()
+        floors = []
+        for sdi, sdj in ((di, dj), (-di, -dj)):
+            r0, r1 = max(lo, a - n * max(0, sdi)), min(hi, b + n * max(0, -sdi))
+            f = _floor(zg[r0 - lo:r1 - lo], n, sdi, sdj, 0.0)[a - r0:b - r0]
+            cells &= f < top
+            floors.append(f)
+        k = np.flatnonzero(cells)
+        lows[(di, dj)] = None if k.size > LOWEST_SPARSE * cells.size else (
+            k, floors[0].ravel()[k], floors[1].ravel()[k])
+    return lows
+
+
+def _lowest_reach(lows, starts, steps, halo, shape):
+    """The cells whose seen planes :func:`_bracketed_band` reads at the cells of :func:`_lowest_band` (bool raster):
+    those cells and the cells along their line within its reach (the line's largest slope); a band's line kept
+    whole (None): the band's rows and the floors' rows around them."""
+    rows, cols = shape
+    at = np.zeros(shape, bool)
+    for a, low in zip(starts, lows):
+        b = min(rows, a + _BAND_ROWS)
+        for (di, dj), kept in low.items():
+            if kept is None:
+                at[max(0, a - halo):min(rows, b + halo)] = True
+                continue
+            if kept[0].size == 0:
+                continue
+            n = steps[(di, dj)]
+            i, j = np.divmod(kept[0], cols)
+            t = np.arange(-n, n + 1)
+            ii = (i[:, None] + a + t[None, :] * di).ravel()
+            jj = (j[:, None] + t[None, :] * dj).ravel()
+            on = (ii >= 0) & (ii < rows) & (jj >= 0) & (jj < cols)
+            at[ii[on], jj[on]] = True
+    return at
+
+
+def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, seen_gradient=None, lows=None):
     """:func:`find_bracketed` on the rows ``a:b`` (read with ``halo`` rows around them) into ``out[a:b]``; with
     ``seen_gradient``, each cell's slopes along the lines read from it here (:func:`line_slopes`, on the band's
-    rows and the floors' rows around it: the line's largest within its reach exact)."""
+    rows and the floors' rows around it: the line's largest within its reach exact); with ``lows``
+    (:func:`_lowest_band`), the floors at slope 0 it kept."""
     rows = z.shape[0]
     lo, hi = max(0, a - halo), min(rows, b + halo)
     zb = z[lo:hi]
@@ -1341,8 +1419,17 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
             # both sides is taken by neither test along this line, and a line where no open cell is below it on
             # both sides needs no floor at s (the same cells taken, the floors not computed)
             cand = open_ & ~hit
+            kept = None if lows is None else lows[(di, dj)]
+            if kept is not None:
+                # the floors kept by the first pass, at the only cells that can stand above both (the height
+                # to exceed is at least LOWEST_MARGIN dh): the same cells below both as from the floors here
+                k = kept[0]
+                for t in range(2):
+                    lowest[t] = np.zeros(zt.shape, bool)
+                    lowest[t].ravel()[k] = kept[1 + t] < top.ravel()[k]
+                    cand &= lowest[t]
             for t, (sdi, sdj) in enumerate(((di, dj), (-di, -dj))):
-                if cand.any():
+                if kept is None and cand.any():
                     lowest[t] = floor_rows(sdi, sdj, 0.0) < top
                     cand &= lowest[t]
             if not cand.any():
@@ -1437,8 +1524,10 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     dh = max(float(tolerance_m), 1e-3)
     et = dh if edge_tolerance_m is None else min(dh, max(float(edge_tolerance_m), 1e-3))
     ground = mask == GROUND
-    seen = seen_ground_gradient(z, ground, cell_size, reach_m, pool=pool) if along_ground and s > 0 else None
-    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_gradient=seen, pool=pool)
+    # the seen ground's planes where they can change the bracketed cells (find_bracketed asks for them)
+    seen = partial(seen_ground_gradient, z, ground, cell_size, reach_m, pool=pool) if along_ground and s > 0 else None
+    out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_gradient_of=seen,
+                         pool=pool)
     seen = None
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness
     smooth = find_smooth(z, out, SMOOTH_RATIO * dh, ground=ground)
@@ -1666,19 +1755,24 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
                     & (np.abs(zf[a1] - 2 * zg + zf[b1]) <= float(smooth_m))
                     & (np.abs(zg - 2 * zf[b1] + zf[b2]) <= float(smooth_m)))
     gr, gc = np.divmod(got, W)
-    out[gr - P, gc - P] = True
+    gr -= P
+    gc -= P
+    keep = np.ones(got.size, bool)
+    # (the squares counted at the path cells only: square_counts, the filters' counts in integers)
     if top.any() and int(wall_cells) > 0:
         tops = np.zeros(z.shape, bool)
-        tops[gr[top] - P, gc[top] - P] = True
-        out &= ~ndimage.maximum_filter(tops, size=2 * int(wall_cells) + 1, mode="constant")
+        tops[gr[top], gc[top]] = True
+        keep = square_counts(tops, gr, gc, int(wall_cells)) == 0
     elif top.any():
-        out[gr[top] - P, gc[top] - P] = False
+        keep = ~top
+    gr, gc = gr[keep], gc[keep]
+    out[gr, gc] = True
     # 4. a bank is long: the cells given back within the square fill at least its side (an embankment across it),
     # not a car's roof or a bush's top a step above the ground
-    if int(wall_cells) > 0 and out.any():
+    if int(wall_cells) > 0 and gr.size:
         side = 2 * int(wall_cells) + 1
-        near = ndimage.uniform_filter(out.astype(np.float32), size=side, mode="constant") * float(side * side)
-        out &= near >= side - 0.5
+        short = square_counts(out, gr, gc, int(wall_cells)) < side
+        out[gr[short], gc[short]] = False
     # 5. not a bump on the bank: above the ground interpolated from both sides along every line
     if bump_m is not None and out.any():
         out &= ~stands_above_ground(z, ground, out, height_m=bump_m, reach_cells=bump_cells)

@@ -1858,7 +1858,7 @@ def raised_parts(z, step_m, max_cells):
 _PLANE_BAND_ROWS = 256
 
 
-def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None):
+def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None, at=None):
     """The gradient of the least-squares plane through the ``ground`` cells of the square of half-side
     ``radius_cells`` around each cell: ``(gx, gy)``, rise per metre along the columns and the rows (float32;
     NaN where the square holds fewer than three ground cells not on one line).
@@ -1881,9 +1881,17 @@ def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None):
     pool : Executor, optional
         Threads that may take some of the bands of rows (:func:`~.blocks.run_sharing`); the same result
         without.
+    at : ndarray of bool, optional
+        The cells whose planes are wanted (NaN elsewhere): a band of rows holding none is skipped, the pass
+        along the rows runs on the rows holding one and the planes are solved at them only (the same values
+        there, bit for bit: the passes down the columns are the whole band's). None: every cell.
     """
     z = np.asarray(z)
     ground = np.asarray(ground, bool)
+    if at is not None:
+        at = np.asarray(at, bool)
+        if at.shape != z.shape:
+            raise ValueError(f"at has shape {at.shape} but z has {z.shape}: pass a mask of the DSM's grid.")
     r = max(1, int(radius_cells))
     dx, dy = float(cell_size[0]), float(cell_size[1])
     rows, cols = z.shape
@@ -1891,19 +1899,26 @@ def ground_plane_gradient(z, ground, cell_size, radius_cells, pool=None):
     gy = np.full(z.shape, np.nan, np.float32)
     x = np.arange(cols, dtype=np.float64)[None, :] * dx
     # each band writes its own rows of gx, gy: the bands may run in any order, on any thread
-    run_sharing([partial(_plane_band, z, ground, a, min(rows, a + _PLANE_BAND_ROWS), r, x, dy, gx, gy)
+    run_sharing([partial(_plane_band, z, ground, a, min(rows, a + _PLANE_BAND_ROWS), r, x, dy, gx, gy, at)
                  for a in range(0, rows, _PLANE_BAND_ROWS)], pool)
     return gx, gy
 
 
-def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
+def _plane_band(z, ground, a, b, r, x, dy, gx, gy, at=None):
     """:func:`ground_plane_gradient` on the rows ``a:b``, read with the squares' ``r`` rows around them (exact),
     into ``gx[a:b]``, ``gy[a:b]``.
 
     The nine box means of ``ndimage.uniform_filter`` bit for bit, cheaper: the pass down the columns along whole
     rows (:func:`~.common.running_mean_down`; SciPy gathers each column with the row stride), the pass along the
     rows on the band's own rows only, the products in one buffer, and the planes solved a few rows at a time
-    (:func:`_plane_solve`: the same arithmetic per cell, its temporaries in the cache)."""
+    (:func:`_plane_solve`: the same arithmetic per cell, its temporaries in the cache). With ``at``: the pass along
+    the rows on the band's rows holding a cell of ``at`` only, the planes solved at those cells only (each row's
+    pass is its own, each cell's solution too: the same values there)."""
+    sel = None
+    if at is not None:
+        sel = np.flatnonzero(at[a:b].any(axis=1))              # the band's rows holding a wanted cell
+        if sel.size == 0:
+            return
     rows = z.shape[0]
     size = 2 * r + 1
     lo, hi = max(0, a - r), min(rows, b + r)
@@ -1921,7 +1936,8 @@ def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
         # the box mean of ndimage.uniform_filter bit for bit: down the columns (along whole rows, SciPy's sums in
         # its order), then along the rows on the band's own rows only (each row's pass is its own)
         running_mean_down(v, size, d, mode="constant")
-        return ndimage.uniform_filter1d(d[band], size, axis=1, mode="constant", cval=0.0)
+        return ndimage.uniform_filter1d(d[band] if sel is None else d[a - lo + sel], size, axis=1, mode="constant",
+                                        cval=0.0)
 
     def moment(u, v, s=None):
         """The box mean of ``u v`` (``u v s``); the products formed as ``u * v * s`` is."""
@@ -1933,6 +1949,18 @@ def _plane_band(z, ground, a, b, r, x, dy, gx, gy):
     means = (mean(w), moment(w, x), moment(w, y), mean(zw), moment(w, x, x), moment(w, y, y), moment(w, x, y),
              moment(zw, x), moment(zw, y))
     del w, zw
+    if sel is not None:
+        # the wanted cells of those rows, a chunk of cells at a time (the same arithmetic per cell)
+        cells = np.flatnonzero(at[a:b][sel])
+        px = np.empty(cells.size, np.float32)
+        py = np.empty(cells.size, np.float32)
+        for i in range(0, cells.size, _PLANE_SOLVE_CELLS):
+            k = cells[i:i + _PLANE_SOLVE_CELLS]
+            _plane_solve(*(m.ravel()[k] for m in means), size, px[i:i + k.size], py[i:i + k.size])
+        ri, ci = np.divmod(cells, gx.shape[1])
+        gx[a + sel[ri], ci] = px
+        gy[a + sel[ri], ci] = py
+        return
     # the planes solved a few rows at a time (the same arithmetic per cell; its temporaries stay in the cache)
     step = max(1, _PLANE_SOLVE_CELLS // max(1, gx.shape[1]))
     for i in range(0, b - a, step):

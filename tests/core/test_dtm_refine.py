@@ -1460,3 +1460,134 @@ def test_continue_banks_blocked_equals_one_pass():
 
     for b in (17, 40):
         assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
+
+
+def test_square_counts_equals_the_filters_at_the_cells():
+    """common.square_counts (continue_banks' wall tops and bank lengths): the counts of uniform_filter times the
+    square's area, and maximum_filter's cells, exactly, on sparse and dense masks, cut by the edges."""
+    from bare_earth.core.common import square_counts
+    rng = np.random.default_rng(3)
+    for share in (0.0, 0.002, 0.05, 0.5, 1.0):
+        for half in (0, 1, 4, 13):
+            m = rng.random((37, 29)) < share
+            side = 2 * half + 1
+            r, c = np.divmod(np.arange(m.size), m.shape[1])
+            got = square_counts(m, r, c, half).reshape(m.shape)
+            want = np.rint(ndimage.uniform_filter(m.astype(np.float64), side, mode="constant") * side * side)
+            np.testing.assert_array_equal(got, want.astype(np.int64))
+            np.testing.assert_array_equal(got > 0, ndimage.maximum_filter(m, side, mode="constant"))
+    m = np.zeros((6, 7), bool)
+    m[0, 0] = m[5, 6] = m[2, 3] = True
+    assert square_counts(m, np.array([2, 0, 5, 3]), np.array([2, 6, 0, 3]), 1).tolist() == [1, 0, 0, 1]
+    assert square_counts(m, np.array([], int), np.array([], int), 2).size == 0
+    with pytest.raises(ValueError, match="half"):
+        square_counts(m, np.array([0]), np.array([0]), -1)
+
+
+def test_continue_banks_squares_as_the_filters_over_the_raster(monkeypatch):
+    """continue_banks counts its squares (the wall tops' exclusion, the bank's length) at the path cells only: the
+    same cells as with the filters over the whole raster (maximum_filter of the tops, uniform_filter of the cells
+    given back times the square's area) on a dike, a ramp to a deck, a low mound and noise."""
+    rng = np.random.default_rng(11)
+    n = 150
+    i, j = np.mgrid[0:n, 0:n].astype(np.float32)
+    z = (np.clip(4.0 - 0.8 * np.abs(i - 60), 0, None) + rng.normal(0, 0.05, (n, n))).astype(np.float32)
+    z += np.clip(0.4 * (j - 70), 0, 6.0) * ((i > 80) & (i < 95))
+    z[81:95, 86:110] = 6.5
+    z[120:140, 10:60] += np.clip(1.0 - 0.1 * np.abs(j[120:140, 10:60] - 35), 0, None)
+    objects = z > 0.3
+    got = {w: dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **{**BANKS, "wall_cells": w}) for w in (0, 3, 8)}
+
+    def filtered(mask, rows, cols, half):
+        side = 2 * half + 1
+        count = ndimage.uniform_filter(mask.astype(np.float32), side, mode="constant") * float(side * side)
+        return np.rint(count[rows, cols]).astype(np.int64)
+
+    monkeypatch.setattr(dr, "square_counts", filtered)
+    for w, g in got.items():
+        assert g.any()
+        np.testing.assert_array_equal(g, dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **{**BANKS,
+                                                                                                "wall_cells": w}))
+    # the exclusion and the length both act here (else the comparison would not test them)
+    assert got[3].sum() < got[0].sum() and got[8].sum() < got[3].sum()
+
+
+@pytest.mark.parametrize("wall", [2, 4, 6])
+def test_continue_banks_a_bank_as_long_as_the_square_side_is_given_back(wall):
+    """A low bank of two rows given back whole counts 2 x its length in the square (half-side ``wall``) of each of
+    its cells: ``wall`` cells long (2 wall = the side - 1) it is too short, one cell longer it is given back."""
+    kw = {**BANKS, "wall_cells": wall, "reach_cells": 10}
+    for length, kept in ((wall, False), (wall + 1, True)):
+        z = np.zeros((9, 30), np.float32)
+        z[3:5, 5:5 + length] = 0.5
+        got = dr.continue_banks(z, z > 0, z == 0, (1.0, 1.0), **kw)
+        assert got.sum() == (2 * length if kept else 0)
+
+
+@pytest.mark.parametrize("wall", [0, 2, 3, 6])
+def test_continue_banks_clears_the_square_around_a_wall_top(wall):
+    """A long low bank of two rows ending at a drop of 2 m (a wall): its cell before the drop's edge is a wall top
+    (the cell ahead continues the bank straight, the next lies 2 m lower) and the bank's cells within ``wall``
+    columns of it stay objects, exactly (0: the top alone)."""
+    z = np.zeros((9, 40), np.float32)
+    z[3:5, 2:32] = 0.5
+    z[3:5, 32:36] = -1.5
+    got = dr.continue_banks(z, z != 0, z == 0, (1.0, 1.0), **{**BANKS, "reach_cells": 40, "wall_cells": wall})
+    want = np.zeros(z.shape, bool)
+    want[3:5, 2:30 - wall] = True             # the top at column 30; column 31 is rough (the drop beside it)
+    np.testing.assert_array_equal(got, want)
+
+
+
+@pytest.mark.parametrize("band_rows, sparse", [(4, 1.0 / 16), (64, 1.0 / 16), (7, 0.0), (64, 1.0)])
+def test_bracketed_with_the_planes_asked_where_needed_equals_the_whole_planes(monkeypatch, band_rows, sparse):
+    """find_bracketed asking for the seen ground's planes only where they can change the result
+    (``seen_gradient_of``: the cells above the lowest ground on both sides of a line by nearly dh, and that line
+    within the reach) gives the cells of the planes computed everywhere, whether the first pass keeps its floors
+    (sparse) or the second computes them again (``LOWEST_SPARSE`` 0); the planes are asked at a few cells."""
+    monkeypatch.setattr(dr, "_BAND_ROWS", band_rows)
+    monkeypatch.setattr(dr, "LOWEST_SPARSE", sparse)
+    rng = np.random.default_rng(8)
+    y, x = np.mgrid[0:90, 0:70].astype(np.float32)
+    z = (0.35 * x + 0.01 * (y - 45) ** 2 + rng.normal(0, 0.1, x.shape)).astype(np.float32)
+    z[rng.random(z.shape) < 0.03] += rng.uniform(0.4, 1.5)        # bushes, some near the threshold
+    z[rng.random(z.shape) < 0.02] = np.nan
+    ground = rng.random(z.shape) > 0.1
+    cell, s, dh, reach = (1.0, 1.0), 0.5, 0.5, 6.0
+    whole = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                              seen_gradient=dr.seen_ground_gradient(z, ground, cell, reach))
+    asked = []
+
+    def planes(at):
+        asked.append(at)
+        return dr.seen_ground_gradient(z, ground, cell, reach, at=at)
+
+    got = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach, seen_gradient_of=planes)
+    assert whole.sum() > 20
+    np.testing.assert_array_equal(got, whole)
+    assert len(asked) == 1 and asked[0][whole].all()
+    if sparse:
+        assert asked[0].mean() < 0.6
+    # refine_ground asks for them so: its mask as with the planes everywhere
+    mask = np.where(ground, GROUND, OBJECT).astype(np.uint8)
+    new, _ = dr.refine_ground(z, mask, cell, tolerance_m=dh, slope=s, reach_m=reach, along_ground=True)
+    assert (new[whole] == OBJECT).all()
+
+
+def test_bracketed_with_the_planes_asked_where_needed_keeps_the_bumps_just_above_dh():
+    """On nearly level ground (the planes raise the height to exceed by little, the noise's slope over a long
+    reach little) bumps 0.53-0.545 m high stand above floors 0.5 m below them: the first pass keeps every cell
+    standing ``LOWEST_MARGIN dh`` above the lowest ground on both sides, so none of them is lost."""
+    rng = np.random.default_rng(4)
+    y, x = np.mgrid[0:80, 0:80].astype(np.float32)
+    z = (14.0 + 0.005 * x + rng.normal(0, 0.002, x.shape)).astype(np.float32)
+    bumps = rng.random(z.shape) < 0.02
+    z[bumps] += rng.uniform(0.53, 0.545, bumps.sum()).astype(np.float32)
+    ground = np.ones(z.shape, bool)
+    cell, s, dh, reach = (1.0, 1.0), 0.5, 0.5, 30.0
+    whole = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                              seen_gradient=dr.seen_ground_gradient(z, ground, cell, reach))
+    got = dr.find_bracketed(z, ground, cell, slope=s, height_m=dh, reach_m=reach,
+                            seen_gradient_of=lambda at: dr.seen_ground_gradient(z, ground, cell, reach, at=at))
+    assert whole.sum() > 0.5 * bumps.sum()
+    np.testing.assert_array_equal(got, whole)

@@ -1046,9 +1046,16 @@ def test_ground_plane_gradient_equals_its_straightforward_means(monkeypatch, sha
     assert np.isnan(oracle[0]).any() == (min(shape[0] // 3, shape[1] // 2) > r)
     with ThreadPoolExecutor(max_workers=1) as pool:
         got = est.ground_plane_gradient(z, ground, cell, r, pool=pool if threads > 1 else None)
-    for a, b in zip(got, oracle):
-        assert a.dtype == np.float32
+        # at some cells only (refine_ground's bracketed cells): the same values there, NaN elsewhere; bands
+        # without such a cell skipped
+        at = rng.random(shape) < 0.03
+        at[: shape[0] // 2] = False
+        part = est.ground_plane_gradient(z, ground, cell, r, pool=pool if threads > 1 else None, at=at)
+    for a, b, c in zip(got, oracle, part):
+        assert a.dtype == np.float32 and c.dtype == np.float32
         np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(c[at], b[at])
+        assert np.isnan(c[~at]).all()
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, bool, np.uint8])
@@ -1213,3 +1220,9 @@ def test_raised_parts_on_a_tilted_plane_with_one_hall_in_float64():
     z[10:30, 10:30] += 8.0                                # a hall
     got = est.raised_parts(z.astype(np.float64), 1.3, (30, 30))
     assert got.sum() == 400 and got[10:30, 10:30].all()
+
+
+def test_ground_plane_gradient_at_refuses_a_mask_of_another_shape():
+    z = np.zeros((6, 7), np.float32)
+    with pytest.raises(ValueError, match="at has shape"):
+        est.ground_plane_gradient(z, z == 0, (1.0, 1.0), 2, at=np.ones((6, 6), bool))
