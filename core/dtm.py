@@ -1004,6 +1004,9 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     dissent = None if slope_ground is None or level_ground is None else ~level_ground
     top_dissent = None if dissent is None else object_votes > 0
     level_ground = object_votes = None              # freed
+    # with workers > 1 a second thread takes some of the lines' directions below, of the banks' chunks of cells and
+    # of the refinement's bands of rows and chunks of cells (the same result); shut down after the refinement
+    helper = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
     # the slope-following member's lone ground on smooth ground continuing the undisputed ground (dtm_refine)
     if slope_ground is not None:
         reach_cells = continuation_cells(cell, refine_reach_m)
@@ -1028,7 +1031,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         lined = continue_lines(z, candidates & ~continued, ground_votes == n, reach_cells=reach_cells,
                                tolerance_m=tolerance_m if edge_tolerance_m is None else edge_tolerance_m,
                                step_m=SMOOTH_RATIO * tolerance_m, ground=(mask == GROUND) | continued,
-                               along_slope=refine_slope(members), cell_size=cell)
+                               along_slope=refine_slope(members), cell_size=cell, pool=helper)
         mask[continued] = GROUND
         mask[lined] = GROUND
         info["continued_line_rule"] = (
@@ -1051,7 +1054,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     bump_b = min(reach_b, max(1, int(round(0.5 * BUMP_SPAN_M / min(cell)))))
     banked = continue_banks(z, mask == OBJECT, mask == GROUND, cell, tolerance_m=tolerance_m,
                             smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b,
-                            bump_m=bump_m, bump_cells=bump_b)
+                            bump_m=bump_m, bump_cells=bump_b, pool=helper)
     mask[banked] = GROUND
     info["banked_ground_share"] = float(np.count_nonzero(banked)) / nvalid
     info["banked_ground_rule"] = (
@@ -1065,8 +1068,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
             tolerance_m, wall_b, bump_m, bump_b)
     del banked
     # low objects every member kept: voted ground standing above lower ground on both sides (dtm_refine); with
-    # workers > 1 a second thread takes some of its bands of rows and chunks of cells (the same result)
-    helper = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
+    # workers > 1 the second thread takes some of its bands of rows and chunks of cells (the same result)
     try:
         mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                       reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,

@@ -781,10 +781,12 @@ def continue_ground(z, disputed, ground, anchors, *, height_m, reach_cells, judg
 
 #: The eight directions of a straight line through a cell (rows, columns, both diagonals, both ways).
 _LINE_STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
+#: Candidates per chunk of a pass of :func:`continue_lines` (its gathered heights and flags stay in the cache).
+LINES_CHUNK = 1 << 18
 
 
 def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0, ground=None, along_slope=None,
-                   cell_size=(1.0, 1.0)):
+                   cell_size=(1.0, 1.0), pool=None):
     """The disputed cells on the straight continuation of the undisputed ground: ground after all.
 
     The upper edge of a step in the ground (a retaining wall, a quarry's bench, a cliff) stands above
@@ -853,6 +855,9 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
         besides ``step_m`` (``bareearth:dtm``: :func:`~.dtm.refine_slope`); None: no lines along a step.
     cell_size : (float, float)
         Metres (the distances across the line).
+    pool : Executor, optional
+        Threads that may take some of each pass's eight directions (:func:`~.blocks.run_sharing`); the same
+        result without.
 
     Returns
     -------
@@ -909,35 +914,49 @@ def continue_lines(z, disputed, anchors, *, tolerance_m, reach_cells, step_m=0.0
     # pass before (fresh), whose lines from it are measured then: each line once, in the pass it can first fire
     act = np.arange(r.size)
     fresh_pad, last_fresh = None, flat_pad[:0]
-    for _ in range(int(reach_cells) // 3):
-        at = flat_pad[act]
-        for d, step in enumerate(_LINE_STEPS):
-            nd = at + offsets[d]
-            first = known_pad[nd]
-            k = act[first if fresh_pad is None else fresh_pad[nd]]
+
+    def direction(d, act, at, fresh_pad):
+        # a pass's lines and faces along one direction: ``(pair, line, face)``, None where none is looked for
+        # (reads only: the directions of a pass are independent, taken in their order below)
+        step = _LINE_STEPS[d]
+        pair = line = face = None
+        nd = at + offsets[d]
+        first = known_pad[nd]
+        k = act[first if fresh_pad is None else fresh_pad[nd]]
+        if k.size:
+            i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
+            pair = (i1, i2, i3, k[on])
+        if along_slope is not None:
+            k = act[(known2_pad[nd] if known2 is not known else first) if fresh_pad is None else fresh_pad[nd]]
             if k.size:
-                i1, i2, i3, on = _step_top_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, steps=(step,))[0]
-                pairs.append((i1, i2, i3, k[on]))
-            if along_slope is not None:
-                k = act[(known2_pad[nd] if known2 is not known else first) if fresh_pad is None else fresh_pad[nd]]
-                if k.size:
-                    i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
-                                                       cell_size, steps=(step,))[0]
-                    along.append((i1, i2, i3, k[on]))
-            if d % 2 == 0:
-                # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below
-                # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
-                # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
-                # neighbour or near it)
-                nb = at + offsets[d + 1]
-                both = first & known_pad[nb]
-                k = act[both if fresh_pad is None else both & (fresh_pad[nd] | fresh_pad[nb])]
-                if k.size:
-                    dr, dc = step
-                    ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
-                    hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
-                    ok = (hi - zc[k] > tol_beyond) & (zc[k] - lo > tol_beyond)
-                    faces.append((ia[ok], ib[ok], k[ok]))
+                i1, i2, i3, on = _along_step_lines(zf, rows, cols, r[k], c[k], tolerance_m, step_m, along_slope,
+                                                   cell_size, steps=(step,))[0]
+                line = (i1, i2, i3, k[on])
+        if d % 2 == 0:
+            # a step's face (a cliff's or a bench's, not vertical): between two neighbours along a line, below
+            # the higher and above the lower by more than the tolerance of a continuation beyond (a cell on a
+            # slope steeper than the ground's noise explains; an object on a slope stands above its uphill
+            # neighbour or near it)
+            nb = at + offsets[d + 1]
+            both = first & known_pad[nb]
+            k = act[both if fresh_pad is None else both & (fresh_pad[nd] | fresh_pad[nb])]
+            if k.size:
+                dr, dc = step
+                ia, ib = (r[k] + dr) * cols + (c[k] + dc), (r[k] - dr) * cols + (c[k] - dc)
+                hi, lo = np.fmax(zf[ia], zf[ib]), np.fmin(zf[ia], zf[ib])
+                ok = (hi - zc[k] > tol_beyond) & (zc[k] - lo > tol_beyond)
+                face = (ia[ok], ib[ok], k[ok])
+        return pair, line, face
+
+    for _ in range(int(reach_cells) // 3):
+        # the eight directions on chunks of the candidates (their gathered heights stay in the cache), some on the
+        # pool's idle thread, their results appended in their order (the same cells given back: ORed below)
+        chunks = [(a, flat_pad[a]) for a in (act[i:i + LINES_CHUNK] for i in range(0, act.size, LINES_CHUNK))]
+        for got in run_sharing([partial(direction, d, a, at, fresh_pad) for a, at in chunks
+                                for d in range(len(_LINE_STEPS))], pool):
+            for part, into in zip(got, (pairs, along, faces)):
+                if part is not None:
+                    into.append(part)
         new = np.zeros(r.size, bool)
         for i1, i2, i3, k in pairs:
             new[k] |= known[i1] & known[i2] & known[i3]
@@ -1596,7 +1615,7 @@ def banks_halo(reach_cells, wall_cells):
 
 
 def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reach_cells, wall_cells,
-                   slope=BANK_SLOPE, bump_m=None, bump_cells=0):
+                   slope=BANK_SLOPE, bump_m=None, bump_cells=0, pool=None):
     """The vote's objects on banks rising from the ground: ground after all (embankments, dikes, ramps, cuts).
 
     A road embankment, a dike or a ramp a few cells wide stands on the ground like an object narrower than the
@@ -1660,6 +1679,9 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
     bump_cells : int
         How far each side the bump test looks for ground, cells (>= 1 with ``bump_m``; at most
         ``reach_cells``, which :func:`banks_halo` covers).
+    pool : Executor, optional
+        Threads that may take some of the chunks of cells of steps 1 and 2 (:func:`~.blocks.run_sharing`); the
+        same result without.
 
     Returns
     -------
@@ -1710,30 +1732,42 @@ def continue_banks(z, objects, ground, cell_size, *, tolerance_m, smooth_m, reac
     off = np.array([dr * W + dc for dr, dc in _NEIGHBOURS], np.int64)
     step = np.array([math.hypot(dr * dy, dc * dx) * float(slope) + float(tolerance_m) for dr, dc in _NEIGHBOURS],
                     np.float32)
-    # 1. the candidates: objects smooth along enough of their four lines
+    # 1. the candidates: objects smooth along enough of their four lines (a chunk of cells at a time, whose
+    # gathered heights stay in the cache; chunks on the pool's idle thread too: the same cells)
     r, c = cells_of(objects & np.isfinite(z))
     idx = (r + P) * W + (c + P)
-    rough = np.zeros(idx.size, np.int8)
-    smooth = np.zeros(idx.size, bool)
-    for k in range(0, 8, 2):                     # one of each opposite pair: rows, columns, both diagonals
-        sd = np.abs(zf[idx + off[k]] - 2 * zf[idx] + zf[idx - off[k]])
-        rough += sd > float(smooth_m)            # a line through nodata or off the raster is not judged
-        smooth |= sd <= float(smooth_m)
-    idx = idx[smooth & (rough <= 4 - BANK_SMOOTH_LINES)]
+
+    def smooth_enough(ix):
+        rough = np.zeros(ix.size, np.int8)
+        smooth = np.zeros(ix.size, bool)
+        for k in range(0, 8, 2):                 # one of each opposite pair: rows, columns, both diagonals
+            sd = np.abs(zf[ix + off[k]] - 2 * zf[ix] + zf[ix - off[k]])
+            rough += sd > float(smooth_m)        # a line through nodata or off the raster is not judged
+            smooth |= sd <= float(smooth_m)
+        return ix[smooth & (rough <= 4 - BANK_SMOOTH_LINES)]
+
+    idx = np.concatenate([idx[:0]] + run_sharing([partial(smooth_enough, idx[a:a + SMOOTH_CHUNK])
+                                                  for a in range(0, idx.size, SMOOTH_CHUNK)], pool))
     if idx.size == 0:
         return out
     cand = np.zeros(zf.size, bool)
     cand[idx] = True
     gp = np.zeros(zf.size, bool)
     gp.reshape(zp.shape)[P:-P, P:-P] = ground
-    # 2. the paths from the ground: a breadth-first search over the candidates, step by step
-    zi = zf[idx]
-    seed = np.zeros(idx.size, bool)
-    with np.errstate(invalid="ignore"):
-        for k in range(8):
-            seed |= gp[idx + off[k]] & (np.abs(zf[idx + off[k]] - zi) <= step[k])
+
+    # 2. the paths from the ground: a breadth-first search over the candidates, step by step; the first step's
+    # cells (a candidate a bank's step from a ground neighbour) a chunk at a time, as above
+    def seeds(ix):
+        zi = zf[ix]
+        seed = np.zeros(ix.size, bool)
+        with np.errstate(invalid="ignore"):
+            for k in range(8):
+                seed |= gp[ix + off[k]] & (np.abs(zf[ix + off[k]] - zi) <= step[k])
+        return ix[seed]
+
     reached = np.zeros(zf.size, bool)
-    front = idx[seed]
+    front = np.concatenate([idx[:0]] + run_sharing([partial(seeds, idx[a:a + SMOOTH_CHUNK])
+                                                    for a in range(0, idx.size, SMOOTH_CHUNK)], pool))
     reached[front] = True
     for _ in range(int(reach_cells) - 1):
         nb = (front[:, None] + off[None, :])

@@ -371,6 +371,27 @@ def test_continue_lines_in_blocks_equals_one_pass():
     np.testing.assert_array_equal(got, whole)
 
 
+@pytest.mark.parametrize("chunk", [7, 1 << 18])
+def test_continue_lines_with_a_pool_equals_one_thread(monkeypatch, chunk):
+    """The directions of each pass on chunks of the candidates, some taken by a second thread: the cells given
+    back by one thread exactly (lines across the quarry's benches, along them and the benches' faces)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("quarry", 2.0, "lowest")
+    steps = ndimage.maximum_filter(s.dtm, 3) - ndimage.minimum_filter(s.dtm, 3) > 3.0
+    disputed = steps & (s.mask == GROUND)
+    anchors = ~steps & (s.mask == GROUND)
+    kw = dict(tolerance_m=0.5, reach_cells=9, step_m=0.5, ground=s.mask == GROUND, along_slope=0.1,
+              cell_size=(2.0, 2.0))
+    ref = dr.continue_lines(s.dsm, disputed, anchors, **kw)
+    monkeypatch.setattr(dr, "LINES_CHUNK", chunk)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got = dr.continue_lines(s.dsm, disputed, anchors, **kw, pool=pool)
+    assert ref.sum() > 100
+    np.testing.assert_array_equal(got, ref)
+
+
 def test_continue_ground_judged_on_ground_passes_objects_standing_on_the_bank():
     """judge_on_ground: the smoothness of a disputed cell is read on the ground and disputed cells
     (find_smooth's ground), so an object standing on a bank (a bush the caller does not dispute)
@@ -1460,6 +1481,27 @@ def test_continue_banks_blocked_equals_one_pass():
 
     for b in (17, 40):
         assert np.array_equal(in_blocks(part, z.shape, b, halo), whole)
+
+
+@pytest.mark.parametrize("chunk", [5, 1 << 14])
+def test_continue_banks_with_a_pool_equals_one_thread(monkeypatch, chunk):
+    """The candidates' smoothness and the paths' first cells on chunks of cells, some taken by a second thread:
+    the cells given back by one thread exactly (a dike, a house, a ramp to a deck)."""
+    from concurrent.futures import ThreadPoolExecutor
+    rng = np.random.default_rng(5)
+    n = 120
+    i, j = np.mgrid[0:n, 0:n].astype(np.float32)
+    z = (np.clip(4.0 - 0.8 * np.abs(i - 60), 0, None) + rng.normal(0, 0.05, (n, n))).astype(np.float32)
+    z[20:35, 20:50] += 6.0
+    z += np.clip(0.4 * (j - 70), 0, 6.0) * ((i > 80) & (i < 95))
+    z[81:95, 86:110] = 6.5
+    objects = z > 0.3
+    ref = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **BANKS)
+    monkeypatch.setattr(dr, "SMOOTH_CHUNK", chunk)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got = dr.continue_banks(z, objects, ~objects, (1.0, 1.0), **BANKS, pool=pool)
+    assert ref.sum() > 100
+    np.testing.assert_array_equal(got, ref)
 
 
 def test_square_counts_equals_the_filters_at_the_cells():
