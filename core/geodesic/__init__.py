@@ -9,6 +9,9 @@ algorithm's help.
 1. **Preprocessing** (step code :data:`STEP_OUTLIER`). A cell cluster narrower than
    ``outlier_width_m`` that lies more than ``outlier_threshold_m`` below the grey closing
    and is a pit (its cells lower than every cell around them, :func:`.outliers._pits`)
+   below the ground around it (below every cell of the ring around or below a level rim, or at
+   the bottom of a narrow gap below level ground: the shared pit tests of
+   :mod:`~bare_earth.core.estimate`, :func:`.outliers._below_ground`)
    is a *low outlier* (mask class 2: image-matching blunders, laser multipath);
    one that stands more than ``outlier_threshold_m`` above the grey opening is a *high
    outlier* (mask class 1: birds, clouds, blunders). Clusters larger than
@@ -206,9 +209,11 @@ METHOD = Method(
     description=(
         "<p>Separates ground from objects in a DSM in four stages and a border pass. "
         "<b>Preprocessing</b> "
-        "finds isolated outliers: small clusters far below the grey closing (low outliers, "
-        "mask class 2: matching blunders, multipath) or far above the grey opening (high "
-        "outliers). <b>Gradual geodesic dilation</b>: for structuring elements doubling "
+        "finds isolated outliers: small clusters far below the grey closing that are pits and lie "
+        "below the ground around them, not in a gap between roofs or crowns at the ground's level "
+        "(low outliers, mask class 2: matching blunders, multipath; the pit tests slopeprofile and "
+        "RASCOR share) or far above the grey opening (high outliers). "
+        "<b>Gradual geodesic dilation</b>: for structuring elements doubling "
         "from the first window to the maximum object size, the opening of the DSM is "
         "reconstructed by geodesic dilation under the DSM; the residual (what the "
         "reconstruction cannot reach) is split into regions, and a region is removed when "

@@ -519,7 +519,7 @@ def filter_geodesic(z: np.ndarray, cell_size: Union[float, Tuple[float, float]],
     report(progress, 0.0)
     # 1. preprocessing: isolated low and high outliers
     w, n_low, n_high = remove_outliers(z, valid, vnone, cell, outlier_threshold_m, outlier_width_m,
-                                       mask, outlier, sub_progress(progress, 0.0, 0.05))
+                                       mask, outlier, tan_s, sub_progress(progress, 0.0, 0.05))
     step[outlier] = STEP_OUTLIER
     _lap(stages, "preprocessing", t0)
     # 2. gradual geodesic dilation

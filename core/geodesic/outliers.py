@@ -3,6 +3,7 @@ import numpy as np
 
 from ..codes import LOW, OBJECT
 from ..common import label8, report, sub_progress
+from ..estimate import below_level_rim, below_surroundings
 from .grey import grey_closing, grey_opening, window_cells
 
 #: Largest cluster (cells) the preprocessing treats as an isolated outlier.
@@ -54,7 +55,22 @@ def _pits(z, valid, sel):
         keep[fail] = False
 
 
-def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, progress=None):
+def _below_ground(z, cell_size, depth_m, slope, sel):
+    """The pits of ``sel`` (flat indices) that lie below the ground around them, not in a gap between
+    objects: more than ``depth_m`` below every cell of the ring around
+    (:func:`~bare_earth.core.estimate.below_surroundings`: a gap between roofs or crowns is at the level of
+    the ground and of the other gaps within the ring) or below a level rim just around their cluster, or at
+    the bottom of a gap narrower than a cluster below level ground on its lower side
+    (:func:`~bare_earth.core.estimate.below_level_rim`, ``slope`` the terrain's rise per metre): the shared
+    pit tests of slopeprofile and RASCOR."""
+    ask = np.zeros(z.shape, bool)
+    ask.ravel()[sel] = True
+    low = below_surroundings(z, cell_size, depth_m, candidates=ask)
+    low |= below_level_rim(z, cell_size, depth_m, slope, ask & ~low)
+    return np.flatnonzero(low)
+
+
+def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outlier, slope, progress=None):
     """Isolated low and high outliers, replaced by the closing / opening.
 
     A cluster of at most :data:`OUTLIER_MAX_CELLS` cells lying more than ``threshold_m``
@@ -79,6 +95,15 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
     kind (seeds 0-5, 200 x 200, 1 m) the false low cells fell from 427 to 93 (city), 4183 to 775 (mixed),
     7606 to 1520 (forest), 574 to 75 (breakline), with the true ones found unchanged.
 
+    A pit must also lie below the ground around it (:func:`_below_ground`, the pit tests slopeprofile
+    and RASCOR share): ground between roofs at the foot of a retaining wall, or a gap in a canopy, is
+    lower than every cell around it and metres under the closing, but at the level of the ground and the
+    other gaps within 10 m (issue 12: on the held-out-like hillside at 2 m, highest point per cell, 3.0 %
+    of the cells were such false low outliers, and the dilation's marker lost them; matrix geodesic mean
+    3.06 -> 2.87 %, ISPRS samp11 2 m highest 26.71 -> 22.89 %, samp31 2 m highest 5.01 -> 3.68 %). A line
+    of multipath blunders along a wall that hides its cells from the ring, whose rim is wall and ground and
+    whose gap is not narrow from every side, is missed (samp41 1 m 3.18 -> 3.36 %).
+
     Parameters
     ----------
     z : ndarray of float32
@@ -89,6 +114,8 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
         ``outlier_threshold_m`` and ``outlier_width_m``.
     mask, outlier : ndarray of uint8 and bool
         Written in place: the outliers' classes, and True at every outlier.
+    slope : float
+        The tolerated terrain slope (rise per metre) of the pit tests' level rims and banks.
     progress : callable, optional
 
     Returns
@@ -120,6 +147,8 @@ def remove_outliers(z, valid, vnone, cell_size, threshold_m, width_m, mask, outl
         sel = _small_clusters(cand) if cand.any() else np.zeros(0, np.intp)
         if code == LOW and sel.size:
             sel = _pits(z, valid, sel)
+            if sel.size:
+                sel = _below_ground(z, cell_size, threshold_m, slope, sel)
         counts.append(int(sel.size))
         mask.ravel()[sel] = code
         outlier.ravel()[sel] = True

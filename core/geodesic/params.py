@@ -5,7 +5,7 @@ from typing import Tuple, Union
 import numpy as np
 
 from ..common import as_cell_size, as_surface, report, sub_progress
-from ..estimate import RAISED_REGION_MAX_M, block_minima, noise_ground_level, raised_region_window
+from ..estimate import RAISED_REGION_MAX_M, block_minima, noise_ground_level, raised_region_window, surroundings_reach
 from ..methods import Param, check_values
 from .dilation import BORDER_RINGS, EXTENT_FACTOR, WALL_BASE_M, coarse_factor
 from .grey import grey_opening, window_cells
@@ -194,7 +194,8 @@ def geodesic_halo(params, cell_size):
     ``OBLIQUE_REACH * S`` (an object crossed obliquely: ``2 sqrt(2) S``), each read with the
     climbs to its edges, no wider than a one-wall run (:func:`~.scan.climb_feet`: ``2 S``
     more); the preprocessing
-    two outlier windows and a cluster; the borders (stage 4) :data:`~.dilation.BORDER_RINGS`
+    two outlier windows and a cluster, and the ring of its pit tests
+    (:func:`~bare_earth.core.estimate.surroundings_reach`); the borders (stage 4) :data:`~.dilation.BORDER_RINGS`
     rings and the ground within as many cells of the last; the islands (stage
     5) at most the first window's cells and their ring. The halo is rounded
     up to a multiple of the largest coarsening factor, so that blocks whose edge is a
@@ -208,7 +209,7 @@ def geodesic_halo(params, cell_size):
     params["max_object_size_m"] = size
     island = int(np.prod(window_cells(min(params["min_window_m"], size), dx, dy))) + 1
     reach = (int(np.ceil(((4 + 2 * OBLIQUE_REACH + EXTENT_FACTOR) * size + 2 * width + WALL_BASE_M) / c))
-             + OUTLIER_MAX_CELLS + 8 + island + 2 * BORDER_RINGS)
+             + OUTLIER_MAX_CELLS + 8 + island + 2 * BORDER_RINGS + max(surroundings_reach((dx, dy))[2:]))
     # coarse steps use grids aligned on the block origin: keep blocks aligned on them
     f = max(coarse_factor(window_cells(s, dx, dy))
             for s in step_sizes(params["min_window_m"], params["max_object_size_m"]))
