@@ -192,3 +192,114 @@ def remove_prediction_outliers(z: np.ndarray, cell_size: Union[float, Sequence[f
     return hi, lo
 
 
+
+
+# ------------------------------------------------- step 5: the terrain's slope breaks
+def slope_breaks(z: np.ndarray, keep: np.ndarray, candidates: np.ndarray, *, scale_m: float, k: float = 4.0,
+                 max_run: int = 1, labels: Optional[np.ndarray] = None) -> np.ndarray:
+    """The cells of ``candidates`` standing where the slopes on both sides of them meet: a
+    crest, a ridge or the shoulder of a bank, not an object on the ground.
+
+    Along the rows or along the columns, a run of at most ``max_run`` candidates lies between
+    two kept cells on each side (``a1, a2`` before it, ``b1, b2`` after it, nearest first; all
+    four kept and in the run's break-line region). Each side's line extrapolates into the run,
+    ``ea(d) = a1 + d (a1 - a2)`` at ``d`` cells from ``a1`` (``eb`` likewise from ``b1``). The run
+    is a break of the terrain's slope when
+
+    * both sides rise towards it: their mean rise ``((a1 - a2) + (b1 - b2)) / 2``, the bend that
+      a fit of the neighbours misses at a crest, exceeds ``k scale`` (it has the variance of
+      one height: a spike on level ground has none);
+    * each of its heights lies on the lower of the two lines and not below the chord
+      ``a1 -> b1``, within ``k`` standard deviations of each difference (independent heights
+      of standard deviation ``scale``): two slopes meeting at a crest sharp against the cell;
+      a crown or a roof stands metres above the line of the ground beside it, and a crown whose
+      rising edges were kept lies metres below the lines of those edges.
+
+    Jacobsen's (2004) moving profiles compare a height with the fit of its neighbours, which
+    at a crest of the terrain sharp against the cell (a dune's brink, a gully's or a dike's
+    shoulder at 2-4 m cells) lies below it by half the change of slope times the cell; the
+    paper leaves such lines to break lines. Only the candidates are tested.
+
+    Parameters
+    ----------
+    z : ndarray
+        Heights (NaN nodata).
+    keep : ndarray of bool
+        The points kept (the only ones read besides the candidates).
+    candidates : ndarray of bool
+        The cells tested (those a moving profile removed).
+    scale_m : float
+        Standard deviation of a height about the profile (step 5's scale).
+    k : float
+        Critical value (step 5's snooping ``k``).
+    max_run : int
+        Longest run of candidates (cells) tested along a row or a column: the half window of
+        step 5's longest profile, the reach of a crest's bend in its fits.
+    labels : ndarray of int, optional
+        Break-line regions: no line crosses from one region to another.
+
+    Returns
+    -------
+    ndarray of bool
+        The candidates that are slope breaks.
+
+    References
+    ----------
+    Jacobsen, K. (2004). DSM and DEM from space and aerial imagery: program RASCOR. ISPRS
+    Archives XXXV-B3.
+    """
+    out = np.zeros(z.shape, bool)
+    if max_run < 1 or not candidates.any():
+        return out
+    for zz, cand, kp, lab, tr in ((z, candidates, keep, labels, False),
+                                  (transpose(z), transpose(candidates), transpose(keep),
+                                   None if labels is None else transpose(labels), True)):
+        good = _runs_between_slopes(zz, kp, cand, scale_m, k, int(max_run), lab)
+        _or_into(out, good, tr)
+    return out
+
+
+def _runs_between_slopes(z, keep, cand, scale, k, max_run, labels):
+    """:func:`slope_breaks` along the rows: the candidates of the runs that pass."""
+    rows, cols = z.shape
+    idx = np.flatnonzero(cand)
+    out = np.zeros(z.shape, bool)
+    if not idx.size:
+        return out
+    r, c = np.divmod(idx, cols)
+    new = np.ones(idx.size, bool)
+    new[1:] = (np.diff(idx) != 1) | (r[1:] != r[:-1])
+    run = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    last = np.r_[first[1:], idx.size] - 1
+    n = last - first + 1
+    s, e, rr = c[first], c[last], r[first]
+    ok = (n <= max_run) & (s >= 2) & (e + 2 < cols)
+    s, e = np.clip(s, 2, cols - 1), np.clip(e, 0, cols - 3)
+    zf = z.reshape(-1)
+    base = rr * cols
+    pos = [base + s - 2, base + s - 1, base + e + 1, base + e + 2]
+    kf = keep.reshape(-1)
+    for p in pos:
+        ok &= kf[p]
+        if labels is not None:
+            ok &= labels.reshape(-1)[p] == labels.reshape(-1)[idx[first]]
+    a2, a1, b1, b2 = (zf[p].astype(np.float64) for p in pos)
+    with np.errstate(invalid="ignore"):
+        ok &= ((a1 - a2) + (b1 - b2)) / 2.0 > k * scale
+        # each cell: d cells after a1, n + 1 - d before b1
+        d = (c - s[run] + 1).astype(np.float64)
+        m = (n[run] + 1 - d)
+        zc = zf[idx].astype(np.float64)
+        ea = a1[run] + d * (a1[run] - a2[run])
+        eb = b1[run] + m * (b1[run] - b2[run])
+        t = d / (n[run] + 1)
+        chord = a1[run] + t * (b1[run] - a1[run])
+        tol_a = k * scale * np.sqrt(1.0 + (1.0 + d) ** 2 + d ** 2)
+        tol_b = k * scale * np.sqrt(1.0 + (1.0 + m) ** 2 + m ** 2)
+        tol_c = k * scale * np.sqrt(1.0 + (1.0 - t) ** 2 + t ** 2)
+        on_line = np.where(ea <= eb, np.abs(zc - ea) <= tol_a, np.abs(zc - eb) <= tol_b)
+        cell_ok = on_line & (zc >= chord - tol_c)
+    ok &= np.bincount(run, weights=~cell_ok, minlength=first.size) == 0
+    out.reshape(-1)[idx[ok[run]]] = True
+    return out

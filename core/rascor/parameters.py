@@ -561,7 +561,12 @@ def rascor_halo(params: dict, cell_size: Union[float, Sequence[float]]) -> int:
     # (the ramps of find_ramps: regions of at most step 6's window + REACH_M, and the ground touching them)
     r_cont = cells(size6) + continuation_cells((dx, dy), REACH_M) + 2 if (on[5] or on[6]) and \
         p.get("spare_continuing_ground", True) else 0
-    once = r3 + r5 + r6 + r_cont + r7
+    # steps 3 and 5's objects given back at the terrain's slope breaks (sequence._spare_slope_breaks):
+    # a run up to step 5's longest profile window and the two kept cells on each side (their line's
+    # span against max_building_m: a line the window cuts spans step 4's reach r4, more than that)
+    long_m = max(p["short_profile_m"] or max(PROFILE_LENGTHS_M), p["long_profile_m"] or max(PROFILE_LENGTHS_M))
+    r_break = odd_window(long_m / cs) + 2 if on[3] or on[5] else 0
+    once = r3 + r5 + r6 + r_cont + r_break + r7
     if p["second_iteration"]:
         return int(r4 + 2 * once)
     # step 3 once more after the last step (:func:`~.sequence.filter_rascor`'s step3_repeat)
