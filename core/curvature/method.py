@@ -18,6 +18,7 @@ from ..estimate import (
     raised_region_grid,
     raised_region_window,
     sample_windows,
+    square_opening,
     terrain_slopes,
 )
 from ..methods import Method, Param
@@ -390,9 +391,18 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     most :data:`~bare_earth.core.estimate.RAISED_REGION_CELLS` cells
     (:func:`~bare_earth.core.estimate.raised_region_grid`). A region running across the raster (meeting two
     opposite sides) widens nothing: its extent is not seen, and the profiles, mirrored at both sides, would
-    then take a terrace's upper level across a tile for a roof."""
+    then take a terrace's upper level across a tile for a roof. The raised regions are looked for on the block
+    minima and on their opening by the square of :data:`OBJECT_SIZE_M`
+    (:func:`~bare_earth.core.estimate.square_opening`): a building 160 x 120 m of parts 4-18 m high, each
+    narrower than 100 m, is one raised region there (its profiles ran 160 m and it was 0.57 object at 2 m
+    cells; 1.00 with the largest object widened to 148 m)."""
     zs, cs, _ = raised_region_grid(z, cell_size)
     window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False)
+    # a building of several heights: its parts are raised regions of their own, each narrower; opened by
+    # the square of the default largest object, it stands as one level on walls all round
+    opened = square_opening(zs, int(OBJECT_SIZE_M / min(cs)) + 1)
+    window = max(window, raised_region_window(opened, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M,
+                                              across=False))
     return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
 
 
@@ -500,7 +510,8 @@ METHOD = Method(
         Param("max_object_size_m", "float", None,
               "Metres: largest object; wider enclosed regions, or longer than twice it, are ground. Also the method's "
               "reach for block processing. Empty: 100 m, widened to 1.25 x the width + 2 cells of a wider "
-              "raised region standing on walls (a hall), at most 200 m.", minimum=1.0, maximum=2000.0),
+              "raised region standing on walls (a hall; also looked for on the DSM opened by a 100 m square, "
+              "where a building of several heights stands as one level), at most 200 m.", minimum=1.0, maximum=2000.0),
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
               "cell may stand (plus one cell of the surface's slope) and still be ground "
