@@ -620,8 +620,9 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     also ``(cells, walls)``: the cells of the runs of either axis and direction that met the
     raster's edge, whatever their length, and their walls' tops (:func:`find_enclosed_objects`).
     With ``levels_out`` (a list), the lower levels landed on by the scans of both directions of
-    one axis only (X or Y, not both; :func:`_landed_levels`) are appended to it: a lower part
-    between wings along one axis, which :func:`find_enclosed_objects` counts with the runs.
+    one axis only (X or Y, not both; :func:`_landed_levels`) that end along the other axis in a
+    drop on one side at least (:func:`dropped_ends`) are appended to it: a lower part between wings
+    along one axis, which :func:`find_enclosed_objects` counts with the runs.
     """
     dx, dy = cell_size
     reach = 2 * window + 1
@@ -652,7 +653,11 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     del free
     # a lower level enclosed by higher parts of an object: landed on from both sides along X and along Y
     if levels_out is not None:
-        one = landed[0] ^ landed[1]
+        # landed on along X only: along Y the level must end in a drop (its own end, not a terrain
+        # level running on between the crowns along an embankment's crest); and the other way round
+        one = landed[0] & ~landed[1]
+        one = dropped_ends(transpose(z), transpose(one), h_min, int(max_size / dy)).T
+        one |= dropped_ends(z, landed[1] & ~landed[0], h_min, int(max_size / dx))
         if valid is not None:
             one &= valid
         levels_out.append(one)
@@ -710,6 +715,51 @@ def bounded_stretches(free: np.ndarray, max_cells: int) -> np.ndarray:
     end = np.minimum.accumulate(end, axis=1)[:, ::-1]          # a stretch's past-the-last column
     end -= start
     out |= end <= max_cells
+    return out
+
+
+def dropped_ends(z: np.ndarray, cells: np.ndarray, height: float, max_cells: int) -> np.ndarray:
+    """The ``cells`` (bool) whose level ends, along their row, in a drop at least on one side: going
+    each way from the cell, the first height more than ``height`` away from the cell's is found within
+    ``max_cells``, on neither side nodata or beyond the raster, and on one side at least it is lower (the
+    level's own end, down to the ground; on the other it may rise onto a higher part). A level running on
+    (a terrace, an embankment's crest between shrubs) meets no drop. A loop over the positions, on the
+    given cells only.
+
+    Examples
+    --------
+    >>> z = np.array([[0, 2, 2, 2, 0, 5, 5, 2, 2, 9, 2, 2]], np.float32)
+    >>> dropped_ends(z, np.ones(z.shape, bool), 1.0, 4).astype(int).tolist()
+    [[0, 1, 1, 1, 0, 1, 1, 0, 0, 1, 0, 0]]
+    """
+    z = np.asarray(z, np.float32)
+    h, w = z.shape
+    r, c = np.nonzero(cells)
+    out = np.zeros(z.shape, bool)
+    if r.size == 0:
+        return out
+    zc = z[r, c]
+    ok = np.ones(r.size, bool)
+    dropped = np.zeros(r.size, bool)
+    hh = np.float32(height)
+    for d in (1, -1):
+        open_ = np.ones(r.size, bool)                # the side's end not met yet
+        for k in range(1, int(max_cells) + 1):
+            i = np.flatnonzero(open_)
+            if i.size == 0:
+                break
+            cc = c[i] + d * k
+            inside = (cc >= 0) & (cc < w)
+            zz = np.full(i.size, np.nan, np.float32)
+            zz[inside] = z[r[i[inside]], cc[inside]]
+            with np.errstate(invalid="ignore"):
+                low = zz < zc[i] - hh
+                left = low | (zz > zc[i] + hh) | np.isnan(zz)
+            ok[i[left & ~low & ~(zz > zc[i] + hh)]] = False     # nodata or beyond the raster
+            dropped[i[low]] = True
+            open_[i[left]] = False
+        ok &= ~open_                                 # no end within max_cells
+    out[r[ok & dropped], c[ok & dropped]] = True
     return out
 
 
