@@ -1987,3 +1987,47 @@ def _plane_solve(n, ax, ay, az, axx, ayy, axy, axz, ayz, size, gx, gy):
         ok = (np.rint(n * size * size) >= 3) & (det > 1e-9 * (sxx + syy) ** 2)
         gx[...] = np.where(ok, (syy * sxz - sxy * syz) / det, np.nan)
         gy[...] = np.where(ok, (sxx * syz - sxy * sxz) / det, np.nan)
+
+
+def square_opening(z, size_cells):
+    """The grey opening of the heights ``z`` by a square of ``size_cells`` cells (the erosion, the
+    lowest height within the square, then the dilation, the highest of those within the square; the cells
+    beyond the raster's edge and the nodata cells constrain neither, and nodata stays NaN: a square may
+    reach beyond the edge, so a plane keeps its heights up to it and a part cut by the edge keeps what is
+    seen of it): every
+    part of the surface into which no such square fits is cut down to the surface around it
+    (Serra 1982; Zhang et al. 2003, the progressive morphological filter's opening), and a raised
+    region that the square fits in all over keeps its height.
+
+    The surface left is the DSM without its objects narrower than the square: a building of several
+    heights wider than the square stands there as one level, its lowest part's, on walls all round
+    (its parts' own walls on each other are gone), so its width shows
+    (:func:`raised_region_window` of the opened surface), where on the DSM its parts, each narrower
+    than the square, are raised regions of their own. A plane keeps its heights (the square whose
+    lowest corner is a cell holds no lower height).
+
+    Examples
+    --------
+    >>> z = np.zeros((5, 7), np.float32)
+    >>> z[1:4, 1:3] = 4.0          # 3 x 2: the 3 x 3 square does not fit
+    >>> z[1:4, 4:7] = 6.0          # 3 x 3, running off the edge: it fits
+    >>> z[2, 5] = 9.0              # a spike on it
+    >>> square_opening(z, 3).astype(int).tolist()[2]
+    [0, 0, 0, 0, 6, 6, 6]
+    """
+    z = np.asarray(z, np.float32)
+    k = int(size_cells)
+    if k < 1:
+        raise ValueError(f"size_cells must be at least 1; got {size_cells!r}.")
+    valid = np.isfinite(z)
+    p = k - 1                                      # the squares reaching beyond the edge by up to k - 1 cells
+    a = np.pad(np.where(valid, z, np.float32(np.inf)), p, constant_values=np.inf)
+    inf = dict(mode="constant", cval=np.inf)
+    a = ndimage.minimum_filter1d(ndimage.minimum_filter1d(a, k, axis=0, **inf), k, axis=1, **inf)
+    a[np.isinf(a)] = -np.inf                       # squares of nodata only: no height for the dilation
+    o = -1 if k % 2 == 0 else 0                    # an even square: the dilation's is the erosion's reflected
+    ninf = dict(mode="constant", cval=-np.inf, origin=o)
+    a = ndimage.maximum_filter1d(ndimage.maximum_filter1d(a, k, axis=0, **ninf), k, axis=1, **ninf)
+    a = a[p:p + z.shape[0], p:p + z.shape[1]].copy()
+    a[~valid] = np.nan
+    return a

@@ -480,17 +480,19 @@ def _axis_objects(z, marked, valid, cell, axis, *, reach, h_min, tan_wall, tol, 
     return res
 
 
-def _enclosed_regions(flag, free, max_cells, progress=None, cut=None):
+def _enclosed_regions(flag, free, max_cells, progress=None, cut=None, max_span=None):
     """Regions of ``free`` cells (4-connected) mostly made of ``flag`` cells.
 
     A region is kept when at least half its cells are flagged, it does not touch the
-    array's edge and its bounding box is at most ``max_cells`` on each side, so the
-    decision never depends on cells farther than ``max_cells`` (block-safe). With ``cut``
-    (the objects the raster's edge cuts, :func:`_edge_regions`), a region touching the
-    array's edge is kept too when at least half its cells are ``cut`` (and its box is at
-    most ``max_cells`` on each side); it then returns the regions kept and, apart, those
-    touching the array's edge.
+    array's edge, it is at most ``max_cells`` wide (holds no square of ``max_cells`` + 1
+    cells, :func:`wider_than`) and its bounding box is at most ``max_span`` (default
+    ``max_cells``) on each side, so the decision never depends on cells farther than
+    ``max_span`` (block-safe). With ``cut`` (the objects the raster's edge cuts,
+    :func:`_edge_regions`), a region touching the array's edge is kept too when at least
+    half its cells are ``cut`` (and it is as narrow and as short); it then returns the
+    regions kept and, apart, those touching the array's edge.
     """
+    max_span = max_cells if max_span is None else max(int(max_span), int(max_cells))
     lab, n = ndimage.label(free)
     report(progress, 0.4)
     if n == 0:
@@ -529,13 +531,43 @@ def _enclosed_regions(flag, free, max_cells, progress=None, cut=None):
             renum[ids] = np.arange(1, ids.size + 1, dtype=np.int32)
             boxes = ndimage.find_objects(_lookup(renum, lab, step), max_label=ids.size)
         ext = np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes])
-        cand[ids[ext > max_cells]] = False
+        cand[ids[ext > max_span]] = False
+        if max_span > max_cells and (ext > max_cells).any():
+            # longer than the largest object: kept only when no wider (an L-shaped hall, a wing)
+            wide = np.zeros(n + 1, bool)
+            wide[lab[wider_than(free, max_cells)]] = True
+            cand &= ~wide
     report(progress, 0.8)
     out = _lookup(cand, lab, step) if cand.any() else np.zeros(flag.shape, bool)
     if cut is None:
         return out
     cand &= at_edge
     return out, (_lookup(cand, lab, step) if cand.any() else np.zeros(flag.shape, bool))
+
+
+def wider_than(cells: np.ndarray, max_cells: int) -> np.ndarray:
+    """The cells (bool) of the squares of ``max_cells`` + 1 by ``max_cells`` + 1 cells lying wholly
+    within ``cells`` (the erosion of ``cells`` by such a square, marked at the square's middle
+    cell): a connected region of ``cells`` holds one of them when and only when it is
+    wider than ``max_cells`` (the width a window must exceed to hold none of it: an L-shaped hall
+    180 m long with arms 60 m wide is 60 m wide); the raster's edge bounds ``cells``.
+
+    Examples
+    --------
+    >>> c = np.zeros((6, 8), bool)
+    >>> c[1:3, :] = True          # a strip two cells wide ...
+    >>> c[1:5, 5:8] = True        # ... and a block three wide
+    >>> int(wider_than(c, 2).sum()), int(wider_than(c, 3).sum())
+    (2, 0)
+    """
+    k = int(max_cells) + 1
+    a = np.asarray(cells, bool).view(np.uint8)
+    if a.shape[0] < k or a.shape[1] < k:
+        return np.zeros(a.shape, bool)
+    # a square's minimum by two running minima, marked at its middle cell (one of its own)
+    e = ndimage.minimum_filter1d(a, k, axis=0, mode="constant", cval=0)
+    e = ndimage.minimum_filter1d(e, k, axis=1, mode="constant", cval=0)
+    return e.astype(bool)
 
 
 def _lookup(table, lab, step):
@@ -562,16 +594,17 @@ def profile_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
 
 def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
     """Cells within which the profile objects and breaks decide :func:`find_enclosed_objects`
-    at a cell: a region kept is at most ``max_size`` across (its cells and its rim lie
-    within that many cells); one larger is rejected by any window that holds that much."""
+    at a cell: a region kept is at most ``max_size`` wide and :data:`_LONGEST` ``max_size``
+    long (its cells and its rim lie within that many cells); one longer is rejected by any
+    window that holds that much, one wider by the square of ``max_size`` it holds."""
     dx, dy = cell_size
-    return int(max(max_size / dx, max_size / dy))
+    return int(max(_LONGEST * max_size / dx, _LONGEST * max_size / dy))
 
 
 def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
                          window: int, h_min: float, tan_wall: float, tol: float, max_size: float,
                          terrain_slope: float = 0.0, spacing: float = 0.0, edge_runs: bool = False,
-                         progress: Optional[Progress] = None):
+                         levels_out: Optional[list] = None, progress: Optional[Progress] = None):
     """Step 3: along the X and Y profiles, the cells from a break going up a wall to the
     break coming down (:func:`_axis_objects`, both scan directions agreeing).
 
@@ -586,6 +619,10 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     Returns the union of the X and Y objects and the cells found by each; with ``edge_runs``,
     also ``(cells, walls)``: the cells of the runs of either axis and direction that met the
     raster's edge, whatever their length, and their walls' tops (:func:`find_enclosed_objects`).
+    With ``levels_out`` (a list), the lower levels landed on by the scans of both directions of
+    one axis only (X or Y, not both; :func:`_landed_levels`) that end along the other axis in a
+    drop on one side at least (:func:`dropped_ends`) are appended to it: a lower part between wings
+    along one axis, which :func:`find_enclosed_objects` counts with the runs.
     """
     dx, dy = cell_size
     reach = 2 * window + 1
@@ -615,6 +652,15 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
                                    int(max_size / dy)))
     del free
     # a lower level enclosed by higher parts of an object: landed on from both sides along X and along Y
+    if levels_out is not None:
+        # landed on along X only: along Y the level must end in a drop (its own end, not a terrain
+        # level running on between the crowns along an embankment's crest); and the other way round
+        one = landed[0] & ~landed[1]
+        one = dropped_ends(transpose(z), transpose(one), h_min, int(max_size / dy)).T
+        one |= dropped_ends(z, landed[1] & ~landed[0], h_min, int(max_size / dx))
+        if valid is not None:
+            one &= valid
+        levels_out.append(one)
     landed = landed[0] & landed[1]
     if valid is not None:
         landed &= valid
@@ -669,6 +715,51 @@ def bounded_stretches(free: np.ndarray, max_cells: int) -> np.ndarray:
     end = np.minimum.accumulate(end, axis=1)[:, ::-1]          # a stretch's past-the-last column
     end -= start
     out |= end <= max_cells
+    return out
+
+
+def dropped_ends(z: np.ndarray, cells: np.ndarray, height: float, max_cells: int) -> np.ndarray:
+    """The ``cells`` (bool) whose level ends, along their row, in a drop at least on one side: going
+    each way from the cell, the first height more than ``height`` away from the cell's is found within
+    ``max_cells``, on neither side nodata or beyond the raster, and on one side at least it is lower (the
+    level's own end, down to the ground; on the other it may rise onto a higher part). A level running on
+    (a terrace, an embankment's crest between shrubs) meets no drop. A loop over the positions, on the
+    given cells only.
+
+    Examples
+    --------
+    >>> z = np.array([[0, 2, 2, 2, 0, 5, 5, 2, 2, 9, 2, 2]], np.float32)
+    >>> dropped_ends(z, np.ones(z.shape, bool), 1.0, 4).astype(int).tolist()
+    [[0, 1, 1, 1, 0, 1, 1, 0, 0, 1, 0, 0]]
+    """
+    z = np.asarray(z, np.float32)
+    h, w = z.shape
+    r, c = np.nonzero(cells)
+    out = np.zeros(z.shape, bool)
+    if r.size == 0:
+        return out
+    zc = z[r, c]
+    ok = np.ones(r.size, bool)
+    dropped = np.zeros(r.size, bool)
+    hh = np.float32(height)
+    for d in (1, -1):
+        open_ = np.ones(r.size, bool)                # the side's end not met yet
+        for k in range(1, int(max_cells) + 1):
+            i = np.flatnonzero(open_)
+            if i.size == 0:
+                break
+            cc = c[i] + d * k
+            inside = (cc >= 0) & (cc < w)
+            zz = np.full(i.size, np.nan, np.float32)
+            zz[inside] = z[r[i[inside]], cc[inside]]
+            with np.errstate(invalid="ignore"):
+                low = zz < zc[i] - hh
+                left = low | (zz > zc[i] + hh) | np.isnan(zz)
+            ok[i[left & ~low & ~(zz > zc[i] + hh)]] = False     # nodata or beyond the raster
+            dropped[i[low]] = True
+            open_[i[left]] = False
+        ok &= ~open_                                 # no end within max_cells
+    out[r[ok & dropped], c[ok & dropped]] = True
     return out
 
 
@@ -833,8 +924,10 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
                           edge_runs=None, window: int = 5, z: Optional[np.ndarray] = None,
                           tol: float = 0.0) -> np.ndarray:
     """Step 4: regions enclosed by breaks (4-connected valid unmarked cells, at most
-    ``max_size`` metres across, not touching the raster's edge) made mostly of the
-    ``objects`` of the profiles (:func:`_enclosed_regions`). With ``edge_runs`` (``(cells,
+    ``max_size`` metres wide and :data:`_LONGEST` ``max_size`` long, not touching the raster's
+    edge) made mostly of the ``objects`` of the profiles (:func:`_enclosed_regions`; an L-shaped
+    hall longer than the largest object, no wider, is on runs longer than it at its corner, and
+    its region is mostly runs: its corner, a fifth of it, stayed ground). With ``edge_runs`` (``(cells,
     walls)`` of :func:`find_profile_objects`), also the regions of the runs that met the
     raster's edge, enclosed by their walls and the edge, seen within ``max_size`` and walled
     within twice that, mirrored at the edge (:func:`_edge_regions`), with the cells between
@@ -843,14 +936,16 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
     as the work goes."""
     dx, dy = cell_size
     max_cells = int(max(max_size / dx, max_size / dy))
+    span = int(max(_LONGEST * max_size / dx, _LONGEST * max_size / dy))
     free = ~marked if valid is None else valid & ~marked
     if edge_runs is None:
-        regions = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9))
+        regions = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9), max_span=span)
         report(progress, 1.0)
         return regions
     m = window // 2
     cut = _edge_regions(edge_runs[0], edge_runs[1], max_cells, m, z, tol)
-    regions, whole = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9), cut=cut)
+    regions, whole = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9), cut=cut,
+                                       max_span=span)
     if cut.any():
         # the object cut by the raster's edge with the regions mostly made of it, closed over
         # the local fit's window (beyond the raster's edge it continues): the breaks and the

@@ -1226,3 +1226,33 @@ def test_ground_plane_gradient_at_refuses_a_mask_of_another_shape():
     z = np.zeros((6, 7), np.float32)
     with pytest.raises(ValueError, match="at has shape"):
         est.ground_plane_gradient(z, z == 0, (1.0, 1.0), 2, at=np.ones((6, 6), bool))
+
+
+def test_square_opening_exact():
+    """The opening by a square: a raised part narrower than the square (either way) is cut down to the
+    ground around, one the square fits in all over keeps its height, a spike on it goes, a plane keeps
+    its heights, nodata stays NaN and is left out of both steps; the brute force agrees."""
+    z = np.zeros((7, 9), np.float32)
+    z[1:4, 1:3] = 4.0                                  # 3 x 2: no 3 x 3 square fits
+    z[1:5, 4:8] = 6.0                                  # 4 x 4: fits
+    z[2, 5] = 9.0                                      # a spike on it
+    z[6, 0] = np.nan
+    got = est.square_opening(z, 3)
+    want = np.zeros_like(z)
+    want[1:5, 4:8] = 6.0
+    want[6, 0] = np.nan
+    np.testing.assert_array_equal(got, want)
+    plane = (0.3 * np.arange(8)[:, None] + 0.7 * np.arange(10)[None, :]).astype(np.float32)
+    np.testing.assert_allclose(est.square_opening(plane, 4), plane, atol=1e-5)
+    rng = np.random.default_rng(0)
+    r = rng.normal(0, 1, (12, 11)).astype(np.float32)
+    # brute force: the highest of the lowest heights of the 3 x 3 squares holding a cell (squares reaching
+    # beyond the edge by up to two cells, whose cells there count for nothing)
+    pad = np.pad(r, 2, constant_values=np.inf)
+    h, w = pad.shape
+    ero = np.array([[pad[max(0, i - 1):i + 2, max(0, j - 1):j + 2].min() for j in range(w)] for i in range(h)])
+    dil = np.array([[ero[max(0, i - 1):i + 2, max(0, j - 1):j + 2].max() for j in range(w)] for i in range(h)])
+    np.testing.assert_allclose(est.square_opening(r, 3), dil[2:-2, 2:-2])
+    assert (est.square_opening(r, 3) <= r).all()
+    with pytest.raises(ValueError, match="size_cells"):
+        est.square_opening(z, 0)
