@@ -1266,14 +1266,17 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     ground = ok & ~obj
     one = (_ramps(zs, one & obj_y, obj, ground, dh_eff + cell[0] * tan_t, 1)
            | _ramps(zs, one & obj_x, obj, ground, dh_eff + cell[1] * tan_t, 0))
-    obj &= ~_joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
-    # ... and levels of one axis going on into the ground they stand on (platforms)
+    back = _joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
+    obj &= ~back
+    # ... and levels of one axis going on into the ground they stand on (platforms), each
+    # with the rest of its level, as the ramps
     one = obj & (obj_x ^ obj_y)
     lag = max(1, int(round(min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING))))
     ramp = dh_eff + min(cell) * tan_g
-    lv = (_platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
-          | _platforms(zs, one & obj_x, obj, ok, dh_eff, ramp, 0, lag, wall_m))
-    obj &= ~_same_level(zs, lv, obj, dh_eff)
+    back |= (_platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
+             | _platforms(zs, one & obj_x, obj, ok, dh_eff, ramp, 0, lag, wall_m))
+    obj &= ~_same_level(zs, back, obj, dh_eff)
+    del back
     del raised_x, raised_y, zs
     report(progress, 0.8)
     # 4. optional refinement against the interpolated ground
