@@ -82,7 +82,11 @@ Details this implementation adds to the paper, each for a failure the paper's ru
   lowest cell (a ramp), and is not walled, is a platform or a level reached along its
   length: ground, with the cells of the rejected objects on its level (steps of at most
   ``dh0``; the strip of it that both axes reject where the profiles along it climbed its
-  side and the terrain's rise never reached its height). A platform turned to the grid is
+  side and the terrain's rise never reached its height) where they are not walled (a
+  bridge's deck beyond its ramp). The levels are found on the one-axis cells before the
+  ramps' test (below) gives any back, so which of the two rules takes a ramp does not
+  change the mask (``synthetic_sites`` bridge 1 m highest at alpha_t 2.07/2.08/2.09
+  degrees: 2.19/1.93/2.18 % total error, now 1.93 at each). A platform turned to the grid is
   crossed by no single profile from ramp to ramp (``synthetic_sites`` railway: 3.1-3.3 ->
   0.5-0.6 % total error at 1 and 2 m cells; issue 12, ISPRS samp42). A crown's fringe is
   rough or too short to go on, a roof's tier joined only to another tier stays at its
@@ -1264,19 +1268,23 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     ok = valid & ~low
     one = obj & (obj_x ^ obj_y)
     ground = ok & ~obj
-    one = (_ramps(zs, one & obj_y, obj, ground, dh_eff + cell[0] * tan_t, 1)
-           | _ramps(zs, one & obj_x, obj, ground, dh_eff + cell[1] * tan_t, 0))
-    back = _joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
-    obj &= ~back
-    # ... and levels of one axis going on into the ground they stand on (platforms), each
-    # with the rest of its level, as the ramps
-    one = obj & (obj_x ^ obj_y)
+    # levels of one axis going on into the ground they stand on (platforms), found on the
+    # same cells whatever the ramps' test below gives back
     lag = max(1, int(round(min(max(1.0, float(sample_spacing_cells)), _MAX_SPACING))))
     ramp = dh_eff + min(cell) * tan_g
-    back |= (_platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
+    level = (_platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
              | _platforms(zs, one & obj_x, obj, ok, dh_eff, ramp, 0, lag, wall_m))
-    obj &= ~_same_level(zs, back, obj, dh_eff)
-    del back
+    one = (_ramps(zs, one & obj_y, obj, ground, dh_eff + cell[0] * tan_t, 1)
+           | _ramps(zs, one & obj_x, obj, ground, dh_eff + cell[1] * tan_t, 0))
+    obj &= ~_joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
+    # ... each platform with the rest of its level (not walled: a bridge's deck beyond it)
+    obj &= ~level
+    grown = _same_level(zs, level, obj | level, dh_eff)
+    grown &= ~level
+    if grown.any():
+        grown &= ~_walled_regions(grown, obj & ~grown, zs, wall_m)
+    obj &= ~grown
+    del level, grown
     del raised_x, raised_y, zs
     report(progress, 0.8)
     # 4. optional refinement against the interpolated ground
