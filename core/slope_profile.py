@@ -1138,6 +1138,19 @@ def _same_level(z, level, obj, step_m):
     return out.reshape(obj.shape)
 
 
+def _level_unwalled(z, level, obj, step_m, wall_m):
+    """The cells of ``obj`` on the levels ``level`` (ground now, not in ``obj``), joined to them
+    by steps of at most ``step_m`` (:func:`_same_level`), in connected regions not walled where
+    they meet the ground (:func:`_walled_regions`, ``wall_m = (x, y)``): the rest of a
+    platform; a bridge's deck going on level beyond its ramp stands on walls (ISPRS samp21 1 m
+    lowest: 1.7 % total error, 6.4 % with its deck taken)."""
+    grown = _same_level(z, level, obj | level, step_m)
+    grown &= ~level
+    if grown.any():
+        grown &= ~_walled_regions(grown, obj & ~grown, z, wall_m)
+    return grown
+
+
 def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
     """Give rejected cells lying within the tolerance of the interpolated ground back to
     the ground (as SMRF's final step).
@@ -1279,12 +1292,8 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     obj &= ~_joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
     # ... each platform with the rest of its level (not walled: a bridge's deck beyond it)
     obj &= ~level
-    grown = _same_level(zs, level, obj | level, dh_eff)
-    grown &= ~level
-    if grown.any():
-        grown &= ~_walled_regions(grown, obj & ~grown, zs, wall_m)
-    obj &= ~grown
-    del level, grown
+    obj &= ~_level_unwalled(zs, level, obj, dh_eff, wall_m)
+    del level
     del raised_x, raised_y, zs
     report(progress, 0.8)
     # 4. optional refinement against the interpolated ground

@@ -1029,3 +1029,19 @@ def test_same_level_exact():
     assert (got == (np.arange(7) < 3)[None, :].repeat(2, 0)).all()
     assert (sp._same_level(z, level, obj, 0.05) == level).all()    # steps of 0.1 above step_m
     assert not sp._same_level(z, np.zeros(z.shape, bool), obj, 0.15).any()
+
+
+def test_level_unwalled_exact():
+    """Object cells on a platform's level join it unless walled where they meet the ground:
+    a deck 5 m above the ground on both sides stays an object, the same cells 0.5 m above it
+    (a platform's strip) join."""
+    z = np.zeros((7, 12), np.float32)
+    z[2:5, :] = 5.0                                   # the level along the rows
+    level = np.zeros(z.shape, bool)
+    level[2:5, :4] = True                             # given back (a platform's part)
+    obj = np.zeros(z.shape, bool)
+    obj[2:5, 4:] = True                               # the rest, rejected by both axes
+    wall = (1.15, 1.15)
+    assert not sp._level_unwalled(z, level, obj, 0.15, wall).any()     # 5 m walls: a deck
+    low = np.where(z > 0, np.float32(0.5), z)
+    assert (sp._level_unwalled(low, level, obj, 0.15, wall) == obj).all()
