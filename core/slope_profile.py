@@ -1101,10 +1101,12 @@ def _platforms(z, one, obj, ok, step_m, ramp_m, axis, lag, wall_m):
         return np.zeros(one.shape, bool)
     cand = keep[lab]
     # the foot of its sides: the lowest ground cell next to it
-    ground = ok & ~obj
-    low = ndimage.minimum_filter(np.where(ground, z, np.float32(np.inf)), size=3)
+    rows, cols = np.flatnonzero(cand.any(axis=1)), np.flatnonzero(cand.any(axis=0))
+    box = (slice(max(0, rows[0] - 1), rows[-1] + 2), slice(max(0, cols[0] - 1), cols[-1] + 2))
+    low = ndimage.minimum_filter(np.where(ok[box] & ~obj[box], z[box], np.float32(np.inf)), size=3)
     foot = np.full(n + 1, np.inf, np.float32)
-    np.minimum.at(foot, lab[cand], low[cand])
+    np.minimum.at(foot, lab[box][cand[box]], low[cand[box]])
+    del low
     base = np.full(n + 1, np.inf, np.float32)
     np.minimum.at(base, lab[cand], z[cand])
     half = 0.5 * (foot + base)                      # nearer the foot than the region's lowest cell
