@@ -992,6 +992,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
                 if shares.error is None:
                     shares.error = exc               # the running members stop at their next report
                 raise
+    report(progress, 0.8)                           # the vote's stages below: seconds on 16 Mcells, each reports
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
@@ -1019,6 +1020,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
             del lone
         continued = continue_ground(z, disputed, mask == GROUND, ground_votes == n,
                                     height_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_cells)
+        report(progress, 0.802)
         # the upper edges of steps in the ground: on the straight continuation of the undisputed ground; every
         # object of the vote is a candidate, not only the slope member's lone ground: at a step's top the three
         # members may all reject the ground (their windows straddle the step), and the test's own evidence (three
@@ -1029,6 +1031,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
                                tolerance_m=tolerance_m if edge_tolerance_m is None else edge_tolerance_m,
                                step_m=SMOOTH_RATIO * tolerance_m, ground=(mask == GROUND) | continued,
                                along_slope=refine_slope(members), cell_size=cell)
+        report(progress, 0.806)
         mask[continued] = GROUND
         mask[lined] = GROUND
         info["continued_line_rule"] = (
@@ -1052,6 +1055,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     banked = continue_banks(z, mask == OBJECT, mask == GROUND, cell, tolerance_m=tolerance_m,
                             smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b,
                             bump_m=bump_m, bump_cells=bump_b)
+    report(progress, 0.81)
     mask[banked] = GROUND
     info["banked_ground_share"] = float(np.count_nonzero(banked)) / nvalid
     info["banked_ground_rule"] = (
@@ -1071,7 +1075,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                       reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
                                       line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m,
-                                      along_ground=ALONG_GROUND, along_steps=True, pool=helper)
+                                      along_ground=ALONG_GROUND, along_steps=True, pool=helper,
+                                      progress=sub_progress(progress, 0.81, 0.82))
     finally:
         if helper is not None:
             helper.shutdown()
