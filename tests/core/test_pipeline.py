@@ -1069,3 +1069,13 @@ def test_blocks_budget_leaves_out_what_the_run_holds_beside_its_windows(tmp_path
     monkeypatch.setattr(memory, "held_by_run", lambda: 0)              # nothing held: the windows' 154 MB
     logs = []
     assert pipeline.run_file(meth, src, outputs(tmp_path, "mask", prefix="o_"), log=logs.append)["blocks"] == 1
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_complex_arrays_refused_before_work(dtype):
+    """A complex array was cast to its real part with only numpy's ComplexWarning (a raster of complex
+    numbers is refused); from Python it is refused too, naming the dtype and the fix."""
+    z = np.full((20, 20), 100.0).astype(dtype)
+    for call in (lambda: pipeline.run_array("morphological", z, 1.0), lambda: pipeline.resolve_params("dtm", z, 1.0)):
+        with pytest.raises(ValueError, match=r"complex numbers \(complex(64|128)\).*real part"):
+            call()
