@@ -672,8 +672,10 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(member_halo(m, members, cell, f) for m in _members(MEMBERS)) * min(cell)
     reach = refine_reach(tol, refine_slope(members), limit)
+    report(progress, 0.95)      # the members derived; below, the raster-wide estimates of the vote's own stages
     # the edge test's tolerance: three standard deviations of its statistic on ground (dtm_refine.edge_tolerance)
     repeated = repeated_height_share(z)
+    report(progress, 0.96)
     spread = lowest_point_spread(noise if noise is not None else float("nan"), refine_slope(members),
                                  max(cell), repeated)
     if spread == 0.0:       # exact heights, flat (no noise, no slope): their float32 resolution, not 0 m
@@ -685,7 +687,9 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # members' widest window), at most RAISED_REGION_SPAN_M; the halo grows only when there is one
     # (on block minima: a wall found there may stand one block further out at full resolution)
     zs, cs, k = raised_region_grid(zm, cm)
+    report(progress, 0.97)
     found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)))
+    report(progress, 1.0)
     found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
     description["raised_region_span_m"] = round(found * min(cell), 1)
     span = max(span, found)
