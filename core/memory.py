@@ -153,6 +153,13 @@ def held_by_run():
     return max(0, now - base) if now is not None else 0
 
 
+def budget_given(env=None):
+    """True when ``BARE_EARTH_MEMORY_MB`` is set (in ``env``, default this process's environment): the
+    budget is then the run's bound, and what the run holds beside its windows counts against it."""
+    env = os.environ if env is None else env
+    return bool(env.get(BUDGET_ENV, "").strip())
+
+
 def window_budget(env=None, held=0):
     """Bytes the windows of one run may take together: ``BARE_EARTH_MEMORY_MB`` megabytes when set
     (in ``env``, default this process's environment) less ``held``, what the run holds outside its

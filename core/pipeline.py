@@ -758,8 +758,10 @@ def _run_file(info, run, pool):
     cell = info.cell_size_m
     params, whole = _derive_params(info, run)
     halo = window_halo(run.meth, params, cell)
-    budget = memory.window_budget(held=held_outside_windows()) \
-        if info.cells > IN_MEMORY_CELLS and run.block is None else None
+    budget = None
+    if info.cells > IN_MEMORY_CELLS and run.block is None:
+        # a given bound covers what the run holds beside its windows (half the memory available leaves it out)
+        budget = memory.window_budget(held=held_outside_windows() if memory.budget_given() else 0)
     bshape = plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, budget=budget)
     windows = list(blocks.iter_windows(info.shape, bshape, halo))

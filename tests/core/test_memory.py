@@ -93,3 +93,8 @@ def test_held_by_run_measures_from_the_run_baseline():
         del a
         assert memory.held_by_run() < 30 * mb
     assert memory.held_by_run() == 0
+
+
+def test_budget_given_only_by_the_variable():
+    assert memory.budget_given({memory.BUDGET_ENV: "700"}) and not memory.budget_given({memory.BUDGET_ENV: " "})
+    assert not memory.budget_given({})
