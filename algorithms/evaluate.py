@@ -102,7 +102,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
             "name or LAS dimension) holding the truth. No DTM is needed.</li></ul>"
             "<p>Reports Type I (ground rejected / ground), Type II (objects accepted as ground / "
             "objects), total error and Cohen's kappa (Sithole &amp; Vosselman 2004) as a table in the log, "
-            "a JSON file and an HTML report with a map of the Type I and Type II errors.</p>")
+            "a JSON file and an HTML report with a map of the Type I and Type II errors (each optional: "
+            "either alone will do).</p>")
 
     def initAlgorithm(self, config=None):  # noqa: N802
         for key, label, help_ in (
@@ -141,12 +142,14 @@ class EvaluateAlgorithm(BaseAlgorithm):
         s.setHelp(tr("Multiplies the local DTM slope (rise/run) in the point tolerance (SMRF: 1.25)."))
         mark_advanced(s)
         self.addParameter(s)
+        # each report is optional: either alone will do, and with neither the figures are the log's
+        # table and the numbers below (a model's next step reads them)
         self.addParameter(with_help(QgsProcessingParameterFileDestination(
-            self.OUTPUT_JSON, tr("Figures (JSON)"), "JSON files (*.json)"),
-            "All figures as JSON (Type I/II, total, kappa in percent; DTM errors in metres)."))
+            self.OUTPUT_JSON, tr("Figures (JSON)"), "JSON files (*.json)", optional=True),
+            "All figures as JSON (Type I/II, total, kappa in percent; DTM errors in metres). Optional."))
         self.addParameter(with_help(QgsProcessingParameterFileDestination(
-            self.OUTPUT_HTML, tr("Report (HTML)"), "HTML files (*.html)"),
-            "Self-contained HTML report: the table and a map of the Type I and Type II errors."))
+            self.OUTPUT_HTML, tr("Report (HTML)"), "HTML files (*.html)", optional=True),
+            "Self-contained HTML report: the table and a map of the Type I and Type II errors. Optional."))
         for key, label in (("TYPE1", "Type I (%)"), ("TYPE2", "Type II (%)"), ("TOTAL", "Total error (%)"),
                            ("KAPPA", "Kappa (%)"), ("RMSE", "DTM RMSE (m)")):
             self.addOutput(QgsProcessingOutputNumber(key, tr(label)))
@@ -319,12 +322,13 @@ class EvaluateAlgorithm(BaseAlgorithm):
         stage_done(feedback, 90)
         for name, r in results.items():
             log_figures(feedback, name, r)
-        json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context)
-        html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context)
-        try:
-            ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
-                            geotransform=gts or None, title="Bare Earth evaluation")
-        except ValueError as exc:
-            raise QgsProcessingException(self.explain(str(exc))) from None
-        out.update({self.OUTPUT_JSON: json_path, self.OUTPUT_HTML: html_path})
+        json_path = self.parameterAsFileOutput(parameters, self.OUTPUT_JSON, context) or None
+        html_path = self.parameterAsFileOutput(parameters, self.OUTPUT_HTML, context) or None
+        if json_path or html_path:
+            try:
+                ev.write_report(results, json_path=json_path, html_path=html_path, error_map=maps or None,
+                                geotransform=gts or None, title="Bare Earth evaluation")
+            except ValueError as exc:
+                raise QgsProcessingException(self.explain(str(exc))) from None
+        out.update({k: v for k, v in ((self.OUTPUT_JSON, json_path), (self.OUTPUT_HTML, html_path)) if v})
         return out

@@ -1009,6 +1009,13 @@ class FilterAlgorithm(BaseAlgorithm):
 
     # -- the run ----------------------------------------------------------------------------
     def processAlgorithm(self, parameters, context, feedback):  # noqa: N802
+        from ..core import memory
+        # BARE_EARTH_MEMORY_MB bounds the run's memory from here: the vector layers rasterised on the DSM's
+        # grid and the parameters' window included, not QGIS's own
+        with memory.run_baseline():
+            return self._process_raster(parameters, context, feedback)
+
+    def _process_raster(self, parameters, context, feedback):
         from ..core.pipeline import run_file
         layer = self.parameterAsRasterLayer(parameters, self.INPUT, context)
         band = self.parameterAsInt(parameters, self.BAND, context) if parameters.get(self.BAND) else None

@@ -698,17 +698,11 @@ class PointsInputMixin:
             else:
                 res = pf.filter_cloud(cloud, self.METHOD_NAME, user, cell_size_m=cell, threshold_m=thr,
                                       slope_factor=sf, block=block, progress=progress)
-            # all or nothing: the points (written atomically) first, then the rasters (one
-            # atomic set); when the rasters cannot be put in place the new points go too
-            from ..core.points import write_points
-            write_points(out_points, cloud, res.classes)
-            try:
-                with output_options(self, parameters, context, feedback):
-                    pf.write_rasters(res.grid, res.result, rasters, extras=self.method.extras)
-            except BaseException:
-                if os.path.exists(out_points):
-                    os.remove(out_points)
-                raise
+            # all or nothing: the points to a hidden work file, the rasters (one atomic set),
+            # then the points moved into place (a kill -9 meanwhile leaves no new points file)
+            with output_options(self, parameters, context, feedback):
+                pf.write_cloud_outputs(out_points, cloud, res.classes, res.grid, res.result, rasters,
+                                       extras=self.method.extras)
         except Cancelled:
             feedback.reportError(tr("Cancelled: no output was written."))
             return {}

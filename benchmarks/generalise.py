@@ -771,12 +771,18 @@ def main(argv=None):
     ap.add_argument("--data", type=Path, default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
     ap.add_argument("--methods", default=None, help="comma-separated methods (default: every registered one)")
     ap.add_argument("--only", default=None, help="regular expression: run only the rows whose name matches")
-    ap.add_argument("--out", type=Path, default=RESULTS, help=f"JSON-lines log (default {RESULTS})")
-    ap.add_argument("--no-log", action="store_true", help="do not append to the log")
+    ap.add_argument("--out", type=Path, default=None,
+                    help=f"JSON-lines log (default {RESULTS}); written even with --no-log")
+    ap.add_argument("--no-log", action="store_true",
+                    help="do not append to the default log (an explicit --out is still written)")
     ap.add_argument("--markdown", type=Path, default=None, help="write the summary and matrix as markdown")
     ap.add_argument("--readme", action="store_true", help="replace the generalise block of README.md")
     ap.add_argument("--from-log", action="store_true", help="render the log's last record instead of running")
     args = ap.parse_args(argv)
+    # --no-log protects the committed log; a file named by --out is the caller's own and is
+    # always written (a run to compare row by row with the committed one)
+    write = args.out is not None or not args.no_log
+    args.out = args.out if args.out is not None else RESULTS
 
     if args.from_log:
         lines = [ln for ln in args.out.read_text(encoding="utf-8").splitlines() if ln.strip()]
@@ -798,7 +804,7 @@ def main(argv=None):
                   "commit": isprs.git_commit(), "uncommitted": isprs.uncommitted_files(),
                   "data": str(data), "only": args.only, "methods": methods, "seconds": round(seconds, 1),
                   "notes": notes, "summary": summarise(rows, methods), "rows": rows}
-        if not args.no_log:
+        if write:
             append_record(args.out, record)
     methods, rows = record["methods"], record["rows"]
     print()
@@ -811,7 +817,7 @@ def main(argv=None):
     print()
     print(ANCHORS)
     print(f"\n{len(rows)} rows x {len(methods)} filters in {record.get('seconds', 0):.0f} s"
-          + ("" if args.from_log or args.no_log else f"; appended to {args.out}"))
+          + ("" if args.from_log or not write else f"; appended to {args.out}"))
     if args.markdown or args.readme:
         text = markdown(record)
         if args.markdown:

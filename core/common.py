@@ -51,7 +51,7 @@ Progress = Optional[Callable[[float], None]]
 def as_surface(z, name="z"):
     """Return ``z`` as a 2-D float32 array (NaN = nodata), copying only when needed.
 
-    Raises ValueError for non-2-D, empty, or all-nodata input.
+    Raises ValueError for non-2-D, empty, non-numeric or complex, or all-nodata input.
     """
     z = np.asarray(z)
     if z.ndim != 2:
@@ -61,6 +61,9 @@ def as_surface(z, name="z"):
         raise ValueError(f"{name} is empty (shape {z.shape}); pass a raster with cells.")
     if not np.issubdtype(z.dtype, np.number):
         raise ValueError(f"{name} must be numeric; got dtype {z.dtype}.")
+    if np.issubdtype(z.dtype, np.complexfloating):
+        raise ValueError(f"{name} holds complex numbers ({z.dtype}): heights are real numbers. Pass the heights "
+                         "(e.g. the real part, z.real) as a real array.")
     with np.errstate(over="ignore"):             # float64 beyond float32's range -> inf = nodata
         z = z.astype(np.float32, copy=False)
     if not np.isfinite(z).any():

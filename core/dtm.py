@@ -680,8 +680,10 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(member_halo(m, members, cell, f) for m in _members(MEMBERS)) * min(cell)
     reach = refine_reach(tol, refine_slope(members), limit)
+    report(progress, 0.95)      # the members derived; below, the raster-wide estimates of the vote's own stages
     # the edge test's tolerance: three standard deviations of its statistic on ground (dtm_refine.edge_tolerance)
     repeated = repeated_height_share(z)
+    report(progress, 0.96)
     spread = lowest_point_spread(noise if noise is not None else float("nan"), refine_slope(members),
                                  max(cell), repeated)
     if spread == 0.0:       # exact heights, flat (no noise, no slope): their float32 resolution, not 0 m
@@ -693,7 +695,9 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # members' widest window), at most RAISED_REGION_SPAN_M; the halo grows only when there is one
     # (on block minima: a wall found there may stand one block further out at full resolution)
     zs, cs, k = raised_region_grid(zm, cm)
+    report(progress, 0.97)
     found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)))
+    report(progress, 1.0)
     found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
     description["raised_region_span_m"] = round(found * min(cell), 1)
     span = max(span, found)
@@ -1000,6 +1004,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
                 if shares.error is None:
                     shares.error = exc               # the running members stop at their next report
                 raise
+    report(progress, 0.8)                           # the vote's stages below: seconds on 16 Mcells, each reports
     n = len(meths)
     need = n // 2 + 1
     info["rule"] = f"ground where at least {need} of the {n} members say ground"
@@ -1030,6 +1035,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
             del lone
         continued = continue_ground(z, disputed, mask == GROUND, ground_votes == n,
                                     height_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_cells)
+        report(progress, 0.802)
         # the upper edges of steps in the ground: on the straight continuation of the undisputed ground; every
         # object of the vote is a candidate, not only the slope member's lone ground: at a step's top the three
         # members may all reject the ground (their windows straddle the step), and the test's own evidence (three
@@ -1040,6 +1046,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
                                tolerance_m=tolerance_m if edge_tolerance_m is None else edge_tolerance_m,
                                step_m=SMOOTH_RATIO * tolerance_m, ground=(mask == GROUND) | continued,
                                along_slope=refine_slope(members), cell_size=cell, pool=helper)
+        report(progress, 0.806)
         mask[continued] = GROUND
         mask[lined] = GROUND
         info["continued_line_rule"] = (
@@ -1063,6 +1070,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     banked = continue_banks(z, mask == OBJECT, mask == GROUND, cell, tolerance_m=tolerance_m,
                             smooth_m=SMOOTH_RATIO * tolerance_m, reach_cells=reach_b, wall_cells=wall_b,
                             bump_m=bump_m, bump_cells=bump_b, pool=helper)
+    report(progress, 0.81)
     mask[banked] = GROUND
     info["banked_ground_share"] = float(np.count_nonzero(banked)) / nvalid
     info["banked_ground_rule"] = (
@@ -1081,7 +1089,8 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         mask, refined = refine_ground(z, mask, cell, tolerance_m=tolerance_m, slope=refine_slope(members),
                                       reach_m=refine_reach_m, edge_tolerance_m=edge_tolerance_m,
                                       line_tolerance_m=line_tolerance_m, band_tolerance_m=edge_tolerance_m,
-                                      along_ground=ALONG_GROUND, along_steps=True, pool=helper)
+                                      along_ground=ALONG_GROUND, along_steps=True, pool=helper,
+                                      progress=sub_progress(progress, 0.81, 0.82))
     finally:
         if helper is not None:
             helper.shutdown()

@@ -281,6 +281,7 @@ box means of the raster: the refinement 0.55-0.67 s (main, 76a9f89) -> 2.8-3.0 s
 planes 1.5-1.7 s and find_bracketed 0.7-0.8 s (every cell side's own floor in ``n`` passes: 4.7-4.8 s).
 """
 import math
+import threading
 from functools import partial
 
 import numpy as np
@@ -288,7 +289,7 @@ from scipy import ndimage
 
 from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
-from .common import cells_of, square_counts, touching
+from .common import cells_of, report, square_counts, sub_progress, touching
 from .estimate import ground_plane_gradient
 from .fill import EDGE_PASSES, edge_spikes_reach, find_edge_spikes
 
@@ -1265,7 +1266,7 @@ def _padded(a, rows, cols, fill):
 
 
 def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, seen_gradient=None, pool=None,
-                   seen_gradient_of=None):
+                   seen_gradient_of=None, progress=None):
     """Ground cells standing above lower ground on both sides of a line (bool, same shape).
 
     Parameters
@@ -1299,6 +1300,9 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
         line by nearly ``height_m`` (:func:`_lowest_band`: no floor lies below that lowest ground, no height
         to exceed below ``height_m``) and the cells along that line within the reach (the line's largest
         slope). The same result as with the whole ``seen_gradient``.
+    progress : callable, optional
+        ``progress(fraction)`` as its bands of rows are done (from whichever thread ran them, the fractions
+        rising); may raise :class:`~.common.Cancelled`. The same result without.
 
     Returns
     -------
@@ -1322,18 +1326,42 @@ def find_bracketed(z, ground, cell_size, *, slope, height_m, reach_m=REACH_M, se
     out = np.zeros(z.shape, bool)
     starts = range(0, rows, _BAND_ROWS)
     lows = [None] * len(starts)
+    last = 0.0
     if seen_gradient is None and seen_gradient_of is not None:
         # first the lowest ground within the reach on both sides of each line (the floors at slope 0, kept at
         # the cells above them on both sides: the bands' second pass reads them), then the planes at the cells
         # whose result they can change only
-        lows = run_sharing([partial(_lowest_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps,
-                                    float(height_m)) for a in starts], pool)
+        lows = run_sharing(_counted([partial(_lowest_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps,
+                                             float(height_m)) for a in starts], sub_progress(progress, 0.0, 0.3)),
+                           pool)
         seen_gradient = seen_gradient_of(at=_lowest_reach(lows, starts, steps, halo, z.shape))
+        last = 0.4
+        report(progress, last)
     # bands of rows that stay in the cache, each with the floors' reach of rows around it (exact); each band
     # writes its own rows of ``out``, so the bands may run in any order, on any thread
-    run_sharing([partial(_bracketed_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps, float(slope),
-                         float(height_m), dx, dy, out, seen_gradient, low) for a, low in zip(starts, lows)], pool)
+    run_sharing(_counted([partial(_bracketed_band, z, ground, a, min(rows, a + _BAND_ROWS), halo, steps, float(slope),
+                                  float(height_m), dx, dy, out, seen_gradient, low) for a, low in zip(starts, lows)],
+                         sub_progress(progress, last, 1.0)), pool)
     return out
+
+
+def _counted(tasks, progress):
+    """``tasks`` each reporting ``progress`` (the share of the tasks done) when it ends, whichever thread
+    runs it: the count and the report under one lock, so the fractions rise. ``tasks`` as they are
+    without ``progress``."""
+    if progress is None:
+        return tasks
+    lock, done = threading.Lock(), [0]
+
+    def counted(task):
+        def run():
+            out = task()
+            with lock:
+                done[0] += 1
+                report(progress, done[0] / len(tasks))
+            return out
+        return run
+    return [counted(t) for t in tasks]
 
 
 #: :func:`_lowest_band` keeps the cells standing more than this share of ``dh`` above the lowest ground on both
@@ -1484,7 +1512,8 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
 
 
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, pool=None):
+                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, pool=None,
+                  progress=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -1521,6 +1550,9 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     pool : Executor, optional
         Threads that may take some of the bands and chunks of cells of :func:`seen_ground_gradient`,
         :func:`find_bracketed` and :func:`~.fill.find_edge_spikes`; the same result without.
+    progress : callable, optional
+        ``progress(fraction)`` after each of its tests (seconds each on 16 Mcells); may raise
+        :class:`~.common.Cancelled`, which stops it there. The same result without.
 
     Returns
     -------
@@ -1546,7 +1578,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     # the seen ground's planes where they can change the bracketed cells (find_bracketed asks for them)
     seen = partial(seen_ground_gradient, z, ground, cell_size, reach_m, pool=pool) if along_ground and s > 0 else None
     out = find_bracketed(z, ground, cell_size, slope=s, height_m=dh, reach_m=reach_m, seen_gradient_of=seen,
-                         pool=pool)
+                         pool=pool, progress=sub_progress(progress, 0.0, 0.4))
     seen = None
     # smooth convex ground, not a low object; an object's step beside it is not the ground's roughness
     smooth = find_smooth(z, out, SMOOTH_RATIO * dh, ground=ground)
@@ -1558,6 +1590,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     along = {"along_slope": s, "cell_size": cell_size} if along_steps else {}
     tops = find_step_tops(z, out, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh,
                           **along)
+    report(progress, 0.5)
     out &= ~tops
     new = mask.copy()
     new[out] = OBJECT
@@ -1567,11 +1600,14 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     lt = None if line_tolerance_m is None or not np.isfinite(line_tolerance_m) else max(et, float(line_tolerance_m))
     fill = ((new == OBJECT) | (new == LOW)) & np.isfinite(z)
     spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
+    report(progress, 0.65)
     more = find_step_tops(z, spikes, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh,
                           **along)
+    report(progress, 0.7)
     if more.any():
         tops |= more
         spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
+        report(progress, 0.85)
     new[spikes] = OBJECT
     # 3. the band of ground along the objects' edges standing above the plane of the ground beyond it
     # (find_raised_band): low vegetation whose cells continue each other along the edge
@@ -1581,6 +1617,7 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
         z, (new == OBJECT) | (new == LOW), cell_size, tolerance_m=bt, height_m=dh)
     band &= ~tops                   # a step's top stands above the plane that averages the step away
     new[band] = OBJECT
+    report(progress, 1.0)
     n_ground = max(1, int(np.count_nonzero(ground)))
     info = {"refine_removed_share": float(np.count_nonzero(out)) / n_ground,
             "refine_smooth_kept_share": float(np.count_nonzero(smooth)) / n_ground,

@@ -17,6 +17,8 @@ it starts). Inside QGIS the plugin leaves the application's allocator alone (one
 rendering threads would make them wait on one another), and so do the survey's Dask workers (Dask
 sets its own trimming for them and restarts a worker whose memory grows).
 """
+import contextlib
+import contextvars
 import ctypes
 import ctypes.util
 import os
@@ -88,10 +90,83 @@ def available_memory():
         return None
 
 
-def window_budget(env=None):
+def resident_bytes():
+    """This process's resident memory (``VmRSS`` of ``/proc/self/status``), bytes; None when unknown."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def release_freed_memory():
+    """Give the memory freed at the heap back to the system (glibc ``malloc_trim(0)``), so that the
+    resident memory measures what is held; nothing in a process that keeps its freed memory for reuse
+    (:func:`reuse_freed_memory`) or where the C library is not glibc. Returns True when trimmed."""
+    if _applied:
+        return False
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name) if name else None
+        trim = getattr(libc, "malloc_trim", None)
+        if trim is None:
+            return False
+        trim.argtypes = (ctypes.c_size_t,)
+        trim(0)
+        return True
+    except OSError:
+        return False
+
+
+_BASELINE = contextvars.ContextVar("bare_earth_memory_baseline", default=None)
+
+
+@contextlib.contextmanager
+def run_baseline():
+    """Within: the run's memory is measured from this process's resident memory when the outermost
+    such context was entered (:func:`held_by_run`): an algorithm enters it before its own reads (a
+    vector layer rasterised on the DSM's grid, the checks' reads), ``pipeline.run_file`` too (for a
+    caller from Python); the memory the application held before (QGIS) is not the run's."""
+    token = None
+    if _BASELINE.get() is None:
+        release_freed_memory()      # measured as held_by_run measures: without the freed memory kept
+        token = _BASELINE.set(resident_bytes())
+    try:
+        yield
+    finally:
+        if token is not None:
+            _BASELINE.reset(token)
+
+
+def held_by_run():
+    """Bytes this process holds above the run's baseline (:func:`run_baseline`) after giving back the
+    freed memory (:func:`release_freed_memory`): the run's arrays still alive (the inputs read, the
+    parameters' leftovers) that its windows come on top of; 0 outside a run or when unknown."""
+    base = _BASELINE.get()
+    if base is None:
+        return 0
+    release_freed_memory()
+    now = resident_bytes()
+    return max(0, now - base) if now is not None else 0
+
+
+def budget_given(env=None):
+    """True when ``BARE_EARTH_MEMORY_MB`` is set (in ``env``, default this process's environment): the
+    budget is then the run's bound, and what the run holds beside its windows counts against it."""
+    env = os.environ if env is None else env
+    return bool(env.get(BUDGET_ENV, "").strip())
+
+
+def window_budget(env=None, held=0):
     """Bytes the windows of one run may take together: ``BARE_EARTH_MEMORY_MB`` megabytes when set
-    (in ``env``, default this process's environment), else :data:`BUDGET_SHARE` of
-    :func:`available_memory` (:data:`FALLBACK_BUDGET` when that is unknown)."""
+    (in ``env``, default this process's environment) less ``held``, what the run holds outside its
+    windows (:func:`held_by_run`: the inputs it read, the parameters' leftovers; GDAL's block cache),
+    at least 0: the variable bounds the whole run's memory above what the process held before it.
+    Unset: :data:`BUDGET_SHARE` of :func:`available_memory` (what the run holds is already not
+    available; :data:`FALLBACK_BUDGET` when that is unknown)."""
     env = os.environ if env is None else env
     given = env.get(BUDGET_ENV, "").strip()
     if given:
@@ -101,6 +176,6 @@ def window_budget(env=None):
             raise ValueError(f"{BUDGET_ENV}={given!r} is not a number of megabytes.") from None
         if not mb > 0:
             raise ValueError(f"{BUDGET_ENV}={given!r}: give a positive number of megabytes.")
-        return int(mb * (1 << 20))
+        return max(0, int(mb * (1 << 20)) - int(held))
     avail = available_memory()
     return int(BUDGET_SHARE * avail) if avail else FALLBACK_BUDGET

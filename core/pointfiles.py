@@ -23,7 +23,8 @@ import numpy as np
 from .codes import GROUND, LOW, OBJECT
 from .common import UTF16_BOMS, pid_alive, text_of, write_failed
 
-__all__ = ["PointCloud", "read_points", "write_points", "read_column", "read_crs", "point_output_path", "import_laspy",
+__all__ = ["PointCloud", "read_points", "write_points", "prepare_points", "place_points",
+           "read_column", "read_crs", "point_output_path", "import_laspy",
            "LAS_INSTALL_HINT", "ASPRS_FROM_CLASS", "POINT_EXTENSIONS", "part_path", "remove_stale_parts"]
 
 #: File extensions written as LAS / as text.
@@ -563,16 +564,32 @@ def write_points(path, cloud, classes, decimals=None):
         One class per point (:func:`classify_points`).
     decimals : int, optional
         Decimals of x, y, z in text output (default 3; 9 for geographic coordinates).
+
+    See Also
+    --------
+    prepare_points, place_points : the two halves, for a run whose other outputs (rasters) must
+        be in place before the points file appears.
     """
+    work = prepare_points(path, cloud, classes, decimals)
+    try:
+        place_points(work, path)
+    finally:
+        if os.path.exists(work):
+            os.remove(work)
+
+
+def prepare_points(path, cloud, classes, decimals=None):
+    """Write the points of output ``path`` (as :func:`write_points`) to a hidden work file beside
+    it (:func:`part_path`, with the output's extension: laspy compresses by it) and return the work
+    file's name; :func:`place_points` moves it into place. Nothing that looks like the output exists
+    until then: a run killed (``kill -9``) before leaves only the hidden work file, which the next
+    write of this output removes (:func:`remove_stale_parts`). On an error the work file is removed."""
     path = os.fspath(path)
     classes = np.asarray(classes).ravel()
     if classes.size != len(cloud):
         raise ValueError(f"classes has {classes.size} values but the cloud {len(cloud)} points; "
                          "pass one class per point.")
     ext = os.path.splitext(path)[1].lower()
-    # a hidden file beside the output, with its extension (laspy compresses by it), moved into
-    # place once written: a failed or interrupted write leaves no file that looks valid, and the
-    # work files of a killed earlier write of this output are removed first
     remove_stale_parts(path)
     tmp = part_path(path, ext)
     try:
@@ -580,12 +597,24 @@ def write_points(path, cloud, classes, decimals=None):
             _write_las(tmp, cloud, classes)
         else:
             _write_text(tmp, cloud, classes, decimals)
-        os.replace(tmp, path)
     except OSError as exc:
-        raise write_failed(path, exc.strerror or exc, exc.errno) from None
-    finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+        raise write_failed(path, exc.strerror or exc, exc.errno) from None
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return tmp
+
+
+def place_points(work, path):
+    """Move the work file of :func:`prepare_points` onto output ``path`` (one rename: atomic)."""
+    path = os.fspath(path)
+    try:
+        os.replace(work, path)
+    except OSError as exc:
+        raise write_failed(path, exc.strerror or exc, exc.errno) from None
 
 
 def _part_name(path):

@@ -41,11 +41,11 @@ from .common import is_rotated, report, sub_progress
 from .estimate import lowest_point_spread
 from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, resolve_params, run_array
-from .pointfiles import POINT_EXTENSIONS, point_output_path, read_column, read_crs
+from .pointfiles import POINT_EXTENSIONS, place_points, point_output_path, prepare_points, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
 
 __all__ = ["CloudGrid", "CloudResult", "TileResult", "rasterize_cloud", "classify_cloud",
-           "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "class_counts",
+           "filter_cloud", "filter_tiles", "check_tiles_crs", "write_rasters", "write_cloud_outputs", "class_counts",
            "compare_classified", "match_points", "read_column", "point_output_path",
            "axis_scales", "crs_warnings", "cell_size_for_spacing", "default_cell_size_m", "DEFAULT_THRESHOLD_M",
            "DEFAULT_SLOPE_FACTOR", "SMRF_CELL_M", "cell_slope_factor", "REDUCERS", "POINT_EXTENSIONS",
@@ -584,6 +584,36 @@ def write_rasters(grid_, result, outputs, extras=None):
                 raise ValueError(f"unknown raster output {key!r}.")
         out.commit()
     return outputs
+
+
+def write_cloud_outputs(points_path, cloud, classes, grid_, result, rasters, extras=None):
+    """A point run's outputs, all or nothing: the points file and the rasters of
+    :func:`write_rasters`.
+
+    The points are written first to a hidden work file (:func:`.pointfiles.prepare_points`), the
+    rasters are written and put in place (:class:`.grid.OutputSet`), and only then is the points
+    file moved into place (one rename). A run killed (``kill -9``) or failing while the rasters
+    are written leaves no new points file (before, the points file was in place first and looked
+    valid without its rasters); the points file of an earlier run stays as it was. Only the
+    rename of the rasters and of the points file separate them.
+    """
+    from . import grid
+    work = prepare_points(points_path, cloud, classes)
+    try:
+        grid.check_replaceable(points_path)     # the points' rename must not fail after the rasters
+        placed = write_rasters(grid_, result, rasters, extras=extras)
+        try:
+            place_points(work, points_path)
+        except BaseException:                   # rasters without their points: removed (all or nothing)
+            for key, path in placed.items():
+                for f in grid.output_files(path, styled=key == "mask"):
+                    if os.path.isfile(f):
+                        os.remove(f)
+            raise
+    finally:
+        if os.path.exists(work):
+            os.remove(work)
+    return points_path
 
 
 # --------------------------------------------------------------------------- tiles

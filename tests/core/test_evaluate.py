@@ -531,3 +531,24 @@ def test_write_report_removes_the_parts_of_a_killed_write(tmp_path):
         p.write_text("{")
     write_report({"total": 1.0}, json_path=tmp_path / "r.json", html_path=tmp_path / "r.html")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.html", "r.json", live.name])
+
+
+def test_generalise_out_is_written_with_no_log(tmp_path, monkeypatch):
+    """``--no-log`` keeps the committed log untouched; ``--out FILE`` still writes FILE (the
+    helpers compare their runs row by row), and ``--no-log`` alone writes nothing."""
+    gen = _load_benchmark("generalise")
+    rows = [{"row": "isprs/samp11/1m/min", "source": "isprs/samp11", "family": "isprs", "half": "A",
+             "shape": [30, 20], "cell_m": 1.0, "floor": 1.0, "grid": 1.5, "raw": 30.0, "seconds": 0.1,
+             "filters": {"dtm": {"type1": 1.0, "type2": 3.0, "total": 2.5, "kappa": 90.0, "n": 600}}}]
+    monkeypatch.setattr(gen, "run_matrix", lambda data, methods, only: (rows, []))
+    committed = tmp_path / "committed.jsonl"
+    monkeypatch.setattr(gen, "RESULTS", committed)
+    (tmp_path / "data").mkdir()
+    out = tmp_path / "mine.jsonl"
+    assert gen.main(["--data", str(tmp_path / "data"), "--methods", "dtm", "--no-log", "--out", str(out)]) == 0
+    rec = json.loads(out.read_text().splitlines()[-1])
+    assert rec["rows"][0]["filters"]["dtm"]["total"] == 2.5 and rec["methods"] == ["dtm"]
+    assert not committed.exists()
+    out.unlink()
+    assert gen.main(["--data", str(tmp_path / "data"), "--methods", "dtm", "--no-log"]) == 0
+    assert not out.exists() and not committed.exists()

@@ -62,3 +62,39 @@ def test_window_budget_from_the_environment_or_half_the_memory_available(monkeyp
 def test_available_memory_is_the_kernels_estimate():
     avail = memory.available_memory()
     assert avail is None or 0 < avail <= os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def test_window_budget_is_the_bound_less_what_the_run_holds(monkeypatch):
+    """BARE_EARTH_MEMORY_MB went to the windows alone: what the run held beside them (the inputs read
+    and rasterised before the blocks, the parameters' leftovers, GDAL's cache) came on top (a 36 Mcells
+    run with 700 MB took 1.04 GB). The windows now get the bound less what the run holds; without the
+    variable the budget is half the memory available, which already leaves out what the run holds."""
+    mb = 1 << 20
+    env = {memory.BUDGET_ENV: "700"}
+    assert memory.window_budget(env) == 700 * mb
+    assert memory.window_budget(env, held=200 * mb) == 500 * mb
+    assert memory.window_budget(env, held=900 * mb) == 0
+    monkeypatch.setattr(memory, "available_memory", lambda: 8000 * mb)
+    assert memory.window_budget({}, held=200 * mb) == 4000 * mb
+
+
+def test_held_by_run_measures_from_the_run_baseline():
+    """Inside :func:`memory.run_baseline`: the resident memory above its start (100 MB held: counted; freed:
+    given back and no longer counted); outside a run: 0. The outermost context's baseline stays."""
+    import numpy as np
+    mb = 1 << 20
+    if memory.resident_bytes() is None:
+        pytest.skip("no /proc/self/status here")
+    assert memory.held_by_run() == 0
+    with memory.run_baseline():
+        a = np.ones(100 * mb, np.uint8)                 # touched: resident
+        with memory.run_baseline():                     # nested: the outer baseline
+            assert memory.held_by_run() >= 90 * mb
+        del a
+        assert memory.held_by_run() < 30 * mb
+    assert memory.held_by_run() == 0
+
+
+def test_budget_given_only_by_the_variable():
+    assert memory.budget_given({memory.BUDGET_ENV: "700"}) and not memory.budget_given({memory.BUDGET_ENV: " "})
+    assert not memory.budget_given({})

@@ -1044,3 +1044,38 @@ def test_with_output_nodata_exact():
     b = np.array([np.nan, 300.0], np.float32)
     assert grid.with_output_nodata(b, float("nan")) == 0 and np.isnan(b[0]) and b[1] == 300.0
     assert grid.moved_off_nodata_message(0, 300.0) is None
+
+
+def test_blocks_budget_leaves_out_what_the_run_holds_beside_its_windows(tmp_path, monkeypatch):
+    """BARE_EARTH_MEMORY_MB bounded the windows alone; what the run held beside them when the blocks
+    were planned (the input's window the parameters came from, rasterised layers, GDAL's block cache)
+    came on top. The windows now get the bound less that (held_outside_windows), logged."""
+    from bare_earth.core import memory
+    mb = 1 << 20
+    monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
+    monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
+    z = (np.arange(400 * 400, dtype=np.float32).reshape(400, 400) % 13).astype(np.float32)
+    src = write(tmp_path, z)
+    meth = Method(name="short", run=_run, resolve=_resolve, halo=lambda p, c: 4, params=ABOVE.params)
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", str(80 + 64 + 10))    # 10 MB for the windows once 80 + 64 held
+    monkeypatch.setattr(memory, "held_by_run", lambda: 80 * mb)
+    assert pipeline.held_outside_windows() == 80 * mb + grid.BLOCK_MODE_CACHE
+    logs = []
+    res = pipeline.run_file(meth, src, outputs(tmp_path, "mask"), log=logs.append)
+    plan = [s for s in logs if "Blocks of " in s]
+    assert res["blocks"] > 1 and plan and "memory budget of 10 MB" in plan[0], logs
+    np.testing.assert_array_equal(read(outputs(tmp_path, "mask")["mask"])[0],
+                                  pipeline.run_array(meth, z, (1.0, 1.0)).mask)
+    monkeypatch.setattr(memory, "held_by_run", lambda: 0)              # nothing held: the windows' 154 MB
+    logs = []
+    assert pipeline.run_file(meth, src, outputs(tmp_path, "mask", prefix="o_"), log=logs.append)["blocks"] == 1
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_complex_arrays_refused_before_work(dtype):
+    """A complex array was cast to its real part with only numpy's ComplexWarning (a raster of complex
+    numbers is refused); from Python it is refused too, naming the dtype and the fix."""
+    z = np.full((20, 20), 100.0).astype(dtype)
+    for call in (lambda: pipeline.run_array("morphological", z, 1.0), lambda: pipeline.resolve_params("dtm", z, 1.0)):
+        with pytest.raises(ValueError, match=r"complex numbers \(complex(64|128)\).*real part"):
+            call()

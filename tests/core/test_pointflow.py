@@ -534,3 +534,50 @@ def test_height_warnings_count_points_without_a_finite_height():
                                             "left out of the grid and classed 255")
     assert pf.height_warnings(c, classified=False).endswith("left out of the grid. Check the z column of those points.")
     assert pf.height_warnings(PointCloud(np.arange(3.0), np.arange(3.0), np.ones(3))) is None
+
+
+_KILLED_DURING_RASTERS = r"""
+import sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from bare_earth.core import grid, pointflow as pf
+from bare_earth.core.points import PointCloud
+rng = np.random.default_rng(0)
+x, y = rng.uniform(0, 60, 6000) + 500000.0, rng.uniform(0, 60, 6000) + 5400000.0
+cloud = PointCloud(x, y, 100.0 + 0.01 * (x - 500000.0), crs="EPSG:32632")
+r = pf.filter_cloud(cloud, "morphological")
+def slow(self, *args, **kwargs):
+    print("writing", flush=True)
+    time.sleep(600)
+grid.OutputSet.commit = slow
+pf.write_cloud_outputs(sys.argv[2], cloud, r.classes, r.grid, r.result,
+                       {"dtm": sys.argv[3], "mask": sys.argv[4]})
+"""
+
+
+def test_point_run_killed_while_its_rasters_are_written_leaves_no_points_file(tmp_path):
+    """kill -9 while a point run's rasters were written left a complete-looking points file (it was
+    put in place first); now only hidden work files are left, and the next write removes them."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    plugins = os.path.dirname(os.path.dirname(os.path.dirname(pf.__file__)))
+    out, dtm, mask = tmp_path / "cls.txt", tmp_path / "dtm.tif", tmp_path / "mask.tif"
+    p = subprocess.Popen([sys.executable, "-c", _KILLED_DURING_RASTERS, plugins, str(out), str(dtm), str(mask)],
+                         stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "writing"
+    finally:
+        os.kill(p.pid, signal.SIGKILL)
+        p.wait()
+    left = sorted(q.name for q in tmp_path.iterdir())
+    assert not [n for n in left if not n.startswith(".")]          # nothing that looks like a result
+    assert any(n.startswith(".cls.txt.") and n.endswith(".part.txt") for n in left)
+    c = scene_cloud(shape=(40, 40))
+    r = pf.filter_cloud(c, "morphological")
+    pf.write_cloud_outputs(out, c, r.classes, r.grid, r.result, {"dtm": str(dtm), "mask": str(mask)})
+    names = {q.name for q in tmp_path.iterdir()}
+    assert {"cls.txt", "dtm.tif", "mask.qml", "mask.tif"} <= names
+    assert not [n for n in names if n.startswith(".")]              # the killed run's work files removed
+    assert len(read_points(out)) == len(c)

@@ -127,3 +127,61 @@ def test_long_estimates_report_and_stop_on_cancel(name, call):
     with pytest.raises(Cancelled):
         call(z, stop)
     assert len(seen) == 1
+
+
+def test_dtm_reports_between_its_stages_after_the_vote(monkeypatch):
+    """After its members voted, bareearth:dtm ran the continuations, the banks and the refinement
+    (seconds on 16 Mcells) without a report: the bar stood still and a cancel waited. Every one of
+    these stages is now followed by a report, the refinement's own sub-stages too, the fractions
+    rising; the result is the one without a callback."""
+    from bare_earth.core import dtm, dtm_refine
+    events = []
+    stages = {dtm: ("continue_ground", "continue_lines", "continue_banks"),     # then refine_ground's own:
+              dtm_refine: ("find_bracketed", "find_step_tops", "find_edge_spikes", "find_raised_band")}
+    for mod, names in stages.items():
+        for name in names:
+            f = getattr(mod, name)
+
+            def spy(*args, _f=f, _name=name, **kwargs):
+                events.append(_name)          # where the stage begins
+                return _f(*args, **kwargs)
+            monkeypatch.setattr(mod, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    params = pipeline.resolve_params("dtm", z, 1.0)
+    base = methods.get_method("dtm").run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = methods.get_method("dtm").run(z, (1.0, 1.0), progress=lambda f: events.append(f), **params)
+    np.testing.assert_array_equal(res.mask, base)
+    after = events[min(i for i, e in enumerate(events) if isinstance(e, str)):]
+    named = [i for i, e in enumerate(after) if isinstance(e, str)]
+    assert len(named) >= 6
+    for i, j in zip(named, named[1:] + [len(after)]):    # a report in each stage (or at its end)
+        assert any(isinstance(e, float) for e in after[i + 1:j]), (after[i], after[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_dtm_derivation_reports_after_its_members(monkeypatch):
+    """After its members' parameters were derived, bareearth:dtm's derivation measured the repeated heights
+    and the raised regions' span on the whole raster without a report (the bar stood still before the vote
+    began); each of those estimates is now followed by one, the fractions rising, the parameters unchanged."""
+    from bare_earth.core import dtm
+    events = []
+    for name in ("repeated_height_share", "raised_region_grid", "raised_region_span"):
+        f = getattr(dtm, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(dtm, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    base = pipeline.resolve_params("dtm", z, 1.0)
+    events.clear()
+    got = pipeline.resolve_params("dtm", z, 1.0, progress=events.append)
+    assert got == base
+    named = [i for i, e in enumerate(events) if isinstance(e, str)][-3:]     # the vote's own, after the members
+    assert [events[i] for i in named] == ["repeated_height_share", "raised_region_grid", "raised_region_span"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)

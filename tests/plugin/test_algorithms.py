@@ -216,6 +216,24 @@ def test_evaluate_masks_dtm_and_reports(processing_run, scene_files, tmp_path):
     assert "Type I" in html and "data:image/png;base64," in html
 
 
+@pytest.mark.parametrize("keep", ["OUTPUT_JSON", "OUTPUT_HTML", None])
+def test_evaluate_writes_either_report_alone(processing_run, scene_files, tmp_path, keep):
+    """Either report alone will do (before, each required the other); with neither, the figures
+    are the log's table and the algorithm's numbers (a model's next step reads them)."""
+    outs = {"OUTPUT_JSON": tmp_path / "e.json", "OUTPUT_HTML": tmp_path / "e.html"}
+    sc = scene_files["scene"]
+    mine = _write(tmp_path / "mine.tif", np.zeros(sc.mask.shape, np.uint8), sc.geotransform, sc.epsg)
+    params = {"MASK": mine, "REFERENCE_MASK": scene_files["mask"]}
+    if keep:
+        params[keep] = str(outs[keep])
+    ev = processing_run("bareearth:evaluate", params)
+    assert ev["TYPE2"] == pytest.approx(100.0) and ev["TYPE1"] == 0.0   # all ground: every object accepted
+    for key, path in outs.items():
+        assert path.exists() == (key == keep)
+    if keep:
+        assert ev[keep] == str(outs[keep])
+
+
 def test_evaluate_requires_something_to_compare(processing_run, tmp_path):
     from qgis.core import QgsProcessingException
     with pytest.raises(QgsProcessingException, match="Nothing to compare"):

@@ -147,6 +147,41 @@ def test_morphological_on_points_then_evaluate(processing_run, cloud_files, tmp_
     assert "point errors" in (d / "e.html").read_text()
 
 
+def test_point_run_places_its_points_file_after_the_rasters(processing_run, cloud_files, tmp_path, monkeypatch):
+    """A point run wrote (and put in place) its points file, then the rasters: a kill -9 during the
+    rasters' writing left a complete-looking points file without its rasters. The points are now
+    written to a hidden work file and moved into place after the rasters, so while the rasters are
+    written no new points file is there; a failed raster write leaves the points file of the last
+    run as it was."""
+    from qgis.core import QgsProcessingException
+
+    from bare_earth.core import grid
+    seen = []
+    commit = grid.OutputSet.commit
+
+    def spy(self, *args, **kwargs):
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+        return commit(self, *args, **kwargs)
+    monkeypatch.setattr(grid.OutputSet, "commit", spy)
+    params = {"INPUT_POINTS": cloud_files["txt"], "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+              "OUTPUT_MASK": str(tmp_path / "mask.tif"), "OUTPUT_POINTS": str(tmp_path / "cls.txt")}
+    processing_run("bareearth:morphological", params)
+    assert len(seen) == 1 and "cls.txt" not in seen[0]      # not in place while the rasters were written
+    assert any(n.startswith(".cls.txt.") and n.endswith(".part.txt") for n in seen[0])   # its work file was
+    assert {"cls.txt", "dtm.tif", "mask.tif"} <= {p.name for p in tmp_path.iterdir()}
+    before = (tmp_path / "cls.txt").read_bytes()
+    (tmp_path / "cls.txt").write_text("old run\n")
+
+    def fail(self, *args, **kwargs):
+        raise ValueError("cannot put the output in place: disk full")
+    monkeypatch.setattr(grid.OutputSet, "commit", fail)
+    with pytest.raises(QgsProcessingException, match="disk full"):
+        processing_run("bareearth:morphological", params)
+    assert (tmp_path / "cls.txt").read_text() == "old run\n"   # the last run's file, untouched
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]   # no work file left
+    assert before
+
+
 def test_classified_points_truth_column(processing_run, cloud_files, tmp_path):
     from bare_earth.core.points import read_points
     r = processing_run("bareearth:morphological", {"INPUT_POINTS": cloud_files["txt"],
@@ -601,19 +636,20 @@ def test_other_tiles_of_another_crs_or_not_points_refused_in_the_check(qgis_app,
     assert re.search(message, msg), msg
 
 
-@pytest.mark.parametrize("fails", ["rasters", "points"])
+@pytest.mark.parametrize("fails", ["write_rasters", "prepare_points", "place_points"])
 def test_points_and_rasters_all_or_nothing(processing_run, cloud_files, tmp_path, monkeypatch, fails):
     """Before: a filter with INPUT_POINTS wrote its rasters, then the points; a points write that
-    failed left the rasters, which looked like a finished run. Now a failure of either leaves none."""
+    failed left the rasters, which looked like a finished run. Now a failure of either leaves none
+    (the points written first to a work file, the rasters, then the points moved into place: a
+    failure of that last move removes the rasters just placed)."""
     from qgis.core import QgsProcessingException
 
-    from bare_earth.core import pointflow, points
+    from bare_earth.core import pointflow
 
     def broken(*args, **kwargs):
         raise ValueError("disk full (simulated)")
 
-    monkeypatch.setattr(pointflow if fails == "rasters" else points,
-                        "write_rasters" if fails == "rasters" else "write_points", broken)
+    monkeypatch.setattr(pointflow, fails, broken)
     outs = {"OUTPUT_DTM": tmp_path / "dtm.tif", "OUTPUT_MASK": tmp_path / "mask.tif",
             "OUTPUT_POINTS": tmp_path / "classified.txt"}
     with pytest.raises(QgsProcessingException, match="disk full"):
