@@ -58,7 +58,6 @@ import contextlib
 import hashlib
 import math
 import threading
-import warnings
 from functools import partial
 
 import numpy as np
@@ -1440,12 +1439,25 @@ def _below_ground_side(z, idx, bank, reach, depth_m, slope, cell_size):
         part = slice(i * _RING_CHUNK, i * _RING_CHUNK + q.size)
         own = flat.take(q).astype(np.float32)
         v[~inside] = np.nan
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)              # a ring of nodata
-            ground = np.nanquantile(v, GAP_GROUND_QUANTILE, axis=1).astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            ground = _nan_quantile_rows(v, GAP_GROUND_QUANTILE)
             v[~(v > own[:, None] + np.float32(depth_m))] = np.inf         # NaN too
             ok[part] = (own < ground - allow) & (v.min(axis=1) >= bank[part] - allow)
     return ok
+
+
+def _nan_quantile_rows(v, q):
+    """``np.nanquantile(v, q, axis=1)`` as float32 (NaN for a row of NaN only), the same values:
+    the rows sorted (NaN last) and :func:`numpy.quantile` asked once per count of finite values
+    on those rows' finite values. ``nanquantile`` along an axis calls itself row by row in
+    Python (0.48 s for 4096 rings of 416 cells; this: 0.05 s)."""
+    s = np.sort(v, axis=1)
+    n = np.count_nonzero(~np.isnan(s), axis=1)
+    out = np.full(v.shape[0], np.nan, np.float32)
+    for k in np.unique(n[n > 0]):
+        rows = np.flatnonzero(n == k)
+        out[rows] = np.quantile(s[rows, :k], q, axis=1)
+    return out
 
 
 #: Nodata gaps at most this many cells from a valid cell (missing scan lines, a checkerboard of

@@ -1201,6 +1201,27 @@ def _lowest_ground(clean, ground, cells):
     lowest = np.full(cells.size, np.inf, np.float32)
     where = np.full(cells.size, -1, np.intp)
     inf = np.float32(np.inf)
+    # the cells off the raster's border (nearly all): their 9 neighbours gathered at once by flat offsets,
+    # the first lowest ground cell in the order of the loop below (argmin's first minimum)
+    inner = np.flatnonzero((rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1))
+    offs = (np.arange(-1, 2)[:, None] * W + np.arange(-1, 2)[None, :]).ravel()
+    for i in range(0, inner.size, _LOWEST_CHUNK):
+        k = inner[i:i + _LOWEST_CHUNK]
+        q = cells[k][:, None] + offs
+        v = cf[q]
+        v[~gf[q] | ~(v < inf)] = inf                       # not ground, nodata: none
+        j = np.argmin(v, axis=1)
+        low = v[np.arange(k.size), j]
+        lowest[k] = low
+        where[k] = np.where(low < inf, q[np.arange(k.size), j], -1)
+    if inner.size == cells.size:
+        return lowest, where
+    border = np.ones(cells.size, bool)
+    border[inner] = False
+    keep = (lowest, where)
+    cells, rows, cols = cells[border], rows[border], cols[border]
+    lowest = np.full(cells.size, np.inf, np.float32)
+    where = np.full(cells.size, -1, np.intp)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
             r, c = rows + dr, cols + dc
@@ -1210,7 +1231,12 @@ def _lowest_ground(clean, ground, cells):
             lower = v < lowest
             lowest[lower] = v[lower]
             where[lower] = q[lower]
-    return lowest, where
+    keep[0][border], keep[1][border] = lowest, where
+    return keep
+
+
+#: Cells per chunk of :func:`_lowest_ground`'s gathered neighbourhoods (9 heights and indices each).
+_LOWEST_CHUNK = 1 << 16
 
 
 def _walls(clean, ground, edge, rise, dh=None, steepest=_MAX_SLOPE, cell=(1.0, 1.0)):

@@ -1256,3 +1256,24 @@ def test_square_opening_exact():
     assert (est.square_opening(r, 3) <= r).all()
     with pytest.raises(ValueError, match="size_cells"):
         est.square_opening(z, 0)
+
+
+def test_nan_quantile_rows_equals_nanquantile():
+    """below_narrow_gap's ring quantile: the rows' np.nanquantile (linear), float32, NaN for a row of
+    NaN only, on rows with every count of finite values (one, two, all, none)."""
+    import warnings
+    rng = np.random.default_rng(2)
+    v = rng.normal(0.0, 3.0, (300, 41)).astype(np.float32)
+    v[rng.random(v.shape) < rng.random((300, 1))] = np.nan
+    v[0] = np.nan
+    v[1, 1:] = np.nan
+    v[2, 2:] = np.nan
+    v[3] = rng.normal(0.0, 3.0, 41)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for q in (0.25, 0.5, 0.9):
+            want = np.nanquantile(v, q, axis=1).astype(np.float32)
+            got = est._nan_quantile_rows(v, q)
+            assert got.dtype == np.float32
+            assert np.array_equal(got, want, equal_nan=True)
+    assert np.isnan(got[0]) and not np.isnan(got[1:4]).any()

@@ -1365,3 +1365,26 @@ def test_blocks_equal_one_pass_on_dikes():
     blk = run_array("morphological", z, 1.0, {"mode": "progressive"}, block=64)
     assert blk.info["blocks"] > 4
     np.testing.assert_array_equal(blk.mask, one.mask)
+
+
+def test_lowest_ground_exact():
+    """The lowest ground cell of each 3 x 3 neighbourhood and its index, the first in row order among
+    equal heights, on border and inner cells alike (inner ones gathered at once, border ones clipped);
+    nodata, non-ground and the outside are none (+inf, -1)."""
+    rng = np.random.default_rng(7)
+    for shape in ((1, 1), (1, 6), (5, 1), (2, 3), (23, 31)):
+        z = rng.integers(0, 3, shape).astype(np.float32)     # many ties
+        z[rng.random(shape) < 0.15] = np.nan
+        ground = rng.random(shape) < 0.6
+        cells = np.flatnonzero(rng.random(shape) < 0.8)
+        low, where = morph._lowest_ground(z, ground, cells)
+        H, W = shape
+        for k, q in enumerate(cells):
+            r, c = divmod(int(q), W)
+            best, at = np.inf, -1
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    rr, cc = r + dr, c + dc
+                    if 0 <= rr < H and 0 <= cc < W and ground[rr, cc] and z[rr, cc] < best:
+                        best, at = z[rr, cc], rr * W + cc
+            assert low[k] == best and where[k] == at
