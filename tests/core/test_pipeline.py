@@ -631,8 +631,9 @@ def test_plan_block_pure():
     assert plan((4096, 300), 3, workers=2) == (1024, 300)
     # a halo that would add more than a quarter: one strip per worker, at least 2 * halo rows
     assert plan((500, 400), 40, processes=2) == (256, 400)
-    # large raster with workers: the budget shared by the windows held at once
-    assert plan((6000, 6000), 3, workers=2, budget=2 * budget) == (2048, 2048)
+    # large raster with workers: the budget shared by the windows held at once, each a fifth more a cell
+    assert plan((6000, 6000), 3, workers=2, budget=2 * 1.2 * budget) == (2048, 2048)
+    assert plan((6000, 6000), 3, workers=2, budget=2 * budget) == (1792, 1792)
     # a method using threads inside a window: one window in memory (no halo recomputed), blocks above
     assert plan((500, 400), 40, workers=2, threads=True) == 500
     assert plan((500, 400), 40, processes=2, threads=True) == (256, 400)
@@ -676,7 +677,7 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
     assert amp(big, b, 2176) < 2.6 and largest(big, b, 2176) * 92 <= 11 * gb
     # the same budget shared by two windows side by side (a method without threads inside a window)
     b2 = plan(big, 2176, workers=2, budget=11 * gb, bytes_per_cell=92)
-    assert 2 * largest(big, b2, 2176) * 92 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
+    assert 2 * largest(big, b2, 2176) * 92 * 1.2 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
     assert plan(big, 2176, processes=3, threads=True, budget=11 * gb, bytes_per_cell=92) == \
         plan(big, 2176, workers=3, budget=11 * gb, bytes_per_cell=92)          # processes: a window each
     rng = np.random.default_rng(0)
@@ -685,7 +686,7 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
         halo, budget = int(rng.integers(0, 3000)), float(rng.uniform(0.5, 16)) * gb
         n = int(rng.integers(1, 4))
         b = plan(shape, halo, workers=n, budget=budget, bytes_per_cell=60)
-        cells = budget / n / 60
+        cells = budget / n / pipeline.window_bytes_per_cell(60, n)
         if b == max(shape):                          # one pass: it fits, or every block reads it all
             assert shape[0] * shape[1] <= cells or largest(shape, pipeline.MIN_BLOCK, halo) == shape[0] * shape[1]
             continue
@@ -702,6 +703,22 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
     # strips of whole rows when a window spans the raster's width: (4352 + 2 x 3 + 63) x 6000 cells <= 2 GB / 80
     assert plan((6000, 6000), 3, budget=2 * gb, bytes_per_cell=80) == (4352, 6000)
     assert plan((6000, 6000), 3, budget=6000 ** 2 * 80, bytes_per_cell=80) == 6000   # fits: one pass
+
+
+def test_plan_block_windows_side_by_side_take_more_than_one_at_a_time():
+    """Windows side by side (threads or processes) each hold their finished core while another is
+    written and compressed: a method's bytes_per_cell, measured one window at a time, understated two
+    windows by about 15 % (QA 17: slopeprofile on 36 Mcells with a 700 MB bound peaked 705 MB above its
+    baseline). Two windows get 20 % more a cell; one window at a time (dtm's threads) does not."""
+    plan, largest = pipeline.plan_block, pipeline.largest_window
+    assert pipeline.window_bytes_per_cell(48, 1) == 48.0
+    assert pipeline.window_bytes_per_cell(48, 2) == pytest.approx(48 * 1.2)
+    shape, halo, budget, bpc = (6000, 6000), 40, 700 << 20, 48          # slopeprofile's 36 Mcells
+    for kw in ({"workers": 2}, {"processes": 2}):
+        b = plan(shape, halo, budget=budget, bytes_per_cell=bpc, **kw)
+        assert 2 * largest(shape, b, halo) * bpc * 1.15 <= budget, (kw, b)
+    one = plan(shape, halo, workers=2, threads=True, budget=budget, bytes_per_cell=bpc)
+    assert largest(shape, one, halo) * bpc > budget / 1.2 * 0.9     # the whole budget for one window
 
 
 def _opening_run(z, cell_size, progress=None, workers=1, seen=None, **p):
