@@ -47,6 +47,13 @@ MIN_BLOCK = 512
 #: flushed tiles runs beside both. Measured (QA 17): slopeprofile on 36 Mcells, two windows with a
 #: 700 MB bound peaked 705 MB above its baseline, its windows about 15 % above their estimate.
 SIDE_BY_SIDE_SHARE = 0.2
+#: Most times a large raster's windows may read its cells (:func:`read_amplification`) under a memory
+#: bound the user gave (``BARE_EARTH_MEMORY_MB``): beyond it three quarters of the filtering or more is
+#: halo, done again by the neighbouring windows; the run is refused before the blocks, naming the
+#: smallest bound within it (:func:`smallest_efficient_budget`). Under the default budget (half the memory
+#: available) the log warns instead. QA 17: dtm on 36 Mcells under 700 MB planned 144 windows of 512
+#: cells with a 1185-cell halo, reading each cell 25.7 times, with a warning only.
+MAX_READ_AMPLIFICATION = 4.0
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
 #: Strips of rows per worker process when a raster is processed in parallel (one when the
@@ -509,6 +516,57 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     return (max(rows, 2 * halo, 64), shape[1])
 
 
+def smallest_efficient_budget(shape, halo, *, workers=1, processes=1, threads=False,
+                              bytes_per_cell=DEFAULT_BYTES_PER_CELL, most=MAX_READ_AMPLIFICATION):
+    """The smallest windows' budget (bytes, to 1 MB) under which :func:`plan_block` cuts a raster of
+    ``shape`` (above :data:`IN_MEMORY_CELLS`) into windows that fit it and read its cells at most
+    ``most`` times (:func:`read_amplification`; one pass always does)."""
+    n = concurrent_windows(workers, processes, threads)
+    bpc = window_bytes_per_cell(bytes_per_cell, n)
+    mb = float(1 << 20)
+
+    def fits(budget):
+        b = plan_block(shape, halo, workers=workers, processes=processes, threads=threads,
+                       bytes_per_cell=bytes_per_cell, budget=budget)
+        return largest_window(shape, b, halo) * bpc * n <= budget and read_amplification(shape, b, halo) <= most
+
+    lo, hi = 0, int(math.ceil(shape[0] * shape[1] * bpc * n / mb))     # hi MB: one pass fits
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fits(mid * mb):
+            hi = mid
+        else:
+            lo = mid
+    return hi * (1 << 20)
+
+
+def check_plan(shape, bshape, halo, budget, *, held=0, workers=1, processes=1, threads=False,
+               bytes_per_cell=DEFAULT_BYTES_PER_CELL, method="the method"):
+    """ValueError, before the blocks, when a bound the user gave (``BARE_EARTH_MEMORY_MB``; ``budget``:
+    what it leaves for the windows, ``held``: what the run holds beside them) makes :func:`plan_block`'s
+    windows ``bshape`` read the raster's cells more than :data:`MAX_READ_AMPLIFICATION` times or exceed
+    the bound, naming the smallest bound that works; None when the plan is fine."""
+    if sum(1 for _ in blocks.iter_windows(shape, bshape, halo)) <= 1:
+        return None
+    n = concurrent_windows(workers, processes, threads)
+    bpc = window_bytes_per_cell(bytes_per_cell, n)
+    amp = read_amplification(shape, bshape, halo)
+    need = largest_window(shape, bshape, halo) * bpc * n
+    if amp <= MAX_READ_AMPLIFICATION and need <= budget:
+        return None
+    good = smallest_efficient_budget(shape, halo, workers=workers, processes=processes, threads=threads,
+                                     bytes_per_cell=bytes_per_cell)
+    rows, cols = (bshape, bshape) if np.ndim(bshape) == 0 else bshape
+    raise ValueError(
+        f"{memory.BUDGET_ENV} leaves {budget / 2 ** 20:.0f} MB for {method}'s windows on this raster of "
+        f"{shape[1]} x {shape[0]} cells: its blocks of {cols} x {rows} cells with a halo of {halo} cells (the "
+        f"method's reach) would read the raster's cells {amp:.1f} times"
+        + (f" and still take about {need / 2 ** 20:.0f} MB" if need > budget else "")
+        + f" (at most {MAX_READ_AMPLIFICATION:g} keeps the run efficient). Set {memory.BUDGET_ENV} to at least "
+        f"{math.ceil((good + held) / 2 ** 20)}, or filter a coarser cell (gdalwarp -tr), or choose the blocks "
+        "yourself (BLOCK_SIZE).")
+
+
 @dataclass
 class FileRun:
     """The settings of one :func:`run_file` call, checked (``params`` complete but for the
@@ -774,11 +832,16 @@ def _run_file(info, run, pool):
     params, whole = _derive_params(info, run)
     halo = window_halo(run.meth, params, cell)
     budget = None
+    held = 0
     if info.cells > IN_MEMORY_CELLS and run.block is None:
         # a given bound covers what the run holds beside its windows (half the memory available leaves it out)
-        budget = memory.window_budget(held=held_outside_windows() if memory.budget_given() else 0)
+        held = held_outside_windows() if memory.budget_given() else 0
+        budget = memory.window_budget(held=held)
     bshape = plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, budget=budget)
+    if budget is not None and memory.budget_given():
+        check_plan(info.shape, bshape, halo, budget, held=held, workers=run.workers, processes=run.processes,
+                   threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, method=run.meth.name)
     windows = list(blocks.iter_windows(info.shape, bshape, halo))
     # the planned windows of a method using threads inside a window: one at a time, with the threads
     # (the budget is for one window); given blocks run side by side, one thread each
@@ -879,11 +942,18 @@ def _log_plan(run, info, bshape, halo, windows, budget):
     rows, cols = (bshape, bshape) if isinstance(bshape, (int, np.integer)) else bshape
     amp = read_amplification(info.shape, bshape, halo)
     over = window_mb * n > budget_mb
-    run.log(f"{'Warning: ' if over else ''}Blocks of {cols} x {rows} cells with a halo of {halo} cells: "
+    slow = amp > MAX_READ_AMPLIFICATION
+    advice = ""
+    if over or slow:
+        good = smallest_efficient_budget(info.shape, halo, workers=run.workers, processes=run.processes,
+                                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell)
+        advice = (f" The windows would read at most {MAX_READ_AMPLIFICATION:g} x the raster's cells with "
+                  f"{math.ceil(good / 2 ** 20)} MB ({memory.BUDGET_ENV}, or memory freed), or at a coarser cell.")
+    run.log(f"{'Warning: ' if over or slow else ''}Blocks of {cols} x {rows} cells with a halo of {halo} cells: "
             f"{len(windows)} windows reading {amp:.2f} x the raster's cells; the largest about {window_mb:.0f} MB "
             f"at {bpc:.0f} bytes a cell, {n} at a time, against a memory budget of {budget_mb:.0f} MB "
             f"({memory.BUDGET_ENV} or half the memory available)"
-            + (": the smallest block exceeds it." if over else "."))
+            + (": the smallest block exceeds it." if over else ".") + advice)
 
 
 class _BlockJob:

@@ -1,6 +1,7 @@
 """Pipeline: params checked, DTM = z on the ground and filled elsewhere, blocks, files, cancel."""
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -987,6 +988,10 @@ def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp
     one = pipeline.run_array(reach, z, (1.0, 1.0)).mask
     np.testing.assert_array_equal(read(outputs(tmp_path, "mask")["mask"])[0], one)
     short = Method(name="short", run=_run, resolve=_resolve, halo=lambda p, c: 20, params=ABOVE.params)
+    # a given bound that makes the windows mostly halo is refused (check_plan): the default budget, 1 MB
+    from bare_earth.core import memory
+    monkeypatch.delenv("BARE_EARTH_MEMORY_MB")
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 << 20)
     logs = []
     assert pipeline.run_file(short, src, outputs(tmp_path, "mask", prefix="s_"), log=logs.append)["blocks"] > 1
     assert not any("spans the raster" in s for s in logs)
@@ -1067,8 +1072,9 @@ def test_blocks_budget_leaves_out_what_the_run_holds_beside_its_windows(tmp_path
     """BARE_EARTH_MEMORY_MB bounded the windows alone; what the run held beside them when the blocks
     were planned (the input's window the parameters came from, rasterised layers, GDAL's block cache)
     came on top. The windows now get the bound less that (held_outside_windows), logged."""
-    from bare_earth.core import memory
+    from bare_earth.core import fill, memory
     mb = 1 << 20
+    monkeypatch.setattr(fill, "EMPTY_RUN_M", 2.0)      # the fill's reach 4 cells: windows not mostly halo
     monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
     monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
     z = (np.arange(400 * 400, dtype=np.float32).reshape(400, 400) % 13).astype(np.float32)
@@ -1096,3 +1102,49 @@ def test_complex_arrays_refused_before_work(dtype):
     for call in (lambda: pipeline.run_array("morphological", z, 1.0), lambda: pipeline.resolve_params("dtm", z, 1.0)):
         with pytest.raises(ValueError, match=r"complex numbers \(complex(64|128)\).*real part"):
             call()
+
+
+def test_a_given_bound_that_makes_the_windows_mostly_halo_is_refused_naming_the_bound_that_works(
+        tmp_path, monkeypatch):
+    """QA 17: dtm on 36 Mcells under BARE_EARTH_MEMORY_MB=700 planned 144 windows of 512 cells with a
+    1185-cell halo, reading each cell 25.7 times, with a warning only. A bound the user gave that makes the
+    windows read the raster more than MAX_READ_AMPLIFICATION times is refused before the blocks (no
+    output written), naming the smallest bound that works; that bound then runs, reading at most 4 x.
+    Under the default budget (half the memory available) the log warns, naming it too."""
+    from bare_earth.core import memory
+    mb = 1 << 20
+    assert pipeline.smallest_efficient_budget((6000, 6000), 1185, workers=2, threads=True,
+                                              bytes_per_cell=104) == 1905 * mb
+    with pytest.raises(ValueError, match=r"25\.7 times.*at least 2005"):
+        pipeline.check_plan((6000, 6000), (512, 512), 1185, 600 * mb, held=100 * mb, workers=2, threads=True,
+                            bytes_per_cell=104, method="dtm")
+    assert pipeline.check_plan((6000, 6000), (768, 6000), 1185, 1905 * mb, workers=2, threads=True,
+                               bytes_per_cell=104) is None
+    monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
+    monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
+    monkeypatch.setattr(memory, "held_by_run", lambda: 0)
+    z = (np.arange(600 * 500, dtype=np.float32).reshape(600, 500) % 13).astype(np.float32)
+    src = write(tmp_path, z)
+    reach = Method(name="reach", run=_run, resolve=_resolve, halo=lambda p, c: 60, params=ABOVE.params)
+    cache = grid.BLOCK_MODE_CACHE // mb
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", str(cache + 1))      # 1 MB for the windows: 13107 cells
+    outs = outputs(tmp_path, "mask")
+    with pytest.raises(ValueError, match=r"BARE_EARTH_MEMORY_MB leaves 1 MB for reach's windows.*"
+                                         r"read the raster's cells \d+\.\d times.*at least (\d+)") as e:
+        pipeline.run_file(reach, src, outs)
+    assert not os.path.exists(outs["mask"])
+    need = int(re.search(r"at least (\d+)", str(e.value)).group(1))
+    assert need > cache + 1
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", str(need))
+    logs = []
+    res = pipeline.run_file(reach, src, outs, log=logs.append)
+    plan = [s for s in logs if s.startswith("Blocks of ") or "one pass" in s]
+    amp = float(re.search(r"reading (\d+\.\d+) x", plan[0]).group(1)) if res["blocks"] > 1 else 1.0
+    assert amp <= pipeline.MAX_READ_AMPLIFICATION, logs
+    np.testing.assert_array_equal(read(outs["mask"])[0], pipeline.run_array(reach, z, (1.0, 1.0)).mask)
+    monkeypatch.delenv("BARE_EARTH_MEMORY_MB")                       # the default budget: a warning
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 * mb)
+    logs = []
+    assert pipeline.run_file(reach, src, outputs(tmp_path, "mask", prefix="d_"), log=logs.append)["blocks"] > 1
+    warn = [s for s in logs if s.startswith("Warning: Blocks of ")]
+    assert warn and re.search(r"at most 4 x the raster's cells with \d+ MB", warn[0]), logs
