@@ -54,6 +54,16 @@ SIDE_BY_SIDE_SHARE = 0.2
 #: available) the log warns instead. QA 17: dtm on 36 Mcells under 700 MB planned 144 windows of 512
 #: cells with a 1185-cell halo, reading each cell 25.7 times, with a warning only.
 MAX_READ_AMPLIFICATION = 4.0
+#: The span of a raster's heights (:func:`relief_ratio`) over its width beyond which its cell size cannot be
+#: the ground's: refused before work. No terrain rises more than its width (a cliff's face is about 1:1)
+#: and no object a filter removes is twenty times taller than the raster is wide; a cell size in mm or cm
+#: given for one in m (a scene of 4-56 m buildings at 1 mm cells: 0.3 m wide, its heights 120 times that)
+#: makes every filter's windows and slopes meaningless (QA 17: morphological kept every cell ground, dtm
+#: called 99.99 % objects, without a word).
+MAX_RELIEF_RATIO = 20.0
+#: The ratio from which the log warns (the heights span more than twice the raster's diagonal: steeper than
+#: any terrain across a whole raster unless it is a small crop of tall objects).
+STEEP_RELIEF_RATIO = 2.0
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
 #: Strips of rows per worker process when a raster is processed in parallel (one when the
@@ -166,6 +176,39 @@ def check_cell_size(cell_size) -> None:
                          f"any filter takes ({widest:g} m): no building or wood a filter removes is as wide as one "
                          "cell. Filter a DSM of finer cells (a cell size in degrees or feet read as another unit: "
                          "check the raster's CRS).")
+
+
+def relief_ratio(z, cell_size, sample=1_000_000):
+    """The span of ``z``'s heights (between its 0.5th and 99.5th percentiles, on at most ``sample``
+    cells taken evenly) over its diagonal in metres; 0 when fewer than two cells hold data."""
+    z = np.asarray(z)
+    dx, dy = as_cell_size(cell_size)
+    step = max(1, int(math.ceil(math.sqrt(z.size / float(sample)))))
+    v = z[::step, ::step]
+    v = v[np.isfinite(v)]
+    if v.size < 2:
+        return 0.0
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    return float(hi - lo) / math.hypot(z.shape[0] * dy, z.shape[1] * dx)
+
+
+def check_relief(z, cell_size):
+    """ValueError, before any work, when ``z``'s heights span more than :data:`MAX_RELIEF_RATIO` times its
+    diagonal (:func:`relief_ratio`): the cell size cannot be the ground's (millimetres or centimetres given
+    for metres). Returns a warning when they span more than :data:`STEEP_RELIEF_RATIO` times it, else None."""
+    ratio = relief_ratio(z, cell_size)
+    dx, dy = as_cell_size(cell_size)
+    if ratio <= STEEP_RELIEF_RATIO:
+        return None
+    what = (f"the heights span {ratio:.3g} times the diagonal of the {z.shape[1]} x {z.shape[0]} cells of "
+            f"{dx:.6g} x {dy:.6g} m ({math.hypot(z.shape[0] * dy, z.shape[1] * dx):.3g} m)")
+    if ratio > MAX_RELIEF_RATIO:
+        raise ValueError(f"{what}: no terrain nor object a filter removes is that steep, so the cell size is "
+                         f"probably wrong (a size in mm or cm read as m, or heights in another unit than the "
+                         f"cells'). Give the raster its real cell size (gdal_edit.py -tr) or height unit "
+                         f"(gdal_edit.py -scale); every filter's windows and slopes follow them.")
+    return (f"{what}: steeper than any terrain across a whole raster. If the cell size or the height unit is "
+            "wrong (mm or cm read as m), the filters' windows and slopes are too; check them.")
 
 
 def fill_dtm(z, mask, progress=None):
@@ -342,6 +385,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
         raise ValueError("z has no valid cell: " + far_heights_message(n_far))
     cell = as_cell_size(cell_size)
     check_cell_size(cell)
+    steep = check_relief(z, cell)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != z.shape:
@@ -388,7 +432,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
     dtm[~np.isfinite(z)] = np.nan
     ndsm = (z - dtm).astype(np.float32)
     info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
-            "warnings": [far_heights_message(n_far)] if n_far else []}
+            "warnings": ([far_heights_message(n_far)] if n_far else []) + ([steep] if steep else [])}
     info.update(_merge_info(infos, weights))
     info["empty_cells_filled"] = n_filled
     info["classes_percent"] = class_shares(_code_counts(mask))
@@ -723,6 +767,9 @@ def _derive_params(info, run):
         rw = _window_on_data(info)
         where = f"the {'whole raster' if rw == (0, info.shape[0], 0, info.shape[1]) else 'data'}'s"
         zr = _read_reporting(info, rw, None)
+    steep = check_relief(zr, info.cell_size_m)
+    if steep:
+        run.log("Warning: " + steep + ("" if zr.shape == info.shape else " (in the window the parameters come from)"))
     for w in info.warnings:
         run.log("Warning: " + w)
     in_window = "" if zr.shape == info.shape else " (in the window the parameters come from)"

@@ -1148,3 +1148,40 @@ def test_a_given_bound_that_makes_the_windows_mostly_halo_is_refused_naming_the_
     assert pipeline.run_file(reach, src, outputs(tmp_path, "mask", prefix="d_"), log=logs.append)["blocks"] > 1
     warn = [s for s in logs if s.startswith("Warning: Blocks of ")]
     assert warn and re.search(r"at most 4 x the raster's cells with \d+ MB", warn[0]), logs
+
+
+def test_cells_too_fine_for_the_heights_refused_or_warned_before_work(tmp_path):
+    """QA 17: a city scene (buildings 4-56 m high) at 1 mm cells, 0.3 m wide: morphological kept every
+    cell ground and dtm called 99.99 % objects, without a word; at 1 cm both called 99.7-99.99 % objects.
+    Heights spanning more than MAX_RELIEF_RATIO (20) times the raster's diagonal are refused before any
+    work naming the cell size and the fix; more than STEEP_RELIEF_RATIO (2) times: a warning (run_array's
+    info, run_file's log); the scene at 1 m and 10 cm runs without one."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (120, 120), seed=1).dsm
+    assert pipeline.relief_ratio(z, 1.0) == pytest.approx(pipeline.relief_ratio(z, 0.001) / 1000, rel=1e-6)
+    flat = np.zeros((10, 10), np.float32)
+    assert pipeline.relief_ratio(flat, 1.0) == 0.0 and pipeline.check_relief(flat, 1e-3) is None
+    assert pipeline.relief_ratio(np.full((3, 3), np.nan), 1.0) == 0.0
+    step = np.zeros((10, 10), np.float32)
+    step[:, 5:] = 30.0                             # 30 m over a diagonal of 14.1 m: 2.1
+    assert pipeline.relief_ratio(step, 1.0) == pytest.approx(30 / math.hypot(10, 10))
+    assert "steeper than any terrain" in pipeline.check_relief(step, 1.0)
+    assert pipeline.check_relief(step, 1.5) is None
+    calls = []
+    meth = Method(name="count", run=lambda z, c, **k: calls.append(1) or _run(z, c, **k), resolve=_resolve,
+                  halo=lambda p, c: 1, params=ABOVE.params)
+    src = write(tmp_path, z, gt=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001))
+    outs = outputs(tmp_path, "mask")
+    for call in (lambda: pipeline.run_array(meth, z, 0.001), lambda: pipeline.run_file(meth, src, outs)):
+        with pytest.raises(ValueError, match=r"heights span \d+ times the diagonal .* cells of 0\.001 x 0\.001 m"
+                                             r".*cell size is probably wrong.*gdal_edit\.py -tr"):
+            call()
+    assert not calls and not os.path.exists(outs["mask"])
+    res = pipeline.run_array(meth, z, 0.01)
+    assert any("steeper than any terrain" in w for w in res.info["warnings"])
+    src = write(tmp_path, z, name="cm.tif", gt=(500000.0, 0.01, 0.0, 5400000.0, 0.0, -0.01))
+    logs = []
+    pipeline.run_file(meth, src, outs, log=logs.append)
+    assert any(s.startswith("Warning: the heights span") for s in logs), logs
+    for cell in (1.0, 0.1):
+        assert not pipeline.run_array(meth, z, cell).info["warnings"]
