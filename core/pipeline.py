@@ -207,7 +207,8 @@ def check_relief(z, cell_size):
         raise ValueError(f"{what}: no terrain nor object a filter removes is that steep, so the cell size is "
                          f"probably wrong (a size in mm or cm read as m, or heights in another unit than the "
                          f"cells'). Give the raster its real cell size (gdal_edit.py -tr) or height unit "
-                         f"(gdal_edit.py -scale); every filter's windows and slopes follow them.")
+                         "(gdal_edit.py -scale), points their real CRS (POINTS_CRS) or coordinates' unit; every "
+                         "filter's windows and slopes follow them.")
     return (f"{what}: steeper than any terrain across a whole raster. If the cell size or the height unit is "
             "wrong (mm or cm read as m), the filters' windows and slopes are too; check them.")
 
