@@ -180,13 +180,17 @@ def check_cell_size(cell_size) -> None:
 
 def relief_ratio(z, cell_size, sample=1_000_000):
     """The span of ``z``'s heights (between its 2nd and 98th percentiles: blunders on up to 2 % of the
-    cells left out; on at most ``sample`` cells taken evenly) over its diagonal in metres; 0 when fewer
+    cells left out; on at most ``sample`` cells taken evenly, less those holding exactly its lowest or
+    highest value, such as an undeclared nodata of any extent) over its diagonal in metres; 0 when fewer
     than two cells hold data."""
     z = np.asarray(z)
     dx, dy = as_cell_size(cell_size)
     step = max(1, int(math.ceil(math.sqrt(z.size / float(sample)))))
     v = z[::step, ::step]
     v = v[np.isfinite(v)]
+    if v.size >= 2:         # the lowest and highest values left out: an undeclared nodata (-9999) on a border
+        inner = v[(v > v.min()) & (v < v.max())]
+        v = inner if inner.size >= 2 else v
     if v.size < 2:
         return 0.0
     lo, hi = np.percentile(v, [2.0, 98.0])

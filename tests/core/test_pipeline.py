@@ -1190,9 +1190,13 @@ def test_cells_too_fine_for_the_heights_refused_or_warned_before_work(tmp_path):
 def test_relief_ratio_leaves_out_blunders():
     """High blunders (birds, multipath) on up to 2 % of a small raster's cells do not make its heights'
     span: 1 % of the cells of a 100 x 100 m raster at 5 km are not refused."""
-    z = np.zeros((100, 100), np.float32)
-    z.flat[::100] = 5000.0                        # 1 % of the cells
-    assert pipeline.relief_ratio(z, 1.0) == 0.0 and pipeline.check_relief(z, 1.0) is None
-    z.flat[::25] = 5000.0                         # 4 %: the span
+    z = np.random.default_rng(0).normal(0.0, 0.1, (100, 100)).astype(np.float32)
+    z.flat[::100] = np.linspace(4000.0, 6000.0, 100)      # 1 % of the cells
+    assert pipeline.relief_ratio(z, 1.0) < 0.01 and pipeline.check_relief(z, 1.0) is None
+    z.flat[::25] = np.linspace(4000.0, 6000.0, 400)       # 4 %: the span
     with pytest.raises(ValueError, match="cell size is probably wrong"):
         pipeline.check_relief(z, 1.0)
+    # an undeclared nodata: -9999 on a tenth of the cells is no height (grid.undeclared_nodata_warning says it)
+    z = np.random.default_rng(0).normal(0.0, 0.1, (64, 64)).astype(np.float32)
+    z[:, :6] = -9999.0
+    assert pipeline.relief_ratio(z, 1.0) < 0.01
