@@ -2018,13 +2018,16 @@ def test_large_irregular_buildings_are_objects(cell, kind):
     middle part stands between wings along X only: the profiles along X come down onto it from a
     wing and climb the next (landed on from both sides), those along Y rise only 1.5 m at its ends
     (no wall at 2-4 m cells); counted with the runs, the region its breaks enclose is an object
-    (0.50 / 0.66 -> 1.00 at 2 / 4 m)."""
+    (0.50 / 0.66 -> 1.00 at 2 / 4 m). Both with the default largest object (the enclosed regions alone)
+    and with the derived one (the L's arms, 180 m long on walls along both sides, widen it to half of
+    1.25 x their span + 2 cells: :func:`~bare_earth.core.curvature.object_size`)."""
     z, b = _big_buildings(cell, kind)
     p = curvature.resolve_curvature_params(z, cell)
-    res = curvature.filter_curvature(z, cell, **p)
-    assert p["max_object_size_m"] == curvature.OBJECT_SIZE_M
-    assert (res.mask[b] == OBJECT).mean() > 0.99
-    assert (res.mask[~b] == OBJECT).mean() < 0.002
+    assert curvature.OBJECT_SIZE_M <= p["max_object_size_m"] <= (1.25 * 180 + 2 * cell) / 2 + 0.1
+    for size in (curvature.OBJECT_SIZE_M, p["max_object_size_m"]):
+        res = curvature.filter_curvature(z, cell, **dict(p, max_object_size_m=size))
+        assert (res.mask[b] == OBJECT).mean() > 0.99
+        assert (res.mask[~b] == OBJECT).mean() < 0.002
 
 
 @pytest.mark.parametrize("cell", [1.0, 2.0])
