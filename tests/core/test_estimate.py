@@ -1095,6 +1095,39 @@ def test_raised_region_span_counts_the_rows_or_columns_of_the_longest_raised_reg
     assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=60.0) == 18
     assert est.raised_region_span(z, (1.0, 1.0), 2.0, 40.0, max_width_m=50.0, max_span_m=100.0) == 0
     assert est.raised_region_span(np.zeros((40, 40), np.float32), (1.0, 1.0), 2.0, 10.0) == 0
+    # across=False: a level running across the raster (meeting two opposite sides: its walls' run, mirrored
+    # at both, is three times the rows) spans nothing; the hall and the shed, inside, span as before
+    t = np.zeros((60, 40), np.float32)
+    t[:, 10:30] = 6.0
+    assert est.raised_region_span(t, (1.0, 1.0), 2.0, 0.0, max_width_m=100.0, max_span_m=200.0) == 180
+    assert est.raised_region_span(t, (1.0, 1.0), 2.0, 0.0, max_width_m=100.0, max_span_m=200.0, across=False) == 0
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 0.0, max_width_m=50.0, max_span_m=100.0, across=False) == 68
+
+
+def test_raised_region_span_walled_counts_regions_on_walls_along_both_sides():
+    # a ring 10 m wide round a courtyard at the ground's level, 100 m square: on walls all round
+    z = np.zeros((140, 140), np.float32)
+    z[20:120, 20:120] = 10.0
+    z[30:110, 30:110] = 0.0
+    assert est.raised_region_span_walled(z, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 98
+    assert est.raised_region_span_walled(z, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0, min_cells=98) == 0
+    # a straight wing 100 x 12 m: the same span
+    w = np.zeros((140, 60), np.float32)
+    w[20:120, 24:36] = 10.0
+    assert est.raised_region_span_walled(w, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 98
+    # a wing 70 m long cut by the raster's edge: what is seen (raised_region_span mirrors its walls)
+    e = np.zeros((100, 60), np.float32)
+    e[0:70, 24:36] = 10.0
+    assert est.raised_region_span(e, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 138
+    assert est.raised_region_span_walled(e, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 69
+    # the quarry site at 2 m (regions longer than 100 m): a bench arc 14 m wide and 226 m long within the pit
+    # is a raised region on walls (over 53 % of its outline: its inner side and its ends), its outer side
+    # rising to the bench above: its walls do not run along both sides
+    from bare_earth.core.synthetic_sites import make_site
+    q = make_site("quarry", 2.0, "lowest", seed=0).dsm
+    assert est.raised_region_span(q, (2.0, 2.0), 1.0, 0.0, max_span_m=400.0, min_cells=50, across=False) == 113
+    assert est.raised_region_span_walled(q, (2.0, 2.0), 1.0, 0.0, max_span_m=400.0, min_cells=50,
+                                          across=False) == 0
 
 
 def test_raised_region_grid_is_the_block_minima_of_at_most_the_cells_allowed(monkeypatch):
