@@ -93,8 +93,15 @@ keeps ``s r_k`` (without it, the simulated mixed lidar at 4 m, a flat roof on a 
 Generalisation matrix: lidar hexbin-crop (forested mountain) at 1 / 2 / 4 m 1.44 / 2.40 / 9.77 -> 0.94 /
 1.14 / 7.55 %, synthetic mixed 6.24 -> 3.68 %, no row worse by more than 0.2; mean 3.139 -> 3.053 % (half A
 3.615 -> 3.553, half B 2.650 -> 2.539). The erosion by the largest window misses terrain narrower than it (a
-cone 60 m across under 40 m windows); the erosion of each step's own window would see it, at twice the
-opening's cost.
+cone 60 m across under 40 m windows, an embankment's flat crest between slopes). Each step before the last
+also passes the drop ``G'_k r_k``, ``G'_k`` read on the step's own erosion (:func:`_spare_continuing`), where
+that slope holds on half of some straight line as long as the largest window (a flank continues along the
+feature; a crown's slope, which the step's erosion keeps too when the crown is wider than the step's
+window, covers no line longer than the crown) and where the cell is the top across it (the surface the drop
+is measured from rises above it by no more than the drop within the step's window: a shrub on a long slope
+lies below the ground uphill). Probe breakline at 0.5 m (a road embankment 5-10 m high with trees):
+3.33 -> 0.16 %; generalisation matrix 3.018 -> 3.000 (synthetic mixed 1 m 3.59 -> 1.67; simulated mixed
+lidar at 1 m, a level roof on a 35-40 degree hillside, 0.09 -> 0.42), dtm 2.434 -> 2.427.
 
 Low cells of the final test (the paper's class 2 under a canopy). Under a closed canopy the
 largest window finds little ground, ``ZIpro`` is the opened canopy, and SMRF's final test puts the
@@ -852,7 +859,7 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
                     np.maximum(t, t_k, out=t)
                     np.greater(d, t, out=up)
                     if own_step is not None:
-                        _spare_continuing(up, d, own_step, i0, r_k, radii[-1][:2])
+                        _spare_continuing(up, d, own_step, i0, r_k, radii[-1][:2], ref, (ry, rx))
                 flags[i0:i1] |= up
         opens = {j: o for j, o in opens.items() if last_use.get(j, -1) > k}
         if last_use.get(k, -1) > k:
@@ -889,7 +896,7 @@ def _step_slope(e, cell, work):
     return g
 
 
-def _spare_continuing(up, d, own_step, i0, r_k, r_max):
+def _spare_continuing(up, d, own_step, i0, r_k, r_max, ref, r_step):
     """Unflag, in the band of rows of ``up`` starting at row ``i0``, the cells whose drop ``d`` the step's own
     ground slope passes where that slope continues along the terrain: ``d <= G'_k r_k`` on at least
     :data:`_CONTINUING_SHARE` of some straight line as long as the largest window (``estimate.line_share``).
@@ -903,14 +910,24 @@ def _spare_continuing(up, d, own_step, i0, r_k, r_max):
     slope covers no line longer than the crown is wide, while a flank continues along the feature's length
     (Sithole and Vosselman 2004: terrain is continuous; objects are bounded). The line is as long as the
     largest window (``2 r_max + 1`` cells), the widest object the filter removes; half of it (a line crossing
-    a crest's ridge, where the erosion's slope turns, or a tree on the flank) must hold the slope.
+    a crest's ridge, where the erosion's slope turns, or a tree on the flank) must hold the slope. An opening
+    cuts terrain only where it is convex, at the top across the feature; a shrub or a crown on a long slope,
+    lower than the slope's rise over the step's window, lies below the ground uphill: a cell is passed only
+    where the reference opening ``ref`` (the surface the drop is measured from) rises above it by no more
+    than the drop ``d`` on any line of the step's window (half-widths ``r_step``, cells) through it (ISPRS
+    samp51, vegetation on an escarpment, at 1 m: 112 cells passed without this test, 18 with it).
     """
     with np.errstate(invalid="ignore"):
         cand = up & (d <= own_step[i0:i0 + up.shape[0]] * r_k)
     if not cand.any():
         return
     loc = np.flatnonzero(cand)
-    keep = line_share(own_step, loc + i0 * up.shape[1], r_max, d.ravel()[loc] / r_k) >= _CONTINUING_SHARE
+    cells = loc + i0 * up.shape[1]
+    keep = line_share(own_step, cells, r_max, d.ravel()[loc] / r_k) >= _CONTINUING_SHARE
+    if keep.any():                     # and where it is the top across: nothing within the step rises above it
+        sel = np.flatnonzero(keep)
+        top = ref.ravel()[cells[sel]] + d.ravel()[loc[sel]]
+        keep[sel[line_share(ref, cells[sel], r_step, top) > 0]] = False
     up.ravel()[loc[keep]] = False
 
 

@@ -1395,22 +1395,32 @@ def test_the_crest_is_cut_without_the_continuing_slopes(monkeypatch):
     assert np.count_nonzero((truth == GROUND) & (res.mask != GROUND)) > 0.02 * z.size
 
 
-def test_spare_continuing_needs_the_slope_along_half_a_line():
+def test_spare_continuing_needs_the_slope_along_half_a_line_and_the_top_across():
     """On exact arrays: flagged cells with a drop of 1 m at a step of radius 2 m need a slope of 0.5 on half of
     some line of 2 x 3 + 1 cells; a band of that slope along the rows passes them, a 3 x 3 patch of it does not
-    (a crown standing above the ground on all sides), nor does the band where the drop exceeds its slope's."""
+    (a crown standing above the ground on all sides), nor does the band where the drop exceeds its slope's, nor
+    a cell the reference surface rises above by more than the drop within the step's window (a shrub on a
+    slope, below the ground uphill)."""
     g = np.zeros((12, 12), np.float32)
     g[2:5, :] = 0.5
     g[7:10, 4:7] = 0.5
+    ref = np.zeros(g.shape, np.float32)
+    ref[3, 3] = 1.5                                     # uphill of (3, 2) and (3, 4): 1.5 m above, drop 1 m
     up = np.zeros(g.shape, bool)
     up[3, 2:10] = True
     up[8, 5] = True
     d = np.where(up, 1.0, 0.0).astype(np.float32)
     d[3, 9] = 1.2
-    morph._spare_continuing(up, d, g, 0, np.float32(2.0), (3, 3))
-    assert up.sum() == 2 and up[8, 5] and up[3, 9]
+    morph._spare_continuing(up, d, g, 0, np.float32(2.0), (3, 3), ref, (1, 1))
+    assert sorted(zip(*np.nonzero(up))) == [(3, 2), (3, 4), (3, 9), (8, 5)]
+    # the same cells with the rise within the drop: passed
+    up2 = np.zeros(g.shape, bool)
+    up2[3, 2:10] = True
+    ref[3, 3] = 0.9
+    morph._spare_continuing(up2, d, g, 0, np.float32(2.0), (3, 3), ref, (1, 1))
+    assert sorted(zip(*np.nonzero(up2))) == [(3, 9)]
     # in a band of rows starting at row 6: the patch still flagged
     band = np.zeros((4, 12), bool)
     band[2, 5] = True
-    morph._spare_continuing(band, np.ones((4, 12), np.float32), g, 6, np.float32(2.0), (3, 3))
+    morph._spare_continuing(band, np.ones((4, 12), np.float32), g, 6, np.float32(2.0), (3, 3), ref, (1, 1))
     assert band[2, 5]
