@@ -1310,3 +1310,37 @@ def test_nan_quantile_rows_equals_nanquantile():
             assert got.dtype == np.float32
             assert np.array_equal(got, want, equal_nan=True)
     assert np.isnan(got[0]) and not np.isnan(got[1:4]).any()
+
+
+def test_line_share_counts_the_cells_holding_the_level_on_the_best_line():
+    """A band three cells wide along the rows holds the level all along its row; a 3 x 3 patch holds it on 3 of
+    the 7 cells of every line through its centre; a line cut by the raster's edge is judged on the part inside,
+    NaN cells are left out, and each cell takes its own level."""
+    g = np.zeros((12, 12), np.float32)
+    g[2:5, :] = 0.5
+    g[7:10, 4:7] = 0.5
+    cells = np.array([3 * 12 + 6, 8 * 12 + 5, 3 * 12 + 0])
+    np.testing.assert_allclose(est.line_share(g, cells, (3, 3), 0.4), [1.0, 3 / 7, 1.0], rtol=1e-6)
+    # the corner cell's row line keeps 4 cells inside the raster, all on the band
+    np.testing.assert_allclose(est.line_share(g, [3 * 12 + 11], (3, 3), 0.4), [1.0])
+    # a level above the band's value: no cell holds it
+    np.testing.assert_allclose(est.line_share(g, cells, (3, 3), [0.6, 0.4, 0.6]), [0.0, 3 / 7, 0.0], rtol=1e-6)
+    # NaN cells on the patch's row are left out: 3 of the 5 cells with a value
+    h = g.copy()
+    h[8, 2:4] = np.nan
+    np.testing.assert_allclose(est.line_share(h, [8 * 12 + 5], (3, 3), 0.4), [3 / 5], rtol=1e-6)
+    # the diagonals take the smaller half-length, columns and rows their own
+    d = np.zeros((9, 9), np.float32)
+    d[np.arange(9), np.arange(9)] = 1.0
+    np.testing.assert_allclose(est.line_share(d, [4 * 9 + 4], (4, 1), 1.0), [1.0])
+    assert est.line_share(g, np.array([], np.int64), (3, 3), 0.4).size == 0
+
+
+def test_line_share_refuses_bad_input():
+    g = np.zeros((4, 4), np.float32)
+    with pytest.raises(ValueError, match="2-D"):
+        est.line_share(g.ravel(), [0], (1, 1), 0.0)
+    with pytest.raises(ValueError, match="half_widths"):
+        est.line_share(g, [0], (-1, 1), 0.0)
+    with pytest.raises(ValueError, match="flat indices"):
+        est.line_share(g, [16], (1, 1), 0.0)
