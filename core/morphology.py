@@ -2312,7 +2312,8 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="morphological",
-    bytes_per_cell=72.0,       # measured 61.1 (benchmarks/speed.py, 16 Mcells, file) + the ground slope maps
+    bytes_per_cell=110.0,      # measured 61.1 (benchmarks/speed.py, 16 Mcells, file) + the ground slope maps;
+    #                            106 with each step's own slope and the reference's top (2026-11-30)
     run=_run,
     resolve=resolve_morphological_params,
     halo=morphological_halo,

@@ -490,7 +490,8 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="curvature",
-    bytes_per_cell=60.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file)
+    bytes_per_cell=92.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file); 88.6 with the large
+    #                            buildings' block-minima opening and enclosed regions (2026-11-30)
     run=_run,
     resolve=resolve_curvature_params,
     halo=curvature_halo,

@@ -200,7 +200,7 @@ def _run(z, cell_size, progress=None, pool=None, **params):
 
 METHOD = Method(
     name="geodesic",
-    bytes_per_cell=56.0,       # measured 53.3 (benchmarks/speed.py, 16 Mcells, file)
+    bytes_per_cell=60.0,       # measured 53.3 (benchmarks/speed.py, 16 Mcells, file); 56.4 (2026-11-30)
     run=_run,
     resolve=resolve_geodesic_params,
     halo=geodesic_halo,
