@@ -1074,3 +1074,121 @@ def test_level_unwalled_exact():
     assert not sp._level_unwalled(z, level, obj, 0.15, wall).any()     # 5 m walls: a deck
     low = np.where(z > 0, np.float32(0.5), z)
     assert (sp._level_unwalled(low, level, obj, 0.15, wall) == obj).all()
+
+
+def test_walled_across_exact():
+    """Runs along the rows on walls at both ends (the higher of the end cell and the next one in
+    above the ground beyond by more than wall_m), and the even ones among them (half their inner
+    cells on the line between their cells lag apart; a run with no inner cells: level steps)."""
+    rows = [([0, 5, 5, 5, 0, 0, 0, 0, 0], [0, 1, 1, 1, 0, 0, 0, 0, 0], True, True),      # a deck
+            ([0, 1, 2, 3, 2, 1, 0, 0, 0], [0, 1, 1, 1, 1, 1, 0, 0, 0], False, False),    # banks
+            ([0, 5, 8, 5, 0, 0, 0, 0, 0], [0, 1, 1, 1, 0, 0, 0, 0, 0], True, False),     # walled, rough
+            ([5, 5, 5, 0, 0, 0, 0, 0, 0], [1, 1, 1, 0, 0, 0, 0, 0, 0], False, False),    # the raster's edge
+            ([0, 5, 5, 5, 5, 5, 5, 5, 0], [0, 1, 1, 1, 1, 1, 1, 1, 0], False, False),    # longer than 6
+            ([0, 1, 5, 5, 5, 5, 0, 0, 0], [0, 1, 1, 1, 1, 1, 0, 0, 0], True, True),     # an end cell on the wall
+            ([0, 5, 6, 7, 6, 5, 0, 0, 0], [0, 1, 1, 1, 1, 1, 0, 0, 0], True, True),     # a gable: 2 of 3 on the line
+            ([0, 5, 5, 0, 0, 0, 0, 0, 0], [0, 1, 1, 0, 0, 0, 0, 0, 0], True, True),     # no inner cells: level
+            ([0, 5, 7, 0, 0, 0, 0, 0, 0], [0, 1, 1, 0, 0, 0, 0, 0, 0], True, False),
+            ([0, 5, 0, 0, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0, 0, 0, 0], False, False)]   # one cell
+    z = np.array([r[0] for r in rows], np.float32)
+    rej = np.array([r[1] for r in rows], bool)
+    walled, even = sp._walled_across(rej, ~rej, z, 0.0, 1.0, 6, 0.2)     # walls: over 1 m per cell
+    for i, (_, _, w, ev) in enumerate(rows):
+        assert (walled[i] == (rej[i] & w)).all(), i
+        assert (even[i] == (rej[i] & ev)).all(), i
+    # an even slope the nearest point's fill repeats in pairs: even over two cells, not one
+    z2 = np.array([[0, 5, 5, 6, 6, 7, 7, 0]], np.float32)
+    rej2 = np.array([[0, 1, 1, 1, 1, 1, 1, 0]], bool)
+    assert not sp._walled_across(rej2, ~rej2, z2, 0.0, 1.0, 10, 0.2, lag=1)[1].any()
+    assert (sp._walled_across(rej2, ~rej2, z2, 0.0, 1.0, 10, 0.2, lag=2)[1] == rej2).all()
+    # what stands on it left out of its edge: trees on an embankment's banks (the crest 3 m up
+    # drops to the ground 4 cells away: a bank), a railing on a deck (6 m up, 3 cells: a wall)
+    z3 = np.array([[0, 6, 6, 3, 3, 3, 6, 6, 0], [0, 7, 6, 6, 6, 6, 7, 0, 0]], np.float32)
+    rej3 = np.array([[0, 1, 1, 1, 1, 1, 1, 1, 0], [0, 1, 1, 1, 1, 1, 1, 0, 0]], bool)
+    on = np.array([[0, 1, 1, 0, 0, 0, 1, 1, 0], [0, 1, 0, 0, 0, 0, 1, 0, 0]], bool)
+    walled, even = sp._walled_across(rej3, ~rej3, z3, 0.0, 1.0, 10, 0.2, standing=on)
+    assert (walled == rej3).all()                     # the stretch: with what stands on it
+    assert not even[0].any() and (even[1] == rej3[1]).all()
+
+
+def test_decks_exact():
+    """One axis's band on walls across, level: a deck when shorter than the largest object turned
+    in the grid; a dam that long is ground (with trees on it too), banks are no walls."""
+    z = np.zeros((30, 80), np.float32)
+    band = np.zeros(z.shape, bool)
+    band[10:14, 20:44] = True                         # 24 cells along X, rejected by the Y profiles
+    z[band] = 5.0
+    none = np.zeros(z.shape, bool)
+    tol, bank = 0.2, (1.0, 1.0)                        # walls: over 2.2 m in two cells
+    got = sp._decks(none, band, ~band, z, tol, bank, (20, 20), 0.2, 1)
+    assert (got == band).all()
+    assert not sp._decks(band, none, ~band, z, tol, bank, (20, 20), 0.2, 1).any()   # 24 across: wider than 20
+    dam = np.zeros(z.shape, bool)
+    dam[10:14, 5:75] = True                           # 70 cells: longer than 29 (20 turned)
+    zd = np.where(dam, np.float32(5.0), z)
+    assert not sp._decks(none, dam, ~dam, zd, tol, bank, (20, 20), 0.2, 1).any()
+    trees = np.zeros(z.shape, bool)
+    trees[10:14, 30:34] = trees[10:14, 50:54] = True  # rejected by both axes: they break no stretch
+    zt = np.where(trees, np.float32(11.0), zd)
+    assert not sp._decks(trees, dam, ~dam, zt, tol, bank, (20, 20), 0.2, 1).any()
+    banks = np.where(band, np.float32(1.5), z)
+    banks[11:13] = np.where(band[11:13], np.float32(3.0), z[11:13])   # 1:1.5 banks, no walls
+    assert not sp._decks(none, band, ~band, banks, tol, bank, (20, 20), 0.2, 1).any()
+
+
+def _bridge_scene():
+    """A road embankment along X (1:1 banks, 3 m) crossing a river 20 m wide and 2 m deep on a
+    bridge: the deck 5 m above the water, with three cars on it."""
+    z = np.zeros((80, 240), np.float32)
+    z[35:45] = np.array([1, 2, 3, 3, 3, 3, 3, 3, 2, 1], np.float32)[:, None]
+    z[:, 110:130] = -2.0
+    z[37:43, 110:130] = 3.0
+    cars = np.zeros(z.shape, bool)
+    for r, c in ((38, 112), (40, 118), (38, 124)):
+        cars[r:r + 2, c:c + 4] = True
+    z[cars] += 1.5
+    deck = np.zeros(z.shape, bool)
+    deck[37:43, 110:130] = True
+    return z, deck, cars
+
+
+def test_bridge_deck_on_an_embankment_road_is_an_object_blocked_or_not():
+    """ISPRS samp71 (issue 12): a bridge's deck goes on level from the road's embankment, so the
+    profiles along it accept it and the embankment's one-axis run gave it back to the ground (30 %
+    of the bridge's points called ground). Its run across stands on walls, not banks: an object;
+    the embankment, its banks and the river stay ground, in one pass and in blocks."""
+    z, deck, cars = _bridge_scene()
+    one = run_array("slopeprofile", z, 1.0, dict(PARAMS))
+    assert (one.mask[deck] == OBJECT).all()           # 0 % of the deck without the rule
+    assert (one.mask[~deck] == GROUND).all()
+    blocked = run_array("slopeprofile", z, 1.0, dict(PARAMS), block=48)
+    np.testing.assert_array_equal(blocked.mask, one.mask)
+
+
+def test_islands_level_exact():
+    """Ground enclosed by objects on their level is theirs; a courtyard below them, or ground
+    larger than the largest object, is not."""
+    z = np.zeros((11, 11), np.float32)
+    obj = np.zeros(z.shape, bool)
+    obj[1:10, 1:10] = True
+    obj[4:7, 4:7] = False                             # the island
+    island = np.zeros(z.shape, bool)
+    island[4:7, 4:7] = True
+    roof = np.where(obj | island, np.float32(6.0), z)
+    ok = np.ones(z.shape, bool)
+    assert (sp._islands_level(roof, obj, ok, 0.3, (20, 20)) == island).all()
+    court = np.where(obj, np.float32(6.0), z)         # the island at the ground's level
+    assert not sp._islands_level(court, obj, ok, 0.3, (20, 20)).any()
+    assert not sp._islands_level(roof, obj, ok, 0.3, (2, 2)).any()
+
+
+def test_roof_filling_the_rasters_corner_is_an_object():
+    """lidar sample_c 4 m (3.5 % total error): the profiles through a roof's corner filling the
+    raster's last rows and columns hold no ground to start from and accepted it; the profiles
+    beside them reject the same roof. With the islands on the objects' level: all of it."""
+    r, c = np.mgrid[0:16, 0:18]
+    ground = r + c < 12
+    z = np.where(ground, 0.0, 6.0 + 0.05 * c).astype(np.float32)
+    m = sp.filter_slope_profile(z, 1.0, **PARAMS).mask
+    assert (m[~ground] == OBJECT).all()               # 89 % without the rule
+    assert (m[ground] == GROUND).all()
