@@ -332,7 +332,8 @@ def slope_weight(rise_m: float, sigma_m: float) -> float:
 
 
 # ------------------------------------------------------------------- step 4
-def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upper=None, lower=None):
+def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upper=None, lower=None,
+                 faces=False):
     """Cells between a jump up and a later jump down along the rows (axis 1); with
     ``lone``, instead, the cells on both sides of the jumps that no other jump answers
     (no jump up followed within ``lmax`` by a jump down), jumps whatever lies beside them:
@@ -342,6 +343,8 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
 
     ``upper``, ``lower``, optional (with ``lone``; boolean arrays shaped as ``z``): receive the cells
     on the upper side of each lone jump (after a jump up, before a jump down) and on its lower side.
+    ``faces`` (with ``lone``): also the level changes whose face spans two steps (:func:`_face_jumps`,
+    their sides' smoothness limit ``veg_tol``; :func:`_lone_faces`).
 
     ``cut``, optional: a list that receives ``(cells, walls, heights)``, the flat indices into
     ``z`` of the levels the raster's edge cuts, the cells from a jump up to the row's end (no
@@ -405,21 +408,14 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
             # more than the jump per cell would read as a level change along the raster's edge
             up &= s2
             down &= n1
-    face = np.zeros(0, np.intp)
-    face_typ = np.zeros(0, np.int8)
-    if lone:
-        face, face_typ = _face_jumps(zp, sp, d, i[up | down], jump, veg_tol, P)
     # events along the concatenated profiles: 1 jump up, 2 jump down, 0 profile start.
     # A raised level is a run from a jump up to the next event when that is a jump down.
     starts = rows_first if labels is None else np.flatnonzero(~same)
-    ev = np.concatenate([starts, i[up], i[down], face])
+    ev = np.concatenate([starts, i[up], i[down]])
     typ = np.concatenate([np.zeros(starts.size, np.int8), np.ones(int(up.sum()), np.int8),
-                          np.full(int(down.sum()), 2, np.int8), face_typ])
-    two = np.zeros(ev.size, bool)                         # a face over two steps (its middle point)
-    if face.size:
-        two[ev.size - face.size:] = True
+                          np.full(int(down.sum()), 2, np.int8)])
     order = np.argsort(ev, kind="stable")
-    ev, typ, two = ev[order], typ[order], two[order]
+    ev, typ = ev[order], typ[order]
     k = np.flatnonzero((typ[:-1] == 1) & (typ[1:] == 2))
     a, b = ev[k], ev[k + 1]
     pos = flat
@@ -430,8 +426,15 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
         paired[k[ok] + 1] = True
         lone_ev = (typ > 0) & ~paired
         alone, up_at = ev[lone_ev], typ[lone_ev] == 1     # a jump is never a profile's first point
-        # a face over two steps: its foot and top one point beyond its middle (which lies on neither side)
-        beyond = alone + two[lone_ev]
+        beyond = alone
+        face, face_typ = _face_jumps(zp, sp, d, i[up | down], jump, veg_tol, P) if faces else (i[:0], typ[:0])
+        if face.size:
+            face_lone = _lone_faces(ev, typ, paired, face, face_typ, pos, lmax)
+            face, face_typ = face[face_lone], face_typ[face_lone]
+            # a face over two steps: its foot and top one point beyond its middle (which lies on neither side)
+            alone = np.concatenate([alone, face])
+            up_at = np.concatenate([up_at, face_typ == 1])
+            beyond = np.concatenate([beyond, face + 1])
         if upper is not None:                   # the upper side: after a jump up, before a jump down
             upper.ravel()[flat[np.where(up_at, beyond, alone - 1)]] = True
             lower.ravel()[flat[np.where(up_at, alone - 1, beyond)]] = True
@@ -456,6 +459,26 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
         hit = zc[c] - ground > 0.5 * jump
     out.ravel()[flat[c[hit]]] = True
     return out
+
+
+def _lone_faces(ev, typ, paired, face, face_typ, pos, lmax):
+    """Which faces over two steps (:func:`_face_jumps`, sorted) no other level change answers: not
+    answered within ``lmax`` among all events (a jump up followed by a jump down, either a face), and
+    not between two one-step jumps that answer each other (``paired``; events ``ev, typ`` sorted, 0 a
+    profile's start). The one-step jumps keep their own pairing: a face never unpairs a box's walls."""
+    ev2 = np.concatenate([ev, face])
+    typ2 = np.concatenate([typ, face_typ])
+    two = np.concatenate([np.zeros(ev.size, bool), np.ones(face.size, bool)])
+    order = np.argsort(ev2, kind="stable")
+    ev2, typ2, two = ev2[order], typ2[order], two[order]
+    k = np.flatnonzero((typ2[:-1] == 1) & (typ2[1:] == 2))
+    k = k[(pos[ev2[k + 1]] - pos[ev2[k]]) <= lmax]
+    answered = np.zeros(ev2.size, bool)
+    answered[k] = True
+    answered[k + 1] = True
+    last = np.searchsorted(ev, face, side="right") - 1      # the last one-step event before each face
+    inside = (last >= 0) & (typ[np.maximum(last, 0)] == 1) & paired[np.maximum(last, 0)]
+    return ~answered[two] & ~inside
 
 
 def _face_jumps(zp, sp, d, one_step, jump, smooth, P):
@@ -654,7 +677,10 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
     """
     dx, dy = as_cell_size(cell_size)
     jump = _jump_limits(jump_m, sigma_m, k, bend_m)[0]
-    # a face over two steps: level ground on both sides, at the ground's own noise
+    # a face over two steps: level ground on both sides, at the ground's own noise; none where the
+    # terrain itself bends beyond its noise from one cell to the next (a coarse DEM of hills: a height
+    # midway down a drop of two cells is as likely the terrain's own bend)
+    faces = not float(bend_m) > 0.0
     smooth = _jump_limits(jump_m, sigma_m if ground_sigma_m is None else min(sigma_m, ground_sigma_m), k, bend_m)[1]
     cells = np.zeros(z.shape, bool)
     high = np.zeros(z.shape, bool)
@@ -671,7 +697,7 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
         for i, b in enumerate(bands):
             report(progress, (d + i / len(bands)) / 2)
             found[b] = _raised_rows(zz[b], kk[b], None if lab is None else lab[b], jump, lmax, smooth,
-                                    lone=True, upper=up[b], lower=dn[b])
+                                    lone=True, upper=up[b], lower=dn[b], faces=faces)
         cells |= fwd(found)
         high |= fwd(up)
         low |= fwd(dn)
