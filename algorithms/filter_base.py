@@ -890,8 +890,10 @@ class FilterAlgorithm(BaseAlgorithm):
                 (self.BLOCK_SIZE, "Block size (cells, 0 = automatic)", 0, 0, 65536,
                  "Edge of the blocks the raster is processed in, in cells: 0 or at least 64. 0: one "
                  "block up to 25 million cells, else the largest blocks whose windows (block and reach) fit "
-                 "half the memory available (or BARE_EARTH_MEMORY_MB megabytes). Blocks overlap by the "
-                 "method's reach, so the result does not depend on it; memory does."),
+                 "half the memory available (or BARE_EARTH_MEMORY_MB megabytes: a bound so small that the windows "
+                 "would read the raster's cells more than 4 times is refused before the blocks, naming the "
+                 "smallest that works). Blocks overlap by the method's reach, so the result does not depend "
+                 "on it; memory does."),
                 (self.THREADS, "Threads (0 = one per core)", 0, 0, 64,
                  "Blocks filtered at once in threads. 0 (the default): one per core, at most 8, "
                  "within QGIS's own limit (Settings > Options > Rendering > Max cores). The raster "

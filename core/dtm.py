@@ -1216,8 +1216,9 @@ def widen_dtm_params(params, given, overview, cell_size):
 
 METHOD = Method(
     name="dtm",
-    bytes_per_cell=104.0,      # measured 81.5 (speed.py, 16 Mcells), 91.4 (49.6 Mcells windows); 99-102 (16 Mcells)
-    #                            with the morphological member's slope maps (2026-11-29)
+    bytes_per_cell=120.0,      # measured 81.5 (speed.py, 16 Mcells), 91.4 (49.6 Mcells windows); 99-102 (16 Mcells)
+    #                            with the morphological member's slope maps (2026-11-29); 114-118 with its
+    #                            continuing slopes (2026-11-30)
     run=_run,
     resolve=resolve_dtm_params,
     halo=dtm_halo,

@@ -58,7 +58,6 @@ import contextlib
 import hashlib
 import math
 import threading
-import warnings
 from functools import partial
 
 import numpy as np
@@ -1440,12 +1439,25 @@ def _below_ground_side(z, idx, bank, reach, depth_m, slope, cell_size):
         part = slice(i * _RING_CHUNK, i * _RING_CHUNK + q.size)
         own = flat.take(q).astype(np.float32)
         v[~inside] = np.nan
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)              # a ring of nodata
-            ground = np.nanquantile(v, GAP_GROUND_QUANTILE, axis=1).astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            ground = _nan_quantile_rows(v, GAP_GROUND_QUANTILE)
             v[~(v > own[:, None] + np.float32(depth_m))] = np.inf         # NaN too
             ok[part] = (own < ground - allow) & (v.min(axis=1) >= bank[part] - allow)
     return ok
+
+
+def _nan_quantile_rows(v, q):
+    """``np.nanquantile(v, q, axis=1)`` as float32 (NaN for a row of NaN only), the same values:
+    the rows sorted (NaN last) and :func:`numpy.quantile` asked once per count of finite values
+    on those rows' finite values. ``nanquantile`` along an axis calls itself row by row in
+    Python (0.48 s for 4096 rings of 416 cells; this: 0.05 s)."""
+    s = np.sort(v, axis=1)
+    n = np.count_nonzero(~np.isnan(s), axis=1)
+    out = np.full(v.shape[0], np.nan, np.float32)
+    for k in np.unique(n[n > 0]):
+        rows = np.flatnonzero(n == k)
+        out[rows] = np.quantile(s[rows, :k], q, axis=1)
+    return out
 
 
 #: Nodata gaps at most this many cells from a valid cell (missing scan lines, a checkerboard of
@@ -1580,13 +1592,15 @@ def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max
 
 
 def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
-                       min_cells=0):
+                       min_cells=0, across=True):
     """Cells spanned by the longest raised region standing on walls wider than ``min_width_m``: the rows or
     columns of its box, or its walls' run where longer (mirrored at the raster's sides they meet), as
     :func:`~bare_earth.core.dtm_regions.find_raised_regions` counts the span it reaches (the regions of
     :func:`raised_region_width`: at most ``max_width_m`` wide, spanning at most ``max_span_m``, default
     ``max_width_m``); with ``min_cells``, only the regions spanning more cells are looked at (a reach the
-    caller already has: the labelling is the same, the regions judged far fewer). 0 when there is none.
+    caller already has: the labelling is the same, the regions judged far fewer). ``across``: as
+    :func:`raised_region_width`'s (False: a region running across the raster spans nothing). 0 when there is
+    none.
 
     Examples
     --------
@@ -1597,7 +1611,8 @@ def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_R
     """
     spans = [max(d["bbox"][2] - d["bbox"][0], d["bbox"][3] - d["bbox"][1],
                  int(round(d.get("walls_m", 0.0) / min(float(cell_size[0]), float(cell_size[1])))))
-             for d in _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells)]
+             for d in _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells,
+                                             across=across)]
     spans = [s for s in spans if s > min_cells]
     return int(max(spans, default=0))
 
@@ -2031,3 +2046,110 @@ def square_opening(z, size_cells):
     a = a[p:p + z.shape[0], p:p + z.shape[1]].copy()
     a[~valid] = np.nan
     return a
+
+
+
+def raised_region_span_walled(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M,
+                              max_span_m=None, min_cells=0, across=True):
+    """Cells spanned by the longest raised region standing on walls (:func:`raised_region_span`'s regions and
+    count) whose walls run along both sides of its length: the part of its outline not on walls is shorter
+    than its span. A building stands on walls all round (a ring round a courtyard, a long wing); a level cut
+    into a slope (a quarry's bench, a terrace) stands on walls down on one side only, the other rising to the
+    level above or running on at its own, and passes :func:`raised_region_span`'s test (walls over more than
+    half its outline) by its ends alone: a bench arc 14 m wide and 226 m long, on walls over 53 % of its
+    outline. Only what is seen counts: the rows or columns of the region's box, not its walls' run mirrored
+    at the raster's sides (a roof in a corner of ISPRS samp41, 108 m seen, spans 216 m so, and widened a
+    filter's largest object to 142 m for a building it does not show). 0 when there is none.
+
+    Examples
+    --------
+    >>> z = np.zeros((140, 140), np.float32)
+    >>> z[20:120, 20:120] = 10.0
+    >>> z[30:110, 30:110] = 0.0                    # a ring 10 m wide round a courtyard at the ground's level
+    >>> raised_region_span_walled(z, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0)
+    98
+    """
+    dx, dy = float(cell_size[0]), float(cell_size[1])
+    spans = []
+    for d in _raised_region_objects(z, (dx, dy), height_m, min_width_m, max_width_m, max_span_m, min_cells,
+                                    across=across):
+        s = max(d["bbox"][2] - d["bbox"][0], d["bbox"][3] - d["bbox"][1])
+        if s > min_cells and (1.0 - float(d["step_share"])) * float(d["outline_cells"]) < s:
+            spans.append(s)
+    return int(max(spans, default=0))
+
+
+#: The four directions (rows, columns per step) of :func:`line_share`: along a row, down a column, the diagonals.
+LINE_DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+def line_share(g, cells, half_widths, level, chunk=1 << 15):
+    """The largest share, over four straight lines centred on each of ``cells``, of the line's cells where
+    ``g`` is at least the cell's ``level``: how far a value continues along some line through the cell.
+
+    A value that holds along a line of ``2 h + 1`` cells centred on the cell (along a row, a column or a
+    diagonal) belongs to a feature at least that long in that direction (a dike's or an embankment's flank,
+    which continues along its length); a value confined to a compact patch (a crown's flank, whose contours
+    curve round it within its width) covers at most the patch's width of any line. Cells of a line beyond the
+    raster, and those where ``g`` is NaN, are left out of the share (a line cut by the edge is judged on the part
+    inside). Read only at ``cells``, gathered in chunks (no raster-sized temporaries): ``4 (2 h + 1)`` reads
+    a cell; vectorised counts, no sort.
+
+    Parameters
+    ----------
+    g : ndarray, 2-D
+        The values (a slope map).
+    cells : ndarray of int
+        Flat indices of the cells to read.
+    half_widths : (int, int)
+        The lines' half-lengths ``(h_rows, h_cols)`` in cells: down a column ``h_rows``, along a row ``h_cols``,
+        the diagonals the smaller.
+    level : float or ndarray
+        The value each cell's line is compared with (one per cell, or one for all).
+    chunk : int
+        Cells gathered at once.
+
+    Returns
+    -------
+    ndarray of float32
+        One share (0-1) per cell; 0 where a line has no cell with a value.
+
+    Examples
+    --------
+    A band of slope 0.5 three cells wide along the rows, and a 3 x 3 patch: the band's centre keeps 0.5 all
+    along its row, the patch's centre along 3 of the 7 cells of every line:
+
+    >>> g = np.zeros((12, 12), np.float32)
+    >>> g[2:5, :] = 0.5
+    >>> g[7:10, 4:7] = 0.5
+    >>> [round(float(v), 3) for v in line_share(g, np.array([3 * 12 + 6, 8 * 12 + 5]), (3, 3), 0.4)]
+    [1.0, 0.429]
+    """
+    g = np.asarray(g)
+    if g.ndim != 2:
+        raise ValueError(f"g must be 2-D; got {g.ndim} dimensions.")
+    hr, hc = (int(h) for h in half_widths)
+    if hr < 0 or hc < 0:
+        raise ValueError(f"half_widths must be at least 0; got {half_widths!r}.")
+    cells = np.asarray(cells, np.int64).ravel()
+    if cells.size and (cells.min() < 0 or cells.max() >= g.size):
+        raise ValueError(f"cells must be flat indices of g (0 to {g.size - 1}).")
+    level = np.broadcast_to(np.asarray(level, np.float32), cells.shape)
+    out = np.zeros(cells.size, np.float32)
+    H, W = g.shape
+    flat = g.ravel()
+    for di, dj in LINE_DIRECTIONS:
+        h = hc if di == 0 else hr if dj == 0 else min(hr, hc)
+        steps = np.arange(-h, h + 1)
+        for c0 in range(0, cells.size, chunk):
+            c = cells[c0:c0 + chunk]
+            r = (c // W)[:, None] + di * steps[None, :]
+            q = (c % W)[:, None] + dj * steps[None, :]
+            inside = (r >= 0) & (r < H) & (q >= 0) & (q < W)
+            v = flat[np.where(inside, r * W + q, 0)]
+            inside &= np.isfinite(v)
+            with np.errstate(invalid="ignore"):
+                held = np.count_nonzero(inside & (v >= level[c0:c0 + chunk, None]), axis=1)
+            share = held / np.maximum(np.count_nonzero(inside, axis=1), 1)
+            np.maximum(out[c0:c0 + chunk], share, out=out[c0:c0 + chunk])
+    return out

@@ -74,16 +74,26 @@ BUDGET_SHARE = 0.5
 FALLBACK_BUDGET = 2 << 30
 
 
-def available_memory():
-    """Bytes of memory available for new work: ``MemAvailable`` of ``/proc/meminfo`` (Linux: free
-    memory plus the page cache the kernel can drop), else the free physical pages; None when unknown."""
+def _proc_kb(path, key):
+    """Bytes of the ``key: N kB`` line of the /proc file ``path`` (``/proc/meminfo``,
+    ``/proc/self/status``); None when the file, the line or its number cannot be read."""
+    prefix = key + ":"
     try:
-        with open("/proc/meminfo") as f:
+        with open(path) as f:
             for line in f:
-                if line.startswith("MemAvailable:"):
+                if line.startswith(prefix):
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
+    return None
+
+
+def available_memory():
+    """Bytes of memory available for new work: ``MemAvailable`` of ``/proc/meminfo`` (Linux: free
+    memory plus the page cache the kernel can drop), else the free physical pages; None when unknown."""
+    avail = _proc_kb("/proc/meminfo", "MemAvailable")
+    if avail is not None:
+        return avail
     try:
         return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
     except (AttributeError, OSError, ValueError):
@@ -92,14 +102,7 @@ def available_memory():
 
 def resident_bytes():
     """This process's resident memory (``VmRSS`` of ``/proc/self/status``), bytes; None when unknown."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
+    return _proc_kb("/proc/self/status", "VmRSS")
 
 
 def release_freed_memory():

@@ -41,6 +41,29 @@ IN_MEMORY_CELLS = 25_000_000
 #: Smallest block plan_block cuts a large raster into from the memory budget, cells (two output
 #: tiles): a smaller budget is exceeded rather than the windows made mostly halo.
 MIN_BLOCK = 512
+#: Share added to a method's ``bytes_per_cell`` (measured on one window at a time) for each window when
+#: several run side by side (threads or processes): each holds its finished core (mask, DTM, the
+#: DSM's cells for an nDSM) while another is written and compressed, and GDAL's compression of the
+#: flushed tiles runs beside both. Measured (QA 17): slopeprofile on 36 Mcells, two windows with a
+#: 700 MB bound peaked 705 MB above its baseline, its windows about 15 % above their estimate.
+SIDE_BY_SIDE_SHARE = 0.2
+#: Most times a large raster's windows may read its cells (:func:`read_amplification`) under a memory
+#: bound the user gave (``BARE_EARTH_MEMORY_MB``): beyond it three quarters of the filtering or more is
+#: halo, done again by the neighbouring windows; the run is refused before the blocks, naming the
+#: smallest bound within it (:func:`smallest_efficient_budget`). Under the default budget (half the memory
+#: available) the log warns instead. QA 17: dtm on 36 Mcells under 700 MB planned 144 windows of 512
+#: cells with a 1185-cell halo, reading each cell 25.7 times, with a warning only.
+MAX_READ_AMPLIFICATION = 4.0
+#: The span of a raster's heights (:func:`relief_ratio`) over its width beyond which its cell size cannot be
+#: the ground's: refused before work. No terrain rises more than its width (a cliff's face is about 1:1)
+#: and no object a filter removes is twenty times taller than the raster is wide; a cell size in mm or cm
+#: given for one in m (a city scene of 4-56 m buildings at 1 mm cells: 0.3 m wide, its heights 96 times that)
+#: makes every filter's windows and slopes meaningless (QA 17: morphological kept every cell ground, dtm
+#: called 99.99 % objects, without a word).
+MAX_RELIEF_RATIO = 20.0
+#: The ratio from which the log warns (the heights span more than twice the raster's diagonal: steeper than
+#: any terrain across a whole raster unless it is a small crop of tall objects).
+STEEP_RELIEF_RATIO = 2.0
 #: Parameters of large rasters are derived from a central window of at most this side.
 RESOLVE_SIDE = 4096
 #: Strips of rows per worker process when a raster is processed in parallel (one when the
@@ -153,6 +176,45 @@ def check_cell_size(cell_size) -> None:
                          f"any filter takes ({widest:g} m): no building or wood a filter removes is as wide as one "
                          "cell. Filter a DSM of finer cells (a cell size in degrees or feet read as another unit: "
                          "check the raster's CRS).")
+
+
+def relief_ratio(z, cell_size, sample=1_000_000):
+    """The span of ``z``'s heights (between its 2nd and 98th percentiles: blunders on up to 2 % of the
+    cells left out; on at most ``sample`` cells taken evenly, less those holding exactly its lowest or
+    highest value, such as an undeclared nodata of any extent) over its diagonal in metres; 0 when fewer
+    than two cells hold data."""
+    z = np.asarray(z)
+    dx, dy = as_cell_size(cell_size)
+    step = max(1, int(math.ceil(math.sqrt(z.size / float(sample)))))
+    v = z[::step, ::step]
+    v = v[np.isfinite(v)]
+    if v.size >= 2:         # the lowest and highest values left out: an undeclared nodata (-9999) on a border
+        inner = v[(v > v.min()) & (v < v.max())]
+        v = inner if inner.size >= 2 else v
+    if v.size < 2:
+        return 0.0
+    lo, hi = np.percentile(v, [2.0, 98.0])
+    return float(hi - lo) / math.hypot(z.shape[0] * dy, z.shape[1] * dx)
+
+
+def check_relief(z, cell_size):
+    """ValueError, before any work, when ``z``'s heights span more than :data:`MAX_RELIEF_RATIO` times its
+    diagonal (:func:`relief_ratio`): the cell size cannot be the ground's (millimetres or centimetres given
+    for metres). Returns a warning when they span more than :data:`STEEP_RELIEF_RATIO` times it, else None."""
+    ratio = relief_ratio(z, cell_size)
+    dx, dy = as_cell_size(cell_size)
+    if ratio <= STEEP_RELIEF_RATIO:
+        return None
+    what = (f"the heights span {ratio:.3g} times the diagonal of the {z.shape[1]} x {z.shape[0]} cells of "
+            f"{dx:.6g} x {dy:.6g} m ({math.hypot(z.shape[0] * dy, z.shape[1] * dx):.3g} m)")
+    if ratio > MAX_RELIEF_RATIO:
+        raise ValueError(f"{what}: no terrain nor object a filter removes is that steep, so the cell size is "
+                         f"probably wrong (a size in mm or cm read as m, or heights in another unit than the "
+                         f"cells'). Give the raster its real cell size (gdal_edit.py -tr) or height unit "
+                         "(gdal_edit.py -scale), points their real CRS (POINTS_CRS) or coordinates' unit; every "
+                         "filter's windows and slopes follow them.")
+    return (f"{what}: steeper than any terrain across a whole raster. If the cell size or the height unit is "
+            "wrong (mm or cm read as m), the filters' windows and slopes are too; check them.")
 
 
 def fill_dtm(z, mask, progress=None):
@@ -329,6 +391,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
         raise ValueError("z has no valid cell: " + far_heights_message(n_far))
     cell = as_cell_size(cell_size)
     check_cell_size(cell)
+    steep = check_relief(z, cell)
     aux = dict(aux or {})
     for k, a in aux.items():
         if a is not None and np.shape(a) != z.shape:
@@ -375,7 +438,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
     dtm[~np.isfinite(z)] = np.nan
     ndsm = (z - dtm).astype(np.float32)
     info = {"method": meth.name, "params": params, "halo_cells": halo, "blocks": len(windows),
-            "warnings": [far_heights_message(n_far)] if n_far else []}
+            "warnings": ([far_heights_message(n_far)] if n_far else []) + ([steep] if steep else [])}
     info.update(_merge_info(infos, weights))
     info["empty_cells_filled"] = n_filled
     info["classes_percent"] = class_shares(_code_counts(mask))
@@ -398,6 +461,13 @@ def concurrent_windows(workers=1, processes=1, threads=False):
     if threads and int(processes) <= 1:
         return 1
     return max(1, int(processes), int(workers))
+
+
+def window_bytes_per_cell(bytes_per_cell, concurrent=1):
+    """Bytes a window cell takes when ``concurrent`` windows are held at once
+    (:func:`concurrent_windows`): the method's ``bytes_per_cell`` (one window at a time), plus
+    :data:`SIDE_BY_SIDE_SHARE` of it when several run side by side."""
+    return float(bytes_per_cell) * (1.0 + (SIDE_BY_SIDE_SHARE if int(concurrent) > 1 else 0.0))
 
 
 def read_amplification(shape, block, halo):
@@ -456,8 +526,9 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     A larger raster is cut into the blocks that read the fewest cells (:func:`read_amplification`)
     while the windows held at once (:func:`concurrent_windows`) fit ``budget`` bytes
     (default :func:`.memory.window_budget`: half the memory available) at ``bytes_per_cell`` bytes
-    per window cell (the method's ``Method.bytes_per_cell``): each window (block + 2 halo) at most
-    ``budget / concurrent / bytes_per_cell`` cells; square blocks, or strips of whole rows when a
+    per window cell (the method's ``Method.bytes_per_cell``, :data:`SIDE_BY_SIDE_SHARE` more for windows
+    side by side: :func:`window_bytes_per_cell`): each window (block + 2 halo) at most
+    ``budget / concurrent / window_bytes_per_cell`` cells; square blocks, or strips of whole rows when a
     window can span the raster's width, balanced over the raster, at least :data:`MIN_BLOCK`
     (a budget smaller than such a window is exceeded rather than the blocks shrunk further).
     The whole raster is one block when it fits the budget, and when the halo reaches across it
@@ -474,7 +545,8 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     if shape[0] * shape[1] > IN_MEMORY_CELLS:
         if budget is None:
             budget = memory.window_budget()
-        cells = budget / concurrent_windows(workers, processes, threads) / float(bytes_per_cell)
+        n = concurrent_windows(workers, processes, threads)
+        cells = budget / n / window_bytes_per_cell(bytes_per_cell, n)
         if shape[0] * shape[1] <= cells:
             return max(shape)       # the whole raster fits the budget: one pass
         bshape = _budget_block(shape, halo, cells)
@@ -492,6 +564,57 @@ def plan_block(shape, halo, *, block=None, workers=1, processes=1, threads=False
     align = grid.OUTPUT_TILE if rows >= 4 * grid.OUTPUT_TILE else 64
     rows = -(-rows // align) * align
     return (max(rows, 2 * halo, 64), shape[1])
+
+
+def smallest_efficient_budget(shape, halo, *, workers=1, processes=1, threads=False,
+                              bytes_per_cell=DEFAULT_BYTES_PER_CELL, most=MAX_READ_AMPLIFICATION):
+    """The smallest windows' budget (bytes, to 1 MB) under which :func:`plan_block` cuts a raster of
+    ``shape`` (above :data:`IN_MEMORY_CELLS`) into windows that fit it and read its cells at most
+    ``most`` times (:func:`read_amplification`; one pass always does)."""
+    n = concurrent_windows(workers, processes, threads)
+    bpc = window_bytes_per_cell(bytes_per_cell, n)
+    mb = float(1 << 20)
+
+    def fits(budget):
+        b = plan_block(shape, halo, workers=workers, processes=processes, threads=threads,
+                       bytes_per_cell=bytes_per_cell, budget=budget)
+        return largest_window(shape, b, halo) * bpc * n <= budget and read_amplification(shape, b, halo) <= most
+
+    lo, hi = 0, int(math.ceil(shape[0] * shape[1] * bpc * n / mb))     # hi MB: one pass fits
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fits(mid * mb):
+            hi = mid
+        else:
+            lo = mid
+    return hi * (1 << 20)
+
+
+def check_plan(shape, bshape, halo, budget, *, held=0, workers=1, processes=1, threads=False,
+               bytes_per_cell=DEFAULT_BYTES_PER_CELL, method="the method"):
+    """ValueError, before the blocks, when a bound the user gave (``BARE_EARTH_MEMORY_MB``; ``budget``:
+    what it leaves for the windows, ``held``: what the run holds beside them) makes :func:`plan_block`'s
+    windows ``bshape`` read the raster's cells more than :data:`MAX_READ_AMPLIFICATION` times or exceed
+    the bound, naming the smallest bound that works; None when the plan is fine."""
+    if sum(1 for _ in blocks.iter_windows(shape, bshape, halo)) <= 1:
+        return None
+    n = concurrent_windows(workers, processes, threads)
+    bpc = window_bytes_per_cell(bytes_per_cell, n)
+    amp = read_amplification(shape, bshape, halo)
+    need = largest_window(shape, bshape, halo) * bpc * n
+    if amp <= MAX_READ_AMPLIFICATION and need <= budget:
+        return None
+    good = smallest_efficient_budget(shape, halo, workers=workers, processes=processes, threads=threads,
+                                     bytes_per_cell=bytes_per_cell)
+    rows, cols = (bshape, bshape) if np.ndim(bshape) == 0 else bshape
+    raise ValueError(
+        f"{memory.BUDGET_ENV} leaves {budget / 2 ** 20:.0f} MB for {method}'s windows on this raster of "
+        f"{shape[1]} x {shape[0]} cells: its blocks of {cols} x {rows} cells with a halo of {halo} cells (the "
+        f"method's reach) would read the raster's cells {amp:.1f} times"
+        + (f" and still take about {need / 2 ** 20:.0f} MB" if need > budget else "")
+        + f" (at most {MAX_READ_AMPLIFICATION:g} keeps the run efficient). Set {memory.BUDGET_ENV} to at least "
+        f"{math.ceil((good + held) / 2 ** 20)}, or filter a coarser cell (gdalwarp -tr), or choose the blocks "
+        "yourself (BLOCK_SIZE).")
 
 
 @dataclass
@@ -650,6 +773,9 @@ def _derive_params(info, run):
         rw = _window_on_data(info)
         where = f"the {'whole raster' if rw == (0, info.shape[0], 0, info.shape[1]) else 'data'}'s"
         zr = _read_reporting(info, rw, None)
+    steep = check_relief(zr, info.cell_size_m)
+    if steep:
+        run.log("Warning: " + steep + ("" if zr.shape == info.shape else " (in the window the parameters come from)"))
     for w in info.warnings:
         run.log("Warning: " + w)
     in_window = "" if zr.shape == info.shape else " (in the window the parameters come from)"
@@ -759,11 +885,16 @@ def _run_file(info, run, pool):
     params, whole = _derive_params(info, run)
     halo = window_halo(run.meth, params, cell)
     budget = None
+    held = 0
     if info.cells > IN_MEMORY_CELLS and run.block is None:
         # a given bound covers what the run holds beside its windows (half the memory available leaves it out)
-        budget = memory.window_budget(held=held_outside_windows() if memory.budget_given() else 0)
+        held = held_outside_windows() if memory.budget_given() else 0
+        budget = memory.window_budget(held=held)
     bshape = plan_block(info.shape, halo, block=run.block, workers=run.workers, processes=run.processes,
                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, budget=budget)
+    if budget is not None and memory.budget_given():
+        check_plan(info.shape, bshape, halo, budget, held=held, workers=run.workers, processes=run.processes,
+                   threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell, method=run.meth.name)
     windows = list(blocks.iter_windows(info.shape, bshape, halo))
     # the planned windows of a method using threads inside a window: one at a time, with the threads
     # (the budget is for one window); given blocks run side by side, one thread each
@@ -847,7 +978,7 @@ def _log_plan(run, info, bshape, halo, windows, budget):
     the read amplification, the largest window's memory against the budget (a warning when the
     halo spans the raster or the smallest block exceeds the budget)."""
     n = concurrent_windows(run.workers, run.processes, run.meth.threads) if len(windows) > 1 else 1
-    bpc = run.meth.bytes_per_cell
+    bpc = window_bytes_per_cell(run.meth.bytes_per_cell, n)
     window_mb = largest_window(info.shape, bshape, halo) * bpc / 2 ** 20
     budget_mb = budget / 2 ** 20
     if len(windows) == 1:
@@ -864,11 +995,18 @@ def _log_plan(run, info, bshape, halo, windows, budget):
     rows, cols = (bshape, bshape) if isinstance(bshape, (int, np.integer)) else bshape
     amp = read_amplification(info.shape, bshape, halo)
     over = window_mb * n > budget_mb
-    run.log(f"{'Warning: ' if over else ''}Blocks of {cols} x {rows} cells with a halo of {halo} cells: "
+    slow = amp > MAX_READ_AMPLIFICATION
+    advice = ""
+    if over or slow:
+        good = smallest_efficient_budget(info.shape, halo, workers=run.workers, processes=run.processes,
+                                         threads=run.meth.threads, bytes_per_cell=run.meth.bytes_per_cell)
+        advice = (f" The windows would read at most {MAX_READ_AMPLIFICATION:g} x the raster's cells with "
+                  f"{math.ceil(good / 2 ** 20)} MB ({memory.BUDGET_ENV}, or memory freed), or at a coarser cell.")
+    run.log(f"{'Warning: ' if over or slow else ''}Blocks of {cols} x {rows} cells with a halo of {halo} cells: "
             f"{len(windows)} windows reading {amp:.2f} x the raster's cells; the largest about {window_mb:.0f} MB "
             f"at {bpc:.0f} bytes a cell, {n} at a time, against a memory budget of {budget_mb:.0f} MB "
             f"({memory.BUDGET_ENV} or half the memory available)"
-            + (": the smallest block exceeds it." if over else "."))
+            + (": the smallest block exceeds it." if over else ".") + advice)
 
 
 class _BlockJob:

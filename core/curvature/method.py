@@ -10,12 +10,14 @@ from scipy import ndimage
 from ..common import FilterResult, as_cell_size, as_surface, report, sub_progress
 from ..estimate import (
     GROUND_BLOCK_M,
+    RAISED_REGION_MARGIN,
     RAISED_REGION_MAX_M,
     RAISED_REGION_SPAN_M,
     ground_level_cells,
     ground_spread,
     noise_ground_level,
     raised_region_grid,
+    raised_region_span_walled,
     raised_region_window,
     sample_windows,
     square_opening,
@@ -34,6 +36,7 @@ from .derivatives import (
 )
 from .ground import find_ground, ground_reach, ground_stretch
 from .profiles import (
+    LONGEST,
     enclosed_reach,
     find_enclosed_objects,
     find_profile_objects,
@@ -395,7 +398,15 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     minima and on their opening by the square of :data:`OBJECT_SIZE_M`
     (:func:`~bare_earth.core.estimate.square_opening`): a building 160 x 120 m of parts 4-18 m high, each
     narrower than 100 m, is one raised region there (its profiles ran 160 m and it was 0.57 object at 2 m
-    cells; 1.00 with the largest object widened to 148 m)."""
+    cells; 1.00 with the largest object widened to 148 m). A long narrow building (a ring of wings round a
+    courtyard, a wing) is no wider than the largest object, but the cross profiles along a wing run its whole
+    length without a break, and a run whose cross profile does so for more than :data:`.profiles.LONGEST`
+    largest objects is dropped (:func:`.profiles.bounded_stretches`: the level between two gullies): the
+    largest object is widened so that that many reach along the longest raised region standing on walls along
+    both sides of its length (:func:`~bare_earth.core.estimate.raised_region_span_walled`, not running across
+    the raster), as the window reaches across a width (``(1.25 span + 2 cells) / LONGEST``): a ring 220 x
+    140 m of wings 20 m wide was 0.87 / 0.31 / 0.32 object at 1 / 2 / 4 m, its long wings or its corners
+    ground. A quarry's bench arc, on walls down on one side only, widens nothing."""
     zs, cs, _ = raised_region_grid(z, cell_size)
     window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False)
     # a building of several heights: its parts are raised regions of their own, each narrower; opened by
@@ -403,6 +414,13 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     opened = square_opening(zs, int(OBJECT_SIZE_M / min(cs)) + 1)
     window = max(window, raised_region_window(opened, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M,
                                               across=False))
+    # a long narrow building (a ring round a courtyard, a wing): its runs across are short, but its cross
+    # profiles run its whole length, which LONGEST largest objects must reach (as a width, with the margin);
+    # walls along both sides of its length (not a quarry's bench or a terrace, on walls down on one side)
+    span = raised_region_span_walled(zs, cs, height_m, 0.0, max_span_m=RAISED_REGION_SPAN_M,
+                                     min_cells=int(OBJECT_SIZE_M / min(cs)), across=False) * min(cs)
+    if span > 0:
+        window = max(window, (RAISED_REGION_MARGIN * span + 2.0 * max(cs)) / LONGEST)
     return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)
 
 
@@ -472,7 +490,8 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="curvature",
-    bytes_per_cell=60.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file)
+    bytes_per_cell=92.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file); 88.6 with the large
+    #                            buildings' block-minima opening and enclosed regions (2026-11-30)
     run=_run,
     resolve=resolve_curvature_params,
     halo=curvature_halo,
@@ -511,7 +530,10 @@ METHOD = Method(
               "Metres: largest object; wider enclosed regions, or longer than twice it, are ground. Also the method's "
               "reach for block processing. Empty: 100 m, widened to 1.25 x the width + 2 cells of a wider "
               "raised region standing on walls (a hall; also looked for on the DSM opened by a 100 m square, "
-              "where a building of several heights stands as one level), at most 200 m.", minimum=1.0, maximum=2000.0),
+              "where a building of several heights stands as one level), and to half of 1.25 x the span + 2 "
+              "cells of a raised region longer than 200 m on walls along both sides of its length (a ring of "
+              "wings round a courtyard: its wings' runs lay on profiles running its whole length, and were "
+              "dropped; not a quarry's bench, on walls down on one side), at most 200 m.", minimum=1.0, maximum=2000.0),
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
               "cell may stand (plus one cell of the surface's slope) and still be ground "

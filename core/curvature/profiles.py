@@ -30,7 +30,7 @@ _SPREAD_K = 3.0
 #: longest raised region the resolves look at is one doubling of the widest
 #: (:data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`): a hall 115 m wide is 242 m long
 #: (:func:`bounded_stretches`).
-_LONGEST = 2.0
+LONGEST = 2.0
 
 
 def wall_rise(cell: float, *, h_min: float, tan_wall: float, terrain_slope: float = 0.0,
@@ -594,11 +594,11 @@ def profile_reach(cell_size: CellSize, *, window: int, max_size: float) -> int:
 
 def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
     """Cells within which the profile objects and breaks decide :func:`find_enclosed_objects`
-    at a cell: a region kept is at most ``max_size`` wide and :data:`_LONGEST` ``max_size``
+    at a cell: a region kept is at most ``max_size`` wide and :data:`LONGEST` ``max_size``
     long (its cells and its rim lie within that many cells); one longer is rejected by any
     window that holds that much, one wider by the square of ``max_size`` it holds."""
     dx, dy = cell_size
-    return int(max(_LONGEST * max_size / dx, _LONGEST * max_size / dy))
+    return int(max(LONGEST * max_size / dx, LONGEST * max_size / dy))
 
 
 def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
@@ -613,7 +613,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     ``terrain_slope`` (rise/run) the terrain's steep slopes and ``spacing`` (metres) that of
     the independent heights (:func:`wall_rise`).
     A run with a cell whose cross profile meets no break, no step of ``h_min`` within two cells
-    (:func:`height_steps`) and no nodata within :data:`_LONGEST` ``max_size`` metres
+    (:func:`height_steps`) and no nodata within :data:`LONGEST` ``max_size`` metres
     (:func:`bounded_stretches`) loses its cells within ``max_size`` of it (:func:`bounded_runs`):
     an object is bounded across its profiles too.
     Returns the union of the X and Y objects and the cells found by each; with ``edge_runs``,
@@ -645,10 +645,10 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     # step and no nodata within twice the largest object (a level between two gullies) is the terrain's
     free = ~height_steps(transpose(z), h_min)    # along Y: no step, no nodata (NaN is a step), no break
     free &= ~transpose(marked)
-    obj_x = bounded_runs(obj_x, transpose(bounded_stretches(free, int(_LONGEST * max_size / dy))), int(max_size / dx))
+    obj_x = bounded_runs(obj_x, transpose(bounded_stretches(free, int(LONGEST * max_size / dy))), int(max_size / dx))
     free = ~height_steps(z, h_min)
     free &= ~marked
-    obj_y = transpose(bounded_runs(transpose(obj_y), transpose(bounded_stretches(free, int(_LONGEST * max_size / dx))),
+    obj_y = transpose(bounded_runs(transpose(obj_y), transpose(bounded_stretches(free, int(LONGEST * max_size / dx))),
                                    int(max_size / dy)))
     del free
     # a lower level enclosed by higher parts of an object: landed on from both sides along X and along Y
@@ -688,7 +688,7 @@ def bounded_stretches(free: np.ndarray, max_cells: int) -> np.ndarray:
 
     Luong Chinh Ke (2002) puts an object between a break going up and the break coming down of
     a profile, within the largest object; an object is bounded so across its profiles too, within
-    its longest (:data:`_LONGEST` largest objects: a hall 240 m long and 120 m wide is an object by
+    its longest (:data:`LONGEST` largest objects: a hall 240 m long and 120 m wide is an object by
     its Y profiles): a run of the X profiles whose cells lie on a Y profile with no break longer
     than that is no object's (the level between two gullies or ditches running along Y, climbed
     from one and left down into the next: bare terrain at 4 m cells lost a fifth of its ground
@@ -924,7 +924,7 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
                           edge_runs=None, window: int = 5, z: Optional[np.ndarray] = None,
                           tol: float = 0.0) -> np.ndarray:
     """Step 4: regions enclosed by breaks (4-connected valid unmarked cells, at most
-    ``max_size`` metres wide and :data:`_LONGEST` ``max_size`` long, not touching the raster's
+    ``max_size`` metres wide and :data:`LONGEST` ``max_size`` long, not touching the raster's
     edge) made mostly of the ``objects`` of the profiles (:func:`_enclosed_regions`; an L-shaped
     hall longer than the largest object, no wider, is on runs longer than it at its corner, and
     its region is mostly runs: its corner, a fifth of it, stayed ground). With ``edge_runs`` (``(cells,
@@ -936,7 +936,7 @@ def find_enclosed_objects(objects: np.ndarray, marked: np.ndarray, valid: Option
     as the work goes."""
     dx, dy = cell_size
     max_cells = int(max(max_size / dx, max_size / dy))
-    span = int(max(_LONGEST * max_size / dx, _LONGEST * max_size / dy))
+    span = int(max(LONGEST * max_size / dx, LONGEST * max_size / dy))
     free = ~marked if valid is None else valid & ~marked
     if edge_runs is None:
         regions = _enclosed_regions(objects, free, max_cells, sub_progress(progress, 0.0, 0.9), max_span=span)

@@ -80,13 +80,15 @@ algorithm's help.
    and large buildings large ones. Each step works on the preprocessed surface, so the
    steps are independent and the reach of the method is that of its largest step.
 3. **Scan labelling** (step code :data:`STEP_SCAN`), :func:`scan_label`. Along every row
-   and every column of the cleaned surface (removed cells replaced by ``R_k``), the
-   height difference between neighbouring cells is labelled a *rise* when it exceeds the
-   terrain's own rise over one cell by more than ``dh0`` (``dz > dh0 + tan(slope) *
-   cell``), a *fall* symmetrically. A run of cells that opens with a rise, closes with a
-   fall, is shorter than ``max_object_size_m`` (or than :data:`OBLIQUE_REACH` ``= sqrt(2)``
-   times it, the diagonal along which a row or a column crosses an object of that width
-   rotated in the grid, when both its rise and its fall are walls in the sense below:
+   and every column of the cleaned surface (removed cells replaced by ``R_k`` of the first,
+   finest, step that removed them: a wider step's level under a canopy on a slope lay below
+   the ground between the crowns; :func:`~.dilation.gradual_dilation`), the height difference
+   between neighbouring cells is labelled a *rise* when it exceeds the terrain's own rise
+   over one cell by more than ``dh0`` (``dz > dh0 + tan(slope) * cell``), a *fall*
+   symmetrically. A run of cells that opens with a rise, closes with a fall, is shorter
+   than ``max_object_size_m`` (or than :data:`OBLIQUE_REACH` ``= sqrt(2)`` times it, the
+   diagonal along which a row or a column crosses an object of that width rotated in the grid,
+   when both its rise and its fall are walls in the sense below:
    raised terrain beyond one bank falls gently on its other side; issue 12) and stands
    more than ``dh0`` above the
    straight line joining the feet of the climb to the rise and of the descent after the fall
@@ -198,7 +200,7 @@ def _run(z, cell_size, progress=None, pool=None, **params):
 
 METHOD = Method(
     name="geodesic",
-    bytes_per_cell=56.0,       # measured 53.3 (benchmarks/speed.py, 16 Mcells, file)
+    bytes_per_cell=60.0,       # measured 53.3 (benchmarks/speed.py, 16 Mcells, file); 56.4 (2026-11-30)
     run=_run,
     resolve=resolve_geodesic_params,
     halo=geodesic_halo,

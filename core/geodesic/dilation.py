@@ -489,8 +489,15 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     removed : ndarray of bool
         Cells removed by any step.
     cleaned : ndarray of float32
-        ``w`` with removed cells lowered to the reconstruction (the cells of regions analysed
-        at the raster's cells keep their height: :func:`_fine_regions`).
+        ``w`` with removed cells lowered to the reconstruction of the first (finest) step that
+        removed each (the cells of regions analysed at the raster's cells keep their height:
+        :func:`_fine_regions`). The finest step reconstructs the ground from markers within its own
+        window on its finest grid; a wider step's level comes from farther (one wider window) on
+        coarser blocks, and under a canopy on a slope it lay up to 2 m under the ground kept between
+        the crowns: scan labelling, which reads this surface, then took that ground as runs rising
+        out of one crown and falling into the next (synthetic forest on an 8-degree slope at 0.25 m
+        cells, 80-128 m tiles: 4.02 % total with the lowest level of all the steps, 0.11 % with
+        the finest step's; issue 12).
     counts : list of int
         Cells newly coded per step.
     terrain : (ndarray, int)
@@ -529,11 +536,12 @@ def gradual_dilation(w, valid, cell_size, sizes, dh0, tan_s, edge_ratio, step, p
     steps = run_sharing(tasks, pool) if pool is not None else (t() for t in tasks)
     for k, (cells, R) in enumerate(steps, start=1):
         part = parts[k - 1]
-        new = ~rf[cells] & (sf[cells] == 0)       # outliers keep their own code
+        first = ~rf[cells]                        # the finest step removing a cell sets its level
+        new = first & (sf[cells] == 0)            # outliers keep their own code
         rf[cells] = True
         sf[cells[new]] = k
         report(part, 0.98)
-        cf[cells] = np.minimum(cf[cells], R)
+        cf[cells[first]] = np.minimum(cf[cells[first]], R[first])
         counts.append(int(np.count_nonzero(new)))
         report(part, 1.0)
     return removed, cleaned, counts, recon[0]

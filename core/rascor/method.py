@@ -14,7 +14,7 @@ def _run(z, cell_size, progress=None, breaklines=None, special_areas=None, **par
 
 METHOD = Method(
     name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo, widen=widen_rascor_params,
-    bytes_per_cell=40.0,        # measured 37.6 (benchmarks/speed.py, 16 Mcells, file)
+    bytes_per_cell=48.0,        # measured 37.6 (benchmarks/speed.py, 16 Mcells, file); 45.9 (2026-11-30)
     extras={"step": (np.uint8, 1, 255)},
     extra_bands={"step": ("RASCOR step that removed the cell (0 kept)",)},
     params=(

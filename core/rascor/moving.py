@@ -251,21 +251,24 @@ def slope_breaks(z: np.ndarray, keep: np.ndarray, candidates: np.ndarray, *, sca
     out = np.zeros(z.shape, bool)
     if max_run < 1 or not candidates.any():
         return out
-    for zz, cand, kp, lab, tr in ((z, candidates, keep, labels, False),
-                                  (transpose(z), transpose(candidates), transpose(keep),
-                                   None if labels is None else transpose(labels), True)):
-        good = _runs_between_slopes(zz, kp, cand, scale_m, k, int(max_run), lab)
-        _or_into(out, good, tr)
+    # the candidates are few: the columns are read through the flat indices of the transposed
+    # raster (no transposed copy of the heights, the points kept and the regions)
+    rows, cols = z.shape
+    idx = np.flatnonzero(candidates)
+    r, c = np.divmod(idx, cols)
+    for view, tr in ((idx, False), (np.sort(c * rows + r), True)):
+        good = _runs_between_slopes(z, keep, view, tr, scale_m, k, int(max_run), labels)
+        out.reshape(-1)[good] = True
     return out
 
 
-def _runs_between_slopes(z, keep, cand, scale, k, max_run, labels):
-    """:func:`slope_breaks` along the rows: the candidates of the runs that pass."""
-    rows, cols = z.shape
-    idx = np.flatnonzero(cand)
-    out = np.zeros(z.shape, bool)
+def _runs_between_slopes(z, keep, idx, transposed, scale, k, max_run, labels):
+    """:func:`slope_breaks` along the rows of ``z`` (of its transpose when ``transposed``): ``idx``
+    the candidates' flat indices in that view, increasing; the flat indices in ``z`` of the
+    candidates of the runs that pass."""
+    rows, cols = z.shape[::-1] if transposed else z.shape
     if not idx.size:
-        return out
+        return idx
     r, c = np.divmod(idx, cols)
     new = np.ones(idx.size, bool)
     new[1:] = (np.diff(idx) != 1) | (r[1:] != r[:-1])
@@ -277,8 +280,11 @@ def _runs_between_slopes(z, keep, cand, scale, k, max_run, labels):
     ok = (n <= max_run) & (s >= 2) & (e + 2 < cols)
     s, e = np.clip(s, 2, cols - 1), np.clip(e, 0, cols - 3)
     zf = z.reshape(-1)
+    def at(q):                                          # the view's flat index -> z's
+        return (q % cols) * rows + q // cols if transposed else q
     base = rr * cols
-    pos = [base + s - 2, base + s - 1, base + e + 1, base + e + 2]
+    pos = [at(base + s - 2), at(base + s - 1), at(base + e + 1), at(base + e + 2)]
+    idx = at(idx)
     kf = keep.reshape(-1)
     for p in pos:
         ok &= kf[p]
@@ -287,7 +293,10 @@ def _runs_between_slopes(z, keep, cand, scale, k, max_run, labels):
     a2, a1, b1, b2 = (zf[p].astype(np.float64) for p in pos)
     with np.errstate(invalid="ignore"):
         ok &= ((a1 - a2) + (b1 - b2)) / 2.0 > k * scale
-        # each cell: d cells after a1, n + 1 - d before b1
+        # each cell of the runs still passing (few: an object's runs are longer): d cells after a1,
+        # n + 1 - d before b1
+        cells = np.flatnonzero(ok[run])
+        run, c, idx = run[cells], c[cells], idx[cells]
         d = (c - s[run] + 1).astype(np.float64)
         m = (n[run] + 1 - d)
         zc = zf[idx].astype(np.float64)
@@ -301,5 +310,4 @@ def _runs_between_slopes(z, keep, cand, scale, k, max_run, labels):
         on_line = np.where(ea <= eb, np.abs(zc - ea) <= tol_a, np.abs(zc - eb) <= tol_b)
         cell_ok = on_line & (zc >= chord - tol_c)
     ok &= np.bincount(run, weights=~cell_ok, minlength=first.size) == 0
-    out.reshape(-1)[idx[ok[run]]] = True
-    return out
+    return idx[ok[run]]

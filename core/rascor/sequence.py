@@ -387,7 +387,10 @@ def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
     ry, rx = int(gap // (2 * dy)), int(gap // (2 * dx))
     if not (ry or rx):
         return longer_than(cells, cell_size, length_m)
-    grown = ndimage.binary_dilation(cells, np.ones((2 * ry + 1, 2 * rx + 1), bool))
+    # the dilation by that rectangle: separable running maxima (binary_dilation's generic structure
+    # visits every cell of the rectangle at every cell: 3.5 s on 16 Mcells)
+    grown = ndimage.maximum_filter(np.ascontiguousarray(cells, bool).view(np.uint8), size=(2 * ry + 1, 2 * rx + 1),
+                                   mode="constant", cval=0).view(bool)
     return longer_than(cells, cell_size, length_m, joined=grown)
 
 

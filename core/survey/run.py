@@ -236,7 +236,15 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
             raise ValueError(f"the survey holds no data in {where}: every cell is nodata there, so nothing can be "
                              "filtered and no parameter derived. Check the tiles' nodata value (gdalinfo), or give "
                              "the tiles that hold data.")
-        for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs)):
+        try:      # heights far steeper than any terrain: a cell size in mm or cm read as m
+            steep = pipeline.check_relief(zs, cell)
+        except ValueError as e:
+            os.remove(vrt)
+            if created:
+                os.rmdir(out_dir)
+            raise ValueError(f"{e} (in {where})") from None
+        for suspect in (grid.undeclared_nodata_warning(info, zs), grid.nodata_among_heights_warning(info, zs),
+                        steep):
             if suspect:
                 log(f"Warning: {suspect.replace('<file>', '<tile>')} (in {where})")
         try:      # the bar moves while they are derived (a minute on 16 Mcells), and a cancel stops it

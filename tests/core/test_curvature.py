@@ -2018,13 +2018,16 @@ def test_large_irregular_buildings_are_objects(cell, kind):
     middle part stands between wings along X only: the profiles along X come down onto it from a
     wing and climb the next (landed on from both sides), those along Y rise only 1.5 m at its ends
     (no wall at 2-4 m cells); counted with the runs, the region its breaks enclose is an object
-    (0.50 / 0.66 -> 1.00 at 2 / 4 m)."""
+    (0.50 / 0.66 -> 1.00 at 2 / 4 m). Both with the default largest object (the enclosed regions alone)
+    and with the derived one (the L's arms, 180 m long on walls along both sides, widen it to half of
+    1.25 x their span + 2 cells: :func:`~bare_earth.core.curvature.object_size`)."""
     z, b = _big_buildings(cell, kind)
     p = curvature.resolve_curvature_params(z, cell)
-    res = curvature.filter_curvature(z, cell, **p)
-    assert p["max_object_size_m"] == curvature.OBJECT_SIZE_M
-    assert (res.mask[b] == OBJECT).mean() > 0.99
-    assert (res.mask[~b] == OBJECT).mean() < 0.002
+    assert curvature.OBJECT_SIZE_M <= p["max_object_size_m"] <= (1.25 * 180 + 2 * cell) / 2 + 0.1
+    for size in (curvature.OBJECT_SIZE_M, p["max_object_size_m"]):
+        res = curvature.filter_curvature(z, cell, **dict(p, max_object_size_m=size))
+        assert (res.mask[b] == OBJECT).mean() > 0.99
+        assert (res.mask[~b] == OBJECT).mean() < 0.002
 
 
 @pytest.mark.parametrize("cell", [1.0, 2.0])
@@ -2045,7 +2048,7 @@ def test_a_level_between_wings_running_on_beyond_them_stays_ground(cell):
     assert (res.mask[beyond] == GROUND).mean() > 0.95
 
 
-@pytest.mark.parametrize("cell", [1.0, 2.0])
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
 def test_a_building_of_several_heights_wider_than_the_largest_object_is_an_object(cell):
     """A building 160 x 120 m of parts 6, 18, 12 and 4 m high (ISPRS samp22/23), each part narrower
     than 100 m: on the DSM each part is a raised region of its own and none is wider than the
@@ -2107,3 +2110,39 @@ def test_levels_landed_on_along_one_axis_end_in_a_drop():
     res = curvature.filter_curvature(s.dsm, s.cell_size, **p)
     c = compare_masks(res.mask, s.mask)
     assert c["total"] < 0.55
+
+
+def _ring_building(cell, length=220.0, width=140.0, wing=20.0, high=15.0, side=400.0, seed=0):
+    """A ring-shaped building (a courtyard block, ISPRS samp23) ``length`` x ``width`` m, wings ``wing`` m
+    wide and ``high`` m above the highest ground under it, round a courtyard at the ground's level, on a
+    gentle slope with 5 cm noise. Returns heights, the ring's cells and the courtyard's."""
+    n = int(side / cell)
+    rng = np.random.default_rng(seed)
+    yy, xx = (np.mgrid[0:n, 0:n] + 0.5) * cell
+    g = 100 + 0.02 * xx + 0.01 * yy
+    x0, y0 = (side - length) / 2, (side - width) / 2
+    b = (xx >= x0) & (xx < x0 + length) & (yy >= y0) & (yy < y0 + width)
+    court = b & (xx >= x0 + wing) & (xx < x0 + length - wing) & (yy >= y0 + wing) & (yy < y0 + width - wing)
+    z = np.where(b & ~court, g[b].max() + high, g) + 0.05 * rng.standard_normal((n, n))
+    return z.astype(np.float32), b & ~court, court
+
+
+@pytest.mark.parametrize("cell", [1.0, 2.0, 4.0])
+@pytest.mark.parametrize("length", [220.0, 300.0])
+def test_a_ring_building_longer_than_twice_the_largest_object_is_an_object(cell, length):
+    """A ring of wings 20 m wide round a courtyard, 220-300 m long (ISPRS samp23's courtyard blocks): its
+    runs across the wings are 20 m, but the cross profiles along a wing run its whole length without a
+    break, longer than twice the default largest object, and dropped every run (bounded_stretches); the
+    corners, on runs 140 m and more both ways, were the enclosed region's, longer than twice it too. The
+    ring 220 m long was 0.87 / 0.31 / 0.32 object at 1 / 2 / 4 m (its corners at 1 m, its long wings at
+    2-4 m, where the roof's noise left no break along them), 300 m long 0.89 / 0.25 / 0.26. The longest
+    raised region on walls along both sides of its length (the ring, not running across the raster) widens
+    the largest object so that twice it reaches along the region as a window reaches across a width
+    (:func:`~bare_earth.core.curvature.object_size`): the whole ring is an object, the courtyard ground."""
+    z, ring, court = _ring_building(cell, length=length)
+    p = curvature.resolve_curvature_params(z, cell)
+    assert p["max_object_size_m"] > length / 2
+    res = curvature.filter_curvature(z, cell, **p)
+    assert (res.mask[ring] == OBJECT).mean() > 0.99
+    assert (res.mask[court] == GROUND).mean() > 0.99
+    assert (res.mask[~ring & ~court] == OBJECT).mean() < 0.002

@@ -1095,6 +1095,39 @@ def test_raised_region_span_counts_the_rows_or_columns_of_the_longest_raised_reg
     assert est.raised_region_span(z, (1.0, 1.0), 2.0, 10.0, max_width_m=50.0, max_span_m=60.0) == 18
     assert est.raised_region_span(z, (1.0, 1.0), 2.0, 40.0, max_width_m=50.0, max_span_m=100.0) == 0
     assert est.raised_region_span(np.zeros((40, 40), np.float32), (1.0, 1.0), 2.0, 10.0) == 0
+    # across=False: a level running across the raster (meeting two opposite sides: its walls' run, mirrored
+    # at both, is three times the rows) spans nothing; the hall and the shed, inside, span as before
+    t = np.zeros((60, 40), np.float32)
+    t[:, 10:30] = 6.0
+    assert est.raised_region_span(t, (1.0, 1.0), 2.0, 0.0, max_width_m=100.0, max_span_m=200.0) == 180
+    assert est.raised_region_span(t, (1.0, 1.0), 2.0, 0.0, max_width_m=100.0, max_span_m=200.0, across=False) == 0
+    assert est.raised_region_span(z, (1.0, 1.0), 2.0, 0.0, max_width_m=50.0, max_span_m=100.0, across=False) == 68
+
+
+def test_raised_region_span_walled_counts_regions_on_walls_along_both_sides():
+    # a ring 10 m wide round a courtyard at the ground's level, 100 m square: on walls all round
+    z = np.zeros((140, 140), np.float32)
+    z[20:120, 20:120] = 10.0
+    z[30:110, 30:110] = 0.0
+    assert est.raised_region_span_walled(z, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 98
+    assert est.raised_region_span_walled(z, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0, min_cells=98) == 0
+    # a straight wing 100 x 12 m: the same span
+    w = np.zeros((140, 60), np.float32)
+    w[20:120, 24:36] = 10.0
+    assert est.raised_region_span_walled(w, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 98
+    # a wing 70 m long cut by the raster's edge: what is seen (raised_region_span mirrors its walls)
+    e = np.zeros((100, 60), np.float32)
+    e[0:70, 24:36] = 10.0
+    assert est.raised_region_span(e, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 138
+    assert est.raised_region_span_walled(e, (1.0, 1.0), 2.0, 0.0, max_span_m=200.0) == 69
+    # the quarry site at 2 m (regions longer than 100 m): a bench arc 14 m wide and 226 m long within the pit
+    # is a raised region on walls (over 53 % of its outline: its inner side and its ends), its outer side
+    # rising to the bench above: its walls do not run along both sides
+    from bare_earth.core.synthetic_sites import make_site
+    q = make_site("quarry", 2.0, "lowest", seed=0).dsm
+    assert est.raised_region_span(q, (2.0, 2.0), 1.0, 0.0, max_span_m=400.0, min_cells=50, across=False) == 113
+    assert est.raised_region_span_walled(q, (2.0, 2.0), 1.0, 0.0, max_span_m=400.0, min_cells=50,
+                                          across=False) == 0
 
 
 def test_raised_region_grid_is_the_block_minima_of_at_most_the_cells_allowed(monkeypatch):
@@ -1256,3 +1289,58 @@ def test_square_opening_exact():
     assert (est.square_opening(r, 3) <= r).all()
     with pytest.raises(ValueError, match="size_cells"):
         est.square_opening(z, 0)
+
+
+def test_nan_quantile_rows_equals_nanquantile():
+    """below_narrow_gap's ring quantile: the rows' np.nanquantile (linear), float32, NaN for a row of
+    NaN only, on rows with every count of finite values (one, two, all, none)."""
+    import warnings
+    rng = np.random.default_rng(2)
+    v = rng.normal(0.0, 3.0, (300, 41)).astype(np.float32)
+    v[rng.random(v.shape) < rng.random((300, 1))] = np.nan
+    v[0] = np.nan
+    v[1, 1:] = np.nan
+    v[2, 2:] = np.nan
+    v[3] = rng.normal(0.0, 3.0, 41)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for q in (0.25, 0.5, 0.9):
+            want = np.nanquantile(v, q, axis=1).astype(np.float32)
+            got = est._nan_quantile_rows(v, q)
+            assert got.dtype == np.float32
+            assert np.array_equal(got, want, equal_nan=True)
+    assert np.isnan(got[0]) and not np.isnan(got[1:4]).any()
+
+
+def test_line_share_counts_the_cells_holding_the_level_on_the_best_line():
+    """A band three cells wide along the rows holds the level all along its row; a 3 x 3 patch holds it on 3 of
+    the 7 cells of every line through its centre; a line cut by the raster's edge is judged on the part inside,
+    NaN cells are left out, and each cell takes its own level."""
+    g = np.zeros((12, 12), np.float32)
+    g[2:5, :] = 0.5
+    g[7:10, 4:7] = 0.5
+    cells = np.array([3 * 12 + 6, 8 * 12 + 5, 3 * 12 + 0])
+    np.testing.assert_allclose(est.line_share(g, cells, (3, 3), 0.4), [1.0, 3 / 7, 1.0], rtol=1e-6)
+    # the corner cell's row line keeps 4 cells inside the raster, all on the band
+    np.testing.assert_allclose(est.line_share(g, [3 * 12 + 11], (3, 3), 0.4), [1.0])
+    # a level above the band's value: no cell holds it
+    np.testing.assert_allclose(est.line_share(g, cells, (3, 3), [0.6, 0.4, 0.6]), [0.0, 3 / 7, 0.0], rtol=1e-6)
+    # NaN cells on the patch's row are left out: 3 of the 5 cells with a value
+    h = g.copy()
+    h[8, 2:4] = np.nan
+    np.testing.assert_allclose(est.line_share(h, [8 * 12 + 5], (3, 3), 0.4), [3 / 5], rtol=1e-6)
+    # the diagonals take the smaller half-length, columns and rows their own
+    d = np.zeros((9, 9), np.float32)
+    d[np.arange(9), np.arange(9)] = 1.0
+    np.testing.assert_allclose(est.line_share(d, [4 * 9 + 4], (4, 1), 1.0), [1.0])
+    assert est.line_share(g, np.array([], np.int64), (3, 3), 0.4).size == 0
+
+
+def test_line_share_refuses_bad_input():
+    g = np.zeros((4, 4), np.float32)
+    with pytest.raises(ValueError, match="2-D"):
+        est.line_share(g.ravel(), [0], (1, 1), 0.0)
+    with pytest.raises(ValueError, match="half_widths"):
+        est.line_share(g, [0], (-1, 1), 0.0)
+    with pytest.raises(ValueError, match="flat indices"):
+        est.line_share(g, [16], (1, 1), 0.0)

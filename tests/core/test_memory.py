@@ -98,3 +98,20 @@ def test_held_by_run_measures_from_the_run_baseline():
 def test_budget_given_only_by_the_variable():
     assert memory.budget_given({memory.BUDGET_ENV: "700"}) and not memory.budget_given({memory.BUDGET_ENV: " "})
     assert not memory.budget_given({})
+
+
+def test_proc_lines_read_by_one_reader(tmp_path, monkeypatch):
+    """available_memory and resident_bytes read their /proc line through one reader: the ``Key: N kB``
+    line in bytes, None for a missing file, a missing key or a line without a number (QA 17: two
+    copies of the same loop)."""
+    f = tmp_path / "meminfo"
+    f.write_text("MemTotal:  100 kB\nMemAvailable:   2048 kB\nBroken: kB\nVmRSSX: 5 kB\nVmRSS: 7 kB\n")
+    assert memory._proc_kb(str(f), "MemAvailable") == 2048 * 1024
+    assert memory._proc_kb(str(f), "VmRSS") == 7 * 1024          # the whole key, not a longer one
+    assert memory._proc_kb(str(f), "Broken") is None
+    assert memory._proc_kb(str(f), "Missing") is None
+    assert memory._proc_kb(str(tmp_path / "none"), "MemAvailable") is None
+    seen = []
+    monkeypatch.setattr(memory, "_proc_kb", lambda path, key: seen.append((path, key)) or 4096)
+    assert memory.available_memory() == 4096 and memory.resident_bytes() == 4096
+    assert seen == [("/proc/meminfo", "MemAvailable"), ("/proc/self/status", "VmRSS")]

@@ -1,6 +1,7 @@
 """Pipeline: params checked, DTM = z on the ground and filled elsewhere, blocks, files, cancel."""
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -631,8 +632,9 @@ def test_plan_block_pure():
     assert plan((4096, 300), 3, workers=2) == (1024, 300)
     # a halo that would add more than a quarter: one strip per worker, at least 2 * halo rows
     assert plan((500, 400), 40, processes=2) == (256, 400)
-    # large raster with workers: the budget shared by the windows held at once
-    assert plan((6000, 6000), 3, workers=2, budget=2 * budget) == (2048, 2048)
+    # large raster with workers: the budget shared by the windows held at once, each a fifth more a cell
+    assert plan((6000, 6000), 3, workers=2, budget=2 * 1.2 * budget) == (2048, 2048)
+    assert plan((6000, 6000), 3, workers=2, budget=2 * budget) == (1792, 1792)
     # a method using threads inside a window: one window in memory (no halo recomputed), blocks above
     assert plan((500, 400), 40, workers=2, threads=True) == 500
     assert plan((500, 400), 40, processes=2, threads=True) == (256, 400)
@@ -676,7 +678,7 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
     assert amp(big, b, 2176) < 2.6 and largest(big, b, 2176) * 92 <= 11 * gb
     # the same budget shared by two windows side by side (a method without threads inside a window)
     b2 = plan(big, 2176, workers=2, budget=11 * gb, bytes_per_cell=92)
-    assert 2 * largest(big, b2, 2176) * 92 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
+    assert 2 * largest(big, b2, 2176) * 92 * 1.2 <= 11 * gb and amp(big, b, 2176) < amp(big, b2, 2176) < 9
     assert plan(big, 2176, processes=3, threads=True, budget=11 * gb, bytes_per_cell=92) == \
         plan(big, 2176, workers=3, budget=11 * gb, bytes_per_cell=92)          # processes: a window each
     rng = np.random.default_rng(0)
@@ -685,7 +687,7 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
         halo, budget = int(rng.integers(0, 3000)), float(rng.uniform(0.5, 16)) * gb
         n = int(rng.integers(1, 4))
         b = plan(shape, halo, workers=n, budget=budget, bytes_per_cell=60)
-        cells = budget / n / 60
+        cells = budget / n / pipeline.window_bytes_per_cell(60, n)
         if b == max(shape):                          # one pass: it fits, or every block reads it all
             assert shape[0] * shape[1] <= cells or largest(shape, pipeline.MIN_BLOCK, halo) == shape[0] * shape[1]
             continue
@@ -702,6 +704,22 @@ def test_plan_block_large_rasters_read_little_within_the_memory_budget():
     # strips of whole rows when a window spans the raster's width: (4352 + 2 x 3 + 63) x 6000 cells <= 2 GB / 80
     assert plan((6000, 6000), 3, budget=2 * gb, bytes_per_cell=80) == (4352, 6000)
     assert plan((6000, 6000), 3, budget=6000 ** 2 * 80, bytes_per_cell=80) == 6000   # fits: one pass
+
+
+def test_plan_block_windows_side_by_side_take_more_than_one_at_a_time():
+    """Windows side by side (threads or processes) each hold their finished core while another is
+    written and compressed: a method's bytes_per_cell, measured one window at a time, understated two
+    windows by about 15 % (QA 17: slopeprofile on 36 Mcells with a 700 MB bound peaked 705 MB above its
+    baseline). Two windows get 20 % more a cell; one window at a time (dtm's threads) does not."""
+    plan, largest = pipeline.plan_block, pipeline.largest_window
+    assert pipeline.window_bytes_per_cell(48, 1) == 48.0
+    assert pipeline.window_bytes_per_cell(48, 2) == pytest.approx(48 * 1.2)
+    shape, halo, budget, bpc = (6000, 6000), 40, 700 << 20, 48          # slopeprofile's 36 Mcells
+    for kw in ({"workers": 2}, {"processes": 2}):
+        b = plan(shape, halo, budget=budget, bytes_per_cell=bpc, **kw)
+        assert 2 * largest(shape, b, halo) * bpc * 1.15 <= budget, (kw, b)
+    one = plan(shape, halo, workers=2, threads=True, budget=budget, bytes_per_cell=bpc)
+    assert largest(shape, one, halo) * bpc > budget / 1.2 * 0.9     # the whole budget for one window
 
 
 def _opening_run(z, cell_size, progress=None, workers=1, seen=None, **p):
@@ -970,6 +988,10 @@ def test_a_halo_across_the_raster_runs_one_pass_not_blocks_reading_all_of_it(tmp
     one = pipeline.run_array(reach, z, (1.0, 1.0)).mask
     np.testing.assert_array_equal(read(outputs(tmp_path, "mask")["mask"])[0], one)
     short = Method(name="short", run=_run, resolve=_resolve, halo=lambda p, c: 20, params=ABOVE.params)
+    # a given bound that makes the windows mostly halo is refused (check_plan): the default budget, 1 MB
+    from bare_earth.core import memory
+    monkeypatch.delenv("BARE_EARTH_MEMORY_MB")
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 << 20)
     logs = []
     assert pipeline.run_file(short, src, outputs(tmp_path, "mask", prefix="s_"), log=logs.append)["blocks"] > 1
     assert not any("spans the raster" in s for s in logs)
@@ -1050,8 +1072,9 @@ def test_blocks_budget_leaves_out_what_the_run_holds_beside_its_windows(tmp_path
     """BARE_EARTH_MEMORY_MB bounded the windows alone; what the run held beside them when the blocks
     were planned (the input's window the parameters came from, rasterised layers, GDAL's block cache)
     came on top. The windows now get the bound less that (held_outside_windows), logged."""
-    from bare_earth.core import memory
+    from bare_earth.core import fill, memory
     mb = 1 << 20
+    monkeypatch.setattr(fill, "EMPTY_RUN_M", 2.0)      # the fill's reach 4 cells: windows not mostly halo
     monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
     monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
     z = (np.arange(400 * 400, dtype=np.float32).reshape(400, 400) % 13).astype(np.float32)
@@ -1079,3 +1102,101 @@ def test_complex_arrays_refused_before_work(dtype):
     for call in (lambda: pipeline.run_array("morphological", z, 1.0), lambda: pipeline.resolve_params("dtm", z, 1.0)):
         with pytest.raises(ValueError, match=r"complex numbers \(complex(64|128)\).*real part"):
             call()
+
+
+def test_a_given_bound_that_makes_the_windows_mostly_halo_is_refused_naming_the_bound_that_works(
+        tmp_path, monkeypatch):
+    """QA 17: dtm on 36 Mcells under BARE_EARTH_MEMORY_MB=700 planned 144 windows of 512 cells with a
+    1185-cell halo, reading each cell 25.7 times, with a warning only. A bound the user gave that makes the
+    windows read the raster more than MAX_READ_AMPLIFICATION times is refused before the blocks (no
+    output written), naming the smallest bound that works; that bound then runs, reading at most 4 x.
+    Under the default budget (half the memory available) the log warns, naming it too."""
+    from bare_earth.core import memory
+    mb = 1 << 20
+    assert pipeline.smallest_efficient_budget((6000, 6000), 1185, workers=2, threads=True,
+                                              bytes_per_cell=104) == 1905 * mb
+    with pytest.raises(ValueError, match=r"25\.7 times.*at least 2005"):
+        pipeline.check_plan((6000, 6000), (512, 512), 1185, 600 * mb, held=100 * mb, workers=2, threads=True,
+                            bytes_per_cell=104, method="dtm")
+    assert pipeline.check_plan((6000, 6000), (768, 6000), 1185, 1905 * mb, workers=2, threads=True,
+                               bytes_per_cell=104) is None
+    monkeypatch.setattr(pipeline, "IN_MEMORY_CELLS", 50 * 50)
+    monkeypatch.setattr(pipeline, "MIN_BLOCK", 64)
+    monkeypatch.setattr(memory, "held_by_run", lambda: 0)
+    z = (np.arange(600 * 500, dtype=np.float32).reshape(600, 500) % 13).astype(np.float32)
+    src = write(tmp_path, z)
+    reach = Method(name="reach", run=_run, resolve=_resolve, halo=lambda p, c: 60, params=ABOVE.params)
+    cache = grid.BLOCK_MODE_CACHE // mb
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", str(cache + 1))      # 1 MB for the windows: 13107 cells
+    outs = outputs(tmp_path, "mask")
+    with pytest.raises(ValueError, match=r"BARE_EARTH_MEMORY_MB leaves 1 MB for reach's windows.*"
+                                         r"read the raster's cells \d+\.\d times.*at least (\d+)") as e:
+        pipeline.run_file(reach, src, outs)
+    assert not os.path.exists(outs["mask"])
+    need = int(re.search(r"at least (\d+)", str(e.value)).group(1))
+    assert need > cache + 1
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", str(need))
+    logs = []
+    res = pipeline.run_file(reach, src, outs, log=logs.append)
+    plan = [s for s in logs if s.startswith("Blocks of ") or "one pass" in s]
+    amp = float(re.search(r"reading (\d+\.\d+) x", plan[0]).group(1)) if res["blocks"] > 1 else 1.0
+    assert amp <= pipeline.MAX_READ_AMPLIFICATION, logs
+    np.testing.assert_array_equal(read(outs["mask"])[0], pipeline.run_array(reach, z, (1.0, 1.0)).mask)
+    monkeypatch.delenv("BARE_EARTH_MEMORY_MB")                       # the default budget: a warning
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 * mb)
+    logs = []
+    assert pipeline.run_file(reach, src, outputs(tmp_path, "mask", prefix="d_"), log=logs.append)["blocks"] > 1
+    warn = [s for s in logs if s.startswith("Warning: Blocks of ")]
+    assert warn and re.search(r"at most 4 x the raster's cells with \d+ MB", warn[0]), logs
+
+
+def test_cells_too_fine_for_the_heights_refused_or_warned_before_work(tmp_path):
+    """QA 17: a city scene (buildings 4-56 m high) at 1 mm cells, 0.3 m wide: morphological kept every
+    cell ground and dtm called 99.99 % objects, without a word; at 1 cm both called 99.7-99.99 % objects.
+    Heights spanning more than MAX_RELIEF_RATIO (20) times the raster's diagonal are refused before any
+    work naming the cell size and the fix; more than STEEP_RELIEF_RATIO (2) times: a warning (run_array's
+    info, run_file's log); the scene at 1 m and 10 cm runs without one."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (120, 120), seed=1).dsm
+    assert pipeline.relief_ratio(z, 1.0) == pytest.approx(pipeline.relief_ratio(z, 0.001) / 1000, rel=1e-6)
+    flat = np.zeros((10, 10), np.float32)
+    assert pipeline.relief_ratio(flat, 1.0) == 0.0 and pipeline.check_relief(flat, 1e-3) is None
+    assert pipeline.relief_ratio(np.full((3, 3), np.nan), 1.0) == 0.0
+    step = np.zeros((10, 10), np.float32)
+    step[:, 5:] = 30.0                             # 30 m over a diagonal of 14.1 m: 2.1
+    assert pipeline.relief_ratio(step, 1.0) == pytest.approx(30 / math.hypot(10, 10))
+    assert "steeper than any terrain" in pipeline.check_relief(step, 1.0)
+    assert pipeline.check_relief(step, 1.5) is None
+    calls = []
+    meth = Method(name="count", run=lambda z, c, **k: calls.append(1) or _run(z, c, **k), resolve=_resolve,
+                  halo=lambda p, c: 1, params=ABOVE.params)
+    src = write(tmp_path, z, gt=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001))
+    outs = outputs(tmp_path, "mask")
+    for call in (lambda: pipeline.run_array(meth, z, 0.001), lambda: pipeline.run_file(meth, src, outs)):
+        with pytest.raises(ValueError, match=r"heights span [\d.]+ times the diagonal .* cells of 0\.001 x 0\.001 m"
+                                             r".*cell size is probably wrong.*gdal_edit\.py -tr"):
+            call()
+    assert not calls and not os.path.exists(outs["mask"])
+    res = pipeline.run_array(meth, z, 0.01)
+    assert any("steeper than any terrain" in w for w in res.info["warnings"])
+    src = write(tmp_path, z, name="cm.tif", gt=(500000.0, 0.01, 0.0, 5400000.0, 0.0, -0.01))
+    logs = []
+    pipeline.run_file(meth, src, outs, log=logs.append)
+    assert any(s.startswith("Warning: the heights span") for s in logs), logs
+    for cell in (1.0, 0.1):
+        assert not pipeline.run_array(meth, z, cell).info["warnings"]
+
+
+def test_relief_ratio_leaves_out_blunders():
+    """High blunders (birds, multipath) on up to 2 % of a small raster's cells do not make its heights'
+    span: 1 % of the cells of a 100 x 100 m raster at 5 km are not refused."""
+    z = np.random.default_rng(0).normal(0.0, 0.1, (100, 100)).astype(np.float32)
+    z.flat[::100] = np.linspace(4000.0, 6000.0, 100)      # 1 % of the cells
+    assert pipeline.relief_ratio(z, 1.0) < 0.01 and pipeline.check_relief(z, 1.0) is None
+    z.flat[::25] = np.linspace(4000.0, 6000.0, 400)       # 4 %: the span
+    with pytest.raises(ValueError, match="cell size is probably wrong"):
+        pipeline.check_relief(z, 1.0)
+    # an undeclared nodata: -9999 on a tenth of the cells is no height (grid.undeclared_nodata_warning says it)
+    z = np.random.default_rng(0).normal(0.0, 0.1, (64, 64)).astype(np.float32)
+    z[:, :6] = -9999.0
+    assert pipeline.relief_ratio(z, 1.0) < 0.01

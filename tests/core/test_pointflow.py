@@ -581,3 +581,14 @@ def test_point_run_killed_while_its_rasters_are_written_leaves_no_points_file(tm
     assert {"cls.txt", "dtm.tif", "mask.qml", "mask.tif"} <= names
     assert not [n for n in names if n.startswith(".")]              # the killed run's work files removed
     assert len(read_points(out)) == len(c)
+
+
+def test_points_whose_coordinates_are_millimetres_read_as_metres_refused():
+    """QA 17: cells that make no sense for the heights (pipeline.check_relief) reach the points path too: a
+    city's points with their x and y in millimetres of metres (0.15 m across, buildings up to 56 m) are
+    refused naming the points' CRS, before any point is classified."""
+    c = scene_cloud(shape=(100, 100), density=1.0)
+    x0, y0 = c.x.min(), c.y.min()
+    mm = PointCloud(x0 + (c.x - x0) / 1000.0, y0 + (c.y - y0) / 1000.0, c.z)
+    with pytest.raises(ValueError, match=r"heights span [\d.]+ times the diagonal.*POINTS_CRS"):
+        pf.filter_cloud(mm, "morphological")

@@ -2158,6 +2158,29 @@ def test_slope_breaks_exact():
     assert at(crest, [3], labels=np.ones((1, 7), int))[3]
 
 
+def test_slope_breaks_columns_equal_rows_of_the_transpose():
+    """The column pass reads the heights through the transposed flat indices (no transposed copies):
+    on a rough non-square raster with crests both ways, break-line regions and runs of candidates,
+    the answer transposed is the answer on the transposed arrays, and it finds breaks along both."""
+    rng = np.random.default_rng(5)
+    h, w = 37, 52
+    i, j = np.mgrid[0:h, 0:w].astype(np.float32)
+    z = (-np.abs(j - 20.0) - np.abs(i - 15.0) + rng.normal(0.0, 0.02, (h, w))).astype(np.float32)
+    z[rng.random((h, w)) < 0.02] = np.nan
+    cand = (j == 20) | (i == 15) | (rng.random((h, w)) < 0.05)
+    keep = ~cand & np.isfinite(z)
+    labels = np.where((i >= 17) & (j >= 30), 2, 1)
+    a = moving.slope_breaks(z, keep, cand, scale_m=0.05, k=4.0, max_run=2, labels=labels)
+    b = moving.slope_breaks(z.T.copy(), keep.T.copy(), cand.T.copy(), scale_m=0.05, k=4.0, max_run=2,
+                            labels=labels.T.copy())
+    assert np.array_equal(a, b.T)
+    assert a[15, :20].sum() > 10 and a[:15, 20].sum() > 10     # both crests, along the columns and the rows
+    c = moving.slope_breaks(z, keep, cand, scale_m=0.05, k=4.0, max_run=2)
+    assert np.array_equal(c, moving.slope_breaks(z.T.copy(), keep.T.copy(), cand.T.copy(), scale_m=0.05, k=4.0,
+                                                 max_run=2).T)
+    assert not (a & ~c).any() and (c & ~a).any()             # the regions' boundary only takes breaks away
+
+
 def test_crests_of_dunes_and_gullies_at_coarse_cells_stay_ground_and_boxes_are_found():
     """Bare dunes at 4 m and gullies at 2 m cells (:func:`~bare_earth.core.synthetic_bare.make_bare`):
     their brinks and shoulders, sharp against the cell, passed steps 3 and 5 as objects' edges (6.5 /

@@ -999,3 +999,20 @@ def test_tile_dtm_cells_interpolated_to_the_declared_nodata_stay_heights(tmp_pat
     assert (d == up).sum() > 100 and (m[d == up] == 1).all()
     said = [s for s in logs if "hold the declared nodata value 300 as a height" in s]
     assert len(said) == 2 and all(s.startswith("Warning: t") for s in said), logs
+
+
+def test_tiles_of_cells_too_fine_for_their_heights_refused_before_any_work(tmp_path):
+    """QA 17: a city at 1 mm cells made every filter's windows and slopes meaningless without a word
+    (pipeline.check_relief); a survey of such tiles is refused too, before the cluster starts and with no
+    output folder left; at 1 cm it runs with a warning in the log."""
+    sc = make_scene("city", shape=(2 * TILE, 2 * TILE), seed=3)
+    fine = dataclasses.replace(sc, geotransform=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001))
+    tiles = write_survey(tmp_path / "mm", fine)
+    with pytest.raises(ValueError, match=r"heights span [\d.]+ times the diagonal.*cell size is probably wrong"
+                                         r".*\(in the whole survey"):
+        run_survey("slopeprofile", tiles, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()
+    cm = dataclasses.replace(sc, geotransform=(500000.0, 0.01, 0.0, 5400000.0, 0.0, -0.01))
+    logs = []
+    run_survey("slopeprofile", write_survey(tmp_path / "cm", cm), tmp_path / "out_cm", workers=1, log=logs.append)
+    assert any(s.startswith("Warning: the heights span") for s in logs), logs
