@@ -23,7 +23,6 @@ from .kernels import (
     solve3_first,
     solve_first_general,
 )
-from .regions import region_slices
 
 
 def fit_rows(z, w, size, degree):
@@ -337,7 +336,7 @@ def _tiles(rows, cols, halo, halo_cols, cells=None):
 
 
 def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_cols=0,
-                   tile_cells=None, labels=None, work=None, progress=None):
+                   tile_cells=None, labels=None, reach_cols=None, work=None, progress=None):
     """Fit every cell by ``fit`` and snoop the cells of ``test`` (:func:`_snoop`), in bands.
 
     ``fit(z, w, out_rows) -> (zhat, h)`` is a leave-one-out moving fit on float64 arrays
@@ -349,7 +348,9 @@ def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_c
     runs on tiles of about ``tile_cells`` cells with a halo on all sides (:func:`_tiles`;
     for fits whose result at a cell does not depend on where the array starts: the
     polynomial surface, whose bands would take seconds each). With break-line ``labels`` each region
-    runs alone on its bounding box, the other cells having weight 0 and no test. ``work``
+    is fitted on its own points only, the other cells having weight 0 and no test: the regions'
+    bounding boxes packed into mosaics (:func:`_snoop_regions`; ``reach_cols``: the columns a fit
+    reaches from its cell, default ``halo_cols`` or else ``halo``). ``work``
     (a dict, shared with ``fit``) keeps the band's scratch arrays from band to band.
     ``progress(fraction)`` is called before each band (it may raise ``Cancelled``).
 
@@ -357,24 +358,13 @@ def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_c
     -------
     high, low, below : ndarray of bool
     """
+    if labels is not None:
+        return _snoop_regions(z, keep, test, below, fit, s, k, low_weight, labels, halo=halo,
+                              halo_cols=halo_cols, reach_cols=reach_cols, tile_cells=tile_cells, work=work,
+                              progress=progress)
     high = np.zeros(z.shape, bool)
     low = np.zeros(z.shape, bool)
     under = np.zeros(z.shape, bool)
-    if labels is not None:
-        regions = region_slices(labels)
-        ends = np.cumsum([z[sl].size for _, sl in regions]) / max(1, sum(z[sl].size for _, sl in regions))
-        for (rid, sl), a, e in zip(regions, np.concatenate([[0.0], ends[:-1]]), ends):
-            report(progress, a)
-            inside = labels[sl] == rid
-            if np.count_nonzero(inside) < 3:
-                continue
-            res = fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside,
-                                 None if below is None else below[sl], fit, s, k, low_weight,
-                                 halo=halo, halo_cols=halo_cols, tile_cells=tile_cells, work=work,
-                                 progress=sub_progress(progress, a, e))
-            for o, r in zip((high, low, under), res):
-                o[sl] |= r
-        return high, low, under
     rows, cols = z.shape
     tiles = _tiles(rows, cols, halo, halo_cols, tile_cells)
     work = {} if work is None else work
@@ -397,6 +387,180 @@ def fit_and_snoop(z, keep, test, below, fit, s, k, low_weight, *, halo=0, halo_c
             tb, hb, lb, ub = test[b, bc], high[b, bc], low[b, bc], under[b, bc]
             for sb in row_bands(*zo.shape):            # in cache-sized pieces
                 hb[sb], lb[sb], ub[sb] = _snoop(zo[sb], zhat[sb], hh[sb], tb[sb], s, k, low_weight)
+    return high, low, under
+
+
+#: Cells of a mosaic of break-line regions (:func:`_snoop_regions`), gaps included: its copies and
+#: index arrays (about 40 bytes a cell) stay near 40 MB; a region whose shelf alone would exceed
+#: it is fitted on its own bounding box.
+MOSAIC_CELLS = 1 << 20
+
+
+def pack_boxes(heights, widths, width, gap_rows, gap_cols, max_cells=None):
+    """Shelf packing of boxes into mosaics ``width`` columns wide, each of at most ``max_cells``
+    (default :data:`MOSAIC_CELLS`) cells, the boxes at least ``gap_rows`` rows and ``gap_cols`` columns apart.
+
+    The boxes, tallest first, fill shelves from the left; a shelf whose boxes would pass ``width``
+    ends, and a mosaic whose next shelf would pass ``max_cells`` ends. A box that does not fit a
+    mosaic alone (wider than ``width``, or its shelf beyond ``max_cells``) is not packed.
+
+    Returns
+    -------
+    mosaic, row, col : ndarray of int
+        Each box's mosaic (-1: not packed) and its upper-left cell in it.
+    heights_out : ndarray of int
+        Each mosaic's rows.
+
+    Examples
+    --------
+    >>> m, r, c, h = pack_boxes(np.array([2, 3, 1]), np.array([4, 2, 5]), 10, 1, 2)
+    >>> m.tolist(), r.tolist(), c.tolist(), h.tolist()
+    ([0, 0, 0], [0, 0, 4], [4, 0, 0], [5])
+    """
+    max_cells = MOSAIC_CELLS if max_cells is None else max_cells
+    heights = np.asarray(heights, np.int64)
+    widths = np.asarray(widths, np.int64)
+    n = heights.size
+    mosaic = np.full(n, -1, np.int64)
+    row = np.zeros(n, np.int64)
+    col = np.zeros(n, np.int64)
+    out = []
+    fits_alone = (widths <= width) & (heights * width <= max_cells)
+    top = x = shelf = 0                      # the current shelf's top row, next column, height
+    m = -1
+    for i in np.argsort(-heights, kind="stable"):
+        if not fits_alone[i]:
+            continue
+        if m < 0 or x + widths[i] > width:   # a new shelf, in a new mosaic when it would not fit
+            below = top + shelf + gap_rows
+            if m < 0 or (below + heights[i]) * width > max_cells:
+                if m >= 0:
+                    out.append(top + shelf)
+                m, below = m + 1, 0
+            top, x, shelf = below, 0, int(heights[i])
+        mosaic[i], row[i], col[i] = m, top, x
+        x += int(widths[i]) + gap_cols
+    if m >= 0:
+        out.append(top + shelf)
+    return mosaic, row, col, np.asarray(out, np.int64)
+
+
+def _snoop_regions(z, keep, test, below, fit, s, k, low_weight, labels, *, halo, halo_cols, reach_cols,
+                   tile_cells, work, progress):
+    """:func:`fit_and_snoop` of each break-line region of ``labels`` on its own points (the other
+    cells weight 0 and no test; regions of fewer than 3 cells are not tested).
+
+    The regions' bounding boxes are packed into mosaics (:func:`pack_boxes`), ``halo`` rows and
+    ``reach_cols`` columns apart (no window reaches from one box into another; boxes one cell high
+    or wide in mosaics one cell high or wide; for profiles along the rows, ``halo`` 0, each row of a
+    region shifted to its box's left edge), each mosaic fitted in one pass: the cost of a region
+    is its box's cells, not a call of the fit (terraced hillsides hold thousands of regions). A
+    region too large for a mosaic is fitted on its own bounding box. The fits of a window's own
+    points do not depend on where the window lies (the polynomial's centred sums bit for bit, the
+    planes' and lines' to rounding)."""
+    rows, cols = z.shape
+    high = np.zeros(z.shape, bool)
+    low = np.zeros(z.shape, bool)
+    under = np.zeros(z.shape, bool)
+    gap_c = int(reach_cols if reach_cols is not None else (halo_cols or halo))
+    boxes = ndimage.find_objects(labels)
+    count = np.bincount(labels.reshape(-1), minlength=len(boxes) + 1)
+    ids = np.array([i + 1 for i, b in enumerate(boxes) if b is not None and count[i + 1] >= 3], np.int64)
+    if not ids.size:
+        return high, low, under
+    r0, r1, c0, c1 = (np.array([getattr(boxes[i - 1][a], e) for i in ids], np.int64)
+                      for a, e in ((0, "start"), (0, "stop"), (1, "start"), (1, "stop")))
+    h, w = r1 - r0, c1 - c0
+    lab = labels.reshape(-1)
+    of = np.full(len(boxes) + 1, -1, np.int64)
+    of[ids] = np.arange(ids.size)
+    sheared = None
+    if not halo:
+        # profiles along the rows: each row of a region is fitted on its own, so its cells move to
+        # the box's left edge row by row (a curved line's box is as wide as its widest row), in the
+        # boxes a mosaic may hold
+        small = np.zeros(len(boxes) + 1, bool)
+        small[ids] = (h * (cols + gap_c) <= MOSAIC_CELLS) | (h == 1) | (w == 1)
+        cand = np.flatnonzero(small[lab])
+        key = of[lab[cand]] * rows + cand // cols
+        order = np.argsort(key, kind="stable")      # each row's cells stay in column order
+        key = key[order]
+        start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        stop = np.r_[start[1:], key.size]
+        left = cand[order[start]] % cols
+        span = cand[order[stop - 1]] % cols - left + 1
+        first_row = np.flatnonzero(np.r_[True, key[start[1:]] // rows != key[start[:-1]] // rows])
+        widest = np.zeros(ids.size, np.int64)
+        widest[key[start[first_row]] // rows] = np.maximum.reduceat(span, first_row)
+        w = np.where(small[ids], widest, w)
+        edge = np.empty(cand.size, np.int64)
+        edge[order] = np.repeat(left, stop - start)
+        sheared = (cand, edge)
+        del key, order, start, stop, left, span, first_row
+    # boxes one cell high (wide) go to mosaics one cell high (wide), all of a box's rows (columns) at
+    # the fits' origin as on its own box: the plane of a line's points is then exactly undetermined,
+    # not a rounding away from it
+    mosaic = np.full(ids.size, -1, np.int64)
+    mr, mc = np.zeros(ids.size, np.int64), np.zeros(ids.size, np.int64)
+    shapes = []
+    for kind in ("row", "column", "box"):
+        sel = np.flatnonzero((h == 1) if kind == "row" else (w == 1) & (h > 1) if kind == "column"
+                             else (h > 1) & (w > 1))
+        if not sel.size:
+            continue
+        room = MOSAIC_CELLS if kind == "row" else 1 if kind == "column" else cols + gap_c
+        m, r, c, mh = pack_boxes(h[sel], w[sel], room, int(halo), gap_c)
+        used = np.zeros(mh.size, np.int64)
+        np.maximum.at(used, m[m >= 0], (c + w[sel])[m >= 0])
+        sizes = list(zip(mh.tolist(), used.tolist()))
+        packed = m >= 0
+        mosaic[sel[packed]] = m[packed] + len(shapes)
+        mr[sel], mc[sel] = r, c
+        shapes += sizes
+    alone = np.flatnonzero(mosaic < 0)
+    cost = np.r_[[a * b for a, b in shapes], (h * w)[alone]].astype(np.float64)
+    ends = np.cumsum(cost) / max(1.0, cost.sum())
+    starts = np.r_[0.0, ends[:-1]]
+    kw = dict(halo=halo, halo_cols=halo_cols, tile_cells=tile_cells, work=work)
+    zf, kf, tf = z.reshape(-1), keep.reshape(-1), test.reshape(-1)
+    # the cells of the packed regions, mosaic after mosaic, and their places in their mosaics
+    packed = np.full(len(boxes) + 1, False)
+    packed[ids] = mosaic >= 0
+    cells = np.flatnonzero(packed[lab]) if shapes else np.zeros(0, np.int64)
+    reg = of[lab[cells]]
+    edge = c0[reg] if sheared is None else sheared[1][np.searchsorted(sheared[0], cells)]
+    order = np.argsort(mosaic[reg], kind="stable")
+    cells, reg, edge = cells[order], reg[order], edge[order]
+    bounds = np.searchsorted(mosaic[reg], np.arange(len(shapes) + 1))
+    del order, sheared
+    for m, shape in enumerate(shapes):
+        report(progress, starts[m])
+        src, rg, e = (a[bounds[m]:bounds[m + 1]] for a in (cells, reg, edge))
+        rr, cc = np.divmod(src, cols)
+        dst = (rr - r0[rg] + mr[rg]) * shape[1] + (cc - e + mc[rg])
+        del rr, cc, rg, e
+        mz = np.zeros(shape, z.dtype)
+        mk, mt = np.zeros(mz.shape, bool), np.zeros(mz.shape, bool)
+        mz.reshape(-1)[dst] = zf[src]
+        mk.reshape(-1)[dst] = kf[src]
+        mt.reshape(-1)[dst] = tf[src]
+        mb = None
+        if below is not None:
+            mb = np.zeros(mz.shape, bool)
+            mb.reshape(-1)[dst] = below.reshape(-1)[src]
+        res = fit_and_snoop(mz, mk, mt, mb, fit, s, k, low_weight, **kw,
+                            progress=sub_progress(progress, starts[m], ends[m]))
+        for o, r in zip((high, low, under), res):
+            o.reshape(-1)[src] = r.reshape(-1)[dst]
+    for j, i in enumerate(alone):
+        a, e = starts[len(shapes) + j], ends[len(shapes) + j]
+        report(progress, a)
+        sl = (slice(int(r0[i]), int(r1[i])), slice(int(c0[i]), int(c1[i])))
+        inside = labels[sl] == ids[i]
+        res = fit_and_snoop(z[sl], keep[sl] & inside, test[sl] & inside, None if below is None else below[sl],
+                            fit, s, k, low_weight, **kw, progress=sub_progress(progress, a, e))
+        for o, r in zip((high, low, under), res):
+            o[sl] |= r
     return high, low, under
 
 

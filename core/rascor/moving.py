@@ -81,7 +81,7 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
             c, t = fwd(cur), fwd(test & cur)
             for _ in range(iterations):
                 hi, lo, below = fit_and_snoop(zz, c, t, below, fit, scale_m, k, low_weight, labels=lab,
-                                               progress=sub_progress(progress, i_fit / n_fits,
+                                               reach_cols=size // 2, progress=sub_progress(progress, i_fit / n_fits,
                                                                      (i_fit + 1) / n_fits))
                 i_fit += 1
                 gone = hi | lo
@@ -156,7 +156,8 @@ def remove_surface_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
                                              progress=part)
         else:
             hi, lo, below = fit_and_snoop(z, cur, test & cur, below, fit, scale_m, k, low_weight,
-                                           halo=sizes[0] // 2, labels=labels, work=work, **tiles, progress=part)
+                                           halo=sizes[0] // 2, labels=labels, reach_cols=sizes[1] // 2, work=work,
+                                           **tiles, progress=part)
         high |= hi
         low |= lo
         cur &= ~(hi | lo)
@@ -188,7 +189,7 @@ def remove_prediction_outliers(z: np.ndarray, cell_size: Union[float, Sequence[f
         return tuple(a[out] for a in fit_at_centre(zz, ww, sizes, 1, kernels=kernels))
 
     hi, lo, _ = fit_and_snoop(z, keep, test, None, fit, scale_m, k, low_weight,
-                               halo=sizes[0] // 2, labels=labels, progress=progress)
+                               halo=sizes[0] // 2, labels=labels, reach_cols=sizes[1] // 2, progress=progress)
     return hi, lo
 
 

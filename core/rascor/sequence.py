@@ -362,7 +362,7 @@ def _step4_level_change(st, cfg, progress):
     steps, upper = find_terrain_steps(st.z, cfg.cell, st.keep, jump_m=_terrain_step_jump(cfg),
                                       max_building_m=cfg.max_building_m, sigma_m=cfg.sigma_m, k=cfg.neighbour_k,
                                       bend_m=cfg.terrain_bend_m, labels=st.labels, z_t=st.transposed(),
-                                      sides=True, join_gap_m=WALL_TOP_GAP_M,
+                                      sides=True, join_gap_m=WALL_TOP_GAP_M, ground_sigma_m=cfg.ground_sigma_m,
                                       progress=sub_progress(progress, 0.6, 1.0))
     if halls is not None and halls.any():
         # a hall's walls are a building's, not the terrain's: the profiles over the points kept
