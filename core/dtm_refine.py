@@ -1550,8 +1550,8 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
 
 
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, pool=None,
-                  progress=None):
+                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, spared=None,
+                  pool=None, progress=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -1585,6 +1585,10 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     along_steps : bool
         The step tops spared include the tops of steps running along a line of ground (:func:`find_step_tops`
         with ``along_slope`` ``s``: beside a house at the back of a narrow terrace; ``bareearth:dtm``: on).
+    spared : ndarray of bool, optional
+        Ground cells the bracketed test leaves as ground (``bareearth:dtm``: the banks :func:`continue_banks`
+        gave back, whose bump test judged them against the ground on both sides of all four lines; the edge
+        test and the raised band still read them).
     pool : Executor, optional
         Threads that may take some of the bands and chunks of cells of :func:`seen_ground_gradient`,
         :func:`find_bracketed` and :func:`~.fill.find_edge_spikes`; the same result without.
@@ -1630,6 +1634,10 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
                           **along)
     report(progress, 0.5)
     out &= ~tops
+    if spared is not None:
+        # cells already judged along all four lines (bareearth:dtm: the banks, continue_banks' bump test), which
+        # the two sides of one line do not overrule
+        out &= ~np.asarray(spared, bool)
     new = mask.copy()
     new[out] = OBJECT
     # 2. the ground at the objects' edges standing above every straight continuation of the ground

@@ -1633,3 +1633,23 @@ def test_bracketed_with_the_planes_asked_where_needed_keeps_the_bumps_just_above
                             seen_gradient_of=lambda at: dr.seen_ground_gradient(z, ground, cell, reach, at=at))
     assert whole.sum() > 0.5 * bumps.sum()
     np.testing.assert_array_equal(got, whole)
+
+
+def test_refine_ground_spares_the_given_cells_from_every_test():
+    """The cells ``spared`` (``bareearth:dtm``: the banks continue_banks gave back) are left by the bracketed
+    test: a narrow dike 2.4 m high (a crest of two cells, sharp at 2 m cells) is bracketed by the fields on both
+    sides of the line across it, as a bush is; the bush on the fields is still taken."""
+    z = _dike(15, 40, [0, 0, 0, 0, 0, 1.2, 2.4, 2.4, 1.2, 0, 0, 0, 0, 0, 0])
+    z[12, 20] = 1.0                                  # a bush 1 m high on the fields
+    mask = np.zeros(z.shape, np.uint8)
+    cell = (2.0, 2.0)
+    taken, _ = dr.refine_ground(z, mask, cell, tolerance_m=0.5, slope=0.05, edge_tolerance_m=0.3)
+    dike = z > 0
+    dike[12, 20] = False
+    assert (taken[dike] == OBJECT).mean() > 0.9          # without the sparing the dike is cut
+    assert taken[12, 20] == OBJECT
+    kept, _ = dr.refine_ground(z, mask, cell, tolerance_m=0.5, slope=0.05, edge_tolerance_m=0.3, spared=dike)
+    assert (kept[dike] == GROUND).all()
+    assert kept[12, 20] == OBJECT
+    # only the spared cells differ
+    np.testing.assert_array_equal(kept[~dike], taken[~dike])
