@@ -34,6 +34,16 @@ applied to the vote's ground cells only and made safe for terrain the vote got r
   where the floors' slope allowance stays within three decision thresholds; 12 m on steep
   terrain, about 40 m on the flat opengeos and ISPRS 21 land.
 
+A long feature of the ground is bracketed across its width only (issue 13, ``benchmarks/sites.py``: a railway
+platform 1 m high and 6-10 m wide between tracks, a dike's crest, an embankment's; at 2 m the bracketed test took
+most of the platforms and the vote had kept them): along its length the ground continues it at its own level or
+grade, which no bush or car has (it stands above the chord of the ground around it along every line). A bracketed
+cell on a straight line of ground running :data:`LEVEL_LINE_M` both ways, at least :data:`LEVEL_LINE_CELLS` cells,
+every cell within ``dh`` of the chord between its ends (:func:`find_level_lines`), stays ground. The banks
+:func:`continue_banks` gave back are left by the bracketed test too (``spared``): its bump test judged them
+against the ground on both sides of all four lines. Figures at ``bareearth:dtm``'s :data:`~.dtm.LEVEL_LINES` and
+:data:`~.dtm.SPARE_BANKS`.
+
 The upper edge of a step in the ground (a retaining wall's top beside a house at the back of a narrow
 terrace, a quarry bench's, a platform's) is neither test's object (issue 13, ``benchmarks/sites.py``: on
 the ``hillside`` at 2 m the edge test took 374 cells and the bracketed test 0 objects among them, on the
@@ -369,6 +379,16 @@ SPREAD_SIGMAS = 3.0
 #: Reach of :func:`find_step_tops` in cells: the line's three cells, and the smoothness test's two cells
 #: (:func:`find_smooth`) around the farthest.
 STEP_TOP_REACH = 5
+#: Half the length of the straight lines of ground that spare a bracketed cell (:func:`find_level_lines`), metres:
+#: half the span over which the refinement's floors tell a bush from the ground (:data:`REACH_M`, Vosselman 2000's
+#: neighbourhood; ``bareearth:dtm``'s bump test of the banks reads as far each side): a line of ground continuing
+#: the cell's level or grade that far both ways is longer than a bush or a car; a platform, a dike's or an
+#: embankment's crest is.
+LEVEL_LINE_M = REACH_M / 2
+#: The fewest cells of such a line on each side of the cell: three, the straight continuation :func:`continue_lines`
+#: and :func:`find_step_tops` ask of the ground (on coarse grids a line of one or two cells each side is the
+#: smoothness test's evidence, not a long feature's: ``autzen-thin`` 4 and 5 m +0.33 / +0.26 points).
+LEVEL_LINE_CELLS = 3
 #: The least slope of the floors along the seen ground (:func:`find_bracketed`'s ``seen_gradient``), in
 #: decision thresholds per reach: the difference of two heights a reach apart, each within ``dh``.
 NOISE_SLOPE_SIGMAS = 2 ** 0.5
@@ -1549,9 +1569,99 @@ def _bracketed_band(z, ground, a, b, halo, steps, slope, height_m, dx, dy, out, 
     out[a:b] = hit & ground[a:b] & np.isfinite(zt)
 
 
+def find_level_lines(z, ground, cells, cell_size, *, tolerance_m, reach_m=REACH_M, min_cells=1):
+    """The ``cells`` on a straight line of ground running the floors' reach both ways (bool, same shape).
+
+    A cell is on such a line when, along a row, a column or a diagonal, the ``n = round(reach / |d|)`` cells on
+    each side of it (:func:`refine_steps`, the floors' own lengths; at least ``min_cells``) are all ``ground`` and
+    every one of these
+    ``2 n + 1`` cells lies within ``tolerance_m`` of the chord between the line's two ends: a platform, a dike's
+    or an embankment's crest, a terrace's edge, which continue along their length at their own level or grade
+    (the ground on both sides of them across lies at their foot, on both sides along them at their top). A bush
+    or a car stands above that chord along every line through it (its ends on the ground around); low
+    vegetation on the voted ground is rough along its length.
+
+    Parameters
+    ----------
+    z : ndarray, 2-D float32
+        The DSM (NaN nodata).
+    ground : ndarray of bool
+        The cells a line may run on.
+    cells : ndarray of bool
+        The cells to test (a few: each reads ``4 (2 n + 1)`` cells).
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    tolerance_m : float
+        Largest distance of a line's cell from the chord, metres (> 0).
+    reach_m : float
+        Half the line's length, metres (> 0).
+    min_cells : int
+        The fewest cells of the line on each side (>= 1).
+
+    Returns
+    -------
+    ndarray of bool
+
+    Examples
+    --------
+    A platform 1 m high, three cells wide, along the rows of level ground, and a bush: the platform's cells lie on
+    their rows' level lines, the bush on none.
+
+    >>> z = np.zeros((9, 30), np.float32)
+    >>> z[3:6, 2:28] = 1.0
+    >>> z[7, 15] = 1.0
+    >>> got = find_level_lines(z, np.ones(z.shape, bool), z > 0, (1.0, 1.0), tolerance_m=0.3, reach_m=5.0)
+    >>> bool(got[3:6, 8:22].all()), bool(got[7, 15])
+    (True, False)
+    """
+    z = np.asarray(z, np.float32)
+    ground = np.asarray(ground, bool)
+    cells = np.asarray(cells, bool)
+    if not (z.shape == ground.shape == cells.shape) or z.ndim != 2:
+        raise ValueError(f"z {z.shape}, ground {ground.shape} and cells {cells.shape} must share a 2-D shape.")
+    if not (np.isfinite(tolerance_m) and tolerance_m > 0 and np.isfinite(reach_m) and reach_m > 0):
+        raise ValueError(f"tolerance_m and reach_m must be positive numbers; got {tolerance_m}, {reach_m}.")
+    if int(min_cells) < 1:
+        raise ValueError(f"min_cells must be at least 1; got {min_cells}.")
+    out = np.zeros(z.shape, bool)
+    r, c = cells_of(cells & ground & np.isfinite(z))
+    if r.size == 0:
+        return out
+    rows, cols = z.shape
+    zg = np.where(ground & np.isfinite(z), z, np.float32(np.nan))
+    found = np.zeros(r.size, bool)
+    for (di, dj), n in refine_steps(cell_size, reach_m).items():
+        n = max(n, int(min_cells))
+        todo = np.flatnonzero(~found)
+        if todo.size == 0:
+            break
+        rr, cc = r[todo], c[todo]
+        ends = []
+        for k in (-n, n):
+            ii, jj = rr + k * di, cc + k * dj
+            on = (ii >= 0) & (ii < rows) & (jj >= 0) & (jj < cols)
+            v = np.full(rr.size, np.nan, np.float32)
+            v[on] = zg[ii[on], jj[on]]
+            ends.append(v)
+        ok = np.isfinite(ends[0]) & np.isfinite(ends[1])
+        rise = (ends[1] - ends[0]) / np.float32(2 * n)
+        for k in range(-n + 1, n):
+            if not ok.any():
+                break
+            ii, jj = rr + k * di, cc + k * dj
+            on = ok & (ii >= 0) & (ii < rows) & (jj >= 0) & (jj < cols)
+            v = np.full(rr.size, np.nan, np.float32)
+            v[on] = zg[ii[on], jj[on]]
+            with np.errstate(invalid="ignore"):
+                ok &= np.abs(v - (ends[0] + rise * np.float32(k + n))) <= np.float32(tolerance_m)
+        found[todo[ok]] = True
+    out[r[found], c[found]] = True
+    return out
+
+
 def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, edge_tolerance_m=None,
-                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False, pool=None,
-                  progress=None):
+                  line_tolerance_m=None, band_tolerance_m=None, along_ground=False, along_steps=False,
+                  level_lines=False, spared=None, pool=None, progress=None):
     """The vote's mask with its bracketed ground cells turned into objects.
 
     Parameters
@@ -1585,6 +1695,14 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     along_steps : bool
         The step tops spared include the tops of steps running along a line of ground (:func:`find_step_tops`
         with ``along_slope`` ``s``: beside a house at the back of a narrow terrace; ``bareearth:dtm``: on).
+    level_lines : bool
+        A bracketed cell on a straight line of ground running :data:`LEVEL_LINE_M` both ways within ``dh`` of its
+        chord (:func:`find_level_lines`: a platform, a dike's crest, bracketed across their width only) stays
+        ground (``bareearth:dtm``: on).
+    spared : ndarray of bool, optional
+        Ground cells the bracketed test leaves as ground (``bareearth:dtm``: the banks :func:`continue_banks`
+        gave back, whose bump test judged them against the ground on both sides of all four lines; the edge
+        test and the raised band still read them).
     pool : Executor, optional
         Threads that may take some of the bands and chunks of cells of :func:`seen_ground_gradient`,
         :func:`find_bracketed` and :func:`~.fill.find_edge_spikes`; the same result without.
@@ -1630,6 +1748,14 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
                           **along)
     report(progress, 0.5)
     out &= ~tops
+    if level_lines and out.any():
+        # on a straight line of ground continuing the cell both ways: bracketed across a long feature only
+        out &= ~find_level_lines(z, ground, out, cell_size, tolerance_m=dh, reach_m=min(LEVEL_LINE_M, reach_m),
+                                 min_cells=LEVEL_LINE_CELLS)
+    if spared is not None:
+        # cells already judged along all four lines (bareearth:dtm: the banks, continue_banks' bump test), which
+        # the two sides of one line do not overrule
+        out &= ~np.asarray(spared, bool)
     new = mask.copy()
     new[out] = OBJECT
     # 2. the ground at the objects' edges standing above every straight continuation of the ground

@@ -482,7 +482,9 @@ def test_vote_reads_the_noise_where_low_vegetation_leaves_the_ground_clean(monke
     60 % of two thirds of it: the lower quartile of the ground-level second differences is the vegetation's
     roughness, and 3 x that as the vote's threshold let the vegetation pass (ISPRS 11 at 2 m highest point:
     0.37 m read, 0.18 m on the lowest point of the same returns). The vote takes the noise of the cleanest
-    quarter of the tiles (``sigma_cleanest``): the threshold falls to the floor, the vegetation is objects."""
+    quarter of the tiles (``sigma_cleanest``): the threshold falls to the floor, the vegetation is mostly objects
+    (30 % kept: 29.5 % before the banks given back were spared by the refinement's bracketed test, dtm.SPARE_BANKS,
+    which keeps the vegetation that stage took for a bank; 42-50 % with the whole window's noise)."""
     from bare_earth.core import estimate as est
     from bare_earth.core.estimate import noise_ground_level
     rng = np.random.default_rng(0)
@@ -497,7 +499,7 @@ def test_vote_reads_the_noise_where_low_vegetation_leaves_the_ground_clean(monke
     params = pipeline.resolve_params("dtm", z, (1.0, 1.0), {})
     assert params["tolerance_m"] == dtm_method.MIN_TOLERANCE_M < 3.0 * got["sigma"]
     res = pipeline.run_array("dtm", z, (1.0, 1.0), {})
-    assert np.mean(res.mask[veg] == GROUND) < 0.3 and np.mean(res.mask[~veg] != GROUND) < 0.01
+    assert np.mean(res.mask[veg] == GROUND) < 0.32 and np.mean(res.mask[~veg] != GROUND) < 0.01
     # read on the whole window (the tiles ignored): threshold 3 x 0.22 m, half the vegetation kept
     real = est._noise_ground_level
     monkeypatch.setattr(est, "_noise_ground_level", lambda *a: {**real(*a), "sigma_cleanest": float("nan")})
@@ -584,3 +586,41 @@ def test_banks_stage_keeps_shrubs_by_the_bump_test_of_the_grounds_spread(monkeyp
     assert seen["bump_m"] == pytest.approx(want) and 0 < want <= p["tolerance_m"]
     assert seen["bump_cells"] == min(seen["reach_cells"], round(0.5 * dtm_method.BUMP_SPAN_M / 2.0))
     assert f"{want:.3f} m above the ground interpolated" in res.info["banked_ground_rule"]
+
+
+def test_banks_given_back_are_spared_by_the_refinement(monkeypatch):
+    """The ``embankment`` site at 2 m (lowest point): a dike 2-3 m high with a crest of 3-5 m and a road
+    embankment, which every member rejects. The banks continue_banks gives back (smooth, joined to the ground
+    no steeper than earth stands, long, no bump on any of their four lines) are what the refinement's one-line
+    tests would take back: a bank is bracketed by the fields on both sides of it, as a bush is. dtm spares them
+    (SPARE_BANKS): the ground lost falls by a tenth, the objects kept do not grow."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("embankment", 2.0, "lowest", seed=0)
+    valid = s.mask != NODATA
+    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    monkeypatch.setattr(dtm_method, "SPARE_BANKS", False)
+    before = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    truth_ground = valid & (s.mask == GROUND)
+    lost, lost_before = (np.count_nonzero(truth_ground & (m.mask != GROUND)) for m in (res, before))
+    kept, kept_before = (np.count_nonzero(valid & (s.mask != GROUND) & (m.mask == GROUND)) for m in (res, before))
+    assert lost < 0.92 * lost_before
+    assert kept <= kept_before + 0.001 * np.count_nonzero(valid)
+
+
+def test_platforms_on_level_lines_stay_ground(monkeypatch):
+    """The ``railway`` site at 2 m (highest point): platforms 1 m high and 6-10 m wide between tracks, 150-250 m
+    long, which the vote keeps and the refinement's bracketed test took (lower ground on both sides across). A
+    bracketed cell on a straight line of ground running LEVEL_LINE_M both ways (dtm_refine.find_level_lines) is
+    bracketed across a long feature only and stays ground (LEVEL_LINES): the ground lost falls by a third, the
+    objects kept do not grow."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("railway", 2.0, "highest", seed=0)
+    valid = s.mask != NODATA
+    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    monkeypatch.setattr(dtm_method, "LEVEL_LINES", False)
+    before = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    truth_ground = valid & (s.mask == GROUND)
+    lost, lost_before = (np.count_nonzero(truth_ground & (m.mask != GROUND)) for m in (res, before))
+    kept, kept_before = (np.count_nonzero(valid & (s.mask != GROUND) & (m.mask == GROUND)) for m in (res, before))
+    assert lost < 0.67 * lost_before
+    assert kept <= kept_before + 0.001 * np.count_nonzero(valid)

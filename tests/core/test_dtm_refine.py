@@ -851,6 +851,8 @@ def test_find_step_tops_exact():
     assert not dr.find_step_tops(nan, ground, ground, tolerance_m=0.5).any()
     with pytest.raises(ValueError, match="tolerance_m"):
         dr.find_step_tops(z, ground, ground, tolerance_m=0.0)
+    with pytest.raises(ValueError, match="min_cells"):
+        dr.find_level_lines(z, z == 0, z == 0, (1.0, 1.0), tolerance_m=0.3, min_cells=0)
     with pytest.raises(ValueError, match="shape"):
         dr.find_step_tops(z, ground[:3], ground, tolerance_m=0.5)
 
@@ -947,6 +949,8 @@ def test_raised_band_exact_on_a_tilted_plane():
     assert not dr.find_raised_band(lone, obj, (1.0, 1.0), tolerance_m=0.2, height_m=0.5).any()
     with pytest.raises(ValueError, match="tolerance_m"):
         dr.find_raised_band(z, objects, (1.0, 1.0), tolerance_m=0.0, height_m=0.5)
+    with pytest.raises(ValueError, match="min_cells"):
+        dr.find_level_lines(z, z == 0, z == 0, (1.0, 1.0), tolerance_m=0.3, min_cells=0)
     with pytest.raises(ValueError, match="shape"):
         dr.find_raised_band(z, objects[:, :5], (1.0, 1.0), tolerance_m=0.2, height_m=0.5)
 
@@ -1633,3 +1637,87 @@ def test_bracketed_with_the_planes_asked_where_needed_keeps_the_bumps_just_above
                             seen_gradient_of=lambda at: dr.seen_ground_gradient(z, ground, cell, reach, at=at))
     assert whole.sum() > 0.5 * bumps.sum()
     np.testing.assert_array_equal(got, whole)
+
+
+def test_refine_ground_spares_the_given_cells_from_every_test():
+    """The cells ``spared`` (``bareearth:dtm``: the banks continue_banks gave back) are left by the bracketed
+    test: a narrow dike 2.4 m high (a crest of two cells, sharp at 2 m cells) is bracketed by the fields on both
+    sides of the line across it, as a bush is; the bush on the fields is still taken."""
+    z = _dike(15, 40, [0, 0, 0, 0, 0, 1.2, 2.4, 2.4, 1.2, 0, 0, 0, 0, 0, 0])
+    z[12, 20] = 1.0                                  # a bush 1 m high on the fields
+    mask = np.zeros(z.shape, np.uint8)
+    cell = (2.0, 2.0)
+    taken, _ = dr.refine_ground(z, mask, cell, tolerance_m=0.5, slope=0.05, edge_tolerance_m=0.3)
+    dike = z > 0
+    dike[12, 20] = False
+    assert (taken[dike] == OBJECT).mean() > 0.9          # without the sparing the dike is cut
+    assert taken[12, 20] == OBJECT
+    kept, _ = dr.refine_ground(z, mask, cell, tolerance_m=0.5, slope=0.05, edge_tolerance_m=0.3, spared=dike)
+    assert (kept[dike] == GROUND).all()
+    assert kept[12, 20] == OBJECT
+    # only the spared cells differ
+    np.testing.assert_array_equal(kept[~dike], taken[~dike])
+
+
+def test_find_level_lines_long_straight_ground_only():
+    """A graded crest (0.1 m a cell) along the rows lies on its level line; a hedge's rough top (+-0.6 m) does not;
+    nor a line cut by a cell that is no ground, nor a bush's cell; only the cells asked are read."""
+    z = np.zeros((12, 40), np.float32)
+    z[2, :] = 1.0 + 0.1 * np.arange(40)                       # a graded crest
+    z[5, :] = 1.0 + 0.6 * (np.arange(40) % 2)                 # a hedge's rough top
+    z[8, :] = 1.0
+    z[10, 20] = 1.0                                           # a bush
+    ground = np.ones(z.shape, bool)
+    ground[8, 25] = False                                     # an object cuts row 8
+    cells = z > 0
+    got = dr.find_level_lines(z, ground, cells, (1.0, 1.0), tolerance_m=0.3, reach_m=5.0)
+    assert got[2, 5:35].all()
+    assert not got[5].any()
+    assert got[8, 5:19].all() and not got[8, 20:31].any() and got[8, 31:35].all()
+    assert not got[10, 20]
+    assert not got[~cells].any()
+    # half a metre of reach at 1 m cells: one cell each side, still a line
+    assert dr.find_level_lines(z, ground, cells, (1.0, 1.0), tolerance_m=0.3, reach_m=0.5)[2, 1:39].all()
+    # at least min_cells each side: a line of one cell each side then cut at three is not long
+    short = dr.find_level_lines(z, ground, cells, (1.0, 1.0), tolerance_m=0.3, reach_m=1.0, min_cells=3)
+    assert short[8, 3:22].all() and not short[8, 22:29].any() and short[8, 29:37].all()
+    # nodata breaks a line
+    zn = z.copy()
+    zn[2, 12] = np.nan
+    assert not dr.find_level_lines(zn, ground, cells, (1.0, 1.0), tolerance_m=0.3, reach_m=5.0)[2, 8:17].any()
+
+
+@pytest.mark.parametrize("kw, match", [({"tolerance_m": 0.0}, "tolerance_m"), ({"reach_m": -1.0}, "reach_m"),
+                                       ({"tolerance_m": float("nan")}, "tolerance_m")])
+def test_find_level_lines_bad_parameters(kw, match):
+    z = np.zeros((5, 5), np.float32)
+    args = {"tolerance_m": 0.3, "reach_m": 2.0, **kw}
+    with pytest.raises(ValueError, match=match):
+        dr.find_level_lines(z, z == 0, z == 0, (1.0, 1.0), **args)
+    with pytest.raises(ValueError, match="min_cells"):
+        dr.find_level_lines(z, z == 0, z == 0, (1.0, 1.0), tolerance_m=0.3, min_cells=0)
+    with pytest.raises(ValueError, match="shape"):
+        dr.find_level_lines(z, np.ones((4, 5), bool), z == 0, (1.0, 1.0), tolerance_m=0.3)
+
+
+def test_refine_ground_level_lines_keep_a_platform_and_take_a_bush():
+    """A railway platform 1.2 m high and four cells wide between tracks, along the rows (2 m cells, noise 5 cm):
+    the bracketed test takes it (lower ground on both sides across); on a straight line of ground running
+    LEVEL_LINE_M both ways (level_lines) it stays ground; a bush beside it is still taken, and the blocks equal
+    one pass."""
+    z = np.random.default_rng(0).normal(0.0, 0.05, (20, 60)).astype(np.float32)
+    z[8:12, 5:55] += 1.2
+    z[15, 30] += 1.0                                          # a bush
+    mask = np.zeros(z.shape, np.uint8)
+    kw = dict(tolerance_m=0.5, slope=0.02, edge_tolerance_m=0.3)
+    taken, _ = dr.refine_ground(z, mask, (2.0, 2.0), **kw)
+    assert (taken[8:12, 10:50] == OBJECT).mean() > 0.9
+    kept, _ = dr.refine_ground(z, mask, (2.0, 2.0), level_lines=True, **kw)
+    assert (kept[8:12, 10:50] == GROUND).all()
+    assert kept[15, 30] == OBJECT
+    halo = dr.refine_halo((2.0, 2.0))
+
+    def run(rows, cols):
+        zb = z[rows, cols]
+        return dr.refine_ground(zb, np.zeros(zb.shape, np.uint8), (2.0, 2.0), level_lines=True, **kw)[0]
+    np.testing.assert_array_equal(in_blocks(run, z.shape, 7, halo), kept)
