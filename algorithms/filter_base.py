@@ -989,9 +989,10 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
-        from ..core.pipeline import check_cell_size
+        from ..core.pipeline import check_cell_size, check_relief_file
         try:
             check_cell_size(info.cell_size_m)
+            check_relief_file(info)      # heights far steeper than any terrain: refused here, not after Run
         except ValueError as exc:
             return False, str(exc)
         user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
