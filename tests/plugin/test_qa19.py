@@ -51,3 +51,25 @@ def test_points_far_steeper_than_terrain_refused_in_the_check(qgis_app, tmp_path
             assert not ok and "(INPUT_POINTS): the heights span" in msg and "cell size is probably wrong" in msg, msg
         else:
             assert ok, msg
+
+
+@pytest.mark.parametrize("alg", ["bareearth:slopeprofile", "bareearth:dtm"])
+def test_classic_tiff_over_4_gb_refused_in_the_check(qgis_app, tmp_path, alg):
+    """CREATE_OPTIONS BIGTIFF=NO for a DTM of 33000 x 33000 cells (4.36 GB of Float32) passed the dialog's check
+    and failed once written (compressed: when its data passed 4 GB, after the work). Refused by the check,
+    naming the output and the fix; without BIGTIFF=NO it passes."""
+    from osgeo import gdal
+    path = str(tmp_path / "big.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 33000, 33000, 1, gdal.GDT_Float32,
+                                              ["TILED=YES", "SPARSE_OK=TRUE", "COMPRESS=DEFLATE", "BIGTIFF=YES"])
+    ds.SetGeoTransform((500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0))
+    ds.GetRasterBand(1).SetNoDataValue(-9999.0)
+    ds.GetRasterBand(1).WriteArray(np.linspace(100.0, 110.0, 1024 * 1024, dtype=np.float32).reshape(1024, 1024),
+                                   16000, 16000)
+    ds = None
+    params = {"INPUT": path, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    ok, msg = _check(alg, {**params, "CREATE_OPTIONS": "BIGTIFF=NO"})
+    assert not ok and "(OUTPUT_DTM): the output" in msg and "holds 4.36 GB uncompressed" in msg \
+        and "give BIGTIFF=YES" in msg, msg
+    ok, msg = _check(alg, {**params, "CREATE_OPTIONS": "BIGTIFF=YES|COMPRESS=ZSTD"})
+    assert ok, msg
