@@ -1012,9 +1012,11 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
-        from ..core.pipeline import check_cell_size, check_relief_file
+        from ..core.pipeline import check_cell_size, check_process_reach, check_relief_file
         try:
             check_cell_size(info.cell_size_m)
+            if parameters.get(self.PROCESSES) not in (None, ""):
+                check_process_reach(info.path, self.parameterAsInt(parameters, self.PROCESSES, context))
             check_relief_file(info)      # heights far steeper than any terrain: refused here, not after Run
         except ValueError as exc:
             return False, str(exc)

@@ -707,6 +707,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     check_run_counts(block, workers, processes)
     info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
     check_cell_size(info.cell_size_m)
+    check_process_reach(info.path, processes)
     for target in outputs.values():
         if target:
             grid.check_output_cells(target, info.geotransform)
@@ -726,6 +727,17 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     finally:
         if pool is not None:
             pool.shutdown(wait=False)
+
+
+def check_process_reach(path, processes=1):
+    """ValueError, before any work, when worker ``processes`` (more than one) could not open the raster
+    ``path``: one in GDAL's memory of this process (``/vsimem/``, a layer another plugin or script made
+    there) exists for this process alone; its workers failed reading it once the parameters were derived
+    ("No such file or directory ... may be truncated or corrupt")."""
+    if int(processes) > 1 and str(path).replace("\\", "/").startswith("/vsimem/"):
+        raise ValueError(f"the raster {str(path)!r} lives in this process's memory (GDAL's /vsimem/), which "
+                         f"worker processes cannot read: run it with PROCESSES = 1 (the threads still share the "
+                         "work), or save it to a file first (gdal_translate, or Export > Save As).")
 
 
 def check_run_counts(block=None, workers=1, processes=1):

@@ -1232,3 +1232,25 @@ def test_relief_of_a_file_checked_as_the_run_checks_it(tmp_path, monkeypatch):
     info = grid.open_dsm(write(tmp_path, hollow, name="hollow.tif", nodata=-9999.0,
                                gt=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001)))
     assert pipeline.check_relief_file(info) is None
+
+
+def test_raster_in_gdal_memory_refused_with_worker_processes(tmp_path):
+    """QA 19: a raster in GDAL's memory of the process (/vsimem/, a layer a script or plugin made there) run with
+    PROCESSES=2 failed in the workers once the parameters were derived ("No such file or directory ... may be
+    truncated or corrupt"). Refused before any work naming /vsimem/ and the fix; one process runs it."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (300, 300), seed=1).dsm
+    src = "/vsimem/qa19-dsm.tif"
+    gdal.Translate(src, write(tmp_path, z))
+    try:
+        outs = outputs(tmp_path, "mask", "dtm")
+        calls = []
+        with pytest.raises(ValueError, match=r"'/vsimem/qa19-dsm\.tif' lives in this process's memory.*"
+                                             r"PROCESSES = 1"):
+            pipeline.run_file("morphological", src, outs, processes=2, block=128,
+                              progress=lambda f: calls.append(f))
+        assert not calls and not os.path.exists(outs["mask"])
+        pipeline.run_file("morphological", src, outs, processes=1, block=128)
+        assert os.path.exists(outs["mask"])
+    finally:
+        gdal.Unlink(src)

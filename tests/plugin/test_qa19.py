@@ -73,3 +73,27 @@ def test_classic_tiff_over_4_gb_refused_in_the_check(qgis_app, tmp_path, alg):
         and "give BIGTIFF=YES" in msg, msg
     ok, msg = _check(alg, {**params, "CREATE_OPTIONS": "BIGTIFF=YES|COMPRESS=ZSTD"})
     assert ok, msg
+
+
+def test_layer_in_gdal_memory_with_worker_processes_refused_in_the_check(qgis_app, tmp_path):
+    """A layer whose source is in GDAL's memory (/vsimem/) ran with PROCESSES=2 and failed in the workers once
+    the parameters were derived, calling the raster "truncated or corrupt". Refused by the check; PROCESSES=1
+    passes."""
+    from osgeo import gdal
+    from qgis.core import QgsRasterLayer
+
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.synthetic import make_scene
+    src = "/vsimem/qa19-layer.tif"
+    gdal.Translate(src, write_array(tmp_path / "dsm.tif", make_scene("city", (120, 120), seed=1).dsm,
+                                    (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), 32632))
+    try:
+        layer = QgsRasterLayer(src, "in memory")
+        assert layer.isValid()
+        params = {"INPUT": layer, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+        ok, msg = _check("bareearth:slopeprofile", {**params, "PROCESSES": 2})
+        assert not ok and "lives in this process's memory (GDAL's /vsimem/)" in msg and "PROCESSES = 1" in msg, msg
+        ok, msg = _check("bareearth:slopeprofile", {**params, "PROCESSES": 1})
+        assert ok, msg
+    finally:
+        gdal.Unlink(src)
