@@ -97,3 +97,25 @@ def test_layer_in_gdal_memory_with_worker_processes_refused_in_the_check(qgis_ap
         assert ok, msg
     finally:
         gdal.Unlink(src)
+
+
+def test_survey_far_steeper_than_terrain_refused_in_the_check(qgis_app, tmp_path):
+    """bareearth:tiles: four tiles of a city at 1 mm cells passed the dialog's check and were refused by
+    run_survey after Run. Refused by the check now; at 1 m they pass."""
+    pytest.importorskip("distributed")
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (120, 120), seed=1).dsm
+    for cell, refused in ((0.001, True), (1.0, False)):
+        paths = []
+        for k, (r, c) in enumerate(((0, 0), (0, 60), (60, 0), (60, 60))):
+            paths.append(str(write_array(tmp_path / f"t{cell:g}_{k}.tif", z[r:r + 60, c:c + 60],
+                                         (500000.0 + c * cell, cell, 0.0, 5400000.0 - r * cell, 0.0, -cell), 32632)))
+        ok, msg = _check("bareearth:tiles", {"INPUT_LAYERS": paths, "METHOD": 0,
+                                             "OUTPUT_FOLDER": str(tmp_path / f"out{cell:g}")})
+        if refused:
+            assert not ok and "times the diagonal of the 120 x 120 cells of 0.001 x 0.001 m" in msg \
+                and "(in the whole survey (120 x 120 cells))" in msg, msg
+        else:
+            assert ok, msg
+        assert not (tmp_path / f"out{cell:g}").exists()
