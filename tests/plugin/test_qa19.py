@@ -53,7 +53,7 @@ def test_points_far_steeper_than_terrain_refused_in_the_check(qgis_app, tmp_path
             assert ok, msg
 
 
-@pytest.mark.parametrize("alg", ["bareearth:slopeprofile", "bareearth:dtm"])
+@pytest.mark.parametrize("alg", ["bareearth:slopeprofile", "bareearth:dtm", "bareearth:filldtm"])
 def test_classic_tiff_over_4_gb_refused_in_the_check(qgis_app, tmp_path, alg):
     """CREATE_OPTIONS BIGTIFF=NO for a DTM of 33000 x 33000 cells (4.36 GB of Float32) passed the dialog's check
     and failed once written (compressed: when its data passed 4 GB, after the work). Refused by the check,
@@ -68,8 +68,11 @@ def test_classic_tiff_over_4_gb_refused_in_the_check(qgis_app, tmp_path, alg):
                                    16000, 16000)
     ds = None
     params = {"INPUT": path, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    key = "OUTPUT_DTM"
+    if alg == "bareearth:filldtm":
+        params, key = {"INPUT": path, "FILL_NODATA": True, "OUTPUT": str(tmp_path / "d.tif")}, "OUTPUT"
     ok, msg = _check(alg, {**params, "CREATE_OPTIONS": "BIGTIFF=NO"})
-    assert not ok and "(OUTPUT_DTM): the output" in msg and "holds 4.36 GB uncompressed" in msg \
+    assert not ok and f"({key}): the output" in msg and "holds 4.36 GB uncompressed" in msg \
         and "give BIGTIFF=YES" in msg, msg
     ok, msg = _check(alg, {**params, "CREATE_OPTIONS": "BIGTIFF=YES|COMPRESS=ZSTD"})
     assert ok, msg
