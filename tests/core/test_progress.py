@@ -185,3 +185,64 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
         assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
     fractions = [e for e in events if isinstance(e, float)]
     assert fractions == sorted(fractions)
+
+
+def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
+    """QA 19: after combining its axes, slopeprofile ran the walled regions, the runs joined to the terrain,
+    the platforms, the ramps and the unwalled levels without a report: the longest gap of its run on 16 Mcells
+    (17 s under load, from 78 to 80 % of the filter); a cancel waited as long. Each of these stages is now
+    followed by a report (the two ramps' scans by one), the fractions rising; the mask is the one without a
+    callback."""
+    from bare_earth.core import slope_profile
+    events = []
+    for name in ("_walled_regions", "_joined_to_terrain", "_platforms", "_ramps", "_level_unwalled"):
+        f = getattr(slope_profile, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(slope_profile, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("slopeprofile")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["_walled_regions", "_joined_to_terrain", "_platforms", "_platforms",
+                                          "_ramps", "_ramps", "_joined_to_terrain", "_level_unwalled"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        if not (j < len(events) and events[i] == events[j] == "_ramps"):
+            assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_geodesic_dilation_step_reports_after_its_fine_regions(monkeypatch):
+    """QA 19: the tail of a geodesic dilation step (the walled pieces, the fine regions of blocks too wide,
+    the fine outline) ran without a report after its 0.95: inside bareearth:dtm on 16 Mcells, its members
+    sharing the cores, the longest gap of the run (14 s under load); a cancel waited as long. A report now
+    follows each of them, the fractions rising; the mask is the one without a callback."""
+    from bare_earth.core.geodesic import dilation
+    events = []
+    for name in ("_walled_pieces", "_fine_regions", "_fine_outline"):
+        f = getattr(dilation, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(dilation, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("geodesic")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert "_fine_regions" in [events[i] for i in named]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
