@@ -454,12 +454,15 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                                 min_object_height_m=min_object_height_m, spacing_m=spacing_m,
                                 progress=sub_progress(progress, 0.0, 0.75))
     if tolerance_m is None:
-        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 1.0))["sigma"]
+        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 0.85))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
+    report(progress, 0.85)
     if terrain_slope is None:
         terrain_slope = steep_terrain_slope(z, (dx, dy))
+        report(progress, 0.9)
     if max_object_size_m is None:
         max_object_size_m = object_size(z, (dx, dy), float(min_object_height_m))
+        report(progress, 1.0)
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),
