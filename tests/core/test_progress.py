@@ -272,3 +272,29 @@ def test_curvature_derivation_reports_after_its_slope_and_object_size(monkeypatc
         assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
     fractions = [e for e in events if isinstance(e, float)]
     assert fractions == sorted(fractions)
+
+
+def test_curvature_object_size_reports_between_its_estimates(monkeypatch):
+    """QA 19: curvature's largest object (object_size: the block minima, the raised regions on them and on their
+    opening, the walled span) took 20 s on 16 Mcells under load without a report. A report now follows each
+    estimate; the size unchanged."""
+    from bare_earth.core.curvature import method as curvature
+    events = []
+    for name in ("raised_region_grid", "raised_region_window", "square_opening"):
+        f = getattr(curvature, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(curvature, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    base = curvature.object_size(z, (1.0, 1.0), 2.5)
+    events.clear()
+    assert curvature.object_size(z, (1.0, 1.0), 2.5, progress=events.append) == base
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["raised_region_grid", "raised_region_window", "square_opening",
+                                          "raised_region_window"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    assert events[-1] != events[named[-1]] and [e for e in events if isinstance(e, float)] == sorted(
+        e for e in events if isinstance(e, float))
