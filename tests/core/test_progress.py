@@ -298,3 +298,31 @@ def test_curvature_object_size_reports_between_its_estimates(monkeypatch):
         assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
     assert events[-1] != events[named[-1]] and [e for e in events if isinstance(e, float)] == sorted(
         e for e in events if isinstance(e, float))
+
+
+def test_rascor_reports_between_its_spared_ground_stages(monkeypatch):
+    """QA 19: after its last surface fit, RASCOR gave back continuing ground, ramps and slope breaks without a
+    report (with the fit's tail, 7.6 s on 16 Mcells under load; a cancel there waited 9 s). A report now
+    precedes and follows each; the mask unchanged."""
+    from bare_earth.core.rascor import sequence
+    events = []
+    for name in ("_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"):
+        f = getattr(sequence, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(sequence, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("rascor")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
