@@ -14,6 +14,7 @@ from ..core.fill import fill_gaps
 from .filter_base import (
     BaseAlgorithm,
     check_dsm,
+    check_output_sizes,
     explained,
     format_params,
     open_one_band,
@@ -154,6 +155,9 @@ class FillDtmAlgorithm(BaseAlgorithm):
             info, minfo, codes = self._inputs(parameters, context)
             if minfo is None and not self.parameterAsBool(parameters, self.FILL_NODATA, context):
                 return False, tr("Nothing to fill: give a MASK, or set FILL_NODATA.")
+            ok, msg = check_output_sizes(self, parameters, context, info.shape)
+            if not ok:
+                return ok, msg
             if minfo is not None:
                 known = np.isfinite(info.read()) & ~np.isin(grid.read_mask(minfo, "The mask (MASK)"), codes)
                 if not known.any():

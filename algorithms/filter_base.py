@@ -12,7 +12,7 @@ import os
 import re
 
 import numpy as np
-from osgeo import gdal
+from osgeo import gdal, gdal_array
 from qgis.core import (
     QgsProcessing,
     QgsProcessingAlgorithm,
@@ -291,6 +291,29 @@ def options_not_used(alg, parameters, cog):
         lines.append(tr("{} is written as {} ({}): {} to GeoTIFF outputs (.tif) only and {} not "
                         "used for it.").format(label_of(d), grid.OUTPUT_FORMATS[ext][2], ext, what, are))
     return lines
+
+
+def check_output_sizes(alg, parameters, context, shape, dtypes=None):
+    """(ok, message): :func:`grid.check_tiff_size` of each raster output given of an algorithm with
+    CREATE_OPTIONS, on ``shape`` cells (``dtypes``: {output id: GDAL type name}, default Float32): options
+    keeping a GeoTIFF classic (BIGTIFF=NO) over 4 GB are refused here, not when the output is written."""
+    if alg.parameterDefinition(CREATE_OPTIONS) is None:
+        return True, ""
+    cog = bool(alg.parameterDefinition(COG)) and alg.parameterAsBool(parameters, COG, context)
+    try:
+        opts = grid.parse_creation_options(alg.parameterAsString(parameters, CREATE_OPTIONS, context), cog=cog)
+    except ValueError:
+        return True, ""      # checkOutputs refuses them, naming the option
+    for d in alg.destinationParameterDefinitions():
+        path = destination_path(parameters, d.name()) if d.type() == "rasterDestination" else None
+        if not path:
+            continue
+        try:
+            grid.check_tiff_size(path, shape, alg.outputBands(d.name()), (dtypes or {}).get(d.name(), "Float32"),
+                                 opts, cog)
+        except ValueError as exc:
+            return False, "{}: {}".format(label_of(d), exc)
+    return True, ""
 
 
 def check_window_sizes(alg, values, defaults, info):
@@ -989,14 +1012,24 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
-        from ..core.pipeline import check_cell_size
+        from ..core.pipeline import check_cell_size, check_process_reach, check_relief_file
         try:
             check_cell_size(info.cell_size_m)
+            if parameters.get(self.PROCESSES) not in (None, ""):
+                check_process_reach(info.path, self.parameterAsInt(parameters, self.PROCESSES, context))
+            check_relief_file(info)      # heights far steeper than any terrain: refused here, not after Run
         except ValueError as exc:
             return False, str(exc)
         user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
         ok, msg = check_window_sizes(self, user, {p.name.upper(): (p.default, *p.former_defaults)
                                                   for p in self.method.params}, info)
+        if not ok:
+            return False, msg
+        types = {"OUTPUT_MASK": "Byte"}
+        for k, (dt, _bands, _nodata) in self.method.extras.items():
+            code = gdal_array.NumericTypeCodeToGDALTypeCode(np.dtype(dt).type)
+            types[f"OUTPUT_{k.upper()}"] = gdal.GetDataTypeName(code)
+        ok, msg = check_output_sizes(self, parameters, context, info.shape, types)
         if not ok:
             return False, msg
         return self.checkExtraInputs(parameters, context, info)

@@ -638,6 +638,10 @@ class PointsInputMixin:
         if cell:
             pf.check_grid_cells(len(cloud), w, h, c, whole=False)
         check_width(cloud, c, (sx, sy), self.INPUT_POINTS)
+        try:       # heights far steeper than any terrain: refused here, not after the points are rasterized
+            pf.check_points_relief(cloud, c, (sx, sy, pf.axis_scales(cloud)[2]))
+        except ValueError as exc:
+            raise ValueError(f"{self.INPUT_POINTS}: {exc}") from None
         user = self._user_params(parameters, context)
         defaults = {p.name: p.default for p in self.method.params}
         extent_m = max(w, h)

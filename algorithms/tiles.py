@@ -160,7 +160,15 @@ class TilesAlgorithm(BaseAlgorithm):
         ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
             return ok, msg
-        from ..core.survey import INSTALL_HINT, check_output_folder, engine, have_dask, index_tiles, parse_params
+        from ..core.survey import (
+            INSTALL_HINT,
+            check_output_folder,
+            check_survey_relief,
+            engine,
+            have_dask,
+            index_tiles,
+            parse_params,
+        )
         if not have_dask():
             return False, tr(INSTALL_HINT)
         try:
@@ -172,6 +180,7 @@ class TilesAlgorithm(BaseAlgorithm):
                 engine.check_workers(self.parameterAsInt(parameters, self.WORKERS, context))
             inputs = self._inputs(parameters, context)
             index = index_tiles(inputs)
+            check_survey_relief(index)   # heights far steeper than any terrain: refused here, not after Run
             out_dir = self.parameterAsString(parameters, self.OUTPUT_FOLDER, context)
             if out_dir:
                 check_output_folder(index, out_dir, inputs)

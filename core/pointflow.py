@@ -40,7 +40,7 @@ from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import is_rotated, report, sub_progress
 from .estimate import lowest_point_spread
 from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
-from .pipeline import as_method, resolve_params, run_array
+from .pipeline import as_method, check_relief, resolve_params, run_array
 from .pointfiles import POINT_EXTENSIONS, place_points, point_output_path, prepare_points, read_column, read_crs
 from .points import PointCloud, classify_points, nice_cell_size, rasterize_points, read_points, write_points
 
@@ -272,6 +272,20 @@ def check_stray_points(cloud, what="INPUT"):
                      "of it would be empty cells copying their nearest point's height, and the default cell size "
                      "would follow the empty space. Remove those stray points (e.g. the LAS noise classes 7 and 18, "
                      "or a bad record at 0, 0) or clip the file to the survey's area.")
+
+
+def check_points_relief(cloud, cell_m, scales=None):
+    """:func:`.pipeline.check_relief` of the grid a cloud is rasterized on (cells of ``cell_m`` metres over
+    its extent), from the points' heights, for the checks before a run (the run checks the grid itself):
+    ValueError when the heights span more than ``MAX_RELIEF_RATIO`` times the extent's diagonal (coordinates
+    in mm read as m, a CRS in another unit than the points'); the warning or None. ``scales``: the
+    cloud's :func:`axis_scales` when known."""
+    sx, sy, sz = axis_scales(cloud) if scales is None else scales
+    if len(cloud.z) < 2:
+        return None
+    x0, y0, x1, y1 = cloud.extent
+    shape = (max(1, int(round((y1 - y0) * sy / cell_m))), max(1, int(round((x1 - x0) * sx / cell_m))))
+    return check_relief((np.asarray(cloud.z, np.float64) * sz).reshape(1, -1), cell_m, shape=shape)
 
 
 def check_grid_cells(n_points, width_m, height_m, cell_m, *, what="CELL_SIZE_M", fill_empty=True,

@@ -959,13 +959,16 @@ def _combine_axes(obj_x, obj_y, ok, reach, progress=None, levels=None, decks=Non
         if decks is not None:
             back &= ~decks                     # a bridge's deck stands on walls, not banks
         big &= ~back
+        report(progress, 0.7)
         if levels is not None and big.any():
             # (a crest's extent counts its stretches given back already)
             level = _long_levels(big | back, *levels, reach=reach) & big
             big &= ~level
             back |= level
+            report(progress, 0.8)
         if big.any():
             out |= _local_share_kept(big, both, reach)
+            report(progress, 0.9)
             if levels is not None and back.any():
                 out &= ~_banks_below(back, big, *levels, steps=max(reach) // 2)
     return out
@@ -1467,21 +1470,28 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     # (the raised runs' own extent, without the objects they touch)
     raised = _raised_objects(_combine_axes(raised_x, raised_y, valid & ~low, reach,
                                            sub_progress(progress, 0.75, 0.8)) & ~obj, reach)
+    report(progress, 0.805)
     walled = _walled_regions(raised, obj, zs, wall_m)
+    report(progress, 0.81)
     # ... and not going on level into the terrain (steps within the tolerance)
     walled &= ~_joined_to_terrain(zs, walled, obj | walled, valid & ~low, dh_eff)
     obj |= walled
+    report(progress, 0.82)
     # ... and runs of one axis on a ramp: joined to the ground on both sides along the other
     one = obj & (obj_x ^ obj_y) & ~decks
     ground = ok & ~obj
     # levels of one axis going on into the ground they stand on (platforms), found on the
     # same cells whatever the ramps' test below gives back
     ramp = dh_eff + min(cell) * tan_g
-    level = (_platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
-             | _platforms(zs, one & obj_x, obj, ok, dh_eff, ramp, 0, lag, wall_m))
+    level = _platforms(zs, one & obj_y, obj, ok, dh_eff, ramp, 1, lag, wall_m)
+    report(progress, 0.83)
+    level |= _platforms(zs, one & obj_x, obj, ok, dh_eff, ramp, 0, lag, wall_m)
+    report(progress, 0.84)
     one = (_ramps(zs, one & obj_y, obj, ground, dh_eff + cell[0] * tan_t, 1)
            | _ramps(zs, one & obj_x, obj, ground, dh_eff + cell[1] * tan_t, 0))
+    report(progress, 0.85)
     obj &= ~_joined_to_terrain(zs, one, obj, ok, dh_eff + min(cell) * tan_t)
+    report(progress, 0.86)
     # ... each platform with the rest of its level (not walled: a bridge's deck beyond it)
     obj &= ~level
     obj &= ~_level_unwalled(zs, level, obj, dh_eff, wall_m)
@@ -1489,7 +1499,7 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     # 4. islands of ground on the objects' level: their profiles held no ground to start from
     obj |= _islands_level(zs, obj, ok, dh_eff + min(cell) * tan_t, reach)
     del raised_x, raised_y, zs
-    report(progress, 0.8)
+    report(progress, 0.87)
     # 5. optional refinement against the interpolated ground
     refined, dtm = 0, None
     if refine:

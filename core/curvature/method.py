@@ -386,7 +386,7 @@ def steep_terrain_slope(z, cell_size) -> float:
     return float(np.percentile(s, _STEEP_PERCENTILE)) if s.size else 0.0
 
 
-def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
+def object_size(z: np.ndarray, cell_size: CellSize, height_m: float, progress=None) -> float:
     """The derived longest object, metres: :data:`OBJECT_SIZE_M`, widened to the window of a wider raised
     region standing on walls higher than ``height_m`` (a hall: its profile runs and its enclosed region are
     longer than 100 m, and were ground), :func:`~bare_earth.core.estimate.raised_region_window` (1.25 x its
@@ -406,14 +406,19 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float) -> float:
     both sides of its length (:func:`~bare_earth.core.estimate.raised_region_span_walled`, not running across
     the raster), as the window reaches across a width (``(1.25 span + 2 cells) / LONGEST``): a ring 220 x
     140 m of wings 20 m wide was 0.87 / 0.31 / 0.32 object at 1 / 2 / 4 m, its long wings or its corners
-    ground. A quarry's bench arc, on walls down on one side only, widens nothing."""
+    ground. A quarry's bench arc, on walls down on one side only, widens nothing.
+    ``progress(fraction)`` (optional, may raise ``Cancelled``): after each estimate."""
     zs, cs, _ = raised_region_grid(z, cell_size)
+    report(progress, 0.2)
     window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False)
+    report(progress, 0.4)
     # a building of several heights: its parts are raised regions of their own, each narrower; opened by
     # the square of the default largest object, it stands as one level on walls all round
     opened = square_opening(zs, int(OBJECT_SIZE_M / min(cs)) + 1)
+    report(progress, 0.5)
     window = max(window, raised_region_window(opened, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M,
                                               across=False))
+    report(progress, 0.7)
     # a long narrow building (a ring round a courtyard, a wing): its runs across are short, but its cross
     # profiles run its whole length, which LONGEST largest objects must reach (as a width, with the margin);
     # walls along both sides of its length (not a quarry's bench or a terrace, on walls down on one side)
@@ -454,12 +459,15 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                                 min_object_height_m=min_object_height_m, spacing_m=spacing_m,
                                 progress=sub_progress(progress, 0.0, 0.75))
     if tolerance_m is None:
-        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 1.0))["sigma"]
+        sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 0.85))["sigma"]
         tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
+    report(progress, 0.85)
     if terrain_slope is None:
         terrain_slope = steep_terrain_slope(z, (dx, dy))
+        report(progress, 0.9)
     if max_object_size_m is None:
-        max_object_size_m = object_size(z, (dx, dy), float(min_object_height_m))
+        max_object_size_m = object_size(z, (dx, dy), float(min_object_height_m), sub_progress(progress, 0.9, 1.0))
+        report(progress, 1.0)
     return {"k_g_per_m2": float(k_g_per_m2), "window_cells": window_cells, "model": model,
             "min_object_height_m": float(min_object_height_m),
             "wall_slope_deg": float(wall_slope_deg),

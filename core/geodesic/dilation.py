@@ -209,6 +209,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
         # their cells keep their height in the cleaned surface (R_k = w there), as _fine_regions' do
         pieces = _walled_pieces(w, walled_c, Rc, f, dh0 + tan_s * np.hypot(dx, dy), dh0, dh_k, edge_ratio,
                                 ext_limit, dx, dy)
+        report(progress, 0.92)
     if f == 1:
         return np.concatenate([obj_c, pieces]), np.concatenate([Rcf[obj_c], w.ravel()[pieces]])
     # a fine cell of an object block is removed when its own residual exceeds dh0; there
@@ -224,9 +225,11 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
                              edge_ratio, ext_limit, dx, dy)
         # their cells keep their height in the cleaned surface (R_k = w there): see _fine_regions
         cells, Rk = np.concatenate([cells, more]), np.concatenate([Rk, w.ravel()[more]])
+        report(progress, 0.96)
     if pieces.size:
         cells, Rk = np.concatenate([cells, pieces]), np.concatenate([Rk, w.ravel()[pieces]])
     sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared)
+    report(progress, 0.97)
     return cells[sel], Rk[sel]
 
 

@@ -609,6 +609,40 @@ _GTIFF_OPTIONS = ["TILED=YES", f"BLOCKXSIZE={OUTPUT_TILE}", f"BLOCKYSIZE={OUTPUT
 _COG_OPTIONS = ["COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER", "NUM_THREADS=ALL_CPUS"]
 
 
+#: Uncompressed bytes of a GeoTIFF above which GDAL makes it a BigTIFF by itself when BIGTIFF=IF_NEEDED (the
+#: classic TIFF's 32-bit offsets reach 4 GiB; GDAL keeps room for its directories and tiles' tables).
+CLASSIC_TIFF_BYTES = 4_200_000_000
+
+
+def check_tiff_size(path, shape, bands=1, dtype="Float32", options=(), cog=False):
+    """ValueError, before any work, when the creation options keep a GeoTIFF output of ``shape`` cells of
+    ``bands`` bands of ``dtype`` a classic TIFF (``BIGTIFF=NO``, or ``IF_NEEDED`` with compression: GDAL
+    then never chooses BigTIFF) while its cells hold more than :data:`CLASSIC_TIFF_BYTES` uncompressed:
+    GDAL refuses such a file when it creates it uncompressed, and a compressed one fails when its data
+    passes 4 GB, once the work is done. Other formats and BIGTIFF=YES / IF_SAFER (the default): nothing."""
+    given = {}
+    for o in options or ():
+        key, _, value = str(o).partition("=")
+        given[key.strip().upper()] = value.strip().upper()
+    big = given.get("BIGTIFF")
+    compressed = given.get("COMPRESS", "DEFLATE") != "NONE"
+    if big not in ("NO", "IF_NEEDED") or (big == "IF_NEEDED" and not compressed):
+        return
+    if path and _output_format(path, bands)[0] != "GTiff":
+        return
+    size = float(shape[0]) * float(shape[1]) * int(bands) * gdal.GetDataTypeSize(gdal.GetDataTypeByName(dtype)) / 8
+    if size <= CLASSIC_TIFF_BYTES:
+        return
+    why = ("a classic TIFF holds at most 4 GB" if not compressed else
+           "a classic TIFF holds at most 4 GB and compression may not bring it below (GDAL would fail when "
+           "its data passes 4 GB, once the work is done)")
+    raise ValueError(f"the output {str(path)!r} holds {size / 1e9:.2f} GB uncompressed ({shape[1]} x {shape[0]} "
+                     f"cells of {dtype}{f' x {bands} bands' if bands > 1 else ''}) but the creation options say "
+                     f"BIGTIFF={given['BIGTIFF']}{'' if compressed else ' COMPRESS=NONE'}: {why}. Leave BIGTIFF out "
+                     "(IF_SAFER, the default) or give BIGTIFF=YES" + (" (a cloud-optimised GeoTIFF too)" if cog else "")
+                     + ".")
+
+
 def _integer_predictor(dtype, given):
     """The user's options for an output of ``dtype``: the floating-point predictor asked for the
     Float32 outputs (PREDICTOR=3 or FLOATING_POINT) becomes horizontal differencing on an
@@ -698,6 +732,8 @@ class OutputSet:
             if file_identity(item["path"]) == file_identity(path):
                 raise ValueError(f"the outputs {other!r} and {key!r} have one path {path!r}: give each its own file.")
         drv, _ = _output_format(path, bands)
+        if drv == "GTiff":
+            check_tiff_size(path, self.info.shape, bands, dtype, self._options, self._cog)
         check_output_cells(path, self.info.geotransform)
         check_output_crs(path, self.info.crs_wkt, self.info.geotransform)
         check_replaceable(path)

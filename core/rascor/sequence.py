@@ -374,7 +374,9 @@ def _step4_level_change(st, cfg, progress):
     if st.step_lines:
         lines = steps if st.breaklines is None else steps | st.breaklines
         st.labels, st.n_regions = break_regions(lines, upper if st.breaklines is None else upper & ~st.breaklines)
+        report(progress, 1.0)
         _retest_step3_at_terrain_steps(st, cfg, steps)
+        report(progress, 1.0)
 
 
 def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
@@ -865,9 +867,12 @@ def filter_rascor(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
     last_fit = max((i for i, k in enumerate(plan) if k in (5, 6)), default=None)
     for i, (k, a, b) in enumerate(zip(plan, np.concatenate([[0.0], ends[:-1]]), ends)):
         _STEPS[k](st, cfg, sub_progress(progress, a, b))
-        if i == last_fit:
+        if i == last_fit:        # each followed by a report: seconds on 16 Mcells
+            report(progress, b)
             _spare_continuing_ground(st, cfg)
+            report(progress, b)
             _spare_ramps(st, cfg)
+            report(progress, b)
             _spare_slope_breaks(st, cfg)
         report(progress, b)
     result = _result(st, cfg)

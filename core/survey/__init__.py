@@ -19,8 +19,8 @@ as if they were one raster:
 """
 from .engine import INSTALL_HINT, have_dask, require_dask
 from .index import Tile, TileIndex, index_tiles, list_inputs
-from .run import check_output_folder, parse_params, run_survey
+from .run import check_output_folder, check_survey_relief, parse_params, run_survey
 from .task import output_names
 
-__all__ = ["INSTALL_HINT", "Tile", "TileIndex", "check_output_folder", "have_dask", "index_tiles", "list_inputs",
-           "output_names", "parse_params", "require_dask", "run_survey"]
+__all__ = ["INSTALL_HINT", "Tile", "TileIndex", "check_output_folder", "check_survey_relief", "have_dask",
+           "index_tiles", "list_inputs", "output_names", "parse_params", "require_dask", "run_survey"]

@@ -11,14 +11,16 @@ The mosaics exist only over a complete survey: a run that leaves a tile failed, 
 complete run are removed before any tile is redone), ``run.json`` says ``"complete": false``
 and the log names the tiles missing and how to finish (the same command again).
 """
+import math
 import os
 import re
+import tempfile
 import time
 
 import numpy as np
 
 from .. import grid, pipeline
-from ..common import Cancelled, sub_progress
+from ..common import Cancelled, sub_progress, without_far_heights
 from ..methods import check_values, get_method
 from . import engine, io, plan, record
 from .index import index_tiles
@@ -142,6 +144,31 @@ def read_sample(index, info, max_cells=None):
     if replaced:
         where += f"; {replaced} chosen tile(s) without data at their centre replaced by the nearest with data"
     return z, where
+
+
+def check_survey_relief(index, sample=1_000_000):
+    """:func:`.pipeline.check_relief` of a survey that is its own parameter sample (at most
+    :data:`.plan.SAMPLE_CELLS`: the cells :func:`run_survey` checks), read every ``step``-th cell through a
+    VRT in a temporary folder (at most about ``sample`` cells), for the checks before a run (the algorithm's
+    dialog). ValueError naming the survey as the run does; the warning or None; None for a larger survey
+    (the run checks its sample of crops) or one without data there."""
+    rows, cols = index.shape
+    if rows * cols > plan.SAMPLE_CELLS:
+        return None
+    step = max(1, int(math.ceil(math.sqrt(rows * cols / float(sample)))))
+    with tempfile.TemporaryDirectory(prefix="bare-earth-check-") as folder:
+        vrt = io.build_vrt(os.path.join(folder, SURVEY_VRT), [t.path for t in index.tiles], index.vrt_nodata,
+                           index.tiles[0].unit_type)
+        info = grid.open_dsm(vrt)
+        z, _ = without_far_heights(info.surface(info.read_stored(step=step), None, step))
+        cell = tuple(float(v) for v in info.cell_size_m)
+        info = None          # its dataset closed before the folder goes
+    if not np.isfinite(z).any():
+        return None
+    try:
+        return pipeline.check_relief(z, cell, shape=(rows, cols))
+    except ValueError as e:
+        raise ValueError(f"{e} (in the whole survey ({cols} x {rows} cells))") from None
 
 
 def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=None, progress=None, log=None):

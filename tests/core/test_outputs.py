@@ -600,3 +600,45 @@ def test_output_that_is_the_input_under_another_name_refused(tmp_path):
         pipeline.run_file("morphological", info.path, {"dtm": str(tmp_path / "hard.tif"),
                                                        "mask": str(tmp_path / "m.tif")})
     assert _partials(tmp_path) == [] and not (tmp_path / "m.tif").exists()
+
+
+def test_classic_tiff_over_4_gb_refused_before_work(tmp_path):
+    """QA 19: CREATE_OPTIONS BIGTIFF=NO on an output of more than 4 GB: uncompressed, GDAL refused the file when the
+    output set created it (after the parameters were derived); compressed (or IF_NEEDED, under which GDAL never
+    chooses BigTIFF for a compressed file), it failed when the data passed 4 GB, after the work. Refused before
+    any work, naming the size and the fix; BIGTIFF=YES, IF_SAFER (the default), IF_NEEDED uncompressed (GDAL
+    chooses), a smaller output or another format pass."""
+    big, small = (33000, 33000), (32000, 32000)                # 4.36 and 4.10 GB of Float32
+    out = str(tmp_path / "dtm.tif")
+    for opts in (["BIGTIFF=NO"], ["BIGTIFF=no", "COMPRESS=NONE"], ["COMPRESS=ZSTD", "BIGTIFF=IF_NEEDED"]):
+        with pytest.raises(ValueError, match=r"holds 4\.36 GB uncompressed \(33000 x 33000 cells of Float32\).*"
+                                             r"BIGTIFF=(NO|IF_NEEDED).*give BIGTIFF=YES"):
+            grid.check_tiff_size(out, big, 1, "Float32", opts)
+    for opts in ([], ["BIGTIFF=YES"], ["BIGTIFF=IF_SAFER"], ["BIGTIFF=IF_NEEDED", "COMPRESS=NONE"]):
+        assert grid.check_tiff_size(out, big, 1, "Float32", opts) is None
+    assert grid.check_tiff_size(out, small, 1, "Float32", ["BIGTIFF=NO"]) is None
+    assert grid.check_tiff_size(out, big, 1, "Byte", ["BIGTIFF=NO"]) is None          # a mask: 1.09 GB
+    with pytest.raises(ValueError, match=r"4\.36 GB .* of Byte x 4 bands"):
+        grid.check_tiff_size(out, big, 4, "Byte", ["BIGTIFF=NO"])
+    assert grid.check_tiff_size(str(tmp_path / "dtm.img"), big, 1, "Float32", ["BIGTIFF=NO"]) is None
+    # the output set refuses it before creating any file (run_file adds its outputs before the blocks)
+    src = _sparse_dsm(tmp_path / "in" / "big.tif", big)
+    with grid.write_options(["BIGTIFF=NO"]), pytest.raises(ValueError, match="BIGTIFF=NO"):
+        with grid.OutputSet(grid.open_dsm(src)) as o:
+            o.add("mask", str(tmp_path / "mask.tif"), "Byte")
+            o.add("dtm", out, "Float32")
+    assert sorted(os.listdir(tmp_path)) == ["in"]
+
+
+def _sparse_dsm(path, shape):
+    """A tiled GeoTIFF of ``shape`` cells with data in one 256 x 256 tile at its centre only (a few kB)."""
+    from osgeo import gdal
+    os.makedirs(os.path.dirname(str(path)), exist_ok=True)
+    ds = gdal.GetDriverByName("GTiff").Create(str(path), shape[1], shape[0], 1, gdal.GDT_Float32,
+                                              ["TILED=YES", "SPARSE_OK=TRUE", "COMPRESS=DEFLATE", "BIGTIFF=YES"])
+    ds.SetGeoTransform((500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0))
+    ds.GetRasterBand(1).SetNoDataValue(-9999.0)
+    r, c = shape[0] // 2 // 256 * 256, shape[1] // 2 // 256 * 256
+    ds.GetRasterBand(1).WriteArray(np.linspace(100.0, 110.0, 256 * 256, dtype=np.float32).reshape(256, 256), c, r)
+    ds = None
+    return str(path)

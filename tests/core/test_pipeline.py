@@ -1200,3 +1200,57 @@ def test_relief_ratio_leaves_out_blunders():
     z = np.random.default_rng(0).normal(0.0, 0.1, (64, 64)).astype(np.float32)
     z[:, :6] = -9999.0
     assert pipeline.relief_ratio(z, 1.0) < 0.01
+
+
+def test_relief_of_a_file_checked_as_the_run_checks_it(tmp_path, monkeypatch):
+    """QA 19: check_relief ran only inside run_file, after the dialog had accepted the raster.
+    check_relief_file reads the window run_file derives its parameters from, decimated, and refuses what the
+    run refuses (a city at 1 mm cells), warns at 1 cm, passes at 1 m; a decimated read (at most 200 cells
+    here) gives the whole read's ratio within a few per cent; a central window without data: None (the run
+    takes the data's window)."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (120, 120), seed=1).dsm
+    mm = write(tmp_path, z, name="mm.tif", gt=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001))
+    with pytest.raises(ValueError, match=r"heights span [\d.]+ times the diagonal of the 120 x 120 cells of "
+                                         r"0\.001 x 0\.001 m .*cell size is probably wrong"):
+        pipeline.check_relief_file(grid.open_dsm(mm))
+    cm = write(tmp_path, z, name="cm.tif", gt=(500000.0, 0.01, 0.0, 5400000.0, 0.0, -0.01))
+    assert "steeper than any terrain" in pipeline.check_relief_file(grid.open_dsm(cm))
+    assert pipeline.check_relief_file(grid.open_dsm(write(tmp_path, z, name="m.tif"))) is None
+    info = grid.open_dsm(cm)
+    whole = pipeline.relief_ratio(z, 0.01)
+    rw = pipeline._resolve_window(info.shape)
+    step = 9                                            # ceil(sqrt(14400 / 200))
+    sampled = pipeline.relief_ratio(info.read(rw, step), 0.01, shape=info.shape)
+    assert sampled == pytest.approx(whole, rel=0.05)
+    msg = pipeline.check_relief_file(info, sample=200)
+    assert f"the heights span {sampled:.3g} times the diagonal of the 120 x 120 cells" in msg, msg
+    # the window is the central RESOLVE_SIDE cells, as run_file's: data only outside it -> None
+    monkeypatch.setattr(pipeline, "RESOLVE_SIDE", 40)
+    hollow = z.copy()
+    hollow[40:80, 40:80] = -9999.0
+    info = grid.open_dsm(write(tmp_path, hollow, name="hollow.tif", nodata=-9999.0,
+                               gt=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001)))
+    assert pipeline.check_relief_file(info) is None
+
+
+def test_raster_in_gdal_memory_refused_with_worker_processes(tmp_path):
+    """QA 19: a raster in GDAL's memory of the process (/vsimem/, a layer a script or plugin made there) run with
+    PROCESSES=2 failed in the workers once the parameters were derived ("No such file or directory ... may be
+    truncated or corrupt"). Refused before any work naming /vsimem/ and the fix; one process runs it."""
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (300, 300), seed=1).dsm
+    src = "/vsimem/qa19-dsm.tif"
+    gdal.Translate(src, write(tmp_path, z))
+    try:
+        outs = outputs(tmp_path, "mask", "dtm")
+        calls = []
+        with pytest.raises(ValueError, match=r"'/vsimem/qa19-dsm\.tif' lives in this process's memory.*"
+                                             r"PROCESSES = 1"):
+            pipeline.run_file("morphological", src, outs, processes=2, block=128,
+                              progress=lambda f: calls.append(f))
+        assert not calls and not os.path.exists(outs["mask"])
+        pipeline.run_file("morphological", src, outs, processes=1, block=128)
+        assert os.path.exists(outs["mask"])
+    finally:
+        gdal.Unlink(src)

@@ -185,3 +185,144 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
         assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
     fractions = [e for e in events if isinstance(e, float)]
     assert fractions == sorted(fractions)
+
+
+def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
+    """QA 19: after combining its axes, slopeprofile ran the walled regions, the runs joined to the terrain,
+    the platforms, the ramps and the unwalled levels without a report: the longest gap of its run on 16 Mcells
+    (17 s under load, from 78 to 80 % of the filter); a cancel waited as long. Each of these stages is now
+    followed by a report (the two ramps' scans by one), the fractions rising; the mask is the one without a
+    callback."""
+    from bare_earth.core import slope_profile
+    events = []
+    for name in ("_walled_regions", "_joined_to_terrain", "_platforms", "_ramps", "_level_unwalled"):
+        f = getattr(slope_profile, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(slope_profile, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("slopeprofile")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["_walled_regions", "_joined_to_terrain", "_platforms", "_platforms",
+                                          "_ramps", "_ramps", "_joined_to_terrain", "_level_unwalled"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        if not (j < len(events) and events[i] == events[j] == "_ramps"):
+            assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_geodesic_dilation_step_reports_after_its_fine_regions(monkeypatch):
+    """QA 19: the tail of a geodesic dilation step (the walled pieces, the fine regions of blocks too wide,
+    the fine outline) ran without a report after its 0.95: inside bareearth:dtm on 16 Mcells, its members
+    sharing the cores, the longest gap of the run (14 s under load); a cancel waited as long. A report now
+    follows each of them, the fractions rising; the mask is the one without a callback."""
+    from bare_earth.core.geodesic import dilation
+    events = []
+    for name in ("_walled_pieces", "_fine_regions", "_fine_outline"):
+        f = getattr(dilation, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(dilation, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("geodesic")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert "_fine_regions" in [events[i] for i in named]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_curvature_derivation_reports_after_its_slope_and_object_size(monkeypatch):
+    """QA 19: after the noise, curvature's derivation measured the steep terrain slope and the largest object
+    on the window without a report: the longest gap of its run on 16 Mcells (12.2 s under load 11; a cancel
+    waited as long). Each is now followed by a report, the fractions rising; the parameters unchanged."""
+    from bare_earth.core.curvature import method as curvature
+    events = []
+    for name in ("steep_terrain_slope", "object_size"):
+        f = getattr(curvature, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(curvature, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    base = pipeline.resolve_params("curvature", z, 1.0)
+    events.clear()
+    got = pipeline.resolve_params("curvature", z, 1.0, progress=events.append)
+    assert got == base
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["steep_terrain_slope", "object_size"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_curvature_object_size_reports_between_its_estimates(monkeypatch):
+    """QA 19: curvature's largest object (object_size: the block minima, the raised regions on them and on their
+    opening, the walled span) took 20 s on 16 Mcells under load without a report. A report now follows each
+    estimate; the size unchanged."""
+    from bare_earth.core.curvature import method as curvature
+    events = []
+    for name in ("raised_region_grid", "raised_region_window", "square_opening"):
+        f = getattr(curvature, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(curvature, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    base = curvature.object_size(z, (1.0, 1.0), 2.5)
+    events.clear()
+    assert curvature.object_size(z, (1.0, 1.0), 2.5, progress=events.append) == base
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["raised_region_grid", "raised_region_window", "square_opening",
+                                          "raised_region_window"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    assert events[-1] != events[named[-1]] and [e for e in events if isinstance(e, float)] == sorted(
+        e for e in events if isinstance(e, float))
+
+
+def test_rascor_reports_between_its_spared_ground_stages(monkeypatch):
+    """QA 19: after its last surface fit, RASCOR gave back continuing ground, ramps and slope breaks without a
+    report (with the fit's tail, 7.6 s on 16 Mcells under load; a cancel there waited 9 s). A report now
+    precedes and follows each; the mask unchanged."""
+    from bare_earth.core.rascor import sequence
+    events = []
+    for name in ("_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"):
+        f = getattr(sequence, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(sequence, name, spy)
+    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    meth = methods.get_method("rascor")
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert [events[i] for i in named] == ["_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"]
+    for i, j in zip(named, named[1:] + [len(events)]):
+        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)

@@ -1016,3 +1016,24 @@ def test_tiles_of_cells_too_fine_for_their_heights_refused_before_any_work(tmp_p
     logs = []
     run_survey("slopeprofile", write_survey(tmp_path / "cm", cm), tmp_path / "out_cm", workers=1, log=logs.append)
     assert any(s.startswith("Warning: the heights span") for s in logs), logs
+
+
+def test_survey_relief_checked_before_a_run_as_the_run_checks_it(tmp_path, monkeypatch):
+    """QA 19: the survey's relief check ran in run_survey only, after the algorithm's dialog had accepted the
+    tiles. check_survey_relief reads a survey that is its own sample (decimated) and refuses what run_survey
+    refuses (a city at 1 mm cells, naming the whole survey), warns at 1 cm, passes at 1 m, and leaves nothing
+    behind; a survey larger than the sample: None (the run checks its crops)."""
+    from bare_earth.core.survey import check_survey_relief
+    sc = make_scene("city", shape=(2 * TILE, 2 * TILE), seed=3)
+    fine = dataclasses.replace(sc, geotransform=(500000.0, 0.001, 0.0, 5400000.0, 0.0, -0.001))
+    index = index_tiles(write_survey(tmp_path / "mm", fine))
+    with pytest.raises(ValueError, match=r"heights span [\d.]+ times the diagonal of the 192 x 192 cells of "
+                                         r"0\.001 x 0\.001 m.*cell size is probably wrong.*\(in the whole survey "
+                                         r"\(192 x 192 cells\)\)"):
+        check_survey_relief(index)
+    assert sorted(os.listdir(tmp_path / "mm")) == sorted(os.path.basename(t.path) for t in index.tiles)
+    cm = dataclasses.replace(sc, geotransform=(500000.0, 0.01, 0.0, 5400000.0, 0.0, -0.01))
+    assert "steeper than any terrain" in check_survey_relief(index_tiles(write_survey(tmp_path / "cm", cm)))
+    assert check_survey_relief(index_tiles(write_survey(tmp_path / "m", sc))) is None
+    monkeypatch.setattr(plan, "SAMPLE_CELLS", 100 * 100)
+    assert check_survey_relief(index) is None
