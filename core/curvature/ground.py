@@ -33,6 +33,8 @@ _CONTINUE_WINDOWS = 2
 #: Share of the final pass's progress taken by the surface made without the bowls between objects
 #: (:func:`find_ground`).
 _BESIDE_SHARE = 0.2
+#: Share of the final pass's progress taken by the envelope between crowns (:func:`_envelope_ground`).
+_ENVELOPE_SHARE = 0.05
 #: Half width (cells) of the window over which the heights interpolated along the
 #: profiles are averaged (the creases where the X and Y profiles' weights change).
 _SMOOTH = 1
@@ -403,9 +405,10 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     beside = _ground_bowls(z, objects, bowls & ~low, m, window, level, 0.5 * h_min)
     # and so does the lower envelope between crowns, on its own level (not a part of an object's)
     beside |= _envelope_ground(z, holes & ~objects & ~low, objects, cell_size, m, window, tol,
-                               step=tol if rise is None else max(rise))
+                               step=tol if rise is None else max(rise),
+                               progress=sub_progress(progress, 0.0, _ENVELOPE_SHARE))
     del low
-    first = sub_progress(progress, 0.0, _BESIDE_SHARE)
+    first = sub_progress(progress, _ENVELOPE_SHARE, _BESIDE_SHARE)
     if beside.any():
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(first, 0.0, 0.1))
         s0 = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, progress=sub_progress(first, 0.1, 1.0))
@@ -724,7 +727,7 @@ def _ground_bowls(z, objects, bowls, m, near, level, depth):
     return cand
 
 
-def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step):
+def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step, progress=None):
     """The cells of ``cand`` (bool) on the surface's lower envelope (under every chord between the
     cells within ``m`` on either side along their row and their column, by the tolerance ``tol``:
     :func:`~bare_earth.core.estimate.under_chords`), no higher than the ground's rise over a
@@ -744,12 +747,16 @@ def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step):
     a few centimetres), and a crown stands above them. A flat part of a roof is under its chords too:
     it is level with the object the profiles found there (not below it), or stands above the lowest
     cell within a window by more than the ground rises. Every cell read lies within ``max(window, k)`` cells
-    (``k`` the square of :func:`_local_slopes`; :func:`ground_reach`)."""
+    (``k`` the square of :func:`_local_slopes`; :func:`ground_reach`). ``progress(fraction)`` after each
+    test."""
     if not cand.any():
+        report(progress, 1.0)
         return cand
     env = under_chords(z, m, tol)
     env &= cand
+    report(progress, 0.3)
     if not env.any():
+        report(progress, 1.0)
         return env
     dx, dy = cell_size
     d = max(dx, dy)
@@ -765,12 +772,14 @@ def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step):
     with np.errstate(invalid="ignore"):
         env &= z - lo <= rise
     del lo, rise
+    report(progress, 0.7)
     # below every object cell within m by more than the ground's step (not a part of an object's level)
     zo = np.where(objects & np.isfinite(z), z, np.float32(np.inf))
     ndimage.minimum_filter(zo, 2 * m + 1, output=zo, mode="constant", cval=np.inf)
     zo -= np.float32(step)
     with np.errstate(invalid="ignore"):
         env &= z < zo
+    report(progress, 1.0)
     return env
 
 
