@@ -2153,3 +2153,112 @@ def line_share(g, cells, half_widths, level, chunk=1 << 15):
             share = held / np.maximum(np.count_nonzero(inside, axis=1), 1)
             np.maximum(out[c0:c0 + chunk], share, out=out[c0:c0 + chunk])
     return out
+
+
+def under_chords(z, half_cells, tol_m):
+    """The cells of a surface that stand no higher than ``tol_m`` above any chord between two cells
+    of their row lying within ``half_cells`` on either side of them, nor above any such chord along
+    their column (bool, ``z``'s shape): the lower envelope of the surface at the scale of
+    ``half_cells``.
+
+    A chord between the cells ``i`` before and ``j`` after a cell is the straight line between
+    their heights, ``(j z[c - i] + i z[c + j]) / (i + j)`` at the cell, for every ``1 <= i, j <=
+    half_cells``. On a plane, or on terrain curved less than ``2 tol_m / (half_cells cell)^2``, every
+    cell lies on its chords; a crown, a shrub or any cell standing above the cells on either side
+    lies above them, and a ground cell between two crowns below them. A cell needs at least one
+    chord on each axis (the cells within ``half_cells`` of the raster's edge along an axis have
+    fewer: a cell on the edge has none and is False); a chord with a nodata end is no chord, and a
+    nodata cell is False.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (metres), NaN = nodata.
+    half_cells : int
+        Cells on either side within which the chords' ends lie (>= 1).
+    tol_m : float
+        Metres a cell may stand above a chord (>= 0).
+
+    Returns
+    -------
+    ndarray of bool
+
+    Examples
+    --------
+    >>> z = np.array([[0, 0, 3, 0, 0], [0, 0, 2, 0, 0], [1, 1, 1, 1, 1]], np.float32)
+    >>> under_chords(z, 1, 0.1)[1].tolist()   # the middle row (the edge cells have no chord along it)
+    [False, True, False, True, False]
+    """
+    z = np.asarray(z, np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"under_chords needs a 2-D surface; got {z.ndim} dimensions.")
+    if int(half_cells) != half_cells or half_cells < 1:
+        raise ValueError(f"half_cells must be a whole number of cells >= 1; got {half_cells}.")
+    tol = float(tol_m)
+    if not (0.0 <= tol < np.inf):
+        raise ValueError(f"tol_m must be a height >= 0 in metres; got {tol_m}.")
+    m = int(half_cells)
+    out = np.isfinite(z)
+    for a, o in ((z, out), (z.T, out.T)):
+        w = a.shape[1]
+        seen = np.zeros(a.shape, bool)
+        for i in range(1, m + 1):
+            for j in range(1, m + 1):
+                if i + j >= w:
+                    continue
+                c = a[:, :w - j - i] * np.float32(j)
+                c += a[:, i + j:] * np.float32(i)
+                c /= np.float32(i + j)
+                c += np.float32(tol)
+                with np.errstate(invalid="ignore"):
+                    o[:, i:w - j] &= ~(a[:, i:w - j] > c)
+                seen[:, i:w - j] |= np.isfinite(c)
+        o &= seen
+    return out
+
+
+def running_minimum_slopes(z, cell_size, side_cells):
+    """Slope (rise/run) of the terrain under the objects at every cell: the gradient magnitude of the
+    running minimum of the surface over a square of ``side_cells + 1`` cells (objects narrower than
+    it vanish), by central differences over ``side_cells`` cells (``side_cells // 2`` on either side;
+    0 within that of the raster's edge and where the minimum is not finite).
+
+    The sliding counterpart of :func:`terrain_slopes` (block minima), for a per-cell slope: it does
+    not depend on where blocks start, so a window of a larger raster holding a cell's surroundings
+    within ``side_cells`` gives the same slope there. Near an object wider than the square it reads
+    the object's side too: a steepness, never a ground.
+
+    Parameters
+    ----------
+    z : array_like, 2-D
+        Surface (metres), NaN = nodata.
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    side_cells : int
+        Side of the square, cells (>= 2).
+
+    Returns
+    -------
+    ndarray of float32, ``z``'s shape
+    """
+    z = np.asarray(z, np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"running_minimum_slopes needs a 2-D surface; got {z.ndim} dimensions.")
+    if int(side_cells) != side_cells or side_cells < 2:
+        raise ValueError(f"side_cells must be a whole number of cells >= 2; got {side_cells}.")
+    dx, dy = (float(c) for c in cell_size)
+    k = int(side_cells)
+    h = k // 2
+    zf = np.where(np.isfinite(z), z, np.float32(np.inf))
+    mf = ndimage.minimum_filter(zf, k + 1, mode="nearest")
+    del zf
+    gx = np.zeros(z.shape, np.float32)
+    gy = np.zeros(z.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        if z.shape[1] > 2 * h:
+            gx[:, h:-h] = (mf[:, 2 * h:] - mf[:, :-2 * h]) / np.float32(2 * h * dx)
+        if z.shape[0] > 2 * h:
+            gy[h:-h] = (mf[2 * h:] - mf[:-2 * h]) / np.float32(2 * h * dy)
+    s = np.hypot(gx, gy)
+    s[~np.isfinite(s)] = 0.0
+    return s

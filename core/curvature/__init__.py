@@ -83,7 +83,11 @@ From curvature to objects
    window's diagonal of the lowest cell within a window), below every object cell within half
    a window by half the minimum object height, and not below the surface made without them by
    more than the tolerance (the ground showing between shrubs and crowns, not a smeared foot,
-   a roof's hollow beside a higher part or the floor of a pit between its walls). The
+   a roof's hollow beside a higher part or the floor of a pit between its walls), and the lower
+   envelope between crowns (under every chord between the cells within ``m`` on either side along the
+   row and the column, at the ground's level with the local slope, below every object cell within
+   ``m`` by more than the ground's step: on a wooded knoll the ground between crowns is a saddle, no
+   bowl). The
    second pass also rests on the bowls that the first found to be ground and not below its
    surface by more than the tolerance. After each pass, a cell above the surface that no
    profile found and that continues a stretch of ground along its X or Y profile (a window's

@@ -20,6 +20,7 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress, transpose
+from ..estimate import GROUND_BLOCK_M, running_minimum_slopes, under_chords
 from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest, dilate
 
 #: Final passes against the interpolated ground surface.
@@ -32,6 +33,8 @@ _CONTINUE_WINDOWS = 2
 #: Share of the final pass's progress taken by the surface made without the bowls between objects
 #: (:func:`find_ground`).
 _BESIDE_SHARE = 0.2
+#: Share of the final pass's progress taken by the envelope between crowns (:func:`_envelope_ground`).
+_ENVELOPE_SHARE = 0.05
 #: Half width (cells) of the window over which the heights interpolated along the
 #: profiles are averaged (the creases where the X and Y profiles' weights change).
 _SMOOTH = 1
@@ -351,7 +354,9 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     and H < 0: curved up both ways, as a gap in a canopy where the ground shows between the
     crowns around it) away from the objects and not below their surroundings
     (:func:`_first_holes`), and on those between objects that stand at the ground's level, below
-    the objects (:func:`_ground_bowls`), and not below the surface made without them by more than
+    the objects (:func:`_ground_bowls`), and on the lower envelope between crowns at the ground's level
+    and below the objects near it (:func:`_envelope_ground`: on a wooded knoll the ground between two
+    crowns is a saddle), all of them not below the surface made without them by more than
     the tolerance (the floor of a pit or a ditch between its walls: that surface spans it at the
     level of its rim); it leaves the other ``|K| >= K_g`` points out (crowns, corners,
     spikes: convex; saddles: K < 0), and they stay out of the second too. The second pass's
@@ -398,8 +403,12 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     # without them, seed the first surface too
     level = tol if rise is None else tol + (max(rise) - tol) * window * np.sqrt(2.0)
     beside = _ground_bowls(z, objects, bowls & ~low, m, window, level, 0.5 * h_min)
+    # and so does the lower envelope between crowns, on its own level (not a part of an object's)
+    beside |= _envelope_ground(z, holes & ~objects & ~low, objects, cell_size, m, window, tol,
+                               step=tol if rise is None else max(rise),
+                               progress=sub_progress(progress, 0.0, _ENVELOPE_SHARE))
     del low
-    first = sub_progress(progress, 0.0, _BESIDE_SHARE)
+    first = sub_progress(progress, _ENVELOPE_SHARE, _BESIDE_SHARE)
     if beside.any():
         zs, hs = _surface_input(z, holes, invalid, window, sub_progress(first, 0.0, 0.1))
         s0 = _ground_surface(zs, hs, (dx, dy), reach, smooth=_SMOOTH, progress=sub_progress(first, 0.1, 1.0))
@@ -611,9 +620,11 @@ def ground_stretch(cell_size: CellSize, window: int, spacing: float = 0.0) -> Tu
 def ground_reach(cell_size: CellSize, *, window: int, max_size: float, stretch: int = 0) -> int:
     """Cells (in any direction) within which the objects and breaks decide a cell's class in
     :func:`find_ground`: ``2 R + 2 window + 2 m + 3`` with ``R`` the larger
-    :func:`surface_reach` and ``m = window // 2``, plus ``R + 2 window + 1`` for the bowls
-    between objects (:func:`_ground_bowls`: the heights within ``window``, and the surface made
-    without them, which reads the holes within ``R + window + 1``).
+    :func:`surface_reach` and ``m = window // 2``, plus ``R + window + 1 + max(window, k)`` for the
+    bowls between objects and the envelope between crowns (:func:`_ground_bowls`: the heights within
+    ``window``; :func:`_envelope_ground`: the heights within ``window`` and the local slope's ``k``
+    cells, :func:`_local_slope_cells`; and the surface made without them, which reads the holes
+    within ``R + window + 1``).
 
     Each pass's holes come from the objects within ``m`` (the breaks next to them); the
     nodata bridge reads the holes within ``window`` (:func:`_surface_input`), the surface
@@ -631,7 +642,7 @@ def ground_reach(cell_size: CellSize, *, window: int, max_size: float, stretch: 
     r = max(surface_reach(cell_size, window=window, max_size=max_size))
     g1 = r + window + 2 * m + 2
     return (g1 + (_PASSES - 1) * (r + window + 1) + _PASSES * (_CONTINUE_WINDOWS * window + max(window, stretch))
-            + 1 + (r + 2 * window + 1))
+            + 1 + (r + window + 1 + max(window, _local_slope_cells(cell_size))))
 
 
 def surface_reach(cell_size: CellSize, *, window: int, max_size: float) -> Tuple[int, int]:
@@ -714,6 +725,74 @@ def _ground_bowls(z, objects, bowls, m, near, level, depth):
         np.copyto(zf, inf, where=~objects)
         cand &= z <= ndimage.minimum_filter(zf, 2 * m + 1, mode="constant", cval=inf) - np.float32(depth)
     return cand
+
+
+def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step, progress=None):
+    """The cells of ``cand`` (bool) on the surface's lower envelope (under every chord between the
+    cells within ``m`` on either side along their row and their column, by the tolerance ``tol``:
+    :func:`~bare_earth.core.estimate.under_chords`), no higher than the ground's rise over a
+    window's diagonal above the lowest cell within ``window`` cells (the rise per cell: ``step -
+    tol``, or that of the local terrain slope, :func:`_local_slopes`, where steeper), and below every
+    object cell within ``m`` cells by more than ``step`` (not on a level of an object's, a part of a
+    roof the profiles did not reach, nor on it); bool, ``z``'s shape.
+
+    Luong Chinh Ke (2002) interpolates the ground under the objects and the breaks. In a wood whose
+    lowest points hit a crown every other cell, nearly every cell is a break (|K| >= K_g or one near
+    an object) and the bowls between objects (:func:`_ground_bowls`: curved up both ways) are few on
+    a knoll, where the ground between two crowns is a saddle: curved up between them, down over the
+    knoll. The surface then came as a straight line from the clearings around the wood and sagged
+    2 m under a forested knoll (lidar ``Topography`` at 2 m: its ground became objects, 13 % Type I).
+    The ground showing between the crowns lies under the chords between the cells on either side
+    (a chord over ``2 m`` cells sags ``kappa (m cell)^2 / 2`` under terrain of curvature ``kappa``,
+    a few centimetres), and a crown stands above them. A flat part of a roof is under its chords too:
+    it is level with the object the profiles found there (not below it), or stands above the lowest
+    cell within a window by more than the ground rises. Every cell read lies within ``max(window, k)`` cells
+    (``k`` the square of :func:`_local_slopes`; :func:`ground_reach`). ``progress(fraction)`` after each
+    test."""
+    if not cand.any():
+        report(progress, 1.0)
+        return cand
+    env = under_chords(z, m, tol)
+    env &= cand
+    report(progress, 0.3)
+    if not env.any():
+        report(progress, 1.0)
+        return env
+    dx, dy = cell_size
+    d = max(dx, dy)
+    zf = np.where(np.isfinite(z), z, np.float32(np.inf))
+    lo = ndimage.minimum_filter(zf, 2 * window + 1, mode="nearest")
+    del zf
+    # the ground's rise per cell: the terrain's steep slope (step - tol) or the local slope if steeper
+    rise = _local_slopes(z, cell_size)
+    rise *= np.float32(d)
+    np.maximum(rise, np.float32(step - tol), out=rise)
+    rise *= np.float32(window * np.sqrt(2.0))
+    rise += np.float32(tol)
+    with np.errstate(invalid="ignore"):
+        env &= z - lo <= rise
+    del lo, rise
+    report(progress, 0.7)
+    # below every object cell within m by more than the ground's step (not a part of an object's level)
+    zo = np.where(objects & np.isfinite(z), z, np.float32(np.inf))
+    ndimage.minimum_filter(zo, 2 * m + 1, output=zo, mode="constant", cval=np.inf)
+    zo -= np.float32(step)
+    with np.errstate(invalid="ignore"):
+        env &= z < zo
+    report(progress, 1.0)
+    return env
+
+
+def _local_slope_cells(cell_size) -> int:
+    """Side (cells) of the square of :func:`_local_slopes`: :data:`~bare_earth.core.estimate.GROUND_BLOCK_M`
+    (the block of the terrain's slopes, :func:`~bare_earth.core.estimate.terrain_slopes`), at least 2."""
+    return max(2, int(round(GROUND_BLOCK_M / max(cell_size))))
+
+
+def _local_slopes(z, cell_size):
+    """The terrain's slope at every cell (rise/run, float32): the running minimum over a square of
+    :func:`_local_slope_cells` (:func:`~bare_earth.core.estimate.running_minimum_slopes`)."""
+    return running_minimum_slopes(z, cell_size, _local_slope_cells(cell_size))
 
 
 def _between(objects, m):

@@ -1344,3 +1344,68 @@ def test_line_share_refuses_bad_input():
         est.line_share(g, [0], (-1, 1), 0.0)
     with pytest.raises(ValueError, match="flat indices"):
         est.line_share(g, [16], (1, 1), 0.0)
+
+
+def test_under_chords_exact():
+    """A cell is under its chords along its row and its column (ends within the half width), by the
+    tolerance: a plane lies on its chords, a bump above them, a cell between two bumps under them;
+    a cell without a chord on an axis (on the raster's edge) and a nodata cell are False."""
+    y, x = np.mgrid[0:7, 0:9].astype(np.float32)
+    plane = 0.7 * x - 0.4 * y
+    got = est.under_chords(plane, 2, 0.01)
+    want = np.zeros(plane.shape, bool)
+    want[1:-1, 1:-1] = True
+    np.testing.assert_array_equal(got, want)
+    z = plane.copy()
+    z[3, 4] += 0.5                                   # a bump: above the chords along both axes
+    z[3, 2] += 3.0                                   # crowns on either side of (3, 3) along its row
+    got = est.under_chords(z, 2, 0.3)
+    assert not got[3, 4] and not got[3, 2]
+    assert got[3, 3]                                 # between them: under every chord
+    assert est.under_chords(z, 2, 0.6)[3, 4]          # within a larger tolerance
+    # the bump lies within reach of (3, 6)'s chords (ends at columns 4..5 and 7..8): (3, 6) is under them
+    assert got[3, 6]
+    # the bump at (3, 4) is one end of (3, 5)'s chord (4, 6): (3, 5) stands under it; the chord (3, 7)
+    # of half width 1 does not reach it
+    assert got[3, 5]
+    n = z.copy()
+    n[3, 3] = np.nan                                 # nodata: False, and no chord through it
+    g2 = est.under_chords(n, 1, 0.3)
+    assert not g2[3, 3]
+    assert g2[3, 1]                                  # its other chords: along the column
+    # one cell wide: no chord along the row
+    assert not est.under_chords(np.zeros((5, 1), np.float32), 1, 0.1).any()
+
+
+def test_under_chords_refuses_bad_input():
+    with pytest.raises(ValueError, match="2-D"):
+        est.under_chords(np.zeros(5), 1, 0.1)
+    with pytest.raises(ValueError, match="half_cells"):
+        est.under_chords(np.zeros((3, 3)), 0, 0.1)
+    with pytest.raises(ValueError, match="tol_m"):
+        est.under_chords(np.zeros((3, 3)), 1, -0.1)
+
+
+def test_running_minimum_slopes_exact():
+    """On a plane the slope is the plane's, away from the raster's edge (the square's side: its minimum
+    is clipped there; 0 in a corner within half of it); a pit is read by the squares holding it only; nodata is
+    left out of the minimum (near it the minimum moves to its neighbour)."""
+    y, x = np.mgrid[0:30, 0:40].astype(np.float32)
+    plane = 0.3 * x * 2.0 + 0.4 * y * 2.0              # 2 m cells: slopes 0.3 along X, 0.4 along Y
+    s = est.running_minimum_slopes(plane, (2.0, 2.0), 6)
+    np.testing.assert_allclose(s[6:-6, 6:-6], 0.5, rtol=1e-5)
+    assert (s[:3, :3] == 0).all()                    # neither difference reaches the corner
+    z = plane.copy()
+    z[20:23, 18:21] -= 10.0                          # a pit 3 x 3 cells: the squares holding it read its floor
+    s = est.running_minimum_slopes(z, (2.0, 2.0), 6)
+    np.testing.assert_allclose(s[6:10, 6:-6], 0.5, rtol=1e-5)   # beyond the squares holding it: the plane's
+    assert abs(s[21, 15] - 0.5) > 0.1                # its squares reach the pit: another slope
+    z = plane.copy()
+    z[5, 30] = np.nan                                # nodata: a finite slope everywhere, the plane's beyond it
+    s = est.running_minimum_slopes(z, (2.0, 2.0), 6)
+    assert np.isfinite(s).all()
+    np.testing.assert_allclose(s[12:-6, 6:-6], 0.5, rtol=1e-5)
+    with pytest.raises(ValueError, match="side_cells"):
+        est.running_minimum_slopes(plane, (2.0, 2.0), 1)
+    with pytest.raises(ValueError, match="2-D"):
+        est.running_minimum_slopes(plane.ravel(), (2.0, 2.0), 4)
