@@ -872,26 +872,54 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
     return flags, opened
 
 
-def _steepest_sides(s, cell):
+def _steepest_sides(s, cell, out=None):
     """``max(|dz| to the left, to the right) / dx + max(up, down) / dy``: :func:`l1_slope` by the steeper of the
-    one-sided differences, which reads a ridge's flanks on its crest line (central differences read 0 there)."""
+    one-sided differences, which reads a ridge's flanks on its crest line (central differences read 0 there).
+
+    ``out`` (optional, float32, ``s``'s shape, not ``s``) receives the result. Computed in bands of rows whose
+    temporaries stay in the cache (the same float32 operations in the same order on every cell as on the whole
+    array, so the same values; no raster-sized temporaries: 0.44 s -> 0.14 s per 16 Mcells call).
+    """
     dx, dy = cell
-    g = np.zeros(s.shape, np.float32)
+    g = np.empty(s.shape, np.float32) if out is None else out
     if s.shape[0] < 3 or s.shape[1] < 3:
+        g[...] = 0.0
         return g
+    g[0] = 0.0
+    g[-1] = 0.0
+    g[:, 0] = 0.0
+    g[:, -1] = 0.0
+    rx, ry = np.float32(dx), np.float32(dy)
+    H, W = s.shape
+    band = max(1, _BAND_BYTES // 4 // max(1, W))
+    t1 = np.empty((min(band, H - 2), W - 2), np.float32)
+    t2 = np.empty(t1.shape, np.float32)
     with np.errstate(invalid="ignore"):
-        c = s[1:-1, 1:-1]
-        gx = np.fmax(np.abs(c - s[1:-1, :-2]), np.abs(s[1:-1, 2:] - c))
-        gy = np.fmax(np.abs(c - s[:-2, 1:-1]), np.abs(s[2:, 1:-1] - c))
-        g[1:-1, 1:-1] = gx / np.float32(dx) + gy / np.float32(dy)
-    g[~np.isfinite(g)] = 0.0
+        for i0 in range(1, H - 1, band):
+            i1 = min(H - 1, i0 + band)
+            a, b, gi = t1[:i1 - i0], t2[:i1 - i0], g[i0:i1, 1:-1]
+            c = s[i0:i1, 1:-1]
+            np.subtract(c, s[i0:i1, :-2], out=a)
+            np.abs(a, out=a)
+            np.subtract(s[i0:i1, 2:], c, out=b)
+            np.abs(b, out=b)
+            np.fmax(a, b, out=a)
+            np.divide(a, rx, out=gi)                   # gx / dx
+            np.subtract(c, s[i0 - 1:i1 - 1, 1:-1], out=a)
+            np.abs(a, out=a)
+            np.subtract(s[i0 + 1:i1 + 1, 1:-1], c, out=b)
+            np.abs(b, out=b)
+            np.fmax(a, b, out=a)
+            np.divide(a, ry, out=a)                    # gy / dy
+            np.add(gi, a, out=gi)
+            np.copyto(gi, np.float32(0.0), where=~np.isfinite(gi))
     return g
 
 
-def _step_slope(e, cell, work):
+def _step_slope(e, cell, work, out=None):
     """The slope of a step's erosion ``e`` (:func:`ground_slope_map`'s reading: the L1 slope opened by
-    :data:`_SLOPE_RUN_CELLS` cells, at most :data:`_MAX_SLOPE`)."""
-    g = _steepest_sides(e, cell)
+    :data:`_SLOPE_RUN_CELLS` cells, at most :data:`_MAX_SLOPE`). ``out`` (optional, not ``e``) receives it."""
+    g = _steepest_sides(e, cell, out)
     run = _SLOPE_RUN_CELLS
     g = _running_box(g, run, run, np.minimum, work, g)
     g = _running_box(g, run, run, np.maximum, work, g)

@@ -1452,3 +1452,33 @@ def test_spare_continuing_needs_the_slope_along_half_a_line_and_the_top_across()
     band[2, 5] = True
     morph._spare_continuing(band, np.ones((4, 12), np.float32), g, 6, np.float32(2.0), (3, 3), ref, _box_max(ref))
     assert band[2, 5]
+
+
+def _steepest_sides_whole(s, cell):
+    """The reading of :func:`morph._steepest_sides` on the whole array at once (its definition)."""
+    dx, dy = cell
+    g = np.zeros(s.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        c = s[1:-1, 1:-1]
+        gx = np.fmax(np.abs(c - s[1:-1, :-2]), np.abs(s[1:-1, 2:] - c))
+        gy = np.fmax(np.abs(c - s[:-2, 1:-1]), np.abs(s[2:, 1:-1] - c))
+        g[1:-1, 1:-1] = gx / np.float32(dx) + gy / np.float32(dy)
+    g[~np.isfinite(g)] = 0.0
+    return g
+
+
+@pytest.mark.parametrize("shape", [(1, 5), (2, 9), (3, 3), (5, 2), (150, 4100), (9, 7)])
+def test_steepest_sides_in_bands_equals_the_whole_array(shape):
+    """Banded (64 rows of 4100 cells at a time, into ``out``): the same float32 values as the whole array at once,
+    bit for bit, with +inf (no erosion) and NaN cells, at the borders and across the bands' seams."""
+    rng = np.random.default_rng(4)
+    s = (rng.random(shape) * 30).astype(np.float32)
+    s[rng.random(shape) < 0.05] = np.inf
+    s[rng.random(shape) < 0.02] = np.nan
+    want = _steepest_sides_whole(s, (0.3, 0.7))
+    out = np.full(shape, 7.0, np.float32)
+    got = morph._steepest_sides(s, (0.3, 0.7), out)
+    assert got is out
+    assert got.tobytes() == want.tobytes()
+    assert morph._steepest_sides(s, (0.3, 0.7)).tobytes() == want.tobytes()
+
