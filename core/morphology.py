@@ -821,7 +821,7 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         return pool[-1]
 
     opened = a
-    steep = None
+    steep = own_buf = None
     if ground_slope is not None:
         steep, gry, grx = ground_slope, 0, 0
         limit = np.empty(diff.shape, np.float32)
@@ -844,10 +844,11 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
             steep = _running_box(steep, ry - gry, rx - grx, np.maximum, work, ground_slope)
             gry, grx = ry, rx
             r_k = np.float32(radii[k][2])
-            own_step = _step_slope(eroded, cell, work) if (cell is not None and k < n - 1) else None
-            if own_step is not None:           # the highest of the reference within the step's window
-                ref_top = np.where(np.isfinite(ref), ref, np.float32(-np.inf))
-                ref_top = _running_box(ref_top, ry, rx, np.maximum, work, ref_top)
+            own_step = None
+            if cell is not None and k < n - 1:  # G'_k in one buffer for every step (no new pages per step)
+                own_buf = np.empty(a.shape, np.float32) if own_buf is None else own_buf
+                own_step = _step_slope(eroded, cell, work, own_buf)
+                ref_top = (ry, rx)             # the reference's top, read at the cells that need it
         with np.errstate(invalid="ignore"):
             for i0 in range(0, a.shape[0], band):
                 i1 = min(a.shape[0], i0 + band)
@@ -947,6 +948,9 @@ def _spare_continuing(up, d, own_step, i0, r_k, r_max, ref, ref_top):
     where the reference opening ``ref`` (the surface the drop is measured from) rises above it by no more
     than the drop ``d`` within the step's window (``ref_top``, the running maximum of ``ref`` over that window;
     ISPRS samp51, vegetation on an escarpment, at 1 m: 112 cells passed without this test, 18 with it).
+    ``ref_top`` is that maximum as a raster, or the window's half-widths ``(ry, rx)``: then it is read at the
+    cells the test needs only (:func:`_window_top`; 0.04-0.5 % of the cells, not a running box over the raster
+    per step).
     """
     with np.errstate(invalid="ignore"):
         cand = up & (d <= own_step[i0:i0 + up.shape[0]] * r_k)
@@ -958,11 +962,31 @@ def _spare_continuing(up, d, own_step, i0, r_k, r_max, ref, ref_top):
     # the top across first (nothing within the step's window rises above it; most candidates fail it), then the
     # slope along a line as long as the largest window on the cells left
     with np.errstate(invalid="ignore"):
-        top = ref_top.ravel()[cells] <= ref.ravel()[cells] + drop
+        high = _window_top(ref, cells, *ref_top) if isinstance(ref_top, tuple) else ref_top.ravel()[cells]
+        top = high <= ref.ravel()[cells] + drop
     loc, cells, drop = loc[top], cells[top], drop[top]
     if loc.size:
         keep = line_share(own_step, cells, r_max, drop / r_k) >= _CONTINUING_SHARE
         up.ravel()[loc[keep]] = False
+
+
+def _window_top(a, cells, ry, rx, chunk=1 << 21):
+    """The highest value of ``a`` (NaN left out: ``-inf`` where the window has none) within the (2ry+1) x (2rx+1)
+    window of each of the flat indices ``cells``, clipped at the raster's edge: :func:`_running_box`'s
+    ``np.maximum`` of ``a`` with NaN as ``-inf``, read at those cells only (a maximum is exact in any order)."""
+    H, W = a.shape
+    i, j = np.divmod(np.asarray(cells, np.int64), W)
+    di = np.arange(-ry, ry + 1)
+    dj = np.arange(-rx, rx + 1)
+    out = np.empty(i.size, np.float32)
+    step = max(1, chunk // (di.size * dj.size))
+    for c0 in range(0, i.size, step):
+        r = np.clip(i[c0:c0 + step, None] + di, 0, H - 1)
+        q = np.clip(j[c0:c0 + step, None] + dj, 0, W - 1)
+        v = a[r[:, :, None], q[:, None, :]]
+        v[~np.isfinite(v)] = -np.inf
+        out[c0:c0 + step] = v.max(axis=(1, 2))
+    return out
 
 
 #: Share of a line as long as the largest window on which a step's ground slope must hold (:func:`_spare_continuing`).

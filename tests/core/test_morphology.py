@@ -1482,3 +1482,39 @@ def test_steepest_sides_in_bands_equals_the_whole_array(shape):
     assert got.tobytes() == want.tobytes()
     assert morph._steepest_sides(s, (0.3, 0.7)).tobytes() == want.tobytes()
 
+
+@pytest.mark.parametrize("ry,rx", [(0, 0), (1, 2), (3, 1), (6, 6)])
+def test_window_top_at_cells_equals_the_running_box(ry, rx):
+    """The reference's top read at some cells (corners, edges, inside; NaN and +inf left out, -inf where a window
+    holds no value) equals the running maximum over the raster with non-finite values as -inf."""
+    rng = np.random.default_rng(5)
+    a = (rng.random((13, 11)) * 10).astype(np.float32)
+    a[rng.random(a.shape) < 0.1] = np.nan
+    a[2, 3] = np.inf
+    a[9:, :4] = np.nan                                     # a window of NaN only at (11, 1) for small windows
+    full = np.where(np.isfinite(a), a, np.float32(-np.inf))
+    want = morph._running_box(full, ry, rx, np.maximum, morph._Work(), np.empty_like(full))
+    cells = np.array([0, 10, 12 * 11, a.size - 1, 2 * 11 + 3, 11 * 11 + 1, 6 * 11 + 5, 3])
+    got = morph._window_top(a, cells, ry, rx, chunk=40)
+    assert got.tobytes() == want.ravel()[cells].tobytes()
+    if ry <= 1 and rx <= 1:
+        assert got[5] == -np.inf
+
+
+def test_spare_continuing_reads_the_top_at_its_cells_as_on_the_raster():
+    """``ref_top`` given as the window's half-widths (read at the cells the test needs, as ``_progressive`` does)
+    passes the same cells as the running maximum over the raster."""
+    rng = np.random.default_rng(6)
+    g = (rng.random((40, 50)) * 0.6).astype(np.float32)
+    g[10:14, :] = 0.5
+    ref = (rng.random(g.shape) * 2.0).astype(np.float32)
+    ref[rng.random(g.shape) < 0.05] = np.nan
+    up = rng.random(g.shape) < 0.3
+    d = (rng.random(g.shape) * 2.0).astype(np.float32)
+    full = np.where(np.isfinite(ref), ref, np.float32(-np.inf))
+    top = morph._running_box(full, 2, 2, np.maximum, morph._Work(), np.empty_like(full))
+    a, b = up.copy(), up.copy()
+    morph._spare_continuing(a, d, g, 0, np.float32(2.0), (4, 4), ref, top)
+    morph._spare_continuing(b, d, g, 0, np.float32(2.0), (4, 4), ref, (2, 2))
+    assert np.count_nonzero(a != up) > 5                   # some cells passed
+    np.testing.assert_array_equal(a, b)
