@@ -2364,8 +2364,9 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="morphological",
-    bytes_per_cell=110.0,      # measured 61.1 (benchmarks/speed.py, 16 Mcells, file) + the ground slope maps;
-    #                            106 with each step's own slope and the reference's top (2026-11-30)
+    bytes_per_cell=88.0,       # measured 61.1 (benchmarks/speed.py, 16 Mcells, file) + the ground slope maps;
+    #                            106 with each step's own slope and the reference's top (2026-11-30); 83.0 with
+    #                            one buffer for the steps' slopes and the top read at its cells (twice, 2026-11-30)
     run=_run,
     resolve=resolve_morphological_params,
     halo=morphological_halo,
