@@ -2138,20 +2138,34 @@ def line_share(g, cells, half_widths, level, chunk=1 << 15):
     out = np.zeros(cells.size, np.float32)
     H, W = g.shape
     flat = g.ravel()
+    rows, cols = np.divmod(cells, W)
     for di, dj in LINE_DIRECTIONS:
         h = hc if di == 0 else hr if dj == 0 else min(hr, hc)
         steps = np.arange(-h, h + 1)
-        for c0 in range(0, cells.size, chunk):
-            c = cells[c0:c0 + chunk]
-            r = (c // W)[:, None] + di * steps[None, :]
-            q = (c % W)[:, None] + dj * steps[None, :]
-            inside = (r >= 0) & (r < H) & (q >= 0) & (q < W)
-            v = flat[np.where(inside, r * W + q, 0)]
-            inside &= np.isfinite(v)
-            with np.errstate(invalid="ignore"):
-                held = np.count_nonzero(inside & (v >= level[c0:c0 + chunk, None]), axis=1)
-            share = held / np.maximum(np.count_nonzero(inside, axis=1), 1)
-            np.maximum(out[c0:c0 + chunk], share, out=out[c0:c0 + chunk])
+        # the cells whose line stays inside the raster (nearly all): gathered by flat offsets, no bounds to test
+        whole = np.ones(cells.size, bool)
+        if di:
+            whole &= (rows >= h) & (rows < H - h)
+        if dj:
+            whole &= (cols >= h) & (cols < W - h)
+        offs = (di * W + dj) * steps
+        for part, inner in ((np.flatnonzero(whole), True), (np.flatnonzero(~whole), False)):
+            for c0 in range(0, part.size, chunk):
+                k = part[c0:c0 + chunk]
+                if inner:
+                    v = flat[cells[k][:, None] + offs]
+                    inside = np.isfinite(v)
+                else:
+                    r = rows[k][:, None] + di * steps[None, :]
+                    q = cols[k][:, None] + dj * steps[None, :]
+                    inside = (r >= 0) & (r < H) & (q >= 0) & (q < W)
+                    v = flat[np.where(inside, r * W + q, 0)]
+                    inside &= np.isfinite(v)
+                with np.errstate(invalid="ignore"):
+                    held = np.count_nonzero(inside & (v >= level[k][:, None]), axis=1)
+                share = held / np.maximum(np.count_nonzero(inside, axis=1), 1)
+                np.maximum(out[k], share, out=share)
+                out[k] = share
     return out
 
 

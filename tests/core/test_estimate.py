@@ -1336,6 +1336,35 @@ def test_line_share_counts_the_cells_holding_the_level_on_the_best_line():
     assert est.line_share(g, np.array([], np.int64), (3, 3), 0.4).size == 0
 
 
+
+def _line_share_by_cell(g, cell, half_widths, level):
+    """line_share's definition, one cell and one line cell at a time."""
+    H, W = g.shape
+    i, j = divmod(int(cell), W)
+    best = 0.0
+    for di, dj in est.LINE_DIRECTIONS:
+        h = half_widths[1] if di == 0 else half_widths[0] if dj == 0 else min(half_widths)
+        vals = [g[i + di * t, j + dj * t] for t in range(-h, h + 1)
+                if 0 <= i + di * t < H and 0 <= j + dj * t < W and np.isfinite(g[i + di * t, j + dj * t])]
+        if vals:
+            best = max(best, sum(v >= level for v in vals) / len(vals))
+    return best
+
+
+def test_line_share_equals_its_definition_inside_and_at_the_edges():
+    """Lines inside the raster (gathered by flat offsets) and lines cut by its edges (bounds tested) give the
+    definition's shares, NaN and +inf left out, in chunks smaller than the cells."""
+    rng = np.random.default_rng(7)
+    g = rng.random((23, 31)).astype(np.float32)
+    g[rng.random(g.shape) < 0.1] = np.nan
+    g[rng.random(g.shape) < 0.03] = np.inf
+    cells = rng.choice(g.size, 120, replace=False)
+    level = rng.random(cells.size).astype(np.float32)
+    for hw in ((4, 6), (0, 3), (12, 2)):
+        want = [_line_share_by_cell(g, c, hw, lv) for c, lv in zip(cells, level)]
+        got = est.line_share(g, cells, hw, level, chunk=17)
+        np.testing.assert_array_equal(got, np.float32(want))
+
 def test_line_share_refuses_bad_input():
     g = np.zeros((4, 4), np.float32)
     with pytest.raises(ValueError, match="2-D"):

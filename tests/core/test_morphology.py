@@ -1452,3 +1452,69 @@ def test_spare_continuing_needs_the_slope_along_half_a_line_and_the_top_across()
     band[2, 5] = True
     morph._spare_continuing(band, np.ones((4, 12), np.float32), g, 6, np.float32(2.0), (3, 3), ref, _box_max(ref))
     assert band[2, 5]
+
+
+def _steepest_sides_whole(s, cell):
+    """The reading of :func:`morph._steepest_sides` on the whole array at once (its definition)."""
+    dx, dy = cell
+    g = np.zeros(s.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        c = s[1:-1, 1:-1]
+        gx = np.fmax(np.abs(c - s[1:-1, :-2]), np.abs(s[1:-1, 2:] - c))
+        gy = np.fmax(np.abs(c - s[:-2, 1:-1]), np.abs(s[2:, 1:-1] - c))
+        g[1:-1, 1:-1] = gx / np.float32(dx) + gy / np.float32(dy)
+    g[~np.isfinite(g)] = 0.0
+    return g
+
+
+@pytest.mark.parametrize("shape", [(1, 5), (2, 9), (3, 3), (5, 2), (150, 4100), (9, 7)])
+def test_steepest_sides_in_bands_equals_the_whole_array(shape):
+    """Banded (64 rows of 4100 cells at a time, into ``out``): the same float32 values as the whole array at once,
+    bit for bit, with +inf (no erosion) and NaN cells, at the borders and across the bands' seams."""
+    rng = np.random.default_rng(4)
+    s = (rng.random(shape) * 30).astype(np.float32)
+    s[rng.random(shape) < 0.05] = np.inf
+    s[rng.random(shape) < 0.02] = np.nan
+    want = _steepest_sides_whole(s, (0.3, 0.7))
+    out = np.full(shape, 7.0, np.float32)
+    got = morph._steepest_sides(s, (0.3, 0.7), out)
+    assert got is out
+    assert got.tobytes() == want.tobytes()
+    assert morph._steepest_sides(s, (0.3, 0.7)).tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("ry,rx", [(0, 0), (1, 2), (3, 1), (6, 6)])
+def test_window_top_at_cells_equals_the_running_box(ry, rx):
+    """The reference's top read at some cells (corners, edges, inside; NaN and +inf left out, -inf where a window
+    holds no value) equals the running maximum over the raster with non-finite values as -inf."""
+    rng = np.random.default_rng(5)
+    a = (rng.random((13, 11)) * 10).astype(np.float32)
+    a[rng.random(a.shape) < 0.1] = np.nan
+    a[2, 3] = np.inf
+    a[9:, :4] = np.nan                                     # a window of NaN only at (11, 1) for small windows
+    full = np.where(np.isfinite(a), a, np.float32(-np.inf))
+    want = morph._running_box(full, ry, rx, np.maximum, morph._Work(), np.empty_like(full))
+    cells = np.array([0, 10, 12 * 11, a.size - 1, 2 * 11 + 3, 11 * 11 + 1, 6 * 11 + 5, 3])
+    got = morph._window_top(a, cells, ry, rx, chunk=40)
+    assert got.tobytes() == want.ravel()[cells].tobytes()
+    if ry <= 1 and rx <= 1:
+        assert got[5] == -np.inf
+
+
+def test_spare_continuing_reads_the_top_at_its_cells_as_on_the_raster():
+    """``ref_top`` given as the window's half-widths (read at the cells the test needs, as ``_progressive`` does)
+    passes the same cells as the running maximum over the raster."""
+    rng = np.random.default_rng(6)
+    g = (rng.random((40, 50)) * 0.6).astype(np.float32)
+    g[10:14, :] = 0.5
+    ref = (rng.random(g.shape) * 2.0).astype(np.float32)
+    ref[rng.random(g.shape) < 0.05] = np.nan
+    up = rng.random(g.shape) < 0.3
+    d = (rng.random(g.shape) * 2.0).astype(np.float32)
+    full = np.where(np.isfinite(ref), ref, np.float32(-np.inf))
+    top = morph._running_box(full, 2, 2, np.maximum, morph._Work(), np.empty_like(full))
+    a, b = up.copy(), up.copy()
+    morph._spare_continuing(a, d, g, 0, np.float32(2.0), (4, 4), ref, top)
+    morph._spare_continuing(b, d, g, 0, np.float32(2.0), (4, 4), ref, (2, 2))
+    assert np.count_nonzero(a != up) > 5                   # some cells passed
+    np.testing.assert_array_equal(a, b)
