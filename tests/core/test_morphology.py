@@ -1308,6 +1308,35 @@ def test_continuing_rise_exact():
     assert morph.continuing_rise(0.5 * j, ground, np.array([-1]), 10.0).tolist() == [0.0]
 
 
+def test_outline_cells_leave_out_a_flank_running_along_a_feature():
+    """A dike's 1:2 flank at 4 m cells is three steps of 2 m (6, 4, 2, 0): the middle cell's foot has one step down
+    and then level ground beside it, as a roof's mixed cell (6, 3, 0) has, so the flank read as the crest's outline.
+    The step down to it from the cell opposite its foot (2 m) continues the slope through it, and such cells run
+    along the dike: with the largest window's half-width (``r_max``) they are no outline (but on the raster's last
+    row, where the cell opposite a diagonal foot lies beyond the raster). A roof's mixed cells stay outline cells,
+    and so does the rim of a cone of the same 2 m steps only five cells across (a crown: its rim curves round it
+    within a line as long as the window)."""
+    dike = np.tile(np.array([0, 0, 0, 2, 4, 6, 6, 6, 4, 2, 0, 0, 0], np.float32), (20, 1))
+    flat = np.zeros(dike.shape, np.float32)
+    before = morph.find_outline_cells(dike, flat, dike >= 6, (4.0, 4.0), 0.5)
+    assert np.unique(np.argwhere(before)[:, 1]).tolist() == [4, 8] and before.sum() == 40
+    after = morph.find_outline_cells(dike, flat, dike >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    assert not after[:-1].any()
+    roof = np.tile(np.array([0, 0, 0, 0, 3, 6, 6, 6, 3, 0, 0, 0, 0], np.float32), (20, 1))
+    outline = morph.find_outline_cells(roof, flat, roof >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    assert np.unique(np.argwhere(outline)[:, 1]).tolist() == [4, 8] and outline.sum() == 40
+    i, j = np.mgrid[0:21, 0:21]
+    d = np.maximum(np.abs(i - 10), np.abs(j - 10)).astype(np.float32)
+    cone = np.clip(6.0 - 2.0 * np.maximum(d - 1.0, 0.0), 0.0, None).astype(np.float32)
+    flat = np.zeros(cone.shape, np.float32)
+    rim = morph.find_outline_cells(cone, flat, cone >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    np.testing.assert_array_equal(rim, morph.find_outline_cells(cone, flat, cone >= 6, (4.0, 4.0), 0.5))
+    assert rim.sum() == 16
+    # the cell opposite the foot: 2 m above the flank's middle cell, none above the crest's or beyond the raster
+    assert morph._rise_above(dike, np.array([3 * 13 + 4, 3 * 13 + 6, 3 * 13 + 4]),
+                             np.array([3 * 13 + 3, 3 * 13 + 5, -1])).tolist() == [2.0, 0.0, 0.0]
+
+
 def _flank_and_roof():
     """A mound with 1:1 flanks 6 m high (flags on its top, z > 4.5) and a roof 6 m high ringed by one cell of
     mixed cells at half its height, each on level ground, 1 m cells."""
