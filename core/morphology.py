@@ -153,6 +153,19 @@ Generalisation matrix mean 3.053 -> 3.049 % (ISPRS sample 61 -0.04 to -0.11; wit
 left: its cut crests stood on one-cell rises steeper than the 90th-percentile slope of 40 m blocks, so on
 walls (next paragraph).
 
+The single window's cut of the terrain (the 1996 form's premise, read on the terrain itself). ``auto`` takes the
+single form where the terrain is flat at the window's scale: the 90th-percentile slope of 40 m block minima times
+half the window at most ``dh``. Those blocks do not show terrain features narrower than a block: on the levees at
+4 m the search found a region on walls at the dikes' junction (one-cell rises of 2 m), so its 28 m window was
+an object's, the block minima read a slope of 0.002 and the single window cut all three dikes (13.1 % of the
+ground). The progressive search kept the dikes as ground, so the single opening's cut is counted on the ground
+the search kept (:func:`single_window_cuts`), deeper than the search's own object height (``dh``, at least 2 m):
+where those cells outnumber the cells of objects the search found, the single window would remove more terrain
+than objects and the progressive form is used. Levees at 4 m: 659 cells cut deeper than 2 m against 96 of
+objects, 13.08 -> 10.66 % (the progressive form's flags on the dikes' crests are left: next paragraph); lidar
+autzen_trim at 1 m (a flat town, the only row of the matrix in the single form) keeps it
+(117 cells of the kept ground cut deeper than 2 m against 1967 of objects).
+
 Walls and slopes (what the wall test reads beyond the foot). Every wall test (the outline cells, the attached
 tiers, the cut terrain, the objects on walls) compared a cell's rise above the lowest ground beside it with
 ``dh`` plus the terrain's rise over a cell diagonal, the terrain's slope read on 40 m block minima (0.002 on
@@ -168,9 +181,18 @@ dunes at 4 m 1.98 -> 1.07 %, mean 0.96 -> 0.70 %, no row worse. Generalisation m
 at 1 m 3.15 -> 1.97 %, mean 3.055 -> 3.018 % (half A 3.569 -> 3.536, half B 2.527 -> 2.487); the opengeos
 top-surface DSM at 2 m +0.20; dtm (its member) 2.439 -> 2.433 %, no row worse by 0.1. ISPRS 1 m lowest 3.99 ->
 3.98 % (dtm 3.32 unchanged); ``benchmarks/sites.py`` mean 2.83 -> 2.80 % (embankment at 1 m 2.30 -> 1.98), no
-row worse. Still open: the levees at 4 m (13.1 %): the land-side flank of the 6 m dike is
-three cells of 4 m, so its second step beyond the crest's edge is the level floodplain, as beyond a mixed
-cell, and its crest still reads as an object on walls.
+row worse. The land-side flank of the 6 m dike of the levees at 4 m is three cells of 4 m (6, 4, 2, 0), so its
+middle cell's second step beyond its foot is the level floodplain, as beyond a mixed cell (6, 3, 0), and it read
+as the crest's outline. What tells them apart is the step down to the cell from the cell opposite its foot (2 m:
+the slope runs through the cell; a mixed cell's foot has none beyond it), and that such a flank runs along its
+feature: an outline candidate whose rise is within ``dh`` of the smaller of that step and its foot's next one,
+where such cells hold half of a line as long as the largest window, is no outline cell
+(:func:`_flank_along`, in :func:`find_outline_cells`). ``benchmarks/bare.py``: levees at 4 / 2 m 10.66 / 0.95 ->
+9.58 / 0.86 %; generalisation matrix (82 rows, morphological and dtm) unchanged on every row. Without the line (every
+cell on such a slope): levees 8.02 / 0.82, ISPRS sample 21 at 2 m -0.4, sample 71 at 2 m lowest -0.24, but the
+low crowns and shrubs of the opengeos top-surface DSM at 2 m fall over several cells in even steps of 0.6-1.2 m
+too and lost their outlines: 6.56 -> 7.35 % (dtm +0.12; the highest neighbour instead of the cell opposite the
+foot 7.75). Still open: the dikes' crests the progressive flags take at 4 m (9.6 %: their edges stand on walls).
 
 Terrain longer than the box (dikes, embankments, crests across the raster). The cut terrain's rule judges whole
 regions within the tiers' box and off the raster's border, so a dike narrower than the largest window, steeper
@@ -182,8 +204,8 @@ inside an edge, and no wall at all (nor a flagged cell on the raster's border), 
 (:func:`find_cut_slopes`; bounded reach, so blocks equal one pass). ``benchmarks/bare.py``: levees at 1 m
 1.58 -> 0.36 % (the curved 6 m dike), mounds at 1 m 0.20 -> 0.18, mean 0.70 -> 0.67; no other row changed.
 Generalisation matrix (82 rows), ISPRS and dtm: every row unchanged. Not reached: a crest one or two cells wide
-(levees at 2 m: no cell inside its edge) and the levees at 4 m (single form; at 4 m cells a 6 m dike's 1:2
-flank is two steps of 2 m then level ground, a wall with a mixed cell there). Reading ``G_k`` on each step's own
+(levees at 2 m: no cell inside its edge) and the levees at 4 m (at 4 m cells a 6 m dike's 1:2 flank is steps
+of 2 m then level ground, a wall with a mixed cell there). Reading ``G_k`` on each step's own
 erosion too (the erosion by the largest window removes a dike narrower than it) kept such flanks below the
 flags (probe: breakline at 0.5 m 3.33 -> 0.18 %, mixed with holes at 1 m 5.76 -> 4.55) but it keeps the crowns
 of trees wider than the step's window too: ISPRS sample 71 at 2 m +0.15 / +0.23, dense forest lidar at 1 m
@@ -1236,7 +1258,7 @@ def _tolerance_bands(surface, cell, es, dh):
         yield b, thr
 
 
-def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
+def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None, r_max=None):
     """Mixed cells on the outlines of the flagged objects: cells next to them that stand on
     the object's flank, not on the ground beside it.
 
@@ -1273,6 +1295,11 @@ def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
         SMRF's elevation threshold ``e_t``, metres.
     slope : float
         The terrain's slope (rise/run) the ground beside an object may show.
+    work : _Work, optional
+        Scratch buffers.
+    r_max : (int, int), optional
+        Half-widths of the largest window, cells: with it, a cell on a slope running through it along a feature
+        at least that long is no outline cell (:func:`_flank_along`).
 
     Returns
     -------
@@ -1312,7 +1339,11 @@ def find_outline_cells(clean, opened, flagged, cell, dh, slope=0.0, work=None):
         _, foot = _lowest_ground(clean, ground, sel)
         beyond = continuing_rise(clean, ground, foot, _MAX_SLOPE * math.hypot(dx, dy))
         with np.errstate(invalid="ignore"):
-            keep[keep] = un.ravel()[sel] > np.float32(dh) + beyond
+            out = un.ravel()[sel] > np.float32(dh) + beyond
+        if r_max is not None and out.any():             # a flank of a few cells along a feature: no outline
+            k = np.flatnonzero(out)
+            out[k[_flank_along(clean, ground, sel[k], foot[k], un.ravel()[sel[k]], dh, cell, r_max)]] = False
+        keep[keep] = out
     near.ravel()[idx[~keep]] = False
     return near
 
@@ -1396,6 +1427,54 @@ def _walls(clean, ground, edge, rise, dh=None, steepest=_MAX_SLOPE, cell=(1.0, 1
             is_wall[sel] = step[sel] > np.float32(dh) + beyond
     wall.ravel()[cells[is_wall]] = True
     return wall
+
+
+def _flank_along(clean, ground, cells, feet, rise, dh, cell, r_max):
+    """Which of ``cells`` (flat indices; their ``feet``, the lowest ``ground`` cell around, and their ``rise`` above
+    it) lie on a slope running through them along a feature: the step down to the cell from the cell opposite its
+    foot and the foot's own next step down both continue the cell's step (``rise <= dh +`` the smaller of the two,
+    at most :data:`_MAX_SLOPE` over a cell diagonal), and such cells hold half of some straight line as long as the
+    largest window (``2 r_max + 1`` cells, :func:`~bare_earth.core.estimate.line_share`).
+
+    A dike's 1:2 flank at 4 m cells is three steps of 2 m (6, 4, 2, 0): beyond the foot of its middle cell lies
+    one step and then level ground, as beyond a roof's mixed cell (6, 3, 0), so :func:`continuing_rise` reads a
+    wall. The step from above tells them apart (2 m on the flank: the slope runs through the cell; 0 beyond the
+    mixed cell's foot). Low crowns and shrubs of a top-surface DSM fall over several cells in even steps too
+    (opengeos at 2 m: 0.6-1.2 m a cell), but their rims curve round them within their width, while a flank runs
+    along its feature (Sithole and Vosselman 2004: terrain is continuous; objects are bounded).
+    """
+    cf = clean.ravel()
+    has = feet >= 0
+    base = np.where(has, feet, cells)
+    z2, _ = _lowest_ground(clean, ground, base)
+    with np.errstate(invalid="ignore"):
+        run = np.minimum(_rise_above(clean, cells, feet), cf[base] - z2)
+    run[~np.isfinite(run) | ~has] = 0.0
+    np.minimum(run, np.float32(_MAX_SLOPE * math.hypot(*cell)), out=run)
+    with np.errstate(invalid="ignore"):
+        on = rise <= np.float32(dh) + run
+    if not on.any():
+        return on
+    marks = np.zeros(clean.shape, np.float32)
+    marks.ravel()[cells[on]] = 1.0
+    on[on] = line_share(marks, cells[on], r_max, 0.5) >= _CONTINUING_SHARE
+    return on
+
+
+def _rise_above(clean, cells, feet):
+    """How far the cell opposite each foot across each of ``cells`` (flat indices; the foot one of its 8
+    neighbours, -1 for none) stands above the cell, metres (0 where it is lower, beyond the raster or nodata): the
+    step down to the cell along the line the step to its foot continues."""
+    H, W = clean.shape
+    r, c = np.divmod(cells, W)
+    fr, fc = np.divmod(np.where(feet >= 0, feet, cells), W)
+    orow, ocol = 2 * r - fr, 2 * c - fc
+    ok = (feet >= 0) & (orow >= 0) & (orow < H) & (ocol >= 0) & (ocol < W)
+    cf = clean.ravel()
+    with np.errstate(invalid="ignore"):
+        up = cf[np.clip(orow, 0, H - 1) * W + np.clip(ocol, 0, W - 1)] - cf[cells]
+    up[~ok | ~np.isfinite(up) | (up < 0)] = 0.0
+    return up.astype(np.float32)
 
 
 #: Cells beyond a wall's foot that :func:`continuing_rise` reads (two steps down).
@@ -1768,7 +1847,9 @@ def open_progressive(z, cell, p, work, progress=None):
     #    interpolates, take the last opening (the ground reconstructed under them), and
     #    so do the mixed cells on the objects' outlines (find_outline_cells)
     left_out = obj | low | nodata
-    outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], p["outline_slope"], work)
+    #    (a flank of a few cells along a feature as long as the largest window is none: _flank_along)
+    outline = find_outline_cells(clean, opened, left_out, cell, p["dh_m"], p["outline_slope"], work,
+                                 r_max=radii[-1][:2])
     left_out |= outline
     report(progress, 0.86)
     #    and the lower tiers attached to the objects (find_attached_tiers)
@@ -1933,7 +2014,7 @@ def estimate_terrain_slope(z, cell_size, scale_m=20.0, percentile=90.0, scale_do
 
 def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, progress=None, outline_slope=None,
                          window_growth=_OBJECT_SEARCH_GROWTH, wide_slope=None, wide_radius_m=None, on_walls=True,
-                         details=False, noise_m=0.0):
+                         details=False, noise_m=0.0, with_mask=False):
     """Side of the largest object, metres, found by the progressive filter itself.
 
     The progressive filter with windows up to ``search_m`` flags the cells standing more
@@ -1952,7 +2033,8 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     windows) is the search's own. ``wide_slope`` and ``wide_radius_m`` are the filter's (default
     ``slope`` at every radius). ``progress(fraction)`` (optional, may raise ``Cancelled``)
     from inside the filter. ``details``: return ``(size of the objects on walls, size of every region
-    flagged, whether a region wider than its outline was judged to stand on walls)`` from the one search.
+    flagged, whether a region wider than its outline was judged to stand on walls)`` from the one search;
+    with ``with_mask`` too, the search's mask (0 ground, 1 object, 2 low, 255 nodata) as a fourth item.
     """
     z = as_surface(z)
     cell = as_cell_size(cell_size)
@@ -1980,8 +2062,39 @@ def estimate_object_size(z, cell_size, slope, dh, search_m=_OBJECT_SEARCH_M, pro
     if on_walls or details:
         walled = objects_on_walls(*args, hidden=holes)
     if details:
-        return size(walled), size(flagged), bool(objects_on_walls(*args, hidden=holes, keep_thin=False).any())
+        found = (size(walled), size(flagged), bool(objects_on_walls(*args, hidden=holes, keep_thin=False).any()))
+        return found + (res.mask,) if with_mask else found
     return size(walled if on_walls else flagged)
+
+
+def single_window_cuts(z, cell_size, size_m, cells, depth_m):
+    """How many of ``cells`` (bool) the single window's opening lies more than ``depth_m`` below: what the 1996
+    form would cut that deep there.
+
+    The single form removes every raised feature narrower than its window and higher than ``dh``, terrain
+    included: it is the production form where the terrain is flat at the window's scale (the 1996 system's
+    premise). :func:`resolve_morphological_params` judges that from the slope of 40 m block minima, which do not
+    show terrain features narrower than a block (dikes on a floodplain, a crest); counted on the ground the
+    progressive object-size search kept (terrain passed at its slope) below the search's own object height,
+    the opening's cut shows them.
+
+    Examples
+    --------
+    A dike 4 m high on a level plain, its crest 5 m wide and its sides 1:1: a 20 m window cuts its crest and the
+    top of its sides by more than 2 m (7 cells of each row), an 11 m window its crest (5 cells), a 9 m window
+    nothing that deep.
+
+    >>> j = np.tile(np.arange(48, dtype=np.float32), (8, 1))
+    >>> z = np.clip(4.0 - np.maximum(np.abs(j - 24.0) - 2.0, 0.0), 0.0, None).astype(np.float32)
+    >>> [single_window_cuts(z, 1.0, w, np.ones(z.shape, bool), 2.0) // 8 for w in (20.0, 11.0, 9.0)]
+    [7, 5, 0]
+    >>> single_window_cuts(z, 1.0, 20.0, z == 0, 2.0)
+    0
+    """
+    z = as_surface(z)
+    with np.errstate(invalid="ignore"):
+        deep = (z - open_surface(z, cell_size, size_m)) > np.float32(depth_m)
+    return int(np.count_nonzero(deep & np.asarray(cells, bool)))
 
 
 def objects_on_walls(z, objects, ground, cell, dh, slope, hidden=None, keep_thin=True):
@@ -2084,9 +2197,12 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
       and it removes every terrain feature narrower than it and higher than ``dh``, which the 40 m block
       minima do not show (dikes on a floodplain: ``benchmarks/bare.py`` levees at 0.5 / 1 / 2 m 6.20 /
       15.64 / 5.13 -> 0.09 / 1.90 / 2.35 % of the ground lost), so the progressive form is used;
-      ``mode_reason`` says why. Where objects on walls were found the slope rule stands: it still misses
-      terrain features narrower than the blocks (levees at 4 m, where the search's regions on the dikes
-      stand on one-cell rises of 2 m, lose 13.1 % in the single form).
+      ``mode_reason`` says why. Where objects on walls were found and the slope rule reads flat terrain, the
+      single window's cut is read on the terrain too: the progressive form is used when the cells of the ground
+      the search kept that the single opening would cut deeper than the search's object height (``dh``, at least
+      2 m) outnumber the cells of the objects it found (:func:`single_window_cuts`: terrain features narrower
+      than the blocks; levees at 4 m, where the search's region at the dikes' junction stands on one-cell rises
+      of 2 m: 13.08 -> 10.66 % of the ground lost).
 
     Large rasters are reduced to block minima of at most a million cells for the slope
     and the object size; the noise is measured at full resolution on windows spread over
@@ -2192,11 +2308,13 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
     else:
         out["wide_slope_source"] = "given"
     unfounded = False                                   # the window is a default, no object's width
+    search = None                                       # the object-size search's mask
     if max_object_size_m is None:
-        w, w_all, walls = estimate_object_size(zs, cs, out["slope"], out["dh_m"], noise_m=out["noise_m"],
-                                               progress=sub_progress(progress, 0.45, 1.0),
-                                               outline_slope=out["outline_slope"], wide_slope=out["wide_slope"],
-                                               wide_radius_m=out["wide_radius_m"], details=True)
+        w, w_all, walls, search = estimate_object_size(zs, cs, out["slope"], out["dh_m"], noise_m=out["noise_m"],
+                                                     progress=sub_progress(progress, 0.45, 1.0),
+                                                     outline_slope=out["outline_slope"], wide_slope=out["wide_slope"],
+                                                     wide_radius_m=out["wide_radius_m"], details=True,
+                                                     with_mask=True)
         unfounded = not walls
         if np.isfinite(w):
             out["max_object_size_m"] = float(min(_MAX_OBJECT_M, max(_MIN_OBJECT_M, w)))
@@ -2248,11 +2366,29 @@ def resolve_morphological_params(z: np.ndarray, cell_size: Union[float, Tuple[fl
                                   f"by up to {cut:.2f} m > dh {out['dh_m']:.2f} m, so the progressive "
                                   "filter (SMRF) is used")
         else:
-            out["mode"] = "single"
-            out["mode_reason"] = (f"terrain flat: a single {out['max_object_size_m']:.1f} m opening "
-                                  f"cuts the terrain's 90th-percentile slope {s_t:.3f} by at most "
-                                  f"{cut:.2f} m <= dh {out['dh_m']:.2f} m, so the single-window 1996 "
-                                  "form is used")
+            # the window's cut read on the terrain itself: the ground the progressive search kept that the single
+            # opening would cut deeper than the search's least object height (terrain features narrower than the
+            # slope's 40 m blocks: dikes), against the objects the search found
+            deep = found = 0
+            if search is not None:
+                deep = single_window_cuts(zs, cs, out["max_object_size_m"], search == GROUND,
+                                          max(out["dh_m"], _OBJECT_HEIGHT_M))
+                found = int(np.count_nonzero(search == OBJECT))
+            if deep > found:
+                out["mode"] = "progressive"
+                out["mode_reason"] = (f"terrain flat at the scale of 40 m blocks (90th-percentile slope {s_t:.3f}), "
+                                      f"but a single {out['max_object_size_m']:.1f} m opening would cut {deep} cells "
+                                      f"of the ground the object-size search kept by more than "
+                                      f"{max(out['dh_m'], _OBJECT_HEIGHT_M):.2f} m, more than the {found} cells of "
+                                      "objects it found (terrain features narrower than the blocks: dikes), so the "
+                                      "progressive filter (SMRF) is used")
+            else:
+                out["mode"] = "single"
+                out["mode_reason"] = (f"terrain flat: a single {out['max_object_size_m']:.1f} m opening "
+                                      f"cuts the terrain's 90th-percentile slope {s_t:.3f} by at most "
+                                      f"{cut:.2f} m <= dh {out['dh_m']:.2f} m, and {deep} cells of the ground the "
+                                      f"object-size search kept by more than {max(out['dh_m'], _OBJECT_HEIGHT_M):.2f} "
+                                      f"m (objects found: {found} cells), so the single-window 1996 form is used")
     else:
         out["mode_reason"] = f"mode {mode!r} given by the user"
     return out
@@ -2267,7 +2403,8 @@ def morphological_halo(params, cell_size):
     neighbours and their lowest neighbour; before them the cut terrain (:func:`find_cut_terrain`), a
     flagged region as wide as the same box, its edge's neighbours and their lowest neighbour; last the
     final test's low cells (:func:`confirm_low_cells`): their neighbours' classes and the ring around
-    them."""
+    them. The outline cells' test reads a line as long as the largest window through each cell on a flank
+    (:func:`_flank_along`) and the cell opposite its foot: the largest half-window and two cells more."""
     cell = as_cell_size(cell_size)
     size = params.get("max_object_size_m") or _MAX_OBJECT_M
     ry, rx = _half_widths(size, cell)
@@ -2277,8 +2414,9 @@ def morphological_halo(params, cell_size):
     # the flags: the opening's two half-windows; the ground slope's (ground_slope_map: the erosion, its central
     # difference, the opening of the slopes, the step's running maximum) 1 + 2 _SLOPE_RUN_CELLS cells more
     # (each wall and outline test reads the ground two steps beyond its foot: continuing_rise, 2 cells more)
+    # (the outline cells' flanks along a feature: a line of the largest window's half-width, _flank_along)
     core = int(2 * max(ry, rx) + 1 + 2 * _SLOPE_RUN_CELLS + 2 * max(low[0], low[1], pit) + 4 + 2 * _CONTINUE_CELLS
-               + 2 * (max(_tier_box((ry, rx))) + 3 + _CONTINUE_CELLS))
+               + 2 * (max(_tier_box((ry, rx))) + 3 + _CONTINUE_CELLS) + max(ry, rx) + 2)
     # the final test's low cells: their neighbours' classes and the ring around them (confirm_low_cells)
     return max(core + 1, max(surroundings_reach(cell)[2:]) + 1)
 

@@ -416,6 +416,50 @@ def test_auto_mode_is_progressive_when_no_object_is_found():
     assert np.all(single[dike > 0.5] == OBJECT)                  # what the single window would have done
 
 
+def test_auto_mode_is_progressive_when_the_single_window_would_cut_more_terrain_than_objects():
+    """A dike 4 m high (1:2 sides, 20 m at its base) across a flat floodplain beside three buildings on walls: the
+    search finds the buildings, so the window is theirs (17 m) and the 40 m block minima, which do not show the
+    dike, read flat terrain; the single window would cut the dike's crest and upper sides deeper than the
+    search's 2 m (1779 cells of the ground the search kept, against 540 cells of objects found). Auto uses the
+    progressive form: the dike stays ground and the buildings are found; the buildings alone keep the single
+    form."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:200, 0:200].astype(np.float32)
+    dike = np.clip(4.0 - np.maximum(np.abs(xx - 100.0) - 2.0, 0.0) / 2.0, 0.0, None)
+    flat = (100.0 + rng.normal(0, 0.05, xx.shape)).astype(np.float32)
+    truth = np.zeros(flat.shape, bool)
+    for r, c in ((20, 30), (100, 150), (150, 40)):
+        flat[r:r + 15, c:c + 12] += 9.0
+        truth[r:r + 15, c:c + 12] = True
+    p = morph.resolve_morphological_params(flat, 1.0)
+    assert p["mode"] == "single" and "terrain flat" in p["mode_reason"]
+    z = (flat + dike).astype(np.float32)
+    p = morph.resolve_morphological_params(z, 1.0)
+    assert p["mode"] == "progressive" and "more than the" in p["mode_reason"]
+    assert 12.0 <= p["max_object_size_m"] <= 25.0                # the buildings' window, not a guess
+    run = {k: p[k] for k in ("mode", "max_object_size_m", "dh_m", "slope", "outline_slope", "wide_slope",
+                             "wide_radius_m", "noise_m")}
+    mask = morph.filter_morphological(z, 1.0, **run).mask
+    assert np.all(mask[truth] == OBJECT)
+    assert np.count_nonzero(mask[dike > 0.5] != GROUND) < 0.05 * np.count_nonzero(dike > 0.5)
+    single = morph.filter_morphological(z, 1.0, **dict(run, mode="single")).mask
+    assert np.count_nonzero(single[dike > 0.5] != GROUND) > 0.8 * np.count_nonzero(dike > 0.5)
+
+
+def test_single_window_cuts_counts_the_cells_cut_deeper_than_a_depth():
+    """A dike 4 m high, crest 5 m, sides 1:1: a 20 m opening cuts 7 cells of each row deeper than 2 m (3, 4, 4, 4,
+    4, 4, 3 m), an 11 m one 5 (3 m), a 9 m one none (2 m is not deeper); only the cells given count; nodata is
+    never cut."""
+    j = np.tile(np.arange(48, dtype=np.float32), (8, 1))
+    z = np.clip(4.0 - np.maximum(np.abs(j - 24.0) - 2.0, 0.0), 0.0, None).astype(np.float32)
+    every = np.ones(z.shape, bool)
+    assert [morph.single_window_cuts(z, 1.0, w, every, 2.0) for w in (20.0, 11.0, 9.0)] == [56, 40, 0]
+    assert morph.single_window_cuts(z, 1.0, 20.0, j < 24, 2.0) == 24
+    assert morph.single_window_cuts(z, 1.0, 20.0, every, 3.5) == 40
+    z[:, 24] = np.nan
+    assert morph.single_window_cuts(z, 1.0, 20.0, every, 2.0) == 48
+
+
 def test_objects_on_walls_keeps_regions_on_walls_only():
     """A region whose edge stands on walls is kept; one falling to the ground at the terrain's slope is not;
     one with no edge on the ground (filling the raster) is kept."""
@@ -1262,6 +1306,35 @@ def test_continuing_rise_exact():
     assert morph.continuing_rise(mixed, ground, foot, 10.0).tolist() == [0.0]
     assert morph.continuing_rise(3.0 * j, ground, foot, 2.0).tolist() == [2.0]
     assert morph.continuing_rise(0.5 * j, ground, np.array([-1]), 10.0).tolist() == [0.0]
+
+
+def test_outline_cells_leave_out_a_flank_running_along_a_feature():
+    """A dike's 1:2 flank at 4 m cells is three steps of 2 m (6, 4, 2, 0): the middle cell's foot has one step down
+    and then level ground beside it, as a roof's mixed cell (6, 3, 0) has, so the flank read as the crest's outline.
+    The step down to it from the cell opposite its foot (2 m) continues the slope through it, and such cells run
+    along the dike: with the largest window's half-width (``r_max``) they are no outline (but on the raster's last
+    row, where the cell opposite a diagonal foot lies beyond the raster). A roof's mixed cells stay outline cells,
+    and so does the rim of a cone of the same 2 m steps only five cells across (a crown: its rim curves round it
+    within a line as long as the window)."""
+    dike = np.tile(np.array([0, 0, 0, 2, 4, 6, 6, 6, 4, 2, 0, 0, 0], np.float32), (20, 1))
+    flat = np.zeros(dike.shape, np.float32)
+    before = morph.find_outline_cells(dike, flat, dike >= 6, (4.0, 4.0), 0.5)
+    assert np.unique(np.argwhere(before)[:, 1]).tolist() == [4, 8] and before.sum() == 40
+    after = morph.find_outline_cells(dike, flat, dike >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    assert not after[:-1].any()
+    roof = np.tile(np.array([0, 0, 0, 0, 3, 6, 6, 6, 3, 0, 0, 0, 0], np.float32), (20, 1))
+    outline = morph.find_outline_cells(roof, flat, roof >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    assert np.unique(np.argwhere(outline)[:, 1]).tolist() == [4, 8] and outline.sum() == 40
+    i, j = np.mgrid[0:21, 0:21]
+    d = np.maximum(np.abs(i - 10), np.abs(j - 10)).astype(np.float32)
+    cone = np.clip(6.0 - 2.0 * np.maximum(d - 1.0, 0.0), 0.0, None).astype(np.float32)
+    flat = np.zeros(cone.shape, np.float32)
+    rim = morph.find_outline_cells(cone, flat, cone >= 6, (4.0, 4.0), 0.5, r_max=(3, 3))
+    np.testing.assert_array_equal(rim, morph.find_outline_cells(cone, flat, cone >= 6, (4.0, 4.0), 0.5))
+    assert rim.sum() == 16
+    # the cell opposite the foot: 2 m above the flank's middle cell, none above the crest's or beyond the raster
+    assert morph._rise_above(dike, np.array([3 * 13 + 4, 3 * 13 + 6, 3 * 13 + 4]),
+                             np.array([3 * 13 + 3, 3 * 13 + 5, -1])).tolist() == [2.0, 0.0, 0.0]
 
 
 def _flank_and_roof():
