@@ -588,23 +588,31 @@ def test_banks_stage_keeps_shrubs_by_the_bump_test_of_the_grounds_spread(monkeyp
     assert f"{want:.3f} m above the ground interpolated" in res.info["banked_ground_rule"]
 
 
+def _site_with_and_without(monkeypatch, kind, point, switch):
+    """dtm on a synthetic site at 2 m with ``dtm.<switch>`` on, then off: ground cells lost with and without,
+    object cells kept as ground with and without, and the count of valid cells."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site(kind, 2.0, point, seed=0)
+    valid = s.mask != NODATA
+    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    monkeypatch.setattr(dtm_method, switch, False)
+    before = pipeline.run_array("dtm", s.dsm, s.cell_size)
+    truth_ground = valid & (s.mask == GROUND)
+    lost, lost_before = (np.count_nonzero(truth_ground & (m.mask != GROUND)) for m in (res, before))
+    kept, kept_before = (np.count_nonzero(valid & (s.mask != GROUND) & (m.mask == GROUND)) for m in (res, before))
+    return lost, lost_before, kept, kept_before, np.count_nonzero(valid)
+
+
 def test_banks_given_back_are_spared_by_the_refinement(monkeypatch):
     """The ``embankment`` site at 2 m (lowest point): a dike 2-3 m high with a crest of 3-5 m and a road
     embankment, which every member rejects. The banks continue_banks gives back (smooth, joined to the ground
     no steeper than earth stands, long, no bump on any of their four lines) are what the refinement's one-line
     tests would take back: a bank is bracketed by the fields on both sides of it, as a bush is. dtm spares them
     (SPARE_BANKS): the ground lost falls by a tenth, the objects kept do not grow."""
-    from bare_earth.core.synthetic_sites import make_site
-    s = make_site("embankment", 2.0, "lowest", seed=0)
-    valid = s.mask != NODATA
-    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
-    monkeypatch.setattr(dtm_method, "SPARE_BANKS", False)
-    before = pipeline.run_array("dtm", s.dsm, s.cell_size)
-    truth_ground = valid & (s.mask == GROUND)
-    lost, lost_before = (np.count_nonzero(truth_ground & (m.mask != GROUND)) for m in (res, before))
-    kept, kept_before = (np.count_nonzero(valid & (s.mask != GROUND) & (m.mask == GROUND)) for m in (res, before))
+    lost, lost_before, kept, kept_before, n = _site_with_and_without(monkeypatch, "embankment", "lowest",
+                                                                     "SPARE_BANKS")
     assert lost < 0.92 * lost_before
-    assert kept <= kept_before + 0.001 * np.count_nonzero(valid)
+    assert kept <= kept_before + 0.001 * n
 
 
 def test_platforms_on_level_lines_stay_ground(monkeypatch):
@@ -613,14 +621,7 @@ def test_platforms_on_level_lines_stay_ground(monkeypatch):
     bracketed cell on a straight line of ground running LEVEL_LINE_M both ways (dtm_refine.find_level_lines) is
     bracketed across a long feature only and stays ground (LEVEL_LINES): the ground lost falls by a third, the
     objects kept do not grow."""
-    from bare_earth.core.synthetic_sites import make_site
-    s = make_site("railway", 2.0, "highest", seed=0)
-    valid = s.mask != NODATA
-    res = pipeline.run_array("dtm", s.dsm, s.cell_size)
-    monkeypatch.setattr(dtm_method, "LEVEL_LINES", False)
-    before = pipeline.run_array("dtm", s.dsm, s.cell_size)
-    truth_ground = valid & (s.mask == GROUND)
-    lost, lost_before = (np.count_nonzero(truth_ground & (m.mask != GROUND)) for m in (res, before))
-    kept, kept_before = (np.count_nonzero(valid & (s.mask != GROUND) & (m.mask == GROUND)) for m in (res, before))
+    lost, lost_before, kept, kept_before, n = _site_with_and_without(monkeypatch, "railway", "highest",
+                                                                     "LEVEL_LINES")
     assert lost < 0.67 * lost_before
-    assert kept <= kept_before + 0.001 * np.count_nonzero(valid)
+    assert kept <= kept_before + 0.001 * n

@@ -129,6 +129,46 @@ def test_long_estimates_report_and_stop_on_cancel(name, call):
     assert len(seen) == 1
 
 
+def _spy_stages(monkeypatch, module, names, events):
+    """Replace each named function of ``module`` by one that logs its name in ``events`` (where the
+    stage begins) and then runs it."""
+    for name in names:
+        f = getattr(module, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            return _f(*args, **kwargs)
+        monkeypatch.setattr(module, name, spy)
+
+
+def _city():
+    return synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+
+
+def _run_with_events(method, z, events):
+    """The method's mask without a callback, then with ``events.append`` as its callback (``events`` cleared
+    first): the two masks must be equal."""
+    meth = methods.get_method(method)
+    params = pipeline.resolve_params(meth, z, 1.0)
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events.clear()
+    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    np.testing.assert_array_equal(res.mask, base)
+
+
+def _assert_reports_after(events, named, skip=lambda a, b: False):
+    """A float report after each named stage (before the next one, or the end), and the fractions rising."""
+    for i, j in zip(named, named[1:] + [len(events)]):
+        if not skip(events[i], events[j] if j < len(events) else None):
+            assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def _named(events):
+    return [i for i, e in enumerate(events) if isinstance(e, str)]
+
+
 def test_dtm_reports_between_its_stages_after_the_vote(monkeypatch):
     """After its members voted, bareearth:dtm ran the continuations, the banks and the refinement
     (seconds on 16 Mcells) without a report: the bar stood still and a cancel waited. Every one of
@@ -136,29 +176,14 @@ def test_dtm_reports_between_its_stages_after_the_vote(monkeypatch):
     rising; the result is the one without a callback."""
     from bare_earth.core import dtm, dtm_refine
     events = []
-    stages = {dtm: ("continue_ground", "continue_lines", "continue_banks"),     # then refine_ground's own:
-              dtm_refine: ("find_bracketed", "find_step_tops", "find_edge_spikes", "find_raised_band")}
-    for mod, names in stages.items():
-        for name in names:
-            f = getattr(mod, name)
-
-            def spy(*args, _f=f, _name=name, **kwargs):
-                events.append(_name)          # where the stage begins
-                return _f(*args, **kwargs)
-            monkeypatch.setattr(mod, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
-    params = pipeline.resolve_params("dtm", z, 1.0)
-    base = methods.get_method("dtm").run(z, (1.0, 1.0), **params).mask
-    events.clear()
-    res = methods.get_method("dtm").run(z, (1.0, 1.0), progress=lambda f: events.append(f), **params)
-    np.testing.assert_array_equal(res.mask, base)
-    after = events[min(i for i, e in enumerate(events) if isinstance(e, str)):]
-    named = [i for i, e in enumerate(after) if isinstance(e, str)]
-    assert len(named) >= 6
-    for i, j in zip(named, named[1:] + [len(after)]):    # a report in each stage (or at its end)
-        assert any(isinstance(e, float) for e in after[i + 1:j]), (after[i], after[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    _spy_stages(monkeypatch, dtm, ("continue_ground", "continue_lines", "continue_banks"), events)
+    _spy_stages(monkeypatch, dtm_refine,        # then refine_ground's own
+                ("find_bracketed", "find_step_tops", "find_edge_spikes", "find_raised_band"), events)
+    _run_with_events("dtm", _city(), events)
+    after = events[min(_named(events)):]
+    assert len(_named(after)) >= 6
+    _assert_reports_after(after, _named(after))
+    _assert_reports_after(events, [])
 
 
 def test_dtm_derivation_reports_after_its_members(monkeypatch):
@@ -167,24 +192,15 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
     began); each of those estimates is now followed by one, the fractions rising, the parameters unchanged."""
     from bare_earth.core import dtm
     events = []
-    for name in ("repeated_height_share", "raised_region_grid", "raised_region_span"):
-        f = getattr(dtm, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(dtm, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    stages = ("repeated_height_share", "raised_region_grid", "raised_region_span")
+    _spy_stages(monkeypatch, dtm, stages, events)
+    z = _city()
     base = pipeline.resolve_params("dtm", z, 1.0)
     events.clear()
-    got = pipeline.resolve_params("dtm", z, 1.0, progress=events.append)
-    assert got == base
-    named = [i for i, e in enumerate(events) if isinstance(e, str)][-3:]     # the vote's own, after the members
-    assert [events[i] for i in named] == ["repeated_height_share", "raised_region_grid", "raised_region_span"]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    assert pipeline.resolve_params("dtm", z, 1.0, progress=events.append) == base
+    named = _named(events)[-3:]     # the vote's own, after the members
+    assert [events[i] for i in named] == list(stages)
+    _assert_reports_after(events, named)
 
 
 def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
@@ -195,28 +211,13 @@ def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
     callback."""
     from bare_earth.core import slope_profile
     events = []
-    for name in ("_walled_regions", "_joined_to_terrain", "_platforms", "_ramps", "_level_unwalled"):
-        f = getattr(slope_profile, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(slope_profile, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
-    meth = methods.get_method("slopeprofile")
-    params = pipeline.resolve_params(meth, z, 1.0)
-    base = meth.run(z, (1.0, 1.0), **params).mask
-    events.clear()
-    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
-    np.testing.assert_array_equal(res.mask, base)
-    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    _spy_stages(monkeypatch, slope_profile,
+                ("_walled_regions", "_joined_to_terrain", "_platforms", "_ramps", "_level_unwalled"), events)
+    _run_with_events("slopeprofile", _city(), events)
+    named = _named(events)
     assert [events[i] for i in named] == ["_walled_regions", "_joined_to_terrain", "_platforms", "_platforms",
                                           "_ramps", "_ramps", "_joined_to_terrain", "_level_unwalled"]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        if not (j < len(events) and events[i] == events[j] == "_ramps"):
-            assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    _assert_reports_after(events, named, skip=lambda a, b: a == b == "_ramps")
 
 
 def test_geodesic_dilation_step_reports_after_its_fine_regions(monkeypatch):
@@ -226,26 +227,11 @@ def test_geodesic_dilation_step_reports_after_its_fine_regions(monkeypatch):
     follows each of them, the fractions rising; the mask is the one without a callback."""
     from bare_earth.core.geodesic import dilation
     events = []
-    for name in ("_walled_pieces", "_fine_regions", "_fine_outline"):
-        f = getattr(dilation, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(dilation, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
-    meth = methods.get_method("geodesic")
-    params = pipeline.resolve_params(meth, z, 1.0)
-    base = meth.run(z, (1.0, 1.0), **params).mask
-    events.clear()
-    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
-    np.testing.assert_array_equal(res.mask, base)
-    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    _spy_stages(monkeypatch, dilation, ("_walled_pieces", "_fine_regions", "_fine_outline"), events)
+    _run_with_events("geodesic", _city(), events)
+    named = _named(events)
     assert "_fine_regions" in [events[i] for i in named]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    _assert_reports_after(events, named)
 
 
 def test_curvature_derivation_reports_after_its_slope_and_object_size(monkeypatch):
@@ -254,24 +240,14 @@ def test_curvature_derivation_reports_after_its_slope_and_object_size(monkeypatc
     waited as long). Each is now followed by a report, the fractions rising; the parameters unchanged."""
     from bare_earth.core.curvature import method as curvature
     events = []
-    for name in ("steep_terrain_slope", "object_size"):
-        f = getattr(curvature, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(curvature, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    _spy_stages(monkeypatch, curvature, ("steep_terrain_slope", "object_size"), events)
+    z = _city()
     base = pipeline.resolve_params("curvature", z, 1.0)
     events.clear()
-    got = pipeline.resolve_params("curvature", z, 1.0, progress=events.append)
-    assert got == base
-    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    assert pipeline.resolve_params("curvature", z, 1.0, progress=events.append) == base
+    named = _named(events)
     assert [events[i] for i in named] == ["steep_terrain_slope", "object_size"]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    _assert_reports_after(events, named)
 
 
 def test_curvature_object_size_reports_between_its_estimates(monkeypatch):
@@ -280,24 +256,16 @@ def test_curvature_object_size_reports_between_its_estimates(monkeypatch):
     estimate; the size unchanged."""
     from bare_earth.core.curvature import method as curvature
     events = []
-    for name in ("raised_region_grid", "raised_region_window", "square_opening"):
-        f = getattr(curvature, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(curvature, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
+    _spy_stages(monkeypatch, curvature, ("raised_region_grid", "raised_region_window", "square_opening"), events)
+    z = _city()
     base = curvature.object_size(z, (1.0, 1.0), 2.5)
     events.clear()
     assert curvature.object_size(z, (1.0, 1.0), 2.5, progress=events.append) == base
-    named = [i for i, e in enumerate(events) if isinstance(e, str)]
+    named = _named(events)
     assert [events[i] for i in named] == ["raised_region_grid", "raised_region_window", "square_opening",
                                           "raised_region_window"]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    assert events[-1] != events[named[-1]] and [e for e in events if isinstance(e, float)] == sorted(
-        e for e in events if isinstance(e, float))
+    _assert_reports_after(events, named)
+    assert events[-1] != events[named[-1]]
 
 
 def test_rascor_reports_between_its_spared_ground_stages(monkeypatch):
@@ -306,23 +274,9 @@ def test_rascor_reports_between_its_spared_ground_stages(monkeypatch):
     precedes and follows each; the mask unchanged."""
     from bare_earth.core.rascor import sequence
     events = []
-    for name in ("_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"):
-        f = getattr(sequence, name)
-
-        def spy(*args, _f=f, _name=name, **kwargs):
-            events.append(_name)
-            return _f(*args, **kwargs)
-        monkeypatch.setattr(sequence, name, spy)
-    z = synthetic.make_scene("city", shape=(200, 200), cell_size=1.0, seed=5).dsm
-    meth = methods.get_method("rascor")
-    params = pipeline.resolve_params(meth, z, 1.0)
-    base = meth.run(z, (1.0, 1.0), **params).mask
-    events.clear()
-    res = meth.run(z, (1.0, 1.0), progress=events.append, **params)
-    np.testing.assert_array_equal(res.mask, base)
-    named = [i for i, e in enumerate(events) if isinstance(e, str)]
-    assert [events[i] for i in named] == ["_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks"]
-    for i, j in zip(named, named[1:] + [len(events)]):
-        assert any(isinstance(e, float) for e in events[i + 1:j]), (events[i], events[i + 1:j + 1])
-    fractions = [e for e in events if isinstance(e, float)]
-    assert fractions == sorted(fractions)
+    stages = ("_spare_continuing_ground", "_spare_ramps", "_spare_slope_breaks")
+    _spy_stages(monkeypatch, sequence, stages, events)
+    _run_with_events("rascor", _city(), events)
+    named = _named(events)
+    assert [events[i] for i in named] == list(stages)
+    _assert_reports_after(events, named)
