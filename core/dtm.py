@@ -1247,10 +1247,11 @@ def widen_dtm_params(params, given, overview, cell_size):
 
 METHOD = Method(
     name="dtm",
-    bytes_per_cell=102.0,      # measured 81.5 (speed.py, 16 Mcells), 91.4 (49.6 Mcells windows); 99-102 (16 Mcells)
+    bytes_per_cell=104.0,      # measured 81.5 (speed.py, 16 Mcells), 91.4 (49.6 Mcells windows); 99-102 (16 Mcells)
     #                            with the morphological member's slope maps (2026-11-29); 114-118 with its
     #                            continuing slopes (2026-11-30); 96.5 with their one buffer and the top read at its
-    #                            cells (113.4 for main back to back, 2026-11-30)
+    #                            cells (113.4 for main back to back, 2026-11-30); 98.4 with the level lines and
+    #                            spared banks (session 24)
     run=_run,
     resolve=resolve_dtm_params,
     halo=dtm_halo,

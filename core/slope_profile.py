@@ -1689,7 +1689,7 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="slopeprofile",
-    bytes_per_cell=58.0,       # measured 45.4 (benchmarks/speed.py, 16 Mcells, file); 55.3 (2026-11-30)
+    bytes_per_cell=72.0,       # measured 45.4 (benchmarks/speed.py, 16 Mcells, file); 55.3; 68.9 with decks (11-30)
     run=_run,
     resolve=resolve_slope_profile_params,
     halo=slope_profile_halo,

@@ -498,8 +498,9 @@ def _run(z, cell_size, progress=None, **params):
 
 METHOD = Method(
     name="curvature",
-    bytes_per_cell=92.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file); 88.6 with the large
-    #                            buildings' block-minima opening and enclosed regions (2026-11-30)
+    bytes_per_cell=104.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file); 88.6 with the large
+    #                            buildings' block-minima opening and enclosed regions; 99.7 with the
+    #                            envelope between crowns (2026-11-30, session 24)
     run=_run,
     resolve=resolve_curvature_params,
     halo=curvature_halo,
