@@ -1627,34 +1627,27 @@ def find_level_lines(z, ground, cells, cell_size, *, tolerance_m, reach_m=REACH_
     r, c = cells_of(cells & ground & np.isfinite(z))
     if r.size == 0:
         return out
-    rows, cols = z.shape
-    zg = np.where(ground & np.isfinite(z), z, np.float32(np.nan))
+    steps = {d: max(n, int(min_cells)) for d, n in refine_steps(cell_size, reach_m).items()}
+    pad = max(steps.values())           # the lines' cells beyond the raster read NaN: no line
+    zg = np.full((z.shape[0] + 2 * pad, z.shape[1] + 2 * pad), np.nan, np.float32)
+    np.copyto(zg[pad:pad + z.shape[0], pad:pad + z.shape[1]], z, where=ground)    # NaN off the ground
+    r, c = r + pad, c + pad
     found = np.zeros(r.size, bool)
-    for (di, dj), n in refine_steps(cell_size, reach_m).items():
-        n = max(n, int(min_cells))
+    for (di, dj), n in steps.items():
         todo = np.flatnonzero(~found)
         if todo.size == 0:
             break
         rr, cc = r[todo], c[todo]
-        ends = []
-        for k in (-n, n):
-            ii, jj = rr + k * di, cc + k * dj
-            on = (ii >= 0) & (ii < rows) & (jj >= 0) & (jj < cols)
-            v = np.full(rr.size, np.nan, np.float32)
-            v[on] = zg[ii[on], jj[on]]
-            ends.append(v)
-        ok = np.isfinite(ends[0]) & np.isfinite(ends[1])
-        rise = (ends[1] - ends[0]) / np.float32(2 * n)
+        z0, z1 = zg[rr - n * di, cc - n * dj], zg[rr + n * di, cc + n * dj]
+        ok = np.isfinite(z0) & np.isfinite(z1)
+        rise = (z1 - z0) / np.float32(2 * n)
         for k in range(-n + 1, n):
             if not ok.any():
                 break
-            ii, jj = rr + k * di, cc + k * dj
-            on = ok & (ii >= 0) & (ii < rows) & (jj >= 0) & (jj < cols)
-            v = np.full(rr.size, np.nan, np.float32)
-            v[on] = zg[ii[on], jj[on]]
             with np.errstate(invalid="ignore"):
-                ok &= np.abs(v - (ends[0] + rise * np.float32(k + n))) <= np.float32(tolerance_m)
+                ok &= np.abs(zg[rr + k * di, cc + k * dj] - (z0 + rise * np.float32(k + n))) <= np.float32(tolerance_m)
         found[todo[ok]] = True
+    r, c = r - pad, c - pad
     out[r[found], c[found]] = True
     return out
 
