@@ -1111,6 +1111,97 @@ def test_walled_across_exact():
     assert not even[0].any() and (even[1] == rej3[1]).all()
 
 
+def _walled_across_by_runs(rej, ground, z, tol_m, bank_m, limit, step_m, lag, standing):
+    """_walled_across's rule run by run, row by row (a reference for the random scenes)."""
+    walled, even = np.zeros(rej.shape, bool), np.zeros(rej.shape, bool)
+    W = rej.shape[1]
+    for r in range(rej.shape[0]):
+        c = 0
+        while c < W:
+            if not rej[r, c]:
+                c += 1
+                continue
+            s = c
+            while c < W and rej[r, c]:
+                c += 1
+            e = c - 1
+            if not (e - s + 1 <= limit and e - s >= lag):
+                continue
+
+            def on_walls(free, r=r, s=s, e=e):
+                f = [i for i in range(s, e + 1) if free[i]]
+                if not f:
+                    return False
+                for beyond, near, far in ((s - 1, f[0], f[min(1, len(f) - 1)]),
+                                          (e + 1, f[-1], f[max(len(f) - 2, 0)])):
+                    if not (0 <= beyond < W and ground[r, beyond]):
+                        return False
+                    rise = np.fmax(z[r, near], z[r, far]) - z[r, beyond]
+                    if not rise > tol_m + abs(beyond - far) * bank_m:
+                        return False
+                return True
+            walled[r, s:e + 1] = on_walls(np.ones(W, bool))
+            if not on_walls(~standing[r]):             # its edge: what stands on it left out
+                continue
+            steps = [abs(z[r, i + lag] - z[r, i]) <= step_m for i in range(s, e - lag + 1)]
+            level = 2 * sum(steps) >= len(steps)
+            inner = [abs(z[r, i - lag] - 2 * z[r, i] + z[r, i + lag]) <= step_m for i in range(s + lag, e - lag + 1)]
+            if inner:
+                level = 2 * sum(inner) >= len(inner)
+            even[r, s:e + 1] = level
+    return walled, even
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_walled_across_equals_its_rule_run_by_run(seed):
+    """The runs are found on the rejected cells alone (their flat indices): a run ending at a row's
+    last cell and one starting at the next row's first cell stay two runs; random runs, heights
+    (some NaN), ground and what stands on them give the rule's result run by run."""
+    rng = np.random.default_rng(seed)
+    H, W = 60, 17
+    rej = rng.random((H, W)) < 0.6
+    rej[::3, -3:] = rej[1::3, :3] = True               # runs across the rows' ends
+    z = rng.integers(0, 3, (H, W)).astype(np.float32)
+    z[rej] += rng.integers(0, 2, (H, W))[rej] * 4      # walls up to some runs' cells
+    z[rng.random((H, W)) < 0.05] = np.nan
+    ground = ~rej & (rng.random((H, W)) < 0.9)
+    standing = rej & (rng.random((H, W)) < 0.2)
+    for lag in (1, 2):
+        got = sp._walled_across(rej, ground, z, 0.5, 1.0, 8, 1.0, lag=lag, standing=standing)
+        ref = _walled_across_by_runs(rej, ground, z, 0.5, 1.0, 8, 1.0, lag, standing)
+        np.testing.assert_array_equal(got[0], ref[0])
+        np.testing.assert_array_equal(got[1], ref[1])
+        assert ref[1].any() and (ref[0] & ~ref[1]).any()   # the scene tests both outcomes
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_islands_level_equals_its_rule_region_by_region(seed):
+    """_islands_level, which reads the edges of the small regions' cells alone, gives the rule
+    region by region: a region of ground fitting the largest object with fewer than half its
+    edges to the objects stepping up by more than the step."""
+    rng = np.random.default_rng(seed)
+    H, W = 20, 23
+    obj = rng.random((H, W)) < 0.6
+    ok = rng.random((H, W)) < 0.95
+    z = rng.integers(0, 4, (H, W)).astype(np.float32)
+    z[rng.random((H, W)) < 0.05] = np.nan
+    reach = (4, 5)
+    ref = np.zeros((H, W), bool)
+    lab, n = ndimage.label(ok & ~obj, structure=np.ones((3, 3), bool))
+    for i, box in enumerate(ndimage.find_objects(lab), 1):
+        if box[0].stop - box[0].start > reach[0] or box[1].stop - box[1].start > reach[1]:
+            continue
+        edges = ups = 0
+        for r, c in zip(*np.nonzero(lab == i)):
+            for rr, cc in ((r, c - 1), (r, c + 1), (r - 1, c), (r + 1, c)):
+                if 0 <= rr < H and 0 <= cc < W and obj[rr, cc]:
+                    edges += 1
+                    ups += bool(z[rr, cc] > z[r, c] + np.float32(1.0))
+        ref[lab == i] = edges > 0 and 2 * ups < edges
+    np.testing.assert_array_equal(sp._islands_level(z, obj, ok, 1.0, reach), ref)
+    assert ref.any() and (ref != (lab > 0)).any()      # the scene tests both outcomes
+
+
 def test_decks_exact():
     """One axis's band on walls across, level: a deck when shorter than the largest object turned
     in the grid; a dam that long is ground (with trees on it too), banks are no walls."""
