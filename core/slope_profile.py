@@ -1047,11 +1047,13 @@ def _ramps(z, one, rejected, ground, step_m, axis):
     stride = W if axis == 0 else 1
     # the runs of rejected cells along ``axis`` (a profile's stretch off the ground), numbered
     # in line order; the region's cells read their run
-    rej = rejected if axis == 1 else rejected.T
+    rej = rejected if axis == 1 else transpose(rejected)
     first = rej.copy()
     first[:, 1:] &= ~rej[:, :-1]
-    runs = np.cumsum(first.ravel()) - 1
-    run = runs[cells] if axis == 1 else runs.reshape(rej.shape).T.ravel()[cells]
+    runs = np.cumsum(first.ravel(), dtype=np.int64 if first.size >= 2 ** 31 else np.int32)
+    runs -= 1
+    # read at the region's cells (their place in the transposed raster along the columns)
+    run = runs[cells] if axis == 1 else runs[(cells % W) * H + cells // W]
     del runs, first
     n_run = int(run.max()) + 1
     zf, gf = z.ravel(), ground.ravel()
@@ -1109,44 +1111,67 @@ def _platforms(z, one, obj, ok, step_m, ramp_m, axis, lag, wall_m):
     lab, n = ndimage.label(one, structure=np.ones((3, 3), bool))
     if n == 0:
         return one
-    tot = np.bincount(lab[one], minlength=n + 1)
+    # the work is on the regions' cells only (flat indices), not on the raster
+    H, W = one.shape
+    cells = np.flatnonzero(one)
+    lf, of, kf, zf = lab.ravel(), one.ravel(), ok.ravel(), z.ravel()
+    lc = lf[cells]
+    tot = np.bincount(lc, minlength=n + 1)
     ext = np.array([(b[axis].stop - b[axis].start, b[1 - axis].stop - b[1 - axis].start)
                     for b in ndimage.find_objects(lab)])
     keep = np.zeros(n + 1, bool)
     keep[1:] = (ext[:, 0] > ext[:, 1]) & (ext[:, 1] > 1)
     # on the line between its neighbours lag cells before and after along the axis
     q = int(lag)
-    on = np.zeros(one.shape, bool)
-    a = (slice(None), slice(None, -2 * q)) if axis == 1 else (slice(None, -2 * q), slice(None))
-    m = (slice(None), slice(q, -q)) if axis == 1 else (slice(q, -q), slice(None))
-    b = (slice(None), slice(2 * q, None)) if axis == 1 else (slice(2 * q, None), slice(None))
-    # its own cells, and the ground cells between two of its own (a sample the scans accepted)
-    own = one.copy()
-    own[m] |= ok[m] & ~obj[m] & one[a] & one[b]
+    size, d = (W, q) if axis == 1 else (H, q * W)
+    pos = cells % W if axis == 1 else cells // W
+    inner = (pos >= q) & (pos < size - q)
+    i, pi = cells[inner], pos[inner]
+
+    def own(x, px):
+        """Its own cells, and the ground cells between two of its own (a sample the scans accepted)."""
+        out = of[x]
+        m = (px >= q) & (px < size - q)
+        xm = x[m]
+        out[m] |= kf[xm] & ~obj.ravel()[xm] & of[xm - d] & of[xm + d]
+        return out
     with np.errstate(invalid="ignore"):
-        on[m] = np.abs(z[a] - 2 * z[m] + z[b]) <= np.float32(step_m)
-        on[m] &= own[a] & own[b]                   # the region's own cells on both sides
-    on &= one
-    keep &= 2 * np.bincount(lab[on], minlength=n + 1) >= tot
-    del on
+        on = np.abs(zf[i - d] - 2 * zf[i] + zf[i + d]) <= np.float32(step_m)
+    on &= own(i - d, pi - q) & own(i + d, pi + q)        # the region's own cells on both sides
+    keep &= 2 * np.bincount(lf[i[on]], minlength=n + 1) >= tot
+    del on, i, pi, inner, pos
     keep[0] = False
     if not keep.any():
         return np.zeros(one.shape, bool)
-    cand = keep[lab]
-    # the foot of its sides: the lowest ground cell next to it
-    rows, cols = np.flatnonzero(cand.any(axis=1)), np.flatnonzero(cand.any(axis=0))
-    box = (slice(max(0, rows[0] - 1), rows[-1] + 2), slice(max(0, cols[0] - 1), cols[-1] + 2))
-    low = ndimage.minimum_filter(np.where(ok[box] & ~obj[box], z[box], np.float32(np.inf)), size=3)
+    sel = keep[lc]
+    cc, lcc = cells[sel], lc[sel]
+    cand = np.zeros(one.shape, bool)
+    cand.ravel()[cc] = True
+    # the foot of its sides: the lowest ground cell next to it (its 3 x 3 cells within the raster)
+    ground = ok & ~obj
+    gf = ground.ravel()
+    r, c = np.divmod(cc, W)
+    low = np.full(cc.size, np.inf, np.float32)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            inside = (r + dr >= 0) & (r + dr < H) & (c + dc >= 0) & (c + dc < W)
+            nb = np.where(inside, cc + dr * W + dc, cc)
+            np.minimum(low, np.where(inside & gf[nb], zf[nb], np.float32(np.inf)), out=low)
+    del ground, gf, r, c
     foot = np.full(n + 1, np.inf, np.float32)
-    np.minimum.at(foot, lab[box][cand[box]], low[cand[box]])
+    np.minimum.at(foot, lcc, low)
     del low
     base = np.full(n + 1, np.inf, np.float32)
-    np.minimum.at(base, lab[cand], z[cand])
+    np.minimum.at(base, lcc, zf[cc])
     half = 0.5 * (foot + base)                      # nearer the foot than the region's lowest cell
-    joined = _joined_to_terrain(z, cand, obj, ok, ramp_m, foot=np.where(cand, half[lab], 0))
-    keep &= 2 * np.bincount(lab[joined], minlength=n + 1) >= tot
+    at = np.zeros(one.shape, np.float32)
+    at.ravel()[cc] = half[lcc]
+    joined = _joined_to_terrain(z, cand, obj, ok, ramp_m, foot=at).ravel()[cc]
+    del at
+    keep &= 2 * np.bincount(lcc[joined], minlength=n + 1) >= tot
     keep[0] = False
-    cand = keep[lab] & joined
+    cand = np.zeros(one.shape, bool)
+    cand.ravel()[cc] = keep[lcc] & joined
     if cand.any():
         cand &= ~_walled_regions(cand, obj & ~cand, z, wall_m)
     return cand
