@@ -139,6 +139,43 @@ def test_check_has_data_sparse_cell_not_missed_by_sampling(tmp_path, rc):
     assert 0 < grid.check_has_data(info, max_cells=4) <= 1
 
 
+@pytest.mark.parametrize("overviews", [False, True])
+def test_check_has_data_reads_a_sample_of_blocks_not_every_block(tmp_path, monkeypatch, overviews):
+    """QA 20: the dialog's check of a sparse 33000 x 33000 GeoTIFF took 16 s: its decimated read of a raster
+    without overviews made GDAL decompress every block. It now reads whole blocks spread over the raster (with
+    overviews: the decimated read, which GDAL serves from them) and, when they miss the data, scans the strips
+    GDAL does not report empty. Counted: the cells of the windows asked of GDAL (the blocks it must decode),
+    never timings. The data are found either way."""
+    from osgeo import gdal
+    path = str(tmp_path / "sparse.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 2048, 2048, 1, gdal.GDT_Float32,
+                                              ["TILED=YES", "SPARSE_OK=TRUE", "COMPRESS=DEFLATE"])
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).SetNoDataValue(-9999.0)
+    ds.GetRasterBand(1).WriteArray(np.full((200, 200), 50.0, np.float32), 1000, 1100)   # off the sampled blocks
+    if overviews:
+        ds.BuildOverviews("NEAREST", [4, 16])
+    ds = None
+    info = grid.open_dsm(path)
+    asked = []
+    read = type(info).read_stored
+
+    def counting(self, window=None, step=1):
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        asked.append((r1 - r0) * (c1 - c0) if step == 1 or not overviews else (r1 - r0) * (c1 - c0) // step ** 2)
+        return read(self, window, step)
+    monkeypatch.setattr(type(info), "read_stored", counting)
+    assert 0 < grid.check_has_data(info, max_cells=65536) < 1
+    assert sum(asked) <= 8 * 65536, asked          # a decimated read without overviews: the 4.2 Mcells
+    if overviews:
+        return
+    ds = gdal.Open(path, gdal.GA_Update)
+    ds.GetRasterBand(1).WriteArray(np.full((200, 200), -9999.0, np.float32), 1000, 1100)
+    ds = None
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(grid.open_dsm(path), max_cells=65536)
+
+
 def test_check_has_data_decimated_nan_undeclared(tmp_path):
     a = np.zeros((10, 10), np.float32)
     a[:, :5] = np.nan
