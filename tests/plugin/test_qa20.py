@@ -35,3 +35,25 @@ def test_tiles_in_gdal_memory_refused_saying_where_they_live(qgis_app, tmp_path)
     ok, msg = _check("bareearth:tiles", {"INPUT_LAYERS": [str(disk)], "METHOD": 0,
                                          "OUTPUT_FOLDER": str(tmp_path / "out")})
     assert ok, msg
+
+
+@pytest.mark.parametrize("options,lossy", [("DISCARD_LSB=20", True), ("NBITS=16", True),
+                                           ("COMPRESS=LERC|MAX_Z_ERROR=0.05", True),
+                                           ("COMPRESS=ZSTD|PREDICTOR=3", False)])
+def test_creation_options_that_change_the_heights_are_warned(processing_run, warning_log, tmp_path, options, lossy):
+    """CREATE_OPTIONS DISCARD_LSB=20 wrote a DTM of one height (288 m for heights of 297-303 m) and NBITS=16 one of
+    half floats (0.2 m off), without a word: the probe of the options guarded the mask's codes only. The run's log
+    now warns, saying by how much heights of 312-464 m come back off; lossless options pass silently."""
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.synthetic import make_scene
+    z = make_scene("city", (64, 64), seed=1).dsm
+    path = write_array(tmp_path / "dsm.tif", z, (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), 32632)
+    fb = warning_log()
+    processing_run("bareearth:morphological", {"INPUT": str(path), "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                               "OUTPUT_MASK": str(tmp_path / "m.tif"), "CREATE_OPTIONS": options},
+                   feedback=fb)
+    said = [w for w in fb.warnings if "lossily" in w]
+    assert bool(said) == lossy, fb.warnings
+    if lossy:
+        assert f"The creation options '{options}' store the heights of the Float32 outputs (DTM, nDSM) lossily: " \
+               "heights of 312-464 m written with them come back up to" in said[0]
