@@ -57,3 +57,25 @@ def test_creation_options_that_change_the_heights_are_warned(processing_run, war
     if lossy:
         assert f"The creation options '{options}' store the heights of the Float32 outputs (DTM, nDSM) lossily: " \
                "heights of 312-464 m written with them come back up to" in said[0]
+
+
+def test_a_shared_parameter_name_gets_each_methods_own_label(qgis_app):
+    """curvature's TERRAIN_SLOPE (the terrain's steep slope a wall must out-rise) was labelled with RASCOR's "Neighbour
+    test: terrain slope for a height's place in its cell": the shared LABELS entry of the name, which RASCOR's step 3
+    uses in another sense. A label naming one method's stage (RASCOR's tests and steps) is that method's alone; every
+    other method using the name has its own wording."""
+    from qgis.core import QgsApplication
+
+    from bare_earth.algorithms import labels
+    from bare_earth.core import methods
+    reg = QgsApplication.processingRegistry()
+    label = reg.algorithmById("bareearth:curvature").parameterDefinition("TERRAIN_SLOPE").description()
+    assert label.startswith("Wall test: the terrain's steep slope (rise/run)"), label
+    rascor_words = ("Neighbour test", "Neighbour and level tests", "Step ", "Outlier test")
+    for name in methods.available_methods():
+        if name == "rascor":
+            continue
+        for p in methods.get_method(name).params:
+            shared = labels.LABELS.get(p.name, "")
+            if shared.startswith(rascor_words):
+                assert (name, p.name) in labels.METHOD_LABELS, (name, p.name, shared)
