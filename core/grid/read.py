@@ -638,6 +638,11 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     scale, offset = b.GetScale(), b.GetOffset()
     scale = 1.0 if scale in (None, 0) else float(scale)
     offset = 0.0 if offset is None else float(offset)
+    if not (math.isfinite(scale) and math.isfinite(offset)):   # every height NaN: was "every cell is nodata"
+        raise ValueError(f"the raster {str(path)!r} band {int(band)} declares a scale of {scale:g} and an offset of "
+                         f"{offset:g} (heights = stored values x scale + offset): no height can be read. Give the band "
+                         "a finite scale and offset (gdal_edit.py -scale 1 -offset 0 <file>, or the values the data "
+                         "was stored with).")
     if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,

@@ -176,6 +176,21 @@ def test_check_has_data_reads_a_sample_of_blocks_not_every_block(tmp_path, monke
         grid.check_has_data(grid.open_dsm(path), max_cells=65536)
 
 
+@pytest.mark.parametrize("scale,offset", [(float("nan"), 0.0), (1.0, float("inf"))])
+def test_a_band_scale_or_offset_that_is_no_number_refused_naming_it(tmp_path, scale, offset):
+    """QA 20: a band whose scale (or offset) is NaN made every height NaN, and the check said "every cell is nodata.
+    Check the nodata value", pointing at the wrong setting. Refused on opening, naming the scale and the fix."""
+    from osgeo import gdal
+    path = str(tif(tmp_path, np.full((5, 5), 300.0, np.float32)))
+    ds = gdal.Open(path, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(scale)
+    ds.GetRasterBand(1).SetOffset(offset)
+    ds = None
+    with pytest.raises(ValueError, match=r"declares a scale of .* and an offset of .*: no height can be read\. Give "
+                                         r"the band a finite scale and offset \(gdal_edit\.py -scale 1 -offset 0"):
+        grid.open_dsm(path)
+
+
 def test_check_has_data_decimated_nan_undeclared(tmp_path):
     a = np.zeros((10, 10), np.float32)
     a[:, :5] = np.nan
