@@ -588,6 +588,11 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    if int(band) in alpha:     # its 0 / 255 read as heights: a flat DTM of 255 m, every cell ground
+        others = [k for k in range(1, nb + 1) if k not in alpha]
+        raise ValueError(f"band {band} of the raster {path!r} is its alpha band (transparency: 0 where a cell is "
+                         f"not drawn), not heights: choose the height band"
+                         + (f" ({', '.join(map(str, others))})." if others else "."))
     kind = ds.GetRasterBand(int(band)).DataType
     if gdal.DataTypeIsComplex(kind):          # numpy would drop the imaginary parts with a warning only
         raise ValueError(f"the raster {path!r} holds complex numbers ({gdal.GetDataTypeName(kind)}): heights are "

@@ -191,6 +191,23 @@ def test_a_band_scale_or_offset_that_is_no_number_refused_naming_it(tmp_path, sc
         grid.open_dsm(path)
 
 
+def test_the_alpha_band_chosen_as_heights_refused_naming_the_height_band(tmp_path):
+    """QA 20: BAND = 2 on a DSM with an alpha band (gdalwarp -dstalpha) read the transparency, 0 / 255, as heights:
+    a flat DTM of 255 m, every cell ground, without a word. Refused naming the height band; band 1 reads the
+    heights with the alpha band as their mask."""
+    from osgeo import gdal
+    path = str(tmp_path / "alpha.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 6, 6, 2, gdal.GDT_Float32, ["ALPHA=YES"])
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(np.full((6, 6), 300.0, np.float32))
+    ds.GetRasterBand(2).WriteArray(np.full((6, 6), 255.0, np.float32))
+    ds = None
+    with pytest.raises(ValueError, match=r"band 2 of the raster .* is its alpha band \(transparency: 0 where a cell "
+                                         r"is not drawn\), not heights: choose the height band \(1\)\."):
+        grid.open_dsm(path, 2)
+    assert grid.open_dsm(path, 1).masked == 2 and grid.open_dsm(path).band_index == 1
+
+
 def test_check_has_data_decimated_nan_undeclared(tmp_path):
     a = np.zeros((10, 10), np.float32)
     a[:, :5] = np.nan
