@@ -398,3 +398,18 @@ def test_curvature_reports_between_its_profile_and_ground_stages(monkeypatch):
     assert names[3:6] == ["_low_bowls", "_first_holes", "_ground_bowls"]
     assert names.count("_classify") == names.count("_continue_ground") >= 2
     _assert_reports_after(events, named)
+
+
+def test_curvature_reports_inside_its_ground_seeds(monkeypatch):
+    """QA 20: after the reports above, the longest silent stretches of curvature's run on 16 Mcells were inside the
+    bowls beside objects (two minimum filters, 1.3 s CPU) and the lower envelope's ground level (a minimum filter and
+    the local slopes, 1.2 s): each now reports between its filters; the mask unchanged."""
+    from bare_earth.core.curvature import ground
+    events = []
+    _spy_stages(monkeypatch, ground, ("_ground_bowls", "under_chords", "_local_slopes"), events)
+    _run_with_events("curvature", _city(), events)
+    named = _named(events)
+    first = [events[i] for i in named][:3]
+    assert first == ["_ground_bowls", "under_chords", "_local_slopes"], first
+    for a, b in zip(named[:2], named[1:3]):
+        assert len([e for e in events[a + 1:b] if isinstance(e, float)]) >= 2, events[a:b + 1]
