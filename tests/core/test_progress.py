@@ -413,3 +413,18 @@ def test_curvature_reports_inside_its_ground_seeds(monkeypatch):
     assert first == ["_ground_bowls", "under_chords", "_local_slopes"], first
     for a, b in zip(named[:2], named[1:3]):
         assert len([e for e in events[a + 1:b] if isinstance(e, float)]) >= 2, events[a:b + 1]
+
+
+def test_dtm_reports_after_its_raised_regions_and_detached_levels(monkeypatch):
+    """QA 20: after its refinement (0.82), bareearth:dtm searched the raised regions (every scale of walls), the
+    detached levels and the roofs' edges without a report up to 0.85. The search now reports after each of its
+    scales (one thread) and a report follows each stage; the mask unchanged."""
+    from bare_earth.core import dtm
+    events = []
+    _spy_stages(monkeypatch, dtm, ("find_raised_regions", "find_detached_levels", "describe_region"), events)
+    _run_with_events("dtm", _city(), events)
+    named = _named(events)
+    names = [events[i] for i in named]
+    assert names[:2] == ["find_raised_regions", "find_detached_levels"], names
+    assert len([e for e in events[named[0] + 1:named[1]] if isinstance(e, float)]) >= 2
+    _assert_reports_after(events, named[:2])
