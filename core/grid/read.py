@@ -684,6 +684,9 @@ def _sample_windows(info, max_cells):
     if bw * bh < 4096:                      # small blocks (strips of a row or a few): several in one window
         bh *= max(1, int(math.ceil(4096 / (bw * bh))))
         bh = min(bh, rows)
+    if bw * bh > max_cells:                 # huge blocks (one strip of the whole raster): a window of max_cells
+        bh = max(1, min(bh, max_cells // bw))
+        bw = min(bw, max_cells)
     n_r, n_c = -(-rows // bh), -(-cols // bw)
     n = max(1, int(max_cells // (bw * bh)))
     pick_r = max(1, min(n_r, int(round(math.sqrt(n * n_r / n_c)))))

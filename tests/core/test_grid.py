@@ -191,6 +191,30 @@ def test_a_band_scale_or_offset_that_is_no_number_refused_naming_it(tmp_path, sc
         grid.open_dsm(path)
 
 
+def test_check_has_data_sample_windows_stay_within_the_budget_on_huge_blocks(tmp_path, monkeypatch):
+    """The block sample of a raster stored as one strip (or tiles larger than the budget) read windows of whole
+    blocks: the whole raster at once. Each window now holds at most ``max_cells`` cells."""
+    from osgeo import gdal
+    path = str(tmp_path / "strip.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 1024, 1024, 1, gdal.GDT_Float32,
+                                              ["BLOCKYSIZE=1024", "COMPRESS=DEFLATE"])     # one strip
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(np.full((1024, 1024), 50.0, np.float32))
+    ds = None
+    info = grid.open_dsm(path)
+    assert info.dataset().GetRasterBand(1).GetBlockSize() == [1024, 1024]
+    asked = []
+    read = type(info).read_stored
+
+    def counting(self, window=None, step=1):
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        asked.append((r1 - r0) * (c1 - c0) // step ** 2)
+        return read(self, window, step)
+    monkeypatch.setattr(type(info), "read_stored", counting)
+    assert grid.check_has_data(info, max_cells=16384) == 1.0
+    assert max(asked) <= 16384, asked
+
+
 def test_the_alpha_band_chosen_as_heights_refused_naming_the_height_band(tmp_path):
     """QA 20: BAND = 2 on a DSM with an alpha band (gdalwarp -dstalpha) read the transparency, 0 / 255, as heights:
     a flat DTM of 255 m, every cell ground, without a word. Refused naming the height band; band 1 reads the
