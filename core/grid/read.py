@@ -675,9 +675,10 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
 
 
 def _sample_windows(info, max_cells):
-    """Windows ``(r0, r1, c0, c1)`` of whole blocks of the band's own layout (tiles, or strips of whole rows),
-    spread evenly over the raster, holding about ``max_cells`` cells together: a sample that decompresses only
-    the blocks it reads (a decimated read of a raster without overviews decompresses every block)."""
+    """Windows ``(r0, r1, c0, c1)`` of whole blocks of the band's own layout (tiles, or strips of whole rows; cut to
+    ``max_cells`` cells where a block holds more), spread evenly over the raster, holding about ``max_cells`` cells
+    together: a sample that decompresses only the blocks it reads (a decimated read of a raster without overviews
+    decompresses every block)."""
     rows, cols = info.shape
     bw, bh = info.dataset().GetRasterBand(info.band_index).GetBlockSize()
     bw, bh = max(1, min(int(bw), cols)), max(1, min(int(bh), rows))
