@@ -272,6 +272,11 @@ def check_output_crs(path, crs_wkt, geotransform=(0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
 def check_output_folder(path):
     """Check that the folder of an output file ``path`` exists and takes new files, and that the
     file's name fits the file system; ValueError naming the folder otherwise."""
+    given = str(path).replace("\\", "/")
+    if re.match(r"^/vsi[a-z0-9_]+(/|$)", given):   # was "the output folder '/vsimem' does not exist"
+        raise ValueError(f"the output {str(path)!r} is a GDAL virtual file ({given.split('/')[1]}): outputs are "
+                         "written as work files on disk and moved into place when complete; give a path on disk "
+                         "(or a temporary output).")
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
     if os.path.exists(folder) and not os.path.isdir(folder):

@@ -79,3 +79,20 @@ def test_a_shared_parameter_name_gets_each_methods_own_label(qgis_app):
             shared = labels.LABELS.get(p.name, "")
             if shared.startswith(rascor_words):
                 assert (name, p.name) in labels.METHOD_LABELS, (name, p.name, shared)
+
+
+def test_an_output_in_gdal_memory_refused_saying_why(qgis_app, tmp_path):
+    """An output given as a GDAL virtual file (/vsimem/d.tif, a script's habit) was refused with "the output folder
+    '/vsimem' does not exist: create it": no folder can be created there. Outputs are written as work files on disk
+    and moved into place; the message says so, for a filter's output and for a survey's output folder."""
+    from bare_earth.core.grid import write_array
+    from bare_earth.core.synthetic import make_scene
+    dsm = str(write_array(tmp_path / "dsm.tif", make_scene("flat", (48, 48), seed=1).dsm,
+                          (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0), 32632))
+    ok, msg = _check("bareearth:morphological", {"INPUT": dsm, "OUTPUT_DTM": "/vsimem/qa20_d.tif",
+                                                 "OUTPUT_MASK": str(tmp_path / "m.tif")})
+    assert not ok and "the output '/vsimem/qa20_d.tif' is a GDAL virtual file (vsimem): outputs are written as " \
+                      "work files on disk" in msg and "does not exist" not in msg, msg
+    pytest.importorskip("distributed")
+    ok, msg = _check("bareearth:tiles", {"INPUT_LAYERS": [dsm], "METHOD": 0, "OUTPUT_FOLDER": "/vsimem/qa20_out"})
+    assert not ok and "is a GDAL virtual file (vsimem)" in msg, msg
