@@ -725,7 +725,8 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # (on block minima: a wall found there may stand one block further out at full resolution)
     zs, cs, k = raised_region_grid(zm, cm)
     report(progress, 0.97)
-    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)))
+    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)),
+                               progress=sub_progress(progress, 0.97, 1.0))
     report(progress, 1.0)
     found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
     description["raised_region_span_m"] = round(found * min(cell), 1)

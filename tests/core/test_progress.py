@@ -201,6 +201,8 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
     named = _named(events)[-3:]     # the vote's own, after the members
     assert [events[i] for i in named] == list(stages)
     _assert_reports_after(events, named)
+    # QA 20: and the span's search reports after each of its scales (the longest gap of dtm's derivation)
+    assert len([e for e in events[named[-1] + 1:] if isinstance(e, float) and e < 1.0]) >= 2, events[named[-1]:]
 
 
 def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
