@@ -265,6 +265,15 @@ def output_options(alg, parameters, context, feedback=None):
     if feedback is not None and (opts or cog):
         for line in options_not_used(alg, parameters, cog):
             warning_logger(feedback)(line)
+    if feedback is not None and opts:
+        change = grid.height_change(opts, cog)
+        if change > 0:        # lossy for the heights: GDAL writes them so without a word
+            lo, hi = grid.PROBE_HEIGHTS_M
+            warning_logger(feedback)(tr(
+                "The creation options '{}' store the heights of the Float32 outputs (DTM, nDSM) lossily: heights of "
+                "{:.0f}-{:.0f} m written with them come back up to {:.3g} m off (NBITS=16 keeps half floats, "
+                "DISCARD_LSB drops bits, LERC keeps MAX_Z_ERROR). Leave them out to keep the heights exact.").format(
+                    "|".join(opts), lo, hi, change))
     with grid.write_options(opts, cog):
         yield
 

@@ -84,6 +84,7 @@ METHOD_LABELS = {
     ("curvature", "tolerance_m"): "Height above the interpolated ground still ground (m)",
     ("curvature", "max_object_size_m"): "Largest object (m)",
     ("curvature", "spacing_m"): "Wall test: spacing of the independent heights (m)",
+    ("curvature", "terrain_slope"): "Wall test: the terrain's steep slope (rise/run)",
     ("geodesic", "terrain_slope_deg"): "Steepest terrain slope tolerated (degrees)",
     ("geodesic", "max_object_size_m"): "Largest object: widest building (m)",
     ("morphological", "max_object_size_m"): "Largest object: largest window (m)",

@@ -725,7 +725,8 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
     # (on block minima: a wall found there may stand one block further out at full resolution)
     zs, cs, k = raised_region_grid(zm, cm)
     report(progress, 0.97)
-    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)))
+    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)),
+                               progress=sub_progress(progress, 0.97, 1.0))
     report(progress, 1.0)
     found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
     description["raised_region_span_m"] = round(found * min(cell), 1)
@@ -1150,14 +1151,15 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     if workers > 1 and dissent is not None:
         regions = ThreadPoolExecutor(max_workers=1)
         raised = regions.submit(find_raised_regions, *region_args, **region_kw)
-    else:
-        raised = find_raised_regions(*region_args, **region_kw)
+    else:       # in this thread: a report after each of its scales (QA 20), the bar rising
+        raised = find_raised_regions(*region_args, **region_kw, progress=sub_progress(progress, 0.82, 0.835))
     try:
         # raised levels only the level member rejects, cut by level changes from the undisputed ground
         jump = float(members[LEVEL_MEMBER]["jump_m"]) if dissent is not None else None
         detached = None if dissent is None else find_detached_levels(
             z, mask == GROUND, dissent, ground_votes == n, cell, jump_m=jump, slope=refine_slope(members),
             max_cells=region_max_cells, top_dissent=top_dissent)
+        report(progress, 0.84)
         if regions is not None:
             raised = raised.result()
     finally:
@@ -1185,6 +1187,7 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         mask[edge] = OBJECT
         info["roof_edge_cells"] = int(np.count_nonzero(edge))
     del tops, roofs
+    report(progress, 0.845)
     info["raised_regions"] = [describe_region(d) for d in decisions]
     if line_decision is not None:
         # within the other members' reach of a break line, only RASCOR kept to one side

@@ -113,7 +113,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .codes import GROUND
-from .common import steps_beyond, walls_runs
+from .common import report, steps_beyond, walls_runs
 from .geodesic.grey import filter3x3
 
 #: Cells beyond a region's outline its decision reads: the wall (1-2 cells), the ground beyond
@@ -137,7 +137,7 @@ def _shifted(a, pad, dr, dc, k):
     return a[r0:r0 + h, c0:c0 + w]
 
 
-def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells, min_cells=0):
+def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cells, min_cells=0, progress=None):
     """Voted ground regions wider than the vote's windows that stand on steps above the ground around.
 
     Parameters
@@ -160,6 +160,8 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
         Regions spanning at most this many cells (rows or columns; three times as many for a region the
         raster's edge cuts, as far as its walls' run mirrored there reaches) are not candidates: for a caller
         looking only for regions longer than a reach it already has (:func:`~.estimate.raised_region_span`).
+    progress : callable, optional
+        ``progress(fraction)`` after the regions are labelled and after each scale (may raise ``Cancelled``).
 
     Returns
     -------
@@ -195,6 +197,10 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
     # the voted ground cells next to a level object cell (no neighbour more than 2 t lower): where a level the vote
     # split meets its ground part, the only places a level cut into a hillside (below) can hold voted ground
     seeds = _split_level_seeds(valid, ground, drop, 2.0 * t)
+    # the scales t, 2 t, 4 t, ... up to the first at least the highest drop: a report after each
+    n_scales = 1 + max(0, math.ceil(math.log2(highest / t))) if highest > t > 0 else 1
+    report(progress, 0.2)
+    done = 0
     decided = {}                                        # each region once: its first object decision, else its first
     step_m, cut = t, -1
 
@@ -221,9 +227,12 @@ def find_raised_regions(z, mask, cell_size, *, tolerance_m, min_width_m, max_cel
                 objects[sl] |= found
                 record(made)
         cut = rims
+        done += 1
+        report(progress, 0.2 + 0.8 * min(1.0, done / n_scales))
         if step_m >= highest:
             break
         step_m *= 2.0
+    report(progress, 1.0)
     return objects, list(decided.values())
 
 

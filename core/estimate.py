@@ -1537,7 +1537,7 @@ RAISED_REGION_MAX_M = 200.0
 
 
 def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
-                        across=True):
+                        across=True, progress=None):
     """Width, metres, of the widest raised region standing on walls that is wider than ``min_width_m``.
 
     A flat roof wider than a filter's largest window (a roof over most of a tile, running off the
@@ -1567,23 +1567,28 @@ def raised_region_width(z, cell_size, height_m, min_width_m, max_width_m=RAISED_
     across : bool
         False: a region meeting two opposite sides of the raster (running across it, continuing beyond
         both: a terrace's upper level across a tile) is not reported.
+    progress : callable, optional
+        ``progress(fraction)`` from inside the search, after each of its scales (may raise ``Cancelled``).
     """
     return float(max((d["width_m"] for d in _raised_region_objects(z, cell_size, height_m, min_width_m,
-                                                                   max_width_m, max_span_m, across=across)),
+                                                                   max_width_m, max_span_m, across=across,
+                                                                   progress=progress)),
                      default=0.0))
 
 
-def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells=0, across=True):
+def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells=0, across=True,
+                           progress=None):
     """The decisions of :func:`~bare_earth.core.dtm_regions.find_raised_regions` (every cell taken as ground)
     that found a raised region standing on walls, at most ``max_width_m`` wide, spanning at most
-    ``max_span_m`` (default ``max_width_m``; with ``min_cells``, only those spanning more cells)."""
+    ``max_span_m`` (default ``max_width_m``; with ``min_cells``, only those spanning more cells); ``progress``
+    passed to the search (a report after each scale)."""
     from .dtm_regions import find_raised_regions  # dtm_regions reads the geodesic package: no cycle
     dx, dy = float(cell_size[0]), float(cell_size[1])
     cap = float(max_width_m)
     span = cap if max_span_m is None else max(cap, float(max_span_m))
     _, decisions = find_raised_regions(z, np.zeros(np.shape(z), np.uint8), (dx, dy), tolerance_m=height_m,
                                        min_width_m=min_width_m, max_cells=int(math.ceil(span / min(dx, dy))),
-                                       min_cells=int(min_cells))
+                                       min_cells=int(min_cells), progress=progress)
     h, w = np.shape(z)
 
     def runs_across(b):
@@ -1592,7 +1597,7 @@ def _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max
 
 
 def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
-                       min_cells=0, across=True):
+                       min_cells=0, across=True, progress=None):
     """Cells spanned by the longest raised region standing on walls wider than ``min_width_m``: the rows or
     columns of its box, or its walls' run where longer (mirrored at the raster's sides they meet), as
     :func:`~bare_earth.core.dtm_regions.find_raised_regions` counts the span it reaches (the regions of
@@ -1600,7 +1605,7 @@ def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_R
     ``max_width_m``); with ``min_cells``, only the regions spanning more cells are looked at (a reach the
     caller already has: the labelling is the same, the regions judged far fewer). ``across``: as
     :func:`raised_region_width`'s (False: a region running across the raster spans nothing). 0 when there is
-    none.
+    none. ``progress``: as :func:`raised_region_width`'s.
 
     Examples
     --------
@@ -1612,7 +1617,7 @@ def raised_region_span(z, cell_size, height_m, min_width_m, max_width_m=RAISED_R
     spans = [max(d["bbox"][2] - d["bbox"][0], d["bbox"][3] - d["bbox"][1],
                  int(round(d.get("walls_m", 0.0) / min(float(cell_size[0]), float(cell_size[1])))))
              for d in _raised_region_objects(z, cell_size, height_m, min_width_m, max_width_m, max_span_m, min_cells,
-                                             across=across)]
+                                             across=across, progress=progress)]
     spans = [s for s in spans if s > min_cells]
     return int(max(spans, default=0))
 
@@ -1652,11 +1657,11 @@ RAISED_REGION_MARGIN = 1.25
 
 
 def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISED_REGION_MAX_M, max_span_m=None,
-                         across=True):
+                         across=True, progress=None):
     """The window, metres, that reaches across the widest raised region standing on walls wider than
     ``min_window_m`` (:func:`raised_region_width`, regions spanning up to ``max_span_m``, default
     ``max_width_m``): :data:`RAISED_REGION_MARGIN` x its width + 2 cells, at most ``max_width_m``; 0 when
-    there is none. ``across``: as :func:`raised_region_width`'s.
+    there is none. ``across`` and ``progress``: as :func:`raised_region_width`'s.
 
     Examples
     --------
@@ -1665,7 +1670,8 @@ def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISE
     >>> raised_region_window(z, (1.0, 1.0), 2.0, 64.0)
     148.25
     """
-    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m, max_span_m, across=across)
+    wide = raised_region_width(z, cell_size, height_m, min_window_m, max_width_m, max_span_m, across=across,
+                               progress=progress)
     if wide <= 0:
         return 0.0
     return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))
@@ -2050,7 +2056,7 @@ def square_opening(z, size_cells):
 
 
 def raised_region_span_walled(z, cell_size, height_m, min_width_m, max_width_m=RAISED_REGION_MAX_M,
-                              max_span_m=None, min_cells=0, across=True):
+                              max_span_m=None, min_cells=0, across=True, progress=None):
     """Cells spanned by the longest raised region standing on walls (:func:`raised_region_span`'s regions and
     count) whose walls run along both sides of its length: the part of its outline not on walls is shorter
     than its span. A building stands on walls all round (a ring round a courtyard, a long wing); a level cut
@@ -2059,7 +2065,8 @@ def raised_region_span_walled(z, cell_size, height_m, min_width_m, max_width_m=R
     half its outline) by its ends alone: a bench arc 14 m wide and 226 m long, on walls over 53 % of its
     outline. Only what is seen counts: the rows or columns of the region's box, not its walls' run mirrored
     at the raster's sides (a roof in a corner of ISPRS samp41, 108 m seen, spans 216 m so, and widened a
-    filter's largest object to 142 m for a building it does not show). 0 when there is none.
+    filter's largest object to 142 m for a building it does not show). 0 when there is none. ``progress``: as
+    :func:`raised_region_width`'s.
 
     Examples
     --------
@@ -2072,7 +2079,7 @@ def raised_region_span_walled(z, cell_size, height_m, min_width_m, max_width_m=R
     dx, dy = float(cell_size[0]), float(cell_size[1])
     spans = []
     for d in _raised_region_objects(z, (dx, dy), height_m, min_width_m, max_width_m, max_span_m, min_cells,
-                                    across=across):
+                                    across=across, progress=progress):
         s = max(d["bbox"][2] - d["bbox"][0], d["bbox"][3] - d["bbox"][1])
         if s > min_cells and (1.0 - float(d["step_share"])) * float(d["outline_cells"]) < s:
             spans.append(s)

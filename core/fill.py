@@ -66,6 +66,26 @@ _OMEGA_COARSE = 1.8
 _BAND_COARSE = 4
 
 
+#: Share of :func:`fill_gaps`'s progress bar given to building its pyramid (the rest to solving its levels).
+_BUILD_SHARE = 0.3
+
+
+def pyramid_shapes(shape):
+    """The shapes of :func:`fill_gaps`'s levels (each the previous halved, rounded up, until at most
+    :data:`_TOP_CELLS` cells): how many levels it builds, known before it builds them.
+
+    Examples
+    --------
+    >>> pyramid_shapes((300, 200))
+    [(300, 200), (150, 100), (75, 50)]
+    """
+    shapes = [(int(shape[0]), int(shape[1]))]
+    while shapes[-1][0] * shapes[-1][1] > _TOP_CELLS:
+        h, w = shapes[-1]
+        shapes.append((h // 2 + h % 2, w // 2 + w % 2))
+    return shapes
+
+
 def fill_gaps(z, fill=None, *, progress=None):
     """Fill cells of a raster with a smooth harmonic (membrane) interpolation.
 
@@ -80,8 +100,9 @@ def fill_gaps(z, fill=None, *, progress=None):
         are never used as sources (so the input's nodata stays nodata while the cells of
         removed objects are filled); the membrane passes through them.
     progress : callable, optional
-        ``progress(fraction)`` called once per pyramid level; it may raise
-        :class:`~bare_earth.core.common.Cancelled`.
+        ``progress(fraction)`` called after each pyramid level is built (up to 0.3: the first
+        level, a pass over the whole raster, was a third of the fill's time without a report) and
+        after each level is solved; it may raise :class:`~bare_earth.core.common.Cancelled`.
 
     Returns
     -------
@@ -162,15 +183,20 @@ def fill_gaps(z, fill=None, *, progress=None):
     keep_nan = nodata_kept is not None and bool(nodata_kept.any())
 
     # 1. Pyramid of (known, value) pairs, exact for planes.
+    n_levels = len(pyramid_shapes(z.shape))
+    built = _BUILD_SHARE / max(1, n_levels - 1)
     levels = [(known, val0)]
     while levels[-1][0].size > _TOP_CELLS:
         levels.append(_restrict(*levels[-1]))
-    n_levels = len(levels)
+        report(progress, built * (len(levels) - 1))
+
+    def solved(done):
+        return _BUILD_SHARE + (1.0 - _BUILD_SHARE) * done / n_levels
 
     # 2. Coarsest level: direct solve.
     u = _solve_direct(*levels[-1])
     done = 1
-    report(progress, done / n_levels)
+    report(progress, solved(done))
 
     # 3. Finer levels: bilinear prolongation + red-black relaxation on the unknown cells.
     for lev in range(n_levels - 2, -1, -1):
@@ -185,7 +211,7 @@ def fill_gaps(z, fill=None, *, progress=None):
         else:
             u = _relax_level(kn, val, u, sweeps, None, _OMEGA_COARSE)
         done += 1
-        report(progress, done / n_levels)
+        report(progress, solved(done))
 
     # Known cells keep their exact input values (as float32); the others get z0 + solution.
     out = work[1:-1, 1:-1]

@@ -1391,12 +1391,14 @@ def _level_unwalled(z, level, obj, step_m, wall_m):
     return grown
 
 
-def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
+def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor, progress=None):
     """Give rejected cells lying within the tolerance of the interpolated ground back to
     the ground (as SMRF's final step).
 
     The ground is interpolated under the objects and low blunders (``fill.fill_gaps``); a
     rejected cell within ``tolerance_m + slope_factor * slope`` of it is ground again.
+    ``progress(fraction)`` (optional, may raise ``Cancelled``): from inside the interpolation and after
+    the test.
 
     Returns
     -------
@@ -1412,10 +1414,12 @@ def refine_objects(z, obj, low, valid, cell_size, tolerance_m, slope_factor):
         return obj, 0, None
     from .fill import fill_gaps
     dx, dy = cell_size
-    surf = fill_gaps(z, fill=obj | low)
+    surf = fill_gaps(z, fill=obj | low, progress=sub_progress(progress, 0.0, 0.8))
     gy, gx = np.gradient(surf, dy, dx)
+    report(progress, 0.9)
     back = obj & (np.abs(z - surf) <= tolerance_m + slope_factor * np.hypot(gx, gy))
     refined = int(back.sum())
+    report(progress, 1.0)
     return obj & ~back, refined, (None if refined else surf)
 
 
@@ -1551,7 +1555,8 @@ def filter_slope_profile(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     # 5. optional refinement against the interpolated ground
     refined, dtm = 0, None
     if refine:
-        obj, refined, dtm = refine_objects(z, obj, low, valid, cell, tolerance_m, slope_factor)
+        obj, refined, dtm = refine_objects(z, obj, low, valid, cell, tolerance_m, slope_factor,
+                                           sub_progress(progress, 0.87, 0.95))
     report(progress, 0.95)
     mask, info = _mask_and_info(obj, low, valid, obj_x, obj_y, refined, p)
     report(progress, 1.0)

@@ -407,23 +407,24 @@ def object_size(z: np.ndarray, cell_size: CellSize, height_m: float, progress=No
     the raster), as the window reaches across a width (``(1.25 span + 2 cells) / LONGEST``): a ring 220 x
     140 m of wings 20 m wide was 0.87 / 0.31 / 0.32 object at 1 / 2 / 4 m, its long wings or its corners
     ground. A quarry's bench arc, on walls down on one side only, widens nothing.
-    ``progress(fraction)`` (optional, may raise ``Cancelled``): after each estimate."""
+    ``progress(fraction)`` (optional, may raise ``Cancelled``): after each estimate, and from inside the raised
+    regions' searches after each of their scales."""
     zs, cs, _ = raised_region_grid(z, cell_size)
     report(progress, 0.2)
-    window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False)
-    report(progress, 0.4)
+    window = raised_region_window(zs, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M, across=False,
+                                  progress=sub_progress(progress, 0.2, 0.4))
     # a building of several heights: its parts are raised regions of their own, each narrower; opened by
     # the square of the default largest object, it stands as one level on walls all round
     opened = square_opening(zs, int(OBJECT_SIZE_M / min(cs)) + 1)
     report(progress, 0.5)
     window = max(window, raised_region_window(opened, cs, height_m, OBJECT_SIZE_M, max_span_m=RAISED_REGION_SPAN_M,
-                                              across=False))
-    report(progress, 0.7)
+                                              across=False, progress=sub_progress(progress, 0.5, 0.7)))
     # a long narrow building (a ring round a courtyard, a wing): its runs across are short, but its cross
     # profiles run its whole length, which LONGEST largest objects must reach (as a width, with the margin);
     # walls along both sides of its length (not a quarry's bench or a terrace, on walls down on one side)
     span = raised_region_span_walled(zs, cs, height_m, 0.0, max_span_m=RAISED_REGION_SPAN_M,
-                                     min_cells=int(OBJECT_SIZE_M / min(cs)), across=False) * min(cs)
+                                     min_cells=int(OBJECT_SIZE_M / min(cs)), across=False,
+                                     progress=sub_progress(progress, 0.7, 1.0)) * min(cs)
     if span > 0:
         window = max(window, (RAISED_REGION_MARGIN * span + 2.0 * max(cs)) / LONGEST)
     return round(max(OBJECT_SIZE_M, min(window, RAISED_REGION_MAX_M)), 1)

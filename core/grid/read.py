@@ -588,6 +588,11 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
         band = 1
     if not 1 <= int(band) <= nb:
         raise ValueError(f"band {band} does not exist: the raster {path!r} has {nb} band(s).")
+    if int(band) in alpha:     # its 0 / 255 read as heights: a flat DTM of 255 m, every cell ground
+        others = [k for k in range(1, nb + 1) if k not in alpha]
+        raise ValueError(f"band {band} of the raster {path!r} is its alpha band (transparency: 0 where a cell is "
+                         f"not drawn), not heights: choose the height band"
+                         + (f" ({', '.join(map(str, others))})." if others else "."))
     kind = ds.GetRasterBand(int(band)).DataType
     if gdal.DataTypeIsComplex(kind):          # numpy would drop the imaginary parts with a warning only
         raise ValueError(f"the raster {path!r} holds complex numbers ({gdal.GetDataTypeName(kind)}): heights are "
@@ -638,6 +643,11 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     scale, offset = b.GetScale(), b.GetOffset()
     scale = 1.0 if scale in (None, 0) else float(scale)
     offset = 0.0 if offset is None else float(offset)
+    if not (math.isfinite(scale) and math.isfinite(offset)):   # every height NaN: was "every cell is nodata"
+        raise ValueError(f"the raster {str(path)!r} band {int(band)} declares a scale of {scale:g} and an offset of "
+                         f"{offset:g} (heights = stored values x scale + offset): no height can be read. Give the band "
+                         "a finite scale and offset (gdal_edit.py -scale 1 -offset 0 <file>, or the values the data "
+                         "was stored with).")
     if abs(cell[0] - cell[1]) > 1e-6 * max(cell):
         warns.append(f"Cells are not square ({cell[0]:.4g} x {cell[1]:.4g} m): each direction uses its own spacing.")
     info = DSMInfo(str(path), int(band), (rows, cols), tuple(gt), wkt, nodata, cell, z_to_m,
@@ -664,8 +674,57 @@ def open_dsm(path, band=None, nodata_ranges=(), crs_wkt=None):
     return info
 
 
+def _sample_windows(info, max_cells):
+    """Windows ``(r0, r1, c0, c1)`` of whole blocks of the band's own layout (tiles, or strips of whole rows; cut to
+    ``max_cells`` cells where a block holds more), spread evenly over the raster, holding about ``max_cells`` cells
+    together: a sample that decompresses only the blocks it reads (a decimated read of a raster without overviews
+    decompresses every block)."""
+    rows, cols = info.shape
+    bw, bh = info.dataset().GetRasterBand(info.band_index).GetBlockSize()
+    bw, bh = max(1, min(int(bw), cols)), max(1, min(int(bh), rows))
+    if bw * bh < 4096:                      # small blocks (strips of a row or a few): several in one window
+        bh *= max(1, int(math.ceil(4096 / (bw * bh))))
+        bh = min(bh, rows)
+    if bw * bh > max_cells:                 # huge blocks (one strip of the whole raster): a window of max_cells
+        bh = max(1, min(bh, max_cells // bw))
+        bw = min(bw, max_cells)
+    n_r, n_c = -(-rows // bh), -(-cols // bw)
+    n = max(1, int(max_cells // (bw * bh)))
+    pick_r = max(1, min(n_r, int(round(math.sqrt(n * n_r / n_c)))))
+    pick_c = max(1, min(n_c, n // pick_r))
+    out = []
+    for br in np.unique(np.linspace(0, n_r - 1, pick_r).round().astype(int)):
+        for bc in np.unique(np.linspace(0, n_c - 1, pick_c).round().astype(int)):
+            out.append((int(br) * bh, min(rows, (int(br) + 1) * bh), int(bc) * bw, min(cols, (int(bc) + 1) * bw)))
+    return out
+
+
+def _has_overviews(info):
+    return info.dataset().GetRasterBand(info.band_index).GetOverviewCount() > 0
+
+
+def _empty_region(info, window):
+    """Whether GDAL says ``window`` holds no written block (a sparse GeoTIFF's missing blocks) that reads as
+    the declared nodata: skipped by a scan for data. False when the driver cannot tell or no nodata is
+    declared (missing blocks then read as 0, a height)."""
+    if info.nodata is None or info.masked:
+        return False
+    r0, r1, c0, c1 = window
+    try:
+        flags, _ = info.dataset().GetRasterBand(info.band_index).GetDataCoverageStatus(c0, r0, c1 - c0, r1 - r0)
+    except (RuntimeError, AttributeError, TypeError):
+        return False
+    return flags == gdal.GDAL_DATA_COVERAGE_STATUS_EMPTY
+
+
 def check_has_data(info, max_cells=4_000_000):
-    """Scan the band (decimated when large) and raise ValueError if it holds no valid cell.
+    """Scan the band (sampled when large) and raise ValueError if it holds no valid cell.
+
+    A raster of at most ``max_cells`` cells is read whole; a larger one every ``step``-th cell when it has
+    overviews (GDAL reads them), else on whole blocks spread over it (:func:`_sample_windows`): a decimated
+    read of a raster without overviews decompressed every block (16 s for a dialog's check of a sparse
+    33000 x 33000 GeoTIFF). When the sample holds no valid cell (sparse data between the samples), every cell
+    is checked, strip by strip, skipping the strips GDAL says hold no written block.
 
     The message says whether the cells are all nodata or hold heights beyond
     ``common.MAX_ABS_HEIGHT_M`` (heights in millimetres or centimetres without the band's
@@ -678,19 +737,32 @@ def check_has_data(info, max_cells=4_000_000):
     def heights(a, window=None, step=1):   # metres, as the filters read them
         return without_far_heights(info.surface(a, window, step))
 
-    a = info.read_stored(step=step)
-    z, n_far = heights(a, step=step)
-    valid = np.isfinite(z)
-    if step > 1 and not valid.any():  # sparse data may fall between the samples: check every cell
+    if step == 1 or _has_overviews(info):
+        a = info.read_stored(step=step)
+        z, n_far = heights(a, step=step)
+        info.note_nan(a)
+        seen, n_valid = z.size, int(np.count_nonzero(np.isfinite(z)))
+    else:
+        seen = n_valid = n_far = 0
+        for w in _sample_windows(info, max_cells):
+            a = info.read_stored(w)
+            z, n = heights(a, w)
+            info.note_nan(a)
+            n_far += n
+            seen += z.size
+            n_valid += int(np.count_nonzero(np.isfinite(z)))
+    if step > 1 and not n_valid:  # sparse data may fall between the samples: check every cell
         strip = max(1, max_cells // cols)
         for r in range(0, rows, strip):
             w = (r, min(rows, r + strip), 0, cols)
+            if _empty_region(info, w):
+                continue
             zs, n = heights(info.read_stored(w), w)
             n_far += n
-            valid = np.isfinite(zs)
-            if valid.any():
+            if np.isfinite(zs).any():
+                n_valid, seen = int(np.count_nonzero(np.isfinite(zs))), zs.size
                 break
-    if not valid.any() and n_far:
+    if not n_valid and n_far:
         unit = ""
         if info.z_to_m != 1.0:
             unit = (f" Its heights are read in its CRS's unit ({info.z_to_m:g} m): if they are in metres, give "
@@ -700,11 +772,10 @@ def check_has_data(info, max_cells=4_000_000):
                          "heights are in millimetres or centimetres, give the band its scale (e.g. gdal_edit.py "
                          "-scale 0.001 for millimetres); if that value marks missing cells, declare it as the "
                          "nodata value.")
-    if not valid.any():
+    if not n_valid:
         raise ValueError(f"the raster {info.path!r} has no valid cell: every cell is nodata"
                          f"{'' if info.nodata is None else f' ({info.nodata})'}. Check the nodata value.")
-    info.note_nan(a)
-    return float(valid.mean())
+    return n_valid / max(1, seen)
 
 
 #: Values software writes for missing cells (ESRI and most GIS -9999, Int16 rasters -32767 and

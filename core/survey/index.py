@@ -9,6 +9,7 @@ check names the tiles.
 """
 import math
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,6 +114,7 @@ def list_inputs(inputs):
     if any(not str(p).strip() for p in inputs):    # an unset variable in a script: the current folder's rasters
         raise ValueError(f"an input path is empty: give the tiles' rasters, a VRT or a folder (an empty path would "
                          f"be the current folder, {os.getcwd()!r}).")
+    check_on_disk(inputs)
     inputs = [os.path.abspath(str(p)) for p in inputs]
     if not inputs:
         raise ValueError("no input tile was given: pass rasters, a VRT or a folder of rasters.")
@@ -131,6 +133,7 @@ def list_inputs(inputs):
         if not os.path.exists(inputs[0]):
             raise ValueError(f"the VRT {inputs[0]!r} does not exist. Check the path.")
         found = io.vrt_sources(inputs[0])
+        check_on_disk(found)
         if not found:
             raise ValueError(f"the VRT {inputs[0]!r} names no source raster.")
         return found
@@ -138,6 +141,26 @@ def list_inputs(inputs):
     if dirs:
         raise ValueError(f"{', '.join(dirs)}: give one folder or one VRT alone, or a list of rasters.")
     return inputs
+
+
+def check_on_disk(paths):
+    """ValueError naming the first of ``paths`` that is a GDAL virtual file (``/vsimem/``, ``/vsizip/``,
+    ``/vsicurl/``, ...) rather than a file on disk: a survey's tasks run in worker processes that read their
+    tiles by path, and a tile in GDAL's memory (``/vsimem/``, a layer a script or plugin made there) exists in
+    this process alone. Such a tile was reported "missing" (no file of that name on disk) with "check the
+    path", which could not help."""
+    virtual = [str(p) for p in paths if re.match(r"^/vsi[a-z0-9_]+(/|$)", str(p).replace("\\", "/"))]
+    if not virtual:
+        return
+    first = virtual[0]
+    more = f" (and {len(virtual) - 1} more)" if len(virtual) > 1 else ""
+    if first.replace("\\", "/").startswith("/vsimem"):
+        raise ValueError(f"the tile {first!r}{more} lives in this process's memory (GDAL's /vsimem/), which the "
+                         "survey's worker processes cannot read: save the tiles to files in a folder first "
+                         "(gdal_translate, or Export > Save As) and give those.")
+    raise ValueError(f"the tile {first!r}{more} is a GDAL virtual file ({first.split('/')[1]}), not a file on "
+                     "disk: a survey reads its tiles from files; extract or download them to a folder first and "
+                     "give that folder.")
 
 
 def _short(paths, n=8):

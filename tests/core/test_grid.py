@@ -139,6 +139,99 @@ def test_check_has_data_sparse_cell_not_missed_by_sampling(tmp_path, rc):
     assert 0 < grid.check_has_data(info, max_cells=4) <= 1
 
 
+@pytest.mark.parametrize("overviews", [False, True])
+def test_check_has_data_reads_a_sample_of_blocks_not_every_block(tmp_path, monkeypatch, overviews):
+    """QA 20: the dialog's check of a sparse 33000 x 33000 GeoTIFF took 16 s: its decimated read of a raster
+    without overviews made GDAL decompress every block. It now reads whole blocks spread over the raster (with
+    overviews: the decimated read, which GDAL serves from them) and, when they miss the data, scans the strips
+    GDAL does not report empty. Counted: the cells of the windows asked of GDAL (the blocks it must decode),
+    never timings. The data are found either way."""
+    from osgeo import gdal
+    path = str(tmp_path / "sparse.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 2048, 2048, 1, gdal.GDT_Float32,
+                                              ["TILED=YES", "SPARSE_OK=TRUE", "COMPRESS=DEFLATE"])
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).SetNoDataValue(-9999.0)
+    ds.GetRasterBand(1).WriteArray(np.full((200, 200), 50.0, np.float32), 1000, 1100)   # off the sampled blocks
+    if overviews:
+        ds.BuildOverviews("NEAREST", [4, 16])
+    ds = None
+    info = grid.open_dsm(path)
+    asked = []
+    read = type(info).read_stored
+
+    def counting(self, window=None, step=1):
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        asked.append((r1 - r0) * (c1 - c0) if step == 1 or not overviews else (r1 - r0) * (c1 - c0) // step ** 2)
+        return read(self, window, step)
+    monkeypatch.setattr(type(info), "read_stored", counting)
+    assert 0 < grid.check_has_data(info, max_cells=65536) < 1
+    assert sum(asked) <= 8 * 65536, asked          # a decimated read without overviews: the 4.2 Mcells
+    if overviews:
+        return
+    ds = gdal.Open(path, gdal.GA_Update)
+    ds.GetRasterBand(1).WriteArray(np.full((200, 200), -9999.0, np.float32), 1000, 1100)
+    ds = None
+    with pytest.raises(ValueError, match="no valid cell"):
+        grid.check_has_data(grid.open_dsm(path), max_cells=65536)
+
+
+@pytest.mark.parametrize("scale,offset", [(float("nan"), 0.0), (1.0, float("inf"))])
+def test_a_band_scale_or_offset_that_is_no_number_refused_naming_it(tmp_path, scale, offset):
+    """QA 20: a band whose scale (or offset) is NaN made every height NaN, and the check said "every cell is nodata.
+    Check the nodata value", pointing at the wrong setting. Refused on opening, naming the scale and the fix."""
+    from osgeo import gdal
+    path = str(tif(tmp_path, np.full((5, 5), 300.0, np.float32)))
+    ds = gdal.Open(path, gdal.GA_Update)
+    ds.GetRasterBand(1).SetScale(scale)
+    ds.GetRasterBand(1).SetOffset(offset)
+    ds = None
+    with pytest.raises(ValueError, match=r"declares a scale of .* and an offset of .*: no height can be read\. Give "
+                                         r"the band a finite scale and offset \(gdal_edit\.py -scale 1 -offset 0"):
+        grid.open_dsm(path)
+
+
+def test_check_has_data_sample_windows_stay_within_the_budget_on_huge_blocks(tmp_path, monkeypatch):
+    """The block sample of a raster stored as one strip (or tiles larger than the budget) read windows of whole
+    blocks: the whole raster at once. Each window now holds at most ``max_cells`` cells."""
+    from osgeo import gdal
+    path = str(tmp_path / "strip.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 1024, 1024, 1, gdal.GDT_Float32,
+                                              ["BLOCKYSIZE=1024", "COMPRESS=DEFLATE"])     # one strip
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(np.full((1024, 1024), 50.0, np.float32))
+    ds = None
+    info = grid.open_dsm(path)
+    assert info.dataset().GetRasterBand(1).GetBlockSize() == [1024, 1024]
+    asked = []
+    read = type(info).read_stored
+
+    def counting(self, window=None, step=1):
+        r0, r1, c0, c1 = window or (0, self.shape[0], 0, self.shape[1])
+        asked.append((r1 - r0) * (c1 - c0) // step ** 2)
+        return read(self, window, step)
+    monkeypatch.setattr(type(info), "read_stored", counting)
+    assert grid.check_has_data(info, max_cells=16384) == 1.0
+    assert max(asked) <= 16384, asked
+
+
+def test_the_alpha_band_chosen_as_heights_refused_naming_the_height_band(tmp_path):
+    """QA 20: BAND = 2 on a DSM with an alpha band (gdalwarp -dstalpha) read the transparency, 0 / 255, as heights:
+    a flat DTM of 255 m, every cell ground, without a word. Refused naming the height band; band 1 reads the
+    heights with the alpha band as their mask."""
+    from osgeo import gdal
+    path = str(tmp_path / "alpha.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 6, 6, 2, gdal.GDT_Float32, ["ALPHA=YES"])
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(np.full((6, 6), 300.0, np.float32))
+    ds.GetRasterBand(2).WriteArray(np.full((6, 6), 255.0, np.float32))
+    ds = None
+    with pytest.raises(ValueError, match=r"band 2 of the raster .* is its alpha band \(transparency: 0 where a cell "
+                                         r"is not drawn\), not heights: choose the height band \(1\)\."):
+        grid.open_dsm(path, 2)
+    assert grid.open_dsm(path, 1).masked == 2 and grid.open_dsm(path).band_index == 1
+
+
 def test_check_has_data_decimated_nan_undeclared(tmp_path):
     a = np.zeros((10, 10), np.float32)
     a[:, :5] = np.nan

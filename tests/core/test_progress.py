@@ -201,6 +201,8 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
     named = _named(events)[-3:]     # the vote's own, after the members
     assert [events[i] for i in named] == list(stages)
     _assert_reports_after(events, named)
+    # QA 20: and the span's search reports after each of its scales (the longest gap of dtm's derivation)
+    assert len([e for e in events[named[-1] + 1:] if isinstance(e, float) and e < 1.0]) >= 2, events[named[-1]:]
 
 
 def test_slopeprofile_reports_between_its_stages_after_the_axes(monkeypatch):
@@ -280,3 +282,151 @@ def test_rascor_reports_between_its_spared_ground_stages(monkeypatch):
     named = _named(events)
     assert [events[i] for i in named] == list(stages)
     _assert_reports_after(events, named)
+
+
+def test_morphological_reports_between_its_opening_stages(monkeypatch):
+    """QA 20: the progressive form ran its low outliers' pit tests, the ground slope map and the cell slopes before
+    the opening, and the cut terrain and cut slopes after it, without a report (6-7 s silent on 16 Mcells under
+    load; a cancel waited as long). Each is now followed by a report, the fractions rising; the mask unchanged."""
+    from bare_earth.core import morphology
+    events = []
+    stages = ("find_low_outliers", "ground_slope_map", "find_cut_terrain", "find_cut_slopes")
+    _spy_stages(monkeypatch, morphology, stages, events)
+    meth = methods.get_method("morphological")
+    z = _city()
+    params = {**pipeline.resolve_params(meth, z, 1.0), "mode": "progressive"}
+    events.clear()
+    meth.run(z, (1.0, 1.0), progress=events.append, **params)
+    named = _named(events)
+    assert [events[i] for i in named] == list(stages)
+    _assert_reports_after(events, named)
+
+
+def test_morphological_object_size_reports_after_its_search(monkeypatch):
+    """QA 20: after its search (the filter, which reports), the object-size estimate judged the regions on walls
+    (twice) and measured two widths without a report, the tail of morphological's derivation. A report now
+    follows each; the estimate unchanged."""
+    from bare_earth.core import morphology
+    events = []
+    z = _city()
+    base = morphology.estimate_object_size(z, 1.0, 0.3, 0.5, details=True)
+    _spy_stages(monkeypatch, morphology, ("objects_on_walls", "object_widths"), events)
+    assert morphology.estimate_object_size(z, 1.0, 0.3, 0.5, details=True, progress=events.append) == base
+    named = _named(events)
+    assert [events[i] for i in named] == ["objects_on_walls", "object_widths", "object_widths", "objects_on_walls"]
+    _assert_reports_after(events, named)
+
+
+def test_raised_region_search_reports_after_each_scale():
+    """QA 20: curvature's largest object searched the raised regions on walls (three searches, the last the
+    walled span: 12 s on 16 Mcells under load) with a report only after each search. The search
+    (dtm_regions.find_raised_regions, through estimate's raised_region_* estimates) now reports after its labelling
+    and after each of its scales (t, 2 t, 4 t ... up to the highest step), ends at 1, stops at the call that raises;
+    the results unchanged."""
+    from bare_earth.core.curvature import method as curvature
+    z = _city()
+    calls = []
+    base = estimate.raised_region_span_walled(z, (1.0, 1.0), 1.0, 0.0, max_span_m=400.0)
+    assert estimate.raised_region_span_walled(z, (1.0, 1.0), 1.0, 0.0, max_span_m=400.0,
+                                              progress=calls.append) == base
+    highest = float(np.nanmax(z) - np.nanmin(z))
+    assert len(calls) >= 2 + int(np.log2(highest / 8.0)) and calls == sorted(calls) and calls[-1] == 1.0
+    assert estimate.raised_region_window(z, (1.0, 1.0), 1.0, 20.0, progress=calls.append) == \
+        estimate.raised_region_window(z, (1.0, 1.0), 1.0, 20.0)
+    seen = []
+
+    def stop(f):
+        seen.append(f)
+        raise Cancelled()
+    with pytest.raises(Cancelled):
+        estimate.raised_region_span_walled(z, (1.0, 1.0), 1.0, 0.0, max_span_m=400.0, progress=stop)
+    assert len(seen) == 1
+    # inside curvature's largest object: the walled span (after 0.7) reports from inside
+    calls.clear()
+    assert curvature.object_size(z, (1.0, 1.0), 1.0, progress=calls.append) == curvature.object_size(z, (1.0, 1.0), 1.0)
+    assert len([f for f in calls if 0.7 < f < 1.0]) >= 2 and calls == sorted(calls)
+
+
+def test_slopeprofile_refinement_reports_from_inside_its_fill(monkeypatch):
+    """QA 20: slopeprofile's final refinement (REFINE) interpolated the ground under its objects (fill_gaps, a
+    second of CPU on 16 Mcells) without a callback: the bar stood at 87 % and a cancel waited. The fill now
+    reports from inside it; the mask unchanged."""
+    from bare_earth.core import fill
+    meth = methods.get_method("slopeprofile")
+    z = _city()
+    params = {**pipeline.resolve_params(meth, z, 1.0), "refine": True}
+    base = meth.run(z, (1.0, 1.0), **params).mask
+    events = []
+    _spy_stages(monkeypatch, fill, ("fill_gaps",), events)
+    np.testing.assert_array_equal(meth.run(z, (1.0, 1.0), progress=events.append, **params).mask, base)
+    named = _named(events)
+    assert [events[i] for i in named] == ["fill_gaps"]
+    inside = [e for e in events[named[0] + 1:] if isinstance(e, float) and 0.87 < e < 0.95]
+    assert len(inside) >= 3, events[named[0]:]
+    _assert_reports_after(events, named)
+
+
+def test_fill_reports_while_its_pyramid_is_built(monkeypatch):
+    """QA 20: fill_gaps reported once per level solved, the first after building its whole pyramid (a third of its
+    time: 0.27 of 0.63 s CPU on 16 Mcells). A report now follows each level built, before the coarsest is solved;
+    the fill unchanged, the fractions rising to 1."""
+    from bare_earth.core import fill
+    z = synthetic.make_scene("city", shape=(300, 300), cell_size=1.0, seed=5).dsm
+    holes = z > np.nanpercentile(z, 70)
+    base = fill.fill_gaps(z, fill=holes)
+    events = []
+    _spy_stages(monkeypatch, fill, ("_restrict", "_solve_direct"), events)
+    np.testing.assert_array_equal(fill.fill_gaps(z, fill=holes, progress=events.append), base)
+    named = _named(events)
+    assert [events[i] for i in named] == ["_restrict"] * (len(fill.pyramid_shapes(z.shape)) - 1) + ["_solve_direct"]
+    _assert_reports_after(events, named)
+    assert events[-1] == 1.0
+
+
+def test_curvature_reports_between_its_profile_and_ground_stages(monkeypatch):
+    """QA 20: curvature ran, without a report, the bounds of its profiles' runs across (both axes), the cut objects
+    at the raster's edge, the first stages of its final pass (the low bowls, the first holes, the bowls beside
+    objects: 2.4 s CPU on 16 Mcells, 23 s under load) and, in each pass, the classification and the ground
+    continued from it. A report now follows each of these stages, the fractions rising; the mask unchanged."""
+    from bare_earth.core.curvature import ground, profiles
+    events = []
+    _spy_stages(monkeypatch, profiles, ("bounded_runs", "_edge_regions"), events)
+    _spy_stages(monkeypatch, ground, ("_low_bowls", "_first_holes", "_ground_bowls", "_classify",
+                                      "_continue_ground"), events)
+    _run_with_events("curvature", _city(), events)
+    named = _named(events)
+    names = [events[i] for i in named]
+    assert names[:3] == ["bounded_runs", "bounded_runs", "_edge_regions"]
+    assert names[3:6] == ["_low_bowls", "_first_holes", "_ground_bowls"]
+    assert names.count("_classify") == names.count("_continue_ground") >= 2
+    _assert_reports_after(events, named)
+
+
+def test_curvature_reports_inside_its_ground_seeds(monkeypatch):
+    """QA 20: after the reports above, the longest silent stretches of curvature's run on 16 Mcells were inside the
+    bowls beside objects (two minimum filters, 1.3 s CPU) and the lower envelope's ground level (a minimum filter and
+    the local slopes, 1.2 s): each now reports between its filters; the mask unchanged."""
+    from bare_earth.core.curvature import ground
+    events = []
+    _spy_stages(monkeypatch, ground, ("_ground_bowls", "under_chords", "_local_slopes"), events)
+    _run_with_events("curvature", _city(), events)
+    named = _named(events)
+    first = [events[i] for i in named][:3]
+    assert first == ["_ground_bowls", "under_chords", "_local_slopes"], first
+    for a, b in zip(named[:2], named[1:3]):
+        assert len([e for e in events[a + 1:b] if isinstance(e, float)]) >= 2, events[a:b + 1]
+
+
+def test_dtm_reports_after_its_raised_regions_and_detached_levels(monkeypatch):
+    """QA 20: after its refinement (0.82), bareearth:dtm searched the raised regions (every scale of walls), the
+    detached levels and the roofs' edges without a report up to 0.85. The search now reports after each of its
+    scales (one thread) and a report follows each stage; the mask unchanged."""
+    from bare_earth.core import dtm
+    events = []
+    _spy_stages(monkeypatch, dtm, ("find_raised_regions", "find_detached_levels", "describe_region"), events)
+    _run_with_events("dtm", _city(), events)
+    named = _named(events)
+    names = [events[i] for i in named]
+    assert names[:2] == ["find_raised_regions", "find_detached_levels"], names
+    assert len([e for e in events[named[0] + 1:named[1]] if isinstance(e, float)]) >= 2
+    _assert_reports_after(events, named[:2])

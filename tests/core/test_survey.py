@@ -235,6 +235,33 @@ def test_missing_vrt_source_refused_naming_the_tile(tmp_path):
         index_tiles([paths[0], paths[2], str(tmp_path / "gone.tif")])
 
 
+def test_tiles_in_gdal_memory_or_virtual_files_refused_saying_why(tmp_path):
+    """QA 20: a tile in GDAL's memory (/vsimem/, a layer a script made there) was reported "1 tile(s) are missing
+    ... No such file: check the path", though it exists (in this process alone, which the survey's workers cannot
+    read); a /vsicurl/ tile the same, its URL's // folded by abspath. Refused now saying where the tile lives and
+    what to do: given directly, as a folder, or as a VRT's sources."""
+    from osgeo import gdal
+    sc = make_scene("flat", shape=(64, 64), seed=1)
+    paths = write_survey(tmp_path, sc, tile=32)
+    mem = [f"/vsimem/qa20_{i}.tif" for i in range(2)]
+    try:
+        for src, dst in zip(paths, mem):
+            gdal.Translate(dst, src)
+        vrt = str(tmp_path / "mem.vrt")
+        gdal.BuildVRT(vrt, mem).FlushCache()
+        for given in (mem, "/vsimem/", vrt):
+            with pytest.raises(ValueError, match=r"the tile '/vsimem/.*' .*lives in this process's memory \(GDAL's "
+                                                 r"/vsimem/\), which the survey's worker processes cannot read: save"):
+                index_tiles(given)
+        with pytest.raises(ValueError, match=r"the tile '/vsicurl/https://example\.com/t00\.tif' is a GDAL virtual "
+                                             r"file \(vsicurl\), not a file on disk"):
+            index_tiles(["/vsicurl/https://example.com/t00.tif"])
+    finally:
+        for m in mem:
+            gdal.Unlink(m)
+    assert len(index_tiles(paths).tiles) == len(paths)      # the same tiles on disk pass
+
+
 def test_other_cell_size_and_overlap_refused_naming_the_tiles(tmp_path):
     sc = make_scene("flat", shape=(64, 64), seed=1)
     paths = write_survey(tmp_path / "a", sc, tile=32)
