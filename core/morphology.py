@@ -803,7 +803,7 @@ def ground_slope_map(a, r_max, cell, work=None, return_erosion=False):
 
 
 def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=WINDOW_GROWTH, thresholds=None,
-                 ground_slope=None, own_slope=None, last_erosion=None, allowance=0.0, cell=None):
+                 ground_slope=None, own_slope=None, last_erosion=None, allowance=0.0, cell=None, first_step=None):
     """SMRF's progressive opening of ``a`` (+inf = nodata).
 
     Returns the boolean flags (a cell whose opened height dropped by more than
@@ -816,7 +816,9 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
     of ``a`` by the last window when the caller has it (:func:`ground_slope_map`), taken by the last step instead
     of eroding the step before's erosion further (the same values: square windows' minima compose exactly).
     With ``cell`` (metres) the steps before the last also pass the drops the slope of their own erosion allows
-    where that slope continues along the terrain (:func:`_spare_continuing`).
+    where that slope continues along the terrain (:func:`_spare_continuing`). ``first_step`` (optional, int8,
+    ``a``'s shape, -1 where no step has flagged the cell yet) receives the index of the first step that flagged
+    each cell (diagnostics: ``filter_morphological(stages=)``).
     """
     if thresholds is None:
         thresholds = [slope * r for _, _, r in radii]
@@ -886,6 +888,9 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
                     np.greater(d, t, out=up)
                     if own_step is not None:
                         _spare_continuing(up, d, own_step, i0, r_k, radii[-1][:2], ref, ref_top)
+                if first_step is not None:
+                    fs = first_step[i0:i1]
+                    np.copyto(fs, np.int8(k), where=up & (fs < 0))
                 flags[i0:i1] |= up
         opens = {j: o for j, o in opens.items() if last_use.get(j, -1) > k}
         if last_use.get(k, -1) > k:
@@ -1804,10 +1809,11 @@ def find_cut_slopes(clean, flagged, ground, cell, dh, slope, r_max):
     return free
 
 
-def open_progressive(z, cell, p, work, progress=None):
+def open_progressive(z, cell, p, work, progress=None, stages=None):
     """The progressive form (Zhang et al. 2003; Pingel et al. 2013, SMRF), in SMRF's four
     steps. Returns the mask, the provisional surface ``ZIpro`` (NaN at nodata) and the
-    windows, thresholds and counts for the log."""
+    windows, thresholds and counts for the log. ``stages`` (optional dict) receives each stage's
+    cells (:func:`filter_morphological`'s ``stages``)."""
     valid = np.isfinite(z)
     nodata = ~valid
     s, growth = p["slope"], p["window_growth"]
@@ -1829,9 +1835,10 @@ def open_progressive(z, cell, p, work, progress=None):
     report(progress, 0.11)
     #    each step's threshold at least Zhang et al.'s dh_0, the drop the noise alone shows (noise_allowance)
     allowance = noise_allowance(p["noise_m"])
+    first = None if stages is None else np.full(z.shape, -1, np.int8)
     obj, opened = _progressive(a, radii, s, has_nodata, sub_progress(progress, 0.11, 0.85), work, growth,
                                thresholds, ground_slope=steep, own_slope=own, last_erosion=widest, allowance=allowance,
-                               cell=cell)
+                               cell=cell, first_step=first)
     del steep, own, widest
     del a
     obj &= valid
@@ -1867,6 +1874,10 @@ def open_progressive(z, cell, p, work, progress=None):
     confirmed = confirm_low_cells(z, low_final, zpro, cell, p["dh_m"], p["low_outlier_slope"] * LOW_OUTLIER_WINDOW_M,
                                   level)
     mask[low_final & ~confirmed] = GROUND
+    if stages is not None:
+        first[~valid] = -1
+        stages.update(low_prestep=low, first_step=first, flagged=obj, cut_terrain=cut, outline=outline, tiers=tiers,
+                      low_ground=low_final & ~confirmed)
     report(progress, 0.97)
     zpro[~valid] = np.nan
     info = {"window_sizes_m": [round((2 * rx + 1) * cell[0], 3) for ry, rx, _ in radii],
@@ -1889,7 +1900,8 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
                          window_growth: float = WINDOW_GROWTH, low_outlier_slope: float = LOW_OUTLIER_SLOPE,
                          outline_slope: Optional[float] = None, wide_slope: Optional[float] = None,
                          wide_radius_m: Optional[float] = None, noise_m: Optional[float] = None,
-                         progress: Optional[Callable[[float], None]] = None) -> FilterResult:
+                         progress: Optional[Callable[[float], None]] = None, stages: Optional[dict] = None
+                         ) -> FilterResult:
     """Classify a DSM into ground, objects and low outliers by grey opening.
 
     Parameters
@@ -1931,6 +1943,14 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
     progress : callable, optional
         ``progress(fraction)`` within every step; may raise
         :class:`~bare_earth.core.common.Cancelled`.
+    stages : dict, optional
+        Diagnostics (``benchmarks/morphological_errors.py``): receives each stage's cells as boolean
+        rasters, progressive form: ``low_prestep`` (the pre-step's low outliers), ``first_step`` (int8: the
+        index of the first step of the opening that flagged the cell, -1 none), ``flagged`` (the opening's
+        flags left after ``cut_terrain``, the flagged cells :func:`find_cut_terrain` and :func:`find_cut_slopes`
+        gave back), ``outline`` (:func:`find_outline_cells`), ``tiers`` (:func:`find_attached_tiers`),
+        ``low_ground`` (the final test's low cells :func:`confirm_low_cells` made ground); single form:
+        ``low_ground``. The result does not depend on it.
 
     Returns
     -------
@@ -1965,8 +1985,10 @@ def filter_morphological(z: np.ndarray, cell_size: Union[float, Tuple[float, flo
         confirmed = confirm_low_cells(z, low, surface, cell, p["dh_m"], p["low_outlier_slope"] * LOW_OUTLIER_WINDOW_M,
                                       level)
         mask[low & ~confirmed] = GROUND
+        if stages is not None:
+            stages["low_ground"] = low & ~confirmed
     else:
-        mask, surface, more = open_progressive(z, cell, p, _Work(), progress)
+        mask, surface, more = open_progressive(z, cell, p, _Work(), progress, stages)
     info.update(more)
     report(progress, 0.97)
     mask = finish_mask(mask, z)

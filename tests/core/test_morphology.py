@@ -1591,3 +1591,28 @@ def test_spare_continuing_reads_the_top_at_its_cells_as_on_the_raster():
     morph._spare_continuing(b, d, g, 0, np.float32(2.0), (4, 4), ref, (2, 2))
     assert np.count_nonzero(a != up) > 5                   # some cells passed
     np.testing.assert_array_equal(a, b)
+
+
+def test_stages_name_the_step_that_flagged_each_cell_and_change_nothing():
+    """``filter_morphological(stages=)``: a flat box 12 m wide and 6 m high is flagged at the first step whose
+    window (17 m: radius 8, the drop over the doubling from radius 3 is 6 m > 0.3 x 8) no longer fits in it; a
+    one-cell bump of 1 m at the first (3 m: 1 m > 0.3 x 1); every other cell at no step; the mask is the same."""
+    z = np.zeros((64, 64), np.float32)
+    z[20:32, 20:32] = 6.0
+    z[40, 10] = 1.0
+    kw = dict(mode="progressive", max_object_size_m=20.0, dh_m=0.5, slope=0.3, noise_m=0.0, outline_slope=0.0,
+              wide_slope=0.3, wide_radius_m=100.0)
+    stages = {}
+    res = morph.filter_morphological(z, 1.0, stages=stages, **kw)
+    assert res.info["window_sizes_m"][4] == 17.0
+    expected = np.full(z.shape, -1, np.int8)
+    expected[20:32, 20:32] = 4
+    expected[40, 10] = 0
+    np.testing.assert_array_equal(stages["first_step"], expected)
+    np.testing.assert_array_equal(stages["flagged"], expected >= 0)
+    for key in ("cut_terrain", "outline", "tiers", "low_prestep", "low_ground"):
+        assert stages[key].shape == z.shape and not stages[key].any()
+    np.testing.assert_array_equal(res.mask, morph.filter_morphological(z, 1.0, **kw).mask)
+    single = {}
+    morph.filter_morphological(z, 1.0, stages=single, **dict(kw, mode="single"))
+    assert set(single) == {"low_ground"}
