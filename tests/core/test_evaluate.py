@@ -407,6 +407,50 @@ def test_dtm_errors_breakdown_exact():
     assert "type II 2" in bench.format_breakdown("row", b)
 
 
+def test_morphological_errors_by_stage_exact():
+    """benchmarks/morphological_errors.py: each cell named by the stage that decided it (the opening's first
+    flagging step over the other stages), each scored point counted once, by kind, stage and the cell's class."""
+    bench = _load_benchmark("morphological_errors")
+    first = np.array([[1, -1, -1], [-1, -1, 0]], np.int8)
+    stages = {"first_step": first, "flagged": first >= 0, "cut_terrain": np.array([[0, 1, 0], [0, 0, 0]], bool),
+              "outline": np.array([[0, 0, 1], [0, 0, 0]], bool), "tiers": np.zeros((2, 3), bool),
+              "low_prestep": np.array([[1, 0, 0], [1, 0, 0]], bool),
+              "low_ground": np.array([[0, 0, 0], [1, 0, 1]], bool)}
+    grid, names = bench.stage_codes(stages, (2, 3), (3.0, 5.0))
+    assert [[names[c] for c in row] for row in grid.tolist()] == [
+        ["step 1 (5 m)", "cut terrain", "outline"], ["pre-step low", "kept", "step 0 (3 m)"]]
+    mask = np.array([[1, 0, 1], [2, 0, 0]], np.uint8)
+    codes = np.array([1, 0, 0, 2, 0, 255, 0], np.uint8)
+    truth = np.array([True, False, False, True, False, True, False])
+    valid = np.array([True, True, True, True, True, True, False])
+    rows = np.array([0, 0, 1, 1, 1, 0, 0])
+    cols = np.array([0, 1, 1, 0, 2, 2, 1])
+    b = bench.breakdown(codes, truth, valid, rows, cols, mask, grid, names, heights=np.arange(7.0),
+                        reference=np.zeros((2, 3)))
+    assert (b["ground_points"], b["object_points"]) == (2, 3)          # the 255 and the invalid point: not scored
+    assert (b["type1_above"], b["type1_below"], b["type2"]) == (1, 1, 3)
+    assert b["groups"] == {("type1_above", "step 1 (5 m)", "object"): {"points": 1, "point_above_ref_m": 0.0},
+                           ("type1_below", "pre-step low", "low"): {"points": 1, "point_above_ref_m": 3.0},
+                           ("type2", "cut terrain", "ground"): {"points": 1, "point_above_ref_m": 1.0},
+                           ("type2", "kept", "ground"): {"points": 1, "point_above_ref_m": 2.0},
+                           ("type2", "step 0 (3 m)", "ground"): {"points": 1, "point_above_ref_m": 4.0}}
+    assert "type II 3" in bench.format_breakdown("row", b)
+
+
+def test_morphological_errors_count_what_the_matrix_scores(tmp_path):
+    """The breakdown of a row adds up to the generalisation matrix's total error for the filter on it, and the
+    filter's second run (with ``stages=``) gives the matrix's mask."""
+    bench = _load_benchmark("morphological_errors")
+    (tmp_path / "isprs").mkdir()
+    _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 1)
+    b = bench.run(tmp_path, r"isprs/samp11/2m/min", progress=None)["isprs/samp11/2m/min"]
+    rows, _ = bench.generalise.run_matrix(tmp_path, ["morphological"], only=r"isprs/samp11/2m/min", progress=None)
+    total = 100.0 * (b["type1_above"] + b["type1_below"] + b["type2"]) / (b["ground_points"] + b["object_points"])
+    assert total == pytest.approx(rows[0]["filters"]["morphological"]["total"], abs=1e-9)
+    assert sum(g["points"] for g in b["groups"].values()) == b["type1_above"] + b["type1_below"] + b["type2"]
+    assert b["cells_differing"] == 0
+
+
 def test_sites_rascor_errors_by_step_exact():
     """benchmarks/sites.py --steps: RASCOR's Type I / II cells by the step that removed (0 kept)
     each, in per cent of the valid cells (nodata not counted)."""
