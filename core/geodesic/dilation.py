@@ -185,7 +185,8 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     # than the terrain can rise over one (diagonal) cell, plus 2 dh0
     # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
     idx, lab_c, dmax, rim_frac, ext_r, ext_c = _component_stats(
-        lab, n, cand, dc, inner_cells(cand), jump_c, 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
+        lab, n, cand, dc, inner_cells(cand, None if vc.all() else ~vc), jump_c,
+        2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
     del lab
     report(progress, 0.85)
     dh_k = dh0 + tan_s * s * BUMP_FRACTION
@@ -205,6 +206,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     report(progress, 0.9)
     Rcf = Rc.ravel()
     pieces = none
+    gaps = None if valid is None or valid.all() else ~valid    # nodata ends a region's rim
     if walled_c.size:
         # their cells keep their height in the cleaned surface (R_k = w there), as _fine_regions' do
         pieces = _walled_pieces(w, walled_c, Rc, f, dh0 + tan_s * np.hypot(dx, dy), dh0, dh_k, edge_ratio,
@@ -222,18 +224,18 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     cells, Rk = cells[sel], Rk[sel]
     if wide_c.size:
         more = _fine_regions(w, wide_c, Rc, f, jump, 2.0 * dh0 + tan_s * f * np.hypot(dx, dy), dh0, dh_k,
-                             edge_ratio, ext_limit, dx, dy)
+                             edge_ratio, ext_limit, dx, dy, gaps)
         # their cells keep their height in the cleaned surface (R_k = w there): see _fine_regions
         cells, Rk = np.concatenate([cells, more]), np.concatenate([Rk, w.ravel()[more]])
         report(progress, 0.96)
     if pieces.size:
         cells, Rk = np.concatenate([cells, pieces]), np.concatenate([Rk, w.ravel()[pieces]])
-    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared)
+    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared, gaps)
     report(progress, 0.97)
     return cells[sel], Rk[sel]
 
 
-def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_limit, dx, dy):
+def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_limit, dx, dy, nodata=None):
     """The objects among the fine cells of a coarse step's regions too wide to be one
     (``blocks``: their coarse cells, flat on the grid of ``Rc``): the region tests of
     :func:`dilation_step` on the fine cells whose own residual above their block's
@@ -251,7 +253,8 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     reconstruction and part the buildings: each fine region is an object when it is higher
     than ``dh_k``, no wider than ``ext_limit`` metres, and at least ``edge_ratio`` of its rim
     cells (not on the raster's edge) hold a wall (``jump``) with a residual of at least
-    ``flag_min``, as a coarse region is. Returns the flat indices of their cells (sorted).
+    ``flag_min``, as a coarse region is; a cell whose only neighbours outside its region are
+    ``nodata`` (a boolean array, optional) is no rim cell. Returns the flat indices of their cells (sorted).
 
     The caller leaves these cells at their height in the cleaned surface that scan labelling
     reads: their block's reconstruction is the level of the highest ground the coarse region
@@ -278,7 +281,8 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     lab_c = lab.ravel()[cells]
     # the tests of _component_stats, without its sort: counts per label and the labels' boxes
     high = np.bincount(lab_c, weights=res > dh_k, minlength=n + 1) > 0
-    edge = inner_cells(cand)                      # a rim cell has a neighbour outside; the raster's edge is none
+    # a rim cell has a valid neighbour outside; the raster's edge and nodata are none
+    edge = inner_cells(cand, nodata)
     del cand
     edge[0] = edge[-1] = True
     edge[:, 0] = edge[:, -1] = True
@@ -337,7 +341,7 @@ def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, d
         for dc in (-1, 0, 1):
             if dr or dc:
                 q = q0 + dr * W + dc
-                outline[inside] |= lab[q] != own
+                outline[inside] |= (lab[q] != own) & np.isfinite(wf[q])     # nodata is no outline
                 low = np.fmin(low, wf[q])
     del lab
     abrupt = np.zeros(cells.size, bool)
@@ -357,7 +361,7 @@ def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, d
     return cells[keep[piece]]
 
 
-def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
+def _fine_outline(w, cells, step_m, edge_ratio, shared=None, nodata=None):
     """Which ``cells`` of a coarse step's objects lie in a part with an abrupt outline.
 
     A coarse block holding a wall anywhere counts as a wall, so one coarse region can
@@ -368,8 +372,8 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     of 100 x 120 m, and a result changing with the clip's orientation). The removed cells
     (``cells``: flat indices of the cells whose own residual exceeds dh0) are therefore
     split into their 8-connected parts, and a part stays an object when at least
-    ``edge_ratio`` of its outline cells (a kept neighbour; the raster's edge ends the data
-    and is no outline) stand above one of their 8 neighbours by more than ``step_m`` (dh0
+    ``edge_ratio`` of its outline cells (a kept neighbour; the raster's edge and ``nodata``, a boolean
+    array, optional, end the data and are no outline) stand above one of their 8 neighbours by more than ``step_m`` (dh0
     plus the terrain's rise over a cell diagonal: the border stage's test of a wall's foot
     or a crown's edge). A part with no outline inside the raster keeps its region's
     decision.
@@ -392,7 +396,7 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     fine[cells] = True
     fine = fine.reshape(H, W)
     rows, cols = np.divmod(cells, W)
-    rim = ~inner_cells(fine).ravel()[cells] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
+    rim = ~inner_cells(fine, nodata).ravel()[cells] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
     lab, n = label8(fine)
     part = lab.ravel()[cells]
     del fine, lab

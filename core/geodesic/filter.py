@@ -152,7 +152,8 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
     big = (slice(max(0, r0 - m[0]), min(H, r1 + m[0])), slice(max(0, c0 - m[1]), min(W, c1 + m[1])))
     lab_b = lab[big]
     body = wide[lab_b]
-    rim = body & ~ndimage.binary_erosion(body, S8, border_value=1)
+    wb = w[big]
+    rim = body & ~ndimage.binary_erosion(body | ~np.isfinite(wb), S8, border_value=1)   # nodata ends the data
     if big[0].start == 0:
         rim[0] = False
     if big[0].stop == H:
@@ -161,7 +162,6 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
         rim[:, 0] = False
     if big[1].stop == W:
         rim[:, -1] = False
-    wb = w[big]
     walls = wall_cells(wb, np.isfinite(wb), cell_size, dh0, tan_s) & rim
     n_rim = np.bincount(lab_b[rim], minlength=n + 1)
     n_wall = np.bincount(lab_b[walls], minlength=n + 1)
