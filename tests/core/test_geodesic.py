@@ -1647,3 +1647,61 @@ def test_raised_terrain_runs_rim_ends_at_nodata():
     assert raised_terrain_runs(w, new, (1.0, 1.0), 5.0, 0.5, 0.2, 0.55).sum() == 0
     w[2:5, 1:13] = 1.2                       # a crest 1.2 m high: no walls, raised terrain
     assert raised_terrain_runs(w, new, (1.0, 1.0), 5.0, 0.5, 0.2, 0.55).sum() == 36
+
+
+# ------------------------------------------------- regions too wide: their smooth pieces (issue 12)
+def test_wide_pieces_take_walled_pieces_only():
+    """The smooth pieces of a region too wide to be an object: a 5 x 5 roof 6 m above the ground stands on
+    walls all round (an object); a line of cells one cell wide at the same height holds no cell whose
+    neighbours are all its own (no object: steps on a rough slope part such lines), nor does a roof the
+    raster's edge cuts (not seen whole), nor a gentle mound (no walls)."""
+    from bare_earth.core.geodesic.dilation import _wide_pieces, wall_cells
+    w = np.zeros((30, 40), np.float32)
+    w[5:10, 5:10] = 6.0                                   # a roof
+    w[15, 5:20] = 6.0                                     # a line
+    w[20:26, 0:4] = 6.0                                   # a roof cut by the raster's edge
+    yy, xx = np.mgrid[0:30, 0:40]
+    w += np.clip(3.0 - 0.25 * np.hypot(yy - 15, xx - 32), 0, None).astype(np.float32)   # a mound
+    dh0, tan_s = 0.5, np.tan(np.radians(20.0))
+    cells = np.flatnonzero(w > dh0)
+    res = w.ravel()[cells]
+    wall = wall_cells(w, np.isfinite(w), (1.0, 1.0), dh0, tan_s).ravel()[cells]
+    got = _wide_pieces(w, cells, res, wall, dh0 + tan_s * 2 ** 0.5, dh0, tan_s, 2.0, 0.55, 100.0, 1.0, 1.0)
+    want = np.zeros(w.shape, bool)
+    want[5:10, 5:10] = True
+    assert np.array_equal(got, np.flatnonzero(want))
+
+
+def test_wide_pieces_height_grows_with_the_pieces_width():
+    """A piece must stand higher than a terrain bump as wide as itself may rise: a walled level 20 x 20 m,
+    1.6 m high (width 2 x 400 / 76 = 10.5 m: 0.5 + 0.36 x 10.5 x 0.5 = 2.4 m), is terrain, a 3 x 3 one of
+    the same height (width 2.25 m: 0.9 m) an object."""
+    from bare_earth.core.geodesic.dilation import _wide_pieces
+    w = np.zeros((30, 40), np.float32)
+    w[5:25, 2:22] = 1.6
+    w[20:23, 30:33] = 1.6
+    dh0, tan_s = 0.5, np.tan(np.radians(20.0))
+    cells = np.flatnonzero(w > dh0)
+    wall = np.ones(cells.size, bool)
+    got = _wide_pieces(w, cells, w.ravel()[cells], wall, dh0 + tan_s * 2 ** 0.5, dh0, tan_s, 1.0, 0.55, 100.0,
+                       1.0, 1.0)
+    want = np.zeros(w.shape, bool)
+    want[20:23, 30:33] = True
+    assert np.array_equal(got, np.flatnonzero(want))
+
+
+def test_label_scans_raised_terrain_counts_the_dilations_pieces():
+    """A crest 1.2 m high and 150 m long (no walls: raised terrain, given back) keeps its runs whole where a
+    dilation step removed a few of its cells (pieces of a region too wide): counted apart, its parts, each
+    shorter than twice the largest object, were labelled objects."""
+    from bare_earth.core.geodesic.filter import label_scans
+    w = np.zeros((20, 170), np.float32)
+    w[8:11, 10:160] = 1.2
+    p = dict(height_threshold_m=0.5, max_object_size_m=20.0, terrain_slope_deg=10.0, edge_ratio=0.55)
+    removed = np.zeros(w.shape, bool)
+    step = np.zeros(w.shape, np.uint8)
+    removed[8:11, [45, 80, 115]] = True                 # the dilation's pieces cut the crest every 35 m
+    step[removed] = 3
+    label_scans(w, (1.0, 1.0), p, removed, step)
+    assert not (step == 250).any()
+    assert removed.sum() == 9
