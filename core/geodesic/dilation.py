@@ -185,7 +185,8 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     # than the terrain can rise over one (diagonal) cell, plus 2 dh0
     # and the residual there exceeds 2 dh0 plus the terrain's rise over the block
     idx, lab_c, dmax, rim_frac, ext_r, ext_c = _component_stats(
-        lab, n, cand, dc, inner_cells(cand), jump_c, 2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
+        lab, n, cand, dc, inner_cells(cand, None if vc.all() else ~vc), jump_c,
+        2.0 * dh0 + tan_s * f * np.hypot(dx, dy))
     del lab
     report(progress, 0.85)
     dh_k = dh0 + tan_s * s * BUMP_FRACTION
@@ -205,6 +206,7 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     report(progress, 0.9)
     Rcf = Rc.ravel()
     pieces = none
+    gaps = None if valid is None or valid.all() else ~valid    # nodata ends a region's rim
     if walled_c.size:
         # their cells keep their height in the cleaned surface (R_k = w there), as _fine_regions' do
         pieces = _walled_pieces(w, walled_c, Rc, f, dh0 + tan_s * np.hypot(dx, dy), dh0, dh_k, edge_ratio,
@@ -222,18 +224,19 @@ def dilation_step(w, valid, wmask, jump, s, dx, dy, dh0, tan_s, edge_ratio, ext_
     cells, Rk = cells[sel], Rk[sel]
     if wide_c.size:
         more = _fine_regions(w, wide_c, Rc, f, jump, 2.0 * dh0 + tan_s * f * np.hypot(dx, dy), dh0, dh_k,
-                             edge_ratio, ext_limit, dx, dy)
+                             edge_ratio, ext_limit, dx, dy, gaps, dh0 + tan_s * np.hypot(dx, dy), tan_s)
         # their cells keep their height in the cleaned surface (R_k = w there): see _fine_regions
         cells, Rk = np.concatenate([cells, more]), np.concatenate([Rk, w.ravel()[more]])
         report(progress, 0.96)
     if pieces.size:
         cells, Rk = np.concatenate([cells, pieces]), np.concatenate([Rk, w.ravel()[pieces]])
-    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared)
+    sel = _fine_outline(w, cells, dh0 + tan_s * np.hypot(dx, dy), edge_ratio, shared, gaps)
     report(progress, 0.97)
     return cells[sel], Rk[sel]
 
 
-def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_limit, dx, dy):
+def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_limit, dx, dy, nodata=None,
+                  step_m=None, tan_s=0.0):
     """The objects among the fine cells of a coarse step's regions too wide to be one
     (``blocks``: their coarse cells, flat on the grid of ``Rc``): the region tests of
     :func:`dilation_step` on the fine cells whose own residual above their block's
@@ -251,7 +254,11 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     reconstruction and part the buildings: each fine region is an object when it is higher
     than ``dh_k``, no wider than ``ext_limit`` metres, and at least ``edge_ratio`` of its rim
     cells (not on the raster's edge) hold a wall (``jump``) with a residual of at least
-    ``flag_min``, as a coarse region is. Returns the flat indices of their cells (sorted).
+    ``flag_min``, as a coarse region is; a cell whose only neighbours outside its region are
+    ``nodata`` (a boolean array, optional) is no rim cell. With ``step_m`` (dh0 plus the terrain's
+    rise over a cell diagonal; ``tan_s`` the tolerated slope), the high regions still too wide are cut
+    into their smooth pieces, each tested as a region (:func:`_wide_pieces`). Returns the flat indices
+    of their cells (sorted).
 
     The caller leaves these cells at their height in the cleaned surface that scan labelling
     reads: their block's reconstruction is the level of the highest ground the coarse region
@@ -278,7 +285,8 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     lab_c = lab.ravel()[cells]
     # the tests of _component_stats, without its sort: counts per label and the labels' boxes
     high = np.bincount(lab_c, weights=res > dh_k, minlength=n + 1) > 0
-    edge = inner_cells(cand)                      # a rim cell has a neighbour outside; the raster's edge is none
+    # a rim cell has a valid neighbour outside; the raster's edge and nodata are none
+    edge = inner_cells(cand, nodata)
     del cand
     edge[0] = edge[-1] = True
     edge[:, 0] = edge[:, -1] = True
@@ -290,9 +298,92 @@ def _fine_regions(w, blocks, Rc, f, jump, flag_min, dh0, dh_k, edge_ratio, ext_l
     box = ndimage.find_objects(lab)
     del lab
     ext = np.array([(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in box], np.float64).reshape(-1, 2)
-    keep[1:] &= (ext[:, 0] * dy <= ext_limit) & (ext[:, 1] * dx <= ext_limit)
+    small = np.ones(n + 1, bool)
+    small[1:] = (ext[:, 0] * dy <= ext_limit) & (ext[:, 1] * dx <= ext_limit)
+    keep &= small
     keep[0] = False
-    return cells[keep[lab_c]]
+    out = cells[keep[lab_c]]
+    wide = high & ~small
+    wide[0] = False
+    if step_m is None or not wide.any():
+        return out
+    on = wide[lab_c]
+    del lab_c
+    sub = cells[on]
+    more = _wide_pieces(w, sub, res[on], (jump.ravel()[sub] & (res[on] >= flag_min)), step_m, dh0, tan_s, dh_k,
+                        edge_ratio, ext_limit, dx, dy)
+    return np.union1d(out, more)
+
+
+def _wide_pieces(w, cells, res, wall, step_m, dh0, tan_s, dh_k, edge_ratio, ext_limit, dx, dy):
+    """The objects among the ``cells`` (flat, sorted) of :func:`_fine_regions`' regions too wide to be one:
+    their smooth pieces (:func:`~bare_earth.core.estimate.smooth_parts`: 8-neighbours joined where their
+    heights differ by at most ``step_m``, dh0 plus the terrain's rise over a cell diagonal), each tested as a
+    region. ``res``: each cell's residual; ``wall``: it holds a wall with a residual of at least the step's
+    wall height (the rim test of :func:`_fine_regions`). Returns the flat indices of the pieces' cells.
+
+    A region wider than :data:`EXTENT_FACTOR` largest objects is never an object: a closed canopy over a
+    hillside (a third of its cells without a ground return at 1 m), a ring of roofs round a courtyard with
+    lower roofs inside it, whose cells all join. The paper's height-heterogeneity test still applies to
+    what its walls part: a piece is an object when
+
+    * it is no wider than the largest step's limit and its outline lies inside the raster (a piece the
+      raster's edge cuts is not seen whole);
+    * it holds a cell whose 8 neighbours are all its own (it is at least three cells wide: a line of
+      cells between two steps on a steep rough slope is none);
+    * its highest residual exceeds ``dh_k`` and what a terrain bump as wide as the piece may rise,
+      ``dh0 + tan(slope) * width *`` :data:`BUMP_FRACTION`, the width ``2 area / outline`` (the
+      dilation's height test, with the piece's own width for the window's);
+    * at least ``edge_ratio`` of its outline cells (a valid neighbour outside the piece; the raster's edge
+      and nodata are none) hold a wall (``wall``) that drops to the outside: the cell stands above its
+      lowest neighbour outside the piece by more than ``2 dh0`` plus the terrain's rise over a cell
+      diagonal (the wall test of :func:`wall_cells`; on a slope a piece's uphill side does not drop).
+    """
+    H, W = w.shape
+    wall_m = 2.0 * dh0 + tan_s * np.hypot(dx, dy)
+    n_p, piece = smooth_parts(w, cells, step_m)
+    plab = np.full(H * W, -1, np.int32)
+    plab[cells] = piece
+    r, c = np.divmod(cells, W)
+    inside = (r > 0) & (r < H - 1) & (c > 0) & (c < W - 1)
+    q0, own = cells[inside], piece[inside]
+    wf = w.ravel()
+    rim = np.zeros(cells.size, bool)
+    outline = np.zeros(q0.size, bool)             # a neighbour not in the piece (nodata included)
+    rim_in = np.zeros(q0.size, bool)              # a valid neighbour not in the piece
+    low_out = np.full(q0.size, np.inf, wf.dtype)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                q = q0 + dr * W + dc
+                out = plab[q] != own
+                outline |= out
+                out &= np.isfinite(wf[q])
+                rim_in |= out
+                np.copyto(low_out, np.fmin(low_out, wf[q]), where=out)
+    del plab
+    rim[inside] = rim_in
+    drops = np.zeros(cells.size, bool)
+    with np.errstate(invalid="ignore"):
+        drops[inside] = wf[q0] - low_out > wall_m
+    n_rim = np.bincount(piece, weights=rim, minlength=n_p)
+    n_wall = np.bincount(piece, weights=rim & wall & drops, minlength=n_p)
+    top = np.full(n_p, -np.inf)
+    np.maximum.at(top, piece, res)
+    area = np.bincount(piece, minlength=n_p) * (dx * dy)
+    width = 2.0 * area / np.maximum(n_rim, 1) / np.sqrt(dx * dy)
+    high = top > np.maximum(dh_k, dh0 + tan_s * width * BUMP_FRACTION)
+    core = np.bincount(own, weights=~outline, minlength=n_p) > 0
+    r0, c0 = np.full(n_p, H), np.full(n_p, W)
+    r1, c1 = np.zeros(n_p, np.int64), np.zeros(n_p, np.int64)
+    np.minimum.at(r0, piece, r)
+    np.maximum.at(r1, piece, r + 1)
+    np.minimum.at(c0, piece, c)
+    np.maximum.at(c1, piece, c + 1)
+    seen = (r0 > 0) & (c0 > 0) & (r1 < H) & (c1 < W)
+    keep = (high & core & seen & (n_rim > 0) & (n_wall >= edge_ratio * n_rim)
+            & ((r1 - r0) * dy <= ext_limit) & ((c1 - c0) * dx <= ext_limit))
+    return cells[keep[piece]]
 
 
 def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, dx, dy):
@@ -337,7 +428,7 @@ def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, d
         for dc in (-1, 0, 1):
             if dr or dc:
                 q = q0 + dr * W + dc
-                outline[inside] |= lab[q] != own
+                outline[inside] |= (lab[q] != own) & np.isfinite(wf[q])     # nodata is no outline
                 low = np.fmin(low, wf[q])
     del lab
     abrupt = np.zeros(cells.size, bool)
@@ -357,7 +448,7 @@ def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, d
     return cells[keep[piece]]
 
 
-def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
+def _fine_outline(w, cells, step_m, edge_ratio, shared=None, nodata=None):
     """Which ``cells`` of a coarse step's objects lie in a part with an abrupt outline.
 
     A coarse block holding a wall anywhere counts as a wall, so one coarse region can
@@ -368,8 +459,8 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     of 100 x 120 m, and a result changing with the clip's orientation). The removed cells
     (``cells``: flat indices of the cells whose own residual exceeds dh0) are therefore
     split into their 8-connected parts, and a part stays an object when at least
-    ``edge_ratio`` of its outline cells (a kept neighbour; the raster's edge ends the data
-    and is no outline) stand above one of their 8 neighbours by more than ``step_m`` (dh0
+    ``edge_ratio`` of its outline cells (a kept neighbour; the raster's edge and ``nodata``, a boolean
+    array, optional, end the data and are no outline) stand above one of their 8 neighbours by more than ``step_m`` (dh0
     plus the terrain's rise over a cell diagonal: the border stage's test of a wall's foot
     or a crown's edge). A part with no outline inside the raster keeps its region's
     decision.
@@ -392,7 +483,7 @@ def _fine_outline(w, cells, step_m, edge_ratio, shared=None):
     fine[cells] = True
     fine = fine.reshape(H, W)
     rows, cols = np.divmod(cells, W)
-    rim = ~inner_cells(fine).ravel()[cells] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
+    rim = ~inner_cells(fine, nodata).ravel()[cells] & (rows > 0) & (rows < H - 1) & (cols > 0) & (cols < W - 1)
     lab, n = label8(fine)
     part = lab.ravel()[cells]
     del fine, lab

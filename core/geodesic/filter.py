@@ -69,6 +69,12 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
 
     The runs of a region longer than :data:`~.dilation.EXTENT_FACTOR` largest objects whose rim
     is mostly not walls are not labelled (:func:`raised_terrain_runs`): an embankment or a dike.
+    The regions are those of all the labelled cells, the dilation's objects among them included
+    (cells a step removed stay removed): the pieces a step takes from a region too wide to be one
+    (:func:`~.dilation._wide_pieces`: shrubs on an embankment) cut its runs into regions shorter
+    than that, which were no longer given back (ISPRS samp61 at 1 m, 1.79 -> 2.32 %; 1.87 % so;
+    only the labelled cells no step removed and the pieces: 1.85 %, but samp71 at 1 m 2.56 %,
+    1.86 % so).
     """
     kw = dict(jump_m=p["height_threshold_m"], height_m=p["height_threshold_m"],
               max_length_m=p["max_object_size_m"], terrain_slope_deg=p["terrain_slope_deg"],
@@ -81,7 +87,8 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
         core = ndimage.binary_opening(both, S8)
         lab |= ndimage.binary_propagation(core, S8, mask=bridged) & valid
     free = ~removed & (step == 0)                 # raised terrain longer than any object: kept
-    lab &= ~raised_terrain_runs(cleaned, lab & free, cell_size, p["max_object_size_m"], p["height_threshold_m"],
+    # the regions of all the labelled cells: a dilation step's pieces inside a run do not cut it
+    lab &= ~raised_terrain_runs(cleaned, lab, cell_size, p["max_object_size_m"], p["height_threshold_m"],
                                 np.tan(np.radians(p["terrain_slope_deg"])), p["edge_ratio"])
     new = lab & free                              # removed and step are those of ``free``
     step[new] = STEP_SCAN
@@ -90,11 +97,10 @@ def label_scans(cleaned, cell_size, p, removed, step, progress=None, pool=None):
 
 
 def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
-    """The cells of ``new`` (cells scan labelling took that no dilation step removed) in raised
-    terrain: an 8-connected region of them whose bounding box exceeds
-    :data:`~.dilation.EXTENT_FACTOR` ``* size_m`` (the largest object) along the rows or the
-    columns, and fewer than ``edge_ratio`` of whose rim cells (not on the raster's edge) hold a
-    wall (:func:`~.dilation.wall_cells`): the dilation's test of height heterogeneity, which
+    """The cells of ``new`` (cells scan labelling took) in raised terrain: an 8-connected region of
+    them whose bounding box exceeds :data:`~.dilation.EXTENT_FACTOR` ``* size_m`` (the largest
+    object) along the rows or the columns, and fewer than ``edge_ratio`` of whose rim cells (not on
+    the raster's edge) hold a wall (:func:`~.dilation.wall_cells`): the dilation's test of height heterogeneity, which
     its steps do not apply to a region that long (never an object there).
 
     Scan labelling reads profiles one at a time: an embankment, a dike or a road on a fill
@@ -152,7 +158,8 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
     big = (slice(max(0, r0 - m[0]), min(H, r1 + m[0])), slice(max(0, c0 - m[1]), min(W, c1 + m[1])))
     lab_b = lab[big]
     body = wide[lab_b]
-    rim = body & ~ndimage.binary_erosion(body, S8, border_value=1)
+    wb = w[big]
+    rim = body & ~ndimage.binary_erosion(body | ~np.isfinite(wb), S8, border_value=1)   # nodata ends the data
     if big[0].start == 0:
         rim[0] = False
     if big[0].stop == H:
@@ -161,7 +168,6 @@ def raised_terrain_runs(w, new, cell_size, size_m, dh0, tan_s, edge_ratio):
         rim[:, 0] = False
     if big[1].stop == W:
         rim[:, -1] = False
-    wb = w[big]
     walls = wall_cells(wb, np.isfinite(wb), cell_size, dh0, tan_s) & rim
     n_rim = np.bincount(lab_b[rim], minlength=n + 1)
     n_wall = np.bincount(lab_b[walls], minlength=n + 1)

@@ -408,8 +408,24 @@ def grey_closing(z, valid, size, progress=None, hanging=False):
     return _open_close(z, valid, size, np.maximum, np.minimum, progress, hanging)
 
 
-def inner_cells(cand):
-    """Cells of ``cand`` whose 8 neighbours are all in ``cand`` (outside = not)."""
+def inner_cells(cand, nodata=None):
+    """Cells of ``cand`` whose 8 neighbours are all in ``cand`` (outside the raster = not), or
+    in ``nodata`` (a boolean array, optional): nodata ends the data as the raster's edge does, so
+    a cell whose only neighbours outside a region are nodata is no border of it.
+
+    Examples
+    --------
+    >>> cand = np.zeros((5, 5), bool)
+    >>> cand[1:4, 1:4] = True
+    >>> int(inner_cells(cand).sum())
+    1
+    >>> nodata = np.zeros((5, 5), bool)
+    >>> nodata[:, 4] = True                  # the column right of the region is empty
+    >>> inner_cells(cand, nodata)[1:4, 3].tolist()
+    [False, True, False]
+    """
+    if nodata is not None and nodata.any():
+        return rect_filter(cand | nodata, (3, 3), np.minimum, False) & cand
     return rect_filter(cand, (3, 3), np.minimum, False)
 
 
