@@ -20,7 +20,7 @@ from scipy import ndimage
 
 from ..codes import GROUND, LOW, NODATA, OBJECT
 from ..common import report, sub_progress, transpose
-from ..estimate import GROUND_BLOCK_M, running_minimum_slopes, under_chords
+from ..estimate import GROUND_BLOCK_M, above_chords, running_minimum_slopes, under_chords
 from .derivatives import CHUNK_CELLS, Breaks, CellSize, Progress, bridge_from_nearest, dilate
 
 #: Final passes against the interpolated ground surface.
@@ -444,7 +444,7 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
             cells = np.flatnonzero(hs)
             surface.ravel()[cells] = _window_mean(surface, cells, m)
             del cells
-            allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol,
+            allow = _allowance(surface, edge, dx, dy, h_min=h_min, tol=tol, z=z, m=m,
                                progress=sub_progress(step, 0.7, 0.85))
         report(step, 0.85)
         _classify(z, d, allow, objects, concave, mask, tmp, ring=m + 2, h_min=h_min)
@@ -846,7 +846,7 @@ def _low_bowls(z, bowls, ring, h_min, tol):
     return sunk, low
 
 
-def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):
+def _allowance(surface, edge, dx, dy, *, h_min, tol, z=None, m=0, progress=None):
     """How far a cell may stand above the ground surface and still be ground.
 
     The tolerance grows with the slope of the surface: one cell of horizontal uncertainty
@@ -856,12 +856,31 @@ def _allowance(surface, edge, dx, dy, *, h_min, tol, progress=None):
     convex terrain edges (crest of a dam) by some decimetres. Under a concave break (the
     foot of a wall, smeared over cells by a photogrammetric DSM) the straight line does
     not sag, and the extra allowance kept such feet as ground (opengeos at 2 m: 0.5 to 2 m
-    high)."""
-    allow = _slope(surface, dx, dy, progress)
+    high).
+
+    Neither extension is for a peak of ``z`` (given with ``m`` >= 1): a cell standing above a
+    chord between the cells within ``m`` on either side by more than the tolerance plus its
+    slope's cell, along its row, its column and both diagonals
+    (:func:`~bare_earth.core.estimate.above_chords`), gets the tolerance alone. A cell on a
+    slope lies on its chords within that (the place of its height in its cell moves it by less),
+    and a terrain edge or a ledge, straight or crossed obliquely, lies on them along the edge;
+    a shrub or the lowest return in a crown stands above them every way, and above both ends of
+    such a chord (a gully's rim, curved in plan, lies below the ground beyond it). Two thirds of
+    the type II points of lidar ``autzen_trim`` at 1 and 2 m and of ISPRS samp51 at 1 m lay in cells
+    kept as ground on breaks, low vegetation 0.4-0.8 m above the reference, most of them within
+    the convex breaks' allowance (0.8 m; ISPRS samp31 at 1 m 2.41 -> 2.17 %, opengeos at 2 m
+    7.14 -> 6.97 %)."""
+    allow = _slope(surface, dx, dy, sub_progress(progress, 0.0, 0.5))
     allow *= np.float32(max(dx, dy))
     allow += np.float32(tol)
     np.copyto(allow, np.float32(tol), where=np.isnan(allow))   # beside nodata left unfilled
+    peaks = None
+    if z is not None and m >= 1:
+        peaks = above_chords(z, m, allow, progress=sub_progress(progress, 0.5, 1.0))
     np.maximum(allow, np.float32(0.5 * h_min + tol), out=allow, where=edge)
+    if peaks is not None:
+        np.copyto(allow, np.float32(tol), where=peaks)
+    report(progress, 1.0)
     return allow
 
 

@@ -2203,3 +2203,62 @@ def test_envelope_ground_exact():
     assert under_chords(z2, 2, 0.3)[7, 1]             # under its chords (level) ...
     assert not got[7, 1]                             # ... but 4 m above the ground within a window
     assert not ground._envelope_ground(z, np.zeros(z.shape, bool), objects, (1.0, 1.0), 2, 5, 0.3, 0.5).any()
+
+
+def _shrubs_beside_a_building(n=96, cell=1.0, height=0.6, seed=0):
+    """Flat ground (noise 3 cm) with single-cell shrubs ``height`` metres high every few cells and a
+    12 m building 8 m high in the middle (the wall the final pass's objects need nearby); the DSM
+    and the shrubs' cells."""
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0.0, 0.03, (n, n)).astype(np.float32)
+    shrubs = np.zeros((n, n), bool)
+    for r in range(6, n - 6, 7):
+        shrubs[r, 6 + r % 3:n - 6:9] = True
+    z[shrubs] += np.float32(height)
+    k = int(12 / cell)
+    z[n // 2 - k // 2:n // 2 + k // 2, n // 2 - k // 2:n // 2 + k // 2] += np.float32(8.0)
+    shrubs[n // 2 - k // 2 - 1:n // 2 + k // 2 + 1, n // 2 - k // 2 - 1:n // 2 + k // 2 + 1] = False
+    return z, shrubs
+
+
+def test_allowance_of_peaks_is_the_tolerance_exact():
+    """The final pass's allowance: the tolerance plus the surface's slope over a cell, and half the
+    minimum object height more on convex breaks off the objects; a peak (above a chord of its
+    neighbours along its row, its column and both diagonals by more than that tolerance plus slope)
+    gets the tolerance alone, while a cell of a terrain edge running diagonally keeps both
+    extensions."""
+    n, cell, tol, h_min = 13, 2.0, 0.3, 1.0
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+    surface = (0.1 * cell * x).astype(np.float32)           # slope 0.1: 0.2 m over a 2 m cell
+    z = surface.copy()
+    z[3, 3] += 0.6                                          # a shrub: above its chords every way
+    z += np.where(x + y > 14, np.float32(1.5), np.float32(0))   # a step running diagonally
+    edge = np.zeros((n, n), bool)
+    edge[3, 3] = True
+    edge[7, 8] = True                                       # on the step's top edge (x + y = 15)
+    allow = ground._allowance(surface, edge, cell, cell, h_min=h_min, tol=tol, z=z, m=2)
+    base = np.float32(tol + 0.1 * cell)
+    assert allow[3, 3] == np.float32(tol)                   # the peak: the tolerance alone
+    assert allow[7, 8] == np.float32(0.5 * h_min + tol)     # the edge keeps its extension
+    assert allow[5, 2] == pytest.approx(base, abs=1e-6)     # the slope's cell elsewhere
+    # without z, no peak is looked for (the allowance of both extensions)
+    no_z = ground._allowance(surface, edge, cell, cell, h_min=h_min, tol=tol)
+    assert no_z[3, 3] == np.float32(0.5 * h_min + tol)
+
+
+def test_low_shrubs_on_open_ground_are_objects(monkeypatch):
+    """Single-cell shrubs 0.6 m high on open ground near a building: their tops are convex breaks,
+    whose extra allowance (half the minimum object height) kept 98 % of them as ground; as peaks
+    above their chords every way they get the tolerance alone and 92 % are objects (the rest seed
+    the surface), and the ground around stays ground."""
+    from bare_earth.core.pipeline import run_array
+    z, shrubs = _shrubs_beside_a_building()
+    res = run_array("curvature", z, (1.0, 1.0), {})
+    ground_cells = z < 0.3
+    assert np.mean(res.mask[shrubs] == OBJECT) > 0.9
+    assert np.all(res.mask[ground_cells] == GROUND)
+    # without the peaks, the shrubs stay ground
+    monkeypatch.setattr(ground, "above_chords", lambda z, m, a, progress=None: np.zeros(z.shape, bool))
+    res0 = run_array("curvature", z, (1.0, 1.0), {})
+    assert np.mean(res0.mask[shrubs] == GROUND) > 0.9
+    assert np.all(res0.mask[ground_cells] == GROUND)

@@ -1438,3 +1438,68 @@ def test_running_minimum_slopes_exact():
         est.running_minimum_slopes(plane, (2.0, 2.0), 1)
     with pytest.raises(ValueError, match="2-D"):
         est.running_minimum_slopes(plane.ravel(), (2.0, 2.0), 4)
+
+
+def test_above_chords_exact():
+    """A peak stands above a chord of its neighbours by more than the margin, and above both its
+    ends, along its row, its column and both diagonals: a plane of any slope has none, a bump is one
+    (not where the plane rises more over a cell than the bump's height), a ridge along a row or a
+    diagonal is none (it lies on its chords along itself), nor is a cell without a chord in one
+    direction (the raster's edge, nodata ends) or a nodata cell; the margin may vary by cell."""
+    y, x = np.mgrid[0:9, 0:9].astype(np.float32)
+    steep = 0.9 * x - 0.4 * y
+    assert not est.above_chords(steep, 2, 0.01).any()
+    bumped = steep.copy()
+    bumped[4, 4] += 0.5                                   # below its uphill neighbour: no peak
+    assert not est.above_chords(bumped, 2, 0.3).any()
+    plane = 0.2 * x - 0.1 * y
+    z = plane.copy()
+    z[4, 4] += 0.5
+    got = est.above_chords(z, 2, 0.3)
+    want = np.zeros(z.shape, bool)
+    want[4, 4] = True
+    np.testing.assert_array_equal(got, want)
+    assert not est.above_chords(z, 2, 0.5).any()          # within a larger margin
+    margin = np.full(z.shape, 0.3, np.float32)
+    margin[4, 4] = 0.6                                     # the margin per cell
+    assert not est.above_chords(z, 2, margin).any()
+    # a ridge along the row and one along a diagonal: on their chords along themselves
+    r = plane.copy()
+    r[4, :] += 1.0
+    assert not est.above_chords(r, 2, 0.3).any()
+    d = plane + np.where(x == y, np.float32(1.0), np.float32(0.0))
+    assert not est.above_chords(d, 2, 0.3).any()
+    # a step running diagonally: its top edge is on its chords along the edge
+    s = plane + np.where(x + y > 8, np.float32(1.5), np.float32(0.0))
+    assert not est.above_chords(s, 2, 0.3).any()
+    # a bump on the raster's edge has no chord across it; nodata ends are no chords
+    e = plane.copy()
+    e[0, 4] += 1.0
+    assert not est.above_chords(e, 2, 0.3).any()
+    n = z.copy()
+    n[4, 3] = n[4, 2] = np.nan                              # no chord along the row from the left
+    assert not est.above_chords(n, 2, 0.3)[4, 4]
+    n = z.copy()
+    n[4, 4] = np.nan
+    assert not est.above_chords(n, 2, 0.3).any()
+
+
+def test_above_chords_by_blocks_of_rows_equals_one_block(monkeypatch):
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 1.0, (40, 23)).astype(np.float32)
+    z[5:9, 4:7] = np.nan
+    one = est.above_chords(z, 2, 0.5)
+    assert one.any()
+    monkeypatch.setattr(est, "_CHORD_BLOCK_CELLS", 23 * 3)
+    np.testing.assert_array_equal(est.above_chords(z, 2, 0.5), one)
+
+
+def test_above_chords_refuses_bad_input():
+    with pytest.raises(ValueError, match="2-D"):
+        est.above_chords(np.zeros(5), 1, 0.1)
+    with pytest.raises(ValueError, match="half_cells"):
+        est.above_chords(np.zeros((3, 3)), 0, 0.1)
+    with pytest.raises(ValueError, match="margin_m"):
+        est.above_chords(np.zeros((3, 3)), 1, -0.1)
+    with pytest.raises(ValueError, match="margin_m"):
+        est.above_chords(np.zeros((3, 3)), 1, np.zeros((2, 2)))
