@@ -723,14 +723,28 @@ def l1_slope(s, cell):
     """
     dx, dy = cell
     g = np.zeros(s.shape, np.float32)
+    H, W = s.shape
+    if H <= 2 or W <= 2:
+        return g
+    # in bands of rows whose temporaries stay in the cache: the same operations on every cell as on the whole
+    # array, so the same values, without four raster-sized temporaries (0.24 s -> 0.1 s per 16 Mcells call)
+    band = max(1, _BAND_BYTES // 4 // W)
+    kind = (s[:1, :1] - s[:1, :1]).dtype          # the differences' type (float32 for a float32 surface)
+    t1 = np.empty((min(band, H - 2), W - 2), kind)
+    t2 = np.empty(t1.shape, kind)
+    fx, fy = np.float32(0.5 / dx), np.float32(0.5 / dy)
     with np.errstate(invalid="ignore"):
-        if s.shape[0] > 2 and s.shape[1] > 2:
-            np.abs(s[1:-1, 2:] - s[1:-1, :-2], out=g[1:-1, 1:-1])
-            g[1:-1, 1:-1] *= np.float32(0.5 / dx)
-            gy = np.abs(s[2:, 1:-1] - s[:-2, 1:-1])
-            gy *= np.float32(0.5 / dy)
-            g[1:-1, 1:-1] += gy
-    g[~np.isfinite(g)] = 0.0
+        for i0 in range(1, H - 1, band):
+            i1 = min(H - 1, i0 + band)
+            gi, a, b = g[i0:i1, 1:-1], t1[:i1 - i0], t2[:i1 - i0]
+            np.subtract(s[i0:i1, 2:], s[i0:i1, :-2], out=a)
+            np.abs(a, out=gi)
+            gi *= fx
+            np.subtract(s[i0 + 1:i1 + 1, 1:-1], s[i0 - 1:i1 - 1, 1:-1], out=b)
+            np.abs(b, out=b)
+            b *= fy
+            gi += b
+            np.copyto(gi, np.float32(0.0), where=~np.isfinite(gi))
     return g
 
 
