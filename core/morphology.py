@@ -273,7 +273,16 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, finish_mask, label8, report, sub_progress, touching
+from .common import (
+    FilterResult,
+    as_cell_size,
+    as_surface,
+    finish_mask,
+    label8,
+    report,
+    sub_progress,
+    touching,
+)
 from .estimate import (
     RAISED_REGION_MARGIN,
     RAISED_REGION_MAX_M,
@@ -1129,6 +1138,31 @@ def open_single(z, cell, size_m, dh, work, progress=None):
                           "window_cells": [(2 * ry + 1, 2 * rx + 1)]}
 
 
+def _padded_negative(z, nodata, py, px):
+    """``-z`` as float32 with +inf at ``nodata`` (:func:`_as_inf` with ``sign`` -1) padded by ``py`` rows and ``px``
+    columns of +inf on each side: ``np.pad(_as_inf(z, -1.0, nodata)[0], ((py, py), (px, px)),
+    constant_values=np.inf)``, written into the padded array itself (no raster-sized copy to pad: 0.15 s per
+    16 Mcells).
+
+    Examples
+    --------
+    >>> z = np.array([[1.0, np.nan]], np.float32)
+    >>> _padded_negative(z, np.isnan(z), 1, 1).tolist()
+    [[inf, inf, inf, inf], [inf, -1.0, inf, inf], [inf, inf, inf, inf]]
+    """
+    H, W = z.shape
+    neg = np.empty((H + 2 * py, W + 2 * px), np.float32)
+    neg[:py] = np.inf
+    neg[py + H:] = np.inf
+    neg[py:py + H, :px] = np.inf
+    neg[py:py + H, px + W:] = np.inf
+    inner = neg[py:py + H, px:px + W]
+    np.negative(z, dtype=np.float32, out=inner)
+    if nodata.any():
+        inner[nodata] = np.inf
+    return neg
+
+
 def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, level_m=0.0):
     """SMRF's low-outlier pre-step: the progressive filter on ``-z`` (1 m window, slope
     ``low_slope``). Returns the candidate pits and the surface with them replaced by the
@@ -1152,8 +1186,6 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     ring, stayed in the opening, spread over the terrace and took it for an object: 9.85 % total error
     at 2 m against 2.99 % at 1 m, 4.52 % with the level neighbours.
     """
-    neg, has_nodata = _as_inf(z, -1.0, nodata)
-    report(progress, 0.05)
     radii = _low_radii(cell, growth)
     # beyond the raster's edge is nodata, as in a gap inside it: windows hang over the edge. Cut at
     # it, every window of a cell next to the edge held the object beside it, which the opening of
@@ -1161,7 +1193,8 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     # No window reaches past a corner (-inf there: no placement), so a corner cell is still judged
     # against the cells beside it along the edge, not against itself alone
     py, px = radii[-1][0], radii[-1][1]
-    neg = np.pad(neg, ((py, py), (px, px)), constant_values=np.inf)
+    neg = _padded_negative(z, nodata, py, px)
+    report(progress, 0.05)
     if py and px:
         for rows in (slice(0, py), slice(-py, None)):
             neg[rows, :px] = neg[rows, -px:] = -np.inf

@@ -1556,6 +1556,20 @@ def test_steepest_sides_in_bands_equals_the_whole_array(shape):
     assert morph._steepest_sides(s, (0.3, 0.7)).tobytes() == want.tobytes()
 
 
+@pytest.mark.parametrize("py,px", [(0, 0), (1, 1), (2, 3), (0, 2), (3, 0)])
+def test_padded_negative_equals_the_padded_copy(py, px):
+    """find_low_outliers' surface -z (+inf at nodata) written into the padded array: the same values as padding a
+    copy (``np.pad`` of :func:`morph._as_inf`), bit for bit, float32 and float64 inputs, with nodata."""
+    rng = np.random.default_rng(6)
+    z = (rng.random((7, 9)) * 20 - 5).astype(np.float32)
+    z[rng.random(z.shape) < 0.2] = np.nan
+    for zz in (z, z.astype(np.float64)):
+        nodata = ~np.isfinite(zz)
+        want = np.pad(morph._as_inf(zz, -1.0, nodata)[0], ((py, py), (px, px)), constant_values=np.inf)
+        got = morph._padded_negative(zz, nodata, py, px)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+
+
 def _l1_slope_whole(s, cell):
     """The reading of :func:`morph.l1_slope` on the whole array at once (its definition before the bands)."""
     dx, dy = cell
