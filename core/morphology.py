@@ -270,13 +270,13 @@ import math
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
-from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
 from .common import (
     FilterResult,
     as_cell_size,
     as_surface,
+    dilate_box,
     finish_mask,
     label8,
     report,
@@ -1838,10 +1838,9 @@ def find_cut_slopes(clean, flagged, ground, cell, dh, slope, r_max):
     wall = _walls(clean, ground, edge, np.float32(dh + slope * math.hypot(*cell)), dh=dh, cell=cell)
     wall[[0, -1], :] |= flagged[[0, -1], :]
     wall[:, [0, -1]] |= flagged[:, [0, -1]]
-    size = (2 * int(r_max[0]) + 1, 2 * int(r_max[1]) + 1)
-
     def near(cells):
-        return ndimage.maximum_filter(cells.view(np.uint8), size=size, mode="constant", cval=0).view(bool)
+        # the box dilation (common.dilate_box: the same cells as SciPy's running maxima of uint8, a third of the time)
+        return dilate_box(cells, int(r_max[0]), int(r_max[1]))
 
     free = flagged & ~near(wall)
     if free.any():

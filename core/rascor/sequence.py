@@ -19,6 +19,7 @@ from ..common import (
     FilterResult,
     as_cell_size,
     as_surface,
+    dilate_box,
     label8,
     report,
     sub_progress,
@@ -398,10 +399,10 @@ def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
     ry, rx = int(gap // (2 * dy)), int(gap // (2 * dx))
     if not (ry or rx):
         return longer_than(cells, cell_size, length_m)
-    # the dilation by that rectangle: separable running maxima (binary_dilation's generic structure
-    # visits every cell of the rectangle at every cell: 3.5 s on 16 Mcells)
-    grown = ndimage.maximum_filter(np.ascontiguousarray(cells, bool).view(np.uint8), size=(2 * ry + 1, 2 * rx + 1),
-                                   mode="constant", cval=0).view(bool)
+    # the dilation by that rectangle: separable passes of shifted ORs (common.dilate_box; binary_dilation's
+    # generic structure visits every cell of the rectangle at every cell: 3.5 s on 16 Mcells, SciPy's running
+    # maxima of uint8 0.12 s, these 0.03 s)
+    grown = dilate_box(cells, ry, rx)
     return longer_than(cells, cell_size, length_m, joined=grown)
 
 
