@@ -1576,3 +1576,16 @@ def test_cleaned_surface_takes_the_finest_steps_level_under_a_canopy_on_a_slope(
     ground = s.mask == GROUND
     assert (ground & (res.mask == OBJECT)).sum() / ground.sum() < 0.01
     assert ((s.mask == OBJECT) & (res.mask == GROUND)).sum() / (s.mask == OBJECT).sum() < 0.001
+
+
+@pytest.mark.parametrize("size", [(1, 1), (3, 3), (5, 1), (1, 7), (9, 5)])
+def test_hang_pads_as_np_pad(size):
+    """grey._hang (the hanging closing's padded surface): the array padded by the window's half-widths with the
+    fill, the same as ``np.pad``; float32 and bool, the fill on every side."""
+    rng = np.random.default_rng(8)
+    a = (rng.random((6, 8)) * 10).astype(np.float32)
+    rh, rw = size[0] // 2, size[1] // 2
+    for arr, fill in ((a, np.inf), (a, -np.inf), (a > 5, False)):
+        got = grey._hang(arr, size, fill)
+        want = np.pad(arr, ((rh, rh), (rw, rw)), constant_values=fill)
+        assert got.dtype == arr.dtype and np.array_equal(got, want)
