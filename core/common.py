@@ -212,6 +212,9 @@ def dilate_box(a, ry, rx):
     passes along each axis: a box is the sum of a column and a row, so the same cells). Measured on a
     4000 x 4000 mask of 2 % of the cells: 0.31 s -> 0.03 s for a 5 x 5 box, 1.0 s -> 0.03 s for 11 x 11.
 
+    In bands of rows (each read with ``ry`` rows around it, about :data:`DILATE_BAND_CELLS` cells): its
+    temporaries stay a band's, not the raster's (the result is the only raster-sized array).
+
     Examples
     --------
     >>> a = np.zeros((5, 7), bool); a[2, 3] = True
@@ -219,7 +222,20 @@ def dilate_box(a, ry, rx):
     [[0, 1, 1, 1, 1, 1, 0], [0, 1, 1, 1, 1, 1, 0], [0, 1, 1, 1, 1, 1, 0]]
     """
     a = np.asarray(a, bool)
-    return _or_run(_or_run(a, int(ry), 0), int(rx), 1)
+    ry, rx = max(0, int(ry)), max(0, int(rx))
+    h, w = a.shape
+    out = np.empty((h, w), bool)
+    rows = max(1, 4 * ry, DILATE_BAND_CELLS // max(1, w))
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        s0, s1 = max(0, r0 - ry), min(h, r1 + ry)      # the band's rows with the windows' reach around them
+        down = _or_run(a[s0:s1], ry, 0)                # exact on the band's rows: their windows lie in s0:s1
+        out[r0:r1] = _or_run(down[r0 - s0:r1 - s0], rx, 1)
+    return out
+
+
+#: Cells per band of rows of :func:`dilate_box` (a quarter of a million: a band's bool temporaries 0.25 MB).
+DILATE_BAND_CELLS = 1 << 18
 
 
 def _or_run(a, r, axis):

@@ -281,12 +281,13 @@ def test_touching_is_the_3x3_binary_dilation():
     assert touching(np.zeros((0, 3), bool)).shape == (0, 3)
 
 
-def test_dilate_box_is_the_box_binary_dilation():
+def test_dilate_box_is_the_box_binary_dilation(monkeypatch):
     """common.dilate_box (RASCOR's joining of a terrain line's pieces and of a crest's, morphology's cut slopes'
     reach) equals ``ndimage.binary_dilation`` by the box and ``ndimage.maximum_filter`` of the mask exactly: every
     half-size from none to wider than the array, edges and empty arrays included."""
     from scipy import ndimage
 
+    from bare_earth.core import common
     from bare_earth.core.common import dilate_box
     rng = np.random.default_rng(4)
     for shape in ((1, 1), (1, 7), (6, 1), (9, 13), (40, 33)):
@@ -295,6 +296,10 @@ def test_dilate_box_is_the_box_binary_dilation():
             for rx in (0, 1, 2, 4, 7, 20):
                 want = ndimage.binary_dilation(a, np.ones((2 * ry + 1, 2 * rx + 1), bool))
                 assert np.array_equal(dilate_box(a, ry, rx), want), (shape, ry, rx)
+                # in bands of one row and more (each read with the windows' reach around it): the same cells
+                monkeypatch.setattr(common, "DILATE_BAND_CELLS", 1)
+                assert np.array_equal(dilate_box(a, ry, rx), want), (shape, ry, rx)
+                monkeypatch.setattr(common, "DILATE_BAND_CELLS", 1 << 18)
                 # and SciPy's running maxima of the mask as uint8 (what morphology's and RASCOR's joins used)
                 runs = ndimage.maximum_filter(a.view(np.uint8), size=(2 * ry + 1, 2 * rx + 1), mode="constant", cval=0)
                 assert np.array_equal(runs.view(bool), want), (shape, ry, rx)
