@@ -738,7 +738,7 @@ def l1_slope(s, cell):
     # in bands of rows whose temporaries stay in the cache: the same operations on every cell as on the whole
     # array, so the same values, without four raster-sized temporaries (0.24 s -> 0.1 s per 16 Mcells call)
     band = max(1, _BAND_BYTES // 4 // W)
-    kind = (s[:1, :1] - s[:1, :1]).dtype          # the differences' type (float32 for a float32 surface)
+    kind = np.result_type(s.dtype, s.dtype)      # the differences' type (float32 for a float32 surface)
     t1 = np.empty((min(band, H - 2), W - 2), kind)
     t2 = np.empty(t1.shape, kind)
     fx, fy = np.float32(0.5 / dx), np.float32(0.5 / dy)
