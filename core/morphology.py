@@ -280,10 +280,19 @@ import math
 from typing import Callable, Optional, Tuple, Union
 
 import numpy as np
-from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import FilterResult, as_cell_size, as_surface, finish_mask, label8, report, sub_progress, touching
+from .common import (
+    FilterResult,
+    as_cell_size,
+    as_surface,
+    dilate_box,
+    finish_mask,
+    label8,
+    report,
+    sub_progress,
+    touching,
+)
 from .estimate import (
     RAISED_REGION_MARGIN,
     RAISED_REGION_MAX_M,
@@ -733,14 +742,28 @@ def l1_slope(s, cell):
     """
     dx, dy = cell
     g = np.zeros(s.shape, np.float32)
+    H, W = s.shape
+    if H <= 2 or W <= 2:
+        return g
+    # in bands of rows whose temporaries stay in the cache: the same operations on every cell as on the whole
+    # array, so the same values, without four raster-sized temporaries (0.24 s -> 0.1 s per 16 Mcells call)
+    band = max(1, _BAND_BYTES // 4 // W)
+    kind = np.result_type(s.dtype, s.dtype)      # the differences' type (float32 for a float32 surface)
+    t1 = np.empty((min(band, H - 2), W - 2), kind)
+    t2 = np.empty(t1.shape, kind)
+    fx, fy = np.float32(0.5 / dx), np.float32(0.5 / dy)
     with np.errstate(invalid="ignore"):
-        if s.shape[0] > 2 and s.shape[1] > 2:
-            np.abs(s[1:-1, 2:] - s[1:-1, :-2], out=g[1:-1, 1:-1])
-            g[1:-1, 1:-1] *= np.float32(0.5 / dx)
-            gy = np.abs(s[2:, 1:-1] - s[:-2, 1:-1])
-            gy *= np.float32(0.5 / dy)
-            g[1:-1, 1:-1] += gy
-    g[~np.isfinite(g)] = 0.0
+        for i0 in range(1, H - 1, band):
+            i1 = min(H - 1, i0 + band)
+            gi, a, b = g[i0:i1, 1:-1], t1[:i1 - i0], t2[:i1 - i0]
+            np.subtract(s[i0:i1, 2:], s[i0:i1, :-2], out=a)
+            np.abs(a, out=gi)
+            gi *= fx
+            np.subtract(s[i0 + 1:i1 + 1, 1:-1], s[i0 - 1:i1 - 1, 1:-1], out=b)
+            np.abs(b, out=b)
+            b *= fy
+            gi += b
+            np.copyto(gi, np.float32(0.0), where=~np.isfinite(gi))
     return g
 
 
@@ -1138,6 +1161,31 @@ def open_single(z, cell, size_m, dh, work, progress=None):
                           "window_cells": [(2 * ry + 1, 2 * rx + 1)]}
 
 
+def _padded_negative(z, nodata, py, px):
+    """``-z`` as float32 with +inf at ``nodata`` (:func:`_as_inf` with ``sign`` -1) padded by ``py`` rows and ``px``
+    columns of +inf on each side: ``np.pad(_as_inf(z, -1.0, nodata)[0], ((py, py), (px, px)),
+    constant_values=np.inf)``, written into the padded array itself (no raster-sized copy to pad: 0.15 s per
+    16 Mcells).
+
+    Examples
+    --------
+    >>> z = np.array([[1.0, np.nan]], np.float32)
+    >>> _padded_negative(z, np.isnan(z), 1, 1).tolist()
+    [[inf, inf, inf, inf], [inf, -1.0, inf, inf], [inf, inf, inf, inf]]
+    """
+    H, W = z.shape
+    neg = np.empty((H + 2 * py, W + 2 * px), np.float32)
+    neg[:py] = np.inf
+    neg[py + H:] = np.inf
+    neg[py:py + H, :px] = np.inf
+    neg[py:py + H, px + W:] = np.inf
+    inner = neg[py:py + H, px:px + W]
+    np.negative(z, dtype=np.float32, out=inner)
+    if nodata.any():
+        inner[nodata] = np.inf
+    return neg
+
+
 def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, level_m=0.0):
     """SMRF's low-outlier pre-step: the progressive filter on ``-z`` (1 m window, slope
     ``low_slope``). Returns the candidate pits and the surface with them replaced by the
@@ -1161,8 +1209,6 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     ring, stayed in the opening, spread over the terrace and took it for an object: 9.85 % total error
     at 2 m against 2.99 % at 1 m, 4.52 % with the level neighbours.
     """
-    neg, has_nodata = _as_inf(z, -1.0, nodata)
-    report(progress, 0.05)
     radii = _low_radii(cell, growth)
     # beyond the raster's edge is nodata, as in a gap inside it: windows hang over the edge. Cut at
     # it, every window of a cell next to the edge held the object beside it, which the opening of
@@ -1170,7 +1216,8 @@ def find_low_outliers(z, nodata, cell, growth, low_slope, work, progress=None, l
     # No window reaches past a corner (-inf there: no placement), so a corner cell is still judged
     # against the cells beside it along the edge, not against itself alone
     py, px = radii[-1][0], radii[-1][1]
-    neg = np.pad(neg, ((py, py), (px, px)), constant_values=np.inf)
+    neg = _padded_negative(z, nodata, py, px)
+    report(progress, 0.05)
     if py and px:
         for rows in (slice(0, py), slice(-py, None)):
             neg[rows, :px] = neg[rows, -px:] = -np.inf
@@ -1814,10 +1861,9 @@ def find_cut_slopes(clean, flagged, ground, cell, dh, slope, r_max):
     wall = _walls(clean, ground, edge, np.float32(dh + slope * math.hypot(*cell)), dh=dh, cell=cell)
     wall[[0, -1], :] |= flagged[[0, -1], :]
     wall[:, [0, -1]] |= flagged[:, [0, -1]]
-    size = (2 * int(r_max[0]) + 1, 2 * int(r_max[1]) + 1)
-
     def near(cells):
-        return ndimage.maximum_filter(cells.view(np.uint8), size=size, mode="constant", cval=0).view(bool)
+        # the box dilation (common.dilate_box: the same cells as SciPy's running maxima of uint8, a third of the time)
+        return dilate_box(cells, int(r_max[0]), int(r_max[1]))
 
     free = flagged & ~near(wall)
     if free.any():

@@ -358,8 +358,14 @@ def _hang(a, size, fill):
     """``a`` padded with ``fill`` by the window's half-widths: the centres of the windows
     that hang over the border, each keeping its cells inside the raster."""
     rh, rw = size[0] // 2, size[1] // 2
-    p = np.full((a.shape[0] + 2 * rh, a.shape[1] + 2 * rw), fill, a.dtype)
-    p[rh:rh + a.shape[0], rw:rw + a.shape[1]] = a
+    h, w = a.shape
+    # the border filled, the inside copied: each cell written once (np.full wrote the inside twice)
+    p = np.empty((h + 2 * rh, w + 2 * rw), a.dtype)
+    p[:rh] = fill
+    p[rh + h:] = fill
+    p[rh:rh + h, :rw] = fill
+    p[rh:rh + h, rw + w:] = fill
+    p[rh:rh + h, rw:rw + w] = a
     return p
 
 

@@ -15,7 +15,17 @@ import numpy as np
 from scipy import ndimage
 
 from ..codes import LOW, NODATA, OBJECT
-from ..common import FilterResult, as_cell_size, as_surface, label8, report, sub_progress, touching, transpose
+from ..common import (
+    FilterResult,
+    as_cell_size,
+    as_surface,
+    dilate_box,
+    label8,
+    report,
+    sub_progress,
+    touching,
+    transpose,
+)
 from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_ground
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .kernels import odd_window
@@ -389,10 +399,10 @@ def _joined_longer_than(cells, cell_size, length_m, gap_m=None):
     ry, rx = int(gap // (2 * dy)), int(gap // (2 * dx))
     if not (ry or rx):
         return longer_than(cells, cell_size, length_m)
-    # the dilation by that rectangle: separable running maxima (binary_dilation's generic structure
-    # visits every cell of the rectangle at every cell: 3.5 s on 16 Mcells)
-    grown = ndimage.maximum_filter(np.ascontiguousarray(cells, bool).view(np.uint8), size=(2 * ry + 1, 2 * rx + 1),
-                                   mode="constant", cval=0).view(bool)
+    # the dilation by that rectangle: separable passes of shifted ORs (common.dilate_box; binary_dilation's
+    # generic structure visits every cell of the rectangle at every cell: 3.5 s on 16 Mcells, SciPy's running
+    # maxima of uint8 0.12 s, these 0.03 s)
+    grown = dilate_box(cells, ry, rx)
     return longer_than(cells, cell_size, length_m, joined=grown)
 
 
@@ -542,18 +552,31 @@ def _spare_slope_breaks(st, cfg):
     _give_back(st, back & _joined_longer_than(back | kept, cfg.cell, cfg.max_building_m))
 
 
+#: Cells per band of rows of :func:`_bent` (its float32 differences about 1 MB).
+_BENT_BAND_CELLS = 1 << 18
+
+
 def _bent(z, keep, bend_m):
     """The kept cells whose two neighbours on each side along a row or a column rise towards them
     by more than ``bend_m`` on average (the first test of :func:`~.moving.slope_breaks`)."""
     out = np.zeros(z.shape, bool)
+    h, w = z.shape
+    # in bands of rows whose differences stay in the cache (each band's columns read two rows around it): the
+    # same operations on every cell as on the whole raster, so the same cells (4000 x 4000: 0.12-0.43 -> 0.04 s)
+    rows = max(1, _BENT_BAND_CELLS // max(1, w))
     with np.errstate(invalid="ignore"):
-        d = np.diff(z, axis=1)
-        b = (d[:, :-3] - d[:, 3:]) / 2.0
-        out[:, 2:-2] |= b > bend_m
-        d = np.diff(z, axis=0)
-        b = (d[:-3] - d[3:]) / 2.0
-        out[2:-2] |= b > bend_m
-    return out & keep
+        for r0 in range(0, h, rows):
+            r1 = min(h, r0 + rows)
+            d = np.diff(z[r0:r1], axis=1)
+            b = (d[:, :-3] - d[:, 3:]) / 2.0
+            out[r0:r1, 2:-2] |= b > bend_m
+            a0, a1 = max(2, r0), min(h - 2, r1)          # the band's rows with two rows on each side
+            if a1 > a0:
+                d = np.diff(z[a0 - 2:a1 + 2], axis=0)
+                b = (d[:-3] - d[3:]) / 2.0
+                out[a0:a1] |= b > bend_m
+    out &= keep
+    return out
 
 
 def _step5_profiles(st, cfg, progress):

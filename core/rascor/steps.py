@@ -11,7 +11,7 @@ from typing import Callable, Optional, Sequence, Tuple, Union
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, label8, report, sub_progress, transpose
+from ..common import as_cell_size, dilate_box, label8, report, sub_progress, transpose
 from ..edge_walls import walled_levels
 from ..estimate import joined_runs, smooth_parts
 from .kernels import BAND_CELLS, row_bands
@@ -760,7 +760,8 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
         # vegetation of ISPRS 11 and 51 as the terrain's lines)
         pieces = (span > max(join_gap_m, 0.5 * max_building_m))[lab] & ~steps
         if pieces.any():
-            grown = ndimage.binary_dilation(pieces | steps, np.ones((2 * ry + 1, 2 * rx + 1), bool))
+            # (the box's separable dilation, common.dilate_box: the same cells, a tenth of the time)
+            grown = dilate_box(pieces | steps, ry, rx)
             jl, jn = label8(grown)
             jl[~(pieces | steps)] = 0
             box = ndimage.find_objects(jl, jn)

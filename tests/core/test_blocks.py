@@ -281,6 +281,34 @@ def test_touching_is_the_3x3_binary_dilation():
     assert touching(np.zeros((0, 3), bool)).shape == (0, 3)
 
 
+def test_dilate_box_is_the_box_binary_dilation(monkeypatch):
+    """common.dilate_box (RASCOR's joining of a terrain line's pieces and of a crest's, morphology's cut slopes'
+    reach) equals ``ndimage.binary_dilation`` by the box and ``ndimage.maximum_filter`` of the mask exactly: every
+    half-size from none to wider than the array, edges and empty arrays included."""
+    from scipy import ndimage
+
+    from bare_earth.core import common
+    from bare_earth.core.common import dilate_box
+    rng = np.random.default_rng(4)
+    for shape in ((1, 1), (1, 7), (6, 1), (9, 13), (40, 33)):
+        a = rng.random(shape) < 0.08
+        for ry in (0, 1, 2, 3, 5, 12):
+            for rx in (0, 1, 2, 4, 7, 20):
+                want = ndimage.binary_dilation(a, np.ones((2 * ry + 1, 2 * rx + 1), bool))
+                assert np.array_equal(dilate_box(a, ry, rx), want), (shape, ry, rx)
+                # in bands of one row and more (each read with the windows' reach around it): the same cells
+                monkeypatch.setattr(common, "DILATE_BAND_CELLS", 1)
+                assert np.array_equal(dilate_box(a, ry, rx), want), (shape, ry, rx)
+                monkeypatch.setattr(common, "DILATE_BAND_CELLS", 1 << 18)
+                # and SciPy's running maxima of the mask as uint8 (what morphology's and RASCOR's joins used)
+                runs = ndimage.maximum_filter(a.view(np.uint8), size=(2 * ry + 1, 2 * rx + 1), mode="constant", cval=0)
+                assert np.array_equal(runs.view(bool), want), (shape, ry, rx)
+    a = np.zeros((3, 4), bool)
+    out = dilate_box(a, 0, 0)
+    assert out is not a and not out.any()
+    assert dilate_box(np.zeros((0, 3), bool), 2, 2).shape == (0, 3)
+
+
 @pytest.mark.parametrize("share, runs", [(1.0, 1.0), (0.25, 0.01), (0.02, 0.5)])
 def test_label8_by_runs_equals_ndimage_label(monkeypatch, share, runs):
     """common.label8 (the sparse labellings of geodesic's outliers and fine steps, RASCOR's ramps and

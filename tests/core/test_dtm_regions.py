@@ -612,3 +612,66 @@ def test_dtm_keeps_quarry_benches_cutting_off_a_corner(cell, shape):
     z = noisy(100 - 6.0 * np.clip(np.floor((top - r) / 30), 0, None), sd=0.05)
     res = pipeline.run_array("dtm", z, cell)
     assert np.count_nonzero(res.mask == OBJECT) == 0
+
+
+def _benched_slab(z, levels, edge, labels, terrain, jump_m, s, dx, dy, ids, rows):
+    """dtm_regions._benched as pairs of shifted slices over the levels' rows and two around them (its definition
+    before it gathered the judged levels' cells)."""
+    import math
+
+    from bare_earth.core.dtm_regions import _DIRECTIONS, _slices2
+    h, w = z.shape
+    out = np.zeros(terrain.shape, bool)
+    e0, e1 = max(0, int(rows[0]) - 2), min(h, int(rows[1]) + 2)
+    lab = labels[e0:e1]
+    zz = z[e0:e1]
+    on = levels[e0:e1] & terrain[lab]
+    near = on.copy()
+    ed = edge[e0:e1]
+    mine = np.zeros(terrain.shape, bool)
+    mine[ids] = True
+    low = levels[e0:e1] & mine[lab]
+    below = np.zeros(low.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for dr_, dc in _DIRECTIONS:
+            dst, src = _slices2(dr_, dc, e1 - e0, w)
+            thr = np.float32(jump_m + s * math.hypot(dr_ * dy, dc * dx))
+            near[dst] |= on[src] & ed[dst] & (zz[dst] - zz[src] <= thr)
+        for dr_, dc in _DIRECTIONS:
+            dst, src = _slices2(dr_, dc, e1 - e0, w)
+            thr = np.float32(jump_m + s * math.hypot(dr_ * dy, dc * dx))
+            below[dst] |= low[dst] & near[src] & (zz[src] - zz[dst] > thr)
+    out[np.unique(lab[below])] = True
+    out[0] = False
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_benched_levels_at_their_cells_equal_the_shifted_slices(seed):
+    """_benched on the judged levels' cells and their neighbours, gathered: the same levels as the shifted slices
+    over the rows they span (random terraced surfaces with NaN, levels at the raster's edges and corners, a
+    slope allowance, every judged subset)."""
+    from bare_earth.core import dtm_regions as reg
+    rng = np.random.default_rng(seed)
+    h, w = 23, 31
+    z = (np.round(rng.random((h, w)) * 3) * 2.5 + rng.random((h, w)) * 0.3).astype(np.float32)
+    z[rng.random((h, w)) < 0.05] = np.nan
+    valid = np.isfinite(z)
+    jump, s = 2.0, 0.2 * seed
+    edge = reg._level_edges(z, valid, jump, s, 1.0, 1.5)
+    ground = valid & (rng.random((h, w)) < 0.9)
+    levels = ground & ~edge
+    labels, n = ndimage.label(levels, structure=np.ones((3, 3), bool))
+    assert n > 3
+    boxes = ndimage.find_objects(labels)
+    terrain = rng.random(n + 1) < 0.5
+    terrain[0] = False
+    seen = []
+    for ids in (np.arange(1, n + 1), np.unique(rng.integers(1, n + 1, size=max(1, n // 3)))):
+        rows = (min(boxes[i - 1][0].start for i in ids), max(boxes[i - 1][0].stop for i in ids))
+        want = _benched_slab(z, levels, edge & ground, labels, terrain, jump, s, 1.0, 1.5, ids, rows)
+        got = reg._benched(z, levels, edge & ground, labels, terrain, jump, s, 1.0, 1.5, ids,
+                           [boxes[i - 1] for i in ids.tolist()])
+        assert np.array_equal(got, want)
+        seen.append(int(want.sum()))
+    assert seen[0] > 0                                       # benched levels among them: the test sees some

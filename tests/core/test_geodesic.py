@@ -1705,3 +1705,16 @@ def test_label_scans_raised_terrain_counts_the_dilations_pieces():
     label_scans(w, (1.0, 1.0), p, removed, step)
     assert not (step == 250).any()
     assert removed.sum() == 9
+
+
+@pytest.mark.parametrize("size", [(1, 1), (3, 3), (5, 1), (1, 7), (9, 5)])
+def test_hang_pads_as_np_pad(size):
+    """grey._hang (the hanging closing's padded surface): the array padded by the window's half-widths with the
+    fill, the same as ``np.pad``; float32 and bool, the fill on every side."""
+    rng = np.random.default_rng(8)
+    a = (rng.random((6, 8)) * 10).astype(np.float32)
+    rh, rw = size[0] // 2, size[1] // 2
+    for arr, fill in ((a, np.inf), (a, -np.inf), (a > 5, False)):
+        got = grey._hang(arr, size, fill)
+        want = np.pad(arr, ((rh, rh), (rw, rw)), constant_values=fill)
+        assert got.dtype == arr.dtype and np.array_equal(got, want)

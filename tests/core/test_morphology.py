@@ -1556,6 +1556,48 @@ def test_steepest_sides_in_bands_equals_the_whole_array(shape):
     assert morph._steepest_sides(s, (0.3, 0.7)).tobytes() == want.tobytes()
 
 
+@pytest.mark.parametrize("py,px", [(0, 0), (1, 1), (2, 3), (0, 2), (3, 0)])
+def test_padded_negative_equals_the_padded_copy(py, px):
+    """find_low_outliers' surface -z (+inf at nodata) written into the padded array: the same values as padding a
+    copy (``np.pad`` of :func:`morph._as_inf`), bit for bit, float32 and float64 inputs, with nodata."""
+    rng = np.random.default_rng(6)
+    z = (rng.random((7, 9)) * 20 - 5).astype(np.float32)
+    z[rng.random(z.shape) < 0.2] = np.nan
+    for zz in (z, z.astype(np.float64)):
+        nodata = ~np.isfinite(zz)
+        want = np.pad(morph._as_inf(zz, -1.0, nodata)[0], ((py, py), (px, px)), constant_values=np.inf)
+        got = morph._padded_negative(zz, nodata, py, px)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+
+
+def _l1_slope_whole(s, cell):
+    """The reading of :func:`morph.l1_slope` on the whole array at once (its definition before the bands)."""
+    dx, dy = cell
+    g = np.zeros(s.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        if s.shape[0] > 2 and s.shape[1] > 2:
+            np.abs(s[1:-1, 2:] - s[1:-1, :-2], out=g[1:-1, 1:-1])
+            g[1:-1, 1:-1] *= np.float32(0.5 / dx)
+            gy = np.abs(s[2:, 1:-1] - s[:-2, 1:-1])
+            gy *= np.float32(0.5 / dy)
+            g[1:-1, 1:-1] += gy
+    g[~np.isfinite(g)] = 0.0
+    return g
+
+
+@pytest.mark.parametrize("shape", [(1, 5), (2, 9), (3, 3), (5, 2), (150, 4100), (9, 7)])
+def test_l1_slope_in_bands_equals_the_whole_array(shape):
+    """Banded (64 rows of 4100 cells at a time): the same float32 values as the whole array at once, bit for bit,
+    with +inf (no erosion) and NaN cells, at the borders and across the bands' seams."""
+    rng = np.random.default_rng(5)
+    s = (rng.random(shape) * 30).astype(np.float32)
+    s[rng.random(shape) < 0.05] = np.inf
+    s[rng.random(shape) < 0.02] = np.nan
+    assert morph.l1_slope(s, (0.3, 0.7)).tobytes() == _l1_slope_whole(s, (0.3, 0.7)).tobytes()
+    s64 = s.astype(np.float64)                  # a float64 surface: the differences in float64, as before
+    assert morph.l1_slope(s64, (0.3, 0.7)).tobytes() == _l1_slope_whole(s64, (0.3, 0.7)).tobytes()
+
+
 @pytest.mark.parametrize("ry,rx", [(0, 0), (1, 2), (3, 1), (6, 6)])
 def test_window_top_at_cells_equals_the_running_box(ry, rx):
     """The reference's top read at some cells (corners, edges, inside; NaN and +inf left out, -inf where a window

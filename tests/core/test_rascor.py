@@ -2424,3 +2424,31 @@ def _window_determines(labels, keep, r, c, sizes, degree):
         terms += [xx * xx, xx * yy, yy * yy] if hr else [xx * xx]
     a = np.stack(terms, 1) if xx.size else np.zeros((0, len(terms)))
     return a.shape[0] >= a.shape[1] and np.linalg.matrix_rank(a) == a.shape[1]
+
+
+def _bent_whole(z, keep, bend_m):
+    """sequence._bent on the whole raster at once (its definition before the bands)."""
+    out = np.zeros(z.shape, bool)
+    with np.errstate(invalid="ignore"):
+        d = np.diff(z, axis=1)
+        b = (d[:, :-3] - d[:, 3:]) / 2.0
+        out[:, 2:-2] |= b > bend_m
+        d = np.diff(z, axis=0)
+        b = (d[:-3] - d[3:]) / 2.0
+        out[2:-2] |= b > bend_m
+    return out & keep
+
+
+@pytest.mark.parametrize("shape", [(1, 3), (4, 9), (5, 7), (7, 4), (37, 23), (64, 50)])
+def test_bent_in_bands_equals_the_whole_raster(monkeypatch, shape):
+    """_bent (the first test of the slope breaks given back) in bands of rows, each reading two rows around it:
+    the same cells as on the whole raster, across the bands' seams (bands of 2-11 rows) and at the edges."""
+    rng = np.random.default_rng(7)
+    z = (np.cumsum(rng.normal(size=shape), axis=1) * 0.3).astype(np.float32)
+    z[rng.random(shape) < 0.05] = np.nan
+    keep = rng.random(shape) < 0.9
+    want = _bent_whole(z, keep, 0.2)
+    for rows in (1, 2, 3, 11, 1000):
+        monkeypatch.setattr(sequence, "_BENT_BAND_CELLS", rows * shape[1])
+        assert np.array_equal(sequence._bent(z, keep, 0.2), want)
+    assert want.any() or min(shape) < 5
