@@ -742,7 +742,71 @@ def _benched(z, levels, edge, labels, terrain, jump_m, s, dx, dy, ids, boxes):
     return out
 
 
-def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slope, max_cells, top_dissent=None):
+#: The share of a level's outline a taller object must hold for a level holding a few anchors to be a lower level
+#: of a building (:func:`_lower_roofs`): one of the four sides of a rectangle.
+TALLER_SIDE_SHARE = 0.25
+#: The outline of a level :func:`_lower_roofs` reads, in cells: the level's edge cell (a wall's top at the level's
+#: height) and the cell beyond it.
+OUTLINE_CELLS = 2
+
+
+def _lower_roofs(z, valid, ground, labels, ids, boxes, max_cells, jump_m, plane_m):
+    """Per level of ``ids``, True where it is a lower roof of a building: a plane against a taller object.
+
+    Three things a roof's lower level has and a piece of ground between level changes (the banks of ISPRS 61,
+    a clearing among crowns) lacks together:
+
+    * a *top*: a cell whose 8 neighbours lie on the level (beyond the raster: on it), as
+      :func:`find_detached_levels` asks of another member's dissent (a patch one or two cells wide is a step
+      of a slope);
+    * a plane: the median absolute residual of its cells from their least-squares plane at most ``plane_m``
+      (half the decision threshold: a roof face; ground between crowns or on a bank is rough);
+    * a taller object along a side: of its outline (the cells within :data:`OUTLINE_CELLS` of it, off it), at
+      least :data:`TALLER_SIDE_SHARE` stand more than ``jump_m`` (a level change) above the highest level cell
+      within :data:`OUTLINE_CELLS` of them and are not voted ground (the level's own rise over that width is in
+      that highest cell, so no slope allowance is added; a terrace below a rising hillside has voted ground
+      above it, not an object).
+
+    Levels spanning more than ``max_cells`` cells, or cut by the raster's edge, are not looked at (False): beyond
+    the edge the level may hold the ground that joins it (``benchmarks/sites.py``, ``hillside`` 1 m highest point:
+    two narrow terraces at the raster's edge, a house at the back of each, 126 cells of ground; in a window of
+    blocks a level reaching the window's edge from a block's cell spans more than ``max_cells`` anyway).
+    """
+    h, w = z.shape
+    k = OUTLINE_CELLS
+    foot = np.ones((2 * k + 1, 2 * k + 1), bool)
+    eight = np.ones((3, 3), bool)
+    rise = np.float32(jump_m)
+    out = np.zeros(len(ids), bool)
+    for j, i in enumerate(np.asarray(ids).tolist()):
+        b = boxes[i - 1]
+        if b is None or max(b[0].stop - b[0].start, b[1].stop - b[1].start) > max_cells:
+            continue
+        if b[0].start == 0 or b[1].start == 0 or b[0].stop == h or b[1].stop == w:
+            continue                                     # cut by the raster's edge: its anchors may lie beyond
+        r0, r1 = max(0, b[0].start - k), min(h, b[0].stop + k)
+        c0, c1 = max(0, b[1].start - k), min(w, b[1].stop + k)
+        on = labels[r0:r1, c0:c1] == i
+        if not ndimage.binary_erosion(on, eight, border_value=1).any():
+            continue                                     # no top
+        zz = z[r0:r1, c0:c1]
+        rr, cc = np.nonzero(on)
+        a = np.column_stack([rr.astype(np.float64), cc.astype(np.float64), np.ones(rr.size)])
+        zl = zz[rr, cc].astype(np.float64)
+        coef = np.linalg.lstsq(a, zl, rcond=None)[0]
+        if not np.median(np.abs(zl - a @ coef)) <= plane_m:
+            continue                                     # no plane
+        ring = ndimage.binary_dilation(on, foot) & ~on & valid[r0:r1, c0:c1]
+        top = ndimage.maximum_filter(np.where(on, zz, -np.inf).astype(np.float32), footprint=foot)
+        with np.errstate(invalid="ignore"):
+            taller = ring & ~ground[r0:r1, c0:c1] & (zz > top + rise)
+        n_ring = np.count_nonzero(ring)
+        out[j] = n_ring > 0 and np.count_nonzero(taller) >= TALLER_SIDE_SHARE * n_ring
+    return out
+
+
+def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slope, max_cells, top_dissent=None,
+                         plane_m=None):
     """The dissented ground of regions cut from every undisputed ground cell by level changes.
 
     ``bareearth:dtm``'s vote keeps a low roof (a flat annex or a lower level of a building, 3-4 m
@@ -795,6 +859,12 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
         Levels spanning more cells are left alone (0: nothing is looked for).
     top_dissent : ndarray of bool, optional
         Cells that may become objects on levels with a top only.
+    plane_m : float, optional
+        Given (``bareearth:dtm``: half its decision threshold), a level holding anchors, more than half of whose
+        cells are ``dissent``, is still judged when it is a lower roof of a building (:func:`_lower_roofs`: a top,
+        a plane within ``plane_m``, a taller object along a side, not cut by the raster's edge): a few cells of a
+        low roof every member calls ground (ISPRS 31, 1 m: three cells of a 68-cell roof) do not join it to the
+        ground. None: any anchor joins its level.
 
     Returns
     -------
@@ -840,8 +910,20 @@ def find_detached_levels(z, ground, dissent, anchors, cell_size, *, jump_m, slop
     if n == 0:
         return out
     # a level holding an anchor is joined (label 0, the cells off the levels, counts as joined)
-    joined = np.bincount(labels[anchors], minlength=n + 1) > 0
+    held = np.bincount(labels[anchors], minlength=n + 1)
+    joined = held > 0
     joined[0] = True
+    # a level the level member mostly rejects (more than half its cells, so fewer anchors than dissent) holding a
+    # few anchors only, a lower roof of a building: judged all the same (the anchors are the members' common
+    # error on its roof)
+    few = joined & (2 * np.bincount(labels[dissent & levels], minlength=n + 1) > np.bincount(labels.ravel(),
+                                                                                              minlength=n + 1))
+    few[0] = False
+    if plane_m is not None and few.any():
+        ids_few = np.flatnonzero(few)
+        boxes_few = ndimage.find_objects(labels, max_label=int(ids_few[-1]))
+        roofs = _lower_roofs(z, valid, ground, labels, ids_few, boxes_few, max_cells, jump_m, float(plane_m))
+        joined[ids_few[roofs]] = False
     # only the candidates' levels matter: their labels, without a raster-sized lookup
     at = np.flatnonzero(cand)
     lab = labels.ravel()[at]

@@ -291,13 +291,52 @@ def test_a_level_cut_by_level_changes_from_the_undisputed_ground_is_an_object_wi
 
 def test_a_level_joined_to_the_undisputed_ground_or_not_dissented_stays_ground():
     z, ground, dissent, anchors = _annex()
+    free = z.copy()
+    free[10:20, 10:50] = 0.0                        # the annex standing alone (no taller block beside it)
     anchored = anchors.copy()
     anchored[25, 30] = True                         # one cell of it every member agrees on
-    assert not _detached(z, ground, dissent, anchored).any()
+    assert not _detached(free, free < 10, dissent, anchored, plane_m=0.25).any()
+    anchored[20:32, 15:30] = True                   # against the tall block: as many anchors as dissent
+    assert not _detached(z, ground, dissent & ~anchored, anchored, plane_m=0.25).any()
     assert not _detached(z, ground, np.zeros_like(dissent), anchors).any()          # RASCOR agrees: no dissent
     assert not _detached(z, ground, dissent, anchors, jump_m=3.5).any()             # walls below a level change
     assert not _detached(z, ground, dissent, anchors, max_cells=27).any()           # wider (28) than the reach
     assert not _detached(z, ground, dissent, anchors, max_cells=0).any()
+
+
+def test_a_level_holding_a_few_anchors_against_a_taller_object_is_an_object():
+    """A low roof against a taller part of the building (ISPRS 31's courtyard, 1 m: 3-4 m roofs RASCOR rejects,
+    three of their cells every member calls ground) is a lower level of the building: those few anchors, fewer
+    than the level member's dissent on it, do not join it to the ground. Without the taller block (a piece of
+    ground between the level changes of a bank), or with the taller side below TALLER_SIDE_SHARE of its outline,
+    it stays ground."""
+    z, ground, dissent, anchors = _annex()
+    anchored = anchors.copy()
+    anchored[25, 30] = anchored[26, 30] = anchored[27, 30] = True     # three cells of it every member agrees on
+    out = _detached(z, ground, dissent & ~anchored, anchored, plane_m=0.25)
+    assert np.array_equal(out, dissent & ~anchored)
+    assert not _detached(z, ground, dissent & ~anchored, anchored).any()           # no plane_m: joined
+    # RASCOR rejects only a third of it (its other cells: ground by the vote, RASCOR agreeing): joined
+    third = dissent & ~anchored & (np.arange(60)[None, :] < 25)
+    assert not _detached(z, ground, third, anchored, plane_m=0.25).any()
+    rough = z.copy()
+    rough[20:32, 15:45] += np.where((np.indices((12, 30)).sum(0) % 2) == 0, 0.6, -0.6).astype(np.float32)
+    assert not _detached(rough, ground, dissent & ~anchored, anchored, plane_m=0.25).any()    # no plane
+    # the same annex with the block only along a short stretch of its side: no side of it against a taller object
+    short = z.copy()
+    short[10:20, 10:50] = 0.0
+    short[16:20, 26:34] = 12.0
+    assert not _detached(short, short < 10, dissent & ~anchored, anchored, plane_m=0.25).any()
+    # the block is voted ground (a hillside rising above a terrace, not an object): stays ground
+    assert not _detached(z, np.ones(z.shape, bool), dissent & ~anchored, anchored | (z == 12.0), plane_m=0.25).any()
+    # cut by the raster's edge (its anchors may lie beyond): stays ground
+    cut = (slice(None), slice(15, None))
+    assert not _detached(z[cut], ground[cut], (dissent & ~anchored)[cut], anchored[cut], plane_m=0.25).any()
+    # a patch without a top (two cells wide) is a step of a slope, not a roof
+    thin = z.copy()
+    thin[22:32, 15:45] = 0.0
+    held = (thin == 0.0) | (np.arange(60)[None, :] == 30) & (thin == 3.0)       # a cell of each of its rows
+    assert not _detached(thin, thin < 10, (thin == 3.0) & ~held, held, plane_m=0.25).any()
 
 
 def test_another_members_dissent_counts_on_levels_with_a_top_only():
@@ -370,12 +409,18 @@ def test_detached_levels_blocked_equal_one_pass():
         z[r0:r0 + h, c0:c0 + w] -= 4.0
         dissent[r0:r0 + h, c0:c0 + w] = True
     ground = np.ones((n, n), bool)
-    anchors = ~dissent & (rng.random((n, n)) < 0.5)
+    z[130:170, 135:143] += 12.0                                       # a taller block along a level's side
+    ground[130:170, 135:143] = False
+    dissent[130:170, 135:143] = False
+    anchors = ~dissent & ground & (rng.random((n, n)) < 0.5)
     anchors[60:110, 20:90] |= rng.random((50, 70)) < 0.001          # a few joined levels
-    kw = {"jump_m": 2.0, "slope": 0.05, "max_cells": 60}
+    anchors[140:143, 120:123] = True                                  # a few anchors on the lower roof
+    anchors[22:28, 120:125] = True                                    # a level holding a few anchors, no block
+    kw = {"jump_m": 2.0, "slope": 0.05, "max_cells": 60, "plane_m": 0.25}
     whole = find_detached_levels(z, ground, dissent, anchors, (1.0, 1.0), **kw)
     assert whole.any() and not whole.all()
     assert not whole[150:170, 70:100].any()
+    assert whole[130:170, 110:135].any() and not whole[20:90, 100:160].any()  # the lower roof; the level held
 
     def part(wr, wc):
         return find_detached_levels(z[wr, wc], ground[wr, wc], dissent[wr, wc], anchors[wr, wc], (1.0, 1.0), **kw)
