@@ -42,6 +42,30 @@ import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import 
 GROUND, ABOVE, BELOW, OUTSIDE = 0, 1, 2, 255
 
 
+def error_kinds(codes, truth, valid, rows):
+    """The points scored and, among them, each kind of error (one copy for every error breakdown).
+
+    Parameters
+    ----------
+    codes : ndarray of uint8
+        Per point: 0 ground, 1 above the DTM, 2 below it, 255 outside (not scored).
+    truth, valid : ndarray of bool
+        Per point: a ground point; a point scored.
+    rows : ndarray of int
+        Per point, its cell's row (-1: off the grid, not scored).
+
+    Returns
+    -------
+    scored : ndarray of bool
+    kinds : dict
+        ``{"type2", "type1_above", "type1_below"}``: per point, an object point the DTM calls ground, a
+        ground point above the DTM, below it.
+    """
+    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    return scored, {"type2": scored & ~truth & (codes == GROUND), "type1_above": scored & truth & (codes == ABOVE),
+                    "type1_below": scored & truth & (codes == BELOW)}
+
+
 def vote_patterns(members, rows, cols):
     """Per point, the members' vote in its cell as letters (``'MRG'``, ``'M-G'``, ...).
 
@@ -79,10 +103,8 @@ def breakdown(codes, truth, valid, rows, cols, mask, members, heights=None, dtm=
         "dtm_above_ref_m": median}}`` for kind ``type2`` and ``type1_above``, state ``ground`` or
         ``filled``.
     """
-    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    scored, kinds = error_kinds(codes, truth, valid, rows)
     r, c = np.where(rows >= 0, rows, 0), np.where(cols >= 0, cols, 0)
-    kinds = {"type2": scored & ~truth & (codes == GROUND), "type1_above": scored & truth & (codes == ABOVE),
-             "type1_below": scored & truth & (codes == BELOW)}
     out = {"ground_points": int(np.count_nonzero(scored & truth)),
            "object_points": int(np.count_nonzero(scored & ~truth)),
            **{k: int(np.count_nonzero(v)) for k, v in kinds.items()}, "groups": {}}
@@ -105,11 +127,10 @@ def breakdown(codes, truth, valid, rows, cols, mask, members, heights=None, dtm=
 
 def error_maps(codes, truth, valid, rows, cols, shape):
     """Per cell, the counts of type I-above, type I-below and type II points (int32 grids)."""
-    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    _, kinds = error_kinds(codes, truth, valid, rows)
     out = {}
-    for name, sel in (("type1_above", scored & truth & (codes == ABOVE)),
-                      ("type1_below", scored & truth & (codes == BELOW)),
-                      ("type2", scored & ~truth & (codes == GROUND))):
+    for name in ("type1_above", "type1_below", "type2"):
+        sel = kinds[name]
         grid = np.zeros(shape, np.int32)
         np.add.at(grid, (rows[sel], cols[sel]), 1)
         out[name] = grid

@@ -32,9 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import bare_earth`` work)
+from dtm_errors import error_kinds  # noqa: E402  (one copy of the error kinds)
 
-#: Point codes of :func:`bare_earth.core.points.classify_points`.
-GROUND, ABOVE, BELOW, OUTSIDE = 0, 1, 2, 255
 #: The stages other than the opening's steps, in the order they are read (the first that holds names the cell).
 FIXED_STAGES = ("kept", "cut terrain", "outline", "tier", "pre-step low", "low -> ground")
 CLASSES = {0: "ground", 1: "object", 2: "low"}
@@ -95,10 +94,9 @@ def breakdown(codes, truth, valid, rows, cols, mask, stage_grid, names, heights=
         ``ground_points``, ``object_points``, ``type1_above``, ``type1_below``, ``type2`` (counts) and ``groups``:
         ``{(kind, stage name, class): {"points": n[, "point_above_ref_m": median]}}``.
     """
-    scored = valid & (codes != OUTSIDE) & (rows >= 0)
+    scored, by_kind = error_kinds(codes, truth, valid, rows)
     r, c = np.where(rows >= 0, rows, 0), np.where(cols >= 0, cols, 0)
-    kinds = (("type1_above", scored & truth & (codes == ABOVE)), ("type1_below", scored & truth & (codes == BELOW)),
-             ("type2", scored & ~truth & (codes == GROUND)))
+    kinds = [(k, by_kind[k]) for k in ("type1_above", "type1_below", "type2")]
     out = {"ground_points": int(np.count_nonzero(scored & truth)),
            "object_points": int(np.count_nonzero(scored & ~truth)), "groups": {}}
     lift = None
