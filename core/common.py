@@ -234,6 +234,46 @@ def dilate_box(a, ry, rx):
     return out
 
 
+def pad_constant(a, rows, cols, fill):
+    """``a`` inside ``rows`` rows and ``cols`` columns of ``fill`` on each side, each cell written once:
+    ``np.pad(a, ((rows, rows), (cols, cols)), constant_values=fill)`` without writing the inside twice.
+
+    Examples
+    --------
+    >>> pad_constant(np.ones((1, 2), int), 1, 0, 7).tolist()
+    [[7, 7], [1, 1], [7, 7]]
+    """
+    a = np.asarray(a)
+    rows, cols = int(rows), int(cols)
+    h, w = a.shape
+    p = np.empty((h + 2 * rows, w + 2 * cols), a.dtype)
+    p[:rows] = fill
+    p[rows + h:] = fill
+    p[rows:rows + h, :cols] = fill
+    p[rows:rows + h, cols + w:] = fill
+    p[rows:rows + h, cols:cols + w] = a
+    return p
+
+
+def label_boxes(ids, rows, cols, n, shape):
+    """Per label ``0 .. n - 1``, the bounding box ``r0, r1, c0, c1`` (end exclusive) of its cells
+    ``(rows, cols)`` (``ids`` the label of each); a label without cells gets ``r0, c0 = shape``,
+    ``r1, c1 = 0``.
+
+    Examples
+    --------
+    >>> [b.tolist() for b in label_boxes(np.array([0, 0, 1]), np.array([2, 4, 1]), np.array([3, 1, 0]), 3, (9, 9))]
+    [[2, 1, 9], [5, 2, 0], [1, 0, 9], [4, 1, 0]]
+    """
+    r0, c0 = np.full(n, shape[0], np.int64), np.full(n, shape[1], np.int64)
+    r1, c1 = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    np.minimum.at(r0, ids, rows)
+    np.maximum.at(r1, ids, np.asarray(rows) + 1)
+    np.minimum.at(c0, ids, cols)
+    np.maximum.at(c1, ids, np.asarray(cols) + 1)
+    return r0, r1, c0, c1
+
+
 #: Cells per band of rows of :func:`dilate_box` (a quarter of a million: a band's bool temporaries 0.25 MB).
 DILATE_BAND_CELLS = 1 << 18
 

@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 from scipy import ndimage
 
-from ..common import as_cell_size, as_surface, edge_mirrored_extents, report, sub_progress, transpose
+from ..common import as_cell_size, as_surface, edge_mirrored_extents, pad_constant, report, sub_progress, transpose
 from ..edge_walls import walled_levels
 from ..estimate import lowest_point_spread, repeated_height_share
 from .derivatives import CHUNK_CELLS, CellSize, Progress
@@ -356,14 +356,7 @@ def _drop_running_off(cut, axis, max_cells, cross_cells):
 def _framed(a, frame, fill):
     """``a`` inside a frame of ``frame`` cells of ``fill`` (a flat index then reaches
     ``frame`` positions beyond any profile's ends)."""
-    h, w = a.shape
-    out = np.empty((h + 2 * frame, w + 2 * frame), a.dtype)
-    out[:frame] = fill
-    out[frame + h:] = fill
-    out[frame:frame + h, :frame] = fill
-    out[frame:frame + h, frame + w:] = fill
-    out[frame:frame + h, frame:frame + w] = a
-    return out
+    return pad_constant(a, frame, frame, fill)
 
 
 def _set_frame(zp, frame, v):

@@ -11,7 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..blocks import run_sharing
-from ..common import label8, report, sub_progress
+from ..common import label8, label_boxes, report, sub_progress
 from ..estimate import block_expand, smooth_parts
 from .grey import (
     block_reduce,
@@ -374,12 +374,7 @@ def _wide_pieces(w, cells, res, wall, step_m, dh0, tan_s, dh_k, edge_ratio, ext_
     width = 2.0 * area / np.maximum(n_rim, 1) / np.sqrt(dx * dy)
     high = top > np.maximum(dh_k, dh0 + tan_s * width * BUMP_FRACTION)
     core = np.bincount(own, weights=~outline, minlength=n_p) > 0
-    r0, c0 = np.full(n_p, H), np.full(n_p, W)
-    r1, c1 = np.zeros(n_p, np.int64), np.zeros(n_p, np.int64)
-    np.minimum.at(r0, piece, r)
-    np.maximum.at(r1, piece, r + 1)
-    np.minimum.at(c0, piece, c)
-    np.maximum.at(c1, piece, c + 1)
+    r0, r1, c0, c1 = label_boxes(piece, r, c, n_p, (H, W))
     seen = (r0 > 0) & (c0 > 0) & (r1 < H) & (c1 < W)
     keep = (high & core & seen & (n_rim > 0) & (n_wall >= edge_ratio * n_rim)
             & ((r1 - r0) * dy <= ext_limit) & ((c1 - c0) * dx <= ext_limit))
@@ -437,12 +432,7 @@ def _walled_pieces(w, blocks, Rc, f, step_m, dh0, dh_k, edge_ratio, ext_limit, d
     n_out = np.bincount(piece, weights=outline, minlength=n)
     n_abr = np.bincount(piece, weights=abrupt, minlength=n)
     high = np.bincount(piece, weights=res > dh_k, minlength=n) > 0
-    r0, c0 = np.full(n, H), np.full(n, W)
-    r1, c1 = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    np.minimum.at(r0, piece, r)
-    np.maximum.at(r1, piece, r + 1)
-    np.minimum.at(c0, piece, c)
-    np.maximum.at(c1, piece, c + 1)
+    r0, r1, c0, c1 = label_boxes(piece, r, c, n, (H, W))
     keep = (high & (n_out > 0) & (n_abr >= edge_ratio * n_out) & ((r1 - r0) * dy <= ext_limit)
             & ((c1 - c0) * dx <= ext_limit))
     return cells[keep[piece]]

@@ -10,7 +10,7 @@ arithmetic, limits them). The filter's stages (:mod:`.dilation`, :mod:`.scan`,
 """
 import numpy as np
 
-from ..common import report
+from ..common import pad_constant, report
 
 #: The reconstruction leaves its dense passes once fewer than 1/this of their cells change.
 FRONTIER_RATIO = 256
@@ -357,16 +357,7 @@ def fill_nodata(z, valid, value):
 def _hang(a, size, fill):
     """``a`` padded with ``fill`` by the window's half-widths: the centres of the windows
     that hang over the border, each keeping its cells inside the raster."""
-    rh, rw = size[0] // 2, size[1] // 2
-    h, w = a.shape
-    # the border filled, the inside copied: each cell written once (np.full wrote the inside twice)
-    p = np.empty((h + 2 * rh, w + 2 * rw), a.dtype)
-    p[:rh] = fill
-    p[rh + h:] = fill
-    p[rh:rh + h, :rw] = fill
-    p[rh:rh + h, rw + w:] = fill
-    p[rh:rh + h, rw:rw + w] = a
-    return p
+    return pad_constant(a, size[0] // 2, size[1] // 2, fill)
 
 
 def _open_close(z, valid, size, first, second, progress, hanging):

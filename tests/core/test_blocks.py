@@ -425,3 +425,35 @@ def test_worker_processes_do_not_run_an_unguarded_script_again(tmp_path):
     code, out, runs = run_unguarded_script(tmp_path, body)
     assert code == 0 and "finished" in out and runs == 1, (runs, out[-2000:])
     assert (tmp_path / "m.tif").exists()
+
+
+def test_pad_constant_is_np_pad():
+    """common.pad_constant (geodesic's hanging windows, curvature's framed profiles) equals ``np.pad`` with a
+    constant: every side, rows and columns apart, no padding, float, int and bool."""
+    from bare_earth.core.common import pad_constant
+    rng = np.random.default_rng(9)
+    for a in ((rng.random((5, 7)) * 10).astype(np.float32), rng.integers(0, 9, (1, 4)), rng.random((3, 1)) > 0.5):
+        for rows, cols in ((0, 0), (1, 0), (0, 2), (3, 1), (2, 5)):
+            fill = a.dtype.type(1) if a.dtype == bool else -7
+            got = pad_constant(a, rows, cols, fill)
+            want = np.pad(a, ((rows, rows), (cols, cols)), constant_values=fill)
+            assert got.dtype == a.dtype and np.array_equal(got, want)
+
+
+def test_label_boxes_exact():
+    """common.label_boxes: each label's bounding box (end exclusive) from its cells, as ``ndimage.find_objects``
+    gives it; a label without cells gets the empty box (shape, 0)."""
+    from scipy import ndimage
+
+    from bare_earth.core.common import label_boxes
+    rng = np.random.default_rng(3)
+    lab = rng.integers(0, 5, (11, 8))
+    lab[lab == 3] = 0                                       # label 3 has no cells
+    r, c = np.nonzero(lab)
+    ids = lab[r, c] - 1
+    r0, r1, c0, c1 = label_boxes(ids, r, c, 4, lab.shape)
+    for k, sl in enumerate(ndimage.find_objects(lab, 4)):
+        if sl is None:
+            assert (r0[k], r1[k], c0[k], c1[k]) == (11, 0, 8, 0)
+        else:
+            assert (r0[k], r1[k], c0[k], c1[k]) == (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop)
