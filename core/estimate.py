@@ -2176,7 +2176,7 @@ def line_share(g, cells, half_widths, level, chunk=1 << 15):
     return out
 
 
-def under_chords(z, half_cells, tol_m):
+def under_chords(z, half_cells, tol_m, progress=None):
     """The cells of a surface that stand no higher than ``tol_m`` above any chord between two cells
     of their row lying within ``half_cells`` on either side of them, nor above any such chord along
     their column (bool, ``z``'s shape): the lower envelope of the surface at the scale of
@@ -2199,6 +2199,9 @@ def under_chords(z, half_cells, tol_m):
         Cells on either side within which the chords' ends lie (>= 1).
     tol_m : float
         Metres a cell may stand above a chord (>= 0).
+    progress : callable, optional
+        ``progress(fraction)`` after each block of rows (it may raise
+        :class:`~bare_earth.core.common.Cancelled`).
 
     Returns
     -------
@@ -2219,22 +2222,52 @@ def under_chords(z, half_cells, tol_m):
     if not (0.0 <= tol < np.inf):
         raise ValueError(f"tol_m must be a height >= 0 in metres; got {tol_m}.")
     m = int(half_cells)
+    h, w = z.shape
     out = np.isfinite(z)
-    for a, o in ((z, out), (z.T, out.T)):
-        w = a.shape[1]
-        seen = np.zeros(a.shape, bool)
-        for i in range(1, m + 1):
+    tol = np.float32(tol)
+    # by blocks of rows (cache-sized temporaries; a column's chords are rows of the block's
+    # neighbours, so no transposed pass): the same sums per cell as over the whole raster
+    step = max(1, _CHORD_BLOCK_CELLS // max(w, 1))
+    c = np.empty(min(h, step) * w, np.float32)
+    t = np.empty(min(h, step) * w, np.float32)
+    for i0 in range(0, h, step):
+        i1 = min(h, i0 + step)
+        zc, o = z[i0:i1], out[i0:i1]
+        n = i1 - i0
+        seen = np.zeros((n, w), bool)
+        for i in range(1, m + 1):           # along the row
             for j in range(1, m + 1):
                 if i + j >= w:
                     continue
-                c = a[:, :w - j - i] * np.float32(j)
-                c += a[:, i + j:] * np.float32(i)
-                c /= np.float32(i + j)
-                c += np.float32(tol)
+                cc = c[:n * (w - i - j)].reshape(n, w - i - j)
+                tt = t[:n * (w - i - j)].reshape(n, w - i - j)
+                np.multiply(zc[:, :w - j - i], np.float32(j), out=cc)
+                np.multiply(zc[:, i + j:], np.float32(i), out=tt)
+                cc += tt
+                cc /= np.float32(i + j)
+                cc += tol
                 with np.errstate(invalid="ignore"):
-                    o[:, i:w - j] &= ~(a[:, i:w - j] > c)
-                seen[:, i:w - j] |= np.isfinite(c)
+                    o[:, i:w - j] &= ~(zc[:, i:w - j] > cc)
+                seen[:, i:w - j] |= np.isfinite(cc)
         o &= seen
+        seen[:] = False
+        for i in range(1, m + 1):           # along the column
+            for j in range(1, m + 1):
+                r0, r1 = max(i0, i), min(i1, h - j)
+                if i + j >= h or r0 >= r1:
+                    continue
+                cc = c[:(r1 - r0) * w].reshape(r1 - r0, w)
+                tt = t[:(r1 - r0) * w].reshape(r1 - r0, w)
+                np.multiply(z[r0 - i:r1 - i], np.float32(j), out=cc)
+                np.multiply(z[r0 + j:r1 + j], np.float32(i), out=tt)
+                cc += tt
+                cc /= np.float32(i + j)
+                cc += tol
+                with np.errstate(invalid="ignore"):
+                    o[r0 - i0:r1 - i0] &= ~(z[r0:r1] > cc)
+                seen[r0 - i0:r1 - i0] |= np.isfinite(cc)
+        o &= seen
+        report(progress, i1 / h)
     return out
 
 

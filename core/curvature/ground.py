@@ -457,7 +457,8 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
         # above the surface spanning its wall) are ground, and seed the next pass's surface
         if rise is not None:
             _continue_ground(z, mask, objects, _CONTINUE_WINDOWS * window, rise, tol,
-                             (max(window, stretch[0]), max(window, stretch[1])))
+                             (max(window, stretch[0]), max(window, stretch[1])),
+                             progress=sub_progress(step, 0.9, 0.95))
             report(step, 0.95)
         np.not_equal(mask, GROUND, out=holes)
         # the bowls found ground and not below the surface seed the next pass; not the pits among them
@@ -528,7 +529,7 @@ def _wall_cells(mask, z, step):
     mask[add] = OBJECT
 
 
-def _continue_ground(z, mask, objects, reach, step, tol, run):
+def _continue_ground(z, mask, objects, reach, step, tol, run, progress=None):
     """The final pass's objects that no profile found (not in ``objects``) and that the ground
     continues go back to the ground, in place: along the X or the Y profile through the cell,
     the nearest ground cell on one side lies within ``reach`` cells and begins ``run = (along X,
@@ -544,41 +545,55 @@ def _continue_ground(z, mask, objects, reach, step, tol, run):
     own level without a wall is no object (a roof, a crown or a shrub rises from the ground at its
     edge by more than a step, or above the ground beside it; a few cells of a hedge's level top
     taken for ground are no stretch of ground).
+
+    ``progress(fraction)`` within each profile's search (:func:`_continued`) and between them.
     """
     cand = mask == OBJECT
     cand &= ~objects
     if not cand.any():
+        report(progress, 1.0)
         return
     ground = mask == GROUND
-    back = _continued(z, ground, cand, reach, step[0], tol, run[0])
-    back |= transpose(_continued(transpose(z), transpose(ground), transpose(cand), reach, step[1], tol, run[1]))
+    report(progress, 0.05)
+    back = _continued(z, ground, cand, reach, step[0], tol, run[0], sub_progress(progress, 0.05, 0.45))
+    zt, gt, ct = transpose(z), transpose(ground), transpose(cand)
+    report(progress, 0.55)
+    back |= transpose(_continued(zt, gt, ct, reach, step[1], tol, run[1], sub_progress(progress, 0.55, 0.95)))
+    del zt, gt, ct
     mask[back] = GROUND
+    report(progress, 1.0)
 
 
-def _continued(z, ground, cand, reach, step, tol, run):
+def _continued(z, ground, cand, reach, step, tol, run, progress=None):
     """The cells of ``cand`` that a stretch of ``run`` cells of ``ground`` along their row
     continues (:func:`_continue_ground`), the nearest ground within ``reach`` cells to the left
-    or to the right; a boolean array of ``z``'s shape."""
+    or to the right; a boolean array of ``z``'s shape. ``progress(fraction)`` after each raster-wide
+    stage and each cell of the stretches on either side."""
     h, w = z.shape
     wall = np.ones((h, w + 1), bool)           # wall[:, j]: a step between j - 1 and j (the ends too)
     with np.errstate(invalid="ignore"):
         np.greater(np.abs(z[:, 1:] - z[:, :-1]), np.float32(step), out=wall[:, 1:w])
     wall[:, 1:w] |= np.isnan(z[:, 1:])
     wall[:, 1:w] |= np.isnan(z[:, :-1])
+    report(progress, 0.1)
     part = np.cumsum(wall[:, :w], axis=1, dtype=np.int32)        # cells joined by small steps share it
+    del wall
+    report(progress, 0.2)
     cols = np.arange(w, dtype=np.int32)
     far = np.int32(1 << 30)
     left = np.where(ground, cols, -far)
     np.maximum.accumulate(left, axis=1, out=left)
     right = np.where(ground, cols, far)
+    report(progress, 0.3)
     right = np.minimum.accumulate(right[:, ::-1], axis=1)[:, ::-1]
+    report(progress, 0.4)
     idx = np.flatnonzero(cand)               # flat cells, gathered from the flat arrays
     c = (idx % w).astype(np.int32)
     zf, pf, gf = z.ravel(), part.ravel(), ground.ravel()
     zc, pc = zf.take(idx), pf.take(idx)
     per = np.float32(step - tol)
     out = np.zeros(h * w, bool)
-    for end, sign in ((left, -1), (right, 1)):
+    for side, (end, sign) in enumerate(((left, -1), (right, 1))):
         e = end.ravel().take(idx)
         sel = np.flatnonzero(np.abs(e - c) <= reach)    # the candidates still in the running
         for k in range(run):
@@ -590,6 +605,7 @@ def _continued(z, ground, cand, reach, step, tol, run):
                 ok = gf.take(at) & (pf.take(at) == pc[sel])
                 ok &= np.abs(zf.take(at) - zc[sel]) <= np.float32(tol) + per * np.abs(jc - c[sel])
             sel = sel[ok]
+            report(progress, 0.5 + 0.25 * (side + (k + 1) / run))
         out[idx[sel]] = True
     return out.reshape(h, w)
 
@@ -759,7 +775,7 @@ def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step, progress
     if not cand.any():
         report(progress, 1.0)
         return cand
-    env = under_chords(z, m, tol)
+    env = under_chords(z, m, tol, progress=sub_progress(progress, 0.0, 0.3))
     env &= cand
     report(progress, 0.3)
     if not env.any():

@@ -1406,6 +1406,47 @@ def test_under_chords_exact():
     assert not est.under_chords(np.zeros((5, 1), np.float32), 1, 0.1).any()
 
 
+def _under_chords_by_cell(z, m, tol):
+    """The definition of under_chords, cell by cell (float32 as the function sums): finite, at least one chord
+    with finite ends on each axis, and no higher than tol above any of them."""
+    h, w = z.shape
+    out = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            if not np.isfinite(z[r, c]):
+                continue
+            ok = True
+            for line, k, n in ((z[r], c, w), (z[:, c], r, h)):
+                seen = False
+                for i in range(1, m + 1):
+                    for j in range(1, m + 1):
+                        if k - i < 0 or k + j >= n:
+                            continue
+                        ch = line[k - i] * np.float32(j) + line[k + j] * np.float32(i)
+                        ch = ch / np.float32(i + j) + np.float32(tol)
+                        seen |= bool(np.isfinite(ch))
+                        ok &= not (line[k] > ch)
+                ok &= seen
+            out[r, c] = ok
+    return out
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 6])
+def test_under_chords_equals_its_definition_across_blocks(monkeypatch, m):
+    """By blocks of rows (a column's chords read the rows of the blocks around it) the cells are those of the
+    definition, bit for bit: random and curved surfaces with crowns and nodata, blocks of 3 rows (smaller than
+    the chords' reach), a surface narrower than a chord."""
+    monkeypatch.setattr(est, "_CHORD_BLOCK_CELLS", 3 * 17)
+    rng = np.random.default_rng(m)
+    y, x = np.mgrid[0:23, 0:17].astype(np.float32)
+    curved = 0.02 * x * x - 0.3 * y + 4.0 * (rng.random(x.shape) < 0.1)
+    for z in (rng.normal(0.0, 1.0, (23, 17)), curved, rng.normal(0.0, 1.0, (4, 17)), rng.normal(0.0, 1.0, (23, 2))):
+        z = np.asarray(z, np.float32)
+        z[rng.random(z.shape) < 0.15] = np.nan
+        for tol in (0.0, 0.3):
+            np.testing.assert_array_equal(est.under_chords(z, m, tol), _under_chords_by_cell(z, m, tol))
+
+
 def test_under_chords_refuses_bad_input():
     with pytest.raises(ValueError, match="2-D"):
         est.under_chords(np.zeros(5), 1, 0.1)

@@ -430,3 +430,51 @@ def test_dtm_reports_after_its_raised_regions_and_detached_levels(monkeypatch):
     assert names[:2] == ["find_raised_regions", "find_detached_levels"], names
     assert len([e for e in events[named[0] + 1:named[1]] if isinstance(e, float)]) >= 2
     _assert_reports_after(events, named[:2])
+
+
+def test_curvature_reports_inside_its_envelope_and_continued_ground(monkeypatch):
+    """QA 25: on 16 Mcells two stages of curvature's ground still ran without a report: the lower envelope's chord
+    test (estimate.under_chords, 0.9 s CPU) and the ground continued over the final pass's objects
+    (_continue_ground, 1.4 s). Each now reports from inside (blocks of rows; the profile's stages and the cells of
+    its stretches), several times between its start and its end; the mask unchanged (with and without a callback)."""
+    from bare_earth.core.curvature import ground
+    monkeypatch.setattr(estimate, "_CHORD_BLOCK_CELLS", 200 * 40)    # the 200-column city in 5 blocks of rows
+    events = []
+    for name in ("under_chords", "_continue_ground"):
+        f = getattr(ground, name)
+
+        def spy(*args, _f=f, _name=name, **kwargs):
+            events.append(_name)
+            r = _f(*args, **kwargs)
+            events.append("/" + _name)
+            return r
+        monkeypatch.setattr(ground, name, spy)
+    _run_with_events("curvature", _city(), events)
+    for name in ("under_chords", "_continue_ground"):
+        starts = [i for i, e in enumerate(events) if e == name]
+        ends = [i for i, e in enumerate(events) if e == "/" + name]
+        assert starts and len(starts) == len(ends)
+        for a, b in zip(starts, ends):
+            inside = [e for e in events[a + 1:b] if isinstance(e, float)]
+            assert len(inside) >= 3, (name, events[a:b + 1])
+    fractions = [e for e in events if isinstance(e, float)]
+    assert fractions == sorted(fractions)
+
+
+def test_under_chords_reports_by_blocks_and_stops_on_cancel(monkeypatch):
+    """estimate.under_chords reports after each block of rows, ends at 1, gives the same cells with a callback,
+    and stops at the report that raises."""
+    monkeypatch.setattr(estimate, "_CHORD_BLOCK_CELLS", 300 * 30)
+    z = synthetic.make_scene("city", shape=(300, 300), cell_size=1.0, seed=5).dsm
+    calls = []
+    got = estimate.under_chords(z, 2, 0.3, progress=calls.append)
+    np.testing.assert_array_equal(got, estimate.under_chords(z, 2, 0.3))
+    assert len(calls) == 10 and calls == sorted(calls) and calls[-1] == 1.0
+    seen = []
+
+    def stop(f):
+        seen.append(f)
+        raise Cancelled()
+    with pytest.raises(Cancelled):
+        estimate.under_chords(z, 2, 0.3, progress=stop)
+    assert seen == [0.1]
