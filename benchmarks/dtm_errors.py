@@ -81,12 +81,10 @@ def breakdown(codes, truth, valid, rows, cols, mask, members, heights=None, dtm=
 
     Parameters
     ----------
-    codes : ndarray of uint8
-        Per point: 0 ground, 1 above the DTM, 2 below it, 255 outside (not scored).
-    truth, valid : ndarray of bool
-        Per point: a ground point; a point scored.
-    rows, cols : ndarray of int
-        Per point, its cell (-1: off the grid, not scored).
+    codes, truth, valid, rows :
+        As :func:`error_kinds`.
+    cols : ndarray of int
+        Per point, its cell's column.
     mask : ndarray of uint8
         The dtm's mask (0 ground).
     members : dict
@@ -217,45 +215,51 @@ def format_breakdown(name, b):
     return "\n".join(lines)
 
 
-def run(data, only, maps=None, progress=print, peer=None):
-    from bare_earth.core.dtm import MEMBERS
-    from bare_earth.core.methods import get_method
-    from bare_earth.core.pipeline import resolve_params, run_array
-    results = {}
+def point_rows(data, only):
+    """The generalisation matrix's rows scored by points whose name matches ``only`` (a regular
+    expression): ``(name, z, cell, score)`` each, built one at a time."""
     for _src, _fam, _half, builds in generalise.all_cases(data, []):
         for name, build in builds:
             if not re.search(only, name):
                 continue
             z, cell, score = build()
-            if not hasattr(score, "point_cells"):
-                continue                                   # scored by cells, not points
-            res = run_array("dtm", z, cell, {})
-            params = resolve_params("dtm", z, cell, {})
-            members = {n: np.asarray(get_method(n).run(z, cell, **params["members"][n]).mask) == 0 for n in MEMBERS}
-            codes = score.classify(np.asarray(res.dtm, np.float32))
-            rows, cols = score.point_cells()
-            ref = np.asarray(score.floor_dtm(), np.float64)
-            b = breakdown(codes, score.truth, score.valid, rows, cols, res.mask, members,
-                          heights=score.point_heights(), dtm=np.asarray(res.dtm, np.float64), reference=ref)
-            results[name] = b
+            if hasattr(score, "point_cells"):              # else scored by cells, not points
+                yield name, z, cell, score
+
+
+def run(data, only, maps=None, progress=print, peer=None):
+    from bare_earth.core.dtm import MEMBERS
+    from bare_earth.core.methods import get_method
+    from bare_earth.core.pipeline import resolve_params, run_array
+    results = {}
+    for name, z, cell, score in point_rows(data, only):
+        res = run_array("dtm", z, cell, {})
+        params = resolve_params("dtm", z, cell, {})
+        members = {n: np.asarray(get_method(n).run(z, cell, **params["members"][n]).mask) == 0 for n in MEMBERS}
+        codes = score.classify(np.asarray(res.dtm, np.float32))
+        rows, cols = score.point_cells()
+        ref = np.asarray(score.floor_dtm(), np.float64)
+        b = breakdown(codes, score.truth, score.valid, rows, cols, res.mask, members,
+                      heights=score.point_heights(), dtm=np.asarray(res.dtm, np.float64), reference=ref)
+        results[name] = b
+        if progress:
+            progress(format_breakdown(name, b))
+        extra = {}
+        if peer:
+            import anchors
+            p = getattr(anchors, f"run_{peer}")(z, cell)
+            x = peer_crosstab(codes, score.classify(np.asarray(p.dtm, np.float32)), score.truth, score.valid,
+                              rows, cols, res.mask, p.mask, dtm=res.dtm, peer_dtm=p.dtm, reference=ref)
+            b["peer"] = {"name": peer, **x}
+            extra = {"peer_dtm": p.dtm, "peer_mask": p.mask}
             if progress:
-                progress(format_breakdown(name, b))
-            extra = {}
-            if peer:
-                import anchors
-                p = getattr(anchors, f"run_{peer}")(z, cell)
-                x = peer_crosstab(codes, score.classify(np.asarray(p.dtm, np.float32)), score.truth, score.valid,
-                                  rows, cols, res.mask, p.mask, dtm=res.dtm, peer_dtm=p.dtm, reference=ref)
-                b["peer"] = {"name": peer, **x}
-                extra = {"peer_dtm": p.dtm, "peer_mask": p.mask}
-                if progress:
-                    progress(format_crosstab(peer, x))
-            if maps:
-                Path(maps).mkdir(parents=True, exist_ok=True)
-                grids = error_maps(codes, score.truth, score.valid, rows, cols, z.shape)
-                np.savez_compressed(Path(maps) / (re.sub(r"[^\w.-]+", "_", name) + ".npz"), dsm=z, reference=ref,
-                                    dtm=res.dtm, mask=res.mask, **grids,
-                                    **{f"{n}_ground": g for n, g in members.items()}, **extra)
+                progress(format_crosstab(peer, x))
+        if maps:
+            Path(maps).mkdir(parents=True, exist_ok=True)
+            grids = error_maps(codes, score.truth, score.valid, rows, cols, z.shape)
+            np.savez_compressed(Path(maps) / (re.sub(r"[^\w.-]+", "_", name) + ".npz"), dsm=z, reference=ref,
+                                dtm=res.dtm, mask=res.mask, **grids,
+                                **{f"{n}_ground": g for n, g in members.items()}, **extra)
     return results
 
 

@@ -24,7 +24,6 @@ stayed below ``s r_k``); one in a ``step k`` ground cell was flagged and the fin
 It writes no log: it says where to look, the matrix says how good a change is.
 """
 import argparse
-import re
 import sys
 from pathlib import Path
 
@@ -32,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import bare_earth`` work)
-from dtm_errors import error_kinds  # noqa: E402  (one copy of the error kinds)
+from dtm_errors import error_kinds, point_rows  # noqa: E402  (one copy of the error kinds)
 
 #: The stages other than the opening's steps, in the order they are read (the first that holds names the cell).
 FIXED_STAGES = ("kept", "cut terrain", "outline", "tier", "pre-step low", "low -> ground")
@@ -75,12 +74,10 @@ def breakdown(codes, truth, valid, rows, cols, mask, stage_grid, names, heights=
 
     Parameters
     ----------
-    codes : ndarray of uint8
-        Per point: 0 ground, 1 above the DTM, 2 below it, 255 outside (not scored).
-    truth, valid : ndarray of bool
-        Per point: a ground point; a point scored.
-    rows, cols : ndarray of int
-        Per point, its cell (-1: off the grid, not scored).
+    codes, truth, valid, rows :
+        As :func:`error_kinds`.
+    cols : ndarray of int
+        Per point, its cell's column.
     mask : ndarray of uint8
         The filter's mask (0 ground, 1 object, 2 low).
     stage_grid, names :
@@ -133,28 +130,22 @@ def run(data, only, progress=print):
     from bare_earth.core.pipeline import fill_empty_cells, run_array
     meth = get_method("morphological")
     results = {}
-    for _src, _fam, _half, builds in generalise.all_cases(data, []):
-        for name, build in builds:
-            if not re.search(only, name):
-                continue
-            z, cell, score = build()
-            if not hasattr(score, "point_cells"):
-                continue                                   # scored by cells, not points
-            res = run_array(meth, z, cell, {})
-            codes = score.classify(np.asarray(res.dtm, np.float32))
-            stages = {}
-            again = meth.run(fill_empty_cells(z, cell)[0], cell, stages=stages, **dict(res.info["params"]))
-            valid = np.isfinite(z)
-            differ = int(np.count_nonzero((np.asarray(again.mask) != res.mask) & valid))
-            grid, names = stage_codes(stages, z.shape, again.info.get("window_sizes_m", ()))
-            rows, cols = score.point_cells()
-            b = breakdown(codes, score.truth, score.valid, rows, cols, res.mask, grid, names,
-                          heights=score.point_heights(), reference=score.floor_dtm())
-            b["cells_differing"] = differ
-            results[name] = b
-            if progress:
-                progress(format_breakdown(name, b, again.info)
-                         + (f"\n  WARNING: {differ} cells differ from the matrix's run" if differ else ""))
+    for name, z, cell, score in point_rows(data, only):
+        res = run_array(meth, z, cell, {})
+        codes = score.classify(np.asarray(res.dtm, np.float32))
+        stages = {}
+        again = meth.run(fill_empty_cells(z, cell)[0], cell, stages=stages, **dict(res.info["params"]))
+        valid = np.isfinite(z)
+        differ = int(np.count_nonzero((np.asarray(again.mask) != res.mask) & valid))
+        grid, names = stage_codes(stages, z.shape, again.info.get("window_sizes_m", ()))
+        rows, cols = score.point_cells()
+        b = breakdown(codes, score.truth, score.valid, rows, cols, res.mask, grid, names,
+                      heights=score.point_heights(), reference=score.floor_dtm())
+        b["cells_differing"] = differ
+        results[name] = b
+        if progress:
+            progress(format_breakdown(name, b, again.info)
+                     + (f"\n  WARNING: {differ} cells differ from the matrix's run" if differ else ""))
     return results
 
 
