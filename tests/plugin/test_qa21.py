@@ -1,0 +1,58 @@
+"""QA pass 21 through processing.run and the algorithms' checks. Each test failed before its fix."""
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.qgis
+GT = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+
+
+def _write(path, arr, gt=GT, epsg=32632, nodata=None):
+    from bare_earth.core.grid import write_array
+    return str(write_array(path, arr, gt, epsg, nodata=nodata))
+
+
+def _check(alg, params):
+    from qgis.core import QgsApplication, QgsProcessingContext
+    return QgsApplication.processingRegistry().algorithmById(alg).checkParameterValues(params,
+                                                                                      QgsProcessingContext())
+
+
+@pytest.mark.parametrize("binary_is", ["REFERENCE_MASK", "MASK"])
+def test_a_binary_0_255_mask_is_refused_not_scored_on_its_ground(processing_run, tmp_path, binary_is):
+    """A reference mask of another tool, 0 ground and 255 object (footprints burnt with 255), was compared with
+    every object cell left out as nodata: TOTAL 0 %, TYPE1 0 %, TYPE2 and KAPPA not defined, no warning at all.
+    Refused in the check, naming the cells and the reclassification; the same mask as 0/1 is scored."""
+    from qgis.core import QgsProcessingException
+    m = np.zeros((40, 40), np.uint8)
+    m[10:20, 10:20] = 1
+    m[25:30, 5:35] = 1
+    m[0, :] = 255                                          # the data's own edge: nodata in both
+    binary = np.where(m == 1, 255, m).astype(np.uint8)
+    mask, bin_path = _write(tmp_path / "mask.tif", m), _write(tmp_path / "binary.tif", binary)
+    params = {"MASK": mask, "REFERENCE_MASK": bin_path} if binary_is == "REFERENCE_MASK" else \
+        {"MASK": bin_path, "REFERENCE_MASK": mask}
+    ok, msg = _check("bareearth:evaluate", params)
+    assert not ok and f"({binary_is}) '{bin_path}' holds no object code (1 or 2), only 0 and 255, and its 250 " \
+                      "cell(s) of 255 where" in msg and "(100 % of them, against 0 %" in msg and \
+        "reclassify it to 0 ground and 1 object" in msg, msg
+    with pytest.raises(QgsProcessingException, match="only 0 and 255"):
+        processing_run("bareearth:evaluate", dict(params, OUTPUT_JSON=str(tmp_path / "e.json")))
+    assert not (tmp_path / "e.json").exists()
+    fixed = np.where(binary == 255, 1, binary).astype(np.uint8)
+    fixed[0, :] = 255
+    r = processing_run("bareearth:evaluate", dict(params, **{binary_is: _write(tmp_path / "fixed.tif", fixed)}))
+    assert r["TOTAL"] == 0.0 and r["KAPPA"] == 100.0
+
+
+def test_a_reference_of_bare_ground_beside_nodata_is_still_scored(processing_run, tmp_path):
+    """A reference mask of ground only, its 255 where no truth was taken (the data's edge, not the objects):
+    the check stays silent and the ground is scored (Type I)."""
+    m = np.zeros((40, 40), np.uint8)
+    m[5:9, 5:9] = 1                                          # an object inside the reference's area
+    m[30:34, 30:34] = 1                                      # and one beyond it
+    ref = np.zeros((40, 40), np.uint8)
+    ref[:, 20:] = 255                                        # no truth on the right half
+    ref[5:9, 5:9] = 0                                        # the filter's object there is ground: Type I
+    r = processing_run("bareearth:evaluate", {"MASK": _write(tmp_path / "m.tif", m),
+                                              "REFERENCE_MASK": _write(tmp_path / "r.tif", ref)})
+    assert r["TYPE1"] == pytest.approx(100.0 * 16 / 800)
