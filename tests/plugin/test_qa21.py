@@ -56,3 +56,20 @@ def test_a_reference_of_bare_ground_beside_nodata_is_still_scored(processing_run
     r = processing_run("bareearth:evaluate", {"MASK": _write(tmp_path / "m.tif", m),
                                               "REFERENCE_MASK": _write(tmp_path / "r.tif", ref)})
     assert r["TYPE1"] == pytest.approx(100.0 * 16 / 800)
+
+
+def test_points_with_a_northing_first_header_are_placed_where_they_are(processing_run, tmp_path):
+    """A surveyor's 'N,E,H' file through rasterizepoints: the DSM was built with the northings as eastings (placed at
+    x 5400000 in UTM zone 32, its rows and columns swapped) without a word. The columns are picked by name now."""
+    from osgeo import gdal
+    rng = np.random.default_rng(1)
+    e, n = 500000 + rng.uniform(0, 40, 3000), 5400000 + rng.uniform(0, 20, 3000)
+    pts = tmp_path / "neh.csv"
+    pts.write_text("N,E,H\n" + "\n".join(f"{b:.3f},{a:.3f},{100 + 0.1 * (a - 500000):.3f}" for a, b in zip(e, n)))
+    r = processing_run("bareearth:rasterizepoints", {"INPUT": str(pts), "CRS": "EPSG:32632", "CELL_SIZE_M": 1.0,
+                                                     "OUTPUT": str(tmp_path / "dsm.tif")})
+    ds = gdal.Open(r["OUTPUT"])
+    gt = ds.GetGeoTransform()
+    assert (ds.RasterXSize, ds.RasterYSize) == (40, 20) and 499999 <= gt[0] <= 500000 and 5400020 <= gt[3] <= 5400021
+    z = ds.ReadAsArray()
+    assert z[:, 0].mean() < z[:, -1].mean() - 3            # rises eastwards, by 0.1 m per metre
