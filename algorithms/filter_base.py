@@ -1021,8 +1021,10 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
+        from ..core import memory
         from ..core.pipeline import check_cell_size, check_process_reach, check_relief_file
         try:
+            memory.budget_mb()           # BARE_EARTH_MEMORY_MB 'abc' or 'inf': here, not after the parameters
             check_cell_size(info.cell_size_m)
             if parameters.get(self.PROCESSES) not in (None, ""):
                 check_process_reach(info.path, self.parameterAsInt(parameters, self.PROCESSES, context))

@@ -73,3 +73,15 @@ def test_points_with_a_northing_first_header_are_placed_where_they_are(processin
     assert (ds.RasterXSize, ds.RasterYSize) == (40, 20) and 499999 <= gt[0] <= 500000 and 5400020 <= gt[3] <= 5400021
     z = ds.ReadAsArray()
     assert z[:, 0].mean() < z[:, -1].mean() - 3            # rises eastwards, by 0.1 m per metre
+
+
+@pytest.mark.parametrize("value", ["abc", "inf"])
+def test_a_memory_bound_that_is_no_number_is_refused_in_the_dialog(qgis_app, tmp_path, monkeypatch, value):
+    """BARE_EARTH_MEMORY_MB=abc passed the dialog's check and was refused after the parameters' derivation on a
+    raster over 25 Mcells ('inf': a bare OverflowError there); the check names it now."""
+    src = _write(tmp_path / "dsm.tif", np.zeros((40, 40), np.float32) + np.arange(40, dtype=np.float32))
+    params = {"INPUT": src, "OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    assert _check("bareearth:slopeprofile", params)[0]
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", value)
+    ok, msg = _check("bareearth:slopeprofile", params)
+    assert not ok and f"BARE_EARTH_MEMORY_MB='{value}'" in msg and "megabytes" in msg, msg
