@@ -85,3 +85,40 @@ def test_a_memory_bound_that_is_no_number_is_refused_in_the_dialog(qgis_app, tmp
     monkeypatch.setenv("BARE_EARTH_MEMORY_MB", value)
     ok, msg = _check("bareearth:slopeprofile", params)
     assert not ok and f"BARE_EARTH_MEMORY_MB='{value}'" in msg and "megabytes" in msg, msg
+
+
+def test_a_layer_given_another_crs_than_its_file_is_refused_naming_both(processing_run, tmp_path):
+    """A DSM whose file declares UTM zone 33 for data of zone 32, assigned EPSG:32632 in QGIS (Properties >
+    Source): GDAL read the file's CRS, so the DTM and mask were written in zone 33, 500 km from where the layer
+    is drawn, without a word. The filters, filldtm and evaluate now refuse it in the check, naming both CRSs and
+    the fix; a file without a CRS still takes its layer's."""
+    from qgis.core import QgsCoordinateReferenceSystem, QgsProcessingException, QgsRasterLayer
+    z = np.zeros((40, 40), np.float32) + np.arange(40, dtype=np.float32)
+    path = _write(tmp_path / "dsm.tif", z, epsg=32633)
+    layer = QgsRasterLayer(path, "dsm")
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    assert _check("bareearth:morphological", {"INPUT": layer, **outs})[0]
+    layer.setCrs(QgsCoordinateReferenceSystem("EPSG:32632"))
+    ok, msg = _check("bareearth:morphological", {"INPUT": layer, **outs})
+    assert not ok and "The layer 'dsm' is in EPSG:32632 as QGIS draws it" in msg and "its file declares EPSG:32633" \
+        in msg and f"gdal_edit.py -a_srs EPSG:32632 '{path}'" in msg, msg
+    with pytest.raises(QgsProcessingException, match="its file declares EPSG:32633"):
+        processing_run("bareearth:morphological", {"INPUT": layer, **outs})
+    assert not (tmp_path / "d.tif").exists()
+    mask = QgsRasterLayer(_write(tmp_path / "mask.tif", np.zeros((40, 40), np.uint8), epsg=32633), "mask")
+    mask.setCrs(QgsCoordinateReferenceSystem("EPSG:32632"))
+    ok, msg = _check("bareearth:filldtm", {"INPUT": _write(tmp_path / "s.tif", z, epsg=32633), "MASK": mask,
+                                           "OUTPUT": str(tmp_path / "f.tif")})
+    assert not ok and "The layer 'mask' is in EPSG:32632" in msg, msg
+    ok, msg = _check("bareearth:evaluate", {"MASK": mask, "REFERENCE_MASK": _write(tmp_path / "r.tif", np.zeros(
+        (40, 40), np.uint8), epsg=32633)})
+    assert not ok and "The layer 'mask' is in EPSG:32632" in msg, msg
+    from osgeo import gdal
+    bare = str(tmp_path / "nocrs.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(bare, 40, 40, 1, gdal.GDT_Float32)
+    ds.SetGeoTransform(GT)
+    ds.GetRasterBand(1).WriteArray(z)
+    ds = None
+    free = QgsRasterLayer(bare, "free")
+    free.setCrs(QgsCoordinateReferenceSystem("EPSG:32632"))
+    assert _check("bareearth:morphological", {"INPUT": free, **outs})[0]
