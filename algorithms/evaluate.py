@@ -89,7 +89,10 @@ class EvaluateAlgorithm(BaseAlgorithm):
     def shortHelpString(self):  # noqa: N802
         return tr(
             "<p>Compares a filter's result with truth, in any of three ways (give at least one pair):</p><ul>"
-            "<li><b>MASK</b> against <b>REFERENCE_MASK</b> (codes 0 ground, 1/2 object, 255 ignored).</li>"
+            "<li><b>MASK</b> against <b>REFERENCE_MASK</b> (codes 0 ground, 1/2 object, 255 ignored). A mask "
+            "holding only 0 and 255 whose 255 cells lie mostly on the other mask's objects (a 0/255 binary mask: "
+            "its objects would be left out and the total error would count the ground alone) is refused before "
+            "any work: reclassify it to 0 ground and 1 object.</li>"
             "<li><b>DTM</b> against <b>REFERENCE_DTM</b>: RMSE, mean and max error over all cells, and over "
             "the reference mask's ground cells when a REFERENCE_MASK is given.</li>"
             "<li><b>POINTS</b> (ISPRS text 'x y z class' with class 0 = ground, or a classified LAS/LAZ "
@@ -195,11 +198,17 @@ class EvaluateAlgorithm(BaseAlgorithm):
                     grid.check_has_data(d)
                 except ValueError as exc:
                     raise ValueError(f"{name}: {exc}") from None
+        read = {}
         for m, name in ((mask, "The mask (MASK)"), (ref_mask, "The reference mask (REFERENCE_MASK)")):
             if m is not None:
-                codes = grid.read_mask(m, name)     # codes, not heights: refused now, not read as codes
+                read[m is ref_mask] = codes = grid.read_mask(m, name)   # codes, not heights: refused now
                 if m is ref_mask:
                     ev.check_reference_mask(codes, f"{name} {m.path!r}")
+        if len(read) == 2:     # a 0/255 binary mask: its objects read as nodata, left out of the comparison
+            ev.check_nodata_not_objects(read[False], read[True], f"The mask (MASK) {mask.path!r}",
+                                        "the reference mask")
+            ev.check_nodata_not_objects(read[True], read[False],
+                                        f"The reference mask (REFERENCE_MASK) {ref_mask.path!r}", "the mask")
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
             raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
         if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):

@@ -133,7 +133,31 @@ def raster_path(layer):
     if layer.providerType() != "gdal":
         raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
                                         "first.").format(layer.name(), layer.providerType()))
+    check_layer_crs(layer)
     return layer.source()
+
+
+def _crs_name(crs):
+    return crs.authid() or crs.description() or tr("a custom CRS")
+
+
+def check_layer_crs(layer):
+    """QgsProcessingException when a raster layer was given a CRS in QGIS (Layer Properties > Source) other
+    than the one its file declares: GDAL reads the file's, so the cell size, the heights' unit and the
+    outputs' CRS were the file's, the outputs placed elsewhere than the layer is drawn (a file declaring
+    UTM zone 33 for data of zone 32, assigned 32632 in QGIS: the DTM written in zone 33, no word said).
+    A file without a CRS of its own takes the layer's (:func:`layer_crs_wkt`)."""
+    prov = layer.dataProvider()
+    own = prov.crs() if prov is not None else None
+    if own is None or not own.isValid() or not layer.crs().isValid() or layer.crs() == own:
+        return
+    given = _crs_name(layer.crs())
+    raise QgsProcessingException(tr(
+        "The layer '{}' is in {} as QGIS draws it (a CRS set in its Properties > Source), but its file declares {}, "
+        "which the filters read: the cell size, the heights' unit and the outputs would be the file's, placed "
+        "elsewhere than the layer. Write the CRS into the file (Raster > Projections > Assign Projection, or "
+        "gdal_edit.py -a_srs {} '{}'), or export the layer to a new file, then run again.").format(
+            layer.name(), given, _crs_name(own), given, layer.source()))
 
 
 def layer_nodata_ranges(layer, band):
@@ -1021,8 +1045,10 @@ class FilterAlgorithm(BaseAlgorithm):
         ok, msg, info = check_dsm(layer, band)
         if not ok:
             return False, msg
+        from ..core import memory
         from ..core.pipeline import check_cell_size, check_process_reach, check_relief_file
         try:
+            memory.budget_mb()           # BARE_EARTH_MEMORY_MB 'abc' or 'inf': here, not after the parameters
             check_cell_size(info.cell_size_m)
             if parameters.get(self.PROCESSES) not in (None, ""):
                 check_process_reach(info.path, self.parameterAsInt(parameters, self.PROCESSES, context))

@@ -43,7 +43,8 @@ from .filter_base import (
 POINT_FILE_FILTER = ("Point clouds (*.txt *.csv *.xyz *.pts *.las *.laz);;Text (*.txt *.csv *.xyz *.pts);;"
                      "LAS/LAZ (*.las *.laz);;All files (*.*)")
 POINT_OUTPUT_FILTER = "Text (*.txt);;CSV (*.csv);;LAS (*.las);;LAZ (*.laz)"
-POINTS_HELP = ("Point file: text/CSV 'x y z [class]' (spaces, tabs or commas; one header line allowed; "
+POINTS_HELP = ("Point file: text/CSV 'x y z [class]' (spaces, tabs or commas; one header line allowed, "
+               "naming the axes in any order: x y z, E N H, Easting Northing Elevation, lon lat alt; "
                "the ISPRS format), or LAS/LAZ (needs the Python packages laspy, and lazrs for LAZ: "
                "pip install laspy lazrs).")
 CRS_HELP = ("CRS of the points, overriding the file's (LAS header, or a .prj beside a text file). Feet and "

@@ -132,6 +132,38 @@ def check_reference_mask(codes, what="the reference mask"):
                      + ("2" if asprs else "its ground code") + ").")
 
 
+def check_nodata_not_objects(codes, other, what="the reference mask", other_what="the mask"):
+    """ValueError when a mask without any object code has its nodata (255) on the other mask's objects.
+
+    The masks' cells of 255 are not compared. A binary mask of another tool (0 ground, 255 object, e.g.
+    footprints burnt with 255) then loses every object cell: the comparison counts ground alone and
+    reports a total error of 0 % (Type II and kappa not defined), without a word. Nodata is where the
+    data ends, whatever lies there, so the other mask's objects fill its 255 cells in about the share
+    they fill the cells it calls ground; here they fill most of them (more than half) and more than
+    twice that share. A mask with an object code (1 or 2) is never refused.
+    """
+    c, o = np.asarray(codes), np.asarray(other)
+    if c.shape != o.shape or np.isin(c, (1, 2)).any():
+        return
+    other_data = o != NODATA
+    under_nodata = (c == NODATA) & other_data
+    n = int(under_nodata.sum())
+    if n == 0:
+        return
+    other_objects = np.isin(o, (1, 2))
+    share_nodata = float(other_objects[under_nodata].sum()) / n
+    under_ground = (c == GROUND) & other_data
+    share_ground = float(other_objects[under_ground].sum()) / max(int(under_ground.sum()), 1)
+    if share_nodata <= 0.5 or share_nodata <= 2.0 * share_ground:
+        return
+    raise ValueError(f"{what} holds no object code (1 or 2), only 0 and 255, and its {n} cell(s) of 255 where "
+                     f"{other_what} has data lie on {other_what}'s objects ({100.0 * share_nodata:.0f} % of them, "
+                     f"against {100.0 * share_ground:.0f} % of the cells it calls ground): 255 is nodata, never "
+                     "compared, so every object would be left out and the total error would count the ground "
+                     "alone. If 255 marks objects there (a 0/255 binary mask), reclassify it to 0 ground and 1 "
+                     "object first (Raster calculator: \"mask@1\" = 255).")
+
+
 def compare_masks(mask, truth_mask, valid=None):
     """:func:`confusion` of two masks with the codes 0 ground, 1/2 object, 255 ignored.
 

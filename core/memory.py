@@ -21,6 +21,7 @@ import contextlib
 import contextvars
 import ctypes
 import ctypes.util
+import math
 import os
 
 #: glibc ``mallopt`` parameters (``malloc.h``).
@@ -163,6 +164,27 @@ def budget_given(env=None):
     return bool(env.get(BUDGET_ENV, "").strip())
 
 
+def budget_mb(env=None):
+    """The megabytes ``BARE_EARTH_MEMORY_MB`` gives (in ``env``, default this process's environment), None
+    when it is not set. ValueError naming the variable when it is no positive finite number: read only when
+    a raster of more than ``pipeline.IN_MEMORY_CELLS`` was planned, 'abc' was refused after the parameters'
+    derivation and 'inf' failed there with a bare OverflowError; the filters' checks and ``run_file`` call
+    this before any work."""
+    env = os.environ if env is None else env
+    given = env.get(BUDGET_ENV, "").strip()
+    if not given:
+        return None
+    try:
+        mb = float(given)
+    except ValueError:
+        raise ValueError(f"{BUDGET_ENV}={given!r} is not a number of megabytes: give one (e.g. 4000), or unset "
+                         "it for half the memory available.") from None
+    if not (mb > 0 and math.isfinite(mb)):
+        raise ValueError(f"{BUDGET_ENV}={given!r}: give a positive number of megabytes (e.g. 4000), or unset it "
+                         "for half the memory available.")
+    return mb
+
+
 def window_budget(env=None, held=0):
     """Bytes the windows of one run may take together: ``BARE_EARTH_MEMORY_MB`` megabytes when set
     (in ``env``, default this process's environment) less ``held``, what the run holds outside its
@@ -170,15 +192,8 @@ def window_budget(env=None, held=0):
     at least 0: the variable bounds the whole run's memory above what the process held before it.
     Unset: :data:`BUDGET_SHARE` of :func:`available_memory` (what the run holds is already not
     available; :data:`FALLBACK_BUDGET` when that is unknown)."""
-    env = os.environ if env is None else env
-    given = env.get(BUDGET_ENV, "").strip()
-    if given:
-        try:
-            mb = float(given)
-        except ValueError:
-            raise ValueError(f"{BUDGET_ENV}={given!r} is not a number of megabytes.") from None
-        if not mb > 0:
-            raise ValueError(f"{BUDGET_ENV}={given!r}: give a positive number of megabytes.")
+    mb = budget_mb(env)
+    if mb is not None:
         return max(0, int(mb * (1 << 20)) - int(held))
     avail = available_memory()
     return int(BUDGET_SHARE * avail) if avail else FALLBACK_BUDGET

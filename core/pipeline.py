@@ -708,6 +708,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     """
     meth = as_method(method)
     check_run_counts(block, workers, processes)
+    memory.budget_mb()          # a BARE_EARTH_MEMORY_MB that is no number: refused now, not after the parameters
     info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)
     check_cell_size(info.cell_size_m)
     check_process_reach(info.path, processes)

@@ -126,8 +126,9 @@ def read_points(path, crs=None):
     path : str or path-like
         ``.las`` / ``.laz`` are read with laspy; anything else as text, one point per
         line: ``x y z`` or ``x y z class``, separated by spaces, tabs or commas. One header
-        line is allowed (if it names the columns, e.g. ``X,Y,Z,Classification,Intensity``,
-        the columns are picked by name); blank lines are skipped.
+        line is allowed (if it names the columns, e.g. ``X,Y,Z,Classification,Intensity`` or
+        ``N,E,H`` / ``Northing,Easting,Elevation`` / ``lat,lon,alt``, the columns are picked by
+        name, :func:`_axis_columns`); blank lines are skipped.
     crs : str, optional
         Overrides the file's CRS: anything GDAL understands (``"EPSG:25832"``, WKT,
         PROJ string). For text files without it, a sidecar ``<path>.prj`` or
@@ -168,6 +169,10 @@ _SEPARATORS = bytes.maketrans(b"\t,;\r\v\f\"", b"       ")   # newlines stay; a 
 _NUMBER_BYTES = np.zeros(256, dtype=bool)
 _NUMBER_BYTES[np.frombuffer(b"0123456789.+-eE \n", dtype=np.uint8)] = True
 _CLASS_NAMES = ("class", "classification", "label", "cls", "c")
+#: A header's names of the axes besides x, y, z (surveyors' N E H, a GPS's lat lon alt): the columns in any order.
+_AXIS_NAMES = {"x": ("x", "e", "east", "easting", "lon", "long", "longitude"),
+               "y": ("y", "n", "north", "northing", "lat", "latitude"),
+               "z": ("z", "h", "height", "elevation", "elev", "alt", "altitude")}
 # numpy >= 1.23 has a C loadtxt that validates while it parses (faster than fromstring)
 _FAST_LOADTXT = tuple(int(v) for v in np.__version__.split(".")[:2]) >= (1, 23)
 
@@ -237,8 +242,9 @@ def _read_text(path):
                          f"have {ncols}; fix the header or remove it." + comma_hint)
 
     # Pick the columns.
-    if names is not None and {"x", "y", "z"} <= set(names):
-        cols = [names.index("x"), names.index("y"), names.index("z")]
+    named = _axis_columns(path, header, names) if names is not None else None
+    if named is not None:
+        cols = named
         cls_col = next((names.index(c) for c in _CLASS_NAMES if c in names), None)
     else:
         if ncols not in (3, 4):
@@ -269,6 +275,36 @@ def _read_text(path):
     return PointCloud(x=x, y=y, z=z, classification=classification, crs=None,
                       units_to_metre=1.0, attrs={"header": header, "delimiter": delim},
                       source_format="text")
+
+
+def _axis_columns(path, header, names):
+    """The x, y, z columns a header line names (:data:`_AXIS_NAMES`: x y z itself first), or None to read
+    them in the order x y z.
+
+    A header naming the axes in another order (``N,E,H``, ``Northing,Easting,Elevation``, ``lat,lon,alt``)
+    was read x y z by position: northings as eastings, the points mirrored about the diagonal and placed
+    elsewhere without a word. ValueError when the header names an axis twice, or names some axes where the
+    order x y z would read another.
+    """
+    found = {}
+    for axis, synonyms in _AXIS_NAMES.items():
+        exact = [i for i, n in enumerate(names) if n == axis]
+        cols = exact[:1] or [i for i, n in enumerate(names) if n in synonyms]
+        if len(cols) > 1:
+            raise ValueError(f"{path}: the header line {header!r} names the {axis} axis {len(cols)} times ("
+                             + ", ".join(repr(names[i]) for i in cols) + "): name its columns x, y, z (the others "
+                             "anything else).")
+        if cols:
+            found[axis] = cols[0]
+    if len(found) == 3 and len(set(found.values())) == 3:
+        return [found["x"], found["y"], found["z"]]
+    wrong = sorted((i, axis) for axis, i in found.items() if i != "xyz".index(axis))
+    if wrong:
+        raise ValueError(f"{path}: the header line {header!r} names " + " and ".join(
+            f"column {i + 1} ({names[i]!r}) as {axis}" for i, axis in wrong) + ", but not all three axes, and read "
+            "in the order x y z " + ("that column is" if len(wrong) == 1 else "those columns are") + " another "
+            "axis: name the three (x y z, or easting northing height).")
+    return None
 
 
 def _utf8_bytes(path, size=-1):

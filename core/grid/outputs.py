@@ -1059,7 +1059,8 @@ def above_nodata(nodata):
     eps = np.finfo(np.float32).eps
     v = nd
     for _ in range(64):
-        v = np.nextafter(v, np.float32(np.inf))
+        with np.errstate(over="ignore"):    # above the largest float32 (ESRI's -3.4e38 negated): inf, quietly
+            v = np.nextafter(v, np.float32(np.inf))
         if abs(float(v) - float(nd)) >= 4.0 * eps * abs(float(v) + float(nd)):
             break
     return v

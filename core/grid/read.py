@@ -779,11 +779,12 @@ def check_has_data(info, max_cells=4_000_000):
 
 
 #: Values software writes for missing cells (ESRI and most GIS -9999, Int16 rasters -32767 and
-#: -32768, older exports -99999, unsigned rasters and many exports' background 0; above the
-#: heights: 9999, the largest Int16 and UInt16): when a raster does not declare one, its cells
-#: read as heights. 0 is also sea level: only a 0 standing further below the other heights than
-#: they span is named (a coast's sea beside its land is not).
-COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, 0.0, 9999.0, 32767.0, 65535.0)
+#: -32768, older exports -99999, -999 of many exports, instruments and the netCDF/ASCII grids of
+#: agencies, unsigned rasters and many exports' background 0; above the heights: 9999, the
+#: largest Int16 and UInt16): when a raster does not declare one, its cells read as heights. 0 is
+#: also sea level: only a 0 standing further below the other heights than they span is named (a
+#: coast's sea beside its land is not).
+COMMON_NODATA = (-9999.0, -99999.0, -999.0, -32767.0, -32768.0, 0.0, 9999.0, 32767.0, 65535.0)
 
 
 def undeclared_nodata_warning(info, z):

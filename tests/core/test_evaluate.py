@@ -380,6 +380,28 @@ def test_check_reference_mask_needs_a_ground_cell():
         check_reference_mask(np.array([[1, 1]], np.uint8))
 
 
+def test_check_nodata_not_objects_refuses_a_binary_mask_exactly():
+    """A 0/255 mask (255 = object, another tool's convention) left every object out as nodata: total 0 %."""
+    from bare_earth.core.evaluate import check_nodata_not_objects
+    other = np.array([[0, 0, 1, 1], [0, 0, 1, 1], [0, 0, 0, 255]], np.uint8)
+    binary = np.array([[0, 0, 255, 255], [0, 0, 255, 255], [0, 0, 0, 255]], np.uint8)
+    with pytest.raises(ValueError, match=r"only 0 and 255, and its 4 cell\(s\) of 255 where the mask has data lie "
+                                         r"on the mask's objects \(100 % of them, against 0 % of the cells it calls "
+                                         r"ground\).*\"mask@1\" = 255"):
+        check_nodata_not_objects(binary, other, "the reference mask", "the mask")
+    check_nodata_not_objects(np.where(binary == 255, 1, binary).astype(np.uint8), other)   # 0/1: compared
+    check_nodata_not_objects(other, binary)               # the mask with objects: its own 255 matches nothing
+    # nodata where the data ends, whatever lies there: the other's objects in it as under its ground
+    edge = np.array([[0, 1, 255, 255], [0, 0, 255, 255], [1, 0, 0, 0]], np.uint8)
+    under = np.array([[0, 1, 1, 0], [0, 0, 0, 0], [1, 0, 0, 0]], np.uint8)
+    check_nodata_not_objects(np.where(edge == 1, 0, edge).astype(np.uint8), under)      # 1 of 4 objects: 25 %
+    # more than half but not twice the share under its ground: no sign of 255 marking objects
+    g = np.array([[0, 0, 255, 255, 255]], np.uint8)
+    check_nodata_not_objects(g, np.array([[1, 0, 1, 1, 0]], np.uint8))   # 67 % under 255, 50 % under 0
+    with pytest.raises(ValueError, match=r"its 3 cell\(s\) of 255 .*\(67 % of them, against 0 %"):
+        check_nodata_not_objects(g, np.array([[0, 0, 1, 1, 0]], np.uint8))
+
+
 def test_dtm_errors_breakdown_exact():
     """benchmarks/dtm_errors.py: each point counted once, by kind, cell state and members' vote."""
     bench = _load_benchmark("dtm_errors")

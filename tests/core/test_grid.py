@@ -726,6 +726,8 @@ def test_vertical_unit_factor():
 @pytest.mark.parametrize("value,dtype,declared,warned", [
     (-9999.0, np.float32, None, True),
     (-32768.0, np.int16, None, True),
+    (-999.0, np.float32, None, True),            # QA21: -999 (many exports' nodata) was filtered without a word
+    (-999.0, np.int16, None, True),
     (-9999.0, np.float32, -9999.0, False),       # declared: nodata, nothing to say
     (-9999.0, np.float32, -32768.0, True),       # another value declared
     (65535.0, np.uint16, None, True),            # above the heights: UInt16's largest

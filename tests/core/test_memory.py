@@ -50,9 +50,10 @@ def test_window_budget_from_the_environment_or_half_the_memory_available(monkeyp
     """The budget of a run's windows: BARE_EARTH_MEMORY_MB when set (refused when not a positive
     number), else half of MemAvailable, else 2 GB when the memory available is unknown."""
     assert memory.window_budget({"BARE_EARTH_MEMORY_MB": "300"}) == 300 * 2 ** 20
-    for bad in ("lots", "0", "-5"):
+    for bad in ("lots", "0", "-5", "inf", "1e400", "nan"):   # inf: a bare OverflowError before QA21
         with pytest.raises(ValueError, match="BARE_EARTH_MEMORY_MB"):
             memory.window_budget({"BARE_EARTH_MEMORY_MB": bad})
+    assert memory.budget_mb({"BARE_EARTH_MEMORY_MB": " 800 "}) == 800.0 and memory.budget_mb({}) is None
     monkeypatch.setattr(memory, "available_memory", lambda: 8 << 30)
     assert memory.window_budget({}) == memory.window_budget({"BARE_EARTH_MEMORY_MB": " "}) == 4 << 30
     monkeypatch.setattr(memory, "available_memory", lambda: None)

@@ -1068,6 +1068,36 @@ def test_with_output_nodata_exact():
     assert grid.moved_off_nodata_message(0, 300.0) is None
 
 
+def test_with_output_nodata_at_the_largest_float32_is_quiet():
+    """A DSM declaring ESRI's nodata -3.4028235e+38 (the lowest float32) printed numpy's "RuntimeWarning: overflow
+    encountered in nextafter" into every run's log (the step beyond the largest float32, looking for the band
+    below it): that step is now infinity without a word, and the cells are written as before."""
+    import warnings
+    top = float(np.finfo(np.float32).max)
+    for nodata in (-top, top):
+        a = np.array([np.nan, 300.0, -300.0], np.float32)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert grid.with_output_nodata(a, nodata) == 0
+            assert np.isinf(grid.above_nodata(top))
+        np.testing.assert_array_equal(a, np.array([nodata, 300.0, -300.0], np.float32))
+
+
+@pytest.mark.parametrize("value", ["abc", "inf", "800MB"])
+def test_a_memory_bound_that_is_no_number_is_refused_before_any_work(tmp_path, monkeypatch, value):
+    """BARE_EARTH_MEMORY_MB was read only when a raster over IN_MEMORY_CELLS was planned, after the parameters'
+    derivation (a minute on such a raster): 'abc' was refused there, 'inf' failed with a bare OverflowError; a
+    smaller raster ran ignoring it. run_file refuses it first: no parameter derived, nothing written."""
+    monkeypatch.setenv("BARE_EARTH_MEMORY_MB", value)
+    derived = []
+    meth = Method(name="short", run=_run, resolve=lambda z, c, **kw: derived.append(1) or _resolve(z, c, **kw),
+                  halo=lambda p, c: 1, params=ABOVE.params)
+    src = write(tmp_path, np.zeros((20, 20), np.float32))
+    with pytest.raises(ValueError, match=rf"BARE_EARTH_MEMORY_MB='{value}'.*megabytes"):
+        pipeline.run_file(meth, src, outputs(tmp_path, "mask"))
+    assert not derived and sorted(p.name for p in tmp_path.iterdir()) == ["dsm.tif"]
+
+
 def test_blocks_budget_leaves_out_what_the_run_holds_beside_its_windows(tmp_path, monkeypatch):
     """BARE_EARTH_MEMORY_MB bounded the windows alone; what the run held beside them when the blocks
     were planned (the input's window the parameters came from, rasterised layers, GDAL's block cache)

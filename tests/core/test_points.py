@@ -517,6 +517,34 @@ def test_a_header_written_as_a_comment_names_the_columns(tmp_path, text, parser)
     assert c.classification is None
 
 
+@pytest.mark.parametrize("header", ["N,E,H", "Northing,Easting,Elevation", "lat,lon,alt", "y,x,z",
+                                    "North East Height", "Latitude;Longitude;Altitude"])
+def test_a_header_naming_the_axes_in_another_order_picks_them_by_name(tmp_path, header, parser):
+    """Surveyors' 'N,E,H' and a GPS's 'lat,lon,alt' were read x y z by position: the northings as eastings (the
+    points mirrored about the diagonal, placed 4.9 km away in UTM, without a word); only x, y, z were names."""
+    sep = ";" if ";" in header else ("," if "," in header else " ")
+    c = read_points(_write(tmp_path, header + "\n" + "\n".join(sep.join(r) for r in (("5400001", "500002", "103"),
+                                                                                     ("5400004", "500005", "106"))),
+                           "p.csv"))
+    np.testing.assert_array_equal(c.x, [500002, 500005])
+    np.testing.assert_array_equal(c.y, [5400001, 5400004])
+    np.testing.assert_array_equal(c.z, [103, 106])
+
+
+def test_a_header_naming_the_axes_partly_or_twice_is_refused(tmp_path, parser):
+    """x y z by position read 'n,e,quality' as x = northing; a header naming the axis of a column refuses a
+    position-read contradicting it, and an axis named twice; 'e,n,quality' (the order x y z) and 'a,b,c' read
+    as before."""
+    with pytest.raises(ValueError, match=r"names column 1 \('n'\) as y and column 2 \('e'\) as x, but not "
+                                         r"all three axes.*those columns are another axis.*easting northing height"):
+        read_points(_write(tmp_path, "n,e,quality\n1,2,3\n4,5,6\n"))
+    with pytest.raises(ValueError, match=r"names the z axis 2 times \('h', 'elevation'\)"):
+        read_points(_write(tmp_path, "e,n,h,elevation\n1,2,3,4\n4,5,6,7\n"))
+    for head in ("e,n,quality", "a,b,c", "x,y,z,z"):
+        c = read_points(_write(tmp_path, head + "\n1,2,3" + (",3" if head.count(",") == 3 else "") + "\n"))
+        assert (c.x[0], c.y[0], c.z[0]) == (1, 2, 3)
+
+
 def test_utf16_text_points_read_as_text(tmp_path):
     """Points saved as UTF-16 text (Excel's "Unicode Text", Windows PowerShell 5's ``>`` and
     Out-File): their NUL bytes were taken for binary data and the file refused as "a raster DSM
