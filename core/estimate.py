@@ -1677,6 +1677,10 @@ def raised_region_window(z, cell_size, height_m, min_window_m, max_width_m=RAISE
     return float(min(max_width_m, RAISED_REGION_MARGIN * wide + 2.0 * max(float(cell_size[0]), float(cell_size[1]))))
 
 
+#: Cells per band of :func:`joined_runs`' height differences (a float buffer of a quarter of a million cells).
+_JOIN_BAND_CELLS = 1 << 18
+
+
 def joined_runs(z, nodes, step_m, diagonal=False):
     """The parts of the cells ``nodes`` (a boolean array of ``z``'s shape) joined across the
     4-neighbour edges (with ``diagonal``, the 8-neighbour edges) whose heights ``z`` differ by at
@@ -1696,9 +1700,19 @@ def joined_runs(z, nodes, step_m, diagonal=False):
     ([0, 0, 1, 2, 3, 4], [0, 1, 0, 2, 1], [0, 2, 3, 4, 5])
     """
     h, w = z.shape
+    # the differences in bands of rows into a cache-sized buffer: no raster-sized float temporary (at 16 Mcells a
+    # new 64 MB array each, whose pages the kernel zeroes on first touch), the same float32 operations per cell
+    rows = max(1, _JOIN_BAND_CELLS // max(1, w))
+    diff = np.empty((min(rows, h), w), z.dtype)
     with np.errstate(invalid="ignore"):
         def joined(a, b, na, nb):
-            e = np.abs(a - b) <= step_m
+            e = np.empty(a.shape, bool)
+            for r0 in range(0, a.shape[0], rows):
+                r1 = min(a.shape[0], r0 + rows)
+                d = diff[:r1 - r0, :a.shape[1]]
+                np.subtract(a[r0:r1], b[r0:r1], out=d)
+                np.abs(d, out=d)
+                np.less_equal(d, step_m, out=e[r0:r1])
             e &= na
             e &= nb
             return e

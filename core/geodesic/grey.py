@@ -339,13 +339,15 @@ def running_extreme(a, size, axis, op, pad):
     return op(_axis_slice(m, axis, 0, n), _axis_slice(m, axis, size - length, size - length + n))
 
 
-def rect_filter(a, size, op, pad):
+def rect_filter(a, size, op, pad, out=None):
     """Separable running ``op`` over a ``size = (rows, cols)`` rectangle.
 
     3 x 3 and 5 x 5 windows (every full-resolution window of the filter) run as one banded
-    pass (:func:`filter3x3`, :func:`filter5x5`)."""
+    pass (:func:`filter3x3`, :func:`filter5x5`), into ``out`` when given (``a``'s shape and dtype,
+    C-contiguous, not ``a``: a buffer the caller no longer needs, whose pages are already the
+    process's); other windows ignore ``out`` (the result is then a new array)."""
     if a.ndim == 2 and min(a.shape) >= 2 and tuple(size) in ((3, 3), (5, 5)):
-        return filter3x3(a, op, pad) if tuple(size) == (3, 3) else filter5x5(a, op, pad)
+        return filter3x3(a, op, pad, out) if tuple(size) == (3, 3) else filter5x5(a, op, pad, out)
     return running_extreme(running_extreme(a, size[1], 1, op, pad), size[0], 0, op, pad)
 
 
@@ -375,7 +377,10 @@ def _open_close(z, valid, size, first, second, progress, hanging):
     if valid is not None and not valid.all():
         e[e == out] = -out
     report(progress, 0.5)
-    r = rect_filter(e, size, second, -out)
+    # the second pass into the first's input when that is this function's own copy (nodata filled, or the hanging
+    # windows' padded surface): no new raster-sized array, whose pages the kernel would zero (the same values)
+    own = a is not z and a.dtype == e.dtype and a.shape == e.shape and a.flags.c_contiguous
+    r = rect_filter(e, size, second, -out, out=a if own else None)
     if hanging:
         rh, rw = size[0] // 2, size[1] // 2
         r = r[rh:rh + z.shape[0], rw:rw + z.shape[1]]

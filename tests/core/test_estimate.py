@@ -1544,3 +1544,23 @@ def test_above_chords_refuses_bad_input():
         est.above_chords(np.zeros((3, 3)), 1, -0.1)
     with pytest.raises(ValueError, match="margin_m"):
         est.above_chords(np.zeros((3, 3)), 1, np.zeros((2, 2)))
+
+
+@pytest.mark.parametrize("diagonal", [False, True])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_joined_runs_in_bands_equals_one_band(monkeypatch, diagonal, dtype):
+    """The height differences of :func:`est.joined_runs` taken in bands of rows (down to one row a band) give the
+    runs and parts of the whole raster at once (the same float operations per cell), with NaN and at the edges."""
+    rng = np.random.default_rng(12)
+    z = np.round(rng.random((37, 23)) * 6).astype(np.float64)
+    if dtype != np.int16:
+        z[rng.random(z.shape) < 0.05] = np.nan
+    z = z.astype(dtype)
+    nodes = rng.random(z.shape) > 0.2
+    monkeypatch.setattr(est, "_JOIN_BAND_CELLS", 1 << 40)
+    want = est.joined_runs(z, nodes, 1.5, diagonal=diagonal)
+    for cells in (1, 23, 5 * 23 + 7):
+        monkeypatch.setattr(est, "_JOIN_BAND_CELLS", cells)
+        got = est.joined_runs(z, nodes, 1.5, diagonal=diagonal)
+        for g, w in zip(got, want):
+            assert np.array_equal(g, w)
