@@ -122,3 +122,30 @@ def test_a_layer_given_another_crs_than_its_file_is_refused_naming_both(processi
     free = QgsRasterLayer(bare, "free")
     free.setCrs(QgsCoordinateReferenceSystem("EPSG:32632"))
     assert _check("bareearth:morphological", {"INPUT": free, **outs})[0]
+
+
+def test_a_layer_given_the_same_crs_spelt_otherwise_is_accepted(processing_run, tmp_path):
+    """The CRS check compares systems, not their spelling (QGIS's own equality identifies the WKT): a file
+    whose WKT names UTM 32N under its own name, without an EPSG code (another tool's WKT), assigned
+    EPSG:32632 in QGIS is the same system and runs; the same file assigned zone 33 is refused."""
+    from osgeo import gdal, osr
+    from qgis.core import QgsCoordinateReferenceSystem, QgsRasterLayer
+    z = np.zeros((40, 40), np.float32) + np.arange(40, dtype=np.float32)
+    path = str(tmp_path / "esri.tif")
+    ds = gdal.GetDriverByName("GTiff").Create(path, 40, 40, 1, gdal.GDT_Float32)
+    ds.SetGeoTransform(GT)
+    srs = osr.SpatialReference()
+    srs.SetProjCS("My UTM 32 north")
+    srs.SetWellKnownGeogCS("WGS84")
+    srs.SetUTM(32, True)
+    ds.SetProjection(srs.ExportToWkt())
+    ds.GetRasterBand(1).WriteArray(z)
+    ds = None
+    layer = QgsRasterLayer(path, "esri")
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    layer.setCrs(QgsCoordinateReferenceSystem("EPSG:32632"))
+    ok, msg = _check("bareearth:morphological", {"INPUT": layer, **outs})
+    assert ok, msg
+    layer.setCrs(QgsCoordinateReferenceSystem("EPSG:32633"))
+    ok, msg = _check("bareearth:morphological", {"INPUT": layer, **outs})
+    assert not ok and "The layer 'esri' is in EPSG:32633" in msg, msg
