@@ -325,6 +325,14 @@ def test_scan_edge_margin_over_the_ground_trend_level_ground():
     # the terrain's rise from the reference stays the floor: alpha_g below alpha_t (a user's
     # value) still accepts the terrain's slope over a cell
     assert _scan1([0.0, 0.0, 0.0, 0.0, 0.2], 0.1, 0.2, 0.0) == [False] * 5
+    # the edge keeps at least the ground's micro-relief (5 degrees, the derived alpha_g's
+    # floor) over level ground: tan_g 0.15, tan_t 0.05 leave 0.1 (0.09 accepted, 0.11 not) ...
+    micro = float(np.tan(np.radians(5.0)))
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.09], 0.15, 0.05, 0.0) == [False] * 5
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.11], 0.15, 0.05, 0.0) == [False] * 4 + [True]
+    # ... and alpha_g at that floor keeps all of it (0.08 of 0.0875 accepted, not 0.0875 - 0.05)
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.08], micro, 0.05, 0.0) == [False] * 5
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.095], micro, 0.05, 0.0) == [False] * 4 + [True]
 
 
 def hillside_scene(cell, extent_m=160.0, deg=32.0, seed=3, noise_m=0.05):
