@@ -234,21 +234,23 @@ def _scan1(values, tan_g, tan_t, dh0, init_cells=1, edge_cells=1):
 
 
 def test_scan_tolerance_is_the_larger_of_edge_and_terrain_rise_not_their_sum():
-    # tan_g 0.5, tan_t 0.1, dh0 0: d cells after the reference (0 at index 1) the tolerance
-    # is max(0.5, 0.1 d). After the 3 m step, 0.55 (d = 2) and 0.65 (d = 3) are above 0.5:
-    # rejected; 0.45 is ground again. The old rule added the two (0.5 + 0.1 (d - 1): 0.6,
-    # 0.7) and accepted them.
-    z = [0.0, 0.0, 3.0, 0.55, 0.65, 0.45, 0.5]
+    # tan_g 0.5, tan_t 0.1, dh0 0, level ground: d cells after the reference (0 at index 1)
+    # the tolerance is max(0.5 - 0.1, 0.1 d) (the edge's margin over the level ground's
+    # continuation, alpha_g - alpha_t). After the 3 m step, 0.45 (d = 2) and 0.55 (d = 3)
+    # are above 0.4: rejected; 0.35 is ground again. The old rule added the two
+    # (0.4 + 0.1 (d - 1): 0.5, 0.6) and accepted them.
+    z = [0.0, 0.0, 3.0, 0.45, 0.55, 0.35, 0.5]
     assert _scan1(z, 0.5, 0.1, 0.0) == [False, False, True, True, True, False, False]
     # after a long object the terrain's rise takes over: 0.55 m at d = 6 is within 0.6
     assert _scan1([0.0, 0.0, 3, 3, 3, 3, 3, 0.55], 0.5, 0.1, 0.0) == [False, False] + [True] * 5 + [False]
     assert _scan1([0.0, 0.0, 3, 3, 3, 3, 3, 0.65], 0.5, 0.1, 0.0) == [False, False] + [True] * 6
     # an edge run of 2 cells: the paper's slope test 0.5 per cell over it (1.0 m at d = 2)
     assert _scan1(z, 0.5, 0.1, 0.0, edge_cells=2) == [False, False, True, False, False, False, False]
-    # dh0 is added to every test: with 0.2 m, 0.55 is within 0.2 + 0.5
+    # dh0 is added to every test: with 0.2 m, 0.45 is within 0.2 + 0.4
     assert _scan1(z, 0.5, 0.1, 0.2) == [False, False, True, False, False, False, False]
-    # right after an accepted cell the test is the edge's: 0.7 <= 0.2 + 0.5 from 0.0, 1.5 is not
-    assert _scan1([0.0, 0.0, 0.7, 1.5], 0.5, 0.1, 0.2) == [False, False, False, True]
+    # right after an accepted cell the test is the edge's: 0.55 <= 0.2 + 0.5 - 0.1 from the
+    # level 0.0; 1.5 is not (0.95 above 0.55, the ground rising: 0.2 + 0.5)
+    assert _scan1([0.0, 0.0, 0.55, 1.5], 0.5, 0.1, 0.2) == [False, False, False, True]
 
 
 def test_scan_coming_down_off_an_object_reaches_the_ground_at_the_bottom_of_the_descent():
@@ -260,7 +262,7 @@ def test_scan_coming_down_off_an_object_reaches_the_ground_at_the_bottom_of_the_
     # ground going on down at a slope below alpha_g (0.4 per cell) is the ground: accepted
     assert _scan1(roof + [1.0, 0.6, 0.2], 0.5, 0.1, 0.0) == [False, False] + [True] * 12 + [False] * 3
     # only a re-entry is held: ground at the top of a terrain step stays ground
-    assert _scan1([0.0, 0.0, 0.0, 2.0 - 1.5, -1.5, -1.5], 0.5, 0.1, 0.0) == [False] * 6
+    assert _scan1([0.0, 0.0, 0.0, 0.35, -1.5, -1.5], 0.5, 0.1, 0.0) == [False] * 6
     # a profile's last cell has no next one: the foot is accepted as before
     assert _scan1(roof + [1.0], 0.5, 0.1, 0.0) == [False, False] + [True] * 12 + [False]
 
@@ -288,22 +290,49 @@ def test_wall_foot_of_mixed_cells_is_part_of_the_building():
 
 
 def test_scan_edge_test_along_the_ground_fall_before_the_reference():
-    # tan_g 0.6, tan_t 0.2, dh0 0: ground falling 0.2 m a cell, then a cell 0.45 m above the
-    # last ground: 0.65 above the ground's continuation, more than the edge's 0.6: rejected
-    # (it was accepted from the last ground's level); 0.35 above it (0.55 above the
-    # continuation) is not
-    assert _scan1([1.0, 0.8, 0.6, 0.4, 0.85], 0.6, 0.2, 0.0) == [False] * 4 + [True]
-    assert _scan1([1.0, 0.8, 0.6, 0.4, 0.75], 0.6, 0.2, 0.0) == [False] * 5
-    # going up the slope nothing changes: 0.55 above the last ground is within 0.6
+    # tan_g 0.6, tan_t 0.2, dh0 0: ground falling 0.2 m a cell, then a cell 0.25 m above the
+    # last ground: 0.45 above the ground's continuation, more than the edge's margin over it
+    # (0.6 - 0.2): rejected (it was accepted from the last ground's level); 0.15 above it
+    # (0.35 above the continuation) is not
+    assert _scan1([1.0, 0.8, 0.6, 0.4, 0.65], 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    assert _scan1([1.0, 0.8, 0.6, 0.4, 0.55], 0.6, 0.2, 0.0) == [False] * 5
+    # going up the slope at tan_t nothing changes: 0.55 above the last ground is within 0.6
     assert _scan1([0.0, 0.2, 0.4, 0.6, 1.15], 0.6, 0.2, 0.0) == [False] * 5
-    # the fall is the ground's own (0.1 a cell: 0.55 rejected, 0.45 not) ...
-    assert _scan1([0.3, 0.2, 0.1, 0.0, 0.55], 0.6, 0.2, 0.0) == [False] * 4 + [True]
-    assert _scan1([0.3, 0.2, 0.1, 0.0, 0.45], 0.6, 0.2, 0.0) == [False] * 5
+    # the fall is the ground's own (0.1 a cell: 0.35 rejected, 0.25 not) ...
+    assert _scan1([0.3, 0.2, 0.1, 0.0, 0.35], 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    assert _scan1([0.3, 0.2, 0.1, 0.0, 0.25], 0.6, 0.2, 0.0) == [False] * 5
     # ... at most the terrain's slope (1 m a cell taken as 0.2), and the terrain's rise from
     # the reference stays allowed: the far side of a valley rising at tan_t is ground
-    assert _scan1([3.0, 2.0, 1.0, 0.0, 0.45], 0.6, 0.2, 0.0) == [False] * 4 + [True]
-    assert _scan1([3.0, 2.0, 1.0, 0.0, 0.35], 0.6, 0.2, 0.0) == [False] * 5
+    assert _scan1([3.0, 2.0, 1.0, 0.0, 0.25], 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    assert _scan1([3.0, 2.0, 1.0, 0.0, 0.2], 0.6, 0.2, 0.0) == [False] * 5
     assert _scan1([0.8, 0.5, 0.25, 0.0, 0.3], 0.3, 0.3, 0.0) == [False] * 5
+
+
+def test_scan_edge_margin_over_the_ground_trend_level_ground():
+    """The ground's part of the edge's allowance is its own trend before the reference, not
+    the terrain's slope wherever it did not fall: along a contour of a hillside (level ground)
+    a crown's edge must rise alpha_g - alpha_t above the level, where the ground rising at
+    alpha_t gives alpha_g above the last ground (ISPRS samp11: shrubs 0.5-1 m high on 21-30
+    degree slopes were accepted by the profiles along the contours)."""
+    # tan_g 0.6, tan_t 0.2, dh0 0: 0.5 m above level ground is more than 0.6 - 0.2 (the old
+    # rule allowed 0.6 from any ground that did not fall) ...
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.5], 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.4], 0.6, 0.2, 0.0) == [False] * 5
+    # ... and is within it above ground rising at tan_t (0.2 a cell)
+    assert _scan1([0.0, 0.2, 0.4, 0.6, 1.1], 0.6, 0.2, 0.0) == [False] * 5
+    # ground rising faster (0.3 a cell) counts as tan_t: 0.65 above it is not within 0.6
+    assert _scan1([0.0, 0.3, 0.6, 0.9, 1.55], 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    # the terrain's rise from the reference stays the floor: alpha_g below alpha_t (a user's
+    # value) still accepts the terrain's slope over a cell
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.2], 0.1, 0.2, 0.0) == [False] * 5
+    # the edge keeps at least the ground's micro-relief (5 degrees, the derived alpha_g's
+    # floor) over level ground: tan_g 0.15, tan_t 0.05 leave 0.1 (0.09 accepted, 0.11 not) ...
+    micro = float(np.tan(np.radians(5.0)))
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.09], 0.15, 0.05, 0.0) == [False] * 5
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.11], 0.15, 0.05, 0.0) == [False] * 4 + [True]
+    # ... and alpha_g at that floor keeps all of it (0.08 of 0.0875 accepted, not 0.0875 - 0.05)
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.08], micro, 0.05, 0.0) == [False] * 5
+    assert _scan1([0.0, 0.0, 0.0, 0.0, 0.095], micro, 0.05, 0.0) == [False] * 4 + [True]
 
 
 def hillside_scene(cell, extent_m=160.0, deg=32.0, seed=3, noise_m=0.05):
@@ -1283,3 +1312,48 @@ def test_roof_filling_the_rasters_corner_is_an_object():
     m = sp.filter_slope_profile(z, 1.0, **PARAMS).mask
     assert (m[~ground] == OBJECT).all()               # 89 % without the rule
     assert (m[ground] == GROUND).all()
+
+
+def test_stepped_runs_stand_on_steps_at_both_ends_beyond_one_cell_holes():
+    one = np.zeros((4, 9), bool)
+    one[:, 3:6] = True
+    z = np.zeros((4, 9), np.float32)
+    z[:, 3:6] = 1.0
+    z[1, 6] = 0.8                      # row 1: the cell after the run is 0.2 below its end
+    z[2, 7] = 2.0                      # row 2: the second cell after it is higher: no step
+    z[3, 1] = 5.0                      # row 3: a one-cell hole before it, ground higher beyond
+    z[3, 2] = 0.0
+    got = sp._stepped_runs(one, z, 0.5, 1, 3)
+    assert got[0].tolist() == one[0].tolist()          # a step of 1 m at both ends
+    assert not got[1:].any()
+    # the same along the columns
+    np.testing.assert_array_equal(sp._stepped_runs(one.T.copy(), z.T.copy(), 0.5, 0, 3), got.T)
+    # no longer than the largest object
+    assert not sp._stepped_runs(one, z, 0.5, 1, 2).any()
+    # a smaller step only
+    assert not sp._stepped_runs(one, z, 1.0, 1, 3).any()
+    # runs at the raster's edge or next to nodata stand on no step there
+    assert not sp._stepped_runs(one[:, 3:], z[:, 3:], 0.5, 1, 3).any()
+    zn = z.copy()
+    zn[0, 6] = np.nan
+    assert not sp._stepped_runs(one, zn, 0.5, 1, 3)[0].any()
+
+
+def test_low_hedge_accepted_along_its_length_is_an_object_a_ramped_embankment_is_not():
+    """A hedge 1 m high, 3 cells across and 40 long: the profiles along it accept it by the
+    terrain's rise (each of their two scans loses it to alpha_t after a few cells), so only
+    the profiles across reject it and the combination gave all of it back as an embankment.
+    Its runs along the accepting axis stand on steps at both their ends: it is crossed, an
+    object (ISPRS samp71 and samp41: cars and hedges). An embankment as high between walls
+    but reached by ramps gentler than alpha_g at both ends stays ground."""
+    p = dict(slope_threshold_deg=16.0, terrain_slope_deg=8.0, tolerance_m=0.15, max_object_size_m=100.0)
+    z = np.zeros((40, 60), np.float32)
+    z[18:21, 10:50] = 1.0
+    r = sp.filter_slope_profile(z, 1.0, **p)
+    assert (r.mask[18:21, 10:50] == OBJECT).all()
+    assert (r.mask[:18] == GROUND).all() and (r.mask[21:] == GROUND).all()
+    c = np.arange(60, dtype=np.float32)
+    ramp = np.clip(np.minimum(0.1 * (c - 9), 0.1 * (50 - c)), 0.0, 1.0)
+    z[18:21] = ramp
+    r = sp.filter_slope_profile(z, 1.0, **p)
+    assert (r.mask == GROUND).all()
