@@ -649,6 +649,33 @@ def test_border_below_the_tolerated_rise_must_stand_above_the_terrain_level():
             assert rem[2:9, 6].all() and rem[:, :6].sum() == 0
 
 
+def test_border_at_a_terrace_edge_over_a_face_is_measured_from_the_terrain_level():
+    """Stage 4 at a terrace's edge 6 m above the ground (2 m cells, tolerance 12 degrees), the face's cells
+    scan-labelled (removed, their own height 3 m below the edge): the edge cells drop 3 m to the face, more
+    than the tolerated rise (and the terrain level's own slope). They stand above every removed cell around
+    them and the terrace continues beyond them at their level: a terrace's edge, measured from the terrain
+    level. Where that level holds the terrace they stay (before: the whole edge went, 9 cells); where it lies
+    at the lower ground they go as before. Beside a roof standing on the terrace (scan-labelled, 7 m above
+    it) the edge cells are its border and go whatever the level: the cell touching it and the two rings along
+    the edge (3 + 1 on the other side)."""
+    from bare_earth.core.geodesic.filter import remove_borders
+    cell = (2.0, 2.0)
+    z = np.full((12, 12), 97.0, np.float32)
+    z[:, :6] = 103.0 + 0.01 * np.arange(6, dtype=np.float32)     # the terrace, falling gently to its edge
+    z[:, 6] = 100.0                                             # the face
+    z[8:11, 3:6] = 110.0                                        # a roof on the terrace at its edge
+    removed = np.zeros(z.shape, bool)
+    removed[:, 6] = removed[8:11, 3:6] = True
+    tan_s = float(np.tan(np.radians(12.0)))
+    terrace = np.where(removed, 103.0, z).astype(np.float32)
+    for level, gone in ((terrace, [5, 6, 7, 11]), (np.full(z.shape, 97.0, np.float32), [0, 1, 2, 3, 4, 5, 6, 7, 11])):
+        rem, step = removed.copy(), np.zeros(z.shape, np.uint8)
+        step[removed] = geo.STEP_SCAN
+        assert remove_borders(z, np.ones(z.shape, bool), None, rem, cell, 0.5, tan_s, step, (level, 1)) == len(gone)
+        assert np.flatnonzero((rem & ~removed).any(axis=1)).tolist() == gone
+        assert (rem & ~removed)[:, 5].sum() == len(gone)        # the edge's cells only
+
+
 def test_border_skirt_stands_above_the_ground_around_when_the_terrain_level_climbs():
     """Stage 4 on flat ground at 2 m cells (tolerance 12 degrees: 0.5 + 0.21 x 2.83 = 1.1 m): a
     roof removed, a skirt of mixed cells 0.8 m high round it (kept). The largest step's
