@@ -441,6 +441,10 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
         out.ravel()[flat[alone]] = True
         out.ravel()[flat[alone - 1]] = True
         out.ravel()[flat[beyond]] = True
+        n1 = int(lone_ev.sum())
+        if faces:                               # none where the terrain bends beyond its noise (as the faces)
+            ground = _smooth_sides(zp, sp, alone[:n1] + P, veg_tol, up_at[:n1], jump)
+            _face_cells(out, upper, z, flat, alone[:n1], up_at[:n1], ground, jump)
         return out
     if cut is not None:
         _cut_runs(out, cut, zc, flat, pos, ev, typ, starts, cnt, lmax, jump)
@@ -459,6 +463,77 @@ def _raised_rows(z, keep, labels, jump, lmax, veg_tol, lone=False, cut=None, upp
         hit = zc[c] - ground > 0.5 * jump
     out.ravel()[flat[c[hit]]] = True
     return out
+
+
+#: Widest gap (cells) between the two points of a lone one-step jump whose cells :func:`_face_cells` adds
+#: to the jump's line: step 3, which runs before step 4, takes a cell one of whose 8 neighbours lies lower
+#: beyond its tolerance, so along a face crossing the rows at a slant the band it took is up to two cells
+#: deep along a profile.
+FACE_GAP_CELLS = 2
+
+
+def _smooth_sides(zp, sp, j, smooth, up_at, jump):
+    """Whether both sides of the jumps between the padded points ``j - 1`` and ``j`` lie on smooth
+    lines, the three points of the profile on each side (second difference within ``smooth``: step
+    4's test of vegetation beside a building's walls, :func:`_raised_rows`), the upper side (after a
+    jump up, ``up_at``, before a jump down) level: its three points within half the ``jump`` (step 4's
+    height of a raised point; the test of both sides of :func:`_face_jumps`)."""
+    with np.errstate(invalid="ignore"):
+        before = sp[j - 1] & sp[j - 2] & (np.abs(zp[j - 1] - 2 * zp[j - 2] + zp[j - 3]) <= smooth)
+        after = sp[j + 1] & sp[j + 2] & (np.abs(zp[j] - 2 * zp[j + 1] + zp[j + 2]) <= smooth)
+        level = np.where(up_at, np.abs(zp[j] - zp[j + 2]), np.abs(zp[j - 1] - zp[j - 3])) <= 0.5 * jump
+    return before & after & level
+
+
+def _face_cells(out, upper, z, flat, alone, up_at, ground, tol):
+    """Add to the lines ``out`` the cells lying between the two points of each lone one-step jump
+    (``alone``: indices into the points kept ``flat`` of the jumps' second points, ``up_at``: a jump
+    up) along its profile, where at most :data:`FACE_GAP_CELLS` cells lie between them and all of them
+    lie between the heights of the jump's two points (within ``tol``, the jump's threshold: a face lies
+    between its foot and its top; a crown or a hedge standing on the edge rises above both); with
+    ``upper``, those nearer in height to the upper point join the upper side.
+
+    Step 3 runs before step 4 and takes the upper point of every pair across a level change: the top
+    of a terrace's retaining wall or of a quarry bench, one or two cells along each profile. The jump
+    step 4 then reads over the points kept steps from the level's last kept cell across that gap to the
+    wall's foot: its two sides lie apart, the cells of the one side no longer join those of the other
+    into one line along the wall, and each side's line, cut again by every bush and house on the level,
+    ran shorter than a building: no break line (a terraced hillside at 1 m: most of its walls; step 5's
+    profiles then crossed them and took the front of each terrace, 5.6 % of its cells). The cells
+    between are the face the jump crosses; a line drawn along the wall holds them. Only the lines are
+    read: the profiles and their jumps are those of the points kept. Only where both sides are ground
+    and the upper one a level (``ground``: three points on a smooth line on each side, those of the
+    upper side within half the jump, :func:`_smooth_sides`), as a terrace's tread or a quarry's bench
+    is: on a steep slope under vegetation the lower edge of each bush is a jump no other answers (the
+    slope above it rises as high as its top), whose sides, joined, made lines of the vegetation's
+    edges (ISPRS 51 at 1 m, lowest point: 10.5 % of its cells on lines without the smooth sides, none
+    with them; ISPRS 11 at 2 m, highest point: 28.03 -> 28.95 % total error with the smooth sides
+    alone, 28.70 with the face's heights, 28.03 with the level upper side). Not where the terrain bends beyond
+    its noise from one cell to the next (``faces`` off in :func:`_raised_rows`, a coarse DEM of hills)."""
+    alone, up_at = alone[ground], up_at[ground]
+    if not alone.size:
+        return
+    p0, p1 = flat[alone - 1], flat[alone]
+    gap = p1 - p0 - 1                        # the profile's points lie along one row: flat index = column
+    zz = z.ravel()
+    top = np.maximum(zz[p0], zz[p1]) + tol
+    foot = np.minimum(zz[p0], zz[p1]) - tol
+    for g in range(1, FACE_GAP_CELLS + 1):   # a gap cell outside the face's heights: no face there
+        at = gap >= g
+        with np.errstate(invalid="ignore"):
+            gap[at] = np.where((zz[p0[at] + g] <= top[at]) & (zz[p0[at] + g] >= foot[at]), gap[at], 0)
+    for g in range(1, FACE_GAP_CELLS + 1):
+        at = (gap >= g) & (gap <= FACE_GAP_CELLS)
+        if not at.any():
+            break
+        cell = p0[at] + g
+        out.ravel()[cell] = True
+        if upper is not None:
+            hi_end = np.where(up_at[at], p1[at], p0[at])
+            lo_end = np.where(up_at[at], p0[at], p1[at])
+            with np.errstate(invalid="ignore"):
+                near_hi = np.abs(zz[cell] - zz[hi_end]) <= np.abs(zz[cell] - zz[lo_end])
+            upper.ravel()[cell[near_hi]] = True
 
 
 def _lone_faces(ev, typ, paired, face, face_typ, pos, lmax):
@@ -736,6 +811,10 @@ def find_terrain_steps(z: np.ndarray, cell_size: Union[float, Sequence[float]], 
     gaps of up to ``join_gap_m`` (the pieces grown by half of it, in whole cells) and measured
     together: a terrace wall along a hillside whose foot trees stand at every 100 m is one line
     (:data:`~.sequence.WALL_TOP_GAP_M`, as for the wall tops step 3 took).
+
+    A jump over the points kept may step over one or two cells step 3 took (a wall's top): those
+    cells, the face, are on its line too where both sides of the jump are ground (:func:`_face_cells`),
+    joining its two sides into one line along the wall.
 
     With ``sides``, also the upper side of the lines: their cells above their jump along a profile
     (after a jump up, before a jump down) and below none. :func:`~.regions.break_regions` makes
