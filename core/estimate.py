@@ -2405,6 +2405,26 @@ def running_minimum_slopes(z, cell_size, side_cells):
     -------
     ndarray of float32, ``z``'s shape
     """
+    gx, gy = running_minimum_gradient(z, cell_size, side_cells)
+    s = np.hypot(gx, gy)
+    s[~np.isfinite(s)] = 0.0
+    return s
+
+
+def running_minimum_gradient(z, cell_size, side_cells):
+    """The gradient ``(gx, gy)`` (rise/run along X and along Y, float32, ``z``'s shape) of the
+    running minimum of the surface over a square of ``side_cells + 1`` cells, by central
+    differences over ``side_cells`` cells (``side_cells // 2`` on either side; 0 within that of
+    the raster's edge, NaN where the minimum is not finite): the components of
+    :func:`running_minimum_slopes`, for a slope along one axis (curvature's wall test reads the
+    terrain's rise along the profile it scans).
+
+    Examples
+    --------
+    >>> gx, gy = running_minimum_gradient(0.5 * np.arange(8.0)[None, :].repeat(8, 0), (1.0, 1.0), 2)
+    >>> float(gx[4, 4]), float(gy[4, 4])
+    (0.5, 0.0)
+    """
     z = np.asarray(z, np.float32)
     if z.ndim != 2:
         raise ValueError(f"running_minimum_slopes needs a 2-D surface; got {z.ndim} dimensions.")
@@ -2423,6 +2443,4 @@ def running_minimum_slopes(z, cell_size, side_cells):
             gx[:, h:-h] = (mf[:, 2 * h:] - mf[:, :-2 * h]) / np.float32(2 * h * dx)
         if z.shape[0] > 2 * h:
             gy[h:-h] = (mf[2 * h:] - mf[:-2 * h]) / np.float32(2 * h * dy)
-    s = np.hypot(gx, gy)
-    s[~np.isfinite(s)] = 0.0
-    return s
+    return gx, gy

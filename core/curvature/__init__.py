@@ -40,7 +40,10 @@ From curvature to objects
    to an object: the object starts at a marked cell on top of a wall (a rise of at least
    the minimum object height within two cells, steeper than the wall slope (judged over
    two cells but over 3 m at most: a vertical wall is smeared over two cells, and at
-   coarse cells the slope's rise over two cells would exceed every low object) and three
+   coarse cells the slope's rise over two cells would exceed every low object; and, where
+   two cells span more than those 3 m, more than the terrain's local slope along the profile
+   rises over two cells, up to the wall slope's rise over them:
+   :func:`.profiles.local_terrain_slopes`, a knoll's flank at 4 m cells) and three
    times steeper than the profile before it: dams, embankments, terrace edges and
    terrain rasterised in steps are not walls), and ends where the profile comes back down
    to the ground extended from the wall's foot at the profile's slope before it, or comes

@@ -41,6 +41,7 @@ from .profiles import (
     find_enclosed_objects,
     find_profile_objects,
     height_spacing,
+    local_terrain_slopes,
     profile_reach,
     wall_rise,
 )
@@ -149,7 +150,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     objects, n_obj_x, n_obj_y, edge_runs = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
         tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing, edge_runs=True,
-        levels_out=levels, progress=sub_progress(progress, 0.35, 0.55))
+        levels_out=levels, local_slopes=local_terrain_slopes(z, cell), progress=sub_progress(progress, 0.35, 0.55))
     # 4. regions enclosed by breaks and made mostly of such runs (or of lower levels between higher
     # parts along one axis), and regions of the runs cut by the raster's edge whose walls run within
     # the reach -> whole objects
@@ -673,7 +674,17 @@ METHOD = Method(
         "the least a wall must rise; at 20-30 m cells (SRTM, Copernicus) the foot of every "
         "hillside rising from a valley floor was a wall and its run an object (15 % of a "
         "24 m terrain model of hills), and objects lower than that rise are not seen there "
-        "(the log gives the rise used along X and Y). The OUTPUT_CURVATURE output (band 1 "
+        "(the log gives the rise used along X and Y). Where two cells span more than those 3 m "
+        "(cells coarser than 1.5 m, or heights farther apart) a wall must also rise more than the "
+        "terrain's own slope where it stands does over two cells (with the scatter of the "
+        "heights' places in their cells), up to the wall slope's rise over the two cells: the slope along the "
+        "profile of the running minimum over 20 m (objects narrower vanish from it), the steepest "
+        "within 10 m and two cells (the minimum moves a flank's slope that far up it). The tile's "
+        "upper quartile is a flat tile's slope where only knolls and outcrops are steep, and at 4 m "
+        "cells their flanks rose 3-4.6 m within two cells, past the 3 m a wall needs: lidar "
+        "Topography at 4 m 3.85 -&gt; 3.11 %, 8 % of its ground profile objects. A hall wider than "
+        "20 m reads its own height over the minimum's span there, less than its wall rises at 1-4 m "
+        "cells. The OUTPUT_CURVATURE output (band 1 "
         "K in 1/m<sup>2</sup>, band 2 H in "
         "1/m) shows what the filter saw; the log gives K<sub>g</sub> and the share of "
         "cells marked by X and by Y profiles. The curvature is attenuated within "

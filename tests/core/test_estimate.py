@@ -1481,6 +1481,24 @@ def test_running_minimum_slopes_exact():
         est.running_minimum_slopes(plane.ravel(), (2.0, 2.0), 4)
 
 
+def test_running_minimum_gradient_exact():
+    """The components of :func:`running_minimum_slopes`: on a plane its slopes along X and Y (signed)
+    away from the raster's edge, 0 within half the square's side of it along that axis; their magnitude
+    is the slope.
+    A step of 4 m along X (a wall): the minimum over the square rises it over the central differences'
+    span, 4 / (2 (k // 2) dx) at most, and not along Y."""
+    y, x = np.mgrid[0:30, 0:40].astype(np.float32)
+    plane = -0.3 * x * 2.0 + 0.4 * y * 2.0
+    gx, gy = est.running_minimum_gradient(plane, (2.0, 2.0), 6)
+    np.testing.assert_allclose(gx[:, 6:-6], -0.3, rtol=1e-5)   # beyond the square's side: its minimum
+    np.testing.assert_allclose(gy[6:-6], 0.4, rtol=1e-5)       # is clipped by the edge there
+    assert not gx[:, :3].any() and not gy[:3].any()
+    np.testing.assert_array_equal(np.hypot(gx, gy), est.running_minimum_slopes(plane, (2.0, 2.0), 6))
+    step = np.where(x >= 20, 4.0, 0.0).astype(np.float32)
+    gx, gy = est.running_minimum_gradient(step, (1.0, 1.0), 6)
+    assert gx.max() == pytest.approx(4.0 / 6.0) and gx.min() == 0.0 and not gy.any()
+
+
 def test_above_chords_exact():
     """A peak stands above a chord of its neighbours by more than the margin, and above both its
     ends, along its row, its column and both diagonals: a plane of any slope has none, a bump is one
