@@ -735,7 +735,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.EXTERIOR, tr("Exterior orientation CSV (filename,x,y,z,omega,phi,kappa)"),
             FILE_FILE, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
             "One row per image: filename,x,y,z,omega,phi,kappa (header; comma, tab or space separated; "
-            "optional 'camera' column). x, y, z in the DEM's CRS. " + OPK_HELP))
+            "optional 'camera' column naming each row's INTERIOR camera; a row naming a camera the INTERIOR "
+            "file does not hold is refused). x, y, z in the DEM's CRS. " + OPK_HELP))
         self.addParameter(with_help(QgsProcessingParameterFile(
             self.INTERIOR, tr("Interior orientation (orthority YAML or OpenSfM reconstruction.json)"),
             FILE_FILE, "", None, True,
