@@ -587,3 +587,22 @@ def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_
         assert processing_run("bareearth:slopeprofile", dict(outs, INPUT=good))["OUTPUT_MASK"]
     finally:
         QgsProject.instance().removeMapLayers([bad.id(), xyz.id(), good.id()])
+
+
+def test_dtm_object_areas_covering_the_whole_dsm_refused_before_work(processing_run, tmp_path):
+    """QA 22: an OBJECT_AREAS layer covering every cell (a study-area or parcel polygon given as footprints)
+    forces every cell an object: the run wrote a DTM of nodata only and blamed the filter ("The filter called
+    none of the 3600 valid cell(s) ground ... Give a raster that reaches the ground"). Now refused before any
+    output, naming the layer; with a ground area inside (ground areas win) it runs."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((60, 60)), nodata=-9999.0)
+    whole = _memory_layer("Polygon", ["POLYGON((499990 5400010, 500070 5400010, 500070 5399930, 499990 5399930, "
+                                      "499990 5400010))"])
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    with pytest.raises(QgsProcessingException, match=r"Object areas .*\(OBJECT_AREAS\) covers? every cell of the DSM"):
+        processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": whole, **outs})
+    assert not (tmp_path / "d.tif").exists() and not (tmp_path / "m.tif").exists()
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": whole, **outs,
+                                           "GROUND_AREAS": _memory_layer("Point", ["POINT(500030.5 5399959.5)"])})
+    mask, _ = _read(res["OUTPUT_MASK"])
+    assert (mask == 0).sum() == 1 and (mask == 1).sum() == mask.size - 1
