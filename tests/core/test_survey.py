@@ -1092,3 +1092,25 @@ def test_a_rewritten_tile_output_keeps_no_stale_side_file(tmp_path, mask_style):
     if mask_style:                                         # the mask keeps its category names
         assert band.GetCategoryNames()[1] == "object above ground"
     ds = None
+
+
+def test_a_run_of_another_plugin_version_is_not_resumed(survey, tmp_path):
+    """QA 22: a run killed (or cancelled, or with a failed tile) and resumed after the plugin was updated: the
+    resume kept the old version's tiles and parameters and filtered the rest with the new code, so the mosaic
+    joined tiles of two versions (their rules and derived parameters may differ: seams) and the new method got
+    the old version's parameters. Now refused before any work, naming both versions; a record of this version,
+    or of one that did not say its version, resumes as before."""
+    from bare_earth.core.survey import record
+    from bare_earth.meta import VERSION
+    out = tmp_path / "out"
+    out.mkdir()
+    params = SMALL["slopeprofile"]
+    index = index_tiles(survey["tiles"])
+    rec = record.new_record({"method": "slopeprofile", "params": params, "tiles": [t.path for t in index.tiles]})
+    assert rec["plugin_version"] == VERSION
+    rec["plugin_version"] = "0.0.1-old"
+    record.save_record(out, rec)
+    before = sorted(os.listdir(out))
+    with pytest.raises(ValueError, match=rf"made by Bare Earth 0\.0\.1-old.* this is {re.escape(VERSION)}"):
+        run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert sorted(os.listdir(out)) == before
