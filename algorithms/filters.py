@@ -77,7 +77,8 @@ class DtmAlgorithm(FilterAlgorithm):
                 [SOURCE_VECTOR_POLYGON], optional=True),
                 "Optional polygons (any CRS; reprojected to the DSM's) that are objects whatever the filters "
                 "say, e.g. building footprints: every cell they touch is an object and the ground under them "
-                "is interpolated. An empty layer is allowed."),
+                "is interpolated. An empty layer is allowed; one covering every cell of the DSM (and no ground "
+                "area) is refused, as no ground would be left."),
             with_help(QgsProcessingParameterFeatureSource(
                 self.GROUND_AREAS, self.tr("Ground areas (known bare ground)"),
                 [SOURCE_VECTOR_POLYGON, SOURCE_VECTOR_POINT], optional=True),
@@ -95,8 +96,21 @@ class DtmAlgorithm(FilterAlgorithm):
         return check_layers(self, parameters, context, info, (self.OBJECT_AREAS, self.GROUND_AREAS, self.BREAKLINES))
 
     def auxiliaryArrays(self, parameters, context, info, feedback):  # noqa: N802
-        return layer_arrays(self, parameters, context, info, feedback, (
+        arrays = layer_arrays(self, parameters, context, info, feedback, (
             (self.OBJECT_AREAS, "object_areas"), (self.GROUND_AREAS, "ground_areas"), (self.BREAKLINES, "breaklines")))
+        objects, ground = arrays.get("object_areas"), arrays.get("ground_areas")
+        if objects is not None and objects.all() and (ground is None or not ground.any()):
+            # every cell forced an object: no ground left to interpolate the DTM from (a study-area or parcel
+            # polygon among the footprints); the run wrote a DTM of nodata and blamed the filter
+            from qgis.core import QgsProcessingException
+
+            from .filter_base import label_of
+            raise QgsProcessingException(self.tr(
+                "{} covers every cell of the DSM, so every cell would be an object and the DTM, with no ground "
+                "to interpolate from, nodata everywhere: give the objects' footprints only (a study-area or "
+                "parcel polygon is no object), or known ground as GROUND_AREAS.").format(
+                    label_of(self.parameterDefinition(self.OBJECT_AREAS))))
+        return arrays
 
     def logResult(self, result, feedback):  # noqa: N802
         """The input's description and each member's parameters on a line of their own, then the rest."""

@@ -34,6 +34,7 @@ from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
 from ..core.orthophoto.iterate import NOT_ROUGHER as NOT_ROUGHER_DEFAULT
 from ..core.orthophoto.quality import order_reversed
+from ..core.survey.io import crs_label
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
 from .fill_dtm import grid_mismatch_message, other_crs, same_grid
 from .filter_base import (
@@ -210,6 +211,32 @@ def _decimated(info, max_side=512):
     a = b.ReadAsArray(0, 0, cols, rows, buf_xsize=max(1, cols // step), buf_ysize=max(1, rows // step),
                       resample_alg=gdal.GRIORA_NearestNeighbour)
     return grid.to_surface(a, info.nodata, info.z_to_m)
+
+
+#: Largest angle from the nadir (degrees) at which a vertical frame sees: beyond the half-diagonal field of view
+#: of mapping cameras (large-format 27-44 deg, a drone's wide-angle lens about 47 deg).
+MAX_OFF_NADIR_DEG = 60.0
+
+
+def check_centres_see_dem(info, centres):
+    """ValueError when a camera centre ``(key, (X, Y, Z))`` lies so far from the DEM's extent that the
+    DEM's nearest edge is more than :data:`MAX_OFF_NADIR_DEG` from its nadir (horizontal distance above
+    ``tan(60 deg)`` times its height above the DEM's median): no vertical frame taken there sees the DEM,
+    so the centres are in another CRS (degrees, another zone) or of another place. Before, centres in
+    degrees 0.001 apart were called 'at the same place'."""
+    gt, (rows, cols) = info.geotransform, info.shape
+    xs = sorted((gt[0], gt[0] + cols * gt[1]))
+    ys = sorted((gt[3], gt[3] + rows * gt[5]))
+    z = _decimated(info)
+    ground = float(np.nanmedian(z)) if np.isfinite(z).any() else 0.0
+    for key, (x, y, zc) in centres:
+        d = math.hypot(max(xs[0] - x, 0.0, x - xs[1]), max(ys[0] - y, 0.0, y - ys[1]))
+        if d > math.tan(math.radians(MAX_OFF_NADIR_DEG)) * max(zc - ground, 0.0):
+            crs = crs_label(info.crs_wkt)
+            raise ValueError(f"{key} {(x, y, zc)} lies {d:.6g} m from the DEM (x {xs[0]:.6g} to {xs[1]:.6g}, y "
+                             f"{ys[0]:.6g} to {ys[1]:.6g}), {zc - ground:.6g} m above its median height: no vertical "
+                             f"frame taken there sees the DEM (more than {MAX_OFF_NADIR_DEG:g} deg from the nadir). "
+                             f"Give the camera centres in the DEM's CRS ({crs}) and height datum.")
 
 
 def check_parallax_range(info, base_m, height_m, max_dh_m):
@@ -538,7 +565,9 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
             self.addParameter(with_help(QgsProcessingParameterString(key, tr(label), optional=True),
                                         "Projection centre of the frame the orthophoto was made from, as "
                                         "'X,Y,Z' (dot decimals) in the DEM's CRS and height datum. Give both "
-                                        "centres, or BASE_M and HEIGHT_M instead."))
+                                        "centres, or BASE_M and HEIGHT_M instead. A centre from which the DEM "
+                                        "lies more than 60 deg from the nadir (beyond any vertical frame's view: "
+                                        "another CRS, another place) is refused."))
         for p in self._geometry_params(" [or camera centres]"):
             self.addParameter(p)
         for p in self._matching_params():
@@ -578,6 +607,7 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError("give the geometry once: either CAMERA_A and CAMERA_B, or BASE_M and "
                                  "HEIGHT_M, not both.")
             A, B = parse_xyz(ca, self.CAMERA_A), parse_xyz(cb, self.CAMERA_B)
+            check_centres_see_dem(info, ((self.CAMERA_A, A), (self.CAMERA_B, B)))
             if math.dist(A, B) < 1e-6 * max(1.0, abs(A[2])):
                 raise ValueError(f"CAMERA_A and CAMERA_B are at the same place {A} (base B = 0): no parallax. "
                                  "Give the centres of two different exposures.")
@@ -735,7 +765,8 @@ class OrthoRefineAlgorithm(OrthoAlgorithm):
             self.EXTERIOR, tr("Exterior orientation CSV (filename,x,y,z,omega,phi,kappa)"),
             FILE_FILE, "", None, True, "CSV / text (*.csv *.txt);;All files (*.*)"),
             "One row per image: filename,x,y,z,omega,phi,kappa (header; comma, tab or space separated; "
-            "optional 'camera' column). x, y, z in the DEM's CRS. " + OPK_HELP))
+            "optional 'camera' column naming each row's INTERIOR camera; a row naming a camera the INTERIOR "
+            "file does not hold is refused). x, y, z in the DEM's CRS. " + OPK_HELP))
         self.addParameter(with_help(QgsProcessingParameterFile(
             self.INTERIOR, tr("Interior orientation (orthority YAML or OpenSfM reconstruction.json)"),
             FILE_FILE, "", None, True,

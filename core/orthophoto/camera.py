@@ -483,6 +483,10 @@ def _numbers(where, key, value, counts=(1,)):
     return out[0] if counts == (1,) else out
 
 
+#: The id :func:`read_interior_yaml` gives the one camera of a YAML without ids (its parameters at the top).
+UNNAMED_CAMERA = "camera"
+
+
 def read_interior_yaml(path):
     """Read orthority-style interior orientation YAML: ``{camera id: {type, im_size, ...}}``.
 
@@ -508,7 +512,7 @@ def read_interior_yaml(path):
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: expected a mapping of camera id -> parameters.")
     if "im_size" in data:                        # a single camera without an id
-        data = {"camera": data}
+        data = {UNNAMED_CAMERA: data}
     out = {}
     for cam_id, p in data.items():
         if not isinstance(p, dict):
@@ -602,14 +606,18 @@ def cameras_from_opk(exterior, interior, names=None):
     exterior : dict
         From :func:`read_opk_csv`.
     interior : Interior or dict of str -> Interior
-        One camera for all images, or by camera id (matched with a ``camera`` column).
+        One camera for all images, or by camera id (matched with a ``camera`` column). A row
+        whose ``camera`` names an id the dict does not hold is refused, even when the dict holds
+        one camera (the wrong interior file), but when that camera has no id of its own
+        (:data:`UNNAMED_CAMERA`: a YAML of one camera's parameters).
     names : sequence of str, optional
         Images wanted (extensions dropped); default all rows.
 
     Raises
     ------
     ValueError
-        An image without a row (names the missing ones) or without a known camera id.
+        An image without a row (names the missing ones), without a known camera id, or whose
+        ``camera`` column names a camera the interior orientation does not hold.
     """
     names = list(exterior) if names is None else [Path(n).stem if "." in str(n) else str(n)
                                                   for n in names]
@@ -620,16 +628,22 @@ def cameras_from_opk(exterior, interior, names=None):
     cams = []
     for n in names:
         e = exterior[n]
+        cid = e.get("camera")
+        cid = None if cid is None or not str(cid).strip() else str(cid).strip()
         if isinstance(interior, Interior):
             io = interior
-        elif len(interior) == 1:
+        elif cid in interior:
+            io = interior[cid]
+        elif cid is not None and set(interior) != {UNNAMED_CAMERA}:
+            # the rows name their camera and the file holds others: the wrong camera file, not one for all
+            raise ValueError(f"image {n!r}: camera id {cid!r} (the exterior orientation's 'camera' column) is "
+                             f"not among the interior orientation's cameras {sorted(interior)}: give the "
+                             "interior orientation of that camera, or correct the column.")
+        elif len({id(v) for v in interior.values()}) == 1:   # one camera (OpenSfM's under two ids)
             io = next(iter(interior.values()))
         else:
-            cid = e.get("camera")
-            if cid not in interior:
-                raise ValueError(f"image {n!r}: camera id {cid!r} not among {sorted(interior)}; "
-                                 "add a 'camera' column naming the interior orientation.")
-            io = interior[cid]
+            raise ValueError(f"image {n!r}: camera id {cid!r} not among {sorted(interior)}; "
+                             "add a 'camera' column naming the interior orientation.")
         cams.append(Camera.from_opk(io, e["x"], e["y"], e["z"], e["omega"], e["phi"], e["kappa"], n))
     return cams
 

@@ -15,7 +15,7 @@ as if they were one raster:
   existing cluster's scheduler.
 * **Nothing lost** (:mod:`.record`): tile outputs are written under temporary names and
   renamed when complete, recorded in ``run.json`` (rewritten atomically) only then; a rerun
-  with the same arguments does only the tiles not recorded.
+  with the same arguments (and plugin version) does only the tiles not recorded.
 """
 from .engine import INSTALL_HINT, have_dask, require_dask
 from .index import Tile, TileIndex, index_tiles, list_inputs

@@ -125,7 +125,8 @@ def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=Fal
     """Write a 2-D array as a cloud-optimised GeoTIFF, atomically.
 
     The COG is written under a temporary name in the same folder and renamed to ``path``
-    only when complete, so a file at ``path`` is always whole. Float32 arrays get
+    only when complete, so a file at ``path`` is always whole; the ``.aux.xml`` of a file it replaces
+    goes with it (its statistics, written by ``gdalinfo -stats``, would be read for the new file). Float32 arrays get
     DEFLATE with the floating-point predictor and averaged overviews; UInt8 masks
     (``mask_style``) a colour table with the mask codes and nearest-neighbour overviews.
     One thread per task (the workers already use every core). ``unit_type``: the height unit
@@ -175,6 +176,8 @@ def write_cog(path, array, geotransform, crs_wkt="", nodata=None, mask_style=Fal
                 from None
         if os.path.exists(tmp + ".aux.xml"):    # the category names (GDAL's side file)
             os.replace(tmp + ".aux.xml", path + ".aux.xml")
+        elif os.path.lexists(path + ".aux.xml"):  # the replaced file's (gdalinfo -stats): GDAL would read its
+            os.remove(path + ".aux.xml")          # statistics and georeferencing for the new file
         os.replace(tmp, path)
     finally:
         for p in (tmp, tmp + ".aux.xml"):

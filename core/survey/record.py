@@ -6,6 +6,8 @@ import json
 import os
 import time
 
+from ...meta import VERSION
+
 #: The record's format tag.
 FORMAT = "bare-earth survey run 1"
 #: The record's file name in the output folder.
@@ -58,9 +60,19 @@ def _plain(v):
 
 
 def new_record(arguments):
-    """An empty record for a run of ``arguments`` (method, user parameters, tiles)."""
+    """An empty record for a run of ``arguments`` (method, user parameters, tiles), stamped with the
+    plugin's version (:func:`other_version` refuses to resume it with another)."""
     return {"format": FORMAT, "arguments": arguments, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "tiles": {}, "runs": []}
+            "plugin_version": VERSION, "tiles": {}, "runs": []}
+
+
+def other_version(rec):
+    """The plugin version that made ``rec`` when it is not this one, else None (also for a record
+    that does not say, made before records said it). Tiles filtered by two versions do not join
+    seamlessly (their rules and the parameters they derive may differ), so a survey is finished by the
+    version that began it."""
+    made = (rec or {}).get("plugin_version")
+    return None if made is None or str(made) == VERSION else str(made)
 
 
 def same_arguments(rec, arguments):

@@ -212,7 +212,8 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     ValueError
         Before any work: unknown method or parameters, missing tiles, tiles of mixed CRS
         or cell size, overlapping tiles, an output folder holding a run of other
-        arguments. ImportError when Dask is missing.
+        arguments, or one begun by another plugin version (:func:`.record.other_version`) with tiles
+        left to do. ImportError when Dask is missing.
     """
     log = log or (lambda s: None)
     meth = get_method(method)
@@ -239,6 +240,12 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
                          "neighbours' (the halo) and the parameters derived from the survey may be stale: choose "
                          "another output folder, or delete its run.json to start again there.")
     kept = record.done_tiles(rec, out_dir)
+    made_by = record.other_version(rec)
+    if made_by is not None and len(kept) < len(index.tiles):    # tiles of two versions: seams, stale parameters
+        raise ValueError(f"{record.record_path(out_dir)} records a run made by Bare Earth {made_by}, and this is "
+                         f"{record.VERSION}: finishing it would join tiles filtered by two versions (their rules "
+                         "and derived parameters may differ: seams). Choose another output folder, or delete its "
+                         "run.json to start again there.")
     for t in index.tiles:   # an output a task could not replace: refused now, not as a failed tile at the end
         for name in output_names(t.name) if t.name not in kept else ():
             grid.check_replaceable(os.path.join(out_dir, name))

@@ -281,3 +281,23 @@ def test_exterior_from_a_spreadsheets_unicode_text_and_a_legacy_code_page(tmp_pa
     latin.write_bytes("filename,x,y,z,omega,phi,kappa\nÅs_1.jpg,1,2,3,0,0,0\n".encode("latin-1"))
     with pytest.raises(ValueError, match=r"latin.csv' is not UTF-8 text .*save it as UTF-8"):
         read_opk_csv(str(latin))
+
+
+def test_a_camera_column_naming_another_camera_than_the_interior_file_is_refused(tmp_path):
+    """QA: the EXTERIOR rows name their camera ('camera' column) and the INTERIOR file holds one camera of
+    another id: that one camera was used for every frame without a word (the wrong camera file given, e.g.
+    another flight's of the same image size, orthorectifies every frame with the wrong focal length). Now
+    refused naming the image, the id and the ids held; a camera column naming the one camera, a file whose
+    one camera has no id, rows without the column, or an empty cell still take the one camera."""
+    (tmp_path / "io.yaml").write_text("DMC:\n  type: pinhole\n  im_size: [640, 480]\n  focal_len: 1.2\n")
+    (tmp_path / "anon.yaml").write_text("type: pinhole\nim_size: [640, 480]\nfocal_len: 1.2\n")
+    row = "a,500000,5400000,1000,0,0,0"
+    (tmp_path / "other.csv").write_text(f"filename,x,y,z,omega,phi,kappa,camera\n{row},UltraCam\n")
+    ios, anon = read_interior_yaml(tmp_path / "io.yaml"), read_interior_yaml(tmp_path / "anon.yaml")
+    with pytest.raises(ValueError, match=r"image 'a': camera id 'UltraCam' .*not among .*\['DMC'\]"):
+        cameras_from_opk(read_opk_csv(tmp_path / "other.csv"), ios)
+    assert cameras_from_opk(read_opk_csv(tmp_path / "other.csv"), anon)[0].interior is anon["camera"]
+    for name, text in (("same", f"{row},DMC"), ("none", row), ("empty", f"{row},")):
+        header = "filename,x,y,z,omega,phi,kappa" + (",camera" if name != "none" else "")
+        (tmp_path / f"{name}.csv").write_text(f"{header}\n{text}\n")
+        assert cameras_from_opk(read_opk_csv(tmp_path / f"{name}.csv"), ios)[0].interior is ios["DMC"], name

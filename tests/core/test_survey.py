@@ -1064,3 +1064,53 @@ def test_survey_relief_checked_before_a_run_as_the_run_checks_it(tmp_path, monke
     assert check_survey_relief(index_tiles(write_survey(tmp_path / "m", sc))) is None
     monkeypatch.setattr(plan, "SAMPLE_CELLS", 100 * 100)
     assert check_survey_relief(index) is None
+
+
+@pytest.mark.parametrize("mask_style", [False, True], ids=["dtm", "mask"])
+def test_a_rewritten_tile_output_keeps_no_stale_side_file(tmp_path, mask_style):
+    """A tile redone (after a kill, a failure, or a run.json deleted to start again) replaces its COG, but the
+    old ``<tile>_dtm.tif.aux.xml`` stayed: ``gdalinfo -stats`` (or any tool computing statistics) writes one,
+    and GDAL and QGIS then read the old file's statistics (and any georeferencing kept there, which GDAL reads
+    before the TIFF's own) for the new file: a DTM of 100-104 m stated 0-4.47 m and drawn saturated."""
+    from osgeo import gdal
+    gt = (500000.0, 1.0, 0.0, 5400000.0, 0.0, -1.0)
+    path = str(tmp_path / "t00_dtm.tif")
+    old = np.arange(64 * 64, dtype=np.float32).reshape(64, 64) / 1000.0
+    survey_io.write_cog(path, old.astype(np.uint8) if mask_style else old, gt, "", 255 if mask_style else None,
+                        mask_style=mask_style)
+    ds = gdal.Open(path)
+    ds.GetRasterBand(1).ComputeStatistics(False)          # as gdalinfo -stats: written to the .aux.xml
+    ds = None
+    assert os.path.exists(path + ".aux.xml")
+    new = np.full((64, 64), 100.0 if not mask_style else 1, np.float32)
+    survey_io.write_cog(path, new.astype(np.uint8) if mask_style else new, gt, "", 255 if mask_style else None,
+                        mask_style=mask_style)
+    ds = gdal.Open(path)
+    band = ds.GetRasterBand(1)
+    assert band.GetMetadataItem("STATISTICS_MAXIMUM") is None     # the old file's statistics are gone
+    assert band.ComputeRasterMinMax(False)[0] == new[0, 0]
+    if mask_style:                                         # the mask keeps its category names
+        assert band.GetCategoryNames()[1] == "object above ground"
+    ds = None
+
+
+def test_a_run_of_another_plugin_version_is_not_resumed(survey, tmp_path):
+    """QA 22: a run killed (or cancelled, or with a failed tile) and resumed after the plugin was updated: the
+    resume kept the old version's tiles and parameters and filtered the rest with the new code, so the mosaic
+    joined tiles of two versions (their rules and derived parameters may differ: seams) and the new method got
+    the old version's parameters. Now refused before any work, naming both versions; a record of this version,
+    or of one that did not say its version, resumes as before."""
+    from bare_earth.core.survey import record
+    from bare_earth.meta import VERSION
+    out = tmp_path / "out"
+    out.mkdir()
+    params = SMALL["slopeprofile"]
+    index = index_tiles(survey["tiles"])
+    rec = record.new_record({"method": "slopeprofile", "params": params, "tiles": [t.path for t in index.tiles]})
+    assert rec["plugin_version"] == VERSION
+    rec["plugin_version"] = "0.0.1-old"
+    record.save_record(out, rec)
+    before = sorted(os.listdir(out))
+    with pytest.raises(ValueError, match=rf"made by Bare Earth 0\.0\.1-old.* this is {re.escape(VERSION)}"):
+        run_survey("slopeprofile", survey["tiles"], out, params, workers=1)
+    assert sorted(os.listdir(out)) == before

@@ -224,7 +224,8 @@ def _ortho_pair(tmp, shape=(100, 100)):
     ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "MAX_DH_M": 1e6}, r"parallax searched.*wider than the DEM \(100 m.*"
                                                              r"MAX_DH_M below 333.3 m"),
     ({"BASE_M": 1e9, "HEIGHT_M": 1000.0}, r"B / H = 1e\+06"),
-    ({"CAMERA_A": "0,50,1100", "CAMERA_B": "1e9,50,1100"}, r"parallax searched.*wider than the DEM"),
+    # centres within sight of the DEM (1000 m either side at 1000 m above it; x = 0 is refused as far from it)
+    ({"CAMERA_A": "499000,5399950,1100", "CAMERA_B": "501100,5399950,1100"}, r"parallax searched.*wider than the DEM"),
     ({"BASE_M": 300.0, "HEIGHT_M": 1000.0, "ORTHO_B": "A"}, r"ORTHO_A and ORTHO_B are one file"),
 ], ids=["max_dh", "base", "centres", "same_file"])
 def test_orthoparallax_absurd_geometry_refused_before_work(processing_run, tmp_path, extra, message):
@@ -587,3 +588,41 @@ def test_layers_that_are_not_gdal_files_are_refused_naming_the_layer(processing_
         assert processing_run("bareearth:slopeprofile", dict(outs, INPUT=good))["OUTPUT_MASK"]
     finally:
         QgsProject.instance().removeMapLayers([bad.id(), xyz.id(), good.id()])
+
+
+def test_dtm_object_areas_covering_the_whole_dsm_refused_before_work(processing_run, tmp_path):
+    """QA 22: an OBJECT_AREAS layer covering every cell (a study-area or parcel polygon given as footprints)
+    forces every cell an object: the run wrote a DTM of nodata only and blamed the filter ("The filter called
+    none of the 3600 valid cell(s) ground ... Give a raster that reaches the ground"). Now refused before any
+    output, naming the layer; with a ground area inside (ground areas win) it runs."""
+    from qgis.core import QgsProcessingException
+    src = _write(tmp_path / "dsm.tif", _ramp_with_box((60, 60)), nodata=-9999.0)
+    whole = _memory_layer("Polygon", ["POLYGON((499990 5400010, 500070 5400010, 500070 5399930, 499990 5399930, "
+                                      "499990 5400010))"])
+    outs = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    with pytest.raises(QgsProcessingException, match=r"Object areas .*\(OBJECT_AREAS\) covers? every cell of the DSM"):
+        processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": whole, **outs})
+    assert not (tmp_path / "d.tif").exists() and not (tmp_path / "m.tif").exists()
+    res = processing_run("bareearth:dtm", {"INPUT": src, "OBJECT_AREAS": whole, **outs,
+                                           "GROUND_AREAS": _memory_layer("Point", ["POINT(500030.5 5399959.5)"])})
+    mask, _ = _read(res["OUTPUT_MASK"])
+    assert (mask == 0).sum() == 1 and (mask == 1).sum() == mask.size - 1
+
+
+@pytest.mark.parametrize("centres", [("9.0,48.7,1100", "9.001,48.7,1100"), ("9.0,48.7,1100", "9.5,48.7,1100"),
+                                     ("600050,5399950,1100", "600080,5399950,1100")],
+                         ids=["degrees_close", "degrees_apart", "another_zone"])
+def test_orthoparallax_camera_centres_far_from_the_dem_refused_naming_them(processing_run, tmp_path, centres):
+    """QA 22: camera centres given in another CRS (degrees, another zone) than the DEM's: the DEM lies far
+    beyond any vertical frame's view from them. Before: 'CAMERA_A and CAMERA_B are at the same place (9.0,
+    48.7, 1100.0) (base B = 0)' for centres 0.001 apart, or a run measuring nothing; now refused before any
+    output, naming the centre, its distance from the DEM and the DEM's CRS. Centres over the DEM run."""
+    from qgis.core import QgsProcessingException
+    params = _ortho_pair(tmp_path)
+    params.update(CAMERA_A=centres[0], CAMERA_B=centres[1])
+    a = re.escape(str(tuple(float(v) for v in centres[0].split(","))))
+    with pytest.raises(QgsProcessingException, match=rf"CAMERA_A {a} lies .* m from the DEM.*EPSG:32632"):
+        processing_run("bareearth:orthoparallax", params)
+    assert not (tmp_path / "o.tif").exists()
+    params.update(CAMERA_A="500040,5399950,1100", CAMERA_B="500060,5399950,1100")     # over the DEM
+    assert processing_run("bareearth:orthoparallax", params)["OUTPUT_DEM"]
