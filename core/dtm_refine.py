@@ -1710,7 +1710,10 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
         (:func:`find_smooth`, judged on the ground cells too), then the ground cells bordering an
         object that stand more than the edge tolerance above every continuation of the ground
         beside them, or that the ground continues to from neither side of a line (with
-        ``line_tolerance_m``; :func:`~.fill.find_edge_spikes`), are objects; then (with ``band_tolerance_m``)
+        ``line_tolerance_m``; :func:`~.fill.find_edge_spikes`, its tolerances at the ``spared`` cells allowing for
+        where each height lies in its cell on ground rising beside the cell more steeply than ``s``, bounded by
+        ``dh``: a bank's face, whose heights on a coarse lowest- or highest-point grid scatter by a cell's rise), are
+        objects; then (with ``band_tolerance_m``)
         the band along the objects' edges standing above the plane of the ground beyond it
         (:func:`find_raised_band`).
     info : dict
@@ -1756,14 +1759,17 @@ def refine_ground(z, mask, cell_size, *, tolerance_m, slope, reach_m=REACH_M, ed
     # are spared and the test run again (the cells behind them stay covered)
     lt = None if line_tolerance_m is None or not np.isfinite(line_tolerance_m) else max(et, float(line_tolerance_m))
     fill = ((new == OBJECT) | (new == LOW)) & np.isfinite(z)
-    spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
+    # (on the banks given back, spared, the tolerances allow for where each height lies in its cell on ground
+    # rising beside the cell more steeply than the terrain's steep slope s: a bank's face)
+    sampling = dict(sampling=(s, cell_size, dh), sampled=spared) if spared is not None else {}
+    spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool, **sampling)
     report(progress, 0.65)
     more = find_step_tops(z, spikes, ground, tolerance_m=et, step_m=SMOOTH_RATIO * dh, smooth_m=SMOOTH_RATIO * dh,
                           **along)
     report(progress, 0.7)
     if more.any():
         tops |= more
-        spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool)
+        spikes = find_edge_spikes(z, fill, et, line_tolerance_m=lt, spared=tops, pool=pool, **sampling)
         report(progress, 0.85)
     new[spikes] = OBJECT
     # 3. the band of ground along the objects' edges standing above the plane of the ground beyond it

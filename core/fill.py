@@ -44,6 +44,7 @@ elliptic problems, Numerische Mathematik 75(2):135-152.
 All work on a level is vectorised over the unknown cells of that level (gathers of the four
 neighbours of flat indices), so the cost is O(number of cells) with a small constant.
 """
+import math
 from functools import partial
 
 import numpy as np
@@ -227,6 +228,10 @@ def fill_gaps(z, fill=None, *, progress=None):
 #: The four lines of :func:`find_edge_spikes` (row step, column step of one direction; the other is
 #: its opposite): the eight directions of its continuations.
 EDGE_LINES = ((0, 1), (1, 0), (1, 1), (1, -1))
+#: Standard deviations of a continuation's sampling error that :func:`find_edge_spikes`' ``sampling`` adds to its
+#: tolerances: three, as the tolerances themselves are three of the continuation's error on ground
+#: (:func:`.dtm_refine.continuation_tolerance`).
+SAMPLING_SIGMAS = 3.0
 #: Passes of :func:`find_edge_spikes`: each pass peels at most one cell off the sloping skirt of an
 #: object (a crown's edge in a top-surface DSM spans a few cells); measured on the generalisation
 #: matrix, a fourth pass and more found nothing the third had not.
@@ -240,7 +245,7 @@ def edge_spikes_reach(passes=EDGE_PASSES):
 
 
 def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE_PASSES, spared=None,
-                     pool=None):
+                     pool=None, sampling=None, sampled=None):
     """Known cells at the edge of the cells to fill that stand above every straight continuation of their neighbours.
 
     A cell bordering the cells to fill (one of its eight neighbours is in ``fill``) is a *spike*
@@ -293,6 +298,20 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
     pool : Executor, optional
         Threads that may take some of a pass's chunks of cells (:func:`~.blocks.run_sharing`); the
         same result without.
+    sampling : (float, (float, float), float), optional
+        ``(slope, (dx, dy), bound_m)``: allow for where each height lies in its cell on ground steeper than
+        ``slope`` (rise per metre; the tolerances' own allowance). A raster cell holds a point anywhere in it (the
+        lowest or highest of a cell); on ground rising ``g`` metres a cell that place alone scatters its height
+        by ``g / sqrt(12)``, so a continuation ``2 z(x + d) - z(x + 2d)`` against ``z(x)`` by ``sqrt(6)`` times
+        that. ``g`` is the steepest rise beside the cell beyond ``slope`` (over the eight pairs of source
+        cells ``x + d``, ``x + 2d``, per cell of ``sqrt(dx dy)``), and both tolerances grow in quadrature by
+        :data:`SAMPLING_SIGMAS` such standard deviations: ``sqrt(tol^2 + 4.5 g^2)``, the every-direction
+        tolerance at most ``max(bound_m, tolerance_m)``. On a bank's face (a dike's at 2 m cells scatters by a
+        metre along its contour) the face is no spike; on ground no steeper than ``slope`` nothing changes.
+        None: no allowance.
+    sampled : array_like of bool, optional
+        The cells whose tolerances get the ``sampling`` allowance (``bareearth:dtm``: the banks its bank stage
+        gave back, ground it found rising as earth stands); None: every cell.
 
     Returns
     -------
@@ -336,6 +355,18 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
         spared_flat = spared_p.ravel()
     tol = np.float32(tolerance_m)
     line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
+    rise = None
+    if sampling is not None:
+        rise = _sampling_rises(sampling, wp)
+        if sampled is not None:
+            sampled = np.asarray(sampled, bool)
+            if sampled.shape != z.shape:
+                raise ValueError(f"sampled must have z's shape {z.shape}; got {sampled.shape}.")
+            sampled_p = np.zeros(zp.shape, bool)
+            sampled_p[pad:-pad, pad:-pad] = sampled
+            rise = rise + (sampled_p.ravel(),)
+        else:
+            rise = rise + (None,)
     flat = zp.ravel()
     # the known cells with a cell to fill among their neighbours, as indices into the frame
     edge = touching(fill)
@@ -353,7 +384,7 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
             break
         new = np.empty(idx.size, bool)
         chunks = [slice(i, min(idx.size, i + EDGE_CHUNK)) for i in range(0, idx.size, EDGE_CHUNK)]
-        run_sharing([partial(_edge_spikes_at, flat, idx, s, wp, tol, line_tol, new) for s in chunks], pool)
+        run_sharing([partial(_edge_spikes_at, flat, idx, s, wp, tol, line_tol, new, rise) for s in chunks], pool)
         if not new.any():
             break
         spikes = idx[new]
@@ -376,14 +407,53 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
 EDGE_CHUNK = 1 << 16
 
 
-def _edge_spikes_at(flat, idx, sl, wp, tol, line_tol, new):
+def _sampling_rises(sampling, wp):
+    """The pairs of :func:`find_edge_spikes`' ``sampling``: ``(bound_m, [(offset, allowed_m, cells_per_step)])``,
+    for each of the eight directions its offset in a frame ``wp`` cells a row, the rise between its two source
+    cells the tolerances already allow (the slope times the step's length) and the cell's size over the step's
+    length (a rise a step to a rise a cell); ``bound_m`` bounds the every-direction tolerance."""
+    if len(sampling) != 3:
+        raise ValueError(f"sampling must be (slope, (dx, dy), bound_m); got {sampling!r}.")
+    slope, bound = float(sampling[0]), float(sampling[2])
+    dx, dy = (float(v) for v in sampling[1])
+    if not (np.isfinite(bound) and bound > 0) or not (dx > 0 and dy > 0):
+        raise ValueError(f"sampling's cell size and bound must be positive; got {sampling!r}.")
+    slope = slope if np.isfinite(slope) and slope > 0 else 0.0
+    cell = math.sqrt(dx * dy)
+    pairs = []
+    for di, dj in EDGE_LINES:
+        length = math.hypot(di * dy, dj * dx)
+        for sgn in (1, -1):
+            pairs.append((sgn * (di * wp + dj), np.float32(slope * length), np.float32(cell / length)))
+    return np.float32(bound), pairs
+
+
+def _edge_spikes_at(flat, idx, sl, wp, tol, line_tol, new, rise=None):
     """:func:`find_edge_spikes`' test of the cells ``idx[sl]`` (indices into the frame ``flat``, ``wp``
-    cells a row) into ``new[sl]``."""
+    cells a row) into ``new[sl]`` (``rise``: :func:`_sampling_rises`, or None)."""
     idx = idx[sl]
     zc = flat.take(idx)
     out = np.zeros(idx.size, bool)
     every = np.ones(idx.size, bool)
     seen = np.zeros(idx.size, bool)
+    if rise is not None:
+        # the ground's rise a cell beside the cell beyond the rise the tolerances allow, the steepest of its eight
+        # pairs of source cells: where in its cell each height lies adds rise^2 / 12 to its variance, six of those
+        # to a continuation's (2 z1 - z2 against z), SAMPLING_SIGMAS of that standard deviation to its tolerance
+        bound, pairs, where = rise
+        g = np.zeros(idx.size, np.float32)
+        for off, allowed, per_cell in pairs:
+            d = np.abs(flat.take(idx + off) - flat.take(idx + 2 * off))
+            d -= allowed
+            d *= per_cell
+            np.fmax(g, d, out=g)                                   # NaN (a source unknown) is ignored
+        if where is not None:
+            g *= where.take(idx)                                   # only at the cells sampled
+        g *= g
+        g *= np.float32(SAMPLING_SIGMAS ** 2 * 6.0 / 12.0)
+        tol = np.minimum(np.sqrt(tol * tol + g), max(bound, tol))
+        line_tol = None if line_tol is None else np.sqrt(line_tol * line_tol + g)
+        del g
     # a spike stands above the continuation from one side of a line, and the other side does not
     # continue the ground to it (it stands above that continuation too, or the side is unknown)
     for di, dj in EDGE_LINES:

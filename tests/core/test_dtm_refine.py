@@ -154,6 +154,26 @@ def test_canopy_gaps_the_vote_keeps_are_removed():
     assert math.isclose(res.info["refine_reach_m"], params["refine_reach_m"]) and params["refine_reach_m"] >= dr.REACH_M
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_edge_test_keeps_a_steep_bank_whose_heights_scatter_in_their_cells(seed):
+    # a bank rising 0.6 m a metre (a dike's face, 31 degrees) on 2 m cells, each height a point anywhere in its
+    # cell (a lowest-point grid), given back by the bank stage (spared): along the contour the heights scatter
+    # by up to 1.2 m, which the fields' continuation tolerance (0.3 m) does not cover; beside an object the edge
+    # test took the face cell by cell (a quarter to a third of the ground) before it allowed, on the banks, for
+    # where the heights lie on ground that steep
+    i, j = np.mgrid[0:16, 0:18]
+    u = np.random.default_rng(seed).uniform(-0.5, 0.5, i.shape)
+    z = (0.6 * 2.0 * (j + u)).astype(np.float32)
+    hole = (i >= 6) & (i < 10) & (j >= 7) & (j < 11)
+    z[hole] += 3.0
+    vote = np.where(hole, OBJECT, GROUND).astype(np.uint8)
+    kw = dict(tolerance_m=0.5, slope=0.05, edge_tolerance_m=0.3, line_tolerance_m=0.3)
+    _, info = dr.refine_ground(z, vote, (2.0, 2.0), spared=~hole, **kw)
+    assert info["refine_edge_removed_share"] < 0.05
+    _, info = dr.refine_ground(z, vote, (2.0, 2.0), **kw)        # not banks: no allowance, the face is taken
+    assert info["refine_edge_removed_share"] > 0.2
+
+
 def test_edge_spike_in_a_courtyard_is_removed_and_the_dtm_no_longer_rests_on_it():
     # A large building (a 10 m block, 72 m square) with a 7 m courtyard of bare ground; in the courtyard's
     # corners a 1.5 m shed against the walls that the vote took as ground. Every line through a corner runs

@@ -401,6 +401,53 @@ def test_edge_spikes_along_one_line_include_the_spikes_of_every_line():
         find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.0)
 
 
+def _sampled_bank(seed, rise=0.6, cell=2.0):
+    """A bank face rising ``rise`` m a metre along the rows on ``cell`` m cells, each height taken at a random
+    place in its cell (a lowest- or highest-point grid), beside a 3 m object: (z, hole)."""
+    i, j = np.mgrid[0:12, 0:14]
+    u = np.random.default_rng(seed).uniform(-0.5, 0.5, i.shape)      # where in its cell the point lies, cells
+    z = (rise * cell * (j + u)).astype(np.float32)
+    hole = (i >= 4) & (i < 8) & (j >= 5) & (j < 9)
+    z[hole] += 3.0
+    return z, hole
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_edge_spikes_allow_for_where_heights_lie_on_a_steep_bank(seed):
+    # a bank steeper than the terrain's slope the tolerances assume (a dike's face at 2 m cells): the heights
+    # scatter by up to 1.2 m about the face along its contour, which no continuation's tolerance of the fields
+    # covers; with the sampling allowance (the rise beside each cell: 3 sigma of a continuation of heights
+    # scattered by rise / sqrt(12) each) no face cell is a spike
+    z, hole = _sampled_bank(seed)
+    plain = find_edge_spikes(z, hole, 0.3, line_tolerance_m=0.3)
+    assert plain.sum() > 10
+    assert not find_edge_spikes(z, hole, 0.3, line_tolerance_m=0.3, sampling=(0.0, (2.0, 2.0), 0.5)).any()
+    # the allowance at the sampled cells only (bareearth:dtm: the banks): the others as without it
+    sampled = np.zeros(z.shape, bool)
+    sampled[:, :7] = True
+    got = find_edge_spikes(z, hole, 0.3, line_tolerance_m=0.3, sampling=(0.0, (2.0, 2.0), 0.5), sampled=sampled)
+    assert not (got & sampled).any() and (got & ~sampled).any() and (plain & ~sampled).any()
+    with pytest.raises(ValueError, match="sampled"):
+        find_edge_spikes(z, hole, 0.3, sampling=(0.0, (2.0, 2.0), 0.5), sampled=sampled[:2])
+
+
+def test_edge_spikes_sampling_allowance_keeps_skirts_on_level_and_allowed_slopes():
+    # ground rising within the slope the tolerances already allow gets no allowance: a skirt is still found
+    z = np.tile(0.05 * np.arange(9, dtype=np.float32), (7, 1))   # ground rising 5 cm a cell
+    z[:, 6:] = 5.0                                  # the object
+    z[3, 5] += 0.6                                  # a skirt cell at its edge
+    hole = z > 4.0
+    for sampling in (None, (0.05, (1.0, 1.0), 0.5)):
+        got = find_edge_spikes(z, hole, 0.5, line_tolerance_m=0.5, sampling=sampling)
+        assert [tuple(map(int, p)) for p in np.argwhere(got)] == [(3, 5)]
+    # on level ground rising 0.1 m a cell that is not allowed for: 0.6 m stays above sqrt(0.5^2 + 4.5 0.1^2)
+    z[:, :6] += 0.05 * np.arange(6, dtype=np.float32)
+    got = find_edge_spikes(z, hole, 0.5, sampling=(0.0, (1.0, 1.0), 0.5))
+    assert [tuple(map(int, p)) for p in np.argwhere(got)] == [(3, 5)]
+    with pytest.raises(ValueError, match="sampling"):
+        find_edge_spikes(z, hole, 0.5, sampling=(0.0, (1.0, 1.0), 0.0))
+
+
 def test_edge_spikes_spared_cells_are_never_spikes_and_stay_sources():
     z = np.zeros((5, 7), np.float32)
     z[:, 4:] = 3.0
