@@ -347,24 +347,14 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
     np.copyto(core, np.float32(np.nan), where=fill)
     found = np.zeros((h, w), bool)
     if spared is not None:
-        spared = np.asarray(spared, bool)
-        if spared.shape != z.shape:
-            raise ValueError(f"spared must have z's shape {z.shape}; got {spared.shape}.")
-        spared_p = np.zeros(zp.shape, bool)
-        spared_p[pad:-pad, pad:-pad] = spared
-        spared_flat = spared_p.ravel()
+        spared_flat = _framed_flags(spared, "spared", z.shape, pad)
     tol = np.float32(tolerance_m)
     line_tol = None if line_tolerance_m is None else np.float32(line_tolerance_m)
     rise = None
     if sampling is not None:
         rise = _sampling_rises(sampling, wp)
         if sampled is not None:
-            sampled = np.asarray(sampled, bool)
-            if sampled.shape != z.shape:
-                raise ValueError(f"sampled must have z's shape {z.shape}; got {sampled.shape}.")
-            sampled_p = np.zeros(zp.shape, bool)
-            sampled_p[pad:-pad, pad:-pad] = sampled
-            rise = rise + (sampled_p.ravel(),)
+            rise = rise + (_framed_flags(sampled, "sampled", z.shape, pad),)
         else:
             rise = rise + (None,)
     flat = zp.ravel()
@@ -405,6 +395,17 @@ def find_edge_spikes(z, fill, tolerance_m, *, line_tolerance_m=None, passes=EDGE
 #: Candidates per chunk of :func:`find_edge_spikes` (a chunk's temporaries stay in the cache; the
 #: chunks of a pass may run in parallel).
 EDGE_CHUNK = 1 << 16
+
+
+def _framed_flags(flags, name, shape, pad):
+    """``flags`` (a boolean raster of ``shape``, the argument ``name``) in a frame of ``pad`` False cells
+    each side, raveled; ValueError naming it when its shape is not ``shape``."""
+    flags = np.asarray(flags, bool)
+    if flags.shape != tuple(shape):
+        raise ValueError(f"{name} must have z's shape {tuple(shape)}; got {flags.shape}.")
+    framed = np.zeros((shape[0] + 2 * pad, shape[1] + 2 * pad), bool)
+    framed[pad:-pad, pad:-pad] = flags
+    return framed.ravel()
 
 
 def _sampling_rises(sampling, wp):
