@@ -2411,6 +2411,33 @@ def running_minimum_slopes(z, cell_size, side_cells):
     return s
 
 
+def running_minimum(z, side_cells, frame=0):
+    """The running minimum of the surface over a square of ``side_cells + 1`` cells (float32; the
+    raster's edge repeated beyond it; +inf where the square holds no finite height), inside a frame
+    of ``frame`` cells of +inf on each side (shape ``z``'s plus ``2 frame``): the surface whose
+    central differences are :func:`running_minimum_gradient`. The frame lets a flat index reach
+    ``frame`` positions beyond the raster's edge (curvature's wall test reads the gradient at a few
+    cells only, :class:`~bare_earth.core.curvature.profiles.LocalSlopes`).
+
+    Examples
+    --------
+    >>> running_minimum(np.array([[3, 1, 2, np.nan]], np.float32), 2, frame=1).tolist()
+    [[inf, inf, inf, inf, inf, inf], [inf, 1.0, 1.0, 1.0, 2.0, inf], [inf, inf, inf, inf, inf, inf]]
+    """
+    z = np.asarray(z, np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"running_minimum needs a 2-D surface; got {z.ndim} dimensions.")
+    if int(side_cells) != side_cells or side_cells < 1:
+        raise ValueError(f"side_cells must be a whole number of cells >= 1; got {side_cells}.")
+    f = int(frame)
+    zf = np.where(np.isfinite(z), z, np.float32(np.inf))
+    if f <= 0:
+        return ndimage.minimum_filter(zf, int(side_cells) + 1, mode="nearest")
+    out = np.full((z.shape[0] + 2 * f, z.shape[1] + 2 * f), np.inf, np.float32)
+    ndimage.minimum_filter(zf, int(side_cells) + 1, output=out[f:f + z.shape[0], f:f + z.shape[1]], mode="nearest")
+    return out
+
+
 def running_minimum_gradient(z, cell_size, side_cells):
     """The gradient ``(gx, gy)`` (rise/run along X and along Y, float32, ``z``'s shape) of the
     running minimum of the surface over a square of ``side_cells + 1`` cells, by central
@@ -2433,9 +2460,7 @@ def running_minimum_gradient(z, cell_size, side_cells):
     dx, dy = (float(c) for c in cell_size)
     k = int(side_cells)
     h = k // 2
-    zf = np.where(np.isfinite(z), z, np.float32(np.inf))
-    mf = ndimage.minimum_filter(zf, k + 1, mode="nearest")
-    del zf
+    mf = running_minimum(z, k)
     gx = np.zeros(z.shape, np.float32)
     gy = np.zeros(z.shape, np.float32)
     with np.errstate(invalid="ignore"):

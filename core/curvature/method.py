@@ -37,11 +37,11 @@ from .derivatives import (
 from .ground import find_ground, ground_reach, ground_stretch
 from .profiles import (
     LONGEST,
+    LocalSlopes,
     enclosed_reach,
     find_enclosed_objects,
     find_profile_objects,
     height_spacing,
-    local_terrain_slopes,
     profile_reach,
     wall_rise,
 )
@@ -150,7 +150,7 @@ def filter_curvature(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: float, w
     objects, n_obj_x, n_obj_y, edge_runs = find_profile_objects(
         z, breaks.marked, some_valid, cell, window=s.window, h_min=s.h_min, tan_wall=s.tan_wall,
         tol=s.tol, max_size=s.max_size, terrain_slope=s.terrain_slope, spacing=s.spacing, edge_runs=True,
-        levels_out=levels, local_slopes=local_terrain_slopes(z, cell), progress=sub_progress(progress, 0.35, 0.55))
+        levels_out=levels, local_slopes=LocalSlopes(z, cell), progress=sub_progress(progress, 0.35, 0.55))
     # 4. regions enclosed by breaks and made mostly of such runs (or of lower levels between higher
     # parts along one axis), and regions of the runs cut by the raster's edge whose walls run within
     # the reach -> whole objects

@@ -8,6 +8,7 @@ the edges across the profiles too, is longer than the largest object (a terrain 
 across the raster, :func:`_drop_running_off`). Regions enclosed by breaks and made mostly of such points
 become whole objects (:func:`find_enclosed_objects`).
 """
+import functools
 from typing import Optional
 
 import numpy as np
@@ -15,7 +16,13 @@ from scipy import ndimage
 
 from ..common import as_cell_size, as_surface, edge_mirrored_extents, pad_constant, report, sub_progress, transpose
 from ..edge_walls import walled_levels
-from ..estimate import GROUND_BLOCK_M, lowest_point_spread, repeated_height_share, running_minimum_gradient
+from ..estimate import (
+    GROUND_BLOCK_M,
+    lowest_point_spread,
+    repeated_height_share,
+    running_minimum,
+    running_minimum_gradient,
+)
 from .derivatives import CHUNK_CELLS, CellSize, Progress
 
 #: Width (cells) within which an object's wall rises, and how much steeper than the
@@ -117,7 +124,8 @@ def local_terrain_slopes(z: np.ndarray, cell_size: CellSize):
     its own height ``H`` over the central differences' span, ``H / (2 (k // 2) cell)``, of which the
     wall test demands :func:`terrain_rise_per_slope` (over a cell) times: 0.16 / 0.32 / 0.82 ``H`` at
     1 / 2 / 4 m cells, less than its wall rises (diagonally, ``sqrt(2)`` times more: a
-    6 m hall at 4 m cells lost four fifths of its walls)."""
+    6 m hall at 4 m cells lost four fifths of its walls). The direct form, raster-wide: the filter
+    reads it at the few cells where a wall may stand (:class:`LocalSlopes`, the same values)."""
     k = local_slope_cells(cell_size)
     gx, gy = running_minimum_gradient(as_surface(z), as_cell_size(cell_size), k)
     out = []
@@ -125,6 +133,56 @@ def local_terrain_slopes(z: np.ndarray, cell_size: CellSize):
         g = np.abs(np.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0))
         out.append(ndimage.maximum_filter1d(g, 2 * (k // 2 + _WALL_CELLS) + 1, axis=axis, mode="nearest"))
     return tuple(out)
+
+
+class LocalSlopes:
+    """:func:`local_terrain_slopes` read at given cells only (:func:`_walls` needs it where a wall
+    may stand, a few cells of the raster): the same float32 values, without raster-sized slopes.
+
+    Holds the running minimum over :func:`local_slope_cells` ``k`` cells inside a frame of +inf
+    (:func:`~bare_earth.core.estimate.running_minimum`; one raster-sized float32 array) wide
+    enough for every read; :meth:`at` takes, at each asked cell, the central differences over
+    ``k // 2`` on either side at the ``2 (k // 2 + _WALL_CELLS) + 1`` positions around it along
+    the axis, and keeps the steepest finite one (0 at least: a position within ``k // 2`` of the
+    raster's edge reads the frame, one beside a square without heights +inf, as the direct
+    form's 0). A loop over those positions, on the asked cells only. The running minimum is
+    computed at the first read: at cells up to 1.5 m the wall test never reads (:func:`_walls`).
+    """
+
+    def __init__(self, z: np.ndarray, cell_size: CellSize):
+        self.z = as_surface(z)
+        self.shape = self.z.shape
+        self.cell = as_cell_size(cell_size)
+        self.k = local_slope_cells(self.cell)
+        self.half, self.around = self.k // 2, self.k // 2 + _WALL_CELLS
+        self.frame = self.half + self.around
+        self.minimum = None         # computed at the first read (none where the wall test never needs it)
+
+    def at(self, idx: np.ndarray, frame: int, axis: int) -> np.ndarray:
+        """The local slope along ``axis`` (1: X, the rows; 0: Y, the columns) at the flat indices
+        ``idx`` of the raster inside a frame of ``frame`` cells (:func:`_framed`): float32, equal
+        to ``local_terrain_slopes(z, cell_size)[1 - axis]`` there."""
+        h, w = self.shape
+        f, half = self.frame, self.half
+        r, c = np.divmod(np.asarray(idx, np.int64), w + 2 * frame)
+        q = r + (f - frame)
+        q *= w + 2 * f
+        q += c
+        q += f - frame
+        sd = 1 if axis == 1 else w + 2 * f
+        d = np.float32(2 * half * self.cell[0 if axis == 1 else 1])
+        best = np.zeros(q.size, np.float32)
+        if self.minimum is None:
+            self.minimum = running_minimum(self.z, self.k, frame=self.frame).ravel()
+        mf = self.minimum
+        with np.errstate(invalid="ignore"):
+            for j in range(-self.around, self.around + 1):
+                g = mf.take(q + (j + half) * sd)
+                g -= mf.take(q + (j - half) * sd)
+                g /= d
+                np.abs(g, out=g)
+                np.maximum(best, g, out=best, where=g < np.inf)     # not inf nor NaN: the frame, no heights
+        return best
 
 
 def height_spacing(z, cell_size) -> float:
@@ -168,12 +226,15 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol, terrain_slope=0.0,
       treads are as steep as its risers on average) and walls of a terrain cut from looking
       like object walls, while a wall standing on a hillside still stands out.
 
-    ``local`` (optional, flat like ``zf``): the terrain's local slope along the profile
-    (:func:`local_terrain_slopes`); the rise must also exceed its :func:`terrain_rise_per_slope`
-    over a cell at the wall's top, up to :func:`local_rise_cap` (a knoll's flank at 4 m cells). The
-    scatter of the heights' places within the cell, not within ``spacing``: a hall's wall reads its
-    own height over the running minimum's span, and a demand over a longer spacing exceeded it
-    (lidar autzen-thin at 4 m, points 11.8 m apart: 15.64 -> 15.87 % total error).
+    ``local`` (optional): the terrain's local slope along the profile at given flat indices
+    (:meth:`LocalSlopes.at`, read only where it decides: where the rise or the fall passes the rest
+    of the height test and is below :func:`local_rise_cap`; nowhere where that cap is no more than
+    the rest of the demand, cells up to 1.5 m); the rise must also
+    exceed its :func:`terrain_rise_per_slope` over a cell at the wall's top, up to
+    :func:`local_rise_cap` (a knoll's flank at 4 m cells). The scatter of the heights' places
+    within the cell, not within ``spacing``: a hall's wall reads its own height over the running
+    minimum's span, and a demand over a longer spacing exceeded it (lidar autzen-thin at 4 m,
+    points 11.8 m apart: 15.64 -> 15.87 % total error).
 
     The same test mirrored finds where the profile has just come down a wall (by
     ``drop``: the highest of the ``_WALL_CELLS`` positions before, minus ``z_j``). A
@@ -206,12 +267,19 @@ def _walls(zf, idx, sd, cell, *, reach, h_min, tan_wall, tol, terrain_slope=0.0,
         # cheap tests first, on all marked cells; the rest only on what passes
         need = np.float32(wall_rise(cell, h_min=h_min, tan_wall=tan_wall, terrain_slope=terrain_slope,
                                       spacing=spacing))
-        if local is not None:   # and the rise of the terrain's own slope where the wall stands, up to the
-            # wall slope's over the wall's whole span (a rise steeper than that is a wall whatever the terrain)
-            need = np.maximum(np.minimum(local.take(idx) * np.float32(terrain_rise_per_slope(cell, 0.0)),
-                                         np.float32(local_rise_cap(cell, tan_wall, spacing))), need)
+        cap = np.float32(local_rise_cap(cell, tan_wall, spacing)) if local is not None else need
         down = fall >= need
-        cand = np.flatnonzero(rise >= need)
+        up = rise >= need
+        if cap > need:  # and the rise of the terrain's own slope where the wall stands, up to the wall slope's
+            # over the wall's whole span (a rise steeper than that is a wall whatever the terrain): it decides
+            # only where the rise (or the fall) lies between the rest of the demand and that cap
+            pre = np.flatnonzero((up & (rise < cap)) | (down & (fall < cap)))
+            need = np.maximum(np.minimum(local(idx.take(pre)) * np.float32(terrain_rise_per_slope(cell, 0.0)),
+                                         cap), need)
+            down[pre] = fall.take(pre) >= need
+            up[pre] = rise.take(pre) >= need
+        cand = np.flatnonzero(up)
+        del up
         rate = rise.take(cand)
         rate /= np.float32(_WALL_CELLS * cell)
         ci = idx.take(cand)
@@ -665,7 +733,7 @@ def enclosed_reach(cell_size: CellSize, *, max_size: float) -> int:
 def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.ndarray], cell_size: CellSize, *,
                          window: int, h_min: float, tan_wall: float, tol: float, max_size: float,
                          terrain_slope: float = 0.0, spacing: float = 0.0, edge_runs: bool = False,
-                         levels_out: Optional[list] = None, local_slopes: Optional[np.ndarray] = None,
+                         levels_out: Optional[list] = None, local_slopes: Optional["LocalSlopes"] = None,
                          progress: Optional[Progress] = None):
     """Step 3: along the X and Y profiles, the cells from a break going up a wall to the
     break coming down (:func:`_axis_objects`, both scan directions agreeing).
@@ -674,7 +742,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     positions before a wall; a run longer than ``max_size`` metres is not an object;
     ``terrain_slope`` (rise/run) the terrain's steep slopes and ``spacing`` (metres) that of
     the independent heights (:func:`wall_rise`); ``local_slopes`` (optional): the terrain's local
-    slopes along X and along Y (:func:`local_terrain_slopes`), which the walls must also rise above.
+    slopes along X and along Y (:class:`LocalSlopes` of ``z``), which the walls must also rise above.
     A run with a cell whose cross profile meets no break, no step of ``h_min`` within two cells
     (:func:`height_steps`) and no nodata within :data:`LONGEST` ``max_size`` metres
     (:func:`bounded_stretches`) loses its cells within ``max_size`` of it (:func:`bounded_runs`):
@@ -695,7 +763,7 @@ def find_profile_objects(z: np.ndarray, marked: np.ndarray, valid: Optional[np.n
     kw = dict(h_min=h_min, tan_wall=tan_wall, tol=tol, reach=reach, zover=_heights_and_drops(zp, frame),
               terrain_slope=terrain_slope, spacing=spacing, edge_out=edge_out)
     local = (None, None) if local_slopes is None else tuple(
-        _framed(np.asarray(a, np.float32), frame, 0.0).ravel() for a in local_slopes)
+        functools.partial(local_slopes.at, frame=frame, axis=a) for a in (1, 0))
     landed = []                              # the raised levels landed on along X, then along Y
     kw["landed_out"] = landed
     obj_x = _axis_runs(zp, bp, frame, z.shape, dx, 1, max_cells=int(max_size / dx), cross_cells=int(max_size / dy),

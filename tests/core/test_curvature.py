@@ -2294,12 +2294,90 @@ def test_a_knolls_flank_is_no_wall_where_the_terrain_itself_is_that_steep(cell, 
               terrain_slope=p["terrain_slope"], spacing=p["spacing_m"])
     old, _, _ = profiles.find_profile_objects(z, b.marked, None, (cell, cell), **kw)
     new, _, _ = profiles.find_profile_objects(z, b.marked, None, (cell, cell),
-                                              local_slopes=profiles.local_terrain_slopes(z, cell), **kw)
+                                              local_slopes=profiles.LocalSlopes(z, cell), **kw)
     if cell == 4.0:
         assert old[knoll].mean() > 0.3          # the flanks were walls at 4 m
     assert new[knoll].mean() < 0.15
     assert new[hall].mean() > 0.9 and old[hall].mean() > 0.9
     assert not new[~knoll & ~hall].any()
+
+
+@pytest.mark.parametrize("cell", [(1.0, 1.0), (2.0, 3.0), (4.0, 4.0), (0.5, 0.5)])
+def test_local_slopes_read_at_cells_equal_the_direct_form(cell):
+    """:class:`profiles.LocalSlopes` reads at given cells of a framed raster exactly the values of
+    :func:`profiles.local_terrain_slopes` (raster-wide): at every cell, near the raster's edge,
+    beside nodata and squares without heights, along X and along Y, with cells of two sizes."""
+    z, _, _ = _knoll_and_hall(2.0, 96)
+    z = z[:, :80].copy()
+    z[30:60, 20:26] = np.nan                  # a gap wider than the square at 0.5 m cells
+    z[:4] = np.nan
+    z[70:, 70:] = 1e4                         # a spike block: steep differences
+    direct = profiles.local_terrain_slopes(z, cell)
+    reader = profiles.LocalSlopes(z, cell)
+    for frame in (0, 7):
+        rr, cc = np.mgrid[0:z.shape[0], 0:z.shape[1]]
+        idx = ((rr + frame) * (z.shape[1] + 2 * frame) + cc + frame).ravel()
+        for axis, d in ((1, direct[0]), (0, direct[1])):
+            got = reader.at(idx[::-1], frame, axis)[::-1]
+            assert got.dtype == np.float32
+            np.testing.assert_array_equal(got, d.ravel())
+    assert direct[0].max() > 0 and direct[1].max() > 0
+
+
+class _DirectSlopes:
+    """The direct form's arrays read as :class:`profiles.LocalSlopes` reads them."""
+
+    def __init__(self, z, cell):
+        self.slopes = profiles.local_terrain_slopes(z, cell)
+
+    def at(self, idx, frame, axis):
+        a = self.slopes[1 - axis]
+        return np.pad(a, frame).ravel().take(idx)
+
+
+@pytest.mark.parametrize("cell,n", [(2.0, 128), (4.0, 64)])
+def test_profile_objects_read_the_local_slopes_where_a_wall_may_stand(cell, n):
+    """The profile stage with :class:`profiles.LocalSlopes` finds the objects of the direct form's
+    raster-wide slopes, and reads them only where the rest of the wall's height test passes (the
+    local slope only adds to the demand): fewer cells than the marked ones of both directions. An
+    annex 3.5 m high rises between the rest of the demand (3 m) and the cap (4 m at 2 m cells)."""
+    z, _, _ = _knoll_and_hall(cell, n)
+    z[n // 8:n // 8 + 24 // int(cell), n // 2:n // 2 + 24 // int(cell)] += 3.5
+    p = curvature.resolve_curvature_params(z, cell)
+    b = derivatives.mark_breaks(z, (cell, cell), p["k_g_per_m2"], window=5, model="quadratic")
+    kw = dict(window=5, h_min=1.0, tan_wall=1.0, tol=p["tolerance_m"], max_size=100.0,
+              terrain_slope=p["terrain_slope"], spacing=p["spacing_m"])
+    reads = []
+
+    class Every(_DirectSlopes):
+        def at(self, idx, frame, axis):
+            reads.append(idx.size)
+            return super().at(idx, frame, axis)
+
+    fast = profiles.find_profile_objects(z, b.marked, None, (cell, cell), local_slopes=profiles.LocalSlopes(z, cell),
+                                         **kw)
+    slow = profiles.find_profile_objects(z, b.marked, None, (cell, cell), local_slopes=Every(z, cell), **kw)
+    np.testing.assert_array_equal(fast[0], slow[0])
+    assert fast[1:] == slow[1:]
+    assert 0 < sum(reads) < 2 * np.count_nonzero(b.marked)     # both directions, fewer than the marks
+
+
+def test_profile_objects_never_read_the_local_slopes_where_the_wall_slope_demands_more():
+    """At cells up to 1.5 m the wall slope over two cells already demands the local slope's cap
+    (:func:`profiles.local_rise_cap`): the local slopes are never read nor their minimum computed."""
+    z, _, _ = _knoll_and_hall(1.0, 160)
+    p = curvature.resolve_curvature_params(z, 1.0)
+    b = derivatives.mark_breaks(z, (1.0, 1.0), p["k_g_per_m2"], window=5, model="quadratic")
+    kw = dict(window=5, h_min=1.0, tan_wall=1.0, tol=p["tolerance_m"], max_size=100.0,
+              terrain_slope=p["terrain_slope"], spacing=p["spacing_m"])
+    assert profiles.local_rise_cap(1.0, 1.0, p["spacing_m"]) <= profiles.wall_rise(
+        1.0, h_min=1.0, tan_wall=1.0, terrain_slope=p["terrain_slope"], spacing=p["spacing_m"])
+    reader = profiles.LocalSlopes(z, 1.0)
+    got = profiles.find_profile_objects(z, b.marked, None, (1.0, 1.0), local_slopes=reader, **kw)
+    assert reader.minimum is None
+    plain = profiles.find_profile_objects(z, b.marked, None, (1.0, 1.0), **kw)
+    np.testing.assert_array_equal(got[0], plain[0])
+    assert got[0].any()
 
 
 def test_local_terrain_slopes_read_the_slope_along_each_axis():

@@ -1499,6 +1499,23 @@ def test_running_minimum_gradient_exact():
     assert gx.max() == pytest.approx(4.0 / 6.0) and gx.min() == 0.0 and not gy.any()
 
 
+def test_running_minimum_exact():
+    """The running minimum over a square of ``side + 1`` cells (the edge repeated beyond it), +inf
+    where the square holds no finite height; inside a frame of +inf it is the same array."""
+    z = np.array([[5, 4, 9, 9, 9],
+                  [6, 7, 9, np.nan, 9],
+                  [9, 9, 9, np.nan, np.nan],
+                  [9, 9, 1, np.nan, np.nan]], np.float32)
+    m = est.running_minimum(z, 2)
+    assert m.dtype == np.float32
+    assert m.tolist() == [[4, 4, 4, 9, 9], [4, 4, 4, 9, 9], [6, 1, 1, 1, 9], [9, 1, 1, 1, np.inf]]
+    f = est.running_minimum(z, 2, frame=3)
+    assert f.shape == (10, 11)
+    np.testing.assert_array_equal(f[3:-3, 3:-3], m)
+    f[3:-3, 3:-3] = np.inf
+    assert (f == np.inf).all()
+
+
 def test_above_chords_exact():
     """A peak stands above a chord of its neighbours by more than the margin, and above both its
     ends, along its row, its column and both diagonals: a plane of any slope has none, a bump is one
