@@ -625,3 +625,15 @@ def test_platforms_on_level_lines_stay_ground(monkeypatch):
                                                                      "LEVEL_LINES")
     assert lost < 0.67 * lost_before
     assert kept <= kept_before + 0.001 * n
+
+
+def test_low_vegetation_on_a_slope_a_member_rejects_is_an_object(monkeypatch):
+    """The ``shrubs`` site at 2 m (highest point): low vegetation on sloping ground, which the opening keeps
+    (its flat window rests on the terrain uphill) and another member rejects. A cell of the vote's ground standing
+    above the plane of the ground every member agrees on, by more than that ground's own scatter about it, and
+    above the lines bracketing it (DISPUTED_BUMPS, dtm_refine.find_disputed_bumps) is an object: the objects kept
+    fall, the ground lost does not grow by more than a few cells."""
+    lost, lost_before, kept, kept_before, n = _site_with_and_without(monkeypatch, "shrubs", "highest",
+                                                                     "DISPUTED_BUMPS")
+    assert kept < kept_before - 0.0015 * n
+    assert lost <= lost_before + 0.001 * n
