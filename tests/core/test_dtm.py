@@ -637,3 +637,16 @@ def test_low_vegetation_on_a_slope_a_member_rejects_is_an_object(monkeypatch):
                                                                      "DISPUTED_BUMPS")
     assert kept < kept_before - 0.0015 * n
     assert lost <= lost_before + 0.001 * n
+
+
+def test_disputed_bumps_blocked_equal_one_pass():
+    """A corner of the ``shrubs`` site at 2 m where the disputed-bump stage takes cells: in 48-cell blocks the
+    mask is the single pass's (the stage's plane, lines and guards within dtm_halo)."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("shrubs", 2.0, "highest", seed=0)
+    z = s.dsm[:120, :160]
+    one = pipeline.run_array("dtm", z, s.cell_size)
+    assert not one.info["disputed_bump_rule"].startswith("0 cells")
+    blk = pipeline.run_array("dtm", z, s.cell_size, block=48)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.mask, blk.mask)
