@@ -173,7 +173,13 @@ step's top (:func:`.dtm_refine.find_disputed_bumps`). ISPRS seven 3.22 -> 3.18 %
 highest +0.05; ``benchmarks/sites.py`` 2.592 -> 2.586 (``shrubs`` -0.14 to -0.48, ``quarry`` 2 m highest -0.21;
 ``hillside`` 1 m highest +0.42, lowest +0.19: the strip between a house and a terrace's edge, which the plane of the
 ground on both levels puts above it; ``railway`` 2 m lowest +0.23); bare terrain 0.259 -> 0.263 % (``outcrops`` 4 m
-+0.06). ``info["disputed_bump_rule"]`` says how many cells it took.
++0.06). Guards (the same session, measured on main 1959371): the lines read the undisputed ground on the
+candidate's own level only (no level change, RASCOR's ``jump_m`` beyond the plane's rise, between them along the
+vote's ground: the ground below a retaining wall is not the ground of the strip on its top), a cell on a straight
+line of ground continuing it both ways stays ground as in the refinement (:func:`.dtm_refine.find_level_lines`: a
+platform one cell wide between its edges), and the least height above the plane is also the plane's rise over one
+cell (where a height lies in its cell: an outcrop's foot at 4 m). ``info["disputed_bump_rule"]`` says how many
+cells it took.
 
 A flat roof wider than the windows of a majority of the members (a warehouse, a mall), or cut by
 the raster's edge so that no window sees ground beyond it (a roof over most of a tile), comes out
@@ -325,6 +331,8 @@ from .dtm_refine import (
     BAND_PLANE_HALF_M,
     BANK_SLOPE,
     BANK_SMOOTH_LINES,
+    LEVEL_LINE_CELLS,
+    LEVEL_LINE_M,
     REACH_M,
     SMOOTH_RATIO,
     STEP_TOP_REACH,
@@ -338,6 +346,7 @@ from .dtm_refine import (
     disputed_bumps_reach,
     edge_tolerance,
     find_disputed_bumps,
+    find_level_lines,
     find_smooth,
     find_step_tops,
     refine_ground,
@@ -969,7 +978,8 @@ def _fill_dtm(z, holes, valid, progress):
     return dtm
 
 
-def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, cell, tolerance_m, edge_m, slope):
+def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, cell, tolerance_m, edge_m, slope,
+                    jump_m=None):
     """The vote's ground standing above the undisputed ground's plane (:func:`.dtm_refine.find_disputed_bumps`).
 
     The candidates are the vote's own ground (``need`` votes or more: not the cells the continuations gave back, a
@@ -984,7 +994,11 @@ def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, 
     Found cells on smooth ground stay ground
     (:func:`.dtm_refine.find_smooth` at ``2 t`` on the voted ground, as the refinement has it, and at the edge
     tolerance on the candidates themselves: a raised level, a platform, is as smooth as ground, vegetation is
-    not), and so do the tops of steps (:func:`.dtm_refine.find_step_tops`, as the refinement spares them).
+    not), and so do the tops of steps (:func:`.dtm_refine.find_step_tops`, as the refinement spares them) and the
+    cells on a straight line of ground continuing them both ways (:func:`.dtm_refine.find_level_lines`, as the
+    refinement spares its bracketed cells: a platform between tracks, one cell of ground wide between its
+    edges). The bracketing lines read the undisputed ground on the candidate's own level only (``jump_m``,
+    RASCOR's level change: the ground below a retaining wall is not the ground of the strip along its top).
     """
     kept = (mask == GROUND) & (ground_votes >= need) & ~tops
     if spared is not None:
@@ -993,13 +1007,16 @@ def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, 
     anchors = kept & (ground_votes == n)
     if slope_ground is not None:
         kept &= slope_ground
-    bumps = find_disputed_bumps(z, kept, anchors, cell, tolerance_m=tolerance_m)
+    bumps = find_disputed_bumps(z, kept, anchors, cell, tolerance_m=tolerance_m, jump_m=jump_m)
     if bumps.any():
         g = mask == GROUND
         bumps &= ~find_smooth(z, bumps, SMOOTH_RATIO * tolerance_m, ground=g)
         bumps &= ~find_smooth(z, bumps, edge_m, ground=kept & ~anchors)
         bumps &= ~find_step_tops(z, bumps, g, tolerance_m=edge_m, step_m=SMOOTH_RATIO * tolerance_m,
                                  smooth_m=SMOOTH_RATIO * tolerance_m, along_slope=slope, cell_size=cell)
+    if bumps.any():
+        bumps &= ~find_level_lines(z, mask == GROUND, bumps, cell, tolerance_m=tolerance_m,
+                                   reach_m=LEVEL_LINE_M, min_cells=LEVEL_LINE_CELLS)
     return bumps
 
 
@@ -1221,16 +1238,20 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     tops = refined.pop("step_tops")
     info.update(refined)
     if DISPUTED_BUMPS:
+        jump = float(members[LEVEL_MEMBER]["jump_m"]) if LEVEL_MEMBER in members else float("nan")
         bumps = _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, cell, tolerance_m,
-                                refined["refine_edge_tolerance_m"], refine_slope(members))
+                                refined["refine_edge_tolerance_m"], refine_slope(members),
+                                jump_m=jump if np.isfinite(jump) else None)
         mask[bumps] = OBJECT
         info["disputed_bump_rule"] = (
             "{} cells: the vote's ground the {} member keeps and another rejects, standing above the plane of the "
             "ground every member agrees on within {:g} m by more than three standard deviations of that ground about "
-            "its plane and more than {:g} m (the decision threshold), above the straight line between that ground "
-            "along every row, column or diagonal bracketing it (at least two) by as much, with no such ground within "
-            "two cells as high above the plane, and neither smooth nor a step's top, are objects (low vegetation on "
-            "a slope)").format(int(np.count_nonzero(bumps)), SLOPE_MEMBER, BAND_PLANE_HALF_M, tolerance_m)
+            "its plane, its rise over one cell and {:g} m (the decision threshold), above the straight line between "
+            "that ground on its own level (no level change of {:g} m between them) along every row, column or "
+            "diagonal bracketing it (at least two) by as much, with no such ground within two cells as high above "
+            "the plane, and neither smooth, a step's top nor on a straight line of ground, are objects (low "
+            "vegetation on a slope)").format(int(np.count_nonzero(bumps)), SLOPE_MEMBER, BAND_PLANE_HALF_M,
+                                             tolerance_m, jump)
         del bumps
     slope_ground = None
     info["edge_tolerance_rule"] = (
@@ -1407,11 +1428,14 @@ METHOD = Method(
         "the opening keeps and another member rejects that stands above the plane of the ground every member agrees "
         "on (fitted over 12 m, the slope read on that ground and not across the vegetation) by more than the "
         "decision threshold and three standard deviations of that ground about its plane (Student's t for the "
-        "ground cells the window holds), above the straight line between that ground along every row, column or "
-        "diagonal bracketing it (at least two) by the threshold, with no such ground within two cells as high "
-        "above the plane, and neither smooth nor a step's top (low vegetation on a slope: an opening with a flat "
-        "window rests on the terrain uphill and lowers a shrub by its height less the slope's rise over its width; "
-        "a platform or a terrace's top is as smooth as ground); so is a region "
+        "ground cells the window holds) and its rise over one cell, above the straight line between that ground "
+        "on its own level (not across a level change: the ground below a retaining wall) along every row, column "
+        "or diagonal "
+        "bracketing it (at least two) by the threshold, with no such ground within two cells as high above the "
+        "plane, neither smooth, a step's top nor on a straight line of ground continuing it both ways (low "
+        "vegetation on a slope: an opening with a flat window rests on the terrain uphill and lowers a shrub by its "
+        "height less the slope's rise over its width; a platform or a terrace's top is as smooth as ground); so is "
+        "a region "
         "wider than the members' windows (a warehouse's "
         "flat roof, or a roof running off the raster, taken as mirrored at its edge; a level cut on two opposite "
         "sides, a terrain step across the raster, reaches too far and is left to the vote) whose outline seen "

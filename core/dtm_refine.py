@@ -2054,7 +2054,8 @@ def bump_tolerance(line_tolerance_m, tolerance_m):
     return float(min(t, float(line_tolerance_m) / math.sqrt(3.0)))
 
 
-def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=None):
+def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=None, jump_m=None, gradient=None,
+                        levels=None):
     """The ``cells`` standing more than ``height_m`` above the ground interpolated along all four lines.
 
     Along each line through a cell (row, column, both diagonals) the nearest ``ground`` cell on each side within
@@ -2078,6 +2079,13 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=No
         Judge only the lines with ground on both sides: the cell stands above every one of them, and they are at
         least ``min_lines`` (:func:`find_disputed_bumps`: a bump in wide vegetation has ground across it on some
         lines only). None: on all four lines, as above.
+    jump_m, gradient, levels : float, (ndarray, ndarray), ndarray of bool, optional
+        With ``jump_m``, a side's nearest ``ground`` counts only on the cell's own level: from the cell to it, the
+        heights of the successive ``levels`` cells along the line (``ground`` by default; an object between them,
+        a tree, a house, is stepped over) depart from the terrain's rise between them (``gradient``: its rise
+        per column and per row at each cell, rasters; none without) by more than ``jump_m`` by no more than
+        ``jump_m`` in sum: the ground below a retaining wall or beside a platform's edge is another level's, not
+        the cell's (with ``min_lines`` such a line is not judged; without, the cell does not stand above it).
 
     Returns
     -------
@@ -2110,6 +2118,10 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=No
     zg = np.full((h + 2 * n, W), np.nan, np.float32)
     zg[n:-n, n:-n] = np.where(ground, z, np.nan)
     zg = zg.ravel()
+    if jump_m is not None:      # the levels' heights, for the level changes between the cell and its ground
+        za = np.full((h + 2 * n, W), np.nan, np.float32)
+        za[n:-n, n:-n] = np.where(ground if levels is None else np.asarray(levels, bool), z, np.nan)
+        za = za.ravel()
     r, c = cells_of(cells)
     idx = (r + n) * W + (c + n)
     zc = z[r, c]
@@ -2121,11 +2133,24 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=No
             d = np.zeros(idx.size, np.float32)
             zh = np.full(idx.size, np.nan, np.float32)
             step = sign * (dr * W + dc)
+            if jump_m is not None:
+                run = (np.zeros(idx.size, np.float32) if gradient is None else
+                       (sign * (gradient[0][r, c] * dc + gradient[1][r, c] * dr)).astype(np.float32))
+                net = np.zeros(idx.size, np.float32)
+                last, last_k = zc.astype(np.float32), np.zeros(idx.size, np.float32)
             for k in range(1, n + 1):
                 if not above.any():
                     return _cells_to_mask(r, c, above, z.shape)
                 v = zg[idx + k * step]
                 hit = (d == 0) & np.isfinite(v)
+                if jump_m is not None:
+                    va = za[idx + k * step]
+                    on = np.isfinite(va)
+                    with np.errstate(invalid="ignore"):
+                        dz = np.where(on, va - last - run * (k - last_k), np.float32(0))
+                        net += np.where(np.abs(dz) > np.float32(jump_m), dz, np.float32(0))
+                    last, last_k = np.where(on, va, last), np.where(on, np.float32(k), last_k)
+                    hit &= np.abs(net) <= np.float32(jump_m)
                 d[hit] = k
                 zh[hit] = v[hit]
             ends.append((d, zh))
@@ -2158,11 +2183,15 @@ BUMP_MIN_LINES = 2
 
 
 def disputed_bumps_reach(cell_size):
-    """Reach of :func:`find_disputed_bumps` in cells: the plane's window, which its lines reach too."""
-    return max(max(band_plane_cells(cell_size)), BAND_NEAR_CELLS // 2)
+    """Reach of :func:`find_disputed_bumps` in cells: the plane's window, which its lines reach too, or the straight
+    lines of ground (:func:`find_level_lines`, :data:`LEVEL_LINE_M` each side, at least :data:`LEVEL_LINE_CELLS`)
+    that spare a platform in ``bareearth:dtm``'s stage, if longer."""
+    lines = max(max(abs(di), abs(dj)) * max(n, LEVEL_LINE_CELLS)
+                for (di, dj), n in refine_steps(cell_size, LEVEL_LINE_M).items())
+    return max(max(band_plane_cells(cell_size)), BAND_NEAR_CELLS // 2, lines)
 
 
-def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
+def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m, jump_m=None):
     """Voted ground a member rejects that stands above the plane of the undisputed ground around it (bool).
 
     The candidates are the ``ground`` cells not in ``anchors`` (ground a member calls an object: the vote kept
@@ -2178,7 +2207,12 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
     away), and above the straight line between the nearest anchors on both sides along every row, column and
     diagonal on which anchors bracket it within the window, at least :data:`BUMP_MIN_LINES` of them (the
     two-sided test of Vosselman 2000: ground around it in two directions, not a step's edge with ground on one
-    side).
+    side). The least height above the plane is also the plane's rise over one cell (a height lying anywhere in its
+    cell, on a lowest- or highest-point grid, and the anchors' likewise: two heights on a plane differ from it by
+    up to a cell's rise between them; an outcrop's foot on a steep slope at 4 m). With ``jump_m``, a line's anchor
+    counts only on the candidate's own level (:func:`stands_above_ground`: the vote's ground along the line
+    departing from the plane's rise by more than ``jump_m``, in sum, between the two is a retaining wall or a
+    platform's edge: the ground below a terrace is not the ground of the strip along its top).
 
     Parameters
     ----------
@@ -2192,6 +2226,9 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
         Least height above the plane and above each line, metres (> 0; ``bareearth:dtm``: three standard
         deviations of one height about a smooth surface, the edge tolerance over ``sqrt(6)``). The result depends
         on cells within :func:`disputed_bumps_reach` cells.
+    jump_m : float, optional
+        Height of a level change, metres (``bareearth:dtm``: RASCOR's ``jump_m``); None: the lines read the
+        anchors across any step.
 
     Returns
     -------
@@ -2201,13 +2238,13 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
     Examples
     --------
     >>> y, x = np.mgrid[0:15, 0:15].astype(np.float32)
-    >>> z = 0.6 * x + 0.02 * ((x + y) % 2)             # a hillside rising 0.6 per cell, a little noise
+    >>> z = 0.3 * x + 0.02 * ((x + y) % 2)             # a hillside rising 0.3 per cell, a little noise
     >>> z[7, 7] += 0.4; z[7, 8] += 0.05                # a shrub 0.4 m high, a cell within the noise
     >>> anchors = np.ones(z.shape, bool); anchors[7, 7:9] = False
     >>> found = find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1)
     >>> np.argwhere(found).tolist()
     [[7, 7]]
-    >>> z = 0.6 * x + 0.02 * ((x + y) % 2) + 2.0 * (x >= 7)   # a 2 m step: its top edge stands above the plane
+    >>> z = 0.3 * x + 0.02 * ((x + y) % 2) + 2.0 * (x >= 7)   # a 2 m step: its top edge stands above the plane
     >>> anchors = np.ones(z.shape, bool); anchors[:, 7] = False
     >>> find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1).any()
     False
@@ -2232,7 +2269,8 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
     k = np.full(z.shape, np.inf)
     k[r0, c0] = stats.t.ppf(stats.norm.cdf(BUMP_SIGMAS), np.maximum(n - 3.0, 1.0)) * np.sqrt(1.0 + 1.0 / n)
     with np.errstate(invalid="ignore"):
-        cells &= above > np.maximum(float(tolerance_m), k * sd)
+        cells &= above > np.maximum(np.maximum(float(tolerance_m), k * sd),
+                                    np.hypot(gx, gy))
     r, c = np.nonzero(cells)
     if r.size == 0:
         return cells
@@ -2251,5 +2289,6 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m):
     found = _cells_to_mask(r, c, keep, z.shape)
     if found.any():
         found &= stands_above_ground(z, anchors, found, height_m=float(tolerance_m), reach_cells=max(half),
-                                     min_lines=BUMP_MIN_LINES)
+                                     min_lines=BUMP_MIN_LINES, jump_m=jump_m, gradient=(gx, gy),
+                                     levels=ground | anchors)
     return found
