@@ -333,7 +333,7 @@ import threading
 from functools import partial
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, stats
 
 from .blocks import run_sharing
 from .codes import GROUND, LOW, OBJECT
@@ -502,10 +502,12 @@ def raised_band_reach(cell_size, passes=EDGE_PASSES):
     return int(passes) * (max(max(band_plane_cells(cell_size)), BAND_NEAR_CELLS // 2) + 1)
 
 
-def _plane_residuals(z, known, cells, half):
+def _plane_residuals(z, known, cells, half, gradients=False):
     """Per cell of ``cells``: its height above the plane fitted (least squares) to the ``known`` cells of the
     ``(2 half[0] + 1) x (2 half[1] + 1)`` window centred on it; NaN where fewer than :data:`BAND_PLANE_MIN_CELLS`
-    are known or they do not fix a plane (all in a line).
+    are known or they do not fix a plane (all in a line). With ``gradients`` also the plane's rise per cell
+    along the columns and along the rows, the standard deviation of the known cells about the plane (``n - 3``
+    degrees of freedom; NaN where the first is) and the number ``n`` of known cells (at ``cells``, 0 elsewhere).
 
     The window's sums are separable (offsets along the rows times offsets along the columns), so each is
     two one-dimensional correlations of the whole raster; the 3 x 3 normal equations are solved at
@@ -532,16 +534,32 @@ def _plane_residuals(z, known, cells, half):
     sz, szy = (along(z1, w, 0)[r, c] for w in (one_y, oy))
     szx = along(zx1, one_y, 0)[r, c]
     del z1, zx1
+    if gradients:       # the sum of squares, for the known cells' own scatter about the plane
+        szz = along(along(kz * kz, one_x, 1), one_y, 0)[r, c]
     zc = z[r, c].astype(np.float64)
     a = np.stack([np.stack([s1, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2)
     b = np.stack([sz - zc * s1, szx - zc * sx, szy - zc * sy], -1)      # sums of d = z - z(cell)
     # a plane needs cells off one line: the normal matrix's determinant is then at least of the order of n^3
     ok = (s1 >= BAND_PLANE_MIN_CELLS) & (np.abs(np.linalg.det(a)) > 1e-6 * np.maximum(s1, 1.0) ** 3)
     above = np.full(z.shape, np.nan, np.float64)
+    gx = np.full(z.shape, np.nan, np.float64) if gradients else None
+    gy = np.full(z.shape, np.nan, np.float64) if gradients else None
+    sd = np.full(z.shape, np.nan, np.float64) if gradients else None
+    count = np.zeros(z.shape, np.float64) if gradients else None
+    if gradients:
+        count[r, c] = s1
     if ok.any():
         sol = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
         above[r[ok], c[ok]] = -sol[:, 0]
-    return above
+        if gradients:
+            gx[r[ok], c[ok]] = sol[:, 1]
+            gy[r[ok], c[ok]] = sol[:, 2]
+            # residual sum of squares d'd - sol'b, d = z - z(cell), over n - 3 degrees of freedom
+            zo, n = zc[ok], s1[ok]
+            dd = szz[ok] - 2.0 * zo * sz[ok] + zo * zo * n
+            rss = np.maximum(dd - np.einsum("ij,ij->i", sol, b[ok]), 0.0)
+            sd[r[ok], c[ok]] = np.sqrt(rss / np.maximum(n - 3.0, 1.0))
+    return (above, gx, gy, sd, count) if gradients else above
 
 
 def find_raised_band(z, objects, cell_size, *, tolerance_m, height_m, passes=EDGE_PASSES):
@@ -2036,7 +2054,8 @@ def bump_tolerance(line_tolerance_m, tolerance_m):
     return float(min(t, float(line_tolerance_m) / math.sqrt(3.0)))
 
 
-def stands_above_ground(z, ground, cells, *, height_m, reach_cells):
+def stands_above_ground(z, ground, cells, *, height_m, reach_cells, min_lines=None, jump_m=None, gradient=None,
+                        levels=None):
     """The ``cells`` standing more than ``height_m`` above the ground interpolated along all four lines.
 
     Along each line through a cell (row, column, both diagonals) the nearest ``ground`` cell on each side within
@@ -2056,6 +2075,17 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells):
         Least excess on every line, metres.
     reach_cells : int
         Steps each side a line looks for ground (>= 1).
+    min_lines : int, optional
+        Judge only the lines with ground on both sides: the cell stands above every one of them, and they are at
+        least ``min_lines`` (:func:`find_disputed_bumps`: a bump in wide vegetation has ground across it on some
+        lines only). None: on all four lines, as above.
+    jump_m, gradient, levels : float, (ndarray, ndarray), ndarray of bool, optional
+        With ``jump_m``, a side's nearest ``ground`` counts only on the cell's own level: from the cell to it, the
+        heights of the successive ``levels`` cells along the line (``ground`` by default; an object between them,
+        a tree, a house, is stepped over) depart from the terrain's rise between them (``gradient``: its rise
+        per column and per row at each cell, rasters; none without) by more than ``jump_m`` by no more than
+        ``jump_m`` in sum: the ground below a retaining wall or beside a platform's edge is another level's, not
+        the cell's (with ``min_lines`` such a line is not judged; without, the cell does not stand above it).
 
     Returns
     -------
@@ -2070,6 +2100,9 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells):
     >>> z[:, 3] = 0.6; ground[:, 3] = False; ground[0, 3] = True     # a ridge continuing the ground along it
     >>> stands_above_ground(z, ground, ~ground, height_m=0.3, reach_cells=3).any()
     False
+    >>> # on the lines with ground both sides, at least two: the ridge's cells the diagonals cross too
+    >>> stands_above_ground(z, ground, ~ground, height_m=0.3, reach_cells=3, min_lines=2)[:, 3].astype(int).tolist()
+    [0, 1, 1, 1, 1, 1, 0]
     """
     z = np.asarray(z, np.float32)
     ground = np.asarray(ground, bool)
@@ -2085,28 +2118,53 @@ def stands_above_ground(z, ground, cells, *, height_m, reach_cells):
     zg = np.full((h + 2 * n, W), np.nan, np.float32)
     zg[n:-n, n:-n] = np.where(ground, z, np.nan)
     zg = zg.ravel()
+    if jump_m is not None:      # the levels' heights, for the level changes between the cell and its ground
+        za = np.full((h + 2 * n, W), np.nan, np.float32)
+        za[n:-n, n:-n] = np.where(ground if levels is None else np.asarray(levels, bool), z, np.nan)
+        za = za.ravel()
     r, c = cells_of(cells)
     idx = (r + n) * W + (c + n)
     zc = z[r, c]
     above = np.isfinite(zc)
+    judged = np.zeros(idx.size, np.int8)
     for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
         ends = []
         for sign in (1, -1):
             d = np.zeros(idx.size, np.float32)
             zh = np.full(idx.size, np.nan, np.float32)
             step = sign * (dr * W + dc)
+            if jump_m is not None:
+                run = (np.zeros(idx.size, np.float32) if gradient is None else
+                       (sign * (gradient[0][r, c] * dc + gradient[1][r, c] * dr)).astype(np.float32))
+                net = np.zeros(idx.size, np.float32)
+                last, last_k = zc.astype(np.float32), np.zeros(idx.size, np.float32)
             for k in range(1, n + 1):
                 if not above.any():
                     return _cells_to_mask(r, c, above, z.shape)
                 v = zg[idx + k * step]
                 hit = (d == 0) & np.isfinite(v)
+                if jump_m is not None:
+                    va = za[idx + k * step]
+                    on = np.isfinite(va)
+                    with np.errstate(invalid="ignore"):
+                        dz = np.where(on, va - last - run * (k - last_k), np.float32(0))
+                        net += np.where(np.abs(dz) > np.float32(jump_m), dz, np.float32(0))
+                    last, last_k = np.where(on, va, last), np.where(on, np.float32(k), last_k)
+                    hit &= np.abs(net) <= np.float32(jump_m)
                 d[hit] = k
                 zh[hit] = v[hit]
             ends.append((d, zh))
         (d1, z1), (d2, z2) = ends
         with np.errstate(invalid="ignore", divide="ignore"):
             line = (z1 * d2 + z2 * d1) / (d1 + d2)
-            above &= (d1 > 0) & (d2 > 0) & (zc - line > float(height_m))
+            if min_lines is None:
+                above &= (d1 > 0) & (d2 > 0) & (zc - line > float(height_m))
+            else:
+                seen = (d1 > 0) & (d2 > 0)
+                judged += seen
+                above &= ~seen | (zc - line > float(height_m))
+    if min_lines is not None:
+        above &= judged >= int(min_lines)
     return _cells_to_mask(r, c, above, z.shape)
 
 
@@ -2114,3 +2172,123 @@ def _cells_to_mask(r, c, keep, shape):
     out = np.zeros(shape, bool)
     out[r[keep], c[keep]] = True
     return out
+
+
+#: How many standard deviations of the undisputed ground about its plane a disputed bump stands above it
+#: (:func:`find_disputed_bumps`; three, as the decision threshold is three of the noise).
+BUMP_SIGMAS = 3.0
+#: The lines (of the four) along which the undisputed ground brackets a disputed bump, at least
+#: (:func:`find_disputed_bumps`): ground around it in two directions, not on one side only (a step's edge).
+BUMP_MIN_LINES = 2
+
+
+def disputed_bumps_reach(cell_size):
+    """Reach of :func:`find_disputed_bumps` in cells: the plane's window, which its lines reach too, or the straight
+    lines of ground (:func:`find_level_lines`, :data:`LEVEL_LINE_M` each side, at least :data:`LEVEL_LINE_CELLS`)
+    that spare a platform in ``bareearth:dtm``'s stage, if longer."""
+    lines = max(max(abs(di), abs(dj)) * max(n, LEVEL_LINE_CELLS)
+                for (di, dj), n in refine_steps(cell_size, LEVEL_LINE_M).items())
+    return max(max(band_plane_cells(cell_size)), BAND_NEAR_CELLS // 2, lines)
+
+
+def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m, jump_m=None):
+    """Voted ground a member rejects that stands above the plane of the undisputed ground around it (bool).
+
+    The candidates are the ``ground`` cells not in ``anchors`` (ground a member calls an object: the vote kept
+    them by a majority). Each is compared with the plane fitted (least squares) to the ``anchors`` (ground every
+    member agrees on) of the window of :func:`band_plane_cells` around it: the slope read on that ground, not
+    across the vegetation, where an opening with a flat window rests on the terrain uphill and lowers a shrub on
+    a slope by less than its height. A candidate is a bump when it stands above that plane by more than
+    ``tolerance_m`` and more than :data:`BUMP_SIGMAS` standard deviations of a new height about the plane, from
+    the anchors' own scatter about it (the noise, the sampling of a steep slope, the plane's bend; Student's t
+    with ``n - 3`` degrees of freedom for ``n`` anchors, so that a window of few anchors, on coarse cells or
+    within a wide patch of vegetation, asks for more), with no anchor within two cells
+    (:data:`BAND_NEAR_CELLS`) standing as high above the same plane (the upper side of a step the plane averages
+    away), and above the straight line between the nearest anchors on both sides along every row, column and
+    diagonal on which anchors bracket it within the window, at least :data:`BUMP_MIN_LINES` of them (the
+    two-sided test of Vosselman 2000: ground around it in two directions, not a step's edge with ground on one
+    side). The least height above the plane is also the plane's rise over one cell (a height lying anywhere in its
+    cell, on a lowest- or highest-point grid, and the anchors' likewise: two heights on a plane differ from it by
+    up to a cell's rise between them; an outcrop's foot on a steep slope at 4 m). With ``jump_m``, a line's anchor
+    counts only on the candidate's own level (:func:`stands_above_ground`: the vote's ground along the line
+    departing from the plane's rise by more than ``jump_m``, in sum, between the two is a retaining wall or a
+    platform's edge: the ground below a terrace is not the ground of the strip along its top).
+
+    Parameters
+    ----------
+    z : ndarray, 2-D
+        The DSM (NaN nodata).
+    ground, anchors : ndarray of bool
+        The candidates' ground; the ground every member agrees on.
+    cell_size : (float, float)
+        ``(dx, dy)`` metres.
+    tolerance_m : float
+        Least height above the plane and above each line, metres (> 0; ``bareearth:dtm``: three standard
+        deviations of one height about a smooth surface, the edge tolerance over ``sqrt(6)``). The result depends
+        on cells within :func:`disputed_bumps_reach` cells.
+    jump_m : float, optional
+        Height of a level change, metres (``bareearth:dtm``: RASCOR's ``jump_m``); None: the lines read the
+        anchors across any step.
+
+    Returns
+    -------
+    ndarray of bool
+        The candidates standing above the undisputed ground's plane.
+
+    Examples
+    --------
+    >>> y, x = np.mgrid[0:15, 0:15].astype(np.float32)
+    >>> z = 0.3 * x + 0.02 * ((x + y) % 2)             # a hillside rising 0.3 per cell, a little noise
+    >>> z[7, 7] += 0.4; z[7, 8] += 0.05                # a shrub 0.4 m high, a cell within the noise
+    >>> anchors = np.ones(z.shape, bool); anchors[7, 7:9] = False
+    >>> found = find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1)
+    >>> np.argwhere(found).tolist()
+    [[7, 7]]
+    >>> z = 0.3 * x + 0.02 * ((x + y) % 2) + 2.0 * (x >= 7)   # a 2 m step: its top edge stands above the plane
+    >>> anchors = np.ones(z.shape, bool); anchors[:, 7] = False
+    >>> find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1).any()
+    False
+    """
+    if not (np.isfinite(tolerance_m) and tolerance_m > 0):
+        raise ValueError(f"tolerance_m must be a positive height in metres; got {tolerance_m}.")
+    z = np.asarray(z, np.float32)
+    ground = np.asarray(ground, bool)
+    anchors = np.asarray(anchors, bool)
+    if not (z.ndim == 2 and ground.shape == anchors.shape == z.shape):
+        raise ValueError(f"z {z.shape}, ground {ground.shape} and anchors {anchors.shape} must share one 2-D shape.")
+    cells = ground & ~anchors & np.isfinite(z)
+    if not cells.any():
+        return np.zeros(z.shape, bool)
+    half = band_plane_cells(cell_size)
+    above, gx, gy, sd, count = _plane_residuals(z, anchors, cells, half, gradients=True)
+    # BUMP_SIGMAS standard deviations of a new height about a plane fitted to n heights, its spread measured on
+    # them: Student's t with n - 3 degrees of freedom at the normal's one-sided level, times sqrt(1 + 1 / n)
+    # (a few anchors, on coarse cells or at a patch's edge, give a loose spread and a wide margin)
+    r0, c0 = np.nonzero(cells & np.isfinite(above))
+    n = count[r0, c0]
+    k = np.full(z.shape, np.inf)
+    k[r0, c0] = stats.t.ppf(stats.norm.cdf(BUMP_SIGMAS), np.maximum(n - 3.0, 1.0)) * np.sqrt(1.0 + 1.0 / n)
+    with np.errstate(invalid="ignore"):
+        cells &= above > np.maximum(np.maximum(float(tolerance_m), k * sd),
+                                    np.hypot(gx, gy))
+    r, c = np.nonzero(cells)
+    if r.size == 0:
+        return cells
+    # an anchor within two cells standing as high above the cell's plane: the upper side of a step
+    h, w = z.shape
+    zc, base = z[r, c].astype(np.float64), (z[r, c] - above[r, c]).astype(np.float64)
+    keep = np.ones(r.size, bool)
+    m = BAND_NEAR_CELLS // 2
+    for dr in range(-m, m + 1):
+        for dc in range(-m, m + 1):
+            rr, cc = r + dr, c + dc
+            inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+            rr, cc = np.clip(rr, 0, h - 1), np.clip(cc, 0, w - 1)
+            lift = z[rr, cc] - (base + gx[r, c] * dc + gy[r, c] * dr)
+            keep &= ~(inside & anchors[rr, cc] & (lift >= zc - base))
+    found = _cells_to_mask(r, c, keep, z.shape)
+    if found.any():
+        found &= stands_above_ground(z, anchors, found, height_m=float(tolerance_m), reach_cells=max(half),
+                                     min_lines=BUMP_MIN_LINES, jump_m=jump_m, gradient=(gx, gy),
+                                     levels=ground | anchors)
+    return found

@@ -625,3 +625,49 @@ def test_platforms_on_level_lines_stay_ground(monkeypatch):
                                                                      "LEVEL_LINES")
     assert lost < 0.67 * lost_before
     assert kept <= kept_before + 0.001 * n
+
+
+def test_low_vegetation_on_a_slope_a_member_rejects_is_an_object(monkeypatch):
+    """The ``shrubs`` site at 2 m (highest point): low vegetation on sloping ground, which the opening keeps
+    (its flat window rests on the terrain uphill) and another member rejects. A cell of the vote's ground standing
+    above the plane of the ground every member agrees on, by more than that ground's own scatter about it, and
+    above the lines bracketing it (DISPUTED_BUMPS, dtm_refine.find_disputed_bumps) is an object: the objects kept
+    fall, the ground lost does not grow by more than a few cells."""
+    lost, lost_before, kept, kept_before, n = _site_with_and_without(monkeypatch, "shrubs", "highest",
+                                                                     "DISPUTED_BUMPS")
+    assert kept < kept_before - 0.0015 * n
+    assert lost <= lost_before + 0.001 * n
+
+
+def test_disputed_bumps_blocked_equal_one_pass():
+    """A corner of the ``shrubs`` site at 2 m where the disputed-bump stage takes cells: in 48-cell blocks the
+    mask is the single pass's (the stage's plane, lines and guards within dtm_halo)."""
+    from bare_earth.core.synthetic_sites import make_site
+    s = make_site("shrubs", 2.0, "highest", seed=0)
+    z = s.dsm[:120, :160]
+    one = pipeline.run_array("dtm", z, s.cell_size)
+    assert not one.info["disputed_bump_rule"].startswith("0 cells")
+    blk = pipeline.run_array("dtm", z, s.cell_size, block=48)
+    assert blk.info["blocks"] > 1
+    assert np.array_equal(one.mask, blk.mask)
+
+
+def test_disputed_bumps_spare_a_platform_on_a_level_line(monkeypatch):
+    """A platform one cell of ground wide between its edges (1 m above the tracks, which every member agrees on)
+    that a member rejects stands above the tracks' plane and the lines across it like a row of shrubs; a straight
+    line of ground continues it both ways (dtm_refine.find_level_lines, as the refinement spares its bracketed
+    cells), so it stays ground; without that guard the stage takes it."""
+    rng = np.random.default_rng(1)
+    z = (0.02 * rng.standard_normal((25, 40))).astype(np.float32)
+    z[11:14, 5:35] += 1.0                                # the platform
+    mask = np.full(z.shape, GROUND, np.uint8)
+    mask[[11, 13], 5:35] = OBJECT                        # its edges, objects by the vote
+    votes = np.full(z.shape, 3, np.int8)
+    votes[[11, 13], 5:35] = 0
+    votes[12, 5:35] = 2                                  # the opening keeps its middle, a member rejects it
+    none = np.zeros(z.shape, bool)
+    args = (z, mask, votes, 3, 2, none, None, None, (1.0, 1.0), 0.3, 0.3, 0.1)
+    line = np.s_[12, 11:29]                              # LEVEL_LINE_M (6 cells) of the platform both ways
+    assert not dtm_method._disputed_bumps(*args, jump_m=2.0)[line].any()
+    monkeypatch.setattr(dtm_method, "find_level_lines", lambda z, g, cells, *a, **k: np.zeros(z.shape, bool))
+    assert dtm_method._disputed_bumps(*args, jump_m=2.0)[line].all()

@@ -1741,3 +1741,116 @@ def test_refine_ground_level_lines_keep_a_platform_and_take_a_bush():
         zb = z[rows, cols]
         return dr.refine_ground(zb, np.zeros(zb.shape, np.uint8), (2.0, 2.0), level_lines=True, **kw)[0]
     np.testing.assert_array_equal(in_blocks(run, z.shape, 7, halo), kept)
+
+
+def _hillside(rows=21, cols=21, slope=0.3):
+    y, x = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    return x, y, (slope * x + 0.02 * ((x + y) % 2)).astype(np.float32)
+
+
+def test_find_disputed_bumps_a_shrub_on_a_slope_and_not_the_noise():
+    """A 0.4 m shrub on a slope rising 0.3 per cell stands 0.4 m above the plane of the ground around it (the
+    opening's flat window would lower it by max(0, 0.4 - 0.3 w) only); a cell 0.05 m up, within the tolerance,
+    and the ground every member agrees on are not judged."""
+    _, _, z = _hillside()
+    z[10, 10] += 0.4
+    z[10, 11] += 0.05
+    anchors = np.ones(z.shape, bool)
+    anchors[10, 10:12] = False
+    found = dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1)
+    assert np.argwhere(found).tolist() == [[10, 10]]
+    # more than three standard deviations of the ground about its plane: on rough ground (0.3 m) it is not
+    rough = z + 0.3 * np.random.default_rng(0).standard_normal(z.shape).astype(np.float32)
+    rough[10, 10] = z[10, 10]
+    assert not dr.find_disputed_bumps(rough, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1)[10, 10]
+
+
+def test_find_disputed_bumps_spares_a_steps_top_and_a_raised_level():
+    """A terrace's upper edge (the ground every member agrees on lying on both levels, the disputed strip at the
+    top of the 2 m step) stands above the plane the window fits across the step, but an anchor beside it stands
+    as high above that plane, and on the lines across, the ground beside it on its own level continues it."""
+    x, _, z = _hillside()
+    z = z + 2.0 * (x >= 10)
+    anchors = np.ones(z.shape, bool)
+    anchors[:, 10:12] = False
+    assert not dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1).any()
+
+
+def test_find_disputed_bumps_judges_only_the_candidates():
+    """Only ground not among the anchors is a candidate; no ground, no candidates: nothing found."""
+    _, _, z = _hillside()
+    z[10, 10] += 0.4
+    anchors = np.ones(z.shape, bool)
+    assert not dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1).any()
+    anchors[10, 10] = False
+    ground = np.ones(z.shape, bool)
+    ground[10, 10] = False
+    assert not dr.find_disputed_bumps(z, ground, anchors, (1.0, 1.0), tolerance_m=0.1).any()
+    with pytest.raises(ValueError, match="tolerance_m"):
+        dr.find_disputed_bumps(z, ground, anchors, (1.0, 1.0), tolerance_m=0.0)
+
+
+def test_stands_above_ground_min_lines_judges_the_bracketing_lines_only():
+    """With min_lines a line without ground on both sides is not judged (rather than sparing the cell): a bump
+    in a patch wider along the rows than the reach is above the columns' and diagonals' lines."""
+    z = np.zeros((9, 9), np.float32)
+    z[4, 4] = 0.6
+    ground = np.ones(z.shape, bool)
+    ground[4, :] = False                      # the patch runs along the whole row
+    cells = np.zeros(z.shape, bool)
+    cells[4, 4] = True
+    assert not dr.stands_above_ground(z, ground, cells, height_m=0.3, reach_cells=3).any()
+    assert dr.stands_above_ground(z, ground, cells, height_m=0.3, reach_cells=3, min_lines=3)[4, 4]
+    assert not dr.stands_above_ground(z, ground, cells, height_m=0.3, reach_cells=3, min_lines=4).any()
+    z[3, 3] = z[5, 5] = 0.6                   # ground as high on a diagonal: not above every judged line
+    assert not dr.stands_above_ground(z, ground, cells, height_m=0.3, reach_cells=3, min_lines=2).any()
+
+
+def test_find_disputed_bumps_not_within_a_cells_rise():
+    """On a slope rising 1.5 m per cell (an outcrop's foot at 4 m) a cell 1.2 m above the plane may be ground
+    whose height lies elsewhere in its cell than the anchors' do: the least height is the plane's rise over one
+    cell; 2 m above it is a bump."""
+    _, _, z = _hillside(slope=1.5)
+    anchors = np.ones(z.shape, bool)
+    anchors[10, 10] = False
+    low, high = z.copy(), z.copy()
+    low[10, 10] += 1.2
+    high[10, 10] += 2.0
+    assert not dr.find_disputed_bumps(low, np.ones(z.shape, bool), anchors, (4.0, 4.0), tolerance_m=0.1).any()
+    found = dr.find_disputed_bumps(high, np.ones(z.shape, bool), anchors, (4.0, 4.0), tolerance_m=0.1)
+    assert np.argwhere(found).tolist() == [[10, 10]]
+
+
+def test_stands_above_ground_reads_the_ground_on_the_cells_own_level():
+    """With ``jump_m`` a line's ground beyond a level change (a 3 m retaining wall below the cell) is another
+    level's: the line is not judged; a tree between the cell and its ground (not among the levels' cells) is
+    stepped over, and a line rising with the terrain's gradient is no level change."""
+    z = np.zeros((5, 11), np.float32)
+    z[:, :5] = -3.0                                     # the terrace below the wall, beside the cell
+    z[2, 5] = 0.6                                       # the cell, 0.6 m above its own level's ground
+    ground = np.ones(z.shape, bool)
+    ground[2, 5] = False
+    cells = ~ground
+    kw = dict(height_m=0.3, reach_cells=5, min_lines=1)
+    assert dr.stands_above_ground(z, ground, cells, **kw)[2, 5]                  # the row, across the wall
+    got = dr.stands_above_ground(z, ground, cells, jump_m=2.0, **kw)
+    assert got[2, 5]                                    # the column: ground on its own level both sides
+    rows = np.zeros(z.shape, bool)
+    rows[2, :] = True                                   # only the row's ground: the wall's line alone
+    assert dr.stands_above_ground(z, ground & rows, cells, **kw)[2, 5]
+    assert not dr.stands_above_ground(z, ground & rows, cells, jump_m=2.0, **kw)[2, 5]
+    # a tree (8 m, not ground) between the cell and its ground on both sides: stepped over
+    t = np.zeros((1, 11), np.float32)
+    t[0, 3] = t[0, 7] = 8.0
+    t[0, 5] = 0.6
+    g = np.ones(t.shape, bool)
+    g[0, [3, 5, 7]] = False
+    c = np.zeros(t.shape, bool)
+    c[0, 5] = True
+    assert dr.stands_above_ground(t, g, c, jump_m=2.0, levels=g | c, **kw)[0, 5]
+    # the ground rising 2.5 m per cell along the row, the gradient given: no level change
+    s = np.tile(2.5 * np.arange(11, dtype=np.float32), (1, 1))
+    s[0, 5] += 0.6
+    grad = (np.full(s.shape, 2.5), np.zeros(s.shape))
+    assert not dr.stands_above_ground(s, c == 0, c, jump_m=2.0, **kw)[0, 5]
+    assert dr.stands_above_ground(s, c == 0, c, jump_m=2.0, gradient=grad, **kw)[0, 5]
