@@ -2190,6 +2190,17 @@ def line_share(g, cells, half_widths, level, chunk=1 << 15):
     return out
 
 
+def _surface_and_cells(z, func, cells, name, least):
+    """``z`` as a float32 2-D surface; ValueError naming ``func`` when it is not 2-D, and ``name`` when
+    ``cells`` is not a whole number of cells >= ``least`` (the checks of the window estimates)."""
+    z = np.asarray(z, np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"{func} needs a 2-D surface; got {z.ndim} dimensions.")
+    if int(cells) != cells or cells < least:
+        raise ValueError(f"{name} must be a whole number of cells >= {least}; got {cells}.")
+    return z
+
+
 def under_chords(z, half_cells, tol_m, progress=None):
     """The cells of a surface that stand no higher than ``tol_m`` above any chord between two cells
     of their row lying within ``half_cells`` on either side of them, nor above any such chord along
@@ -2227,11 +2238,7 @@ def under_chords(z, half_cells, tol_m, progress=None):
     >>> under_chords(z, 1, 0.1)[1].tolist()   # the middle row (the edge cells have no chord along it)
     [False, True, False, True, False]
     """
-    z = np.asarray(z, np.float32)
-    if z.ndim != 2:
-        raise ValueError(f"under_chords needs a 2-D surface; got {z.ndim} dimensions.")
-    if int(half_cells) != half_cells or half_cells < 1:
-        raise ValueError(f"half_cells must be a whole number of cells >= 1; got {half_cells}.")
+    z = _surface_and_cells(z, "under_chords", half_cells, "half_cells", 1)
     tol = float(tol_m)
     if not (0.0 <= tol < np.inf):
         raise ValueError(f"tol_m must be a height >= 0 in metres; got {tol_m}.")
@@ -2333,11 +2340,7 @@ def above_chords(z, half_cells, margin_m, progress=None):
     >>> above_chords(z, 1, 0.3).any()                      # a ridge: on its chords along the row
     False
     """
-    z = np.asarray(z, np.float32)
-    if z.ndim != 2:
-        raise ValueError(f"above_chords needs a 2-D surface; got {z.ndim} dimensions.")
-    if int(half_cells) != half_cells or half_cells < 1:
-        raise ValueError(f"half_cells must be a whole number of cells >= 1; got {half_cells}.")
+    z = _surface_and_cells(z, "above_chords", half_cells, "half_cells", 1)
     m = int(half_cells)
     margin = np.asarray(margin_m, np.float32)
     if margin.ndim == 0:
@@ -2424,11 +2427,7 @@ def running_minimum(z, side_cells, frame=0):
     >>> running_minimum(np.array([[3, 1, 2, np.nan]], np.float32), 2, frame=1).tolist()
     [[inf, inf, inf, inf, inf, inf], [inf, 1.0, 1.0, 1.0, 2.0, inf], [inf, inf, inf, inf, inf, inf]]
     """
-    z = np.asarray(z, np.float32)
-    if z.ndim != 2:
-        raise ValueError(f"running_minimum needs a 2-D surface; got {z.ndim} dimensions.")
-    if int(side_cells) != side_cells or side_cells < 1:
-        raise ValueError(f"side_cells must be a whole number of cells >= 1; got {side_cells}.")
+    z = _surface_and_cells(z, "running_minimum", side_cells, "side_cells", 1)
     f = int(frame)
     zf = np.where(np.isfinite(z), z, np.float32(np.inf))
     if f <= 0:
@@ -2452,11 +2451,7 @@ def running_minimum_gradient(z, cell_size, side_cells):
     >>> float(gx[4, 4]), float(gy[4, 4])
     (0.5, 0.0)
     """
-    z = np.asarray(z, np.float32)
-    if z.ndim != 2:
-        raise ValueError(f"running_minimum_slopes needs a 2-D surface; got {z.ndim} dimensions.")
-    if int(side_cells) != side_cells or side_cells < 2:
-        raise ValueError(f"side_cells must be a whole number of cells >= 2; got {side_cells}.")
+    z = _surface_and_cells(z, "running_minimum_slopes", side_cells, "side_cells", 2)
     dx, dy = (float(c) for c in cell_size)
     k = int(side_cells)
     h = k // 2
