@@ -333,8 +333,8 @@ def level_step(neighbour_k: float, sigma_m: float, terrain_bend_m: float, jump_m
 
     Examples
     --------
-    >>> level_step(3.0, 0.1, 0.0, 2.0)                      # k sqrt(2) sigma
-    0.4242640687119285
+    >>> round(level_step(3.0, 0.1, 0.0, 2.0), 4)            # k sqrt(2) sigma
+    0.4243
     >>> round(level_step(3.0, 0.1, 0.0, 2.0, rise_m=0.2), 4)  # 0.2 + sqrt(0.424^2 + 9 0.04 / 6)
     0.6899
     >>> level_step(3.0, 0.1, 0.0, 2.0, rise_m=5.0)          # at most half the jump
