@@ -314,13 +314,36 @@ def _step3_tolerance(cfg):
     return float(np.hypot(cfg.neighbour_k * cfg.sigma_m * np.sqrt(2.0), cfg.neighbour_k * cfg.terrain_bend_m))
 
 
-def level_step(neighbour_k: float, sigma_m: float, terrain_bend_m: float, jump_m: float) -> float:
+def level_step(neighbour_k: float, sigma_m: float, terrain_bend_m: float, jump_m: float,
+               rise_m: float = 0.0) -> float:
     """The largest difference (m) of neighbouring heights within one level of step 4
     (:func:`~.steps.joined_levels`, :func:`~.steps.enclosed_levels`): step 3's tolerance of a pair,
     ``k sqrt(2) sigma`` widened in quadrature by ``k`` times the terrain's bend (no level change to
     step 3), and less than half the jump (the height step 4 asks of a raised point above the
-    ground's line)."""
+    ground's line).
+
+    With ``rise_m`` > 0 (the terrain's rise over one cell, :func:`cell_rise`), the ground it joins
+    slopes: two neighbouring heights on it differ by that rise, and by the tolerance step 3 gives a
+    pair there (:func:`~.steps.remove_neighbour_differences`: ``k sqrt(2) sigma`` widened in
+    quadrature by ``k g / sqrt(6)``, a height's position inside its cell on ground rising ``g``
+    over the cell), so the step is ``g + sqrt(tol^2 + k^2 g^2 / 6)``. The rise grows with the cell:
+    at 2 m the crown of a road embankment rising along the road, or crossed at a slant, left its
+    neighbours by more than ``k sqrt(2) sigma`` and its parts were cut shorter than the longest
+    building (ISPRS 61, 2 m lowest 6.03 -> 5.66 %, highest 5.85 -> 5.48 %).
+
+    Examples
+    --------
+    >>> round(level_step(3.0, 0.1, 0.0, 2.0), 4)            # k sqrt(2) sigma
+    0.4243
+    >>> round(level_step(3.0, 0.1, 0.0, 2.0, rise_m=0.2), 4)  # 0.2 + sqrt(0.424^2 + 9 0.04 / 6)
+    0.6899
+    >>> level_step(3.0, 0.1, 0.0, 2.0, rise_m=5.0)          # at most half the jump
+    1.0
+    """
     tol = float(np.hypot(neighbour_k * sigma_m * np.sqrt(2.0), neighbour_k * terrain_bend_m))
+    g = max(0.0, float(rise_m))
+    if g > 0:
+        tol = float(np.hypot(tol, neighbour_k * g / np.sqrt(6.0))) + g
     return min(tol, 0.5 * float(jump_m))
 
 
@@ -357,7 +380,8 @@ def _step4_level_change(st, cfg, progress):
                               k=cfg.neighbour_k, bend_m=cfg.terrain_bend_m, labels=st.labels,
                               z_t=st.transposed(), cut_at_edge=True, progress=sub_progress(progress, 0.0, 0.6))
     # an embankment's crown the ground continues onto (a ramp, a gentler side) is no roof
-    step_m = level_step(cfg.neighbour_k, cfg.sigma_m, cfg.terrain_bend_m, cfg.jump_m)
+    step_m = level_step(cfg.neighbour_k, cfg.sigma_m, cfg.terrain_bend_m, cfg.jump_m,
+                        rise_m=max(cell_rise(cfg.terrain_slope, cfg.cell)))
     hi &= ~joined_levels(st.z, cfg.cell, hi, st.keep, step_m=step_m, max_building_m=cfg.max_building_m)
     # a hall longer than the longest building along both axes: a level its walls close on every side
     halls = None

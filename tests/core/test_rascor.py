@@ -506,6 +506,33 @@ def test_step4_crown_the_ground_continues_onto_is_no_roof(w):
     assert np.mean(run(walled, steps=[3, 4], max_building_m=120.0).extras["step"][top] == 4) > 0.75
 
 
+def test_step4_crown_rising_along_a_coarse_slope_is_no_roof(monkeypatch):
+    """At 2 m cells on ground rising 0.25 per metre, neighbouring heights of an embankment's crown
+    climbing the slope differ by 0.5 m, beyond ``k sqrt(2) sigma`` (0.42 m): without the terrain's
+    rise over a cell in step 4's level step the crown fell into parts a few cells long, each taken
+    for a roof between the embankment's walls; with it the crown is one level running up the
+    slope, no building. A roof on the same slope stays step 4's."""
+    rows, cols = 60, 150
+    x = np.arange(cols) * 2.0
+    z = np.tile(0.25 * x, (rows, 1)).astype(np.float32)
+    crown = np.zeros(z.shape, bool)
+    crown[24:32, 10:140] = True                    # 260 m along the slope, 16 m wide, 3 m high
+    roof = np.zeros(z.shape, bool)
+    roof[44:54, 60:75] = True                      # 30 x 20 m, 6 m high
+    z[crown] += 3.0
+    z[roof] += 6.0
+    p = dict(BASE, terrain_slope=0.25, steps=[3, 4])
+    inner = crown & ~ndimage.binary_dilation(~crown, iterations=1)
+    roof_in = roof & ~ndimage.binary_dilation(~roof, iterations=1)
+    st = rascor.filter_rascor(z, 2.0, **p).extras["step"]
+    assert np.mean(st[inner] == 4) < 0.01
+    assert (st[roof_in] == 4).all() and (st[roof] > 0).all()
+    # without the rise (level ground's step, 0.42 m) the crown was cut into roofs
+    level_ground = sequence.level_step
+    monkeypatch.setattr(sequence, "level_step", lambda *a, **kw: level_ground(*a))
+    assert np.mean(rascor.filter_rascor(z, 2.0, **p).extras["step"][inner] == 4) > 0.9
+
+
 def test_step4_crown_given_back_in_blocks_as_in_one_pass():
     """The parts joined_levels reads reach no further than step 4's halo decides: blocks of 64
     cells give the crown back (and keep the roofs) as one pass does."""
