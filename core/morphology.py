@@ -2010,10 +2010,16 @@ def find_cut_slopes(clean, flagged, ground, cell, dh, slope, r_max):
     if free.any():
         free &= near(edge & ~wall & ~thin_wall)
     if free.any():
-        #    a cell inside an edge and no wall among the cells of its own region within the window's reach
-        free &= _reached(inside, flagged, int(max(r_max)))
-    if free.any():
-        free &= ~_reached(wall & flagged, flagged, int(max(r_max)))
+        #    a cell inside an edge and no wall among the cells of its own region within the window's reach (a path
+        #    of at most that many steps to a cell left lies in the box that far around the cells left: read there)
+        steps = int(max(r_max))
+        rr, cc = np.nonzero(free)
+        box = (slice(max(0, rr.min() - steps - 1), rr.max() + steps + 2),
+               slice(max(0, cc.min() - steps - 1), cc.max() + steps + 2))
+        part = free[box]
+        part &= _reached(inside[box], flagged[box], steps)
+        if part.any():
+            part &= ~_reached(wall[box] & flagged[box], flagged[box], steps)
     return free
 
 
