@@ -1460,8 +1460,9 @@ def _diagonal_dike(n=120, h=6.0, crest=5.0, side=0.5):
 
 def test_find_cut_slopes_keeps_walls_and_thin_regions():
     """A ridge flagged along its length (longer than the box of find_cut_terrain, off the raster) is terrain
-    beyond a window's reach of the raster's border; a block on walls, cells within a window of it, and a
-    flagged line one cell wide (too thin to judge) stay flagged."""
+    beyond a window's reach of the raster's border (its own walls there); a block on walls stays flagged, and the
+    ridge beside it is terrain (another object's walls say nothing of the ridge); a flagged line one cell wide
+    (too thin to judge) stays flagged."""
     i, j = np.mgrid[0:40, 0:30].astype(np.float32)
     z = np.maximum(0.0, 3.0 - 0.5 * np.abs(j - 8)).astype(np.float32)
     flags = z > 1.0
@@ -1475,10 +1476,37 @@ def test_find_cut_slopes_keeps_walls_and_thin_regions():
     f2 = flags | (walled > 4.0)
     cut2 = morph.find_cut_slopes(walled, f2, ~f2, *args)
     assert not cut2[(walled > 4.0)].any()
-    assert not cut2[12:23, 10:12].any() and cut2[12:23, 5:10].all() and cut2[30:36, 5:12].all()
+    assert cut2[12:23, 5:12].all() and cut2[30:36, 5:12].all()
     line = np.zeros(z.shape, bool)
     line[:, 8] = True
     assert not morph.find_cut_slopes(np.where(line, 1.0, 0.0).astype(np.float32), line, ~line, *args).any()
+
+
+def test_find_cut_slopes_judges_a_cell_by_its_own_region():
+    """The walls that keep a cell flagged are its own object's, reached through the flags within the window: an
+    embankment (a ridge longer than any box) among buildings on walls within the window is terrain, the buildings
+    stay flagged; a building joined to the ridge keeps the ridge's cells within the window's reach flagged; a low
+    line one cell wide beside the ridge (no wall, no cell inside its edge) stays flagged though the ridge's inside
+    is within the window; a shrub one cell wide at the ridge's foot (its own outline) keeps only itself and its
+    neighbours. Before, any wall within the window kept the ridge beside the building and the shrub flagged."""
+    i, j = np.mgrid[0:60, 0:40].astype(np.float32)
+    z = np.maximum(0.0, 3.0 - 0.5 * np.abs(j - 12)).astype(np.float32)
+    ridge = z > 1.0                                                   # columns 9..15, rows 0..59
+    z[20:26, 19:25] = 6.0                                             # a building 4 cells from the ridge
+    z[44:50, 16:22] = 6.0                                             # a building joined to the ridge
+    z[:, 30] = 0.4                                                    # a low line, one cell wide
+    flags = ridge | (z > 5.0) | (z == np.float32(0.4))
+    args = ((1.0, 1.0), 0.5, 0.0, (4, 4))
+    cut = morph.find_cut_slopes(z, flags, ~flags, *args)
+    assert not cut[z > 5.0].any() and not cut[:, 30].any()
+    assert cut[10:38, 9:16].all()                                     # the ridge beside the free-standing building
+    assert not cut[45:49, 13:16].any()                                # joined to the other: within its reach
+    shrub = z.copy()
+    shrub[32, 7] = 4.0                                                # at the ridge's foot, a wall one cell wide
+    f2 = flags.copy()
+    f2[32, 7] = True
+    cut2 = morph.find_cut_slopes(shrub, f2, ~f2, *args)
+    assert not cut2[32, 7] and cut2[28:37, 9:16].all()
 
 
 def test_a_dike_longer_than_the_window_stays_ground():
