@@ -1357,3 +1357,95 @@ def test_low_hedge_accepted_along_its_length_is_an_object_a_ramped_embankment_is
     z[18:21] = ramp
     r = sp.filter_slope_profile(z, 1.0, **p)
     assert (r.mask == GROUND).all()
+
+
+def _scan1_trend(values, trend, tan_g, tan_t, dh0, reverse=False):
+    """One profile scanned alone with the ground's trend (rise per cell along the profile's
+    forward direction): its rejections as a list of bools in the profile's order."""
+    a = np.asarray(values, np.float32)[:, None]
+    t = np.full(a.shape, trend, np.float32)
+    return sp._scan([(a, reverse)], 1.0, tan_g, tan_t, dh0, 1, 1, trends=[t])[0][:, 0].tolist()
+
+
+def test_scan_terrain_rise_follows_the_ground_fall_at_the_reference():
+    # tan_g 0.6, tan_t 0.2, dh0 0: ground falling 0.2 m a cell to the reference (0.4), a
+    # 3 m object, then a cell 0.3 m above the reference at d = 2. From the reference's level
+    # the terrain's line allows 0.4 m there: accepted (the old rule, and without a trend).
+    # Continued down its fall the ground lies at 0.0 there, and the rise alpha_t from it
+    # allows only the reference's level (the edge's 0.2 m over the fall is larger): rejected.
+    z = [1.0, 0.8, 0.6, 0.4, 3.0, 0.7]
+    assert _scan1(z, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    assert _scan1_trend(z, 0.0, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    assert _scan1_trend(z, -0.2, 0.6, 0.2, 0.0) == [False] * 4 + [True, True]
+    # a fall steeper than alpha_t counts as alpha_t: the same
+    assert _scan1_trend(z, -1.0, 0.6, 0.2, 0.0) == [False] * 4 + [True, True]
+    # and below the ground's continuation plus the edge's 0.2 m (0.15 above it) is ground
+    assert _scan1_trend([1.0, 0.8, 0.6, 0.4, 3.0, 0.15], -0.2, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    # the fall must be the trend's and the last step's: level ground before the object with
+    # a falling trend, or a falling step with a level trend, keeps the reference's level
+    assert _scan1_trend([0.4, 0.4, 0.4, 0.4, 3.0, 0.7], -0.2, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    assert _scan1_trend(z, 0.0, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    # the step's fall counts beyond its noise, sqrt(2) dh0 / 3: with dh0 0.3 (0.14 m) a fall of
+    # 0.2 m a cell continues at 0.06 m a cell (0.65 above the reference at d = 2: above
+    # 0.3 + 2 (0.2 - 0.06) = 0.58, rejected; the reference's level allowed 0.7), a fall of 0.1 m
+    # a cell is noise: the reference's level
+    assert _scan1_trend(z[:5] + [1.05], -0.2, 0.6, 0.2, 0.3) == [False] * 4 + [True, True]
+    assert _scan1(z[:5] + [1.05], 0.6, 0.2, 0.3) == [False] * 4 + [True, False]
+    assert _scan1_trend([0.7, 0.6, 0.5, 0.4, 3.0, 1.05], -0.2, 0.6, 0.2, 0.3) == [False] * 4 + [True, False]
+    # a rising trend changes nothing: the terrain's rise from the reference
+    assert _scan1_trend([0.0, 0.2, 0.4, 0.6, 3.0, 1.0], 0.2, 0.6, 0.2, 0.0) == [False] * 4 + [True, False]
+    # scanned backwards the trend's sign turns: the same profile mirrored, rising forwards
+    assert _scan1_trend(z[::-1], 0.2, 0.6, 0.2, 0.0, reverse=True) == [True, True] + [False] * 4
+    assert _scan1_trend(z[::-1], -0.2, 0.6, 0.2, 0.0, reverse=True) == [False, True] + [False] * 4
+
+
+def test_ground_trends_are_the_running_minimum_slope_per_cell_below_objects():
+    # a plane rising 0.3 m per metre along X and falling 0.1 along Y, 2 m cells: 0.6 and -0.2
+    # m per cell (the 10 m minimum: 5 cells); beside a 2 x 2 object of 5 m the minimum
+    # reaches below it (on the ground within the window's 6 cells, a cell or two off the
+    # plane's lowest corner: within half the trend, of its sign), further away exactly; 0
+    # near the raster's edge and where the minimum is not finite
+    yy, xx = np.mgrid[0:30, 0:30].astype(np.float32) * 2.0
+    z = (0.3 * xx - 0.1 * yy).astype(np.float32)
+    gx, gy = sp.ground_trends(z, 2.0)
+    np.testing.assert_allclose(gx[:, 5:25], 0.6, atol=1e-4)
+    np.testing.assert_allclose(gy[5:25], -0.2, atol=1e-4)
+    z[14:16, 14:16] += 5.0
+    gx2, gy2 = sp.ground_trends(z, 2.0)
+    np.testing.assert_allclose(gx2[:, 5:25], 0.6, atol=0.3 + 1e-5)
+    np.testing.assert_allclose(gy2[5:25], -0.2, atol=0.1 + 1e-5)
+    far = np.ones(z.shape, bool)
+    far[8:22, 8:22] = False
+    np.testing.assert_array_equal(gx2[far], gx[far])
+    np.testing.assert_array_equal(gy2[far], gy[far])
+    assert (gx[:, :2] == 0).all() and (gy[:2] == 0).all()
+    z[:, :] = np.nan
+    gx, gy = sp.ground_trends(z, 2.0)
+    assert (gx == 0).all() and (gy == 0).all()
+
+
+def test_low_shrubs_on_a_steep_hillside_rejected_by_the_scans_coming_down_it():
+    """ISPRS samp11 (issue 12): shrubs 1.2 m high on a 20 degree hillside (falling along both
+    axes, 2 m cells, alpha_t 20 degrees) were ground: the scans coming down the hillside let
+    the ground rise alpha_t from the reference's level under them (0.2 + 0.73 m at their first
+    cell, 0.51 m below the reference there: 1.2 m passed), the profiles along neither axis
+    rejected them both ways. Counted from the ground continued down its fall, their uphill
+    row and column are rejected by both axes' scans: each shrub is an object (the cells
+    further in are accepted by the edge's allowance), the hillside stays ground."""
+    yy, xx = np.mgrid[0:80, 0:80].astype(np.float32) * 2.0
+    z = (np.tan(np.radians(20.0)) / np.sqrt(2.0) * (xx + yy)).astype(np.float32)
+    shrubs = np.zeros(z.shape, bool)
+    for r in range(8, 72, 8):
+        for c in range(8, 72, 8):
+            shrubs[r:r + 3, c:c + 3] = True
+    z[shrubs] += 1.2
+    p = dict(slope_threshold_deg=float(np.degrees(np.arctan(2.0 * np.tan(np.radians(20.0))))),
+             terrain_slope_deg=20.0, tolerance_m=0.2, max_object_size_m=30.0)
+    r = sp.filter_slope_profile(z, 2.0, **p)
+    assert (r.mask[~shrubs] == GROUND).all()
+    lab, n = ndimage.label(shrubs)
+    for i in range(1, n + 1):
+        obj = (r.mask == OBJECT) & (lab == i)
+        r0, c0 = np.argwhere(lab == i).min(axis=0)
+        # the uphill row and column (the highest x and y) of every shrub: 5 of its 9 cells
+        assert obj[r0 + 2, c0:c0 + 3].all() and obj[r0:r0 + 3, c0 + 2].all()
