@@ -473,6 +473,40 @@ def test_morphological_errors_count_what_the_matrix_scores(tmp_path):
     assert b["cells_differing"] == 0
 
 
+def test_geodesic_errors_by_stage_exact():
+    """benchmarks/geodesic_errors.py: each cell named by the stage its ``extras["step"]`` code gives (the dilation's
+    steps by their windows), each scored point counted once, by kind, stage and the cell's class."""
+    bench = _load_benchmark("geodesic_errors")
+    step = np.array([[0, 1, 2], [250, 252, 255]], np.uint8)
+    grid, names = bench.stage_codes(step, (2.0, 4.0))
+    assert [[names[c] if c >= 0 else None for c in row] for row in grid.tolist()] == [
+        ["kept", "step 1 (2 m)", "step 2 (4 m)"], ["scan", "edge", None]]
+    mask = np.array([[0, 1, 1], [1, 1, 255]], np.uint8)
+    codes = np.array([0, 1, 0, 1, 2], np.uint8)
+    truth = np.array([False, True, False, True, True])
+    valid = np.ones(5, bool)
+    rows, cols = np.array([0, 0, 0, 1, 1]), np.array([0, 1, 0, 0, 1])
+    b = bench.breakdown(codes, truth, valid, rows, cols, mask, grid, names, heights=np.arange(5.0),
+                        reference=np.zeros((2, 3)))
+    assert (b["type1_above"], b["type1_below"], b["type2"]) == (2, 1, 2)
+    assert b["groups"] == {("type2", "kept", "ground"): {"points": 2, "point_above_ref_m": 1.0},
+                           ("type1_above", "step 1 (2 m)", "object"): {"points": 1, "point_above_ref_m": 1.0},
+                           ("type1_above", "scan", "object"): {"points": 1, "point_above_ref_m": 3.0},
+                           ("type1_below", "edge", "object"): {"points": 1, "point_above_ref_m": 4.0}}
+
+
+def test_geodesic_errors_count_what_the_matrix_scores(tmp_path):
+    """The breakdown of a row adds up to the generalisation matrix's total error for geodesic on it."""
+    bench = _load_benchmark("geodesic_errors")
+    (tmp_path / "isprs").mkdir()
+    _synthetic_sample(tmp_path / "isprs" / "samp11.txt", 1)
+    b = bench.run(tmp_path, r"isprs/samp11/2m/min", progress=None)["isprs/samp11/2m/min"]
+    rows, _ = bench.generalise.run_matrix(tmp_path, ["geodesic"], only=r"isprs/samp11/2m/min", progress=None)
+    total = 100.0 * (b["type1_above"] + b["type1_below"] + b["type2"]) / (b["ground_points"] + b["object_points"])
+    assert total == pytest.approx(rows[0]["filters"]["geodesic"]["total"], abs=1e-9)
+    assert sum(g["points"] for g in b["groups"].values()) == b["type1_above"] + b["type1_below"] + b["type2"]
+
+
 def test_sites_rascor_errors_by_step_exact():
     """benchmarks/sites.py --steps: RASCOR's Type I / II cells by the step that removed (0 kept)
     each, in per cent of the valid cells (nodata not counted)."""
