@@ -1,0 +1,121 @@
+"""QA pass 23: the numeric core's public functions called from Python with arrays of the wrong kind.
+Each test failed before its fix (a silent wrong answer or a numpy/Python traceback)."""
+import numpy as np
+import pytest
+
+from bare_earth.core import as_cell_size, filter_dsm
+from bare_earth.core.evaluate import compare_dtm, compare_masks, confusion, error_map_from_masks
+from bare_earth.core.fill import fill_gaps
+
+
+def _dsm():
+    """A plane of 0.1 m noise with a 8 m block, and the stored value -9999 on a patch the
+    reader masked (``rasterio``'s ``read(1, masked=True)`` or ``np.ma.masked_equal``)."""
+    rng = np.random.default_rng(0)
+    z = (100 + rng.normal(0, 0.1, (40, 40))).astype(np.float32)
+    z[10:20, 10:20] += 8
+    z[30:36, 30:36] = -9999.0
+    return z, np.ma.masked_equal(z, -9999.0)
+
+
+@pytest.mark.parametrize("method", ["slopeprofile", "dtm"])
+def test_a_masked_array_filtered_with_its_masked_cells_as_nodata(method):
+    """np.asarray dropped the mask: the -9999 under it was read as a 10 km pit of ground (mask 0, then the DTM
+    dips to -9999 m there). The masked cells are nodata now, exactly as NaN there."""
+    z, zm = _dsm()
+    got = filter_dsm(zm, 1.0, method=method)
+    assert (got.mask[30:36, 30:36] == 255).all() and np.isnan(got.dtm[30:36, 30:36]).all()
+    as_nan = filter_dsm(np.where(z == -9999.0, np.nan, z), 1.0, method=method)
+    assert np.array_equal(got.mask, as_nan.mask)
+    assert np.array_equal(got.dtm, as_nan.dtm, equal_nan=True)
+
+
+def test_a_masked_integer_array_keeps_its_heights():
+    """An Int16 masked array (a DSM in dm, nodata -32768 masked) is filtered as its float heights with NaN."""
+    z, _ = _dsm()
+    zi = np.ma.masked_equal(np.where(z == -9999.0, -32768, np.round(z * 10)).astype(np.int16), -32768)
+    got = filter_dsm(zi, 10.0, method="slopeprofile")
+    assert (got.mask[30:36, 30:36] == 255).all() and np.nanmin(got.dtm) > 900
+
+
+def test_fill_gaps_fills_the_masked_cells_of_a_masked_array():
+    """fill_gaps(masked array) returned the stored values (no gap at all); it fills the masked cells now."""
+    z = np.add.outer(np.arange(8.0), np.arange(8.0))
+    hole = np.zeros(z.shape, bool)
+    hole[2:5, 3:6] = True
+    zm = np.ma.masked_array(np.where(hole, -9999.0, z), mask=hole)
+    assert np.allclose(fill_gaps(zm), z, atol=1e-3)
+
+
+@pytest.mark.parametrize("call", [lambda: filter_dsm(np.ones((8, 8)), 1.0 + 0j),
+                                  lambda: as_cell_size("one metre")])
+def test_a_cell_size_of_the_wrong_type_is_a_value_error(call):
+    """A complex cell size raised float()'s TypeError from inside as_cell_pair; text raised numpy's message."""
+    with pytest.raises(ValueError, match="cell_size must be one or two positive numbers"):
+        call()
+
+
+def test_fill_gaps_refuses_complex_heights():
+    """numpy dropped the imaginary parts with a ComplexWarning only; refused like as_surface does."""
+    with pytest.raises(ValueError, match="complex numbers"):
+        fill_gaps(np.ones((5, 5), np.complex64))
+
+
+@pytest.mark.parametrize("pred, message", [
+    (np.array([[0, 1], [255, 0]], np.uint8), "holds 1 other value"),        # a mask of codes: 255 nodata
+    (np.array([[1.0, np.nan], [1.0, 0.0]]), "e.g. nan"),                    # NaN: astype(bool) is True
+    (np.array([[1, 2], [1, 0]]), "e.g. 2"),
+])
+def test_confusion_refuses_what_is_no_true_false(pred, message):
+    """confusion read every nonzero, NaN included, as ground: a code mask (255 nodata) was scored silently."""
+    truth = np.array([[True, True], [False, False]])
+    with pytest.raises(ValueError, match=message) as err:
+        confusion(pred, truth)
+    assert "compare_masks" in str(err.value)
+    assert confusion(np.array([[1, 0], [0, 0]]), truth)["a"] == 1          # 0 / 1 stay booleans
+
+
+def _mask():
+    m = np.zeros((10, 10), np.uint8)
+    m[2:5, 2:5] = 1
+    return m
+
+
+@pytest.mark.parametrize("bad, value", [(256, "256"), (-1, "-1"), (0.5, "0.5")])
+def test_compare_masks_refuses_values_that_are_no_code(bad, value):
+    """256 and -1 were counted as objects or, cast to uint8 elsewhere, as 0 and 255; 0.5 as an object."""
+    m = _mask().astype(float)
+    m[0, 0] = bad
+    for f in (compare_masks, error_map_from_masks):
+        with pytest.raises(ValueError, match=f"e.g. {value}\\).*whole numbers 0-255"):
+            f(m, _mask())
+
+
+def test_compare_masks_reads_nan_and_masked_cells_as_nodata():
+    """A float mask's NaN (its nodata) and a masked array's masked cells were objects: 9 Type II errors."""
+    ref = _mask()
+    m = ref.astype(np.float32)
+    m[2:5, 2:5] = np.nan
+    r = compare_masks(m, ref)
+    assert r["n"] == 91 and r["c"] == 0 and r["n_object"] == 0
+    masked = compare_masks(ref, np.ma.masked_array(ref, mask=ref == 1))
+    assert [masked[k] for k in "abcdn"] == [r[k] for k in "abcdn"]
+    codes, _ = error_map_from_masks(m, ref)
+    assert (codes[2:5, 2:5] == 255).all() and (codes[ref == 0] == 0).all()
+    assert compare_masks(np.where(ref == 1, 6, 0), ref)["d"] == 9            # a classification's 6: an object
+
+
+def test_compare_dtm_skips_masked_and_far_cells_and_refuses_complex():
+    """The masked cells were compared with their stored values, 1e30 (an undeclared nodata) gave an RMSE of
+    1e30, and complex heights lost their imaginary part with a warning only."""
+    ref = np.zeros((5, 5))
+    dtm = np.ones((5, 5))
+    dtm[0, 0] = 500.0
+    r = compare_dtm(np.ma.masked_greater(dtm, 100), ref)
+    assert r["n"] == 24 and r["rmse"] == 1.0
+    assert compare_dtm(np.where(dtm > 100, 1e30, dtm), ref) == r
+    assert compare_dtm(dtm, np.where(dtm > 100, -1e30, ref)) == r
+    with pytest.raises(ValueError, match="complex numbers"):
+        compare_dtm(dtm * 1j, ref)
+    with pytest.raises(ValueError, match="no mask code"):
+        compare_dtm(dtm, ref, ground=np.full((5, 5), 0.5))
