@@ -78,15 +78,17 @@ def _takes_progress(func) -> bool:
 
 
 class _CheckedResolve:
-    """A method's ``resolve`` with its ``Param`` limits checked first (picklable: worker
-    processes receive the Method). ``progress`` (optional, may raise ``Cancelled``) goes to
-    a resolve that takes one (its estimates report through it)."""
+    """A method's ``resolve`` with its ``Param`` limits and its ``check`` run first (picklable:
+    worker processes receive the Method). ``progress`` (optional, may raise ``Cancelled``) goes
+    to a resolve that takes one (its estimates report through it)."""
 
-    def __init__(self, resolve, method_name, params):
-        self.resolve, self.method_name, self.params = resolve, method_name, params
+    def __init__(self, resolve, method_name, params, check=None):
+        self.resolve, self.method_name, self.params, self.check = resolve, method_name, params, check
 
     def __call__(self, z, cell_size, progress=None, **values):
         check_values(self.method_name, self.params, values)
+        if self.check is not None:
+            self.check(values)
         if progress is not None and _takes_progress(self.resolve):
             values["progress"] = progress
         return self.resolve(z, cell_size, **values)
@@ -146,6 +148,11 @@ class Method:
     bytes_per_cell : float
         Memory a window takes at its peak in :func:`.pipeline.run_file`, bytes per window cell
         (measured); :func:`.pipeline.plan_block` sizes the blocks of a large raster by it.
+    check : callable, optional
+        ``check(values)``: ValueError for given values that no data can make valid beyond the
+        ``Param`` limits (an even window where the method needs an odd one, two limits in the
+        wrong order); ``None`` values are not given. Run by ``resolve`` before it reads the data
+        and by :meth:`check_given`, which the plugin's dialog check calls before any work.
     """
     name: str
     run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
@@ -159,10 +166,19 @@ class Method:
     threads: bool = False
     widen: Optional[Callable[..., Dict[str, Any]]] = None
     bytes_per_cell: float = DEFAULT_BYTES_PER_CELL
+    check: Optional[Callable[[Dict[str, Any]], None]] = None
 
     def __post_init__(self):
         if not isinstance(self.resolve, _CheckedResolve):
-            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params)))
+            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params),
+                                                                self.check))
+
+    def check_given(self, values: Dict[str, Any]) -> None:
+        """ValueError for given ``values`` (core names; ``None`` = derived) that ``resolve`` would
+        refuse whatever the data: the ``Param`` limits (:func:`check_values`) and ``check``."""
+        check_values(self.name, self.params, values)
+        if self.check is not None:
+            self.check(values)
 
 
 #: Modules that define METHOD, in the order the plugin lists them.
