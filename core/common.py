@@ -48,7 +48,7 @@ class FilterResult:
 Progress = Optional[Callable[[float], None]]
 
 
-def real_array(a, name="z"):
+def real_array(a, name="z", what="heights"):
     """``np.asarray(a)`` checked to hold real numbers, with the masked cells of a numpy masked
     array as NaN (nodata).
 
@@ -57,7 +57,8 @@ def real_array(a, name="z"):
     on as heights (-9999 m of ground). Copies only a masked array that has masked cells (to
     float32, or float64 for 32- and 64-bit integers and float64).
 
-    Raises ValueError naming ``name`` for booleans, non-numeric or complex values.
+    Raises ValueError naming ``name`` (and ``what`` it holds) for booleans, non-numeric or
+    complex values.
 
     Examples
     --------
@@ -69,8 +70,8 @@ def real_array(a, name="z"):
     if not np.issubdtype(a.dtype, np.number):
         raise ValueError(f"{name} must be numeric; got dtype {a.dtype}.")
     if np.issubdtype(a.dtype, np.complexfloating):
-        raise ValueError(f"{name} holds complex numbers ({a.dtype}): heights are real numbers. Pass the heights "
-                         f"(e.g. the real part, {name}.real) as a real array.")
+        raise ValueError(f"{name} holds complex numbers ({a.dtype}): {what} are real numbers. Pass the {what} "
+                         "(e.g. the real part, .real) as a real array.")
     if masked is not None and masked.any():
         a = a.astype(np.result_type(a.dtype, np.float32))
         a[masked] = np.nan

@@ -119,3 +119,36 @@ def test_compare_dtm_skips_masked_and_far_cells_and_refuses_complex():
         compare_dtm(dtm * 1j, ref)
     with pytest.raises(ValueError, match="no mask code"):
         compare_dtm(dtm, ref, ground=np.full((5, 5), 0.5))
+
+
+def _orthos():
+    rng = np.random.default_rng(3)
+    img = rng.random((60, 60)).astype(np.float32)
+    return img, np.roll(img, 1, axis=1), np.full((60, 60), 100.0, np.float32), (0.0, 1.0, 0.0, 60.0, 0.0, -1.0)
+
+
+@pytest.mark.parametrize("min_corr", [1.0, 2.0, -0.5])
+def test_orthoparallax_and_matcher_refuse_a_correlation_threshold_beyond_0_1(min_corr):
+    """min_corr 2 kept no match and returned an all-NaN correction without a word (the plugin refused it, the
+    core did not); -0.5 accepted windows that do not look alike. One check now, the core's (check_min_corr)."""
+    from bare_earth.core.orthophoto import match_rectified, orthoparallax
+    a, b, dem, gt = _orthos()
+    with pytest.raises(ValueError, match=r"min_corr must be in 0 \.\. 1 \(1 excluded\)"):
+        orthoparallax(a, b, dem, gt, base_m=500.0, height_m=1000.0, min_corr=min_corr)
+    with pytest.raises(ValueError, match=r"min_corr must be in 0 \.\. 1"):
+        match_rectified(a, b, 0, 3, min_corr=min_corr)
+
+
+def test_orthoparallax_reads_masked_pixels_as_invalid_and_refuses_complex():
+    """A masked orthophoto was matched on the values under its mask; complex grey values lost their imaginary
+    part with a ComplexWarning only."""
+    from bare_earth.core.orthophoto import orthoparallax
+    a, b, dem, gt = _orthos()
+    hole = np.zeros(a.shape, bool)
+    hole[20:30, 20:30] = True
+    kw = dict(base_m=500.0, height_m=1000.0)
+    masked = orthoparallax(np.ma.masked_array(np.where(hole, 0.0, a), mask=hole), b, dem, gt, **kw)
+    as_nan = orthoparallax(np.where(hole, np.nan, a), b, dem, gt, **kw)
+    assert np.array_equal(masked.dh, as_nan.dh, equal_nan=True)
+    with pytest.raises(ValueError, match="complex numbers"):
+        orthoparallax(a.astype(np.complex64), b, dem, gt, **kw)
