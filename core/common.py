@@ -188,6 +188,14 @@ def finish_mask(mask, z):
     return mask
 
 
+def check_progress(progress):
+    """``progress`` itself when it is None or callable; ValueError otherwise (a number or a text
+    given for it failed at the first report, after the work had begun, with 'not callable')."""
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress must be a callable progress(fraction) or None; got {progress!r}.")
+    return progress
+
+
 def report(progress, fraction):
     """Call ``progress(fraction)`` if a callback was given (it may raise Cancelled)."""
     if progress is not None:

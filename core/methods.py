@@ -6,8 +6,11 @@ this registry, so adding a paper costs one numeric module and one thin algorithm
 """
 import importlib
 import inspect
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Optional, Tuple
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,10 @@ class Param:
 
 
 def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, Any]) -> None:
-    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too).
+    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too), and a
+    value of the wrong kind: a number parameter given anything but a real number (text such
+    as ``"30"``, a list, a complex, True / False), a yes/no parameter anything but True /
+    False (or 0 / 1): ``"no"`` was read as yes.
 
     The one copy of the limits check: every ``Method.resolve`` runs it on the values it is
     given (``None``, derived later, is not checked), so the limits the dialog shows are the
@@ -61,8 +67,21 @@ def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, 
     """
     for p in params:
         value = values.get(p.name)
-        if value is None or p.kind not in ("float", "int") or isinstance(value, bool):
+        if value is None:
             continue
+        if p.kind == "bool":
+            if not isinstance(value, (bool, np.bool_)) and not (isinstance(value, numbers.Integral)
+                                                                 and value in (0, 1)):
+                raise ValueError(f"{p.name} = {value!r} is not True or False for method {method_name!r}: give "
+                                 f"True or False (text such as 'no' is not read). {p.help}")
+            continue
+        if p.kind not in ("float", "int"):
+            continue
+        if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+            value = value.item()                                          # a 0-d array a derivation returned
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+            raise ValueError(f"{p.name} = {value!r} is not a number for method {method_name!r}: give a number "
+                             f"(not text or {type(value).__name__}), or None to derive it. {p.help}")
         if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
                 or (p.maximum is not None and not value <= p.maximum)):
             raise ValueError(f"{p.name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "

@@ -152,3 +152,47 @@ def test_orthoparallax_reads_masked_pixels_as_invalid_and_refuses_complex():
     assert np.array_equal(masked.dh, as_nan.dh, equal_nan=True)
     with pytest.raises(ValueError, match="complex numbers"):
         orthoparallax(a.astype(np.complex64), b, dem, gt, **kw)
+
+
+@pytest.mark.parametrize("method, name, value, message", [
+    ("slopeprofile", "slope_threshold_deg", "30", "is not a number"),           # TypeError '>=' str and float
+    ("curvature", "window_cells", [5], "is not a number"),                      # TypeError '>=' list and int
+    ("rascor", "height_min_m", 3 + 0j, "is not a number"),                      # ran, the complex taken somehow
+    ("morphological", "dh_m", True, "is not a number"),                         # ran with dh 1 m
+    ("rascor", "step1_characterise", "no", "is not True or False"),             # 'no' ran step 1
+    ("geodesic", "scan_labelling", 2, "is not True or False"),
+])
+def test_a_parameter_of_the_wrong_kind_is_a_value_error_naming_it(method, name, value, message):
+    """filter_dsm's keyword parameters given as text, a list, a complex or a bool where a number is due raised
+    a TypeError from the limits check, or ran on a silent conversion; a yes/no given 'no' was read as yes."""
+    z, _ = _dsm()
+    with pytest.raises(ValueError, match=f"{name} = .* {message} for method '{method}'"):
+        filter_dsm(np.where(z == -9999.0, np.nan, z), 1.0, method=method, **{name: value})
+
+
+def test_numbers_of_numpy_and_0_or_1_yes_no_are_accepted():
+    z, _ = _dsm()
+    z = np.where(z == -9999.0, np.nan, z)
+    a = filter_dsm(z, 1.0, method="geodesic", max_object_size_m=np.float32(30.0), scan_labelling=np.bool_(False))
+    b = filter_dsm(z, 1.0, method="geodesic", max_object_size_m=np.array(30.0), scan_labelling=0)
+    assert np.array_equal(a.mask, b.mask)
+
+
+def test_points_sampled_and_classified_on_a_masked_dtm_see_its_mask():
+    """sample_bilinear and classify_points read a masked DTM's stored values (-9999) under its mask: a point
+    there was 'above' the DTM by 10 km. It is outside the DTM (NaN, class 255) now, as on NaN."""
+    from bare_earth.core.points import classify_points, sample_bilinear
+    dtm = np.full((4, 4), 10.0)
+    dtm[1, 1] = -9999.0
+    masked = np.ma.masked_equal(dtm, -9999.0)
+    gt = (0.0, 1.0, 0.0, 4.0, 0.0, -1.0)
+    assert np.isnan(sample_bilinear(masked, gt, [1.5], [2.5]))[0]
+    x, y, z = np.array([1.5, 3.5]), np.array([2.5, 0.5]), np.array([10.0, 10.0])
+    assert classify_points(x, y, z, masked, gt).tolist() == [255, 0]
+
+
+@pytest.mark.parametrize("progress", [5, "log"])
+def test_a_progress_that_is_not_callable_is_refused_before_work(progress):
+    """filter_dsm(progress=5) failed at the first report, inside the run, with "'int' object is not callable"."""
+    with pytest.raises(ValueError, match=r"progress must be a callable progress\(fraction\) or None"):
+        filter_dsm(np.ones((8, 8), np.float32), 1.0, progress=progress)
