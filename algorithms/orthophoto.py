@@ -582,9 +582,10 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError(f"{key}: no orthophoto was given.")
             path = raster_path(layer)
             oi = _open_grid(path, key)
-            if other_crs(info, oi) is not None:
-                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})"))
-            if not same_grid(info, oi):
+            if other_crs(info, oi, heights=False) is not None:        # grey values: the horizontal CRS counts
+                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})",
+                                                       heights=False))
+            if not same_grid(info, oi, heights=False):
                 raise ValueError(f"{key} ({path}) is not on the DEM's grid: {key} has {_grid_text(oi)}, the "
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")

@@ -65,3 +65,50 @@ def test_method_check_given_is_the_resolves_check():
         rascor.check_given({"sigma_m": -1.0})
     curvature.check_given({"window_cells": None})
     rascor.check_given({"height_min_m": None, "height_max_m": 5.0})
+
+
+def _compound_pair(tmp_path):
+    """A DSM in NAD83 / UTM 18N + NAVD88 height (US feet), and a mask of its cells declared in the horizontal
+    CRS alone (EPSG:26918), as another tool or a reference writes it."""
+    from osgeo import gdal, osr
+
+    from bare_earth.core.grid import write_array
+    gt = (320000.0, 2.0, 0.0, 4300000.0, 0.0, -2.0)
+    z = (np.add.outer(np.arange(40.0), np.arange(40.0)) * 0.1 + 300.0).astype(np.float32)
+    z[10:20, 10:20] += 20.0
+    dsm = str(write_array(tmp_path / "dsm_ft.tif", z, gt, 26918))
+    srs = osr.SpatialReference()
+    srs.SetFromUserInput("EPSG:26918+6360")
+    ds = gdal.Open(dsm, gdal.GA_Update)
+    ds.SetProjection(srs.ExportToWkt())
+    ds = None
+    m = np.zeros(z.shape, np.uint8)
+    m[10:20, 10:20] = 1
+    return dsm, str(write_array(tmp_path / "mask.tif", m, gt, 26918, nodata=255))
+
+
+def test_a_mask_in_the_horizontal_crs_of_a_compound_crs_dsm_is_on_its_grid(processing_run, tmp_path):
+    """A mask declared in EPSG:26918 beside a DSM (or a filter's mask) in EPSG:26918+6360 was refused as 'in
+    another CRS: the same cell numbers are another place', though it lies on the same cells: codes have no
+    height, so only the horizontal CRS counts (filldtm's MASK, evaluate's MASK / REFERENCE_MASK)."""
+    dsm, mask = _compound_pair(tmp_path)
+    out = processing_run("bareearth:filldtm", {"INPUT": dsm, "MASK": mask, "FILL_NODATA": False,
+                                               "OUTPUT": str(tmp_path / "filled.tif")})
+    assert (tmp_path / "filled.tif").exists() and out["OUTPUT"]
+    run = processing_run("bareearth:slopeprofile", {"INPUT": dsm, "OUTPUT_DTM": str(tmp_path / "dtm.tif"),
+                                                    "OUTPUT_MASK": str(tmp_path / "m_ft.tif")})
+    r = processing_run("bareearth:evaluate", {"MASK": run["OUTPUT_MASK"], "REFERENCE_MASK": mask})
+    assert r["TOTAL"] is not None and 0.0 <= r["TOTAL"] <= 100.0
+
+
+def test_dtms_on_one_place_with_heights_of_two_vertical_crs_refused_saying_so(qgis_app, tmp_path):
+    """Two DTMs on the same horizontal grid, one with NAVD88 heights in feet declared, were refused as 'another
+    place' and told to reproject: the heights' vertical CRS is what differs, and the message says so."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+    dsm, _ = _compound_pair(tmp_path)
+    from bare_earth.core.grid import write_array
+    ref = str(write_array(tmp_path / "ref.tif", np.full((40, 40), 90.0, np.float32),
+                          (320000.0, 2.0, 0.0, 4300000.0, 0.0, -2.0), 26918))
+    ok, msg = QgsApplication.processingRegistry().algorithmById("bareearth:evaluate").checkParameterValues(
+        {"DTM": ref, "REFERENCE_DTM": dsm}, QgsProcessingContext())
+    assert not ok and "has its heights in another vertical CRS" in msg and "another place" not in msg, msg
