@@ -196,3 +196,13 @@ def test_a_progress_that_is_not_callable_is_refused_before_work(progress):
     """filter_dsm(progress=5) failed at the first report, inside the run, with "'int' object is not callable"."""
     with pytest.raises(ValueError, match=r"progress must be a callable progress\(fraction\) or None"):
         filter_dsm(np.ones((8, 8), np.float32), 1.0, progress=progress)
+
+
+def test_a_point_filter_with_a_progress_that_is_not_callable_is_refused_before_work():
+    """filter_cloud(progress=5) failed at its first report with "'int' object is not callable"."""
+    from bare_earth.core.pointflow import filter_cloud
+    from bare_earth.core.points import PointCloud
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0, 30, 500), rng.uniform(0, 30, 500)
+    with pytest.raises(ValueError, match=r"progress must be a callable progress\(fraction\) or None"):
+        filter_cloud(PointCloud(x=x, y=y, z=100.0 + 0 * x), progress=5)
