@@ -1,4 +1,4 @@
-"""QA pass 23: the numeric core's public functions called from Python with arrays of the wrong kind.
+"""QA pass 23: the numeric core's public functions called from Python with arrays and values of the wrong kind.
 Each test failed before its fix (a silent wrong answer or a numpy/Python traceback)."""
 import numpy as np
 import pytest
