@@ -171,6 +171,8 @@ def test_a_parameter_of_the_wrong_kind_is_a_value_error_naming_it(method, name, 
 
 
 def test_numbers_of_numpy_and_0_or_1_yes_no_are_accepted():
+    """The guard of the kind check above (passed before it too): numpy scalars, a 0-d array and 0 / 1 for a
+    yes/no stay accepted, with the same result."""
     z, _ = _dsm()
     z = np.where(z == -9999.0, np.nan, z)
     a = filter_dsm(z, 1.0, method="geodesic", max_object_size_m=np.float32(30.0), scan_labelling=np.bool_(False))
