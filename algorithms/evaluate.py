@@ -190,8 +190,8 @@ class EvaluateAlgorithm(BaseAlgorithm):
         if not ((mask is not None and ref_mask is not None) or ref_dtm is not None or points):
             raise ValueError("Nothing to compare: give MASK and REFERENCE_MASK, DTM and REFERENCE_DTM, "
                              "or POINTS and DTM.")
-        if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask):
-            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask", of="the mask"))
+        if mask is not None and ref_mask is not None and not same_grid(mask, ref_mask, heights=False):
+            raise ValueError(grid_mismatch_message(mask, ref_mask, "The reference mask", of="the mask", heights=False))
         for d, name in ((dtm, "DTM"), (ref_dtm, "REFERENCE_DTM")):
             if d is not None and (ref_dtm is not None or points):
                 try:
@@ -211,10 +211,11 @@ class EvaluateAlgorithm(BaseAlgorithm):
                                         f"The reference mask (REFERENCE_MASK) {ref_mask.path!r}", "the mask")
         if ref_dtm is not None and not same_grid(dtm, ref_dtm):
             raise ValueError(grid_mismatch_message(dtm, ref_dtm, "The reference DTM", of="the DTM"))
-        if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask):
+        if ref_dtm is not None and ref_mask is not None and not same_grid(dtm, ref_mask, heights=False):
             # its ground cells select the DTM's cells of the ground errors: another grid picks others
             raise ValueError(grid_mismatch_message(dtm, ref_mask, "The reference mask (REFERENCE_MASK), whose "
-                                                   "ground cells the DTM's errors are measured on,", of="the DTM"))
+                                                   "ground cells the DTM's errors are measured on,", of="the DTM",
+                                                   heights=False))
         if points and not os.path.isfile(points):
             raise ValueError(f"The points file {points!r} does not exist.")
         for a, b, what in ((mask, ref_mask, "MASK and REFERENCE_MASK"), (dtm, ref_dtm, "DTM and REFERENCE_DTM")):

@@ -26,8 +26,19 @@ from .filter_base import (
 )
 
 
-def other_crs(a, b):
-    """The names of two DSMInfo's CRS when both are known and differ, else None."""
+def _horizontal(sr):
+    """A clone of osr CRS ``sr`` without its vertical part (None where GDAL cannot strip it)."""
+    if not sr.IsCompound():
+        return sr
+    if not hasattr(sr, "StripVertical"):         # GDAL < 3.6: the whole CRS is compared
+        return None
+    h = sr.Clone()
+    h.StripVertical()
+    return h
+
+
+def _crs_pair(a, b):
+    """The osr CRS of two DSMInfo, or None when either is unknown or unreadable."""
     if not a.crs_wkt or not b.crs_wkt:
         return None
     from osgeo import osr
@@ -37,24 +48,51 @@ def other_crs(a, b):
             return None
     except RuntimeError:
         return None
-    return None if sa.IsSame(sb) else (sa.GetName(), sb.GetName())
+    return sa, sb
 
 
-def same_grid(a, b):
+def other_crs(a, b, heights=True):
+    """The names of two DSMInfo's CRS when both are known and differ, else None. With
+    ``heights`` False (a mask's codes, an orthophoto's grey values: no height to convert), only
+    the horizontal CRS counts: a mask in EPSG:26918 lies on the cells of a DSM in
+    EPSG:26918+6360 (NAVD88 height in US feet)."""
+    pair = _crs_pair(a, b)
+    if pair is None:
+        return None
+    sa, sb = pair
+    if sa.IsSame(sb):
+        return None
+    if not heights:
+        ha, hb = _horizontal(sa), _horizontal(sb)
+        if ha is not None and hb is not None and ha.IsSame(hb):
+            return None
+    return sa.GetName(), sb.GetName()
+
+
+def same_grid(a, b, heights=True):
     """True when two DSMInfo share shape and geotransform (to a tolerance of 1e-6 cell) and their
-    CRS (when both declare one: the same numbers in two CRS are two places)."""
+    CRS (when both declare one: the same numbers in two CRS are two places; with ``heights``
+    False, their horizontal CRS: :func:`other_crs`)."""
     if a.shape != b.shape:
         return False
     tol = 1e-6 * max(1.0, abs(a.geotransform[1]))
     if not all(abs(x - y) <= tol for x, y in zip(a.geotransform, b.geotransform)):
         return False
-    return other_crs(a, b) is None
+    return other_crs(a, b, heights) is None
 
 
-def grid_mismatch_message(a, b, what, of="the DSM"):
+def grid_mismatch_message(a, b, what, of="the DSM", heights=True):
     """Why raster ``b`` (``what``) is not on the grid of ``a`` (``of``), and how to fix it."""
-    crs = other_crs(a, b)
+    crs = other_crs(a, b, heights)
     if a.shape == b.shape and crs is not None:
+        pair = _crs_pair(a, b)
+        ha, hb = (_horizontal(pair[0]), _horizontal(pair[1])) if pair else (None, None)
+        if ha is not None and hb is not None and ha.IsSame(hb):     # one place, heights of two vertical CRS
+            return (f"{what} has its heights in another vertical CRS ({crs[1]}) than {of} ({crs[0]}), on the "
+                    f"same horizontal CRS ({ha.GetName()}): another datum or unit of height, so the heights would "
+                    "be compared across it. Write both in one vertical CRS first (gdalwarp -t_srs with the "
+                    "compound CRS of the other); if only the declaration differs, declare the same CRS "
+                    "(gdal_edit -a_srs).")
         return (f"{what} is in another CRS ({crs[1]}) than {of} ({crs[0]}): the same cell numbers are another "
                 "place. Reproject it onto the grid of {} (gdalwarp -t_srs -te -tr, or Raster > Align "
                 "rasters).".format(of))
@@ -140,8 +178,8 @@ class FillDtmAlgorithm(BaseAlgorithm):
         minfo = None
         if mlayer is not None:
             minfo = open_one_band(mlayer, self.MASK)
-            if not same_grid(info, minfo):
-                raise ValueError(grid_mismatch_message(info, minfo, "The mask"))
+            if not same_grid(info, minfo, heights=False):            # codes: the horizontal CRS counts
+                raise ValueError(grid_mismatch_message(info, minfo, "The mask", heights=False))
             grid.read_mask(minfo, "The mask (MASK)")   # codes, not heights: refused now, not read as codes
         codes = parse_codes(self.parameterAsString(parameters, self.FILL_CODES, context))
         return info, minfo, codes

@@ -1055,7 +1055,12 @@ class FilterAlgorithm(BaseAlgorithm):
             check_relief_file(info)      # heights far steeper than any terrain: refused here, not after Run
         except ValueError as exc:
             return False, str(exc)
-        user = {name.upper(): v for name, v in self._user_params(parameters, context).items()}
+        given = self._user_params(parameters, context)
+        try:
+            self.method.check_given(given)   # an even WINDOW_CELLS, limits in the wrong order: here, not after Run
+        except ValueError as exc:
+            return False, str(exc)
+        user = {name.upper(): v for name, v in given.items()}
         ok, msg = check_window_sizes(self, user, {p.name.upper(): (p.default, *p.former_defaults)
                                                   for p in self.method.params}, info)
         if not ok:

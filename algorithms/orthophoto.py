@@ -33,6 +33,7 @@ from ..core import Cancelled, grid
 from ..core.codes import NODATA
 from ..core.orthophoto.iterate import CROSS_CHECK as CROSS_CHECK_DEFAULT
 from ..core.orthophoto.iterate import NOT_ROUGHER as NOT_ROUGHER_DEFAULT
+from ..core.orthophoto.match import check_min_corr
 from ..core.orthophoto.quality import order_reversed
 from ..core.survey.io import crs_label
 from .compat import FILE_FILE, FILE_FOLDER, NUMBER_DOUBLE, NUMBER_INTEGER, SOURCE_RASTER
@@ -403,12 +404,8 @@ class OrthoAlgorithm(BaseAlgorithm):
         window = self.parameterAsInt(parameters, self.WINDOW_CELLS, context)
         if window < 3 or window % 2 == 0:
             raise ValueError(f"WINDOW_CELLS must be an odd number of cells >= 3; got {window}.")
-        min_corr = self.parameterAsDouble(parameters, self.MIN_CORRELATION, context)
-        if not 0.0 <= min_corr < 1.0:
-            raise ValueError(f"MIN_CORRELATION must be in 0 .. 1 (1 excluded); got {min_corr:g}. A correlation of "
-                             "exactly 1 is reached only by identical windows, never by two orthophotos of one "
-                             "scene, so no match would be kept and nothing measured: choose a value below 1 "
-                             "(default 0.6).")
+        min_corr = check_min_corr(self.parameterAsDouble(parameters, self.MIN_CORRELATION, context),
+                                  "MIN_CORRELATION")
         max_dh = _optional_number(self, parameters, self.MAX_DH_M, context)
         if max_dh is not None and not max_dh > 0:
             raise ValueError(f"MAX_DH_M must be > 0 m; got {max_dh:g}: a search of 0 m measures no height "
@@ -585,9 +582,10 @@ class OrthoParallaxAlgorithm(OrthoAlgorithm):
                 raise ValueError(f"{key}: no orthophoto was given.")
             path = raster_path(layer)
             oi = _open_grid(path, key)
-            if other_crs(info, oi) is not None:
-                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})"))
-            if not same_grid(info, oi):
+            if other_crs(info, oi, heights=False) is not None:        # grey values: the horizontal CRS counts
+                raise ValueError(grid_mismatch_message(info, oi, f"{key} ({path})", of=f"the DEM ({info.path})",
+                                                       heights=False))
+            if not same_grid(info, oi, heights=False):
                 raise ValueError(f"{key} ({path}) is not on the DEM's grid: {key} has {_grid_text(oi)}, the "
                                  f"DEM ({info.path}) has {_grid_text(info)}. Make both orthophotos on the "
                                  "DEM's grid (or resample them onto it: gdalwarp -te/-tr, Raster > Align rasters).")

@@ -48,22 +48,49 @@ class FilterResult:
 Progress = Optional[Callable[[float], None]]
 
 
+def real_array(a, name="z", what="heights"):
+    """``np.asarray(a)`` checked to hold real numbers, with the masked cells of a numpy masked
+    array as NaN (nodata).
+
+    A masked array (``rasterio``'s ``read(1, masked=True)``, ``np.ma.masked_equal(z, -9999)``)
+    keeps its nodata cells' stored values under the mask: ``np.asarray`` alone would hand them
+    on as heights (-9999 m of ground). Copies only a masked array that has masked cells (to
+    float32, or float64 for 32- and 64-bit integers and float64).
+
+    Raises ValueError naming ``name`` (and ``what`` it holds) for booleans, non-numeric or
+    complex values.
+
+    Examples
+    --------
+    >>> real_array(np.ma.masked_equal([[1, -9999]], -9999)).tolist()
+    [[1.0, nan]]
+    """
+    masked = np.ma.getmaskarray(a) if np.ma.isMaskedArray(a) else None
+    a = np.asarray(np.ma.getdata(a) if masked is not None else a)
+    if not np.issubdtype(a.dtype, np.number):
+        raise ValueError(f"{name} must be numeric; got dtype {a.dtype}.")
+    if np.issubdtype(a.dtype, np.complexfloating):
+        raise ValueError(f"{name} holds complex numbers ({a.dtype}): {what} are real numbers. Pass the {what} "
+                         "(e.g. the real part, .real) as a real array.")
+    if masked is not None and masked.any():
+        a = a.astype(np.result_type(a.dtype, np.float32))
+        a[masked] = np.nan
+    return a
+
+
 def as_surface(z, name="z"):
-    """Return ``z`` as a 2-D float32 array (NaN = nodata), copying only when needed.
+    """Return ``z`` as a 2-D float32 array (NaN = nodata), copying only when needed. The
+    masked cells of a numpy masked array are nodata (:func:`real_array`).
 
     Raises ValueError for non-2-D, empty, non-numeric or complex, or all-nodata input.
     """
-    z = np.asarray(z)
+    z = np.asarray(z) if not np.ma.isMaskedArray(z) else z
     if z.ndim != 2:
         raise ValueError(f"{name} must be a 2-D array (one band); got {z.ndim} dimensions. "
                          "Pass a single band of the DSM.")
     if z.size == 0:
         raise ValueError(f"{name} is empty (shape {z.shape}); pass a raster with cells.")
-    if not np.issubdtype(z.dtype, np.number):
-        raise ValueError(f"{name} must be numeric; got dtype {z.dtype}.")
-    if np.issubdtype(z.dtype, np.complexfloating):
-        raise ValueError(f"{name} holds complex numbers ({z.dtype}): heights are real numbers. Pass the heights "
-                         "(e.g. the real part, z.real) as a real array.")
+    z = real_array(z, name)
     with np.errstate(over="ignore"):             # float64 beyond float32's range -> inf = nodata
         z = z.astype(np.float32, copy=False)
     if not np.isfinite(z).any():
@@ -130,7 +157,10 @@ def is_rotated(geotransform, shape, tolerance=1e-3):
 def as_cell_pair(cell_size):
     """Return ``(dx, dy)`` as floats, exactly as given (in any unit); a scalar means square
     cells. ValueError unless one or two positive finite numbers."""
-    c = np.atleast_1d(np.asarray(cell_size, dtype=float)).ravel()
+    try:                                            # a complex or a non-numeric text: TypeError / ValueError
+        c = np.atleast_1d(np.asarray(cell_size, dtype=float)).ravel()
+    except (TypeError, ValueError):
+        c = np.array([np.nan])
     if c.size == 1:
         c = np.array([c[0], c[0]])
     if c.size != 2 or not np.all(np.isfinite(c)) or np.any(c <= 0):
@@ -156,6 +186,14 @@ def finish_mask(mask, z):
     mask = np.asarray(mask, dtype=np.uint8)
     mask[~np.isfinite(z)] = NODATA
     return mask
+
+
+def check_progress(progress):
+    """``progress`` itself when it is None or callable; ValueError otherwise (a number or a text
+    given for it failed at the first report, after the work had begun, with 'not callable')."""
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress must be a callable progress(fraction) or None; got {progress!r}.")
+    return progress
 
 
 def report(progress, fraction):

@@ -30,6 +30,7 @@ import uuid
 import numpy as np
 
 from .codes import GROUND, NODATA
+from .common import real_array, without_far_heights
 from .pointfiles import part_path, remove_stale_parts
 
 __all__ = ["confusion", "compare_masks", "compare_dtm", "error_map_from_masks",
@@ -55,15 +56,35 @@ def _pct(num, den):
     return float(100.0 * num / den) if den else float("nan")
 
 
+def _as_bool(a, name):
+    """``a`` as a bool array; ValueError when it holds anything but True / False (or 0 / 1).
+
+    ``astype(bool)`` would read NaN and every code but 0 as True: a mask of codes (0 ground,
+    1 object, 255 nodata) given as ``pred_ground`` would be scored with ground and objects
+    swapped and its nodata as ground, without a word."""
+    a = np.ma.filled(a, np.nan) if np.ma.isMaskedArray(a) else np.asarray(a)
+    if a.dtype == bool:
+        return a
+    with np.errstate(invalid="ignore"):
+        bad = ~((a == 0) | (a == 1))
+    if bad.any():
+        raise ValueError(f"{name} must be True / False per element (True = ground); it holds "
+                         f"{int(np.count_nonzero(bad))} other value(s) (e.g. {a[bad].ravel()[0]!r}). For masks of "
+                         "codes (0 ground, 1 object, 2 low outlier, 255 nodata) call compare_masks, or pass "
+                         "mask == 0 and leave nodata out with valid.")
+    return a.astype(bool)
+
+
 def confusion(pred_ground, true_ground, valid=None):
     """Cross matrix and error rates of a ground / object classification.
 
     Parameters
     ----------
     pred_ground : array_like of bool
-        True where the filter says ground (cells or points).
+        True where the filter says ground (cells or points). Only True / False (or 0 / 1):
+        anything else (NaN, a mask's codes 2 or 255) is refused with ValueError.
     true_ground : array_like of bool
-        True where the reference says ground; same shape.
+        True where the reference says ground; same shape, the same values.
     valid : array_like of bool, optional
         Only these elements are counted (e.g. not nodata).
 
@@ -75,13 +96,11 @@ def confusion(pred_ground, true_ground, valid=None):
         ``type1``, ``type2``, ``total``, ``kappa`` in percent (floats, NaN when undefined,
         e.g. Type II without any object).
     """
-    p = np.asarray(pred_ground)
-    t = np.asarray(true_ground)
+    p = _as_bool(pred_ground, "pred_ground")
+    t = _as_bool(true_ground, "true_ground")
     if p.shape != t.shape:
         raise ValueError(f"prediction and reference differ in shape: {p.shape} vs {t.shape}; "
                          "compare arrays of the same cells/points.")
-    p = p.astype(bool, copy=False)
-    t = t.astype(bool, copy=False)
     if valid is not None:
         v = np.asarray(valid, dtype=bool)
         if v.shape != p.shape:
@@ -102,9 +121,36 @@ def confusion(pred_ground, true_ground, valid=None):
             "kappa": float(kappa)}
 
 
+def _codes(mask, what):
+    """A mask's codes as uint8: NaN cells (a float mask) and a masked array's masked cells are
+    255 (nodata); ValueError naming ``what`` when a cell holds no whole number 0-255 (the rule
+    of :func:`bare_earth.core.grid.read_mask`: codes other than 0 1 2 255, a classification's,
+    are objects). Without it -1 and 256 wrapped to 255 and 0 and 0.5 counted as an object."""
+    masked = np.ma.getmaskarray(mask) if np.ma.isMaskedArray(mask) else None
+    a = np.asarray(np.ma.getdata(mask) if masked is not None else mask)
+    if a.dtype == np.uint8 and masked is None:
+        return a
+    if a.dtype != bool and not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+        raise ValueError(f"{what} must hold mask codes (0 ground, 1 object, 2 low outlier, 255 nodata); "
+                         f"got dtype {a.dtype}.")
+    nodata = np.isnan(a) if a.dtype.kind == "f" else np.zeros(a.shape, bool)
+    if masked is not None:
+        nodata |= masked
+    v = a[~nodata]
+    bad = (v < 0) | (v > 255) | (v != np.round(v)) if a.dtype.kind == "f" else (v < 0) | (v > 255)
+    if bad.any():
+        raise ValueError(f"{what} holds {int(np.count_nonzero(bad))} value(s) that are no mask code (e.g. "
+                         f"{float(v[bad][0]):g}): a mask holds whole numbers 0-255 (0 ground, 1 object, 2 low outlier, "
+                         "255 nodata; NaN is nodata). Pass the mask a filter returned, or convert the array into "
+                         "such codes first.")
+    out = np.full(a.shape, NODATA, np.uint8)
+    out[~nodata] = v
+    return out
+
+
 def _masks(mask, truth_mask):
-    m = np.asarray(mask)
-    t = np.asarray(truth_mask)
+    m = _codes(mask, "mask")
+    t = _codes(truth_mask, "reference mask")
     if m.shape != t.shape:
         raise ValueError(f"mask {m.shape} and reference mask {t.shape} differ in shape; "
                          "resample them to the same grid first.")
@@ -167,7 +213,10 @@ def check_nodata_not_objects(codes, other, what="the reference mask", other_what
 def compare_masks(mask, truth_mask, valid=None):
     """:func:`confusion` of two masks with the codes 0 ground, 1/2 object, 255 ignored.
 
-    Cells that are 255 (nodata) in either mask, or False in ``valid``, are not counted.
+    Cells that are 255 (nodata) in either mask (NaN in a float mask, masked in a masked
+    array), or False in ``valid``, are not counted. Codes other than 0, 1, 2 and 255 (a
+    classification's) are objects; a value that is no whole number 0-255 is refused
+    (ValueError).
     """
     m, t = _masks(mask, truth_mask)
     ok = (m != NODATA) & (t != NODATA)
@@ -283,7 +332,10 @@ def compare_dtm(dtm, reference, ground=None):
     Parameters
     ----------
     dtm, reference : array_like, 2-D
-        Same shape; NaN = nodata (those cells are skipped).
+        Same shape; NaN = nodata (those cells are skipped), and so are the masked cells of
+        a numpy masked array and heights beyond +-1e5 m (an undeclared nodata such as 1e30,
+        the filters' rule, :data:`~bare_earth.core.common.MAX_ABS_HEIGHT_M`). Complex or
+        non-numeric arrays are refused (ValueError).
     ground : array_like, optional
         Where to compute the ground-only figures: a bool array (True = ground), or a mask
         with the codes of :mod:`codes` (ground = 0), e.g. the reference mask.
@@ -295,8 +347,8 @@ def compare_dtm(dtm, reference, ground=None):
         with ``ground``: also ``ground_rmse``, ``ground_mean``, ``ground_max_abs``,
         ``ground_n``.
     """
-    a = np.asarray(dtm, dtype=np.float64)
-    r = np.asarray(reference, dtype=np.float64)
+    a = without_far_heights(real_array(dtm, "dtm").astype(np.float64))[0]
+    r = without_far_heights(real_array(reference, "reference").astype(np.float64))[0]
     if a.shape != r.shape:
         raise ValueError(f"DTM {a.shape} and reference {r.shape} differ in shape; "
                          "resample them to the same grid first.")
@@ -304,10 +356,10 @@ def compare_dtm(dtm, reference, ground=None):
     ok = np.isfinite(diff)
     out = _stats(diff[ok])
     if ground is not None:
-        g = np.asarray(ground)
+        g = ground if np.ma.isMaskedArray(ground) else np.asarray(ground)
         if g.shape != a.shape:
             raise ValueError(f"ground {g.shape} differs in shape from the DTM {a.shape}.")
-        g = g if g.dtype == bool else (g == GROUND)
+        g = g if g.dtype == bool and not np.ma.isMaskedArray(g) else (_codes(g, "ground") == GROUND)
         out.update({f"ground_{k}": v for k, v in _stats(diff[ok & g]).items()})
     return out
 

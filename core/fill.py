@@ -50,7 +50,7 @@ from functools import partial
 import numpy as np
 
 from .blocks import run_sharing
-from .common import report, touching, transpose
+from .common import real_array, report, touching, transpose
 
 #: Largest number of cells of the coarsest level (solved directly).
 _TOP_CELLS = 4096
@@ -92,8 +92,9 @@ def fill_gaps(z, fill=None, *, progress=None):
 
     Parameters
     ----------
-    z : array_like, 2-D, any numeric dtype
-        Surface heights; NaN (or inf) = nodata. Not modified.
+    z : array_like, 2-D, any real numeric dtype
+        Surface heights; NaN (or inf) = nodata, and so are the masked cells of a numpy masked
+        array. Not modified.
     fill : array_like of bool, optional
         Cells to (re)compute, same shape as ``z``. Default: every non-finite cell.
         Cells that are finite and not in ``fill`` are the *known* cells, the only sources
@@ -116,7 +117,7 @@ def fill_gaps(z, fill=None, *, progress=None):
     Raises
     ------
     ValueError
-        If ``z`` is not a non-empty 2-D numeric array, if ``fill`` has another shape, or
+        If ``z`` is not a non-empty 2-D real numeric array, if ``fill`` has another shape, or
         if there is no known cell to interpolate from.
 
     Notes
@@ -136,14 +137,13 @@ def fill_gaps(z, fill=None, *, progress=None):
     >>> bool(np.allclose(fill_gaps(z), np.add.outer(np.arange(8.0), np.arange(8.0)), atol=1e-4))
     True
     """
-    z = np.asarray(z)
+    z = np.asarray(z) if not np.ma.isMaskedArray(z) else z
     if z.ndim != 2:
         raise ValueError(f"z must be a 2-D array (one band); got {z.ndim} dimensions. "
                          "Pass a single band of the surface.")
     if z.size == 0:
         raise ValueError(f"z is empty (shape {z.shape}); pass a raster with cells.")
-    if not (np.issubdtype(z.dtype, np.number) or z.dtype == bool):
-        raise ValueError(f"z must be numeric; got dtype {z.dtype}.")
+    z = real_array(z)                       # masked cells of a masked array are nodata; no complex
     finite = np.isfinite(z)
     fill_given = fill is not None
     if fill_given:

@@ -6,8 +6,11 @@ this registry, so adding a paper costs one numeric module and one thin algorithm
 """
 import importlib
 import inspect
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Optional, Tuple
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,10 @@ class Param:
 
 
 def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, Any]) -> None:
-    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too).
+    """Refuse a number outside its :class:`Param`'s ``[minimum, maximum]`` (NaN too), and a
+    value of the wrong kind: a number parameter given anything but a real number (text such
+    as ``"30"``, a list, a complex, True / False), a yes/no parameter anything but True /
+    False (or 0 / 1): ``"no"`` was read as yes.
 
     The one copy of the limits check: every ``Method.resolve`` runs it on the values it is
     given (``None``, derived later, is not checked), so the limits the dialog shows are the
@@ -61,8 +67,21 @@ def check_values(method_name: str, params: Tuple[Param, ...], values: Dict[str, 
     """
     for p in params:
         value = values.get(p.name)
-        if value is None or p.kind not in ("float", "int") or isinstance(value, bool):
+        if value is None:
             continue
+        if p.kind == "bool":
+            if not isinstance(value, (bool, np.bool_)) and not (isinstance(value, numbers.Integral)
+                                                                 and value in (0, 1)):
+                raise ValueError(f"{p.name} = {value!r} is not True or False for method {method_name!r}: give "
+                                 f"True or False (text such as 'no' is not read). {p.help}")
+            continue
+        if p.kind not in ("float", "int"):
+            continue
+        if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+            value = value.item()                                          # a 0-d array a derivation returned
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+            raise ValueError(f"{p.name} = {value!r} is not a number for method {method_name!r}: give a number "
+                             f"(not text or {type(value).__name__}), or None to derive it. {p.help}")
         if ((p.minimum is not None and not value >= p.minimum)          # NaN is out of range too
                 or (p.maximum is not None and not value <= p.maximum)):
             raise ValueError(f"{p.name} = {value} is out of range [{p.minimum}, {p.maximum}] for method "
@@ -78,15 +97,17 @@ def _takes_progress(func) -> bool:
 
 
 class _CheckedResolve:
-    """A method's ``resolve`` with its ``Param`` limits checked first (picklable: worker
-    processes receive the Method). ``progress`` (optional, may raise ``Cancelled``) goes to
-    a resolve that takes one (its estimates report through it)."""
+    """A method's ``resolve`` with its ``Param`` limits and its ``check`` run first (picklable:
+    worker processes receive the Method). ``progress`` (optional, may raise ``Cancelled``) goes
+    to a resolve that takes one (its estimates report through it)."""
 
-    def __init__(self, resolve, method_name, params):
-        self.resolve, self.method_name, self.params = resolve, method_name, params
+    def __init__(self, resolve, method_name, params, check=None):
+        self.resolve, self.method_name, self.params, self.check = resolve, method_name, params, check
 
     def __call__(self, z, cell_size, progress=None, **values):
         check_values(self.method_name, self.params, values)
+        if self.check is not None:
+            self.check(values)
         if progress is not None and _takes_progress(self.resolve):
             values["progress"] = progress
         return self.resolve(z, cell_size, **values)
@@ -146,6 +167,11 @@ class Method:
     bytes_per_cell : float
         Memory a window takes at its peak in :func:`.pipeline.run_file`, bytes per window cell
         (measured); :func:`.pipeline.plan_block` sizes the blocks of a large raster by it.
+    check : callable, optional
+        ``check(values)``: ValueError for given values that no data can make valid beyond the
+        ``Param`` limits (an even window where the method needs an odd one, two limits in the
+        wrong order); ``None`` values are not given. Run by ``resolve`` before it reads the data
+        and by :meth:`check_given`, which the plugin's dialog check calls before any work.
     """
     name: str
     run: Callable[..., Any]                     # (z, cell_size, progress=None, **params) -> FilterResult
@@ -159,10 +185,19 @@ class Method:
     threads: bool = False
     widen: Optional[Callable[..., Dict[str, Any]]] = None
     bytes_per_cell: float = DEFAULT_BYTES_PER_CELL
+    check: Optional[Callable[[Dict[str, Any]], None]] = None
 
     def __post_init__(self):
         if not isinstance(self.resolve, _CheckedResolve):
-            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params)))
+            object.__setattr__(self, "resolve", _CheckedResolve(self.resolve, self.name, tuple(self.params),
+                                                                self.check))
+
+    def check_given(self, values: Dict[str, Any]) -> None:
+        """ValueError for given ``values`` (core names; ``None`` = derived) that ``resolve`` would
+        refuse whatever the data: the ``Param`` limits (:func:`check_values`) and ``check``."""
+        check_values(self.name, self.params, values)
+        if self.check is not None:
+            self.check(values)
 
 
 #: Modules that define METHOD, in the order the plugin lists them.

@@ -28,6 +28,7 @@ from .common import (
     Progress,
     as_cell_size,
     as_surface,
+    check_progress,
     far_heights_message,
     report,
     sub_progress,
@@ -407,6 +408,7 @@ def run_array(method: Union[str, Method], z: np.ndarray, cell_size: Union[float,
     PipelineResult
     """
     meth = as_method(method)
+    progress = check_progress(progress)
     workers = blocks.resolve_workers(workers)
     z, n_far = without_far_heights(as_surface(z))
     if n_far and not np.isfinite(z).any():
@@ -707,6 +709,7 @@ def run_file(method: Union[str, Method], path: str, outputs: Dict[str, Any], *, 
     dict : the run's info (parameters used, warnings, class shares, timings).
     """
     meth = as_method(method)
+    progress = check_progress(progress)
     check_run_counts(block, workers, processes)
     memory.budget_mb()          # a BARE_EARTH_MEMORY_MB that is no number: refused now, not after the parameters
     info = grid.open_dsm(path, band, nodata_ranges, crs_wkt)

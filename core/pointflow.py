@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import is_rotated, report, sub_progress
+from .common import check_progress, is_rotated, report, sub_progress
 from .estimate import lowest_point_spread
 from .grid import MIN_CELL_M, ground_scale, metres_per_degree, vertical_unit_factor
 from .pipeline import as_method, check_relief, resolve_params, run_array
@@ -533,6 +533,7 @@ def filter_cloud(cloud, method="morphological", params=None, *, cell_size_m=None
     -------
     CloudResult
     """
+    progress = check_progress(progress)
     report(progress, 0.0)
     g = rasterize_cloud(cloud, cell_size_m, reducer="min", fill_empty=True, extent=extent,
                         cell_size_units=cell_size_units)
@@ -720,6 +721,7 @@ def filter_tiles(tiles, outputs=None, *, method="morphological", params=None, ce
     -------
     TileResult
     """
+    progress = check_progress(progress)
     log = log or (lambda s: None)
     clouds, names = _load_tiles(tiles, outputs, crs)
     meth = as_method(method)

@@ -18,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from .codes import GROUND, LOW, NODATA, OBJECT
-from .common import as_cell_pair, is_rotated
+from .common import as_cell_pair, is_rotated, real_array
 from .pointfiles import ASPRS_FROM_CLASS, LAS_INSTALL_HINT, PointCloud, import_laspy, read_points, write_points
 
 __all__ = ["PointCloud", "read_points", "rasterize_points", "sample_bilinear", "sample_bilinear_many",
@@ -193,7 +193,7 @@ def sample_bilinear(grid, geotransform, x, y):
     Parameters
     ----------
     grid : array_like, 2-D
-        Values (NaN = nodata).
+        Values (NaN = nodata; the masked cells of a numpy masked array too).
     geotransform : sequence of 6 floats
         GDAL geotransform of the grid (north-up: ``[2] == [4] == 0``).
     x, y : array_like
@@ -205,7 +205,7 @@ def sample_bilinear(grid, geotransform, x, y):
         The interpolated values; NaN for points outside the grid, or where one of the
         cells with a non-zero weight is NaN.
     """
-    grid = np.asarray(grid)
+    grid = real_array(grid, "grid", "values")      # a masked array's masked cells are NaN; no complex
     if grid.ndim != 2 or grid.size == 0:
         raise ValueError(f"grid must be a non-empty 2-D array; got shape {grid.shape}.")
     gt = _check_geotransform(geotransform, grid.shape)
@@ -296,7 +296,7 @@ def classify_points(x, y, z, dtm, geotransform, *, threshold_m=0.5, slope_factor
         raise ValueError(f"threshold_m must be >= 0; got {threshold_m!r}.")
     if not (np.isfinite(slope_factor) and slope_factor >= 0):
         raise ValueError(f"slope_factor must be >= 0; got {slope_factor!r}.")
-    dtm = np.asarray(dtm)
+    dtm = real_array(dtm, "dtm")                   # a masked array's masked cells are NaN (outside the DTM)
     if dtm.ndim != 2 or dtm.size == 0:
         raise ValueError(f"dtm must be a non-empty 2-D array; got shape {dtm.shape}.")
     gt = _check_geotransform(geotransform, dtm.shape)

@@ -31,6 +31,12 @@ def plugin_methods():
     return re.findall(r'METHOD_NAME\s*=\s*"([^"]+)"', text)
 
 
+def point_methods():
+    """Method names whose algorithm class also takes points (``PointsInputMixin``)."""
+    text = (ROOT / "algorithms" / "filters.py").read_text()
+    return re.findall(r'class \w+\(PointsInputMixin[^)]*\):.*?METHOD_NAME\s*=\s*"([^"]+)"', text, re.S)
+
+
 #: Inputs a method's algorithm adds to its parameters (rows after ``BAND``).
 LAYER_ROWS = {
     "dtm": [
@@ -41,7 +47,23 @@ LAYER_ROWS = {
         "| `BREAKLINES` (Break lines) | optional | lines along crests, toes and terrace edges: no comparison "
         "crosses them (as in RASCOR), and near them RASCOR's decision stands alone |",
     ],
+    "rascor": [
+        "| `BREAKLINES` (Break lines) | optional | lines (any CRS) along crests, toes, cuts and embankment "
+        "shoulders: no comparison crosses them |",
+        "| `SPECIAL_AREAS` (Special areas) | optional | polygons (any CRS) inside which only the local filters "
+        "(steps 3 and 7) run, e.g. cars and bushes on a dam's slope |",
+    ],
 }
+#: The point-cloud inputs of the algorithms that take points (``PointsInputMixin``).
+POINTS_ROWS = [
+    "| `INPUT_POINTS`, `POINTS_CRS`, `CELL_SIZE_M` | optional | a point cloud (text/CSV or LAS/LAZ) filtered "
+    "instead of `INPUT`: rasterised (cell size empty: from the point density), filtered and classified in one "
+    "run; its CRS when the file has none (*Point clouds* below) |",
+    "| `THRESHOLD_M`, `SLOPE_FACTOR` | 0.5, 1.25 | a point is ground when \\|z - DTM\\| <= threshold + factor x "
+    "local DTM slope (advanced) |",
+    "| `OTHER_TILES`, `OUTPUT_POINTS` | optional | adjoining point tiles filtered as one block (advanced); the "
+    "classified points (text with a class column, or LAS with ASPRS codes) |",
+]
 #: What a side product holds, where more than its name says.
 EXTRA_MEANING = {
     "confidence": "UInt8 0-100, 255 nodata: how sure each cell's class is (styled red to green)",
@@ -76,6 +98,8 @@ def render():
         for k in m.extras:
             meaning = EXTRA_MEANING.get(k, f"per-cell side product `{k}`")
             out.append(f"| `OUTPUT_{k.upper()}` ({extra_label(k)}) | optional | {meaning} |")
+        if name in point_methods():
+            out.extend(POINTS_ROWS)
         out.append("")
         out.append("Outputs are written in the format their extension names: "
                    + ", ".join(f"`{e}`" for e in OUTPUT_FORMATS) + ".\n")

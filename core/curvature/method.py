@@ -498,8 +498,16 @@ def _run(z, cell_size, progress=None, **params):
     return filter_curvature(z, cell_size, progress=progress, **params)
 
 
+def check_curvature_given(values):
+    """ValueError for given values no data makes valid: an even or fractional ``window_cells``
+    (:func:`check_window`; its bounds are the Param's)."""
+    if values.get("window_cells") is not None:
+        check_window(values["window_cells"])
+
+
 METHOD = Method(
     name="curvature",
+    check=check_curvature_given,
     bytes_per_cell=104.0,       # measured 57.8 (benchmarks/speed.py, 16 Mcells, file); 88.6 with the large
     #                            buildings' block-minima opening and enclosed regions; 99.7 with the
     #                            envelope between crowns (2026-11-30, session 24)

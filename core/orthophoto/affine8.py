@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..common import real_array
 from .orthorectify import check_transform, grid_xy
 
 __all__ = ["Bilinear8", "fit_bilinear8", "register_orthophoto"]
@@ -125,7 +126,7 @@ def register_orthophoto(ortho, transform8, shape, transform, *, order=1):
         The orthophoto on the DEM grid, NaN outside it.
     """
     check_transform(transform)
-    img = np.asarray(ortho)
+    img = real_array(ortho, "ortho", "grey values")     # masked pixels NaN (invalid); no complex
     bands = img[None] if img.ndim == 2 else img
     if bands.ndim != 3:
         raise ValueError(f"ortho must be 2-D or (bands, rows, cols); got shape {img.shape}.")

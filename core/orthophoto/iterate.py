@@ -12,6 +12,7 @@ import numpy as np
 from scipy import ndimage, special
 
 from ..common import report, sub_progress
+from .match import check_min_corr
 from .orthorectify import check_transform, grid_xy, orthorectify
 from .quality import (
     close_mask,
@@ -358,6 +359,7 @@ def orthorefine(dem, transform, images, cameras, *, max_iterations=6, tolerance_
                          f"got {relaxation}.")
     if int(max_iterations) < 1:
         raise ValueError(f"max_iterations must be >= 1; got {max_iterations}.")
+    min_corr = check_min_corr(min_corr)
     if cameras is None or all(c is None for c in cameras):
         res = _refine_registered(dem0, transform, images, tie_points, base_m, height_m,
                                   base_direction, window=window, shiftable=shiftable,

@@ -26,7 +26,7 @@ the matcher on its own); :func:`match_along` matches two orthophotos along any d
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["ncc_volume", "match_rectified", "match_along", "MatchResult"]
+__all__ = ["ncc_volume", "match_rectified", "match_along", "MatchResult", "check_min_corr"]
 
 _BAD = -2.0   # NCC value of "no correlation computed" (below any true NCC)
 
@@ -79,6 +79,20 @@ def _check_pair(a, b):
         raise ValueError(f"images must be on the same grid; got shapes {a.shape} and {b.shape}. "
                          "Resample both orthophotos to the DEM grid.")
     return a, b
+
+
+def check_min_corr(min_corr, name="min_corr"):
+    """``min_corr`` as a float in 0 .. 1 (1 excluded); ValueError naming ``name`` otherwise.
+
+    A normalised cross-correlation lies in -1 .. 1 and reaches 1 only for identical windows:
+    a threshold of 1 or more keeps no match and measures nothing, without a word (2.0 gave an
+    empty result); a negative one accepts windows that do not look alike at all."""
+    value = float(min_corr)
+    if not 0.0 <= value < 1.0:
+        raise ValueError(f"{name} must be in 0 .. 1 (1 excluded); got {value:g}. A correlation of exactly 1 is "
+                         "reached only by identical windows, never by two orthophotos of one scene, so no match "
+                         "would be kept and nothing measured: choose a value below 1 (default 0.6).")
+    return value
 
 
 def _check_window(window):
@@ -380,6 +394,7 @@ def match_rectified(left, right, d_min, d_max, *, window=9, shiftable=5, min_cor
         ``disparity`` (float32, NaN where rejected), ``corr``, ``valid``, ``info``.
     """
     left, right = _check_pair(left, right)
+    min_corr = check_min_corr(min_corr)
     d_min, d_max = int(d_min), int(d_max)
     if d_max < d_min:
         raise ValueError(f"d_max ({d_max}) must be >= d_min ({d_min}).")
@@ -757,6 +772,7 @@ def match_along(a, b, direction, max_shift, *, window=7, shiftable=5, min_corr=0
     """
     a, b = _check_pair(a, b)
     window = _check_window(window)
+    min_corr = check_min_corr(min_corr)
     u = np.asarray(direction, dtype=float).reshape(2)
     nrm = float(np.hypot(*u))
     if not np.isfinite(nrm) or nrm == 0:

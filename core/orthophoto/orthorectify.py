@@ -12,6 +12,8 @@ centre at ``X = x0 + (j + 0.5) dx``, ``Y = y0 - (i + 0.5) dy``.
 import numpy as np
 from scipy import ndimage
 
+from ..common import real_array
+
 __all__ = ["grid_xy", "check_transform", "orthorectify", "visibility"]
 
 
@@ -112,7 +114,7 @@ def orthorectify(image, camera, dem, transform, *, occlusion=True, order=1):
     seen : ndarray of bool
         Cells with a valid orthophoto value.
     """
-    img = np.asarray(image)
+    img = real_array(image, "image", "grey values")     # masked pixels NaN (invalid); no complex
     if img.ndim not in (2, 3):
         raise ValueError(f"image must be 2-D or (bands, rows, cols); got shape {img.shape}.")
     dem = np.asarray(dem, dtype=np.float64)

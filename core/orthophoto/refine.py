@@ -25,8 +25,8 @@ import numpy as np
 from scipy import ndimage, special
 
 from ..codes import GROUND, NODATA, OBJECT
-from ..common import report
-from .match import REASONS, match_along
+from ..common import real_array, report
+from .match import REASONS, check_min_corr, match_along
 from .orthorectify import check_transform, grid_xy
 from .quality import (
     agree_at_height,
@@ -114,8 +114,9 @@ def parallax_to_dh_vertical(dx, base_m, height_m):
 
 
 def as_grey(img):
-    """One float32 grey band of an image: 2-D as is, ``(bands, rows, cols)`` the band mean."""
-    img = np.asarray(img)
+    """One float32 grey band of an image: 2-D as is, ``(bands, rows, cols)`` the band mean; the
+    masked pixels of a numpy masked array are NaN (invalid), complex values refused."""
+    img = real_array(img, "the image", "grey values")     # masked pixels NaN (invalid); no complex
     if img.ndim == 3:
         return np.nanmean(img.astype(np.float32), axis=0) if img.shape[0] > 1 else img[0].astype(np.float32)
     if img.ndim != 2:
@@ -437,6 +438,7 @@ def orthoparallax(ortho_a, ortho_b, dem, transform, *, centres=None, base_m=None
     ParallaxResult
     """
     a, b = as_grey(ortho_a), as_grey(ortho_b)
+    min_corr = check_min_corr(min_corr)
     dem = np.asarray(dem, dtype=np.float32)
     if dem.ndim != 2:
         raise ValueError(f"dem must be 2-D; got shape {dem.shape}.")

@@ -2,7 +2,7 @@
 import numpy as np
 
 from ..methods import Method, Param
-from .parameters import rascor_halo, resolve_rascor_params, widen_rascor_params
+from .parameters import check_rascor_given, rascor_halo, resolve_rascor_params, widen_rascor_params
 from .sequence import filter_rascor
 from .terrain import TERRAIN_CLASSES
 
@@ -14,6 +14,7 @@ def _run(z, cell_size, progress=None, breaklines=None, special_areas=None, **par
 
 METHOD = Method(
     name="rascor", run=_run, resolve=resolve_rascor_params, halo=rascor_halo, widen=widen_rascor_params,
+    check=check_rascor_given,
     bytes_per_cell=48.0,        # measured 37.6 (benchmarks/speed.py, 16 Mcells, file); 45.9 (2026-11-30)
     extras={"step": (np.uint8, 1, 255)},
     extra_bands={"step": ("RASCOR step that removed the cell (0 kept)",)},

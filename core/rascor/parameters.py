@@ -345,6 +345,15 @@ def widen_rascor_params(params, given, overview, cell_size):
     return p
 
 
+def check_rascor_given(values):
+    """ValueError for given values no data makes valid: ``height_min_m`` not below a given
+    ``height_max_m`` (step 2 would remove every height)."""
+    lo_given, hi_given = values.get("height_min_m"), values.get("height_max_m")
+    if lo_given is not None and hi_given is not None and not float(lo_given) < float(hi_given):
+        raise ValueError(f"height_min_m ({lo_given}) must be below height_max_m ({hi_given}): step 2 would "
+                         "remove every height; swap them or leave them empty (derived).")
+
+
 def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]], *,
                           progress: Optional[Callable[[float], None]] = None, **params) -> dict:
     """Complete RASCOR's parameters from an analysis of the DSM (Jacobsen 2004).
@@ -422,10 +431,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
                          f"by step 1); got {tc!r}.")
     if p["surface_rule"] not in SURFACE_RULES:
         raise ValueError(f"surface_rule must be one of {SURFACE_RULES}; got {p['surface_rule']!r}.")
-    lo_given, hi_given = p["height_min_m"], p["height_max_m"]
-    if lo_given is not None and hi_given is not None and not float(lo_given) < float(hi_given):
-        raise ValueError(f"height_min_m ({lo_given}) must be below height_max_m ({hi_given}): step 2 would "
-                         "remove every height; swap them or leave them empty (derived).")
+    check_rascor_given(p)
     ch, low_env = characterise_with_envelope(z, (dx, dy), progress=sub_progress(progress, 0.0, 0.5),
                                              with_sigma=p["sigma_m"] is None)
     if tc is None:

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import grid, pipeline
 from ..common import Cancelled, sub_progress, without_far_heights
-from ..methods import check_values, get_method
+from ..methods import get_method
 from . import engine, io, plan, record
 from .index import index_tiles
 from .task import TileJob, output_names, run_tile
@@ -104,7 +104,7 @@ def parse_params(method, items):
             out[key] = None if text.strip() == "" else _param_value(known[key], text.strip())
         except ValueError as exc:
             raise ValueError(f"parameter {item!r}: {exc}") from None
-    check_values(method.name, method.params, out)   # out of range: refused now, not once the cluster runs
+    method.check_given(out)     # out of range, an even window: refused now, not once the cluster runs
     return out
 
 

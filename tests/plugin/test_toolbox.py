@@ -117,3 +117,21 @@ def test_stated_default_reads_as_the_dialog_shows_it(qgis_app):
     assert helps["SCAN_LABELLING"].endswith(" Default: yes.")
     helps = {d.name(): d.help() for d in reg.algorithmById("bareearth:morphological").parameterDefinitions()}
     assert helps["MODE"].endswith(" Default: auto.")
+
+
+def test_every_parameter_is_named_in_its_algorithms_readme_section(qgis_app):
+    """A command-line user needs each parameter's key: rascor's section named neither BREAKLINES nor
+    SPECIAL_AREAS, geodesic's and morphological's none of their point inputs (INPUT_POINTS, ...), the
+    survey's none of its keys (INPUT_LAYERS, SCHEDULER, WORKERS, ...), filldtm's and rasterizepoints'
+    not CREATE_OPTIONS / COG. Each key is now named in the section the algorithm's help button opens."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    heads = [(m.start(), len(m.group(1)), github_slug(m.group(2).strip()))
+             for m in re.finditer(r"^(#{1,6}) (.+)$", text, flags=re.M)]
+    missing = []
+    for a in _algorithms(qgis_app):
+        anchor = a.helpUrl().split("#", 1)[1]
+        i = next(i for i, h in enumerate(heads) if h[2] == anchor)
+        end = next((p for p, level, _ in heads[i + 1:] if level <= heads[i][1]), len(text))
+        section = text[heads[i][0]:end]
+        missing += [f"{a.id()} {d.name()}" for d in a.parameterDefinitions() if f"`{d.name()}`" not in section]
+    assert not missing, "parameters the README section of their algorithm does not name:\n" + "\n".join(missing)
