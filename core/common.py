@@ -112,6 +112,12 @@ def without_far_heights(z, count_in=None):
     Such values are an undeclared nodata (``-3.4e38``, ``-1e30``) or corrupt cells: left in,
     they would overflow the filters' arithmetic (squares of 1e30) and ruin every estimate.
     """
+    # the lowest and highest finite-or-infinite values first (NaN skipped; no raster-sized temporary): a raster with
+    # no far height, the usual one, is returned as it is after one read (each member's derivation asks again)
+    if z.size and z.dtype.kind == "f":
+        lo, hi = np.fmin.reduce(z, axis=None), np.fmax.reduce(z, axis=None)
+        if not (hi > MAX_ABS_HEIGHT_M or lo < -MAX_ABS_HEIGHT_M):     # NaN (all NaN) compares False
+            return z, 0
     with np.errstate(invalid="ignore"):
         far = np.abs(z) > MAX_ABS_HEIGHT_M          # inf too; NaN compares False
     if far.any():

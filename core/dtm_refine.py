@@ -502,64 +502,134 @@ def raised_band_reach(cell_size, passes=EDGE_PASSES):
     return int(passes) * (max(max(band_plane_cells(cell_size)), BAND_NEAR_CELLS // 2) + 1)
 
 
-def _plane_residuals(z, known, cells, half, gradients=False):
-    """Per cell of ``cells``: its height above the plane fitted (least squares) to the ``known`` cells of the
-    ``(2 half[0] + 1) x (2 half[1] + 1)`` window centred on it; NaN where fewer than :data:`BAND_PLANE_MIN_CELLS`
-    are known or they do not fix a plane (all in a line). With ``gradients`` also the plane's rise per cell
-    along the columns and along the rows, the standard deviation of the known cells about the plane (``n - 3``
-    degrees of freedom; NaN where the first is) and the number ``n`` of known cells (at ``cells``, 0 elsewhere).
+#: Window cells gathered at a time by :func:`_window_sums` (its sums at a few cells), about 8 MB per float64 array.
+PLANE_GATHER_CELLS = 1 << 20
 
-    The window's sums are separable (offsets along the rows times offsets along the columns), so each is
-    two one-dimensional correlations of the whole raster; the 3 x 3 normal equations are solved at
-    ``cells`` only, for the heights relative to the cell's own (the plane's value at the centre). Every sum
-    reads only the window (no statistic of the raster), so blocks with the window's reach give the one pass.
+
+def _centre_correlation(a, weights):
+    """The correlation of each line of ``a`` (its last axis, ``2 k + 1`` values centred on the cell) with
+    ``weights``, in :func:`scipy.ndimage.correlate1d`'s own order of operations (a symmetric or antisymmetric
+    kernel pairs the taps ``-j`` and ``+j``, from the outermost in), so its value is the same to the last bit."""
+    k = (len(weights) - 1) // 2
+    w = [float(v) for v in weights]
+    eps = np.finfo(np.float64).eps
+    sign = (1 if all(abs(w[k + i] - w[k - i]) <= eps for i in range(1, k + 1)) else
+            -1 if all(abs(w[k + i] + w[k - i]) <= eps for i in range(1, k + 1)) else 0)
+    acc = a[..., k] * w[k]
+    if sign == 0:       # no kernel of this module's (never taken; the plain order for completeness)
+        acc = a[..., 2 * k] * w[2 * k]
+        for j in range(2 * k):
+            acc += a[..., j] * w[j]
+        return acc
+    for j in range(-k, 0):
+        acc += ((a[..., k + j] + a[..., k - j]) if sign > 0 else (a[..., k + j] - a[..., k - j])) * w[k + j]
+    return acc
+
+
+def _window_sums(z, known, r, c, half, squares=False, gather=None):
+    """The sums of :func:`_plane_fit`'s normal equations at the cells ``(r, c)``: over the ``known`` finite cells
+    of the window of half sides ``half`` around each, ``n``, ``sum x``, ``sum y``, ``sum x^2``, ``sum x y``,
+    ``sum y^2``, ``sum z``, ``sum z x``, ``sum z y`` (and ``sum z^2`` with ``squares``), offsets in cells (x along
+    the rows, y along the columns), float64.
+
+    Each sum is separable: a correlation along the rows, then one along the columns. Where the cells are many (their
+    windows cover more cells than the raster has), both run over the whole raster
+    (:func:`scipy.ndimage.correlate1d`); where they are few (``bareearth:dtm``'s disputed bumps: about one cell in
+    ten thousand), only their windows are gathered (:data:`PLANE_GATHER_CELLS` window cells at a time), and the
+    same two correlations taken at their centres in ``correlate1d``'s order (:func:`_centre_correlation`): the
+    same sums to the last bit, either way (so blocks, which may take the other way, still give the one pass).
+    ``gather``: True or False takes that way whatever the cells' number (tests).
     """
     ky, kx = half
     oy = np.arange(-ky, ky + 1, dtype=np.float64)
     ox = np.arange(-kx, kx + 1, dtype=np.float64)
     one_y, one_x = np.ones_like(oy), np.ones_like(ox)
-    k = known & np.isfinite(z)
-    kf = k.astype(np.float64)
-    kz = np.where(k, z.astype(np.float64), 0.0)
+    # (the row correlations each column sum reads: n, sum x, sum x^2, sum z, sum z x, sum z^2; then the weights
+    # along the columns of each sum)
+    plan = ((0, one_y), (1, one_y), (0, oy), (2, one_y), (1, oy), (0, oy * oy), (3, one_y), (4, one_y), (3, oy))
+    if squares:
+        plan += ((5, one_y),)
+    rows_w = (one_x, ox, ox * ox, one_x, ox, one_x)
+    window = (2 * ky + 1) * (2 * kx + 1)
+    if not (r.size * window <= z.size if gather is None else gather):   # many cells: the whole raster's
+        k = known & np.isfinite(z)
+        kf = k.astype(np.float64)
+        kz = np.where(k, z.astype(np.float64), 0.0)
+        del k
 
-    def along(a, w, axis):
-        return ndimage.correlate1d(a, w, axis=axis, mode="constant", cval=0.0)
-    r, c = np.nonzero(cells)
-    k1, kx1, kxx = (along(kf, w, 1) for w in (one_x, ox, ox * ox))
-    s1, sy, syy = (along(k1, w, 0)[r, c] for w in (one_y, oy, oy * oy))
-    sx, sxy = (along(kx1, w, 0)[r, c] for w in (one_y, oy))
-    sxx = along(kxx, one_y, 0)[r, c]
-    del k1, kx1, kxx
-    z1, zx1 = (along(kz, w, 1) for w in (one_x, ox))
-    sz, szy = (along(z1, w, 0)[r, c] for w in (one_y, oy))
-    szx = along(zx1, one_y, 0)[r, c]
-    del z1, zx1
-    if gradients:       # the sum of squares, for the known cells' own scatter about the plane
-        szz = along(along(kz * kz, one_x, 1), one_y, 0)[r, c]
+        def along(a, w, axis):
+            return ndimage.correlate1d(a, w, axis=axis, mode="constant", cval=0.0)
+        out = [None] * len(plan)
+        for i, src in enumerate((kf, kf, kf, kz, kz, None)):
+            if i == 5 and not squares:
+                break
+            line = along(kz * kz if src is None else src, rows_w[i], 1)
+            for j, (q, wy) in enumerate(plan):
+                if q == i:
+                    out[j] = along(line, wy, 0)[r, c]
+        return out
+    h, w = z.shape
+    dy = np.arange(-ky, ky + 1)
+    dx = np.arange(-kx, kx + 1)
+    out = [np.empty(r.size, np.float64) for _ in plan]
+    step = max(1, PLANE_GATHER_CELLS // window)
+    for a in range(0, r.size, step):
+        rr = r[a:a + step, None] + dy
+        cc = c[a:a + step, None] + dx
+        inside = ((rr >= 0) & (rr < h))[:, :, None] & ((cc >= 0) & (cc < w))[:, None, :]
+        rr, cc = np.clip(rr, 0, h - 1)[:, :, None], np.clip(cc, 0, w - 1)[:, None, :]
+        zw = z[rr, cc]
+        kk = inside & known[rr, cc] & np.isfinite(zw)       # beyond the raster: 0, as the correlations' cval
+        kf = kk.astype(np.float64)
+        kz = np.where(kk, zw.astype(np.float64), 0.0)
+        del zw, kk, inside
+        lines = [_centre_correlation(src, wx) for src, wx in
+                 zip((kf, kf, kf, kz, kz) + ((kz * kz,) if squares else ()), rows_w)]
+        for j, (q, wy) in enumerate(plan):
+            out[j][a:a + step] = _centre_correlation(lines[q], wy)
+    return out
+
+
+def _plane_fit(z, known, r, c, half, spread=True):
+    """Per cell ``(r, c)`` (float64 arrays of their number): its height above the plane fitted (least squares) to
+    the ``known`` cells of the ``(2 half[0] + 1) x (2 half[1] + 1)`` window centred on it (NaN where fewer than
+    :data:`BAND_PLANE_MIN_CELLS` are known or they do not fix a plane: all in a line), the plane's rise per cell
+    along the columns and along the rows, the standard deviation of the known cells about the plane (``n - 3``
+    degrees of freedom; NaN where the first is; not measured, NaN, without ``spread``) and the number ``n`` of
+    known cells.
+
+    The window's sums (:func:`_window_sums`) read only the window (no statistic of the raster), so blocks with the
+    window's reach give the one pass; the 3 x 3 normal equations are solved for the heights relative to the cell's
+    own (the plane's value at the centre).
+    """
+    sums = _window_sums(z, known, r, c, half, squares=spread)
+    s1, sx, sy, sxx, sxy, syy, sz, szx, szy = sums[:9]
     zc = z[r, c].astype(np.float64)
     a = np.stack([np.stack([s1, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2)
     b = np.stack([sz - zc * s1, szx - zc * sx, szy - zc * sy], -1)      # sums of d = z - z(cell)
     # a plane needs cells off one line: the normal matrix's determinant is then at least of the order of n^3
     ok = (s1 >= BAND_PLANE_MIN_CELLS) & (np.abs(np.linalg.det(a)) > 1e-6 * np.maximum(s1, 1.0) ** 3)
-    above = np.full(z.shape, np.nan, np.float64)
-    gx = np.full(z.shape, np.nan, np.float64) if gradients else None
-    gy = np.full(z.shape, np.nan, np.float64) if gradients else None
-    sd = np.full(z.shape, np.nan, np.float64) if gradients else None
-    count = np.zeros(z.shape, np.float64) if gradients else None
-    if gradients:
-        count[r, c] = s1
+    above, gx, gy, sd = (np.full(r.size, np.nan, np.float64) for _ in range(4))
     if ok.any():
         sol = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
-        above[r[ok], c[ok]] = -sol[:, 0]
-        if gradients:
-            gx[r[ok], c[ok]] = sol[:, 1]
-            gy[r[ok], c[ok]] = sol[:, 2]
-            # residual sum of squares d'd - sol'b, d = z - z(cell), over n - 3 degrees of freedom
-            zo, n = zc[ok], s1[ok]
-            dd = szz[ok] - 2.0 * zo * sz[ok] + zo * zo * n
-            rss = np.maximum(dd - np.einsum("ij,ij->i", sol, b[ok]), 0.0)
-            sd[r[ok], c[ok]] = np.sqrt(rss / np.maximum(n - 3.0, 1.0))
-    return (above, gx, gy, sd, count) if gradients else above
+        above[ok], gx[ok], gy[ok] = -sol[:, 0], sol[:, 1], sol[:, 2]
+        if not spread:
+            return above, gx, gy, sd, s1
+        szz = sums[9]
+        # residual sum of squares d'd - sol'b, d = z - z(cell), over n - 3 degrees of freedom
+        zo, n = zc[ok], s1[ok]
+        dd = szz[ok] - 2.0 * zo * sz[ok] + zo * zo * n
+        rss = np.maximum(dd - np.einsum("ij,ij->i", sol, b[ok]), 0.0)
+        sd[ok] = np.sqrt(rss / np.maximum(n - 3.0, 1.0))
+    return above, gx, gy, sd, s1
+
+
+def _plane_residuals(z, known, cells, half):
+    """Per cell of ``cells``: its height above the plane of :func:`_plane_fit` (a raster, NaN elsewhere)."""
+    r, c = np.nonzero(cells)
+    above = np.full(z.shape, np.nan, np.float64)
+    above[r, c] = _plane_fit(z, known, r, c, half, spread=False)[0]
+    return above
 
 
 def find_raised_band(z, objects, cell_size, *, tolerance_m, height_m, passes=EDGE_PASSES):
@@ -2260,23 +2330,23 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m, jump_m=No
     if not cells.any():
         return np.zeros(z.shape, bool)
     half = band_plane_cells(cell_size)
-    above, gx, gy, sd, count = _plane_residuals(z, anchors, cells, half, gradients=True)
+    # the planes at the candidates only (a few cells: their windows gathered, no raster-sized sums)
+    r, c = np.nonzero(cells)
+    above, gx, gy, sd, n = _plane_fit(z, anchors, r, c, half)
     # BUMP_SIGMAS standard deviations of a new height about a plane fitted to n heights, its spread measured on
     # them: Student's t with n - 3 degrees of freedom at the normal's one-sided level, times sqrt(1 + 1 / n)
     # (a few anchors, on coarse cells or at a patch's edge, give a loose spread and a wide margin)
-    r0, c0 = np.nonzero(cells & np.isfinite(above))
-    n = count[r0, c0]
-    k = np.full(z.shape, np.inf)
-    k[r0, c0] = stats.t.ppf(stats.norm.cdf(BUMP_SIGMAS), np.maximum(n - 3.0, 1.0)) * np.sqrt(1.0 + 1.0 / n)
+    fit = np.isfinite(above)
+    k = np.full(r.size, np.inf)
+    k[fit] = stats.t.ppf(stats.norm.cdf(BUMP_SIGMAS), np.maximum(n[fit] - 3.0, 1.0)) * np.sqrt(1.0 + 1.0 / n[fit])
     with np.errstate(invalid="ignore"):
-        cells &= above > np.maximum(np.maximum(float(tolerance_m), k * sd),
-                                    np.hypot(gx, gy))
-    r, c = np.nonzero(cells)
-    if r.size == 0:
-        return cells
+        sel = np.flatnonzero(above > np.maximum(np.maximum(float(tolerance_m), k * sd), np.hypot(gx, gy)))
+    if sel.size == 0:
+        return np.zeros(z.shape, bool)
+    r, c, above, gx, gy = r[sel], c[sel], above[sel], gx[sel], gy[sel]
     # an anchor within two cells standing as high above the cell's plane: the upper side of a step
     h, w = z.shape
-    zc, base = z[r, c].astype(np.float64), (z[r, c] - above[r, c]).astype(np.float64)
+    zc, base = z[r, c].astype(np.float64), (z[r, c] - above).astype(np.float64)
     keep = np.ones(r.size, bool)
     m = BAND_NEAR_CELLS // 2
     for dr in range(-m, m + 1):
@@ -2284,11 +2354,15 @@ def find_disputed_bumps(z, ground, anchors, cell_size, *, tolerance_m, jump_m=No
             rr, cc = r + dr, c + dc
             inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
             rr, cc = np.clip(rr, 0, h - 1), np.clip(cc, 0, w - 1)
-            lift = z[rr, cc] - (base + gx[r, c] * dc + gy[r, c] * dr)
+            lift = z[rr, cc] - (base + gx * dc + gy * dr)
             keep &= ~(inside & anchors[rr, cc] & (lift >= zc - base))
     found = _cells_to_mask(r, c, keep, z.shape)
     if found.any():
+        # the planes' rise for the lines' level changes, read at the found cells only (zeros elsewhere: pages never
+        # touched, no raster written)
+        grad = np.zeros(z.shape, np.float64), np.zeros(z.shape, np.float64)
+        grad[0][r, c], grad[1][r, c] = gx, gy
         found &= stands_above_ground(z, anchors, found, height_m=float(tolerance_m), reach_cells=max(half),
-                                     min_lines=BUMP_MIN_LINES, jump_m=jump_m, gradient=(gx, gy),
+                                     min_lines=BUMP_MIN_LINES, jump_m=jump_m, gradient=grad,
                                      levels=ground | anchors)
     return found

@@ -1854,3 +1854,50 @@ def test_stands_above_ground_reads_the_ground_on_the_cells_own_level():
     grad = (np.full(s.shape, 2.5), np.zeros(s.shape))
     assert not dr.stands_above_ground(s, c == 0, c, jump_m=2.0, **kw)[0, 5]
     assert dr.stands_above_ground(s, c == 0, c, jump_m=2.0, gradient=grad, **kw)[0, 5]
+
+
+@pytest.mark.parametrize("half", [(1, 1), (2, 3), (6, 6)])
+def test_window_sums_gathered_at_a_few_cells_equal_the_whole_rasters_correlations(half):
+    """The plane's sums at a few cells, their windows gathered, are ndimage.correlate1d's of the whole raster
+    (rows, then columns; zeros beyond the raster) to the last bit: the same sums whichever way a block takes."""
+    rng = np.random.default_rng(3)
+    z = rng.normal(100.0, 5.0, (40, 50)).astype(np.float32)
+    z[rng.random(z.shape) < 0.05] = np.nan
+    known = rng.random(z.shape) < 0.7
+    r, c = np.nonzero(rng.random(z.shape) < 0.2)
+    r, c = np.r_[r, 0, 39, 0], np.r_[c, 0, 49, 49]          # the raster's corners too
+    ky, kx = half
+    oy, ox = np.arange(-ky, ky + 1.0), np.arange(-kx, kx + 1.0)
+    k = known & np.isfinite(z)
+    kf, kz = k.astype(np.float64), np.where(k, z.astype(np.float64), 0.0)
+
+    def corr(a, wx, wy):
+        a = ndimage.correlate1d(a, wx, axis=1, mode="constant", cval=0.0)
+        return ndimage.correlate1d(a, wy, axis=0, mode="constant", cval=0.0)[r, c]
+    one_x, one_y = np.ones_like(ox), np.ones_like(oy)
+    want = [corr(kf, one_x, one_y), corr(kf, ox, one_y), corr(kf, one_x, oy), corr(kf, ox * ox, one_y),
+            corr(kf, ox, oy), corr(kf, one_x, oy * oy), corr(kz, one_x, one_y), corr(kz, ox, one_y),
+            corr(kz, one_x, oy), corr(kz * kz, one_x, one_y)]
+    for gather in (True, False, None):
+        got = dr._window_sums(z, known, r, c, half, squares=True, gather=gather)
+        assert len(got) == len(want)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+
+def test_find_disputed_bumps_reads_only_the_candidates_windows(monkeypatch):
+    """A few candidates (one shrub among 40 x 40 anchors) take the gathered windows, never a correlation of the
+    whole raster, and find the shrub as the whole raster's sums do."""
+    _, _, z = _hillside(40, 40)
+    z[20, 20] += 0.4
+    anchors = np.ones(z.shape, bool)
+    anchors[20, 20] = False
+    calls = []
+    real, real_sums = dr.ndimage.correlate1d, dr._window_sums
+    monkeypatch.setattr(dr.ndimage, "correlate1d", lambda *a, **k: calls.append(1) or real(*a, **k))
+    found = dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0), tolerance_m=0.1)
+    assert np.argwhere(found).tolist() == [[20, 20]] and not calls
+    monkeypatch.setattr(dr, "_window_sums", lambda *a, **k: real_sums(*a, **{**k, "gather": False}))
+    np.testing.assert_array_equal(dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0),
+                                                         tolerance_m=0.1), found)
+    assert calls

@@ -571,6 +571,31 @@ def test_far_heights_are_nodata_with_a_log_line(tmp_path, far):
             assert gdal.Open(str(tmp_path / "m.tif")).ReadAsArray()[3, 3] == NODATA
 
 
+def test_without_far_heights_reads_a_clean_raster_without_a_copy():
+    """A raster without far heights (the usual one, which each of dtm's member derivations checks again) is returned
+    as it is, read without a raster-sized temporary; one far or infinite height is still found (a copy, NaN)."""
+    import tracemalloc
+
+    from bare_earth.core.common import without_far_heights
+    z = np.random.default_rng(2).normal(100.0, 10.0, (500, 500)).astype(np.float32)
+    z[::7, ::3] = np.nan
+    tracemalloc.start()
+    try:
+        out, n = without_far_heights(z)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert out is z and n == 0 and peak < z.size       # not even a bool raster (one byte a cell)
+    for far in (1e30, -np.inf):
+        y = z.copy()
+        y[4, 5] = far
+        out, n = without_far_heights(y)
+        assert n == 1 and np.isnan(out[4, 5]) and y[4, 5] == np.float32(far)
+        want = z.copy()
+        want[4, 5] = np.nan
+        np.testing.assert_array_equal(out, want)
+
+
 def test_far_heights_beside_a_declared_nodata_written_with_fewer_digits_say_so(tmp_path):
     """Missing cells holding Float32's lowest value while the raster declares -3.40282e+38 (the
     same value with fewer digits, as some exports write it): they are nodata (far beyond any
