@@ -23,7 +23,6 @@ cell stands on an object no stage took; a type I in an ``edge`` cell was ground 
 
 It writes no log: it says where to look, the matrix says how good a change is.
 """
-import argparse
 import re
 import sys
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import bare_earth`` work)
 from morphological_errors import breakdown, format_breakdown  # noqa: E402  (one copy of the breakdown)
+from morphological_errors import main as errors_main  # noqa: E402  (and of the command line)
 
 #: The codes of ``extras["step"]`` other than the dilation's steps (core/geodesic/filter.py's ``STEP_*``).
 FIXED_CODES = {0: "kept", 250: "scan", 251: "outlier", 252: "edge", 253: "island"}
@@ -105,11 +105,7 @@ def run(data, only, progress=print):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
-    ap.add_argument("--only", required=True, help="regular expression: the rows to look at")
-    a = ap.parse_args(argv)
-    run(Path(a.data if a.data is not None else generalise.isprs.default_data_dir()), a.only)
+    errors_main(argv, run=run, description=__doc__)
 
 
 if __name__ == "__main__":

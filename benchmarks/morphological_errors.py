@@ -149,8 +149,9 @@ def run(data, only, progress=print):
     return results
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv=None, run=run, description=__doc__):
+    """The command line of an error breakdown (this one and ``geodesic_errors``): ``--data``, ``--only``."""
+    ap = argparse.ArgumentParser(description=description.split("\n\n")[0])
     ap.add_argument("--data", default=None, help="data folder (default $BARE_EARTH_DATA or ../shared/data)")
     ap.add_argument("--only", required=True, help="regular expression: the rows to look at")
     a = ap.parse_args(argv)

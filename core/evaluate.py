@@ -29,7 +29,7 @@ import uuid
 
 import numpy as np
 
-from .codes import GROUND, NODATA
+from .codes import GROUND, NODATA, as_mask_codes
 from .common import real_array, without_far_heights
 from .pointfiles import part_path, remove_stale_parts
 
@@ -136,16 +136,8 @@ def _codes(mask, what):
     nodata = np.isnan(a) if a.dtype.kind == "f" else np.zeros(a.shape, bool)
     if masked is not None:
         nodata |= masked
-    v = a[~nodata]
-    bad = (v < 0) | (v > 255) | (v != np.round(v)) if a.dtype.kind == "f" else (v < 0) | (v > 255)
-    if bad.any():
-        raise ValueError(f"{what} holds {int(np.count_nonzero(bad))} value(s) that are no mask code (e.g. "
-                         f"{float(v[bad][0]):g}): a mask holds whole numbers 0-255 (0 ground, 1 object, 2 low outlier, "
-                         "255 nodata; NaN is nodata). Pass the mask a filter returned, or convert the array into "
-                         "such codes first.")
-    out = np.full(a.shape, NODATA, np.uint8)
-    out[~nodata] = v
-    return out
+    return as_mask_codes(a, nodata, what, "Pass the mask a filter returned, or convert the array into such codes "
+                         "first.")
 
 
 def _masks(mask, truth_mask):

@@ -19,6 +19,7 @@ try:
 except ImportError:  # pragma: no cover - GDAL ships with QGIS
     gdal = osr = None
 
+from ..codes import as_mask_codes
 from ..common import MAX_ABS_HEIGHT_M, as_cell_size, is_rotated, without_far_heights
 
 #: Smallest raster the filters accept, in cells per side.
@@ -874,17 +875,8 @@ def read_mask(info, what="the mask"):
         nodata |= np.isnan(a)
     if info.nodata is not None and not math.isnan(info.nodata) and not 0 <= info.nodata <= 255:
         nodata |= a == info.nodata
-    v = a[~nodata]
-    with np.errstate(invalid="ignore"):
-        bad = (v < 0) | (v > 255) | (v != np.round(v)) if a.dtype.kind == "f" else (v < 0) | (v > 255)
-    if bad.any():
-        raise ValueError(f"{what} {info.path!r} holds {int(np.count_nonzero(bad))} cell(s) that are no mask code "
-                         f"(e.g. {v[bad][0]!r}): a mask holds whole numbers 0-255 (0 ground, 1 object, 2 low "
-                         "outlier, 255 nodata). Give the object mask a Bare Earth filter wrote, or convert the "
-                         "raster into such codes first.")
-    out = np.full(a.shape, 255, np.uint8)
-    out[~nodata] = v
-    return out
+    return as_mask_codes(a, nodata, f"{what} {info.path!r}", "Give the object mask a Bare Earth filter wrote, "
+                         "or convert the raster into such codes first.")
 
 
 #: GDAL's block cache during a blocked run, bytes. Blocks (2048) are whole 256-cell output
