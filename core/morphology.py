@@ -2057,15 +2057,16 @@ def _reached(seeds, within, steps):
     reach = seeds & within
     if steps <= 0 or not reach.any():
         return reach
-    grown = touching(reach) & within
+    grown = touching(reach)
+    grown &= within
     if steps == 1:
         return grown
     h, w = within.shape
     wide = w + 2
-    free = np.zeros((h + 2, wide), bool)          # the cells not reached yet, with a border never free
-    free[1:-1, 1:-1] = within
-    free[1:-1, 1:-1] &= ~grown
-    front = np.flatnonzero(np.pad(grown & ~reach, 1))
+    free = np.zeros((h + 2, wide), bool)          # with a border of one cell, never free
+    np.greater(grown, reach, out=free[1:-1, 1:-1])      # the first step's cells (a > b: a and not b)
+    front = np.flatnonzero(free)
+    np.greater(within, grown, out=free[1:-1, 1:-1])     # the cells not reached yet
     del reach, grown
     offsets = (-wide - 1, -wide, -wide + 1, -1, 1, wide - 1, wide, wide + 1)
     flat = free.reshape(-1)
@@ -2079,7 +2080,7 @@ def _reached(seeds, within, steps):
             flat[nb] = False
             added.append(nb)
         front = np.concatenate(added)
-    return within & ~free[1:-1, 1:-1]              # reached: the cells of within no longer free
+    return np.greater(within, free[1:-1, 1:-1])    # reached: the cells of within no longer free
 
 
 def open_progressive(z, cell, p, work, progress=None, stages=None):
