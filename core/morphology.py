@@ -2041,6 +2041,13 @@ def _reached(seeds, within, steps):
     """The cells of ``within`` joined to a cell of ``seeds`` by a path of at most ``steps`` 8-neighbour steps
     through ``within`` (a geodesic dilation: bounded reach, so blocks equal one pass).
 
+    The first step is one 3 x 3 dilation of the array; the others grow the front alone (the cells the last step
+    added, as flat indices into a copy of ``within`` with a border of one cell, each cell taken once): the work
+    of a step is its front's, not the array's, and no longer grows with the window's half-width. The same cells as
+    ``steps`` dilations of the array; CPU of the synthetic city (4 Mcells at 0.5 m cells) 0.16 -> 0.04 s here,
+    find_cut_slopes 0.25 -> 0.13 s; on flagged hills over 2000 x 2000 cells, windows of 61 / 241 cells,
+    find_cut_slopes 0.16 / 0.35 -> 0.06 / 0.10 s.
+
     Examples
     --------
     >>> within = np.array([[1, 1, 1, 0, 1, 1]], bool)
@@ -2048,12 +2055,32 @@ def _reached(seeds, within, steps):
     [[1, 1, 0, 0, 0, 0]]
     """
     reach = seeds & within
-    for _ in range(steps):
-        grown = touching(reach) & within
-        if np.array_equal(grown, reach):
+    if steps <= 0 or not reach.any():
+        return reach
+    grown = touching(reach)
+    grown &= within
+    if steps == 1:
+        return grown
+    h, w = within.shape
+    wide = w + 2
+    free = np.zeros((h + 2, wide), bool)          # with a border of one cell, never free
+    np.greater(grown, reach, out=free[1:-1, 1:-1])      # the first step's cells (a > b: a and not b)
+    front = np.flatnonzero(free)
+    np.greater(within, grown, out=free[1:-1, 1:-1])     # the cells not reached yet
+    del reach, grown
+    offsets = (-wide - 1, -wide, -wide + 1, -1, 1, wide - 1, wide, wide + 1)
+    flat = free.reshape(-1)
+    for _ in range(steps - 1):
+        if front.size == 0:
             break
-        reach = grown
-    return reach
+        added = []
+        for off in offsets:                        # one neighbour at a time: marked as it is taken, each once
+            nb = front + off
+            nb = nb[flat[nb]]
+            flat[nb] = False
+            added.append(nb)
+        front = np.concatenate(added)
+    return np.greater(within, free[1:-1, 1:-1])    # reached: the cells of within no longer free
 
 
 def open_progressive(z, cell, p, work, progress=None, stages=None):

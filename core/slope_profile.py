@@ -670,7 +670,8 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
         runw |= risew
         np.add(kw, 1, out=alw)                         # an accepted cell: the ground's change
         np.divide(dzrw, alw, out=alw)                  # per cell from the reference, within
-        np.clip(alw, fall_min, rise_c, out=alw)        # the terrain's slope, less the rise
+        np.maximum(alw, fall_min, out=alw)             # the terrain's slope, less the rise
+        np.minimum(alw, rise_c, out=alw)               # (two ufuncs: np.clip's wrapper costs 1.5 x)
         alw -= rise_c                                  # tan_g allows for: f - c <= 0
         np.putmask(fw, okw, alw)
         if trends is not None:
@@ -684,11 +685,13 @@ def _scan(sources, step_m, tan_g, tan_t, dh0, init_cells, edge_cells=1, progress
                         tt[...] = t[n - 1 - i] if rev else t[i]
             tw = tcur[:end]
             tw *= tsign[:end]
-            np.clip(tw, fall_min, 0, out=tw)
             np.add(alw, rise_c, out=limw)                  # the step, within [-b2, rise_c],
             limw += step_noise                             # beyond its noise
-            np.minimum(limw, 0, out=limw)
+            # max(clip(t, -b2, 0), min(step, 0)) as max(min(max(t, step), 0), -b2): the same
+            # values (min and max are monotone), three ufuncs instead of np.clip's wrapper
             np.maximum(tw, limw, out=tw)
+            np.minimum(tw, 0, out=tw)
+            np.maximum(tw, fall_min, out=tw)
             np.putmask(tfw, okw, tw)
         kw += upw                                      # a nodata cell does not count: a gap does
         np.logical_not(okw, out=nokw)                  # not let the reference drift up a roof.

@@ -1449,3 +1449,36 @@ def test_low_shrubs_on_a_steep_hillside_rejected_by_the_scans_coming_down_it():
         r0, c0 = np.argwhere(lab == i).min(axis=0)
         # the uphill row and column (the highest x and y) of every shrub: 5 of its 9 cells
         assert obj[r0 + 2, c0:c0 + 3].all() and obj[r0:r0 + 3, c0 + 2].all()
+
+
+def test_scan_bounds_the_terrain_fall_with_ufuncs_not_clip(monkeypatch):
+    """The terrain line's fall, ``max(clip(t, -b2, 0), min(step, 0))`` (the trend ``t`` within [-b2, 0], the
+    step's fall no steeper than 0), is taken as ``max(min(max(t, step), 0), -b2)``: min and max are monotone, so
+    the same values for any ``t`` and step (a step below -b2 too, NaN alike), and the scan calls no np.clip, whose
+    Python wrapper cost two of them a step (scan_profiles on the synthetic city, 4 Mcells at 1 m: 0.47 -> 0.43
+    CPU s)."""
+    rng = np.random.default_rng(5)
+    b2 = np.float32(0.3)
+    t = np.concatenate([rng.normal(0, 0.4, 2000), [-0.3, 0.3, 0.0, -0.0, np.nan, 1.0, -1.0]]).astype(np.float32)
+    s = np.concatenate([rng.normal(0, 0.4, 2000), [np.nextafter(-b2, -1), -0.3, np.nan, 0.0, 0.5, -2.0, 0.0]])
+    s = s.astype(np.float32)
+    want = np.maximum(np.clip(t, -b2, 0), np.minimum(s, 0))
+    got = np.maximum(np.minimum(np.maximum(t, s), 0), -b2)
+    np.testing.assert_array_equal(got, want)
+
+    class NoClip:
+        def __getattr__(self, name):
+            return getattr(np, name)
+
+        def clip(self, *a, **k):
+            raise AssertionError("np.clip in the scan")
+
+    z = (0.2 * np.arange(40, dtype=np.float32))[::-1, None] + np.zeros((1, 3), np.float32)
+    z[10:14] += 3.0
+    trend = np.full(z.shape, -0.2, np.float32)
+    want = sp._scan([(z, False), (z, True)], 1.0, 0.6, 0.2, 0.15, 1, 1, trends=[trend, trend])
+    monkeypatch.setattr(sp, "np", NoClip())
+    got = sp._scan([(z, False), (z, True)], 1.0, 0.6, 0.2, 0.15, 1, 1, trends=[trend, trend])
+    monkeypatch.setattr(sp, "np", np)
+    for a, b in zip(want, got):
+        np.testing.assert_array_equal(a, b)
