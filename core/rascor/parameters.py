@@ -280,7 +280,8 @@ def _height_limits(z, low_env, sigma):
     return round(float(min(q1 - 3 * iqr, gmin - _FAR_M)), 2), round(float(max(q3 + 3 * iqr, gmax + _FAR_M)), 2)
 
 
-def longest_hall(z, cell_size, *, jump_m, max_building_m, sigma_m, neighbour_k=3.0, terrain_bend_m=0.0):
+def longest_hall(z, cell_size, *, jump_m, max_building_m, sigma_m, neighbour_k=3.0, terrain_bend_m=0.0,
+                 terrain_slope=0.0):
     """Step 4's ``max_hall_m``: the span (m) of the longest raised level closed by walls on every side
     that runs further than ``max_building_m`` (:func:`~.steps.enclosed_levels`, levels of
     :func:`~.sequence.level_step`), at most :data:`~bare_earth.core.estimate.RAISED_REGION_SPAN_M`; 0
@@ -290,7 +291,10 @@ def longest_hall(z, cell_size, *, jump_m, max_building_m, sigma_m, neighbour_k=3
     cells; ``k`` cells a block): a roof keeps its walls there and loses at most a block at each side,
     so the levels longer than ``max_building_m`` less two blocks are looked at and the span found
     grows by two blocks. The span decides the halo (:func:`rascor_halo`): a raster without such a
-    level keeps step 4's.
+    level keeps step 4's. The levels are joined across the step step 4 joins its levels across
+    (:func:`~.sequence.level_step` with the rise of ``terrain_slope`` over one cell of the grid looked
+    at, :func:`~.sequence.cell_rise`): the same levels as step 4's own, so the span found is that of a
+    level step 4 can take (measured without the rise, a sloping level broke into parts step 4 joins).
 
     Examples
     --------
@@ -305,7 +309,8 @@ def longest_hall(z, cell_size, *, jump_m, max_building_m, sigma_m, neighbour_k=3
     zs, (dx, dy), k = raised_region_grid(as_surface(z), as_cell_size(cell_size))
     margin = 2.0 * max(dx, dy) if k > 1 else 0.0
     levels = enclosed_levels(zs, (dx, dy), jump_m=jump_m,
-                             step_m=level_step(neighbour_k, sigma_m, terrain_bend_m, jump_m),
+                             step_m=level_step(neighbour_k, sigma_m, terrain_bend_m, jump_m,
+                                               rise_m=max(cell_rise(terrain_slope, (dx, dy)))),
                              min_span_m=max_building_m - margin, max_span_m=RAISED_REGION_SPAN_M,
                              k=neighbour_k, bend_m=terrain_bend_m)
     lab, n = label8(levels)
@@ -462,7 +467,7 @@ def resolve_rascor_params(z: np.ndarray, cell_size: Union[float, Sequence[float]
     if p["max_hall_m"] is None:
         p["max_hall_m"] = longest_hall(z, (dx, dy), jump_m=p["jump_m"], max_building_m=p["max_building_m"],
                                        sigma_m=sigma, neighbour_k=p["neighbour_k"],
-                                       terrain_bend_m=p["terrain_bend_m"])
+                                       terrain_bend_m=p["terrain_bend_m"], terrain_slope=p["terrain_slope"])
     if p["prediction_radius_m"] is None:
         p["prediction_radius_m"] = round(3.0 * cs, 3)
     need = [k for k in ("short_profile_m", "long_profile_m", "profile_sigma_m", "surface_size_m",

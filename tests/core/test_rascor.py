@@ -2214,6 +2214,29 @@ def test_step4_takes_a_hall_longer_than_the_longest_building():
         run(z, max_hall_m=-1.0)
 
 
+def test_longest_hall_joins_its_levels_across_step_4s_step_on_sloping_ground():
+    """max_hall_m is the span of a level step 4 can take: its levels are joined across step 4's own
+    step (:func:`~.sequence.level_step` with the terrain's rise over a cell). A hall on ground rising
+    0.3 m per cell, its roof following the slope (sigma 0.05 m: ``k sqrt(2) sigma`` = 0.21 m): measured
+    without the rise, the roof fell into strips one cell wide across the slope, each spanning the
+    hall's 100 m only (max_hall_m short of the hall, which step 4, joining the roof into one level of
+    120 m, then left as ground); with it the span is the hall's, found by resolve from the DSM's slope."""
+    n = 160
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = (100.0 + 0.3 * x).astype(np.float32)
+    roof = np.zeros(z.shape, bool)
+    roof[30:130, 20:140] = True
+    z[roof] += 9.0
+    kw = dict(jump_m=2.0, max_building_m=60.0, sigma_m=0.05)
+    assert rascor.parameters.longest_hall(z, 1.0, **kw, terrain_slope=0.3) == 120.0
+    assert rascor.parameters.longest_hall(z, 1.0, **kw) < 120.0         # level ground's step: strips
+    p = rascor.resolve_rascor_params(z, 1.0, max_building_m=60.0, sigma_m=0.05)
+    assert p["terrain_slope"] == pytest.approx(0.3, abs=0.01)
+    assert p["max_hall_m"] == 120.0
+    st = run(z, steps=[3, 4], sigma_m=0.05, terrain_slope=0.3, max_hall_m=p["max_hall_m"]).extras["step"]
+    assert np.mean(st[roof] > 0) > 0.99 and not (st[~roof] > 0).any()
+
+
 def test_step4_halls_in_blocks_as_in_one_pass():
     """max_hall_m widens the halo (the whole level and a cell around it): blocks of 64 cells, each
     smaller than the hall, take it as one pass does."""
