@@ -1482,3 +1482,70 @@ def test_scan_bounds_the_terrain_fall_with_ufuncs_not_clip(monkeypatch):
     monkeypatch.setattr(sp, "np", np)
     for a, b in zip(want, got):
         np.testing.assert_array_equal(a, b)
+
+
+def _scan1_edge(values, trend, edge_trend, tan_g, tan_t, dh0, reverse=False):
+    """One profile scanned alone with the ground's trend and its trend before the scan's position
+    (both rise per cell in the profile's forward direction): its rejections in the profile's order."""
+    a = np.asarray(values, np.float32)[:, None]
+    t = np.full(a.shape, trend, np.float32)
+    e = np.full(a.shape, edge_trend, np.float32)
+    return sp._scan([(a, reverse)], 1.0, tan_g, tan_t, dh0, 1, 1, trends=[t], edge_trends=[e])[0][:, 0].tolist()
+
+
+def test_scan_ground_change_before_the_reference_follows_its_trend():
+    # tan_g 0.6, tan_t 0.2 (c = 0.2), dh0 0. Level ground, then a flank climbed in steps of
+    # 0.35 and 0.5 m: each within the edge's allowance from the step before it (0.35 <= 0.6 - 0.2
+    # over level ground; then 0.5 <= 0.6 over ground rising at c): accepted without the trend
+    # before the reference (the old rule)
+    z = [0.0, 0.0, 0.0, 0.35, 0.85, 1.35]
+    assert _scan1_trend(z, 0.0, 0.6, 0.2, 0.0) == [False] * 6
+    # the ground's trends are level there: the 0.35 m step is none of the ground's, the edge's
+    # allowance stays 0.4 over the level, and 0.5 m above the flank's first cell is rejected
+    assert _scan1_edge(z, 0.0, 0.0, 0.6, 0.2, 0.0) == [False] * 4 + [True, True]
+    # ground rising along its trend is unchanged: its steps are the trend's
+    assert _scan1_edge(z, 0.0, 0.35, 0.6, 0.2, 0.0) == [False] * 6
+    # the step's noise (sqrt(2) dh0 / 3 = 0.33 m with dh0 0.7) is allowed beyond the trend
+    assert _scan1_edge([0.0, 0.0, 0.0, 0.35, 1.0], 0.0, 0.0, 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    assert _scan1_edge([0.0, 0.0, 0.0, 0.35, 1.0], 0.0, 0.0, 0.6, 0.2, 0.7) == [False] * 5
+    # a level top on ground falling 1 m a cell (a crown entered level from the hillside above):
+    # the level step is not the ground's, which falls at alpha_t at least: 0.3 m above the level
+    # is beyond the edge's 0.2 over that fall (0.6 - 0.2 - 0.2); the old rule allowed 0.4
+    z = [2.0, 1.0, 0.0, 0.0, 0.3]
+    assert _scan1_trend(z, 0.0, 0.6, 0.2, 0.0) == [False] * 5
+    assert _scan1_edge(z, 0.0, -1.0, 0.6, 0.2, 0.0) == [False] * 4 + [True]
+    # scanned backwards the trend's sign turns: the same profile mirrored
+    assert _scan1_edge(z[::-1], 0.0, 1.0, 0.6, 0.2, 0.0, reverse=True) == [True] + [False] * 4
+    with pytest.raises(ValueError, match="one edge trend array per source"):
+        sp._scan([(np.zeros((3, 1), np.float32), False)], 1.0, 0.6, 0.2, 0.0, 1, 1,
+                 trends=[np.zeros((3, 1), np.float32)], edge_trends=[])
+    with pytest.raises(ValueError, match="need the terrain line's trends"):
+        sp._scan([(np.zeros((3, 1), np.float32), False)], 1.0, 0.6, 0.2, 0.0, 1, 1,
+                 edge_trends=[np.zeros((3, 1), np.float32)])
+
+
+def test_trends_before_are_the_more_rising_of_the_trend_here_and_behind():
+    # 2 m cells: trend_cells 5, the trend 4 cells behind (2 (5 // 2)); 0 beyond the edge
+    t = np.array([0.0, 0.5, -1.0, 0.2, -0.3, 0.0, 0.4, -0.6], np.float32)
+    f, b = sp.trends_before(t[None, :], 1, (2.0, 2.0))
+    assert f[0].tolist() == pytest.approx([0.0, 0.5, 0.0, 0.2, 0.0, 0.5, 0.4, 0.2])
+    assert b[0].tolist() == pytest.approx([-0.3, 0.0, -1.0, -0.6, -0.3, 0.0, 0.0, -0.6])
+    # along Y (axis 0) the same on the columns; the input is not changed
+    f2, b2 = sp.trends_before(np.repeat(t[:, None], 3, axis=1), 0, (2.0, 2.0))
+    assert np.array_equal(f2, np.repeat(f[0][:, None], 3, axis=1))
+    assert np.array_equal(b2, np.repeat(b[0][:, None], 3, axis=1))
+    assert t[2] == -1.0
+
+
+def test_scan_profiles_reject_a_crown_flank_climbed_in_steps():
+    # level ground with a ridge of 0.35 / 0.5 m steps across the X profiles (tan_g 0.6, tan_t 0.2,
+    # dh0 0): each step from the one before is within the edge's allowance, so both X scans
+    # climbed it; the ground's trends (level: the running minimum goes below the 7 m ridge) do not
+    # follow the steps, and its upper three cells are rejected by both
+    row = np.array([0.0] * 14 + [0.35, 0.85, 1.35, 1.85, 1.35, 0.85, 0.35] + [0.0] * 14, np.float32)
+    z = np.tile(row, (35, 1))
+    ox, oy, _, _ = sp.scan_profiles(z, (1.0, 1.0), 0.6, 0.2, 0.0, (10, 10), (1, 1))
+    assert np.flatnonzero(ox[17]).tolist() == [16, 17, 18]
+    assert not oy.any()
+    ox, _, _, _ = sp.scan_profiles(z, (1.0, 1.0), 0.6, 0.2, 0.0, (10, 10), (1, 1), trends=False)
+    assert not ox.any()
