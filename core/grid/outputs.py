@@ -284,17 +284,26 @@ def check_output_folder(path):
                          "folder.")
     if not os.path.isdir(folder):
         raise ValueError(f"the output folder {folder!r} does not exist: create it or choose another folder.")
-    try:  # a real file: os.access says yes to root on a read-only or virtual file system
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-probe-"):
-            pass
-    except OSError as exc:
-        raise ValueError(f"the output folder {folder!r} is not writable ({exc.strerror}): choose a folder "
-                         "you can write to.") from None
+    check_folder_takes_files(folder)
     limit = _name_max(folder)
     if len(base.encode()) > limit:
         raise ValueError(f"the output file name is {len(base.encode())} bytes long; the file system of "
                          f"{folder!r} allows {limit}: choose a shorter name.")
     check_replaceable(path)
+
+
+def check_folder_takes_files(folder, made=None):
+    """ValueError naming ``folder`` when a new file cannot be created in it (read-only, an immutable
+    folder, a read-only file system): probed with a real file, since ``os.access`` says yes to root.
+    ``made``: the folder the outputs go to, still to be created inside ``folder`` (the message names
+    both)."""
+    try:  # a real file: os.access says yes to root on a read-only or virtual file system
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-probe-"):
+            pass
+    except OSError as exc:
+        where = f" (the output folder {made!r} would be created in it)" if made else ""
+        raise ValueError(f"the output folder {folder!r}{where} is not writable ({exc.strerror}): choose a folder "
+                         "you can write to.") from None
 
 
 def folder_ignores_case(folder):

@@ -361,7 +361,8 @@ def check_output_folder(index, out_dir, inputs=None):
     ``mask.vrt`` or ``survey.vrt``, or another name of one: a link, another case where the folder
     ignores it), or one holding a folder named as a file the survey writes (``survey.vrt``,
     ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``), or a folder that ignores case
-    (:func:`.grid.folder_ignores_case`) for tiles whose names differ only in case."""
+    (:func:`.grid.folder_ignores_case`) for tiles whose names differ only in case, or a folder that
+    takes no new file (read-only; a new one: the folder it is created in, or a file on its path)."""
     if not str(out_dir).strip():     # an unset variable in a script: the outputs went to the current folder
         raise ValueError(f"the output folder is empty: give the folder the outputs go to (an empty one would be "
                          f"the current folder, {os.getcwd()!r}).")
@@ -377,6 +378,14 @@ def check_output_folder(index, out_dir, inputs=None):
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
                          "(a new one is created).")
+    parent = out_dir       # the folder the outputs go to, or the nearest folder above it, where it is created
+    while not os.path.isdir(parent) and os.path.dirname(parent) != parent:
+        parent = os.path.dirname(parent)
+    below = os.path.join(parent, os.path.relpath(out_dir, parent).split(os.sep)[0])
+    if parent != out_dir and os.path.exists(below):
+        raise ValueError(f"the output folder {out_dir!r} cannot be created: {below!r} is a file, not a folder. "
+                         "Choose another output folder.")
+    grid.check_folder_takes_files(parent, None if parent == out_dir else out_dir)   # was a traceback at survey.vrt
     folders = [n for n in own if os.path.isdir(os.path.join(out_dir, n))]
     if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
         raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "
