@@ -718,8 +718,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             try:
                 if d.type() == "rasterDestination":
                     grid.check_output_path(path, self.outputBands(d.name()), styled=d.name().endswith("MASK"))
-                elif d.type() == "folderDestination":
-                    grid.check_output_folder(path)
+                elif d.type() == "folderDestination":   # the folder takes files (was its parent's test)
+                    grid.check_output_dir(path)
                 else:                              # a report, a table, a point or vector file
                     grid.check_output_file(path, "output." + (d.defaultFileExtension() or "txt"))
             except ValueError as exc:

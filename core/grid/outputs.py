@@ -269,14 +269,19 @@ def check_output_crs(path, crs_wkt, geotransform=(0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
                          "which keeps the CRS.")
 
 
-def check_output_folder(path):
-    """Check that the folder of an output file ``path`` exists and takes new files, and that the
-    file's name fits the file system; ValueError naming the folder otherwise."""
+def _refuse_virtual(path):
+    """ValueError for a GDAL virtual path (``/vsimem/``, ``/vsizip/``) given as an output."""
     given = str(path).replace("\\", "/")
     if re.match(r"^/vsi[a-z0-9_]+(/|$)", given):   # was "the output folder '/vsimem' does not exist"
         raise ValueError(f"the output {str(path)!r} is a GDAL virtual file ({given.split('/')[1]}): outputs are "
                          "written as work files on disk and moved into place when complete; give a path on disk "
                          "(or a temporary output).")
+
+
+def check_output_folder(path):
+    """Check that the folder of an output file ``path`` exists and takes new files, and that the
+    file's name fits the file system; ValueError naming the folder otherwise."""
+    _refuse_virtual(path)
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
@@ -304,6 +309,31 @@ def check_folder_takes_files(folder, made=None):
         where = f" (the output folder {made!r} would be created in it)" if made else ""
         raise ValueError(f"the output folder {folder!r}{where} is not writable ({exc.strerror}): choose a folder "
                          "you can write to.") from None
+
+
+def check_output_dir(path):
+    """ValueError naming the folder when the output folder ``path`` (created when it does not exist, with
+    the folders above it) cannot receive files: an existing file, a file on its path, a new folder's name
+    longer than the file system allows, or the folder, or the nearest existing folder above a new one,
+    taking no new file (:func:`check_folder_takes_files`), or a GDAL virtual path."""
+    _refuse_virtual(path)
+    path = os.path.abspath(str(path))
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"the output folder {path!r} is an existing file, not a folder: choose a folder "
+                         "(a new one is created).")
+    parent = path          # the folder itself, or the nearest folder above it, where it is created
+    while not os.path.isdir(parent) and os.path.dirname(parent) != parent:
+        parent = os.path.dirname(parent)
+    below = os.path.join(parent, os.path.relpath(path, parent).split(os.sep)[0])
+    if parent != path and os.path.exists(below):
+        raise ValueError(f"the output folder {path!r} cannot be created: {below!r} is a file, not a folder. "
+                         "Choose another output folder.")
+    limit = _name_max(parent)
+    long = [n for n in os.path.relpath(path, parent).split(os.sep) if len(n.encode()) > limit] if parent != path else []
+    if long:
+        raise ValueError(f"the output folder's name {long[0]!r} is {len(long[0].encode())} bytes long; the file system "
+                         f"of {parent!r} allows {limit}: choose a shorter name.")
+    check_folder_takes_files(parent, None if parent == path else path)
 
 
 def folder_ignores_case(folder):

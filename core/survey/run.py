@@ -375,17 +375,7 @@ def check_output_folder(index, out_dir, inputs=None):
     if hit:
         raise ValueError(f"an output in {out_dir!r} would replace the input {hit[0]!r}: choose another output "
                          "folder (or rename the input).")
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
-                         "(a new one is created).")
-    parent = out_dir       # the folder the outputs go to, or the nearest folder above it, where it is created
-    while not os.path.isdir(parent) and os.path.dirname(parent) != parent:
-        parent = os.path.dirname(parent)
-    below = os.path.join(parent, os.path.relpath(out_dir, parent).split(os.sep)[0])
-    if parent != out_dir and os.path.exists(below):
-        raise ValueError(f"the output folder {out_dir!r} cannot be created: {below!r} is a file, not a folder. "
-                         "Choose another output folder.")
-    grid.check_folder_takes_files(parent, None if parent == out_dir else out_dir)   # was a traceback at survey.vrt
+    grid.check_output_dir(out_dir)   # a folder taking files (read-only: a traceback renaming survey.vrt's work file)
     folders = [n for n in own if os.path.isdir(os.path.join(out_dir, n))]
     if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
         raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "

@@ -642,3 +642,29 @@ def _sparse_dsm(path, shape):
     ds.GetRasterBand(1).WriteArray(np.linspace(100.0, 110.0, 256 * 256, dtype=np.float32).reshape(256, 256), c, r)
     ds = None
     return str(path)
+
+
+def test_an_output_folder_is_checked_itself_not_its_parent(tmp_path, read_only):
+    """QA24: the check of an output folder (bareearth:tiles' OUTPUT_FOLDER, orthorefine's folder of orthophotos)
+    probed the folder above it, so a read-only folder passed and the run failed at its first file (the survey: a
+    FileNotFoundError traceback). The folder itself is probed, or, for a new one, the folder it is created in."""
+    out = tmp_path / "out"
+    out.mkdir()
+    grid.check_output_dir(out)
+    grid.check_output_dir(out / "new" / "deeper")          # created with the folders above it
+    with read_only(out):
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' is not writable \(.+\): choose a folder"):
+            grid.check_output_dir(out)
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' \(the output folder '{out / 'a'}' would "
+                                             r"be created in it\) is not writable"):
+            grid.check_output_dir(out / "a")
+    (tmp_path / "f").write_text("")
+    with pytest.raises(ValueError, match=r"'.*f' is an existing file, not a folder"):
+        grid.check_output_dir(tmp_path / "f")
+    with pytest.raises(ValueError, match=r"cannot be created: '.*f' is a file, not a folder"):
+        grid.check_output_dir(tmp_path / "f" / "x")
+    with pytest.raises(ValueError, match=r"name 'yyy.*' is 300 bytes long"):
+        grid.check_output_dir(tmp_path / ("y" * 300) / "x")
+    with pytest.raises(ValueError, match=r"is a GDAL virtual file \(vsimem\)"):
+        grid.check_output_dir("/vsimem/out")
+    assert sorted(os.listdir(out)) == [] and sorted(os.listdir(tmp_path)) == ["f", "out"]
