@@ -1023,7 +1023,9 @@ def write_mask_qml(path):
 
 #: Formats whose header carries the nodata value as text read by other software (ESRI's ASCII
 #: grid, SAGA): a NaN nodata is written there as a finite value (:func:`finite_text_nodata`).
-_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG")   # GeoPackage: its coverage table takes no NaN
+#: GeoPackage: its coverage table takes no NaN. ERDAS Imagine: GDAL keeps a NaN nodata there, but
+#: every open of the file then warns "NaN converted to INT_MAX" (gdalinfo, QGIS's log).
+_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG", "HFA")
 #: The finite nodata of those formats when the raster declares NaN (ESRI's convention).
 TEXT_NODATA = -9999.0
 
