@@ -442,6 +442,36 @@ def destination_path(parameters, key):
     return str(v)
 
 
+def gdal_raster_layer(value):
+    """A raster layer for a text value naming what GDAL opens but is no file, which QGIS's own loader
+    of text values (qgis_process, a script's string) takes for a missing file ("Could not load source
+    layer for INPUT: ... not found"): a raster in a zip (``/vsizip/dsm.zip/dsm.tif``), on a server
+    (``/vsicurl/``), a GeoPackage's raster table (``GPKG:file.gpkg:table``), a netCDF variable
+    (``NETCDF:"file.nc":z``). None for anything else (a file QGIS loads itself, a value that is no text)."""
+    if not isinstance(value, str) or not value.strip() or os.path.exists(value):
+        return None
+    from qgis.core import QgsRasterLayer
+    with grid.without_side_files():
+        layer = QgsRasterLayer(value, os.path.basename(value.rstrip("/")) or value, "gdal")
+    return layer if layer.isValid() else None
+
+
+def several_rasters(value):
+    """The rasters (GDAL's subdatasets) of a file given as text that holds several and so no raster of its
+    own (a GeoPackage of several raster tables, a netCDF of several variables), or []."""
+    if not isinstance(value, str) or not os.path.isfile(value):
+        return []
+    try:
+        with grid.without_side_files(), grid.gdal_mode_kept():
+            gdal.UseExceptions()
+            ds = gdal.OpenEx(value, gdal.OF_RASTER | gdal.OF_READONLY)
+            subs = [name for name, _ in (ds.GetSubDatasets() or [])] if ds is not None and not ds.RasterCount else []
+            ds = None
+    except RuntimeError:
+        return []
+    return subs
+
+
 def explained(check):
     """Decorate a ``checkParameterValues``: its refusal names parameters by label and id."""
     @functools.wraps(check)
@@ -481,7 +511,9 @@ class InputRasterParameter(QgsProcessingParameterRasterLayer):
 
     def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
         with grid.without_side_files():
-            return super().checkValueIsAcceptable(value, context)
+            if super().checkValueIsAcceptable(value, context):
+                return True
+        return context is not None and gdal_raster_layer(value) is not None   # /vsizip/..., GPKG:file:table
 
     def clone(self):
         return _copy_definition(self, InputRasterParameter(self.name(), self.description(), self.defaultValue(),
@@ -757,7 +789,12 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         side file, so QGIS's statistics are not saved as ``.aux.xml`` beside the input
         (:func:`grid.without_side_files`)."""
         with grid.without_side_files():
-            return super().parameterAsRasterLayer(parameters, name, context)
+            layer = super().parameterAsRasterLayer(parameters, name, context)
+        if layer is None:     # text naming a GDAL raster that is no file: QGIS's loader takes it for a missing file
+            layer = gdal_raster_layer(parameters.get(name))
+            if layer is not None:
+                context.temporaryLayerStore().addMapLayer(layer)
+        return layer
 
     def parameterAsLayerList(self, parameters, name, context):  # noqa: N802
         with grid.without_side_files():
@@ -824,12 +861,31 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
-            return ok, self.out_of_range(parameters, context) or msg
+            return ok, self.several_rasters_given(parameters) or self.out_of_range(parameters, context) or msg
         for check in (check_block_size, check_processes):
             ok, msg = check(self, parameters, context)
             if not ok:
                 return ok, msg
         return self.checkOutputs(parameters, context)
+
+    def several_rasters_given(self, parameters):
+        """The refusal of a raster input given as a file holding several rasters (QGIS's own: "Could not load
+        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or None."""
+        for d in self.parameterDefinitions():
+            value = parameters.get(d.name())
+            if d.type() != "raster" or not isinstance(value, str):
+                continue
+            if "|layername=" in value:      # QGIS's way to name a vector layer of a file, not a raster table
+                path, table = value.split("|layername=", 1)
+                return tr("{}: '{}' names a vector layer ('|layername='); a GeoPackage's raster table is given as "
+                          "GPKG:{}:{}.").format(label_of(d), value, path, table.split("|")[0])
+            subs = several_rasters(value)
+            if subs:
+                shown = ", ".join(subs[:5]) + (tr(" and {} more").format(len(subs) - 5) if len(subs) > 5 else "")
+                return tr("{}: the file '{}' holds {} rasters (a GeoPackage's raster tables, a netCDF's variables), "
+                          "so it names none: give one of them ({}).").format(
+                    label_of(d), parameters[d.name()], len(subs), shown)
+        return None
 
     def out_of_range(self, parameters, context):
         """The refusal of the first number given outside its limits, naming its label, id and
