@@ -133,8 +133,32 @@ def raster_path(layer):
     if layer.providerType() != "gdal":
         raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
                                         "first.").format(layer.name(), layer.providerType()))
+    check_layer_source(layer)
     check_layer_crs(layer)
     return layer.source()
+
+
+def check_layer_source(layer):
+    """QgsProcessingException for a GDAL raster layer whose source the filters cannot open as QGIS does: opened
+    with GDAL open options (``|option:KEY=VALUE`` in its source, set in the Data Source Manager), which GDAL
+    cannot be given in a path (the file was refused as missing: "No such file or directory"), or a file
+    gone since the layer was loaded (moved, deleted, a drive unplugged)."""
+    from qgis.core import QgsProviderRegistry
+    src = layer.source()
+    parts = QgsProviderRegistry.instance().decodeUri("gdal", src) or {}
+    options = [str(o) for o in (parts.get("openOptions") or [])]
+    if options:
+        oo = " ".join("-oo {}".format(o) for o in options)
+        raise QgsProcessingException(tr(
+            "The layer '{}' is opened with GDAL open options ({}), which the filters cannot pass on to the file: "
+            "write the raster as QGIS reads it (gdal_translate {} '{}' dsm.tif, or Export > Save As), or add the "
+            "layer again without the options, then run again.").format(
+                layer.name(), ", ".join(options), oo, parts.get("path") or src.split("|")[0]))
+    if os.path.isabs(src) and not src.startswith("/vsi") and not os.path.exists(src):
+        raise QgsProcessingException(tr(
+            "The layer '{}' reads the file '{}', which no longer exists (moved, renamed or deleted since the layer "
+            "was loaded, or on a drive no longer mounted): add the layer again from where the file is now.").format(
+                layer.name(), src))
 
 
 def _crs_name(crs):

@@ -68,3 +68,32 @@ def test_a_file_of_several_rasters_or_a_vector_layer_uri_refused_naming_what_to_
                                    f"GPKG:{gpkg}:high."), msg
     ok, msg = alg.checkParameterValues(dict(out, INPUT=str(tmp_path / "missing.tif")), QgsProcessingContext())
     assert not ok and "not found" in msg        # a missing file: QGIS's own message
+
+
+def test_a_layer_with_gdal_open_options_or_a_file_gone_refused_saying_what_to_do(processing_run, tmp_path):
+    """A DSM layer opened with GDAL open options (its source '...|option:KEY=VALUE', set in the Data Source
+    Manager) and a layer whose file was deleted after loading were both refused as "No such file or directory ...
+    The file may be truncated or corrupt": the first file exists, the second is not corrupt. The messages now
+    name the options (with the gdal_translate that applies them) and the missing file."""
+    import os
+    import shutil
+
+    from qgis.core import QgsProcessingException, QgsRasterLayer
+    plain = _dsm(tmp_path / "dsm.tif")
+    out = {"OUTPUT_DTM": str(tmp_path / "d.tif"), "OUTPUT_MASK": str(tmp_path / "m.tif")}
+    layer = QgsRasterLayer(plain + "|option:GEOREF_SOURCES=INTERNAL", "opened", "gdal")
+    assert layer.isValid()
+    with pytest.raises(QgsProcessingException, match=r"The layer 'opened' is opened with GDAL open options "
+                                                     r"\(GEOREF_SOURCES=INTERNAL\), which the filters cannot pass on "
+                                                     r"to the file: write the raster as QGIS reads it \(gdal_translate "
+                                                     r"-oo GEOREF_SOURCES=INTERNAL '.*dsm.tif' dsm.tif"):
+        processing_run("bareearth:dtm", dict(out, INPUT=layer))
+    shutil.copy(plain, tmp_path / "gone.tif")
+    gone = QgsRasterLayer(str(tmp_path / "gone.tif"), "gone", "gdal")
+    os.remove(tmp_path / "gone.tif")
+    with pytest.raises(QgsProcessingException, match=rf"The layer 'gone' reads the file '{tmp_path / 'gone.tif'}', "
+                                                     r"which no longer exists \(moved, renamed or deleted"):
+        processing_run("bareearth:morphological", dict(out, INPUT=gone))
+    assert not os.path.exists(out["OUTPUT_MASK"])
+    processing_run("bareearth:morphological", dict(out, INPUT=QgsRasterLayer(plain, "plain", "gdal")))
+    assert os.path.exists(out["OUTPUT_MASK"])
