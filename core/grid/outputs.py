@@ -131,6 +131,13 @@ def check_output_path(path, bands=1, styled=False):
             raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} is a "
                              "folder: move or rename that folder, or give the output another name.")
     check_output_folder(path)
+    if styled:   # a mask's class names live in its .aux.xml, which GDAL leaves out without a word when too long
+        folder, base = os.path.split(path)
+        limit, aux = _name_max(folder), len((base + ".aux.xml").encode())
+        if aux > limit:
+            raise ValueError(f"the output file name is {len(base.encode())} bytes long: the mask's class names go "
+                             f"to {base + '.aux.xml'!r} beside it, {aux} bytes, and the file system of {folder!r} "
+                             f"allows {limit}: choose a name of at most {limit - 8} bytes.")
     check_geopackage_replaceable(path)
 
 

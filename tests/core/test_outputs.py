@@ -679,3 +679,18 @@ def test_an_output_folder_is_checked_itself_not_its_parent(tmp_path, read_only):
     with pytest.raises(ValueError, match=r"is a GDAL virtual file \(vsimem\)"):
         grid.check_output_dir("/vsimem/out")
     assert sorted(os.listdir(out)) == [] and sorted(os.listdir(tmp_path)) == ["f", "out"]
+
+
+def test_a_mask_name_leaving_no_room_for_its_class_names_refused_before_any_work(tmp_path):
+    """QA24: a mask named with 247-255 bytes was written without its .aux.xml (GDAL leaves a side file longer than
+    the file system allows out without a word), so its class names were lost; a DTM of that name keeps all it
+    holds (its statistics are QGIS's, rebuilt on demand) and is still written."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    base = "m" * (limit - 4 - 7) + ".tif"            # its .aux.xml one byte too long
+    with pytest.raises(ValueError, match=rf"the mask's class names go to '{base}.aux.xml' beside it, {limit + 1} "
+                                         rf"bytes, and the file system of '{tmp_path}' allows {limit}: choose a name "
+                                         rf"of at most {limit - 8} bytes"):
+        grid.check_output_path(tmp_path / base, styled=True)
+    grid.check_output_path(tmp_path / base)                       # the DTM
+    grid.check_output_path(tmp_path / base[1:], styled=True)       # one byte shorter: its .aux.xml fits
+    assert os.listdir(tmp_path) == []
