@@ -401,7 +401,8 @@ def check_replaceable(path):
         raise ValueError(f"the output {str(path)!r} exists and is not a regular file (a device, a pipe or a socket): "
                          "writing the output would replace it. Choose a file name (an output you do not want can "
                          "be left out or written as a temporary output).")
-    if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
+    # a link leading nowhere (its file deleted) is replaced like a missing file: not read-only
+    if os.path.exists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
         raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
                          "choose another file name.")
 

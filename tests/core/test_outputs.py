@@ -694,3 +694,17 @@ def test_a_mask_name_leaving_no_room_for_its_class_names_refused_before_any_work
     grid.check_output_path(tmp_path / base)                       # the DTM
     grid.check_output_path(tmp_path / base[1:], styled=True)       # one byte shorter: its .aux.xml fits
     assert os.listdir(tmp_path) == []
+
+
+def test_an_output_that_is_a_link_leading_nowhere_is_written_not_called_read_only(tmp_path):
+    """QA24: an output named by a symbolic link whose file was deleted (a 'latest_dtm.tif' link) was refused as
+    "exists and is read-only": the link is replaced by the output as a missing file would be."""
+    link = tmp_path / "latest_dtm.tif"
+    link.symlink_to(tmp_path / "gone" / "dtm.tif")
+    grid.check_output_path(link)
+    info = grid.open_dsm(grid.write_array(tmp_path / "dsm.tif", np.ones((5, 6), np.float32), GT))
+    with grid.OutputSet(info) as out:
+        out.add("dtm", link, "Float32", nodata=float("nan"))
+        out.write("dtm", np.full((5, 6), 2.0, np.float32))
+        out.commit()
+    assert not link.is_symlink() and (gdal.Open(str(link)).ReadAsArray() == 2.0).all()
