@@ -894,11 +894,16 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def several_rasters_given(self, parameters):
         """The refusal of a raster input given as a file holding several rasters (QGIS's own: "Could not load
-        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or None."""
+        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or as a file's path with a
+        blank before or after it, or a GeoPackage's raster table named the vector way, or None."""
         for d in self.parameterDefinitions():
             value = parameters.get(d.name())
             if d.type() != "raster" or not isinstance(value, str):
                 continue
+            if value != value.strip() and os.path.exists(value.strip()):   # "dsm.tif " copied with the space
+                return tr("{}: '{}' {} with a blank (a space, a tab or a line break), which QGIS keeps in the file "
+                          "name: give it without, '{}'.").format(
+                    label_of(d), value, "ends" if value[-1:].isspace() else "begins", value.strip())
             if "|layername=" in value:      # QGIS's way to name a vector layer of a file, not a raster table
                 path, table = value.split("|layername=", 1)
                 return tr("{}: '{}' names a vector layer ('|layername='); a GeoPackage's raster table is given as "

@@ -119,10 +119,12 @@ def check_output_path(path, bands=1, styled=False):
         For a format not offered (naming the ones that are), a format holding fewer bands than
         the output, a missing or unwritable folder (naming it), a folder given as the file or
         standing where a file written beside it goes (its ``.aux.xml``, its format's sidecars,
-        a mask's ``.qml``: found only once the work was done), or a file name longer than the
-        file system allows.
+        a mask's ``.qml``: found only once the work was done), a file name longer than the
+        file system allows (for a mask, with its ``.aux.xml``), or a path beginning or ending with
+        a blank.
     """
     need_gdal()
+    _refuse_blank_ends(path)
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
@@ -180,6 +182,7 @@ def check_output_file(path, example="output.txt"):
     ValueError
         Naming the folder given as the file, or the folder's problem.
     """
+    _refuse_blank_ends(path)
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, example))
     check_output_folder(path)
@@ -276,6 +279,17 @@ def check_output_crs(path, crs_wkt, geotransform=(0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
                          "which keeps the CRS.")
 
 
+def _refuse_blank_ends(path):
+    """ValueError for an output path beginning or ending with a space, a tab or a line break (a name
+    copied with the space after it, a line read from a list with its line break): invisible in the
+    messages that followed ("cannot write it as '.tif '", "the folder '/work/ /data' does not exist")."""
+    text = str(path)
+    if text != text.strip():
+        where = "ends" if text[-1:].isspace() else "begins"
+        raise ValueError(f"the output {text!r} {where} with a blank (a space, a tab or a line break, e.g. copied with "
+                         f"the name or read from a list): give it without, {text.strip()!r}.")
+
+
 def _refuse_virtual(path):
     """ValueError for a GDAL virtual path (``/vsimem/``, ``/vsizip/``) given as an output."""
     given = str(path).replace("\\", "/")
@@ -322,7 +336,9 @@ def check_output_dir(path):
     """ValueError naming the folder when the output folder ``path`` (created when it does not exist, with
     the folders above it) cannot receive files: an existing file, a file on its path, a new folder's name
     longer than the file system allows, or the folder, or the nearest existing folder above a new one,
-    taking no new file (:func:`check_folder_takes_files`), or a GDAL virtual path."""
+    taking no new file (:func:`check_folder_takes_files`), or a GDAL virtual path, or one beginning or ending
+    with a blank."""
+    _refuse_blank_ends(path)
     _refuse_virtual(path)
     path = os.path.abspath(str(path))
     if os.path.exists(path) and not os.path.isdir(path):

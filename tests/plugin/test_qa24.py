@@ -97,3 +97,30 @@ def test_a_layer_with_gdal_open_options_or_a_file_gone_refused_saying_what_to_do
     assert not os.path.exists(out["OUTPUT_MASK"])
     processing_run("bareearth:morphological", dict(out, INPUT=QgsRasterLayer(plain, "plain", "gdal")))
     assert os.path.exists(out["OUTPUT_MASK"])
+
+
+def test_paths_with_a_blank_at_either_end_refused_naming_the_path_without(qgis_app, tmp_path):
+    """A path copied with the space after it, or read from a list with its line break: an output was refused as
+    "cannot write ... as '.tif ': GDAL cannot write it here" (or its folder '/work/ /data' as missing), an input as
+    "Could not load source layer for INPUT: ... not found". Both now say what is wrong and give the path
+    without it."""
+    from qgis.core import QgsApplication, QgsProcessingContext
+    plain = _dsm(tmp_path / "dsm.tif")
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:slopeprofile")
+    mask = str(tmp_path / "m.tif")
+    for given, where in ((str(tmp_path / "d.tif "), "ends"), (" " + str(tmp_path / "d.tif"), "begins"),
+                         (str(tmp_path / "d.tif") + "\n", "ends")):
+        ok, msg = alg.checkParameterValues({"INPUT": plain, "OUTPUT_DTM": given, "OUTPUT_MASK": mask},
+                                           QgsProcessingContext())
+        assert not ok and msg == (f"'DTM' (OUTPUT_DTM): the output {given!r} {where} with a blank (a space, a tab or "
+                                  "a line break, e.g. copied with the name or read from a list): give it without, "
+                                  f"'{tmp_path / 'd.tif'}'."), msg
+    ok, msg = alg.checkParameterValues({"INPUT": plain + " ", "OUTPUT_DTM": str(tmp_path / "d.tif"),
+                                        "OUTPUT_MASK": mask}, QgsProcessingContext())
+    assert not ok and msg == (f"'Input DSM' (INPUT): '{plain} ' ends with a blank (a space, a tab or a line break), "
+                              f"which QGIS keeps in the file name: give it without, '{plain}'."), msg
+    from bare_earth.core import grid
+    with pytest.raises(ValueError, match=r"^the output '.*out ' ends with a blank"):
+        grid.check_output_dir(str(tmp_path / "out "))
+    with pytest.raises(ValueError, match=r"^the output '.*e.json ' ends with a blank"):
+        grid.check_output_file(str(tmp_path / "e.json "))
