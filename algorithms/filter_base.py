@@ -833,7 +833,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         given to a parameter of one value (qgis_process makes one of a key given twice,
         TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0; a
         fraction given to a whole number (a count, a band, a window in cells) is refused: QGIS cut
-        THREADS=1.5 to 1 and rounded BAND=2.7 to band 3."""
+        THREADS=1.5 to 1 and rounded BAND=2.7 to band 3; an input file's path with a blank at either end
+        (copied with the space after it) is refused naming it without (it was "not found")."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -857,6 +858,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()
+            if text != v and d.type() in ("raster", "file", "vector", "source") and os.path.exists(text):
+                return False, tr("{}: '{}' {} with a blank (a space, a tab or a line break), which is kept in the file "
+                                 "name: give it without, '{}'.").format(
+                    label_of(d), v, "ends" if v[-1:].isspace() else "begins", text)   # was "not found"
             if d.type() in ("number", "band"):
                 try:
                     number = float(text)
@@ -894,16 +899,12 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
 
     def several_rasters_given(self, parameters):
         """The refusal of a raster input given as a file holding several rasters (QGIS's own: "Could not load
-        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or as a file's path with a
-        blank before or after it, or a GeoPackage's raster table named the vector way, or None."""
+        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or a GeoPackage's raster
+        table named the vector way, or None."""
         for d in self.parameterDefinitions():
             value = parameters.get(d.name())
             if d.type() != "raster" or not isinstance(value, str):
                 continue
-            if value != value.strip() and os.path.exists(value.strip()):   # "dsm.tif " copied with the space
-                return tr("{}: '{}' {} with a blank (a space, a tab or a line break), which QGIS keeps in the file "
-                          "name: give it without, '{}'.").format(
-                    label_of(d), value, "ends" if value[-1:].isspace() else "begins", value.strip())
             if "|layername=" in value:      # QGIS's way to name a vector layer of a file, not a raster table
                 path, table = value.split("|layername=", 1)
                 return tr("{}: '{}' names a vector layer ('|layername='); a GeoPackage's raster table is given as "

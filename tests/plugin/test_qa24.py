@@ -118,7 +118,14 @@ def test_paths_with_a_blank_at_either_end_refused_naming_the_path_without(qgis_a
     ok, msg = alg.checkParameterValues({"INPUT": plain + " ", "OUTPUT_DTM": str(tmp_path / "d.tif"),
                                         "OUTPUT_MASK": mask}, QgsProcessingContext())
     assert not ok and msg == (f"'Input DSM' (INPUT): '{plain} ' ends with a blank (a space, a tab or a line break), "
-                              f"which QGIS keeps in the file name: give it without, '{plain}'."), msg
+                              f"which is kept in the file name: give it without, '{plain}'."), msg
+    points = tmp_path / "points.txt"
+    points.write_text("500010 5399990 100.0 0\n")
+    ok, msg = QgsApplication.processingRegistry().algorithmById("bareearth:evaluate").checkParameterValues(
+        {"DTM": plain, "POINTS": f"{points}\n", "OUTPUT_JSON": str(tmp_path / "e.json")}, QgsProcessingContext())
+    assert not ok and msg.startswith("'Reference points (ISPRS text or LAS/LAZ)' (POINTS): ") and msg.endswith(
+        f"ends with a blank (a space, a tab or a line break), which is kept in the file name: give it without, "
+        f"'{points}'."), msg
     from bare_earth.core import grid
     with pytest.raises(ValueError, match=r"^the output '.*out ' ends with a blank"):
         grid.check_output_dir(str(tmp_path / "out "))
