@@ -128,10 +128,7 @@ def check_output_path(path, bands=1, styled=False):
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
-    for side in output_files(path, styled)[1:]:
-        if os.path.isdir(side):
-            raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} is a "
-                             "folder: move or rename that folder, or give the output another name.")
+    check_side_files(path, styled, raw)
     check_output_folder(path)
     if styled:   # a mask's class names live in its .aux.xml, which GDAL leaves out without a word when too long
         folder, base = os.path.split(path)
@@ -141,6 +138,23 @@ def check_output_path(path, bands=1, styled=False):
                              f"to {base + '.aux.xml'!r} beside it, {aux} bytes, and the file system of {folder!r} "
                              f"allows {limit}: choose a name of at most {limit - 8} bytes.")
     check_geopackage_replaceable(path)
+
+
+def check_side_files(path, styled=False, raw=None):
+    """ValueError when a file writing the output ``path`` puts beside it (:func:`output_files`: its
+    ``.aux.xml``, its format's sidecars, a mask's ``.qml``) stands there as a folder, or exists read-only
+    (or as no regular file): found only once the work was done (a traceback, the raster already in place)."""
+    raw = str(path) if raw is None else raw
+    for side in output_files(path, styled)[1:]:
+        if os.path.isdir(side):
+            raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} is a "
+                             "folder: move or rename that folder, or give the output another name.")
+        try:
+            check_replaceable(side)
+        except ValueError:
+            raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} exists "
+                             "and is read-only (or no regular file): make it writable, delete it, or give the output "
+                             "another name.") from None
 
 
 def check_geopackage_replaceable(path):
@@ -832,6 +846,7 @@ class OutputSet:
         check_output_cells(path, self.info.geotransform)
         check_output_crs(path, self.info.crs_wkt, self.info.geotransform)
         check_replaceable(path)
+        check_side_files(path, mask_style)
         check_geopackage_replaceable(path)
         remove_stale_partials(path)
         work = _work_path(path)
@@ -918,6 +933,7 @@ class OutputSet:
         report(progress, 1.0)             # the last point a cancel stops at: the outputs move now
         for item in items:                # one output that cannot be replaced: none is (a matching set)
             check_replaceable(item["path"])
+            check_side_files(item["path"], item["mask_style"])
         for item, (files, tmp_main) in zip(items, moves):
             work, path = item["tmp"], item["path"]
             try:

@@ -1,6 +1,7 @@
 """The write side of core.grid: formats by extension, work files, stale leftovers, long names,
 creation options and the cloud-optimised GeoTIFF."""
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -708,3 +709,20 @@ def test_an_output_that_is_a_link_leading_nowhere_is_written_not_called_read_onl
         out.write("dtm", np.full((5, 6), 2.0, np.float32))
         out.commit()
     assert not link.is_symlink() and (gdal.Open(str(link)).ReadAsArray() == 2.0).all()
+
+
+@pytest.mark.parametrize("side", ["m.qml", "m.tif.aux.xml"])
+def test_a_read_only_file_the_output_writes_beside_it_refused_before_any_work(tmp_path, read_only, side):
+    """QA24: a read-only style (m.qml) or .aux.xml beside a mask passed the checks; the run ended, once the work
+    was done and the mask already moved into place, in a PermissionError traceback writing it."""
+    from bare_earth.core.pipeline import run_file
+    dsm = grid.write_array(tmp_path / "dsm.tif", np.add.outer(np.arange(40.0), np.arange(40.0)).astype(np.float32), GT)
+    (tmp_path / side).write_text("<keep/>")
+    with read_only(tmp_path / side):
+        with pytest.raises(ValueError, match=rf"^the output '.*m.tif' writes '{re.escape(side)}' beside it, but "
+                                             r"'.*' exists and is read-only \(or no regular file\): make it writable"):
+            grid.check_output_path(tmp_path / "m.tif", styled=True)
+        with pytest.raises(ValueError, match=rf"writes '{re.escape(side)}' beside it, but .* is read-only"):
+            run_file("morphological", str(dsm), {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")})
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif", side]
+    assert (tmp_path / side).read_text() == "<keep/>"
