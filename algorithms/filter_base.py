@@ -231,11 +231,16 @@ def layer_crs_wkt(layer):
     return layer.crs().toWkt(WKT_PREFERRED_GDAL) or None
 
 
-def check_dsm(layer, band):
-    """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None)."""
+def check_dsm(layer, band, key=None):
+    """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None). ``key``: the id of an input
+    that has no BAND parameter (orthorefine's DEM): a raster of several bands is refused as
+    :func:`open_one_band` refuses it (the DSM's message named a BAND parameter the algorithm lacks)."""
     try:
-        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
-                             layer_crs_wkt(layer))
+        if key is not None:
+            info = open_one_band(layer, key)
+        else:
+            info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
+                                 layer_crs_wkt(layer))
         grid.check_has_data(info)
     except (ValueError, QgsProcessingException) as exc:
         return False, str(exc), None

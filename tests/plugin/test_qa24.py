@@ -131,3 +131,20 @@ def test_paths_with_a_blank_at_either_end_refused_naming_the_path_without(qgis_a
         grid.check_output_dir(str(tmp_path / "out "))
     with pytest.raises(ValueError, match=r"^the output '.*e.json ' ends with a blank"):
         grid.check_output_file(str(tmp_path / "e.json "))
+
+
+def test_orthorefine_dem_of_several_bands_names_no_band_parameter_it_lacks(qgis_app, tmp_path):
+    """orthorefine's DEM of three bands was refused with the DSM's message, "Choose the height band with the BAND
+    parameter (1..3)": orthorefine has no BAND parameter. Refused now as the other inputs without a band choice
+    are, saying to extract the band."""
+    from osgeo import gdal
+    from qgis.core import QgsApplication, QgsProcessingContext
+    plain = _dsm(tmp_path / "dsm.tif")
+    gdal.Translate(str(tmp_path / "three.tif"), gdal.BuildVRT("", [plain] * 3, separate=True))
+    alg = QgsApplication.processingRegistry().algorithmById("bareearth:orthorefine")
+    assert alg.parameterDefinition("BAND") is None
+    ok, msg = alg.checkParameterValues({"DEM": str(tmp_path / "three.tif"), "IMAGES": [plain, plain],
+                                        "OUTPUT_DEM": str(tmp_path / "o.tif")}, QgsProcessingContext())
+    assert not ok and "BAND" not in msg
+    assert msg.startswith(f"DEM: the raster '{tmp_path / 'three.tif'}' has 3 bands but this input is read from a "
+                          "single band (it has no band choice): extract the band"), msg
