@@ -18,8 +18,8 @@ Usage (QGIS's Python, headless)::
 
 Run the model::
 
-    qgis_process run examples/rasterize_filter_classify.model3 -- points=samp11.txt \\
-        native:rasterizepoints_1:classified=out.txt ...
+    qgis_process.bin run examples/rasterize_filter_classify.model3 -- points=samp11.txt \\
+        classify:classified=classified.txt filter:dtm=dtm.tif filter:mask=mask.tif
 
 (``qgis_process help examples/rasterize_filter_classify.model3`` lists the exact names.)
 """

@@ -133,8 +133,32 @@ def raster_path(layer):
     if layer.providerType() != "gdal":
         raise QgsProcessingException(tr("The layer '{}' is served by the '{}' provider; save it as a GeoTIFF "
                                         "first.").format(layer.name(), layer.providerType()))
+    check_layer_source(layer)
     check_layer_crs(layer)
     return layer.source()
+
+
+def check_layer_source(layer):
+    """QgsProcessingException for a GDAL raster layer whose source the filters cannot open as QGIS does: opened
+    with GDAL open options (``|option:KEY=VALUE`` in its source, set in the Data Source Manager), which GDAL
+    cannot be given in a path (the file was refused as missing: "No such file or directory"), or a file
+    gone since the layer was loaded (moved, deleted, a drive unplugged)."""
+    from qgis.core import QgsProviderRegistry
+    src = layer.source()
+    parts = QgsProviderRegistry.instance().decodeUri("gdal", src) or {}
+    options = [str(o) for o in (parts.get("openOptions") or [])]
+    if options:
+        oo = " ".join("-oo {}".format(o) for o in options)
+        raise QgsProcessingException(tr(
+            "The layer '{}' is opened with GDAL open options ({}), which the filters cannot pass on to the file: "
+            "write the raster as QGIS reads it (gdal_translate {} '{}' dsm.tif, or Export > Save As), or add the "
+            "layer again without the options, then run again.").format(
+                layer.name(), ", ".join(options), oo, parts.get("path") or src.split("|")[0]))
+    if os.path.isabs(src) and not src.startswith("/vsi") and not os.path.exists(src):
+        raise QgsProcessingException(tr(
+            "The layer '{}' reads the file '{}', which no longer exists (moved, renamed or deleted since the layer "
+            "was loaded, or on a drive no longer mounted): add the layer again from where the file is now.").format(
+                layer.name(), src))
 
 
 def _crs_name(crs):
@@ -207,11 +231,16 @@ def layer_crs_wkt(layer):
     return layer.crs().toWkt(WKT_PREFERRED_GDAL) or None
 
 
-def check_dsm(layer, band):
-    """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None)."""
+def check_dsm(layer, band, key=None):
+    """Open and check the DSM of a layer; returns (ok, message, DSMInfo or None). ``key``: the id of an input
+    that has no BAND parameter (orthorefine's DEM): a raster of several bands is refused as
+    :func:`open_one_band` refuses it (the DSM's message named a BAND parameter the algorithm lacks)."""
     try:
-        info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
-                             layer_crs_wkt(layer))
+        if key is not None:
+            info = open_one_band(layer, key)
+        else:
+            info = grid.open_dsm(raster_path(layer), band or None, layer_nodata_ranges(layer, band),
+                                 layer_crs_wkt(layer))
         grid.check_has_data(info)
     except (ValueError, QgsProcessingException) as exc:
         return False, str(exc), None
@@ -442,6 +471,36 @@ def destination_path(parameters, key):
     return str(v)
 
 
+def gdal_raster_layer(value):
+    """A raster layer for a text value naming what GDAL opens but is no file, which QGIS's own loader
+    of text values (qgis_process, a script's string) takes for a missing file ("Could not load source
+    layer for INPUT: ... not found"): a raster in a zip (``/vsizip/dsm.zip/dsm.tif``), on a server
+    (``/vsicurl/``), a GeoPackage's raster table (``GPKG:file.gpkg:table``), a netCDF variable
+    (``NETCDF:"file.nc":z``). None for anything else (a file QGIS loads itself, a value that is no text)."""
+    if not isinstance(value, str) or not value.strip() or os.path.exists(value):
+        return None
+    from qgis.core import QgsRasterLayer
+    with grid.without_side_files():
+        layer = QgsRasterLayer(value, os.path.basename(value.rstrip("/")) or value, "gdal")
+    return layer if layer.isValid() else None
+
+
+def several_rasters(value):
+    """The rasters (GDAL's subdatasets) of a file given as text that holds several and so no raster of its
+    own (a GeoPackage of several raster tables, a netCDF of several variables), or []."""
+    if not isinstance(value, str) or not os.path.isfile(value):
+        return []
+    try:
+        with grid.without_side_files(), grid.gdal_mode_kept():
+            gdal.UseExceptions()
+            ds = gdal.OpenEx(value, gdal.OF_RASTER | gdal.OF_READONLY)
+            subs = [name for name, _ in (ds.GetSubDatasets() or [])] if ds is not None and not ds.RasterCount else []
+            ds = None
+    except RuntimeError:
+        return []
+    return subs
+
+
 def explained(check):
     """Decorate a ``checkParameterValues``: its refusal names parameters by label and id."""
     @functools.wraps(check)
@@ -481,7 +540,9 @@ class InputRasterParameter(QgsProcessingParameterRasterLayer):
 
     def checkValueIsAcceptable(self, value, context=None):  # noqa: N802
         with grid.without_side_files():
-            return super().checkValueIsAcceptable(value, context)
+            if super().checkValueIsAcceptable(value, context):
+                return True
+        return context is not None and gdal_raster_layer(value) is not None   # /vsizip/..., GPKG:file:table
 
     def clone(self):
         return _copy_definition(self, InputRasterParameter(self.name(), self.description(), self.defaultValue(),
@@ -718,8 +779,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             try:
                 if d.type() == "rasterDestination":
                     grid.check_output_path(path, self.outputBands(d.name()), styled=d.name().endswith("MASK"))
-                elif d.type() == "folderDestination":
-                    grid.check_output_folder(path)
+                elif d.type() == "folderDestination":   # the folder takes files (was its parent's test)
+                    grid.check_output_dir(path)
                 else:                              # a report, a table, a point or vector file
                     grid.check_output_file(path, "output." + (d.defaultFileExtension() or "txt"))
             except ValueError as exc:
@@ -757,7 +818,12 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         side file, so QGIS's statistics are not saved as ``.aux.xml`` beside the input
         (:func:`grid.without_side_files`)."""
         with grid.without_side_files():
-            return super().parameterAsRasterLayer(parameters, name, context)
+            layer = super().parameterAsRasterLayer(parameters, name, context)
+        if layer is None:     # text naming a GDAL raster that is no file: QGIS's loader takes it for a missing file
+            layer = gdal_raster_layer(parameters.get(name))
+            if layer is not None:
+                context.temporaryLayerStore().addMapLayer(layer)
+        return layer
 
     def parameterAsLayerList(self, parameters, name, context):  # noqa: N802
         with grid.without_side_files():
@@ -772,7 +838,8 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         given to a parameter of one value (qgis_process makes one of a key given twice,
         TOLERANCE_M=0.3 TOLERANCE_M=0.3) is refused: QGIS reads an optional number's list as 0; a
         fraction given to a whole number (a count, a band, a window in cells) is refused: QGIS cut
-        THREADS=1.5 to 1 and rounded BAND=2.7 to band 3."""
+        THREADS=1.5 to 1 and rounded BAND=2.7 to band 3; an input file's path with a blank at either end
+        (copied with the space after it) is refused naming it without (it was "not found")."""
         defs = {d.name(): d for d in self.parameterDefinitions()}
         unknown = sorted(k for k in parameters if k not in defs)
         if unknown:
@@ -796,6 +863,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()
+            if text != v and d.type() in ("raster", "file", "vector", "source") and os.path.exists(text):
+                return False, tr("{}: '{}' {} with a blank (a space, a tab or a line break), which is kept in the file "
+                                 "name: give it without, '{}'.").format(
+                    label_of(d), v, "ends" if v[-1:].isspace() else "begins", text)   # was "not found"
             if d.type() in ("number", "band"):
                 try:
                     number = float(text)
@@ -824,12 +895,32 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
-            return ok, self.out_of_range(parameters, context) or msg
+            return ok, self.several_rasters_given(parameters) or self.out_of_range(parameters, context) or msg
         for check in (check_block_size, check_processes):
             ok, msg = check(self, parameters, context)
             if not ok:
                 return ok, msg
         return self.checkOutputs(parameters, context)
+
+    def several_rasters_given(self, parameters):
+        """The refusal of a raster input given as a file holding several rasters (QGIS's own: "Could not load
+        source layer for INPUT: x.gpkg not found"), naming them as they may be given, or a GeoPackage's raster
+        table named the vector way, or None."""
+        for d in self.parameterDefinitions():
+            value = parameters.get(d.name())
+            if d.type() != "raster" or not isinstance(value, str):
+                continue
+            if "|layername=" in value:      # QGIS's way to name a vector layer of a file, not a raster table
+                path, table = value.split("|layername=", 1)
+                return tr("{}: '{}' names a vector layer ('|layername='); a GeoPackage's raster table is given as "
+                          "GPKG:{}:{}.").format(label_of(d), value, path, table.split("|")[0])
+            subs = several_rasters(value)
+            if subs:
+                shown = ", ".join(subs[:5]) + (tr(" and {} more").format(len(subs) - 5) if len(subs) > 5 else "")
+                return tr("{}: the file '{}' holds {} rasters (a GeoPackage's raster tables, a netCDF's variables), "
+                          "so it names none: give one of them ({}).").format(
+                    label_of(d), parameters[d.name()], len(subs), shown)
+        return None
 
     def out_of_range(self, parameters, context):
         """The refusal of the first number given outside its limits, naming its label, id and

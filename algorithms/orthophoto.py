@@ -436,9 +436,9 @@ class OrthoAlgorithm(BaseAlgorithm):
     def _dem(self, parameters, context):
         """The DEM, checked (one band, metric), and the windows chosen checked against it."""
         layer = self.parameterAsRasterLayer(parameters, self.DEM, context)
-        ok, msg, info = check_dsm(layer, None)
+        ok, msg, info = check_dsm(layer, None, self.DEM)
         if not ok:
-            raise ValueError(f"DEM: {msg}")
+            raise ValueError(msg if msg.startswith(self.DEM) else f"DEM: {msg}")
         gt = info.geotransform
         if not (gt[1] > 0 and gt[5] < 0):      # the frames' geometry is worked on north-up grids
             raise ValueError(f"DEM: the raster {info.path!r} is stored {'bottom-up' if gt[5] > 0 else 'right to left'} "

@@ -119,19 +119,42 @@ def check_output_path(path, bands=1, styled=False):
         For a format not offered (naming the ones that are), a format holding fewer bands than
         the output, a missing or unwritable folder (naming it), a folder given as the file or
         standing where a file written beside it goes (its ``.aux.xml``, its format's sidecars,
-        a mask's ``.qml``: found only once the work was done), or a file name longer than the
-        file system allows.
+        a mask's ``.qml``: found only once the work was done), a file name longer than the
+        file system allows (for a mask, with its ``.aux.xml``), or a path beginning or ending with
+        a blank.
     """
     need_gdal()
+    _refuse_blank_ends(path)
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, "dtm.tif"))
     _output_format(path, bands)
+    check_side_files(path, styled, raw)
+    check_output_folder(path)
+    if styled:   # a mask's class names live in its .aux.xml, which GDAL leaves out without a word when too long
+        folder, base = os.path.split(path)
+        limit, aux = _name_max(folder), len((base + ".aux.xml").encode())
+        if aux > limit:
+            raise ValueError(f"the output file name is {len(base.encode())} bytes long: the mask's class names go "
+                             f"to {base + '.aux.xml'!r} beside it, {aux} bytes, and the file system of {folder!r} "
+                             f"allows {limit}: choose a name of at most {limit - 8} bytes.")
+    check_geopackage_replaceable(path)
+
+
+def check_side_files(path, styled=False, raw=None):
+    """ValueError when a file writing the output ``path`` puts beside it (:func:`output_files`: its
+    ``.aux.xml``, its format's sidecars, a mask's ``.qml``) stands there as a folder, or exists read-only
+    (or as no regular file): found only once the work was done (a traceback, the raster already in place)."""
+    raw = str(path) if raw is None else raw
     for side in output_files(path, styled)[1:]:
         if os.path.isdir(side):
             raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} is a "
                              "folder: move or rename that folder, or give the output another name.")
-    check_output_folder(path)
-    check_geopackage_replaceable(path)
+        try:
+            check_replaceable(side)
+        except ValueError:
+            raise ValueError(f"the output {raw!r} writes {os.path.basename(side)!r} beside it, but {side!r} exists "
+                             "and is read-only (or no regular file): make it writable, delete it, or give the output "
+                             "another name.") from None
 
 
 def check_geopackage_replaceable(path):
@@ -173,6 +196,7 @@ def check_output_file(path, example="output.txt"):
     ValueError
         Naming the folder given as the file, or the folder's problem.
     """
+    _refuse_blank_ends(path)
     raw, path = str(path), os.path.abspath(str(path))
     _refuse_folder(raw, os.path.join(path, example))
     check_output_folder(path)
@@ -269,14 +293,30 @@ def check_output_crs(path, crs_wkt, geotransform=(0.0, 1.0, 0.0, 2.0, 0.0, -1.0)
                          "which keeps the CRS.")
 
 
-def check_output_folder(path):
-    """Check that the folder of an output file ``path`` exists and takes new files, and that the
-    file's name fits the file system; ValueError naming the folder otherwise."""
+def _refuse_blank_ends(path):
+    """ValueError for an output path beginning or ending with a space, a tab or a line break (a name
+    copied with the space after it, a line read from a list with its line break): invisible in the
+    messages that followed ("cannot write it as '.tif '", "the folder '/work/ /data' does not exist")."""
+    text = str(path)
+    if text != text.strip():
+        where = "ends" if text[-1:].isspace() else "begins"
+        raise ValueError(f"the output {text!r} {where} with a blank (a space, a tab or a line break, e.g. copied with "
+                         f"the name or read from a list): give it without, {text.strip()!r}.")
+
+
+def _refuse_virtual(path):
+    """ValueError for a GDAL virtual path (``/vsimem/``, ``/vsizip/``) given as an output."""
     given = str(path).replace("\\", "/")
     if re.match(r"^/vsi[a-z0-9_]+(/|$)", given):   # was "the output folder '/vsimem' does not exist"
         raise ValueError(f"the output {str(path)!r} is a GDAL virtual file ({given.split('/')[1]}): outputs are "
                          "written as work files on disk and moved into place when complete; give a path on disk "
                          "(or a temporary output).")
+
+
+def check_output_folder(path):
+    """Check that the folder of an output file ``path`` exists and takes new files, and that the
+    file's name fits the file system; ValueError naming the folder otherwise."""
+    _refuse_virtual(path)
     path = os.path.abspath(str(path))
     folder, base = os.path.split(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
@@ -284,17 +324,53 @@ def check_output_folder(path):
                          "folder.")
     if not os.path.isdir(folder):
         raise ValueError(f"the output folder {folder!r} does not exist: create it or choose another folder.")
-    try:  # a real file: os.access says yes to root on a read-only or virtual file system
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-probe-"):
-            pass
-    except OSError as exc:
-        raise ValueError(f"the output folder {folder!r} is not writable ({exc.strerror}): choose a folder "
-                         "you can write to.") from None
+    check_folder_takes_files(folder)
     limit = _name_max(folder)
     if len(base.encode()) > limit:
         raise ValueError(f"the output file name is {len(base.encode())} bytes long; the file system of "
                          f"{folder!r} allows {limit}: choose a shorter name.")
     check_replaceable(path)
+
+
+def check_folder_takes_files(folder, made=None):
+    """ValueError naming ``folder`` when a new file cannot be created in it (read-only, an immutable
+    folder, a read-only file system): probed with a real file, since ``os.access`` says yes to root.
+    ``made``: the folder the outputs go to, still to be created inside ``folder`` (the message names
+    both)."""
+    try:  # a real file: os.access says yes to root on a read-only or virtual file system
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".bare-earth-probe-"):
+            pass
+    except OSError as exc:
+        where = f" (the output folder {made!r} would be created in it)" if made else ""
+        raise ValueError(f"the output folder {folder!r}{where} is not writable ({exc.strerror}): choose a folder "
+                         "you can write to.") from None
+
+
+def check_output_dir(path):
+    """ValueError naming the folder when the output folder ``path`` (created when it does not exist, with
+    the folders above it) cannot receive files: an existing file, a file on its path, a new folder's name
+    longer than the file system allows, or the folder, or the nearest existing folder above a new one,
+    taking no new file (:func:`check_folder_takes_files`), or a GDAL virtual path, or one beginning or ending
+    with a blank."""
+    _refuse_blank_ends(path)
+    _refuse_virtual(path)
+    path = os.path.abspath(str(path))
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"the output folder {path!r} is an existing file, not a folder: choose a folder "
+                         "(a new one is created).")
+    parent = path          # the folder itself, or the nearest folder above it, where it is created
+    while not os.path.isdir(parent) and os.path.dirname(parent) != parent:
+        parent = os.path.dirname(parent)
+    below = os.path.join(parent, os.path.relpath(path, parent).split(os.sep)[0])
+    if parent != path and os.path.exists(below):
+        raise ValueError(f"the output folder {path!r} cannot be created: {below!r} is a file, not a folder. "
+                         "Choose another output folder.")
+    limit = _name_max(parent)
+    long = [n for n in os.path.relpath(path, parent).split(os.sep) if len(n.encode()) > limit] if parent != path else []
+    if long:
+        raise ValueError(f"the output folder's name {long[0]!r} is {len(long[0].encode())} bytes long; the file system "
+                         f"of {parent!r} allows {limit}: choose a shorter name.")
+    check_folder_takes_files(parent, None if parent == path else path)
 
 
 def folder_ignores_case(folder):
@@ -355,7 +431,8 @@ def check_replaceable(path):
         raise ValueError(f"the output {str(path)!r} exists and is not a regular file (a device, a pipe or a socket): "
                          "writing the output would replace it. Choose a file name (an output you do not want can "
                          "be left out or written as a temporary output).")
-    if os.path.lexists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
+    # a link leading nowhere (its file deleted) is replaced like a missing file: not read-only
+    if os.path.exists(path) and not os.path.isdir(path) and not os.access(path, os.W_OK):
         raise ValueError(f"the output {str(path)!r} exists and is read-only: make it writable, delete it, or "
                          "choose another file name.")
 
@@ -769,6 +846,7 @@ class OutputSet:
         check_output_cells(path, self.info.geotransform)
         check_output_crs(path, self.info.crs_wkt, self.info.geotransform)
         check_replaceable(path)
+        check_side_files(path, mask_style)
         check_geopackage_replaceable(path)
         remove_stale_partials(path)
         work = _work_path(path)
@@ -855,6 +933,7 @@ class OutputSet:
         report(progress, 1.0)             # the last point a cancel stops at: the outputs move now
         for item in items:                # one output that cannot be replaced: none is (a matching set)
             check_replaceable(item["path"])
+            check_side_files(item["path"], item["mask_style"])
         for item, (files, tmp_main) in zip(items, moves):
             work, path = item["tmp"], item["path"]
             try:
@@ -984,7 +1063,9 @@ def write_mask_qml(path):
 
 #: Formats whose header carries the nodata value as text read by other software (ESRI's ASCII
 #: grid, SAGA): a NaN nodata is written there as a finite value (:func:`finite_text_nodata`).
-_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG")   # GeoPackage: its coverage table takes no NaN
+#: GeoPackage: its coverage table takes no NaN. ERDAS Imagine: GDAL keeps a NaN nodata there, but
+#: every open of the file then warns "NaN converted to INT_MAX" (gdalinfo, QGIS's log).
+_FINITE_NODATA_DRIVERS = ("AAIGrid", "SAGA", "GPKG", "HFA")
 #: The finite nodata of those formats when the raster declares NaN (ESRI's convention).
 TEXT_NODATA = -9999.0
 

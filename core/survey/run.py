@@ -249,6 +249,7 @@ def run_survey(method, inputs, out_dir, params=None, *, workers=0, scheduler=Non
     for t in index.tiles:   # an output a task could not replace: refused now, not as a failed tile at the end
         for name in output_names(t.name) if t.name not in kept else ():
             grid.check_replaceable(os.path.join(out_dir, name))
+            grid.check_side_files(os.path.join(out_dir, name))       # its .aux.xml
     created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _remove_partials(out_dir, log)
@@ -361,7 +362,9 @@ def check_output_folder(index, out_dir, inputs=None):
     ``mask.vrt`` or ``survey.vrt``, or another name of one: a link, another case where the folder
     ignores it), or one holding a folder named as a file the survey writes (``survey.vrt``,
     ``dtm.vrt``, ``mask.vrt``, ``mask.qml``, ``run.json``), or a folder that ignores case
-    (:func:`.grid.folder_ignores_case`) for tiles whose names differ only in case."""
+    (:func:`.grid.folder_ignores_case`) for tiles whose names differ only in case, or a folder that
+    takes no new file (read-only; a new one: the folder it is created in, or a file on its path), or one holding a
+    file the survey writes read-only."""
     if not str(out_dir).strip():     # an unset variable in a script: the outputs went to the current folder
         raise ValueError(f"the output folder is empty: give the folder the outputs go to (an empty one would be "
                          f"the current folder, {os.getcwd()!r}).")
@@ -374,13 +377,17 @@ def check_output_folder(index, out_dir, inputs=None):
     if hit:
         raise ValueError(f"an output in {out_dir!r} would replace the input {hit[0]!r}: choose another output "
                          "folder (or rename the input).")
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise ValueError(f"the output folder {out_dir!r} is an existing file, not a folder: choose a folder "
-                         "(a new one is created).")
+    grid.check_output_dir(out_dir)   # a folder taking files (read-only: a traceback renaming survey.vrt's work file)
     folders = [n for n in own if os.path.isdir(os.path.join(out_dir, n))]
     if folders:      # found once every tile was done (a traceback), or at the start (survey.vrt)
         raise ValueError(f"the output folder {out_dir!r} holds a folder named {folders[0]}, a file the survey "
                          "writes: move or rename that folder, or choose another output folder.")
+    for name in own:  # read-only: a PermissionError traceback once every tile was done (mask.qml), or at the start
+        try:
+            grid.check_replaceable(os.path.join(out_dir, name))
+        except ValueError:
+            raise ValueError(f"the output folder {out_dir!r} holds {name}, a file the survey writes, read-only (or no "
+                             "regular file): make it writable, delete it, or choose another output folder.") from None
     if grid.folder_ignores_case(out_dir):      # T1.tif and t1.tif: one T1_dtm.tif there
         first, same = {}, []
         for t in index.tiles:

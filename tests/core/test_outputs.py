@@ -1,6 +1,7 @@
 """The write side of core.grid: formats by extension, work files, stale leftovers, long names,
 creation options and the cloud-optimised GeoTIFF."""
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -300,11 +301,13 @@ def test_mask_palette_names_only_the_mask_codes(tmp_path):
 
 
 @pytest.mark.parametrize("ext,driver,gt", [(".asc", "AAIGrid", (500.0, 2.0, 0.0, 900.0, 0.0, -1.0)),
-                                           (".sdat", "SAGA", (500.0, 2.0, 0.0, 900.0, 0.0, -2.0))])
+                                           (".sdat", "SAGA", (500.0, 2.0, 0.0, 900.0, 0.0, -2.0)),
+                                           (".img", "HFA", (500.0, 2.0, 0.0, 900.0, 0.0, -2.0))])
 def test_text_header_formats_declare_a_finite_nodata_for_nan(tmp_path, ext, driver, gt):
     # ESRI's ASCII grid and SAGA carry the nodata as text other software reads: "nan" there is
     # not a number to them. The NaN cells become -9999, declared as the nodata; the heights
-    # are copied exactly (no CRS; non-square cells where the format holds them).
+    # are copied exactly (no CRS; non-square cells where the format holds them). QA24: an ERDAS
+    # Imagine file declaring NaN made GDAL warn "NaN converted to INT_MAX" at every open.
     if gdal.GetDriverByName(driver) is None:
         pytest.skip(f"GDAL has no {driver} driver")
     z = np.random.default_rng(3).normal(100.0, 30.0, (23, 17)).astype(np.float32)
@@ -314,9 +317,18 @@ def test_text_header_formats_declare_a_finite_nodata_for_nan(tmp_path, ext, driv
         out.add("dtm", tmp_path / f"dtm{ext}", "Float32", nodata=float("nan"))
         out.write("dtm", z)
         out.commit()
-    ds = gdal.Open(str(tmp_path / f"dtm{ext}"))
+    said = []
+    gdal.PushErrorHandler(lambda cls, no, msg: said.append(msg))
+    try:
+        ds = gdal.Open(str(tmp_path / f"dtm{ext}"))
+        nodata = ds.GetRasterBand(1).GetNoDataValue()
+        ds = None
+        ds = gdal.Open(str(tmp_path / f"dtm{ext}"))
+    finally:
+        gdal.PopErrorHandler()
+    assert said == []
     assert ds.GetDriver().ShortName == driver
-    assert ds.GetRasterBand(1).GetNoDataValue() == grid.TEXT_NODATA
+    assert nodata == grid.TEXT_NODATA
     got = ds.GetRasterBand(1).ReadAsArray()
     np.testing.assert_array_equal(got == grid.TEXT_NODATA, np.isnan(z))
     np.testing.assert_allclose(got[~np.isnan(z)], z[~np.isnan(z)], rtol=1e-6)
@@ -642,3 +654,75 @@ def _sparse_dsm(path, shape):
     ds.GetRasterBand(1).WriteArray(np.linspace(100.0, 110.0, 256 * 256, dtype=np.float32).reshape(256, 256), c, r)
     ds = None
     return str(path)
+
+
+def test_an_output_folder_is_checked_itself_not_its_parent(tmp_path, read_only):
+    """QA24: the check of an output folder (bareearth:tiles' OUTPUT_FOLDER, orthorefine's folder of orthophotos)
+    probed the folder above it, so a read-only folder passed and the run failed at its first file (the survey: a
+    FileNotFoundError traceback). The folder itself is probed, or, for a new one, the folder it is created in."""
+    out = tmp_path / "out"
+    out.mkdir()
+    grid.check_output_dir(out)
+    grid.check_output_dir(out / "new" / "deeper")          # created with the folders above it
+    with read_only(out):
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' is not writable \(.+\): choose a folder"):
+            grid.check_output_dir(out)
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' \(the output folder '{out / 'a'}' would "
+                                             r"be created in it\) is not writable"):
+            grid.check_output_dir(out / "a")
+    (tmp_path / "f").write_text("")
+    with pytest.raises(ValueError, match=r"'.*f' is an existing file, not a folder"):
+        grid.check_output_dir(tmp_path / "f")
+    with pytest.raises(ValueError, match=r"cannot be created: '.*f' is a file, not a folder"):
+        grid.check_output_dir(tmp_path / "f" / "x")
+    with pytest.raises(ValueError, match=r"name 'yyy.*' is 300 bytes long"):
+        grid.check_output_dir(tmp_path / ("y" * 300) / "x")
+    with pytest.raises(ValueError, match=r"is a GDAL virtual file \(vsimem\)"):
+        grid.check_output_dir("/vsimem/out")
+    assert sorted(os.listdir(out)) == [] and sorted(os.listdir(tmp_path)) == ["f", "out"]
+
+
+def test_a_mask_name_leaving_no_room_for_its_class_names_refused_before_any_work(tmp_path):
+    """QA24: a mask named with 247-255 bytes was written without its .aux.xml (GDAL leaves a side file longer than
+    the file system allows out without a word), so its class names were lost; a DTM of that name keeps all it
+    holds (its statistics are QGIS's, rebuilt on demand) and is still written."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    base = "m" * (limit - 4 - 7) + ".tif"            # its .aux.xml one byte too long
+    with pytest.raises(ValueError, match=rf"the mask's class names go to '{base}.aux.xml' beside it, {limit + 1} "
+                                         rf"bytes, and the file system of '{tmp_path}' allows {limit}: choose a name "
+                                         rf"of at most {limit - 8} bytes"):
+        grid.check_output_path(tmp_path / base, styled=True)
+    grid.check_output_path(tmp_path / base)                       # the DTM
+    grid.check_output_path(tmp_path / base[1:], styled=True)       # one byte shorter: its .aux.xml fits
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_output_that_is_a_link_leading_nowhere_is_written_not_called_read_only(tmp_path):
+    """QA24: an output named by a symbolic link whose file was deleted (a 'latest_dtm.tif' link) was refused as
+    "exists and is read-only": the link is replaced by the output as a missing file would be."""
+    link = tmp_path / "latest_dtm.tif"
+    link.symlink_to(tmp_path / "gone" / "dtm.tif")
+    grid.check_output_path(link)
+    info = grid.open_dsm(grid.write_array(tmp_path / "dsm.tif", np.ones((5, 6), np.float32), GT))
+    with grid.OutputSet(info) as out:
+        out.add("dtm", link, "Float32", nodata=float("nan"))
+        out.write("dtm", np.full((5, 6), 2.0, np.float32))
+        out.commit()
+    assert not link.is_symlink() and (gdal.Open(str(link)).ReadAsArray() == 2.0).all()
+
+
+@pytest.mark.parametrize("side", ["m.qml", "m.tif.aux.xml"])
+def test_a_read_only_file_the_output_writes_beside_it_refused_before_any_work(tmp_path, read_only, side):
+    """QA24: a read-only style (m.qml) or .aux.xml beside a mask passed the checks; the run ended, once the work
+    was done and the mask already moved into place, in a PermissionError traceback writing it."""
+    from bare_earth.core.pipeline import run_file
+    dsm = grid.write_array(tmp_path / "dsm.tif", np.add.outer(np.arange(40.0), np.arange(40.0)).astype(np.float32), GT)
+    (tmp_path / side).write_text("<keep/>")
+    with read_only(tmp_path / side):
+        with pytest.raises(ValueError, match=rf"^the output '.*m.tif' writes '{re.escape(side)}' beside it, but "
+                                             r"'.*' exists and is read-only \(or no regular file\): make it writable"):
+            grid.check_output_path(tmp_path / "m.tif", styled=True)
+        with pytest.raises(ValueError, match=rf"writes '{re.escape(side)}' beside it, but .* is read-only"):
+            run_file("morphological", str(dsm), {"dtm": str(tmp_path / "d.tif"), "mask": str(tmp_path / "m.tif")})
+    assert sorted(os.listdir(tmp_path)) == ["dsm.tif", side]
+    assert (tmp_path / side).read_text() == "<keep/>"

@@ -539,6 +539,39 @@ def test_a_folder_named_as_a_survey_file_refused_before_any_work(survey, tmp_pat
     assert sorted(os.listdir(out)) == [name]
 
 
+def test_an_output_folder_taking_no_file_refused_before_any_work(survey, tmp_path, read_only):
+    """QA24: a read-only output folder (or a new one under a read-only folder) passed the checks and the run
+    ended in a traceback (FileNotFoundError renaming survey.vrt's work file) after the tiles had been indexed; a
+    new folder below a file was a NotADirectoryError."""
+    out = tmp_path / "out"
+    out.mkdir()
+    with read_only(out):
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' is not writable \(.+\): choose a folder "
+                                             "you can write to"):
+            run_survey("slopeprofile", survey["tiles"], out, workers=1)
+        with pytest.raises(ValueError, match=rf"^the output folder '{out}' \(the output folder '{out / 'a' / 'b'}' "
+                                             r"would be created in it\) is not writable"):
+            run_survey("slopeprofile", survey["tiles"], out / "a" / "b", workers=1)
+    assert os.listdir(out) == []
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ValueError, match=rf"^the output folder '{tmp_path / 'file' / 'x'}' cannot be created: "
+                                         rf"'{tmp_path / 'file'}' is a file, not a folder"):
+        run_survey("slopeprofile", survey["tiles"], tmp_path / "file" / "x", workers=1)
+
+
+@pytest.mark.parametrize("name", ["mask.qml", "run.json", "t00_mask.tif.aux.xml"])
+def test_a_read_only_survey_file_in_the_output_folder_refused_before_any_work(survey, tmp_path, read_only, name):
+    """QA24: a read-only mask.qml in the output folder ended the run in a PermissionError traceback once every
+    tile was done (run.json and a tile's .aux.xml likewise, or as a failed tile)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / name).write_text("keep")
+    with read_only(out / name):
+        with pytest.raises(ValueError, match=rf"{re.escape(name)}.* read-only \(or no regular file\): make it"):
+            run_survey("slopeprofile", survey["tiles"], out, workers=1)
+    assert os.listdir(out) == [name] and (out / name).read_text() == "keep"
+
+
 def test_an_empty_input_or_output_path_refused_before_any_work(survey, tmp_path, monkeypatch):
     """QA14: bin/bare-earth tiles ... --output-dir "$OUT" with OUT unset wrote the survey's files into the current
     folder; --input "" filtered the current folder's rasters."""

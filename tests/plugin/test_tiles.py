@@ -124,6 +124,21 @@ def test_output_folder_holding_the_tiles_or_a_file_refused_before_any_work(proce
     assert a_file.read_text() == "keep me"
 
 
+def test_read_only_output_folder_refused_before_any_work(processing_run, tiles, tmp_path, read_only):
+    """QA24: a read-only OUTPUT_FOLDER passed the checks (the folder above it was probed) and the run ended in a
+    FileNotFoundError traceback renaming survey.vrt's work file; now refused naming the folder."""
+    from qgis.core import QgsProcessingException
+    out = tmp_path / "out"
+    out.mkdir()
+    with read_only(out):
+        for given in (out, out / "new"):
+            with pytest.raises(QgsProcessingException, match=rf"the output folder '{out}' .*is not writable \(.+\): "
+                                                             "choose a folder you can write to"):
+                processing_run("bareearth:tiles", {"INPUT_LAYERS": tiles["paths"], "WORKERS": 1,
+                                                   "METHOD": method_index("slopeprofile"), "OUTPUT_FOLDER": str(given)})
+    assert os.listdir(out) == []
+
+
 def test_survey_of_nodata_tiles_refused_naming_it_and_leaving_no_folder(processing_run, tmp_path):
     """Tiles holding only nodata: refused saying the survey holds no data (before: "z has no valid
     cell", naming no tile, with the output folder and its survey.vrt left behind)."""
