@@ -849,8 +849,8 @@ def widen_params(method, info, params, given=None, log=None, max_cells=4_000_000
     cell = (info.cell_size_m[0] * step, info.cell_size_m[1] * step)
     wider = meth.widen(params, dict(given or {}), overview, cell)
     if wider != params and log is not None:
-        log(f"Parameters that are heights of the whole raster widened to its heights read every {step}-th cell "
-            "(RASCOR's step 2 limits).")
+        log(f"Parameters that are heights of the whole raster widened to its heights read at one cell in "
+            f"{step} along each axis (RASCOR's step 2 limits).")
     return wider
 
 
