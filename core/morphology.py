@@ -315,6 +315,13 @@ is never flagged; the dense forest lidar's understory, 17557 of its 27137 type I
 flags the embankments of samples 61 and 71: floor 0.25 / 0.2 ISPRS 4.15 / 4.57 % (sample 71 2.56 -> 3.67 /
 6.47). The embankments are the crux: their outlines at 1-2 m cells are walls as much as roofs' (share of walls
 0.84-0.92 against 0.94-1.0 for buildings, samples 61 and 71), so no wall rule tells them apart.
+Crests between flanks (session 28, branch h-morph 76c7a77: from the third step a newly flagged cell given back
+where the reference opening has continuing flanks rising to it on one side of a row or column and falling away on
+the other, their tops within the step's threshold, the cell the top across): sample 71 2 m 5.08 / 5.11 -> 2.61 /
+2.77, synthetic mixed 1 m 0.88 -> 0.38, matrix 3.07 -> 3.01, sites 2.79 -> 2.73, ISPRS 3.98; but half B 2.50 ->
+2.52 (synthetic-lidar mixed 4 m 1.12 -> 1.86: a flat roof flush with a 35-40 degree hillside beside a raised
+road), sample 61 unchanged (one side of its embankments is a retaining wall), the filter's CPU +55-67 % and dtm's
++24 % at 4 Mcells for dtm 2.46 -> 2.44: not adopted.
 
 The provisional surface differs from SMRF's in one respect: SMRF inpaints the flagged
 cells from the unflagged ones, whose reach is unbounded; here they take the last opened
