@@ -2297,6 +2297,33 @@ def test_low_shrubs_on_open_ground_are_objects(monkeypatch):
     assert np.all(res0.mask[ground_cells] == GROUND)
 
 
+def test_one_cell_shrubs_at_2_m_seed_no_surface(monkeypatch):
+    """#12: at 2 m cells a shrub one cell wide and 1.2 m high bends the 5 x 5 local trend by 0.017 1/m
+    (``4 h / (w B d^2)``), under the threshold's floor (0.025): no break, it seeded the first surface,
+    which ran through it, and it stayed ground (ISPRS samp11 at 2 m highest point). A peak above its
+    chords every way (:func:`.ground._peaks`) seeds no surface: every shrub near the house is an object,
+    and the sloping ground around stays ground."""
+    rng = np.random.default_rng(1)
+    n, d = 96, 2.0
+    y, x = np.mgrid[0:n, 0:n] * d
+    z = (100 + 0.05 * x + 0.02 * y + rng.normal(0, 0.03, (n, n))).astype(np.float32)
+    z[42:54, 42:54] += 6.0                                  # a house, 24 m square
+    shrubs = np.zeros((n, n), bool)
+    shrubs[30:68:6, 30:68:6] = True
+    shrubs[40:56, 40:56] = False
+    z[shrubs] += 1.2
+    house = np.zeros((n, n), bool)
+    house[42:54, 42:54] = True
+    p = curvature.resolve_curvature_params(z, d)
+    r = curvature.filter_curvature(z, d, **p)
+    assert np.all(r.mask[shrubs] == OBJECT)
+    assert np.all(r.mask[house] == OBJECT)
+    assert np.all(r.mask[~shrubs & ~house] == GROUND)
+    monkeypatch.setattr(ground, "_peaks", lambda z, c, m, t: np.zeros(z.shape, bool))
+    r0 = curvature.filter_curvature(z, d, **p)
+    assert np.all(r0.mask[shrubs] == GROUND)
+
+
 def _knoll_and_hall(cell, n):
     """Gently sloping ground (0.02) with a knoll 8 m high and 56 m across whose flanks steepen to
     0.67 (a rock outcrop of lidar ``Topography``), and a hall 32 x 40 m, 6 m high, on flat ground;
