@@ -26,7 +26,7 @@ the same without the cells the ``|K|`` test marks (sites 2.97, matrix half A +0.
 +1.1 to +1.6: roofs cut by the tile's edge). On real hillsides (ISPRS 11) the same local pattern is an
 object's edge.
 
-Still open at 2 m on the highest point of a vegetated hillside (ISPRS samp11 2m/max, 28.2 %, the worst row; the
+Still open at 2 m on the highest point of a vegetated hillside (ISPRS samp11 2m/max, 28.0 %, the worst row; the
 grid's own floor with a perfect mask 11.4 %): 57 % of the cells hold an object point, and vegetation wider than a
 cell seeds the surface (three quarters of the type II points, 15 % of all, lie in cells the surface rests on, 2.2 m
 above the reference; the type I points lie under the DTM those cells lift). Measured and not adopted: K_g at most the
@@ -425,7 +425,8 @@ def find_ground(z: np.ndarray, objects: np.ndarray, breaks: Breaks, valid: Optio
     sunk, low = _low_bowls(z, bowls, m + 2, h_min, tol)   # pits (by h_min) and low points (by tol)
     report(progress, 0.005)      # a report after each raster-wide stage (QA 20: 2.4 s CPU on 16 Mcells without)
     holes = _first_holes(objects, breaks, invalid, m, never, low)
-    holes |= _peaks(z, cell_size, m, tol)       # a shrub one cell wide bends no fit: no seed either
+    # a shrub one cell wide bends no fit: no seed either
+    holes |= _peaks(z, m, tol)
     report(progress, 0.01)
     # the bowls between objects at the ground's level, below them and not below the surface
     # without them, seed the first surface too
@@ -833,27 +834,24 @@ def _envelope_ground(z, cand, objects, cell_size, m, window, tol, step, progress
     return env
 
 
-def _peaks(z, cell_size, m, tol):
+def _peaks(z, m, tol):
     """The cells (bool) standing above a chord between the cells within ``m`` on either side, and
     above both its ends, along their row, their column and both diagonals, by more than the tolerance
-    ``tol`` plus the local terrain slope's rise over a cell (:func:`_local_slopes`;
-    :func:`~bare_earth.core.estimate.above_chords`): they seed no first surface.
+    ``tol`` (:func:`~bare_earth.core.estimate.above_chords`): they seed no first surface.
 
     Luong Chinh Ke (2002) leaves the breaks out of the ground, the points whose local trend over the
     window bends by ``K_g`` or more. An object as narrow as a cell bends that trend by its height times
     the weight of one point: a cell 1 m above the ground in the middle of a 5 x 5 window bends it by
     ``4 h / (w B d^2) = 1 / (17.5 d^2)`` (``w = 5``, ``B = 14``), 0.057 1/m at 1 m cells and 0.014 at 2 m,
-    under the threshold's floor (5 cm over 2 m, 0.025) at 2 m and coarser: a shrub, a lamp post or the highest
-    return of a crown one cell wide is no break there, and it seeded the surface, which ran through it
-    (ISPRS samp11 at 2 m highest point: 58 % of the type II points in cells the surface rested on). A
-    peak stands above its chords every way; a cell on a slope, a terrain edge (straight or crossed
-    obliquely) or a ledge lies on its chords along the edge (the same test gives a peak the tolerance
-    alone, :func:`_allowance`). Every cell read lies within ``max(m, k)`` cells (``k`` the square of
-    :func:`_local_slopes`), inside the envelope's reach (:func:`ground_reach`)."""
-    margin = _local_slopes(z, cell_size)
-    margin *= np.float32(max(cell_size))
-    margin += np.float32(tol)
-    return above_chords(z, m, margin)
+    under the threshold's floor (5 cm over 2 m, 0.025) at 2 m and coarser: a shrub, a lamp post or the
+    highest return of a crown one cell wide is no break there, and it seeded the surface, which ran
+    through it (ISPRS samp11 at 2 m highest point: 58 % of the type II points in cells the surface rested
+    on). A peak stands above its chords every way; a cell on a slope lies on its chords (a plane's chords
+    are the plane: no slope term, and no local slope that a low blunder would tilt 20 m around it), and
+    so does a terrain edge (straight or crossed obliquely) or a ledge along the edge (the same test, by
+    the tolerance plus the slope's cell, gives a peak the tolerance alone, :func:`_allowance`). Every
+    cell read lies within ``m`` cells."""
+    return above_chords(z, m, np.float32(tol))
 
 
 def _local_slope_cells(cell_size) -> int:

@@ -2319,7 +2319,7 @@ def test_one_cell_shrubs_at_2_m_seed_no_surface(monkeypatch):
     assert np.all(r.mask[shrubs] == OBJECT)
     assert np.all(r.mask[house] == OBJECT)
     assert np.all(r.mask[~shrubs & ~house] == GROUND)
-    monkeypatch.setattr(ground, "_peaks", lambda z, c, m, t: np.zeros(z.shape, bool))
+    monkeypatch.setattr(ground, "_peaks", lambda z, m, tol: np.zeros(z.shape, bool))
     r0 = curvature.filter_curvature(z, d, **p)
     assert np.all(r0.mask[shrubs] == GROUND)
 
