@@ -812,8 +812,15 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
 
     # the members measure the noise of the same ground-level cells: once (estimate.noise_shared)
     with noise_shared(), ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
-        derived = {n: pool.submit(derive, i, n) for i, n in enumerate(MEMBERS)}
+        # the first member measures the noise; the members that need none and the description take the other
+        # thread meanwhile, then the other noise reader (it waits for the noise less): the same results by name
+        first = [n for n in MEMBERS if n == SLOPE_MEMBER]
+        last = [n for n in MEMBERS if n == NOISE_MEMBER and n not in first]
+        futures = {n: pool.submit(derive, MEMBERS.index(n), n) for n in first}
+        futures.update({n: pool.submit(derive, i, n) for i, n in enumerate(MEMBERS) if n not in first + last})
         description = pool.submit(characterise, z, cell)
+        futures.update({n: pool.submit(derive, MEMBERS.index(n), n) for n in last})
+        derived = {n: futures[n] for n in MEMBERS}
         # the raised regions' grid (z's block minima) in this thread, while the members derive theirs
         zs, cs, k = raised_region_grid(zm, cm)
         # the longest raised region looked for as soon as its scales are known (early_span), on the thread the

@@ -327,6 +327,32 @@ def test_resolve_measures_the_ground_noise_once_for_both_members(monkeypatch):
     assert params["input_description"]["ground_noise_m"] == real(z, (2.0, 2.0))[0]
 
 
+def test_resolve_describes_the_input_while_the_noise_is_measured(monkeypatch):
+    """With two threads, the member that measures the ground noise runs first and the description of the input (and
+    the members needing no noise) on the other thread meanwhile, the other noise reader after them: the noise waits
+    here for the description to start, which never happened when RASCOR's derivation took the second thread and
+    waited for the noise. The same parameters."""
+    import threading
+    z = _hillside_one_return_per_cell(n=96)
+    want = dtm_method.resolve_dtm_params(z, (2.0, 2.0))
+    monkeypatch.setattr(dtm_method, "default_workers", lambda: 2)
+    described = threading.Event()
+    waited = []
+    real_noise, real_char = dtm_method.ground_noise, dtm_method.characterise
+
+    def noise(*a, **k):
+        waited.append(described.wait(timeout=30.0))
+        return real_noise(*a, **k)
+
+    def char(*a, **k):
+        described.set()
+        return real_char(*a, **k)
+    monkeypatch.setattr(dtm_method, "ground_noise", noise)
+    monkeypatch.setattr(dtm_method, "characterise", char)
+    assert dtm_method.resolve_dtm_params(z, (2.0, 2.0)) == want
+    assert waited == [True]
+
+
 def _hall_scene():
     """Gentle noisy ground with a hall 300 x 110 m and small houses at 1 m cells: a raised region the resolve's
     search finds (spanning more than twice the members' widest window)."""
