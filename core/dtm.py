@@ -712,6 +712,38 @@ def characterise(z, cell_size):
             "relief_m": float(hi - lo), "rough_share": rough}
 
 
+def early_span(pool, derived, zs, cs, block, cell_size, cancel=None):
+    """The raised-region search of :func:`resolve_dtm_params` (:func:`~.estimate.raised_region_span` on the grid
+    ``zs``, cells ``cs``, ``block`` cells of the DSM a cell of it) started in ``pool`` before every member is derived.
+
+    Its scales are the decision threshold (the morphological member's ``dh_m``) and the members' windows
+    (:func:`region_scales`); a member whose window is not derived from the data (RASCOR's ``max_building_m``: its
+    default, the vote asks no other) has it before its derivation ends. Waits for the members whose windows are
+    derived (``derived``: ``{name: Future of (params, noise)}``) and the morphological member, then submits the
+    search with the other members' windows taken from their defaults and :data:`MEMBER_SETTINGS`. Returns
+    ``((tol, width, span), Future of the span in grid cells)``: the caller takes the result only where the scales
+    it derives are those (the same call, the same value; else it searches itself). The longest
+    derivation (RASCOR's, after the ground noise) then no longer waits for the search: 16 Mcells, the
+    derivation's serial tail of 0.29-0.34 s of CPU ran beside it. ``cancel()`` (optional) is called after each
+    scale of the search (it raises to stop it).
+    """
+    from .pipeline import complete_params
+    cell = as_cell_size(cell_size)
+    known = {}
+    for n, fut in derived.items():
+        key = MEMBER_WINDOWS.get(n)
+        default = None if key is None else complete_params(get_method(n), MEMBER_SETTINGS.get(n)).get(key)
+        if n == "morphological" or (key is not None and default is None):
+            known[n] = fut.result()[0]          # derived from the data: its own value
+        elif key is not None:
+            known[n] = {key: default}
+    tol = float(known["morphological"].get("dh_m") or MIN_TOLERANCE_M)
+    width, span = region_scales(known, cell)
+    found = pool.submit(raised_region_span, zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M,
+                        min_cells=-(-span // block), progress=None if cancel is None else (lambda fraction: cancel()))
+    return (tol, width, span), found
+
+
 def resolve_dtm_params(z, cell_size, progress=None, **params):
     """Every member's parameters derived from the data, and the confidence's scales.
 
@@ -780,15 +812,29 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
 
     # the members measure the noise of the same ground-level cells: once (estimate.noise_shared)
     with noise_shared(), ThreadPoolExecutor(max_workers=min(len(MEMBERS) + 1, default_workers())) as pool:
-        derived = {n: pool.submit(derive, i, n) for i, n in enumerate(MEMBERS)}
+        # the first member measures the noise; the members that need none and the description take the other
+        # thread meanwhile, then the other noise reader (it waits for the noise less): the same results by name
+        first = [n for n in MEMBERS if n == SLOPE_MEMBER]
+        last = [n for n in MEMBERS if n == NOISE_MEMBER and n not in first]
+        futures = {n: pool.submit(derive, MEMBERS.index(n), n) for n in first}
+        futures.update({n: pool.submit(derive, i, n) for i, n in enumerate(MEMBERS) if n not in first + last})
         description = pool.submit(characterise, z, cell)
+        futures.update({n: pool.submit(derive, MEMBERS.index(n), n) for n in last})
+        derived = {n: futures[n] for n in MEMBERS}
+        # the raised regions' grid (z's block minima) in this thread, while the members derive theirs
+        zs, cs, k = raised_region_grid(zm, cm)
+        # the longest raised region looked for as soon as its scales are known (early_span), on the thread the
+        # members done first leave while the longest derivation (RASCOR's, after the noise) runs
+        early = early_span(pool, derived, zs, cs, f * k, cell, cancel=shares.check)
         results = {n: f.result() for n, f in derived.items()}
         description = description.result()
-    members = {n: r[0] for n, r in results.items()}
+        members = {n: r[0] for n, r in results.items()}
+        tol = float(members["morphological"].get("dh_m") or MIN_TOLERANCE_M)
+        width, span = region_scales(members, cell)
+        found = early[1].result() if early is not None and early[0] == (tol, width, span) else None
     noise = results[NOISE_MEMBER][1] if NOISE_MEMBER in results else None
     if noise is not None:
         description["ground_noise_m"] = noise if np.isfinite(noise) else None
-    tol = float(members["morphological"].get("dh_m") or MIN_TOLERANCE_M)
     support = max(1, int(round(SUPPORT_M / min(cell))))
     # the refinement's reach: longer on gentle terrain, never beyond the farthest a member looks
     limit = max(member_halo(m, members, cell, f) for m in _members(MEMBERS)) * min(cell)
@@ -803,14 +849,13 @@ def resolve_dtm_params(z, cell_size, progress=None, **params):
         spread = height_resolution(z)
     description["repeated_height_share"] = repeated
     description["ground_spread_m"] = spread if np.isfinite(spread) else None
-    width, span = region_scales(members, cell)
     # the stage reaches the longest raised region standing on walls the data shows (a hall longer than twice the
     # members' widest window), at most RAISED_REGION_SPAN_M; the halo grows only when there is one
     # (on block minima: a wall found there may stand one block further out at full resolution)
-    zs, cs, k = raised_region_grid(zm, cm)
     report(progress, 0.97)
-    found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)),
-                               progress=sub_progress(progress, 0.97, 1.0))
+    if found is None:       # not looked for early (its scales were not known before every member was derived)
+        found = raised_region_span(zs, cs, tol, width, max_span_m=RAISED_REGION_SPAN_M, min_cells=-(-span // (f * k)),
+                                   progress=sub_progress(progress, 0.97, 1.0))
     report(progress, 1.0)
     found = min((found + 1) * k * f, int(np.ceil(RAISED_REGION_SPAN_M / min(cell)))) if found else 0
     description["raised_region_span_m"] = round(found * min(cell), 1)

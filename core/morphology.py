@@ -396,6 +396,7 @@ from .estimate import (
     surroundings_reach,
     terrain_slopes,
 )
+from .geodesic.grey import filter5x5
 from .methods import Method, Param, check_values
 
 MODES = ("auto", "progressive", "single")
@@ -979,11 +980,28 @@ def ground_slope_map(a, r_max, cell, work=None, return_erosion=False):
     g = l1_slope(e, cell)
     if not return_erosion:
         del e
-    run = _SLOPE_RUN_CELLS
-    g = _running_box(g, run, run, np.minimum, work, g)
-    g = _running_box(g, run, run, np.maximum, work, g)
+    g = _open_slopes(g, work)
     np.minimum(g, np.float32(_MAX_SLOPE), out=g)
     return (g, e) if return_erosion else g
+
+
+def _open_slopes(g, work):
+    """The grey opening of the slopes ``g`` (float32) by :data:`_SLOPE_RUN_CELLS` cells (a square window of that
+    half-width, clipped at the raster's edge); ``work``'s third buffer is its scratch. Returns the opened slopes:
+    ``g`` itself (in place) on a raster at least two cells wide both ways.
+
+    The 5 x 5 window of :data:`_SLOPE_RUN_CELLS` 2 in one banded pass per operation (:func:`.geodesic.grey.filter5x5`,
+    the cells beyond the edge neutral: the clipped window), else two :func:`_running_box` passes: a minimum and a
+    maximum select one of the window's values, in any order, so the same values bit for bit (16 Mcells: two
+    passes 0.058 -> 0.047 s CPU).
+    """
+    run = _SLOPE_RUN_CELLS
+    if run == 2 and min(g.shape) >= 2 and g.flags.c_contiguous:
+        t = work.get(2, g.shape)
+        filter5x5(g, np.minimum, np.inf, out=t)
+        return filter5x5(t, np.maximum, -np.inf, out=g)
+    g = _running_box(g, run, run, np.minimum, work, g)
+    return _running_box(g, run, run, np.maximum, work, g)
 
 
 def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=WINDOW_GROWTH, thresholds=None,
@@ -1098,7 +1116,9 @@ def _steepest_sides(s, cell, out=None):
 
     ``out`` (optional, float32, ``s``'s shape, not ``s``) receives the result. Computed in bands of rows whose
     temporaries stay in the cache (the same float32 operations in the same order on every cell as on the whole
-    array, so the same values; no raster-sized temporaries: 0.44 s -> 0.14 s per 16 Mcells call).
+    array, so the same values; no raster-sized temporaries: 0.44 s -> 0.14 s per 16 Mcells call). A cell's
+    difference to the right is its right neighbour's to the left (``s[j + 1] - s[j]`` either way), and the one
+    below the one above of the row below: each is formed once per band (the same operands in the same order).
     """
     dx, dy = cell
     g = np.empty(s.shape, np.float32) if out is None else out
@@ -1112,24 +1132,22 @@ def _steepest_sides(s, cell, out=None):
     rx, ry = np.float32(dx), np.float32(dy)
     H, W = s.shape
     band = max(1, _BAND_BYTES // 4 // max(1, W))
-    t1 = np.empty((min(band, H - 2), W - 2), np.float32)
-    t2 = np.empty(t1.shape, np.float32)
+    n0 = min(band, H - 2)
+    hd = np.empty((n0, W - 1), np.float32)          # |s[j + 1] - s[j]| along the band's rows
+    vd = np.empty((n0 + 1, W - 2), np.float32)      # |s[i + 1] - s[i]| down the inner columns, one row more
+    t1 = np.empty((n0, W - 2), np.float32)
     with np.errstate(invalid="ignore"):
         for i0 in range(1, H - 1, band):
             i1 = min(H - 1, i0 + band)
-            a, b, gi = t1[:i1 - i0], t2[:i1 - i0], g[i0:i1, 1:-1]
-            c = s[i0:i1, 1:-1]
-            np.subtract(c, s[i0:i1, :-2], out=a)
-            np.abs(a, out=a)
-            np.subtract(s[i0:i1, 2:], c, out=b)
-            np.abs(b, out=b)
-            np.fmax(a, b, out=a)
+            n = i1 - i0
+            h, v, a, gi = hd[:n], vd[:n + 1], t1[:n], g[i0:i1, 1:-1]
+            np.subtract(s[i0:i1, 1:], s[i0:i1, :-1], out=h)
+            np.abs(h, out=h)
+            np.fmax(h[:, :-1], h[:, 1:], out=a)     # |c - left|, |right - c|
             np.divide(a, rx, out=gi)                   # gx / dx
-            np.subtract(c, s[i0 - 1:i1 - 1, 1:-1], out=a)
-            np.abs(a, out=a)
-            np.subtract(s[i0 + 1:i1 + 1, 1:-1], c, out=b)
-            np.abs(b, out=b)
-            np.fmax(a, b, out=a)
+            np.subtract(s[i0:i1 + 1, 1:-1], s[i0 - 1:i1, 1:-1], out=v)
+            np.abs(v, out=v)
+            np.fmax(v[:-1], v[1:], out=a)               # |c - up|, |down - c|
             np.divide(a, ry, out=a)                    # gy / dy
             np.add(gi, a, out=gi)
             np.copyto(gi, np.float32(0.0), where=~np.isfinite(gi))
@@ -1139,10 +1157,7 @@ def _steepest_sides(s, cell, out=None):
 def _step_slope(e, cell, work, out=None):
     """The slope of a step's erosion ``e`` (:func:`ground_slope_map`'s reading: the L1 slope opened by
     :data:`_SLOPE_RUN_CELLS` cells, at most :data:`_MAX_SLOPE`). ``out`` (optional, not ``e``) receives it."""
-    g = _steepest_sides(e, cell, out)
-    run = _SLOPE_RUN_CELLS
-    g = _running_box(g, run, run, np.minimum, work, g)
-    g = _running_box(g, run, run, np.maximum, work, g)
+    g = _open_slopes(_steepest_sides(e, cell, out), work or _Work())
     np.minimum(g, np.float32(_MAX_SLOPE), out=g)
     return g
 

@@ -327,6 +327,87 @@ def test_resolve_measures_the_ground_noise_once_for_both_members(monkeypatch):
     assert params["input_description"]["ground_noise_m"] == real(z, (2.0, 2.0))[0]
 
 
+def test_resolve_describes_the_input_while_the_noise_is_measured(monkeypatch):
+    """With two threads, the member that measures the ground noise runs first and the description of the input (and
+    the members needing no noise) on the other thread meanwhile, the other noise reader after them: the noise waits
+    here for the description to start, which never happened when RASCOR's derivation took the second thread and
+    waited for the noise. The same parameters."""
+    import threading
+    z = _hillside_one_return_per_cell(n=96)
+    want = dtm_method.resolve_dtm_params(z, (2.0, 2.0))
+    monkeypatch.setattr(dtm_method, "default_workers", lambda: 2)
+    described = threading.Event()
+    waited = []
+    real_noise, real_char = dtm_method.ground_noise, dtm_method.characterise
+
+    def noise(*a, **k):
+        waited.append(described.wait(timeout=30.0))
+        return real_noise(*a, **k)
+
+    def char(*a, **k):
+        described.set()
+        return real_char(*a, **k)
+    monkeypatch.setattr(dtm_method, "ground_noise", noise)
+    monkeypatch.setattr(dtm_method, "characterise", char)
+    assert dtm_method.resolve_dtm_params(z, (2.0, 2.0)) == want
+    assert waited == [True]
+
+
+def _hall_scene():
+    """Gentle noisy ground with a hall 300 x 110 m and small houses at 1 m cells: a raised region the resolve's
+    search finds (spanning more than twice the members' widest window)."""
+    rng = np.random.default_rng(3)
+    y, x = grid(400)
+    z = (0.01 * x + 0.005 * y + rng.normal(0.0, 0.05, x.shape)).astype(np.float32)
+    z[40:340, 60:170] += 9.0
+    for r, c in ((20, 250), (150, 220), (360, 30), (300, 300)):
+        z[r:r + 12, c:c + 10] += 6.0
+    return z
+
+
+def test_resolve_searches_raised_regions_while_rascor_derives(monkeypatch):
+    """The raised regions' search of the resolve runs beside RASCOR's derivation, the longest (its scales, the
+    opening's threshold and the members' windows, are known before it ends: RASCOR's window is its default): RASCOR's
+    derivation waits here until the search has started, which never happened when the search followed every
+    derivation. The parameters are those of the search after every member (early_span's result taken only where
+    its scales are those derived; a RASCOR window the derivation changed: searched again, the same values)."""
+    import threading
+    z = _hall_scene()
+    monkeypatch.setattr(dtm_method, "default_workers", lambda: 2)
+    real_span, real_resolve = dtm_method.raised_region_span, pipeline.resolve_params
+    started = threading.Event()
+    waited, searches = [], []
+
+    def span(*a, **k):
+        started.set()
+        searches.append(threading.current_thread().name)
+        return real_span(*a, **k)
+
+    def resolve(name, *a, **k):
+        if name == "rascor":
+            waited.append(started.wait(timeout=30.0))
+        return real_resolve(name, *a, **k)
+    monkeypatch.setattr(dtm_method, "raised_region_span", span)
+    monkeypatch.setattr(pipeline, "resolve_params", resolve)
+    params = dtm_method.resolve_dtm_params(z, (1.0, 1.0))
+    assert waited == [True]
+    assert len(searches) == 1                               # the early search's result taken: no second search
+    real_early = dtm_method.early_span
+    monkeypatch.setattr(dtm_method, "early_span", lambda *a, **k: None)
+    assert dtm_method.resolve_dtm_params(z, (1.0, 1.0)) == params                       # searched after
+    assert params["input_description"]["raised_region_span_m"] > 0
+
+    def wider(name, *a, **k):                # RASCOR's window not its default: the early search not taken
+        out = real_resolve(name, *a, **k)
+        return {**out, "max_building_m": 2.0 * out["max_building_m"]} if name == "rascor" else out
+    monkeypatch.setattr(pipeline, "resolve_params", wider)
+    serial = dtm_method.resolve_dtm_params(z, (1.0, 1.0))
+    monkeypatch.setattr(dtm_method, "early_span", real_early)
+    del searches[:]
+    assert dtm_method.resolve_dtm_params(z, (1.0, 1.0)) == serial
+    assert len(searches) == 2                               # the early one, and the one on the scales derived
+
+
 def _hillside_one_return_per_cell(n=120, cell=2.0, slope=0.6, seed=0, noise_m=0.05):
     """A plane rising 0.6 m per metre (31 degrees), one return per 2 m cell at a random place in it:
     the heights scatter by ``slope cell / sqrt(12)`` = 0.35 m about the cells' centres, 7 times the noise."""
