@@ -324,6 +324,7 @@ from .common import (
     report,
     running_mean_down,
     sub_progress,
+    touching,
     without_far_heights,
 )
 from .dtm_coarse import CoarseGrid, coarse_factor, coarsen, coarsen_flags
@@ -331,6 +332,7 @@ from .dtm_refine import (
     BAND_PLANE_HALF_M,
     BANK_SLOPE,
     BANK_SMOOTH_LINES,
+    EDGE_RING_M,
     LEVEL_LINE_CELLS,
     LEVEL_LINE_M,
     REACH_M,
@@ -347,8 +349,10 @@ from .dtm_refine import (
     edge_tolerance,
     find_disputed_bumps,
     find_level_lines,
+    find_raised_edge_ground,
     find_smooth,
     find_step_tops,
+    raised_edge_reach,
     refine_ground,
     refine_halo,
     refine_reach,
@@ -523,6 +527,12 @@ LEVEL_LINES = True
 #: (:func:`.dtm_refine.find_disputed_bumps`: low vegetation on a slope, which the members reading the slope across
 #: it keep).
 DISPUTED_BUMPS = True
+#: The vote's ground one member rejects beside an object, standing above most of the ground of its level around it
+#: (the median of its heights above the continuations of the ground plane from the ground within
+#: :data:`.dtm_refine.EDGE_RING_M`) by more than the edge tolerance, is an object, but for a step's top and a cell on
+#: a straight line of ground (:func:`_raised_edge_ground`, :func:`.dtm_refine.find_raised_edge_ground`: low vegetation
+#: at a crown's edge on which the DTM under the crown would rest; issue 13, figures in :mod:`.dtm_refine`).
+RAISED_EDGE_GROUND = True
 #: Each member's parameters giving the widest object its window removes, metres.
 MEMBER_WINDOWS = {"morphological": "max_object_size_m", "rascor": "max_building_m", "geodesic": "max_object_size_m"}
 
@@ -900,7 +910,8 @@ def dtm_halo(params, cell_size):
     reach = (max(halos) + continuation_cells(cell, reach_m) + 2 + refine_halo(cell, reach_m, ALONG_GROUND)
              + regions_halo(int(params.get("region_max_cells", 0))) + ROOF_EDGE_CELLS + 2 * int(params["support_cells"])
              + banks_halo(*bank_scales(params["members"], params.get("region_width_m", 0.0), cell)) + 2
-             + (disputed_bumps_reach(cell) + STEP_TOP_REACH + 2 if DISPUTED_BUMPS else 0))
+             + (disputed_bumps_reach(cell) + STEP_TOP_REACH + 2 if DISPUTED_BUMPS else 0)
+             + (raised_edge_reach(cell) if RAISED_EDGE_GROUND else 0))
     a = max(alignment(h // f) for h in halos) * f      # the members' alignment on the coarse grid, in cells
     return -(-reach // a) * a
 
@@ -1082,6 +1093,24 @@ def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, 
         bumps &= ~find_level_lines(z, mask == GROUND, bumps, cell, tolerance_m=tolerance_m,
                                    reach_m=LEVEL_LINE_M, min_cells=LEVEL_LINE_CELLS)
     return bumps
+
+
+def _raised_edge_ground(z, mask, voted, members, cell, tolerance_m, edge_m):
+    """The vote's ground beside an object standing above most of the ground of its level around it
+    (:func:`.dtm_refine.find_raised_edge_ground`, :data:`RAISED_EDGE_GROUND`), but for a step's top and a cell on a
+    straight line of ground (the guards of :func:`_disputed_bumps`: a terrace's edge beside a house at its back
+    stands above the ground below the terrace, a platform's edge above the tracks)."""
+    g = mask == GROUND
+    jump = float(members[LEVEL_MEMBER]["jump_m"]) if LEVEL_MEMBER in members else float("nan")
+    edge = find_raised_edge_ground(z, g, g & voted & touching((mask == OBJECT) | (mask == LOW)), cell,
+                                   tolerance_m=edge_m, level_m=jump if np.isfinite(jump) else None)
+    if edge.any():
+        edge &= ~find_step_tops(z, edge, g, tolerance_m=edge_m, step_m=SMOOTH_RATIO * tolerance_m,
+                                smooth_m=SMOOTH_RATIO * tolerance_m, along_slope=refine_slope(members), cell_size=cell)
+    if edge.any():
+        edge &= ~find_level_lines(z, g, edge, cell, tolerance_m=tolerance_m, reach_m=LEVEL_LINE_M,
+                                  min_cells=LEVEL_LINE_CELLS)
+    return edge
 
 
 def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reach_m=REACH_M, edge_tolerance_m=None,
@@ -1376,6 +1405,20 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
         mask[edge] = OBJECT
         info["roof_edge_cells"] = int(np.count_nonzero(edge))
     del tops, roofs
+    if RAISED_EDGE_GROUND:
+        # the vote's ground at an object's edge standing above most of the ground around it (dtm_refine)
+        disputed = (ground_votes >= need) & (ground_votes < n)
+        edge_ground = _raised_edge_ground(z, mask, disputed, members, cell, tolerance_m,
+                                          refined["refine_edge_tolerance_m"])
+        del disputed
+        mask[edge_ground] = OBJECT
+        info["raised_edge_rule"] = (
+            "{} cells: the vote's ground beside an object whose height above the continuations of the ground's "
+            "plane from the ground cells of its level within {:g} m has a median over {:.3f} m (the edge tolerance, "
+            "with where the heights lie in their cells on the plane's slope), neither a step's top nor on a "
+            "straight line of ground, are objects").format(
+                int(np.count_nonzero(edge_ground)), EDGE_RING_M, refined["refine_edge_tolerance_m"])
+        del edge_ground
     report(progress, 0.845)
     info["raised_regions"] = [describe_region(d) for d in decisions]
     if line_decision is not None:
@@ -1515,7 +1558,12 @@ METHOD = Method(
         "(median distance from its least-squares plane at most half the decision threshold) with a top, a quarter "
         "of its outline an object standing a level change above it (a taller part of the building), not cut by "
         "the raster's edge, unless the "
-        "level lies below that ground across a level change (a bench of a cliff); the DTM is "
+        "level lies below that ground across a level change (a bench of a cliff); so is voted ground one "
+        "member rejects beside an object that stands above most of the ground of its level within 2 m (the median "
+        "of its heights above the continuations of the ground's plane from those cells) by more than the edge "
+        "tolerance and where the heights lie in their cells on that plane, but for a step's top and a cell on a "
+        "straight line of ground (low vegetation at a crown's edge on a sparse lidar grid, on which the DTM under "
+        "the crown would rest); the DTM is "
         "interpolated under the rest. On cells finer than 1 m the members run on the lowest cell of each block of "
         "1 m or less (a power of two of cells), their decisions brought back to every cell by height tests against "
         "the ground around; the log states the factor. The log gives each member's parameters, "

@@ -9,8 +9,9 @@ from surfaces import in_blocks
 
 from bare_earth.core import dtm_refine as dr
 from bare_earth.core.codes import GROUND, NODATA, OBJECT
+from bare_earth.core.common import touching
 from bare_earth.core.dtm import filter_dtm, resolve_dtm_params
-from bare_earth.core.fill import fill_gaps
+from bare_earth.core.fill import fill_gaps, find_edge_spikes
 from bare_earth.core.methods import get_method
 from bare_earth.core.synthetic import make_canopy
 
@@ -893,7 +894,6 @@ def test_refine_ground_keeps_a_terrace_edge_beside_a_house():
     """issue 13 (core.synthetic_sites hillside and railway): the upper edge of a step in the ground beside an
     object the edge test took, since along a diagonal the object hides one side and the lower ground does not
     continue to it; as a step's top (find_step_tops) it stays ground."""
-    from bare_earth.core.fill import find_edge_spikes
     z, vote = _terrace_with_house()
     fill = vote == OBJECT
     spikes = find_edge_spikes(z, fill, 0.5, line_tolerance_m=0.5)
@@ -1901,3 +1901,43 @@ def test_find_disputed_bumps_reads_only_the_candidates_windows(monkeypatch):
     np.testing.assert_array_equal(dr.find_disputed_bumps(z, np.ones(z.shape, bool), anchors, (1.0, 1.0),
                                                          tolerance_m=0.1), found)
     assert calls
+
+
+def _edge_scene(band=0.45):
+    """Level ground (z = 0) with a crown (z = 6) in columns 8-11 and a one-cell band of low vegetation
+    ``band`` m high along its western edge (column 7): each band cell is continued by its neighbours along the
+    edge, so no single continuation finds it above every one of them."""
+    z = np.zeros((16, 16), np.float32)
+    z[:, 8:12] = 6.0
+    z[:, 7] = band
+    objects = z > 3.0
+    ground = ~objects
+    return z, ground, ground & touching(objects)
+
+
+def test_raised_edge_ground_takes_a_band_above_most_of_the_ground_around():
+    z, ground, candidates = _edge_scene(0.45)
+    out = dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), tolerance_m=0.3)
+    # the 5 x 5 ring of a band cell holds 19 ground cells: 4 of the band (0.45 m, height 0 above it) and 15 of the
+    # level ground (0.45 m above their continuation): the median is 0.45 > 0.3
+    assert out[:, 7].all() and np.count_nonzero(out) == 16
+    # the edge test, which asks for a cell above *every* continuation, finds none of them: the band continues itself
+    assert not find_edge_spikes(z, ~ground, 0.3)[:, 7].any()
+
+
+def test_raised_edge_ground_keeps_ground_within_the_tolerance_and_on_a_bank():
+    z, ground, candidates = _edge_scene(0.25)
+    assert not dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), tolerance_m=0.3).any()
+    # a bank rising at 0.5 towards the crown (the cells beside it lie on the plane the ground is seen on)
+    z, ground, candidates = _edge_scene(0.0)
+    cols = np.arange(z.shape[1], dtype=np.float32)
+    z = np.where(ground, 0.5 * cols[None, :], z).astype(np.float32)
+    assert not dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), tolerance_m=0.3).any()
+    # the same bank read with a level plane (no ground seen around) would take the bank's top: its slope matters
+    assert np.all(dr.raised_edge_tolerance(0.3, 0.5, 2.0) > dr.raised_edge_tolerance(0.3, 0.0, 2.0))
+
+
+def test_raised_edge_ring_and_reach():
+    assert dr.raised_edge_ring((1.0, 1.0)) == 2 and dr.raised_edge_ring((2.0, 2.0)) == 1
+    assert dr.raised_edge_ring((4.0, 4.0)) == 1 and dr.raised_edge_ring((0.5, 0.5)) == 4
+    assert dr.raised_edge_reach((1.0, 1.0)) == 2 + dr.line_slope_radius((1.0, 1.0)) + 1
