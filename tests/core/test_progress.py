@@ -189,7 +189,10 @@ def test_dtm_reports_between_its_stages_after_the_vote(monkeypatch):
 def test_dtm_derivation_reports_after_its_members(monkeypatch):
     """After its members' parameters were derived, bareearth:dtm's derivation measured the repeated heights
     and the raised regions' span on the whole raster without a report (the bar stood still before the vote
-    began); each of those estimates is now followed by one, the fractions rising, the parameters unchanged."""
+    began); each of those estimates is now followed by one, the fractions rising, the parameters unchanged.
+    Since the twenty-eighth session the span is looked for beside the members' derivation (``early_span``), whose
+    reports go on meanwhile; where its scales were not known early, the search runs after the members and
+    reports after each of its scales (QA 20)."""
     from bare_earth.core import dtm
     events = []
     stages = ("repeated_height_share", "raised_region_grid", "raised_region_span")
@@ -198,8 +201,15 @@ def test_dtm_derivation_reports_after_its_members(monkeypatch):
     base = pipeline.resolve_params("dtm", z, 1.0)
     events.clear()
     assert pipeline.resolve_params("dtm", z, 1.0, progress=events.append) == base
+    named = _named(events)
+    assert set(stages) <= {events[i] for i in named}
+    _assert_reports_after(events, named[-1:])           # a report after the derivation's last estimate
+    # the search not started early (its scales unknown before the members end): after the members, reporting
+    monkeypatch.setattr(dtm, "early_span", lambda *a, **k: (None, None))
+    events.clear()
+    assert pipeline.resolve_params("dtm", z, 1.0, progress=events.append) == base
     named = _named(events)[-3:]     # the vote's own, after the members
-    assert [events[i] for i in named] == list(stages)
+    assert events[named[-1]] == "raised_region_span", [events[i] for i in named]
     _assert_reports_after(events, named)
     # QA 20: and the span's search reports after each of its scales (the longest gap of dtm's derivation)
     assert len([e for e in events[named[-1] + 1:] if isinstance(e, float) and e < 1.0]) >= 2, events[named[-1]:]

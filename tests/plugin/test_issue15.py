@@ -257,11 +257,13 @@ def test_defect11_no_numpy_overflow_noise(processing_run, tmp_path):
 
 def test_defect7_long_but_valid_output_names(processing_run, tmp_path):
     limit = os.pathconf(tmp_path, "PC_NAME_MAX")
-    dtm, mask = tmp_path / ("d" * (limit - 7) + ".tif"), tmp_path / ("m" * (limit - 7) + ".tif")
+    # the mask's name leaves room for its .aux.xml (its class names; QA 24: a longer one is refused)
+    dtm, mask = tmp_path / ("d" * (limit - 7) + ".tif"), tmp_path / ("m" * (limit - 8 - 4) + ".tif")
     res = processing_run("bareearth:slopeprofile", {"INPUT": _dsm(tmp_path), "OUTPUT_DTM": str(dtm),
                                                     "OUTPUT_MASK": str(mask)})
     m = _read(res["OUTPUT_MASK"])[0]
     assert (m[10:20, 10:20] == 1).all() and m[0, 0] == 0
+    assert os.path.exists(str(mask) + ".aux.xml")
     assert not [p for p in os.listdir(tmp_path) if "partial" in p]
 
 
