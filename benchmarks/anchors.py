@@ -43,7 +43,6 @@ README.md; ``--from-log`` renders the log's last record instead of running.
 import argparse
 import datetime
 import importlib.util
-import json
 import math
 import os
 import re
@@ -59,6 +58,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import generalise  # noqa: E402  (imports isprs, whose bootstrap makes ``import bare_earth`` work)
 import isprs  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import last_record, read_log, replace_block  # noqa: E402
 
 RESULTS = generalise.ROOT / "benchmarks" / "results" / "anchors.jsonl"
 MARK_BEGIN, MARK_END = "<!-- anchors:begin -->", "<!-- anchors:end -->"
@@ -213,10 +213,10 @@ def ours_by_row(path=generalise.RESULTS):
     """``(commit, {row: {filter: total}})`` from generalise's last record (empty when none)."""
     if not Path(path).exists():
         return None, {}
-    lines = [ln for ln in Path(path).read_text(encoding="utf-8").splitlines() if ln.strip()]
-    if not lines:
+    records = read_log(path)
+    if not records:
         return None, {}
-    rec = json.loads(lines[-1])
+    rec = records[-1]
     return rec.get("commit"), {r["row"]: {m: f.get("total") for m, f in r["filters"].items()} for r in rec["rows"]}
 
 
@@ -293,15 +293,10 @@ def markdown(record):
 
 
 def write_readme(text, path=generalise.README):
-    src = path.read_text(encoding="utf-8")
-    block = f"{MARK_BEGIN}\n{text}{MARK_END}"
-    if MARK_BEGIN in src and MARK_END in src:
-        pre, rest = src.split(MARK_BEGIN, 1)
-        src = pre + block + rest.split(MARK_END, 1)[1]
-    else:
+    def place(src, block):                     # no markers yet: after the generalisation matrix
         end = src.index(generalise.MARK_END) + len(generalise.MARK_END)
-        src = src[:end] + "\n\n" + block + src[end:]
-    path.write_text(src, encoding="utf-8")
+        return src[:end] + "\n\n" + block + src[end:]
+    replace_block(path, MARK_BEGIN, MARK_END, text, place)
 
 
 def main(argv=None):
@@ -319,7 +314,7 @@ def main(argv=None):
     if args.from_log:
         # the peers' figures do not depend on our code: their last record, beside dtm's figures
         # from generalise.py's last record (the peers need not be re-run after a change of ours)
-        record = json.loads([ln for ln in args.out.read_text(encoding="utf-8").splitlines() if ln.strip()][-1])
+        record = last_record(args.out)
         commit, ours = ours_by_row()
         if ours:
             record["ours_commit"] = commit

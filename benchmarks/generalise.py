@@ -220,6 +220,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import isprs  # noqa: E402  (its bootstrap makes ``import bare_earth`` work)
 import numpy as np  # noqa: E402
+from _common import last_record, read_log, replace_block  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
 from bare_earth.core.evaluate import compare_dtm, compare_masks, confusion  # noqa: E402
@@ -729,20 +730,13 @@ def markdown(record):
 
 
 def write_readme(text, path=README):
-    src = path.read_text(encoding="utf-8")
-    block = f"{MARK_BEGIN}\n{text}{MARK_END}"
-    if MARK_BEGIN in src and MARK_END in src:
-        pre, rest = src.split(MARK_BEGIN, 1)
-        post = rest.split(MARK_END, 1)[1]
-        src = pre + block + post
-    else:
+    def place(src, block):                     # no markers yet: a section of its own
         head = "### Generalisation matrix (every filter on data nobody tuned it on)\n\n"
         anchor = "### Speed and memory"
         if anchor in src:
-            src = src.replace(anchor, head + block + "\n\n" + anchor, 1)
-        else:
-            src = src.rstrip("\n") + "\n\n" + head + block + "\n"
-    path.write_text(src, encoding="utf-8")
+            return src.replace(anchor, head + block + "\n\n" + anchor, 1)
+        return src.rstrip("\n") + "\n\n" + head + block + "\n"
+    replace_block(path, MARK_BEGIN, MARK_END, text, place)
 
 
 #: Records the log keeps: older runs are in git's history of the file.
@@ -755,8 +749,7 @@ def append_record(path, record, keep=KEEP_RECORDS):
     last ``keep`` records stay (their figures complete)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    old = [json.loads(ln) for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip()] \
-        if path.exists() else []
+    old = read_log(path) if path.exists() else []
     for rec in old:
         for row in rec.get("rows", []):
             for fig in row.get("filters", {}).values():
@@ -786,8 +779,7 @@ def main(argv=None):
     args.out = args.out if args.out is not None else RESULTS
 
     if args.from_log:
-        lines = [ln for ln in args.out.read_text(encoding="utf-8").splitlines() if ln.strip()]
-        record = json.loads(lines[-1])
+        record = last_record(args.out)
     else:
         data = args.data if args.data is not None else isprs.default_data_dir()
         if not data.is_dir():

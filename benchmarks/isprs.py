@@ -4,7 +4,8 @@
 Usage::
 
     /usr/bin/python3 benchmarks/isprs.py [--data DIR] [--methods a,b] [--out FILE]
-                                         [--report HTML] [--no-log]
+                                         [--report HTML] [--no-log] [--readme]
+    /usr/bin/python3 benchmarks/isprs.py --from-log [--methods a,b] [--out FILE] [--readme]
 
 Protocol, for each reference sample ``<data>/isprs/samp*.txt`` (x y z class, class 0 = bare
 earth; Sithole & Vosselman 2004, ISPRS J. Photogramm. Remote Sens. 59(1-2):85-101):
@@ -21,6 +22,11 @@ earth; Sithole & Vosselman 2004, ISPRS J. Photogramm. Remote Sens. 59(1-2):85-10
 
 Each run appends one JSON line per method (date, git commit, method, params, per-sample
 figures, mean) to ``benchmarks/results/isprs.jsonl`` so methods can be compared over time.
+``--from-log`` prints, instead of running, the README's table from that log: per method its
+newest record run by this protocol with its defaults, the methods by mean total error, and the
+"every point ground" row from the records' cross matrices; ``--readme`` (after a logged run, or
+with ``--from-log``) replaces that table between ``<!-- isprs:begin -->`` and
+``<!-- isprs:end -->`` in README.md (:func:`write_readme`).
 Data: ``--data``, else env ``BARE_EARTH_DATA``, else ``<repo>/../shared/data``; when the
 folder is absent the script says so and exits 0. Cite the data's sources (see
 ``isprs/provenance``) with any figure.
@@ -36,6 +42,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "isprs.jsonl"
+README = ROOT / "README.md"
+MARK_BEGIN, MARK_END = "<!-- isprs:begin -->", "<!-- isprs:end -->"
+#: The README's names of the methods whose defaults need a word (the rest by their own name).
+README_LABELS = {"dtm": "dtm (recommended: 2 of 3 vote, refined)",
+                 "morphological": "morphological (progressive)"}
 
 #: The protocol's fixed settings.
 CELL_SIZE = 1.0
@@ -54,6 +65,7 @@ def _bootstrap():
 _bootstrap()
 
 import numpy as np  # noqa: E402
+from _common import read_log, replace_block  # noqa: E402
 
 from bare_earth.core.evaluate import confusion, error_map_from_points  # noqa: E402
 from bare_earth.core.points import classify_points, rasterize_points, read_points  # noqa: E402
@@ -230,6 +242,63 @@ def format_table(results, base=None):
     return "\n".join(lines).rstrip() + "\n"
 
 
+def protocol():
+    """The protocol's settings as each log record names them."""
+    return {"cell_size": CELL_SIZE, "reducer": "min", "threshold_m": THRESHOLD_M, "slope_factor": SLOPE_FACTOR}
+
+
+def latest_records(path=RESULTS, methods=None):
+    """Per method, the newest record of the log at ``path`` run by this protocol with the method's
+    defaults (``params`` empty), in the order the methods first appear; only ``methods`` when given."""
+    out = {}
+    for rec in read_log(path):
+        if rec.get("params") or rec.get("protocol") != protocol():
+            continue
+        if methods is None or rec["method"] in methods:
+            out[rec["method"]] = rec
+    if not out:
+        raise ValueError(f"the log {path} holds no record of {', '.join(methods) if methods else 'any method'} "
+                         "by this protocol with defaults: run `benchmarks/isprs.py` without --no-log first")
+    return out
+
+
+def baseline_from_record(record):
+    """The "every point ground" figures of a record's samples, from its cross matrices (Type I 0,
+    Type II 100, total = the share of object points, kappa 0): the same as :func:`baseline`
+    without the data."""
+    per = {}
+    for sname, r in record["samples"].items():
+        objects = r["c"] + r["d"]
+        per[sname] = {"type1": 0.0, "type2": 100.0 if objects else float("nan"),
+                      "total": 100.0 * objects / r["n"], "kappa": 0.0}
+    return {"method": "all ground", "params": {}, "samples": per, "mean": _mean(per)}
+
+
+def markdown_table(records):
+    """The README's table of ``records`` (method -> log record): a row per method, best mean total
+    error first (in bold), then the row of every point ground."""
+    recs = sorted(records.values(), key=lambda r: r["mean"]["total"])
+    names = list(dict.fromkeys(s for r in recs for s in r["samples"]))
+    f2 = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    out = ["| method | " + " | ".join(names) + " | mean | Type I | Type II | kappa |",
+           "|---|" + "---|" * (len(names) + 4)]
+    for r in recs:
+        m = r["mean"]
+        out.append(f"| {README_LABELS.get(r['method'], r['method'])} | "
+                   + " | ".join(f2(r["samples"].get(s, {}).get("total")) for s in names)
+                   + f" | **{m['total']:.2f}** | {m['type1']:.2f} | {m['type2']:.2f} | {m['kappa']:.2f} |")
+    base = baseline_from_record(recs[0])
+    out.append("| every point ground | " + " | ".join(f2(base["samples"].get(s, {}).get("total")) for s in names)
+               + f" | {base['mean']['total']:.2f} | 0 | 100 | 0 |")
+    return "\n".join(out) + "\n"
+
+
+def write_readme(text, path=None):
+    """Replace the table between the ISPRS markers of README.md (or of ``path``) with ``text``; the
+    markers must be there (under "ISPRS filter test"), the rest of the file stays as it is."""
+    replace_block(README if path is None else path, MARK_BEGIN, MARK_END, text)
+
+
 def git_commit():
     """The repo's HEAD commit (None outside git)."""
     try:
@@ -263,8 +332,7 @@ def append_jsonl(result, path=RESULTS, data_dir=None):
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "commit": git_commit(), "uncommitted": uncommitted_files(),
-              "protocol": {"cell_size": CELL_SIZE, "reducer": "min",
-                           "threshold_m": THRESHOLD_M, "slope_factor": SLOPE_FACTOR},
+              "protocol": protocol(),
               "data": None if data_dir is None else str(data_dir)}
     record.update(result)
     with open(path, "a", encoding="utf-8") as fh:
@@ -281,7 +349,17 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=RESULTS, help=f"JSON-lines log (default {RESULTS})")
     ap.add_argument("--no-log", action="store_true", help="do not append to the log")
     ap.add_argument("--report", type=Path, default=None, help="also write an HTML report")
+    ap.add_argument("--from-log", action="store_true",
+                    help="print the README's table from the log (each method's newest record by this "
+                         "protocol with defaults) instead of running")
+    ap.add_argument("--readme", action="store_true",
+                    help=f"replace the table between {MARK_BEGIN} and {MARK_END} in README.md with the log's")
     args = ap.parse_args(argv)
+    wanted = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    if args.readme and args.no_log and not args.from_log:
+        ap.error("--readme writes the log's figures: drop --no-log (the run is then logged first) or add --from-log")
+    if args.from_log:
+        return from_log(args.out, wanted, args.readme)
 
     data = args.data if args.data is not None else default_data_dir()
     folder = data / "isprs" if (data / "isprs").is_dir() else data
@@ -293,8 +371,8 @@ def main(argv=None):
     print(f"ISPRS filter test: {len(samples)} samples from {folder} "
           f"({sum(len(c) for c in samples.values()):,} points)")
 
-    if args.methods:
-        names = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if wanted:
+        names = wanted
     else:
         from bare_earth.core.methods import available_methods
         names = list(available_methods())
@@ -328,7 +406,23 @@ def main(argv=None):
         write_report(rows, html_path=args.report, error_map=emaps or None, geotransform=gts,
                      title="ISPRS filter test (Sithole & Vosselman 2004 protocol)")
         print(f"report: {args.report}")
+    if args.readme and results:
+        from_log(args.out, None, True)
     return 1 if failed and not results else 0
+
+
+def from_log(path=RESULTS, methods=None, readme=False):
+    """Print (and with ``readme`` write into README.md) the table of the log's newest records."""
+    records = latest_records(path, methods)
+    text = markdown_table(records)
+    print(f"ISPRS filter test from {path}: " + ", ".join(
+        f"{m} {str(r.get('commit'))[:8]} {str(r.get('date'))[:10]}" for m, r in records.items()))
+    print()
+    print(text)
+    if readme:
+        write_readme(text)
+        print(f"README table rewritten ({README})")
+    return 0
 
 
 if __name__ == "__main__":

@@ -253,6 +253,64 @@ def test_harness_log_line(tmp_path):
     assert bench.main(["--data", str(tmp_path / "absent")]) == 0
 
 
+def _isprs_record(method, totals, params=None, cell_size=1.0):
+    """A log line of ``benchmarks/isprs.py`` whose samples have these total errors: 100 points each,
+    ``o`` of them objects (all taken as ground: the error is theirs), the rest ground."""
+    samples = {}
+    for sname, (tot, o) in totals.items():
+        samples[sname] = {"type1": 0.0, "type2": 100.0 * tot / o, "total": float(tot), "kappa": 50.0,
+                          "a": 100 - o, "b": 0, "c": tot, "d": o - tot, "n": 100}
+    mean = {k: float(np.mean([r[k] for r in samples.values()])) for k in ("type1", "type2", "total", "kappa")}
+    return {"date": "2026-12-01T00:00:00+00:00", "commit": "c0ffee", "method": method, "params": params or {},
+            "protocol": {"cell_size": cell_size, "reducer": "min", "threshold_m": 0.5, "slope_factor": 1.25},
+            "samples": samples, "mean": mean}
+
+
+def test_isprs_from_log_rewrites_the_readme_table_only(tmp_path, monkeypatch, capsys):
+    """``isprs.py --from-log --readme``: per method its newest record by the protocol with defaults
+    (an older run, a run with parameters and one at 2 m left out), best mean first, the row of every
+    point ground from the cross matrices; README's rows between the markers rewritten, every other
+    line (another script's block too) left as it was."""
+    bench = _load_benchmark("isprs")
+    log = tmp_path / "isprs.jsonl"
+    recs = [_isprs_record("dtm", {"samp11": (9, 40), "samp21": (1, 20)}),
+            _isprs_record("geodesic", {"samp11": (4, 40), "samp21": (2, 20)}),
+            _isprs_record("dtm", {"samp11": (3, 40), "samp21": (1, 20)}),          # dtm's newest
+            _isprs_record("geodesic", {"samp11": (0, 40), "samp21": (0, 20)}, params={"dh_m": 1}),
+            _isprs_record("geodesic", {"samp11": (1, 40), "samp21": (1, 20)}, cell_size=2.0)]
+    log.write_text("".join(json.dumps(r) + "\n" for r in recs) + "\n")
+    head = "# Title\n\nTotal error in percent:\n\n"
+    tail = ("\nThe single-window form scores 9.75 %.\n\n<!-- generalise:begin -->\n| keep | me |\n"
+            "<!-- generalise:end -->\n")
+    readme = tmp_path / "README.md"
+    readme.write_text(head + "<!-- isprs:begin -->\n| method | old |\n|---|---|\n| dtm | 9.99 |\n"
+                      "<!-- isprs:end -->\n" + tail)
+    monkeypatch.setattr(bench, "README", readme)
+    assert bench.main(["--from-log", "--out", str(log), "--readme"]) == 0
+    assert readme.read_text() == head + (
+        "<!-- isprs:begin -->\n"
+        "| method | samp11 | samp21 | mean | Type I | Type II | kappa |\n"
+        "|---|---|---|---|---|---|---|\n"
+        "| dtm (recommended: 2 of 3 vote, refined) | 3.00 | 1.00 | **2.00** | 0.00 | 6.25 | 50.00 |\n"
+        "| geodesic | 4.00 | 2.00 | **3.00** | 0.00 | 10.00 | 50.00 |\n"
+        "| every point ground | 40.00 | 20.00 | 30.00 | 0 | 100 | 0 |\n"
+        "<!-- isprs:end -->\n") + tail
+    assert "| geodesic | 4.00 | 2.00 | **3.00** |" in capsys.readouterr().out
+    before = readme.read_text()                      # the same log again: nothing moves
+    assert bench.main(["--from-log", "--out", str(log), "--readme"]) == 0
+    assert readme.read_text() == before
+    # bad input named before any work: no markers, no record, --readme of an unlogged run
+    bare = tmp_path / "bare.md"
+    bare.write_text(head)
+    with pytest.raises(ValueError, match="isprs:begin"):
+        bench.write_readme("| x |\n", bare)
+    assert bare.read_text() == head
+    with pytest.raises(ValueError, match="no record of rascor"):
+        bench.latest_records(log, ["rascor"])
+    with pytest.raises(SystemExit):
+        bench.main(["--readme", "--no-log", "--data", str(tmp_path)])
+
+
 def _isprs_rows(gen, folder):
     notes = []
     return {name: build for _, _, rows in gen.isprs_cases(folder, notes) for name, build in rows}
