@@ -1095,15 +1095,16 @@ def _disputed_bumps(z, mask, ground_votes, n, need, tops, spared, slope_ground, 
     return bumps
 
 
-def _raised_edge_ground(z, mask, voted, members, cell, tolerance_m, edge_m):
+def _raised_edge_ground(z, mask, voted, members, cell, tolerance_m, edge_m, pool=None):
     """The vote's ground beside an object standing above most of the ground of its level around it
     (:func:`.dtm_refine.find_raised_edge_ground`, :data:`RAISED_EDGE_GROUND`), but for a step's top and a cell on a
     straight line of ground (the guards of :func:`_disputed_bumps`: a terrace's edge beside a house at its back
-    stands above the ground below the terrace, a platform's edge above the tracks)."""
+    stands above the ground below the terrace, a platform's edge above the tracks). ``pool``: threads that may take
+    some of its planes' bands and rings' chunks (the same result)."""
     g = mask == GROUND
     jump = float(members[LEVEL_MEMBER]["jump_m"]) if LEVEL_MEMBER in members else float("nan")
     edge = find_raised_edge_ground(z, g, g & voted & touching((mask == OBJECT) | (mask == LOW)), cell,
-                                   tolerance_m=edge_m, level_m=jump if np.isfinite(jump) else None)
+                                   tolerance_m=edge_m, level_m=jump if np.isfinite(jump) else None, pool=pool)
     if edge.any():
         edge &= ~find_step_tops(z, edge, g, tolerance_m=edge_m, step_m=SMOOTH_RATIO * tolerance_m,
                                 smooth_m=SMOOTH_RATIO * tolerance_m, along_slope=refine_slope(members), cell_size=cell)
@@ -1408,8 +1409,14 @@ def filter_dtm(z, cell_size, *, members, tolerance_m, support_cells, refine_reac
     if RAISED_EDGE_GROUND:
         # the vote's ground at an object's edge standing above most of the ground around it (dtm_refine)
         disputed = (ground_votes >= need) & (ground_votes < n)
-        edge_ground = _raised_edge_ground(z, mask, disputed, members, cell, tolerance_m,
-                                          refined["refine_edge_tolerance_m"])
+        # with workers > 1 a second thread takes some of its planes' bands and rings' chunks (the same result)
+        edge_pool = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
+        try:
+            edge_ground = _raised_edge_ground(z, mask, disputed, members, cell, tolerance_m,
+                                              refined["refine_edge_tolerance_m"], pool=edge_pool)
+        finally:
+            if edge_pool is not None:
+                edge_pool.shutdown()
         del disputed
         mask[edge_ground] = OBJECT
         info["raised_edge_rule"] = (

@@ -2475,7 +2475,8 @@ def find_raised_edge_ground(z, ground, candidates, cell_size, *, tolerance_m, le
     ring_m, reach_m : float
         The ring's radius and the planes' half-side, metres.
     pool : Executor, optional
-        Threads the planes' bands may take (the same result).
+        Threads the planes' bands and the rings' chunks of candidates may take (:func:`~.blocks.run_sharing`; the
+        same result).
 
     Returns
     -------
@@ -2494,8 +2495,9 @@ def find_raised_edge_ground(z, ground, candidates, cell_size, *, tolerance_m, le
     r = raised_edge_ring(cell_size, ring_m)
     offsets = [(i, j) for i in range(-r, r + 1) for j in range(-r, r + 1) if i or j]
     flat = out.ravel()
-    for lo in range(0, idx.size, _EDGE_CHUNK):          # bounded memory: a chunk's ring heights at a time
-        at_ = idx[lo:lo + _EDGE_CHUNK]
+
+    def chunk(at_):
+        # a chunk's ring heights at a time (bounded memory); each chunk writes its own cells of ``out``
         gxa = np.nan_to_num(gx.ravel()[at_].astype(np.float64))
         gya = np.nan_to_num(gy.ravel()[at_].astype(np.float64))
         rows, cols = np.divmod(at_, z.shape[1])
@@ -2516,4 +2518,7 @@ def find_raised_edge_ground(z, ground, candidates, cell_size, *, tolerance_m, le
             med[seen] = np.nanmedian(above[:, seen], axis=0)
         tol = raised_edge_tolerance(tolerance_m, np.hypot(gxa, gya), max(dx, dy))
         flat[at_[med > tol]] = True
+
+    # the chunks on the pool's threads too (each cell's test is its own: the same result)
+    run_sharing([partial(chunk, idx[lo:lo + _EDGE_CHUNK]) for lo in range(0, idx.size, _EDGE_CHUNK)], pool)
     return out

@@ -1925,6 +1925,35 @@ def test_raised_edge_ground_takes_a_band_above_most_of_the_ground_around():
     assert not find_edge_spikes(z, ~ground, 0.3)[:, 7].any()
 
 
+@pytest.mark.parametrize("chunk", [7, 1 << 16])
+def test_raised_edge_ground_with_a_pool_equals_one_thread(monkeypatch, chunk):
+    """The rings' chunks of candidates and the planes' bands of rows taken by a second thread give the cells of one
+    thread exactly (chunks of 7 candidates and bands of 5 rows: many of each, the bands' seams between candidates;
+    nodata among the ground, a hillside, low vegetation along the crowns' edges)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bare_earth.core import estimate
+    monkeypatch.setattr(dr, "_EDGE_CHUNK", chunk)
+    monkeypatch.setattr(estimate, "_PLANE_BAND_ROWS", 5)
+    rng = np.random.default_rng(5)
+    z = rng.normal(0.0, 0.1, (37, 43)).astype(np.float32) + np.float32(0.2) * np.arange(43, dtype=np.float32)
+    objects = np.zeros(z.shape, bool)
+    for r0, c0 in ((4, 5), (18, 20), (27, 8), (10, 31)):
+        objects[r0:r0 + 6, c0:c0 + 5] = True
+    z[objects] += 5.0
+    band = touching(objects) & ~objects & (rng.random(z.shape) < 0.7)
+    z[band] += rng.uniform(0.2, 0.8, np.count_nonzero(band)).astype(np.float32)
+    z[rng.random(z.shape) < 0.03] = np.nan
+    ground = ~objects & np.isfinite(z)
+    candidates = ground & touching(objects)
+    kw = dict(tolerance_m=0.3, level_m=2.0, reach_m=6.0)
+    ref = dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), **kw)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        got = dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), **kw, pool=pool)
+    np.testing.assert_array_equal(got, ref)
+    assert 0 < np.count_nonzero(ref) < np.count_nonzero(candidates)
+
+
 def test_raised_edge_ground_keeps_ground_within_the_tolerance_and_on_a_bank():
     z, ground, candidates = _edge_scene(0.25)
     assert not dr.find_raised_edge_ground(z, ground, candidates, (1.0, 1.0), tolerance_m=0.3).any()
