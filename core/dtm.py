@@ -332,8 +332,8 @@ opening reject.
   differences read between independent heights (a stride of ``round(L / c)`` cells) on the opening's lone ground: at
   most 25 cells and 0.07 points on any row (the bank's second differences are 2-4 m, its threshold ``2 t`` 1 m); on
   the reconstruction's lone ground: 61 1 m 3.05 / 3.09 -> 3.04 / 3.06, 2 m highest 4.25 -> 4.17, but ``autzen_trim``
-  1 m 2.87 -> 3.00 (on 61 1 m 54 cells pass; of the 376 lone ground cells holding points, 346 mostly ground, the
-  second differences read at one cell are 1.4-2.6 m, the quartiles).
+  1 m 2.87 -> 3.00 (on 61 1 m 54 cells pass; of its lone ground cells 346 hold mostly ground points and 30 mostly
+  object points, the former's second differences read at one cell 1.4-2.6 m, the quartiles).
 
 What the user knows overrides the vote: ``object_areas`` (forced object, the ground under
 them interpolated), ``ground_areas`` (forced ground) and ``breaklines`` (lines no comparison
