@@ -80,6 +80,16 @@ algorithm's help.
      ground, the ground rising beyond the walls joins the roof in one residual region whose
      rim lies on that ground, and the walls part them (issue 12: lidar ``sample_c``, a roof
      over 75 % of the tile, kept at every cell size; those cells keep their height too).
+     A coarse step's object part (8-connected, its outline walled) may enclose a courtyard: where the
+     step's window reaches lower ground its reconstruction lies under the yard by more than ``dh0``, the
+     yard's cells join the ring of roofs round it, and its outline, the ring's outer walls, passes. Its
+     cells no higher above the reconstruction than ``dh_k`` that form a smooth piece with no outline
+     and not standing on walls (fewer than ``edge_ratio`` of its boundary cells above their lowest
+     neighbour outside it by more than ``dh0`` plus the terrain's rise over a cell diagonal) are given
+     back (:func:`.dilation._enclosed_low_pieces`; issue 12: the synthetic site ``courtyard`` at 1 m,
+     a yard 34 x 29 m taken by the step widened to 141 m, 0.78 / 0.69 -> 0.00 / 0.01 % lowest /
+     highest points; the 73 rows' mean 2.825 -> 2.818, ISPRS samp41 at 1 m 3.37 / 3.09 -> 3.13 /
+     2.90 %, the ISPRS seven 3.49 -> 3.46, sites 3.24 -> 3.21, bare 0.26 unchanged).
      This keeps every
      step's cost near one pass over the raster whatever the window; the coarse grids are
      aligned on the raster's origin (see :func:`geodesic_halo`). Before the reconstruction, marker cells less
@@ -244,7 +254,9 @@ METHOD = Method(
         "to be an object (twice the maximum object size: a closed canopy, a ring of roofs round lower "
         "roofs) is cut at the steps between its cells into smooth pieces, each removed when seen whole, "
         "at least three cells wide, higher than a terrain bump as wide as the piece may rise and walled "
-        "(the same share of its outline dropping to the cells outside by that wall height). Wide "
+        "(the same share of its outline dropping to the cells outside by that wall height). A courtyard "
+        "that a wide step's removed ring of roofs encloses (no higher above the step's reconstruction "
+        "than its height test, not standing on walls) is given back. Wide "
         "windows run on coarsened grids. Small objects go at the small steps, large "
         "buildings at the large ones; terrain edges are restored by the reconstruction "
         "and hills with gentle sides are kept. <b>Scan labelling</b> along rows and "
