@@ -171,3 +171,26 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
             np.logical_or.at(walled, lj[d < -wall_m], True)
     ok &= low_end & high_end & ~walled
     return ok[lab] & taken
+
+
+def profile_runs(labels: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """The regions of the profiles along the rows: each run of non-line cells of one region along
+    a row a region of its own, so a profile stops at a break line (Jacobsen 2004: no comparison
+    crosses a break line) even where the line does not close the region (it ends, or has a gap,
+    and the two sides join around it); the line cells keep their regions (``labels``, from
+    :func:`break_regions`, numbered after the runs), compared along the line only.
+
+    Returns
+    -------
+    ndarray of int32
+        Region id per cell, from 1 (the runs 1..n in row order, then the lines' regions).
+    """
+    lab = np.asarray(labels)
+    bl = np.asarray(lines, bool)
+    start = ~bl
+    start[:, 1:] &= bl[:, :-1] | (lab[:, 1:] != lab[:, :-1])
+    run = np.cumsum(start, axis=None, dtype=np.int32).reshape(lab.shape)
+    if bl.any():
+        first = int(lab[bl].min())
+        np.copyto(run, lab.astype(np.int32) - np.int32(first - 1) + run.reshape(-1)[-1], where=bl)
+    return run
