@@ -24,7 +24,8 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
                             k: float = 4.0, low_weight: float = 0.02, iterations: int = 1,
                             test: Optional[np.ndarray] = None, labels: Optional[np.ndarray] = None,
                             homogeneous: bool = True, z_t: Optional[np.ndarray] = None,
-                            progress: Optional[Callable[[float], None]] = None
+                            progress: Optional[Callable[[float], None]] = None,
+                            profile_labels: Optional[Tuple[np.ndarray, np.ndarray]] = None
                             ) -> Tuple[np.ndarray, np.ndarray]:
     """Step 5: moving local profiles in X and Y, short then long, with data snooping.
 
@@ -52,6 +53,11 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
         ``transpose(z)`` when the caller has it (made here otherwise).
     progress : callable, optional
         ``progress(fraction)``, called every band of rows; it may raise ``Cancelled``.
+    profile_labels : (ndarray, ndarray), optional
+        The regions of the X profiles (shaped as ``z``) and of the Y profiles (shaped as its
+        transpose, along whose rows they run), instead of ``labels`` for both:
+        :func:`~.regions.profile_runs`, whose runs stop at every break-line cell even where the
+        line does not close its region (a profile never crosses a break line).
 
     Returns
     -------
@@ -66,6 +72,8 @@ def remove_profile_outliers(z: np.ndarray, cell_size: Union[float, Sequence[floa
     # Y profiles run along the rows of the transposed arrays
     views = [(z, labels, dx, None), (transpose(z) if z_t is None else z_t, None if labels is None else
                                      transpose(labels), dy, transpose)]
+    if profile_labels is not None:
+        views = [(z, profile_labels[0], dx, None), (views[1][0], profile_labels[1], dy, transpose)]
     n_fits = len(lengths_m) * len(views) * iterations
     i_fit = 0
     for L in lengths_m:

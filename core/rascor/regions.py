@@ -171,3 +171,27 @@ def find_ramps(z: np.ndarray, cell_size, taken: np.ndarray, ground: np.ndarray, 
             np.logical_or.at(walled, lj[d < -wall_m], True)
     ok &= low_end & high_end & ~walled
     return ok[lab] & taken
+
+
+def profile_runs(labels: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """The regions of the profiles along the rows: each run of non-line cells of one region along
+    a row that holds line cells a region of its own, so a profile stops at a break line (Jacobsen
+    2004: no comparison crosses a break line) even where the line does not close the region (it
+    ends, or has a gap, and the two sides join around it). The other cells keep their regions
+    (``labels``, from :func:`break_regions`): the line cells, compared along the line only, and
+    the rows without a line cell, whose profiles are those of their regions' rows (each row of a
+    region is fitted on its own, :func:`~.fits.fit_and_snoop`).
+
+    Returns
+    -------
+    ndarray of int32
+        Region id per cell, from 1 (``labels``' own, then the runs in row order).
+    """
+    lab = np.asarray(labels, np.int32)
+    bl = np.asarray(lines, bool)
+    cut = ~bl & bl.any(axis=1)[:, None]              # the non-line cells of the rows a line crosses
+    start = cut.copy()
+    start[:, 1:] &= bl[:, :-1] | (lab[:, 1:] != lab[:, :-1])
+    run = np.cumsum(start, axis=None, dtype=np.int32).reshape(lab.shape)
+    run += np.int32(lab.max() if lab.size else 0)
+    return np.where(cut, run, lab)

@@ -30,7 +30,7 @@ from ..dtm_refine import REACH_M, SMOOTH_RATIO, continuation_cells, continue_gro
 from ..estimate import PIT_CLUSTER_M, PIT_RADIUS_M, below_level_rim, below_surroundings, surroundings_reach
 from .kernels import odd_window
 from .moving import remove_prediction_outliers, remove_profile_outliers, remove_surface_outliers, slope_breaks
-from .regions import as_bool_raster, break_regions, find_ramps
+from .regions import as_bool_raster, break_regions, find_ramps, profile_runs
 from .steps import (
     enclosed_levels,
     find_terrain_steps,
@@ -106,6 +106,7 @@ class _State:
     spared: int = 0                       # objects of steps 5-6 given back as continuing ground
     step_restored: int = 0                # step 3's wall tops given back at the terrain's level changes
     z_t: Optional[np.ndarray] = None      # z transposed (the Y profiles of steps 4 and 5), made once
+    lines: Optional[np.ndarray] = None    # the break lines: the user's and the terrain's level changes
 
     def transposed(self):
         """``z`` transposed (C-contiguous), made on first use and kept for the later steps."""
@@ -407,6 +408,7 @@ def _step4_level_change(st, cfg, progress):
     st.step_lines = int(np.count_nonzero(steps))
     if st.step_lines:
         lines = steps if st.breaklines is None else steps | st.breaklines
+        st.lines = lines
         st.labels, st.n_regions = break_regions(lines, upper if st.breaklines is None else upper & ~st.breaklines)
         report(progress, 1.0)
         _retest_step3_at_terrain_steps(st, cfg, steps)
@@ -604,12 +606,21 @@ def _bent(z, keep, bend_m):
 
 
 def _step5_profiles(st, cfg, progress):
-    """Step 5: moving local profiles in X and Y, short then long, with data snooping."""
+    """Step 5: moving local profiles in X and Y, short then long, with data snooping.
+
+    A profile stops at a break line (the user's and the terrain's level changes of step 4,
+    :func:`~.regions.profile_runs`), also where the line does not close its region: the profile
+    across a terrace's riser whose line ends inside the raster fitted both levels and took the
+    upper tread's edge (synthetic bare terraces 1 m: step 5 took 1.49 % of the cells, 0.11 % cut)."""
+    lines = st.lines if st.lines is not None else st.breaklines
+    cut = lines is not None and st.labels is not None
     hi, lo = remove_profile_outliers(
         st.z, cfg.cell, st.keep, lengths_m=cfg.lengths, scale_m=cfg.profile_sigma_m,
         terrain_class=cfg.terrain_class, homogeneous=cfg.homogeneous,
         iterations=cfg.snooping_iterations, test=st.global_ok, k=cfg.snooping_k,
-        low_weight=cfg.low_weight, labels=st.labels, z_t=st.transposed(), progress=progress)
+        low_weight=cfg.low_weight, labels=st.labels, z_t=st.transposed(), progress=progress,
+        profile_labels=(profile_runs(st.labels, lines), profile_runs(transpose(st.labels), transpose(lines)))
+        if cut else None)
     st.z_t = None                         # its last reader: freed (made again by a second iteration)
     _record(st, 5, hi, lo)
 

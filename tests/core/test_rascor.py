@@ -799,6 +799,39 @@ def test_break_line_keeps_shoulder():
     assert with_bl.info["breakline_regions"] == 3
 
 
+def test_profile_runs_stop_at_a_line_that_does_not_close_its_region():
+    # a line down column 2 ending before the last row: one region around its end, but each
+    # row's run on either side of the line is a profile region of its own; the line keeps its own
+    bl = np.zeros((3, 5), bool)
+    bl[:2, 2] = True
+    lab, n = rascor.break_regions(bl)
+    assert n == 2 and lab[0, 0] == lab[0, 4]
+    runs = regions.profile_runs(lab, bl)
+    assert runs[0, 0] == runs[0, 1] != runs[0, 3] == runs[0, 4]
+    assert runs[1, 0] != runs[0, 0] and runs[1, 1] != runs[1, 3]
+    assert len(set(runs[2].tolist())) == 1                 # below the line's end: one run
+    assert runs[0, 2] == runs[1, 2] and runs[0, 2] not in runs[~bl]
+    assert runs.min() == 1 and runs.max() == len(np.unique(runs))
+
+
+def test_break_line_open_at_one_end_still_cuts_the_profiles(monkeypatch):
+    # the terrace of test_break_line_keeps_shoulder, its break line stopping 8 cells short of the
+    # raster's edge: both levels form one region around its end, and the X profiles of step 5 (moving
+    # surfaces off) reached across the line and cut the shoulder; cut at the line, they keep it
+    y, x = np.mgrid[0:N, 0:N].astype(float)
+    z = 100 + np.minimum(0.5 * x, 16.0)
+    bl = np.zeros(z.shape, bool)
+    bl[8:, 32] = True
+    kw = dict(short_profile_m=9.0, long_profile_m=15.0, profile_sigma_m=0.05, surface_sigma_m=0.05,
+              step6_surfaces=False, spare_continuing_ground=False)
+    res = run(z, breaklines=bl, **kw)
+    assert res.info["breakline_regions"] == 2
+    assert (res.mask[16:, 28:37] != 0).sum() == 0
+    monkeypatch.setattr(sequence, "profile_runs", lambda lab, lines: lab)     # the regions alone
+    old = run(z, breaklines=bl, **kw)
+    assert (old.extras["step"][16:, 28:37] == 5).mean() > 0.1
+
+
 def test_break_regions_do_not_leak_diagonally():
     bl = np.eye(8, dtype=bool)
     lab, n = rascor.break_regions(bl)
