@@ -1050,7 +1050,9 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         return pool[-1]
 
     opened = a
-    steep = own_buf = None
+    steep = own_step = ref_step = held = masked = None
+    kept = {}                                  # G'_j of the steps a later step's drop is measured from
+    slope_pool = []
     if ground_slope is not None:
         steep, gry, grx = ground_slope, 0, 0
         limit = np.empty(diff.shape, np.float32)
@@ -1074,9 +1076,12 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
             gry, grx = ry, rx
             r_k = np.float32(radii[k][2])
             own_step = None
-            if cell is not None:               # G'_k in one buffer for every step (no new pages per step)
-                own_buf = np.empty(a.shape, np.float32) if own_buf is None else own_buf
-                own_step = _step_slope(eroded, cell, work, own_buf)
+            if cell is not None:               # G'_k in a few buffers for every step (no new pages per step)
+                own_step = _step_slope(eroded, cell, work, _free_buffer(a.shape, slope_pool, kept.values()))
+                if held is None:
+                    held = np.zeros(a.shape, bool)
+                    masked = np.empty(a.shape, np.float32)
+                ref_step = reference_slope(kept.get(refs[k]), held, masked)
                 ref_top = (ry, rx)             # the reference's top, read at the cells that need it
         with np.errstate(invalid="ignore"):
             for i0 in range(0, a.shape[0], band):
@@ -1096,6 +1101,9 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
                         if last:
                             np.copyto(spared_last[i0:i1], up)
                         _spare_continuing(up, d, own_step, i0, r_k, radii[-1][:2], ref, ref_top)
+                        held[i0:i1] |= up
+                        if ref_step is not None:
+                            _spare_continuing(up, d, ref_step, i0, r_k, radii[-1][:2], ref, ref_top)
                         if last:
                             spared_last[i0:i1] &= ~up
                 if first_step is not None:
@@ -1105,9 +1113,48 @@ def _progressive(a, radii, slope, has_nodata, progress=None, work=None, growth=W
         opens = {j: o for j, o in opens.items() if last_use.get(j, -1) > k}
         if last_use.get(k, -1) > k:
             opens[k] = opened
+        if own_step is not None:
+            kept = {j: g for j, g in kept.items() if last_use.get(j, -1) > k}
+            if last_use.get(k, -1) > k:
+                kept[k] = own_step
         pry, prx = ry, rx
         report(progress, (k + 1) / n)
     return flags, opened
+
+
+def _free_buffer(shape, pool, busy):
+    """A float32 buffer of ``shape`` from ``pool`` that is none of ``busy`` (a new one appended when all are)."""
+    for b in pool:
+        if not any(b is x for x in busy):
+            return b
+    pool.append(np.empty(shape, np.float32))
+    return pool[-1]
+
+
+def reference_slope(g, held, out):
+    """The reference step's ground slope ``G'_j`` (``g``, :func:`_step_slope` of the erosion the step's drop is
+    measured from; None: no such step) where the cells are still terrain: 0 at the cells ``held`` (bool: the
+    drops flagged at the earlier steps, past their own continuing slopes), into ``out``. Returns ``out``, or None
+    without ``g``.
+
+    The slope that passes a drop must be the terrain's: an embankment's flanks run along it through cells no step
+    flagged, while the slopes a rough canopy or a roof's walls leave in a small window's erosion lie on cells the
+    smaller windows already flagged (objects). ``held`` leaves out the cells this reading passed at the earlier
+    steps, so the reach stays bounded (one line of the largest window more, :func:`morphological_halo`).
+
+    Examples
+    --------
+    >>> g = np.full((2, 3), 0.5, np.float32)
+    >>> reference_slope(g, np.array([[True, False, False], [False, False, True]]), np.empty_like(g)).tolist()
+    [[0.0, 0.5, 0.5], [0.5, 0.5, 0.0]]
+    >>> reference_slope(None, np.zeros((2, 3), bool), np.empty((2, 3), np.float32)) is None
+    True
+    """
+    if g is None:
+        return None
+    np.copyto(out, g)
+    out[held] = 0.0
+    return out
 
 
 def _steepest_sides(s, cell, out=None):
@@ -2757,8 +2804,10 @@ def morphological_halo(params, cell_size):
     # difference, the opening of the slopes, the step's running maximum) 1 + 2 _SLOPE_RUN_CELLS cells more
     # (each wall and outline test reads the ground two steps beyond its foot: continuing_rise, 2 cells more)
     # (the outline cells' flanks along a feature: a line of the largest window's half-width, _flank_along)
+    # (the reference's slopes read on the cells the earlier drops held: a line of the largest window's half-width
+    # on those flags, reference_slope)
     core = int(2 * max(ry, rx) + 1 + 2 * _SLOPE_RUN_CELLS + 2 * max(low[0], low[1], pit) + 4 + 2 * _CONTINUE_CELLS
-               + 2 * (max(_tier_box((ry, rx))) + 3 + _CONTINUE_CELLS) + max(ry, rx) + 2)
+               + 2 * (max(_tier_box((ry, rx))) + 3 + _CONTINUE_CELLS) + max(ry, rx) + 2 + max(ry, rx))
     # the final test's low cells: their neighbours' classes and the ring around them (confirm_low_cells)
     return max(core + 1, max(surroundings_reach(cell)[2:]) + 1)
 
