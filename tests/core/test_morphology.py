@@ -1931,3 +1931,13 @@ def test_blocks_equal_one_pass_on_a_raised_road():
     blk = run_array("morphological", z, 2.0, params, block=48)
     assert blk.info["blocks"] > 4
     np.testing.assert_array_equal(blk.mask, one.mask)
+
+
+def test_reference_slopes_off_cut_the_raised_road_as_before():
+    """``reference_slopes=False`` (the dtm's member) is the filter without the rule: the crest is an object; the
+    parameter reaches the result's info and the object-size search of the resolve."""
+    z, road, _ = _raised_road()
+    res = morph.filter_morphological(z, 2.0, mode="progressive", max_object_size_m=30.0, dh_m=0.5, slope=0.3,
+                                     reference_slopes=False)
+    assert np.count_nonzero(res.mask[road] == OBJECT) > 100 and res.info["reference_slopes"] is False
+    assert morph.resolve_morphological_params(z, 2.0, reference_slopes=False)["reference_slopes"] is False
