@@ -77,6 +77,7 @@ LABELS = {
     "wide_radius_m": "Radius where the wide windows begin (m)",
     "noise_m": "Noise of the ground (sigma, m)",
     "raised_regions": "Widen the derived window to roofs standing on walls",
+    "reference_slopes": "Pass crests the reference window's slopes allow (raised roads, dikes)",
 }
 
 #: a method's own wording of a shared name: {(method, name): label}
