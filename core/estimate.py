@@ -40,6 +40,8 @@ says so:
   - :func:`ground_level_cells`: the cells within a height band of it;
   - :func:`noise_ground_level`: the noise measured on those cells only (never the
     canopy's or the roofs' roughness);
+  - :func:`sensor_noise`: of that estimate, the cleanest quarter of its tiles where they read
+    less than the whole window (low vegetation among the ground-level cells);
   - :func:`ground_spread`: :func:`smooth_spread` on chosen cells only;
   - :func:`below_surroundings`: a pit lies below every cell of the ring around it (a
     low blunder, not a gap between crowns);
@@ -988,6 +990,31 @@ def cleanest_noise(sigma, tile_quartiles, tile_counts, quantum=0.0):
     if c * (1.0 + 3.0 * se) < sigma and c + step < sigma:
         return noise_floor(c, quantum)
     return sigma
+
+
+def sensor_noise(ground_noise):
+    """The sensor's noise from :func:`noise_ground_level`'s result, metres: its ``sigma``, or the cleanest
+    quarter of its tiles (``sigma_cleanest``) where lower; NaN where ``sigma`` is not measurable.
+
+    The noise is the sensor's, the same over the raster; the ground-level cells' contamination (low
+    vegetation among them, which touches most triples of a highest-point DSM of a vegetated hillside) is
+    not: where the whole window reads more than its cleanest quarter of tiles, the tiles read the noise
+    (:func:`cleanest_noise`). A threshold built as a multiple of the noise takes this one.
+
+    Examples
+    --------
+    >>> sensor_noise({"sigma": 0.37, "sigma_cleanest": 0.23})
+    0.23
+    >>> sensor_noise({"sigma": 0.1, "sigma_cleanest": float("nan")})     # too few tiles to rank
+    0.1
+    >>> sensor_noise({"sigma": float("nan"), "sigma_cleanest": float("nan")})
+    nan
+    """
+    sigma = float(ground_noise["sigma"])
+    if not np.isfinite(sigma):
+        return float("nan")
+    clean = float(ground_noise.get("sigma_cleanest", float("nan")))
+    return min(sigma, clean) if np.isfinite(clean) else sigma
 
 
 def _tile_quartiles(shape, parts, tile, min_samples):

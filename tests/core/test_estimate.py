@@ -1170,6 +1170,18 @@ def test_noise_of_the_cleanest_tiles_ignores_low_vegetation_on_most_of_the_groun
     assert np.isfinite(small["sigma"]) and small["tiles"] == 4 and np.isnan(small["sigma_cleanest"])
 
 
+def test_sensor_noise_is_the_cleanest_tiles_where_lower():
+    """The sensor's noise: ``sigma_cleanest`` where the whole window reads more (low vegetation on most of it),
+    ``sigma`` where the tiles are too few to rank or read it higher, NaN where ``sigma`` is not measurable."""
+    assert est.sensor_noise({"sigma": 0.37, "sigma_cleanest": 0.23}) == 0.23
+    assert est.sensor_noise({"sigma": 0.1, "sigma_cleanest": 0.12}) == 0.1
+    assert est.sensor_noise({"sigma": 0.1, "sigma_cleanest": float("nan")}) == 0.1
+    assert math.isnan(est.sensor_noise({"sigma": float("nan"), "sigma_cleanest": 0.1}))
+    z, _ = _plane_with_low_vegetation()
+    got = noise_ground_level(z, (1.0, 1.0))
+    assert est.sensor_noise(got) == got["sigma_cleanest"] == pytest.approx(0.1, rel=0.1)
+
+
 def test_tile_quartiles_are_each_tiles_lower_quartile():
     d = np.arange(1.0, 9.0).reshape(2, 4)
     on = np.ones(d.shape, bool)
