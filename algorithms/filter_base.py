@@ -930,6 +930,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             whole = d.type() == "band" or (d.type() == "number" and d.dataType() == NUMBER_INTEGER)
             if whole and isinstance(v, float) and math.isfinite(v) and v != math.floor(v):
                 return not_whole(d, v)          # a script's 1.5: QGIS took 1 for THREADS, band 2 for BAND 1.5
+            if d.type() == "string" and not is_optional(d) and isinstance(v, str) and v.strip() == "":
+                return False, tr("{} is empty: give a value{} (QGIS said only 'Incorrect parameter value').").format(
+                    label_of(d), tr(", or leave it out for its default '{}'").format(d.defaultValue())
+                    if d.defaultValue() not in (None, "") else "")
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()

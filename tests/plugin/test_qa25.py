@@ -169,3 +169,27 @@ def test_a_file_of_several_vector_layers_given_as_its_path_refused_naming_them(p
     got = processing_run("bareearth:dtm", dict(INPUT=dsm, OBJECT_AREAS=vec + "|layername=houses", **out))
     mask = gdal.Open(got["OUTPUT_MASK"]).ReadAsArray()
     assert (mask[30:35, 30:35] == 1).all() and not (mask[40:44, 2:6] == 1).any()
+
+
+def test_points_outside_a_dtm_of_another_crs_named_with_both_crs(qgis_app, tmp_path):
+    """Points in UTM against a DTM in degrees were refused as outside "the DTM spans x 9.000..9.000, y
+    48.700..48.700" (three decimals of degrees), without a word of the CRS. The extent is now given to its
+    significant digits and both CRS named."""
+    from bare_earth.core.grid import write_array
+    points = _points(tmp_path / "points.txt")
+    z = np.full((48, 48), 100.0, np.float32)
+    dtm = str(write_array(tmp_path / "dtm.tif", z, (9.0, 1e-5, 0.0, 48.7, 0.0, -1e-5), 4326))
+    ok, msg = _check("bareearth:classifypoints", {"INPUT": points, "CRS": "EPSG:32632", "DTM": dtm,
+                                                  "OUTPUT": str(tmp_path / "c.txt")})
+    assert not ok and "x 9..9.00048" in msg and "differs from the DTM's (WGS 84)" in msg, msg
+
+
+def test_a_required_text_given_empty_refused_naming_it_and_its_default(qgis_app, tmp_path):
+    """filldtm's FILL_CODES given empty (qgis_process 'FILL_CODES=') was refused with QGIS's bare "Incorrect
+    parameter value for 'Mask codes to fill' (FILL_CODES)"; the message now says it is empty and names the
+    default taken when it is left out."""
+    dsm = _dsm(tmp_path / "dsm.tif")
+    ok, msg = _check("bareearth:filldtm", {"INPUT": dsm, "FILL_CODES": " ", "OUTPUT": str(tmp_path / "f.tif")})
+    assert not ok and "(FILL_CODES) is empty" in msg and "default '1,2'" in msg, msg
+    ok, msg = _check("bareearth:filldtm", {"INPUT": dsm, "OUTPUT": str(tmp_path / "f.tif")})
+    assert ok, msg
