@@ -501,6 +501,55 @@ def several_rasters(value):
     return subs
 
 
+#: Text point files' extensions (as the point readers take them); .asc is left to GDAL (an ASCII grid)
+TEXT_POINT_EXTENSIONS = (".txt", ".csv", ".xyz", ".pts")
+
+
+def file_kind(path):
+    """What an existing file holds for a layer input: 'points' (LAS/LAZ, or a text point file GDAL opens as
+    no raster), 'raster', 'vector' (a layer with geometries), or None (no file, or nothing GDAL reads)."""
+    if not isinstance(path, str) or not os.path.isfile(path):
+        return None
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError:
+        return None
+    if head == b"LASF" or path.lower().endswith((".las", ".laz")):
+        return "points"
+    with grid.without_side_files(), grid.gdal_mode_kept():
+        gdal.UseExceptions()
+        for flag, kind in ((gdal.OF_RASTER, "raster"), (gdal.OF_VECTOR, "vector")):
+            try:
+                ds = gdal.OpenEx(path, flag | gdal.OF_READONLY)
+            except RuntimeError:
+                ds = None
+            if ds is None:
+                continue
+            found = ds.RasterCount > 0 if kind == "raster" else any(
+                ds.GetLayer(i).GetGeomType() != 0 for i in range(ds.GetLayerCount()))   # 0: wkbNone, a table
+            ds = None
+            if found:
+                return kind
+    return "points" if path.lower().endswith(TEXT_POINT_EXTENSIONS) else None
+
+
+def vector_layers(value):
+    """The names of the vector layers of a file given as a path (no '|layername='), when it holds several:
+    QGIS takes the first of them without a word. [] otherwise."""
+    if not isinstance(value, str) or "|" in value or not os.path.isfile(value):
+        return []
+    with grid.without_side_files(), grid.gdal_mode_kept():
+        gdal.UseExceptions()
+        try:
+            ds = gdal.OpenEx(value, gdal.OF_VECTOR | gdal.OF_READONLY)
+        except RuntimeError:
+            return []
+        names = [ds.GetLayer(i).GetName() for i in range(ds.GetLayerCount())] if ds is not None else []
+        ds = None
+    return names if len(names) > 1 else []
+
+
 def explained(check):
     """Decorate a ``checkParameterValues``: its refusal names parameters by label and id."""
     @functools.wraps(check)
@@ -616,6 +665,23 @@ def gdal_mode_kept(func):
     return kept
 
 
+def outputs_checked(func):
+    """``processAlgorithm`` with the outputs checked first (``checkOutputs``: no output is an input or another
+    output, each folder exists and takes files, each format is offered). QGIS runs an algorithm's
+    ``checkParameterValues`` before a run of its own (the dialog, ``processing.run``, qgis_process), but not
+    before a step of a graphical model: there an output given the input's path (classifypoints' points file)
+    overwrote the input, and an output in a missing folder failed with GDAL's "Attempt to create new tiff file
+    ... failed" after the work."""
+    @functools.wraps(func)
+    def checked(self, parameters, context, feedback):
+        ok, msg = self.checkOutputs(parameters, context)
+        if not ok:
+            raise QgsProcessingException(self.explain(msg))
+        return func(self, parameters, context, feedback)
+    checked.outputs_checked = True
+    return checked
+
+
 #: The methods QGIS calls on an algorithm that may reach GDAL's Python bindings.
 GDAL_ENTRY_POINTS = ("checkParameterValues", "prepareAlgorithm", "processAlgorithm", "postProcessAlgorithm",
                      "shortHelpString")
@@ -624,11 +690,15 @@ GDAL_ENTRY_POINTS = ("checkParameterValues", "prepareAlgorithm", "processAlgorit
 class BaseAlgorithm(QgsProcessingAlgorithm):
     """Common bits of every Bare Earth algorithm (icon, group, tags, help URL, instance).
 
-    Each entry point of :data:`GDAL_ENTRY_POINTS` a class defines runs with GDAL's exception
+    Its ``processAlgorithm`` checks the outputs first (:func:`outputs_checked`: a model's steps are not
+    checked by QGIS). Each entry point of :data:`GDAL_ENTRY_POINTS` a class defines runs with GDAL's exception
     mode restored afterwards (:func:`gdal_mode_kept`)."""
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        run = getattr(cls, "processAlgorithm", None)
+        if run is not None and not getattr(run, "outputs_checked", False):   # a model's step is not checked
+            cls.processAlgorithm = outputs_checked(run)
         for name in GDAL_ENTRY_POINTS:   # its own, and a mixin's before BaseAlgorithm in the MRO
             f = getattr(cls, name, None)
             if f is not None and not getattr(f, "gdal_mode_kept", False):
@@ -860,6 +930,10 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
             whole = d.type() == "band" or (d.type() == "number" and d.dataType() == NUMBER_INTEGER)
             if whole and isinstance(v, float) and math.isfinite(v) and v != math.floor(v):
                 return not_whole(d, v)          # a script's 1.5: QGIS took 1 for THREADS, band 2 for BAND 1.5
+            if d.type() == "string" and not is_optional(d) and isinstance(v, str) and v.strip() == "":
+                return False, tr("{} is empty: give a value{} (QGIS said only 'Incorrect parameter value').").format(
+                    label_of(d), tr(", or leave it out for its default '{}'").format(d.defaultValue())
+                    if d.defaultValue() not in (None, "") else "")
             if not isinstance(v, str) or v.strip() == "":
                 continue
             text = v.strip()
@@ -895,7 +969,11 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
         with grid.without_side_files():  # Processing loads the inputs given as paths here
             ok, msg = super().checkParameterValues(parameters, context)
         if not ok:
-            return ok, self.several_rasters_given(parameters) or self.out_of_range(parameters, context) or msg
+            return ok, (self.several_rasters_given(parameters) or self.wrong_kind_given(parameters)
+                        or self.out_of_range(parameters, context) or msg)
+        msg = self.several_layers_given(parameters)
+        if msg:
+            return False, msg
         for check in (check_block_size, check_processes):
             ok, msg = check(self, parameters, context)
             if not ok:
@@ -920,6 +998,57 @@ class BaseAlgorithm(QgsProcessingAlgorithm):
                 return tr("{}: the file '{}' holds {} rasters (a GeoPackage's raster tables, a netCDF's variables), "
                           "so it names none: give one of them ({}).").format(
                     label_of(d), parameters[d.name()], len(subs), shown)
+        return None
+
+    def wrong_kind_given(self, parameters):
+        """The refusal of a layer input given as a file of another kind, which QGIS's loader of text values
+        called missing ("Could not load source layer for INPUT: points.las not found", the file there): a
+        point cloud or a vector layer given as a raster, a raster or a point cloud given as a vector layer;
+        or None."""
+        for d in self.parameterDefinitions():
+            value, kind = parameters.get(d.name()), d.type()
+            if kind not in ("raster", "source", "vector") or not isinstance(value, str):
+                continue
+            if not os.path.isfile(value):
+                continue                   # QGIS's "not found" is true
+            held = file_kind(value)
+            if held == ("raster" if kind == "raster" else "vector"):
+                continue                   # of its kind: another input failed
+            if kind == "raster" and held == "points":
+                how = (tr("give it as {} instead, which makes the DSM of the points").format(
+                    label_of(self.parameterDefinition("INPUT_POINTS")))
+                    if self.parameterDefinition("INPUT_POINTS") is not None and d.name() == "INPUT" else
+                    tr("rasterize it first (bareearth:rasterizepoints)"))
+                return tr("{}: '{}' is a point cloud or a text file, not a raster: if it holds points, {}.").format(
+                    label_of(d), value, how)
+            if kind == "raster" and held == "vector":
+                return tr("{}: '{}' is a vector layer, not a raster: give a raster (GeoTIFF, ...).").format(
+                    label_of(d), value)
+            if kind != "raster" and held == "raster":
+                return tr("{}: '{}' is a raster, not a vector layer: give a vector layer (a raster of the areas "
+                          "becomes polygons with Raster > Conversion > Polygonize, gdal_polygonize).").format(
+                    label_of(d), value)
+            if kind != "raster" and held == "points":
+                return tr("{}: '{}' is a point cloud, not a vector layer: give a vector layer.").format(
+                    label_of(d), value)
+            return tr("{}: GDAL cannot open '{}' as a {}: check the file (gdalinfo, ogrinfo) or export it again "
+                      "in a format GDAL reads.").format(label_of(d), value,
+                                                          tr("raster") if kind == "raster" else tr("vector layer"))
+        return None
+
+    def several_layers_given(self, parameters):
+        """The refusal of a vector input given as the path of a file of several vector layers (a GeoPackage),
+        of which QGIS takes the first without a word, naming them as they may be given; or None."""
+        for d in self.parameterDefinitions():
+            if d.type() not in ("source", "vector"):
+                continue
+            names = vector_layers(parameters.get(d.name()))
+            if names:
+                path = parameters[d.name()]
+                shown = ", ".join(names[:5]) + (tr(" and {} more").format(len(names) - 5) if len(names) > 5 else "")
+                return tr("{}: the file '{}' holds {} vector layers ({}): QGIS would take the first, '{}', without a "
+                          "word. Give the layer: '{}|layername={}'.").format(
+                    label_of(d), path, len(names), shown, names[0], path, names[-1])
         return None
 
     def out_of_range(self, parameters, context):

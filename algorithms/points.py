@@ -183,10 +183,12 @@ def check_in_grid(cloud, info):
     n_out = int(outside.sum())
     if n_out * 2 > len(cloud):
         x0, y0, x1, y1 = cloud.extent
+        differ = crs_warning(cloud, info)     # a DTM in degrees showed as 'x 9.000..9.000' beside metres
         return False, tr("{} of {} points are outside the DTM: the points span x {:.3f}..{:.3f}, y {:.3f}..{:.3f}; "
-                         "the DTM spans x {:.3f}..{:.3f}, y {:.3f}..{:.3f}. Use a DTM of the same area, in the same "
+                         "the DTM spans x {:.6g}..{:.6g}, y {:.6g}..{:.6g}.{} Use a DTM of the same area, in the same "
                          "CRS and units as the points (set the points' CRS if the file has none).").format(
-            n_out, len(cloud), x0, x1, y0, y1, xs[0], xs[1], ys[0], ys[1])
+            n_out, len(cloud), x0, x1, y0, y1, xs[0], xs[1], ys[0], ys[1],
+            " " + differ.split(":")[0] + "." if differ else "")
     return True, ""
 
 

@@ -125,9 +125,16 @@ def list_inputs(inputs):
                              "tiles: give the folder of the input tiles (their paths are in its run.json).")
         found = sorted(os.path.join(folder, f) for f in os.listdir(folder)   # hidden: work files, macOS's ._t.tif
                        if f.lower().endswith(RASTER_EXTENSIONS) and ".partial-" not in f and not f.startswith("."))
-        if not found:
-            raise ValueError(f"the folder {folder!r} holds no raster ({', '.join(RASTER_EXTENSIONS)}): "
-                             "point --input at the folder of the tiles.")
+        if not found:    # the message named the command line's --input, also in QGIS (INPUT_FOLDER)
+            below = sorted(f for f in os.listdir(folder) if not f.startswith(".")
+                           and os.path.isdir(os.path.join(folder, f))
+                           and any(g.lower().endswith(RASTER_EXTENSIONS) and not g.startswith(".")
+                                   for g in os.listdir(os.path.join(folder, f))))
+            raise ValueError(f"the folder {folder!r} holds no raster ({', '.join(RASTER_EXTENSIONS)}) "
+                             + (f"of its own; its folder(s) {', '.join(below[:5])} do: give the folder that holds "
+                                "the tiles themselves (its subfolders are not read)." if below else
+                                "directly in it (its subfolders are not read): give the folder that holds the "
+                                "tiles."))
         return found
     if len(inputs) == 1 and inputs[0].lower().endswith(".vrt"):
         if not os.path.exists(inputs[0]):

@@ -1023,6 +1023,22 @@ def test_a_folder_of_tiles_with_hidden_files(survey, tmp_path):
     assert len(index_tiles(str(folder)).tiles) == len(survey["tiles"])
 
 
+def test_a_folder_without_tiles_names_the_fix_not_a_command_line_option(tmp_path):
+    """QA25: a folder holding no raster was refused saying "point --input at the folder of the tiles", the
+    command line's option, also in QGIS (whose parameter is INPUT_FOLDER); tiles in subfolders were not
+    named. The message now says the subfolders are not read and names those holding rasters."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError) as exc:
+        list_inputs(str(empty))
+    assert "--input" not in str(exc.value) and "give the folder that holds the tiles" in str(exc.value)
+    (tmp_path / "survey" / "block_a").mkdir(parents=True)
+    (tmp_path / "survey" / "block_a" / "t00.tif").write_bytes(b"")
+    (tmp_path / "survey" / "notes").mkdir()
+    with pytest.raises(ValueError, match=r"its folder\(s\) block_a do: give the folder that holds the tiles "):
+        list_inputs(str(tmp_path / "survey"))
+
+
 @pytest.mark.parametrize("text", ["dh_m = 1", "dh_m =1", "dh_m= 1 slope=0.3"])
 def test_parse_params_spaces_around_the_equals_sign(text):
     """QA15: 'dh_m = 1' in bareearth:tiles' PARAMETERS was refused as "parameter 'dh_m': write KEY=VALUE",
