@@ -17,12 +17,10 @@ from ..estimate import (
     ground_spread,
     noise_ground_level,
     noise_shared,
-    noise_without_sampling,
     raised_region_grid,
     raised_region_span_walled,
     raised_region_window,
     sample_windows,
-    sensor_noise,
     square_opening,
     terrain_slopes,
 )
@@ -383,35 +381,6 @@ def _clean_share(z, cell_size, progress=None):
     return float(min(1.0, c / s))
 
 
-def _median_slope(z, cell_size):
-    """The ground's median slope (rise/run): the slopes of the 20 m block minima
-    (:func:`~bare_earth.core.estimate.terrain_slopes`; 0 where none is measured)."""
-    dx, dy = cell_size
-    s = terrain_slopes(as_surface(z), (dx, dy), max(2, int(round(GROUND_BLOCK_M / max(dx, dy)))))
-    return float(np.median(s)) if s.size else 0.0
-
-
-def derive_tolerance(z: np.ndarray, cell_size: CellSize, spacing_m: float = 0.0, progress=None) -> float:
-    """The final pass's tolerance (metres): three times the sensor's noise, within [0.3, 1.0] m; 0.5 m
-    where it is not measurable.
-
-    The noise is that of the DSM's ground-level cells, read on the cleanest quarter of the tiles where the
-    whole window reads more (:func:`~bare_earth.core.estimate.sensor_noise`: low vegetation among the
-    ground-level cells of a highest-point DSM of a vegetated hillside is no noise; the bends of K_g are scaled
-    by the same share, :func:`_clean_share`), without the spread of where the heights lie on ground of the
-    median slope over a cell or the heights' spacing where longer
-    (:func:`~bare_earth.core.estimate.noise_without_sampling`): the final pass allows a cell the surface's
-    slope over a cell above the tolerance (a height is a point anywhere in its cell), which covers that part,
-    as slopeprofile's dh0 leaves it to its scans' slope allowance. ISPRS samp11 at 2 m highest point: 0.37 m
-    read on the whole window, the tolerance at its 1 m cap -> 0.3 m, 28.02 -> 23.37 % total error."""
-    dx, dy = as_cell_size(cell_size)
-    sigma = sensor_noise(noise_ground_level(as_surface(z), (dx, dy), progress=progress))
-    if not np.isfinite(sigma):
-        return 0.5
-    sigma = noise_without_sampling(sigma, _median_slope(z, (dx, dy)), max(dx, dy, float(spacing_m)))
-    return float(np.clip(3.0 * sigma, 0.3, 1.0))
-
-
 def _place_bend(z, cell_size, window, spacing_m=0.0):
     """Bend noise (1/m) of the fit from the place of a height inside its cell on ground of
     the median slope (20 m block minima): :func:`bend_noise_gain` x ``s c / sqrt(12)``, ``c``
@@ -420,8 +389,10 @@ def _place_bend(z, cell_size, window, spacing_m=0.0):
     was taken anywhere within that spacing (the spacing
     :func:`~bare_earth.core.estimate.lowest_point_spread` models)."""
     dx, dy = cell_size
-    rise = _median_slope(z, (dx, dy)) * max(dx, dy, float(spacing_m))
-    return bend_noise_gain((dx, dy), window) * rise / np.sqrt(12.0)
+    d = max(dx, dy)
+    s = terrain_slopes(as_surface(z), (dx, dy), max(2, int(round(GROUND_BLOCK_M / d))))
+    s = float(np.median(s)) if s.size else 0.0
+    return bend_noise_gain((dx, dy), window) * s * max(d, float(spacing_m)) / np.sqrt(12.0)
 
 
 def steep_terrain_slope(z, cell_size) -> float:
@@ -492,10 +463,8 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
     ``k_g_per_m2``: :func:`derive_k_g` (1.5 robust sigmas of the profile bends of the
     ground, squared; its floor at least 5 cm over 2 m, at most the bend of a
     ``min_object_height_m`` object over half a window). ``tolerance_m``: three times the
-    sensor's noise (:func:`derive_tolerance`: the noise of the DSM's ground-level cells,
-    :func:`~bare_earth.core.estimate.noise_ground_level`, on its cleanest quarter of tiles where lower, without
-    the spread of where the heights lie on the median slope), kept within [0.3, 1.0] m; 0.5 m when too few
-    ground cells are seen. ``terrain_slope``:
+    noise of the DSM's ground-level cells (:func:`~bare_earth.core.estimate.noise_ground_level`), kept within
+    [0.3, 1.0] m; 0.5 m when too few ground cells are seen. ``terrain_slope``:
     :func:`steep_terrain_slope`. ``spacing_m``: :func:`.profiles.height_spacing`.
     ``max_object_size_m``: :func:`object_size` (100 m, or the window of a wider raised region standing on
     walls higher than ``min_object_height_m``). The others have
@@ -514,7 +483,8 @@ def resolve_curvature_params(z: np.ndarray, cell_size: CellSize, *, k_g_per_m2: 
                                     min_object_height_m=min_object_height_m, spacing_m=spacing_m,
                                     progress=sub_progress(progress, 0.0, 0.75))
         if tolerance_m is None:
-            tolerance_m = derive_tolerance(z, (dx, dy), spacing_m, progress=sub_progress(progress, 0.75, 0.85))
+            sigma = noise_ground_level(z, (dx, dy), progress=sub_progress(progress, 0.75, 0.85))["sigma"]
+            tolerance_m = float(np.clip(3.0 * sigma, 0.3, 1.0)) if np.isfinite(sigma) else 0.5
     report(progress, 0.85)
     if terrain_slope is None:
         terrain_slope = steep_terrain_slope(z, (dx, dy))
@@ -609,9 +579,7 @@ METHOD = Method(
         Param("tolerance_m", "float", None,
               "Metres above the ground surface interpolated under objects and breaks that a "
               "cell may stand (plus one cell of the surface's slope) and still be ground "
-              "(final pass). Empty: 3 x the noise of the DSM's ground-level cells (the cleanest quarter of the "
-              "tiles where low vegetation roughens the rest; without the spread of where the heights lie on "
-              "sloping ground, which the slope allowance covers), within [0.3, 1] m.",
+              "(final pass). Empty: 3 x the noise of the DSM's ground-level cells, within [0.3, 1] m.",
               minimum=0.01, maximum=10.0, advanced=True),
         Param("terrain_slope", "float", None,
               "Rise/run of the terrain's steep slopes: a wall must also rise more within two "
@@ -735,11 +703,7 @@ METHOD = Method(
         "paper derives K<sub>g</sub> from the data's curvature, and on a closed canopy the "
         "smooth parts are crowns, whose bends set K<sub>g</sub> a hundred times too high "
         "(no break found, half the cells wrong). Tolerance = 3 x the noise of the DSM's "
-        "ground-level cells (0.3 to 1 m): the sensor's, read on the cleanest quarter of the tiles where low "
-        "vegetation among the ground-level cells roughens the rest (a highest-point DSM of a vegetated hillside), "
-        "without the spread of where the heights lie in their cells on sloping ground, which the final pass's "
-        "allowance of the surface's slope over a cell covers (ISPRS samp11 at 2 m highest point: the tolerance "
-        "at its 1 m cap -> 0.3 m, 28.0 -> 23.4 %). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
+        "ground-level cells (0.3 to 1 m). K<sub>g</sub> is in 1/m<sup>2</sup>: the bend "
         "noise of the fit falls with the square of the cell (with the cell alone where the "
         "place of the heights on a slope sets it), so it differs between cell sizes by design. "
         "A wall's slope is judged over two cells, but over 3 m at most: "

@@ -2452,31 +2452,3 @@ def test_local_terrain_slopes_read_the_slope_along_each_axis():
     k = profiles.local_slope_cells(1.0)
     assert k == 20
     assert sx.max() == pytest.approx(4.0 / k)
-
-
-def test_tolerance_is_the_sensors_noise_without_vegetation_or_the_heights_place():
-    """Issue 12, ISPRS samp11 at 2 m highest point (the tolerance at its 1 m cap): the final pass's tolerance is
-    three times the sensor's noise. Low vegetation (0.6-1.5 m) on 60 % of two thirds of a plane (noise 0.1 m)
-    makes the whole window's ground-level spread the vegetation's (0.24 m, 3 x: 0.71 m); the cleanest quarter of
-    the tiles reads the noise (:func:`~bare_earth.core.estimate.sensor_noise`): the 0.3 m floor. Heights taken
-    anywhere in 2 m cells on ground rising 0.4 m per metre spread by 0.8 / sqrt(12) = 0.23 m besides their 0.1 m
-    noise (3 x the spread: 0.82 m); the final pass's allowance of the surface's slope over a cell covers that
-    part, and the tolerance is 3 x what is left (0.44 m: the ground-level estimate reads 0.15 m for 0.1 m)."""
-    from bare_earth.core import estimate as est
-    from bare_earth.core.curvature import method
-    rng = np.random.default_rng(0)
-    y, x = np.mgrid[0:192, 0:192]
-    z = 0.3 * x + 0.1 * y + rng.normal(0.0, 0.1, x.shape)
-    veg = (rng.random(x.shape) < 0.6) & (x < 128)
-    z[veg] += rng.uniform(0.6, 1.5, np.count_nonzero(veg))
-    z = z.astype(np.float32)
-    gn = est.noise_ground_level(z, (1.0, 1.0))
-    assert 3.0 * gn["sigma"] > 0.6 and gn["sigma_cleanest"] == pytest.approx(0.1, rel=0.1)
-    assert method.derive_tolerance(z, (1.0, 1.0)) == 0.3
-    assert curvature.resolve_curvature_params(z, 1.0)["tolerance_m"] == 0.3
-    rng = np.random.default_rng(1)
-    y, x = np.mgrid[0:200, 0:200]
-    z = (0.8 * (x + rng.uniform(-0.5, 0.5, x.shape)) + rng.normal(0.0, 0.1, x.shape)).astype(np.float32)
-    spread = est.noise_ground_level(z, (2.0, 2.0))["sigma"]
-    assert spread == pytest.approx(np.hypot(0.1, 0.8 / np.sqrt(12.0)), rel=0.2) and 3.0 * spread > 0.8
-    assert 0.3 < curvature.resolve_curvature_params(z, 2.0)["tolerance_m"] < 0.5
