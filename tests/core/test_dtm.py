@@ -97,7 +97,7 @@ def test_confidence_low_where_the_errors_are():
     assert (conf[~np.isfinite(s.dsm)] == NODATA).all() and conf[valid].max() <= 100
     err = ((res.mask == GROUND) != (s.mask == GROUND)) & valid
     lo, hi = valid & (conf < 50), valid & (conf >= 80)
-    assert err.sum() > 20
+    assert err.sum() > 10    # 13 since geodesic gives enclosed yards back (20 before)
     assert err[lo].sum() > 0.5 * err.sum()
     assert err[hi].mean() < 0.1 * err[lo].mean()
 
